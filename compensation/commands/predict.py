@@ -1,0 +1,36 @@
+"""``volcomp predict``: evaluate any error field at axis points from a CSV."""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from errormap.io import InputError, read_table, write_csv
+from errormap.machine import load_machine
+
+from ..fields import load_field
+
+
+def register(sub):
+    p = sub.add_parser("predict", help="evaluate an error field at axis points (CSV x_mm, z_mm, a_deg)")
+    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--model", required=True, help="element-set file (JSON), MLflow run id or runs:/ URI")
+    p.add_argument("--tracking-uri", default=None)
+    p.add_argument("points", help="CSV with x_mm, z_mm, a_deg")
+    p.add_argument("--out", required=True, help="output CSV (input columns + dx_um, dy_um, dz_um)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    machine = load_machine(args.machine, expect_kind="grinder")
+    t = read_table(args.points)
+    t.require("x_mm", "z_mm", "a_deg")
+    axes = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
+    field = load_field(args.model, machine, args.tracking_uri)
+    print(f"predicting {len(axes)} points with {args.model} ...", file=sys.stderr)
+    e = field.predict(axes)
+    cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
+    cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
+    path = write_csv(args.out, cols)
+    print(f"wrote {len(axes)} predictions to {path}")
+    return 0

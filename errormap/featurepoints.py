@@ -1,0 +1,54 @@
+"""Feature points: the spatial error on the 11×11×11 grid over the X, Z and A strokes.
+
+Written as CSV (``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um``) whose leading ``#`` lines
+record where the data came from (machine name, file and SHA-256; element-set file and
+SHA-256), so a trained model can always be traced back.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .io import InputError, read_table, write_csv
+
+COLUMNS = ("x_mm", "z_mm", "a_deg", "dx_um", "dy_um", "dz_um")
+
+
+def grid_axes(machine, n: int = 11) -> np.ndarray:
+    """The n×n×n grid over the strokes (A from its lower stroke over 360°), shape (n³, 3)."""
+    g = [np.linspace(*machine.strokes[k], n) for k in ("x_mm", "z_mm", "a_deg")]
+    return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+@dataclass
+class FeaturePoints:
+    """Axes shape (n, 3) and errors shape (n, 3) μm, with provenance ``meta``."""
+
+    axes: np.ndarray
+    errors_um: np.ndarray
+    meta: dict
+
+    def save(self, path) -> Path:
+        cols = dict(zip(COLUMNS, np.hstack([self.axes, self.errors_um]).T))
+        lines = ["format: volcomp-featurepoints/1"] + [f"{k}: {v}" for k, v in self.meta.items()]
+        return write_csv(path, cols, header_comments=lines, float_fmt="%.12g")
+
+    @classmethod
+    def load(cls, path) -> "FeaturePoints":
+        t = read_table(path)
+        t.require(*COLUMNS)
+        data = np.stack([t.float(c) for c in COLUMNS], axis=1)
+        if len(t) < 10:
+            raise InputError(f"{path}: expected at least 10 feature points, got {len(t)}")
+        return cls(data[:, :3], data[:, 3:], t.meta())
+
+
+def make_feature_points(machine, field, n: int = 11, meta: dict | None = None) -> FeaturePoints:
+    """Evaluate ``field.predict`` on the n×n×n grid."""
+    axes = grid_axes(machine, n)
+    m = {"machine": machine.name, "machine_file": machine.path, "machine_sha256": machine.sha256,
+         "grid": f"{n}x{n}x{n}"}
+    m.update(meta or {})
+    return FeaturePoints(axes, field.predict(axes), m)

@@ -1,0 +1,218 @@
+"""Shared I/O helpers: atomic writes and validated CSV tables.
+
+Every writer in volcomp goes through :func:`atomic_write` (temporary file in the
+target folder, then ``os.replace``), so an interrupted job never leaves half a file.
+Every CSV reader goes through :func:`read_table`, whose errors name the file,
+the row (1-based, the header is row 1) and the column.
+"""
+from __future__ import annotations
+
+import contextlib
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Iterable, Iterator, Sequence
+
+import numpy as np
+
+
+class InputError(ValueError):
+    """Bad input data: the message names the file, and where known the row and column."""
+
+
+@contextlib.contextmanager
+def atomic_write(path, mode: str = "w", **kwargs) -> Iterator[io.IOBase]:
+    """Open a temporary file beside ``path``; rename it onto ``path`` only on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, mode, **kwargs) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_json(path, obj) -> Path:
+    """Write ``obj`` as indented JSON, atomically. NaN/inf are written as null."""
+    def clean(o):
+        if isinstance(o, dict):
+            return {str(k): clean(v) for k, v in o.items()}
+        if isinstance(o, (list, tuple)):
+            return [clean(v) for v in o]
+        if isinstance(o, np.ndarray):
+            return clean(o.tolist())
+        if isinstance(o, (np.floating, float)):
+            f = float(o)
+            return f if math.isfinite(f) else None
+        if isinstance(o, np.integer):
+            return int(o)
+        if isinstance(o, np.bool_):
+            return bool(o)
+        if isinstance(o, Path):
+            return str(o)
+        return o
+    with atomic_write(path, "w", encoding="utf-8") as fh:
+        json.dump(clean(obj), fh, indent=2)
+        fh.write("\n")
+    return Path(path)
+
+
+def write_csv(path, columns: dict, header_comments: Sequence[str] = (), float_fmt: str = "%.9g") -> Path:
+    """Write named 1-D columns (equal length) as CSV, atomically.
+
+    ``header_comments`` become leading ``# ...`` lines (read back by :func:`read_table`).
+    """
+    names = list(columns)
+    arrays = [np.asarray(columns[k]) for k in names]
+    n = {len(a) for a in arrays}
+    if len(n) > 1:
+        raise ValueError(f"Expected columns of equal length, got lengths {[len(a) for a in arrays]}")
+    with atomic_write(path, "w", encoding="utf-8", newline="") as fh:
+        for line in header_comments:
+            fh.write(f"# {line}\n")
+        w = csv.writer(fh)
+        w.writerow(names)
+        fmt = []
+        for a in arrays:
+            if a.dtype.kind == "f":
+                fmt.append(lambda v, f=float_fmt: (f % v) if np.isfinite(v) else "nan")
+            else:
+                fmt.append(str)
+        for i in range(len(arrays[0]) if arrays else 0):
+            w.writerow([f(a[i]) for f, a in zip(fmt, arrays)])
+    return Path(path)
+
+
+class Table:
+    """A CSV table read by :func:`read_table`: named columns plus provenance.
+
+    ``columns`` maps name -> list of raw strings; ``float(name)`` converts a column
+    with errors naming file, row and column. ``comments`` holds the leading ``#`` lines.
+    """
+
+    def __init__(self, path: Path, names: list[str], rows: list[list[str]], first_row: int, comments: list[str]):
+        self.path = path
+        self.names = names
+        self.rows = rows
+        self.first_row = first_row  # file line number of rows[0]
+        self.comments = comments
+        self._index = {n: i for i, n in enumerate(names)}
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._index
+
+    def require(self, *names: str) -> None:
+        missing = [n for n in names if n not in self._index]
+        if missing:
+            raise InputError(f"{self.path}: missing required column(s) {missing}; found columns {self.names}")
+
+    def raw(self, name: str) -> list[str]:
+        self.require(name)
+        i = self._index[name]
+        return [r[i] for r in self.rows]
+
+    def row_number(self, k: int) -> int:
+        """File line number (1-based) of data row ``k`` (0-based)."""
+        return self.first_row + k
+
+    def float(self, name: str, allow_nan: bool = False) -> np.ndarray:
+        """Column ``name`` as float64, shape (n,); bad cells raise naming row and column."""
+        vals = self.raw(name)
+        out = np.empty(len(vals))
+        for k, s in enumerate(vals):
+            try:
+                v = float(s)
+            except ValueError:
+                raise InputError(
+                    f"{self.path}: row {self.row_number(k)}, column '{name}': expected a number, got {s!r}"
+                ) from None
+            if not allow_nan and not math.isfinite(v):
+                raise InputError(
+                    f"{self.path}: row {self.row_number(k)}, column '{name}': expected a finite number, got {s!r}"
+                )
+            out[k] = v
+        return out
+
+    def int(self, name: str, allowed: Iterable[int] | None = None) -> np.ndarray:
+        """Column ``name`` as int64; optional set of allowed values."""
+        vals = self.float(name)
+        allowed_set = set(allowed) if allowed is not None else None
+        for k, v in enumerate(vals):
+            if v != round(v) or (allowed_set is not None and int(v) not in allowed_set):
+                want = f"one of {sorted(allowed_set)}" if allowed_set is not None else "an integer"
+                raise InputError(
+                    f"{self.path}: row {self.row_number(k)}, column '{name}': expected {want}, got {self.raw(name)[k]!r}"
+                )
+        return vals.astype(np.int64)
+
+    def meta(self) -> dict:
+        """``key: value`` pairs from the leading comment lines."""
+        out = {}
+        for c in self.comments:
+            if ":" in c:
+                k, v = c.split(":", 1)
+                out[k.strip()] = v.strip()
+        return out
+
+
+def read_table(path) -> Table:
+    """Read a CSV with a header row (leading ``#`` comment lines allowed).
+
+    Raises :class:`InputError` naming the file (and row) for a missing file, an
+    empty file, a duplicated column name or a row with the wrong number of cells.
+    Extra columns are kept.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    with open(path, newline="", encoding="utf-8") as fh:
+        lines = fh.read().splitlines()
+    comments = []
+    i = 0
+    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
+        if lines[i].startswith("#"):
+            comments.append(lines[i][1:].strip())
+        i += 1
+    if i >= len(lines):
+        raise InputError(f"{path}: empty file (no header row)")
+    reader = csv.reader(lines[i:])
+    header = [h.strip() for h in next(reader)]
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise InputError(f"{path}: row {i + 1}: duplicated column name(s) {dup}")
+    rows = []
+    for k, r in enumerate(reader):
+        if not r or all(not c.strip() for c in r):
+            continue
+        if len(r) != len(header):
+            raise InputError(
+                f"{path}: row {i + 2 + k}: expected {len(header)} cells (columns {header}), got {len(r)}"
+            )
+        rows.append([c.strip() for c in r])
+    return Table(path, header, rows, i + 2, comments)
+
+
+def sha256_file(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()

@@ -1,0 +1,1 @@
+"""Parallel kinematic machines: hexapod and tripod models, identification, tracker pose measurement."""

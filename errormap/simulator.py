@@ -1,0 +1,183 @@
+"""A seeded "truth" grinder: random realistic element profiles plus optional effects
+that the 23-element model does NOT represent, and simulated check measurements.
+
+Element magnitudes (1-σ scale of each profile's shape, before the overall scaling) are
+those of a small precision machine; the whole set is then scaled so that the maximum
+spatial error (vector norm) over the working volume lands on a seeded target drawn in
+[165, 215] μm (inside the required 150–230 μm band, every component within ±250 μm).
+
+Undeclared effects (switch on by name; each magnitude is a documented default):
+
+=============  ===================================================================  ===============================
+name           what it adds (to an element, so it propagates through the chains)      default magnitude
+=============  ===================================================================  ===============================
+thermal        X ball-screw growth: ``dx_x += k·(temp_c - 20 °C)·(x - x_lo)``         k = 0.0115 μm/(mm·°C) (11.5 ppm/°C);
+                                                                                     the check log warms 20 → 24 °C
+reversal       Z backlash: ``dz_z += b/2 · dir_z``                                    b = 8 μm (±4 μm)
+pitch          X ball-screw pitch error: ``dx_x += A·sin(2π·x/P + φ)``                A = 4 μm, P = 10 mm (aliased by the
+                                                                                     10 mm identification stations)
+worm           A worm-gear harmonic: ``ex_a += A·sin(N·a + φ)``                      A = 100 μrad, N = 40 teeth/rev (the
+                                                                                     18° stations alias it to a constant)
+interaction    X positioning depends on Z (column deflection):                       k = 6 μm at the far corner
+               ``dx_x += k·(x - x_lo)(z - z_lo)/(Δx·Δz)``
+=============  ===================================================================  ===============================
+
+Check measurements follow DESIGN.md: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, time_s,
+temp_c, dir_x, dir_z, dir_a, seq``; points uniform over the strokes, taken every
+``dt_s`` seconds while the machine warms (``temp_c = 20 + 4·(1 - exp(-t/2400 s))``),
+each approached from a random direction per axis, with isotropic Gaussian noise.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .elements import (A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, X_ELEMENTS,
+                       Z_ELEMENTS, ElementSet, default_stations)
+from .htm import IDX, spatial_error_exact
+from .kinematics import forward
+from .machine import Grinder
+
+# 1-σ scale of each element's random profile (μm or μrad) before overall scaling
+ELEMENT_SCALE = {
+    "dx_x": 15.0, "dy_x": 8.0, "dz_x": 8.0, "ex_x": 20.0, "ey_x": 25.0, "ez_x": 25.0,
+    "dx_z": 6.0, "dy_z": 6.0, "dz_z": 10.0, "ex_z": 20.0, "ey_z": 20.0, "ez_z": 20.0,
+    "dx_a": 4.0, "dy_a": 5.0, "dz_a": 5.0, "ex_a": 60.0, "ey_a": 20.0, "ez_a": 20.0,
+    "dy_oa": 60.0, "dz_oa": 60.0, "ey_oa": 150.0, "ez_oa": 150.0, "s_xz": 80.0,
+}
+MAX_ERROR_BAND_UM = (150.0, 230.0)
+TARGET_MAX_RANGE_UM = (165.0, 215.0)
+REF_TEMP_C = 20.0
+
+EFFECT_DEFAULTS = {
+    "thermal": {"k_um_per_mm_c": 0.0115},
+    "reversal": {"backlash_um": 8.0},
+    "pitch": {"amplitude_um": 4.0, "period_mm": 10.0, "phase_rad": 0.7},
+    "worm": {"amplitude_urad": 100.0, "teeth": 40, "phase_rad": 1.1},
+    "interaction": {"corner_um": 6.0},
+}
+EFFECT_NAMES = tuple(EFFECT_DEFAULTS)
+EFFECT_NEEDS = {"thermal": "temp_c", "reversal": "dir_z"}
+
+
+def random_elements(machine: Grinder, rng: np.random.Generator, n_stations: int = 21) -> ElementSet:
+    """Smooth random profiles at ``n_stations`` stations, zero at each axis' first station.
+
+    Linear axes: cubic polynomial plus one long-wave sinusoid; A: three harmonics.
+    Unscaled: see :func:`random_truth` for the magnitude band.
+    """
+    st = default_stations(machine, n_stations)
+    fun = {}
+    for k in X_ELEMENTS + Z_ELEMENTS:
+        u = np.linspace(0.0, 1.0, n_stations)
+        c = rng.normal(size=3)
+        w = rng.uniform(1.0, 2.5)
+        v = c[0] * u + c[1] * u**2 + c[2] * u**3 + 0.3 * rng.normal() * np.sin(2 * np.pi * w * u + rng.uniform(0, 2 * np.pi))
+        v = v - v[0]
+        fun[k] = ELEMENT_SCALE[k] * v / max(np.abs(v).max(), 1e-12) * abs(rng.normal(1.0, 0.3))
+    for k in A_ELEMENTS:
+        th = np.deg2rad(st["a_deg"] - st["a_deg"][0])
+        v = sum(rng.normal() / h * np.cos(h * th) + rng.normal() / h * np.sin(h * th) for h in (1, 2, 3))
+        v = v - v[0]
+        fun[k] = ELEMENT_SCALE[k] * v / max(np.abs(v).max(), 1e-12) * abs(rng.normal(1.0, 0.3))
+    const = {k: ELEMENT_SCALE[k] * rng.uniform(-1.0, 1.0) for k in CONSTANT_ELEMENTS}
+    return ElementSet(st, fun, const, machine.name, machine.sha256)
+
+
+def volume_grid(machine: Grinder, n=(21, 13, 37)) -> np.ndarray:
+    """A dense axis grid over the strokes (A over one turn), shape (nx·nz·na, 3)."""
+    g = [np.linspace(*machine.strokes[k], m) for k, m in zip(("x_mm", "z_mm", "a_deg"), n)]
+    return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def random_axes(machine: Grinder, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` points uniform over the strokes, shape (n, 3)."""
+    lo, hi = machine.stroke_lo, machine.stroke_hi
+    return lo + (hi - lo) * rng.random((n, 3))
+
+
+@dataclass
+class TruthGrinder:
+    """A simulated machine: true elements plus named undeclared effects.
+
+    ``effects`` maps effect name -> parameter dict (defaults: EFFECT_DEFAULTS).
+    """
+
+    machine: Grinder
+    elements: ElementSet
+    effects: dict = field(default_factory=dict)
+    seed: int | None = None
+
+    def __post_init__(self):
+        unknown = sorted(set(self.effects) - set(EFFECT_NAMES))
+        if unknown:
+            raise ValueError(f"Expected effects from {list(EFFECT_NAMES)}, got unknown {unknown}")
+        self.effects = {k: {**EFFECT_DEFAULTS[k], **(v or {})} for k, v in self.effects.items()}
+
+    def element_values(self, axes, temp_c=None, dir_x=None, dir_z=None, dir_a=None) -> np.ndarray:
+        """True element values including the effects, shape (n, 23)."""
+        axes = np.asarray(axes, dtype=float)
+        v = self.elements.values(axes)
+        m = self.machine
+        x_rel = axes[:, 0] - m.strokes["x_mm"][0]
+        z_rel = axes[:, 1] - m.strokes["z_mm"][0]
+        for name, p in self.effects.items():
+            if name == "thermal":
+                if temp_c is None:
+                    raise ValueError("effect 'thermal' needs temp_c")
+                v[:, IDX["dx_x"]] += p["k_um_per_mm_c"] * (np.asarray(temp_c) - REF_TEMP_C) * x_rel
+            elif name == "reversal":
+                if dir_z is None:
+                    raise ValueError("effect 'reversal' needs the approach direction dir_z")
+                v[:, IDX["dz_z"]] += 0.5 * p["backlash_um"] * np.asarray(dir_z, dtype=float)
+            elif name == "pitch":
+                v[:, IDX["dx_x"]] += p["amplitude_um"] * np.sin(2 * np.pi * axes[:, 0] / p["period_mm"] + p["phase_rad"])
+            elif name == "worm":
+                v[:, IDX["ex_a"]] += p["amplitude_urad"] * np.sin(p["teeth"] * np.deg2rad(axes[:, 2]) + p["phase_rad"])
+            elif name == "interaction":
+                dx = m.strokes["x_mm"][1] - m.strokes["x_mm"][0]
+                dz = m.strokes["z_mm"][1] - m.strokes["z_mm"][0]
+                v[:, IDX["dx_x"]] += p["corner_um"] * x_rel * z_rel / (dx * dz)
+        return v
+
+    def spatial_error(self, axes, **conditions) -> np.ndarray:
+        """True spatial error (μm) at ``axes`` shape (n, 3) under ``conditions``
+        (``temp_c``, ``dir_x``, ``dir_z``, ``dir_a`` arrays as needed by the effects)."""
+        axes = np.asarray(axes, dtype=float)
+        return spatial_error_exact(self.machine, axes, self.element_values(axes, **conditions))
+
+    def tool_point(self, axes, **conditions) -> np.ndarray:
+        """Where the tool really lands in the WCS (mm) when commanded to ``axes``, shape (n, 3)."""
+        return forward(self.machine, axes) + 1e-3 * self.spatial_error(axes, **conditions)
+
+    def default_conditions(self, n: int) -> dict:
+        """Conditions for evaluating paths: reference temperature, positive approach."""
+        return {"temp_c": np.full(n, REF_TEMP_C), "dir_x": np.ones(n), "dir_z": np.ones(n), "dir_a": np.ones(n)}
+
+    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed: int = 0, dt_s: float = 15.0) -> dict:
+        """Simulated check measurements in the DESIGN.md schema: a dict of columns, each shape (n,)."""
+        rng = np.random.default_rng(seed)
+        axes = random_axes(self.machine, n, rng)
+        t = np.arange(n) * dt_s
+        temp = REF_TEMP_C + 4.0 * (1.0 - np.exp(-t / 2400.0)) + rng.normal(0, 0.02, n)
+        dirs = rng.choice([-1, 1], size=(n, 3))
+        cond = {"temp_c": temp, "dir_x": dirs[:, 0], "dir_z": dirs[:, 1], "dir_a": dirs[:, 2]}
+        e = self.spatial_error(axes, **cond) + rng.normal(0.0, noise_um, (n, 3))
+        return {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": axes[:, 2],
+                "dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2],
+                "time_s": t, "temp_c": temp, "dir_x": dirs[:, 0], "dir_z": dirs[:, 1], "dir_a": dirs[:, 2],
+                "seq": np.arange(n)}
+
+
+def random_truth(machine: Grinder, seed: int, effects=(), n_stations: int = 21) -> TruthGrinder:
+    """A seeded truth grinder whose max spatial error (23 elements, norm over the volume)
+    lies in [165, 215] μm; ``effects`` are names or a name -> parameters mapping."""
+    rng = np.random.default_rng(seed)
+    el = random_elements(machine, rng, n_stations)
+    grid = volume_grid(machine)
+    e = spatial_error_exact(machine, grid, el.values(grid))
+    target = rng.uniform(*TARGET_MAX_RANGE_UM)
+    el = el.scaled(target / np.linalg.norm(e, axis=1).max())
+    eff = effects if isinstance(effects, dict) else {k: {} for k in effects}
+    return TruthGrinder(machine, el, dict(eff), seed)

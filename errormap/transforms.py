@@ -1,0 +1,93 @@
+"""Batched rigid transforms as (rotation, translation) pairs, pytransform3d style.
+
+Rotations are arrays of shape (n, 3, 3), translations (n, 3). Angles in rad unless
+the name says otherwise. ``rot_xyz(e)`` is the exact small-error rotation
+``RotX(ex) · RotY(ey) · RotZ(ez)`` used for every error element.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def check_points(points, name: str = "points", width: int = 3) -> np.ndarray:
+    """Convert to float64 of shape (n, width); a single point becomes (1, width).
+
+    Raises ValueError "Expected ..., got ..." for anything else or non-finite values.
+    """
+    arr = np.asarray(points, dtype=float)
+    if arr.ndim == 1 and arr.shape[0] == width:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != width:
+        raise ValueError(f"Expected {name} of shape (n, {width}), got shape {np.shape(points)}")
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise ValueError(f"Expected finite {name}, got {arr[bad[0], bad[1]]} at row {bad[0]}, column {bad[1]}")
+    return arr
+
+
+def rot_x(angle_rad) -> np.ndarray:
+    """RotX for a batch of angles, shape (n, 3, 3)."""
+    a = np.atleast_1d(np.asarray(angle_rad, dtype=float))
+    c, s = np.cos(a), np.sin(a)
+    R = np.zeros(a.shape + (3, 3))
+    R[..., 0, 0] = 1.0
+    R[..., 1, 1] = c
+    R[..., 1, 2] = -s
+    R[..., 2, 1] = s
+    R[..., 2, 2] = c
+    return R
+
+
+def rot_y(angle_rad) -> np.ndarray:
+    """RotY for a batch of angles, shape (n, 3, 3)."""
+    a = np.atleast_1d(np.asarray(angle_rad, dtype=float))
+    c, s = np.cos(a), np.sin(a)
+    R = np.zeros(a.shape + (3, 3))
+    R[..., 1, 1] = 1.0
+    R[..., 0, 0] = c
+    R[..., 0, 2] = s
+    R[..., 2, 0] = -s
+    R[..., 2, 2] = c
+    return R
+
+
+def rot_z(angle_rad) -> np.ndarray:
+    """RotZ for a batch of angles, shape (n, 3, 3)."""
+    a = np.atleast_1d(np.asarray(angle_rad, dtype=float))
+    c, s = np.cos(a), np.sin(a)
+    R = np.zeros(a.shape + (3, 3))
+    R[..., 2, 2] = 1.0
+    R[..., 0, 0] = c
+    R[..., 0, 1] = -s
+    R[..., 1, 0] = s
+    R[..., 1, 1] = c
+    return R
+
+
+def rot_xyz(eps_rad) -> np.ndarray:
+    """Exact error rotation RotX(ex)·RotY(ey)·RotZ(ez); ``eps_rad`` shape (n, 3) -> (n, 3, 3)."""
+    e = np.asarray(eps_rad, dtype=float)
+    return rot_x(e[:, 0]) @ rot_y(e[:, 1]) @ rot_z(e[:, 2])
+
+
+def skew(v) -> np.ndarray:
+    """Cross-product matrices: ``skew(v) @ w == cross(v, w)``; v shape (n, 3) -> (n, 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1] = -v[..., 2]
+    S[..., 0, 2] = v[..., 1]
+    S[..., 1, 0] = v[..., 2]
+    S[..., 1, 2] = -v[..., 0]
+    S[..., 2, 0] = -v[..., 1]
+    S[..., 2, 1] = v[..., 0]
+    return S
+
+
+def apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Batched ``R @ v``: R shape (n, 3, 3) or (3, 3), v shape (n, 3) -> (n, 3)."""
+    return np.einsum("...ij,...j->...i", R, v)
+
+
+def apply_T(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Batched ``R.T @ v`` (the inverse rotation): shapes as :func:`apply`."""
+    return np.einsum("...ji,...j->...i", R, v)
