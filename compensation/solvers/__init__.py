@@ -1,0 +1,1 @@
+"""Compensation solvers: traditional, ga (PyGAD), batched-ga, exact."""
