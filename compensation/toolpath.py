@@ -1,0 +1,185 @@
+"""The grinder paper's test path: the variable-helix-angle flute of a micro drill.
+
+The path is the bottom line of one flute, given as WCS targets (mm) on the default
+grinder, whose A axis is the WCS x axis (the drill axis). Along the flute parameter
+``u ∈ [0, 1]`` (the fraction of the flute's total angle):
+
+* angle about the drill axis ``θ(u) = 360°·turns·u`` (the A command, unwrapped:
+  7 turns run A from 0 to 2520°);
+* flute-bottom radius ``r(u) = r0 + (r1 - r0)·u`` (a constant radius by default;
+  a tapered core when ``radius_end_mm`` differs);
+* helix angle ``β(u)``, measured at the flute-bottom radius, between ``helix_start_deg``
+  and ``helix_end_deg``. The lead law says what varies linearly with ``u``:
+  ``"linear-helix"`` (default; β itself) or ``"linear-lead"`` (the lead
+  ``L = 2πr / tan β``, between the leads of the two end angles);
+* axial position from ``dpx/dθ = L(u)/(2π) = r(u)/tan β(u)``:
+  ``px(θ) = px_start ∓ ∫₀^θ r/tan β dθ`` (``-`` for a right-hand flute, the default).
+
+The target point is ``p = (px, r·sin θ, r·cos θ)``: nominally the tool point of the axis
+command ``(x, z, a) = (x(px), r - ρ0, θ)`` (DESIGN.md: ``ρ = ρ0 + z``, ``ρ0 = 0.1 mm`` on
+the default grinder). A right-hand flute advances along ``-px`` as A increases because
+``(py, pz) = r·(sin a, cos a)`` turns from +z towards +y, i.e. negatively about +x.
+
+Defaults (:data:`FLUTE_DEFAULTS`), chosen for a 1 mm micro drill inside the default
+grinder's strokes: 7 turns, 400 points per turn (2,800 points), flute-bottom radius
+0.4 mm (Z command ≈ 0.3 mm, so even the full 250 μm search ball stays inside the Z
+stroke), helix angle 30° → 40° (leads ≈ 4.35 → 3.00 mm per turn, flute ≈ 25.3 mm
+long), starting at px = 110 mm (X = 90 mm) and running towards smaller px (X increasing
+to ≈ 115.3 mm).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from errormap.kinematics import inverse
+
+LEAD_LAWS = ("linear-helix", "linear-lead")
+HANDS = ("right", "left")
+SUBSTEPS = 16  # integration sub-steps between consecutive path points
+
+
+@dataclass(frozen=True)
+class FluteSettings:
+    """Settings of the flute path (lengths mm, angles deg); see the module docstring."""
+
+    turns: float = 7.0
+    points_per_turn: int = 400
+    radius_mm: float = 0.4
+    radius_end_mm: float | None = None
+    helix_start_deg: float = 30.0
+    helix_end_deg: float = 40.0
+    lead_law: str = "linear-helix"
+    hand: str = "right"
+    px_start_mm: float = 110.0
+    a_start_deg: float = 0.0
+
+    def validate(self) -> "FluteSettings":
+        """Raise ValueError ("Expected ..., got ...") for settings that make no flute."""
+        if not self.turns > 0:
+            raise ValueError(f"Expected turns > 0, got {self.turns}")
+        if int(self.points_per_turn) != self.points_per_turn or self.points_per_turn < 2:
+            raise ValueError(f"Expected an integer points_per_turn >= 2, got {self.points_per_turn}")
+        for name in ("radius_mm", "radius_end_mm"):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise ValueError(f"Expected {name} > 0, got {v}")
+        for name in ("helix_start_deg", "helix_end_deg"):
+            v = getattr(self, name)
+            if not (0.0 < v < 90.0):
+                raise ValueError(f"Expected {name} strictly between 0 and 90 deg, got {v}")
+        if self.lead_law not in LEAD_LAWS:
+            raise ValueError(f"Expected lead_law in {list(LEAD_LAWS)}, got {self.lead_law!r}")
+        if self.hand not in HANDS:
+            raise ValueError(f"Expected hand in {list(HANDS)}, got {self.hand!r}")
+        if not (np.isfinite(self.px_start_mm) and np.isfinite(self.a_start_deg)):
+            raise ValueError("Expected finite px_start_mm and a_start_deg")
+        return self
+
+    @property
+    def n_points(self) -> int:
+        """Number of path points: ``round(turns · points_per_turn)``."""
+        return int(round(self.turns * self.points_per_turn))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+FLUTE_DEFAULTS = FluteSettings()
+
+
+@dataclass
+class FlutePath:
+    """A generated flute: WCS targets and the per-point flute quantities.
+
+    targets_mm : shape (n, 3)   (px_mm, py_mm, pz_mm) in the WCS
+    theta_deg : shape (n,)      angle about the drill axis, unwrapped (the nominal A)
+    radius_mm : shape (n,)      flute-bottom radius r(u)
+    helix_deg : shape (n,)      helix angle β(u)
+    lead_mm : shape (n,)        lead L(u) = 2πr/tan β (mm per turn)
+    u : shape (n,)              flute parameter in [0, 1]
+    settings : FluteSettings
+    """
+
+    targets_mm: np.ndarray
+    theta_deg: np.ndarray
+    radius_mm: np.ndarray
+    helix_deg: np.ndarray
+    lead_mm: np.ndarray
+    u: np.ndarray
+    settings: FluteSettings
+
+    def __len__(self) -> int:
+        return self.targets_mm.shape[0]
+
+    @property
+    def turn_index(self) -> np.ndarray:
+        """Which turn (0-based) each point is on, shape (n,)."""
+        return np.minimum(np.floor((self.theta_deg - self.theta_deg[0]) / 360.0),
+                          np.ceil(self.settings.turns) - 1).astype(int)
+
+    def axes(self, machine) -> np.ndarray:
+        """Nominal axis commands (x_mm, z_mm, a_deg) of the targets, A unwrapped from ``a_start_deg``."""
+        return inverse(machine, self.targets_mm, unwrap=True, a_start_deg=self.settings.a_start_deg)
+
+
+def _laws(s: FluteSettings, u: np.ndarray):
+    r1 = s.radius_mm if s.radius_end_mm is None else s.radius_end_mm
+    r = s.radius_mm + (r1 - s.radius_mm) * u
+    b0, b1 = np.deg2rad(s.helix_start_deg), np.deg2rad(s.helix_end_deg)
+    if s.lead_law == "linear-helix":
+        beta = b0 + (b1 - b0) * u
+        lead = 2 * np.pi * r / np.tan(beta)
+    else:  # linear-lead: lead between the leads of the end angles (each at its own end radius)
+        lead0 = 2 * np.pi * s.radius_mm / np.tan(b0)
+        lead1 = 2 * np.pi * r1 / np.tan(b1)
+        lead = lead0 + (lead1 - lead0) * u
+        beta = np.arctan2(2 * np.pi * r, lead)
+    return r, beta, lead
+
+
+def flute_path(settings: FluteSettings | None = None, **overrides) -> FlutePath:
+    """Generate the flute's WCS targets; ``overrides`` replace fields of ``settings``.
+
+    ``flute_path()`` gives the documented defaults (2,800 points over 7 turns). The
+    axial position is integrated with the trapezoidal rule on ``SUBSTEPS`` sub-steps per
+    point spacing (relative error below 1e-9 for the defaults).
+    """
+    s = settings or FLUTE_DEFAULTS
+    if overrides:
+        s = FluteSettings(**{**s.to_dict(), **overrides})
+    s.validate()
+    n = s.n_points
+    m = (n - 1) * SUBSTEPS + 1
+    u_f = np.linspace(0.0, 1.0, m)
+    theta_total_rad = 2 * np.pi * s.turns
+    r_f, beta_f, _ = _laws(s, u_f)
+    dpx_dtheta = r_f / np.tan(beta_f)  # mm per rad
+    dtheta = theta_total_rad / (m - 1)
+    s_f = np.concatenate([[0.0], np.cumsum(0.5 * (dpx_dtheta[1:] + dpx_dtheta[:-1]) * dtheta)])
+    u = u_f[::SUBSTEPS]
+    axial_mm = s_f[::SUBSTEPS]
+    r, beta, lead = _laws(s, u)
+    sign = -1.0 if s.hand == "right" else 1.0
+    theta_deg = s.a_start_deg + np.rad2deg(theta_total_rad) * u
+    th = np.deg2rad(theta_deg)
+    px = s.px_start_mm + sign * axial_mm
+    targets = np.stack([px, r * np.sin(th), r * np.cos(th)], axis=1)
+    return FlutePath(targets, theta_deg, r, np.rad2deg(beta), lead, u, s)
+
+
+def check_in_strokes(machine, axes, label: str = "path") -> None:
+    """Raise ValueError naming the first points whose X or Z command is outside the strokes.
+
+    ``axes`` shape (n, 3). A may run past one turn (multi-turn paths), so it is not checked.
+    """
+    axes = np.asarray(axes, dtype=float)
+    bad = []
+    for j, key in ((0, "x_mm"), (1, "z_mm")):
+        lo, hi = machine.strokes[key]
+        idx = np.flatnonzero((axes[:, j] < lo) | (axes[:, j] > hi))
+        bad += [(int(i), key, float(axes[i, j]), (lo, hi)) for i in idx[:5]]
+    if bad:
+        lines = "; ".join(f"point {i}: {k} = {v:.6f} outside [{lo}, {hi}]" for i, k, v, (lo, hi) in bad)
+        raise ValueError(f"Expected {label} inside the X/Z strokes, got {lines}")

@@ -1,0 +1,565 @@
+"""Error model and regularised identification for the PKMs (pkm-calibration paper).
+
+**Parameters** ``r`` (in this order): base joints (3k, mm, base frame), platform joints (3k, mm,
+platform frame), leg zero lengths = offsets (k, mm), optionally leg scales (k); ``k = 6`` for the
+hexapod, 3 for the tripod. A leg's actual length is ``scale * q + offset`` for drive command ``q``.
+
+**Error model.** With ``c_i(x, r) = |tip + R (a_i - t) - b_i| - (s_i q_i + o_i) = 0`` the pose ``x``
+(tip, and a small rotation ``phi`` with ``R = (I + [phi]x) R0``) is an implicit function of ``r``:
+``dx/dr = -(dc/dx)^-1 dc/dr`` -- the first-order transfer ``dp = J dr``. Both derivatives come from
+automatic differentiation (``torch.func``) of the exact constraint; tests check them against
+finite differences of the forward kinematics.
+
+**Measurements** are poses in the instrument's frame: the tool tip (mm) and, for the full pose,
+the platform orientation. The instrument frame is in general not the machine frame: a rigid
+transform ``meas = R_g p + t_g`` (``registration``) is estimated with the parameters, from a robust
+initial registration (trimmed Kabsch of the measured tips onto the nominal forward kinematics).
+Orientation residuals (rotation vector, rad) are multiplied by ``lever_mm`` so that every residual
+component is a length in mm and one noise level ``delta`` (mm per component) describes them.
+
+**Identification**: iteratively regularised Gauss-Newton on the exact model. Each step solves the
+linearised Tikhonov problem ``min |J w - b|^2 + lambda |w|^2`` (``w`` the parameters' deviation from
+nominal, scaled by ``prior_scale``; the registration is not regularised and is eliminated by
+projection) through the SVD, with ``lambda`` from Morozov's discrepancy principle
+``|J w_lambda - b| = tau * delta * sqrt(m)``. When ``delta`` is unknown it is estimated from the
+GCV fit (``delta^2 = RSS / (m - trace H)``); the L-curve corner and the GCV ``lambda`` are reported
+beside it. Parameters stay inside physical bounds (``joint_bound_mm``, ``offset_bound_mm``,
+``scale_bound``). The report lists the singular values, the condition number and the parameter
+combinations that are not identifiable (singular values below ``rcond * s_max``).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.linalg import svd
+from scipy.optimize import brentq
+from scipy.spatial.transform import Rotation
+
+from ..io import InputError, read_table
+from .hexapod import KinematicsError, angles_to_rotation, forward_kinematics, quat_to_rotation, skew
+from .machine_file import PKM
+
+torch.set_default_dtype(torch.float64)
+
+
+# ---------------------------------------------------------------------------------------------
+# parameter layout
+# ---------------------------------------------------------------------------------------------
+
+def parameter_names(machine: PKM, scales: bool = True) -> list[str]:
+    """Names of the parameters in vector order, e.g. ``b1_x_mm``, ``a3_z_mm``, ``o2_mm``, ``s6``."""
+    k = machine.n_legs
+    names = [f"b{i + 1}_{c}_mm" for i in range(k) for c in "xyz"]
+    names += [f"a{i + 1}_{c}_mm" for i in range(k) for c in "xyz"]
+    names += [f"o{i + 1}_mm" for i in range(k)]
+    if scales:
+        names += [f"s{i + 1}" for i in range(k)]
+    return names
+
+
+def parameter_vector(machine: PKM) -> np.ndarray:
+    """Full parameter vector (base, platform, offsets, scales), shape (8k,)."""
+    return np.concatenate([machine.base_joints_mm.ravel(), machine.platform_joints_mm.ravel(),
+                           machine.leg_offset_mm, machine.leg_scale])
+
+
+def machine_from_vector(machine: PKM, r: np.ndarray) -> PKM:
+    """A copy of ``machine`` with the parameters of ``r`` (shape (7k,) or (8k,))."""
+    k = machine.n_legs
+    r = np.asarray(r, float)
+    return replace(machine, base_joints_mm=r[:3 * k].reshape(k, 3).copy(),
+                   platform_joints_mm=r[3 * k:6 * k].reshape(k, 3).copy(),
+                   leg_offset_mm=r[6 * k:7 * k].copy(),
+                   leg_scale=r[7 * k:8 * k].copy() if r.size >= 8 * k else machine.leg_scale.copy())
+
+
+def rigid_motion_basis(points_mm: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (3k, 6) of the infinitesimal rigid motions of ``points_mm`` (k, 3)."""
+    k = len(points_mm)
+    cols = [np.tile(e, k) for e in np.eye(3)]
+    cols += [np.cross(e, points_mm).ravel() for e in np.eye(3)]
+    return np.linalg.qr(np.stack(cols, 1))[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# measured poses
+# ---------------------------------------------------------------------------------------------
+
+@dataclass
+class PoseData:
+    """Calibration measurements.
+
+    ``q``: drive commands, shape (n, k); ``tip_mm``: measured tool tip (instrument frame), shape
+    (n, 3); ``rotation``: measured orientation (``platform2instrument``), shape (n, 3, 3), or None
+    (position only); ``source``: where it came from; ``rows``: file row numbers, shape (n,).
+    """
+
+    q: np.ndarray
+    tip_mm: np.ndarray
+    rotation: np.ndarray | None = None
+    source: str = ""
+    rows: np.ndarray | None = None
+
+    def __len__(self):
+        return len(self.q)
+
+    def subset(self, idx) -> "PoseData":
+        return PoseData(self.q[idx], self.tip_mm[idx], None if self.rotation is None else self.rotation[idx],
+                        self.source, None if self.rows is None else self.rows[idx])
+
+
+def read_poses(path, machine: PKM) -> PoseData:
+    """Read a PKM pose-measurement CSV (schema in DESIGN.md / docs/pkm.md).
+
+    Legs: ``l1_mm..lk_mm`` (commanded lengths, converted to drive units with the machine file's
+    nominal scale/offset) or ``q1..qk``; pose: ``x_mm, y_mm, z_mm`` plus, for the hexapod,
+    ``rx_deg, ry_deg, rz_deg`` (fixed-axis X-Y-Z) or ``qx, qy, qz, qw``, or neither (position only).
+    Errors name the file, row and column.
+    """
+    t = read_table(path)
+    k = machine.n_legs
+    lcols, qcols = [f"l{i + 1}_mm" for i in range(k)], [f"q{i + 1}" for i in range(k)]
+    if all(c in t for c in qcols):
+        q = np.stack([t.float(c) for c in qcols], 1)
+    elif all(c in t for c in lcols):
+        q = machine.legs_to_drive(np.stack([t.float(c) for c in lcols], 1))
+    else:
+        raise InputError(f"{t.path}: missing leg columns: need {lcols} or {qcols}; found columns {t.names}")
+    t.require("x_mm", "y_mm", "z_mm")
+    tip = np.stack([t.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
+    rot = None
+    if machine.kind == "hexapod":
+        if all(c in t for c in ("qx", "qy", "qz", "qw")):
+            quat = np.stack([t.float(c) for c in ("qx", "qy", "qz", "qw")], 1)
+            norm = np.linalg.norm(quat, axis=1)
+            bad = np.flatnonzero(np.abs(norm - 1) > 1e-3)
+            if bad.size:
+                raise InputError(f"{t.path}: row {t.row_number(bad[0])}, columns 'qx'..'qw': expected a unit "
+                                 f"quaternion (order qx qy qz qw), got norm {norm[bad[0]]:.6g}")
+            rot = quat_to_rotation(quat / norm[:, None])
+        elif all(c in t for c in ("rx_deg", "ry_deg", "rz_deg")):
+            rot = angles_to_rotation(np.stack([t.float(c) for c in ("rx_deg", "ry_deg", "rz_deg")], 1))
+        elif any(c in t for c in ("qx", "qy", "qz", "qw", "rx_deg", "ry_deg", "rz_deg")):
+            raise InputError(f"{t.path}: incomplete orientation columns: need all of qx qy qz qw or of "
+                             f"rx_deg ry_deg rz_deg; found columns {t.names}")
+    if len(t) == 0:
+        raise InputError(f"{t.path}: no data rows")
+    return PoseData(q, tip, rot, str(t.path), np.array([t.row_number(i) for i in range(len(t))]))
+
+
+# ---------------------------------------------------------------------------------------------
+# the error model: J = dx/dr by autodiff of the exact constraint
+# ---------------------------------------------------------------------------------------------
+
+def _constraint_single(x, r, q, R0, tool, k: int, rotate: bool):
+    base = r[:3 * k].reshape(k, 3)
+    plat = r[3 * k:6 * k].reshape(k, 3)
+    off = r[6 * k:7 * k]
+    sc = r[7 * k:8 * k]
+    tip = x[:3]
+    if rotate:
+        p = x[3:]
+        zero = torch.zeros((), dtype=x.dtype)
+        W = torch.stack([torch.stack([zero, -p[2], p[1]]), torch.stack([p[2], zero, -p[0]]),
+                         torch.stack([-p[1], p[0], zero])])
+        R = (torch.eye(3, dtype=x.dtype) + W) @ R0
+    else:
+        R = R0
+    v = tip[None, :] + (plat - tool[None, :]) @ R.T - base
+    return torch.linalg.norm(v, dim=1) - (sc * q + off)
+
+
+def pose_jacobian(machine: PKM, q: np.ndarray, tip_mm: np.ndarray, platform2base: np.ndarray) -> np.ndarray:
+    """First-order error transfer ``J = dx/dr`` at the poses reached with drive commands ``q``.
+
+    ``q`` shape (n, k); ``tip_mm``/``platform2base`` the exact forward kinematics of ``machine`` at
+    ``q`` (shape (n, 3), (n, 3, 3)). Returns shape (n, d, 8k): ``d = 6`` for the hexapod (tip, then
+    the small rotation vector in the base frame, rad), 3 for the tripod.
+    """
+    k = machine.n_legs
+    rotate = machine.kind == "hexapod"
+    d = 6 if rotate else 3
+    r = torch.as_tensor(parameter_vector(machine))
+    tool = torch.as_tensor(machine.tool_in_platform_mm, dtype=torch.float64)
+    x = torch.zeros((len(q), d))
+    x[:, :3] = torch.as_tensor(tip_mm)
+    fn = lambda xx, rr, qq, RR: _constraint_single(xx, rr, qq, RR, tool, k, rotate)
+    jac = torch.func.vmap(torch.func.jacrev(fn, argnums=(0, 1)), in_dims=(0, None, 0, 0))
+    Cx, Cr = jac(x, r, torch.as_tensor(np.asarray(q, float)), torch.as_tensor(np.asarray(platform2base, float)))
+    return -np.linalg.solve(Cx.numpy(), Cr.numpy())
+
+
+# ---------------------------------------------------------------------------------------------
+# registration (instrument frame <- machine frame)
+# ---------------------------------------------------------------------------------------------
+
+def robust_registration(machine_tip_mm: np.ndarray, measured_tip_mm: np.ndarray, n_iter: int = 5,
+                        trim_sigma: float = 3.0):
+    """Trimmed Kabsch fit ``measured = R p + t``: returns ``(t_mm (3,), R (3, 3), inlier mask (n,))``.
+
+    Starts from all points; drops points beyond ``trim_sigma`` robust sigmas (MAD) and refits.
+    """
+    p, m = np.asarray(machine_tip_mm, float), np.asarray(measured_tip_mm, float)
+    if len(p) < 3:
+        raise ValueError("registration needs at least 3 poses")
+    inl = np.ones(len(p), bool)
+    for _ in range(n_iter):
+        pc, mc = p[inl].mean(0), m[inl].mean(0)
+        rot, _ = Rotation.align_vectors(m[inl] - mc, p[inl] - pc)
+        R = rot.as_matrix()
+        t = mc - R @ pc
+        e = np.linalg.norm(m - (p @ R.T + t), axis=1)
+        s = 1.4826 * np.median(np.abs(e - np.median(e))) + 1e-12
+        new = e <= np.median(e) + trim_sigma * s
+        if new.sum() < max(3, len(p) // 2) or np.array_equal(new, inl):
+            break
+        inl = new
+    return t, R, inl
+
+
+# ---------------------------------------------------------------------------------------------
+# the calibrator
+# ---------------------------------------------------------------------------------------------
+
+@dataclass
+class CalibrationResult:
+    """Result of :meth:`PKMCalibrator.fit` (scipy.optimize style plus the identification report).
+
+    ``x``: identified full parameter vector (8k,); ``machine``: the identified machine; ``success``,
+    ``message``, ``nfev`` (Gauss-Newton iterations), ``residuals``: measured residual on the fit poses,
+    shape (n, d) (mm; orientation rows times ``lever_mm``); ``frame_translation_mm`` (3,),
+    ``frame_rotation`` (3, 3): instrument <- machine; ``std_error``: standard errors of the estimated
+    parameters (same order as ``names``).
+    """
+
+    x: np.ndarray
+    machine: PKM
+    nominal: PKM
+    success: bool
+    message: str
+    nfev: int
+    residuals: np.ndarray
+    names: list
+    estimated: np.ndarray
+    std_error: np.ndarray
+    frame_translation_mm: np.ndarray
+    frame_rotation: np.ndarray
+    lam: float
+    delta_mm: float
+    delta_estimated: bool
+    lambda_gcv: float
+    lambda_lcurve: float
+    singular_values: np.ndarray
+    condition_number: float
+    unidentifiable: list
+    lever_mm: float
+    n_poses: int
+    fit_time_s: float
+    history: list = field(default_factory=list)
+    lcurve: dict = field(default_factory=dict)
+
+    def predict(self, q: np.ndarray, nominal: bool = False, frame=None):
+        """Predicted measured poses (instrument frame) at drive commands ``q`` (n, k): (tip (n,3), R (n,3,3))."""
+        m = self.nominal if nominal else self.machine
+        t, R = (self.frame_translation_mm, self.frame_rotation) if frame is None else frame
+        fk = forward_kinematics(m, m.drive_to_legs(q), check_limits=False)
+        return fk.x @ R.T + t, np.einsum("ij,njk->nik", R, fk.platform2base)
+
+    def pose_errors_um(self, data: PoseData, nominal: bool = False, frame=None) -> dict:
+        """Measured residual (measurement minus model) on ``data``: position norm (um) and angle (urad), shape (n,)."""
+        tip, R = self.predict(data.q, nominal, frame)
+        out = {"position_um": 1e3 * np.linalg.norm(data.tip_mm - tip, axis=1)}
+        if data.rotation is not None:
+            rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", R, data.rotation)).as_rotvec()
+            out["angle_urad"] = 1e6 * np.linalg.norm(rv, axis=1)
+        return out
+
+    def parameter_table(self) -> dict:
+        """Name -> {nominal, value, delta, std_error} of the estimated parameters."""
+        r0 = parameter_vector(self.nominal)
+        out = {}
+        for j, name in zip(np.flatnonzero(self.estimated), self.names):
+            out[name] = {"nominal": float(r0[j]), "value": float(self.x[j]), "delta": float(self.x[j] - r0[j]),
+                         "std_error": float(self.std_error[len(out)])}
+        return out
+
+
+class PKMCalibrator:
+    """Regularised identification of a PKM's parameters from measured poses.
+
+    Settings (stored, validated): ``estimate_scales`` (identify the leg scales too),
+    ``register`` (estimate the instrument frame; else it is taken as the machine frame),
+    ``noise_um`` (measurement noise per component, the Morozov ``delta``; None = estimate it),
+    ``tau`` (discrepancy factor, >= 1), ``lever_mm`` (orientation residual weight),
+    ``prior_scale`` (mm for joints/offsets, unitless for scales: the Tikhonov scaling),
+    bounds, ``max_iter``, ``tol``, ``rcond`` (identifiability threshold), ``verbose``.
+    """
+
+    def __init__(self, machine: PKM, estimate_scales: bool = False, register: bool = True,
+                 noise_um: float | None = None, tau: float = 1.0, lever_mm: float = 500.0,
+                 joint_scale_mm: float = 1.0, scale_scale: float = 1e-3, joint_bound_mm: float = 25.0,
+                 offset_bound_mm: float = 50.0, scale_bound: float = 0.05, max_iter: int = 30,
+                 tol: float = 1e-9, rcond: float = 1e-8, verbose: bool = False, progress=None):
+        if noise_um is not None and not noise_um > 0:
+            raise ValueError(f"noise_um must be positive, got {noise_um}")
+        if tau < 1:
+            raise ValueError(f"tau must be >= 1, got {tau}")
+        if lever_mm <= 0 or joint_scale_mm <= 0 or scale_scale <= 0:
+            raise ValueError("lever_mm, joint_scale_mm and scale_scale must be positive")
+        self.machine = machine
+        self.estimate_scales = estimate_scales
+        self.register = register
+        self.noise_um = noise_um
+        self.tau = tau
+        self.lever_mm = lever_mm
+        self.joint_scale_mm = joint_scale_mm
+        self.scale_scale = scale_scale
+        self.joint_bound_mm = joint_bound_mm
+        self.offset_bound_mm = offset_bound_mm
+        self.scale_bound = scale_bound
+        self.max_iter = max_iter
+        self.tol = tol
+        self.rcond = rcond
+        self.verbose = verbose
+        self.progress = progress
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _layout(self):
+        k = self.machine.n_legs
+        est = np.ones(8 * k, bool)
+        if not self.estimate_scales:
+            est[7 * k:] = False
+        D = np.r_[np.full(7 * k, self.joint_scale_mm), np.full(k, self.scale_scale)][est]
+        lo = np.r_[np.full(6 * k, -self.joint_bound_mm), np.full(k, -self.offset_bound_mm),
+                   np.full(k, -self.scale_bound)][est]
+        return est, D, lo, -lo
+
+    def _residual_and_jacobian(self, m: PKM, data: PoseData, t_g, R_g, guess, want_jac=True):
+        fk = forward_kinematics(m, m.drive_to_legs(data.q), guess_tip_mm=guess[0], guess_platform2base=guess[1],
+                                check_limits=False)
+        tip_meas = fk.x @ R_g.T + t_g
+        full = data.rotation is not None and m.kind == "hexapod"
+        res = [tip_meas - data.tip_mm]
+        if full:
+            R_pred = np.einsum("ij,njk->nik", R_g, fk.platform2base)
+            rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", R_pred, data.rotation)).as_rotvec()
+            res.append(self.lever_mm * rv)
+        res = np.concatenate(res, 1)  # (n, d)
+        if not want_jac:
+            return res, None, None, (fk.x, fk.platform2base)
+        J = pose_jacobian(m, data.q, fk.x, fk.platform2base)  # (n, 6|3, 8k) in the machine frame
+        Jp = np.einsum("ij,njk->nik", R_g, J[:, :3])
+        Jg_p = np.concatenate([np.broadcast_to(np.eye(3), (len(data), 3, 3)), -skew(tip_meas - t_g)], 2)
+        blocks, gblocks = [Jp], [Jg_p]
+        if full:
+            blocks.append(self.lever_mm * np.einsum("ij,njk->nik", R_g, J[:, 3:]))
+            gblocks.append(self.lever_mm * np.concatenate([np.zeros((len(data), 3, 3)),
+                                                           np.broadcast_to(np.eye(3), (len(data), 3, 3))], 2))
+        Jr = np.concatenate(blocks, 1).reshape(res.size, -1)
+        Jg = np.concatenate(gblocks, 1).reshape(res.size, 6)
+        return res, Jr, Jg, (fk.x, fk.platform2base)
+
+    @staticmethod
+    def _tikhonov(s, beta, b_out2, lam):
+        f = s / (s ** 2 + lam)
+        resid2 = np.sum((lam / (s ** 2 + lam) * beta) ** 2) + b_out2
+        return f * beta, resid2
+
+    def _choose_lambda(self, s, beta, b_out2, m_rows, n_free, delta_mm):
+        """Morozov (``delta_mm`` given) or GCV lambda, plus the GCV and L-curve lambdas for the report."""
+        smax = s.max()
+        grid = smax ** 2 * np.logspace(-16, 2, 181)
+        s2, L = s[None, :] ** 2, grid[:, None]
+        res2 = np.sum((L / (s2 + L) * beta[None]) ** 2, axis=1) + b_out2
+        wn2 = np.sum((s[None] / (s2 + L) * beta[None]) ** 2, axis=1)
+        trH = np.sum(s2 / (s2 + L), axis=1) + n_free
+        gcv = m_rows * res2 / np.maximum(m_rows - trH, 1e-9) ** 2
+        lam_gcv = grid[np.argmin(gcv)]
+        # L-curve corner: maximum curvature of (log |res|, log |w|)
+        xr, yr = 0.5 * np.log(np.maximum(res2, 1e-300)), 0.5 * np.log(np.maximum(wn2, 1e-300))
+        t = np.log(grid)
+        dx, dy = np.gradient(xr, t), np.gradient(yr, t)
+        ddx, ddy = np.gradient(dx, t), np.gradient(dy, t)
+        kappa = (dx * ddy - dy * ddx) / np.maximum((dx ** 2 + dy ** 2) ** 1.5, 1e-300)
+        lam_lc = grid[np.argmax(kappa)]
+        curve = {"lambda": grid, "residual_norm": np.sqrt(res2), "solution_norm": np.sqrt(wn2), "gcv": gcv}
+        if delta_mm is None:
+            return lam_gcv, lam_gcv, lam_lc, curve
+        target2 = (self.tau * delta_mm) ** 2 * m_rows
+        lo_l, hi_l = smax ** 2 * 1e-20, smax ** 2 * 1e6
+        f = lambda ll: self._tikhonov(s, beta, b_out2, np.exp(ll))[1] - target2
+        if f(np.log(lo_l)) >= 0:      # even the unregularised fit is above the noise level
+            lam = lo_l
+        elif f(np.log(hi_l)) <= 0:    # everything explained by the noise: full regularisation
+            lam = hi_l
+        else:
+            lam = float(np.exp(brentq(f, np.log(lo_l), np.log(hi_l), xtol=1e-10)))
+        return lam, lam_gcv, lam_lc, curve
+
+    # -- the fit ---------------------------------------------------------------------------
+    def fit(self, data: PoseData) -> CalibrationResult:
+        t0 = time.perf_counter()
+        m0 = self.machine
+        k = m0.n_legs
+        if data.q.ndim != 2 or data.q.shape[1] != k:
+            raise ValueError(f"{data.source}: expected drive commands of shape (n, {k}), got {data.q.shape}")
+        if data.tip_mm.shape != (len(data), 3) or not np.all(np.isfinite(data.tip_mm)) or not np.all(np.isfinite(data.q)):
+            raise ValueError(f"{data.source}: expected finite tips of shape ({len(data)}, 3)")
+        est, D, lo, hi = self._layout()
+        full = data.rotation is not None and m0.kind == "hexapod"
+        d = 6 if full else 3
+        m_rows = d * len(data)
+        if m_rows < est.sum() + (6 if self.register else 0):
+            raise ValueError(f"{data.source}: {len(data)} poses give {m_rows} equations for "
+                             f"{est.sum() + 6 * self.register} unknowns; measure more poses")
+        legs = m0.drive_to_legs(data.q)
+        bad = np.flatnonzero(np.any((legs < m0.leg_min_mm) | (legs > m0.leg_max_mm), axis=1))
+        if bad.size:
+            rows = bad if data.rows is None else data.rows[bad]
+            raise InputError(f"{data.source}: rows {rows[:20].tolist()}: leg commands outside the leg range")
+        r0 = parameter_vector(m0)
+        # robust initial registration from the nominal model
+        fk0 = forward_kinematics(m0, legs, check_limits=False)
+        if self.register:
+            t_g, R_g, inliers = robust_registration(fk0.x, data.tip_mm)
+        else:
+            t_g, R_g, inliers = np.zeros(3), np.eye(3), np.ones(len(data), bool)
+        frame0 = (t_g.copy(), R_g.copy())
+        guess = (fk0.x, fk0.platform2base)
+        w = np.zeros(est.sum())
+        delta_mm = None if self.noise_um is None else self.noise_um * 1e-3
+        estimated_delta = delta_mm is None
+        history, nfev, msg, success = [], 0, "", False
+        lam = lam_gcv = lam_lc = np.nan
+        phase = ["gcv", "morozov"] if estimated_delta else ["morozov"]
+        curve = {}
+        for ph in phase:
+            for it in range(self.max_iter):
+                r = r0.copy()
+                r[est] += D * w
+                m = machine_from_vector(m0, r)
+                res, Jr_full, Jg, guess = self._residual_and_jacobian(m, data, t_g, R_g, guess)
+                nfev += 1
+                Jr = Jr_full[:, est] * D  # scaled parameter columns
+                b = Jr @ w - res.ravel()
+                if self.register:
+                    Qg = np.linalg.qr(Jg)[0]
+                    A = Jr - Qg @ (Qg.T @ Jr)
+                    bp = b - Qg @ (Qg.T @ b)
+                else:
+                    A, bp = Jr, b
+                U, s, Vt = svd(A, full_matrices=False)
+                beta = U.T @ bp
+                b_out2 = max(float(bp @ bp - beta @ beta), 0.0)
+                n_free = 6 if self.register else 0
+                lam, lam_gcv, lam_lc, curve = self._choose_lambda(
+                    s, beta, b_out2, m_rows, n_free, None if ph == "gcv" else delta_mm)
+                z, _ = self._tikhonov(s, beta, b_out2, lam)
+                w_new = np.clip(Vt.T @ z, lo / D, hi / D)
+                if self.register:
+                    dg = np.linalg.lstsq(Jg, b - Jr @ w_new, rcond=None)[0]
+                    R_g = Rotation.from_rotvec(dg[3:]).as_matrix() @ R_g
+                    t_g = t_g + dg[:3]
+                step = w_new - w
+                w = w_new
+                rms = float(np.sqrt(np.mean(res ** 2)))
+                history.append({"phase": ph, "iteration": it, "rms_mm": rms, "lambda": float(lam),
+                                "step_norm": float(np.linalg.norm(step))})
+                if self.progress is not None:
+                    self.progress(f"{ph} iteration {it}: rms {rms * 1e3:.3f} um, lambda {lam:.3g}")
+                small = np.linalg.norm(step) <= self.tol ** 0.5 * (1 + np.linalg.norm(w))
+                if self.register:
+                    small &= np.linalg.norm(dg) < 1e-9 + self.tol ** 0.5
+                if small and it > 0:
+                    success, msg = True, f"converged after {it + 1} Gauss-Newton iterations"
+                    break
+            else:
+                success, msg = False, f"stopped after {self.max_iter} iterations without convergence"
+            if ph == "gcv":  # estimate delta from the GCV fit
+                trH = np.sum(s ** 2 / (s ** 2 + lam_gcv)) + n_free
+                rss = self._tikhonov(s, beta, b_out2, lam_gcv)[1]
+                delta_mm = float(np.sqrt(rss / max(m_rows - trH, 1.0)))
+        r = r0.copy()
+        r[est] += D * w
+        m = machine_from_vector(m0, r)
+        res, _, _, _ = self._residual_and_jacobian(m, data, t_g, R_g, guess, want_jac=False)
+        # report: singular values and identifiability of the final linearisation
+        cond = float(s.max() / s.min()) if s.min() > 0 else float("inf")
+        names_all = parameter_names(m0, scales=True)
+        names = [n for n, e in zip(names_all, est) if e]
+        unident = []
+        for j in np.flatnonzero(s < self.rcond * s.max()):
+            v = Vt[j]
+            top = np.argsort(-np.abs(v))[:6]
+            unident.append({"singular_value": float(s[j]),
+                            "combination": {names[i]: round(float(v[i]), 4) for i in top if abs(v[i]) > 0.05}})
+        filt = s / (s ** 2 + lam)
+        cov_w = (delta_mm ** 2) * (Vt.T * filt ** 2 * s ** 2) @ Vt
+        se = np.sqrt(np.maximum(np.diag(cov_w), 0)) * D
+        return CalibrationResult(
+            x=r, machine=m, nominal=m0, success=success, message=msg, nfev=nfev, residuals=res, names=names,
+            estimated=est, std_error=se, frame_translation_mm=t_g, frame_rotation=R_g, lam=float(lam),
+            delta_mm=float(delta_mm), delta_estimated=estimated_delta, lambda_gcv=float(lam_gcv),
+            lambda_lcurve=float(lam_lc), singular_values=s, condition_number=cond, unidentifiable=unident,
+            lever_mm=self.lever_mm, n_poses=len(data), fit_time_s=time.perf_counter() - t0, history=history,
+            lcurve={**curve, "initial_frame": frame0})
+
+
+def calibrate(machine: PKM, data: PoseData, **settings) -> CalibrationResult:
+    """Convenience: ``PKMCalibrator(machine, **settings).fit(data)``."""
+    return PKMCalibrator(machine, **settings).fit(data)
+
+
+def calibration_to_dict(result: CalibrationResult) -> dict:
+    """The machine-readable part of ``calibration.json`` (see docs/pkm.md)."""
+    rot = Rotation.from_matrix(result.frame_rotation)
+    m = result.machine
+    return {
+        "kind": m.kind,
+        "machine": {"name": m.name, "path": m.path, "sha256": m.sha256},
+        "parameters": result.parameter_table(),
+        "identified_machine": {
+            "base_joints_mm": m.base_joints_mm, "platform_joints_mm": m.platform_joints_mm,
+            "leg_offset_mm": m.leg_offset_mm, "leg_scale": m.leg_scale,
+            "tool_in_platform_mm": m.tool_in_platform_mm},
+        "frame": {"meaning": "instrument <- machine: p_instrument = R p_machine + t",
+                  "translation_mm": result.frame_translation_mm, "rotation_qx_qy_qz_qw": rot.as_quat(),
+                  "rotation_deg_fixed_xyz": rot.as_euler("xyz", degrees=True)},
+        "condition_number": result.condition_number,
+        "singular_values": result.singular_values,
+        "unidentifiable": result.unidentifiable,
+        "lambda": result.lam, "lambda_gcv": result.lambda_gcv, "lambda_lcurve": result.lambda_lcurve,
+        "delta_um": result.delta_mm * 1e3, "delta_estimated": result.delta_estimated,
+        "lever_mm": result.lever_mm, "n_fit_poses": result.n_poses, "success": result.success,
+        "message": result.message, "iterations": result.nfev, "fit_time_s": result.fit_time_s,
+    }
+
+
+def load_calibrated_machine(path, machine: PKM) -> PKM:
+    """The identified machine from ``calibration.json`` (a file or its folder), checked against ``machine``."""
+    import json
+    p = Path(path)
+    if p.is_dir():
+        p = p / "calibration.json"
+    if not p.is_file():
+        raise InputError(f"{p}: no such calibration file")
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+        im = doc["identified_machine"]
+        kind = doc["kind"]
+    except (ValueError, KeyError) as exc:
+        raise InputError(f"{p}: not a PKM calibration file ({exc})") from None
+    if kind != machine.kind:
+        raise InputError(f"{p}: key 'kind': calibration is for a {kind}, the machine file is a {machine.kind}")
+    k = machine.n_legs
+    try:
+        return replace(machine, base_joints_mm=np.asarray(im["base_joints_mm"], float).reshape(k, 3),
+                       platform_joints_mm=np.asarray(im["platform_joints_mm"], float).reshape(k, 3),
+                       leg_offset_mm=np.asarray(im["leg_offset_mm"], float).reshape(k),
+                       leg_scale=np.asarray(im["leg_scale"], float).reshape(k))
+    except (KeyError, ValueError, TypeError) as exc:
+        raise InputError(f"{p}: key 'identified_machine': {exc}") from None

@@ -1,0 +1,167 @@
+"""Simulated "truth" PKMs and simulated pose measurements (for tests and benchmarks).
+
+A truth machine is the nominal one with perturbed joints, leg zero lengths and (optionally) leg
+scales. The rigid-motion part of the base-joint perturbation is removed (tripod: of the
+base-minus-platform hinge perturbation): it is indistinguishable from a change of the machine
+frame, and the machine frame is *defined* by the joints (the gauge convention the identification
+uses too). The measuring instrument's frame is a rigid transform of the machine frame
+(``p_instrument = R p_machine + t``), by default hundreds of mm and a few degrees away.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..io import write_csv
+from .calibration import PoseData, rigid_motion_basis
+from .hexapod import forward_kinematics, inverse_kinematics, rotation_to_angles, workspace_poses
+from .machine_file import PKM
+
+
+@dataclass
+class Truth:
+    """The simulated machine: ``machine`` (perturbed parameters) and the instrument frame
+    (``frame_translation_mm`` (3,), ``frame_rotation`` (3, 3): instrument <- machine)."""
+
+    machine: PKM
+    nominal: PKM
+    frame_translation_mm: np.ndarray
+    frame_rotation: np.ndarray
+
+
+@dataclass
+class SimulatedPoses:
+    """Simulated calibration data: ``truth``, ``data`` (:class:`PoseData` as a reader would give it),
+    ``columns`` (the CSV columns), ``true_tip_mm`` (n, 3) machine frame, ``noise_um``."""
+
+    truth: Truth
+    data: PoseData
+    columns: dict
+    true_tip_mm: np.ndarray
+    noise_um: float
+
+    def write_csv(self, path):
+        """Write the measurement table (PKM pose-measurement schema) atomically."""
+        return write_csv(path, self.columns, header_comments=[
+            f"simulated {self.truth.machine.kind} poses: noise_um: {self.noise_um}",
+            "orientation: fixed-axis X-Y-Z angles (deg) or quaternion qx qy qz qw"])
+
+
+def _remove_rigid(delta: np.ndarray, points: np.ndarray) -> np.ndarray:
+    Q = rigid_motion_basis(points)
+    v = delta.ravel()
+    return (v - Q @ (Q.T @ v)).reshape(delta.shape)
+
+
+def perturb_machine(machine: PKM, pose_error_mm: float, seed, scales: bool = True,
+                    n_check: int = 200) -> PKM:
+    """A truth machine whose RMS tool-tip error (nominal commands, workspace poses) is ``pose_error_mm``.
+
+    Joint, offset and scale perturbations are drawn from ``seed`` with fixed relative sizes
+    (joints 1, offsets 1, scales 1e-3 relative to 1 mm) and scaled to the requested error.
+    """
+    rng = np.random.default_rng(seed)
+    k = machine.n_legs
+    db = rng.normal(0, 1, (k, 3))
+    da = rng.normal(0, 1, (k, 3))
+    if machine.kind == "tripod":
+        db = da + _remove_rigid(db - da, machine.base_joints_mm - machine.platform_joints_mm)
+    else:
+        db = _remove_rigid(db, machine.base_joints_mm)
+    do = rng.normal(0, 1, k)
+    ds = rng.normal(0, 1e-3, k) if scales else np.zeros(k)
+    tips, Rs = workspace_poses(machine, n_check, rng)
+    q = machine.legs_to_drive(inverse_kinematics(machine, tips, Rs))
+
+    def build(f):
+        return replace(machine, base_joints_mm=machine.base_joints_mm + f * db,
+                       platform_joints_mm=machine.platform_joints_mm + f * da,
+                       leg_offset_mm=machine.leg_offset_mm + f * do, leg_scale=machine.leg_scale * (1 + f * ds))
+
+    f = 1.0
+    for _ in range(3):  # nearly linear: a few secant steps
+        fk = forward_kinematics(build(f), build(f).drive_to_legs(q), check_limits=False)
+        rms = np.sqrt(np.mean(np.sum((fk.x - tips) ** 2, axis=1)))
+        f *= pose_error_mm / rms
+    return build(f)
+
+
+def random_frame(seed, translation_mm: float = 500.0, angle_deg: float = 3.0):
+    """An instrument frame: translation of ~``translation_mm`` and rotation of ``angle_deg``: (t (3,), R (3, 3))."""
+    rng = np.random.default_rng(seed)
+    t = rng.normal(0, 1, 3)
+    t *= translation_mm / np.linalg.norm(t)
+    ax = rng.normal(0, 1, 3)
+    R = Rotation.from_rotvec(np.radians(angle_deg) * ax / np.linalg.norm(ax)).as_matrix()
+    return t, R
+
+
+def simulate_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error_mm: float = 1.0,
+                   truth: Truth | None = None, frame: str | tuple = "random", orientation: str = "quat",
+                   drive_units: bool = True, lever_mm: float = 500.0, scales: bool = True,
+                   half_width_mm=(150.0, 150.0, 100.0), max_tilt_deg: float = 15.0) -> SimulatedPoses:
+    """Simulate a calibration campaign on a truth machine.
+
+    ``n_poses`` random workspace poses are commanded with the nominal inverse kinematics; the truth
+    machine's forward kinematics gives the reached poses, which are expressed in the instrument frame
+    (``frame``: ``"random"``, ``"identity"`` or a ``(t, R)`` pair) and get Gaussian noise of
+    ``noise_um`` per position component and ``noise_um / lever_mm`` (rad) per rotation component.
+    ``orientation``: ``"quat"`` (qx qy qz qw), ``"angles"`` (fixed-axis X-Y-Z deg) or ``"none"``.
+    Commands are written as drive units ``q1..`` when ``drive_units`` else as ``l1_mm..``.
+    """
+    if n_poses < 1 or noise_um < 0:
+        raise ValueError("n_poses must be >= 1 and noise_um >= 0")
+    rng = np.random.default_rng(seed)
+    if truth is None:
+        t, R = (np.zeros(3), np.eye(3)) if frame == "identity" else \
+            random_frame(rng) if frame == "random" else frame
+        truth = Truth(perturb_machine(machine, pose_error_mm, rng, scales=scales), machine, np.asarray(t), np.asarray(R))
+    tips, Rs = workspace_poses(machine, n_poses, rng, half_width_mm, max_tilt_deg)
+    legs_cmd = inverse_kinematics(machine, tips, Rs)
+    q = machine.legs_to_drive(legs_cmd)
+    fk = forward_kinematics(truth.machine, truth.machine.drive_to_legs(q), guess_tip_mm=tips,
+                            guess_platform2base=Rs)
+    noise = noise_um * 1e-3
+    Rf, tf = truth.frame_rotation, truth.frame_translation_mm
+    meas_tip = fk.x @ Rf.T + tf + rng.normal(0, noise, (n_poses, 3))
+    k = machine.n_legs
+    cols = {}
+    if drive_units:
+        cols.update({f"q{i + 1}": q[:, i] for i in range(k)})
+    else:
+        cols.update({f"l{i + 1}_mm": legs_cmd[:, i] for i in range(k)})
+    cols.update({"x_mm": meas_tip[:, 0], "y_mm": meas_tip[:, 1], "z_mm": meas_tip[:, 2]})
+    meas_R = None
+    if machine.kind == "hexapod" and orientation != "none":
+        rv_noise = rng.normal(0, noise / lever_mm, (n_poses, 3))
+        meas_R = Rotation.from_rotvec(rv_noise).as_matrix() @ np.einsum("ij,njk->nik", Rf, fk.platform2base)
+        if orientation == "quat":
+            qq = Rotation.from_matrix(meas_R).as_quat()
+            cols.update({"qx": qq[:, 0], "qy": qq[:, 1], "qz": qq[:, 2], "qw": qq[:, 3]})
+        elif orientation == "angles":
+            a = rotation_to_angles(meas_R)
+            cols.update({"rx_deg": a[:, 0], "ry_deg": a[:, 1], "rz_deg": a[:, 2]})
+        else:
+            raise ValueError(f"orientation must be 'quat', 'angles' or 'none', got {orientation!r}")
+    data = PoseData(q, meas_tip, meas_R, "simulated", np.arange(n_poses) + 2)
+    return SimulatedPoses(truth, data, cols, fk.x, noise_um)
+
+
+def simulate_hexapod_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error_mm: float = 1.0,
+                           **kw) -> SimulatedPoses:
+    """:func:`simulate_poses` for a hexapod (full pose, quaternions, drive units by default)."""
+    if machine.kind != "hexapod":
+        raise ValueError(f"expected a hexapod machine, got {machine.kind!r}")
+    return simulate_poses(machine, n_poses, noise_um, seed, pose_error_mm, **kw)
+
+
+def simulate_tripod_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error_mm: float = 1.0,
+                          **kw) -> SimulatedPoses:
+    """:func:`simulate_poses` for a tripod (positions only)."""
+    if machine.kind != "tripod":
+        raise ValueError(f"expected a tripod machine, got {machine.kind!r}")
+    kw.setdefault("orientation", "none")
+    kw.setdefault("max_tilt_deg", 0.0)
+    return simulate_poses(machine, n_poses, noise_um, seed, pose_error_mm, **kw)

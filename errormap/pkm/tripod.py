@@ -1,0 +1,96 @@
+"""The 3-TPT translational tripod: kinematics and the error transfer matrices of the tripod paper.
+
+The platform only translates: leg ``i`` is ``p + a_i - b_i`` (``p`` the platform centre / tool tip
+in the base frame, ``a_i`` the moving-platform hinge in the platform frame, ``b_i`` the fixed-platform
+hinge), its length ``l_i``. Differentiating ``|p + a_i - b_i| = l_i`` gives
+
+    A dp = dl + U_B(dB) - U_A(dA),     A = rows u_i^T (unit leg vectors), shape (3, 3)
+
+so the leg-length transfer matrix is ``f_l = A^-1``, the fixed-platform hinge transfer of hinge ``i``
+is ``f_B_i = A^-1 e_i u_i^T`` and the moving-platform hinge transfer ``f_A_i = -A^-1 e_i u_i^T``
+(the paper's eqs (4)-(12)). The sensitivity measure is ``K = ||A^-1||_inf`` (max row sum).
+The size ratio is ``lambda = l / c`` with ``c = R - r``.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .hexapod import FKResult, forward_kinematics, inverse_kinematics, leg_vectors
+from .machine_file import PKM
+
+__all__ = ["inverse_kinematics_tripod", "forward_kinematics_tripod", "transfer_matrices", "leg_error_norm",
+           "sensitivity_map", "sensitivity_vs_lambda", "tripod_with_radii"]
+
+
+def inverse_kinematics_tripod(machine: PKM, tool_tip_mm) -> np.ndarray:
+    """Platform positions (n, 3) -> leg lengths (n, 3), mm."""
+    return inverse_kinematics(machine, tool_tip_mm)
+
+
+def forward_kinematics_tripod(machine: PKM, legs_mm, **kw) -> FKResult:
+    """Leg lengths (n, 3) -> platform positions (``.x``, shape (n, 3)) by Newton."""
+    return forward_kinematics(machine, legs_mm, **kw)
+
+
+def transfer_matrices(machine: PKM, tool_tip_mm) -> dict:
+    """Error transfer matrices at platform positions (n, 3).
+
+    Returns ``f_l`` shape (n, 3, 3) (leg-length errors -> position error), ``f_B`` shape (n, 3, 3, 3)
+    (``f_B[:, i]`` maps hinge ``i``'s fixed-platform position error to position error) and ``f_A``
+    (same for the moving-platform hinges), and ``A`` shape (n, 3, 3).
+    """
+    v = leg_vectors(machine, tool_tip_mm)
+    u = v / np.linalg.norm(v, axis=-1, keepdims=True)  # (n, 3 legs, 3)
+    Ainv = np.linalg.inv(u)
+    # f_B_i = A^-1 e_i u_i^T : column i of A^-1 times u_i^T
+    f_B = np.einsum("nji,nik->nijk", Ainv, u)
+    return {"A": u, "f_l": Ainv, "f_B": f_B, "f_A": -f_B}
+
+
+def leg_error_norm(machine: PKM, tool_tip_mm) -> np.ndarray:
+    """``K = ||A^-1||_inf`` (max absolute row sum of the leg-length transfer matrix), shape (n,)."""
+    return np.abs(transfer_matrices(machine, tool_tip_mm)["f_l"]).sum(axis=2).max(axis=1)
+
+
+def tripod_with_radii(machine: PKM, base_radius_mm: float, platform_radius_mm: float) -> PKM:
+    """The same tripod with hinge circles scaled to new radii (joint angles kept)."""
+    b = machine.base_joints_mm / np.linalg.norm(machine.base_joints_mm[:, :2], axis=1, keepdims=True)
+    a = machine.platform_joints_mm / np.linalg.norm(machine.platform_joints_mm[:, :2], axis=1, keepdims=True)
+    return replace(machine, base_joints_mm=b * base_radius_mm, platform_joints_mm=a * platform_radius_mm)
+
+
+def sensitivity_map(machine: PKM, x_mm, y_mm, z_mm) -> np.ndarray:
+    """``K`` on the grid ``x_mm`` x ``y_mm`` x ``z_mm`` (1-D arrays), shape (nx, ny, nz); NaN where a leg is out of range."""
+    X, Y, Z = np.meshgrid(x_mm, y_mm, z_mm, indexing="ij")
+    p = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+    K = leg_error_norm(machine, p)
+    legs = inverse_kinematics(machine, p)
+    out = np.any((legs < machine.leg_min_mm) | (legs > machine.leg_max_mm), axis=1)
+    K[out] = np.nan
+    return K.reshape(X.shape)
+
+
+def sensitivity_vs_lambda(machine: PKM, lambdas, offset_xy_mm=(0.0, 0.0)) -> np.ndarray:
+    """``K`` against the size ratio ``lambda = l / c`` (leg length over ``c = R - r``), shape (m,).
+
+    For each ``lambda`` the platform is placed at ``offset_xy_mm`` with the height at which the
+    mean leg length equals ``lambda * c`` (``c`` from the machine's radii).
+    """
+    R = np.linalg.norm(machine.base_joints_mm[0, :2])
+    r = np.linalg.norm(machine.platform_joints_mm[0, :2])
+    c = R - r
+    lam = np.asarray(lambdas, float)
+    target = lam * c
+    off = np.asarray(offset_xy_mm, float)
+    horiz = leg_vectors(machine, np.array([[off[0], off[1], 0.0]]))[0]  # leg vectors at z = 0
+    # mean over legs of sqrt(h_i^2 + z^2) = target: solve by Newton in z
+    z = np.sqrt(np.maximum(target ** 2 - (horiz[:, :2] ** 2).sum(1).mean(), 1.0))
+    h2 = (horiz[:, :2] ** 2).sum(1)
+    for _ in range(30):
+        L = np.sqrt(h2[None] + z[:, None] ** 2)
+        f = L.mean(1) - target
+        z = z - f / (z[:, None] / L).mean(1)
+    p = np.c_[np.full_like(z, off[0]), np.full_like(z, off[1]), z]
+    return leg_error_norm(machine, p)

@@ -1,0 +1,264 @@
+"""The paper's BP network as an error field: axes (x_mm, z_mm, a_deg) -> (dx_um, dy_um, dz_um).
+
+The network is a plain multilayer perceptron (default: hidden layers 10, 15, 25, 15, 10 with
+sigmoid activations, the grinder paper's architecture), float64 throughout. It is written in
+functional form, ``forward(theta, features)`` with all weights in one flat parameter vector
+``theta``, so that the trainers (Levenberg–Marquardt above all) can take per-sample
+Jacobians with :mod:`torch.func`.
+
+Scaling lives inside the model (and inside its saved files), so a loaded model takes raw
+axes and returns μm:
+
+* inputs: each axis mapped linearly from its training range to ``[-1, 1]``. With
+  ``a_encoding="periodic"`` the A input is replaced by ``(cos a, sin a)``.
+* outputs: per-axis mean removed, then divided by ONE common scale (the largest per-axis
+  half-range of the training errors), so that the training loss is proportional to the
+  squared error in μm on every axis alike. The paper's MSE goal (2.5e-10) is on these
+  scaled outputs: RMS ≈ 1.6e-5 × scale μm.
+
+A is periodic (errors repeat every 360°). Commands may run past one turn (multi-turn
+paths): ``predict`` and ``jacobian`` fold any A outside the training turn
+``[a0, a0 + 360]`` (``a0`` = the smallest training A) back into it before the network.
+Points inside the turn, both ends included, pass unchanged.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.func import jacrev, vmap
+
+from errormap.io import InputError, atomic_write, write_json
+
+FORMAT = "volcomp-mlpfield/1"
+PAPER_HIDDEN = (10, 15, 25, 15, 10)
+ACTIVATIONS = {"sigmoid": torch.sigmoid, "tanh": torch.tanh, "softplus": torch.nn.functional.softplus}
+A_ENCODINGS = ("raw", "periodic")
+DTYPE = torch.float64
+
+
+def wrap_a(a_deg: np.ndarray, a0_deg: float) -> np.ndarray:
+    """Fold A (deg) into the training turn ``[a0, a0 + 360]``; values already inside pass unchanged."""
+    a = np.asarray(a_deg, dtype=float)
+    inside = (a >= a0_deg) & (a <= a0_deg + 360.0)
+    return np.where(inside, a, a0_deg + np.mod(a - a0_deg, 360.0))
+
+
+def _check_axes(axes, what: str = "axes (x_mm, z_mm, a_deg)") -> np.ndarray:
+    a = np.asarray(axes, dtype=float)
+    if a.ndim == 1 and a.shape[0] == 3:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"Expected {what} of shape (n, 3), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"Expected finite {what}, got NaN or inf")
+    return a
+
+
+class MLPField:
+    """A multilayer perceptron error field with built-in scaling.
+
+    Settings (constructor only stores them): ``hidden`` layer widths, ``activation``
+    (``sigmoid``, ``tanh``, ``softplus``), ``a_encoding`` (``raw``: A as one scaled input, the
+    paper's; ``periodic``: A as ``(cos a, sin a)``), ``chunk`` (points per batch in
+    ``predict``/``jacobian``, bounding memory).
+
+    Learned state: ``theta_`` (flat float64 parameters), ``in_lo_``/``in_hi_`` (input ranges,
+    shape (3,)), ``out_mean_`` (shape (3,), μm), ``out_scale_`` (μm).
+    """
+
+    kind = "mlp"
+
+    def __init__(self, hidden=PAPER_HIDDEN, activation: str = "sigmoid", a_encoding: str = "raw",
+                 chunk: int = 65_536):
+        self.hidden = tuple(int(h) for h in hidden)
+        self.activation = activation
+        self.a_encoding = a_encoding
+        self.chunk = int(chunk)
+        if activation not in ACTIVATIONS:
+            raise ValueError(f"Expected activation in {sorted(ACTIVATIONS)}, got {activation!r}")
+        if a_encoding not in A_ENCODINGS:
+            raise ValueError(f"Expected a_encoding in {A_ENCODINGS}, got {a_encoding!r}")
+        if not self.hidden or min(self.hidden) < 1:
+            raise ValueError(f"Expected at least one hidden layer of width >= 1, got {hidden!r}")
+
+    # -- structure ----------------------------------------------------------------------
+    @property
+    def n_inputs(self) -> int:
+        return 4 if self.a_encoding == "periodic" else 3
+
+    @property
+    def layer_sizes(self) -> tuple:
+        return (self.n_inputs, *self.hidden, 3)
+
+    @property
+    def shapes(self) -> list:
+        """(out, in) weight shape and (out,) bias shape per layer, in ``theta`` order."""
+        s = self.layer_sizes
+        out = []
+        for i in range(len(s) - 1):
+            out += [(s[i + 1], s[i]), (s[i + 1],)]
+        return out
+
+    @property
+    def n_params(self) -> int:
+        return sum(math.prod(s) for s in self.shapes)
+
+    def init_params(self, seed: int = 0) -> torch.Tensor:
+        """Nguyen–Widrow-like uniform init (PyTorch's Linear default bounds), from a seeded generator."""
+        g = torch.Generator().manual_seed(int(seed))
+        parts = []
+        for i, shp in enumerate(self.shapes):
+            fan_in = self.shapes[i - (i % 2)][1]
+            bound = 1.0 / math.sqrt(fan_in)
+            if self.activation == "sigmoid" and i % 2 == 0 and i < len(self.shapes) - 2:
+                bound *= 4.0  # sigmoid is 4x flatter than tanh at 0 (Glorot's rule)
+            parts.append((torch.rand(math.prod(shp), generator=g, dtype=DTYPE) * 2 - 1) * bound)
+        return torch.cat(parts)
+
+    def forward(self, theta: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """Scaled outputs from scaled features; ``u`` shape (n, n_inputs) or (n_inputs,)."""
+        act = ACTIVATIONS[self.activation]
+        h = u
+        k = 0
+        shapes = self.shapes
+        n_layers = len(shapes) // 2
+        for i in range(n_layers):
+            (o, n_in), _ = shapes[2 * i], shapes[2 * i + 1]
+            W = theta[k:k + o * n_in].view(o, n_in)
+            k += o * n_in
+            b = theta[k:k + o]
+            k += o
+            h = h @ W.T + b
+            if i < n_layers - 1:
+                h = act(h)
+        return h
+
+    # -- scaling ------------------------------------------------------------------------
+    def fit_scalers(self, axes, errors_um) -> "MLPField":
+        """Set the input ranges and output scaling from training data; returns self."""
+        axes = _check_axes(axes)
+        e = np.asarray(errors_um, dtype=float)
+        lo, hi = axes.min(axis=0), axes.max(axis=0)
+        hi = np.where(hi > lo, hi, lo + 1.0)
+        self.in_lo_, self.in_hi_ = lo, hi
+        self.a0_deg_ = float(lo[2])
+        self.out_mean_ = 0.5 * (e.max(axis=0) + e.min(axis=0))
+        self.out_scale_ = float(max(0.5 * (e.max(axis=0) - e.min(axis=0)).max(), 1e-12))
+        return self
+
+    def features(self, axes) -> np.ndarray:
+        """Scaled network inputs from raw axes, shape (n, n_inputs). A is wrapped first."""
+        axes = _check_axes(axes)
+        a = wrap_a(axes[:, 2], self.a0_deg_)
+        lo, hi = self.in_lo_, self.in_hi_
+        u = 2.0 * (np.column_stack([axes[:, 0], axes[:, 1], a]) - lo) / (hi - lo) - 1.0
+        if self.a_encoding == "periodic":
+            r = np.deg2rad(a)
+            u = np.column_stack([u[:, 0], u[:, 1], np.cos(r), np.sin(r)])
+        return u
+
+    def scale_errors(self, errors_um) -> np.ndarray:
+        return (np.asarray(errors_um, dtype=float) - self.out_mean_) / self.out_scale_
+
+    def unscale_errors(self, y) -> np.ndarray:
+        return np.asarray(y) * self.out_scale_ + self.out_mean_
+
+    # -- the error-field interface ------------------------------------------------------
+    def _theta(self) -> torch.Tensor:
+        if not hasattr(self, "theta_"):
+            raise RuntimeError("MLPField is not trained: call a trainer or MLPField.load first")
+        return self.theta_
+
+    def predict(self, axes) -> np.ndarray:
+        """Spatial error (dx_um, dy_um, dz_um) at raw axes shape (n, 3) -> shape (n, 3) μm."""
+        axes = _check_axes(axes)
+        theta = self._theta()
+        out = np.empty((axes.shape[0], 3))
+        with torch.no_grad():
+            for s in range(0, axes.shape[0], self.chunk):
+                u = torch.from_numpy(self.features(axes[s:s + self.chunk]))
+                out[s:s + self.chunk] = self.forward(theta, u).numpy()
+        return self.unscale_errors(out)
+
+    __call__ = predict
+
+    def _raw_to_scaled(self, x: torch.Tensor) -> torch.Tensor:
+        """Differentiable raw axes (x_mm, z_mm, a_deg) -> features for ONE point (A already wrapped)."""
+        lo = torch.as_tensor(self.in_lo_, dtype=DTYPE)
+        hi = torch.as_tensor(self.in_hi_, dtype=DTYPE)
+        u = 2.0 * (x - lo) / (hi - lo) - 1.0
+        if self.a_encoding == "periodic":
+            r = torch.deg2rad(x[2])
+            u = torch.stack([u[0], u[1], torch.cos(r), torch.sin(r)])
+        return u
+
+    def jacobian(self, axes) -> np.ndarray:
+        """∂(error μm)/∂(x_mm, z_mm, a_deg) at raw axes, shape (n, 3, 3).
+
+        Row i is the error component (dx, dy, dz); columns are μm/mm, μm/mm, μm/deg.
+        Batched with ``torch.func`` (``vmap(jacrev)``), in chunks of ``self.chunk`` points.
+        """
+        axes = _check_axes(axes)
+        theta = self._theta()
+        ax = axes.copy()
+        ax[:, 2] = wrap_a(ax[:, 2], self.a0_deg_)
+
+        def one(x):
+            return self.forward(theta, self._raw_to_scaled(x))
+
+        jf = vmap(jacrev(one))
+        out = np.empty((axes.shape[0], 3, 3))
+        for s in range(0, axes.shape[0], self.chunk):
+            out[s:s + self.chunk] = jf(torch.from_numpy(ax[s:s + self.chunk])).detach().numpy()
+        return out * self.out_scale_
+
+    def predict_and_jacobian(self, axes):
+        """Both at once: (errors shape (n, 3) μm, jacobian shape (n, 3, 3))."""
+        return self.predict(axes), self.jacobian(axes)
+
+    # -- files --------------------------------------------------------------------------
+    def config(self) -> dict:
+        return {"format": FORMAT, "hidden": list(self.hidden), "activation": self.activation,
+                "a_encoding": self.a_encoding, "n_params": self.n_params,
+                "inputs": ["x_mm", "z_mm", "a_deg"], "outputs": ["dx_um", "dy_um", "dz_um"]}
+
+    def scalers(self) -> dict:
+        return {"in_lo": self.in_lo_, "in_hi": self.in_hi_, "a0_deg": self.a0_deg_,
+                "out_mean_um": self.out_mean_, "out_scale_um": self.out_scale_}
+
+    def save(self, directory) -> Path:
+        """Write ``config.json``, ``scalers.json`` and ``weights.npy`` (float64) into ``directory``."""
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        write_json(d / "config.json", self.config())
+        # repr() round-trips float64 exactly through JSON
+        write_json(d / "scalers.json", {k: (np.asarray(v).tolist()) for k, v in self.scalers().items()})
+        with atomic_write(d / "weights.npy", "wb") as fh:
+            np.save(fh, self._theta().detach().numpy())
+        return d
+
+    @classmethod
+    def load(cls, directory) -> "MLPField":
+        d = Path(directory)
+        for name in ("config.json", "scalers.json", "weights.npy"):
+            if not (d / name).is_file():
+                raise InputError(f"{d}: not a saved MLPField (missing {name})")
+        cfg = json.loads((d / "config.json").read_text(encoding="utf-8"))
+        if cfg.get("format") != FORMAT:
+            raise InputError(f"{d / 'config.json'}: key 'format': expected {FORMAT!r}, got {cfg.get('format')!r}")
+        m = cls(cfg["hidden"], cfg["activation"], cfg["a_encoding"])
+        sc = json.loads((d / "scalers.json").read_text(encoding="utf-8"))
+        m.in_lo_ = np.asarray(sc["in_lo"], dtype=float)
+        m.in_hi_ = np.asarray(sc["in_hi"], dtype=float)
+        m.a0_deg_ = float(sc["a0_deg"])
+        m.out_mean_ = np.asarray(sc["out_mean_um"], dtype=float)
+        m.out_scale_ = float(sc["out_scale_um"])
+        theta = np.load(d / "weights.npy", allow_pickle=False)
+        if theta.shape != (m.n_params,):
+            raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
+        m.theta_ = torch.from_numpy(theta.astype(np.float64))
+        return m
