@@ -114,7 +114,7 @@ def error_jacobian(machine: Grinder, axes) -> np.ndarray:
     return J
 
 
-def spatial_error_exact(machine: Grinder, axes, values, chunk: int = 200_000) -> np.ndarray:
+def spatial_error_exact(machine: Grinder, axes, values, chunk: int = 50_000) -> np.ndarray:
     """Spatial error (μm) with exact transforms; ``values`` shape (n, 23) -> (n, 3).
 
     Works in chunks of ``chunk`` points to bound peak memory.
@@ -143,7 +143,7 @@ class HTMField:
 
     kind = "htm"
 
-    def __init__(self, machine: Grinder, elements: ElementSet, exact: bool = True, chunk: int = 200_000):
+    def __init__(self, machine: Grinder, elements: ElementSet, exact: bool = True, chunk: int = 50_000):
         self.machine = machine
         self.elements = elements
         self.exact = exact

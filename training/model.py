@@ -137,6 +137,47 @@ class MLPField:
                 h = act(h)
         return h
 
+    def param_jacobian(self, theta: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """∂(scaled outputs)/∂theta per sample, shape (n, 3, P), by explicit backpropagation.
+
+        Equal to ``vmap(jacrev(forward))`` from :mod:`torch.func` (tested) and about ten
+        times faster, because all samples and the three outputs go through one batched
+        backward pass of plain matrix products.
+        """
+        shapes = self.shapes
+        n_layers = len(shapes) // 2
+        Ws, acts, dacts = [], [u], []
+        k = 0
+        h = u
+        for i in range(n_layers):
+            (o, n_in) = shapes[2 * i]
+            W = theta[k:k + o * n_in].view(o, n_in)
+            k += o * n_in + o
+            b = theta[k - o:k]
+            Ws.append(W)
+            z = h @ W.T + b
+            if i < n_layers - 1:
+                if self.activation == "sigmoid":
+                    h = torch.sigmoid(z)
+                    dacts.append(h * (1 - h))
+                elif self.activation == "tanh":
+                    h = torch.tanh(z)
+                    dacts.append(1 - h * h)
+                else:
+                    h = torch.nn.functional.softplus(z)
+                    dacts.append(torch.sigmoid(z))
+                acts.append(h)
+        n = u.shape[0]
+        blocks = [None] * (2 * n_layers)
+        delta = torch.eye(3, dtype=u.dtype).expand(n, 3, 3)  # (n, out k, units of last layer)
+        for i in range(n_layers - 1, -1, -1):
+            a_prev = acts[i]  # (n, in)
+            blocks[2 * i] = (delta[:, :, :, None] * a_prev[:, None, None, :]).reshape(n, 3, -1)
+            blocks[2 * i + 1] = delta
+            if i > 0:
+                delta = (delta @ Ws[i]) * dacts[i - 1][:, None, :]
+        return torch.cat(blocks, dim=2)
+
     # -- scaling ------------------------------------------------------------------------
     def fit_scalers(self, axes, errors_um) -> "MLPField":
         """Set the input ranges and output scaling from training data; returns self."""

@@ -1,0 +1,166 @@
+"""Check measurements (DESIGN.md schema) for diagnosis: loading, validation, the measured residual.
+
+Columns: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um`` (required); ``time_s``, ``temp_c``,
+``dir_x``, ``dir_z``, ``dir_a`` (+1/-1), ``seq`` (order taken) optional; extra columns are kept
+in the file and ignored here.
+
+Validation (every error is an :class:`~errormap.io.InputError` naming the file, the row — the
+file line, header = row 1 — and the column):
+
+* a missing required column; a cell that is not a finite number (NaN, inf, text);
+* a direction that is not +1/-1; a ``seq`` that is not an integer;
+* units that do not fit: a measured error beyond ``MAX_ERROR_UM`` (a value in metres or nm, or
+  a position typed into an error column), a temperature outside ``TEMP_RANGE_C`` (kelvin or
+  fahrenheit), and — once the model is known, see :func:`measured_residual` — a measured
+  column ~1000× smaller than the model predicts (mm or m written as μm);
+* duplicated rows (every cell equal to an earlier row) and duplicated ``seq`` values;
+* a check point outside the X or Z stroke of the machine (A is periodic; any finite A passes).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..io import InputError, read_table
+
+AXES_COLUMNS = ("x_mm", "z_mm", "a_deg")
+ERROR_COLUMNS = ("dx_um", "dy_um", "dz_um")
+REQUIRED_COLUMNS = AXES_COLUMNS + ERROR_COLUMNS
+CONDITION_COLUMNS = ("time_s", "temp_c", "dir_x", "dir_z", "dir_a")
+DIR_COLUMNS = ("dir_x", "dir_z", "dir_a")
+MAX_ERROR_UM = 5000.0
+"""Largest plausible measured error component (μm): 5 mm. The grinder's errors are < 250 μm."""
+TEMP_RANGE_C = (-40.0, 80.0)
+STROKE_TOL_MM = 1e-6
+UNIT_RATIO = 50.0
+"""A measured column whose RMS is this many times smaller than the model's prediction (which
+is at least ``UNIT_MIN_PRED_UM``) is taken for a unit mistake (mm or m written as μm)."""
+UNIT_MIN_PRED_UM = 5.0
+
+
+@dataclass
+class CheckData:
+    """Check measurements, in ``seq`` order (file order when there is no ``seq``).
+
+    ``axes`` shape (n, 3) (x_mm, z_mm, a_deg); ``measured_um`` shape (n, 3); ``conditions``
+    maps the optional condition names present (``time_s``, ``temp_c``, ``dir_x`` ...) to
+    arrays shape (n,); ``seq`` shape (n,) int; ``rows`` shape (n,) file line of each point
+    (for error messages; 0 when the data did not come from a file).
+    """
+
+    axes: np.ndarray
+    measured_um: np.ndarray
+    conditions: dict = field(default_factory=dict)
+    seq: np.ndarray | None = None
+    rows: np.ndarray | None = None
+    path: str = "<checks>"
+
+    def __post_init__(self):
+        self.axes = np.asarray(self.axes, dtype=float)
+        self.measured_um = np.asarray(self.measured_um, dtype=float)
+        n = self.axes.shape[0]
+        if self.axes.shape != (n, 3) or self.measured_um.shape != (n, 3):
+            raise ValueError(f"Expected axes and measured_um of shape (n, 3), got {self.axes.shape} and {self.measured_um.shape}")
+        self.conditions = {k: np.asarray(v, dtype=float) for k, v in self.conditions.items()}
+        for k, v in self.conditions.items():
+            if k not in CONDITION_COLUMNS or v.shape != (n,):
+                raise ValueError(f"Expected conditions from {CONDITION_COLUMNS} of shape ({n},), got {k!r} {v.shape}")
+        self.seq = np.arange(n) if self.seq is None else np.asarray(self.seq, dtype=np.int64)
+        self.rows = np.zeros(n, dtype=np.int64) if self.rows is None else np.asarray(self.rows, dtype=np.int64)
+        order = np.argsort(self.seq, kind="stable")
+        if np.any(order != np.arange(n)):
+            self.axes, self.measured_um = self.axes[order], self.measured_um[order]
+            self.conditions = {k: v[order] for k, v in self.conditions.items()}
+            self.seq, self.rows = self.seq[order], self.rows[order]
+
+    def __len__(self) -> int:
+        return self.axes.shape[0]
+
+    def subset(self, idx) -> "CheckData":
+        return CheckData(self.axes[idx], self.measured_um[idx], {k: v[idx] for k, v in self.conditions.items()},
+                         self.seq[idx], self.rows[idx], self.path)
+
+    @classmethod
+    def from_columns(cls, cols: dict, path: str = "<checks>") -> "CheckData":
+        """From a dict of columns (e.g. :meth:`TruthGrinder.check_measurements`)."""
+        axes = np.stack([np.asarray(cols[k], dtype=float) for k in AXES_COLUMNS], axis=1)
+        meas = np.stack([np.asarray(cols[k], dtype=float) for k in ERROR_COLUMNS], axis=1)
+        cond = {k: np.asarray(cols[k], dtype=float) for k in CONDITION_COLUMNS if k in cols}
+        return cls(axes, meas, cond, cols.get("seq"), None, path)
+
+
+def _fail(path, row, column, msg) -> InputError:
+    return InputError(f"{path}: row {row}, column '{column}': {msg}")
+
+
+def load_checks(path, machine) -> CheckData:
+    """Read and validate a check-measurement CSV against ``machine``'s strokes (see module doc)."""
+    t = read_table(path)
+    t.require(*REQUIRED_COLUMNS)
+    if len(t) < 10:
+        raise InputError(f"{path}: expected at least 10 check measurements, got {len(t)}")
+    axes = np.stack([t.float(c) for c in AXES_COLUMNS], axis=1)
+    meas = np.stack([t.float(c) for c in ERROR_COLUMNS], axis=1)
+    rows = np.array([t.row_number(k) for k in range(len(t))])
+    cond = {}
+    for c in CONDITION_COLUMNS:
+        if c in t:
+            cond[c] = t.int(c, allowed=(-1, 1)).astype(float) if c in DIR_COLUMNS else t.float(c)
+    seq = t.int("seq") if "seq" in t else None
+    # units
+    bad = np.argwhere(np.abs(meas) > MAX_ERROR_UM)
+    if bad.size:
+        k, j = bad[0]
+        v = meas[k, j]
+        raise _fail(path, rows[k], ERROR_COLUMNS[j],
+                    f"units do not fit: {v:g} μm (= {v * 1e-6:g} m) is beyond the plausible {MAX_ERROR_UM:g} μm; "
+                    "expected an error in μm (not nm, not a position)")
+    if "temp_c" in cond:
+        tc = cond["temp_c"]
+        bad = np.flatnonzero((tc < TEMP_RANGE_C[0]) | (tc > TEMP_RANGE_C[1]))
+        if bad.size:
+            raise _fail(path, rows[bad[0]], "temp_c",
+                        f"units do not fit: {tc[bad[0]]:g} is outside {TEMP_RANGE_C} °C (kelvin or fahrenheit?)")
+    # strokes (A is periodic: any finite value passes)
+    for j, c in enumerate(AXES_COLUMNS[:2]):
+        lo, hi = machine.strokes[c]
+        bad = np.flatnonzero((axes[:, j] < lo - STROKE_TOL_MM) | (axes[:, j] > hi + STROKE_TOL_MM))
+        if bad.size:
+            raise _fail(path, rows[bad[0]], c, f"check point outside the stroke [{lo:g}, {hi:g}] mm: {axes[bad[0], j]:g}")
+    # duplicates
+    seen = {}
+    for k, r in enumerate(t.rows):
+        key = tuple(r)
+        if key in seen:
+            raise InputError(f"{path}: row {rows[k]}: duplicated row (every column equals row {rows[seen[key]]}; "
+                             f"columns {t.names})")
+        seen[key] = k
+    if seq is not None:
+        first = {}
+        for k, s in enumerate(seq):
+            if s in first:
+                raise _fail(path, rows[k], "seq", f"duplicated value {s} (also in row {rows[first[s]]})")
+            first[s] = k
+    return CheckData(axes, meas, cond, seq, rows, str(path))
+
+
+def measured_residual(checks: CheckData, field_) -> tuple[np.ndarray, np.ndarray]:
+    """The measured residual (measurement − model prediction) and the prediction, both (n, 3) μm.
+
+    Raises :class:`InputError` naming a column (and the row of its largest value) when a
+    measured column is ~1000× smaller than the model's prediction (mm or m written as μm).
+    """
+    pred = np.asarray(field_.predict(checks.axes), dtype=float)
+    if pred.shape != checks.measured_um.shape or not np.all(np.isfinite(pred)):
+        raise ValueError(f"Expected a finite model prediction of shape {checks.measured_um.shape}, got {pred.shape}")
+    rms_pred = np.sqrt(np.mean(pred**2, axis=0))
+    rms_meas = np.sqrt(np.mean(checks.measured_um**2, axis=0))
+    for j, c in enumerate(ERROR_COLUMNS):
+        if rms_pred[j] >= UNIT_MIN_PRED_UM and rms_meas[j] * UNIT_RATIO < rms_pred[j]:
+            k = int(np.argmax(np.abs(checks.measured_um[:, j])))
+            raise _fail(checks.path, checks.rows[k], c,
+                        f"units do not fit: measured RMS {rms_meas[j]:.3g} μm but the model predicts RMS "
+                        f"{rms_pred[j]:.3g} μm (residual ≈ −prediction); is the column in mm or m rather than μm?")
+    return checks.measured_um - pred, pred

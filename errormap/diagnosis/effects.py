@@ -1,0 +1,247 @@
+"""The library of candidate effects: small parametric terms with a physical meaning.
+
+A term acts on ONE error element ``e`` (one of the 23 names) or directly on one WCS error
+component (``dx``/``dy``/``dz``). Its contribution to the spatial error at axes ``q`` under
+conditions ``c`` is::
+
+    Δerror(q, c) = J_e(q) · g(θ; q, c)        shape (n, 3) μm
+
+where ``J_e`` is the element's column of :func:`errormap.htm.error_jacobian` (μm per μm or per
+μrad; the unit vector for ``dx``/``dy``/``dz``) and ``g`` a scalar function of the inputs,
+linear in its coefficients θ except for the period of ``periodic``:
+
+===========  =====  ==========================================================  ======================
+kind         axis   g (u = μm, or μrad for an angular element)                  parameters
+===========  =====  ==========================================================  ======================
+thermal      x, z   k·(temp_c − ref_temp_c)·(pos − lo)                          ``k_u_per_mm_c``
+drift        x, z   k·(time_s − ref_time_s)/3600·(pos − lo)                     ``k_u_per_mm_h``
+reversal     x,z,a  b/2·dir                                                     ``backlash_u``
+periodic     x, z   A·sin(2π·pos/P + φ)  (P found by a periodogram)             ``amplitude_u, phase_rad, period_mm``
+harmonic     a      A·sin(N·a + φ)       (integer order N by a periodogram)     ``amplitude_u, phase_rad, order``
+interaction  x*z    k·(x − x_lo)(z − z_lo)/(Δx·Δz)                              ``corner_u``
+===========  =====  ==========================================================  ======================
+
+``pos`` is the axis position, ``lo`` the lower stroke, Δ the stroke length. Internally the
+sinusoids are fitted as ``s·sin + c·cos`` (linear) and reported as amplitude and phase.
+Candidate elements per input axis: the six elements of that axis' group (X, Z or A; both
+X and Z for ``x*z``) and the three WCS components.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..elements import A_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS, element_unit
+from ..htm import IDX, error_jacobian
+
+KINDS = ("thermal", "drift", "reversal", "periodic", "harmonic", "interaction")
+WCS_ELEMENTS = ("dx", "dy", "dz")
+AXIS_ELEMENTS = {"x": X_ELEMENTS, "z": Z_ELEMENTS, "a": A_ELEMENTS, "x*z": X_ELEMENTS + Z_ELEMENTS}
+KIND_AXES = {"thermal": ("x", "z"), "drift": ("x", "z"), "reversal": ("x", "z", "a"),
+             "periodic": ("x", "z"), "harmonic": ("a",), "interaction": ("x*z",)}
+AXIS_COL = {"x": 0, "z": 1, "a": 2}
+STROKE_KEY = {"x": "x_mm", "z": "z_mm", "a": "a_deg"}
+SECONDS_PER_HOUR = 3600.0
+
+
+def unit_of(element: str) -> str:
+    return "um" if element in WCS_ELEMENTS else element_unit(element)
+
+
+def needs(kind: str, axis: str) -> tuple[str, ...]:
+    """Condition columns a term of ``kind`` on ``axis`` needs."""
+    return {"thermal": ("temp_c",), "drift": ("time_s",), "reversal": (f"dir_{axis}",)}.get(kind, ())
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One (kind, axis, element) of the library."""
+
+    kind: str
+    axis: str
+    element: str
+
+    @property
+    def n_linear(self) -> int:
+        return 2 if self.kind in ("periodic", "harmonic") else 1
+
+    @property
+    def label(self) -> str:
+        return f"{self.kind}({self.axis}) on {self.element}"
+
+
+def library(available: set | frozenset = frozenset(CONDITION_NAMES := ("time_s", "temp_c", "dir_x", "dir_z", "dir_a")),
+            kinds=KINDS) -> list[Candidate]:
+    """All candidates whose conditions are available; element terms before WCS-direct ones."""
+    out = []
+    for kind in kinds:
+        if kind not in KINDS:
+            raise ValueError(f"Expected effect kinds from {KINDS}, got {kind!r}")
+        for axis in KIND_AXES[kind]:
+            if not set(needs(kind, axis)) <= set(available):
+                continue
+            for el in AXIS_ELEMENTS[axis] + WCS_ELEMENTS:
+                out.append(Candidate(kind, axis, el))
+    return out
+
+
+@dataclass
+class Context:
+    """Inputs of the terms at n points: axes (n, 3), conditions {name: (n,)}, the Jacobian
+    (n, 3, 23) and the references (strokes, ``ref_temp_c``, ``ref_time_s``)."""
+
+    axes: np.ndarray
+    conditions: dict
+    jac: np.ndarray
+    ref: dict
+
+    @classmethod
+    def build(cls, machine, axes, conditions, ref) -> "Context":
+        axes = np.asarray(axes, dtype=float)
+        return cls(axes, {k: np.asarray(v, dtype=float) for k, v in (conditions or {}).items()},
+                   error_jacobian(machine, axes), ref)
+
+    def subset(self, idx) -> "Context":
+        return Context(self.axes[idx], {k: v[idx] for k, v in self.conditions.items()}, self.jac[idx], self.ref)
+
+    def column(self, element: str) -> np.ndarray:
+        """J_e, shape (n, 3)."""
+        if element in WCS_ELEMENTS:
+            out = np.zeros((self.axes.shape[0], 3))
+            out[:, WCS_ELEMENTS.index(element)] = 1.0
+            return out
+        return self.jac[:, :, IDX[element]]
+
+    def cond(self, name: str) -> np.ndarray:
+        if name not in self.conditions:
+            raise ValueError(f"this effect needs the condition {name!r}; got only {sorted(self.conditions)}")
+        return self.conditions[name]
+
+    def position(self, axis: str) -> np.ndarray:
+        """Axis position relative to the lower stroke (mm), or A in rad."""
+        if axis == "a":
+            return np.deg2rad(self.axes[:, 2])
+        return self.axes[:, AXIS_COL[axis]] - self.ref["strokes"][STROKE_KEY[axis]][0]
+
+
+def reference(machine, conditions: dict, ref_temp_c: float = 20.0) -> dict:
+    """References of the terms: strokes, reference temperature, time origin (first time_s)."""
+    t = conditions.get("time_s")
+    return {"strokes": {k: tuple(machine.strokes[k]) for k in ("x_mm", "z_mm", "a_deg")},
+            "ref_temp_c": float(ref_temp_c), "ref_time_s": float(np.min(t)) if t is not None and len(t) else 0.0}
+
+
+def basis(cand: Candidate, ctx: Context, period_mm: float | None = None, order: int | None = None) -> np.ndarray:
+    """g's basis functions at the context's points, shape (n, n_linear)."""
+    k, ax = cand.kind, cand.axis
+    if k == "thermal":
+        b = (ctx.cond("temp_c") - ctx.ref["ref_temp_c"]) * ctx.position(ax)
+    elif k == "drift":
+        b = (ctx.cond("time_s") - ctx.ref["ref_time_s"]) / SECONDS_PER_HOUR * ctx.position(ax)
+    elif k == "reversal":
+        b = 0.5 * ctx.cond(f"dir_{ax}")
+    elif k == "interaction":
+        (xl, xh), (zl, zh) = ctx.ref["strokes"]["x_mm"], ctx.ref["strokes"]["z_mm"]
+        b = ctx.position("x") * ctx.position("z") / ((xh - xl) * (zh - zl))
+    elif k == "periodic":
+        w = 2 * np.pi / period_mm * (ctx.axes[:, AXIS_COL[ax]])
+        return np.stack([np.sin(w), np.cos(w)], axis=1)
+    elif k == "harmonic":
+        w = order * ctx.position("a")
+        return np.stack([np.sin(w), np.cos(w)], axis=1)
+    else:  # pragma: no cover
+        raise ValueError(f"unknown kind {k!r}")
+    return b[:, None]
+
+
+def design(cand: Candidate, ctx: Context, period_mm=None, order=None) -> np.ndarray:
+    """Design matrix of the term on the stacked residual, shape (3n, n_linear)."""
+    B = basis(cand, ctx, period_mm, order)
+    return (ctx.column(cand.element)[:, :, None] * B[:, None, :]).reshape(-1, B.shape[1])
+
+
+def projected_periodogram(r_um: np.ndarray, jcol: np.ndarray, pos: np.ndarray, omegas: np.ndarray) -> tuple:
+    """Least-squares (Lomb–Scargle type) periodogram of a residual projected on an element.
+
+    For each angular frequency ω fits ``r ≈ J_e·(s·sin ωpos + c·cos ωpos)`` over the
+    stacked 3-vector residual (shapes: r (n, 3), jcol (n, 3), pos (n,), omegas (m,)). With
+    ``J_e`` a unit vector this is the classical Lomb–Scargle periodogram without floating
+    mean. Returns (RSS reduction (m,) μm², coefficients (m, 2)).
+    """
+    g = np.einsum("ni,ni->n", jcol, r_um)          # J_eᵀ r per point
+    w = np.einsum("ni,ni->n", jcol, jcol)          # |J_e|² per point
+    ph = np.outer(omegas, pos)
+    S, C = np.sin(ph), np.cos(ph)
+    a11, a12, a22 = (w * S * S).sum(1), (w * S * C).sum(1), (w * C * C).sum(1)
+    b1, b2 = (g * S).sum(1), (g * C).sum(1)
+    det = a11 * a22 - a12**2
+    det = np.where(np.abs(det) > 1e-300, det, np.inf)
+    s = (a22 * b1 - a12 * b2) / det
+    c = (a11 * b2 - a12 * b1) / det
+    return s * b1 + c * b2, np.stack([s, c], axis=1)
+
+
+@dataclass
+class EffectTerm:
+    """A fitted term: candidate, linear coefficients ``coef`` (n_linear,), nonlinear
+    ``period_mm``/``order``, the references, and the covariance ``cov`` of
+    ``[coef..., period_mm]`` (period only for ``periodic``)."""
+
+    cand: Candidate
+    coef: np.ndarray
+    ref: dict
+    period_mm: float | None = None
+    order: int | None = None
+    cov: np.ndarray | None = None
+    stats: dict = field(default_factory=dict)
+
+    kind = property(lambda self: self.cand.kind)
+    axis = property(lambda self: self.cand.axis)
+    element = property(lambda self: self.cand.element)
+
+    @property
+    def needs(self) -> tuple[str, ...]:
+        return needs(self.cand.kind, self.cand.axis)
+
+    def value(self, ctx: Context) -> np.ndarray:
+        """g at the points, shape (n,), μm or μrad (the element's unit)."""
+        return basis(self.cand, ctx, self.period_mm, self.order) @ self.coef
+
+    def contribution(self, ctx: Context) -> np.ndarray:
+        """The term's spatial error, shape (n, 3) μm."""
+        return ctx.column(self.cand.element) * self.value(ctx)[:, None]
+
+    def parameters(self) -> dict:
+        """Named parameters ``{name: {"value", "se", "unit"}}`` (se None when not available)."""
+        u = unit_of(self.cand.element)
+        cov = self.cov if self.cov is not None else np.full((len(self.coef) + 1,) * 2, np.nan)
+        se = np.sqrt(np.abs(np.diag(cov)))
+        k = self.cand.kind
+        names = {"thermal": (f"k_{u}_per_mm_c", f"{u}/(mm·°C)"), "drift": (f"k_{u}_per_mm_h", f"{u}/(mm·h)"),
+                 "reversal": (f"backlash_{u}", u), "interaction": (f"corner_{u}", u)}
+        if k in names:
+            n, unit = names[k]
+            return {n: {"value": float(self.coef[0]), "se": float(se[0]), "unit": unit}}
+        s, c = self.coef
+        amp = float(np.hypot(s, c))
+        # A·sin(w + φ) = A cosφ sin w + A sinφ cos w  ->  s = A cosφ, c = A sinφ
+        phase = float(np.arctan2(c, s))
+        g = np.array([[s / amp, c / amp], [-c / amp**2, s / amp**2]]) if amp > 0 else np.zeros((2, 2))
+        cv = g @ cov[:2, :2] @ g.T
+        out = {f"amplitude_{u}": {"value": amp, "se": float(np.sqrt(abs(cv[0, 0]))), "unit": u},
+               "phase_rad": {"value": phase, "se": float(np.sqrt(abs(cv[1, 1]))), "unit": "rad"}}
+        if k == "periodic":
+            out["period_mm"] = {"value": float(self.period_mm), "se": float(se[2]) if len(se) > 2 else None, "unit": "mm"}
+        else:
+            out["order"] = {"value": int(self.order), "se": None, "unit": "per revolution"}
+        return out
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "axis": self.axis, "element": self.element,
+                "parameters": self.parameters(), "coefficients": [float(v) for v in self.coef],
+                "period_mm": self.period_mm, "order": self.order, "needs": list(self.needs),
+                "reference": {"ref_temp_c": self.ref["ref_temp_c"], "ref_time_s": self.ref["ref_time_s"]}}
+
+
+ALL_ELEMENTS = ELEMENT_NAMES + WCS_ELEMENTS

@@ -1,0 +1,60 @@
+"""CSV tool paths (compensation.pathio)."""
+import numpy as np
+import pytest
+
+from compensation.pathio import align_turns, read_path, write_axes_gcode, write_compensated, write_targets_csv
+from compensation.toolpath import flute_path
+from errormap.io import InputError
+from errormap.kinematics import forward
+
+TOL_MM = 1e-6
+
+
+def test_axes_csv_targets_are_forward(tmp_path, grinder):
+    p = tmp_path / "axes.csv"
+    p.write_text("# job: test\nx_mm,z_mm,a_deg,feed\n10,1,0,100\n20,2,370,100\n")
+    tp = read_path(p, grinder)
+    assert tp.kind == "csv-axes" and tp.lines.tolist() == [3, 4]
+    assert np.allclose(tp.targets_mm, forward(grinder, tp.axes))
+    out = write_compensated(tp, tmp_path / "out" / "axes.csv", tp.axes + 0.001, tp.targets_mm, comments=["method: x"])
+    text = out.read_text().splitlines()
+    assert text[0] == "# job: test" and text[1] == "# method: x" and text[2] == "x_mm,z_mm,a_deg,feed"
+    assert text[3].endswith(",100")
+    back = read_path(out, grinder)
+    assert np.abs(back.axes - (tp.axes + 0.001)).max() < TOL_MM
+
+
+def test_targets_csv_round_trip_and_unwrap(tmp_path, grinder):
+    f = flute_path(turns=2, points_per_turn=30)
+    p = write_targets_csv(tmp_path / "flute.csv", f.targets_mm)
+    tp = read_path(p, grinder)
+    assert tp.kind == "csv-targets"
+    assert np.abs(tp.axes[:, 2] - f.theta_deg).max() < 1e-6  # A unwrapped along the path
+    out = write_compensated(tp, tmp_path / "o" / "flute.csv", tp.axes, tp.targets_mm + 1e-4)
+    assert np.abs(read_path(out, grinder).targets_mm - (f.targets_mm + 1e-4)).max() < TOL_MM
+
+
+@pytest.mark.parametrize("text, match", [
+    ("x_mm,z_mm\n1,2\n", "expected columns"),
+    ("x_mm,z_mm,a_deg,px_mm,py_mm,pz_mm\n1,2,3,4,5,6\n", "both"),
+    ("x_mm,z_mm,a_deg\n1,2,3\n1,abc,3\n", r"row 3, column 'z_mm'"),
+    ("x_mm,z_mm,a_deg\n1,2\n", "row 2"),
+    ("x_mm,z_mm,a_deg\n", "no data rows"),
+])
+def test_bad_csv_names_row_and_column(tmp_path, grinder, text, match):
+    p = tmp_path / "bad.csv"
+    p.write_text(text)
+    with pytest.raises(InputError, match=match) as exc:
+        read_path(p, grinder)
+    assert "bad.csv" in str(exc.value)
+
+
+def test_plain_gcode_writer_reads_back(tmp_path, grinder):
+    ax = flute_path(turns=1, points_per_turn=20).axes(grinder)
+    tp = read_path(write_axes_gcode(tmp_path / "f.nc", ax, header=["flute"]), grinder)
+    assert np.abs(tp.axes - ax).max() < TOL_MM
+
+
+def test_align_turns():
+    a = align_turns([719.0, -1.0, 365.0], [0.0, 360.0, 5.0])
+    assert np.allclose(a, [-1.0, 359.0, 5.0])
