@@ -236,25 +236,45 @@ def leg_program(machine: PKM, path: ToolPath, calibrated: PKM | None = None, che
     return LegProgram(legs, inc, model.legs_to_drive(legs), path, calibrated is not None)
 
 
-def true_path_residual(truth, calibration_or_none, path: ToolPath) -> dict:
+def true_path_residual(truth, calibration_or_none, path: ToolPath, frame: str = "machine") -> dict:
     """True residual along ``path`` on the simulated truth machine, per point.
 
     ``truth``: a :class:`errormap.pkm.simulate.Truth` (or its PKM); ``calibration_or_none``: None
-    (nominal commands), a ``CalibrationResult`` or an identified PKM. Returns ``position_um`` (n,),
-    ``error_um`` (n, 3), ``angle_urad`` (n,) (hexapod) and ``rms_um``/``max_um``.
+    (nominal commands), a ``CalibrationResult`` or an identified PKM. ``frame``: ``"machine"`` (the
+    path is in the machine frame defined by the joints) or ``"instrument"`` (the path is in the
+    measuring instrument's frame, where the part is located; commands go through the identified
+    registration -- for uncompensated commands the initial nominal registration). Returns
+    ``position_um`` (n,), ``error_um`` (n, 3), ``angle_urad`` (n,) (hexapod), ``rms_um``/``max_um``.
     """
     tm = getattr(truth, "machine", truth)
     nominal = getattr(truth, "nominal", None) or tm
     cal = getattr(calibration_or_none, "machine", calibration_or_none)
-    prog = leg_program(nominal, path, cal, check_limits=False)
+    tip, R = path.tip_mm, path.platform2base
+    if frame == "instrument":
+        tf, Rf = truth.frame_translation_mm, truth.frame_rotation
+        tip_i, R_i = tip @ Rf.T + tf, np.einsum("ij,njk->nik", Rf, R)   # the part, located by the instrument
+        if calibration_or_none is not None and hasattr(calibration_or_none, "frame_rotation"):
+            tg, Rg = calibration_or_none.frame_translation_mm, calibration_or_none.frame_rotation
+        elif calibration_or_none is not None and hasattr(calibration_or_none, "lcurve"):
+            tg, Rg = calibration_or_none.lcurve["initial_frame"]
+        else:
+            raise ValueError("frame='instrument' needs a CalibrationResult (it holds the registration)")
+        if cal is None or calibration_or_none is None:
+            pass
+        cmd_path = replace(path, tip_mm=(tip_i - tg) @ Rg, platform2base=np.einsum("ji,njk->nik", Rg, R_i))
+    elif frame == "machine":
+        cmd_path = path
+    else:
+        raise ValueError(f"frame must be 'machine' or 'instrument', got {frame!r}")
+    prog = leg_program(nominal, cmd_path, cal, check_limits=False)
     tt = _with_tool(tm, path)
-    fk = forward_kinematics(tt, tt.drive_to_legs(prog.q), guess_tip_mm=path.tip_mm,
-                            guess_platform2base=path.platform2base, check_limits=False)
-    err = (fk.x - path.tip_mm) * 1e3
+    fk = forward_kinematics(tt, tt.drive_to_legs(prog.q), guess_tip_mm=tip, guess_platform2base=R,
+                            check_limits=False)
+    err = (fk.x - tip) * 1e3
     pos = np.linalg.norm(err, axis=1)
     out = {"position_um": pos, "error_um": err, "rms_um": float(np.sqrt(np.mean(pos ** 2))),
-           "max_um": float(pos.max()), "n_points": len(pos)}
+           "max_um": float(pos.max()), "n_points": len(pos), "frame": frame}
     if tm.kind == "hexapod":
-        rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", fk.platform2base, path.platform2base)).as_rotvec()
+        rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", fk.platform2base, R)).as_rotvec()
         out["angle_urad"] = 1e6 * np.linalg.norm(rv, axis=1)
     return out

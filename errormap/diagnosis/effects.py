@@ -43,6 +43,7 @@ KIND_AXES = {"thermal": ("x", "z"), "drift": ("x", "z"), "reversal": ("x", "z", 
 AXIS_COL = {"x": 0, "z": 1, "a": 2}
 STROKE_KEY = {"x": "x_mm", "z": "z_mm", "a": "a_deg"}
 SECONDS_PER_HOUR = 3600.0
+CONDITION_NAMES = ("time_s", "temp_c", "dir_x", "dir_z", "dir_a")
 
 
 def unit_of(element: str) -> str:
@@ -71,8 +72,7 @@ class Candidate:
         return f"{self.kind}({self.axis}) on {self.element}"
 
 
-def library(available: set | frozenset = frozenset(CONDITION_NAMES := ("time_s", "temp_c", "dir_x", "dir_z", "dir_a")),
-            kinds=KINDS) -> list[Candidate]:
+def library(available=CONDITION_NAMES, kinds=KINDS) -> list[Candidate]:
     """All candidates whose conditions are available; element terms before WCS-direct ones."""
     out = []
     for kind in kinds:

@@ -1,0 +1,175 @@
+"""Helpers shared by the solvers: input validation, field evaluation, Jacobians, A continuity.
+
+Conventions (all solvers):
+
+* Targets ``p_d`` and commands ``p_r`` are WCS points, shape (n, 3), mm.
+* Axes are ``(x_mm, z_mm, a_deg)``, shape (n, 3). The field is always evaluated with A
+  folded into the calibrated turn ``[a_lo, a_lo + 360)`` of the A stroke when that stroke
+  spans a full turn (errors are periodic in A, DESIGN.md), so multi-turn commands never
+  reach a field outside its training range.
+* A continuity: the axis command of ``p_r`` takes the A turn of its own target, i.e.
+  ``a_r = a_d + wrap180(a_r - a_d)``, where the targets' A is unwrapped along the path
+  (``kinematics.inverse(unwrap=True)``) or given by the caller (``target_axes``). A path
+  whose targets are continuous therefore gets continuous compensated A, never a 360° jump.
+* The model residual is ``(p_r - p_d)·1e3 + E(axes(p_r))`` μm (DESIGN.md residual 1).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from errormap.kinematics import inverse, tool_in_machine_nominal
+from errormap.transforms import check_points
+
+from .base import BALL_RADIUS_UM, SolveResult
+
+UM_PER_MM = 1e3
+MM_PER_UM = 1e-3
+FIELD_CHUNK = 262_144
+"""Rows per ``field.predict`` call: bounds the peak memory of any field."""
+FD_STEPS = np.array([1e-3, 1e-3, 1e-3])
+"""Central-difference steps in axis space (mm, mm, deg) for fields without ``jacobian``."""
+
+
+def check_field(field) -> None:
+    """Raise TypeError unless ``field`` has a callable ``predict``."""
+    if not callable(getattr(field, "predict", None)):
+        raise TypeError(f"Expected an error field with predict(axes) -> (n, 3) μm, got {type(field).__name__}")
+
+
+def full_turn_a(machine) -> bool:
+    """True when the A stroke spans at least one full turn (A is a continuous rotary axis)."""
+    lo, hi = machine.strokes["a_deg"]
+    return hi - lo >= 360.0 - 1e-9
+
+
+def fold_a(axes, machine) -> np.ndarray:
+    """Axes with A folded into ``[a_lo, a_lo + 360)`` when the stroke spans a full turn, (n, 3)."""
+    out = np.array(axes, dtype=float, copy=True)
+    if full_turn_a(machine):
+        a_lo = machine.strokes["a_deg"][0]
+        out[:, 2] = a_lo + np.mod(out[:, 2] - a_lo, 360.0)
+    return out
+
+
+def wrap180(angle_deg) -> np.ndarray:
+    """Angles folded into ``[-180, 180)``."""
+    return np.mod(np.asarray(angle_deg, dtype=float) + 180.0, 360.0) - 180.0
+
+
+def check_inputs(field, targets_mm, machine, target_axes=None, a_start_deg=None, ball_um=BALL_RADIUS_UM):
+    """Validate solver input before any expensive work.
+
+    Returns ``(targets (n, 3) mm, target_axes (n, 3))``; the targets' A is unwrapped along
+    the path (or taken from ``target_axes``, which must be the nominal axes of the targets).
+    """
+    check_field(field)
+    for k in ("strokes",):
+        if not hasattr(machine, k):
+            raise TypeError(f"Expected a grinder machine (with strokes), got {type(machine).__name__}")
+    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
+    if not (np.isfinite(ball_um) and ball_um > 0):
+        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+    if target_axes is None:
+        axes_d = inverse(machine, targets, unwrap=True, a_start_deg=a_start_deg)
+    else:
+        axes_d = check_points(target_axes, "target axes (x_mm, z_mm, a_deg)")
+        if axes_d.shape != targets.shape:
+            raise ValueError(f"Expected target_axes of shape {targets.shape}, got {axes_d.shape}")
+    return targets, axes_d
+
+
+def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK) -> np.ndarray:
+    """``E(axes)`` μm with A folded into the calibrated turn, in chunks; (n, 3) -> (n, 3)."""
+    axes = fold_a(axes, machine)
+    n = axes.shape[0]
+    if n <= chunk:
+        return np.asarray(field.predict(axes), dtype=float).reshape(n, 3)
+    out = np.empty((n, 3))
+    for s in range(0, n, chunk):
+        out[s:s + chunk] = np.asarray(field.predict(axes[s:s + chunk]), dtype=float).reshape(-1, 3)
+    return out
+
+
+def field_jacobian_um(field, axes, machine, chunk: int = FIELD_CHUNK) -> tuple[np.ndarray, int]:
+    """``dE/d(axes)`` μm per (mm, mm, deg), shape (n, 3, 3) (rows: error components).
+
+    Uses ``field.jacobian(axes)`` when the field has it, else central differences in axis
+    space (steps :data:`FD_STEPS`, 6 evaluations per point). Returns ``(J, evaluations)``.
+    """
+    axes = np.asarray(axes, dtype=float)
+    n = axes.shape[0]
+    jac = getattr(field, "jacobian", None)
+    if callable(jac):
+        a = fold_a(axes, machine)
+        J = np.empty((n, 3, 3))
+        for s in range(0, n, chunk):
+            J[s:s + chunk] = np.asarray(jac(a[s:s + chunk]), dtype=float).reshape(-1, 3, 3)
+        return J, n
+    J = np.empty((n, 3, 3))
+    step = chunk // 6
+    for s in range(0, n, step):
+        a = axes[s:s + step]
+        m = a.shape[0]
+        shifted = np.repeat(a[None], 6, axis=0)  # (6, m, 3): +x, -x, +z, -z, +a, -a
+        for k in range(3):
+            shifted[2 * k, :, k] += FD_STEPS[k]
+            shifted[2 * k + 1, :, k] -= FD_STEPS[k]
+        e = field_error_um(field, shifted.reshape(-1, 3), machine, chunk=chunk).reshape(6, m, 3)
+        J[s:s + step] = np.stack([(e[2 * k] - e[2 * k + 1]) / (2 * FD_STEPS[k]) for k in range(3)], axis=2)
+    return J, 6 * n
+
+
+def forward_jacobian(machine, axes) -> np.ndarray:
+    """``d p / d(axes)`` of the nominal forward kinematics, mm per (mm, mm, deg), (n, 3, 3).
+
+    ``p = (t_x - l5 - l7 - x, c·t_y + s·h, -s·t_y + c·h)`` with ``h = t_z - l6 - l8``;
+    only ``h`` depends on z (``dh/dz = 1``), so the columns are ``(-1, 0, 0)``,
+    ``(0, s, c)`` and ``(0, c·h - s·t_y, -s·h - c·t_y)·π/180``.
+    """
+    axes = np.asarray(axes, dtype=float)
+    t = tool_in_machine_nominal(machine, axes[:, 1])
+    ty = t[:, 1]
+    h = t[:, 2] - machine.l6 - machine.l8
+    a = np.deg2rad(axes[:, 2])
+    c, s = np.cos(a), np.sin(a)
+    J = np.zeros((axes.shape[0], 3, 3))
+    J[:, 0, 0] = -1.0
+    J[:, 1, 1] = s
+    J[:, 2, 1] = c
+    J[:, 1, 2] = (c * h - s * ty) * (np.pi / 180.0)
+    J[:, 2, 2] = (-s * h - c * ty) * (np.pi / 180.0)
+    return J
+
+
+def command_axes(machine, commands_mm, axes_d) -> np.ndarray:
+    """Axis commands of WCS commands, A on the turn of each target's A; (n, 3) -> (n, 3)."""
+    q = inverse(machine, commands_mm, unwrap=False)
+    q[:, 2] = axes_d[:, 2] + wrap180(q[:, 2] - axes_d[:, 2])
+    return q
+
+
+def project_to_ball(d_um, radius_um) -> np.ndarray:
+    """Offsets (..., 3) μm radially projected onto the ball ``|d| ≤ radius_um`` (inside: unchanged)."""
+    nrm = np.linalg.norm(d_um, axis=-1, keepdims=True)
+    return d_um * np.minimum(1.0, radius_um / np.maximum(nrm, 1e-300))
+
+
+def residual_um(field, machine, commands_mm, axes, targets_mm) -> np.ndarray:
+    """Model residual ``(p_r - p_d)·1e3 + E(axes)`` μm, shape (n, 3)."""
+    return (commands_mm - targets_mm) * UM_PER_MM + field_error_um(field, axes, machine)
+
+
+def make_result(method, targets, commands, axes, residual, converged, nfev, t0, ball_um, message="", info=None):
+    """Assemble a :class:`SolveResult`; ``success`` = converged, finite and inside the ball."""
+    correction = np.linalg.norm(commands - targets, axis=1) * UM_PER_MM
+    finite = np.all(np.isfinite(commands), axis=1) & np.all(np.isfinite(residual), axis=1)
+    success = np.asarray(converged, dtype=bool) & finite & (correction <= ball_um * (1 + 1e-12))
+    n_fail = int((~success).sum())
+    msg = message or (f"{len(success) - n_fail}/{len(success)} points solved" + (f"; {n_fail} failed" if n_fail else ""))
+    info = dict(info or {})
+    info.setdefault("ball_um", float(ball_um))
+    return SolveResult(method=method, targets_mm=targets, commands_mm=commands, axes=axes,
+                       residual_um=residual, correction_um=correction, success=success,
+                       nfev=int(nfev), seconds=time.perf_counter() - t0, message=msg, info=info)

@@ -1,0 +1,401 @@
+"""Laser-tracker axis sweeps: the measurement simulator and the sweep file.
+
+What is measured (the grinder paper, section 2.1): three target balls, not collinear,
+fixed on a moving body; the axis stops at every 1/20 of its stroke (21 stations; A every
+18°) and the tracker measures the three ball centres in its own frame.
+
+Body frames (the same chains as :mod:`errormap.htm`, in the machine frame MCS)::
+
+    X carriage  T_X(x)    = Trans(l5,0,l6)·Trans(x,0,0)·E_x(x)
+    Z carriage  T_Z(z)    = RotZ(θ1)·Trans(l2,0,l1)·Trans(RotZ(-θ1)·z·(sin s_xz, 0, cos s_xz))·E_z(z)
+    A body      T_A(x, a) = T_X(x)·Trans(l7,0,l8)·E_oa·RotX(a)·E_a(a)
+
+A ball mounted at ``u`` (machine file ``[targets]``, in its body frame) is at
+``T_B · u`` in the MCS and at ``machine_in_tracker · T_B · u`` in the tracker frame.
+During the X sweep Z and A are parked at their lower stroke limits, during the Z sweep
+X and A, and during the A sweep X and Z (the A sweep is taken with the X carriage at its
+first station, which the identification relies on).
+
+Sweep file (CSV, DESIGN.md "Axis sweeps"; leading ``#`` lines are provenance)::
+
+    axis,station,command,target,x_mm,y_mm,z_mm[,direction,time_s,temp_c]
+
+``axis`` X|Z|A; ``station`` 0-based int (the same number in both directions);
+``command`` mm for X/Z, deg for A; ``target`` 1..3; ball centre in the tracker frame, mm;
+``direction`` +1/-1 (default +1); ``time_s``; ``temp_c``. One tracker set-up per file;
+files that share a set-up say so with the same ``# setup: <id>`` line (see
+:func:`read_sweeps`). Extra columns are kept and ignored.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .elements import default_stations
+from .htm import IDX, UM, URAD
+from .io import InputError, read_table, write_csv
+from .machine import Grinder
+from .transforms import apply, rot_x, rot_xyz, rot_z
+
+SWEEP_AXES = ("X", "Z", "A")
+AXIS_STROKE_KEY = {"X": "x_mm", "Z": "z_mm", "A": "a_deg"}
+REQUIRED_COLUMNS = ("axis", "station", "command", "target", "x_mm", "y_mm", "z_mm")
+OPTIONAL_COLUMNS = ("direction", "time_s", "temp_c")
+SWEEP_FORMAT = "volcomp-sweeps/1"
+REF_TEMP_C = 20.0
+
+
+# -- rigid transforms as (R (n,3,3), t (n,3)) pairs ------------------------------------------
+def compose(a, b):
+    """``a·b`` for batched rigid transforms ``(R, t)``; shapes broadcast over the batch."""
+    Ra, ta = a
+    Rb, tb = b
+    return Ra @ Rb, apply(Ra, tb) + ta
+
+
+def invert(a):
+    """Inverse of a batched rigid transform ``(R, t)``."""
+    R, t = a
+    Rt = np.swapaxes(R, -1, -2)
+    return Rt, -apply(Rt, t)
+
+
+def error_transform(d_um, e_urad):
+    """``Trans(δ)·Rot(ε)`` for δ (n,3) μm and ε (n,3) μrad -> (R (n,3,3), t (n,3) mm)."""
+    return rot_xyz(np.asarray(e_urad, dtype=float) * URAD), np.asarray(d_um, dtype=float) * UM
+
+
+def x_carriage_nominal(machine: Grinder, x_mm):
+    """``Trans(l5,0,l6)·Trans(x,0,0)`` for x shape (n,) -> (R, t)."""
+    x = np.atleast_1d(np.asarray(x_mm, dtype=float))
+    t = np.stack([machine.l5 + x, np.zeros_like(x), np.full_like(x, machine.l6)], axis=1)
+    return np.broadcast_to(np.eye(3), x.shape + (3, 3)).copy(), t
+
+
+def z_carriage_nominal(machine: Grinder, z_mm, s_xz_urad=0.0):
+    """``RotZ(θ1)·Trans(l2,0,l1)·Trans(RotZ(-θ1)·z·(sin s, 0, cos s))`` -> (R, t), z shape (n,)."""
+    z = np.atleast_1d(np.asarray(z_mm, dtype=float))
+    s = np.broadcast_to(np.asarray(s_xz_urad, dtype=float) * URAD, z.shape)
+    th = rot_z(np.deg2rad(machine.theta1_deg))[0]
+    t = apply(th, np.array([machine.l2, 0.0, machine.l1])) + z[:, None] * np.stack(
+        [np.sin(s), np.zeros_like(s), np.cos(s)], axis=1)
+    return np.broadcast_to(th, z.shape + (3, 3)).copy(), t
+
+
+def a_line_offset(machine: Grinder, n: int):
+    """``Trans(l7,0,l8)`` repeated n times -> (R, t)."""
+    return np.broadcast_to(np.eye(3), (n, 3, 3)).copy(), np.tile([machine.l7, 0.0, machine.l8], (n, 1))
+
+
+def _part(values, names):
+    return np.stack([values[:, IDX[k]] for k in names], axis=1)
+
+
+def body_frames(machine: Grinder, body: str, axes, values):
+    """Actual frame of a moving body in the MCS.
+
+    ``body`` X|Z|A; ``axes`` shape (n, 3) (x_mm, z_mm, a_deg); ``values`` shape (n, 23)
+    element values there. Returns ``(R (n,3,3), t (n,3) mm)``: MCS <- body.
+    """
+    axes = np.asarray(axes, dtype=float)
+    v = np.asarray(values, dtype=float)
+    n = axes.shape[0]
+    if body == "Z":
+        return compose(z_carriage_nominal(machine, axes[:, 1], v[:, IDX["s_xz"]]),
+                       error_transform(_part(v, ("dx_z", "dy_z", "dz_z")), _part(v, ("ex_z", "ey_z", "ez_z"))))
+    tx = compose(x_carriage_nominal(machine, axes[:, 0]),
+                 error_transform(_part(v, ("dx_x", "dy_x", "dz_x")), _part(v, ("ex_x", "ey_x", "ez_x"))))
+    if body == "X":
+        return tx
+    if body != "A":
+        raise ValueError(f"Expected body X, Z or A, got {body!r}")
+    zeros = np.zeros(n)
+    e_oa = error_transform(np.stack([zeros, v[:, IDX["dy_oa"]], v[:, IDX["dz_oa"]]], axis=1),
+                           np.stack([zeros, v[:, IDX["ey_oa"]], v[:, IDX["ez_oa"]]], axis=1))
+    rot_a = (rot_x(np.deg2rad(axes[:, 2])), np.zeros((n, 3)))
+    e_a = error_transform(_part(v, ("dx_a", "dy_a", "dz_a")), _part(v, ("ex_a", "ey_a", "ez_a")))
+    return compose(compose(compose(compose(tx, a_line_offset(machine, n)), e_oa), rot_a), e_a)
+
+
+def ball_positions(frames, mounts_mm) -> np.ndarray:
+    """Ball centres ``R·u + t`` for body frames (R (n,3,3), t (n,3)) and mounts (3,3) -> (n, 3, 3)."""
+    R, t = frames
+    return np.einsum("nij,kj->nki", R, np.asarray(mounts_mm, dtype=float)) + t[:, None, :]
+
+
+def random_tracker_pose(rng: np.random.Generator):
+    """An arbitrary rigid pose ``machine_in_tracker`` (R (3,3), t (3,) mm): a uniformly random
+    rotation and a translation of 1-3 m, as a tracker standing beside the machine."""
+    R = Rotation.random(random_state=rng).as_matrix()
+    direction = rng.normal(size=3)
+    t = direction / np.linalg.norm(direction) * rng.uniform(1000.0, 3000.0)
+    return R, t
+
+
+def sweep_axes(machine: Grinder, axis: str, stations_cmd, park=None) -> np.ndarray:
+    """Axis points (n, 3) for a sweep of ``axis`` over ``stations_cmd``, the other axes parked
+    at ``park`` (default: their lower stroke limits)."""
+    lo = machine.stroke_lo if park is None else np.asarray(park, dtype=float)
+    pts = np.tile(lo, (len(stations_cmd), 1))
+    pts[:, SWEEP_AXES.index(axis)] = stations_cmd
+    return pts
+
+
+def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, tracker_pose=None, bidirectional: bool = False,
+                    n_stations: int = 21, axes=SWEEP_AXES, dt_s: float = 20.0, warmup_c: float = 0.0,
+                    mounts: dict | None = None) -> dict:
+    """Simulated laser-tracker sweeps of a truth grinder, as a dict of sweep-file columns.
+
+    ``truth``: a :class:`errormap.simulator.TruthGrinder` (its effects are included, so
+    undeclared effects show in the sweeps). ``noise_um``: isotropic Gaussian noise σ per
+    coordinate (μm). ``seed``: seeds the tracker pose (when not given) and the noise.
+    ``tracker_pose``: ``(R (3,3), t (3,) mm)`` machine -> tracker; default a random pose.
+    ``bidirectional``: each axis is also swept back down (``direction`` -1).
+    ``warmup_c``: temperature rise over the run, ``temp_c = 20 + warmup_c·(1 - exp(-t/2400 s))``
+    (default 0: sweeps at the reference temperature). ``mounts``: ball mounts per body,
+    default the machine file's ``[targets]``.
+    Returns columns axis, station, command, target, x_mm, y_mm, z_mm, direction, time_s, temp_c,
+    each shape (3·rows,).
+    """
+    if noise_um < 0:
+        raise ValueError(f"Expected noise_um >= 0, got {noise_um}")
+    machine = truth.machine
+    rng = np.random.default_rng(seed)
+    R_mt, t_mt = random_tracker_pose(rng) if tracker_pose is None else (np.asarray(tracker_pose[0], float),
+                                                                         np.asarray(tracker_pose[1], float))
+    mounts = machine.targets if mounts is None else mounts
+    st = default_stations(machine, n_stations)
+    cols = {k: [] for k in ("axis", "station", "command", "target", "x_mm", "y_mm", "z_mm",
+                            "direction", "time_s", "temp_c")}
+    t_now = 0.0
+    for axis in axes:
+        cmd = st[AXIS_STROKE_KEY[axis]]
+        idx = np.arange(n_stations)
+        runs = [(idx, 1)] + ([(idx[::-1], -1)] if bidirectional else [])
+        for order, direction in runs:
+            pts = sweep_axes(machine, axis, cmd[order])
+            n = len(order)
+            time_s = t_now + dt_s * np.arange(n)
+            t_now = time_s[-1] + dt_s
+            temp = REF_TEMP_C + warmup_c * (1.0 - np.exp(-time_s / 2400.0))
+            dirs = {f"dir_{k}": np.ones(n) for k in ("x", "z", "a")}
+            dirs[f"dir_{axis.lower()}"] = np.full(n, float(direction))
+            values = truth.element_values(pts, temp_c=temp, **dirs)
+            balls = ball_positions(body_frames(machine, axis, pts, values), mounts[axis])  # (n, 3, 3) MCS
+            balls = np.einsum("ij,nkj->nki", R_mt, balls) + t_mt
+            balls = balls + rng.normal(0.0, noise_um * UM, balls.shape)
+            for k in range(3):
+                cols["axis"].append(np.full(n, axis))
+                cols["station"].append(order)
+                cols["command"].append(cmd[order])
+                cols["target"].append(np.full(n, k + 1))
+                cols["x_mm"].append(balls[:, k, 0])
+                cols["y_mm"].append(balls[:, k, 1])
+                cols["z_mm"].append(balls[:, k, 2])
+                cols["direction"].append(np.full(n, direction))
+                cols["time_s"].append(time_s)
+                cols["temp_c"].append(temp)
+    out = {k: np.concatenate(v) for k, v in cols.items()}
+    # rows in measurement order: per time, then target
+    order = np.lexsort((out["target"], out["time_s"]))
+    return {k: v[order] for k, v in out.items()}
+
+
+def write_sweeps(path, columns: dict, comments=()) -> Path:
+    """Write a sweep file atomically (12 significant digits: 0.01 nm at metres)."""
+    lines = [f"format: {SWEEP_FORMAT}"] + list(comments)
+    return write_csv(path, columns, header_comments=lines, float_fmt="%.12g")
+
+
+# -- reading ---------------------------------------------------------------------------------
+@dataclass
+class AxisSweep:
+    """One axis' sweep, stations in increasing order.
+
+    ``command`` shape (m,) (mm or deg); ``balls_mm`` shape (m, 3, 3) [station, target, xyz]
+    in the tracker frame, the mean over directions; ``by_direction`` maps +1/-1 to (m, 3, 3)
+    where a direction covers every station; ``stations`` (m,) the station numbers;
+    ``source`` names the file(s) for messages.
+    """
+
+    axis: str
+    command: np.ndarray
+    balls_mm: np.ndarray
+    stations: np.ndarray
+    by_direction: dict = field(default_factory=dict)
+    source: str = ""
+    time_s: np.ndarray | None = None
+    temp_c: np.ndarray | None = None
+
+
+@dataclass
+class Sweeps:
+    """Sweeps of one tracker set-up: ``axes`` maps X/Z/A to :class:`AxisSweep`."""
+
+    axes: dict
+    setup: str = ""
+    sources: list = field(default_factory=list)
+
+    def __getitem__(self, axis) -> AxisSweep:
+        return self.axes[axis]
+
+    def __contains__(self, axis) -> bool:
+        return axis in self.axes
+
+
+_UNIT_ALTERNATIVES = ("m", "cm", "um", "in", "inch", "mil")
+
+
+def _check_units(names, path):
+    for c in ("x", "y", "z"):
+        if f"{c}_mm" not in names:
+            alt = [f"{c}_{u}" for u in _UNIT_ALTERNATIVES if f"{c}_{u}" in names]
+            if alt:
+                raise InputError(f"{path}: column {alt[0]!r}: ball coordinates must be in mm (column '{c}_mm'); "
+                                 "convert the file, units are never guessed")
+
+
+def columns_from_table(table) -> dict:
+    """Validated sweep columns from a :class:`errormap.io.Table`; errors name file, row, column."""
+    _check_units(table.names, table.path)
+    table.require(*REQUIRED_COLUMNS)
+    axis = np.array(table.raw("axis"))
+    for k, a in enumerate(axis):
+        if a not in SWEEP_AXES:
+            raise InputError(f"{table.path}: row {table.row_number(k)}, column 'axis': expected one of "
+                             f"{list(SWEEP_AXES)}, got {a!r}")
+    n = len(table)
+    cols = {"axis": axis, "station": table.int("station"), "command": table.float("command"),
+            "target": table.int("target", allowed=(1, 2, 3)),
+            "x_mm": table.float("x_mm"), "y_mm": table.float("y_mm"), "z_mm": table.float("z_mm"),
+            "direction": table.int("direction", allowed=(1, -1)) if "direction" in table else np.ones(n, int),
+            "row": np.array([table.row_number(k) for k in range(n)])}
+    for k in ("time_s", "temp_c"):
+        if k in table:
+            cols[k] = table.float(k)
+    if "command_unit" in table:  # optional, per row: mm for X/Z, deg for A
+        units = np.array(table.raw("command_unit"))
+        for k in range(n):
+            want = "deg" if axis[k] == "A" else "mm"
+            if units[k] != want:
+                raise InputError(f"{table.path}: row {table.row_number(k)}, column 'command_unit': axis {axis[k]}, "
+                                 f"station {cols['station'][k]}: expected {want!r}, got {units[k]!r} (mixed units)")
+    if np.any(cols["station"] < 0):
+        k = int(np.argmax(cols["station"] < 0))
+        raise InputError(f"{table.path}: row {table.row_number(k)}, column 'station': expected a station number >= 0, "
+                         f"got {cols['station'][k]}")
+    return cols
+
+
+def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "") -> Sweeps:
+    """Group sweep columns (as from :func:`simulate_sweeps` or a file) by axis and station.
+
+    Refuses duplicated rows, missing targets, missing stations, inconsistent commands and
+    commands that do not increase with the station number, naming the axis and station.
+    """
+    n = len(cols["axis"])
+    axis = np.asarray(cols["axis"]).astype(str)
+    station = np.asarray(cols["station"]).astype(int)
+    target = np.asarray(cols["target"]).astype(int)
+    direction = np.asarray(cols.get("direction", np.ones(n))).astype(int)
+    command = np.asarray(cols["command"], dtype=float)
+    xyz = np.stack([np.asarray(cols[k], dtype=float) for k in ("x_mm", "y_mm", "z_mm")], axis=1)
+    rows = np.asarray(cols.get("row", np.arange(1, n + 1)))
+    files = np.asarray(cols.get("file", np.full(n, source)))
+    time_s = np.asarray(cols["time_s"], dtype=float) if "time_s" in cols else None
+    temp_c = np.asarray(cols["temp_c"], dtype=float) if "temp_c" in cols else None
+
+    def where(k):
+        return f"{files[k]}: row {rows[k]}"
+
+    out = {}
+    for ax in SWEEP_AXES:
+        sel = np.flatnonzero(axis == ax)
+        if sel.size == 0:
+            continue
+        st_numbers = np.unique(station[sel])
+        full = np.arange(st_numbers.min(), st_numbers.max() + 1)
+        missing = np.setdiff1d(full, st_numbers)
+        if missing.size:
+            raise InputError(f"{source}: axis {ax}: station(s) {missing.tolist()} missing (have "
+                             f"{st_numbers.min()}..{st_numbers.max()} with gaps); every station is needed")
+        m = full.size
+        if m < 4:
+            raise InputError(f"{source}: axis {ax}: expected at least 4 stations, got {m}")
+        dirs = sorted(set(direction[sel].tolist()), reverse=True)
+        balls = {d: np.full((m, 3, 3), np.nan) for d in dirs}
+        seen = {}
+        cmd = np.full(m, np.nan)
+        cmd_row = np.zeros(m, dtype=int)
+        for k in sel:
+            i = station[k] - full[0]
+            key = (station[k], target[k], direction[k])
+            if key in seen:
+                raise InputError(f"{where(k)}: axis {ax}, station {station[k]}, target {target[k]}, direction "
+                                 f"{direction[k]:+d} measured twice (also {where(seen[key])})")
+            seen[key] = k
+            if np.isnan(cmd[i]):
+                cmd[i], cmd_row[i] = command[k], k
+            elif abs(command[k] - cmd[i]) > 1e-6 * max(1.0, abs(cmd[i])):
+                raise InputError(f"{where(k)}, column 'command': axis {ax}, station {station[k]}: command "
+                                 f"{command[k]:g} differs from {cmd[i]:g} at {where(cmd_row[i])}")
+            balls[direction[k]][i, target[k] - 1] = xyz[k]
+        for d in dirs:
+            bad = np.argwhere(np.isnan(balls[d][:, :, 0]))
+            if bad.size and not (len(dirs) > 1 and d == -1 and np.isnan(balls[d][:, :, 0]).all(axis=1).any()):
+                i, j = bad[0]
+                raise InputError(f"{source}: axis {ax}, station {full[i]}: target {j + 1} missing"
+                                 + (f" (direction {d:+d})" if len(dirs) > 1 else ""))
+        if np.any(np.diff(cmd) <= 0):
+            i = int(np.argmax(np.diff(cmd) <= 0)) + 1
+            raise InputError(f"{source}: axis {ax}, station {full[i]}: expected commands increasing with the "
+                             f"station number, got {cmd[i - 1]:g} then {cmd[i]:g}")
+        complete = {d: b for d, b in balls.items() if not np.isnan(b).any()}
+        if not complete:
+            raise InputError(f"{source}: axis {ax}: no direction covers every station")
+        mean = np.mean(np.stack(list(complete.values())), axis=0)
+        t = time_s[sel].mean() if time_s is not None else None
+        out[ax] = AxisSweep(ax, cmd, mean, full, complete, source,
+                            None if time_s is None else time_s[sel], None if temp_c is None else temp_c[sel])
+        del t
+    if not out:
+        raise InputError(f"{source}: no sweep rows")
+    return Sweeps(out, setup, [source])
+
+
+def read_sweeps(paths) -> Sweeps:
+    """Read one or more sweep files of ONE tracker set-up.
+
+    A single file is one set-up. Several files are merged only when every file names the
+    same set-up in a ``# setup: <id>`` header line (X, Z and A must share the tracker
+    set-up: squareness and the A-axis line relate the bodies through it); an axis may then
+    appear in one file only. Errors name the file, row and column.
+    """
+    paths = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
+    if not paths:
+        raise InputError("no sweep files given")
+    tables = [read_table(p) for p in paths]
+    setups = [t.meta().get("setup", "") for t in tables]
+    if len(paths) > 1 and (len(set(setups)) != 1 or not setups[0]):
+        raise InputError(f"{', '.join(map(str, paths))}: several sweep files must all name the same tracker "
+                         f"set-up ('# setup: <id>' header line); got {setups}. One file is one set-up.")
+    merged: dict = {}
+    axis_file: dict = {}
+    for t in tables:
+        c = columns_from_table(t)
+        c["file"] = np.full(len(t), str(t.path))
+        for ax in set(c["axis"].tolist()):
+            if ax in axis_file and axis_file[ax] != str(t.path):
+                raise InputError(f"{t.path}: axis {ax} is also in {axis_file[ax]}; give each axis in one file")
+            axis_file[ax] = str(t.path)
+        for k, v in c.items():
+            merged.setdefault(k, []).append(v)
+    keys = [k for k in merged if len(merged[k]) == len(tables)]
+    cols = {k: np.concatenate(merged[k]) for k in keys}
+    source = ", ".join(map(str, paths))
+    sw = sweeps_from_columns(cols, source=source, setup=setups[0])
+    sw.sources = [str(p) for p in paths]
+    return sw
