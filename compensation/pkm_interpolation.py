@@ -90,17 +90,24 @@ def circular_move(centre_mm, start_mm, normal, angle_deg: float, step_mm: float,
 def sphere_pass(step_mm: float = 0.5, radius_mm: float = 100.0, angle_deg: float = 60.0, apex_z_mm: float = 980.0,
                 n_meridians: int = 6, tool_length_mm: float = 30.0) -> ToolPath:
     """Spherical cap pass: ``n_meridians`` circular moves through the apex (from -angle/2 to +angle/2),
-    tool axis along the outward surface normal (varying orientation)."""
+    joined by circular moves along the cap's rim; tool axis along the outward surface normal."""
     centre = np.array([0.0, 0.0, apex_z_mm - radius_mm])
     half = np.radians(angle_deg / 2)
     tips, move = [], []
     for j, az in enumerate(np.arange(n_meridians) * np.pi / n_meridians):
-        d = np.array([np.cos(az), np.sin(az), 0.0])
+        d = np.array([np.cos(az), np.sin(az), 0.0]) * (-1) ** j   # alternate direction
         start = centre + radius_mm * (np.cos(half) * np.array([0, 0, 1.0]) - np.sin(half) * d)
         normal = np.cross(d, [0, 0, 1.0])  # rotating from -d towards +d through the apex
-        p = circular_move(centre, start, -normal, angle_deg, step_mm, include_start=True)
+        if tips:  # circular move along the cap's rim to the next meridian's start
+            rim_c = np.array([0.0, 0.0, start[2]])
+            a, b = tips[-1][-1] - rim_c, start - rim_c
+            turn = np.degrees(np.arctan2(np.cross(a, b)[2], a @ b))
+            p = circular_move(rim_c, tips[-1][-1], [0, 0, 1.0], turn, step_mm)
+            tips.append(p)
+            move.append(np.full(len(p), 2 * j - 1))
+        p = circular_move(centre, start, -normal, angle_deg, step_mm, include_start=not tips)
         tips.append(p)
-        move.append(np.full(len(p), j))
+        move.append(np.full(len(p), 2 * j))
     tips = np.concatenate(tips)
     axis = (tips - centre) / radius_mm
     return ToolPath(tips, tool_axis_to_rotation(axis), np.concatenate(move), tool_length_mm, "sphere")
@@ -236,31 +243,31 @@ def leg_program(machine: PKM, path: ToolPath, calibrated: PKM | None = None, che
     return LegProgram(legs, inc, model.legs_to_drive(legs), path, calibrated is not None)
 
 
-def true_path_residual(truth, calibration_or_none, path: ToolPath, frame: str = "machine") -> dict:
+def true_path_residual(truth, calibration_or_none, path: ToolPath, frame: str = "machine",
+                       use_nominal: bool = False) -> dict:
     """True residual along ``path`` on the simulated truth machine, per point.
 
     ``truth``: a :class:`errormap.pkm.simulate.Truth` (or its PKM); ``calibration_or_none``: None
     (nominal commands), a ``CalibrationResult`` or an identified PKM. ``frame``: ``"machine"`` (the
     path is in the machine frame defined by the joints) or ``"instrument"`` (the path is in the
     measuring instrument's frame, where the part is located; commands go through the identified
-    registration -- for uncompensated commands the initial nominal registration). Returns
+    registration); ``use_nominal`` with a ``CalibrationResult``: uncompensated commands (nominal
+    machine; in the instrument frame with the initial robust registration of the nominal model). Returns
     ``position_um`` (n,), ``error_um`` (n, 3), ``angle_urad`` (n,) (hexapod), ``rms_um``/``max_um``.
     """
     tm = getattr(truth, "machine", truth)
     nominal = getattr(truth, "nominal", None) or tm
-    cal = getattr(calibration_or_none, "machine", calibration_or_none)
+    cal = None if use_nominal else getattr(calibration_or_none, "machine", calibration_or_none)
     tip, R = path.tip_mm, path.platform2base
     if frame == "instrument":
         tf, Rf = truth.frame_translation_mm, truth.frame_rotation
         tip_i, R_i = tip @ Rf.T + tf, np.einsum("ij,njk->nik", Rf, R)   # the part, located by the instrument
-        if calibration_or_none is not None and hasattr(calibration_or_none, "frame_rotation"):
-            tg, Rg = calibration_or_none.frame_translation_mm, calibration_or_none.frame_rotation
-        elif calibration_or_none is not None and hasattr(calibration_or_none, "lcurve"):
+        if not hasattr(calibration_or_none, "frame_rotation"):
+            raise ValueError("frame='instrument' needs a CalibrationResult (it holds the registration)")
+        if use_nominal:
             tg, Rg = calibration_or_none.lcurve["initial_frame"]
         else:
-            raise ValueError("frame='instrument' needs a CalibrationResult (it holds the registration)")
-        if cal is None or calibration_or_none is None:
-            pass
+            tg, Rg = calibration_or_none.frame_translation_mm, calibration_or_none.frame_rotation
         cmd_path = replace(path, tip_mm=(tip_i - tg) @ Rg, platform2base=np.einsum("ji,njk->nik", Rg, R_i))
     elif frame == "machine":
         cmd_path = path

@@ -345,7 +345,7 @@ def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "") 
             balls[direction[k]][i, target[k] - 1] = xyz[k]
         for d in dirs:
             bad = np.argwhere(np.isnan(balls[d][:, :, 0]))
-            if bad.size and not (len(dirs) > 1 and d == -1 and np.isnan(balls[d][:, :, 0]).all(axis=1).any()):
+            if bad.size:
                 i, j = bad[0]
                 raise InputError(f"{source}: axis {ax}, station {full[i]}: target {j + 1} missing"
                                  + (f" (direction {d:+d})" if len(dirs) > 1 else ""))
@@ -353,14 +353,9 @@ def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "") 
             i = int(np.argmax(np.diff(cmd) <= 0)) + 1
             raise InputError(f"{source}: axis {ax}, station {full[i]}: expected commands increasing with the "
                              f"station number, got {cmd[i - 1]:g} then {cmd[i]:g}")
-        complete = {d: b for d, b in balls.items() if not np.isnan(b).any()}
-        if not complete:
-            raise InputError(f"{source}: axis {ax}: no direction covers every station")
-        mean = np.mean(np.stack(list(complete.values())), axis=0)
-        t = time_s[sel].mean() if time_s is not None else None
-        out[ax] = AxisSweep(ax, cmd, mean, full, complete, source,
+        mean = np.mean(np.stack(list(balls.values())), axis=0)
+        out[ax] = AxisSweep(ax, cmd, mean, full, balls, source,
                             None if time_s is None else time_s[sel], None if temp_c is None else temp_c[sel])
-        del t
     if not out:
         raise InputError(f"{source}: no sweep rows")
     return Sweeps(out, setup, [source])

@@ -1,4 +1,30 @@
 """training: the learned error field (BP network, Levenberg–Marquardt, MLflow tracking).
 
-May import ``errormap``; never ``compensation``.
+May import ``errormap``; never ``compensation``. The public names below load lazily, so
+``import training`` stays cheap (torch and MLflow load on first use).
+
+* :class:`training.model.MLPField` — the network as an error field (``predict``, ``jacobian``,
+  ``save``/``load``).
+* :func:`training.trainers.fit_field` — train on feature points, measure, track in MLflow.
+* :func:`training.trainers.validation_points` — random off-grid points from the HTM model.
+* :func:`training.tracking.load_field` — a trained field by run id / ``runs:/`` / ``models:/``.
 """
+
+_LAZY = {
+    "MLPField": "training.model",
+    "fit_field": "training.trainers",
+    "FitResult": "training.trainers",
+    "validation_points": "training.trainers",
+    "fit_metrics": "training.trainers",
+    "load_field": "training.tracking",
+    "default_tracking_uri": "training.tracking",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'training' has no attribute {name!r}")

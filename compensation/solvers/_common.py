@@ -92,33 +92,40 @@ def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK) -> np.ndarray
     return out
 
 
-def field_jacobian_um(field, axes, machine, chunk: int = FIELD_CHUNK) -> tuple[np.ndarray, int]:
+def field_jacobian_um(field, axes, machine, e0_um=None, chunk: int = FIELD_CHUNK) -> tuple[np.ndarray, int]:
     """``dE/d(axes)`` μm per (mm, mm, deg), shape (n, 3, 3) (rows: error components).
 
-    Uses ``field.jacobian(axes)`` when the field has it, else central differences in axis
-    space (steps :data:`FD_STEPS`, 6 evaluations per point). Returns ``(J, evaluations)``.
+    Uses ``field.jacobian(axes)`` when the field has it. Otherwise finite differences in
+    axis space with steps :data:`FD_STEPS`: forward differences from ``e0_um = E(axes)``
+    when given (3 evaluations per point), else central differences (6 per point).
+    Returns ``(J, evaluations)``.
     """
     axes = np.asarray(axes, dtype=float)
     n = axes.shape[0]
     jac = getattr(field, "jacobian", None)
+    J = np.empty((n, 3, 3))
     if callable(jac):
         a = fold_a(axes, machine)
-        J = np.empty((n, 3, 3))
         for s in range(0, n, chunk):
             J[s:s + chunk] = np.asarray(jac(a[s:s + chunk]), dtype=float).reshape(-1, 3, 3)
         return J, n
-    J = np.empty((n, 3, 3))
-    step = chunk // 6
+    signs = (1.0,) if e0_um is not None else (1.0, -1.0)
+    m_shift = 3 * len(signs)
+    step = max(1, chunk // m_shift)
     for s in range(0, n, step):
         a = axes[s:s + step]
         m = a.shape[0]
-        shifted = np.repeat(a[None], 6, axis=0)  # (6, m, 3): +x, -x, +z, -z, +a, -a
+        shifted = np.repeat(a[None], m_shift, axis=0)  # (k, m, 3): +x[, -x], +z[, -z], +a[, -a]
         for k in range(3):
-            shifted[2 * k, :, k] += FD_STEPS[k]
-            shifted[2 * k + 1, :, k] -= FD_STEPS[k]
-        e = field_error_um(field, shifted.reshape(-1, 3), machine, chunk=chunk).reshape(6, m, 3)
-        J[s:s + step] = np.stack([(e[2 * k] - e[2 * k + 1]) / (2 * FD_STEPS[k]) for k in range(3)], axis=2)
-    return J, 6 * n
+            for j, sg in enumerate(signs):
+                shifted[len(signs) * k + j, :, k] += sg * FD_STEPS[k]
+        e = field_error_um(field, shifted.reshape(-1, 3), machine, chunk=chunk).reshape(m_shift, m, 3)
+        if e0_um is None:
+            cols = [(e[2 * k] - e[2 * k + 1]) / (2 * FD_STEPS[k]) for k in range(3)]
+        else:
+            cols = [(e[k] - e0_um[s:s + step]) / FD_STEPS[k] for k in range(3)]
+        J[s:s + step] = np.stack(cols, axis=2)
+    return J, m_shift * n
 
 
 def forward_jacobian(machine, axes) -> np.ndarray:

@@ -259,6 +259,8 @@ class CalibrationResult:
     lever_mm: float
     n_poses: int
     fit_time_s: float
+    right_singular_vectors: np.ndarray | None = None   # Vt of the scaled, registration-projected J
+    param_scale: np.ndarray | None = None              # Tikhonov scaling of the estimated parameters
     history: list = field(default_factory=list)
     lcurve: dict = field(default_factory=dict)
 
@@ -506,6 +508,7 @@ class PKMCalibrator:
             delta_mm=float(delta_mm), delta_estimated=estimated_delta, lambda_gcv=float(lam_gcv),
             lambda_lcurve=float(lam_lc), singular_values=s, condition_number=cond, unidentifiable=unident,
             lever_mm=self.lever_mm, n_poses=len(data), fit_time_s=time.perf_counter() - t0, history=history,
+            right_singular_vectors=Vt, param_scale=D,
             lcurve={**curve, "initial_frame": frame0})
 
 

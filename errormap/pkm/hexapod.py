@@ -65,8 +65,9 @@ def tool_axis_euler(axis) -> np.ndarray:
     theta_z = np.arccos(np.clip(n[:, 2], -1.0, 1.0))
     beta = np.where(n[:, 1] >= 0, -theta_z, theta_z)
     s = np.sin(beta)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        alpha = np.where(np.abs(s) > 1e-12, np.arcsin(np.clip(n[:, 0] / np.where(s == 0, 1, s), -1, 1)), 0.0)
+    safe = np.where(np.abs(s) > 1e-15, s, 1.0)
+    # = arcsin(n_x / sin beta) (cos alpha >= 0 by the sign rule), in the numerically stable atan2 form
+    alpha = np.where(np.abs(s) > 1e-15, np.arctan2(n[:, 0] / safe, -n[:, 1] / safe), 0.0)
     return np.stack([alpha, beta, -alpha], axis=1)
 
 

@@ -1,0 +1,141 @@
+"""``volcomp calibrate POSES --machine FILE --out DIR``: PKM kinematic calibration (pkm-calibration paper).
+
+Identifies joint positions, leg zero lengths (and scales) with Tikhonov-regularised Gauss-Newton,
+lambda by Morozov's discrepancy principle (noise level from ``--noise-um`` or estimated), estimates
+the instrument frame, and reports the *measured residual* on held-out poses before/after.
+Writes ``DIR/calibration.json``, ``DIR/report.html`` (PNG plots embedded) and the PNGs.
+"""
+from __future__ import annotations
+
+import base64
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from errormap.io import InputError, atomic_write, write_json
+from errormap.machine import load_machine
+from errormap.pkm.calibration import PKMCalibrator, calibration_to_dict, read_poses
+from errormap.pkm.hexapod import KinematicsError
+
+
+def register(subparsers):
+    p = subparsers.add_parser("calibrate", help="identify a hexapod/tripod's kinematic parameters from measured poses")
+    p.add_argument("poses", help="pose-measurement CSV (legs l1_mm.. or q1.., x_mm y_mm z_mm [+ rx_deg.. | qx qy qz qw])")
+    p.add_argument("--machine", help="machine file (kind hexapod or tripod; default: the built-in hexapod)")
+    p.add_argument("--out", required=True, help="output folder")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--check", help="separate pose CSV for the held-out residual")
+    g.add_argument("--holdout", type=float, default=0.2, help="fraction of POSES held out (default 0.2)")
+    p.add_argument("--noise-um", type=float, default=None, help="measurement noise per component (um); estimated if omitted")
+    p.add_argument("--scales", action="store_true", help="identify the leg scales too")
+    p.add_argument("--no-register", action="store_true", help="the instrument frame is the machine frame")
+    p.add_argument("--lever-mm", type=float, default=500.0, help="weight of orientation residuals (mm per rad)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the hold-out split")
+    p.set_defaults(func=run)
+
+
+def _plots(result, before, after, out: Path) -> list[Path]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    paths = []
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    s = result.singular_values
+    ax.semilogy(np.arange(1, s.size + 1), np.maximum(s, 1e-18), "o-", ms=3)
+    ax.axhline(np.sqrt(result.lam), color="r", ls="--", label="sqrt(lambda) (Morozov)")
+    ax.set_xlabel("index")
+    ax.set_ylabel("singular value (scaled J)")
+    ax.set_title(f"condition number {result.condition_number:.3g}")
+    ax.legend()
+    fig.tight_layout()
+    paths.append(out / "singular_values.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(before, "o", ms=3, label=f"nominal (RMS {np.sqrt(np.mean(before ** 2)):.1f} um)")
+    ax.plot(after, "o", ms=3, label=f"calibrated (RMS {np.sqrt(np.mean(after ** 2)):.1f} um)")
+    ax.set_yscale("log")
+    ax.set_xlabel("held-out pose")
+    ax.set_ylabel("measured residual |dp| (um)")
+    ax.legend()
+    fig.tight_layout()
+    paths.append(out / "heldout_residual.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    c = result.lcurve
+    if "residual_norm" in c:
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        ax.loglog(c["residual_norm"], c["solution_norm"], "-")
+        ax.set_xlabel("|J w - b| (mm)")
+        ax.set_ylabel("|w| (scaled)")
+        ax.set_title("L-curve of the final linearisation")
+        fig.tight_layout()
+        paths.append(out / "lcurve.png")
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+    return paths
+
+
+def _html(doc: dict, pngs: list[Path], out: Path) -> Path:
+    rows = "".join(f"<tr><td>{k}</td><td>{v['value']:.6f}</td><td>{v['delta']:+.4f}</td><td>{v['std_error']:.2g}</td></tr>"
+                   for k, v in doc["parameters"].items())
+    imgs = "".join(f'<p><img src="data:image/png;base64,{base64.b64encode(p.read_bytes()).decode()}"></p>' for p in pngs)
+    summary = (f"<p>Measured residual (measurement minus model) on {doc['n_check_poses']} held-out poses: "
+               f"RMS {doc['rms_before_um']:.2f} &rarr; {doc['rms_after_um']:.2f} um, max {doc['max_before_um']:.2f} "
+               f"&rarr; {doc['max_after_um']:.2f} um. Fit poses: {doc['n_fit_poses']}. lambda (Morozov) "
+               f"{doc['lambda']:.3g}, GCV {doc['lambda_gcv']:.3g}, L-curve {doc['lambda_lcurve']:.3g}; delta "
+               f"{doc['delta_um']:.3g} um ({'estimated' if doc['delta_estimated'] else 'given'}); condition number "
+               f"{doc['condition_number']:.3g}; {len(doc['unidentifiable'])} unidentifiable combinations.</p>")
+    html = (f"<!doctype html><html><head><meta charset='utf-8'><title>PKM calibration</title></head><body>"
+            f"<h1>PKM calibration: {doc['machine']['name']}</h1>{summary}{imgs}"
+            f"<h2>Parameters</h2><table border=1><tr><th>name</th><th>value</th><th>delta</th><th>std error</th></tr>"
+            f"{rows}</table></body></html>")
+    with atomic_write(out / "report.html", "w", encoding="utf-8") as fh:
+        fh.write(html)
+    return out / "report.html"
+
+
+def run(args) -> int:
+    from compensation.cli import UsageError
+    machine = load_machine(args.machine, expect_kind=None) if args.machine else load_machine(expect_kind="hexapod")
+    if machine.kind not in ("hexapod", "tripod"):
+        raise UsageError(f"{machine.path}: calibrate needs a hexapod or tripod machine file, got kind {machine.kind!r}")
+    data = read_poses(args.poses, machine)
+    if args.check:
+        fit, check = data, read_poses(args.check, machine)
+    else:
+        if not 0 < args.holdout < 1:
+            raise UsageError(f"--holdout must be in (0, 1), got {args.holdout}")
+        idx = np.random.default_rng(args.seed).permutation(len(data))
+        n_check = max(1, int(round(args.holdout * len(data))))
+        check, fit = data.subset(idx[:n_check]), data.subset(idx[n_check:])
+    print(f"calibrate: {len(fit)} fit poses, {len(check)} held-out poses, machine {machine.name}", file=sys.stderr)
+    cal = PKMCalibrator(machine, estimate_scales=args.scales, register=not args.no_register, noise_um=args.noise_um,
+                        lever_mm=args.lever_mm, progress=lambda msg: print(f"calibrate: {msg}", file=sys.stderr))
+    try:
+        res = cal.fit(fit)
+        before = res.pose_errors_um(check, nominal=True, frame=res.lcurve["initial_frame"])
+        after = res.pose_errors_um(check)
+    except KinematicsError as exc:
+        raise InputError(f"{args.poses}: {exc}") from None
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = calibration_to_dict(res)
+    b, a = before["position_um"], after["position_um"]
+    doc.update({"residual_kind": "measured residual (measurement minus model) on held-out poses, position norm",
+                "rms_before_um": float(np.sqrt(np.mean(b ** 2))), "rms_after_um": float(np.sqrt(np.mean(a ** 2))),
+                "max_before_um": float(b.max()), "max_after_um": float(a.max()), "n_check_poses": len(check),
+                "poses_file": str(args.poses), "check_file": args.check})
+    if "angle_urad" in after:
+        doc.update({"rms_angle_before_urad": float(np.sqrt(np.mean(before["angle_urad"] ** 2))),
+                    "rms_angle_after_urad": float(np.sqrt(np.mean(after["angle_urad"] ** 2)))})
+    write_json(out / "calibration.json", doc)
+    pngs = _plots(res, b, a, out)
+    _html(doc, pngs, out)
+    print(f"calibrate: {res.message}; held-out RMS {doc['rms_before_um']:.2f} -> {doc['rms_after_um']:.2f} um "
+          f"(max {doc['max_before_um']:.2f} -> {doc['max_after_um']:.2f} um)")
+    print(f"calibrate: wrote {out / 'calibration.json'}, {out / 'report.html'} and {len(pngs)} PNGs")
+    return 0 if res.success else 1

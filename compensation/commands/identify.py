@@ -1,0 +1,103 @@
+"""``volcomp identify``: the 23 error elements from laser-tracker sweep files (grinder paper §2.1)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from errormap.elements import A_ELEMENTS, ElementSet, X_ELEMENTS, Z_ELEMENTS, element_unit
+from errormap.identification import GAUGES, identify
+from errormap.io import atomic_write, write_json
+from errormap.machine import load_machine
+from errormap.sweeps import read_sweeps
+
+AXIS_GROUPS = {"X": (X_ELEMENTS, "x_mm", "x (mm)"), "Z": (Z_ELEMENTS, "z_mm", "z (mm)"),
+               "A": (A_ELEMENTS, "a_deg", "a (deg)")}
+
+
+def register(sub):
+    p = sub.add_parser("identify", help="identify the 23 error elements from laser-tracker sweeps",
+                       description="The grinder paper's method (section 2.1): reference lines/circles, the 9x6 "
+                                   "least-squares system per station, squareness from the X and Z lines, the A-axis "
+                                   "line from the rotary body's initial state, B-spline elements. See "
+                                   "docs/identification.md.")
+    p.add_argument("sweeps", nargs="+", help="sweep file(s) (CSV) of one tracker set-up")
+    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--out", required=True, help="output element-set file (JSON)")
+    p.add_argument("--report", default=None,
+                   help="identification report (JSON: conditioning, residuals per station); default OUT.report.json")
+    p.add_argument("--plot", default=None, metavar="PREFIX",
+                   help="write one figure per axis: PREFIX_X.png, PREFIX_Z.png, PREFIX_A.png")
+    p.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element set to overlay on the plots")
+    p.add_argument("--gauge", choices=GAUGES, default="first-station",
+                   help="machine-frame gauge (default first-station: elements zero at each axis' first station)")
+    p.set_defaults(func=run)
+
+
+def plot_elements(elements: ElementSet, prefix, truth: ElementSet | None = None) -> list[Path]:
+    """One figure per axis (six elements each, the constants in the title), truth dashed when given.
+
+    Written atomically as ``PREFIX_X.png``, ``PREFIX_Z.png``, ``PREFIX_A.png``; returns the paths.
+    The truth is shown after its squareness is moved to the identified value (the one split the
+    sweeps cannot observe), so like is compared with like.
+    """
+    from matplotlib.figure import Figure  # Agg canvas, no pyplot state
+    c = elements.constants
+    out = []
+    for ax, (names, key, label) in AXIS_GROUPS.items():
+        fig = Figure(figsize=(11, 6.5), layout="constrained")
+        axs = fig.subplots(2, 3)
+        st = elements.stations[key]
+        grid = np.linspace(st[0], st[-1], 400)
+        pts = np.zeros((grid.size, 3))
+        pts[:, ["x_mm", "z_mm", "a_deg"].index(key)] = grid
+        v = elements.values(pts)
+        vt = truth.values(pts) if truth is not None else None
+        from errormap.elements import ELEMENT_NAMES
+        for a, name in zip(axs.ravel(), names):
+            j = ELEMENT_NAMES.index(name)
+            a.plot(grid, v[:, j], "C0-", label="identified")
+            a.plot(st, elements.functions[name], "C0o", ms=3)
+            if vt is not None:
+                a.plot(grid, vt[:, j], "k--", lw=1, label="truth")
+            a.set_title(f"{name} ({'μm' if element_unit(name) == 'um' else 'μrad'})")
+            a.set_xlabel(label)
+            a.grid(alpha=0.3)
+        axs[0, 0].legend(fontsize=8)
+        if ax == "A":
+            extra = (f"dy_oa {c['dy_oa']:.3f} μm, dz_oa {c['dz_oa']:.3f} μm, "
+                     f"ey_oa {c['ey_oa']:.3f} μrad, ez_oa {c['ez_oa']:.3f} μrad")
+        else:
+            extra = f"s_xz {c['s_xz']:.3f} μrad"
+        fig.suptitle(f"identified {ax}-axis elements ({extra})")
+        path = Path(f"{prefix}_{ax}.png")
+        with atomic_write(path, "wb") as fh:
+            fig.savefig(fh, format="png", dpi=110)
+        out.append(path)
+    return out
+
+
+def run(args) -> int:
+    machine = load_machine(args.machine, expect_kind="grinder")
+    truth = ElementSet.load(args.truth) if args.truth else None
+    sweeps = read_sweeps(args.sweeps)
+    print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
+    res = identify(sweeps, machine, gauge=args.gauge)
+    for line in res.summary_lines():
+        print(line)
+    el_path = res.elements_.save(args.out)
+    report = Path(args.report) if args.report else Path(args.out).with_suffix(".report.json")
+    info = res.to_dict()
+    info.update({"sweeps": [str(s) for s in args.sweeps], "machine_file": machine.path,
+                 "machine_sha256": machine.sha256, "elements_file": str(el_path)})
+    write_json(report, info)
+    print(f"wrote elements: {el_path}")
+    print(f"wrote report: {report}")
+    if args.plot:
+        if truth is not None:
+            from errormap.identification import move_squareness
+            truth = move_squareness(truth, res.elements_.constants["s_xz"], machine)
+        for p in plot_elements(res.elements_, args.plot, truth):
+            print(f"wrote plot: {p}")
+    return 0

@@ -1,0 +1,55 @@
+"""``volcomp interpolate PATH --machine FILE [--calibration DIR] --out FILE``: PKM leg-command program.
+
+PATH is ``sphere`` or ``hyperboloid`` (the stewart-interpolation paper's test parts) or a waypoint
+CSV (see ``compensation.pkm_interpolation.read_waypoints``). Time-division interpolation with the
+contour step ``f = feed * period``; with ``--calibration`` the identified parameters are used in
+the inverse kinematics (compensated commands).
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from errormap.io import InputError
+from errormap.machine import load_machine
+from errormap.pkm.calibration import load_calibrated_machine
+from errormap.pkm.hexapod import KinematicsError
+
+from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints
+
+
+def register(subparsers):
+    p = subparsers.add_parser("interpolate", help="hexapod/tripod leg-command program for a tool path")
+    p.add_argument("path", help="'sphere', 'hyperboloid' or a waypoint CSV (px_mm py_mm pz_mm [nx ny nz] [move cx_mm ..])")
+    p.add_argument("--machine", help="machine file (default: the built-in hexapod)")
+    p.add_argument("--calibration", help="calibration folder or calibration.json (compensated commands)")
+    p.add_argument("--out", required=True, help="output CSV")
+    p.add_argument("--feed-mm-min", type=float, default=1000.0, help="feed (mm/min), default 1000")
+    p.add_argument("--period-ms", type=float, default=4.0, help="interpolation period (ms), default 4")
+    p.add_argument("--allow-out-of-range", action="store_true", help="write even if a leg leaves its range")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from compensation.cli import UsageError
+    machine = load_machine(args.machine) if args.machine else load_machine(expect_kind="hexapod")
+    if machine.kind not in ("hexapod", "tripod"):
+        raise UsageError(f"{machine.path}: interpolate needs a hexapod or tripod machine file, got {machine.kind!r}")
+    try:
+        step = contour_step_mm(args.feed_mm_min, args.period_ms)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if args.path in ("sphere", "hyperboloid"):
+        path = builtin_path(args.path, step)
+    else:
+        path = read_waypoints(args.path, step)
+    calibrated = load_calibrated_machine(args.calibration, machine) if args.calibration else None
+    print(f"interpolate: {len(path)} steps of f = {step:.4g} mm ({args.feed_mm_min:g} mm/min x {args.period_ms:g} ms)"
+          f"{', compensated' if calibrated is not None else ''}", file=sys.stderr)
+    try:
+        prog = leg_program(machine, path, calibrated, check_limits=not args.allow_out_of_range)
+    except KinematicsError as exc:
+        raise InputError(f"{args.path}: {exc} (use --allow-out-of-range to write anyway)") from None
+    out = prog.write_csv(Path(args.out))
+    print(f"interpolate: wrote {out} ({len(path)} steps)")
+    return 0

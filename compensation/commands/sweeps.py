@@ -1,0 +1,56 @@
+"""``volcomp sweeps``: simulated laser-tracker sweeps (the sweep file of DESIGN.md) of a truth grinder."""
+from __future__ import annotations
+
+import sys
+
+from errormap.elements import ElementSet
+from errormap.machine import load_machine
+from errormap.simulator import EFFECT_NAMES, TruthGrinder, random_truth
+from errormap.sweeps import simulate_sweeps, write_sweeps
+
+
+def register(sub):
+    p = sub.add_parser("sweeps", help="simulate laser-tracker axis sweeps of a truth grinder (sweep CSV)",
+                       description="Three target balls per moving body (machine file [targets]), 21 stations per "
+                                   "axis, the tracker at a seeded unknown pose, isotropic noise. Writes one sweep "
+                                   "file (one tracker set-up, axes X, Z and A).")
+    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element-set file (JSON)")
+    src.add_argument("--seed", type=int, default=None, help="seed of a random truth grinder (as `volcomp simulate`)")
+    p.add_argument("--effect", action="append", default=[], choices=EFFECT_NAMES,
+                   help="undeclared effect in the truth (repeatable): " + ", ".join(EFFECT_NAMES))
+    p.add_argument("--out", required=True, help="output sweep CSV")
+    p.add_argument("--noise-um", type=float, default=2.0, help="tracker noise σ per coordinate (μm, default 2)")
+    p.add_argument("--seed-noise", type=int, default=0, help="seed of the tracker pose and the noise")
+    p.add_argument("--bidirectional", action="store_true", help="also sweep each axis back down (direction -1)")
+    p.add_argument("--warmup-c", type=float, default=0.0,
+                   help="temperature rise over the run (°C; default 0: reference temperature)")
+    p.add_argument("--setup", default="setup-1", help="set-up id written as '# setup:' (default setup-1)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..cli import UsageError
+    if args.noise_um < 0:
+        raise UsageError(f"--noise-um must be >= 0, got {args.noise_um}")
+    machine = load_machine(args.machine, expect_kind="grinder")
+    if args.truth is not None:
+        if args.effect:
+            raise UsageError("--effect needs --seed (a truth element file carries no effects)")
+        truth = TruthGrinder(machine, ElementSet.load(args.truth), {})
+        what = f"truth {args.truth}"
+    else:
+        truth = random_truth(machine, args.seed, effects=args.effect)
+        what = f"truth seed {args.seed}"
+    print(f"simulating tracker sweeps of {what} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
+          file=sys.stderr)
+    cols = simulate_sweeps(truth, noise_um=args.noise_um, seed=args.seed_noise, bidirectional=args.bidirectional,
+                           warmup_c=args.warmup_c)
+    path = write_sweeps(args.out, cols, comments=[
+        f"setup: {args.setup}", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}",
+        f"truth: {what}", f"effects: {','.join(args.effect) or 'none'}", f"noise_um: {args.noise_um}",
+        f"seed_noise: {args.seed_noise}", "tracker pose: seeded, unknown to the identification",
+        "the A sweep is taken with X and Z at their first stations"])
+    print(f"wrote {len(cols['axis'])} ball measurements to {path}")
+    return 0

@@ -1,0 +1,298 @@
+"""Diagnosis orchestration: files in, ``DIR/diagnosis.json`` and ``DIR/report.html`` out.
+
+* :func:`run_checks` — check measurements against a model (element-set file or learned run):
+  the measured residual, the effects that explain it (:mod:`errormap.diagnosis`), before/after
+  on the held-out part, and, for a learned model with axis-only effects and feature points,
+  the retrain of the network on feature points plus the new terms (:func:`retrain_learned`).
+* :func:`run_drift` — a drift log: sensor selection, lag, before/after per channel.
+
+Everything is computed before anything is written; both files are written atomically.
+The report names its residual: the MEASURED residual (measurement − model prediction).
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from errormap.diagnosis.checks import load_checks
+from errormap.diagnosis.drift import DriftModeller, load_drift_log
+from errormap.diagnosis.effects import Context
+from errormap.diagnosis.pipeline import DiagnosisSettings, diagnose
+from errormap.featurepoints import FeaturePoints
+from errormap.io import InputError, atomic_write, write_json
+
+from .fields import load_field
+
+
+# -- learned path ---------------------------------------------------------------------------
+def augmented_feature_points(fp: FeaturePoints, corrected) -> FeaturePoints:
+    """Feature points plus the corrected model's terms at the grid (axis-only terms only)."""
+    if corrected.needs:
+        raise ValueError(f"the selected terms need conditions {list(corrected.needs)}; a learned field "
+                         "maps axes only, so it cannot carry them (keep them as parametric terms)")
+    extra = corrected.terms_only(fp.axes)
+    meta = dict(fp.meta)
+    meta["diagnosis_terms"] = ";".join(t.cand.label for t in corrected.terms)
+    return FeaturePoints(fp.axes.copy(), fp.errors_um + extra, meta)
+
+
+def retrain_learned(fp: FeaturePoints, corrected, parent_run_id: str | None, *, fit_field=None,
+                    max_time_s: float = 120.0, seed: int = 0, tracking_uri: str | None = None):
+    """Retrain the learned field on feature points + the fitted axis-only terms, tracked as a
+    child of ``parent_run_id``. ``fit_field`` defaults to :func:`training.fit_field`
+    (``fit_field(featurepoints, trainer='lm', max_time_s=, seed=, tracking_uri=, parent_run_id=)``
+    returning a result with ``.field``, ``.metrics``, ``.run_id``)."""
+    aug = augmented_feature_points(fp, corrected)
+    if fit_field is None:
+        try:
+            from training import fit_field  # noqa: F811
+        except ImportError as exc:
+            raise InputError(f"learned-field retrain unavailable: training.fit_field cannot be imported ({exc})") from None
+    return fit_field(aug, trainer="lm", max_time_s=max_time_s, seed=seed, tracking_uri=tracking_uri,
+                     parent_run_id=parent_run_id)
+
+
+# -- figures --------------------------------------------------------------------------------
+def _png(fig) -> str:
+    import matplotlib.pyplot as plt
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _histograms(before, after, labels, title) -> str:
+    plt = _plt()
+    k = before.shape[1]
+    fig, axs = plt.subplots(1, k, figsize=(4.2 * k, 3.2), squeeze=False)
+    for j in range(k):
+        ax = axs[0, j]
+        lim = max(np.abs(before[:, j]).max(), np.abs(after[:, j]).max(), 1e-9)
+        bins = np.linspace(-lim, lim, 31)
+        ax.hist(before[:, j], bins=bins, alpha=0.5, label="before")
+        ax.hist(after[:, j], bins=bins, alpha=0.5, label="after")
+        ax.set_xlabel(f"{labels[j]} residual (μm)")
+        ax.legend(fontsize=8)
+    fig.suptitle(title)
+    return _png(fig)
+
+
+def _explaining_variable(term, ctx):
+    """The variable a term depends on at the points, with its label."""
+    k, ax = term.kind, term.axis
+    if k == "thermal":
+        return (ctx.cond("temp_c") - term.ref["ref_temp_c"]) * ctx.position(ax), f"(temp_c − ref)·({ax} − lo)  (°C·mm)"
+    if k == "drift":
+        return (ctx.cond("time_s") - term.ref["ref_time_s"]) / 3600 * ctx.position(ax), f"time·({ax} − lo)  (h·mm)"
+    if k == "reversal":
+        return ctx.cond(f"dir_{ax}") + 0.0, f"dir_{ax}"
+    if k == "periodic":
+        return ctx.axes[:, {"x": 0, "z": 1}[ax]], f"{ax}_mm"
+    if k == "harmonic":
+        return ctx.axes[:, 2] % 360.0, "a_deg"
+    return ctx.position("x") * ctx.position("z"), "(x − lo)(z − lo)  (mm²)"
+
+
+def _effect_figure(d, term, ctx, hold) -> str:
+    """Partial residual of ``term`` (projected on its element) against its variable, held-out part."""
+    plt = _plt()
+    others = sum((t.contribution(ctx) for t in d.selector.terms_ if t is not term), np.zeros_like(d.residual_before_um))
+    partial = d.residual_before_um - others
+    J = ctx.column(term.element)
+    w = np.einsum("ni,ni->n", J, J)
+    w = np.where(w > 1e-12, w, np.nan)
+    g_before = np.einsum("ni,ni->n", J, partial) / w
+    g_after = np.einsum("ni,ni->n", J, partial - term.contribution(ctx)) / w
+    v, label = _explaining_variable(term, ctx)
+    fig, axs = plt.subplots(1, 2, figsize=(9, 3.2), sharey=True)
+    for ax, g, name in zip(axs, (g_before, g_after), ("before", "after")):
+        ax.plot(v[hold], g[hold], ".", ms=3)
+        ax.set_xlabel(label)
+        ax.set_title(f"{name}: {term.cand.label}", fontsize=9)
+    axs[0].set_ylabel(f"residual on {term.element} ({'μrad' if term.element.startswith('e') else 'μm'})")
+    return _png(fig)
+
+
+def _finding_figure(d, finding, hold) -> str:
+    plt = _plt()
+    j = ("dx", "dy", "dz").index(finding["output"])
+    inputs = {"x_mm": d.checks.axes[:, 0], "z_mm": d.checks.axes[:, 1], "a_deg": d.checks.axes[:, 2], **d.checks.conditions}
+    v = inputs.get(finding["input"], d.checks.seq.astype(float))
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    ax.plot(v[hold], d.residual_after_um[hold, j], ".", ms=3)
+    ax.set_xlabel(finding["input"] if finding["input"] != "none" else "seq")
+    ax.set_ylabel(f"{finding['output']} residual after (μm)")
+    return _png(fig)
+
+
+# -- HTML -----------------------------------------------------------------------------------
+def _table(rows, header) -> str:
+    h = "".join(f"<th>{html.escape(str(c))}</th>" for c in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{h}</tr>{body}</table>"
+
+
+def _fmt(v, nd=3):
+    if v is None:
+        return "—"
+    if isinstance(v, float):
+        return f"{v:.{nd}g}"
+    return str(v)
+
+
+def _page(title, parts) -> str:
+    css = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse;margin:1em 0}"
+           "td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px}img{max-width:100%}")
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+            f"<style>{css}</style></head><body><h1>{html.escape(title)}</h1>{''.join(parts)}</body></html>\n")
+
+
+def _img(b64, alt) -> str:
+    return f"<p><img alt='{html.escape(alt)}' src='data:image/png;base64,{b64}'></p>"
+
+
+def checks_report(d, summary, model_spec, checks_path) -> str:
+    s = summary
+    parts = [f"<p>Residual shown: <b>measured residual</b> (measurement − model prediction). Checks: "
+             f"{html.escape(str(checks_path))}; model: {html.escape(str(model_spec))}. {html.escape(s['split'])}. "
+             f"RMS and max are of the residual vector norm |r| on the held-out part.</p>"]
+    parts.append(_table([["held-out RMS (μm)", _fmt(s["rms_before_um"]), _fmt(s["rms_after_um"])],
+                         ["held-out max (μm)", _fmt(s["max_before_um"]), _fmt(s["max_after_um"])]],
+                        ["", "before", "after"]))
+    parts.append("<h2>Effects found</h2>")
+    if s["effects"]:
+        rows = []
+        for i, e in enumerate(s["effects"], 1):
+            ps = "; ".join(f"{k} = {_fmt(p['value'], 4)} ± {_fmt(p['se'], 2)} {p['unit']}" for k, p in e["parameters"].items())
+            rows.append([i, e["kind"], e["axis"], e["element"], ps, _fmt(e["rms_reduction_um"]),
+                         _fmt(e["selection"].get("p_adjusted")), _fmt(e["selection"].get("delta_bic"), 4)])
+        parts.append(_table(rows, ["rank", "kind", "axis", "element", "parameters", "held-out RMS reduction (μm)",
+                                   "p (Bonferroni)", "ΔBIC"]))
+    else:
+        parts.append("<p>No effect of the library passed the significance and forward-validation tests.</p>")
+    hold = d.hold_idx
+    parts.append(_img(_histograms(d.residual_before_um[hold], d.residual_after_um[hold], ("dx", "dy", "dz"),
+                                  "held-out measured residual, before and after"), "histograms"))
+    if d.selector.terms_:
+        ctx = Context.build(d.corrected.machine, d.checks.axes, d.checks.conditions, d.selector.terms_[0].ref)
+        for t in d.selector.terms_:
+            parts.append(_img(_effect_figure(d, t, ctx, hold), t.cand.label))
+    for key, name in (("unexplained_before", "before"), ("unexplained_after", "after")):
+        parts.append(f"<h2>Where the held-out residual lives ({name})</h2>")
+        f = s[key]
+        if f:
+            parts.append(_table([[u["output"], u["input"], u["pattern"],
+                                  (f"{u['period']:.4g} {u['period_unit']}" if "period" in u else ""),
+                                  _fmt(u["rms_um"]), _fmt(u["explained_fraction"]), _fmt(u["p_adjusted"])] for u in f],
+                                ["output", "input", "pattern", "period", "rms (μm)", "explained fraction", "p (Bonferroni)"]))
+        else:
+            parts.append("<p>No significant dependence on any input.</p>")
+    if s["unexplained_after"]:
+        parts.append(_img(_finding_figure(d, s["unexplained_after"][0], hold), "largest unexplained"))
+    if s.get("learned_retrain"):
+        parts.append(f"<h2>Learned field retrain</h2><pre>{html.escape(json.dumps(s['learned_retrain'], indent=1))}</pre>")
+    return _page("volcomp diagnose — check measurements", parts)
+
+
+def drift_report(log, modeller, channels, log_path) -> str:
+    plt = _plt()
+    _, hold = modeller.split(log)
+    parts = [f"<p>Drift log {html.escape(str(log_path))}: fitted on the first {len(log.time_s) - len(hold)} rows, "
+             f"before/after on the last {len(hold)} (forward in time). Residual shown: measured displacement "
+             "minus the thermal model's prediction.</p>"]
+    rows = [[ch, ", ".join(c["sensors"]) or "—", ", ".join(r for r in c["regressors"] if r == "speed_rpm") or "",
+             _fmt(c["lag_s"]), _fmt(c["rms_before_um"]), _fmt(c["rms_after_um"]), _fmt(c["max_before_um"]),
+             _fmt(c["max_after_um"])] for ch, c in channels.items()]
+    parts.append(_table(rows, ["channel", "sensors", "other", "lag (s)", "RMS before", "RMS after", "max before", "max after"]))
+    for ch, m in modeller.channels_.items():
+        d = log.disp_um[ch]
+        after = d - m.predict(log)
+        fig, axs = plt.subplots(1, 2, figsize=(10, 3.2))
+        axs[0].plot(log.time_s / 3600, d, lw=0.8, label="before")
+        axs[0].plot(log.time_s / 3600, after, lw=0.8, label="after")
+        axs[0].axvline(log.time_s[hold[0]] / 3600, color="k", ls="--", lw=0.8)
+        axs[0].set_xlabel("time (h)")
+        axs[0].set_ylabel(f"{ch} (μm)")
+        axs[0].legend(fontsize=8)
+        lim = max(np.abs(d[hold]).max(), 1e-9)
+        bins = np.linspace(-lim, lim, 31)
+        axs[1].hist(d[hold], bins=bins, alpha=0.5, label="before")
+        axs[1].hist(after[hold], bins=bins, alpha=0.5, label="after")
+        axs[1].set_xlabel(f"held-out {ch} (μm)")
+        axs[1].legend(fontsize=8)
+        parts.append(_img(_png(fig), ch))
+    return _page("volcomp diagnose — drift log", parts)
+
+
+# -- entry points ---------------------------------------------------------------------------
+def _write(out_dir, summary, page):
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_write(out / "report.html", "w", encoding="utf-8") as fh:
+        fh.write(page)
+    write_json(out / "diagnosis.json", summary)
+    return out / "diagnosis.json", out / "report.html"
+
+
+def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
+               tracking_uri=None, featurepoints=None, retrain_time_s: float = 120.0, seed: int = 0, fit_field=None,
+               field_=None):
+    """Diagnose ``checks_path`` against ``model_spec``; returns (summary, paths).
+
+    ``field_`` overrides loading ``model_spec`` (tests, benchmarks). With a learned model
+    (a run id) and ``featurepoints`` given, axis-only effects trigger the retrain.
+    """
+    checks = load_checks(checks_path, machine)
+    settings = settings or DiagnosisSettings()
+    settings.validate(len(checks))
+    learned = field_ is None and not (Path(str(model_spec)).suffix.lower() == ".json" or Path(str(model_spec)).is_file())
+    fp = FeaturePoints.load(featurepoints) if featurepoints else None
+    if field_ is None:
+        field_ = load_field(str(model_spec), machine, tracking_uri)
+    d = diagnose(machine, field_, checks, settings)
+    summary = dict(d.summary)
+    summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name})
+    if d.selector.terms_ and fp is not None and (learned or fit_field is not None):
+        axis_only = [t for t in d.selector.terms_ if not t.needs]
+        if axis_only and len(axis_only) == len(d.selector.terms_):
+            res = retrain_learned(fp, d.corrected, parent_run_id=str(model_spec) if learned else None,
+                                  fit_field=fit_field, max_time_s=retrain_time_s, seed=seed, tracking_uri=tracking_uri)
+            new = res.field
+            r_new = checks.measured_um - np.asarray(new.predict(checks.axes))
+            from errormap.diagnosis.pipeline import residual_stats
+            st = residual_stats(r_new[d.hold_idx])
+            summary["learned_retrain"] = {"run_id": getattr(res, "run_id", None), "parent_run_id": str(model_spec),
+                                          "metrics": getattr(res, "metrics", {}), "rms_after_um": st["rms_um"],
+                                          "max_after_um": st["max_um"]}
+        else:
+            summary["learned_retrain"] = {"skipped": "some selected terms need conditions (temperature, time, "
+                                                     "direction) that a learned field of the axes cannot carry"}
+    page = checks_report(d, summary, model_spec, checks_path)
+    return summary, _write(out_dir, summary, page)
+
+
+def run_drift(log_path, out_dir, modeller: DriftModeller | None = None):
+    """Diagnose a drift log; returns (summary, paths)."""
+    log = load_drift_log(log_path)
+    m = (modeller or DriftModeller()).fit(log)
+    channels = m.report(log)
+    fit, hold = m.split(log)
+    summary = {"log": str(log_path), "residual": "measured displacement − thermal model prediction",
+               "split": f"by time: first {len(fit)} rows fit, last {len(hold)} held out",
+               "channels": channels, "groups": m.groups_,
+               "settings": {k: getattr(m, k) for k in ("fit_fraction", "max_lag_s", "lag_step_s", "group_r", "alpha",
+                                                       "min_delta_bic", "max_sensors")}}
+    page = drift_report(log, m, channels, log_path)
+    return summary, _write(out_dir, summary, page)

@@ -1,0 +1,243 @@
+"""Guards on compensated commands: the search ball, the axis strokes, the calibrated volume
+and convergence. A job whose commands fail a guard stops with :class:`GuardError`, which
+lists every offending point with its reasons, unless the user overrides that guard
+explicitly (``allow``; the CLI's ``--allow``).
+
+Guard names (the keys of ``allow`` and of :attr:`GuardReport.violations`):
+
+``ball``         ``|p_r - p_d| > ball_um`` (250 μm, the paper's search region).
+``stroke``       an axis command outside the machine file's strokes. **A rule:** when the A
+                 stroke spans at least one full turn (default grinder: 0–360°), A is a
+                 continuous rotary axis and any A passes (multi-turn paths run past 360°;
+                 errors are periodic in A, so A is effectively checked modulo 360°). When it
+                 spans less than a turn, A is checked as commanded, without folding.
+``volume``       an axis command outside the field's calibrated volume (below).
+``convergence``  the solver did not converge for the point (``SolveResult.success`` False
+                 for a reason other than the ball).
+
+**Calibrated-volume contract.** A field tells the box it is valid in, in axes units
+(x_mm, z_mm, a_deg), by the first of these it has:
+
+1. ``calibrated_lo`` and ``calibrated_hi``: arrays of shape (3,);
+2. ``axes_bounds``: a pair ``(lo, hi)`` of such arrays;
+3. ``in_lo_`` and ``in_hi_`` (the learned ``training.model.MLPField``: its training-input range);
+4. ``elements.stations`` (the HTM field: the range of the element stations per axis).
+
+A field with none of these cannot be checked: :func:`calibrated_volume` raises TypeError
+(a command is never emitted silently outside an unknown volume). In A, a calibrated range
+spanning a full turn accepts every A (periodic); a narrower one is checked with A folded
+modulo 360° into ``[lo, lo + 360)``. ``volume_tol`` (default 1e-9 mm/deg) absorbs rounding.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .solvers.base import BALL_RADIUS_UM
+
+GUARDS = ("ball", "stroke", "volume", "convergence")
+AXIS_NAMES = ("x_mm", "z_mm", "a_deg")
+MAX_LISTED = 20
+"""Offending points spelled out in a GuardError message (all are in its attributes)."""
+
+
+@dataclass
+class GuardReport:
+    """Offending point indices per guard, with a short reason per offending point.
+
+    ``violations[guard]`` is a sorted int array; ``reasons[guard]`` an array of strings of
+    the same length. ``allowed`` names the guards the user overrode.
+    """
+
+    n_points: int
+    violations: dict = field(default_factory=dict)
+    reasons: dict = field(default_factory=dict)
+    allowed: frozenset = frozenset()
+
+    @property
+    def ok(self) -> bool:
+        """True when no guard found anything (allowed or not)."""
+        return not any(len(v) for v in self.violations.values())
+
+    @property
+    def blocking(self) -> dict:
+        """Violations of guards that were not allowed: guard -> indices."""
+        return {g: v for g, v in self.violations.items() if len(v) and g not in self.allowed}
+
+    @property
+    def indices(self) -> np.ndarray:
+        """All offending point indices (any guard), sorted."""
+        parts = [v for v in self.violations.values() if len(v)]
+        return np.unique(np.concatenate(parts)) if parts else np.zeros(0, dtype=np.intp)
+
+    def point_reasons(self, index: int) -> list[str]:
+        """Reasons for one point, ``"guard: detail"``."""
+        out = []
+        for g in GUARDS:
+            v = self.violations.get(g, np.zeros(0, dtype=np.intp))
+            k = np.searchsorted(v, index)
+            if k < len(v) and v[k] == index:
+                out.append(f"{g}: {self.reasons[g][k]}")
+        return out
+
+    def summary(self, guards=None, max_listed: int = MAX_LISTED) -> str:
+        """Counts per guard and the first ``max_listed`` offending points with their reasons."""
+        guards = list(guards) if guards is not None else [g for g in GUARDS if len(self.violations.get(g, []))]
+        counts = ", ".join(f"{g}: {len(self.violations[g])}" for g in guards)
+        idx = np.unique(np.concatenate([self.violations[g] for g in guards])) if guards else []
+        lines = [f"{len(idx)} of {self.n_points} points fail guards ({counts})"]
+        for i in idx[:max_listed]:
+            lines.append(f"  point {int(i)}: " + "; ".join(r for r in self.point_reasons(int(i))
+                                                          if r.split(":")[0] in guards))
+        if len(idx) > max_listed:
+            lines.append(f"  ... and {len(idx) - max_listed} more")
+        return "\n".join(lines)
+
+
+class GuardError(ValueError):
+    """Compensated commands failed guards that were not overridden.
+
+    ``report`` is the full :class:`GuardReport`; ``indices`` the offending points of the
+    blocking guards (sorted); ``reasons`` maps each such index to its list of reasons.
+    """
+
+    def __init__(self, report: GuardReport):
+        self.report = report
+        blocking = report.blocking
+        self.guards = tuple(g for g in GUARDS if g in blocking)
+        self.indices = np.unique(np.concatenate([blocking[g] for g in self.guards]))
+        self.reasons = {int(i): [r for r in report.point_reasons(int(i)) if r.split(":")[0] in self.guards]
+                        for i in self.indices}
+        allow_hint = ", ".join(self.guards)
+        super().__init__(report.summary(self.guards) + f"\n(override explicitly with --allow {allow_hint})")
+
+
+def _fmt(values, fmt="%.6g") -> np.ndarray:
+    return np.array([fmt % v for v in values], dtype=object)
+
+
+def ball_violations(correction_um, radius_um: float = BALL_RADIUS_UM, tol_um: float = 1e-9):
+    """Points whose correction ``|p_r - p_d|`` (shape (n,) μm) exceeds the ball; (indices, reasons)."""
+    c = np.asarray(correction_um, dtype=float)
+    bad = np.flatnonzero(~(c <= radius_um + tol_um))
+    return bad, np.array([f"|correction| {v:.3f} μm > {radius_um:g} μm" for v in c[bad]], dtype=object)
+
+
+def _box_violations(axes, lo, hi, a_full_turn: bool, tol: float, what: str):
+    """Shared box test with the A rule; axes (n, 3), lo/hi (3,). Returns (indices, reasons)."""
+    axes = np.asarray(axes, dtype=float)
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    vals = axes.copy()
+    check = np.array([True, True, not a_full_turn])
+    out = (vals < lo - tol) | (vals > hi + tol) | ~np.isfinite(vals)
+    out &= check[None, :]
+    bad = np.flatnonzero(out.any(axis=1))
+    reasons = []
+    for i in bad:  # formatting the offenders only (a message, not a computation)
+        parts = [f"{AXIS_NAMES[k]} = {vals[i, k]:.6g} outside {what} [{lo[k]:g}, {hi[k]:g}]"
+                 for k in range(3) if out[i, k]]
+        reasons.append(", ".join(parts))
+    return bad, np.array(reasons, dtype=object)
+
+
+def stroke_violations(axes, machine, tol: float = 1e-9):
+    """Axis commands (n, 3) outside the machine's strokes (A rule in the module docstring)."""
+    lo, hi = machine.stroke_lo, machine.stroke_hi
+    return _box_violations(axes, lo, hi, a_full_turn=hi[2] - lo[2] >= 360.0 - 1e-9, tol=tol, what="stroke")
+
+
+def calibrated_volume(field) -> tuple[np.ndarray, np.ndarray]:
+    """The field's calibrated box ``(lo, hi)``, each shape (3,) in (x_mm, z_mm, a_deg).
+
+    See the module docstring for the attribute contract; raises TypeError if the field has none.
+    """
+    if getattr(field, "calibrated_lo", None) is not None and getattr(field, "calibrated_hi", None) is not None:
+        lo, hi = field.calibrated_lo, field.calibrated_hi
+    elif getattr(field, "axes_bounds", None) is not None:
+        lo, hi = field.axes_bounds
+    elif getattr(field, "in_lo_", None) is not None and getattr(field, "in_hi_", None) is not None:
+        lo, hi = field.in_lo_, field.in_hi_
+    elif getattr(getattr(field, "elements", None), "stations", None) is not None:
+        st = field.elements.stations
+        lo = [np.min(st[k]) for k in AXIS_NAMES]
+        hi = [np.max(st[k]) for k in AXIS_NAMES]
+    else:
+        raise TypeError(f"{type(field).__name__} does not say where it is calibrated: expected calibrated_lo/"
+                        "calibrated_hi, axes_bounds, in_lo_/in_hi_ or elements.stations (see compensation.guards)")
+    lo, hi = np.asarray(lo, dtype=float).reshape(3), np.asarray(hi, dtype=float).reshape(3)
+    if not np.all(np.isfinite(lo)) or not np.all(np.isfinite(hi)) or np.any(hi < lo):
+        raise ValueError(f"Expected a finite calibrated box with lo ≤ hi, got lo={lo}, hi={hi}")
+    return lo, hi
+
+
+def volume_violations(axes, field, tol: float = 1e-9):
+    """Axis commands (n, 3) outside the field's calibrated volume (A rule in the module docstring)."""
+    lo, hi = calibrated_volume(field)
+    axes = np.array(axes, dtype=float, copy=True)
+    full = hi[2] - lo[2] >= 360.0 - 1e-9
+    if not full:
+        axes[:, 2] = lo[2] + np.mod(axes[:, 2] - lo[2], 360.0)
+    return _box_violations(axes, lo, hi, a_full_turn=full, tol=tol, what="calibrated volume")
+
+
+def convergence_violations(result):
+    """Points a solver reported as not successful while inside the ball; (indices, reasons)."""
+    r = np.linalg.norm(result.residual_um, axis=1)
+    ball = float(result.info.get("ball_um", BALL_RADIUS_UM))
+    bad = np.flatnonzero(~np.asarray(result.success, dtype=bool) & (result.correction_um <= ball + 1e-9))
+    return bad, np.array([f"{result.method} did not converge (|residual| {v:.3g} μm)" for v in r[bad]], dtype=object)
+
+
+def check(result, machine, field, allow=(), volume_tol: float = 1e-9, stroke_tol: float = 1e-9) -> GuardReport:
+    """Run every guard on a :class:`~compensation.solvers.base.SolveResult`; never raises on violations.
+
+    ``allow``: guard names overridden by the user (or ``"all"``); they are still reported.
+    """
+    allowed = frozenset(GUARDS) if allow == "all" or (not isinstance(allow, str) and "all" in allow) else \
+        frozenset([allow] if isinstance(allow, str) else allow)
+    unknown = sorted(allowed - set(GUARDS))
+    if unknown:
+        raise ValueError(f"Expected guard names from {list(GUARDS)} (or 'all'), got {unknown}")
+    ball = float(result.info.get("ball_um", BALL_RADIUS_UM))
+    found = {
+        "ball": ball_violations(result.correction_um, ball),
+        "stroke": stroke_violations(result.axes, machine, stroke_tol),
+        "volume": volume_violations(result.axes, field, volume_tol),
+        "convergence": convergence_violations(result),
+    }
+    return GuardReport(n_points=len(result.axes), violations={g: v[0] for g, v in found.items()},
+                       reasons={g: v[1] for g, v in found.items()}, allowed=allowed)
+
+
+def enforce(result, machine, field, allow=(), **tolerances) -> GuardReport:
+    """:func:`check`, then raise :class:`GuardError` if a guard that was not allowed failed.
+
+    Returns the report (with any allowed violations, for the caller to print as warnings).
+    """
+    report = check(result, machine, field, allow, **tolerances)
+    if report.blocking:
+        raise GuardError(report)
+    return report
+
+
+def violations(result, machine, field=None, **tolerances) -> list[tuple[int, str]]:
+    """Every violation as ``(point index, "guard: detail")``, sorted by index.
+
+    Convenience for callers that list offenders themselves. Without ``field`` the volume
+    guard is skipped (pass the field: a command must not leave the calibrated volume).
+    """
+    if field is None:
+        report = GuardReport(n_points=len(result.axes))
+        found = {"ball": ball_violations(result.correction_um, float(result.info.get("ball_um", BALL_RADIUS_UM))),
+                 "stroke": stroke_violations(result.axes, machine, tolerances.get("stroke_tol", 1e-9)),
+                 "convergence": convergence_violations(result)}
+        report.violations = {g: v[0] for g, v in found.items()}
+        report.reasons = {g: v[1] for g, v in found.items()}
+    else:
+        report = check(result, machine, field, **tolerances)
+    out = []
+    for g in GUARDS:
+        for i, r in zip(report.violations.get(g, []), report.reasons.get(g, [])):
+            out.append((int(i), f"{g}: {r}"))
+    return sorted(out, key=lambda t: t[0])

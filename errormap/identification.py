@@ -1,0 +1,465 @@
+"""Identification of the grinder's 23 error elements from laser-tracker sweeps.
+
+The method is the grinder paper's (section 2.1), made exact and gauge-consistent; the
+full derivation, what is observable and what is a gauge choice: ``docs/identification.md``.
+
+1. **Checks first** (cheap, before any fitting): all three axes present, every station
+   with its three targets, A stations spanning one turn, no coincident or collinear
+   balls (machine-file mounts and every measured station), ball distances matching the
+   nominal mounts, measured travel / rotation matching the commands (these catch mixed
+   units), each naming the axis and station.
+2. **Reference frame per axis**: X and Z: a least-squares line (SVD) through the
+   triangles' centroids is the reference x direction (oriented with increasing command);
+   A: a least-squares plane + circle per ball, the mean of the three axes is the
+   reference x. The reference y passes through ball 1's initial position, perpendicular
+   to x; the moving frame starts equal to the reference frame.
+3. **Six errors per station**: the three ball displacements give 9 equations in the
+   body's 3 translations + 3 small rotations (rank 6 when the balls are not collinear);
+   solved by least squares (SVD) and re-linearised about the current estimate until the
+   update is below ``tol`` (so the result is the exact rigid motion, not first order).
+   The conditioning of each station's 9×6 system (δ in μm, ε in μrad) and the residual
+   are reported.
+4. **Assembly in one machine frame**: each station's rigid motion maps the body's
+   initial pose (from the nominal mounts, SVD) to its pose at the station; all bodies are
+   then expressed in one estimated machine frame ``machine_in_tracker`` and the element
+   transforms are peeled off the chains of :mod:`errormap.htm` exactly:
+   ``E_x = N_x⁻¹·G⁻¹·T_X``, ``E_z = N_z(s)⁻¹·G⁻¹·T_Z``, ``E_oa·RotX(a)·E_a = (T_X(x0)·Trans(l7,0,l8))⁻¹·G⁻¹·T_A``.
+   Squareness ``s_xz = asin(u_X·u_Z)`` from the fitted X and Z lines (the paper); the
+   A-axis line ``E_oa`` from the rotary body's initial state (the paper), the rest of the
+   initial state (its axial and roll parts, zero on a machine the model describes) stays
+   in ``E_a``. Each element is then a cubic B-spline through its stations
+   (:class:`errormap.elements.ElementSet`).
+
+Gauges (``gauge=``): ``"first-station"`` (default) puts the machine frame on the X
+carriage at its first station, so every axis-motion element is zero at its first station,
+as :class:`~errormap.elements.ElementSet` documents; ``"reference-line"`` puts it on the
+fitted X line (x) and the X-Z plane (z), the paper's reference frame, so the X
+straightness has no linear trend. Both give the same tool-point error: a rigid change of
+the machine frame moves constants and linear trends between elements, and the tool point
+in the WCS is invariant under a rotation seen by both chains. The squareness is not
+observable apart from a linear trend of the Z straightness along the MCS x direction:
+:func:`move_squareness` moves it exactly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, ElementSet, X_ELEMENTS, Z_ELEMENTS
+from .htm import UM, URAD
+from .io import InputError
+from .machine import Grinder
+from .sweeps import (SWEEP_AXES, Sweeps, a_line_offset, compose, error_transform, invert, read_sweeps,
+                     sweeps_from_columns, x_carriage_nominal, z_carriage_nominal)
+from .transforms import apply, rot_x, rot_z, skew
+
+GAUGES = ("first-station", "reference-line")
+
+
+# -- geometric fits ----------------------------------------------------------------------------
+def rigid_fit(src, dst):
+    """Least-squares rigid transform (SVD, Kabsch) with ``R·src + t ≈ dst``.
+
+    ``src`` shape (k, 3) or (n, k, 3), ``dst`` shape (n, k, 3) -> (R (n,3,3), t (n,3)).
+    """
+    dst = np.asarray(dst, dtype=float)
+    src = np.broadcast_to(np.asarray(src, dtype=float), dst.shape)
+    cs, cd = src.mean(axis=-2), dst.mean(axis=-2)
+    H = np.einsum("nki,nkj->nij", src - cs[:, None], dst - cd[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
+    D = np.broadcast_to(np.eye(3), H.shape).copy()
+    D[:, 2, 2] = d
+    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
+    return R, cd - apply(R, cs)
+
+
+def fit_line(points):
+    """Least-squares line through points (m, 3): ``(point (3,), unit direction (3,))`` (SVD)."""
+    p = np.asarray(points, dtype=float)
+    c = p.mean(axis=0)
+    _, _, Vt = np.linalg.svd(p - c)
+    return c, Vt[0]
+
+
+def fit_plane(points):
+    """Least-squares plane through points (m, 3): ``(centroid (3,), unit normal (3,))`` (SVD)."""
+    p = np.asarray(points, dtype=float)
+    c = p.mean(axis=0)
+    _, _, Vt = np.linalg.svd(p - c)
+    return c, Vt[2]
+
+
+def fit_circle(points):
+    """Least-squares circle through points (m, 3) in 3-D: plane fit (SVD), then the
+    algebraic circle fit in the plane (``numpy.linalg.lstsq``).
+
+    Returns ``(centre (3,), unit normal (3,), radius, rms residual)`` (mm); the normal is
+    oriented so that the points run counter-clockwise about it.
+    """
+    p = np.asarray(points, dtype=float)
+    c, n = fit_plane(p)
+    _, _, Vt = np.linalg.svd(p - c)
+    e1, e2 = Vt[0], Vt[1]
+    u, v = (p - c) @ e1, (p - c) @ e2
+    A = np.stack([2 * u, 2 * v, np.ones_like(u)], axis=1)
+    (a, b, k), *_ = np.linalg.lstsq(A, u**2 + v**2, rcond=None)
+    r = np.sqrt(k + a**2 + b**2)
+    centre = c + a * e1 + b * e2
+    ang = np.unwrap(np.arctan2(v - b, u - a))
+    normal = np.cross(e1, e2) * (1.0 if ang[-1] >= ang[0] else -1.0)
+    dist = np.hypot(u - a, v - b) - r
+    return centre, normal, float(r), float(np.sqrt(np.mean(dist**2 + ((p - c) @ n) ** 2)))
+
+
+def layout_problem(points_mm, min_separation_mm: float = 1.0):
+    """``None`` if three ball centres (3, 3) form a usable triangle, else why not (a string)."""
+    p = np.asarray(points_mm, dtype=float)
+    pairs = ((0, 1), (0, 2), (1, 2))
+    dist = [np.linalg.norm(p[i] - p[j]) for i, j in pairs]
+    for (i, j), d in zip(pairs, dist):
+        if d < min_separation_mm:
+            return f"targets {i + 1} and {j + 1} coincide ({d:.3g} mm apart)"
+    height = np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])) / max(dist)
+    if height < min_separation_mm:
+        return (f"targets are collinear (triangle height {height:.3g} mm); the rotation about their line "
+                "cannot be observed")
+    return None
+
+
+def station_jacobian(q_mm, Rn=None) -> np.ndarray:
+    """The paper's 9×6 system: ∂(ball positions, μm)/∂(δ μm, ε μrad) for balls q (n, 3, 3).
+
+    ``Rn`` (n, 3, 3): the nominal rotation applied after the error (A axis); default identity.
+    Returns shape (n, 9, 6).
+    """
+    q = np.asarray(q_mm, dtype=float)
+    n = q.shape[0]
+    Rn = np.broadcast_to(np.eye(3), (n, 3, 3)) if Rn is None else Rn
+    J = np.empty((n, 3, 3, 6))
+    J[..., :3] = Rn[:, None]
+    J[..., 3:] = -(Rn[:, None] @ skew(q)) * (URAD / UM)
+    return J.reshape(n, 9, 6)
+
+
+def _euler_urad(R) -> np.ndarray:
+    """ε (n, 3) μrad with ``R = RotX(εx)·RotY(εy)·RotZ(εz)`` (intrinsic XYZ)."""
+    return Rotation.from_matrix(R).as_euler("XYZ") / URAD
+
+
+def move_squareness(elements: ElementSet, s_xz_urad: float, machine: Grinder) -> ElementSet:
+    """An equivalent element set with squareness ``s_xz_urad``: the difference moves exactly
+    into the Z straightness/positioning (``d_z += RotZ(-θ1)·z·(u(s_old) - u(s_new))``,
+    ``u(s) = (sin s, 0, cos s)``), which leaves every Z-carriage pose, hence the tool point,
+    unchanged. This is the one combination the sweeps cannot separate."""
+    out = elements.copy()
+    z = out.stations["z_mm"]
+    u = lambda s: np.array([np.sin(s * URAD), 0.0, np.cos(s * URAD)])  # noqa: E731
+    th = rot_z(np.deg2rad(machine.theta1_deg))[0]
+    delta_um = (z[:, None] * (th.T @ (u(elements.constants["s_xz"]) - u(s_xz_urad)))) / UM
+    for j, k in enumerate(("dx_z", "dy_z", "dz_z")):
+        out.functions[k] = out.functions[k] + delta_um[:, j]
+    out.constants["s_xz"] = float(s_xz_urad)
+    out._splines = {}
+    return out
+
+
+# -- results --------------------------------------------------------------------------------
+@dataclass
+class AxisReport:
+    """Per-axis diagnostics; arrays have one entry per station.
+
+    ``conditioning``: condition number of the station's 9×6 system (δ μm, ε μrad);
+    ``residual_rms_um`` / ``residual_max_um``: ball residuals after the solve;
+    ``errors_in_reference``: (m, 6) the paper's six errors (δ μm, ε μrad) in the axis'
+    reference frame, relative to the initial station; ``reversal_um``: RMS ball-position
+    difference between the + and - runs where both exist; ``fit``: the reference fit.
+    """
+
+    axis: str
+    command: np.ndarray
+    conditioning: np.ndarray
+    residual_rms_um: np.ndarray
+    residual_max_um: np.ndarray
+    errors_in_reference: np.ndarray
+    reference_in_tracker: tuple
+    iterations: int
+    fit: dict
+    reversal_um: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        return {"axis": self.axis, "command": self.command, "conditioning": self.conditioning,
+                "residual_rms_um": self.residual_rms_um, "residual_max_um": self.residual_max_um,
+                "errors_in_reference": {"columns": ["dx_um", "dy_um", "dz_um", "ex_urad", "ey_urad", "ez_urad"],
+                                        "values": self.errors_in_reference},
+                "reference_in_tracker": {"R": self.reference_in_tracker[0], "t_mm": self.reference_in_tracker[1]},
+                "iterations": self.iterations, "fit": self.fit,
+                "reversal_um": self.reversal_um}
+
+
+@dataclass
+class IdentificationResult:
+    """What :func:`identify` found: ``elements_`` (the element set), per-axis reports,
+    the estimated ``machine_in_tracker`` pose, the gauge, and warnings."""
+
+    elements_: ElementSet
+    axes: dict
+    machine_in_tracker: tuple
+    gauge: str
+    warnings: list = field(default_factory=list)
+
+    @property
+    def conditioning(self) -> dict:
+        """Axis -> condition number of each station's 9×6 system, shape (m,)."""
+        return {k: v.conditioning for k, v in self.axes.items()}
+
+    @property
+    def residuals_um(self) -> dict:
+        """Axis -> RMS ball residual of each station (μm), shape (m,)."""
+        return {k: v.residual_rms_um for k, v in self.axes.items()}
+
+    def summary_lines(self) -> list[str]:
+        lines = []
+        for ax, r in self.axes.items():
+            w = int(np.argmax(r.conditioning))
+            lines.append(f"axis {ax}: {r.command.size} stations, 9x6 conditioning {r.conditioning.min():.3g}.."
+                         f"{r.conditioning.max():.3g} (worst station {w}), ball residual RMS max "
+                         f"{r.residual_rms_um.max():.3g} um, {r.iterations} iterations")
+            if r.reversal_um is not None:
+                lines.append(f"axis {ax}: bidirectional, runs averaged; +/- difference up to "
+                             f"{r.reversal_um.max():.3g} um RMS (not representable by the 23 elements)")
+        c = self.elements_.constants
+        lines.append("s_xz {:.4g} urad; A line dy_oa {:.4g} um, dz_oa {:.4g} um, ey_oa {:.4g} urad, "
+                     "ez_oa {:.4g} urad (gauge: {})".format(c["s_xz"], c["dy_oa"], c["dz_oa"], c["ey_oa"],
+                                                             c["ez_oa"], self.gauge))
+        return lines + [f"warning: {w}" for w in self.warnings]
+
+    def to_dict(self) -> dict:
+        return {"format": "volcomp-identification/1", "gauge": self.gauge,
+                "machine_in_tracker": {"R": self.machine_in_tracker[0], "t_mm": self.machine_in_tracker[1]},
+                "constants": self.elements_.constants, "warnings": self.warnings,
+                "axes": {k: v.to_dict() for k, v in self.axes.items()}}
+
+
+# -- the estimator --------------------------------------------------------------------------
+class TrackerIdentification:
+    """The paper's tracker identification as an estimator: ``fit(sweeps, machine)`` returns
+    self with ``elements_`` and ``result_`` (an :class:`IdentificationResult`).
+
+    Settings: ``gauge`` (see module doc); ``max_iter`` / ``tol`` of the re-linearised
+    9×6 solve (update size, μm and μrad); ``max_condition``: a station whose 9×6 system is
+    worse is refused; ``min_separation_mm``: balls closer than this coincide, a triangle
+    lower than this is collinear; ``distance_tol_mm``: allowed difference between measured
+    and nominal ball distances; ``travel_tol_mm`` / ``angle_tol_deg``: allowed difference
+    between measured and commanded travel (mixed units show here).
+    """
+
+    def __init__(self, gauge: str = "first-station", max_iter: int = 20, tol: float = 1e-9,
+                 max_condition: float = 1e6, min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0,
+                 travel_tol_mm: float = 1.0, angle_tol_deg: float = 0.5):
+        self.gauge = gauge
+        self.max_iter = max_iter
+        self.tol = tol
+        self.max_condition = max_condition
+        self.min_separation_mm = min_separation_mm
+        self.distance_tol_mm = distance_tol_mm
+        self.travel_tol_mm = travel_tol_mm
+        self.angle_tol_deg = angle_tol_deg
+
+    # validation ------------------------------------------------------------------------
+    def _check(self, sweeps: Sweeps, machine: Grinder) -> list[str]:
+        if self.gauge not in GAUGES:
+            raise ValueError(f"Expected gauge in {GAUGES}, got {self.gauge!r}")
+        src = ", ".join(sweeps.sources) or "sweeps"
+        missing = [a for a in SWEEP_AXES if a not in sweeps]
+        if missing:
+            raise InputError(f"{src}: axis/axes {missing} missing; X, Z and A are all needed from one tracker "
+                             "set-up (squareness and the A-axis line relate the bodies through it)")
+        warnings = []
+        for ax in SWEEP_AXES:
+            mounts = machine.targets[ax]
+            why = layout_problem(mounts, self.min_separation_mm)
+            if why:
+                raise InputError(f"{machine.path or 'machine'}: key 'targets.{ax}': degenerate target layout for "
+                                 f"axis {ax}: {why}")
+            sw = sweeps[ax]
+            for i, st in enumerate(sw.stations):
+                why = layout_problem(sw.balls_mm[i], self.min_separation_mm)
+                if why:
+                    raise InputError(f"{sw.source}: axis {ax}, station {st}: degenerate target layout: {why}")
+            nominal = np.array([np.linalg.norm(mounts[i] - mounts[j]) for i, j in ((0, 1), (0, 2), (1, 2))])
+            measured = np.stack([np.linalg.norm(sw.balls_mm[:, i] - sw.balls_mm[:, j], axis=1)
+                                 for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
+            bad = np.abs(measured - nominal).max(axis=1) > self.distance_tol_mm
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InputError(f"{sw.source}: axis {ax}, station {sw.stations[i]}: ball distances "
+                                 f"{np.round(measured[i], 3).tolist()} mm do not match the nominal mounts' "
+                                 f"{np.round(nominal, 3).tolist()} mm (mixed units, or a wrong [targets] entry?)")
+            lo, hi = machine.strokes[{"X": "x_mm", "Z": "z_mm", "A": "a_deg"}[ax]]
+            if ax == "A":
+                span = sw.command[-1] - sw.command[0]
+                if abs(span - 360.0) > 1e-6:
+                    raise InputError(f"{sw.source}: axis A: stations must span one turn (360 deg), got "
+                                     f"{sw.command[0]:g}..{sw.command[-1]:g} deg (mixed units?)")
+            elif sw.command[0] > lo + 1e-9 or sw.command[-1] < hi - 1e-9:
+                warnings.append(f"axis {ax}: stations cover {sw.command[0]:g}..{sw.command[-1]:g} of the stroke "
+                                f"{lo:g}..{hi:g}; elements are extrapolated outside")
+            for name, arr, unit in (("temp_c", sw.temp_c, "degC"),):
+                if arr is not None and np.ptp(arr) > 1.0:
+                    warnings.append(f"axis {ax}: temperature varied by {np.ptp(arr):.2g} {unit} during the sweep; "
+                                    "thermal drift is identified as geometry")
+        return warnings
+
+    # per-axis solve -----------------------------------------------------------------------
+    def _reference(self, sw) -> tuple:
+        """Reference frame (tracker <- reference) and fit details for one axis."""
+        b = sw.balls_mm
+        ball1 = b[0, 0]
+        if sw.axis == "A":
+            circles = [fit_circle(b[:, k]) for k in range(3)]
+            normals = np.array([c[1] for c in circles])
+            x_dir = normals.mean(axis=0)
+            x_dir /= np.linalg.norm(x_dir)
+            point = np.mean([c[0] for c in circles], axis=0)
+            fit = {"circle_centres_mm": [c[0] for c in circles], "circle_normals": normals,
+                   "circle_radii_mm": [c[2] for c in circles], "circle_rms_mm": [c[3] for c in circles]}
+            for k, c in enumerate(circles):
+                if c[2] < self.min_separation_mm:
+                    raise InputError(f"{sw.source}: axis A, target {k + 1}: the ball lies on the rotation axis "
+                                     f"(circle radius {c[2]:.3g} mm); its circle cannot be fitted")
+        else:
+            point, x_dir = fit_line(b.mean(axis=1))
+            if (b[-1].mean(axis=0) - b[0].mean(axis=0)) @ x_dir < 0:
+                x_dir = -x_dir
+            fit = {"line_point_mm": point, "line_direction": x_dir,
+                   "line_rms_mm": float(np.sqrt(np.mean(np.sum(((b.mean(axis=1) - point)
+                                                                - np.outer((b.mean(axis=1) - point) @ x_dir, x_dir))**2, axis=1))))}
+        foot = point + ((ball1 - point) @ x_dir) * x_dir
+        y_dir = ball1 - foot
+        if np.linalg.norm(y_dir) < 1e-9:  # ball 1 on the reference line: any perpendicular
+            y_dir = np.cross(x_dir, np.eye(3)[np.argmin(np.abs(x_dir))])
+        y_dir /= np.linalg.norm(y_dir)
+        R = np.stack([x_dir, y_dir, np.cross(x_dir, y_dir)], axis=1)
+        return (R, foot), fit
+
+    def _solve_axis(self, sw, ref):
+        """Re-linearised least squares of the 9×6 system at every station (vectorised)."""
+        R_ref, t_ref = ref
+        P = np.einsum("ji,mkj->mki", R_ref, sw.balls_mm - t_ref)  # reference coordinates (m, 3, 3)
+        m = P.shape[0]
+        d_cmd = sw.command - sw.command[0]
+        if sw.axis == "A":
+            Rn, tn = rot_x(np.deg2rad(d_cmd)), np.zeros((m, 3))
+        else:
+            Rn, tn = np.broadcast_to(np.eye(3), (m, 3, 3)).copy(), d_cmd[:, None] * np.eye(3)[0]
+        R = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
+        t = np.zeros((m, 3))
+        P0 = P[0]
+        for it in range(1, self.max_iter + 1):
+            q = np.einsum("mij,kj->mki", R, P0) + t[:, None]
+            r_um = ((P - (np.einsum("mij,mkj->mki", Rn, q) + tn[:, None])) / UM).reshape(m, 9)
+            J = station_jacobian(q, Rn)
+            U, S, Vt = np.linalg.svd(J, full_matrices=False)
+            cond = S[:, 0] / S[:, -1]
+            if np.any(cond > self.max_condition) or np.any(S[:, -1] == 0):
+                i = int(np.argmax(np.where(S[:, -1] == 0, np.inf, cond)))
+                raise InputError(f"{sw.source}: axis {sw.axis}, station {sw.stations[i]}: the 9x6 system is "
+                                 f"singular or ill-conditioned (condition {cond[i]:.3g}); targets collinear?")
+            x = np.einsum("mji,mj->mi", Vt, np.einsum("mji,mj->mi", U, r_um) / S)
+            dR = Rotation.from_rotvec(x[:, 3:] * URAD).as_matrix()
+            R = dR @ R
+            t = apply(dR, t) + x[:, :3] * UM
+            if np.abs(x).max() < self.tol:
+                break
+        q = np.einsum("mij,kj->mki", R, P0) + t[:, None]
+        res = np.linalg.norm(P - (np.einsum("mij,mkj->mki", Rn, q) + tn[:, None]), axis=2) / UM
+        err = np.hstack([t / UM, _euler_urad(R)])
+        # full motion from the initial station, in tracker coordinates
+        D = compose((Rn, tn), (R, t))
+        D_tr = compose(compose((R_ref[None], t_ref[None]), D), invert((R_ref[None], t_ref[None])))
+        # the measured rotation/travel must match the command (mixed units show here)
+        if sw.axis == "A":
+            ang = np.rad2deg(np.linalg.norm(Rotation.from_matrix(D[0]).as_rotvec(), axis=1))
+            want = np.abs((d_cmd + 180.0) % 360.0 - 180.0)
+            bad = np.abs(ang - want) > self.angle_tol_deg
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InputError(f"{sw.source}: axis A, station {sw.stations[i]}: measured rotation {ang[i]:.4g} deg "
+                                 f"from the first station, commanded {d_cmd[i]:.4g} deg (mixed units?)")
+        else:
+            travel = P.mean(axis=1)[:, 0] - P0.mean(axis=0)[0]  # centroid along the reference line
+            bad = np.abs(travel - d_cmd) > self.travel_tol_mm
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InputError(f"{sw.source}: axis {sw.axis}, station {sw.stations[i]}: measured travel "
+                                 f"{travel[i]:.4g} mm from the first station, commanded {d_cmd[i]:.4g} mm "
+                                 "(mixed units?)")
+        return D_tr, cond, np.sqrt(np.mean(res**2, axis=1)), res.max(axis=1), err, it
+
+    # the method ---------------------------------------------------------------------------
+    def fit(self, sweeps, machine: Grinder) -> "TrackerIdentification":
+        """Identify the 23 elements; ``sweeps``: :class:`Sweeps`, a dict of sweep columns, or
+        sweep file path(s) of one set-up."""
+        if not isinstance(sweeps, Sweeps):
+            sweeps = sweeps_from_columns(sweeps) if isinstance(sweeps, dict) else read_sweeps(sweeps)
+        warnings = self._check(sweeps, machine)
+        poses, reports, lines = {}, {}, {}
+        for ax in SWEEP_AXES:
+            sw = sweeps[ax]
+            ref, fit = self._reference(sw)
+            D_tr, cond, rms, rmax, err, it = self._solve_axis(sw, ref)
+            T0 = rigid_fit(machine.targets[ax], sw.balls_mm[:1])
+            poses[ax] = compose(D_tr, T0)
+            reversal = None
+            if len(sw.by_direction) == 2:
+                reversal = np.sqrt(np.mean(np.sum((sw.by_direction[1] - sw.by_direction[-1]) ** 2, axis=2), axis=1)) / UM
+            reports[ax] = AxisReport(ax, sw.command.copy(), cond, rms, rmax, err, ref, it, fit, reversal)
+            if ax != "A":
+                lines[ax] = fit["line_direction"]
+        cx, cz, ca = sweeps["X"].command, sweeps["Z"].command, sweeps["A"].command
+        NX = x_carriage_nominal(machine, cx)
+        TX = poses["X"]
+        u_x, u_z = lines["X"], lines["Z"]
+        if self.gauge == "first-station":
+            G = compose((TX[0][:1], TX[1][:1]), invert((NX[0][:1], NX[1][:1])))
+        else:
+            z_dir = u_z - (u_z @ u_x) * u_x
+            z_dir /= np.linalg.norm(z_dir)
+            RG = np.stack([u_x, np.cross(z_dir, u_x), z_dir], axis=1)[None]
+            G = (RG, TX[1][:1] - apply(RG, NX[1][:1]))
+        Gi = invert(G)
+        s_urad = float(np.arcsin(np.clip(u_x @ u_z, -1.0, 1.0)) / URAD)
+        E_x = compose(invert(NX), compose(Gi, TX))
+        E_z = compose(invert(z_carriage_nominal(machine, cz, s_urad)), compose(Gi, poses["Z"]))
+        pre = compose(compose((NX[0][:1], NX[1][:1]), (E_x[0][:1], E_x[1][:1])), a_line_offset(machine, 1))
+        W_R, W_t = compose(invert(pre), compose(Gi, poses["A"]))
+        # first and last A stations are the same physical pose: average them
+        W_R[0] = W_R[-1] = Rotation.from_matrix(W_R[[0, -1]]).mean().as_matrix()
+        W_t[0] = W_t[-1] = W_t[[0, -1]].mean(axis=0)
+        M0 = compose((W_R[:1], W_t[:1]), (rot_x(np.deg2rad(-ca[0])), np.zeros((1, 3))))
+        eps0 = _euler_urad(M0[0])[0]
+        d_oa_um = M0[1][0] / UM
+        E_oa = error_transform(np.array([[0.0, d_oa_um[1], d_oa_um[2]]]), np.array([[0.0, eps0[1], eps0[2]]]))
+        E_a = compose((rot_x(np.deg2rad(-ca)), np.zeros((ca.size, 3))), compose(invert(E_oa), (W_R, W_t)))
+        functions = {}
+        for names, E in ((X_ELEMENTS, E_x), (Z_ELEMENTS, E_z), (A_ELEMENTS, E_a)):
+            vals = np.hstack([E[1] / UM, _euler_urad(E[0])])
+            for j, k in enumerate(names):
+                functions[k] = vals[:, j]
+        for k in A_ELEMENTS:
+            functions[k][-1] = functions[k][0]
+        constants = {"dy_oa": d_oa_um[1], "dz_oa": d_oa_um[2], "ey_oa": eps0[1], "ez_oa": eps0[2], "s_xz": s_urad}
+        assert set(constants) == set(CONSTANT_ELEMENTS)
+        elements = ElementSet({"x_mm": cx, "z_mm": cz, "a_deg": ca}, functions, constants, machine.name,
+                              machine.sha256)
+        self.elements_ = elements
+        self.result_ = IdentificationResult(elements, reports, (G[0][0], G[1][0]), self.gauge, warnings)
+        return self
+
+
+def identify(sweeps, machine: Grinder, **settings) -> IdentificationResult:
+    """Identify the 23 elements from sweeps (see :class:`TrackerIdentification` for settings)."""
+    return TrackerIdentification(**settings).fit(sweeps, machine).result_

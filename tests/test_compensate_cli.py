@@ -1,0 +1,86 @@
+"""``volcomp compensate``: batch CSV / G-code compensation from the command line."""
+import json
+
+import numpy as np
+import pytest
+
+from compensation.cli import main
+from compensation.pathio import read_path, write_axes_gcode, write_targets_csv
+from compensation.toolpath import flute_path
+from errormap.htm import HTMField
+from errormap.simulator import random_truth
+
+TOL_MM = 2e-6            # written with 6 decimals
+TOL_MODEL_RESIDUAL_UM = 1e-3
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory, grinder):
+    d = tmp_path_factory.mktemp("comp")
+    truth = random_truth(grinder, 7)
+    el = truth.elements.save(d / "elements.json")
+    f = flute_path(turns=1, points_per_turn=40)
+    nc = write_axes_gcode(d / "in" / "flute.nc", f.axes(grinder), header=["flute test"])
+    csv = write_targets_csv(d / "in" / "flute.csv", f.targets_mm)
+    return d, el, nc, csv, HTMField(grinder, truth.elements)
+
+
+def test_batch_writes_each_file_and_summary(setup, grinder, capsys):
+    d, el, nc, csv, field = setup
+    before = (nc.read_bytes(), csv.read_bytes())
+    out = d / "out"
+    rc = main(["compensate", str(nc), str(csv), "--model", str(el), "--method", "exact", "--out", str(out)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "flute.nc: 40 points" in printed and "model residual max" in printed and str(out) in printed
+    assert (nc.read_bytes(), csv.read_bytes()) == before  # inputs untouched
+    summary = json.loads((out / "compensate_summary.json").read_text())
+    assert [e["points"] for e in summary["files"]] == [40, 40]
+    assert all(e["model_max_um"] < TOL_MODEL_RESIDUAL_UM for e in summary["files"])
+    # the written commands land on the targets under the model: E(axes) cancels the correction
+    src, res = read_path(nc, grinder), read_path(out / "flute.nc", grinder)
+    from errormap.kinematics import forward
+    reached = forward(grinder, res.axes) + 1e-3 * field.predict(res.axes)
+    assert np.abs(reached - src.targets_mm).max() < 1e-3 * TOL_MODEL_RESIDUAL_UM + TOL_MM
+    assert np.abs(res.axes[:, 2] - src.axes[:, 2]).max() < 180.0  # A stays on its turn
+    # a targets CSV comes back as compensated WCS commands p_r
+    assert read_path(out / "flute.csv", grinder).kind == "csv-targets"
+
+
+def test_refuses_to_overwrite_inputs(setup, capsys):
+    d, el, nc, csv, _ = setup
+    rc = main(["compensate", str(nc), "--model", str(el), "--method", "traditional", "--out", str(nc.parent)])
+    assert rc == 2
+    assert "overwrite" in capsys.readouterr().err
+
+
+def test_bad_file_names_line_and_writes_nothing(setup, capsys):
+    d, el, nc, _, _ = setup
+    bad = d / "bad" / "bad.nc"
+    bad.parent.mkdir(exist_ok=True)
+    bad.write_text("G21 G90\nG1 X10 Z1 A0\nG1 X#3\n")
+    out = d / "out_bad"
+    rc = main(["compensate", str(nc), str(bad), "--model", str(el), "--method", "traditional", "--out", str(out)])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "bad.nc: line 3" in err
+    assert not out.exists()  # inputs are all read before any output
+
+
+def test_guard_refusal_reaches_the_cli_and_allow_overrides(setup, capsys):
+    d, el, _, _, _ = setup
+    src = d / "edge" / "edge.nc"
+    src.parent.mkdir(exist_ok=True)
+    # X = -0.5 mm is outside the X stroke by more than the 250 um search ball
+    src.write_text("G21 G90\nG1 X10 Z1 A0\nG1 X-0.5 Z1 A10\nG1 X20 Z1 A20\nG1 X-0.6 Z1 A30\nM30\n")
+    out = d / "out_edge"
+    rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out)])
+    assert rc != 0
+    err = capsys.readouterr().err
+    assert "refused" in err and "line 3" in err and "line 5" in err
+    assert not (out / "edge.nc").exists()
+    rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--allow"])
+    assert rc == 0
+    assert (out / "edge.nc").exists()
+    summary = json.loads((out / "compensate_summary.json").read_text())
+    assert summary["files"][0]["guard_violations"] >= 2

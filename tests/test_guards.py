@@ -1,0 +1,161 @@
+"""Ball, stroke, calibrated-volume and convergence guards refuse and list offending points."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from compensation.guards import (GUARDS, GuardError, calibrated_volume, check, enforce, stroke_violations, violations,
+                                 volume_violations)
+from compensation.solvers import solve
+from compensation.solvers.base import BALL_RADIUS_UM, SolveResult
+from errormap.htm import HTMField
+from errormap.kinematics import forward
+from errormap.machine import load_machine
+from errormap.simulator import random_truth
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return load_machine()
+
+
+class BoxField:
+    """Zero error, calibrated on a box given by ``calibrated_lo``/``calibrated_hi``."""
+
+    def __init__(self, lo, hi):
+        self.calibrated_lo, self.calibrated_hi = np.asarray(lo, float), np.asarray(hi, float)
+
+    def predict(self, axes):
+        return np.zeros((len(axes), 3))
+
+
+def make_result(axes, machine, correction_um=None, success=None):
+    n = len(axes)
+    commands = forward(machine, axes)
+    return SolveResult(method="test", targets_mm=commands, commands_mm=commands, axes=np.asarray(axes, float),
+                       residual_um=np.zeros((n, 3)),
+                       correction_um=np.zeros(n) if correction_um is None else np.asarray(correction_um, float),
+                       success=np.ones(n, bool) if success is None else np.asarray(success, bool),
+                       nfev=0, seconds=0.0, info={"ball_um": BALL_RADIUS_UM})
+
+
+def test_clean_result_passes(machine):
+    axes = np.array([[10.0, 1.0, 30.0], [190.0, 59.0, 359.0]])
+    report = enforce(make_result(axes, machine), machine, BoxField(machine.stroke_lo, machine.stroke_hi))
+    assert report.ok and report.indices.size == 0
+
+
+def test_ball_guard_lists_points(machine):
+    axes = np.tile([[10.0, 1.0, 30.0]], (4, 1))
+    res = make_result(axes, machine, correction_um=[10.0, 250.5, 100.0, 400.0])
+    with pytest.raises(GuardError) as exc:
+        enforce(res, machine, BoxField(machine.stroke_lo, machine.stroke_hi))
+    err = exc.value
+    assert err.guards == ("ball",)
+    np.testing.assert_array_equal(err.indices, [1, 3])
+    assert "250.500" in err.reasons[1][0] and err.reasons[1][0].startswith("ball")
+    assert "point 3" in str(err) and "--allow ball" in str(err)
+
+
+def test_stroke_guard_lists_points_and_axes(machine):
+    axes = np.array([[10.0, 1.0, 30.0], [-0.5, 1.0, 30.0], [10.0, 60.2, 30.0], [10.0, -1e-3, 30.0]])
+    idx, reasons = stroke_violations(axes, machine)
+    np.testing.assert_array_equal(idx, [1, 2, 3])
+    assert "x_mm" in reasons[0] and "z_mm" in reasons[1] and "z_mm" in reasons[2]
+    with pytest.raises(GuardError) as exc:
+        enforce(make_result(axes, machine), machine, BoxField([-10, -10, 0], [210, 70, 360]))
+    np.testing.assert_array_equal(exc.value.indices, [1, 2, 3])
+    assert exc.value.guards == ("stroke",)
+
+
+def test_a_beyond_a_turn_passes_on_a_full_turn_stroke_only(machine):
+    """Multi-turn paths: the default A stroke spans 360°, so A = 725° or -30° is allowed."""
+    axes = np.array([[10.0, 1.0, 725.0], [10.0, 1.0, -30.0]])
+    assert stroke_violations(axes, machine)[0].size == 0
+    limited = dataclasses.replace(machine, strokes={**machine.strokes, "a_deg": (0.0, 180.0)})
+    idx, reasons = stroke_violations(axes, limited)
+    np.testing.assert_array_equal(idx, [0, 1])
+    assert "a_deg = 725" in reasons[0]
+
+
+def test_volume_guard_lists_points(machine):
+    field = BoxField([5.0, 0.5, 0.0], [150.0, 50.0, 360.0])
+    axes = np.array([[10.0, 1.0, 30.0], [160.0, 1.0, 30.0], [10.0, 0.1, 30.0], [10.0, 1.0, 1000.0]])
+    idx, reasons = volume_violations(axes, field)
+    np.testing.assert_array_equal(idx, [1, 2])  # A over a full calibrated turn is periodic
+    assert "calibrated volume" in reasons[0]
+    with pytest.raises(GuardError) as exc:
+        enforce(make_result(axes, machine), machine, field)
+    assert exc.value.guards == ("volume",)
+    np.testing.assert_array_equal(exc.value.indices, [1, 2])
+
+
+def test_volume_guard_folds_a_on_a_partial_calibrated_turn():
+    field = BoxField([0.0, 0.0, 10.0], [200.0, 60.0, 100.0])
+    axes = np.array([[1.0, 1.0, 380.0], [1.0, 1.0, 470.0]])  # 20° (in) and 110° (out) after folding
+    np.testing.assert_array_equal(volume_violations(axes, field)[0], [1])
+
+
+def test_calibrated_volume_contract(machine):
+    truth = random_truth(machine, 0)
+    lo, hi = calibrated_volume(HTMField(machine, truth.elements))
+    np.testing.assert_allclose(lo, machine.stroke_lo)
+    np.testing.assert_allclose(hi, machine.stroke_hi)
+
+    class Bounds:
+        axes_bounds = ([1.0, 2.0, 3.0], [4.0, 5.0, 6.0])
+
+    class Learned:
+        in_lo_ = np.array([0.0, 0.0, 0.0])
+        in_hi_ = np.array([100.0, 30.0, 360.0])
+
+    np.testing.assert_allclose(calibrated_volume(Bounds())[1], [4.0, 5.0, 6.0])
+    np.testing.assert_allclose(calibrated_volume(Learned())[1], [100.0, 30.0, 360.0])
+    with pytest.raises(TypeError, match="calibrated"):
+        calibrated_volume(object())
+
+
+def test_convergence_guard_and_allow(machine):
+    axes = np.tile([[10.0, 1.0, 30.0]], (3, 1))
+    res = make_result(axes, machine, correction_um=[1.0, 1.0, 300.0], success=[True, False, False])
+    field = BoxField(machine.stroke_lo, machine.stroke_hi)
+    report = check(res, machine, field)
+    np.testing.assert_array_equal(report.violations["convergence"], [1])  # point 2 fails the ball, not convergence
+    np.testing.assert_array_equal(report.violations["ball"], [2])
+    with pytest.raises(GuardError) as exc:
+        enforce(res, machine, field, allow=("ball",))
+    assert exc.value.guards == ("convergence",)
+    allowed = enforce(res, machine, field, allow=("ball", "convergence"))
+    np.testing.assert_array_equal(allowed.indices, [1, 2])
+    assert enforce(res, machine, field, allow="all").allowed == frozenset(GUARDS)
+    with pytest.raises(ValueError, match="guard names"):
+        check(res, machine, field, allow=("bal",))
+
+
+def test_guards_on_a_real_solve_near_the_stroke_edge(machine):
+    """Targets at x = 0 compensated by a +x error leave the X stroke and the calibrated volume."""
+
+    class Shift(BoxField):
+        def predict(self, axes):
+            return np.tile([30.0, 0.0, 0.0], (len(axes), 1))  # +30 μm in WCS x ⇒ command x_mm += 0.03
+
+    field = Shift(machine.stroke_lo, machine.stroke_hi)
+    axes_d = np.array([[0.0, 5.0, 10.0], [100.0, 5.0, 10.0], [200.0, 5.0, 10.0]])
+    res = solve("exact", field, forward(machine, axes_d), machine, progress=False)
+    with pytest.raises(GuardError) as exc:
+        enforce(res, machine, field)
+    # WCS px = 200 - x: a +30 μm WCS error needs px - 0.03, i.e. x + 0.03: only x = 200 leaves
+    np.testing.assert_array_equal(exc.value.indices, [2])
+    assert set(exc.value.guards) == {"stroke", "volume"}
+
+
+def test_violations_list_for_callers(machine):
+    axes = np.array([[10.0, 1.0, 30.0], [-1.0, 1.0, 30.0], [10.0, 1.0, 30.0]])
+    res = make_result(axes, machine, correction_um=[0.0, 0.0, 260.0])
+    listed = violations(res, machine)
+    assert [i for i, _ in listed] == [1, 2]
+    assert listed[0][1].startswith("stroke:") and listed[1][1].startswith("ball:")
+    narrow = BoxField([20.0, 0.0, 0.0], [200.0, 60.0, 360.0])
+    assert [i for i, _ in violations(res, machine, narrow)] == [0, 1, 1, 2, 2]

@@ -1,0 +1,45 @@
+"""`volcomp sweeps` and `volcomp identify` from the command line."""
+import json
+
+import numpy as np
+
+from compensation.cli import main
+from errormap.elements import ElementSet
+from errormap.htm import HTMField
+from errormap.machine import builtin_machine_path, load_machine
+from errormap.simulator import random_axes, random_truth
+
+SPATIAL_TOL_UM = 0.01
+
+
+def test_sweeps_then_identify(tmp_path, capsys):
+    sw = tmp_path / "sweeps.csv"
+    assert main(["sweeps", "--seed", "5", "--out", str(sw), "--noise-um", "0"]) == 0
+    out = tmp_path / "el.json"
+    truth_path = random_truth(load_machine(), 5).elements.save(tmp_path / "truth.json")
+    assert main(["identify", str(sw), "--out", str(out), "--plot", str(tmp_path / "fig"),
+                 "--truth", str(truth_path)]) == 0
+    text = capsys.readouterr().out
+    assert "9x6 conditioning" in text and f"wrote elements: {out}" in text
+    for ax in "XZA":
+        assert (tmp_path / f"fig_{ax}.png").stat().st_size > 10_000
+    report = json.loads((tmp_path / "el.report.json").read_text())
+    assert len(report["axes"]["A"]["conditioning"]) == 21
+    m = load_machine()
+    pts = random_axes(m, 2000, np.random.default_rng(1))
+    d = HTMField(m, ElementSet.load(out)).predict(pts) - HTMField(m, ElementSet.load(truth_path)).predict(pts)
+    assert np.abs(d).max() < SPATIAL_TOL_UM
+
+
+def test_degenerate_layout_is_one_clean_line(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    text = builtin_machine_path().read_text()
+    bad.write_text(text.replace("X = [[0.0, -60.0, 40.0], [80.0, 40.0, 40.0], [-40.0, 60.0, 90.0]]",
+                                "X = [[0.0, 0.0, 40.0], [50.0, 0.0, 40.0], [100.0, 0.0, 40.0]]"))
+    sw = tmp_path / "s.csv"
+    assert main(["sweeps", "--machine", str(bad), "--seed", "1", "--out", str(sw)]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(sw), "--machine", str(bad), "--out", str(tmp_path / "e.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "targets.X" in err[-1] and "collinear" in err[-1]
+    assert not (tmp_path / "e.json").exists()

@@ -1,0 +1,77 @@
+"""Tripod error transfer (tripod-3tpt paper) and tracker pose measurement (mobile-pkm-pose paper)."""
+import numpy as np
+import pytest
+
+from errormap.machine import load_machine
+from errormap.pkm.hexapod import forward_kinematics, inverse_kinematics, workspace_poses
+from errormap.pkm.tracker_pose import (TrackerSimulator, common_perpendicular_midpoint, estimate_head_offset,
+                                       fit_circle_3d)
+from errormap.pkm.tripod import leg_error_norm, sensitivity_map, sensitivity_vs_lambda, transfer_matrices
+
+FK_TOL_MM = 1e-7
+FD_STEP_MM = 1e-4
+TRANSFER_TOL = 1e-6
+GEOM_TOL = 1e-9
+
+
+@pytest.fixture(scope="module")
+def tripod():
+    return load_machine(expect_kind="tripod")
+
+
+def test_tripod_ik_fk(tripod):
+    tips, _ = workspace_poses(tripod, 200, seed=1)
+    fk = forward_kinematics(tripod, inverse_kinematics(tripod, tips))
+    assert np.max(np.abs(fk.x - tips)) < FK_TOL_MM
+
+
+def test_transfer_matrices_match_finite_differences(tripod):
+    p = np.array([[30.0, -20.0, 1000.0]])
+    T = transfer_matrices(tripod, p)
+    legs = inverse_kinematics(tripod, p)
+    for i in range(3):
+        dl = np.zeros(3)
+        dl[i] = FD_STEP_MM
+        d = (forward_kinematics(tripod, legs + dl).x - forward_kinematics(tripod, legs - dl).x) / (2 * FD_STEP_MM)
+        assert np.allclose(d[0], T["f_l"][0][:, i], atol=TRANSFER_TOL)
+        b = tripod.base_joints_mm.copy()
+        b[i, 0] += FD_STEP_MM
+        plus = forward_kinematics(tripod.with_parameters(base_joints_mm=b), legs).x
+        b[i, 0] -= 2 * FD_STEP_MM
+        minus = forward_kinematics(tripod.with_parameters(base_joints_mm=b), legs).x
+        assert np.allclose((plus - minus)[0] / (2 * FD_STEP_MM), T["f_B"][0, i][:, 0], atol=TRANSFER_TOL)
+    assert np.allclose(T["f_A"], -T["f_B"])
+
+
+def test_sensitivity_grows_with_lambda_and_distance(tripod):
+    lam = np.linspace(4.3, 6.4, 12)
+    K = sensitivity_vs_lambda(tripod, lam)
+    assert np.all(np.diff(K) > 0)
+    assert np.all(np.diff(sensitivity_vs_lambda(tripod, lam, offset_xy_mm=(80.0, -60.0))) > 0)
+    Kmap = sensitivity_map(tripod, np.linspace(-100, 100, 5), np.linspace(-100, 100, 5), np.linspace(850, 1250, 9))
+    assert np.all(np.diff(Kmap, axis=2) > 0)  # farther from the fixed platform -> larger error
+    # at the centre K = 2/3 * l / c * (1 + ...) -> at least linear in lambda
+    assert K[-1] / K[0] >= lam[-1] / lam[0] * 0.99
+    assert leg_error_norm(tripod, np.array([[0.0, 0.0, 1000.0]]))[0] > 1.0
+
+
+def test_circle_and_perpendicular_helpers():
+    rng = np.random.default_rng(0)
+    ang = np.linspace(0, 1.0, 15)
+    pts = np.c_[np.zeros(15), 50 * np.cos(ang), 50 * np.sin(ang)] + [10, 20, 30]
+    c, n, r = fit_circle_3d(pts)
+    assert np.allclose(c, [10, 20, 30], atol=GEOM_TOL) and r == pytest.approx(50.0)
+    assert abs(abs(n[0]) - 1) < GEOM_TOL
+    m = common_perpendicular_midpoint(np.array([0, 0, 1.0]), [1, 0, 0], np.array([0, 0, -1.0]), [0, 1, 0])
+    assert np.allclose(m, 0.0)
+    del rng
+
+
+def test_rotation_fitting_converges_with_repeats():
+    sim = TrackerSimulator(noise_um=20.0)
+    errs = {n: np.linalg.norm(estimate_head_offset(sim, n, seed=3).x - sim.sr) for n in (4, 400)}
+    big = estimate_head_offset(sim, 400, seed=3)
+    # the mean's error shrinks like 1/sqrt(N): within 4 standard errors for N = 400
+    assert np.all(np.abs(big.x - sim.sr) <= 4 * big.std_mm / np.sqrt(400))
+    assert errs[400] < errs[4]
+    assert np.linalg.norm(big.x - sim.sr) < 0.01  # 10 um on SR ~ [189, -75, 282] mm

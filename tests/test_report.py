@@ -1,0 +1,123 @@
+"""Method comparison, true residual and the HTML report (compensation.report / evaluate)."""
+import base64
+import json
+import re
+
+import numpy as np
+import pytest
+
+import compensation.report as report_mod
+from compensation.cli import main
+from compensation.evaluate import load_truth, residual_stats, true_residual_um
+from compensation.report import compare_methods, subset_index, write_report
+from compensation.solvers import solve
+from compensation.toolpath import flute_path
+from errormap.io import InputError
+from errormap.htm import HTMField
+from errormap.kinematics import forward
+from errormap.simulator import random_truth
+
+TOL_UM = 1e-6
+MIN_TURN_CORRELATION = 0.95  # between the traditional residual's profiles on successive turns
+METRIC_KEYS = {"model_max_um", "model_mean_sq_um2", "true_max_um", "seconds", "points"}
+
+
+@pytest.fixture(scope="module")
+def truth(grinder):
+    return random_truth(grinder, 11)
+
+
+@pytest.fixture(scope="module")
+def flute():
+    return flute_path(turns=3, points_per_turn=60)
+
+
+def test_true_residual_of_nominal_commands_is_the_truth_error(grinder, truth, flute):
+    ax = flute.axes(grinder)
+    r = true_residual_um(truth, ax, forward(grinder, ax))
+    assert np.abs(r - truth.spatial_error(ax, **truth.default_conditions(len(ax)))).max() < TOL_UM
+    s = residual_stats(r, "true")
+    assert s["true_max_sq_um2"] == pytest.approx(s["true_max_um"] ** 2)
+
+
+def test_traditional_residual_repeats_once_per_turn(grinder, truth, flute):
+    """The paper's Fig. 18: the traditional model residual has the same profile on every turn."""
+    field = HTMField(grinder, truth.elements)
+    cmp = compare_methods(field, flute.targets_mm, grinder, methods=("traditional", "exact"), truth=truth,
+                          nominal_axes=flute.axes(grinder))
+    r = np.linalg.norm(cmp.runs["traditional"].result.residual_um, axis=1).reshape(3, 60)
+    assert np.ptp(r[0]) > 1.0                                   # it varies within a turn ...
+    for k in (1, 2):                                            # ... and repeats turn after turn
+        assert np.corrcoef(r[0], r[k])[0, 1] > MIN_TURN_CORRELATION
+    assert np.corrcoef(r[0], np.roll(r[0], 30))[0, 1] < MIN_TURN_CORRELATION  # not just flat
+    m = cmp.metrics()["methods"]
+    assert METRIC_KEYS <= set(m["traditional"]) and METRIC_KEYS <= set(m["exact"])
+    # model == truth here, so the exact solver's true residual is ~0 and far below traditional's
+    assert m["exact"]["true_max_um"] < 1e-3 < m["traditional"]["true_max_um"]
+    assert cmp.baseline["true_max_um"] > m["traditional"]["true_max_um"]
+
+
+def test_per_point_ga_runs_on_a_subset_and_says_so(grinder, truth, flute, monkeypatch):
+    calls = []
+
+    def stand_in(method, field, targets, machine, options):
+        calls.append((method, len(targets)))
+        opts = {k: v for k, v in options.items() if k == "target_axes"}
+        return solve("traditional", field, targets, machine, **opts)
+
+    monkeypatch.setattr(report_mod, "_solve", stand_in)
+    field = HTMField(grinder, truth.elements)
+    cmp = compare_methods(field, flute.targets_mm, grinder, methods=("ga", "batched-ga"), truth=truth, ga_points=25)
+    run = cmp.runs["ga"]
+    assert len(run.index) == 25 and run.index[0] == 0 and run.index[-1] == len(flute) - 1
+    assert run.metrics["points"] == 25 and run.metrics["subset"] and "25 of 180" in run.metrics["note"]
+    assert not cmp.runs["batched-ga"].metrics["subset"] and cmp.runs["batched-ga"].metrics["points"] == 180
+    # budget-driven subset: the probe plus a subset that fits
+    calls.clear()
+    cmp = compare_methods(field, flute.targets_mm, grinder, methods=("ga",), ga_budget_s=0.0)
+    assert calls[0] == ("ga", report_mod.GA_PROBE_POINTS) and calls[1][1] < len(flute)
+    assert subset_index(10, 20).tolist() == list(range(10))
+
+
+def test_report_html_is_self_contained_and_names_its_residuals(tmp_path, grinder, truth, flute):
+    field = HTMField(grinder, truth.elements)
+    cmp = compare_methods(field, flute.targets_mm, grinder, methods=("traditional", "exact"), truth=truth)
+    paths = write_report(cmp, tmp_path / "rep", context={"model": "test"})
+    text = paths["html"].read_text()
+    assert "MODEL" in text and "TRUE" in text and "Model residual" in text and "True residual" in text
+    assert not re.search(r"""(src|href)=["'](?!data:)""", text)  # nothing external
+    pngs = re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", text)
+    assert len(pngs) >= 5 and all(base64.b64decode(p)[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
+    metrics = json.loads(paths["metrics"].read_text())
+    assert set(metrics["methods"]) == {"traditional", "exact"} and "model" in metrics["residuals"]
+    assert metrics["methods"]["exact"]["points"] == len(flute)
+
+
+def test_report_cli_with_simulate_folder(tmp_path, capsys):
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--seed", "2", "--out", str(sim), "--checks", "20", "--effect", "pitch"]) == 0
+    out = tmp_path / "rep"
+    rc = main(["report", "--model", str(sim / "truth_elements.json"), "--flute", "--turns", "1",
+               "--points-per-turn", "40", "--truth", str(sim), "--methods", "traditional,exact", "--out", str(out)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "report.html" in printed and "metrics.json" in printed
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["truth"] == str(sim) and m["points"] == 40
+    # the truth has an undeclared effect (pitch) the model lacks: the true residual stays above the model's
+    assert m["methods"]["exact"]["true_max_um"] > m["methods"]["exact"]["model_max_um"]
+
+
+def test_load_truth_from_folder_and_file(tmp_path, grinder):
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--seed", "5", "--out", str(sim), "--checks", "10", "--effect", "worm"]) == 0
+    t = load_truth(sim, grinder)
+    assert set(t.effects) == {"worm"} and t.seed == 5
+    assert load_truth(sim / "truth_elements.json", grinder).effects == {}
+    with pytest.raises(InputError, match="no such"):
+        load_truth(tmp_path / "nothing", grinder)
+
+
+def test_report_cli_bad_methods(tmp_path, capsys):
+    rc = main(["report", "--model", "x.json", "--flute", "--methods", "traditional,magic", "--out", str(tmp_path)])
+    assert rc == 2 and "magic" in capsys.readouterr().err

@@ -1,0 +1,142 @@
+"""Tracker sweep simulator and sweep file: same chains as the HTM model, round trip, clear errors."""
+import numpy as np
+import pytest
+
+from errormap.htm import tool_point_actual
+from errormap.io import InputError
+from errormap.machine import load_machine
+from errormap.simulator import random_axes, random_truth
+from errormap.sweeps import (body_frames, compose, invert, read_sweeps, simulate_sweeps, sweeps_from_columns,
+                             write_sweeps)
+from errormap.transforms import apply
+
+CHAIN_TOL_MM = 1e-9        # same chains: agreement to float rounding at ~1 m
+ROUNDTRIP_TOL_MM = 1e-8    # 12 significant digits at up to ~3.5 m
+RIGID_TOL_MM = 1e-9
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return load_machine()
+
+
+@pytest.fixture(scope="module")
+def truth(machine):
+    return random_truth(machine, 11)
+
+
+def test_body_frames_reproduce_the_htm_tool_point(machine, truth):
+    """Tool point from the simulated Z-carriage and A-body frames == errormap.htm's exact chain."""
+    axes = random_axes(machine, 200, np.random.default_rng(0))
+    v = truth.element_values(axes)
+    tool_R, tool_t = body_frames(machine, "Z", axes, v)
+    tool_mcs = tool_t + apply(tool_R, np.array([machine.l3, 0.0, machine.l4 - machine.R]))
+    work_R, work_t = invert(body_frames(machine, "A", axes, v))
+    wcs = apply(work_R, tool_mcs) + work_t
+    assert np.abs(wcs - tool_point_actual(machine, axes, v)).max() < CHAIN_TOL_MM
+
+
+def test_noise_free_sweeps_keep_the_ball_triangle(machine, truth):
+    cols = simulate_sweeps(truth, noise_um=0.0, seed=4)
+    sw = sweeps_from_columns(cols)
+    for ax in "XZA":
+        b = sw[ax].balls_mm
+        mounts = machine.targets[ax]
+        assert b.shape == (21, 3, 3)
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            d = np.linalg.norm(b[:, i] - b[:, j], axis=1)
+            assert np.abs(d - np.linalg.norm(mounts[i] - mounts[j])).max() < RIGID_TOL_MM
+    assert sw["A"].command[-1] - sw["A"].command[0] == pytest.approx(360.0)
+
+
+def test_sweep_file_round_trip_and_bidirectional(tmp_path, truth):
+    cols = simulate_sweeps(truth, noise_um=2.0, seed=5, bidirectional=True)
+    assert set(np.unique(cols["direction"])) == {-1, 1}
+    assert len(cols["axis"]) == 3 * 2 * 21 * 3
+    path = write_sweeps(tmp_path / "s.csv", cols, comments=["setup: a"])
+    sw = read_sweeps(path)
+    ref = sweeps_from_columns(cols)
+    for ax in "XZA":
+        assert np.abs(sw[ax].balls_mm - ref[ax].balls_mm).max() < ROUNDTRIP_TOL_MM
+        assert set(sw[ax].by_direction) == {1, -1}
+    assert sw.setup == "a"
+
+
+def test_seeded_and_tracker_pose_given(truth):
+    a = simulate_sweeps(truth, noise_um=2.0, seed=7)
+    b = simulate_sweeps(truth, noise_um=2.0, seed=7)
+    assert np.array_equal(a["x_mm"], b["x_mm"])
+    pose = (np.eye(3), np.zeros(3))
+    c = simulate_sweeps(truth, noise_um=0.0, seed=7, tracker_pose=pose)
+    R, t = body_frames(truth.machine, "X", np.array([truth.machine.stroke_lo]),
+                       truth.element_values(np.array([truth.machine.stroke_lo])))
+    first = (c["axis"] == "X") & (c["station"] == 0) & (c["target"] == 1)
+    want = apply(R, truth.machine.targets["X"][0]) + t
+    assert np.abs(np.array([c["x_mm"][first], c["y_mm"][first], c["z_mm"][first]]).ravel() - want[0]).max() < RIGID_TOL_MM
+
+
+def _write(tmp_path, text, name="s.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+HEADER = "axis,station,command,target,x_mm,y_mm,z_mm\n"
+
+
+def test_reader_names_row_and_column(tmp_path):
+    p = _write(tmp_path, HEADER + "X,0,0,1,1,2,3\nY,0,0,2,1,2,3\n")
+    with pytest.raises(InputError, match=r"s\.csv: row 3, column 'axis'"):
+        read_sweeps(p)
+    p = _write(tmp_path, HEADER + "X,0,0,4,1,2,3\n")
+    with pytest.raises(InputError, match=r"row 2, column 'target'"):
+        read_sweeps(p)
+
+
+def test_reader_refuses_other_length_units(tmp_path):
+    p = _write(tmp_path, "axis,station,command,target,x_in,y_in,z_in\nX,0,0,1,1,2,3\n")
+    with pytest.raises(InputError, match="x_in.*mm"):
+        read_sweeps(p)
+
+
+def test_reader_refuses_mixed_command_units(tmp_path, truth):
+    cols = simulate_sweeps(truth, noise_um=0.0, seed=1)
+    cols["command_unit"] = np.where(cols["axis"] == "A", "deg", "mm")
+    cols["command_unit"][(cols["axis"] == "A") & (cols["station"] == 5)] = "rad"
+    p = write_sweeps(tmp_path / "s.csv", cols)
+    with pytest.raises(InputError, match="axis A, station 5.*mixed units"):
+        read_sweeps(p)
+
+
+def test_missing_station_and_target_name_axis_and_station(truth):
+    cols = simulate_sweeps(truth, noise_um=0.0, seed=1)
+    keep = ~((cols["axis"] == "Z") & (cols["station"] == 7))
+    with pytest.raises(InputError, match=r"axis Z: station\(s\) \[7\] missing"):
+        sweeps_from_columns({k: v[keep] for k, v in cols.items()})
+    keep = ~((cols["axis"] == "X") & (cols["station"] == 3) & (cols["target"] == 2))
+    with pytest.raises(InputError, match="axis X, station 3: target 2 missing"):
+        sweeps_from_columns({k: v[keep] for k, v in cols.items()})
+    dup = {k: np.concatenate([v, v[:1]]) for k, v in cols.items()}
+    with pytest.raises(InputError, match="measured twice"):
+        sweeps_from_columns(dup)
+
+
+def test_several_files_must_share_a_setup(tmp_path, truth):
+    cols = simulate_sweeps(truth, noise_um=0.0, seed=1)
+    parts = {ax: {k: v[cols["axis"] == ax] for k, v in cols.items()} for ax in "XZA"}
+    a = write_sweeps(tmp_path / "x.csv", parts["X"], comments=["setup: s1"])
+    b = write_sweeps(tmp_path / "z.csv", parts["Z"], comments=["setup: s2"])
+    with pytest.raises(InputError, match="same tracker set-up"):
+        read_sweeps([a, b])
+    b = write_sweeps(tmp_path / "z.csv", parts["Z"], comments=["setup: s1"])
+    c = write_sweeps(tmp_path / "a.csv", parts["A"], comments=["setup: s1"])
+    sw = read_sweeps([a, b, c])
+    assert set(sw.axes) == {"X", "Z", "A"}
+
+
+def test_compose_invert_identity():
+    rng = np.random.default_rng(0)
+    from scipy.spatial.transform import Rotation
+    T = (Rotation.random(5, random_state=rng).as_matrix(), rng.normal(size=(5, 3)))
+    R, t = compose(T, invert(T))
+    assert np.abs(R - np.eye(3)).max() < RIGID_TOL_MM and np.abs(t).max() < RIGID_TOL_MM

@@ -1,0 +1,148 @@
+"""MLflow tracking: every fit is a run; trained fields load back by run id or URI.
+
+Store: ``MLFLOW_TRACKING_URI`` when set (or an explicit ``tracking_uri``: a tracking server
+``http://host:port`` or any MLflow URI); otherwise an embedded SQLite store at
+``<project root>/runs/mlflow.db`` with artifacts under ``<project root>/runs/artifacts``,
+the project root found from this package's location (never the working directory).
+No server is needed for the default. For any ``sqlite:///…/name.db`` store the experiment's
+artifacts go to ``artifacts/`` beside the database file (MLflow would otherwise put them
+under the working directory).
+
+A run holds: parameters (architecture, trainer, stopping rules, seed, SHA-256 of the
+feature-point data and of the machine file, ...), metrics (``loss`` per iteration =
+MSE on scaled outputs, ``train_*``/``val_*`` max and RMS in μm), artifacts (``model/``:
+config, scalers, weights; the two fit plots; ``metrics.json``) and tags (``machine``, ...).
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from errormap.io import InputError
+
+import training
+
+PROJECT_ROOT = Path(training.__file__).resolve().parents[1]
+RUN_ID_RE = re.compile(r"^[0-9a-f]{32}$")
+MODEL_ARTIFACT = "model"
+
+
+def default_tracking_uri() -> str:
+    """``MLFLOW_TRACKING_URI`` if set, else ``sqlite:///<project root>/runs/mlflow.db``."""
+    env = os.environ.get("MLFLOW_TRACKING_URI")
+    if env:
+        return env
+    return f"sqlite:///{PROJECT_ROOT / 'runs' / 'mlflow.db'}"
+
+
+def _artifact_root(uri: str) -> str | None:
+    """Where a new experiment's artifacts go for a SQLite store: ``artifacts/`` beside the db."""
+    if uri.startswith("sqlite:///"):
+        db = Path(uri[len("sqlite:///"):])
+        return (db.parent / "artifacts").resolve().as_uri()
+    return None
+
+
+def _client(tracking_uri: str | None):
+    from mlflow.tracking import MlflowClient
+    uri = tracking_uri or default_tracking_uri()
+    if uri.startswith("sqlite:///"):
+        Path(uri[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
+    return MlflowClient(tracking_uri=uri), uri
+
+
+def _experiment_id(client, uri: str, name: str) -> str:
+    exp = client.get_experiment_by_name(name)
+    if exp is not None:
+        return exp.experiment_id
+    try:
+        return client.create_experiment(name, artifact_location=_artifact_root(uri))
+    except Exception:  # created concurrently by another process
+        exp = client.get_experiment_by_name(name)
+        if exp is None:
+            raise
+        return exp.experiment_id
+
+
+def log_fit(params: dict, metrics: dict, history, model_dir, artifacts, *, tracking_uri=None,
+            run_name=None, parent_run_id=None, tags=None, experiment: str = "volcomp-field") -> str:
+    """Record one fit as an MLflow run; returns its run id.
+
+    ``history`` has ``loss`` and ``elapsed_s`` per iteration (logged as metric ``loss``
+    with ``step`` = iteration); ``model_dir`` goes to artifact path ``model/``;
+    ``artifacts`` (files) go to the run's root.
+    """
+    from mlflow.entities import Metric, Param, RunTag
+    client, uri = _client(tracking_uri)
+    exp_id = _experiment_id(client, uri, experiment)
+    run_tags = {k: str(v) for k, v in (tags or {}).items() if v is not None}
+    if parent_run_id:
+        run_tags["mlflow.parentRunId"] = parent_run_id
+    run = client.create_run(exp_id, run_name=run_name, tags=run_tags)
+    rid = run.info.run_id
+    status = "FAILED"
+    try:
+        ps = [Param(k, str(v)[:6000]) for k, v in params.items()]
+        for i in range(0, len(ps), 100):
+            client.log_batch(rid, params=ps[i:i + 100])
+        now = int(time.time() * 1000)
+        ms = [Metric("loss", float(l), now, i + 1) for i, l in enumerate(history.loss)]
+        ms += [Metric(k, float(v), now, 0) for k, v in metrics.items()]
+        for i in range(0, len(ms), 1000):
+            client.log_batch(rid, metrics=ms[i:i + 1000])
+        client.log_artifacts(rid, str(model_dir), MODEL_ARTIFACT)
+        for a in artifacts:
+            client.log_artifact(rid, str(a))
+        status = "FINISHED"
+    finally:
+        client.set_terminated(rid, status)
+    return rid
+
+
+def register_model(run_id: str, name: str, tracking_uri: str | None = None) -> str:
+    """Register a run's ``model/`` artifact as a new version of ``name``; returns ``models:/name/version``."""
+    client, _ = _client(tracking_uri)
+    try:
+        client.create_registered_model(name)
+    except Exception:  # already exists
+        pass
+    src = client.get_run(run_id).info.artifact_uri.rstrip("/") + f"/{MODEL_ARTIFACT}"
+    mv = client.create_model_version(name, src, run_id=run_id)
+    return f"models:/{name}/{mv.version}"
+
+
+def load_field(spec: str, tracking_uri: str | None = None):
+    """A trained :class:`~training.model.MLPField` from a run id, ``runs:/<id>[/path]``,
+    ``models:/<name>/<version>`` or a local model directory."""
+    from .model import MLPField
+    spec = str(spec).strip()
+    p = Path(spec)
+    if p.is_dir():
+        return MLPField.load(p / MODEL_ARTIFACT if (p / MODEL_ARTIFACT / "config.json").is_file() else p)
+    if RUN_ID_RE.match(spec):
+        uri = f"runs:/{spec}/{MODEL_ARTIFACT}"
+    elif spec.startswith("runs:/"):
+        parts = spec[len("runs:/"):].strip("/").split("/", 1)
+        uri = spec if len(parts) == 2 and parts[1] else f"runs:/{parts[0]}/{MODEL_ARTIFACT}"
+    elif spec.startswith("models:/"):
+        uri = spec
+    else:
+        raise InputError(f"{spec}: not a model directory, MLflow run id (32 hex digits), runs:/ or models:/ URI")
+    from mlflow.artifacts import download_artifacts
+    uri_store = tracking_uri or default_tracking_uri()
+    tmp = tempfile.mkdtemp(prefix="volcomp-model-")
+    try:
+        try:
+            local = Path(download_artifacts(artifact_uri=uri, dst_path=tmp, tracking_uri=uri_store))
+        except Exception as exc:  # MlflowException, OSError: report in one line
+            raise InputError(f"{spec}: cannot load a trained model from MLflow store {uri_store}: "
+                             f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        if (local / MODEL_ARTIFACT / "config.json").is_file():
+            local = local / MODEL_ARTIFACT
+        return MLPField.load(local)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

@@ -1,0 +1,292 @@
+"""Trainers for the error-field network and ``fit_field``, the one call that trains and tracks.
+
+Three trainers share one contract, ``train(model, theta0, u, y, settings, callback) ->
+(theta, TrainHistory)`` on scaled features ``u`` and scaled targets ``y``:
+
+* ``lm``    — Levenberg–Marquardt (:mod:`training.lm`), the paper's, the default;
+* ``adam``  — :class:`torch.optim.Adam`, full batch, for comparison;
+* ``lbfgs`` — :class:`torch.optim.LBFGS` with a strong-Wolfe line search, full batch.
+
+All share the stopping rules (MSE goal on the scaled outputs, iteration cap, wall-clock
+budget). ``fit_field`` scales the data, trains, measures the fit in μm on the training
+points and on validation points (never seen in training), and records everything as an
+MLflow run (:mod:`training.tracking`).
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import math
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from errormap.io import InputError, sha256_file
+
+from .lm import LMSettings, TrainHistory, train_lm
+from .model import PAPER_HIDDEN, MLPField
+
+TRAINERS = ("lm", "adam", "lbfgs")
+AXES = ("dx", "dy", "dz")
+
+
+@contextlib.contextmanager
+def torch_threads(n: int | None):
+    """Set torch's intra-op threads for the duration of a block only (never globally)."""
+    if not n:
+        yield
+        return
+    old = torch.get_num_threads()
+    torch.set_num_threads(int(n))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def _stop_check(s: LMSettings, h: TrainHistory, mse: float, t0: float) -> str:
+    if mse <= s.mse_goal:
+        return f"mse goal {s.mse_goal:g} reached"
+    if h.iterations >= s.max_iter:
+        return f"max iterations {s.max_iter}"
+    if time.perf_counter() - t0 >= s.max_time_s:
+        return f"time budget {s.max_time_s:g} s"
+    return ""
+
+
+def train_adam(model, theta0, u, y, settings: LMSettings | None = None, callback=None, lr: float = 3e-3):
+    """Full-batch Adam with a learning rate halved on 500-iteration plateaus; same stopping rules as LM."""
+    s = settings or LMSettings()
+    theta = theta0.clone().requires_grad_(True)
+    opt = torch.optim.Adam([theta], lr=lr)
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=500, min_lr=1e-7)
+    h = TrainHistory()
+    t0 = time.perf_counter()
+    best, best_theta = math.inf, theta0.clone()
+    while True:
+        opt.zero_grad(set_to_none=True)
+        loss = torch.mean((model.forward(theta, u) - y) ** 2)
+        mse = float(loss)
+        if mse < best:
+            best, best_theta = mse, theta.detach().clone()
+        reason = _stop_check(s, h, mse, t0)
+        if reason:
+            h.stop_reason = reason
+            break
+        loss.backward()
+        opt.step()
+        sched.step(mse)
+        h.iterations += 1
+        el = time.perf_counter() - t0
+        h.loss.append(mse)
+        h.elapsed_s.append(el)
+        if callback is not None:
+            callback(h.iterations, mse, el, opt.param_groups[0]["lr"])
+    h.seconds = time.perf_counter() - t0
+    return best_theta, h
+
+
+def train_lbfgs(model, theta0, u, y, settings: LMSettings | None = None, callback=None):
+    """Full-batch L-BFGS (strong-Wolfe line search, history 50); one iteration = one optimizer step."""
+    s = settings or LMSettings()
+    theta = theta0.clone().requires_grad_(True)
+    opt = torch.optim.LBFGS([theta], lr=1.0, max_iter=20, history_size=50, line_search_fn="strong_wolfe",
+                            tolerance_grad=0.0, tolerance_change=0.0)
+
+    def closure():
+        opt.zero_grad(set_to_none=True)
+        loss = torch.mean((model.forward(theta, u) - y) ** 2)
+        loss.backward()
+        return loss
+
+    h = TrainHistory()
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        mse = float(torch.mean((model.forward(theta, u) - y) ** 2))
+    while True:
+        reason = _stop_check(s, h, mse, t0)
+        if reason:
+            h.stop_reason = reason
+            break
+        opt.step(closure)
+        with torch.no_grad():
+            new = float(torch.mean((model.forward(theta, u) - y) ** 2))
+        h.iterations += 1
+        el = time.perf_counter() - t0
+        h.loss.append(new)
+        h.elapsed_s.append(el)
+        if callback is not None:
+            callback(h.iterations, new, el, 0.0)
+        if not math.isfinite(new) or new >= mse:
+            mse = min(mse, new)
+            h.stop_reason = "no further decrease"
+            break
+        mse = new
+    h.seconds = time.perf_counter() - t0
+    return theta.detach(), h
+
+
+TRAIN_FUNCS = {"lm": train_lm, "adam": train_adam, "lbfgs": train_lbfgs}
+
+
+# -- metrics and validation ---------------------------------------------------------------
+def fit_metrics(prefix: str, predicted_um, reference_um) -> dict:
+    """Max |error| and RMS in μm, over all components and per axis; also the max vector norm."""
+    d = np.asarray(predicted_um) - np.asarray(reference_um)
+    m = {f"{prefix}_max_um": float(np.abs(d).max()), f"{prefix}_rms_um": float(np.sqrt(np.mean(d**2))),
+         f"{prefix}_max_norm_um": float(np.linalg.norm(d, axis=1).max())}
+    for j, a in enumerate(AXES):
+        m[f"{prefix}_max_{a}_um"] = float(np.abs(d[:, j]).max())
+        m[f"{prefix}_rms_{a}_um"] = float(np.sqrt(np.mean(d[:, j] ** 2)))
+    return m
+
+
+def validation_points(machine, elements_or_field, n: int = 10_000, seed: int = 12345):
+    """``n`` random points uniform over the whole working volume and their errors from the model.
+
+    ``elements_or_field``: an :class:`~errormap.elements.ElementSet` (evaluated with the exact
+    HTM model) or any object with ``predict``. Returns ``(axes shape (n, 3), errors shape (n, 3) μm)``.
+    Uniform random points lie off the feature-point grid with probability one.
+    """
+    from errormap.elements import ElementSet
+    from errormap.htm import HTMField
+    from errormap.simulator import random_axes
+    f = HTMField(machine, elements_or_field) if isinstance(elements_or_field, ElementSet) else elements_or_field
+    axes = random_axes(machine, int(n), np.random.default_rng(seed))
+    return axes, f.predict(axes)
+
+
+def reference_from_meta(meta: dict):
+    """(machine, HTM field) from a feature-point file's provenance, or None when not available."""
+    from errormap.elements import ElementSet
+    from errormap.htm import HTMField
+    from errormap.machine import load_machine
+    el = meta.get("elements_file")
+    if not el or not Path(el).is_file():
+        return None
+    machine = load_machine(meta.get("machine_file") or None, expect_kind="grinder")
+    return machine, HTMField(machine, ElementSet.load(el))
+
+
+def data_hash(axes, errors) -> str:
+    """SHA-256 of the training data (float64 bytes of axes then errors)."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(axes, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(errors, dtype=np.float64).tobytes())
+    return h.hexdigest()
+
+
+# -- fit_field ----------------------------------------------------------------------------
+@dataclass
+class FitResult:
+    """What ``fit_field`` returns: the trained field, metrics (μm), MLflow run id, seconds."""
+
+    field: MLPField
+    metrics: dict
+    run_id: str | None
+    seconds: float
+    history: TrainHistory = field(default_factory=TrainHistory)
+    params: dict = field(default_factory=dict)
+
+
+class _Printer:
+    """Progress on stderr: iteration, loss, RMS in μm, elapsed; at most once a second."""
+
+    def __init__(self, scale_um: float, quiet: bool, label: str):
+        self.scale_um, self.quiet, self.label = scale_um, quiet, label
+        self.last = -1e9
+
+    def __call__(self, it, mse, el, extra):
+        if self.quiet or el - self.last < 1.0:
+            return
+        self.last = el
+        sys.stderr.write(f"\r{self.label}: iter {it:6d}  mse {mse:.3e}  rms≈{math.sqrt(mse) * self.scale_um:.4f} μm"
+                         f"  {el:7.1f} s ")
+        sys.stderr.flush()
+
+
+def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, seed: int = 0,
+              validation=None, tracking_uri: str | None = None, run_name: str | None = None,
+              parent_run_id: str | None = None, tags: dict | None = None, quiet: bool = False,
+              hidden=PAPER_HIDDEN, activation: str = "sigmoid", a_encoding: str = "raw",
+              mse_goal: float = 2.5e-10, max_iter: int = 100_000, n_validation: int = 10_000,
+              threads: int | None = None, track: bool = True, experiment: str = "volcomp-field",
+              out_dir=None) -> FitResult:
+    """Train an :class:`MLPField` on feature points and record the fit as an MLflow run.
+
+    ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes, errors μm, meta).
+    ``validation``: ``(axes (m, 3), errors (m, 3) μm)``; when None, ``n_validation`` random
+    off-grid points are generated from the HTM model named in the feature points' meta
+    (``elements_file``, ``machine_file``), and an :class:`InputError` is raised if there is none.
+    ``track=False`` skips MLflow (``run_id`` is then None). ``out_dir``: also save the model,
+    plots and ``metrics.json`` there.
+    """
+    if trainer not in TRAINERS:
+        raise ValueError(f"Expected trainer in {TRAINERS}, got {trainer!r}")
+    if not (max_time_s > 0):
+        raise ValueError(f"Expected max_time_s > 0, got {max_time_s}")
+    axes, errors = np.asarray(featurepoints.axes, float), np.asarray(featurepoints.errors_um, float)
+    meta = dict(getattr(featurepoints, "meta", {}) or {})
+    ref = reference_from_meta(meta)
+    if validation is None:
+        if ref is None:
+            raise InputError("no validation data: the feature points name no readable elements_file; "
+                             "pass validation points (--validation FILE with x_mm,z_mm,a_deg,dx_um,dy_um,dz_um)")
+        validation = validation_points(ref[0], ref[1], n=n_validation, seed=seed + 1_000_003)
+        val_source = f"HTM model {meta.get('elements_file')} ({n_validation} random points, seed {seed + 1_000_003})"
+    else:
+        val_source = "given"
+    val_axes, val_errors = (np.asarray(v, float) for v in validation)
+
+    model = MLPField(hidden, activation, a_encoding).fit_scalers(axes, errors)
+    settings = LMSettings(mse_goal=mse_goal, max_iter=max_iter, max_time_s=max_time_s)
+    u = torch.from_numpy(model.features(axes))
+    y = torch.from_numpy(model.scale_errors(errors))
+    theta0 = model.init_params(seed)
+    printer = _Printer(model.out_scale_, quiet, f"train {trainer}")
+    with torch_threads(threads):
+        theta, hist = TRAIN_FUNCS[trainer](model, theta0, u, y, settings, printer)
+    if not quiet:
+        sys.stderr.write("\n")
+    model.theta_ = theta.detach()
+    metrics = fit_metrics("train", model.predict(axes), errors)
+    metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
+    metrics.update({"final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
+                    "iterations": hist.iterations, "train_seconds": hist.seconds})
+    machine_file = meta.get("machine_file", "")
+    params = {
+        "hidden": ",".join(map(str, model.hidden)), "activation": activation, "a_encoding": a_encoding,
+        "n_params": model.n_params, "trainer": trainer, "mse_goal": mse_goal, "max_iter": max_iter,
+        "max_time_s": max_time_s, "seed": seed, "n_train": len(axes), "n_val": len(val_axes),
+        "validation_source": val_source, "data_sha256": data_hash(axes, errors),
+        "machine_file": machine_file,
+        "machine_sha256": meta.get("machine_sha256") or (sha256_file(machine_file) if machine_file and Path(machine_file).is_file() else ""),
+        "elements_sha256": meta.get("elements_sha256", ""), "stop_reason": hist.stop_reason,
+        "output_scale_um": model.out_scale_,
+    }
+    if trainer == "lm":
+        params.update({"mu0": settings.mu0, "mu_dec": settings.mu_dec, "mu_inc": settings.mu_inc,
+                       "mu_max": settings.mu_max})
+    run_id = None
+    if track or out_dir is not None:
+        from .plots import fit_plots
+        with tempfile.TemporaryDirectory(prefix="volcomp-fit-") as tmp:
+            d = Path(out_dir) if out_dir is not None else Path(tmp)
+            model.save(d / "model")
+            plots = fit_plots(model, axes, errors, d, reference=ref[1] if ref else None)
+            from errormap.io import write_json
+            write_json(d / "metrics.json", {**metrics, "stop_reason": hist.stop_reason})
+            if track:
+                from .tracking import log_fit
+                all_tags = {"machine": meta.get("machine", ""), **(tags or {})}
+                run_id = log_fit(params, metrics, hist, d / "model", plots + [d / "metrics.json"],
+                                 tracking_uri=tracking_uri, run_name=run_name, parent_run_id=parent_run_id,
+                                 tags=all_tags, experiment=experiment)
+                if out_dir is not None:
+                    write_json(d / "metrics.json", {**metrics, "stop_reason": hist.stop_reason, "run_id": run_id})
+    return FitResult(model, metrics, run_id, hist.seconds, hist, params)
