@@ -19,7 +19,6 @@ file line, header = row 1 — and the column):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 

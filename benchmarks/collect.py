@@ -1,0 +1,34 @@
+"""Assemble BENCHMARKS.md from the per-topic result files that each benchmark script writes.
+
+Run after the benchmark scripts: ``python benchmarks/collect.py``. Nothing here measures;
+it only gathers ``benchmarks/*_results.md`` in a fixed order under a common header.
+"""
+from __future__ import annotations
+
+import pathlib
+
+HERE = pathlib.Path(__file__).resolve().parent
+ORDER = ["benchmark", "foundation", "training", "solvers", "identification", "diagnosis", "pkm"]
+HEADER = """# BENCHMARKS
+
+Figures measured on this project's machine (2 cores, 24 GiB, no GPU) by the scripts in
+`benchmarks/`; each section names its script, its data and which residual it shows
+(model / true / measured, DESIGN.md). Speed figures are medians, and ratios are measured
+side by side in one run. Regenerate a section by running its script, then
+`python benchmarks/collect.py`.
+"""
+
+
+def main() -> None:
+    files = {p.name[: -len("_results.md")]: p for p in HERE.glob("*_results.md")}
+    names = [n for n in ORDER if n in files] + sorted(set(files) - set(ORDER))
+    parts = [HEADER] + [files[n].read_text().strip() + "\n" for n in names]
+    out = HERE.parent / "BENCHMARKS.md"
+    tmp = out.with_suffix(".md.tmp")
+    tmp.write_text("\n".join(parts))
+    tmp.replace(out)
+    print(f"wrote {out} from {', '.join(names)}")
+
+
+if __name__ == "__main__":
+    main()
