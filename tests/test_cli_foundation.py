@@ -48,3 +48,10 @@ def test_bad_inputs_exit_cleanly(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "row 3" in err and "z_mm" in err
     assert not (tmp_path / "p.csv").exists()
+
+
+@pytest.mark.parametrize("effect", ["thermal", "reversal"])
+def test_simulate_effects_that_need_conditions(tmp_path, effect):
+    assert main(["simulate", "--seed", "1", "--out", str(tmp_path), "--effect", effect, "--checks", "20"]) == 0
+    info = json.loads((tmp_path / "truth.json").read_text())
+    assert effect in info["effects"] and info["max_spatial_error_um"] > 150

@@ -67,20 +67,37 @@ def test_bad_file_names_line_and_writes_nothing(setup, capsys):
     assert not out.exists()  # inputs are all read before any output
 
 
-def test_guard_refusal_reaches_the_cli_and_allow_overrides(setup, capsys):
-    d, el, _, _, _ = setup
+def _edge_file(d):
     src = d / "edge" / "edge.nc"
     src.parent.mkdir(exist_ok=True)
     # X = -0.5 mm is outside the X stroke by more than the 250 um search ball
     src.write_text("G21 G90\nG1 X10 Z1 A0\nG1 X-0.5 Z1 A10\nG1 X20 Z1 A20\nG1 X-0.6 Z1 A30\nM30\n")
+    return src
+
+
+def test_guard_refusal_reaches_the_cli_and_allow_overrides(setup, capsys):
+    d, el, _, _, _ = setup
+    src = _edge_file(d)
     out = d / "out_edge"
     rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out)])
     assert rc != 0
     err = capsys.readouterr().err
-    assert "refused" in err and "line 3" in err and "line 5" in err
+    assert "refused" in err and "stroke" in err and "(line 3)" in err and "(line 5)" in err
+    assert "(line 4)" not in err
     assert not (out / "edge.nc").exists()
     rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--allow"])
     assert rc == 0
     assert (out / "edge.nc").exists()
     summary = json.loads((out / "compensate_summary.json").read_text())
-    assert summary["files"][0]["guard_violations"] >= 2
+    assert summary["files"][0]["guard_violations"]["stroke"] >= 2
+
+
+def test_allow_names_guards(setup, capsys):
+    d, el, _, _, _ = setup
+    src = _edge_file(d)
+    out = d / "out_edge2"
+    base = ["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out)]
+    assert main(base + ["--allow", "ball"]) == 3          # the stroke guard still refuses
+    assert "stroke" in capsys.readouterr().err
+    assert main(base + ["--allow", "stroke,volume"]) == 0
+    assert main(base + ["--allow", "nonsense"]) == 2

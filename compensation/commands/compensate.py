@@ -6,10 +6,12 @@ is never touched; an output that would overwrite an input is refused before any 
 Files are done one at a time, each complete or absent, so an interrupted batch leaves only
 whole files; ``DIR/compensate_summary.json`` is written last.
 
-Guards (DESIGN.md): a file whose compensated commands leave the 250 μm search ball, the
-axis strokes or the calibrated volume is refused — not written — and the command exits
-with status 3 listing the offending points (first ``--show`` of them, with reasons), unless
-``--allow`` is given, in which case the file is written and the violations are reported.
+Guards (DESIGN.md; :mod:`compensation.guards`): a file whose compensated commands leave the
+250 μm search ball (``ball``), the axis strokes (``stroke``) or the field's calibrated volume
+(``volume``), or whose solver did not converge (``convergence``), is refused — not written —
+and the command exits with status 3 listing the offending points (first ``--show`` of them,
+with file line and reasons). ``--allow GUARDS`` (comma-separated; bare ``--allow`` = all)
+overrides those guards explicitly: the file is written and the violations are reported.
 The residual reported per file is the MODEL residual (the solver's own field).
 """
 from __future__ import annotations
@@ -26,6 +28,7 @@ from errormap.progress import Progress
 from ..cli import UsageError
 from ..fields import load_field
 from ..pathio import align_turns, read_path, write_compensated
+from .. import guards
 from ..solvers import METHODS, solve
 
 EXIT_REFUSED = 3
@@ -45,34 +48,22 @@ def register(sub):
     p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
     p.add_argument("--seed", type=int, default=0, help="seed of the stochastic solvers (ga, batched-ga)")
-    p.add_argument("--allow", action="store_true",
-                   help="write commands even where the guards object (ball, strokes, calibrated volume)")
+    p.add_argument("--allow", nargs="?", const="all", default=None, metavar="GUARDS",
+                   help="write commands even where these guards object (comma-separated from "
+                        f"{', '.join(guards.GUARDS)}; bare --allow: all of them); violations are still reported")
     p.add_argument("--show", type=int, default=10, help="offending points listed per refused file (default 10)")
     p.set_defaults(func=run)
 
 
-def _guard_violations(result, machine, points_lines) -> list:
-    """``[(point index, file line, reason), ...]`` for the compensated commands of ``result``.
-
-    Uses :mod:`compensation.guards` when it is present; falls back to the solver's own
-    ``success`` flags and the X/Z strokes.
-    """
-    try:
-        from .. import guards
-    except ImportError:
-        guards = None
-    if guards is not None and hasattr(guards, "violations"):
-        return [(int(i), int(points_lines[i]), str(reason)) for i, reason in guards.violations(result, machine)]
-    out = []
-    for i in np.flatnonzero(~np.asarray(result.success, bool)):
-        out.append((int(i), int(points_lines[i]),
-                    f"solver did not succeed (correction {result.correction_um[i]:.1f} um, "
-                    f"model residual {np.linalg.norm(result.residual_um[i]):.3g} um)"))
-    for j, key in ((0, "x_mm"), (1, "z_mm")):
-        lo, hi = machine.strokes[key]
-        for i in np.flatnonzero((result.axes[:, j] < lo) | (result.axes[:, j] > hi)):
-            out.append((int(i), int(points_lines[i]), f"{key} = {result.axes[i, j]:.6f} outside stroke [{lo}, {hi}]"))
-    return sorted(out)
+def parse_allow(text) -> tuple:
+    """``--allow`` value -> guard names: bare ``--allow`` (``"all"``) overrides every guard."""
+    if text is None:
+        return ()
+    names = tuple(t.strip() for t in str(text).split(",") if t.strip())
+    bad = [n for n in names if n not in guards.GUARDS + ("all",)]
+    if bad or not names:
+        raise UsageError(f"--allow: expected guard names from {list(guards.GUARDS)} or 'all', got {text!r}")
+    return ("all",) if "all" in names else names
 
 
 def _plan_outputs(files, out_dir: Path) -> list:
@@ -97,6 +88,7 @@ def _plan_outputs(files, out_dir: Path) -> list:
 def run(args) -> int:
     if args.show < 1:
         raise UsageError("--show must be >= 1")
+    allow = parse_allow(args.allow)
     machine = load_machine(args.machine, expect_kind="grinder")
     out_dir = Path(args.out)
     plan = _plan_outputs(args.files, out_dir)
@@ -110,16 +102,22 @@ def run(args) -> int:
         res = solve(args.method, field, tp.targets_mm, machine, target_axes=tp.axes, **opts)
         res.axes = np.array(res.axes, dtype=float)
         res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
-        viol = _guard_violations(res, machine, tp.lines)
+        try:
+            report = guards.check(res, machine, field, allow=allow)
+        except TypeError as exc:  # a field that cannot say where it is calibrated
+            raise UsageError(f"{args.model}: {exc}") from None
+        viol = [(int(i), int(tp.lines[i]), "; ".join(report.point_reasons(int(i)))) for i in report.indices]
+        blocking = set(np.concatenate(list(report.blocking.values())).tolist()) if report.blocking else set()
         norm = np.linalg.norm(res.residual_um, axis=1)
         entry = {"input": str(src), "output": None, "format": tp.kind, "points": len(tp),
                  "residual": "model", "model_max_um": float(norm.max()), "model_mean_um": float(norm.mean()),
                  "max_correction_um": float(np.max(res.correction_um)),
                  "failures": int(np.count_nonzero(~np.asarray(res.success, bool))),
-                 "guard_violations": len(viol), "seconds": float(res.seconds)}
-        if viol and not args.allow:
+                 "guard_violations": {g: int(len(v)) for g, v in report.violations.items()},
+                 "allowed_guards": sorted(report.allowed), "seconds": float(res.seconds)}
+        if blocking:
             entry["refused"] = True
-            refused.append((src, viol))
+            refused.append((src, [v for v in viol if v[0] in blocking], sorted(report.blocking)))
         else:
             comments = [f"compensated by volcomp: method={args.method} model={args.model}",
                         f"model residual max {entry['model_max_um']:.4g} um"]
@@ -131,17 +129,22 @@ def run(args) -> int:
         print(f"{src}: {entry['points']} points, model residual max {entry['model_max_um']:.4g} um "
               f"mean {entry['model_mean_um']:.4g} um, max correction {entry['max_correction_um']:.1f} um, "
               f"failures {entry['failures']}, guard violations {len(viol)} {status}")
+        if viol and not blocking:
+            print(f"  warning: {len(viol)} point(s) violate allowed guard(s) {', '.join(sorted(report.allowed))}; "
+                  f"first: point {viol[0][0]} (line {viol[0][1]}): {viol[0][2]}")
     summary_path = write_json(out_dir / SUMMARY_NAME, {
-        "method": args.method, "model": args.model, "machine": machine.path, "allow": bool(args.allow),
+        "method": args.method, "model": args.model, "machine": machine.path, "allow": list(allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "files": summary})
     print(f"wrote summary: {summary_path}")
     if refused:
-        for src, viol in refused:
-            print(f"volcomp compensate: {src}: refused, {len(viol)} offending point(s):", file=sys.stderr)
+        for src, viol, names in refused:
+            print(f"volcomp compensate: {src}: refused by guard(s) {', '.join(names)}; "
+                  f"{len(viol)} offending point(s):", file=sys.stderr)
             for i, line, reason in viol[:args.show]:
                 print(f"  point {i} (line {line}): {reason}", file=sys.stderr)
             if len(viol) > args.show:
                 print(f"  ... and {len(viol) - args.show} more", file=sys.stderr)
-        print("volcomp compensate: refused files were not written; pass --allow to override", file=sys.stderr)
+        print("volcomp compensate: refused files were not written; override explicitly with --allow GUARDS "
+              "(or bare --allow for all)", file=sys.stderr)
         return EXIT_REFUSED
     return 0

@@ -110,49 +110,59 @@ class _BatchGA:
         pop = uniform_in_ball(rng, (m, P), self.ball_um)
         fit = self.fitness(np.repeat(targets, P, axis=0), pop.reshape(-1, 3)).reshape(m, P)
         nfev = m * P
-        rows = np.arange(m)[:, None]
+        rows = np.arange(m)
+        base = (rows * P)[:, None]  # flat index of each point's first individual
         kmod = (np.arange(K) % M)[None, :]
+        ball2 = self.ball_um ** 2
         for _ in range(generations):
             # 1-2: parents = the M fittest (unordered), elite = the fittest
             par_idx = np.argpartition(-fit, M - 1, axis=1)[:, :M]
             elite = np.argmax(fit, axis=1)
             # 3: single-point crossover, PyGAD's pool semantics
-            u = rng.random((m, K, 4))
-            cut = np.minimum((u[..., 0] * 3).astype(np.intp), 2)
-            first = np.minimum((u[..., 1] * M).astype(np.intp), M - 1)
-            second = np.minimum((u[..., 2] * (M - 1)).astype(np.intp), M - 2)
+            u = rng.random((m, K, 7))
+            cut = (u[..., 0] * 3).astype(np.intp)  # 0, 1 or 2 (u < 1)
+            first = (u[..., 1] * M).astype(np.intp)
+            second = (u[..., 2] * (M - 1)).astype(np.intp)
             second += second >= first
-            lonely = u[..., 3] < self.p0 + self.p1  # pool of one (mates with itself) or none
-            none = u[..., 3] < self.p0
-            second = np.where(lonely, first, second)
-            first = np.where(none, kmod, first)
-            second = np.where(none, kmod, second)
+            if self.p0 + self.p1 > 0.0:
+                lonely = u[..., 3] < self.p0 + self.p1  # pool of one (mates with itself) or none
+                none = u[..., 3] < self.p0
+                second = np.where(lonely, first, second)
+                first = np.where(none, kmod, first)
+                second = np.where(none, kmod, second)
             i1 = np.take_along_axis(par_idx, first, axis=1)
             i2 = np.take_along_axis(par_idx, second, axis=1)
-            g1, g2 = pop[rows, i1], pop[rows, i2]  # (m, K, 3)
-            genes = np.arange(3)[None, None, :]
-            child = np.where(genes < cut[..., None], g1, g2)
+            flat_pop = pop.reshape(-1, 3)
+            g1, g2 = flat_pop[base + i1], flat_pop[base + i2]  # (m, K, 3)
+            child = g2.copy()
+            child[..., 0] = np.where(cut >= 1, g1[..., 0], g2[..., 0])
+            child[..., 1] = np.where(cut >= 2, g1[..., 1], g2[..., 1])
             # 4: additive random mutation per gene
-            mut = rng.random((m, K, 3)) < self.pm
-            child = child + mut * rng.uniform(-self.step, self.step, (m, K, 3))
-            # 5: ball repair
-            child = project_to_ball(child, self.ball_um)
-            # 6: fitness, inherited by unchanged copies of a parent
-            same2 = np.all(child == g2, axis=2)
-            same1 = np.all(child == g1, axis=2) & ~same2
-            fresh = ~(same1 | same2)
-            cfit = np.where(same2, fit[rows, i2], fit[rows, i1])
+            mut = u[..., 4:7] < self.pm
+            child += mut * (self.step * (2.0 * rng.random((m, K, 3)) - 1.0))
+            # 5: ball repair (only the few offspring outside the ball change)
+            r2 = np.einsum("mki,mki->mk", child, child)
+            out = np.nonzero(r2 > ball2)
+            if out[0].size:
+                child[out] *= (self.ball_um / np.sqrt(r2[out]))[:, None]
+            # 6: fitness; unchanged copies of a parent inherit the parent's fitness
+            fresh = np.ones((m, K), dtype=bool)
+            quiet = ~mut.any(axis=2)
+            same2 = quiet & np.all(child == g2, axis=2)
+            same1 = quiet & ~same2 & np.all(child == g1, axis=2)
+            fresh &= ~(same1 | same2)
+            cfit = np.where(same2, fit[rows[:, None], i2], fit[rows[:, None], i1])
             idx = np.nonzero(fresh)
             if idx[0].size:
                 cfit[idx] = self.fitness(targets[idx[0]], child[idx])
                 nfev += idx[0].size
             new_pop = np.empty_like(pop)
-            new_pop[:, 0] = pop[np.arange(m), elite]
+            new_pop[:, 0] = pop[rows, elite]
             new_pop[:, 1:] = child
             new_fit = np.empty_like(fit)
-            new_fit[:, 0] = fit[np.arange(m), elite]
+            new_fit[:, 0] = fit[rows, elite]
             new_fit[:, 1:] = cfit
             pop, fit = new_pop, new_fit
             bar.update(m)
-        best = pop[np.arange(m), np.argmax(fit, axis=1)]
+        best = pop[rows, np.argmax(fit, axis=1)]
         return project_to_ball(best, self.ball_um), nfev
