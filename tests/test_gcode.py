@@ -119,3 +119,15 @@ def test_fuzzed_gcode_parses_or_raises_input_error(tmp_path, machine, text, pref
     for k, line in enumerate(out.split("\n")):
         if k not in motion:
             assert line == src_lines[k]
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.binary(max_size=200))
+def test_arbitrary_bytes_parse_or_raise_input_error(tmp_path, machine, data):
+    p = _write(tmp_path, b"G21 G90 G1 X1 Z2 A3\n" + data, "bytes.nc")
+    try:
+        tp = read_path(p, machine)
+    except InputError as exc:
+        assert "bytes.nc" in str(exc)
+        return
+    assert len(tp) >= 1 and np.all(np.isfinite(tp.targets_mm))

@@ -44,3 +44,22 @@ def test_bad_input_exit_code(tmp_path, capsys):
     assert main(["calibrate", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "missing leg columns" in capsys.readouterr().err
     assert not (tmp_path / "o" / "calibration.json").exists()
+
+
+def test_calibrate_unknown_noise_compares_lambda_rules(tmp_path):
+    m = load_machine(expect_kind="hexapod")
+    sim = simulate_hexapod_poses(m, 80, NOISE_UM, seed=22)
+    poses = tmp_path / "poses.csv"
+    sim.write_csv(poses)
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(poses), "--out", str(out), "--scales"]) == 0
+    doc = json.loads((out / "calibration.json").read_text())
+    assert doc["delta_estimated"] and doc["n_gauge"] == 6
+    assert doc["condition_number_raw"] is None or doc["condition_number_raw"] > doc["condition_number"]
+    rules = {r["rule"]: r for r in doc["lambda_comparison"]["rules"]}
+    assert set(rules) == {"morozov", "gcv", "lcurve"}
+    for r in rules.values():
+        assert r["success"] and r["lambda"] > 0
+        assert r["heldout_rms_um"] <= HELDOUT_RMS_FACTOR * NOISE_UM
+    assert rules["morozov"]["lambda"] == doc["lambda"]
+    assert "Choice of lambda" in (out / "report.html").read_text()

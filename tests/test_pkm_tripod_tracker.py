@@ -75,3 +75,26 @@ def test_rotation_fitting_converges_with_repeats():
     assert np.all(np.abs(big.x - sim.sr) <= 4 * big.std_mm / np.sqrt(400))
     assert errs[400] < errs[4]
     assert np.linalg.norm(big.x - sim.sr) < 0.01  # 10 um on SR ~ [189, -75, 282] mm
+
+
+
+def test_sensitivity_plot_written_and_shows_the_trends(tripod, tmp_path, capsys):
+    """The tripod paper's findings as a plot (via the CLI) and its data: K grows with lambda and with the
+    distance from the fixed platform."""
+    from compensation.cli import main
+    from compensation.pkm_interpolation import plot_tripod_sensitivity
+    from errormap.machine import builtin_machine_path
+
+    png = tmp_path / "sens.png"
+    assert main(["interpolate", "--machine", str(builtin_machine_path("tripod")), "--sensitivity-plot", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "wrote" in capsys.readouterr().out
+    st = plot_tripod_sensitivity(tripod, tmp_path / "again.png")
+    assert np.all(np.diff(st["K_lambda"], axis=1) > 0)            # every curve grows with lambda
+    K = st["K_map"]
+    inside = np.isfinite(K)
+    assert inside.mean() > 0.5                                     # the section is mostly workspace
+    dK_h = np.diff(K, axis=1)                                      # along the distance from the fixed platform
+    assert np.all(dK_h[np.isfinite(dK_h)] > 0)
+    assert main(["interpolate", "--sensitivity-plot", str(tmp_path / "x.png")]) == 2   # hexapod: refused
+    assert not (tmp_path / "x.png").exists()

@@ -32,7 +32,22 @@ def register(subparsers):
     p.add_argument("--no-register", action="store_true", help="the instrument frame is the machine frame")
     p.add_argument("--lever-mm", type=float, default=500.0, help="weight of orientation residuals (mm per rad)")
     p.add_argument("--seed", type=int, default=0, help="seed of the hold-out split")
+    p.add_argument("--lambda-rule", choices=PKMCalibrator.RULES, default="morozov",
+                   help="choice of the Tikhonov lambda: Morozov's discrepancy principle (delta from --noise-um or "
+                        "estimated by GCV), GCV, or the L-curve corner (default morozov)")
+    p.add_argument("--compare-rules", action="store_true",
+                   help="also fit with the other lambda rules and report their held-out residuals "
+                        "(always done when --noise-um is omitted)")
     p.set_defaults(func=run)
+
+
+def _save(fig, path: Path) -> None:
+    """Save a figure as PNG atomically."""
+    import io
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    with atomic_write(path, "wb") as fh:
+        fh.write(buf.getvalue())
 
 
 def _plots(result, before, after, out: Path) -> list[Path]:
@@ -42,15 +57,21 @@ def _plots(result, before, after, out: Path) -> list[Path]:
     paths = []
     fig, ax = plt.subplots(figsize=(6, 3.5))
     s = result.singular_values
-    ax.semilogy(np.arange(1, s.size + 1), np.maximum(s, 1e-18), "o-", ms=3)
-    ax.axhline(np.sqrt(result.lam), color="r", ls="--", label="sqrt(lambda) (Morozov)")
+    if result.singular_values_raw is not None:
+        sr = result.singular_values_raw
+        ax.semilogy(np.arange(1, sr.size + 1), np.maximum(sr, 1e-18), "x", ms=4, color="0.5",
+                    label=f"raw (all directions), cond {result.condition_number_raw:.3g}")
+    ax.semilogy(np.arange(1, s.size + 1), np.maximum(s, 1e-18), "o-", ms=3,
+                label=f"identifiable subspace, cond {result.condition_number:.3g}")
+    if result.lam > 0:
+        ax.axhline(np.sqrt(result.lam), color="r", ls="--", label=f"sqrt(lambda) ({result.lambda_rule})")
     ax.set_xlabel("index")
     ax.set_ylabel("singular value (scaled J)")
-    ax.set_title(f"condition number {result.condition_number:.3g}")
+    ax.set_title(f"condition number {result.condition_number:.3g} (raw {result.condition_number_raw:.3g})")
     ax.legend()
     fig.tight_layout()
     paths.append(out / "singular_values.png")
-    fig.savefig(paths[-1], dpi=110)
+    _save(fig, paths[-1])
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 3.5))
     ax.plot(before, "o", ms=3, label=f"nominal (RMS {np.sqrt(np.mean(before ** 2)):.1f} um)")
@@ -61,18 +82,24 @@ def _plots(result, before, after, out: Path) -> list[Path]:
     ax.legend()
     fig.tight_layout()
     paths.append(out / "heldout_residual.png")
-    fig.savefig(paths[-1], dpi=110)
+    _save(fig, paths[-1])
     plt.close(fig)
     c = result.lcurve
     if "residual_norm" in c:
         fig, ax = plt.subplots(figsize=(6, 3.5))
         ax.loglog(c["residual_norm"], c["solution_norm"], "-")
+        for lam, lab, col in ((result.lambda_lcurve, "L-curve corner", "g"), (result.lambda_gcv, "GCV", "b"),
+                              (result.lambda_morozov, "Morozov", "r")):
+            if np.isfinite(lam) and lam > 0:
+                i = int(np.argmin(np.abs(np.log(c["lambda"]) - np.log(lam))))
+                ax.plot(c["residual_norm"][i], c["solution_norm"][i], "o", color=col, label=f"{lab} {lam:.3g}")
+        ax.legend(fontsize=8)
         ax.set_xlabel("|J w - b| (mm)")
         ax.set_ylabel("|w| (scaled)")
         ax.set_title("L-curve of the final linearisation")
         fig.tight_layout()
         paths.append(out / "lcurve.png")
-        fig.savefig(paths[-1], dpi=110)
+        _save(fig, paths[-1])
         plt.close(fig)
     return paths
 
@@ -86,7 +113,15 @@ def _html(doc: dict, pngs: list[Path], out: Path) -> Path:
                f"&rarr; {doc['max_after_um']:.2f} um. Fit poses: {doc['n_fit_poses']}. lambda (Morozov) "
                f"{doc['lambda']:.3g}, GCV {doc['lambda_gcv']:.3g}, L-curve {doc['lambda_lcurve']:.3g}; delta "
                f"{doc['delta_um']:.3g} um ({'estimated' if doc['delta_estimated'] else 'given'}); condition number "
-               f"{doc['condition_number']:.3g}; {len(doc['unidentifiable'])} unidentifiable combinations.</p>")
+               f"{doc['condition_number']:.3g} on the identifiable subspace (raw, gauge directions included: "
+               f"{doc['condition_number_raw'] if doc['condition_number_raw'] is not None else float('inf'):.3g}); "
+               f"{len(doc['unidentifiable'])} unidentifiable combinations ({doc['n_gauge']} fixed by the gauge).</p>")
+    if "lambda_comparison" in doc:
+        summary += ("<h2>Choice of lambda</h2><table border=1><tr><th>rule</th><th>lambda</th><th>delta um</th>"
+                    "<th>held-out RMS / max um</th></tr>" + "".join(
+                        f"<tr><td>{r['rule']}</td><td>{r['lambda']:.3g}</td><td>{r['delta_um']:.3g}</td>"
+                        f"<td>{r['heldout_rms_um']:.2f} / {r['heldout_max_um']:.2f}</td></tr>"
+                        for r in doc["lambda_comparison"]["rules"]) + "</table>")
     html = (f"<!doctype html><html><head><meta charset='utf-8'><title>PKM calibration</title></head><body>"
             f"<h1>PKM calibration: {doc['machine']['name']}</h1>{summary}{imgs}"
             f"<h2>Parameters</h2><table border=1><tr><th>name</th><th>value</th><th>delta</th><th>std error</th></tr>"
@@ -94,6 +129,30 @@ def _html(doc: dict, pngs: list[Path], out: Path) -> Path:
     with atomic_write(out / "report.html", "w", encoding="utf-8") as fh:
         fh.write(html)
     return out / "report.html"
+
+
+def _compare_rules(machine, args, fit, check, res, after) -> dict:
+    """Fit with each lambda rule; chosen lambda, delta, fit and held-out measured residual per rule."""
+    rows = []
+    for rule in PKMCalibrator.RULES:
+        if rule == args.lambda_rule:
+            r, e = res, after
+        else:
+            r = PKMCalibrator(machine, estimate_scales=args.scales, register=not args.no_register,
+                              noise_um=args.noise_um, lever_mm=args.lever_mm, lambda_rule=rule).fit(fit)
+            e = r.pose_errors_um(check)
+        pos = e["position_um"]
+        rows.append({"rule": rule, "lambda": r.lam, "delta_um": r.delta_mm * 1e3,
+                     "delta_estimated": r.delta_estimated, "success": r.success,
+                     "fit_rms_um": float(1e3 * np.sqrt(np.mean(np.sum(r.residuals[:, :3] ** 2, axis=1)))),
+                     "heldout_rms_um": float(np.sqrt(np.mean(pos ** 2))), "heldout_max_um": float(pos.max())})
+        print(f"calibrate: lambda rule {rule}: lambda {r.lam:.3g}, held-out RMS {rows[-1]['heldout_rms_um']:.2f} um",
+              file=sys.stderr)
+    return {"residual_kind": "measured residual (measurement minus model) on the held-out poses, position norm; "
+                             "fit_rms_um on the fit poses",
+            "delta": "morozov uses --noise-um when given, else delta estimated from the GCV fit "
+                     "(delta^2 = RSS / (m - trace H))",
+            "rules": rows}
 
 
 def run(args) -> int:
@@ -112,11 +171,14 @@ def run(args) -> int:
         check, fit = data.subset(idx[:n_check]), data.subset(idx[n_check:])
     print(f"calibrate: {len(fit)} fit poses, {len(check)} held-out poses, machine {machine.name}", file=sys.stderr)
     cal = PKMCalibrator(machine, estimate_scales=args.scales, register=not args.no_register, noise_um=args.noise_um,
-                        lever_mm=args.lever_mm, progress=lambda msg: print(f"calibrate: {msg}", file=sys.stderr))
+                        lever_mm=args.lever_mm, lambda_rule=args.lambda_rule, progress=lambda msg: print(f"calibrate: {msg}", file=sys.stderr))
     try:
         res = cal.fit(fit)
         before = res.pose_errors_um(check, nominal=True, frame=res.lcurve["initial_frame"])
         after = res.pose_errors_um(check)
+        b, a = before["position_um"], after["position_um"]
+        comparison = (_compare_rules(machine, args, fit, check, res, after)
+                      if args.compare_rules or args.noise_um is None else None)
     except KinematicsError as exc:
         raise InputError(f"{args.poses}: {exc}") from None
     except ValueError as exc:
@@ -124,7 +186,6 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = calibration_to_dict(res)
-    b, a = before["position_um"], after["position_um"]
     doc.update({"residual_kind": "measured residual (measurement minus model) on held-out poses, position norm",
                 "rms_before_um": float(np.sqrt(np.mean(b ** 2))), "rms_after_um": float(np.sqrt(np.mean(a ** 2))),
                 "max_before_um": float(b.max()), "max_after_um": float(a.max()), "n_check_poses": len(check),
@@ -132,6 +193,8 @@ def run(args) -> int:
     if "angle_urad" in after:
         doc.update({"rms_angle_before_urad": float(np.sqrt(np.mean(before["angle_urad"] ** 2))),
                     "rms_angle_after_urad": float(np.sqrt(np.mean(after["angle_urad"] ** 2)))})
+    if comparison is not None:
+        doc["lambda_comparison"] = comparison
     write_json(out / "calibration.json", doc)
     pngs = _plots(res, b, a, out)
     _html(doc, pngs, out)

@@ -29,6 +29,7 @@ from ..cli import UsageError
 from ..fields import load_field
 from ..pathio import align_turns, read_path, write_compensated
 from .. import guards
+from ..report import small_batch_threads
 from ..solvers import METHODS, solve
 
 EXIT_REFUSED = 3
@@ -99,7 +100,8 @@ def run(args) -> int:
     summary, refused = [], []
     bar = Progress(len(plan), f"compensate ({args.method})", every_s=0.0)
     for (src, dst), tp in zip(plan, paths):
-        res = solve(args.method, field, tp.targets_mm, machine, target_axes=tp.axes, **opts)
+        with small_batch_threads(args.method, len(tp)):
+            res = solve(args.method, field, tp.targets_mm, machine, target_axes=tp.axes, **opts)
         res.axes = np.array(res.axes, dtype=float)
         res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
         try:

@@ -54,11 +54,12 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def train_field(fp_path: Path, machine, args, log=sys.stderr):
+def train_field(fp_path: Path, machine, args, log=None):
     """Train the network with ``training.fit_field``; returns ``(field, info dict)``.
 
     ``info`` has ``run_id`` (or None), ``metrics`` and ``model`` (what the report names).
     """
+    log = sys.stderr if log is None else log
     import training
     fit_field = getattr(training, "fit_field", None)
     if fit_field is None:
@@ -81,8 +82,9 @@ def train_field(fp_path: Path, machine, args, log=sys.stderr):
                        "model": f"runs:/{run_id}" if run_id else "trained network (not tracked)"}
 
 
-def log_to_mlflow(run_id, tracking_uri, paths: dict, metrics: dict, log=sys.stderr) -> None:
+def log_to_mlflow(run_id, tracking_uri, paths: dict, metrics: dict, log=None) -> None:
     """Log the report files and per-method residual metrics to the training run."""
+    log = sys.stderr if log is None else log
     if not run_id:
         return
     import mlflow

@@ -15,15 +15,19 @@ from errormap.machine import load_machine
 from errormap.pkm.calibration import load_calibrated_machine
 from errormap.pkm.hexapod import KinematicsError
 
-from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints
+from compensation.pkm_interpolation import (builtin_path, contour_step_mm, leg_program, plot_tripod_sensitivity,
+                                            read_waypoints)
 
 
 def register(subparsers):
     p = subparsers.add_parser("interpolate", help="hexapod/tripod leg-command program for a tool path")
-    p.add_argument("path", help="'sphere', 'hyperboloid' or a waypoint CSV (px_mm py_mm pz_mm [nx ny nz] [move cx_mm ..])")
+    p.add_argument("path", nargs="?",
+                   help="'sphere', 'hyperboloid' or a waypoint CSV (px_mm py_mm pz_mm [nx ny nz] [move cx_mm ..])")
     p.add_argument("--machine", help="machine file (default: the built-in hexapod)")
     p.add_argument("--calibration", help="calibration folder or calibration.json (compensated commands)")
-    p.add_argument("--out", required=True, help="output CSV")
+    p.add_argument("--out", help="output CSV (required with PATH)")
+    p.add_argument("--sensitivity-plot", metavar="FILE",
+                   help="tripod only: write the error-sensitivity plot (K vs lambda, K over the workspace) as PNG")
     p.add_argument("--feed-mm-min", type=float, default=1000.0, help="feed (mm/min), default 1000")
     p.add_argument("--period-ms", type=float, default=4.0, help="interpolation period (ms), default 4")
     p.add_argument("--allow-out-of-range", action="store_true", help="write even if a leg leaves its range")
@@ -35,6 +39,18 @@ def run(args) -> int:
     machine = load_machine(args.machine) if args.machine else load_machine(expect_kind="hexapod")
     if machine.kind not in ("hexapod", "tripod"):
         raise UsageError(f"{machine.path}: interpolate needs a hexapod or tripod machine file, got {machine.kind!r}")
+    if args.path is None and args.sensitivity_plot is None:
+        raise UsageError("interpolate: give a PATH (with --out) or --sensitivity-plot FILE")
+    if args.path is not None and args.out is None:
+        raise UsageError("interpolate: --out is required with a PATH")
+    if args.sensitivity_plot is not None:
+        if machine.kind != "tripod":
+            raise UsageError(f"{machine.path}: --sensitivity-plot needs a tripod machine file, got {machine.kind!r}")
+        st = plot_tripod_sensitivity(machine, Path(args.sensitivity_plot))
+        print(f"interpolate: wrote {st['path']} (K {st['K_lambda'].min():.3g}..{st['K_lambda'].max():.3g} over "
+              f"lambda {st['lambdas'][0]:.3g}..{st['lambdas'][-1]:.3g})")
+        if args.path is None:
+            return 0
     try:
         step = contour_step_mm(args.feed_mm_min, args.period_ms)
     except ValueError as exc:

@@ -3,32 +3,47 @@
 Log schema (CSV): ``time_s`` (increasing), any number of ``temp_<sensor>_c`` columns, any number
 of displacement columns ``<channel>_um``, optional ``speed_rpm``.
 
-Per displacement channel, on the earlier ``fit_fraction`` of the log (by time):
+Per displacement channel, on the earlier ``fit_fraction`` of the log (by time), the model is
+
+    d(t) = β0 + Σ_{s ∈ S} βs·Ts(t − lag)      (+ β·speed_rpm(t − lag) when logged and varying)
+
+with a common pure delay ``lag`` (``T(t − lag)`` by linear interpolation, held at the first value
+before the log starts). It is chosen as follows:
 
 1. **correlation grouping** — sensors whose temperatures correlate with |r| ≥ ``group_r`` on the
-   fitting part form one group (single linkage); at most one sensor per group enters a model
-   (collinear sensors would make the coefficients meaningless);
-2. **lag** — the sensors' signals are delayed by a common lag ``lag_s`` (``T(t − lag)``, held
-   at the first value before the log starts), searched on a grid from 0 to ``max_lag_s``;
-3. **stepwise regression** (for each lag; forward entry, then backward removal of any
-   earlier entry whose removal lowers the BIC) — ``d(t) = β0 + Σ βs·Ts(t − lag)``
-   (+ ``β·speed_rpm`` as a candidate regressor when logged): the sensor lowering the BIC most
-   enters while it lowers the BIC by more than ``min_delta_bic`` and its partial F-test
-   passes ``alpha`` (Bonferroni over the candidates of the step);
-   then a replacement step swaps a chosen regressor for any other (its own group's members
-   included) while that lowers the BIC — so grouping never locks out the true sensor;
-4. the lag whose stepwise model has the lowest BIC wins.
+   fitting part form one group (single linkage). Groups are reported, and they are what the search
+   is reduced to when the exhaustive search below would be too large (one representative per
+   group, then swaps against every sensor); they never forbid two members of a group from being
+   selected together — on a thermal log two sensors with r = 0.99 can still be told apart, and the
+   data decide (a hard one-per-group rule was the main cause of wrong selections);
+2. **joint lag + subset search** — every subset of at most ``max_sensors`` regressors at every lag
+   of the grid (0 … ``max_lag_s`` at the sampling step; at most ``max_lag_steps`` lags, then refined
+   at the sampling step around the best) is fitted by least squares, all at once from the lagged
+   Gram matrices; the score is the BIC with the lag counted as a parameter. Greedy stepwise entry
+   was replaced because on these logs three wrong sensors at a wrong lag can each look better one
+   at a time than the right pair does (the right pair had the lower BIC in every miss);
+3. **size** — the smallest subset size whose best BIC is within ``min_delta_bic`` of the best over
+   all sizes (the null model, no sensor, included): a larger model must beat every smaller one by
+   more than ``min_delta_bic``; and each selected regressor must pass its partial F-test given the
+   others at ``alpha``, Bonferroni-corrected over the candidates (else the size steps down);
+4. **ambiguity** — the runner-up subset of the chosen size (each at its best lag) is reported with
+   its ΔBIC; alternatives within ``ambiguity_delta_bic`` make the channel ``ambiguous`` (the data
+   cannot tell which sensors are responsible; the report lists them rather than silently picking),
+   together with each selected sensor's closest other sensor and their correlation. The lag gets a
+   profile-likelihood 95 % interval (n·ln RSS within χ²₁(0.95) = 3.84 of its minimum).
 
 Before/after on the later part: "before" is the displacement itself (no compensation),
 "after" the displacement minus the model's prediction.
 """
 from __future__ import annotations
 
+import itertools
+import math
 import re
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import signal, stats
 
 from ..io import InputError, read_table
 
@@ -107,9 +122,22 @@ def correlation_groups(X: np.ndarray, names, group_r: float) -> dict:
     return {n: gid[i] for i, n in enumerate(names)}
 
 
+
+LAG_CHI2_95 = 3.84  # χ²₁ 95 % quantile: profile-likelihood interval of the lag
+MAX_ALTERNATIVES = 5
+
+
+def lagged_stack(time_s, values, lags_s) -> np.ndarray:
+    """``values(t − lag)`` for each lag: (L, n), by linear interpolation, held at the first value."""
+    lags_s = np.asarray(lags_s, float)
+    q = (time_s[None, :] - lags_s[:, None]).ravel()
+    return np.interp(q, time_s, values).reshape(len(lags_s), len(time_s))
+
+
 @dataclass
 class ChannelModel:
-    """A fitted channel: selected regressors, lag, coefficients (intercept first)."""
+    """A fitted channel: selected regressors, lag, coefficients (intercept first), and how sure the
+    selection is (``runner_up``, ``alternatives`` within ``ambiguity_delta_bic``, ``lag_interval_s``)."""
 
     channel: str
     sensors: list
@@ -117,6 +145,15 @@ class ChannelModel:
     coef: np.ndarray
     bic: float
     se: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lag_interval_s: tuple = (0.0, 0.0)
+    runner_up: dict | None = None
+    alternatives: list = field(default_factory=list)
+    closest: dict = field(default_factory=dict)
+    search: dict = field(default_factory=dict)
+
+    @property
+    def ambiguous(self) -> bool:
+        return bool(self.alternatives)
 
     def predict(self, log: DriftLog) -> np.ndarray:
         X = _regressors(log, self.sensors, self.lag_s)
@@ -129,28 +166,48 @@ def _signal(log: DriftLog, name: str, lag_s: float) -> np.ndarray:
     return lagged(log.time_s, log.temps_c[name], lag_s)
 
 
+def _raw(log: DriftLog, name: str) -> np.ndarray:
+    return log.speed_rpm if name == "speed_rpm" else log.temps_c[name]
+
+
 def _regressors(log, names, lag_s) -> np.ndarray:
     cols = [np.ones_like(log.time_s)] + [_signal(log, s, lag_s) for s in names]
     return np.stack(cols, axis=1)
 
 
 def _bic(rss, n, p):
-    return n * np.log(max(rss, 1e-300) / n) + p * np.log(n)
+    return n * np.log(np.maximum(rss, 1e-300) / n) + p * np.log(n)
+
+
+def _subset_rss(G, b, yy, subs) -> np.ndarray:
+    """RSS of the centred least-squares fits of every subset at every lag.
+
+    ``G`` (L, k, k) and ``b`` (L, k) are the lagged Gram matrix and cross products of the centred,
+    scaled regressors, ``yy`` = Σ y² of the centred target, ``subs`` (s, m) column indices.
+    Returns (L, s). Exactly collinear subsets fall back to the pseudo-inverse.
+    """
+    GS = G[:, subs[:, :, None], subs[:, None, :]]
+    bS = b[:, subs]
+    try:
+        beta = np.linalg.solve(GS, bS[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        beta = np.einsum("lsij,lsj->lsi", np.linalg.pinv(GS), bS)
+    return np.maximum(yy - np.einsum("lsm,lsm->ls", bS, beta), 0.0)
 
 
 class DriftModeller:
     """Sensor selection and lag for each displacement channel (see module doc).
 
     Settings: ``fit_fraction``, ``max_lag_s`` (default: 20 % of the fitting span), ``lag_step_s``
-    (default: the median sampling interval; searched coarse at ``coarse_factor`` steps, then
-    refined around the best coarse lag), ``group_r``, ``alpha``, ``min_delta_bic``,
-    ``max_sensors``. Learned: ``channels_`` {channel: ChannelModel}, ``groups_`` {sensor: id}.
+    (default: the median sampling interval), ``max_lag_steps`` (coarser grid beyond, then refined),
+    ``group_r``, ``alpha``, ``min_delta_bic``, ``max_sensors``, ``ambiguity_delta_bic``,
+    ``max_subsets`` (beyond, the search runs over correlation-group representatives plus swaps).
+    Learned: ``channels_`` {channel: ChannelModel}, ``groups_`` {sensor: id}.
     """
 
     def __init__(self, fit_fraction: float = 0.6, max_lag_s: float | None = None, lag_step_s: float | None = None,
                  group_r: float = 0.98, alpha: float = 0.01, min_delta_bic: float = 10.0, max_sensors: int = 4,
-                 coarse_factor: int = 4):
-        self.coarse_factor = coarse_factor
+                 ambiguity_delta_bic: float = 10.0, max_subsets: int = 5000, max_lag_steps: int = 400):
         self.fit_fraction = fit_fraction
         self.max_lag_s = max_lag_s
         self.lag_step_s = lag_step_s
@@ -158,81 +215,172 @@ class DriftModeller:
         self.alpha = alpha
         self.min_delta_bic = min_delta_bic
         self.max_sensors = max_sensors
+        self.ambiguity_delta_bic = ambiguity_delta_bic
+        self.max_subsets = max_subsets
+        self.max_lag_steps = max_lag_steps
 
     def split(self, log: DriftLog):
         n = len(log.time_s)
         n_fit = int(round(self.fit_fraction * n))
         return np.arange(n_fit), np.arange(n_fit, n)
 
-    def _backward(self, y, chosen, X, rss, bic, n):
-        """Drop entries whose removal costs less than ``min_delta_bic`` (they would not enter now)."""
-        chosen = list(chosen)
-        while chosen:
-            trials = []
-            for i in range(len(chosen)):
-                Xd = np.delete(X, i + 1, axis=1)
-                rd = float(np.sum((y - Xd @ np.linalg.lstsq(Xd, y, rcond=None)[0]) ** 2))
-                trials.append((_bic(rd, n, Xd.shape[1]), i, Xd, rd))
-            bd, i, Xd, rd = min(trials, key=lambda v: v[0])
-            if bd - bic >= self.min_delta_bic:
-                break
-            del chosen[i]
-            X, rss, bic = Xd, rd, bd
-        return chosen, X, rss, bic
-
-    def _stepwise(self, log, y, fit, lag, names, groups):
+    # -- the search -------------------------------------------------------------------------
+    def _gram(self, log, names, fit, y, lags):
+        """Lagged Gram matrices of the centred regressors scaled by their fitting-part std.
+        Returns G (L, k, k), b (L, k), yy; computed in chunks of lags to bound memory."""
         n = len(fit)
-        sig = {s: _signal(log, s, lag)[fit] for s in names}
-        chosen = []
-        X = np.ones((n, 1))
-        rss = float(np.sum((y - y.mean()) ** 2))
-        bic = _bic(rss, n, 1)
-        while len(chosen) < self.max_sensors:
-            used = {groups.get(s) for s in chosen if s in groups}
-            cand = [s for s in names if s not in chosen and (s not in groups or groups[s] not in used)]
-            if not cand:
-                break
-            best = None
-            for s in cand:
-                Xs = np.hstack([X, sig[s][:, None]])
-                th = np.linalg.lstsq(Xs, y, rcond=None)[0]
-                r1 = float(np.sum((y - Xs @ th) ** 2))
-                if best is None or r1 < best[1]:
-                    best = (s, r1, Xs)
-            s, r1, Xs = best
-            dof = n - Xs.shape[1]
-            F = (rss - r1) / max(r1 / dof, 1e-300)
-            p_adj = float(stats.f.sf(F, 1, dof)) * len(cand) if F > 0 else 1.0
-            b1 = _bic(r1, n, Xs.shape[1])
-            if not (bic - b1 > self.min_delta_bic and p_adj < self.alpha):
-                break
-            chosen.append(s)
-            X, rss, bic = Xs, r1, b1
-            chosen, X, rss, bic = self._backward(y, chosen, X, rss, bic, n)
-        # replacement step: swap a chosen regressor for another one (a member of its own
-        # correlation group included) while that lowers the BIC
-        improved = True
-        while improved and chosen:
-            improved = False
-            best = (bic, None, None)
-            for i, old in enumerate(chosen):
-                others = {groups.get(c) for j, c in enumerate(chosen) if j != i and c in groups}
-                for s in names:
-                    if s in chosen or (s in groups and groups[s] in others):
-                        continue
-                    Xs = X.copy()
-                    Xs[:, i + 1] = sig[s]
-                    r1 = float(np.sum((y - Xs @ np.linalg.lstsq(Xs, y, rcond=None)[0]) ** 2))
-                    b1 = _bic(r1, n, Xs.shape[1])
-                    if b1 < best[0] - 1e-9:
-                        best = (b1, i, s, Xs, r1)
-            if best[1] is not None:
-                bic, i, s, X, rss = best
-                chosen[i] = s
-                improved = True
-        chosen, X, rss, bic = self._backward(y, chosen, X, rss, bic, n)
+        scale = np.array([np.std(_raw(log, s)[fit]) for s in names])
+        yc = y - y.mean()
+        L, k = len(lags), len(names)
+        G, b = np.empty((L, k, k)), np.empty((L, k))
+        chunk = max(1, int(4e6 // max(n * k, 1)))
+        for a in range(0, L, chunk):
+            lg = lags[a:a + chunk]
+            S = np.stack([lagged_stack(log.time_s, _raw(log, s), lg)[:, fit] for s in names], axis=2) / scale
+            S -= S.mean(axis=1, keepdims=True)
+            G[a:a + chunk] = np.einsum("lni,lnj->lij", S, S)
+            b[a:a + chunk] = np.einsum("lni,n->li", S, yc)
+        return G, b, float(yc @ yc)
+
+    def _lag_grid(self, log, fit):
+        t = log.time_s[fit]
+        step = self.lag_step_s or float(np.median(np.diff(log.time_s)))
+        max_lag = self.max_lag_s if self.max_lag_s is not None else 0.2 * (t[-1] - t[0])
+        coarse = max(step, max_lag / max(self.max_lag_steps, 1))
+        return np.arange(0.0, max_lag + coarse / 2, coarse), step, coarse, max_lag
+
+    def _search(self, log, names, fit, y, cand):
+        """Exhaustive over subsets of ``cand`` (indices into ``names``) of size 1..max_sensors and the
+        lag grid. Returns lags (L,), {m: (subs (s, m), rss (L, s))}, yy."""
+        lags, step, coarse, max_lag = self._lag_grid(log, fit)
+        sizes = range(1, min(self.max_sensors, len(cand)) + 1)
+        subs = {m: np.array(list(itertools.combinations(cand, m)), dtype=int).reshape(-1, m) for m in sizes}
+        G, b, yy = self._gram(log, names, fit, y, lags)
+        rss = {m: _subset_rss(G, b, yy, s) for m, s in subs.items()}
+        if coarse > step:  # refine at the sampling step around the best coarse lag of each size
+            best = {float(lags[np.unravel_index(np.argmin(r), r.shape)[0]]) for r in rss.values()}
+            fine = np.unique(np.concatenate([np.arange(max(0.0, c - coarse), min(max_lag, c + coarse) + step / 2, step)
+                                             for c in best]))
+            Gf, bf, _ = self._gram(log, names, fit, y, fine)
+            lags = np.concatenate([lags, fine])
+            G, b = np.concatenate([G, Gf]), np.concatenate([b, bf])
+            rss = {m: np.concatenate([rss[m], _subset_rss(Gf, bf, yy, s)]) for m, s in subs.items()}
+        return lags, subs, rss, yy, (G, b)
+
+    def _candidates(self, log, names, fit, y):
+        """All regressors, or one per correlation group when the subsets would be too many."""
+        k = len(names)
+        total = sum(math.comb(k, m) for m in range(1, min(self.max_sensors, k) + 1))
+        if total <= self.max_subsets:
+            return list(range(k)), False
+        reps = {}
+        for i, s in enumerate(names):
+            g = self.groups_.get(s, ("own", s))
+            r = abs(np.corrcoef(_raw(log, s)[fit], y)[0, 1])
+            if g not in reps or r > reps[g][0]:
+                reps[g] = (r, i)
+        cand = sorted(i for _, i in reps.values())
+        total = sum(math.comb(len(cand), m) for m in range(1, min(self.max_sensors, len(cand)) + 1))
+        if total > self.max_subsets:
+            raise ValueError(f"{log.path}: {len(cand)} correlation groups give {total} subsets of at most "
+                             f"{self.max_sensors} regressors, more than max_subsets = {self.max_subsets}; "
+                             "lower max_sensors or group_r, or raise max_subsets")
+        return cand, True
+
+    def _swap(self, G, b, yy, n, chosen, k):
+        """Replace selected regressors by any other while that lowers the RSS (any lag)."""
+        while True:
+            trial = [tuple(sorted(chosen[:i] + [j] + chosen[i + 1:])) for i in range(len(chosen))
+                     for j in range(k) if j not in chosen]
+            if not trial:
+                return chosen
+            r = _subset_rss(G, b, yy, np.array(trial, dtype=int))
+            cur = _subset_rss(G, b, yy, np.array([sorted(chosen)], dtype=int)).min()
+            l, s = np.unravel_index(np.argmin(r), r.shape)
+            if r[l, s] >= cur * (1 - 1e-12):
+                return chosen
+            chosen = list(trial[s])
+
+    def _fit_channel(self, log, ch, names, fit):
+        y = log.disp_um[ch][fit]
+        n = len(fit)
+        cand, reduced = self._candidates(log, names, fit, y)
+        lags, subs, rss, yy, (G, b) = self._search(log, names, fit, y, cand)
+        bic0 = float(_bic(yy, n, 1))
+        best = {0: (bic0, 0.0, ())}
+        for m, r in rss.items():
+            bic = _bic(r, n, m + 2)
+            l, s = np.unravel_index(np.argmin(bic), bic.shape)
+            best[m] = (float(bic[l, s]), float(lags[l]), tuple(int(i) for i in subs[m][s]))
+        if reduced:
+            for m in list(best)[1:]:
+                chosen = self._swap(G, b, yy, n, list(best[m][2]), len(names))
+                r = _subset_rss(G, b, yy, np.array([chosen], dtype=int))[:, 0]
+                bic = _bic(r, n, m + 2)
+                l = int(np.argmin(bic))
+                best[m] = (float(bic[l]), float(lags[l]), tuple(chosen))
+        bic_min = min(v[0] for v in best.values())
+        m = min(mm for mm, v in best.items() if v[0] < bic_min + self.min_delta_bic)
+        while m > 0 and not self._all_significant(log, ch, fit, [names[i] for i in best[m][2]], best[m][1], len(cand)):
+            m -= 1
+        bic, lag, sel = best[m]
+        chosen = [names[i] for i in sel]
+        X = _regressors(log, chosen, lag)[fit]
         th = np.linalg.lstsq(X, y, rcond=None)[0]
-        return chosen, th, bic, X, rss
+        res = float(np.sum((y - X @ th) ** 2))
+        cov = res / max(n - X.shape[1], 1) * np.linalg.pinv(X.T @ X)
+        model = ChannelModel(ch, chosen, lag, th, bic, np.sqrt(np.diag(cov)),
+                             search={"candidates": [names[i] for i in cand], "reduced_to_groups": reduced,
+                                     "lags": int(len(lags)), "subsets": int(sum(len(s) for s in subs.values())),
+                                     "best_bic_by_size": {int(mm): v[0] for mm, v in best.items()}})
+        if m > 0:
+            self._uncertainty(model, log, names, fit, lags, subs[m] if not reduced else None, rss.get(m), G, b, yy, sel)
+        return model
+
+    def _all_significant(self, log, ch, fit, chosen, lag, n_cand) -> bool:
+        """Partial F-test of each selected regressor given the others, Bonferroni over the candidates."""
+        y = log.disp_um[ch][fit]
+        X = _regressors(log, chosen, lag)[fit]
+        n, p = X.shape
+        r_full = float(np.sum((y - X @ np.linalg.lstsq(X, y, rcond=None)[0]) ** 2))
+        for i in range(1, p):
+            Xd = np.delete(X, i, axis=1)
+            r_d = float(np.sum((y - Xd @ np.linalg.lstsq(Xd, y, rcond=None)[0]) ** 2))
+            F = (r_d - r_full) / max(r_full / (n - p), 1e-300)
+            if float(stats.f.sf(F, 1, n - p)) * n_cand >= self.alpha:
+                return False
+        return True
+
+    def _uncertainty(self, model, log, names, fit, lags, subs, rss, G, b, yy, sel):
+        """Lag interval, runner-up subset and alternatives within ``ambiguity_delta_bic``, closest sensors."""
+        n, m = len(fit), len(sel)
+        own = _subset_rss(G, b, yy, np.array([sel], dtype=int))[:, 0]
+        nll = n * np.log(np.maximum(own, 1e-300))
+        inside = lags[nll - nll.min() <= LAG_CHI2_95]
+        model.lag_interval_s = (float(inside.min()), float(inside.max()))
+        if subs is None:  # reduced search: compare with every single swap
+            subs = np.array(sorted({tuple(sorted(list(sel[:i]) + [j] + list(sel[i + 1:])))
+                                    for i in range(m) for j in range(len(names)) if j not in sel}), dtype=int)
+            rss = _subset_rss(G, b, yy, subs) if len(subs) else np.zeros((len(lags), 0))
+        bic = _bic(rss, n, m + 2)
+        per = bic.min(axis=0)
+        per_lag = lags[np.argmin(bic, axis=0)]
+        others = [i for i in np.argsort(per) if tuple(int(v) for v in subs[i]) != tuple(sel)]
+
+        def entry(i):
+            return {"regressors": [names[j] for j in subs[i]], "lag_s": float(per_lag[i]),
+                    "delta_bic": float(per[i] - model.bic)}
+        if others:
+            model.runner_up = entry(others[0])
+            model.alternatives = [entry(i) for i in others[:MAX_ALTERNATIVES]
+                                  if per[i] - model.bic < self.ambiguity_delta_bic]
+        temps = [s for s in names if s != "speed_rpm"]
+        for s in model.sensors:
+            if s == "speed_rpm" or len(temps) < 2:
+                continue
+            r = {o: float(np.corrcoef(log.temps_c[s][fit], log.temps_c[o][fit])[0, 1]) for o in temps if o != s}
+            o = max(r, key=lambda v: abs(r[v]))
+            model.closest[s] = {"sensor": o, "r": r[o]}
 
     def fit(self, log: DriftLog) -> "DriftModeller":
         if not 0 < self.fit_fraction < 1:
@@ -240,59 +388,45 @@ class DriftModeller:
         fit, _ = self.split(log)
         if len(fit) < 20:
             raise ValueError(f"Expected at least 20 fitting rows, got {len(fit)}")
-        t = log.time_s[fit]
-        step = self.lag_step_s or float(np.median(np.diff(log.time_s)))
-        max_lag = self.max_lag_s if self.max_lag_s is not None else 0.2 * (t[-1] - t[0])
-        coarse = np.arange(0.0, max_lag + step / 2, self.coarse_factor * step)
-        names = list(log.temps_c)
-        self.groups_ = correlation_groups(np.stack([log.temps_c[s][fit] for s in names], axis=1), names, self.group_r)
+        names = [s for s in log.temps_c if np.ptp(log.temps_c[s][fit]) > 0]
+        self.constant_sensors_ = [s for s in log.temps_c if s not in names]
+        self.groups_ = correlation_groups(np.stack([log.temps_c[s][fit] for s in names], axis=1), names,
+                                          self.group_r) if names else {}
         if log.speed_rpm is not None and np.ptp(log.speed_rpm[fit]) > 0:
             names = names + ["speed_rpm"]
-        self.channels_ = {}
-        for ch, d in log.disp_um.items():
-            y = d[fit]
-            best = None
-            for lags in (coarse, None):
-                if lags is None:  # refine around the coarse optimum at the sampling step
-                    c = best[3]
-                    lags = np.arange(max(0.0, c - self.coarse_factor * step), min(max_lag, c + self.coarse_factor * step) + step / 2, step)
-                for lag in lags:
-                    chosen, th, bic, X, rss = self._stepwise(log, y, fit, lag, names, self.groups_)
-                    if best is None or bic < best[2] - 1e-9:
-                        best = (chosen, th, bic, lag, X, rss)
-            chosen, th, bic, lag, X, rss = best
-            cov = rss / max(len(y) - X.shape[1], 1) * np.linalg.pinv(X.T @ X)
-            self.channels_[ch] = ChannelModel(ch, chosen, float(lag), th, float(bic), np.sqrt(np.diag(cov)))
+        if not names:
+            raise ValueError(f"{log.path}: every temperature sensor is constant on the fitting part")
+        self.channels_ = {ch: self._fit_channel(log, ch, names, fit) for ch in log.disp_um}
         return self
 
     def report(self, log: DriftLog) -> dict:
-        """``channels`` mapping in the diagnosis.json form (held-out before/after)."""
+        """``channels`` mapping in the diagnosis.json form (held-out before/after, selection certainty)."""
         _, hold = self.split(log)
         out = {}
         for ch, m in self.channels_.items():
             d = log.disp_um[ch]
             after = d - m.predict(log)
             b, a = d[hold], after[hold]
+
+            def unit(s):
+                return f"{s}_um_per_rpm" if s == "speed_rpm" else f"{s}_um_per_c"
             out[ch] = {"sensors": [s for s in m.sensors if s != "speed_rpm"],
-                       "regressors": list(m.sensors), "lag_s": m.lag_s,
+                       "regressors": list(m.sensors), "lag_s": m.lag_s, "lag_interval_s": list(m.lag_interval_s),
                        "coefficients": {"intercept_um": float(m.coef[0]),
-                                        **{(f"{s}_um_per_rpm" if s == "speed_rpm" else f"{s}_um_per_c"): float(c)
-                                           for s, c in zip(m.sensors, m.coef[1:])}},
+                                        **{unit(s): float(c) for s, c in zip(m.sensors, m.coef[1:])}},
                        "standard_errors": {"intercept_um": float(m.se[0]),
-                                           **{(f"{s}_um_per_rpm" if s == "speed_rpm" else f"{s}_um_per_c"): float(c)
-                                              for s, c in zip(m.sensors, m.se[1:])}},
+                                           **{unit(s): float(c) for s, c in zip(m.sensors, m.se[1:])}},
+                       "bic": m.bic, "ambiguous": m.ambiguous, "alternatives": m.alternatives,
+                       "runner_up": m.runner_up, "closest_sensors": m.closest, "search": m.search,
                        "rms_before_um": float(np.sqrt(np.mean(b**2))), "rms_after_um": float(np.sqrt(np.mean(a**2))),
                        "max_before_um": float(np.abs(b).max()), "max_after_um": float(np.abs(a).max())}
         return out
 
 
 def _lowpass(u, dt_s, tau_s):
+    """First-order lag ``τ·dy/dt = u − y`` (forward Euler at ``dt_s``), starting at ``u[0]``: (n,)."""
     a = dt_s / tau_s
-    out = np.empty_like(u)
-    out[0] = u[0]
-    for k in range(1, len(u)):
-        out[k] = out[k - 1] + a * (u[k] - out[k - 1])
-    return out
+    return signal.lfilter([a], [1.0, a - 1.0], u, zi=[(1.0 - a) * u[0]])[0]
 
 
 def simulate_drift_log(seed: int = 0, n: int = 2160, dt_s: float = 10.0, n_sensors: int = 6,

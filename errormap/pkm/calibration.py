@@ -19,16 +19,34 @@ component is a length in mm and one noise level ``delta`` (mm per component) des
 
 **Identification**: iteratively regularised Gauss-Newton on the exact model. Each step solves the
 linearised Tikhonov problem ``min |J w - b|^2 + lambda |w|^2`` (``w`` the parameters' deviation from
-nominal, scaled by ``prior_scale``; the registration is not regularised and is eliminated by
-projection) through the SVD, with ``lambda`` from Morozov's discrepancy principle
-``|J w_lambda - b| = tau * delta * sqrt(m)``. When ``delta`` is unknown it is estimated from the
-GCV fit (``delta^2 = RSS / (m - trace H)``); the L-curve corner and the GCV ``lambda`` are reported
-beside it. Parameters stay inside physical bounds (``joint_bound_mm``, ``offset_bound_mm``,
-``scale_bound``). The report lists the singular values, the condition number and the parameter
-combinations that are not identifiable (singular values below ``rcond * s_max``).
+nominal, scaled by ``joint_scale_mm``/``scale_scale``; the registration is not regularised and is
+eliminated by projection) through the SVD, with ``lambda`` by ``lambda_rule``: Morozov's discrepancy
+principle ``|J w_lambda - b| = tau * delta * sqrt(m)`` (default), GCV, or the L-curve corner. When
+``delta`` is unknown it is estimated from the GCV fit (``delta^2 = RSS / (m - trace H)``); the other two
+rules' lambdas are always reported beside the chosen one.
+
+**Gauge and null directions.** With an estimated instrument frame, 6 parameter combinations (a rigid
+motion of the machine's joints) are exactly equivalent to a change of the frame. They are eliminated
+explicitly (:meth:`PKMCalibrator.gauge_basis`): the deviation is kept orthogonal to them, so the machine
+frame is the one the nominal joints define (the simulator's convention too). Any other structural null
+direction (the tripod's ``b_i - a_i``: 9) is truncated (singular values below ``rcond * s_max`` get no
+component). Without this, when the discrepancy cannot be reached (least-squares residual above
+``tau * delta * sqrt(m)``, which happens by chance), Morozov gives ``lambda -> 0`` and the rounding-level
+singular values of those directions amplify noise into steps of tens of mm: the fit oscillated.
+
+**Step control.** Each Gauss-Newton step is accepted by a backtracking (Armijo) line search on that
+step's Tikhonov functional ``|res|^2 + lambda |w|^2``. Convergence: the full step changes no parameter
+and no frame component by more than ``xtol_mm`` (mm-equivalents; rotations times ``lever_mm``), or the
+linear model predicts a relative decrease below ``ftol``.
+
+Parameters stay inside physical bounds (``joint_bound_mm``, ``offset_bound_mm``, ``scale_bound``). The
+report lists the singular values and the condition number on the identifiable subspace (gauge fixed,
+null directions removed) and the raw ones over all parameters, and the parameter combinations that are
+not identifiable (raw singular values below ``rcond * s_max``), each with how it is fixed.
 """
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -263,6 +281,13 @@ class CalibrationResult:
     param_scale: np.ndarray | None = None              # Tikhonov scaling of the estimated parameters
     history: list = field(default_factory=list)
     lcurve: dict = field(default_factory=dict)
+    lambda_rule: str = "morozov"
+    lambda_morozov: float = float("nan")               # Morozov's lambda at the final linearisation (NaN: no delta)
+    discrepancy_reached: bool = True                   # False: LS residual above tau*delta*sqrt(m), lambda = 0
+    condition_number_raw: float = float("nan")         # all estimated parameters, gauge directions included
+    singular_values_raw: np.ndarray | None = None
+    n_gauge: int = 0                                   # gauge directions fixed explicitly (6 with registration)
+    iterations: int = 0                                # Gauss-Newton linearisations (nfev counts residual evaluations)
 
     def predict(self, q: np.ndarray, nominal: bool = False, frame=None):
         """Predicted measured poses (instrument frame) at drive commands ``q`` (n, k): (tip (n,3), R (n,3,3))."""
@@ -296,26 +321,38 @@ class PKMCalibrator:
     Settings (stored, validated): ``estimate_scales`` (identify the leg scales too),
     ``register`` (estimate the instrument frame; else it is taken as the machine frame),
     ``noise_um`` (measurement noise per component, the Morozov ``delta``; None = estimate it),
-    ``tau`` (discrepancy factor, >= 1), ``lever_mm`` (orientation residual weight),
-    ``prior_scale`` (mm for joints/offsets, unitless for scales: the Tikhonov scaling),
-    bounds, ``max_iter``, ``tol``, ``rcond`` (identifiability threshold), ``verbose``.
+    ``lambda_rule`` (``"morozov"``, ``"gcv"`` or ``"lcurve"``: how each step's Tikhonov ``lambda`` is
+    chosen), ``tau`` (discrepancy factor, >= 1), ``lever_mm`` (orientation residual weight),
+    ``joint_scale_mm``/``scale_scale`` (the Tikhonov scaling of joints/offsets and of scales),
+    bounds, ``max_iter`` (Gauss-Newton iterations per phase), ``xtol_mm`` (convergence: the largest
+    parameter / frame change, in mm-equivalents, of a full step), ``ftol`` (convergence: predicted
+    relative decrease of the Tikhonov functional), ``rcond`` (identifiability threshold on the singular
+    values), ``progress`` (callable taking a message, or None).
     """
+
+    RULES = ("morozov", "gcv", "lcurve")
 
     def __init__(self, machine: PKM, estimate_scales: bool = False, register: bool = True,
                  noise_um: float | None = None, tau: float = 1.0, lever_mm: float = 500.0,
                  joint_scale_mm: float = 1.0, scale_scale: float = 1e-3, joint_bound_mm: float = 25.0,
-                 offset_bound_mm: float = 50.0, scale_bound: float = 0.05, max_iter: int = 30,
-                 tol: float = 1e-9, rcond: float = 1e-8, verbose: bool = False, progress=None):
+                 offset_bound_mm: float = 50.0, scale_bound: float = 0.05, max_iter: int = 50,
+                 xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "morozov",
+                 verbose: bool = False, progress=None):
         if noise_um is not None and not noise_um > 0:
             raise ValueError(f"noise_um must be positive, got {noise_um}")
         if tau < 1:
             raise ValueError(f"tau must be >= 1, got {tau}")
         if lever_mm <= 0 or joint_scale_mm <= 0 or scale_scale <= 0:
             raise ValueError("lever_mm, joint_scale_mm and scale_scale must be positive")
+        if lambda_rule not in self.RULES:
+            raise ValueError(f"lambda_rule must be one of {self.RULES}, got {lambda_rule!r}")
+        if max_iter < 1 or not xtol_mm > 0 or not ftol > 0:
+            raise ValueError("max_iter, xtol_mm and ftol must be positive")
         self.machine = machine
         self.estimate_scales = estimate_scales
         self.register = register
         self.noise_um = noise_um
+        self.lambda_rule = lambda_rule
         self.tau = tau
         self.lever_mm = lever_mm
         self.joint_scale_mm = joint_scale_mm
@@ -324,7 +361,8 @@ class PKMCalibrator:
         self.offset_bound_mm = offset_bound_mm
         self.scale_bound = scale_bound
         self.max_iter = max_iter
-        self.tol = tol
+        self.xtol_mm = xtol_mm
+        self.ftol = ftol
         self.rcond = rcond
         self.verbose = verbose
         self.progress = progress
@@ -340,30 +378,57 @@ class PKMCalibrator:
                    np.full(k, -self.scale_bound)][est]
         return est, D, lo, -lo
 
-    def _residual_and_jacobian(self, m: PKM, data: PoseData, t_g, R_g, guess, want_jac=True):
+    def gauge_basis(self, est: np.ndarray) -> np.ndarray:
+        """Orthonormal basis (n_est, g) of the gauge directions in the scaled parameter space.
+
+        With an estimated instrument frame, a rigid motion of the whole machine (hexapod: of the base
+        joints, the platform following; tripod: of the base hinges and, rotations only, of the platform
+        hinges about the tool point) is indistinguishable from a change of the frame: ``g = 6``
+        directions that no data can fix. The gauge is fixed explicitly by keeping the parameter
+        deviation orthogonal to them (the machine frame is defined by the nominal joints). Without
+        registration ``g = 0``. Joint columns share one scale, so orthogonality in the scaled space is
+        orthogonality in mm.
+        """
+        m0, k = self.machine, self.machine.n_legs
+        if not self.register:
+            return np.zeros((int(est.sum()), 0))
+        G = np.zeros((8 * k, 6))
+        b = m0.base_joints_mm
+        G[:3 * k, :3] = np.tile(np.eye(3), (k, 1))
+        for j, e in enumerate(np.eye(3)):
+            G[:3 * k, 3 + j] = np.cross(e, b).ravel()
+            if m0.kind == "tripod":  # no platform rotation in the model: the platform hinges turn with it
+                G[3 * k:6 * k, 3 + j] = np.cross(e, m0.platform_joints_mm - m0.tool_in_platform_mm).ravel()
+        return np.linalg.qr(G[est])[0]
+
+    def _residual(self, m: PKM, data: PoseData, t_g, R_g, guess):
+        """Residual (n, d) in mm (orientation rows times ``lever_mm``) and the forward kinematics; None if FK fails."""
         fk = forward_kinematics(m, m.drive_to_legs(data.q), guess_tip_mm=guess[0], guess_platform2base=guess[1],
-                                check_limits=False)
+                                check_limits=False, raise_on_failure=False)
+        if not fk.success.all():
+            return None, None
         tip_meas = fk.x @ R_g.T + t_g
-        full = data.rotation is not None and m.kind == "hexapod"
         res = [tip_meas - data.tip_mm]
-        if full:
+        if data.rotation is not None and m.kind == "hexapod":
             R_pred = np.einsum("ij,njk->nik", R_g, fk.platform2base)
             rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", R_pred, data.rotation)).as_rotvec()
             res.append(self.lever_mm * rv)
-        res = np.concatenate(res, 1)  # (n, d)
-        if not want_jac:
-            return res, None, None, (fk.x, fk.platform2base)
-        J = pose_jacobian(m, data.q, fk.x, fk.platform2base)  # (n, 6|3, 8k) in the machine frame
+        return np.concatenate(res, 1), (fk.x, fk.platform2base)
+
+    def _jacobians(self, m: PKM, data: PoseData, t_g, R_g, pose):
+        """Parameter Jacobian (m_rows, 8k) and frame Jacobian (m_rows, 6) of the residual at ``pose``."""
+        n = len(data)
+        full = data.rotation is not None and m.kind == "hexapod"
+        J = pose_jacobian(m, data.q, pose[0], pose[1])  # (n, 6|3, 8k) in the machine frame
         Jp = np.einsum("ij,njk->nik", R_g, J[:, :3])
-        Jg_p = np.concatenate([np.broadcast_to(np.eye(3), (len(data), 3, 3)), -skew(tip_meas - t_g)], 2)
+        Jg_p = np.concatenate([np.broadcast_to(np.eye(3), (n, 3, 3)), -skew(pose[0] @ R_g.T)], 2)
         blocks, gblocks = [Jp], [Jg_p]
         if full:
             blocks.append(self.lever_mm * np.einsum("ij,njk->nik", R_g, J[:, 3:]))
-            gblocks.append(self.lever_mm * np.concatenate([np.zeros((len(data), 3, 3)),
-                                                           np.broadcast_to(np.eye(3), (len(data), 3, 3))], 2))
-        Jr = np.concatenate(blocks, 1).reshape(res.size, -1)
-        Jg = np.concatenate(gblocks, 1).reshape(res.size, 6)
-        return res, Jr, Jg, (fk.x, fk.platform2base)
+            gblocks.append(self.lever_mm * np.concatenate([np.zeros((n, 3, 3)),
+                                                           np.broadcast_to(np.eye(3), (n, 3, 3))], 2))
+        d = 6 if full else 3
+        return np.concatenate(blocks, 1).reshape(n * d, -1), np.concatenate(gblocks, 1).reshape(n * d, 6)
 
     @staticmethod
     def _tikhonov(s, beta, b_out2, lam):
@@ -371,39 +436,72 @@ class PKMCalibrator:
         resid2 = np.sum((lam / (s ** 2 + lam) * beta) ** 2) + b_out2
         return f * beta, resid2
 
-    def _choose_lambda(self, s, beta, b_out2, m_rows, n_free, delta_mm):
-        """Morozov (``delta_mm`` given) or GCV lambda, plus the GCV and L-curve lambdas for the report."""
-        smax = s.max()
-        grid = smax ** 2 * np.logspace(-16, 2, 181)
-        s2, L = s[None, :] ** 2, grid[:, None]
-        res2 = np.sum((L / (s2 + L) * beta[None]) ** 2, axis=1) + b_out2
-        wn2 = np.sum((s[None] / (s2 + L) * beta[None]) ** 2, axis=1)
-        trH = np.sum(s2 / (s2 + L), axis=1) + n_free
-        gcv = m_rows * res2 / np.maximum(m_rows - trH, 1e-9) ** 2
-        lam_gcv = grid[np.argmin(gcv)]
-        # L-curve corner: maximum curvature of (log |res|, log |w|)
+    @staticmethod
+    def lcurve_corner(s, beta, b_out2, n_grid: int = 241):
+        """L-curve corner: maximum curvature of ``(log |J w - b|, log |w|)`` against ``log lambda``.
+
+        The grid spans ``[s_min^2 / 100, s_max^2 * 100]`` (outside it the filter factors are 0 or 1 and
+        the curve does not move), and only points where both norms still change (relative slope above
+        1e-6 per unit of ``log lambda``) compete: on the flat ends the curvature is rounding noise, which
+        is what made an unrestricted grid return a degenerate ``lambda`` ~ 1e-10.
+        Returns ``(lambda, curve)`` with ``curve`` holding the grid, both norms and the curvature.
+        """
+        s2 = s ** 2
+        grid = np.logspace(np.log10(s2.min()) - 2, np.log10(s2.max()) + 2, n_grid)
+        L = grid[:, None]
+        res2 = np.sum((L / (s2[None] + L) * beta[None]) ** 2, axis=1) + b_out2
+        wn2 = np.sum((s[None] / (s2[None] + L) * beta[None]) ** 2, axis=1)
         xr, yr = 0.5 * np.log(np.maximum(res2, 1e-300)), 0.5 * np.log(np.maximum(wn2, 1e-300))
         t = np.log(grid)
         dx, dy = np.gradient(xr, t), np.gradient(yr, t)
         ddx, ddy = np.gradient(dx, t), np.gradient(dy, t)
-        kappa = (dx * ddy - dy * ddx) / np.maximum((dx ** 2 + dy ** 2) ** 1.5, 1e-300)
-        lam_lc = grid[np.argmax(kappa)]
-        curve = {"lambda": grid, "residual_norm": np.sqrt(res2), "solution_norm": np.sqrt(wn2), "gcv": gcv}
-        if delta_mm is None:
-            return lam_gcv, lam_gcv, lam_lc, curve
-        target2 = (self.tau * delta_mm) ** 2 * m_rows
-        lo_l, hi_l = smax ** 2 * 1e-20, smax ** 2 * 1e6
-        f = lambda ll: self._tikhonov(s, beta, b_out2, np.exp(ll))[1] - target2
-        if f(np.log(lo_l)) >= 0:      # even the unregularised fit is above the noise level
-            lam = lo_l
-        elif f(np.log(hi_l)) <= 0:    # everything explained by the noise: full regularisation
-            lam = hi_l
-        else:
-            lam = float(np.exp(brentq(f, np.log(lo_l), np.log(hi_l), xtol=1e-10)))
-        return lam, lam_gcv, lam_lc, curve
+        kappa = (dx * ddy - dy * ddx) / np.maximum(dx ** 2 + dy ** 2, 1e-300) ** 1.5
+        moving = (dx > 1e-6) & (-dy > 1e-6)
+        kappa_m = np.where(moving, kappa, -np.inf)
+        lam = float(grid[np.argmax(kappa_m)]) if moving.any() else float("nan")
+        return lam, {"lambda": grid, "residual_norm": np.sqrt(res2), "solution_norm": np.sqrt(wn2),
+                     "curvature": kappa}
+
+    def _choose_lambda(self, rule, s, beta, b_out2, m_rows, n_free, delta_mm):
+        """The step's ``lambda`` by ``rule``, plus the GCV, L-curve and Morozov lambdas for the report.
+
+        Returns ``(lam, lam_gcv, lam_lcurve, lam_morozov, discrepancy_reached, curve)``; Morozov needs
+        ``delta_mm`` (else NaN). When even the unregularised fit (on the identifiable subspace) stays
+        above ``tau * delta * sqrt(m)`` the discrepancy cannot be reached and Morozov gives ``lambda = 0``.
+        """
+        smax = s.max()
+        s2 = s ** 2
+        grid = smax ** 2 * np.logspace(-16, 2, 181)
+        L = grid[:, None]
+        res2 = np.sum((L / (s2[None] + L) * beta[None]) ** 2, axis=1) + b_out2
+        trH = np.sum(s2[None] / (s2[None] + L), axis=1) + n_free
+        gcv = m_rows * res2 / np.maximum(m_rows - trH, 1e-9) ** 2
+        lam_gcv = float(grid[np.argmin(gcv)])
+        lam_lc, curve = self.lcurve_corner(s, beta, b_out2)
+        curve["gcv_lambda"], curve["gcv"] = grid, gcv
+        lam_mz, reached = float("nan"), True
+        if delta_mm is not None:
+            target2 = (self.tau * delta_mm) ** 2 * m_rows
+            lo_l, hi_l = smax ** 2 * 1e-20, smax ** 2 * 1e6
+            f = lambda ll: self._tikhonov(s, beta, b_out2, np.exp(ll))[1] - target2
+            if f(np.log(lo_l)) >= 0:      # even the unregularised fit is above the noise level
+                lam_mz, reached = 0.0, False
+            elif f(np.log(hi_l)) <= 0:    # everything explained by the noise: full regularisation
+                lam_mz = hi_l
+            else:
+                lam_mz = float(np.exp(brentq(f, np.log(lo_l), np.log(hi_l), xtol=1e-10)))
+        lam = {"morozov": lam_mz, "gcv": lam_gcv, "lcurve": lam_lc}[rule]
+        if not np.isfinite(lam):          # no L-curve corner (flat curve): fall back to GCV
+            lam = lam_gcv
+        return lam, lam_gcv, lam_lc, lam_mz, reached, curve
 
     # -- the fit ---------------------------------------------------------------------------
     def fit(self, data: PoseData) -> CalibrationResult:
+        """Identify the parameters (and the instrument frame) from ``data``; see the module docstring."""
+        with _single_thread_blas():
+            return self._fit(data)
+
+    def _fit(self, data: PoseData) -> CalibrationResult:
         t0 = time.perf_counter()
         m0 = self.machine
         k = m0.n_legs
@@ -424,6 +522,9 @@ class PKMCalibrator:
             rows = bad if data.rows is None else data.rows[bad]
             raise InputError(f"{data.source}: rows {rows[:20].tolist()}: leg commands outside the leg range")
         r0 = parameter_vector(m0)
+        G = self.gauge_basis(est)                                   # (n_est, g)
+        P = np.linalg.qr(np.c_[G, np.eye(est.sum())])[0][:, G.shape[1]:est.sum()] if G.size else np.eye(est.sum())
+        n_free = 6 if self.register else 0
         # robust initial registration from the nominal model
         fk0 = forward_kinematics(m0, legs, check_limits=False)
         if self.register:
@@ -431,76 +532,118 @@ class PKMCalibrator:
         else:
             t_g, R_g, inliers = np.zeros(3), np.eye(3), np.ones(len(data), bool)
         frame0 = (t_g.copy(), R_g.copy())
-        guess = (fk0.x, fk0.platform2base)
-        w = np.zeros(est.sum())
+        y = np.zeros(P.shape[1])                                    # deviation from nominal, gauge-fixed
+        machine_at = lambda yy: machine_from_vector(m0, _with(r0, est, D * (P @ yy)))
+        res, pose = self._residual(m0, data, t_g, R_g, (fk0.x, fk0.platform2base))
+        if res is None:
+            raise KinematicsError(f"{data.source}: forward kinematics of the nominal machine failed")
         delta_mm = None if self.noise_um is None else self.noise_um * 1e-3
         estimated_delta = delta_mm is None
-        history, nfev, msg, success = [], 0, "", False
-        lam = lam_gcv = lam_lc = np.nan
-        phase = ["gcv", "morozov"] if estimated_delta else ["morozov"]
-        curve = {}
-        for ph in phase:
+        phases = ["gcv", self.lambda_rule] if (estimated_delta and self.lambda_rule == "morozov") else [self.lambda_rule]
+        history, nfev, n_jac = [], 1, 0
+        success, msg = False, ""
+        for ph in phases:
+            success, msg = False, f"{ph}: stopped after {self.max_iter} iterations without convergence"
             for it in range(self.max_iter):
-                r = r0.copy()
-                r[est] += D * w
-                m = machine_from_vector(m0, r)
-                res, Jr_full, Jg, guess = self._residual_and_jacobian(m, data, t_g, R_g, guess)
-                nfev += 1
-                Jr = Jr_full[:, est] * D  # scaled parameter columns
-                b = Jr @ w - res.ravel()
+                Jr_full, Jg = self._jacobians(machine_at(y), data, t_g, R_g, pose)
+                n_jac += 1
+                Jy = (Jr_full[:, est] * D) @ P                      # scaled, gauge-fixed parameter columns
+                r_vec = res.ravel()
+                b = Jy @ y - r_vec                                  # target of the new deviation (Tikhonov on y)
                 if self.register:
                     Qg = np.linalg.qr(Jg)[0]
-                    A = Jr - Qg @ (Qg.T @ Jr)
+                    A = Jy - Qg @ (Qg.T @ Jy)
                     bp = b - Qg @ (Qg.T @ b)
                 else:
-                    A, bp = Jr, b
-                U, s, Vt = svd(A, full_matrices=False)
-                beta = U.T @ bp
+                    A, bp = Jy, b
+                U, s_all, Vt_all = svd(A, full_matrices=False)
+                rank = int(np.sum(s_all >= self.rcond * s_all.max()))
+                s, Vt = s_all[:rank], Vt_all[:rank]
+                beta = U[:, :rank].T @ bp
                 b_out2 = max(float(bp @ bp - beta @ beta), 0.0)
-                n_free = 6 if self.register else 0
-                lam, lam_gcv, lam_lc, curve = self._choose_lambda(
-                    s, beta, b_out2, m_rows, n_free, None if ph == "gcv" else delta_mm)
+                lam, lam_gcv, lam_lc, lam_mz, reached, curve = self._choose_lambda(
+                    ph, s, beta, b_out2, m_rows, n_free, None if ph == "gcv" else delta_mm)
                 z, _ = self._tikhonov(s, beta, b_out2, lam)
-                w_new = np.clip(Vt.T @ z, lo / D, hi / D)
-                if self.register:
-                    dg = np.linalg.lstsq(Jg, b - Jr @ w_new, rcond=None)[0]
-                    R_g = Rotation.from_rotvec(dg[3:]).as_matrix() @ R_g
-                    t_g = t_g + dg[:3]
-                step = w_new - w
-                w = w_new
+                y_new = Vt.T @ z
+                w_clip = np.clip(P @ y_new, lo / D, hi / D)         # physical bounds (a safety net)
+                y_new = P.T @ w_clip
+                dg = np.linalg.lstsq(Jg, b - Jy @ y_new, rcond=None)[0] if self.register else np.zeros(6)
+                dy = y_new - y
+                # predicted (linear-model) decrease of the Tikhonov functional |res|^2 + lam |y|^2
+                phi0 = float(r_vec @ r_vec + lam * y @ y)
+                lin = r_vec + Jy @ dy + Jg @ dg
+                pred = phi0 - float(lin @ lin + lam * y_new @ y_new)
+                full_step_mm = max(np.abs(dy).max(initial=0.0), np.abs(dg[:3]).max(),
+                                   self.lever_mm * np.abs(dg[3:]).max())
+                # converged: the full step is below xtol, or the linear model promises no relative decrease
+                # above ftol (the forward kinematics is solved to 1e-9 mm, so the functional itself is only
+                # known to ~1e-7 relative and a line search cannot resolve smaller decreases)
+                done = full_step_mm <= self.xtol_mm or pred <= self.ftol * phi0
+                # backtracking line search (Armijo on the Tikhonov functional of this step's lambda)
+                alpha, accepted = 1.0, False
+                while alpha >= 1.0 / 1024:
+                    ya = y + alpha * dy
+                    ta = t_g + alpha * dg[:3]
+                    Ra = Rotation.from_rotvec(alpha * dg[3:]).as_matrix() @ R_g
+                    ra, pa = self._residual(machine_at(ya), data, ta, Ra, pose)
+                    nfev += 1
+                    if ra is not None:
+                        phia = float(np.sum(ra ** 2) + lam * ya @ ya)
+                        if phia <= phi0 - 2e-4 * alpha * max(pred, 0.0):
+                            accepted = True
+                            break
+                    if done:  # the converged step is only taken when it does not increase the functional
+                        break
+                    alpha *= 0.5
                 rms = float(np.sqrt(np.mean(res ** 2)))
                 history.append({"phase": ph, "iteration": it, "rms_mm": rms, "lambda": float(lam),
-                                "step_norm": float(np.linalg.norm(step))})
+                                "alpha": alpha if accepted else 0.0, "step_mm": float(full_step_mm),
+                                "predicted_decrease": pred / max(phi0, 1e-300), "discrepancy_reached": bool(reached)})
                 if self.progress is not None:
-                    self.progress(f"{ph} iteration {it}: rms {rms * 1e3:.3f} um, lambda {lam:.3g}")
-                small = np.linalg.norm(step) <= self.tol ** 0.5 * (1 + np.linalg.norm(w))
-                if self.register:
-                    small &= np.linalg.norm(dg) < 1e-9 + self.tol ** 0.5
-                if small and it > 0:
-                    success, msg = True, f"converged after {it + 1} Gauss-Newton iterations"
+                    self.progress(f"{ph} iteration {it}: rms {rms * 1e3:.3f} um, lambda {lam:.3g}, "
+                                  f"step {full_step_mm:.3g} mm x {alpha if accepted else 0.0:g}")
+                if accepted:
+                    y, t_g, R_g, res, pose = ya, ta, Ra, ra, pa
+                if done:
+                    success, msg = True, f"{ph}: converged after {it + 1} Gauss-Newton iterations"
                     break
-            else:
-                success, msg = False, f"stopped after {self.max_iter} iterations without convergence"
-            if ph == "gcv":  # estimate delta from the GCV fit
+                if not accepted:
+                    msg = (f"{ph}: line search failed at iteration {it + 1} (step {full_step_mm:.3g} mm, "
+                           f"predicted relative decrease {pred / max(phi0, 1e-300):.3g})")
+                    break
+            if estimated_delta and (ph == "gcv" or delta_mm is None):
+                # estimate delta from the GCV fit of the last linearisation: RSS / (m - trace H)
                 trH = np.sum(s ** 2 / (s ** 2 + lam_gcv)) + n_free
                 rss = self._tikhonov(s, beta, b_out2, lam_gcv)[1]
                 delta_mm = float(np.sqrt(rss / max(m_rows - trH, 1.0)))
-        r = r0.copy()
-        r[est] += D * w
+        if not reached and self.lambda_rule == "morozov":
+            msg += ("; the discrepancy tau*delta*sqrt(m) is below the least-squares residual: "
+                    "lambda = 0 on the identifiable subspace")
+        w = P @ y
+        r = _with(r0, est, D * w)
         m = machine_from_vector(m0, r)
-        res, _, _, _ = self._residual_and_jacobian(m, data, t_g, R_g, guess, want_jac=False)
-        # report: singular values and identifiability of the final linearisation
-        cond = float(s.max() / s.min()) if s.min() > 0 else float("inf")
+        # report: singular values on the identifiable subspace (gauge fixed, structural nulls removed)
+        # and of the raw frame-projected Jacobian over all estimated parameters (gauge directions included)
+        cond = float(s.max() / s.min())
+        Ar = Jr_full[:, est] * D
+        if self.register:
+            Ar = Ar - Qg @ (Qg.T @ Ar)
+        _, s_raw, Vt_raw = svd(Ar, full_matrices=False)
+        cond_raw = float(s_raw.max() / s_raw.min()) if s_raw.min() > 0 else float("inf")
         names_all = parameter_names(m0, scales=True)
         names = [n for n, e in zip(names_all, est) if e]
         unident = []
-        for j in np.flatnonzero(s < self.rcond * s.max()):
-            v = Vt[j]
+        for j in np.flatnonzero(s_raw < self.rcond * s_raw.max()):
+            v = Vt_raw[j]
             top = np.argsort(-np.abs(v))[:6]
-            unident.append({"singular_value": float(s[j]),
+            in_gauge = bool(G.size) and float(np.linalg.norm(G.T @ v)) > 0.5
+            unident.append({"singular_value": float(s_raw[j]),
+                            "fixed_by": "gauge (orthogonal to the machine's rigid motion)" if in_gauge
+                            else "minimum norm (no component along it)",
                             "combination": {names[i]: round(float(v[i]), 4) for i in top if abs(v[i]) > 0.05}})
         filt = s / (s ** 2 + lam)
-        cov_w = (delta_mm ** 2) * (Vt.T * filt ** 2 * s ** 2) @ Vt
+        Vw = Vt @ P.T                                               # (rank, n_est) right singular vectors in w
+        cov_w = (delta_mm ** 2) * (Vw.T * filt ** 2 * s ** 2) @ Vw
         se = np.sqrt(np.maximum(np.diag(cov_w), 0)) * D
         return CalibrationResult(
             x=r, machine=m, nominal=m0, success=success, message=msg, nfev=nfev, residuals=res, names=names,
@@ -508,8 +651,26 @@ class PKMCalibrator:
             delta_mm=float(delta_mm), delta_estimated=estimated_delta, lambda_gcv=float(lam_gcv),
             lambda_lcurve=float(lam_lc), singular_values=s, condition_number=cond, unidentifiable=unident,
             lever_mm=self.lever_mm, n_poses=len(data), fit_time_s=time.perf_counter() - t0, history=history,
-            right_singular_vectors=Vt, param_scale=D,
-            lcurve={**curve, "initial_frame": frame0})
+            right_singular_vectors=Vw, param_scale=D, lcurve={**curve, "initial_frame": frame0},
+            lambda_rule=self.lambda_rule, lambda_morozov=float(lam_mz), discrepancy_reached=bool(reached),
+            condition_number_raw=cond_raw, singular_values_raw=s_raw, n_gauge=int(G.shape[1]),
+            iterations=n_jac)
+
+
+def _with(r0: np.ndarray, est: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    r = r0.copy()
+    r[est] += delta
+    return r
+
+
+def _single_thread_blas():
+    """BLAS limited to one thread: the matrices here are small (<= ~2000 x 48), and a multi-threaded
+    OpenBLAS on a loaded machine spends seconds per SVD spinning (measured: 1.7 s vs 2 ms)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # optional (comes with scikit-learn)
+        return contextlib.nullcontext()
+    return threadpool_limits(1, user_api="blas")
 
 
 def calibrate(machine: PKM, data: PoseData, **settings) -> CalibrationResult:
@@ -533,12 +694,23 @@ def calibration_to_dict(result: CalibrationResult) -> dict:
                   "translation_mm": result.frame_translation_mm, "rotation_qx_qy_qz_qw": rot.as_quat(),
                   "rotation_deg_fixed_xyz": rot.as_euler("xyz", degrees=True)},
         "condition_number": result.condition_number,
+        "condition_number_raw": result.condition_number_raw,
+        "condition_number_meaning": (
+            "condition_number: s_max / s_min of the scaled, frame-eliminated parameter Jacobian on the "
+            "identifiable subspace (the gauge directions fixed, structural null directions with "
+            "s < rcond * s_max removed); condition_number_raw: the same Jacobian over all estimated "
+            "parameters, null directions included (~1e16, or null = infinite, when a gauge exists)"),
         "singular_values": result.singular_values,
+        "singular_values_raw": result.singular_values_raw,
+        "n_gauge": result.n_gauge,
         "unidentifiable": result.unidentifiable,
+        "lambda_rule": result.lambda_rule,
         "lambda": result.lam, "lambda_gcv": result.lambda_gcv, "lambda_lcurve": result.lambda_lcurve,
+        "lambda_morozov": result.lambda_morozov, "discrepancy_reached": result.discrepancy_reached,
         "delta_um": result.delta_mm * 1e3, "delta_estimated": result.delta_estimated,
         "lever_mm": result.lever_mm, "n_fit_poses": result.n_poses, "success": result.success,
-        "message": result.message, "iterations": result.nfev, "fit_time_s": result.fit_time_s,
+        "message": result.message, "iterations": result.iterations, "residual_evaluations": result.nfev,
+        "fit_time_s": result.fit_time_s,
     }
 
 

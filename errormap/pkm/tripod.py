@@ -21,7 +21,7 @@ from .hexapod import FKResult, forward_kinematics, inverse_kinematics, leg_vecto
 from .machine_file import PKM
 
 __all__ = ["inverse_kinematics_tripod", "forward_kinematics_tripod", "transfer_matrices", "leg_error_norm",
-           "sensitivity_map", "sensitivity_vs_lambda", "tripod_with_radii"]
+           "sensitivity_map", "sensitivity_vs_lambda", "sensitivity_study", "tripod_with_radii"]
 
 
 def inverse_kinematics_tripod(machine: PKM, tool_tip_mm) -> np.ndarray:
@@ -94,3 +94,38 @@ def sensitivity_vs_lambda(machine: PKM, lambdas, offset_xy_mm=(0.0, 0.0)) -> np.
         z = z - f / (z[:, None] / L).mean(1)
     p = np.c_[np.full_like(z, off[0]), np.full_like(z, off[1]), z]
     return leg_error_norm(machine, p)
+
+
+def sensitivity_study(machine: PKM, lambdas=None, offsets_xy_mm=((0.0, 0.0), (80.0, -60.0)), radial_mm=None,
+                      heights_mm=None, azimuth_deg: float = 0.0) -> dict:
+    """The tripod paper's findings as data: ``K`` against ``lambda`` and over the workspace.
+
+    ``lambdas`` (m,) (default: 40 values spanning the leg range, ``leg_min / c .. leg_max / c``);
+    ``K_lambda`` (len(offsets_xy_mm), m): :func:`sensitivity_vs_lambda` at each horizontal offset.
+    The map is a vertical section through the fixed platform's axis at ``azimuth_deg``:
+    ``radial_mm`` (nr,) horizontal distance from the axis, ``heights_mm`` (nh,) distance of the moving
+    platform (tool point) from the fixed platform's hinge plane; ``K_map`` (nr, nh), NaN where a leg
+    leaves its range. Returns those arrays plus ``c_mm`` and ``base_plane_z_mm``.
+    """
+    R = np.linalg.norm(machine.base_joints_mm[0, :2])
+    r = np.linalg.norm(machine.platform_joints_mm[0, :2])
+    c = R - r
+    if lambdas is None:
+        lambdas = np.linspace(machine.leg_min_mm.max() / c, machine.leg_max_mm.min() / c, 40)
+    lambdas = np.asarray(lambdas, float)
+    K_lambda = np.stack([sensitivity_vs_lambda(machine, lambdas, off) for off in offsets_xy_mm])
+    z0 = float(machine.base_joints_mm[:, 2].mean())
+    if heights_mm is None:
+        heights_mm = np.linspace(machine.leg_min_mm.max() * 0.8, machine.leg_max_mm.min(), 60)
+    if radial_mm is None:
+        radial_mm = np.linspace(0.0, 0.5 * c + r, 40)
+    heights_mm, radial_mm = np.asarray(heights_mm, float), np.asarray(radial_mm, float)
+    az = np.radians(azimuth_deg)
+    Rg, Hg = np.meshgrid(radial_mm, heights_mm, indexing="ij")
+    p = np.stack([Rg.ravel() * np.cos(az), Rg.ravel() * np.sin(az), z0 + Hg.ravel()], axis=1)
+    K = leg_error_norm(machine, p)
+    legs = inverse_kinematics(machine, p)
+    K[np.any((legs < machine.leg_min_mm) | (legs > machine.leg_max_mm), axis=1)] = np.nan
+    return {"lambdas": lambdas, "offsets_xy_mm": np.asarray(offsets_xy_mm, float), "K_lambda": K_lambda,
+            "radial_mm": radial_mm, "heights_mm": heights_mm, "K_map": K.reshape(Rg.shape), "c_mm": c,
+            "base_plane_z_mm": z0, "azimuth_deg": azimuth_deg}

@@ -1,0 +1,678 @@
+"""Learned vs parametric, side by side, on the same machines and the same measurements (issue 8).
+
+``run_benchmark(machines, out_dir, settings)`` runs both compensation paths on each machine
+under a set of measurement conditions, evaluates the TRUE residual (DESIGN.md residual 2: the
+simulated truth machine driven with the compensated commands, minus the target) along the
+test paths, records every run in MLflow under one parent run, and writes
+``DIR/benchmark.json`` and ``DIR/report.html`` (:mod:`compensation.benchmark_report`).
+
+**Grinder** (one simulated truth machine, seed ``truth_seed``):
+
+* measurements: laser-tracker sweeps (``errormap.sweeps.simulate_sweeps``) with ``stations``
+  stations per axis and tracker noise ``noise_um``; ``n_measurements = stations × 3 balls × 3 axes``
+  (ball-centre measurements); the closed loop adds ``n_checks`` check measurements;
+* parametric: identified 23 elements → :class:`errormap.htm.HTMField` → ``exact`` solver;
+* learned: the same identified elements → 11×11×11 feature points → the BP network
+  (``training.fit_field``, LM, ``train_s`` budget) → ``batched-ga`` (the paper's GA,
+  vectorised) on ``ga_points`` evenly spaced flute points and ``exact`` on the whole flute;
+  the row's headline numbers are the ``exact`` ones (whole path), the GA subset is beside them;
+* test path: the variable-helix flute (``compensation.toolpath.flute_path``), under the path
+  condition :data:`PATH_CONDITIONS` (a warm machine at 24 °C, X and A approached from below as
+  the path moves, Z from above because the wheel plunges to the flute-bottom radius);
+* conditions: sweep density (stations), tracker noise, and each undeclared effect of the
+  simulator in the truth, before and after the closed loop (check measurements →
+  ``errormap.diagnosis.diagnose`` → ``CorrectedField`` = base field + the found terms →
+  compensate with it). The learned path after the loop is the network plus the parametric
+  terms (the 11×11×11 grid aliases pitch and worm-gear periods, see docs/benchmark.md).
+
+**Hexapod** (and the tripod): simulated pose measurements (``simulate_poses``, known instrument
+frame), ``n_poses`` poses with noise ``noise_um``;
+
+* parametric: ``PKMCalibrator`` (Tikhonov + Morozov) → corrected inverse kinematics in the
+  interpolation (``true_path_residual``);
+* learned: :func:`training.pose_field.fit_pose_field` (commanded pose → pose error) →
+  compensation by iterating the commanded pose (:func:`learned_pkm_commands`);
+* test paths: the paper's sphere and hyperboloid passes (tripod: random workspace points).
+
+Every figure is measured in this run; a part that cannot run is reported as not available
+with the reason, never filled in.
+"""
+from __future__ import annotations
+
+import platform
+import sys
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from errormap.io import write_json
+
+PATH_CONDITIONS = {"temp_c": 24.0, "dir_x": 1.0, "dir_z": -1.0, "dir_a": 1.0}
+"""Conditions of the flute test path: warm machine (24 °C, the end of the check log's warm-up),
+X and A approached in the path's direction of motion (+), Z from above (the wheel plunges in)."""
+
+EXPERIMENT = "volcomp-benchmark"
+FEATURE_REUSE_TOL_UM = 1e-6
+
+
+@dataclass
+class BenchmarkSettings:
+    """What the benchmark runs. Defaults: the full benchmark (≤ 20 min on 2 cores)."""
+
+    truth_seed: int = 0
+    seed: int = 0
+    stations: tuple = (6, 11, 21, 41)
+    noises_um: tuple = (0.0, 1.0, 5.0, 20.0)
+    base_stations: int = 21
+    base_noise_um: float = 1.0
+    effects: tuple = ("thermal", "reversal", "pitch", "worm", "interaction")
+    n_checks: int = 400
+    check_noise_um: float = 1.0
+    train_s: float = 30.0
+    hidden: tuple = (10, 15, 25, 15, 10)
+    activation: str = "sigmoid"
+    a_encoding: str = "raw"
+    ga_points: int = 100
+    ga_generations: int = 400
+    flute_turns: float = 7.0
+    flute_points_per_turn: int = 400
+    volume_points: int = 300
+    pkm_poses: tuple = (20, 50, 100, 200)
+    pkm_noises_um: tuple = (0.0, 1.0, 5.0, 20.0)
+    pkm_base_poses: int = 100
+    pkm_base_noise_um: float = 5.0
+    pkm_pose_error_mm: float = 1.0
+    pkm_train_s: float = 20.0
+    pkm_hidden: tuple = (16,)
+    pkm_ridge: float = 1e-3
+    pkm_path_step_mm: float = 0.5
+    pkm_half_width_mm: tuple = (160.0, 160.0, 220.0)
+    pkm_max_tilt_deg: float = 32.0
+    tripod: bool = True
+    quick: bool = False
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def quick_settings() -> BenchmarkSettings:
+    """The ``--quick`` variant (a test runs it): fewer conditions, tiny training, path subsets."""
+    return BenchmarkSettings(stations=(11, 21), noises_um=(1.0, 5.0), effects=("thermal",), n_checks=200,
+                             train_s=3.0, hidden=(8, 8), activation="tanh", a_encoding="periodic", ga_points=20,
+                             ga_generations=100, flute_turns=1.0, flute_points_per_turn=200, volume_points=100,
+                             pkm_poses=(50,), pkm_noises_um=(5.0,), pkm_base_poses=50, pkm_train_s=2.0,
+                             pkm_path_step_mm=4.0, tripod=True, quick=True)
+
+
+def _log(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def _stats(err_um) -> tuple[float, float]:
+    """(RMS, max) of the per-point vector norm of a residual, shape (n, 3) μm."""
+    n = np.linalg.norm(np.asarray(err_um, dtype=float), axis=1)
+    return float(np.sqrt(np.mean(n ** 2))), float(n.max())
+
+
+def _row(machine, kind, path, condition, **kw) -> dict:
+    row = {"machine": machine, "machine_kind": kind, "path": path, "condition": condition,
+           "available": True, "true_rms_um": None, "true_max_um": None, "fit_seconds": None,
+           "compensate_seconds_per_point": None, "n_measurements": None}
+    row.update(kw)
+    return row
+
+
+# ------------------------------------------------------------------------------- MLflow
+class Tracker:
+    """One parent MLflow run per benchmark; each result row and each training is a child run.
+
+    ``tracking_uri=None`` uses :func:`training.tracking.default_tracking_uri`; ``enabled=False``
+    records nothing (``parent_id`` is then None).
+    """
+
+    def __init__(self, tracking_uri: str | None, enabled: bool = True, run_name: str = "benchmark"):
+        self.enabled = enabled
+        self.parent_id = None
+        self.client = None
+        if not enabled:
+            return
+        from mlflow.tracking import MlflowClient
+
+        from training.tracking import default_tracking_uri
+        self.uri = tracking_uri or default_tracking_uri()
+        if self.uri.startswith("sqlite:///"):
+            Path(self.uri[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
+        self.client = MlflowClient(tracking_uri=self.uri)
+        exp = self.client.get_experiment_by_name(EXPERIMENT)
+        if exp is None:
+            art = None
+            if self.uri.startswith("sqlite:///"):
+                art = (Path(self.uri[len("sqlite:///"):]).parent / "artifacts").resolve().as_uri()
+            try:
+                self.exp_id = self.client.create_experiment(EXPERIMENT, artifact_location=art)
+            except Exception:  # created concurrently
+                self.exp_id = self.client.get_experiment_by_name(EXPERIMENT).experiment_id
+        else:
+            self.exp_id = exp.experiment_id
+        self.parent_id = self.client.create_run(self.exp_id, run_name=run_name,
+                                                tags={"volcomp.kind": "benchmark"}).info.run_id
+
+    def log_params(self, params: dict, run_id: str | None = None) -> None:
+        if not self.enabled:
+            return
+        from mlflow.entities import Param
+        ps = [Param(k, str(v)[:6000]) for k, v in params.items()]
+        for i in range(0, len(ps), 100):
+            self.client.log_batch(run_id or self.parent_id, params=ps[i:i + 100])
+
+    def child(self, name: str, params: dict, metrics: dict, tags: dict | None = None) -> str | None:
+        """A finished child run with ``params`` and numeric ``metrics`` (None values skipped)."""
+        if not self.enabled:
+            return None
+        from mlflow.entities import Metric
+        t = {"mlflow.parentRunId": self.parent_id, **{k: str(v) for k, v in (tags or {}).items()}}
+        rid = self.client.create_run(self.exp_id, run_name=name, tags=t).info.run_id
+        self.log_params(params, rid)
+        now = int(time.time() * 1000)
+        ms = [Metric(k, float(v), now, 0) for k, v in metrics.items()
+              if isinstance(v, (int, float)) and not isinstance(v, bool) and v is not None and np.isfinite(v)]
+        if ms:
+            self.client.log_batch(rid, metrics=ms)
+        self.client.set_terminated(rid, "FINISHED")
+        return rid
+
+    def finish(self, metrics: dict, artifacts=(), status: str = "FINISHED") -> None:
+        if not self.enabled:
+            return
+        from mlflow.entities import Metric
+        now = int(time.time() * 1000)
+        ms = [Metric(k, float(v), now, 0) for k, v in metrics.items() if v is not None]
+        if ms:
+            self.client.log_batch(self.parent_id, metrics=ms)
+        for a in artifacts:
+            self.client.log_artifact(self.parent_id, str(a))
+        self.client.set_terminated(self.parent_id, status)
+
+
+def log_row(tracker: Tracker, row: dict) -> None:
+    """Record a result row as a child run (params: the condition; metrics: the numbers)."""
+    params = {k: row.get(k) for k in ("machine", "path", "condition", "group", "stations", "noise_um", "effect",
+                                      "closed_loop", "n_poses", "solver", "test_path") if row.get(k) is not None}
+    metrics = {k: v for k, v in row.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+    for s, d in (row.get("solvers") or {}).items():
+        for k, v in d.items():
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                metrics[f"{s}.{k}"] = v
+    tags = {"training_run_id": row["training_run_id"]} if row.get("training_run_id") else None
+    row["run_id"] = tracker.child(f"{row['machine_kind']}/{row['path']}/{row['condition']}", params, metrics, tags)
+
+
+# ------------------------------------------------------------------------------- grinder
+class FixedConditions:
+    """A field that needs conditions (a diagnosis ``CorrectedField``), evaluated at fixed path
+    conditions: a plain error field ``predict(axes (n, 3)) -> (n, 3) μm`` for the solvers."""
+
+    def __init__(self, field_, conditions: dict):
+        self.field = field_
+        self.conditions = dict(conditions)
+
+    def predict(self, axes):
+        need = getattr(self.field, "needs", ())
+        cond = {k: self.conditions[k] for k in need}
+        return self.field.predict(axes, **cond) if cond else self.field.predict(axes)
+
+
+@dataclass
+class GrinderCondition:
+    name: str
+    group: str
+    stations: int
+    noise_um: float
+    effect: str | None = None
+
+
+def grinder_conditions(s: BenchmarkSettings) -> list[GrinderCondition]:
+    """Density sweep (at the base noise), noise sweep (at the base density), each effect (base)."""
+    out = {}
+    for st in s.stations:
+        name = f"stations={st}, noise={s.base_noise_um:g}um"
+        out.setdefault(name, GrinderCondition(name, "density", st, s.base_noise_um))
+    for nz in s.noises_um:
+        name = f"stations={s.base_stations}, noise={nz:g}um"
+        out.setdefault(name, GrinderCondition(name, "noise", s.base_stations, nz))
+    for eff in s.effects:
+        name = f"effect={eff}"
+        out[name] = GrinderCondition(name, "effect", s.base_stations, s.base_noise_um, eff)
+    return list(out.values())
+
+
+def _subset(n: int, m: int) -> np.ndarray:
+    return np.unique(np.round(np.linspace(0, n - 1, min(n, m))).astype(int))
+
+
+class GrinderBench:
+    """State shared by the grinder conditions: machine, truth-independent path, trained-network cache."""
+
+    def __init__(self, machine, s: BenchmarkSettings, tracker: Tracker):
+        from errormap.simulator import random_axes
+
+        from .toolpath import flute_path
+        self.m, self.s, self.tracker = machine, s, tracker
+        self.flute = flute_path(turns=s.flute_turns, points_per_turn=s.flute_points_per_turn)
+        self.targets = self.flute.targets_mm
+        self.nominal = self.flute.axes(machine)
+        self.ga_idx = _subset(len(self.targets), s.ga_points)
+        n = len(self.targets)
+        self.path_cond = {k: np.full(n, v) for k, v in PATH_CONDITIONS.items()}
+        # volume test points: uniform over the strokes, rho >= 5 mm (away from the A axis, where the
+        # WCS is singular), nominal axes -> targets
+        from errormap.kinematics import forward
+        rng = np.random.default_rng(s.seed + 77)
+        ax = random_axes(machine, 4 * s.volume_points, rng)
+        ax = ax[ax[:, 1] >= machine.strokes["z_mm"][0] + 5.0][: s.volume_points]
+        self.vol_axes, self.vol_targets = ax, forward(machine, ax)
+        self.vol_cond = {k: np.full(len(ax), v) for k, v in PATH_CONDITIONS.items()}
+        self.cache = []  # (featurepoint errors, fit result, seconds)
+        self.rows = []
+
+    # -- measurements and identification
+    def truth(self, effect):
+        from errormap.simulator import random_truth
+        return random_truth(self.m, self.s.truth_seed, effects=(effect,) if effect else ())
+
+    def identify(self, truth, c: GrinderCondition):
+        from errormap.identification import identify
+        from errormap.sweeps import simulate_sweeps
+        sw = simulate_sweeps(truth, noise_um=c.noise_um, seed=self.s.seed + 1, n_stations=c.stations)
+        t0 = time.perf_counter()
+        res = identify(sw, self.m)
+        return res.elements_, time.perf_counter() - t0, len(sw["axis"])
+
+    # -- compensation and true residual
+    def compensate(self, field_, method, idx=None, volume=False):
+        from .evaluate import true_residual_um
+        from .solvers import solve
+        tg, nom, cond = (self.vol_targets, self.vol_axes, self.vol_cond) if volume else \
+            (self.targets, self.nominal, self.path_cond)
+        if idx is not None:
+            tg, nom, cond = tg[idx], nom[idx], {k: v[idx] for k, v in cond.items()}
+        opts = {"target_axes": nom, "progress": False}
+        if method == "batched-ga":
+            opts.update(seed=self.s.seed, generations=self.s.ga_generations)
+        r = solve(method, field_, tg, self.m, **opts)
+        tr = true_residual_um(self.truth_, r.axes, tg, cond)
+        rms, mx = _stats(tr)
+        return {"true_rms_um": rms, "true_max_um": mx, "seconds_per_point": r.seconds / len(tg), "points": len(tg),
+                "model_max_um": float(np.max(r.residual_norm_um)), "failures": int(np.count_nonzero(~r.success))}
+
+    def uncompensated(self):
+        from .evaluate import true_residual_um
+        return _stats(true_residual_um(self.truth_, self.nominal, self.targets, self.path_cond))
+
+    def train(self, elements, cond_name):
+        """The learned field for identified ``elements``: trained once per distinct feature-point set."""
+        from errormap.featurepoints import make_feature_points
+        from errormap.htm import HTMField
+        from training import fit_field, validation_points
+        s = self.s
+        fp = make_feature_points(self.m, HTMField(self.m, elements), meta={"benchmark_condition": cond_name})
+        for errs, res, secs, name in self.cache:
+            if np.max(np.abs(errs - fp.errors_um)) < FEATURE_REUSE_TOL_UM:
+                return res, secs, name
+        val = validation_points(self.m, elements, n=2000, seed=s.seed + 5)
+        _log(f"grinder: training the network ({cond_name}, LM, ≤ {s.train_s:g} s)")
+        t0 = time.perf_counter()
+        res = fit_field(fp, trainer="lm", max_time_s=s.train_s, seed=s.seed, validation=val, quiet=True,
+                        hidden=s.hidden, activation=s.activation, a_encoding=s.a_encoding,
+                        track=self.tracker.enabled, tracking_uri=self.tracker.uri if self.tracker.enabled else None,
+                        parent_run_id=self.tracker.parent_id, run_name=f"grinder/learned/train/{cond_name}",
+                        experiment=EXPERIMENT, tags={"benchmark_condition": cond_name})
+        secs = time.perf_counter() - t0
+        self.cache.append((fp.errors_um.copy(), res, secs, cond_name))
+        return res, secs, None
+
+    def run_condition(self, c: GrinderCondition) -> None:
+        s = self.s
+        self.truth_ = truth = self.truth(c.effect)
+        unc_rms, unc_max = self.uncompensated()
+        elements, id_s, n_meas = self.identify(truth, c)
+        common = {"group": c.group, "stations": c.stations, "noise_um": c.noise_um, "effect": c.effect,
+                  "test_path": f"flute ({len(self.targets)} points)", "n_measurements": n_meas,
+                  "uncompensated_rms_um": unc_rms, "uncompensated_max_um": unc_max}
+        cond_label = c.name + (" (before closed loop)" if c.effect else "")
+        from errormap.htm import HTMField
+        par_field = HTMField(self.m, elements)
+        # parametric: the exact inverse of the identified HTM field
+        _log(f"grinder: parametric, {cond_label}")
+        ex = self.compensate(par_field, "exact")
+        vol = self.compensate(par_field, "exact", volume=True) if s.volume_points else None
+        par = _row(self.m.name, "grinder", "parametric", cond_label, closed_loop=False, solver="exact",
+                   fit_seconds=id_s, identify_seconds=id_s, compensate_seconds_per_point=ex["seconds_per_point"],
+                   true_rms_um=ex["true_rms_um"], true_max_um=ex["true_max_um"], solvers={"exact": ex}, **common)
+        if vol:
+            par.update(volume_rms_um=vol["true_rms_um"], volume_max_um=vol["true_max_um"])
+        self._finish(par)
+        # learned: feature points -> network -> batched GA (subset) + exact (whole path)
+        try:
+            fit, train_s, reused = self.train(elements, c.name)
+        except Exception as exc:  # training unavailable or failed: say so, never fake numbers
+            self._finish(_row(self.m.name, "grinder", "learned", cond_label, available=False,
+                              not_available=f"training failed: {type(exc).__name__}: {exc}", **common))
+            return
+        mlp = fit.field
+        _log(f"grinder: learned, {cond_label}")
+        ex_l = self.compensate(mlp, "exact")
+        ga_l = self.compensate(mlp, "batched-ga", idx=self.ga_idx)
+        vol_l = self.compensate(mlp, "exact", volume=True) if s.volume_points else None
+        lrn = _row(self.m.name, "grinder", "learned", cond_label, closed_loop=False, solver="exact",
+                   fit_seconds=id_s + fit.seconds, identify_seconds=id_s, train_seconds=fit.seconds,
+                   training_run_id=fit.run_id, reused_training_of=reused,
+                   train_val_rms_um=fit.metrics.get("val_rms_um"), train_val_max_um=fit.metrics.get("val_max_um"),
+                   train_iterations=fit.metrics.get("iterations"),
+                   compensate_seconds_per_point=ex_l["seconds_per_point"], true_rms_um=ex_l["true_rms_um"],
+                   true_max_um=ex_l["true_max_um"], solvers={"exact": ex_l, "batched-ga": ga_l}, **common)
+        if vol_l:
+            lrn.update(volume_rms_um=vol_l["true_rms_um"], volume_max_um=vol_l["true_max_um"])
+        self._finish(lrn)
+        if c.effect:
+            self.closed_loop(c, par_field, mlp, par, lrn, common)
+
+    def closed_loop(self, c, par_field, mlp, par, lrn, common) -> None:
+        """Checks → diagnosis → corrected field → compensate → true residual, for both paths."""
+        from errormap.diagnosis.checks import CheckData
+        from errormap.diagnosis.pipeline import diagnose
+        s = self.s
+        cols = self.truth_.check_measurements(n=s.n_checks, noise_um=s.check_noise_um, seed=s.seed + 3)
+        checks = CheckData.from_columns(cols, path=f"<simulated checks, {c.name}>")
+        for base_row, base in ((par, par_field), (lrn, mlp)):
+            label = f"{c.name} (after closed loop)"
+            _log(f"grinder: {base_row['path']}, {label}")
+            t0 = time.perf_counter()
+            try:
+                d = diagnose(self.m, base, checks)
+            except Exception as exc:
+                self._finish(_row(self.m.name, "grinder", base_row["path"], label, available=False, closed_loop=True,
+                                  not_available=f"diagnosis failed: {type(exc).__name__}: {exc}", **common))
+                continue
+            diag_s = time.perf_counter() - t0
+            found = [f"{e['kind']}:{e['axis']}:{e['element']}" for e in d.effects]
+            corrected = FixedConditions(d.corrected, PATH_CONDITIONS)
+            sol = {"exact": self.compensate(corrected, "exact")}
+            if base_row["path"] == "learned":
+                sol["batched-ga"] = self.compensate(corrected, "batched-ga", idx=self.ga_idx)
+            vol = self.compensate(corrected, "exact", volume=True) if s.volume_points else None
+            extra = {k: base_row.get(k) for k in ("identify_seconds", "train_seconds", "training_run_id",
+                                                   "reused_training_of") if base_row.get(k) is not None}
+            row = _row(self.m.name, "grinder", base_row["path"], label, closed_loop=True, solver="exact",
+                       fit_seconds=base_row["fit_seconds"] + diag_s, diagnosis_seconds=diag_s,
+                       compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
+                       true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
+                       solvers=sol, effects_found=found, n_checks=s.n_checks,
+                       checks_rms_before_um=d.summary["rms_before_um"], checks_rms_after_um=d.summary["rms_after_um"],
+                       **{**common, "n_measurements": common["n_measurements"] + s.n_checks}, **extra)
+            if vol:
+                row.update(volume_rms_um=vol["true_rms_um"], volume_max_um=vol["true_max_um"])
+            self._finish(row)
+
+    def _finish(self, row: dict) -> None:
+        log_row(self.tracker, row)
+        self.rows.append(row)
+        if row.get("available"):
+            _log(f"  {row['path']:10s} {row['condition']}: true RMS {row['true_rms_um']:.3f} um, max "
+                 f"{row['true_max_um']:.3f} um, fit {row['fit_seconds']:.1f} s")
+
+
+def run_grinder(machine, s: BenchmarkSettings, tracker: Tracker) -> list[dict]:
+    """Both paths on every grinder condition; rows in condition order."""
+    g = GrinderBench(machine, s, tracker)
+    for c in grinder_conditions(s):
+        g.run_condition(c)
+    return g.rows
+
+
+# ------------------------------------------------------------------------------- PKM
+def _rotvec(R) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def _from_rotvec(v) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_rotvec(v).as_matrix()
+
+
+def _tool(machine, tool_length_mm):
+    if tool_length_mm is None or machine.kind != "hexapod":
+        return machine
+    return replace(machine, tool_in_platform_mm=np.array([0.0, 0.0, -tool_length_mm]))
+
+
+def pose_inputs(kind: str, tip_mm, R) -> np.ndarray:
+    """Network inputs of commanded poses: hexapod (tip, rotation vector), tripod tip; (n, 6|3)."""
+    return np.hstack([tip_mm, _rotvec(R)]) if kind == "hexapod" else np.asarray(tip_mm, float)
+
+
+def measured_pose_errors(machine, data):
+    """(inputs, outputs) for the learned PKM field from pose measurements (instrument frame = machine).
+
+    Commanded pose: nominal forward kinematics of the commanded drives; error: measured minus
+    commanded tip (μm), and for the hexapod the rotation vector of ``R_meas·R_cmdᵀ`` (μrad).
+    """
+    from errormap.pkm.hexapod import forward_kinematics
+    fk = forward_kinematics(machine, machine.drive_to_legs(data.q), check_limits=False)
+    d_tip = (data.tip_mm - fk.x) * 1e3
+    if machine.kind == "hexapod":
+        d_ang = _rotvec(np.einsum("nij,nkj->nik", data.rotation, fk.platform2base)) * 1e6
+        return pose_inputs("hexapod", fk.x, fk.platform2base), np.hstack([d_tip, d_ang])
+    return pose_inputs("tripod", fk.x, None), d_tip
+
+
+def learned_pkm_commands(field_, machine, tip_mm, R, tool_length_mm=None, iterations: int = 6):
+    """Compensated commanded poses for target poses by iterating the commanded pose.
+
+    The field predicts the pose error at the measurement tool (the machine file's); a path with
+    another tool length (``tool_length_mm``) is handled exactly: the platform pose is the same,
+    the tip moves by ``R·(t_path - t_meas)``. Fixed point: ``R_cmd = exp(-δθ(cmd))·R_d``,
+    ``tip_cmd ← tip_cmd - (reached tip - target tip)``. Returns (tip_cmd (n,3), R_cmd (n,3,3)).
+    """
+    hexa = machine.kind == "hexapod"
+    t_meas = machine.tool_in_platform_mm
+    t_path = _tool(machine, tool_length_mm).tool_in_platform_mm
+    tip_d = np.asarray(tip_mm, float)
+    R_d = np.asarray(R, float) if hexa else None
+    tip_c, R_c = tip_d.copy(), (R_d.copy() if hexa else None)
+    for _ in range(iterations):
+        if hexa:
+            tip_meas = tip_c + np.einsum("nij,j->ni", R_c, t_meas - t_path)
+            e = field_.predict(pose_inputs("hexapod", tip_meas, R_c))
+            dtip, dth = e[:, :3] * 1e-3, e[:, 3:] * 1e-6
+            R_reach = _from_rotvec(dth) @ R_c
+            reach = tip_meas + dtip + np.einsum("nij,j->ni", R_reach, t_path - t_meas)
+            R_c = _from_rotvec(-dth) @ R_d
+        else:
+            reach = tip_c + field_.predict(pose_inputs("tripod", tip_c, None)) * 1e-3
+        tip_c = tip_c - (reach - tip_d)
+    return tip_c, R_c
+
+
+def pkm_true_residual(truth, machine, tip_cmd, R_cmd, tip_target, tool_length_mm=None) -> np.ndarray:
+    """True residual (μm), shape (n, 3): tip the truth machine reaches with the nominal inverse
+    kinematics of the commanded poses, minus the target tip."""
+    from errormap.pkm.hexapod import forward_kinematics, inverse_kinematics
+    nom = _tool(machine, tool_length_mm)
+    legs = inverse_kinematics(nom, tip_cmd, R_cmd if machine.kind == "hexapod" else None)
+    q = nom.legs_to_drive(legs)
+    tt = _tool(truth.machine, tool_length_mm)
+    fk = forward_kinematics(tt, tt.drive_to_legs(q), guess_tip_mm=tip_target, guess_platform2base=R_cmd,
+                            check_limits=False)
+    return (fk.x - tip_target) * 1e3
+
+
+def _pkm_paths(machine, s: BenchmarkSettings):
+    from .pkm_interpolation import ToolPath, builtin_path
+    if machine.kind == "hexapod":
+        return {n: builtin_path(n, s.pkm_path_step_mm) for n in ("sphere", "hyperboloid")}
+    from errormap.pkm.hexapod import workspace_poses
+    tips, _ = workspace_poses(machine, 200 if not s.quick else 50, seed=s.seed + 7)
+    return {"workspace": ToolPath(tips, np.broadcast_to(np.eye(3), (len(tips), 3, 3)).copy(),
+                                  np.zeros(len(tips), int), None, "workspace")}
+
+
+def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) -> list[dict]:
+    """Both PKM paths on each (n_poses, noise) condition; true residual along the test paths."""
+    from errormap.pkm.calibration import PKMCalibrator
+    from errormap.pkm.simulate import simulate_poses
+    from training.pose_field import fit_pose_field
+
+    from .pkm_interpolation import leg_program, true_path_residual
+    kind = machine.kind
+    paths = _pkm_paths(machine, s)
+    if conditions is None:
+        conditions = {}
+        for n in s.pkm_poses:
+            conditions.setdefault((n, s.pkm_base_noise_um), "poses")
+        for nz in s.pkm_noises_um:
+            conditions.setdefault((s.pkm_base_poses, nz), "noise")
+    rows = []
+    for (n_poses, noise), group in conditions.items():
+        cname = f"poses={n_poses}, noise={noise:g}um"
+        sim = simulate_poses(machine, n_poses, noise, seed=s.seed + 1000, pose_error_mm=s.pkm_pose_error_mm,
+                             frame="identity",
+                             half_width_mm=s.pkm_half_width_mm if kind == "hexapod" else (150.0, 150.0, 100.0),
+                             max_tilt_deg=s.pkm_max_tilt_deg if kind == "hexapod" else 0.0,
+                             orientation="quat" if kind == "hexapod" else "none")
+        truth = sim.truth
+        common = {"group": group, "n_poses": n_poses, "noise_um": noise, "n_measurements": n_poses,
+                  "test_path": " + ".join(f"{k} ({len(p)} points)" for k, p in paths.items())}
+        before = {k: true_path_residual(truth, None, p) for k, p in paths.items()}
+        unc = {"uncompensated_rms_um": float(np.sqrt(np.mean(np.concatenate([b["position_um"] for b in before.values()]) ** 2))),
+               "uncompensated_max_um": float(max(b["max_um"] for b in before.values()))}
+        # parametric: regularised kinematic calibration -> corrected inverse kinematics
+        _log(f"{kind}: parametric, {cname}")
+        try:
+            t0 = time.perf_counter()
+            cal = PKMCalibrator(machine, estimate_scales=True, register=False, noise_um=max(noise, 0.1)).fit(sim.data)
+            fit_s = time.perf_counter() - t0
+            per_path, allpos, comp_s, npts = {}, [], 0.0, 0
+            for k, p in paths.items():
+                t0 = time.perf_counter()
+                leg_program(machine, p, cal.machine, check_limits=False)
+                comp_s += time.perf_counter() - t0
+                npts += len(p)
+                r = true_path_residual(truth, cal, p)
+                per_path[k] = {"true_rms_um": r["rms_um"], "true_max_um": r["max_um"]}
+                allpos.append(r["position_um"])
+            pos = np.concatenate(allpos)
+            row = _row(machine.name, kind, "parametric", cname, solver="corrected inverse kinematics",
+                       fit_seconds=fit_s, compensate_seconds_per_point=comp_s / npts,
+                       true_rms_um=float(np.sqrt(np.mean(pos ** 2))), true_max_um=float(pos.max()),
+                       per_path=per_path, calibration_success=bool(cal.success), calibration_lambda=float(cal.lam),
+                       **common, **unc)
+        except Exception as exc:
+            row = _row(machine.name, kind, "parametric", cname, available=False,
+                       not_available=f"calibration failed: {type(exc).__name__}: {exc}", **common, **unc)
+        log_row(tracker, row)
+        rows.append(row)
+        # learned: pose-error MLP -> iterate the commanded pose
+        _log(f"{kind}: learned, {cname}")
+        try:
+            x, y = measured_pose_errors(machine, sim.data)
+            fit = fit_pose_field(x, y, hidden=s.pkm_hidden, ridge=s.pkm_ridge, max_time_s=s.pkm_train_s, seed=s.seed)
+            per_path, allpos, comp_s, npts = {}, [], 0.0, 0
+            for k, p in paths.items():
+                t0 = time.perf_counter()
+                tip_c, R_c = learned_pkm_commands(fit.field, machine, p.tip_mm, p.platform2base, p.tool_length_mm)
+                comp_s += time.perf_counter() - t0
+                npts += len(p)
+                err = pkm_true_residual(truth, machine, tip_c, R_c, p.tip_mm, p.tool_length_mm)
+                rms, mx = _stats(err)
+                per_path[k] = {"true_rms_um": rms, "true_max_um": mx}
+                allpos.append(np.linalg.norm(err, axis=1))
+            pos = np.concatenate(allpos)
+            tr_id = tracker.child(f"{kind}/learned/train/{cname}", fit.params, fit.metrics,
+                                  {"benchmark_condition": cname})
+            row = _row(machine.name, kind, "learned", cname, solver="iterated commanded pose (6 steps)",
+                       fit_seconds=fit.seconds, train_seconds=fit.seconds, training_run_id=tr_id,
+                       train_rms_pos_um=fit.metrics["train_rms_pos_um"], train_iterations=fit.metrics["iterations"],
+                       compensate_seconds_per_point=comp_s / npts,
+                       true_rms_um=float(np.sqrt(np.mean(pos ** 2))), true_max_um=float(pos.max()),
+                       per_path=per_path, **common, **unc)
+        except Exception as exc:
+            row = _row(machine.name, kind, "learned", cname, available=False,
+                       not_available=f"learned PKM path failed: {type(exc).__name__}: {exc}", **common, **unc)
+        log_row(tracker, row)
+        rows.append(row)
+        for r in rows[-2:]:
+            if r["available"]:
+                _log(f"  {r['path']:10s} {cname}: true RMS {r['true_rms_um']:.3f} um, max {r['true_max_um']:.3f} um")
+    return rows
+
+
+# ------------------------------------------------------------------------------- driver
+def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, tracking_uri: str | None = None,
+                  track: bool = True) -> dict:
+    """Run the benchmark on ``machines`` (loaded machine objects) and write the outputs.
+
+    Returns the ``benchmark.json`` document (``rows``, ``settings``, ``environment``, ``paths``).
+    """
+    from .benchmark_report import render_html
+    s = settings or BenchmarkSettings()
+    out = Path(out_dir)
+    t_start = time.perf_counter()
+    tracker = Tracker(tracking_uri, enabled=track, run_name="benchmark (quick)" if s.quick else "benchmark")
+    tracker.log_params({f"settings.{k}": v for k, v in s.to_dict().items()})
+    rows, skipped = [], []
+    status = "FAILED"
+    try:
+        for m in machines:
+            t0 = time.perf_counter()
+            if m.kind == "grinder":
+                rows += run_grinder(m, s, tracker)
+            elif m.kind in ("hexapod", "tripod"):
+                if m.kind == "tripod" and not s.tripod:
+                    skipped.append({"machine": m.name, "why": "tripod disabled in the settings"})
+                    continue
+                conds = None
+                if m.kind == "tripod":  # one condition: the tripod has no paper test path
+                    conds = {(s.pkm_base_poses, s.pkm_base_noise_um): "baseline"}
+                rows += run_pkm(m, s, tracker, conds)
+            _log(f"{m.kind} done in {time.perf_counter() - t0:.0f} s")
+        total_s = time.perf_counter() - t_start
+        doc = {"format": "volcomp-benchmark/1", "rows": rows, "skipped": skipped, "settings": s.to_dict(),
+               "path_conditions": PATH_CONDITIONS, "seconds": total_s, "parent_run_id": tracker.parent_id,
+               "tracking_uri": getattr(tracker, "uri", None),
+               "environment": {"python": platform.python_version(), "machine": platform.machine(),
+                               "cpus": _cpus()},
+               "residual": "true residual (simulated truth machine driven with the compensated commands, minus the "
+                           "target), vector norm per point, um",
+               "machines": [{"name": m.name, "kind": m.kind, "file": getattr(m, "path", ""),
+                             "sha256": getattr(m, "sha256", "")} for m in machines]}
+        out.mkdir(parents=True, exist_ok=True)
+        json_path = write_json(out / "benchmark.json", doc)
+        from errormap.io import atomic_write
+        html_path = out / "report.html"
+        page = render_html(doc)
+        with atomic_write(html_path, "w", encoding="utf-8") as fh:
+            fh.write(page)
+        doc["paths"] = {"json": str(json_path), "html": str(html_path)}
+        status = "FINISHED"
+        avail = [r for r in rows if r["available"]]
+        tracker.finish({"seconds": total_s, "rows": len(rows), "rows_available": len(avail)},
+                       artifacts=(json_path, html_path), status=status)
+        return doc
+    finally:
+        if status != "FINISHED":
+            try:
+                tracker.finish({}, status="FAILED")
+            except Exception:  # pragma: no cover - keep the original error
+                pass
+
+
+def _cpus() -> int:
+    import os
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover
+        return os.cpu_count() or 0

@@ -1,0 +1,91 @@
+"""``volcomp train``: fit the BP network to feature points; every fit is an MLflow run."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from errormap.io import InputError, read_table, write_json
+
+QUICK_MAX_TIME_S = 120.0
+DEFAULT_MAX_TIME_S = 600.0
+
+
+def register(sub):
+    p = sub.add_parser(
+        "train", help="train the error-field network (LM by default) on feature points, tracked in MLflow",
+        description="Fit the paper's BP network (3 → 10-15-25-15-10 → 3, sigmoid) to FEATUREPOINTS, "
+                    "measure max/RMS fit error (μm) on the feature points and on off-grid validation points, "
+                    "record the run in MLflow and write DIR/metrics.json and DIR/model/.")
+    p.add_argument("featurepoints", help="feature-point CSV (volcomp simulate / featurepoints)")
+    p.add_argument("--out", required=True, help="output folder (metrics.json, model/, plots)")
+    p.add_argument("--trainer", choices=("lm", "adam", "lbfgs"), default="lm")
+    p.add_argument("--max-time", type=float, default=None,
+                   help=f"wall-clock budget in seconds (default {DEFAULT_MAX_TIME_S:g}; with --quick {QUICK_MAX_TIME_S:g})")
+    p.add_argument("--quick", action="store_true",
+                   help=f"demo setting: stop after {QUICK_MAX_TIME_S:g} s (reports what it reached)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--a-encoding", choices=("raw", "periodic"), default="raw",
+                   help="A as one scaled input (the paper's) or as (cos a, sin a)")
+    p.add_argument("--hidden", default="10,15,25,15,10", help="hidden layer widths, comma-separated")
+    p.add_argument("--activation", choices=("sigmoid", "tanh", "softplus"), default="sigmoid")
+    p.add_argument("--mse-goal", type=float, default=2.5e-10, help="MSE goal on the scaled outputs")
+    p.add_argument("--max-iter", type=int, default=100_000)
+    p.add_argument("--validation", default=None,
+                   help="CSV x_mm,z_mm,a_deg,dx_um,dy_um,dz_um (default: 10,000 random points from the "
+                        "HTM model named in the feature points' elements_file)")
+    p.add_argument("--tracking-uri", default=None,
+                   help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else runs/mlflow.db)")
+    p.add_argument("--run-name", default=None)
+    p.add_argument("--threads", type=int, default=None, help="torch threads while training")
+    p.set_defaults(func=run)
+
+
+def _read_validation(path):
+    t = read_table(path)
+    cols = ("x_mm", "z_mm", "a_deg", "dx_um", "dy_um", "dz_um")
+    t.require(*cols)
+    d = np.stack([t.float(c) for c in cols], axis=1)
+    if len(d) < 1:
+        raise InputError(f"{path}: no validation points")
+    return d[:, :3], d[:, 3:]
+
+
+def run(args) -> int:
+    from errormap.featurepoints import FeaturePoints
+
+    from ..cli import UsageError
+    try:
+        hidden = tuple(int(h) for h in args.hidden.split(","))
+    except ValueError:
+        raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
+    max_time = args.max_time if args.max_time is not None else (QUICK_MAX_TIME_S if args.quick else DEFAULT_MAX_TIME_S)
+    if max_time <= 0:
+        raise UsageError(f"--max-time must be > 0, got {max_time}")
+    fp = FeaturePoints.load(args.featurepoints)
+    validation = _read_validation(args.validation) if args.validation else None
+
+    from training.trainers import fit_field
+    out = Path(args.out)
+    print(f"training {args.trainer} on {len(fp.axes)} feature points from {args.featurepoints} "
+          f"(budget {max_time:g} s) ...", file=sys.stderr)
+    res = fit_field(fp, trainer=args.trainer, max_time_s=max_time, seed=args.seed, validation=validation,
+                    tracking_uri=args.tracking_uri, run_name=args.run_name, hidden=hidden,
+                    activation=args.activation, a_encoding=args.a_encoding, mse_goal=args.mse_goal,
+                    max_iter=args.max_iter, threads=args.threads, out_dir=out,
+                    tags={"featurepoints_file": str(Path(args.featurepoints).resolve())})
+    m = res.metrics
+    write_json(out / "metrics.json", {**m, "run_id": res.run_id, "stop_reason": res.history.stop_reason,
+                                      "trainer": args.trainer, "seconds": res.seconds})
+    print(f"run id: {res.run_id}")
+    print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s: {res.history.stop_reason}")
+    print(f"{'fit error (μm)':<16}{'max':>10}{'rms':>10}{'max dx':>10}{'max dy':>10}{'max dz':>10}")
+    for p in ("train", "val"):
+        print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
+            f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um", f"{p}_max_dz_um")))
+    print(f"wrote model: {out / 'model'}")
+    print(f"wrote plots: {out / 'fit_error_xz.png'}, {out / 'fit_featurepoints.png'}")
+    print(f"wrote metrics: {out / 'metrics.json'}")
+    print(f"load it with: --model runs:/{res.run_id}/model")
+    return 0

@@ -1,0 +1,321 @@
+"""The learned error field: network, scaling, Jacobians, trainers, MLflow runs, the CLI."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from torch.func import jacrev, vmap
+
+from errormap.featurepoints import FeaturePoints, grid_axes
+from errormap.io import InputError
+from errormap.machine import load_machine
+from training.lm import LMSettings, train_lm
+from training.model import MLPField, wrap_a
+from training.trainers import fit_field, fit_metrics, validation_points
+
+TOL_EXACT = 1e-12        # round trips that should be exact up to float64 rounding
+TOL_JAC_REL = 1e-6       # analytic/autodiff vs central differences, relative
+SMOOTH_TOL_UM = 0.05     # LM on the small smooth field: max train error
+SMOOTH_VAL_TOL_UM = 0.2  # ... and max error between the grid points
+CMP_TOL_UM = 2.0         # Adam / L-BFGS after a short budget: max train error (they are the slow ones)
+
+
+def smooth_field(axes):
+    """A smooth test field in μm, periodic in A, shape (n, 3) -> (n, 3)."""
+    x, z, a = axes[:, 0] / 200.0, axes[:, 1] / 60.0, np.deg2rad(axes[:, 2])
+    return np.column_stack([3.0 * x + 2.0 * z**2, 4.0 * np.cos(a) + x, 2.0 * np.sin(a) * z - x * z])
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return load_machine(None)
+
+
+@pytest.fixture(scope="module")
+def smooth_data(machine):
+    axes = grid_axes(machine, 6)
+    rng = np.random.default_rng(7)
+    val = machine.stroke_lo + (machine.stroke_hi - machine.stroke_lo) * rng.random((500, 3))
+    return FeaturePoints(axes, smooth_field(axes), {"machine": machine.name}), (val, smooth_field(val))
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    return f"sqlite:///{tmp_path_factory.mktemp('mlflow') / 'mlflow.db'}"
+
+
+@pytest.fixture(scope="module")
+def tracked_fit(smooth_data, store):
+    fp, val = smooth_data
+    return fit_field(fp, trainer="lm", max_time_s=60, seed=0, validation=val, tracking_uri=store,
+                     run_name="smooth", tags={"purpose": "test"}, quiet=True, max_iter=150)
+
+
+def random_model(a_encoding="raw", activation="sigmoid", seed=3):
+    m = MLPField(a_encoding=a_encoding, activation=activation)
+    axes = np.array([[0.0, 0.0, 0.0], [200.0, 60.0, 360.0]])
+    m.fit_scalers(axes, np.array([[-10.0, -50.0, 0.0], [10.0, 150.0, 80.0]]))
+    m.theta_ = m.init_params(seed)
+    return m
+
+
+# -- the network ----------------------------------------------------------------------------
+def test_paper_architecture():
+    m = MLPField()
+    assert m.layer_sizes == (3, 10, 15, 25, 15, 10, 3)
+    assert m.activation == "sigmoid"
+    assert m.n_params == 40 + 165 + 400 + 390 + 160 + 33
+    assert MLPField(a_encoding="periodic").layer_sizes[0] == 4
+
+
+def test_bad_settings_rejected():
+    with pytest.raises(ValueError, match="activation"):
+        MLPField(activation="relu6")
+    with pytest.raises(ValueError, match="a_encoding"):
+        MLPField(a_encoding="fourier")
+    with pytest.raises(RuntimeError, match="not trained"):
+        MLPField().predict(np.zeros((1, 3)))
+
+
+def test_init_is_seeded():
+    assert torch.equal(MLPField().init_params(5), MLPField().init_params(5))
+    assert not torch.equal(MLPField().init_params(5), MLPField().init_params(6))
+
+
+def test_scaling_round_trips(machine):
+    axes = grid_axes(machine, 5)
+    e = smooth_field(axes) * 40.0 + 7.0
+    m = MLPField().fit_scalers(axes, e)
+    assert np.allclose(m.unscale_errors(m.scale_errors(e)), e, rtol=0, atol=TOL_EXACT * 1e3)
+    y = m.scale_errors(e)
+    assert np.isclose(np.abs(y).max(), 1.0, atol=TOL_EXACT)  # one common scale: largest half-range -> 1
+    u = m.features(axes)
+    assert np.allclose(u.min(axis=0), -1.0, atol=TOL_EXACT) and np.allclose(u.max(axis=0), 1.0, atol=TOL_EXACT)
+
+
+def test_wrap_a_keeps_the_turn_and_folds_the_rest():
+    a = np.array([0.0, 123.0, 360.0, 365.0, -5.0, 720.0 + 10.0])
+    assert np.allclose(wrap_a(a, 0.0), [0.0, 123.0, 360.0, 5.0, 355.0, 10.0], atol=TOL_EXACT)
+
+
+@pytest.mark.parametrize("enc", ["raw", "periodic"])
+def test_multi_turn_a_gives_the_same_error(enc):
+    m = random_model(enc)
+    axes = np.array([[10.0, 5.0, 30.0], [150.0, 40.0, 300.0]])
+    turned = axes + [0.0, 0.0, 720.0]
+    assert np.allclose(m.predict(turned), m.predict(axes), atol=TOL_EXACT)
+    assert np.allclose(m.jacobian(turned), m.jacobian(axes), atol=TOL_EXACT)
+
+
+@pytest.mark.parametrize("act", ["sigmoid", "tanh", "softplus"])
+def test_analytic_parameter_jacobian_equals_torch_func(act):
+    m = random_model(activation=act)
+    u = torch.from_numpy(m.features(np.random.default_rng(0).random((17, 3)) * [200, 60, 360]))
+    ref = vmap(jacrev(m.forward), in_dims=(None, 0))(m.theta_, u)
+    got = m.param_jacobian(m.theta_, u)
+    assert got.shape == (17, 3, m.n_params)
+    assert torch.allclose(got, ref, rtol=0, atol=TOL_EXACT)
+
+
+@pytest.mark.parametrize("enc", ["raw", "periodic"])
+def test_input_jacobian_matches_central_differences(enc):
+    m = random_model(enc)
+    axes = np.array([[20.0, 10.0, 40.0], [120.0, 50.0, 250.0], [180.0, 30.0, 359.0]])
+    J = m.jacobian(axes)
+    assert J.shape == (3, 3, 3) and J.dtype == np.float64
+    h = np.array([1e-4, 1e-4, 1e-4])
+    fd = np.stack([(m.predict(axes + np.eye(3)[k] * h[k]) - m.predict(axes - np.eye(3)[k] * h[k])) / (2 * h[k])
+                   for k in range(3)], axis=2)
+    assert np.allclose(J, fd, rtol=TOL_JAC_REL, atol=TOL_JAC_REL * np.abs(fd).max())
+
+
+def test_chunked_batches_equal_one_batch():
+    m = random_model()
+    axes = np.random.default_rng(1).random((50, 3)) * [200, 60, 360]
+    p, j = m.predict(axes), m.jacobian(axes)
+    m.chunk = 7
+    assert np.allclose(m.predict(axes), p, rtol=TOL_EXACT, atol=0)  # BLAS blocking may differ by rounding
+    assert np.allclose(m.jacobian(axes), j, rtol=TOL_EXACT, atol=TOL_EXACT)
+
+
+def test_save_load_gives_identical_predictions(tmp_path):
+    m = random_model("periodic", "tanh")
+    m.save(tmp_path / "m")
+    m2 = MLPField.load(tmp_path / "m")
+    axes = np.random.default_rng(2).random((100, 3)) * [200, 60, 720]
+    assert np.array_equal(m2.predict(axes), m.predict(axes))
+    assert np.array_equal(m2.jacobian(axes), m.jacobian(axes))
+    assert (m2.hidden, m2.activation, m2.a_encoding) == (m.hidden, m.activation, m.a_encoding)
+
+
+def test_load_rejects_a_folder_that_is_not_a_model(tmp_path):
+    with pytest.raises(InputError, match="missing config.json"):
+        MLPField.load(tmp_path)
+
+
+# -- training -------------------------------------------------------------------------------
+def test_lm_reaches_tolerance_on_a_smooth_field(tracked_fit):
+    m = tracked_fit.metrics
+    assert m["train_max_um"] <= SMOOTH_TOL_UM
+    assert m["val_max_um"] <= SMOOTH_VAL_TOL_UM
+    for p in ("train", "val"):
+        for k in ("max", "rms"):
+            assert f"{p}_{k}_um" in m and all(f"{p}_{k}_{a}_um" in m for a in ("dx", "dy", "dz"))
+
+
+def test_lm_is_reproducible(smooth_data):
+    fp, _ = smooth_data
+    m = MLPField().fit_scalers(fp.axes, fp.errors_um)
+    u, y = torch.from_numpy(m.features(fp.axes)), torch.from_numpy(m.scale_errors(fp.errors_um))
+    s = LMSettings(max_iter=5, max_time_s=60)
+    t1, h1 = train_lm(m, m.init_params(1), u, y, s)
+    t2, h2 = train_lm(m, m.init_params(1), u, y, s)
+    assert torch.equal(t1, t2) and h1.loss == h2.loss
+    assert h1.iterations == 5 and h1.stop_reason.startswith("max iterations")
+    assert all(b < a for a, b in zip(h1.loss, h1.loss[1:]))  # LM only takes steps that lower the loss
+
+
+def test_lm_stops_at_the_mse_goal(smooth_data):
+    fp, _ = smooth_data
+    m = MLPField(hidden=(8,)).fit_scalers(fp.axes, fp.errors_um)
+    u, y = torch.from_numpy(m.features(fp.axes)), torch.from_numpy(m.scale_errors(fp.errors_um))
+    _, h = train_lm(m, m.init_params(0), u, y, LMSettings(mse_goal=1e-2, max_time_s=60))
+    assert h.stop_reason.startswith("mse goal") and h.loss[-1] <= 1e-2
+
+
+@pytest.mark.parametrize("trainer", ["adam", "lbfgs"])
+def test_comparison_trainers_learn(smooth_data, trainer):
+    fp, val = smooth_data
+    r = fit_field(fp, trainer=trainer, max_time_s=60, validation=val, track=False, quiet=True,
+                  max_iter=400 if trainer == "adam" else 40, activation="tanh", hidden=(20, 20))
+    assert r.run_id is None
+    assert r.metrics["train_max_um"] <= CMP_TOL_UM
+    assert r.history.iterations > 0
+
+
+def test_fit_metrics_per_axis():
+    ref = np.zeros((4, 3))
+    pred = np.array([[0.1, 0, 0], [0, -0.2, 0], [0, 0, 0.3], [0, 0, 0]])
+    m = fit_metrics("train", pred, ref)
+    assert np.isclose(m["train_max_um"], 0.3) and np.isclose(m["train_max_dy_um"], 0.2)
+    assert np.isclose(m["train_rms_dx_um"], np.sqrt(0.01 / 4))
+
+
+def test_validation_points_are_off_grid_and_from_the_model(machine):
+    from errormap.simulator import random_truth
+    truth = random_truth(machine, 0)
+    axes, e = validation_points(machine, truth.elements, n=200, seed=3)
+    assert axes.shape == (200, 3) and e.shape == (200, 3)
+    assert np.all(axes >= machine.stroke_lo) and np.all(axes <= machine.stroke_hi)
+    grid = grid_axes(machine)
+    d = np.abs(axes[:, None, :] - grid[None, :, :]).max(axis=2).min(axis=1)
+    assert d.min() > 0
+    a2, e2 = validation_points(machine, truth.elements, n=200, seed=3)
+    assert np.array_equal(a2, axes) and np.array_equal(e2, e)
+
+
+def test_fit_without_validation_source_fails_clearly(smooth_data):
+    fp, _ = smooth_data
+    with pytest.raises(InputError, match="no validation data"):
+        fit_field(fp, validation=None, track=False, quiet=True, max_iter=1)
+
+
+# -- MLflow ---------------------------------------------------------------------------------
+def test_run_holds_params_metrics_artifacts_and_tags(tracked_fit, store):
+    from mlflow.tracking import MlflowClient
+    c = MlflowClient(store)
+    run = c.get_run(tracked_fit.run_id)
+    p, m, t = run.data.params, run.data.metrics, run.data.tags
+    for k in ("hidden", "activation", "a_encoding", "trainer", "mse_goal", "max_iter", "max_time_s", "seed",
+              "data_sha256", "machine_sha256", "n_params"):
+        assert k in p, k
+    assert p["hidden"] == "10,15,25,15,10" and p["trainer"] == "lm" and p["mse_goal"] == "2.5e-10"
+    assert len(p["data_sha256"]) == 64
+    for k in ("train_max_um", "train_rms_um", "val_max_um", "val_rms_um", "train_max_dz_um", "val_rms_dx_um"):
+        assert np.isclose(m[k], tracked_fit.metrics[k]), k
+    loss = c.get_metric_history(tracked_fit.run_id, "loss")
+    assert len(loss) == tracked_fit.history.iterations and loss[0].step == 1
+    assert t["purpose"] == "test" and t["machine"]
+    names = {a.path for a in c.list_artifacts(tracked_fit.run_id)}
+    assert {"model", "fit_error_xz.png", "fit_featurepoints.png", "metrics.json"} <= names
+    model_files = {Path(a.path).name for a in c.list_artifacts(tracked_fit.run_id, "model")}
+    assert {"config.json", "scalers.json", "weights.npy"} <= model_files
+    assert run.info.status == "FINISHED"
+
+
+@pytest.mark.parametrize("form", ["id", "runs", "runs_short"])
+def test_load_field_by_run_id_and_uri(tracked_fit, store, form):
+    from training.tracking import load_field
+    rid = tracked_fit.run_id
+    spec = {"id": rid, "runs": f"runs:/{rid}/model", "runs_short": f"runs:/{rid}"}[form]
+    f = load_field(spec, tracking_uri=store)
+    axes = np.random.default_rng(4).random((30, 3)) * [200, 60, 360]
+    assert np.array_equal(f.predict(axes), tracked_fit.field.predict(axes))
+
+
+def test_load_field_by_registered_model_uri(tracked_fit, store):
+    from training.tracking import load_field, register_model
+    uri = register_model(tracked_fit.run_id, "grinder-field", tracking_uri=store)
+    f = load_field(uri, tracking_uri=store)
+    axes = np.array([[50.0, 20.0, 90.0]])
+    assert np.array_equal(f.predict(axes), tracked_fit.field.predict(axes))
+
+
+def test_load_field_unknown_run_is_a_clear_error(store):
+    from training.tracking import load_field
+    with pytest.raises(InputError, match="cannot load"):
+        load_field("0" * 32, tracking_uri=store)
+    with pytest.raises(InputError, match="not a model directory"):
+        load_field("no-such-thing", tracking_uri=store)
+
+
+def test_child_run_records_its_parent(tracked_fit, smooth_data, store):
+    from mlflow.tracking import MlflowClient
+    fp, val = smooth_data
+    child = fit_field(fp, max_time_s=30, validation=val, tracking_uri=store, parent_run_id=tracked_fit.run_id,
+                      quiet=True, max_iter=2)
+    tags = MlflowClient(store).get_run(child.run_id).data.tags
+    assert tags["mlflow.parentRunId"] == tracked_fit.run_id
+
+
+def test_default_tracking_uri(monkeypatch):
+    import training
+    from training.tracking import default_tracking_uri
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "http://example.invalid:5000")
+    assert default_tracking_uri() == "http://example.invalid:5000"
+    monkeypatch.delenv("MLFLOW_TRACKING_URI")
+    root = Path(training.__file__).resolve().parents[1]
+    assert default_tracking_uri() == f"sqlite:///{root / 'runs' / 'mlflow.db'}"
+
+
+# -- CLI ------------------------------------------------------------------------------------
+def test_cli_train_writes_metrics_and_run(tmp_path, monkeypatch, capsys):
+    from compensation.cli import main
+    store_uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", store_uri)
+    assert main(["simulate", "--seed", "0", "--out", str(tmp_path / "sim"), "--checks", "20"]) == 0
+    capsys.readouterr()
+    rc = main(["train", str(tmp_path / "sim" / "featurepoints.csv"), "--out", str(tmp_path / "tr"),
+               "--max-iter", "2", "--max-time", "60"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    metrics = json.loads((tmp_path / "tr" / "metrics.json").read_text())
+    for k in ("train_max_um", "train_rms_um", "val_max_um", "val_rms_um", "run_id"):
+        assert k in metrics
+    assert f"run id: {metrics['run_id']}" in out and "val (10000 pts)" in out
+    from training.tracking import load_field
+    f = load_field(metrics["run_id"])  # via MLFLOW_TRACKING_URI
+    assert f.predict(np.array([[1.0, 2.0, 3.0]])).shape == (1, 3)
+    p = load_field(str(tmp_path / "tr"))  # the local copy
+    assert np.array_equal(p.predict(np.array([[1.0, 2.0, 3.0]])), f.predict(np.array([[1.0, 2.0, 3.0]])))
+
+
+def test_cli_train_bad_input_exits_2(tmp_path, capsys):
+    from compensation.cli import main
+    bad = tmp_path / "fp.csv"
+    bad.write_text("x_mm,z_mm,a_deg,dx_um,dy_um\n" + "1,2,3,4,5\n" * 12)
+    assert main(["train", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "dz_um" in capsys.readouterr().err
