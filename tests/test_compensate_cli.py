@@ -101,3 +101,23 @@ def test_allow_names_guards(setup, capsys):
     assert "stroke" in capsys.readouterr().err
     assert main(base + ["--allow", "stroke,volume"]) == 0
     assert main(base + ["--allow", "nonsense"]) == 2
+
+
+def test_interrupted_batch_leaves_whole_files_only(setup, grinder, monkeypatch, capsys):
+    import compensation.commands.compensate as cmd
+    d, el, nc, csv, _ = setup
+    real = cmd.solve
+    calls = []
+
+    def interrupt_second(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(cmd, "solve", interrupt_second)
+    out = d / "out_int"
+    rc = main(["compensate", str(nc), str(csv), "--model", str(el), "--method", "traditional", "--out", str(out)])
+    assert rc == 130 and "interrupted" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["flute.nc"]  # no temp files, no summary, no half file
+    assert len(read_path(out / "flute.nc", grinder)) == 40

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from compensation.cli import main
-from errormap.diagnosis.drift import DriftModeller, load_drift_log, simulate_drift_log
+from errormap.diagnosis.drift import DriftLog, DriftModeller, load_drift_log, simulate_drift_log, smoothed
 from errormap.io import InputError, write_csv
 
 NOISE_UM = 0.5
@@ -21,34 +21,87 @@ def _log(tmp_path, seed, **kw):
     return tmp_path / "log.csv", truth
 
 
-@pytest.mark.parametrize("seed", [0, 2])
-def test_two_active_sensors_and_the_lag_are_found(tmp_path, seed):
-    path, truth = _log(tmp_path, seed)
-    log = load_drift_log(path)
-    m = DriftModeller().fit(log)
-    rep = m.report(log)
-    for ch, k in truth.items():
-        r = rep[ch]
-        assert sorted(r["sensors"]) == sorted(k)
-        assert r["regressors"] == r["sensors"]
-        assert abs(r["lag_s"] - LAG_S) <= LAG_TOL_S
+SEEDS = range(10)          # every seed of the range is run, none hand-picked
+MIN_RIGHT = 19             # of 20 channels: exactly the two active sensors (benchmark: 198/200 on seeds 0..99)
+COEF_REL_TOL = 0.05
+AMBIGUITY_MIN = 8          # of 10 channels with a side-by-side copy of s2 flagged ambiguous (measured 10/10)
+
+
+def _frame(seed, **kw):
+    cols = simulate_drift_log(seed, lag_s=LAG_S, noise_um=NOISE_UM, **kw)
+    truth = cols.pop("_truth")
+    log = DriftLog(cols["time_s"], {k[5:-2]: v for k, v in cols.items() if k.startswith("temp_")},
+                   {k[:-3]: v for k, v in cols.items() if k.endswith("_um")}, cols["speed_rpm"])
+    return log, truth
+
+
+def test_two_active_sensors_and_the_lag_are_found_over_seeds():
+    right, lag_ok = 0, 0
+    for seed in SEEDS:
+        log, truth = _frame(seed)
+        rep = DriftModeller().fit(log).report(log)
+        for ch, k in truth.items():
+            r = rep[ch]
+            ok = sorted(r["regressors"]) == sorted(k)
+            right += ok
+            lag_ok += abs(r["lag_s"] - LAG_S) <= LAG_TOL_S
+            assert ok or r["ambiguous"], (seed, ch, r["regressors"], r["runner_up"])  # never silently wrong
+            assert r["rms_after_um"] <= RMS_NOISE_FACTOR * NOISE_UM, (seed, ch)
+            assert r["rms_after_um"] < 0.2 * r["rms_before_um"]
+            lo, hi = r["lag_interval_s"]
+            assert lo <= r["lag_s"] <= hi
+            if ok:
+                for s, kk in k.items():
+                    assert abs(r["coefficients"][f"{s}_um_per_c"] - kk) < COEF_REL_TOL * abs(kk), (seed, ch, s)
+    n = len(SEEDS) * 2
+    assert right >= MIN_RIGHT, f"right sensors on {right}/{n}"
+    assert lag_ok >= MIN_RIGHT, f"lag within {LAG_TOL_S} s on {lag_ok}/{n}"
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_no_active_sensor_selects_nothing(seed):
+    log, _ = _frame(seed, active=())
+    rep = DriftModeller().fit(log).report(log)
+    for r in rep.values():
+        assert r["regressors"] == []
         assert r["rms_after_um"] <= RMS_NOISE_FACTOR * NOISE_UM
-        assert r["rms_after_um"] < 0.2 * r["rms_before_um"]
-        for s, kk in k.items():
-            assert abs(r["coefficients"][f"{s}_um_per_c"] - kk) < 0.05 * abs(kk)
 
 
-def test_drift_cli(tmp_path, capsys):
-    path, truth = _log(tmp_path, 1)
-    out = tmp_path / "out"
-    assert main(["diagnose", "--drift", str(path), "--out", str(out)]) == 0
-    d = json.loads((out / "diagnosis.json").read_text())
-    assert set(d["channels"]) == set(truth)
-    for ch, c in d["channels"].items():
-        for k in ("sensors", "lag_s", "rms_before_um", "rms_after_um", "max_before_um", "max_after_um"):
-            assert k in c
-        assert sorted(c["sensors"]) == sorted(truth[ch])
-    assert "data:image/png;base64," in (out / "report.html").read_text()
+def test_side_by_side_sensors_are_flagged_ambiguous():
+    """s6 reads the same spot as s2: which of the two is 'responsible' cannot be told from the data."""
+    flagged = 0
+    for seed in range(5):
+        log, truth = _frame(seed, copies={"s6": "s2"})
+        rep = DriftModeller().fit(log).report(log)
+        for ch, r in rep.items():
+            assert sorted(r["regressors"]) in (["s2", "s5"], ["s5", "s6"]), (seed, ch, r["regressors"])
+            assert r["closest_sensors"][next(s for s in r["regressors"] if s != "s5")]["r"] > 0.99
+            if r["ambiguous"]:
+                flagged += 1
+                other = {"s2", "s6"} - set(r["regressors"])
+                assert any(other <= set(a["regressors"]) for a in r["alternatives"])
+    assert flagged >= AMBIGUITY_MIN
+
+
+def test_reduced_search_and_coarse_lag_grid_agree_with_exhaustive():
+    """Group representatives + swaps (max_subsets forced small) and a coarse lag grid refined at
+    the sampling step find the same model as the full search."""
+    log, truth = _frame(0)
+    full = DriftModeller().fit(log)
+    red = DriftModeller(max_subsets=10, group_r=0.95, max_lag_steps=25).fit(log)
+    for ch in truth:
+        assert red.channels_[ch].search["reduced_to_groups"]
+        assert red.channels_[ch].search["lags"] < full.channels_[ch].search["lags"]
+        assert sorted(red.channels_[ch].sensors) == sorted(full.channels_[ch].sensors) == sorted(truth[ch])
+        assert red.channels_[ch].lag_s == full.channels_[ch].lag_s
+
+
+def test_smoothing_keeps_trends_and_reduces_noise():
+    t = np.arange(600) * 10.0
+    trend = 20.0 + 1e-4 * t
+    assert np.abs(smoothed(t, trend, 60.0) - trend).max() < 1e-9
+    noise = np.random.default_rng(0).normal(0, 1, t.size)
+    assert np.std(smoothed(t, noise, 60.0)) < 0.5 * np.std(noise)  # 7-point average: 1/√7 ≈ 0.38
 
 
 @pytest.mark.parametrize("case", ["time", "nan", "kelvin", "no_temp"])

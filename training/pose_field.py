@@ -32,6 +32,8 @@ from .model import ACTIVATIONS, DTYPE, MLPField
 
 DEFAULT_HIDDEN = (16,)
 DEFAULT_RIDGE = 1e-3
+MIN_SPAN = 1e-6
+"""Inputs whose training range is below this are treated as constant (unit span)."""
 
 
 class PoseMLP(MLPField):
@@ -61,7 +63,9 @@ class PoseMLP(MLPField):
         if x.ndim != 2 or x.shape[1] != self.n_in or y.shape != (x.shape[0], self.n_out):
             raise ValueError(f"Expected inputs (n, {self.n_in}) and outputs (n, {self.n_out}), got {x.shape} and {y.shape}")
         lo, hi = x.min(axis=0), x.max(axis=0)
-        self.in_lo_, self.in_hi_ = lo, np.where(hi > lo, hi, lo + 1.0)
+        # an input that does not vary in the measurements (e.g. the platform spin, zero by the paper's
+        # gamma = -alpha convention) gets a unit span, so that small changes of it stay small features
+        self.in_lo_, self.in_hi_ = lo, np.where(hi - lo > MIN_SPAN, hi, lo + 1.0)
         self.out_mean_ = y.mean(axis=0)
         self.out_std_ = np.maximum(y.std(axis=0), 1e-12)
         return self
@@ -153,7 +157,7 @@ def train_ridge_lm(model: PoseMLP, theta0: torch.Tensor, u: torch.Tensor, y: tor
 
 
 def fit_pose_field(inputs, outputs, *, hidden=DEFAULT_HIDDEN, activation: str = "tanh", ridge: float = DEFAULT_RIDGE,
-                   max_time_s: float = 30.0, max_iter: int = 500, seed: int = 0) -> PoseFitResult:
+                   max_time_s: float = 30.0, max_iter: int = 200, seed: int = 0) -> PoseFitResult:
     """Train a :class:`PoseMLP` on measured poses: ``inputs`` (n, k), ``outputs`` (n, m).
 
     Metrics: ``train_rms`` and ``train_max`` of the fit per output block (``pos_um`` for the

@@ -105,7 +105,9 @@ def log_fit(params: dict, metrics: dict, history, model_dir, artifacts, *, track
 
 def register_model(run_id: str, name: str, tracking_uri: str | None = None) -> str:
     """Register a run's ``model/`` artifact as a new version of ``name``; returns ``models:/name/version``."""
-    client, _ = _client(tracking_uri)
+    from mlflow.tracking import MlflowClient
+    _, uri = _client(tracking_uri)
+    client = MlflowClient(tracking_uri=uri, registry_uri=uri)
     try:
         client.create_registered_model(name)
     except Exception:  # already exists
@@ -113,6 +115,25 @@ def register_model(run_id: str, name: str, tracking_uri: str | None = None) -> s
     src = client.get_run(run_id).info.artifact_uri.rstrip("/") + f"/{MODEL_ARTIFACT}"
     mv = client.create_model_version(name, src, run_id=run_id)
     return f"models:/{name}/{mv.version}"
+
+
+def _model_version_source(uri: str, store: str) -> str:
+    """``models:/name/version``, ``models:/name/latest`` or ``models:/name@alias`` -> artifact URI,
+    resolved in the registry of the same store (MLflow would otherwise use its global registry URI)."""
+    from mlflow.tracking import MlflowClient
+    c = MlflowClient(tracking_uri=store, registry_uri=store)
+    body = uri[len("models:/"):].strip("/")
+    if "@" in body:
+        name, alias = body.split("@", 1)
+        version = c.get_model_version_by_alias(name, alias).version
+    else:
+        name, _, version = body.partition("/")
+        if version in ("", "latest"):
+            versions = c.search_model_versions(f"name='{name}'")
+            if not versions:
+                raise InputError(f"{uri}: registered model {name!r} has no versions")
+            version = str(max(int(v.version) for v in versions))
+    return c.get_model_version_download_uri(name, version)
 
 
 def load_field(spec: str, tracking_uri: str | None = None):
@@ -137,6 +158,8 @@ def load_field(spec: str, tracking_uri: str | None = None):
     tmp = tempfile.mkdtemp(prefix="volcomp-model-")
     try:
         try:
+            if uri.startswith("models:/"):
+                uri = _model_version_source(uri, uri_store)
             local = Path(download_artifacts(artifact_uri=uri, dst_path=tmp, tracking_uri=uri_store))
         except Exception as exc:  # MlflowException, OSError: report in one line
             raise InputError(f"{spec}: cannot load a trained model from MLflow store {uri_store}: "

@@ -1,0 +1,244 @@
+"""The learned-vs-parametric benchmark (issue 8): pieces, the report, and the --quick run end to end."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from compensation.benchmark import (PATH_CONDITIONS, BenchmarkSettings, FixedConditions, grinder_conditions,
+                                    learned_pkm_commands, measured_pose_errors, pkm_true_residual, pose_inputs,
+                                    quick_settings)
+from compensation.benchmark_report import render_html, verdicts
+
+REQUIRED_ROW_KEYS = ("machine", "path", "condition", "true_rms_um", "true_max_um", "fit_seconds",
+                     "compensate_seconds_per_point", "n_measurements")
+FIXED_POINT_TOL_UM = 1e-3      # the pose iteration with the exact error map converges to float noise
+POSE_FIT_TOL = 0.05            # relative RMS fit error of a smooth synthetic pose map
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+# -- conditions -----------------------------------------------------------------------------------
+def test_grinder_conditions_cover_density_noise_and_effects():
+    s = BenchmarkSettings()
+    conds = grinder_conditions(s)
+    names = [c.name for c in conds]
+    assert len(names) == len(set(names))
+    assert sorted(c.stations for c in conds if c.group == "density") == sorted(s.stations)
+    # the base point (21 stations, 1 um) is shared by the two sweeps, so the noise group lacks it
+    assert sorted(c.noise_um for c in conds if c.group == "noise") == sorted(set(s.noises_um) - {s.base_noise_um})
+    assert [c.effect for c in conds if c.group == "effect"] == list(s.effects)
+    assert all(c.stations == s.base_stations for c in conds if c.group == "effect")
+
+
+def test_quick_settings_are_a_subset_of_the_default():
+    q, d = quick_settings(), BenchmarkSettings()
+    assert q.quick and not d.quick
+    assert set(q.stations) <= set(d.stations) and set(q.effects) <= set(d.effects)
+    assert q.train_s < d.train_s and q.ga_points < d.ga_points
+
+
+# -- fields at fixed path conditions -------------------------------------------------------------
+class _NeedsTemp:
+    needs = ("temp_c",)
+
+    def predict(self, axes, **cond):
+        return np.tile(np.atleast_1d(cond["temp_c"])[:, None] if np.ndim(cond["temp_c"]) else
+                       np.full((len(axes), 1), cond["temp_c"]), (1, 3))
+
+
+def test_fixed_conditions_pass_the_path_condition():
+    f = FixedConditions(_NeedsTemp(), PATH_CONDITIONS)
+    out = f.predict(np.zeros((4, 3)))
+    assert out.shape == (4, 3)
+    assert np.all(out == PATH_CONDITIONS["temp_c"])
+
+
+def test_fixed_conditions_leave_plain_fields_alone():
+    class Plain:
+        def predict(self, axes):
+            return np.ones((len(axes), 3))
+    assert np.all(FixedConditions(Plain(), PATH_CONDITIONS).predict(np.zeros((2, 3))) == 1.0)
+
+
+# -- PKM learned path ------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def hexapod_sim():
+    from errormap.machine import load_machine
+    from errormap.pkm.simulate import simulate_poses
+    m = load_machine(expect_kind="hexapod")
+    return m, simulate_poses(m, 30, 0.0, seed=4, frame="identity")
+
+
+class _ExactPoseError:
+    """The true pose-error map of a simulated hexapod, as a 'learned' field would ideally be."""
+
+    def __init__(self, machine, truth):
+        self.m, self.truth = machine, truth
+
+    def predict(self, x):
+        from scipy.spatial.transform import Rotation
+
+        from errormap.pkm.hexapod import forward_kinematics, inverse_kinematics
+        tip, R = x[:, :3], Rotation.from_rotvec(x[:, 3:]).as_matrix()
+        legs = inverse_kinematics(self.m, tip, R)
+        tm = self.truth.machine
+        fk = forward_kinematics(tm, tm.drive_to_legs(self.m.legs_to_drive(legs)), guess_tip_mm=tip,
+                                guess_platform2base=R, check_limits=False)
+        rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", fk.platform2base, R)).as_rotvec()
+        return np.hstack([(fk.x - tip) * 1e3, rv * 1e6])
+
+
+def test_measured_pose_errors_match_the_truth_without_noise(hexapod_sim):
+    m, sim = hexapod_sim
+    x, y = measured_pose_errors(m, sim.data)
+    assert x.shape == (30, 6) and y.shape == (30, 6)
+    exact = _ExactPoseError(m, sim.truth).predict(x)
+    assert np.max(np.abs(exact - y)) < 1e-3   # μm / μrad: FK round-off only
+    assert np.sqrt(np.mean(np.sum(y[:, :3] ** 2, axis=1))) > 100.0   # the ~1 mm error is there
+
+
+@pytest.mark.parametrize("path_name", ["sphere", "hyperboloid"])
+def test_pose_iteration_with_the_exact_error_map_compensates(hexapod_sim, path_name):
+    """With the true error map the fixed point is exact, also for the hyperboloid's 200 mm tool."""
+    from compensation.pkm_interpolation import builtin_path
+    m, sim = hexapod_sim
+    p = builtin_path(path_name, 20.0)
+    field = _ExactPoseError(m, sim.truth)
+    before = pkm_true_residual(sim.truth, m, p.tip_mm, p.platform2base, p.tip_mm, p.tool_length_mm)
+    tip, R = learned_pkm_commands(field, m, p.tip_mm, p.platform2base, p.tool_length_mm)
+    after = pkm_true_residual(sim.truth, m, tip, R, p.tip_mm, p.tool_length_mm)
+    assert np.linalg.norm(before, axis=1).min() > 100.0
+    assert np.linalg.norm(after, axis=1).max() < FIXED_POINT_TOL_UM
+
+
+def test_pose_field_fits_a_smooth_map_and_ignores_a_constant_input():
+    from training.pose_field import fit_pose_field
+    from training.trainers import torch_threads
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-1, 1, (120, 4))
+    x[:, 3] = 1e-17 * rng.normal(size=120)   # a constant input (as the platform spin is)
+    y = np.stack([100 * x[:, 0] + 30 * x[:, 1] ** 2, 50 * np.sin(x[:, 2]), 20 * x[:, 0] * x[:, 1]], axis=1)
+    with torch_threads(1):   # iteration-bound, not time-bound: the result does not depend on the machine's speed
+        fit = fit_pose_field(x, y, hidden=(12,), ridge=1e-6, max_time_s=1e9, max_iter=40, seed=0)
+    assert fit.params["stop_reason"] == "max iterations 40"
+    assert fit.metrics["train_rms_pos_um"] < POSE_FIT_TOL * np.sqrt(np.mean(np.sum(y ** 2, axis=1)))
+    x2 = x.copy()
+    x2[:, 3] += 1e-3   # a small change of the constant input stays a small change of the output
+    assert np.max(np.abs(fit.field.predict(x2) - fit.field.predict(x))) < 1.0
+
+
+def test_pose_inputs_shapes():
+    R = np.broadcast_to(np.eye(3), (5, 3, 3))
+    assert pose_inputs("hexapod", np.zeros((5, 3)), R).shape == (5, 6)
+    assert pose_inputs("tripod", np.zeros((5, 3)), None).shape == (5, 3)
+
+
+# -- the report ------------------------------------------------------------------------------------
+def _doc():
+    rows = []
+    for path, rms in (("parametric", 2.0), ("learned", 5.0)):
+        for st in (6, 21):
+            rows.append({"machine": "g", "machine_kind": "grinder", "path": path, "condition": f"stations={st}",
+                         "group": "density", "stations": st, "noise_um": 1.0, "available": True,
+                         "true_rms_um": rms * 21 / st, "true_max_um": 2 * rms, "fit_seconds": 1.0,
+                         "compensate_seconds_per_point": 1e-4, "n_measurements": 9 * st,
+                         "solvers": {"exact": {"points": 10, "true_rms_um": rms, "true_max_um": 2 * rms,
+                                               "model_max_um": 1e-9, "seconds_per_point": 1e-4, "failures": 0}}})
+    rows.append({"machine": "h", "machine_kind": "hexapod", "path": "learned", "condition": "poses=20",
+                 "group": "poses", "n_poses": 20, "available": False, "not_available": "training failed: X",
+                 "true_rms_um": None, "true_max_um": None, "fit_seconds": None,
+                 "compensate_seconds_per_point": None, "n_measurements": 20})
+    return {"rows": rows, "settings": BenchmarkSettings().to_dict(), "path_conditions": PATH_CONDITIONS,
+            "seconds": 1.0, "environment": {"cpus": 2}, "residual": "true residual", "skipped": []}
+
+
+def test_verdicts_name_the_winner_from_the_numbers():
+    v = verdicts(_doc())
+    assert len(v) == 2
+    assert all("<b>parametric</b>" in line for line in v)
+    assert "×2.5" in v[0]
+
+
+def test_report_is_self_contained_and_says_what_is_missing():
+    page = render_html(_doc())
+    assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
+    assert "TRUE residual" in page
+    assert page.count("data:image/png;base64,") >= 2
+    assert "not available: training failed: X" in page
+    assert "src='http" not in page and 'src="http' not in page   # nothing fetched from outside
+
+
+# -- end to end ------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    """``volcomp benchmark --quick`` once for the module (about a minute on 2 cores)."""
+    from compensation.cli import main
+    d = tmp_path_factory.mktemp("bench")
+    uri = f"sqlite:///{d / 'mlflow.db'}"
+    rc = main(["benchmark", "--quick", "--out", str(d / "out"), "--tracking-uri", uri])
+    assert rc == 0
+    return d / "out", uri
+
+
+@pytest.mark.slow
+def test_quick_benchmark_writes_rows_for_every_machine_and_path(quick_run):
+    out, _ = quick_run
+    doc = json.loads((out / "benchmark.json").read_text())
+    rows = doc["rows"]
+    keys = {(r["machine"], r["path"], r["condition"]) for r in rows}
+    assert len(keys) == len(rows)    # one row per (machine, path, condition)
+    assert {r["machine_kind"] for r in rows} == {"grinder", "hexapod", "tripod"}
+    for r in rows:
+        for k in REQUIRED_ROW_KEYS:
+            assert k in r
+        assert r["path"] in ("learned", "parametric")
+        assert r["available"], r.get("not_available")
+        assert r["true_rms_um"] <= r["true_max_um"]
+        assert r["fit_seconds"] > 0 and r["compensate_seconds_per_point"] > 0 and r["n_measurements"] > 0
+        # compensation helps: far below the uncompensated error (grinder ~125 um, PKM ~1 mm)
+        assert r["true_rms_um"] < 0.5 * r["uncompensated_rms_um"]
+    loop = [r for r in rows if r.get("closed_loop")]
+    assert {r["path"] for r in loop} == {"learned", "parametric"}
+    assert all(r["n_measurements"] > 189 for r in loop)   # the check measurements are counted
+
+
+@pytest.mark.slow
+def test_quick_benchmark_is_tracked_under_one_parent_run(quick_run):
+    from mlflow.tracking import MlflowClient
+    out, uri = quick_run
+    doc = json.loads((out / "benchmark.json").read_text())
+    client = MlflowClient(tracking_uri=uri)
+    parent = client.get_run(doc["parent_run_id"])
+    assert parent.info.status == "FINISHED"
+    children = client.search_runs([parent.info.experiment_id],
+                                  filter_string=f"tags.mlflow.parentRunId = '{doc['parent_run_id']}'")
+    row_ids = {r["run_id"] for r in doc["rows"]}
+    assert row_ids <= {c.info.run_id for c in children}
+    learned = [r for r in doc["rows"] if r["path"] == "learned"]
+    assert all(r.get("training_run_id") for r in learned)
+    arts = {a.path for a in client.list_artifacts(parent.info.run_id)}
+    assert {"benchmark.json", "report.html"} <= arts
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="headless Chromium not installed (apt-get install chromium)")
+def test_report_renders_in_headless_chromium(quick_run, tmp_path):
+    out, _ = quick_run
+    png = tmp_path / "report.png"
+    cmd = [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+           "--disable-background-networking", "--disable-component-update", "--disable-sync",
+           f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={png}", "--window-size=1280,2000",
+           (out / "report.html").resolve().as_uri()]
+    subprocess.run(cmd, check=True, timeout=120, capture_output=True)
+    import matplotlib.image as mpimg
+    img = mpimg.imread(png)
+    assert img.shape[0] == 2000 and img.shape[1] == 1280
+    gray = img[..., :3].mean(axis=2)
+    # tables and plots draw ink over a large part of the page: not a blank or an error page
+    assert (gray < 0.5).mean() > 0.01
+    assert gray.std() > 0.1
+    shutil.rmtree(tmp_path / "profile", ignore_errors=True)
