@@ -49,9 +49,10 @@ import numpy as np
 
 from errormap.io import write_json
 
-PATH_CONDITIONS = {"temp_c": 24.0, "dir_x": 1.0, "dir_z": -1.0, "dir_a": 1.0}
-"""Conditions of the flute test path: warm machine (24 °C, the end of the check log's warm-up),
-X and A approached in the path's direction of motion (+), Z from above (the wheel plunges in)."""
+PATH_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0, "dir_a": 1.0}
+"""Conditions of the flute test path: a warm machine (24 °C, 2 h after the start of the warm-up
+the check log records), X and A approached in the path's direction of motion (+), Z from above
+(the wheel plunges in to the flute-bottom radius)."""
 
 EXPERIMENT = "volcomp-benchmark"
 FEATURE_REUSE_TOL_UM = 1e-6
@@ -387,39 +388,41 @@ class GrinderBench:
     def closed_loop(self, c, par_field, mlp, par, lrn, common) -> None:
         """Checks → diagnosis → corrected field → compensate → true residual, for both paths."""
         from errormap.diagnosis.checks import CheckData
-        from errormap.diagnosis.pipeline import diagnose
         s = self.s
         cols = self.truth_.check_measurements(n=s.n_checks, noise_um=s.check_noise_um, seed=s.seed + 3)
         checks = CheckData.from_columns(cols, path=f"<simulated checks, {c.name}>")
         for base_row, base in ((par, par_field), (lrn, mlp)):
             label = f"{c.name} (after closed loop)"
             _log(f"grinder: {base_row['path']}, {label}")
-            t0 = time.perf_counter()
             try:
-                d = diagnose(self.m, base, checks)
-            except Exception as exc:
+                self._closed_loop_row(c, s, label, checks, base_row, base, common)
+            except Exception as exc:  # never fake numbers: the row says why it is missing
                 self._finish(_row(self.m.name, "grinder", base_row["path"], label, available=False, closed_loop=True,
-                                  not_available=f"diagnosis failed: {type(exc).__name__}: {exc}", **common))
-                continue
-            diag_s = time.perf_counter() - t0
-            found = [f"{e['kind']}:{e['axis']}:{e['element']}" for e in d.effects]
-            corrected = FixedConditions(d.corrected, PATH_CONDITIONS)
-            sol = {"exact": self.compensate(corrected, "exact")}
-            if base_row["path"] == "learned":
-                sol["batched-ga"] = self.compensate(corrected, "batched-ga", idx=self.ga_idx)
-            vol = self.compensate(corrected, "exact", volume=True) if s.volume_points else None
-            extra = {k: base_row.get(k) for k in ("identify_seconds", "train_seconds", "training_run_id",
-                                                   "reused_training_of") if base_row.get(k) is not None}
-            row = _row(self.m.name, "grinder", base_row["path"], label, closed_loop=True, solver="exact",
-                       fit_seconds=base_row["fit_seconds"] + diag_s, diagnosis_seconds=diag_s,
-                       compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
-                       true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
-                       solvers=sol, effects_found=found, n_checks=s.n_checks,
-                       checks_rms_before_um=d.summary["rms_before_um"], checks_rms_after_um=d.summary["rms_after_um"],
-                       **{**common, "n_measurements": common["n_measurements"] + s.n_checks}, **extra)
-            if vol:
-                row.update(volume_rms_um=vol["true_rms_um"], volume_max_um=vol["true_max_um"])
-            self._finish(row)
+                                  not_available=f"closed loop failed: {type(exc).__name__}: {exc}", **common))
+
+    def _closed_loop_row(self, c, s, label, checks, base_row, base, common) -> None:
+        from errormap.diagnosis.pipeline import diagnose
+        t0 = time.perf_counter()
+        d = diagnose(self.m, base, checks)
+        diag_s = time.perf_counter() - t0
+        found = [f"{e['kind']}:{e['axis']}:{e['element']}" for e in d.effects]
+        corrected = FixedConditions(d.corrected, PATH_CONDITIONS)
+        sol = {"exact": self.compensate(corrected, "exact")}
+        if base_row["path"] == "learned":
+            sol["batched-ga"] = self.compensate(corrected, "batched-ga", idx=self.ga_idx)
+        vol = self.compensate(corrected, "exact", volume=True) if s.volume_points else None
+        extra = {k: base_row.get(k) for k in ("identify_seconds", "train_seconds", "training_run_id",
+                                               "reused_training_of") if base_row.get(k) is not None}
+        row = _row(self.m.name, "grinder", base_row["path"], label, closed_loop=True, solver="exact",
+                   fit_seconds=base_row["fit_seconds"] + diag_s, diagnosis_seconds=diag_s,
+                   compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
+                   true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
+                   solvers=sol, effects_found=found, n_checks=s.n_checks,
+                   checks_rms_before_um=d.summary["rms_before_um"], checks_rms_after_um=d.summary["rms_after_um"],
+                   **{**common, "n_measurements": common["n_measurements"] + s.n_checks}, **extra)
+        if vol:
+            row.update(volume_rms_um=vol["true_rms_um"], volume_max_um=vol["true_max_um"])
+        self._finish(row)
 
     def paper_network_row(self) -> None:
         """The learned path at the base condition with the paper's network (10-15-25-15-10, sigmoid, A raw)
@@ -461,9 +464,21 @@ def run_grinder(machine, s: BenchmarkSettings, tracker: Tracker) -> list[dict]:
     """Both paths on every grinder condition; rows in condition order."""
     g = GrinderBench(machine, s, tracker)
     for c in grinder_conditions(s):
-        g.run_condition(c)
+        try:
+            g.run_condition(c)
+        except Exception as exc:  # the other conditions still run; the failure is a row
+            _log(f"grinder: {c.name} failed: {type(exc).__name__}: {exc}")
+            done = {r["path"] for r in g.rows if r["condition"].startswith(c.name)}
+            for path in ("parametric", "learned"):
+                if path not in done:
+                    g._finish(_row(machine.name, "grinder", path, c.name, available=False, group=c.group,
+                                   not_available=f"condition failed: {type(exc).__name__}: {exc}"))
     if s.paper_network:
-        g.paper_network_row()
+        try:
+            g.paper_network_row()
+        except Exception as exc:
+            g._finish(_row(machine.name, "grinder", "learned", "paper network", available=False, group="network",
+                           not_available=f"failed: {type(exc).__name__}: {exc}"))
     return g.rows
 
 

@@ -25,6 +25,12 @@ class InputError(ValueError):
     """Bad input data: the message names the file, and where known the row and column."""
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_write(path, mode: str = "w", **kwargs) -> Iterator[io.IOBase]:
     """Open a temporary file beside ``path``; rename it onto ``path`` only on success."""
@@ -36,6 +42,7 @@ def atomic_write(path, mode: str = "w", **kwargs) -> Iterator[io.IOBase]:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual mode
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

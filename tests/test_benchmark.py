@@ -242,3 +242,22 @@ def test_report_renders_in_headless_chromium(quick_run, tmp_path):
     assert (gray < 0.5).mean() > 0.01
     assert gray.std() > 0.1
     shutil.rmtree(tmp_path / "profile", ignore_errors=True)
+
+
+def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
+    import training.trainers
+    from compensation.benchmark import Tracker, run_grinder
+
+    def broken(*a, **k):
+        raise RuntimeError("no trainer here")
+    monkeypatch.setattr(training.trainers, "fit_field", broken)
+    s = quick_settings()
+    s.effects, s.volume_points, s.flute_turns, s.flute_points_per_turn = (), 0, 0.25, 40
+    rows = run_grinder(grinder, s, Tracker(None, enabled=False))
+    par = [r for r in rows if r["path"] == "parametric"]
+    lrn = [r for r in rows if r["path"] == "learned"]
+    assert len(par) == len(lrn) == 1
+    assert par[0]["available"] and par[0]["true_rms_um"] < par[0]["uncompensated_rms_um"]
+    assert not lrn[0]["available"]
+    assert lrn[0]["true_rms_um"] is None
+    assert "training failed: RuntimeError: no trainer here" in lrn[0]["not_available"]

@@ -23,6 +23,7 @@ def test_defaults_are_the_papers_seven_turns(machine):
     assert ax[-1, 2] == pytest.approx(2520.0, abs=1e-6)
     assert np.all(np.diff(ax[:, 2]) > 0)
     assert np.bincount(f.turn_index).tolist() == [400] * 7
+    assert np.array_equal(ax, inverse(machine, f.targets_mm, unwrap=True))
     check_in_strokes(machine, ax, "default flute")
     # inside the X/Z strokes even with the full 250 um search ball around every point
     lo, hi = machine.stroke_lo, machine.stroke_hi

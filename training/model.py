@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.func import jacrev, vmap
+from torch.func import jvp
 
 from errormap.io import InputError, atomic_write, write_json
 
@@ -228,33 +228,39 @@ class MLPField:
     __call__ = predict
 
     def _raw_to_scaled(self, x: torch.Tensor) -> torch.Tensor:
-        """Differentiable raw axes (x_mm, z_mm, a_deg) -> features for ONE point (A already wrapped)."""
+        """Differentiable raw axes (x_mm, z_mm, a_deg), shape (n, 3), A already wrapped -> features."""
         lo = torch.as_tensor(self.in_lo_, dtype=DTYPE)
         hi = torch.as_tensor(self.in_hi_, dtype=DTYPE)
         u = 2.0 * (x - lo) / (hi - lo) - 1.0
         if self.a_encoding == "periodic":
-            r = torch.deg2rad(x[2])
-            u = torch.stack([u[0], u[1], torch.cos(r), torch.sin(r)])
+            r = torch.deg2rad(x[:, 2])
+            u = torch.stack([u[:, 0], u[:, 1], torch.cos(r), torch.sin(r)], dim=1)
         return u
 
     def jacobian(self, axes) -> np.ndarray:
         """∂(error μm)/∂(x_mm, z_mm, a_deg) at raw axes, shape (n, 3, 3).
 
         Row i is the error component (dx, dy, dz); columns are μm/mm, μm/mm, μm/deg.
-        Batched with ``torch.func`` (``vmap(jacrev)``), in chunks of ``self.chunk`` points.
+        Forward mode with ``torch.func.jvp``: the network acts on each point separately, so one
+        batched jvp per input axis gives that column for every point (3 jvps per chunk of
+        ``self.chunk`` points; memory bounded by the chunk).
         """
         axes = _check_axes(axes)
         theta = self._theta()
         ax = axes.copy()
         ax[:, 2] = wrap_a(ax[:, 2], self.a0_deg_)
 
-        def one(x):
+        def f(x):
             return self.forward(theta, self._raw_to_scaled(x))
 
-        jf = vmap(jacrev(one))
         out = np.empty((axes.shape[0], 3, 3))
-        for s in range(0, axes.shape[0], self.chunk):
-            out[s:s + self.chunk] = jf(torch.from_numpy(ax[s:s + self.chunk])).detach().numpy()
+        with torch.no_grad():
+            for s in range(0, axes.shape[0], self.chunk):
+                x = torch.from_numpy(ax[s:s + self.chunk])
+                for k in range(3):
+                    t = torch.zeros_like(x)
+                    t[:, k] = 1.0
+                    out[s:s + self.chunk, :, k] = jvp(f, (x,), (t,))[1].numpy()
         return out * self.out_scale_
 
     def predict_and_jacobian(self, axes):

@@ -277,7 +277,7 @@ class DriftModeller:
         t = log.time_s[fit]
         step = self.lag_step_s or float(np.median(np.diff(log.time_s)))
         max_lag = self.max_lag_s if self.max_lag_s is not None else 0.2 * (t[-1] - t[0])
-        coarse = max(step, max_lag / max(self.max_lag_steps, 1))
+        coarse = step * max(1, math.ceil(max_lag / step / max(self.max_lag_steps, 1)))  # a multiple of the step
         return np.arange(0.0, max_lag + coarse / 2, coarse), step, coarse, max_lag
 
     def _search(self, log, names, fit, y, cand):
@@ -289,14 +289,25 @@ class DriftModeller:
         G, b, yy = self._gram(log, names, fit, y, lags)
         rss = {m: _subset_rss(G, b, yy, s) for m, s in subs.items()}
         if coarse > step:  # refine at the sampling step around the best coarse lag of each size
-            best = {float(lags[np.unravel_index(np.argmin(r), r.shape)[0]]) for r in rss.values()}
-            fine = np.unique(np.concatenate([np.arange(max(0.0, c - coarse), min(max_lag, c + coarse) + step / 2, step)
-                                             for c in best]))
-            Gf, bf, _ = self._gram(log, names, fit, y, fine)
-            lags = np.concatenate([lags, fine])
-            G, b = np.concatenate([G, Gf]), np.concatenate([b, bf])
-            rss = {m: np.concatenate([rss[m], _subset_rss(Gf, bf, yy, s)]) for m, s in subs.items()}
+            centres = [float(lags[np.unravel_index(np.argmin(r), r.shape)[0]]) for r in rss.values()]
+            L0 = len(lags)
+            lags, G, b = self._refine(log, names, fit, y, lags, G, b, centres)
+            rss = {m: np.concatenate([rss[m], _subset_rss(G[L0:], b[L0:], yy, s)]) for m, s in subs.items()}
         return lags, subs, rss, yy, (G, b)
+
+    def _refine(self, log, names, fit, y, lags, G, b, centres):
+        """Append the sampling-step lags within one coarse step of each centre (not yet on the grid)."""
+        _, step, coarse, max_lag = self._lag_grid(log, fit)
+        if coarse <= step:
+            return lags, G, b
+        fine = np.unique(np.concatenate([step * np.arange(np.ceil(max(0.0, c - coarse) / step),
+                                                          np.floor(min(max_lag, c + coarse) / step) + 1)
+                                         for c in centres]))
+        fine = fine[~np.isin(fine, lags)]
+        if not fine.size:
+            return lags, G, b
+        Gf, bf, _ = self._gram(log, names, fit, y, fine)
+        return np.concatenate([lags, fine]), np.concatenate([G, Gf]), np.concatenate([b, bf])
 
     def _candidates(self, log, names, fit, y):
         """All regressors, or one per correlation group when the subsets would be too many."""
@@ -346,6 +357,8 @@ class DriftModeller:
         if reduced:
             for m in list(best)[1:]:
                 chosen = self._swap(G, b, yy, n, list(best[m][2]), len(names))
+                r = _subset_rss(G, b, yy, np.array([chosen], dtype=int))[:, 0]
+                lags, G, b = self._refine(log, names, fit, y, lags, G, b, [float(lags[int(np.argmin(r))])])
                 r = _subset_rss(G, b, yy, np.array([chosen], dtype=int))[:, 0]
                 bic = _bic(r, n, m + 2)
                 l = int(np.argmin(bic))
