@@ -54,6 +54,9 @@ PATH_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0
 the check log records), X and A approached in the path's direction of motion (+), Z from above
 (the wheel plunges in to the flute-bottom radius)."""
 
+TRUTH_CONDITIONS = ("temp_c", "dir_x", "dir_z", "dir_a")
+"""The conditions the simulated truth grinder's effects depend on (``time_s`` is only for fitted drift terms)."""
+
 EXPERIMENT = "volcomp-benchmark"
 FEATURE_REUSE_TOL_UM = 1e-6
 
@@ -269,7 +272,7 @@ class GrinderBench:
         self.nominal = self.flute.axes(machine)
         self.ga_idx = _subset(len(self.targets), s.ga_points)
         n = len(self.targets)
-        self.path_cond = {k: np.full(n, v) for k, v in PATH_CONDITIONS.items()}
+        self.path_cond = {k: np.full(n, v) for k, v in PATH_CONDITIONS.items() if k in TRUTH_CONDITIONS}
         # volume test points: uniform over the strokes, rho >= 5 mm (away from the A axis, where the
         # WCS is singular), nominal axes -> targets
         from errormap.kinematics import forward
@@ -277,7 +280,7 @@ class GrinderBench:
         ax = random_axes(machine, 4 * s.volume_points, rng)
         ax = ax[ax[:, 1] >= machine.strokes["z_mm"][0] + 5.0][: s.volume_points]
         self.vol_axes, self.vol_targets = ax, forward(machine, ax)
-        self.vol_cond = {k: np.full(len(ax), v) for k, v in PATH_CONDITIONS.items()}
+        self.vol_cond = {k: np.full(len(ax), v) for k, v in PATH_CONDITIONS.items() if k in TRUTH_CONDITIONS}
         self.cache = []  # (network settings, feature-point errors, fit result, seconds, condition)
         self.rows = []
 

@@ -57,9 +57,10 @@ def _rows(doc, kind=None, group=None, path=None, available=True):
     return out
 
 
-def _line_plot(doc, kind, group, xkey, xlabel, title) -> str | None:
+def _line_plot(doc, kind, select, xkey, xlabel, title) -> str | None:
+    """True RMS and max against ``xkey`` for the rows of ``kind`` that ``select(row)`` keeps."""
     plt = _plt()
-    rows = _rows(doc, kind, group)
+    rows = [r for r in _rows(doc, kind) if select(r)]
     if not rows:
         return None
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
@@ -143,6 +144,23 @@ def verdicts(doc) -> list[str]:
     return out
 
 
+def summary_lines(doc) -> list[str]:
+    """Per machine kind: how many conditions each path wins, and the median ratio of true RMS."""
+    out = []
+    by = {}
+    for r in _rows(doc):
+        by.setdefault(r["machine_kind"], {}).setdefault(r["condition"], {})[r["path"]] = r["true_rms_um"]
+    for kind, conds in by.items():
+        pairs = [(d["parametric"], d["learned"]) for d in conds.values() if "parametric" in d and "learned" in d]
+        if not pairs:
+            continue
+        p = np.array(pairs)
+        wins = int(np.sum(p[:, 0] < p[:, 1]))
+        out.append(f"{kind}: parametric lower true RMS in {wins} of {len(p)} conditions, learned in {len(p) - wins}; "
+                   f"median learned / parametric RMS ratio {np.median(p[:, 1] / np.maximum(p[:, 0], 1e-12)):.3g}")
+    return out
+
+
 def _table(rows, cols) -> str:
     head = "".join(f"<th>{html.escape(c[1])}</th>" for c in cols)
     body = []
@@ -210,6 +228,9 @@ def render_html(doc: dict) -> str:
              f"{_fmt(doc.get('parent_run_id'))} in {_fmt(doc.get('tracking_uri'))}. Truth seed {s['truth_seed']}, "
              f"seed {s['seed']}; one measurement draw per condition.</p>"]
     ver = verdicts(doc)
+    summ = summary_lines(doc)
+    if summ:
+        parts.append("<h2>Summary (computed from the rows)</h2><ul>" + "".join(f"<li>{v}</li>" for v in summ) + "</ul>")
     if ver:
         parts.append("<h2>Where each path wins (computed from the rows)</h2><ul>"
                      + "".join(f"<li>{v}</li>" for v in ver) + "</ul>")
@@ -233,9 +254,13 @@ def render_html(doc: dict) -> str:
                   f"axes (+ {s['n_checks']} check measurements after the closed loop). 'volume' = {s['volume_points']} "
                   "random points over the strokes (ρ ≥ 5 mm), exact compensation.</p>",
                   _table(g, GRINDER_COLS)]
-        for grp, xkey, xl, t in (("density", "stations", "stations per axis", "against sweep density (noise fixed)"),
-                                 ("noise", "noise_um", "tracker noise σ (μm)", "against tracker noise (21 stations)")):
-            img = _line_plot(doc, "grinder", grp, xkey, xl, "Grinder: true residual on the flute " + t)
+        plain = ("density", "noise")
+        sweeps = (("density", lambda r: r.get("group") in plain and r.get("noise_um") == s["base_noise_um"],
+                   "stations", "stations per axis", f"against sweep density (noise {s['base_noise_um']:g} μm)"),
+                  ("noise", lambda r: r.get("group") in plain and r.get("stations") == s["base_stations"],
+                   "noise_um", "tracker noise σ (μm)", f"against tracker noise ({s['base_stations']} stations)"))
+        for grp, sel, xkey, xl, t in sweeps:
+            img = _line_plot(doc, "grinder", sel, xkey, xl, "Grinder: true residual on the flute " + t)
             if img:
                 parts.append(f"<img alt='grinder {grp}' src='data:image/png;base64,{img}'>")
         img = _effects_plot(doc)
@@ -253,9 +278,12 @@ def render_html(doc: dict) -> str:
                   "pose to measured pose error → commanded pose iterated 6 times. Same simulated poses for both "
                   f"(instrument frame known; ~{s['pkm_pose_error_mm']:g} mm RMS error before).</p>",
                   _table(h, PKM_COLS), _per_path_table([r for r in h if r.get("available")])]
-        for grp, xkey, xl, t in (("poses", "n_poses", "measured poses", "against the number of poses"),
-                                 ("noise", "noise_um", "noise σ (μm)", "against measurement noise")):
-            img = _line_plot(doc, kind, grp, xkey, xl, f"{kind.capitalize()}: true residual on the test paths {t}")
+        sweeps = (("poses", lambda r: r.get("noise_um") == s["pkm_base_noise_um"], "n_poses", "measured poses",
+                   f"against the number of poses (noise {s['pkm_base_noise_um']:g} μm)"),
+                  ("noise", lambda r: r.get("n_poses") == s["pkm_base_poses"], "noise_um", "noise σ (μm)",
+                   f"against measurement noise ({s['pkm_base_poses']} poses)"))
+        for grp, sel, xkey, xl, t in sweeps:
+            img = _line_plot(doc, kind, sel, xkey, xl, f"{kind.capitalize()}: true residual on the test paths {t}")
             if img:
                 parts.append(f"<img alt='{kind} {grp}' src='data:image/png;base64,{img}'>")
     img = _cost_plot(doc)

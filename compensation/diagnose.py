@@ -213,9 +213,22 @@ def drift_report(log, modeller, channels, log_path) -> str:
              f"before/after on the last {len(hold)} (forward in time). Residual shown: measured displacement "
              "minus the thermal model's prediction.</p>"]
     rows = [[ch, ", ".join(c["sensors"]) or "—", ", ".join(r for r in c["regressors"] if r == "speed_rpm") or "",
-             _fmt(c["lag_s"]), _fmt(c["rms_before_um"]), _fmt(c["rms_after_um"]), _fmt(c["max_before_um"]),
+             _fmt(c["lag_s"]), f"{_fmt(c['lag_interval_s'][0])} … {_fmt(c['lag_interval_s'][1])}",
+             _fmt(c["runner_up"]["delta_bic"], 3) if c["runner_up"] else "—", "AMBIGUOUS" if c["ambiguous"] else "",
+             _fmt(c["rms_before_um"]), _fmt(c["rms_after_um"]), _fmt(c["max_before_um"]),
              _fmt(c["max_after_um"])] for ch, c in channels.items()]
-    parts.append(_table(rows, ["channel", "sensors", "other", "lag (s)", "RMS before", "RMS after", "max before", "max after"]))
+    parts.append(_table(rows, ["channel", "sensors", "other", "lag (s)", "lag 95 % interval (s)", "runner-up ΔBIC",
+                               "selection", "RMS before", "RMS after", "max before", "max after"]))
+    parts.append(f"<p>Selection: every subset of at most {modeller.max_sensors} regressors at every lag, by BIC; the "
+                 f"runner-up is the best other subset of the same size. A channel is AMBIGUOUS when another subset is "
+                 f"within ΔBIC {modeller.ambiguity_delta_bic:g}: the data cannot tell which sensors are responsible.</p>")
+    for ch, c in channels.items():
+        if c["ambiguous"]:
+            alts = "; ".join(f"{', '.join(a['regressors'])} (lag {a['lag_s']:g} s, ΔBIC {a['delta_bic']:.3g})"
+                             for a in c["alternatives"])
+            close = "; ".join(f"{s} ~ {v['sensor']} (r = {v['r']:.4f})" for s, v in c["closest_sensors"].items())
+            parts.append(f"<p><b>{html.escape(ch)}: ambiguous.</b> Nearly as good: {html.escape(alts)}. "
+                         f"Closest sensors: {html.escape(close)}.</p>")
     for ch, m in modeller.channels_.items():
         d = log.disp_um[ch]
         after = d - m.predict(log)
@@ -293,6 +306,7 @@ def run_drift(log_path, out_dir, modeller: DriftModeller | None = None):
                "split": f"by time: first {len(fit)} rows fit, last {len(hold)} held out",
                "channels": channels, "groups": m.groups_,
                "settings": {k: getattr(m, k) for k in ("fit_fraction", "max_lag_s", "lag_step_s", "group_r", "alpha",
-                                                       "min_delta_bic", "max_sensors")}}
+                                                       "min_delta_bic", "max_sensors", "ambiguity_delta_bic",
+                                                       "max_subsets", "max_lag_steps", "smooth_s")}}
     page = drift_report(log, m, channels, log_path)
     return summary, _write(out_dir, summary, page)

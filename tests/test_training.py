@@ -136,6 +136,8 @@ def test_input_jacobian_matches_central_differences(enc):
     axes = np.array([[20.0, 10.0, 40.0], [120.0, 50.0, 250.0], [180.0, 30.0, 359.0]])
     J = m.jacobian(axes)
     assert J.shape == (3, 3, 3) and J.dtype == np.float64
+    e2, J2 = m.predict_and_jacobian(axes)
+    assert np.allclose(e2, m.predict(axes), rtol=TOL_EXACT, atol=0) and np.array_equal(J2, J)
     h = np.array([1e-4, 1e-4, 1e-4])
     fd = np.stack([(m.predict(axes + np.eye(3)[k] * h[k]) - m.predict(axes - np.eye(3)[k] * h[k])) / (2 * h[k])
                    for k in range(3)], axis=2)

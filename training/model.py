@@ -254,18 +254,25 @@ class MLPField:
             return self.forward(theta, self._raw_to_scaled(x))
 
         out = np.empty((axes.shape[0], 3, 3))
+        val = np.empty((axes.shape[0], 3))
         with torch.no_grad():
             for s in range(0, axes.shape[0], self.chunk):
                 x = torch.from_numpy(ax[s:s + self.chunk])
                 for k in range(3):
                     t = torch.zeros_like(x)
                     t[:, k] = 1.0
-                    out[s:s + self.chunk, :, k] = jvp(f, (x,), (t,))[1].numpy()
+                    y, dy = jvp(f, (x,), (t,))
+                    out[s:s + self.chunk, :, k] = dy.numpy()
+                val[s:s + self.chunk] = y.numpy()
+        self._last_values = val
         return out * self.out_scale_
 
     def predict_and_jacobian(self, axes):
-        """Both at once: (errors shape (n, 3) μm, jacobian shape (n, 3, 3))."""
-        return self.predict(axes), self.jacobian(axes)
+        """Both at once (one pass): (errors shape (n, 3) μm, jacobian shape (n, 3, 3))."""
+        J = self.jacobian(axes)
+        e = self.unscale_errors(self._last_values)
+        del self._last_values
+        return e, J
 
     # -- files --------------------------------------------------------------------------
     def config(self) -> dict:

@@ -39,6 +39,9 @@ def run(args) -> int:
         for ch, c in summary["channels"].items():
             print(f"{ch}: sensors {c['sensors']} lag {c['lag_s']:g} s, held-out RMS {c['rms_before_um']:.3g} -> "
                   f"{c['rms_after_um']:.3g} μm")
+            if c["ambiguous"]:
+                alts = "; ".join(f"{a['regressors']} (ΔBIC {a['delta_bic']:.3g})" for a in c["alternatives"])
+                print(f"  AMBIGUOUS: nearly as good: {alts}")
     else:
         if args.model is None:
             raise UsageError("CHECKS needs --model (element-set file or run id)")
