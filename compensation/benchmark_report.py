@@ -291,3 +291,30 @@ def render_html(doc: dict) -> str:
         parts += ["<h2>Cost</h2>", f"<img alt='cost' src='data:image/png;base64,{img}'>"]
     parts.append("</body></html>")
     return "\n".join(parts)
+
+
+def markdown_table(doc: dict) -> str:
+    """The main table (one line per machine and condition, both paths side by side) as Markdown."""
+    by = {}
+    for r in doc["rows"]:
+        by.setdefault((r["machine_kind"], r["condition"]), {})[r["path"]] = r
+    lines = ["| machine | condition | measurements | parametric RMS / max μm | learned RMS / max μm | "
+             "uncompensated RMS μm | fit s (par / learned) | compensate ms/point (par / learned) |",
+             "|---|---|---|---|---|---|---|---|"]
+
+    def cell(r, a, b, scale=1.0, spec=".3g"):
+        if r is None or not r.get("available"):
+            return "n/a" if r is None else f"n/a: {r.get('not_available')}"
+        va, vb = r.get(a), r.get(b)
+        f = (lambda v: "—" if v is None else format(v * scale, spec))
+        return f"{f(va)} / {f(vb)}" if b else f(va)
+
+    for (kind, cond), d in by.items():
+        p, l = d.get("parametric"), d.get("learned")
+        any_r = p or l
+        fit = " / ".join("—" if (x is None or x.get("fit_seconds") is None) else f"{x['fit_seconds']:.3g}" for x in (p, l))
+        comp = " / ".join("—" if (x is None or x.get("compensate_seconds_per_point") is None)
+                          else f"{1e3 * x['compensate_seconds_per_point']:.3g}" for x in (p, l))
+        lines.append(f"| {kind} | {cond} | {any_r.get('n_measurements')} | {cell(p, 'true_rms_um', 'true_max_um')} | "
+                     f"{cell(l, 'true_rms_um', 'true_max_um')} | {_fmt(any_r.get('uncompensated_rms_um'))} | {fit} | {comp} |")
+    return "\n".join(lines)

@@ -12,7 +12,7 @@ import pytest
 from compensation.benchmark import (PATH_CONDITIONS, BenchmarkSettings, FixedConditions, grinder_conditions,
                                     learned_pkm_commands, measured_pose_errors, pkm_true_residual, pose_inputs,
                                     quick_settings)
-from compensation.benchmark_report import render_html, verdicts
+from compensation.benchmark_report import render_html, summary_lines, verdicts
 
 REQUIRED_ROW_KEYS = ("machine", "path", "condition", "true_rms_um", "true_max_um", "fit_seconds",
                      "compensate_seconds_per_point", "n_measurements")
@@ -161,6 +161,9 @@ def test_verdicts_name_the_winner_from_the_numbers():
     assert len(v) == 2
     assert all("<b>parametric</b>" in line for line in v)
     assert "×2.5" in v[0]
+    (line,) = summary_lines(_doc())
+    assert line.startswith("grinder: parametric lower true RMS in 2 of 2 conditions, learned in 0")
+    assert "ratio 2.5" in line
 
 
 def test_report_is_self_contained_and_says_what_is_missing():
