@@ -13,6 +13,8 @@ import io
 import numpy as np
 
 PATH_COLORS = {"parametric": "tab:blue", "learned": "tab:orange"}
+PLOT_FLOOR_UM = 0.01
+"""Line plots draw values below this (noise-free exact compensation, ~1e-9 μm) at this floor."""
 
 
 def _png(fig) -> str:
@@ -66,7 +68,7 @@ def _line_plot(doc, kind, select, xkey, xlabel, title) -> str | None:
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     for ax, (key, lab) in zip(axes, (("true_rms_um", "true residual RMS (μm)"), ("true_max_um", "true residual max (μm)"))):
         for p in ("parametric", "learned"):
-            pts = sorted((r[xkey], r[key]) for r in rows if r["path"] == p and r.get(key) is not None)
+            pts = sorted((r[xkey], max(r[key], PLOT_FLOOR_UM)) for r in rows if r["path"] == p and r.get(key) is not None)
             if pts:
                 x, y = zip(*pts)
                 ax.plot(x, y, "o-", color=PATH_COLORS[p], label=p)
@@ -75,7 +77,7 @@ def _line_plot(doc, kind, select, xkey, xlabel, title) -> str | None:
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
-    fig.suptitle(title)
+    fig.suptitle(title + f" (values < {PLOT_FLOOR_UM:g} μm drawn at {PLOT_FLOOR_UM:g})")
     return _png(fig)
 
 

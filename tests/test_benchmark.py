@@ -176,20 +176,42 @@ def test_report_is_self_contained_and_says_what_is_missing():
 
 
 # -- end to end ------------------------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def quick_run(tmp_path_factory):
-    """``volcomp benchmark --quick`` once for the module (about a minute on 2 cores)."""
-    from compensation.cli import main
-    d = tmp_path_factory.mktemp("bench")
-    uri = f"sqlite:///{d / 'mlflow.db'}"
-    rc = main(["benchmark", "--quick", "--out", str(d / "out"), "--tracking-uri", uri])
-    assert rc == 0
-    return d / "out", uri
+def _screenshot(html_path: Path, tmp_path: Path):
+    """Render ``html_path`` with headless Chromium; returns the screenshot as an array (2000, 1280, c)."""
+    png = tmp_path / "report.png"
+    cmd = [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+           "--disable-background-networking", "--disable-component-update", "--disable-sync",
+           f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={png}", "--window-size=1280,2000",
+           html_path.resolve().as_uri()]
+    subprocess.run(cmd, check=True, timeout=120, capture_output=True)
+    shutil.rmtree(tmp_path / "profile", ignore_errors=True)
+    import matplotlib.image as mpimg
+    return mpimg.imread(png)
+
+
+def _assert_drawn(img):
+    assert img.shape[0] == 2000 and img.shape[1] == 1280
+    gray = img[..., :3].mean(axis=2)
+    # tables and plots put ink over a good part of the page: not a blank or an error page
+    assert (gray < 0.5).mean() > 0.01
+    assert gray.std() > 0.1
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="headless Chromium not installed (apt-get install chromium)")
+def test_report_renders_in_headless_chromium(tmp_path):
+    page = tmp_path / "report.html"
+    page.write_text(render_html(_doc()), encoding="utf-8")
+    _assert_drawn(_screenshot(page, tmp_path))
 
 
 @pytest.mark.slow
-def test_quick_benchmark_writes_rows_for_every_machine_and_path(quick_run):
-    out, _ = quick_run
+def test_quick_benchmark_end_to_end(tmp_path):
+    """``volcomp benchmark --quick`` (about a minute on 2 cores): rows, MLflow, report (and Chromium)."""
+    from mlflow.tracking import MlflowClient
+
+    from compensation.cli import main
+    out, uri = tmp_path / "out", f"sqlite:///{tmp_path / 'mlflow.db'}"
+    assert main(["benchmark", "--quick", "--out", str(out), "--tracking-uri", uri]) == 0
     doc = json.loads((out / "benchmark.json").read_text())
     rows = doc["rows"]
     keys = {(r["machine"], r["path"], r["condition"]) for r in rows}
@@ -208,44 +230,22 @@ def test_quick_benchmark_writes_rows_for_every_machine_and_path(quick_run):
     assert {r["path"] for r in loop} == {"learned", "parametric"}
     assert all(r["n_measurements"] > 189 for r in loop)   # the check measurements are counted
 
-
-@pytest.mark.slow
-def test_quick_benchmark_is_tracked_under_one_parent_run(quick_run):
-    from mlflow.tracking import MlflowClient
-    out, uri = quick_run
-    doc = json.loads((out / "benchmark.json").read_text())
+    # MLflow: one parent run, every row and every training a child of it, outputs attached
     client = MlflowClient(tracking_uri=uri)
     parent = client.get_run(doc["parent_run_id"])
     assert parent.info.status == "FINISHED"
     children = client.search_runs([parent.info.experiment_id],
                                   filter_string=f"tags.mlflow.parentRunId = '{doc['parent_run_id']}'")
-    row_ids = {r["run_id"] for r in doc["rows"]}
-    assert row_ids <= {c.info.run_id for c in children}
-    learned = [r for r in doc["rows"] if r["path"] == "learned"]
-    assert all(r.get("training_run_id") for r in learned)
-    arts = {a.path for a in client.list_artifacts(parent.info.run_id)}
-    assert {"benchmark.json", "report.html"} <= arts
+    child_ids = {c.info.run_id for c in children}
+    assert {r["run_id"] for r in rows} <= child_ids
+    learned = [r for r in rows if r["path"] == "learned"]
+    assert all(r.get("training_run_id") in child_ids for r in learned)
+    assert {"benchmark.json", "report.html"} <= {a.path for a in client.list_artifacts(parent.info.run_id)}
 
-
-@pytest.mark.slow
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="headless Chromium not installed (apt-get install chromium)")
-def test_report_renders_in_headless_chromium(quick_run, tmp_path):
-    out, _ = quick_run
-    png = tmp_path / "report.png"
-    cmd = [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-           "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={png}", "--window-size=1280,2000",
-           (out / "report.html").resolve().as_uri()]
-    subprocess.run(cmd, check=True, timeout=120, capture_output=True)
-    import matplotlib.image as mpimg
-    img = mpimg.imread(png)
-    assert img.shape[0] == 2000 and img.shape[1] == 1280
-    gray = img[..., :3].mean(axis=2)
-    # tables and plots draw ink over a large part of the page: not a blank or an error page
-    assert (gray < 0.5).mean() > 0.01
-    assert gray.std() > 0.1
-    shutil.rmtree(tmp_path / "profile", ignore_errors=True)
-
+    page = (out / "report.html").read_text(encoding="utf-8")
+    assert "TRUE residual" in page and page.count("data:image/png;base64,") >= 4
+    if CHROMIUM.exists():
+        _assert_drawn(_screenshot(out / "report.html", tmp_path))
 
 def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
     import training.trainers
