@@ -34,6 +34,7 @@ def test_identify_featurepoints_train_compensate_from_sweeps(tmp_path):
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     train_dir = tmp_path / "train"
     assert main(["train", str(fp), "--out", str(train_dir), "--max-time", str(TRAIN_SECONDS),
+                 "--hidden", "20,20", "--activation", "tanh", "--a-encoding", "periodic",
                  "--tracking-uri", uri]) == 0
     metrics = json.loads((train_dir / "metrics.json").read_text())
     run_id = metrics["run_id"]
