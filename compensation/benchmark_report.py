@@ -6,30 +6,20 @@ are computed from them (:func:`verdicts`).
 """
 from __future__ import annotations
 
-import base64
+import functools
 import html
-import io
 
 import numpy as np
+
+from .figures import png_base64, pyplot
 
 PATH_COLORS = {"parametric": "tab:blue", "learned": "tab:orange"}
 PLOT_FLOOR_UM = 0.01
 """Line plots draw values below this (noise-free exact compensation, ~1e-9 μm) at this floor."""
 
 
-def _png(fig) -> str:
-    import matplotlib.pyplot as plt
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-    return plt
+_png = functools.partial(png_base64, dpi=100)
+_plt = pyplot
 
 
 def _fmt(v, spec=".3g") -> str:

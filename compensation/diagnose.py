@@ -11,9 +11,8 @@ The report names its residual: the MEASURED residual (measurement − model pred
 """
 from __future__ import annotations
 
-import base64
+import functools
 import html
-import io
 import json
 from pathlib import Path
 
@@ -27,6 +26,7 @@ from errormap.featurepoints import FeaturePoints
 from errormap.io import InputError, atomic_write, write_json
 
 from .fields import load_field
+from .figures import png_base64, pyplot
 
 
 # -- learned path ---------------------------------------------------------------------------
@@ -58,19 +58,8 @@ def retrain_learned(fp: FeaturePoints, corrected, parent_run_id: str | None, *, 
 
 
 # -- figures --------------------------------------------------------------------------------
-def _png(fig) -> str:
-    import matplotlib.pyplot as plt
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
+_png = functools.partial(png_base64, dpi=90)
+_plt = pyplot
 
 
 def _histograms(before, after, labels, title) -> str:

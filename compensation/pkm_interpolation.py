@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from errormap.io import InputError, read_table, write_csv
-from errormap.pkm.hexapod import (KinematicsError, angles_to_rotation, check_leg_limits, forward_kinematics,
+from errormap.pkm.hexapod import (angles_to_rotation, check_leg_limits, forward_kinematics,
                                   inverse_kinematics, tool_axis_to_rotation)
 from errormap.pkm.machine_file import PKM
 
@@ -301,9 +301,8 @@ def plot_tripod_sensitivity(machine: PKM, out_png, **study_kw) -> dict:
     """
     import io
 
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .figures import pyplot
+    plt = pyplot()
 
     from errormap.io import atomic_write
     from errormap.pkm.tripod import sensitivity_study

@@ -18,10 +18,9 @@ says so). :func:`write_report` writes, atomically:
 """
 from __future__ import annotations
 
-import base64
+import functools
 import contextlib
 import html
-import io
 import sys
 import time
 from dataclasses import dataclass, field
@@ -35,6 +34,7 @@ from errormap.kinematics import inverse
 from .evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_stats, true_residual_um
 from .pathio import align_turns
 from .solvers import METHODS, solve
+from .figures import png_base64, pyplot
 
 REPORT_FORMAT = "volcomp-report/1"
 GA_PROBE_POINTS = 3        # points timed to estimate the per-point GA cost
@@ -204,18 +204,11 @@ COLORS = {"traditional": "tab:red", "ga": "tab:green", "batched-ga": "tab:blue",
           "uncompensated": "0.6"}
 
 
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
+_png = functools.partial(png_base64, dpi=110)
 
 
 def _residual_plot(cmp: Comparison, kind: str, squared: bool) -> str | None:
-    import matplotlib
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     series = []
     for name, run in cmp.runs.items():
@@ -250,9 +243,7 @@ def _residual_plot(cmp: Comparison, kind: str, squared: bool) -> str | None:
 
 
 def _times_plot(cmp: Comparison) -> str:
-    import matplotlib
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     names = list(cmp.runs)
     secs = [cmp.runs[k].metrics["seconds"] for k in names]
     per = [cmp.runs[k].metrics["seconds"] / max(cmp.runs[k].metrics["points"], 1) * 1e3 for k in names]

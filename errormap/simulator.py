@@ -33,8 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .elements import (A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, X_ELEMENTS,
-                       Z_ELEMENTS, ElementSet, default_stations)
+from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
 from .htm import IDX, spatial_error_exact
 from .kinematics import forward
 from .machine import Grinder

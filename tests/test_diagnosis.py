@@ -7,7 +7,6 @@ import pytest
 from compensation.cli import main
 from compensation.diagnose import augmented_feature_points, retrain_learned, run_checks
 from errormap.diagnosis.checks import CheckData
-from errormap.diagnosis.corrected import CorrectedField
 from errormap.diagnosis.pipeline import diagnose
 from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField

@@ -1,5 +1,4 @@
 """Drift logs: sensor selection with a lag, before/after, bad input."""
-import json
 
 import numpy as np
 import pytest

@@ -76,7 +76,7 @@ def log_fit(params: dict, metrics: dict, history, model_dir, artifacts, *, track
     with ``step`` = iteration); ``model_dir`` goes to artifact path ``model/``;
     ``artifacts`` (files) go to the run's root.
     """
-    from mlflow.entities import Metric, Param, RunTag
+    from mlflow.entities import Metric, Param
     client, uri = _client(tracking_uri)
     exp_id = _experiment_id(client, uri, experiment)
     run_tags = {k: str(v) for k, v in (tags or {}).items() if v is not None}

@@ -51,9 +51,8 @@ def _save(fig, path: Path) -> None:
 
 
 def _plots(result, before, after, out: Path) -> list[Path]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ..figures import pyplot
+    plt = pyplot()
     paths = []
     fig, ax = plt.subplots(figsize=(6, 3.5))
     s = result.singular_values

@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from errormap.io import InputError, read_table, write_csv
+from errormap.io import read_table, write_csv
 from errormap.machine import load_machine
 
 from ..fields import load_field
