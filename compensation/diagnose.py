@@ -41,20 +41,52 @@ def augmented_feature_points(fp: FeaturePoints, corrected) -> FeaturePoints:
     return FeaturePoints(fp.axes.copy(), fp.errors_um + extra, meta)
 
 
+ALIAS_RATIO = 0.5
+"""A term is not representable by feature points when interpolating its values at the grid
+back over the volume misses more than this fraction of its RMS there (e.g. a 40/rev worm
+harmonic on an 11-point A grid, every 36°, looks constant; so does a 10 mm pitch error on a
+20 mm X grid)."""
+
+
+def grid_aliasing(fp: FeaturePoints, corrected, n_probe: int = 4000, seed: int = 0) -> dict:
+    """Whether feature points can carry the terms: the terms sampled at the grid, interpolated
+    (cubic, per axis) back to random points of the volume, against the terms there."""
+    from scipy.interpolate import RegularGridInterpolator
+    rng = np.random.default_rng(seed)
+    ticks = [np.unique(fp.axes[:, k]) for k in range(3)]
+    if np.prod([len(t) for t in ticks]) != len(fp.axes) or min(len(t) for t in ticks) < 4:
+        return {"aliased": False, "note": "feature points are not a full grid; representability not checked"}
+    order = np.lexsort((fp.axes[:, 2], fp.axes[:, 1], fp.axes[:, 0]))
+    values = corrected.terms_only(fp.axes)[order].reshape(*[len(t) for t in ticks], 3)
+    lo, hi = np.array([t[0] for t in ticks]), np.array([t[-1] for t in ticks])
+    probe = lo + (hi - lo) * rng.random((n_probe, 3))
+    interp = RegularGridInterpolator(ticks, values, method="cubic")(probe)
+    truth = corrected.terms_only(probe)
+    rms = float(np.sqrt(np.mean(truth ** 2)))
+    miss = float(np.sqrt(np.mean((interp - truth) ** 2)))
+    return {"rms_in_volume_um": rms, "rms_missed_by_grid_um": miss,
+            "aliased": bool(rms > 0 and miss > ALIAS_RATIO * rms)}
+
+
 def retrain_learned(fp: FeaturePoints, corrected, parent_run_id: str | None, *, fit_field=None,
                     max_time_s: float = 120.0, seed: int = 0, tracking_uri: str | None = None):
     """Retrain the learned field on feature points + the fitted axis-only terms, tracked as a
-    child of ``parent_run_id``. ``fit_field`` defaults to :func:`training.fit_field`
-    (``fit_field(featurepoints, trainer='lm', max_time_s=, seed=, tracking_uri=, parent_run_id=)``
-    returning a result with ``.field``, ``.metrics``, ``.run_id``)."""
+    child of ``parent_run_id``, with the parent network's architecture. ``fit_field`` defaults to
+    :func:`training.fit_field` (``fit_field(featurepoints, trainer='lm', max_time_s=, seed=,
+    tracking_uri=, parent_run_id=, **architecture)`` returning ``.field``, ``.metrics``, ``.run_id``)."""
     aug = augmented_feature_points(fp, corrected)
     if fit_field is None:
         try:
             from training import fit_field  # noqa: F811
         except ImportError as exc:
             raise InputError(f"learned-field retrain unavailable: training.fit_field cannot be imported ({exc})") from None
+    arch = {}
+    config = getattr(corrected.base, "config", None)
+    if callable(config):
+        c = config()
+        arch = {k: (tuple(c[k]) if k == "hidden" else c[k]) for k in ("hidden", "activation", "a_encoding") if k in c}
     return fit_field(aug, trainer="lm", max_time_s=max_time_s, seed=seed, tracking_uri=tracking_uri,
-                     parent_run_id=parent_run_id)
+                     parent_run_id=parent_run_id, **arch)
 
 
 # -- figures --------------------------------------------------------------------------------
@@ -268,7 +300,14 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
     summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name})
     if d.selector.terms_ and fp is not None and (learned or fit_field is not None):
         axis_only = [t for t in d.selector.terms_ if not t.needs]
-        if axis_only and len(axis_only) == len(d.selector.terms_):
+        alias = grid_aliasing(fp, d.corrected) if axis_only and len(axis_only) == len(d.selector.terms_) else None
+        if alias is not None and alias["aliased"]:
+            summary["learned_retrain"] = {
+                "skipped": "the feature-point grid aliases the selected terms (interpolated from the grid they miss "
+                           f"{alias['rms_missed_by_grid_um']:.3g} μm RMS of {alias['rms_in_volume_um']:.3g} μm over "
+                           "the volume): retraining on these feature points cannot carry them; they stay parametric "
+                           "terms on the learned field (the corrected model above)", **alias}
+        elif alias is not None:
             res = retrain_learned(fp, d.corrected, parent_run_id=str(model_spec) if learned else None,
                                   fit_field=fit_field, max_time_s=retrain_time_s, seed=seed, tracking_uri=tracking_uri)
             new = res.field
@@ -277,7 +316,7 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
             st = residual_stats(r_new[d.hold_idx])
             summary["learned_retrain"] = {"run_id": getattr(res, "run_id", None), "parent_run_id": str(model_spec),
                                           "metrics": getattr(res, "metrics", {}), "rms_after_um": st["rms_um"],
-                                          "max_after_um": st["max_um"]}
+                                          "max_after_um": st["max_um"], **alias}
         else:
             summary["learned_retrain"] = {"skipped": "some selected terms need conditions (temperature, time, "
                                                      "direction) that a learned field of the axes cannot carry"}

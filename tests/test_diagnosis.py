@@ -170,3 +170,15 @@ def test_missing_column_and_unit_mistake(grinder, tmp_path):
     with pytest.raises(InputError, match=r"row \d+, column 'dx_um': units do not fit"):
         run_checks(tmp_path / "b.csv", grinder, "x", tmp_path / "out", field_=HTMField(grinder, truth.elements))
     assert not (tmp_path / "out").exists()
+
+
+def test_grid_aliasing_of_terms_is_detected(grinder):
+    """A 40/rev worm harmonic on the 11-point A grid (every 36°) aliases to a constant: the
+    learned retrain must not pretend feature points carry it; an x·z interaction survives."""
+    from compensation.diagnose import grid_aliasing
+    base = HTMField(grinder, random_truth(grinder, SEED).elements)
+    fp = make_feature_points(grinder, base, n=11)
+    worm = grid_aliasing(fp, run_pipeline(grinder, SEED, ["worm"]).corrected)
+    assert worm["aliased"] and worm["rms_missed_by_grid_um"] > 0.5 * worm["rms_in_volume_um"]
+    inter = grid_aliasing(fp, run_pipeline(grinder, SEED, ["interaction"]).corrected)
+    assert not inter["aliased"] and inter["rms_missed_by_grid_um"] < 0.05 * inter["rms_in_volume_um"]

@@ -133,6 +133,60 @@ def train_lbfgs(model, theta0, u, y, settings: LMSettings | None = None, callbac
 
 TRAIN_FUNCS = {"lm": train_lm, "adam": train_adam, "lbfgs": train_lbfgs}
 
+INITS = ("nguyen-widrow", "uniform")
+# active input range of each hidden activation: where its slope is not negligible (MATLAB's
+# logsig/tansig 'active' ranges); softplus is given tanh's
+_ACTIVE = {"sigmoid": 4.0, "tanh": 2.0, "softplus": 2.0}
+# output range of each hidden activation, the next layer's input range
+_OUT_RANGE = {"sigmoid": (0.0, 1.0), "tanh": (-1.0, 1.0), "softplus": (0.0, 1.0)}
+
+
+def nguyen_widrow_params(model, seed: int = 0) -> torch.Tensor:
+    """Nguyen–Widrow initial parameters (MATLAB ``initnw``), from a seeded generator, float64.
+
+    Every hidden layer of ``s`` units with ``k`` inputs: weight rows of random direction and
+    length ``0.7·s^(1/k)``, biases spread evenly over ``[-0.7·s^(1/k), 0.7·s^(1/k)]`` (sign of the
+    first weight), so that the units' active regions tile the input range; then mapped to the
+    activation's active range (±4 for the sigmoid) and to the layer's input range (the scaled
+    inputs' [-1, 1] for the first layer, the previous activation's output range after).
+    The linear output layer: uniform in ``±1/sqrt(fan_in)`` (PyTorch's default), biases 0.
+    """
+    g = torch.Generator().manual_seed(int(seed))
+    sizes = model.layer_sizes
+    act = model.activation
+    parts = []
+    for i in range(len(sizes) - 1):
+        k, sz = sizes[i], sizes[i + 1]
+        if i == len(sizes) - 2:
+            bound = 1.0 / math.sqrt(k)
+            W = (torch.rand(sz, k, generator=g, dtype=torch.float64) * 2 - 1) * bound
+            parts += [W.reshape(-1), torch.zeros(sz, dtype=torch.float64)]
+            continue
+        mag = 0.7 * sz ** (1.0 / k)
+        W = torch.rand(sz, k, generator=g, dtype=torch.float64) * 2 - 1
+        W = mag * W / W.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        b = mag * torch.linspace(-1.0, 1.0, sz, dtype=torch.float64) * torch.sign(W[:, 0]) if sz > 1 \
+            else torch.zeros(1, dtype=torch.float64)
+        x = _ACTIVE[act]
+        W, b = x * W, x * b
+        lo, hi = (-1.0, 1.0) if i == 0 else _OUT_RANGE[act]
+        sc = 2.0 / (hi - lo)
+        off = 1.0 - hi * sc          # input v maps to sc*v + off in [-1, 1]
+        b = W @ torch.full((k,), off, dtype=torch.float64) + b
+        W = W * sc
+        parts += [W.reshape(-1), b]
+    return torch.cat(parts)
+
+
+def initial_params(model, seed: int = 0, init: str = "nguyen-widrow") -> torch.Tensor:
+    """Initial flat parameters: ``nguyen-widrow`` (:func:`nguyen_widrow_params`) or ``uniform``
+    (:meth:`MLPField.init_params`, PyTorch's bounds ×4 for the sigmoid)."""
+    if init == "nguyen-widrow":
+        return nguyen_widrow_params(model, seed)
+    if init == "uniform":
+        return model.init_params(seed)
+    raise ValueError(f"Expected init in {INITS}, got {init!r}")
+
 
 # -- metrics and validation ---------------------------------------------------------------
 def fit_metrics(prefix: str, predicted_um, reference_um) -> dict:
