@@ -21,7 +21,7 @@ Settings (:class:`LMSettings`):
   ``ν ← 2``; a rejection sets ``μ ← μ·ν``, ``ν ← 2ν`` (Nielsen 1999; Madsen, Nielsen &
   Tingleff, *Methods for non-linear least squares problems*, 2004). ``"trainlm"`` —
   MATLAB's rule: taken when the loss falls, then ``μ × mu_dec``, else ``μ × mu_inc``.
-* ``geodesic``: add Transtrum's geodesic acceleration (Transtrum & Sethna 2012): the
+* ``geodesic`` (default on): add Transtrum's geodesic acceleration (Transtrum & Sethna 2012): the
   second directional derivative of ``r`` along the step ``v`` by one extra forward pass,
   ``a`` from the same factorisation, step ``v + a/2``, kept only when
   ``2|a|/|v| ≤ geo_alpha``.
@@ -54,7 +54,7 @@ class LMSettings:
     max_abs_goal: float = 0.0    # stop when max |scaled residual| <= this (0: off)
     damping: str = "nielsen"     # or "trainlm" (MATLAB: x mu_inc / x mu_dec)
     scaling: str = "marquardt"   # or "identity" (D = I, MATLAB trainlm)
-    geodesic: bool = False
+    geodesic: bool = True
     geo_alpha: float = 0.75      # acceleration kept when 2|a|/|v| <= geo_alpha
     geo_h: float = 0.1           # finite-difference step for the second directional derivative
     mu0: float = 1e-3

@@ -20,6 +20,28 @@ A is periodic (errors repeat every 360°). Commands may run past one turn (multi
 paths): ``predict`` and ``jacobian`` fold any A outside the training turn
 ``[a0, a0 + 360]`` (``a0`` = the smallest training A) back into it before the network.
 Points inside the turn, both ends included, pass unchanged.
+
+**Seam closure (raw A input).** A network N fed raw A is not periodic: N(x, z, a0) and
+N(x, z, a0 + 360) differ by about its fit error, so the folded field jumps at A = a0 + 360°·k
+and no exact root exists across the jump. At inference the raw-A field is therefore
+
+    E(x, z, a) = N(x, z, a) + (N(x, z, a0) − N(x, z, a0 + 360))·r(t),
+    t = (a − (a0 + 360 − w))/w,   r = 0 for t ≤ 0, r = t²(3 − 2t) for 0 < t ≤ 1,
+
+with ``w = SEAM_WINDOW_DEG`` (30°): E(a0 + 360) = N(a0) = E(a0), so E is periodic and
+continuous (C¹ inside the turn, the ramp's slope ≤ 1.5·|mismatch|/w). The correction's
+size is the seam mismatch, i.e. about the network's fit error, and only points in the last
+w degrees of the turn pay two extra network evaluations (N at both ends). It is included
+in ``jacobian``. The periodic encoding needs none (it is exactly periodic). ``forward``,
+``param_jacobian`` (training) and the training metrics' raw network are unchanged.
+
+**Fast inference.** ``predict``/``predict_and_jacobian`` run the network with cached
+transposed weights (``torch.addmm`` per layer, ``torch.inference_mode``), in blocks of
+``BLOCK`` points, with the input Jacobian computed alongside by forward-mode tangents
+(``dh' = σ'(z) ⊙ (W dh)``, three tangent columns in one matrix product); calls smaller
+than ``SMALL_BATCH`` points run on one torch thread (restored after). ``predict(axes,
+dtype=np.float32)`` is a float32 network path for GA fitness. ``jacobian_reference`` keeps
+the ``torch.func.jvp`` reference the tests compare against.
 """
 from __future__ import annotations
 
@@ -86,6 +108,7 @@ class MLPField:
     """
 
     kind = "mlp"
+    float32_predict = True  # predict(axes, dtype=np.float32) exists (the GA solvers' fitness uses it)
 
     def __init__(self, hidden=PAPER_HIDDEN, activation: str = "sigmoid", a_encoding: str = "raw",
                  chunk: int = 65_536):
@@ -318,9 +341,9 @@ class MLPField:
 
     def _seam_window(self) -> float:
         """The seam ramp width (deg), 0 when no correction applies (periodic encoding)."""
-        if self.a_encoding != "raw":
-            return 0.0
-        return float(min(max(self.SEAM_WINDOW_DEG, 1e-6), 360.0))
+        if self.a_encoding != "raw" or not self.SEAM_WINDOW_DEG > 0:
+            return 0.0  # SEAM_WINDOW_DEG = 0 switches the correction off (the bare network)
+        return float(min(self.SEAM_WINDOW_DEG, 360.0))
 
     def _net(self, dtype):
         """Cached per-dtype weights (transposed, contiguous) and input scalers.

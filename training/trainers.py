@@ -3,7 +3,10 @@
 Three trainers share one contract, ``train(model, theta0, u, y, settings, callback) ->
 (theta, TrainHistory)`` on scaled features ``u`` and scaled targets ``y``:
 
-* ``lm``    — Levenberg–Marquardt (:mod:`training.lm`), the paper's, the default;
+* ``lm``    — Levenberg–Marquardt (:mod:`training.lm`), the paper's, the default (Nielsen damping,
+  Marquardt scaling, geodesic acceleration; ``LMSettings(damping="trainlm", scaling="identity",
+  geodesic=False)`` is MATLAB's ``trainlm`` rule), from Nguyen–Widrow initial weights
+  (:func:`nguyen_widrow_params`, MATLAB's ``initnw``);
 * ``adam``  — :class:`torch.optim.Adam`, full batch, for comparison;
 * ``lbfgs`` — :class:`torch.optim.LBFGS` with a strong-Wolfe line search, full batch.
 
@@ -15,6 +18,7 @@ MLflow run (:mod:`training.tracking`).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import math
 import sys
@@ -270,7 +274,8 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
               hidden=PAPER_HIDDEN, activation: str = "sigmoid", a_encoding: str = "raw",
               mse_goal: float = 2.5e-10, max_iter: int = 100_000, n_validation: int = 10_000,
               threads: int | None = None, track: bool = True, experiment: str = "volcomp-field",
-              out_dir=None) -> FitResult:
+              out_dir=None, init: str = "nguyen-widrow", lm_settings: LMSettings | None = None,
+              max_err_goal_um: float = 0.0) -> FitResult:
     """Train an :class:`MLPField` on feature points and record the fit as an MLflow run.
 
     ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes, errors μm, meta).
@@ -278,10 +283,17 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
     off-grid points are generated from the HTM model named in the feature points' meta
     (``elements_file``, ``machine_file``), and an :class:`InputError` is raised if there is none.
     ``track=False`` skips MLflow (``run_id`` is then None). ``out_dir``: also save the model,
-    plots and ``metrics.json`` there.
+    plots and ``metrics.json`` there. ``init``: ``nguyen-widrow`` (default, MATLAB's) or
+    ``uniform``. ``lm_settings``: damping/scaling/acceleration of the LM trainer (default
+    :class:`LMSettings`: Nielsen damping, Marquardt scaling, geodesic acceleration); its
+    stopping rules are replaced by ``mse_goal``, ``max_iter``, ``max_time_s``.
+    ``max_err_goal_um`` (LM only; 0 = off): also stop once the largest |error| on the training
+    points is at most this (μm).
     """
     if trainer not in TRAINERS:
         raise ValueError(f"Expected trainer in {TRAINERS}, got {trainer!r}")
+    if init not in INITS:
+        raise ValueError(f"Expected init in {INITS}, got {init!r}")
     if not (max_time_s > 0):
         raise ValueError(f"Expected max_time_s > 0, got {max_time_s}")
     axes, errors = np.asarray(featurepoints.axes, float), np.asarray(featurepoints.errors_um, float)
@@ -298,10 +310,12 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
     val_axes, val_errors = (np.asarray(v, float) for v in validation)
 
     model = MLPField(hidden, activation, a_encoding).fit_scalers(axes, errors)
-    settings = LMSettings(mse_goal=mse_goal, max_iter=max_iter, max_time_s=max_time_s)
+    settings = dataclasses.replace(lm_settings or LMSettings(), mse_goal=mse_goal, max_iter=max_iter,
+                                   max_time_s=max_time_s,
+                                   max_abs_goal=max(float(max_err_goal_um), 0.0) / model.out_scale_)
     u = torch.from_numpy(model.features(axes))
     y = torch.from_numpy(model.scale_errors(errors))
-    theta0 = model.init_params(seed)
+    theta0 = initial_params(model, seed, init)
     printer = _Printer(model.out_scale_, quiet, f"train {trainer}")
     with torch_threads(threads):
         theta, hist = TRAIN_FUNCS[trainer](model, theta0, u, y, settings, printer)
@@ -321,11 +335,12 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
         "machine_file": machine_file,
         "machine_sha256": meta.get("machine_sha256") or (sha256_file(machine_file) if machine_file and Path(machine_file).is_file() else ""),
         "elements_sha256": meta.get("elements_sha256", ""), "stop_reason": hist.stop_reason,
-        "output_scale_um": model.out_scale_,
+        "output_scale_um": model.out_scale_, "init": init,
     }
     if trainer == "lm":
         params.update({"mu0": settings.mu0, "mu_dec": settings.mu_dec, "mu_inc": settings.mu_inc,
-                       "mu_max": settings.mu_max})
+                       "mu_max": settings.mu_max, "damping": settings.damping, "scaling": settings.scaling,
+                       "geodesic": settings.geodesic, "max_err_goal_um": max_err_goal_um})
     run_id = None
     if track or out_dir is not None:
         from .plots import fit_plots

@@ -80,15 +80,21 @@ def check_inputs(field, targets_mm, machine, target_axes=None, a_start_deg=None,
     return targets, axes_d
 
 
-def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK) -> np.ndarray:
-    """``E(axes)`` μm with A folded into the calibrated turn, in chunks; (n, 3) -> (n, 3)."""
+def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = False) -> np.ndarray:
+    """``E(axes)`` μm with A folded into the calibrated turn, in chunks; (n, 3) -> (n, 3).
+
+    ``fast=True`` (GA fitness only) uses the field's float32 path when it declares one
+    (``field.float32_predict = True``, e.g. the learned MLP: ~1e-4 μm from float64, far below
+    the GA's 0.01 μm resolution); the result is float64 either way.
+    """
     axes = fold_a(axes, machine)
     n = axes.shape[0]
+    kw = {"dtype": np.float32} if fast and getattr(field, "float32_predict", False) else {}
     if n <= chunk:
-        return np.asarray(field.predict(axes), dtype=float).reshape(n, 3)
+        return np.asarray(field.predict(axes, **kw), dtype=float).reshape(n, 3)
     out = np.empty((n, 3))
     for s in range(0, n, chunk):
-        out[s:s + chunk] = np.asarray(field.predict(axes[s:s + chunk]), dtype=float).reshape(-1, 3)
+        out[s:s + chunk] = np.asarray(field.predict(axes[s:s + chunk], **kw), dtype=float).reshape(-1, 3)
     return out
 
 

@@ -170,9 +170,12 @@ def _newton(field, machine, targets, q0, xtol_um, max_iter):
         iters[active] += 1
         # no step decreased |F| (or only crawled): retry once with a fresh Jacobian;
         # with a fresh one, stop (a root cannot be reached, e.g. a field discontinuity)
-        failed = np.concatenate([active[~accepted], active[accepted & crawl[active]]])
-        stale[failed] = True
-        stop = failed[np.isin(failed, refresh)]
-        done = active[fn[active] * UM_PER_MM <= xtol_um]
-        active = np.setdiff1d(active, np.concatenate([stop, done]))
+        failed_mask = ~accepted | crawl[active]
+        stale[active[failed_mask]] = True
+        # a failure right after a fresh Jacobian stops the point (boolean masks, no sorting)
+        fresh = np.zeros(n, dtype=bool)
+        fresh[refresh] = True
+        stop_mask = failed_mask & fresh[active]
+        done_mask = fn[active] * UM_PER_MM <= xtol_um
+        active = active[~(stop_mask | done_mask)]
     return q, E, iters, n_jac, nfev

@@ -127,7 +127,7 @@ def _run_one(field, machine, target, rng, seed, ball_um, population, generations
     def fitness(ga, solutions, indices):
         d = np.asarray(solutions, dtype=float).reshape(-1, 3)
         q = inverse(machine, target + MM_PER_UM * d, unwrap=False)
-        r = d + field_error_um(field, q, machine)
+        r = d + field_error_um(field, q, machine, fast=True)
         counter[0] += len(d)
         return list(-np.einsum("ij,ij->i", r, r))
 
