@@ -1,7 +1,7 @@
 """Benchmark the learned error field on the default grinder (``volcomp simulate --seed 0``).
 
 Trains the paper's network (3 → 10-15-25-15-10 → 3, sigmoid) on the 1,331 feature points
-with LM (``fit_field``'s defaults: Nguyen–Widrow init, Nielsen damping, Marquardt scaling,
+with LM (``fit_field``'s defaults: Nguyen–Widrow init, Nielsen damping of μI,
 geodesic acceleration), Adam and L-BFGS, raw A input and periodic (cos, sin) A input, each under the same
 wall-clock budget, and one long LM run; measures max/RMS fit error (μm) on the feature
 points and on 10,000 random off-grid validation points from the same HTM model (the model

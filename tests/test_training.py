@@ -22,7 +22,7 @@ SMOOTH_TOL_UM = 0.1      # LM, 60 iterations, on the small smooth field (amplitu
 SMOOTH_VAL_TOL_UM = 0.5  # ... and max error between its 6×6×6 grid points (grid spacing limits this)
 SMALL_NET = (10, 10)     # the tests train a small network; the paper's (1188 parameters) is benchmarked
 CMP_TOL_UM = 2.0         # Adam / L-BFGS after a short budget: max train error (they are the slow ones)
-FAST_LM_ITERS = 40       # the default LM (Nguyen–Widrow, Nielsen, Marquardt scaling, geodesic) ...
+FAST_LM_ITERS = 40       # the default LM (Nguyen–Widrow, Nielsen damping of μI, geodesic) ...
 FAST_LM_TOL_UM = 0.02    # ... reaches this max train error on the smooth field in FAST_LM_ITERS iterations
 # the paper's trainlm rule (μI, x10/x0.1) from the old uniform init: the smooth-field checks below
 # (train and between-grid tolerance) are of that rule; the faster default fits the 216 grid points
@@ -224,7 +224,7 @@ def test_default_lm_reaches_tolerance_in_fixed_iterations(smooth_data, seed):
     assert h.max_abs[-1] * m.out_scale_ <= FAST_LM_TOL_UM
 
 
-@pytest.mark.parametrize("kw", [dict(damping="trainlm"), dict(scaling="identity"), dict(geodesic=False)])
+@pytest.mark.parametrize("kw", [dict(damping="trainlm"), dict(scaling="marquardt"), dict(geodesic=False)])
 def test_lm_variants_only_take_decreasing_steps(smooth_data, kw):
     fp, _ = smooth_data
     m, u, y = smooth_scaled(fp)

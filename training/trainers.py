@@ -4,7 +4,7 @@ Three trainers share one contract, ``train(model, theta0, u, y, settings, callba
 (theta, TrainHistory)`` on scaled features ``u`` and scaled targets ``y``:
 
 * ``lm``    — Levenberg–Marquardt (:mod:`training.lm`), the paper's, the default (Nielsen damping,
-  Marquardt scaling, geodesic acceleration; ``LMSettings(damping="trainlm", scaling="identity",
+  μI damping matrix, geodesic acceleration; ``LMSettings(damping="trainlm", scaling="identity",
   geodesic=False)`` is MATLAB's ``trainlm`` rule), from Nguyen–Widrow initial weights
   (:func:`nguyen_widrow_params`, MATLAB's ``initnw``);
 * ``adam``  — :class:`torch.optim.Adam`, full batch, for comparison;
@@ -285,7 +285,7 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
     ``track=False`` skips MLflow (``run_id`` is then None). ``out_dir``: also save the model,
     plots and ``metrics.json`` there. ``init``: ``nguyen-widrow`` (default, MATLAB's) or
     ``uniform``. ``lm_settings``: damping/scaling/acceleration of the LM trainer (default
-    :class:`LMSettings`: Nielsen damping, Marquardt scaling, geodesic acceleration); its
+    :class:`LMSettings`: Nielsen damping, μI, geodesic acceleration); its
     stopping rules are replaced by ``mse_goal``, ``max_iter``, ``max_time_s``.
     ``max_err_goal_um`` (LM only; 0 = off): also stop once the largest |error| on the training
     points is at most this (μm).
