@@ -43,7 +43,8 @@ def run_configs(configs, budget_s, seed, threads, tracking_uri, sim_seed, max_er
         print(f"== {trainer} {enc} budget {budget_s} s", file=sys.stderr)
         r = fit_field(fp, trainer=trainer, a_encoding=enc, max_time_s=budget_s, seed=seed, threads=threads,
                       tracking_uri=tracking_uri, run_name=f"bench {trainer} {enc} {budget_s:g}s",
-                      tags={"benchmark": "bench_training"}, max_err_goal_um=max_err_goal_um if trainer == "lm" else 0.0)
+                      tags={"benchmark": "bench_training"}, max_err_goal_um=max_err_goal_um if trainer == "lm" else 0.0,
+                      select_best=False)  # the paper's rule: the feature-point fit as trained
         m = r.metrics
         hit = [r.history.elapsed_s[i] for i, v in enumerate(r.history.max_abs) if v * r.field.out_scale_ <= target_um]
         rows.append({"trainer": trainer, "a_encoding": enc, "budget_s": budget_s, "seconds": r.seconds,

@@ -29,6 +29,8 @@ FAST_LM_TOL_UM = 0.02    # ... reaches this max train error on the smooth field 
 # closer but interpolates worse between them on this tiny grid (see benchmarks/training_results.md)
 TRAINLM = LMSettings(damping="trainlm", scaling="identity", geodesic=False)
 
+SELECTION_TOL_REL = 1e-9  # same network, same points: equal to round-off
+
 
 def smooth_field(axes):
     """A smooth test field in μm, periodic in A, shape (n, 3) -> (n, 3)."""
@@ -399,3 +401,28 @@ def test_cli_train_bad_input_exits_2(tmp_path, capsys):
     bad.write_text("x_mm,z_mm,a_deg,dx_um,dy_um\n" + "1,2,3,4,5\n" * 12)
     assert main(["train", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "dz_um" in capsys.readouterr().err
+
+
+def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
+    """With an HTM reference, fit_field keeps the LM iterate best on off-grid selection points:
+    the returned network is that iterate, and it is no worse off-grid than the last iterate."""
+    from errormap.featurepoints import make_feature_points
+    from errormap.htm import HTMField
+    from errormap.machine import load_machine
+    from errormap.simulator import random_truth
+    from training import fit_field
+    from training.trainers import validation_points
+    m = load_machine()
+    el = random_truth(m, 5).elements
+    el_path = el.save(tmp_path / "el.json")
+    fp = make_feature_points(m, HTMField(m, el), n=5, meta={"elements_file": str(el_path)})
+    kw = dict(max_time_s=120, max_iter=60, seed=0, track=False, quiet=True, threads=1, n_validation=2000,
+              hidden=(8, 8), activation="tanh", a_encoding="periodic")
+    best = fit_field(fp, select_best=True, n_select=2000, select_every=1, **kw)
+    last = fit_field(fp, select_best=False, **kw)
+    assert 1 <= best.metrics["selected_iteration"] <= last.metrics["iterations"]
+    sel_axes, sel_err = validation_points(m, el, n=2000, seed=0 + 2_000_003)
+    np.testing.assert_allclose(np.abs(best.field.predict(sel_axes) - sel_err).max(),
+                               best.metrics["selection_max_um"], rtol=SELECTION_TOL_REL)
+    sel_last = np.abs(last.field.predict(sel_axes) - sel_err).max()
+    assert best.metrics["selection_max_um"] <= sel_last * (1 + SELECTION_TOL_REL)

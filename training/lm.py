@@ -107,10 +107,11 @@ def residual_fn(model, u: torch.Tensor, y: torch.Tensor, jacobian: str = "analyt
 
 
 def train_lm(model, theta0: torch.Tensor, u: torch.Tensor, y: torch.Tensor,
-             settings: LMSettings | None = None, callback=None) -> tuple[torch.Tensor, TrainHistory]:
+             settings: LMSettings | None = None, callback=None, monitor=None) -> tuple[torch.Tensor, TrainHistory]:
     """Levenberg–Marquardt from ``theta0`` on scaled features ``u`` (n, k) and targets ``y`` (n, 3).
 
-    ``callback(iteration, mse, elapsed_s, mu)`` is called after every accepted step.
+    ``callback(iteration, mse, elapsed_s, mu)`` is called after every accepted step;
+    ``monitor(iteration, theta)`` too (model selection, see :func:`training.fit_field`).
     Returns the best parameters (the last accepted) and the history.
     """
     s = settings or LMSettings()
@@ -203,5 +204,7 @@ def train_lm(model, theta0: torch.Tensor, u: torch.Tensor, y: torch.Tensor,
             h.max_abs.append(float(r.abs().max()))
             if callback is not None:
                 callback(h.iterations, sse / m, el, mu)
+            if monitor is not None:
+                monitor(h.iterations, theta)
     h.seconds = time.perf_counter() - t0
     return theta, h

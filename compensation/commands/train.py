@@ -39,6 +39,9 @@ def register(sub):
                    help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else runs/mlflow.db)")
     p.add_argument("--run-name", default=None)
     p.add_argument("--threads", type=int, default=None, help="torch threads while training")
+    p.add_argument("--no-select", dest="select_best", action="store_false",
+                   help="return the last LM iterate (the paper's rule) instead of the iterate that is best on "
+                        "5,000 off-grid selection points of the HTM model (default; disjoint from validation)")
     p.set_defaults(func=run)
 
 
@@ -73,7 +76,7 @@ def run(args) -> int:
     res = fit_field(fp, trainer=args.trainer, max_time_s=max_time, seed=args.seed, validation=validation,
                     tracking_uri=args.tracking_uri, run_name=args.run_name, hidden=hidden,
                     activation=args.activation, a_encoding=args.a_encoding, mse_goal=args.mse_goal,
-                    max_iter=args.max_iter, threads=args.threads, out_dir=out,
+                    max_iter=args.max_iter, threads=args.threads, out_dir=out, select_best=args.select_best,
                     tags={"featurepoints_file": str(Path(args.featurepoints).resolve())})
     m = res.metrics
     write_json(out / "metrics.json", {**m, "run_id": res.run_id, "stop_reason": res.history.stop_reason,
