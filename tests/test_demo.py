@@ -28,3 +28,23 @@ def test_demo_tiny_end_to_end(tmp_path, capsys):
     # the exact solver satisfies its own field far better than the traditional one-shot
     assert m["methods"]["exact"]["model_max_um"] < m["methods"]["traditional"]["model_max_um"]
     assert "MODEL" in (out / "report.html").read_text()
+
+
+def test_report_logs_to_the_default_store_when_no_uri_is_given(tmp_path, monkeypatch):
+    """With no --tracking-uri the demo trains into the default store; the report must go to
+    the same run there (it used to look in MLflow's own default and not find the run)."""
+    from mlflow.tracking import MlflowClient
+
+    from compensation.commands.demo import log_to_mlflow
+    uri = f"sqlite:///{tmp_path / 'store.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    client = MlflowClient(uri)
+    run_id = client.create_run(client.create_experiment("t", artifact_location=str(tmp_path / "art"))).info.run_id
+    files = {}
+    for k in ("html", "metrics", "residuals"):
+        files[k] = tmp_path / f"{k}.txt"
+        files[k].write_text(k)
+    log_to_mlflow(run_id, None, files, {"methods": {"exact": {"model_max_um": 1e-9, "seconds": 0.1}}})
+    assert sorted(a.path for a in client.list_artifacts(run_id, "report")) == [
+        "report/html.txt", "report/metrics.txt", "report/residuals.txt"]
+    assert client.get_run(run_id).data.metrics["report.exact.model_max_um"] == 1e-9

@@ -88,6 +88,9 @@ def log_to_mlflow(run_id, tracking_uri, paths: dict, metrics: dict, log=None) ->
     if not run_id:
         return
     import mlflow
+    if tracking_uri is None:  # the store the training run went to (runs/mlflow.db unless overridden)
+        from training.tracking import default_tracking_uri
+        tracking_uri = default_tracking_uri()
     client = mlflow.tracking.MlflowClient(tracking_uri=tracking_uri)
     for method, m in metrics["methods"].items():
         for key in ("model_max_um", "model_mean_sq_um2", "true_max_um", "true_mean_um", "seconds"):
