@@ -304,7 +304,7 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
               threads: int | None = None, track: bool = True, experiment: str = "volcomp-field",
               out_dir=None, init: str = "nguyen-widrow", lm_settings: LMSettings | None = None,
               max_err_goal_um: float = 0.0, select_best: bool = True, n_select: int = 5_000,
-              select_every: int = 5) -> FitResult:
+              select_every: int = 5, selection=None) -> FitResult:
     """Train an :class:`MLPField` on feature points and record the fit as an MLflow run.
 
     ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes, errors μm, meta).
@@ -319,7 +319,8 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
     ``select_best`` (LM only): keep the iterate with the smallest max |error| on ``n_select``
     *selection* points, checked every ``select_every`` accepted steps — random off-grid points
     of the same HTM model as the validation points but a different seed (disjoint from them, so
-    the reported validation error stays independent). The feature-point fit keeps improving
+    the reported validation error stays independent; or the given ``selection`` =
+    ``(axes (k, 3), errors (k, 3) μm)``, which must not be the validation data). The feature-point fit keeps improving
     long after the field between grid points stops improving (a 1,188-parameter network on an
     11×11×11 grid swings between the points); this picks the iterate that is best over the
     volume. Off when there is no HTM reference, and for the paper-target runs
@@ -355,8 +356,11 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
     theta0 = initial_params(model, seed, init)
     printer = _Printer(model.out_scale_, quiet, f"train {trainer}")
     selector = None
-    if select_best and trainer == "lm" and ref is not None:
-        sel_axes, sel_errors = validation_points(ref[0], ref[1], n=n_select, seed=seed + 2_000_003)
+    if select_best and trainer == "lm" and (selection is not None or ref is not None):
+        if selection is not None:
+            sel_axes, sel_errors = (np.asarray(v, float) for v in selection)
+        else:
+            sel_axes, sel_errors = validation_points(ref[0], ref[1], n=n_select, seed=seed + 2_000_003)
         selector = _BestOnSelection(model, sel_axes, sel_errors, select_every)
     with torch_threads(threads):
         if selector is not None:
