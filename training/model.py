@@ -55,6 +55,7 @@ import torch
 from torch.func import jvp
 
 from errormap.io import InputError, atomic_write, write_json
+from errormap.transforms import check_points
 
 FORMAT = "volcomp-mlpfield/1"
 PAPER_HIDDEN = (10, 15, 25, 15, 10)
@@ -72,27 +73,20 @@ def wrap_a(a_deg: np.ndarray, a0_deg: float) -> np.ndarray:
 
 @contextmanager
 def torch_threads(n):
-    """Run the block with torch on ``n`` threads (None: unchanged), restoring the count after."""
+    """Run the block with torch on ``n`` threads (None or 0: unchanged), restoring the count after."""
     old = torch.get_num_threads()
-    if n is None or n == old:
+    if not n or n == old:
         yield
         return
-    torch.set_num_threads(n)
+    torch.set_num_threads(int(n))
     try:
         yield
     finally:
         torch.set_num_threads(old)
 
 
-def _check_axes(axes, what: str = "axes (x_mm, z_mm, a_deg)") -> np.ndarray:
-    a = np.asarray(axes, dtype=float)
-    if a.ndim == 1 and a.shape[0] == 3:
-        a = a[None, :]
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise ValueError(f"Expected {what} of shape (n, 3), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"Expected finite {what}, got NaN or inf")
-    return a
+def _check_axes(axes) -> np.ndarray:
+    return check_points(axes, "axes (x_mm, z_mm, a_deg)")
 
 
 class MLPField:

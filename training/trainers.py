@@ -17,7 +17,6 @@ MLflow run (:mod:`training.tracking`).
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import hashlib
 import math
@@ -33,24 +32,10 @@ import torch
 from errormap.io import InputError, sha256_file
 
 from .lm import LMSettings, TrainHistory, train_lm
-from .model import PAPER_HIDDEN, MLPField
+from .model import PAPER_HIDDEN, MLPField, torch_threads
 
 TRAINERS = ("lm", "adam", "lbfgs")
 AXES = ("dx", "dy", "dz")
-
-
-@contextlib.contextmanager
-def torch_threads(n: int | None):
-    """Set torch's intra-op threads for the duration of a block only (never globally)."""
-    if not n:
-        yield
-        return
-    old = torch.get_num_threads()
-    torch.set_num_threads(int(n))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 def _stop_check(s: LMSettings, h: TrainHistory, mse: float, t0: float) -> str:

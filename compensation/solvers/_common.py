@@ -186,3 +186,14 @@ def make_result(method, targets, commands, axes, residual, converged, nfev, t0, 
     return SolveResult(method=method, targets_mm=targets, commands_mm=commands, axes=axes,
                        residual_um=residual, correction_um=correction, success=success,
                        nfev=int(nfev), seconds=time.perf_counter() - t0, message=msg, info=info)
+
+
+def ga_result(method, field, machine, targets, offsets_um, axes_d, nfev, t0, ball_um, tol_um, seed, **info):
+    """The result of a GA solver from its best offsets ``p_r - p_d`` (μm), shape (n, 3):
+    commands, their axes, the float64 model residual, and ``converged`` = |residual| ≤ ``tol_um``."""
+    commands = targets + MM_PER_UM * offsets_um
+    axes = command_axes(machine, commands, axes_d)
+    res = residual_um(field, machine, commands, axes, targets)
+    converged = np.linalg.norm(res, axis=1) <= tol_um
+    return make_result(method, targets, commands, axes, res, converged, nfev, t0, ball_um,
+                       info={"tol_um": tol_um, "seed": seed if isinstance(seed, (int, np.integer)) else None, **info})

@@ -42,7 +42,7 @@ from errormap.kinematics import inverse
 from errormap.progress import Progress
 
 from .base import BALL_RADIUS_UM, SolveResult
-from ._common import MM_PER_UM, check_inputs, command_axes, field_error_um, make_result, project_to_ball, residual_um
+from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, project_to_ball
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
 
@@ -75,13 +75,8 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
         sl = slice(s, min(n, s + chunk))
         best[sl], fe = ga.run(targets[sl], rng, generations, bar)
         nfev += fe
-    commands = targets + MM_PER_UM * best
-    axes = command_axes(machine, commands, axes_d)
-    res = residual_um(field, machine, commands, axes, targets)
-    converged = np.linalg.norm(res, axis=1) <= tol_um
-    return make_result("batched-ga", targets, commands, axes, res, converged, nfev, t0, ball_um,
-                       info={"tol_um": tol_um, "seed": seed if isinstance(seed, (int, np.integer)) else None,
-                             "parents": n_parents})
+    return ga_result("batched-ga", field, machine, targets, best, axes_d, nfev, t0, ball_um, tol_um, seed,
+                     parents=n_parents)
 
 
 class _BatchGA:

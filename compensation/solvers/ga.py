@@ -37,8 +37,7 @@ from errormap.kinematics import inverse
 from errormap.progress import Progress
 
 from .base import BALL_RADIUS_UM, SolveResult
-from ._common import (MM_PER_UM, check_inputs, command_axes, field_error_um, make_result, project_to_ball,
-                      residual_um)
+from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, project_to_ball
 
 PAPER_GA = {
     "population": 40,
@@ -111,13 +110,8 @@ def solve_ga(field, targets_mm, machine, *, target_axes=None, a_start_deg=None, 
                            n_parents, crossover_probability, mutation_probability, mutation_step_um, counter)
         nfev += counter[0]
         bar.update()
-    commands = targets + MM_PER_UM * best
-    axes = command_axes(machine, commands, axes_d)
-    res = residual_um(field, machine, commands, axes, targets)
-    converged = np.linalg.norm(res, axis=1) <= tol_um
-    return make_result("ga", targets, commands, axes, res, converged, nfev, t0, ball_um,
-                       info={"tol_um": tol_um, "seed": seed if isinstance(seed, (int, np.integer)) else None,
-                             "pygad_version": pygad.__version__, "parents": n_parents})
+    return ga_result("ga", field, machine, targets, best, axes_d, nfev, t0, ball_um, tol_um, seed,
+                     pygad_version=pygad.__version__, parents=n_parents)
 
 
 def _run_one(field, machine, target, rng, seed, ball_um, population, generations, n_parents,
