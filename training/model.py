@@ -340,7 +340,7 @@ class MLPField:
         return float(min(self.SEAM_WINDOW_DEG, 360.0))
 
     def _net(self, dtype):
-        """Cached per-dtype weights (transposed, contiguous) and input scalers.
+        """Cached per-dtype weights ``W`` (out, in) and biases (out, 1), and the input scalers.
 
         The cache is keyed on the parameter tensor (identity and in-place version) and the
         scalers, so retraining or reloading invalidates it.
@@ -362,14 +362,37 @@ class MLPField:
                     k += o * n_in
                     b = theta[k:k + o].detach()
                     k += o
-                    layers.append((W.T.contiguous().to(tdt), b.clone().to(tdt)))
+                    layers.append((W.contiguous().to(tdt), b.reshape(o, 1).to(tdt)))
                 s = 2.0 / (self.in_hi_ - self.in_lo_)
-                W1 = layers[0][0]  # (n_inputs, h1)
-                # tangent of the first layer's pre-activation per axis for the linear inputs
-                c_lin = (W1[:2] * torch.as_tensor(s[:2], dtype=tdt)[:, None])  # (2, h1)
-                c_a = (W1[2] * float(s[2])) if self.a_encoding == "raw" else None
-            nets[dtype] = {"layers": layers, "s": s, "lo": np.asarray(self.in_lo_, dtype=float),
-                           "c_lin": c_lin, "c_a": c_a, "tdt": tdt}
+                W1 = layers[0][0]  # (h1, n_inputs)
+                # first layer's pre-activation tangent per axis, (3 axes, h1, 1); the periodic
+                # encoding's A tangent depends on the point and is built in _net_cols
+                tan0 = torch.zeros((3, W1.shape[0], 1), dtype=tdt)
+                tan0[0, :, 0] = W1[:, 0] * float(s[0])
+                tan0[1, :, 0] = W1[:, 1] * float(s[1])
+                if self.a_encoding == "raw":
+                    tan0[2, :, 0] = W1[:, 2] * float(s[2])
+            lo = np.asarray(self.in_lo_, dtype=float)
+            net = {"layers": layers, "s": s, "lo": lo, "tan0": tan0, "tdt": tdt,
+                   "lo_col": torch.as_tensor(lo, dtype=tdt).reshape(3, 1),
+                   "s_col": torch.as_tensor(s, dtype=tdt).reshape(3, 1),
+                   "out_mean_col": torch.as_tensor(self.out_mean_, dtype=tdt).reshape(3, 1)}
+            if self.a_encoding == "raw":
+                # the same network on raw axes in, μm out (predict_columns): the input scaling
+                # folded into the first layer, the output scaling into the last (from float64)
+                with torch.no_grad():
+                    L = [(w.to(torch.float64), b.to(torch.float64)) for w, b in layers]
+                    s64 = torch.as_tensor(s, dtype=torch.float64)
+                    lo64 = torch.as_tensor(lo, dtype=torch.float64)
+                    W1, b1 = L[0]
+                    first = (W1 * s64, b1 - W1 @ (lo64 * s64 + 1.0).reshape(-1, 1))
+                    Wn, bn = L[-1]
+                    mean = torch.as_tensor(self.out_mean_, dtype=torch.float64).reshape(3, 1)
+                    last = (Wn * self.out_scale_, bn * self.out_scale_ + mean)
+                    raw = [first, *L[1:-1], last] if len(L) > 1 else [(first[0] * self.out_scale_,
+                                                                        first[1] * self.out_scale_ + mean)]
+                    net["raw_um_layers"] = [(w.to(tdt).contiguous(), b.to(tdt).contiguous()) for w, b in raw]
+            nets[dtype] = net
         return nets[dtype]
 
     def _features_wrapped(self, x, net) -> np.ndarray:
@@ -380,51 +403,88 @@ class MLPField:
             u = np.column_stack([u[:, 0], u[:, 1], np.cos(r), np.sin(r)])
         return u
 
+    def _net_cols(self, u, net, jac: bool):
+        """The network on feature columns ``u`` (n_inputs, m) (torch, the net's dtype).
+
+        Returns (scaled outputs (3, m), tangents d(outputs)/d(axes) (3 axes, 3 outputs, m) or
+        None). Points are columns: each layer is one ``addmm(b, W, h)`` with W (out, in), which
+        runs faster on these narrow layers than the row layout.
+        """
+        layers = net["layers"]
+        last = len(layers) - 1
+        act = self.activation
+        h, T = u, None
+        for i, (W, b) in enumerate(layers):
+            z = torch.addmm(b, W, h)
+            if jac:
+                if i > 0:
+                    T = torch.matmul(W, T)
+                elif self.a_encoding == "raw":
+                    T = net["tan0"]
+                else:  # d(cos r, sin r)/da = (-sin r, cos r)·π/180
+                    k = math.pi / 180.0
+                    T = net["tan0"].expand(3, W.shape[0], u.shape[1]).clone()
+                    T[2] = torch.outer(W[:, 2], -u[3] * k) + torch.outer(W[:, 3], u[2] * k)
+            if i == last:
+                return z, T
+            if act == "sigmoid":
+                h = torch.sigmoid_(z)
+                if jac:
+                    T = T * (h * (1.0 - h))
+            elif act == "tanh":
+                h = torch.tanh_(z)
+                if jac:
+                    T = T * (1.0 - h * h)
+            else:
+                if jac:
+                    T = T * torch.sigmoid(z)
+                h = torch.nn.functional.softplus(z)
+        raise AssertionError("unreachable")  # pragma: no cover
+
     def _run_net(self, x, net, jac: bool, out_e, out_j):
         """The network on wrapped axes x (n, 3) float64, in blocks; scaled outputs into out_e (n, 3)
         and, with ``jac``, d(scaled)/d(axes) into out_j (n, 3, 3) (torch float64 views)."""
-        layers, tdt = net["layers"], net["tdt"]
-        n_layers = len(layers)
-        act = self.activation
+        tdt = net["tdt"]
         blk = max(1, min(self.chunk, self.BLOCK))
         for s0 in range(0, x.shape[0], blk):
             xs = x[s0:s0 + blk]
             m = xs.shape[0]
-            u = torch.from_numpy(self._features_wrapped(xs, net))
-            h = u if tdt == torch.float64 else u.to(tdt)
-            T = None
-            for i, (Wt, b) in enumerate(layers):
-                z = torch.addmm(b, h, Wt)
-                if jac:
-                    if i == 0:
-                        T = torch.empty((3, m, Wt.shape[1]), dtype=tdt)
-                        T[0] = net["c_lin"][0]
-                        T[1] = net["c_lin"][1]
-                        if self.a_encoding == "raw":
-                            T[2] = net["c_a"]
-                        else:  # d(cos r, sin r)/da = (-sin r, cos r)·π/180
-                            k = math.pi / 180.0
-                            T[2] = torch.outer(-u[:, 3] * k, Wt[2]) + torch.outer(u[:, 2] * k, Wt[3])
-                    else:
-                        T = torch.matmul(T, Wt)
-                if i == n_layers - 1:
-                    h = z
-                    break
-                if act == "sigmoid":
-                    h = torch.sigmoid(z)
-                    if jac:
-                        T *= h * (1.0 - h)
-                elif act == "tanh":
-                    h = torch.tanh(z)
-                    if jac:
-                        T *= 1.0 - h * h
-                else:
-                    h = torch.nn.functional.softplus(z)
-                    if jac:
-                        T *= torch.sigmoid(z)
-            out_e[s0:s0 + m] = h
+            u = torch.from_numpy(np.ascontiguousarray(self._features_wrapped(xs, net).T)).to(tdt)
+            y, T = self._net_cols(u, net, jac)
+            out_e[s0:s0 + m] = y.T
             if jac:
-                out_j[s0:s0 + m] = T.permute(1, 2, 0)  # (3 tangents, m, 3 outputs) -> (m, outputs, tangents)
+                out_j[s0:s0 + m] = T.permute(2, 1, 0)  # (3 axes, 3 outputs, m) -> (m, outputs, axes)
+
+    def predict_columns(self, xa: torch.Tensor) -> torch.Tensor:
+        """Errors μm at axis columns ``xa`` = [x_mm; z_mm; a_deg], shape (3, m) -> (3, m).
+
+        The inner loop of the batched GA: a torch tensor in, the same dtype (float32 or
+        float64) out, no checks and no copies to numpy. A must already lie in the training
+        turn ``[a0, a0 + 360]``; the seam correction is applied as in :meth:`predict`. With
+        raw A the input and output scalings are folded into the first and last layers.
+        """
+        net = self._net(np.float32 if xa.dtype == torch.float32 else np.float64)
+        with torch.inference_mode():
+            if self.a_encoding == "periodic":
+                u = (xa - net["lo_col"]) * net["s_col"] - 1.0
+                r = torch.deg2rad(xa[2])
+                u = torch.stack([u[0], u[1], torch.cos(r), torch.sin(r)])
+                return self._net_cols(u, net, False)[0] * self.out_scale_ + net["out_mean_col"]
+            raw = {"layers": net["raw_um_layers"]}
+            y = self._net_cols(xa, raw, False)[0]
+            w = self._seam_window()
+            if w:
+                start = self.a0_deg_ + 360.0 - w
+                sel = torch.nonzero(xa[2] > start).squeeze(1)
+                k = sel.numel()
+                if k:  # N at both ends of the turn for the seam points
+                    x2 = xa[:, sel].repeat(1, 2)
+                    x2[2, :k] = self.a0_deg_
+                    x2[2, k:] = self.a0_deg_ + 360.0
+                    y2 = self._net_cols(x2, raw, False)[0]
+                    tk = (xa[2, sel] - start) / w
+                    y[:, sel] += (y2[:, :k] - y2[:, k:]) * (tk * tk * (3.0 - 2.0 * tk))
+            return y
 
     def _infer(self, axes, jac: bool, dtype=np.float64):
         """Errors μm (n, 3) [and Jacobian (n, 3, 3)] at raw axes, with the seam correction."""

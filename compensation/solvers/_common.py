@@ -134,26 +134,61 @@ def field_jacobian_um(field, axes, machine, e0_um=None, chunk: int = FIELD_CHUNK
     return J, m_shift * n
 
 
-def forward_jacobian(machine, axes) -> np.ndarray:
-    """``d p / d(axes)`` of the nominal forward kinematics, mm per (mm, mm, deg), (n, 3, 3).
+def field_error_and_jacobian_um(field, axes, machine, chunk: int = FIELD_CHUNK):
+    """``(E (n, 3) μm, dE/d(axes) (n, 3, 3), evaluations)`` at axes (n, 3), A folded.
 
-    ``p = (t_x - l5 - l7 - x, c·t_y + s·h, -s·t_y + c·h)`` with ``h = t_z - l6 - l8``;
-    only ``h`` depends on z (``dh/dz = 1``), so the columns are ``(-1, 0, 0)``,
-    ``(0, s, c)`` and ``(0, c·h - s·t_y, -s·h - c·t_y)·π/180``.
+    One pass through ``field.predict_and_jacobian`` when the field has it (counted as two
+    evaluations per point, a value and a Jacobian), else :func:`field_error_um` then
+    :func:`field_jacobian_um` (forward differences from it).
+    """
+    n = np.asarray(axes).shape[0]
+    both = getattr(field, "predict_and_jacobian", None)
+    if not callable(both):
+        E = field_error_um(field, axes, machine, chunk=chunk)
+        J, fe = field_jacobian_um(field, axes, machine, e0_um=E, chunk=chunk)
+        return E, J, n + fe
+    a = fold_a(axes, machine)
+    E, J = np.empty((n, 3)), np.empty((n, 3, 3))
+    for s in range(0, n, chunk):
+        e, j = both(a[s:s + chunk])
+        E[s:s + chunk] = np.asarray(e, dtype=float).reshape(-1, 3)
+        J[s:s + chunk] = np.asarray(j, dtype=float).reshape(-1, 3, 3)
+    return E, J, 2 * n
+
+
+def forward_and_jacobian(machine, axes, jac: bool = True):
+    """Nominal tool point ``p`` (n, 3) mm and ``dp/d(axes)`` (n, 3, 3) mm per (mm, mm, deg).
+
+    ``p = (t_x - l5 - l7 - x, c·t_y + s·h, -s·t_y + c·h)`` with ``h = t_z(0) - l6 - l8 + z``
+    (the nominal tool point ``t`` moves along the machine Z only), so the columns of the
+    Jacobian are ``(-1, 0, 0)``, ``(0, s, c)`` and ``(0, c·h - s·t_y, -s·h - c·t_y)·π/180``.
+    Equal to :func:`errormap.kinematics.forward` (tested); written out for the Newton loop,
+    where the general chain's overhead would dominate. ``jac=False`` returns ``(p, None)``.
     """
     axes = np.asarray(axes, dtype=float)
-    t = tool_in_machine_nominal(machine, axes[:, 1])
-    ty = t[:, 1]
-    h = t[:, 2] - machine.l6 - machine.l8
+    t0 = tool_in_machine_nominal(machine, np.zeros(1))[0]
+    ty = t0[1]
+    h = axes[:, 1] + (t0[2] - machine.l6 - machine.l8)
     a = np.deg2rad(axes[:, 2])
     c, s = np.cos(a), np.sin(a)
+    p = np.empty_like(axes)
+    p[:, 0] = (t0[0] - machine.l5 - machine.l7) - axes[:, 0]
+    p[:, 1] = c * ty + s * h
+    p[:, 2] = c * h - s * ty
+    if not jac:
+        return p, None
     J = np.zeros((axes.shape[0], 3, 3))
     J[:, 0, 0] = -1.0
     J[:, 1, 1] = s
     J[:, 2, 1] = c
-    J[:, 1, 2] = (c * h - s * ty) * (np.pi / 180.0)
-    J[:, 2, 2] = (-s * h - c * ty) * (np.pi / 180.0)
-    return J
+    J[:, 1, 2] = p[:, 2] * (np.pi / 180.0)
+    J[:, 2, 2] = -p[:, 1] * (np.pi / 180.0)
+    return p, J
+
+
+def forward_jacobian(machine, axes) -> np.ndarray:
+    """``d p / d(axes)`` of the nominal forward kinematics, mm per (mm, mm, deg), (n, 3, 3)."""
+    return forward_and_jacobian(machine, axes)[1]
 
 
 def command_axes(machine, commands_mm, axes_d) -> np.ndarray:

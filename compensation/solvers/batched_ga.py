@@ -1,8 +1,8 @@
-"""The paper's GA with PyGAD's operators, evolving every point's population at once (numpy).
+"""The paper's GA with PyGAD's operators, evolving every point's population at once (torch).
 
 Same problem, parameters and fitness as :mod:`compensation.solvers.ga`; the population is
-an array of shape (n_points, 40, 3) (offsets d in μm) and one generation is a handful of
-array operations plus one field evaluation over all new offspring of all points.
+a float32 tensor of shape (n_points, 40, 3) (offsets d in μm) and one generation is a
+handful of tensor operations plus one field evaluation over all new offspring of all points.
 
 Operators, as PyGAD 3.9 runs them with the ``ga`` solver's configuration (one generation):
 
@@ -19,30 +19,50 @@ Operators, as PyGAD 3.9 runs them with the ``ga`` solver's configuration (one ge
    the marginal law of PyGAD's draw (by symmetry). Same distribution, two draws instead
    of 28.
 4. **Random mutation**, ``mutation_probability`` per gene, additive U(-s, s) μm
-   (``mutation_by_replacement=False``, ``s = mutation_step_um``, PyGAD's default ±1).
+   (``mutation_by_replacement=False``, ``s = mutation_step_um``, PyGAD's default ±1). One
+   uniform u per gene decides and sizes it: the gene mutates when u < p, by
+   ``(2u/p - 1)·s`` (given u < p, u/p is uniform on [0, 1)).
 5. **Ball repair**: offspring projected radially onto the 250 μm ball (the ``ga`` solver's
    ``on_mutation``).
 6. **Fitness** ``-|d + E(IK(p_d + 1e-3·d))|²``; an offspring identical to one of its
    parents (not crossed, not mutated) inherits the parent's fitness, as PyGAD's fitness
    cache does, so ``nfev`` counts the same kind of evaluations.
 
-Differences from PyGAD: the random streams differ (one numpy Generator for the whole
-batch instead of one RandomState/Random pair per point), so single runs differ point by
+Fitness evaluation, two paths with the same value:
+
+* **fused** (fields with ``predict_columns``, i.e. the learned MLP field): the nominal
+  inverse kinematics of ``p_d + 1e-3·d`` and the network run as one float32 torch pipeline
+  on columns (points as columns), no round trip through numpy. float32 is ample here: the
+  offsets resolve 1.5e-5 μm at 250 μm, and the field's float32 error is ~1e-4 μm
+  (``tests/test_model_inference.py``) against the GA's ~0.01 μm resolution; the returned
+  commands and residuals are recomputed in float64 (:func:`._common.ga_result`).
+* **generic** (any field, e.g. the HTM field): float64 numpy through
+  :func:`errormap.kinematics.inverse` and :func:`._common.field_error_um`.
+
+Differences from PyGAD: the random streams differ (the initial populations from the numpy
+Generator, then one torch Generator seeded from it, for the whole batch, instead of one
+RandomState/Random pair per point), so single runs differ point by
 point while their distributions are the same; ties in fitness are broken by
 ``argpartition`` order, not PyGAD's reversed stable sort (tied individuals are almost
 always identical copies, so the choice is immaterial).
 """
 from __future__ import annotations
 
+import math
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import torch
 
-from errormap.kinematics import inverse
+from errormap.kinematics import inverse, tool_in_machine_nominal
 from errormap.progress import Progress
+from training.model import torch_threads
 
 from .base import BALL_RADIUS_UM, SolveResult
 from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, project_to_ball
+from ._ga_kernels import breed, scatter
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
 
@@ -53,111 +73,190 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
                      crossover_probability: float = PAPER_GA["crossover_probability"],
                      mutation_probability: float = PAPER_GA["mutation_probability"],
                      mutation_step_um: float = PAPER_GA["mutation_step_um"], tol_um: float = DEFAULT_TOL_UM,
-                     chunk: int = 4096, progress: bool = True) -> SolveResult:
-    """Batched GA over WCS targets, shape (n, 3) mm; points evolve in chunks of ``chunk``.
+                     chunk: int = 8192, workers: int | None = None, fused: bool | None = None,
+                     progress: bool = True) -> SolveResult:
+    """Batched GA over WCS targets, shape (n, 3) mm.
 
-    ``success``: |model residual| ≤ ``tol_um`` and inside the ball.
+    The points are split into equal chunks of at most ``chunk`` points, their number a
+    multiple of ``workers``; each chunk evolves on its own (its own child Generator of
+    ``seed``), ``workers`` chunks at a time in threads (torch runs one thread per chunk
+    meanwhile). ``workers``: None uses torch's thread count (the cores torch would use).
+    The result depends on ``seed``, ``chunk`` and ``workers``, not on timing. ``fused``: None
+    (default) uses the fused float32 fitness when the field offers ``predict_columns``;
+    False forces the generic path. ``success``: |model residual| ≤ ``tol_um`` and inside
+    the ball.
     """
     t0 = time.perf_counter()
     targets, axes_d = check_inputs(field, targets_mm, machine, target_axes, a_start_deg, ball_um)
     n_parents = check_ga_options(population, generations, selection_probability, crossover_probability,
                                  mutation_probability, mutation_step_um, tol_um)
-    if not chunk >= 1:
+    workers = torch.get_num_threads() if workers is None else workers
+    if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
         raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
-    rng = np.random.default_rng(seed)
+    if not (isinstance(workers, (int, np.integer)) and workers >= 1):
+        raise ValueError(f"Expected workers ≥ 1, got {workers!r}")
+    has_columns = callable(getattr(field, "predict_columns", None))
+    use_fused = has_columns if fused is None else bool(fused)
+    if use_fused and not has_columns:
+        raise ValueError(f"Expected a field with predict_columns for fused=True, got {type(field).__name__}")
     n = len(targets)
+    k = -(-n // chunk)
+    k = max(1, -(-k // workers) * workers) if n >= workers else 1
+    bounds = np.linspace(0, n, k + 1).round().astype(int)
+    rngs = np.random.default_rng(seed).spawn(k)
     best = np.empty((n, 3))
-    nfev = 0
-    bar = Progress(n * generations, "batched-ga (point-generations)", enabled=progress)
-    ga = _BatchGA(field, machine, ball_um, population, n_parents, crossover_probability, mutation_probability,
-                  mutation_step_um)
-    for s in range(0, n, chunk):
-        sl = slice(s, min(n, s + chunk))
-        best[sl], fe = ga.run(targets[sl], rng, generations, bar)
-        nfev += fe
+    bar = _LockedProgress(n * generations, "batched-ga (point-generations)", enabled=progress)
+    ga = _BatchGA(ball_um, population, n_parents, crossover_probability, mutation_probability, mutation_step_um)
+    make_fitness = _FusedFitness if use_fused else _GenericFitness
+    if use_fused:
+        field.predict_columns(torch.zeros((3, 1), dtype=torch.float32))  # builds the float32 net once
+
+    def one(i):
+        lo, hi = bounds[i], bounds[i + 1]
+        best[lo:hi], fe = ga.run(make_fitness(field, machine, targets[lo:hi]), hi - lo, rngs[i], generations, bar)
+        return fe
+
+    if workers == 1 or k == 1:
+        nfev = sum(one(i) for i in range(k))
+    else:
+        with torch_threads(1), ThreadPoolExecutor(workers) as pool:
+            nfev = sum(pool.map(one, range(k)))
     return ga_result("batched-ga", field, machine, targets, best, axes_d, nfev, t0, ball_um, tol_um, seed,
-                     parents=n_parents)
+                     parents=n_parents, fused=use_fused, chunks=k, workers=workers)
+
+
+class _LockedProgress(Progress):
+    """:class:`Progress` whose updates may come from several threads."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._lock = threading.Lock()
+
+    def update(self, k: int = 1, extra: str = "") -> None:
+        with self._lock:
+            super().update(k, extra)
+
+
+class _GenericFitness:
+    """``-|d + E(IK(p_d + 1e-3 d))|²`` through the field's ``predict`` (float64 numpy), any field."""
+
+    def __init__(self, field, machine, targets):
+        self.field, self.machine, self.targets = field, machine, targets
+
+    def __call__(self, pts: np.ndarray, dT: np.ndarray) -> np.ndarray:
+        """Fitness of offsets ``dT`` (3, k) μm (columns) of points ``pts`` (k,); returns (k,) float32."""
+        d = dT.T.astype(float)
+        q = inverse(self.machine, self.targets[pts] + MM_PER_UM * d, unwrap=False)
+        r = d + field_error_um(self.field, q, self.machine, fast=True)
+        f = -np.einsum("ij,ij->i", r, r).astype(np.float32)
+        return np.where(np.isnan(f), -np.inf, f).astype(np.float32)
+
+
+class _FusedFitness:
+    """The same fitness as one float32 torch pipeline: nominal IK, then ``field.predict_columns``.
+
+    IK (``errormap.kinematics.inverse``): ``x = c_x - p_x``, ``h = sqrt(p_y² + p_z² - t_y²)``,
+    ``z = h - c_h``, ``a = atan2(p_y, p_z) - atan2(t_y, h)`` (deg); A goes into the calibrated
+    turn ``[a_lo, a_lo + 360)`` as ``inverse(unwrap=False)`` puts it (:func:`._common.fold_a`
+    leaves it there), then the field folds it into its own turn.
+    """
+
+    BLOCK = 16_384
+    """Offspring per network call (each layer's activations stay in cache)."""
+
+    def __init__(self, field, machine, targets):
+        self.field = field
+        t0 = tool_in_machine_nominal(machine, np.zeros(1))[0]
+        self.cx = float(t0[0] - machine.l5 - machine.l7)
+        self.ty = float(t0[1])
+        self.ch = float(t0[2] - machine.l6 - machine.l8)
+        self.a_lo = float(machine.strokes["a_deg"][0])
+        # per-point constants; x in float64 first (c_x - p_x), then float32
+        self.x = torch.from_numpy((self.cx - targets[:, 0]).astype(np.float32))
+        self.py = torch.from_numpy(targets[:, 1].astype(np.float32))
+        self.pz = torch.from_numpy(targets[:, 2].astype(np.float32))
+
+    def __call__(self, pts: np.ndarray, dT: np.ndarray) -> np.ndarray:
+        """Fitness of offsets ``dT`` (3, k) μm (columns) of points ``pts`` (k,); returns (k,) float32."""
+        k = dT.shape[1]
+        out = np.empty(k, dtype=np.float32)
+        pts_t, d_t, out_t = torch.from_numpy(pts), torch.from_numpy(dT), torch.from_numpy(out)
+        with torch.inference_mode():
+            for s in range(0, k, self.BLOCK):
+                out_t[s:s + self.BLOCK] = self._block(pts_t[s:s + self.BLOCK], d_t[:, s:s + self.BLOCK])
+        return out
+
+    def _block(self, pts, dT):
+        dm = dT * MM_PER_UM  # (3, k) mm
+        xa = torch.empty_like(dT)
+        torch.sub(self.x[pts], dm[0], out=xa[0])
+        py = self.py[pts] + dm[1]
+        pz = self.pz[pts] + dm[2]
+        h = torch.sqrt(torch.clamp(py * py + pz * pz - self.ty * self.ty, min=0.0))
+        torch.sub(h, self.ch, out=xa[1])
+        a = torch.atan2(py, pz)
+        if self.ty != 0.0:
+            a -= torch.atan2(torch.full_like(h, self.ty), h)
+        a = torch.rad2deg_(a)
+        # [a_lo, a_lo + 360) as inverse(unwrap=False) (and fold_a, for a full-turn stroke)
+        torch.add(torch.remainder(a - self.a_lo, 360.0), self.a_lo, out=xa[2])
+        r = self.field.predict_columns(xa)
+        r += dT
+        f = (r * r).sum(dim=0).neg_()
+        return torch.where(torch.isnan(f), -math.inf, f)
 
 
 class _BatchGA:
-    """The generation step over (m, P, 3) populations; no state between runs."""
+    """The generation loop over (m, P, 3) float32 populations; settings only, no state between runs."""
 
-    def __init__(self, field, machine, ball_um, population, n_parents, crossover_probability,
-                 mutation_probability, mutation_step_um):
-        self.field, self.machine, self.ball_um = field, machine, ball_um
+    def __init__(self, ball_um, population, n_parents, crossover_probability, mutation_probability,
+                 mutation_step_um):
+        self.ball_um = float(ball_um)
         self.P, self.M = population, n_parents
-        self.n_off = population - 1  # keep_elitism = 1
+        self.K = population - 1  # keep_elitism = 1: the other slots are offspring
         self.pc, self.pm, self.step = crossover_probability, mutation_probability, mutation_step_um
         # P(K = 0) and P(K = 1) for the crossover pool size K ~ Binomial(M, pc)
         q = 1.0 - crossover_probability
         self.p0 = q ** n_parents
         self.p1 = n_parents * crossover_probability * q ** (n_parents - 1)
 
-    def fitness(self, targets, d) -> np.ndarray:
-        """``-|d + E(IK(p_d + 1e-3 d))|²`` for offsets d (k, 3) μm of targets (k, 3) mm; (k,)."""
-        q = inverse(self.machine, targets + MM_PER_UM * d, unwrap=False)
-        r = d + field_error_um(self.field, q, self.machine, fast=True)
-        return -np.einsum("ij,ij->i", r, r)
+    def run(self, fitness, m, rng, generations, bar):
+        """Evolve the populations of m points; returns (best offsets (m, 3) μm float64, evaluations).
 
-    def run(self, targets, rng, generations, bar):
-        """Evolve one chunk of targets (m, 3); returns (best offsets (m, 3) μm, evaluations)."""
-        m, P, M, K = len(targets), self.P, self.M, self.n_off
-        pop = uniform_in_ball(rng, (m, P), self.ball_um)
-        fit = self.fitness(np.repeat(targets, P, axis=0), pop.reshape(-1, 3)).reshape(m, P)
+        Randomness per generation, all from ``rng`` (numpy's PCG64 raw output): one 31-bit
+        uniform per offspring picks the first parent, the cut point and the second parent as
+        the digits of ``u·M``, then of the fractional rest times 3, then times M - 1 (each
+        digit keeps ≥ 20 bits of resolution: bias < 1e-5); three 24-bit uniforms per
+        offspring drive the mutation;
+        the rare crossover pools of size 0 or 1 (probability ``p0 + p1``, 1.7e-13 with the
+        paper's settings) are drawn as a binomial count and placed at random, so their
+        probability is exact. The generation itself is :func:`._ga_kernels.breed`.
+        """
+        P, M, K = self.P, self.M, self.K
+        pop = uniform_in_ball(rng, (m, P), self.ball_um).astype(np.float32)
+        fit = fitness(np.repeat(np.arange(m), P), np.ascontiguousarray(pop.reshape(-1, 3).T)).reshape(m, P)
         nfev = m * P
-        rows = np.arange(m)
-        base = (rows * P)[:, None]  # flat index of each point's first individual
-        kmod = (np.arange(K) % M)[None, :]
-        ball2 = self.ball_um ** 2
+        new_pop, new_fit = np.empty_like(pop), np.empty_like(fit)
+        fresh_at = np.empty(m * K + 1, dtype=np.int64)
+        fresh_pt = np.empty(m * K + 1, dtype=np.int64)
+        fresh_d = np.empty((3, m * K + 1), dtype=np.float32)
+        odd = np.zeros((m, K), dtype=np.int8)
+        lonely_p = self.p0 + self.p1
+        pm, step, ball = np.float32(self.pm), np.float32(self.step), np.float32(self.ball_um)
         for _ in range(generations):
-            # 1-2: parents = the M fittest (unordered), elite = the fittest
-            par_idx = np.argpartition(-fit, M - 1, axis=1)[:, :M]
-            elite = np.argmax(fit, axis=1)
-            # 3: single-point crossover, PyGAD's pool semantics
-            u = rng.random((m, K, 7))
-            cut = (u[..., 0] * 3).astype(np.intp)  # 0, 1 or 2 (u < 1)
-            first = (u[..., 1] * M).astype(np.intp)
-            second = (u[..., 2] * (M - 1)).astype(np.intp)
-            second += second >= first
-            if self.p0 + self.p1 > 0.0:
-                lonely = u[..., 3] < self.p0 + self.p1  # pool of one (mates with itself) or none
-                none = u[..., 3] < self.p0
-                second = np.where(lonely, first, second)
-                first = np.where(none, kmod, first)
-                second = np.where(none, kmod, second)
-            i1 = np.take_along_axis(par_idx, first, axis=1)
-            i2 = np.take_along_axis(par_idx, second, axis=1)
-            flat_pop = pop.reshape(-1, 3)
-            g1, g2 = flat_pop[base + i1], flat_pop[base + i2]  # (m, K, 3)
-            child = g2.copy()
-            child[..., 0] = np.where(cut >= 1, g1[..., 0], g2[..., 0])
-            child[..., 1] = np.where(cut >= 2, g1[..., 1], g2[..., 1])
-            # 4: additive random mutation per gene
-            mut = u[..., 4:7] < self.pm
-            child += mut * (self.step * (2.0 * rng.random((m, K, 3)) - 1.0))
-            # 5: ball repair (only the few offspring outside the ball change)
-            r2 = np.einsum("mki,mki->mk", child, child)
-            out = np.nonzero(r2 > ball2)
-            if out[0].size:
-                child[out] *= (self.ball_um / np.sqrt(r2[out]))[:, None]
-            # 6: fitness; unchanged copies of a parent inherit the parent's fitness
-            fresh = np.ones((m, K), dtype=bool)
-            quiet = ~mut.any(axis=2)
-            same2 = quiet & np.all(child == g2, axis=2)
-            same1 = quiet & ~same2 & np.all(child == g1, axis=2)
-            fresh &= ~(same1 | same2)
-            cfit = np.where(same2, fit[rows[:, None], i2], fit[rows[:, None], i1])
-            idx = np.nonzero(fresh)
-            if idx[0].size:
-                cfit[idx] = self.fitness(targets[idx[0]], child[idx])
-                nfev += idx[0].size
-            new_pop = np.empty_like(pop)
-            new_pop[:, 0] = pop[rows, elite]
-            new_pop[:, 1:] = child
-            new_fit = np.empty_like(fit)
-            new_fit[:, 0] = fit[rows, elite]
-            new_fit[:, 1:] = cfit
-            pop, fit = new_pop, new_fit
+            words = rng.bit_generator.random_raw(2 * m * K).view(np.uint32).reshape(m, K, 4)
+            n_odd = int(rng.binomial(m * K, lonely_p)) if lonely_p > 0.0 else 0
+            if n_odd:  # pools of one mate with themselves; empty pools take parent k mod M
+                at = rng.choice(m * K, n_odd, replace=False)
+                odd.reshape(-1)[at] = np.where(rng.random(n_odd) < self.p0 / lonely_p, 2, 1)
+            F = breed(pop, fit, words, odd, M, pm, step, ball, new_pop, new_fit, fresh_at, fresh_pt, fresh_d)
+            if n_odd:
+                odd.reshape(-1)[at] = 0
+            if F:
+                scatter(new_fit.reshape(-1), fresh_at, fitness(fresh_pt[:F], fresh_d[:, :F]), F)
+                nfev += F
+            pop, new_pop = new_pop, pop
+            fit, new_fit = new_fit, fit
             bar.update(m)
-        best = pop[rows, np.argmax(fit, axis=1)]
+        best = pop[np.arange(m), np.argmax(fit, axis=1)].astype(float)
         return project_to_ball(best, self.ball_um), nfev

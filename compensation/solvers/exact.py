@@ -40,8 +40,8 @@ from errormap.kinematics import forward
 from errormap.progress import Progress
 
 from .base import BALL_RADIUS_UM, SolveResult
-from ._common import (MM_PER_UM, UM_PER_MM, check_inputs, command_axes, field_error_um, field_jacobian_um,
-                      forward_jacobian, make_result, project_to_ball, wrap180)
+from ._common import (MM_PER_UM, UM_PER_MM, check_inputs, command_axes, field_error_and_jacobian_um, field_error_um,
+                      field_jacobian_um, forward_and_jacobian, make_result, project_to_ball, wrap180)
 
 MAX_STEP = np.array([1.0, 1.0, 90.0])
 """Largest Newton step (x_mm, z_mm, a_deg) before the line search."""
@@ -54,18 +54,26 @@ SLOW = 0.99
 def solve3(J, b) -> np.ndarray:
     """Solve ``J x = b`` for a batch of 3×3 systems by Cramer's rule; (n,3,3),(n,3) -> (n,3).
 
-    A (numerically) singular system gives a zero step (the point then stagnates).
+    Written out component by component (no temporaries of shape (n, 3, 3)). A
+    (numerically) singular system gives a zero step (the point then stagnates).
     """
-    c0, c1, c2 = J[:, :, 0], J[:, :, 1], J[:, :, 2]
-    c12 = np.cross(c1, c2)
-    det = np.einsum("ij,ij->i", c0, c12)
-    scale = np.linalg.norm(c0, axis=1) * np.linalg.norm(c1, axis=1) * np.linalg.norm(c2, axis=1)
-    ok = np.abs(det) > 1e-13 * scale
-    safe = np.where(ok, det, 1.0)
-    x = np.stack([np.einsum("ij,ij->i", b, c12),
-                  np.einsum("ij,ij->i", c0, np.cross(b, c2)),
-                  np.einsum("ij,ij->i", c0, np.cross(c1, b))], axis=1) / safe[:, None]
-    x[~ok] = 0.0
+    J = np.asarray(J, dtype=float)
+    b = np.asarray(b, dtype=float)
+    a00, a01, a02 = J[:, 0, 0], J[:, 0, 1], J[:, 0, 2]
+    a10, a11, a12 = J[:, 1, 0], J[:, 1, 1], J[:, 1, 2]
+    a20, a21, a22 = J[:, 2, 0], J[:, 2, 1], J[:, 2, 2]
+    m0 = a11 * a22 - a12 * a21  # cofactors of the first row
+    m1 = a12 * a20 - a10 * a22
+    m2 = a10 * a21 - a11 * a20
+    det = a00 * m0 + a01 * m1 + a02 * m2
+    col = np.sqrt(a00**2 + a10**2 + a20**2) * np.sqrt(a01**2 + a11**2 + a21**2) * np.sqrt(a02**2 + a12**2 + a22**2)
+    ok = np.abs(det) > 1e-13 * col
+    inv = np.where(ok, 1.0, 0.0) / np.where(ok, det, 1.0)
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    x = np.empty_like(b)
+    x[:, 0] = (m0 * b0 + (a02 * a21 - a01 * a22) * b1 + (a01 * a12 - a02 * a11) * b2) * inv
+    x[:, 1] = (m1 * b0 + (a00 * a22 - a02 * a20) * b1 + (a02 * a10 - a00 * a12) * b2) * inv
+    x[:, 2] = (m2 * b0 + (a01 * a20 - a00 * a21) * b1 + (a00 * a11 - a01 * a10) * b2) * inv
     return x
 
 
@@ -113,69 +121,97 @@ def solve_exact(field, targets_mm, machine, *, target_axes=None, a_start_deg=Non
                              "outside_ball": np.flatnonzero(outside)})
 
 
+def _index(idx, pos):
+    """Point indices at positions ``pos`` of ``idx`` (a slice over all points or an index array)."""
+    return pos if isinstance(idx, slice) else idx[pos]
+
+
+def _take(idx, mask):
+    """The entries of ``idx`` where ``mask`` holds; ``idx`` itself when the mask is all true
+    (so the common path, all points iterating, indexes with a slice: views, not copies)."""
+    return idx if mask.all() else _index(idx, np.flatnonzero(mask))
+
+
 def _newton(field, machine, targets, q0, xtol_um, max_iter):
-    """Newton–chord iterations with line search on one chunk; returns (q, E(q) μm, iterations, jacobians, nfev)."""
+    """Newton–Broyden iterations with line search on one chunk; returns (q, E(q) μm, iterations, jacobians, nfev).
+
+    Arrays stay full length; ``idx`` selects the points still iterating (a slice while all
+    of them are, the usual case on a path).
+    """
     n = len(targets)
     q = q0.copy()
     iters = np.zeros(n, dtype=np.int32)
-    n_jac = np.zeros(n, dtype=np.int32)
-    E = field_error_um(field, q, machine)  # μm at the current iterate
-    F = forward(machine, q) + MM_PER_UM * E - targets
-    fn = np.linalg.norm(F, axis=1)
-    nfev = n
-    JE = np.empty((n, 3, 3))  # field part of the Jacobian, μm per (mm, mm, deg)
-    stale = np.ones(n, dtype=bool)  # Jacobian needs (re)computing
-    active = np.flatnonzero(fn * UM_PER_MM > xtol_um)
+    n_jac = np.ones(n, dtype=np.int32)
+    # value and field Jacobian at the start in one pass; the kinematic Jacobian alongside
+    E, JE, nfev = field_error_and_jacobian_um(field, q, machine)
+    P, JK = forward_and_jacobian(machine, q)
+    F = P + MM_PER_UM * E - targets
+    fn = np.sqrt(np.einsum("ij,ij->i", F, F))
+    stale = np.zeros(n, dtype=bool)  # the field Jacobian needs recomputing
+    tol = xtol_um * MM_PER_UM
+    idx = _take(slice(None), fn > tol)
     for _ in range(max_iter):
-        if active.size == 0:
+        if not isinstance(idx, slice) and idx.size == 0:
             break
-        refresh = active[stale[active]]
-        if refresh.size:
+        refresh = None
+        if stale[idx].any():
+            refresh = _take(idx, stale[idx])
             JE[refresh], fe = field_jacobian_um(field, q[refresh], machine, e0_um=E[refresh])
             n_jac[refresh] += 1
             stale[refresh] = False
             nfev += fe
-        # kinematic part always fresh (analytic, cheap); field part reused while it works
-        J = forward_jacobian(machine, q[active]) + MM_PER_UM * JE[active]
-        step = solve3(J, -F[active])
+        step = solve3(JK[idx] + MM_PER_UM * JE[idx], -F[idx])
         big = np.max(np.abs(step) / MAX_STEP, axis=1)
-        step /= np.maximum(big, 1.0)[:, None]
-        # backtracking line search on the points still searching
-        alpha = np.ones(active.size)
-        crawl = np.zeros(n, dtype=bool)
-        accepted = np.zeros(active.size, dtype=bool)
-        pending = np.arange(active.size)
+        if np.any(big > 1.0):
+            step /= np.maximum(big, 1.0)[:, None]
+        # backtracking line search; `pend` are the positions (into idx) still searching
+        m = step.shape[0]
+        alpha = np.ones(m)
+        accepted = np.zeros(m, dtype=bool)
+        crawl = np.zeros(m, dtype=bool)
+        pend = None  # all of them
         for _h in range(MAX_HALVINGS):
-            idx = active[pending]
-            qt = q[idx] + alpha[pending, None] * step[pending]
+            ii = idx if pend is None else _index(idx, pend)
+            al = alpha if pend is None else alpha[pend]
+            qt = q[ii] + al[:, None] * (step if pend is None else step[pend])
             Et = field_error_um(field, qt, machine)
-            Ft = forward(machine, qt) + MM_PER_UM * Et - targets[idx]
-            nfev += idx.size
-            ft = np.linalg.norm(Ft, axis=1)
-            ok = ft <= (1.0 - ARMIJO * alpha[pending]) * fn[idx]
+            Pt, JKt = forward_and_jacobian(machine, qt)
+            Ft = Pt + MM_PER_UM * Et - targets[ii]
+            ft = np.sqrt(np.einsum("ij,ij->i", Ft, Ft))
+            nfev += ft.size
+            f_old = fn[ii].copy()  # fn[ii] may be a view, and fn is updated below
+            ok = ft <= (1.0 - ARMIJO * al) * f_old
             if ok.any():
-                good = idx[ok]
-                crawl[good] = ft[ok] > SLOW * fn[good]
+                if ok.all():
+                    good, sel, pos = ii, slice(None), (slice(None) if pend is None else pend)
+                else:
+                    sel = ok
+                    pos = np.flatnonzero(ok) if pend is None else pend[ok]
+                    good = _index(idx, pos)
                 # Broyden (secant) update of the field part, free: dE = JE·dq along the step
-                dq, dE = qt[ok] - q[good], Et[ok] - E[good]
-                miss = dE - np.einsum("nij,nj->ni", JE[good], dq)
-                JE[good] += miss[:, :, None] * dq[:, None, :] / np.maximum(
-                    np.einsum("ni,ni->n", dq, dq), 1e-300)[:, None, None]
-                q[good], E[good], F[good], fn[good] = qt[ok], Et[ok], Ft[ok], ft[ok]
-                accepted[pending[ok]] = True
-            pending = pending[~ok]
-            if pending.size == 0:
-                break
-            alpha[pending] *= 0.5
-        iters[active] += 1
-        # no step decreased |F| (or only crawled): retry once with a fresh Jacobian;
-        # with a fresh one, stop (a root cannot be reached, e.g. a field discontinuity)
-        failed_mask = ~accepted | crawl[active]
-        stale[active[failed_mask]] = True
-        # a failure right after a fresh Jacobian stops the point (boolean masks, no sorting)
-        fresh = np.zeros(n, dtype=bool)
-        fresh[refresh] = True
-        stop_mask = failed_mask & fresh[active]
-        done_mask = fn[active] * UM_PER_MM <= xtol_um
-        active = active[~(stop_mask | done_mask)]
+                dq, dE = qt[sel] - q[good], Et[sel] - E[good]
+                JEg = JE[good]
+                miss = dE - np.einsum("nij,nj->ni", JEg, dq)
+                w = dq / np.maximum(np.einsum("ni,ni->n", dq, dq), 1e-300)[:, None]
+                JE[good] = JEg + miss[:, :, None] * w[:, None, :]
+                q[good], E[good], F[good], fn[good], JK[good] = qt[sel], Et[sel], Ft[sel], ft[sel], JKt[sel]
+                accepted[pos] = True
+                crawl[pos] = ft[sel] > SLOW * f_old[sel]
+                if ok.all():
+                    break
+            pend = np.flatnonzero(~ok) if pend is None else pend[~ok]
+            alpha[pend] *= 0.5
+        iters[idx] += 1
+        # no step decreased |F| (or only crawled): retry once with a fresh field Jacobian;
+        # a failure right after a fresh Jacobian stops the point (stagnation)
+        failed = ~accepted | crawl
+        keep = fn[idx] > tol
+        if failed.any():
+            idx_arr = _index(idx, np.arange(m))
+            if refresh is not None:
+                was_fresh = np.zeros(n, dtype=bool)
+                was_fresh[refresh] = True
+                keep &= ~(failed & was_fresh[idx_arr])
+            stale[idx_arr[failed]] = True
+        idx = _take(idx, keep)
     return q, E, iters, n_jac, nfev
