@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from compensation.solvers import METHODS, SolveResult, get_solver, solve
-from compensation.solvers._common import fold_a, forward_jacobian, project_to_ball
+from compensation.solvers._common import (fold_a, forward_and_jacobian, forward_jacobian, nominal_tool_at_z0,
+                                          project_to_ball)
 from compensation.solvers.exact import solve3
-from errormap.kinematics import forward, inverse
+from errormap.kinematics import forward, inverse, tool_in_machine_nominal
 from errormap.machine import load_machine
 from errormap.transforms import rot_x
 
@@ -86,6 +87,17 @@ def test_forward_jacobian_matches_finite_differences(machine):
     for k in range(3):
         dp = (forward(machine, axes + h * np.eye(3)[k]) - forward(machine, axes - h * np.eye(3)[k])) / (2 * h[k])
         np.testing.assert_allclose(J[:, :, k], dp, atol=JAC_TOL)
+
+
+@pytest.mark.parametrize("theta1_deg", [None, 7.0])
+def test_closed_form_kinematics_equal_the_chains(machine, theta1_deg):
+    mach = machine if theta1_deg is None else dataclasses.replace(machine, theta1_deg=theta1_deg)
+    rng = np.random.default_rng(2)
+    axes = np.column_stack([rng.uniform(0, 200, 50), rng.uniform(0, 60, 50), rng.uniform(-400, 800, 50)])
+    p, J = forward_and_jacobian(mach, axes)
+    np.testing.assert_allclose(p, forward(mach, axes), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(J, forward_jacobian(mach, axes))
+    np.testing.assert_allclose(nominal_tool_at_z0(mach), tool_in_machine_nominal(mach, [0.0])[0], rtol=0, atol=1e-12)
 
 
 def test_solve3_matches_numpy():

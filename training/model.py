@@ -279,17 +279,19 @@ class MLPField:
         """
         return self.predict_and_jacobian(axes)[1]
 
-    def predict_and_jacobian(self, axes):
+    def predict_and_jacobian(self, axes, dtype=np.float64):
         """Both at once (one pass): (errors shape (n, 3) μm, jacobian shape (n, 3, 3)).
 
         Forward-mode differentiation written out: with ``z = W h + b`` and ``h' = σ(z)`` the
         three input tangents (one per axis) go through each layer as ``dh' = σ'(z) ⊙ (W dh)``,
         as one matrix product over all points and the three tangents; equal to
         :meth:`jacobian_reference` (``torch.func.jvp``) to float64 rounding (tested).
+        ``dtype=np.float32`` runs the network in float32 (a Newton start, where only the
+        step direction matters); the arrays returned are float64 either way.
         """
         axes = _check_axes(axes)
         self._theta()
-        return self._infer(axes, jac=True, dtype=np.float64)
+        return self._infer(axes, jac=True, dtype=dtype)
 
     def jacobian_reference(self, axes) -> np.ndarray:
         """The slow reference: ``torch.func.jvp`` on :meth:`forward`, shape (n, 3, 3), with the seam."""
@@ -365,13 +367,13 @@ class MLPField:
                     layers.append((W.contiguous().to(tdt), b.reshape(o, 1).to(tdt)))
                 s = 2.0 / (self.in_hi_ - self.in_lo_)
                 W1 = layers[0][0]  # (h1, n_inputs)
-                # first layer's pre-activation tangent per axis, (3 axes, h1, 1); the periodic
+                # first layer's pre-activation tangent per axis, (h1, 3 axes, 1); the periodic
                 # encoding's A tangent depends on the point and is built in _net_cols
-                tan0 = torch.zeros((3, W1.shape[0], 1), dtype=tdt)
-                tan0[0, :, 0] = W1[:, 0] * float(s[0])
-                tan0[1, :, 0] = W1[:, 1] * float(s[1])
+                tan0 = torch.zeros((W1.shape[0], 3, 1), dtype=tdt)
+                tan0[:, 0, 0] = W1[:, 0] * float(s[0])
+                tan0[:, 1, 0] = W1[:, 1] * float(s[1])
                 if self.a_encoding == "raw":
-                    tan0[2, :, 0] = W1[:, 2] * float(s[2])
+                    tan0[:, 2, 0] = W1[:, 2] * float(s[2])
             lo = np.asarray(self.in_lo_, dtype=float)
             net = {"layers": layers, "s": s, "lo": lo, "tan0": tan0, "tdt": tdt,
                    "lo_col": torch.as_tensor(lo, dtype=tdt).reshape(3, 1),
@@ -406,39 +408,44 @@ class MLPField:
     def _net_cols(self, u, net, jac: bool):
         """The network on feature columns ``u`` (n_inputs, m) (torch, the net's dtype).
 
-        Returns (scaled outputs (3, m), tangents d(outputs)/d(axes) (3 axes, 3 outputs, m) or
+        Returns (scaled outputs (3, m), tangents d(outputs)/d(axes) (3 outputs, 3 axes, m) or
         None). Points are columns: each layer is one ``addmm(b, W, h)`` with W (out, in), which
-        runs faster on these narrow layers than the row layout.
+        runs faster on these narrow layers than the row layout; the three tangents of a layer
+        are one (units, 3·m) matrix, so they too take one matrix product.
         """
         layers = net["layers"]
         last = len(layers) - 1
         act = self.activation
+        m = u.shape[1]
         h, T = u, None
         for i, (W, b) in enumerate(layers):
             z = torch.addmm(b, W, h)
             if jac:
                 if i > 0:
-                    T = torch.matmul(W, T)
+                    T = torch.mm(W, T.view(T.shape[0], 3 * m)).view(W.shape[0], 3, m)
                 elif self.a_encoding == "raw":
-                    T = net["tan0"]
+                    T = net["tan0"]  # (h1, 3, 1), broadcast over the points below
                 else:  # d(cos r, sin r)/da = (-sin r, cos r)·π/180
                     k = math.pi / 180.0
-                    T = net["tan0"].expand(3, W.shape[0], u.shape[1]).clone()
-                    T[2] = torch.outer(W[:, 2], -u[3] * k) + torch.outer(W[:, 3], u[2] * k)
+                    T = net["tan0"].expand(W.shape[0], 3, m).clone()
+                    T[:, 2] = torch.outer(W[:, 2], -u[3] * k) + torch.outer(W[:, 3], u[2] * k)
             if i == last:
                 return z, T
             if act == "sigmoid":
                 h = torch.sigmoid_(z)
                 if jac:
-                    T = T * (h * (1.0 - h))
+                    d = h * (1.0 - h)
             elif act == "tanh":
                 h = torch.tanh_(z)
                 if jac:
-                    T = T * (1.0 - h * h)
+                    d = 1.0 - h * h
             else:
                 if jac:
-                    T = T * torch.sigmoid(z)
+                    d = torch.sigmoid(z)
                 h = torch.nn.functional.softplus(z)
+            if jac:
+                d = d.unsqueeze(1)
+                T = T * d if i == 0 else T.mul_(d)
         raise AssertionError("unreachable")  # pragma: no cover
 
     def _run_net(self, x, net, jac: bool, out_e, out_j):
@@ -453,38 +460,60 @@ class MLPField:
             y, T = self._net_cols(u, net, jac)
             out_e[s0:s0 + m] = y.T
             if jac:
-                out_j[s0:s0 + m] = T.permute(2, 1, 0)  # (3 axes, 3 outputs, m) -> (m, outputs, axes)
+                out_j[s0:s0 + m] = T.permute(2, 0, 1)  # (3 outputs, 3 axes, m) -> (m, outputs, axes)
+
+    COLUMNS_BLOCK = {torch.float32: 16_384, torch.float64: 8_192}
+    """Columns per network call in :meth:`predict_columns` (activations stay in cache)."""
 
     def predict_columns(self, xa: torch.Tensor) -> torch.Tensor:
         """Errors μm at axis columns ``xa`` = [x_mm; z_mm; a_deg], shape (3, m) -> (3, m).
 
-        The inner loop of the batched GA: a torch tensor in, the same dtype (float32 or
-        float64) out, no checks and no copies to numpy. A must already lie in the training
-        turn ``[a0, a0 + 360]``; the seam correction is applied as in :meth:`predict`. With
-        raw A the input and output scalings are folded into the first and last layers.
+        The solvers' inner loop: a torch tensor in, the same dtype (float32 or float64) out,
+        no validation and no copies to numpy. A is folded into the training turn
+        ``[a0, a0 + 360)`` (E is periodic, so the turn's end maps onto its start) and the seam
+        correction is applied as in :meth:`predict`; equal to :meth:`predict` to float
+        rounding (tested). With raw A the input and output scalings are folded into the
+        first and last layers.
         """
         net = self._net(np.float32 if xa.dtype == torch.float32 else np.float64)
+        m = xa.shape[1]
         with torch.inference_mode():
-            if self.a_encoding == "periodic":
-                u = (xa - net["lo_col"]) * net["s_col"] - 1.0
-                r = torch.deg2rad(xa[2])
-                u = torch.stack([u[0], u[1], torch.cos(r), torch.sin(r)])
-                return self._net_cols(u, net, False)[0] * self.out_scale_ + net["out_mean_col"]
-            raw = {"layers": net["raw_um_layers"]}
-            y = self._net_cols(xa, raw, False)[0]
-            w = self._seam_window()
-            if w:
-                start = self.a0_deg_ + 360.0 - w
-                sel = torch.nonzero(xa[2] > start).squeeze(1)
-                k = sel.numel()
-                if k:  # N at both ends of the turn for the seam points
-                    x2 = xa[:, sel].repeat(1, 2)
-                    x2[2, :k] = self.a0_deg_
-                    x2[2, k:] = self.a0_deg_ + 360.0
-                    y2 = self._net_cols(x2, raw, False)[0]
-                    tk = (xa[2, sel] - start) / w
-                    y[:, sel] += (y2[:, :k] - y2[:, k:]) * (tk * tk * (3.0 - 2.0 * tk))
-            return y
+            a = torch.remainder(xa[2] - self.a0_deg_, 360.0) + self.a0_deg_
+            xa = torch.cat([xa[:2], a.unsqueeze(0)])
+            blk = self.COLUMNS_BLOCK.get(xa.dtype, 8_192)
+            if m <= blk:
+                return self._columns(xa, net)
+            out = torch.empty((3, m), dtype=xa.dtype)
+            for s0 in range(0, m, blk):
+                out[:, s0:s0 + blk] = self._columns(xa[:, s0:s0 + blk], net)
+            return out
+
+    def _columns(self, xa, net):
+        """:meth:`predict_columns` on one block whose A lies in the training turn."""
+        if self.a_encoding == "periodic":
+            u = (xa - net["lo_col"]) * net["s_col"] - 1.0
+            r = torch.deg2rad(xa[2])
+            u = torch.stack([u[0], u[1], torch.cos(r), torch.sin(r)])
+            return self._net_cols(u, net, False)[0] * self.out_scale_ + net["out_mean_col"]
+        raw = {"layers": net["raw_um_layers"]}
+        w = self._seam_window()
+        sel = torch.nonzero(xa[2] > self.a0_deg_ + 360.0 - w).squeeze(1) if w else None
+        if sel is None or sel.numel() == 0:
+            return self._net_cols(xa, raw, False)[0]
+        # the seam points again at both ends of the turn, in the same network call
+        m, k = xa.shape[1], sel.numel()
+        x = torch.empty((3, m + 2 * k), dtype=xa.dtype)
+        x[:, :m] = xa
+        xs = xa[:, sel]
+        x[:, m:m + k] = xs
+        x[:, m + k:] = xs
+        x[2, m:m + k] = self.a0_deg_
+        x[2, m + k:] = self.a0_deg_ + 360.0
+        y_all = self._net_cols(x, raw, False)[0]
+        y = y_all[:, :m]
+        tk = (xs[2] - (self.a0_deg_ + 360.0 - w)) / w
+        y[:, sel] += (y_all[:, m:m + k] - y_all[:, m + k:]) * (tk * tk * (3.0 - 2.0 * tk))
+        return y
 
     def _infer(self, axes, jac: bool, dtype=np.float64):
         """Errors μm (n, 3) [and Jacobian (n, 3, 3)] at raw axes, with the seam correction."""

@@ -15,11 +15,13 @@ Conventions (all solvers):
 """
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
+import torch
 
-from errormap.kinematics import inverse, tool_in_machine_nominal
+from errormap.kinematics import inverse
 from errormap.transforms import check_points
 
 from .base import BALL_RADIUS_UM, SolveResult
@@ -83,12 +85,21 @@ def check_inputs(field, targets_mm, machine, target_axes=None, a_start_deg=None,
 def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = False) -> np.ndarray:
     """``E(axes)`` μm with A folded into the calibrated turn, in chunks; (n, 3) -> (n, 3).
 
-    ``fast=True`` (GA fitness only) uses the field's float32 path when it declares one
-    (``field.float32_predict = True``, e.g. the learned MLP: ~1e-4 μm from float64, far below
-    the GA's 0.01 μm resolution); the result is float64 either way.
+    Fields with ``predict_columns`` (the learned MLP) are evaluated through it, in float64:
+    the same field without ``predict``'s validation and conversions (the solvers validate
+    their input once). ``fast=True`` (GA fitness only) uses the field's float32 path when it
+    declares one (``field.float32_predict = True``: a few nm from float64, below the GA's
+    ~0.01 μm resolution); the result is float64 either way.
     """
     axes = fold_a(axes, machine)
     n = axes.shape[0]
+    columns = getattr(field, "predict_columns", None)
+    if callable(columns) and not fast:
+        out = np.empty((n, 3))
+        for s in range(0, n, chunk):
+            xa = torch.from_numpy(np.ascontiguousarray(axes[s:s + chunk].T))
+            out[s:s + chunk] = columns(xa).numpy().T
+        return out
     kw = {"dtype": np.float32} if fast and getattr(field, "float32_predict", False) else {}
     if n <= chunk:
         return np.asarray(field.predict(axes, **kw), dtype=float).reshape(n, 3)
@@ -134,12 +145,21 @@ def field_jacobian_um(field, axes, machine, e0_um=None, chunk: int = FIELD_CHUNK
     return J, m_shift * n
 
 
-def field_error_and_jacobian_um(field, axes, machine, chunk: int = FIELD_CHUNK):
+def nominal_tool_at_z0(machine) -> tuple:
+    """The nominal tool point in the MCS at z = 0, ``RotZ(θ1)·(l2 + l3, 0, l1 + l4 - R)``, as
+    three floats (``errormap.kinematics.tool_in_machine_nominal`` without its array set-up)."""
+    th = math.radians(machine.theta1_deg)
+    r = machine.l2 + machine.l3
+    return (math.cos(th) * r, math.sin(th) * r, machine.l1 + machine.l4 - machine.R)
+
+
+def field_error_and_jacobian_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = False):
     """``(E (n, 3) μm, dE/d(axes) (n, 3, 3), evaluations)`` at axes (n, 3), A folded.
 
     One pass through ``field.predict_and_jacobian`` when the field has it (counted as two
     evaluations per point, a value and a Jacobian), else :func:`field_error_um` then
-    :func:`field_jacobian_um` (forward differences from it).
+    :func:`field_jacobian_um` (forward differences from it). ``fast=True`` runs a field with a
+    float32 path in float32 (e.g. a Newton start, where only the step direction matters).
     """
     n = np.asarray(axes).shape[0]
     both = getattr(field, "predict_and_jacobian", None)
@@ -147,10 +167,11 @@ def field_error_and_jacobian_um(field, axes, machine, chunk: int = FIELD_CHUNK):
         E = field_error_um(field, axes, machine, chunk=chunk)
         J, fe = field_jacobian_um(field, axes, machine, e0_um=E, chunk=chunk)
         return E, J, n + fe
+    kw = {"dtype": np.float32} if fast and getattr(field, "float32_predict", False) else {}
     a = fold_a(axes, machine)
     E, J = np.empty((n, 3)), np.empty((n, 3, 3))
     for s in range(0, n, chunk):
-        e, j = both(a[s:s + chunk])
+        e, j = both(a[s:s + chunk], **kw)
         E[s:s + chunk] = np.asarray(e, dtype=float).reshape(-1, 3)
         J[s:s + chunk] = np.asarray(j, dtype=float).reshape(-1, 3, 3)
     return E, J, 2 * n
@@ -166,7 +187,7 @@ def forward_and_jacobian(machine, axes, jac: bool = True):
     where the general chain's overhead would dominate. ``jac=False`` returns ``(p, None)``.
     """
     axes = np.asarray(axes, dtype=float)
-    t0 = tool_in_machine_nominal(machine, np.zeros(1))[0]
+    t0 = nominal_tool_at_z0(machine)
     ty = t0[1]
     h = axes[:, 1] + (t0[2] - machine.l6 - machine.l8)
     a = np.deg2rad(axes[:, 2])

@@ -39,12 +39,14 @@ def breed(pop, fit, words, odd, M, pm, step, ball, new_pop, new_fit, fresh_at, f
         # the first M are the mating parents, the first is the elite (keep_elitism = 1)
         for j in range(P):
             ranked[j] = j  # (a NaN fitness would leave gaps; callers map NaN to -inf)
+        row = fit[i]
         for j in range(P):
-            fj = fit[i, j]
-            r = 0
+            fj = row[j]
+            r = np.int32(0)
             for h in range(P):
-                fh = fit[i, h]
-                r += (fh > fj) | ((fh == fj) & (h < j))
+                r += np.int32(row[h] > fj)
+            for h in range(j):
+                r += np.int32(row[h] == fj)
             ranked[r] = j
         e = ranked[0]
         new_fit[i, 0] = fit[i, e]

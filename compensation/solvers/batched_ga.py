@@ -56,12 +56,12 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import torch
 
-from errormap.kinematics import inverse, tool_in_machine_nominal
+from errormap.kinematics import inverse
 from errormap.progress import Progress
 from training.model import torch_threads
 
 from .base import BALL_RADIUS_UM, SolveResult
-from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, project_to_ball
+from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, nominal_tool_at_z0, project_to_ball
 from ._ga_kernels import breed, scatter
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
@@ -156,9 +156,9 @@ class _FusedFitness:
     """The same fitness as one float32 torch pipeline: nominal IK, then ``field.predict_columns``.
 
     IK (``errormap.kinematics.inverse``): ``x = c_x - p_x``, ``h = sqrt(p_y² + p_z² - t_y²)``,
-    ``z = h - c_h``, ``a = atan2(p_y, p_z) - atan2(t_y, h)`` (deg); A goes into the calibrated
-    turn ``[a_lo, a_lo + 360)`` as ``inverse(unwrap=False)`` puts it (:func:`._common.fold_a`
-    leaves it there), then the field folds it into its own turn.
+    ``z = h - c_h``, ``a = atan2(p_y, p_z) - atan2(t_y, h)`` (deg), which ``predict_columns``
+    folds into the field's turn (the generic path folds into the stroke's turn first; E is
+    periodic, so both are the same point of the field).
     """
 
     BLOCK = 16_384
@@ -166,11 +166,10 @@ class _FusedFitness:
 
     def __init__(self, field, machine, targets):
         self.field = field
-        t0 = tool_in_machine_nominal(machine, np.zeros(1))[0]
+        t0 = nominal_tool_at_z0(machine)
         self.cx = float(t0[0] - machine.l5 - machine.l7)
         self.ty = float(t0[1])
         self.ch = float(t0[2] - machine.l6 - machine.l8)
-        self.a_lo = float(machine.strokes["a_deg"][0])
         # per-point constants; x in float64 first (c_x - p_x), then float32
         self.x = torch.from_numpy((self.cx - targets[:, 0]).astype(np.float32))
         self.py = torch.from_numpy(targets[:, 1].astype(np.float32))
@@ -197,9 +196,7 @@ class _FusedFitness:
         a = torch.atan2(py, pz)
         if self.ty != 0.0:
             a -= torch.atan2(torch.full_like(h, self.ty), h)
-        a = torch.rad2deg_(a)
-        # [a_lo, a_lo + 360) as inverse(unwrap=False) (and fold_a, for a full-turn stroke)
-        torch.add(torch.remainder(a - self.a_lo, 360.0), self.a_lo, out=xa[2])
+        torch.rad2deg(a, out=xa[2])  # predict_columns folds A into the field's turn
         r = self.field.predict_columns(xa)
         r += dT
         f = (r * r).sum(dim=0).neg_()

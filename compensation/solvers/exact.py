@@ -142,8 +142,10 @@ def _newton(field, machine, targets, q0, xtol_um, max_iter):
     q = q0.copy()
     iters = np.zeros(n, dtype=np.int32)
     n_jac = np.ones(n, dtype=np.int32)
-    # value and field Jacobian at the start in one pass; the kinematic Jacobian alongside
-    E, JE, nfev = field_error_and_jacobian_um(field, q, machine)
+    # value and field Jacobian at the start in one pass, in float32 where the field has it
+    # (only the first step's direction depends on them: every later value is float64); the
+    # kinematic Jacobian alongside
+    E, JE, nfev = field_error_and_jacobian_um(field, q, machine, fast=True)
     P, JK = forward_and_jacobian(machine, q)
     F = P + MM_PER_UM * E - targets
     fn = np.sqrt(np.einsum("ij,ij->i", F, F))
