@@ -80,7 +80,8 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
     The points are split into equal chunks of at most ``chunk`` points, their number a
     multiple of ``workers``; each chunk evolves on its own (its own child Generator of
     ``seed``), ``workers`` chunks at a time in threads (torch runs one thread per chunk
-    meanwhile). ``workers``: None uses torch's thread count (the cores torch would use).
+    meanwhile). ``workers``: None uses torch's thread count (the cores torch would use) with
+    the fused fitness, 1 otherwise (a generic field's evaluation holds the GIL).
     The result depends on ``seed``, ``chunk`` and ``workers``, not on timing. ``fused``: None
     (default) uses the fused float32 fitness when the field offers ``predict_columns``;
     False forces the generic path. ``success``: |model residual| ≤ ``tol_um`` and inside
@@ -90,15 +91,17 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
     targets, axes_d = check_inputs(field, targets_mm, machine, target_axes, a_start_deg, ball_um)
     n_parents = check_ga_options(population, generations, selection_probability, crossover_probability,
                                  mutation_probability, mutation_step_um, tol_um)
-    workers = torch.get_num_threads() if workers is None else workers
     if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
         raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
-    if not (isinstance(workers, (int, np.integer)) and workers >= 1):
+    if workers is not None and not (isinstance(workers, (int, np.integer)) and workers >= 1):
         raise ValueError(f"Expected workers ≥ 1, got {workers!r}")
     has_columns = callable(getattr(field, "predict_columns", None))
     use_fused = has_columns if fused is None else bool(fused)
     if use_fused and not has_columns:
         raise ValueError(f"Expected a field with predict_columns for fused=True, got {type(field).__name__}")
+    # threads pay off where the work releases the GIL (the fused torch pipeline and the
+    # compiled step); a generic field's numpy/Python evaluation would only contend for it
+    workers = (torch.get_num_threads() if use_fused else 1) if workers is None else workers
     n = len(targets)
     k = -(-n // chunk)
     k = max(1, -(-k // workers) * workers) if n >= workers else 1
