@@ -36,12 +36,15 @@ in ``jacobian``. The periodic encoding needs none (it is exactly periodic). ``fo
 ``param_jacobian`` (training) and the training metrics' raw network are unchanged.
 
 **Fast inference.** ``predict``/``predict_and_jacobian`` run the network with cached
-transposed weights (``torch.addmm`` per layer, ``torch.inference_mode``), in blocks of
-``BLOCK`` points, with the input Jacobian computed alongside by forward-mode tangents
-(``dh' = σ'(z) ⊙ (W dh)``, three tangent columns in one matrix product); calls smaller
-than ``SMALL_BATCH`` points run on one torch thread (restored after). ``predict(axes,
-dtype=np.float32)`` is a float32 network path for GA fitness. ``jacobian_reference`` keeps
-the ``torch.func.jvp`` reference the tests compare against.
+weights on points as *columns* (``torch.addmm(b, W, h)`` per layer, W (out, in): faster than
+rows on these narrow layers; ``torch.inference_mode``), in blocks of ``BLOCK`` points, with
+the input Jacobian computed alongside by forward-mode tangents (``dh' = σ'(z) ⊙ (W dh)``,
+the three tangents as one (units, 3·points) matrix product); calls smaller than
+``SMALL_BATCH`` points run on one torch thread (restored after). ``predict(axes,
+dtype=np.float32)`` is a float32 path (a few nm from float64). ``predict_columns`` is the
+solvers' inner loop: torch columns in and out, no validation, A folded into the turn, the
+input and output scalings folded into the first and last layers (raw A). ``jacobian_reference``
+keeps the ``torch.func.jvp`` reference the tests compare against.
 """
 from __future__ import annotations
 
@@ -250,9 +253,9 @@ class MLPField:
         """Spatial error (dx_um, dy_um, dz_um) at raw axes shape (n, 3) -> shape (n, 3) μm, float64.
 
         ``dtype=np.float32`` runs the network in float32 (features are computed in float64
-        first): about 2-3x faster, values within ~1e-4 μm of float64 on a ~50 μm field
-        (``tests/test_model_inference.py``). Meant for GA fitness only; the exact solver and
-        every residual stay float64.
+        first): about 2x faster, values within a few nm of float64 (≤ 1e-3 μm tested on a
+        ~50 μm field, ``tests/test_model_inference.py``; 0.004 μm measured on the demo's
+        trained field). Meant for GA fitness and Newton starts; every residual stays float64.
         """
         axes = _check_axes(axes)
         self._theta()
