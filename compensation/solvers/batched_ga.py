@@ -1,8 +1,10 @@
-"""The paper's GA with PyGAD's operators, evolving every point's population at once (torch).
+"""The paper's GA with PyGAD's operators, evolving every point's population at once.
 
-Same problem, parameters and fitness as :mod:`compensation.solvers.ga`; the population is
-a float32 tensor of shape (n_points, 40, 3) (offsets d in μm) and one generation is a
-handful of tensor operations plus one field evaluation over all new offspring of all points.
+Same problem, parameters and fitness as :mod:`compensation.solvers.ga`; the populations are
+one float32 array of shape (n_points, 40, 3) (offsets d in μm) and one generation is one
+compiled pass over all points (:func:`._ga_kernels.breed`: selection, crossover, mutation,
+ball repair, fitness inheritance) plus one field evaluation over all new offspring of all
+points.
 
 Operators, as PyGAD 3.9 runs them with the ``ga`` solver's configuration (one generation):
 
@@ -39,12 +41,13 @@ Fitness evaluation, two paths with the same value:
 * **generic** (any field, e.g. the HTM field): float64 numpy through
   :func:`errormap.kinematics.inverse` and :func:`._common.field_error_um`.
 
-Differences from PyGAD: the random streams differ (the initial populations from the numpy
-Generator, then one torch Generator seeded from it, for the whole batch, instead of one
-RandomState/Random pair per point), so single runs differ point by
-point while their distributions are the same; ties in fitness are broken by
-``argpartition`` order, not PyGAD's reversed stable sort (tied individuals are almost
-always identical copies, so the choice is immaterial).
+Differences from PyGAD: the random streams differ (one numpy Generator per chunk of
+points, its raw 32-bit words feeding the compiled step, instead of one RandomState/Random
+pair per point), so single runs differ point by point while their distributions are the
+same; ties in fitness are broken by index, not PyGAD's reversed stable sort (tied
+individuals are almost always identical copies, so the choice is immaterial); PyGAD's
+fitness cache also matches offspring against all 28 parents, this one against the
+offspring's own two (≈ 2 % more evaluations late in a run, docs/solvers.md).
 """
 from __future__ import annotations
 
