@@ -7,8 +7,8 @@ long, and the report says so) → ``DIR/report.html``, ``DIR/metrics.json``, ``D
 showing the MODEL residual (the trained network's own view) and the TRUE residual (the
 simulated machine). The report files are also logged to the training's MLflow run.
 
-Defaults finish in about 10 minutes on 2 CPU cores: training stops after ``--train-s``
-seconds, the per-point GA after ``--ga-budget-s``.
+Defaults finish in about 3–4 minutes on 2 CPU cores (192 s measured, BENCHMARKS.md):
+training stops after ``--train-s`` seconds, the per-point GA after ``--ga-budget-s``.
 """
 from __future__ import annotations
 
