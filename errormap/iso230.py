@@ -1,0 +1,186 @@
+"""ISO 230-1 names for the grinder's 23 error elements, with signs and reference points.
+
+ISO 230-1 names a *component error* ``E<direction><axis>`` (``EXX`` positioning of X,
+``EYX``/``EZX`` straightness of X in Y/Z, ``EAX``/``EBX``/``ECX`` its roll/pitch/yaw about
+X/Y/Z) and a *location error* ``E<direction>0<axis>`` (``EB0Z``: squareness of Z to X
+about Y; ``EY0A``/``EZ0A``: offsets of the A axis line in Y/Z; ``EB0A``/``EC0A``: its tilts
+about Y/Z). Conventions used here (and in every file volcomp exports):
+
+* **what is measured** — the error motion of the moving body itself (the X carriage and
+  the A spindle carry the workpiece; the Z carriage carries the wheel), relative to its
+  nominal pose, expressed in the **fixed machine frame (MCS)**: translations in μm along
+  +X/+Y/+Z, angles in μrad, right-handed about +X/+Y/+Z. Positive ``EXX`` = the X carriage
+  is further along +X than commanded. Because X and A carry the workpiece, their errors
+  move the tool *relative to the workpiece* with the opposite sign; the Z carriage's
+  errors move it with the same sign.
+* **reference point** — the translational components are given at the body's reference
+  point (below); at another point ``P`` they are ``δ_P = δ_O + ε × (P − O)`` (μm, with
+  ε in μrad and ``P − O`` in mm: ``δ_P = δ_O + 1e-3·ε × r``). :func:`to_iso` and
+  :func:`from_iso` take an offset ``r`` per body to move the reference point.
+
+The one-to-one map (``ELEMENT_NAMES`` order ↔ ``ISO_NAMES`` order):
+
+=======================  ===============================  ===================================================
+project elements         ISO 230-1                        conversion (project → ISO)
+=======================  ===============================  ===================================================
+``dx_x dy_x dz_x``       ``EXX EYX EZX``                  identical (the X carriage frame is MCS-aligned)
+``ex_x ey_x ez_x``       ``EAX EBX ECX``                  identical
+``dx_z dy_z dz_z``       ``EXZ EYZ EZZ``                  ``RotZ(θ1)·(dx_z, dy_z, dz_z)``: the project gives Z's
+                                                          errors in the column frame turned by θ1 about Z
+``ex_z ey_z ez_z``       ``EAZ EBZ ECZ``                  ``RotZ(θ1)·(ex_z, ey_z, ez_z)``
+``dx_a dy_a dz_a``       ``EXA EYA EZA``                  ``RotX(a)·(dx_a, dy_a, dz_a)``: the project gives A's
+                                                          errors in the rotating frame, ISO in the fixed one
+``ex_a ey_a ez_a``       ``EAA EBA ECA``                  ``RotX(a)·(ex_a, ey_a, ez_a)``
+``dy_oa dz_oa``          ``EY0A EZ0A``                    identical
+``ey_oa ez_oa``          ``EB0A EC0A``                    identical
+``s_xz``                 ``EB0Z``                         identical (Z tilted towards +X is a positive
+                                                          rotation of the Z line about +Y)
+=======================  ===============================  ===================================================
+
+``EXX EYX EZX EXA EAA`` and the location errors are plain renames; the Z-axis pairs are
+mixed by the fixed angle θ1 (30° on the default grinder) and the A-axis radial and tilt
+pairs by the A position. Angles compose as ``RotX·RotY·RotZ`` in the project and as a
+small rotation vector in ISO: the two agree to second order (~1e-10 relative at 100 μrad).
+
+Reference points (nominal, MCS, mm), see :func:`reference_points_mm`:
+X — the X carriage origin ``(l5 + x, 0, l6)``; Z — the Z carriage origin
+``RotZ(θ1)·(l2, 0, l1 + z)``; A and the A-axis line — the A-axis end on the carriage
+``(l5 + x + l7, 0, l6 + l8)``; squareness — the Z stroke origin (z = 0), so the tool is
+displaced by ``1e-3·EB0Z·z`` μm along +X.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS
+from .machine import Grinder
+from .transforms import check_points, rot_x, rot_z
+
+ISO_NAME = {
+    "dx_x": "EXX", "dy_x": "EYX", "dz_x": "EZX", "ex_x": "EAX", "ey_x": "EBX", "ez_x": "ECX",
+    "dx_z": "EXZ", "dy_z": "EYZ", "dz_z": "EZZ", "ex_z": "EAZ", "ey_z": "EBZ", "ez_z": "ECZ",
+    "dx_a": "EXA", "dy_a": "EYA", "dz_a": "EZA", "ex_a": "EAA", "ey_a": "EBA", "ez_a": "ECA",
+    "dy_oa": "EY0A", "dz_oa": "EZ0A", "ey_oa": "EB0A", "ez_oa": "EC0A", "s_xz": "EB0Z",
+}
+"""Project element name -> ISO 230-1 name (one-to-one)."""
+ISO_NAMES = tuple(ISO_NAME[k] for k in ELEMENT_NAMES)
+"""The 23 ISO names, in the column order of :func:`to_iso` (ELEMENT_NAMES order)."""
+ELEMENT_OF = {v: k for k, v in ISO_NAME.items()}
+
+ISO_MEANING = {
+    "EXX": "positioning error of X", "EYX": "straightness of X in Y", "EZX": "straightness of X in Z",
+    "EAX": "roll of X (about X)", "EBX": "pitch of X (about Y)", "ECX": "yaw of X (about Z)",
+    "EXZ": "straightness of Z in X", "EYZ": "straightness of Z in Y", "EZZ": "positioning error of Z",
+    "EAZ": "angular error of Z about X", "EBZ": "angular error of Z about Y", "ECZ": "roll of Z (about Z)",
+    "EXA": "axial error motion of A", "EYA": "radial error motion of A in Y", "EZA": "radial error motion of A in Z",
+    "EAA": "angular positioning error of A", "EBA": "tilt error motion of A about Y",
+    "ECA": "tilt error motion of A about Z",
+    "EY0A": "offset of the A axis line in Y", "EZ0A": "offset of the A axis line in Z",
+    "EB0A": "tilt of the A axis line about Y", "EC0A": "tilt of the A axis line about Z",
+    "EB0Z": "squareness of Z to X (about Y)",
+}
+BODIES = ("X", "Z", "A")
+BODY_OF = {**{k: "X" for k in X_ELEMENTS}, **{k: "Z" for k in Z_ELEMENTS}, **{k: "A" for k in A_ELEMENTS},
+           "dy_oa": "A", "dz_oa": "A", "ey_oa": "A", "ez_oa": "A", "s_xz": "Z"}
+CARRIES = {"X": "workpiece", "Z": "wheel (tool)", "A": "workpiece"}
+_IDX = {k: i for i, k in enumerate(ELEMENT_NAMES)}
+
+
+def label(name: str) -> str:
+    """``"dx_x (EXX)"``: the project name with its ISO 230-1 name beside it."""
+    if name not in ISO_NAME:
+        raise KeyError(f"Expected one of the 23 element names {ELEMENT_NAMES}, got {name!r}")
+    return f"{name} ({ISO_NAME[name]})"
+
+
+def reference_points_mm(machine: Grinder, axes) -> dict:
+    """Nominal reference points of the X, Z and A bodies in the MCS (mm), each shape (n, 3)."""
+    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+    x, z = axes[:, 0], axes[:, 1]
+    zero = np.zeros_like(x)
+    th = np.deg2rad(machine.theta1_deg)
+    return {"X": np.stack([machine.l5 + x, zero, np.full_like(x, machine.l6)], axis=1),
+            "Z": np.stack([np.cos(th) * machine.l2 + zero, np.sin(th) * machine.l2 + zero, machine.l1 + z], axis=1),
+            "A": np.stack([machine.l5 + x + machine.l7, zero, np.full_like(x, machine.l6 + machine.l8)], axis=1)}
+
+
+def _frames(machine: Grinder, axes) -> dict:
+    """Rotation from each body's project frame to the MCS, shape (n, 3, 3)."""
+    n = axes.shape[0]
+    return {"X": np.broadcast_to(np.eye(3), (n, 3, 3)),
+            "Z": np.broadcast_to(rot_z(np.deg2rad(machine.theta1_deg))[0], (n, 3, 3)),
+            "A": rot_x(np.deg2rad(axes[:, 2]))}
+
+
+_TRIPLES = {"X": (X_ELEMENTS[:3], X_ELEMENTS[3:]), "Z": (Z_ELEMENTS[:3], Z_ELEMENTS[3:]),
+            "A": (A_ELEMENTS[:3], A_ELEMENTS[3:])}
+
+
+def _check(values, axes):
+    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+    v = np.asarray(values, dtype=float)
+    if v.ndim == 1:
+        v = v[None, :]
+    if v.shape != (axes.shape[0], len(ELEMENT_NAMES)):
+        raise ValueError(f"Expected values of shape ({axes.shape[0]}, 23), got {np.shape(values)}")
+    return v, axes
+
+
+def _offsets(reference_offsets_mm, n):
+    out = {}
+    for b in BODIES:
+        r = np.zeros(3) if not reference_offsets_mm or b not in reference_offsets_mm else reference_offsets_mm[b]
+        r = np.asarray(r, dtype=float)
+        out[b] = np.broadcast_to(r, (n, 3)) if r.ndim == 1 else check_points(r, f"reference offset of {b}")
+    unknown = sorted(set(reference_offsets_mm or {}) - set(BODIES))
+    if unknown:
+        raise ValueError(f"Expected reference offsets for bodies {BODIES}, got unknown {unknown}")
+    return out
+
+
+def to_iso(values, axes, machine: Grinder, reference_offsets_mm: dict | None = None) -> np.ndarray:
+    """Project element values -> ISO 230-1 values, shape (n, 23) -> (n, 23) in ISO_NAMES order.
+
+    ``values`` are the 23 element values at ``axes`` (shape (n, 3)), μm / μrad.
+    ``reference_offsets_mm`` maps a body (``"X"``, ``"Z"``, ``"A"``) to the offset ``r`` (MCS,
+    mm, shape (3,) or (n, 3)) of the wanted reference point from the body's reference point
+    (:func:`reference_points_mm`); its translational components become ``δ + 1e-3·ε × r``.
+    The A-axis location errors are not moved (they are constants of the axis line).
+    """
+    v, axes = _check(values, axes)
+    out = v.copy()
+    R = _frames(machine, axes)
+    r = _offsets(reference_offsets_mm, axes.shape[0])
+    for b, (dn, en) in _TRIPLES.items():
+        di, ei = [_IDX[k] for k in dn], [_IDX[k] for k in en]
+        d = np.einsum("nij,nj->ni", R[b], v[:, di])
+        e = np.einsum("nij,nj->ni", R[b], v[:, ei])
+        out[:, di] = d + 1e-3 * np.cross(e, r[b])
+        out[:, ei] = e
+    return out
+
+
+def from_iso(iso_values, axes, machine: Grinder, reference_offsets_mm: dict | None = None) -> np.ndarray:
+    """ISO 230-1 values (ISO_NAMES order) -> project element values; the inverse of :func:`to_iso`."""
+    v, axes = _check(iso_values, axes)
+    out = v.copy()
+    R = _frames(machine, axes)
+    r = _offsets(reference_offsets_mm, axes.shape[0])
+    for b, (dn, en) in _TRIPLES.items():
+        di, ei = [_IDX[k] for k in dn], [_IDX[k] for k in en]
+        e = v[:, ei]
+        d = v[:, di] - 1e-3 * np.cross(e, r[b])
+        out[:, di] = np.einsum("nji,nj->ni", R[b], d)
+        out[:, ei] = np.einsum("nji,nj->ni", R[b], e)
+    return out
+
+
+def map_rows() -> list[dict]:
+    """The documented map as rows (element, iso, meaning, body, carries, unit) for tables and reports."""
+    rows = []
+    for k in ELEMENT_NAMES:
+        b = BODY_OF[k]
+        rows.append({"element": k, "iso": ISO_NAME[k], "meaning": ISO_MEANING[ISO_NAME[k]],
+                     "body": b, "carries": CARRIES[b], "constant": k in CONSTANT_ELEMENTS,
+                     "unit": "um" if k.startswith("d") else "urad"})
+    return rows
