@@ -1,0 +1,756 @@
+"""Controller compensation tables from an error model, each checked against the model before writing.
+
+Three formats (``FORMATS``), each with a writer, a reader and a *controller simulation* — how
+a controller uses the table — so that :func:`check_export` can report, before anything is
+written, the error the table leaves:
+
+``iso-tables``
+    Per-axis ISO 230-1 component tables (``iso_X.csv``, ``iso_Z.csv``, ``iso_A.csv``: one row per
+    position, six components) and the location errors (``iso_location.csv``), in the naming,
+    signs and reference points of :mod:`errormap.iso230`. Controller: a kinematic (volumetric)
+    compensation that interpolates every component *linearly* between rows, rebuilds the
+    23-element rigid-body model from them, and solves for the axis command that puts the tool on
+    the target. The number of rows is chosen to meet the tolerance.
+``grid``
+    A regular 3D grid over the axis space (x_mm, z_mm, a_deg; A over one turn) of the volumetric
+    error (WCS, tool actual − nominal, μm) — ``grid.csv``. Controller: *trilinear* interpolation
+    between the eight surrounding nodes (A periodic, X/Z clamped to the grid), then the same
+    solve. The spacing is chosen to meet the tolerance.
+``linuxcnc``
+    One file per joint (``joint_x.comp``, ``joint_z.comp``, ``joint_a.comp``), LinuxCNC style:
+    lines ``nominal forward reverse`` (mm, mm, deg), at most 256 lines, increasing nominal.
+    ``forward``/``reverse`` are the positions the joint *actually* reaches when commanded to
+    ``nominal`` moving in the + / − direction; the controller commands
+    ``nominal + (nominal − actual)``, interpolated linearly (A folded into one turn, as a
+    wrapped rotary joint). A joint's correction may depend on that joint's position only, so
+    the volumetric correction is projected onto one function per joint: its mean over the
+    other axes, sampled over the fitting region (``region``, default the whole strokes). What
+    that cannot represent — every coupling between axes — is left in the residual, and the
+    check shows how much. Reversal comes from a diagnosed backlash (``diagnosis.json``
+    reversal terms on a joint's own positioning element ``dx_x``, ``dz_z``, ``ex_a``);
+    without one, forward == reverse.
+
+The check (:func:`check_export`) re-simulates the controller on the flute path and on random
+points over the volume and reports the **model residual** (``fwd(q_c) + E(q_c) − p_d`` with the
+model ``E``, μm) and, given a simulated truth machine, the **true residual** (where the truth
+puts the tool minus the target), beside two baselines: no compensation, and the model's own
+exact compensation (what ``volcomp compensate --method exact`` leaves).
+
+(The thermal/drift coefficient export of the drift model is not built here: it needs the drift
+model's JSON form; :func:`export_drift_coefficients` is the hook.)
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.interpolate import RegularGridInterpolator
+
+from errormap.elements import ELEMENT_NAMES, ElementSet
+from errormap.htm import IDX, HTMField, spatial_error_exact
+from errormap.io import InputError, read_table, write_csv, write_json
+from errormap.iso230 import ISO_MEANING, ISO_NAMES, from_iso, reference_points_mm, to_iso
+from errormap.kinematics import forward
+from errormap.simulator import random_axes
+
+FORMATS = ("iso-tables", "grid", "linuxcnc")
+LINUXCNC_MAX_POINTS = 256
+"""LinuxCNC's limit on compensation triplets per joint."""
+AXIS_KEYS = ("x_mm", "z_mm", "a_deg")
+JOINTS = ("x", "z", "a")
+ISO_AXIS_COLUMNS = {
+    "X": ("x_mm", ("EXX", "EYX", "EZX", "EAX", "EBX", "ECX")),
+    "Z": ("z_mm", ("EXZ", "EYZ", "EZZ", "EAZ", "EBZ", "ECZ")),
+    "A": ("a_deg", ("EXA", "EYA", "EZA", "EAA", "EBA", "ECA")),
+}
+ISO_LOCATION = ("EY0A", "EZ0A", "EB0A", "EC0A", "EB0Z")
+OWN_ELEMENT = {"x": "dx_x", "z": "dz_z", "a": "ex_a"}
+"""The element that is a joint's own positioning error (a reversal on it is a joint backlash)."""
+OWN_TO_JOINT_UNIT = {"x": 1e-3, "z": 1e-3, "a": np.rad2deg(1e-6)}
+"""μm -> mm for X and Z; μrad -> deg for A."""
+MAX_ISO_ROWS = 4096
+MAX_GRID_NODES = 2_000_000
+REFINE_STEPS = 12
+REFINE_FACTOR = 0.8
+"""Grid spacing is shrunk by this factor per refinement step until the tolerance is met."""
+ISO_FORMAT = "volcomp-iso-table/1"
+GRID_FORMAT = "volcomp-grid/1"
+
+
+def _unit(name: str) -> str:
+    return "um" if name[1] in "XYZ" else "urad"
+
+
+def _fold_a(a_deg, a0: float) -> np.ndarray:
+    return a0 + np.mod(np.asarray(a_deg, dtype=float) - a0, 360.0)
+
+
+def _interp_periodic(a_deg, ticks, values):
+    """Linear interpolation over one turn (``ticks`` span 360°), values shape (m, k) -> (n, k)."""
+    a = _fold_a(a_deg, ticks[0])
+    return np.stack([np.interp(a, ticks, values[:, j]) for j in range(values.shape[1])], axis=1)
+
+
+def _interp_clamped(x, ticks, values):
+    return np.stack([np.interp(x, ticks, values[:, j]) for j in range(values.shape[1])], axis=1)
+
+
+# -- the model: elements plus an optional diagnosed reversal -------------------------------------
+@dataclass
+class ModelError:
+    """The model's spatial error (μm) at axes, with reversal terms ``{joint: backlash}`` added to
+    the joint's own element as ``b/2·dir`` (dir = ±1, the approach direction)."""
+
+    machine: object
+    elements: ElementSet
+    backlash: dict = field(default_factory=dict)
+
+    def __call__(self, axes, dirs=None) -> np.ndarray:
+        axes = np.asarray(axes, dtype=float)
+        v = self.elements.values(axes)
+        for j, b in self.backlash.items():
+            d = np.ones(len(axes)) if dirs is None else dirs[:, JOINTS.index(j)]
+            v[:, IDX[OWN_ELEMENT[j]]] += 0.5 * b * d
+        return spatial_error_exact(self.machine, axes, v)
+
+
+# -- ISO component tables -----------------------------------------------------------------------
+@dataclass
+class IsoTables:
+    """Per-axis ISO component tables: ``positions[body]`` shape (m,), ``values[body]`` shape (m, 6)
+    in the order of ``ISO_AXIS_COLUMNS[body]``; ``location`` maps the five location names to values."""
+
+    positions: dict
+    values: dict
+    location: dict
+    kind = "iso-tables"
+
+    def iso_values(self, axes) -> np.ndarray:
+        """The 23 ISO values at axes, linearly interpolated, shape (n, 23) in ISO_NAMES order."""
+        axes = np.asarray(axes, dtype=float)
+        out = np.zeros((axes.shape[0], 23))
+        for b, (key, names) in ISO_AXIS_COLUMNS.items():
+            col = axes[:, AXIS_KEYS.index(key)]
+            f = _interp_periodic if b == "A" else _interp_clamped
+            out[:, [ISO_NAMES.index(n) for n in names]] = f(col, self.positions[b], self.values[b])
+        for n in ISO_LOCATION:
+            out[:, ISO_NAMES.index(n)] = self.location[n]
+        return out
+
+    def field(self, machine) -> "TableField":
+        def predict(axes):
+            axes = np.asarray(axes, dtype=float)
+            return spatial_error_exact(machine, axes, from_iso(self.iso_values(axes), axes, machine))
+        return TableField(predict)
+
+    def n_values(self) -> int:
+        return sum(v.size + p.size for v, p in zip(self.values.values(), self.positions.values())) + len(self.location)
+
+
+@dataclass
+class TableField:
+    """An error field (``predict(axes) -> (n, 3) μm``) as the controller evaluates it from a table."""
+
+    fn: object
+
+    def predict(self, axes):
+        return self.fn(np.asarray(axes, dtype=float))
+
+    __call__ = predict
+
+
+def iso_tables_from_model(elements: ElementSet, machine, n_rows: dict) -> IsoTables:
+    """Sample the model's ISO components at ``n_rows[body]`` equally spaced positions per axis."""
+    pos, val = {}, {}
+    for b, (key, names) in ISO_AXIS_COLUMNS.items():
+        st = elements.stations[key]
+        lo, hi = st[0], st[-1]
+        t = np.linspace(lo, hi, int(n_rows[b]))
+        axes = np.zeros((t.size, 3))
+        axes[:, AXIS_KEYS.index(key)] = t
+        iso = to_iso(elements.values(axes), axes, machine)
+        pos[b] = t
+        val[b] = iso[:, [ISO_NAMES.index(n) for n in names]]
+    iso0 = to_iso(elements.values(np.zeros((1, 3))), np.zeros((1, 3)), machine)[0]
+    loc = {n: float(iso0[ISO_NAMES.index(n)]) for n in ISO_LOCATION}
+    return IsoTables(pos, val, loc)
+
+
+def _iso_header(machine, body: str, model_desc: str) -> list[str]:
+    ref = reference_points_mm(machine, np.zeros((1, 3)))[body][0]
+    where = {"X": "the X carriage origin (l5 + x, 0, l6)", "Z": "the Z carriage origin RotZ(theta1)·(l2, 0, l1 + z)",
+             "A": "the A-axis end on the X carriage (l5 + x + l7, 0, l6 + l8)"}[body]
+    carries = {"X": "workpiece", "Z": "wheel", "A": "workpiece"}[body]
+    return [f"format: {ISO_FORMAT}",
+            f"axis: {body}",
+            f"reference point: {where}; at the stroke origin ({ref[0]:.4f}, {ref[1]:.4f}, {ref[2]:.4f}) mm in the MCS",
+            f"sign: error motion of the {body} body (carries the {carries}) relative to its nominal pose, fixed "
+            "machine frame (MCS) axes; translations um along +X/+Y/+Z, angles urad right-handed about +X/+Y/+Z"
+            + ("; the tool moves relative to the workpiece by minus this" if carries == "workpiece" else
+               "; the tool moves relative to the workpiece by this"),
+            "interpolation: linear between rows" + (" (one turn, periodic)" if body == "A" else ""),
+            f"model: {model_desc}", f"machine: {machine.name} sha256 {machine.sha256}"]
+
+
+def write_iso_tables(tables: IsoTables, folder, machine, model_desc: str) -> list[Path]:
+    folder = Path(folder)
+    out = []
+    for b, (key, names) in ISO_AXIS_COLUMNS.items():
+        cols = {key: tables.positions[b]}
+        for j, n in enumerate(names):
+            cols[f"{n}_{_unit(n)}"] = tables.values[b][:, j]
+        out.append(write_csv(folder / f"iso_{b}.csv", cols, _iso_header(machine, b, model_desc), "%.12g"))
+    loc = {"name": np.array(ISO_LOCATION), "value": np.array([tables.location[n] for n in ISO_LOCATION]),
+           "unit": np.array([_unit(n) for n in ISO_LOCATION]), "meaning": np.array([ISO_MEANING[n] for n in ISO_LOCATION])}
+    head = [f"format: {ISO_FORMAT}", "axis: location",
+            "reference point: the A-axis end on the X carriage (A line offsets and tilts); the Z stroke origin (EB0Z)",
+            "sign: MCS axes; EB0Z > 0 tilts the Z line of motion towards +X; EY0A/EZ0A > 0 shift the A axis line "
+            "along +Y/+Z; EB0A/EC0A right-handed tilts of the A line about +Y/+Z",
+            f"model: {model_desc}", f"machine: {machine.name} sha256 {machine.sha256}"]
+    out.append(write_csv(folder / "iso_location.csv", loc, head, "%.12g"))
+    return out
+
+
+def _meta_format(table, want: str) -> None:
+    got = table.meta().get("format")
+    if got != want:
+        raise InputError(f"{table.path}: header line 'format': expected {want!r}, got {got!r}")
+
+
+def read_iso_tables(folder) -> IsoTables:
+    """Read ``iso_X.csv``, ``iso_Z.csv``, ``iso_A.csv``, ``iso_location.csv``; errors name file, row, column."""
+    folder = Path(folder)
+    pos, val = {}, {}
+    for b, (key, names) in ISO_AXIS_COLUMNS.items():
+        t = read_table(folder / f"iso_{b}.csv")
+        _meta_format(t, ISO_FORMAT)
+        p = t.float(key)
+        if p.size < 2 or np.any(np.diff(p) <= 0):
+            k = int(np.argmax(np.diff(p) <= 0)) + 1 if p.size >= 2 else 0
+            raise InputError(f"{t.path}: row {t.row_number(k)}, column '{key}': expected increasing positions "
+                             f"(at least 2 rows)")
+        pos[b] = p
+        val[b] = np.stack([t.float(f"{n}_{_unit(n)}") for n in names], axis=1)
+    t = read_table(folder / "iso_location.csv")
+    _meta_format(t, ISO_FORMAT)
+    names = t.raw("name")
+    values = t.float("value")
+    loc = {}
+    for k, (n, v) in enumerate(zip(names, values)):
+        if n not in ISO_LOCATION or n in loc:
+            raise InputError(f"{t.path}: row {t.row_number(k)}, column 'name': expected each of {list(ISO_LOCATION)} "
+                             f"once, got {n!r}")
+        loc[n] = float(v)
+    if set(loc) != set(ISO_LOCATION):
+        raise InputError(f"{t.path}: column 'name': missing {sorted(set(ISO_LOCATION) - set(loc))}")
+    return IsoTables(pos, val, loc)
+
+
+# -- volumetric grid ----------------------------------------------------------------------------
+@dataclass
+class VolumetricGrid:
+    """Volumetric error (WCS, μm) at the nodes of a regular axis grid.
+
+    ``ticks[k]`` shape (m_k,) for x_mm, z_mm, a_deg (A spans one turn, last tick = first + 360);
+    ``values`` shape (m_x, m_z, m_a, 3).
+    """
+
+    ticks: tuple
+    values: np.ndarray
+    kind = "grid"
+
+    def __post_init__(self):
+        self._interp = RegularGridInterpolator(self.ticks, self.values, method="linear")
+
+    def predict(self, axes) -> np.ndarray:
+        """Trilinear interpolation; X and Z clamped to the grid, A folded into its turn. (n, 3) -> (n, 3)."""
+        axes = np.array(axes, dtype=float, copy=True)
+        for k in (0, 1):
+            axes[:, k] = np.clip(axes[:, k], self.ticks[k][0], self.ticks[k][-1])
+        axes[:, 2] = _fold_a(axes[:, 2], self.ticks[2][0])
+        return self._interp(axes)
+
+    __call__ = predict
+
+    def field(self, machine) -> "VolumetricGrid":
+        return self
+
+    @property
+    def spacing(self) -> tuple:
+        return tuple(float(t[1] - t[0]) for t in self.ticks)
+
+    def n_values(self) -> int:
+        return int(self.values.size)
+
+
+def grid_ticks(machine, a0: float, counts) -> tuple:
+    (x0, x1), (z0, z1) = machine.strokes["x_mm"], machine.strokes["z_mm"]
+    return (np.linspace(x0, x1, counts[0]), np.linspace(z0, z1, counts[1]), np.linspace(a0, a0 + 360.0, counts[2]))
+
+
+def grid_from_model(model_error, machine, counts, a0: float = 0.0) -> VolumetricGrid:
+    ticks = grid_ticks(machine, a0, counts)
+    nodes = np.stack(np.meshgrid(*ticks, indexing="ij"), axis=-1).reshape(-1, 3)
+    vals = model_error(nodes).reshape(*[len(t) for t in ticks], 3)
+    return VolumetricGrid(ticks, vals)
+
+
+def curvature_counts(model_error, machine, tolerance_um: float, a0: float = 0.0, n_probe: int = 400, seed: int = 0):
+    """First guess of the node counts: trilinear interpolation leaves at most ``h²/8·|∂²E/∂q²|`` per
+    axis; each axis gets a third of the tolerance, with the largest second difference on probes."""
+    rng = np.random.default_rng(seed)
+    q = random_axes(machine, n_probe, rng)
+    counts = []
+    for k, key in enumerate(AXIS_KEYS):
+        lo, hi = machine.strokes[key] if k < 2 else (a0, a0 + 360.0)
+        h = (hi - lo) / 40.0
+        qc = q.copy()
+        qc[:, k] = np.clip(qc[:, k], lo + h, hi - h) if k < 2 else qc[:, k]
+        qp, qm = qc.copy(), qc.copy()
+        qp[:, k] += h
+        qm[:, k] -= h
+        d2 = np.linalg.norm(model_error(qp) - 2 * model_error(qc) + model_error(qm), axis=1).max() / h**2
+        step = np.sqrt(8.0 * (tolerance_um / 3.0) / max(d2, 1e-12))
+        counts.append(int(np.clip(np.ceil((hi - lo) / step) + 1, 3, 2001)))
+    return counts
+
+
+def write_grid(grid: VolumetricGrid, folder, machine, model_desc: str) -> Path:
+    nodes = np.stack(np.meshgrid(*grid.ticks, indexing="ij"), axis=-1).reshape(-1, 3)
+    v = grid.values.reshape(-1, 3)
+    head = [f"format: {GRID_FORMAT}",
+            "counts: " + " ".join(str(len(t)) for t in grid.ticks),
+            "spacing: x_mm {:.9g} z_mm {:.9g} a_deg {:.9g}".format(*grid.spacing),
+            "values: volumetric error at the commanded axes, tool actual minus nominal, in the workpiece frame "
+            "(WCS), um",
+            "order: x slowest, then z, a fastest; a spans one turn (last node = first + 360)",
+            "interpolation: trilinear between the 8 surrounding nodes; a periodic, x and z clamped to the grid",
+            f"model: {model_desc}", f"machine: {machine.name} sha256 {machine.sha256}"]
+    return write_csv(Path(folder) / "grid.csv", {"x_mm": nodes[:, 0], "z_mm": nodes[:, 1], "a_deg": nodes[:, 2],
+                                                 "dx_um": v[:, 0], "dy_um": v[:, 1], "dz_um": v[:, 2]}, head, "%.12g")
+
+
+def read_grid(path) -> VolumetricGrid:
+    """Read ``grid.csv``; refuses anything that is not a complete regular grid in the stated order."""
+    t = read_table(path)
+    _meta_format(t, GRID_FORMAT)
+    try:
+        counts = [int(c) for c in t.meta().get("counts", "").split()]
+    except ValueError:
+        counts = []
+    if len(counts) != 3 or min(counts) < 2:
+        raise InputError(f"{t.path}: header line 'counts': expected three integers >= 2, got {t.meta().get('counts')!r}")
+    q = np.stack([t.float(k) for k in AXIS_KEYS], axis=1)
+    if q.shape[0] != int(np.prod(counts)):
+        raise InputError(f"{t.path}: expected {int(np.prod(counts))} rows for counts {counts}, got {q.shape[0]}")
+    ticks = (q[:: counts[1] * counts[2], 0], q[: counts[1] * counts[2]: counts[2], 1], q[: counts[2], 2])
+    want = np.stack(np.meshgrid(*ticks, indexing="ij"), axis=-1).reshape(-1, 3)
+    bad = np.argwhere(np.abs(want - q) > 1e-9 * (1 + np.abs(q)))
+    if bad.size:
+        k, c = bad[0]
+        raise InputError(f"{t.path}: row {t.row_number(int(k))}, column '{AXIS_KEYS[c]}': expected {want[k, c]:.9g} "
+                         f"(regular grid, x slowest, a fastest), got {q[k, c]:.9g}")
+    for k, tk in enumerate(ticks):
+        if np.any(np.diff(tk) <= 0):
+            raise InputError(f"{t.path}: column '{AXIS_KEYS[k]}': expected increasing grid ticks")
+    if abs(ticks[2][-1] - ticks[2][0] - 360.0) > 1e-6:
+        raise InputError(f"{t.path}: column 'a_deg': expected one turn (last = first + 360), got "
+                         f"{ticks[2][0]:.9g}..{ticks[2][-1]:.9g}")
+    v = np.stack([t.float(k) for k in ("dx_um", "dy_um", "dz_um")], axis=1).reshape(*counts, 3)
+    return VolumetricGrid(ticks, v)
+
+
+# -- LinuxCNC per-joint tables ------------------------------------------------------------------
+@dataclass
+class JointTables:
+    """Per-joint corrections: ``nominal[j]`` shape (m,), ``correction[j]`` shape (m,) (joint units:
+    mm, mm, deg; added to the command), ``backlash[j]`` (joint units, 0 when not diagnosed)."""
+
+    nominal: dict
+    correction: dict
+    backlash: dict
+    kind = "linuxcnc"
+
+    def actual(self, j: str):
+        """(forward, reverse) actual positions at the nominal ones: ``nominal − correction ± b/2``."""
+        base = self.nominal[j] - self.correction[j]
+        b = self.backlash.get(j, 0.0)
+        return base + 0.5 * b, base - 0.5 * b
+
+    def command(self, axes, dirs) -> np.ndarray:
+        """Motor commands for nominal joint commands ``axes`` (n, 3) moving in ``dirs`` (n, 3) ±1."""
+        axes = np.asarray(axes, dtype=float)
+        out = axes.copy()
+        for k, j in enumerate(JOINTS):
+            fwd, rev = self.actual(j)
+            nom = self.nominal[j]
+            q = _fold_a(axes[:, k], nom[0]) if j == "a" else axes[:, k]
+            act = np.where(dirs[:, k] >= 0, np.interp(q, nom, fwd), np.interp(q, nom, rev))
+            out[:, k] = axes[:, k] + (np.interp(q, nom, nom) - act)
+        return out
+
+    def n_values(self) -> int:
+        return int(sum(3 * v.size for v in self.nominal.values()))
+
+
+def model_corrections(model_error, machine, axes, dirs=None, progress: bool = False):
+    """The model's exact axis correction at nominal axes (what the exact solver commands minus the
+    nominal axes), shape (n, 3), and a success mask (n,).
+
+    With a reversal in the model the points are solved per approach-direction pattern (at most
+    eight), each with its own fixed-direction field, since a solver evaluates fields on subsets.
+    """
+    from .solvers import solve
+    axes = np.asarray(axes, dtype=float)
+    c = np.zeros_like(axes)
+    ok = np.zeros(len(axes), bool)
+    if dirs is None or not getattr(model_error, "backlash", None):
+        groups = [(np.arange(len(axes)), None)]
+    else:
+        key = ((dirs > 0) * np.array([4, 2, 1])).sum(axis=1)
+        groups = [(np.flatnonzero(key == k), dirs[np.flatnonzero(key == k)[0]]) for k in np.unique(key)]
+    for idx, d in groups:
+        if d is None:
+            fld = TableField(lambda q: model_error(q))
+        else:
+            fld = TableField(lambda q, d=d: model_error(q, np.broadcast_to(d, (len(q), 3))))
+        res = solve("exact", fld, forward(machine, axes[idx]), machine, target_axes=axes[idx], progress=progress)
+        c[idx] = res.axes - axes[idx]
+        ok[idx] = np.asarray(res.success, bool)
+    return c, ok
+
+
+def joint_tables_from_model(model_error, machine, n_points: int = LINUXCNC_MAX_POINTS, region: dict | None = None,
+                            samples: int = 48, seed: int = 0, backlash: dict | None = None, a0: float = 0.0) -> JointTables:
+    """Project the model's correction onto one function per joint.
+
+    For each joint, at ``n_points`` nominal positions over its stroke, the exact correction is
+    averaged over ``samples`` random positions of the other two axes inside ``region``
+    (``{"x_mm": (lo, hi), "z_mm": (lo, hi)}``, default the strokes); points the model itself
+    cannot compensate (outside the solver's ball) are left out of the mean.
+    """
+    if not 2 <= n_points <= LINUXCNC_MAX_POINTS:
+        raise ValueError(f"Expected 2 <= points per joint <= {LINUXCNC_MAX_POINTS}, got {n_points}")
+    rng = np.random.default_rng(seed)
+    box = {k: tuple(machine.strokes[k]) for k in AXIS_KEYS}
+    box["a_deg"] = (a0, a0 + 360.0)
+    for k, v in (region or {}).items():
+        box[k] = tuple(v)
+    nominal, corr = {}, {}
+    for k, j in enumerate(JOINTS):
+        lo, hi = (machine.strokes[AXIS_KEYS[k]] if j != "a" else (a0, a0 + 360.0))
+        nom = np.linspace(lo, hi, n_points)
+        others = np.column_stack([rng.uniform(*box[key], samples) for key in AXIS_KEYS])
+        q = np.repeat(others[None], n_points, axis=0)
+        q[:, :, k] = nom[:, None]
+        c, ok = model_corrections(model_error, machine, q.reshape(-1, 3))
+        c = c[:, k].reshape(n_points, samples)
+        ok = ok.reshape(n_points, samples)
+        cnt = ok.sum(axis=1)
+        if np.any(cnt == 0):
+            raise ValueError(f"joint {j}: the model cannot be compensated at any sampled point of nominal "
+                             f"{nom[np.argmin(cnt)]:.6g} inside the fitting region")
+        mean = np.where(ok, c, 0.0).sum(axis=1) / cnt
+        if j == "a":
+            mean[-1] = mean[0] = 0.5 * (mean[0] + mean[-1])   # one turn closes
+        nominal[j], corr[j] = nom, mean
+    return JointTables(nominal, corr, {j: float(b) for j, b in (backlash or {}).items()})
+
+
+def write_joint_tables(tables: JointTables, folder) -> list[Path]:
+    from errormap.io import atomic_write
+    out = []
+    for j in JOINTS:
+        fwd, rev = tables.actual(j)
+        path = Path(folder) / f"joint_{j}.comp"
+        with atomic_write(path, "w", encoding="utf-8") as fh:
+            for a, b, c in zip(tables.nominal[j], fwd, rev):
+                fh.write(f"{a:.9f} {b:.9f} {c:.9f}\n")
+        out.append(path)
+    return out
+
+
+def read_joint_tables(folder) -> JointTables:
+    """Read ``joint_{x,z,a}.comp``: three numbers a line, increasing nominal, at most 256 lines."""
+    nominal, corr, back = {}, {}, {}
+    for j in JOINTS:
+        path = Path(folder) / f"joint_{j}.comp"
+        if not path.is_file():
+            raise InputError(f"{path}: no such compensation file")
+        rows = []
+        for ln, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if not line.strip():
+                continue
+            cells = line.split()
+            if len(cells) != 3:
+                raise InputError(f"{path}: line {ln}: expected 3 numbers (nominal forward reverse), got {len(cells)}")
+            try:
+                vals = [float(c) for c in cells]
+            except ValueError:
+                bad = next(i for i, c in enumerate(cells) if not _is_float(c))
+                raise InputError(f"{path}: line {ln}, column {bad + 1}: expected a number, got {cells[bad]!r}") from None
+            if not np.all(np.isfinite(vals)):
+                raise InputError(f"{path}: line {ln}: expected finite numbers, got {line!r}")
+            if rows and vals[0] <= rows[-1][0]:
+                raise InputError(f"{path}: line {ln}, column 1: expected increasing nominal positions, got "
+                                 f"{vals[0]} after {rows[-1][0]}")
+            rows.append(vals)
+        if not 2 <= len(rows) <= LINUXCNC_MAX_POINTS:
+            raise InputError(f"{path}: expected 2 to {LINUXCNC_MAX_POINTS} lines, got {len(rows)}")
+        r = np.array(rows)
+        nominal[j] = r[:, 0]
+        corr[j] = r[:, 0] - 0.5 * (r[:, 1] + r[:, 2])
+        b = r[:, 1] - r[:, 2]
+        if np.ptp(b) > 1e-8:
+            raise InputError(f"{path}: column 2-3: expected a constant forward − reverse difference (a backlash), "
+                             f"got {b.min():.9g}..{b.max():.9g}")
+        back[j] = float(b.mean())
+    return JointTables(nominal, corr, back)
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
+    """Joint backlash (in its element's unit, μm or μrad) from ``diagnosis.json`` reversal terms, and the
+    effects NOT exported.
+
+    A reversal term on a joint's own positioning element (``dx_x``, ``dz_z``, ``ex_a``) is a
+    joint backlash; one on any other element cannot be carried by a per-joint table and is refused.
+    Returns ``({joint: backlash_um_or_urad}, [labels of other effects left out])``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such diagnosis file")
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not valid JSON: {exc}") from None
+    effects = d.get("effects") if isinstance(d, dict) else None
+    if not isinstance(effects, list):
+        raise InputError(f"{path}: key 'effects': expected a list of diagnosed effects")
+    back, left = {}, []
+    for i, e in enumerate(effects):
+        if not isinstance(e, dict) or "kind" not in e:
+            raise InputError(f"{path}: key 'effects[{i}]': expected an object with 'kind'")
+        if e["kind"] != "reversal":
+            left.append(f"{e.get('kind')}({e.get('axis')}) on {e.get('element')}")
+            continue
+        j, el = e.get("axis"), e.get("element")
+        if j not in OWN_ELEMENT or el != OWN_ELEMENT[j]:
+            raise InputError(f"{path}: key 'effects[{i}].element': a per-joint table carries a reversal on the "
+                             f"joint's own element ({OWN_ELEMENT}), got reversal({j}) on {el!r}")
+        p = (e.get("parameters") or {})
+        key = next((k for k in p if k.startswith("backlash_")), None)
+        try:
+            b = float(p[key]["value"])
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"{path}: key 'effects[{i}].parameters': expected backlash_<unit>.value") from None
+        if j in back:
+            raise InputError(f"{path}: key 'effects[{i}]': a second reversal term on joint {j}")
+        back[j] = b
+    return back, left
+
+
+def export_drift_coefficients(*_args, **_kwargs):
+    """Hook for the drift model's coefficient export (not built: needs the drift model's JSON form)."""
+    raise NotImplementedError("the drift/thermal coefficient export needs the drift model's JSON form, "
+                              "which this build does not have")
+
+
+# -- the check ----------------------------------------------------------------------------------
+def motion_dirs(axes) -> np.ndarray:
+    """Approach direction (±1) of each joint along a path, shape (n, 3): the sign of the next
+    nominal move; a joint that does not move keeps its last direction (+1 at the start)."""
+    axes = np.asarray(axes, dtype=float)
+    d = np.sign(np.diff(axes, axis=0, prepend=axes[:1]))
+    out = np.ones_like(d)
+    for k in range(3):
+        last = 1.0
+        nz = np.flatnonzero(d[:, k])
+        if nz.size:
+            last = d[nz[0], k]
+        for i in range(len(d)):
+            if d[i, k] != 0:
+                last = d[i, k]
+            out[i, k] = last
+    return out
+
+
+def check_sets(machine, n_volume: int = 2000, seed: int = 0, flute=None) -> dict:
+    """The check's point sets: the flute path (its nominal axes, motion directions) and ``n_volume``
+    random points over the strokes (random approach directions); each ``(targets, axes, dirs)``."""
+    from .toolpath import flute_path
+    fp = flute if flute is not None else flute_path()
+    ax = fp.axes(machine)
+    ss = np.random.SeedSequence(seed).spawn(2)
+    q = random_axes(machine, n_volume, np.random.default_rng(ss[0]))
+    dirs = np.random.default_rng(ss[1]).choice([-1.0, 1.0], size=(n_volume, 3))
+    return {"flute": (fp.targets_mm, ax, motion_dirs(ax)), "volume": (forward(machine, q), q, dirs)}
+
+
+def controller_commands(table, machine, targets, axes, dirs) -> np.ndarray:
+    """Axis commands the controller sends with the table: (n, 3)."""
+    if table.kind == "linuxcnc":
+        return table.command(axes, dirs)
+    from .solvers import solve
+    res = solve("exact", table.field(machine), targets, machine, target_axes=axes, progress=False)
+    return res.axes
+
+
+def _stats(r_um) -> dict:
+    n = np.linalg.norm(np.asarray(r_um, dtype=float), axis=1)
+    n = n[np.isfinite(n)]
+    return {"max_um": float(n.max()), "p95_um": float(np.percentile(n, 95)), "mean_um": float(n.mean()),
+            "n": int(n.size)}
+
+
+def check_export(table, model: ModelError, machine, sets: dict, truth=None) -> dict:
+    """Re-simulate the controller using ``table`` on each point set; residual statistics.
+
+    Returns ``{set: {"model": stats, "true": stats | None, "baseline_none": {...},
+    "baseline_exact": {...}, "excluded": k}}`` where the model residual is ``1e3·(fwd(q_c) − p_d)
+    + E_model(q_c)`` μm and the true residual ``1e3·(truth.tool_point(q_c) − p_d)`` μm. Points the
+    model itself cannot compensate (its exact solution leaves the 250 μm ball) are excluded.
+    """
+    out = {}
+    for name, (targets, axes, dirs) in sets.items():
+        c_exact, ok = model_corrections(model, machine, axes, dirs)
+        targets, axes, dirs = targets[ok], axes[ok], dirs[ok]
+        q_exact = axes + c_exact[ok]
+        q_c = controller_commands(table, machine, targets, axes, dirs)
+
+        def model_res(q):
+            return 1e3 * (forward(machine, q) - targets) + model(q, dirs)
+
+        rec = {"model": _stats(model_res(q_c)), "excluded": int((~ok).sum()),
+               "baseline_none": {"model": _stats(model_res(axes))},
+               "baseline_exact": {"model": _stats(model_res(q_exact))}}
+        if truth is not None:
+            cond = {"temp_c": np.full(len(axes), 20.0), "dir_x": dirs[:, 0], "dir_z": dirs[:, 1], "dir_a": dirs[:, 2]}
+
+            def true_res(q):
+                return 1e3 * (truth.tool_point(q, **cond) - targets)
+            rec["true"] = _stats(true_res(q_c))
+            rec["baseline_none"]["true"] = _stats(true_res(axes))
+            rec["baseline_exact"]["true"] = _stats(true_res(q_exact))
+        else:
+            rec["true"] = None
+        out[name] = rec
+    return out
+
+
+def worst_model_um(check: dict) -> float:
+    return max(v["model"]["max_um"] for v in check.values())
+
+
+def interpolation_error_um(table_field, model: ModelError, sets: dict) -> float:
+    """Largest |table field − model| (μm) at the check axes: the cheap bound used to size tables."""
+    worst = 0.0
+    for _, axes, dirs in sets.values():
+        worst = max(worst, float(np.linalg.norm(table_field(axes) - model(axes, dirs), axis=1).max()))
+    return worst
+
+
+# -- building a table to a tolerance -------------------------------------------------------------
+def build_table(fmt: str, model: ModelError, machine, tolerance_um: float, sets: dict, *, n_points: int | None = None,
+                region: dict | None = None, seed: int = 0, log=None) -> tuple:
+    """The table of ``fmt`` sized for ``tolerance_um`` and a dict of how it was sized."""
+    say = log or (lambda *_: None)
+    a0 = model.elements.stations["a_deg"][0]
+    if fmt == "iso-tables":
+        if model.backlash:
+            raise ValueError("iso-tables carry no reversal; a diagnosed backlash is exported by --format linuxcnc")
+        n = max(len(s) for s in model.elements.stations.values())
+        while True:
+            t = iso_tables_from_model(model.elements, machine, {"X": n, "Z": n, "A": n})
+            err = interpolation_error_um(t.field(machine), model, sets)
+            say(f"iso-tables: {n} rows per axis, interpolation error {err:.4g} um")
+            if err <= tolerance_um or 2 * n - 1 > MAX_ISO_ROWS:
+                return t, {"rows_per_axis": n, "interpolation_error_um": err}
+            n = 2 * n - 1
+    if fmt == "grid":
+        if model.backlash:
+            raise ValueError("the grid carries no reversal; a diagnosed backlash is exported by --format linuxcnc")
+        counts = curvature_counts(model, machine, tolerance_um, a0, seed=seed)
+        for step in range(REFINE_STEPS):
+            g = grid_from_model(model, machine, counts, a0)
+            err = interpolation_error_um(g, model, sets)
+            say(f"grid: counts {counts} spacing {tuple(round(s, 4) for s in g.spacing)}, interpolation error {err:.4g} um")
+            if err <= tolerance_um:
+                break
+            nxt = [int(np.ceil((c - 1) / REFINE_FACTOR)) + 1 for c in counts]
+            if np.prod(nxt) > MAX_GRID_NODES:
+                break
+            counts = nxt
+        return g, {"counts": list(counts), "spacing": list(g.spacing), "interpolation_error_um": err}
+    if fmt == "linuxcnc":
+        n = n_points or LINUXCNC_MAX_POINTS
+        base = ModelError(machine, model.elements)
+        back = {j: b * OWN_TO_JOINT_UNIT[j] for j, b in model.backlash.items()}
+        t = joint_tables_from_model(base, machine, n, region=region, seed=seed, backlash=back, a0=a0)
+        return t, {"points_per_joint": n, "region": region or "strokes"}
+    raise ValueError(f"Expected format in {list(FORMATS)}, got {fmt!r}")
+
+
+def write_table(table, folder, machine, model_desc: str) -> list[Path]:
+    if table.kind == "iso-tables":
+        return write_iso_tables(table, folder, machine, model_desc)
+    if table.kind == "grid":
+        return [write_grid(table, folder, machine, model_desc)]
+    return write_joint_tables(table, folder)
+
+
+def read_back(fmt: str, folder):
+    if fmt == "iso-tables":
+        return read_iso_tables(folder)
+    if fmt == "grid":
+        return read_grid(Path(folder) / "grid.csv")
+    if fmt == "linuxcnc":
+        return read_joint_tables(folder)
+    raise ValueError(f"Expected format in {list(FORMATS)}, got {fmt!r}")
+
+
+@contextlib.contextmanager
+def staged_folder(out):
+    """A temporary folder beside ``out``; on success its files replace those in ``out``."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        yield tmp
+        if not out.exists():
+            os.replace(tmp, out)
+        else:
+            for p in sorted(tmp.iterdir()):
+                os.replace(p, out / p.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def table_bytes(paths) -> int:
+    return int(sum(Path(p).stat().st_size for p in paths))
+
+
+def write_manifest(folder, info: dict) -> Path:
+    return write_json(Path(folder) / "export.json", info)
+
+
+def model_from_elements(machine, elements: ElementSet, backlash: dict | None = None) -> ModelError:
+    return ModelError(machine, elements, dict(backlash or {}))
+
+
+__all__ = ["FORMATS", "LINUXCNC_MAX_POINTS", "ModelError", "IsoTables", "VolumetricGrid", "JointTables",
+           "build_table", "check_export", "check_sets", "read_back", "write_table", "backlash_from_diagnosis",
+           "export_drift_coefficients", "HTMField", "ELEMENT_NAMES"]
