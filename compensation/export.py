@@ -52,8 +52,8 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from errormap.elements import ELEMENT_NAMES, ElementSet
-from errormap.htm import IDX, HTMField, spatial_error_exact
+from errormap.elements import ElementSet
+from errormap.htm import IDX, spatial_error_exact
 from errormap.io import InputError, read_table, write_csv, write_json
 from errormap.iso230 import ISO_MEANING, ISO_NAMES, from_iso, reference_points_mm, to_iso
 from errormap.kinematics import forward
@@ -104,15 +104,33 @@ def _interp_clamped(x, ticks, values):
 # -- the model: elements plus an optional diagnosed reversal -------------------------------------
 @dataclass
 class ModelError:
-    """The model's spatial error (μm) at axes, with reversal terms ``{joint: backlash}`` added to
-    the joint's own element as ``b/2·dir`` (dir = ±1, the approach direction)."""
+    """The model's spatial error (μm) at axes: an element set (the HTM model) or any error field
+    (``predict(axes) -> (n, 3)``, e.g. the learned network), plus optional reversal terms
+    ``{joint: backlash}`` added to the joint's own element as ``b/2·dir`` (dir = ±1, the approach
+    direction; element sets only)."""
 
     machine: object
-    elements: ElementSet
+    elements: ElementSet | None = None
     backlash: dict = field(default_factory=dict)
+    field: object = None
+
+    def __post_init__(self):
+        if (self.elements is None) == (self.field is None):
+            raise ValueError("Expected exactly one of elements (ElementSet) or field (predict(axes))")
+        if self.backlash and self.elements is None:
+            raise ValueError("Expected an element-set model to carry a reversal (backlash) term")
+
+    @property
+    def a0_deg(self) -> float:
+        return float(self.elements.stations["a_deg"][0] if self.elements is not None
+                     else self.machine.strokes["a_deg"][0])
 
     def __call__(self, axes, dirs=None) -> np.ndarray:
         axes = np.asarray(axes, dtype=float)
+        if self.elements is None:
+            a = axes.copy()
+            a[:, 2] = _fold_a(a[:, 2], self.a0_deg)
+            return np.asarray(self.field.predict(a), dtype=float)
         v = self.elements.values(axes)
         for j, b in self.backlash.items():
             d = np.ones(len(axes)) if dirs is None else dirs[:, JOINTS.index(j)]
@@ -376,6 +394,7 @@ class JointTables:
     correction: dict
     backlash: dict
     kind = "linuxcnc"
+    unfilled: dict = field(default_factory=dict)
 
     def actual(self, j: str):
         """(forward, reverse) actual positions at the nominal ones: ``nominal − correction ± b/2``."""
@@ -442,7 +461,7 @@ def joint_tables_from_model(model_error, machine, n_points: int = LINUXCNC_MAX_P
     box["a_deg"] = (a0, a0 + 360.0)
     for k, v in (region or {}).items():
         box[k] = tuple(v)
-    nominal, corr = {}, {}
+    nominal, corr, unfilled = {}, {}, {}
     for k, j in enumerate(JOINTS):
         lo, hi = (machine.strokes[AXIS_KEYS[k]] if j != "a" else (a0, a0 + 360.0))
         nom = np.linspace(lo, hi, n_points)
@@ -453,14 +472,20 @@ def joint_tables_from_model(model_error, machine, n_points: int = LINUXCNC_MAX_P
         c = c[:, k].reshape(n_points, samples)
         ok = ok.reshape(n_points, samples)
         cnt = ok.sum(axis=1)
-        if np.any(cnt == 0):
-            raise ValueError(f"joint {j}: the model cannot be compensated at any sampled point of nominal "
-                             f"{nom[np.argmin(cnt)]:.6g} inside the fitting region")
-        mean = np.where(ok, c, 0.0).sum(axis=1) / cnt
+        if not np.any(cnt):
+            raise ValueError(f"joint {j}: the model cannot be compensated at any sampled point of the fitting region")
+        mean = np.where(ok, c, 0.0).sum(axis=1) / np.maximum(cnt, 1)
+        # nodes where no sample is compensable (e.g. on the A axis, outside the 250 μm ball) take the
+        # linear interpolation of their neighbours; counted in ``unfilled``
+        good = cnt > 0
+        mean[~good] = np.interp(nom[~good], nom[good], mean[good])
+        unfilled[j] = int((~good).sum())
         if j == "a":
             mean[-1] = mean[0] = 0.5 * (mean[0] + mean[-1])   # one turn closes
         nominal[j], corr[j] = nom, mean
-    return JointTables(nominal, corr, {j: float(b) for j, b in (backlash or {}).items()})
+    out = JointTables(nominal, corr, {j: float(b) for j, b in (backlash or {}).items()})
+    out.unfilled = unfilled
+    return out
 
 
 def write_joint_tables(tables: JointTables, folder) -> list[Path]:
@@ -668,8 +693,10 @@ def build_table(fmt: str, model: ModelError, machine, tolerance_um: float, sets:
                 region: dict | None = None, seed: int = 0, log=None) -> tuple:
     """The table of ``fmt`` sized for ``tolerance_um`` and a dict of how it was sized."""
     say = log or (lambda *_: None)
-    a0 = model.elements.stations["a_deg"][0]
+    a0 = model.a0_deg
     if fmt == "iso-tables":
+        if model.elements is None:
+            raise ValueError("iso-tables are the 23 elements' components: they need an element-set model (JSON)")
         if model.backlash:
             raise ValueError("iso-tables carry no reversal; a diagnosed backlash is exported by --format linuxcnc")
         n = max(len(s) for s in model.elements.stations.values())
@@ -684,23 +711,38 @@ def build_table(fmt: str, model: ModelError, machine, tolerance_um: float, sets:
         if model.backlash:
             raise ValueError("the grid carries no reversal; a diagnosed backlash is exported by --format linuxcnc")
         counts = curvature_counts(model, machine, tolerance_um, a0, seed=seed)
-        for step in range(REFINE_STEPS):
-            g = grid_from_model(model, machine, counts, a0)
+
+        def attempt(c):
+            g = grid_from_model(model, machine, c, a0)
             err = interpolation_error_um(g, model, sets)
-            say(f"grid: counts {counts} spacing {tuple(round(s, 4) for s in g.spacing)}, interpolation error {err:.4g} um")
+            say(f"grid: counts {c} spacing {tuple(round(s, 4) for s in g.spacing)}, interpolation error {err:.4g} um")
+            return g, err
+        g, err = attempt(counts)
+        # refine while the tolerance is not met, then coarsen while it still is (fewest nodes that meet it)
+        for _ in range(REFINE_STEPS):
             if err <= tolerance_um:
                 break
             nxt = [int(np.ceil((c - 1) / REFINE_FACTOR)) + 1 for c in counts]
             if np.prod(nxt) > MAX_GRID_NODES:
                 break
             counts = nxt
+            g, err = attempt(counts)
+        for _ in range(REFINE_STEPS if err <= tolerance_um else 0):
+            nxt = [max(3, int(np.floor((c - 1) * REFINE_FACTOR)) + 1) for c in counts]
+            if nxt == counts:
+                break
+            g2, err2 = attempt(nxt)
+            if err2 > tolerance_um:
+                break
+            counts, g, err = nxt, g2, err2
         return g, {"counts": list(counts), "spacing": list(g.spacing), "interpolation_error_um": err}
     if fmt == "linuxcnc":
         n = n_points or LINUXCNC_MAX_POINTS
-        base = ModelError(machine, model.elements)
+        base = ModelError(machine, model.elements, field=model.field)
         back = {j: b * OWN_TO_JOINT_UNIT[j] for j, b in model.backlash.items()}
         t = joint_tables_from_model(base, machine, n, region=region, seed=seed, backlash=back, a0=a0)
-        return t, {"points_per_joint": n, "region": region or "strokes"}
+        return t, {"points_per_joint": n, "region": region or "strokes", "samples_per_point": 48,
+                   "nodes_filled_from_neighbours": t.unfilled}
     raise ValueError(f"Expected format in {list(FORMATS)}, got {fmt!r}")
 
 
@@ -728,6 +770,9 @@ def staged_folder(out):
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(tmp, 0o777 & ~mask)  # mkdtemp makes 0700; give the folder the usual mode
     try:
         yield tmp
         if not out.exists():
@@ -747,10 +792,6 @@ def write_manifest(folder, info: dict) -> Path:
     return write_json(Path(folder) / "export.json", info)
 
 
-def model_from_elements(machine, elements: ElementSet, backlash: dict | None = None) -> ModelError:
-    return ModelError(machine, elements, dict(backlash or {}))
-
-
 __all__ = ["FORMATS", "LINUXCNC_MAX_POINTS", "ModelError", "IsoTables", "VolumetricGrid", "JointTables",
            "build_table", "check_export", "check_sets", "read_back", "write_table", "backlash_from_diagnosis",
-           "export_drift_coefficients", "HTMField", "ELEMENT_NAMES"]
+           "export_drift_coefficients"]

@@ -9,6 +9,7 @@ import numpy as np
 from errormap.elements import A_ELEMENTS, ElementSet, X_ELEMENTS, Z_ELEMENTS, element_unit
 from errormap.identification import GAUGES, identify
 from errormap.io import atomic_write, write_json
+from errormap.iso230 import ISO_NAME, label as iso_label
 from errormap.machine import load_machine
 from errormap.sweeps import read_sweeps
 
@@ -61,7 +62,7 @@ def plot_elements(elements: ElementSet, prefix, truth: ElementSet | None = None)
             a.plot(st, elements.functions[name], "C0o", ms=3)
             if vt is not None:
                 a.plot(grid, vt[:, j], "k--", lw=1, label="truth")
-            a.set_title(f"{name} ({'μm' if element_unit(name) == 'um' else 'μrad'})")
+            a.set_title(f"{iso_label(name)} ({'μm' if element_unit(name) == 'um' else 'μrad'})")
             a.set_xlabel(label)
             a.grid(alpha=0.3)
         axs[0, 0].legend(fontsize=8)
@@ -78,6 +79,21 @@ def plot_elements(elements: ElementSet, prefix, truth: ElementSet | None = None)
     return out
 
 
+def iso_summary_lines(elements: ElementSet) -> list[str]:
+    """The 23 elements with their ISO 230-1 names (docs/export.md) and their largest magnitude.
+
+    The ISO names hold in the project's frames: Z's lateral pairs and A's radial/tilt pairs
+    are turned (θ1, a) before they equal the ISO components (``errormap.iso230.to_iso``).
+    """
+    from errormap.elements import CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
+    lines = ["element (ISO 230-1)    max |value|"]
+    for k in FUNCTION_ELEMENTS:
+        lines.append(f"  {iso_label(k):<20} {np.abs(elements.functions[k]).max():9.3f} {element_unit(k)}")
+    for k in CONSTANT_ELEMENTS:
+        lines.append(f"  {iso_label(k):<20} {elements.constants[k]:9.3f} {element_unit(k)} (constant)")
+    return lines
+
+
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind="grinder")
     truth = ElementSet.load(args.truth) if args.truth else None
@@ -86,9 +102,12 @@ def run(args) -> int:
     res = identify(sweeps, machine, gauge=args.gauge)
     for line in res.summary_lines():
         print(line)
+    for line in iso_summary_lines(res.elements_):
+        print(line)
     el_path = res.elements_.save(args.out)
     report = Path(args.report) if args.report else Path(args.out).with_suffix(".report.json")
     info = res.to_dict()
+    info["iso230_names"] = dict(ISO_NAME)
     info.update({"sweeps": [str(s) for s in args.sweeps], "machine_file": machine.path,
                  "machine_sha256": machine.sha256, "elements_file": str(el_path)})
     write_json(report, info)

@@ -1,0 +1,195 @@
+"""``volcomp export``: controller compensation tables from a model, each checked before it is written.
+
+Formats and the controller each is simulated for: :mod:`compensation.export` and docs/export.md.
+Before writing, the controller's use of the table is re-simulated on the flute path and on
+random points over the volume; the MODEL residual (and, with ``--truth``, the TRUE residual)
+is printed beside the no-compensation and exact-compensation baselines. When the worst model
+residual exceeds ``--tolerance-um`` nothing is written and the command exits with status 2,
+unless ``--force`` (the override is recorded in ``export.json``).
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from errormap.elements import ElementSet
+from errormap.io import InputError, sha256_file
+from errormap.iso230 import ISO_NAME
+from errormap.machine import load_machine
+
+from ..cli import UsageError
+from .. import export as ex
+
+DEFAULT_TOLERANCE_UM = 1.0
+READ_BACK_TOL_UM = 1e-5
+"""Read-back check (μm; joint units × 1000 for LinuxCNC, i.e. μm and millidegrees): the CSV files
+hold 12 significant digits and the LinuxCNC files 9 decimals of mm/deg (rounding ≤ 5e-7 μm per
+value, three values per command), so the table read back must agree to 1e-5."""
+
+
+def register(sub):
+    p = sub.add_parser("export", help="write controller compensation tables (ISO 230-1 per-axis, 3D grid, "
+                                      "LinuxCNC per-joint), checked against the model first",
+                       description="Export MODEL as controller compensation tables. Before writing, the "
+                                   "controller's use of the table is re-simulated on the flute path and on random "
+                                   "points; the model residual (and with --truth the true residual) is reported. "
+                                   "Refused (exit 2, nothing written) when the tolerance is not met, unless --force. "
+                                   "See docs/export.md.")
+    p.add_argument("model", metavar="MODEL", help="element-set file (JSON); grid and linuxcnc also take an MLflow "
+                                                  "run id / runs:/ URI of a trained network")
+    p.add_argument("--format", required=True, choices=ex.FORMATS, dest="fmt", help="table format")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--tolerance-um", type=float, default=DEFAULT_TOLERANCE_UM,
+                   help=f"largest model residual the table may leave (um; default {DEFAULT_TOLERANCE_UM:g}); "
+                        "sizes the iso-tables rows and the grid spacing")
+    p.add_argument("--truth", default=None, metavar="SIM",
+                   help="simulated truth machine (a volcomp simulate folder or element-set JSON) for the true residual")
+    p.add_argument("--diagnosis", default=None, metavar="JSON",
+                   help="diagnosis.json: its reversal terms become the LinuxCNC forward/reverse difference")
+    p.add_argument("--points", type=int, default=ex.LINUXCNC_MAX_POINTS,
+                   help=f"linuxcnc: lines per joint file (2..{ex.LINUXCNC_MAX_POINTS}; default {ex.LINUXCNC_MAX_POINTS})")
+    p.add_argument("--region", default=None, metavar="X0:X1,Z0:Z1",
+                   help="linuxcnc: axis region (mm) over which each joint's correction is averaged "
+                        "(default: the whole strokes), e.g. the part's working region")
+    p.add_argument("--check-points", type=int, default=2000,
+                   help="random points over the volume for the check (default 2000), besides the flute")
+    p.add_argument("--seed", type=int, default=0, help="seed of the check points and the per-joint sampling")
+    p.add_argument("--force", action="store_true",
+                   help="write even when the tolerance is not met (recorded in export.json)")
+    p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
+    p.set_defaults(func=run)
+
+
+def parse_region(text):
+    """``"X0:X1,Z0:Z1"`` -> ``{"x_mm": (x0, x1), "z_mm": (z0, z1)}``; UsageError on anything else."""
+    if text is None:
+        return None
+    try:
+        parts = [tuple(float(v) for v in p.split(":")) for p in text.split(",")]
+        if len(parts) != 2 or any(len(p) != 2 or not p[0] <= p[1] or not np.all(np.isfinite(p)) for p in parts):
+            raise ValueError
+    except ValueError:
+        raise UsageError(f"--region: expected X0:X1,Z0:Z1 (mm, lo <= hi), got {text!r}") from None
+    return {"x_mm": parts[0], "z_mm": parts[1]}
+
+
+def _load_model(args, machine):
+    p = Path(args.model)
+    if p.suffix.lower() == ".json" or p.is_file():
+        return ex.ModelError(machine, ElementSet.load(p)), f"{p} (element set, sha256 {sha256_file(p)})"
+    if args.fmt == "iso-tables":
+        raise UsageError("--format iso-tables needs an element-set model (JSON): ISO component tables are the 23 "
+                         "elements' components")
+    from ..fields import load_field
+    return ex.ModelError(machine, field=load_field(args.model, machine, args.tracking_uri)), f"{args.model} (learned field)"
+
+
+def format_check(check: dict, has_truth: bool) -> list[str]:
+    lines = ["check (controller re-simulated; residual norm, um: max / p95 / mean)"]
+    for name, r in check.items():
+        def f(s):
+            return f"{s['max_um']:9.4g} / {s['p95_um']:9.4g} / {s['mean_um']:9.4g}"
+        lines.append(f"  {name} ({r['model']['n']} points{', %d excluded' % r['excluded'] if r['excluded'] else ''}):")
+        lines.append(f"    table          model {f(r['model'])}" + (f"   true {f(r['true'])}" if has_truth else ""))
+        lines.append(f"    no compensation model {f(r['baseline_none']['model'])}"
+                     + (f"   true {f(r['baseline_none']['true'])}" if has_truth else ""))
+        lines.append(f"    exact (model)  model {f(r['baseline_exact']['model'])}"
+                     + (f"   true {f(r['baseline_exact']['true'])}" if has_truth else ""))
+        if r["model"]["max_um"] > r["baseline_none"]["model"]["max_um"]:
+            lines.append(f"    warning: on the {name} points this table leaves MORE error than no compensation")
+    return lines
+
+
+def run(args) -> int:
+    machine = load_machine(args.machine, expect_kind="grinder")
+    if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
+        raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
+    if args.check_points < 1:
+        raise UsageError(f"--check-points: expected >= 1, got {args.check_points}")
+    if args.fmt != "linuxcnc" and (args.diagnosis or args.region):
+        raise UsageError("--diagnosis and --region apply to --format linuxcnc only (the other formats carry no "
+                         "reversal and are not averaged)")
+    if not 2 <= args.points <= ex.LINUXCNC_MAX_POINTS:
+        raise UsageError(f"--points: expected 2..{ex.LINUXCNC_MAX_POINTS}, got {args.points}")
+    region = parse_region(args.region)
+    model, model_desc = _load_model(args, machine)
+    left_out = []
+    if args.diagnosis:
+        back, left_out = ex.backlash_from_diagnosis(args.diagnosis)
+        if model.elements is None:
+            raise UsageError("--diagnosis needs an element-set model (the reversal is added to an element)")
+        model.backlash = back
+    truth = None
+    if args.truth:
+        from ..evaluate import load_truth
+        truth = load_truth(args.truth, machine)
+    sets = ex.check_sets(machine, args.check_points, args.seed)
+    say = lambda s: print(s, file=sys.stderr)  # noqa: E731
+    try:
+        table, sizing = ex.build_table(args.fmt, model, machine, args.tolerance_um, sets, n_points=args.points,
+                                       region=region, seed=args.seed, log=say)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    say("checking: re-simulating the controller on the flute and the volume ...")
+    check = ex.check_export(table, model, machine, sets, truth)
+    for line in format_check(check, truth is not None):
+        print(line)
+    worst = ex.worst_model_um(check)
+    met = worst <= args.tolerance_um
+    if not met and not args.force:
+        raise UsageError(f"tolerance not met: the {args.fmt} table leaves a model residual up to {worst:.4g} um > "
+                         f"--tolerance-um {args.tolerance_um:g}; nothing written (--force writes anyway, recorded "
+                         "in export.json)")
+    info = {"format": "volcomp-export/1", "table_format": args.fmt, "model": model_desc,
+            "machine": {"name": machine.name, "file": machine.path, "sha256": machine.sha256},
+            "tolerance_um": args.tolerance_um, "tolerance_met": bool(met), "worst_model_residual_um": worst,
+            "override": None if met else {"forced": True, "reason": f"worst model residual {worst:.6g} um exceeds "
+                                                                    f"the tolerance {args.tolerance_um:g} um"},
+            "sizing": sizing, "check": check,
+            "check_points": {"flute": "default flute path (compensation.toolpath.flute_path)",
+                             "volume": f"{args.check_points} uniform random axis points, seed {args.seed}"},
+            "residuals": {"model": "fwd(q_c) + E_model(q_c) - p_d (um), q_c = the controller's command with the table",
+                          "true": "truth.tool_point(q_c) - p_d (um)" if truth is not None else "no --truth given"},
+            "truth": args.truth, "iso230_names": dict(ISO_NAME)}
+    if args.fmt == "linuxcnc":
+        info["backlash_joint_units"] = dict(table.backlash)
+        info["diagnosis"] = args.diagnosis
+        info["diagnosed_effects_not_exported"] = left_out
+        info["linuxcnc"] = {"columns": "nominal forward reverse (mm for x, z; deg for a)",
+                            "meaning": "forward/reverse: actual joint position when commanded to nominal moving +/-; "
+                                       "the controller commands nominal + (nominal - actual)",
+                            "a": "one turn; the controller folds A into it (wrapped rotary joint)"}
+    with ex.staged_folder(args.out) as tmp:
+        files = ex.write_table(table, tmp, machine, model_desc)
+        back = ex.read_back(args.fmt, tmp)
+        diff = _read_back_difference(table, back, machine, sets)
+        if diff > READ_BACK_TOL_UM:
+            raise RuntimeError(f"read-back check failed: the written {args.fmt} table differs from the built one by "
+                               f"{diff:.3g} um")
+        info["read_back_difference_um"] = diff
+        info["files"] = {p.name: p.stat().st_size for p in files}
+        info["table_values"] = table.n_values()
+        ex.write_manifest(tmp, info)
+    out = Path(args.out)
+    for name in list(info["files"]) + ["export.json"]:
+        print(f"wrote: {out / name}")
+    if not met:
+        print(f"warning: tolerance NOT met ({worst:.4g} um > {args.tolerance_um:g} um); written because of --force",
+              file=sys.stderr)
+    return 0
+
+
+def _read_back_difference(table, back, machine, sets) -> float:
+    """Largest difference (μm, or μm-equivalent of the joint commands) between the built and the
+    read-back table, as the controller uses them, at the check axes."""
+    worst = 0.0
+    for targets, axes, dirs in sets.values():
+        if table.kind == "linuxcnc":
+            d = (table.command(axes, dirs) - back.command(axes, dirs)) * np.array([1e3, 1e3, 1e3])
+        else:
+            d = table.field(machine)(axes) - back.field(machine)(axes)
+        worst = max(worst, float(np.abs(d).max()))
+    return worst

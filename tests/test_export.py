@@ -1,0 +1,184 @@
+"""Controller tables: hand-checkable cases, round trips through the files, refusal and bad input."""
+import json
+
+import numpy as np
+import pytest
+
+from compensation import export as ex
+from compensation.cli import main
+from compensation.toolpath import flute_path
+from errormap.elements import ElementSet
+from errormap.io import InputError
+from errormap.simulator import TruthGrinder, random_truth
+
+# the tolerance the tables are sized to in the round trips: the check must meet it
+TOL_UM = 1.0
+# a table that represents the model exactly (linear profiles, linear interpolation) leaves only
+# float rounding of μm-sized values through the exact HTM chain and the Newton solve (xtol 1e-9 μm)
+EXACT_UM = 1e-6
+# the linear X profile (0.1 μm/mm) is sampled at 1 mm nodes; the exact correction x_c = x/(1+1e-4)
+# is linear too, so the per-joint table holds it to the file's 9 decimals (5e-10 mm)
+FILE_MM = 2e-9
+# 8 μm backlash = ±4 μm; with the diagnosed reversal in the table, the truth's reversal is removed:
+# what remains is the table's interpolation of a linear profile (sub-nm) and float noise
+BACKLASH_UM = 8.0
+REMOVED_UM = 1e-3
+
+
+def linear_elements(machine, k_um_per_mm=0.1):
+    """dx_x = k·(x − x0), everything else zero: a model every format represents exactly."""
+    el = ElementSet.zeros(machine)
+    x = el.stations["x_mm"]
+    el.functions["dx_x"] = k_um_per_mm * (x - x[0])
+    return ElementSet(el.stations, el.functions, el.constants, machine.name, machine.sha256)
+
+
+@pytest.fixture(scope="module")
+def small_sets(grinder):
+    return ex.check_sets(grinder, n_volume=200, seed=5, flute=flute_path(turns=1.0))
+
+
+def test_linuxcnc_hand_value_of_a_pure_positioning_error(grinder, tmp_path):
+    """EXX = +0.1 μm/mm · x: commanded to x, the carriage reaches x(1 + 1e-4); the exact correction
+    solves x_c = x − 1e-4·x_c, so at nominal 100 mm the actual position written is
+    100 − (100/1.0001 − 100) = 100.0099990001 mm (forward == reverse without a diagnosis)."""
+    model = ex.ModelError(grinder, linear_elements(grinder))
+    t = ex.joint_tables_from_model(model, grinder, n_points=201, samples=4, seed=0)
+    ex.write_joint_tables(t, tmp_path)
+    rows = np.loadtxt(tmp_path / "joint_x.comp")
+    i = int(np.flatnonzero(np.isclose(rows[:, 0], 100.0))[0])
+    assert rows[i, 1] == pytest.approx(100.0099990001, abs=FILE_MM)
+    assert rows[i, 2] == rows[i, 1]
+    np.testing.assert_allclose(np.loadtxt(tmp_path / "joint_z.comp")[:, 1:],
+                               np.loadtxt(tmp_path / "joint_z.comp")[:, [0, 0]], atol=FILE_MM)
+
+
+def test_iso_tables_exact_for_linear_profiles(grinder, small_sets):
+    """Linear profiles are reproduced exactly by linear interpolation: the table field equals the
+    model (sign, frame turn and reference point all survive the ISO conversion and back)."""
+    el = linear_elements(grinder)
+    z = el.stations["z_mm"]
+    el.functions["dy_z"] = 0.2 * (z - z[0])      # mixed into EXZ/EYZ by θ1
+    el.functions["ey_z"] = 1.5 * (z - z[0])
+    el.constants.update({"dy_oa": 3.0, "ez_oa": -20.0, "s_xz": 40.0})
+    model = ex.ModelError(grinder, el)
+    t = ex.iso_tables_from_model(el, grinder, {"X": 5, "Z": 5, "A": 5})
+    axes = small_sets["volume"][1]
+    np.testing.assert_allclose(t.field(grinder)(axes), model(axes), atol=EXACT_UM)
+
+
+def test_grid_exact_for_a_field_linear_in_x_and_z(grinder):
+    class Lin:
+        def predict(self, q):
+            return np.column_stack([0.3 * q[:, 0] - 2 * q[:, 1], q[:, 1] + 1.0, -0.05 * q[:, 0]])
+    model = ex.ModelError(grinder, field=Lin())
+    g = ex.grid_from_model(model, grinder, (3, 4, 5))
+    q = np.random.default_rng(1).uniform([0, 0, -720], [200, 60, 720], (500, 3))
+    np.testing.assert_allclose(g(q), Lin().predict(q), atol=1e-9)
+
+
+@pytest.mark.parametrize("fmt", ["iso-tables", "grid"])
+def test_round_trip_meets_the_stated_tolerance(grinder, small_sets, tmp_path, fmt):
+    """export → files → read back → the re-simulated controller leaves at most the tolerance the
+    table was sized for, and at least 100× less than no compensation, on flute and volume."""
+    truth = random_truth(grinder, 11)
+    model = ex.ModelError(grinder, truth.elements)
+    table, sizing = ex.build_table(fmt, model, grinder, TOL_UM, small_sets)
+    assert sizing["interpolation_error_um"] <= TOL_UM
+    ex.write_table(table, tmp_path, grinder, "test")
+    back = ex.read_back(fmt, tmp_path)
+    check = ex.check_export(back, model, grinder, small_sets, truth)
+    for name, r in check.items():
+        assert r["model"]["max_um"] <= TOL_UM, name
+        assert r["model"]["max_um"] * 100 < r["baseline_none"]["model"]["max_um"], name
+        # truth == model here: the true residual is the model residual (no undeclared effects)
+        assert r["true"]["max_um"] == pytest.approx(r["model"]["max_um"], rel=1e-6, abs=1e-9)
+
+
+def test_linuxcnc_diagnosed_backlash_removes_the_reversal(grinder, small_sets, tmp_path):
+    el = linear_elements(grinder)
+    truth = TruthGrinder(grinder, el, {"reversal": {"backlash_um": BACKLASH_UM}})
+    diag = tmp_path / "diagnosis.json"
+    diag.write_text(json.dumps({"effects": [
+        {"kind": "reversal", "axis": "z", "element": "dz_z", "parameters": {"backlash_um": {"value": BACKLASH_UM}}},
+        {"kind": "thermal", "axis": "x", "element": "dx_x", "parameters": {}}]}))
+    back, left = ex.backlash_from_diagnosis(diag)
+    assert back == {"z": BACKLASH_UM} and left == ["thermal(x) on dx_x"]
+    plain = ex.ModelError(grinder, el)
+    with_rev = ex.ModelError(grinder, el, back)
+    t0, _ = ex.build_table("linuxcnc", plain, grinder, TOL_UM, small_sets, n_points=201)
+    t1, _ = ex.build_table("linuxcnc", with_rev, grinder, TOL_UM, small_sets, n_points=201)
+    ex.write_table(t1, tmp_path / "lc", grinder, "test")
+    rows = np.loadtxt(tmp_path / "lc" / "joint_z.comp")
+    np.testing.assert_allclose(rows[:, 1] - rows[:, 2], BACKLASH_UM * 1e-3, atol=FILE_MM)
+    t1 = ex.read_back("linuxcnc", tmp_path / "lc")
+    c0 = ex.check_export(t0, plain, grinder, small_sets, truth)
+    c1 = ex.check_export(t1, with_rev, grinder, small_sets, truth)
+    # random approach directions over the volume: without the reversal the truth's ±4 μm remains
+    assert c0["volume"]["true"]["max_um"] == pytest.approx(BACKLASH_UM / 2, abs=REMOVED_UM)
+    assert c1["volume"]["true"]["max_um"] < REMOVED_UM
+    assert c1["volume"]["model"]["max_um"] < REMOVED_UM
+
+
+def test_cli_refuses_then_forces(grinder, tmp_path, capsys):
+    el_path = random_truth(grinder, 2).elements.save(tmp_path / "el.json")
+    out = tmp_path / "lc"
+    args = ["export", str(el_path), "--format", "linuxcnc", "--out", str(out), "--tolerance-um", "1",
+            "--check-points", "100", "--points", "64"]
+    assert main(args) == 2
+    assert not out.exists()
+    assert "tolerance not met" in capsys.readouterr().err
+    assert main(args + ["--force"]) == 0
+    info = json.loads((out / "export.json").read_text())
+    assert info["override"]["forced"] is True and info["tolerance_met"] is False
+    assert sorted(info["files"]) == ["joint_a.comp", "joint_x.comp", "joint_z.comp"]
+    assert info["read_back_difference_um"] <= 1e-5
+
+
+def test_cli_grid_writes_and_records(grinder, tmp_path):
+    el_path = random_truth(grinder, 2).elements.save(tmp_path / "el.json")
+    out = tmp_path / "g"
+    assert main(["export", str(el_path), "--format", "grid", "--out", str(out), "--tolerance-um", "2",
+                 "--check-points", "100"]) == 0
+    info = json.loads((out / "export.json").read_text())
+    assert info["tolerance_met"] and info["override"] is None
+    assert info["worst_model_residual_um"] <= 2.0
+    g = ex.read_grid(out / "grid.csv")
+    assert list(g.values.shape[:3]) == info["sizing"]["counts"]
+
+
+def test_bad_files_name_the_place(grinder, tmp_path):
+    model = ex.ModelError(grinder, random_truth(grinder, 2).elements)
+    g = ex.grid_from_model(model, grinder, (3, 3, 5))
+    p = ex.write_grid(g, tmp_path, grinder, "test")
+    lines = p.read_text().splitlines()
+    k = next(i for i, s in enumerate(lines) if not s.startswith("#")) + 3
+    cells = lines[k].split(",")
+    cells[1] = "7.5"
+    lines[k] = ",".join(cells)
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=rf"row {k + 1}, column 'z_mm'"):
+        ex.read_grid(p)
+    t = ex.joint_tables_from_model(ex.ModelError(grinder, linear_elements(grinder)), grinder, 8, samples=2)
+    ex.write_joint_tables(t, tmp_path)
+    c = tmp_path / "joint_a.comp"
+    c.write_text(c.read_text().replace("\n", " 1\n", 1))
+    with pytest.raises(InputError, match="joint_a.comp: line 1: expected 3 numbers"):
+        ex.read_joint_tables(tmp_path)
+    c.write_text("\n".join(f"{i} {i} {i}" for i in range(257)) + "\n")
+    with pytest.raises(InputError, match="expected 2 to 256 lines"):
+        ex.read_joint_tables(tmp_path)
+    d = tmp_path / "d.json"
+    d.write_text(json.dumps({"effects": [{"kind": "reversal", "axis": "z", "element": "dx",
+                                          "parameters": {"backlash_um": {"value": 3}}}]}))
+    with pytest.raises(InputError, match=r"effects\[0\]\.element"):
+        ex.backlash_from_diagnosis(d)
+
+
+def test_iso_table_header_states_reference_and_sign(grinder, tmp_path):
+    t = ex.iso_tables_from_model(random_truth(grinder, 2).elements, grinder, {"X": 5, "Z": 5, "A": 5})
+    ex.write_iso_tables(t, tmp_path, grinder, "test")
+    head = (tmp_path / "iso_X.csv").read_text().splitlines()[:8]
+    assert any(h.startswith("# reference point: the X carriage origin") for h in head)
+    assert any("the tool moves relative to the workpiece by minus this" in h for h in head)
+    assert "x_mm,EXX_um,EYX_um,EZX_um,EAX_urad,EBX_urad,ECX_urad" in (tmp_path / "iso_X.csv").read_text()
