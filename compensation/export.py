@@ -641,17 +641,23 @@ def _stats(r_um) -> dict:
             "n": int(n.size)}
 
 
-def check_export(table, model: ModelError, machine, sets: dict, truth=None) -> dict:
+def check_export(table, model: ModelError, machine, sets: dict, truth=None, cache: dict | None = None) -> dict:
     """Re-simulate the controller using ``table`` on each point set; residual statistics.
 
     Returns ``{set: {"model": stats, "true": stats | None, "baseline_none": {...},
     "baseline_exact": {...}, "excluded": k}}`` where the model residual is ``1e3·(fwd(q_c) − p_d)
     + E_model(q_c)`` μm and the true residual ``1e3·(truth.tool_point(q_c) − p_d)`` μm. Points the
     model itself cannot compensate (its exact solution leaves the 250 μm ball) are excluded.
+    ``cache`` (a dict kept by the caller for one model and one ``sets``) keeps the exact baseline.
     """
     out = {}
     for name, (targets, axes, dirs) in sets.items():
-        c_exact, ok = model_corrections(model, machine, axes, dirs)
+        if cache is not None and name in cache:
+            c_exact, ok = cache[name]
+        else:
+            c_exact, ok = model_corrections(model, machine, axes, dirs)
+            if cache is not None:
+                cache[name] = (c_exact, ok)
         targets, axes, dirs = targets[ok], axes[ok], dirs[ok]
         q_exact = axes + c_exact[ok]
         q_c = controller_commands(table, machine, targets, axes, dirs)
@@ -727,14 +733,17 @@ def build_table(fmt: str, model: ModelError, machine, tolerance_um: float, sets:
                 break
             counts = nxt
             g, err = attempt(counts)
-        for _ in range(REFINE_STEPS if err <= tolerance_um else 0):
-            nxt = [max(3, int(np.floor((c - 1) * REFINE_FACTOR)) + 1) for c in counts]
-            if nxt == counts:
-                break
-            g2, err2 = attempt(nxt)
-            if err2 > tolerance_um:
-                break
-            counts, g, err = nxt, g2, err2
+        # coarsen one axis at a time (the first guess splits the tolerance evenly; the axes differ)
+        for k in (range(3) if err <= tolerance_um else ()):
+            for _ in range(REFINE_STEPS):
+                nxt = list(counts)
+                nxt[k] = max(3, int(np.floor((counts[k] - 1) * REFINE_FACTOR)) + 1)
+                if nxt == counts:
+                    break
+                g2, err2 = attempt(nxt)
+                if err2 > tolerance_um:
+                    break
+                counts, g, err = nxt, g2, err2
         return g, {"counts": list(counts), "spacing": list(g.spacing), "interpolation_error_um": err}
     if fmt == "linuxcnc":
         n = n_points or LINUXCNC_MAX_POINTS

@@ -122,3 +122,14 @@ def test_bad_shapes_refused(grinder):
         to_iso(np.zeros((2, 22)), np.zeros((2, 3)), grinder)
     with pytest.raises(ValueError, match="unknown"):
         to_iso(np.zeros((1, 23)), np.zeros((1, 3)), grinder, {"Y": np.zeros(3)})
+
+
+def test_identify_summary_shows_iso_names(grinder):
+    from compensation.commands.identify import iso_summary_lines
+    from errormap.simulator import random_truth
+    el = random_truth(grinder, 4).elements
+    lines = iso_summary_lines(el)
+    assert len(lines) == 24
+    assert lines[1].split()[:2] == ["dx_x", "(EXX)"]
+    assert float(lines[1].split()[2]) == pytest.approx(np.abs(el.functions["dx_x"]).max(), abs=5e-4)
+    assert lines[-1].split()[:2] == ["s_xz", "(EB0Z)"] and lines[-1].endswith("(constant)")
