@@ -128,13 +128,13 @@ def run(args) -> int:
         truth = load_truth(args.truth, machine)
     sets = ex.check_sets(machine, args.check_points, args.seed)
     say = lambda s: print(s, file=sys.stderr)  # noqa: E731
+    say("sizing the table and re-simulating the controller on the flute and the volume ...")
     try:
-        table, sizing = ex.build_table(args.fmt, model, machine, args.tolerance_um, sets, n_points=args.points,
-                                       region=region, seed=args.seed, log=say)
+        table, sizing, check = ex.build_checked_table(args.fmt, model, machine, args.tolerance_um, sets, truth,
+                                                      {}, n_points=args.points, region=region, seed=args.seed,
+                                                      log=say)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    say("checking: re-simulating the controller on the flute and the volume ...")
-    check = ex.check_export(table, model, machine, sets, truth)
     for line in format_check(check, truth is not None):
         print(line)
     worst = ex.worst_model_um(check)
