@@ -182,3 +182,12 @@ def test_iso_table_header_states_reference_and_sign(grinder, tmp_path):
     assert any(h.startswith("# reference point: the X carriage origin") for h in head)
     assert any("the tool moves relative to the workpiece by minus this" in h for h in head)
     assert "x_mm,EXX_um,EYX_um,EZX_um,EAX_urad,EBX_urad,ECX_urad" in (tmp_path / "iso_X.csv").read_text()
+
+
+def test_cli_refuses_a_model_of_another_machine(grinder, tmp_path, capsys):
+    el = random_truth(grinder, 2).elements
+    el.machine_sha256 = "0" * 64
+    p = el.save(tmp_path / "el.json")
+    assert main(["export", str(p), "--format", "iso-tables", "--out", str(tmp_path / "o")]) == 2
+    assert "key 'machine_sha256'" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -79,7 +79,12 @@ def parse_region(text):
 def _load_model(args, machine):
     p = Path(args.model)
     if p.suffix.lower() == ".json" or p.is_file():
-        return ex.ModelError(machine, ElementSet.load(p)), f"{p} (element set, sha256 {sha256_file(p)})"
+        el = ElementSet.load(p)
+        if el.machine_sha256 and el.machine_sha256 != machine.sha256:
+            raise InputError(f"{p}: key 'machine_sha256': the model was made for machine file sha256 "
+                             f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
+                             f"({machine.path}); pass the model's --machine")
+        return ex.ModelError(machine, el), f"{p} (element set, sha256 {sha256_file(p)})"
     if args.fmt == "iso-tables":
         raise UsageError("--format iso-tables needs an element-set model (JSON): ISO component tables are the 23 "
                          "elements' components")
