@@ -184,11 +184,13 @@ def main(argv=None):
           "equals the model's own exact compensation's: it is what the identified 23 elements miss."]
     if gain:
         g = np.array(gain)
-        L.append(f"* **What per-axis component tables cannot hold.** The diagnosis' axis-only terms (interaction "
-                 f"x·z, periodic, harmonic — not functions of one axis' elements) go into a grid but not into "
-                 f"component tables: true residual on the flute {med(g[:, 0]):.3g} → {med(g[:, 1]):.3g} μm, on the "
-                 f"volume {med(g[:, 2]):.3g} → {med(g[:, 3]):.3g} μm (ISO tables → grid of the corrected model; "
-                 "that row's model residual is against the corrected model).")
+        L.append(f"* **What per-axis component tables cannot hold.** Terms the diagnosis adds that are not "
+                 f"functions of one axis' elements (interaction x·z; periodic or harmonic terms) can go into a grid "
+                 f"but not into component tables. Max true residual, ISO tables of the identified model → grid of "
+                 f"the model plus the diagnosed axis-only terms: flute {med(g[:, 0]):.3g} → {med(g[:, 1]):.3g} μm, "
+                 f"volume {med(g[:, 2]):.3g} → {med(g[:, 3]):.3g} μm (per seed in the tables; that row's model "
+                 "residual is against the corrected model). A grid holds such terms only as well as the diagnosis "
+                 "found them: terms fitted on 400 random check points need not help on the flute.")
     if diag:
         dd = np.array(diag)
         L.append(f"* **Diagnosed backlash in the LinuxCNC reverse column**: flute true residual "
