@@ -267,7 +267,7 @@ def tokenize(body: str):
                 raise _Refuse(i + 1, f"'{c}{text}{body[e:e + 2]}...': exponent notation is not RS274")
             if not math.isfinite(v):
                 raise _Refuse(i + 1, f"'{c}' number out of range")
-            words.append(Word(u, v, text, i, s, e))
+            words.append(Word(u, v, text, i, i + 1, e))  # rewriting replaces spaces after the letter too
             i = e
         else:
             raise _Refuse(i + 1, f"unexpected character {c!r} (not an RS274 word)")
