@@ -263,6 +263,9 @@ def tokenize(body: str):
             if num is None:
                 raise _Refuse(i + 1, f"'{c}' word without a plain number")
             v, text, s, e = num
+            if u == "O" and body[e:].split("(")[0].split(";")[0].strip():
+                raise _Refuse(i + 1, f"'{c}{text} {body[e:].strip()[:12]}': O-word subroutines and control flow "
+                                     "are not supported")
             if e < n and body[e] in "eE" and e + 1 < n and (body[e + 1].isdigit() or body[e + 1] in "+-"):
                 raise _Refuse(i + 1, f"'{c}{text}{body[e:e + 2]}...': exponent notation is not RS274")
             if not math.isfinite(v):
@@ -399,7 +402,7 @@ def _classify(body, idx, st: _State, rapids, block_delete):
             w = next(iter(arc_words.values()))
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words")
         return ("state" if changes else "pass"), None
-    first = next(iter(axis_words.values()))
+    first = min(axis_words.values(), key=lambda w: w.start)
     if st.mode is None:
         raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is active")
     if arc_words and st.mode not in ("G2", "G3"):
@@ -438,7 +441,14 @@ def _classify(body, idx, st: _State, rapids, block_delete):
 
 def _arc_geometry(st, move, axis_words, arc_words, scale):
     """Centre, radii and sweep of a G2/G3 arc in G18, in (u, v) = (Z, X) mm."""
-    first = next(iter(axis_words.values()))
+    first = min(axis_words.values(), key=lambda w: w.start)
+    try:
+        return _arc_centre(st, move, axis_words, arc_words, scale, first)
+    except _Refuse as r:
+        raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
+
+
+def _arc_centre(st, move, axis_words, arc_words, scale, first):
     if st.plane != "G18":
         raise _Refuse(first.start + 1, f"{st.mode} arc in the {st.plane} plane "
                                        f"({'XY' if st.plane == 'G17' else 'YZ'}): it would move a Y axis; "
