@@ -222,7 +222,7 @@ def run(args) -> int:
             comments = [f"compensated by volcomp: method={args.method} model={args.model}",
                         f"model residual max {entry['model_max_um']:.4g} um"]
             if entry["overridden"]:
-                comments.append(_override_note(args, entry))
+                comments.insert(0, _override_note(args, entry))
             elif tp.kind == "gcode":
                 comments = []  # a clean G-code output gets no added lines
             text = render_compensated(tp, res.axes, res.commands_mm, comments=comments)
