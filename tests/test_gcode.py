@@ -236,3 +236,11 @@ def test_parse_program_options_are_checked(tmp_path):
         parse_program(src, rapids="maybe")
     with pytest.raises(ValueError, match="block_delete"):
         parse_program(src, block_delete="yes")
+
+
+def test_every_line_has_one_class(tmp_path):
+    """The per-line contract a faster reader must keep: pass / state / move / skipped."""
+    prog = parse_program(_write(tmp_path, PROGRAM), block_delete="on")
+    assert prog.classes == ["pass", "pass", "state", "move", "move", "pass", "pass", "move", "move", "skipped",
+                            "pass", "pass", "pass"]
+    assert [m.index + 1 for m in prog.moves if not m.compensate] == [4]  # the kept rapid
