@@ -171,6 +171,7 @@ def test_rerun_leaves_no_stale_output(setup, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["compensate_summary.json", "ok.nc"]
     summary = json.loads((out / "compensate_summary.json").read_text())
     assert [e["output"] for e in summary["files"]] == [None, str(out / "ok.nc")]
+    assert summary["removed_stale"] == [str(out / "edge.nc")]
     # a third run with only ok.nc: nothing of the earlier runs but its own output remains
     assert main(["compensate", str(ok), "--model", str(el), "--method", "traditional", "--out", str(out),
                  "--force"]) == 0

@@ -238,12 +238,13 @@ def run(args) -> int:
             print(f"  warning: guards overridden ({', '.join(f'{g} {n}' for g, n in entry['overridden'].items())} "
                   f"point(s)); recorded in the output file's header and the summary")
     # write: remove what a previous run left, then the accepted files, the summary last
-    planned = {dst.name for _, dst in plan}
     written = {dst.name for (_, dst), t in zip(plan, texts) if t is not None}
-    stale = {p for p in old_outputs if p.name not in written} | {dst for (_, dst), t in zip(plan, texts) if t is None}
+    stale = set(old_outputs) | {dst for (_, dst), t in zip(plan, texts) if t is None}
+    removed = []
     for p in sorted(stale):
         if p.is_file() and p.name not in written:
             p.unlink()
+            removed.append(str(p))
     for ((src, dst), tp, text, entry) in zip(plan, paths, texts, summary):
         if text is not None:
             write_text_output(tp, dst, text)
@@ -251,7 +252,7 @@ def run(args) -> int:
     summary_path = write_json(out_dir / SUMMARY_NAME, {
         "method": args.method, "model": args.model, "machine": machine.path, "allow": list(allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "files": summary,
-        "removed_stale": sorted(str(p) for p in stale if p.name not in planned or p.name not in written)})
+        "removed_stale": removed})
     print(f"wrote summary: {summary_path}")
     if refused:
         for src, viol, names, kept in refused:
