@@ -138,8 +138,8 @@ def _table(rows, truth_shape):
     splits = ["uncompensated"] + [s for s, _ in SPLITS]
     out = [f"**Truth: {truth_shape}** (medians over seeds; max / mean μm of the TRUE residual along the moves; "
            "vertices written; auto segment length)", "",
-           "| path | " + " | ".join(splits) + " | vertices none / auto / 1 mm | auto segment mm |",
-           "|---|" + "---:|" * (len(splits) + 2)]
+           "| path | " + " | ".join(splits) + " | auto max, worst seed | vertices none / auto / 1 mm | auto segment mm |",
+           "|---|" + "---:|" * (len(splits) + 3)]
     for p in paths:
         sel = [r for r in rows if r["path"] == p and r["truth"] == truth_shape]
         cells = []
@@ -148,7 +148,8 @@ def _table(rows, truth_shape):
             cells.append(f"{np.median([r['max_um'] for r in rs]):.3g} / {np.median([r['mean_um'] for r in rs]):.3g}")
         verts = " / ".join(f"{int(np.median([r['vertices'] for r in sel if r['split'] == s]))}" for s, _ in SPLITS)
         auto = np.median([r["max_segment_mm"] for r in sel if r["split"] == "auto"])
-        out.append(f"| {p} | " + " | ".join(cells) + f" | {verts} | {auto:.3g} |")
+        worst = max(r["max_um"] for r in sel if r["split"] == "auto")
+        out.append(f"| {p} | " + " | ".join(cells) + f" | {worst:.3g} | {verts} | {auto:.3g} |")
     return "\n".join(out)
 
 
@@ -158,7 +159,13 @@ def main(argv=None) -> None:
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     ap.add_argument("--samples", type=int, default=17, help="samples per written segment, ends included (default 17)")
     ap.add_argument("--out", default=str(HERE / "toolpath_results"), help="output stem (.md and .json)")
+    ap.add_argument("--report-only", action="store_true", help="rewrite the .md from the .json of a previous run")
     args = ap.parse_args(argv)
+    stem = Path(args.out)
+    if args.report_only:
+        doc = json.loads(stem.with_suffix(".json").read_text())
+        write_md(stem, doc["rows"], doc["seeds"], doc.get("jobs", args.jobs), doc["samples"], doc["wall_s"])
+        return
     t0 = time.perf_counter()
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as ex:
@@ -167,22 +174,36 @@ def main(argv=None) -> None:
         parts = [run_seed(s, args.samples) for s in range(args.seeds)]
     rows = [r for p in parts for r in p]
     wall = time.perf_counter() - t0
-    stem = Path(args.out)
-    stem.with_suffix(".json").write_text(json.dumps({"seeds": args.seeds, "samples": args.samples,
+    stem.with_suffix(".json").write_text(json.dumps({"seeds": args.seeds, "jobs": args.jobs, "samples": args.samples,
                                                       "wall_s": wall, "rows": rows}, indent=1) + "\n")
+    write_md(stem, rows, args.seeds, args.jobs, args.samples, wall)
+
+
+def write_md(stem, rows, seeds, jobs, samples, wall):
     shapes = list(dict.fromkeys(r["truth"] for r in rows))
     md = ["# Tool paths: true residual along long moves (issue 16)", "",
-          f"`python benchmarks/bench_toolpath.py --seeds {args.seeds} --jobs {args.jobs} --samples {args.samples}` "
-          f"({wall:.0f} s on this machine). Truths `random_truth(default grinder, seed)`, seeds 0–{args.seeds - 1}; "
+          f"`python benchmarks/bench_toolpath.py --seeds {seeds} --jobs {jobs} --samples {samples}` "
+          f"({wall:.0f} s on this machine). Truths `random_truth(default grinder, seed)`, seeds 0–{seeds - 1}; "
           "the solver (`exact`) is given the truth's own error, so the residual left is the linearisation "
           "between written vertices alone. Residual: TRUE, sampled at "
-          f"{args.samples} points along every written segment (not only at the vertices) and taken against the "
+          f"{samples} points along every written segment (not only at the vertices) and taken against the "
           "target at the same parameter of the program's own move. Columns: uncompensated program; "
           "compensated at the program's points only (`--max-segment-mm none`, the plain approach); "
           "`auto` segments (the default; chord tolerance 0.5 μm: half for the arc sagitta, half for the "
           "field's curvature, `L = sqrt(8·0.25 μm / κ)`); fixed 1 mm segments.", ""]
     for s in shapes:
         md += [_table(rows, s), ""]
+
+    def worst(path_prefix, split):
+        return max(r["max_um"] for r in rows if r["path"].startswith(path_prefix) and r["split"] == split)
+    md += ["**Reading.** Compensating only the program's points leaves the error's curvature between them: "
+           f"up to {worst('straight', 'none'):.3g} μm along a 20 mm move and {worst('flute, 10', 'none'):.3g} μm "
+           "on the flute written at 10 points per turn (worst seed, either truth). With the default `auto` "
+           f"segments the worst is {worst('straight', 'auto'):.3g} μm (straight) and "
+           f"{max(worst('flute', 'auto'), 0):.3g} μm (flute), inside the 0.25 μm half of the 0.5 μm tolerance "
+           "budgeted for it, with far fewer vertices than a fixed 1 mm on the straight moves where the field "
+           "is smooth. At the default 400 points per turn the flute's moves are already short (10–13 μm of WCS path), so "
+           "splitting changes nothing there.", ""]
     stem.with_suffix(".md").write_text("\n".join(md))
     print("\n".join(md))
 
