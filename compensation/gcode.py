@@ -36,6 +36,7 @@ distance mode and units.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -199,29 +200,22 @@ class _Refuse(Exception):
         self.col, self.msg = col, msg
 
 
+_NUMBER = re.compile(r"[ \t]*([+-]?[ \t]*(?:\d(?:[\d \t]*\d)?(?:[ \t]*\.(?:[\d \t]*\d)?)?|\.(?:[\d \t]*\d)?))")
+"""An RS274 number: optional sign, digits with spaces/tabs anywhere inside, at most one point;
+the match ends on a digit or the point (trailing blanks are not part of it)."""
+
+
 def _number(body: str, j: int):
     """RS274 number at ``j``: spaces/tabs anywhere inside, optional sign, no exponent.
     Returns ``(value, text, start, end)`` or None."""
-    n = len(body)
-    while j < n and body[j] in " \t":
-        j += 1
-    start = j
-    if j < n and body[j] in "+-":
-        j += 1
-    digits, dot, last = 0, False, None
-    while j < n and (body[j].isdigit() or body[j] in " \t" or (body[j] == "." and not dot)):
-        if body[j].isdigit():
-            digits += 1
-            last = j
-        elif body[j] == ".":
-            dot = True
-            last = j
-        j += 1
-    if digits == 0:
+    m = _NUMBER.match(body, j)
+    if m is None:
         return None
-    end = last + 1
-    text = body[start:end]
-    return float(text.replace(" ", "").replace("\t", "")), text, start, end
+    text = m.group(1)
+    compact = text.replace(" ", "").replace("\t", "")
+    if not any(c.isdigit() for c in compact):
+        return None
+    return float(compact), text, m.start(1), m.end(1)
 
 
 def tokenize(body: str):

@@ -97,12 +97,35 @@ class GCodeJob:
         return [m for m in self.program.moves if m.compensate]
 
 
-def _path_length_mm(machine, move, samples: int = 17) -> float:
-    """WCS length of a move's nominal tool path (polyline of ``samples`` points)."""
-    if not move.start_known:
-        return 0.0
-    p = forward(machine, move_points(move, np.linspace(0.0, 1.0, samples)))
-    return float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+def _sample_moves(moves, counts):
+    """Nominal axes at ``counts[k] + 1`` equally spaced parameters along each move, stacked
+    (sum(counts + 1), 3), and the move index of each row. Linear moves in one vectorised pass."""
+    counts = np.asarray(counts, dtype=int)
+    owner = np.repeat(np.arange(len(moves)), counts + 1)
+    first = np.concatenate([[0], np.cumsum(counts + 1)[:-1]]) if len(moves) else np.zeros(0, int)
+    t = (np.arange(owner.size) - first[owner]) / np.maximum(counts[owner], 1)
+    start = np.array([m.start for m in moves]).reshape(-1, 3)
+    end = np.array([m.end for m in moves]).reshape(-1, 3)
+    pts = start[owner] + t[:, None] * (end - start)[owner]
+    for k, m in enumerate(moves):
+        if m.arc is not None:
+            pts[first[k]:first[k] + counts[k] + 1] = move_points(m, t[first[k]:first[k] + counts[k] + 1])
+    return pts, owner
+
+
+def _path_lengths_mm(machine, moves, samples: int = 16) -> np.ndarray:
+    """WCS length of each move's nominal tool path (polyline of ``samples + 1`` points), (n,)."""
+    if not moves:
+        return np.zeros(0)
+    pts, owner = _sample_moves(moves, np.full(len(moves), samples))
+    seg = np.linalg.norm(np.diff(forward(machine, pts), axis=0), axis=1)
+    seg[owner[1:] != owner[:-1]] = 0.0
+    return np.bincount(owner[1:], weights=seg, minlength=len(moves))
+
+
+def _long_moves(program):
+    """Compensated moves that may be split (not rapids, start known)."""
+    return [m for m in program.moves if m.compensate and m.kind != "rapid" and m.start_known]
 
 
 def field_curvature_um_per_mm2(program: GProgram, machine, field) -> float:
@@ -112,24 +135,19 @@ def field_curvature_um_per_mm2(program: GProgram, machine, field) -> float:
     :data:`AUTO_MAX_SAMPLES` samples a move) along each compensated linear move and arc.
     """
     from .solvers._common import field_error_um
-    pts, spans = [], []
-    for m in program.moves:
-        if not m.compensate or m.kind == "rapid" or not m.start_known:
-            continue
-        length = _path_length_mm(machine, m)
-        if length <= 0.0:
-            continue
-        n = int(np.clip(np.ceil(length / AUTO_SAMPLE_MM), 2, AUTO_MAX_SAMPLES))
-        spans.append((len(pts), n, length / n))
-        pts.extend(move_points(m, np.linspace(0.0, 1.0, n + 1)))
-    if not pts:
+    moves = _long_moves(program)
+    length = _path_lengths_mm(machine, moves)
+    keep = length > 0.0
+    moves, length = [m for m, k in zip(moves, keep) if k], length[keep]
+    if not moves:
         return 0.0
-    e = field_error_um(field, np.asarray(pts), machine)
-    kappa = 0.0
-    for s, n, h in spans:
-        d2 = e[s:s + n - 1] - 2 * e[s + 1:s + n] + e[s + 2:s + n + 1]
-        kappa = max(kappa, float(np.max(np.linalg.norm(d2, axis=1))) / (h * h))
-    return kappa
+    n = np.clip(np.ceil(length / AUTO_SAMPLE_MM), 2, AUTO_MAX_SAMPLES).astype(int)
+    pts, owner = _sample_moves(moves, n)
+    e = field_error_um(field, pts, machine)
+    d2 = np.linalg.norm(e[:-2] - 2 * e[1:-1] + e[2:], axis=1)
+    same = (owner[:-2] == owner[1:-1]) & (owner[1:-1] == owner[2:])
+    h = (length / n)[owner[1:-1]]
+    return float(np.max(np.where(same, d2 / (h * h), 0.0)))
 
 
 def auto_segment_mm(kappa_um_per_mm2: float, tolerance_um: float) -> float:
@@ -164,6 +182,10 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
     elif max_segment_mm is not None and not (np.isfinite(max_segment_mm) and max_segment_mm > 0):
         raise ValueError(f"Expected a positive max_segment_mm, got {max_segment_mm!r}")
     tol_geo_mm = 0.5 * arc_tolerance_um * 1e-3
+    lengths = {}
+    if max_segment_mm is not None:
+        long_moves = _long_moves(program)
+        lengths = dict(zip((m.index for m in long_moves), _path_lengths_mm(machine, long_moves)))
     params, kept, kept_lines = [], [], []
     for m in program.moves:
         if not m.compensate:
@@ -173,8 +195,8 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
         k = 1
         if m.kind == "arc":
             k = arc_segments(m, tol_geo_mm)
-        if m.kind != "rapid" and max_segment_mm is not None and m.start_known:
-            k = max(k, int(np.ceil(_path_length_mm(machine, m) / max_segment_mm - 1e-9)))
+        if m.index in lengths:
+            k = max(k, int(np.ceil(lengths[m.index] / max_segment_mm - 1e-9)))
         params.append(np.arange(1, k + 1, dtype=float) / k)
     return GCodeJob(program, params, float(arc_tolerance_um), max_segment_mm,
                     np.array(kept, dtype=float).reshape(-1, 3), np.array(kept_lines, dtype=int), kappa)
