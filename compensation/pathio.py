@@ -340,6 +340,23 @@ def write_text_output(toolpath: ToolPath, out_path, text: str) -> Path:
     return out_path
 
 
+def write_outputs(items) -> list:
+    """Write several rendered programs as one set: ``items`` is a list of
+    ``(toolpath, out_path, text)``. Every file is first written in full to a temporary file
+    beside its target; only when all are on disk are they renamed into place, one after the
+    other. An error or interrupt before that leaves none of them (temporary files removed)."""
+    import contextlib
+    for tp, out, _ in items:
+        out = Path(out)
+        if out.exists() and out.resolve() == tp.path.resolve():
+            raise InputError(f"{out}: refusing to overwrite the input file")
+    with contextlib.ExitStack() as stack:
+        for tp, out, text in items:
+            fh = stack.enter_context(atomic_write(out, "wb"))
+            fh.write(text.encode("latin-1" if tp.kind == "gcode" else "utf-8"))
+    return [Path(out) for _, out, _ in items]
+
+
 def write_targets_csv(path, targets_mm, comments=()) -> Path:
     """Write WCS targets as a ``px_mm, py_mm, pz_mm`` CSV, atomically."""
     from errormap.io import write_csv

@@ -201,3 +201,17 @@ def test_kept_rapid_outside_the_strokes_is_refused(setup, capsys):
     src.write_text("G21 G90\nG0 X10 Z70 A0\nG1 Z1 F100\nG1 X20 A10\nM30\n")
     rc = main(["compensate", str(src), "--model", str(el), "--method", "exact", "--out", str(d / "out_ro")])
     assert rc == 3 and "line 2: stroke: kept rapid z_mm = 70" in capsys.readouterr().err
+
+
+def test_output_set_is_all_or_nothing(setup, grinder, tmp_path):
+    """An error while the set is being written leaves no output and no temporary file."""
+    import compensation.pathio as pathio
+    d, el, nc, csv, _ = setup
+    a, b = pathio.read_path(nc, grinder), pathio.read_path(csv, grinder)
+    out = tmp_path / "set"
+    items = [(a, out / "flute.nc", "G1 X1 Z1 A1\n"), (b, out / "flute.csv", 12345)]  # the second cannot be encoded
+    with pytest.raises(AttributeError):
+        pathio.write_outputs(items)
+    assert list(out.iterdir()) == []  # the first file, complete on disk, was not renamed into place
+    pathio.write_outputs(items[:1])
+    assert sorted(p.name for p in out.iterdir()) == ["flute.nc"]

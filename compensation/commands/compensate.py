@@ -13,7 +13,8 @@ Order of work, so that DIR only ever holds whole files of one run:
    ``--force`` the files a previous run listed in its ``compensate_summary.json`` and any
    file at the output path of an input this run refuses are removed;
 3. every file is solved, guarded and rendered in memory;
-4. the accepted files are written, each atomically; ``compensate_summary.json`` last.
+4. the accepted files are written as one set (each in full to a temporary file, then all
+   renamed into place); ``compensate_summary.json`` last.
 
 Guards (:mod:`compensation.guards`), the same for every method: a file whose compensated
 commands — or the nominal axes of their targets — leave the strokes (``stroke``) or the
@@ -41,8 +42,7 @@ from errormap.progress import Progress
 from ..cli import UsageError
 from ..fields import load_field
 from ..gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
-from ..pathio import (DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan,
-                      write_text_output)
+from ..pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from .. import guards
 from ..report import small_batch_threads
 from ..solvers import METHODS, solve
@@ -245,9 +245,9 @@ def run(args) -> int:
         if p.is_file() and p.name not in written:
             p.unlink()
             removed.append(str(p))
-    for ((src, dst), tp, text, entry) in zip(plan, paths, texts, summary):
+    write_outputs([(tp, dst, text) for (_, dst), tp, text in zip(plan, paths, texts) if text is not None])
+    for (_, dst), text, entry in zip(plan, texts, summary):
         if text is not None:
-            write_text_output(tp, dst, text)
             entry["output"] = str(dst)
     summary_path = write_json(out_dir / SUMMARY_NAME, {
         "method": args.method, "model": args.model, "machine": machine.path, "allow": list(allow),
