@@ -545,7 +545,8 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
     byte for byte; on a compensated line only the axis numbers change (missing axes are
     appended after the last axis word, since a correction moves all three axes); an arc
     line becomes ``G1`` (its ``I K R P`` words removed) and each extra vertex is an added
-    line ``X.. Z.. A..`` after it. Numbers are written in the line's own units and
+    line ``X.. Z.. A..`` after it. ``header`` lines become ``(...)`` comments after a leading
+    ``%`` line and a program-number line, if any. Numbers are written in the line's own units and
     distance mode; incremental numbers are differences of what was actually written, so
     rounding never accumulates.
     """
@@ -578,10 +579,12 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
             groups[m.index] = [first + line[len(body):]] + extra
     head = "".join(f"({_comment_safe(h)})\n" for h in header)
     out = [ln for g in groups for ln in g]
-    if head and out and out[0].strip() == "%":
-        text = out[0] + head + "".join(out[1:])
-    else:
-        text = head + "".join(out)
+    at = 0  # after a leading '%' line and a program-number line ('O1000 (NAME)')
+    if at < len(out) and out[at].strip() == "%":
+        at += 1
+    if at < len(out) and re.match(r"[ \t]*[Oo][ \t]*\d", out[at]):
+        at += 1
+    text = "".join(out[:at]) + head + "".join(out[at:])
     return text, groups
 
 

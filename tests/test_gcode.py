@@ -244,3 +244,9 @@ def test_every_line_has_one_class(tmp_path):
     assert prog.classes == ["pass", "pass", "state", "move", "move", "pass", "pass", "move", "move", "skipped",
                             "pass", "pass", "pass"]
     assert [m.index + 1 for m in prog.moves if not m.compensate] == [4]  # the kept rapid
+
+
+def test_header_goes_after_tape_start_and_program_number(tmp_path, machine):
+    tp = read_path(_write(tmp_path, b"%\nO1000 (NAME)\nG21 G90 G1 X1 Z2 A3\nM30\n%\n"), machine)
+    text, groups = render_gcode(tp.source, tp.axes, header=["note (x)"])
+    assert text.splitlines()[:4] == ["%", "O1000 (NAME)", "(note [x])", "G21 G90 G1 X1.000000 Z2.000000 A3.000000"]

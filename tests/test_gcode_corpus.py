@@ -128,9 +128,8 @@ def _reread(text, path, grinder, opts):
         return read_path(p, grinder, **opts)
 
 
-def test_cli_batch_over_the_corpus(tmp_path, capsys):
-    el = random_truth(__import__("errormap.machine", fromlist=["load_machine"]).load_machine(), 7).elements.save(
-        tmp_path / "el.json")
+def test_cli_batch_over_the_corpus(tmp_path, grinder, capsys):
+    el = random_truth(grinder, 7).elements.save(tmp_path / "el.json")
     plain = [str(p) for p in PROGRAMS if p.name.startswith("c") and "expect: compensate)" in p.read_text("latin-1")]
     assert len(plain) >= 10
     out = tmp_path / "out"
