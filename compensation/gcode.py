@@ -64,6 +64,9 @@ ALLOWED_G = {
     "G3": ("motion", "counter-clockwise arc in G18 (XZ); linearised and compensated"),
     "G80": ("motion", "cancel motion mode (no axis words allowed after it)"),
     "G4": ("nonmodal", "dwell with P; refused with axis words (Fanuc G4 X is a dwell time)"),
+    "G28": ("nonmodal", "return to the reference: bare, or with zero incremental words ('G28 G91 Z0'); "
+                        "the axes it moves are unknown afterwards"),
+    "G30": ("nonmodal", "return to the second reference: as G28"),
     "G17": ("plane", "XY plane (arcs in it are refused: no Y axis)"),
     "G18": ("plane", "XZ plane (arcs supported)"),
     "G19": ("plane", "YZ plane (arcs in it are refused: no Y axis)"),
@@ -96,8 +99,7 @@ REFUSED_G = {
     "G107": "cylindrical interpolation",
     "G10": "sets offsets/tool tables", "G12": "circular pocket", "G13": "circular pocket",
     "G16": "polar coordinates", "G17.1": "UV plane", "G18.1": "WU plane", "G19.1": "VW plane",
-    "G28": "return to reference (the position after it is a machine reference, not a program point)",
-    "G28.1": "sets the reference position", "G30": "return to reference", "G30.1": "sets the reference position",
+    "G28.1": "sets the reference position", "G30.1": "sets the reference position",
     "G31": "skip (probing)", "G33": "spindle-synchronised motion", "G33.1": "rigid tapping",
     "G38.2": "probing", "G38.3": "probing", "G38.4": "probing", "G38.5": "probing",
     "G41": "cutter radius compensation", "G41.1": "cutter radius compensation",
@@ -387,6 +389,8 @@ def _classify(body, idx, st: _State, rapids, block_delete):
             if not ok:
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside "
                                                     f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else ""))
+    if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
+        return _reference_return(st, groups, axis_words, arc_words)
     if "nonmodal" in groups and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
@@ -424,13 +428,38 @@ def _classify(body, idx, st: _State, rapids, block_delete):
     known = np.isfinite(end)
     if compensate and not known.all():
         missing = ", ".join(a for a, k in zip(AXES, known) if not k)
-        raise _Refuse(first.start + 1, f"motion before X, Z and A are all known (no value yet for {missing})")
+        raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before X, Z and A are all known "
+                                       f"(no value yet for {missing})")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
                  compensate, known=known)
     if kind == "arc":
         move.arc = _arc_geometry(st, move, axis_words, arc_words, scale)
     st.pos = end
     return "move", move
+
+
+def _reference_return(st, groups, axis_words, arc_words):
+    """``G28``/``G30``: the machine goes to a reference position (not a program point, so
+    not compensated; the line is written as it is). Accepted bare (all axes) or with zero
+    incremental axis words (``G28 G91 Z0``: only Z, with no intermediate move); the axes
+    it moves are unknown afterwards, so the next compensated move must give them
+    absolutely. An intermediate point (non-zero or absolute words) would be an
+    uncompensated program point: refused."""
+    code, w = groups["nonmodal"]
+    if "motion" in groups:
+        raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line")
+    if arc_words:
+        a = next(iter(arc_words.values()))
+        raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}")
+    for a in axis_words.values():
+        if not st.incremental or a.value != 0.0:
+            raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}: an intermediate point is an uncompensated "
+                                       f"program point; only a bare {code} or zero incremental words "
+                                       f"('{code} G91 Z0') are accepted")
+    for j, a in enumerate(AXES):
+        if not axis_words or a in axis_words:
+            st.pos[j] = np.nan
+    return "state", None
 
 
 def _arc_geometry(st, move, axis_words, arc_words, scale):
