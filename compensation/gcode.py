@@ -9,7 +9,9 @@ Every line of a program is put in exactly one class by :func:`classify_line`:
              byte**.
 ``state``    modal codes the reader follows and that do not move by themselves: ``G90/G91``
              (distance), ``G90.1/G91.1`` (arc centres), ``G20/G21`` (units), ``G17/G18/G19``
-             (plane), a motion code with no axis words (``G1`` alone). Written back byte for byte.
+             (plane), a motion code with no axis words (``G1`` alone), ``G4 P``; and
+             ``G28``/``G30`` (a return to a machine reference, after which the axes it
+             moved are unknown). Written back byte for byte.
 ``move``     a ``G0``/``G1``/``G2``/``G3`` line with axis words. Compensated (its axis numbers
              replaced; split or linearised into several lines where needed) — or, for a
              rapid under ``rapids="keep"``, written back byte for byte.
