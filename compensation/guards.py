@@ -5,15 +5,23 @@ explicitly (``allow``; the CLI's ``--allow``).
 
 Guard names (the keys of ``allow`` and of :attr:`GuardReport.violations`):
 
-``ball``         ``|p_r - p_d| > ball_um`` (250 μm, the paper's search region).
-``stroke``       an axis command outside the machine file's strokes. **A rule:** when the A
+``ball``         ``|p_r - p_d| > ball_um`` (250 μm, the paper's search region), or a point the
+                 solver did not solve whose correction reached the ball's surface (the
+                 correction it needs lies beyond the ball: solvers stop on the surface).
+``stroke``       an axis command — or the nominal axes of its target (``target_axes``; a
+                 target outside the strokes is never compensated into them) — outside the
+                 machine file's strokes. **A rule:** when the A
                  stroke spans at least one full turn (default grinder: 0–360°), A is a
                  continuous rotary axis and any A passes (multi-turn paths run past 360°;
                  errors are periodic in A, so A is effectively checked modulo 360°). When it
                  spans less than a turn, A is checked as commanded, without folding.
-``volume``       an axis command outside the field's calibrated volume (below).
+``volume``       an axis command or its target's nominal axes outside the field's calibrated
+                 volume (below).
 ``convergence``  the solver did not converge for the point (``SolveResult.success`` False
-                 for a reason other than the ball).
+                 with the correction inside the ball).
+
+Every method passes through :func:`check` (``traditional`` included): the guards look at
+the result, never at how it was obtained.
 
 **Calibrated-volume contract.** A field tells the box it is valid in, in axes units
 (x_mm, z_mm, a_deg), by the first of these it has:
@@ -117,11 +125,22 @@ def _fmt(values, fmt="%.6g") -> np.ndarray:
     return np.array([fmt % v for v in values], dtype=object)
 
 
-def ball_violations(correction_um, radius_um: float = BALL_RADIUS_UM, tol_um: float = 1e-9):
-    """Points whose correction ``|p_r - p_d|`` (shape (n,) μm) exceeds the ball; (indices, reasons)."""
+ON_BALL_REL = 1e-6
+"""A correction within this fraction of the ball radius counts as on its surface."""
+
+
+def ball_violations(correction_um, radius_um: float = BALL_RADIUS_UM, tol_um: float = 1e-9, success=None):
+    """Points whose correction ``|p_r - p_d|`` (shape (n,) μm) exceeds the ball, or (with
+    ``success``, shape (n,) bool) unsolved points stopped on its surface; (indices, reasons)."""
     c = np.asarray(correction_um, dtype=float)
-    bad = np.flatnonzero(~(c <= radius_um + tol_um))
-    return bad, np.array([f"|correction| {v:.3f} μm > {radius_um:g} μm" for v in c[bad]], dtype=object)
+    over = ~(c <= radius_um + tol_um)
+    on = np.zeros_like(over)
+    if success is not None:
+        on = ~np.asarray(success, dtype=bool) & (c >= radius_um * (1.0 - ON_BALL_REL)) & ~over
+    bad = np.flatnonzero(over | on)
+    reasons = [f"|correction| {c[i]:.3f} μm > {radius_um:g} μm" if over[i] else
+               f"needs a correction beyond the {radius_um:g} μm ball (solver stopped on its surface)" for i in bad]
+    return bad, np.array(reasons, dtype=object)
 
 
 def _box_violations(axes, lo, hi, a_full_turn: bool, tol: float, what: str):
@@ -182,17 +201,35 @@ def volume_violations(axes, field, tol: float = 1e-9):
 
 
 def convergence_violations(result):
-    """Points a solver reported as not successful while inside the ball; (indices, reasons)."""
+    """Points a solver reported as not successful strictly inside the ball; (indices, reasons)."""
     r = np.linalg.norm(result.residual_um, axis=1)
     ball = float(result.info.get("ball_um", BALL_RADIUS_UM))
-    bad = np.flatnonzero(~np.asarray(result.success, dtype=bool) & (result.correction_um <= ball + 1e-9))
+    bad = np.flatnonzero(~np.asarray(result.success, dtype=bool) & (result.correction_um < ball * (1.0 - ON_BALL_REL)))
     return bad, np.array([f"{result.method} did not converge (|residual| {v:.3g} μm)" for v in r[bad]], dtype=object)
 
 
-def check(result, machine, field, allow=(), volume_tol: float = 1e-9, stroke_tol: float = 1e-9) -> GuardReport:
+def _merge(first, second):
+    """Union of two (indices, reasons) pairs; reasons of a point in both are joined."""
+    joined = {}
+    for ix, rs in (first, second):
+        for j, r in zip(ix.tolist(), rs):
+            joined[j] = f"{joined[j]}; {r}" if j in joined else r
+    idx = np.array(sorted(joined), dtype=np.intp)
+    return idx, np.array([joined[i] for i in idx.tolist()], dtype=object)
+
+
+def _targets(found):
+    idx, reasons = found
+    return idx, np.array([f"target {r}" for r in reasons], dtype=object)
+
+
+def check(result, machine, field, allow=(), volume_tol: float = 1e-9, stroke_tol: float = 1e-9,
+          target_axes=None) -> GuardReport:
     """Run every guard on a :class:`~compensation.solvers.base.SolveResult`; never raises on violations.
 
     ``allow``: guard names overridden by the user (or ``"all"``); they are still reported.
+    ``target_axes`` (n, 3): nominal axes of the targets; when given, ``stroke`` and
+    ``volume`` check them too (reasons start with ``target``).
     """
     allowed = frozenset(GUARDS) if allow == "all" or (not isinstance(allow, str) and "all" in allow) else \
         frozenset([allow] if isinstance(allow, str) else allow)
@@ -201,11 +238,17 @@ def check(result, machine, field, allow=(), volume_tol: float = 1e-9, stroke_tol
         raise ValueError(f"Expected guard names from {list(GUARDS)} (or 'all'), got {unknown}")
     ball = float(result.info.get("ball_um", BALL_RADIUS_UM))
     found = {
-        "ball": ball_violations(result.correction_um, ball),
+        "ball": ball_violations(result.correction_um, ball, success=result.success),
         "stroke": stroke_violations(result.axes, machine, stroke_tol),
         "volume": volume_violations(result.axes, field, volume_tol),
         "convergence": convergence_violations(result),
     }
+    if target_axes is not None:
+        target_axes = np.asarray(target_axes, dtype=float)
+        if target_axes.shape != np.shape(result.axes):
+            raise ValueError(f"Expected target_axes of shape {np.shape(result.axes)}, got {target_axes.shape}")
+        found["stroke"] = _merge(found["stroke"], _targets(stroke_violations(target_axes, machine, stroke_tol)))
+        found["volume"] = _merge(found["volume"], _targets(volume_violations(target_axes, field, volume_tol)))
     return GuardReport(n_points=len(result.axes), violations={g: v[0] for g, v in found.items()},
                        reasons={g: v[1] for g, v in found.items()}, allowed=allowed)
 
@@ -229,7 +272,8 @@ def violations(result, machine, field=None, **tolerances) -> list[tuple[int, str
     """
     if field is None:
         report = GuardReport(n_points=len(result.axes))
-        found = {"ball": ball_violations(result.correction_um, float(result.info.get("ball_um", BALL_RADIUS_UM))),
+        found = {"ball": ball_violations(result.correction_um, float(result.info.get("ball_um", BALL_RADIUS_UM)),
+                                         success=result.success),
                  "stroke": stroke_violations(result.axes, machine, tolerances.get("stroke_tol", 1e-9)),
                  "convergence": convergence_violations(result)}
         report.violations = {g: v[0] for g, v in found.items()}

@@ -9,36 +9,24 @@ Formats (DESIGN.md, "Tool paths"):
   the nominal axes are ``inverse(targets)`` with A unwrapped along the path.
   (A file with both sets of columns is refused as ambiguous.) Extra columns and leading
   ``#`` comment lines are kept.
-* **G-code** — any file whose name does not end in ``.csv``. ``G0``/``G1`` (``G00``/``G01``)
-  lines with ``X``, ``Z``, ``A`` words in absolute mm / deg are the motion; every other
-  line, comment and word passes through unchanged, byte for byte (the file is handled
-  as Latin-1, so any bytes survive; line endings and ``N`` line numbers are kept).
-  Motion modes are modal: a line with only axis words moves in the last ``G0``/``G1``
-  mode; axes a line does not give keep their previous values, so every motion line's
-  target is the full ``(x, z, a)``.
-
-  Refused with :class:`~errormap.io.InputError` naming the file and the line (1-based):
-  an axis word without a plain number (parameters ``#1``, expressions ``[...]``),
-  a repeated axis word, two motion codes on one line, axis words under ``G2``/``G3`` or
-  any other motion mode than ``G0``/``G1``, axis words with no motion mode yet, axis
-  words under ``G91`` (incremental) or ``G20`` (inch), axis words with a non-modal code
-  that gives them another meaning (``G4 G10 G28 G30 G52 G53 G92``), a ``G`` word without a
-  number, an unclosed ``(`` comment, a motion line before ``X``, ``Z`` and ``A`` are all
-  known, and a file with no motion at all.
+* **G-code** — any file whose name does not end in ``.csv``; read by
+  :mod:`compensation.gcode` with an explicit allow-list (RS274 numbers, ``G0 G1 G2 G3``,
+  ``G90/G91``, ``G20/G21``, arcs in ``G18``; everything that could move or reinterpret an
+  axis otherwise is refused naming file, line, column and word). :func:`plan_gcode` places
+  the vertices of each compensated move (arcs linearised, long moves split); one
+  :class:`ToolPath` row per vertex.
 
 Writers (:func:`write_compensated`) produce the compensated program in the input's own
 format, atomically (temporary file + rename, :func:`errormap.io.atomic_write`): CSV axis
 files get new ``x_mm, z_mm, a_deg``; CSV target files get the compensated WCS commands
 ``p_r`` in ``px_mm, py_mm, pz_mm`` (the controller's post-processor then does the rest);
-G-code gets new ``X Z A`` numbers on each motion line — words the line did not have are
-appended after its last axis word, since the correction moves all three axes.
+G-code gets new ``X Z A`` numbers on each compensated line, in the line's own units and
+distance mode (:func:`compensation.gcode.render_program`).
 """
 from __future__ import annotations
 
 import csv
 import io
-import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,43 +35,12 @@ import numpy as np
 from errormap.io import InputError, atomic_write, read_table
 from errormap.kinematics import forward, inverse
 
+from .gcode import GProgram, arc_segments, fmt as _fmt, move_points, parse_program, render_program
+
 AXIS_COLUMNS = ("x_mm", "z_mm", "a_deg")
 TARGET_COLUMNS = ("px_mm", "py_mm", "pz_mm")
-GCODE_AXES = ("X", "Z", "A")
 DECIMALS_MM = 6   # 1 nm
 DECIMALS_DEG = 6  # 1e-6 deg: 1 nm at 57 mm from the A axis
-
-# G codes whose axis words are not a motion target in program coordinates
-_NONMODAL_AXIS_G = {4.0: "G4", 10.0: "G10", 28.0: "G28", 30.0: "G30", 52.0: "G52", 53.0: "G53", 92.0: "G92"}
-_MOTION_G = {0.0, 1.0, 2.0, 3.0, 33.0, 38.2, 38.3, 38.4, 38.5, 73.0, 76.0, 80.0, 81.0, 82.0, 83.0, 84.0,
-             85.0, 86.0, 87.0, 88.0, 89.0}
-_NUMBER = re.compile(r"[ \t]*([+-]?(?:\d+\.?\d*|\.\d+))")
-
-
-@dataclass
-class GMotion:
-    """One motion line: ``index`` into the program's lines, ``mode`` 0 or 1, and the
-    character spans ``(start, end)`` of each axis word's number on that line."""
-
-    index: int
-    mode: int
-    spans: dict
-
-
-@dataclass
-class GCodeProgram:
-    """A parsed G-code file: its lines (Latin-1 text with their line endings) and motion."""
-
-    path: Path
-    lines: list
-    motions: list
-    positions: np.ndarray  # (n, 3) x_mm, z_mm, a_deg of each motion line
-
-    @property
-    def line_numbers(self) -> np.ndarray:
-        """1-based file line of each motion, shape (n,)."""
-        return np.array([m.index + 1 for m in self.motions], dtype=int)
-
 
 @dataclass
 class ToolPath:
@@ -108,148 +65,164 @@ class ToolPath:
 
 # ----------------------------------------------------------------------------- G-code
 
-def _split_lines(text: str) -> list:
-    """Lines with their ``\\n`` endings kept; only ``\\n`` ends a line (a ``\\r`` stays with it)."""
-    parts = text.split("\n")
-    lines = [p + "\n" for p in parts[:-1]]
-    if parts[-1]:
-        lines.append(parts[-1])
-    return lines
+DEFAULT_ARC_TOLERANCE_UM = 0.5
+"""Chord tolerance of linearised arcs and split moves (μm): half of it bounds the chord
+sagitta of the nominal arc, the other half the chord error of the compensation along a
+move (the ``auto`` segment length)."""
+AUTO_SAMPLE_MM = 0.25      # spacing of the field samples that estimate its curvature along a move
+AUTO_MAX_SAMPLES = 64      # samples per move at most (long moves: coarser spacing)
+SEGMENT_LIMITS_MM = (0.01, 100.0)  # the auto segment length is clipped into this range
 
 
-def _scan_words(path, lineno: int, body: str):
-    """Yield ``(letter_upper, value_or_None, start, end)`` for G/X/Z/A words outside comments.
+@dataclass
+class GCodeJob:
+    """A G-code program and where its compensated vertices lie.
 
-    ``start, end`` span the number. Raises InputError for an unclosed comment or a G/X/Z/A
-    word without a plain number.
+    ``params[k]``: parameters in (0, 1] (the last 1.0) of the vertices of the k-th
+    compensated move; ``max_segment_mm`` the segment length used (None: no splitting);
+    ``kept_axes`` (m, 3) the nominal ends of the moves written as they are (kept rapids;
+    NaN where an axis is not yet known) and ``kept_lines`` their 1-based lines.
     """
-    i, n = 0, len(body)
-    while i < n:
-        c = body[i]
-        if c == "(":
-            j = body.find(")", i + 1)
-            if j < 0:
-                raise InputError(f"{path}: line {lineno}: unclosed '(' comment")
-            i = j + 1
+
+    program: GProgram
+    params: list
+    arc_tolerance_um: float
+    max_segment_mm: float | None
+    kept_axes: np.ndarray
+    kept_lines: np.ndarray
+    curvature_um_per_mm2: float | None = None
+
+    @property
+    def compensated_moves(self) -> list:
+        return [m for m in self.program.moves if m.compensate]
+
+
+def _sample_moves(moves, counts):
+    """Nominal axes at ``counts[k] + 1`` equally spaced parameters along each move, stacked
+    (sum(counts + 1), 3), and the move index of each row. Linear moves in one vectorised pass."""
+    counts = np.asarray(counts, dtype=int)
+    owner = np.repeat(np.arange(len(moves)), counts + 1)
+    first = np.concatenate([[0], np.cumsum(counts + 1)[:-1]]) if len(moves) else np.zeros(0, int)
+    t = (np.arange(owner.size) - first[owner]) / np.maximum(counts[owner], 1)
+    start = np.array([m.start for m in moves]).reshape(-1, 3)
+    end = np.array([m.end for m in moves]).reshape(-1, 3)
+    pts = start[owner] + t[:, None] * (end - start)[owner]
+    for k, m in enumerate(moves):
+        if m.arc is not None:
+            pts[first[k]:first[k] + counts[k] + 1] = move_points(m, t[first[k]:first[k] + counts[k] + 1])
+    return pts, owner
+
+
+def _path_lengths_mm(machine, moves, samples: int = 16) -> np.ndarray:
+    """WCS length of each move's nominal tool path (polyline of ``samples + 1`` points), (n,)."""
+    if not moves:
+        return np.zeros(0)
+    pts, owner = _sample_moves(moves, np.full(len(moves), samples))
+    seg = np.linalg.norm(np.diff(forward(machine, pts), axis=0), axis=1)
+    seg[owner[1:] != owner[:-1]] = 0.0
+    return np.bincount(owner[1:], weights=seg, minlength=len(moves))
+
+
+def _long_moves(program):
+    """Compensated moves that may be split (not rapids, start known)."""
+    return [m for m in program.moves if m.compensate and m.kind != "rapid" and m.start_known]
+
+
+def field_curvature_um_per_mm2(program: GProgram, machine, field) -> float:
+    """Largest ``|d²E/ds²|`` (μm per mm² of WCS path) of the field along the program's moves.
+
+    Second differences of ``E`` sampled every :data:`AUTO_SAMPLE_MM` (at most
+    :data:`AUTO_MAX_SAMPLES` samples a move) along each compensated linear move and arc.
+    """
+    from .solvers._common import field_error_um
+    moves = _long_moves(program)
+    length = _path_lengths_mm(machine, moves)
+    keep = length > 0.0
+    moves, length = [m for m, k in zip(moves, keep) if k], length[keep]
+    if not moves:
+        return 0.0
+    n = np.clip(np.ceil(length / AUTO_SAMPLE_MM), 2, AUTO_MAX_SAMPLES).astype(int)
+    pts, owner = _sample_moves(moves, n)
+    e = field_error_um(field, pts, machine)
+    d2 = np.linalg.norm(e[:-2] - 2 * e[1:-1] + e[2:], axis=1)
+    same = (owner[:-2] == owner[1:-1]) & (owner[1:-1] == owner[2:])
+    h = (length / n)[owner[1:-1]]
+    return float(np.max(np.where(same, d2 / (h * h), 0.0)))
+
+
+def auto_segment_mm(kappa_um_per_mm2: float, tolerance_um: float) -> float:
+    """Segment length whose chord error ``κ·L²/8`` is ``tolerance_um``, clipped to
+    :data:`SEGMENT_LIMITS_MM`."""
+    lo, hi = SEGMENT_LIMITS_MM
+    if kappa_um_per_mm2 <= 0.0:
+        return hi
+    return float(np.clip(np.sqrt(8.0 * tolerance_um / kappa_um_per_mm2), lo, hi))
+
+
+def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM,
+               max_segment_mm=None, field=None) -> GCodeJob:
+    """Place the vertices of every compensated move.
+
+    Rapids: their end only. Linear moves: ``ceil(L / max_segment_mm)`` equal steps (``L`` the
+    WCS length; one step when ``max_segment_mm`` is None or the start is unknown). Arcs:
+    enough chords for a sagitta within half of ``arc_tolerance_um``, and no chord longer than
+    ``max_segment_mm``. ``max_segment_mm="auto"`` (needs ``field``) is
+    :func:`auto_segment_mm` of :func:`field_curvature_um_per_mm2` with half the tolerance.
+    """
+    if not (np.isfinite(arc_tolerance_um) and arc_tolerance_um > 0):
+        raise ValueError(f"Expected a positive arc tolerance in μm, got {arc_tolerance_um!r}")
+    kappa = None
+    if isinstance(max_segment_mm, str):
+        if max_segment_mm != "auto":
+            raise ValueError(f"Expected max_segment_mm a number, None or 'auto', got {max_segment_mm!r}")
+        if field is None:
+            raise ValueError("max_segment_mm='auto' needs the error field")
+        kappa = field_curvature_um_per_mm2(program, machine, field)
+        max_segment_mm = auto_segment_mm(kappa, arc_tolerance_um / 2.0)
+    elif max_segment_mm is not None and not (np.isfinite(max_segment_mm) and max_segment_mm > 0):
+        raise ValueError(f"Expected a positive max_segment_mm, got {max_segment_mm!r}")
+    tol_geo_mm = 0.5 * arc_tolerance_um * 1e-3
+    lengths = {}
+    if max_segment_mm is not None:
+        long_moves = _long_moves(program)
+        lengths = dict(zip((m.index for m in long_moves), _path_lengths_mm(machine, long_moves)))
+    params, kept, kept_lines = [], [], []
+    for m in program.moves:
+        if not m.compensate:
+            kept.append(m.end)
+            kept_lines.append(m.index + 1)
             continue
-        if c == ";":
-            return
-        u = c.upper()
-        if u in ("G", "X", "Z", "A"):
-            m = _NUMBER.match(body, i + 1)
-            if not m:
-                raise InputError(f"{path}: line {lineno}: '{c}' word without a plain number "
-                                 f"(parameters and expressions are not supported): {body.strip()!r}")
-            v = float(m.group(1))
-            if not math.isfinite(v):
-                raise InputError(f"{path}: line {lineno}: '{c}' number out of range: {body.strip()[:80]!r}")
-            yield u, v, m.start(1), m.end(1)
-            i = m.end()
-            continue
-        i += 1
+        k = 1
+        if m.kind == "arc":
+            k = arc_segments(m, tol_geo_mm)
+        if m.index in lengths:
+            k = max(k, int(np.ceil(lengths[m.index] / max_segment_mm - 1e-9)))
+        params.append(np.arange(1, k + 1, dtype=float) / k)
+    return GCodeJob(program, params, float(arc_tolerance_um), max_segment_mm,
+                    np.array(kept, dtype=float).reshape(-1, 3), np.array(kept_lines, dtype=int), kappa)
 
 
-def parse_gcode(path) -> GCodeProgram:
-    """Read a G-code file; see the module docstring for what is accepted and refused."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    text = path.read_bytes().decode("latin-1")
-    lines = _split_lines(text)
-    mode = None        # current motion mode: 0, 1, or another motion G value
-    absolute, metric = True, True
-    pos = [None, None, None]
-    motions, positions = [], []
-    for idx, line in enumerate(lines):
-        lineno = idx + 1
-        body = line.rstrip("\r\n")
-        gs, spans, vals = [], {}, {}
-        for letter, v, s, e in _scan_words(path, lineno, body):
-            if letter == "G":
-                gs.append(v)
-            else:
-                if letter in spans:
-                    raise InputError(f"{path}: line {lineno}: repeated '{letter}' word: {body.strip()!r}")
-                spans[letter], vals[letter] = (s, e), v
-        motion_here = [g for g in gs if g in _MOTION_G]
-        if len(motion_here) > 1:
-            raise InputError(f"{path}: line {lineno}: two motion codes on one line: {body.strip()!r}")
-        for g in gs:
-            if g == 90.0:
-                absolute = True
-            elif g == 91.0:
-                absolute = False
-            elif g == 20.0:
-                metric = False
-            elif g == 21.0:
-                metric = True
-        if motion_here:
-            mode = motion_here[0]
-        if not spans:
-            continue
-        nonmodal = [_NONMODAL_AXIS_G[g] for g in gs if g in _NONMODAL_AXIS_G]
-        if nonmodal:
-            raise InputError(f"{path}: line {lineno}: axis words with {nonmodal[0]} are not supported "
-                             f"(they are not a motion target): {body.strip()!r}")
-        if mode is None:
-            raise InputError(f"{path}: line {lineno}: axis words but no G0/G1 motion mode is active: {body.strip()!r}")
-        if mode not in (0.0, 1.0):
-            raise InputError(f"{path}: line {lineno}: axis words under G{mode:g}; only G0/G1 moves "
-                             f"can be compensated: {body.strip()!r}")
-        if not absolute:
-            raise InputError(f"{path}: line {lineno}: incremental mode (G91) is not supported; "
-                             f"use absolute G90: {body.strip()!r}")
-        if not metric:
-            raise InputError(f"{path}: line {lineno}: inch mode (G20) is not supported; use mm (G21): {body.strip()!r}")
-        for j, ax in enumerate(GCODE_AXES):
-            if ax in vals:
-                pos[j] = vals[ax]
-        if any(p is None for p in pos):
-            missing = [ax for ax, p in zip(GCODE_AXES, pos) if p is None]
-            raise InputError(f"{path}: line {lineno}: motion before X, Z and A are all known "
-                             f"(no value yet for {', '.join(missing)}): {body.strip()!r}")
-        motions.append(GMotion(idx, int(mode), spans))
-        positions.append(list(pos))
-    if not motions:
-        raise InputError(f"{path}: no G0/G1 motion with X, Z or A words found")
-    return GCodeProgram(path, lines, motions, np.array(positions, dtype=float))
+def gcode_toolpath(job: GCodeJob, machine, path) -> "ToolPath":
+    """The :class:`ToolPath` of a planned G-code job: one row per vertex."""
+    moves = job.compensated_moves
+    axes = np.concatenate([move_points(m, t) for m, t in zip(moves, job.params)], axis=0)
+    lines = np.concatenate([np.full(len(t), m.index + 1, dtype=int) for m, t in zip(moves, job.params)])
+    return ToolPath(Path(path), "gcode", axes, forward(machine, axes), lines, job)
 
 
-def _fmt(v: float, decimals: int) -> str:
-    s = f"{v:.{decimals}f}"
-    if float(s) == 0.0:
-        s = f"{0.0:.{decimals}f}"
-    return s
+def render_gcode(job: GCodeJob, axes, header=()) -> tuple[str, list]:
+    """Text of the compensated program and its line groups (:func:`compensation.gcode.render_program`).
 
-
-def render_gcode(program: GCodeProgram, axes, decimals_mm: int = DECIMALS_MM,
-                 decimals_deg: int = DECIMALS_DEG) -> str:
-    """The program with each motion line's X Z A replaced by ``axes`` (shape (n, 3)).
-
-    Every non-motion line is returned unchanged; on motion lines only the axis numbers
-    change (missing axis words are appended after the line's last axis word).
+    ``axes`` (n, 3): the compensated vertices in the order of :func:`gcode_toolpath`.
     """
     axes = np.asarray(axes, dtype=float)
-    if axes.shape != (len(program.motions), 3):
-        raise ValueError(f"Expected axes of shape ({len(program.motions)}, 3), got {axes.shape}")
+    counts = [len(t) for t in job.params]
+    if axes.shape != (sum(counts), 3):
+        raise ValueError(f"Expected axes of shape ({sum(counts)}, 3), got {axes.shape}")
     if not np.all(np.isfinite(axes)):
         raise ValueError("Expected finite axis commands, got NaN or inf")
-    out = list(program.lines)
-    dec = (decimals_mm, decimals_mm, decimals_deg)
-    for m, row in zip(program.motions, axes):
-        line = program.lines[m.index]
-        body = line.rstrip("\r\n")
-        ending = line[len(body):]
-        edits = [(m.spans[ax][0], m.spans[ax][1], _fmt(row[j], dec[j]))
-                 for j, ax in enumerate(GCODE_AXES) if ax in m.spans]
-        last_end = max(e for _, e, _ in edits)
-        extra = "".join(f" {ax}{_fmt(row[j], dec[j])}" for j, ax in enumerate(GCODE_AXES) if ax not in m.spans)
-        if extra:
-            edits.append((last_end, last_end, extra))
-        for s, e, txt in sorted(edits, key=lambda t: (t[0], t[1]), reverse=True):
-            body = body[:s] + txt + body[e:]
-        out[m.index] = body + ending
-    return "".join(out)
+    return render_program(job.program, np.split(axes, np.cumsum(counts)[:-1]), header=header)
+
 
 
 # ----------------------------------------------------------------------------- CSV
@@ -295,15 +268,31 @@ def is_csv(path) -> bool:
     return Path(path).suffix.lower() == ".csv"
 
 
-def read_path(path, machine) -> ToolPath:
-    """Read a tool-path file (CSV by the ``.csv`` suffix, otherwise G-code) for ``machine``."""
+def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
+              arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM, max_segment_mm=None, field=None) -> ToolPath:
+    """Read a tool-path file (CSV by the ``.csv`` suffix, otherwise G-code) for ``machine``.
+
+    G-code options: ``rapids``, ``block_delete`` (:func:`compensation.gcode.parse_program`),
+    ``arc_tolerance_um``, ``max_segment_mm``, ``field`` (:func:`plan_gcode`).
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if is_csv(path):
         return _read_csv(path, machine)
-    prog = parse_gcode(path)
-    return ToolPath(path, "gcode", prog.positions, forward(machine, prog.positions), prog.line_numbers, prog)
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete)
+    job = plan_gcode(prog, machine, arc_tolerance_um, max_segment_mm, field)
+    return gcode_toolpath(job, machine, path)
+
+
+def replan(toolpath: ToolPath, machine, **options) -> ToolPath:
+    """A G-code tool path with its vertices placed again (:func:`plan_gcode` options,
+    e.g. ``max_segment_mm="auto", field=...``); CSV paths come back unchanged."""
+    if toolpath.kind != "gcode":
+        return toolpath
+    job = toolpath.source
+    opts = {"arc_tolerance_um": job.arc_tolerance_um, "max_segment_mm": job.max_segment_mm, **options}
+    return gcode_toolpath(plan_gcode(job.program, machine, **opts), machine, toolpath.path)
 
 
 def align_turns(a_deg, a_ref_deg) -> np.ndarray:
@@ -318,7 +307,7 @@ def render_compensated(toolpath: ToolPath, axes, commands_mm, comments=()) -> st
 
     ``axes`` shape (n, 3): compensated axis commands; ``commands_mm`` shape (n, 3):
     compensated WCS commands ``p_r``. ``comments`` become extra ``#`` lines in CSV output
-    (G-code output gets nothing added: every non-motion line stays as it was).
+    and header ``(...)`` comment lines in G-code output (after a leading ``%`` line).
     """
     axes = np.asarray(axes, dtype=float)
     commands_mm = np.asarray(commands_mm, dtype=float)
@@ -327,7 +316,7 @@ def render_compensated(toolpath: ToolPath, axes, commands_mm, comments=()) -> st
         if arr.shape != (n, 3):
             raise ValueError(f"Expected {name} of shape ({n}, 3), got {arr.shape}")
     if toolpath.kind == "gcode":
-        return render_gcode(toolpath.source, axes)
+        return render_gcode(toolpath.source, axes, header=comments)[0]
     if toolpath.kind == "csv-axes":
         dec = (DECIMALS_MM, DECIMALS_MM, DECIMALS_DEG)
         return _render_csv(toolpath.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(AXIS_COLUMNS)}, comments)
@@ -337,13 +326,35 @@ def render_compensated(toolpath: ToolPath, axes, commands_mm, comments=()) -> st
 
 def write_compensated(toolpath: ToolPath, out_path, axes, commands_mm, comments=()) -> Path:
     """Write the compensated program to ``out_path`` atomically; refuse to overwrite the input."""
+    text = render_compensated(toolpath, axes, commands_mm, comments)
+    return write_text_output(toolpath, out_path, text)
+
+
+def write_text_output(toolpath: ToolPath, out_path, text: str) -> Path:
+    """Write a rendered program atomically in the input's encoding; refuse to overwrite the input."""
     out_path = Path(out_path)
     if out_path.exists() and out_path.resolve() == toolpath.path.resolve():
         raise InputError(f"{out_path}: refusing to overwrite the input file")
-    text = render_compensated(toolpath, axes, commands_mm, comments)
     with atomic_write(out_path, "wb") as fh:
         fh.write(text.encode("latin-1" if toolpath.kind == "gcode" else "utf-8"))
     return out_path
+
+
+def write_outputs(items) -> list:
+    """Write several rendered programs as one set: ``items`` is a list of
+    ``(toolpath, out_path, text)``. Every file is first written in full to a temporary file
+    beside its target; only when all are on disk are they renamed into place, one after the
+    other. An error or interrupt before that leaves none of them (temporary files removed)."""
+    import contextlib
+    for tp, out, _ in items:
+        out = Path(out)
+        if out.exists() and out.resolve() == tp.path.resolve():
+            raise InputError(f"{out}: refusing to overwrite the input file")
+    with contextlib.ExitStack() as stack:
+        for tp, out, text in items:
+            fh = stack.enter_context(atomic_write(out, "wb"))
+            fh.write(text.encode("latin-1" if tp.kind == "gcode" else "utf-8"))
+    return [Path(out) for _, out, _ in items]
 
 
 def write_targets_csv(path, targets_mm, comments=()) -> Path:

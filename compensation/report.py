@@ -119,11 +119,12 @@ def _solve(method, field_, targets, machine, options):
         return solve(method, field_, targets, machine, **options)
 
 
-def guard_counts(result, machine, field_) -> dict:
-    """Guard violations per guard name (reported, never enforced, in a comparison)."""
+def guard_counts(result, machine, field_, target_axes=None) -> dict:
+    """Guard violations per guard name (reported, never enforced, in a comparison);
+    ``target_axes`` (n, 3): the targets' nominal axes, checked too when given."""
     from . import guards
     try:
-        rep = guards.check(result, machine, field_, allow="all")
+        rep = guards.check(result, machine, field_, allow="all", target_axes=target_axes)
     except TypeError:  # a field that does not say where it is calibrated
         return {}
     return {g: int(len(v)) for g, v in rep.violations.items()}
@@ -178,7 +179,7 @@ def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga
         met = method_metrics(res, true_residual=tr)
         met["subset"] = bool(len(idx) < n)
         res.axes = axes
-        met["guard_violations"] = guard_counts(res, machine, field_)
+        met["guard_violations"] = guard_counts(res, machine, field_, target_axes=nominal[idx])
         if note:
             met["note"] = note
         runs[method] = MethodRun(method, idx, res, axes, tr, met, note)

@@ -29,7 +29,8 @@ def test_batch_writes_each_file_and_summary(setup, grinder, capsys):
     d, el, nc, csv, field = setup
     before = (nc.read_bytes(), csv.read_bytes())
     out = d / "out"
-    rc = main(["compensate", str(nc), str(csv), "--model", str(el), "--method", "exact", "--out", str(out)])
+    rc = main(["compensate", str(nc), str(csv), "--model", str(el), "--method", "exact", "--out", str(out),
+               "--max-segment-mm", "none"])
     assert rc == 0
     printed = capsys.readouterr().out
     assert "flute.nc: 40 points" in printed and "model residual max" in printed and str(out) in printed
@@ -86,6 +87,9 @@ def test_guard_refusal_reaches_the_cli_and_allow_overrides(setup, capsys):
     assert "(line 4)" not in err
     assert not (out / "edge.nc").exists()
     rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--allow"])
+    assert rc == 2 and "--force" in capsys.readouterr().err  # DIR holds the previous run's summary
+    rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--allow",
+               "--force"])
     assert rc == 0
     assert (out / "edge.nc").exists()
     summary = json.loads((out / "compensate_summary.json").read_text())
@@ -96,7 +100,7 @@ def test_allow_names_guards(setup, capsys):
     d, el, _, _, _ = setup
     src = _edge_file(d)
     out = d / "out_edge2"
-    base = ["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out)]
+    base = ["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--force"]
     assert main(base + ["--allow", "ball"]) == 3          # the stroke guard still refuses
     assert "stroke" in capsys.readouterr().err
     assert main(base + ["--allow", "stroke,volume"]) == 0
@@ -119,5 +123,111 @@ def test_interrupted_batch_leaves_whole_files_only(setup, grinder, monkeypatch, 
     out = d / "out_int"
     rc = main(["compensate", str(nc), str(csv), "--model", str(el), "--method", "traditional", "--out", str(out)])
     assert rc == 130 and "interrupted" in capsys.readouterr().err
-    assert sorted(p.name for p in out.iterdir()) == ["flute.nc"]  # no temp files, no summary, no half file
-    assert len(read_path(out / "flute.nc", grinder)) == 40
+    # every input is solved before the first output is written: nothing at all in DIR
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_traditional_passes_the_guards_on_its_targets(setup, capsys):
+    d, el, _, _, _ = setup
+    src = d / "z" / "plunge.nc"
+    src.parent.mkdir(exist_ok=True)
+    src.write_text("G21 G90\nG1 X10 Z1 A0 F100\nG1 Z-0.1 A10\nG1 Z1 A20\nM30\n")  # Z = -0.1: outside the stroke
+    out = d / "out_z"
+    rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out),
+               "--max-segment-mm", "none"])
+    err = capsys.readouterr().err
+    assert rc == 3 and "point 1 (line 3)" in err and "target z_mm = -0.1 outside stroke" in err
+    assert not (out / "plunge.nc").exists()
+
+
+def test_override_is_written_into_the_files(setup, capsys):
+    d, el, _, _, _ = setup
+    src = _edge_file(d)
+    csv = d / "edge" / "edge.csv"
+    csv.write_text("x_mm,z_mm,a_deg\n10,1,0\n-0.5,1,10\n")
+    out = d / "out_override"
+    assert main(["compensate", str(src), str(csv), "--model", str(el), "--method", "exact", "--out", str(out),
+                 "--allow", "stroke,volume"]) == 0
+    head = (out / "edge.nc").read_text().splitlines()[0]
+    assert head.startswith("(volcomp compensate: GUARDS OVERRIDDEN [--allow stroke,volume]")
+    assert "stroke 2" in head
+    csv_lines = (out / "edge.csv").read_text().splitlines()
+    assert any(ln.startswith("# volcomp compensate: GUARDS OVERRIDDEN (--allow stroke,volume)") for ln in csv_lines)
+    summary = json.loads((out / "compensate_summary.json").read_text())
+    assert summary["files"][0]["overridden"] == {"stroke": 2, "volume": 2}
+
+
+def test_rerun_leaves_no_stale_output(setup, capsys):
+    d, el, nc, _, _ = setup
+    src = _edge_file(d)
+    ok = d / "edge" / "ok.nc"
+    ok.write_text("G21 G90\nG1 X10 Z1 A0 F100\nG1 X20 A10\nM30\n")
+    out = d / "out_stale"
+    base = ["compensate", str(src), str(ok), "--model", str(el), "--method", "traditional", "--out", str(out)]
+    assert main(base + ["--allow"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["compensate_summary.json", "edge.nc", "ok.nc"]
+    assert main(base) == 2 and "--force" in capsys.readouterr().err  # DIR holds files: refused without --force
+    assert main(base + ["--force"]) == 3  # edge.nc is refused this time: its old output is removed
+    assert sorted(p.name for p in out.iterdir()) == ["compensate_summary.json", "ok.nc"]
+    summary = json.loads((out / "compensate_summary.json").read_text())
+    assert [e["output"] for e in summary["files"]] == [None, str(out / "ok.nc")]
+    assert summary["removed_stale"] == [str(out / "edge.nc")]
+    # a third run with only ok.nc: nothing of the earlier runs but its own output remains
+    assert main(["compensate", str(ok), "--model", str(el), "--method", "traditional", "--out", str(out),
+                 "--force"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["compensate_summary.json", "ok.nc"]
+
+
+def test_rapids_and_block_delete_options(setup, grinder, capsys):
+    d, el, _, _, _ = setup
+    src = d / "edge" / "rapid.nc"
+    src.write_text("G21 G90\nG0 X10 Z30 A0\nG1 Z1 F100\nG1 X20 A10\n/G1 X25\nG0 Z30\nM30\n")
+    out = d / "out_rapids"
+    base = ["compensate", str(src), "--model", str(el), "--method", "exact", "--max-segment-mm", "none", "--force"]
+    assert main(base + ["--out", str(out)]) == 2
+    assert "line 5, column 1: block delete" in capsys.readouterr().err
+    assert main(base + ["--out", str(out), "--block-delete", "on"]) == 0
+    lines = (out / "rapid.nc").read_text().splitlines()
+    assert lines[1] == "G0 X10 Z30 A0" and lines[5] == "G0 Z30" and lines[4] == "/G1 X25"  # kept as written
+    assert main(base + ["--out", str(out), "--block-delete", "off", "--rapids", "compensate"]) == 0
+    lines = (out / "rapid.nc").read_text().splitlines()
+    assert lines[1].startswith("G0 X") and lines[1] != "G0 X10 Z30 A0" and lines[4].startswith("/G1 X")
+    assert len(read_path(out / "rapid.nc", grinder, rapids="compensate", block_delete="off")) == 5
+
+
+def test_kept_rapid_outside_the_strokes_is_refused(setup, capsys):
+    d, el, _, _, _ = setup
+    src = d / "edge" / "rapid_out.nc"
+    src.write_text("G21 G90\nG0 X10 Z70 A0\nG1 Z1 F100\nG1 X20 A10\nM30\n")
+    rc = main(["compensate", str(src), "--model", str(el), "--method", "exact", "--out", str(d / "out_ro")])
+    assert rc == 3 and "line 2: stroke: kept rapid z_mm = 70" in capsys.readouterr().err
+
+
+def test_output_set_is_all_or_nothing(setup, grinder, tmp_path):
+    """An error while the set is being written leaves no output and no temporary file."""
+    import compensation.pathio as pathio
+    d, el, nc, csv, _ = setup
+    a, b = pathio.read_path(nc, grinder), pathio.read_path(csv, grinder)
+    out = tmp_path / "set"
+    items = [(a, out / "flute.nc", "G1 X1 Z1 A1\n"), (b, out / "flute.csv", 12345)]  # the second cannot be encoded
+    with pytest.raises(AttributeError):
+        pathio.write_outputs(items)
+    assert list(out.iterdir()) == []  # the first file, complete on disk, was not renamed into place
+    pathio.write_outputs(items[:1])
+    assert sorted(p.name for p in out.iterdir()) == ["flute.nc"]
+
+
+def test_allow_ball_overrides_a_correction_beyond_the_ball(setup, monkeypatch, capsys):
+    import compensation.commands.compensate as cmd
+    from tests.test_guards import ConstantField
+    d, el, _, _, _ = setup
+    src = d / "edge" / "ball.nc"
+    src.parent.mkdir(exist_ok=True)
+    src.write_text("G21 G90\nG1 X10 Z1 A0 F100\nG1 X20 A10\nM30\n")
+    monkeypatch.setattr(cmd, "load_field", lambda spec, machine, uri: ConstantField(machine, [0.0, 300.0, 200.0]))
+    base = ["compensate", str(src), "--model", str(el), "--method", "exact", "--max-segment-mm", "none"]
+    assert main(base + ["--out", str(d / "out_ball1")]) == 3
+    err = capsys.readouterr().err
+    assert "refused by guard(s) ball" in err and "convergence" not in err
+    assert main(base + ["--out", str(d / "out_ball2"), "--allow", "ball"]) == 0
+    assert (d / "out_ball2" / "ball.nc").read_text().startswith("(volcomp compensate: GUARDS OVERRIDDEN [--allow ball]")

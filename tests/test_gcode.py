@@ -1,19 +1,24 @@
-"""G-code reading and rewriting (compensation.pathio)."""
+"""G-code reading and rewriting (compensation.gcode, compensation.pathio)."""
+import math
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from compensation.pathio import parse_gcode, read_path, render_gcode, write_compensated
+from compensation.gcode import MM_PER_INCH, move_points, parse_program
+from compensation.pathio import read_path, render_gcode, write_compensated
 from errormap.io import InputError
 from errormap.machine import load_machine
 
-TOL_MM = 1e-6  # the writer's 6 decimals
+TOL_MM = 1e-6        # the writer's 6 decimals (mm)
+TOL_INCH_MM = 2.6e-6  # 7 decimals in inch: 0.5e-7 in = 1.3 nm; two roundings
+TOL_DEG = 1e-6
 
 PROGRAM = (
     b"%\n"
     b"O1000 (flute test \xe4\xb8\xad)\n"
-    b"N10 G21 G90 G17 M3 S24000\r\n"
+    b"N10 G21 G90 G18 M3 S24000\r\n"
     b"N20 G0 X90 Z5 A0 ; rapid in\n"
     b"N30 G1 Z0.3 F100\n"
     b"\n"
@@ -34,20 +39,33 @@ def machine():
 
 def _write(tmp_path, data, name="prog.nc"):
     p = tmp_path / name
-    p.write_bytes(data)
+    p.write_bytes(data if isinstance(data, bytes) else data.encode("latin-1"))
     return p
 
 
-def test_motion_is_parsed_modally(tmp_path):
-    prog = parse_gcode(_write(tmp_path, PROGRAM))
-    assert prog.line_numbers.tolist() == [4, 5, 8, 9, 10]
+def test_motion_is_parsed_modally(tmp_path, machine):
+    tp = read_path(_write(tmp_path, PROGRAM), machine, rapids="compensate", block_delete="off")
+    assert tp.lines.tolist() == [4, 5, 8, 9, 10]
     expected = [[90, 5, 0], [90, 0.3, 0], [90.5, 0.3, 10.5], [91, 0.3, -3], [91.25, 0.35, 0.5]]
-    assert np.allclose(prog.positions, expected)
+    assert np.allclose(tp.axes, expected)
+    # rapids kept (the default): the G0 line is not a compensated point
+    assert read_path(_write(tmp_path, PROGRAM), machine, block_delete="off").lines.tolist() == [5, 8, 9, 10]
 
 
-def test_round_trip_keeps_every_non_motion_line_byte_for_byte(tmp_path, machine):
+def test_block_delete_is_an_explicit_choice(tmp_path, machine):
     src = _write(tmp_path, PROGRAM)
-    tp = read_path(src, machine)
+    with pytest.raises(InputError, match=r"prog\.nc: line 10, column 1: block delete"):
+        read_path(src, machine)
+    on = read_path(src, machine, block_delete="on")  # the controller skips line 10
+    assert on.lines.tolist() == [5, 8, 9]
+    # a '/' line that neither moves nor changes modal state passes under the default
+    ok = read_path(_write(tmp_path, b"G21 G90 G1 X1 Z2 A3\n/M8 (coolant)\n", "bd.nc"), machine)
+    assert len(ok) == 1
+
+
+def test_round_trip_keeps_every_other_line_byte_for_byte(tmp_path, machine):
+    src = _write(tmp_path, PROGRAM)
+    tp = read_path(src, machine, block_delete="off")
     new_axes = tp.axes + np.array([0.0123, -0.0045, 0.0678])
     out = write_compensated(tp, tmp_path / "out" / "prog.nc", new_axes, tp.targets_mm)
     assert src.read_bytes() == PROGRAM  # input untouched
@@ -57,45 +75,126 @@ def test_round_trip_keeps_every_non_motion_line_byte_for_byte(tmp_path, machine)
     for k, (la, lb) in enumerate(zip(a, b)):
         if k not in motion:
             assert la == lb, f"line {k + 1} changed"
-    # motion lines keep their other words and comments
-    assert b[3].startswith(b"N20 G0 X") and b[3].endswith(b" ; rapid in")
-    assert b[7].endswith(b"(cut)")
-    back = read_path(out, machine)
+    assert b[4] == b"N30 G1 Z0.295500 X90.012300 A0.067800 F100"
+    assert b[7] == b"N40 X90.512300 A10.567800 Z0.295500 (cut)"
+    assert b[9].startswith(b"/N55 G1 X")
+    back = read_path(out, machine, block_delete="off")
     assert np.abs(back.axes - new_axes).max() < TOL_MM
-    # rendering the original axes reproduces the positions exactly (numbers reformatted only)
-    again = parse_gcode(_write(tmp_path, render_gcode(tp.source, tp.axes).encode("latin-1"), "again.nc"))
-    assert np.abs(again.positions - tp.axes).max() < TOL_MM
 
 
 def test_refuses_to_overwrite_the_input(tmp_path, machine):
     src = _write(tmp_path, PROGRAM)
-    tp = read_path(src, machine)
+    tp = read_path(src, machine, block_delete="on")
     with pytest.raises(InputError, match="overwrite"):
         write_compensated(tp, src, tp.axes, tp.targets_mm)
     assert src.read_bytes() == PROGRAM
 
 
-@pytest.mark.parametrize("body, line, what", [
-    (b"G1 X1 Z2 A3\nG1 X#1\n", 2, "plain number"),
-    (b"G1 X1 Z2 A3\nG2 X2 Z2 A3 I1\n", 2, "G2"),
-    (b"G1 X1 Z2 A3\nG91\nX1\n", 3, "G91"),
-    (b"G20 G1 X1 Z2 A3\n", 1, "G20"),
-    (b"G1 X1 Z2 A3\nG92 X0\n", 2, "G92"),
-    (b"X1 Z2 A3\n", 1, "no G0/G1"),
-    (b"G1 X1\n", 1, "Z, A"),
-    (b"G1 X1 X2 Z2 A3\n", 1, "repeated"),
-    (b"G0 G1 X1 Z2 A3\n", 1, "two motion"),
-    (b"(ok)\nG1 X1 Z2 A3 (open\n", 2, "unclosed"),
-    (b"G1 X1 Z2 A3\nG Z4\n", 2, "'G' word"),
+@pytest.mark.parametrize("body, line, col, what", [
+    (b"G1 X1 Z2 A3\nG1 X#1\n", 2, 4, "parameters"),
+    (b"G1 X1 Z2 A3\nG1 X[1+2]\n", 2, 4, "expressions"),
+    (b"G1 X1 Z2 A3\nG17 G2 X2 Z2 A3 I1\n", 2, 8, "G17 plane"),
+    (b"G1 X1 Z2 A3\nG92 X0\n", 2, 1, "'G92'"),
+    (b"X1 Z2 A3\n", 1, 1, "no motion mode"),
+    (b"G1 X1\n", 1, 4, "Z, A"),
+    (b"G1 X1 X2 Z2 A3\n", 1, 7, "repeated 'X'"),
+    (b"G0 G1 X1 Z2 A3\n", 1, 4, "same modal group"),
+    (b"(ok)\nG1 X1 Z2 A3 (open\n", 2, 13, "unclosed"),
+    (b"G1 X1 Z2 A3\nG Z4\n", 2, 1, "'G' word without"),
+    (b"G1 X1e2 Z2 A3\n", 1, 4, "exponent"),
+    (b"G1 X1 Z2 A3\nG1 U1.0\n", 2, 4, "'U1.0'"),
+    (b"G65 P9000 A1 X2 Z3\n", 1, 1, "'G65' .macro call"),
+    (b"G1 X1 Z2 A3\nG1 X2 @5\n", 2, 7, "unexpected character '@'"),
+    (b"G21\nG91 G1 X1 Z1 A1\n", 2, 8, "incremental 'X1' before X is known"),
+    (b"G1 X1 Z2 A3\nG4 X1.5\n", 2, 4, "dwell"),
+    (b"G1 X1 Z2 A3 P2\n", 1, 13, "'P2' outside G4/G64"),
+    (b"G1 X1 Z2 A3\nG1 X2 I1\n", 2, 7, "arc words need G2/G3"),
+    (b"G1 X1 Z2 A3\nG18 G2 X2 Z2 I5 K0\n", 2, 8, "radii differ"),
+    (b"G1 X1 Z2 A3\nG18 G2 X9 Z2 R1\n", 2, 14, "smaller than half the chord"),
 ])
-def test_bad_lines_are_named(tmp_path, body, line, what):
-    with pytest.raises(InputError, match=rf"prog\.nc: line {line}: .*{what}"):
-        parse_gcode(_write(tmp_path, body))
+def test_bad_lines_are_named(tmp_path, machine, body, line, col, what):
+    with pytest.raises(InputError, match=rf"prog\.nc: line {line}, column {col}: .*{what}"):
+        read_path(_write(tmp_path, body), machine)
 
 
-def test_no_motion_is_refused(tmp_path):
-    with pytest.raises(InputError, match="no G0/G1 motion"):
-        parse_gcode(_write(tmp_path, b"%\nM30\n%\n"))
+def test_no_motion_is_refused(tmp_path, machine):
+    with pytest.raises(InputError, match="no G0/G1/G2/G3 motion"):
+        read_path(_write(tmp_path, b"%\nM30\n%\n"), machine)
+
+
+def test_numbers_are_read_as_rs274(tmp_path, machine):
+    tp = read_path(_write(tmp_path, b"G21 G90 G1 X1 0 Z 2. 5 A-1 2.5\n"), machine)
+    assert tp.axes.tolist() == [[10.0, 2.5, -12.5]]
+    txt, groups = render_gcode(tp.source, tp.axes)
+    assert groups[0] == ["G21 G90 G1 X10.000000 Z2.500000 A-12.500000\n"]
+
+
+def _arc_program(tmp_path, lines, name="arc.nc"):
+    return read_path(_write(tmp_path, "G21 G90 G18 G1 X10 Z5 A0 F100\n" + lines, name), machine=load_machine(),
+                     arc_tolerance_um=0.5)
+
+
+@pytest.mark.parametrize("arc, centre_xz, ccw", [
+    ("G2 X12 Z7 I2 K0\n", (12.0, 5.0), False),     # I K incremental centre: clockwise is the long way
+    ("G3 X12 Z7 I0 K2\n", (10.0, 7.0), True),
+    ("G2 X12 Z7 R2\n", (10.0, 7.0), False),        # R form: the short arc
+    ("G90.1 G3 X12 Z7 I10 K7\n", (10.0, 7.0), True),  # absolute centre
+])
+def test_arcs_in_g18_follow_the_circle(tmp_path, arc, centre_xz, ccw):
+    tp = _arc_program(tmp_path, arc)
+    pts = tp.axes[1:]
+    r = np.hypot(pts[:, 0] - centre_xz[0], pts[:, 1] - centre_xz[1])
+    assert np.abs(r - 2.0).max() < 1e-9 and np.allclose(pts[-1], [12, 7, 0])
+    # G3 is counter-clockwise seen from +Y: in (Z, X) coordinates the angle increases
+    ang = np.unwrap(np.arctan2(pts[:, 0] - centre_xz[0], pts[:, 1] - centre_xz[1]))
+    assert np.all(np.diff(ang) > 0) if ccw else np.all(np.diff(ang) < 0)
+    # chords within half the 0.5 um tolerance: sagitta r(1 - cos(step/2))
+    step = abs(ang[1] - ang[0])
+    assert 2.0 * (1 - math.cos(step / 2)) <= 0.25e-3 + 1e-12
+
+
+def test_full_circle_and_helical_a(tmp_path):
+    tp = _arc_program(tmp_path, "G3 K2 X10 Z5 A90\n")
+    move = tp.source.compensated_moves[1]
+    assert move.arc["sweep"] == pytest.approx(2 * math.pi)
+    mid = move_points(move, [0.5])[0]
+    assert np.allclose(mid, [10.0, 9.0, 45.0])
+
+
+def test_incremental_and_inch_are_written_back_in_their_own_mode(tmp_path, machine):
+    src = _write(tmp_path, "G20 G90 G1 X4 Z0.1 A0 F10\nG91 X0.5 A10\nZ0.01\nG90 G21 X120 (mm again)\n")
+    tp = read_path(src, machine)
+    assert np.allclose(tp.axes, [[4 * MM_PER_INCH, 0.1 * MM_PER_INCH, 0], [4.5 * MM_PER_INCH, 0.1 * MM_PER_INCH, 10],
+                                 [4.5 * MM_PER_INCH, 0.11 * MM_PER_INCH, 10], [120, 0.11 * MM_PER_INCH, 10]])
+    comp = tp.axes + np.array([0.0011, -0.0007, 0.003])
+    text, groups = render_gcode(tp.source, comp)
+    assert groups[1][0].startswith("G91 X0.5000000 A10.000000 Z0.0000000")  # equal offsets: same increments
+    assert groups[3][0].startswith("G90 G21 X120.001100 ")
+    back = read_path(_write(tmp_path, text, "back.nc"), machine)
+    assert np.abs(back.axes[:, :2] - comp[:, :2]).max() < TOL_INCH_MM
+    assert np.abs(back.axes[:, 2] - comp[:, 2]).max() < TOL_DEG
+
+
+def test_incremental_rounding_does_not_accumulate(tmp_path, machine):
+    n = 3000
+    body = "G21 G90 G1 X10 Z1 A0 F100\nG91\n" + "X0.001 A0.1\n" * n
+    tp = read_path(_write(tmp_path, body), machine)
+    rng = np.random.default_rng(3)
+    comp = tp.axes + rng.uniform(-3e-4, 3e-4, tp.axes.shape)  # offsets that do not round evenly
+    text, _ = render_gcode(tp.source, comp)
+    back = read_path(_write(tmp_path, text, "back.nc"), machine)
+    # each point within one rounding of its own value: no drift over 3,000 increments
+    assert np.abs(back.axes[:, :2] - comp[:, :2]).max() <= 0.5e-6 + 1e-12
+    assert np.abs(back.axes[:, 2] - comp[:, 2]).max() <= 0.5e-6 + 1e-12
+
+
+def test_long_moves_are_split_and_rejoin_the_line(tmp_path, machine):
+    src = _write(tmp_path, "G21 G90 G1 X10 Z1 A0 F100\nN20 G1 X30 (long)\n")
+    tp = read_path(src, machine, max_segment_mm=2.0)
+    assert len(tp) == 1 + 10 and np.allclose(tp.axes[1:, 0], np.linspace(12, 30, 10))
+    text, groups = render_gcode(tp.source, tp.axes)
+    assert groups[1][0] == "N20 G1 X12.000000 Z1.000000 A0.000000 (long)\n"
+    assert groups[1][1:] == [f"X{x:.6f} Z1.000000 A0.000000\n" for x in np.linspace(14, 30, 9)]
 
 
 GCODE_ALPHABET = st.sampled_from(list("GXZAYFNMST0123456789.-+ ();%/#[]\r\t") + ["\n", "G1", "G0", " X", " Z", " A", "\xe9"])
@@ -112,13 +211,11 @@ def test_fuzzed_gcode_parses_or_raises_input_error(tmp_path, machine, text, pref
         assert "fuzz.nc" in str(exc)
         return
     assert tp.axes.shape == (len(tp.lines), 3) and np.all(np.isfinite(tp.axes))
-    out = render_gcode(tp.source, tp.axes)
-    # non-motion lines pass through unchanged
+    _, groups = render_gcode(tp.source, tp.axes)
     motion = set(tp.lines - 1)
-    src_lines = data.split("\n")
-    for k, line in enumerate(out.split("\n")):
+    for k, line in enumerate(tp.source.program.lines):
         if k not in motion:
-            assert line == src_lines[k]
+            assert groups[k] == [line]
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -131,3 +228,25 @@ def test_arbitrary_bytes_parse_or_raise_input_error(tmp_path, machine, data):
         assert "bytes.nc" in str(exc)
         return
     assert len(tp) >= 1 and np.all(np.isfinite(tp.targets_mm))
+
+
+def test_parse_program_options_are_checked(tmp_path):
+    src = _write(tmp_path, b"G1 X1 Z2 A3\n")
+    with pytest.raises(ValueError, match="rapids"):
+        parse_program(src, rapids="maybe")
+    with pytest.raises(ValueError, match="block_delete"):
+        parse_program(src, block_delete="yes")
+
+
+def test_every_line_has_one_class(tmp_path):
+    """The per-line contract a faster reader must keep: pass / state / move / skipped."""
+    prog = parse_program(_write(tmp_path, PROGRAM), block_delete="on")
+    assert prog.classes == ["pass", "pass", "state", "move", "move", "pass", "pass", "move", "move", "skipped",
+                            "pass", "pass", "pass"]
+    assert [m.index + 1 for m in prog.moves if not m.compensate] == [4]  # the kept rapid
+
+
+def test_header_goes_after_tape_start_and_program_number(tmp_path, machine):
+    tp = read_path(_write(tmp_path, b"%\nO1000 (NAME)\nG21 G90 G1 X1 Z2 A3\nM30\n%\n"), machine)
+    text, groups = render_gcode(tp.source, tp.axes, header=["note (x)"])
+    assert text.splitlines()[:4] == ["%", "O1000 (NAME)", "(note [x])", "G21 G90 G1 X1.000000 Z2.000000 A3.000000"]

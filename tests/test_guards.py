@@ -159,3 +159,39 @@ def test_violations_list_for_callers(machine):
     assert listed[0][1].startswith("stroke:") and listed[1][1].startswith("ball:")
     narrow = BoxField([20.0, 0.0, 0.0], [200.0, 60.0, 360.0])
     assert [i for i, _ in violations(res, machine, narrow)] == [0, 1, 1, 2, 2]
+
+
+class ConstantField:
+    """A constant error (μm) everywhere in the strokes: the correction it needs is ``|error|``."""
+
+    def __init__(self, machine, error_um):
+        self.calibrated_lo, self.calibrated_hi = machine.stroke_lo, machine.stroke_hi
+        self.error_um = np.asarray(error_um, float)
+
+    def predict(self, axes):
+        return np.tile(self.error_um, (len(axes), 1))
+
+
+@pytest.mark.parametrize("method", ["traditional", "exact"])
+def test_a_correction_beyond_the_ball_is_reported_as_ball(machine, method):
+    axes = np.array([[50.0, 5.0, 10.0], [60.0, 5.0, 20.0]])
+    field = ConstantField(machine, [0.0, 300.0, 200.0])  # needs |(0, 300, 200)| = 360.6 μm > 250
+    res = solve(method, field, forward(machine, axes), machine, target_axes=axes)
+    report = check(res, machine, field)
+    assert report.violations["ball"].tolist() == [0, 1]
+    assert report.violations["convergence"].size == 0  # not mislabelled as a convergence failure
+    assert check(res, machine, field, allow=("ball",)).blocking == {}
+
+
+def test_targets_outside_the_strokes_are_refused_for_every_method(machine):
+    # Z = -0.3 mm is a tool point on the far side of the A axis: its command may fold back into the
+    # stroke (z = +0.1 at A + 180°), so only a check of the target itself catches it
+    axes = np.array([[50.0, 5.0, 10.0], [60.0, -0.3, 20.0]])
+    field = ConstantField(machine, [0.0, 1.0, 1.0])
+    for method in ("traditional", "exact"):
+        res = solve(method, field, forward(machine, axes), machine, target_axes=axes)
+        if method == "traditional":  # its command folds to z = +0.1 at A - 180°: the commands alone look fine
+            assert stroke_violations(res.axes, machine)[0].size == 0
+        report = check(res, machine, field, target_axes=axes)
+        assert report.violations["stroke"].tolist() == [1]
+        assert "target z_mm = -0.3 outside stroke" in report.point_reasons(1)[0]

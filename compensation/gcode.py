@@ -1,0 +1,674 @@
+"""G-code reading and rewriting with an explicit allow-list (RS274/NGC semantics).
+
+The contract, line by line
+--------------------------
+Every line of a program is put in exactly one class by :func:`classify_line`:
+
+``pass``     nothing on it moves or reinterprets an axis (comments, ``N F S T``, allowed
+             ``M`` codes, modal codes that change no axis meaning). Written back **byte for
+             byte**.
+``state``    modal codes the reader follows and that do not move by themselves: ``G90/G91``
+             (distance), ``G90.1/G91.1`` (arc centres), ``G20/G21`` (units), ``G17/G18/G19``
+             (plane), a motion code with no axis words (``G1`` alone), ``G4 P``; and
+             ``G28``/``G30`` (a return to a machine reference, after which the axes it
+             moved are unknown). Written back byte for byte.
+``move``     a ``G0``/``G1``/``G2``/``G3`` line with axis words. Compensated (its axis numbers
+             replaced; split or linearised into several lines where needed) — or, for a
+             rapid under ``rapids="keep"``, written back byte for byte.
+``skipped``  a block-delete line (``/``) when block delete is ``on``: the controller skips
+             it, so the reader does too. Written back byte for byte.
+
+Anything else that can move or reinterpret an axis is **refused** with
+:class:`~errormap.io.InputError` naming the file, the 1-based line, the 1-based column and
+the word (``prog.nc: line 7, column 4: 'G65' ...``). The full tables of what is allowed and
+why each refused code is refused are :data:`ALLOWED_G`, :data:`REFUSED_G`,
+:data:`ALLOWED_M` and :data:`LETTER_RULES` (docs/toolpaths.md prints them).
+
+Numbers are read as RS274 reads them: spaces and tabs inside a number are ignored (``X1 0``
+is X10), an optional sign and decimal point, no exponent (``X1e2`` is refused), no
+parameters or expressions (``#1``, ``[1+2]``). Axis words ``X Z A`` (mm or inch, deg) are
+the grinder's axes; ``Y B C U V W`` are refused (no such axis here / incremental axis
+words of lathe dialects).
+
+Moves are kept as :class:`GMove` records (start and end in absolute mm / deg, whatever the
+program's mode and units were), so a caller can place vertices along each move
+(:func:`move_points`) and :func:`render_program` writes them back in the program's own
+distance mode and units.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from errormap.io import InputError
+
+MM_PER_INCH = 25.4
+DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
+"""Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""
+ARC_RADIUS_TOL_MM = 0.002
+"""Start and end radius of an I/K arc may differ by this much (CAM output rounds centres);
+more is refused as an ill-defined arc (LinuxCNC refuses such arcs too)."""
+BLOCK_DELETE_CHOICES = ("on", "off")
+RAPIDS_CHOICES = ("keep", "compensate")
+DEFAULT_RAPIDS = "keep"
+AXES = ("X", "Z", "A")
+
+# ---------------------------------------------------------------------------- allow-list
+# G codes the reader understands. Value: (modal group, what the reader does).
+ALLOWED_G = {
+    "G0": ("motion", "rapid move; compensated or kept as written (--rapids)"),
+    "G1": ("motion", "linear move; compensated, split where long"),
+    "G2": ("motion", "clockwise arc in G18 (XZ); linearised and compensated"),
+    "G3": ("motion", "counter-clockwise arc in G18 (XZ); linearised and compensated"),
+    "G80": ("motion", "cancel motion mode (no axis words allowed after it)"),
+    "G4": ("nonmodal", "dwell with P; refused with axis words (Fanuc G4 X is a dwell time)"),
+    "G28": ("nonmodal", "return to the reference: bare, or with zero incremental words ('G28 G91 Z0'); "
+                        "the axes it moves are unknown afterwards"),
+    "G30": ("nonmodal", "return to the second reference: as G28"),
+    "G17": ("plane", "XY plane (arcs in it are refused: no Y axis)"),
+    "G18": ("plane", "XZ plane (arcs supported)"),
+    "G19": ("plane", "YZ plane (arcs in it are refused: no Y axis)"),
+    "G20": ("units", "inch; read exactly, written back in inch"),
+    "G21": ("units", "mm"),
+    "G90": ("distance", "absolute"),
+    "G91": ("distance", "incremental; read exactly, written back incremental"),
+    "G90.1": ("arc_distance", "absolute arc centres I K"),
+    "G91.1": ("arc_distance", "incremental arc centres I K (the default)"),
+    "G94": ("feed", "feed per minute"),
+    "G95": ("feed", "feed per revolution"),
+    "G40": ("cutter", "cutter compensation off"),
+    "G49": ("length", "tool length offset off"),
+    "G54": ("coords", "the first work system: its axes are taken as the machine file's axes"),
+    "G61": ("path", "exact path"),
+    "G61.1": ("path", "exact stop"),
+    "G64": ("path", "blending (P, Q tolerances allowed)"),
+    "G8": ("lathe", "radius mode (the default)"),
+    "G15": ("polar", "polar coordinates off"),
+    "G67": ("macro", "modal macro off"),
+    "G69": ("rotation", "coordinate rotation off"),
+    "G96": ("spindle", "constant surface speed (spindle only)"),
+    "G97": ("spindle", "constant spindle speed"),
+    "G98": ("return", "canned-cycle return level (no cycle is accepted)"),
+    "G99": ("return", "canned-cycle return level (no cycle is accepted)"),
+}
+REFUSED_G = {
+    "G5": "cubic spline", "G5.1": "quadratic spline", "G5.2": "NURBS block", "G5.3": "NURBS block end",
+    "G7": "lathe diameter mode (X would mean a diameter)", "G7.1": "cylindrical interpolation",
+    "G107": "cylindrical interpolation",
+    "G10": "sets offsets/tool tables", "G12": "circular pocket", "G13": "circular pocket",
+    "G16": "polar coordinates", "G17.1": "UV plane", "G18.1": "WU plane", "G19.1": "VW plane",
+    "G28.1": "sets the reference position", "G30.1": "sets the reference position",
+    "G31": "skip (probing)", "G33": "spindle-synchronised motion", "G33.1": "rigid tapping",
+    "G38.2": "probing", "G38.3": "probing", "G38.4": "probing", "G38.5": "probing",
+    "G41": "cutter radius compensation", "G41.1": "cutter radius compensation",
+    "G42": "cutter radius compensation", "G42.1": "cutter radius compensation",
+    "G43": "tool length offset", "G43.1": "tool length offset", "G43.2": "tool length offset",
+    "G50": "scaling off / lathe coordinate setting (dialect-dependent)", "G50.1": "mirror off",
+    "G51": "scaling", "G51.1": "mirror", "G52": "local coordinate shift", "G53": "machine coordinates",
+    "G54.1": "extra work system", "G55": "another work system", "G56": "another work system",
+    "G57": "another work system", "G58": "another work system", "G59": "another work system",
+    "G59.1": "another work system", "G59.2": "another work system", "G59.3": "another work system",
+    "G60": "unidirectional approach", "G65": "macro call (its letters are arguments, not axes)",
+    "G66": "modal macro call", "G66.1": "modal macro call", "G68": "coordinate rotation",
+    "G68.2": "tilted work plane", "G70": "lathe cycle", "G71": "lathe cycle", "G72": "lathe cycle",
+    "G73": "canned cycle", "G74": "canned cycle", "G75": "canned cycle", "G76": "threading cycle",
+    **{f"G{k}": "canned cycle" for k in range(81, 90)},
+    "G92": "coordinate offset", "G92.1": "coordinate offset", "G92.2": "coordinate offset",
+    "G92.3": "coordinate offset", "G93": "inverse-time feed (a split move would change its time)",
+}
+ALLOWED_M = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30, 48, 49, 50, 51, 52, 53, 60}
+"""M codes that move no axis (program stop/end, spindle, tool change, coolant, overrides).
+Others (``M98``/``M99`` subprograms, user M codes) are refused."""
+LETTER_RULES = {
+    "N": "line number", "F": "feed", "S": "spindle speed", "T": "tool number", "M": "see ALLOWED_M",
+    "G": "see ALLOWED_G", "X": "axis X (mm/inch)", "Z": "axis Z (mm/inch)", "A": "axis A (deg)",
+    "I": "arc centre X offset (G2/G3 only)", "K": "arc centre Z offset (G2/G3 only)",
+    "R": "arc radius (G2/G3 only)", "P": "G4 dwell, G64 tolerance, or P1 on an arc",
+    "Q": "G64 tolerance", "O": "program number on a line of its own",
+}
+REFUSED_LETTERS = {
+    "Y": "the grinder has no Y axis", "B": "the grinder has no B axis", "C": "the grinder has no C axis",
+    "U": "incremental X on lathe dialects / an extra axis", "V": "incremental Y / an extra axis",
+    "W": "incremental Z on lathe dialects / an extra axis", "J": "arc centre Y offset (arcs only in G18 XZ)",
+    "E": "extruder / unknown axis", "H": "tool length offset number", "D": "cutter radius offset number",
+    "L": "loop count / G10 data",
+}
+
+
+@dataclass
+class Word:
+    letter: str       # upper case
+    value: float
+    text: str         # the number as written (may hold spaces)
+    start: int        # column (0-based) of the letter
+    num_start: int    # span of the number in the line
+    num_end: int
+
+    @property
+    def code(self) -> str:
+        """``G1``, ``G38.2``, ``M3`` ... (G and M words)."""
+        v = round(self.value, 1)
+        return f"{self.letter}{int(v)}" if v == int(v) else f"{self.letter}{v:g}"
+
+
+@dataclass
+class GMove:
+    """One moving line. ``start``/``end`` (3,) absolute mm / deg (``start`` may hold NaN for an
+    axis not yet known); ``arc`` for G2/G3: dict with centre, radii, sweep; ``words`` the
+    line's X/Z/A/I/K/R/P words; ``units`` ``"mm"``/``"inch"``; ``incremental`` G91."""
+
+    index: int
+    kind: str            # "rapid", "linear" or "arc"
+    start: np.ndarray
+    end: np.ndarray
+    units: str
+    incremental: bool
+    words: dict
+    motion_word: Word | None
+    compensate: bool
+    arc: dict | None = None
+    known: np.ndarray = field(default_factory=lambda: np.ones(3, bool))  # axes known at the end
+
+    @property
+    def start_known(self) -> bool:
+        return bool(np.all(np.isfinite(self.start)))
+
+
+@dataclass
+class GProgram:
+    """A parsed G-code file: its lines (Latin-1 text, endings kept), their classes and moves."""
+
+    path: Path
+    lines: list
+    classes: list
+    moves: list
+    rapids: str = DEFAULT_RAPIDS
+    block_delete: str | None = None
+
+
+def split_lines(text: str) -> list:
+    """Lines with their ``\\n`` endings kept; only ``\\n`` ends a line (a ``\\r`` stays with it)."""
+    parts = text.split("\n")
+    lines = [p + "\n" for p in parts[:-1]]
+    if parts[-1]:
+        lines.append(parts[-1])
+    return lines
+
+
+class _Refuse(Exception):
+    def __init__(self, col: int, msg: str):
+        self.col, self.msg = col, msg
+
+
+_NUMBER = re.compile(r"[ \t]*([+-]?[ \t]*(?:\d(?:[\d \t]*\d)?(?:[ \t]*\.(?:[\d \t]*\d)?)?|\.(?:[\d \t]*\d)?))")
+"""An RS274 number: optional sign, digits with spaces/tabs anywhere inside, at most one point;
+the match ends on a digit or the point (trailing blanks are not part of it)."""
+
+
+def _number(body: str, j: int):
+    """RS274 number at ``j``: spaces/tabs anywhere inside, optional sign, no exponent.
+    Returns ``(value, text, start, end)`` or None."""
+    m = _NUMBER.match(body, j)
+    if m is None:
+        return None
+    text = m.group(1)
+    compact = text.replace(" ", "").replace("\t", "")
+    if not any(c.isdigit() for c in compact):
+        return None
+    return float(compact), text, m.start(1), m.end(1)
+
+
+def tokenize(body: str):
+    """Words of one line (no line ending): ``(block_delete, [Word], percent_line)``.
+
+    Raises :class:`_Refuse` (column, message) for what RS274 would not read exactly.
+    """
+    i, n = 0, len(body)
+    while i < n and body[i] in " \t":
+        i += 1
+    block_delete = i < n and body[i] == "/"
+    if block_delete:
+        i += 1
+    if body[i:].strip().startswith("%"):
+        rest = body[i:].strip()[1:].strip()
+        if rest and not rest.startswith(("(", ";")):
+            raise _Refuse(i + 1, f"text after '%': {rest[:20]!r}")
+        return block_delete, [], True
+    words = []
+    while i < n:
+        c = body[i]
+        if c in " \t\r":
+            i += 1
+        elif c == "(":
+            j = body.find(")", i + 1)
+            if j < 0:
+                raise _Refuse(i + 1, "unclosed '(' comment")
+            i = j + 1
+        elif c == ";":
+            break
+        elif c.isalpha() and c.isascii():
+            u = c.upper()
+            j = i + 1
+            while j < n and body[j] in " \t":
+                j += 1
+            if j < n and body[j] in "#[<":
+                raise _Refuse(i + 1, f"'{c}{body[j]}...': parameters and expressions are not evaluated")
+            num = _number(body, i + 1)
+            if num is None:
+                raise _Refuse(i + 1, f"'{c}' word without a plain number")
+            v, text, s, e = num
+            if u == "O" and body[e:].split("(")[0].split(";")[0].strip():
+                raise _Refuse(i + 1, f"'{c}{text} {body[e:].strip()[:12]}': O-word subroutines and control flow "
+                                     "are not supported")
+            if e < n and body[e] in "eE" and e + 1 < n and (body[e + 1].isdigit() or body[e + 1] in "+-"):
+                raise _Refuse(i + 1, f"'{c}{text}{body[e:e + 2]}...': exponent notation is not RS274")
+            if not math.isfinite(v):
+                raise _Refuse(i + 1, f"'{c}' number out of range")
+            words.append(Word(u, v, text, i, i + 1, e))  # rewriting replaces spaces after the letter too
+            i = e
+        else:
+            raise _Refuse(i + 1, f"unexpected character {c!r} (not an RS274 word)")
+    return block_delete, words, False
+
+
+def _err(path, lineno, col, msg):
+    return InputError(f"{path}: line {lineno}, column {col}: {msg}")
+
+
+def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None) -> GProgram:
+    """Read a G-code file into a :class:`GProgram` (see the module docstring).
+
+    ``rapids``: ``"keep"`` (G0 lines written as they are) or ``"compensate"``.
+    ``block_delete``: ``None`` refuses a ``/`` line that moves or changes modal state;
+    ``"on"`` skips ``/`` lines (the controller's switch is on); ``"off"`` runs them.
+    """
+    path = Path(path)
+    if rapids not in RAPIDS_CHOICES:
+        raise ValueError(f"Expected rapids in {list(RAPIDS_CHOICES)}, got {rapids!r}")
+    if block_delete not in (None,) + BLOCK_DELETE_CHOICES:
+        raise ValueError(f"Expected block_delete in {list(BLOCK_DELETE_CHOICES)} or None, got {block_delete!r}")
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    lines = split_lines(path.read_bytes().decode("latin-1"))
+    st = _State()
+    classes, moves = [], []
+    for idx, line in enumerate(lines):
+        body = line.rstrip("\r\n")
+        try:
+            cls, move = _classify(body, idx, st, rapids, block_delete)
+        except _Refuse as r:
+            raise _err(path, idx + 1, r.col, r.msg) from None
+        classes.append(cls)
+        if move is not None:
+            moves.append(move)
+    if not any(m.compensate for m in moves):
+        raise InputError(f"{path}: no G0/G1/G2/G3 motion with X, Z or A words to compensate found")
+    return GProgram(path, lines, classes, moves, rapids, block_delete)
+
+
+class _State:
+    def __init__(self):
+        self.mode = None           # "G0".."G3" or None
+        self.incremental = False
+        self.arc_abs = False
+        self.inch = False
+        self.plane = "G17"         # the RS274 power-on default
+        self.pos = np.full(3, np.nan)
+
+
+def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None):
+    """Public form of the per-line classifier: ``(class, GMove or None)``; updates ``state``."""
+    return _classify(body, -1, state, rapids, block_delete)
+
+
+def _classify(body, idx, st: _State, rapids, block_delete):
+    bd, words, pct = tokenize(body)
+    if pct:
+        return "pass", None
+    if bd and block_delete == "on":
+        return "skipped", None
+    by = {}
+    gs, ms = [], []
+    for w in words:
+        if w.letter == "G":
+            code = w.code
+            if round(w.value, 1) != round(w.value, 6):
+                raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
+            if code in REFUSED_G:
+                raise _Refuse(w.start + 1, f"'{code}' ({REFUSED_G[code]}) is not supported")
+            if code not in ALLOWED_G:
+                raise _Refuse(w.start + 1, f"'{code}': unknown G code (not on the allow-list)")
+            gs.append((code, w))
+        elif w.letter == "M":
+            if w.value != int(w.value) or int(w.value) not in ALLOWED_M:
+                raise _Refuse(w.start + 1, f"'M{w.text}': M code not on the allow-list (may move or call a program)")
+            ms.append(w)
+        elif w.letter in REFUSED_LETTERS:
+            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
+        elif w.letter not in LETTER_RULES:
+            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
+        else:
+            if w.letter in by:
+                raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
+            by[w.letter] = w
+    groups = {}
+    for code, w in gs:
+        grp = ALLOWED_G[code][0]
+        if grp in groups:
+            raise _Refuse(w.start + 1, f"'{code}' and '{groups[grp][0]}' on one line (same modal group)")
+        groups[grp] = (code, w)
+    if "O" in by:
+        if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
+            raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
+        return "pass", None
+    axis_words = {a: by[a] for a in AXES if a in by}
+    arc_words = {a: by[a] for a in ("I", "K", "R") if a in by}
+    changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal"))
+    if bd and block_delete is None and (axis_words or arc_words or changes):
+        raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
+                                           "say whether the controller skips it: --block-delete on|off")
+    # modal state first (RS274 order of execution: units, plane, distance before motion)
+    if "units" in groups:
+        st.inch = groups["units"][0] == "G20"
+    if "plane" in groups:
+        st.plane = groups["plane"][0]
+    if "distance" in groups:
+        st.incremental = groups["distance"][0] == "G91"
+    if "arc_distance" in groups:
+        st.arc_abs = groups["arc_distance"][0] == "G90.1"
+    motion_word = None
+    if "motion" in groups:
+        code, motion_word = groups["motion"]
+        st.mode = None if code == "G80" else code
+    for letter, allowed_with in (("P", ("G4", "G64")), ("Q", ("G64",))):
+        if letter in by:
+            ok = any(c in allowed_with for c, _ in gs) or (letter == "P" and st.mode in ("G2", "G3")
+                                                             and (axis_words or arc_words) and by["P"].value == 1)
+            if not ok:
+                raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside "
+                                                    f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else ""))
+    if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
+        return _reference_return(st, groups, axis_words, arc_words)
+    if "nonmodal" in groups and axis_words:
+        w = next(iter(axis_words.values()))
+        raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
+                                   "some controls, not a move)")
+    if not axis_words:
+        if arc_words:
+            w = next(iter(arc_words.values()))
+            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words")
+        return ("state" if changes else "pass"), None
+    first = min(axis_words.values(), key=lambda w: w.start)
+    if st.mode is None:
+        raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is active")
+    if arc_words and st.mode not in ("G2", "G3"):
+        w = next(iter(arc_words.values()))
+        raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a {st.mode} line (arc words need G2/G3)")
+    scale = MM_PER_INCH if st.inch else 1.0
+    start = st.pos.copy()
+    end = st.pos.copy()
+    for j, a in enumerate(AXES):
+        if a in axis_words:
+            v = axis_words[a].value * (1.0 if a == "A" else scale)
+            if st.incremental:
+                if not np.isfinite(start[j]):
+                    raise _Refuse(axis_words[a].start + 1, f"incremental '{a}{axis_words[a].text}' before {a} "
+                                                           "is known (no absolute position yet)")
+                end[j] = start[j] + v
+            else:
+                end[j] = v
+    kind = {"G0": "rapid", "G1": "linear"}.get(st.mode, "arc")
+    compensate = not (kind == "rapid" and rapids == "keep")
+    words = dict(axis_words)
+    words.update(arc_words)
+    if "P" in by and kind == "arc":
+        words["P"] = by["P"]
+    known = np.isfinite(end)
+    if compensate and not known.all():
+        missing = ", ".join(a for a, k in zip(AXES, known) if not k)
+        raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before X, Z and A are all known "
+                                       f"(no value yet for {missing})")
+    move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
+                 compensate, known=known)
+    if kind == "arc":
+        move.arc = _arc_geometry(st, move, axis_words, arc_words, scale)
+    st.pos = end
+    return "move", move
+
+
+def _reference_return(st, groups, axis_words, arc_words):
+    """``G28``/``G30``: the machine goes to a reference position (not a program point, so
+    not compensated; the line is written as it is). Accepted bare (all axes) or with zero
+    incremental axis words (``G28 G91 Z0``: only Z, with no intermediate move); the axes
+    it moves are unknown afterwards, so the next compensated move must give them
+    absolutely. An intermediate point (non-zero or absolute words) would be an
+    uncompensated program point: refused."""
+    code, w = groups["nonmodal"]
+    if "motion" in groups:
+        raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line")
+    if arc_words:
+        a = next(iter(arc_words.values()))
+        raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}")
+    for a in axis_words.values():
+        if not st.incremental or a.value != 0.0:
+            raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}: an intermediate point is an uncompensated "
+                                       f"program point; only a bare {code} or zero incremental words "
+                                       f"('{code} G91 Z0') are accepted")
+    for j, a in enumerate(AXES):
+        if not axis_words or a in axis_words:
+            st.pos[j] = np.nan
+    return "state", None
+
+
+def _arc_geometry(st, move, axis_words, arc_words, scale):
+    """Centre, radii and sweep of a G2/G3 arc in G18, in (u, v) = (Z, X) mm."""
+    first = min(axis_words.values(), key=lambda w: w.start)
+    try:
+        return _arc_centre(st, move, axis_words, arc_words, scale, first)
+    except _Refuse as r:
+        raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
+
+
+def _arc_centre(st, move, axis_words, arc_words, scale, first):
+    if st.plane != "G18":
+        raise _Refuse(first.start + 1, f"{st.mode} arc in the {st.plane} plane "
+                                       f"({'XY' if st.plane == 'G17' else 'YZ'}): it would move a Y axis; "
+                                       "only G18 (XZ) arcs of the compensated axes are supported")
+    if not move.start_known:
+        raise _Refuse(first.start + 1, f"{st.mode} arc before the start position is known")
+    u0, v0 = move.start[1], move.start[0]
+    u1, v1 = move.end[1], move.end[0]
+    ccw = st.mode == "G3"
+    if "R" in arc_words:
+        if "I" in arc_words or "K" in arc_words:
+            raise _Refuse(arc_words["R"].start + 1, "both R and I/K on an arc")
+        r = arc_words["R"].value * scale
+        d = math.hypot(u1 - u0, v1 - v0)
+        if d < 1e-9 or abs(r) < 1e-9:
+            raise _Refuse(arc_words["R"].start + 1, "R-form arc with equal start and end (or zero R): undefined")
+        if d > 2 * abs(r) + ARC_RADIUS_TOL_MM:
+            raise _Refuse(arc_words["R"].start + 1, f"R {abs(r):.6g} mm is smaller than half the chord {d / 2:.6g} mm")
+        h = math.sqrt(max(r * r - d * d / 4, 0.0))
+        sgn = (1.0 if ccw else -1.0) * (1.0 if r > 0 else -1.0)
+        mu, mv = (u0 + u1) / 2, (v0 + v1) / 2
+        uc, vc = mu + sgn * h * (-(v1 - v0) / d), mv + sgn * h * ((u1 - u0) / d)
+    else:
+        if "K" not in arc_words and "I" not in arc_words:
+            raise _Refuse(first.start + 1, f"{st.mode} without I/K or R")
+        i = arc_words["I"].value * scale if "I" in arc_words else (None if st.arc_abs else 0.0)
+        k = arc_words["K"].value * scale if "K" in arc_words else (None if st.arc_abs else 0.0)
+        if st.arc_abs:
+            if i is None or k is None:
+                raise _Refuse(first.start + 1, "absolute arc centre (G90.1) needs both I and K")
+            uc, vc = k, i
+        else:
+            uc, vc = u0 + k, v0 + i
+    r0 = math.hypot(u0 - uc, v0 - vc)
+    r1 = math.hypot(u1 - uc, v1 - vc)
+    if r0 < 1e-9:
+        raise _Refuse(first.start + 1, "arc of zero radius")
+    if abs(r1 - r0) > ARC_RADIUS_TOL_MM:
+        raise _Refuse(first.start + 1, f"arc start and end radii differ by {abs(r1 - r0) * 1e3:.3f} μm "
+                                       f"(more than {ARC_RADIUS_TOL_MM * 1e3:g} μm)")
+    t0 = math.atan2(v0 - vc, u0 - uc)
+    t1 = math.atan2(v1 - vc, u1 - uc)
+    full = math.hypot(u1 - u0, v1 - v0) < 1e-9
+    if ccw:
+        sweep = 2 * math.pi if full else (t1 - t0) % (2 * math.pi)
+    else:
+        sweep = -2 * math.pi if full else -((t0 - t1) % (2 * math.pi))
+    return {"uc": uc, "vc": vc, "r0": r0, "r1": r1, "theta0": t0, "sweep": sweep}
+
+
+# ---------------------------------------------------------------------------- geometry
+
+def move_points(move: GMove, t) -> np.ndarray:
+    """Nominal axes (x_mm, z_mm, a_deg) at parameters ``t`` in [0, 1] along a move, (m,) -> (m, 3).
+
+    A linear move is linear in the axes (what the controller interpolates); an arc turns
+    uniformly in angle with the radius and A linear in the parameter.
+    """
+    t = np.asarray(t, dtype=float)
+    if move.arc is None:
+        if t.size and np.all(t == 1.0):  # the end alone (the start may not be known)
+            return np.repeat(move.end[None, :], t.size, axis=0)
+        return move.start[None, :] + t[:, None] * (move.end - move.start)[None, :]
+    g = move.arc
+    th = g["theta0"] + t * g["sweep"]
+    r = g["r0"] + t * (g["r1"] - g["r0"])
+    out = np.empty((t.size, 3))
+    out[:, 1] = g["uc"] + r * np.cos(th)
+    out[:, 0] = g["vc"] + r * np.sin(th)
+    out[:, 2] = move.start[2] + t * (move.end[2] - move.start[2])
+    return out
+
+
+def arc_segments(move: GMove, tol_mm: float) -> int:
+    """Chords needed so the chord sagitta of an arc stays within ``tol_mm`` (≥ 1)."""
+    g = move.arc
+    r = max(g["r0"], g["r1"])
+    if tol_mm >= r:
+        return max(1, int(math.ceil(abs(g["sweep"]) / math.pi)))
+    step = 2.0 * math.acos(1.0 - tol_mm / r)
+    return max(1, int(math.ceil(abs(g["sweep"]) / step - 1e-12)))
+
+
+# ---------------------------------------------------------------------------- writing
+
+def fmt(v: float, decimals: int) -> str:
+    s = f"{v:.{decimals}f}"
+    if float(s) == 0.0:
+        s = f"{0.0:.{decimals}f}"
+    return s
+
+
+def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, list]:
+    """Write the program with each compensated move's vertices.
+
+    ``vertices[k]``: shape (m_k, 3) absolute axes (mm, deg) for the k-th *compensated* move,
+    in order, the last row the move's end. Returns ``(text, groups)`` where ``groups[i]``
+    is the list of output lines that source line ``i`` became (the header lines are not
+    in ``groups``). Lines of class ``pass``/``state``/``skipped`` and kept rapids come back
+    byte for byte; on a compensated line only the axis numbers change (missing axes are
+    appended after the last axis word, since a correction moves all three axes); an arc
+    line becomes ``G1`` (its ``I K R P`` words removed) and each extra vertex is an added
+    line ``X.. Z.. A..`` after it. ``header`` lines become ``(...)`` comments after a leading
+    ``%`` line and a program-number line, if any. Numbers are written in the line's own units and
+    distance mode; incremental numbers are differences of what was actually written, so
+    rounding never accumulates.
+    """
+    comp = [m for m in program.moves if m.compensate]
+    if len(vertices) != len(comp):
+        raise ValueError(f"Expected vertices for {len(comp)} compensated moves, got {len(vertices)}")
+    groups = [[ln] for ln in program.lines]
+    ctrl = np.full(3, np.nan)  # where the controller running the output is, mm / deg
+    k = 0
+    for m in program.moves:
+        if not m.compensate:
+            ctrl = _kept_position(m, ctrl)
+            continue
+        q = np.asarray(vertices[k], dtype=float).reshape(-1, 3)
+        k += 1
+        if not np.all(np.isfinite(q)):
+            raise ValueError(f"Expected finite vertices, got NaN/inf for line {m.index + 1}")
+        line = program.lines[m.index]
+        body = line.rstrip("\r\n")
+        ending = line[len(body):] or "\n"
+        written = []
+        for row in q:
+            vals, ctrl = _written_values(row, ctrl, m)
+            written.append(vals)
+        first = _rewrite_line(body, m, written[0])
+        extra = [" ".join(f"{a}{v}" for a, v in zip(AXES, w)) + ending for w in written[1:]]
+        if extra and not line.endswith("\n"):
+            groups[m.index] = [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]]
+        else:
+            groups[m.index] = [first + line[len(body):]] + extra
+    head = "".join(f"({_comment_safe(h)})\n" for h in header)
+    out = [ln for g in groups for ln in g]
+    at = 0  # after a leading '%' line and a program-number line ('O1000 (NAME)')
+    if at < len(out) and out[at].strip() == "%":
+        at += 1
+    if at < len(out) and re.match(r"[ \t]*[Oo][ \t]*\d", out[at]):
+        at += 1
+    text = "".join(out[:at]) + head + "".join(out[at:])
+    return text, groups
+
+
+def _comment_safe(text: str) -> str:
+    return str(text).replace("(", "[").replace(")", "]").replace("\n", " ")
+
+
+def _kept_position(m: GMove, ctrl):
+    """Controller position after a line written as it was (a kept rapid)."""
+    out = ctrl.copy()
+    scale = MM_PER_INCH if m.units == "inch" else 1.0
+    for j, a in enumerate(AXES):
+        if a in m.words:
+            v = m.words[a].value * (1.0 if a == "A" else scale)
+            out[j] = out[j] + v if m.incremental else v
+    return out
+
+
+def _written_values(row, ctrl, m: GMove):
+    scale = MM_PER_INCH if m.units == "inch" else 1.0
+    vals, new = [], ctrl.copy()
+    for j in range(3):
+        s = 1.0 if j == 2 else scale
+        dec = DECIMALS["deg"] if j == 2 else DECIMALS[m.units]
+        if m.incremental:
+            txt = fmt((row[j] - ctrl[j]) / s, dec)
+            new[j] = ctrl[j] + float(txt) * s
+        else:
+            txt = fmt(row[j] / s, dec)
+            new[j] = float(txt) * s
+        vals.append(txt)
+    return vals, new
+
+
+def _rewrite_line(body: str, m: GMove, vals) -> str:
+    edits = []  # (start, end, text)
+    axis_spans = [(m.words[a].num_start, m.words[a].num_end, vals[j]) for j, a in enumerate(AXES) if a in m.words]
+    edits += axis_spans
+    last_end = max(e for _, e, _ in axis_spans)
+    missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(AXES) if a not in m.words)
+    if missing:
+        edits.append((last_end, last_end, missing))
+    if m.kind == "arc":
+        if m.motion_word is not None:
+            edits.append((m.motion_word.start, m.motion_word.num_end, "G1"))
+        else:
+            first = min(m.words[a].start for a in AXES if a in m.words)
+            edits.append((first, first, "G1 "))
+        for a in ("I", "K", "R", "P"):
+            if a in m.words:
+                w = m.words[a]
+                s = w.start - 1 if w.start > 0 and body[w.start - 1] in " \t" else w.start
+                edits.append((s, w.num_end, ""))
+    for s, e, txt in sorted(edits, key=lambda t: (t[0], t[1]), reverse=True):
+        body = body[:s] + txt + body[e:]
+    return body

@@ -1,0 +1,10 @@
+(expect: compensate)
+G21 G90 G1 X50 Z2 A0 F100
+G91
+X1 A10
+X1 A10
+Z-0.5
+X-2 A-20
+G90
+X55
+M30

@@ -1,0 +1,4 @@
+(expect: refuse line=3 col=4 word=@)
+G21 G90 G1 X10 Z1 A0 F100
+G1 @10 ^45
+M30
