@@ -55,3 +55,38 @@ def test_simulate_effects_that_need_conditions(tmp_path, effect):
     assert main(["simulate", "--seed", "1", "--out", str(tmp_path), "--effect", effect, "--checks", "20"]) == 0
     info = json.loads((tmp_path / "truth.json").read_text())
     assert effect in info["effects"] and info["max_spatial_error_um"] > 150
+
+
+def test_command_help_lines_match_the_modules():
+    """The light `volcomp --help` table says what each command module registers."""
+    import argparse
+
+    from compensation.cli import COMMAND_HELP, build_parser
+    parser = build_parser()  # every module in full
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    registered = {c.dest: c.help for c in sub._choices_actions}
+    assert registered == COMMAND_HELP
+
+
+def test_help_and_version_import_no_numerical_library():
+    """`volcomp --help` / `--version` must not pay for numpy, torch, scipy, MLflow or matplotlib."""
+    import subprocess
+    import sys
+    code = ("import sys, contextlib, io\n"
+            "from compensation.cli import main\n"
+            "for argv in (['--help'], ['--version']):\n"
+            "    with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+            "        try: main(argv)\n"
+            "        except SystemExit as e: assert e.code == 0\n"
+            "    assert out.getvalue().startswith(('usage: volcomp', 'volcomp ')), out.getvalue()\n"
+            "heavy = sorted(m for m in ('numpy', 'torch', 'scipy', 'mlflow', 'matplotlib') if m in sys.modules)\n"
+            "assert not heavy, heavy\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+
+
+def test_error_line_is_one_line_and_bounded():
+    from compensation.cli import MAX_ERROR_CHARS, one_line
+    msg = "f.csv: row 2, column 'x': " + "x" * 10_000 + "\nsecond line"
+    s = one_line(msg)
+    assert len(s) <= MAX_ERROR_CHARS and "\n" not in s and s.startswith("f.csv: row 2")
