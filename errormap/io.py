@@ -14,6 +14,7 @@ import io
 import json
 import math
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
@@ -47,6 +48,48 @@ def atomic_write(path, mode: str = "w", **kwargs) -> Iterator[io.IOBase]:
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        raise
+
+
+def replace_dir(src, dst) -> Path:
+    """Move the finished folder ``src`` onto ``dst`` (same file system), replacing any old ``dst``.
+
+    The old folder is first renamed aside, then ``src`` renamed onto ``dst``, then the old one
+    removed: at every instant ``dst`` is either the whole old set, absent, or the whole new set.
+    """
+    src, dst = Path(src), Path(dst)
+    if not dst.exists():
+        os.replace(src, dst)
+        return dst
+    old = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", suffix=".old", dir=dst.parent))
+    os.replace(dst, old / dst.name)
+    try:
+        os.replace(src, dst)
+    except BaseException:
+        os.replace(old / dst.name, dst)  # put the old set back
+        raise
+    finally:
+        shutil.rmtree(old, ignore_errors=True)
+    return dst
+
+
+@contextlib.contextmanager
+def atomic_dir(path) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``path``; on success it replaces ``path`` whole.
+
+    Files that belong together (a model's config, scalers and weights; a run folder) are
+    written into the yielded folder; an exception (or a crash) leaves ``path`` as it was and
+    no partial set under its name.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700
+        replace_dir(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 

@@ -79,8 +79,6 @@ def run(args) -> int:
                     max_iter=args.max_iter, threads=args.threads, out_dir=out, select_best=args.select_best,
                     tags={"featurepoints_file": str(Path(args.featurepoints).resolve())})
     m = res.metrics
-    write_json(out / "metrics.json", {**m, "run_id": res.run_id, "stop_reason": res.history.stop_reason,
-                                      "trainer": args.trainer, "seconds": res.seconds})
     print(f"run id: {res.run_id}")
     print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s: {res.history.stop_reason}")
     print(f"{'fit error (μm)':<16}{'max':>10}{'rms':>10}{'max dx':>10}{'max dy':>10}{'max dz':>10}")
