@@ -90,3 +90,25 @@ def test_error_line_is_one_line_and_bounded():
     msg = "f.csv: row 2, column 'x': " + "x" * 10_000 + "\nsecond line"
     s = one_line(msg)
     assert len(s) <= MAX_ERROR_CHARS and "\n" not in s and s.startswith("f.csv: row 2")
+
+
+def test_provenance_paths_resolve_relative_to_the_file(tmp_path, monkeypatch):
+    """simulate run from one folder, the feature points used from another: elements_file still found."""
+    from training.trainers import reference_from_meta
+    work = tmp_path / "a"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main(["simulate", "--seed", "2", "--out", "sim", "--checks", "20"]) == 0
+    assert main(["featurepoints", "--elements", "sim/truth_elements.json", "--out", "fp/fp.csv", "--grid", "3"]) == 0
+    text = (work / "sim" / "featurepoints.csv").read_text()
+    assert "# elements_file: truth_elements.json" in text  # written relative to the CSV's folder
+    assert "# elements_file: ../sim/truth_elements.json" in (work / "fp" / "fp.csv").read_text()
+    other = tmp_path / "b"
+    other.mkdir()
+    monkeypatch.chdir(other)
+    for f in (work / "sim" / "featurepoints.csv", work / "fp" / "fp.csv"):
+        fp = FeaturePoints.load(f)
+        assert fp.meta["elements_file"] == str((work / "sim" / "truth_elements.json").resolve())
+        ref = reference_from_meta(fp.meta)
+        assert ref is not None
+        np.testing.assert_allclose(ref[1].predict(fp.axes), fp.errors_um, atol=TOL_UM)

@@ -210,10 +210,14 @@ def reference_from_meta(meta: dict):
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
     from errormap.machine import load_machine
+    from errormap.machine import builtin_machine_path
     el = meta.get("elements_file")
     if not el or not Path(el).is_file():
         return None
-    machine = load_machine(meta.get("machine_file") or None, expect_kind="grinder")
+    mf = meta.get("machine_file") or None
+    if mf and not Path(mf).is_file() and meta.get("machine_sha256") == sha256_file(builtin_machine_path()):
+        mf = None  # the built-in machine, recorded by another installation's path
+    machine = load_machine(mf, expect_kind="grinder")
     return machine, HTMField(machine, ElementSet.load(el))
 
 
