@@ -44,13 +44,42 @@ def grid_axes(machine, n: int = 11) -> np.ndarray:
     return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
+# errors of a real machine tool's volume: a largest |error| outside this range is a unit mistake
+MIN_MAX_ERROR_UM = 1.0      # below: the errors are in mm (a whole volume within 1 μm is not a machine tool)
+MAX_ERROR_UM = 5000.0       # above: nm, or positions written as errors
+
+
 @dataclass
 class FeaturePoints:
-    """Axes shape (n, 3) and errors shape (n, 3) μm, with provenance ``meta``."""
+    """Axes shape (n, 3) and errors shape (n, 3) μm, with provenance ``meta``.
+
+    ``source`` and ``rows`` (file line of each point) are set by :meth:`load`.
+    """
 
     axes: np.ndarray
     errors_um: np.ndarray
     meta: dict
+    source: str = ""
+    rows: np.ndarray | None = None
+
+    def check_units(self, machine) -> None:
+        """Refuse feature points whose units do not fit the machine, naming row, column and the
+        likely mistake: axes in metres or radians, errors in mm, nm or positions."""
+        from .machine import axes_unit_mistake
+        rows = self.rows if self.rows is not None else np.arange(1, len(self.axes) + 1)
+        src = self.source or "feature points"
+        mistake = axes_unit_mistake(self.axes, machine)
+        if mistake is not None:
+            k, j, msg = mistake
+            raise InputError(f"{src}: row {rows[k]}, column '{COLUMNS[j]}': units do not fit: {msg}")
+        e = np.abs(self.errors_um)
+        k, j = np.unravel_index(int(np.argmax(e)), e.shape)
+        if e[k, j] > MAX_ERROR_UM:
+            raise InputError(f"{src}: row {rows[k]}, column '{COLUMNS[3 + j]}': units do not fit: {e[k, j]:g} μm is "
+                             f"beyond the plausible {MAX_ERROR_UM:g} μm; expected μm (not nm, not a position)")
+        if e[k, j] < MIN_MAX_ERROR_UM:
+            raise InputError(f"{src}: row {rows[k]}, column '{COLUMNS[3 + j]}': units do not fit: the largest error "
+                             f"is {e[k, j]:.3g} μm over the whole volume; mm rather than μm?")
 
     def save(self, path) -> Path:
         cols = dict(zip(COLUMNS, np.hstack([self.axes, self.errors_um]).T))
@@ -70,7 +99,7 @@ class FeaturePoints:
         for k in PATH_KEYS:
             if k in meta:
                 meta[k] = _resolve(meta[k], Path(path).parent)
-        return cls(data[:, :3], data[:, 3:], meta)
+        return cls(data[:, :3], data[:, 3:], meta, str(path), np.array([t.row_number(k) for k in range(len(t))]))
 
 
 def make_feature_points(machine, field, n: int = 11, meta: dict | None = None) -> FeaturePoints:

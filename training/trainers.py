@@ -408,6 +408,8 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
 
         from .plots import fit_plots
         summary = {**metrics, "stop_reason": hist.stop_reason, "trainer": trainer, "seconds": hist.seconds}
+        if hist.stop_reason.startswith("time budget"):  # the machine's speed decided: say how to repeat it
+            summary["reproduce_with_max_iter"] = hist.iterations
         with contextlib.ExitStack() as stack:
             # the run folder is written as a set: a temporary folder that replaces out_dir at the end
             d = stack.enter_context(atomic_dir(out_dir)) if out_dir is not None else \

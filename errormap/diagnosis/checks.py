@@ -122,6 +122,12 @@ def load_checks(path, machine) -> CheckData:
         if bad.size:
             raise _fail(path, rows[bad[0]], "temp_c",
                         f"units do not fit: {tc[bad[0]]:g} is outside {TEMP_RANGE_C} °C (kelvin or fahrenheit?)")
+    # positions in metres, angles in radians
+    from ..machine import axes_unit_mistake
+    mistake = axes_unit_mistake(axes, machine)
+    if mistake is not None:
+        k, j, msg = mistake
+        raise _fail(path, rows[k], AXES_COLUMNS[j], f"units do not fit: {msg}")
     # strokes (A is periodic: any finite value passes)
     for j, c in enumerate(AXES_COLUMNS[:2]):
         lo, hi = machine.strokes[c]
