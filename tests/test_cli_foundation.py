@@ -112,3 +112,36 @@ def test_provenance_paths_resolve_relative_to_the_file(tmp_path, monkeypatch):
         ref = reference_from_meta(fp.meta)
         assert ref is not None
         np.testing.assert_allclose(ref[1].predict(fp.axes), fp.errors_um, atol=TOL_UM)
+
+
+def test_predict_refuses_outside_the_calibrated_volume(tmp_path, capsys):
+    el = tmp_path / "el.json"
+    from errormap.machine import load_machine
+    ElementSet.zeros(load_machine()).save(el)
+    pts = tmp_path / "pts.csv"
+    pts.write_text("x_mm,z_mm,a_deg\n10,2,3\n1000000,2,3\n")
+    argv = ["predict", "--model", str(el), str(pts), "--out", str(tmp_path / "p.csv")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "row 3" in err and "x_mm" in err and "μm rather than mm" in err and "--allow extrapolate" in err
+    assert not (tmp_path / "p.csv").exists()
+    assert main(argv + ["--allow", "extrapolate"]) == 0
+
+
+@pytest.mark.parametrize("column, scale, named", [("x_mm", 1e-3, "metres rather than mm"),
+                                                  ("z_mm", 1e-3, "metres rather than mm"),
+                                                  ("a_deg", np.pi / 180, "radians rather than degrees")])
+def test_checks_in_metres_or_radians_are_refused(tmp_path, column, scale, named):
+    from errormap.diagnosis.checks import load_checks
+    from errormap.io import InputError, write_csv
+    from errormap.machine import load_machine
+    machine = load_machine()
+    assert main(["simulate", "--seed", "1", "--out", str(tmp_path / "sim"), "--checks", "40"]) == 0
+    t = read_table(tmp_path / "sim" / "checks.csv")
+    d = {c: t.float(c) for c in t.names}
+    load_checks(tmp_path / "sim" / "checks.csv", machine)  # as simulated: accepted
+    d[column] = d[column] * scale
+    write_csv(tmp_path / "c.csv", d)
+    with pytest.raises(InputError, match=named) as exc:
+        load_checks(tmp_path / "c.csv", machine)
+    assert f"column '{column}'" in str(exc.value)

@@ -482,3 +482,46 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
                                best.metrics["selection_max_um"], rtol=SELECTION_TOL_REL)
     sel_last = np.abs(last.field.predict(sel_axes) - sel_err).max()
     assert best.metrics["selection_max_um"] <= sel_last * (1 + SELECTION_TOL_REL)
+
+
+def test_cli_train_is_reproducible_and_a_time_budget_says_how_to_repeat_it(tmp_path, monkeypatch, capsys):
+    """Default training stops on iterations; a --max-time run records the iterations it reached,
+    and --max-iter with that number gives the same weights bit for bit."""
+    from compensation.cli import main
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}")
+    assert main(["simulate", "--seed", "0", "--out", str(tmp_path / "sim"), "--checks", "20"]) == 0
+    fp = str(tmp_path / "sim" / "featurepoints.csv")
+    common = ["--hidden", "6,6", "--threads", "1", "--no-select", "--seed", "3"]
+    assert main(["train", fp, "--out", str(tmp_path / "t"), "--max-time", "2", "--max-iter", "100000"] + common) == 0
+    out = capsys.readouterr().out
+    m = json.loads((tmp_path / "t" / "metrics.json").read_text())
+    n = m["reproduce_with_max_iter"]
+    assert m["stop_reason"].startswith("time budget") and n == m["iterations"] >= 1
+    assert f"--max-iter {n}" in out
+    assert main(["train", fp, "--out", str(tmp_path / "r"), "--max-iter", str(n)] + common) == 0
+    r = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert r["stop_reason"] == f"max iterations {n}" and "reproduce_with_max_iter" not in r
+    w1 = np.load(tmp_path / "t" / "model" / "weights.npy")
+    w2 = np.load(tmp_path / "r" / "model" / "weights.npy")
+    assert np.array_equal(w1, w2)
+
+
+@pytest.mark.parametrize("mistake, column, named", [
+    (lambda d: d.__setitem__("x_mm", d["x_mm"] / 1000), "x_mm", "metres rather than mm"),
+    (lambda d: d.__setitem__("a_deg", np.deg2rad(d["a_deg"])), "a_deg", "radians rather than degrees"),
+    (lambda d: [d.__setitem__(c, d[c] / 1000) for c in ("dx_um", "dy_um", "dz_um")], None, "mm rather than μm"),
+    (lambda d: d.__setitem__("dy_um", d["dy_um"] * 1000), "dy_um", "not nm, not a position"),
+])
+def test_cli_train_names_the_unit_mistake(tmp_path, capsys, mistake, column, named):
+    from compensation.cli import main
+    from errormap.io import read_table, write_csv
+    assert main(["simulate", "--seed", "0", "--out", str(tmp_path / "sim"), "--checks", "20"]) == 0
+    t = read_table(tmp_path / "sim" / "featurepoints.csv")
+    d = {c: t.float(c) for c in t.names}
+    mistake(d)
+    write_csv(tmp_path / "fp.csv", d, header_comments=t.comments)
+    capsys.readouterr()
+    assert main(["train", str(tmp_path / "fp.csv"), "--out", str(tmp_path / "o"), "--max-iter", "1"]) == 2
+    err = capsys.readouterr().err
+    assert named in err and "row " in err and (column is None or f"column '{column}'" in err)
+    assert not (tmp_path / "o").exists()
