@@ -6,7 +6,7 @@ is never touched; an output that would overwrite an input is refused before any 
 Files are done one at a time, each complete or absent, so an interrupted batch leaves only
 whole files; ``DIR/compensate_summary.json`` is written last.
 
-Guards (DESIGN.md; :mod:`compensation.guards`): a file whose compensated commands leave the
+Guards (docs/kinematics.md; :mod:`compensation.guards`): a file whose compensated commands leave the
 250 μm search ball (``ball``), the axis strokes (``stroke``) or the field's calibrated volume
 (``volume``), or whose solver did not converge (``convergence``), is refused — not written —
 and the command exits with status 3 listing the offending points (first ``--show`` of them,
