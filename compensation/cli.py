@@ -119,4 +119,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    # `python -m compensation.cli`: run the imported module's main, so that the UsageError the
+    # commands import (compensation.cli.UsageError) is the one caught, not __main__'s twin
+    from compensation.cli import main as _main
+    sys.exit(_main())
