@@ -578,6 +578,11 @@ class MLPField:
         do not match it. ``directory`` must be a model folder of its own (it is replaced).
         """
         d = Path(directory)
+        if d.is_dir():
+            foreign = sorted(p.name for p in d.iterdir() if p.name not in ("config.json",) + MODEL_FILES)
+            if foreign:
+                raise InputError(f"{d}: a saved model replaces this folder whole, and it holds other files "
+                                 f"({', '.join(foreign[:5])}); give a folder of its own")
         with atomic_dir(d) as tmp:
             # repr() round-trips float64 exactly through JSON
             write_json(tmp / "scalers.json", {k: (np.asarray(v).tolist()) for k, v in self.scalers().items()})

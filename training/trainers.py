@@ -209,8 +209,7 @@ def reference_from_meta(meta: dict):
     """(machine, HTM field) from a feature-point file's provenance, or None when not available."""
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
-    from errormap.machine import load_machine
-    from errormap.machine import builtin_machine_path
+    from errormap.machine import builtin_machine_path, load_machine
     el = meta.get("elements_file")
     if not el or not Path(el).is_file():
         return None
