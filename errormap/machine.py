@@ -238,7 +238,8 @@ def axes_unit_mistake(axes, machine) -> tuple[int, int, str] | None:
 
     ``axes`` shape (n, 3): x_mm, z_mm, a_deg (feature points, check measurements). Returns
     ``(row index, column index, message)``: an X or Z column whose span is about 1/1000 of the
-    stroke (metres instead of mm), or an A column inside ±2π that spans at least π
+    stroke and whose values stay within 1/1000 of the stroke's ends (metres instead of mm; a
+    small region measured in mm far from zero is not taken for metres), or an A column inside ±2π that spans at least π
     (radians instead of degrees). Needs at least :data:`UNIT_MIN_POINTS` points.
     """
     axes = np.asarray(axes, dtype=float)
@@ -249,7 +250,9 @@ def axes_unit_mistake(axes, machine) -> tuple[int, int, str] | None:
         lo, hi = machine.strokes[names[j]]
         stroke = hi - lo
         span = float(np.ptp(axes[:, j]))
-        if 0 < span <= METRE_SPAN_FRACTION * stroke and span * 1000 >= METRE_MATCH_FRACTION * stroke:
+        reach = 1.5e-3 * max(abs(lo), abs(hi))  # metres stay within the stroke's ends / 1000
+        if (0 < span <= METRE_SPAN_FRACTION * stroke and span * 1000 >= METRE_MATCH_FRACTION * stroke
+                and np.abs(axes[:, j]).max() <= reach):
             k = int(np.argmax(np.abs(axes[:, j])))
             return k, j, (f"values span only {span:.4g} mm of the {stroke:g} mm stroke; 1000× that fits it: "
                           "metres rather than mm?")

@@ -145,3 +145,14 @@ def test_checks_in_metres_or_radians_are_refused(tmp_path, column, scale, named)
     with pytest.raises(InputError, match=named) as exc:
         load_checks(tmp_path / "c.csv", machine)
     assert f"column '{column}'" in str(exc.value)
+
+
+def test_a_small_region_in_mm_is_not_taken_for_metres():
+    from errormap.machine import axes_unit_mistake, load_machine
+    m = load_machine()
+    rng = np.random.default_rng(0)
+    small = np.c_[100 + 0.5 * rng.random(40), 30 + 0.05 * rng.random(40), 360 * rng.random(40)]
+    assert axes_unit_mistake(small, m) is None
+    metres = small.copy()
+    metres[:, 0] = 0.2 * rng.random(40)
+    assert axes_unit_mistake(metres, m)[1] == 0
