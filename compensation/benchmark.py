@@ -1,7 +1,7 @@
 """Learned vs parametric, side by side, on the same machines and the same measurements (issue 8).
 
 ``run_benchmark(machines, out_dir, settings)`` runs both compensation paths on each machine
-under a set of measurement conditions, evaluates the TRUE residual (DESIGN.md residual 2: the
+under a set of measurement conditions, evaluates the TRUE residual (residual 2 of docs/kinematics.md: the
 simulated truth machine driven with the compensated commands, minus the target) along the
 test paths, records every run in MLflow under one parent run, and writes
 ``DIR/benchmark.json`` and ``DIR/report.html`` (:mod:`compensation.benchmark_report`).

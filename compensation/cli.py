@@ -1,8 +1,11 @@
 """The ``volcomp`` command line.
 
 Each sub-command lives in ``compensation/commands/<name>.py`` with ``register(subparsers)``.
-Errors in user input (``InputError``, ``MachineFileError``, ``ValueError`` subclasses the
-library raises on bad data) print one clear line and exit with status 2.
+Only the module of the command being run is imported: ``volcomp --help`` and
+``volcomp --version`` list the commands from :data:`COMMAND_HELP` and import no numerical
+library (numpy, torch, scipy, MLflow, matplotlib), so they answer in well under a second.
+Errors in user input (``InputError``, ``MachineFileError``, ``UsageError``) print one clear
+line (at most :data:`MAX_ERROR_CHARS` characters) and exit with status 2.
 """
 from __future__ import annotations
 
@@ -10,59 +13,106 @@ import argparse
 import importlib
 import sys
 
-from errormap.io import InputError
-from errormap.machine import MachineFileError
+# sub-command modules and their one-line help, in the order `volcomp --help` lists them;
+# tests/test_cli_foundation.py checks that each module registers exactly this help
+COMMAND_HELP = {
+    "simulate": "simulate a truth grinder: elements, feature points, check measurements",
+    "featurepoints": "feature points (11x11x11 grid) from an element set",
+    "predict": "evaluate an error field at axis points (CSV x_mm, z_mm, a_deg)",
+    "train": "train the error-field network (LM by default) on feature points, tracked in MLflow",
+    "compensate": "compensate tool-path files (CSV or G-code) with an error field",
+    "report": "compare compensation methods on a path: report.html + metrics.json",
+    "demo": "the whole pipeline on the default machine: simulate → train → compensate → report",
+    "identify": "identify the 23 error elements from laser-tracker sweeps",
+    "sweeps": "simulate laser-tracker axis sweeps of a truth grinder (sweep CSV)",
+    "diagnose": "measured residual -> effects the model lacks, before/after report; or a drift log",
+    "calibrate": "identify a hexapod/tripod's kinematic parameters from measured poses",
+    "interpolate": "hexapod/tripod leg-command program for a tool path",
+    "benchmark": "learned vs parametric path on the same machines and measurements: report.html + benchmark.json",
+    "export": "write controller compensation tables (ISO 230-1 per-axis, 3D grid, LinuxCNC per-joint), checked against the model first",
+}
+COMMAND_MODULES = list(COMMAND_HELP)
 
-# sub-command modules, in the order `volcomp --help` lists them
-COMMAND_MODULES = [
-    "simulate",
-    "featurepoints",
-    "predict",
-    "train",
-    "compensate",
-    "report",
-    "demo",
-    "identify",
-    "sweeps",
-    "diagnose",
-    "calibrate",
-    "interpolate",
-    "benchmark",
-    "export",
-]
+# an error line longer than this is cut in the middle (a value's repr can be megabytes)
+MAX_ERROR_CHARS = 300
 
 
 class UsageError(ValueError):
     """A command was called with arguments that do not fit together."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def version() -> str:
+    """The installed distribution's version, else the package's ``__version__``."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version as _v
+        return _v("volcomp")
+    except Exception:  # not installed (run from a source tree)
+        from errormap import __version__
+        return __version__
+
+
+def _register(sub, name: str) -> bool:
+    try:
+        mod = importlib.import_module(f"compensation.commands.{name}")
+    except ModuleNotFoundError as exc:
+        if exc.name == f"compensation.commands.{name}":
+            return False  # not built yet
+        raise
+    mod.register(sub)
+    return True
+
+
+def build_parser(commands=None) -> argparse.ArgumentParser:
+    """The argument parser; ``commands``: names whose modules are imported and registered in
+    full (default: all); the others get a light entry carrying only their help line."""
     parser = argparse.ArgumentParser(
         prog="volcomp",
         description="Learned volumetric error compensation for precision machine tools.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    full = set(COMMAND_MODULES if commands is None else commands)
     for name in COMMAND_MODULES:
-        try:
-            mod = importlib.import_module(f"compensation.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"compensation.commands.{name}":
-                continue  # not built yet
-            raise
-        mod.register(sub)
+        if name in full:
+            _register(sub, name)
+        else:
+            sub.add_parser(name, help=COMMAND_HELP[name], add_help=False)
     return parser
 
 
+def _command_in(argv) -> str | None:
+    """The sub-command named in ``argv`` (the first word that is a command), or None."""
+    for a in argv:
+        if a == "--":
+            return None
+        if not a.startswith("-"):
+            return a if a in COMMAND_HELP else None
+    return None
+
+
+def one_line(msg: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """``msg`` on one line, cut in the middle to at most ``limit`` characters."""
+    s = " ".join(str(msg).split())
+    if len(s) <= limit:
+        return s
+    keep = limit - 5
+    return s[: keep - keep // 3] + " ... " + s[len(s) - keep // 3:]
+
+
 def main(argv=None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    name = _command_in(argv)
+    parser = build_parser([name] if name else [])
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from errormap.io import InputError
+    from errormap.machine import MachineFileError
     try:
         return int(args.func(args) or 0)
     except (InputError, MachineFileError, UsageError) as exc:
-        print(f"volcomp {args.command}: error: {exc}", file=sys.stderr)
+        print(one_line(f"volcomp {args.command}: error: {exc}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"volcomp {args.command}: interrupted; nothing half-written", file=sys.stderr)
@@ -70,4 +120,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    # `python -m compensation.cli`: run the imported module's main, so that the UsageError the
+    # commands import (compensation.cli.UsageError) is the one caught, not __main__'s twin
+    from compensation.cli import main as _main
+    sys.exit(_main())

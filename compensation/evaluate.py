@@ -1,6 +1,6 @@
 """Evaluating compensated commands: the model residual and, on a simulated machine, the true one.
 
-DESIGN.md's residuals, never mixed up:
+The three residuals of docs/kinematics.md, never mixed up:
 
 * **model residual** — ``p_r + E(axes(p_r)) − p_d`` (μm): how well a solver satisfied its
   own error field ``E``; it comes with each :class:`~compensation.solvers.SolveResult`.
@@ -25,9 +25,9 @@ from errormap.io import InputError
 from errormap.simulator import EFFECT_NAMES, TruthGrinder
 
 RESIDUAL_DEFINITIONS = {
-    "model": "model residual: p_r + E(axes(p_r)) - p_d, the solver's own error field E (um)",
+    "model": "model residual: p_r + E(axes(p_r)) - p_d, the solver's own error field E (μm)",
     "true": "true residual: tool point reached by the simulated truth machine driven with the "
-            "compensated axis commands, minus the target p_d (um)",
+            "compensated axis commands, minus the target p_d (μm)",
 }
 
 

@@ -312,8 +312,8 @@ figure {{ margin: 1.5em 0; }} img {{ max-width: 100%; }}
 </style></head><body>
 <h1>{html.escape(title)}</h1>
 <p class="residual">This report shows the <b>{which}</b>.<br>
-<b>Model residual</b>: {html.escape(RESIDUAL_DEFINITIONS['model'])}.<br>
-<b>True residual</b>: {html.escape(RESIDUAL_DEFINITIONS['true'])}.<br>
+<b>Model residual</b>: {html.escape(RESIDUAL_DEFINITIONS['model'].split(': ', 1)[-1])}.<br>
+<b>True residual</b>: {html.escape(RESIDUAL_DEFINITIONS['true'].split(': ', 1)[-1])}.<br>
 The measured residual (measurement minus model at check points) is not shown here.</p>
 <h2>Setting</h2><table>{ctx}</table>
 <h2>Max and mean per method</h2>{table}
@@ -346,7 +346,7 @@ def write_report(cmp: Comparison, out_dir, title: str = "volcomp compensation re
             col[r.index] = np.linalg.norm(np.asarray(arr), axis=1)
             cols[f"{k}_{kind}_um"] = col
     paths = {"residuals": write_csv(out / "residuals.csv", cols, header_comments=[
-        "format: volcomp-residuals/1", "columns *_model_um: |model residual|, *_true_um: |true residual| (um)"])}
+        "format: volcomp-residuals/1", "columns *_model_um: |model residual|, *_true_um: |true residual| (μm)"])}
     metrics = cmp.metrics()
     if context:
         metrics["context"] = context

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from .io import InputError, atomic_write
+from .io import InputError, atomic_write, decode_text
 from .machine import Grinder
 
 X_ELEMENTS = ("dx_x", "dy_x", "dz_x", "ex_x", "ey_x", "ez_x")
@@ -54,6 +54,11 @@ def default_stations(machine: Grinder, n: int = 21) -> dict:
     return {k: np.linspace(*machine.strokes[k], n) for k in ("x_mm", "z_mm", "a_deg")}
 
 
+# No element of a machine tool reaches a metre (μm) or a radian (μrad), nor a station a kilometre:
+# beyond this a value is a unit or typing mistake (and 1e308 would overflow the HTM products)
+MAX_ELEMENT_VALUE = 1e6
+
+
 @dataclass
 class ElementSet:
     """Values of the 23 error elements.
@@ -72,8 +77,10 @@ class ElementSet:
     def __post_init__(self):
         self.stations = {k: np.asarray(self.stations[k], dtype=float) for k in ("x_mm", "z_mm", "a_deg")}
         for k, s in self.stations.items():
-            if s.ndim != 1 or s.size < 4 or np.any(np.diff(s) <= 0):
-                raise ValueError(f"Expected at least 4 increasing stations for {k}, got {s}")
+            if s.ndim != 1 or s.size < 4 or not np.all(np.isfinite(s)) or np.any(np.diff(s) <= 0):
+                raise ValueError(f"Expected at least 4 increasing finite stations for {k}, got {s}")
+            if np.abs(s).max() > MAX_ELEMENT_VALUE:
+                raise ValueError(f"Expected stations for {k} within ±{MAX_ELEMENT_VALUE:g}, got {np.abs(s).max():g}")
         if abs(self.stations["a_deg"][-1] - self.stations["a_deg"][0] - 360.0) > 1e-9:
             raise ValueError("Expected A stations spanning exactly one turn (360°), got "
                              f"{self.stations['a_deg'][0]}..{self.stations['a_deg'][-1]}")
@@ -90,9 +97,14 @@ class ElementSet:
             st = self.stations[AXIS_OF[k]]
             if v.shape != st.shape or not np.all(np.isfinite(v)):
                 raise ValueError(f"Expected {st.size} finite values for {k}, got shape {v.shape}")
+            if np.abs(v).max() > MAX_ELEMENT_VALUE:
+                raise ValueError(f"Expected {k} within ±{MAX_ELEMENT_VALUE:g} (μm or μrad), got {np.abs(v).max():g}")
             fun[k] = v
         self.functions = fun
         self.constants = {k: float(self.constants[k]) for k in CONSTANT_ELEMENTS}
+        for k, v in self.constants.items():
+            if not (abs(v) <= MAX_ELEMENT_VALUE):
+                raise ValueError(f"Expected {k} finite and within ±{MAX_ELEMENT_VALUE:g} (μm or μrad), got {v:g}")
         for k in A_ELEMENTS:
             v = self.functions[k]
             if abs(v[-1] - v[0]) > 1e-9 * max(1.0, np.abs(v).max()):
@@ -167,8 +179,8 @@ class ElementSet:
         if not path.is_file():
             raise InputError(f"{path}: no such element-set file")
         try:
-            d = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
+            d = json.loads(decode_text(path.read_bytes(), path))
+        except (json.JSONDecodeError, RecursionError) as exc:
             raise InputError(f"{path}: not valid JSON: {exc}") from None
         if not isinstance(d, dict) or d.get("format") != "volcomp-elements/1":
             raise InputError(f"{path}: key 'format': expected 'volcomp-elements/1', got {d.get('format') if isinstance(d, dict) else d!r}")
@@ -177,5 +189,5 @@ class ElementSet:
                 raise InputError(f"{path}: missing or malformed key '{key}'")
         try:
             return cls(d["stations"], d["functions"], d["constants"], d.get("machine", ""), d.get("machine_sha256", ""))
-        except (ValueError, TypeError, KeyError) as exc:
+        except (ValueError, TypeError, KeyError, OverflowError) as exc:
             raise InputError(f"{path}: {exc}") from None

@@ -2,10 +2,14 @@
 
 Written as CSV (``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um``) whose leading ``#`` lines
 record where the data came from (machine name, file and SHA-256; element-set file and
-SHA-256), so a trained model can always be traced back.
+SHA-256), so a trained model can always be traced back. File paths in the provenance
+(``elements_file``, ``machine_file``) are written relative to the CSV's own folder and read
+back relative to it, so the pair can be moved or used from any working folder (the built-in
+machine file is recorded by its absolute path and found again by its SHA-256).
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,6 +18,24 @@ import numpy as np
 from .io import InputError, read_table, write_csv
 
 COLUMNS = ("x_mm", "z_mm", "a_deg", "dx_um", "dy_um", "dz_um")
+PATH_KEYS = ("elements_file", "machine_file")  # provenance paths, relative to the CSV's folder
+
+
+def _relative_to(value: str, folder: Path) -> str:
+    if not value:
+        return value
+    from .machine import builtin_machine_path
+    p = Path(value)
+    if p.resolve() == builtin_machine_path().resolve():
+        return str(p.resolve())
+    return os.path.relpath(p.resolve(), folder.resolve())
+
+
+def _resolve(value: str, folder: Path) -> str:
+    if not value:
+        return value
+    p = Path(value)
+    return str(p if p.is_absolute() else (folder / p).resolve())
 
 
 def grid_axes(machine, n: int = 11) -> np.ndarray:
@@ -22,17 +44,48 @@ def grid_axes(machine, n: int = 11) -> np.ndarray:
     return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
+# errors of a real machine tool's volume: a largest |error| outside this range is a unit mistake
+MIN_MAX_ERROR_UM = 1.0      # below: the errors are in mm (a whole volume within 1 μm is not a machine tool)
+MAX_ERROR_UM = 5000.0       # above: nm, or positions written as errors
+
+
 @dataclass
 class FeaturePoints:
-    """Axes shape (n, 3) and errors shape (n, 3) μm, with provenance ``meta``."""
+    """Axes shape (n, 3) and errors shape (n, 3) μm, with provenance ``meta``.
+
+    ``source`` and ``rows`` (file line of each point) are set by :meth:`load`.
+    """
 
     axes: np.ndarray
     errors_um: np.ndarray
     meta: dict
+    source: str = ""
+    rows: np.ndarray | None = None
+
+    def check_units(self, machine) -> None:
+        """Refuse feature points whose units do not fit the machine, naming row, column and the
+        likely mistake: axes in metres or radians, errors in mm, nm or positions."""
+        from .machine import axes_unit_mistake
+        rows = self.rows if self.rows is not None else np.arange(1, len(self.axes) + 1)
+        src = self.source or "feature points"
+        mistake = axes_unit_mistake(self.axes, machine)
+        if mistake is not None:
+            k, j, msg = mistake
+            raise InputError(f"{src}: row {rows[k]}, column '{COLUMNS[j]}': units do not fit: {msg}")
+        e = np.abs(self.errors_um)
+        k, j = np.unravel_index(int(np.argmax(e)), e.shape)
+        if e[k, j] > MAX_ERROR_UM:
+            raise InputError(f"{src}: row {rows[k]}, column '{COLUMNS[3 + j]}': units do not fit: {e[k, j]:g} μm is "
+                             f"beyond the plausible {MAX_ERROR_UM:g} μm; expected μm (not nm, not a position)")
+        if e[k, j] < MIN_MAX_ERROR_UM:
+            raise InputError(f"{src}: row {rows[k]}, column '{COLUMNS[3 + j]}': units do not fit: the largest error "
+                             f"is {e[k, j]:.3g} μm over the whole volume; mm rather than μm?")
 
     def save(self, path) -> Path:
         cols = dict(zip(COLUMNS, np.hstack([self.axes, self.errors_um]).T))
-        lines = ["format: volcomp-featurepoints/1"] + [f"{k}: {v}" for k, v in self.meta.items()]
+        folder = Path(path).parent
+        meta = {k: (_relative_to(str(v), folder) if k in PATH_KEYS else v) for k, v in self.meta.items()}
+        lines = ["format: volcomp-featurepoints/1"] + [f"{k}: {v}" for k, v in meta.items()]
         return write_csv(path, cols, header_comments=lines, float_fmt="%.12g")
 
     @classmethod
@@ -42,7 +95,11 @@ class FeaturePoints:
         data = np.stack([t.float(c) for c in COLUMNS], axis=1)
         if len(t) < 10:
             raise InputError(f"{path}: expected at least 10 feature points, got {len(t)}")
-        return cls(data[:, :3], data[:, 3:], t.meta())
+        meta = t.meta()
+        for k in PATH_KEYS:
+            if k in meta:
+                meta[k] = _resolve(meta[k], Path(path).parent)
+        return cls(data[:, :3], data[:, 3:], meta, str(path), np.array([t.row_number(k) for k in range(len(t))]))
 
 
 def make_feature_points(machine, field, n: int = 11, meta: dict | None = None) -> FeaturePoints:

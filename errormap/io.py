@@ -14,6 +14,7 @@ import io
 import json
 import math
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
@@ -23,6 +24,35 @@ import numpy as np
 
 class InputError(ValueError):
     """Bad input data: the message names the file, and where known the row and column."""
+
+
+# Largest magnitude any numeric CSV cell may have unless its reader says otherwise: far past
+# every plausible mm, μm, deg, s or °C value, far below where float64 arithmetic overflows.
+MAX_ABS_VALUE = 1e12
+
+
+def _short(s: str, n: int = 40) -> str:
+    """``repr`` of a cell, cut to about ``n`` characters."""
+    return repr(s) if len(s) <= n else repr(s[:n]) + f"... ({len(s)} characters)"
+
+
+def decode_text(raw: bytes, path) -> str:
+    """UTF-8 text of a file's bytes; a leading UTF-8 BOM (Excel's "CSV UTF-8") is dropped.
+
+    A byte that is not UTF-8 raises :class:`InputError` naming the row (line) and the
+    character position, e.g. ``ü`` saved in Latin-1 / Windows-1252.
+    """
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        pos = exc.start
+        row = raw.count(b"\n", 0, pos) + 1
+        line_start = raw.rfind(b"\n", 0, pos) + 1
+        col = len(raw[line_start:pos].decode("utf-8", errors="replace")) + 1
+        raise InputError(f"{path}: row {row}, character {col}: byte 0x{raw[pos]:02x} is not UTF-8 (is the file in "
+                         "Latin-1 / Windows-1252?); save it as UTF-8") from None
 
 
 def _umask() -> int:
@@ -47,6 +77,48 @@ def atomic_write(path, mode: str = "w", **kwargs) -> Iterator[io.IOBase]:
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        raise
+
+
+def replace_dir(src, dst) -> Path:
+    """Move the finished folder ``src`` onto ``dst`` (same file system), replacing any old ``dst``.
+
+    The old folder is first renamed aside, then ``src`` renamed onto ``dst``, then the old one
+    removed: at every instant ``dst`` is either the whole old set, absent, or the whole new set.
+    """
+    src, dst = Path(src), Path(dst)
+    if not dst.exists():
+        os.replace(src, dst)
+        return dst
+    old = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", suffix=".old", dir=dst.parent))
+    os.replace(dst, old / dst.name)
+    try:
+        os.replace(src, dst)
+    except BaseException:
+        os.replace(old / dst.name, dst)  # put the old set back
+        raise
+    finally:
+        shutil.rmtree(old, ignore_errors=True)
+    return dst
+
+
+@contextlib.contextmanager
+def atomic_dir(path) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``path``; on success it replaces ``path`` whole.
+
+    Files that belong together (a model's config, scalers and weights; a run folder) are
+    written into the yielded folder; an exception (or a crash) leaves ``path`` as it was and
+    no partial set under its name.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700
+        replace_dir(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 
@@ -136,8 +208,12 @@ class Table:
         """File line number (1-based) of data row ``k`` (0-based)."""
         return self.first_row + k
 
-    def float(self, name: str, allow_nan: bool = False) -> np.ndarray:
-        """Column ``name`` as float64, shape (n,); bad cells raise naming row and column."""
+    def float(self, name: str, allow_nan: bool = False, limit: float = MAX_ABS_VALUE) -> np.ndarray:
+        """Column ``name`` as float64, shape (n,); bad cells raise naming row and column.
+
+        ``limit``: the largest plausible magnitude (default :data:`MAX_ABS_VALUE`); a larger
+        value is a unit or typing mistake and is refused before any arithmetic overflows.
+        """
         vals = self.raw(name)
         out = np.empty(len(vals))
         for k, s in enumerate(vals):
@@ -145,11 +221,16 @@ class Table:
                 v = float(s)
             except ValueError:
                 raise InputError(
-                    f"{self.path}: row {self.row_number(k)}, column '{name}': expected a number, got {s!r}"
+                    f"{self.path}: row {self.row_number(k)}, column '{name}': expected a number, got {_short(s)}"
                 ) from None
             if not allow_nan and not math.isfinite(v):
                 raise InputError(
-                    f"{self.path}: row {self.row_number(k)}, column '{name}': expected a finite number, got {s!r}"
+                    f"{self.path}: row {self.row_number(k)}, column '{name}': expected a finite number, got {_short(s)}"
+                )
+            if abs(v) > limit:
+                raise InputError(
+                    f"{self.path}: row {self.row_number(k)}, column '{name}': {_short(s)} is beyond the plausible "
+                    f"magnitude {limit:g}; wrong unit or a typing mistake?"
                 )
             out[k] = v
         return out
@@ -162,7 +243,7 @@ class Table:
             if v != round(v) or (allowed_set is not None and int(v) not in allowed_set):
                 want = f"one of {sorted(allowed_set)}" if allowed_set is not None else "an integer"
                 raise InputError(
-                    f"{self.path}: row {self.row_number(k)}, column '{name}': expected {want}, got {self.raw(name)[k]!r}"
+                    f"{self.path}: row {self.row_number(k)}, column '{name}': expected {want}, got {_short(self.raw(name)[k])}"
                 )
         return vals.astype(np.int64)
 
@@ -186,8 +267,12 @@ def read_table(path) -> Table:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    with open(path, newline="", encoding="utf-8") as fh:
-        lines = fh.read().splitlines()
+    text = decode_text(path.read_bytes(), path)
+    if "\x00" in text:
+        row = text.count("\n", 0, text.index("\x00")) + 1
+        raise InputError(f"{path}: row {row}: contains a NUL byte; expected a text (CSV) file")
+    # rows are the lines an editor shows: split at \n, \r\n or \r only
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     comments = []
     i = 0
     while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
@@ -196,13 +281,15 @@ def read_table(path) -> Table:
         i += 1
     if i >= len(lines):
         raise InputError(f"{path}: empty file (no header row)")
-    reader = csv.reader(lines[i:])
-    header = [h.strip() for h in next(reader)]
+    # lines are already split: a quoted cell cannot span lines, and csv's field-size limit
+    # must not turn a long line into a traceback
+    header = [h.strip() for h in _csv_row(lines[i], path, i + 1)]
     dup = sorted({h for h in header if header.count(h) > 1})
     if dup:
         raise InputError(f"{path}: row {i + 1}: duplicated column name(s) {dup}")
     rows = []
-    for k, r in enumerate(reader):
+    for k, line in enumerate(lines[i + 1:]):
+        r = _csv_row(line, path, i + 2 + k)
         if not r or all(not c.strip() for c in r):
             continue
         if len(r) != len(header):
@@ -211,6 +298,13 @@ def read_table(path) -> Table:
             )
         rows.append([c.strip() for c in r])
     return Table(path, header, rows, i + 2, comments)
+
+
+def _csv_row(line: str, path, row: int) -> list[str]:
+    try:
+        return next(csv.reader([line], strict=True), [])
+    except csv.Error as exc:
+        raise InputError(f"{path}: row {row}: not a CSV row ({exc})") from None
 
 
 def sha256_file(path) -> str:

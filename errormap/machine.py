@@ -1,7 +1,7 @@
 """Machine files (TOML): loading and validation.
 
 One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexapod``,
-``tripod``). The built-in default grinder ships as ``errormap/machines/grinder.toml``.
+``tripod``; schemas in ``docs/schemas.md``). The built-in default grinder ships as ``errormap/machines/grinder.toml``.
 Every error names the file and the key.
 """
 from __future__ import annotations
@@ -18,10 +18,29 @@ from .io import sha256_bytes
 GRINDER_GEOMETRY_KEYS = ("l1", "l2", "l3", "l4", "R", "l5", "l6", "l7", "l8", "theta1_deg")
 GRINDER_STROKE_KEYS = ("x_mm", "z_mm", "a_deg")
 GRINDER_TARGET_KEYS = ("X", "Z", "A")
+A_TURN_TOL_DEG = 1e-9  # strokes.a_deg must span one turn to this
+
+
+# Largest magnitude of any number in a machine file (mm, deg, leg scale): a kilometre-sized
+# machine or a million-degree stroke is a unit or typing mistake, and 1e308 would overflow.
+MAX_MACHINE_VALUE = 1e6
 
 
 class MachineFileError(ValueError):
     """A machine file is malformed; the message names the file and the key."""
+
+
+def _short(v, n: int = 60) -> str:
+    r = repr(v)
+    return r if len(r) <= n else r[:n] + f"... ({len(r)} characters)"
+
+
+def _flat(v):
+    if isinstance(v, (list, tuple)):
+        for x in v:
+            yield from _flat(x)
+    else:
+        yield v
 
 
 def builtin_machine_path(kind: str = "grinder") -> Path:
@@ -78,10 +97,17 @@ def _expect_number(doc: dict, key: str, where: str, path) -> float:
         raise MachineFileError(f"{path}: missing key '{where}.{key}'")
     v = doc[key]
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise MachineFileError(f"{path}: key '{where}.{key}': expected a number, got {v!r}")
-    if not np.isfinite(v):
-        raise MachineFileError(f"{path}: key '{where}.{key}': expected a finite number, got {v!r}")
-    return float(v)
+        raise MachineFileError(f"{path}: key '{where}.{key}': expected a number, got {_short(v)}")
+    try:
+        f = float(v)
+    except OverflowError:  # a TOML integer beyond float range
+        f = float("inf")
+    if not np.isfinite(f):
+        raise MachineFileError(f"{path}: key '{where}.{key}': expected a finite number, got {_short(v)}")
+    if abs(f) > MAX_MACHINE_VALUE:
+        raise MachineFileError(f"{path}: key '{where}.{key}': {f:g} is beyond the plausible magnitude "
+                               f"{MAX_MACHINE_VALUE:g} (mm or deg); wrong unit or a typing mistake?")
+    return f
 
 
 def _expect_table(doc: dict, key: str, path) -> dict:
@@ -99,26 +125,36 @@ def _no_unknown(section: dict, allowed, where: str, path) -> None:
 
 
 def expect_array(value, shape: tuple, where: str, path) -> np.ndarray:
-    """Convert a TOML value to a float array of ``shape`` (``-1`` = any), naming the key on error."""
+    """Convert a TOML value to a float array of ``shape`` (``-1`` = any), naming the key on error.
+
+    Every element must be a number (not a boolean) of magnitude at most :data:`MAX_MACHINE_VALUE`.
+    """
+    want = f"numbers of shape {shape}"
+    if not isinstance(value, (list, tuple)) or any(isinstance(x, bool) or not isinstance(x, (int, float))
+                                                   for x in _flat(value)):
+        raise MachineFileError(f"{path}: key '{where}': expected {want}, got {_short(value)}")
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise MachineFileError(f"{path}: key '{where}': expected numbers of shape {shape}, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):  # ragged rows, integers beyond float range
+        raise MachineFileError(f"{path}: key '{where}': expected {want}, got {_short(value)}") from None
     if arr.ndim != len(shape) or any(s not in (-1, a) for s, a in zip(shape, arr.shape)):
         raise MachineFileError(f"{path}: key '{where}': expected shape {shape}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise MachineFileError(f"{path}: key '{where}': expected finite numbers, got {value!r}")
+        raise MachineFileError(f"{path}: key '{where}': expected finite numbers, got {_short(value)}")
+    if np.any(np.abs(arr) > MAX_MACHINE_VALUE):
+        raise MachineFileError(f"{path}: key '{where}': {np.abs(arr).max():g} is beyond the plausible magnitude "
+                               f"{MAX_MACHINE_VALUE:g} (mm or deg); wrong unit or a typing mistake?")
     return arr
 
 
 def parse_grinder(doc: dict, path, sha: str = "") -> Grinder:
-    """Validate a parsed grinder machine file; see DESIGN.md for the schema."""
+    """Validate a parsed grinder machine file; the schema is in ``docs/schemas.md``."""
     _no_unknown(doc, ("machine", "geometry", "strokes", "targets"), "", path)
     m = _expect_table(doc, "machine", path)
     _no_unknown(m, ("kind", "name"), "machine", path)
     name = m.get("name", "grinder")
     if not isinstance(name, str):
-        raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {name!r}")
+        raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {_short(name)}")
     g = _expect_table(doc, "geometry", path)
     _no_unknown(g, GRINDER_GEOMETRY_KEYS, "geometry", path)
     geom = {k: _expect_number(g, k, "geometry", path) for k in GRINDER_GEOMETRY_KEYS}
@@ -134,6 +170,11 @@ def parse_grinder(doc: dict, path, sha: str = "") -> Grinder:
         if not arr[1] > arr[0]:
             raise MachineFileError(f"{path}: key 'strokes.{k}': expected [lo, hi] with hi > lo, got {s[k]!r}")
         strokes[k] = (float(arr[0]), float(arr[1]))
+    lo, hi = strokes["a_deg"]
+    if abs((hi - lo) - 360.0) > A_TURN_TOL_DEG:
+        hint = " (that is one turn in radians; the file is in degrees)" if abs((hi - lo) - 2 * np.pi) < 0.01 else ""
+        raise MachineFileError(f"{path}: key 'strokes.a_deg': expected one turn, [lo, lo + 360] deg (the A-axis "
+                               f"errors are periodic over a turn; commands may run past it), got {s['a_deg']!r}{hint}")
     t = _expect_table(doc, "targets", path)
     _no_unknown(t, GRINDER_TARGET_KEYS, "targets", path)
     targets = {}
@@ -166,16 +207,59 @@ def load_machine(path=None, expect_kind: str | None = None):
         raise MachineFileError(f"{path}: no such machine file")
     raw = Path(path).read_bytes()
     try:
-        doc = tomllib.loads(raw.decode("utf-8"))
+        doc = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        if isinstance(exc, UnicodeDecodeError):
+            row = raw.count(b"\n", 0, exc.start) + 1
+            raise MachineFileError(f"{path}: line {row}: byte 0x{raw[exc.start]:02x} is not UTF-8 (is the file in "
+                                   "Latin-1 / Windows-1252?); save it as UTF-8") from None
         raise MachineFileError(f"{path}: not valid TOML: {exc}") from None
     m = doc.get("machine")
     if not isinstance(m, dict) or "kind" not in m:
         raise MachineFileError(f"{path}: missing key 'machine.kind' (one of grinder, hexapod, tripod)")
     kind = m["kind"]
     parsers = _parsers()
-    if kind not in parsers:
-        raise MachineFileError(f"{path}: key 'machine.kind': expected one of {sorted(parsers)}, got {kind!r}")
+    if not isinstance(kind, str) or kind not in parsers:
+        raise MachineFileError(f"{path}: key 'machine.kind': expected one of {sorted(parsers)}, got {_short(kind)}")
     if expect_kind is not None and kind != expect_kind:
         raise MachineFileError(f"{path}: key 'machine.kind': expected {expect_kind!r} here, got {kind!r}")
     return parsers[kind](doc, path, sha256_bytes(raw))
+
+
+# -- unit plausibility of axis columns --------------------------------------------------------
+UNIT_MIN_POINTS = 10      # below this a column's span says nothing about its unit
+METRE_SPAN_FRACTION = 1 / 200  # an X/Z column spanning less than this share of its stroke ...
+METRE_MATCH_FRACTION = 1 / 4   # ... while 1000x its span reaches this share is in metres
+RADIAN_MIN_SPAN = np.pi        # an A column within ±2π spanning at least half a turn of radians
+
+
+def axes_unit_mistake(axes, machine) -> tuple[int, int, str] | None:
+    """The likely unit mistake in axis columns meant to cover the machine's volume, or None.
+
+    ``axes`` shape (n, 3): x_mm, z_mm, a_deg (feature points, check measurements). Returns
+    ``(row index, column index, message)``: an X or Z column whose span is about 1/1000 of the
+    stroke and whose values stay within 1/1000 of the stroke's ends (metres instead of mm; a
+    small region measured in mm far from zero is not taken for metres), or an A column inside ±2π that spans at least π
+    (radians instead of degrees). Needs at least :data:`UNIT_MIN_POINTS` points.
+    """
+    axes = np.asarray(axes, dtype=float)
+    if len(axes) < UNIT_MIN_POINTS:
+        return None
+    names = GRINDER_STROKE_KEYS
+    for j in (0, 1):
+        lo, hi = machine.strokes[names[j]]
+        stroke = hi - lo
+        span = float(np.ptp(axes[:, j]))
+        reach = 1.5e-3 * max(abs(lo), abs(hi))  # metres stay within the stroke's ends / 1000
+        if (0 < span <= METRE_SPAN_FRACTION * stroke and span * 1000 >= METRE_MATCH_FRACTION * stroke
+                and np.abs(axes[:, j]).max() <= reach):
+            k = int(np.argmax(np.abs(axes[:, j])))
+            return k, j, (f"values span only {span:.4g} mm of the {stroke:g} mm stroke; 1000× that fits it: "
+                          "metres rather than mm?")
+    a = axes[:, 2]
+    lo, hi = machine.strokes["a_deg"]
+    span = float(np.ptp(a))
+    if hi - lo >= 180 and np.all(np.abs(a) <= 2 * np.pi + 1e-6) and span >= RADIAN_MIN_SPAN:
+        k = int(np.argmax(np.abs(a)))
+        return k, 2, (f"values lie within ±2π and span {span:.4g}: radians rather than degrees?")
+    return None

@@ -22,7 +22,7 @@ interaction    X positioning depends on Z (column deflection):                  
                ``dx_x += k·(x - x_lo)(z - z_lo)/(Δx·Δz)``
 =============  ===================================================================  ===============================
 
-Check measurements follow DESIGN.md: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, time_s,
+Check measurements follow docs/schemas.md: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, time_s,
 temp_c, dir_x, dir_z, dir_a, seq``; points uniform over the strokes, taken every
 ``dt_s`` seconds while the machine warms (``temp_c = 20 + 4·(1 - exp(-t/2400 s))``),
 each approached from a random direction per axis, with isotropic Gaussian noise.
@@ -155,7 +155,7 @@ class TruthGrinder:
         return {"temp_c": np.full(n, REF_TEMP_C), "dir_x": np.ones(n), "dir_z": np.ones(n), "dir_a": np.ones(n)}
 
     def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed: int = 0, dt_s: float = 15.0) -> dict:
-        """Simulated check measurements in the DESIGN.md schema: a dict of columns, each shape (n,)."""
+        """Simulated check measurements in the docs/schemas.md schema: a dict of columns, each shape (n,)."""
         rng = np.random.default_rng(seed)
         axes = random_axes(self.machine, n, rng)
         t = np.arange(n) * dt_s

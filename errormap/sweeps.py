@@ -16,7 +16,7 @@ During the X sweep Z and A are parked at their lower stroke limits, during the Z
 X and A, and during the A sweep X and Z (the A sweep is taken with the X carriage at its
 first station, which the identification relies on).
 
-Sweep file (CSV, DESIGN.md "Axis sweeps"; leading ``#`` lines are provenance)::
+Sweep file (CSV, docs/schemas.md "Axis sweeps"; leading ``#`` lines are provenance)::
 
     axis,station,command,target,x_mm,y_mm,z_mm[,direction,time_s,temp_c]
 
@@ -46,6 +46,7 @@ REQUIRED_COLUMNS = ("axis", "station", "command", "target", "x_mm", "y_mm", "z_m
 OPTIONAL_COLUMNS = ("direction", "time_s", "temp_c")
 SWEEP_FORMAT = "volcomp-sweeps/1"
 REF_TEMP_C = 20.0
+MAX_STATION = 100_000  # station numbers count positions along one stroke; more is a typing mistake
 
 
 # -- rigid transforms as (R (n,3,3), t (n,3)) pairs ------------------------------------------
@@ -283,10 +284,11 @@ def columns_from_table(table) -> dict:
             if units[k] != want:
                 raise InputError(f"{table.path}: row {table.row_number(k)}, column 'command_unit': axis {axis[k]}, "
                                  f"station {cols['station'][k]}: expected {want!r}, got {units[k]!r} (mixed units)")
-    if np.any(cols["station"] < 0):
-        k = int(np.argmax(cols["station"] < 0))
-        raise InputError(f"{table.path}: row {table.row_number(k)}, column 'station': expected a station number >= 0, "
-                         f"got {cols['station'][k]}")
+    bad = (cols["station"] < 0) | (cols["station"] > MAX_STATION)
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise InputError(f"{table.path}: row {table.row_number(k)}, column 'station': expected a station number "
+                         f"0..{MAX_STATION}, got {cols['station'][k]}")
     return cols
 
 
@@ -317,11 +319,17 @@ def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "") 
         if sel.size == 0:
             continue
         st_numbers = np.unique(station[sel])
+        span = int(st_numbers.max()) - int(st_numbers.min()) + 1
+        if span != st_numbers.size:  # gaps: name the first few without building the whole range
+            missing = []
+            for g in np.flatnonzero(np.diff(st_numbers) > 1):
+                missing += range(int(st_numbers[g]) + 1, min(int(st_numbers[g + 1]), int(st_numbers[g]) + 11))
+                if len(missing) >= 10:
+                    break
+            more = span - st_numbers.size - len(missing[:10])
+            raise InputError(f"{source}: axis {ax}: station(s) {missing[:10]}{f' and {more} more' if more > 0 else ''} "
+                             f"missing (have {st_numbers.min()}..{st_numbers.max()} with gaps); every station is needed")
         full = np.arange(st_numbers.min(), st_numbers.max() + 1)
-        missing = np.setdiff1d(full, st_numbers)
-        if missing.size:
-            raise InputError(f"{source}: axis {ax}: station(s) {missing.tolist()} missing (have "
-                             f"{st_numbers.min()}..{st_numbers.max()} with gaps); every station is needed")
         m = full.size
         if m < 4:
             raise InputError(f"{source}: axis {ax}: expected at least 4 stations, got {m}")

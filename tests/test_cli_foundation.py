@@ -55,3 +55,104 @@ def test_simulate_effects_that_need_conditions(tmp_path, effect):
     assert main(["simulate", "--seed", "1", "--out", str(tmp_path), "--effect", effect, "--checks", "20"]) == 0
     info = json.loads((tmp_path / "truth.json").read_text())
     assert effect in info["effects"] and info["max_spatial_error_um"] > 150
+
+
+def test_command_help_lines_match_the_modules():
+    """The light `volcomp --help` table says what each command module registers."""
+    import argparse
+
+    from compensation.cli import COMMAND_HELP, build_parser
+    parser = build_parser()  # every module in full
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    registered = {c.dest: c.help for c in sub._choices_actions}
+    assert registered == COMMAND_HELP
+
+
+def test_help_and_version_import_no_numerical_library():
+    """`volcomp --help` / `--version` must not pay for numpy, torch, scipy, MLflow or matplotlib."""
+    import subprocess
+    import sys
+    code = ("import sys, contextlib, io\n"
+            "from compensation.cli import main\n"
+            "for argv in (['--help'], ['--version']):\n"
+            "    with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+            "        try: main(argv)\n"
+            "        except SystemExit as e: assert e.code == 0\n"
+            "    assert out.getvalue().startswith(('usage: volcomp', 'volcomp ')), out.getvalue()\n"
+            "heavy = sorted(m for m in ('numpy', 'torch', 'scipy', 'mlflow', 'matplotlib') if m in sys.modules)\n"
+            "assert not heavy, heavy\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+
+
+def test_error_line_is_one_line_and_bounded():
+    from compensation.cli import MAX_ERROR_CHARS, one_line
+    msg = "f.csv: row 2, column 'x': " + "x" * 10_000 + "\nsecond line"
+    s = one_line(msg)
+    assert len(s) <= MAX_ERROR_CHARS and "\n" not in s and s.startswith("f.csv: row 2")
+
+
+def test_provenance_paths_resolve_relative_to_the_file(tmp_path, monkeypatch):
+    """simulate run from one folder, the feature points used from another: elements_file still found."""
+    from training.trainers import reference_from_meta
+    work = tmp_path / "a"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main(["simulate", "--seed", "2", "--out", "sim", "--checks", "20"]) == 0
+    assert main(["featurepoints", "--elements", "sim/truth_elements.json", "--out", "fp/fp.csv", "--grid", "3"]) == 0
+    text = (work / "sim" / "featurepoints.csv").read_text()
+    assert "# elements_file: truth_elements.json" in text  # written relative to the CSV's folder
+    assert "# elements_file: ../sim/truth_elements.json" in (work / "fp" / "fp.csv").read_text()
+    other = tmp_path / "b"
+    other.mkdir()
+    monkeypatch.chdir(other)
+    for f in (work / "sim" / "featurepoints.csv", work / "fp" / "fp.csv"):
+        fp = FeaturePoints.load(f)
+        assert fp.meta["elements_file"] == str((work / "sim" / "truth_elements.json").resolve())
+        ref = reference_from_meta(fp.meta)
+        assert ref is not None
+        np.testing.assert_allclose(ref[1].predict(fp.axes), fp.errors_um, atol=TOL_UM)
+
+
+def test_predict_refuses_outside_the_calibrated_volume(tmp_path, capsys):
+    el = tmp_path / "el.json"
+    from errormap.machine import load_machine
+    ElementSet.zeros(load_machine()).save(el)
+    pts = tmp_path / "pts.csv"
+    pts.write_text("x_mm,z_mm,a_deg\n10,2,3\n1000000,2,3\n")
+    argv = ["predict", "--model", str(el), str(pts), "--out", str(tmp_path / "p.csv")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "row 3" in err and "x_mm" in err and "μm rather than mm" in err and "--allow extrapolate" in err
+    assert not (tmp_path / "p.csv").exists()
+    assert main(argv + ["--allow", "extrapolate"]) == 0
+
+
+@pytest.mark.parametrize("column, scale, named", [("x_mm", 1e-3, "metres rather than mm"),
+                                                  ("z_mm", 1e-3, "metres rather than mm"),
+                                                  ("a_deg", np.pi / 180, "radians rather than degrees")])
+def test_checks_in_metres_or_radians_are_refused(tmp_path, column, scale, named):
+    from errormap.diagnosis.checks import load_checks
+    from errormap.io import InputError, write_csv
+    from errormap.machine import load_machine
+    machine = load_machine()
+    assert main(["simulate", "--seed", "1", "--out", str(tmp_path / "sim"), "--checks", "40"]) == 0
+    t = read_table(tmp_path / "sim" / "checks.csv")
+    d = {c: t.float(c) for c in t.names}
+    load_checks(tmp_path / "sim" / "checks.csv", machine)  # as simulated: accepted
+    d[column] = d[column] * scale
+    write_csv(tmp_path / "c.csv", d)
+    with pytest.raises(InputError, match=named) as exc:
+        load_checks(tmp_path / "c.csv", machine)
+    assert f"column '{column}'" in str(exc.value)
+
+
+def test_a_small_region_in_mm_is_not_taken_for_metres():
+    from errormap.machine import axes_unit_mistake, load_machine
+    m = load_machine()
+    rng = np.random.default_rng(0)
+    small = np.c_[100 + 0.5 * rng.random(40), 30 + 0.05 * rng.random(40), 360 * rng.random(40)]
+    assert axes_unit_mistake(small, m) is None
+    metres = small.copy()
+    metres[:, 0] = 0.2 * rng.random(40)
+    assert axes_unit_mistake(metres, m)[1] == 0

@@ -177,6 +177,62 @@ def test_load_rejects_a_folder_that_is_not_a_model(tmp_path):
         MLPField.load(tmp_path)
 
 
+def test_save_is_a_set_a_crash_between_files_leaves_the_old_model(tmp_path, monkeypatch):
+    """A crash after the new scalers but before the new weights must leave the old model whole."""
+    import training.model as tm
+    old, new = random_model(seed=3), random_model(seed=4)
+    new.out_mean_ = -old.out_mean_  # a different scaler: mixed with old weights it would flip signs
+    old.save(tmp_path / "m")
+    axes = np.random.default_rng(5).random((50, 3)) * [200, 60, 360]
+
+    def crash(*a, **k):
+        raise OSError("simulated crash between scalers.json and weights.npy")
+    monkeypatch.setattr(tm.np, "save", crash)
+    with pytest.raises(OSError, match="simulated crash"):
+        new.save(tmp_path / "m")
+    monkeypatch.undo()
+    assert np.array_equal(MLPField.load(tmp_path / "m").predict(axes), old.predict(axes))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m"]  # no temporary folder left behind
+    new.save(tmp_path / "m")  # a completed save replaces the set
+    assert np.array_equal(MLPField.load(tmp_path / "m").predict(axes), new.predict(axes))
+
+
+def test_load_refuses_a_mixed_set(tmp_path):
+    """Files of two saves in one folder (e.g. copied by hand, or an old partial write) never load."""
+    import shutil
+    random_model(seed=3).save(tmp_path / "a")
+    random_model(seed=4).save(tmp_path / "b")
+    shutil.copy(tmp_path / "b" / "weights.npy", tmp_path / "a" / "weights.npy")
+    with pytest.raises(InputError, match="weights.npy: does not belong to this model"):
+        MLPField.load(tmp_path / "a")
+
+
+def test_run_folder_is_written_as_a_set(smooth_data, tmp_path, monkeypatch):
+    """fit_field(out_dir=) replaces the run folder whole; a crash while writing it keeps the old run."""
+    import training.plots
+    fp, val = smooth_data
+    kw = dict(validation=val, track=False, quiet=True, max_iter=2, hidden=SMALL_NET)
+    first = fit_field(fp, out_dir=tmp_path / "run", seed=0, **kw)
+    before = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert before["iterations"] == 2 and before["trainer"] == "lm"
+
+    def crash(*a, **k):
+        raise OSError("simulated crash while writing the plots")
+    monkeypatch.setattr(training.plots, "fit_plots", crash)
+    with pytest.raises(OSError, match="simulated crash"):
+        fit_field(fp, out_dir=tmp_path / "run", seed=1, **kw)
+    monkeypatch.undo()
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text()) == before
+    axes = val[0][:20]
+    assert np.array_equal(MLPField.load(tmp_path / "run" / "model").predict(axes), first.field.predict(axes))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    # a folder holding files a run did not write is refused before training (it would be replaced)
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep me")
+    with pytest.raises(InputError, match="notes.txt"):
+        fit_field(fp, out_dir=tmp_path / "mine", **kw)
+
+
 # -- training -------------------------------------------------------------------------------
 def test_lm_reaches_tolerance_on_a_smooth_field(tracked_fit):
     m = tracked_fit.metrics
@@ -363,14 +419,14 @@ def test_child_run_records_its_parent(tracked_fit, smooth_data, store):
     assert tags["mlflow.parentRunId"] == tracked_fit.run_id
 
 
-def test_default_tracking_uri(monkeypatch):
-    import training
+def test_default_tracking_uri(monkeypatch, tmp_path):
     from training.tracking import default_tracking_uri
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "http://example.invalid:5000")
     assert default_tracking_uri() == "http://example.invalid:5000"
     monkeypatch.delenv("MLFLOW_TRACKING_URI")
-    root = Path(training.__file__).resolve().parents[1]
-    assert default_tracking_uri() == f"sqlite:///{root / 'runs' / 'mlflow.db'}"
+    # relative to the working folder, never inside the installed package
+    monkeypatch.chdir(tmp_path)
+    assert default_tracking_uri() == f"sqlite:///{tmp_path.resolve() / 'runs' / 'mlflow.db'}"
 
 
 # -- CLI ------------------------------------------------------------------------------------
@@ -426,3 +482,46 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
                                best.metrics["selection_max_um"], rtol=SELECTION_TOL_REL)
     sel_last = np.abs(last.field.predict(sel_axes) - sel_err).max()
     assert best.metrics["selection_max_um"] <= sel_last * (1 + SELECTION_TOL_REL)
+
+
+def test_cli_train_is_reproducible_and_a_time_budget_says_how_to_repeat_it(tmp_path, monkeypatch, capsys):
+    """Default training stops on iterations; a --max-time run records the iterations it reached,
+    and --max-iter with that number gives the same weights bit for bit."""
+    from compensation.cli import main
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}")
+    assert main(["simulate", "--seed", "0", "--out", str(tmp_path / "sim"), "--checks", "20"]) == 0
+    fp = str(tmp_path / "sim" / "featurepoints.csv")
+    common = ["--hidden", "6,6", "--threads", "1", "--no-select", "--seed", "3"]
+    assert main(["train", fp, "--out", str(tmp_path / "t"), "--max-time", "2", "--max-iter", "100000"] + common) == 0
+    out = capsys.readouterr().out
+    m = json.loads((tmp_path / "t" / "metrics.json").read_text())
+    n = m["reproduce_with_max_iter"]
+    assert m["stop_reason"].startswith("time budget") and n == m["iterations"] >= 1
+    assert f"--max-iter {n}" in out
+    assert main(["train", fp, "--out", str(tmp_path / "r"), "--max-iter", str(n)] + common) == 0
+    r = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert r["stop_reason"] == f"max iterations {n}" and "reproduce_with_max_iter" not in r
+    w1 = np.load(tmp_path / "t" / "model" / "weights.npy")
+    w2 = np.load(tmp_path / "r" / "model" / "weights.npy")
+    assert np.array_equal(w1, w2)
+
+
+@pytest.mark.parametrize("mistake, column, named", [
+    (lambda d: d.__setitem__("x_mm", d["x_mm"] / 1000), "x_mm", "metres rather than mm"),
+    (lambda d: d.__setitem__("a_deg", np.deg2rad(d["a_deg"])), "a_deg", "radians rather than degrees"),
+    (lambda d: [d.__setitem__(c, d[c] / 1000) for c in ("dx_um", "dy_um", "dz_um")], None, "mm rather than μm"),
+    (lambda d: d.__setitem__("dy_um", d["dy_um"] * 1000), "dy_um", "not nm, not a position"),
+])
+def test_cli_train_names_the_unit_mistake(tmp_path, capsys, mistake, column, named):
+    from compensation.cli import main
+    from errormap.io import read_table, write_csv
+    assert main(["simulate", "--seed", "0", "--out", str(tmp_path / "sim"), "--checks", "20"]) == 0
+    t = read_table(tmp_path / "sim" / "featurepoints.csv")
+    d = {c: t.float(c) for c in t.names}
+    mistake(d)
+    write_csv(tmp_path / "fp.csv", d, header_comments=t.comments)
+    capsys.readouterr()
+    assert main(["train", str(tmp_path / "fp.csv"), "--out", str(tmp_path / "o"), "--max-iter", "1"]) == 2
+    err = capsys.readouterr().err
+    assert named in err and "row " in err and (column is None or f"column '{column}'" in err)
+    assert not (tmp_path / "o").exists()

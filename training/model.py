@@ -57,10 +57,11 @@ import numpy as np
 import torch
 from torch.func import jvp
 
-from errormap.io import InputError, atomic_write, write_json
+from errormap.io import InputError, atomic_dir, atomic_write, sha256_file, write_json
 from errormap.transforms import check_points
 
 FORMAT = "volcomp-mlpfield/1"
+MODEL_FILES = ("scalers.json", "weights.npy")  # config.json records their SHA-256
 PAPER_HIDDEN = (10, 15, 25, 15, 10)
 ACTIVATIONS = {"sigmoid": torch.sigmoid, "tanh": torch.tanh, "softplus": torch.nn.functional.softplus}
 A_ENCODINGS = ("raw", "periodic")
@@ -568,25 +569,49 @@ class MLPField:
                 "out_mean_um": self.out_mean_, "out_scale_um": self.out_scale_}
 
     def save(self, directory) -> Path:
-        """Write ``config.json``, ``scalers.json`` and ``weights.npy`` (float64) into ``directory``."""
+        """Write ``config.json``, ``scalers.json`` and ``weights.npy`` (float64) as one set.
+
+        The three files are written into a temporary folder beside ``directory`` which then
+        replaces ``directory`` whole (:func:`errormap.io.atomic_dir`): a crash leaves the old
+        model or none, never new scalers beside old weights. ``config.json`` (written last)
+        records the SHA-256 of the other two files, and :meth:`load` refuses a set whose files
+        do not match it. ``directory`` must be a model folder of its own (it is replaced).
+        """
         d = Path(directory)
-        d.mkdir(parents=True, exist_ok=True)
-        write_json(d / "config.json", self.config())
-        # repr() round-trips float64 exactly through JSON
-        write_json(d / "scalers.json", {k: (np.asarray(v).tolist()) for k, v in self.scalers().items()})
-        with atomic_write(d / "weights.npy", "wb") as fh:
-            np.save(fh, self._theta().detach().numpy())
+        if d.is_dir():
+            foreign = sorted(p.name for p in d.iterdir() if p.name not in ("config.json",) + MODEL_FILES)
+            if foreign:
+                raise InputError(f"{d}: a saved model replaces this folder whole, and it holds other files "
+                                 f"({', '.join(foreign[:5])}); give a folder of its own")
+        with atomic_dir(d) as tmp:
+            # repr() round-trips float64 exactly through JSON
+            write_json(tmp / "scalers.json", {k: (np.asarray(v).tolist()) for k, v in self.scalers().items()})
+            with atomic_write(tmp / "weights.npy", "wb") as fh:
+                np.save(fh, self._theta().detach().numpy())
+            files = {n: sha256_file(tmp / n) for n in MODEL_FILES}
+            write_json(tmp / "config.json", {**self.config(), "files_sha256": files})
         return d
 
     @classmethod
     def load(cls, directory) -> "MLPField":
+        """Load a folder written by :meth:`save`; raises :class:`InputError` for a missing file,
+        another format or a file whose SHA-256 differs from the one ``config.json`` records."""
         d = Path(directory)
-        for name in ("config.json", "scalers.json", "weights.npy"):
+        for name in ("config.json",) + MODEL_FILES:
             if not (d / name).is_file():
                 raise InputError(f"{d}: not a saved MLPField (missing {name})")
-        cfg = json.loads((d / "config.json").read_text(encoding="utf-8"))
-        if cfg.get("format") != FORMAT:
-            raise InputError(f"{d / 'config.json'}: key 'format': expected {FORMAT!r}, got {cfg.get('format')!r}")
+        try:
+            cfg = json.loads((d / "config.json").read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{d / 'config.json'}: not valid JSON: {exc}") from None
+        if not isinstance(cfg, dict) or cfg.get("format") != FORMAT:
+            got = cfg.get("format") if isinstance(cfg, dict) else cfg
+            raise InputError(f"{d / 'config.json'}: key 'format': expected {FORMAT!r}, got {got!r}")
+        # folders saved before the set was recorded carry no files_sha256 (MLflow runs kept from then)
+        for name, sha in (cfg.get("files_sha256") or {}).items():
+            if name in MODEL_FILES and sha256_file(d / name) != sha:
+                raise InputError(f"{d / name}: does not belong to this model (SHA-256 differs from the one "
+                                 f"config.json records); the folder holds a partial or mixed set")
         m = cls(cfg["hidden"], cfg["activation"], cfg["a_encoding"])
         sc = json.loads((d / "scalers.json").read_text(encoding="utf-8"))
         m.in_lo_ = np.asarray(sc["in_lo"], dtype=float)

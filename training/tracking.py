@@ -2,8 +2,8 @@
 
 Store: ``MLFLOW_TRACKING_URI`` when set (or an explicit ``tracking_uri``: a tracking server
 ``http://host:port`` or any MLflow URI); otherwise an embedded SQLite store at
-``<project root>/runs/mlflow.db`` with artifacts under ``<project root>/runs/artifacts``,
-the project root found from this package's location (never the working directory).
+``runs/mlflow.db`` with artifacts under ``runs/artifacts``, relative to the working folder
+(as MLflow's own default ``./mlruns`` is; never inside the installed package).
 No server is needed for the default. For any ``sqlite:///…/name.db`` store the experiment's
 artifacts go to ``artifacts/`` beside the database file (MLflow would otherwise put them
 under the working directory).
@@ -24,19 +24,16 @@ from pathlib import Path
 
 from errormap.io import InputError
 
-import training
-
-PROJECT_ROOT = Path(training.__file__).resolve().parents[1]
 RUN_ID_RE = re.compile(r"^[0-9a-f]{32}$")
 MODEL_ARTIFACT = "model"
 
 
 def default_tracking_uri() -> str:
-    """``MLFLOW_TRACKING_URI`` if set, else ``sqlite:///<project root>/runs/mlflow.db``."""
+    """``MLFLOW_TRACKING_URI`` if set, else ``sqlite:///<working folder>/runs/mlflow.db`` (absolute)."""
     env = os.environ.get("MLFLOW_TRACKING_URI")
     if env:
         return env
-    return f"sqlite:///{PROJECT_ROOT / 'runs' / 'mlflow.db'}"
+    return f"sqlite:///{Path.cwd().resolve() / 'runs' / 'mlflow.db'}"
 
 
 def _artifact_root(uri: str) -> str | None:

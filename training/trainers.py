@@ -17,6 +17,7 @@ MLflow run (:mod:`training.tracking`).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import math
@@ -208,11 +209,14 @@ def reference_from_meta(meta: dict):
     """(machine, HTM field) from a feature-point file's provenance, or None when not available."""
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
-    from errormap.machine import load_machine
+    from errormap.machine import builtin_machine_path, load_machine
     el = meta.get("elements_file")
     if not el or not Path(el).is_file():
         return None
-    machine = load_machine(meta.get("machine_file") or None, expect_kind="grinder")
+    mf = meta.get("machine_file") or None
+    if mf and not Path(mf).is_file() and meta.get("machine_sha256") == sha256_file(builtin_machine_path()):
+        mf = None  # the built-in machine, recorded by another installation's path
+    machine = load_machine(mf, expect_kind="grinder")
     return machine, HTMField(machine, ElementSet.load(el))
 
 
@@ -222,6 +226,23 @@ def data_hash(axes, errors) -> str:
     h.update(np.ascontiguousarray(axes, dtype=np.float64).tobytes())
     h.update(np.ascontiguousarray(errors, dtype=np.float64).tobytes())
     return h.hexdigest()
+
+
+RUN_FOLDER_FILES = ("model", "metrics.json", "fit_error_xz.png", "fit_featurepoints.png")
+
+
+def check_run_folder(out_dir) -> None:
+    """Refuse an existing ``out_dir`` that holds anything a training run did not write: the run
+    folder is replaced as a whole, so nothing else may live in it."""
+    d = Path(out_dir)
+    if d.exists() and not d.is_dir():
+        raise InputError(f"{d}: expected a folder for the training run, got a file")
+    if d.is_dir():
+        foreign = sorted(p.name for p in d.iterdir() if p.name not in RUN_FOLDER_FILES)
+        if foreign:
+            raise InputError(f"{d}: the training run replaces this folder whole, and it holds files a run did not "
+                             f"write ({', '.join(foreign[:5])}{', ...' if len(foreign) > 5 else ''}); give a new or "
+                             "empty folder")
 
 
 # -- fit_field ----------------------------------------------------------------------------
@@ -319,6 +340,8 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
         raise ValueError(f"Expected init in {INITS}, got {init!r}")
     if not (max_time_s > 0):
         raise ValueError(f"Expected max_time_s > 0, got {max_time_s}")
+    if out_dir is not None:
+        check_run_folder(out_dir)
     axes, errors = np.asarray(featurepoints.axes, float), np.asarray(featurepoints.errors_um, float)
     meta = dict(getattr(featurepoints, "meta", {}) or {})
     ref = reference_from_meta(meta)
@@ -380,13 +403,19 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
                        "geodesic": settings.geodesic, "max_err_goal_um": max_err_goal_um})
     run_id = None
     if track or out_dir is not None:
+        from errormap.io import atomic_dir, write_json
+
         from .plots import fit_plots
-        with tempfile.TemporaryDirectory(prefix="volcomp-fit-") as tmp:
-            d = Path(out_dir) if out_dir is not None else Path(tmp)
+        summary = {**metrics, "stop_reason": hist.stop_reason, "trainer": trainer, "seconds": hist.seconds}
+        if hist.stop_reason.startswith("time budget"):  # the machine's speed decided: say how to repeat it
+            summary["reproduce_with_max_iter"] = hist.iterations
+        with contextlib.ExitStack() as stack:
+            # the run folder is written as a set: a temporary folder that replaces out_dir at the end
+            d = stack.enter_context(atomic_dir(out_dir)) if out_dir is not None else \
+                Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="volcomp-fit-")))
             model.save(d / "model")
             plots = fit_plots(model, axes, errors, d, reference=ref[1] if ref else None)
-            from errormap.io import write_json
-            write_json(d / "metrics.json", {**metrics, "stop_reason": hist.stop_reason})
+            write_json(d / "metrics.json", summary)
             if track:
                 from .tracking import log_fit
                 all_tags = {"machine": meta.get("machine", ""), **(tags or {})}
@@ -394,5 +423,5 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
                                  tracking_uri=tracking_uri, run_name=run_name, parent_run_id=parent_run_id,
                                  tags=all_tags, experiment=experiment)
                 if out_dir is not None:
-                    write_json(d / "metrics.json", {**metrics, "stop_reason": hist.stop_reason, "run_id": run_id})
+                    write_json(d / "metrics.json", {**summary, "run_id": run_id})
     return FitResult(model, metrics, run_id, hist.seconds, hist, params)

@@ -16,7 +16,7 @@ Order of work, so that DIR only ever holds whole files of one run:
 4. the accepted files are written as one set (each in full to a temporary file, then all
    renamed into place); ``compensate_summary.json`` last.
 
-Guards (:mod:`compensation.guards`), the same for every method: a file whose compensated
+Guards (docs/kinematics.md; :mod:`compensation.guards`), the same for every method: a file whose compensated
 commands — or the nominal axes of their targets — leave the strokes (``stroke``) or the
 field's calibrated volume (``volume``), whose corrections leave the 250 μm ball
 (``ball``), or whose solver did not converge (``convergence``) is refused — not written —

@@ -8,11 +8,13 @@ showing the MODEL residual (the trained network's own view) and the TRUE residua
 simulated machine). The report files are also logged to the training's MLflow run.
 
 Defaults finish in about 3–4 minutes on 2 CPU cores (192 s measured, BENCHMARKS.md):
-training stops after ``--train-s`` seconds, the per-point GA after ``--ga-budget-s``.
+training stops after ``--train-iter`` LM iterations (a fixed count, so the model is the same on any
+machine; ``--train-s`` adds a wall-clock limit), the per-point GA after ``--ga-budget-s``.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -29,7 +31,7 @@ from ..toolpath import check_in_strokes
 from . import simulate as simulate_cmd
 from .report import add_flute_arguments, add_method_arguments, flute_from_args, parse_methods
 
-DEFAULT_TRAIN_S = 240.0
+DEFAULT_TRAIN_ITER = 1000  # as `volcomp train`; the MSE goal usually stops LM earlier (92 s measured)
 DEFAULT_DEMO_GA_BUDGET_S = 90.0
 
 
@@ -42,9 +44,12 @@ def register(sub):
     p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
     p.add_argument("--sim-seed", type=int, default=0, help="seed of the simulated truth machine")
     p.add_argument("--tracking-uri", default=None,
-                   help="MLflow tracking URI (default: the training package's default store under runs/)")
-    p.add_argument("--train-s", type=float, default=DEFAULT_TRAIN_S,
-                   help=f"training time limit in seconds (default {DEFAULT_TRAIN_S:g})")
+                   help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else runs/mlflow.db under the working folder)")
+    p.add_argument("--train-iter", type=int, default=DEFAULT_TRAIN_ITER,
+                   help=f"LM iterations (default {DEFAULT_TRAIN_ITER}; the same model on any machine)")
+    p.add_argument("--train-s", type=float, default=None,
+                   help="also stop training after this many seconds (off by default: it makes the model depend "
+                        "on the machine's load)")
     p.add_argument("--trainer", default="lm", help="trainer passed to training.fit_field (default lm)")
     p.add_argument("--hidden", default=None,
                    help="hidden layer sizes, comma-separated (default: the training package's, the paper's 10,15,25,15,10)")
@@ -64,7 +69,8 @@ def train_field(fp_path: Path, machine, args, log=None):
     fit_field = getattr(training, "fit_field", None)
     if fit_field is None:
         return None, None
-    kwargs = {"trainer": args.trainer, "max_time_s": args.train_s, "seed": args.seed}
+    kwargs = {"trainer": args.trainer, "max_iter": args.train_iter, "seed": args.seed,
+              "max_time_s": args.train_s if args.train_s is not None else math.inf}
     if args.tracking_uri:
         kwargs["tracking_uri"] = args.tracking_uri
     if args.hidden:
@@ -74,7 +80,8 @@ def train_field(fp_path: Path, machine, args, log=None):
             raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
     fp = FeaturePoints.load(fp_path)
     print(f"training the BP network on {len(fp.axes)} feature points ({args.trainer}, "
-          f"at most {args.train_s:g} s) ...", file=log)
+          f"at most {args.train_iter} iterations" + (f", {args.train_s:g} s" if args.train_s else "") + ") ...",
+          file=log)
     res = fit_field(fp, **kwargs)
     run_id = getattr(res, "run_id", None)
     metrics = dict(getattr(res, "metrics", {}) or {})

@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from errormap.io import read_table, write_csv
+from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
 
 from ..fields import load_field
@@ -18,7 +18,25 @@ def register(sub):
     p.add_argument("--tracking-uri", default=None)
     p.add_argument("points", help="CSV with x_mm, z_mm, a_deg")
     p.add_argument("--out", required=True, help="output CSV (input columns + dx_um, dy_um, dz_um)")
+    p.add_argument("--allow", action="append", default=[], choices=("extrapolate",),
+                   help="extrapolate: predict also at points outside the model's calibrated volume "
+                        "(refused by default: a model says nothing reliable there)")
     p.set_defaults(func=run)
+
+
+def _check_volume(args, table, axes, field) -> None:
+    """Refuse points outside the field's calibrated volume (unless ``--allow extrapolate``),
+    naming the first one's row and column; a far-off value is most often a unit mistake."""
+    from ..guards import calibrated_volume, volume_violations
+    bad, reasons = volume_violations(axes, field)
+    if not len(bad) or "extrapolate" in args.allow:
+        return
+    lo, hi = calibrated_volume(field)
+    i = int(bad[0])
+    far = np.abs(axes[i, :2]) > 100 * np.maximum(np.abs(lo[:2]), np.abs(hi[:2]))
+    hint = "; positions in μm rather than mm?" if far.any() else ""
+    raise InputError(f"{table.path}: row {table.row_number(i)}: {reasons[0]} ({len(bad)} of {len(axes)} points "
+                     f"outside the calibrated volume{hint}); pass --allow extrapolate to predict there anyway")
 
 
 def run(args) -> int:
@@ -27,6 +45,7 @@ def run(args) -> int:
     t.require("x_mm", "z_mm", "a_deg")
     axes = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
     field = load_field(args.model, machine, args.tracking_uri)
+    _check_volume(args, t, axes, field)
     print(f"predicting {len(axes)} points with {args.model} ...", file=sys.stderr)
     e = field.predict(axes)
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}

@@ -27,8 +27,11 @@ def register(sub):
 
 
 def run(args) -> int:
-    if args.noise_um < 0:
-        raise ValueError("--noise-um must be >= 0")
+    from ..cli import UsageError
+    if not args.noise_um >= 0:
+        raise UsageError(f"--noise-um: expected a number >= 0, got {args.noise_um}")
+    if args.checks < 1:
+        raise UsageError(f"--checks: expected at least 1, got {args.checks}")
     machine = load_machine(args.machine, expect_kind="grinder")
     out = Path(args.out)
     print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)

@@ -5,13 +5,13 @@ Conventions (all solvers):
 * Targets ``p_d`` and commands ``p_r`` are WCS points, shape (n, 3), mm.
 * Axes are ``(x_mm, z_mm, a_deg)``, shape (n, 3). The field is always evaluated with A
   folded into the calibrated turn ``[a_lo, a_lo + 360)`` of the A stroke when that stroke
-  spans a full turn (errors are periodic in A, DESIGN.md), so multi-turn commands never
+  spans a full turn (errors are periodic in A, docs/kinematics.md), so multi-turn commands never
   reach a field outside its training range.
 * A continuity: the axis command of ``p_r`` takes the A turn of its own target, i.e.
   ``a_r = a_d + wrap180(a_r - a_d)``, where the targets' A is unwrapped along the path
   (``kinematics.inverse(unwrap=True)``) or given by the caller (``target_axes``). A path
   whose targets are continuous therefore gets continuous compensated A, never a 360° jump.
-* The model residual is ``(p_r - p_d)·1e3 + E(axes(p_r))`` μm (DESIGN.md residual 1).
+* The model residual is ``(p_r - p_d)·1e3 + E(axes(p_r))`` μm (residual 1 of docs/kinematics.md).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Check measurements (DESIGN.md schema) for diagnosis: loading, validation, the measured residual.
+"""Check measurements (schema in docs/schemas.md) for diagnosis: loading, validation, the measured residual.
 
 Columns: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um`` (required); ``time_s``, ``temp_c``,
 ``dir_x``, ``dir_z``, ``dir_a`` (+1/-1), ``seq`` (order taken) optional; extra columns are kept
@@ -122,6 +122,12 @@ def load_checks(path, machine) -> CheckData:
         if bad.size:
             raise _fail(path, rows[bad[0]], "temp_c",
                         f"units do not fit: {tc[bad[0]]:g} is outside {TEMP_RANGE_C} °C (kelvin or fahrenheit?)")
+    # positions in metres, angles in radians
+    from ..machine import axes_unit_mistake
+    mistake = axes_unit_mistake(axes, machine)
+    if mistake is not None:
+        k, j, msg = mistake
+        raise _fail(path, rows[k], AXES_COLUMNS[j], f"units do not fit: {msg}")
     # strokes (A is periodic: any finite value passes)
     for j, c in enumerate(AXES_COLUMNS[:2]):
         lo, hi = machine.strokes[c]

@@ -131,7 +131,7 @@ class PoseData:
 
 
 def read_poses(path, machine: PKM) -> PoseData:
-    """Read a PKM pose-measurement CSV (schema in DESIGN.md / docs/pkm.md).
+    """Read a PKM pose-measurement CSV (schema in docs/schemas.md / docs/pkm.md).
 
     Legs: ``l1_mm..lk_mm`` (commanded lengths, converted to drive units with the machine file's
     nominal scale/offset) or ``q1..qk``; pose: ``x_mm, y_mm, z_mm`` plus, for the hexapod,

@@ -204,8 +204,7 @@ def parse_hexapod(doc: dict, path, sha: str = "") -> PKM:
 
     base, plat = _joints(g, 6, path, from_radii)
     lt = _expect_number(g, "tool_length_mm", "geometry", path)
-    tip = np.asarray(home.get("tool_tip_mm", [0.0, 0.0, 980.0]))
-    tip = expect_array(tip, (3,), "home.tool_tip_mm", path)
+    tip = expect_array(home.get("tool_tip_mm", [0.0, 0.0, 980.0]), (3,), "home.tool_tip_mm", path)
     return PKM(kind="hexapod", name=name, base_joints_mm=base, platform_joints_mm=plat,
                tool_in_platform_mm=np.array([0.0, 0.0, -lt]), leg_min_mm=lo, leg_max_mm=hi,
                leg_scale=scale, leg_offset_mm=offset, home_tool_tip_mm=tip, path=str(path), sha256=sha,

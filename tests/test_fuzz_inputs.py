@@ -1,0 +1,265 @@
+"""Every reader, fuzzed: a mangled input file either reads or raises the project's own error.
+
+Each test starts from a valid file and applies one random mutation (a cell replaced by random
+text or an absurd number, raw bytes inserted, a UTF-8 BOM, Latin-1 text, a line dropped or
+doubled, the file cut short). The readers are the CSV ones (sweeps, checks, tool paths, feature
+points), the element-set JSON and the machine TOML of every kind; and ``compensation.cli.main``
+on the fast commands: nothing but exit 0 or 2 with one bounded line may come out of it.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from compensation.cli import MAX_ERROR_CHARS, UsageError, main
+from errormap.io import InputError
+from errormap.machine import MachineFileError, builtin_machine_path, load_machine
+
+PROJECT_ERRORS = (InputError, MachineFileError, UsageError)
+FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+ABSURD = ["", " ", "nan", "inf", "-inf", "1e308", "1e400", "-1e300", "10000000000", "1e6", "6.283",
+          "0x10", "1_000", "１２", "true", "[1]", '"', '""', "a,b", "\x00", "ü", "\ufeff1", "1e-320", "-0"]
+cell = st.one_of(st.sampled_from(ABSURD), st.text(max_size=12),
+                 st.floats(allow_nan=True, allow_infinity=True).map(repr),
+                 st.integers(min_value=-10**30, max_value=10**30).map(str))
+
+
+@st.composite
+def mangled(draw, text: str) -> bytes:
+    """``text`` (a valid file) with one random mutation, as bytes."""
+    lines = text.split("\n")
+    kind = draw(st.sampled_from(["cell", "cell", "cell", "bytes", "bom", "latin1", "drop", "double", "cut"]))
+    if kind == "cell":
+        k = draw(st.integers(0, len(lines) - 1))
+        cells = lines[k].split(",")
+        j = draw(st.integers(0, len(cells) - 1))
+        cells[j] = draw(cell)
+        lines[k] = ",".join(cells)
+    elif kind in ("drop", "double"):
+        k = draw(st.integers(0, len(lines) - 1))
+        lines[k:k + 1] = [] if kind == "drop" else [lines[k], lines[k]]
+    raw = "\n".join(lines).encode("utf-8")
+    if kind == "bytes":
+        k = draw(st.integers(0, len(raw)))
+        raw = raw[:k] + draw(st.binary(min_size=1, max_size=4)) + raw[k:]
+    elif kind == "bom":
+        raw = b"\xef\xbb\xbf" + raw
+    elif kind == "latin1":
+        raw = ("# M\u00fcller\n" + "\n".join(lines)).encode("latin-1", errors="replace")
+    elif kind == "cut":
+        raw = raw[:draw(st.integers(0, len(raw)))]
+    return raw
+
+
+def reads_or_refuses(reader, raw: bytes, suffix: str):
+    """Write ``raw``, call ``reader(path)``: it returns, or raises one of the project's errors."""
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / f"input{suffix}"
+        p.write_bytes(raw)
+        try:
+            reader(p)
+        except PROJECT_ERRORS as exc:
+            assert str(p) in str(exc) or "no sweep" in str(exc)
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return load_machine(None)
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim")
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["simulate", "--seed", "3", "--out", str(out / "sim"), "--checks", "30"]) == 0
+        assert main(["sweeps", "--seed", "3", "--out", str(out / "sweeps.csv")]) == 0
+    return out
+
+
+def _head(path: Path, n_data: int) -> str:
+    """The comment lines, the header and the first ``n_data`` rows of a CSV."""
+    lines = path.read_text(encoding="utf-8").split("\n")
+    h = next(i for i, l in enumerate(lines) if l and not l.startswith("#"))
+    return "\n".join(lines[: h + 1 + n_data]) + "\n"
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_checks_reader(sim, machine, data):
+    from errormap.diagnosis.checks import load_checks
+    raw = data.draw(mangled(_head(sim / "sim" / "checks.csv", 30)))
+    reads_or_refuses(lambda p: load_checks(p, machine), raw, ".csv")
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_featurepoints_reader(sim, machine, data):
+    from errormap.featurepoints import FeaturePoints
+    raw = data.draw(mangled(_head(sim / "sim" / "featurepoints.csv", 40)))
+    reads_or_refuses(lambda p: FeaturePoints.load(p).check_units(machine), raw, ".csv")
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_sweeps_reader(sim, data):
+    from errormap.sweeps import read_sweeps
+    text = (sim / "sweeps.csv").read_text(encoding="utf-8")
+    raw = data.draw(mangled(text))
+    reads_or_refuses(lambda p: read_sweeps([p]), raw, ".csv")
+
+
+@FUZZ
+@given(data=st.data(), targets=st.booleans())
+def test_fuzz_toolpath_csv_reader(machine, data, targets):
+    from compensation.pathio import read_path
+    text = ("px_mm,py_mm,pz_mm\n-250,10,200\n-260,20,205\n-270,0,210\n" if targets else
+            "x_mm,z_mm,a_deg,feed\n10,5,0,100\n20,6,45,100\n30,7,90,100\n")
+    raw = data.draw(mangled(text))
+    reads_or_refuses(lambda p: read_path(p, machine), raw, ".csv")
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_element_set_reader(sim, data):
+    from errormap.elements import ElementSet
+    d = json.loads((sim / "sim" / "truth_elements.json").read_text())
+    # one value anywhere in the document replaced by an absurd JSON value, or the bytes mangled
+    paths = []
+
+    def walk(o, at):
+        if isinstance(o, dict):
+            for k, v in o.items():
+                walk(v, at + [k])
+        elif isinstance(o, list):
+            for i, v in enumerate(o[:3]):
+                walk(v, at + [i])
+        paths.append(at)
+    walk(d, [])
+    at = data.draw(st.sampled_from(paths[:-1]))
+    value = data.draw(st.one_of(st.sampled_from([None, True, "x", [], {}, [[1, 2], 3], 1e308, -1e308, 10**400]),
+                                st.floats(allow_nan=True, allow_infinity=True)))
+    o = d
+    for k in at[:-1]:
+        o = o[k]
+    o[at[-1]] = value
+    text = json.dumps(d, allow_nan=True)
+    raw = data.draw(st.one_of(st.just(text.encode()), mangled(text)))
+    reads_or_refuses(ElementSet.load, raw, ".json")
+
+
+TOML_VALUES = st.one_of(
+    st.sampled_from(['["grinder"]', '"grinder"', '"hexapod"', '"tripod"', "1e308", "-1e308", "nan", "inf",
+                     "true", '"x"', "[]", "[[0, 0], 1]", "[1, 2]", "[0, 6.283]", "[[1,2,3],[4,5,6]]",
+                     "{a = 1}", "1979-05-27", "99999999999999999999999999", "0", "-1", "[true, 1, 2]",
+                     '[1, "a", 2]', "[[1,2,3],[4,5,6],[7,8]]"]),
+    st.floats(allow_nan=False, allow_infinity=False, width=64).map(repr))
+
+
+@st.composite
+def mangled_toml(draw, text: str) -> bytes:
+    lines = text.split("\n")
+    keyed = [i for i, l in enumerate(lines) if "=" in l and not l.lstrip().startswith("#")]
+    kind = draw(st.sampled_from(["value", "value", "value", "drop", "extra", "bytes"]))
+    if kind == "value":
+        k = draw(st.sampled_from(keyed))
+        lines[k] = lines[k].split("=", 1)[0] + "= " + draw(TOML_VALUES)
+    elif kind == "drop":
+        del lines[draw(st.sampled_from(keyed))]
+    elif kind == "extra":
+        lines.insert(draw(st.integers(0, len(lines))), "zz = 1")
+    raw = "\n".join(lines).encode("utf-8")
+    if kind == "bytes":
+        k = draw(st.integers(0, len(raw)))
+        raw = raw[:k] + draw(st.binary(min_size=1, max_size=3)) + raw[k:]
+    return raw
+
+
+@pytest.mark.parametrize("kind", ["grinder", "hexapod", "tripod"])
+@FUZZ
+@given(data=st.data())
+def test_fuzz_machine_files(kind, data):
+    raw = data.draw(mangled_toml(builtin_machine_path(kind).read_text(encoding="utf-8")))
+    reads_or_refuses(load_machine, raw, ".toml")
+
+
+# -- through the command line ----------------------------------------------------------------
+def run_main(argv):
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        rc = main(argv)
+    return rc, err.getvalue()
+
+
+@settings(max_examples=25, deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_fuzz_main_predict_and_featurepoints(sim, data):
+    """``main`` on mangled points and machine files: exit 0, or exit 2 with one line of bounded length."""
+    el = str(sim / "sim" / "truth_elements.json")
+    points = data.draw(mangled("x_mm,z_mm,a_deg\n" + "\n".join(f"{10 * i},{3 * i},{20 * i}" for i in range(12)) + "\n"))
+    machine = data.draw(mangled_toml(builtin_machine_path("grinder").read_text(encoding="utf-8")))
+    with tempfile.TemporaryDirectory() as d:
+        (Path(d) / "p.csv").write_bytes(points)
+        (Path(d) / "m.toml").write_bytes(machine)
+        for argv in (["predict", "--model", el, str(Path(d) / "p.csv"), "--out", str(Path(d) / "o.csv")],
+                     ["featurepoints", "--machine", str(Path(d) / "m.toml"), "--elements", el, "--grid", "2",
+                      "--out", str(Path(d) / "fp.csv")]):
+            rc, err = run_main(argv)
+            assert rc in (0, 2), err
+            if rc == 2:
+                line = err.strip().split("\n")[-1]
+                assert line.startswith(f"volcomp {argv[0]}: error: ") and len(line) <= MAX_ERROR_CHARS
+
+
+ISSUE_CASES = {
+    # the inputs the issue found giving tracebacks: each must be one line, exit 2
+    "latin1": (b"# M\xfcller\nx_mm,z_mm,a_deg\n1,2,3\n", "row 1, character 4"),
+    "station": (None, "column 'station'"),
+    "pz": (b"px_mm,py_mm,pz_mm\n-250,10,1e300\n", "row 2, column 'pz_mm'"),
+}
+
+
+def test_issue_cases_are_one_line_exit_2(sim, tmp_path):
+    el = str(sim / "sim" / "truth_elements.json")
+    p = tmp_path / "latin.csv"
+    p.write_bytes(ISSUE_CASES["latin1"][0])
+    rc, err = run_main(["predict", "--model", el, str(p), "--out", str(tmp_path / "o.csv")])
+    assert rc == 2 and ISSUE_CASES["latin1"][1] in err and err.count("\n") == 1
+    # a BOM (Excel's "CSV UTF-8") is accepted
+    p.write_bytes(b"\xef\xbb\xbfx_mm,z_mm,a_deg\n1,2,3\n")
+    assert run_main(["predict", "--model", el, str(p), "--out", str(tmp_path / "o.csv")])[0] == 0
+    # a sweep station of 1e10 is refused by its row and column (and does not allocate 74 GiB)
+    lines = (sim / "sweeps.csv").read_text().split("\n")
+    h = next(i for i, l in enumerate(lines) if l and not l.startswith("#"))
+    j = lines[h].split(",").index("station")
+    for big in ("10000000000", "1000000"):
+        row = lines[h + 1].split(",")
+        row[j] = big
+        (tmp_path / "sw.csv").write_text("\n".join(lines[: h + 1] + [",".join(row)] + lines[h + 2:]))
+        rc, err = run_main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "id")])
+        assert rc == 2 and f"row {h + 2}, column 'station'" in err and len(err) <= MAX_ERROR_CHARS + 1
+    p = tmp_path / "t.csv"
+    p.write_bytes(ISSUE_CASES["pz"][0])
+    rc, err = run_main(["compensate", str(p), "--model", el, "--method", "exact", "--out", str(tmp_path / "c")])
+    assert rc == 2 and ISSUE_CASES["pz"][1] in err
+    grinder = builtin_machine_path("grinder").read_text()
+    for old, new, key in (('kind = "grinder"', 'kind = ["grinder"]', "machine.kind"),
+                          ("l1 = 420.0", "l1 = 1e308", "geometry.l1"),
+                          ("a_deg = [0.0, 360.0]", "a_deg = [0, 6.283]", "strokes.a_deg")):
+        (tmp_path / "m.toml").write_text(grinder.replace(old, new))
+        rc, err = run_main(["simulate", "--machine", str(tmp_path / "m.toml"), "--out", str(tmp_path / "s")])
+        assert rc == 2 and key in err and err.count("\n") == 1, err
+    hexapod = builtin_machine_path("hexapod").read_text()
+    import re
+    (tmp_path / "h.toml").write_text(re.sub(r"tool_tip_mm = .*", "tool_tip_mm = [[0, 0], 1]", hexapod))
+    with pytest.raises(MachineFileError, match="home.tool_tip_mm"):
+        load_machine(tmp_path / "h.toml")
