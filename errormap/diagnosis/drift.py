@@ -429,7 +429,10 @@ class DriftModeller:
     def fit(self, log: DriftLog) -> "DriftModeller":
         if not 0 < self.fit_fraction < 1:
             raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
-        fit, _ = self.split(log)
+        return self.fit_rows(log, self.split(log)[0])
+
+    def fit_rows(self, log: DriftLog, fit) -> "DriftModeller":
+        """Fit on the rows ``fit`` (indices, earliest first; a cross-validation fold's training part)."""
         if len(fit) < 20:
             raise ValueError(f"Expected at least 20 fitting rows, got {len(fit)}")
         log = smoothed_log(log, self.smooth_s)

@@ -7,9 +7,10 @@ Both return a dict of columns in the drift-log schema (``time_s``, ``speed_rpm``
 * :func:`simulate_lumped_log` — a lumped thermal network of a few bodies (spindle, headstock,
   column, bed, ball screw) with time constants of 0.5–5 h, heat from a spindle-speed profile with
   run/stop cycles and speed steps (∝ speed^1.6) and from the feed drive while running, ambient
-  swing; 18 sensors at places between bodies (each with its own surface lag), three of them far
-  from any heat path and one in the air; five displacement channels through different mixtures of
-  bodies and path lags. White sensor noise, 0.01 °C quantisation, a few dropouts (empty cells).
+  swing; 18 sensors on surfaces between bodies (lagging the cores by 10–40 min; the spindle core is
+  never read directly), three of them far from any heat path and one in the air; five displacement
+  channels, each dominated by a different body, through path lags of 0–30 min, plus an exposed
+  frame following the ambient over 1–3 h (not sensed). White sensor noise, 0.01 °C quantisation, a few dropouts (empty cells).
 * :func:`simulate_rod_log` — an independent structure: a column conducting heat along 10
   segments (diffusion: responses are not first-order), heat ∝ speed² from short machining cycles
   in batches, a thermostatic coolant loop (on/off with hysteresis) and a day-cycle ambient with a
@@ -135,17 +136,20 @@ def simulate_lumped_log(seed: int = 0, hours: float = 46.0, dt_s: float = 15.0, 
         elif s in far:
             w = rng.uniform(0.2, 0.5)
             spot = _first_order(w * X[:, 3] + (1 - w) * ambient, dt_s, rng.uniform(600, 1800))
-        else:
-            near = rng.choice(nb, size=2, replace=False)
+        else:             # on the surface between two bodies: lags the cores by 10–40 min; the spindle
+            near = rng.choice(nb, size=2, replace=False)   # core itself is never read directly
             w = rng.dirichlet([1.0, 0.6])
-            spot = _first_order(w[0] * X[:, near[0]] + w[1] * X[:, near[1]], dt_s, rng.uniform(120, 900))
+            w[near == 0] = np.minimum(w[near == 0], 0.3)
+            mix = (w[0] * X[:, near[0]] + w[1] * X[:, near[1]] + (1 - w.sum()) * ambient)
+            spot = _first_order(mix, dt_s, rng.uniform(600, 2400))
         cols[f"temp_{s}_c"] = np.round(spot + rng.normal(0, 0.02, n), 2)
     dropped = _dropouts(rng, cols, names, n, n_dropouts, 20)
     noise, clean = {}, {}
+    frame = _first_order(ambient, dt_s, rng.uniform(1, 3) * 3600) - ambient[0]   # an exposed frame, not sensed
     for c in range(5):
         g = rng.normal(0, 1, nb) * rng.uniform(1.0, 4.0, nb)   # μm/°C per body
-        g[rng.integers(nb)] *= 2.5                              # one dominant path
-        path = _first_order((X - X[0]) @ g, dt_s, rng.uniform(0, 1200))
+        g[c % nb] = rng.choice([-1, 1]) * rng.uniform(5, 10)    # one dominant path: spindle, headstock, ...
+        path = _first_order((X - X[0]) @ g + rng.normal(0, 3) * frame, dt_s, rng.uniform(0, 1800))
         sd = float(rng.uniform(0.3, 0.8))
         ch = f"ch{c + 1}"
         clean[ch] = path
