@@ -28,6 +28,7 @@ COMMAND_MODULES = [
     "calibrate",
     "interpolate",
     "benchmark",
+    "drift_predict",
 ]
 
 

@@ -103,12 +103,15 @@ def first_order(time_s, u, tau_s: float) -> np.ndarray:
 def input_values(log: DriftLog, name: str) -> np.ndarray:
     if name == "speed_rpm":
         if log.speed_rpm is None:
-            raise InputError(f"{log.path}: column 'speed_rpm': the model needs it and the log has none")
+            why = log.notes.get("dropped", {}).get(name)
+            raise InputError(f"{log.path}: column 'speed_rpm': the model needs this input and the log "
+                             + (f"cannot give it: {why}" if why else "has no such column"))
         return log.speed_rpm
     s = name[5:-2] if name.startswith("temp_") and name.endswith("_c") else name
     if s not in log.temps_c:
-        raise InputError(f"{log.path}: column '{name}': the model needs it and the log has none"
-                         + (f" (dropped: {log.notes['dropped'][s]})" if s in getattr(log, "notes", {}).get("dropped", {}) else ""))
+        why = log.notes.get("dropped", {}).get(name)
+        raise InputError(f"{log.path}: column '{name}': the model needs this input and the log "
+                         + (f"cannot give it: {why}" if why else "has no such column"))
     return log.temps_c[s]
 
 
