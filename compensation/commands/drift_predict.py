@@ -29,7 +29,7 @@ def run(args) -> int:
     log = load_drift_log(args.log, causal=True, require_displacement=False)
     span = float(log.time_s[-1] - log.time_s[0])
     if span < model.max_delay_s:
-        raise InputError(f"{args.log}: row {len(log.time_s) + 1}, column 'time_s': the log spans {span:g} s, shorter "
+        raise InputError(f"{args.log}: row {log.notes['last_row']}, column 'time_s': the log spans {span:g} s, shorter "
                          f"than the model's longest lag {model.max_delay_s:g} s ({len(log.time_s)} rows)")
     for c, why in log.notes["dropped"].items():
         print(f"dropped input {c}: {why}", file=sys.stderr)

@@ -160,7 +160,7 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
     if np.median(d) > MAX_STEP_S:
         raise InputError(f"{path}: row {t.row_number(1)}, column 'time_s': units do not fit: the median step is "
                          f"{np.median(d):g} s (more than {MAX_STEP_S:g} s between samples; milliseconds?)")
-    notes = {"filled": {}, "dropped": {}}
+    notes = {"filled": {}, "dropped": {}, "last_row": t.row_number(len(t) - 1)}
     tc = {}
     for c in temps:
         v = _missing_or_number(t, c)

@@ -10,8 +10,8 @@ lag of time constant ``tau_s`` and delayed by ``delay_s``::
 
     prediction_um(t) = intercept_um + Σ_j coef_j · f_j(t)
 
-The filter is the exact response of ``tau·dy/dt = v − y`` to a zero-order-held input, so uneven
-sampling is handled; the prediction at ``t`` uses samples at or before ``t`` only (causal).
+The filter is the exact response of ``tau·dy/dt = v − y`` to an input that holds ``v[k]`` over
+``(t[k-1], t[k]]`` (each sample acts at once, no added half-step delay), so uneven sampling is handled; the prediction at ``t`` uses samples at or before ``t`` only (causal).
 
 Model families (per displacement channel; :class:`DriftSelector`):
 
@@ -374,7 +374,8 @@ class DriftModel:
                            "the controller compensates by subtracting the prediction.",
             "units": {"time": "s", "temperature": "degC", "speed": "rpm", "displacement": "um"},
             "filter": "v[k] = (u[k]/scale)**power; y[0] = v[0]; y[k] = y[k-1] + (1 - exp(-(t[k]-t[k-1])/tau_s)) * "
-                      "(v[k] - y[k-1]); tau_s = 0: y = v",
+                      "(v[k] - y[k-1]); tau_s = 0: y = v (exact for v held at v[k] over (t[k-1], t[k]]; "
+                      "run from power-on, at every logged sample)",
             "delay": "feature(t) = y(t - delay_s), linear interpolation between samples at or before t; "
                      "before the first sample: y[0]",
             "missing_samples": "hold the last valid value of the input",
