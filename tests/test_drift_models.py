@@ -24,7 +24,7 @@ NEAR_NOISE = 1.2
 OLS_FAR = 2.0
 
 
-def _small_log(seed=0, hours=24.0, dt_s=60.0):
+def _small_log(seed=0, hours=16.0, dt_s=60.0):
     cols = simulate_lumped_log(seed, hours=hours, dt_s=dt_s, n_dropouts=0)
     truth = cols.pop("_truth")
     return cols, truth
@@ -109,7 +109,7 @@ def test_dynamic_family_is_chosen_where_ols_cannot_follow_the_heat_path(seed):
 
 def test_chosen_model_never_loses_to_ols_in_validation():
     for seed in range(2):
-        cols = simulate_rod_log(seed, hours=24, dt_s=60, n_dropouts=0)
+        cols = simulate_rod_log(seed, hours=16, dt_s=60, n_dropouts=0)
         cols.pop("_truth")
         log = _frame(cols)
         sel = DriftSelector(fit_fraction=0.7).fit(log)
@@ -146,6 +146,7 @@ def test_model_json_round_trip_and_version_check(tmp_path):
     assert not (tmp_path / "p.csv").exists()
 
 
+@pytest.mark.slow
 def test_diagnose_writes_model_and_compensation_and_drift_predict_reproduces_it(tmp_path, capsys):
     cols, _ = _small_log()
     write_csv(tmp_path / "log.csv", cols)
