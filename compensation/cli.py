@@ -13,8 +13,9 @@ import argparse
 import importlib
 import sys
 
-# sub-command modules and their one-line help, in the order `volcomp --help` lists them;
-# tests/test_cli_foundation.py checks that each module registers exactly this help
+# sub-commands and their one-line help, in the order `volcomp --help` lists them; command
+# ``a-b`` lives in ``compensation/commands/a_b.py``; tests/test_cli_foundation.py checks that
+# each module registers exactly this help
 COMMAND_HELP = {
     "simulate": "simulate a truth grinder: elements, feature points, check measurements",
     "featurepoints": "feature points (11x11x11 grid) from an element set",
@@ -29,6 +30,7 @@ COMMAND_HELP = {
     "calibrate": "identify a hexapod/tripod's kinematic parameters from measured poses",
     "interpolate": "hexapod/tripod leg-command program for a tool path",
     "benchmark": "learned vs parametric path on the same machines and measurements: report.html + benchmark.json",
+    "drift-predict": "apply a saved drift model to a new log (causal compensation series)",
     "export": "write controller compensation tables (ISO 230-1 per-axis, 3D grid, LinuxCNC per-joint), checked against the model first",
 }
 COMMAND_MODULES = list(COMMAND_HELP)
@@ -51,11 +53,16 @@ def version() -> str:
         return __version__
 
 
+def command_module(name: str) -> str:
+    """The module that holds command ``name`` (``drift-predict`` → ``compensation.commands.drift_predict``)."""
+    return f"compensation.commands.{name.replace('-', '_')}"
+
+
 def _register(sub, name: str) -> bool:
     try:
-        mod = importlib.import_module(f"compensation.commands.{name}")
+        mod = importlib.import_module(command_module(name))
     except ModuleNotFoundError as exc:
-        if exc.name == f"compensation.commands.{name}":
+        if exc.name == command_module(name):
             return False  # not built yet
         raise
     mod.register(sub)

@@ -4,7 +4,8 @@
   the measured residual, the effects that explain it (:mod:`errormap.diagnosis`), before/after
   on the held-out part, and, for a learned model with axis-only effects and feature points,
   the retrain of the network on feature points plus the new terms (:func:`retrain_learned`).
-* :func:`run_drift` — a drift log: sensor selection, lag, before/after per channel.
+* :func:`run_drift` — a drift log: causal model chosen by rolling-origin CV, before/after beside the
+  OLS baseline, the controller model (JSON) and the compensation series (CSV).
 
 Everything is computed before anything is written; both files are written atomically.
 The report names its residual: the MEASURED residual (measurement − model prediction).
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from errormap.diagnosis.checks import load_checks
-from errormap.diagnosis.drift import DriftModeller, load_drift_log
+from errormap.diagnosis.drift import load_drift_log
 from errormap.diagnosis.effects import Context
 from errormap.diagnosis.pipeline import DiagnosisSettings, diagnose
 from errormap.featurepoints import FeaturePoints
@@ -227,32 +228,40 @@ def checks_report(d, summary, model_spec, checks_path) -> str:
     return _page("volcomp diagnose — check measurements", parts)
 
 
-def drift_report(log, modeller, channels, log_path) -> str:
+def drift_report(log, sel, channels, log_path) -> str:
+    """HTML page of a drift-log diagnosis: ``sel`` a fitted DriftSelector, ``channels`` its report."""
     plt = _plt()
-    _, hold = modeller.split(log)
+    _, hold = sel.split(log)
     parts = [f"<p>Drift log {html.escape(str(log_path))}: fitted on the first {len(log.time_s) - len(hold)} rows, "
              f"before/after on the last {len(hold)} (forward in time). Residual shown: measured displacement "
-             "minus the thermal model's prediction.</p>"]
-    rows = [[ch, ", ".join(c["sensors"]) or "—", ", ".join(r for r in c["regressors"] if r == "speed_rpm") or "",
-             _fmt(c["lag_s"]), f"{_fmt(c['lag_interval_s'][0])} … {_fmt(c['lag_interval_s'][1])}",
-             _fmt(c["runner_up"]["delta_bic"], 3) if c["runner_up"] else "—", "AMBIGUOUS" if c["ambiguous"] else "",
-             _fmt(c["rms_before_um"]), _fmt(c["rms_after_um"]), _fmt(c["max_before_um"]),
-             _fmt(c["max_after_um"])] for ch, c in channels.items()]
-    parts.append(_table(rows, ["channel", "sensors", "other", "lag (s)", "lag 95 % interval (s)", "runner-up ΔBIC",
-                               "selection", "RMS before", "RMS after", "max before", "max after"]))
-    parts.append(f"<p>Selection: every subset of at most {modeller.max_sensors} regressors at every lag, by BIC; the "
-                 f"runner-up is the best other subset of the same size. A channel is AMBIGUOUS when another subset is "
-                 f"within ΔBIC {modeller.ambiguity_delta_bic:g}: the data cannot tell which sensors are responsible.</p>")
-    for ch, c in channels.items():
-        if c["ambiguous"]:
-            alts = "; ".join(f"{', '.join(a['regressors'])} (lag {a['lag_s']:g} s, ΔBIC {a['delta_bic']:.3g})"
-                             for a in c["alternatives"])
-            close = "; ".join(f"{s} ~ {v['sensor']} (r = {v['r']:.4f})" for s, v in c["closest_sensors"].items())
-            parts.append(f"<p><b>{html.escape(ch)}: ambiguous.</b> Nearly as good: {html.escape(alts)}. "
-                         f"Closest sensors: {html.escape(close)}.</p>")
-    for ch, m in modeller.channels_.items():
+             "minus the causal model's prediction (the MEASURED residual). The baseline is ordinary least squares "
+             "on every temperature and speed_rpm, fitted on the same rows.</p>"]
+    notes = log.notes or {}
+    if notes.get("dropped") or notes.get("filled"):
+        items = [f"<li>{html.escape(c)}: dropped — {html.escape(w)}</li>" for c, w in notes.get("dropped", {}).items()]
+        items += [f"<li>{html.escape(c)}: missing samples filled by linear interpolation, rows "
+                  f"{html.escape(', '.join(f'{a}–{b}' for a, b in r))}</li>" for c, r in notes.get("filled", {}).items()]
+        parts.append("<h2>Inputs repaired or dropped</h2><ul>" + "".join(items) + "</ul>")
+    fams = sorted({f for c in channels.values() for f in c["cv_rms_um"]})
+    rows = [[ch, c["model"], *[_fmt(c["cv_rms_um"].get(f)) for f in fams], _fmt(c["rms_before_um"]),
+             _fmt(c["rms_after_um"]), _fmt(c["rms_ols_um"]), _fmt(c["band95_um"]),
+             _fmt(c["band_coverage_heldout"])] for ch, c in channels.items()]
+    parts.append(_table(rows, ["channel", "chosen", *[f"CV {f}" for f in fams], "held-out before", "volcomp",
+                               "OLS baseline", "95 % band ±", "band coverage"]))
+    parts.append("<p>CV: rolling-origin cross-validation on the fitting part (RMS μm over all validation blocks; best "
+                 "hyper-parameter per family). The chosen candidate has the lowest CV RMS; the OLS baseline is a "
+                 "candidate, so the model never loses to it in validation.</p>")
+    sub = getattr(sel, "subset_modeller_", None)
+    if sub is not None:
+        sr = {ch: c for ch, c in sub.report_selection().items()}
+        parts.append("<h2>Sensor-subset search (subset_lag family)</h2>")
+        parts.append(_table([[ch, ", ".join(c["regressors"]) or "—", _fmt(c["lag_s"]),
+                              "AMBIGUOUS" if c["ambiguous"] else ""] for ch, c in sr.items()],
+                            ["channel", "regressors", "lag (s)", "selection"]))
+    pred = sel.model_.predict(log, sel.cache_)
+    for ch in sel.model_.channels:
         d = log.disp_um[ch]
-        after = d - m.predict(log)
+        after = d - pred[ch]
         fig, axs = plt.subplots(1, 2, figsize=(10, 3.2))
         axs[0].plot(log.time_s / 3600, d, lw=0.8, label="before")
         axs[0].plot(log.time_s / 3600, after, lw=0.8, label="after")
@@ -268,6 +277,25 @@ def drift_report(log, modeller, channels, log_path) -> str:
         axs[1].legend(fontsize=8)
         parts.append(_img(_png(fig), ch))
     return _page("volcomp diagnose — drift log", parts)
+
+
+def compensation_columns(log, model, cache=None) -> dict:
+    """The compensation series: ``time_s`` and per channel ``<ch>_pred_um``, ``<ch>_lo_um``, ``<ch>_hi_um``
+    (prediction ± the 95 % band), causal."""
+    pred = model.predict(log, cache)
+    cols = {"time_s": log.time_s}
+    for ch, p in pred.items():
+        band = model.channels[ch].band95_um
+        cols[f"{ch}_pred_um"] = p
+        cols[f"{ch}_lo_um"] = p - band
+        cols[f"{ch}_hi_um"] = p + band
+    return cols
+
+
+COMPENSATION_COMMENTS = ("compensation series: predicted thermal displacement per channel (um), causal "
+                         "(the value at time_s uses log samples at or before time_s only)",
+                         "<ch>_lo_um / <ch>_hi_um: 95 % band from forward-chained validation residuals",
+                         "the controller corrects by subtracting <ch>_pred_um")
 
 
 # -- entry points ---------------------------------------------------------------------------
@@ -324,17 +352,30 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
     return summary, _write(out_dir, summary, page)
 
 
-def run_drift(log_path, out_dir, modeller: DriftModeller | None = None):
-    """Diagnose a drift log; returns (summary, paths)."""
+def run_drift(log_path, out_dir, selector=None):
+    """Diagnose a drift log: model families chosen by rolling-origin CV, before/after with the OLS
+    baseline beside. Writes diagnosis.json, report.html, drift_model.json (``volcomp.drift_model``)
+    and drift_compensation.csv; returns (summary, paths)."""
+    from errormap.diagnosis.drift_models import SCHEMA, SCHEMA_VERSION, DriftSelector
+    from errormap.io import write_csv
     log = load_drift_log(log_path)
-    m = (modeller or DriftModeller()).fit(log)
-    channels = m.report(log)
-    fit, hold = m.split(log)
-    summary = {"log": str(log_path), "residual": "measured displacement − thermal model prediction",
+    sel = (selector or DriftSelector()).fit(log)
+    channels = sel.report(log)
+    fit, hold = sel.split(log)
+    summary = {"log": str(log_path), "residual": "measured displacement − causal drift model prediction",
                "split": f"by time: first {len(fit)} rows fit, last {len(hold)} held out",
-               "channels": channels, "groups": m.groups_,
-               "settings": {k: getattr(m, k) for k in ("fit_fraction", "max_lag_s", "lag_step_s", "group_r", "alpha",
-                                                       "min_delta_bic", "max_sensors", "ambiguity_delta_bic",
-                                                       "max_subsets", "max_lag_steps", "smooth_s")}}
-    page = drift_report(log, m, channels, log_path)
-    return summary, _write(out_dir, summary, page)
+               "baseline": "ordinary least squares on every temperature and speed_rpm (no filter, no lag)",
+               "selection": f"rolling-origin cross-validation on the fitting part ({sel.n_folds} folds)",
+               "inputs_filled": log.notes.get("filled", {}), "inputs_dropped": log.notes.get("dropped", {}),
+               "channels": channels, "model_file": f"drift_model.json ({SCHEMA} v{SCHEMA_VERSION})",
+               "settings": {"fit_fraction": sel.fit_fraction, "n_folds": sel.n_folds, "cv_start": sel.cv_start}}
+    sub = getattr(sel, "subset_modeller_", None)
+    if sub is not None:
+        summary["sensor_selection"] = sub.report_selection()
+    page = drift_report(log, sel, channels, log_path)
+    comp = compensation_columns(log, sel.model_, sel.cache_)
+    paths = _write(out_dir, summary, page)
+    out = Path(out_dir)
+    model_path = sel.model_.save(out / "drift_model.json")
+    csv_path = write_csv(out / "drift_compensation.csv", comp, header_comments=COMPENSATION_COMMENTS)
+    return summary, (*paths, model_path, csv_path)

@@ -110,9 +110,9 @@ def test_bad_drift_log(tmp_path, case, capsys):
     if case == "time":
         cols["time_s"][50] = cols["time_s"][49]
         want = ("row 52", "time_s")
-    elif case == "nan":
-        cols["temp_s3_c"][10] = np.nan
-        want = ("row 12", "temp_s3_c")
+    elif case == "nan":  # a missing temperature is filled or dropped (test_dropouts_*); a displacement must be whole
+        cols["dx_um"][10] = np.nan
+        want = ("row 12", "dx_um")
     elif case == "kelvin":
         cols["temp_s1_c"] = cols["temp_s1_c"] + 273.15
         want = ("row 2", "temp_s1_c")

@@ -30,18 +30,22 @@ def register(sub):
 def run(args) -> int:
     from compensation.cli import UsageError
     from compensation.diagnose import run_checks, run_drift
-    from errormap.diagnosis.drift import DriftModeller
+    from errormap.diagnosis.drift_models import DriftSelector
     if (args.checks is None) == (args.drift is None):
         raise UsageError("give either CHECKS (with --model) or --drift LOG")
     if args.drift is not None:
+        if not 0 < args.fit_fraction < 1:
+            raise UsageError(f"--fit-fraction: expected a value between 0 and 1, got {args.fit_fraction:g}")
         print(f"modelling drift log {args.drift} ...", file=sys.stderr)
-        summary, paths = run_drift(args.drift, args.out, DriftModeller(fit_fraction=args.fit_fraction, alpha=args.alpha))
+        sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha})
+        summary, paths = run_drift(args.drift, args.out, sel)
+        for c, why in summary["inputs_dropped"].items():
+            print(f"dropped input {c}: {why}")
+        for c, rows in summary["inputs_filled"].items():
+            print(f"filled missing samples of {c} (interpolated): rows {', '.join(f'{a}-{b}' for a, b in rows)}")
         for ch, c in summary["channels"].items():
-            print(f"{ch}: sensors {c['sensors']} lag {c['lag_s']:g} s, held-out RMS {c['rms_before_um']:.3g} -> "
-                  f"{c['rms_after_um']:.3g} μm")
-            if c["ambiguous"]:
-                alts = "; ".join(f"{a['regressors']} (ΔBIC {a['delta_bic']:.3g})" for a in c["alternatives"])
-                print(f"  AMBIGUOUS: nearly as good: {alts}")
+            print(f"{ch}: {c['model']}: held-out RMS {c['rms_before_um']:.3g} -> {c['rms_after_um']:.3g} μm "
+                  f"(OLS baseline {c['rms_ols_um']:.3g} μm), 95 % band ±{c['band95_um']:.3g} μm")
     else:
         if args.model is None:
             raise UsageError("CHECKS needs --model (element-set file or run id)")

@@ -54,30 +54,99 @@ from ..io import InputError, read_table
 
 TEMP_RE = re.compile(r"^temp_(.+)_c$")
 DISP_RE = re.compile(r"^(.+)_um$")
-MAX_DISP_UM = 5000.0
+MAX_DISP_UM = 1000.0      # a thermal drift beyond 1 mm is not plausible: nanometres written as μm?
+MIN_DISP_PTP_UM = 0.05    # a channel moving < 0.05 μm over a whole log carries nothing: millimetres?
 TEMP_RANGE_C = (-40.0, 150.0)
+MAX_STEP_S = 3600.0       # median sampling step beyond 1 h: milliseconds written as seconds?
+MAX_GAP_S = 600.0         # missing temperature/speed samples spanning ≤ 10 min are filled, longer: input dropped
+STUCK_S = 7200.0          # an input repeating one value exactly for ≥ 2 h is stuck: dropped
 
 
 @dataclass
 class DriftLog:
-    """``time_s`` (n,), ``temps_c`` {sensor: (n,)}, ``disp_um`` {channel: (n,)}, optional ``speed_rpm`` (n,)."""
+    """``time_s`` (n,), ``temps_c`` {sensor: (n,)}, ``disp_um`` {channel: (n,)}, optional ``speed_rpm`` (n,);
+    ``notes`` {"filled": {input: [[first_row, last_row], ...]}, "dropped": {input: reason}} from loading."""
 
     time_s: np.ndarray
     temps_c: dict
     disp_um: dict
     speed_rpm: np.ndarray | None = None
     path: str = "<log>"
+    notes: dict = field(default_factory=dict)
 
 
-def load_drift_log(path) -> DriftLog:
-    """Read and validate a drift log; errors name the file, row and column."""
+def _missing_or_number(t, name) -> np.ndarray:
+    """Column as float with empty / 'nan' cells as NaN; any other non-number raises naming row and column."""
+    raw = t.raw(name)
+    out = np.empty(len(raw))
+    for k, s in enumerate(raw):
+        s = s.strip()
+        if s == "" or s.lower() in ("nan", "na", "null"):
+            out[k] = np.nan
+            continue
+        try:
+            out[k] = float(s)
+        except ValueError:
+            raise InputError(f"{t.path}: row {t.row_number(k)}, column '{name}': expected a number, got {s!r}") from None
+        if not math.isfinite(out[k]):
+            raise InputError(f"{t.path}: row {t.row_number(k)}, column '{name}': expected a finite number, got {s!r}")
+    return out
+
+
+def _runs(mask):
+    """[(first, last)] index runs where ``mask`` is True."""
+    d = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1))
+
+
+def repair_input(t, name, v, time, causal: bool, stuck: bool = True):
+    """Fill short gaps of an input (interpolated; held at the last value when ``causal``); return
+    (values or None when dropped, filled [[row, row]], drop reason or None). ``stuck``: check for a
+    value repeated for ``STUCK_S`` (temperatures; a spindle may well stand still for hours)."""
+    for a, b in (_runs(np.concatenate([[False], np.diff(v) == 0])) if stuck else []):
+        a = max(a - 1, 0)                          # the run of equal values starts one row earlier
+        if time[b] - time[a] >= STUCK_S and np.isfinite(v[a]):
+            return None, [], (f"stuck at {v[a]:g} from row {t.row_number(a)} to row {t.row_number(b)} "
+                              f"({(time[b] - time[a]) / 3600:.3g} h)")
+    bad = ~np.isfinite(v)
+    if not bad.any():
+        return v, [], None
+    if bad.all():
+        return None, [], "no valid sample"
+    filled = []
+    for a, b in _runs(bad):
+        t0 = time[a - 1] if a > 0 else time[a]
+        t1 = time[b + 1] if b + 1 < len(time) else time[b]
+        if t1 - t0 > MAX_GAP_S:
+            return None, [], (f"missing from row {t.row_number(a)} to row {t.row_number(b)} "
+                              f"({(t1 - t0) / 60:.3g} min > {MAX_GAP_S / 60:g} min)")
+        filled.append([t.row_number(a), t.row_number(b)])
+    ok = np.flatnonzero(~bad)
+    out = v.copy()
+    if causal:   # last valid value (the first one before any)
+        idx = np.maximum.accumulate(np.where(bad, 0, np.arange(len(v))))
+        idx[:ok[0]] = ok[0]
+        out = v[idx]
+    else:
+        out[bad] = np.interp(time[bad], time[ok], v[ok])
+    return out, filled, None
+
+
+def load_drift_log(path, causal: bool = False, require_displacement: bool = True) -> DriftLog:
+    """Read and validate a drift log; errors name the file, row and column.
+
+    Temperatures and ``speed_rpm`` may have missing samples (empty cells or ``nan``): gaps of at
+    most ``MAX_GAP_S`` are filled — linearly interpolated, or held at the last value when ``causal``
+    (applying a model: no future sample) — longer gaps, and an input stuck at one value for
+    ``STUCK_S`` or more, drop that input; ``notes`` says which. Time and displacements must be complete.
+    """
     t = read_table(path)
     t.require("time_s")
     temps = [n for n in t.names if TEMP_RE.match(n)]
     disps = [n for n in t.names if DISP_RE.match(n)]
     if not temps:
         raise InputError(f"{path}: missing temperature column(s) 'temp_<sensor>_c'; found columns {t.names}")
-    if not disps:
+    if not disps and require_displacement:
         raise InputError(f"{path}: missing displacement column(s) '<channel>_um'; found columns {t.names}")
     if len(t) < 30:
         raise InputError(f"{path}: expected at least 30 rows in a drift log, got {len(t)}")
@@ -88,24 +157,49 @@ def load_drift_log(path) -> DriftLog:
         what = "duplicated" if d[k - 1] == 0 else "decreasing"
         raise InputError(f"{path}: row {t.row_number(k)}, column 'time_s': {what} time {time[k]:g} "
                          f"(previous row {t.row_number(k - 1)} has {time[k - 1]:g}); expected increasing times")
+    if np.median(d) > MAX_STEP_S:
+        raise InputError(f"{path}: row {t.row_number(1)}, column 'time_s': units do not fit: the median step is "
+                         f"{np.median(d):g} s (more than {MAX_STEP_S:g} s between samples; milliseconds?)")
+    notes = {"filled": {}, "dropped": {}, "last_row": t.row_number(len(t) - 1)}
     tc = {}
     for c in temps:
-        v = t.float(c)
+        v = _missing_or_number(t, c)
         bad = np.flatnonzero((v < TEMP_RANGE_C[0]) | (v > TEMP_RANGE_C[1]))
         if bad.size:
             raise InputError(f"{path}: row {t.row_number(bad[0])}, column '{c}': units do not fit: {v[bad[0]]:g} "
                              f"is outside {TEMP_RANGE_C} °C (kelvin or fahrenheit?)")
+        v, filled, why = repair_input(t, c, v, time, causal)
+        if why:
+            notes["dropped"][c] = why
+            continue
+        if filled:
+            notes["filled"][c] = filled
         tc[TEMP_RE.match(c).group(1)] = v
+    if not tc:
+        raise InputError(f"{path}: column '{temps[0]}': every temperature column was dropped "
+                         f"({'; '.join(f'{k}: {v}' for k, v in notes['dropped'].items())})")
     du = {}
     for c in disps:
         v = t.float(c)
         bad = np.flatnonzero(np.abs(v) > MAX_DISP_UM)
         if bad.size:
             raise InputError(f"{path}: row {t.row_number(bad[0])}, column '{c}': units do not fit: {v[bad[0]]:g} μm "
-                             f"is beyond the plausible {MAX_DISP_UM:g} μm")
+                             f"is beyond the plausible {MAX_DISP_UM:g} μm of thermal drift (nanometres?)")
+        if np.ptp(v) < MIN_DISP_PTP_UM:
+            k = int(np.argmax(np.abs(v)))
+            raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the channel moves by "
+                             f"only {np.ptp(v):.3g} μm over the whole log (less than {MIN_DISP_PTP_UM:g} μm; "
+                             "millimetres?)")
         du[c[:-3]] = v
-    speed = t.float("speed_rpm") if "speed_rpm" in t else None
-    return DriftLog(time, tc, du, speed, str(path))
+    speed = None
+    if "speed_rpm" in t:
+        speed, filled, why = repair_input(t, "speed_rpm", _missing_or_number(t, "speed_rpm"), time, causal,
+                                           stuck=False)
+        if why:
+            notes["dropped"]["speed_rpm"] = why
+        elif filled:
+            notes["filled"]["speed_rpm"] = filled
+    return DriftLog(time, tc, du, speed, str(path), notes)
 
 
 def lagged(time_s, values, lag_s: float) -> np.ndarray:
@@ -151,7 +245,7 @@ def smoothed(time_s, values, window_s: float) -> np.ndarray:
 def smoothed_log(log: DriftLog, window_s: float) -> DriftLog:
     """The log with every temperature smoothed by :func:`smoothed` (displacements and speed as they are)."""
     return DriftLog(log.time_s, {s: smoothed(log.time_s, v, window_s) for s, v in log.temps_c.items()},
-                    log.disp_um, log.speed_rpm, log.path)
+                    log.disp_um, log.speed_rpm, log.path, log.notes)
 
 
 def lagged_stack(time_s, values, lags_s) -> np.ndarray:
@@ -429,7 +523,10 @@ class DriftModeller:
     def fit(self, log: DriftLog) -> "DriftModeller":
         if not 0 < self.fit_fraction < 1:
             raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
-        fit, _ = self.split(log)
+        return self.fit_rows(log, self.split(log)[0])
+
+    def fit_rows(self, log: DriftLog, fit) -> "DriftModeller":
+        """Fit on the rows ``fit`` (indices, earliest first; a cross-validation fold's training part)."""
         if len(fit) < 20:
             raise ValueError(f"Expected at least 20 fitting rows, got {len(fit)}")
         log = smoothed_log(log, self.smooth_s)
@@ -443,6 +540,12 @@ class DriftModeller:
             raise ValueError(f"{log.path}: every temperature sensor is constant on the fitting part")
         self.channels_ = {ch: self._fit_channel(log, ch, names, fit) for ch in log.disp_um}
         return self
+
+    def report_selection(self) -> dict:
+        """Per channel: selected ``regressors``, ``lag_s``, ``lag_interval_s``, ``ambiguous``, ``alternatives``."""
+        return {ch: {"regressors": list(m.sensors), "lag_s": m.lag_s, "lag_interval_s": list(m.lag_interval_s),
+                     "ambiguous": m.ambiguous, "alternatives": m.alternatives, "runner_up": m.runner_up}
+                for ch, m in self.channels_.items()}
 
     def report(self, log: DriftLog) -> dict:
         """``channels`` mapping in the diagnosis.json form (held-out before/after, selection certainty)."""

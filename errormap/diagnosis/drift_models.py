@@ -1,0 +1,563 @@
+"""Causal drift models chosen on held-out time, and their controller form (``volcomp.drift_model`` v1).
+
+Every model here is a linear combination of **features**; a feature is one logged input
+(``temp_<sensor>_c`` or ``speed_rpm``), optionally raised to a power, passed through a first-order
+lag of time constant ``tau_s`` and delayed by ``delay_s``::
+
+    v[k] = u[k] ** power
+    y[0] = v[0];  y[k] = y[k-1] + (1 − exp(−(t[k] − t[k-1]) / tau_s)) · (v[k] − y[k-1])   (tau_s = 0: y = v)
+    f(t) = y(t − delay_s)   (linear interpolation between logged samples; before the first: y[0])
+
+    prediction_um(t) = intercept_um + Σ_j coef_j · f_j(t)
+
+The filter is the exact response of ``tau·dy/dt = v − y`` to an input that holds ``v[k]`` over
+``(t[k-1], t[k]]`` (each sample acts at once, no added half-step delay), so uneven sampling is handled; the prediction at ``t`` uses samples at or before ``t`` only (causal).
+
+Model families (per displacement channel; :class:`DriftSelector`):
+
+* ``ols`` — the baseline: ordinary least squares on every temperature and ``speed_rpm`` as logged
+  (no filter, no delay). Always a candidate, always reported.
+* ``subset_lag`` — :class:`~errormap.diagnosis.drift.DriftModeller`'s sensor-subset + common-lag
+  search (BIC), its selected regressors refitted causally (first-order smoothing of ``smooth_s``/2
+  in place of its centred window, then the lag).
+* ``ridge_bank`` — ridge on every input through a bank of first-order filters (``TAU_BANK_S``:
+  a distributed lag whose weights are one time constant per sensor or any mix of them); the
+  penalty λ is a hyper-parameter chosen by the same cross-validation.
+* ``pls_bank`` — partial least squares on the same bank; the number of components is chosen by
+  cross-validation.
+* ``transfer`` — a physically motivated transfer-function model: the spindle as heat source
+  (``speed_rpm`` and ``speed_rpm²``, heat ∝ speed^1…2) through two first-order paths whose time
+  constants are fitted (grid of ``TAU_GRID_S`` pairs), plus every temperature as logged, ridge-
+  stabilised.
+
+Selection: **rolling-origin (forward-chaining) cross-validation on the fitting part only** —
+train on the first ``cv_start`` of the fitting part, validate on the next block, grow, repeat
+(``n_folds`` blocks); the score is the RMS over all validation rows. The candidate with the lowest
+score is refitted on the whole fitting part. OLS is a candidate, so the returned model never loses
+to it in validation; the report gives both. The 95 % band is the 95th percentile of the chosen
+candidate's |validation residual| (forward in time, so it includes extrapolation error).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from ..io import InputError
+from .drift import DriftLog, DriftModeller
+
+SCHEMA = "volcomp.drift_model"
+SCHEMA_VERSION = 1
+TAU_BANK_S = (0.0, 900.0, 3600.0, 10800.0)       # 15 min, 1 h, 3 h: spans the 0.5–5 h of machine bodies
+TAU_GRID_S = (300.0, 900.0, 1800.0, 3600.0, 7200.0, 14400.0, 28800.0)
+RIDGE_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1)   # λ·n added to the standardised Gram matrix
+PLS_MAX_COMPONENTS = 12
+TRANSFER_LAMBDA = 1e-4
+BAND_QUANTILE = 0.95
+SUBSET_SEARCH_STEP_S = 60.0                      # the subset search runs on rows ≥ 60 s apart
+SPEED_SCALE_RPM = 1e4                            # speed² features use (speed/1e4)² → documented as power 2 of speed/1e4
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One input through ``power`` (of ``input / scale``), a first-order lag ``tau_s`` and a delay ``delay_s``."""
+
+    input: str
+    tau_s: float = 0.0
+    delay_s: float = 0.0
+    power: int = 1
+    scale: float = 1.0
+
+    @property
+    def key(self) -> str:
+        p = "" if self.power == 1 and self.scale == 1.0 else f"^{self.power}/{self.scale:g}"
+        return f"{self.input}{p}|tau={self.tau_s:g}|delay={self.delay_s:g}"
+
+    def unit(self) -> str:
+        """Unit of the coefficient of this feature."""
+        base = "um_per_c" if self.input.startswith("temp_") else "um_per_rpm"
+        if self.power != 1 or self.scale != 1.0:
+            base = f"um_per_(rpm/{self.scale:g})^{self.power}"
+        return base
+
+
+def first_order(time_s, u, tau_s: float) -> np.ndarray:
+    """Causal first-order lag of ``u`` (n,) sampled at ``time_s`` (exact for a zero-order-held input): (n,)."""
+    u = np.asarray(u, float)
+    if tau_s <= 0:
+        return u.copy()
+    dt = np.diff(time_s)
+    if dt.size and np.allclose(dt, dt[0], rtol=1e-9, atol=0):
+        a = 1.0 - np.exp(-dt[0] / tau_s)
+        return signal.lfilter([a], [1.0, a - 1.0], u, zi=[(1.0 - a) * u[0]])[0]
+    a = 1.0 - np.exp(-dt / tau_s)
+    y = np.empty_like(u)
+    y[0] = u[0]
+    for k in range(1, len(u)):
+        y[k] = y[k - 1] + a[k - 1] * (u[k] - y[k - 1])
+    return y
+
+
+def input_values(log: DriftLog, name: str) -> np.ndarray:
+    if name == "speed_rpm":
+        if log.speed_rpm is None:
+            why = log.notes.get("dropped", {}).get(name)
+            raise InputError(f"{log.path}: column 'speed_rpm': the model needs this input and the log "
+                             + (f"cannot give it: {why}" if why else "has no such column"))
+        return log.speed_rpm
+    s = name[5:-2] if name.startswith("temp_") and name.endswith("_c") else name
+    if s not in log.temps_c:
+        why = log.notes.get("dropped", {}).get(name)
+        raise InputError(f"{log.path}: column '{name}': the model needs this input and the log "
+                         + (f"cannot give it: {why}" if why else "has no such column"))
+    return log.temps_c[s]
+
+
+def feature_matrix(log: DriftLog, features, cache: dict | None = None) -> np.ndarray:
+    """Features evaluated causally on the log: (n, len(features))."""
+    cache = {} if cache is None else cache
+    cols = []
+    for f in features:
+        k = f.key
+        if k not in cache:
+            fk = (f.input, f.tau_s, f.power, f.scale)
+            if fk not in cache:
+                v = input_values(log, f.input)
+                if f.power != 1 or f.scale != 1.0:
+                    v = (v / f.scale) ** f.power
+                cache[fk] = first_order(log.time_s, v, f.tau_s)
+            y = cache[fk]
+            cache[k] = y if f.delay_s == 0 else np.interp(log.time_s - f.delay_s, log.time_s, y)
+        cols.append(cache[k])
+    return np.stack(cols, axis=1) if cols else np.zeros((len(log.time_s), 0))
+
+
+# -- linear fits on raw features (intercept, coef) ----------------------------------------------
+def _standardise(X):
+    mu = X.mean(axis=0)
+    sd = X.std(axis=0)
+    sd[sd == 0] = 1.0
+    return mu, sd
+
+
+def fit_ols(X, y):
+    """Ordinary least squares with intercept: (intercept, coef (p,))."""
+    A = np.column_stack([np.ones(len(y)), X])
+    th = np.linalg.lstsq(A, y, rcond=None)[0]
+    return float(th[0]), th[1:]
+
+
+def fit_ridge_path(X, Y, lambdas):
+    """Ridge on standardised columns for each λ (penalty λ·n), for each column of ``Y`` (n,) or (n, c):
+    [[(intercept, coef (p,)) per λ] per column of Y] (a single list per λ when Y is (n,))."""
+    one = np.ndim(Y) == 1
+    Y = np.asarray(Y, float).reshape(len(X), -1)
+    mu, sd = _standardise(X)
+    Z = (X - mu) / sd
+    ym = Y.mean(axis=0)
+    G = Z.T @ Z
+    ev, V = np.linalg.eigh(G)
+    ev = np.maximum(ev, 0.0)
+    VtZy = V.T @ (Z.T @ (Y - ym))                      # (p, c)
+    out = []
+    for j in range(Y.shape[1]):
+        path = []
+        for lam in lambdas:
+            b = V @ (VtZy[:, j] / (ev + lam * len(Y))) / sd
+            path.append((float(ym[j] - mu @ b), b))
+        out.append(path)
+    return out[0] if one else out
+
+
+def fit_pls_path(X, y, max_components):
+    """PLS1 (NIPALS) on standardised columns: [(intercept, coef)] for 1..max_components components."""
+    mu, sd = _standardise(X)
+    Z = (X - mu) / sd
+    ym = y.mean()
+    yr = y - ym
+    E = Z.copy()
+    W, P, q = [], [], []
+    out = []
+    for _ in range(min(max_components, Z.shape[1])):
+        w = E.T @ yr
+        nw = np.linalg.norm(w)
+        if nw < 1e-12:
+            break
+        w /= nw
+        tt = E @ w
+        tn = tt @ tt
+        if tn < 1e-12:
+            break
+        p = E.T @ tt / tn
+        qq = yr @ tt / tn
+        E = E - np.outer(tt, p)
+        yr = yr - qq * tt
+        W.append(w)
+        P.append(p)
+        q.append(qq)
+        Wm, Pm = np.array(W).T, np.array(P).T
+        b = Wm @ np.linalg.solve(Pm.T @ Wm, np.array(q)) / sd
+        out.append((float(ym - mu @ b), b))
+    return out
+
+
+# -- candidate families ---------------------------------------------------------------------
+def _inputs(log: DriftLog, rows) -> tuple[list, bool]:
+    temps = [f"temp_{s}_c" for s, v in log.temps_c.items() if np.ptp(v[rows]) > 0]
+    speed = log.speed_rpm is not None and np.ptp(log.speed_rpm[rows]) > 0
+    return temps, speed
+
+
+class _Family:
+    """A family: ``hypers`` (list of names) and ``fit(log, ch, rows, cache)`` → {hyper: (features, intercept, coef)}."""
+
+    name = ""
+
+
+class OLSFamily(_Family):
+    name = "ols"
+
+    def fit(self, log, channels, rows, cache):
+        temps, speed = _inputs(log, rows)
+        feats = [Feature(i) for i in temps + (["speed_rpm"] if speed else [])]
+        X = feature_matrix(log, feats, cache)[rows]
+        return {ch: {"": (feats, *fit_ols(X, log.disp_um[ch][rows]))} for ch in channels}
+
+
+class RidgeBankFamily(_Family):
+    name = "ridge_bank"
+
+    def __init__(self, taus=TAU_BANK_S, lambdas=RIDGE_LAMBDAS):
+        self.taus, self.lambdas = taus, lambdas
+
+    def features(self, log, rows):
+        temps, speed = _inputs(log, rows)
+        return [Feature(i, tau) for i in temps + (["speed_rpm"] if speed else []) for tau in self.taus]
+
+    def fit(self, log, channels, rows, cache):
+        feats = self.features(log, rows)
+        X = feature_matrix(log, feats, cache)[rows]
+        paths = fit_ridge_path(X, np.stack([log.disp_um[ch][rows] for ch in channels], axis=1), self.lambdas)
+        return {ch: {f"lambda={lam:g}": (feats, a, b) for lam, (a, b) in zip(self.lambdas, path)}
+                for ch, path in zip(channels, paths)}
+
+
+class PLSBankFamily(RidgeBankFamily):
+    name = "pls_bank"
+
+    def __init__(self, taus=TAU_BANK_S, max_components=PLS_MAX_COMPONENTS):
+        super().__init__(taus)
+        self.max_components = max_components
+
+    def fit(self, log, channels, rows, cache):
+        feats = self.features(log, rows)
+        X = feature_matrix(log, feats, cache)[rows]
+        out = {}
+        for ch in channels:
+            path = fit_pls_path(X, log.disp_um[ch][rows], self.max_components)
+            out[ch] = {f"components={i + 1}": (feats, a, b) for i, (a, b) in enumerate(path)}
+        return out
+
+
+class TransferFamily(_Family):
+    """Spindle heat (speed, speed²) through two first-order paths of fitted time constants + temperatures."""
+
+    name = "transfer"
+
+    def __init__(self, taus=TAU_GRID_S, lam=TRANSFER_LAMBDA):
+        self.taus, self.lam = taus, lam
+
+    def fit(self, log, channels, rows, cache):
+        temps, speed = _inputs(log, rows)
+        tfe = [Feature(i) for i in temps]
+        XT = feature_matrix(log, tfe, cache)[rows]
+        if not speed:
+            return {ch: {"": (tfe, *fit_ridge_path(XT, log.disp_um[ch][rows], [self.lam])[0])} for ch in channels}
+        pairs = [(a, b) for i, a in enumerate(self.taus) for b in self.taus[i + 1:]]
+        Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
+        best = {}
+        for t1, t2 in pairs:
+            sf = [Feature("speed_rpm", t) for t in (t1, t2)] + \
+                 [Feature("speed_rpm", t, power=2, scale=SPEED_SCALE_RPM) for t in (t1, t2)]
+            X = np.column_stack([feature_matrix(log, sf, cache)[rows], XT])
+            paths = fit_ridge_path(X, Y, [self.lam])
+            for j, ch in enumerate(channels):
+                a, b = paths[j][0]
+                rss = float(np.sum((Y[:, j] - a - X @ b) ** 2))
+                if ch not in best or rss < best[ch][0]:
+                    best[ch] = (rss, sf + tfe, a, b)
+        return {ch: {"": best[ch][1:4]} for ch in channels}
+
+
+class SubsetLagFamily(_Family):
+    """The sensor-subset + lag search of :class:`DriftModeller`, refitted causally."""
+
+    name = "subset_lag"
+
+    def __init__(self, **modeller_kw):
+        self.kw = {"max_sensors": 3, "max_lag_steps": 60, **modeller_kw}
+        self.last_modeller_ = None
+
+    def fit(self, log, channels, rows, cache):
+        # the search runs on rows at least ``search_step_s`` apart (thermal signals change over minutes)
+        dt = float(np.median(np.diff(log.time_s)))
+        q = max(1, int(round(SUBSET_SEARCH_STEP_S / dt)))
+        keep = np.arange(0, rows[-1] + 1, q)
+        dec = DriftLog(log.time_s[keep], {s: v[keep] for s, v in log.temps_c.items()},
+                       {c: v[keep] for c, v in log.disp_um.items()},
+                       None if log.speed_rpm is None else log.speed_rpm[keep], log.path)
+        m = DriftModeller(**self.kw).fit_rows(dec, np.arange(len(keep)))
+        self.last_modeller_ = m
+        out = {}
+        tau = m.smooth_s / 2
+        for ch in channels:
+            cm = m.channels_[ch]
+            feats = [Feature("speed_rpm" if s == "speed_rpm" else f"temp_{s}_c", 0.0 if s == "speed_rpm" else tau,
+                             cm.lag_s) for s in cm.sensors]
+            X = feature_matrix(log, feats, cache)[rows]
+            out[ch] = {"": (feats, *fit_ols(X, log.disp_um[ch][rows]))}
+        return out
+
+
+def default_families(subset_kw=None):
+    return [OLSFamily(), SubsetLagFamily(**(subset_kw or {})), RidgeBankFamily(), PLSBankFamily(), TransferFamily()]
+
+
+# -- the model ------------------------------------------------------------------------------
+@dataclass
+class ChannelFit:
+    family: str
+    hyper: str
+    features: list
+    intercept_um: float
+    coef: np.ndarray
+    band95_um: float = float("nan")
+
+
+class DriftModel:
+    """A fitted causal drift model: ``channels`` {channel: ChannelFit}. ``predict`` → {channel: (n,)} μm."""
+
+    def __init__(self, channels: dict, meta: dict | None = None):
+        self.channels = channels
+        self.meta = meta or {}
+
+    @property
+    def features(self) -> list:
+        seen = {}
+        for c in self.channels.values():
+            for f in c.features:
+                seen.setdefault(f.key, f)
+        return list(seen.values())
+
+    @property
+    def inputs(self) -> list:
+        return sorted({f.input for f in self.features})
+
+    @property
+    def max_delay_s(self) -> float:
+        return max([f.delay_s for f in self.features], default=0.0)
+
+    def predict(self, log: DriftLog, cache: dict | None = None) -> dict:
+        cache = {} if cache is None else cache
+        return {ch: c.intercept_um + feature_matrix(log, c.features, cache) @ c.coef for ch, c in self.channels.items()}
+
+    # -- controller form --------------------------------------------------------------------
+    def to_json(self) -> dict:
+        feats = self.features
+        ids = {f.key: f"f{i}" for i, f in enumerate(feats)}
+        units = {"temp": "degC", "speed_rpm": "rpm"}
+        return {
+            "schema": SCHEMA, "schema_version": SCHEMA_VERSION,
+            "description": "Causal thermal-drift model: prediction_um(t) = intercept_um + sum(coef * feature(t)); "
+                           "the controller compensates by subtracting the prediction.",
+            "units": {"time": "s", "temperature": "degC", "speed": "rpm", "displacement": "um"},
+            "filter": "v[k] = (u[k]/scale)**power; y[0] = v[0]; y[k] = y[k-1] + (1 - exp(-(t[k]-t[k-1])/tau_s)) * "
+                      "(v[k] - y[k-1]); tau_s = 0: y = v (exact for v held at v[k] over (t[k-1], t[k]]; "
+                      "run from power-on, at every logged sample)",
+            "delay": "feature(t) = y(t - delay_s), linear interpolation between samples at or before t; "
+                     "before the first sample: y[0]",
+            "missing_samples": "hold the last valid value of the input",
+            "inputs": [{"name": i, "unit": units["temp"] if i.startswith("temp_") else units.get(i, "")}
+                       for i in self.inputs],
+            "features": [{"id": ids[f.key], "input": f.input, "power": f.power, "scale": f.scale,
+                          "tau_s": f.tau_s, "delay_s": f.delay_s} for f in feats],
+            "channels": {ch: {"output": f"{ch}_um", "family": c.family, "hyper": c.hyper,
+                              "intercept_um": c.intercept_um,
+                              "terms": [{"feature": ids[f.key], "coef": float(b), "unit": f.unit()}
+                                        for f, b in zip(c.features, c.coef)],
+                              "band95_um": c.band95_um}
+                         for ch, c in self.channels.items()},
+            "fitted_on": self.meta,
+        }
+
+    @classmethod
+    def from_json(cls, obj, path="<model>") -> "DriftModel":
+        """Read the controller form back; errors name the file and the key."""
+        def need(d, k, where):
+            if not isinstance(d, dict) or k not in d:
+                raise InputError(f"{path}: key '{where}{k}': missing")
+            return d[k]
+        if need(obj, "schema", "") != SCHEMA:
+            raise InputError(f"{path}: key 'schema': expected {SCHEMA!r}, got {obj.get('schema')!r}")
+        if need(obj, "schema_version", "") != SCHEMA_VERSION:
+            raise InputError(f"{path}: key 'schema_version': expected {SCHEMA_VERSION}, got {obj['schema_version']!r}")
+        feats = {}
+        for i, f in enumerate(need(obj, "features", "")):
+            try:
+                feats[f["id"]] = Feature(str(f["input"]), float(f["tau_s"]), float(f["delay_s"]), int(f["power"]),
+                                         float(f["scale"]))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise InputError(f"{path}: key 'features[{i}]': expected id, input, power, scale, tau_s, delay_s "
+                                 f"({exc})") from None
+            if feats[f["id"]].tau_s < 0 or feats[f["id"]].delay_s < 0:
+                raise InputError(f"{path}: key 'features[{i}]': expected tau_s >= 0 and delay_s >= 0")
+        chans = {}
+        for ch, c in need(obj, "channels", "").items():
+            try:
+                terms = c["terms"]
+                fl = [feats[t["feature"]] for t in terms]
+                chans[ch] = ChannelFit(c.get("family", ""), c.get("hyper", ""), fl, float(c["intercept_um"]),
+                                       np.array([float(t["coef"]) for t in terms]), float(c.get("band95_um") or "nan"))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise InputError(f"{path}: key 'channels.{ch}': expected intercept_um and terms "
+                                 f"[{{feature, coef}}] naming listed features ({exc!r})") from None
+        return cls(chans, obj.get("fitted_on", {}))
+
+    def save(self, path):
+        from ..io import write_json
+        return write_json(path, self.to_json())
+
+    @classmethod
+    def load(cls, path) -> "DriftModel":
+        try:
+            with open(path, encoding="utf-8") as fh:
+                obj = json.load(fh)
+        except FileNotFoundError:
+            raise InputError(f"{path}: no such file") from None
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{path}: line {exc.lineno}, column {exc.colno}: not JSON ({exc.msg})") from None
+        return cls.from_json(obj, path)
+
+
+# -- selection ------------------------------------------------------------------------------
+def rolling_origin_folds(n_fit: int, n_folds: int = 4, start: float = 0.5):
+    """Forward-chaining folds on rows 0..n_fit-1: [(train (a,), validate (b,))], training always earlier."""
+    first = int(round(start * n_fit))
+    edges = np.linspace(first, n_fit, n_folds + 1).round().astype(int)
+    return [(np.arange(edges[i]), np.arange(edges[i], edges[i + 1])) for i in range(n_folds) if edges[i + 1] > edges[i]]
+
+
+class DriftSelector:
+    """Per channel, the family (and hyper-parameter) with the lowest rolling-origin CV RMS on the
+    fitting part, refitted on the whole fitting part.
+
+    Settings: ``fit_fraction``, ``n_folds``, ``cv_start`` (fraction of the fitting part that the
+    first fold trains on), ``families`` (default :func:`default_families`).
+    Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}},
+    ``chosen_`` {channel: candidate}, ``baseline_`` (the OLS :class:`DriftModel`), ``subset_modeller_``.
+    """
+
+    def __init__(self, fit_fraction: float = 0.6, n_folds: int = 4, cv_start: float = 0.5, families=None,
+                 subset_kw: dict | None = None):
+        self.fit_fraction = fit_fraction
+        self.n_folds = n_folds
+        self.cv_start = cv_start
+        self.families = families
+        self.subset_kw = subset_kw
+
+    def split(self, log):
+        n = len(log.time_s)
+        n_fit = int(round(self.fit_fraction * n))
+        return np.arange(n_fit), np.arange(n_fit, n)
+
+    def fit(self, log: DriftLog) -> "DriftSelector":
+        if not 0 < self.fit_fraction < 1:
+            raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
+        fams = self.families or default_families(self.subset_kw)
+        fit, _ = self.split(log)
+        chans = list(log.disp_um)
+        cache = {}
+        folds = rolling_origin_folds(len(fit), self.n_folds, self.cv_start)
+        resid = {}                         # (ch, family, hyper) -> list of validation residual arrays
+        self.fold_errors_ = []
+        for tr, va in folds:
+            for fam in fams:
+                try:
+                    res = fam.fit(log, chans, tr, cache)
+                except ValueError as exc:  # a family that cannot fit this fold drops out of it
+                    self.fold_errors_.append(f"{fam.name}: {exc}")
+                    continue
+                for ch, hyp in res.items():
+                    y = log.disp_um[ch][va]
+                    for h, (feats, a, b) in hyp.items():
+                        r = y - a - feature_matrix(log, feats, cache)[va] @ b
+                        resid.setdefault((ch, fam.name, h), []).append(r)
+        n_val = sum(len(va) for _, va in folds)
+        self.cv_, self.chosen_, self.band_ = {}, {}, {}
+        for ch in chans:
+            scores = {}
+            for (c, f, h), rs in resid.items():
+                if c == ch and sum(len(r) for r in rs) == n_val:   # only candidates scored on every fold
+                    r = np.concatenate(rs)
+                    scores[(f, h)] = (float(np.sqrt(np.mean(r**2))), float(np.quantile(np.abs(r), BAND_QUANTILE)))
+            if ("ols", "") not in scores:
+                raise ValueError(f"{log.path}: the OLS baseline could not be fitted on the cross-validation folds")
+            best = min(scores, key=lambda k: scores[k][0])
+            self.cv_[ch] = {f"{f}{'[' + h + ']' if h else ''}": s[0] for (f, h), s in scores.items()}
+            self.chosen_[ch] = best
+            self.band_[ch] = scores[best][1]
+            self.band_ols_ = getattr(self, "band_ols_", {})
+            self.band_ols_[ch] = scores[("ols", "")][1]
+        final = {}
+        for fam in fams:
+            need = [ch for ch in chans if self.chosen_[ch][0] == fam.name or fam.name == "ols"]
+            if need:
+                final[fam.name] = fam.fit(log, need, fit, cache)
+                if fam.name == "subset_lag":
+                    self.subset_modeller_ = fam.last_modeller_
+        meta = {"log": str(log.path), "fit_rows": int(len(fit)), "fit_until_s": float(log.time_s[fit[-1]]),
+                "selection": f"rolling-origin CV, {len(folds)} folds on the fitting part"}
+        chosen = {}
+        for ch in chans:
+            f, h = self.chosen_[ch]
+            feats, a, b = final[f][ch][h]
+            chosen[ch] = ChannelFit(f, h, feats, a, np.asarray(b), self.band_[ch])
+        self.model_ = DriftModel(chosen, meta)
+        self.baseline_ = DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch])
+                                     for ch in chans}, meta)
+        self.cache_ = cache
+        return self
+
+    def family_best(self, ch) -> dict:
+        """Best CV RMS of each family for channel ``ch`` (over its hyper-parameters): {family: (candidate, RMS)}."""
+        out = {}
+        for k, v in self.cv_[ch].items():
+            f = k.split("[")[0]
+            if f not in out or v < out[f][1]:
+                out[f] = (k, v)
+        return out
+
+    def report(self, log: DriftLog) -> dict:
+        """Per channel: chosen candidate, CV scores per family, held-out before / volcomp / OLS, band coverage."""
+        _, hold = self.split(log)
+        pred = self.model_.predict(log, self.cache_)
+        base = self.baseline_.predict(log, self.cache_)
+        out = {}
+        for ch in self.model_.channels:
+            d = log.disp_um[ch][hold]
+            a = d - pred[ch][hold]
+            b = d - base[ch][hold]
+            f, h = self.chosen_[ch]
+            band = self.model_.channels[ch].band95_um
+
+            def rms(v):
+                return float(np.sqrt(np.mean(v**2)))
+            out[ch] = {"model": f"{f}{'[' + h + ']' if h else ''}", "family": f,
+                       "cv_rms_um": {k: v[1] for k, v in self.family_best(ch).items()},
+                       "cv_rms_ols_um": self.cv_[ch]["ols"],
+                       "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
+                       "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
+                       "band95_um": band, "band_coverage_heldout": float(np.mean(np.abs(a) <= band))}
+        return out
