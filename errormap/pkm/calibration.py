@@ -61,8 +61,6 @@ from ..io import InputError, read_table
 from .hexapod import KinematicsError, angles_to_rotation, forward_kinematics, quat_to_rotation, skew
 from .machine_file import PKM
 
-torch.set_default_dtype(torch.float64)
-
 
 # ---------------------------------------------------------------------------------------------
 # parameter layout
@@ -201,9 +199,9 @@ def pose_jacobian(machine: PKM, q: np.ndarray, tip_mm: np.ndarray, platform2base
     k = machine.n_legs
     rotate = machine.kind == "hexapod"
     d = 6 if rotate else 3
-    r = torch.as_tensor(parameter_vector(machine))
+    r = torch.as_tensor(parameter_vector(machine), dtype=torch.float64)
     tool = torch.as_tensor(machine.tool_in_platform_mm, dtype=torch.float64)
-    x = torch.zeros((len(q), d))
+    x = torch.zeros((len(q), d), dtype=torch.float64)
     x[:, :3] = torch.as_tensor(tip_mm)
     fn = lambda xx, rr, qq, RR: _constraint_single(xx, rr, qq, RR, tool, k, rotate)
     jac = torch.func.vmap(torch.func.jacrev(fn, argnums=(0, 1)), in_dims=(0, None, 0, 0))
@@ -288,6 +286,7 @@ class CalibrationResult:
     singular_values_raw: np.ndarray | None = None
     n_gauge: int = 0                                   # gauge directions fixed explicitly (6 with registration)
     iterations: int = 0                                # Gauss-Newton linearisations (nfev counts residual evaluations)
+    lever_estimated: bool = False                      # lever_mm estimated from the data (variance components)
 
     def predict(self, q: np.ndarray, nominal: bool = False, frame=None):
         """Predicted measured poses (instrument frame) at drive commands ``q`` (n, k): (tip (n,3), R (n,3,3))."""
@@ -323,8 +322,9 @@ class PKMCalibrator:
     ``noise_um`` (measurement noise per component, the Morozov ``delta``; None = estimate it),
     ``lambda_rule`` (``"morozov"``, ``"gcv"`` or ``"lcurve"``: how each step's Tikhonov ``lambda`` is
     chosen), ``tau`` (discrepancy factor, >= 1), ``lever_mm`` (orientation residual weight),
-    ``joint_scale_mm``/``scale_scale`` (the Tikhonov scaling of joints/offsets and of scales),
-    bounds, ``max_iter`` (Gauss-Newton iterations per phase), ``xtol_mm`` (convergence: the largest
+    (mm per rad; None = estimated from the data, see :meth:`fit`), ``joint_scale_mm`` (the Tikhonov
+    scaling: every fit variable is a length change in mm, see :meth:`_layout`), bounds (joints and the leg
+    length at mid-range in mm, ``scale_bound`` relative to the nominal scale), ``max_iter`` (Gauss-Newton iterations per phase), ``xtol_mm`` (convergence: the largest
     parameter / frame change, in mm-equivalents, of a full step), ``ftol`` (convergence: predicted
     relative decrease of the Tikhonov functional), ``rcond`` (identifiability threshold on the singular
     values), ``progress`` (callable taking a message, or None).
@@ -332,18 +332,18 @@ class PKMCalibrator:
 
     RULES = ("morozov", "gcv", "lcurve")
 
-    def __init__(self, machine: PKM, estimate_scales: bool = False, register: bool = True,
-                 noise_um: float | None = None, tau: float = 1.0, lever_mm: float = 500.0,
-                 joint_scale_mm: float = 1.0, scale_scale: float = 1e-3, joint_bound_mm: float = 25.0,
-                 offset_bound_mm: float = 50.0, scale_bound: float = 0.05, max_iter: int = 50,
+    def __init__(self, machine: PKM, estimate_scales: bool = True, register: bool = True,
+                 noise_um: float | None = None, tau: float = 1.0, lever_mm: float | None = None,
+                 joint_scale_mm: float = 1.0, joint_bound_mm: float = 25.0,
+                 offset_bound_mm: float = 200.0, scale_bound: float = 0.15, max_iter: int = 50,
                  xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "morozov",
                  verbose: bool = False, progress=None):
         if noise_um is not None and not noise_um > 0:
             raise ValueError(f"noise_um must be positive, got {noise_um}")
         if tau < 1:
             raise ValueError(f"tau must be >= 1, got {tau}")
-        if lever_mm <= 0 or joint_scale_mm <= 0 or scale_scale <= 0:
-            raise ValueError("lever_mm, joint_scale_mm and scale_scale must be positive")
+        if (lever_mm is not None and not lever_mm > 0) or not joint_scale_mm > 0:
+            raise ValueError("lever_mm (or None) and joint_scale_mm must be positive")
         if lambda_rule not in self.RULES:
             raise ValueError(f"lambda_rule must be one of {self.RULES}, got {lambda_rule!r}")
         if max_iter < 1 or not xtol_mm > 0 or not ftol > 0:
@@ -356,7 +356,6 @@ class PKMCalibrator:
         self.tau = tau
         self.lever_mm = lever_mm
         self.joint_scale_mm = joint_scale_mm
-        self.scale_scale = scale_scale
         self.joint_bound_mm = joint_bound_mm
         self.offset_bound_mm = offset_bound_mm
         self.scale_bound = scale_bound
@@ -369,14 +368,34 @@ class PKMCalibrator:
 
     # -- helpers ---------------------------------------------------------------------------
     def _layout(self):
-        k = self.machine.n_legs
+        """Estimated mask (8k,), the map ``M`` (n_est, n_est) from the fit variables to parameter
+        deviations, and the fit variables' bounds ``lo``, ``hi`` (n_est,).
+
+        Fit variables (all mm-equivalents, divided by ``joint_scale_mm``): joint deviations; per leg the
+        change of the leg length at the middle of its range ``c_i`` and, with scales, the change at the
+        end of the range due to the scale ``u_i = ds_i * h_i`` (``h_i`` half the range in drive units).
+        Then ``ds_i = u_i / h_i`` and ``do_i = c_i - q_mid,i * ds_i``. Offsets and scales in raw form are
+        nearly collinear (drive commands of 8..20 revolutions from zero, or 600..1500 mm) and a scale's
+        natural size depends on the drive unit (1 for mm, ~72 mm per revolution): both made a raw-scale
+        fit ill-posed and its Tikhonov penalty and bounds meaningless (the root cause of "the fit gets
+        worse with scales").
+        """
+        m0, k = self.machine, self.machine.n_legs
         est = np.ones(8 * k, bool)
         if not self.estimate_scales:
             est[7 * k:] = False
-        D = np.r_[np.full(7 * k, self.joint_scale_mm), np.full(k, self.scale_scale)][est]
-        lo = np.r_[np.full(6 * k, -self.joint_bound_mm), np.full(k, -self.offset_bound_mm),
-                   np.full(k, -self.scale_bound)][est]
-        return est, D, lo, -lo
+        q_lo, q_hi = m0.legs_to_drive(m0.leg_min_mm[None])[0], m0.legs_to_drive(m0.leg_max_mm[None])[0]
+        q_mid, h = (q_lo + q_hi) / 2, np.abs(q_hi - q_lo) / 2
+        n = 8 * k
+        M = np.eye(n) * self.joint_scale_mm
+        hi = np.r_[np.full(6 * k, self.joint_bound_mm), np.full(k, self.offset_bound_mm),
+                   self.scale_bound * np.abs(m0.leg_scale) * h] / self.joint_scale_mm
+        for i in range(k):
+            o, sc = 6 * k + i, 7 * k + i
+            M[sc, sc] = self.joint_scale_mm / h[i]
+            M[o, sc] = -q_mid[i] * self.joint_scale_mm / h[i]
+        M = M[np.ix_(est, est)]
+        return est, M, -hi[est], hi[est]
 
     def gauge_basis(self, est: np.ndarray) -> np.ndarray:
         """Orthonormal basis (n_est, g) of the gauge directions in the scaled parameter space.
@@ -497,9 +516,31 @@ class PKMCalibrator:
 
     # -- the fit ---------------------------------------------------------------------------
     def fit(self, data: PoseData) -> CalibrationResult:
-        """Identify the parameters (and the instrument frame) from ``data``; see the module docstring."""
+        """Identify the parameters (and the instrument frame) from ``data``; see the module docstring.
+
+        With ``lever_mm`` None and measured orientations, the orientation weight is estimated from the
+        data (variance components): fit with 500 mm per rad, set ``lever = sigma_position / sigma_rotation``
+        of the fit's residuals (clipped to 10..5000 mm), refit until it changes by less than 20 %
+        (at most 3 fits). A fixed lever that assumes a 10x better orientation than the instrument gives
+        (motion capture) lets orientation noise dominate the fit.
+        """
+        import copy
         with _single_thread_blas():
-            return self._fit(data)
+            if self.lever_mm is not None or data.rotation is None or self.machine.kind != "hexapod":
+                return self._fit(data)
+            lever, res = 500.0, None
+            for _ in range(3):
+                c = copy.copy(self)
+                c.lever_mm = lever
+                res = c._fit(data)
+                sp = np.sqrt(np.mean(res.residuals[:, :3] ** 2))
+                sr = np.sqrt(np.mean((res.residuals[:, 3:] / lever) ** 2))
+                new = float(np.clip(sp / max(sr, 1e-300), 10.0, 5000.0))
+                if abs(np.log(new / lever)) < np.log(1.2):
+                    break
+                lever = new
+            res.lever_estimated = True
+            return res
 
     def _fit(self, data: PoseData) -> CalibrationResult:
         t0 = time.perf_counter()
@@ -509,7 +550,7 @@ class PKMCalibrator:
             raise ValueError(f"{data.source}: expected drive commands of shape (n, {k}), got {data.q.shape}")
         if data.tip_mm.shape != (len(data), 3) or not np.all(np.isfinite(data.tip_mm)) or not np.all(np.isfinite(data.q)):
             raise ValueError(f"{data.source}: expected finite tips of shape ({len(data)}, 3)")
-        est, D, lo, hi = self._layout()
+        est, M, lo, hi = self._layout()
         full = data.rotation is not None and m0.kind == "hexapod"
         d = 6 if full else 3
         m_rows = d * len(data)
@@ -533,7 +574,7 @@ class PKMCalibrator:
             t_g, R_g, inliers = np.zeros(3), np.eye(3), np.ones(len(data), bool)
         frame0 = (t_g.copy(), R_g.copy())
         y = np.zeros(P.shape[1])                                    # deviation from nominal, gauge-fixed
-        machine_at = lambda yy: machine_from_vector(m0, _with(r0, est, D * (P @ yy)))
+        machine_at = lambda yy: machine_from_vector(m0, _with(r0, est, M @ (P @ yy)))
         res, pose = self._residual(m0, data, t_g, R_g, (fk0.x, fk0.platform2base))
         if res is None:
             raise KinematicsError(f"{data.source}: forward kinematics of the nominal machine failed")
@@ -547,7 +588,7 @@ class PKMCalibrator:
             for it in range(self.max_iter):
                 Jr_full, Jg = self._jacobians(machine_at(y), data, t_g, R_g, pose)
                 n_jac += 1
-                Jy = (Jr_full[:, est] * D) @ P                      # scaled, gauge-fixed parameter columns
+                Jy = (Jr_full[:, est] @ M) @ P                      # scaled, gauge-fixed parameter columns
                 r_vec = res.ravel()
                 b = Jy @ y - r_vec                                  # target of the new deviation (Tikhonov on y)
                 if self.register:
@@ -565,7 +606,7 @@ class PKMCalibrator:
                     ph, s, beta, b_out2, m_rows, n_free, None if ph == "gcv" else delta_mm)
                 z, _ = self._tikhonov(s, beta, b_out2, lam)
                 y_new = Vt.T @ z
-                w_clip = np.clip(P @ y_new, lo / D, hi / D)         # physical bounds (a safety net)
+                w_clip = np.clip(P @ y_new, lo, hi)                 # physical bounds (a safety net)
                 y_new = P.T @ w_clip
                 dg = np.linalg.lstsq(Jg, b - Jy @ y_new, rcond=None)[0] if self.register else np.zeros(6)
                 dy = y_new - y
@@ -620,12 +661,12 @@ class PKMCalibrator:
             msg += ("; the discrepancy tau*delta*sqrt(m) is below the least-squares residual: "
                     "lambda = 0 on the identifiable subspace")
         w = P @ y
-        r = _with(r0, est, D * w)
+        r = _with(r0, est, M @ w)
         m = machine_from_vector(m0, r)
         # report: singular values on the identifiable subspace (gauge fixed, structural nulls removed)
         # and of the raw frame-projected Jacobian over all estimated parameters (gauge directions included)
         cond = float(s.max() / s.min())
-        Ar = Jr_full[:, est] * D
+        Ar = Jr_full[:, est] @ M
         if self.register:
             Ar = Ar - Qg @ (Qg.T @ Ar)
         _, s_raw, Vt_raw = svd(Ar, full_matrices=False)
@@ -644,14 +685,14 @@ class PKMCalibrator:
         filt = s / (s ** 2 + lam)
         Vw = Vt @ P.T                                               # (rank, n_est) right singular vectors in w
         cov_w = (delta_mm ** 2) * (Vw.T * filt ** 2 * s ** 2) @ Vw
-        se = np.sqrt(np.maximum(np.diag(cov_w), 0)) * D
+        se = np.sqrt(np.maximum(np.diag(M @ cov_w @ M.T), 0))
         return CalibrationResult(
             x=r, machine=m, nominal=m0, success=success, message=msg, nfev=nfev, residuals=res, names=names,
             estimated=est, std_error=se, frame_translation_mm=t_g, frame_rotation=R_g, lam=float(lam),
             delta_mm=float(delta_mm), delta_estimated=estimated_delta, lambda_gcv=float(lam_gcv),
             lambda_lcurve=float(lam_lc), singular_values=s, condition_number=cond, unidentifiable=unident,
             lever_mm=self.lever_mm, n_poses=len(data), fit_time_s=time.perf_counter() - t0, history=history,
-            right_singular_vectors=Vw, param_scale=D, lcurve={**curve, "initial_frame": frame0},
+            right_singular_vectors=Vw, param_scale=M, lcurve={**curve, "initial_frame": frame0},
             lambda_rule=self.lambda_rule, lambda_morozov=float(lam_mz), discrepancy_reached=bool(reached),
             condition_number_raw=cond_raw, singular_values_raw=s_raw, n_gauge=int(G.shape[1]),
             iterations=n_jac)
