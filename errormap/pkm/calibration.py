@@ -59,6 +59,7 @@ from scipy.spatial.transform import Rotation
 
 from ..io import InputError, read_table
 from .hexapod import KinematicsError, angles_to_rotation, forward_kinematics, quat_to_rotation, skew
+from .checks import angle_candidates, check_measurements, check_pose_set, quaternion_candidates
 from .machine_file import PKM
 
 
@@ -111,7 +112,8 @@ class PoseData:
 
     ``q``: drive commands, shape (n, k); ``tip_mm``: measured tool tip (instrument frame), shape
     (n, 3); ``rotation``: measured orientation (``platform2instrument``), shape (n, 3, 3), or None
-    (position only); ``source``: where it came from; ``rows``: file row numbers, shape (n,).
+    (position only); ``source``: where it came from; ``rows``: file row numbers, shape (n,);
+    ``leg_correction_mm``: fixed leg-length terms (n, k) added to ``s q + o`` in the fit (accepted leg terms).
     """
 
     q: np.ndarray
@@ -119,13 +121,15 @@ class PoseData:
     rotation: np.ndarray | None = None
     source: str = ""
     rows: np.ndarray | None = None
+    leg_correction_mm: np.ndarray | None = None
 
     def __len__(self):
         return len(self.q)
 
     def subset(self, idx) -> "PoseData":
         return PoseData(self.q[idx], self.tip_mm[idx], None if self.rotation is None else self.rotation[idx],
-                        self.source, None if self.rows is None else self.rows[idx])
+                        self.source, None if self.rows is None else self.rows[idx],
+                        None if self.leg_correction_mm is None else self.leg_correction_mm[idx])
 
 
 def read_poses(path, machine: PKM) -> PoseData:
@@ -147,7 +151,7 @@ def read_poses(path, machine: PKM) -> PoseData:
         raise InputError(f"{t.path}: missing leg columns: need {lcols} or {qcols}; found columns {t.names}")
     t.require("x_mm", "y_mm", "z_mm")
     tip = np.stack([t.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
-    rot = None
+    rot, cands = None, None
     if machine.kind == "hexapod":
         if all(c in t for c in ("qx", "qy", "qz", "qw")):
             quat = np.stack([t.float(c) for c in ("qx", "qy", "qz", "qw")], 1)
@@ -157,13 +161,17 @@ def read_poses(path, machine: PKM) -> PoseData:
                 raise InputError(f"{t.path}: row {t.row_number(bad[0])}, columns 'qx'..'qw': expected a unit "
                                  f"quaternion (order qx qy qz qw), got norm {norm[bad[0]]:.6g}")
             rot = quat_to_rotation(quat / norm[:, None])
+            cands = quaternion_candidates(quat)
         elif all(c in t for c in ("rx_deg", "ry_deg", "rz_deg")):
-            rot = angles_to_rotation(np.stack([t.float(c) for c in ("rx_deg", "ry_deg", "rz_deg")], 1))
+            ang = np.stack([t.float(c) for c in ("rx_deg", "ry_deg", "rz_deg")], 1)
+            rot = angles_to_rotation(ang)
+            cands = angle_candidates(ang)
         elif any(c in t for c in ("qx", "qy", "qz", "qw", "rx_deg", "ry_deg", "rz_deg")):
             raise InputError(f"{t.path}: incomplete orientation columns: need all of qx qy qz qw or of "
                              f"rx_deg ry_deg rz_deg; found columns {t.names}")
     if len(t) == 0:
         raise InputError(f"{t.path}: no data rows")
+    check_measurements(t.path, machine, q, tip, cands)
     return PoseData(q, tip, rot, str(t.path), np.array([t.row_number(i) for i in range(len(t))]))
 
 
@@ -237,6 +245,28 @@ def robust_registration(machine_tip_mm: np.ndarray, measured_tip_mm: np.ndarray,
     return t, R, inl
 
 
+def predict_poses(machine: PKM, frame, q: np.ndarray, leg_terms=None, nominal: PKM | None = None):
+    """Measured poses (instrument frame) predicted by ``machine`` (+ ``leg_terms``, whose features use
+    ``nominal``) and ``frame`` = (t (3,), R (3, 3)) at drive commands ``q`` (n, k): (tip (n, 3), R (n, 3, 3))."""
+    t, R = frame
+    legs = machine.drive_to_legs(q)
+    if leg_terms:
+        legs = legs + leg_terms.correction_mm(nominal if nominal is not None else machine, q)
+    fk = forward_kinematics(machine, legs, check_limits=False)
+    return fk.x @ R.T + t, np.einsum("ij,njk->nik", R, fk.platform2base)
+
+
+def pose_errors_um(machine: PKM, frame, data: "PoseData", leg_terms=None, nominal: PKM | None = None) -> dict:
+    """Measured residual (measurement minus model) on ``data``: ``position_um`` (n,) (norm) and, with
+    orientations, ``angle_urad`` (n,)."""
+    tip, R = predict_poses(machine, frame, data.q, leg_terms, nominal)
+    out = {"position_um": 1e3 * np.linalg.norm(data.tip_mm - tip, axis=1)}
+    if data.rotation is not None:
+        rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", R, data.rotation)).as_rotvec()
+        out["angle_urad"] = 1e6 * np.linalg.norm(rv, axis=1)
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # the calibrator
 # ---------------------------------------------------------------------------------------------
@@ -279,7 +309,7 @@ class CalibrationResult:
     param_scale: np.ndarray | None = None              # Tikhonov scaling of the estimated parameters
     history: list = field(default_factory=list)
     lcurve: dict = field(default_factory=dict)
-    lambda_rule: str = "morozov"
+    lambda_rule: str = "gcv"
     lambda_morozov: float = float("nan")               # Morozov's lambda at the final linearisation (NaN: no delta)
     discrepancy_reached: bool = True                   # False: LS residual above tau*delta*sqrt(m), lambda = 0
     condition_number_raw: float = float("nan")         # all estimated parameters, gauge directions included
@@ -287,22 +317,19 @@ class CalibrationResult:
     n_gauge: int = 0                                   # gauge directions fixed explicitly (6 with registration)
     iterations: int = 0                                # Gauss-Newton linearisations (nfev counts residual evaluations)
     lever_estimated: bool = False                      # lever_mm estimated from the data (variance components)
+    leg_terms: object = None                           # accepted leg terms (legspace.LegTerms) or None
 
     def predict(self, q: np.ndarray, nominal: bool = False, frame=None):
         """Predicted measured poses (instrument frame) at drive commands ``q`` (n, k): (tip (n,3), R (n,3,3))."""
         m = self.nominal if nominal else self.machine
         t, R = (self.frame_translation_mm, self.frame_rotation) if frame is None else frame
-        fk = forward_kinematics(m, m.drive_to_legs(q), check_limits=False)
-        return fk.x @ R.T + t, np.einsum("ij,njk->nik", R, fk.platform2base)
+        return predict_poses(m, (t, R), q, None if nominal else self.leg_terms, self.nominal)
 
     def pose_errors_um(self, data: PoseData, nominal: bool = False, frame=None) -> dict:
         """Measured residual (measurement minus model) on ``data``: position norm (um) and angle (urad), shape (n,)."""
-        tip, R = self.predict(data.q, nominal, frame)
-        out = {"position_um": 1e3 * np.linalg.norm(data.tip_mm - tip, axis=1)}
-        if data.rotation is not None:
-            rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", R, data.rotation)).as_rotvec()
-            out["angle_urad"] = 1e6 * np.linalg.norm(rv, axis=1)
-        return out
+        m = self.nominal if nominal else self.machine
+        fr = (self.frame_translation_mm, self.frame_rotation) if frame is None else frame
+        return pose_errors_um(m, fr, data, None if nominal else self.leg_terms, self.nominal)
 
     def parameter_table(self) -> dict:
         """Name -> {nominal, value, delta, std_error} of the estimated parameters."""
@@ -336,7 +363,7 @@ class PKMCalibrator:
                  noise_um: float | None = None, tau: float = 1.0, lever_mm: float | None = None,
                  joint_scale_mm: float = 1.0, joint_bound_mm: float = 25.0,
                  offset_bound_mm: float = 200.0, scale_bound: float = 0.15, max_iter: int = 50,
-                 xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "morozov",
+                 xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "gcv",
                  verbose: bool = False, progress=None):
         if noise_um is not None and not noise_um > 0:
             raise ValueError(f"noise_um must be positive, got {noise_um}")
@@ -422,7 +449,10 @@ class PKMCalibrator:
 
     def _residual(self, m: PKM, data: PoseData, t_g, R_g, guess):
         """Residual (n, d) in mm (orientation rows times ``lever_mm``) and the forward kinematics; None if FK fails."""
-        fk = forward_kinematics(m, m.drive_to_legs(data.q), guess_tip_mm=guess[0], guess_platform2base=guess[1],
+        legs = m.drive_to_legs(data.q)
+        if data.leg_correction_mm is not None:
+            legs = legs + data.leg_correction_mm
+        fk = forward_kinematics(m, legs, guess_tip_mm=guess[0], guess_platform2base=guess[1],
                                 check_limits=False, raise_on_failure=False)
         if not fk.success.all():
             return None, None
@@ -526,8 +556,12 @@ class PKMCalibrator:
         """
         import copy
         with _single_thread_blas():
-            if self.lever_mm is not None or data.rotation is None or self.machine.kind != "hexapod":
+            if self.lever_mm is not None:
                 return self._fit(data)
+            if data.rotation is None or self.machine.kind != "hexapod":
+                c = copy.copy(self)
+                c.lever_mm = 500.0                  # no orientation rows: only scales the frame's step test
+                return c._fit(data)
             lever, res = 500.0, None
             for _ in range(3):
                 c = copy.copy(self)
@@ -554,6 +588,7 @@ class PKMCalibrator:
         full = data.rotation is not None and m0.kind == "hexapod"
         d = 6 if full else 3
         m_rows = d * len(data)
+        check_pose_set(data.source, m0, data.q, int(est.sum()) + (6 if self.register else 0), d, data.rows)
         if m_rows < est.sum() + (6 if self.register else 0):
             raise ValueError(f"{data.source}: {len(data)} poses give {m_rows} equations for "
                              f"{est.sum() + 6 * self.register} unknowns; measure more poses")
@@ -567,7 +602,8 @@ class PKMCalibrator:
         P = np.linalg.qr(np.c_[G, np.eye(est.sum())])[0][:, G.shape[1]:est.sum()] if G.size else np.eye(est.sum())
         n_free = 6 if self.register else 0
         # robust initial registration from the nominal model
-        fk0 = forward_kinematics(m0, legs, check_limits=False)
+        fk0 = forward_kinematics(m0, legs if data.leg_correction_mm is None else legs + data.leg_correction_mm,
+                                 check_limits=False)
         if self.register:
             t_g, R_g, inliers = robust_registration(fk0.x, data.tip_mm)
         else:

@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 from ..io import write_csv
 from .calibration import PoseData, rigid_motion_basis
 from .hexapod import forward_kinematics, inverse_kinematics, rotation_to_angles, workspace_poses
+from .legspace import normalised_command
 from .machine_file import PKM
 
 
@@ -75,12 +76,6 @@ class Truth:
     def legs_mm(self, q: np.ndarray) -> np.ndarray:
         """The true leg lengths (n, k) at drive commands ``q`` (n, k)."""
         return self.machine.drive_to_legs(q) + self.leg_error_mm(q)
-
-
-def normalised_command(machine: PKM, q: np.ndarray) -> np.ndarray:
-    """Drive commands (n, k) mapped to [-1, 1] over each leg's nominal range (min_mm..max_mm)."""
-    lo, hi = machine.legs_to_drive(machine.leg_min_mm[None])[0], machine.legs_to_drive(machine.leg_max_mm[None])[0]
-    return (2 * np.asarray(q, float) - (lo + hi)) / (hi - lo)
 
 
 @dataclass
