@@ -1,14 +1,19 @@
 """``volcomp calibrate POSES --machine FILE --out DIR``: PKM kinematic calibration (pkm-calibration paper).
 
-Identifies joint positions, leg zero lengths (and scales) with Tikhonov-regularised Gauss-Newton,
-lambda by Morozov's discrepancy principle (noise level from ``--noise-um`` or estimated), estimates
-the instrument frame, and reports the *measured residual* on held-out poses before/after.
+Identifies joint positions, leg zero lengths and leg scales (``--no-scales`` fixes the scales) with
+Tikhonov-regularised Gauss-Newton (lambda by GCV by default), estimates the instrument frame and the
+orientation weight, then runs the loop on leg residuals (terms the rigid model lacks, cross-validated),
+fits the plain baseline (scipy least squares in leg space, no regularisation) and reports the *measured
+residual* on held-out poses: nominal, volcomp, baseline. Never returns a model that loses to the
+baseline on the held-out poses; ``success`` is false, with the reasons, when the held-out residual is
+not better than before or far above the noise.
 Writes ``DIR/calibration.json``, ``DIR/report.html`` (PNG plots embedded) and the PNGs.
 """
 from __future__ import annotations
 
 import base64
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +22,11 @@ from errormap.io import InputError, atomic_write, write_json
 from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator, calibration_to_dict, read_poses
 from errormap.pkm.hexapod import KinematicsError
+from errormap.pkm.legspace import leg_residual_loop, measured_legs_mm, plain_leg_fit
+
+NOISE_FACTOR = 3.0      # held-out RMS per component above 3x the noise: "far above the noise"
+GAP_FACTOR = 2.0        # held-out RMS per component above 2x the fit's estimated noise: not generalising
+BASELINE_MARGIN = 1.0   # volcomp's model is replaced when the baseline's held-out RMS is lower (no margin)
 
 
 def register(subparsers):
@@ -28,17 +38,26 @@ def register(subparsers):
     g.add_argument("--check", help="separate pose CSV for the held-out residual")
     g.add_argument("--holdout", type=float, default=0.2, help="fraction of POSES held out (default 0.2)")
     p.add_argument("--noise-um", type=float, default=None, help="measurement noise per component (um); estimated if omitted")
-    p.add_argument("--scales", action="store_true", help="identify the leg scales too")
+    p.add_argument("--no-scales", action="store_true", help="keep the leg scales at the machine file's values "
+                   "(default: identify them)")
+    p.add_argument("--scales", action="store_true", help=argparse_suppress())
+    p.add_argument("--no-loop", action="store_true", help="skip the loop on leg residuals")
     p.add_argument("--no-register", action="store_true", help="the instrument frame is the machine frame")
-    p.add_argument("--lever-mm", type=float, default=500.0, help="weight of orientation residuals (mm per rad)")
+    p.add_argument("--lever-mm", type=float, default=None, help="weight of orientation residuals (mm per rad; "
+                   "default: estimated from the data, position noise / orientation noise)")
     p.add_argument("--seed", type=int, default=0, help="seed of the hold-out split")
-    p.add_argument("--lambda-rule", choices=PKMCalibrator.RULES, default="morozov",
-                   help="choice of the Tikhonov lambda: Morozov's discrepancy principle (delta from --noise-um or "
-                        "estimated by GCV), GCV, or the L-curve corner (default morozov)")
+    p.add_argument("--lambda-rule", choices=PKMCalibrator.RULES, default="gcv",
+                   help="choice of the Tikhonov lambda: GCV (default), Morozov's discrepancy principle (delta from "
+                        "--noise-um or estimated by GCV), or the L-curve corner")
     p.add_argument("--compare-rules", action="store_true",
                    help="also fit with the other lambda rules and report their held-out residuals "
                         "(always done when --noise-um is omitted)")
     p.set_defaults(func=run)
+
+
+def argparse_suppress():
+    import argparse
+    return argparse.SUPPRESS
 
 
 def _save(fig, path: Path) -> None:
@@ -115,6 +134,26 @@ def _html(doc: dict, pngs: list[Path], out: Path) -> Path:
                f"{doc['condition_number']:.3g} on the identifiable subspace (raw, gauge directions included: "
                f"{doc['condition_number_raw'] if doc['condition_number_raw'] is not None else float('inf'):.3g}); "
                f"{len(doc['unidentifiable'])} unidentifiable combinations ({doc['n_gauge']} fixed by the gauge).</p>")
+    summary += (f"<p><b>success: {str(doc['success']).lower()}</b>"
+                + "".join(f"<br>reason: {r}" for r in doc["success_reasons"])
+                + "".join(f"<br>note: {n}" for n in doc["notes"]) + "</p>")
+    summary += ("<h2>Held-out poses: nominal, volcomp, plain baseline</h2><table border=1><tr><th>model</th>"
+                "<th>RMS / max um</th></tr>"
+                f"<tr><td>nominal</td><td>{doc['rms_before_um']:.2f} / {doc['max_before_um']:.2f}</td></tr>"
+                f"<tr><td>volcomp rigid</td><td>{doc['volcomp']['rigid_rms_um']:.2f}</td></tr>"
+                f"<tr><td>volcomp (returned model candidate)</td><td>{doc['volcomp']['rms_um']:.2f} / "
+                f"{doc['volcomp']['max_um']:.2f}</td></tr>"
+                f"<tr><td>{doc['baseline']['what']}</td><td>{doc['baseline']['rms_um']:.2f} / "
+                f"{doc['baseline']['max_um']:.2f}</td></tr></table><p>returned: {doc['returned_model']}</p>")
+    loop = doc.get("loop", {})
+    if loop.get("run"):
+        summary += ("<h2>Loop on leg residuals</h2><table border=1><tr><th>round</th><th>term</th><th>leg</th>"
+                    "<th>CV RSS before / after mm^2</th><th>gain</th><th>F</th><th>p</th><th>accepted</th></tr>"
+                    + "".join(f"<tr><td>{r['round']}</td><td>{r['family']}</td><td>{r['leg']}</td>"
+                              f"<td>{r['cv_rss_before_mm2']:.4g} / {r['cv_rss_after_mm2']:.4g}</td>"
+                              f"<td>{r['cv_gain']:.1%}</td><td>{r['F']:.3g}</td><td>{r['p_value']:.2g}</td>"
+                              f"<td>{r['passes']}</td></tr>" for rows in loop["rounds"] for r in rows)
+                    + "</table>")
     if "lambda_comparison" in doc:
         summary += ("<h2>Choice of lambda</h2><table border=1><tr><th>rule</th><th>lambda</th><th>delta um</th>"
                     "<th>held-out RMS / max um</th></tr>" + "".join(
@@ -137,8 +176,8 @@ def _compare_rules(machine, args, fit, check, res, after) -> dict:
         if rule == args.lambda_rule:
             r, e = res, after
         else:
-            r = PKMCalibrator(machine, estimate_scales=args.scales, register=not args.no_register,
-                              noise_um=args.noise_um, lever_mm=args.lever_mm, lambda_rule=rule).fit(fit)
+            r = PKMCalibrator(machine, estimate_scales=not args.no_scales, register=not args.no_register,
+                              noise_um=args.noise_um, lever_mm=res.lever_mm, lambda_rule=rule).fit(fit)
             e = r.pose_errors_um(check)
         pos = e["position_um"]
         rows.append({"rule": rule, "lambda": r.lam, "delta_um": r.delta_mm * 1e3,
@@ -154,11 +193,51 @@ def _compare_rules(machine, args, fit, check, res, after) -> dict:
             "rules": rows}
 
 
+def _rms_um(e: dict) -> tuple[float, float]:
+    pos = e["position_um"]
+    return float(np.sqrt(np.mean(pos ** 2))), float(pos.max())
+
+
+def _leg_loop(machine, cal_fixed, fit, res):
+    """The loop on leg residuals (full poses only): returns (LegTerms, rounds, final result)."""
+    state = {"res": res}
+
+    def leg_res(terms):
+        data = fit if not terms else replace(fit, leg_correction_mm=terms.correction_mm(machine, fit.q))
+        r = cal_fixed.fit(data) if terms else res
+        r.leg_terms = terms if terms else None
+        state["res"] = r
+        rot = None if machine.kind == "tripod" else fit.rotation
+        legs = measured_legs_mm(r.machine, fit.tip_mm, rot, r.frame_translation_mm, r.frame_rotation)
+        corr = 0.0 if not terms else data.leg_correction_mm
+        return legs - r.machine.drive_to_legs(fit.q) - corr
+
+    terms, rounds = leg_residual_loop(machine, fit.q, leg_res)
+    if terms:
+        leg_res(terms)
+    return terms, rounds, state["res"]
+
+
+def _loop_table(rounds) -> list:
+    """Per round, the candidates that passed plus the best three that did not (report size)."""
+    out = []
+    for i, rows in enumerate(rounds):
+        rows = sorted(rows, key=lambda r: -r["cv_gain"])
+        keep = [r for r in rows if r["passes"]] + [r for r in rows if not r["passes"]][:3]
+        out.append([{"round": i + 1, "family": r["family"], "leg": r["leg"] + 1,
+                     "cv_rss_before_mm2": r["cv_rss_before_mm2"], "cv_rss_after_mm2": r["cv_rss_after_mm2"],
+                     "cv_gain": r["cv_gain"], "F": r["F"], "p_value": r["p_value"], "passes": r["passes"]}
+                    for r in keep])
+    return out
+
+
 def run(args) -> int:
     from compensation.cli import UsageError
     machine = load_machine(args.machine, expect_kind=None) if args.machine else load_machine(expect_kind="hexapod")
     if machine.kind not in ("hexapod", "tripod"):
         raise UsageError(f"{machine.path}: calibrate needs a hexapod or tripod machine file, got kind {machine.kind!r}")
+    if args.scales and args.no_scales:
+        raise UsageError("--scales and --no-scales contradict each other (scales are identified by default)")
     data = read_poses(args.poses, machine)
     if args.check:
         fit, check = data, read_poses(args.check, machine)
@@ -169,35 +248,110 @@ def run(args) -> int:
         n_check = max(1, int(round(args.holdout * len(data))))
         check, fit = data.subset(idx[:n_check]), data.subset(idx[n_check:])
     print(f"calibrate: {len(fit)} fit poses, {len(check)} held-out poses, machine {machine.name}", file=sys.stderr)
-    cal = PKMCalibrator(machine, estimate_scales=args.scales, register=not args.no_register, noise_um=args.noise_um,
-                        lever_mm=args.lever_mm, lambda_rule=args.lambda_rule, progress=lambda msg: print(f"calibrate: {msg}", file=sys.stderr))
+    scales = not args.no_scales
+    cal = PKMCalibrator(machine, estimate_scales=scales, register=not args.no_register, noise_um=args.noise_um,
+                        lever_mm=args.lever_mm, lambda_rule=args.lambda_rule,
+                        progress=lambda msg: print(f"calibrate: {msg}", file=sys.stderr))
+    full_pose = machine.kind == "tripod" or fit.rotation is not None
     try:
-        res = cal.fit(fit)
-        before = res.pose_errors_um(check, nominal=True, frame=res.lcurve["initial_frame"])
-        after = res.pose_errors_um(check)
-        b, a = before["position_um"], after["position_um"]
-        comparison = (_compare_rules(machine, args, fit, check, res, after)
+        rigid = cal.fit(fit)
+        before = rigid.pose_errors_um(check, nominal=True, frame=rigid.lcurve["initial_frame"])
+        rigid_e = rigid.pose_errors_um(check)
+        # the loop on leg residuals (lever fixed at the rigid fit's)
+        loop_doc, res, after = {"run": False}, rigid, rigid_e
+        if full_pose and not args.no_loop:
+            cal_fixed = PKMCalibrator(machine, estimate_scales=scales, register=not args.no_register,
+                                      noise_um=args.noise_um, lever_mm=rigid.lever_mm, lambda_rule=args.lambda_rule)
+            terms, rounds, with_terms = _leg_loop(machine, cal_fixed, fit, rigid)
+            loop_doc = {"run": True, "accepted_terms": terms.to_list(), "rounds": _loop_table(rounds),
+                        "heldout_rms_um_rigid": _rms_um(rigid_e)[0]}
+            if terms:
+                e_t = with_terms.pose_errors_um(check)
+                loop_doc["heldout_rms_um_with_terms"] = _rms_um(e_t)[0]
+                if _rms_um(e_t)[0] < _rms_um(rigid_e)[0]:
+                    res, after = with_terms, e_t
+                    loop_doc["kept"] = True
+                else:
+                    loop_doc["kept"] = False
+                    loop_doc["note"] = "terms rejected: the held-out residual did not improve"
+            print(f"calibrate: loop on leg residuals: {len(terms.terms)} term(s) accepted"
+                  + "".join(f"; {t['family']} leg {t['leg']}" for t in terms.to_list()), file=sys.stderr)
+        elif not full_pose:
+            loop_doc["note"] = "needs measured orientations (leg lengths from full poses)"
+        # the plain baseline
+        base = plain_leg_fit(machine, fit, scales=scales, register=not args.no_register)
+        base_e = base.pose_errors_um(check, machine)
+        comparison = (_compare_rules(machine, args, fit, check, rigid, rigid_e)
                       if args.compare_rules or args.noise_um is None else None)
     except KinematicsError as exc:
         raise InputError(f"{args.poses}: {exc}") from None
     except ValueError as exc:
         raise InputError(str(exc)) from None
+    b_rms, b_max = _rms_um(before)
+    a_rms, a_max = _rms_um(after)
+    p_rms, p_max = _rms_um(base_e)
+    returned = "volcomp"
+    notes = []
+    if p_rms < BASELINE_MARGIN * a_rms:
+        returned = "plain baseline"
+        notes.append(f"the plain leg-space least-squares fit has the lower held-out residual ({p_rms:.2f} vs "
+                     f"{a_rms:.2f} um): its parameters are returned")
+    # no false success
+    reasons = []
+    if not res.success:
+        reasons.append(f"the fit did not converge ({res.message})")
+    final_rms = min(a_rms, p_rms)
+    per_comp = final_rms / np.sqrt(3.0)
+    if final_rms >= b_rms:
+        reasons.append(f"held-out residual not better than the nominal model ({b_rms:.2f} -> {final_rms:.2f} um RMS)")
+    if args.noise_um is not None and per_comp > NOISE_FACTOR * args.noise_um:
+        reasons.append(f"held-out residual {per_comp:.3g} um per component is {per_comp / args.noise_um:.1f}x the "
+                       f"noise you gave ({args.noise_um:g} um): the model lacks something, or the noise is larger")
+    elif args.noise_um is None and per_comp > GAP_FACTOR * res.delta_mm * 1e3:
+        reasons.append(f"held-out residual {per_comp:.3g} um per component is {per_comp / (res.delta_mm * 1e3):.1f}x "
+                       f"the noise estimated from the fit ({res.delta_mm * 1e3:.3g} um): the model does not generalise")
+    success = not reasons
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = calibration_to_dict(res)
+    if returned != "volcomp":
+        doc["identified_machine"] = {"base_joints_mm": base.machine.base_joints_mm,
+                                     "platform_joints_mm": base.machine.platform_joints_mm,
+                                     "leg_offset_mm": base.machine.leg_offset_mm, "leg_scale": base.machine.leg_scale,
+                                     "tool_in_platform_mm": base.machine.tool_in_platform_mm}
+        from scipy.spatial.transform import Rotation
+        rot = Rotation.from_matrix(base.frame_rotation)
+        doc["frame"].update({"translation_mm": base.frame_translation_mm, "rotation_qx_qy_qz_qw": rot.as_quat(),
+                             "rotation_deg_fixed_xyz": rot.as_euler("xyz", degrees=True)})
+        doc["leg_terms"] = []
+    else:
+        doc["leg_terms"] = res.leg_terms.to_list() if res.leg_terms else []
     doc.update({"residual_kind": "measured residual (measurement minus model) on held-out poses, position norm",
-                "rms_before_um": float(np.sqrt(np.mean(b ** 2))), "rms_after_um": float(np.sqrt(np.mean(a ** 2))),
-                "max_before_um": float(b.max()), "max_after_um": float(a.max()), "n_check_poses": len(check),
-                "poses_file": str(args.poses), "check_file": args.check})
+                "rms_before_um": b_rms, "rms_after_um": min(a_rms, p_rms) if returned != "volcomp" else a_rms,
+                "max_before_um": b_max, "max_after_um": p_max if returned != "volcomp" else a_max,
+                "n_check_poses": len(check), "poses_file": str(args.poses), "check_file": args.check,
+                "scales_estimated": scales, "lever_mm": res.lever_mm, "lever_estimated": res.lever_estimated,
+                "returned_model": returned,
+                "volcomp": {"rms_um": a_rms, "max_um": a_max, "rigid_rms_um": _rms_um(rigid_e)[0]},
+                "baseline": {"what": f"plain least squares in {base.objective} space (scipy least_squares, LM, no "
+                                     "regularisation) of the same parameters and the frame",
+                             "objective": base.objective, "rms_um": p_rms, "max_um": p_max,
+                             "fit_rms_mm": base.fit_rms_mm, "converged": base.success},
+                "loop": loop_doc, "success": success, "success_reasons": reasons, "notes": notes,
+                "message": res.message if success else "; ".join(reasons)})
     if "angle_urad" in after:
         doc.update({"rms_angle_before_urad": float(np.sqrt(np.mean(before["angle_urad"] ** 2))),
                     "rms_angle_after_urad": float(np.sqrt(np.mean(after["angle_urad"] ** 2)))})
     if comparison is not None:
         doc["lambda_comparison"] = comparison
     write_json(out / "calibration.json", doc)
-    pngs = _plots(res, b, a, out)
+    pngs = _plots(res, before["position_um"], after["position_um"], out)
     _html(doc, pngs, out)
-    print(f"calibrate: {res.message}; held-out RMS {doc['rms_before_um']:.2f} -> {doc['rms_after_um']:.2f} um "
-          f"(max {doc['max_before_um']:.2f} -> {doc['max_after_um']:.2f} um)")
+    print(f"calibrate: held-out RMS {b_rms:.2f} -> {doc['rms_after_um']:.2f} um (max {b_max:.2f} -> "
+          f"{doc['max_after_um']:.2f} um); volcomp {a_rms:.2f} um, plain baseline {p_rms:.2f} um; returned: {returned}")
+    for n in notes:
+        print(f"calibrate: note: {n}")
+    if not success:
+        print("calibrate: success: false: " + "; ".join(reasons))
     print(f"calibrate: wrote {out / 'calibration.json'}, {out / 'report.html'} and {len(pngs)} PNGs")
-    return 0 if res.success else 1
+    return 0 if success else 1

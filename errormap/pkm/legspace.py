@@ -94,12 +94,26 @@ def leg_features(nominal: PKM, q: np.ndarray, family: str, directions: np.ndarra
     raise ValueError(f"unknown leg-term family {family!r}; expected one of {sorted(FAMILIES)}")
 
 
-def leg_directions(nominal: PKM, q: np.ndarray) -> np.ndarray:
-    """Unit leg directions (n, k, 3), base frame, at the nominal forward kinematics of commands ``q``."""
+def leg_directions(nominal: PKM, q: np.ndarray, with_rotation: bool = False):
+    """Unit leg directions (n, k, 3), base frame, at the nominal forward kinematics of commands ``q``
+    (and the platform rotations (n, 3, 3) when ``with_rotation``)."""
     fk = forward_kinematics(nominal, nominal.drive_to_legs(q), check_limits=False)
     a = nominal.platform_joints_mm - nominal.tool_in_platform_mm
     v = fk.x[:, None, :] + np.einsum("nij,kj->nki", fk.platform2base, a) - nominal.base_joints_mm[None]
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    n = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return (n, fk.platform2base) if with_rotation else n
+
+
+def rigid_leg_columns(nominal: PKM, q: np.ndarray, directions=None, rotations=None) -> np.ndarray:
+    """Per leg, the rigid model's own leg-space columns (n, k, 8): constant (zero length), command
+    (scale), ``-n`` (base joint), ``R^T n`` (platform joint). A candidate term counts only for what it
+    explains beyond these (else a direction term would re-fit joint errors)."""
+    if directions is None or rotations is None:
+        directions, rotations = leg_directions(nominal, q, with_rotation=True)
+    n = directions
+    rtn = np.einsum("nji,nkj->nki", rotations, n)
+    ones = np.ones(q.shape + (1,))
+    return np.concatenate([ones, np.asarray(q, float)[..., None], -n, rtn], -1)
 
 
 @dataclass
@@ -139,36 +153,38 @@ def _cv_rss(F: np.ndarray, e: np.ndarray, folds: np.ndarray) -> float:
 
 
 def scan_terms(nominal: PKM, q: np.ndarray, leg_res_mm: np.ndarray, seed=0,
-               families=tuple(FAMILIES), directions=None) -> list[dict]:
+               families=tuple(FAMILIES), directions=None, rigid=None) -> list[dict]:
     """Test every candidate (family x leg) on the leg residuals (n, k) of the fit poses.
 
-    Each candidate's columns (plus a constant, which the rigid model already has) are fitted by least
-    squares; reported: RSS before/after, 5-fold cross-validated RSS before (constant only) and after,
+    Each candidate's columns are fitted by least squares together with the leg's rigid columns
+    (:func:`rigid_leg_columns`; ``rigid`` (n, k, 8) may be passed), against the rigid columns alone; reported: RSS before/after, 5-fold cross-validated RSS before (constant only) and after,
     the F statistic and its p-value, and whether it passes (p < ``LOOP_ALPHA`` / number of candidates and a
     cross-validated gain >= ``LOOP_MIN_CV_GAIN``).
     """
     n, k = leg_res_mm.shape
     folds = np.random.default_rng(seed).permutation(n) % LOOP_FOLDS
-    one = np.ones((n, 1))
+    if rigid is None:
+        rigid = rigid_leg_columns(nominal, q)
     rows = []
     n_cand = len(families) * k
     for fam in families:
         X = leg_features(nominal, q, fam, directions if fam == "direction" else None)
         for leg in range(k):
             e = leg_res_mm[:, leg]
-            F = np.c_[one, X[:, leg]]
-            c = F.shape[1] - 1
-            rss0 = float(np.sum((e - e.mean()) ** 2))
+            F0 = rigid[:, leg]
+            F = np.c_[F0, X[:, leg]]
+            c = X.shape[-1]
+            rss0 = float(np.sum((e - F0 @ np.linalg.lstsq(F0, e, rcond=None)[0]) ** 2))
             coef = np.linalg.lstsq(F, e, rcond=None)[0]
             rss1 = float(np.sum((e - F @ coef) ** 2))
-            dof = n - F.shape[1]
+            dof = n - np.linalg.matrix_rank(F)
             fstat = ((rss0 - rss1) / c) / max(rss1 / max(dof, 1), 1e-300)
             p = float(f_dist.sf(fstat, c, max(dof, 1)))
-            cv0, cv1 = _cv_rss(one, e, folds), _cv_rss(F, e, folds)
+            cv0, cv1 = _cv_rss(F0, e, folds), _cv_rss(F, e, folds)
             gain = 1 - cv1 / max(cv0, 1e-300)
             rows.append({"family": fam, "leg": leg, "rss_before_mm2": rss0, "rss_after_mm2": rss1,
                          "cv_rss_before_mm2": cv0, "cv_rss_after_mm2": cv1, "cv_gain": gain,
-                         "F": float(fstat), "p_value": p, "coefficients": coef[1:],
+                         "F": float(fstat), "p_value": p, "coefficients": coef[F0.shape[1]:],
                          "passes": bool(p < LOOP_ALPHA / n_cand and gain >= LOOP_MIN_CV_GAIN)})
     return rows
 
@@ -184,11 +200,12 @@ def leg_residual_loop(nominal: PKM, q: np.ndarray, leg_res_fn, seed=0, max_terms
     """
     terms = LegTerms()
     rounds = []
-    directions = leg_directions(nominal, q)
+    directions, rotations = leg_directions(nominal, q, with_rotation=True)
+    rigid = rigid_leg_columns(nominal, q, directions, rotations)
     while len(terms.terms) < max_terms:
         res = leg_res_fn(terms)
         have = {(fam, leg) for fam, leg, _ in terms.terms}
-        rows = [r for r in scan_terms(nominal, q, res, seed, directions=directions)
+        rows = [r for r in scan_terms(nominal, q, res, seed, directions=directions, rigid=rigid)
                 if (r["family"], r["leg"]) not in have]
         rounds.append(rows)
         ok = [r for r in rows if r["passes"]]
@@ -198,11 +215,11 @@ def leg_residual_loop(nominal: PKM, q: np.ndarray, leg_res_fn, seed=0, max_terms
         terms.terms.append((best["family"], best["leg"], np.asarray(best["coefficients"], float)))
         # re-estimate all accepted coefficients on the residual of the rigid model alone (joint fit by
         # alternation: the rigid refit inside leg_res_fn sees the current terms)
-        terms = _refit_coefficients(nominal, q, leg_res_fn, terms, directions)
+        terms = _refit_coefficients(nominal, q, leg_res_fn, terms, directions, rigid)
     return terms, rounds
 
 
-def _refit_coefficients(nominal, q, leg_res_fn, terms: LegTerms, directions, n_alt: int = 3) -> LegTerms:
+def _refit_coefficients(nominal, q, leg_res_fn, terms: LegTerms, directions, rigid, n_alt: int = 2) -> LegTerms:
     """Alternate: rigid refit with the terms fixed, then all term coefficients by least squares on
     the leg residual with the terms' contribution added back."""
     for _ in range(n_alt):
@@ -212,9 +229,9 @@ def _refit_coefficients(nominal, q, leg_res_fn, terms: LegTerms, directions, n_a
             by_leg.setdefault(leg, []).append(fam)
         coefs = {}
         for leg, fams in by_leg.items():
-            F = np.concatenate([np.ones((len(q), 1))] + [
+            F = np.concatenate([rigid[:, leg]] + [
                 leg_features(nominal, q, fam, directions if fam == "direction" else None)[:, leg] for fam in fams], 1)
-            c = np.linalg.lstsq(F, res[:, leg], rcond=None)[0][1:]
+            c = np.linalg.lstsq(F, res[:, leg], rcond=None)[0][rigid.shape[-1]:]
             i = 0
             for fam in fams:
                 w = len(FAMILIES[fam])

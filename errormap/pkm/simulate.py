@@ -27,8 +27,10 @@ from scipy.spatial.transform import Rotation
 from ..io import write_csv
 from .calibration import PoseData, rigid_motion_basis
 from .hexapod import forward_kinematics, inverse_kinematics, rotation_to_angles, workspace_poses
-from .legspace import normalised_command
 from .machine_file import PKM
+
+
+NONLINEARITY_SPAN_MM = 150.0   # the leg nonlinearity's amplitude is its size 150 mm of leg travel from home
 
 
 @dataclass(frozen=True)
@@ -37,7 +39,8 @@ class MachineErrors:
 
     ``joint_sd_mm``: joint centre errors (normal, per component); ``offset_range_mm``: leg zero-length
     errors (uniform +-); ``scale_range``: relative leg scale errors (uniform +-); ``nonlinearity_mm``:
-    amplitude of the unmodelled leg nonlinearity at the ends of the leg range (0: none);
+    amplitude of the unmodelled leg nonlinearity: its size at
+    ``NONLINEARITY_SPAN_MM`` of leg travel from the home pose's leg length (0: none);
     ``nonlinearity_shape``: ``"poly"`` (quadratic + cubic in the normalised command) or ``"sine"``
     (one slow sine period over the leg range, the second generator's shape).
     """
@@ -68,10 +71,15 @@ class Truth:
         if self.leg_error is None:
             return np.zeros_like(q)
         shape, c = self.leg_error
-        u = normalised_command(self.nominal, q)
+        u = self._leg_u(q)
         if shape == "poly":
             return c[:, 0] * (u ** 2 - 1 / 3) + c[:, 1] * u ** 3
         return c[:, 0] * np.sin(np.pi * u) + c[:, 1] * np.cos(np.pi * u)
+
+    def _leg_u(self, q: np.ndarray) -> np.ndarray:
+        """Commanded leg length relative to the home pose's, over ``NONLINEARITY_SPAN_MM``: shape (n, k)."""
+        home = inverse_kinematics(self.nominal, self.nominal.home_tool_tip_mm[None])[0]
+        return (self.nominal.drive_to_legs(q) - home) / NONLINEARITY_SPAN_MM
 
     def legs_mm(self, q: np.ndarray) -> np.ndarray:
         """The true leg lengths (n, k) at drive commands ``q`` (n, k)."""
