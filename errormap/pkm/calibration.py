@@ -684,6 +684,11 @@ class PKMCalibrator:
                 if done:
                     success, msg = True, f"{ph}: converged after {it + 1} Gauss-Newton iterations"
                     break
+                if not accepted and (full_step_mm <= 100 * self.xtol_mm or pred <= 100 * self.ftol * phi0):
+                    # the line search cannot resolve a step this small (FK solved to 1e-9 mm): converged
+                    success, msg = True, (f"{ph}: converged after {it + 1} Gauss-Newton iterations (the last "
+                                          f"step, {full_step_mm:.2g} mm, at the rounding floor)")
+                    break
                 if not accepted:
                     msg = (f"{ph}: line search failed at iteration {it + 1} (step {full_step_mm:.3g} mm, "
                            f"predicted relative decrease {pred / max(phi0, 1e-300):.3g})")
