@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import base64
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +20,9 @@ import numpy as np
 from errormap.io import InputError, atomic_write, write_json
 from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator, calibration_to_dict, read_poses
+from errormap.pkm.checks import check_pose_set
 from errormap.pkm.hexapod import KinematicsError
-from errormap.pkm.legspace import leg_residual_loop, measured_legs_mm, plain_leg_fit
+from errormap.pkm.legspace import fit_leg_terms, plain_leg_fit
 
 NOISE_FACTOR = 3.0      # held-out RMS per component above 3x the noise: "far above the noise"
 GAP_FACTOR = 2.0        # held-out RMS per component above 2x the fit's estimated noise: not generalising
@@ -198,26 +198,6 @@ def _rms_um(e: dict) -> tuple[float, float]:
     return float(np.sqrt(np.mean(pos ** 2))), float(pos.max())
 
 
-def _leg_loop(machine, cal_fixed, fit, res):
-    """The loop on leg residuals (full poses only): returns (LegTerms, rounds, final result)."""
-    state = {"res": res}
-
-    def leg_res(terms):
-        data = fit if not terms else replace(fit, leg_correction_mm=terms.correction_mm(machine, fit.q))
-        r = cal_fixed.fit(data) if terms else res
-        r.leg_terms = terms if terms else None
-        state["res"] = r
-        rot = None if machine.kind == "tripod" else fit.rotation
-        legs = measured_legs_mm(r.machine, fit.tip_mm, rot, r.frame_translation_mm, r.frame_rotation)
-        corr = 0.0 if not terms else data.leg_correction_mm
-        return legs - r.machine.drive_to_legs(fit.q) - corr
-
-    terms, rounds = leg_residual_loop(machine, fit.q, leg_res)
-    if terms:
-        leg_res(terms)
-    return terms, rounds, state["res"]
-
-
 def _loop_table(rounds) -> list:
     """Per round, the candidates that passed plus the best three that did not (report size)."""
     out = []
@@ -239,6 +219,9 @@ def run(args) -> int:
     if args.scales and args.no_scales:
         raise UsageError("--scales and --no-scales contradict each other (scales are identified by default)")
     data = read_poses(args.poses, machine)
+    k = machine.n_legs
+    d = 6 if (machine.kind == "hexapod" and data.rotation is not None) else 3
+    check_pose_set(data.source, machine, data.q, (8 if not args.no_scales else 7) * k + 6 * (not args.no_register), d)
     if args.check:
         fit, check = data, read_poses(args.check, machine)
     else:
@@ -262,7 +245,7 @@ def run(args) -> int:
         if full_pose and not args.no_loop:
             cal_fixed = PKMCalibrator(machine, estimate_scales=scales, register=not args.no_register,
                                       noise_um=args.noise_um, lever_mm=rigid.lever_mm, lambda_rule=args.lambda_rule)
-            terms, rounds, with_terms = _leg_loop(machine, cal_fixed, fit, rigid)
+            terms, rounds, with_terms = fit_leg_terms(cal_fixed, fit, rigid)
             loop_doc = {"run": True, "accepted_terms": terms.to_list(), "rounds": _loop_table(rounds),
                         "heldout_rms_um_rigid": _rms_um(rigid_e)[0]}
             if terms:

@@ -242,6 +242,35 @@ def _refit_coefficients(nominal, q, leg_res_fn, terms: LegTerms, directions, rig
     return terms
 
 
+def fit_leg_terms(calibrator, fit, rigid):
+    """The loop on leg residuals around a calibrator: ``(LegTerms, rounds, result)``.
+
+    ``calibrator``: a :class:`~errormap.pkm.calibration.PKMCalibrator` (best with ``lever_mm`` fixed at
+    the rigid fit's); ``fit``: the fit :class:`PoseData` (full poses); ``rigid``: its rigid-model result.
+    Each candidate set of terms is evaluated by refitting the rigid parameters with the terms' leg
+    corrections fixed; ``result`` is the final refit (``leg_terms`` set) or ``rigid`` when none is accepted.
+    """
+    from dataclasses import replace
+    machine = calibrator.machine
+    state = {"res": rigid}
+
+    def leg_res(terms):
+        data = fit if not terms else replace(fit, leg_correction_mm=terms.correction_mm(machine, fit.q))
+        r = calibrator.fit(data) if terms else rigid
+        if terms:
+            r.leg_terms = terms
+        state["res"] = r
+        rot = None if machine.kind == "tripod" else fit.rotation
+        legs = measured_legs_mm(r.machine, fit.tip_mm, rot, r.frame_translation_mm, r.frame_rotation)
+        corr = 0.0 if not terms else data.leg_correction_mm
+        return legs - r.machine.drive_to_legs(fit.q) - corr
+
+    terms, rounds = leg_residual_loop(machine, fit.q, leg_res)
+    if terms:
+        leg_res(terms)
+    return terms, rounds, state["res"] if terms else rigid
+
+
 # ---------------------------------------------------------------------------------------------
 # the plain baseline
 # ---------------------------------------------------------------------------------------------
