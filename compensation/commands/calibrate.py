@@ -22,11 +22,8 @@ from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator, calibration_to_dict, read_poses
 from errormap.pkm.checks import check_pose_set
 from errormap.pkm.hexapod import KinematicsError
-from errormap.pkm.legspace import fit_leg_terms, plain_leg_fit
+from errormap.pkm.pipeline import rms_um, validated_calibration
 
-NOISE_FACTOR = 3.0      # held-out RMS per component above 3x the noise: "far above the noise"
-GAP_FACTOR = 2.0        # held-out RMS per component above 2x the fit's estimated noise: not generalising
-BASELINE_MARGIN = 1.0   # volcomp's model is replaced when the baseline's held-out RMS is lower (no margin)
 
 
 def register(subparsers):
@@ -193,24 +190,6 @@ def _compare_rules(machine, args, fit, check, res, after) -> dict:
             "rules": rows}
 
 
-def _rms_um(e: dict) -> tuple[float, float]:
-    pos = e["position_um"]
-    return float(np.sqrt(np.mean(pos ** 2))), float(pos.max())
-
-
-def _loop_table(rounds) -> list:
-    """Per round, the candidates that passed plus the best three that did not (report size)."""
-    out = []
-    for i, rows in enumerate(rounds):
-        rows = sorted(rows, key=lambda r: -r["cv_gain"])
-        keep = [r for r in rows if r["passes"]] + [r for r in rows if not r["passes"]][:3]
-        out.append([{"round": i + 1, "family": r["family"], "leg": r["leg"] + 1,
-                     "cv_rss_before_mm2": r["cv_rss_before_mm2"], "cv_rss_after_mm2": r["cv_rss_after_mm2"],
-                     "cv_gain": r["cv_gain"], "F": r["F"], "p_value": r["p_value"], "passes": r["passes"]}
-                    for r in keep])
-    return out
-
-
 def run(args) -> int:
     from compensation.cli import UsageError
     machine = load_machine(args.machine, expect_kind=None) if args.machine else load_machine(expect_kind="hexapod")
@@ -232,68 +211,25 @@ def run(args) -> int:
         check, fit = data.subset(idx[:n_check]), data.subset(idx[n_check:])
     print(f"calibrate: {len(fit)} fit poses, {len(check)} held-out poses, machine {machine.name}", file=sys.stderr)
     scales = not args.no_scales
-    cal = PKMCalibrator(machine, estimate_scales=scales, register=not args.no_register, noise_um=args.noise_um,
-                        lever_mm=args.lever_mm, lambda_rule=args.lambda_rule,
-                        progress=lambda msg: print(f"calibrate: {msg}", file=sys.stderr))
-    full_pose = machine.kind == "tripod" or fit.rotation is not None
     try:
-        rigid = cal.fit(fit)
-        before = rigid.pose_errors_um(check, nominal=True, frame=rigid.lcurve["initial_frame"])
-        rigid_e = rigid.pose_errors_um(check)
-        # the loop on leg residuals (lever fixed at the rigid fit's)
-        loop_doc, res, after = {"run": False}, rigid, rigid_e
-        if full_pose and not args.no_loop:
-            cal_fixed = PKMCalibrator(machine, estimate_scales=scales, register=not args.no_register,
-                                      noise_um=args.noise_um, lever_mm=rigid.lever_mm, lambda_rule=args.lambda_rule)
-            terms, rounds, with_terms = fit_leg_terms(cal_fixed, fit, rigid)
-            loop_doc = {"run": True, "accepted_terms": terms.to_list(), "rounds": _loop_table(rounds),
-                        "heldout_rms_um_rigid": _rms_um(rigid_e)[0]}
-            if terms:
-                e_t = with_terms.pose_errors_um(check)
-                loop_doc["heldout_rms_um_with_terms"] = _rms_um(e_t)[0]
-                if _rms_um(e_t)[0] < _rms_um(rigid_e)[0]:
-                    res, after = with_terms, e_t
-                    loop_doc["kept"] = True
-                else:
-                    loop_doc["kept"] = False
-                    loop_doc["note"] = "terms rejected: the held-out residual did not improve"
-            print(f"calibrate: loop on leg residuals: {len(terms.terms)} term(s) accepted"
-                  + "".join(f"; {t['family']} leg {t['leg']}" for t in terms.to_list()), file=sys.stderr)
-        elif not full_pose:
-            loop_doc["note"] = "needs measured orientations (leg lengths from full poses)"
-        # the plain baseline
-        base = plain_leg_fit(machine, fit, scales=scales, register=not args.no_register)
-        base_e = base.pose_errors_um(check, machine)
-        comparison = (_compare_rules(machine, args, fit, check, rigid, rigid_e)
+        v = validated_calibration(machine, fit, check, scales=scales, register=not args.no_register,
+                                  noise_um=args.noise_um, lever_mm=args.lever_mm, lambda_rule=args.lambda_rule,
+                                  loop=not args.no_loop, progress=lambda msg: print(f"calibrate: {msg}", file=sys.stderr))
+        if v.loop.get("run"):
+            print(f"calibrate: loop on leg residuals: {len(v.loop['accepted_terms'])} term(s) accepted"
+                  + "".join(f"; {t['family']} leg {t['leg']}" for t in v.loop["accepted_terms"])
+                  + ("" if v.loop.get("kept", True) else " (rejected on the held-out poses)"), file=sys.stderr)
+        comparison = (_compare_rules(machine, args, fit, check, v.rigid, v.rigid_e)
                       if args.compare_rules or args.noise_um is None else None)
     except KinematicsError as exc:
         raise InputError(f"{args.poses}: {exc}") from None
     except ValueError as exc:
         raise InputError(str(exc)) from None
-    b_rms, b_max = _rms_um(before)
-    a_rms, a_max = _rms_um(after)
-    p_rms, p_max = _rms_um(base_e)
-    returned = "volcomp"
-    notes = []
-    if p_rms < BASELINE_MARGIN * a_rms:
-        returned = "plain baseline"
-        notes.append(f"the plain leg-space least-squares fit has the lower held-out residual ({p_rms:.2f} vs "
-                     f"{a_rms:.2f} um): its parameters are returned")
-    # no false success
-    reasons = []
-    if not res.success:
-        reasons.append(f"the fit did not converge ({res.message})")
-    final_rms = min(a_rms, p_rms)
-    per_comp = final_rms / np.sqrt(3.0)
-    if final_rms >= b_rms:
-        reasons.append(f"held-out residual not better than the nominal model ({b_rms:.2f} -> {final_rms:.2f} um RMS)")
-    if args.noise_um is not None and per_comp > NOISE_FACTOR * args.noise_um:
-        reasons.append(f"held-out residual {per_comp:.3g} um per component is {per_comp / args.noise_um:.1f}x the "
-                       f"noise you gave ({args.noise_um:g} um): the model lacks something, or the noise is larger")
-    elif args.noise_um is None and per_comp > GAP_FACTOR * res.delta_mm * 1e3:
-        reasons.append(f"held-out residual {per_comp:.3g} um per component is {per_comp / (res.delta_mm * 1e3):.1f}x "
-                       f"the noise estimated from the fit ({res.delta_mm * 1e3:.3g} um): the model does not generalise")
-    success = not reasons
+    res, base, before, after = v.result, v.baseline, v.before, v.after
+    b_rms, b_max = rms_um(before)
+    a_rms, a_max = rms_um(after)
+    p_rms, p_max = rms_um(v.baseline_e)
+    returned, notes, reasons, success, loop_doc = v.returned, v.notes, v.reasons, v.success, v.loop
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     doc = calibration_to_dict(res)
@@ -315,12 +251,12 @@ def run(args) -> int:
                 "n_check_poses": len(check), "poses_file": str(args.poses), "check_file": args.check,
                 "scales_estimated": scales, "lever_mm": res.lever_mm, "lever_estimated": res.lever_estimated,
                 "returned_model": returned,
-                "volcomp": {"rms_um": a_rms, "max_um": a_max, "rigid_rms_um": _rms_um(rigid_e)[0]},
+                "volcomp": {"rms_um": a_rms, "max_um": a_max, "rigid_rms_um": rms_um(v.rigid_e)[0]},
                 "baseline": {"what": f"plain least squares in {base.objective} space (scipy least_squares, LM, no "
                                      "regularisation) of the same parameters and the frame",
                              "objective": base.objective, "rms_um": p_rms, "max_um": p_max,
                              "fit_rms_mm": base.fit_rms_mm, "converged": base.success},
-                "loop": loop_doc, "success": success, "success_reasons": reasons, "notes": notes,
+                "loop": loop_doc, "noise": v.noise_source, "success": success, "success_reasons": reasons, "notes": notes,
                 "message": res.message if success else "; ".join(reasons)})
     if "angle_urad" in after:
         doc.update({"rms_angle_before_urad": float(np.sqrt(np.mean(before["angle_urad"] ** 2))),
