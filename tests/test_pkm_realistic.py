@@ -153,3 +153,20 @@ def test_cli_reports_baseline_and_never_returns_a_worse_model(sims, tmp_path):
     assert doc["baseline"]["objective"] == "leg" and doc["baseline"]["rms_um"] > 0
     assert doc["rms_after_um"] <= doc["baseline"]["rms_um"]
     assert doc["loop"]["run"] and "Loop on leg residuals" in (out / "report.html").read_text()
+
+
+FIXED_POINT_TOL_MM = 1e-9   # drive commands for leg terms: fixed point solved to rounding
+
+
+def test_leg_terms_in_drive_commands_round_trip(drive_hexapod):
+    from errormap.pkm.hexapod import inverse_kinematics, workspace_poses
+    from errormap.pkm.legspace import LegTerms
+    terms = LegTerms([("nonlinearity", 2, np.array([1.5, -2.0])), ("direction", 4, np.array([3.0, -1.0, 2.0, 0.5, 1.0]))])
+    legs = inverse_kinematics(drive_hexapod, *workspace_poses(drive_hexapod, 20, seed=1))
+    q = terms.drive_for_legs(drive_hexapod, drive_hexapod, legs)
+    back = drive_hexapod.drive_to_legs(q) + terms.correction_mm(drive_hexapod, q)
+    assert np.abs(back - legs).max() < FIXED_POINT_TOL_MM
+    again = LegTerms.from_list(terms.to_list(), 6)
+    assert [(f, leg) for f, leg, _ in again.terms] == [("nonlinearity", 2), ("direction", 4)]
+    with pytest.raises(ValueError, match="leg_terms"):
+        LegTerms.from_list([{"family": "wobble", "leg": 1, "coefficients_mm": [1.0]}], 6, "cal.json")

@@ -813,10 +813,18 @@ def load_calibrated_machine(path, machine: PKM) -> PKM:
     if kind != machine.kind:
         raise InputError(f"{p}: key 'kind': calibration is for a {kind}, the machine file is a {machine.kind}")
     k = machine.n_legs
+    from .legspace import LegTerms
+    try:
+        terms = LegTerms.from_list(doc.get("leg_terms", []), k, p)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    extra = dict(machine.extra)
+    if terms:   # leg terms of the loop: applied when commands are converted to drive units (with the nominal)
+        extra.update({"leg_terms": terms, "leg_terms_nominal": machine})
     try:
         return replace(machine, base_joints_mm=np.asarray(im["base_joints_mm"], float).reshape(k, 3),
                        platform_joints_mm=np.asarray(im["platform_joints_mm"], float).reshape(k, 3),
                        leg_offset_mm=np.asarray(im["leg_offset_mm"], float).reshape(k),
-                       leg_scale=np.asarray(im["leg_scale"], float).reshape(k))
+                       leg_scale=np.asarray(im["leg_scale"], float).reshape(k), extra=extra)
     except (KeyError, ValueError, TypeError) as exc:
         raise InputError(f"{p}: key 'identified_machine': {exc}") from None

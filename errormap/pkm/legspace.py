@@ -137,6 +137,29 @@ class LegTerms:
             out[:, leg] += feats[fam][:, leg] @ np.asarray(coef, float)
         return out
 
+    @classmethod
+    def from_list(cls, items, k: int, source="") -> "LegTerms":
+        """Inverse of :meth:`to_list` (``calibration.json``'s ``leg_terms``); errors name ``source``."""
+        terms = []
+        for i, t in enumerate(items or []):
+            try:
+                fam, leg, coef = t["family"], int(t["leg"]) - 1, np.asarray(t["coefficients_mm"], float)
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ValueError(f"{source}: key 'leg_terms[{i}]': {exc}") from None
+            if fam not in FAMILIES or not 0 <= leg < k or coef.shape != (len(FAMILIES[fam]),):
+                raise ValueError(f"{source}: key 'leg_terms[{i}]': expected a family of {sorted(FAMILIES)}, leg 1..{k} "
+                                 f"and {len(FAMILIES.get(fam, ()))} coefficients, got {t}")
+            terms.append((fam, leg, coef))
+        return cls(terms)
+
+    def drive_for_legs(self, machine: PKM, nominal: PKM, legs_mm: np.ndarray, n_iter: int = 8) -> np.ndarray:
+        """Drive commands (n, k) that give leg lengths ``legs_mm`` (n, k) with ``machine``'s scale/offset plus
+        these terms: fixed point ``q = (l - o - g(q)) / s`` (the terms are slow: converges in a few steps)."""
+        q = machine.legs_to_drive(legs_mm)
+        for _ in range(n_iter):
+            q = machine.legs_to_drive(legs_mm - self.correction_mm(nominal, q))
+        return q
+
     def to_list(self) -> list:
         return [{"family": fam, "leg": int(leg) + 1, "columns": list(FAMILIES[fam]),
                  "coefficients_mm": [float(c) for c in coef]} for fam, leg, coef in self.terms]
