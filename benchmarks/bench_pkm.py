@@ -88,12 +88,17 @@ def _unit(v):
 
 
 def _b_poses(m, truth, n, noise_um, rng):
-    tips, Rs = workspace_poses(m, n, rng, (40.0, 40.0, 30.0), 10.0)
+    tips, Rs = workspace_poses(m, n + 40, rng, (40.0, 40.0, 30.0), 10.0)
     q = m.legs_to_drive(inverse_kinematics(m, tips, Rs))
     tm = truth["machine"]
     legs = tm.drive_to_legs(q) + truth["amp"] * np.sin(2 * np.pi * (m.drive_to_legs(q) - truth["home"]) / 120.0
                                                        + truth["phase"]) - truth["amp"] * np.sin(truth["phase"])
-    fk = forward_kinematics(tm, legs, guess_tip_mm=tips, guess_platform2base=Rs, check_limits=False)
+    fk = forward_kinematics(tm, legs, guess_tip_mm=tips, guess_platform2base=Rs, check_limits=False,
+                            raise_on_failure=False)
+    ok = np.flatnonzero(fk.success)[:n]             # a pose the truth cannot reach is not measured
+    if ok.size < n:
+        raise RuntimeError("generator B: too many unreachable poses")
+    q, fk = q[ok], replace(fk, x=fk.x[ok], platform2base=fk.platform2base[ok])
     tip = fk.x @ truth["R"].T + truth["t"]
     Rm = np.einsum("ij,njk->nik", truth["R"], fk.platform2base)
     s = noise_um * 1e-3 / np.sqrt(2.0)                 # Student-t with 4 dof has variance 2: scale to noise_um
@@ -122,6 +127,15 @@ def _data(gen, case, seed):
 
 
 def run_case(args):
+    """One seed of one case; an exception is recorded (``error``), not raised."""
+    try:
+        return _run_case(args)
+    except Exception as exc:   # noqa: BLE001 -- a benchmark row, counted in the summary
+        gen, case, seed = args
+        return {"gen": gen, "case": case, "seed": seed, "error": f"{type(exc).__name__}: {exc}"}
+
+
+def _run_case(args):
     gen, case, seed = args
     m, fit, chk, true, noise, tm = _data(gen, case, seed)
     t0 = time.perf_counter()
@@ -165,6 +179,8 @@ def main():
     else:
         rows = [run_case(t) for t in tasks]
     wall = time.perf_counter() - t0
+    errors = [x for x in rows if "error" in x]
+    rows = [x for x in rows if "error" not in x]
     with atomic_write(args.out.replace(".md", ".json")) as fh:
         fh.write(json.dumps(rows, indent=1))
     L = ["# PKM calibration on a realistic platform (issue 15)", "",
@@ -216,6 +232,8 @@ def main():
           + (", ".join(f"{g} {f}: {n}" for (g, f), n in sorted(fam.items())) or "none") + ".",
           "Failed-success reasons seen: " + ("; ".join(sorted({f"{x['gen']}{x['case']} seed {x['seed']}: " + r
                                                               for x in rows for r in x["reasons"]})) or "none") + ".",
+          "Runs that raised (not in the tables): " + ("; ".join(f"{x['gen']}{x['case']} seed {x['seed']}: {x['error']}"
+                                                                 for x in errors) or "none") + ".",
           "", f"Measured with `python benchmarks/bench_pkm.py --seeds {args.seeds} --seeds-reallike "
           f"{args.seeds_reallike} --jobs {args.jobs}` on {platform.machine()} ({os.cpu_count()} CPUs, shared); "
           f"wall {wall:.0f} s. Per-seed rows: `{args.out.replace('.md', '.json')}`.", ""]

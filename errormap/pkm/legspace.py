@@ -74,7 +74,8 @@ def normalised_command(machine: PKM, q: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 
 FAMILIES = {"nonlinearity": ("u^2 - 1/3", "u^3"),
-            "direction": ("nx^2", "ny^2", "nx*ny", "nx*nz", "ny*nz")}
+            "direction": ("nx^2", "ny^2", "nx*ny", "nx*nz", "ny*nz"),
+            "scale": ("u",)}                 # only searched when the scales are not fitted (--no-scales)
 
 
 def leg_features(nominal: PKM, q: np.ndarray, family: str, directions: np.ndarray | None = None) -> np.ndarray:
@@ -87,6 +88,8 @@ def leg_features(nominal: PKM, q: np.ndarray, family: str, directions: np.ndarra
     if family == "nonlinearity":
         u = normalised_command(nominal, q)
         return np.stack([u ** 2 - 1 / 3, u ** 3], -1)
+    if family == "scale":
+        return normalised_command(nominal, q)[..., None]
     if family == "direction":
         n = leg_directions(nominal, q) if directions is None else directions
         x, y, z = n[..., 0], n[..., 1], n[..., 2]
@@ -104,16 +107,17 @@ def leg_directions(nominal: PKM, q: np.ndarray, with_rotation: bool = False):
     return (n, fk.platform2base) if with_rotation else n
 
 
-def rigid_leg_columns(nominal: PKM, q: np.ndarray, directions=None, rotations=None) -> np.ndarray:
+def rigid_leg_columns(nominal: PKM, q: np.ndarray, directions=None, rotations=None, scales: bool = True) -> np.ndarray:
     """Per leg, the rigid model's own leg-space columns (n, k, 8): constant (zero length), command
-    (scale), ``-n`` (base joint), ``R^T n`` (platform joint). A candidate term counts only for what it
+    (scale; left out with ``scales=False``), ``-n`` (base joint), ``R^T n`` (platform joint). A candidate term counts only for what it
     explains beyond these (else a direction term would re-fit joint errors)."""
     if directions is None or rotations is None:
         directions, rotations = leg_directions(nominal, q, with_rotation=True)
     n = directions
     rtn = np.einsum("nji,nkj->nki", rotations, n)
     ones = np.ones(q.shape + (1,))
-    return np.concatenate([ones, np.asarray(q, float)[..., None], -n, rtn], -1)
+    cols = [ones, np.asarray(q, float)[..., None]] if scales else [ones]
+    return np.concatenate(cols + [-n, rtn], -1)
 
 
 @dataclass
@@ -176,7 +180,7 @@ def _cv_rss(F: np.ndarray, e: np.ndarray, folds: np.ndarray) -> float:
 
 
 def scan_terms(nominal: PKM, q: np.ndarray, leg_res_mm: np.ndarray, seed=0,
-               families=tuple(FAMILIES), directions=None, rigid=None) -> list[dict]:
+               families=("nonlinearity", "direction"), directions=None, rigid=None) -> list[dict]:
     """Test every candidate (family x leg) on the leg residuals (n, k) of the fit poses.
 
     Each candidate's columns are fitted by least squares together with the leg's rigid columns
@@ -212,23 +216,26 @@ def scan_terms(nominal: PKM, q: np.ndarray, leg_res_mm: np.ndarray, seed=0,
     return rows
 
 
-def leg_residual_loop(nominal: PKM, q: np.ndarray, leg_res_fn, seed=0, max_terms: int = LOOP_MAX_TERMS):
+def leg_residual_loop(nominal: PKM, q: np.ndarray, leg_res_fn, seed=0, max_terms: int = LOOP_MAX_TERMS,
+                      scales_fitted: bool = True):
     """Greedy search for leg terms on the leg residuals.
 
     ``leg_res_fn(terms)`` returns the leg residuals (n, k) of the fit poses for the model with ``terms``
     (a :class:`LegTerms`; the caller refits the rigid parameters with them). Each round scans all
-    candidates not yet accepted (:func:`scan_terms`), accepts the one with the largest cross-validated
+    candidates not yet accepted (:func:`scan_terms`; the ``scale`` family only when ``scales_fitted`` is
+    False, i.e. a scale error the user chose not to fit shows up as a term), accepts the one with the largest cross-validated
     gain among those that pass, and refits. Returns ``(LegTerms, rounds)`` with ``rounds`` the scans
     (a list of lists of rows, for the report).
     """
     terms = LegTerms()
     rounds = []
     directions, rotations = leg_directions(nominal, q, with_rotation=True)
-    rigid = rigid_leg_columns(nominal, q, directions, rotations)
+    rigid = rigid_leg_columns(nominal, q, directions, rotations, scales=scales_fitted)
+    families = tuple(f for f in FAMILIES if f != "scale" or not scales_fitted)
     while len(terms.terms) < max_terms:
         res = leg_res_fn(terms)
         have = {(fam, leg) for fam, leg, _ in terms.terms}
-        rows = [r for r in scan_terms(nominal, q, res, seed, directions=directions, rigid=rigid)
+        rows = [r for r in scan_terms(nominal, q, res, seed, families, directions=directions, rigid=rigid)
                 if (r["family"], r["leg"]) not in have]
         rounds.append(rows)
         ok = [r for r in rows if r["passes"]]
@@ -288,7 +295,7 @@ def fit_leg_terms(calibrator, fit, rigid):
         corr = 0.0 if not terms else data.leg_correction_mm
         return legs - r.machine.drive_to_legs(fit.q) - corr
 
-    terms, rounds = leg_residual_loop(machine, fit.q, leg_res)
+    terms, rounds = leg_residual_loop(machine, fit.q, leg_res, scales_fitted=calibrator.estimate_scales)
     if terms:
         leg_res(terms)
     return terms, rounds, state["res"] if terms else rigid
