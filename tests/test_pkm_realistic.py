@@ -170,3 +170,32 @@ def test_leg_terms_in_drive_commands_round_trip(drive_hexapod):
     assert [(f, leg) for f, leg, _ in again.terms] == [("nonlinearity", 2), ("direction", 4)]
     with pytest.raises(ValueError, match="leg_terms"):
         LegTerms.from_list([{"family": "wobble", "leg": 1, "coefficients_mm": [1.0]}], 6, "cal.json")
+
+
+def test_no_scales_leaves_the_scale_errors_to_the_loop(drive_hexapod):
+    """With --no-scales the model lacks the scales: the loop must show them (a 'scale' term per leg)."""
+    from errormap.pkm.pipeline import rms_um, validated_calibration
+    sim = simulate_hexapod_poses(drive_hexapod, 120, NOISE_UM, seed=7)
+    chk = simulate_hexapod_poses(drive_hexapod, 60, NOISE_UM, seed=8, truth=sim.truth)
+    v = validated_calibration(drive_hexapod, sim.data, chk.data, scales=False)
+    assert {t["family"] for t in v.loop["accepted_terms"]} == {"scale"}
+    assert len(v.loop["accepted_terms"]) >= 5 and v.loop["kept"]
+    assert rms_um(v.after)[0] < 0.05 * rms_um(v.rigid_e)[0]     # measured: 1606 -> 10 um
+
+
+def test_degenerate_pose_set_refused(tmp_path, capsys):
+    """Poses on a vertical line at one orientation: the legs all move, but most parameter combinations
+    are not determined -> exit 2, one line naming the file."""
+    from errormap.pkm.hexapod import inverse_kinematics
+    m = load_machine(expect_kind="hexapod")
+    n = 60
+    tips = m.home_tool_tip_mm + np.c_[np.zeros((n, 2)), np.linspace(-100, 100, n)]
+    q = m.legs_to_drive(inverse_kinematics(m, tips, np.broadcast_to(np.eye(3), (n, 3, 3))))
+    cols = {f"q{i + 1}": q[:, i] for i in range(6)}
+    cols.update({"x_mm": tips[:, 0], "y_mm": tips[:, 1], "z_mm": tips[:, 2], "qx": np.zeros(n), "qy": np.zeros(n),
+                 "qz": np.zeros(n), "qw": np.ones(n)})
+    p = _write(tmp_path / "line.csv", cols)
+    assert main(["calibrate", p, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()   # progress lines, then the one error line
+    assert p in err[-1] and "degenerate pose set" in err[-1]
+    assert not (tmp_path / "o" / "calibration.json").exists()

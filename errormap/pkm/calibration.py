@@ -58,7 +58,8 @@ from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 from ..io import InputError, read_table
-from .hexapod import KinematicsError, angles_to_rotation, forward_kinematics, quat_to_rotation, skew
+from .hexapod import (KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics, quat_to_rotation,
+                      skew, workspace_poses)
 from .checks import angle_candidates, check_measurements, check_pose_set, quaternion_candidates
 from .machine_file import PKM
 
@@ -479,6 +480,36 @@ class PKMCalibrator:
         d = 6 if full else 3
         return np.concatenate(blocks, 1).reshape(n * d, -1), np.concatenate(gblocks, 1).reshape(n * d, 6)
 
+    DEGENERATE_RCOND = 1e-6   # a combination below 1e-6 s_max counts as not determined by the poses
+
+    def _check_identifiable(self, data: PoseData, est, M, P, full: bool) -> None:
+        """Refuse a degenerate pose set: fewer parameter combinations determined (singular values of the
+        scaled, frame-projected Jacobian at the nominal machine above ``DEGENERATE_RCOND * s_max``) than a
+        well-spread reference set of 60 workspace poses determines (e.g. one orientation, poses on a line)."""
+        m0 = self.machine
+
+        def rank(q, tips, R, rot):
+            d = PoseData(q, tips, R if rot else None, data.source)
+            Jr, Jg = self._jacobians(m0, d, np.zeros(3), np.eye(3), (tips, R))
+            A = (Jr[:, est] @ M) @ P
+            if self.register:
+                Qg = np.linalg.qr(Jg)[0]
+                A = A - Qg @ (Qg.T @ A)
+            sv = np.linalg.svd(A, compute_uv=False)
+            return int(np.sum(sv >= self.DEGENERATE_RCOND * sv.max()))
+
+        fk = forward_kinematics(m0, m0.drive_to_legs(data.q), check_limits=False, raise_on_failure=False)
+        if not fk.success.all():
+            return          # the fit reports the failing rows
+        tips, R = workspace_poses(m0, 60, np.random.default_rng(12345))
+        q_ref = m0.legs_to_drive(inverse_kinematics(m0, tips, R))
+        r_ref = rank(q_ref, tips, R, full)
+        r_data = rank(data.q, fk.x, fk.platform2base, full)
+        if r_data < r_ref:
+            raise InputError(f"{data.source}: degenerate pose set: the {len(data)} poses determine only {r_data} of the "
+                             f"{r_ref} parameter combinations a spread set determines (e.g. one orientation, poses "
+                             "on a line); measure poses spread in position and orientation")
+
     @staticmethod
     def _tikhonov(s, beta, b_out2, lam):
         f = s / (s ** 2 + lam)
@@ -601,6 +632,7 @@ class PKMCalibrator:
         G = self.gauge_basis(est)                                   # (n_est, g)
         P = np.linalg.qr(np.c_[G, np.eye(est.sum())])[0][:, G.shape[1]:est.sum()] if G.size else np.eye(est.sum())
         n_free = 6 if self.register else 0
+        self._check_identifiable(data, est, M, P, full)
         # robust initial registration from the nominal model
         fk0 = forward_kinematics(m0, legs if data.leg_correction_mm is None else legs + data.leg_correction_mm,
                                  check_limits=False)
