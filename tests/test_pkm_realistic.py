@@ -60,6 +60,7 @@ def _loop(machine, sim):
     return rigid, fit_leg_terms(PKMCalibrator(machine, lever_mm=rigid.lever_mm), sim.data, rigid)
 
 
+@pytest.mark.slow
 def test_loop_finds_injected_nonlinearity_and_beats_baseline(drive_hexapod):
     err = MachineErrors(scale_range=0.06, nonlinearity_mm=NONLINEARITY_MM)
     sim = simulate_hexapod_poses(drive_hexapod, 120, REALLIKE_NOISE_UM, seed=3, errors=err)
@@ -172,6 +173,7 @@ def test_leg_terms_in_drive_commands_round_trip(drive_hexapod):
         LegTerms.from_list([{"family": "wobble", "leg": 1, "coefficients_mm": [1.0]}], 6, "cal.json")
 
 
+@pytest.mark.slow
 def test_no_scales_leaves_the_scale_errors_to_the_loop(drive_hexapod):
     """With --no-scales the model lacks the scales: the loop must show them (a 'scale' term per leg)."""
     from errormap.pkm.pipeline import rms_um, validated_calibration
