@@ -15,13 +15,15 @@ the platform orientation. The instrument frame is in general not the machine fra
 transform ``meas = R_g p + t_g`` (``registration``) is estimated with the parameters, from a robust
 initial registration (trimmed Kabsch of the measured tips onto the nominal forward kinematics).
 Orientation residuals (rotation vector, rad) are multiplied by ``lever_mm`` so that every residual
-component is a length in mm and one noise level ``delta`` (mm per component) describes them.
+component is a length in mm and one noise level ``delta`` (mm per component) describes them; by default
+the lever is estimated from the data (position / orientation residual, :meth:`PKMCalibrator.fit`).
 
 **Identification**: iteratively regularised Gauss-Newton on the exact model. Each step solves the
 linearised Tikhonov problem ``min |J w - b|^2 + lambda |w|^2`` (``w`` the parameters' deviation from
-nominal, scaled by ``joint_scale_mm``/``scale_scale``; the registration is not regularised and is
-eliminated by projection) through the SVD, with ``lambda`` by ``lambda_rule``: Morozov's discrepancy
-principle ``|J w_lambda - b| = tau * delta * sqrt(m)`` (default), GCV, or the L-curve corner. When
+nominal in mm of leg length -- joints, the leg length at mid-range, the scale's change at the end of the
+range: :meth:`PKMCalibrator._layout`; the registration is not regularised and is eliminated by
+projection) through the SVD, with ``lambda`` by ``lambda_rule``: GCV (default), Morozov's discrepancy
+principle ``|J w_lambda - b| = tau * delta * sqrt(m)``, or the L-curve corner. When
 ``delta`` is unknown it is estimated from the GCV fit (``delta^2 = RSS / (m - trace H)``); the other two
 rules' lambdas are always reported beside the chosen one.
 
@@ -349,10 +351,11 @@ class PKMCalibrator:
     ``register`` (estimate the instrument frame; else it is taken as the machine frame),
     ``noise_um`` (measurement noise per component, the Morozov ``delta``; None = estimate it),
     ``lambda_rule`` (``"morozov"``, ``"gcv"`` or ``"lcurve"``: how each step's Tikhonov ``lambda`` is
-    chosen), ``tau`` (discrepancy factor, >= 1), ``lever_mm`` (orientation residual weight),
-    (mm per rad; None = estimated from the data, see :meth:`fit`), ``joint_scale_mm`` (the Tikhonov
+    chosen), ``tau`` (discrepancy factor, >= 1), ``lever_mm`` (orientation residual weight,
+    mm per rad; None = estimated from the data, see :meth:`fit`), ``joint_scale_mm`` (the Tikhonov
     scaling: every fit variable is a length change in mm, see :meth:`_layout`), bounds (joints and the leg
-    length at mid-range in mm, ``scale_bound`` relative to the nominal scale), ``max_iter`` (Gauss-Newton iterations per phase), ``xtol_mm`` (convergence: the largest
+    length at mid-range in mm, ``scale_bound`` relative to the nominal scale), ``max_iter`` (Gauss-Newton
+    iterations per phase), ``xtol_mm`` (convergence: the largest
     parameter / frame change, in mm-equivalents, of a full step), ``ftol`` (convergence: predicted
     relative decrease of the Tikhonov functional), ``rcond`` (identifiability threshold on the singular
     values), ``progress`` (callable taking a message, or None).
