@@ -125,7 +125,7 @@ def _html(doc: dict, pngs: list[Path], out: Path) -> Path:
     imgs = "".join(f'<p><img src="data:image/png;base64,{base64.b64encode(p.read_bytes()).decode()}"></p>' for p in pngs)
     summary = (f"<p>Measured residual (measurement minus model) on {doc['n_check_poses']} held-out poses: "
                f"RMS {doc['rms_before_um']:.2f} &rarr; {doc['rms_after_um']:.2f} um, max {doc['max_before_um']:.2f} "
-               f"&rarr; {doc['max_after_um']:.2f} um. Fit poses: {doc['n_fit_poses']}. lambda (Morozov) "
+               f"&rarr; {doc['max_after_um']:.2f} um. Fit poses: {doc['n_fit_poses']}. lambda ({doc['lambda_rule']}) "
                f"{doc['lambda']:.3g}, GCV {doc['lambda_gcv']:.3g}, L-curve {doc['lambda_lcurve']:.3g}; delta "
                f"{doc['delta_um']:.3g} um ({'estimated' if doc['delta_estimated'] else 'given'}); condition number "
                f"{doc['condition_number']:.3g} on the identifiable subspace (raw, gauge directions included: "
