@@ -8,7 +8,8 @@ from __future__ import annotations
 import pathlib
 
 HERE = pathlib.Path(__file__).resolve().parent
-ORDER = ["demo", "benchmark", "foundation", "training", "solvers", "identification", "diagnosis", "drift", "pkm"]
+ORDER = ["demo", "benchmark", "foundation", "training", "solvers", "identification", "diagnosis", "drift", "pkm",
+         "pkm_path", "toolpath", "export", "cli_startup"]
 HEADER = """# BENCHMARKS
 
 Figures measured on this project's machine (2 cores, 24 GiB, no GPU) by the scripts in

@@ -240,7 +240,9 @@ def leg_program(machine: PKM, path: ToolPath, calibrated: PKM | None = None, che
     if check_limits:
         check_leg_limits(machine, legs, "path step")
     inc = np.vstack([np.zeros((1, legs.shape[1])), np.diff(legs, axis=0)])
-    return LegProgram(legs, inc, model.legs_to_drive(legs), path, calibrated is not None)
+    terms = model.extra.get("leg_terms")
+    q = model.legs_to_drive(legs) if not terms else terms.drive_for_legs(model, model.extra["leg_terms_nominal"], legs)
+    return LegProgram(legs, inc, q, path, calibrated is not None)
 
 
 def true_path_residual(truth, calibration_or_none, path: ToolPath, frame: str = "machine",

@@ -70,7 +70,7 @@ def hexapod_sim():
     from errormap.machine import load_machine
     from errormap.pkm.simulate import simulate_poses
     m = load_machine(expect_kind="hexapod")
-    return m, simulate_poses(m, 30, 0.0, seed=4, frame="identity")
+    return m, simulate_poses(m, 30, 0.0, seed=4, frame="identity", pose_error_mm=1.0, lever_mm=500.0)
 
 
 class _ExactPoseError:

@@ -61,5 +61,5 @@ def test_calibrate_unknown_noise_compares_lambda_rules(tmp_path):
     for r in rules.values():
         assert r["success"] and r["lambda"] > 0
         assert r["heldout_rms_um"] <= HELDOUT_RMS_FACTOR * NOISE_UM
-    assert rules["morozov"]["lambda"] == doc["lambda"]
+    assert doc["lambda_rule"] == "gcv" and rules["gcv"]["lambda"] == doc["lambda"]   # GCV is the default rule
     assert "Choice of lambda" in (out / "report.html").read_text()

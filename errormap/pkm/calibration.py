@@ -15,13 +15,15 @@ the platform orientation. The instrument frame is in general not the machine fra
 transform ``meas = R_g p + t_g`` (``registration``) is estimated with the parameters, from a robust
 initial registration (trimmed Kabsch of the measured tips onto the nominal forward kinematics).
 Orientation residuals (rotation vector, rad) are multiplied by ``lever_mm`` so that every residual
-component is a length in mm and one noise level ``delta`` (mm per component) describes them.
+component is a length in mm and one noise level ``delta`` (mm per component) describes them; by default
+the lever is estimated from the data (position / orientation residual, :meth:`PKMCalibrator.fit`).
 
 **Identification**: iteratively regularised Gauss-Newton on the exact model. Each step solves the
 linearised Tikhonov problem ``min |J w - b|^2 + lambda |w|^2`` (``w`` the parameters' deviation from
-nominal, scaled by ``joint_scale_mm``/``scale_scale``; the registration is not regularised and is
-eliminated by projection) through the SVD, with ``lambda`` by ``lambda_rule``: Morozov's discrepancy
-principle ``|J w_lambda - b| = tau * delta * sqrt(m)`` (default), GCV, or the L-curve corner. When
+nominal in mm of leg length -- joints, the leg length at mid-range, the scale's change at the end of the
+range: :meth:`PKMCalibrator._layout`; the registration is not regularised and is eliminated by
+projection) through the SVD, with ``lambda`` by ``lambda_rule``: GCV (default), Morozov's discrepancy
+principle ``|J w_lambda - b| = tau * delta * sqrt(m)``, or the L-curve corner. When
 ``delta`` is unknown it is estimated from the GCV fit (``delta^2 = RSS / (m - trace H)``); the other two
 rules' lambdas are always reported beside the chosen one.
 
@@ -58,10 +60,10 @@ from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 from ..io import InputError, read_table
-from .hexapod import KinematicsError, angles_to_rotation, forward_kinematics, quat_to_rotation, skew
+from .hexapod import (KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics, quat_to_rotation,
+                      skew, workspace_poses)
+from .checks import angle_candidates, check_measurements, check_pose_set, quaternion_candidates
 from .machine_file import PKM
-
-torch.set_default_dtype(torch.float64)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -113,7 +115,8 @@ class PoseData:
 
     ``q``: drive commands, shape (n, k); ``tip_mm``: measured tool tip (instrument frame), shape
     (n, 3); ``rotation``: measured orientation (``platform2instrument``), shape (n, 3, 3), or None
-    (position only); ``source``: where it came from; ``rows``: file row numbers, shape (n,).
+    (position only); ``source``: where it came from; ``rows``: file row numbers, shape (n,);
+    ``leg_correction_mm``: fixed leg-length terms (n, k) added to ``s q + o`` in the fit (accepted leg terms).
     """
 
     q: np.ndarray
@@ -121,13 +124,15 @@ class PoseData:
     rotation: np.ndarray | None = None
     source: str = ""
     rows: np.ndarray | None = None
+    leg_correction_mm: np.ndarray | None = None
 
     def __len__(self):
         return len(self.q)
 
     def subset(self, idx) -> "PoseData":
         return PoseData(self.q[idx], self.tip_mm[idx], None if self.rotation is None else self.rotation[idx],
-                        self.source, None if self.rows is None else self.rows[idx])
+                        self.source, None if self.rows is None else self.rows[idx],
+                        None if self.leg_correction_mm is None else self.leg_correction_mm[idx])
 
 
 def read_poses(path, machine: PKM) -> PoseData:
@@ -149,7 +154,7 @@ def read_poses(path, machine: PKM) -> PoseData:
         raise InputError(f"{t.path}: missing leg columns: need {lcols} or {qcols}; found columns {t.names}")
     t.require("x_mm", "y_mm", "z_mm")
     tip = np.stack([t.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
-    rot = None
+    rot, cands = None, None
     if machine.kind == "hexapod":
         if all(c in t for c in ("qx", "qy", "qz", "qw")):
             quat = np.stack([t.float(c) for c in ("qx", "qy", "qz", "qw")], 1)
@@ -159,13 +164,17 @@ def read_poses(path, machine: PKM) -> PoseData:
                 raise InputError(f"{t.path}: row {t.row_number(bad[0])}, columns 'qx'..'qw': expected a unit "
                                  f"quaternion (order qx qy qz qw), got norm {norm[bad[0]]:.6g}")
             rot = quat_to_rotation(quat / norm[:, None])
+            cands = quaternion_candidates(quat)
         elif all(c in t for c in ("rx_deg", "ry_deg", "rz_deg")):
-            rot = angles_to_rotation(np.stack([t.float(c) for c in ("rx_deg", "ry_deg", "rz_deg")], 1))
+            ang = np.stack([t.float(c) for c in ("rx_deg", "ry_deg", "rz_deg")], 1)
+            rot = angles_to_rotation(ang)
+            cands = angle_candidates(ang)
         elif any(c in t for c in ("qx", "qy", "qz", "qw", "rx_deg", "ry_deg", "rz_deg")):
             raise InputError(f"{t.path}: incomplete orientation columns: need all of qx qy qz qw or of "
                              f"rx_deg ry_deg rz_deg; found columns {t.names}")
     if len(t) == 0:
         raise InputError(f"{t.path}: no data rows")
+    check_measurements(t.path, machine, q, tip, cands)
     return PoseData(q, tip, rot, str(t.path), np.array([t.row_number(i) for i in range(len(t))]))
 
 
@@ -201,9 +210,9 @@ def pose_jacobian(machine: PKM, q: np.ndarray, tip_mm: np.ndarray, platform2base
     k = machine.n_legs
     rotate = machine.kind == "hexapod"
     d = 6 if rotate else 3
-    r = torch.as_tensor(parameter_vector(machine))
+    r = torch.as_tensor(parameter_vector(machine), dtype=torch.float64)
     tool = torch.as_tensor(machine.tool_in_platform_mm, dtype=torch.float64)
-    x = torch.zeros((len(q), d))
+    x = torch.zeros((len(q), d), dtype=torch.float64)
     x[:, :3] = torch.as_tensor(tip_mm)
     fn = lambda xx, rr, qq, RR: _constraint_single(xx, rr, qq, RR, tool, k, rotate)
     jac = torch.func.vmap(torch.func.jacrev(fn, argnums=(0, 1)), in_dims=(0, None, 0, 0))
@@ -237,6 +246,28 @@ def robust_registration(machine_tip_mm: np.ndarray, measured_tip_mm: np.ndarray,
             break
         inl = new
     return t, R, inl
+
+
+def predict_poses(machine: PKM, frame, q: np.ndarray, leg_terms=None, nominal: PKM | None = None):
+    """Measured poses (instrument frame) predicted by ``machine`` (+ ``leg_terms``, whose features use
+    ``nominal``) and ``frame`` = (t (3,), R (3, 3)) at drive commands ``q`` (n, k): (tip (n, 3), R (n, 3, 3))."""
+    t, R = frame
+    legs = machine.drive_to_legs(q)
+    if leg_terms:
+        legs = legs + leg_terms.correction_mm(nominal if nominal is not None else machine, q)
+    fk = forward_kinematics(machine, legs, check_limits=False)
+    return fk.x @ R.T + t, np.einsum("ij,njk->nik", R, fk.platform2base)
+
+
+def pose_errors_um(machine: PKM, frame, data: "PoseData", leg_terms=None, nominal: PKM | None = None) -> dict:
+    """Measured residual (measurement minus model) on ``data``: ``position_um`` (n,) (norm) and, with
+    orientations, ``angle_urad`` (n,)."""
+    tip, R = predict_poses(machine, frame, data.q, leg_terms, nominal)
+    out = {"position_um": 1e3 * np.linalg.norm(data.tip_mm - tip, axis=1)}
+    if data.rotation is not None:
+        rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", R, data.rotation)).as_rotvec()
+        out["angle_urad"] = 1e6 * np.linalg.norm(rv, axis=1)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -281,29 +312,27 @@ class CalibrationResult:
     param_scale: np.ndarray | None = None              # Tikhonov scaling of the estimated parameters
     history: list = field(default_factory=list)
     lcurve: dict = field(default_factory=dict)
-    lambda_rule: str = "morozov"
+    lambda_rule: str = "gcv"
     lambda_morozov: float = float("nan")               # Morozov's lambda at the final linearisation (NaN: no delta)
     discrepancy_reached: bool = True                   # False: LS residual above tau*delta*sqrt(m), lambda = 0
     condition_number_raw: float = float("nan")         # all estimated parameters, gauge directions included
     singular_values_raw: np.ndarray | None = None
     n_gauge: int = 0                                   # gauge directions fixed explicitly (6 with registration)
     iterations: int = 0                                # Gauss-Newton linearisations (nfev counts residual evaluations)
+    lever_estimated: bool = False                      # lever_mm estimated from the data (variance components)
+    leg_terms: object = None                           # accepted leg terms (legspace.LegTerms) or None
 
     def predict(self, q: np.ndarray, nominal: bool = False, frame=None):
         """Predicted measured poses (instrument frame) at drive commands ``q`` (n, k): (tip (n,3), R (n,3,3))."""
         m = self.nominal if nominal else self.machine
         t, R = (self.frame_translation_mm, self.frame_rotation) if frame is None else frame
-        fk = forward_kinematics(m, m.drive_to_legs(q), check_limits=False)
-        return fk.x @ R.T + t, np.einsum("ij,njk->nik", R, fk.platform2base)
+        return predict_poses(m, (t, R), q, None if nominal else self.leg_terms, self.nominal)
 
     def pose_errors_um(self, data: PoseData, nominal: bool = False, frame=None) -> dict:
         """Measured residual (measurement minus model) on ``data``: position norm (um) and angle (urad), shape (n,)."""
-        tip, R = self.predict(data.q, nominal, frame)
-        out = {"position_um": 1e3 * np.linalg.norm(data.tip_mm - tip, axis=1)}
-        if data.rotation is not None:
-            rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", R, data.rotation)).as_rotvec()
-            out["angle_urad"] = 1e6 * np.linalg.norm(rv, axis=1)
-        return out
+        m = self.nominal if nominal else self.machine
+        fr = (self.frame_translation_mm, self.frame_rotation) if frame is None else frame
+        return pose_errors_um(m, fr, data, None if nominal else self.leg_terms, self.nominal)
 
     def parameter_table(self) -> dict:
         """Name -> {nominal, value, delta, std_error} of the estimated parameters."""
@@ -322,9 +351,11 @@ class PKMCalibrator:
     ``register`` (estimate the instrument frame; else it is taken as the machine frame),
     ``noise_um`` (measurement noise per component, the Morozov ``delta``; None = estimate it),
     ``lambda_rule`` (``"morozov"``, ``"gcv"`` or ``"lcurve"``: how each step's Tikhonov ``lambda`` is
-    chosen), ``tau`` (discrepancy factor, >= 1), ``lever_mm`` (orientation residual weight),
-    ``joint_scale_mm``/``scale_scale`` (the Tikhonov scaling of joints/offsets and of scales),
-    bounds, ``max_iter`` (Gauss-Newton iterations per phase), ``xtol_mm`` (convergence: the largest
+    chosen), ``tau`` (discrepancy factor, >= 1), ``lever_mm`` (orientation residual weight,
+    mm per rad; None = estimated from the data, see :meth:`fit`), ``joint_scale_mm`` (the Tikhonov
+    scaling: every fit variable is a length change in mm, see :meth:`_layout`), bounds (joints and the leg
+    length at mid-range in mm, ``scale_bound`` relative to the nominal scale), ``max_iter`` (Gauss-Newton
+    iterations per phase), ``xtol_mm`` (convergence: the largest
     parameter / frame change, in mm-equivalents, of a full step), ``ftol`` (convergence: predicted
     relative decrease of the Tikhonov functional), ``rcond`` (identifiability threshold on the singular
     values), ``progress`` (callable taking a message, or None).
@@ -332,18 +363,18 @@ class PKMCalibrator:
 
     RULES = ("morozov", "gcv", "lcurve")
 
-    def __init__(self, machine: PKM, estimate_scales: bool = False, register: bool = True,
-                 noise_um: float | None = None, tau: float = 1.0, lever_mm: float = 500.0,
-                 joint_scale_mm: float = 1.0, scale_scale: float = 1e-3, joint_bound_mm: float = 25.0,
-                 offset_bound_mm: float = 50.0, scale_bound: float = 0.05, max_iter: int = 50,
-                 xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "morozov",
+    def __init__(self, machine: PKM, estimate_scales: bool = True, register: bool = True,
+                 noise_um: float | None = None, tau: float = 1.0, lever_mm: float | None = None,
+                 joint_scale_mm: float = 1.0, joint_bound_mm: float = 25.0,
+                 offset_bound_mm: float = 200.0, scale_bound: float = 0.15, max_iter: int = 50,
+                 xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "gcv",
                  verbose: bool = False, progress=None):
         if noise_um is not None and not noise_um > 0:
             raise ValueError(f"noise_um must be positive, got {noise_um}")
         if tau < 1:
             raise ValueError(f"tau must be >= 1, got {tau}")
-        if lever_mm <= 0 or joint_scale_mm <= 0 or scale_scale <= 0:
-            raise ValueError("lever_mm, joint_scale_mm and scale_scale must be positive")
+        if (lever_mm is not None and not lever_mm > 0) or not joint_scale_mm > 0:
+            raise ValueError("lever_mm (or None) and joint_scale_mm must be positive")
         if lambda_rule not in self.RULES:
             raise ValueError(f"lambda_rule must be one of {self.RULES}, got {lambda_rule!r}")
         if max_iter < 1 or not xtol_mm > 0 or not ftol > 0:
@@ -356,7 +387,6 @@ class PKMCalibrator:
         self.tau = tau
         self.lever_mm = lever_mm
         self.joint_scale_mm = joint_scale_mm
-        self.scale_scale = scale_scale
         self.joint_bound_mm = joint_bound_mm
         self.offset_bound_mm = offset_bound_mm
         self.scale_bound = scale_bound
@@ -369,14 +399,34 @@ class PKMCalibrator:
 
     # -- helpers ---------------------------------------------------------------------------
     def _layout(self):
-        k = self.machine.n_legs
+        """Estimated mask (8k,), the map ``M`` (n_est, n_est) from the fit variables to parameter
+        deviations, and the fit variables' bounds ``lo``, ``hi`` (n_est,).
+
+        Fit variables (all mm-equivalents, divided by ``joint_scale_mm``): joint deviations; per leg the
+        change of the leg length at the middle of its range ``c_i`` and, with scales, the change at the
+        end of the range due to the scale ``u_i = ds_i * h_i`` (``h_i`` half the range in drive units).
+        Then ``ds_i = u_i / h_i`` and ``do_i = c_i - q_mid,i * ds_i``. Offsets and scales in raw form are
+        nearly collinear (drive commands of 8..20 revolutions from zero, or 600..1500 mm) and a scale's
+        natural size depends on the drive unit (1 for mm, ~72 mm per revolution): both made a raw-scale
+        fit ill-posed and its Tikhonov penalty and bounds meaningless (the root cause of "the fit gets
+        worse with scales").
+        """
+        m0, k = self.machine, self.machine.n_legs
         est = np.ones(8 * k, bool)
         if not self.estimate_scales:
             est[7 * k:] = False
-        D = np.r_[np.full(7 * k, self.joint_scale_mm), np.full(k, self.scale_scale)][est]
-        lo = np.r_[np.full(6 * k, -self.joint_bound_mm), np.full(k, -self.offset_bound_mm),
-                   np.full(k, -self.scale_bound)][est]
-        return est, D, lo, -lo
+        q_lo, q_hi = m0.legs_to_drive(m0.leg_min_mm[None])[0], m0.legs_to_drive(m0.leg_max_mm[None])[0]
+        q_mid, h = (q_lo + q_hi) / 2, np.abs(q_hi - q_lo) / 2
+        n = 8 * k
+        M = np.eye(n) * self.joint_scale_mm
+        hi = np.r_[np.full(6 * k, self.joint_bound_mm), np.full(k, self.offset_bound_mm),
+                   self.scale_bound * np.abs(m0.leg_scale) * h] / self.joint_scale_mm
+        for i in range(k):
+            o, sc = 6 * k + i, 7 * k + i
+            M[sc, sc] = self.joint_scale_mm / h[i]
+            M[o, sc] = -q_mid[i] * self.joint_scale_mm / h[i]
+        M = M[np.ix_(est, est)]
+        return est, M, -hi[est], hi[est]
 
     def gauge_basis(self, est: np.ndarray) -> np.ndarray:
         """Orthonormal basis (n_est, g) of the gauge directions in the scaled parameter space.
@@ -403,7 +453,10 @@ class PKMCalibrator:
 
     def _residual(self, m: PKM, data: PoseData, t_g, R_g, guess):
         """Residual (n, d) in mm (orientation rows times ``lever_mm``) and the forward kinematics; None if FK fails."""
-        fk = forward_kinematics(m, m.drive_to_legs(data.q), guess_tip_mm=guess[0], guess_platform2base=guess[1],
+        legs = m.drive_to_legs(data.q)
+        if data.leg_correction_mm is not None:
+            legs = legs + data.leg_correction_mm
+        fk = forward_kinematics(m, legs, guess_tip_mm=guess[0], guess_platform2base=guess[1],
                                 check_limits=False, raise_on_failure=False)
         if not fk.success.all():
             return None, None
@@ -429,6 +482,36 @@ class PKMCalibrator:
                                                            np.broadcast_to(np.eye(3), (n, 3, 3))], 2))
         d = 6 if full else 3
         return np.concatenate(blocks, 1).reshape(n * d, -1), np.concatenate(gblocks, 1).reshape(n * d, 6)
+
+    DEGENERATE_RCOND = 1e-6   # a combination below 1e-6 s_max counts as not determined by the poses
+
+    def _check_identifiable(self, data: PoseData, est, M, P, full: bool) -> None:
+        """Refuse a degenerate pose set: fewer parameter combinations determined (singular values of the
+        scaled, frame-projected Jacobian at the nominal machine above ``DEGENERATE_RCOND * s_max``) than a
+        well-spread reference set of 60 workspace poses determines (e.g. one orientation, poses on a line)."""
+        m0 = self.machine
+
+        def rank(q, tips, R, rot):
+            d = PoseData(q, tips, R if rot else None, data.source)
+            Jr, Jg = self._jacobians(m0, d, np.zeros(3), np.eye(3), (tips, R))
+            A = (Jr[:, est] @ M) @ P
+            if self.register:
+                Qg = np.linalg.qr(Jg)[0]
+                A = A - Qg @ (Qg.T @ A)
+            sv = np.linalg.svd(A, compute_uv=False)
+            return int(np.sum(sv >= self.DEGENERATE_RCOND * sv.max()))
+
+        fk = forward_kinematics(m0, m0.drive_to_legs(data.q), check_limits=False, raise_on_failure=False)
+        if not fk.success.all():
+            return          # the fit reports the failing rows
+        tips, R = workspace_poses(m0, 60, np.random.default_rng(12345))
+        q_ref = m0.legs_to_drive(inverse_kinematics(m0, tips, R))
+        r_ref = rank(q_ref, tips, R, full)
+        r_data = rank(data.q, fk.x, fk.platform2base, full)
+        if r_data < r_ref:
+            raise InputError(f"{data.source}: degenerate pose set: the {len(data)} poses determine only {r_data} of the "
+                             f"{r_ref} parameter combinations a spread set determines (e.g. one orientation, poses "
+                             "on a line); measure poses spread in position and orientation")
 
     @staticmethod
     def _tikhonov(s, beta, b_out2, lam):
@@ -497,9 +580,35 @@ class PKMCalibrator:
 
     # -- the fit ---------------------------------------------------------------------------
     def fit(self, data: PoseData) -> CalibrationResult:
-        """Identify the parameters (and the instrument frame) from ``data``; see the module docstring."""
+        """Identify the parameters (and the instrument frame) from ``data``; see the module docstring.
+
+        With ``lever_mm`` None and measured orientations, the orientation weight is estimated from the
+        data (variance components): fit with 500 mm per rad, set ``lever = sigma_position / sigma_rotation``
+        of the fit's residuals (clipped to 10..5000 mm), refit until it changes by less than 20 %
+        (at most 3 fits). A fixed lever that assumes a 10x better orientation than the instrument gives
+        (motion capture) lets orientation noise dominate the fit.
+        """
+        import copy
         with _single_thread_blas():
-            return self._fit(data)
+            if self.lever_mm is not None:
+                return self._fit(data)
+            if data.rotation is None or self.machine.kind != "hexapod":
+                c = copy.copy(self)
+                c.lever_mm = 500.0                  # no orientation rows: only scales the frame's step test
+                return c._fit(data)
+            lever, res = 500.0, None
+            for _ in range(3):
+                c = copy.copy(self)
+                c.lever_mm = lever
+                res = c._fit(data)
+                sp = np.sqrt(np.mean(res.residuals[:, :3] ** 2))
+                sr = np.sqrt(np.mean((res.residuals[:, 3:] / lever) ** 2))
+                new = float(np.clip(sp / max(sr, 1e-300), 10.0, 5000.0))
+                if abs(np.log(new / lever)) < np.log(1.2):
+                    break
+                lever = new
+            res.lever_estimated = True
+            return res
 
     def _fit(self, data: PoseData) -> CalibrationResult:
         t0 = time.perf_counter()
@@ -509,10 +618,11 @@ class PKMCalibrator:
             raise ValueError(f"{data.source}: expected drive commands of shape (n, {k}), got {data.q.shape}")
         if data.tip_mm.shape != (len(data), 3) or not np.all(np.isfinite(data.tip_mm)) or not np.all(np.isfinite(data.q)):
             raise ValueError(f"{data.source}: expected finite tips of shape ({len(data)}, 3)")
-        est, D, lo, hi = self._layout()
+        est, M, lo, hi = self._layout()
         full = data.rotation is not None and m0.kind == "hexapod"
         d = 6 if full else 3
         m_rows = d * len(data)
+        check_pose_set(data.source, m0, data.q, int(est.sum()) + (6 if self.register else 0), d, data.rows)
         if m_rows < est.sum() + (6 if self.register else 0):
             raise ValueError(f"{data.source}: {len(data)} poses give {m_rows} equations for "
                              f"{est.sum() + 6 * self.register} unknowns; measure more poses")
@@ -525,15 +635,17 @@ class PKMCalibrator:
         G = self.gauge_basis(est)                                   # (n_est, g)
         P = np.linalg.qr(np.c_[G, np.eye(est.sum())])[0][:, G.shape[1]:est.sum()] if G.size else np.eye(est.sum())
         n_free = 6 if self.register else 0
+        self._check_identifiable(data, est, M, P, full)
         # robust initial registration from the nominal model
-        fk0 = forward_kinematics(m0, legs, check_limits=False)
+        fk0 = forward_kinematics(m0, legs if data.leg_correction_mm is None else legs + data.leg_correction_mm,
+                                 check_limits=False)
         if self.register:
             t_g, R_g, inliers = robust_registration(fk0.x, data.tip_mm)
         else:
             t_g, R_g, inliers = np.zeros(3), np.eye(3), np.ones(len(data), bool)
         frame0 = (t_g.copy(), R_g.copy())
         y = np.zeros(P.shape[1])                                    # deviation from nominal, gauge-fixed
-        machine_at = lambda yy: machine_from_vector(m0, _with(r0, est, D * (P @ yy)))
+        machine_at = lambda yy: machine_from_vector(m0, _with(r0, est, M @ (P @ yy)))
         res, pose = self._residual(m0, data, t_g, R_g, (fk0.x, fk0.platform2base))
         if res is None:
             raise KinematicsError(f"{data.source}: forward kinematics of the nominal machine failed")
@@ -547,7 +659,7 @@ class PKMCalibrator:
             for it in range(self.max_iter):
                 Jr_full, Jg = self._jacobians(machine_at(y), data, t_g, R_g, pose)
                 n_jac += 1
-                Jy = (Jr_full[:, est] * D) @ P                      # scaled, gauge-fixed parameter columns
+                Jy = (Jr_full[:, est] @ M) @ P                      # scaled, gauge-fixed parameter columns
                 r_vec = res.ravel()
                 b = Jy @ y - r_vec                                  # target of the new deviation (Tikhonov on y)
                 if self.register:
@@ -565,7 +677,7 @@ class PKMCalibrator:
                     ph, s, beta, b_out2, m_rows, n_free, None if ph == "gcv" else delta_mm)
                 z, _ = self._tikhonov(s, beta, b_out2, lam)
                 y_new = Vt.T @ z
-                w_clip = np.clip(P @ y_new, lo / D, hi / D)         # physical bounds (a safety net)
+                w_clip = np.clip(P @ y_new, lo, hi)                 # physical bounds (a safety net)
                 y_new = P.T @ w_clip
                 dg = np.linalg.lstsq(Jg, b - Jy @ y_new, rcond=None)[0] if self.register else np.zeros(6)
                 dy = y_new - y
@@ -607,6 +719,11 @@ class PKMCalibrator:
                 if done:
                     success, msg = True, f"{ph}: converged after {it + 1} Gauss-Newton iterations"
                     break
+                if not accepted and (full_step_mm <= 100 * self.xtol_mm or pred <= 100 * self.ftol * phi0):
+                    # the line search cannot resolve a step this small (FK solved to 1e-9 mm): converged
+                    success, msg = True, (f"{ph}: converged after {it + 1} Gauss-Newton iterations (the last "
+                                          f"step, {full_step_mm:.2g} mm, at the rounding floor)")
+                    break
                 if not accepted:
                     msg = (f"{ph}: line search failed at iteration {it + 1} (step {full_step_mm:.3g} mm, "
                            f"predicted relative decrease {pred / max(phi0, 1e-300):.3g})")
@@ -620,12 +737,12 @@ class PKMCalibrator:
             msg += ("; the discrepancy tau*delta*sqrt(m) is below the least-squares residual: "
                     "lambda = 0 on the identifiable subspace")
         w = P @ y
-        r = _with(r0, est, D * w)
+        r = _with(r0, est, M @ w)
         m = machine_from_vector(m0, r)
         # report: singular values on the identifiable subspace (gauge fixed, structural nulls removed)
         # and of the raw frame-projected Jacobian over all estimated parameters (gauge directions included)
         cond = float(s.max() / s.min())
-        Ar = Jr_full[:, est] * D
+        Ar = Jr_full[:, est] @ M
         if self.register:
             Ar = Ar - Qg @ (Qg.T @ Ar)
         _, s_raw, Vt_raw = svd(Ar, full_matrices=False)
@@ -644,14 +761,14 @@ class PKMCalibrator:
         filt = s / (s ** 2 + lam)
         Vw = Vt @ P.T                                               # (rank, n_est) right singular vectors in w
         cov_w = (delta_mm ** 2) * (Vw.T * filt ** 2 * s ** 2) @ Vw
-        se = np.sqrt(np.maximum(np.diag(cov_w), 0)) * D
+        se = np.sqrt(np.maximum(np.diag(M @ cov_w @ M.T), 0))
         return CalibrationResult(
             x=r, machine=m, nominal=m0, success=success, message=msg, nfev=nfev, residuals=res, names=names,
             estimated=est, std_error=se, frame_translation_mm=t_g, frame_rotation=R_g, lam=float(lam),
             delta_mm=float(delta_mm), delta_estimated=estimated_delta, lambda_gcv=float(lam_gcv),
             lambda_lcurve=float(lam_lc), singular_values=s, condition_number=cond, unidentifiable=unident,
             lever_mm=self.lever_mm, n_poses=len(data), fit_time_s=time.perf_counter() - t0, history=history,
-            right_singular_vectors=Vw, param_scale=D, lcurve={**curve, "initial_frame": frame0},
+            right_singular_vectors=Vw, param_scale=M, lcurve={**curve, "initial_frame": frame0},
             lambda_rule=self.lambda_rule, lambda_morozov=float(lam_mz), discrepancy_reached=bool(reached),
             condition_number_raw=cond_raw, singular_values_raw=s_raw, n_gauge=int(G.shape[1]),
             iterations=n_jac)
@@ -731,10 +848,18 @@ def load_calibrated_machine(path, machine: PKM) -> PKM:
     if kind != machine.kind:
         raise InputError(f"{p}: key 'kind': calibration is for a {kind}, the machine file is a {machine.kind}")
     k = machine.n_legs
+    from .legspace import LegTerms
+    try:
+        terms = LegTerms.from_list(doc.get("leg_terms", []), k, p)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    extra = dict(machine.extra)
+    if terms:   # leg terms of the loop: applied when commands are converted to drive units (with the nominal)
+        extra.update({"leg_terms": terms, "leg_terms_nominal": machine})
     try:
         return replace(machine, base_joints_mm=np.asarray(im["base_joints_mm"], float).reshape(k, 3),
                        platform_joints_mm=np.asarray(im["platform_joints_mm"], float).reshape(k, 3),
                        leg_offset_mm=np.asarray(im["leg_offset_mm"], float).reshape(k),
-                       leg_scale=np.asarray(im["leg_scale"], float).reshape(k))
+                       leg_scale=np.asarray(im["leg_scale"], float).reshape(k), extra=extra)
     except (KeyError, ValueError, TypeError) as exc:
         raise InputError(f"{p}: key 'identified_machine': {exc}") from None

@@ -6,6 +6,16 @@ base-minus-platform hinge perturbation): it is indistinguishable from a change o
 frame, and the machine frame is *defined* by the joints (the gauge convention the identification
 uses too). The measuring instrument's frame is a rigid transform of the machine frame
 (``p_instrument = R p_machine + t``), by default hundreds of mm and a few degrees away.
+
+**Default machine errors** (:class:`MachineErrors`, used when ``pose_error_mm`` is None): what a
+real platform shows -- leg scale errors up to +-5 % (uniform, relative), leg zero-length errors of
+tens of mm (uniform +-30 mm), joint position errors (1 mm per component), an unknown instrument frame,
+and orientation noise as motion capture gives it (a marker cluster of ``cluster_radius_mm``: the
+orientation noise is the position noise over that radius, 5x the 500 mm lever the fit assumes by
+default). Optionally an *unmodelled* leg nonlinearity in drive units (``nonlinearity_mm``: per leg a
+quadratic plus cubic in the normalised command, the legs' signs and shares drawn from the seed) --
+the real-like case. ``pose_error_mm`` (a number) keeps the older small-error model: joints, offsets
+and scales with fixed relative sizes scaled to that RMS tool-tip error.
 """
 from __future__ import annotations
 
@@ -20,15 +30,60 @@ from .hexapod import forward_kinematics, inverse_kinematics, rotation_to_angles,
 from .machine_file import PKM
 
 
+NONLINEARITY_SPAN_MM = 150.0   # the leg nonlinearity's amplitude is its size 150 mm of leg travel from home
+
+
+@dataclass(frozen=True)
+class MachineErrors:
+    """Sizes of the simulated machine errors (see the module docstring).
+
+    ``joint_sd_mm``: joint centre errors (normal, per component); ``offset_range_mm``: leg zero-length
+    errors (uniform +-); ``scale_range``: relative leg scale errors (uniform +-); ``nonlinearity_mm``:
+    amplitude of the unmodelled leg nonlinearity: its size at
+    ``NONLINEARITY_SPAN_MM`` of leg travel from the home pose's leg length (0: none);
+    ``nonlinearity_shape``: ``"poly"`` (quadratic + cubic in the normalised command) or ``"sine"``
+    (one slow sine period over the leg range, the second generator's shape).
+    """
+
+    joint_sd_mm: float = 1.0
+    offset_range_mm: float = 30.0
+    scale_range: float = 0.05
+    nonlinearity_mm: float = 0.0
+    nonlinearity_shape: str = "poly"
+
+
 @dataclass
 class Truth:
     """The simulated machine: ``machine`` (perturbed parameters) and the instrument frame
-    (``frame_translation_mm`` (3,), ``frame_rotation`` (3, 3): instrument <- machine)."""
+    (``frame_translation_mm`` (3,), ``frame_rotation`` (3, 3): instrument <- machine).
+    ``leg_error``: the unmodelled leg nonlinearity, None or ``(shape, coefficients (k, 2))`` (see
+    :meth:`leg_error_mm`)."""
 
     machine: PKM
     nominal: PKM
     frame_translation_mm: np.ndarray
     frame_rotation: np.ndarray
+    leg_error: tuple | None = None
+
+    def leg_error_mm(self, q: np.ndarray) -> np.ndarray:
+        """Unmodelled leg-length error (mm) at drive commands ``q`` (n, k) -> (n, k); zeros without one."""
+        q = np.atleast_2d(np.asarray(q, float))
+        if self.leg_error is None:
+            return np.zeros_like(q)
+        shape, c = self.leg_error
+        u = self._leg_u(q)
+        if shape == "poly":
+            return c[:, 0] * (u ** 2 - 1 / 3) + c[:, 1] * u ** 3
+        return c[:, 0] * np.sin(np.pi * u) + c[:, 1] * np.cos(np.pi * u)
+
+    def _leg_u(self, q: np.ndarray) -> np.ndarray:
+        """Commanded leg length relative to the home pose's, over ``NONLINEARITY_SPAN_MM``: shape (n, k)."""
+        home = inverse_kinematics(self.nominal, self.nominal.home_tool_tip_mm[None])[0]
+        return (self.nominal.drive_to_legs(q) - home) / NONLINEARITY_SPAN_MM
+
+    def legs_mm(self, q: np.ndarray) -> np.ndarray:
+        """The true leg lengths (n, k) at drive commands ``q`` (n, k)."""
+        return self.machine.drive_to_legs(q) + self.leg_error_mm(q)
 
 
 @dataclass
@@ -88,6 +143,30 @@ def perturb_machine(machine: PKM, pose_error_mm: float, seed, scales: bool = Tru
     return build(f)
 
 
+def realistic_machine(machine: PKM, seed, errors: MachineErrors = MachineErrors()) -> tuple[PKM, tuple | None]:
+    """A truth machine with :class:`MachineErrors` and its leg nonlinearity: ``(PKM, leg_error or None)``."""
+    rng = np.random.default_rng(seed)
+    k = machine.n_legs
+    db = rng.normal(0, errors.joint_sd_mm, (k, 3))
+    da = rng.normal(0, errors.joint_sd_mm, (k, 3))
+    if machine.kind == "tripod":
+        db = da + _remove_rigid(db - da, machine.base_joints_mm - machine.platform_joints_mm)
+    else:
+        db = _remove_rigid(db, machine.base_joints_mm)
+    do = rng.uniform(-errors.offset_range_mm, errors.offset_range_mm, k)
+    ds = rng.uniform(-errors.scale_range, errors.scale_range, k)
+    truth = replace(machine, base_joints_mm=machine.base_joints_mm + db,
+                    platform_joints_mm=machine.platform_joints_mm + da,
+                    leg_offset_mm=machine.leg_offset_mm + do, leg_scale=machine.leg_scale * (1 + ds))
+    leg_error = None
+    if errors.nonlinearity_mm > 0:
+        if errors.nonlinearity_shape not in ("poly", "sine"):
+            raise ValueError(f"nonlinearity_shape must be 'poly' or 'sine', got {errors.nonlinearity_shape!r}")
+        c = errors.nonlinearity_mm * rng.uniform(0.5, 1.0, (k, 2)) * rng.choice([-1.0, 1.0], (k, 2))
+        leg_error = (errors.nonlinearity_shape, c)
+    return truth, leg_error
+
+
 def random_frame(seed, translation_mm: float = 500.0, angle_deg: float = 3.0):
     """An instrument frame: translation of ~``translation_mm`` and rotation of ``angle_deg``: (t (3,), R (3, 3))."""
     rng = np.random.default_rng(seed)
@@ -98,16 +177,20 @@ def random_frame(seed, translation_mm: float = 500.0, angle_deg: float = 3.0):
     return t, R
 
 
-def simulate_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error_mm: float = 1.0,
+def simulate_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error_mm: float | None = None,
                    truth: Truth | None = None, frame: str | tuple = "random", orientation: str = "quat",
-                   drive_units: bool = True, lever_mm: float = 500.0, scales: bool = True,
-                   half_width_mm=(150.0, 150.0, 100.0), max_tilt_deg: float = 15.0) -> SimulatedPoses:
+                   drive_units: bool = True, lever_mm: float | None = None, scales: bool = True,
+                   half_width_mm=(150.0, 150.0, 100.0), max_tilt_deg: float = 15.0,
+                   errors: MachineErrors = MachineErrors(), cluster_radius_mm: float = 100.0) -> SimulatedPoses:
     """Simulate a calibration campaign on a truth machine.
 
     ``n_poses`` random workspace poses are commanded with the nominal inverse kinematics; the truth
     machine's forward kinematics gives the reached poses, which are expressed in the instrument frame
     (``frame``: ``"random"``, ``"identity"`` or a ``(t, R)`` pair) and get Gaussian noise of
-    ``noise_um`` per position component and ``noise_um / lever_mm`` (rad) per rotation component.
+    ``noise_um`` per position component and ``noise_um / lever_mm`` (rad) per rotation component
+    (``lever_mm`` None: ``cluster_radius_mm``, the motion-capture-like default).
+    ``pose_error_mm`` None: the truth has the realistic :class:`MachineErrors` ``errors``; a number:
+    the older small-error model scaled to that RMS tool-tip error.
     ``orientation``: ``"quat"`` (qx qy qz qw), ``"angles"`` (fixed-axis X-Y-Z deg) or ``"none"``.
     Commands are written as drive units ``q1..`` when ``drive_units`` else as ``l1_mm..``.
     """
@@ -117,12 +200,18 @@ def simulate_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error
     if truth is None:
         t, R = (np.zeros(3), np.eye(3)) if frame == "identity" else \
             random_frame(rng) if frame == "random" else frame
-        truth = Truth(perturb_machine(machine, pose_error_mm, rng, scales=scales), machine, np.asarray(t), np.asarray(R))
+        if pose_error_mm is None:
+            tm, leg_error = realistic_machine(machine, rng, errors if scales else replace(errors, scale_range=0.0))
+        else:
+            tm, leg_error = perturb_machine(machine, pose_error_mm, rng, scales=scales), None
+        truth = Truth(tm, machine, np.asarray(t), np.asarray(R), leg_error)
+    if lever_mm is None:
+        lever_mm = cluster_radius_mm
     tips, Rs = workspace_poses(machine, n_poses, rng, half_width_mm, max_tilt_deg)
     legs_cmd = inverse_kinematics(machine, tips, Rs)
     q = machine.legs_to_drive(legs_cmd)
-    fk = forward_kinematics(truth.machine, truth.machine.drive_to_legs(q), guess_tip_mm=tips,
-                            guess_platform2base=Rs)
+    fk = forward_kinematics(truth.machine, truth.legs_mm(q), guess_tip_mm=tips,
+                            guess_platform2base=Rs, check_limits=False)
     noise = noise_um * 1e-3
     Rf, tf = truth.frame_rotation, truth.frame_translation_mm
     meas_tip = fk.x @ Rf.T + tf + rng.normal(0, noise, (n_poses, 3))
@@ -149,7 +238,7 @@ def simulate_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error
     return SimulatedPoses(truth, data, cols, fk.x, noise_um)
 
 
-def simulate_hexapod_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error_mm: float = 1.0,
+def simulate_hexapod_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error_mm: float | None = None,
                            **kw) -> SimulatedPoses:
     """:func:`simulate_poses` for a hexapod (full pose, quaternions, drive units by default)."""
     if machine.kind != "hexapod":
@@ -157,7 +246,7 @@ def simulate_hexapod_poses(machine: PKM, n_poses: int, noise_um: float, seed, po
     return simulate_poses(machine, n_poses, noise_um, seed, pose_error_mm, **kw)
 
 
-def simulate_tripod_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error_mm: float = 1.0,
+def simulate_tripod_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error_mm: float | None = None,
                           **kw) -> SimulatedPoses:
     """:func:`simulate_poses` for a tripod (positions only)."""
     if machine.kind != "tripod":

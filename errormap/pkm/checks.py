@@ -1,0 +1,114 @@
+"""Plausibility checks of PKM pose measurements before a calibration (refuse what we cannot interpret).
+
+Each check compares the measurements with the *nominal* forward kinematics of the commands, in a way
+that does not depend on the unknown instrument frame or on machine errors of the expected size:
+
+* **Position units** (:func:`check_position_units`): the spread of the measured tips about their
+  centroid against the spread of the nominal tips (a rigid frame change keeps it). A ratio near 1e-3
+  means metres, near 1/25.4 inches; anything outside ``UNIT_RATIO_RANGE`` is refused.
+* **Orientation convention** (:func:`check_orientation_convention`): ``Q_i = R_measured,i R_nominal,i^T``
+  is the (constant) frame rotation up to machine errors and noise; its scatter about its mean is small
+  for the right convention. The file's convention (quaternion x-y-z-w, angles in degrees) and the
+  usual alternatives (w-x-y-z, radians, the inverse rotation) are scored; a file whose scatter is large
+  (> ``ORIENT_SCATTER_MIN_DEG``) and ``ORIENT_RATIO``x worse than an alternative's is refused naming it
+  ("this file looks like w-x-y-z").
+* **Degenerate pose sets** (:func:`check_pose_set`): all identical poses, fewer distinct poses than the
+  parameters need, a leg that never moves, or a command spread too small to determine the parameters.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..io import InputError
+from .hexapod import angles_to_rotation, forward_kinematics
+from .machine_file import PKM
+
+UNIT_RATIO_RANGE = (0.8, 1.25)   # measured / nominal tip spread; machine errors change it by a few % at most
+ORIENT_SCATTER_MIN_DEG = 3.0     # the right convention scatters by the machine's orientation errors (< ~1 deg)
+ORIENT_RATIO = 3.0               # ... and an alternative must be this much more consistent to be named
+MIN_LEG_SPREAD = 0.01            # a leg's commands must span >= 1 % of its range
+
+
+def _spread(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((x - x.mean(0)) ** 2, axis=1))))
+
+
+def check_position_units(source, machine: PKM, tip_mm: np.ndarray, nominal_tip_mm: np.ndarray) -> None:
+    """Refuse tips whose spread does not match the nominal kinematics' (wrong length unit)."""
+    sn = _spread(nominal_tip_mm)
+    if sn < 1e-6:
+        return
+    ratio = _spread(tip_mm) / sn
+    if UNIT_RATIO_RANGE[0] <= ratio <= UNIT_RATIO_RANGE[1]:
+        return
+    guess = ""
+    for name, f in (("metres", 1e-3), ("centimetres", 0.1), ("inches", 1 / 25.4), ("micrometres", 1e3)):
+        if 0.8 < ratio / f < 1.25:
+            guess = f"; this file looks like {name} (multiply by {1 / f:g} to get mm)"
+    raise InputError(f"{source}: columns 'x_mm', 'y_mm', 'z_mm': the measured tips spread {ratio:.4g} times as far as "
+                     f"the commanded poses do (expected 1 for mm){guess}")
+
+
+def orientation_scatter_deg(R_meas: np.ndarray, R_nom: np.ndarray) -> float:
+    """RMS angle (deg) of ``R_meas,i R_nom,i^T`` about their mean rotation (the frame rotation)."""
+    Q = Rotation.from_matrix(np.einsum("nij,nkj->nik", R_meas, R_nom))
+    mean = Q.mean()
+    return float(np.degrees(np.sqrt(np.mean((mean.inv() * Q).magnitude() ** 2))))
+
+
+def check_orientation_convention(source, R_nom: np.ndarray, candidates: dict) -> None:
+    """``candidates``: {label: rotations (n, 3, 3)}, the file's own interpretation first. Refuse when an
+    alternative fits the commanded poses much better than the file's stated convention."""
+    labels = list(candidates)
+    sc = {k: orientation_scatter_deg(v, R_nom) for k, v in candidates.items()}
+    own = sc[labels[0]]
+    best = min(labels[1:], key=lambda k: sc[k]) if len(labels) > 1 else None
+    if best is not None and own > ORIENT_SCATTER_MIN_DEG and own > ORIENT_RATIO * sc[best]:
+        raise InputError(f"{source}: orientation columns: read as {labels[0]} the orientations scatter by "
+                         f"{own:.3g} deg about the commanded poses, read as {best} by {sc[best]:.3g} deg: "
+                         f"this file looks like {best}; convert it to {labels[0]}")
+
+
+def quaternion_candidates(quat_as_read: np.ndarray) -> dict:
+    """The file's x-y-z-w reading and the alternatives: w-x-y-z order, the conjugate (inverse rotation)."""
+    q = quat_as_read / np.linalg.norm(quat_as_read, axis=1, keepdims=True)
+    return {"qx qy qz qw (x-y-z-w)": Rotation.from_quat(q).as_matrix(),
+            "w-x-y-z": Rotation.from_quat(np.roll(q, -1, axis=1)).as_matrix(),
+            "the inverse rotation (instrument2platform)": Rotation.from_quat(q).inv().as_matrix()}
+
+
+def angle_candidates(angles: np.ndarray) -> dict:
+    """The file's degrees reading and the alternatives: radians, intrinsic x-y-z."""
+    return {"fixed-axis X-Y-Z degrees": angles_to_rotation(angles),
+            "radians": Rotation.from_euler("xyz", angles).as_matrix(),
+            "intrinsic X-Y-Z degrees": Rotation.from_euler("XYZ", angles, degrees=True).as_matrix()}
+
+
+def check_pose_set(source, machine: PKM, q: np.ndarray, n_unknowns: int, d: int, rows=None) -> None:
+    """Refuse identical or degenerate pose sets (one line naming the file)."""
+    n, k = q.shape
+    distinct = np.unique(np.round(q, 9), axis=0)
+    if len(distinct) == 1:
+        raise InputError(f"{source}: all {n} poses have the same leg commands: a calibration needs poses spread "
+                         "over the workspace")
+    if len(distinct) * d < n_unknowns:
+        raise InputError(f"{source}: only {len(distinct)} distinct poses among {n} rows give {len(distinct) * d} "
+                         f"equations for {n_unknowns} unknowns; measure more, different poses")
+    rng = np.abs(machine.legs_to_drive(machine.leg_max_mm[None])[0] - machine.legs_to_drive(machine.leg_min_mm[None])[0])
+    still = np.flatnonzero(np.ptp(q, axis=0) < MIN_LEG_SPREAD * rng)
+    if still.size:
+        raise InputError(f"{source}: column 'q{still[0] + 1}' (or 'l{still[0] + 1}_mm'): the leg's commands span "
+                         f"{np.ptp(q[:, still[0]]):.3g} drive units, under {MIN_LEG_SPREAD:.0%} of its range: "
+                         "its zero length and scale cannot be identified")
+
+
+def check_measurements(source, machine: PKM, q: np.ndarray, tip_mm: np.ndarray, orientation_candidates: dict | None):
+    """All input checks that need the nominal kinematics (units, orientation convention)."""
+    fk = forward_kinematics(machine, machine.drive_to_legs(q), check_limits=False, raise_on_failure=False)
+    ok = fk.success
+    if ok.sum() < 3:
+        return
+    check_position_units(source, machine, tip_mm[ok], fk.x[ok])
+    if orientation_candidates:
+        check_orientation_convention(source, fk.platform2base[ok], {k: v[ok] for k, v in orientation_candidates.items()})
