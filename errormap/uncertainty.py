@@ -17,10 +17,11 @@ station value, and an interpolating spline through them passes it on. Here:
    estimate with that known covariance (Mallows' C_p / UBRE):
    ``|y − Hy|²_W − tr(W(I−H)Σ(I−H)ᵀ) + tr(W H Σ Hᵀ)``. The element set keeps its format:
    the smoothed station values, interpolated by the same cubic spline.
-4. **Covariance of the result**: the smoother applied to every bootstrap draw; the sample
-   covariance (rank ≤ n_boot − 1) is shrunk towards its diagonal (weight
-   :data:`SHRINKAGE`) so that it is full rank and usable as a prior
-   (:mod:`errormap.diagnosis.update`).
+4. **Covariance of the result**: the smoother applied to every bootstrap draw, the sample
+   covariance of those (rank ≤ n_boot − 1; it keeps the strong δ–ε lever-arm correlations
+   through which tool-point errors cancel), plus, per element, an estimate of the smoother's squared
+   bias on the diagonal (not in the bootstrap spread): the mean square of what the smoother
+   removed less what the noise alone explains, ``|(I−H)y|²/m − tr((I−H)Σ(I−H)ᵀ)/m``, at least 0.
 
 The parameter vector θ (:class:`ElementCovariance`): the 18 functions' values at their
 stations (X and Z: all stations; A: all but the last, which equals the first), then the
@@ -41,10 +42,6 @@ from .htm import error_jacobian
 from .io import InputError, atomic_write
 from .machine import Grinder
 
-SHRINKAGE = 0.0
-"""Weight of the diagonal in the shrunk bootstrap covariance ``(1 − s)·S + s·diag(S)``: the
-sample covariance of ``n_boot`` draws has rank ``n_boot − 1`` (< P ≈ 377); a prior must be
-full rank. 0.2 keeps the strong within-station correlations (δ–ε lever arms) dominant."""
 LAMBDA_GRID = np.logspace(-4, 8, 49)
 """Smoothing parameters searched (dimensionless: the penalty is on second differences of the
 station values, the data term weighted by their inverse variance)."""
@@ -294,10 +291,21 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     theta = H @ y
     Ys = Y @ H.T
     C = np.cov(Ys.T) if n_boot > 1 else np.zeros((P, P))
-    C = (1 - SHRINKAGE) * C + SHRINKAGE * np.diag(np.diag(C))
+    # the smoother's bias is not in the bootstrap spread: per element, the mean square of what the
+    # smoother removed, less what noise alone explains (E|(I−H)y|² = |(I−H)f|² + tr((I−H)Σ(I−H)ᵀ)),
+    # is added to its stations' variance
+    change2 = (y - theta) ** 2
+    bias_var = np.zeros(P)
+    IH = np.eye(P) - H
+    for k in FUNCTION_ELEMENTS:
+        idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
+        B = IH[np.ix_(idx, idx)]
+        noise = np.trace(B @ S[np.ix_(idx, idx)] @ B.T) / idx.size
+        bias_var[idx] = max(0.0, change2[idx].mean() - noise)
+    C = C + np.diag(bias_var)
     elements = elements_from_theta(theta, el)
     info = {"method": "parametric bootstrap of the identification, smoother applied to each draw, "
-                      f"shrunk to the diagonal by {SHRINKAGE}",
+                      "plus the smoother's estimated squared bias per element on the diagonal",
             "n_boot": n_boot, "seed": seed, "noise_um": sigma, "noise_estimated": noise_um is None,
             "smoothed": bool(smooth)}
     return SmoothIdentificationResult(raw, elements, ElementCovariance(theta, C, elements, info), sigma, smoothing)

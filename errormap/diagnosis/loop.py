@@ -35,9 +35,13 @@ class ClosedLoop:
     summary: dict
 
 
-def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSettings | None = None) -> ClosedLoop:
+def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSettings | None = None,
+                rounds: int = 2) -> ClosedLoop:
     """Identified → updated → updated + effects on ``checks`` (see module doc);
-    ``covariance``: the identification's :class:`~errormap.uncertainty.ElementCovariance`."""
+    ``covariance``: the identification's :class:`~errormap.uncertainty.ElementCovariance`;
+    ``rounds``: update/search rounds (from the second on, the update is made on the residual
+    minus the previous round's effects, so that it does not take up an effect, then the
+    search starts afresh)."""
     s = settings or DiagnosisSettings()
     n = len(checks)
     s.validate(n)
@@ -48,6 +52,13 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
     upd = update_elements(machine, covariance, checks.axes[fit_idx], r0[fit_idx], alpha=s.alpha)
     updated = HTMField(machine, upd.elements_)
     d = diagnose(machine, updated, checks, s)
+    for _ in range(rounds - 1):  # backfitting: update without what the effects explain, search again
+        if not d.selector.terms_:
+            break
+        terms = CorrectedField(machine, base, d.selector.terms_).terms_only(checks.axes, **checks.conditions)
+        upd = update_elements(machine, covariance, checks.axes[fit_idx], (r0 - terms)[fit_idx], alpha=s.alpha)
+        updated = HTMField(machine, upd.elements_)
+        d = diagnose(machine, updated, checks, s)
     r1 = d.residual_before_um
     r2 = d.residual_after_um
     st0, st1, st2 = (residual_stats(r[hold_idx]) for r in (r0, r1, r2))
