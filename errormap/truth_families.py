@@ -110,8 +110,8 @@ class IndependentTruth(TruthGrinder):
         ss = np.random.SeedSequence(seed)
         r_pts, r_env, r_noise = (np.random.default_rng(s) for s in ss.spawn(3))
         lo, hi = self.machine.stroke_lo, self.machine.stroke_hi
-        u = qmc.Sobol(3, scramble=True, seed=r_pts).random(n)
-        u = u[r_pts.permutation(n)]  # Sobol order is structured: measure in random order
+        u = qmc.Sobol(3, scramble=True, seed=r_pts).random_base2(int(np.ceil(np.log2(max(n, 2)))))
+        u = u[r_pts.permutation(u.shape[0])[:n]]  # Sobol order is structured: measure n of them in random order
         axes = lo + (hi - lo) * u
         t = np.arange(n) * dt_s
         rise, tau = r_env.uniform(3.0, 5.0), r_env.uniform(1500.0, 3500.0)
