@@ -20,10 +20,12 @@ Two findings come with it:
   Bonferroni over the 23 elements, ``p_adj < alpha``. The checks demand a change the sweeps
   contradict: the model is standing in for something it does not have (e.g. an X·Z
   interaction taken up as an X roll) — reported as evidence of a missing effect.
-* **uncovered elements** — elements (and stations) whose posterior standard deviation is
-  still ≥ :data:`UNCOVERED_RATIO` of the prior: the checks do not constrain them, they stay at
-  the sweep estimate; the reason is named (the checks' range of the element's axis, or a
-  sensitivity below the check noise).
+* **uncovered elements** — element stations about which the checks alone say little: with
+  ``I = Σ A²/σc²`` (the checks' information on that θ by itself) and the prior variance ``v``,
+  ``1/√(1 + I·v) ≥`` :data:`UNCOVERED_RATIO`. (The full posterior is no measure of this: the
+  sweep prior's correlations — a common frame mode shared by all stations — let checks at one
+  end move stations at the other.) They stay at the sweep estimate; the reason is named (the
+  checks' range of the element's axis, or a sensitivity below the check noise).
 """
 from __future__ import annotations
 
@@ -39,7 +41,8 @@ PRIOR_RIDGE = 0.05
 """Diagonal added to the bootstrap covariance, as a fraction of its diagonal: the sample
 covariance has rank ≤ n_boot − 1 < P, and a prior must let the checks move every θ."""
 UNCOVERED_RATIO = 0.9
-"""An element station whose posterior sd is ≥ 90 % of its prior sd was not updated by the checks."""
+"""An element station whose one-parameter posterior sd from the checks is ≥ 90 % of its prior sd
+(the checks' information ≤ 0.23 / prior variance) is not updated by the checks."""
 SIGMA_GRID_UM = np.geomspace(0.05, 50.0, 121)
 
 
@@ -103,6 +106,7 @@ def update_elements(machine, covariance: ElementCovariance, axes, residual_um, a
     theta = covariance.theta + dtheta
     new_el = elements_from_theta(theta, el)
 
+    info = np.sum(A**2, axis=0) / g2
     lay = theta_layout(el)
     names = np.array([k for k, _ in lay])
     contradicted, uncovered = [], []
@@ -119,10 +123,12 @@ def update_elements(machine, covariance: ElementCovariance, axes, residual_um, a
                                  "max_update_in_prior_sd": float(np.max(np.abs(dk) / np.sqrt(np.diag(Sp)[idx]))),
                                  "meaning": "the checks demand an update of this element that the sweeps rule out: "
                                             "evidence of an effect the 23 elements lack, standing in here"})
-        ratio = np.sqrt(np.diag(post)[idx] / np.diag(Sp)[idx])
+        # local information: what the checks alone say about each θ (its own column, no prior
+        # correlations), against the prior variance: sd ratio of a one-parameter update
+        ratio = 1.0 / np.sqrt(1.0 + info[idx] * np.diag(Sp)[idx])
         bad = (ratio >= UNCOVERED_RATIO) & (d[idx] > 1e3 * floor)  # gauge stations (fixed at zero) excluded
         if bad.any():
-            entry = {"element": k, "posterior_over_prior_sd": [float(v) for v in ratio]}
+            entry = {"element": k, "local_posterior_over_prior_sd": [float(v) for v in ratio]}
             if k in FUNCTION_ELEMENTS:
                 key = AXIS_OF[k]
                 st = el.stations[key]
@@ -134,7 +140,7 @@ def update_elements(machine, covariance: ElementCovariance, axes, residual_um, a
                                     f"{outside} lie outside, so these station values stay at the sweep estimate")
                 else:
                     entry["why"] = ("the checks' sensitivity to this element is below the check noise there "
-                                    "(posterior sd ≥ 90 % of the sweep sd); it stays at the sweep estimate")
+                                    "(their information on it leaves ≥ 90 % of the sweep sd); it stays at the sweep estimate")
             else:
                 entry["why"] = "the checks do not separate this constant from the other elements; it stays at the sweep estimate"
             uncovered.append(entry)
