@@ -143,3 +143,34 @@ def test_predict_band_cli(tmp_path, capsys):
     capsys.readouterr()
     assert main(["predict", str(pts), "--model", str(el), "--out", str(tmp_path / "p2.csv"), "--band", "1sigma"]) == 2
     assert "el.cov.npz" in capsys.readouterr().err
+
+
+COMP_TRUE_TOL_UM = 0.01  # model = truth exactly here; the exact solver's own residual is ~1e-10 μm
+
+
+def test_compensate_takes_the_diagnosed_model_and_its_conditions(grinder, tmp_path, capsys):
+    from errormap.io import read_table
+    from errormap.kinematics import forward
+    truth = random_truth(grinder, 3, effects=["reversal"])
+    truth.elements.save(tmp_path / "updated_elements.json")
+    b = truth.effects["reversal"]["backlash_um"]
+    term = {"kind": "reversal", "axis": "z", "element": "dz_z", "coefficients": [b], "period_mm": None, "order": None,
+            "needs": ["dir_z"], "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}
+    (tmp_path / "model.json").write_text(json.dumps({"format": "volcomp-diagnosed-model/1",
+                                                      "elements": "updated_elements.json", "terms": [term]}))
+    u = np.linspace(0, 1, 30)
+    axes = np.c_[20 + 150 * u, 5 + 40 * u, 300 * u]
+    path = tmp_path / "path.csv"
+    path.write_text("x_mm,z_mm,a_deg\n" + "\n".join(f"{x:.6f},{z:.6f},{a:.6f}" for x, z, a in axes) + "\n")
+    capsys.readouterr()
+    assert main(["compensate", str(path), "--model", str(tmp_path / "model.json"), "--method", "exact",
+                 "--out", str(tmp_path / "c0")]) == 2
+    assert "dir_z" in capsys.readouterr().err and not (tmp_path / "c0" / "path.csv").exists()
+    assert main(["compensate", str(path), "--model", str(tmp_path / "model.json"), "--method", "exact",
+                 "--out", str(tmp_path / "c1"), "--dir-z", "-1"]) == 0
+    t = read_table(tmp_path / "c1" / "path.csv")
+    cmd = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
+    n = len(cmd)
+    landed = truth.tool_point(cmd, dir_z=-np.ones(n))
+    err_um = np.linalg.norm(landed - forward(grinder, axes), axis=1) * 1e3
+    assert err_um.max() < COMP_TRUE_TOL_UM

@@ -26,7 +26,7 @@ from errormap.machine import load_machine
 from errormap.progress import Progress
 
 from ..cli import UsageError
-from ..fields import load_field
+from ..diagnosed_model import add_condition_options, load_path_field
 from ..pathio import align_turns, read_path, write_compensated
 from .. import guards
 from ..report import small_batch_threads
@@ -43,7 +43,8 @@ def register(sub):
                     "residual. Exit status 3 when the guards refuse a file (unless --allow).")
     p.add_argument("files", nargs="+", metavar="FILE", help="tool path: .csv (x_mm,z_mm,a_deg or "
                    "px_mm,py_mm,pz_mm) or G-code (any other suffix)")
-    p.add_argument("--model", required=True, help="MLflow run id, runs:/ URI, or element-set file (JSON)")
+    p.add_argument("--model", required=True, help="MLflow run id, runs:/ URI, element-set file (JSON), or the "
+                   "diagnosed model (DIR/model.json of volcomp diagnose: updated elements + accepted terms)")
     p.add_argument("--method", required=True, choices=METHODS, help="compensation solver")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (files keep their names)")
     p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
@@ -53,6 +54,7 @@ def register(sub):
                    help="write commands even where these guards object (comma-separated from "
                         f"{', '.join(guards.GUARDS)}; bare --allow: all of them); violations are still reported")
     p.add_argument("--show", type=int, default=10, help="offending points listed per refused file (default 10)")
+    add_condition_options(p)
     p.set_defaults(func=run)
 
 
@@ -95,7 +97,7 @@ def run(args) -> int:
     plan = _plan_outputs(args.files, out_dir)
     # read everything first: a bad file fails the batch before any work or output
     paths = [read_path(src, machine) for src, _ in plan]
-    field = load_field(args.model, machine, args.tracking_uri)
+    field = load_path_field(args.model, machine, args.tracking_uri, args)
     opts = {"seed": args.seed} if args.method in ("ga", "batched-ga") else {}
     summary, refused = [], []
     bar = Progress(len(plan), f"compensate ({args.method})", every_s=0.0)
