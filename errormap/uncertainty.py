@@ -122,6 +122,14 @@ class ElementCovariance:
     cov: np.ndarray
     elements: ElementSet
     info: dict = field(default_factory=dict)
+    prior_extra: np.ndarray | None = None
+    """(P,) variance added on the diagonal when θ is used as a prior for an update (the
+    smoother's whole mean-square change per element: a conservative bound on its bias, so that
+    checks can correct what smoothing took away); None: nothing added."""
+
+    def prior_cov(self) -> np.ndarray:
+        """Covariance to use as a prior (P, P): ``cov`` plus ``prior_extra`` on the diagonal."""
+        return self.cov if self.prior_extra is None else self.cov + np.diag(self.prior_extra)
 
     def station_se(self) -> dict:
         """Standard error per element at each of its stations (A: last = first), μm or μrad."""
@@ -155,6 +163,7 @@ class ElementCovariance:
         buf = _io.BytesIO()
         lay = theta_layout(self.elements)
         np.savez_compressed(buf, theta=self.theta, cov=self.cov,
+                            prior_extra=np.zeros_like(self.theta) if self.prior_extra is None else self.prior_extra,
                             layout_element=np.array([k for k, _ in lay]), layout_station=np.array([i for _, i in lay]),
                             info=np.array(json.dumps(self.info)))
         with atomic_write(path, "wb") as fh:
@@ -173,11 +182,12 @@ class ElementCovariance:
             theta, cov = d["theta"], d["cov"]
             lay = list(zip(d["layout_element"].tolist(), d["layout_station"].tolist()))
             info = json.loads(str(d["info"]))
+            extra = d["prior_extra"] if "prior_extra" in d.files else None
         except (ValueError, KeyError, OSError) as exc:
             raise InputError(f"{path}: not a volcomp covariance file: {exc}") from None
         if lay != theta_layout(elements) or cov.shape != (len(lay), len(lay)):
             raise InputError(f"{path}: its parameter layout does not match the element set's stations")
-        return cls(theta, cov, elements, info)
+        return cls(theta, cov, elements, info, extra)
 
 
 def covariance_path(elements_path) -> Path:
@@ -295,17 +305,19 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     # smoother removed, less what noise alone explains (E|(I−H)y|² = |(I−H)f|² + tr((I−H)Σ(I−H)ᵀ)),
     # is added to its stations' variance
     change2 = (y - theta) ** 2
-    bias_var = np.zeros(P)
+    bias_var, prior_extra = np.zeros(P), np.zeros(P)
     IH = np.eye(P) - H
     for k in FUNCTION_ELEMENTS:
         idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
         B = IH[np.ix_(idx, idx)]
         noise = np.trace(B @ S[np.ix_(idx, idx)] @ B.T) / idx.size
         bias_var[idx] = max(0.0, change2[idx].mean() - noise)
+        prior_extra[idx] = change2[idx].mean() - bias_var[idx]  # total: the whole mean-square change
     C = C + np.diag(bias_var)
     elements = elements_from_theta(theta, el)
     info = {"method": "parametric bootstrap of the identification, smoother applied to each draw, "
                       "plus the smoother's estimated squared bias per element on the diagonal",
             "n_boot": n_boot, "seed": seed, "noise_um": sigma, "noise_estimated": noise_um is None,
             "smoothed": bool(smooth)}
-    return SmoothIdentificationResult(raw, elements, ElementCovariance(theta, C, elements, info), sigma, smoothing)
+    return SmoothIdentificationResult(raw, elements, ElementCovariance(theta, C, elements, info, prior_extra), sigma,
+                                      smoothing)
