@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, AXIS_OF, ElementSet
+from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, ElementSet
 from .htm import error_jacobian
 from .io import InputError, atomic_write
 from .machine import Grinder
@@ -289,7 +289,6 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     S = np.cov(Y.T) if n_boot > 1 else np.zeros((P, P))
     H = np.eye(P)
     smoothing = {}
-    i = 0
     lay = theta_layout(el)
     for k in FUNCTION_ELEMENTS:
         idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
@@ -297,7 +296,6 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
             Hk, lam, edf = _smoother(y[idx], S[np.ix_(idx, idx)], periodic=k in A_ELEMENTS)
             H[np.ix_(idx, idx)] = Hk
             smoothing[k] = {"lambda": lam, "edf": edf}
-        i += idx.size
     theta = H @ y
     Ys = Y @ H.T
     C = np.cov(Ys.T) if n_boot > 1 else np.zeros((P, P))

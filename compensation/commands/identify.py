@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from errormap.elements import A_ELEMENTS, ElementSet, X_ELEMENTS, Z_ELEMENTS, element_unit
-from errormap.identification import GAUGES, identify
+from errormap.identification import GAUGES
 from errormap.io import atomic_write, write_json
 from errormap.machine import load_machine
 from errormap.sweeps import read_sweeps

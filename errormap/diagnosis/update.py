@@ -82,7 +82,7 @@ def update_elements(machine, covariance: ElementCovariance, axes, residual_um, a
     el = covariance.elements
     axes = np.asarray(axes, dtype=float)
     r = np.asarray(residual_um, dtype=float).reshape(-1)
-    A = theta_design(machine, el, axes).transpose(0, 1, 2).reshape(-1, covariance.theta.size)
+    A = theta_design(machine, el, axes).reshape(-1, covariance.theta.size)  # rows: (point, component)
     S = covariance.prior_cov()
     d = np.diag(S).copy()
     floor = 1e-6 * np.median(d[d > 0]) if np.any(d > 0) else 1.0
