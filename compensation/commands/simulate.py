@@ -36,7 +36,7 @@ def run(args) -> int:
     out = Path(args.out)
     print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
     from errormap.truth_families import make_truth
-    truth = make_truth(machine, args.seed, effects=args.effect, family=args.family)
+    truth = make_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
     el_path = truth.elements.save(out / "truth_elements.json")
     fp = make_feature_points(machine, HTMField(machine, truth.elements),
                              meta={"elements_file": str(el_path), "source": f"simulate seed={args.seed}"})
@@ -50,7 +50,7 @@ def run(args) -> int:
     grid = volume_grid(machine)
     e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
     info = {"seed": args.seed, "machine": machine.name, "machine_file": machine.path,
-            "family": args.family, "effects": {k: EFFECT_DEFAULTS[k] | truth.effects[k] for k in truth.effects},
+            "family": getattr(args, "family", "default"), "effects": {k: EFFECT_DEFAULTS[k] | truth.effects[k] for k in truth.effects},
             "noise_um": args.noise_um, "max_spatial_error_um": float(e.max()),
             "files": {"elements": str(el_path), "featurepoints": str(fp_path), "checks": str(ck_path)}}
     write_json(out / "truth.json", info)

@@ -45,8 +45,8 @@ def run(args) -> int:
         what = f"truth {args.truth}"
     else:
         from errormap.truth_families import make_truth
-        truth = make_truth(machine, args.seed, effects=args.effect, family=args.family)
-        what = f"truth seed {args.seed} ({args.family} family)"
+        truth = make_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
+        what = f"truth seed {args.seed} ({getattr(args, 'family', 'default')} family)"
     print(f"simulating tracker sweeps of {what} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
           file=sys.stderr)
     cols = simulate_sweeps(truth, noise_um=args.noise_um, seed=args.seed_noise, bidirectional=args.bidirectional,
