@@ -185,6 +185,29 @@ def _img(b64, alt) -> str:
     return f"<p><img alt='{html.escape(alt)}' src='data:image/png;base64,{b64}'></p>"
 
 
+def stages_html(s) -> str:
+    """The closed loop's three stages and the update's findings, as HTML."""
+    st = s["stages"]
+    rows = [[name, _fmt(st[key]["held_out"]["rms_um"]), _fmt(st[key]["held_out"]["max_um"]),
+             _fmt(st[key]["fitting"]["rms_um"])]
+            for name, key in (("identified", "identified"), ("updated", "updated"),
+                              ("updated + effects", "updated_plus_effects"))]
+    out = ["<h2>Closed loop: identified → updated → updated + effects</h2>",
+           _table(rows, ["model", "held-out RMS (μm)", "held-out max (μm)", "fitting RMS (μm)"])]
+    u = s["update"]
+    out.append(f"<p>Check noise σ (marginal likelihood): {_fmt(u['check_noise_sigma_um'])} μm.</p>")
+    if u["contradicted_by_sweeps"]:
+        out.append("<p><b>Updates the sweeps contradict</b> (evidence of an effect the 23 elements lack): "
+                   + html.escape(", ".join(f"{c['element']} (p = {c['p_adjusted']:.2g})" for c in u["contradicted_by_sweeps"]))
+                   + "</p>")
+    if u["not_updated"]:
+        out.append("<p><b>Not updated by the checks</b> (stay at the sweep estimate): "
+                   + html.escape("; ".join(f"{c['element']}: {c['why']}" for c in u["not_updated"])) + "</p>")
+    if s.get("effects_rejected"):
+        out.append("<p>Effects rejected: " + html.escape(s.get("effects_rejected_why", "")) + "</p>")
+    return "".join(out)
+
+
 def checks_report(d, summary, model_spec, checks_path) -> str:
     s = summary
     parts = [f"<p>Residual shown: <b>measured residual</b> (measurement − model prediction). Checks: "
@@ -193,6 +216,8 @@ def checks_report(d, summary, model_spec, checks_path) -> str:
     parts.append(_table([["held-out RMS (μm)", _fmt(s["rms_before_um"]), _fmt(s["rms_after_um"])],
                          ["held-out max (μm)", _fmt(s["max_before_um"]), _fmt(s["max_after_um"])]],
                         ["", "before", "after"]))
+    if "stages" in s:
+        parts.append(stages_html(s))
     parts.append("<h2>Effects found</h2>")
     if s["effects"]:
         rows = []
@@ -310,12 +335,20 @@ def _write(out_dir, summary, page):
 
 def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
                tracking_uri=None, featurepoints=None, retrain_time_s: float = 120.0, seed: int = 0, fit_field=None,
-               field_=None):
+               field_=None, update: bool = True):
     """Diagnose ``checks_path`` against ``model_spec``; returns (summary, paths).
 
     ``field_`` overrides loading ``model_spec`` (tests, benchmarks). With a learned model
-    (a run id) and ``featurepoints`` given, axis-only effects trigger the retrain.
+    (a run id) and ``featurepoints`` given, axis-only effects trigger the retrain. With an
+    element-set file whose covariance (``NAME.cov.npz``, from ``volcomp identify``) lies beside
+    it and ``update``, the closed loop runs (:func:`errormap.diagnosis.loop.closed_loop`):
+    identified → updated → updated + effects; the updated elements are written to
+    ``DIR/updated_elements.json`` (with their covariance) and the final model to ``DIR/model.json``.
     """
+    from errormap.uncertainty import covariance_path
+    if (update and field_ is None and Path(str(model_spec)).suffix.lower() == ".json"
+            and covariance_path(model_spec).is_file()):
+        return run_closed_loop(checks_path, machine, model_spec, out_dir, settings)
     checks = load_checks(checks_path, machine)
     settings = settings or DiagnosisSettings()
     settings.validate(len(checks))
@@ -350,6 +383,33 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
                                                      "direction) that a learned field of the axes cannot carry"}
     page = checks_report(d, summary, model_spec, checks_path)
     return summary, _write(out_dir, summary, page)
+
+
+def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None):
+    """The closed loop on an identified element set with its covariance; returns (summary, paths)."""
+    from errormap.diagnosis.loop import closed_loop
+    from errormap.elements import ElementSet
+    from errormap.uncertainty import ElementCovariance, covariance_path
+    checks = load_checks(checks_path, machine)
+    settings = settings or DiagnosisSettings()
+    settings.validate(len(checks))
+    el = ElementSet.load(model_spec)
+    cov = ElementCovariance.load(covariance_path(model_spec), el)
+    loop = closed_loop(machine, cov, checks, settings)
+    summary = dict(loop.summary)
+    summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name,
+                    "residual": "measured (measurement − model prediction); stages judged on the same held-out checks"})
+    page = checks_report(loop.diagnosis, summary, model_spec, checks_path)
+    out_dir = Path(out_dir)
+    upd_path = out_dir / "updated_elements.json"
+    summary["updated_elements_file"] = str(upd_path)
+    model = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json",
+             "terms": summary["effects"], "needs": sorted({c for e in summary["effects"] for c in e.get("needs", [])})}
+    paths = _write(out_dir, summary, page)
+    loop.update.covariance_.save(covariance_path(upd_path))
+    loop.update.elements_.save(upd_path)
+    write_json(out_dir / "model.json", model)
+    return summary, list(paths) + [upd_path, covariance_path(upd_path), out_dir / "model.json"]
 
 
 def run_drift(log_path, out_dir, selector=None):

@@ -147,7 +147,7 @@ def sweep_axes(machine: Grinder, axis: str, stations_cmd, park=None) -> np.ndarr
 
 def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, tracker_pose=None, bidirectional: bool = False,
                     n_stations: int = 21, axes=SWEEP_AXES, dt_s: float = 20.0, warmup_c: float = 0.0,
-                    mounts: dict | None = None) -> dict:
+                    mounts: dict | None = None, stations: dict | None = None) -> dict:
     """Simulated laser-tracker sweeps of a truth grinder, as a dict of sweep-file columns.
 
     ``truth``: a :class:`errormap.simulator.TruthGrinder` (its effects are included, so
@@ -157,7 +157,8 @@ def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, tracker_pose=No
     ``bidirectional``: each axis is also swept back down (``direction`` -1).
     ``warmup_c``: temperature rise over the run, ``temp_c = 20 + warmup_c·(1 - exp(-t/2400 s))``
     (default 0: sweeps at the reference temperature). ``mounts``: ball mounts per body,
-    default the machine file's ``[targets]``.
+    default the machine file's ``[targets]``. ``stations``: commands per axis (``x_mm``, ``z_mm``,
+    ``a_deg`` arrays), default ``n_stations`` equally spaced over each stroke.
     Returns columns axis, station, command, target, x_mm, y_mm, z_mm, direction, time_s, temp_c,
     each shape (3·rows,).
     """
@@ -168,13 +169,14 @@ def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, tracker_pose=No
     R_mt, t_mt = random_tracker_pose(rng) if tracker_pose is None else (np.asarray(tracker_pose[0], float),
                                                                          np.asarray(tracker_pose[1], float))
     mounts = machine.targets if mounts is None else mounts
-    st = default_stations(machine, n_stations)
+    st = default_stations(machine, n_stations) if stations is None else {
+        k: np.asarray(v, dtype=float) for k, v in stations.items()}
     cols = {k: [] for k in ("axis", "station", "command", "target", "x_mm", "y_mm", "z_mm",
                             "direction", "time_s", "temp_c")}
     t_now = 0.0
     for axis in axes:
         cmd = st[AXIS_STROKE_KEY[axis]]
-        idx = np.arange(n_stations)
+        idx = np.arange(cmd.size)
         runs = [(idx, 1)] + ([(idx[::-1], -1)] if bidirectional else [])
         for order, direction in runs:
             pts = sweep_axes(machine, axis, cmd[order])

@@ -40,7 +40,7 @@ from errormap.machine import load_machine
 from errormap.progress import Progress
 
 from ..cli import UsageError
-from ..fields import load_field
+from ..diagnosed_model import add_condition_options, load_path_field
 from ..gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ..pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from .. import guards
@@ -58,7 +58,8 @@ def register(sub):
                     "residual. Exit status 3 when the guards refuse a file (unless --allow).")
     p.add_argument("files", nargs="+", metavar="FILE", help="tool path: .csv (x_mm,z_mm,a_deg or "
                    "px_mm,py_mm,pz_mm) or G-code (any other suffix)")
-    p.add_argument("--model", required=True, help="MLflow run id, runs:/ URI, or element-set file (JSON)")
+    p.add_argument("--model", required=True, help="MLflow run id, runs:/ URI, element-set file (JSON), or the "
+                   "diagnosed model (DIR/model.json of volcomp diagnose: updated elements + accepted terms)")
     p.add_argument("--method", required=True, choices=METHODS, help="compensation solver")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (files keep their names)")
     p.add_argument("--force", action="store_true",
@@ -81,6 +82,7 @@ def register(sub):
     p.add_argument("--max-segment-mm", default="auto",
                    help="split G1 moves and arcs into segments no longer than this (WCS mm); 'auto' "
                         "(default): from the field's curvature along the file's moves; 'none': no splitting")
+    add_condition_options(p)
     p.set_defaults(func=run)
 
 
@@ -178,7 +180,7 @@ def run(args) -> int:
     # parse and validate every input first: a bad file fails the batch before any work or output
     read_opts = {"rapids": args.rapids, "block_delete": args.block_delete, "arc_tolerance_um": args.arc_tolerance_um}
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
-    field = load_field(args.model, machine, args.tracking_uri)
+    field = load_path_field(args.model, machine, args.tracking_uri, args)
     paths = [replan(tp, machine, max_segment_mm=max_segment, field=field) for tp in paths]
     opts = {"seed": args.seed} if args.method in ("ga", "batched-ga") else {}
     summary, refused, texts = [], [], []

@@ -24,6 +24,8 @@ def register(sub):
     p.add_argument("--max-effects", type=int, default=4)
     p.add_argument("--retrain-time-s", type=float, default=120.0)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-update", action="store_true",
+                   help="skip the model update even when the element set's covariance (NAME.cov.npz) is beside it")
     p.set_defaults(func=run)
 
 
@@ -53,7 +55,19 @@ def run(args) -> int:
         settings = DiagnosisSettings(fit_fraction=args.fit_fraction, alpha=args.alpha, max_effects=args.max_effects)
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
         summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,
-                                    args.featurepoints, args.retrain_time_s, args.seed)
+                                    args.featurepoints, args.retrain_time_s, args.seed, update=not args.no_update)
+        if "stages" in summary:
+            st = summary["stages"]
+            print("held-out RMS: identified {:.3g} -> updated {:.3g} -> updated + effects {:.3g} um".format(
+                st["identified"]["held_out"]["rms_um"], st["updated"]["held_out"]["rms_um"],
+                st["updated_plus_effects"]["held_out"]["rms_um"]))
+            for c in summary["update"]["contradicted_by_sweeps"]:
+                print(f"update of {c['element']} contradicted by the sweeps (p = {c['p_adjusted']:.2g}): "
+                      "evidence of an effect the model lacks")
+            for c in summary["update"]["not_updated"]:
+                print(f"not updated by the checks: {c['element']}: {c['why']}")
+            for e in summary.get("effects_rejected", []):
+                print(f"rejected: {e['kind']} axis {e['axis']} ({summary.get('effects_rejected_why', '')})")
         for i, e in enumerate(summary["effects"], 1):
             print(f"{i}. {e['kind']} axis {e['axis']} on {e['element']}: held-out RMS -{e['rms_reduction_um']:.3g} μm")
         if not summary["effects"]:

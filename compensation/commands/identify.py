@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from errormap.elements import A_ELEMENTS, ElementSet, X_ELEMENTS, Z_ELEMENTS, element_unit
-from errormap.identification import GAUGES, identify
+from errormap.identification import GAUGES
 from errormap.io import atomic_write, write_json
 from errormap.iso230 import ISO_NAME, label as iso_label
 from errormap.machine import load_machine
@@ -33,6 +33,13 @@ def register(sub):
     p.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element set to overlay on the plots")
     p.add_argument("--gauge", choices=GAUGES, default="first-station",
                    help="machine-frame gauge (default first-station: elements zero at each axis' first station)")
+    p.add_argument("--raw", action="store_true",
+                   help="interpolating splines through the noisy stations (the paper's method, no smoothing); "
+                        "the covariance is still written")
+    p.add_argument("--noise-um", type=float, default=None,
+                   help="known tracker noise σ per coordinate (μm); default: estimated from the ball residuals")
+    p.add_argument("--bootstrap", type=int, default=100, help="bootstrap draws for the covariance (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     p.set_defaults(func=run)
 
 
@@ -99,19 +106,30 @@ def run(args) -> int:
     truth = ElementSet.load(args.truth) if args.truth else None
     sweeps = read_sweeps(args.sweeps)
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
-    res = identify(sweeps, machine, gauge=args.gauge)
-    for line in res.summary_lines():
+    from errormap.uncertainty import covariance_path, smooth_identify
+    from ..cli import UsageError
+    if args.bootstrap < 2:
+        raise UsageError(f"--bootstrap must be >= 2, got {args.bootstrap}")
+    sm = smooth_identify(sweeps, machine, noise_um=args.noise_um, n_boot=args.bootstrap, seed=args.seed,
+                         smooth=not args.raw, gauge=args.gauge)
+    res = sm.raw
+    res.elements_ = sm.elements_
+    for line in res.summary_lines() + sm.summary_lines():
         print(line)
     for line in iso_summary_lines(res.elements_):
         print(line)
-    el_path = res.elements_.save(args.out)
     report = Path(args.report) if args.report else Path(args.out).with_suffix(".report.json")
     info = res.to_dict()
     info["iso230_names"] = dict(ISO_NAME)
+    cov_path = covariance_path(args.out)
     info.update({"sweeps": [str(s) for s in args.sweeps], "machine_file": machine.path,
-                 "machine_sha256": machine.sha256, "elements_file": str(el_path)})
+                 "machine_sha256": machine.sha256, "elements_file": str(args.out),
+                 "uncertainty": sm.report_dict(), "covariance_file": str(cov_path)})
+    sm.covariance_.save(cov_path)
     write_json(report, info)
+    el_path = res.elements_.save(args.out)
     print(f"wrote elements: {el_path}")
+    print(f"wrote covariance: {cov_path}")
     print(f"wrote report: {report}")
     if args.plot:
         if truth is not None:

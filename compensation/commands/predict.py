@@ -21,6 +21,9 @@ def register(sub):
     p.add_argument("--allow", action="append", default=[], choices=("extrapolate",),
                    help="extrapolate: predict also at points outside the model's calibrated volume "
                         "(refused by default: a model says nothing reliable there)")
+    p.add_argument("--band", choices=("1sigma", "95"), default=None,
+                   help="also write the half-width of a per-component band (1-σ or 95 %%) from the element set's "
+                        "covariance (NAME.cov.npz beside it, written by `volcomp identify`)")
     p.set_defaults(func=run)
 
 
@@ -50,6 +53,19 @@ def run(args) -> int:
     e = field.predict(axes)
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
+    if args.band:
+        from pathlib import Path
+
+        from errormap.elements import ElementSet
+        from errormap.uncertainty import Z95, ElementCovariance, covariance_path
+        from ..cli import UsageError
+        if Path(str(args.model)).suffix.lower() != ".json":
+            raise UsageError("--band needs an element-set file (JSON) with its covariance beside it")
+        cov = ElementCovariance.load(covariance_path(args.model), ElementSet.load(args.model))
+        sd = np.sqrt(np.diagonal(cov.prediction_cov(machine, axes), axis1=1, axis2=2))
+        k = 1.0 if args.band == "1sigma" else Z95
+        tag = "1sigma" if args.band == "1sigma" else "95"
+        cols.update({f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
     path = write_csv(args.out, cols)
     print(f"wrote {len(axes)} predictions to {path}")
     return 0

@@ -10,7 +10,7 @@ from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField
 from errormap.io import write_csv, write_json
 from errormap.machine import load_machine
-from errormap.simulator import EFFECT_DEFAULTS, EFFECT_NAMES, random_truth, volume_grid
+from errormap.simulator import EFFECT_DEFAULTS, EFFECT_NAMES, volume_grid
 
 
 def register(sub):
@@ -18,6 +18,9 @@ def register(sub):
                        description="Write DIR/truth_elements.json, DIR/featurepoints.csv, DIR/checks.csv and DIR/truth.json.")
     p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--family", choices=("default", "independent"), default="default",
+                   help="truth family: default (the simulator) or independent (other shapes, magnitudes, effect "
+                        "parameters and check layout; errormap/truth_families.py)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--effect", action="append", default=[], choices=EFFECT_NAMES,
                    help="add an undeclared effect (repeatable): " + ", ".join(EFFECT_NAMES))
@@ -35,7 +38,8 @@ def run(args) -> int:
     machine = load_machine(args.machine, expect_kind="grinder")
     out = Path(args.out)
     print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
-    truth = random_truth(machine, args.seed, effects=args.effect)
+    from errormap.truth_families import make_truth
+    truth = make_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
     el_path = truth.elements.save(out / "truth_elements.json")
     fp = make_feature_points(machine, HTMField(machine, truth.elements),
                              meta={"elements_file": str(el_path), "source": f"simulate seed={args.seed}"})
@@ -49,7 +53,7 @@ def run(args) -> int:
     grid = volume_grid(machine)
     e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
     info = {"seed": args.seed, "machine": machine.name, "machine_file": machine.path,
-            "effects": {k: EFFECT_DEFAULTS[k] | truth.effects[k] for k in truth.effects},
+            "family": getattr(args, "family", "default"), "effects": {k: EFFECT_DEFAULTS[k] | truth.effects[k] for k in truth.effects},
             "noise_um": args.noise_um, "max_spatial_error_um": float(e.max()),
             "files": {"elements": str(el_path), "featurepoints": str(fp_path), "checks": str(ck_path)}}
     write_json(out / "truth.json", info)

@@ -5,7 +5,7 @@ import sys
 
 from errormap.elements import ElementSet
 from errormap.machine import load_machine
-from errormap.simulator import EFFECT_NAMES, TruthGrinder, random_truth
+from errormap.simulator import EFFECT_NAMES, TruthGrinder
 from errormap.sweeps import simulate_sweeps, write_sweeps
 
 
@@ -20,6 +20,9 @@ def register(sub):
     src.add_argument("--seed", type=int, default=None, help="seed of a random truth grinder (as `volcomp simulate`)")
     p.add_argument("--effect", action="append", default=[], choices=EFFECT_NAMES,
                    help="undeclared effect in the truth (repeatable): " + ", ".join(EFFECT_NAMES))
+    p.add_argument("--family", choices=("default", "independent"), default="default",
+                   help="truth family: default (the simulator) or independent (other shapes, magnitudes, effect "
+                        "parameters and check layout; errormap/truth_families.py)")
     p.add_argument("--out", required=True, help="output sweep CSV")
     p.add_argument("--noise-um", type=float, default=2.0, help="tracker noise σ per coordinate (μm, default 2)")
     p.add_argument("--seed-noise", type=int, default=0, help="seed of the tracker pose and the noise")
@@ -41,8 +44,9 @@ def run(args) -> int:
         truth = TruthGrinder(machine, ElementSet.load(args.truth), {})
         what = f"truth {args.truth}"
     else:
-        truth = random_truth(machine, args.seed, effects=args.effect)
-        what = f"truth seed {args.seed}"
+        from errormap.truth_families import make_truth
+        truth = make_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
+        what = f"truth seed {args.seed} ({getattr(args, 'family', 'default')} family)"
     print(f"simulating tracker sweeps of {what} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
           file=sys.stderr)
     cols = simulate_sweeps(truth, noise_um=args.noise_um, seed=args.seed_noise, bidirectional=args.bidirectional,

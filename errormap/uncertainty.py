@@ -1,0 +1,321 @@
+"""Identification that does not amplify noise, and its uncertainty.
+
+The tracker identification (:mod:`errormap.identification`) gives each element's value at
+every station exactly from that station's balls, so the tracker noise goes into every
+station value, and an interpolating spline through them passes it on. Here:
+
+1. **Noise level** σ (μm per ball coordinate) from the stations' ball residuals (each 9×6
+   station system leaves 3 degrees of freedom): ``σ² = mean over stations of the ball
+   residual RMS²``; or given (``noise_um``).
+2. **Covariance of the station values by parametric bootstrap**: ``n_boot`` sweeps are
+   simulated from the identified elements at the estimated tracker pose, with noise σ, and
+   identified again; the spread of the station values is their sampling covariance through
+   the whole (nonlinear) method — frames, gauge, squareness, A line included.
+3. **Penalised least squares per element** (a Whittaker/P-spline smoother on the station
+   values, second differences, periodic for A): ``f = (W + λ DᵀD)⁻¹ W y`` with ``W`` the
+   inverse of the bootstrap variance at each station, λ chosen by the unbiased risk
+   estimate with that known covariance (Mallows' C_p / UBRE):
+   ``|y − Hy|²_W − tr(W(I−H)Σ(I−H)ᵀ) + tr(W H Σ Hᵀ)``. The element set keeps its format:
+   the smoothed station values, interpolated by the same cubic spline.
+4. **Covariance of the result**: the smoother applied to every bootstrap draw, the sample
+   covariance of those (rank ≤ n_boot − 1; it keeps the strong δ–ε lever-arm correlations
+   through which tool-point errors cancel), plus, per element, an estimate of the smoother's squared
+   bias on the diagonal (not in the bootstrap spread): the mean square of what the smoother
+   removed less what the noise alone explains, ``|(I−H)y|²/m − tr((I−H)Σ(I−H)ᵀ)/m``, at least 0.
+
+The parameter vector θ (:class:`ElementCovariance`): the 18 functions' values at their
+stations (X and Z: all stations; A: all but the last, which equals the first), then the
+5 constants. The element values at any axis point are linear in θ (cubic interpolation
+weights), so the spatial-error covariance at points is ``J Σ Jᵀ`` with ``J = ∂e/∂θ`` of
+shape (n, 3, P) (:meth:`ElementCovariance.prediction_cov`, shape (n, 3, 3)).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.interpolate import make_interp_spline
+
+from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, ElementSet
+from .htm import error_jacobian
+from .io import InputError, atomic_write
+from .machine import Grinder
+
+LAMBDA_GRID = np.logspace(-4, 8, 49)
+"""Smoothing parameters searched (dimensionless: the penalty is on second differences of the
+station values, the data term weighted by their inverse variance)."""
+Z95 = 1.959963984540054
+
+
+def _second_differences(m: int, periodic: bool) -> np.ndarray:
+    if periodic:
+        D = -2.0 * np.eye(m) + np.roll(np.eye(m), 1, axis=1) + np.roll(np.eye(m), -1, axis=1)
+        return D
+    return np.diff(np.eye(m), 2, axis=0)
+
+
+def theta_layout(elements: ElementSet) -> list[tuple[str, int]]:
+    """``(element, station index)`` of every entry of θ (station −1 for a constant)."""
+    out = []
+    for k in FUNCTION_ELEMENTS:
+        m = elements.stations[AXIS_OF[k]].size - (1 if k in A_ELEMENTS else 0)
+        out += [(k, i) for i in range(m)]
+    return out + [(k, -1) for k in CONSTANT_ELEMENTS]
+
+
+def theta_from_elements(elements: ElementSet) -> np.ndarray:
+    """θ (P,) from an element set (see module doc)."""
+    parts = [elements.functions[k][:-1] if k in A_ELEMENTS else elements.functions[k] for k in FUNCTION_ELEMENTS]
+    return np.concatenate(parts + [np.array([elements.constants[k] for k in CONSTANT_ELEMENTS])])
+
+
+def elements_from_theta(theta, template: ElementSet) -> ElementSet:
+    """The element set with θ's values on ``template``'s stations."""
+    theta = np.asarray(theta, dtype=float)
+    fun, i = {}, 0
+    for k in FUNCTION_ELEMENTS:
+        m = template.stations[AXIS_OF[k]].size
+        if k in A_ELEMENTS:
+            fun[k] = np.r_[theta[i:i + m - 1], theta[i]]
+            i += m - 1
+        else:
+            fun[k] = theta[i:i + m].copy()
+            i += m
+    const = {k: float(theta[i + j]) for j, k in enumerate(CONSTANT_ELEMENTS)}
+    return ElementSet(template.stations, fun, const, template.machine_name, template.machine_sha256)
+
+
+def interpolation_weights(elements: ElementSet, axes) -> dict:
+    """Per axis key, the cubic-interpolation weights (n, m_free) mapping the free station values
+    to the element value at the points (the ElementSet's own splines, applied to unit vectors)."""
+    axes = np.asarray(axes, dtype=float)
+    cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": elements.wrap_a(axes[:, 2])}
+    out = {}
+    for key in ("x_mm", "z_mm"):
+        st = elements.stations[key]
+        out[key] = make_interp_spline(st, np.eye(st.size), k=3)(cols[key])
+    st = elements.stations["a_deg"]
+    eye = np.eye(st.size - 1)
+    out["a_deg"] = make_interp_spline(st, np.vstack([eye, eye[:1]]), k=3, bc_type="periodic")(cols["a_deg"])
+    return out
+
+
+def theta_design(machine: Grinder, elements: ElementSet, axes) -> np.ndarray:
+    """``∂(spatial error μm)/∂θ`` at axis points, shape (n, 3, P) (first order, exact in θ)."""
+    axes = np.asarray(axes, dtype=float)
+    J = error_jacobian(machine, axes)
+    W = interpolation_weights(elements, axes)
+    blocks = []
+    for j, k in enumerate(FUNCTION_ELEMENTS):
+        blocks.append(J[:, :, j, None] * W[AXIS_OF[k]][:, None, :])
+    blocks.append(J[:, :, len(FUNCTION_ELEMENTS):])
+    return np.concatenate(blocks, axis=2)
+
+
+@dataclass
+class ElementCovariance:
+    """Covariance of θ (P, P) of an element set, with ``theta`` (P,) its mean; ``info`` says
+    how it was obtained (noise level, bootstrap size, smoothing parameters)."""
+
+    theta: np.ndarray
+    cov: np.ndarray
+    elements: ElementSet
+    info: dict = field(default_factory=dict)
+    prior_extra: np.ndarray | None = None
+    """(P,) variance added on the diagonal when θ is used as a prior for an update (the
+    smoother's whole mean-square change per element: a conservative bound on its bias, so that
+    checks can correct what smoothing took away); None: nothing added."""
+
+    def prior_cov(self) -> np.ndarray:
+        """Covariance to use as a prior (P, P): ``cov`` plus ``prior_extra`` on the diagonal."""
+        return self.cov if self.prior_extra is None else self.cov + np.diag(self.prior_extra)
+
+    def station_se(self) -> dict:
+        """Standard error per element at each of its stations (A: last = first), μm or μrad."""
+        sd = np.sqrt(np.clip(np.diag(self.cov), 0, None))
+        out, i = {}, 0
+        for k in FUNCTION_ELEMENTS:
+            m = self.elements.stations[AXIS_OF[k]].size
+            if k in A_ELEMENTS:
+                out[k] = np.r_[sd[i:i + m - 1], sd[i]]
+                i += m - 1
+            else:
+                out[k] = sd[i:i + m]
+                i += m
+        for j, k in enumerate(CONSTANT_ELEMENTS):
+            out[k] = float(sd[i + j])
+        return out
+
+    def prediction_cov(self, machine: Grinder, axes, chunk: int = 20_000) -> np.ndarray:
+        """Spatial-error covariance ``J Σ Jᵀ`` at axis points, shape (n, 3, 3) (μm²)."""
+        axes = np.asarray(axes, dtype=float)
+        out = np.empty((axes.shape[0], 3, 3))
+        for s in range(0, axes.shape[0], chunk):
+            A = theta_design(machine, self.elements, axes[s:s + chunk])
+            out[s:s + chunk] = np.einsum("nip,pq,njq->nij", A, self.cov, A, optimize=True)
+        return out
+
+    def save(self, path) -> Path:
+        """Write ``.npz`` atomically (theta, cov, layout names, info as JSON text)."""
+        import io as _io
+        import json
+        buf = _io.BytesIO()
+        lay = theta_layout(self.elements)
+        np.savez_compressed(buf, theta=self.theta, cov=self.cov,
+                            prior_extra=np.zeros_like(self.theta) if self.prior_extra is None else self.prior_extra,
+                            layout_element=np.array([k for k, _ in lay]), layout_station=np.array([i for _, i in lay]),
+                            info=np.array(json.dumps(self.info)))
+        with atomic_write(path, "wb") as fh:
+            fh.write(buf.getvalue())
+        return Path(path)
+
+    @classmethod
+    def load(cls, path, elements: ElementSet) -> "ElementCovariance":
+        """Read a covariance file written by :meth:`save` for ``elements``; errors name the file."""
+        import json
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"{path}: no such covariance file (written by `volcomp identify` beside the elements)")
+        try:
+            d = np.load(path, allow_pickle=False)
+            theta, cov = d["theta"], d["cov"]
+            lay = list(zip(d["layout_element"].tolist(), d["layout_station"].tolist()))
+            info = json.loads(str(d["info"]))
+            extra = d["prior_extra"] if "prior_extra" in d.files else None
+        except (ValueError, KeyError, OSError) as exc:
+            raise InputError(f"{path}: not a volcomp covariance file: {exc}") from None
+        if lay != theta_layout(elements) or cov.shape != (len(lay), len(lay)):
+            raise InputError(f"{path}: its parameter layout does not match the element set's stations")
+        return cls(theta, cov, elements, info, extra)
+
+
+def covariance_path(elements_path) -> Path:
+    """Where the covariance of an element-set file lives: ``NAME.cov.npz`` beside it."""
+    p = Path(elements_path)
+    return p.with_name(p.stem + ".cov.npz")
+
+
+def _smoother(y, Sigma, periodic: bool):
+    """UBRE-optimal Whittaker smoother for station values y (m,) with covariance Sigma (m, m):
+    returns (H (m, m), λ, effective degrees of freedom)."""
+    m = y.size
+    var = np.diag(Sigma).copy()
+    if var.max() <= 0:
+        return np.eye(m), 0.0, float(m)
+    var = np.maximum(var, 1e-3 * var.max())  # gauge stations (exactly zero) get a finite weight
+    W = np.diag(1.0 / var)
+    D = _second_differences(m, periodic)
+    DtD = D.T @ D
+    I = np.eye(m)
+    best = None
+    for lam in LAMBDA_GRID:
+        H = np.linalg.solve(W + lam * DtD, W)
+        res = y - H @ y
+        risk = res @ W @ res - np.trace(W @ (I - H) @ Sigma @ (I - H).T) + np.trace(W @ H @ Sigma @ H.T)
+        if best is None or risk < best[0] - 1e-12 * abs(best[0]):
+            best = (risk, lam, H)
+    return best[2], float(best[1]), float(np.trace(best[2]))
+
+
+def noise_from_residuals(result) -> float:
+    """Ball-coordinate noise σ (μm) from an :class:`~errormap.identification.IdentificationResult`.
+
+    Each station's balls are fitted to the first station's balls (the body's template), so
+    a residual carries the noise of both measurements: its covariance is ``2σ²(I − P)``
+    with 3 residual degrees of freedom of 9. The RMS is over the three balls' residual norms,
+    so ``σ² = mean over the stations after the first of RMS² / 2`` (the first station is the
+    template itself and has none).
+    """
+    rms = np.concatenate([r.residual_rms_um[1:] for r in result.axes.values()])
+    return float(np.sqrt(np.mean(rms**2) / 2.0))
+
+
+@dataclass
+class SmoothIdentificationResult:
+    """``raw``: the interpolating identification; ``elements_``: the smoothed elements;
+    ``covariance_``: :class:`ElementCovariance` of the smoothed θ; ``noise_um``: σ used;
+    ``smoothing``: per element {lambda, edf}."""
+
+    raw: object
+    elements_: ElementSet
+    covariance_: ElementCovariance
+    noise_um: float
+    smoothing: dict
+
+    def summary_lines(self) -> list[str]:
+        se = self.covariance_.station_se()
+        edf = ", ".join(f"{k} {v['edf']:.3g}" for k, v in self.smoothing.items())
+        worst = max(FUNCTION_ELEMENTS, key=lambda k: float(np.max(se[k])))
+        return [f"noise {self.noise_um:.3g} um per ball coordinate "
+                f"({'from the ball residuals' if self.covariance_.info.get('noise_estimated') else 'given'}); "
+                f"bootstrap {self.covariance_.info['n_boot']} draws",
+                f"smoothing (effective degrees of freedom per element): {edf}",
+                f"largest station standard error: {worst} {np.max(se[worst]):.3g}"]
+
+    def report_dict(self) -> dict:
+        se = self.covariance_.station_se()
+        return {"noise_um": self.noise_um, "smoothing": self.smoothing,
+                "standard_errors": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in se.items()},
+                "covariance": dict(self.covariance_.info)}
+
+
+def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_boot: int = 100, seed: int = 0,
+                    smooth: bool = True, **settings) -> SmoothIdentificationResult:
+    """Identification with penalised smoothing and bootstrap covariance (see module doc).
+
+    ``sweeps``: as :func:`errormap.identification.identify`; ``noise_um``: known tracker σ
+    per coordinate (default: estimated from the ball residuals); ``n_boot``: bootstrap draws;
+    ``seed``: seeds the bootstrap; ``smooth=False`` keeps the interpolating station values
+    (the covariance is then that of the raw values). ``settings`` go to the identification.
+    """
+    from .identification import TrackerIdentification
+    from .simulator import TruthGrinder
+    from .sweeps import simulate_sweeps
+
+    est = TrackerIdentification(**settings)
+    raw = est.fit(sweeps, machine).result_
+    el = raw.elements_
+    sigma = noise_from_residuals(raw) if noise_um is None else float(noise_um)
+    y = theta_from_elements(el)
+    P = y.size
+    boot_truth = TruthGrinder(machine, el, {})
+    seeds = np.random.SeedSequence(seed).spawn(n_boot)
+    Y = np.empty((n_boot, P))
+    for b, ss in enumerate(seeds):
+        cols = simulate_sweeps(boot_truth, noise_um=sigma, seed=int(ss.generate_state(1)[0]),
+                               tracker_pose=raw.machine_in_tracker, stations=el.stations)
+        Y[b] = theta_from_elements(TrackerIdentification(**settings).fit(cols, machine).elements_)
+    S = np.cov(Y.T) if n_boot > 1 else np.zeros((P, P))
+    H = np.eye(P)
+    smoothing = {}
+    lay = theta_layout(el)
+    for k in FUNCTION_ELEMENTS:
+        idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
+        if smooth:
+            Hk, lam, edf = _smoother(y[idx], S[np.ix_(idx, idx)], periodic=k in A_ELEMENTS)
+            H[np.ix_(idx, idx)] = Hk
+            smoothing[k] = {"lambda": lam, "edf": edf}
+    theta = H @ y
+    Ys = Y @ H.T
+    C = np.cov(Ys.T) if n_boot > 1 else np.zeros((P, P))
+    # the smoother's bias is not in the bootstrap spread: per element, the mean square of what the
+    # smoother removed, less what noise alone explains (E|(I−H)y|² = |(I−H)f|² + tr((I−H)Σ(I−H)ᵀ)),
+    # is added to its stations' variance
+    change2 = (y - theta) ** 2
+    bias_var, prior_extra = np.zeros(P), np.zeros(P)
+    IH = np.eye(P) - H
+    for k in FUNCTION_ELEMENTS:
+        idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
+        B = IH[np.ix_(idx, idx)]
+        noise = np.trace(B @ S[np.ix_(idx, idx)] @ B.T) / idx.size
+        bias_var[idx] = max(0.0, change2[idx].mean() - noise)
+        prior_extra[idx] = change2[idx].mean() - bias_var[idx]  # total: the whole mean-square change
+    C = C + np.diag(bias_var)
+    elements = elements_from_theta(theta, el)
+    info = {"method": "parametric bootstrap of the identification, smoother applied to each draw, "
+                      "plus the smoother's estimated squared bias per element on the diagonal",
+            "n_boot": n_boot, "seed": seed, "noise_um": sigma, "noise_estimated": noise_um is None,
+            "smoothed": bool(smooth)}
+    return SmoothIdentificationResult(raw, elements, ElementCovariance(theta, C, elements, info, prior_extra), sigma,
+                                      smoothing)

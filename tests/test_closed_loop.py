@@ -1,0 +1,176 @@
+"""Issue 13: independent truth family, smoothed identification with uncertainty, the model
+update from checks, and the closed loop — each injected → simulated → estimated → scored
+against the hidden truth (the estimators never see it)."""
+import json
+
+import numpy as np
+import pytest
+
+from compensation.cli import main
+from errormap.diagnosis.checks import CheckData
+from errormap.diagnosis.loop import closed_loop
+from errormap.diagnosis.update import update_elements
+from errormap.elements import ElementSet
+from errormap.htm import HTMField, spatial_error_exact
+from errormap.simulator import EFFECT_DEFAULTS, random_axes, random_truth
+from errormap.sweeps import simulate_sweeps
+from errormap.truth_families import TRUTH_STATIONS, make_truth
+from errormap.uncertainty import (ElementCovariance, covariance_path, elements_from_theta, smooth_identify,
+                                  theta_design, theta_from_elements)
+
+SEED = 0
+TRACKER_NOISE_UM = 2.0
+N_BOOT = 40            # small bootstrap so that the tests run in seconds; the CLI default is 100
+NOISE_REL_TOL = 0.15   # σ̂ from ~180 residual dof has a relative SE of ~5 %: 3 SE
+SMOOTH_GAIN = 0.75     # smoothed / interpolating prediction RMS on this seed (measured 0.55; the benchmark has the spread)
+LINEAR_REL_TOL = 1e-3  # first-order update vs exact HTM for a μm-sized change (second order ~ ε ≈ 1e-4)
+HELD_OUT_TARGET_UM = 2.2  # issue 13: 1.25 × √3 × 1 μm check noise
+N_CHECKS = 600
+
+
+@pytest.fixture(scope="module")
+def indep(grinder):
+    truth = make_truth(grinder, SEED, family="independent")
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder, n_boot=N_BOOT)
+    return truth, sm
+
+
+def test_independent_family_is_seeded_and_differs(grinder):
+    a = make_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
+    b = make_truth(grinder, 3, family="independent", effects=["pitch", "worm"])
+    d = random_truth(grinder, 3)
+    assert a.elements.stations["x_mm"].size == TRUTH_STATIONS
+    np.testing.assert_array_equal(a.elements.functions["dx_x"], b.elements.functions["dx_x"])
+    assert a.effects == b.effects
+    assert a.effects["pitch"]["period_mm"] != EFFECT_DEFAULTS["pitch"]["period_mm"]
+    pts = random_axes(grinder, 500, np.random.default_rng(0))
+    ea, ed = HTMField(grinder, a.elements).predict(pts), HTMField(grinder, d.elements).predict(pts)
+    assert np.abs(ea - ed).max() > 10.0  # a different machine, not a rescaled one
+    c1 = a.check_measurements(100, 1.0, seed=5)
+    c2 = b.check_measurements(100, 1.0, seed=5)
+    np.testing.assert_array_equal(c1["dx_um"], c2["dx_um"])
+
+
+def test_simulate_cli_family(tmp_path):
+    assert main(["simulate", "--family", "independent", "--seed", "2", "--checks", "50", "--out", str(tmp_path)]) == 0
+    info = json.loads((tmp_path / "truth.json").read_text())
+    assert info["family"] == "independent"
+    assert ElementSet.load(tmp_path / "truth_elements.json").stations["z_mm"].size == TRUTH_STATIONS
+
+
+def test_noise_is_estimated_from_ball_residuals(indep):
+    _, sm = indep
+    assert abs(sm.noise_um - TRACKER_NOISE_UM) < NOISE_REL_TOL * TRACKER_NOISE_UM
+
+
+def test_smoothing_beats_interpolation_on_the_truth(grinder, indep):
+    truth, sm = indep
+    pts = random_axes(grinder, 3000, np.random.default_rng(1))
+    et = HTMField(grinder, truth.elements).predict(pts)
+    rms = lambda el: np.sqrt(np.mean(np.sum((HTMField(grinder, el).predict(pts) - et) ** 2, axis=1)))  # noqa: E731
+    assert rms(sm.elements_) < SMOOTH_GAIN * rms(sm.raw.elements_)
+
+
+def test_theta_design_is_the_first_order_change(grinder, indep):
+    _, sm = indep
+    el = sm.elements_
+    pts = random_axes(grinder, 200, np.random.default_rng(2))
+    dtheta = np.random.default_rng(3).normal(0, 1.0, theta_from_elements(el).size)  # ~1 μm / μrad
+    new = elements_from_theta(theta_from_elements(el) + dtheta, el)
+    exact = spatial_error_exact(grinder, pts, new.values(pts)) - spatial_error_exact(grinder, pts, el.values(pts))
+    lin = np.einsum("nip,p->ni", theta_design(grinder, el, pts), dtheta)
+    assert np.abs(exact - lin).max() < LINEAR_REL_TOL * np.abs(exact).max()
+
+
+def test_prediction_cov_shape_and_station_se(grinder, indep):
+    _, sm = indep
+    C = sm.covariance_.prediction_cov(grinder, random_axes(grinder, 10, np.random.default_rng(4)))
+    assert C.shape == (10, 3, 3)
+    assert np.all(np.linalg.eigvalsh(C) > -1e-9)
+    se = sm.covariance_.station_se()
+    assert se["dx_x"].shape == (21,) and se["ex_a"][0] == se["ex_a"][-1] and se["s_xz"] > 0
+
+
+def test_update_brings_held_out_to_the_noise_floor_and_reports_no_effect(grinder, indep):
+    truth, sm = indep
+    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, 1.0, seed=11))
+    loop = closed_loop(grinder, sm.covariance_, checks)
+    st = loop.summary["stages"]
+    assert st["identified"]["held_out"]["rms_um"] > 2 * HELD_OUT_TARGET_UM
+    assert st["updated_plus_effects"]["held_out"]["rms_um"] < HELD_OUT_TARGET_UM
+    assert loop.summary["effects"] == []
+    assert 0.8 < loop.update.sigma_um < 1.25  # the check noise is 1 μm per component
+
+
+def test_checks_that_do_not_cover_an_axis_are_named(grinder, indep):
+    truth, sm = indep
+    c = truth.check_measurements(300, 1.0, seed=12)
+    keep = c["x_mm"] < 80.0
+    axes = np.stack([c["x_mm"], c["z_mm"], c["a_deg"]], axis=1)[keep]
+    meas = np.stack([c["dx_um"], c["dy_um"], c["dz_um"]], axis=1)[keep]
+    r = meas - HTMField(grinder, sm.elements_).predict(axes)
+    upd = update_elements(grinder, sm.covariance_, axes, r)
+    named = {u["element"]: u for u in upd.uncovered}
+    assert "dx_x" in named and "outside" in named["dx_x"]["why"]
+    assert max(named["dx_x"]["stations"]) == 20 and min(named["dx_x"]["stations"]) > 8  # x > 80 mm: stations 9..20
+
+
+@pytest.mark.slow
+def test_reversal_is_named_after_the_update(grinder):
+    truth = make_truth(grinder, 1, family="independent", effects=["reversal"])
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder, n_boot=N_BOOT)
+    checks = CheckData.from_columns(truth.check_measurements(800, 1.0, seed=13))
+    loop = closed_loop(grinder, sm.covariance_, checks)
+    e = loop.summary["effects"]
+    assert e and (e[0]["kind"], e[0]["axis"]) == ("reversal", "z")
+    assert loop.summary["stages"]["updated_plus_effects"]["held_out"]["rms_um"] < HELD_OUT_TARGET_UM
+
+
+def test_predict_band_cli(tmp_path, capsys):
+    sw = tmp_path / "sw.csv"
+    assert main(["sweeps", "--seed", "2", "--family", "independent", "--out", str(sw)]) == 0
+    el = tmp_path / "el.json"
+    assert main(["identify", str(sw), "--out", str(el), "--bootstrap", "10"]) == 0
+    assert covariance_path(el).is_file()
+    ElementCovariance.load(covariance_path(el), ElementSet.load(el))
+    pts = tmp_path / "p.csv"
+    pts.write_text("x_mm,z_mm,a_deg\n10,5,30\n150,40,200\n")
+    out = tmp_path / "pred.csv"
+    assert main(["predict", str(pts), "--model", str(el), "--out", str(out), "--band", "95"]) == 0
+    text = out.read_text()
+    assert "dx_band95_um" in text
+    covariance_path(el).unlink()
+    capsys.readouterr()
+    assert main(["predict", str(pts), "--model", str(el), "--out", str(tmp_path / "p2.csv"), "--band", "1sigma"]) == 2
+    assert "el.cov.npz" in capsys.readouterr().err
+
+
+COMP_TRUE_TOL_UM = 0.01  # model = truth exactly here; the exact solver's own residual is ~1e-10 μm
+
+
+def test_compensate_takes_the_diagnosed_model_and_its_conditions(grinder, tmp_path, capsys):
+    from errormap.io import read_table
+    from errormap.kinematics import forward
+    truth = random_truth(grinder, 3, effects=["reversal"])
+    truth.elements.save(tmp_path / "updated_elements.json")
+    b = truth.effects["reversal"]["backlash_um"]
+    term = {"kind": "reversal", "axis": "z", "element": "dz_z", "coefficients": [b], "period_mm": None, "order": None,
+            "needs": ["dir_z"], "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}
+    (tmp_path / "model.json").write_text(json.dumps({"format": "volcomp-diagnosed-model/1",
+                                                      "elements": "updated_elements.json", "terms": [term]}))
+    u = np.linspace(0, 1, 30)
+    axes = np.c_[20 + 150 * u, 5 + 40 * u, 300 * u]
+    path = tmp_path / "path.csv"
+    path.write_text("x_mm,z_mm,a_deg\n" + "\n".join(f"{x:.6f},{z:.6f},{a:.6f}" for x, z, a in axes) + "\n")
+    capsys.readouterr()
+    assert main(["compensate", str(path), "--model", str(tmp_path / "model.json"), "--method", "exact",
+                 "--out", str(tmp_path / "c0")]) == 2
+    assert "dir_z" in capsys.readouterr().err and not (tmp_path / "c0" / "path.csv").exists()
+    assert main(["compensate", str(path), "--model", str(tmp_path / "model.json"), "--method", "exact",
+                 "--out", str(tmp_path / "c1"), "--dir-z", "-1"]) == 0
+    t = read_table(tmp_path / "c1" / "path.csv")
+    cmd = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
+    n = len(cmd)
+    landed = truth.tool_point(cmd, dir_z=-np.ones(n))
+    err_um = np.linalg.norm(landed - forward(grinder, axes), axis=1) * 1e3
+    assert err_um.max() < COMP_TRUE_TOL_UM
