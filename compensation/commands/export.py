@@ -6,6 +6,10 @@ random points over the volume; the MODEL residual (and, with ``--truth``, the TR
 is printed beside the no-compensation and exact-compensation baselines. When the worst model
 residual exceeds ``--tolerance-um`` nothing is written and the command exits with status 2,
 unless ``--force`` (the override is recorded in ``export.json``).
+
+``--format drift`` takes a drift model (``volcomp.drift_model``) instead: its coefficients at a
+fixed controller sample period, the controller re-simulated from the written file on a log
+(``--log``, or a simulated one) and compared with the model's own prediction (:func:`run_drift`).
 """
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ value, three values per command), so the table read back must agree to 1e-5."""
 
 def register(sub):
     p = sub.add_parser("export", help="write controller compensation tables (ISO 230-1 per-axis, 3D grid, "
-                                      "LinuxCNC per-joint), checked against the model first",
+                                      "LinuxCNC per-joint, drift coefficients), checked against the model first",
                        description="Export MODEL as controller compensation tables. Before writing, the "
                                    "controller's use of the table is re-simulated on the flute path and on random "
                                    "points; the model residual (and with --truth the true residual) is reported. "
