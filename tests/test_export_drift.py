@@ -92,6 +92,9 @@ def test_round_trip_at_the_log_step_reproduces_the_model(fitted, tmp_path):
         assert r["model"]["n"] == len(log.time_s)
         # compensation from the coefficients is the model's own compensation, measured against the log
         assert r["measured"]["controller"]["rms_um"] == pytest.approx(r["measured"]["volcomp"]["rms_um"], abs=1e-6)
+    # the library refuses too (the CLI discards its staging folder on this error)
+    with pytest.raises(ValueError, match="tolerance not met"):
+        ex.export_drift_coefficients(model, tmp_path, 120.0, log, "test", tolerance_um=IMPOSSIBLE_UM)
 
 
 def test_sub_step_controller_equals_the_model_on_the_held_resampled_log(fitted):
@@ -159,7 +162,7 @@ def test_bad_model_and_bad_coefficient_files_name_the_place(fitted, tmp_path, ca
     err = capsys.readouterr().err
     assert str(bad) in err and "key 'schema_version'" in err
     assert main(["export", str(d / "m.json"), "--format", "grid", "--out", str(out), "--log", str(d / "log.csv")]) == 2
-    assert "--log apply to --format drift only" in capsys.readouterr().err
+    assert "--log applies to --format drift only" in capsys.readouterr().err
     p = ex.write_drift_coefficients(ex.drift_coefficients(one_filter_model(), 10.0), tmp_path, "hand")
     lines = p.read_text().splitlines()
     k = next(i for i, s in enumerate(lines) if s.startswith("f0,"))

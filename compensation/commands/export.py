@@ -128,7 +128,7 @@ def run(args) -> int:
         return run_drift(args)
     given = [k for k, v in drift_only.items() if v is not None]
     if given:
-        raise UsageError(f"{', '.join(given)} apply to --format drift only")
+        raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to --format drift only")
     machine = load_machine(args.machine, expect_kind="grinder")
     if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
         raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
@@ -261,7 +261,7 @@ def run_drift(args) -> int:
     bad = [k for k, v in {"--machine": args.machine, "--truth": args.truth, "--diagnosis": args.diagnosis,
                           "--region": args.region}.items() if v is not None]
     if bad:
-        raise UsageError(f"{', '.join(bad)} do not apply to --format drift (a drift model needs no machine; its "
+        raise UsageError(f"{', '.join(bad)} {'does' if len(bad) == 1 else 'do'} not apply to --format drift (a drift model needs no machine; its "
                          "truth is a simulated log: --sim/--sim-seed)")
     if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
         raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
