@@ -647,7 +647,7 @@ class DriftCoefficients:
     kind = "drift"
 
     def n_values(self) -> int:
-        return int(len(self.inputs) * (8 + len(self.gains)))
+        return int(len(self.inputs) * (7 + len(self.gains)))   # scale, power, tau_s, a, b, delay (2), gains
 
 
 def drift_coefficients(model, sample_period_s: float) -> DriftCoefficients:

@@ -116,6 +116,22 @@ def test_sub_step_controller_equals_the_model_on_the_held_resampled_log(fitted):
     assert ex.worst_drift_model_um(check) > 100 * RESAMPLED_UM    # the convention's cost is reported, not hidden
 
 
+def test_irregular_log_ticks_at_the_fixed_period_on_held_inputs():
+    """An unevenly sampled log (steps 3–17 s, whole seconds): the controller at dt = 1 s ticks on
+    every whole second and holds each logged value until the next, so at every log time it equals
+    the model run on that held 1 s staircase (the documented rule for irregular samples)."""
+    rng = np.random.default_rng(7)
+    t = np.concatenate([[0.0], np.cumsum(rng.integers(3, 18, 300)).astype(float)])
+    temp = 20.0 + np.cumsum(rng.normal(0, 0.05, t.size))
+    log = DriftLog(t, {"s1": temp}, {}, None, "<irregular>")
+    model = one_filter_model(tau_s=120.0, delay_s=7.0, coef=4.0, intercept_um=-80.0)
+    ctrl = ex.controller_drift_at(ex.drift_coefficients(model, 1.0), log)["ch1"]
+    fine_t = np.arange(0.0, t[-1] + 1.0)
+    held = temp[np.searchsorted(t, fine_t, side="right") - 1]
+    ref = model.predict(DriftLog(fine_t, {"s1": held}, {}, None, "<held>"))["ch1"]
+    np.testing.assert_allclose(ctrl, ref[t.astype(int)], rtol=0, atol=RESAMPLED_UM)
+
+
 def test_cli_refuses_an_impossible_tolerance_then_forces(fitted, tmp_path, capsys):
     _, _, d = fitted
     out = tmp_path / "o"
