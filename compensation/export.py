@@ -721,7 +721,8 @@ def read_drift_coefficients(path) -> DriftCoefficients:
                         ("delay_frac", frac, (frac >= 0) & (frac < 1)), ("tau_s", tau, tau >= 0)):
         bad = np.flatnonzero(~ok)
         if bad.size:
-            want = {"scale": "scale > 0", "a": "0 <= a < 1", "b": "b = 1 - a", "delay_frac": "0 <= delay_frac < 1", "tau_s": "tau_s >= 0"}
+            want = {"scale": "scale > 0", "a": "0 <= a < 1", "b": "b = 1 - a", "delay_frac": "0 <= delay_frac < 1",
+                    "tau_s": "tau_s >= 0"}
             raise InputError(f"{t.path}: row {t.row_number(int(bad[0]))}, column '{name}': expected {want[name]}, "
                              f"got {v[bad[0]]:.15g}")
     inputs = t.raw("input")
@@ -1055,6 +1056,7 @@ def write_manifest(folder, info: dict) -> Path:
 
 
 __all__ = ["FORMATS", "ALL_FORMATS", "DriftCoefficients", "drift_coefficients", "read_drift_coefficients",
-           "controller_drift", "check_drift_export", "LINUXCNC_MAX_POINTS", "ModelError", "IsoTables", "VolumetricGrid", "JointTables",
+           "controller_drift", "check_drift_export",
+           "LINUXCNC_MAX_POINTS", "ModelError", "IsoTables", "VolumetricGrid", "JointTables",
            "build_table", "check_export", "check_sets", "read_back", "write_table", "backlash_from_diagnosis",
            "export_drift_coefficients"]

@@ -261,8 +261,9 @@ def run_drift(args) -> int:
     bad = [k for k, v in {"--machine": args.machine, "--truth": args.truth, "--diagnosis": args.diagnosis,
                           "--region": args.region}.items() if v is not None]
     if bad:
-        raise UsageError(f"{', '.join(bad)} {'does' if len(bad) == 1 else 'do'} not apply to --format drift (a drift model needs no machine; its "
-                         "truth is a simulated log: --sim/--sim-seed)")
+        verb = "does" if len(bad) == 1 else "do"
+        raise UsageError(f"{', '.join(bad)} {verb} not apply to --format drift (a drift model needs no machine; "
+                         "its truth is a simulated log: --sim/--sim-seed)")
     if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
         raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
     dt = args.sample_period_s
