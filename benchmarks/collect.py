@@ -9,7 +9,7 @@ import pathlib
 
 HERE = pathlib.Path(__file__).resolve().parent
 ORDER = ["demo", "benchmark", "foundation", "training", "solvers", "identification", "diagnosis", "drift", "pkm",
-         "pkm_path", "toolpath", "export", "cli_startup"]
+         "pkm_path", "toolpath", "export", "export_drift", "cli_startup"]
 HEADER = """# BENCHMARKS
 
 Figures measured on this project's machine (2 cores, 24 GiB, no GPU) by the scripts in
