@@ -143,7 +143,7 @@ def _effect_figure(d, term, ctx, hold) -> str:
         ax.plot(v[hold], g[hold], ".", ms=3)
         ax.set_xlabel(label)
         ax.set_title(f"{name}: {term.cand.label}", fontsize=9)
-    axs[0].set_ylabel(f"residual on {term.element} ({'μrad' if term.element.startswith('e') else 'μm'})")
+    axs[0].set_ylabel(f"residual on {element_label(term.element)} ({'μrad' if term.element.startswith('e') else 'μm'})")
     return _png(fig)
 
 
@@ -198,14 +198,20 @@ def stages_html(s) -> str:
     out.append(f"<p>Check noise σ (marginal likelihood): {_fmt(u['check_noise_sigma_um'])} μm.</p>")
     if u["contradicted_by_sweeps"]:
         out.append("<p><b>Updates the sweeps contradict</b> (evidence of an effect the 23 elements lack): "
-                   + html.escape(", ".join(f"{c['element']} (p = {c['p_adjusted']:.2g})" for c in u["contradicted_by_sweeps"]))
+                   + html.escape(", ".join(f"{element_label(c['element'])} (p = {c['p_adjusted']:.2g})" for c in u["contradicted_by_sweeps"]))
                    + "</p>")
     if u["not_updated"]:
         out.append("<p><b>Not updated by the checks</b> (stay at the sweep estimate): "
-                   + html.escape("; ".join(f"{c['element']}: {c['why']}" for c in u["not_updated"])) + "</p>")
+                   + html.escape("; ".join(f"{element_label(c['element'])}: {c['why']}" for c in u["not_updated"])) + "</p>")
     if s.get("effects_rejected"):
         out.append("<p>Effects rejected: " + html.escape(s.get("effects_rejected_why", "")) + "</p>")
     return "".join(out)
+
+
+def element_label(name: str) -> str:
+    """An element name with its ISO 230-1 name beside it (``dz_z (EZZ)``); other names as they are."""
+    from errormap.iso230 import ISO_NAME
+    return f"{name} ({ISO_NAME[name]})" if name in ISO_NAME else name
 
 
 def checks_report(d, summary, model_spec, checks_path) -> str:
@@ -223,9 +229,9 @@ def checks_report(d, summary, model_spec, checks_path) -> str:
         rows = []
         for i, e in enumerate(s["effects"], 1):
             ps = "; ".join(f"{k} = {_fmt(p['value'], 4)} ± {_fmt(p['se'], 2)} {p['unit']}" for k, p in e["parameters"].items())
-            rows.append([i, e["kind"], e["axis"], e["element"], ps, _fmt(e["rms_reduction_um"]),
+            rows.append([i, e["kind"], e["axis"], element_label(e["element"]), ps, _fmt(e["rms_reduction_um"]),
                          _fmt(e["selection"].get("p_adjusted")), _fmt(e["selection"].get("delta_bic"), 4)])
-        parts.append(_table(rows, ["rank", "kind", "axis", "element", "parameters", "held-out RMS reduction (μm)",
+        parts.append(_table(rows, ["rank", "kind", "axis", "element (ISO 230-1)", "parameters", "held-out RMS reduction (μm)",
                                    "p (Bonferroni)", "ΔBIC"]))
     else:
         parts.append("<p>No effect of the library passed the significance and forward-validation tests.</p>")

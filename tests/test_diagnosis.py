@@ -129,6 +129,7 @@ def test_cli_writes_report_and_json(grinder, tmp_path, capsys):
     assert d["effects"][0]["parameters"]["order"]["value"] == 40
     page = (out / "report.html").read_text()
     assert "data:image/png;base64," in page and "measured residual" in page
+    assert "ex_a (EAA)" in page  # the element with its ISO 230-1 name beside it
     assert "src='http" not in page and 'src="http' not in page
     assert "harmonic" in capsys.readouterr().out
 
