@@ -53,6 +53,7 @@ SCHEMA_VERSION = 1
 TAU_BANK_S = (0.0, 900.0, 3600.0, 10800.0)       # 15 min, 1 h, 3 h: spans the 0.5–5 h of machine bodies
 TAU_GRID_S = (300.0, 900.0, 1800.0, 3600.0, 7200.0, 14400.0, 28800.0)
 RIDGE_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1)   # λ·n added to the standardised Gram matrix
+RIDGE_OLS_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)   # toward OLS: the large end is the baseline
 PLS_MAX_COMPONENTS = 12
 TRANSFER_LAMBDA = 1e-4
 BAND_QUANTILE = 0.95
@@ -261,6 +262,56 @@ class PLSBankFamily(RidgeBankFamily):
         return out
 
 
+def _ols_in_bank(X, feats, Y):
+    """OLS on the bank's unfiltered columns (the baseline's inputs): (intercept (c,), coef (p, c) embedded in
+    the bank with zeros on the filtered columns, residual (n, c))."""
+    raw = np.array([f.tau_s == 0 and f.delay_s == 0 for f in feats])
+    A = np.column_stack([np.ones(len(X)), X[:, raw]])
+    th = np.linalg.lstsq(A, Y, rcond=None)[0]
+    B = np.zeros((X.shape[1], Y.shape[1]))
+    B[raw] = th[1:]
+    return th[0], B, Y - A @ th
+
+
+class RidgeTowardOLSFamily(RidgeBankFamily):
+    """Ridge on the filter bank, shrunk toward the OLS baseline instead of toward zero:
+    minimise ‖y − Xβ‖² + λ·n·‖S(β − β_ols)‖² (S: column scales; β_ols the baseline's coefficients on the
+    unfiltered columns, zero on the filtered). Large λ gives the baseline back; small λ the full bank."""
+
+    name = "ridge_ols"
+
+    def __init__(self, taus=TAU_BANK_S, lambdas=RIDGE_OLS_LAMBDAS):
+        super().__init__(taus, lambdas)
+
+    def fit(self, log, channels, rows, cache):
+        feats = self.features(log, rows)
+        X = feature_matrix(log, feats, cache)[rows]
+        Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
+        a0, B0, R = _ols_in_bank(X, feats, Y)
+        paths = fit_ridge_path(X, R, self.lambdas)
+        return {ch: {f"lambda={lam:g}": (feats, float(a0[j] + a), B0[:, j] + b)
+                     for lam, (a, b) in zip(self.lambdas, path)}
+                for j, (ch, path) in enumerate(zip(channels, paths))}
+
+
+class PLSTowardOLSFamily(PLSBankFamily):
+    """PLS components of the filter bank added to the OLS baseline (fitted on its residual); 0 components
+    would be the baseline itself."""
+
+    name = "pls_ols"
+
+    def fit(self, log, channels, rows, cache):
+        feats = self.features(log, rows)
+        X = feature_matrix(log, feats, cache)[rows]
+        Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
+        a0, B0, R = _ols_in_bank(X, feats, Y)
+        out = {}
+        for j, ch in enumerate(channels):
+            path = fit_pls_path(X, R[:, j], self.max_components)
+            out[ch] = {f"components={i + 1}": (feats, float(a0[j] + a), B0[:, j] + b) for i, (a, b) in enumerate(path)}
+        return out
+
+
 class TransferFamily(_Family):
     """Spindle heat (speed, speed²) through two first-order paths of fitted time constants + temperatures."""
 
@@ -449,6 +500,44 @@ def rolling_origin_folds(n_fit: int, n_folds: int = 4, start: float = 0.5):
     return [(np.arange(edges[i]), np.arange(edges[i], edges[i + 1])) for i in range(n_folds) if edges[i + 1] > edges[i]]
 
 
+def horizon_folds(n_fit: int, horizon: float, n_folds: int = 4, start: float = 0.5):
+    """Forward-chaining folds whose validation block is as long, relative to its training block, as the
+    deployment's: fold i trains on rows [0, m_i) and validates on [m_i, m_i·(1 + horizon)); the
+    validation ends are evenly spaced from ``start``·n_fit to n_fit (blocks may overlap).
+    ``horizon`` = held-out length / fitting length of the deployment ((1 − f)/f for a fit fraction f).
+    Returns [(train (m_i,), validate (b_i,))], training always earlier."""
+    if horizon <= 0:
+        raise ValueError(f"Expected horizon > 0, got {horizon}")
+    ends = np.linspace(start * n_fit, n_fit, n_folds).round().astype(int)
+    out = []
+    for e in ends:
+        m = int(round(e / (1.0 + horizon)))
+        if 0 < m < e:
+            out.append((np.arange(m), np.arange(m, e)))
+    return out
+
+
+def cv_residuals(log: DriftLog, families, channels, folds, cache: dict, errors: list | None = None) -> dict:
+    """Validation residuals of every candidate on every fold: {(channel, family, hyper): [(len(va),) per fold]}.
+
+    A family that cannot fit a fold (``ValueError``) drops out of it (its message goes to ``errors``);
+    a candidate missing from any fold is incomplete and must not be scored."""
+    resid = {}
+    for tr, va in folds:
+        for fam in families:
+            try:
+                res = fam.fit(log, channels, tr, cache)
+            except ValueError as exc:
+                if errors is not None:
+                    errors.append(f"{fam.name}: {exc}")
+                continue
+            for ch, hyp in res.items():
+                y = log.disp_um[ch][va]
+                for h, (feats, a, b) in hyp.items():
+                    resid.setdefault((ch, fam.name, h), []).append(y - a - feature_matrix(log, feats, cache)[va] @ b)
+    return resid
+
+
 class DriftSelector:
     """Per channel, the family (and hyper-parameter) with the lowest rolling-origin CV RMS on the
     fitting part, refitted on the whole fitting part.
@@ -480,20 +569,8 @@ class DriftSelector:
         chans = list(log.disp_um)
         cache = {}
         folds = rolling_origin_folds(len(fit), self.n_folds, self.cv_start)
-        resid = {}                         # (ch, family, hyper) -> list of validation residual arrays
         self.fold_errors_ = []
-        for tr, va in folds:
-            for fam in fams:
-                try:
-                    res = fam.fit(log, chans, tr, cache)
-                except ValueError as exc:  # a family that cannot fit this fold drops out of it
-                    self.fold_errors_.append(f"{fam.name}: {exc}")
-                    continue
-                for ch, hyp in res.items():
-                    y = log.disp_um[ch][va]
-                    for h, (feats, a, b) in hyp.items():
-                        r = y - a - feature_matrix(log, feats, cache)[va] @ b
-                        resid.setdefault((ch, fam.name, h), []).append(r)
+        resid = cv_residuals(log, fams, chans, folds, cache, self.fold_errors_)
         n_val = sum(len(va) for _, va in folds)
         self.cv_, self.chosen_, self.band_ = {}, {}, {}
         for ch in chans:
