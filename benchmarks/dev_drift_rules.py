@@ -30,10 +30,18 @@ from errormap.io import write_csv, write_json  # noqa: E402
 SPLITS = (0.6, 0.8)
 
 
+SCHEMES = ["short4", "hor4", "hor6"]
+
+
 def schemes(n_fit, ff):
     h = (1 - ff) / ff
-    return {"short4": rolling_origin_folds(n_fit, 4, 0.5), "hor4": horizon_folds(n_fit, h, 4, 0.5),
-            "hor6": horizon_folds(n_fit, h, 6, 0.4)}
+    allf = {"short4": lambda: rolling_origin_folds(n_fit, 4, 0.5), "hor4": lambda: horizon_folds(n_fit, h, 4, 0.5),
+            "hor6": lambda: horizon_folds(n_fit, h, 6, 0.4)}
+    return {k: allf[k]() for k in SCHEMES}
+
+
+def _set_schemes(names):
+    SCHEMES[:] = names
 
 
 def one(args):
@@ -76,11 +84,13 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--out", default="dev_drift_rules.json")
+    ap.add_argument("--schemes", default=",".join(SCHEMES))
     a = ap.parse_args(argv)
+    SCHEMES[:] = a.schemes.split(",")
     tasks = [(f, s) for f in SIMULATORS for s in range(a.seed0, a.seed0 + a.seeds)]
     rows = []
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(a.jobs) as ex:
+    with ProcessPoolExecutor(a.jobs, initializer=_set_schemes, initargs=(list(SCHEMES),)) as ex:
         for r in ex.map(one, tasks):
             rows += r
     write_json(a.out, {"wall_s": time.perf_counter() - t0, "rows": rows})
