@@ -30,12 +30,20 @@ Model families (per displacement channel; :class:`DriftSelector`):
   constants are fitted (grid of ``TAU_GRID_S`` pairs), plus every temperature as logged, ridge-
   stabilised.
 
-Selection: **rolling-origin (forward-chaining) cross-validation on the fitting part only** —
-train on the first ``cv_start`` of the fitting part, validate on the next block, grow, repeat
-(``n_folds`` blocks); the score is the RMS over all validation rows. The candidate with the lowest
-score is refitted on the whole fitting part. OLS is a candidate, so the returned model never loses
-to it in validation; the report gives both. The 95 % band is the 95th percentile of the chosen
-candidate's |validation residual| (forward in time, so it includes extrapolation error).
+Selection: **rolling-origin (forward-chaining) cross-validation on the fitting part only**, two fold
+sets. The *ranking folds* (train on the first ``cv_start`` of the fitting part, validate on the next
+block, grow, repeat; ``n_folds`` blocks) score every candidate by the RMS over all their validation
+rows. The *horizon folds* (:func:`horizon_folds`) validate on blocks as long, relative to their
+training, as the deployment's held-out part is to the fitting part. The chosen candidate is the
+best-ranked one that beats OLS on the horizon folds by more than one standard error of the
+fold-to-fold scatter (:func:`horizon_gate`); if none does, OLS. It is refitted on the whole fitting
+part. The returned model therefore never loses to OLS in validation; the report gives both. The 95 %
+band is the 95th percentile of the chosen candidate's |validation residual| on the ranking folds
+(forward in time, so it includes extrapolation error).
+
+``ridge_ols`` / ``pls_ols`` (:class:`RidgeTowardOLSFamily`, :class:`PLSTowardOLSFamily`): the filter
+bank shrunk toward the OLS baseline instead of toward zero. Not among the default families (not yet
+measured on the benchmark); ``benchmarks/dev_drift_rules.py`` compares them.
 """
 from __future__ import annotations
 
