@@ -279,9 +279,12 @@ def drift_report(log, sel, channels, log_path) -> str:
              _fmt(c["band_coverage_heldout"])] for ch, c in channels.items()]
     parts.append(_table(rows, ["channel", "chosen", *[f"CV {f}" for f in fams], "held-out before", "volcomp",
                                "OLS baseline", "95 % band ±", "band coverage"]))
-    parts.append("<p>CV: rolling-origin cross-validation on the fitting part (RMS μm over all validation blocks; best "
-                 "hyper-parameter per family). The chosen candidate has the lowest CV RMS; the OLS baseline is a "
-                 "candidate, so the model never loses to it in validation.</p>")
+    parts.append("<p>CV: rolling-origin cross-validation on the fitting part (RMS μm over all validation blocks of the "
+                 "ranking folds; best hyper-parameter per family). The chosen candidate is the best-ranked one that "
+                 "also beats the OLS baseline by more than one standard error of the fold-to-fold scatter on the "
+                 "horizon folds (validation blocks as long, relative to their training, as the held-out part is to "
+                 "the fitting part); otherwise the OLS baseline itself. The model never loses to OLS in "
+                 "validation.</p>")
     sub = getattr(sel, "subset_modeller_", None)
     if sub is not None:
         sr = {ch: c for ch, c in sub.report_selection().items()}
@@ -431,10 +434,11 @@ def run_drift(log_path, out_dir, selector=None):
     summary = {"log": str(log_path), "residual": "measured displacement − causal drift model prediction",
                "split": f"by time: first {len(fit)} rows fit, last {len(hold)} held out",
                "baseline": "ordinary least squares on every temperature and speed_rpm (no filter, no lag)",
-               "selection": f"rolling-origin cross-validation on the fitting part ({sel.n_folds} folds)",
+               "selection": sel.model_.meta["selection"],
                "inputs_filled": log.notes.get("filled", {}), "inputs_dropped": log.notes.get("dropped", {}),
                "channels": channels, "model_file": f"drift_model.json ({SCHEMA} v{SCHEMA_VERSION})",
-               "settings": {"fit_fraction": sel.fit_fraction, "n_folds": sel.n_folds, "cv_start": sel.cv_start}}
+               "settings": {"fit_fraction": sel.fit_fraction, "n_folds": sel.n_folds, "cv_start": sel.cv_start,
+                            "n_horizon_folds": sel.n_horizon_folds, "gate_se": sel.gate_se}}
     sub = getattr(sel, "subset_modeller_", None)
     if sub is not None:
         summary["sensor_selection"] = sub.report_selection()

@@ -10,7 +10,7 @@ from compensation.cli import main
 from errormap.diagnosis.drift import DriftLog, load_drift_log
 from errormap.diagnosis.drift_models import (SCHEMA, SCHEMA_VERSION, ChannelFit, DriftModel, DriftSelector, Feature,
                                              feature_matrix, first_order, fit_ols, fit_pls_path, fit_ridge_path,
-                                             rolling_origin_folds)
+                                             horizon_folds, horizon_gate, rolling_origin_folds)
 from errormap.diagnosis.drift_sim import simulate_lumped_log, simulate_rod_log, spindle_profile
 from errormap.io import write_csv
 
@@ -22,6 +22,9 @@ NOISE_UM = 0.3
 # ≥ 3 × σ): 1.2 leaves room for the held-out part's sampling, 2.0 is far below what OLS reaches
 NEAR_NOISE = 1.2
 OLS_FAR = 2.0
+# fold boundaries are whole rows: a horizon fold's validation/training length ratio may differ from the
+# requested horizon by one row's worth (1/len(train)) on each side
+ROUNDING_ROWS = 1
 
 
 def _small_log(seed=0, hours=16.0, dt_s=60.0):
@@ -83,6 +86,59 @@ def test_rolling_origin_folds_train_strictly_before_validation():
     assert folds[0][0][-1] == 499 and folds[-1][1][-1] == 999
     for tr, va in folds:
         assert tr[0] == 0 and tr[-1] + 1 == va[0]
+
+
+@pytest.mark.parametrize("fit_fraction", [0.6, 0.8])
+def test_horizon_folds_validate_over_the_deployment_horizon(fit_fraction):
+    n_fit = 1200
+    h = (1 - fit_fraction) / fit_fraction              # held-out length / fitting length of the deployment
+    folds = horizon_folds(n_fit, h, 4, 0.5)
+    assert len(folds) == 4
+    assert folds[-1][1][-1] == n_fit - 1                # the last block ends with the fitting part
+    assert folds[0][1][-1] + 1 == round(0.5 * n_fit)    # the first ends at half of it
+    for tr, va in folds:
+        assert tr[0] == 0 and tr[-1] + 1 == va[0]       # training strictly before validation
+        assert abs(len(va) - h * len(tr)) <= ROUNDING_ROWS * (1 + h)
+
+
+def test_horizon_gate_is_a_one_standard_error_rule():
+    ols = [1.0, 1.0, 1.0, 1.0]
+    # a steady 10 % gain on every fold: no scatter, passes
+    ok, gain, se = horizon_gate(ols, [0.9, 0.9, 0.9, 0.9])
+    assert ok and gain == pytest.approx(np.log(1 / 0.9)) and se == pytest.approx(0.0, abs=1e-15)
+    # better on average (mean log gain 0.088) but scattered (se 0.216): refused at 1 SE, passes at 0 SE
+    cand = [0.5, 1.2, 0.9, 1.3]
+    d = -np.log(cand)
+    ok, gain, se = horizon_gate(ols, cand)
+    assert not ok
+    assert gain == pytest.approx(d.mean()) and se == pytest.approx(d.std(ddof=1) / 2)
+    assert horizon_gate(ols, cand, k_se=0.0)[0]
+    # worse than OLS: refused whatever the scatter
+    assert not horizon_gate(ols, [1.1, 1.2, 1.05, 1.3], k_se=0.0)[0]
+
+
+def test_selection_takes_the_best_ranked_candidate_that_passes_the_horizon_gate():
+    cols = simulate_rod_log(0, hours=16, dt_s=60, n_dropouts=0)
+    cols.pop("_truth")
+    log = _frame(cols)
+    sel = DriftSelector(fit_fraction=0.6).fit(log)
+    rep = sel.report(log)
+    for ch, scores in sel.cv_.items():
+        chosen = rep[ch]["model"]
+        ranked = sorted(scores, key=scores.get)
+        ahead = ranked[:ranked.index(chosen)]
+        if chosen != "ols":
+            assert scores[chosen] < scores["ols"] and sel.gate_[ch][chosen][0]
+            assert rep[ch]["cv_horizon_rms_um"] < rep[ch]["cv_horizon_rms_ols_um"]
+        # everything ranked ahead of the choice was refused by the gate (OLS is never ahead of a choice)
+        assert "ols" not in ahead and all(not sel.gate_[ch][k][0] for k in ahead)
+        assert set(ahead) <= set(rep[ch]["refused_by_gate"])
+    # an infinitely strict gate keeps the baseline on every channel: the same predictions as OLS
+    strict = DriftSelector(fit_fraction=0.6, gate_se=np.inf).fit(log)
+    assert all(c == ("ols", "") for c in strict.chosen_.values())
+    base, got = strict.baseline_.predict(log), strict.model_.predict(log)
+    for ch in base:
+        np.testing.assert_array_equal(got[ch], base[ch])
 
 
 def _unsensed_spindle_log(seed):

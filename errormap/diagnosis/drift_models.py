@@ -30,12 +30,20 @@ Model families (per displacement channel; :class:`DriftSelector`):
   constants are fitted (grid of ``TAU_GRID_S`` pairs), plus every temperature as logged, ridge-
   stabilised.
 
-Selection: **rolling-origin (forward-chaining) cross-validation on the fitting part only** —
-train on the first ``cv_start`` of the fitting part, validate on the next block, grow, repeat
-(``n_folds`` blocks); the score is the RMS over all validation rows. The candidate with the lowest
-score is refitted on the whole fitting part. OLS is a candidate, so the returned model never loses
-to it in validation; the report gives both. The 95 % band is the 95th percentile of the chosen
-candidate's |validation residual| (forward in time, so it includes extrapolation error).
+Selection: **rolling-origin (forward-chaining) cross-validation on the fitting part only**, two fold
+sets. The *ranking folds* (train on the first ``cv_start`` of the fitting part, validate on the next
+block, grow, repeat; ``n_folds`` blocks) score every candidate by the RMS over all their validation
+rows. The *horizon folds* (:func:`horizon_folds`) validate on blocks as long, relative to their
+training, as the deployment's held-out part is to the fitting part. The chosen candidate is the
+best-ranked one that beats OLS on the horizon folds by more than one standard error of the
+fold-to-fold scatter (:func:`horizon_gate`); if none does, OLS. It is refitted on the whole fitting
+part. The returned model therefore never loses to OLS in validation; the report gives both. The 95 %
+band is the 95th percentile of the chosen candidate's |validation residual| on the ranking folds
+(forward in time, so it includes extrapolation error).
+
+``ridge_ols`` / ``pls_ols`` (:class:`RidgeTowardOLSFamily`, :class:`PLSTowardOLSFamily`): the filter
+bank shrunk toward the OLS baseline instead of toward zero. Not among the default families (not yet
+measured on the benchmark); ``benchmarks/dev_drift_rules.py`` compares them.
 """
 from __future__ import annotations
 
@@ -53,6 +61,8 @@ SCHEMA_VERSION = 1
 TAU_BANK_S = (0.0, 900.0, 3600.0, 10800.0)       # 15 min, 1 h, 3 h: spans the 0.5–5 h of machine bodies
 TAU_GRID_S = (300.0, 900.0, 1800.0, 3600.0, 7200.0, 14400.0, 28800.0)
 RIDGE_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1)   # λ·n added to the standardised Gram matrix
+GATE_SE = 1.0    # one-standard-error rule: a candidate must beat OLS over the deployment horizon by > 1 SE of the folds
+RIDGE_OLS_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)   # toward OLS: the large end is the baseline
 PLS_MAX_COMPONENTS = 12
 TRANSFER_LAMBDA = 1e-4
 BAND_QUANTILE = 0.95
@@ -261,6 +271,56 @@ class PLSBankFamily(RidgeBankFamily):
         return out
 
 
+def _ols_in_bank(X, feats, Y):
+    """OLS on the bank's unfiltered columns (the baseline's inputs): (intercept (c,), coef (p, c) embedded in
+    the bank with zeros on the filtered columns, residual (n, c))."""
+    raw = np.array([f.tau_s == 0 and f.delay_s == 0 for f in feats])
+    A = np.column_stack([np.ones(len(X)), X[:, raw]])
+    th = np.linalg.lstsq(A, Y, rcond=None)[0]
+    B = np.zeros((X.shape[1], Y.shape[1]))
+    B[raw] = th[1:]
+    return th[0], B, Y - A @ th
+
+
+class RidgeTowardOLSFamily(RidgeBankFamily):
+    """Ridge on the filter bank, shrunk toward the OLS baseline instead of toward zero:
+    minimise ‖y − Xβ‖² + λ·n·‖S(β − β_ols)‖² (S: column scales; β_ols the baseline's coefficients on the
+    unfiltered columns, zero on the filtered). Large λ gives the baseline back; small λ the full bank."""
+
+    name = "ridge_ols"
+
+    def __init__(self, taus=TAU_BANK_S, lambdas=RIDGE_OLS_LAMBDAS):
+        super().__init__(taus, lambdas)
+
+    def fit(self, log, channels, rows, cache):
+        feats = self.features(log, rows)
+        X = feature_matrix(log, feats, cache)[rows]
+        Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
+        a0, B0, R = _ols_in_bank(X, feats, Y)
+        paths = fit_ridge_path(X, R, self.lambdas)
+        return {ch: {f"lambda={lam:g}": (feats, float(a0[j] + a), B0[:, j] + b)
+                     for lam, (a, b) in zip(self.lambdas, path)}
+                for j, (ch, path) in enumerate(zip(channels, paths))}
+
+
+class PLSTowardOLSFamily(PLSBankFamily):
+    """PLS components of the filter bank added to the OLS baseline (fitted on its residual); 0 components
+    would be the baseline itself."""
+
+    name = "pls_ols"
+
+    def fit(self, log, channels, rows, cache):
+        feats = self.features(log, rows)
+        X = feature_matrix(log, feats, cache)[rows]
+        Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
+        a0, B0, R = _ols_in_bank(X, feats, Y)
+        out = {}
+        for j, ch in enumerate(channels):
+            path = fit_pls_path(X, R[:, j], self.max_components)
+            out[ch] = {f"components={i + 1}": (feats, float(a0[j] + a), B0[:, j] + b) for i, (a, b) in enumerate(path)}
+        return out
+
+
 class TransferFamily(_Family):
     """Spindle heat (speed, speed²) through two first-order paths of fitted time constants + temperatures."""
 
@@ -449,23 +509,87 @@ def rolling_origin_folds(n_fit: int, n_folds: int = 4, start: float = 0.5):
     return [(np.arange(edges[i]), np.arange(edges[i], edges[i + 1])) for i in range(n_folds) if edges[i + 1] > edges[i]]
 
 
-class DriftSelector:
-    """Per channel, the family (and hyper-parameter) with the lowest rolling-origin CV RMS on the
-    fitting part, refitted on the whole fitting part.
+def horizon_folds(n_fit: int, horizon: float, n_folds: int = 4, start: float = 0.5):
+    """Forward-chaining folds whose validation block is as long, relative to its training block, as the
+    deployment's: fold i trains on rows [0, m_i) and validates on [m_i, m_i·(1 + horizon)); the
+    validation ends are evenly spaced from ``start``·n_fit to n_fit (blocks may overlap).
+    ``horizon`` = held-out length / fitting length of the deployment ((1 − f)/f for a fit fraction f).
+    Returns [(train (m_i,), validate (b_i,))], training always earlier."""
+    if horizon <= 0:
+        raise ValueError(f"Expected horizon > 0, got {horizon}")
+    ends = np.linspace(start * n_fit, n_fit, n_folds).round().astype(int)
+    out = []
+    for e in ends:
+        m = int(round(e / (1.0 + horizon)))
+        if 0 < m < e:
+            out.append((np.arange(m), np.arange(m, e)))
+    return out
 
-    Settings: ``fit_fraction``, ``n_folds``, ``cv_start`` (fraction of the fitting part that the
-    first fold trains on), ``families`` (default :func:`default_families`).
-    Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}},
-    ``chosen_`` {channel: candidate}, ``baseline_`` (the OLS :class:`DriftModel`), ``subset_modeller_``.
+
+def cv_residuals(log: DriftLog, families, channels, folds, cache: dict, errors: list | None = None) -> dict:
+    """Validation residuals of every candidate on every fold: {(channel, family, hyper): [(len(va),) per fold]}.
+
+    A family that cannot fit a fold (``ValueError``) drops out of it (its message goes to ``errors``);
+    a candidate missing from any fold is incomplete and must not be scored."""
+    resid = {}
+    for tr, va in folds:
+        for fam in families:
+            try:
+                res = fam.fit(log, channels, tr, cache)
+            except ValueError as exc:
+                if errors is not None:
+                    errors.append(f"{fam.name}: {exc}")
+                continue
+            for ch, hyp in res.items():
+                y = log.disp_um[ch][va]
+                for h, (feats, a, b) in hyp.items():
+                    resid.setdefault((ch, fam.name, h), []).append(y - a - feature_matrix(log, feats, cache)[va] @ b)
+    return resid
+
+
+def horizon_gate(rms_ols, rms_cand, k_se: float = GATE_SE) -> tuple[bool, float, float]:
+    """The one-standard-error rule on the horizon folds: per fold d_i = ln(RMS_ols,i / RMS_cand,i); the
+    candidate passes when mean(d) > ``k_se`` · sd(d)/√K. Returns (passes, mean(d), se(d))."""
+    d = np.log(np.asarray(rms_ols, float)) - np.log(np.asarray(rms_cand, float))
+    se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
+    return bool(d.mean() > k_se * se), float(d.mean()), se
+
+
+class DriftSelector:
+    """Per channel, a family (and hyper-parameter) chosen on the fitting part only, refitted on all of it.
+
+    Two sets of forward-chaining folds on the fitting part:
+
+    * **ranking folds** (``n_folds`` blocks after the first ``cv_start`` of the fitting part,
+      :func:`rolling_origin_folds`): every candidate is scored by its RMS over all their validation rows;
+    * **horizon folds** (``n_horizon_folds``, :func:`horizon_folds`): validation blocks as long, relative
+      to their training part, as the deployment's held-out part is to the fitting part (``horizon``,
+      default (1 − fit_fraction)/fit_fraction).
+
+    The chosen candidate is the best-ranked one that (a) scores below OLS on the ranking folds and
+    (b) passes :func:`horizon_gate` against OLS on the horizon folds (it beats the baseline over the
+    deployment's horizon by more than the fold-to-fold scatter: one standard error); if none does,
+    the OLS baseline itself. A model that loses to OLS in either validation is never returned.
+
+    Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
+    ``families`` (default :func:`default_families`).
+    Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}} (ranking folds),
+    ``cv_horizon_`` {channel: {candidate: RMS μm}} (horizon folds), ``gate_`` {channel: {candidate:
+    (passes, mean log gain, its se)}}, ``chosen_`` {channel: candidate}, ``baseline_`` (the OLS
+    :class:`DriftModel`), ``subset_modeller_``.
     """
 
     def __init__(self, fit_fraction: float = 0.6, n_folds: int = 4, cv_start: float = 0.5, families=None,
-                 subset_kw: dict | None = None):
+                 subset_kw: dict | None = None, horizon: float | None = None, n_horizon_folds: int = 4,
+                 gate_se: float = GATE_SE):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
         self.families = families
         self.subset_kw = subset_kw
+        self.horizon = horizon
+        self.n_horizon_folds = n_horizon_folds
+        self.gate_se = gate_se
 
     def split(self, log):
         n = len(log.time_s)
@@ -480,35 +604,39 @@ class DriftSelector:
         chans = list(log.disp_um)
         cache = {}
         folds = rolling_origin_folds(len(fit), self.n_folds, self.cv_start)
-        resid = {}                         # (ch, family, hyper) -> list of validation residual arrays
+        h = (1 - self.fit_fraction) / self.fit_fraction if self.horizon is None else self.horizon
+        hfolds = horizon_folds(len(fit), h, self.n_horizon_folds, self.cv_start)
         self.fold_errors_ = []
-        for tr, va in folds:
-            for fam in fams:
-                try:
-                    res = fam.fit(log, chans, tr, cache)
-                except ValueError as exc:  # a family that cannot fit this fold drops out of it
-                    self.fold_errors_.append(f"{fam.name}: {exc}")
-                    continue
-                for ch, hyp in res.items():
-                    y = log.disp_um[ch][va]
-                    for h, (feats, a, b) in hyp.items():
-                        r = y - a - feature_matrix(log, feats, cache)[va] @ b
-                        resid.setdefault((ch, fam.name, h), []).append(r)
-        n_val = sum(len(va) for _, va in folds)
-        self.cv_, self.chosen_, self.band_ = {}, {}, {}
+        resid = cv_residuals(log, fams, chans, folds, cache, self.fold_errors_)
+        hresid = cv_residuals(log, fams, chans, hfolds, cache, self.fold_errors_)
+        self.cv_, self.cv_horizon_, self.gate_, self.chosen_, self.band_, self.band_ols_ = {}, {}, {}, {}, {}, {}
         for ch in chans:
-            scores = {}
-            for (c, f, h), rs in resid.items():
-                if c == ch and sum(len(r) for r in rs) == n_val:   # only candidates scored on every fold
+            scores, hrms = {}, {}
+            for (c, f, hy), rs in resid.items():
+                hr = hresid.get((c, f, hy), [])
+                # only candidates scored on every fold of both sets
+                if c == ch and len(rs) == len(folds) and len(hr) == len(hfolds):
                     r = np.concatenate(rs)
-                    scores[(f, h)] = (float(np.sqrt(np.mean(r**2))), float(np.quantile(np.abs(r), BAND_QUANTILE)))
+                    scores[(f, hy)] = (float(np.sqrt(np.mean(r**2))), float(np.quantile(np.abs(r), BAND_QUANTILE)))
+                    hrms[(f, hy)] = [float(np.sqrt(np.mean(x**2))) for x in hr]
             if ("ols", "") not in scores:
                 raise ValueError(f"{log.path}: the OLS baseline could not be fitted on the cross-validation folds")
-            best = min(scores, key=lambda k: scores[k][0])
-            self.cv_[ch] = {f"{f}{'[' + h + ']' if h else ''}": s[0] for (f, h), s in scores.items()}
+            gate = {k: horizon_gate(hrms[("ols", "")], v, self.gate_se) for k, v in hrms.items()}
+            best = ("ols", "")
+            for k in sorted(scores, key=lambda k: scores[k][0]):
+                if k == ("ols", ""):
+                    break
+                if gate[k][0]:
+                    best = k
+                    break
+
+            def name(f, hy):
+                return f"{f}{'[' + hy + ']' if hy else ''}"
+            self.cv_[ch] = {name(*k): s[0] for k, s in scores.items()}
+            self.cv_horizon_[ch] = {name(*k): float(np.sqrt(np.mean(np.square(v)))) for k, v in hrms.items()}
+            self.gate_[ch] = {name(*k): g for k, g in gate.items()}
             self.chosen_[ch] = best
             self.band_[ch] = scores[best][1]
-            self.band_ols_ = getattr(self, "band_ols_", {})
             self.band_ols_[ch] = scores[("ols", "")][1]
         final = {}
         for fam in fams:
@@ -518,7 +646,8 @@ class DriftSelector:
                 if fam.name == "subset_lag":
                     self.subset_modeller_ = fam.last_modeller_
         meta = {"log": str(log.path), "fit_rows": int(len(fit)), "fit_until_s": float(log.time_s[fit[-1]]),
-                "selection": f"rolling-origin CV, {len(folds)} folds on the fitting part"}
+                "selection": f"rolling-origin CV on the fitting part: best of {len(folds)} ranking folds that "
+                             f"beats OLS by > {self.gate_se:g} SE on {len(hfolds)} horizon folds (horizon {h:.3g})"}
         chosen = {}
         for ch in chans:
             f, h = self.chosen_[ch]
@@ -557,6 +686,11 @@ class DriftSelector:
             out[ch] = {"model": f"{f}{'[' + h + ']' if h else ''}", "family": f,
                        "cv_rms_um": {k: v[1] for k, v in self.family_best(ch).items()},
                        "cv_rms_ols_um": self.cv_[ch]["ols"],
+                       "cv_horizon_rms_um": self.cv_horizon_[ch][f"{f}{'[' + h + ']' if h else ''}"],
+                       "cv_horizon_rms_ols_um": self.cv_horizon_[ch]["ols"],
+                       "best_ranked": min(self.cv_[ch], key=self.cv_[ch].get),
+                       "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
+                                                 if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
                        "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
                        "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
                        "band95_um": band, "band_coverage_heldout": float(np.mean(np.abs(a) <= band))}
