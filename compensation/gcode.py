@@ -222,11 +222,25 @@ def _number(body: str, j: int):
     return float(compact), text, m.start(1), m.end(1)
 
 
+_PLAIN_LINE = re.compile(r"[ \t\r]*(?:[A-DF-NP-Za-df-np-z][+-]?(?:\d+(?:\.\d*)?|\.\d+)[ \t\r]*)+")
+"""A line of plain words only: ASCII letters other than E and O, each followed at once by a
+plain number (sign, digits, at most one point, no blanks inside), blanks between words. Such a
+line reads the same word by word as by :func:`tokenize`'s general loop (nothing it could
+refuse: no comment, no '%', no '/', no exponent, no O-word, no parameter); anything else takes
+the general loop."""
+_PLAIN_WORD = re.compile(r"([A-Za-z])([+-]?(?:\d+(?:\.\d*)?|\.\d+))")
+
+
 def tokenize(body: str):
     """Words of one line (no line ending): ``(block_delete, [Word], percent_line)``.
 
     Raises :class:`_Refuse` (column, message) for what RS274 would not read exactly.
     """
+    if _PLAIN_LINE.fullmatch(body):
+        words = [Word(m.group(1).upper(), float(m.group(2)), m.group(2), m.start(), m.start() + 1, m.end())
+                 for m in _PLAIN_WORD.finditer(body)]
+        if all(math.isfinite(w.value) for w in words):
+            return False, words, False
     i, n = 0, len(body)
     while i < n and body[i] in " \t":
         i += 1

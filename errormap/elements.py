@@ -40,6 +40,7 @@ ELEMENT_NAMES = FUNCTION_ELEMENTS + CONSTANT_ELEMENTS
 AXIS_OF = {**{k: "x_mm" for k in X_ELEMENTS}, **{k: "z_mm" for k in Z_ELEMENTS},
            **{k: "a_deg" for k in A_ELEMENTS}}
 AXIS_COLUMN = {"x_mm": 0, "z_mm": 1, "a_deg": 2}
+_AXIS_ELEMENTS = {"x_mm": X_ELEMENTS, "z_mm": Z_ELEMENTS, "a_deg": A_ELEMENTS}
 
 
 def element_unit(name: str) -> str:
@@ -131,11 +132,25 @@ class ElementSet:
 
     # -- evaluation ---------------------------------------------------------------------
     def _spline(self, name):
+        """The cubic interpolating B-spline of one function element (the per-element reference)."""
         if name not in self._splines:
             st = self.stations[AXIS_OF[name]]
             bc = "periodic" if name in A_ELEMENTS else None
             self._splines[name] = make_interp_spline(st, self.functions[name], k=3, bc_type=bc)
         return self._splines[name]
+
+    def _axis_spline(self, axis):
+        """One vector-valued cubic B-spline for the 6 elements of ``axis``: their values at the
+        shared stations as the columns of ``y`` (m, 6), so one call finds each point's knot
+        interval and basis once for all 6 (the same interpolation problem per column as
+        :meth:`_spline`). Cached in ``_splines`` (which callers reset after editing functions)."""
+        key = ("axis", axis)
+        if key not in self._splines:
+            names = _AXIS_ELEMENTS[axis]
+            y = np.stack([self.functions[k] for k in names], axis=1)
+            bc = "periodic" if axis == "a_deg" else None
+            self._splines[key] = make_interp_spline(self.stations[axis], y, k=3, bc_type=bc)
+        return self._splines[key]
 
     def wrap_a(self, a_deg) -> np.ndarray:
         """A positions folded into the stations' turn ``[a0, a0 + 360)`` (errors are periodic in A)."""
@@ -147,8 +162,9 @@ class ElementSet:
         axes = np.asarray(axes, dtype=float)
         out = np.empty((axes.shape[0], len(ELEMENT_NAMES)))
         cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": self.wrap_a(axes[:, 2])}
-        for j, k in enumerate(FUNCTION_ELEMENTS):
-            out[:, j] = self._spline(k)(cols[AXIS_OF[k]])
+        for axis, names in _AXIS_ELEMENTS.items():
+            j = FUNCTION_ELEMENTS.index(names[0])
+            out[:, j:j + len(names)] = self._axis_spline(axis)(cols[axis])
         for j, k in enumerate(CONSTANT_ELEMENTS, start=len(FUNCTION_ELEMENTS)):
             out[:, j] = self.constants[k]
         return out

@@ -22,12 +22,13 @@ The first-order (small-error) form is linear in the elements: ``e ≈ J(axes) ·
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from .elements import ELEMENT_NAMES, ElementSet
+from .elements import CONSTANT_ELEMENTS, ELEMENT_NAMES, ElementSet
 from .machine import Grinder
 from .transforms import apply, apply_T, check_points, rot_x, rot_xyz, rot_z, skew
 
-UM = 1e-3   # mm per μm
+UM = 1e-3   # mm per μm (the compiled kernel writes 1e-3 and 1e-6 out)
 URAD = 1e-6  # rad per μrad
 IDX = {k: i for i, k in enumerate(ELEMENT_NAMES)}
 
@@ -114,11 +115,10 @@ def error_jacobian(machine: Grinder, axes) -> np.ndarray:
     return J
 
 
-def spatial_error_exact(machine: Grinder, axes, values, chunk: int = 50_000) -> np.ndarray:
-    """Spatial error (μm) with exact transforms; ``values`` shape (n, 23) -> (n, 3).
-
-    Works in chunks of ``chunk`` points to bound peak memory.
-    """
+def spatial_error_exact_chain(machine: Grinder, axes, values, chunk: int = 50_000) -> np.ndarray:
+    """The exact spatial error (μm) through the matrix chain :func:`tool_point_actual`;
+    shapes as :func:`spatial_error_exact`. The readable reference that the closed form is
+    tested against (and the benchmark's baseline); about 5× slower."""
     from .kinematics import forward
     axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
     values = np.asarray(values, dtype=float)
@@ -127,6 +127,146 @@ def spatial_error_exact(machine: Grinder, axes, values, chunk: int = 50_000) -> 
         sl = slice(s, s + chunk)
         out[sl] = (tool_point_actual(machine, axes[sl], values[sl]) - forward(machine, axes[sl])) / UM
     return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _inv_rot(ex, ey, ez, v0, v1, v2):
+    """``Rot(ε)ᵀ·v`` for one point, ``Rot(ε) = RotX(ex)·RotY(ey)·RotZ(ez)`` (rad) written out
+    entry by entry (:func:`rot_xyz` without its matrices)."""
+    cx, sx, cy, sy, cz, sz = np.cos(ex), np.sin(ex), np.cos(ey), np.sin(ey), np.cos(ez), np.sin(ez)
+    sxsy, cxsy = sx * sy, cx * sy
+    r00, r01, r02 = cy * cz, -cy * sz, sy
+    r10, r11, r12 = sxsy * cz + cx * sz, cx * cz - sxsy * sz, -sx * cy
+    r20, r21, r22 = sx * sz - cxsy * cz, sx * cz + cxsy * sz, cx * cy
+    return (r00 * v0 + r10 * v1 + r20 * v2, r01 * v0 + r11 * v1 + r21 * v2, r02 * v0 + r12 * v1 + r22 * v2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _point_error(x, z, a_deg, v, geo):  # pragma: no cover - compiled
+    """The chain of :func:`tool_point_actual` minus :func:`kinematics.forward` at one point, μm.
+
+    ``v`` (23,) element values (μm / μrad, ELEMENT_NAMES order: the indices below, checked
+    at import by ``_CHECK_IDX``), ``geo`` = (l1, l2, l3, l4, R, l5, l6, l7, l8, θ1 rad).
+    """
+    l1, l2, l3, l4, R, l5, l6, l7, l8, th = geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6], geo[7], geo[8], geo[9]
+    ct, st = np.cos(th), np.sin(th)
+    a = a_deg * (np.pi / 180.0)
+    # tool chain after RotZ(θ1): (l2, 0, l1) + RotZ(-θ1)·z·(sin s, 0, cos s) + δ_z + Rot(ε_z)·b, b = (l3, 0, l4 - R)
+    b0, b2 = l3, l4 - R
+    s_rad = v[22] * 1e-6
+    zs = z * np.sin(s_rad)
+    ex, ey, ez = v[9] * 1e-6, v[10] * 1e-6, v[11] * 1e-6
+    cx, sx, cy, sy, cz, sz = np.cos(ex), np.sin(ex), np.cos(ey), np.sin(ey), np.cos(ez), np.sin(ez)
+    rb0 = cy * cz * b0 + sy * b2
+    rb1 = (sx * sy * cz + cx * sz) * b0 - sx * cy * b2
+    rb2 = (sx * sz - cx * sy * cz) * b0 + cx * cy * b2
+    lx = l2 + ct * zs + v[6] * 1e-3 + rb0
+    ly = -st * zs + v[7] * 1e-3 + rb1
+    lz = l1 + z * np.cos(s_rad) + v[8] * 1e-3 + rb2
+    # tool point in the MCS, then the work chain inverted: X carriage, A line, RotX(a), A body
+    q0 = (ct * lx - st * ly) - (l5 + x) - v[0] * 1e-3
+    q1 = (st * lx + ct * ly) - v[1] * 1e-3
+    q2 = lz - l6 - v[2] * 1e-3
+    q0, q1, q2 = _inv_rot(v[3] * 1e-6, v[4] * 1e-6, v[5] * 1e-6, q0, q1, q2)
+    q0, q1, q2 = _inv_rot(0.0, v[20] * 1e-6, v[21] * 1e-6, q0 - l7, q1 - v[18] * 1e-3, q2 - l8 - v[19] * 1e-3)
+    ca, sa = np.cos(a), np.sin(a)
+    q1, q2 = ca * q1 + sa * q2, ca * q2 - sa * q1
+    q0, q1, q2 = _inv_rot(v[15] * 1e-6, v[16] * 1e-6, v[17] * 1e-6, q0 - v[12] * 1e-3, q1 - v[13] * 1e-3, q2 - v[14] * 1e-3)
+    # minus the nominal tool point (kinematics.forward), in μm
+    n0 = l2 + l3
+    tx, ty = ct * n0, st * n0
+    h = l1 + l4 - R + z - l6 - l8
+    return (q0 - (tx - l5 - x - l7)) * 1e3, (q1 - (ca * ty + sa * h)) * 1e3, (q2 - (ca * h - sa * ty)) * 1e3
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _spatial_error_kernel(axes, v, geo, out):  # pragma: no cover - compiled
+    """:func:`_point_error` over points: ``axes`` (n, 3), ``v`` (n, 23), ``out`` (n, 3) μm."""
+    for k in range(axes.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2] = _point_error(axes[k, 0], axes[k, 1], axes[k, 2], v[k], geo)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bspline3(t, c, x, h, hh, v, j0):  # pragma: no cover - compiled
+    """A cubic B-spline with vector coefficients ``c`` (m, 6) at ``x`` into ``v[j0:j0 + 6]``.
+
+    The interval is found as scipy does (``t[i] ≤ x < t[i+1]``, clipped to the end intervals
+    so points beyond them extrapolate the end polynomials) and the 4 non-zero basis values by
+    the Cox–de Boor recursion (scipy's ``_deBoor_D``); ``h``, ``hh`` are work arrays (4,).
+    """
+    k = 3
+    nc = t.shape[0] - k - 1
+    i = np.searchsorted(t, x, side="right") - 1
+    if i < k:
+        i = k
+    elif i > nc - 1:
+        i = nc - 1
+    h[0] = 1.0
+    for j in range(1, k + 1):
+        for m in range(j):
+            hh[m] = h[m]
+        h[0] = 0.0
+        for n in range(1, j + 1):
+            xb = t[i + n]
+            xa = t[i + n - j]
+            if xb == xa:
+                h[n] = 0.0
+                continue
+            w = hh[n - 1] / (xb - xa)
+            h[n - 1] += w * (xb - x)
+            h[n] = w * (x - xa)
+    for col in range(c.shape[1]):
+        acc = 0.0
+        for m in range(k + 1):
+            acc += h[m] * c[i - k + m, col]
+        v[j0 + col] = acc
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _field_kernel(axes, tx, cx, tz, cz, ta, ca, consts, a0, geo, out):  # pragma: no cover - compiled
+    """The exact HTM field point by point: the 18 function elements from the per-axis splines
+    (knots ``t*``, coefficients ``c*`` (m, 6); A folded into ``[a0, a0 + 360)`` for its spline
+    only), the 5 constants, then :func:`_point_error`. ``out`` (n, 3) μm."""
+    v = np.empty(23)
+    h = np.empty(4)
+    hh = np.empty(4)
+    for j in range(5):
+        v[18 + j] = consts[j]
+    for k in range(axes.shape[0]):
+        x, z, a = axes[k, 0], axes[k, 1], axes[k, 2]
+        _bspline3(tx, cx, x, h, hh, v, 0)
+        _bspline3(tz, cz, z, h, hh, v, 6)
+        _bspline3(ta, ca, a0 + np.mod(a - a0, 360.0), h, hh, v, 12)
+        out[k, 0], out[k, 1], out[k, 2] = _point_error(x, z, a, v, geo)
+
+
+_CHECK_IDX = ("dx_x", "dy_x", "dz_x", "ex_x", "ey_x", "ez_x", "dx_z", "dy_z", "dz_z", "ex_z", "ey_z", "ez_z",
+              "dx_a", "dy_a", "dz_a", "ex_a", "ey_a", "ez_a", "dy_oa", "dz_oa", "ey_oa", "ez_oa", "s_xz")
+assert tuple(ELEMENT_NAMES) == _CHECK_IDX, "the kernel's column indices follow ELEMENT_NAMES"
+
+
+def spatial_error_exact(machine: Grinder, axes, values, chunk: int = 50_000) -> np.ndarray:
+    """Spatial error (μm) with exact transforms; ``values`` shape (n, 23) -> (n, 3).
+
+    The transform chain of :func:`tool_point_actual` in closed form, compiled (numba) and
+    evaluated point by point: every rotation written out entry by entry, float64 throughout,
+    no small-angle step — the same exact transforms, equal to :func:`spatial_error_exact_chain`
+    to round-off (tested), with no (n, 3, 3) temporaries. ``chunk`` is kept for the API
+    (the kernel allocates nothing per point).
+    """
+    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+    values = np.ascontiguousarray(values, dtype=float)
+    if values.shape != (axes.shape[0], len(ELEMENT_NAMES)):
+        raise ValueError(f"Expected element values of shape ({axes.shape[0]}, {len(ELEMENT_NAMES)}), got {values.shape}")
+    out = np.empty((axes.shape[0], 3))
+    _spatial_error_kernel(np.ascontiguousarray(axes), values, _geometry(machine), out)
+    return out
+
+
+def _geometry(machine: Grinder) -> np.ndarray:
+    """The kernel's machine constants (l1, l2, l3, l4, R, l5, l6, l7, l8 mm, θ1 rad), shape (10,)."""
+    return np.array([machine.l1, machine.l2, machine.l3, machine.l4, machine.R, machine.l5, machine.l6,
+                     machine.l7, machine.l8, np.deg2rad(machine.theta1_deg)])
 
 
 def spatial_error_first_order(machine: Grinder, axes, values) -> np.ndarray:
@@ -154,15 +294,26 @@ class HTMField:
         return self.elements.values(check_points(axes, "axes (x_mm, z_mm, a_deg)"))
 
     def predict(self, axes) -> np.ndarray:
+        """Spatial error (μm), shape (n, 3), at axes shape (n, 3).
+
+        Exact: one compiled pass per point (the 18 function elements from the element set's
+        per-axis vector splines, then the closed-form chain :func:`_point_error`), no (n, 23)
+        or (n, 3, 3) arrays; equal to the element values pushed through
+        :func:`spatial_error_exact_chain` to round-off (tested).
+        """
         axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
         out = np.empty((axes.shape[0], 3))
+        if self.exact:
+            el = self.elements
+            sx, sz, sa = (el._axis_spline(k) for k in ("x_mm", "z_mm", "a_deg"))
+            consts = np.array([el.constants[k] for k in CONSTANT_ELEMENTS])
+            _field_kernel(np.ascontiguousarray(axes), sx.t, np.ascontiguousarray(sx.c), sz.t, np.ascontiguousarray(sz.c),
+                          sa.t, np.ascontiguousarray(sa.c), consts, float(el.stations["a_deg"][0]),
+                          _geometry(self.machine), out)
+            return out
         for s in range(0, axes.shape[0], self.chunk):
             sl = slice(s, s + self.chunk)
-            v = self.elements.values(axes[sl])
-            if self.exact:
-                out[sl] = spatial_error_exact(self.machine, axes[sl], v, chunk=self.chunk)
-            else:
-                out[sl] = spatial_error_first_order(self.machine, axes[sl], v)
+            out[sl] = spatial_error_first_order(self.machine, axes[sl], self.elements.values(axes[sl]))
         return out
 
     __call__ = predict

@@ -180,16 +180,30 @@ class Table:
     with errors naming file, row and column. ``comments`` holds the leading ``#`` lines.
     """
 
-    def __init__(self, path: Path, names: list[str], rows: list[list[str]], first_row: int, comments: list[str]):
+    def __init__(self, path: Path, names: list[str], rows: list[list[str]] | None, first_row: int, comments: list[str],
+                 numeric: dict | None = None, lines: str | None = None):
         self.path = path
         self.names = names
-        self.rows = rows
+        self._rows = rows
         self.first_row = first_row  # file line number of rows[0]
         self.comments = comments
         self._index = {n: i for i, n in enumerate(names)}
+        # fast path (read_table on a large, plain numeric table): every column already parsed
+        # as float64 (``numeric``), the raw cells parsed from the body text ``lines`` only when asked for
+        self._numeric = numeric or {}
+        self._lines = lines
+        self._n = len(rows) if rows is not None else len(next(iter(self._numeric.values())))
+
+    @property
+    def rows(self) -> list[list[str]]:
+        """The raw cells, stripped, one list per data row (parsed on first use after the fast path)."""
+        if self._rows is None:
+            self._rows = _parse_rows(self.path, self._lines.split("\n"), self.names, self.first_row)
+            self._lines = None
+        return self._rows
 
     def __len__(self) -> int:
-        return len(self.rows)
+        return self._n
 
     def __contains__(self, name: str) -> bool:
         return name in self._index
@@ -214,6 +228,15 @@ class Table:
         ``limit``: the largest plausible magnitude (default :data:`MAX_ABS_VALUE`); a larger
         value is a unit or typing mistake and is refused before any arithmetic overflows.
         """
+        self.require(name)
+        fast = self._numeric.get(name)
+        if fast is not None:
+            bad = np.abs(fast) > limit
+            if not allow_nan:
+                bad |= ~np.isfinite(fast)
+            if not bad.any():
+                return fast.copy()
+            # the per-cell checker below writes the message (row, column, cell as written)
         vals = self.raw(name)
         out = np.empty(len(vals))
         for k, s in enumerate(vals):
@@ -272,32 +295,90 @@ def read_table(path) -> Table:
         row = text.count("\n", 0, text.index("\x00")) + 1
         raise InputError(f"{path}: row {row}: contains a NUL byte; expected a text (CSV) file")
     # rows are the lines an editor shows: split at \n, \r\n or \r only
-    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    # leading comment and blank lines, then the header line (line i, 0-based), then the body
     comments = []
-    i = 0
-    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
-        if lines[i].startswith("#"):
-            comments.append(lines[i][1:].strip())
-        i += 1
-    if i >= len(lines):
-        raise InputError(f"{path}: empty file (no header row)")
-    # lines are already split: a quoted cell cannot span lines, and csv's field-size limit
+    i, pos = 0, 0
+    while True:
+        end = text.find("\n", pos)
+        line = text[pos:] if end < 0 else text[pos:end]
+        if not (line.startswith("#") or not line.strip()):
+            break
+        if line.startswith("#"):
+            comments.append(line[1:].strip())
+        if end < 0:
+            raise InputError(f"{path}: empty file (no header row)")
+        i, pos = i + 1, end + 1
+    # lines are split at \n: a quoted cell cannot span lines, and csv's field-size limit
     # must not turn a long line into a traceback
-    header = [h.strip() for h in _csv_row(lines[i], path, i + 1)]
+    header = [h.strip() for h in _csv_row(line, path, i + 1)]
     dup = sorted({h for h in header if header.count(h) > 1})
     if dup:
         raise InputError(f"{path}: row {i + 1}: duplicated column name(s) {dup}")
+    body = "" if end < 0 else text[end + 1:]
+    if end >= 0 and body.count("\n") + 1 >= FAST_MIN_ROWS:
+        numeric = _parse_numeric_fast(body, header)
+        if numeric is not None:
+            return Table(path, header, None, i + 2, comments, numeric=numeric, lines=body)
+    return Table(path, header, _parse_rows(path, body.split("\n") if end >= 0 else [], header, i + 2), i + 2, comments)
+
+
+FAST_MIN_ROWS = 2000
+"""Tables with at least this many data lines try the pyarrow parser first (below it, the
+per-row reader is as fast and needs no import)."""
+
+
+def _parse_rows(path, body: list[str], header: list[str], first_row: int) -> list[list[str]]:
+    """The per-row reader: cells stripped, blank rows skipped; a row with the wrong number of
+    cells or broken quoting raises :class:`InputError` naming its row."""
     rows = []
-    for k, line in enumerate(lines[i + 1:]):
-        r = _csv_row(line, path, i + 2 + k)
+    for k, line in enumerate(body):
+        r = _csv_row(line, path, first_row + k)
         if not r or all(not c.strip() for c in r):
             continue
         if len(r) != len(header):
             raise InputError(
-                f"{path}: row {i + 2 + k}: expected {len(header)} cells (columns {header}), got {len(r)}"
+                f"{path}: row {first_row + k}: expected {len(header)} cells (columns {header}), got {len(r)}"
             )
         rows.append([c.strip() for c in r])
-    return Table(path, header, rows, i + 2, comments)
+    return rows
+
+
+def _parse_numeric_fast(text: str, header: list[str]) -> dict | None:
+    """Every column as float64 by pyarrow's CSV reader, or None when the table is not plainly
+    numeric (then :func:`_parse_rows` reads it, and its checks write any error message).
+
+    Taken only when nothing could read differently from the per-row reader: no quote
+    character anywhere (no CSV quoting to interpret), pyarrow finds exactly ``len(header)``
+    cells on every line, every column comes out as float64 or int64 (a cell with spaces, a
+    word, a date or an empty cell makes it another type or null, and the table goes the slow
+    way), and no null (so no blank row was kept). pyarrow parses decimal numbers correctly
+    rounded, as Python's ``float`` does; only the empty cell counts as null here.
+    """
+    if '"' in text:
+        return None
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+    except ImportError:  # pragma: no cover - pyarrow is a dependency
+        return None
+    try:
+        tbl = pacsv.read_csv(
+            io.BytesIO(text.encode("utf-8")),
+            read_options=pacsv.ReadOptions(column_names=header, use_threads=True),
+            parse_options=pacsv.ParseOptions(delimiter=",", quote_char=False, escape_char=False,
+                                              newlines_in_values=False, ignore_empty_lines=True),
+            convert_options=pacsv.ConvertOptions(null_values=[""], true_values=[], false_values=[],
+                                                 strings_can_be_null=False, timestamp_parsers=[],
+                                                 decimal_point="."))
+    except (pa.ArrowInvalid, pa.ArrowException):
+        return None
+    out = {}
+    for name, col in zip(header, tbl.columns):
+        if col.null_count or not (pa.types.is_float64(col.type) or pa.types.is_int64(col.type)):
+            return None
+        out[name] = col.to_numpy().astype(np.float64)
+    return out
 
 
 def _csv_row(line: str, path, row: int) -> list[str]:

@@ -10,8 +10,8 @@ under the working directory).
 
 A run holds: parameters (architecture, trainer, stopping rules, seed, SHA-256 of the
 feature-point data and of the machine file, ...), metrics (``loss`` per iteration =
-MSE on scaled outputs, ``train_*``/``val_*`` max and RMS in μm), artifacts (``model/``:
-config, scalers, weights; the two fit plots; ``metrics.json``) and tags (``machine``, ...).
+MSE on scaled outputs, ``train_*``/``val_*`` max and RMS in μm), artifacts (``model/``: an
+MLflow pyfunc model holding config, scalers, weights, see :mod:`training.pyfunc`; the two fit plots; ``metrics.json``) and tags (``machine``, ...).
 """
 from __future__ import annotations
 
@@ -66,7 +66,8 @@ def _experiment_id(client, uri: str, name: str) -> str:
 
 
 def log_fit(params: dict, metrics: dict, history, model_dir, artifacts, *, tracking_uri=None,
-            run_name=None, parent_run_id=None, tags=None, experiment: str = "volcomp-field") -> str:
+            run_name=None, parent_run_id=None, tags=None, experiment: str = "volcomp-field",
+            machine_file=None) -> str:
     """Record one fit as an MLflow run; returns its run id.
 
     ``history`` has ``loss`` and ``elapsed_s`` per iteration (logged as metric ``loss``
@@ -91,7 +92,10 @@ def log_fit(params: dict, metrics: dict, history, model_dir, artifacts, *, track
         ms += [Metric(k, float(v), now, 0) for k, v in metrics.items()]
         for i in range(0, len(ms), 1000):
             client.log_batch(rid, metrics=ms[i:i + 1000])
-        client.log_artifacts(rid, str(model_dir), MODEL_ARTIFACT)
+        with tempfile.TemporaryDirectory(prefix="volcomp-pyfunc-") as tmp:
+            from .pyfunc import save_pyfunc
+            client.log_artifacts(rid, str(save_pyfunc(model_dir, Path(tmp) / MODEL_ARTIFACT, machine_file)),
+                                 MODEL_ARTIFACT)
         for a in artifacts:
             client.log_artifact(rid, str(a))
         status = "FINISHED"

@@ -417,11 +417,18 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
             plots = fit_plots(model, axes, errors, d, reference=ref[1] if ref else None)
             write_json(d / "metrics.json", summary)
             if track:
+                from errormap.machine import builtin_machine_path
+
                 from .tracking import log_fit
                 all_tags = {"machine": meta.get("machine", ""), **(tags or {})}
+                # the machine file goes inside the logged model: the recorded one, or the built-in
+                # machine when the data were made on it (its SHA-256 recorded)
+                mf = machine_file if machine_file and Path(machine_file).is_file() else None
+                if mf is None and params["machine_sha256"] == sha256_file(builtin_machine_path()):
+                    mf = builtin_machine_path()
                 run_id = log_fit(params, metrics, hist, d / "model", plots + [d / "metrics.json"],
                                  tracking_uri=tracking_uri, run_name=run_name, parent_run_id=parent_run_id,
-                                 tags=all_tags, experiment=experiment)
+                                 tags=all_tags, experiment=experiment, machine_file=mf)
                 if out_dir is not None:
                     write_json(d / "metrics.json", {**summary, "run_id": run_id})
     return FitResult(model, metrics, run_id, hist.seconds, hist, params)

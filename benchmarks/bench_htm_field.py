@@ -1,0 +1,108 @@
+"""Benchmark (issue 20): the exact HTM field, reference vs fast, side by side in one run.
+
+* field: μs per point of ``HTMField.predict`` (exact) — the reference pipeline (18 per-element
+  splines + the (n, 3, 3) matrix chain ``spatial_error_exact_chain``) against the fast one (3
+  vector-valued per-axis splines + the compiled closed form ``spatial_error_exact``);
+* solve: μs per point of ``solve_exact`` (Newton, forward-difference field Jacobian) on the same
+  targets with either field; and the largest difference of the commands (μm) between the two.
+
+Points: uniform over the strokes with A over several turns, truth ``random_truth(seed)``.
+Each seed is one job (``--jobs`` processes); per seed the median of ``--repeats`` runs.
+Run: python benchmarks/bench_htm_field.py [--points N] [--seeds S] [--jobs J] [--repeats R]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
+from errormap.htm import HTMField, spatial_error_exact_chain
+from errormap.kinematics import forward
+from errormap.machine import load_machine
+from errormap.simulator import random_axes, random_truth
+
+
+class ReferenceHTMField(HTMField):
+    """The exact HTM field as it was before issue 20: per-element splines, matrix chain."""
+
+    def predict(self, axes):
+        axes = np.asarray(axes, dtype=float)
+        el = self.elements
+        cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
+        v = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
+                     + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
+        return spatial_error_exact_chain(self.machine, axes, v, chunk=self.chunk)
+
+
+def _median_time(fn, repeats):
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
+
+
+def run_seed(seed, points, repeats, solve_points):
+    from compensation.solvers.exact import solve_exact
+    m = load_machine()
+    el = random_truth(m, seed).elements
+    rng = np.random.default_rng([seed, 20])
+    axes = random_axes(m, points, rng)
+    axes[:, 2] += 360.0 * rng.integers(-3, 4, points)
+    ref, new = ReferenceHTMField(m, el), HTMField(m, el)
+    new.predict(axes[:10]), ref.predict(axes[:10])  # compile / build splines outside the timing
+    t_ref, e_ref = _median_time(lambda: ref.predict(axes), repeats)
+    t_new, e_new = _median_time(lambda: new.predict(axes), repeats)
+    targets = forward(m, axes[:solve_points])
+    s_ref, r_ref = _median_time(lambda: solve_exact(ref, targets, m, progress=False), repeats)
+    s_new, r_new = _median_time(lambda: solve_exact(new, targets, m, progress=False), repeats)
+    return {"seed": seed, "field_ref_us": t_ref / points * 1e6, "field_new_us": t_new / points * 1e6,
+            "field_diff_um": float(np.abs(e_new - e_ref).max()),
+            "solve_ref_us": s_ref / solve_points * 1e6, "solve_new_us": s_new / solve_points * 1e6,
+            "commands_diff_um": float(np.abs(r_new.commands_mm - r_ref.commands_mm).max() * 1e3),
+            "solved": f"{int(r_new.success.sum())}/{solve_points} vs {int(r_ref.success.sum())}/{solve_points}"}
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--points", type=int, default=200_000)
+    ap.add_argument("--solve-points", type=int, default=50_000)
+    ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "htm_field_results.md"))
+    args = ap.parse_args()
+    seeds = list(range(args.seeds))
+    with ProcessPoolExecutor(args.jobs) as pool:
+        rows = list(pool.map(run_seed, seeds, [args.points] * len(seeds), [args.repeats] * len(seeds),
+                             [args.solve_points] * len(seeds)))
+    lines = ["## Fast exact HTM field (issue 20)", "",
+             f"`python benchmarks/bench_htm_field.py --points {args.points} --solve-points {args.solve_points} "
+             f"--seeds {args.seeds} --jobs {args.jobs} --repeats {args.repeats}` — default grinder, truth "
+             "`random_truth(seed)`, points uniform over the strokes with A over -3..+3 extra turns; "
+             f"median of {args.repeats} runs per seed, reference and fast in the same process, one after the other; "
+             f"{os.cpu_count()} cores shared with other work. Reference = per-element splines + (n, 3, 3) matrix chain "
+             "(the field before issue 20); fast = per-axis vector splines + compiled closed-form chain. "
+             "Solve = `solve_exact` on the nominal tool points of the first solve-points axes (model residual).", "",
+             "| seed | field ref (μs/pt) | field fast (μs/pt) | speed-up | max |ΔE| (μm) | solve ref (μs/pt) "
+             "| solve fast (μs/pt) | speed-up | max |Δcommand| (μm) | solved fast vs ref |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['seed']} | {r['field_ref_us']:.2f} | {r['field_new_us']:.2f} | "
+                     f"{r['field_ref_us'] / r['field_new_us']:.1f}× | {r['field_diff_um']:.1e} | {r['solve_ref_us']:.1f} | "
+                     f"{r['solve_new_us']:.1f} | {r['solve_ref_us'] / r['solve_new_us']:.1f}× | "
+                     f"{r['commands_diff_um']:.1e} | {r['solved']} |")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    with open(args.out, "w") as fh:
+        fh.write(text)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,90 @@
+"""The fast exact HTM field (issue 20) against the readable reference it replaces.
+
+* :func:`errormap.htm.spatial_error_exact` (compiled closed form) vs
+  :func:`errormap.htm.spatial_error_exact_chain` (the matrix chain :func:`tool_point_actual`),
+  on random points with multi-turn A, for a simulator truth, the same truth ×100, and element
+  values drawn independently of the simulator (other shapes, other magnitudes);
+* :meth:`ElementSet.values` (one vector-valued spline per axis) vs the per-element splines;
+* :class:`HTMField` end to end vs reference values pushed through the reference chain.
+"""
+import numpy as np
+import pytest
+
+from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
+from errormap.htm import HTMField, spatial_error_exact, spatial_error_exact_chain
+from errormap.simulator import random_axes, random_truth
+
+TOL_CLOSED_FORM_UM = 1e-9
+"""Both forms compute tool points of ~0.5 m and subtract the nominal one: one ulp of 500 mm is
+5.7e-14 mm = 5.7e-11 μm, so a few ulps of round-off in either chain stays well below 1e-9 μm
+(observed 7e-12 μm on a simulator truth, 3e-11 μm on the same truth ×100, ~19 mm errors)."""
+TOL_SPLINE_REL = 1e-13
+"""The per-axis spline solves the same banded interpolation problem per column: equal up to
+float64 round-off relative to the largest element value (observed bit-identical)."""
+
+
+def _axes_multi_turn(machine, n, seed):
+    rng = np.random.default_rng(seed)
+    ax = random_axes(machine, n, rng)
+    ax[:, 2] += 360.0 * rng.integers(-4, 5, n)  # A from -4 to +5 turns
+    return ax
+
+
+def _independent_elements(machine, seed):
+    """Element values not shaped by the simulator: sums of random harmonics up to ±500 μm/μrad,
+    8 stations per axis (not the simulator's 21), closed A profiles, non-zero constants."""
+    rng = np.random.default_rng(seed)
+    st = {k: np.linspace(*machine.strokes[k], 8) for k in ("x_mm", "z_mm", "a_deg")}
+    st["a_deg"] = np.linspace(st["a_deg"][0], st["a_deg"][0] + 360.0, 8)
+    fun = {}
+    for k in FUNCTION_ELEMENTS:
+        u = (st[AXIS_OF[k]] - st[AXIS_OF[k]][0]) / np.ptp(st[AXIS_OF[k]])
+        amp, f, ph = rng.uniform(-500, 500, 3), rng.integers(1, 4, 3), rng.uniform(0, 2 * np.pi, 3)
+        fun[k] = sum(amp[j] * np.sin(2 * np.pi * f[j] * u + ph[j]) for j in range(3))
+        fun[k] = fun[k] - fun[k][0]
+    return ElementSet(st, fun, {k: float(rng.uniform(-300, 300)) for k in CONSTANT_ELEMENTS})
+
+
+@pytest.mark.parametrize("case", ["truth", "truth_x100", "independent"])
+def test_closed_form_equals_matrix_chain(grinder, case):
+    el = (_independent_elements(grinder, 7) if case == "independent"
+          else random_truth(grinder, 3).elements.scaled(100.0 if case == "truth_x100" else 1.0))
+    axes = _axes_multi_turn(grinder, 4000, 11)
+    v = el.values(axes)
+    ref = spatial_error_exact_chain(grinder, axes, v)
+    new = spatial_error_exact(grinder, axes, v)
+    assert np.abs(ref).max() > 10.0  # a real field, not zeros
+    np.testing.assert_allclose(new, ref, rtol=0, atol=TOL_CLOSED_FORM_UM)
+
+
+def test_axis_splines_equal_per_element_splines(grinder):
+    for el in (random_truth(grinder, 5).elements, _independent_elements(grinder, 8)):
+        axes = _axes_multi_turn(grinder, 3000, 12)
+        cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
+        ref = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS], axis=1)
+        v = el.values(axes)
+        tol = TOL_SPLINE_REL * np.abs(ref).max()
+        np.testing.assert_allclose(v[:, :len(FUNCTION_ELEMENTS)], ref, rtol=0, atol=tol)
+        for j, k in enumerate(CONSTANT_ELEMENTS, start=len(FUNCTION_ELEMENTS)):
+            assert np.all(v[:, j] == el.constants[k])
+        assert v.shape == (len(axes), len(ELEMENT_NAMES))
+
+
+def test_field_equals_reference_pipeline_and_periodic_in_a(grinder):
+    el = random_truth(grinder, 9).elements
+    axes = _axes_multi_turn(grinder, 2000, 13)
+    cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
+    v_ref = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
+                     + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
+    field = HTMField(grinder, el, chunk=700)  # several chunks, the last one partial
+    np.testing.assert_allclose(field.predict(axes), spatial_error_exact_chain(grinder, axes, v_ref),
+                               rtol=0, atol=TOL_CLOSED_FORM_UM)
+    # whole turns of A leave the error unchanged (to the round-off of cos/sin of large angles)
+    shifted = axes.copy()
+    shifted[:, 2] -= 360.0 * np.round(shifted[:, 2] / 360.0)
+    np.testing.assert_allclose(field.predict(shifted), field.predict(axes), rtol=0, atol=TOL_CLOSED_FORM_UM)
+
+
+def test_values_shape_is_checked(grinder):
+    with pytest.raises(ValueError, match="Expected element values of shape"):
+        spatial_error_exact(grinder, np.zeros((3, 3)), np.zeros((3, 22)))

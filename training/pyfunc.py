@@ -1,0 +1,74 @@
+"""The learned field as an MLflow ``pyfunc`` model (issue 20).
+
+A run's ``model/`` artifact is a pyfunc model folder::
+
+    model/MLmodel              flavor python_function (loader_module training.pyfunc, data "."),
+                               signature: x_mm, z_mm, a_deg (double) -> dx_um, dy_um, dz_um (double)
+    model/input_example.json   three axis points inside the training range
+    model/config.json, scalers.json, weights.npy   the network and its scalers (MLPField.save)
+    model/machine.toml         the machine file the field was trained for, when known
+
+so ``mlflow models serve -m runs:/<id>/model`` and ``mlflow.pyfunc.load_model(...).predict(df)``
+work on it (volcomp must be importable where it is served: ``--env-manager local`` in an
+environment with volcomp installed), and ``volcomp --model <run id>`` loads the same folder as
+before. The pyfunc predicts exactly what :meth:`training.model.MLPField.predict` does (float64)
+and applies no guard: the range checks stay with ``volcomp predict`` / ``compensate``.
+"""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+INPUTS = ("x_mm", "z_mm", "a_deg")
+OUTPUTS = ("dx_um", "dy_um", "dz_um")
+
+
+class PyfuncField:
+    """What ``mlflow.pyfunc.load_model`` wraps: ``predict(DataFrame[x_mm, z_mm, a_deg]) ->
+    DataFrame[dx_um, dy_um, dz_um]`` (μm), one row per point."""
+
+    def __init__(self, field):
+        self.field = field
+
+    def predict(self, model_input, params=None):
+        import pandas as pd
+        df = pd.DataFrame(model_input)
+        missing = [c for c in INPUTS if c not in df.columns]
+        if missing:
+            raise ValueError(f"Expected columns {list(INPUTS)}, missing {missing}")
+        e = self.field.predict(df[list(INPUTS)].to_numpy(dtype=float))
+        return pd.DataFrame(np.asarray(e, dtype=float), columns=list(OUTPUTS), index=df.index)
+
+
+def _load_pyfunc(data_path):
+    """MLflow's entry point (``loader_module``): ``data_path`` is the ``model/`` folder itself."""
+    from .model import MLPField
+    return PyfuncField(MLPField.load(data_path))
+
+
+def save_pyfunc(model_dir, out_dir, machine_file=None) -> Path:
+    """Write the pyfunc folder ``out_dir`` (new) for the MLPField saved in ``model_dir``, with the
+    machine file when given, the signature and an input example; returns ``out_dir``."""
+    import mlflow.pyfunc
+    import pandas as pd
+    from mlflow.models import Model, infer_signature
+
+    from .model import MLPField
+    model_dir, out_dir = Path(model_dir), Path(out_dir)
+    field = MLPField.load(model_dir)
+    lo, hi = np.asarray(field.in_lo_, dtype=float), np.asarray(field.in_hi_, dtype=float)
+    example = pd.DataFrame(lo + (hi - lo) * np.array([[0.25], [0.5], [0.75]]), columns=list(INPUTS))
+    mlflow.pyfunc.save_model(str(out_dir), loader_module="training.pyfunc",
+                             signature=infer_signature(example, PyfuncField(field).predict(example)),
+                             input_example=example, pip_requirements=["volcomp"])
+    for p in model_dir.iterdir():
+        shutil.copyfile(p, out_dir / p.name)
+    if machine_file is not None:
+        shutil.copyfile(machine_file, out_dir / "machine.toml")
+    # the network's files sit beside MLmodel: the flavor's data folder is the model folder itself
+    mlm = Model.load(str(out_dir / "MLmodel"))
+    mlm.flavors["python_function"]["data"] = "."
+    mlm.save(str(out_dir / "MLmodel"))
+    return out_dir
