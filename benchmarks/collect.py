@@ -9,7 +9,10 @@ import pathlib
 
 HERE = pathlib.Path(__file__).resolve().parent
 ORDER = ["demo", "benchmark", "foundation", "training", "solvers", "identification", "diagnosis", "drift", "pkm",
-         "pkm_path", "toolpath", "export", "export_drift", "cli_startup"]
+         "pkm_path", "toolpath", "export", "export_drift", "cli_startup",
+         "scale_out"]
+# raw tables of a script whose section (named in ORDER) quotes them: not repeated in BENCHMARKS.md
+QUOTED = {"htm_field", "scale_io"}  # in scale_out
 HEADER = """# BENCHMARKS
 
 Figures measured on this project's machine (2 cores, 24 GiB, no GPU) by the scripts in
@@ -22,7 +25,7 @@ side by side in one run. Regenerate a section by running its script, then
 
 def main() -> None:
     files = {p.name[: -len("_results.md")]: p for p in HERE.glob("*_results.md")}
-    names = [n for n in ORDER if n in files] + sorted(set(files) - set(ORDER))
+    names = [n for n in ORDER if n in files] + sorted(set(files) - set(ORDER) - QUOTED)
     parts = [HEADER] + [files[n].read_text().strip() + "\n" for n in names]
     out = HERE.parent / "BENCHMARKS.md"
     tmp = out.with_suffix(".md.tmp")
