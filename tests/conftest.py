@@ -1,4 +1,6 @@
 import os
+import time
+import urllib.request
 
 import numpy as np
 import pytest
@@ -15,3 +17,21 @@ def grinder():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+def wait_until_serving(proc, url: str, limit_s: float, log_path, what: str) -> None:
+    """Poll ``url`` until it answers 200, failing the test if ``proc`` exits first or ``limit_s``
+    passes (a local server started by a test; bounded, never unbounded waiting)."""
+    deadline = time.monotonic() + limit_s
+    while True:
+        if proc.poll() is not None:
+            pytest.fail(f"{what} exited with {proc.returncode}: {log_path.read_text()[-2000:]}")
+        try:
+            with urllib.request.urlopen(url, timeout=2) as r:
+                if r.status == 200:
+                    return
+        except OSError:
+            pass
+        if time.monotonic() > deadline:
+            pytest.fail(f"{what} did not answer within {limit_s} s")
+        time.sleep(0.5)

@@ -8,14 +8,13 @@ import signal
 import socket
 import subprocess
 import sys
-import time
-import urllib.request
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from tests.conftest import wait_until_serving
 from errormap.featurepoints import FeaturePoints, grid_axes
 from errormap.machine import load_machine
 
@@ -45,19 +44,7 @@ def mlflow_server(tmp_path):
                             env={**os.environ, "MLFLOW_TRACKING_URI": ""})
     url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + STARTUP_LIMIT_S
-        while True:
-            if proc.poll() is not None:
-                pytest.fail(f"mlflow server exited with {proc.returncode}: {(tmp_path / 'server.log').read_text()[-2000:]}")
-            try:
-                with urllib.request.urlopen(url + "/health", timeout=2) as r:
-                    if r.status == 200:
-                        break
-            except OSError:
-                pass
-            if time.monotonic() > deadline:
-                pytest.fail(f"mlflow server did not answer within {STARTUP_LIMIT_S} s")
-            time.sleep(0.5)
+        wait_until_serving(proc, url + "/health", STARTUP_LIMIT_S, tmp_path / "server.log", "mlflow server")
         yield url, tmp_path
     finally:
         # the server runs in its own session: end exactly that process group

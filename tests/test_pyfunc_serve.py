@@ -9,13 +9,13 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 import urllib.request
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.conftest import wait_until_serving
 from errormap.featurepoints import FeaturePoints, grid_axes
 from errormap.io import read_table, write_csv
 from errormap.machine import builtin_machine_path, load_machine
@@ -88,19 +88,7 @@ def test_served_model_equals_volcomp_predict(tracked):
                             cwd=tmp, start_new_session=True)
     url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + STARTUP_LIMIT_S
-        while True:
-            if proc.poll() is not None:
-                pytest.fail(f"mlflow models serve exited with {proc.returncode}: {(tmp / 'serve.log').read_text()[-2000:]}")
-            try:
-                with urllib.request.urlopen(url + "/ping", timeout=2) as r:
-                    if r.status == 200:
-                        break
-            except OSError:
-                pass
-            if time.monotonic() > deadline:
-                pytest.fail(f"mlflow models serve did not answer within {STARTUP_LIMIT_S} s")
-            time.sleep(0.5)
+        wait_until_serving(proc, url + "/ping", STARTUP_LIMIT_S, tmp / "serve.log", "mlflow models serve")
         body = json.dumps({"dataframe_split": {"columns": ["x_mm", "z_mm", "a_deg"], "data": axes.tolist()}}).encode()
         req = urllib.request.Request(url + "/invocations", data=body, headers={"Content-Type": "application/json"})
         with urllib.request.urlopen(req, timeout=60) as r:
