@@ -1,4 +1,6 @@
 import os
+import signal
+import subprocess
 import time
 import urllib.request
 
@@ -35,3 +37,17 @@ def wait_until_serving(proc, url: str, limit_s: float, log_path, what: str) -> N
         if time.monotonic() > deadline:
             pytest.fail(f"{what} did not answer within {limit_s} s")
         time.sleep(0.5)
+
+
+def stop_process_group(proc) -> None:
+    """End a server a test started in its own session: SIGTERM to its process group, then
+    SIGKILL if it has not exited within 20 s."""
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=20)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=10)

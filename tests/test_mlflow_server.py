@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -14,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.conftest import wait_until_serving
+from tests.conftest import stop_process_group, wait_until_serving
 from errormap.featurepoints import FeaturePoints, grid_axes
 from errormap.machine import load_machine
 
@@ -48,15 +47,7 @@ def mlflow_server(tmp_path):
         yield url, tmp_path
     finally:
         # the server runs in its own session: end exactly that process group
-        try:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait(timeout=20)
-        except (ProcessLookupError, subprocess.TimeoutExpired):
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-            proc.wait(timeout=10)
+        stop_process_group(proc)
         log.close()
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -15,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import wait_until_serving
+from tests.conftest import stop_process_group, wait_until_serving
 from errormap.featurepoints import FeaturePoints, grid_axes
 from errormap.io import read_table, write_csv
 from errormap.machine import builtin_machine_path, load_machine
@@ -94,15 +93,7 @@ def test_served_model_equals_volcomp_predict(tracked):
         with urllib.request.urlopen(req, timeout=60) as r:
             served = json.loads(r.read())["predictions"]
     finally:
-        try:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait(timeout=20)
-        except (ProcessLookupError, subprocess.TimeoutExpired):
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-            proc.wait(timeout=10)
+        stop_process_group(proc)
         log.close()
     got = np.array([[row[c] for c in ("dx_um", "dy_um", "dz_um")] for row in served])
     assert got.shape == (25, 3)
