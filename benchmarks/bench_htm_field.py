@@ -22,6 +22,7 @@ import numpy as np
 
 from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
 from errormap.htm import HTMField, spatial_error_exact_chain
+from errormap.io import atomic_write
 from errormap.kinematics import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
@@ -100,7 +101,7 @@ def main():
                      f"{r['commands_diff_um']:.1e} | {r['solved']} |")
     text = "\n".join(lines) + "\n"
     print(text)
-    with open(args.out, "w") as fh:
+    with atomic_write(args.out, "w", encoding="utf-8") as fh:
         fh.write(text)
 
 

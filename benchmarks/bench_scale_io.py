@@ -67,7 +67,7 @@ def main():
         lines.append(f"| {seed} | {mb:.0f} | {ts:.2f} | {tf:.2f} | {ts / tf:.1f}× | {'bit for bit' if eq else 'NO'} |")
     text = "\n".join(lines) + "\n"
     print(text)
-    with open(args.out, "w") as fh:
+    with eio.atomic_write(args.out, "w", encoding="utf-8") as fh:
         fh.write(text)
 
 

@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from errormap.io import atomic_write, write_json
+
 HERE = Path(__file__).resolve().parent
 SPLITS = (("none", None), ("auto", "auto"), ("1 mm", 1.0))
 EFFECTS = ("pitch", "worm", "interaction")
@@ -174,8 +176,8 @@ def main(argv=None) -> None:
         parts = [run_seed(s, args.samples) for s in range(args.seeds)]
     rows = [r for p in parts for r in p]
     wall = time.perf_counter() - t0
-    stem.with_suffix(".json").write_text(json.dumps({"seeds": args.seeds, "jobs": args.jobs, "samples": args.samples,
-                                                      "wall_s": wall, "rows": rows}, indent=1) + "\n")
+    write_json(stem.with_suffix(".json"), {"seeds": args.seeds, "jobs": args.jobs, "samples": args.samples,
+                                           "wall_s": wall, "rows": rows})
     write_md(stem, rows, args.seeds, args.jobs, args.samples, wall)
 
 
@@ -204,7 +206,8 @@ def write_md(stem, rows, seeds, jobs, samples, wall):
            "budgeted for it, with far fewer vertices than a fixed 1 mm on the straight moves where the field "
            "is smooth. At the default 400 points per turn the flute's moves are already short (10–13 μm of WCS path), so "
            "splitting changes nothing there.", ""]
-    stem.with_suffix(".md").write_text("\n".join(md))
+    with atomic_write(stem.with_suffix(".md"), "w", encoding="utf-8") as fh:
+        fh.write("\n".join(md))
     print("\n".join(md))
 
 
