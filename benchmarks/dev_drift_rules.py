@@ -78,14 +78,70 @@ def one(args):
     return out
 
 
+def _pooled(rms):
+    """Pooled RMS over equal-length validation blocks, from their per-block RMS values."""
+    return float(np.sqrt(np.mean(np.square(rms))))
+
+
+def apply_rule(cands, families, gate_se=1.0, rank="short4", horizon="hor4"):
+    """The selector's rule on saved candidates of one channel: the best-ranked candidate (pooled RMS on
+    the ranking folds) among ``families`` that scores below OLS there and beats OLS on the horizon folds
+    by more than ``gate_se`` standard errors of the per-fold log gain; else OLS. Returns the candidate."""
+    ols = next(c for c in cands if c["fam"] == "ols")
+    pool = [c for c in cands if c["fam"] in families and rank in c and horizon in c and "held" in c]
+    pool.sort(key=lambda c: _pooled(c[rank]))
+    for c in pool:
+        if c["fam"] == "ols":
+            continue
+        if _pooled(c[rank]) >= _pooled(ols[rank]):
+            break
+        d = np.log(ols[horizon]) - np.log(c[horizon])
+        se = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else 0.0
+        if d.mean() > gate_se * se:
+            return c
+    return ols
+
+
+def compare_rules(path, family_sets):
+    """Markdown rows: per family set, counts of held-out RMS below / above OLS, worst ratio, geometric mean."""
+    rows = json.loads(Path(path).read_text())["rows"]
+    lines = ["| families | < OLS | > OLS | worst ratio | gm | cases |", "|---|---|---|---|---|---|"]
+    for fams in family_sets:
+        below = above = 0
+        ratios = []
+        for r in rows:
+            by_ch = {}
+            for c in r["cands"]:
+                by_ch.setdefault(c["ch"], []).append(c)
+            for ch, cands in by_ch.items():
+                ols = next(c for c in cands if c["fam"] == "ols")
+                pick = apply_rule(cands, fams)
+                q = pick["held"] / ols["held"]
+                ratios.append(q)
+                below += q < 1 - 1e-12
+                above += q > 1 + 1e-12
+        ratios = np.array(ratios)
+        lines.append(f"| {', '.join(fams)} | {below} | {above} | {ratios.max():.2f} | "
+                     f"{np.exp(np.mean(np.log(ratios))):.3f} | {len(ratios)} |")
+    return "\n".join(lines)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
+    ap.add_argument("--rules", help="compare selection rules offline on a saved JSON instead of running")
     ap.add_argument("--seed0", type=int, default=100)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--out", default="dev_drift_rules.json")
     ap.add_argument("--schemes", default=",".join(SCHEMES))
     a = ap.parse_args(argv)
+    if a.rules:
+        base = ["ols", "subset_lag", "ridge_bank", "pls_bank", "transfer"]
+        print(compare_rules(a.rules, [base, ["ols", "subset_lag", "transfer", "ridge_ols", "pls_ols"],
+                                      base + ["ridge_ols", "pls_ols"], ["ols", "ridge_ols", "pls_ols"],
+                                      ["ols", "subset_lag", "ridge_ols", "pls_ols"],
+                                      ["ols", "transfer", "ridge_ols", "pls_ols"]]))
+        return
     SCHEMES[:] = a.schemes.split(",")
     tasks = [(f, s) for f in SIMULATORS for s in range(a.seed0, a.seed0 + a.seeds)]
     rows = []

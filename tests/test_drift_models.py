@@ -157,7 +157,7 @@ def test_dynamic_family_is_chosen_where_ols_cannot_follow_the_heat_path(seed):
     log = _unsensed_spindle_log(seed)
     sel = DriftSelector(fit_fraction=0.6).fit(log)
     r = sel.report(log)["z"]
-    assert r["family"] in ("transfer", "ridge_bank", "pls_bank"), r
+    assert r["family"] in ("transfer", "ridge_ols", "pls_ols"), r
     assert r["rms_after_um"] <= NEAR_NOISE * NOISE_UM, r
     assert r["rms_ols_um"] >= OLS_FAR * NOISE_UM, r
     assert min(r["cv_rms_um"].values()) == pytest.approx(sel.cv_["z"][r["model"]])
@@ -172,7 +172,7 @@ def test_chosen_model_never_loses_to_ols_in_validation():
         for ch, scores in sel.cv_.items():
             chosen = sel.report(log)[ch]["model"]
             assert scores[chosen] <= scores["ols"]
-            assert set(sel.report(log)[ch]["cv_rms_um"]) >= {"ols", "subset_lag", "ridge_bank", "pls_bank", "transfer"}
+            assert set(sel.report(log)[ch]["cv_rms_um"]) >= {"ols", "subset_lag", "ridge_ols", "pls_ols", "transfer"}
 
 
 # -- controller form ----------------------------------------------------------------------------
