@@ -230,7 +230,9 @@ def load_machine(path=None, expect_kind: str | None = None):
 UNIT_MIN_POINTS = 10      # below this a column's span says nothing about its unit
 METRE_SPAN_FRACTION = 1 / 200  # an X/Z column spanning less than this share of its stroke ...
 METRE_MATCH_FRACTION = 1 / 4   # ... while 1000x its span reaches this share is in metres
-RADIAN_MIN_SPAN = np.pi        # an A column within ±2π spanning at least half a turn of radians
+RADIAN_MIN_SPAN = 1.5 * np.pi  # an A column within ±2π spanning at least three quarters of a turn of radians
+# (π, half a turn, also caught a check set measured in degrees over a small A range such as 0–6°)
+DEGREE_GRID_DEG = 0.5          # A values that all lie on a 0.5° grid are degrees (a grid in radians does not)
 
 
 def axes_unit_mistake(axes, machine) -> tuple[int, int, str] | None:
@@ -239,8 +241,9 @@ def axes_unit_mistake(axes, machine) -> tuple[int, int, str] | None:
     ``axes`` shape (n, 3): x_mm, z_mm, a_deg (feature points, check measurements). Returns
     ``(row index, column index, message)``: an X or Z column whose span is about 1/1000 of the
     stroke and whose values stay within 1/1000 of the stroke's ends (metres instead of mm; a
-    small region measured in mm far from zero is not taken for metres), or an A column inside ±2π that spans at least π
-    (radians instead of degrees). Needs at least :data:`UNIT_MIN_POINTS` points.
+    small region measured in mm far from zero is not taken for metres), or an A column inside ±2π that spans at least
+    3π/2 and does not lie on a 0.5° grid (radians instead of degrees; a small A range measured in degrees,
+    e.g. 0–4.5° or a 0, 1, … 6° grid, is not taken for radians). Needs at least :data:`UNIT_MIN_POINTS` points.
     """
     axes = np.asarray(axes, dtype=float)
     if len(axes) < UNIT_MIN_POINTS:
@@ -259,7 +262,9 @@ def axes_unit_mistake(axes, machine) -> tuple[int, int, str] | None:
     a = axes[:, 2]
     lo, hi = machine.strokes["a_deg"]
     span = float(np.ptp(a))
-    if hi - lo >= 180 and np.all(np.abs(a) <= 2 * np.pi + 1e-6) and span >= RADIAN_MIN_SPAN:
+    on_degree_grid = np.allclose(a / DEGREE_GRID_DEG, np.round(a / DEGREE_GRID_DEG), rtol=0, atol=1e-9)
+    if (hi - lo >= 180 and np.all(np.abs(a) <= 2 * np.pi + 1e-6) and span >= RADIAN_MIN_SPAN
+            and not on_degree_grid):
         k = int(np.argmax(np.abs(a)))
         return k, 2, (f"values lie within ±2π and span {span:.4g}: radians rather than degrees?")
     return None

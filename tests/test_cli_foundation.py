@@ -156,3 +156,15 @@ def test_a_small_region_in_mm_is_not_taken_for_metres():
     metres = small.copy()
     metres[:, 0] = 0.2 * rng.random(40)
     assert axes_unit_mistake(metres, m)[1] == 0
+
+
+def test_a_small_a_range_in_degrees_is_not_taken_for_radians():
+    """Checks over A = 0…4.5° (random) or on a 0…6° grid are degrees; a full turn in radians is refused."""
+    from errormap.machine import axes_unit_mistake, load_machine
+    m = load_machine()
+    rng = np.random.default_rng(1)
+    xz = np.c_[200 * rng.random(40), 60 * rng.random(40)]
+    assert axes_unit_mistake(np.c_[xz, 4.5 * rng.random(40)], m) is None
+    assert axes_unit_mistake(np.c_[xz, rng.integers(0, 7, 40).astype(float)], m) is None
+    radians = np.c_[xz, np.radians(360 * rng.random(40))]
+    assert axes_unit_mistake(radians, m)[1] == 2
