@@ -10,6 +10,7 @@ unless ``--force`` (the override is recorded in ``export.json``).
 ``--format drift`` takes a drift model (``volcomp.drift_model``) instead: its coefficients at a
 fixed controller sample period, the controller re-simulated from the written file on a log
 (``--log``, or a simulated one) and compared with the model's own prediction (:func:`run_drift`).
+The work itself: :mod:`compensation.app.workflows.controller_tables`.
 """
 from __future__ import annotations
 
@@ -18,19 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.elements import ElementSet
-from errormap.io import InputError, sha256_file
-from errormap.iso230 import ISO_NAME
 from errormap.machine import load_machine
 
 from ..cli import UsageError
+from ..workflows.controller_tables import DriftSettings, TableSettings, export_drift, export_table
 from ... import export as ex
 
 DEFAULT_TOLERANCE_UM = 1.0
-READ_BACK_TOL_UM = 1e-5
-"""Read-back check (μm; joint units × 1000 for LinuxCNC, i.e. μm and millidegrees): the CSV files
-hold 12 significant digits and the LinuxCNC files 9 decimals of mm/deg (rounding ≤ 5e-7 μm per
-value, three values per command), so the table read back must agree to 1e-5."""
 
 
 def register(sub):
@@ -89,22 +84,6 @@ def parse_region(text):
     return {"x_mm": parts[0], "z_mm": parts[1]}
 
 
-def _load_model(args, machine):
-    p = Path(args.model)
-    if p.suffix.lower() == ".json" or p.is_file():
-        el = ElementSet.load(p)
-        if el.machine_sha256 and el.machine_sha256 != machine.sha256:
-            raise InputError(f"{p}: key 'machine_sha256': the model was made for machine file sha256 "
-                             f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
-                             f"({machine.path}); pass the model's --machine")
-        return ex.ModelError(machine, el), f"{p} (element set, sha256 {sha256_file(p)})"
-    if args.fmt == "iso-tables":
-        raise UsageError("--format iso-tables needs an element-set model (JSON): ISO component tables are the 23 "
-                         "elements' components")
-    from ...fields import load_field
-    return ex.ModelError(machine, field=load_field(args.model, machine, args.tracking_uri)), f"{args.model} (learned field)"
-
-
 def format_check(check: dict, has_truth: bool) -> list[str]:
     lines = ["check (controller re-simulated; residual norm, um: max / p95 / mean)"]
     for name, r in check.items():
@@ -139,106 +118,52 @@ def run(args) -> int:
                          "reversal and are not averaged)")
     if not 2 <= args.points <= ex.LINUXCNC_MAX_POINTS:
         raise UsageError(f"--points: expected 2..{ex.LINUXCNC_MAX_POINTS}, got {args.points}")
-    region = parse_region(args.region)
-    model, model_desc = _load_model(args, machine)
-    left_out = []
-    if args.diagnosis:
-        back, left_out = ex.backlash_from_diagnosis(args.diagnosis)
-        if model.elements is None:
-            raise UsageError("--diagnosis needs an element-set model (the reversal is added to an element)")
-        model.backlash = back
-    truth = None
-    if args.truth:
-        from ...evaluate import load_truth
-        truth = load_truth(args.truth, machine)
-    sets = ex.check_sets(machine, args.check_points, args.seed)
-    say = lambda s: print(s, file=sys.stderr)  # noqa: E731
-    say("sizing the table and re-simulating the controller on the flute and the volume ...")
-    try:
-        table, sizing, check = ex.build_checked_table(args.fmt, model, machine, args.tolerance_um, sets, truth,
-                                                      {}, n_points=args.points, region=region, seed=args.seed,
-                                                      log=say)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    for line in format_check(check, truth is not None):
-        print(line)
-    worst = ex.worst_model_um(check)
-    met = worst <= args.tolerance_um
-    if not met and not args.force:
-        raise UsageError(f"tolerance not met: the {args.fmt} table leaves a model residual up to {worst:.4g} um > "
-                         f"--tolerance-um {args.tolerance_um:g}; nothing written (--force writes anyway, recorded "
-                         "in export.json)")
-    info = {"format": "volcomp-export/1", "table_format": args.fmt, "model": model_desc,
-            "machine": {"name": machine.name, "file": machine.path, "sha256": machine.sha256},
-            "tolerance_um": args.tolerance_um, "tolerance_met": bool(met), "worst_model_residual_um": worst,
-            "override": None if met else {"forced": True, "reason": f"worst model residual {worst:.6g} um exceeds "
-                                                                    f"the tolerance {args.tolerance_um:g} um"},
-            "sizing": sizing, "check": check,
-            "check_points": {"flute": "default flute path (compensation.toolpath.flute_path)",
-                             "volume": f"{args.check_points} uniform random axis points, seed {args.seed}"},
-            "residuals": {"model": "fwd(q_c) + E_model(q_c) - p_d (um), q_c = the controller's command with the table",
-                          "true": "truth.tool_point(q_c) - p_d (um)" if truth is not None else "no --truth given"},
-            "truth": args.truth, "iso230_names": dict(ISO_NAME)}
-    if args.fmt == "linuxcnc":
-        info["backlash_joint_units"] = dict(table.backlash)
-        info["diagnosis"] = args.diagnosis
-        info["diagnosed_effects_not_exported"] = left_out
-        info["linuxcnc"] = {"columns": "nominal forward reverse (mm for x, z; deg for a)",
-                            "meaning": "forward/reverse: actual joint position when commanded to nominal moving +/-; "
-                                       "the controller commands nominal + (nominal - actual)",
-                            "a": "one turn; the controller folds A into it (wrapped rotary joint)"}
-    with ex.staged_folder(args.out) as tmp:
-        files = ex.write_table(table, tmp, machine, model_desc)
-        back = ex.read_back(args.fmt, tmp)
-        diff = _read_back_difference(table, back, machine, sets)
-        if diff > READ_BACK_TOL_UM:
-            raise RuntimeError(f"read-back check failed: the written {args.fmt} table differs from the built one by "
-                               f"{diff:.3g} um")
-        info["read_back_difference_um"] = diff
-        info["files"] = {p.name: p.stat().st_size for p in files}
-        info["table_values"] = table.n_values()
-        ex.write_manifest(tmp, info)
-    out = Path(args.out)
-    for name in list(info["files"]) + ["export.json"]:
-        print(f"wrote: {out / name}")
-    if not met:
-        print(f"warning: tolerance NOT met ({worst:.4g} um > {args.tolerance_um:g} um); written because of --force",
-              file=sys.stderr)
+    settings = TableSettings(
+        model=args.model, fmt=args.fmt, out=args.out, tolerance_um=args.tolerance_um, check_points=args.check_points,
+        seed=args.seed, truth=args.truth, diagnosis=args.diagnosis, points=args.points,
+        region=parse_region(args.region), force=args.force, tracking_uri=args.tracking_uri)
+    info = export_table(settings, machine, on_check=_print_check)
+    _print_written(Path(args.out), list(info["files"]), info, args.tolerance_um)
     return 0
 
 
-def _read_back_difference(table, back, machine, sets) -> float:
-    """Largest difference (μm, or μm-equivalent of the joint commands) between the built and the
-    read-back table, as the controller uses them, at the check axes."""
-    worst = 0.0
-    for targets, axes, dirs in sets.values():
-        if table.kind == "linuxcnc":
-            d = (table.command(axes, dirs) - back.command(axes, dirs)) * np.array([1e3, 1e3, 1e3])
-        else:
-            d = table.field(machine)(axes) - back.field(machine)(axes)
-        worst = max(worst, float(np.abs(d).max()))
-    return worst
+def _print_check(check, has_truth) -> None:
+    for line in format_check(check, has_truth):
+        print(line)
 
 
-def _drift_check_log(args):
-    """The log the controller is re-simulated on, its description, and the noise-free displacement
-    when it is simulated (``{channel: (n,)}``, else None)."""
-    from errormap.diagnosis.drift import DriftLog, load_drift_log
-    if args.log is not None:
-        if args.sim is not None or args.sim_seed is not None:
-            raise UsageError("--sim and --sim-seed choose a simulated log: give them or --log, not both")
-        log = load_drift_log(args.log, causal=True, require_displacement=False)
-        for c, why in log.notes["dropped"].items():
-            print(f"dropped input {c}: {why}", file=sys.stderr)
-        return log, f"{args.log} (sha256 {sha256_file(args.log)})", None
-    from errormap.diagnosis.drift_sim import SIMULATORS
-    fam, seed = args.sim or "lumped", 0 if args.sim_seed is None else args.sim_seed
-    cols = SIMULATORS[fam](seed, n_dropouts=0)
-    truth = cols.pop("_truth")
-    name = f"<simulated {fam} log, seed {seed}>"
-    log = DriftLog(cols["time_s"], {k[5:-2]: v for k, v in cols.items() if k.startswith("temp_")},
-                   {k[:-3]: v for k, v in cols.items() if k.endswith("_um")}, cols.get("speed_rpm"), name)
-    return log, f"simulated: errormap.diagnosis.drift_sim {fam}, seed {seed}, no dropouts", truth["clean_um"]
+def _print_drift_check(check) -> None:
+    for line in format_drift_check(check):
+        print(line)
+
+
+def _print_written(out: Path, names, info, tolerance_um) -> None:
+    for name in list(names) + ["export.json"]:
+        print(f"wrote: {out / name}")
+    if not info["tolerance_met"]:
+        print(f"warning: tolerance NOT met ({info['worst_model_residual_um']:.4g} um > {tolerance_um:g} um); "
+              "written because of --force", file=sys.stderr)
+
+
+def run_drift(args) -> int:
+    """``--format drift``: coefficients at a fixed sample period, checked on a log before writing."""
+    bad = [k for k, v in {"--machine": args.machine, "--truth": args.truth, "--diagnosis": args.diagnosis,
+                          "--region": args.region}.items() if v is not None]
+    if bad:
+        verb = "does" if len(bad) == 1 else "do"
+        raise UsageError(f"{', '.join(bad)} {verb} not apply to --format drift (a drift model needs no machine; "
+                         "its truth is a simulated log: --sim/--sim-seed)")
+    if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
+        raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
+    dt = args.sample_period_s
+    if dt is not None and not (np.isfinite(dt) and 0 < dt <= ex.DRIFT_MAX_PERIOD_S):
+        raise UsageError(f"--sample-period-s: expected a period in (0, {ex.DRIFT_MAX_PERIOD_S:g}] s, got {dt}")
+    settings = DriftSettings(model=args.model, out=args.out, tolerance_um=args.tolerance_um,
+                             sample_period_s=args.sample_period_s, log=args.log, sim=args.sim, sim_seed=args.sim_seed,
+                             force=args.force)
+    info = export_drift(settings, on_check=_print_drift_check)
+    _print_written(Path(args.out), [ex.DRIFT_FILE], info, args.tolerance_um)
+    return 0
 
 
 def format_drift_check(check: dict) -> list[str]:
@@ -255,60 +180,3 @@ def format_drift_check(check: dict) -> list[str]:
     return lines
 
 
-def run_drift(args) -> int:
-    """``--format drift``: coefficients at a fixed sample period, checked on a log before writing."""
-    from errormap.diagnosis.drift_models import DriftModel
-    bad = [k for k, v in {"--machine": args.machine, "--truth": args.truth, "--diagnosis": args.diagnosis,
-                          "--region": args.region}.items() if v is not None]
-    if bad:
-        verb = "does" if len(bad) == 1 else "do"
-        raise UsageError(f"{', '.join(bad)} {verb} not apply to --format drift (a drift model needs no machine; "
-                         "its truth is a simulated log: --sim/--sim-seed)")
-    if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
-        raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
-    dt = args.sample_period_s
-    if dt is not None and not (np.isfinite(dt) and 0 < dt <= ex.DRIFT_MAX_PERIOD_S):
-        raise UsageError(f"--sample-period-s: expected a period in (0, {ex.DRIFT_MAX_PERIOD_S:g}] s, got {dt}")
-    model = DriftModel.load(args.model)
-    model_desc = f"{args.model} (drift model, sha256 {sha256_file(args.model)})"
-    log, log_desc, clean = _drift_check_log(args)
-    step = float(np.median(np.diff(log.time_s)))
-    if dt is None:
-        dt = step
-    print(f"re-simulating the controller at dt = {dt:g} s on {log_desc} (median sampling step {step:g} s) ...",
-          file=sys.stderr)
-    with ex.staged_folder(args.out) as tmp:
-        # force=True here: the check is printed first, then refused below (the staging folder is discarded)
-        res = ex.export_drift_coefficients(model, tmp, dt, log, model_desc, args.tolerance_um, clean, force=True)
-        for line in format_drift_check(res["check"]):
-            print(line)
-        worst, met = res["worst_model_residual_um"], res["tolerance_met"]
-        if not met and not args.force:
-            raise UsageError(f"tolerance not met: at a sample period of {dt:g} s the drift coefficients leave a model "
-                             f"residual up to {worst:.4g} um > --tolerance-um {args.tolerance_um:g}; nothing written "
-                             "(--force writes anyway, recorded in export.json)")
-        coef = res["coefficients"]
-        info = {"format": "volcomp-export/1", "table_format": "drift", "model": model_desc,
-                "sample_period_s": dt, "sample_period_given": args.sample_period_s is not None,
-                "check_log_median_step_s": step, "tolerance_um": args.tolerance_um, "tolerance_met": met,
-                "worst_model_residual_um": worst,
-                "override": None if met else {"forced": True, "reason": f"worst model residual {worst:.6g} um "
-                                                                        f"exceeds the tolerance {args.tolerance_um:g} um"},
-                "check_log": log_desc, "check": res["check"],
-                "residuals": {"model": "controller(coefficients) - DriftModel.predict at each log time (um)",
-                              "measured": "log displacement - prediction (um); before = the displacement itself",
-                              "true": "noise-free simulated displacement - prediction (um)" if clean is not None
-                                      else "no simulated log (--log given)"},
-                "controller": {"ticks": f"every {dt:g} s from the log's first time; each tick reads the latest "
-                                        f"logged value at or before it (within {ex.DRIFT_TICK_EPS_S:g} s)",
-                               "output": "the prediction of the latest tick at or before each log time"},
-                "files": {ex.DRIFT_FILE: res["file"].stat().st_size},
-                "table_values": coef.n_values()}
-        ex.write_manifest(tmp, info)
-    out = Path(args.out)
-    for name in (ex.DRIFT_FILE, "export.json"):
-        print(f"wrote: {out / name}")
-    if not met:
-        print(f"warning: tolerance NOT met ({worst:.4g} um > {args.tolerance_um:g} um); written because of --force",
-              file=sys.stderr)
-    return 0

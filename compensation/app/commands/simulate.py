@@ -2,15 +2,11 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-import numpy as np
-
-from errormap.featurepoints import make_feature_points
-from errormap.htm import HTMField
-from errormap.io import write_csv, write_json
 from errormap.machine import load_machine
-from errormap.simulator import EFFECT_DEFAULTS, EFFECT_NAMES, volume_grid
+from errormap.simulator import EFFECT_NAMES
+
+from ..workflows.simulate import simulate_truth, summary_lines
 
 
 def register(sub):
@@ -36,29 +32,9 @@ def run(args) -> int:
     if args.checks < 1:
         raise UsageError(f"--checks: expected at least 1, got {args.checks}")
     machine = load_machine(args.machine, expect_kind="grinder")
-    out = Path(args.out)
     print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
-    from errormap.truth_families import make_truth
-    truth = make_truth(machine, args.seed, effects=args.effect, family=getattr(args, "family", "default"))
-    el_path = truth.elements.save(out / "truth_elements.json")
-    fp = make_feature_points(machine, HTMField(machine, truth.elements),
-                             meta={"elements_file": str(el_path), "source": f"simulate seed={args.seed}"})
-    from errormap.io import sha256_file
-    fp.meta["elements_sha256"] = sha256_file(el_path)
-    fp_path = fp.save(out / "featurepoints.csv")
-    checks = truth.check_measurements(n=args.checks, noise_um=args.noise_um, seed=args.seed + 1)
-    ck_path = write_csv(out / "checks.csv", checks, header_comments=[
-        "format: volcomp-checks/1", f"machine: {machine.name}", f"noise_um: {args.noise_um}",
-        f"effects: {','.join(args.effect) or 'none'}"])
-    grid = volume_grid(machine)
-    e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
-    info = {"seed": args.seed, "machine": machine.name, "machine_file": machine.path,
-            "family": getattr(args, "family", "default"), "effects": {k: EFFECT_DEFAULTS[k] | truth.effects[k] for k in truth.effects},
-            "noise_um": args.noise_um, "max_spatial_error_um": float(e.max()),
-            "files": {"elements": str(el_path), "featurepoints": str(fp_path), "checks": str(ck_path)}}
-    write_json(out / "truth.json", info)
-    print(f"max spatial error {e.max():.1f} μm over the volume (reference temperature, positive approach)")
-    for k, v in info["files"].items():
-        print(f"wrote {k}: {v}")
-    print(f"wrote truth: {out / 'truth.json'}")
+    info = simulate_truth(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
+                          checks=args.checks, family=getattr(args, "family", "default"))
+    for line in summary_lines(info, args.out):
+        print(line)
     return 0
