@@ -1,1 +1,1 @@
-"""Reports: the self-contained HTML reports and their figures."""
+"""Reports: what a person reads — the self-contained HTML reports and the figures."""
