@@ -23,7 +23,8 @@ import time
 
 import numpy as np
 
-from compensation.pkm_interpolation import ToolPath, builtin_path, plot_tripod_sensitivity, true_path_residual
+from compensation.app.reports.tripod_sensitivity import plot_tripod_sensitivity
+from compensation.pkm_interpolation import PosePath, builtin_path, true_path_residual
 from errormap.io import atomic_write
 from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator
@@ -122,7 +123,7 @@ def main():
               "true residual at 200 random workspace points (seed 3):", "",
               "| noise um | poses | before RMS um | after RMS / max um |", "|---|---|---|---|"]
     tips, _ = workspace_poses(tri, 200, seed=7)
-    grid = ToolPath(tips, np.broadcast_to(np.eye(3), (200, 3, 3)), np.zeros(200, int), None, "grid")
+    grid = PosePath(tips, np.broadcast_to(np.eye(3), (200, 3, 3)), np.zeros(200, int), None, "grid")
     for n in (30, 60, 120):
         sim = simulate_tripod_poses(tri, n, 5.0, seed=3, frame="identity", pose_error_mm=1.0)
         res = PKMCalibrator(tri, estimate_scales=True, register=False, noise_um=5.0, lambda_rule="morozov").fit(sim.data)

@@ -74,19 +74,10 @@ class ConditionedField:
     __call__ = predict
 
 
-def add_condition_options(p) -> None:
-    """The constant-condition options of ``volcomp compensate`` (for a diagnosed model)."""
-    p.add_argument("--temp-c", type=float, default=None, help="temperature for a diagnosed model's thermal term (°C)")
-    p.add_argument("--time-s", type=float, default=None, help="time for a diagnosed model's drift term (s)")
-    for ax in ("x", "z", "a"):
-        p.add_argument(f"--dir-{ax}", type=int, choices=(-1, 1), default=None,
-                       help=f"approach direction of {ax.upper()} for a diagnosed model's reversal term")
-
-
-def load_path_field(spec, machine, tracking_uri, args):
-    """``load_field`` for compensation, with ``model.json`` of ``volcomp diagnose`` understood."""
+def load_path_field(spec, machine, tracking_uri, conditions=None):
+    """``load_field`` for compensation, with ``model.json`` of ``volcomp diagnose`` understood;
+    ``conditions``: ``{name: value or None}`` for :data:`CONDITIONS` (a diagnosed model's terms)."""
     from .fields import load_field
     if is_diagnosed_model(spec):
-        return ConditionedField(load_diagnosed_model(spec, machine),
-                                {c: getattr(args, c, None) for c in CONDITIONS})
+        return ConditionedField(load_diagnosed_model(spec, machine), dict(conditions or {}))
     return load_field(spec, machine, tracking_uri)

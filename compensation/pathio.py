@@ -14,7 +14,7 @@ Formats (docs/schemas.md and docs/toolpaths.md):
   ``G90/G91``, ``G20/G21``, arcs in ``G18``; everything that could move or reinterpret an
   axis otherwise is refused naming file, line, column and word). :func:`plan_gcode` places
   the vertices of each compensated move (arcs linearised, long moves split); one
-  :class:`ToolPath` row per vertex.
+  :class:`ToolPathFile` row per vertex.
 
 Writers (:func:`write_compensated`) produce the compensated program in the input's own
 format, atomically (temporary file + rename, :func:`errormap.io.atomic_write`): CSV axis
@@ -43,8 +43,8 @@ DECIMALS_MM = 6   # 1 nm
 DECIMALS_DEG = 6  # 1e-6 deg: 1 nm at 57 mm from the A axis
 
 @dataclass
-class ToolPath:
-    """A tool path read from a file.
+class ToolPathFile:
+    """A grinder tool path read from a file (CSV or G-code), with the file line of each point.
 
     kind : ``"csv-axes"``, ``"csv-targets"`` or ``"gcode"``
     axes : shape (n, 3)         nominal axis commands (x_mm, z_mm, a_deg)
@@ -202,12 +202,12 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
                     np.array(kept, dtype=float).reshape(-1, 3), np.array(kept_lines, dtype=int), kappa)
 
 
-def gcode_toolpath(job: GCodeJob, machine, path) -> "ToolPath":
-    """The :class:`ToolPath` of a planned G-code job: one row per vertex."""
+def gcode_toolpath(job: GCodeJob, machine, path) -> "ToolPathFile":
+    """The :class:`ToolPathFile` of a planned G-code job: one row per vertex."""
     moves = job.compensated_moves
     axes = np.concatenate([move_points(m, t) for m, t in zip(moves, job.params)], axis=0)
     lines = np.concatenate([np.full(len(t), m.index + 1, dtype=int) for m, t in zip(moves, job.params)])
-    return ToolPath(Path(path), "gcode", axes, forward(machine, axes), lines, job)
+    return ToolPathFile(Path(path), "gcode", axes, forward(machine, axes), lines, job)
 
 
 def render_gcode(job: GCodeJob, axes, header=()) -> tuple[str, list]:
@@ -227,7 +227,7 @@ def render_gcode(job: GCodeJob, axes, header=()) -> tuple[str, list]:
 
 # ----------------------------------------------------------------------------- CSV
 
-def _read_csv(path, machine) -> ToolPath:
+def _read_csv(path, machine) -> ToolPathFile:
     t = read_table(path)
     has_axes = all(c in t for c in AXIS_COLUMNS)
     has_targets = all(c in t for c in TARGET_COLUMNS)
@@ -242,9 +242,9 @@ def _read_csv(path, machine) -> ToolPath:
     rows = np.array([t.row_number(k) for k in range(len(t))], dtype=int)
     if has_axes:
         axes = np.stack([t.float(c) for c in AXIS_COLUMNS], axis=1)
-        return ToolPath(Path(path), "csv-axes", axes, forward(machine, axes), rows, t)
+        return ToolPathFile(Path(path), "csv-axes", axes, forward(machine, axes), rows, t)
     targets = np.stack([t.float(c) for c in TARGET_COLUMNS], axis=1)
-    return ToolPath(Path(path), "csv-targets", inverse(machine, targets, unwrap=True), targets, rows, t)
+    return ToolPathFile(Path(path), "csv-targets", inverse(machine, targets, unwrap=True), targets, rows, t)
 
 
 def _render_csv(table, replace: dict, comments=()) -> str:
@@ -269,7 +269,7 @@ def is_csv(path) -> bool:
 
 
 def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
-              arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM, max_segment_mm=None, field=None) -> ToolPath:
+              arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM, max_segment_mm=None, field=None) -> ToolPathFile:
     """Read a tool-path file (CSV by the ``.csv`` suffix, otherwise G-code) for ``machine``.
 
     G-code options: ``rapids``, ``block_delete`` (:func:`compensation.gcode.parse_program`),
@@ -285,7 +285,7 @@ def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
     return gcode_toolpath(job, machine, path)
 
 
-def replan(toolpath: ToolPath, machine, **options) -> ToolPath:
+def replan(toolpath: ToolPathFile, machine, **options) -> ToolPathFile:
     """A G-code tool path with its vertices placed again (:func:`plan_gcode` options,
     e.g. ``max_segment_mm="auto", field=...``); CSV paths come back unchanged."""
     if toolpath.kind != "gcode":
@@ -302,7 +302,7 @@ def align_turns(a_deg, a_ref_deg) -> np.ndarray:
     return a - 360.0 * np.round((a - ref) / 360.0)
 
 
-def render_compensated(toolpath: ToolPath, axes, commands_mm, comments=()) -> str:
+def render_compensated(toolpath: ToolPathFile, axes, commands_mm, comments=()) -> str:
     """The compensated program's text (see the module docstring for what changes).
 
     ``axes`` shape (n, 3): compensated axis commands; ``commands_mm`` shape (n, 3):
@@ -324,13 +324,13 @@ def render_compensated(toolpath: ToolPath, axes, commands_mm, comments=()) -> st
                        comments)
 
 
-def write_compensated(toolpath: ToolPath, out_path, axes, commands_mm, comments=()) -> Path:
+def write_compensated(toolpath: ToolPathFile, out_path, axes, commands_mm, comments=()) -> Path:
     """Write the compensated program to ``out_path`` atomically; refuse to overwrite the input."""
     text = render_compensated(toolpath, axes, commands_mm, comments)
     return write_text_output(toolpath, out_path, text)
 
 
-def write_text_output(toolpath: ToolPath, out_path, text: str) -> Path:
+def write_text_output(toolpath: ToolPathFile, out_path, text: str) -> Path:
     """Write a rendered program atomically in the input's encoding; refuse to overwrite the input."""
     out_path = Path(out_path)
     if out_path.exists() and out_path.resolve() == toolpath.path.resolve():

@@ -31,8 +31,8 @@ from errormap.pkm.machine_file import PKM
 
 
 @dataclass
-class ToolPath:
-    """A sampled tool path: ``tip_mm`` (n, 3), ``platform2base`` (n, 3, 3), ``move`` (n,) move index,
+class PosePath:
+    """A sampled PKM tool path, tool tip and orientation per step: ``tip_mm`` (n, 3), ``platform2base`` (n, 3, 3), ``move`` (n,) move index,
     ``tool_length_mm`` (None: the machine file's)."""
 
     tip_mm: np.ndarray
@@ -88,7 +88,7 @@ def circular_move(centre_mm, start_mm, normal, angle_deg: float, step_mm: float,
 
 
 def sphere_pass(step_mm: float = 0.5, radius_mm: float = 100.0, angle_deg: float = 60.0, apex_z_mm: float = 980.0,
-                n_meridians: int = 6, tool_length_mm: float = 30.0) -> ToolPath:
+                n_meridians: int = 6, tool_length_mm: float = 30.0) -> PosePath:
     """Spherical cap pass: ``n_meridians`` circular moves through the apex (from -angle/2 to +angle/2),
     joined by circular moves along the cap's rim; tool axis along the outward surface normal."""
     centre = np.array([0.0, 0.0, apex_z_mm - radius_mm])
@@ -110,12 +110,12 @@ def sphere_pass(step_mm: float = 0.5, radius_mm: float = 100.0, angle_deg: float
         move.append(np.full(len(p), 2 * j))
     tips = np.concatenate(tips)
     axis = (tips - centre) / radius_mm
-    return ToolPath(tips, tool_axis_to_rotation(axis), np.concatenate(move), tool_length_mm, "sphere")
+    return PosePath(tips, tool_axis_to_rotation(axis), np.concatenate(move), tool_length_mm, "sphere")
 
 
 def hyperboloid_pass(step_mm: float = 0.5, radius_mm: float = 100.0, angle_deg: float = 20.0,
                      centre_z_mm: float = 980.0, height_mm: float = 80.0, n_rulings: int = 12,
-                     tool_length_mm: float = 200.0) -> ToolPath:
+                     tool_length_mm: float = 200.0) -> PosePath:
     """One-sheet hyperboloid pass: linear moves along ``n_rulings`` rulings (straight lines tilted
     ``angle_deg`` from the axis, tangent to the waist circle of ``radius_mm``), ``height_mm`` tall,
     alternating direction, joined by linear moves; fixed vertical tool orientation."""
@@ -139,11 +139,11 @@ def hyperboloid_pass(step_mm: float = 0.5, radius_mm: float = 100.0, angle_deg: 
         move.append(np.full(len(p), 2 * j))
         prev = b
     tips = np.concatenate(pts)
-    return ToolPath(tips, np.broadcast_to(np.eye(3), (len(tips), 3, 3)).copy(), np.concatenate(move),
+    return PosePath(tips, np.broadcast_to(np.eye(3), (len(tips), 3, 3)).copy(), np.concatenate(move),
                     tool_length_mm, "hyperboloid")
 
 
-def builtin_path(name: str, step_mm: float = 0.5) -> ToolPath:
+def builtin_path(name: str, step_mm: float = 0.5) -> PosePath:
     """``"sphere"`` or ``"hyperboloid"``: the paper's test parts."""
     if name == "sphere":
         return sphere_pass(step_mm)
@@ -152,7 +152,7 @@ def builtin_path(name: str, step_mm: float = 0.5) -> ToolPath:
     raise ValueError(f"unknown built-in path {name!r} (sphere, hyperboloid)")
 
 
-def read_waypoints(path, step_mm: float) -> ToolPath:
+def read_waypoints(path, step_mm: float) -> PosePath:
     """Read a waypoint CSV and interpolate it.
 
     Columns: ``px_mm, py_mm, pz_mm`` (tool tip, machine frame); orientation optional as the tool
@@ -200,10 +200,10 @@ def read_waypoints(path, step_mm: float) -> ToolPath:
         tips.append(p)
         Rs.append(r)
         move.append(np.full(len(p), i))
-    return ToolPath(np.concatenate(tips), np.concatenate(Rs), np.concatenate(move), None, Path(path).stem)
+    return PosePath(np.concatenate(tips), np.concatenate(Rs), np.concatenate(move), None, Path(path).stem)
 
 
-def _with_tool(machine: PKM, path: ToolPath) -> PKM:
+def _with_tool(machine: PKM, path: PosePath) -> PKM:
     if path.tool_length_mm is None or machine.kind != "hexapod":
         return machine
     return replace(machine, tool_in_platform_mm=np.array([0.0, 0.0, -path.tool_length_mm]))
@@ -217,7 +217,7 @@ class LegProgram:
     legs_mm: np.ndarray
     increments_mm: np.ndarray
     q: np.ndarray
-    path: ToolPath
+    path: PosePath
     compensated: bool
 
     def write_csv(self, out) -> Path:
@@ -232,7 +232,7 @@ class LegProgram:
             f"compensated: {self.compensated}", "q = (l - offset) / scale in drive units; l in mm"])
 
 
-def leg_program(machine: PKM, path: ToolPath, calibrated: PKM | None = None, check_limits: bool = True) -> LegProgram:
+def leg_program(machine: PKM, path: PosePath, calibrated: PKM | None = None, check_limits: bool = True) -> LegProgram:
     """Commands for ``path``: inverse kinematics of each step's end pose with the nominal machine or,
     when given, the ``calibrated`` one (compensation); drive units with that model's scale/offset."""
     model = _with_tool(calibrated if calibrated is not None else machine, path)
@@ -245,7 +245,7 @@ def leg_program(machine: PKM, path: ToolPath, calibrated: PKM | None = None, che
     return LegProgram(legs, inc, q, path, calibrated is not None)
 
 
-def true_path_residual(truth, calibration_or_none, path: ToolPath, frame: str = "machine",
+def true_path_residual(truth, calibration_or_none, path: PosePath, frame: str = "machine",
                        use_nominal: bool = False) -> dict:
     """True residual along ``path`` on the simulated truth machine, per point.
 
@@ -288,48 +288,3 @@ def true_path_residual(truth, calibration_or_none, path: ToolPath, frame: str = 
         out["angle_urad"] = 1e6 * np.linalg.norm(rv, axis=1)
     return out
 
-
-# ---------------------------------------------------------------------------------------------
-# reporting: the tripod paper's sensitivity findings as a plot
-# ---------------------------------------------------------------------------------------------
-
-def plot_tripod_sensitivity(machine: PKM, out_png, **study_kw) -> dict:
-    """Write a PNG of the tripod's error sensitivity ``K = ||A^-1||_inf`` (tripod-3tpt paper) and return its data.
-
-    Left: ``K`` against the size ratio ``lambda = l / c`` at the axis and at an offset. Right: ``K`` over a
-    vertical section of the workspace, horizontal distance from the axis against the distance of the
-    moving platform from the fixed platform (blank where a leg leaves its range). The data are
-    :func:`errormap.pkm.tripod.sensitivity_study` (``study_kw`` go to it); the PNG is written atomically.
-    """
-    import io
-
-    from .figures import pyplot
-    plt = pyplot()
-
-    from errormap.io import atomic_write
-    from errormap.pkm.tripod import sensitivity_study
-
-    if machine.kind != "tripod":
-        raise ValueError(f"{machine.path}: the sensitivity plot is for a tripod machine file, got kind {machine.kind!r}")
-    st = sensitivity_study(machine, **study_kw)
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for off, K in zip(st["offsets_xy_mm"], st["K_lambda"]):
-        a1.plot(st["lambdas"], K, "-", label=f"platform at x, y = {off[0]:g}, {off[1]:g} mm")
-    a1.set_xlabel("size ratio lambda = l / c")
-    a1.set_ylabel("K = ||A^-1||_inf (position error per leg error)")
-    a1.set_title(f"K grows with lambda (c = R - r = {st['c_mm']:g} mm)")
-    a1.grid(True, alpha=0.3)
-    a1.legend(fontsize=8)
-    im = a2.pcolormesh(st["radial_mm"], st["heights_mm"], st["K_map"].T, shading="auto", cmap="viridis")
-    fig.colorbar(im, ax=a2, label="K")
-    a2.set_xlabel(f"horizontal distance from the axis (mm, azimuth {st['azimuth_deg']:g} deg)")
-    a2.set_ylabel("distance from the fixed platform (mm)")
-    a2.set_title("K over the workspace (blank: leg out of range)")
-    fig.suptitle(f"{machine.name}: error sensitivity")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    with atomic_write(out_png, "wb") as fh:
-        fh.write(buf.getvalue())
-    return {**st, "path": Path(out_png)}

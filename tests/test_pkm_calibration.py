@@ -127,8 +127,8 @@ def test_tripod_identification(tmp_path):
     # hinge errors enter only as b_i - a_i: 9 combinations are not identifiable, and reported so
     assert len(res.unidentifiable) == 9
     tips, _ = workspace_poses(tri, 50, seed=9)
-    from compensation.pkm_interpolation import ToolPath
-    path = ToolPath(tips, np.broadcast_to(np.eye(3), (50, 3, 3)), np.zeros(50, int), None, "grid")
+    from compensation.pkm_interpolation import PosePath
+    path = PosePath(tips, np.broadcast_to(np.eye(3), (50, 3, 3)), np.zeros(50, int), None, "grid")
     assert true_path_residual(sim.truth, None, path)["rms_um"] > 100 * NOISE_UM
     assert true_path_residual(sim.truth, res, path)["rms_um"] <= PATH_RMS_FACTOR * NOISE_UM
 

@@ -1,4 +1,5 @@
-"""Method comparison, true residual and the HTML report (compensation.report / evaluate)."""
+"""Method comparison, true residual and the HTML report (compensation.app.workflows.compare,
+compensation.app.reports.methods, compensation.evaluate)."""
 import base64
 import json
 import re
@@ -6,10 +7,11 @@ import re
 import numpy as np
 import pytest
 
-import compensation.report as report_mod
-from compensation.cli import main
+import compensation.app.workflows.compare as compare_mod
+from compensation.app.cli import main
 from compensation.evaluate import load_truth, residual_stats, true_residual_um
-from compensation.report import compare_methods, subset_index, write_report
+from compensation.app.reports.methods import write_report
+from compensation.app.workflows.compare import compare_methods, subset_index
 from compensation.solvers import solve
 from compensation.toolpath import flute_path
 from errormap.io import InputError
@@ -65,7 +67,7 @@ def test_per_point_ga_runs_on_a_subset_and_says_so(grinder, truth, flute, monkey
         opts = {k: v for k, v in options.items() if k == "target_axes"}
         return solve("traditional", field, targets, machine, **opts)
 
-    monkeypatch.setattr(report_mod, "_solve", stand_in)
+    monkeypatch.setattr(compare_mod, "_solve", stand_in)
     field = HTMField(grinder, truth.elements)
     cmp = compare_methods(field, flute.targets_mm, grinder, methods=("ga", "batched-ga"), truth=truth, ga_points=25)
     run = cmp.runs["ga"]
@@ -75,7 +77,7 @@ def test_per_point_ga_runs_on_a_subset_and_says_so(grinder, truth, flute, monkey
     # budget-driven subset: the probe plus a subset that fits
     calls.clear()
     cmp = compare_methods(field, flute.targets_mm, grinder, methods=("ga",), ga_budget_s=0.0)
-    assert calls[0] == ("ga", report_mod.GA_PROBE_POINTS) and calls[1][1] < len(flute)
+    assert calls[0] == ("ga", compare_mod.GA_PROBE_POINTS) and calls[1][1] < len(flute)
     assert subset_index(10, 20).tolist() == list(range(10))
 
 

@@ -4,7 +4,7 @@
 under a set of measurement conditions, evaluates the TRUE residual (residual 2 of docs/kinematics.md: the
 simulated truth machine driven with the compensated commands, minus the target) along the
 test paths, records every run in MLflow under one parent run, and writes
-``DIR/benchmark.json`` and ``DIR/report.html`` (:mod:`compensation.benchmark_report`).
+``DIR/benchmark.json`` and ``DIR/report.html`` (:mod:`compensation.app.reports.benchmark`).
 
 **Grinder** (one simulated truth machine, seed ``truth_seed``):
 
@@ -259,71 +259,106 @@ def _subset(n: int, m: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - 1, min(n, m))).astype(int))
 
 
-class GrinderBench:
-    """State shared by the grinder conditions: machine, truth-independent path, trained-network cache."""
+@dataclass
+class GrinderTestPoints:
+    """Where the grinder rows are evaluated, the same for every condition (truth-independent).
 
-    def __init__(self, machine, s: BenchmarkSettings, tracker: Tracker):
-        from errormap.simulator import random_axes
+    targets_mm, nominal_axes : (n, 3)   the flute path's WCS targets and nominal axes
+    ga_idx : (m,)                       the evenly spaced flute points the batched GA solves
+    path_cond : {name: (n,)}            :data:`PATH_CONDITIONS` the truth needs, per point
+    volume_axes, volume_targets_mm : (k, 3), volume_cond : {name: (k,)}   random volume points
+    """
 
-        from .toolpath import flute_path
-        self.m, self.s, self.tracker = machine, s, tracker
-        self.flute = flute_path(turns=s.flute_turns, points_per_turn=s.flute_points_per_turn)
-        self.targets = self.flute.targets_mm
-        self.nominal = self.flute.axes(machine)
-        self.ga_idx = _subset(len(self.targets), s.ga_points)
-        n = len(self.targets)
-        self.path_cond = {k: np.full(n, v) for k, v in PATH_CONDITIONS.items() if k in TRUTH_CONDITIONS}
-        # volume test points: uniform over the strokes, rho >= 5 mm (away from the A axis, where the
-        # WCS is singular), nominal axes -> targets
-        from errormap.kinematics import forward
-        rng = np.random.default_rng(s.seed + 77)
-        ax = random_axes(machine, 4 * s.volume_points, rng)
-        ax = ax[ax[:, 1] >= machine.strokes["z_mm"][0] + 5.0][: s.volume_points]
-        self.vol_axes, self.vol_targets = ax, forward(machine, ax)
-        self.vol_cond = {k: np.full(len(ax), v) for k, v in PATH_CONDITIONS.items() if k in TRUTH_CONDITIONS}
-        self.cache = []  # (network settings, feature-point errors, fit result, seconds, condition)
-        self.rows = []
+    targets_mm: np.ndarray
+    nominal_axes: np.ndarray
+    ga_idx: np.ndarray
+    path_cond: dict
+    volume_axes: np.ndarray
+    volume_targets_mm: np.ndarray
+    volume_cond: dict
 
-    # -- measurements and identification
-    def truth(self, effect):
-        from errormap.simulator import random_truth
-        return random_truth(self.m, self.s.truth_seed, effects=(effect,) if effect else ())
-
-    def identify(self, truth, c: GrinderCondition):
-        from errormap.identification import identify
-        from errormap.sweeps import simulate_sweeps
-        sw = simulate_sweeps(truth, noise_um=c.noise_um, seed=self.s.seed + 1, n_stations=c.stations)
-        t0 = time.perf_counter()
-        res = identify(sw, self.m)
-        return res.elements_, time.perf_counter() - t0, len(sw["axis"])
-
-    # -- compensation and true residual
-    def compensate(self, field_, method, idx=None, volume=False):
-        from .evaluate import true_residual_um
-        from .solvers import solve
-        tg, nom, cond = (self.vol_targets, self.vol_axes, self.vol_cond) if volume else \
-            (self.targets, self.nominal, self.path_cond)
+    def select(self, idx=None, volume: bool = False):
+        """(targets, nominal axes, conditions) of the path (or the volume points), at ``idx``."""
+        tg, nom, cond = (self.volume_targets_mm, self.volume_axes, self.volume_cond) if volume else \
+            (self.targets_mm, self.nominal_axes, self.path_cond)
         if idx is not None:
             tg, nom, cond = tg[idx], nom[idx], {k: v[idx] for k, v in cond.items()}
-        opts = {"target_axes": nom, "progress": False}
-        if method == "batched-ga":
-            opts.update(seed=self.s.seed, generations=self.s.ga_generations)
-        r = solve(method, field_, tg, self.m, **opts)
-        tr = true_residual_um(self.truth_, r.axes, tg, cond)
-        rms, mx = _stats(tr)
-        return {"true_rms_um": rms, "true_max_um": mx, "seconds_per_point": r.seconds / len(tg), "points": len(tg),
-                "model_max_um": float(np.max(r.residual_norm_um)), "failures": int(np.count_nonzero(~r.success))}
+        return tg, nom, cond
 
-    def uncompensated(self):
-        from .evaluate import true_residual_um
-        return _stats(true_residual_um(self.truth_, self.nominal, self.targets, self.path_cond))
 
-    def train(self, elements, cond_name):
-        """The learned field for identified ``elements``: trained once per distinct feature-point set."""
+def grinder_test_points(machine, s: BenchmarkSettings) -> GrinderTestPoints:
+    """The flute (``s.flute_turns`` × ``s.flute_points_per_turn``) and ``s.volume_points`` volume
+    points: uniform over the strokes, rho >= 5 mm (away from the A axis, where the WCS is
+    singular), nominal axes -> targets."""
+    from errormap.kinematics import forward
+    from errormap.simulator import random_axes
+
+    from ...toolpath import flute_path
+    flute = flute_path(turns=s.flute_turns, points_per_turn=s.flute_points_per_turn)
+    targets, nominal = flute.targets_mm, flute.axes(machine)
+    rng = np.random.default_rng(s.seed + 77)
+    ax = random_axes(machine, 4 * s.volume_points, rng)
+    ax = ax[ax[:, 1] >= machine.strokes["z_mm"][0] + 5.0][: s.volume_points]
+
+    def at(n):
+        return {k: np.full(n, v) for k, v in PATH_CONDITIONS.items() if k in TRUTH_CONDITIONS}
+
+    return GrinderTestPoints(targets, nominal, _subset(len(targets), s.ga_points), at(len(targets)),
+                             ax, forward(machine, ax), at(len(ax)))
+
+
+def grinder_truth(machine, s: BenchmarkSettings, effect=None):
+    """The simulated truth grinder of ``s.truth_seed``, with the undeclared ``effect`` if given."""
+    from errormap.simulator import random_truth
+    return random_truth(machine, s.truth_seed, effects=(effect,) if effect else ())
+
+
+def identify_from_sweeps(machine, s: BenchmarkSettings, truth, c: GrinderCondition):
+    """Simulated tracker sweeps of ``truth`` under condition ``c`` → the 23 identified elements.
+    Returns ``(elements, identification seconds, number of ball-centre measurements)``."""
+    from errormap.identification import identify
+    from errormap.sweeps import simulate_sweeps
+    sw = simulate_sweeps(truth, noise_um=c.noise_um, seed=s.seed + 1, n_stations=c.stations)
+    t0 = time.perf_counter()
+    res = identify(sw, machine)
+    return res.elements_, time.perf_counter() - t0, len(sw["axis"])
+
+
+def compensate_true(machine, s: BenchmarkSettings, points: GrinderTestPoints, truth, field_, method: str,
+                    idx=None, volume: bool = False) -> dict:
+    """Compensate with ``field_`` and ``method``; the TRUE residual on ``truth`` (RMS, max), the
+    solver's time per point, its worst model residual and its failures."""
+    from ...evaluate import true_residual_um
+    from ...solvers import solve
+    tg, nom, cond = points.select(idx, volume)
+    opts = {"target_axes": nom, "progress": False}
+    if method == "batched-ga":
+        opts.update(seed=s.seed, generations=s.ga_generations)
+    r = solve(method, field_, tg, machine, **opts)
+    rms, mx = _stats(true_residual_um(truth, r.axes, tg, cond))
+    return {"true_rms_um": rms, "true_max_um": mx, "seconds_per_point": r.seconds / len(tg), "points": len(tg),
+            "model_max_um": float(np.max(r.residual_norm_um)), "failures": int(np.count_nonzero(~r.success))}
+
+
+def uncompensated_true(points: GrinderTestPoints, truth) -> tuple[float, float]:
+    """(RMS, max) TRUE residual of the nominal flute commands."""
+    from ...evaluate import true_residual_um
+    return _stats(true_residual_um(truth, points.nominal_axes, points.targets_mm, points.path_cond))
+
+
+class NetworkTrainer:
+    """Trains the learned field on identified elements, once per distinct feature-point set and
+    network setting (a condition whose identified elements equal an earlier one's reuses it)."""
+
+    def __init__(self, machine, tracker: Tracker, warm_up_axes):
+        self.m, self.tracker, self.warm_up_axes = machine, tracker, warm_up_axes
+        self.cache = []  # (network settings, feature-point errors, fit result, seconds, condition)
+
+    def train(self, elements, cond_name: str, s: BenchmarkSettings):
+        """``(fit result, seconds, name of the condition reused or None)``."""
         from errormap.featurepoints import make_feature_points
         from errormap.htm import HTMField
         from training import fit_field, validation_points
-        s = self.s
         fp = make_feature_points(self.m, HTMField(self.m, elements), meta={"benchmark_condition": cond_name})
         key = (tuple(s.hidden), s.activation, s.a_encoding, s.train_s)
         for k, errs, res, secs, name in self.cache:
@@ -334,88 +369,137 @@ class GrinderBench:
         sel = validation_points(self.m, elements, n=2000, seed=s.seed + 7)
         _log(f"grinder: training the network ({cond_name}, LM, ≤ {s.train_s:g} s)")
         t0 = time.perf_counter()
+        tr = self.tracker
         res = fit_field(fp, trainer="lm", max_time_s=s.train_s, seed=s.seed, validation=val, selection=sel, quiet=True,
                         hidden=s.hidden, activation=s.activation, a_encoding=s.a_encoding,
-                        track=self.tracker.enabled, tracking_uri=self.tracker.uri if self.tracker.enabled else None,
-                        parent_run_id=self.tracker.parent_id, run_name=f"grinder/learned/train/{cond_name}",
+                        track=tr.enabled, tracking_uri=tr.uri if tr.enabled else None,
+                        parent_run_id=tr.parent_id, run_name=f"grinder/learned/train/{cond_name}",
                         experiment=EXPERIMENT, tags={"benchmark_condition": cond_name})
         secs = time.perf_counter() - t0
-        res.field.jacobian(self.nominal[:2])  # torch.func warm-up, so that compensation timings exclude it
+        res.field.jacobian(self.warm_up_axes)  # torch.func warm-up, so that compensation timings exclude it
         self.cache.append((key, fp.errors_um.copy(), res, secs, cond_name))
         return res, secs, None
 
+
+class RowLog:
+    """The result rows in order: each is recorded in MLflow (:func:`log_row`) and logged."""
+
+    def __init__(self, tracker: Tracker):
+        self.tracker, self.rows = tracker, []
+
+    def add(self, row: dict) -> None:
+        log_row(self.tracker, row)
+        self.rows.append(row)
+        if row.get("available"):
+            _log(f"  {row['path']:10s} {row['condition']}: true RMS {row['true_rms_um']:.3f} um, max "
+                 f"{row['true_max_um']:.3f} um, fit {row['fit_seconds']:.1f} s")
+
+
+def _with_volume(row: dict, vol) -> dict:
+    if vol:
+        row.update(volume_rms_um=vol["true_rms_um"], volume_max_um=vol["true_max_um"])
+    return row
+
+
+class GrinderBench:
+    """The grinder rows: for each condition, parametric and learned, then the closed loop when
+    the condition adds an undeclared effect. Measurement, identification, training and the TRUE
+    residual are the functions and classes above; this class only puts the rows together."""
+
+    def __init__(self, machine, s: BenchmarkSettings, tracker: Tracker):
+        self.m, self.s = machine, s
+        self.points = grinder_test_points(machine, s)
+        self.trainer = NetworkTrainer(machine, tracker, self.points.nominal_axes[:2])
+        self.log = RowLog(tracker)
+
+    @property
+    def rows(self) -> list:
+        return self.log.rows
+
+    def _compensate(self, truth, field_, method, idx=None, volume=False) -> dict:
+        return compensate_true(self.m, self.s, self.points, truth, field_, method, idx=idx, volume=volume)
+
+    def _volume(self, truth, field_):
+        return self._compensate(truth, field_, "exact", volume=True) if self.s.volume_points else None
+
     def run_condition(self, c: GrinderCondition) -> None:
-        s = self.s
-        self.truth_ = truth = self.truth(c.effect)
-        unc_rms, unc_max = self.uncompensated()
-        elements, id_s, n_meas = self.identify(truth, c)
+        truth = grinder_truth(self.m, self.s, c.effect)
+        unc_rms, unc_max = uncompensated_true(self.points, truth)
+        elements, id_s, n_meas = identify_from_sweeps(self.m, self.s, truth, c)
         common = {"group": c.group, "stations": c.stations, "noise_um": c.noise_um, "effect": c.effect,
-                  "test_path": f"flute ({len(self.targets)} points)", "n_measurements": n_meas,
+                  "test_path": f"flute ({len(self.points.targets_mm)} points)", "n_measurements": n_meas,
                   "uncompensated_rms_um": unc_rms, "uncompensated_max_um": unc_max}
-        cond_label = c.name + (" (before closed loop)" if c.effect else "")
+        label = c.name + (" (before closed loop)" if c.effect else "")
+        par_field, par = self.parametric_row(truth, elements, id_s, label, common)
+        learned = self.learned_row(truth, elements, id_s, c.name, label, common)
+        if c.effect and learned is not None:
+            mlp, lrn = learned
+            self.closed_loop(c, truth, ((par, par_field), (lrn, mlp)), common)
+
+    def parametric_row(self, truth, elements, id_s, label, common):
+        """The exact inverse of the identified HTM field; returns (field, row)."""
         from errormap.htm import HTMField
-        par_field = HTMField(self.m, elements)
-        # parametric: the exact inverse of the identified HTM field
-        _log(f"grinder: parametric, {cond_label}")
-        ex = self.compensate(par_field, "exact")
-        vol = self.compensate(par_field, "exact", volume=True) if s.volume_points else None
-        par = _row(self.m.name, "grinder", "parametric", cond_label, closed_loop=False, solver="exact",
+        field_ = HTMField(self.m, elements)
+        _log(f"grinder: parametric, {label}")
+        ex = self._compensate(truth, field_, "exact")
+        row = _row(self.m.name, "grinder", "parametric", label, closed_loop=False, solver="exact",
                    fit_seconds=id_s, identify_seconds=id_s, compensate_seconds_per_point=ex["seconds_per_point"],
                    true_rms_um=ex["true_rms_um"], true_max_um=ex["true_max_um"], solvers={"exact": ex}, **common)
-        if vol:
-            par.update(volume_rms_um=vol["true_rms_um"], volume_max_um=vol["true_max_um"])
-        self._finish(par)
-        # learned: feature points -> network -> batched GA (subset) + exact (whole path)
+        self.log.add(_with_volume(row, self._volume(truth, field_)))
+        return field_, row
+
+    def learned_row(self, truth, elements, id_s, cond_name, label, common):
+        """Feature points → network → batched GA (subset) + exact (whole path); returns (network,
+        row), or None when training failed (the row then says why)."""
         try:
-            fit, train_s, reused = self.train(elements, c.name)
+            fit, _, reused = self.trainer.train(elements, cond_name, self.s)
         except Exception as exc:  # training unavailable or failed: say so, never fake numbers
-            self._finish(_row(self.m.name, "grinder", "learned", cond_label, available=False,
+            self.log.add(_row(self.m.name, "grinder", "learned", label, available=False,
                               not_available=f"training failed: {type(exc).__name__}: {exc}", **common))
-            return
+            return None
         mlp = fit.field
-        _log(f"grinder: learned, {cond_label}")
-        ex_l = self.compensate(mlp, "exact")
-        ga_l = self.compensate(mlp, "batched-ga", idx=self.ga_idx)
-        vol_l = self.compensate(mlp, "exact", volume=True) if s.volume_points else None
-        lrn = _row(self.m.name, "grinder", "learned", cond_label, closed_loop=False, solver="exact",
+        _log(f"grinder: learned, {label}")
+        ex = self._compensate(truth, mlp, "exact")
+        ga = self._compensate(truth, mlp, "batched-ga", idx=self.points.ga_idx)
+        vol = self._volume(truth, mlp)
+        row = _row(self.m.name, "grinder", "learned", label, closed_loop=False, solver="exact",
                    fit_seconds=id_s + fit.seconds, identify_seconds=id_s, train_seconds=fit.seconds,
                    training_run_id=fit.run_id, reused_training_of=reused,
                    train_val_rms_um=fit.metrics.get("val_rms_um"), train_val_max_um=fit.metrics.get("val_max_um"),
                    train_iterations=fit.metrics.get("iterations"),
-                   compensate_seconds_per_point=ex_l["seconds_per_point"], true_rms_um=ex_l["true_rms_um"],
-                   true_max_um=ex_l["true_max_um"], solvers={"exact": ex_l, "batched-ga": ga_l}, **common)
-        if vol_l:
-            lrn.update(volume_rms_um=vol_l["true_rms_um"], volume_max_um=vol_l["true_max_um"])
-        self._finish(lrn)
-        if c.effect:
-            self.closed_loop(c, par_field, mlp, par, lrn, common)
+                   compensate_seconds_per_point=ex["seconds_per_point"], true_rms_um=ex["true_rms_um"],
+                   true_max_um=ex["true_max_um"], solvers={"exact": ex, "batched-ga": ga}, **common)
+        self.log.add(_with_volume(row, vol))
+        return mlp, row
 
-    def closed_loop(self, c, par_field, mlp, par, lrn, common) -> None:
-        """Checks → diagnosis → corrected field → compensate → true residual, for both paths."""
+    def closed_loop(self, c, truth, bases, common) -> None:
+        """Checks → diagnosis → corrected field → compensate → true residual, for each
+        ``(base row, base field)`` of ``bases``."""
         from errormap.diagnosis.checks import CheckData
         s = self.s
-        cols = self.truth_.check_measurements(n=s.n_checks, noise_um=s.check_noise_um, seed=s.seed + 3)
+        cols = truth.check_measurements(n=s.n_checks, noise_um=s.check_noise_um, seed=s.seed + 3)
         checks = CheckData.from_columns(cols, path=f"<simulated checks, {c.name}>")
-        for base_row, base in ((par, par_field), (lrn, mlp)):
-            label = f"{c.name} (after closed loop)"
+        label = f"{c.name} (after closed loop)"
+        for base_row, base in bases:
             _log(f"grinder: {base_row['path']}, {label}")
             try:
-                self._closed_loop_row(c, s, label, checks, base_row, base, common)
+                self.closed_loop_row(truth, label, checks, base_row, base, common)
             except Exception as exc:  # never fake numbers: the row says why it is missing
-                self._finish(_row(self.m.name, "grinder", base_row["path"], label, available=False, closed_loop=True,
+                self.log.add(_row(self.m.name, "grinder", base_row["path"], label, available=False, closed_loop=True,
                                   not_available=f"closed loop failed: {type(exc).__name__}: {exc}", **common))
 
-    def _closed_loop_row(self, c, s, label, checks, base_row, base, common) -> None:
+    def closed_loop_row(self, truth, label, checks, base_row, base, common) -> None:
         from errormap.diagnosis.pipeline import diagnose
+        s = self.s
         t0 = time.perf_counter()
         d = diagnose(self.m, base, checks)
         diag_s = time.perf_counter() - t0
         found = [f"{e['kind']}:{e['axis']}:{e['element']}" for e in d.effects]
         corrected = FixedConditions(d.corrected, PATH_CONDITIONS)
-        sol = {"exact": self.compensate(corrected, "exact")}
+        sol = {"exact": self._compensate(truth, corrected, "exact")}
         if base_row["path"] == "learned":
-            sol["batched-ga"] = self.compensate(corrected, "batched-ga", idx=self.ga_idx)
-        vol = self.compensate(corrected, "exact", volume=True) if s.volume_points else None
+            sol["batched-ga"] = self._compensate(truth, corrected, "batched-ga", idx=self.points.ga_idx)
+        vol = self._volume(truth, corrected)
         extra = {k: base_row.get(k) for k in ("identify_seconds", "train_seconds", "training_run_id",
                                                "reused_training_of") if base_row.get(k) is not None}
         row = _row(self.m.name, "grinder", base_row["path"], label, closed_loop=True, solver="exact",
@@ -425,9 +509,7 @@ class GrinderBench:
                    solvers=sol, effects_found=found, n_checks=s.n_checks,
                    checks_rms_before_um=d.summary["rms_before_um"], checks_rms_after_um=d.summary["rms_after_um"],
                    **{**common, "n_measurements": common["n_measurements"] + s.n_checks}, **extra)
-        if vol:
-            row.update(volume_rms_um=vol["true_rms_um"], volume_max_um=vol["true_max_um"])
-        self._finish(row)
+        self.log.add(_with_volume(row, vol))
 
     def paper_network_row(self) -> None:
         """The learned path at the base condition with the paper's network (10-15-25-15-10, sigmoid, A raw)
@@ -436,33 +518,22 @@ class GrinderBench:
         s = self.s
         c = GrinderCondition(f"stations={s.base_stations}, noise={s.base_noise_um:g}um", "network", s.base_stations,
                              s.base_noise_um)
-        self.truth_ = truth = self.truth(None)
-        elements, id_s, n_meas = self.identify(truth, c)
+        truth = grinder_truth(self.m, s, None)
+        elements, id_s, n_meas = identify_from_sweeps(self.m, s, truth, c)
         label = f"{c.name}, paper network {'-'.join(map(str, PAPER_HIDDEN))} sigmoid"
         paper = replace(s, hidden=PAPER_HIDDEN, activation="sigmoid", a_encoding="raw")
-        saved, self.s = self.s, paper
-        try:
-            fit, _, _ = self.train(elements, label)
-        finally:
-            self.s = saved
-        ex = self.compensate(fit.field, "exact")
-        unc_rms, unc_max = self.uncompensated()
-        self._finish(_row(self.m.name, "grinder", "learned", label, group="network", stations=c.stations,
+        fit, _, _ = self.trainer.train(elements, label, paper)
+        ex = self._compensate(truth, fit.field, "exact")
+        unc_rms, unc_max = uncompensated_true(self.points, truth)
+        self.log.add(_row(self.m.name, "grinder", "learned", label, group="network", stations=c.stations,
                           noise_um=c.noise_um, effect=None, closed_loop=False, solver="exact",
-                          test_path=f"flute ({len(self.targets)} points)", n_measurements=n_meas,
+                          test_path=f"flute ({len(self.points.targets_mm)} points)", n_measurements=n_meas,
                           uncompensated_rms_um=unc_rms, uncompensated_max_um=unc_max,
                           fit_seconds=id_s + fit.seconds, identify_seconds=id_s, train_seconds=fit.seconds,
                           training_run_id=fit.run_id, train_val_rms_um=fit.metrics.get("val_rms_um"),
                           train_val_max_um=fit.metrics.get("val_max_um"), train_iterations=fit.metrics.get("iterations"),
                           compensate_seconds_per_point=ex["seconds_per_point"], true_rms_um=ex["true_rms_um"],
                           true_max_um=ex["true_max_um"], solvers={"exact": ex}))
-
-    def _finish(self, row: dict) -> None:
-        log_row(self.tracker, row)
-        self.rows.append(row)
-        if row.get("available"):
-            _log(f"  {row['path']:10s} {row['condition']}: true RMS {row['true_rms_um']:.3f} um, max "
-                 f"{row['true_max_um']:.3f} um, fit {row['fit_seconds']:.1f} s")
 
 
 def run_grinder(machine, s: BenchmarkSettings, tracker: Tracker) -> list[dict]:
@@ -476,13 +547,13 @@ def run_grinder(machine, s: BenchmarkSettings, tracker: Tracker) -> list[dict]:
             done = {r["path"] for r in g.rows if r["condition"].startswith(c.name)}
             for path in ("parametric", "learned"):
                 if path not in done:
-                    g._finish(_row(machine.name, "grinder", path, c.name, available=False, group=c.group,
+                    g.log.add(_row(machine.name, "grinder", path, c.name, available=False, group=c.group,
                                    not_available=f"condition failed: {type(exc).__name__}: {exc}"))
     if s.paper_network:
         try:
             g.paper_network_row()
         except Exception as exc:
-            g._finish(_row(machine.name, "grinder", "learned", "paper network", available=False, group="network",
+            g.log.add(_row(machine.name, "grinder", "learned", "paper network", available=False, group="network",
                            not_available=f"failed: {type(exc).__name__}: {exc}"))
     return g.rows
 
@@ -566,12 +637,12 @@ def pkm_true_residual(truth, machine, tip_cmd, R_cmd, tip_target, tool_length_mm
 
 
 def _pkm_paths(machine, s: BenchmarkSettings):
-    from .pkm_interpolation import ToolPath, builtin_path
+    from ...pkm_interpolation import PosePath, builtin_path
     if machine.kind == "hexapod":
         return {n: builtin_path(n, s.pkm_path_step_mm) for n in ("sphere", "hyperboloid")}
     from errormap.pkm.hexapod import workspace_poses
     tips, _ = workspace_poses(machine, 200 if not s.quick else 50, seed=s.seed + 7)
-    return {"workspace": ToolPath(tips, np.broadcast_to(np.eye(3), (len(tips), 3, 3)).copy(),
+    return {"workspace": PosePath(tips, np.broadcast_to(np.eye(3), (len(tips), 3, 3)).copy(),
                                   np.zeros(len(tips), int), None, "workspace")}
 
 
@@ -581,7 +652,7 @@ def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) ->
     from errormap.pkm.simulate import simulate_poses
     from training.pose_field import fit_pose_field
 
-    from .pkm_interpolation import leg_program, true_path_residual
+    from ...pkm_interpolation import leg_program, true_path_residual
     kind = machine.kind
     paths = _pkm_paths(machine, s)
     if conditions is None:
@@ -672,7 +743,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
 
     Returns the ``benchmark.json`` document (``rows``, ``settings``, ``environment``, ``paths``).
     """
-    from .benchmark_report import render_html
+    from ..reports.benchmark import render_html
     s = settings or BenchmarkSettings()
     out = Path(out_dir)
     t_start = time.perf_counter()

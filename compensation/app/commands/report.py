@@ -4,7 +4,7 @@ Runs ``traditional``, ``ga``, ``batched-ga`` and ``exact`` (or ``--methods``) wi
 field on one path (``--path FILE`` or the built-in ``--flute``), computes the MODEL residual
 of each and — with ``--truth`` (a ``volcomp simulate`` folder or an element-set file) — the
 TRUE residual on the simulated machine, and writes ``DIR/report.html``, ``DIR/metrics.json``
-and ``DIR/residuals.csv`` (see :mod:`compensation.report`).
+and ``DIR/residuals.csv`` (see :mod:`compensation.app.reports.methods`).
 """
 from __future__ import annotations
 
@@ -13,55 +13,13 @@ from pathlib import Path
 from errormap.machine import load_machine
 
 from ..cli import UsageError
-from ..evaluate import load_truth
-from ..fields import load_field
-from ..pathio import read_path
-from ..report import DEFAULT_GA_BUDGET_S, compare_methods, print_table, write_report
-from ..solvers import METHODS
-from ..toolpath import FLUTE_DEFAULTS, LEAD_LAWS, check_in_strokes, flute_path
-
-
-def add_flute_arguments(p) -> None:
-    """The flute settings as options (defaults: :data:`compensation.toolpath.FLUTE_DEFAULTS`)."""
-    d = FLUTE_DEFAULTS
-    g = p.add_argument_group("flute path (with --flute)")
-    g.add_argument("--turns", type=float, default=d.turns, help=f"flute turns (default {d.turns:g})")
-    g.add_argument("--points-per-turn", type=int, default=d.points_per_turn,
-                   help=f"interpolation points per turn (default {d.points_per_turn})")
-    g.add_argument("--radius-mm", type=float, default=d.radius_mm,
-                   help=f"flute-bottom radius, mm (default {d.radius_mm:g})")
-    g.add_argument("--helix-start-deg", type=float, default=d.helix_start_deg,
-                   help=f"helix angle at the flute start (default {d.helix_start_deg:g})")
-    g.add_argument("--helix-end-deg", type=float, default=d.helix_end_deg,
-                   help=f"helix angle at the flute end (default {d.helix_end_deg:g})")
-    g.add_argument("--lead-law", choices=LEAD_LAWS, default=d.lead_law, help=f"what varies linearly (default {d.lead_law})")
-    g.add_argument("--px-start-mm", type=float, default=d.px_start_mm,
-                   help=f"axial WCS position of the flute start (default {d.px_start_mm:g})")
-
-
-def flute_from_args(args):
-    return flute_path(turns=args.turns, points_per_turn=args.points_per_turn, radius_mm=args.radius_mm,
-                      helix_start_deg=args.helix_start_deg, helix_end_deg=args.helix_end_deg,
-                      lead_law=args.lead_law, px_start_mm=args.px_start_mm)
-
-
-def parse_methods(text: str) -> tuple:
-    methods = tuple(m.strip() for m in text.split(",") if m.strip())
-    bad = [m for m in methods if m not in METHODS]
-    if bad or not methods:
-        raise UsageError(f"--methods: expected a comma-separated list from {list(METHODS)}, got {text!r}")
-    return methods
-
-
-def add_method_arguments(p) -> None:
-    p.add_argument("--methods", default=",".join(METHODS),
-                   help=f"comma-separated methods (default {','.join(METHODS)})")
-    p.add_argument("--ga-points", type=int, default=None,
-                   help="run the per-point GA on this many evenly spaced points (default: as many as "
-                        "fit in --ga-budget-s)")
-    p.add_argument("--ga-budget-s", type=float, default=DEFAULT_GA_BUDGET_S,
-                   help=f"time budget of the per-point GA when --ga-points is not given (default {DEFAULT_GA_BUDGET_S:g} s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the stochastic solvers")
+from ...evaluate import load_truth
+from ...fields import load_field
+from ...pathio import read_path
+from ..options import add_flute_arguments, add_method_arguments, flute_from_args, parse_methods
+from ..reports.methods import print_table, write_report
+from ..workflows.compare import compare_methods
+from ...toolpath import check_in_strokes
 
 
 def register(sub):

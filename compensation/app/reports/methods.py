@@ -1,9 +1,6 @@
-"""Comparing the compensation methods on one tool path, and the self-contained HTML report.
+"""The method-comparison report: a :class:`~compensation.app.workflows.compare.Comparison` on disk.
 
-:func:`compare_methods` runs each solver (``traditional``, ``ga``, ``batched-ga``, ``exact``)
-on the same WCS targets with the same error field; the per-point reference ``ga`` may run on
-an evenly spaced subset of the points when the whole path would take too long (the report
-says so). :func:`write_report` writes, atomically:
+:func:`write_report` writes, atomically:
 
 * ``report.html`` — self-contained (PNG plots embedded as base64; matplotlib Agg): the
   residual per interpolation point for every method, as ``|r|`` and as ``|r|²`` (the
@@ -19,185 +16,16 @@ says so). :func:`write_report` writes, atomically:
 from __future__ import annotations
 
 import functools
-import contextlib
 import html
 import sys
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from errormap.io import atomic_write, write_csv, write_json
-from errormap.kinematics import inverse
 
-from .evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_stats, true_residual_um
-from .pathio import align_turns
-from .solvers import METHODS, solve
+from ...evaluate import RESIDUAL_DEFINITIONS
 from .figures import png_base64, pyplot
-
-REPORT_FORMAT = "volcomp-report/1"
-GA_PROBE_POINTS = 3        # points timed to estimate the per-point GA cost
-DEFAULT_GA_BUDGET_S = 120.0
-
-
-@dataclass
-class MethodRun:
-    """One method's result on (a subset of) the path.
-
-    index : shape (m,)            which path points were solved
-    result : SolveResult          on targets[index]
-    axes : shape (m, 3)           compensated axes, A aligned to the nominal turn
-    true_residual_um : (m, 3) | None
-    metrics : dict
-    note : str                    e.g. why a subset was used
-    """
-
-    method: str
-    index: np.ndarray
-    result: object
-    axes: np.ndarray
-    true_residual_um: np.ndarray | None
-    metrics: dict
-    note: str = ""
-
-
-@dataclass
-class Comparison:
-    """All methods on one path: nominal axes (n, 3), targets (n, 3), runs by method."""
-
-    targets_mm: np.ndarray
-    nominal_axes: np.ndarray
-    runs: dict
-    baseline: dict
-    baseline_model_um: np.ndarray
-    baseline_true_um: np.ndarray | None
-    turn_of_point: np.ndarray
-    info: dict = field(default_factory=dict)
-
-    def metrics(self) -> dict:
-        return {"format": REPORT_FORMAT, "residuals": dict(RESIDUAL_DEFINITIONS),
-                "methods": {k: r.metrics for k, r in self.runs.items()},
-                "uncompensated": self.baseline, **self.info}
-
-
-def subset_index(n: int, m: int) -> np.ndarray:
-    """``m`` evenly spaced indices into ``range(n)`` (all of them when ``m >= n``), shape (m,)."""
-    if m >= n:
-        return np.arange(n)
-    return np.unique(np.round(np.linspace(0, n - 1, max(m, 1))).astype(int))
-
-
-SMALL_BATCH_POINTS = 500
-"""Paths shorter than this are solved with one torch thread (see :func:`small_batch_threads`)."""
-
-
-@contextlib.contextmanager
-def small_batch_threads(method: str, n_points: int | None = None):
-    """One torch thread while the field sees small batches (if torch is loaded).
-
-    The per-point ``ga`` calls the field on 40 points at a time (and every solver does so on
-    a short path); on a busy 2-core machine torch's intra-op threads then spin against each
-    other and a call costs ~100× more than on one thread (measured: 81 ms vs 0.8 ms for
-    40 points). Long paths in the batched solvers keep the default.
-    """
-    torch = sys.modules.get("torch")
-    small = method == "ga" or (n_points is not None and n_points < SMALL_BATCH_POINTS)
-    if not small or torch is None:
-        yield
-        return
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
-
-
-def _solve(method, field_, targets, machine, options):
-    with small_batch_threads(method, len(targets)):
-        return solve(method, field_, targets, machine, **options)
-
-
-def guard_counts(result, machine, field_, target_axes=None) -> dict:
-    """Guard violations per guard name (reported, never enforced, in a comparison);
-    ``target_axes`` (n, 3): the targets' nominal axes, checked too when given."""
-    from . import guards
-    try:
-        rep = guards.check(result, machine, field_, allow="all", target_axes=target_axes)
-    except TypeError:  # a field that does not say where it is calibrated
-        return {}
-    return {g: int(len(v)) for g, v in rep.violations.items()}
-
-
-def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga_points: int | None = None,
-                    ga_budget_s: float = DEFAULT_GA_BUDGET_S, seed: int = 0, solver_options: dict | None = None,
-                    nominal_axes=None, log=None) -> Comparison:
-    """Run ``methods`` on WCS targets (n, 3) with ``field_``; evaluate model and true residuals.
-
-    ``ga`` runs on ``ga_points`` evenly spaced points when given; otherwise its cost per
-    point is timed on ``GA_PROBE_POINTS`` points and it runs on as many evenly spaced points
-    as fit in ``ga_budget_s`` seconds (all of them if they fit). ``seed`` goes to the
-    stochastic solvers; ``solver_options`` maps method -> extra keyword options.
-    """
-    log = sys.stderr if log is None else log
-    targets_mm = np.asarray(targets_mm, dtype=float)
-    n = targets_mm.shape[0]
-    nominal = inverse(machine, targets_mm, unwrap=True) if nominal_axes is None else np.asarray(nominal_axes, float)
-    solver_options = solver_options or {}
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        raise ValueError(f"Expected methods from {list(METHODS)}, got {unknown}")
-    runs = {}
-    for method in methods:
-        opts = dict(solver_options.get(method, {}))
-        opts.setdefault("target_axes", None)
-        if method in ("ga", "batched-ga"):
-            opts.setdefault("seed", seed)
-        idx, note = np.arange(n), ""
-        if method == "ga":
-            if ga_points is not None:
-                idx = subset_index(n, ga_points)
-            else:
-                probe = subset_index(n, min(GA_PROBE_POINTS, n))
-                t0 = time.perf_counter()
-                _solve(method, field_, targets_mm[probe], machine, {**opts, "target_axes": nominal[probe]})
-                probe_s = time.perf_counter() - t0
-                per_point_s = probe_s / len(probe)
-                fit = int(max(ga_budget_s - probe_s, 0.0) / max(per_point_s, 1e-9))
-                if fit < n:
-                    idx = subset_index(n, max(fit, GA_PROBE_POINTS))
-            if len(idx) < n:
-                note = (f"per-point GA on {len(idx)} of {n} evenly spaced points "
-                        f"(the whole path would take too long)")
-                print(f"ga: {note}", file=log)
-        print(f"{method}: solving {len(idx)} points ...", file=log)
-        res = _solve(method, field_, targets_mm[idx], machine, {**opts, "target_axes": nominal[idx]})
-        axes = np.array(res.axes, dtype=float)
-        axes[:, 2] = align_turns(axes[:, 2], nominal[idx, 2])
-        tr = true_residual_um(truth, axes, targets_mm[idx]) if truth is not None else None
-        met = method_metrics(res, true_residual=tr)
-        met["subset"] = bool(len(idx) < n)
-        res.axes = axes
-        met["guard_violations"] = guard_counts(res, machine, field_, target_axes=nominal[idx])
-        if note:
-            met["note"] = note
-        runs[method] = MethodRun(method, idx, res, axes, tr, met, note)
-        msg = f"{method}: {met['seconds']:.2f} s, model residual max {met['model_max_um']:.4g} um"
-        if tr is not None:
-            msg += f", true residual max {met['true_max_um']:.4g} um"
-        print(msg, file=log)
-    base_model = -field_.predict(nominal)  # uncompensated: the tool misses by E(p_d)
-    base_true = true_residual_um(truth, nominal, targets_mm) if truth is not None else None
-    baseline = {"points": n, **residual_stats(base_model, "model")}
-    if base_true is not None:
-        baseline.update(residual_stats(base_true, "true"))
-    baseline["note"] = ("nominal commands, no compensation; the model residual here is the field's "
-                        "predicted error E(axes(p_d)), with sign flipped")
-    a0 = nominal[0, 2]
-    turn = np.floor((nominal[:, 2] - a0) / 360.0 + 1e-9).astype(int)
-    return Comparison(targets_mm, nominal, runs, baseline, base_model, base_true, turn)
-
 
 # ----------------------------------------------------------------------------- plots
 

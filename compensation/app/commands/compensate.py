@@ -1,0 +1,152 @@
+"""``volcomp compensate``: rewrite tool-path files so the tool lands where the program meant.
+
+Each input (CSV axis commands, CSV WCS targets, or G-code; see :mod:`compensation.pathio`
+and :mod:`compensation.gcode`) is solved with the chosen method and written to
+``DIR/<same name>`` (the input is never touched; an output that would overwrite an input
+is refused before any work).
+
+Order of work (:mod:`compensation.app.workflows.compensate`), so that DIR only ever holds whole
+files of one run:
+
+1. every input is parsed and validated (a bad one fails the batch with exit 2, naming
+   file, line, column and word) before the field is loaded or anything is written;
+2. a DIR that already holds files is refused (exit 2) unless ``--force``; with
+   ``--force`` the files a previous run listed in its ``compensate_summary.json`` and any
+   file at the output path of an input this run refuses are removed;
+3. every file is solved, guarded and rendered in memory;
+4. the accepted files are written as one set (each in full to a temporary file, then all
+   renamed into place); ``compensate_summary.json`` last.
+
+Guards (docs/kinematics.md; :mod:`compensation.guards`), the same for every method: a file whose compensated
+commands — or the nominal axes of their targets — leave the strokes (``stroke``) or the
+field's calibrated volume (``volume``), whose corrections leave the 250 μm ball
+(``ball``), or whose solver did not converge (``convergence``) is refused — not written —
+and the command exits with status 3 listing the offending points (first ``--show`` of
+them, with file line and reasons). Rapids kept as written are checked against the
+strokes too. ``--allow GUARDS`` (comma-separated; bare ``--allow`` = all) overrides those
+guards explicitly: the file is written, the override is recorded in the file itself
+(a header comment in G-code, a ``#`` line in CSV) and in the summary.
+The residual reported per file is the MODEL residual (the solver's own field).
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from errormap.machine import load_machine
+
+from ..cli import UsageError
+from ..options import add_condition_options, conditions_from_args
+from ..workflows.compensate import CompensateSettings, compensate_files
+from ... import guards
+from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
+from ...pathio import DEFAULT_ARC_TOLERANCE_UM
+from ...solvers import METHODS
+
+EXIT_REFUSED = 3
+
+
+def register(sub):
+    p = sub.add_parser(
+        "compensate", help="compensate tool-path files (CSV or G-code) with an error field",
+        description="Compensate each FILE with --model and write DIR/<same name>. Reports the MODEL "
+                    "residual. Exit status 3 when the guards refuse a file (unless --allow).")
+    p.add_argument("files", nargs="+", metavar="FILE", help="tool path: .csv (x_mm,z_mm,a_deg or "
+                   "px_mm,py_mm,pz_mm) or G-code (any other suffix)")
+    p.add_argument("--model", required=True, help="MLflow run id, runs:/ URI, element-set file (JSON), or the "
+                   "diagnosed model (DIR/model.json of volcomp diagnose: updated elements + accepted terms)")
+    p.add_argument("--method", required=True, choices=METHODS, help="compensation solver")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (files keep their names)")
+    p.add_argument("--force", action="store_true",
+                   help="write into a DIR that already holds files (removing the previous run's outputs)")
+    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
+    p.add_argument("--seed", type=int, default=0, help="seed of the stochastic solvers (ga, batched-ga)")
+    p.add_argument("--allow", nargs="?", const="all", default=None, metavar="GUARDS",
+                   help="write commands even where these guards object (comma-separated from "
+                        f"{', '.join(guards.GUARDS)}; bare --allow: all of them); violations are still reported")
+    p.add_argument("--show", type=int, default=10, help="offending points listed per refused file (default 10)")
+    p.add_argument("--rapids", choices=RAPIDS_CHOICES, default=DEFAULT_RAPIDS,
+                   help=f"G0 lines: keep as written or compensate their end point (default {DEFAULT_RAPIDS})")
+    p.add_argument("--block-delete", choices=BLOCK_DELETE_CHOICES, default=None,
+                   help="the controller's block-delete switch: on = '/' lines are skipped, off = they run "
+                        "(default: refuse a '/' line that moves or changes modal state)")
+    p.add_argument("--arc-tolerance-um", type=float, default=DEFAULT_ARC_TOLERANCE_UM,
+                   help="chord tolerance of linearised arcs and split moves, um "
+                        f"(default {DEFAULT_ARC_TOLERANCE_UM:g})")
+    p.add_argument("--max-segment-mm", default="auto",
+                   help="split G1 moves and arcs into segments no longer than this (WCS mm); 'auto' "
+                        "(default): from the field's curvature along the file's moves; 'none': no splitting")
+    add_condition_options(p)
+    p.set_defaults(func=run)
+
+
+def parse_allow(text) -> tuple:
+    """``--allow`` value -> guard names: bare ``--allow`` (``"all"``) overrides every guard."""
+    if text is None:
+        return ()
+    names = tuple(t.strip() for t in str(text).split(",") if t.strip())
+    bad = [n for n in names if n not in guards.GUARDS + ("all",)]
+    if bad or not names:
+        raise UsageError(f"--allow: expected guard names from {list(guards.GUARDS)} or 'all', got {text!r}")
+    return ("all",) if "all" in names else names
+
+
+def parse_max_segment(text):
+    """``--max-segment-mm`` value -> ``"auto"``, None (``none``) or a positive float (mm)."""
+    t = str(text).strip().lower()
+    if t in ("auto", "none"):
+        return None if t == "none" else "auto"
+    try:
+        v = float(t)
+    except ValueError:
+        v = float("nan")
+    if not (np.isfinite(v) and v > 0):
+        raise UsageError(f"--max-segment-mm: expected a positive length in mm, 'auto' or 'none', got {text!r}")
+    return v
+
+
+def run(args) -> int:
+    if args.show < 1:
+        raise UsageError("--show must be >= 1")
+    if not (np.isfinite(args.arc_tolerance_um) and args.arc_tolerance_um > 0):
+        raise UsageError(f"--arc-tolerance-um must be > 0, got {args.arc_tolerance_um}")
+    max_segment = parse_max_segment(args.max_segment_mm)
+    allow = parse_allow(args.allow)
+    settings = CompensateSettings(
+        method=args.method, model=args.model, out_dir=Path(args.out), force=args.force,
+        tracking_uri=args.tracking_uri, seed=args.seed, allow=allow, rapids=args.rapids,
+        block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
+        max_segment_mm=max_segment, conditions=conditions_from_args(args))
+    machine = load_machine(args.machine, expect_kind="grinder")
+    job = compensate_files(args.files, machine, settings, on_file=_print_file)
+    print(f"wrote summary: {job.summary_path}")
+    if job.refused:
+        for o in job.refused:
+            print(f"volcomp compensate: {o.src}: refused by guard(s) {', '.join(o.guards)}; "
+                  f"{len(o.blocking) + len(o.kept)} offending point(s):", file=sys.stderr)
+            for line, reason in o.kept[:args.show]:
+                print(f"  line {line}: {reason}", file=sys.stderr)
+            for i, line, reason in o.blocking[:args.show]:
+                print(f"  point {i} (line {line}): {reason}", file=sys.stderr)
+            if len(o.blocking) > args.show:
+                print(f"  ... and {len(o.blocking) - args.show} more", file=sys.stderr)
+        print("volcomp compensate: refused files were not written; override explicitly with --allow GUARDS "
+              "(or bare --allow for all)", file=sys.stderr)
+        return EXIT_REFUSED
+    return 0
+
+
+def _print_file(o) -> None:
+    """One line per file as it is solved (and a warning when guards were overridden)."""
+    e = o.entry
+    status = "REFUSED (not written)" if o.refused else f"-> {o.dst}"
+    n_viol = len(o.violations) + o.kept_violations
+    print(f"{o.src}: {e['points']} points, model residual max {e['model_max_um']:.4g} um "
+          f"mean {e['model_mean_um']:.4g} um, max correction {e['max_correction_um']:.1f} um, "
+          f"failures {e['failures']}, guard violations {n_viol} {status}")
+    if e["overridden"] and not o.refused:
+        print(f"  warning: guards overridden ({', '.join(f'{g} {n}' for g, n in e['overridden'].items())} "
+              f"point(s)); recorded in the output file's header and the summary")

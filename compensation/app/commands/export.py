@@ -1,0 +1,182 @@
+"""``volcomp export``: controller compensation tables from a model, each checked before it is written.
+
+Formats and the controller each is simulated for: :mod:`compensation.export` and docs/export.md.
+Before writing, the controller's use of the table is re-simulated on the flute path and on
+random points over the volume; the MODEL residual (and, with ``--truth``, the TRUE residual)
+is printed beside the no-compensation and exact-compensation baselines. When the worst model
+residual exceeds ``--tolerance-um`` nothing is written and the command exits with status 2,
+unless ``--force`` (the override is recorded in ``export.json``).
+
+``--format drift`` takes a drift model (``volcomp.drift_model``) instead: its coefficients at a
+fixed controller sample period, the controller re-simulated from the written file on a log
+(``--log``, or a simulated one) and compared with the model's own prediction (:func:`run_drift`).
+The work itself: :mod:`compensation.app.workflows.controller_tables`.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from errormap.machine import load_machine
+
+from ..cli import UsageError
+from ..workflows.controller_tables import DriftSettings, TableSettings, export_drift, export_table
+from ... import export as ex
+
+DEFAULT_TOLERANCE_UM = 1.0
+
+
+def register(sub):
+    p = sub.add_parser("export", help="write controller compensation tables (ISO 230-1 per-axis, 3D grid, "
+                                      "LinuxCNC per-joint, drift coefficients), checked against the model first",
+                       description="Export MODEL as controller compensation tables. Before writing, the "
+                                   "controller's use of the table is re-simulated on the flute path and on random "
+                                   "points; the model residual (and with --truth the true residual) is reported. "
+                                   "Refused (exit 2, nothing written) when the tolerance is not met, unless --force. "
+                                   "See docs/export.md.")
+    p.add_argument("model", metavar="MODEL", help="element-set file (JSON); grid and linuxcnc also take an MLflow "
+                                                  "run id / runs:/ URI of a trained network; --format drift: a "
+                                                  "drift_model.json from `volcomp diagnose --drift`")
+    p.add_argument("--format", required=True, choices=ex.ALL_FORMATS, dest="fmt", help="table format")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--tolerance-um", type=float, default=DEFAULT_TOLERANCE_UM,
+                   help=f"largest model residual the table may leave (um; default {DEFAULT_TOLERANCE_UM:g}); "
+                        "sizes the iso-tables rows and the grid spacing")
+    p.add_argument("--truth", default=None, metavar="SIM",
+                   help="simulated truth machine (a volcomp simulate folder or element-set JSON) for the true residual")
+    p.add_argument("--diagnosis", default=None, metavar="JSON",
+                   help="diagnosis.json: its reversal terms become the LinuxCNC forward/reverse difference")
+    p.add_argument("--points", type=int, default=ex.LINUXCNC_MAX_POINTS,
+                   help=f"linuxcnc: lines per joint file (2..{ex.LINUXCNC_MAX_POINTS}; default {ex.LINUXCNC_MAX_POINTS})")
+    p.add_argument("--region", default=None, metavar="X0:X1,Z0:Z1",
+                   help="linuxcnc: axis region (mm) over which each joint's correction is averaged "
+                        "(default: the whole strokes), e.g. the part's working region")
+    p.add_argument("--check-points", type=int, default=2000,
+                   help="random points over the volume for the check (default 2000), besides the flute")
+    p.add_argument("--seed", type=int, default=0, help="seed of the check points and the per-joint sampling")
+    p.add_argument("--sample-period-s", type=float, default=None,
+                   help="drift: the controller's fixed sample period (s) the coefficients are for (default: the "
+                        "check log's median sampling step, where the controller reproduces the model exactly)")
+    p.add_argument("--log", default=None, metavar="LOG.csv",
+                   help="drift: the log the controller is re-simulated on (default: a simulated log, --sim)")
+    p.add_argument("--sim", default=None, choices=("lumped", "rod"),
+                   help="drift without --log: the simulator family of the check log (default lumped)")
+    p.add_argument("--sim-seed", type=int, default=None, help="drift without --log: the simulator seed (default 0)")
+    p.add_argument("--force", action="store_true",
+                   help="write even when the tolerance is not met (recorded in export.json)")
+    p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
+    p.set_defaults(func=run)
+
+
+def parse_region(text):
+    """``"X0:X1,Z0:Z1"`` -> ``{"x_mm": (x0, x1), "z_mm": (z0, z1)}``; UsageError on anything else."""
+    if text is None:
+        return None
+    try:
+        parts = [tuple(float(v) for v in p.split(":")) for p in text.split(",")]
+        if len(parts) != 2 or any(len(p) != 2 or not p[0] <= p[1] or not np.all(np.isfinite(p)) for p in parts):
+            raise ValueError
+    except ValueError:
+        raise UsageError(f"--region: expected X0:X1,Z0:Z1 (mm, lo <= hi), got {text!r}") from None
+    return {"x_mm": parts[0], "z_mm": parts[1]}
+
+
+def format_check(check: dict, has_truth: bool) -> list[str]:
+    lines = ["check (controller re-simulated; residual norm, um: max / p95 / mean)"]
+    for name, r in check.items():
+        def f(s):
+            return f"{s['max_um']:9.4g} / {s['p95_um']:9.4g} / {s['mean_um']:9.4g}"
+        lines.append(f"  {name} ({r['model']['n']} points{', %d excluded' % r['excluded'] if r['excluded'] else ''}):")
+        lines.append(f"    table          model {f(r['model'])}" + (f"   true {f(r['true'])}" if has_truth else ""))
+        lines.append(f"    no compensation model {f(r['baseline_none']['model'])}"
+                     + (f"   true {f(r['baseline_none']['true'])}" if has_truth else ""))
+        lines.append(f"    exact (model)  model {f(r['baseline_exact']['model'])}"
+                     + (f"   true {f(r['baseline_exact']['true'])}" if has_truth else ""))
+        if r["model"]["max_um"] > r["baseline_none"]["model"]["max_um"]:
+            lines.append(f"    warning: on the {name} points this table leaves MORE error than no compensation")
+    return lines
+
+
+def run(args) -> int:
+    drift_only = {"--sample-period-s": args.sample_period_s, "--log": args.log, "--sim": args.sim,
+                  "--sim-seed": args.sim_seed}
+    if args.fmt == "drift":
+        return run_drift(args)
+    given = [k for k, v in drift_only.items() if v is not None]
+    if given:
+        raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to --format drift only")
+    machine = load_machine(args.machine, expect_kind="grinder")
+    if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
+        raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
+    if args.check_points < 1:
+        raise UsageError(f"--check-points: expected >= 1, got {args.check_points}")
+    if args.fmt != "linuxcnc" and (args.diagnosis or args.region):
+        raise UsageError("--diagnosis and --region apply to --format linuxcnc only (the other formats carry no "
+                         "reversal and are not averaged)")
+    if not 2 <= args.points <= ex.LINUXCNC_MAX_POINTS:
+        raise UsageError(f"--points: expected 2..{ex.LINUXCNC_MAX_POINTS}, got {args.points}")
+    settings = TableSettings(
+        model=args.model, fmt=args.fmt, out=args.out, tolerance_um=args.tolerance_um, check_points=args.check_points,
+        seed=args.seed, truth=args.truth, diagnosis=args.diagnosis, points=args.points,
+        region=parse_region(args.region), force=args.force, tracking_uri=args.tracking_uri)
+    info = export_table(settings, machine, on_check=_print_check)
+    _print_written(Path(args.out), list(info["files"]), info, args.tolerance_um)
+    return 0
+
+
+def _print_check(check, has_truth) -> None:
+    for line in format_check(check, has_truth):
+        print(line)
+
+
+def _print_drift_check(check) -> None:
+    for line in format_drift_check(check):
+        print(line)
+
+
+def _print_written(out: Path, names, info, tolerance_um) -> None:
+    for name in list(names) + ["export.json"]:
+        print(f"wrote: {out / name}")
+    if not info["tolerance_met"]:
+        print(f"warning: tolerance NOT met ({info['worst_model_residual_um']:.4g} um > {tolerance_um:g} um); "
+              "written because of --force", file=sys.stderr)
+
+
+def run_drift(args) -> int:
+    """``--format drift``: coefficients at a fixed sample period, checked on a log before writing."""
+    bad = [k for k, v in {"--machine": args.machine, "--truth": args.truth, "--diagnosis": args.diagnosis,
+                          "--region": args.region}.items() if v is not None]
+    if bad:
+        verb = "does" if len(bad) == 1 else "do"
+        raise UsageError(f"{', '.join(bad)} {verb} not apply to --format drift (a drift model needs no machine; "
+                         "its truth is a simulated log: --sim/--sim-seed)")
+    if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
+        raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
+    dt = args.sample_period_s
+    if dt is not None and not (np.isfinite(dt) and 0 < dt <= ex.DRIFT_MAX_PERIOD_S):
+        raise UsageError(f"--sample-period-s: expected a period in (0, {ex.DRIFT_MAX_PERIOD_S:g}] s, got {dt}")
+    settings = DriftSettings(model=args.model, out=args.out, tolerance_um=args.tolerance_um,
+                             sample_period_s=args.sample_period_s, log=args.log, sim=args.sim, sim_seed=args.sim_seed,
+                             force=args.force)
+    info = export_drift(settings, on_check=_print_drift_check)
+    _print_written(Path(args.out), [ex.DRIFT_FILE], info, args.tolerance_um)
+    return 0
+
+
+def format_drift_check(check: dict) -> list[str]:
+    lines = ["check (controller re-simulated from the coefficients alone; max / RMS over the log, um)"]
+    for ch, r in check.items():
+        m = r["model"]
+        lines.append(f"  {ch}: model residual (controller - DriftModel.predict) {m['max_um']:9.3g} / {m['rms_um']:9.3g}")
+        for key in ("true", "measured"):
+            if r[key] is not None:
+                q = r[key]
+                lines.append(f"      {key:8s} before {q['before']['max_um']:7.3g} / {q['before']['rms_um']:7.3g}   "
+                             f"volcomp {q['volcomp']['max_um']:7.3g} / {q['volcomp']['rms_um']:7.3g}   "
+                             f"controller {q['controller']['max_um']:7.3g} / {q['controller']['rms_um']:7.3g}")
+    return lines
+
+

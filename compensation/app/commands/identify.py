@@ -1,0 +1,66 @@
+"""``volcomp identify``: the 23 error elements from laser-tracker sweep files (grinder paper §2.1)."""
+from __future__ import annotations
+
+import sys
+
+from errormap.elements import ElementSet
+from errormap.identification import GAUGES
+from errormap.machine import load_machine
+from errormap.sweeps import read_sweeps
+
+from ..reports.identification import iso_summary_lines, plot_elements
+from ..workflows.identification import identify_elements
+
+
+def register(sub):
+    p = sub.add_parser("identify", help="identify the 23 error elements from laser-tracker sweeps",
+                       description="The grinder paper's method (section 2.1): reference lines/circles, the 9x6 "
+                                   "least-squares system per station, squareness from the X and Z lines, the A-axis "
+                                   "line from the rotary body's initial state, B-spline elements. See "
+                                   "docs/identification.md.")
+    p.add_argument("sweeps", nargs="+", help="sweep file(s) (CSV) of one tracker set-up")
+    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--out", required=True, help="output element-set file (JSON)")
+    p.add_argument("--report", default=None,
+                   help="identification report (JSON: conditioning, residuals per station); default OUT.report.json")
+    p.add_argument("--plot", default=None, metavar="PREFIX",
+                   help="write one figure per axis: PREFIX_X.png, PREFIX_Z.png, PREFIX_A.png")
+    p.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element set to overlay on the plots")
+    p.add_argument("--gauge", choices=GAUGES, default="first-station",
+                   help="machine-frame gauge (default first-station: elements zero at each axis' first station)")
+    p.add_argument("--raw", action="store_true",
+                   help="interpolating splines through the noisy stations (the paper's method, no smoothing); "
+                        "the covariance is still written")
+    p.add_argument("--noise-um", type=float, default=None,
+                   help="known tracker noise σ per coordinate (μm); default: estimated from the ball residuals")
+    p.add_argument("--bootstrap", type=int, default=100, help="bootstrap draws for the covariance (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    machine = load_machine(args.machine, expect_kind="grinder")
+    truth = ElementSet.load(args.truth) if args.truth else None
+    sweeps = read_sweeps(args.sweeps)
+    print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
+    from ..cli import UsageError
+    if args.bootstrap < 2:
+        raise UsageError(f"--bootstrap must be >= 2, got {args.bootstrap}")
+    ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,
+                              n_boot=args.bootstrap, seed=args.seed, smooth=not args.raw, gauge=args.gauge,
+                              sweeps=sweeps)
+    elements = ident.result.elements_
+    for line in ident.summary_lines():
+        print(line)
+    for line in iso_summary_lines(elements):
+        print(line)
+    print(f"wrote elements: {ident.elements_path}")
+    print(f"wrote covariance: {ident.covariance_path}")
+    print(f"wrote report: {ident.report_path}")
+    if args.plot:
+        if truth is not None:
+            from errormap.identification import move_squareness
+            truth = move_squareness(truth, elements.constants["s_xz"], machine)
+        for p in plot_elements(elements, args.plot, truth):
+            print(f"wrote plot: {p}")
+    return 0

@@ -1,0 +1,67 @@
+"""Command-line options shared by several commands or turned into a library call's arguments:
+the flute path and the method comparison (``report``, ``demo``), the constant conditions of a
+diagnosed model (``compensate``)."""
+from __future__ import annotations
+
+from ..diagnosed_model import CONDITIONS
+from ..solvers import METHODS
+from ..toolpath import FLUTE_DEFAULTS, LEAD_LAWS, flute_path
+from .cli import UsageError
+from .workflows.compare import DEFAULT_GA_BUDGET_S
+
+
+def add_flute_arguments(p) -> None:
+    """The flute settings as options (defaults: :data:`compensation.toolpath.FLUTE_DEFAULTS`)."""
+    d = FLUTE_DEFAULTS
+    g = p.add_argument_group("flute path (with --flute)")
+    g.add_argument("--turns", type=float, default=d.turns, help=f"flute turns (default {d.turns:g})")
+    g.add_argument("--points-per-turn", type=int, default=d.points_per_turn,
+                   help=f"interpolation points per turn (default {d.points_per_turn})")
+    g.add_argument("--radius-mm", type=float, default=d.radius_mm,
+                   help=f"flute-bottom radius, mm (default {d.radius_mm:g})")
+    g.add_argument("--helix-start-deg", type=float, default=d.helix_start_deg,
+                   help=f"helix angle at the flute start (default {d.helix_start_deg:g})")
+    g.add_argument("--helix-end-deg", type=float, default=d.helix_end_deg,
+                   help=f"helix angle at the flute end (default {d.helix_end_deg:g})")
+    g.add_argument("--lead-law", choices=LEAD_LAWS, default=d.lead_law, help=f"what varies linearly (default {d.lead_law})")
+    g.add_argument("--px-start-mm", type=float, default=d.px_start_mm,
+                   help=f"axial WCS position of the flute start (default {d.px_start_mm:g})")
+
+
+def flute_from_args(args):
+    return flute_path(turns=args.turns, points_per_turn=args.points_per_turn, radius_mm=args.radius_mm,
+                      helix_start_deg=args.helix_start_deg, helix_end_deg=args.helix_end_deg,
+                      lead_law=args.lead_law, px_start_mm=args.px_start_mm)
+
+
+def parse_methods(text: str) -> tuple:
+    methods = tuple(m.strip() for m in text.split(",") if m.strip())
+    bad = [m for m in methods if m not in METHODS]
+    if bad or not methods:
+        raise UsageError(f"--methods: expected a comma-separated list from {list(METHODS)}, got {text!r}")
+    return methods
+
+
+def add_method_arguments(p) -> None:
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help=f"comma-separated methods (default {','.join(METHODS)})")
+    p.add_argument("--ga-points", type=int, default=None,
+                   help="run the per-point GA on this many evenly spaced points (default: as many as "
+                        "fit in --ga-budget-s)")
+    p.add_argument("--ga-budget-s", type=float, default=DEFAULT_GA_BUDGET_S,
+                   help=f"time budget of the per-point GA when --ga-points is not given (default {DEFAULT_GA_BUDGET_S:g} s)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the stochastic solvers")
+
+
+def add_condition_options(p) -> None:
+    """The constant-condition options of ``volcomp compensate`` (for a diagnosed model)."""
+    p.add_argument("--temp-c", type=float, default=None, help="temperature for a diagnosed model's thermal term (°C)")
+    p.add_argument("--time-s", type=float, default=None, help="time for a diagnosed model's drift term (s)")
+    for ax in ("x", "z", "a"):
+        p.add_argument(f"--dir-{ax}", type=int, choices=(-1, 1), default=None,
+                       help=f"approach direction of {ax.upper()} for a diagnosed model's reversal term")
+
+
+def conditions_from_args(args) -> dict:
+    """``{condition: value or None}`` for :data:`compensation.diagnosed_model.CONDITIONS`."""
+    return {c: getattr(args, c, None) for c in CONDITIONS}

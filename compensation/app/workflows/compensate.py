@@ -1,0 +1,236 @@
+"""Compensating tool-path files (``volcomp compensate``): plan, solve, guard, render, write.
+
+Order of work, so that the output folder only ever holds whole files of one run:
+
+1. every input is parsed and validated (a bad one fails the batch, naming file, line, column
+   and word) before the field is loaded or anything is written;
+2. a folder that already holds files is refused unless ``force``; with ``force`` the files a
+   previous run listed in its ``compensate_summary.json`` and any file at the output path of
+   an input this run refuses are removed;
+3. every file is solved, guarded and rendered in memory (:func:`compensate_one`);
+4. the accepted files are written as one set (each in full to a temporary file, then all
+   renamed into place); ``compensate_summary.json`` last.
+
+Guards: :mod:`compensation.guards`; a refused file is not written. The residual reported per
+file is the MODEL residual (the solver's own field).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from errormap.io import InputError, write_json
+from errormap.progress import Progress
+
+from ... import guards
+from ...diagnosed_model import load_path_field
+from ...gcode import DEFAULT_RAPIDS
+from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
+from ...solvers import solve
+from ...solvers.threads import small_batch_threads
+from ..cli import UsageError
+
+SUMMARY_NAME = "compensate_summary.json"
+
+
+@dataclass
+class CompensateSettings:
+    """One compensation job. ``allow``: guard names overridden (``("all",)``: every guard);
+    ``max_segment_mm``: ``"auto"``, None (no splitting) or a length in mm; ``conditions``: the
+    constant conditions a diagnosed model's terms need (``temp_c``, ``time_s``, ``dir_x`` ...)."""
+
+    method: str
+    model: str
+    out_dir: Path
+    force: bool = False
+    tracking_uri: str | None = None
+    seed: int = 0
+    allow: tuple = ()
+    rapids: str = DEFAULT_RAPIDS
+    block_delete: str | None = None
+    arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM
+    max_segment_mm: object = "auto"
+    conditions: dict = field(default_factory=dict)
+
+
+@dataclass
+class FileOutcome:
+    """One input's result. ``entry``: its ``compensate_summary.json`` record; ``text``: the
+    rendered output (None: refused); ``violations``: (point, line, reasons) of every guard
+    violation; ``kept_violations``: how many rapids kept as written leave the strokes;
+    ``blocking``: (point, line, reasons) of the violations that refuse the file; ``guards``:
+    the refusing guards' names; ``kept``: (line, reason) of refusing kept rapids."""
+
+    src: Path
+    dst: Path
+    entry: dict
+    text: str | None
+    violations: list
+    kept_violations: int = 0
+    blocking: list = field(default_factory=list)
+    guards: list = field(default_factory=list)
+    kept: list = field(default_factory=list)
+
+    @property
+    def refused(self) -> bool:
+        return self.text is None
+
+
+@dataclass
+class CompensateRun:
+    """All files of one job, the summary written, and the stale outputs removed."""
+
+    outcomes: list
+    summary_path: Path
+    removed: list
+
+    @property
+    def refused(self) -> list:
+        return [o for o in self.outcomes if o.refused]
+
+
+def plan_outputs(files, out_dir: Path) -> list:
+    """Output path per input; refuses duplicates and outputs that would overwrite an input."""
+    inputs = [Path(f) for f in files]
+    for p in inputs:
+        if not p.is_file():
+            raise InputError(f"{p}: no such file")
+    outs = [out_dir / p.name for p in inputs]
+    seen = {}
+    for p, o in zip(inputs, outs):
+        if o.name in seen:
+            raise UsageError(f"two inputs would both be written to {o}: {seen[o.name]} and {p}")
+        seen[o.name] = p
+    resolved_inputs = {p.resolve() for p in inputs}
+    for o in outs:
+        if o.resolve() in resolved_inputs:
+            raise UsageError(f"--out {out_dir} would overwrite the input {o}; choose another folder")
+    return list(zip(inputs, outs))
+
+
+def check_out_dir(out_dir: Path, force: bool) -> list:
+    """Refuse a DIR holding files unless ``force``; return the previous run's outputs (to remove)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UsageError(f"--out {out_dir} is not a folder")
+    held = sorted(p.name for p in out_dir.iterdir()) if out_dir.is_dir() else []
+    if held and not force:
+        raise UsageError(f"--out {out_dir} already holds {len(held)} file(s) ({', '.join(held[:3])}"
+                         f"{', ...' if len(held) > 3 else ''}); choose an empty folder or pass --force "
+                         "(which removes the previous run's outputs)")
+    old = []
+    summary = out_dir / SUMMARY_NAME
+    if held and summary.is_file():
+        try:
+            doc = json.loads(summary.read_text(encoding="utf-8"))
+            old = [out_dir / Path(e["output"]).name for e in doc.get("files", []) if e.get("output")]
+        except (ValueError, KeyError, TypeError, AttributeError):
+            old = []
+    return old
+
+
+def kept_stroke_violations(tp, machine) -> list:
+    """(line, reason) of rapids kept as written whose nominal end is outside the strokes."""
+    job = tp.source if tp.kind == "gcode" else None
+    if job is None or not len(job.kept_axes):
+        return []
+    ax = np.where(np.isfinite(job.kept_axes), job.kept_axes, 0.5 * (machine.stroke_lo + machine.stroke_hi))
+    idx, reasons = guards.stroke_violations(ax, machine)
+    return [(int(job.kept_lines[i]), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
+
+
+def override_note(s: CompensateSettings, entry) -> str:
+    """The line an output carries when guards were overridden."""
+    counts = ", ".join(f"{g} {n}" for g, n in entry["guard_violations"].items() if n)
+    return (f"volcomp compensate: GUARDS OVERRIDDEN (--allow {','.join(entry['allowed_guards'])}): "
+            f"{counts} point(s) violate; method={s.method} model={s.model}")
+
+
+def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings) -> FileOutcome:
+    """Solve, guard and render one parsed tool path ``tp`` read from ``src``, to be written to
+    ``dst`` (in memory; nothing is written)."""
+    opts = {"seed": s.seed} if s.method in ("ga", "batched-ga") else {}
+    with small_batch_threads(s.method, len(tp)):
+        res = solve(s.method, field_, tp.targets_mm, machine, target_axes=tp.axes, **opts)
+    res.axes = np.array(res.axes, dtype=float)
+    res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
+    try:
+        report = guards.check(res, machine, field_, allow=s.allow, target_axes=tp.axes)
+    except TypeError as exc:  # a field that cannot say where it is calibrated
+        raise UsageError(f"{s.model}: {exc}") from None
+    viol = [(int(i), int(tp.lines[i]), "; ".join(report.point_reasons(int(i)))) for i in report.indices]
+    blocking = set(np.concatenate(list(report.blocking.values())).tolist()) if report.blocking else set()
+    kept = kept_stroke_violations(tp, machine)
+    kept_blocking = bool(kept) and "stroke" not in report.allowed
+    norm = np.linalg.norm(res.residual_um, axis=1)
+    violations = {g: int(len(v)) for g, v in report.violations.items()}
+    violations["stroke"] += len(kept)
+    entry = {"input": str(src), "output": None, "format": tp.kind, "points": len(tp),
+             "residual": "model", "model_max_um": float(norm.max()), "model_mean_um": float(norm.mean()),
+             "max_correction_um": float(np.max(res.correction_um)),
+             "failures": int(np.count_nonzero(~np.asarray(res.success, bool))),
+             "guard_violations": violations, "allowed_guards": sorted(report.allowed),
+             "overridden": {g: n for g, n in violations.items() if n and g in report.allowed},
+             "seconds": float(res.seconds)}
+    if tp.kind == "gcode":
+        job = tp.source
+        entry.update({"lines": len(job.program.lines),
+                      "moves_compensated": len(job.params), "moves_kept": int(len(job.kept_lines)),
+                      "rapids": s.rapids, "block_delete": s.block_delete,
+                      "arc_tolerance_um": job.arc_tolerance_um, "max_segment_mm": job.max_segment_mm,
+                      "field_curvature_um_per_mm2": job.curvature_um_per_mm2})
+    outcome = FileOutcome(src, dst, entry, None, viol, kept_violations=len(kept))
+    if blocking or kept_blocking:
+        entry["refused"] = True
+        outcome.blocking = [v for v in viol if v[0] in blocking]
+        outcome.guards = sorted(report.blocking) or ["stroke"]
+        outcome.kept = kept if kept_blocking else []
+    else:
+        comments = [f"compensated by volcomp: method={s.method} model={s.model}",
+                    f"model residual max {entry['model_max_um']:.4g} um"]
+        if entry["overridden"]:
+            comments.insert(0, override_note(s, entry))
+        elif tp.kind == "gcode":
+            comments = []  # a clean G-code output gets no added lines
+        outcome.text = render_compensated(tp, res.axes, res.commands_mm, comments=comments)
+    return outcome
+
+
+def compensate_files(files, machine, s: CompensateSettings, on_file=None) -> CompensateRun:
+    """Compensate ``files`` into ``s.out_dir`` in the order of work above; ``on_file(outcome)``
+    is called after each file is solved (before anything is written)."""
+    out_dir = Path(s.out_dir)
+    plan = plan_outputs(files, out_dir)
+    old_outputs = check_out_dir(out_dir, s.force)
+    # parse and validate every input first: a bad file fails the batch before any work or output
+    read_opts = {"rapids": s.rapids, "block_delete": s.block_delete, "arc_tolerance_um": s.arc_tolerance_um}
+    paths = [read_path(src, machine, **read_opts) for src, _ in plan]
+    field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
+    paths = [replan(tp, machine, max_segment_mm=s.max_segment_mm, field=field_) for tp in paths]
+    outcomes = []
+    bar = Progress(len(plan), f"compensate ({s.method})", every_s=0.0)
+    for (src, dst), tp in zip(plan, paths):
+        o = compensate_one(tp, src, dst, field_, machine, s)
+        outcomes.append(o)
+        bar.update(1, extra=src.name)
+        if on_file is not None:
+            on_file(o)
+    # write: remove what a previous run left, then the accepted files, the summary last
+    written = {o.dst.name for o in outcomes if not o.refused}
+    stale = set(old_outputs) | {o.dst for o in outcomes if o.refused}
+    removed = []
+    for p in sorted(stale):
+        if p.is_file() and p.name not in written:
+            p.unlink()
+            removed.append(str(p))
+    write_outputs([(tp, o.dst, o.text) for o, tp in zip(outcomes, paths) if not o.refused])
+    for o in outcomes:
+        if not o.refused:
+            o.entry["output"] = str(o.dst)
+    summary_path = write_json(out_dir / SUMMARY_NAME, {
+        "method": s.method, "model": s.model, "machine": machine.path, "allow": list(s.allow),
+        "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "files": [o.entry for o in outcomes],
+        "removed_stale": removed})
+    return CompensateRun(outcomes, summary_path, removed)

@@ -1,0 +1,225 @@
+"""Controller compensation tables (``volcomp export``): build, check, write, read back.
+
+:func:`export_table` sizes a table for the tolerance, re-simulates the controller's use of it on
+the flute path and random points (MODEL residual, and TRUE with a truth), refuses it when the
+tolerance is not met (unless forced), writes it into a staging folder, reads it back and
+compares, and renames the folder into place with ``export.json``. :func:`export_drift` does the
+same for a drift model's coefficients on a log. The formats: :mod:`compensation.export`.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from errormap.elements import ElementSet
+from errormap.io import InputError, sha256_file
+from errormap.iso230 import ISO_NAME
+
+from ... import export as ex
+from ..cli import UsageError
+
+READ_BACK_TOL_UM = 1e-5
+"""Read-back check (μm; joint units × 1000 for LinuxCNC, i.e. μm and millidegrees): the CSV files
+hold 12 significant digits and the LinuxCNC files 9 decimals of mm/deg (rounding ≤ 5e-7 μm per
+value, three values per command), so the table read back must agree to 1e-5."""
+
+
+@dataclass
+class TableSettings:
+    """One table export. ``fmt``: an :data:`compensation.export.ALL_FORMATS` name other than
+    ``drift``; ``region``: ``{"x_mm": (lo, hi), "z_mm": (lo, hi)}`` or None (linuxcnc)."""
+
+    model: str
+    fmt: str
+    out: str
+    tolerance_um: float
+    check_points: int = 2000
+    seed: int = 0
+    truth: str | None = None
+    diagnosis: str | None = None
+    points: int = ex.LINUXCNC_MAX_POINTS
+    region: dict | None = None
+    force: bool = False
+    tracking_uri: str | None = None
+
+
+@dataclass
+class DriftSettings:
+    """One drift-coefficient export: ``sample_period_s`` None = the check log's median step;
+    ``log`` None = a simulated log of family ``sim`` (default lumped) and seed ``sim_seed``."""
+
+    model: str
+    out: str
+    tolerance_um: float
+    sample_period_s: float | None = None
+    log: str | None = None
+    sim: str | None = None
+    sim_seed: int | None = None
+    force: bool = False
+
+
+def load_model(s: TableSettings, machine):
+    """``(ModelError, description)`` of the element set or learned field ``s.model``."""
+    p = Path(s.model)
+    if p.suffix.lower() == ".json" or p.is_file():
+        el = ElementSet.load(p)
+        if el.machine_sha256 and el.machine_sha256 != machine.sha256:
+            raise InputError(f"{p}: key 'machine_sha256': the model was made for machine file sha256 "
+                             f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
+                             f"({machine.path}); pass the model's --machine")
+        return ex.ModelError(machine, el), f"{p} (element set, sha256 {sha256_file(p)})"
+    if s.fmt == "iso-tables":
+        raise UsageError("--format iso-tables needs an element-set model (JSON): ISO component tables are the 23 "
+                         "elements' components")
+    from ...fields import load_field
+    return ex.ModelError(machine, field=load_field(s.model, machine, s.tracking_uri)), f"{s.model} (learned field)"
+
+
+def export_table(s: TableSettings, machine, on_check=None, log=None) -> dict:
+    """Build, check and write one table into ``s.out``; returns the ``export.json`` document
+    (``files``: name → size). ``on_check(check, has_truth)`` is called with the check before the
+    tolerance decides; progress goes to ``log`` (stderr)."""
+    log = sys.stderr if log is None else log
+    model, model_desc = load_model(s, machine)
+    left_out = []
+    if s.diagnosis:
+        back, left_out = ex.backlash_from_diagnosis(s.diagnosis)
+        if model.elements is None:
+            raise UsageError("--diagnosis needs an element-set model (the reversal is added to an element)")
+        model.backlash = back
+    truth = None
+    if s.truth:
+        from ...evaluate import load_truth
+        truth = load_truth(s.truth, machine)
+    sets = ex.check_sets(machine, s.check_points, s.seed)
+    say = lambda msg: print(msg, file=log)  # noqa: E731
+    say("sizing the table and re-simulating the controller on the flute and the volume ...")
+    try:
+        table, sizing, check = ex.build_checked_table(s.fmt, model, machine, s.tolerance_um, sets, truth,
+                                                      {}, n_points=s.points, region=s.region, seed=s.seed,
+                                                      log=say)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if on_check is not None:
+        on_check(check, truth is not None)
+    worst = ex.worst_model_um(check)
+    met = worst <= s.tolerance_um
+    if not met and not s.force:
+        raise UsageError(f"tolerance not met: the {s.fmt} table leaves a model residual up to {worst:.4g} um > "
+                         f"--tolerance-um {s.tolerance_um:g}; nothing written (--force writes anyway, recorded "
+                         "in export.json)")
+    info = {"format": "volcomp-export/1", "table_format": s.fmt, "model": model_desc,
+            "machine": {"name": machine.name, "file": machine.path, "sha256": machine.sha256},
+            "tolerance_um": s.tolerance_um, "tolerance_met": bool(met), "worst_model_residual_um": worst,
+            "override": None if met else {"forced": True, "reason": f"worst model residual {worst:.6g} um exceeds "
+                                                                    f"the tolerance {s.tolerance_um:g} um"},
+            "sizing": sizing, "check": check,
+            "check_points": {"flute": "default flute path (compensation.toolpath.flute_path)",
+                             "volume": f"{s.check_points} uniform random axis points, seed {s.seed}"},
+            "residuals": {"model": "fwd(q_c) + E_model(q_c) - p_d (um), q_c = the controller's command with the table",
+                          "true": "truth.tool_point(q_c) - p_d (um)" if truth is not None else "no --truth given"},
+            "truth": s.truth, "iso230_names": dict(ISO_NAME)}
+    if s.fmt == "linuxcnc":
+        info["backlash_joint_units"] = dict(table.backlash)
+        info["diagnosis"] = s.diagnosis
+        info["diagnosed_effects_not_exported"] = left_out
+        info["linuxcnc"] = {"columns": "nominal forward reverse (mm for x, z; deg for a)",
+                            "meaning": "forward/reverse: actual joint position when commanded to nominal moving +/-; "
+                                       "the controller commands nominal + (nominal - actual)",
+                            "a": "one turn; the controller folds A into it (wrapped rotary joint)"}
+    with ex.staged_folder(s.out) as tmp:
+        files = ex.write_table(table, tmp, machine, model_desc)
+        back = ex.read_back(s.fmt, tmp)
+        diff = read_back_difference(table, back, machine, sets)
+        if diff > READ_BACK_TOL_UM:
+            raise RuntimeError(f"read-back check failed: the written {s.fmt} table differs from the built one by "
+                               f"{diff:.3g} um")
+        info["read_back_difference_um"] = diff
+        info["files"] = {p.name: p.stat().st_size for p in files}
+        info["table_values"] = table.n_values()
+        ex.write_manifest(tmp, info)
+    return info
+
+
+def read_back_difference(table, back, machine, sets) -> float:
+    """Largest difference (μm, or μm-equivalent of the joint commands) between the built and the
+    read-back table, as the controller uses them, at the check axes."""
+    worst = 0.0
+    for targets, axes, dirs in sets.values():
+        if table.kind == "linuxcnc":
+            d = (table.command(axes, dirs) - back.command(axes, dirs)) * np.array([1e3, 1e3, 1e3])
+        else:
+            d = table.field(machine)(axes) - back.field(machine)(axes)
+        worst = max(worst, float(np.abs(d).max()))
+    return worst
+
+
+def drift_check_log(s: DriftSettings, progress=None):
+    """The log the controller is re-simulated on, its description, and the noise-free displacement
+    when it is simulated (``{channel: (n,)}``, else None); notes go to ``progress`` (stderr)."""
+    from errormap.diagnosis.drift import DriftLog, load_drift_log
+    progress = sys.stderr if progress is None else progress
+    if s.log is not None:
+        if s.sim is not None or s.sim_seed is not None:
+            raise UsageError("--sim and --sim-seed choose a simulated log: give them or --log, not both")
+        log = load_drift_log(s.log, causal=True, require_displacement=False)
+        for c, why in log.notes["dropped"].items():
+            print(f"dropped input {c}: {why}", file=progress)
+        return log, f"{s.log} (sha256 {sha256_file(s.log)})", None
+    from errormap.diagnosis.drift_sim import SIMULATORS
+    fam, seed = s.sim or "lumped", 0 if s.sim_seed is None else s.sim_seed
+    cols = SIMULATORS[fam](seed, n_dropouts=0)
+    truth = cols.pop("_truth")
+    name = f"<simulated {fam} log, seed {seed}>"
+    log = DriftLog(cols["time_s"], {k[5:-2]: v for k, v in cols.items() if k.startswith("temp_")},
+                   {k[:-3]: v for k, v in cols.items() if k.endswith("_um")}, cols.get("speed_rpm"), name)
+    return log, f"simulated: errormap.diagnosis.drift_sim {fam}, seed {seed}, no dropouts", truth["clean_um"]
+
+
+def export_drift(s: DriftSettings, on_check=None, log=None) -> dict:
+    """``--format drift``: coefficients at a fixed sample period, checked on a log before writing;
+    returns the ``export.json`` document. ``on_check(check)`` is called before the tolerance
+    decides; progress goes to ``log`` (stderr)."""
+    from errormap.diagnosis.drift_models import DriftModel
+    log = sys.stderr if log is None else log
+    dt = s.sample_period_s
+    model = DriftModel.load(s.model)
+    model_desc = f"{s.model} (drift model, sha256 {sha256_file(s.model)})"
+    drift_log, log_desc, clean = drift_check_log(s, log)
+    step = float(np.median(np.diff(drift_log.time_s)))
+    if dt is None:
+        dt = step
+    print(f"re-simulating the controller at dt = {dt:g} s on {log_desc} (median sampling step {step:g} s) ...",
+          file=log)
+    with ex.staged_folder(s.out) as tmp:
+        # force=True here: the check is printed first, then refused below (the staging folder is discarded)
+        res = ex.export_drift_coefficients(model, tmp, dt, drift_log, model_desc, s.tolerance_um, clean, force=True)
+        if on_check is not None:
+            on_check(res["check"])
+        worst, met = res["worst_model_residual_um"], res["tolerance_met"]
+        if not met and not s.force:
+            raise UsageError(f"tolerance not met: at a sample period of {dt:g} s the drift coefficients leave a model "
+                             f"residual up to {worst:.4g} um > --tolerance-um {s.tolerance_um:g}; nothing written "
+                             "(--force writes anyway, recorded in export.json)")
+        coef = res["coefficients"]
+        info = {"format": "volcomp-export/1", "table_format": "drift", "model": model_desc,
+                "sample_period_s": dt, "sample_period_given": s.sample_period_s is not None,
+                "check_log_median_step_s": step, "tolerance_um": s.tolerance_um, "tolerance_met": met,
+                "worst_model_residual_um": worst,
+                "override": None if met else {"forced": True, "reason": f"worst model residual {worst:.6g} um "
+                                                                        f"exceeds the tolerance {s.tolerance_um:g} um"},
+                "check_log": log_desc, "check": res["check"],
+                "residuals": {"model": "controller(coefficients) - DriftModel.predict at each log time (um)",
+                              "measured": "log displacement - prediction (um); before = the displacement itself",
+                              "true": "noise-free simulated displacement - prediction (um)" if clean is not None
+                                      else "no simulated log (--log given)"},
+                "controller": {"ticks": f"every {dt:g} s from the log's first time; each tick reads the latest "
+                                        f"logged value at or before it (within {ex.DRIFT_TICK_EPS_S:g} s)",
+                               "output": "the prediction of the latest tick at or before each log time"},
+                "files": {ex.DRIFT_FILE: res["file"].stat().st_size},
+                "table_values": coef.n_values()}
+        ex.write_manifest(tmp, info)
+    return info

@@ -1,0 +1,147 @@
+"""The whole pipeline on one machine (``volcomp demo``).
+
+simulate a truth grinder (``DIR/sim``) → its 11×11×11 feature points → train the BP network
+(Levenberg–Marquardt, tracked in MLflow) → compensate the variable-helix flute path with every
+method (:mod:`compensation.app.workflows.compare`) → ``DIR/report.html``, ``DIR/metrics.json``,
+``DIR/residuals.csv`` (MODEL and TRUE residual) and ``DIR/demo.json``. The report files are
+also logged to the training's MLflow run.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from errormap.featurepoints import FeaturePoints
+from errormap.htm import HTMField
+from errormap.io import write_json
+
+from ...evaluate import load_truth
+from ..reports.methods import print_table, write_report
+from .compare import compare_methods
+from .simulate import simulate_truth, summary_lines
+
+
+@dataclass
+class DemoSettings:
+    """What one demo run does. ``flute``: the path (:func:`compensation.toolpath.flute_path`);
+    ``hidden``: hidden layer sizes (None: the training package's default); ``train_s``: a
+    wall-clock limit on training (None: the iteration count alone decides)."""
+
+    out: Path
+    flute: object
+    methods: tuple
+    sim_seed: int = 0
+    seed: int = 0
+    tracking_uri: str | None = None
+    train_iter: int = 1000
+    train_s: float | None = None
+    trainer: str = "lm"
+    hidden: tuple | None = None
+    ga_points: int | None = None
+    ga_budget_s: float = 90.0
+
+
+def train_field(fp_path: Path, s: DemoSettings, log=None):
+    """Train the network with ``training.fit_field``; returns ``(field, info dict)``, or
+    ``(None, None)`` when the training package offers no ``fit_field``.
+
+    ``info`` has ``run_id`` (or None), ``metrics`` and ``model`` (what the report names).
+    """
+    log = sys.stderr if log is None else log
+    import training
+    fit_field = getattr(training, "fit_field", None)
+    if fit_field is None:
+        return None, None
+    kwargs = {"trainer": s.trainer, "max_iter": s.train_iter, "seed": s.seed,
+              "max_time_s": s.train_s if s.train_s is not None else math.inf}
+    if s.tracking_uri:
+        kwargs["tracking_uri"] = s.tracking_uri
+    if s.hidden:
+        kwargs["hidden"] = tuple(s.hidden)
+    fp = FeaturePoints.load(fp_path)
+    print(f"training the BP network on {len(fp.axes)} feature points ({s.trainer}, "
+          f"at most {s.train_iter} iterations" + (f", {s.train_s:g} s" if s.train_s else "") + ") ...",
+          file=log)
+    res = fit_field(fp, **kwargs)
+    run_id = getattr(res, "run_id", None)
+    metrics = dict(getattr(res, "metrics", {}) or {})
+    return res.field, {"run_id": run_id, "metrics": metrics,
+                       "model": f"runs:/{run_id}" if run_id else "trained network (not tracked)"}
+
+
+def log_to_mlflow(run_id, tracking_uri, paths: dict, metrics: dict, log=None) -> None:
+    """Log the report files and per-method residual metrics to the training run."""
+    log = sys.stderr if log is None else log
+    if not run_id:
+        return
+    import mlflow
+    if tracking_uri is None:  # the store the training run went to (runs/mlflow.db unless overridden)
+        from training.tracking import default_tracking_uri
+        tracking_uri = default_tracking_uri()
+    client = mlflow.tracking.MlflowClient(tracking_uri=tracking_uri)
+    for method, m in metrics["methods"].items():
+        for key in ("model_max_um", "model_mean_sq_um2", "true_max_um", "true_mean_um", "seconds"):
+            if m.get(key) is not None:
+                client.log_metric(run_id, f"report.{method}.{key}", float(m[key]))
+    for k in ("html", "metrics", "residuals"):
+        client.log_artifact(run_id, str(paths[k]), artifact_path="report")
+    print(f"logged the report to MLflow run {run_id}", file=log)
+
+
+def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
+    """Run the demo on ``machine`` (a grinder); progress goes to ``log`` (stderr), the result lines to ``out`` (stdout).
+    Returns the paths written (``html``, ``metrics``, ``residuals``)."""
+    out = sys.stdout if out is None else out
+    log = sys.stderr if log is None else log
+    t_start = time.perf_counter()
+    fl = s.flute
+    nominal = fl.axes(machine)
+    print("[1/4] simulate", file=log)
+    sim_dir = Path(s.out) / "sim"
+    print(f"simulating truth grinder seed={s.sim_seed} effects=none ...", file=log)
+    sim_info = simulate_truth(machine, s.sim_seed, sim_dir, effects=[], noise_um=1.0, checks=400)
+    for line in summary_lines(sim_info, sim_dir):
+        print(line, file=out)
+    truth = load_truth(sim_dir, machine)
+
+    print("[2/4] feature points: " + str(sim_dir / "featurepoints.csv"), file=log)
+    print("[3/4] train", file=log)
+    t0 = time.perf_counter()
+    field, train_info = train_field(sim_dir / "featurepoints.csv", s, log=log)
+    if field is None:
+        print("warning: training.fit_field is not available; the demo uses the 23-element HTM model of the "
+              "truth elements as its error field instead of a trained network", file=log)
+        field = HTMField(machine, truth.elements)
+        train_info = {"run_id": None, "metrics": {}, "model": f"HTM model of {sim_dir / 'truth_elements.json'} "
+                                                              "(training unavailable)"}
+    train_s = time.perf_counter() - t0
+    print(f"trained in {train_s:.1f} s; model {train_info['model']}", file=log)
+
+    print(f"[4/4] compensate the flute ({len(fl)} points) with {', '.join(s.methods)} and report", file=log)
+    cmp = compare_methods(field, fl.targets_mm, machine, methods=s.methods, truth=truth, ga_points=s.ga_points,
+                          ga_budget_s=s.ga_budget_s, seed=s.seed, nominal_axes=nominal, log=log)
+    cmp.info.update({"machine": machine.name, "machine_file": machine.path, "model": train_info["model"],
+                     "truth": str(sim_dir), "path": "flute", "flute": fl.settings.to_dict(), "points": len(fl)})
+    context = {"machine": f"{machine.name} ({machine.path})",
+               "model (error field)": f"{train_info['model']}, trained {train_s:.0f} s on "
+                                      f"{sim_dir / 'featurepoints.csv'}",
+               "truth": f"simulated grinder seed {s.sim_seed} ({sim_dir})",
+               "path": f"variable-helix flute: {fl.settings.turns:g} turns × {fl.settings.points_per_turn} points, "
+                       f"r = {fl.settings.radius_mm:g} mm, helix {fl.settings.helix_start_deg:g}° → "
+                       f"{fl.settings.helix_end_deg:g}°",
+               "seed": s.seed}
+    extra = {"training": {"run_id": train_info["run_id"], "seconds": train_s, "metrics": train_info["metrics"]}}
+    paths = write_report(cmp, s.out, title="volcomp demo: flute-path compensation", context=context,
+                         extra_metrics=extra)
+    print_table(cmp, stream=out)
+    try:
+        log_to_mlflow(train_info["run_id"], s.tracking_uri, paths, cmp.metrics(), log=log)
+    except Exception as exc:  # the report is written; tracking trouble must not lose it
+        print(f"warning: could not log the report to MLflow: {exc}", file=log)
+    write_json(Path(s.out) / "demo.json", {"seconds": time.perf_counter() - t_start, "out": str(s.out),
+                                           "sim": str(sim_dir), **{k: str(v) for k, v in paths.items()},
+                                           "run_id": train_info["run_id"], "tracking_uri": s.tracking_uri})
+    return paths

@@ -1,0 +1,48 @@
+"""Simulating a truth grinder and its files (``volcomp simulate``; step 1 of ``volcomp demo``)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from errormap.featurepoints import make_feature_points
+from errormap.htm import HTMField
+from errormap.io import sha256_file, write_csv, write_json
+from errormap.simulator import EFFECT_DEFAULTS, volume_grid
+
+
+def simulate_truth(machine, seed: int, out, effects=(), noise_um: float = 1.0, checks: int = 400,
+                   family: str = "default") -> dict:
+    """Write ``out/truth_elements.json``, ``featurepoints.csv``, ``checks.csv`` and ``truth.json``
+    for the truth grinder of ``seed`` (``errormap.truth_families.make_truth``); returns the
+    ``truth.json`` document (``files``: the paths written, ``max_spatial_error_um`` over the volume)."""
+    from errormap.truth_families import make_truth
+    out = Path(out)
+    effects = list(effects)
+    truth = make_truth(machine, seed, effects=effects, family=family)
+    el_path = truth.elements.save(out / "truth_elements.json")
+    fp = make_feature_points(machine, HTMField(machine, truth.elements),
+                             meta={"elements_file": str(el_path), "source": f"simulate seed={seed}"})
+    fp.meta["elements_sha256"] = sha256_file(el_path)
+    fp_path = fp.save(out / "featurepoints.csv")
+    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=seed + 1)
+    ck_path = write_csv(out / "checks.csv", measured, header_comments=[
+        "format: volcomp-checks/1", f"machine: {machine.name}", f"noise_um: {noise_um}",
+        f"effects: {','.join(effects) or 'none'}"])
+    grid = volume_grid(machine)
+    e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
+    info = {"seed": seed, "machine": machine.name, "machine_file": machine.path,
+            "family": family, "effects": {k: EFFECT_DEFAULTS[k] | truth.effects[k] for k in truth.effects},
+            "noise_um": noise_um, "max_spatial_error_um": float(e.max()),
+            "files": {"elements": str(el_path), "featurepoints": str(fp_path), "checks": str(ck_path)}}
+    write_json(out / "truth.json", info)
+    return info
+
+
+def summary_lines(info: dict, out) -> list:
+    """What ``volcomp simulate`` prints about a simulation (``info``: :func:`simulate_truth`'s)."""
+    lines = [f"max spatial error {info['max_spatial_error_um']:.1f} μm over the volume (reference temperature, "
+             "positive approach)"]
+    lines += [f"wrote {k}: {v}" for k, v in info["files"].items()]
+    lines.append(f"wrote truth: {Path(out) / 'truth.json'}")
+    return lines
