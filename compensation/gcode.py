@@ -759,6 +759,7 @@ class MoveTable:
     obj: np.ndarray
     objects: list
     spans: np.ndarray
+    cache: dict = field(default_factory=dict, repr=False)  # derived arrays (pathio: path lengths)
 
     def __len__(self) -> int:
         return self.line.shape[0]
@@ -923,3 +924,114 @@ def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete) -> GPro
     if not table.compensate.any():
         raise InputError(f"{path}: no G0/G1/G2/G3 motion with X, Z or A words to compensate found")
     return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table)
+
+
+def _fmt_column(values, decimals: int) -> list:
+    """:func:`fmt` of every value, (n,) -> list of str."""
+    zero_neg = "-" + f"{0.0:.{decimals}f}"
+    pos_zero = zero_neg[1:]
+    spec = f".{decimals}f"
+    out = [format(v, spec) for v in np.asarray(values, dtype=float).tolist()]
+    return [pos_zero if s == zero_neg else s for s in out]
+
+
+class _Groups(Sequence):
+    """``groups`` of :func:`render_table`: output lines per source line, built when asked for."""
+
+    def __init__(self, lines: list, changed: dict):
+        self._lines, self._changed = lines, changed
+
+    def __len__(self) -> int:
+        return len(self._lines)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        i = range(len(self))[i]
+        return list(self._changed.get(i, [self._lines[i]]))
+
+
+def render_table(program: GProgram, axes, counts, header=()) -> tuple:
+    """:func:`render_program` of a block-wise read program in absolute mode, in bulk: same text.
+
+    ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated
+    move. Untouched lines are copied as they are; the X, Z, A numbers of every compensated
+    bulk line are formatted column-wise and put in place of the old ones (missing axes appended
+    after the last axis word, extra vertices as added lines), moves read line by line (arcs)
+    through the per-line writer. A program with incremental moves needs the controller's
+    position line by line: :func:`render_program`.
+    """
+    t = program.table
+    if t is None or t.incremental.any():
+        raise ValueError("Expected a block-wise read program without incremental moves")
+    axes = np.asarray(axes, dtype=float)
+    counts = np.asarray(counts, dtype=np.int64)
+    rows = np.flatnonzero(t.compensate)
+    if counts.shape != rows.shape or axes.shape != (int(counts.sum()), 3):
+        raise ValueError(f"Expected counts for {rows.size} compensated moves and matching axes, "
+                         f"got {counts.shape} and {axes.shape}")
+    if not np.all(np.isfinite(axes)):
+        raise ValueError("Expected finite vertices, got NaN/inf")
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    inch_v = np.repeat(t.inch[rows], counts)
+    cols = []
+    for j in range(3):
+        v = axes[:, j]
+        if j == 2:
+            cols.append(_fmt_column(v, DECIMALS["deg"]))
+            continue
+        col = np.empty(v.size, dtype=object)
+        mm = ~inch_v
+        col[mm] = _fmt_column(v[mm], DECIMALS["mm"])
+        col[inch_v] = _fmt_column(v[inch_v] / MM_PER_INCH, DECIMALS["inch"])
+        cols.append(col.tolist())
+    xs, zs, as_ = cols
+    lines = program.lines
+    out = list(lines)
+    changed = {}
+    bulk = t.obj[rows] < 0
+    sp = t.spans[rows]
+    for k in np.flatnonzero(~bulk).tolist():  # moves read line by line (arcs, ...)
+        m = program.moves[int(rows[k])]
+        q = axes[first[k]:first[k] + counts[k]]
+        changed[m.index], _ = _render_move(lines[m.index], m, q, np.full(3, np.nan))
+        out[m.index] = "".join(changed[m.index])
+    kb = np.flatnonzero(bulk)
+    have = sp[kb, 1:, 0] >= 0  # (m, 3) X Z A present
+    for k, i, f, c, (sx, ex), (sz, ez), (sa, ea), (hx, hz, ha) in zip(
+            kb.tolist(), t.line[rows[kb]].tolist(), first[kb].tolist(), counts[kb].tolist(),
+            sp[kb, 1].tolist(), sp[kb, 2].tolist(), sp[kb, 3].tolist(), have.tolist()):
+        line = lines[i]
+        body = line.rstrip("\r\n")
+        x, z, a = xs[f], zs[f], as_[f]
+        parts, pos = [], 0
+        if hx:
+            parts += [body[pos:sx], x]
+            pos = ex
+        if hz:
+            parts += [body[pos:sz], z]
+            pos = ez
+        if ha:
+            parts += [body[pos:sa], a]
+            pos = ea
+        if not hx:
+            parts.append(" X" + x)
+        if not hz:
+            parts.append(" Z" + z)
+        if not ha:
+            parts.append(" A" + a)
+        parts.append(body[pos:])
+        first_line = "".join(parts)
+        if c == 1:
+            out[i] = first_line + line[len(body):]
+            changed[i] = (out[i],)
+            continue
+        ending = line[len(body):] or "\n"
+        extra = [f"X{xs[v]} Z{zs[v]} A{as_[v]}" + ending for v in range(f + 1, f + c)]
+        if not line.endswith("\n"):
+            g = [first_line + ending] + extra[:-1] + [extra[-1][:-len(ending)]]
+        else:
+            g = [first_line + line[len(body):]] + extra
+        changed[i] = g
+        out[i] = "".join(g)
+    return _with_header(out, header), _Groups(lines, changed)
