@@ -938,8 +938,8 @@ def _fmt_column(values, decimals: int) -> list:
 class _Groups(Sequence):
     """``groups`` of :func:`render_table`: output lines per source line, built when asked for."""
 
-    def __init__(self, lines: list, changed: dict):
-        self._lines, self._changed = lines, changed
+    def __init__(self, lines: list, out: list, changed: dict):
+        self._lines, self._out, self._changed = lines, out, changed
 
     def __len__(self) -> int:
         return len(self._lines)
@@ -948,7 +948,10 @@ class _Groups(Sequence):
         if isinstance(i, slice):
             return [self[j] for j in range(*i.indices(len(self)))]
         i = range(len(self))[i]
-        return list(self._changed.get(i, [self._lines[i]]))
+        g = self._changed.get(i, False)
+        if g is False:
+            return [self._lines[i]]
+        return [self._out[i]] if g is None else list(g)
 
 
 def render_table(program: GProgram, axes, counts, header=()) -> tuple:
@@ -997,13 +1000,23 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         changed[m.index], _ = _render_move(lines[m.index], m, q, np.full(3, np.nan))
         out[m.index] = "".join(changed[m.index])
     kb = np.flatnonzero(bulk)
-    have = sp[kb, 1:, 0] >= 0  # (m, 3) X Z A present
-    for k, i, f, c, (sx, ex), (sz, ez), (sa, ea), (hx, hz, ha) in zip(
-            kb.tolist(), t.line[rows[kb]].tolist(), first[kb].tolist(), counts[kb].tolist(),
-            sp[kb, 1].tolist(), sp[kb, 2].tolist(), sp[kb, 3].tolist(), have.tolist()):
+    full = (sp[kb, 1:, 0] >= 0).all(axis=1)  # X, Z and A all on the line (the common case)
+    one = counts[kb] == 1
+    # the common case in one pass: X Z A on the line, one vertex
+    fa = kb[full & one]
+    for i, f, sx, ex, sz, ez, sa, ea in zip(
+            t.line[rows[fa]].tolist(), first[fa].tolist(), *(sp[fa, j, e].tolist() for j in (1, 2, 3) for e in (0, 1))):
+        line = lines[i]
+        out[i] = f"{line[:sx]}{xs[f]}{line[ex:sz]}{zs[f]}{line[ez:sa]}{as_[f]}{line[ea:]}"
+    changed.update(dict.fromkeys(t.line[rows[fa]].tolist()))
+    rest = kb[~(full & one)]
+    for i, f, c, (sx, ex), (sz, ez), (sa, ea) in zip(
+            t.line[rows[rest]].tolist(), first[rest].tolist(), counts[rest].tolist(),
+            sp[rest, 1].tolist(), sp[rest, 2].tolist(), sp[rest, 3].tolist()):
         line = lines[i]
         body = line.rstrip("\r\n")
         x, z, a = xs[f], zs[f], as_[f]
+        hx, hz, ha = sx >= 0, sz >= 0, sa >= 0
         parts, pos = [], 0
         if hx:
             parts += [body[pos:sx], x]
@@ -1024,7 +1037,7 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         first_line = "".join(parts)
         if c == 1:
             out[i] = first_line + line[len(body):]
-            changed[i] = (out[i],)
+            changed[i] = None
             continue
         ending = line[len(body):] or "\n"
         extra = [f"X{xs[v]} Z{zs[v]} A{as_[v]}" + ending for v in range(f + 1, f + c)]
@@ -1034,4 +1047,4 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
             g = [first_line + line[len(body):]] + extra
         changed[i] = g
         out[i] = "".join(g)
-    return _with_header(out, header), _Groups(lines, changed)
+    return _with_header(out, header), _Groups(lines, out, changed)

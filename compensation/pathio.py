@@ -250,7 +250,7 @@ def render_gcode(job: GCodeJob, axes, header=()) -> tuple[str, list]:
     ``axes`` (n, 3): the compensated vertices in the order of :func:`gcode_toolpath`.
     """
     axes = np.asarray(axes, dtype=float)
-    counts = [len(t) for t in job.params]
+    counts = job.counts.tolist() if job.counts is not None else [len(t) for t in job.params]
     if axes.shape != (sum(counts), 3):
         raise ValueError(f"Expected axes of shape ({sum(counts)}, 3), got {axes.shape}")
     if not np.all(np.isfinite(axes)):
