@@ -19,7 +19,6 @@ import math
 import time
 
 import numpy as np
-import torch
 
 from errormap.kinematics import inverse
 from errormap.transforms import check_points
@@ -95,6 +94,7 @@ def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = 
     n = axes.shape[0]
     columns = getattr(field, "predict_columns", None)
     if callable(columns) and not fast:
+        import torch  # only a torch field has predict_columns (torch is then loaded: no import cost)
         out = np.empty((n, 3))
         for s in range(0, n, chunk):
             xa = torch.from_numpy(np.ascontiguousarray(axes[s:s + chunk].T))
