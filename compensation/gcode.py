@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -188,6 +189,9 @@ class GProgram:
     moves: list
     rapids: str = DEFAULT_RAPIDS
     block_delete: str | None = None
+    table: "MoveTable | None" = field(default=None, repr=False)
+    """The moves as columns (:class:`MoveTable`, set by the block-wise reader); ``moves`` is then
+    a lazy sequence that builds each :class:`GMove` only when asked for."""
 
 
 def split_lines(text: str) -> list:
@@ -293,8 +297,13 @@ def _err(path, lineno, col, msg):
     return InputError(f"{path}: line {lineno}, column {col}: {msg}")
 
 
-def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None) -> GProgram:
+def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
+                  fast: bool = True) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
+
+    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`): the common move and
+    comment lines in bulk, every other line through the exact per-line classifier; same
+    classes, moves and refusals as ``fast=False`` (the per-line reader, kept as the reference).
 
     ``rapids``: ``"keep"`` (G0 lines written as they are) or ``"compensate"``.
     ``block_delete``: ``None`` refuses a ``/`` line that moves or changes modal state;
@@ -308,6 +317,8 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     lines = split_lines(path.read_bytes().decode("latin-1"))
+    if fast:
+        return _parse_blockwise(path, lines, rapids, block_delete)
     st = _State()
     classes, moves = [], []
     for idx, line in enumerate(lines):
@@ -472,6 +483,7 @@ def _reference_return(st, groups, axis_words, arc_words):
             raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}: an intermediate point is an uncompensated "
                                        f"program point; only a bare {code} or zero incremental words "
                                        f"('{code} G91 Z0') are accepted")
+    st.pos = st.pos.copy()  # the previous move's end is this array: it must keep its values
     for j, a in enumerate(AXES):
         if not axis_words or a in axis_words:
             st.pos[j] = np.nan
@@ -607,30 +619,39 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
             continue
         q = np.asarray(vertices[k], dtype=float).reshape(-1, 3)
         k += 1
-        if not np.all(np.isfinite(q)):
-            raise ValueError(f"Expected finite vertices, got NaN/inf for line {m.index + 1}")
-        line = program.lines[m.index]
-        body = line.rstrip("\r\n")
-        ending = line[len(body):] or "\n"
-        written = []
-        for row in q:
-            vals, ctrl = _written_values(row, ctrl, m)
-            written.append(vals)
-        first = _rewrite_line(body, m, written[0])
-        extra = [" ".join(f"{a}{v}" for a, v in zip(AXES, w)) + ending for w in written[1:]]
-        if extra and not line.endswith("\n"):
-            groups[m.index] = [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]]
-        else:
-            groups[m.index] = [first + line[len(body):]] + extra
-    head = "".join(f"({_comment_safe(h)})\n" for h in header)
+        groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl)
     out = [ln for g in groups for ln in g]
+    return _with_header(out, header), groups
+
+
+def _render_move(line: str, m: GMove, q, ctrl):
+    """Output lines of one compensated move with vertices ``q`` (k, 3), and the controller
+    position after them (see :func:`render_program`)."""
+    if not np.all(np.isfinite(q)):
+        raise ValueError(f"Expected finite vertices, got NaN/inf for line {m.index + 1}")
+    body = line.rstrip("\r\n")
+    ending = line[len(body):] or "\n"
+    written = []
+    for row in q:
+        vals, ctrl = _written_values(row, ctrl, m)
+        written.append(vals)
+    first = _rewrite_line(body, m, written[0])
+    extra = [" ".join(f"{a}{v}" for a, v in zip(AXES, w)) + ending for w in written[1:]]
+    if extra and not line.endswith("\n"):
+        return [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]], ctrl
+    return [first + line[len(body):]] + extra, ctrl
+
+
+def _with_header(out: list, header) -> str:
+    """``out`` (output lines) joined, with ``header`` lines as ``(...)`` comments after a
+    leading ``%`` line and a program-number line, if any."""
+    head = "".join(f"({_comment_safe(h)})\n" for h in header)
     at = 0  # after a leading '%' line and a program-number line ('O1000 (NAME)')
     if at < len(out) and out[at].strip() == "%":
         at += 1
     if at < len(out) and re.match(r"[ \t]*[Oo][ \t]*\d", out[at]):
         at += 1
-    text = "".join(out[:at]) + head + "".join(out[at:])
-    return text, groups
+    return "".join(out[:at]) + head + "".join(out[at:])
 
 
 def _comment_safe(text: str) -> str:
@@ -686,3 +707,344 @@ def _rewrite_line(body: str, m: GMove, vals) -> str:
     for s, e, txt in sorted(edits, key=lambda t: (t[0], t[1]), reverse=True):
         body = body[:s] + txt + body[e:]
     return body
+
+
+# ---------------------------------------------------------------------------- block-wise (issue 20)
+#
+# The reader above classifies one line at a time (about 0.25 ms a line). A long program is
+# nearly all plain move lines ('N120 G1 X.. Z.. A.. F..', or modal 'X.. Z..') and comments.
+# The block-wise reader recognises exactly those lines with two strict patterns, reads their
+# numbers in bulk and follows the modal state (motion mode, positions) with vectorised
+# forward fills and sums; every other line — and any plain line the bulk step would not read
+# exactly as the per-line reader does (no motion mode yet, an arc mode, an axis not yet known)
+# — goes through the per-line classifier, in order, with the state it would have had. The
+# result (classes, moves, refusals) is the per-line reader's; tests/test_gcode_blockwise.py
+# checks that on the corpus and on generated programs.
+
+_BULK_NUM = r"[+-]?(?:\d{1,300}(?:\.\d*)?|\.\d+)"
+"""A plain RS274 number, no blanks inside; at most 300 digits before the point, so it is finite."""
+_BULK_MOVE = re.compile(
+    r"[ \t]*(?:N\d{1,300}[ \t]*)?(?:(G0?[01])[ \t]*)?"
+    rf"(?:X({_BULK_NUM})[ \t]*)?(?:Z({_BULK_NUM})[ \t]*)?(?:A({_BULK_NUM})[ \t]*)?(?:F{_BULK_NUM}[ \t]*)?"
+    r"(?:\([^)]*\)[ \t]*)?(?:;.*)?")
+"""A plain move line: optional N, optional G0/G1 (G00/G01), then X, Z, A in this order (any of
+them), optional F, an optional trailing comment. Upper case, blanks only between words; a
+number followed by blanks and a digit (RS274 reads 'X1 0' as X10) does not match. Group 1 is
+the G word, groups 2-4 the X, Z, A numbers."""
+_BULK_PASS = re.compile(r"[ \t]*(?:\([^)]*\)[ \t]*)*(?:;.*)?")
+"""A blank or comment-only line (class pass)."""
+BULK_MIN_RUN = 32
+"""Runs of bulk lines shorter than this go through the per-line classifier (no gain)."""
+
+
+@dataclass
+class MoveTable:
+    """The moves of a program as columns, in order (n moves).
+
+    ``line`` (n,) 0-based line; ``kind`` (n,) 0 rapid, 1 linear, 2 arc; ``start``/``end``
+    (n, 3) absolute mm / deg (NaN: not known); ``inch``, ``incremental``, ``compensate`` (n,)
+    bool; ``known`` (n, 3); ``obj`` (n,) index into ``objects`` (the :class:`GMove` of a move
+    read line by line) or -1 for a move read in bulk, whose G, X, Z, A word spans in its
+    line are ``spans`` (n, 4, 2) (-1 where absent).
+    """
+
+    line: np.ndarray
+    kind: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    inch: np.ndarray
+    incremental: np.ndarray
+    compensate: np.ndarray
+    known: np.ndarray
+    obj: np.ndarray
+    objects: list
+    spans: np.ndarray
+    cache: dict = field(default_factory=dict, repr=False)  # derived arrays (pathio: path lengths)
+
+    def __len__(self) -> int:
+        return self.line.shape[0]
+
+    @classmethod
+    def concat(cls, pieces: list, objects: list) -> "MoveTable":
+        if not pieces:
+            z3 = np.zeros((0, 3))
+            return cls(np.zeros(0, np.int64), np.zeros(0, np.int8), z3, z3.copy(), *(np.zeros(0, bool),) * 3,
+                       np.zeros((0, 3), bool), np.zeros(0, np.int64), objects, np.zeros((0, 4, 2), np.int32))
+        cols = list(zip(*pieces))
+        return cls(*(np.concatenate(c) for c in cols[:9]), objects, np.concatenate(cols[9]))
+
+
+def _piece_from_move(m: GMove, k: int) -> tuple:
+    """One table row (the columns of :class:`MoveTable`, ``objects`` aside) for a per-line move."""
+    kind = {"rapid": 0, "linear": 1, "arc": 2}[m.kind]
+    return (np.array([m.index]), np.array([kind], np.int8), m.start[None, :].astype(float),
+            m.end[None, :].astype(float), np.array([m.units == "inch"]), np.array([m.incremental]),
+            np.array([m.compensate]), np.asarray(m.known, bool)[None, :], np.array([k]),
+            np.full((1, 4, 2), -1, np.int32))
+
+
+class _LazyMoves(Sequence):
+    """``GProgram.moves`` of a block-wise read program: the :class:`GMove` of each move, built
+    from the table when first asked for (a bulk move's words are re-read from its line)."""
+
+    def __init__(self, table: MoveTable, lines: list):
+        self._t, self._lines, self._cache = table, lines, {}
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        k = range(len(self))[k]
+        if k not in self._cache:
+            self._cache[k] = self._build(k)
+        return self._cache[k]
+
+    def _build(self, k: int) -> GMove:
+        t = self._t
+        if t.obj[k] >= 0:
+            return t.objects[t.obj[k]]
+        i = int(t.line[k])
+        body = self._lines[i].rstrip("\r\n")
+        words = {}
+        for j, a in enumerate(AXES):
+            s, e = (int(v) for v in t.spans[k, j + 1])
+            if s >= 0:
+                words[a] = Word(a, float(body[s:e]), body[s:e], s - 1, s, e)
+        gs, ge = (int(v) for v in t.spans[k, 0])
+        motion = Word("G", float(body[gs + 1:ge]), body[gs + 1:ge], gs, gs + 1, ge) if gs >= 0 else None
+        return GMove(i, "rapid" if t.kind[k] == 0 else "linear", t.start[k].copy(), t.end[k].copy(),
+                     "inch" if t.inch[k] else "mm", bool(t.incremental[k]), words, motion,
+                     bool(t.compensate[k]), known=t.known[k].copy())
+
+
+def _forward_fill(values, given, initial):
+    """Per column, the last given value up to each row (``initial`` before the first), (m, 3)."""
+    m = values.shape[0]
+    out = np.empty_like(values)
+    rows = np.arange(m)
+    for j in range(values.shape[1]):
+        last = np.maximum.accumulate(np.where(given[:, j], rows, -1))
+        out[:, j] = np.where(last >= 0, values[np.maximum(last, 0), j], initial[j])
+    return out
+
+
+def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete) -> GProgram:
+    n = len(lines)
+    bodies = [ln.rstrip("\r\n") for ln in lines]
+    match = _BULK_MOVE.fullmatch
+    ms = [match(b) for b in bodies]
+    is_move = np.fromiter(((m is not None and m.lastindex is not None and m.lastindex >= 2) for m in ms), bool, n)
+    pas = _BULK_PASS.fullmatch
+    bulk = is_move.copy()
+    rest = np.flatnonzero(~is_move)
+    bulk[rest] = np.fromiter((pas(bodies[i]) is not None for i in rest.tolist()), bool, rest.size)
+    # the bulk move lines: spans of G, X, Z, A and their numbers
+    mlines = np.flatnonzero(is_move)
+    spans = np.array([ms[i].regs[1:5] for i in mlines.tolist()], dtype=np.int32).reshape(-1, 4, 2)
+    del ms
+    vals = np.full((mlines.size, 3), np.nan)
+    for j in range(3):
+        sel = np.flatnonzero(spans[:, j + 1, 0] >= 0)
+        txt = [bodies[i][s:e] for i, s, e in zip(mlines[sel].tolist(), spans[sel, j + 1, 0].tolist(),
+                                                 spans[sel, j + 1, 1].tolist())]
+        vals[sel, j] = np.fromiter(map(float, txt), float, len(txt))
+    gcode = np.full(mlines.size, -1, np.int8)  # -1: no G word, 0: G0, 1: G1
+    sel = np.flatnonzero(spans[:, 0, 0] >= 0)
+    gcode[sel] = np.fromiter((bodies[i][e - 1] == "1" for i, e in
+                              zip(mlines[sel].tolist(), spans[sel, 0, 1].tolist())), bool, sel.size)
+    given = np.isfinite(vals)
+
+    st = _State()
+    classes = ["pass"] * n
+    classes_move = "move"
+    pieces, objects = [], []
+
+    def per_line(i: int) -> None:
+        try:
+            cls, move = _classify(bodies[i], i, st, rapids, block_delete)
+        except _Refuse as r:
+            raise _err(path, i + 1, r.col, r.msg) from None
+        classes[i] = cls
+        if move is not None:
+            pieces.append(_piece_from_move(move, len(objects)))
+            objects.append(move)
+
+    def bulk_moves(k0: int, k1: int) -> int:
+        """Read bulk moves k0..k1-1 (ordinals into mlines); return the ordinal of the first
+        that must go through the per-line classifier (k1 if none)."""
+        gm = gcode[k0:k1]
+        rows = np.arange(k1 - k0)
+        last = np.maximum.accumulate(np.where(gm >= 0, rows, -1))
+        mode0 = {"G0": 0, "G1": 1}.get(st.mode, -1)
+        mode = np.where(last >= 0, gm[np.maximum(last, 0)], mode0)
+        scale = MM_PER_INCH if st.inch else 1.0
+        v = vals[k0:k1] * np.array([scale, scale, 1.0])
+        giv = given[k0:k1]
+        bad = mode < 0
+        if st.incremental:
+            cum = np.cumsum(np.vstack([st.pos[None, :], np.where(giv, v, 0.0)]), axis=0)
+            start, end = cum[:-1], cum[1:]
+            bad |= (giv & ~np.isfinite(start)).any(axis=1)
+        else:
+            end = _forward_fill(v, giv, st.pos)
+            start = np.vstack([st.pos[None, :], end[:-1]])
+        known = np.isfinite(end)
+        compensate = ~((mode == 0) & (rapids == "keep"))
+        bad |= compensate & ~known.all(axis=1)
+        p = int(np.argmax(bad)) if bad.any() else k1 - k0
+        if p:
+            sl = slice(0, p)
+            pieces.append((mlines[k0:k0 + p], mode[sl].astype(np.int8), start[sl], end[sl],
+                           np.full(p, st.inch), np.full(p, st.incremental), compensate[sl], known[sl],
+                           np.full(p, -1), spans[k0:k0 + p]))
+            for i in mlines[k0:k0 + p].tolist():
+                classes[i] = classes_move
+            st.mode = "G0" if mode[p - 1] == 0 else "G1"
+            st.pos = end[p - 1].copy()
+        return k0 + p
+
+    # runs of bulk lines long enough to be worth it; everything else line by line
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], bulk.astype(np.int8), [0]])))
+    runs = [(s, e) for s, e in zip(edges[0::2].tolist(), edges[1::2].tolist()) if e - s >= BULK_MIN_RUN]
+    at = 0
+    for s, e in runs + [(n, n)]:
+        for i in range(at, s):
+            per_line(i)
+        at = e
+        k0, k1 = (int(v) for v in np.searchsorted(mlines, [s, e]))
+        while k0 < k1:
+            k = bulk_moves(k0, k1)
+            if k < k1:  # this line needs the per-line classifier (it refuses or changes the state)
+                per_line(int(mlines[k]))
+                k += 1
+            k0 = k
+    table = MoveTable.concat(pieces, objects)
+    if not table.compensate.any():
+        raise InputError(f"{path}: no G0/G1/G2/G3 motion with X, Z or A words to compensate found")
+    return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table)
+
+
+def _fmt_column(values, decimals: int) -> list:
+    """:func:`fmt` of every value, (n,) -> list of str."""
+    zero_neg = "-" + f"{0.0:.{decimals}f}"
+    pos_zero = zero_neg[1:]
+    spec = f".{decimals}f"
+    out = [format(v, spec) for v in np.asarray(values, dtype=float).tolist()]
+    return [pos_zero if s == zero_neg else s for s in out]
+
+
+class _Groups(Sequence):
+    """``groups`` of :func:`render_table`: output lines per source line, built when asked for."""
+
+    def __init__(self, lines: list, out: list, changed: dict):
+        self._lines, self._out, self._changed = lines, out, changed
+
+    def __len__(self) -> int:
+        return len(self._lines)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        i = range(len(self))[i]
+        g = self._changed.get(i, False)
+        if g is False:
+            return [self._lines[i]]
+        return [self._out[i]] if g is None else list(g)
+
+
+def render_table(program: GProgram, axes, counts, header=()) -> tuple:
+    """:func:`render_program` of a block-wise read program in absolute mode, in bulk: same text.
+
+    ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated
+    move. Untouched lines are copied as they are; the X, Z, A numbers of every compensated
+    bulk line are formatted column-wise and put in place of the old ones (missing axes appended
+    after the last axis word, extra vertices as added lines), moves read line by line (arcs)
+    through the per-line writer. A program with incremental moves needs the controller's
+    position line by line: :func:`render_program`.
+    """
+    t = program.table
+    if t is None or t.incremental.any():
+        raise ValueError("Expected a block-wise read program without incremental moves")
+    axes = np.asarray(axes, dtype=float)
+    counts = np.asarray(counts, dtype=np.int64)
+    rows = np.flatnonzero(t.compensate)
+    if counts.shape != rows.shape or axes.shape != (int(counts.sum()), 3):
+        raise ValueError(f"Expected counts for {rows.size} compensated moves and matching axes, "
+                         f"got {counts.shape} and {axes.shape}")
+    if not np.all(np.isfinite(axes)):
+        raise ValueError("Expected finite vertices, got NaN/inf")
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    inch_v = np.repeat(t.inch[rows], counts)
+    cols = []
+    for j in range(3):
+        v = axes[:, j]
+        if j == 2:
+            cols.append(_fmt_column(v, DECIMALS["deg"]))
+            continue
+        col = np.empty(v.size, dtype=object)
+        mm = ~inch_v
+        col[mm] = _fmt_column(v[mm], DECIMALS["mm"])
+        col[inch_v] = _fmt_column(v[inch_v] / MM_PER_INCH, DECIMALS["inch"])
+        cols.append(col.tolist())
+    xs, zs, as_ = cols
+    lines = program.lines
+    out = list(lines)
+    changed = {}
+    bulk = t.obj[rows] < 0
+    sp = t.spans[rows]
+    for k in np.flatnonzero(~bulk).tolist():  # moves read line by line (arcs, ...)
+        m = program.moves[int(rows[k])]
+        q = axes[first[k]:first[k] + counts[k]]
+        changed[m.index], _ = _render_move(lines[m.index], m, q, np.full(3, np.nan))
+        out[m.index] = "".join(changed[m.index])
+    kb = np.flatnonzero(bulk)
+    full = (sp[kb, 1:, 0] >= 0).all(axis=1)  # X, Z and A all on the line (the common case)
+    one = counts[kb] == 1
+    # the common case in one pass: X Z A on the line, one vertex
+    fa = kb[full & one]
+    for i, f, sx, ex, sz, ez, sa, ea in zip(
+            t.line[rows[fa]].tolist(), first[fa].tolist(), *(sp[fa, j, e].tolist() for j in (1, 2, 3) for e in (0, 1))):
+        line = lines[i]
+        out[i] = f"{line[:sx]}{xs[f]}{line[ex:sz]}{zs[f]}{line[ez:sa]}{as_[f]}{line[ea:]}"
+    changed.update(dict.fromkeys(t.line[rows[fa]].tolist()))
+    rest = kb[~(full & one)]
+    for i, f, c, (sx, ex), (sz, ez), (sa, ea) in zip(
+            t.line[rows[rest]].tolist(), first[rest].tolist(), counts[rest].tolist(),
+            sp[rest, 1].tolist(), sp[rest, 2].tolist(), sp[rest, 3].tolist()):
+        line = lines[i]
+        body = line.rstrip("\r\n")
+        x, z, a = xs[f], zs[f], as_[f]
+        hx, hz, ha = sx >= 0, sz >= 0, sa >= 0
+        parts, pos = [], 0
+        if hx:
+            parts += [body[pos:sx], x]
+            pos = ex
+        if hz:
+            parts += [body[pos:sz], z]
+            pos = ez
+        if ha:
+            parts += [body[pos:sa], a]
+            pos = ea
+        if not hx:
+            parts.append(" X" + x)
+        if not hz:
+            parts.append(" Z" + z)
+        if not ha:
+            parts.append(" A" + a)
+        parts.append(body[pos:])
+        first_line = "".join(parts)
+        if c == 1:
+            out[i] = first_line + line[len(body):]
+            changed[i] = None
+            continue
+        ending = line[len(body):] or "\n"
+        extra = [f"X{xs[v]} Z{zs[v]} A{as_[v]}" + ending for v in range(f + 1, f + c)]
+        if not line.endswith("\n"):
+            g = [first_line + ending] + extra[:-1] + [extra[-1][:-len(ending)]]
+        else:
+            g = [first_line + line[len(body):]] + extra
+        changed[i] = g
+        out[i] = "".join(g)
+    return _with_header(out, header), _Groups(lines, out, changed)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,7 +36,7 @@ import numpy as np
 from errormap.io import InputError, atomic_write, read_table
 from errormap.kinematics import forward, inverse
 
-from .gcode import GProgram, arc_segments, fmt as _fmt, move_points, parse_program, render_program
+from .gcode import GProgram, arc_segments, fmt as _fmt, move_points, parse_program, render_program, render_table
 
 AXIS_COLUMNS = ("x_mm", "z_mm", "a_deg")
 TARGET_COLUMNS = ("px_mm", "py_mm", "pz_mm")
@@ -91,10 +92,29 @@ class GCodeJob:
     kept_axes: np.ndarray
     kept_lines: np.ndarray
     curvature_um_per_mm2: float | None = None
+    counts: np.ndarray | None = None
+    """(number of compensated moves,) vertices per move (block-wise programs; ``params`` then
+    builds each move's parameters from it when asked)."""
 
     @property
     def compensated_moves(self) -> list:
         return [m for m in self.program.moves if m.compensate]
+
+
+class _Params(Sequence):
+    """``GCodeJob.params`` from vertex counts: ``k`` vertices at ``1/k, 2/k, ..., 1``."""
+
+    def __init__(self, counts):
+        self.counts = counts
+
+    def __len__(self) -> int:
+        return len(self.counts)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        k = int(self.counts[range(len(self))[i]])
+        return np.arange(1, k + 1, dtype=float) / k
 
 
 def _sample_moves(moves, counts):
@@ -135,14 +155,23 @@ def field_curvature_um_per_mm2(program: GProgram, machine, field) -> float:
     :data:`AUTO_MAX_SAMPLES` samples a move) along each compensated linear move and arc.
     """
     from .solvers._common import field_error_um
-    moves = _long_moves(program)
-    length = _path_lengths_mm(machine, moves)
-    keep = length > 0.0
-    moves, length = [m for m, k in zip(moves, keep) if k], length[keep]
-    if not moves:
-        return 0.0
-    n = np.clip(np.ceil(length / AUTO_SAMPLE_MM), 2, AUTO_MAX_SAMPLES).astype(int)
-    pts, owner = _sample_moves(moves, n)
+    if program.table is not None:
+        rows = _long_rows(program.table)
+        length = _table_lengths_mm(machine, program.table)[rows]
+        rows, length = rows[length > 0.0], length[length > 0.0]
+        if not rows.size:
+            return 0.0
+        n = np.clip(np.ceil(length / AUTO_SAMPLE_MM), 2, AUTO_MAX_SAMPLES).astype(int)
+        pts, owner = _sample_rows(program.table, rows, n)
+    else:
+        moves = _long_moves(program)
+        length = _path_lengths_mm(machine, moves)
+        keep = length > 0.0
+        moves, length = [m for m, k in zip(moves, keep) if k], length[keep]
+        if not moves:
+            return 0.0
+        n = np.clip(np.ceil(length / AUTO_SAMPLE_MM), 2, AUTO_MAX_SAMPLES).astype(int)
+        pts, owner = _sample_moves(moves, n)
     e = field_error_um(field, pts, machine)
     d2 = np.linalg.norm(e[:-2] - 2 * e[1:-1] + e[2:], axis=1)
     same = (owner[:-2] == owner[1:-1]) & (owner[1:-1] == owner[2:])
@@ -182,6 +211,8 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
     elif max_segment_mm is not None and not (np.isfinite(max_segment_mm) and max_segment_mm > 0):
         raise ValueError(f"Expected a positive max_segment_mm, got {max_segment_mm!r}")
     tol_geo_mm = 0.5 * arc_tolerance_um * 1e-3
+    if program.table is not None:
+        return _plan_table(program, machine, float(arc_tolerance_um), max_segment_mm, kappa, tol_geo_mm)
     lengths = {}
     if max_segment_mm is not None:
         long_moves = _long_moves(program)
@@ -204,6 +235,9 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
 
 def gcode_toolpath(job: GCodeJob, machine, path) -> "ToolPathFile":
     """The :class:`ToolPathFile` of a planned G-code job: one row per vertex."""
+    if job.counts is not None:
+        axes, lines = _table_vertices(job)
+        return ToolPathFile(Path(path), "gcode", axes, forward(machine, axes), lines, job)
     moves = job.compensated_moves
     axes = np.concatenate([move_points(m, t) for m, t in zip(moves, job.params)], axis=0)
     lines = np.concatenate([np.full(len(t), m.index + 1, dtype=int) for m, t in zip(moves, job.params)])
@@ -216,12 +250,92 @@ def render_gcode(job: GCodeJob, axes, header=()) -> tuple[str, list]:
     ``axes`` (n, 3): the compensated vertices in the order of :func:`gcode_toolpath`.
     """
     axes = np.asarray(axes, dtype=float)
-    counts = [len(t) for t in job.params]
+    counts = job.counts.tolist() if job.counts is not None else [len(t) for t in job.params]
     if axes.shape != (sum(counts), 3):
         raise ValueError(f"Expected axes of shape ({sum(counts)}, 3), got {axes.shape}")
     if not np.all(np.isfinite(axes)):
         raise ValueError("Expected finite axis commands, got NaN or inf")
+    if job.counts is not None and not job.program.table.incremental.any():
+        return render_table(job.program, axes, job.counts, header=header)
     return render_program(job.program, np.split(axes, np.cumsum(counts)[:-1]), header=header)
+
+
+# ------------------------------------------------------------- block-wise programs (issue 20)
+
+TABLE_CHUNK = 65_536
+"""Moves per block when sampling paths of block-wise programs (bounds memory: 17 samples a move)."""
+
+
+def _long_rows(table) -> np.ndarray:
+    """Table rows of the compensated moves that may be split (not rapids, start known)."""
+    return np.flatnonzero(table.compensate & (table.kind != 0) & np.isfinite(table.start).all(axis=1))
+
+
+def _sample_rows(table, rows, counts):
+    """:func:`_sample_moves` for table rows (same points, same order)."""
+    counts = np.asarray(counts, dtype=int)
+    owner = np.repeat(np.arange(rows.size), counts + 1)
+    first = np.concatenate([[0], np.cumsum(counts + 1)[:-1]]) if rows.size else np.zeros(0, int)
+    t = (np.arange(owner.size) - first[owner]) / np.maximum(counts[owner], 1)
+    start, end = table.start[rows], table.end[rows]
+    pts = start[owner] + t[:, None] * (end - start)[owner]
+    for k in np.flatnonzero(table.kind[rows] == 2).tolist():
+        sl = slice(first[k], first[k] + counts[k] + 1)
+        pts[sl] = move_points(table.objects[table.obj[rows[k]]], t[sl])
+    return pts, owner
+
+
+def _table_lengths_mm(machine, table, samples: int = 16) -> np.ndarray:
+    """:func:`_path_lengths_mm` of every long move of a table (NaN for the other rows), in
+    blocks of :data:`TABLE_CHUNK` moves; computed once per machine and kept in the table."""
+    hit = table.cache.get("lengths_mm")
+    if hit is not None and hit[0] is machine and hit[1] == samples:
+        return hit[2]
+    rows = _long_rows(table)
+    out = np.full(len(table), np.nan)
+    for b in range(0, rows.size, TABLE_CHUNK):
+        r = rows[b:b + TABLE_CHUNK]
+        pts, owner = _sample_rows(table, r, np.full(r.size, samples))
+        seg = np.linalg.norm(np.diff(forward(machine, pts), axis=0), axis=1)
+        seg[owner[1:] != owner[:-1]] = 0.0
+        out[r] = np.bincount(owner[1:], weights=seg, minlength=r.size)
+    table.cache["lengths_mm"] = (machine, samples, out)
+    return out
+
+
+def _plan_table(program, machine, arc_tolerance_um, max_segment_mm, kappa, tol_geo_mm) -> GCodeJob:
+    """:func:`plan_gcode` of a block-wise program, vectorised (same vertices)."""
+    t = program.table
+    comp = t.compensate
+    counts = np.ones(len(t), dtype=np.int64)
+    for k in np.flatnonzero(comp & (t.kind == 2)).tolist():
+        counts[k] = arc_segments(t.objects[t.obj[k]], tol_geo_mm)
+    if max_segment_mm is not None:
+        rows = _long_rows(t)
+        split = np.ceil(_table_lengths_mm(machine, t)[rows] / max_segment_mm - 1e-9).astype(np.int64)
+        counts[rows] = np.maximum(counts[rows], split)
+    kept = ~comp
+    return GCodeJob(program, _Params(counts[comp]), arc_tolerance_um, max_segment_mm,
+                    t.end[kept].reshape(-1, 3), (t.line[kept] + 1).astype(int), kappa, counts=counts[comp])
+
+
+def _table_vertices(job: GCodeJob):
+    """Vertices (n, 3) of a block-wise job (as :func:`move_points` places them) and their lines."""
+    t = job.program.table
+    rows = np.flatnonzero(t.compensate)
+    counts = job.counts
+    owner = np.repeat(np.arange(rows.size), counts)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]) if rows.size else np.zeros(0, int)
+    j = (np.arange(owner.size) - first[owner] + 1).astype(float)  # 1..k
+    tt = j / counts[owner]
+    start, end = t.start[rows][owner], t.end[rows][owner]
+    axes = start + tt[:, None] * (end - start)
+    ends = counts[owner] == 1  # one vertex: the end itself (the start may be unknown)
+    axes[ends] = end[ends]
+    for k in np.flatnonzero(t.kind[rows] == 2).tolist():
+        sl = slice(first[k], first[k] + counts[k])
+        axes[sl] = move_points(t.objects[t.obj[rows[k]]], tt[sl])
+    return axes, np.repeat(t.line[rows] + 1, counts).astype(int)
 
 
 

@@ -1,0 +1,230 @@
+"""The block-wise G-code reader and writer (issue 20) against the exact per-line reader: the
+same classes, moves and refusals (file, line, column, word), the same vertices, and the same
+output bytes, on the corpus (tests/data/gcode_corpus) and on generated programs that use every
+allowed construct (bulk move lines mixed with everything the per-line classifier handles).
+
+On the corpus the bulk step is forced on every run of plain lines (``BULK_MIN_RUN = 1``), so
+the small files go through it too."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import compensation.gcode as g
+from compensation import pathio
+from errormap.htm import HTMField
+from errormap.io import InputError
+from errormap.simulator import random_truth
+
+CORPUS = sorted((Path(__file__).parent / "data" / "gcode_corpus").glob("*.nc"))
+OPTIONS = [{}, {"rapids": "compensate"}, {"block_delete": "on"}, {"block_delete": "off"}]
+N_PROGRAMS = 12       # generated programs (seeds 0..11), each read with every option set
+LINES_PER_PROGRAM = 600
+
+
+@pytest.fixture(scope="module")
+def field(grinder):
+    return HTMField(grinder, random_truth(grinder, 3).elements)
+
+
+@pytest.fixture(autouse=True)
+def bulk_everywhere(monkeypatch):
+    monkeypatch.setattr(g, "BULK_MIN_RUN", 1)
+
+
+def _move_record(m):
+    words = {k: (w.letter, w.value, w.text, w.start, w.num_start, w.num_end) for k, w in m.words.items()}
+    mw = None if m.motion_word is None else (m.motion_word.value, m.motion_word.text, m.motion_word.start,
+                                             m.motion_word.num_start, m.motion_word.num_end)
+    return (m.index, m.kind, m.start.tobytes(), m.end.tobytes(), m.units, m.incremental, m.compensate,
+            m.known.tolist(), words, mw, m.arc)
+
+
+def _read(path, fast, **kw):
+    try:
+        prog = g.parse_program(path, fast=fast, **kw)
+    except InputError as exc:
+        return ("refused", str(exc)), None
+    return ("read", prog.classes, [_move_record(m) for m in prog.moves]), prog
+
+
+def _job_outputs(prog, machine, field, max_segment):
+    job = pathio.plan_gcode(prog, machine, 0.5, max_segment, field if max_segment == "auto" else None)
+    tp = pathio.gcode_toolpath(job, machine, prog.path)
+    # stand-in compensated vertices: every number changes, some by less than the last decimal
+    axes = tp.axes + 1e-3 * np.sin(np.arange(tp.axes.size, dtype=float)).reshape(-1, 3)
+    text, groups = pathio.render_gcode(job, axes, header=["compensated by volcomp (test)"])
+    return (tp.axes.tobytes(), tp.lines.tolist(), job.kept_axes.tobytes(), job.kept_lines.tolist(),
+            [len(p) for p in job.params], job.max_segment_mm, job.curvature_um_per_mm2,
+            text.encode("latin-1"), [list(x) for x in groups])
+
+
+def _same(path, machine, field, options=OPTIONS, segments=(None, 0.5, "auto")):
+    refused = 0
+    for kw in options:
+        fast, prog_f = _read(path, True, **kw)
+        exact, prog_e = _read(path, False, **kw)
+        assert fast == exact, f"{path.name} {kw}: block-wise and per-line readers differ"
+        if prog_f is None:
+            refused += 1
+            continue
+        assert prog_f.table is not None and prog_e.table is None
+        for seg in segments:
+            assert _job_outputs(prog_f, machine, field, seg) == _job_outputs(prog_e, machine, field, seg), \
+                f"{path.name} {kw} max_segment={seg}: outputs differ"
+    return refused
+
+
+def test_corpus_reads_and_writes_the_same(grinder, field):
+    assert len(CORPUS) >= 30
+    refused = sum(_same(p, grinder, field, segments=(None, "auto")) for p in CORPUS)
+    assert refused >= 35  # the corpus' refused programs are refused by both, with the same message
+
+
+# ------------------------------------------------------------------ generated programs
+
+def _num(v, dec, rng):
+    s = f"{v:.{dec}f}"
+    if rng.random() < 0.2:
+        s = s.rstrip("0")  # '12.' and '12.5' forms
+    return s
+
+
+def _program(seed: int, n: int, incremental: bool) -> str:
+    """A program with every allowed construct; valid (the per-line reader accepts it)."""
+    rng = np.random.default_rng(seed)
+    pos = np.array([100.0, 20.0, 0.0])
+    out = ["%", f"O{1000 + seed} (GENERATED {seed})", "(block-wise test program)", "G21 G90 G18 G94 G40 G49 G54 G64 P0.01",
+           f"G0 X{pos[0]:.3f} Z{pos[1] + 5:.3f} A0.", "M3 S12000", "G1 F250."]
+    inch = False
+    inc = False
+    ln = 10
+    while len(out) < n:
+        r = rng.random()
+        ln += 10
+        nw = f"N{ln} " if rng.random() < 0.5 else ""
+        if r < 0.70:  # plain move lines (the bulk case), some with words missing
+            step = rng.normal(0.0, [0.05, 0.02, 2.0])
+            pos = np.clip(pos + step, [10.0, 1.0, -720.0], [190.0, 55.0, 720.0])
+            scale = 25.4 if inch else 1.0
+            have = rng.random(3) < 0.85
+            if not have.any():
+                have[rng.integers(3)] = True
+            parts = []
+            for j, a in enumerate("XZA"):
+                if have[j]:
+                    dec = 4 if (inch and j < 2) else 3
+                    parts.append(a + _num(pos[j] / (1.0 if j == 2 else scale), dec, rng))
+            gw = rng.choice(["", "", "G1 ", "G01 ", "G0 ", "G00 "])
+            sep = rng.choice([" ", "", "  ", "\t"])
+            line = nw + gw + sep.join(parts)
+            if rng.random() < 0.1:
+                line += f" F{rng.integers(50, 400)}."
+            if rng.random() < 0.05:
+                line += " (cut)"
+            if rng.random() < 0.03:
+                line += " ; note"
+            if gw.startswith("G0"):
+                out.append(line)
+                out.append(nw + "G1 F250.")  # back to feed moves
+            else:
+                out.append(line)
+        elif r < 0.74:
+            out.append(rng.choice(["(comment only)", "", "   ", "; semicolon comment", "(a (nested comment)"]))
+        elif r < 0.77:
+            out.append(nw + rng.choice(["M8", "M9", "F300.", "S8000 M3", "T2 M6", "G4 P0.5", "G61", "G64"]))
+        elif r < 0.80:  # an arc in G18, R form, short chord, then back to G1
+            d = rng.normal(0.0, 0.2, 2)
+            end = pos.copy()
+            end[0] = np.clip(pos[0] + d[0], 10.0, 190.0)
+            end[1] = np.clip(pos[1] + d[1], 1.0, 55.0)
+            scale = 25.4 if inch else 1.0
+            code = rng.choice(["G2", "G3"])
+            out.append(f"{nw}{code} X{end[0] / scale:.5f} Z{end[1] / scale:.5f} R{2.0 / scale:.5f}")
+            out.append("G1")
+            pos = end
+        elif r < 0.82:  # inch and back (numbers follow the unit)
+            inch = not inch
+            out.append(nw + ("G20" if inch else "G21"))
+        elif r < 0.84:
+            out.append(f"/{nw}M9" if rng.random() < 0.5 else f"/{nw}(skippable)")
+        elif r < 0.85:
+            out.append(f"{nw}x{pos[0] / (25.4 if inch else 1.0):.3f} z{pos[1] / (25.4 if inch else 1.0):.3f}")
+        elif r < 0.86 and incremental and not inc:
+            inc = True
+            out.append(nw + "G91")
+            for _ in range(int(rng.integers(2, 6))):
+                step = rng.normal(0.0, [0.03, 0.01, 1.0])
+                pos = np.clip(pos + step, [10.0, 1.0, -720.0], [190.0, 55.0, 720.0])
+                scale = 25.4 if inch else 1.0
+                out.append(f"X{step[0] / scale:.5f} Z{step[1] / scale:.5f} A{step[2]:.4f}")
+            out.append("G90")
+            inc = False
+            out.append(f"X{pos[0] / (25.4 if inch else 1.0):.5f} Z{pos[1] / (25.4 if inch else 1.0):.5f} A{pos[2]:.4f}")
+    if inch:
+        out.append("G21")
+    out += ["G0 Z58.", "M5", "M30", "%"]
+    ending = "\r\n" if seed % 3 == 1 else "\n"
+    text = ending.join(out)
+    return text if seed % 4 == 3 else text + ending  # some without a final line ending
+
+
+@pytest.mark.parametrize("seed", range(N_PROGRAMS))
+def test_generated_programs_read_and_write_the_same(tmp_path, grinder, field, seed):
+    path = tmp_path / f"gen{seed}.nc"
+    path.write_bytes(_program(seed, LINES_PER_PROGRAM, incremental=seed % 2 == 1).encode("latin-1"))
+    assert _same(path, grinder, field, options=[{}, {"rapids": "compensate"}]) == 0
+    prog = g.parse_program(path)
+    assert (prog.table.obj < 0).mean() > 0.5  # most moves were read in bulk
+
+
+REFUSED_LINES = ["G1 Y1.", "X1e2", "G65 P9000 A1 X2", "G1 U1.", "X#1", "G2 X1 Z1", "G17 G2 X1 Z1 R5",
+                 "/G1 X100.", "G59", "G1 X100. X101.", "M98 P100", "G4 X1", "G28 X0"]
+
+
+@pytest.mark.parametrize("bad", REFUSED_LINES)
+def test_refusals_are_the_same(tmp_path, grinder, field, bad):
+    """A refused line in the middle of a run of plain lines: the same message (line, column, word)."""
+    lines = _program(5, 200, incremental=False).split("\n")
+    lines.insert(120, bad)
+    path = tmp_path / "bad.nc"
+    path.write_text("\n".join(lines), encoding="latin-1")
+    fast, _ = _read(path, True)
+    exact, _ = _read(path, False)
+    assert fast == exact and fast[0] == "refused" and "line 121," in fast[1]
+
+
+@pytest.mark.parametrize("start", ["", "G80\n", "G0 X1 Z1 A1\nG3 X1.5 Z1.5 R2\n"])
+def test_state_before_a_bulk_run(tmp_path, grinder, field, start):
+    """Plain lines with no motion mode yet, after G80, or in an arc mode: refused as the
+    per-line reader refuses them (the bulk step hands such a line to it)."""
+    path = tmp_path / "mode.nc"
+    path.write_text("G21 G90 G18\n" + start + "".join(f"X{10 + k * 0.01:.3f} Z5. A{k:.1f}\n" for k in range(50)),
+                    encoding="latin-1")
+    fast, _ = _read(path, True)
+    exact, _ = _read(path, False)
+    assert fast == exact and fast[0] == "refused"
+
+
+def test_unknown_axes_and_kept_rapids(tmp_path, grinder, field):
+    """A kept rapid may leave axes unknown; the first compensated move that needs them is refused."""
+    body = "G21 G90 G18\nG0 X10.\n" + "".join(f"G0 X{10 + k * 0.01:.3f}\n" for k in range(40)) + "G1 Z5.\n"
+    path = tmp_path / "unknown.nc"
+    path.write_text(body, encoding="latin-1")
+    fast, _ = _read(path, True)
+    exact, _ = _read(path, False)
+    assert fast == exact and fast[0] == "refused" and "line 43," in fast[1]
+    assert _read(path, True, rapids="compensate")[0] == _read(path, False, rapids="compensate")[0]
+
+
+def test_reference_return_keeps_the_previous_end(tmp_path, grinder, field):
+    """G28 after a move used to overwrite that move's end with NaN (a shared array): with
+    --rapids compensate the compensated G0 before it then had no end. Both readers now keep it."""
+    path = tmp_path / "g28.nc"
+    path.write_text("%\nG21 G90 G18\nG0 X60. Z5. A0.\nG1 Z1. F300.\nG0 Z5.\nG28 G91 Z0.\nG90\nG1 X61 Z2 A1\nM30\n%\n",
+                    encoding="latin-1")
+    for fast in (True, False):
+        prog = g.parse_program(path, rapids="compensate", fast=fast)
+        assert np.array_equal(prog.moves[2].end, [60.0, 5.0, 0.0])
+        assert np.isnan(prog.moves[3].start[1])  # after G28 Z is unknown
+    assert _same(path, grinder, field, options=[{"rapids": "compensate"}]) == 0
