@@ -65,8 +65,8 @@ def _flute(main, td: Path, m, truth) -> dict:
         if rc != 0:
             out[label] = {"refused_exit": rc}
             continue
-        cols = read_table(od / "flute.csv")
-        comp = np.stack([np.asarray(cols[k], float) for k in ("x_mm", "z_mm", "a_deg")], axis=1)
+        t = read_table(od / "flute.csv")
+        comp = np.stack([t.float(k) for k in ("x_mm", "z_mm", "a_deg")], axis=1)
         summ = json.loads((od / "compensate_summary.json").read_text())["files"][0]
         out[label] = dict(_stats(true_residual_um(truth, comp, targets)), model_max_um=summ.get("model_max_um"))
     return out
