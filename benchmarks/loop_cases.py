@@ -73,7 +73,7 @@ def _flute(main, td: Path, m, truth) -> dict:
 
 
 def run_case(family: str, seed: int, effect: str, flute: bool = False) -> dict:
-    from compensation.cli import main
+    from compensation.app.cli import main
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
     from errormap.machine import load_machine
