@@ -174,3 +174,57 @@ def test_compensate_takes_the_diagnosed_model_and_its_conditions(grinder, tmp_pa
     landed = truth.tool_point(cmd, dir_z=-np.ones(n))
     err_um = np.linalg.norm(landed - forward(grinder, axes), axis=1) * 1e3
     assert err_um.max() < COMP_TRUE_TOL_UM
+
+
+def _diagnosed_model(tmp_path, truth, terms):
+    truth.elements.save(tmp_path / "updated_elements.json")
+    (tmp_path / "model.json").write_text(json.dumps({"format": "volcomp-diagnosed-model/1",
+                                                      "elements": "updated_elements.json", "terms": terms}))
+    return tmp_path / "model.json"
+
+
+def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tmp_path, capsys):
+    """A reversal term (dir_z) and a thermal term (temp_c), both per point from the CSV's columns:
+    the commands land on the targets on the truth under each point's own conditions."""
+    from errormap.io import read_table
+    from errormap.kinematics import forward
+    truth = random_truth(grinder, 3, effects=["reversal", "thermal"])
+    b = truth.effects["reversal"]["backlash_um"]
+    k = truth.effects["thermal"]["k_um_per_mm_c"]
+    ref = {"ref_temp_c": 20.0, "ref_time_s": 0.0}
+    model = _diagnosed_model(tmp_path, truth, [
+        {"kind": "reversal", "axis": "z", "element": "dz_z", "coefficients": [b], "reference": ref},
+        {"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [k], "reference": ref}])
+    n = 40
+    u = np.linspace(0, 1, n)
+    axes = np.c_[20 + 150 * u, 5 + 40 * u, 300 * u]
+    dir_z = np.where(np.arange(n) % 3 == 0, -1, 1)
+    temp = 20 + 4 * u
+    path = tmp_path / "path.csv"
+    path.write_text("x_mm,z_mm,a_deg,temp_c,dir_z\n" + "\n".join(
+        f"{x:.6f},{z:.6f},{a:.6f},{t:.4f},{d}" for (x, z, a), t, d in zip(axes, temp, dir_z)) + "\n")
+    assert main(["compensate", str(path), "--model", str(model), "--method", "exact", "--out", str(tmp_path / "c"),
+                 "--dir-z", "1"]) == 0  # the column wins over the option
+    t = read_table(tmp_path / "c" / "path.csv")
+    cmd = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
+    landed = truth.tool_point(cmd, dir_z=dir_z.astype(float), temp_c=np.round(temp, 4))
+    err_um = np.linalg.norm(landed - forward(grinder, axes), axis=1) * 1e3
+    assert err_um.max() < COMP_TRUE_TOL_UM
+    summ = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
+    assert summ["model_max_um"] < COMP_TRUE_TOL_UM
+    # a bad cell: file, row and column; a needed column that is absent with no option: refused by name
+    bad = tmp_path / "bad.csv"
+    lines = path.read_text().splitlines()
+    lines[5] = lines[5].rsplit(",", 1)[0] + ",0"
+    bad.write_text("\n".join(lines) + "\n")
+    capsys.readouterr()
+    assert main(["compensate", str(bad), "--model", str(model), "--method", "exact", "--out", str(tmp_path / "c2")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.csv" in err and "row 6" in err and "dir_z" in err
+    nocol = tmp_path / "nocol.csv"
+    nocol.write_text("x_mm,z_mm,a_deg,dir_z\n" + "\n".join(
+        f"{x:.6f},{z:.6f},{a:.6f},{d}" for (x, z, a), d in zip(axes, dir_z)) + "\n")
+    assert main(["compensate", str(nocol), "--model", str(model), "--method", "exact", "--out", str(tmp_path / "c3")]) == 2
+    err = capsys.readouterr().err
+    assert "nocol.csv" in err and "temp_c" in err and "--temp-c" in err
+    assert not (tmp_path / "c3" / "nocol.csv").exists()

@@ -40,7 +40,7 @@ from errormap.machine import load_machine
 from errormap.progress import Progress
 
 from ..cli import UsageError
-from ...diagnosed_model import add_condition_options, load_path_field
+from ...diagnosed_model import add_condition_options, load_path_field, path_conditions, solve_with_conditions
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from ... import guards
@@ -181,17 +181,29 @@ def run(args) -> int:
     read_opts = {"rapids": args.rapids, "block_delete": args.block_delete, "arc_tolerance_um": args.arc_tolerance_um}
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     field = load_path_field(args.model, machine, args.tracking_uri, args)
-    paths = [replan(tp, machine, max_segment_mm=max_segment, field=field) for tp in paths]
+    # a diagnosed model whose terms need conditions: per point from the path's columns, else the options
+    conds = [path_conditions(tp, field.needs, field.conditions) if getattr(field, "needs", ()) else None
+             for tp in paths]
+    plan_field = field.corrected.base if any(c is not None for c in conds) else field  # axes-only part
+    paths = [replan(tp, machine, max_segment_mm=max_segment, field=plan_field) for tp in paths]
+    if any(c is not None for c in conds):  # replanning may add points: conditions of the replanned rows
+        conds = [path_conditions(tp, field.needs, field.conditions) if c is not None else None
+                 for tp, c in zip(paths, conds)]
     opts = {"seed": args.seed} if args.method in ("ga", "batched-ga") else {}
     summary, refused, texts = [], [], []
     bar = Progress(len(plan), f"compensate ({args.method})", every_s=0.0)
-    for (src, dst), tp in zip(plan, paths):
+    for (src, dst), tp, cond in zip(plan, paths, conds):
         with small_batch_threads(args.method, len(tp)):
-            res = solve(args.method, field, tp.targets_mm, machine, target_axes=tp.axes, **opts)
+            if cond is not None:
+                res = solve_with_conditions(args.method, field, tp.targets_mm, machine, cond, target_axes=tp.axes,
+                                            **opts)
+            else:
+                res = solve(args.method, field, tp.targets_mm, machine, target_axes=tp.axes, **opts)
         res.axes = np.array(res.axes, dtype=float)
         res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
         try:
-            report = guards.check(res, machine, field, allow=allow, target_axes=tp.axes)
+            report = guards.check(res, machine, plan_field if cond is not None else field, allow=allow,
+                                  target_axes=tp.axes)
         except TypeError as exc:  # a field that cannot say where it is calibrated
             raise UsageError(f"{args.model}: {exc}") from None
         viol = [(int(i), int(tp.lines[i]), "; ".join(report.point_reasons(int(i)))) for i in report.indices]
