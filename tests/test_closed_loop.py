@@ -228,3 +228,54 @@ def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tm
     err = capsys.readouterr().err
     assert "nocol.csv" in err and "temp_c" in err and "--temp-c" in err
     assert not (tmp_path / "c3" / "nocol.csv").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect, kind_axis", [("thermal", ("thermal", "x")), ("interaction", ("interaction", "x*z"))])
+def test_effects_the_update_imitates_are_named_by_the_joint_screen(grinder, effect, kind_axis):
+    """Thermal growth (a dx_x slope at the mean temperature) and an X·Z coupling (angular
+    elements times lever arms) are taken up by the update alone; tested jointly with it they
+    are named, with the elements that imitated them, and the final model is kept."""
+    truth = make_truth(grinder, 0, family="independent", effects=[effect])
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder, n_boot=N_BOOT)
+    checks = CheckData.from_columns(truth.check_measurements(800, 1.0, seed=14))
+    loop = closed_loop(grinder, sm.covariance_, checks)
+    s = loop.summary
+    screen = s["update"]["joint_screen"]
+    assert screen and (screen[0]["kind"], screen[0]["axis"]) == kind_axis
+    assert len(screen[0]["update_alone_imitated_it_with"]) == 3
+    assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == kind_axis
+    assert s["kept_stage"] == "updated_plus_effects"
+    assert s["rms_final_um"] < HELD_OUT_TARGET_UM
+
+
+def test_fallback_keeps_the_final_model_unless_a_plainer_stage_is_better_held_out():
+    from errormap.diagnosis.loop import FALLBACK_Z, _fallback
+    rng = np.random.default_rng(7)
+    hold = np.arange(100, 300)
+    noise = rng.normal(0, 1, (300, 3))
+    opts = {"updated_plus_effects": (noise, None, None, []), "updated": (noise + 0.01, None, None, []),
+            "identified": (noise * 3, None, None, [])}
+    assert _fallback(opts, hold)[0] == "updated_plus_effects"   # a tie is no loss
+    opts["updated_plus_effects"] = (noise * 1.5, None, None, [])  # the effects made it worse held out
+    stage, why = _fallback(opts, hold)
+    assert stage == "updated" and str(FALLBACK_Z) in why
+
+
+def test_diagnose_cli_names_elements_the_checks_do_not_cover(tmp_path):
+    """Checks only at x < 80 mm: the report names dx_x's stations beyond as staying at the
+    sweep estimate, with the reason."""
+    from errormap.io import read_table, write_csv
+    sw, el = tmp_path / "sw.csv", tmp_path / "el.json"
+    assert main(["sweeps", "--family", "independent", "--seed", "0", "--seed-noise", "500", "--out", str(sw)]) == 0
+    assert main(["simulate", "--family", "independent", "--seed", "0", "--checks", "400", "--out",
+                 str(tmp_path / "sim")]) == 0
+    assert main(["identify", str(sw), "--out", str(el), "--bootstrap", "20"]) == 0
+    t = read_table(tmp_path / "sim" / "checks.csv")
+    keep = t.float("x_mm") < 80.0
+    write_csv(tmp_path / "part.csv", {c: t.float(c)[keep] for c in t.names})
+    assert main(["diagnose", str(tmp_path / "part.csv"), "--model", str(el), "--out", str(tmp_path / "d")]) == 0
+    s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    named = {u["element"]: u for u in s["update"]["not_updated"]}
+    assert "dx_x" in named and "outside" in named["dx_x"]["why"] and min(named["dx_x"]["stations"]) > 8
+    assert "Not updated by the checks" in (tmp_path / "d" / "report.html").read_text()
