@@ -77,11 +77,12 @@ SWEEPS_TARGET_UM = 6.0
 
 LOOP_JSON = Path(__file__).with_name("diagnosis_loop_results.json")
 FAMILIES = ("independent", "default")
-CPU_S_PER_RUN = 16.0
+CPU_S_PER_RUN = 9.0
 """Measured CPU seconds of one closed-loop run (sweeps → identify → diagnose → scoring), one BLAS
-thread, on this project's 2-core machine (median over a `--seeds 1 --jobs 2` run); a no-effect
-run with the flute section adds ~FLUTE_CPU_S. Used only to print the expected runtime."""
-FLUTE_CPU_S = 6.0
+thread: median 8.4 / 9.0 s (independent / default) in `--seeds 1 --jobs 2 --family both
+--sections loop,flute` on this project's 2-core machine at load ~20; a no-effect run with the
+flute section adds ~FLUTE_CPU_S. Used only to print the expected runtime."""
+FLUTE_CPU_S = 4.0
 WARMUP_S = 20.0
 """Imports and the numba compilation in the parent before the pool forks (seconds)."""
 
@@ -100,12 +101,16 @@ def expected_seconds(n_runs: int, n_flute: int, jobs: int) -> float:
 
 
 def _warm_up():
-    """Compile the numba kernels in the parent, so that forked workers inherit them."""
+    """Compile the numba kernels (field, exact solver) in the parent, so that forked workers inherit them."""
+    from compensation.solvers import solve
     from errormap.elements import ElementSet
+    from errormap.kinematics import forward
     from errormap.simulator import random_axes
     m = load_machine()
-    el = ElementSet.zeros(m)
-    HTMField(m, el).predict(random_axes(m, 4, np.random.default_rng(0)))
+    field = HTMField(m, ElementSet.zeros(m))
+    ax = random_axes(m, 4, np.random.default_rng(0))
+    field.predict(ax)
+    solve("exact", field, forward(m, ax), m, target_axes=ax)
 
 
 def run_loop(seeds, jobs, families, flute: bool) -> list[dict]:
