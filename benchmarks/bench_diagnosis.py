@@ -186,6 +186,10 @@ def loop_lines(store: dict) -> list[str]:
                 f"| {sum(r['held_final_um'] <= HELD_OUT_TARGET_UM for r in C)}/{len(C)} "
                 f"| {', '.join(f'{k} {v}' for k, v in kept.items())} | {sum(pc)}/{len(pc)} |")
         cov = [r["band95_cover"] for r in R]
+        unc = [f"{r['effect']} seed {r['seed']}: {', '.join(r['screen_unconfirmed'])}" for r in R
+               if r.get("screen_unconfirmed")]
+        lines += ["", "Joint-screen proposals not confirmed by the search and the held-out gate (reported as such, not "
+                      "kept): " + ("; ".join(unc) if unc else "none") + "."]
         lines += ["", f"Sweeps-only prediction RMS over all {len(R)} runs: median {_med([r['sweeps_rms_um'] for r in R]):.2f} μm, "
                       f"≤ {SWEEPS_TARGET_UM} μm in {sum(r['sweeps_rms_um'] <= SWEEPS_TARGET_UM for r in R)}/{len(R)}; "
                       f"95 % band coverage per run: min {min(cov):.3f}, median {_med(cov):.3f}, max {max(cov):.3f} "

@@ -123,6 +123,8 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False) -> dict:
             "effects": [f"{e['kind']} {e['axis']}" for e in found],
             "effects_elements": [e["element"] for e in found], "named_right": bool(named),
             "screen": [f"{e['kind']} {e['axis']} {e['element']}" for e in s["update"].get("joint_screen", [])],
+            "screen_unconfirmed": [f"{e['kind']} {e['axis']}" for e in s["update"].get("joint_screen", [])
+                                   if not e.get("confirmed")],
             "param_cover": (_param_cover(effect, found[0], truth) if exp is not None and top == exp else None),
             "contradicted": [c["element"] for c in s["update"]["contradicted_by_sweeps"]],
             "not_updated": [c["element"] for c in s["update"]["not_updated"]],

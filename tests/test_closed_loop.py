@@ -243,7 +243,7 @@ def test_effects_the_update_imitates_are_named_by_the_joint_screen(grinder, effe
     s = loop.summary
     screen = s["update"]["joint_screen"]
     assert screen and (screen[0]["kind"], screen[0]["axis"]) == kind_axis
-    assert len(screen[0]["update_alone_imitated_it_with"]) == 3
+    assert len(screen[0]["update_alone_imitated_it_with"]) == 3 and screen[0]["confirmed"]
     assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == kind_axis
     assert s["kept_stage"] == "updated_plus_effects"
     assert s["rms_final_um"] < HELD_OUT_TARGET_UM

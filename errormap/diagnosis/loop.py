@@ -111,6 +111,8 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
             r2 = r2 - c
         else:
             rejected.append(e)
+    for st in screen:  # a proposal counts only when the search and the held-out gate keep the same term
+        st["confirmed"] = any((e["kind"], e["axis"]) == (st["kind"], st["axis"]) for _, e in kept)
     st0, st1, st2 = (residual_stats(r[hold_idx]) for r in (r0, r1, r2))
     stages = {
         "identified": {"held_out": st0, "fitting": residual_stats(r0[fit_idx])},

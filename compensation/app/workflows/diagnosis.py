@@ -205,7 +205,10 @@ def stages_html(s) -> str:
         out.append(f"<p><b>Missing effect, tested jointly with the update</b>: {html.escape(j['kind'])} "
                    f"{html.escape(j['axis'])} on {html.escape(element_label(j['element']))} (F = {j['F']:.3g}, "
                    f"p (Bonferroni over {j['n_candidates']}) = {j['p_adjusted']:.2g}). The update alone imitated it "
-                   f"by moving {html.escape(imit)}; it is kept out of the update.</p>")
+                   f"by moving {html.escape(imit)}; it is kept out of the update. "
+                   + ("Confirmed: the search and the held-out gate kept this term.</p>" if j.get("confirmed") else
+                      "Not confirmed: the search on what the update left did not keep it (it stays only a "
+                      "proposal).</p>"))
     if u["contradicted_by_sweeps"]:
         out.append("<p><b>Updates the sweeps contradict</b> (evidence of an effect the 23 elements lack): "
                    + html.escape(", ".join(f"{element_label(c['element'])} (p = {c['p_adjusted']:.2g})" for c in u["contradicted_by_sweeps"]))
