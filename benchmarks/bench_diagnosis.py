@@ -307,6 +307,18 @@ def checks_lines(m, seeds):
     return lines
 
 
+def _render_loop(out, store) -> None:
+    """Rewrite the closed-loop section of ``out`` from ``store`` (the other sections are kept)."""
+    old = Path(out).read_text(encoding="utf-8") if Path(out).is_file() else ""
+    if LOOP_END in old:
+        old = old[old.index(LOOP_END) + len(LOOP_END):].lstrip("\n")
+    loop = loop_lines(store) if store else []
+    text = "# Diagnosis benchmark\n\n" + "\n".join(loop) + "\n" + old.replace("# Diagnosis benchmark\n\n", "", 1)
+    with atomic_write(out, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    print("\n".join(loop))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=20, help="seeds per case (default 20)")
@@ -321,7 +333,20 @@ def main(argv=None):
     ap.add_argument("--family", choices=("default", "independent", "both"), default="both",
                     help="truth family of the closed loop")
     ap.add_argument("--dry-run", action="store_true", help="print the expected runtime and stop")
+    ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
+                    help="merge the closed-loop rows of these result files (calls run elsewhere) into --json, "
+                         "rebuild the Markdown section, and stop")
     args = ap.parse_args(argv)
+    if args.merge:
+        store = json.loads(Path(args.json).read_text()) if Path(args.json).is_file() else {}
+        for f in args.merge:
+            for fam, F in json.loads(Path(f).read_text()).get("families", {}).items():
+                merge_rows(store, fam, F["rows"], F["runs"][0])
+                store["families"][fam]["runs"] += F["runs"][1:]
+        write_json(args.json, store)
+        args.sections, args.dry_run = "loop", False
+        _render_loop(args.out, store)
+        return
     sections = set(args.sections.split(","))
     bad = sections - {"loop", "flute", "reference", "drift"}
     if bad:
@@ -355,12 +380,7 @@ def main(argv=None):
     store = json.loads(Path(args.json).read_text()) if Path(args.json).is_file() else {}
     loop = loop_lines(store) if store else []
     if sections <= {"loop", "flute"}:
-        if LOOP_END in old:
-            old = old[old.index(LOOP_END) + len(LOOP_END):].lstrip("\n")
-        text = "# Diagnosis benchmark\n\n" + "\n".join(loop) + "\n" + old.replace("# Diagnosis benchmark\n\n", "", 1)
-        with atomic_write(args.out, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        print("\n".join(loop))
+        _render_loop(args.out, store)
         return
     m = load_machine()
     t0 = time.perf_counter()
