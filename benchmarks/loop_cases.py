@@ -1,12 +1,16 @@
 """One closed-loop benchmark case through the user's CLI path (used by bench_diagnosis.py).
 
 ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) → ``volcomp identify``
-→ ``volcomp diagnose`` → evaluation against the hidden truth (only here).
+→ ``volcomp diagnose`` → evaluation against the hidden truth (only here). With ``flute=True``
+on a no-effect case, also ``volcomp compensate flute.csv --method exact --model`` with the
+loop's ``model.json`` and with the identified elements, scored by the TRUE residual on the
+hidden truth.
 """
 from __future__ import annotations
 
 import json
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +19,8 @@ EXPECTED = {"none": None, "pitch": ("periodic", "x"), "reversal": ("reversal", "
             "interaction": ("interaction", "x*z"), "worm": ("harmonic", "a")}
 N_PROBE = 5000
 Z95 = 1.959963984540054
+# the conditions under which the flute is ground and scored: the truth's reference conditions
+FLUTE_CONDITIONS = ["--temp-c", "20", "--time-s", "0", "--dir-x", "1", "--dir-z", "1", "--dir-a", "1"]
 
 
 def _param_cover(effect, found, truth):
@@ -33,7 +39,40 @@ def _param_cover(effect, found, truth):
     return bool(abs(v - tv) <= Z95 * se)
 
 
-def run_case(family: str, seed: int, effect: str) -> dict:
+def _stats(r_um) -> dict:
+    n = np.linalg.norm(r_um, axis=1)
+    return {"max_um": float(n.max()), "rms_um": float(np.sqrt(np.mean(n**2)))}
+
+
+def _flute(main, td: Path, m, truth) -> dict:
+    """The default flute compensated (exact) with the loop's model and with the identified
+    elements alone: TRUE residual on the truth (reference conditions) and the MODEL residual
+    compensate reports."""
+    from compensation.evaluate import true_residual_um
+    from compensation.toolpath import flute_path
+    from errormap.io import read_table, write_csv
+    from errormap.kinematics import forward
+    fp = flute_path()
+    nominal = fp.axes(m)
+    write_csv(td / "flute.csv", dict(zip(("x_mm", "z_mm", "a_deg"), nominal.T)), float_fmt="%.12g")
+    targets = forward(m, nominal)
+    out = {"uncompensated": _stats(true_residual_um(truth, nominal, targets))}
+    for label, model in (("loop_model", td / "diag" / "model.json"), ("identified", td / "el.json")):
+        od = td / f"comp_{label}"
+        extra = FLUTE_CONDITIONS if label == "loop_model" else []
+        rc = main(["compensate", str(td / "flute.csv"), "--model", str(model), "--method", "exact", "--out", str(od),
+                   *extra])
+        if rc != 0:
+            out[label] = {"refused_exit": rc}
+            continue
+        t = read_table(od / "flute.csv")
+        comp = np.stack([t.float(k) for k in ("x_mm", "z_mm", "a_deg")], axis=1)
+        summ = json.loads((od / "compensate_summary.json").read_text())["files"][0]
+        out[label] = dict(_stats(true_residual_um(truth, comp, targets)), model_max_um=summ.get("model_max_um"))
+    return out
+
+
+def run_case(family: str, seed: int, effect: str, flute: bool = False) -> dict:
     from compensation.app.cli import main
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
@@ -41,8 +80,10 @@ def run_case(family: str, seed: int, effect: str) -> dict:
     from errormap.simulator import random_axes
     from errormap.truth_families import make_truth
     from errormap.uncertainty import ElementCovariance, covariance_path
+    t_cpu = time.process_time()
     eff = [] if effect == "none" else [effect]
     m = load_machine()
+    truth = make_truth(m, seed, effects=eff, family=family)
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)
         ea = sum((["--effect", e] for e in eff), [])
@@ -52,11 +93,12 @@ def run_case(family: str, seed: int, effect: str) -> dict:
         assert main(["identify", str(td / "sw.csv"), "--out", str(td / "el.json")]) == 0
         assert main(["diagnose", str(td / "sim" / "checks.csv"), "--model", str(td / "el.json"),
                      "--out", str(td / "diag")]) == 0
+        cpu_loop = time.process_time() - t_cpu
         s = json.loads((td / "diag" / "diagnosis.json").read_text())
         el = ElementSet.load(td / "el.json")
         cov = ElementCovariance.load(covariance_path(td / "el.json"), el)
         upd = ElementSet.load(td / "diag" / "updated_elements.json")
-    truth = make_truth(m, seed, effects=eff, family=family)
+        fl = _flute(main, td, m, truth) if flute and effect == "none" else None
     P = random_axes(m, N_PROBE, np.random.default_rng(seed + 7))
     et = HTMField(m, truth.elements).predict(P)
     e_id = HTMField(m, el).predict(P) - et
@@ -66,14 +108,24 @@ def run_case(family: str, seed: int, effect: str) -> dict:
     exp = EXPECTED[effect]
     top = (found[0]["kind"], found[0]["axis"]) if found else None
     named = (not found) if exp is None else (top == exp)
+    st = s["stages"]
     return {"family": family, "seed": seed, "effect": effect,
             "sweeps_rms_um": float(np.sqrt(np.mean(np.sum(e_id**2, axis=1)))),
             "sweeps_floor_um": float(np.sqrt(np.mean(np.sum(sd**2, axis=1)))),
             "band95_cover": float(np.mean(np.abs(e_id) <= Z95 * sd)),
             "updated_geometry_rms_um": float(np.sqrt(np.mean(np.sum(e_up**2, axis=1)))),
-            "held_identified_um": s["stages"]["identified"]["held_out"]["rms_um"],
-            "held_updated_um": s["stages"]["updated"]["held_out"]["rms_um"],
-            "held_final_um": s["stages"]["updated_plus_effects"]["held_out"]["rms_um"],
-            "effects": [f"{e['kind']} {e['axis']}" for e in found], "named_right": bool(named),
+            "held_identified_um": st["identified"]["held_out"]["rms_um"],
+            "held_updated_alone_um": st.get("updated_alone", st["updated"])["held_out"]["rms_um"],
+            "held_updated_um": st["updated"]["held_out"]["rms_um"],
+            "held_effects_um": st["updated_plus_effects"]["held_out"]["rms_um"],
+            "held_final_um": s["rms_final_um"], "held_final_max_um": s["max_final_um"],
+            "kept_stage": s.get("kept_stage", "updated_plus_effects"),
+            "effects": [f"{e['kind']} {e['axis']}" for e in found],
+            "effects_elements": [e["element"] for e in found], "named_right": bool(named),
+            "screen": [f"{e['kind']} {e['axis']} {e['element']}" for e in s["update"].get("joint_screen", [])],
+            "screen_unconfirmed": [f"{e['kind']} {e['axis']}" for e in s["update"].get("joint_screen", [])
+                                   if not e.get("confirmed")],
             "param_cover": (_param_cover(effect, found[0], truth) if exp is not None and top == exp else None),
-            "contradicted": [c["element"] for c in s["update"]["contradicted_by_sweeps"]]}
+            "contradicted": [c["element"] for c in s["update"]["contradicted_by_sweeps"]],
+            "not_updated": [c["element"] for c in s["update"]["not_updated"]],
+            "flute": fl, "cpu_loop_s": cpu_loop, "cpu_s": time.process_time() - t_cpu}

@@ -3,8 +3,18 @@
 ``model.json`` (``format: volcomp-diagnosed-model/1``) names the updated element set (relative
 to the file) and the accepted effect terms (kind, axis, element, coefficients, period/order,
 references). A term may need conditions (``temp_c``, ``time_s``, ``dir_x``, ``dir_z``,
-``dir_a``); for compensating a path they are given as constants (options of ``volcomp
-compensate``); a needed condition that is missing is refused, naming it.
+``dir_a``). For compensating a path, each needed condition is taken per point from the CSV
+path file's column of that name when it has one (the check-measurement columns' names and
+rules: a finite number, ``dir_*`` ±1, ``temp_c`` within −40…80 °C), else from the constant
+option (``--temp-c`` …) for the whole path; a needed condition found in neither is refused,
+naming the file, the column and the option (a column's bad cell: file, row and column).
+
+Per-point conditions are solved exactly by moving the terms into the targets
+(:func:`solve_with_conditions`): with the model ``E(q) = B(q) + t(q, c)``, compensating
+``p_d`` is compensating ``p_d − t(q*, c)`` with the axes-only field ``B``, where ``q*`` is the
+solution; two or three fixed-point passes make ``t`` consistent (its change over a
+correction of ≤ 250 μm is far below the solver tolerance), and the model residual is then
+computed with the terms at the final commands and the points' own conditions.
 """
 from __future__ import annotations
 
@@ -21,6 +31,10 @@ from errormap.io import InputError
 
 FORMAT = "volcomp-diagnosed-model/1"
 CONDITIONS = ("temp_c", "time_s", "dir_x", "dir_z", "dir_a")
+DIR_CONDITIONS = ("dir_x", "dir_z", "dir_a")
+TEMP_RANGE_C = (-40.0, 80.0)   # as for check measurements (kelvin or fahrenheit are refused)
+FIXED_POINT_TOL_UM = 1e-6      # the terms at the solution change by less than this between passes
+FIXED_POINT_MAX_PASSES = 5
 
 
 def is_diagnosed_model(spec) -> bool:
@@ -56,28 +70,90 @@ class ConditionedField:
 
     kind = "diagnosed"
 
-    def __init__(self, corrected: CorrectedField, conditions: dict):
+    def __init__(self, corrected: CorrectedField, conditions: dict, check: bool = True):
         self.corrected = corrected
         self.elements = corrected.base.elements  # where it is calibrated: the element stations (guards)
         self.machine = corrected.machine
         self.conditions = {k: v for k, v in conditions.items() if v is not None}
         missing = [c for c in corrected.needs if c not in self.conditions]
-        if missing:
+        if missing and check:
             opts = ", ".join("--" + c.replace("_", "-") for c in missing)
             raise InputError(f"the diagnosed model's terms {[t.cand.label for t in corrected.terms]} need the "
                              f"condition(s) {missing}; give them ({opts})")
 
+    @property
+    def needs(self) -> tuple[str, ...]:
+        return self.corrected.needs
+
     def predict(self, axes) -> np.ndarray:
         axes = np.asarray(axes, dtype=float)
+        missing = [c for c in self.corrected.needs if c not in self.conditions]
+        if missing:  # only per point (solve_with_conditions) can this model be evaluated
+            raise InputError(f"the diagnosed model's terms need the condition(s) {missing} at every point")
         return self.corrected.predict(axes, **{k: np.full(axes.shape[0], float(v)) for k, v in self.conditions.items()})
 
     __call__ = predict
 
 
+def path_conditions(tp, needs, constants: dict) -> dict:
+    """Per-point conditions of tool path ``tp`` (a :class:`compensation.pathio.ToolPath`) for the
+    condition names ``needs``: {name: (n,) array}, from the CSV's columns when present, else the
+    constant in ``constants`` (None: not given). Refuses (InputError) a needed condition in
+    neither, and a bad cell (file, row, column)."""
+    table = tp.source if tp.kind in ("csv-axes", "csv-targets") else None
+    n = len(tp)
+    out = {}
+    for c in needs:
+        if table is not None and c in table:
+            if c in DIR_CONDITIONS:
+                v = table.int(c, allowed=(-1, 1)).astype(float)
+            else:
+                v = table.float(c)
+                if c == "temp_c":
+                    bad = np.flatnonzero((v < TEMP_RANGE_C[0]) | (v > TEMP_RANGE_C[1]))
+                    if bad.size:
+                        raise InputError(f"{tp.path}: row {table.row_number(int(bad[0]))}, column 'temp_c': units do "
+                                         f"not fit: {v[bad[0]]:g} is outside {TEMP_RANGE_C} °C (kelvin or fahrenheit?)")
+            if v.shape != (n,):  # pragma: no cover - the table and the path have one row per point
+                raise InputError(f"{tp.path}: column '{c}' has {v.size} values for {n} points")
+            out[c] = v
+        elif constants.get(c) is not None:
+            out[c] = np.full(n, float(constants[c]))
+        else:
+            where = "a column" if table is not None else "columns (a G-code path has none)"
+            raise InputError(f"{tp.path}: the diagnosed model needs the condition '{c}' at every point: give it as "
+                             f"{where} '{c}' or for the whole path with --{c.replace('_', '-')}")
+    return out
+
+
+def solve_with_conditions(method, field, targets_mm, machine, conditions: dict, **kw):
+    """Compensate ``targets_mm`` (n, 3) with a diagnosed model whose terms take per-point
+    ``conditions`` {name: (n,)} (see module doc); ``field``: :class:`ConditionedField`.
+    Returns the solver's :class:`SolveResult` with the model residual of the full model."""
+    from .solvers import solve
+    corrected = field.corrected
+    targets = np.asarray(targets_mm, dtype=float)
+    shift_um = np.zeros_like(targets)
+    for _ in range(FIXED_POINT_MAX_PASSES):
+        res = solve(method, corrected.base, targets - 1e-3 * shift_um, machine, **kw)
+        t_um = corrected.terms_only(res.axes, **conditions)
+        change = float(np.max(np.abs(t_um - shift_um))) if t_um.size else 0.0
+        used, shift_um = shift_um, t_um
+        if change <= FIXED_POINT_TOL_UM:
+            break
+    # p_r + B + t − p_d = (p_r + B − (p_d − shift)) + (t − shift), with the shift the solve used
+    res.residual_um = res.residual_um + (t_um - used)
+    res.targets_mm = targets
+    res.correction_um = np.linalg.norm(res.commands_mm - targets, axis=1) * 1e3
+    res.info = dict(res.info or {}, conditions="per point", fixed_point_change_um=change)
+    return res
+
+
 def load_path_field(spec, machine, tracking_uri, conditions=None):
     """``load_field`` for compensation, with ``model.json`` of ``volcomp diagnose`` understood;
-    ``conditions``: ``{name: value or None}`` for :data:`CONDITIONS` (a diagnosed model's terms)."""
+    ``conditions``: ``{name: value or None}`` for :data:`CONDITIONS` (a diagnosed model's terms;
+    missing ones are checked per path, from its columns or these constants)."""
     from .fields import load_field
     if is_diagnosed_model(spec):
-        return ConditionedField(load_diagnosed_model(spec, machine), dict(conditions or {}))
+        return ConditionedField(load_diagnosed_model(spec, machine), dict(conditions or {}), check=False)
     return load_field(spec, machine, tracking_uri)

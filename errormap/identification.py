@@ -129,6 +129,15 @@ def layout_problem(points_mm, min_separation_mm: float = 1.0):
     return None
 
 
+def _layout_suspects(balls_mm, min_separation_mm: float) -> np.ndarray:
+    """Indices of the stations (balls (m, 3, 3)) that :func:`layout_problem` may refuse, in order:
+    the same tests at every station at once, with a 1 % margin so that rounding cannot hide one."""
+    b = np.asarray(balls_mm, dtype=float)
+    dist = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
+    height = np.linalg.norm(np.cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0]), axis=1) / dist.max(axis=1)
+    return np.flatnonzero((dist.min(axis=1) < 1.01 * min_separation_mm) | ~(height >= 0.99 * min_separation_mm))
+
+
 def station_jacobian(q_mm, Rn=None) -> np.ndarray:
     """The paper's 9×6 system: ∂(ball positions, μm)/∂(δ μm, ε μrad) for balls q (n, 3, 3).
 
@@ -285,10 +294,10 @@ class TrackerIdentification:
                 raise InputError(f"{machine.path or 'machine'}: key 'targets.{ax}': degenerate target layout for "
                                  f"axis {ax}: {why}")
             sw = sweeps[ax]
-            for i, st in enumerate(sw.stations):
+            for i in _layout_suspects(sw.balls_mm, self.min_separation_mm):  # vectorised screen, then the message
                 why = layout_problem(sw.balls_mm[i], self.min_separation_mm)
                 if why:
-                    raise InputError(f"{sw.source}: axis {ax}, station {st}: degenerate target layout: {why}")
+                    raise InputError(f"{sw.source}: axis {ax}, station {sw.stations[i]}: degenerate target layout: {why}")
             nominal = np.array([np.linalg.norm(mounts[i] - mounts[j]) for i, j in ((0, 1), (0, 2), (1, 2))])
             measured = np.stack([np.linalg.norm(sw.balls_mm[:, i] - sw.balls_mm[:, j], axis=1)
                                  for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)

@@ -174,3 +174,108 @@ def test_compensate_takes_the_diagnosed_model_and_its_conditions(grinder, tmp_pa
     landed = truth.tool_point(cmd, dir_z=-np.ones(n))
     err_um = np.linalg.norm(landed - forward(grinder, axes), axis=1) * 1e3
     assert err_um.max() < COMP_TRUE_TOL_UM
+
+
+def _diagnosed_model(tmp_path, truth, terms):
+    truth.elements.save(tmp_path / "updated_elements.json")
+    (tmp_path / "model.json").write_text(json.dumps({"format": "volcomp-diagnosed-model/1",
+                                                      "elements": "updated_elements.json", "terms": terms}))
+    return tmp_path / "model.json"
+
+
+def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tmp_path, capsys):
+    """A reversal term (dir_z) and a thermal term (temp_c), both per point from the CSV's columns:
+    the commands land on the targets on the truth under each point's own conditions."""
+    from errormap.io import read_table
+    from errormap.kinematics import forward
+    truth = random_truth(grinder, 3, effects=["reversal", "thermal"])
+    b = truth.effects["reversal"]["backlash_um"]
+    k = truth.effects["thermal"]["k_um_per_mm_c"]
+    ref = {"ref_temp_c": 20.0, "ref_time_s": 0.0}
+    model = _diagnosed_model(tmp_path, truth, [
+        {"kind": "reversal", "axis": "z", "element": "dz_z", "coefficients": [b], "reference": ref},
+        {"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [k], "reference": ref}])
+    n = 40
+    u = np.linspace(0, 1, n)
+    axes = np.c_[20 + 150 * u, 5 + 40 * u, 300 * u]
+    dir_z = np.where(np.arange(n) % 3 == 0, -1, 1)
+    temp = 20 + 4 * u
+    path = tmp_path / "path.csv"
+    path.write_text("x_mm,z_mm,a_deg,temp_c,dir_z\n" + "\n".join(
+        f"{x:.6f},{z:.6f},{a:.6f},{t:.4f},{d}" for (x, z, a), t, d in zip(axes, temp, dir_z)) + "\n")
+    assert main(["compensate", str(path), "--model", str(model), "--method", "exact", "--out", str(tmp_path / "c"),
+                 "--dir-z", "1"]) == 0  # the column wins over the option
+    t = read_table(tmp_path / "c" / "path.csv")
+    cmd = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
+    landed = truth.tool_point(cmd, dir_z=dir_z.astype(float), temp_c=np.round(temp, 4))
+    err_um = np.linalg.norm(landed - forward(grinder, axes), axis=1) * 1e3
+    assert err_um.max() < COMP_TRUE_TOL_UM
+    summ = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
+    assert summ["model_max_um"] < COMP_TRUE_TOL_UM
+    # a bad cell: file, row and column; a needed column that is absent with no option: refused by name
+    bad = tmp_path / "bad.csv"
+    lines = path.read_text().splitlines()
+    lines[5] = lines[5].rsplit(",", 1)[0] + ",0"
+    bad.write_text("\n".join(lines) + "\n")
+    capsys.readouterr()
+    assert main(["compensate", str(bad), "--model", str(model), "--method", "exact", "--out", str(tmp_path / "c2")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.csv" in err and "row 6" in err and "dir_z" in err
+    nocol = tmp_path / "nocol.csv"
+    nocol.write_text("x_mm,z_mm,a_deg,dir_z\n" + "\n".join(
+        f"{x:.6f},{z:.6f},{a:.6f},{d}" for (x, z, a), d in zip(axes, dir_z)) + "\n")
+    assert main(["compensate", str(nocol), "--model", str(model), "--method", "exact", "--out", str(tmp_path / "c3")]) == 2
+    err = capsys.readouterr().err
+    assert "nocol.csv" in err and "temp_c" in err and "--temp-c" in err
+    assert not (tmp_path / "c3" / "nocol.csv").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect, kind_axis", [("thermal", ("thermal", "x")), ("interaction", ("interaction", "x*z"))])
+def test_effects_the_update_imitates_are_named_by_the_joint_screen(grinder, effect, kind_axis):
+    """Thermal growth (a dx_x slope at the mean temperature) and an X·Z coupling (angular
+    elements times lever arms) are taken up by the update alone; tested jointly with it they
+    are named, with the elements that imitated them, and the final model is kept."""
+    truth = make_truth(grinder, 0, family="independent", effects=[effect])
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder, n_boot=N_BOOT)
+    checks = CheckData.from_columns(truth.check_measurements(800, 1.0, seed=14))
+    loop = closed_loop(grinder, sm.covariance_, checks)
+    s = loop.summary
+    screen = s["update"]["joint_screen"]
+    assert screen and (screen[0]["kind"], screen[0]["axis"]) == kind_axis
+    assert len(screen[0]["update_alone_imitated_it_with"]) == 3 and screen[0]["confirmed"]
+    assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == kind_axis
+    assert s["kept_stage"] == "updated_plus_effects"
+    assert s["rms_final_um"] < HELD_OUT_TARGET_UM
+
+
+def test_fallback_keeps_the_final_model_unless_a_plainer_stage_is_better_held_out():
+    from errormap.diagnosis.loop import FALLBACK_Z, _fallback
+    rng = np.random.default_rng(7)
+    hold = np.arange(100, 300)
+    noise = rng.normal(0, 1, (300, 3))
+    opts = {"updated_plus_effects": (noise, None, None, []), "updated": (noise + 0.01, None, None, []),
+            "identified": (noise * 3, None, None, [])}
+    assert _fallback(opts, hold)[0] == "updated_plus_effects"   # a tie is no loss
+    opts["updated_plus_effects"] = (noise * 1.5, None, None, [])  # the effects made it worse held out
+    stage, why = _fallback(opts, hold)
+    assert stage == "updated" and str(FALLBACK_Z) in why
+
+
+def test_diagnose_cli_names_elements_the_checks_do_not_cover(tmp_path):
+    """Checks only at x < 80 mm: the report names dx_x's stations beyond as staying at the
+    sweep estimate, with the reason."""
+    from errormap.io import read_table, write_csv
+    sw, el = tmp_path / "sw.csv", tmp_path / "el.json"
+    assert main(["sweeps", "--family", "independent", "--seed", "0", "--seed-noise", "500", "--out", str(sw)]) == 0
+    assert main(["simulate", "--family", "independent", "--seed", "0", "--checks", "400", "--out",
+                 str(tmp_path / "sim")]) == 0
+    assert main(["identify", str(sw), "--out", str(el), "--bootstrap", "20"]) == 0
+    t = read_table(tmp_path / "sim" / "checks.csv")
+    keep = t.float("x_mm") < 80.0
+    write_csv(tmp_path / "part.csv", {c: t.float(c)[keep] for c in t.names})
+    assert main(["diagnose", str(tmp_path / "part.csv"), "--model", str(el), "--out", str(tmp_path / "d")]) == 0
+    s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    named = {u["element"]: u for u in s["update"]["not_updated"]}
+    assert "dx_x" in named and "outside" in named["dx_x"]["why"] and min(named["dx_x"]["stations"]) > 8
+    assert "Not updated by the checks" in (tmp_path / "d" / "report.html").read_text()

@@ -55,11 +55,14 @@ def add_method_arguments(p) -> None:
 
 def add_condition_options(p) -> None:
     """The constant-condition options of ``volcomp compensate`` (for a diagnosed model)."""
-    p.add_argument("--temp-c", type=float, default=None, help="temperature for a diagnosed model's thermal term (°C)")
-    p.add_argument("--time-s", type=float, default=None, help="time for a diagnosed model's drift term (s)")
+    p.add_argument("--temp-c", type=float, default=None, help="temperature for a diagnosed model's thermal term (°C), "
+                   "for the whole path; a CSV path's column temp_c takes precedence")
+    p.add_argument("--time-s", type=float, default=None, help="time for a diagnosed model's drift term (s), for the "
+                   "whole path; a CSV path's column time_s takes precedence")
     for ax in ("x", "z", "a"):
         p.add_argument(f"--dir-{ax}", type=int, choices=(-1, 1), default=None,
-                       help=f"approach direction of {ax.upper()} for a diagnosed model's reversal term")
+                       help=f"approach direction of {ax.upper()} for a diagnosed model's reversal term, for the whole "
+                            f"path; a CSV path's column dir_{ax} takes precedence")
 
 
 def conditions_from_args(args) -> dict:

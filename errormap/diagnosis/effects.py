@@ -95,6 +95,9 @@ class Context:
     conditions: dict
     jac: np.ndarray
     ref: dict
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
+    """Per-context store of quantities that depend only on the points (the periodogram's
+    sines and cosines per searched axis); filled on demand, never part of a result."""
 
     @classmethod
     def build(cls, machine, axes, conditions, ref) -> "Context":
@@ -161,20 +164,30 @@ def design(cand: Candidate, ctx: Context, period_mm=None, order=None) -> np.ndar
     return (ctx.column(cand.element)[:, :, None] * B[:, None, :]).reshape(-1, B.shape[1])
 
 
-def projected_periodogram(r_um: np.ndarray, jcol: np.ndarray, pos: np.ndarray, omegas: np.ndarray) -> tuple:
+def periodogram_trig(pos: np.ndarray, omegas: np.ndarray) -> tuple:
+    """The sines and cosines a periodogram over ``omegas`` (m,) at positions ``pos`` (n,) needs:
+    ``(S, C, S², S·C, C²)``, each (m, n). Computed once per point set and frequency grid
+    (:attr:`Context.cache`) and reused for every candidate element and selection step."""
+    ph = np.outer(omegas, pos)
+    S, C = np.sin(ph), np.cos(ph)
+    return S, C, S * S, S * C, C * C
+
+
+def projected_periodogram(r_um: np.ndarray, jcol: np.ndarray, pos: np.ndarray, omegas: np.ndarray,
+                          trig: tuple | None = None) -> tuple:
     """Least-squares (Lomb–Scargle type) periodogram of a residual projected on an element.
 
     For each angular frequency ω fits ``r ≈ J_e·(s·sin ωpos + c·cos ωpos)`` over the
     stacked 3-vector residual (shapes: r (n, 3), jcol (n, 3), pos (n,), omegas (m,)). With
     ``J_e`` a unit vector this is the classical Lomb–Scargle periodogram without floating
-    mean. Returns (RSS reduction (m,) μm², coefficients (m, 2)).
+    mean. ``trig``: :func:`periodogram_trig` of (pos, omegas) when already computed.
+    Returns (RSS reduction (m,) μm², coefficients (m, 2)).
     """
     g = np.einsum("ni,ni->n", jcol, r_um)          # J_eᵀ r per point
     w = np.einsum("ni,ni->n", jcol, jcol)          # |J_e|² per point
-    ph = np.outer(omegas, pos)
-    S, C = np.sin(ph), np.cos(ph)
-    a11, a12, a22 = (w * S * S).sum(1), (w * S * C).sum(1), (w * C * C).sum(1)
-    b1, b2 = (g * S).sum(1), (g * C).sum(1)
+    S, C, SS, SC, CC = periodogram_trig(pos, omegas) if trig is None else trig
+    a11, a12, a22 = SS @ w, SC @ w, CC @ w
+    b1, b2 = S @ g, C @ g
     det = a11 * a22 - a12**2
     det = np.where(np.abs(det) > 1e-300, det, np.inf)
     s = (a22 * b1 - a12 * b2) / det

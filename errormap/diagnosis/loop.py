@@ -4,11 +4,20 @@ Three stages, each judged on the same held-out checks (the last ``1 − fit_frac
 
 1. **identified** — the sweep identification as it is;
 2. **updated** — the 23 elements re-estimated from the fitting checks with the sweep estimate
-   as prior (:func:`.update.update_elements`);
+   as prior (:func:`.update.update_elements`). Linear effects the update would imitate are
+   first tested jointly with it (:func:`.joint.joint_screen`); those it proposes are kept out
+   of the update (the update alone, made on the whole residual, is the stage
+   ``updated_alone``), and the elements that imitated them are named;
 3. **updated + effects** — the effect search (:func:`.pipeline.diagnose`) on what the update
    leaves. In rank order, an effect is accepted only if it beats "update alone" (plus the
    effects accepted before it) on the held-out checks, significantly (:data:`HELD_OUT_Z`);
    the first that does not, and all after it, are reported as rejected.
+
+**Fallback**: the model handed on is the last stage unless a plainer one (identified,
+update alone, update without effects) is better on the held-out checks by more than
+:data:`FALLBACK_Z` paired standard errors (:func:`_fallback`); ``kept_stage`` and
+``kept_why`` say which and why. The choice is made on the held-out checks, so the kept
+stage's held-out figure is the best of those compared, not an untouched estimate.
 """
 from __future__ import annotations
 
@@ -21,8 +30,14 @@ from .checks import CheckData, measured_residual
 from .corrected import CorrectedField
 from .effects import Context, reference
 from .pipeline import Diagnosis, DiagnosisSettings, diagnose, residual_stats
+from .joint import joint_screen, stand_ins
 from .update import ModelUpdate, update_elements
 
+
+FALLBACK_Z = 2.0
+"""A plainer stage (identified, update alone, update without effects) replaces the final model
+when it lowers the held-out squared residual norm, paired per point, by more than 2 standard
+errors (one-sided p ≈ 0.02): a loss smaller than that cannot be told from the held-out noise."""
 
 HELD_OUT_Z = 3.0
 """An effect is accepted when it lowers the held-out squared residual norm, paired per point,
@@ -34,13 +49,19 @@ order, so this keeps the family-wise false acceptance near the selector's alpha)
 class ClosedLoop:
     """``update``: :class:`ModelUpdate`; ``diagnosis``: the effect search on the updated model;
     ``model``: the final :class:`CorrectedField` (updated elements + accepted terms);
-    ``accepted``: whether the effects were kept; ``summary``: the three stages and findings."""
+    ``accepted``: whether the effects were kept; ``summary``: the stages and findings;
+    ``kept_stage``: which stage ``model`` is (:func:`_fallback`); ``update``: the update the
+    effect search ran on."""
 
     update: ModelUpdate
     diagnosis: Diagnosis
     model: CorrectedField
     accepted: bool
     summary: dict
+    kept_stage: str = "updated_plus_effects"
+    covariance: object = None
+    """:class:`~errormap.uncertainty.ElementCovariance` of the kept model's elements (``.elements``;
+    the identification's own when the identified stage is kept)."""
 
 
 def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSettings | None = None,
@@ -58,6 +79,17 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
     base = HTMField(machine, covariance.elements)
     r0, _ = measured_residual(checks, base)
     upd = update_elements(machine, covariance, checks.axes[fit_idx], r0[fit_idx], alpha=s.alpha)
+    ctx = Context.build(machine, checks.axes, checks.conditions, reference(machine, checks.conditions, s.ref_temp_c))
+    # effects the update would imitate: tested jointly with it; what is proposed is kept out of the update
+    screen_terms, screen = joint_screen(upd, ctx.subset(fit_idx), r0[fit_idx], s.alpha, s.max_effects)
+    upd_alone = None
+    if screen_terms:
+        upd_alone = upd
+        proposed = sum(t.contribution(ctx) for t in screen_terms)
+        upd = update_elements(machine, covariance, checks.axes[fit_idx], (r0 - proposed)[fit_idx], alpha=s.alpha)
+        imitated = stand_ins(machine, upd_alone, upd)
+        for st in screen:
+            st["update_alone_imitated_it_with"] = imitated
     updated = HTMField(machine, upd.elements_)
     d = diagnose(machine, updated, checks, s)
     for _ in range(rounds - 1):  # backfitting: update without what the effects explain, search again
@@ -68,7 +100,6 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
         updated = HTMField(machine, upd.elements_)
         d = diagnose(machine, updated, checks, s)
     r1 = d.residual_before_um
-    ctx = Context.build(machine, checks.axes, checks.conditions, reference(machine, checks.conditions, s.ref_temp_c))
     kept, rejected, r2 = [], [], r1.copy()
     for t, e in zip(d.selector.terms_, d.effects):  # rank order; each must beat what is kept so far
         c = t.contribution(ctx)
@@ -80,24 +111,62 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
             r2 = r2 - c
         else:
             rejected.append(e)
+    for st in screen:  # a proposal counts only when the search and the held-out gate keep the same term
+        st["confirmed"] = any((e["kind"], e["axis"]) == (st["kind"], st["axis"]) for _, e in kept)
     st0, st1, st2 = (residual_stats(r[hold_idx]) for r in (r0, r1, r2))
-    accepted = bool(kept)
-    model = CorrectedField(machine, updated, [t for t, _ in kept])
+    stages = {
+        "identified": {"held_out": st0, "fitting": residual_stats(r0[fit_idx])},
+        "updated": {"held_out": st1, "fitting": residual_stats(r1[fit_idx])},
+        "updated_plus_effects": {"held_out": st2, "fitting": residual_stats(r2[fit_idx])},
+    }
+    # the model handed on never loses, on the held-out checks, to a plainer stage
+    options = {"updated_plus_effects": (r2, upd, updated, [t for t, _ in kept]),
+               "updated": (r1, upd, updated, []),
+               "identified": (r0, None, base, [])}
+    if upd_alone is not None:
+        ra, _ = measured_residual(checks, HTMField(machine, upd_alone.elements_))
+        stages["updated_alone"] = {"held_out": residual_stats(ra[hold_idx]), "fitting": residual_stats(ra[fit_idx]),
+                                   "note": "update made on the whole residual (the joint screen's terms not kept out)"}
+        options["updated_alone"] = (ra, upd_alone, HTMField(machine, upd_alone.elements_), [])
+    kept_stage, why = _fallback(options, hold_idx)
+    r_k, upd_k, field_k, terms_k = options[kept_stage]
+    accepted = bool(terms_k)
+    model = CorrectedField(machine, field_k, terms_k)
+    stk = residual_stats(r_k[hold_idx])
     summary = dict(d.summary)
     summary.update({
-        "stages": {
-            "identified": {"held_out": st0, "fitting": residual_stats(r0[fit_idx])},
-            "updated": {"held_out": st1, "fitting": residual_stats(r1[fit_idx])},
-            "updated_plus_effects": {"held_out": st2, "fitting": residual_stats(r2[fit_idx])},
-        },
-        "update": upd.to_dict(),
+        "stages": stages,
+        "kept_stage": kept_stage, "kept_why": why,
+        "update": dict(upd.to_dict(), joint_screen=screen),
         "effects_accepted": accepted,
-        "effects": [e for _, e in kept],
+        "effects": [e for _, e in kept] if kept_stage == "updated_plus_effects" else [],
         "effects_rejected": rejected,
         "rms_identified_um": st0["rms_um"], "rms_updated_um": st1["rms_um"],
-        "rms_final_um": st2["rms_um"], "max_final_um": st2["max_um"],
+        "rms_final_um": stk["rms_um"], "max_final_um": stk["max_um"],
     })
+    if kept and kept_stage != "updated_plus_effects":
+        summary["effects_dropped_by_fallback"] = [e for _, e in kept]
     if rejected:
         summary["effects_rejected_why"] = (f"not a significant held-out improvement over the update (and the effects "
                                            f"ranked before it): paired z ≤ {HELD_OUT_Z} on the per-point squared residual")
-    return ClosedLoop(upd, d, model, accepted, summary)
+    return ClosedLoop(upd, d, model, accepted, summary, kept_stage,
+                      covariance if upd_k is None else upd_k.covariance_)
+
+
+def _fallback(options: dict, hold_idx) -> tuple[str, str]:
+    """The stage to hand on: the most complete one (first of ``options``) unless a plainer stage
+    has a lower held-out squared residual norm, paired per point, by more than
+    :data:`FALLBACK_Z` standard errors; then the best such stage. Returns (stage, why)."""
+    names = list(options)
+    sq = {k: np.sum(options[k][0][hold_idx] ** 2, axis=1) for k in names}
+    best, why = names[0], (f"kept: no plainer stage ({', '.join(names[1:])}) is better on the held-out checks by more "
+                           f"than {FALLBACK_Z} paired standard errors")
+    best_gain = 0.0
+    for k in names[1:]:
+        g = sq[names[0]] - sq[k]
+        z = g.mean() / (g.std(ddof=1) / np.sqrt(g.size)) if g.std() > 0 else 0.0
+        if z > FALLBACK_Z and g.mean() > best_gain:
+            best, best_gain = k, g.mean()
+            why = (f"fell back from {names[0]} to {k}: {k} is better on the held-out checks by paired z = {z:.2f} "
+                   f"(> {FALLBACK_Z}) on the per-point squared residual")
+    return best, why

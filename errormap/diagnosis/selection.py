@@ -29,7 +29,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize, stats
 
-from .effects import AXIS_COL, KINDS, Candidate, Context, EffectTerm, design, library, projected_periodogram
+from .effects import (AXIS_COL, KINDS, Candidate, Context, EffectTerm, design, library, periodogram_trig,
+                      projected_periodogram)
 
 KIND_PREFERENCE = {k: i for i, k in enumerate(KINDS)}
 STAT_KEYS = ("F", "p_value", "p_adjusted", "delta_bic", "validation_gain_um2")
@@ -81,7 +82,10 @@ class EffectSelector:
         om, _ = self._omegas(cand, ctx)
         jcol = ctx.column(cand.element)
         pos = ctx.position("a") if cand.kind == "harmonic" else ctx.axes[:, AXIS_COL[cand.axis]]
-        gain, _ = projected_periodogram(r, jcol, pos, om)
+        key = ("periodogram", cand.kind, cand.axis)
+        if key not in ctx.cache:
+            ctx.cache[key] = periodogram_trig(pos, om)
+        gain, _ = projected_periodogram(r, jcol, pos, om, ctx.cache[key])
         k = int(np.argmax(gain))
         if cand.kind == "harmonic":
             return None, int(round(om[k]))
@@ -117,7 +121,7 @@ class EffectSelector:
     def _score(self, cand, ctx, r0, specs, pre, K) -> dict:
         """Score ``cand`` added to the selected ``specs``: nested F-test and BIC on the whole
         fitting data, forward validation (all terms refitted on the inner part)."""
-        D_sel, rss0, res0, D_sel_in, D_sel_val, res0_in, inner, val = pre
+        D_sel, rss0, res0, D_sel_in, D_sel_val, res0_in, ci, cv, inner, val = pre
         y = r0.reshape(-1)
         N = y.size
         period, order = self._search(cand, ctx, res0.reshape(-1, 3))
@@ -132,7 +136,6 @@ class EffectSelector:
         n_nonlin = 1 if cand.kind in ("periodic", "harmonic") else 0
         dbic = N * np.log(rss0 / max(rss1, 1e-300)) - (p + n_nonlin) * np.log(N)
         # forward validation: refit everything on the inner part, compare on the rest
-        ci, cv = ctx.subset(inner), ctx.subset(val)
         per_i, ord_i = self._search(cand, ci, res0_in.reshape(-1, 3))
         yi, yv = r0[inner].reshape(-1), r0[val].reshape(-1)
         Di = np.hstack([D_sel_in, design(cand, ci, per_i, ord_i)])
@@ -148,14 +151,14 @@ class EffectSelector:
                 "p_adjusted": p_adj, "delta_bic": float(dbic), "rss_reduction_um2": rss0 - rss1,
                 "validation_gain_um2": val_gain, "passes": bool(p_adj < self.alpha and val_gain > 0)}
 
-    def _prepare(self, ctx, r0, specs, inner, val):
+    def _prepare(self, ctx, r0, specs, inner, val, sub=None):
         y = r0.reshape(-1)
         D_sel = self._designs(specs, ctx)
         rss0, res0 = self._rss(D_sel, y)
-        ci, cv = ctx.subset(inner), ctx.subset(val)
+        ci, cv = sub if sub is not None else (ctx.subset(inner), ctx.subset(val))
         D_sel_in, D_sel_val = self._designs(specs, ci), self._designs(specs, cv)
         _, res0_in = self._rss(D_sel_in, r0[inner].reshape(-1))
-        return D_sel, rss0, res0, D_sel_in, D_sel_val, res0_in, inner, val
+        return D_sel, rss0, res0, D_sel_in, D_sel_val, res0_in, ci, cv, inner, val
 
     @staticmethod
     def _rank_key(s):
@@ -232,9 +235,10 @@ class EffectSelector:
         self.steps_ = []
         p_prev = 0
         sel_stats = {}
+        sub = (ctx.subset(inner), ctx.subset(val))  # built once: their periodogram caches are reused by every step
         for _ in range(self.max_effects):
             chosen = {s[0] for s in specs}
-            pre = self._prepare(ctx, r0, specs, inner, val)
+            pre = self._prepare(ctx, r0, specs, inner, val, sub)
             scored = [self._score(c, ctx, r0, specs, pre, K) for c in cands if c not in chosen]
             scored.sort(key=self._rank_key)
             self.steps_.append(scored)

@@ -61,6 +61,24 @@ class ModelUpdate:
     contradicted: list = field(default_factory=list)
     uncovered: list = field(default_factory=list)
     covariance_: ElementCovariance | None = None
+    marginal: tuple | None = field(default=None, repr=False)
+    """(U (N, k), s (k,)) of the thin SVD of ``A·L``: the residual's marginal covariance under
+    "update alone" is ``U diag(s²) Uᵀ + σc² I`` (:meth:`whiten`)."""
+
+    design_: np.ndarray | None = field(default=None, repr=False)
+    """``A`` (N, P): ∂(stacked fitting residual)/∂θ the update was made with."""
+
+    def whiten(self, y) -> np.ndarray:
+        """``V^{-1/2}·y`` for the marginal covariance ``V = A Σp Aᵀ + σc² I`` of the stacked
+        fitting residual (rows (point, component); ``y`` (N,) or (N, p)): a residual that
+        "update alone" explains has unit variance after it, so a term can be tested against
+        the update jointly (:mod:`.joint`) instead of on what the update left."""
+        U, s = self.marginal
+        y = np.asarray(y, dtype=float)
+        uy = U.T @ y
+        d = 1.0 / np.sqrt(s**2 + self.sigma_um**2)
+        scale = d[:, None] if y.ndim == 2 else d
+        return U @ (uy * scale) + (y - U @ uy) / self.sigma_um
 
     def to_dict(self) -> dict:
         return {"check_noise_sigma_um": self.sigma_um, "contradicted_by_sweeps": self.contradicted,
@@ -146,4 +164,4 @@ def update_elements(machine, covariance: ElementCovariance, axes, residual_um, a
             uncovered.append(entry)
     info = dict(covariance.info, posterior="updated from check measurements", check_noise_sigma_um=sigma_um)
     cov = ElementCovariance(theta, post, new_el, info)
-    return ModelUpdate(new_el, dtheta, post, Sp, float(sigma_um), contradicted, uncovered, cov)
+    return ModelUpdate(new_el, dtheta, post, Sp, float(sigma_um), contradicted, uncovered, cov, (U, s), A)

@@ -26,7 +26,7 @@ from errormap.io import InputError, write_json
 from errormap.progress import Progress
 
 from ... import guards
-from ...diagnosed_model import load_path_field
+from ...diagnosed_model import load_path_field, path_conditions, solve_with_conditions
 from ...gcode import DEFAULT_RAPIDS
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from ...solvers import solve
@@ -148,16 +148,21 @@ def override_note(s: CompensateSettings, entry) -> str:
             f"{counts} point(s) violate; method={s.method} model={s.model}")
 
 
-def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings) -> FileOutcome:
+def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, cond=None) -> FileOutcome:
     """Solve, guard and render one parsed tool path ``tp`` read from ``src``, to be written to
-    ``dst`` (in memory; nothing is written)."""
+    ``dst`` (in memory; nothing is written). ``cond``: per-point conditions {name: (n,)} of a
+    diagnosed model whose terms need them (:func:`path_conditions`), else None."""
     opts = {"seed": s.seed} if s.method in ("ga", "batched-ga") else {}
     with small_batch_threads(s.method, len(tp)):
-        res = solve(s.method, field_, tp.targets_mm, machine, target_axes=tp.axes, **opts)
+        if cond is not None:
+            res = solve_with_conditions(s.method, field_, tp.targets_mm, machine, cond, target_axes=tp.axes, **opts)
+        else:
+            res = solve(s.method, field_, tp.targets_mm, machine, target_axes=tp.axes, **opts)
     res.axes = np.array(res.axes, dtype=float)
     res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
+    guard_field = field_.corrected.base if cond is not None else field_  # where it is calibrated: the axes-only part
     try:
-        report = guards.check(res, machine, field_, allow=s.allow, target_axes=tp.axes)
+        report = guards.check(res, machine, guard_field, allow=s.allow, target_axes=tp.axes)
     except TypeError as exc:  # a field that cannot say where it is calibrated
         raise UsageError(f"{s.model}: {exc}") from None
     viol = [(int(i), int(tp.lines[i]), "; ".join(report.point_reasons(int(i)))) for i in report.indices]
@@ -208,11 +213,17 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None) -> Com
     read_opts = {"rapids": s.rapids, "block_delete": s.block_delete, "arc_tolerance_um": s.arc_tolerance_um}
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
-    paths = [replan(tp, machine, max_segment_mm=s.max_segment_mm, field=field_) for tp in paths]
+    # a diagnosed model whose terms need conditions: per point from the path's columns, else the options
+    needs = getattr(field_, "needs", ())
+    conds = [path_conditions(tp, needs, field_.conditions) if needs else None for tp in paths]
+    plan_field = field_.corrected.base if needs else field_  # axes-only part
+    paths = [replan(tp, machine, max_segment_mm=s.max_segment_mm, field=plan_field) for tp in paths]
+    if needs:  # replanning may add points: conditions of the replanned rows
+        conds = [path_conditions(tp, needs, field_.conditions) for tp in paths]
     outcomes = []
     bar = Progress(len(plan), f"compensate ({s.method})", every_s=0.0)
-    for (src, dst), tp in zip(plan, paths):
-        o = compensate_one(tp, src, dst, field_, machine, s)
+    for (src, dst), tp, cond in zip(plan, paths, conds):
+        o = compensate_one(tp, src, dst, field_, machine, s, cond)
         outcomes.append(o)
         bar.update(1, extra=src.name)
         if on_file is not None:

@@ -188,14 +188,27 @@ def _img(b64, alt) -> str:
 def stages_html(s) -> str:
     """The closed loop's three stages and the update's findings, as HTML."""
     st = s["stages"]
-    rows = [[name, _fmt(st[key]["held_out"]["rms_um"]), _fmt(st[key]["held_out"]["max_um"]),
-             _fmt(st[key]["fitting"]["rms_um"])]
-            for name, key in (("identified", "identified"), ("updated", "updated"),
-                              ("updated + effects", "updated_plus_effects"))]
+    kept = s.get("kept_stage", "updated_plus_effects")
+    rows = [[name + (" (kept)" if key == kept else ""), _fmt(st[key]["held_out"]["rms_um"]),
+             _fmt(st[key]["held_out"]["max_um"]), _fmt(st[key]["fitting"]["rms_um"])]
+            for name, key in (("identified", "identified"), ("update alone (whole residual)", "updated_alone"),
+                              ("updated", "updated"), ("updated + effects", "updated_plus_effects")) if key in st]
     out = ["<h2>Closed loop: identified → updated → updated + effects</h2>",
            _table(rows, ["model", "held-out RMS (μm)", "held-out max (μm)", "fitting RMS (μm)"])]
+    if "kept_why" in s:
+        out.append(f"<p><b>Model handed on:</b> {html.escape(kept)} — {html.escape(s['kept_why'])}.</p>")
     u = s["update"]
     out.append(f"<p>Check noise σ (marginal likelihood): {_fmt(u['check_noise_sigma_um'])} μm.</p>")
+    for j in u.get("joint_screen", []):
+        imit = ", ".join(f"{element_label(e['element'])} ({e['imitation_rms_um']:.2g} μm)"
+                         for e in j.get("update_alone_imitated_it_with", []))
+        out.append(f"<p><b>Missing effect, tested jointly with the update</b>: {html.escape(j['kind'])} "
+                   f"{html.escape(j['axis'])} on {html.escape(element_label(j['element']))} (F = {j['F']:.3g}, "
+                   f"p (Bonferroni over {j['n_candidates']}) = {j['p_adjusted']:.2g}). The update alone imitated it "
+                   f"by moving {html.escape(imit)}; it is kept out of the update. "
+                   + ("Confirmed: the search and the held-out gate kept this term.</p>" if j.get("confirmed") else
+                      "Not confirmed: the search on what the update left did not keep it (it stays only a "
+                      "proposal).</p>"))
     if u["contradicted_by_sweeps"]:
         out.append("<p><b>Updates the sweeps contradict</b> (evidence of an effect the 23 elements lack): "
                    + html.escape(", ".join(f"{element_label(c['element'])} (p = {c['p_adjusted']:.2g})" for c in u["contradicted_by_sweeps"]))
@@ -412,11 +425,12 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     out_dir = Path(out_dir)
     upd_path = out_dir / "updated_elements.json"
     summary["updated_elements_file"] = str(upd_path)
-    model = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json",
+    model = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "stage": loop.kept_stage,
              "terms": summary["effects"], "needs": sorted({c for e in summary["effects"] for c in e.get("needs", [])})}
     paths = _write(out_dir, summary, page)
-    loop.update.covariance_.save(covariance_path(upd_path))
-    loop.update.elements_.save(upd_path)
+    # the kept stage's elements (the identified ones when the fallback keeps them) and their covariance
+    loop.covariance.save(covariance_path(upd_path))
+    loop.covariance.elements.save(upd_path)
     write_json(out_dir / "model.json", model)
     return summary, list(paths) + [upd_path, covariance_path(upd_path), out_dir / "model.json"]
 
