@@ -52,13 +52,14 @@ def load_diagnosed_model(path, machine) -> CorrectedField:
 
 
 class ConditionedField:
-    """A :class:`CorrectedField` at fixed conditions: ``predict(axes) -> (n, 3)`` μm."""
+    """A :class:`CorrectedField` at fixed conditions, an error field (:class:`errormap.field.ErrorField`):
+    ``predict(axes) -> (n, 3)`` μm, calibrated where the corrected model is (its base's volume)."""
 
     kind = "diagnosed"
+    capabilities = frozenset()
 
     def __init__(self, corrected: CorrectedField, conditions: dict):
         self.corrected = corrected
-        self.elements = corrected.base.elements  # where it is calibrated: the element stations (guards)
         self.machine = corrected.machine
         self.conditions = {k: v for k, v in conditions.items() if v is not None}
         missing = [c for c in corrected.needs if c not in self.conditions]
@@ -66,6 +67,10 @@ class ConditionedField:
             opts = ", ".join("--" + c.replace("_", "-") for c in missing)
             raise InputError(f"the diagnosed model's terms {[t.cand.label for t in corrected.terms]} need the "
                              f"condition(s) {missing}; give them ({opts})")
+
+    @property
+    def calibrated_volume(self):
+        return self.corrected.calibrated_volume
 
     def predict(self, axes) -> np.ndarray:
         axes = np.asarray(axes, dtype=float)

@@ -59,6 +59,8 @@ def test_fixed_conditions_pass_the_path_condition():
 
 def test_fixed_conditions_leave_plain_fields_alone():
     class Plain:
+        needs = ()  # a corrected field whose terms need no condition
+
         def predict(self, axes):
             return np.ones((len(axes), 3))
     assert np.all(FixedConditions(Plain(), PATH_CONDITIONS).predict(np.zeros((2, 3))) == 1.0)

@@ -30,6 +30,7 @@ import numpy as np
 
 from errormap.io import atomic_write, write_csv, write_json
 from errormap.kinematics import inverse
+from errormap.threads import limit_threads
 
 from ...evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_stats, true_residual_um
 from ...pathio import align_turns
@@ -101,17 +102,9 @@ def small_batch_threads(method: str, n_points: int | None = None):
     other and a call costs ~100× more than on one thread (measured: 81 ms vs 0.8 ms for
     40 points). Long paths in the batched solvers keep the default.
     """
-    torch = sys.modules.get("torch")
     small = method == "ga" or (n_points is not None and n_points < SMALL_BATCH_POINTS)
-    if not small or torch is None:
+    with limit_threads(1 if small else None):
         yield
-        return
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def _solve(method, field_, targets, machine, options):
