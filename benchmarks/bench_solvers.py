@@ -103,7 +103,7 @@ def timed(fn, repeats):
 
 def run_field(name, field, machine, truth, targets, axes, args, log):
     from compensation.solvers import solve
-    from training.model import torch_threads
+    from errormap.threads import limit_threads
     n = len(targets)
     out = {}
     # one-time costs (imports, numba compilation, PyGAD set-up) stay out of the timings
@@ -120,7 +120,7 @@ def run_field(name, field, machine, truth, targets, axes, args, log):
     sel_b = np.linspace(0, n - 1, nb).round().astype(int)
     timing = {}
     for label, threads, workers in configs:
-        with torch_threads(threads):
+        with limit_threads(threads):
             log(f"[{name}] exact on {n} points, {threads} thread(s), median of {args.exact_repeats}")
             r_ex, t_ex, all_ex = timed(lambda: solve("exact", field, targets, machine, target_axes=axes, progress=False),
                                        args.exact_repeats)

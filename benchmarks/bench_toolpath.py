@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from errormap.field import CalibratedVolume
 from errormap.io import atomic_write, write_json
 
 HERE = Path(__file__).resolve().parent
@@ -49,7 +50,8 @@ class TruthField:
 
     def __init__(self, truth):
         self.truth = truth
-        self.calibrated_lo, self.calibrated_hi = truth.machine.stroke_lo, truth.machine.stroke_hi
+        self.calibrated_volume = CalibratedVolume(truth.machine.stroke_lo, truth.machine.stroke_hi)
+        self.capabilities = frozenset()
 
     def predict(self, axes):
         axes = np.asarray(axes, dtype=float)

@@ -66,13 +66,14 @@ def load_diagnosed_model(path, machine) -> CorrectedField:
 
 
 class ConditionedField:
-    """A :class:`CorrectedField` at fixed conditions: ``predict(axes) -> (n, 3)`` μm."""
+    """A :class:`CorrectedField` at fixed conditions, an error field (:class:`errormap.field.ErrorField`):
+    ``predict(axes) -> (n, 3)`` μm, calibrated where the corrected model is (its base's volume)."""
 
     kind = "diagnosed"
+    capabilities = frozenset()
 
     def __init__(self, corrected: CorrectedField, conditions: dict, check: bool = True):
         self.corrected = corrected
-        self.elements = corrected.base.elements  # where it is calibrated: the element stations (guards)
         self.machine = corrected.machine
         self.conditions = {k: v for k, v in conditions.items() if v is not None}
         missing = [c for c in corrected.needs if c not in self.conditions]
@@ -84,6 +85,10 @@ class ConditionedField:
     @property
     def needs(self) -> tuple[str, ...]:
         return self.corrected.needs
+
+    @property
+    def calibrated_volume(self):
+        return self.corrected.calibrated_volume
 
     def predict(self, axes) -> np.ndarray:
         axes = np.asarray(axes, dtype=float)

@@ -59,6 +59,7 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
 from errormap.elements import ElementSet
+from errormap.field import CalibratedVolume
 from errormap.htm import IDX, spatial_error_exact
 from errormap.io import InputError, read_table, write_csv, write_json
 from errormap.iso230 import ISO_MEANING, ISO_NAMES, from_iso, reference_points_mm, to_iso
@@ -181,9 +182,15 @@ class IsoTables:
 
 @dataclass
 class TableField:
-    """An error field (``predict(axes) -> (n, 3) μm``) as the controller evaluates it from a table."""
+    """An error field (``predict(axes) -> (n, 3) μm``) as the controller evaluates it from a table.
+
+    No optional capabilities and no calibrated volume of its own (:mod:`errormap.field`): it is
+    compared with the model it was sampled from, not used to guard commands.
+    """
 
     fn: object
+    capabilities = frozenset()
+    calibrated_volume = None
 
     def predict(self, axes):
         return self.fn(np.asarray(axes, dtype=float))
@@ -290,6 +297,7 @@ class VolumetricGrid:
     ticks: tuple
     values: np.ndarray
     kind = "grid"
+    capabilities = frozenset()  # no optional error-field methods (errormap.field)
 
     def __post_init__(self):
         self._interp = RegularGridInterpolator(self.ticks, self.values, method="linear")
@@ -306,6 +314,11 @@ class VolumetricGrid:
 
     def field(self, machine) -> "VolumetricGrid":
         return self
+
+    @property
+    def calibrated_volume(self) -> CalibratedVolume:
+        """The grid's box: first to last tick per axis (X and Z are clamped outside it)."""
+        return CalibratedVolume([t[0] for t in self.ticks], [t[-1] for t in self.ticks])
 
     @property
     def spacing(self) -> tuple:

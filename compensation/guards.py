@@ -23,15 +23,10 @@ Guard names (the keys of ``allow`` and of :attr:`GuardReport.violations`):
 Every method passes through :func:`check` (``traditional`` included): the guards look at
 the result, never at how it was obtained.
 
-**Calibrated-volume contract.** A field tells the box it is valid in, in axes units
-(x_mm, z_mm, a_deg), by the first of these it has:
-
-1. ``calibrated_lo`` and ``calibrated_hi``: arrays of shape (3,);
-2. ``axes_bounds``: a pair ``(lo, hi)`` of such arrays;
-3. ``in_lo_`` and ``in_hi_`` (the learned ``training.model.MLPField``: its training-input range);
-4. ``elements.stations`` (the HTM field: the range of the element stations per axis).
-
-A field with none of these cannot be checked: :func:`calibrated_volume` raises TypeError
+**Calibrated volume.** A field states the box it is valid in as its ``calibrated_volume``
+(:class:`errormap.field.CalibratedVolume`, per-axis ``lo``/``hi`` over x_mm, z_mm, a_deg; the
+HTM field: the range of its element stations; the learned field: its training-input range).
+A field whose volume is ``None`` cannot be checked: :func:`calibrated_volume` raises TypeError
 (a command is never emitted silently outside an unknown volume). In A, a calibrated range
 spanning a full turn accepts every A (periodic); a narrower one is checked with A folded
 modulo 360° into ``[lo, lo + 360)``. ``volume_tol`` (default 1e-9 mm/deg) absorbs rounding.
@@ -42,10 +37,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from errormap.field import GRINDER_AXES, check_field
+
 from .solvers.base import BALL_RADIUS_UM
 
 GUARDS = ("ball", "stroke", "volume", "convergence")
-AXIS_NAMES = ("x_mm", "z_mm", "a_deg")
+AXIS_NAMES = GRINDER_AXES
 MAX_LISTED = 20
 """Offending points spelled out in a GuardError message (all are in its attributes)."""
 
@@ -169,25 +166,14 @@ def stroke_violations(axes, machine, tol: float = 1e-9):
 def calibrated_volume(field) -> tuple[np.ndarray, np.ndarray]:
     """The field's calibrated box ``(lo, hi)``, each shape (3,) in (x_mm, z_mm, a_deg).
 
-    See the module docstring for the attribute contract; raises TypeError if the field has none.
+    The field's ``calibrated_volume`` (module docstring); raises TypeError when the field is
+    not an :class:`errormap.field.ErrorField` or its volume is None.
     """
-    if getattr(field, "calibrated_lo", None) is not None and getattr(field, "calibrated_hi", None) is not None:
-        lo, hi = field.calibrated_lo, field.calibrated_hi
-    elif getattr(field, "axes_bounds", None) is not None:
-        lo, hi = field.axes_bounds
-    elif getattr(field, "in_lo_", None) is not None and getattr(field, "in_hi_", None) is not None:
-        lo, hi = field.in_lo_, field.in_hi_
-    elif getattr(getattr(field, "elements", None), "stations", None) is not None:
-        st = field.elements.stations
-        lo = [np.min(st[k]) for k in AXIS_NAMES]
-        hi = [np.max(st[k]) for k in AXIS_NAMES]
-    else:
-        raise TypeError(f"{type(field).__name__} does not say where it is calibrated: expected calibrated_lo/"
-                        "calibrated_hi, axes_bounds, in_lo_/in_hi_ or elements.stations (see compensation.guards)")
-    lo, hi = np.asarray(lo, dtype=float).reshape(3), np.asarray(hi, dtype=float).reshape(3)
-    if not np.all(np.isfinite(lo)) or not np.all(np.isfinite(hi)) or np.any(hi < lo):
-        raise ValueError(f"Expected a finite calibrated box with lo ≤ hi, got lo={lo}, hi={hi}")
-    return lo, hi
+    vol = check_field(field).calibrated_volume
+    if vol is None:
+        raise TypeError(f"{type(field).__name__} does not say where it is calibrated (calibrated_volume is None; "
+                        "see errormap.field)")
+    return vol.lo_array, vol.hi_array
 
 
 def volume_violations(axes, field, tol: float = 1e-9):

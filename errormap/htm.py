@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit
 
 from .elements import CONSTANT_ELEMENTS, ELEMENT_NAMES, ElementSet
+from .field import CalibratedVolume
 from .machine import Grinder
 from .transforms import apply, apply_T, check_points, rot_x, rot_xyz, rot_z, skew
 
@@ -275,19 +276,27 @@ def spatial_error_first_order(machine: Grinder, axes, values) -> np.ndarray:
 
 
 class HTMField:
-    """The 23-element homogeneous-transform model as an error field.
+    """The 23-element homogeneous-transform model as an error field (:class:`errormap.field.ErrorField`).
 
     ``predict(axes)`` maps axes (x_mm, z_mm, a_deg), shape (n, 3), to the spatial
     error (dx_um, dy_um, dz_um), shape (n, 3). ``exact=False`` uses the first-order form.
+    Calibrated volume: the range of the element set's stations per axis. No optional
+    capabilities (the exact solver differentiates it by finite differences).
     """
 
     kind = "htm"
+    capabilities = frozenset()
 
     def __init__(self, machine: Grinder, elements: ElementSet, exact: bool = True, chunk: int = 50_000):
         self.machine = machine
         self.elements = elements
         self.exact = exact
         self.chunk = chunk
+
+    @property
+    def calibrated_volume(self) -> CalibratedVolume:
+        """Where the elements were measured: per axis, the smallest to the largest station."""
+        return CalibratedVolume.from_stations(self.elements.stations)
 
     def element_values(self, axes) -> np.ndarray:
         """The 23 element values at ``axes``, shape (n, 23)."""

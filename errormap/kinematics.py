@@ -7,6 +7,8 @@ Tool point in the WCS: ``p = T_work⁻¹ · T_tool · [0 0 0 1]ᵀ``, nominally
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .machine import Grinder
@@ -19,6 +21,14 @@ def tool_in_machine_nominal(machine: Grinder, z_mm) -> np.ndarray:
     local = np.stack([np.full_like(z, machine.l2 + machine.l3), np.zeros_like(z),
                       machine.l1 + z + machine.l4 - machine.R], axis=1)
     return apply(rot_z(np.deg2rad(machine.theta1_deg))[0], local)
+
+
+def nominal_tool_at_z0(machine: Grinder) -> tuple:
+    """The nominal tool point in the MCS at z = 0, ``RotZ(θ1)·(l2 + l3, 0, l1 + l4 - R)``, as
+    three floats (:func:`tool_in_machine_nominal` without its array set-up, for inner loops)."""
+    th = math.radians(machine.theta1_deg)
+    r = machine.l2 + machine.l3
+    return (math.cos(th) * r, math.sin(th) * r, machine.l1 + machine.l4 - machine.R)
 
 
 def forward(machine: Grinder, axes) -> np.ndarray:

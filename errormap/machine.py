@@ -14,33 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from .io import sha256_bytes
+# MachineFileError is raised here and imported from here by callers (one class, defined with the checks)
+from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
 
 GRINDER_GEOMETRY_KEYS = ("l1", "l2", "l3", "l4", "R", "l5", "l6", "l7", "l8", "theta1_deg")
 GRINDER_STROKE_KEYS = ("x_mm", "z_mm", "a_deg")
 GRINDER_TARGET_KEYS = ("X", "Z", "A")
 A_TURN_TOL_DEG = 1e-9  # strokes.a_deg must span one turn to this
-
-
-# Largest magnitude of any number in a machine file (mm, deg, leg scale): a kilometre-sized
-# machine or a million-degree stroke is a unit or typing mistake, and 1e308 would overflow.
-MAX_MACHINE_VALUE = 1e6
-
-
-class MachineFileError(ValueError):
-    """A machine file is malformed; the message names the file and the key."""
-
-
-def _short(v, n: int = 60) -> str:
-    r = repr(v)
-    return r if len(r) <= n else r[:n] + f"... ({len(r)} characters)"
-
-
-def _flat(v):
-    if isinstance(v, (list, tuple)):
-        for x in v:
-            yield from _flat(x)
-    else:
-        yield v
 
 
 def builtin_machine_path(kind: str = "grinder") -> Path:
@@ -92,81 +72,26 @@ class Grinder:
         return np.array([self.strokes[k][1] for k in GRINDER_STROKE_KEYS])
 
 
-def _expect_number(doc: dict, key: str, where: str, path) -> float:
-    if key not in doc:
-        raise MachineFileError(f"{path}: missing key '{where}.{key}'")
-    v = doc[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise MachineFileError(f"{path}: key '{where}.{key}': expected a number, got {_short(v)}")
-    try:
-        f = float(v)
-    except OverflowError:  # a TOML integer beyond float range
-        f = float("inf")
-    if not np.isfinite(f):
-        raise MachineFileError(f"{path}: key '{where}.{key}': expected a finite number, got {_short(v)}")
-    if abs(f) > MAX_MACHINE_VALUE:
-        raise MachineFileError(f"{path}: key '{where}.{key}': {f:g} is beyond the plausible magnitude "
-                               f"{MAX_MACHINE_VALUE:g} (mm or deg); wrong unit or a typing mistake?")
-    return f
-
-
-def _expect_table(doc: dict, key: str, path) -> dict:
-    if key not in doc:
-        raise MachineFileError(f"{path}: missing section '[{key}]'")
-    if not isinstance(doc[key], dict):
-        raise MachineFileError(f"{path}: '{key}': expected a table, got {type(doc[key]).__name__}")
-    return doc[key]
-
-
-def _no_unknown(section: dict, allowed, where: str, path) -> None:
-    unknown = sorted(set(section) - set(allowed))
-    if unknown:
-        raise MachineFileError(f"{path}: unknown key(s) {['%s.%s' % (where, k) for k in unknown]}; allowed: {list(allowed)}")
-
-
-def expect_array(value, shape: tuple, where: str, path) -> np.ndarray:
-    """Convert a TOML value to a float array of ``shape`` (``-1`` = any), naming the key on error.
-
-    Every element must be a number (not a boolean) of magnitude at most :data:`MAX_MACHINE_VALUE`.
-    """
-    want = f"numbers of shape {shape}"
-    if not isinstance(value, (list, tuple)) or any(isinstance(x, bool) or not isinstance(x, (int, float))
-                                                   for x in _flat(value)):
-        raise MachineFileError(f"{path}: key '{where}': expected {want}, got {_short(value)}")
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError, OverflowError):  # ragged rows, integers beyond float range
-        raise MachineFileError(f"{path}: key '{where}': expected {want}, got {_short(value)}") from None
-    if arr.ndim != len(shape) or any(s not in (-1, a) for s, a in zip(shape, arr.shape)):
-        raise MachineFileError(f"{path}: key '{where}': expected shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise MachineFileError(f"{path}: key '{where}': expected finite numbers, got {_short(value)}")
-    if np.any(np.abs(arr) > MAX_MACHINE_VALUE):
-        raise MachineFileError(f"{path}: key '{where}': {np.abs(arr).max():g} is beyond the plausible magnitude "
-                               f"{MAX_MACHINE_VALUE:g} (mm or deg); wrong unit or a typing mistake?")
-    return arr
-
-
 def parse_grinder(doc: dict, path, sha: str = "") -> Grinder:
     """Validate a parsed grinder machine file; the schema is in ``docs/schemas.md``."""
-    _no_unknown(doc, ("machine", "geometry", "strokes", "targets"), "", path)
-    m = _expect_table(doc, "machine", path)
-    _no_unknown(m, ("kind", "name"), "machine", path)
+    check_known_keys(doc, ("machine", "geometry", "strokes", "targets"), "", path)
+    m = check_table(doc, "machine", path)
+    check_known_keys(m, ("kind", "name"), "machine", path)
     name = m.get("name", "grinder")
     if not isinstance(name, str):
-        raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {_short(name)}")
-    g = _expect_table(doc, "geometry", path)
-    _no_unknown(g, GRINDER_GEOMETRY_KEYS, "geometry", path)
-    geom = {k: _expect_number(g, k, "geometry", path) for k in GRINDER_GEOMETRY_KEYS}
+        raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {short_repr(name)}")
+    g = check_table(doc, "geometry", path)
+    check_known_keys(g, GRINDER_GEOMETRY_KEYS, "geometry", path)
+    geom = {k: check_number(g, k, "geometry", path) for k in GRINDER_GEOMETRY_KEYS}
     if geom["R"] <= 0:
         raise MachineFileError(f"{path}: key 'geometry.R': expected a positive wheel radius, got {geom['R']}")
-    s = _expect_table(doc, "strokes", path)
-    _no_unknown(s, GRINDER_STROKE_KEYS, "strokes", path)
+    s = check_table(doc, "strokes", path)
+    check_known_keys(s, GRINDER_STROKE_KEYS, "strokes", path)
     strokes = {}
     for k in GRINDER_STROKE_KEYS:
         if k not in s:
             raise MachineFileError(f"{path}: missing key 'strokes.{k}'")
-        arr = expect_array(s[k], (2,), f"strokes.{k}", path)
+        arr = check_array(s[k], (2,), f"strokes.{k}", path)
         if not arr[1] > arr[0]:
             raise MachineFileError(f"{path}: key 'strokes.{k}': expected [lo, hi] with hi > lo, got {s[k]!r}")
         strokes[k] = (float(arr[0]), float(arr[1]))
@@ -175,25 +100,21 @@ def parse_grinder(doc: dict, path, sha: str = "") -> Grinder:
         hint = " (that is one turn in radians; the file is in degrees)" if abs((hi - lo) - 2 * np.pi) < 0.01 else ""
         raise MachineFileError(f"{path}: key 'strokes.a_deg': expected one turn, [lo, lo + 360] deg (the A-axis "
                                f"errors are periodic over a turn; commands may run past it), got {s['a_deg']!r}{hint}")
-    t = _expect_table(doc, "targets", path)
-    _no_unknown(t, GRINDER_TARGET_KEYS, "targets", path)
+    t = check_table(doc, "targets", path)
+    check_known_keys(t, GRINDER_TARGET_KEYS, "targets", path)
     targets = {}
     for k in GRINDER_TARGET_KEYS:
         if k not in t:
             raise MachineFileError(f"{path}: missing key 'targets.{k}'")
-        targets[k] = expect_array(t[k], (3, 3), f"targets.{k}", path)
+        targets[k] = check_array(t[k], (3, 3), f"targets.{k}", path)
     return Grinder(name=name, strokes=strokes, targets=targets, path=str(path), sha256=sha, **geom)
 
 
 def _parsers():
-    parsers = {"grinder": parse_grinder}
-    try:  # the PKM schemas live with the PKM models
-        from .pkm.machine_file import parse_hexapod, parse_tripod
-        parsers["hexapod"] = parse_hexapod
-        parsers["tripod"] = parse_tripod
-    except ImportError:  # pragma: no cover - during bootstrapping only
-        pass
-    return parsers
+    """The parser of each ``[machine] kind``; the PKM schemas live with the PKM models (imported
+    on first use: they need scipy, which a grinder-only run does not load)."""
+    from .pkm.machine_file import parse_hexapod, parse_tripod
+    return {"grinder": parse_grinder, "hexapod": parse_hexapod, "tripod": parse_tripod}
 
 
 def load_machine(path=None, expect_kind: str | None = None):
@@ -220,7 +141,7 @@ def load_machine(path=None, expect_kind: str | None = None):
     kind = m["kind"]
     parsers = _parsers()
     if not isinstance(kind, str) or kind not in parsers:
-        raise MachineFileError(f"{path}: key 'machine.kind': expected one of {sorted(parsers)}, got {_short(kind)}")
+        raise MachineFileError(f"{path}: key 'machine.kind': expected one of {sorted(parsers)}, got {short_repr(kind)}")
     if expect_kind is not None and kind != expect_kind:
         raise MachineFileError(f"{path}: key 'machine.kind': expected {expect_kind!r} here, got {kind!r}")
     return parsers[kind](doc, path, sha256_bytes(raw))

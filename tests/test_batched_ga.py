@@ -14,7 +14,7 @@ import torch
 
 from compensation.solvers import solve
 from compensation.solvers._ga_kernels import breed
-from compensation.solvers.batched_ga import _FusedFitness, _GenericFitness
+from compensation.solvers.batched_ga import _GenericFitness
 from errormap.kinematics import forward
 from errormap.machine import load_machine
 from training.model import MLPField
@@ -71,7 +71,7 @@ def test_fused_fitness_equals_generic(machine, theta1_deg):
     pts = rng.integers(0, len(targets), 4000)
     d = rng.normal(size=(3, 4000)).astype(np.float32)
     d *= (250.0 * rng.random(4000) ** (1 / 3) / np.linalg.norm(d, axis=0)).astype(np.float32)
-    fused = _FusedFitness(field, mach, targets)(pts, d)
+    fused = field.offset_fitness(mach, targets)(pts, d)  # the network's fused kernel (training.ga_fitness)
     generic = _GenericFitness(field, mach, targets)(pts, d)
     # fitness is -|r|² with |r| up to ~300 μm: compare the residual norms
     assert np.abs(np.sqrt(-fused) - np.sqrt(-generic)).max() <= TOL_F32_UM
@@ -180,13 +180,18 @@ def test_batched_ga_fused_and_generic_reach_the_paper_residual(machine):
         r = solve("batched-ga", field, targets, machine, seed=3, fused=fused, progress=False)
         assert r.info["fused"] is fused
         assert r.success.all() and r.residual_norm_um.max() <= GA_TOL_UM
-    with pytest.raises(ValueError, match="predict_columns"):
+    with pytest.raises(ValueError, match="offset_fitness"):
         solve("batched-ga", _NoColumns(field), targets, machine, fused=True)
 
 
 class _NoColumns:
+    """The same field without its optional capabilities (no fused fitness)."""
+
+    capabilities = frozenset()
+
     def __init__(self, field):
         self.predict = field.predict
+        self.calibrated_volume = field.calibrated_volume
 
 
 def test_batched_ga_threads_are_reproducible(machine):

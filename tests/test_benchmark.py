@@ -59,6 +59,8 @@ def test_fixed_conditions_pass_the_path_condition():
 
 def test_fixed_conditions_leave_plain_fields_alone():
     class Plain:
+        needs = ()  # a corrected field whose terms need no condition
+
         def predict(self, axes):
             return np.ones((len(axes), 3))
     assert np.all(FixedConditions(Plain(), PATH_CONDITIONS).predict(np.zeros((2, 3))) == 1.0)
@@ -117,12 +119,12 @@ def test_pose_iteration_with_the_exact_error_map_compensates(hexapod_sim, path_n
 
 def test_pose_field_fits_a_smooth_map_and_ignores_a_constant_input():
     from training.pose_field import fit_pose_field
-    from training.trainers import torch_threads
+    from errormap.threads import limit_threads
     rng = np.random.default_rng(0)
     x = rng.uniform(-1, 1, (120, 4))
     x[:, 3] = 1e-17 * rng.normal(size=120)   # a constant input (as the platform spin is)
     y = np.stack([100 * x[:, 0] + 30 * x[:, 1] ** 2, 50 * np.sin(x[:, 2]), 20 * x[:, 0] * x[:, 1]], axis=1)
-    with torch_threads(1):   # iteration-bound, not time-bound: the result does not depend on the machine's speed
+    with limit_threads(1):   # iteration-bound, not time-bound: the result does not depend on the machine's speed
         fit = fit_pose_field(x, y, hidden=(12,), ridge=1e-6, max_time_s=1e9, max_iter=40, seed=0)
     assert fit.params["stop_reason"] == "max iterations 40"
     assert fit.metrics["train_rms_pos_um"] < POSE_FIT_TOL * np.sqrt(np.mean(np.sum(y ** 2, axis=1)))

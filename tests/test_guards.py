@@ -10,6 +10,7 @@ from compensation.guards import (GUARDS, GuardError, calibrated_volume, check, e
                                  volume_violations)
 from compensation.solvers import solve
 from compensation.solvers.base import BALL_RADIUS_UM, SolveResult
+from errormap.field import CalibratedVolume
 from errormap.htm import HTMField
 from errormap.kinematics import forward
 from errormap.machine import load_machine
@@ -22,10 +23,12 @@ def machine():
 
 
 class BoxField:
-    """Zero error, calibrated on a box given by ``calibrated_lo``/``calibrated_hi``."""
+    """Zero error, calibrated on the box ``lo``..``hi``."""
+
+    capabilities = frozenset()
 
     def __init__(self, lo, hi):
-        self.calibrated_lo, self.calibrated_hi = np.asarray(lo, float), np.asarray(hi, float)
+        self.calibrated_volume = CalibratedVolume(lo, hi)
 
     def predict(self, axes):
         return np.zeros((len(axes), 3))
@@ -99,22 +102,37 @@ def test_volume_guard_folds_a_on_a_partial_calibrated_turn():
 
 
 def test_calibrated_volume_contract(machine):
+    """One form: the field's ``calibrated_volume`` (errormap.field.CalibratedVolume) or None."""
     truth = random_truth(machine, 0)
-    lo, hi = calibrated_volume(HTMField(machine, truth.elements))
+    lo, hi = calibrated_volume(HTMField(machine, truth.elements))  # the element stations' range
     np.testing.assert_allclose(lo, machine.stroke_lo)
     np.testing.assert_allclose(hi, machine.stroke_hi)
 
-    class Bounds:
-        axes_bounds = ([1.0, 2.0, 3.0], [4.0, 5.0, 6.0])
+    from training.model import MLPField
+    axes = np.array([[1.0, 2.0, 0.0], [100.0, 30.0, 360.0], [50.0, 10.0, 90.0]])
+    learned = MLPField().fit_scalers(axes, np.zeros((3, 3)))  # the training inputs' range
+    np.testing.assert_allclose(calibrated_volume(learned)[0], [1.0, 2.0, 0.0])
+    np.testing.assert_allclose(calibrated_volume(learned)[1], [100.0, 30.0, 360.0])
+    np.testing.assert_allclose(calibrated_volume(BoxField([1.0, 2.0, 3.0], [4.0, 5.0, 6.0]))[1], [4.0, 5.0, 6.0])
 
-    class Learned:
-        in_lo_ = np.array([0.0, 0.0, 0.0])
-        in_hi_ = np.array([100.0, 30.0, 360.0])
+    class Unknown(BoxField):
+        def __init__(self):
+            self.calibrated_volume = None
 
-    np.testing.assert_allclose(calibrated_volume(Bounds())[1], [4.0, 5.0, 6.0])
-    np.testing.assert_allclose(calibrated_volume(Learned())[1], [100.0, 30.0, 360.0])
+    class Pose(BoxField):
+        def __init__(self):
+            self.calibrated_volume = CalibratedVolume([0.0, 0.0], [1.0, 1.0], ("x_mm", "y_mm"))
+
+    with pytest.raises(TypeError, match="calibrated"):
+        calibrated_volume(Unknown())
     with pytest.raises(TypeError, match="calibrated"):
         calibrated_volume(object())
+    with pytest.raises(TypeError, match="axes"):  # a volume over other axes (a pose field) is refused
+        calibrated_volume(Pose())
+    with pytest.raises(ValueError, match="lo ≤ hi"):
+        CalibratedVolume([0.0, 0.0, 5.0], [1.0, 1.0, 4.0])
+    with pytest.raises(ValueError, match="3 values"):
+        CalibratedVolume([0.0, 0.0], [1.0, 1.0])
 
 
 def test_convergence_guard_and_allow(machine):
@@ -165,7 +183,8 @@ class ConstantField:
     """A constant error (μm) everywhere in the strokes: the correction it needs is ``|error|``."""
 
     def __init__(self, machine, error_um):
-        self.calibrated_lo, self.calibrated_hi = machine.stroke_lo, machine.stroke_hi
+        self.calibrated_volume = CalibratedVolume(machine.stroke_lo, machine.stroke_hi)
+        self.capabilities = frozenset()
         self.error_um = np.asarray(error_um, float)
 
     def predict(self, axes):

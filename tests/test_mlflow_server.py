@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from tests.conftest import stop_process_group, wait_until_serving
 from errormap.featurepoints import FeaturePoints, grid_axes
@@ -61,13 +60,10 @@ def test_train_through_a_real_tracking_server_and_load_by_run_id(mlflow_server):
     x, z, a = axes[:, 0] / 200.0, axes[:, 1] / 60.0, np.deg2rad(axes[:, 2])
     e = np.column_stack([3.0 * x + 2.0 * z**2, 4.0 * np.cos(a) + x, 2.0 * np.sin(a) * z - x * z])
     fp = FeaturePoints(axes, e, {"machine": machine.name})
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    from errormap.threads import limit_threads
+    with limit_threads(1):
         res = fit_field(fp, max_time_s=120, validation=(axes, e), tracking_uri=url, quiet=True, max_iter=60,
                         hidden=(10, 10), run_name="server-test")
-    finally:
-        torch.set_num_threads(old)
     assert res.metrics["train_max_um"] <= SMOOTH_TOL_UM
     loaded = load_field(res.run_id, tracking_uri=url)
     pts = np.random.default_rng(0).random((50, 3)) * [200.0, 60.0, 360.0]

@@ -10,6 +10,7 @@ from compensation.solvers import METHODS, SolveResult, get_solver, solve
 from compensation.solvers._common import (fold_a, forward_and_jacobian, forward_jacobian, nominal_tool_at_z0,
                                           project_to_ball)
 from compensation.solvers.exact import solve3
+from errormap.field import JACOBIAN, CalibratedVolume
 from errormap.kinematics import forward, inverse, tool_in_machine_nominal
 from errormap.machine import load_machine
 from errormap.transforms import rot_x
@@ -34,10 +35,11 @@ class LinearField:
 
     def __init__(self, machine, A, b, p0, with_jacobian=False):
         self.machine, self.A, self.b, self.p0 = machine, np.asarray(A), np.asarray(b), np.asarray(p0)
-        if with_jacobian:
-            self.jacobian = lambda axes: self.A @ forward_jacobian(self.machine, axes)
-        self.calibrated_lo = machine.stroke_lo
-        self.calibrated_hi = machine.stroke_hi
+        self.capabilities = frozenset({JACOBIAN}) if with_jacobian else frozenset()
+        self.calibrated_volume = CalibratedVolume(machine.stroke_lo, machine.stroke_hi)
+
+    def jacobian(self, axes):
+        return self.A @ forward_jacobian(self.machine, axes)
 
     def predict(self, axes):
         return (forward(self.machine, axes) - self.p0) @ self.A.T + self.b
@@ -56,7 +58,8 @@ class RotatingField:
 
     def __init__(self, e_um):
         self.e = np.asarray(e_um, dtype=float)
-        self.axes_bounds = (np.array([0.0, 0.0, 0.0]), np.array([200.0, 60.0, 360.0]))
+        self.capabilities = frozenset()
+        self.calibrated_volume = CalibratedVolume([0.0, 0.0, 0.0], [200.0, 60.0, 360.0])
 
     def predict(self, axes):
         Ra = np.transpose(rot_x(np.deg2rad(np.asarray(axes)[:, 2])), (0, 2, 1))

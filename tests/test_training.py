@@ -41,10 +41,9 @@ def smooth_field(axes):
 @pytest.fixture(scope="module", autouse=True)
 def one_torch_thread():
     """The test problems are tiny: one thread avoids OpenMP oversubscription on a busy 2-core box."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+    from errormap.threads import limit_threads
+    with limit_threads(1):
+        yield
 
 
 @pytest.fixture(scope="module")

@@ -3,8 +3,9 @@
 May import ``errormap``; never ``compensation``. The public names below load lazily, so
 ``import training`` stays cheap (torch and MLflow load on first use).
 
-* :class:`training.model.MLPField` — the network as an error field (``predict``, ``jacobian``,
-  ``save``/``load``).
+* :class:`training.model.MLPField` — the network as an error field
+  (:class:`errormap.field.ErrorField`: ``predict``, ``calibrated_volume`` and every optional
+  capability, ``jacobian`` to the fused GA fitness of :mod:`training.ga_fitness`; ``save``/``load``).
 * :func:`training.trainers.fit_field` — train on feature points, measure, track in MLflow.
 * :func:`training.trainers.validation_points` — random off-grid points from the HTM model.
 * :func:`training.tracking.load_field` — a trained field by run id / ``runs:/`` / ``models:/``.

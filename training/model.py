@@ -50,14 +50,15 @@ from __future__ import annotations
 
 import json
 import math
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch.func import jvp
 
+from errormap.field import (FLOAT32, JACOBIAN, OFFSET_FITNESS, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, CalibratedVolume)
 from errormap.io import InputError, atomic_dir, atomic_write, sha256_file, write_json
+from errormap.threads import limit_threads
 from errormap.transforms import check_points
 
 FORMAT = "volcomp-mlpfield/1"
@@ -73,20 +74,6 @@ def wrap_a(a_deg: np.ndarray, a0_deg: float) -> np.ndarray:
     a = np.asarray(a_deg, dtype=float)
     inside = (a >= a0_deg) & (a <= a0_deg + 360.0)
     return np.where(inside, a, a0_deg + np.mod(a - a0_deg, 360.0))
-
-
-@contextmanager
-def torch_threads(n):
-    """Run the block with torch on ``n`` threads (None or 0: unchanged), restoring the count after."""
-    old = torch.get_num_threads()
-    if not n or n == old:
-        yield
-        return
-    torch.set_num_threads(int(n))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 def _check_axes(axes) -> np.ndarray:
@@ -106,7 +93,8 @@ class MLPField:
     """
 
     kind = "mlp"
-    float32_predict = True  # predict(axes, dtype=np.float32) exists (the GA solvers' fitness uses it)
+    capabilities = frozenset({JACOBIAN, PREDICT_AND_JACOBIAN, FLOAT32, PREDICT_COLUMNS, OFFSET_FITNESS})
+    """The optional error-field methods it offers (:mod:`errormap.field`): all of them."""
 
     def __init__(self, hidden=PAPER_HIDDEN, activation: str = "sigmoid", a_encoding: str = "raw",
                  chunk: int = 65_536):
@@ -244,7 +232,20 @@ class MLPField:
     def unscale_errors(self, y) -> np.ndarray:
         return np.asarray(y) * self.out_scale_ + self.out_mean_
 
-    # -- the error-field interface ------------------------------------------------------
+    # -- the error-field interface (errormap.field.ErrorField) ----------------------------
+    @property
+    def calibrated_volume(self) -> CalibratedVolume | None:
+        """The training inputs' range ``in_lo_``..``in_hi_`` (x_mm, z_mm, a_deg); None before training."""
+        if "in_lo_" not in self.__dict__:
+            return None
+        return CalibratedVolume(self.in_lo_, self.in_hi_)
+
+    def offset_fitness(self, machine, targets_mm):
+        """The batched GA's fitness around WCS targets (n, 3) mm as one float32 torch pipeline
+        (:class:`training.ga_fitness.FusedOffsetFitness`; the ``offset_fitness`` capability)."""
+        from .ga_fitness import FusedOffsetFitness
+        return FusedOffsetFitness(self, machine, targets_mm)
+
     def _theta(self) -> torch.Tensor:
         if not hasattr(self, "theta_"):
             raise RuntimeError("MLPField is not trained: call a trainer or MLPField.load first")
@@ -469,16 +470,19 @@ class MLPField:
     COLUMNS_BLOCK = {torch.float32: 16_384, torch.float64: 8_192}
     """Columns per network call in :meth:`predict_columns` (activations stay in cache)."""
 
-    def predict_columns(self, xa: torch.Tensor) -> torch.Tensor:
+    def predict_columns(self, xa):
         """Errors μm at axis columns ``xa`` = [x_mm; z_mm; a_deg], shape (3, m) -> (3, m).
 
-        The solvers' inner loop: a torch tensor in, the same dtype (float32 or float64) out,
-        no validation and no copies to numpy. A is folded into the training turn
+        The solvers' inner loop (the ``predict_columns`` capability): a numpy array in, a numpy
+        array out (sharing memory with the tensor computed), or a torch tensor in, the same dtype
+        (float32 or float64) out, no validation and no copies. A is folded into the training turn
         ``[a0, a0 + 360)`` (E is periodic, so the turn's end maps onto its start) and the seam
         correction is applied as in :meth:`predict`; equal to :meth:`predict` to float
         rounding (tested). With raw A the input and output scalings are folded into the
         first and last layers.
         """
+        if isinstance(xa, np.ndarray):
+            return self.predict_columns(torch.from_numpy(xa)).numpy()
         net = self._net(np.float32 if xa.dtype == torch.float32 else np.float64)
         m = xa.shape[1]
         with torch.inference_mode():
@@ -539,7 +543,7 @@ class MLPField:
         net = self._net(dtype)
         y = np.empty((x.shape[0], 3))
         J = np.empty((x.shape[0], 3, 3)) if jac else None
-        with torch.inference_mode(), torch_threads(1 if x.shape[0] < self.SMALL_BATCH else None):
+        with torch.inference_mode(), limit_threads(1 if x.shape[0] < self.SMALL_BATCH else None):
             self._run_net(x, net, jac, torch.from_numpy(y), torch.from_numpy(J) if jac else None)
         e = y[:n]
         e *= self.out_scale_

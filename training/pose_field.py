@@ -27,11 +27,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from errormap.field import CalibratedVolume
+
 from .lm import TrainHistory, residual_fn
 from .model import ACTIVATIONS, DTYPE, MLPField
 
 DEFAULT_HIDDEN = (16,)
 DEFAULT_RIDGE = 1e-3
+POSE_INPUTS = {6: ("x_mm", "y_mm", "z_mm", "rx_rad", "ry_rad", "rz_rad"), 3: ("x_mm", "y_mm", "z_mm")}
+"""Input names of the hexapod and tripod pose fields (module docstring)."""
 MIN_SPAN = 1e-6
 """Inputs whose training range is below this are treated as constant (unit span)."""
 
@@ -44,10 +48,25 @@ class PoseMLP(MLPField):
     """
 
     kind = "pose-mlp"
+    capabilities = frozenset()
+    """None of the grinder field's optional methods (:mod:`errormap.field`): no A turn, no columns."""
 
     def __init__(self, n_in: int, n_out: int, hidden=DEFAULT_HIDDEN, activation: str = "tanh"):
         super().__init__(hidden, activation, "raw")
         self.n_in, self.n_out = int(n_in), int(n_out)
+
+    @property
+    def input_names(self) -> tuple:
+        """The pose inputs' names: hexapod (6) or tripod (3) poses, else ``u0``, ``u1``, …"""
+        return POSE_INPUTS.get(self.n_in, tuple(f"u{i}" for i in range(self.n_in)))
+
+    @property
+    def calibrated_volume(self) -> CalibratedVolume | None:
+        """The training poses' range per input (``in_lo_``..``in_hi_``, named by :attr:`input_names`);
+        None before training."""
+        if "in_lo_" not in self.__dict__:
+            return None
+        return CalibratedVolume(self.in_lo_, self.in_hi_, self.input_names)
 
     @property
     def n_inputs(self) -> int:

@@ -31,9 +31,10 @@ import numpy as np
 import torch
 
 from errormap.io import InputError, sha256_file
+from errormap.threads import limit_threads
 
 from .lm import LMSettings, TrainHistory, train_lm
-from .model import PAPER_HIDDEN, MLPField, torch_threads
+from .model import PAPER_HIDDEN, MLPField
 
 TRAINERS = ("lm", "adam", "lbfgs")
 AXES = ("dx", "dy", "dz")
@@ -370,7 +371,7 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
         else:
             sel_axes, sel_errors = validation_points(ref[0], ref[1], n=n_select, seed=seed + 2_000_003)
         selector = _BestOnSelection(model, sel_axes, sel_errors, select_every)
-    with torch_threads(threads):
+    with limit_threads(threads):
         if selector is not None:
             theta, hist = train_lm(model, theta0, u, y, settings, printer, monitor=selector)
             theta = selector.finish(theta, hist)

@@ -2,6 +2,10 @@
 
 Conventions (all solvers):
 
+* The field is an :class:`errormap.field.ErrorField`, checked once per solve
+  (:func:`errormap.field.check_field`); its optional methods are used where its
+  ``capabilities`` declare them, never probed.
+
 * Targets ``p_d`` and commands ``p_r`` are WCS points, shape (n, 3), mm.
 * Axes are ``(x_mm, z_mm, a_deg)``, shape (n, 3). The field is always evaluated with A
   folded into the calibrated turn ``[a_lo, a_lo + 360)`` of the A stroke when that stroke
@@ -16,12 +20,14 @@ Conventions (all solvers):
 from __future__ import annotations
 
 import contextlib
-import math
 import time
 
 import numpy as np
 
-from errormap.kinematics import inverse
+from errormap.field import FLOAT32, JACOBIAN, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, check_field
+from errormap.kinematics import inverse, nominal_tool_at_z0
+from errormap.machine import Grinder
+from errormap.threads import limit_threads
 from errormap.transforms import check_points
 
 from .base import BALL_RADIUS_UM, SolveResult
@@ -38,12 +44,6 @@ of 65,536: 7.9 μs a point wall (0.94 μs CPU) on one thread, 59 μs wall (10.7 
 One thread also makes the result independent of the machine's thread count."""
 FD_STEPS = np.array([1e-3, 1e-3, 1e-3])
 """Central-difference steps in axis space (mm, mm, deg) for fields without ``jacobian``."""
-
-
-def check_field(field) -> None:
-    """Raise TypeError unless ``field`` has a callable ``predict``."""
-    if not callable(getattr(field, "predict", None)):
-        raise TypeError(f"Expected an error field with predict(axes) -> (n, 3) μm, got {type(field).__name__}")
 
 
 def full_turn_a(machine) -> bool:
@@ -73,9 +73,8 @@ def check_inputs(field, targets_mm, machine, target_axes=None, a_start_deg=None,
     the path (or taken from ``target_axes``, which must be the nominal axes of the targets).
     """
     check_field(field)
-    for k in ("strokes",):
-        if not hasattr(machine, k):
-            raise TypeError(f"Expected a grinder machine (with strokes), got {type(machine).__name__}")
+    if not isinstance(machine, Grinder):
+        raise TypeError(f"Expected a grinder machine (errormap.machine.Grinder), got {type(machine).__name__}")
     targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
     if not (np.isfinite(ball_um) and ball_um > 0):
         raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
@@ -91,11 +90,10 @@ def check_inputs(field, targets_mm, machine, target_axes=None, a_start_deg=None,
 @contextlib.contextmanager
 def field_threads(field):
     """Run the block with :data:`FIELD_TORCH_THREADS` torch threads if ``field`` is a torch field."""
-    if not callable(getattr(field, "predict_columns", None)):
+    if PREDICT_COLUMNS not in field.capabilities:
         yield
         return
-    from training.model import torch_threads
-    with torch_threads(FIELD_TORCH_THREADS):
+    with limit_threads(FIELD_TORCH_THREADS):
         yield
 
 
@@ -108,23 +106,21 @@ def field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = 
 def _field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = False) -> np.ndarray:
     """``E(axes)`` μm with A folded into the calibrated turn, in chunks; (n, 3) -> (n, 3).
 
-    Fields with ``predict_columns`` (the learned MLP) are evaluated through it, in float64:
-    the same field without ``predict``'s validation and conversions (the solvers validate
-    their input once). ``fast=True`` (GA fitness only) uses the field's float32 path when it
-    declares one (``field.float32_predict = True``: a few nm from float64, below the GA's
-    ~0.01 μm resolution); the result is float64 either way.
+    Fields declaring ``predict_columns`` (the learned MLP) are evaluated through it, in
+    float64: the same field without ``predict``'s validation and conversions (the solvers
+    validate their input once). ``fast=True`` (GA fitness only) uses the field's float32 path
+    when it declares ``float32`` (a few nm from float64, below the GA's ~0.01 μm resolution);
+    the result is float64 either way. Capabilities: :mod:`errormap.field`.
     """
     axes = fold_a(axes, machine)
     n = axes.shape[0]
-    columns = getattr(field, "predict_columns", None)
-    if callable(columns) and not fast:
-        import torch  # only a torch field has predict_columns (torch is then loaded: no import cost)
+    caps = field.capabilities
+    if PREDICT_COLUMNS in caps and not fast:
         out = np.empty((n, 3))
         for s in range(0, n, chunk):
-            xa = torch.from_numpy(np.ascontiguousarray(axes[s:s + chunk].T))
-            out[s:s + chunk] = columns(xa).numpy().T
+            out[s:s + chunk] = field.predict_columns(np.ascontiguousarray(axes[s:s + chunk].T)).T
         return out
-    kw = {"dtype": np.float32} if fast and getattr(field, "float32_predict", False) else {}
+    kw = {"dtype": np.float32} if fast and FLOAT32 in caps else {}
     if n <= chunk:
         return np.asarray(field.predict(axes, **kw), dtype=float).reshape(n, 3)
     out = np.empty((n, 3))
@@ -136,19 +132,18 @@ def _field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool =
 def field_jacobian_um(field, axes, machine, e0_um=None, chunk: int = FIELD_CHUNK) -> tuple[np.ndarray, int]:
     """``dE/d(axes)`` μm per (mm, mm, deg), shape (n, 3, 3) (rows: error components).
 
-    Uses ``field.jacobian(axes)`` when the field has it. Otherwise finite differences in
+    Uses ``field.jacobian(axes)`` when the field declares ``jacobian``. Otherwise finite differences in
     axis space with steps :data:`FD_STEPS`: forward differences from ``e0_um = E(axes)``
     when given (3 evaluations per point), else central differences (6 per point).
     Returns ``(J, evaluations)``.
     """
     axes = np.asarray(axes, dtype=float)
     n = axes.shape[0]
-    jac = getattr(field, "jacobian", None)
     J = np.empty((n, 3, 3))
-    if callable(jac):
+    if JACOBIAN in field.capabilities:
         a = fold_a(axes, machine)
         for s in range(0, n, chunk):
-            J[s:s + chunk] = np.asarray(jac(a[s:s + chunk]), dtype=float).reshape(-1, 3, 3)
+            J[s:s + chunk] = np.asarray(field.jacobian(a[s:s + chunk]), dtype=float).reshape(-1, 3, 3)
         return J, n
     signs = (1.0,) if e0_um is not None else (1.0, -1.0)
     m_shift = 3 * len(signs)
@@ -169,34 +164,26 @@ def field_jacobian_um(field, axes, machine, e0_um=None, chunk: int = FIELD_CHUNK
     return J, m_shift * n
 
 
-def nominal_tool_at_z0(machine) -> tuple:
-    """The nominal tool point in the MCS at z = 0, ``RotZ(θ1)·(l2 + l3, 0, l1 + l4 - R)``, as
-    three floats (``errormap.kinematics.tool_in_machine_nominal`` without its array set-up)."""
-    th = math.radians(machine.theta1_deg)
-    r = machine.l2 + machine.l3
-    return (math.cos(th) * r, math.sin(th) * r, machine.l1 + machine.l4 - machine.R)
-
-
 def field_error_and_jacobian_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = False):
     """``(E (n, 3) μm, dE/d(axes) (n, 3, 3), evaluations)`` at axes (n, 3), A folded.
 
-    One pass through ``field.predict_and_jacobian`` when the field has it (counted as two
+    One pass through ``field.predict_and_jacobian`` when the field declares it (counted as two
     evaluations per point, a value and a Jacobian), else :func:`field_error_um` then
     :func:`field_jacobian_um` (forward differences from it). ``fast=True`` runs a field with a
-    float32 path in float32 (e.g. a Newton start, where only the step direction matters).
+    declared float32 path in float32 (e.g. a Newton start, where only the step direction matters).
     """
     n = np.asarray(axes).shape[0]
-    both = getattr(field, "predict_and_jacobian", None)
-    if not callable(both):
+    caps = field.capabilities
+    if PREDICT_AND_JACOBIAN not in caps:
         E = field_error_um(field, axes, machine, chunk=chunk)
         J, fe = field_jacobian_um(field, axes, machine, e0_um=E, chunk=chunk)
         return E, J, n + fe
-    kw = {"dtype": np.float32} if fast and getattr(field, "float32_predict", False) else {}
+    kw = {"dtype": np.float32} if fast and FLOAT32 in caps else {}
     a = fold_a(axes, machine)
     E, J = np.empty((n, 3)), np.empty((n, 3, 3))
     with field_threads(field):
         for s in range(0, n, chunk):
-            e, j = both(a[s:s + chunk], **kw)
+            e, j = field.predict_and_jacobian(a[s:s + chunk], **kw)
             E[s:s + chunk] = np.asarray(e, dtype=float).reshape(-1, 3)
             J[s:s + chunk] = np.asarray(j, dtype=float).reshape(-1, 3, 3)
     return E, J, 2 * n

@@ -32,10 +32,11 @@ Operators, as PyGAD 3.9 runs them with the ``ga`` solver's configuration (one ge
 
 Fitness evaluation, two paths with the same value:
 
-* **fused** (fields with ``predict_columns``, i.e. the learned MLP field): the nominal
-  inverse kinematics of ``p_d + 1e-3·d`` and the network run as one float32 torch pipeline
-  on columns (points as columns), no round trip through numpy. float32 is ample here: the
-  offsets resolve 1.5e-5 μm at 250 μm, and the field's float32 error is ~1e-4 μm
+* **fused** (fields declaring the ``offset_fitness`` capability, i.e. the learned MLP field):
+  the field supplies the whole fitness as one compiled kernel
+  (:class:`errormap.field.OffsetFitness`; for the network, nominal inverse kinematics and the
+  network as one float32 torch pipeline, :mod:`training.ga_fitness`). float32 is ample here:
+  the offsets resolve 1.5e-5 μm at 250 μm, and the field's float32 error is ~1e-4 μm
   (``tests/test_model_inference.py``) against the GA's ~0.01 μm resolution; the returned
   commands and residuals are recomputed in float64 (:func:`._common.ga_result`).
 * **generic** (any field, e.g. the HTM field): float64 numpy through
@@ -51,20 +52,19 @@ offspring's own two (≈ 2 % more evaluations late in a run, docs/solvers.md).
 """
 from __future__ import annotations
 
-import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-import torch
 
+from errormap.field import OFFSET_FITNESS
 from errormap.kinematics import inverse
 from errormap.progress import Progress
-from training.model import torch_threads
+from errormap.threads import limit_threads
 
 from .base import BALL_RADIUS_UM, SolveResult
-from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, nominal_tool_at_z0, project_to_ball
+from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, project_to_ball
 from ._ga_kernels import breed, scatter
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
@@ -82,13 +82,13 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
 
     The points are split into equal chunks of at most ``chunk`` points, their number a
     multiple of ``workers``; each chunk evolves on its own (its own child Generator of
-    ``seed``), ``workers`` chunks at a time in threads (torch runs one thread per chunk
-    meanwhile). ``workers``: None uses torch's thread count (the cores torch would use) with
-    the fused fitness, 1 otherwise (a generic field's evaluation holds the GIL).
-    The result depends on ``seed``, ``chunk`` and ``workers``, not on timing. ``fused``: None
-    (default) uses the fused float32 fitness when the field offers ``predict_columns``;
-    False forces the generic path. ``success``: |model residual| ≤ ``tol_um`` and inside
-    the ball.
+    ``seed``), ``workers`` chunks at a time in threads (each library on one thread per chunk
+    meanwhile: :func:`errormap.threads.limit_threads`). ``workers``:
+    None uses the fused kernel's own thread count (the cores it would use), 1 otherwise (a
+    generic field's evaluation holds the GIL). The result depends on ``seed``, ``chunk`` and
+    ``workers``, not on timing. ``fused``: None (default) uses the fused float32 fitness when
+    the field declares ``offset_fitness``; False forces the generic path. ``success``:
+    |model residual| ≤ ``tol_um`` and inside the ball.
     """
     t0 = time.perf_counter()
     targets, axes_d = check_inputs(field, targets_mm, machine, target_axes, a_start_deg, ball_um)
@@ -98,14 +98,16 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
         raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
     if workers is not None and not (isinstance(workers, (int, np.integer)) and workers >= 1):
         raise ValueError(f"Expected workers ≥ 1, got {workers!r}")
-    has_columns = callable(getattr(field, "predict_columns", None))
-    use_fused = has_columns if fused is None else bool(fused)
-    if use_fused and not has_columns:
-        raise ValueError(f"Expected a field with predict_columns for fused=True, got {type(field).__name__}")
-    # threads pay off where the work releases the GIL (the fused torch pipeline and the
-    # compiled step); a generic field's numpy/Python evaluation would only contend for it
-    workers = (torch.get_num_threads() if use_fused else 1) if workers is None else workers
+    has_kernel = OFFSET_FITNESS in field.capabilities
+    use_fused = has_kernel if fused is None else bool(fused)
+    if use_fused and not has_kernel:
+        raise ValueError(f"Expected a field declaring the {OFFSET_FITNESS!r} capability for fused=True, "
+                         f"got {type(field).__name__}")
     n = len(targets)
+    # threads pay off where the work releases the GIL (the fused kernel and the compiled
+    # step); a generic field's numpy/Python evaluation would only contend for it
+    if workers is None:
+        workers = field.offset_fitness(machine, targets[:0]).threads if use_fused else 1
     k = -(-n // chunk)
     k = max(1, -(-k // workers) * workers) if n >= workers else 1
     bounds = np.linspace(0, n, k + 1).round().astype(int)
@@ -113,19 +115,19 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
     best = np.empty((n, 3))
     bar = _LockedProgress(n * generations, "batched-ga (point-generations)", enabled=progress)
     ga = _BatchGA(ball_um, population, n_parents, crossover_probability, mutation_probability, mutation_step_um)
-    make_fitness = _FusedFitness if use_fused else _GenericFitness
-    if use_fused:
-        field.predict_columns(torch.zeros((3, 1), dtype=torch.float32))  # builds the float32 net once
+    # every chunk's fitness is built here, before any thread starts
+    fitness = [field.offset_fitness(machine, targets[bounds[i]:bounds[i + 1]]) if use_fused
+               else _GenericFitness(field, machine, targets[bounds[i]:bounds[i + 1]]) for i in range(k)]
 
     def one(i):
         lo, hi = bounds[i], bounds[i + 1]
-        best[lo:hi], fe = ga.run(make_fitness(field, machine, targets[lo:hi]), hi - lo, rngs[i], generations, bar)
+        best[lo:hi], fe = ga.run(fitness[i], hi - lo, rngs[i], generations, bar)
         return fe
 
     if workers == 1 or k == 1:
         nfev = sum(one(i) for i in range(k))
     else:
-        with torch_threads(1), ThreadPoolExecutor(workers) as pool:
+        with limit_threads(1), ThreadPoolExecutor(workers) as pool:
             nfev = sum(pool.map(one, range(k)))
     return ga_result("batched-ga", field, machine, targets, best, axes_d, nfev, t0, ball_um, tol_um, seed,
                      parents=n_parents, fused=use_fused, chunks=k, workers=workers)
@@ -156,57 +158,6 @@ class _GenericFitness:
         r = d + field_error_um(self.field, q, self.machine, fast=True)
         f = -np.einsum("ij,ij->i", r, r).astype(np.float32)
         return np.where(np.isnan(f), -np.inf, f).astype(np.float32)
-
-
-class _FusedFitness:
-    """The same fitness as one float32 torch pipeline: nominal IK, then ``field.predict_columns``.
-
-    IK (``errormap.kinematics.inverse``): ``x = c_x - p_x``, ``h = sqrt(p_y² + p_z² - t_y²)``,
-    ``z = h - c_h``, ``a = atan2(p_y, p_z) - atan2(t_y, h)`` (deg), which ``predict_columns``
-    folds into the field's turn (the generic path folds into the stroke's turn first; E is
-    periodic, so both are the same point of the field).
-    """
-
-    BLOCK = 16_384
-    """Offspring per network call (each layer's activations stay in cache)."""
-
-    def __init__(self, field, machine, targets):
-        self.field = field
-        t0 = nominal_tool_at_z0(machine)
-        self.cx = float(t0[0] - machine.l5 - machine.l7)
-        self.ty = float(t0[1])
-        self.ch = float(t0[2] - machine.l6 - machine.l8)
-        # per-point constants; x in float64 first (c_x - p_x), then float32
-        self.x = torch.from_numpy((self.cx - targets[:, 0]).astype(np.float32))
-        self.py = torch.from_numpy(targets[:, 1].astype(np.float32))
-        self.pz = torch.from_numpy(targets[:, 2].astype(np.float32))
-
-    def __call__(self, pts: np.ndarray, dT: np.ndarray) -> np.ndarray:
-        """Fitness of offsets ``dT`` (3, k) μm (columns) of points ``pts`` (k,); returns (k,) float32."""
-        k = dT.shape[1]
-        out = np.empty(k, dtype=np.float32)
-        pts_t, d_t, out_t = torch.from_numpy(pts), torch.from_numpy(dT), torch.from_numpy(out)
-        with torch.inference_mode():
-            for s in range(0, k, self.BLOCK):
-                out_t[s:s + self.BLOCK] = self._block(pts_t[s:s + self.BLOCK], d_t[:, s:s + self.BLOCK])
-        return out
-
-    def _block(self, pts, dT):
-        dm = dT * MM_PER_UM  # (3, k) mm
-        xa = torch.empty_like(dT)
-        torch.sub(self.x[pts], dm[0], out=xa[0])
-        py = self.py[pts] + dm[1]
-        pz = self.pz[pts] + dm[2]
-        h = torch.sqrt(torch.clamp(py * py + pz * pz - self.ty * self.ty, min=0.0))
-        torch.sub(h, self.ch, out=xa[1])
-        a = torch.atan2(py, pz)
-        if self.ty != 0.0:
-            a -= torch.atan2(torch.full_like(h, self.ty), h)
-        torch.rad2deg(a, out=xa[2])  # predict_columns folds A into the field's turn
-        r = self.field.predict_columns(xa)
-        r += dT
-        f = (r * r).sum(dim=0).neg_()
-        return torch.where(torch.isnan(f), -math.inf, f)
 
 
 class _BatchGA:

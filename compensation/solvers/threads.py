@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 import contextlib
-import sys
+
+from errormap.threads import limit_threads
 
 SMALL_BATCH_POINTS = 500
 """Paths shorter than this are solved with one torch thread (see :func:`small_batch_threads`)."""
@@ -17,14 +18,6 @@ def small_batch_threads(method: str, n_points: int | None = None):
     other and a call costs ~100× more than on one thread (measured: 81 ms vs 0.8 ms for
     40 points). Long paths in the batched solvers keep the default.
     """
-    torch = sys.modules.get("torch")
     small = method == "ga" or (n_points is not None and n_points < SMALL_BATCH_POINTS)
-    if not small or torch is None:
+    with limit_threads(1 if small else None):
         yield
-        return
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)

@@ -8,7 +8,7 @@ from .effects import Context, EffectTerm
 
 
 class CorrectedField:
-    """``base`` (any field with ``predict(axes) -> (n, 3) μm``) plus fitted :class:`EffectTerm` s.
+    """``base`` (an :class:`errormap.field.ErrorField`) plus fitted :class:`EffectTerm` s.
 
     ``predict(axes, **conditions)``: axes (x_mm, z_mm, a_deg) shape (n, 3) -> (n, 3) μm;
     ``conditions`` are arrays shape (n,) named ``temp_c``, ``time_s``, ``dir_x``, ``dir_z``,
@@ -17,11 +17,18 @@ class CorrectedField:
     """
 
     kind = "corrected"
+    capabilities = frozenset()
+    """No optional error-field methods (:mod:`errormap.field`)."""
 
     def __init__(self, machine, base, terms: list[EffectTerm]):
         self.machine = machine
         self.base = base
         self.terms = list(terms)
+
+    @property
+    def calibrated_volume(self):
+        """The base field's calibrated volume (the terms are fitted inside it)."""
+        return self.base.calibrated_volume
 
     @property
     def needs(self) -> tuple[str, ...]:

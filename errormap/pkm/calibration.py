@@ -48,7 +48,6 @@ not identifiable (raw singular values below ``rcond * s_max``), each with how it
 """
 from __future__ import annotations
 
-import contextlib
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -60,6 +59,7 @@ from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 from ..io import InputError, read_table
+from ..threads import limit_threads
 from .hexapod import (KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics, quat_to_rotation,
                       skew, workspace_poses)
 from .checks import angle_candidates, check_measurements, check_pose_set, quaternion_candidates
@@ -589,7 +589,9 @@ class PKMCalibrator:
         (motion capture) lets orientation noise dominate the fit.
         """
         import copy
-        with _single_thread_blas():
+        # BLAS on one thread: the matrices here are small (<= ~2000 x 48), and a multi-threaded
+        # OpenBLAS on a loaded machine spends seconds per SVD spinning (measured: 1.7 s vs 2 ms)
+        with limit_threads(1, libraries=("blas",)):
             if self.lever_mm is not None:
                 return self._fit(data)
             if data.rotation is None or self.machine.kind != "hexapod":
@@ -778,16 +780,6 @@ def _with(r0: np.ndarray, est: np.ndarray, delta: np.ndarray) -> np.ndarray:
     r = r0.copy()
     r[est] += delta
     return r
-
-
-def _single_thread_blas():
-    """BLAS limited to one thread: the matrices here are small (<= ~2000 x 48), and a multi-threaded
-    OpenBLAS on a loaded machine spends seconds per SVD spinning (measured: 1.7 s vs 2 ms)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # optional (comes with scikit-learn)
-        return contextlib.nullcontext()
-    return threadpool_limits(1, user_api="blas")
 
 
 def calibrate(machine: PKM, data: PoseData, **settings) -> CalibrationResult:

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import brentq
 
-from ..machine import MachineFileError, _expect_number, _expect_table, _no_unknown, expect_array
+from ..machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table
 
 HEXAPOD_GEOMETRY_KEYS = (
     "base_joints_mm", "platform_joints_mm", "base_radius_mm", "platform_radius_mm",
@@ -132,21 +132,21 @@ def _leg_array(legs: dict, key: str, k: int, default, path) -> np.ndarray:
         return np.full(k, float(default))
     v = legs[key]
     if isinstance(v, (int, float)) and not isinstance(v, bool):
-        return np.full(k, float(_expect_number(legs, key, "legs", path)))
-    return expect_array(v, (k,), f"legs.{key}", path)
+        return np.full(k, float(check_number(legs, key, "legs", path)))
+    return check_array(v, (k,), f"legs.{key}", path)
 
 
 def _parse_common(doc, path, kind, k, geometry_keys):
-    _no_unknown(doc, ("machine", "geometry", "legs", "home"), "", path)
-    m = _expect_table(doc, "machine", path)
-    _no_unknown(m, ("kind", "name"), "machine", path)
+    check_known_keys(doc, ("machine", "geometry", "legs", "home"), "", path)
+    m = check_table(doc, "machine", path)
+    check_known_keys(m, ("kind", "name"), "machine", path)
     name = m.get("name", kind)
     if not isinstance(name, str):
         raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {name!r}")
-    g = _expect_table(doc, "geometry", path)
-    _no_unknown(g, geometry_keys, "geometry", path)
-    legs = _expect_table(doc, "legs", path)
-    _no_unknown(legs, LEG_KEYS, "legs", path)
+    g = check_table(doc, "geometry", path)
+    check_known_keys(g, geometry_keys, "geometry", path)
+    legs = check_table(doc, "legs", path)
+    check_known_keys(legs, LEG_KEYS, "legs", path)
     lo = _leg_array(legs, "min_mm", k, None, path)
     hi = _leg_array(legs, "max_mm", k, None, path)
     if np.any(lo <= 0) or np.any(hi <= lo):
@@ -158,7 +158,7 @@ def _parse_common(doc, path, kind, k, geometry_keys):
     home = doc.get("home", {})
     if not isinstance(home, dict):
         raise MachineFileError(f"{path}: 'home': expected a table")
-    _no_unknown(home, HOME_KEYS, "home", path)
+    check_known_keys(home, HOME_KEYS, "home", path)
     return name, g, lo, hi, scale, offset, home
 
 
@@ -171,8 +171,8 @@ def _joints(g, k, path, from_radii):
         if len(explicit) != 2:
             missing = {"base_joints_mm", "platform_joints_mm"} - set(explicit)
             raise MachineFileError(f"{path}: missing key 'geometry.{missing.pop()}'")
-        return (expect_array(g["base_joints_mm"], (k, 3), "geometry.base_joints_mm", path),
-                expect_array(g["platform_joints_mm"], (k, 3), "geometry.platform_joints_mm", path))
+        return (check_array(g["base_joints_mm"], (k, 3), "geometry.base_joints_mm", path),
+                check_array(g["platform_joints_mm"], (k, 3), "geometry.platform_joints_mm", path))
     return from_radii()
 
 
@@ -181,20 +181,20 @@ def parse_hexapod(doc: dict, path, sha: str = "") -> PKM:
     name, g, lo, hi, scale, offset, home = _parse_common(doc, path, "hexapod", 6, HEXAPOD_GEOMETRY_KEYS)
 
     def from_radii():
-        rb = _expect_number(g, "base_radius_mm", "geometry", path)
-        rp = _expect_number(g, "platform_radius_mm", "geometry", path)
+        rb = check_number(g, "base_radius_mm", "geometry", path)
+        rp = check_number(g, "platform_radius_mm", "geometry", path)
         angles = []
         for side in ("base", "platform"):
             rk, ak = f"{side}_side_ratio", f"{side}_pair_angle_deg"
             if (rk in g) == (ak in g):
                 raise MachineFileError(f"{path}: 'geometry': give exactly one of '{rk}' and '{ak}'")
             if rk in g:
-                ratio = _expect_number(g, rk, "geometry", path)
+                ratio = check_number(g, rk, "geometry", path)
                 if not 0 < ratio < 1:
                     raise MachineFileError(f"{path}: key 'geometry.{rk}': expected a ratio in (0, 1), got {ratio}")
                 angles.append(pair_angle_from_side_ratio(ratio))
             else:
-                a = _expect_number(g, ak, "geometry", path)
+                a = check_number(g, ak, "geometry", path)
                 if not 0 < a < 120:
                     raise MachineFileError(f"{path}: key 'geometry.{ak}': expected 0 < angle < 120, got {a}")
                 angles.append(a)
@@ -203,8 +203,8 @@ def parse_hexapod(doc: dict, path, sha: str = "") -> PKM:
         return hexapod_joints_from_radii(rb, rp, *angles)
 
     base, plat = _joints(g, 6, path, from_radii)
-    lt = _expect_number(g, "tool_length_mm", "geometry", path)
-    tip = expect_array(home.get("tool_tip_mm", [0.0, 0.0, 980.0]), (3,), "home.tool_tip_mm", path)
+    lt = check_number(g, "tool_length_mm", "geometry", path)
+    tip = check_array(home.get("tool_tip_mm", [0.0, 0.0, 980.0]), (3,), "home.tool_tip_mm", path)
     return PKM(kind="hexapod", name=name, base_joints_mm=base, platform_joints_mm=plat,
                tool_in_platform_mm=np.array([0.0, 0.0, -lt]), leg_min_mm=lo, leg_max_mm=hi,
                leg_scale=scale, leg_offset_mm=offset, home_tool_tip_mm=tip, path=str(path), sha256=sha,
@@ -216,18 +216,18 @@ def parse_tripod(doc: dict, path, sha: str = "") -> PKM:
     name, g, lo, hi, scale, offset, home = _parse_common(doc, path, "tripod", 3, TRIPOD_GEOMETRY_KEYS)
 
     def from_radii():
-        R = _expect_number(g, "base_radius_mm", "geometry", path)
-        r = _expect_number(g, "platform_radius_mm", "geometry", path)
+        R = check_number(g, "base_radius_mm", "geometry", path)
+        r = check_number(g, "platform_radius_mm", "geometry", path)
         if R <= 0 or r <= 0:
             raise MachineFileError(f"{path}: keys 'geometry.base_radius_mm'/'platform_radius_mm': expected positive radii")
-        ang = np.radians(expect_array(g.get("joint_angles_deg", [90.0, 210.0, 330.0]), (3,),
+        ang = np.radians(check_array(g.get("joint_angles_deg", [90.0, 210.0, 330.0]), (3,),
                                       "geometry.joint_angles_deg", path))
         ring = np.stack([np.cos(ang), np.sin(ang), np.zeros(3)], axis=1)
         return R * ring, r * ring
 
     base, plat = _joints(g, 3, path, from_radii)
-    tool = expect_array(g.get("tool_offset_mm", [0.0, 0.0, 0.0]), (3,), "geometry.tool_offset_mm", path)
-    tip = expect_array(home.get("tool_tip_mm", [0.0, 0.0, 1000.0]), (3,), "home.tool_tip_mm", path)
+    tool = check_array(g.get("tool_offset_mm", [0.0, 0.0, 0.0]), (3,), "geometry.tool_offset_mm", path)
+    tip = check_array(home.get("tool_tip_mm", [0.0, 0.0, 1000.0]), (3,), "home.tool_tip_mm", path)
     return PKM(kind="tripod", name=name, base_joints_mm=base, platform_joints_mm=plat,
                tool_in_platform_mm=tool, leg_min_mm=lo, leg_max_mm=hi, leg_scale=scale,
                leg_offset_mm=offset, home_tool_tip_mm=tip, path=str(path), sha256=sha)

@@ -218,16 +218,23 @@ def log_row(tracker: Tracker, row: dict) -> None:
 
 # ------------------------------------------------------------------------------- grinder
 class FixedConditions:
-    """A field that needs conditions (a diagnosis ``CorrectedField``), evaluated at fixed path
-    conditions: a plain error field ``predict(axes (n, 3)) -> (n, 3) μm`` for the solvers."""
+    """A field that needs conditions (a diagnosis ``CorrectedField``: the ones it declares in
+    ``needs``), evaluated at fixed path conditions: an error field (:class:`errormap.field.ErrorField`,
+    ``predict(axes (n, 3)) -> (n, 3) μm``, the wrapped field's calibrated volume) for the solvers."""
+
+    capabilities = frozenset()
 
     def __init__(self, field_, conditions: dict):
         self.field = field_
         self.conditions = dict(conditions)
+        self._needed = {k: self.conditions[k] for k in field_.needs}
+
+    @property
+    def calibrated_volume(self):
+        return self.field.calibrated_volume
 
     def predict(self, axes):
-        need = getattr(self.field, "needs", ())
-        cond = {k: self.conditions[k] for k in need}
+        cond = self._needed
         return self.field.predict(axes, **cond) if cond else self.field.predict(axes)
 
 
@@ -751,9 +758,9 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
     tracker.log_params({f"settings.{k}": v for k, v in s.to_dict().items()})
     rows, skipped = [], []
     status = "FAILED"
-    from training.trainers import torch_threads
+    from errormap.threads import limit_threads
     try:
-        with torch_threads(s.torch_threads):
+        with limit_threads(s.torch_threads):
             rows, skipped = _run_machines(machines, s, tracker)
         total_s = time.perf_counter() - t_start
         doc = {"format": "volcomp-benchmark/1", "rows": rows, "skipped": skipped, "settings": s.to_dict(),

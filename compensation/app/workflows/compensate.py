@@ -26,7 +26,7 @@ from errormap.io import InputError, write_json
 from errormap.progress import Progress
 
 from ... import guards
-from ...diagnosed_model import load_path_field, path_conditions, solve_with_conditions
+from ...diagnosed_model import ConditionedField, load_path_field, path_conditions, solve_with_conditions
 from ...gcode import DEFAULT_RAPIDS
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from ...solvers import solve
@@ -214,7 +214,7 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None) -> Com
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
     # a diagnosed model whose terms need conditions: per point from the path's columns, else the options
-    needs = getattr(field_, "needs", ())
+    needs = field_.needs if isinstance(field_, ConditionedField) else ()
     conds = [path_conditions(tp, needs, field_.conditions) if needs else None for tp in paths]
     plan_field = field_.corrected.base if needs else field_  # axes-only part
     paths = [replan(tp, machine, max_segment_mm=s.max_segment_mm, field=plan_field) for tp in paths]
