@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from errormap.io import InputError, sha256_file
+from errormap.stats import residual_stats
 
 from .lm import LMSettings, TrainHistory, train_lm
 from .model import PAPER_HIDDEN, MLPField, torch_threads
@@ -181,12 +182,14 @@ def initial_params(model, seed: int = 0, init: str = "nguyen-widrow") -> torch.T
 # -- metrics and validation ---------------------------------------------------------------
 def fit_metrics(prefix: str, predicted_um, reference_um) -> dict:
     """Max |error| and RMS in μm, over all components and per axis; also the max vector norm."""
-    d = np.asarray(predicted_um) - np.asarray(reference_um)
-    m = {f"{prefix}_max_um": float(np.abs(d).max()), f"{prefix}_rms_um": float(np.sqrt(np.mean(d**2))),
-         f"{prefix}_max_norm_um": float(np.linalg.norm(d, axis=1).max())}
-    for j, a in enumerate(AXES):
-        m[f"{prefix}_max_{a}_um"] = float(np.abs(d[:, j]).max())
-        m[f"{prefix}_rms_{a}_um"] = float(np.sqrt(np.mean(d[:, j] ** 2)))
+    st = residual_stats(np.asarray(predicted_um) - np.asarray(reference_um), AXES)
+    # over all components: the largest per-axis max |.|, and RMS = sqrt(mean of the per-axis RMS²)
+    m = {f"{prefix}_max_um": max(st[a]["max_abs_um"] for a in AXES),
+         f"{prefix}_rms_um": float(np.sqrt(np.mean([st[a]["rms_um"] ** 2 for a in AXES]))),
+         f"{prefix}_max_norm_um": st["max_um"]}
+    for a in AXES:
+        m[f"{prefix}_max_{a}_um"] = st[a]["max_abs_um"]
+        m[f"{prefix}_rms_{a}_um"] = st[a]["rms_um"]
     return m
 
 

@@ -17,10 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..htm import HTMField
-from .checks import CheckData, measured_residual
+from ..stats import residual_stats
+from .checks import ERROR_COLUMNS, CheckData, measured_residual
 from .corrected import CorrectedField
 from .effects import Context, reference
-from .pipeline import Diagnosis, DiagnosisSettings, diagnose, residual_stats
+from .pipeline import Diagnosis, DiagnosisSettings, diagnose
 from .update import ModelUpdate, update_elements
 
 
@@ -80,15 +81,15 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
             r2 = r2 - c
         else:
             rejected.append(e)
-    st0, st1, st2 = (residual_stats(r[hold_idx]) for r in (r0, r1, r2))
+    st0, st1, st2 = (residual_stats(r[hold_idx], ERROR_COLUMNS) for r in (r0, r1, r2))
     accepted = bool(kept)
     model = CorrectedField(machine, updated, [t for t, _ in kept])
     summary = dict(d.summary)
     summary.update({
         "stages": {
-            "identified": {"held_out": st0, "fitting": residual_stats(r0[fit_idx])},
-            "updated": {"held_out": st1, "fitting": residual_stats(r1[fit_idx])},
-            "updated_plus_effects": {"held_out": st2, "fitting": residual_stats(r2[fit_idx])},
+            "identified": {"held_out": st0, "fitting": residual_stats(r0[fit_idx], ERROR_COLUMNS)},
+            "updated": {"held_out": st1, "fitting": residual_stats(r1[fit_idx], ERROR_COLUMNS)},
+            "updated_plus_effects": {"held_out": st2, "fitting": residual_stats(r2[fit_idx], ERROR_COLUMNS)},
         },
         "update": upd.to_dict(),
         "effects_accepted": accepted,
