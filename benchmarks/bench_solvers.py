@@ -64,12 +64,13 @@ def flute_targets(machine, n_points: int | None):
 
 def learned_field(machine, htm, max_time_s: float, seed: int = 0):
     from errormap.featurepoints import make_feature_points
+    from errormap.seeds import spawn_rngs
     from errormap.simulator import random_axes
     from training.trainers import fit_field
     fp = make_feature_points(machine, htm, n=11)
-    rng = np.random.default_rng(seed + 99)
-    va = random_axes(machine, 5000, rng)
-    sa = random_axes(machine, 5000, np.random.default_rng(seed + 199))  # off-grid model selection, as the CLI
+    r_val, r_sel = spawn_rngs(seed, 2)
+    va = random_axes(machine, 5000, r_val)
+    sa = random_axes(machine, 5000, r_sel)  # off-grid model selection, as the CLI
     fit = fit_field(fp, trainer="lm", max_time_s=max_time_s, seed=seed, validation=(va, htm.predict(va)),
                     selection=(sa, htm.predict(sa)), track=False, quiet=True)
     return fit.field, fit

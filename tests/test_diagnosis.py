@@ -11,6 +11,7 @@ from errormap.diagnosis.pipeline import diagnose
 from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField
 from errormap.io import InputError, write_csv
+from errormap.seeds import spawn_seeds
 from errormap.simulator import random_truth
 
 NOISE_UM = 1.0
@@ -29,7 +30,7 @@ EXPECTED = {  # simulator effect -> (kind, axis, elements accepted)
 
 def run_pipeline(machine, seed, effects):
     truth = random_truth(machine, seed, effects=effects)
-    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, NOISE_UM, seed + 1000))
+    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, NOISE_UM, spawn_seeds(seed, 1)[0]))
     return diagnose(machine, HTMField(machine, truth.elements), checks)
 
 

@@ -31,12 +31,14 @@ import numpy as np
 import torch
 
 from errormap.io import InputError, sha256_file
+from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
 
 from .lm import LMSettings, TrainHistory, train_lm
 from .model import PAPER_HIDDEN, MLPField, torch_threads
 
 TRAINERS = ("lm", "adam", "lbfgs")
+VALIDATION_STREAM, SELECTION_STREAM = 0, 1  # children of SeedSequence(seed): validation, selection points
 AXES = ("dx", "dy", "dz")
 
 
@@ -348,12 +350,16 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
     axes, errors = np.asarray(featurepoints.axes, float), np.asarray(featurepoints.errors_um, float)
     meta = dict(getattr(featurepoints, "meta", {}) or {})
     ref = reference_from_meta(meta)
+    # the initial weights use the seed itself; validation and selection points its children
+    streams = spawn_seeds(seed, 2)
+    val_seed, sel_seed = streams[VALIDATION_STREAM], streams[SELECTION_STREAM]
     if validation is None:
         if ref is None:
             raise InputError("no validation data: the feature points name no readable elements_file; "
                              "pass validation points (--validation FILE with x_mm,z_mm,a_deg,dx_um,dy_um,dz_um)")
-        validation = validation_points(ref[0], ref[1], n=n_validation, seed=seed + 1_000_003)
-        val_source = f"HTM model {meta.get('elements_file')} ({n_validation} random points, seed {seed + 1_000_003})"
+        validation = validation_points(ref[0], ref[1], n=n_validation, seed=val_seed)
+        val_source = (f"HTM model {meta.get('elements_file')} ({n_validation} random points, "
+                      f"SeedSequence({seed}) child {VALIDATION_STREAM})")
     else:
         val_source = "given"
     val_axes, val_errors = (np.asarray(v, float) for v in validation)
@@ -371,7 +377,7 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
         if selection is not None:
             sel_axes, sel_errors = (np.asarray(v, float) for v in selection)
         else:
-            sel_axes, sel_errors = validation_points(ref[0], ref[1], n=n_select, seed=seed + 2_000_003)
+            sel_axes, sel_errors = validation_points(ref[0], ref[1], n=n_select, seed=sel_seed)
         selector = _BestOnSelection(model, sel_axes, sel_errors, select_every)
     with torch_threads(threads):
         if selector is not None:
