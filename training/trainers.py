@@ -21,7 +21,6 @@ import contextlib
 import dataclasses
 import hashlib
 import math
-import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -31,6 +30,7 @@ import numpy as np
 import torch
 
 from errormap.io import InputError, sha256_file
+from errormap.progress import Progress
 from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
 
@@ -292,19 +292,18 @@ class _BestOnSelection:
 
 
 class _Printer:
-    """Progress on stderr: iteration, loss, RMS in μm, elapsed; at most once a second."""
+    """Trainer callback: a :class:`~errormap.progress.Progress` over the iterations, with the
+    loss and the RMS in μm beside it (drawn on a terminal only)."""
 
-    def __init__(self, scale_um: float, quiet: bool, label: str):
-        self.scale_um, self.quiet, self.label = scale_um, quiet, label
-        self.last = -1e9
+    def __init__(self, scale_um: float, quiet: bool, label: str, max_iter: float):
+        self.scale_um = scale_um
+        self.bar = Progress(max_iter, label, enabled=not quiet)
 
     def __call__(self, it, mse, el, extra):
-        if self.quiet or el - self.last < 1.0:
-            return
-        self.last = el
-        sys.stderr.write(f"\r{self.label}: iter {it:6d}  mse {mse:.3e}  rms≈{math.sqrt(mse) * self.scale_um:.4f} μm"
-                         f"  {el:7.1f} s ")
-        sys.stderr.flush()
+        self.bar.update(it - self.bar.done, extra=f"mse {mse:.3e} rms≈{math.sqrt(mse) * self.scale_um:.4f} μm")
+
+    def close(self):
+        self.bar.close()
 
 
 def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, seed: int = 0,
@@ -371,7 +370,7 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
     u = torch.from_numpy(model.features(axes))
     y = torch.from_numpy(model.scale_errors(errors))
     theta0 = initial_params(model, seed, init)
-    printer = _Printer(model.out_scale_, quiet, f"train {trainer}")
+    printer = _Printer(model.out_scale_, quiet, f"train {trainer}", settings.max_iter)
     selector = None
     if select_best and trainer == "lm" and (selection is not None or ref is not None):
         if selection is not None:
@@ -385,8 +384,7 @@ def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, 
             theta = selector.finish(theta, hist)
         else:
             theta, hist = TRAIN_FUNCS[trainer](model, theta0, u, y, settings, printer)
-    if not quiet:
-        sys.stderr.write("\n")
+    printer.close()
     model.theta_ = theta.detach()
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
