@@ -5,7 +5,8 @@ May import ``errormap``; never ``compensation``. The public names below load laz
 
 * :class:`training.model.MLPField` — the network as an error field (``predict``, ``jacobian``,
   ``save``/``load``).
-* :func:`training.trainers.fit_field` — train on feature points, measure, track in MLflow.
+* :func:`training.trainers.fit_field` — train on feature points, measure, track in MLflow;
+  :class:`training.trainers.TrainSettings` / :class:`~training.trainers.TrackSettings` say how.
 * :func:`training.trainers.validation_points` — random off-grid points from the HTM model.
 * :func:`training.tracking.load_field` — a trained field by run id / ``runs:/`` / ``models:/``.
 """
@@ -14,6 +15,8 @@ _LAZY = {
     "MLPField": "training.model",
     "fit_field": "training.trainers",
     "FitResult": "training.trainers",
+    "TrainSettings": "training.trainers",
+    "TrackSettings": "training.trainers",
     "validation_points": "training.trainers",
     "fit_metrics": "training.trainers",
     "load_field": "training.tracking",
