@@ -66,13 +66,14 @@ def learned_field(machine, htm, max_time_s: float, seed: int = 0):
     from errormap.featurepoints import make_feature_points
     from errormap.seeds import spawn_rngs
     from errormap.simulator import random_axes
-    from training.trainers import fit_field
+    from training.trainers import TrainSettings, fit_field
     fp = make_feature_points(machine, htm, n=11)
     r_val, r_sel = spawn_rngs(seed, 2)
     va = random_axes(machine, 5000, r_val)
     sa = random_axes(machine, 5000, r_sel)  # off-grid model selection, as the CLI
-    fit = fit_field(fp, trainer="lm", max_time_s=max_time_s, seed=seed, validation=(va, htm.predict(va)),
-                    selection=(sa, htm.predict(sa)), track=False, quiet=True)
+    settings = TrainSettings(trainer="lm", max_time_s=max_time_s, max_iter=100_000, seed=seed)  # the budget decides (fit_field's former default cap)
+    fit = fit_field(fp, settings, validation=(va, htm.predict(va)), selection=(sa, htm.predict(sa)), track=False,
+                    quiet=True)
     return fit.field, fit
 
 
