@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from errormap import stats
 from errormap.elements import ElementSet
 from errormap.io import InputError
 from errormap.simulator import EFFECT_NAMES, TruthGrinder
@@ -75,19 +76,18 @@ def true_residual_um(truth: TruthGrinder, axes, targets_mm, conditions: dict | N
 
 
 def residual_stats(residual_um, prefix: str) -> dict:
-    """``{prefix}_max_um, _mean_um, _max_sq_um2, _mean_sq_um2`` of the per-point norm ``|r|``.
+    """``{prefix}_max_um, _mean_um, _max_sq_um2, _mean_sq_um2`` (the metrics.json names) of the
+    per-point norm ``|r|``, from :func:`errormap.stats.residual_stats`: ``max_sq`` = ``max_um``²,
+    ``mean_sq`` = ``rms_um``².
 
     ``residual_um`` shape (n, 3); NaN rows (points not solved) are ignored.
     """
-    r = np.asarray(residual_um, dtype=float)
-    norm = np.linalg.norm(r, axis=1)
-    norm = norm[np.isfinite(norm)]
-    if norm.size == 0:
+    st = stats.residual_stats(residual_um, drop_nonfinite=True)
+    if st["n"] == 0:
         return {f"{prefix}_max_um": None, f"{prefix}_mean_um": None,
                 f"{prefix}_max_sq_um2": None, f"{prefix}_mean_sq_um2": None}
-    sq = norm**2
-    return {f"{prefix}_max_um": float(norm.max()), f"{prefix}_mean_um": float(norm.mean()),
-            f"{prefix}_max_sq_um2": float(sq.max()), f"{prefix}_mean_sq_um2": float(sq.mean())}
+    return {f"{prefix}_max_um": st["max_um"], f"{prefix}_mean_um": st["mean_um"],
+            f"{prefix}_max_sq_um2": st["max_um"] ** 2, f"{prefix}_mean_sq_um2": st["rms_um"] ** 2}
 
 
 def method_metrics(result, truth: TruthGrinder | None = None, true_residual=None) -> dict:
