@@ -29,7 +29,7 @@ BUDGET_MAX_ITER = 100_000  # far above what any budget here allows: the wall clo
 
 
 def simulate(seed: int, out: Path) -> Path:
-    from compensation.cli import main
+    from compensation.app.cli import main
     if not (out / "featurepoints.csv").is_file():
         main(["simulate", "--seed", str(seed), "--out", str(out), "--checks", "20"])
     return out / "featurepoints.csv"
