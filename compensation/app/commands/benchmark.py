@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import sys
 
+from compensation.app.cli import UsageError
 from errormap.machine import load_machine
 
-from ..cli import UsageError
 
 
 def register(sub):

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from compensation.app.cli import UsageError
 from errormap.io import InputError, atomic_write, write_json
 from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator, calibration_to_dict, read_poses
@@ -191,7 +192,6 @@ def _compare_rules(machine, args, fit, check, res, after) -> dict:
 
 
 def run(args) -> int:
-    from compensation.app.cli import UsageError
     machine = load_machine(args.machine, expect_kind=None) if args.machine else load_machine(expect_kind="hexapod")
     if machine.kind not in ("hexapod", "tripod"):
         raise UsageError(f"{machine.path}: calibrate needs a hexapod or tripod machine file, got kind {machine.kind!r}")

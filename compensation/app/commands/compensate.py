@@ -35,11 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
+from compensation.app.cli import UsageError
 from errormap.io import InputError, write_json
 from errormap.machine import load_machine
 from errormap.progress import Progress
 
-from ..cli import UsageError
 from ...diagnosed_model import add_condition_options, load_path_field
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs

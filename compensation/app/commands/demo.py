@@ -19,12 +19,12 @@ import sys
 import time
 from pathlib import Path
 
+from compensation.app.cli import UsageError
 from errormap.featurepoints import FeaturePoints
 from errormap.htm import HTMField
 from errormap.io import write_json
 from errormap.machine import load_machine
 
-from ..cli import UsageError
 from ...evaluate import load_truth
 from ..reports.methods import compare_methods, print_table, write_report
 from ...toolpath import check_in_strokes

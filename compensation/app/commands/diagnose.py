@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 
+from compensation.app.cli import UsageError
 from errormap.diagnosis.pipeline import DiagnosisSettings
 from errormap.machine import load_machine
 
@@ -30,7 +31,6 @@ def register(sub):
 
 
 def run(args) -> int:
-    from compensation.app.cli import UsageError
     from compensation.app.workflows.diagnosis import run_checks, run_drift
     from errormap.diagnosis.drift_models import DriftSelector
     if (args.checks is None) == (args.drift is None):

@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
+from compensation.app.cli import UsageError
 from errormap.elements import ElementSet
 from errormap.io import InputError, sha256_file
 from errormap.iso230 import ISO_NAME
 from errormap.machine import load_machine
 
-from ..cli import UsageError
 from ... import export as ex
 
 DEFAULT_TOLERANCE_UM = 1.0

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from compensation.app.cli import UsageError
 from errormap.elements import A_ELEMENTS, ElementSet, X_ELEMENTS, Z_ELEMENTS, element_unit
 from errormap.identification import GAUGES
 from errormap.io import atomic_write, write_json
@@ -107,7 +108,6 @@ def run(args) -> int:
     sweeps = read_sweeps(args.sweeps)
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
     from errormap.uncertainty import covariance_path, smooth_identify
-    from ..cli import UsageError
     if args.bootstrap < 2:
         raise UsageError(f"--bootstrap must be >= 2, got {args.bootstrap}")
     sm = smooth_identify(sweeps, machine, noise_um=args.noise_um, n_boot=args.bootstrap, seed=args.seed,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from compensation.app.cli import UsageError
 from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.pkm.calibration import load_calibrated_machine
@@ -36,7 +37,6 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    from compensation.app.cli import UsageError
     machine = load_machine(args.machine) if args.machine else load_machine(expect_kind="hexapod")
     if machine.kind not in ("hexapod", "tripod"):
         raise UsageError(f"{machine.path}: interpolate needs a hexapod or tripod machine file, got {machine.kind!r}")

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from compensation.app.cli import UsageError
 from errormap.machine import load_machine
 
-from ..cli import UsageError
 from ...evaluate import load_truth
 from ...fields import load_field
 from ...pathio import read_path

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from compensation.app.cli import UsageError
 from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField
 from errormap.io import write_csv, write_json
@@ -30,7 +31,6 @@ def register(sub):
 
 
 def run(args) -> int:
-    from ..cli import UsageError
     if not args.noise_um >= 0:
         raise UsageError(f"--noise-um: expected a number >= 0, got {args.noise_um}")
     if args.checks < 1:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 
+from compensation.app.cli import UsageError
 from errormap.elements import ElementSet
 from errormap.machine import load_machine
 from errormap.simulator import EFFECT_NAMES, TruthGrinder
@@ -34,7 +35,6 @@ def register(sub):
 
 
 def run(args) -> int:
-    from ..cli import UsageError
     if args.noise_um < 0:
         raise UsageError(f"--noise-um must be >= 0, got {args.noise_um}")
     machine = load_machine(args.machine, expect_kind="grinder")

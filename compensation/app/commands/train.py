@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from compensation.app.cli import UsageError
 from errormap.io import InputError, read_table
 
 # Training stops on iterations (or the MSE goal) by default, so that the same command and seed
@@ -64,7 +65,6 @@ def _read_validation(path):
 def run(args) -> int:
     from errormap.featurepoints import FeaturePoints
 
-    from ..cli import UsageError
     try:
         hidden = tuple(int(h) for h in args.hidden.split(","))
     except ValueError:
