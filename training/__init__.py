@@ -11,6 +11,10 @@ May import ``errormap``; never ``compensation``. The public names below load laz
 * :func:`training.tracking.load_field` — a trained field by run id / ``runs:/`` / ``models:/``.
 """
 
+# Training stops on iterations by default (the same settings give the same model on any machine):
+DEFAULT_MAX_ITER = 1000  # LM on the paper's network: ~0.2 s an iteration on 2 cores (~3-4 min)
+QUICK_MAX_ITER = 300     # the demo-sized setting
+
 _LAZY = {
     "MLPField": "training.model",
     "fit_field": "training.trainers",

@@ -34,6 +34,7 @@ from errormap.progress import Progress
 from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
 
+from . import DEFAULT_MAX_ITER, QUICK_MAX_ITER  # noqa: F401  (QUICK_MAX_ITER re-exported)
 from .lm import LMSettings, TrainHistory, train_lm
 from .model import A_ENCODINGS, ACTIVATIONS, PAPER_HIDDEN, MLPField, torch_threads
 
@@ -304,10 +305,6 @@ class _Printer:
 
     def close(self):
         self.bar.close()
-
-
-DEFAULT_MAX_ITER = 1000  # LM on the paper's network: ~0.2 s an iteration on 2 cores (~3-4 min)
-QUICK_MAX_ITER = 300     # the demo-sized setting
 
 
 @dataclass(frozen=True)

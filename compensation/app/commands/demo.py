@@ -24,6 +24,7 @@ from errormap.featurepoints import FeaturePoints
 from errormap.htm import HTMField
 from errormap.io import write_json
 from errormap.machine import load_machine
+from training import DEFAULT_MAX_ITER
 
 from ...evaluate import load_truth
 from ..reports.methods import compare_methods, print_table, write_report
@@ -31,7 +32,7 @@ from ...toolpath import check_in_strokes
 from . import simulate as simulate_cmd
 from .report import add_flute_arguments, add_method_arguments, flute_from_args, parse_methods
 
-DEFAULT_TRAIN_ITER = 1000  # as `volcomp train`; the MSE goal usually stops LM earlier (92 s measured)
+DEFAULT_TRAIN_ITER = DEFAULT_MAX_ITER  # as `volcomp train`; the MSE goal usually stops LM earlier (92 s measured)
 DEFAULT_DEMO_GA_BUDGET_S = 90.0
 
 
@@ -69,20 +70,23 @@ def train_field(fp_path: Path, machine, args, log=None):
     fit_field = getattr(training, "fit_field", None)
     if fit_field is None:
         return None, None
-    kwargs = {"trainer": args.trainer, "max_iter": args.train_iter, "seed": args.seed,
-              "max_time_s": args.train_s if args.train_s is not None else math.inf}
-    if args.tracking_uri:
-        kwargs["tracking_uri"] = args.tracking_uri
+    from training import TrackSettings, TrainSettings
+    arch = {}
     if args.hidden:
         try:
-            kwargs["hidden"] = tuple(int(h) for h in args.hidden.split(","))
+            arch["hidden"] = tuple(int(h) for h in args.hidden.split(","))
         except ValueError:
             raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
+    try:
+        settings = TrainSettings(trainer=args.trainer, max_iter=args.train_iter, seed=args.seed,
+                                 max_time_s=args.train_s if args.train_s is not None else math.inf, **arch)
+    except ValueError as exc:
+        raise UsageError(f"training settings: {exc}") from None
     fp = FeaturePoints.load(fp_path)
     print(f"training the BP network on {len(fp.axes)} feature points ({args.trainer}, "
           f"at most {args.train_iter} iterations" + (f", {args.train_s:g} s" if args.train_s else "") + ") ...",
           file=log)
-    res = fit_field(fp, **kwargs)
+    res = fit_field(fp, settings, tracking=TrackSettings(tracking_uri=args.tracking_uri or None))
     run_id = getattr(res, "run_id", None)
     metrics = dict(getattr(res, "metrics", {}) or {})
     return res.field, {"run_id": run_id, "metrics": metrics,
