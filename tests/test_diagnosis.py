@@ -13,6 +13,7 @@ from errormap.htm import HTMField
 from errormap.io import InputError, write_csv
 from errormap.seeds import spawn_seeds
 from errormap.simulator import random_truth
+from training import TrainSettings
 
 NOISE_UM = 1.0
 N_CHECKS = 400
@@ -97,12 +98,15 @@ def test_learned_retrain_hook_gets_feature_points_plus_terms(grinder):
     class Result:
         field, metrics, run_id = base, {"rms_um": 0.0}, "child"
 
-    def fake_fit_field(featurepoints, **kw):
-        seen.update(kw, fp=featurepoints)
+    def fake_fit_field(featurepoints, settings, tracking):
+        seen.update(fp=featurepoints, settings=settings, tracking=tracking)
         return Result()
 
-    res = retrain_learned(fp, d.corrected, parent_run_id="parent123", fit_field=fake_fit_field, max_time_s=1.0)
-    assert res.run_id == "child" and seen["parent_run_id"] == "parent123" and seen["trainer"] == "lm"
+    res = retrain_learned(fp, d.corrected, parent_run_id="parent123", fit_field=fake_fit_field,
+                          settings=TrainSettings(max_iter=3))
+    assert res.run_id == "child" and seen["tracking"].parent_run_id == "parent123"
+    assert seen["settings"].trainer == "lm" and seen["settings"].max_iter == 3
+    assert seen["settings"].max_time_s == float("inf")  # stops on iterations: the same retrain on any machine
     np.testing.assert_allclose(seen["fp"].errors_um - fp.errors_um, d.corrected.terms_only(fp.axes), atol=1e-12)
     assert "harmonic" in seen["fp"].meta["diagnosis_terms"]
     # terms needing conditions cannot go into a field of the axes
