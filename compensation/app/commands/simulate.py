@@ -11,6 +11,7 @@ from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField
 from errormap.io import write_csv, write_json
 from errormap.machine import load_machine
+from errormap.seeds import spawn_seeds
 from errormap.simulator import EFFECT_DEFAULTS, EFFECT_NAMES, volume_grid
 
 
@@ -46,7 +47,8 @@ def run(args) -> int:
     from errormap.io import sha256_file
     fp.meta["elements_sha256"] = sha256_file(el_path)
     fp_path = fp.save(out / "featurepoints.csv")
-    checks = truth.check_measurements(n=args.checks, noise_um=args.noise_um, seed=args.seed + 1)
+    # the truth takes the seed itself, the check measurements a child stream of it
+    checks = truth.check_measurements(n=args.checks, noise_um=args.noise_um, seed=spawn_seeds(args.seed, 1)[0])
     ck_path = write_csv(out / "checks.csv", checks, header_comments=[
         "format: volcomp-checks/1", f"machine: {machine.name}", f"noise_um: {args.noise_um}",
         f"effects: {','.join(args.effect) or 'none'}"])
