@@ -84,11 +84,12 @@ def true_residual_um(truth, result):
 
 
 def stats(res, truth):
+    from compensation.evaluate import residual_metrics
     m = res.residual_norm_um
-    t = np.linalg.norm(true_residual_um(truth, res), axis=1)
-    return {"n": len(m), "model_max_um": float(m.max()), "model_max_sq_um2": float((m**2).max()),
-            "model_mean_sq_um2": float((m**2).mean()), "model_median_um": float(np.median(m)),
-            "true_max_um": float(t.max()), "true_mean_sq_um2": float((t**2).mean()),
+    mod, tru = residual_metrics(res.residual_um, "model"), residual_metrics(true_residual_um(truth, res), "true")
+    return {"n": len(m), "model_max_um": mod["model_max_um"], "model_max_sq_um2": mod["model_max_sq_um2"],
+            "model_mean_sq_um2": mod["model_mean_sq_um2"], "model_median_um": float(np.median(m)),
+            "true_max_um": tru["true_max_um"], "true_mean_sq_um2": tru["true_mean_sq_um2"],
             "success": int(res.success.sum()), "nfev_per_point": res.nfev / len(m),
             "s_per_point": res.seconds / len(m), "seconds": res.seconds}
 
