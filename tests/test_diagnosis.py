@@ -188,3 +188,12 @@ def test_grid_aliasing_of_terms_is_detected(grinder):
     assert worm["aliased"] and worm["rms_missed_by_grid_um"] > 0.5 * worm["rms_in_volume_um"]
     inter = grid_aliasing(fp, run_pipeline(grinder, SEED, ["interaction"]).corrected)
     assert not inter["aliased"] and inter["rms_missed_by_grid_um"] < 0.05 * inter["rms_in_volume_um"]
+
+
+@pytest.mark.parametrize("opt, value, named", [("--retrain-iter", "0", "--retrain-iter"),
+                                               ("--retrain-time-s", "-1", "--retrain-time-s")])
+def test_retrain_limits_are_checked_before_any_work(tmp_path, capsys, opt, value, named):
+    """The retrain stops on iterations by default; a bad limit is one line, exit 2, nothing written."""
+    out = tmp_path / "out"
+    assert main(["diagnose", str(tmp_path / "none.csv"), "--model", "x", "--out", str(out), opt, value]) == 2
+    assert named in capsys.readouterr().err and not out.exists()
