@@ -54,6 +54,7 @@ from errormap.diagnosis.pipeline import diagnose
 from errormap.htm import HTMField
 from errormap.io import atomic_write, write_json
 from errormap.machine import load_machine
+from errormap.seeds import spawn_seeds
 from errormap.simulator import random_truth
 
 EXPECTED = {"thermal": ("thermal", "x", {"dx_x"}), "reversal": ("reversal", "z", {"dz_z"}),
@@ -64,7 +65,7 @@ RATIO_MAX = 1.25
 
 def run(machine, seed, effects):
     truth = random_truth(machine, seed, effects=effects)
-    checks = CheckData.from_columns(truth.check_measurements(400, 1.0, seed + 1000))
+    checks = CheckData.from_columns(truth.check_measurements(400, 1.0, spawn_seeds(seed, 1)[0]))
     return diagnose(machine, HTMField(machine, truth.elements), checks).summary
 
 

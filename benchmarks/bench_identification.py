@@ -27,12 +27,14 @@ from errormap.io import atomic_write  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
 from errormap.progress import Progress  # noqa: E402
 from errormap.simulator import random_axes, random_truth  # noqa: E402
+from errormap.stats import residual_stats  # noqa: E402
 from errormap.sweeps import simulate_sweeps  # noqa: E402
 
 
 def err_stats(d):
-    n = np.linalg.norm(d, axis=1)
-    return float(np.sqrt(np.mean(n**2))), float(n.max())
+    """(RMS, max) of the vector norm: errormap.stats.residual_stats."""
+    st = residual_stats(d)
+    return st["rms_um"], st["max_um"]
 
 
 def main(argv=None):

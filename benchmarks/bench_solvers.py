@@ -64,14 +64,16 @@ def flute_targets(machine, n_points: int | None):
 
 def learned_field(machine, htm, max_time_s: float, seed: int = 0):
     from errormap.featurepoints import make_feature_points
+    from errormap.seeds import spawn_rngs
     from errormap.simulator import random_axes
-    from training.trainers import fit_field
+    from training.trainers import TrainSettings, fit_field
     fp = make_feature_points(machine, htm, n=11)
-    rng = np.random.default_rng(seed + 99)
-    va = random_axes(machine, 5000, rng)
-    sa = random_axes(machine, 5000, np.random.default_rng(seed + 199))  # off-grid model selection, as the CLI
-    fit = fit_field(fp, trainer="lm", max_time_s=max_time_s, seed=seed, validation=(va, htm.predict(va)),
-                    selection=(sa, htm.predict(sa)), track=False, quiet=True)
+    r_val, r_sel = spawn_rngs(seed, 2)
+    va = random_axes(machine, 5000, r_val)
+    sa = random_axes(machine, 5000, r_sel)  # off-grid model selection, as the CLI
+    settings = TrainSettings(trainer="lm", max_time_s=max_time_s, max_iter=100_000, seed=seed)  # the budget decides (fit_field's former default cap)
+    fit = fit_field(fp, settings, validation=(va, htm.predict(va)), selection=(sa, htm.predict(sa)), track=False,
+                    quiet=True)
     return fit.field, fit
 
 
@@ -82,11 +84,12 @@ def true_residual_um(truth, result):
 
 
 def stats(res, truth):
+    from compensation.evaluate import residual_metrics
     m = res.residual_norm_um
-    t = np.linalg.norm(true_residual_um(truth, res), axis=1)
-    return {"n": len(m), "model_max_um": float(m.max()), "model_max_sq_um2": float((m**2).max()),
-            "model_mean_sq_um2": float((m**2).mean()), "model_median_um": float(np.median(m)),
-            "true_max_um": float(t.max()), "true_mean_sq_um2": float((t**2).mean()),
+    mod, tru = residual_metrics(res.residual_um, "model"), residual_metrics(true_residual_um(truth, res), "true")
+    return {"n": len(m), "model_max_um": mod["model_max_um"], "model_max_sq_um2": mod["model_max_sq_um2"],
+            "model_mean_sq_um2": mod["model_mean_sq_um2"], "model_median_um": float(np.median(m)),
+            "true_max_um": tru["true_max_um"], "true_mean_sq_um2": tru["true_mean_sq_um2"],
             "success": int(res.success.sum()), "nfev_per_point": res.nfev / len(m),
             "s_per_point": res.seconds / len(m), "seconds": res.seconds}
 

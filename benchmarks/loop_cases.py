@@ -77,18 +77,20 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False) -> dict:
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
     from errormap.machine import load_machine
+    from errormap.seeds import spawn_seeds
     from errormap.simulator import random_axes
     from errormap.truth_families import make_truth
     from errormap.uncertainty import ElementCovariance, covariance_path
     t_cpu = time.process_time()
     eff = [] if effect == "none" else [effect]
     m = load_machine()
+    noise_ss, probe_ss = spawn_seeds(seed, 2)  # the sweep noise (a CLI integer from its child) and the probe points
     truth = make_truth(m, seed, effects=eff, family=family)
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)
         ea = sum((["--effect", e] for e in eff), [])
         q = ["--family", family, "--seed", str(seed)] + ea
-        assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", str(seed + 500), "--out", str(td / "sw.csv")]) == 0
+        assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", str(int(noise_ss.generate_state(1)[0])), "--out", str(td / "sw.csv")]) == 0
         assert main(["simulate", *q, "--checks", "800", "--noise-um", "1", "--out", str(td / "sim")]) == 0
         assert main(["identify", str(td / "sw.csv"), "--out", str(td / "el.json")]) == 0
         assert main(["diagnose", str(td / "sim" / "checks.csv"), "--model", str(td / "el.json"),
@@ -99,7 +101,7 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False) -> dict:
         cov = ElementCovariance.load(covariance_path(td / "el.json"), el)
         upd = ElementSet.load(td / "diag" / "updated_elements.json")
         fl = _flute(main, td, m, truth) if flute and effect == "none" else None
-    P = random_axes(m, N_PROBE, np.random.default_rng(seed + 7))
+    P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))
     et = HTMField(m, truth.elements).predict(P)
     e_id = HTMField(m, el).predict(P) - et
     sd = np.sqrt(np.diagonal(cov.prediction_cov(m, P), axis1=1, axis2=2))

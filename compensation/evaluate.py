@@ -23,6 +23,7 @@ import numpy as np
 from errormap.elements import ElementSet
 from errormap.io import InputError
 from errormap.simulator import EFFECT_NAMES, TruthGrinder
+from errormap.stats import residual_stats
 
 RESIDUAL_DEFINITIONS = {
     "model": "model residual: p_r + E(axes(p_r)) - p_d, the solver's own error field E (μm)",
@@ -74,20 +75,19 @@ def true_residual_um(truth: TruthGrinder, axes, targets_mm, conditions: dict | N
     return 1e3 * (truth.tool_point(axes, **cond) - targets_mm)
 
 
-def residual_stats(residual_um, prefix: str) -> dict:
-    """``{prefix}_max_um, _mean_um, _max_sq_um2, _mean_sq_um2`` of the per-point norm ``|r|``.
+def residual_metrics(residual_um, prefix: str) -> dict:
+    """``{prefix}_max_um, _mean_um, _max_sq_um2, _mean_sq_um2`` (the metrics.json names) of the
+    per-point norm ``|r|``, from :func:`errormap.stats.residual_stats`: ``max_sq`` = ``max_um``²,
+    ``mean_sq`` = ``rms_um``².
 
     ``residual_um`` shape (n, 3); NaN rows (points not solved) are ignored.
     """
-    r = np.asarray(residual_um, dtype=float)
-    norm = np.linalg.norm(r, axis=1)
-    norm = norm[np.isfinite(norm)]
-    if norm.size == 0:
+    st = residual_stats(residual_um, drop_nonfinite=True)
+    if st["n"] == 0:
         return {f"{prefix}_max_um": None, f"{prefix}_mean_um": None,
                 f"{prefix}_max_sq_um2": None, f"{prefix}_mean_sq_um2": None}
-    sq = norm**2
-    return {f"{prefix}_max_um": float(norm.max()), f"{prefix}_mean_um": float(norm.mean()),
-            f"{prefix}_max_sq_um2": float(sq.max()), f"{prefix}_mean_sq_um2": float(sq.mean())}
+    return {f"{prefix}_max_um": st["max_um"], f"{prefix}_mean_um": st["mean_um"],
+            f"{prefix}_max_sq_um2": st["max_um"] ** 2, f"{prefix}_mean_sq_um2": st["rms_um"] ** 2}
 
 
 def method_metrics(result, truth: TruthGrinder | None = None, true_residual=None) -> dict:
@@ -98,8 +98,8 @@ def method_metrics(result, truth: TruthGrinder | None = None, true_residual=None
     m = {"points": int(result.targets_mm.shape[0]), "seconds": float(result.seconds),
          "nfev": int(result.nfev), "failures": int(np.count_nonzero(~np.asarray(result.success, bool))),
          "max_correction_um": float(np.max(result.correction_um)) if len(result.correction_um) else None}
-    m.update(residual_stats(result.residual_um, "model"))
+    m.update(residual_metrics(result.residual_um, "model"))
     if truth is not None or true_residual is not None:
         tr = true_residual if true_residual is not None else true_residual_um(truth, result.axes, result.targets_mm)
-        m.update(residual_stats(tr, "true"))
+        m.update(residual_metrics(tr, "true"))
     return m

@@ -62,6 +62,7 @@ from errormap.elements import ElementSet
 from errormap.field import CalibratedVolume
 from errormap.htm import IDX, spatial_error_exact
 from errormap.io import InputError, read_table, write_csv, write_json
+from errormap.stats import residual_stats
 from errormap.iso230 import ISO_MEANING, ISO_NAMES, from_iso, reference_points_mm, to_iso
 from errormap.kinematics import forward
 from errormap.simulator import random_axes
@@ -788,11 +789,6 @@ def controller_drift_at(coef: DriftCoefficients, log) -> dict:
     return {ch: p[j] for ch, p in pred.items()}
 
 
-def _dstats(r) -> dict:
-    r = np.asarray(r, float)
-    return {"max_um": float(np.abs(r).max()), "rms_um": float(np.sqrt(np.mean(r**2))), "n": int(r.size)}
-
-
 def check_drift_export(coef: DriftCoefficients, model, log, clean_um: dict | None = None) -> dict:
     """Re-simulate the controller from ``coef`` on ``log`` and compare, per channel:
 
@@ -806,11 +802,11 @@ def check_drift_export(coef: DriftCoefficients, model, log, clean_um: dict | Non
     pred = model.predict(log)
     out = {}
     for ch in model.channels:
-        rec = {"model": _dstats(ctrl[ch] - pred[ch]), "measured": None, "true": None}
+        rec = {"model": residual_stats(ctrl[ch] - pred[ch]), "measured": None, "true": None}
         for key, d in (("measured", log.disp_um.get(ch)), ("true", (clean_um or {}).get(ch))):
             if d is not None:
-                rec[key] = {"controller": _dstats(d - ctrl[ch]), "before": _dstats(d),
-                            "volcomp": _dstats(d - pred[ch])}
+                rec[key] = {"controller": residual_stats(d - ctrl[ch]), "before": residual_stats(d),
+                            "volcomp": residual_stats(d - pred[ch])}
         out[ch] = rec
     return out
 
@@ -879,13 +875,6 @@ def controller_commands(table, machine, targets, axes, dirs) -> np.ndarray:
     return res.axes
 
 
-def _stats(r_um) -> dict:
-    n = np.linalg.norm(np.asarray(r_um, dtype=float), axis=1)
-    n = n[np.isfinite(n)]
-    return {"max_um": float(n.max()), "p95_um": float(np.percentile(n, 95)), "mean_um": float(n.mean()),
-            "n": int(n.size)}
-
-
 def check_export(table, model: ModelError, machine, sets: dict, truth=None, cache: dict | None = None) -> dict:
     """Re-simulate the controller using ``table`` on each point set; residual statistics.
 
@@ -910,17 +899,17 @@ def check_export(table, model: ModelError, machine, sets: dict, truth=None, cach
         def model_res(q):
             return 1e3 * (forward(machine, q) - targets) + model(q, dirs)
 
-        rec = {"model": _stats(model_res(q_c)), "excluded": int((~ok).sum()),
-               "baseline_none": {"model": _stats(model_res(axes))},
-               "baseline_exact": {"model": _stats(model_res(q_exact))}}
+        rec = {"model": residual_stats(model_res(q_c), drop_nonfinite=True), "excluded": int((~ok).sum()),
+               "baseline_none": {"model": residual_stats(model_res(axes), drop_nonfinite=True)},
+               "baseline_exact": {"model": residual_stats(model_res(q_exact), drop_nonfinite=True)}}
         if truth is not None:
             cond = {"temp_c": np.full(len(axes), 20.0), "dir_x": dirs[:, 0], "dir_z": dirs[:, 1], "dir_a": dirs[:, 2]}
 
             def true_res(q):
                 return 1e3 * (truth.tool_point(q, **cond) - targets)
-            rec["true"] = _stats(true_res(q_c))
-            rec["baseline_none"]["true"] = _stats(true_res(axes))
-            rec["baseline_exact"]["true"] = _stats(true_res(q_exact))
+            rec["true"] = residual_stats(true_res(q_c), drop_nonfinite=True)
+            rec["baseline_none"]["true"] = residual_stats(true_res(axes), drop_nonfinite=True)
+            rec["baseline_exact"]["true"] = residual_stats(true_res(q_exact), drop_nonfinite=True)
         else:
             rec["true"] = None
         out[name] = rec

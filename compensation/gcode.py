@@ -350,12 +350,8 @@ def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=
     return _classify(body, -1, state, rapids, block_delete)
 
 
-def _classify(body, idx, st: _State, rapids, block_delete):
-    bd, words, pct = tokenize(body)
-    if pct:
-        return "pass", None
-    if bd and block_delete == "on":
-        return "skipped", None
+def _checked_words(words):
+    """Check every word against the allow-lists: ``(by letter, [(G code, word)], [M words])``."""
     by = {}
     gs, ms = [], []
     for w in words:
@@ -380,23 +376,22 @@ def _classify(body, idx, st: _State, rapids, block_delete):
             if w.letter in by:
                 raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
             by[w.letter] = w
+    return by, gs, ms
+
+
+def _modal_groups(gs) -> dict:
+    """``{modal group: (G code, word)}``; two codes of one group on a line are refused."""
     groups = {}
     for code, w in gs:
         grp = ALLOWED_G[code][0]
         if grp in groups:
             raise _Refuse(w.start + 1, f"'{code}' and '{groups[grp][0]}' on one line (same modal group)")
         groups[grp] = (code, w)
-    if "O" in by:
-        if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
-            raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
-        return "pass", None
-    axis_words = {a: by[a] for a in AXES if a in by}
-    arc_words = {a: by[a] for a in ("I", "K", "R") if a in by}
-    changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal"))
-    if bd and block_delete is None and (axis_words or arc_words or changes):
-        raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
-                                           "say whether the controller skips it: --block-delete on|off")
-    # modal state first (RS274 order of execution: units, plane, distance before motion)
+    return groups
+
+
+def _apply_modal(st: _State, groups: dict):
+    """Modal state first (RS274 order of execution: units, plane, distance before motion); the motion word."""
     if "units" in groups:
         st.inch = groups["units"][0] == "G20"
     if "plane" in groups:
@@ -409,6 +404,11 @@ def _classify(body, idx, st: _State, rapids, block_delete):
     if "motion" in groups:
         code, motion_word = groups["motion"]
         st.mode = None if code == "G80" else code
+    return motion_word
+
+
+def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
+    """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64."""
     for letter, allowed_with in (("P", ("G4", "G64")), ("Q", ("G64",))):
         if letter in by:
             ok = any(c in allowed_with for c, _ in gs) or (letter == "P" and st.mode in ("G2", "G3")
@@ -416,6 +416,28 @@ def _classify(body, idx, st: _State, rapids, block_delete):
             if not ok:
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside "
                                                     f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else ""))
+
+
+def _classify(body, idx, st: _State, rapids, block_delete):
+    bd, words, pct = tokenize(body)
+    if pct:
+        return "pass", None
+    if bd and block_delete == "on":
+        return "skipped", None
+    by, gs, ms = _checked_words(words)
+    groups = _modal_groups(gs)
+    if "O" in by:
+        if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
+            raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
+        return "pass", None
+    axis_words = {a: by[a] for a in AXES if a in by}
+    arc_words = {a: by[a] for a in ("I", "K", "R") if a in by}
+    changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal"))
+    if bd and block_delete is None and (axis_words or arc_words or changes):
+        raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
+                                           "say whether the controller skips it: --block-delete on|off")
+    motion_word = _apply_modal(st, groups)
+    _check_p_q(st, by, gs, axis_words, arc_words)
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
         return _reference_return(st, groups, axis_words, arc_words)
     if "nonmodal" in groups and axis_words:
@@ -427,6 +449,11 @@ def _classify(body, idx, st: _State, rapids, block_delete):
             w = next(iter(arc_words.values()))
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words")
         return ("state" if changes else "pass"), None
+    return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids)
+
+
+def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids) -> GMove:
+    """The move of a line with axis words in the active motion mode; advances ``st.pos``."""
     first = min(axis_words.values(), key=lambda w: w.start)
     if st.mode is None:
         raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is active")
@@ -462,7 +489,7 @@ def _classify(body, idx, st: _State, rapids, block_delete):
     if kind == "arc":
         move.arc = _arc_geometry(st, move, axis_words, arc_words, scale)
     st.pos = end
-    return "move", move
+    return move
 
 
 def _reference_return(st, groups, axis_words, arc_words):

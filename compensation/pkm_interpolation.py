@@ -28,6 +28,7 @@ from errormap.io import InputError, read_table, write_csv
 from errormap.pkm.hexapod import (angles_to_rotation, check_leg_limits, forward_kinematics,
                                   inverse_kinematics, tool_axis_to_rotation)
 from errormap.pkm.machine_file import PKM
+from errormap.stats import residual_stats
 
 
 @dataclass
@@ -281,8 +282,9 @@ def true_path_residual(truth, calibration_or_none, path: PosePath, frame: str = 
                             check_limits=False)
     err = (fk.x - tip) * 1e3
     pos = np.linalg.norm(err, axis=1)
-    out = {"position_um": pos, "error_um": err, "rms_um": float(np.sqrt(np.mean(pos ** 2))),
-           "max_um": float(pos.max()), "n_points": len(pos), "frame": frame}
+    st = residual_stats(pos)
+    out = {"position_um": pos, "error_um": err, "rms_um": st["rms_um"],
+           "max_um": st["max_um"], "n_points": len(pos), "frame": frame}
     if tm.kind == "hexapod":
         rv = Rotation.from_matrix(np.einsum("nij,nkj->nik", fk.platform2base, R)).as_rotvec()
         out["angle_urad"] = 1e6 * np.linalg.norm(rv, axis=1)

@@ -1,39 +1,63 @@
-"""Minimal progress reporting to stderr (no dependency): ``for i in progress(range(n), "label")``."""
+"""Progress on stderr, the one helper the project uses: ``for i in progress(range(n), "label")``.
+
+Backed by `tqdm <https://tqdm.github.io/>`_ with terminal detection: a bar is drawn only when
+the stream is a terminal (tqdm's ``disable=None``), so CI logs and redirected output stay clean.
+``enabled=False`` turns it off everywhere. The bar is closed (its line finished) when ``total``
+is reached, or by :meth:`Progress.close` / leaving a ``with`` block.
+"""
 from __future__ import annotations
 
+import math
 import sys
-import time
+
+from tqdm import tqdm
+
+__all__ = ["Progress", "progress"]
 
 
 class Progress:
-    """Prints ``label: k/n (pct) elapsed`` to stderr at most every ``every_s`` seconds."""
+    """A progress bar of ``total`` steps labelled ``label``, redrawn at most every ``every_s`` seconds.
 
-    def __init__(self, total: int, label: str, every_s: float = 1.0, stream=None, enabled: bool = True):
-        self.total = total
+    ``total`` may be ``None`` or infinite (a counter without a percentage). ``update(k, extra)``
+    advances by ``k`` and shows ``extra`` (free text: the current file, the loss) after the bar.
+    """
+
+    def __init__(self, total: int | float | None, label: str, every_s: float = 1.0, stream=None,
+                 enabled: bool = True):
+        self.total = total if total is not None and math.isfinite(total) else None
         self.label = label
-        self.every_s = every_s
-        self.stream = stream or sys.stderr
-        self.enabled = enabled
-        self.t0 = time.perf_counter()
-        self._last = -1e9
         self.done = 0
+        self._bar = tqdm(total=self.total, desc=label, file=stream if stream is not None else sys.stderr,
+                         mininterval=every_s, disable=None if enabled else True, leave=True,
+                         dynamic_ncols=True)
+
+    @property
+    def enabled(self) -> bool:
+        """Whether anything is drawn (False off a terminal or when turned off)."""
+        return not self._bar.disable
 
     def update(self, k: int = 1, extra: str = "") -> None:
         self.done += k
-        now = time.perf_counter()
-        if self.enabled and (now - self._last >= self.every_s or self.done >= self.total):
-            self._last = now
-            pct = 100.0 * self.done / self.total if self.total else 100.0
-            msg = f"\r{self.label}: {self.done}/{self.total} ({pct:5.1f}%) {now - self.t0:7.1f} s {extra}"
-            self.stream.write(msg)
-            if self.done >= self.total:
-                self.stream.write("\n")
-            self.stream.flush()
+        if extra:
+            self._bar.set_postfix_str(extra, refresh=False)
+        self._bar.update(k)
+        if self.total is not None and self.done >= self.total:
+            self.close()
+
+    def close(self) -> None:
+        self._bar.close()
+
+    def __enter__(self) -> "Progress":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def progress(iterable, label: str, total: int | None = None, enabled: bool = True):
+    """Yield the items of ``iterable`` while showing a :class:`Progress` of ``total`` (default ``len``)."""
     total = len(iterable) if total is None else total
-    p = Progress(total, label, enabled=enabled)
-    for item in iterable:
-        yield item
-        p.update()
+    with Progress(total, label, enabled=enabled) as p:
+        for item in iterable:
+            yield item
+            p.update()

@@ -30,6 +30,7 @@ from scipy.stats import qmc
 from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
 from .htm import spatial_error_exact
 from .machine import Grinder
+from .seeds import spawn_rngs
 from .simulator import EFFECT_NAMES, REF_TEMP_C, TruthGrinder, random_truth, volume_grid
 
 FAMILIES = ("default", "independent")
@@ -107,8 +108,7 @@ class IndependentTruth(TruthGrinder):
 
     def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed: int = 0, dt_s: float = 15.0) -> dict:
         """Check measurements (DESIGN.md schema), a dict of columns each shape (n,)."""
-        ss = np.random.SeedSequence(seed)
-        r_pts, r_env, r_noise = (np.random.default_rng(s) for s in ss.spawn(3))
+        r_pts, r_env, r_noise = spawn_rngs(seed, 3)
         lo, hi = self.machine.stroke_lo, self.machine.stroke_hi
         u = qmc.Sobol(3, scramble=True, seed=r_pts).random_base2(int(np.ceil(np.log2(max(n, 2)))))
         u = u[r_pts.permutation(u.shape[0])[:n]]  # Sobol order is structured: measure n of them in random order

@@ -38,7 +38,8 @@ def test_quick_settings_are_a_subset_of_the_default():
     q, d = quick_settings(), BenchmarkSettings()
     assert q.quick and not d.quick
     assert set(q.stations) <= set(d.stations) and set(q.effects) <= set(d.effects)
-    assert q.train_s < d.train_s and q.ga_points < d.ga_points
+    assert q.train_iter < d.train_iter and q.ga_points < d.ga_points
+    assert d.train_s is None and d.pkm_train_s is None  # training stops on iterations: reproducible by default
 
 
 # -- fields at fixed path conditions -------------------------------------------------------------

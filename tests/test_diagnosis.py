@@ -11,7 +11,9 @@ from errormap.diagnosis.pipeline import diagnose
 from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField
 from errormap.io import InputError, write_csv
+from errormap.seeds import spawn_seeds
 from errormap.simulator import random_truth
+from training import TrainSettings
 
 NOISE_UM = 1.0
 N_CHECKS = 400
@@ -29,7 +31,7 @@ EXPECTED = {  # simulator effect -> (kind, axis, elements accepted)
 
 def run_pipeline(machine, seed, effects):
     truth = random_truth(machine, seed, effects=effects)
-    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, NOISE_UM, seed + 1000))
+    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, NOISE_UM, spawn_seeds(seed, 1)[0]))
     return diagnose(machine, HTMField(machine, truth.elements), checks)
 
 
@@ -96,12 +98,15 @@ def test_learned_retrain_hook_gets_feature_points_plus_terms(grinder):
     class Result:
         field, metrics, run_id = base, {"rms_um": 0.0}, "child"
 
-    def fake_fit_field(featurepoints, **kw):
-        seen.update(kw, fp=featurepoints)
+    def fake_fit_field(featurepoints, settings, tracking):
+        seen.update(fp=featurepoints, settings=settings, tracking=tracking)
         return Result()
 
-    res = retrain_learned(fp, d.corrected, parent_run_id="parent123", fit_field=fake_fit_field, max_time_s=1.0)
-    assert res.run_id == "child" and seen["parent_run_id"] == "parent123" and seen["trainer"] == "lm"
+    res = retrain_learned(fp, d.corrected, parent_run_id="parent123", fit_field=fake_fit_field,
+                          settings=TrainSettings(max_iter=3))
+    assert res.run_id == "child" and seen["tracking"].parent_run_id == "parent123"
+    assert seen["settings"].trainer == "lm" and seen["settings"].max_iter == 3
+    assert seen["settings"].max_time_s == float("inf")  # stops on iterations: the same retrain on any machine
     np.testing.assert_allclose(seen["fp"].errors_um - fp.errors_um, d.corrected.terms_only(fp.axes), atol=1e-12)
     assert "harmonic" in seen["fp"].meta["diagnosis_terms"]
     # terms needing conditions cannot go into a field of the axes
@@ -183,3 +188,12 @@ def test_grid_aliasing_of_terms_is_detected(grinder):
     assert worm["aliased"] and worm["rms_missed_by_grid_um"] > 0.5 * worm["rms_in_volume_um"]
     inter = grid_aliasing(fp, run_pipeline(grinder, SEED, ["interaction"]).corrected)
     assert not inter["aliased"] and inter["rms_missed_by_grid_um"] < 0.05 * inter["rms_in_volume_um"]
+
+
+@pytest.mark.parametrize("opt, value, named", [("--retrain-iter", "0", "--retrain-iter"),
+                                               ("--retrain-time-s", "-1", "--retrain-time-s")])
+def test_retrain_limits_are_checked_before_any_work(tmp_path, capsys, opt, value, named):
+    """The retrain stops on iterations by default; a bad limit is one line, exit 2, nothing written."""
+    out = tmp_path / "out"
+    assert main(["diagnose", str(tmp_path / "none.csv"), "--model", "x", "--out", str(out), opt, value]) == 2
+    assert named in capsys.readouterr().err and not out.exists()

@@ -9,7 +9,7 @@ import pytest
 
 import compensation.app.workflows.compare as compare_mod
 from compensation.app.cli import main
-from compensation.evaluate import load_truth, residual_stats, true_residual_um
+from compensation.evaluate import load_truth, residual_metrics, true_residual_um
 from compensation.app.reports.methods import write_report
 from compensation.app.workflows.compare import compare_methods, subset_index
 from compensation.solvers import solve
@@ -38,7 +38,7 @@ def test_true_residual_of_nominal_commands_is_the_truth_error(grinder, truth, fl
     ax = flute.axes(grinder)
     r = true_residual_um(truth, ax, forward(grinder, ax))
     assert np.abs(r - truth.spatial_error(ax, **truth.default_conditions(len(ax)))).max() < TOL_UM
-    s = residual_stats(r, "true")
+    s = residual_metrics(r, "true")
     assert s["true_max_sq_um2"] == pytest.approx(s["true_max_um"] ** 2)
 
 

@@ -14,7 +14,8 @@ from errormap.io import InputError
 from errormap.machine import load_machine
 from training.lm import LMSettings, train_lm
 from training.model import MLPField, wrap_a
-from training.trainers import fit_field, fit_metrics, initial_params, nguyen_widrow_params, validation_points
+from training.trainers import (DEFAULT_MAX_ITER, TrainSettings, fit_field, fit_metrics, initial_params,
+                               nguyen_widrow_params, validation_points)
 
 TOL_EXACT = 1e-12        # round trips that should be exact up to float64 rounding
 TOL_JAC_REL = 1e-6       # analytic/autodiff vs central differences, relative
@@ -96,6 +97,24 @@ def test_bad_settings_rejected():
         MLPField(a_encoding="fourier")
     with pytest.raises(RuntimeError, match="not trained"):
         MLPField().predict(np.zeros((1, 3)))
+
+
+@pytest.mark.parametrize("kw, named", [(dict(trainer="sgd"), "trainer"), (dict(init="xavier"), "init"),
+                                       (dict(activation="relu6"), "activation"), (dict(max_time_s=0), "max_time_s"),
+                                       (dict(max_iter=0), "max_iter"), (dict(hidden=(8, 0)), "hidden"),
+                                       (dict(n_select=0), "n_select")])
+def test_train_settings_validated_in_one_place(kw, named):
+    with pytest.raises(ValueError, match=named):
+        TrainSettings(**kw)
+    with pytest.raises(ValueError, match=named):  # keyword overrides go through the same checks
+        fit_field(None, **kw)
+
+
+def test_train_settings_default_to_a_reproducible_stop():
+    s = TrainSettings()
+    assert s.max_time_s == float("inf") and s.max_iter == DEFAULT_MAX_ITER
+    with pytest.raises(TypeError, match="max_tme_s"):
+        fit_field(None, max_tme_s=3)
 
 
 def test_init_is_seeded():
@@ -466,7 +485,8 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
     from errormap.machine import load_machine
     from errormap.simulator import random_truth
     from training import fit_field
-    from training.trainers import validation_points
+    from errormap.seeds import spawn_seeds
+    from training.trainers import SELECTION_STREAM, validation_points
     m = load_machine()
     el = random_truth(m, 5).elements
     el_path = el.save(tmp_path / "el.json")
@@ -476,7 +496,7 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
     best = fit_field(fp, select_best=True, n_select=2000, select_every=1, **kw)
     last = fit_field(fp, select_best=False, **kw)
     assert 1 <= best.metrics["selected_iteration"] <= last.metrics["iterations"]
-    sel_axes, sel_err = validation_points(m, el, n=2000, seed=0 + 2_000_003)
+    sel_axes, sel_err = validation_points(m, el, n=2000, seed=spawn_seeds(0, 2)[SELECTION_STREAM])
     np.testing.assert_allclose(np.abs(best.field.predict(sel_axes) - sel_err).max(),
                                best.metrics["selection_max_um"], rtol=SELECTION_TOL_REL)
     sel_last = np.abs(last.field.predict(sel_axes) - sel_err).max()

@@ -6,15 +6,22 @@ May import ``errormap``; never ``compensation``. The public names below load laz
 * :class:`training.model.MLPField` — the network as an error field
   (:class:`errormap.field.ErrorField`: ``predict``, ``calibrated_volume`` and every optional
   capability, ``jacobian`` to the fused GA fitness of :mod:`training.ga_fitness`; ``save``/``load``).
-* :func:`training.trainers.fit_field` — train on feature points, measure, track in MLflow.
+* :func:`training.trainers.fit_field` — train on feature points, measure, track in MLflow;
+  :class:`training.trainers.TrainSettings` / :class:`~training.trainers.TrackSettings` say how.
 * :func:`training.trainers.validation_points` — random off-grid points from the HTM model.
 * :func:`training.tracking.load_field` — a trained field by run id / ``runs:/`` / ``models:/``.
 """
+
+# Training stops on iterations by default (the same settings give the same model on any machine):
+DEFAULT_MAX_ITER = 1000  # LM on the paper's network: ~0.2 s an iteration on 2 cores (~3-4 min)
+QUICK_MAX_ITER = 300     # the demo-sized setting
 
 _LAZY = {
     "MLPField": "training.model",
     "fit_field": "training.trainers",
     "FitResult": "training.trainers",
+    "TrainSettings": "training.trainers",
+    "TrackSettings": "training.trainers",
     "validation_points": "training.trainers",
     "fit_metrics": "training.trainers",
     "load_field": "training.tracking",

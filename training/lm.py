@@ -106,6 +106,80 @@ def residual_fn(model, u: torch.Tensor, y: torch.Tensor, jacobian: str = "analyt
     return res, jac
 
 
+def _stop_reason(s: LMSettings, h: TrainHistory, mse: float, r: torch.Tensor, t0: float) -> str:
+    """Why training stops before the next iteration ("" to go on): goals, iteration cap, budget."""
+    if mse <= s.mse_goal:
+        return f"mse goal {s.mse_goal:g} reached"
+    if s.max_abs_goal > 0 and float(r.abs().max()) <= s.max_abs_goal:
+        return f"max |residual| goal {s.max_abs_goal:g} reached"
+    if h.iterations >= s.max_iter:
+        return f"max iterations {s.max_iter}"
+    if time.perf_counter() - t0 >= s.max_time_s:
+        return f"time budget {s.max_time_s:g} s"
+    return ""
+
+
+@dataclass
+class _Damping:
+    """The damping state ``μ`` (and Nielsen's ``ν``) and its update rules (module doc)."""
+
+    mu: float
+    nu: float = 2.0
+
+    def reject(self, s: LMSettings) -> None:
+        if s.damping == "trainlm":
+            self.mu *= s.mu_inc
+        else:
+            self.mu *= self.nu
+            self.nu *= 2.0
+
+    def accept(self, s: LMSettings, rho: float) -> None:
+        if s.damping == "trainlm":
+            self.mu = max(self.mu * s.mu_dec, s.mu_min)
+        else:
+            self.mu = max(self.mu * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), s.mu_min)
+            self.nu = 2.0
+
+
+def _geodesic_step(s: LMSettings, res, theta, r, J, v, L) -> torch.Tensor:
+    """``v + a/2`` with Transtrum's geodesic acceleration ``a``, or ``v`` when ``a`` is too large."""
+    Jv = J @ v
+    rv = res(theta + s.geo_h * v)
+    rvv = (2.0 / s.geo_h) * ((rv - r) / s.geo_h - Jv)
+    a = torch.cholesky_solve(-(J.T @ rvv)[:, None], L)[:, 0]
+    return v + 0.5 * a if 2.0 * float(a.norm()) <= s.geo_alpha * float(v.norm()) else v
+
+
+def _damped_step(s: LMSettings, res, theta, r, sse: float, J, g, H, Hd, Dk, damping: _Damping):
+    """Raise ``μ`` until a step lowers the sum of squares: ``(theta, r, sse)`` after it, or None
+    when ``μ`` passes ``mu_max``. ``H`` (JᵀJ) is overwritten on its diagonal."""
+    idx = torch.arange(theta.shape[0])
+    while damping.mu <= s.mu_max:
+        H[idx, idx] = Hd + damping.mu * Dk
+        L, info = torch.linalg.cholesky_ex(H)
+        if int(info) != 0:
+            damping.reject(s)
+            continue
+        v = torch.cholesky_solve(-g[:, None], L)[:, 0]
+        step = _geodesic_step(s, res, theta, r, J, v, L) if s.geodesic else v
+        cand = theta + step
+        r_new = res(cand)
+        sse_new = float(r_new @ r_new)
+        rho = 0.0
+        if s.damping == "trainlm":
+            ok = sse_new < sse
+        else:
+            # predicted decrease of the sum of squares for the linearised step v
+            pred = float(v @ (damping.mu * Dk * v - g))
+            rho = (sse - sse_new) / pred if pred > 0 else -1.0
+            ok = rho > 0 and sse_new < sse
+        if ok:
+            damping.accept(s, rho)
+            return cand, r_new, sse_new
+        damping.reject(s)
+    return None
+
+
 def train_lm(model, theta0: torch.Tensor, u: torch.Tensor, y: torch.Tensor,
              settings: LMSettings | None = None, callback=None, monitor=None) -> tuple[torch.Tensor, TrainHistory]:
     """Levenberg–Marquardt from ``theta0`` on scaled features ``u`` (n, k) and targets ``y`` (n, 3).
@@ -121,25 +195,14 @@ def train_lm(model, theta0: torch.Tensor, u: torch.Tensor, y: torch.Tensor,
     P = theta.shape[0]
     r = res(theta)
     sse = float(r @ r)
-    mu, nu = s.mu0, 2.0
+    damping = _Damping(s.mu0)
     h = TrainHistory()
     t0 = time.perf_counter()
     D = torch.zeros(P, dtype=theta.dtype)
-    idx = torch.arange(P)
     with torch.no_grad():
         while True:
-            mse = sse / m
-            if mse <= s.mse_goal:
-                h.stop_reason = f"mse goal {s.mse_goal:g} reached"
-                break
-            if s.max_abs_goal > 0 and float(r.abs().max()) <= s.max_abs_goal:
-                h.stop_reason = f"max |residual| goal {s.max_abs_goal:g} reached"
-                break
-            if h.iterations >= s.max_iter:
-                h.stop_reason = f"max iterations {s.max_iter}"
-                break
-            if time.perf_counter() - t0 >= s.max_time_s:
-                h.stop_reason = f"time budget {s.max_time_s:g} s"
+            h.stop_reason = _stop_reason(s, h, sse / m, r, t0)
+            if h.stop_reason:
                 break
             J = jac(theta)
             g = J.T @ r
@@ -153,57 +216,18 @@ def train_lm(model, theta0: torch.Tensor, u: torch.Tensor, y: torch.Tensor,
                 Dk = torch.clamp(D, min=1e-30)
             else:
                 Dk = torch.ones(P, dtype=theta.dtype)
-            accepted = False
-            while mu <= s.mu_max:
-                H[idx, idx] = Hd + mu * Dk
-                L, info = torch.linalg.cholesky_ex(H)
-                if int(info) != 0:
-                    mu *= s.mu_inc if s.damping == "trainlm" else nu
-                    nu *= 2.0 if s.damping == "nielsen" else 1.0
-                    continue
-                v = torch.cholesky_solve(-g[:, None], L)[:, 0]
-                step = v
-                if s.geodesic:
-                    Jv = J @ v
-                    rv = res(theta + s.geo_h * v)
-                    rvv = (2.0 / s.geo_h) * ((rv - r) / s.geo_h - Jv)
-                    a = torch.cholesky_solve(-(J.T @ rvv)[:, None], L)[:, 0]
-                    if 2.0 * float(a.norm()) <= s.geo_alpha * float(v.norm()):
-                        step = v + 0.5 * a
-                cand = theta + step
-                r_new = res(cand)
-                sse_new = float(r_new @ r_new)
-                if s.damping == "trainlm":
-                    ok = sse_new < sse
-                else:
-                    # predicted decrease of the sum of squares for the linearised step v
-                    pred = float(v @ (mu * Dk * v - g))
-                    rho = (sse - sse_new) / pred if pred > 0 else -1.0
-                    ok = rho > 0 and sse_new < sse
-                if ok:
-                    theta, r, sse = cand, r_new, sse_new
-                    if s.damping == "trainlm":
-                        mu = max(mu * s.mu_dec, s.mu_min)
-                    else:
-                        mu = max(mu * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), s.mu_min)
-                        nu = 2.0
-                    accepted = True
-                    break
-                if s.damping == "trainlm":
-                    mu *= s.mu_inc
-                else:
-                    mu *= nu
-                    nu *= 2.0
-            if not accepted:
+            stepped = _damped_step(s, res, theta, r, sse, J, g, H, Hd, Dk, damping)
+            if stepped is None:
                 h.stop_reason = f"mu above {s.mu_max:g}"
                 break
+            theta, r, sse = stepped
             h.iterations += 1
             el = time.perf_counter() - t0
             h.loss.append(sse / m)
             h.elapsed_s.append(el)
             h.max_abs.append(float(r.abs().max()))
             if callback is not None:
-                callback(h.iterations, sse / m, el, mu)
+                callback(h.iterations, sse / m, el, damping.mu)
             if monitor is not None:
                 monitor(h.iterations, theta)
     h.seconds = time.perf_counter() - t0

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from errormap.field import CalibratedVolume
+from errormap.stats import residual_stats
 
 from .lm import TrainHistory, residual_fn
 from .model import ACTIVATIONS, DTYPE, MLPField
@@ -176,8 +177,12 @@ def train_ridge_lm(model: PoseMLP, theta0: torch.Tensor, u: torch.Tensor, y: tor
 
 
 def fit_pose_field(inputs, outputs, *, hidden=DEFAULT_HIDDEN, activation: str = "tanh", ridge: float = DEFAULT_RIDGE,
-                   max_time_s: float = 30.0, max_iter: int = 200, seed: int = 0) -> PoseFitResult:
+                   max_time_s: float = math.inf, max_iter: int = 200, seed: int = 0) -> PoseFitResult:
     """Train a :class:`PoseMLP` on measured poses: ``inputs`` (n, k), ``outputs`` (n, m).
+
+    Training stops after ``max_iter`` iterations (or earlier on its own criteria), so the same
+    data and seed give the same field on any machine; ``max_time_s`` (default off) adds a
+    wall-clock budget, and the iterations it allowed are in ``metrics["iterations"]``.
 
     Metrics: ``train_rms`` and ``train_max`` of the fit per output block (``pos_um`` for the
     first three outputs as a vector norm, ``ang_urad`` for the rest), ``iterations``, ``stop_reason``.
@@ -193,12 +198,12 @@ def fit_pose_field(inputs, outputs, *, hidden=DEFAULT_HIDDEN, activation: str = 
     theta, hist = train_ridge_lm(model, theta0, u, y, ridge, max_iter=max_iter, max_time_s=max_time_s)
     model.theta_ = theta.detach()
     d = model.predict(x) - yv
-    pos = np.linalg.norm(d[:, :3], axis=1)
-    metrics = {"train_rms_pos_um": float(np.sqrt(np.mean(pos ** 2))), "train_max_pos_um": float(pos.max()),
+    pos = residual_stats(d[:, :3])
+    metrics = {"train_rms_pos_um": pos["rms_um"], "train_max_pos_um": pos["max_um"],
                "iterations": hist.iterations, "train_seconds": hist.seconds}
     if yv.shape[1] > 3:
-        ang = np.linalg.norm(d[:, 3:], axis=1)
-        metrics.update({"train_rms_ang_urad": float(np.sqrt(np.mean(ang ** 2))), "train_max_ang_urad": float(ang.max())})
+        ang = residual_stats(d[:, 3:])  # the same statistics of the angle vector (values in μrad)
+        metrics.update({"train_rms_ang_urad": ang["rms_um"], "train_max_ang_urad": ang["max_um"]})
     params = {"hidden": ",".join(map(str, model.hidden)), "activation": activation, "ridge": ridge,
               "n_params": model.n_params, "n_train": int(x.shape[0]), "max_time_s": max_time_s, "max_iter": max_iter,
               "seed": seed, "stop_reason": hist.stop_reason}

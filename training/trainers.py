@@ -21,7 +21,6 @@ import contextlib
 import dataclasses
 import hashlib
 import math
-import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -31,12 +30,17 @@ import numpy as np
 import torch
 
 from errormap.io import InputError, sha256_file
+from errormap.progress import Progress
+from errormap.seeds import spawn_seeds
+from errormap.stats import residual_stats
 from errormap.threads import limit_threads
 
+from . import DEFAULT_MAX_ITER, QUICK_MAX_ITER  # noqa: F401  (QUICK_MAX_ITER re-exported)
 from .lm import LMSettings, TrainHistory, train_lm
-from .model import PAPER_HIDDEN, MLPField
+from .model import A_ENCODINGS, ACTIVATIONS, PAPER_HIDDEN, MLPField
 
 TRAINERS = ("lm", "adam", "lbfgs")
+VALIDATION_STREAM, SELECTION_STREAM = 0, 1  # children of SeedSequence(seed): validation, selection points
 AXES = ("dx", "dy", "dz")
 
 
@@ -182,12 +186,14 @@ def initial_params(model, seed: int = 0, init: str = "nguyen-widrow") -> torch.T
 # -- metrics and validation ---------------------------------------------------------------
 def fit_metrics(prefix: str, predicted_um, reference_um) -> dict:
     """Max |error| and RMS in μm, over all components and per axis; also the max vector norm."""
-    d = np.asarray(predicted_um) - np.asarray(reference_um)
-    m = {f"{prefix}_max_um": float(np.abs(d).max()), f"{prefix}_rms_um": float(np.sqrt(np.mean(d**2))),
-         f"{prefix}_max_norm_um": float(np.linalg.norm(d, axis=1).max())}
-    for j, a in enumerate(AXES):
-        m[f"{prefix}_max_{a}_um"] = float(np.abs(d[:, j]).max())
-        m[f"{prefix}_rms_{a}_um"] = float(np.sqrt(np.mean(d[:, j] ** 2)))
+    st = residual_stats(np.asarray(predicted_um) - np.asarray(reference_um), AXES)
+    # over all components: the largest per-axis max |.|, and RMS = sqrt(mean of the per-axis RMS²)
+    m = {f"{prefix}_max_um": max(st[a]["max_abs_um"] for a in AXES),
+         f"{prefix}_rms_um": float(np.sqrt(np.mean([st[a]["rms_um"] ** 2 for a in AXES]))),
+         f"{prefix}_max_norm_um": st["max_um"]}
+    for a in AXES:
+        m[f"{prefix}_max_{a}_um"] = st[a]["max_abs_um"]
+        m[f"{prefix}_rms_{a}_um"] = st[a]["rms_um"]
     return m
 
 
@@ -288,148 +294,239 @@ class _BestOnSelection:
 
 
 class _Printer:
-    """Progress on stderr: iteration, loss, RMS in μm, elapsed; at most once a second."""
+    """Trainer callback: a :class:`~errormap.progress.Progress` over the iterations, with the
+    loss and the RMS in μm beside it (drawn on a terminal only)."""
 
-    def __init__(self, scale_um: float, quiet: bool, label: str):
-        self.scale_um, self.quiet, self.label = scale_um, quiet, label
-        self.last = -1e9
+    def __init__(self, scale_um: float, quiet: bool, label: str, max_iter: float):
+        self.scale_um = scale_um
+        self.bar = Progress(max_iter, label, enabled=not quiet)
 
     def __call__(self, it, mse, el, extra):
-        if self.quiet or el - self.last < 1.0:
-            return
-        self.last = el
-        sys.stderr.write(f"\r{self.label}: iter {it:6d}  mse {mse:.3e}  rms≈{math.sqrt(mse) * self.scale_um:.4f} μm"
-                         f"  {el:7.1f} s ")
-        sys.stderr.flush()
+        self.bar.update(it - self.bar.done, extra=f"mse {mse:.3e} rms≈{math.sqrt(mse) * self.scale_um:.4f} μm")
+
+    def close(self):
+        self.bar.close()
 
 
-def fit_field(featurepoints, *, trainer: str = "lm", max_time_s: float = 600.0, seed: int = 0,
-              validation=None, tracking_uri: str | None = None, run_name: str | None = None,
-              parent_run_id: str | None = None, tags: dict | None = None, quiet: bool = False,
-              hidden=PAPER_HIDDEN, activation: str = "sigmoid", a_encoding: str = "raw",
-              mse_goal: float = 2.5e-10, max_iter: int = 100_000, n_validation: int = 10_000,
-              threads: int | None = None, track: bool = True, experiment: str = "volcomp-field",
-              out_dir=None, init: str = "nguyen-widrow", lm_settings: LMSettings | None = None,
-              max_err_goal_um: float = 0.0, select_best: bool = True, n_select: int = 5_000,
-              select_every: int = 5, selection=None) -> FitResult:
+@dataclass(frozen=True)
+class TrainSettings:
+    """Everything that decides the trained network, validated here once.
+
+    Training stops on ``max_iter`` iterations or the goals (``mse_goal`` on the scaled outputs,
+    ``max_err_goal_um`` on the largest training |error|, LM only; 0 = off) by default, so the
+    same settings give the same model on any machine; ``max_time_s`` (default off) adds a
+    wall-clock budget, and a run it stops records the iterations reached.
+    ``lm_settings``: damping/scaling/acceleration of the LM trainer (default :class:`LMSettings`);
+    its stopping rules are replaced by the ones here. ``select_best`` (LM only): keep the iterate
+    with the smallest max |error| on ``n_select`` selection points, checked every
+    ``select_every`` accepted steps (see :func:`fit_field`). ``threads``: torch threads.
+    """
+
+    trainer: str = "lm"
+    max_iter: int = DEFAULT_MAX_ITER
+    max_time_s: float = math.inf
+    mse_goal: float = 2.5e-10
+    max_err_goal_um: float = 0.0
+    seed: int = 0
+    hidden: tuple = PAPER_HIDDEN
+    activation: str = "sigmoid"
+    a_encoding: str = "raw"
+    init: str = "nguyen-widrow"
+    lm_settings: LMSettings | None = None
+    n_validation: int = 10_000
+    select_best: bool = True
+    n_select: int = 5_000
+    select_every: int = 5
+    threads: int | None = None
+
+    def __post_init__(self):
+        if self.trainer not in TRAINERS:
+            raise ValueError(f"Expected trainer in {TRAINERS}, got {self.trainer!r}")
+        if self.init not in INITS:
+            raise ValueError(f"Expected init in {INITS}, got {self.init!r}")
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"Expected activation in {sorted(ACTIVATIONS)}, got {self.activation!r}")
+        if self.a_encoding not in A_ENCODINGS:
+            raise ValueError(f"Expected a_encoding in {A_ENCODINGS}, got {self.a_encoding!r}")
+        if not (self.max_time_s > 0):
+            raise ValueError(f"Expected max_time_s > 0, got {self.max_time_s}")
+        if not (int(self.max_iter) == self.max_iter and self.max_iter >= 1):
+            raise ValueError(f"Expected max_iter >= 1 (an integer), got {self.max_iter}")
+        hidden = tuple(self.hidden)
+        if not hidden or any(int(h) != h or h < 1 for h in hidden):
+            raise ValueError(f"Expected hidden layer widths >= 1, got {self.hidden!r}")
+        object.__setattr__(self, "hidden", tuple(int(h) for h in hidden))
+        for name in ("n_validation", "n_select", "select_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"Expected {name} >= 1, got {getattr(self, name)}")
+
+    def lm(self, out_scale_um: float) -> LMSettings:
+        """The trainer's settings: ``lm_settings`` with this object's stopping rules (scaled outputs)."""
+        return dataclasses.replace(self.lm_settings or LMSettings(), mse_goal=self.mse_goal, max_iter=self.max_iter,
+                                   max_time_s=self.max_time_s,
+                                   max_abs_goal=max(float(self.max_err_goal_um), 0.0) / out_scale_um)
+
+
+@dataclass(frozen=True)
+class TrackSettings:
+    """Where and how a fit is recorded in MLflow (``track=False``: not at all)."""
+
+    track: bool = True
+    tracking_uri: str | None = None
+    run_name: str | None = None
+    parent_run_id: str | None = None
+    tags: dict | None = None
+    experiment: str = "volcomp-field"
+
+
+_TRAIN_FIELDS = {f.name for f in dataclasses.fields(TrainSettings)}
+_TRACK_FIELDS = {f.name for f in dataclasses.fields(TrackSettings)}
+
+
+def _settings(settings, tracking, overrides) -> tuple[TrainSettings, TrackSettings]:
+    unknown = set(overrides) - _TRAIN_FIELDS - _TRACK_FIELDS
+    if unknown:
+        raise TypeError(f"fit_field() got unexpected keyword arguments {sorted(unknown)}")
+    s = dataclasses.replace(settings or TrainSettings(), **{k: v for k, v in overrides.items() if k in _TRAIN_FIELDS})
+    t = dataclasses.replace(tracking or TrackSettings(), **{k: v for k, v in overrides.items() if k in _TRACK_FIELDS})
+    return s, t
+
+
+def fit_field(featurepoints, settings: TrainSettings | None = None, *, validation=None, selection=None,
+              tracking: TrackSettings | None = None, out_dir=None, quiet: bool = False, **overrides) -> FitResult:
     """Train an :class:`MLPField` on feature points and record the fit as an MLflow run.
 
     ``featurepoints``: :class:`errormap.featurepoints.FeaturePoints` (axes, errors μm, meta).
+    ``settings``: :class:`TrainSettings`; ``tracking``: :class:`TrackSettings`. Keyword
+    ``overrides`` name fields of either (``fit_field(fp, max_iter=60, track=False)``) and go
+    through the same validation.
     ``validation``: ``(axes (m, 3), errors (m, 3) μm)``; when None, ``n_validation`` random
     off-grid points are generated from the HTM model named in the feature points' meta
     (``elements_file``, ``machine_file``), and an :class:`InputError` is raised if there is none.
-    ``track=False`` skips MLflow (``run_id`` is then None). ``out_dir``: also save the model,
-    plots and ``metrics.json`` there. ``init``: ``nguyen-widrow`` (default, MATLAB's) or
-    ``uniform``. ``lm_settings``: damping/scaling/acceleration of the LM trainer (default
-    :class:`LMSettings`: Nielsen damping, μI, geodesic acceleration); its
-    stopping rules are replaced by ``mse_goal``, ``max_iter``, ``max_time_s``.
-    ``select_best`` (LM only): keep the iterate with the smallest max |error| on ``n_select``
-    *selection* points, checked every ``select_every`` accepted steps — random off-grid points
-    of the same HTM model as the validation points but a different seed (disjoint from them, so
-    the reported validation error stays independent; or the given ``selection`` =
-    ``(axes (k, 3), errors (k, 3) μm)``, which must not be the validation data). The feature-point fit keeps improving
-    long after the field between grid points stops improving (a 1,188-parameter network on an
-    11×11×11 grid swings between the points); this picks the iterate that is best over the
-    volume. Off when there is no HTM reference, and for the paper-target runs
-    (``select_best=False``).
-    ``max_err_goal_um`` (LM only; 0 = off): also stop once the largest |error| on the training
-    points is at most this (μm).
+    ``out_dir``: also save the model, plots and ``metrics.json`` there (written as a set).
+    ``selection`` (for ``select_best``): ``(axes (k, 3), errors (k, 3) μm)``, which must not be
+    the validation data; by default random off-grid points of the same HTM model as the
+    validation points from another stream of the seed (disjoint from them, so the reported
+    validation error stays independent). The feature-point fit keeps improving long after the
+    field between grid points stops improving (a 1,188-parameter network on an 11×11×11 grid
+    swings between the points); selection picks the iterate that is best over the volume. Off
+    when there is no HTM reference, and for the paper-target runs (``select_best=False``).
     """
-    if trainer not in TRAINERS:
-        raise ValueError(f"Expected trainer in {TRAINERS}, got {trainer!r}")
-    if init not in INITS:
-        raise ValueError(f"Expected init in {INITS}, got {init!r}")
-    if not (max_time_s > 0):
-        raise ValueError(f"Expected max_time_s > 0, got {max_time_s}")
+    s, t = _settings(settings, tracking, overrides)
     if out_dir is not None:
         check_run_folder(out_dir)
     axes, errors = np.asarray(featurepoints.axes, float), np.asarray(featurepoints.errors_um, float)
     meta = dict(getattr(featurepoints, "meta", {}) or {})
     ref = reference_from_meta(meta)
-    if validation is None:
-        if ref is None:
-            raise InputError("no validation data: the feature points name no readable elements_file; "
-                             "pass validation points (--validation FILE with x_mm,z_mm,a_deg,dx_um,dy_um,dz_um)")
-        validation = validation_points(ref[0], ref[1], n=n_validation, seed=seed + 1_000_003)
-        val_source = f"HTM model {meta.get('elements_file')} ({n_validation} random points, seed {seed + 1_000_003})"
-    else:
-        val_source = "given"
-    val_axes, val_errors = (np.asarray(v, float) for v in validation)
-
-    model = MLPField(hidden, activation, a_encoding).fit_scalers(axes, errors)
-    settings = dataclasses.replace(lm_settings or LMSettings(), mse_goal=mse_goal, max_iter=max_iter,
-                                   max_time_s=max_time_s,
-                                   max_abs_goal=max(float(max_err_goal_um), 0.0) / model.out_scale_)
-    u = torch.from_numpy(model.features(axes))
-    y = torch.from_numpy(model.scale_errors(errors))
-    theta0 = initial_params(model, seed, init)
-    printer = _Printer(model.out_scale_, quiet, f"train {trainer}")
+    # the initial weights use the seed itself; validation and selection points its children
+    streams = spawn_seeds(s.seed, 2)
+    (val_axes, val_errors), val_source = _validation_data(s, validation, ref, meta, streams[VALIDATION_STREAM])
+    model = MLPField(s.hidden, s.activation, s.a_encoding).fit_scalers(axes, errors)
     selector = None
-    if select_best and trainer == "lm" and (selection is not None or ref is not None):
+    if s.select_best and s.trainer == "lm" and (selection is not None or ref is not None):
         if selection is not None:
             sel_axes, sel_errors = (np.asarray(v, float) for v in selection)
         else:
-            sel_axes, sel_errors = validation_points(ref[0], ref[1], n=n_select, seed=seed + 2_000_003)
-        selector = _BestOnSelection(model, sel_axes, sel_errors, select_every)
-    with limit_threads(threads):
-        if selector is not None:
-            theta, hist = train_lm(model, theta0, u, y, settings, printer, monitor=selector)
-            theta = selector.finish(theta, hist)
-        else:
-            theta, hist = TRAIN_FUNCS[trainer](model, theta0, u, y, settings, printer)
-    if not quiet:
-        sys.stderr.write("\n")
-    model.theta_ = theta.detach()
+            sel_axes, sel_errors = validation_points(ref[0], ref[1], n=s.n_select, seed=streams[SELECTION_STREAM])
+        selector = _BestOnSelection(model, sel_axes, sel_errors, s.select_every)
+    hist = _train(model, axes, errors, s, selector, quiet)
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
     metrics.update({"final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
                     "iterations": hist.iterations, "train_seconds": hist.seconds})
+    if selector is not None:
+        metrics.update({"selected_iteration": selector.best_iteration, "selection_max_um": selector.best_max_um})
+    params = _fit_params(model, s, meta, hist, axes, errors, len(val_axes), val_source, selector is not None)
+    run_id = None
+    if t.track or out_dir is not None:
+        run_id = _write_run(model, axes, errors, ref, metrics, params, hist, s, t, meta, out_dir)
+    return FitResult(model, metrics, run_id, hist.seconds, hist, params)
+
+
+def _validation_data(s: TrainSettings, validation, ref, meta: dict, seed):
+    """``((axes, errors), source)``: the given validation points, or random ones of the reference model."""
+    if validation is not None:
+        return tuple(np.asarray(v, float) for v in validation), "given"
+    if ref is None:
+        raise InputError("no validation data: the feature points name no readable elements_file; "
+                         "pass validation points (--validation FILE with x_mm,z_mm,a_deg,dx_um,dy_um,dz_um)")
+    source = (f"HTM model {meta.get('elements_file')} ({s.n_validation} random points, "
+              f"SeedSequence({s.seed}) child {VALIDATION_STREAM})")
+    return validation_points(ref[0], ref[1], n=s.n_validation, seed=seed), source
+
+
+def _train(model, axes, errors, s: TrainSettings, selector, quiet: bool) -> TrainHistory:
+    """Run the trainer on the scaled data; sets ``model.theta_`` (the selected iterate, if any)."""
+    settings = s.lm(model.out_scale_)
+    u = torch.from_numpy(model.features(axes))
+    y = torch.from_numpy(model.scale_errors(errors))
+    theta0 = initial_params(model, s.seed, s.init)
+    printer = _Printer(model.out_scale_, quiet, f"train {s.trainer}", settings.max_iter)
+    with limit_threads(s.threads):
+        if selector is not None:
+            theta, hist = train_lm(model, theta0, u, y, settings, printer, monitor=selector)
+            theta = selector.finish(theta, hist)
+        else:
+            theta, hist = TRAIN_FUNCS[s.trainer](model, theta0, u, y, settings, printer)
+    printer.close()
+    model.theta_ = theta.detach()
+    return hist
+
+
+def _fit_params(model, s: TrainSettings, meta: dict, hist, axes, errors, n_val: int, val_source: str,
+                selected: bool) -> dict:
+    """The run's parameters (MLflow params; what reproduces and identifies it)."""
     machine_file = meta.get("machine_file", "")
     params = {
-        "hidden": ",".join(map(str, model.hidden)), "activation": activation, "a_encoding": a_encoding,
-        "n_params": model.n_params, "trainer": trainer, "mse_goal": mse_goal, "max_iter": max_iter,
-        "max_time_s": max_time_s, "seed": seed, "n_train": len(axes), "n_val": len(val_axes),
+        "hidden": ",".join(map(str, model.hidden)), "activation": s.activation, "a_encoding": s.a_encoding,
+        "n_params": model.n_params, "trainer": s.trainer, "mse_goal": s.mse_goal, "max_iter": s.max_iter,
+        "max_time_s": s.max_time_s, "seed": s.seed, "n_train": len(axes), "n_val": n_val,
         "validation_source": val_source, "data_sha256": data_hash(axes, errors),
         "machine_file": machine_file,
         "machine_sha256": meta.get("machine_sha256") or (sha256_file(machine_file) if machine_file and Path(machine_file).is_file() else ""),
         "elements_sha256": meta.get("elements_sha256", ""), "stop_reason": hist.stop_reason,
-        "output_scale_um": model.out_scale_, "init": init,
-        "select_best": bool(selector is not None),
+        "output_scale_um": model.out_scale_, "init": s.init,
+        "select_best": bool(selected),
     }
-    if selector is not None:
-        metrics.update({"selected_iteration": selector.best_iteration, "selection_max_um": selector.best_max_um})
-    if trainer == "lm":
-        params.update({"mu0": settings.mu0, "mu_dec": settings.mu_dec, "mu_inc": settings.mu_inc,
-                       "mu_max": settings.mu_max, "damping": settings.damping, "scaling": settings.scaling,
-                       "geodesic": settings.geodesic, "max_err_goal_um": max_err_goal_um})
+    if s.trainer == "lm":
+        lm = s.lm(model.out_scale_)
+        params.update({"mu0": lm.mu0, "mu_dec": lm.mu_dec, "mu_inc": lm.mu_inc,
+                       "mu_max": lm.mu_max, "damping": lm.damping, "scaling": lm.scaling,
+                       "geodesic": lm.geodesic, "max_err_goal_um": s.max_err_goal_um})
+    return params
+
+
+def _write_run(model, axes, errors, ref, metrics, params, hist, s: TrainSettings, t: TrackSettings, meta: dict,
+               out_dir) -> str | None:
+    """Write the run folder as a set (model, plots, metrics.json) and log it to MLflow; the run id."""
+    from errormap.io import atomic_dir, write_json
+
+    from .plots import fit_plots
     run_id = None
-    if track or out_dir is not None:
-        from errormap.io import atomic_dir, write_json
+    summary = {**metrics, "stop_reason": hist.stop_reason, "trainer": s.trainer, "seconds": hist.seconds}
+    if hist.stop_reason.startswith("time budget"):  # the machine's speed decided: say how to repeat it
+        summary["reproduce_with_max_iter"] = hist.iterations
+    with contextlib.ExitStack() as stack:
+        # the run folder is written as a set: a temporary folder that replaces out_dir at the end
+        d = stack.enter_context(atomic_dir(out_dir)) if out_dir is not None else \
+            Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="volcomp-fit-")))
+        model.save(d / "model")
+        plots = fit_plots(model, axes, errors, d, reference=ref[1] if ref else None)
+        write_json(d / "metrics.json", summary)
+        if t.track:
+            from errormap.machine import builtin_machine_path
 
-        from .plots import fit_plots
-        summary = {**metrics, "stop_reason": hist.stop_reason, "trainer": trainer, "seconds": hist.seconds}
-        if hist.stop_reason.startswith("time budget"):  # the machine's speed decided: say how to repeat it
-            summary["reproduce_with_max_iter"] = hist.iterations
-        with contextlib.ExitStack() as stack:
-            # the run folder is written as a set: a temporary folder that replaces out_dir at the end
-            d = stack.enter_context(atomic_dir(out_dir)) if out_dir is not None else \
-                Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="volcomp-fit-")))
-            model.save(d / "model")
-            plots = fit_plots(model, axes, errors, d, reference=ref[1] if ref else None)
-            write_json(d / "metrics.json", summary)
-            if track:
-                from errormap.machine import builtin_machine_path
-
-                from .tracking import log_fit
-                all_tags = {"machine": meta.get("machine", ""), **(tags or {})}
-                # the machine file goes inside the logged model: the recorded one, or the built-in
-                # machine when the data were made on it (its SHA-256 recorded)
-                mf = machine_file if machine_file and Path(machine_file).is_file() else None
-                if mf is None and params["machine_sha256"] == sha256_file(builtin_machine_path()):
-                    mf = builtin_machine_path()
-                run_id = log_fit(params, metrics, hist, d / "model", plots + [d / "metrics.json"],
-                                 tracking_uri=tracking_uri, run_name=run_name, parent_run_id=parent_run_id,
-                                 tags=all_tags, experiment=experiment, machine_file=mf)
-                if out_dir is not None:
-                    write_json(d / "metrics.json", {**summary, "run_id": run_id})
-    return FitResult(model, metrics, run_id, hist.seconds, hist, params)
+            from .tracking import log_fit
+            all_tags = {"machine": meta.get("machine", ""), **(t.tags or {})}
+            # the machine file goes inside the logged model: the recorded one, or the built-in
+            # machine when the data were made on it (its SHA-256 recorded)
+            machine_file = params["machine_file"]
+            mf = machine_file if machine_file and Path(machine_file).is_file() else None
+            if mf is None and params["machine_sha256"] == sha256_file(builtin_machine_path()):
+                mf = builtin_machine_path()
+            run_id = log_fit(params, metrics, hist, d / "model", plots + [d / "metrics.json"],
+                             tracking_uri=t.tracking_uri, run_name=t.run_name, parent_run_id=t.parent_run_id,
+                             tags=all_tags, experiment=t.experiment, machine_file=mf)
+            if out_dir is not None:
+                write_json(d / "metrics.json", {**summary, "run_id": run_id})
+    return run_id

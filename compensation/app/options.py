@@ -3,10 +3,11 @@ the flute path and the method comparison (``report``, ``demo``), the constant co
 diagnosed model (``compensate``)."""
 from __future__ import annotations
 
+from compensation.app.cli import UsageError
+
 from ..diagnosed_model import CONDITIONS
 from ..solvers import METHODS
 from ..toolpath import FLUTE_DEFAULTS, LEAD_LAWS, flute_path
-from .cli import UsageError
 from .workflows.compare import DEFAULT_GA_BUDGET_S
 
 

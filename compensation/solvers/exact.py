@@ -132,6 +132,52 @@ def _take(idx, mask):
     return idx if mask.all() else _index(idx, np.flatnonzero(mask))
 
 
+def _line_search(field, machine, targets, idx, step, q, E, F, fn, JE, JK):
+    """Backtracking (Armijo) along ``step`` for the points ``idx``; ``pend`` are the positions (into
+    ``idx``) still searching. Accepted points get their new ``q, E, F, fn, JK`` and a Broyden
+    (secant) update of ``JE``, in place. Returns ``(accepted, crawl, nfev)``, the first two per
+    position in ``idx``: a step was taken / it decreased ``|F|`` by less than ``SLOW``.
+    """
+    m = step.shape[0]
+    nfev = 0
+    alpha = np.ones(m)
+    accepted = np.zeros(m, dtype=bool)
+    crawl = np.zeros(m, dtype=bool)
+    pend = None  # all of them
+    for _h in range(MAX_HALVINGS):
+        ii = idx if pend is None else _index(idx, pend)
+        al = alpha if pend is None else alpha[pend]
+        qt = q[ii] + al[:, None] * (step if pend is None else step[pend])
+        Et = field_error_um(field, qt, machine)
+        Pt, JKt = forward_and_jacobian(machine, qt)
+        Ft = Pt + MM_PER_UM * Et - targets[ii]
+        ft = np.sqrt(np.einsum("ij,ij->i", Ft, Ft))
+        nfev += ft.size
+        f_old = fn[ii].copy()  # fn[ii] may be a view, and fn is updated below
+        ok = ft <= (1.0 - ARMIJO * al) * f_old
+        if ok.any():
+            if ok.all():
+                good, sel, pos = ii, slice(None), (slice(None) if pend is None else pend)
+            else:
+                sel = ok
+                pos = np.flatnonzero(ok) if pend is None else pend[ok]
+                good = _index(idx, pos)
+            # Broyden (secant) update of the field part, free: dE = JE·dq along the step
+            dq, dE = qt[sel] - q[good], Et[sel] - E[good]
+            JEg = JE[good]
+            miss = dE - np.einsum("nij,nj->ni", JEg, dq)
+            w = dq / np.maximum(np.einsum("ni,ni->n", dq, dq), 1e-300)[:, None]
+            JE[good] = JEg + miss[:, :, None] * w[:, None, :]
+            q[good], E[good], F[good], fn[good], JK[good] = qt[sel], Et[sel], Ft[sel], ft[sel], JKt[sel]
+            accepted[pos] = True
+            crawl[pos] = ft[sel] > SLOW * f_old[sel]
+            if ok.all():
+                break
+        pend = np.flatnonzero(~ok) if pend is None else pend[~ok]
+        alpha[pend] *= 0.5
+    return accepted, crawl, nfev
+
+
 def _newton(field, machine, targets, q0, xtol_um, max_iter):
     """Newton–Broyden iterations with line search on one chunk; returns (q, E(q) μm, iterations, jacobians, nfev).
 
@@ -166,43 +212,9 @@ def _newton(field, machine, targets, q0, xtol_um, max_iter):
         big = np.max(np.abs(step) / MAX_STEP, axis=1)
         if np.any(big > 1.0):
             step /= np.maximum(big, 1.0)[:, None]
-        # backtracking line search; `pend` are the positions (into idx) still searching
         m = step.shape[0]
-        alpha = np.ones(m)
-        accepted = np.zeros(m, dtype=bool)
-        crawl = np.zeros(m, dtype=bool)
-        pend = None  # all of them
-        for _h in range(MAX_HALVINGS):
-            ii = idx if pend is None else _index(idx, pend)
-            al = alpha if pend is None else alpha[pend]
-            qt = q[ii] + al[:, None] * (step if pend is None else step[pend])
-            Et = field_error_um(field, qt, machine)
-            Pt, JKt = forward_and_jacobian(machine, qt)
-            Ft = Pt + MM_PER_UM * Et - targets[ii]
-            ft = np.sqrt(np.einsum("ij,ij->i", Ft, Ft))
-            nfev += ft.size
-            f_old = fn[ii].copy()  # fn[ii] may be a view, and fn is updated below
-            ok = ft <= (1.0 - ARMIJO * al) * f_old
-            if ok.any():
-                if ok.all():
-                    good, sel, pos = ii, slice(None), (slice(None) if pend is None else pend)
-                else:
-                    sel = ok
-                    pos = np.flatnonzero(ok) if pend is None else pend[ok]
-                    good = _index(idx, pos)
-                # Broyden (secant) update of the field part, free: dE = JE·dq along the step
-                dq, dE = qt[sel] - q[good], Et[sel] - E[good]
-                JEg = JE[good]
-                miss = dE - np.einsum("nij,nj->ni", JEg, dq)
-                w = dq / np.maximum(np.einsum("ni,ni->n", dq, dq), 1e-300)[:, None]
-                JE[good] = JEg + miss[:, :, None] * w[:, None, :]
-                q[good], E[good], F[good], fn[good], JK[good] = qt[sel], Et[sel], Ft[sel], ft[sel], JKt[sel]
-                accepted[pos] = True
-                crawl[pos] = ft[sel] > SLOW * f_old[sel]
-                if ok.all():
-                    break
-            pend = np.flatnonzero(~ok) if pend is None else pend[~ok]
-            alpha[pend] *= 0.5
+        accepted, crawl, fe = _line_search(field, machine, targets, idx, step, q, E, F, fn, JE, JK)
+        nfev += fe
         iters[idx] += 1
         # no step decreased |F| (or only crawled): retry once with a fresh field Jacobian;
         # a failure right after a fresh Jacobian stops the point (stagnation)

@@ -26,10 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..htm import HTMField
-from .checks import CheckData, measured_residual
+from ..stats import residual_stats
+from .checks import ERROR_COLUMNS, CheckData, measured_residual
 from .corrected import CorrectedField
 from .effects import Context, reference
-from .pipeline import Diagnosis, DiagnosisSettings, diagnose, residual_stats
+from .pipeline import Diagnosis, DiagnosisSettings, diagnose
 from .joint import joint_screen, stand_ins
 from .update import ModelUpdate, update_elements
 
@@ -113,11 +114,11 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
             rejected.append(e)
     for st in screen:  # a proposal counts only when the search and the held-out gate keep the same term
         st["confirmed"] = any((e["kind"], e["axis"]) == (st["kind"], st["axis"]) for _, e in kept)
-    st0, st1, st2 = (residual_stats(r[hold_idx]) for r in (r0, r1, r2))
+    st0, st1, st2 = (residual_stats(r[hold_idx], ERROR_COLUMNS) for r in (r0, r1, r2))
     stages = {
-        "identified": {"held_out": st0, "fitting": residual_stats(r0[fit_idx])},
-        "updated": {"held_out": st1, "fitting": residual_stats(r1[fit_idx])},
-        "updated_plus_effects": {"held_out": st2, "fitting": residual_stats(r2[fit_idx])},
+        "identified": {"held_out": st0, "fitting": residual_stats(r0[fit_idx], ERROR_COLUMNS)},
+        "updated": {"held_out": st1, "fitting": residual_stats(r1[fit_idx], ERROR_COLUMNS)},
+        "updated_plus_effects": {"held_out": st2, "fitting": residual_stats(r2[fit_idx], ERROR_COLUMNS)},
     }
     # the model handed on never loses, on the held-out checks, to a plainer stage
     options = {"updated_plus_effects": (r2, upd, updated, [t for t, _ in kept]),
@@ -125,14 +126,14 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
                "identified": (r0, None, base, [])}
     if upd_alone is not None:
         ra, _ = measured_residual(checks, HTMField(machine, upd_alone.elements_))
-        stages["updated_alone"] = {"held_out": residual_stats(ra[hold_idx]), "fitting": residual_stats(ra[fit_idx]),
+        stages["updated_alone"] = {"held_out": residual_stats(ra[hold_idx], ERROR_COLUMNS), "fitting": residual_stats(ra[fit_idx], ERROR_COLUMNS),
                                    "note": "update made on the whole residual (the joint screen's terms not kept out)"}
         options["updated_alone"] = (ra, upd_alone, HTMField(machine, upd_alone.elements_), [])
     kept_stage, why = _fallback(options, hold_idx)
     r_k, upd_k, field_k, terms_k = options[kept_stage]
     accepted = bool(terms_k)
     model = CorrectedField(machine, field_k, terms_k)
-    stk = residual_stats(r_k[hold_idx])
+    stk = residual_stats(r_k[hold_idx], ERROR_COLUMNS)
     summary = dict(d.summary)
     summary.update({
         "stages": stages,

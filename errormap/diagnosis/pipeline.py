@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..stats import residual_stats
 from .checks import ERROR_COLUMNS, CheckData, measured_residual
 from .corrected import CorrectedField
 from .effects import Context, reference
@@ -47,17 +48,6 @@ class DiagnosisSettings:
         if n_fit < 20 or n - n_fit < 10:
             raise ValueError(f"Expected at least 20 fitting and 10 held-out checks, got {n_fit} and {n - n_fit} "
                              f"of {n} (fit_fraction {self.fit_fraction})")
-
-
-def residual_stats(r) -> dict:
-    """RMS/max of the vector norm and per-axis rms/max|.|/mean of a residual (n, 3) μm."""
-    r = np.asarray(r, dtype=float)
-    norm = np.linalg.norm(r, axis=1)
-    out = {"n": int(r.shape[0]), "rms_um": float(np.sqrt(np.mean(norm**2))), "max_um": float(norm.max())}
-    for j, c in enumerate(ERROR_COLUMNS):
-        out[c] = {"rms_um": float(np.sqrt(np.mean(r[:, j] ** 2))), "max_abs_um": float(np.abs(r[:, j]).max()),
-                  "mean_um": float(r[:, j].mean())}
-    return out
 
 
 @dataclass
@@ -105,7 +95,7 @@ def diagnose(machine, field_, checks: CheckData, settings: DiagnosisSettings | N
         d["rms_reduction_um"] = rms_prev - residual_stats(r_k)["rms_um"]
         d["selection"] = dict(t.stats)
         effects.append(d)
-    before, after = residual_stats(r0[hold_idx]), residual_stats(r_after[hold_idx])
+    before, after = residual_stats(r0[hold_idx], ERROR_COLUMNS), residual_stats(r_after[hold_idx], ERROR_COLUMNS)
     inputs = _inputs(checks)
     hold_inputs = {k: v[hold_idx] for k, v in inputs.items()}
     top = []
@@ -121,8 +111,8 @@ def diagnose(machine, field_, checks: CheckData, settings: DiagnosisSettings | N
         "rms_before_um": before["rms_um"], "rms_after_um": after["rms_um"],
         "max_before_um": before["max_um"], "max_after_um": after["max_um"],
         "held_out_before": before, "held_out_after": after,
-        "fitting_before": residual_stats(r0[fit_idx]), "fitting_after": residual_stats(r_after[fit_idx]),
-        "all_before": residual_stats(r0),
+        "fitting_before": residual_stats(r0[fit_idx], ERROR_COLUMNS), "fitting_after": residual_stats(r_after[fit_idx], ERROR_COLUMNS),
+        "all_before": residual_stats(r0, ERROR_COLUMNS),
         "noise_sigma_um": sel.sigma_um_,
         "n_candidates": sel.n_candidates_,
         "unexplained_before": locate(r0[hold_idx], hold_inputs, s.alpha, s.period_min_mm, s.max_order),

@@ -612,8 +612,8 @@ class PKMCalibrator:
             res.lever_estimated = True
             return res
 
-    def _fit(self, data: PoseData) -> CalibrationResult:
-        t0 = time.perf_counter()
+    def _checked_layout(self, data: PoseData):
+        """Check ``data`` against the machine and the unknowns; ``(est, M, lo, hi, full, m_rows, legs)``."""
         m0 = self.machine
         k = m0.n_legs
         if data.q.ndim != 2 or data.q.shape[1] != k:
@@ -633,6 +633,84 @@ class PKMCalibrator:
         if bad.size:
             rows = bad if data.rows is None else data.rows[bad]
             raise InputError(f"{data.source}: rows {rows[:20].tolist()}: leg commands outside the leg range")
+        return est, M, lo, hi, full, m_rows, legs
+
+    def _gn_step(self, ph: str, Jr_full, Jg, est, M, P, y, res, lo, hi, m_rows: int, n_free: int,
+                 delta_mm) -> "_GNStep":
+        """One regularised Gauss–Newton step of phase ``ph`` from the linearisation (Jr_full, Jg) at ``y``."""
+        Jy = (Jr_full[:, est] @ M) @ P                      # scaled, gauge-fixed parameter columns
+        r_vec = res.ravel()
+        b = Jy @ y - r_vec                                  # target of the new deviation (Tikhonov on y)
+        Qg = None
+        if self.register:
+            Qg = np.linalg.qr(Jg)[0]
+            A = Jy - Qg @ (Qg.T @ Jy)
+            bp = b - Qg @ (Qg.T @ b)
+        else:
+            A, bp = Jy, b
+        U, s_all, Vt_all = svd(A, full_matrices=False)
+        rank = int(np.sum(s_all >= self.rcond * s_all.max()))
+        s, Vt = s_all[:rank], Vt_all[:rank]
+        beta = U[:, :rank].T @ bp
+        b_out2 = max(float(bp @ bp - beta @ beta), 0.0)
+        lam, lam_gcv, lam_lc, lam_mz, reached, curve = self._choose_lambda(
+            ph, s, beta, b_out2, m_rows, n_free, None if ph == "gcv" else delta_mm)
+        z, _ = self._tikhonov(s, beta, b_out2, lam)
+        y_new = Vt.T @ z
+        w_clip = np.clip(P @ y_new, lo, hi)                 # physical bounds (a safety net)
+        y_new = P.T @ w_clip
+        dg = np.linalg.lstsq(Jg, b - Jy @ y_new, rcond=None)[0] if self.register else np.zeros(6)
+        dy = y_new - y
+        # predicted (linear-model) decrease of the Tikhonov functional |res|^2 + lam |y|^2
+        phi0 = float(r_vec @ r_vec + lam * y @ y)
+        lin = r_vec + Jy @ dy + Jg @ dg
+        pred = phi0 - float(lin @ lin + lam * y_new @ y_new)
+        full_step_mm = max(np.abs(dy).max(initial=0.0), np.abs(dg[:3]).max(),
+                           self.lever_mm * np.abs(dg[3:]).max())
+        # converged: the full step is below xtol, or the linear model promises no relative decrease
+        # above ftol (the forward kinematics is solved to 1e-9 mm, so the functional itself is only
+        # known to ~1e-7 relative and a line search cannot resolve smaller decreases)
+        done = full_step_mm <= self.xtol_mm or pred <= self.ftol * phi0
+        return _GNStep(Qg=Qg, s=s, Vt=Vt, beta=beta, b_out2=b_out2, lam=lam, lam_gcv=lam_gcv, lam_lc=lam_lc,
+                       lam_mz=lam_mz, reached=reached, curve=curve, dy=dy, dg=dg, phi0=phi0, pred=pred,
+                       full_step_mm=full_step_mm, done=done)
+
+    def _line_search(self, machine_at, data: PoseData, y, t_g, R_g, pose, st: "_GNStep"):
+        """Backtracking (Armijo on the Tikhonov functional of the step's lambda): ``(accepted, alpha,
+        (y, t, R, res, pose) at the accepted point, function evaluations)``."""
+        alpha, nfev = 1.0, 0
+        while alpha >= 1.0 / 1024:
+            ya = y + alpha * st.dy
+            ta = t_g + alpha * st.dg[:3]
+            Ra = Rotation.from_rotvec(alpha * st.dg[3:]).as_matrix() @ R_g
+            ra, pa = self._residual(machine_at(ya), data, ta, Ra, pose)
+            nfev += 1
+            if ra is not None:
+                phia = float(np.sum(ra ** 2) + st.lam * ya @ ya)
+                if phia <= st.phi0 - 2e-4 * alpha * max(st.pred, 0.0):
+                    return True, alpha, (ya, ta, Ra, ra, pa), nfev
+            if st.done:  # the converged step is only taken when it does not increase the functional
+                break
+            alpha *= 0.5
+        return False, alpha, None, nfev
+
+    def _stop(self, ph: str, it: int, st: "_GNStep", accepted: bool):
+        """``(success, message)`` when phase ``ph`` ends after iteration ``it``, else None."""
+        if st.done:
+            return True, f"{ph}: converged after {it + 1} Gauss-Newton iterations"
+        if not accepted and (st.full_step_mm <= 100 * self.xtol_mm or st.pred <= 100 * self.ftol * st.phi0):
+            # the line search cannot resolve a step this small (FK solved to 1e-9 mm): converged
+            return True, (f"{ph}: converged after {it + 1} Gauss-Newton iterations (the last "
+                          f"step, {st.full_step_mm:.2g} mm, at the rounding floor)")
+        if not accepted:
+            return False, (f"{ph}: line search failed at iteration {it + 1} (step {st.full_step_mm:.3g} mm, "
+                           f"predicted relative decrease {st.pred / max(st.phi0, 1e-300):.3g})")
+        return None
+
+    def _fit(self, data: PoseData) -> CalibrationResult:
+        t0 = time.perf_counter()
+        m0 = self.machine
+        est, M, lo, hi, full, m_rows, legs = self._checked_layout(data)
         r0 = parameter_vector(m0)
         G = self.gauge_basis(est)                                   # (n_est, g)
         P = np.linalg.qr(np.c_[G, np.eye(est.sum())])[0][:, G.shape[1]:est.sum()] if G.size else np.eye(est.sum())
@@ -661,95 +739,55 @@ class PKMCalibrator:
             for it in range(self.max_iter):
                 Jr_full, Jg = self._jacobians(machine_at(y), data, t_g, R_g, pose)
                 n_jac += 1
-                Jy = (Jr_full[:, est] @ M) @ P                      # scaled, gauge-fixed parameter columns
-                r_vec = res.ravel()
-                b = Jy @ y - r_vec                                  # target of the new deviation (Tikhonov on y)
-                if self.register:
-                    Qg = np.linalg.qr(Jg)[0]
-                    A = Jy - Qg @ (Qg.T @ Jy)
-                    bp = b - Qg @ (Qg.T @ b)
-                else:
-                    A, bp = Jy, b
-                U, s_all, Vt_all = svd(A, full_matrices=False)
-                rank = int(np.sum(s_all >= self.rcond * s_all.max()))
-                s, Vt = s_all[:rank], Vt_all[:rank]
-                beta = U[:, :rank].T @ bp
-                b_out2 = max(float(bp @ bp - beta @ beta), 0.0)
-                lam, lam_gcv, lam_lc, lam_mz, reached, curve = self._choose_lambda(
-                    ph, s, beta, b_out2, m_rows, n_free, None if ph == "gcv" else delta_mm)
-                z, _ = self._tikhonov(s, beta, b_out2, lam)
-                y_new = Vt.T @ z
-                w_clip = np.clip(P @ y_new, lo, hi)                 # physical bounds (a safety net)
-                y_new = P.T @ w_clip
-                dg = np.linalg.lstsq(Jg, b - Jy @ y_new, rcond=None)[0] if self.register else np.zeros(6)
-                dy = y_new - y
-                # predicted (linear-model) decrease of the Tikhonov functional |res|^2 + lam |y|^2
-                phi0 = float(r_vec @ r_vec + lam * y @ y)
-                lin = r_vec + Jy @ dy + Jg @ dg
-                pred = phi0 - float(lin @ lin + lam * y_new @ y_new)
-                full_step_mm = max(np.abs(dy).max(initial=0.0), np.abs(dg[:3]).max(),
-                                   self.lever_mm * np.abs(dg[3:]).max())
-                # converged: the full step is below xtol, or the linear model promises no relative decrease
-                # above ftol (the forward kinematics is solved to 1e-9 mm, so the functional itself is only
-                # known to ~1e-7 relative and a line search cannot resolve smaller decreases)
-                done = full_step_mm <= self.xtol_mm or pred <= self.ftol * phi0
-                # backtracking line search (Armijo on the Tikhonov functional of this step's lambda)
-                alpha, accepted = 1.0, False
-                while alpha >= 1.0 / 1024:
-                    ya = y + alpha * dy
-                    ta = t_g + alpha * dg[:3]
-                    Ra = Rotation.from_rotvec(alpha * dg[3:]).as_matrix() @ R_g
-                    ra, pa = self._residual(machine_at(ya), data, ta, Ra, pose)
-                    nfev += 1
-                    if ra is not None:
-                        phia = float(np.sum(ra ** 2) + lam * ya @ ya)
-                        if phia <= phi0 - 2e-4 * alpha * max(pred, 0.0):
-                            accepted = True
-                            break
-                    if done:  # the converged step is only taken when it does not increase the functional
-                        break
-                    alpha *= 0.5
+                st = self._gn_step(ph, Jr_full, Jg, est, M, P, y, res, lo, hi, m_rows, n_free, delta_mm)
+                accepted, alpha, trial, k = self._line_search(machine_at, data, y, t_g, R_g, pose, st)
+                nfev += k
                 rms = float(np.sqrt(np.mean(res ** 2)))
-                history.append({"phase": ph, "iteration": it, "rms_mm": rms, "lambda": float(lam),
-                                "alpha": alpha if accepted else 0.0, "step_mm": float(full_step_mm),
-                                "predicted_decrease": pred / max(phi0, 1e-300), "discrepancy_reached": bool(reached)})
+                history.append({"phase": ph, "iteration": it, "rms_mm": rms, "lambda": float(st.lam),
+                                "alpha": alpha if accepted else 0.0, "step_mm": float(st.full_step_mm),
+                                "predicted_decrease": st.pred / max(st.phi0, 1e-300),
+                                "discrepancy_reached": bool(st.reached)})
                 if self.progress is not None:
-                    self.progress(f"{ph} iteration {it}: rms {rms * 1e3:.3f} um, lambda {lam:.3g}, "
-                                  f"step {full_step_mm:.3g} mm x {alpha if accepted else 0.0:g}")
+                    self.progress(f"{ph} iteration {it}: rms {rms * 1e3:.3f} um, lambda {st.lam:.3g}, "
+                                  f"step {st.full_step_mm:.3g} mm x {alpha if accepted else 0.0:g}")
                 if accepted:
-                    y, t_g, R_g, res, pose = ya, ta, Ra, ra, pa
-                if done:
-                    success, msg = True, f"{ph}: converged after {it + 1} Gauss-Newton iterations"
-                    break
-                if not accepted and (full_step_mm <= 100 * self.xtol_mm or pred <= 100 * self.ftol * phi0):
-                    # the line search cannot resolve a step this small (FK solved to 1e-9 mm): converged
-                    success, msg = True, (f"{ph}: converged after {it + 1} Gauss-Newton iterations (the last "
-                                          f"step, {full_step_mm:.2g} mm, at the rounding floor)")
-                    break
-                if not accepted:
-                    msg = (f"{ph}: line search failed at iteration {it + 1} (step {full_step_mm:.3g} mm, "
-                           f"predicted relative decrease {pred / max(phi0, 1e-300):.3g})")
+                    y, t_g, R_g, res, pose = trial
+                stop = self._stop(ph, it, st, accepted)
+                if stop is not None:
+                    success, msg = stop
                     break
             if estimated_delta and (ph == "gcv" or delta_mm is None):
                 # estimate delta from the GCV fit of the last linearisation: RSS / (m - trace H)
-                trH = np.sum(s ** 2 / (s ** 2 + lam_gcv)) + n_free
-                rss = self._tikhonov(s, beta, b_out2, lam_gcv)[1]
+                trH = np.sum(st.s ** 2 / (st.s ** 2 + st.lam_gcv)) + n_free
+                rss = self._tikhonov(st.s, st.beta, st.b_out2, st.lam_gcv)[1]
                 delta_mm = float(np.sqrt(rss / max(m_rows - trH, 1.0)))
-        if not reached and self.lambda_rule == "morozov":
+        if not st.reached and self.lambda_rule == "morozov":
             msg += ("; the discrepancy tau*delta*sqrt(m) is below the least-squares residual: "
                     "lambda = 0 on the identifiable subspace")
-        w = P @ y
-        r = _with(r0, est, M @ w)
-        m = machine_from_vector(m0, r)
-        # report: singular values on the identifiable subspace (gauge fixed, structural nulls removed)
-        # and of the raw frame-projected Jacobian over all estimated parameters (gauge directions included)
+        r = _with(r0, est, M @ (P @ y))
+        return CalibrationResult(
+            x=r, machine=machine_from_vector(m0, r), nominal=m0, success=success, message=msg, nfev=nfev,
+            residuals=res, estimated=est, frame_translation_mm=t_g, frame_rotation=R_g, lam=float(st.lam),
+            delta_mm=float(delta_mm), delta_estimated=estimated_delta, lambda_gcv=float(st.lam_gcv),
+            lambda_lcurve=float(st.lam_lc), lever_mm=self.lever_mm, n_poses=len(data),
+            fit_time_s=time.perf_counter() - t0, history=history, param_scale=M,
+            lcurve={**st.curve, "initial_frame": frame0}, lambda_rule=self.lambda_rule,
+            lambda_morozov=float(st.lam_mz), discrepancy_reached=bool(st.reached), n_gauge=int(G.shape[1]),
+            iterations=n_jac, **self._uncertainty(Jr_full, est, M, P, G, st, delta_mm))
+
+    def _uncertainty(self, Jr_full, est, M, P, G, st: "_GNStep", delta_mm: float) -> dict:
+        """The report's conditioning and uncertainty at the last linearisation: singular values on the
+        identifiable subspace (gauge fixed, structural nulls removed) and of the raw frame-projected
+        Jacobian over all estimated parameters (gauge directions included), the unidentifiable
+        combinations, standard errors."""
+        s, Vt, lam = st.s, st.Vt, st.lam
         cond = float(s.max() / s.min())
         Ar = Jr_full[:, est] @ M
         if self.register:
-            Ar = Ar - Qg @ (Qg.T @ Ar)
+            Ar = Ar - st.Qg @ (st.Qg.T @ Ar)
         _, s_raw, Vt_raw = svd(Ar, full_matrices=False)
         cond_raw = float(s_raw.max() / s_raw.min()) if s_raw.min() > 0 else float("inf")
-        names_all = parameter_names(m0, scales=True)
+        names_all = parameter_names(self.machine, scales=True)
         names = [n for n, e in zip(names_all, est) if e]
         unident = []
         for j in np.flatnonzero(s_raw < self.rcond * s_raw.max()):
@@ -764,16 +802,33 @@ class PKMCalibrator:
         Vw = Vt @ P.T                                               # (rank, n_est) right singular vectors in w
         cov_w = (delta_mm ** 2) * (Vw.T * filt ** 2 * s ** 2) @ Vw
         se = np.sqrt(np.maximum(np.diag(M @ cov_w @ M.T), 0))
-        return CalibrationResult(
-            x=r, machine=m, nominal=m0, success=success, message=msg, nfev=nfev, residuals=res, names=names,
-            estimated=est, std_error=se, frame_translation_mm=t_g, frame_rotation=R_g, lam=float(lam),
-            delta_mm=float(delta_mm), delta_estimated=estimated_delta, lambda_gcv=float(lam_gcv),
-            lambda_lcurve=float(lam_lc), singular_values=s, condition_number=cond, unidentifiable=unident,
-            lever_mm=self.lever_mm, n_poses=len(data), fit_time_s=time.perf_counter() - t0, history=history,
-            right_singular_vectors=Vw, param_scale=M, lcurve={**curve, "initial_frame": frame0},
-            lambda_rule=self.lambda_rule, lambda_morozov=float(lam_mz), discrepancy_reached=bool(reached),
-            condition_number_raw=cond_raw, singular_values_raw=s_raw, n_gauge=int(G.shape[1]),
-            iterations=n_jac)
+        return {"names": names, "std_error": se, "singular_values": s, "condition_number": cond,
+                "unidentifiable": unident, "right_singular_vectors": Vw, "condition_number_raw": cond_raw,
+                "singular_values_raw": s_raw}
+
+
+@dataclass
+class _GNStep:
+    """One linearised step of :meth:`PKMCalibrator._fit` (what the line search, the stopping
+    rule, the noise estimate and the report read of it)."""
+
+    Qg: np.ndarray | None
+    s: np.ndarray
+    Vt: np.ndarray
+    beta: np.ndarray
+    b_out2: float
+    lam: float
+    lam_gcv: float
+    lam_lc: float
+    lam_mz: float
+    reached: bool
+    curve: dict
+    dy: np.ndarray
+    dg: np.ndarray
+    phi0: float
+    pred: float
+    full_step_mm: float
+    done: bool
 
 
 def _with(r0: np.ndarray, est: np.ndarray, delta: np.ndarray) -> np.ndarray:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..stats import residual_stats
 from .calibration import CalibrationResult, PKMCalibrator, PoseData
 from .legspace import PlainFit, fit_leg_terms, plain_leg_fit
 from .machine_file import PKM
@@ -27,8 +28,8 @@ GAP_FACTOR = 2.0        # ... above 2x the estimated noise (repeats, else the fi
 
 def rms_um(e: dict) -> tuple[float, float]:
     """(RMS, max) of a ``pose_errors_um`` position norm (um)."""
-    pos = e["position_um"]
-    return float(np.sqrt(np.mean(pos ** 2))), float(pos.max())
+    st = residual_stats(e["position_um"])
+    return st["rms_um"], st["max_um"]
 
 
 def repeat_noise_um(data: PoseData) -> tuple[float, int] | None:

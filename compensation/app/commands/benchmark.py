@@ -9,8 +9,8 @@ from __future__ import annotations
 import sys
 
 from errormap.machine import load_machine
+from compensation.app.cli import UsageError
 
-from ..cli import UsageError
 
 
 def register(sub):
@@ -27,7 +27,12 @@ def register(sub):
                    help="reduced conditions and budgets (about a minute; what the test runs)")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: the project's store under runs/)")
     p.add_argument("--no-track", action="store_true", help="do not record MLflow runs")
-    p.add_argument("--train-s", type=float, default=None, help="LM budget per learned grinder condition, s")
+    p.add_argument("--train-iter", type=int, default=None,
+                   help="LM iterations per learned grinder condition (default 150; --quick 60): the same networks "
+                        "on any machine")
+    p.add_argument("--train-s", type=float, default=None,
+                   help="also stop each training after this many seconds (off by default: it makes the results depend "
+                        "on the machine's load; benchmark.json records the iterations reached)")
     p.add_argument("--seed", type=int, default=None, help="seed of measurements and training (default 0)")
     p.add_argument("--truth-seed", type=int, default=None, help="seed of the simulated truth grinder (default 0)")
     p.set_defaults(func=run)
@@ -36,6 +41,10 @@ def register(sub):
 def run(args) -> int:
     from ..workflows.benchmark import BenchmarkSettings, quick_settings, run_benchmark
     s = quick_settings() if args.quick else BenchmarkSettings()
+    if args.train_iter is not None:
+        if args.train_iter < 1:
+            raise UsageError(f"--train-iter: expected at least 1 iteration, got {args.train_iter}")
+        s.train_iter = args.train_iter
     if args.train_s is not None:
         if not args.train_s > 0:
             raise UsageError(f"--train-s: expected a positive number of seconds, got {args.train_s}")

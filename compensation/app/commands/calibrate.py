@@ -17,6 +17,8 @@ from pathlib import Path
 from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator
 
+from compensation.app.cli import UsageError
+
 from ..workflows.calibration import CalibrationSettings, run_calibration
 
 
@@ -52,7 +54,6 @@ def argparse_suppress():
 
 
 def run(args) -> int:
-    from compensation.app.cli import UsageError
     machine = load_machine(args.machine, expect_kind=None) if args.machine else load_machine(expect_kind="hexapod")
     if machine.kind not in ("hexapod", "tripod"):
         raise UsageError(f"{machine.path}: calibrate needs a hexapod or tripod machine file, got kind {machine.kind!r}")

@@ -37,7 +37,8 @@ import numpy as np
 
 from errormap.machine import load_machine
 
-from ..cli import UsageError
+from compensation.app.cli import UsageError
+
 from ..options import add_condition_options, conditions_from_args
 from ..workflows.compensate import CompensateSettings, compensate_files
 from ... import guards

@@ -17,13 +17,15 @@ import time
 from pathlib import Path
 
 from errormap.machine import load_machine
+from training import DEFAULT_MAX_ITER
 
-from ..cli import UsageError
+from compensation.app.cli import UsageError
+
 from ..options import add_flute_arguments, add_method_arguments, flute_from_args, parse_methods
 from ..workflows.demo import DemoSettings, run_demo
 from ...toolpath import check_in_strokes
 
-DEFAULT_TRAIN_ITER = 1000  # as `volcomp train`; the MSE goal usually stops LM earlier (92 s measured)
+DEFAULT_TRAIN_ITER = DEFAULT_MAX_ITER  # as `volcomp train`; the MSE goal usually stops LM earlier (92 s measured)
 DEFAULT_DEMO_GA_BUDGET_S = 90.0
 
 

@@ -1,10 +1,13 @@
 """``volcomp diagnose``: trace the measured residual to the effects the model lacks, or model a drift log."""
 from __future__ import annotations
 
+import math
 import sys
 
 from errormap.diagnosis.pipeline import DiagnosisSettings
 from errormap.machine import load_machine
+from training import DEFAULT_MAX_ITER
+from compensation.app.cli import UsageError
 
 
 def register(sub):
@@ -22,15 +25,30 @@ def register(sub):
     p.add_argument("--fit-fraction", type=float, default=0.6, help="first part (by seq / time) used for fitting")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level")
     p.add_argument("--max-effects", type=int, default=4)
-    p.add_argument("--retrain-time-s", type=float, default=120.0)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--retrain-iter", type=int, default=DEFAULT_MAX_ITER,
+                   help=f"LM iterations of the learned-field retrain (default {DEFAULT_MAX_ITER}; the same model "
+                        "on any machine)")
+    p.add_argument("--retrain-time-s", type=float, default=None,
+                   help="also stop the retrain after this many seconds (off by default: it makes the model depend "
+                        "on the machine's load; the retrain records the iterations reached)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the retrain")
     p.add_argument("--no-update", action="store_true",
                    help="skip the model update even when the element set's covariance (NAME.cov.npz) is beside it")
     p.set_defaults(func=run)
 
 
+def _retrain_settings(args):
+    """The retrain's :class:`training.TrainSettings` from the options (bad values: UsageError)."""
+    from training import TrainSettings
+    if args.retrain_iter < 1:
+        raise UsageError(f"--retrain-iter: expected at least 1 iteration, got {args.retrain_iter}")
+    if args.retrain_time_s is not None and not args.retrain_time_s > 0:
+        raise UsageError(f"--retrain-time-s: expected a positive number of seconds, got {args.retrain_time_s:g}")
+    return TrainSettings(max_iter=args.retrain_iter, seed=args.seed,
+                         max_time_s=math.inf if args.retrain_time_s is None else args.retrain_time_s)
+
+
 def run(args) -> int:
-    from compensation.app.cli import UsageError
     from compensation.app.workflows.diagnosis import run_checks, run_drift
     from errormap.diagnosis.drift_models import DriftSelector
     if (args.checks is None) == (args.drift is None):
@@ -53,9 +71,10 @@ def run(args) -> int:
             raise UsageError("CHECKS needs --model (element-set file or run id)")
         machine = load_machine(args.machine, expect_kind="grinder")
         settings = DiagnosisSettings(fit_fraction=args.fit_fraction, alpha=args.alpha, max_effects=args.max_effects)
+        retrain = _retrain_settings(args)
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
         summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,
-                                    args.featurepoints, args.retrain_time_s, args.seed, update=not args.no_update)
+                                    args.featurepoints, retrain, update=not args.no_update)
         if "stages" in summary:
             st = summary["stages"]
             print("held-out RMS: identified {:.3g} -> updated {:.3g} -> updated + effects {:.3g} um".format(

@@ -21,7 +21,8 @@ import numpy as np
 
 from errormap.machine import load_machine
 
-from ..cli import UsageError
+from compensation.app.cli import UsageError
+
 from ..workflows.controller_tables import DriftSettings, TableSettings, export_drift, export_table
 from ... import export as ex
 

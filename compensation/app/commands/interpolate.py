@@ -17,6 +17,8 @@ from errormap.pkm.hexapod import KinematicsError
 
 from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints
 
+from compensation.app.cli import UsageError
+
 from ..reports.tripod_sensitivity import plot_tripod_sensitivity
 
 
@@ -36,7 +38,6 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    from compensation.app.cli import UsageError
     machine = load_machine(args.machine) if args.machine else load_machine(expect_kind="hexapod")
     if machine.kind not in ("hexapod", "tripod"):
         raise UsageError(f"{machine.path}: interpolate needs a hexapod or tripod machine file, got {machine.kind!r}")

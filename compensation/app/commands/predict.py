@@ -8,6 +8,8 @@ import numpy as np
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
 
+from compensation.app.cli import UsageError
+
 from ...fields import load_field
 
 
@@ -58,7 +60,6 @@ def run(args) -> int:
 
         from errormap.elements import ElementSet
         from errormap.uncertainty import Z95, ElementCovariance, covariance_path
-        from ..cli import UsageError
         if Path(str(args.model)).suffix.lower() != ".json":
             raise UsageError("--band needs an element-set file (JSON) with its covariance beside it")
         cov = ElementCovariance.load(covariance_path(args.model), ElementSet.load(args.model))

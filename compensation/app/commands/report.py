@@ -12,7 +12,8 @@ from pathlib import Path
 
 from errormap.machine import load_machine
 
-from ..cli import UsageError
+from compensation.app.cli import UsageError
+
 from ...evaluate import load_truth
 from ...fields import load_field
 from ...pathio import read_path

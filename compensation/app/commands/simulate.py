@@ -6,6 +6,8 @@ import sys
 from errormap.machine import load_machine
 from errormap.simulator import EFFECT_NAMES
 
+from compensation.app.cli import UsageError
+
 from ..workflows.simulate import simulate_truth, summary_lines
 
 
@@ -26,7 +28,6 @@ def register(sub):
 
 
 def run(args) -> int:
-    from ..cli import UsageError
     if not args.noise_um >= 0:
         raise UsageError(f"--noise-um: expected a number >= 0, got {args.noise_um}")
     if args.checks < 1:

@@ -7,6 +7,7 @@ from errormap.elements import ElementSet
 from errormap.machine import load_machine
 from errormap.simulator import EFFECT_NAMES, TruthGrinder
 from errormap.sweeps import simulate_sweeps, write_sweeps
+from compensation.app.cli import UsageError
 
 
 def register(sub):
@@ -34,7 +35,6 @@ def register(sub):
 
 
 def run(args) -> int:
-    from ..cli import UsageError
     if args.noise_um < 0:
         raise UsageError(f"--noise-um must be >= 0, got {args.noise_um}")
     machine = load_machine(args.machine, expect_kind="grinder")

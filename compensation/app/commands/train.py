@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from errormap.io import InputError, read_table
-
 # Training stops on iterations (or the MSE goal) by default, so that the same command and seed
-# give the same model on any machine; a wall-clock budget is an explicit option.
-DEFAULT_MAX_ITER = 1000  # LM on the paper's network: ~0.2 s an iteration on 2 cores (~3-4 min)
-QUICK_MAX_ITER = 300     # the demo-sized setting
+# give the same model on any machine; a wall-clock budget is an explicit option. (The package
+# module ``training`` is light: these constants do not load torch.)
+from training import DEFAULT_MAX_ITER, QUICK_MAX_ITER
+from compensation.app.cli import UsageError
+
 
 
 def register(sub):
@@ -64,7 +65,6 @@ def _read_validation(path):
 def run(args) -> int:
     from errormap.featurepoints import FeaturePoints
 
-    from ..cli import UsageError
     try:
         hidden = tuple(int(h) for h in args.hidden.split(","))
     except ValueError:
@@ -75,6 +75,13 @@ def run(args) -> int:
     max_iter = args.max_iter if args.max_iter is not None else (QUICK_MAX_ITER if args.quick else DEFAULT_MAX_ITER)
     if max_iter < 1:
         raise UsageError(f"--max-iter must be >= 1, got {max_iter}")
+    from training.trainers import TrackSettings, TrainSettings
+    try:
+        settings = TrainSettings(trainer=args.trainer, max_iter=max_iter, max_time_s=max_time, seed=args.seed,
+                                 hidden=hidden, activation=args.activation, a_encoding=args.a_encoding,
+                                 mse_goal=args.mse_goal, threads=args.threads, select_best=args.select_best)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     fp = FeaturePoints.load(args.featurepoints)
     from errormap.machine import load_machine
     mf = fp.meta.get("machine_file")
@@ -86,11 +93,9 @@ def run(args) -> int:
     print(f"training {args.trainer} on {len(fp.axes)} feature points from {args.featurepoints} "
           f"(at most {max_iter} iterations" + (f", {max_time:g} s" if math.isfinite(max_time) else "") + ") ...",
           file=sys.stderr)
-    res = fit_field(fp, trainer=args.trainer, max_time_s=max_time, seed=args.seed, validation=validation,
-                    tracking_uri=args.tracking_uri, run_name=args.run_name, hidden=hidden,
-                    activation=args.activation, a_encoding=args.a_encoding, mse_goal=args.mse_goal,
-                    max_iter=max_iter, threads=args.threads, out_dir=out, select_best=args.select_best,
-                    tags={"featurepoints_file": str(Path(args.featurepoints).resolve())})
+    tracking = TrackSettings(tracking_uri=args.tracking_uri, run_name=args.run_name,
+                             tags={"featurepoints_file": str(Path(args.featurepoints).resolve())})
+    res = fit_field(fp, settings, validation=validation, tracking=tracking, out_dir=out)
     m = res.metrics
     print(f"run id: {res.run_id}")
     print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s: {res.history.stop_reason}")

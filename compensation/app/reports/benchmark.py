@@ -22,6 +22,15 @@ _png = functools.partial(png_base64, dpi=100)
 _plt = pyplot
 
 
+def _stop(s: dict, prefix: str) -> str:
+    """How training stopped, from the settings: ``{prefix}_iter`` iterations, an optional
+    ``{prefix}_s`` wall-clock limit (older benchmark.json files have only the time budget)."""
+    it, secs = s.get(f"{prefix}_iter"), s.get(f"{prefix}_s")
+    if it is None:
+        return f"for at most {secs:g} s"
+    return f"for {it} iterations" + (f" (at most {secs:g} s)" if secs is not None else "")
+
+
 def _fmt(v, spec=".3g") -> str:
     if v is None:
         return "—"
@@ -239,7 +248,7 @@ def render_html(doc: dict) -> str:
         parts += ["<h2>Grinder: flute path</h2>",
                   "<p class='note'>Parametric: identified 23 elements → HTM field → exact inverse. Learned: the same "
                   f"identified elements → 11×11×11 feature points → BP network {tuple(s['hidden'])} ({s['activation']}, "
-                  f"A {s['a_encoding']}), LM for at most {s['train_s']:g} s → exact (whole path; headline) and batched GA "
+                  f"A {s['a_encoding']}), LM {_stop(s, 'train')} → exact (whole path; headline) and batched GA "
                   f"(population 40, {s['ga_generations']} generations, {s['ga_points']} evenly spaced points). The per-point "
                   "PyGAD GA is not run: at ~0.5–2 s per point it would take hours on the flute. Path condition: "
                   f"{html.escape(', '.join(f'{k} = {v:g}' for k, v in pc.items()))}. Measurements: stations × 3 balls × 3 "
@@ -266,7 +275,7 @@ def render_html(doc: dict) -> str:
         parts += [f"<h2>{kind.capitalize()}</h2>",
                   "<p class='note'>Parametric: Tikhonov/Morozov kinematic calibration (joints, zero lengths, scales) → "
                   "corrected inverse kinematics in the interpolation. Learned: MLP "
-                  f"{tuple(s['pkm_hidden'])} (tanh, ridge {s['pkm_ridge']:g}, LM ≤ {s['pkm_train_s']:g} s) from commanded "
+                  f"{tuple(s['pkm_hidden'])} (tanh, ridge {s['pkm_ridge']:g}, LM {_stop(s, 'pkm_train')}) from commanded "
                   "pose to measured pose error → commanded pose iterated 6 times. Same simulated poses for both "
                   f"(instrument frame known; ~{s['pkm_pose_error_mm']:g} mm RMS error before).</p>",
                   _table(h, PKM_COLS), _per_path_table([r for r in h if r.get("available")])]

@@ -13,7 +13,7 @@ test paths, records every run in MLflow under one parent run, and writes
   (ball-centre measurements); the closed loop adds ``n_checks`` check measurements;
 * parametric: identified 23 elements → :class:`errormap.htm.HTMField` → ``exact`` solver;
 * learned: the same identified elements → 11×11×11 feature points → the BP network
-  (``training.fit_field``, LM, ``train_s`` budget) → ``batched-ga`` (the paper's GA,
+  (``training.fit_field``, LM, ``train_iter`` iterations) → ``batched-ga`` (the paper's GA,
   vectorised) on ``ga_points`` evenly spaced flute points and ``exact`` on the whole flute;
   the row's headline numbers are the ``exact`` ones (whole path), the GA subset is beside them;
 * test path: the variable-helix flute (``compensation.toolpath.flute_path``), under the path
@@ -39,6 +39,7 @@ with the reason, never filled in.
 """
 from __future__ import annotations
 
+import math
 import platform
 import sys
 import time
@@ -48,6 +49,8 @@ from pathlib import Path
 import numpy as np
 
 from errormap.io import write_json
+from errormap.seeds import spawn_seeds
+from errormap.stats import residual_stats
 
 PATH_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0, "dir_a": 1.0}
 """Conditions of the flute test path: a warm machine (24 °C, 2 h after the start of the warm-up
@@ -74,7 +77,8 @@ class BenchmarkSettings:
     effects: tuple = ("thermal", "reversal", "pitch", "worm", "interaction")
     n_checks: int = 400
     check_noise_um: float = 1.0
-    train_s: float = 30.0
+    train_iter: int = 150                  # LM iterations per learned grinder condition (~30 s on 2 cores)
+    train_s: float | None = None           # optional wall-clock limit on top (off: results depend on the load)
     hidden: tuple = (10, 15, 25, 15, 10)   # the paper's network (LM + off-grid model selection)
     activation: str = "sigmoid"
     a_encoding: str = "raw"
@@ -89,7 +93,8 @@ class BenchmarkSettings:
     pkm_base_poses: int = 100
     pkm_base_noise_um: float = 5.0
     pkm_pose_error_mm: float = 1.0
-    pkm_train_s: float = 20.0
+    pkm_train_iter: int = 200              # pose-field LM iterations
+    pkm_train_s: float | None = None       # optional wall-clock limit on top
     pkm_hidden: tuple = (16,)
     pkm_ridge: float = 1e-3
     pkm_path_step_mm: float = 0.5
@@ -106,10 +111,10 @@ class BenchmarkSettings:
 def quick_settings() -> BenchmarkSettings:
     """The ``--quick`` variant (a test runs it): fewer conditions, tiny training, path subsets."""
     return BenchmarkSettings(stations=(21,), noises_um=(1.0,), effects=("thermal",), n_checks=200,
-                             train_s=3.0, hidden=(8, 8), activation="tanh", a_encoding="periodic", paper_network=False,
+                             train_iter=60, hidden=(8, 8), activation="tanh", a_encoding="periodic", paper_network=False,
                              ga_points=20, ga_generations=100, flute_turns=1.0, flute_points_per_turn=200,
                              volume_points=50,
-                             pkm_poses=(50,), pkm_noises_um=(5.0,), pkm_base_poses=50, pkm_train_s=2.0,
+                             pkm_poses=(50,), pkm_noises_um=(5.0,), pkm_base_poses=50, pkm_train_iter=50,
                              pkm_path_step_mm=4.0, tripod=True, quick=True)
 
 
@@ -117,10 +122,14 @@ def _log(msg: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
-def _stats(err_um) -> tuple[float, float]:
-    """(RMS, max) of the per-point vector norm of a residual, shape (n, 3) μm."""
-    n = np.linalg.norm(np.asarray(err_um, dtype=float), axis=1)
-    return float(np.sqrt(np.mean(n ** 2))), float(n.max())
+# sub-streams of the run's seed (errormap.seeds), one per consumer; the same child for every
+# condition, so that the conditions see the same draws where their shapes agree
+STREAMS = ("volume_points", "sweep_noise", "validation", "selection", "checks", "pkm_paths", "pkm_poses")
+
+
+def _streams(seed: int) -> dict:
+    """``{consumer: SeedSequence}``: the children of ``SeedSequence(seed)`` named by :data:`STREAMS`."""
+    return dict(zip(STREAMS, spawn_seeds(seed, len(STREAMS))))
 
 
 def _row(machine, kind, path, condition, **kw) -> dict:
@@ -303,7 +312,7 @@ def grinder_test_points(machine, s: BenchmarkSettings) -> GrinderTestPoints:
     from ...toolpath import flute_path
     flute = flute_path(turns=s.flute_turns, points_per_turn=s.flute_points_per_turn)
     targets, nominal = flute.targets_mm, flute.axes(machine)
-    rng = np.random.default_rng(s.seed + 77)
+    rng = np.random.default_rng(_streams(s.seed)["volume_points"])
     ax = random_axes(machine, 4 * s.volume_points, rng)
     ax = ax[ax[:, 1] >= machine.strokes["z_mm"][0] + 5.0][: s.volume_points]
 
@@ -325,7 +334,7 @@ def identify_from_sweeps(machine, s: BenchmarkSettings, truth, c: GrinderConditi
     Returns ``(elements, identification seconds, number of ball-centre measurements)``."""
     from errormap.identification import identify
     from errormap.sweeps import simulate_sweeps
-    sw = simulate_sweeps(truth, noise_um=c.noise_um, seed=s.seed + 1, n_stations=c.stations)
+    sw = simulate_sweeps(truth, noise_um=c.noise_um, seed=_streams(s.seed)["sweep_noise"], n_stations=c.stations)
     t0 = time.perf_counter()
     res = identify(sw, machine)
     return res.elements_, time.perf_counter() - t0, len(sw["axis"])
@@ -365,23 +374,28 @@ class NetworkTrainer:
         """``(fit result, seconds, name of the condition reused or None)``."""
         from errormap.featurepoints import make_feature_points
         from errormap.htm import HTMField
-        from training import fit_field, validation_points
+        from training import TrackSettings, TrainSettings, fit_field, validation_points
         fp = make_feature_points(self.m, HTMField(self.m, elements), meta={"benchmark_condition": cond_name})
-        key = (tuple(s.hidden), s.activation, s.a_encoding, s.train_s)
+        key = (tuple(s.hidden), s.activation, s.a_encoding, s.train_iter, s.train_s)
         for k, errs, res, secs, name in self.cache:
             if k == key and np.max(np.abs(errs - fp.errors_um)) < FEATURE_REUSE_TOL_UM:
                 return res, secs, name
-        val = validation_points(self.m, elements, n=2000, seed=s.seed + 5)
+        streams = _streams(s.seed)
+        val = validation_points(self.m, elements, n=2000, seed=streams["validation"])
         # model selection on other off-grid points of the same identified model (not the validation set)
-        sel = validation_points(self.m, elements, n=2000, seed=s.seed + 7)
-        _log(f"grinder: training the network ({cond_name}, LM, ≤ {s.train_s:g} s)")
+        sel = validation_points(self.m, elements, n=2000, seed=streams["selection"])
+        _log(f"grinder: training the network ({cond_name}, LM, {s.train_iter} iterations"
+             + (f", ≤ {s.train_s:g} s)" if s.train_s is not None else ")"))
         t0 = time.perf_counter()
         tr = self.tracker
-        res = fit_field(fp, trainer="lm", max_time_s=s.train_s, seed=s.seed, validation=val, selection=sel, quiet=True,
-                        hidden=s.hidden, activation=s.activation, a_encoding=s.a_encoding,
-                        track=tr.enabled, tracking_uri=tr.uri if tr.enabled else None,
-                        parent_run_id=tr.parent_id, run_name=f"grinder/learned/train/{cond_name}",
-                        experiment=EXPERIMENT, tags={"benchmark_condition": cond_name})
+        settings = TrainSettings(trainer="lm", max_iter=s.train_iter, seed=s.seed,
+                                 max_time_s=math.inf if s.train_s is None else s.train_s,
+                                 hidden=s.hidden, activation=s.activation, a_encoding=s.a_encoding)
+        tracking = TrackSettings(track=tr.enabled,
+                                 tracking_uri=tr.uri if tr.enabled else None,
+                                 parent_run_id=tr.parent_id, run_name=f"grinder/learned/train/{cond_name}",
+                                 experiment=EXPERIMENT, tags={"benchmark_condition": cond_name})
+        res = fit_field(fp, settings, validation=val, selection=sel, tracking=tracking, quiet=True)
         secs = time.perf_counter() - t0
         res.field.jacobian(self.warm_up_axes)  # torch.func warm-up, so that compensation timings exclude it
         self.cache.append((key, fp.errors_um.copy(), res, secs, cond_name))
@@ -484,7 +498,7 @@ class GrinderBench:
         ``(base row, base field)`` of ``bases``."""
         from errormap.diagnosis.checks import CheckData
         s = self.s
-        cols = truth.check_measurements(n=s.n_checks, noise_um=s.check_noise_um, seed=s.seed + 3)
+        cols = truth.check_measurements(n=s.n_checks, noise_um=s.check_noise_um, seed=_streams(s.seed)["checks"])
         checks = CheckData.from_columns(cols, path=f"<simulated checks, {c.name}>")
         label = f"{c.name} (after closed loop)"
         for base_row, base in bases:
@@ -648,95 +662,110 @@ def _pkm_paths(machine, s: BenchmarkSettings):
     if machine.kind == "hexapod":
         return {n: builtin_path(n, s.pkm_path_step_mm) for n in ("sphere", "hyperboloid")}
     from errormap.pkm.hexapod import workspace_poses
-    tips, _ = workspace_poses(machine, 200 if not s.quick else 50, seed=s.seed + 7)
+    tips, _ = workspace_poses(machine, 200 if not s.quick else 50, seed=_streams(s.seed)["pkm_paths"])
     return {"workspace": PosePath(tips, np.broadcast_to(np.eye(3), (len(tips), 3, 3)).copy(),
                                   np.zeros(len(tips), int), None, "workspace")}
 
 
-def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) -> list[dict]:
-    """Both PKM paths on each (n_poses, noise) condition; true residual along the test paths."""
+def _pkm_conditions(s: BenchmarkSettings) -> dict:
+    """``{(n_poses, noise_um): group}``: the pose-count and the noise series."""
+    conditions = {}
+    for n in s.pkm_poses:
+        conditions.setdefault((n, s.pkm_base_noise_um), "poses")
+    for nz in s.pkm_noises_um:
+        conditions.setdefault((s.pkm_base_poses, nz), "noise")
+    return conditions
+
+
+def _pkm_parametric_row(machine, s: BenchmarkSettings, sim, paths, cname, common, unc) -> dict:
+    """Regularised kinematic calibration -> corrected inverse kinematics; its true residual row."""
     from errormap.pkm.calibration import PKMCalibrator
-    from errormap.pkm.simulate import simulate_poses
-    from training.pose_field import fit_pose_field
 
     from ...pkm_interpolation import leg_program, true_path_residual
     kind = machine.kind
+    try:
+        t0 = time.perf_counter()
+        cal = PKMCalibrator(machine, estimate_scales=True, register=False,
+                            noise_um=max(common["noise_um"], 0.1)).fit(sim.data)
+        fit_s = time.perf_counter() - t0
+        per_path, allpos, comp_s, npts = {}, [], 0.0, 0
+        for k, p in paths.items():
+            t0 = time.perf_counter()
+            leg_program(machine, p, cal.machine, check_limits=False)
+            comp_s += time.perf_counter() - t0
+            npts += len(p)
+            r = true_path_residual(sim.truth, cal, p)
+            per_path[k] = {"true_rms_um": r["rms_um"], "true_max_um": r["max_um"]}
+            allpos.append(r["position_um"])
+        st = residual_stats(np.concatenate(allpos))
+        return _row(machine.name, kind, "parametric", cname, solver="corrected inverse kinematics",
+                    fit_seconds=fit_s, compensate_seconds_per_point=comp_s / npts,
+                    true_rms_um=st["rms_um"], true_max_um=st["max_um"],
+                    per_path=per_path, calibration_success=bool(cal.success), calibration_lambda=float(cal.lam),
+                    **common, **unc)
+    except Exception as exc:
+        return _row(machine.name, kind, "parametric", cname, available=False,
+                    not_available=f"calibration failed: {type(exc).__name__}: {exc}", **common, **unc)
+
+
+def _pkm_learned_row(machine, s: BenchmarkSettings, tracker: Tracker, sim, paths, cname, common, unc) -> dict:
+    """Pose-error MLP -> iterated commanded pose; its true residual row."""
+    from training.pose_field import fit_pose_field
+    kind = machine.kind
+    try:
+        x, y = measured_pose_errors(machine, sim.data)
+        fit = fit_pose_field(x, y, hidden=s.pkm_hidden, ridge=s.pkm_ridge, max_iter=s.pkm_train_iter,
+                             max_time_s=math.inf if s.pkm_train_s is None else s.pkm_train_s, seed=s.seed)
+        per_path, allpos, comp_s, npts = {}, [], 0.0, 0
+        for k, p in paths.items():
+            t0 = time.perf_counter()
+            tip_c, R_c = learned_pkm_commands(fit.field, machine, p.tip_mm, p.platform2base, p.tool_length_mm)
+            comp_s += time.perf_counter() - t0
+            npts += len(p)
+            err = pkm_true_residual(sim.truth, machine, tip_c, R_c, p.tip_mm, p.tool_length_mm)
+            st = residual_stats(err)
+            per_path[k] = {"true_rms_um": st["rms_um"], "true_max_um": st["max_um"]}
+            allpos.append(np.linalg.norm(err, axis=1))
+        st = residual_stats(np.concatenate(allpos))
+        tr_id = tracker.child(f"{kind}/learned/train/{cname}", fit.params, fit.metrics,
+                              {"benchmark_condition": cname})
+        return _row(machine.name, kind, "learned", cname, solver="iterated commanded pose (6 steps)",
+                    fit_seconds=fit.seconds, train_seconds=fit.seconds, training_run_id=tr_id,
+                    train_rms_pos_um=fit.metrics["train_rms_pos_um"], train_iterations=fit.metrics["iterations"],
+                    compensate_seconds_per_point=comp_s / npts,
+                    true_rms_um=st["rms_um"], true_max_um=st["max_um"], per_path=per_path, **common, **unc)
+    except Exception as exc:
+        return _row(machine.name, kind, "learned", cname, available=False,
+                    not_available=f"learned PKM path failed: {type(exc).__name__}: {exc}", **common, **unc)
+
+
+def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) -> list[dict]:
+    """Both PKM paths on each (n_poses, noise) condition; true residual along the test paths."""
+    from errormap.pkm.simulate import simulate_poses
+
+    from ...pkm_interpolation import true_path_residual
+    kind = machine.kind
     paths = _pkm_paths(machine, s)
-    if conditions is None:
-        conditions = {}
-        for n in s.pkm_poses:
-            conditions.setdefault((n, s.pkm_base_noise_um), "poses")
-        for nz in s.pkm_noises_um:
-            conditions.setdefault((s.pkm_base_poses, nz), "noise")
+    conditions = _pkm_conditions(s) if conditions is None else conditions
     rows = []
     for (n_poses, noise), group in conditions.items():
         cname = f"poses={n_poses}, noise={noise:g}um"
-        sim = simulate_poses(machine, n_poses, noise, seed=s.seed + 1000, pose_error_mm=s.pkm_pose_error_mm,
-                             frame="identity",
+        sim = simulate_poses(machine, n_poses, noise, seed=_streams(s.seed)["pkm_poses"],
+                             pose_error_mm=s.pkm_pose_error_mm, frame="identity",
                              half_width_mm=s.pkm_half_width_mm if kind == "hexapod" else (150.0, 150.0, 100.0),
                              max_tilt_deg=s.pkm_max_tilt_deg if kind == "hexapod" else 0.0,
                              orientation="quat" if kind == "hexapod" else "none")
-        truth = sim.truth
         common = {"group": group, "n_poses": n_poses, "noise_um": noise, "n_measurements": n_poses,
                   "test_path": " + ".join(f"{k} ({len(p)} points)" for k, p in paths.items())}
-        before = {k: true_path_residual(truth, None, p) for k, p in paths.items()}
-        unc = {"uncompensated_rms_um": float(np.sqrt(np.mean(np.concatenate([b["position_um"] for b in before.values()]) ** 2))),
+        before = {k: true_path_residual(sim.truth, None, p) for k, p in paths.items()}
+        unc = {"uncompensated_rms_um": residual_stats(np.concatenate([b["position_um"] for b in before.values()]))["rms_um"],
                "uncompensated_max_um": float(max(b["max_um"] for b in before.values()))}
-        # parametric: regularised kinematic calibration -> corrected inverse kinematics
         _log(f"{kind}: parametric, {cname}")
-        try:
-            t0 = time.perf_counter()
-            cal = PKMCalibrator(machine, estimate_scales=True, register=False, noise_um=max(noise, 0.1)).fit(sim.data)
-            fit_s = time.perf_counter() - t0
-            per_path, allpos, comp_s, npts = {}, [], 0.0, 0
-            for k, p in paths.items():
-                t0 = time.perf_counter()
-                leg_program(machine, p, cal.machine, check_limits=False)
-                comp_s += time.perf_counter() - t0
-                npts += len(p)
-                r = true_path_residual(truth, cal, p)
-                per_path[k] = {"true_rms_um": r["rms_um"], "true_max_um": r["max_um"]}
-                allpos.append(r["position_um"])
-            pos = np.concatenate(allpos)
-            row = _row(machine.name, kind, "parametric", cname, solver="corrected inverse kinematics",
-                       fit_seconds=fit_s, compensate_seconds_per_point=comp_s / npts,
-                       true_rms_um=float(np.sqrt(np.mean(pos ** 2))), true_max_um=float(pos.max()),
-                       per_path=per_path, calibration_success=bool(cal.success), calibration_lambda=float(cal.lam),
-                       **common, **unc)
-        except Exception as exc:
-            row = _row(machine.name, kind, "parametric", cname, available=False,
-                       not_available=f"calibration failed: {type(exc).__name__}: {exc}", **common, **unc)
-        log_row(tracker, row)
-        rows.append(row)
-        # learned: pose-error MLP -> iterate the commanded pose
+        rows.append(_pkm_parametric_row(machine, s, sim, paths, cname, common, unc))
+        log_row(tracker, rows[-1])
         _log(f"{kind}: learned, {cname}")
-        try:
-            x, y = measured_pose_errors(machine, sim.data)
-            fit = fit_pose_field(x, y, hidden=s.pkm_hidden, ridge=s.pkm_ridge, max_time_s=s.pkm_train_s, seed=s.seed)
-            per_path, allpos, comp_s, npts = {}, [], 0.0, 0
-            for k, p in paths.items():
-                t0 = time.perf_counter()
-                tip_c, R_c = learned_pkm_commands(fit.field, machine, p.tip_mm, p.platform2base, p.tool_length_mm)
-                comp_s += time.perf_counter() - t0
-                npts += len(p)
-                err = pkm_true_residual(truth, machine, tip_c, R_c, p.tip_mm, p.tool_length_mm)
-                rms, mx = _stats(err)
-                per_path[k] = {"true_rms_um": rms, "true_max_um": mx}
-                allpos.append(np.linalg.norm(err, axis=1))
-            pos = np.concatenate(allpos)
-            tr_id = tracker.child(f"{kind}/learned/train/{cname}", fit.params, fit.metrics,
-                                  {"benchmark_condition": cname})
-            row = _row(machine.name, kind, "learned", cname, solver="iterated commanded pose (6 steps)",
-                       fit_seconds=fit.seconds, train_seconds=fit.seconds, training_run_id=tr_id,
-                       train_rms_pos_um=fit.metrics["train_rms_pos_um"], train_iterations=fit.metrics["iterations"],
-                       compensate_seconds_per_point=comp_s / npts,
-                       true_rms_um=float(np.sqrt(np.mean(pos ** 2))), true_max_um=float(pos.max()),
-                       per_path=per_path, **common, **unc)
-        except Exception as exc:
-            row = _row(machine.name, kind, "learned", cname, available=False,
-                       not_available=f"learned PKM path failed: {type(exc).__name__}: {exc}", **common, **unc)
-        log_row(tracker, row)
-        rows.append(row)
+        rows.append(_pkm_learned_row(machine, s, tracker, sim, paths, cname, common, unc))
+        log_row(tracker, rows[-1])
         for r in rows[-2:]:
             if r["available"]:
                 _log(f"  {r['path']:10s} {cname}: true RMS {r['true_rms_um']:.3f} um, max {r['true_max_um']:.3f} um")

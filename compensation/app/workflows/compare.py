@@ -16,7 +16,7 @@ import numpy as np
 
 from errormap.kinematics import inverse
 
-from ...evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_stats, true_residual_um
+from ...evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_metrics, true_residual_um
 from ...pathio import align_turns
 from ...solvers import METHODS, solve
 from ...solvers.threads import small_batch_threads
@@ -148,9 +148,9 @@ def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga
         print(msg, file=log)
     base_model = -field_.predict(nominal)  # uncompensated: the tool misses by E(p_d)
     base_true = true_residual_um(truth, nominal, targets_mm) if truth is not None else None
-    baseline = {"points": n, **residual_stats(base_model, "model")}
+    baseline = {"points": n, **residual_metrics(base_model, "model")}
     if base_true is not None:
-        baseline.update(residual_stats(base_true, "true"))
+        baseline.update(residual_metrics(base_true, "true"))
     baseline["note"] = ("nominal commands, no compensation; the model residual here is the field's "
                         "predicted error E(axes(p_d)), with sign flipped")
     a0 = nominal[0, 2]

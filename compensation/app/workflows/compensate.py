@@ -25,13 +25,14 @@ import numpy as np
 from errormap.io import InputError, write_json
 from errormap.progress import Progress
 
+from compensation.app.cli import UsageError
+
 from ... import guards
 from ...diagnosed_model import ConditionedField, load_path_field, path_conditions, solve_with_conditions
 from ...gcode import DEFAULT_RAPIDS
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from ...solvers import solve
 from ...solvers.threads import small_batch_threads
-from ..cli import UsageError
 
 SUMMARY_NAME = "compensate_summary.json"
 

@@ -18,8 +18,9 @@ from errormap.elements import ElementSet
 from errormap.io import InputError, sha256_file
 from errormap.iso230 import ISO_NAME
 
+from compensation.app.cli import UsageError
+
 from ... import export as ex
-from ..cli import UsageError
 
 READ_BACK_TOL_UM = 1e-5
 """Read-back check (μm; joint units × 1000 for LinuxCNC, i.e. μm and millidegrees): the CSV files

@@ -18,6 +18,9 @@ from errormap.featurepoints import FeaturePoints
 from errormap.htm import HTMField
 from errormap.io import write_json
 
+
+from compensation.app.cli import UsageError
+
 from ...evaluate import load_truth
 from ..reports.methods import print_table, write_report
 from .compare import compare_methods
@@ -55,17 +58,18 @@ def train_field(fp_path: Path, s: DemoSettings, log=None):
     fit_field = getattr(training, "fit_field", None)
     if fit_field is None:
         return None, None
-    kwargs = {"trainer": s.trainer, "max_iter": s.train_iter, "seed": s.seed,
-              "max_time_s": s.train_s if s.train_s is not None else math.inf}
-    if s.tracking_uri:
-        kwargs["tracking_uri"] = s.tracking_uri
-    if s.hidden:
-        kwargs["hidden"] = tuple(s.hidden)
+    from training import TrackSettings, TrainSettings
+    try:
+        settings = TrainSettings(trainer=s.trainer, max_iter=s.train_iter, seed=s.seed,
+                                 max_time_s=s.train_s if s.train_s is not None else math.inf,
+                                 **({"hidden": tuple(s.hidden)} if s.hidden else {}))
+    except ValueError as exc:
+        raise UsageError(f"training settings: {exc}") from None
     fp = FeaturePoints.load(fp_path)
     print(f"training the BP network on {len(fp.axes)} feature points ({s.trainer}, "
           f"at most {s.train_iter} iterations" + (f", {s.train_s:g} s" if s.train_s else "") + ") ...",
           file=log)
-    res = fit_field(fp, **kwargs)
+    res = fit_field(fp, settings, tracking=TrackSettings(tracking_uri=s.tracking_uri or None))
     run_id = getattr(res, "run_id", None)
     metrics = dict(getattr(res, "metrics", {}) or {})
     return res.field, {"run_id": run_id, "metrics": metrics,

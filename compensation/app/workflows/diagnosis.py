@@ -12,6 +12,7 @@ The report names its residual: the MEASURED residual (measurement − model pred
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import html
 import json
@@ -25,6 +26,7 @@ from errormap.diagnosis.effects import Context
 from errormap.diagnosis.pipeline import DiagnosisSettings, diagnose
 from errormap.featurepoints import FeaturePoints
 from errormap.io import InputError, atomic_write, write_json
+from errormap.stats import residual_stats
 
 from ...fields import load_field
 from ..reports.figures import png_base64, pyplot
@@ -63,31 +65,34 @@ def grid_aliasing(fp: FeaturePoints, corrected, n_probe: int = 4000, seed: int =
     probe = lo + (hi - lo) * rng.random((n_probe, 3))
     interp = RegularGridInterpolator(ticks, values, method="cubic")(probe)
     truth = corrected.terms_only(probe)
-    rms = float(np.sqrt(np.mean(truth ** 2)))
-    miss = float(np.sqrt(np.mean((interp - truth) ** 2)))
+    rms = residual_stats(truth)["rms_um"]
+    miss = residual_stats(interp - truth)["rms_um"]
     return {"rms_in_volume_um": rms, "rms_missed_by_grid_um": miss,
             "aliased": bool(rms > 0 and miss > ALIAS_RATIO * rms)}
 
 
 def retrain_learned(fp: FeaturePoints, corrected, parent_run_id: str | None, *, fit_field=None,
-                    max_time_s: float = 120.0, seed: int = 0, tracking_uri: str | None = None):
+                    settings=None, tracking_uri: str | None = None):
     """Retrain the learned field on feature points + the fitted axis-only terms, tracked as a
-    child of ``parent_run_id``, with the parent network's architecture. ``fit_field`` defaults to
-    :func:`training.fit_field` (``fit_field(featurepoints, trainer='lm', max_time_s=, seed=,
-    tracking_uri=, parent_run_id=, **architecture)`` returning ``.field``, ``.metrics``, ``.run_id``)."""
+    child of ``parent_run_id``, with the parent network's architecture. ``settings``: a
+    :class:`training.TrainSettings` (default: its defaults, which stop on iterations, so the
+    retrain is the same on any machine); the trainer is LM and the architecture the parent's.
+    ``fit_field`` defaults to :func:`training.fit_field` (``fit_field(featurepoints, settings,
+    tracking=TrackSettings)`` returning ``.field``, ``.metrics``, ``.run_id``)."""
     aug = augmented_feature_points(fp, corrected)
-    if fit_field is None:
-        try:
+    try:
+        from training import TrackSettings, TrainSettings
+        if fit_field is None:
             from training import fit_field  # noqa: F811
-        except ImportError as exc:
-            raise InputError(f"learned-field retrain unavailable: training.fit_field cannot be imported ({exc})") from None
+    except ImportError as exc:
+        raise InputError(f"learned-field retrain unavailable: training.fit_field cannot be imported ({exc})") from None
     arch = {}
     config = getattr(corrected.base, "config", None)
     if callable(config):
         c = config()
         arch = {k: (tuple(c[k]) if k == "hidden" else c[k]) for k in ("hidden", "activation", "a_encoding") if k in c}
-    return fit_field(aug, trainer="lm", max_time_s=max_time_s, seed=seed, tracking_uri=tracking_uri,
-                     parent_run_id=parent_run_id, **arch)
+    settings = dataclasses.replace(settings or TrainSettings(), trainer="lm", **arch)
+    return fit_field(aug, settings, tracking=TrackSettings(tracking_uri=tracking_uri, parent_run_id=parent_run_id))
 
 
 # -- figures --------------------------------------------------------------------------------
@@ -356,12 +361,13 @@ def _write(out_dir, summary, page):
 
 
 def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
-               tracking_uri=None, featurepoints=None, retrain_time_s: float = 120.0, seed: int = 0, fit_field=None,
+               tracking_uri=None, featurepoints=None, retrain=None, fit_field=None,
                field_=None, update: bool = True):
     """Diagnose ``checks_path`` against ``model_spec``; returns (summary, paths).
 
     ``field_`` overrides loading ``model_spec`` (tests, benchmarks). With a learned model
-    (a run id) and ``featurepoints`` given, axis-only effects trigger the retrain. With an
+    (a run id) and ``featurepoints`` given, axis-only effects trigger the retrain (``retrain``: its
+    :class:`training.TrainSettings`, see :func:`retrain_learned`). With an
     element-set file whose covariance (``NAME.cov.npz``, from ``volcomp identify``) lies beside
     it and ``update``, the closed loop runs (:func:`errormap.diagnosis.loop.closed_loop`):
     identified → updated → updated + effects; the updated elements are written to
@@ -392,10 +398,9 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
                            "terms on the learned field (the corrected model above)", **alias}
         elif alias is not None:
             res = retrain_learned(fp, d.corrected, parent_run_id=str(model_spec) if learned else None,
-                                  fit_field=fit_field, max_time_s=retrain_time_s, seed=seed, tracking_uri=tracking_uri)
+                                  fit_field=fit_field, settings=retrain, tracking_uri=tracking_uri)
             new = res.field
             r_new = checks.measured_um - np.asarray(new.predict(checks.axes))
-            from errormap.diagnosis.pipeline import residual_stats
             st = residual_stats(r_new[d.hold_idx])
             summary["learned_retrain"] = {"run_id": getattr(res, "run_id", None), "parent_run_id": str(model_spec),
                                           "metrics": getattr(res, "metrics", {}), "rms_after_um": st["rms_um"],

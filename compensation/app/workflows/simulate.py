@@ -9,6 +9,7 @@ from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField
 from errormap.io import sha256_file, write_csv, write_json
 from errormap.simulator import EFFECT_DEFAULTS, volume_grid
+from errormap.seeds import spawn_seeds
 
 
 def simulate_truth(machine, seed: int, out, effects=(), noise_um: float = 1.0, checks: int = 400,
@@ -25,7 +26,8 @@ def simulate_truth(machine, seed: int, out, effects=(), noise_um: float = 1.0, c
                              meta={"elements_file": str(el_path), "source": f"simulate seed={seed}"})
     fp.meta["elements_sha256"] = sha256_file(el_path)
     fp_path = fp.save(out / "featurepoints.csv")
-    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=seed + 1)
+    # the truth takes the seed itself, the check measurements a child stream of it
+    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=spawn_seeds(seed, 1)[0])
     ck_path = write_csv(out / "checks.csv", measured, header_comments=[
         "format: volcomp-checks/1", f"machine: {machine.name}", f"noise_um: {noise_um}",
         f"effects: {','.join(effects) or 'none'}"])
