@@ -157,6 +157,15 @@ class LocalExecutor:
             raise ValueError(f"Expected workers ≥ 1, got {workers!r}")
         self.workers = default_workers() if workers is None else int(workers)
 
+    def describe(self) -> str:
+        return f"this process, {self.workers} thread(s)"
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
     def run(self, method, field_, machine, tasks, options=None, progress=None) -> list[SolveResult]:
         def one(task):
             r = solve_chunk(method, field_, machine, task, options)

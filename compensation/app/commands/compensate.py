@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -39,13 +40,14 @@ from errormap.io import InputError, write_json
 from errormap.machine import load_machine
 from errormap.progress import Progress
 
-from ..cli import UsageError
+from ..cli import UsageError, one_line
 from ...diagnosed_model import add_condition_options, load_path_field
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from ... import guards
-from ..reports.methods import small_batch_threads
-from ...solvers import METHODS, solve
+from ...batch import solve_batch
+from ...solvers import METHODS
+from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args, open_executor
 
 EXIT_REFUSED = 3
 SUMMARY_NAME = "compensate_summary.json"
@@ -83,6 +85,7 @@ def register(sub):
                    help="split G1 moves and arcs into segments no longer than this (WCS mm); 'auto' "
                         "(default): from the field's curvature along the file's moves; 'none': no splitting")
     add_condition_options(p)
+    add_cluster_options(p)
     p.set_defaults(func=run)
 
 
@@ -173,6 +176,7 @@ def run(args) -> int:
         raise UsageError(f"--arc-tolerance-um must be > 0, got {args.arc_tolerance_um}")
     max_segment = parse_max_segment(args.max_segment_mm)
     allow = parse_allow(args.allow)
+    check_cluster_args(args)
     machine = load_machine(args.machine, expect_kind="grinder")
     out_dir = Path(args.out)
     plan = _plan_outputs(args.files, out_dir)
@@ -182,12 +186,25 @@ def run(args) -> int:
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     field = load_path_field(args.model, machine, args.tracking_uri, args)
     paths = [replan(tp, machine, max_segment_mm=max_segment, field=field) for tp in paths]
-    opts = {"seed": args.seed} if args.method in ("ga", "batched-ga") else {}
+    # solve every file's chunks (compensation.batch: fixed chunks and seeds, so a Ray run and a
+    # local one give the same bytes); nothing is written before all are back
+    bar = Progress(sum(len(tp) for tp in paths), f"compensate ({args.method}, points)", every_s=1.0)
+    lock = threading.Lock()
+
+    def advance(k):
+        with lock:
+            bar.update(k)
+
+    try:
+        with open_executor(args) as executor:
+            results = solve_batch(args.method, field, machine, paths, seed=args.seed, chunk_points=args.chunk_points,
+                                  executor=executor, progress=advance)
+            where = executor.describe()
+    except ClusterError as exc:
+        print(one_line(f"volcomp compensate: error: {exc}; nothing was written"), file=sys.stderr)
+        return EXIT_CLUSTER
     summary, refused, texts = [], [], []
-    bar = Progress(len(plan), f"compensate ({args.method})", every_s=0.0)
-    for (src, dst), tp in zip(plan, paths):
-        with small_batch_threads(args.method, len(tp)):
-            res = solve(args.method, field, tp.targets_mm, machine, target_axes=tp.axes, **opts)
+    for (src, dst), tp, res in zip(plan, paths, results):
         res.axes = np.array(res.axes, dtype=float)
         res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
         try:
@@ -207,7 +224,7 @@ def run(args) -> int:
                  "failures": int(np.count_nonzero(~np.asarray(res.success, bool))),
                  "guard_violations": violations, "allowed_guards": sorted(report.allowed),
                  "overridden": {g: n for g, n in violations.items() if n and g in report.allowed},
-                 "seconds": float(res.seconds)}
+                 "seconds": float(res.seconds), "chunks": res.info["chunks"]}
         if tp.kind == "gcode":
             job = tp.source
             entry.update({"lines": len(job.program.lines),
@@ -230,7 +247,6 @@ def run(args) -> int:
             text = render_compensated(tp, res.axes, res.commands_mm, comments=comments)
         texts.append(text)
         summary.append(entry)
-        bar.update(1, extra=src.name)
         status = "REFUSED (not written)" if entry.get("refused") else f"-> {dst}"
         n_viol = len(viol) + len(kept)
         print(f"{src}: {entry['points']} points, model residual max {entry['model_max_um']:.4g} um "
@@ -253,7 +269,8 @@ def run(args) -> int:
             entry["output"] = str(dst)
     summary_path = write_json(out_dir / SUMMARY_NAME, {
         "method": args.method, "model": args.model, "machine": machine.path, "allow": list(allow),
-        "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "files": summary,
+        "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "seed": args.seed, "chunk_points": args.chunk_points,
+        "solved_on": where, "files": summary,
         "removed_stale": removed})
     print(f"wrote summary: {summary_path}")
     if refused:

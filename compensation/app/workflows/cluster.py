@@ -23,7 +23,12 @@ from __future__ import annotations
 import os
 from collections import deque
 
-from compensation.batch import default_workers, one_torch_thread, solve_chunk
+from compensation.batch import CHUNK_POINTS, LocalExecutor, default_workers, one_torch_thread, solve_chunk
+
+EXIT_CLUSTER = 4
+"""Exit status of a command whose work the cluster could not finish (nothing written)."""
+
+CLUSTERS = ("ray",)
 
 MAX_RETRIES = 2
 """Restarts of a dead actor and retries of the chunk it was solving, before the batch fails."""
@@ -222,3 +227,49 @@ class RayExecutor:
             if on_done is not None:
                 on_done(labels[i], results[i])
         return results
+
+
+# -- the command-line side ----------------------------------------------------------------
+
+def add_cluster_options(p, chunks: bool = True) -> None:
+    """``--cluster``, ``--address``, ``--workers`` (and ``--chunk-points``) on a command."""
+    p.add_argument("--cluster", choices=CLUSTERS, default=None,
+                   help="run the work on Ray (pip install 'volcomp[cluster]'); default: in this process")
+    p.add_argument("--address", default=None, metavar="HOST:PORT",
+                   help="with --cluster ray: join this running Ray cluster ('auto': the one on this node); "
+                        "default: start a local one")
+    p.add_argument("--workers", type=int, default=None,
+                   help="workers: threads in this process, or the CPUs of the local Ray instance "
+                        "(default: this machine's cores; a joined cluster: all its CPUs)")
+    if chunks:
+        p.add_argument("--chunk-points", type=int, default=CHUNK_POINTS,
+                       help=f"points per chunk (default {CHUNK_POINTS:,}): the unit of work handed to a worker, "
+                            "fixed whatever the number of workers, so results do not depend on it")
+
+
+def check_cluster_args(args) -> None:
+    from ..cli import UsageError
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    if args.address is not None and args.cluster is None:
+        raise UsageError("--address needs --cluster ray")
+    if args.address is not None and args.workers is not None:
+        raise UsageError("--workers sets the size of a local Ray instance; a joined cluster (--address) "
+                         "uses all its CPUs")
+    if getattr(args, "chunk_points", 1) < 1:
+        raise UsageError(f"--chunk-points must be >= 1, got {args.chunk_points}")
+    if args.cluster == "ray":
+        try:
+            import_ray()
+        except ClusterError as exc:
+            raise UsageError(str(exc)) from None
+
+
+def open_executor(args):
+    """The executor the options name (a context manager): :class:`RayExecutor` for
+    ``--cluster ray``, else :class:`compensation.batch.LocalExecutor`."""
+    check_cluster_args(args)
+    if args.cluster == "ray":
+        import_ray()
+        return RayExecutor(address=args.address, workers=args.workers)
+    return LocalExecutor(args.workers)

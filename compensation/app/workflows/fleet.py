@@ -167,10 +167,11 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
     from errormap.machine import load_machine
     from errormap.sweeps import read_sweeps
     from errormap.uncertainty import covariance_path, smooth_identify
-    from compensation.diagnose import run_closed_loop
     from errormap.diagnosis.pipeline import DiagnosisSettings
     from training.model import torch_threads
     from training.trainers import fit_field
+
+    from .diagnosis import run_closed_loop
 
     machine = load_machine(m["machine"], expect_kind="grinder")
     name = m["name"]
