@@ -53,11 +53,12 @@ class Chunk:
 @dataclass
 class ChunkTask:
     """What a worker needs to solve one chunk: its targets (m, 3) mm, their nominal axes
-    (m, 3), the chunk's seed; ``chunk`` says where the result goes."""
+    (m, 3), the chunk's seed; ``chunk`` says where the result goes, ``label`` names its file."""
 
     chunk: Chunk
     targets_mm: np.ndarray
     target_axes: np.ndarray
+    label: str = ""
 
 
 def check_chunk_points(chunk_points) -> int:
@@ -88,7 +89,8 @@ def plan_chunks(sizes, chunk_points: int = CHUNK_POINTS, seed: int = 0) -> list[
 def chunk_tasks(chunks, paths) -> list[ChunkTask]:
     """One :class:`ChunkTask` per chunk; ``paths[f]`` has ``targets_mm`` and ``axes`` (n, 3)."""
     return [ChunkTask(c, np.ascontiguousarray(paths[c.file].targets_mm[c.lo:c.hi]),
-                      np.ascontiguousarray(paths[c.file].axes[c.lo:c.hi])) for c in chunks]
+                      np.ascontiguousarray(paths[c.file].axes[c.lo:c.hi]),
+                      str(getattr(paths[c.file], "path", "") or f"input {c.file + 1}")) for c in chunks]
 
 
 @contextlib.contextmanager

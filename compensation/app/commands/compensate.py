@@ -201,6 +201,8 @@ def run(args) -> int:
                                   executor=executor, progress=advance)
             where = executor.describe()
     except ClusterError as exc:
+        if 0 < bar.done < bar.total:
+            print(file=sys.stderr)  # end the progress line
         print(one_line(f"volcomp compensate: error: {exc}; nothing was written"), file=sys.stderr)
         return EXIT_CLUSTER
     summary, refused, texts = [], [], []

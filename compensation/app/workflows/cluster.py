@@ -5,9 +5,9 @@ library imports it, and ``volcomp --help`` does not load it.
 
 **Batch compensation** (:class:`RayExecutor`, used by ``volcomp compensate --cluster ray``):
 the chunks of :mod:`compensation.batch` (fixed boundaries, per-chunk seeds) are solved by
-Ray actors, one per worker CPU. Each actor receives the field once (``ray.put`` of the
-loaded field and machine, deserialised in the actor's constructor) and runs torch on one
-thread; the driver hands out chunks as actors finish, keeps every result in memory, and
+Ray actors, one per worker CPU. Each actor receives the field once (the loaded field and
+machine, serialised into the actor's creation and deserialised in its constructor) and runs
+torch on one thread; the driver hands out chunks as actors finish, keeps every result in memory, and
 the command then guards, renders and writes atomically on the driver — so a batch leaves
 whole files or none, and its bytes equal the in-process run's. An actor that dies is
 restarted and its chunk retried (:data:`MAX_RETRIES` times); after that the batch fails
@@ -52,6 +52,11 @@ def import_ray():
     except ImportError:
         raise ClusterError("--cluster ray needs Ray: pip install 'volcomp[cluster]'") from None
     return ray
+
+
+def ray_loaded() -> bool:
+    import sys
+    return "ray" in sys.modules
 
 
 def _parse_fault(text):
@@ -108,6 +113,7 @@ class RayExecutor:
         self.max_retries = int(max_retries)
         self._owned = False
         self._actor_cls = None
+        self._pool = None
 
     # -- the session ----------------------------------------------------------------
     def __enter__(self):
@@ -124,6 +130,8 @@ class RayExecutor:
         return self
 
     def __exit__(self, *exc):
+        if ray_loaded():
+            self._drop_actors()
         if self._owned:
             import ray
             ray.shutdown()
@@ -155,9 +163,7 @@ class RayExecutor:
         from ray.exceptions import RayError, RayTaskError
         if not tasks:
             return []
-        fault = _parse_fault(os.environ.get(FAULT_ENV))
-        payload = ray.put((field_, machine))
-        actors = [self._actor().remote(payload, fault) for _ in range(min(self.cpus(), len(tasks)))]
+        actors = self._actors(field_, machine, len(tasks))
         results = [None] * len(tasks)
         queue = deque(range(len(tasks)))
         refs = {}
@@ -184,7 +190,7 @@ class RayExecutor:
                 except RayError as exc:  # the worker died (after the retries) or the cluster failed
                     c = tasks[i].chunk
                     why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-                    raise ClusterError(f"chunk {c.index} (points {c.lo}-{c.hi - 1}) of input {c.file + 1} failed on "
+                    raise ClusterError(f"chunk {c.index} (points {c.lo}-{c.hi - 1}) of {tasks[i].label} failed on "
                                        f"the Ray cluster after {self.max_retries} retries: {type(exc).__name__}: "
                                        f"{why}") from None
                 results[j] = res
@@ -192,11 +198,31 @@ class RayExecutor:
                     progress(len(tasks[j].chunk))
                 if queue:
                     submit(actor)
-        finally:
-            for a in actors:
-                ray.kill(a, no_restart=True)
+        except BaseException:
+            self._drop_actors()  # a failed or interrupted batch leaves no actor busy behind it
+            raise
         return results
 
+    def _actors(self, field_, machine, n_tasks):
+        """The actors holding this field (made on first use, kept for the session's next batch)."""
+        fault = _parse_fault(os.environ.get(FAULT_ENV))
+        n = min(self.cpus(), n_tasks)
+        key = (id(field_), id(machine), fault)
+        if self._pool is not None and self._pool[0] == key and len(self._pool[1]) >= n:
+            return self._pool[1]
+        self._drop_actors()
+        # the field and machine go by value into each actor's creation (a few kB to a few MB): each
+        # actor deserialises them once, and a restarted actor gets them again from its creation spec
+        actors = [self._actor().remote((field_, machine), fault) for _ in range(n)]
+        self._pool = (key, actors, (field_, machine))  # the objects held: their ids stay theirs
+        return actors
+
+    def _drop_actors(self):
+        if self._pool is not None:
+            import ray
+            for a in self._pool[1]:
+                ray.kill(a, no_restart=True)
+            self._pool = None
 
     def map_function(self, fn, arg_tuples, labels=None, on_done=None) -> list:
         """``fn(*args)`` as one Ray task (one CPU) per tuple, results in order. A task whose
