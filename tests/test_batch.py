@@ -57,3 +57,23 @@ def test_result_does_not_depend_on_workers_nor_on_the_other_files(method, grinde
         other = solve_batch(method, field, grinder, paths[1:], seed=4, options=opts, chunk_points=8,
                             executor=LocalExecutor(1))
         assert not np.array_equal(other[0].axes, alone[0].axes)
+
+
+def test_the_library_and_the_command_do_not_import_ray():
+    import subprocess
+    import sys
+    code = ("import sys, compensation.batch, compensation.app.commands.compensate, compensation.app.commands.fleet; "
+            "print('ray' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
+
+
+def test_cluster_options_are_checked(tmp_path, capsys):
+    from compensation.app.cli import main
+    base = ["compensate", str(tmp_path / "p.nc"), "--model", "m.json", "--method", "exact", "--out", str(tmp_path / "o")]
+    assert main(base + ["--address", "127.0.0.1:6379"]) == 2
+    assert "--address needs --cluster ray" in capsys.readouterr().err
+    assert main(base + ["--workers", "0"]) == 2
+    assert "--workers must be >= 1" in capsys.readouterr().err
+    assert main(base + ["--chunk-points", "0"]) == 2
+    assert "--chunk-points must be >= 1" in capsys.readouterr().err

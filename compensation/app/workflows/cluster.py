@@ -21,6 +21,7 @@ as it is.
 from __future__ import annotations
 
 import os
+import sys
 from collections import deque
 
 from compensation.batch import CHUNK_POINTS, LocalExecutor, default_workers, one_torch_thread, solve_chunk
@@ -55,7 +56,6 @@ def import_ray():
 
 
 def ray_loaded() -> bool:
-    import sys
     return "ray" in sys.modules
 
 
@@ -79,8 +79,8 @@ class ChunkSolver:
     def __init__(self, payload, fault=None):
         self.field, self.machine = payload
         self.fault = fault
-        if "torch" in __import__("sys").modules:
-            import torch
+        torch = sys.modules.get("torch")
+        if torch is not None:  # else one_torch_thread sets it when a solver loads torch
             torch.set_num_threads(1)
 
     def solve(self, i, method, task, options):
