@@ -12,7 +12,10 @@ Order of work, so that DIR only ever holds whole files of one run:
 2. a DIR that already holds files is refused (exit 2) unless ``--force``; with
    ``--force`` the files a previous run listed in its ``compensate_summary.json`` and any
    file at the output path of an input this run refuses are removed;
-3. every file is solved, guarded and rendered in memory;
+3. every file is solved — in chunks of ``--chunk-points`` with a seed each
+   (:mod:`compensation.batch`), in ``--workers`` threads or on Ray (``--cluster ray``,
+   :mod:`compensation.app.workflows.cluster`), the same bytes either way — then guarded and
+   rendered in memory; a cluster that cannot finish fails the batch (exit 4) before any write;
 4. the accepted files are written as one set (each in full to a temporary file, then all
    renamed into place); ``compensate_summary.json`` last.
 
