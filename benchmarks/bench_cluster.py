@@ -80,7 +80,7 @@ def main():
     load_before = uptime()
     os.environ.setdefault("PYTHONPATH", str(HERE.parent))
     t0 = time.perf_counter()
-    ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
     ray_start_s = time.perf_counter() - t0
     rows = []
     try:

@@ -13,9 +13,9 @@ whole files or none, and its bytes equal the in-process run's. An actor that die
 restarted and its chunk retried (:data:`MAX_RETRIES` times); after that the batch fails
 with one :class:`ClusterError` line and nothing is written.
 
-Without ``address`` a local Ray instance is started with ``workers`` CPUs (default: this
-machine's cores) and shut down afterwards; with ``address`` (``HOST:PORT`` or ``auto``) an
-existing cluster is joined and left running. An already initialised Ray session is used
+Without ``address`` a new local Ray instance is started with ``workers`` CPUs (default: this
+machine's cores) and shut down afterwards; with ``address`` (``HOST:PORT``, or ``auto``: the one
+``RAY_ADDRESS`` or ``ray start`` names) an existing cluster is joined and left running. An already initialised Ray session is used
 as it is.
 """
 from __future__ import annotations
@@ -125,7 +125,9 @@ class RayExecutor:
                 except (ConnectionError, RuntimeError, ValueError) as exc:
                     raise ClusterError(f"--address {self.address}: cannot join the Ray cluster ({exc})") from None
             else:
-                ray.init(num_cpus=self.workers or default_workers(), include_dashboard=False, log_to_driver=False)
+                # "local": a new instance even where `ray start` left one running or RAY_ADDRESS is set
+                ray.init(address="local", num_cpus=self.workers or default_workers(), include_dashboard=False,
+                         log_to_driver=False)
             self._owned = True
         return self
 
