@@ -108,7 +108,7 @@ def test_allow_names_guards(setup, capsys):
 
 
 def test_interrupted_batch_leaves_whole_files_only(setup, grinder, monkeypatch, capsys):
-    import compensation.app.workflows.compensate as cmd
+    import compensation.batch as cmd  # where every chunk of a batch is solved
     d, el, nc, csv, _ = setup
     real = cmd.solve
     calls = []

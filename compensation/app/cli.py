@@ -31,6 +31,7 @@ COMMAND_HELP = {
     "interpolate": "hexapod/tripod leg-command program for a tool path",
     "benchmark": "learned vs parametric path on the same machines and measurements: report.html + benchmark.json",
     "drift-predict": "apply a saved drift model to a new log (causal compensation series)",
+    "fleet": "identify → train → diagnose every machine of a fleet file, one task per machine (Ray)",
     "export": "write controller compensation tables (ISO 230-1 per-axis, 3D grid, LinuxCNC per-joint, drift coefficients), checked against the model first",
 }
 COMMAND_MODULES = list(COMMAND_HELP)

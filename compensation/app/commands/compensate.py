@@ -13,7 +13,10 @@ files of one run:
 2. a DIR that already holds files is refused (exit 2) unless ``--force``; with
    ``--force`` the files a previous run listed in its ``compensate_summary.json`` and any
    file at the output path of an input this run refuses are removed;
-3. every file is solved, guarded and rendered in memory;
+3. every file is solved — in chunks of ``--chunk-points`` with a seed each
+   (:mod:`compensation.batch`), in ``--workers`` threads or on Ray (``--cluster ray``,
+   :mod:`compensation.app.workflows.cluster`), the same bytes either way — then guarded and
+   rendered in memory; a cluster that cannot finish fails the batch (exit 4) before any write;
 4. the accepted files are written as one set (each in full to a temporary file, then all
    renamed into place); ``compensate_summary.json`` last.
 
@@ -37,9 +40,10 @@ import numpy as np
 
 from errormap.machine import load_machine
 
-from compensation.app.cli import UsageError
+from compensation.app.cli import UsageError, one_line
 
 from ..options import add_condition_options, conditions_from_args
+from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args, open_executor
 from ..workflows.compensate import CompensateSettings, compensate_files
 from ... import guards
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
@@ -81,6 +85,8 @@ def register(sub):
                    help="split G1 moves and arcs into segments no longer than this (WCS mm); 'auto' "
                         "(default): from the field's curvature along the file's moves; 'none': no splitting")
     add_condition_options(p)
+    add_cluster_options(p)
+    add_cluster_options(p)
     p.set_defaults(func=run)
 
 
@@ -120,9 +126,16 @@ def run(args) -> int:
         method=args.method, model=args.model, out_dir=Path(args.out), force=args.force,
         tracking_uri=args.tracking_uri, seed=args.seed, allow=allow, rapids=args.rapids,
         block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
-        max_segment_mm=max_segment, conditions=conditions_from_args(args))
+        max_segment_mm=max_segment, conditions=conditions_from_args(args), chunk_points=args.chunk_points)
+    check_cluster_args(args)
     machine = load_machine(args.machine, expect_kind="grinder")
-    job = compensate_files(args.files, machine, settings, on_file=_print_file)
+    try:
+        with open_executor(args) as executor:
+            job = compensate_files(args.files, machine, settings, on_file=_print_file, executor=executor)
+    except ClusterError as exc:
+        print(file=sys.stderr)  # end a progress line
+        print(one_line(f"volcomp compensate: error: {exc}; nothing was written"), file=sys.stderr)
+        return EXIT_CLUSTER
     print(f"wrote summary: {job.summary_path}")
     if job.refused:
         for o in job.refused:

@@ -7,7 +7,10 @@ Order of work, so that the output folder only ever holds whole files of one run:
 2. a folder that already holds files is refused unless ``force``; with ``force`` the files a
    previous run listed in its ``compensate_summary.json`` and any file at the output path of
    an input this run refuses are removed;
-3. every file is solved, guarded and rendered in memory (:func:`compensate_one`);
+3. every file is solved — in chunks with a seed each (:mod:`compensation.batch`), in local
+   threads or on Ray (:mod:`compensation.app.workflows.cluster`), the same bytes either way —
+   then guarded and rendered in memory (:func:`compensate_one`); a cluster that cannot finish
+   fails the batch before any write;
 4. the accepted files are written as one set (each in full to a temporary file, then all
    renamed into place); ``compensate_summary.json`` last.
 
@@ -17,6 +20,7 @@ file is the MODEL residual (the solver's own field).
 from __future__ import annotations
 
 import json
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,10 +32,10 @@ from errormap.progress import Progress
 from compensation.app.cli import UsageError
 
 from ... import guards
+from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, solve_batch
 from ...diagnosed_model import ConditionedField, load_path_field, path_conditions, solve_with_conditions
 from ...gcode import DEFAULT_RAPIDS
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
-from ...solvers import solve
 from ...solvers.threads import small_batch_threads
 
 SUMMARY_NAME = "compensate_summary.json"
@@ -55,6 +59,7 @@ class CompensateSettings:
     arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM
     max_segment_mm: object = "auto"
     conditions: dict = field(default_factory=dict)
+    chunk_points: int = CHUNK_POINTS
 
 
 @dataclass
@@ -149,16 +154,30 @@ def override_note(s: CompensateSettings, entry) -> str:
             f"{counts} point(s) violate; method={s.method} model={s.model}")
 
 
-def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, cond=None) -> FileOutcome:
-    """Solve, guard and render one parsed tool path ``tp`` read from ``src``, to be written to
-    ``dst`` (in memory; nothing is written). ``cond``: per-point conditions {name: (n,)} of a
-    diagnosed model whose terms need them (:func:`path_conditions`), else None."""
-    opts = {"seed": s.seed} if s.method in ("ga", "batched-ga") else {}
-    with small_batch_threads(s.method, len(tp)):
-        if cond is not None:
+def solve_paths(paths, field_, machine, s: CompensateSettings, conds, executor=None, progress=None) -> list:
+    """One :class:`SolveResult` per parsed path. Without conditions every path is solved through
+    the chunk plan of :mod:`compensation.batch` (fixed chunks and seeds: a Ray run and a local one
+    give the same bytes) on ``executor``; a diagnosed model's per-point conditions are solved file
+    by file in this process (:func:`solve_with_conditions`)."""
+    if not any(c is not None for c in conds):
+        return solve_batch(s.method, field_, machine, paths, seed=s.seed, chunk_points=s.chunk_points,
+                           executor=executor, progress=progress)
+    opts = {"seed": s.seed} if s.method in GA_METHODS else {}
+    out = []
+    for tp, cond in zip(paths, conds):
+        with small_batch_threads(s.method, len(tp)):
             res = solve_with_conditions(s.method, field_, tp.targets_mm, machine, cond, target_axes=tp.axes, **opts)
-        else:
-            res = solve(s.method, field_, tp.targets_mm, machine, target_axes=tp.axes, **opts)
+        res.info = dict(res.info or {}, chunks=1)
+        out.append(res)
+        if progress is not None:
+            progress(len(tp))
+    return out
+
+
+def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, cond=None) -> FileOutcome:
+    """Guard and render one parsed tool path ``tp`` read from ``src``, solved as ``res``, to be
+    written to ``dst`` (in memory; nothing is written). ``cond``: per-point conditions
+    {name: (n,)} of a diagnosed model whose terms need them (:func:`path_conditions`), else None."""
     res.axes = np.array(res.axes, dtype=float)
     res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
     guard_field = field_.corrected.base if cond is not None else field_  # where it is calibrated: the axes-only part
@@ -179,7 +198,7 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, cond=No
              "failures": int(np.count_nonzero(~np.asarray(res.success, bool))),
              "guard_violations": violations, "allowed_guards": sorted(report.allowed),
              "overridden": {g: n for g, n in violations.items() if n and g in report.allowed},
-             "seconds": float(res.seconds)}
+             "seconds": float(res.seconds), "chunks": (res.info or {}).get("chunks", 1)}
     if tp.kind == "gcode":
         job = tp.source
         entry.update({"lines": len(job.program.lines),
@@ -204,9 +223,12 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, cond=No
     return outcome
 
 
-def compensate_files(files, machine, s: CompensateSettings, on_file=None) -> CompensateRun:
+def compensate_files(files, machine, s: CompensateSettings, on_file=None, executor=None) -> CompensateRun:
     """Compensate ``files`` into ``s.out_dir`` in the order of work above; ``on_file(outcome)``
-    is called after each file is solved (before anything is written)."""
+    is called after each file is guarded and rendered (before anything is written).
+    ``executor``: where the chunks are solved (:class:`compensation.batch.LocalExecutor` by
+    default; a Ray executor from :mod:`compensation.app.workflows.cluster`); a
+    :class:`~compensation.app.workflows.cluster.ClusterError` it raises leaves nothing written."""
     out_dir = Path(s.out_dir)
     plan = plan_outputs(files, out_dir)
     old_outputs = check_out_dir(out_dir, s.force)
@@ -221,12 +243,19 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None) -> Com
     paths = [replan(tp, machine, max_segment_mm=s.max_segment_mm, field=plan_field) for tp in paths]
     if needs:  # replanning may add points: conditions of the replanned rows
         conds = [path_conditions(tp, needs, field_.conditions) for tp in paths]
+    # solve everything first (nothing is written before all results are back)
+    bar = Progress(sum(len(tp) for tp in paths), f"compensate ({s.method}, points)", every_s=1.0)
+    lock = threading.Lock()
+
+    def advance(k):
+        with lock:
+            bar.update(k)
+
+    results = solve_paths(paths, field_, machine, s, conds, executor=executor, progress=advance)
     outcomes = []
-    bar = Progress(len(plan), f"compensate ({s.method})", every_s=0.0)
-    for (src, dst), tp, cond in zip(plan, paths, conds):
-        o = compensate_one(tp, src, dst, field_, machine, s, cond)
+    for (src, dst), tp, cond, res in zip(plan, paths, conds, results):
+        o = compensate_one(tp, src, dst, field_, machine, s, res, cond)
         outcomes.append(o)
-        bar.update(1, extra=src.name)
         if on_file is not None:
             on_file(o)
     # write: remove what a previous run left, then the accepted files, the summary last
@@ -243,6 +272,8 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None) -> Com
             o.entry["output"] = str(o.dst)
     summary_path = write_json(out_dir / SUMMARY_NAME, {
         "method": s.method, "model": s.model, "machine": machine.path, "allow": list(s.allow),
-        "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "files": [o.entry for o in outcomes],
+        "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "seed": s.seed, "chunk_points": s.chunk_points,
+        "solved_on": executor.describe() if executor is not None else LocalExecutor().describe(),
+        "files": [o.entry for o in outcomes],
         "removed_stale": removed})
     return CompensateRun(outcomes, summary_path, removed)

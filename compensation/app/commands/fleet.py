@@ -1,0 +1,93 @@
+"""``volcomp fleet``: identify → train → diagnose for every machine of a fleet file (docs/cluster.md)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from errormap.io import write_json
+
+from ..cli import UsageError, one_line
+from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args
+
+DEFAULT_TRAIN_ITER = 1000  # as `volcomp train`
+
+
+def register(sub):
+    p = sub.add_parser(
+        "fleet", help="identify → train → diagnose every machine of a fleet file, one task per machine (Ray)",
+        description="For each [[machine]] of FLEET (TOML, docs/schemas.md): identify the elements from its sweeps, "
+                    "train the network on their feature points (an MLflow run), diagnose its checks (measured "
+                    "residual). Writes DIR/<name>/ per machine and DIR/fleet_summary.json. Exit status 4 when a "
+                    "machine failed.")
+    p.add_argument("fleet", metavar="FLEET", help="fleet file (TOML, format volcomp-fleet/1)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (one sub-folder per machine)")
+    p.add_argument("--force", action="store_true", help="write into a DIR that already holds files")
+    p.add_argument("--tracking-uri", default=None,
+                   help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else runs/mlflow.db); with --cluster ray "
+                        "and several machines it must be a tracking server (http://HOST:PORT)")
+    p.add_argument("--train-iter", type=int, default=DEFAULT_TRAIN_ITER,
+                   help=f"LM iterations per machine (default {DEFAULT_TRAIN_ITER})")
+    p.add_argument("--hidden", default="10,15,25,15,10", help="hidden layer widths, comma-separated")
+    p.add_argument("--grid", type=int, default=11, help="feature points per axis (default 11)")
+    p.add_argument("--bootstrap", type=int, default=100, help="bootstrap draws of the identification (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and of the training")
+    add_cluster_options(p, chunks=False)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from training.tracking import default_tracking_uri
+
+    from ..workflows.cluster import RayExecutor
+    from ..workflows.fleet import SUMMARY_NAME, check_tracking_uri, read_fleet, run_fleet, validate_inputs
+    check_cluster_args(args)
+    try:
+        hidden = [int(h) for h in args.hidden.split(",")]
+    except ValueError:
+        raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
+    if not hidden or min(hidden) < 1:
+        raise UsageError(f"--hidden: expected widths >= 1, got {args.hidden!r}")
+    for name in ("train_iter", "grid"):
+        if getattr(args, name) < (2 if name == "grid" else 1):
+            raise UsageError(f"--{name.replace('_', '-')} must be >= {2 if name == 'grid' else 1}")
+    if args.bootstrap < 2:
+        raise UsageError(f"--bootstrap must be >= 2, got {args.bootstrap}")
+    machines = read_fleet(args.fleet)
+    uri = args.tracking_uri or default_tracking_uri()
+    check_tracking_uri(uri, len(machines), args.cluster == "ray")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not args.force:
+        raise UsageError(f"--out {out} already holds files; choose an empty folder or pass --force")
+    print(f"fleet: checking the inputs of {len(machines)} machine(s) ...", file=sys.stderr)
+    validate_inputs(machines)
+    settings = {"tracking_uri": uri, "train_iter": args.train_iter, "hidden": hidden, "grid": args.grid,
+                "bootstrap": args.bootstrap, "seed": args.seed, "threads": 1, "fleet": str(Path(args.fleet).resolve())}
+    try:
+        if args.cluster == "ray":
+            with RayExecutor(address=args.address, workers=args.workers) as ex:
+                where = ex.describe()
+                results = run_fleet(machines, out, settings, executor=ex)
+        else:
+            where = "this process, one machine after another"
+            results = run_fleet(machines, out, settings)
+    except ClusterError as exc:
+        print(one_line(f"volcomp fleet: error: {exc}"), file=sys.stderr)
+        return EXIT_CLUSTER
+    summary_path = write_json(out / SUMMARY_NAME, {
+        "fleet": str(args.fleet), "tracking_uri": uri, "ran_on": where,
+        "settings": {k: v for k, v in settings.items() if k not in ("tracking_uri", "fleet")},
+        "residual": "diagnosis: measured (check measurement − model prediction) on held-out checks",
+        "machines": results})
+    failed = [r for r in results if r.get("status") != "ok"]
+    for r in results:
+        if r.get("status") == "ok":
+            d = r["diagnosis"]
+            print(f"{r['name']}: run {r['run_id']}, train max {r['train'].get('train_max_um', float('nan')):.3g} um; "
+                  f"held-out measured RMS identified {d['diagnose_heldout_rms_identified_um']:.3g} -> final "
+                  f"{d['diagnose_heldout_rms_final_um']:.3g} um")
+    for r in failed:
+        print(one_line(f"volcomp fleet: {r['name']}: failed: {r.get('error')}"), file=sys.stderr)
+    print(f"wrote summary: {summary_path}")
+    return EXIT_CLUSTER if failed else 0

@@ -1,0 +1,303 @@
+"""Ray scale-out: batch compensation on a cluster, and the fleet (identify → train → diagnose).
+
+Ray is imported here only, and lazily (``pip install 'volcomp[cluster]'``): nothing in the
+library imports it, and ``volcomp --help`` does not load it.
+
+**Batch compensation** (:class:`RayExecutor`, used by ``volcomp compensate --cluster ray``):
+the chunks of :mod:`compensation.batch` (fixed boundaries, per-chunk seeds) are solved by
+Ray actors, one per worker CPU. Each actor receives the field once (the loaded field and
+machine, serialised into the actor's creation and deserialised in its constructor) and runs
+torch on one thread; the driver hands out chunks as actors finish, keeps every result in memory, and
+the command then guards, renders and writes atomically on the driver — so a batch leaves
+whole files or none, and its bytes equal the in-process run's. An actor that dies is
+restarted and its chunk retried (:data:`MAX_RETRIES` times); after that the batch fails
+with one :class:`ClusterError` line and nothing is written.
+
+Without ``address`` a new local Ray instance is started with ``workers`` CPUs (default: this
+machine's cores) and shut down afterwards; with ``address`` (``HOST:PORT``, or ``auto``: the one
+``RAY_ADDRESS`` or ``ray start`` names) an existing cluster is joined and left running. An already initialised Ray session is used
+as it is.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from collections import deque
+
+from compensation.batch import CHUNK_POINTS, LocalExecutor, default_workers, one_torch_thread, solve_chunk
+
+EXIT_CLUSTER = 4
+"""Exit status of a command whose work the cluster could not finish (nothing written)."""
+
+CLUSTERS = ("ray",)
+
+MAX_RETRIES = 2
+"""Restarts of a dead actor and retries of the chunk it was solving, before the batch fails."""
+
+IN_FLIGHT_PER_ACTOR = 2  # chunks queued on an actor: the next one's transfer overlaps the solve
+
+FAULT_ENV = "VOLCOMP_CLUSTER_FAULT"
+"""Test hook (fault injection): ``exit:FILE:CHUNK`` makes the worker that solves chunk CHUNK
+of input FILE (0-based) exit at once; ``exit-once:FILE:CHUNK:MARKER`` does so only while the
+file MARKER does not exist (it is created first), so a retry succeeds."""
+
+
+class ClusterError(RuntimeError):
+    """The cluster could not finish the work (after retries); nothing was written."""
+
+
+def import_ray():
+    """``ray``, or a :class:`ClusterError` saying how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise ClusterError("--cluster ray needs Ray: pip install 'volcomp[cluster]'") from None
+    return ray
+
+
+def ray_loaded() -> bool:
+    return "ray" in sys.modules
+
+
+def _parse_fault(text):
+    if not text:
+        return None
+    parts = text.split(":", 3)
+    try:
+        kind, f, c = parts[0], int(parts[1]), int(parts[2])
+    except (IndexError, ValueError):
+        raise ClusterError(f"${FAULT_ENV}: expected exit:FILE:CHUNK or exit-once:FILE:CHUNK:MARKER, got {text!r}") \
+            from None
+    if kind not in ("exit", "exit-once") or (kind == "exit-once" and len(parts) != 4):
+        raise ClusterError(f"${FAULT_ENV}: expected exit:FILE:CHUNK or exit-once:FILE:CHUNK:MARKER, got {text!r}")
+    return (kind, f, c, parts[3] if kind == "exit-once" else None)
+
+
+class ChunkSolver:
+    """A Ray actor's body: the field loaded once, chunks solved on one torch thread."""
+
+    def __init__(self, payload, fault=None):
+        self.field, self.machine = payload
+        self.fault = fault
+        torch = sys.modules.get("torch")
+        if torch is not None:  # else one_torch_thread sets it when a solver loads torch
+            torch.set_num_threads(1)
+
+    def solve(self, i, method, task, options):
+        if self.fault is not None:
+            kind, f, c, marker = self.fault
+            if (task.chunk.file, task.chunk.index) == (f, c):
+                if kind == "exit":
+                    os._exit(17)
+                if not os.path.exists(marker):
+                    open(marker, "w").close()
+                    os._exit(17)
+        with one_torch_thread():
+            return i, solve_chunk(method, self.field, self.machine, task, options)
+
+    def pid(self):
+        return os.getpid()
+
+
+class RayExecutor:
+    """Solve chunk tasks on Ray (see the module docstring); a context manager that starts
+    (and stops) a local Ray instance when none is running and no ``address`` is given."""
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None, workers: int | None = None, max_retries: int = MAX_RETRIES):
+        if workers is not None and workers < 1:
+            raise ValueError(f"Expected workers ≥ 1, got {workers!r}")
+        self.address = address
+        self.workers = workers
+        self.max_retries = int(max_retries)
+        self._owned = False
+        self._actor_cls = None
+        self._pool = None
+
+    # -- the session ----------------------------------------------------------------
+    def __enter__(self):
+        ray = import_ray()
+        if not ray.is_initialized():
+            if self.address:
+                try:
+                    ray.init(address=self.address, log_to_driver=False)
+                except (ConnectionError, RuntimeError, ValueError) as exc:
+                    raise ClusterError(f"--address {self.address}: cannot join the Ray cluster ({exc})") from None
+            else:
+                # "local": a new instance even where `ray start` left one running or RAY_ADDRESS is set
+                ray.init(address="local", num_cpus=self.workers or default_workers(), include_dashboard=False,
+                         log_to_driver=False)
+            self._owned = True
+        return self
+
+    def __exit__(self, *exc):
+        if ray_loaded():
+            self._drop_actors()
+        if self._owned:
+            import ray
+            ray.shutdown()
+            self._owned = False
+        return False
+
+    def cpus(self) -> int:
+        """Worker slots: ``workers`` if given, else the cluster's CPUs."""
+        import ray
+        return self.workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+    def describe(self) -> str:
+        import ray
+        res = ray.cluster_resources()
+        return (f"Ray {ray.__version__}, {len(ray.nodes())} node(s), {int(res.get('CPU', 0))} CPU(s)"
+                f"{' (joined ' + self.address + ')' if self.address else ' (local)'}")
+
+    # -- the work -------------------------------------------------------------------
+    def _actor(self):
+        import ray
+        if self._actor_cls is None:
+            self._actor_cls = ray.remote(num_cpus=1, max_restarts=self.max_retries,
+                                         max_task_retries=self.max_retries)(ChunkSolver)
+        return self._actor_cls
+
+    def run(self, method, field_, machine, tasks, options=None, progress=None) -> list:
+        """Results of ``tasks`` (:class:`compensation.batch.ChunkTask`) in task order."""
+        import ray
+        from ray.exceptions import RayError, RayTaskError
+        if not tasks:
+            return []
+        actors = self._actors(field_, machine, len(tasks))
+        results = [None] * len(tasks)
+        queue = deque(range(len(tasks)))
+        refs = {}
+
+        def submit(actor):
+            i = queue.popleft()
+            refs[actor.solve.remote(i, method, tasks[i], options)] = (i, actor)
+
+        try:
+            for _ in range(IN_FLIGHT_PER_ACTOR):
+                for a in actors:
+                    if queue:
+                        submit(a)
+            while refs:
+                done, _ = ray.wait(list(refs), num_returns=1)
+                i, actor = refs.pop(done[0])
+                try:
+                    j, res = ray.get(done[0])
+                except RayTaskError as exc:  # the solver raised: the same error as in-process
+                    cause = getattr(exc, "cause", None)
+                    if isinstance(cause, Exception):
+                        raise cause from None
+                    raise
+                except RayError as exc:  # the worker died (after the retries) or the cluster failed
+                    c = tasks[i].chunk
+                    why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                    raise ClusterError(f"chunk {c.index} (points {c.lo}-{c.hi - 1}) of {tasks[i].label} failed on "
+                                       f"the Ray cluster after {self.max_retries} retries: {type(exc).__name__}: "
+                                       f"{why}") from None
+                results[j] = res
+                if progress is not None:
+                    progress(len(tasks[j].chunk))
+                if queue:
+                    submit(actor)
+        except BaseException:
+            self._drop_actors()  # a failed or interrupted batch leaves no actor busy behind it
+            raise
+        return results
+
+    def _actors(self, field_, machine, n_tasks):
+        """The actors holding this field (made on first use, kept for the session's next batch)."""
+        fault = _parse_fault(os.environ.get(FAULT_ENV))
+        n = min(self.cpus(), n_tasks)
+        key = (id(field_), id(machine), fault)
+        if self._pool is not None and self._pool[0] == key and len(self._pool[1]) >= n:
+            return self._pool[1]
+        self._drop_actors()
+        # the field and machine go by value into each actor's creation (a few kB to a few MB): each
+        # actor deserialises them once, and a restarted actor gets them again from its creation spec
+        actors = [self._actor().remote((field_, machine), fault) for _ in range(n)]
+        self._pool = (key, actors, (field_, machine))  # the objects held: their ids stay theirs
+        return actors
+
+    def _drop_actors(self):
+        if self._pool is not None:
+            import ray
+            for a in self._pool[1]:
+                ray.kill(a, no_restart=True)
+            self._pool = None
+
+    def map_function(self, fn, arg_tuples, labels=None, on_done=None) -> list:
+        """``fn(*args)`` as one Ray task (one CPU) per tuple, results in order. A task whose
+        worker died is retried (:data:`MAX_RETRIES` times); after that its entry is a
+        :class:`ClusterError` (the others still finish). ``fn`` should report its own errors
+        in its result (an exception it raises is re-raised here). ``on_done(label, result)``
+        is called as tasks finish."""
+        import ray
+        from ray.exceptions import RayError, RayTaskError
+        labels = labels or [str(i) for i in range(len(arg_tuples))]
+        remote = ray.remote(num_cpus=1, max_retries=self.max_retries)(fn)
+        refs = {remote.remote(*args): i for i, args in enumerate(arg_tuples)}
+        results = [None] * len(arg_tuples)
+        while refs:
+            done, _ = ray.wait(list(refs), num_returns=1)
+            i = refs.pop(done[0])
+            try:
+                results[i] = ray.get(done[0])
+            except RayTaskError as exc:
+                cause = getattr(exc, "cause", None)
+                if isinstance(cause, Exception):
+                    raise cause from None
+                raise
+            except RayError as exc:
+                why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                results[i] = ClusterError(f"{labels[i]}: lost on the Ray cluster after {self.max_retries} retries: "
+                                          f"{type(exc).__name__}: {why}")
+            if on_done is not None:
+                on_done(labels[i], results[i])
+        return results
+
+
+# -- the command-line side ----------------------------------------------------------------
+
+def add_cluster_options(p, chunks: bool = True) -> None:
+    """``--cluster``, ``--address``, ``--workers`` (and ``--chunk-points``) on a command."""
+    p.add_argument("--cluster", choices=CLUSTERS, default=None,
+                   help="run the work on Ray (pip install 'volcomp[cluster]'); default: in this process")
+    p.add_argument("--address", default=None, metavar="HOST:PORT",
+                   help="with --cluster ray: join this running Ray cluster ('auto': the one on this node); "
+                        "default: start a local one")
+    p.add_argument("--workers", type=int, default=None,
+                   help="workers: threads in this process, or the CPUs of the local Ray instance "
+                        "(default: this machine's cores; a joined cluster: all its CPUs)")
+    if chunks:
+        p.add_argument("--chunk-points", type=int, default=CHUNK_POINTS,
+                       help=f"points per chunk (default {CHUNK_POINTS:,}): the unit of work handed to a worker, "
+                            "fixed whatever the number of workers, so results do not depend on it")
+
+
+def check_cluster_args(args) -> None:
+    from ..cli import UsageError
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    if args.address is not None and args.cluster is None:
+        raise UsageError("--address needs --cluster ray")
+    if args.address is not None and args.workers is not None:
+        raise UsageError("--workers sets the size of a local Ray instance; a joined cluster (--address) "
+                         "uses all its CPUs")
+    if getattr(args, "chunk_points", 1) < 1:
+        raise UsageError(f"--chunk-points must be >= 1, got {args.chunk_points}")
+    if args.cluster == "ray":
+        try:
+            import_ray()
+        except ClusterError as exc:
+            raise UsageError(str(exc)) from None
+
+
+def open_executor(args):
+    """The executor the options name (a context manager): :class:`RayExecutor` for
+    ``--cluster ray``, else :class:`compensation.batch.LocalExecutor`."""
+    check_cluster_args(args)
+    if args.cluster == "ray":
+        import_ray()
+        return RayExecutor(address=args.address, workers=args.workers)
+    return LocalExecutor(args.workers)

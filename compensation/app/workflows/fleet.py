@@ -1,0 +1,238 @@
+"""The fleet: identify → train → diagnose for every machine of a fleet file, one task per machine.
+
+A fleet file (TOML, ``format = "volcomp-fleet/1"``, docs/schemas.md) lists machines, each
+with its tracker sweeps and check measurements. Per machine (:func:`run_machine`), into
+``DIR/<name>/``:
+
+1. **identify** the 23 elements from the sweeps (smoothed, bootstrap covariance):
+   ``elements.json``, ``elements.cov.npz``, ``identify_report.json``;
+2. **train** the BP network on the identified set's feature points (LM, a fixed iteration
+   count), tracked as an MLflow run: ``featurepoints.csv``, ``train/`` (model, metrics, plots);
+3. **diagnose** the checks against the identified set and its covariance (the closed loop:
+   identified → updated → updated + effects, judged on held-out checks — the MEASURED
+   residual): ``diagnosis/``; the diagnosis figures are also logged to the training run;
+4. ``machine_summary.json`` last.
+
+Every input of every machine is read and validated on the driver before any work starts
+(a bad file stops the fleet with exit status 2, naming file, row and column). With
+``--cluster ray`` each machine is one Ray task (one CPU, torch on one thread); without it,
+machines run one after another in this process. A machine that fails is reported (its
+folder removed) and the others go on. ``DIR/fleet_summary.json`` is written last.
+
+Several machines training at once must not share one SQLite file (or a local ``file:`` store):
+with ``--cluster ray`` and more than one machine, only a tracking server (``http(s)://``) is
+accepted.
+"""
+from __future__ import annotations
+
+import re
+import shutil
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+from errormap.io import InputError, write_json
+
+FORMAT = "volcomp-fleet/1"
+SUMMARY_NAME = "fleet_summary.json"
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+SERVER_SCHEMES = ("http://", "https://", "databricks")
+MACHINE_KEYS = {"name", "machine", "sweeps", "checks", "noise_um"}
+
+
+def _fail(path, key, msg):
+    raise InputError(f"{path}: key '{key}': {msg}")
+
+
+def read_fleet(path) -> list[dict]:
+    """The machines of a fleet file: dicts with ``name``, ``machine`` (path or None),
+    ``sweeps`` (list of paths), ``checks`` (path), ``noise_um`` (float or None); paths are
+    resolved against the fleet file's folder and must exist."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such fleet file")
+    try:
+        doc = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: byte {exc.start}: not UTF-8") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not TOML ({exc})") from None
+    if doc.get("format") != FORMAT:
+        _fail(path, "format", f"expected {FORMAT!r}, got {doc.get('format')!r}")
+    extra = sorted(set(doc) - {"format", "machine"})
+    if extra:
+        _fail(path, extra[0], "unknown key (expected 'format' and [[machine]] tables)")
+    machines = doc.get("machine")
+    if not isinstance(machines, list) or not machines or not all(isinstance(m, dict) for m in machines):
+        _fail(path, "machine", "expected one or more [[machine]] tables")
+    base = path.parent
+    out, seen = [], set()
+
+    def file_(key, value):
+        if not isinstance(value, str) or not value:
+            _fail(path, key, f"expected a file path (string), got {value!r}")
+        p = (base / value) if not Path(value).is_absolute() else Path(value)
+        if not p.is_file():
+            _fail(path, key, f"no such file: {p}")
+        return p.resolve()
+
+    for i, m in enumerate(machines):
+        k = f"machine[{i}]"
+        bad = sorted(set(m) - MACHINE_KEYS)
+        if bad:
+            _fail(path, f"{k}.{bad[0]}", f"unknown key (expected {sorted(MACHINE_KEYS)})")
+        name = m.get("name")
+        if not isinstance(name, str) or not NAME_RE.match(name):
+            _fail(path, f"{k}.name", f"expected a folder name of letters, digits, '.', '_', '-' "
+                                     f"(at most 64, not starting with '.'), got {name!r}")
+        if name in seen:
+            _fail(path, f"{k}.name", f"{name!r} appears twice")
+        seen.add(name)
+        sweeps = m.get("sweeps")
+        sweeps = [sweeps] if isinstance(sweeps, str) else sweeps
+        if not isinstance(sweeps, list) or not sweeps:
+            _fail(path, f"{k}.sweeps", f"expected a sweep file or a list of them, got {m.get('sweeps')!r}")
+        noise = m.get("noise_um")
+        if noise is not None and (isinstance(noise, bool) or not isinstance(noise, (int, float)) or not noise > 0):
+            _fail(path, f"{k}.noise_um", f"expected a tracker noise σ > 0 in μm, got {noise!r}")
+        out.append({"name": name,
+                    "machine": file_(f"{k}.machine", m["machine"]) if "machine" in m else None,
+                    "sweeps": [file_(f"{k}.sweeps[{j}]", s) for j, s in enumerate(sweeps)],
+                    "checks": file_(f"{k}.checks", m.get("checks")),
+                    "noise_um": None if noise is None else float(noise)})
+    return out
+
+
+def validate_inputs(machines) -> None:
+    """Read every machine file, sweep set and check file (raises InputError / MachineFileError
+    naming file, row and column) — before any work starts."""
+    from errormap.diagnosis.checks import load_checks
+    from errormap.machine import load_machine
+    from errormap.sweeps import read_sweeps
+    for m in machines:
+        machine = load_machine(m["machine"], expect_kind="grinder")
+        read_sweeps([str(s) for s in m["sweeps"]])
+        load_checks(m["checks"], machine)
+
+
+def check_tracking_uri(uri: str, n_machines: int, on_cluster: bool) -> None:
+    """Refuse a file-based MLflow store when several machines would write to it at once."""
+    from ..cli import UsageError
+    if on_cluster and n_machines > 1 and not uri.startswith(SERVER_SCHEMES):
+        raise UsageError(f"--cluster ray: {n_machines} machines would write to the MLflow store {uri} at once, "
+                         "and a SQLite file (or a local file store) is not for many writers (nor seen by other "
+                         "nodes); start a tracking server (mlflow server --backend-store-uri ...) and pass "
+                         "--tracking-uri http://HOST:PORT")
+
+
+def _log_to_run(uri: str, run_id: str, metrics: dict, files, tags: dict) -> None:
+    from mlflow.tracking import MlflowClient
+    client = MlflowClient(tracking_uri=uri)
+    for k, v in metrics.items():
+        client.log_metric(run_id, k, float(v))
+    for k, v in tags.items():
+        client.set_tag(run_id, k, str(v))
+    for f in files:
+        client.log_artifact(run_id, str(f), artifact_path="diagnosis")
+
+
+def run_machine(m: dict, out_dir: str, settings: dict) -> dict:
+    """Identify → train → diagnose one machine into ``out_dir/<name>``; returns its summary
+    (``status`` ``"ok"`` or ``"failed"`` with a one-line ``error``; a failed machine's folder
+    is removed). ``settings``: ``tracking_uri``, ``train_iter``, ``hidden``, ``bootstrap``,
+    ``seed``, ``grid``, ``threads`` (torch threads, 1 on a cluster), ``fleet``."""
+    from ..cli import one_line
+    t0 = time.perf_counter()
+    folder = Path(out_dir) / m["name"]
+    if folder.exists():  # a retried task starts clean
+        shutil.rmtree(folder)
+    try:
+        summary = _run_machine(m, folder, settings)
+    except Exception as exc:  # reported per machine; the other machines go on
+        shutil.rmtree(folder, ignore_errors=True)
+        return {"name": m["name"], "status": "failed", "error": one_line(f"{type(exc).__name__}: {exc}"),
+                "seconds": time.perf_counter() - t0}
+    summary["seconds"] = time.perf_counter() - t0
+    write_json(folder / "machine_summary.json", summary)
+    return summary
+
+
+def _run_machine(m, folder: Path, s: dict) -> dict:
+    import numpy as np
+
+    from errormap.featurepoints import make_feature_points
+    from errormap.htm import HTMField
+    from errormap.io import sha256_file
+    from errormap.machine import load_machine
+    from errormap.sweeps import read_sweeps
+    from errormap.uncertainty import covariance_path, smooth_identify
+    from errormap.diagnosis.pipeline import DiagnosisSettings
+    from training.model import torch_threads
+    from training.trainers import fit_field
+
+    from .diagnosis import run_closed_loop
+
+    machine = load_machine(m["machine"], expect_kind="grinder")
+    name = m["name"]
+    with torch_threads(s.get("threads")):
+        # 1. identify
+        sm = smooth_identify(read_sweeps([str(p) for p in m["sweeps"]]), machine, noise_um=m["noise_um"],
+                             n_boot=s["bootstrap"], seed=s["seed"])
+        el_path = folder / "elements.json"
+        cov_path = covariance_path(el_path)
+        info = sm.raw.to_dict()
+        info.update({"sweeps": [str(p) for p in m["sweeps"]], "machine_file": machine.path,
+                     "machine_sha256": machine.sha256, "elements_file": str(el_path),
+                     "uncertainty": sm.report_dict(), "covariance_file": str(cov_path)})
+        sm.covariance_.save(cov_path)
+        write_json(folder / "identify_report.json", info)
+        sm.elements_.save(el_path)
+        # 2. train on the identified set's feature points
+        fp = make_feature_points(machine, HTMField(machine, sm.elements_), n=s["grid"],
+                                 meta={"elements_file": str(el_path), "elements_sha256": sha256_file(el_path)})
+        fp_path = fp.save(folder / "featurepoints.csv")
+        res = fit_field(fp, max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]),
+                        tracking_uri=s["tracking_uri"], run_name=f"fleet {name}", quiet=True,
+                        out_dir=folder / "train", tags={"fleet": s["fleet"], "fleet_machine": name,
+                                                        "featurepoints_file": str(fp_path)})
+        # 3. diagnose: the closed loop on the identified set and its covariance (measured residual)
+        summary, paths = run_closed_loop(m["checks"], machine, el_path, folder / "diagnosis", DiagnosisSettings())
+    st = summary["stages"]
+    metrics = {"diagnose_heldout_rms_identified_um": st["identified"]["held_out"]["rms_um"],
+               "diagnose_heldout_rms_updated_um": st["updated"]["held_out"]["rms_um"],
+               "diagnose_heldout_rms_final_um": st["updated_plus_effects"]["held_out"]["rms_um"],
+               "identify_noise_um": float(sm.noise_um)}
+    if res.run_id:
+        _log_to_run(s["tracking_uri"], res.run_id, metrics,
+                    [p for p in paths if Path(p).suffix in (".json", ".html")],
+                    {"diagnosis_effects": ",".join(f"{e['kind']}:{e['axis']}" for e in summary["effects"]) or "none"})
+    return {"name": name, "status": "ok", "machine_file": machine.path, "run_id": res.run_id,
+            "tracking_uri": s["tracking_uri"], "train_iterations": int(res.history.iterations),
+            "train": {k: float(res.metrics[k]) for k in ("train_max_um", "train_rms_um", "val_max_um", "val_rms_um")
+                      if k in res.metrics},
+            "residual": "measured (check measurement − model prediction), held-out checks",
+            "diagnosis": metrics, "effects": [f"{e['kind']} {e['axis']} {e['element']}" for e in summary["effects"]],
+            "files": {"elements": str(el_path), "featurepoints": str(fp_path), "train": str(folder / "train"),
+                      "diagnosis": str(folder / "diagnosis")}}
+
+
+def run_fleet(machines, out_dir, settings: dict, executor=None) -> list[dict]:
+    """Every machine's summary, in fleet order: with ``executor`` (a started
+    :class:`~.cluster.RayExecutor`) one Ray task per machine, else one after another here."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if executor is None:
+        results = []
+        for m in machines:
+            print(f"fleet: {m['name']}: identify -> train -> diagnose ...", file=sys.stderr)
+            results.append(run_machine(m, str(out_dir), settings))
+        return results
+    def done(name, r):
+        status = r.get("status") if isinstance(r, dict) else "lost"
+        print(f"fleet: {name}: {status}", file=sys.stderr)
+
+    results = executor.map_function(run_machine, [(m, str(out_dir), dict(settings, threads=1)) for m in machines],
+                                    labels=[m["name"] for m in machines], on_done=done)
+    return [r if isinstance(r, dict) else {"name": m["name"], "status": "failed", "error": str(r)}
+            for m, r in zip(machines, results)]

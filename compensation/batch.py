@@ -1,0 +1,200 @@
+"""One chunk plan for solving a batch of tool paths, whoever runs the chunks.
+
+``volcomp compensate`` solves every input through this module, in-process or on a Ray
+cluster (``compensation.app.workflows.cluster``), and both give the same bytes because they
+share everything that decides a result:
+
+* **fixed chunk boundaries**: each file's points are cut into chunks of ``chunk_points``
+  (the last one shorter), by point count only — never by the number of workers;
+* **per-chunk seeds**: chunk ``j`` of a file gets ``numpy.random.SeedSequence(seed).spawn(k)[j]``
+  (``k`` chunks in that file), so a file's result does not depend on the other files of the
+  batch, nor on which worker ran which chunk; the GA solvers draw from that stream only
+  (``batched-ga`` evolves a chunk as one block with one stream);
+* **one torch thread per chunk solve** (torch's float sums can change in the last bit with
+  its thread count).
+
+:class:`LocalExecutor` runs the chunks in threads of this process (the solvers' numerical
+kernels release the GIL); an executor is anything with ``run(method, field, machine, tasks,
+options, progress) -> list[SolveResult]`` in task order. The library never imports Ray.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field as dc_field
+
+import numpy as np
+
+from .solvers import SolveResult, solve
+
+CHUNK_POINTS = 65_536
+"""Points per chunk (default): large enough that a chunk's fixed costs (a task, a field call)
+are small beside its solve, small enough that a 1M-point path gives 16 chunks to share out."""
+
+GA_METHODS = ("ga", "batched-ga")
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Points ``[lo, hi)`` of file ``file``, chunk ``index`` of that file, with its seed."""
+
+    file: int
+    index: int
+    lo: int
+    hi: int
+    seed: np.random.SeedSequence = dc_field(compare=False, repr=False)
+
+    def __len__(self) -> int:
+        return self.hi - self.lo
+
+
+@dataclass
+class ChunkTask:
+    """What a worker needs to solve one chunk: its targets (m, 3) mm, their nominal axes
+    (m, 3), the chunk's seed; ``chunk`` says where the result goes, ``label`` names its file."""
+
+    chunk: Chunk
+    targets_mm: np.ndarray
+    target_axes: np.ndarray
+    label: str = ""
+
+
+def check_chunk_points(chunk_points) -> int:
+    if not (isinstance(chunk_points, (int, np.integer)) and not isinstance(chunk_points, bool) and chunk_points >= 1):
+        raise ValueError(f"Expected chunk_points ≥ 1 (an integer), got {chunk_points!r}")
+    return int(chunk_points)
+
+
+def plan_chunks(sizes, chunk_points: int = CHUNK_POINTS, seed: int = 0) -> list[Chunk]:
+    """The chunks of a batch of files with ``sizes[f]`` points each (every file ≥ 1 chunk).
+
+    Boundaries are ``0, c, 2c, …, n`` (``c = chunk_points``); seeds
+    ``SeedSequence(seed).spawn(k)`` per file. Depends on nothing else.
+    """
+    c = check_chunk_points(chunk_points)
+    out = []
+    for f, n in enumerate(int(s) for s in sizes):
+        if n < 0:
+            raise ValueError(f"Expected sizes ≥ 0, got {n} for file {f}")
+        bounds = list(range(0, n, c)) + [n]
+        if len(bounds) == 1:
+            bounds = [0, 0]
+        seeds = np.random.SeedSequence(seed).spawn(len(bounds) - 1)
+        out += [Chunk(f, j, bounds[j], bounds[j + 1], seeds[j]) for j in range(len(bounds) - 1)]
+    return out
+
+
+def chunk_tasks(chunks, paths) -> list[ChunkTask]:
+    """One :class:`ChunkTask` per chunk; ``paths[f]`` has ``targets_mm`` and ``axes`` (n, 3)."""
+    return [ChunkTask(c, np.ascontiguousarray(paths[c.file].targets_mm[c.lo:c.hi]),
+                      np.ascontiguousarray(paths[c.file].axes[c.lo:c.hi]),
+                      str(getattr(paths[c.file], "path", "") or f"input {c.file + 1}")) for c in chunks]
+
+
+@contextlib.contextmanager
+def one_torch_thread():
+    """torch on one thread inside the block (when torch is loaded; nothing otherwise)."""
+    if "torch" not in sys.modules:
+        yield
+        return
+    from training.model import torch_threads
+    with torch_threads(1):
+        yield
+
+
+def solve_chunk(method: str, field_, machine, task: ChunkTask, options: dict | None = None) -> SolveResult:
+    """Solve one chunk as every executor does (call it under :func:`one_torch_thread`).
+
+    The GA methods get a Generator on the chunk's own seed; ``batched-ga`` evolves the chunk
+    as one block (one stream, no threads of its own); progress bars are off (the executor
+    shows one for the batch).
+    """
+    opts = dict(options or {})
+    opts.pop("seed", None)
+    if method in GA_METHODS:
+        opts["seed"] = np.random.default_rng(task.chunk.seed)
+    if method == "batched-ga":
+        opts.update(workers=1, chunk=max(1, len(task.chunk)))
+    if method != "traditional":
+        opts["progress"] = False
+    return solve(method, field_, task.targets_mm, machine, target_axes=task.target_axes, **opts)
+
+
+def merge_results(parts: list[SolveResult], chunk_points: int) -> SolveResult:
+    """One file's result from its chunks' results (in chunk order). ``seconds`` is the sum
+    of the chunks' solve times (CPU-side work, not the batch's wall time)."""
+    if len(parts) == 1:
+        r = parts[0]
+        info = {"chunks": 1, "chunk_points": chunk_points}
+        return SolveResult(r.method, r.targets_mm, r.commands_mm, r.axes, r.residual_um, r.correction_um,
+                           r.success, r.nfev, r.seconds, r.message, info)
+    cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    messages = [p.message for p in parts if p.message]
+    return SolveResult(parts[0].method, cat("targets_mm"), cat("commands_mm"), cat("axes"), cat("residual_um"),
+                       cat("correction_um"), cat("success"), int(sum(p.nfev for p in parts)),
+                       float(sum(p.seconds for p in parts)), messages[0] if messages else "",
+                       {"chunks": len(parts), "chunk_points": chunk_points})
+
+
+def default_workers() -> int:
+    """The cores this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+class LocalExecutor:
+    """Chunks solved in ``workers`` threads of this process, torch on one thread.
+
+    The result does not depend on ``workers`` (each chunk is solved on its own, the same way).
+    """
+
+    name = "local"
+
+    def __init__(self, workers: int | None = None):
+        if workers is not None and not (isinstance(workers, (int, np.integer)) and workers >= 1):
+            raise ValueError(f"Expected workers ≥ 1, got {workers!r}")
+        self.workers = default_workers() if workers is None else int(workers)
+
+    def describe(self) -> str:
+        return f"this process, {self.workers} thread(s)"
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def run(self, method, field_, machine, tasks, options=None, progress=None) -> list[SolveResult]:
+        def one(task):
+            r = solve_chunk(method, field_, machine, task, options)
+            if progress is not None:
+                progress(len(task.chunk))
+            return r
+
+        with one_torch_thread():
+            if self.workers == 1 or len(tasks) <= 1:
+                return [one(t) for t in tasks]
+            with ThreadPoolExecutor(min(self.workers, len(tasks))) as pool:
+                return list(pool.map(one, tasks))
+
+
+def solve_batch(method: str, field_, machine, paths, *, seed: int = 0, options: dict | None = None,
+                chunk_points: int = CHUNK_POINTS, executor=None, progress=None) -> list[SolveResult]:
+    """Solve every path of a batch (objects with ``targets_mm`` and ``axes``, shape (n, 3)):
+    one :class:`SolveResult` per path, in order. ``executor``: :class:`LocalExecutor` by
+    default; ``progress(points)`` is called as chunks finish (from worker threads)."""
+    chunk_points = check_chunk_points(chunk_points)
+    chunks = plan_chunks([len(p.targets_mm) for p in paths], chunk_points, seed)
+    tasks = chunk_tasks(chunks, paths)
+    executor = LocalExecutor() if executor is None else executor
+    results = executor.run(method, field_, machine, tasks, options, progress)
+    if len(results) != len(tasks):
+        raise RuntimeError(f"Expected {len(tasks)} chunk results from the {executor.name} executor, got {len(results)}")
+    per_file = [[] for _ in paths]
+    for c, r in zip(chunks, results):
+        per_file[c.file].append(r)
+    return [merge_results(parts, chunk_points) for parts in per_file]

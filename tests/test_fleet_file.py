@@ -1,0 +1,59 @@
+"""The fleet file (docs/schemas.md, "Fleet file"): the documented example reads, and what the
+reader cannot interpret is refused naming the file and the key."""
+import re
+from pathlib import Path
+
+import pytest
+
+from compensation.app.workflows.fleet import read_fleet
+from errormap.io import InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _doc_example() -> str:
+    text = (ROOT / "docs" / "schemas.md").read_text(encoding="utf-8")
+    section = text.split("## Fleet file (TOML)", 1)[1]
+    return re.search(r"```text\n(.*?)```", section, flags=re.S).group(1)
+
+
+def _touch(d, *names):
+    for n in names:
+        (d / n).parent.mkdir(parents=True, exist_ok=True)
+        (d / n).write_text("x\n")
+
+
+def test_the_documented_example_reads(tmp_path):
+    _touch(tmp_path, "g07/sweeps.csv", "g07/checks.csv", "machines/g12.toml", "g12/x.csv", "g12/za.csv",
+           "g12/checks.csv")
+    (tmp_path / "fleet.toml").write_text(_doc_example(), encoding="utf-8")
+    m = read_fleet(tmp_path / "fleet.toml")
+    assert [e["name"] for e in m] == ["grinder-07", "grinder-12"]
+    assert m[0]["machine"] is None and m[0]["noise_um"] is None
+    assert m[1]["sweeps"] == [(tmp_path / "g12/x.csv").resolve(), (tmp_path / "g12/za.csv").resolve()]
+    assert m[1]["noise_um"] == 2.0
+
+
+@pytest.mark.parametrize("body, key", [
+    ('name = "a"\nsweeps = "s.csv"\nchecks = "c.csv"\nspeed = 3\n', "machine[0].speed"),
+    ('name = "a"\nsweeps = "s.csv"\nchecks = "missing.csv"\n', "machine[0].checks"),
+    ('name = "../a"\nsweeps = "s.csv"\nchecks = "c.csv"\n', "machine[0].name"),
+    ('name = "a"\nsweeps = []\nchecks = "c.csv"\n', "machine[0].sweeps"),
+    ('name = "a"\nsweeps = "s.csv"\nchecks = "c.csv"\nnoise_um = -1\n', "machine[0].noise_um"),
+])
+def test_refusals_name_the_key(tmp_path, body, key):
+    _touch(tmp_path, "s.csv", "c.csv")
+    (tmp_path / "f.toml").write_text(f'format = "volcomp-fleet/1"\n[[machine]]\n{body}')
+    with pytest.raises(InputError, match=re.escape(f"f.toml: key '{key}'")):
+        read_fleet(tmp_path / "f.toml")
+
+
+def test_repeated_names_and_a_wrong_format_are_refused(tmp_path):
+    _touch(tmp_path, "s.csv", "c.csv")
+    one = 'name = "a"\nsweeps = "s.csv"\nchecks = "c.csv"\n'
+    (tmp_path / "f.toml").write_text(f'format = "volcomp-fleet/1"\n[[machine]]\n{one}[[machine]]\n{one}')
+    with pytest.raises(InputError, match="machine\\[1\\].name': 'a' appears twice"):
+        read_fleet(tmp_path / "f.toml")
+    (tmp_path / "f.toml").write_text(f'[[machine]]\n{one}')
+    with pytest.raises(InputError, match="key 'format'"):
+        read_fleet(tmp_path / "f.toml")
