@@ -86,7 +86,6 @@ def register(sub):
                         "(default): from the field's curvature along the file's moves; 'none': no splitting")
     add_condition_options(p)
     add_cluster_options(p)
-    add_cluster_options(p)
     p.set_defaults(func=run)
 
 
