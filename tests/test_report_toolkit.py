@@ -30,6 +30,10 @@ def test_numpy_scalars_format_like_python_ones():
 def test_quantities_carry_the_micro_sign_never_um():
     assert rt.um(0.5) == "0.500 μm" and rt.qty(2.0, "μrad") == "2.00 μrad" and rt.pct(0.1234) == "12.3 %"
     assert rt.um(None) == "—"     # no unit after a missing value
+    # units as files and JSON spell them, shown with the micro sign; other units untouched
+    assert rt.qty(3.0, "um") == "3.00 μm" and rt.unit_text("um/(mm·°C)") == "μm/(mm·°C)"
+    assert rt.unit_text("urad") == "μrad" and rt.unit_text("mm") == "mm" and rt.unit_text("per revolution") == "per revolution"
+    assert rt.unit_text("drum") == "drum"
 
 
 def test_everything_printed_is_escaped():

@@ -49,8 +49,8 @@ NAV_MARK = "<!--volcomp:nav-->"
 _PACKAGE = __name__.rpartition(".")[0]          # compensation.app.reports
 _HEADING = re.compile(r'<h2 id="([A-Za-z][\w-]*)"[^>]*>(.*?)</h2>', re.S)
 
-__all__ = ["Figure", "Markup", "Table", "environment", "figure", "num", "pct", "qty", "render_page",
-           "stylesheet", "um", "write_page"]
+__all__ = ["Figure", "Markup", "Table", "environment", "figure", "kv_table", "num", "pct", "qty", "render_page",
+           "stylesheet", "um", "unit_text", "write_page"]
 
 
 # -- numbers -------------------------------------------------------------------------------------
@@ -96,12 +96,21 @@ def num(v, digits: int = DEFAULT_DIGITS) -> str:
 def qty(v, unit: str, digits: int = DEFAULT_DIGITS) -> str:
     """A number with its unit, ``qty(1.234, "μm") == "1.23 μm"``; "—" (no unit) when missing."""
     s = num(v, digits)
-    return s if s == MISSING or not unit else f"{s} {unit}"
+    return s if s == MISSING or not unit else f"{s} {unit_text(unit)}"
 
 
 def um(v, digits: int = DEFAULT_DIGITS) -> str:
     """A length in micrometres: ``um(0.5) == "0.500 μm"``."""
     return qty(v, "μm", digits)
+
+
+_ASCII_MICRO = re.compile(r"(?<![A-Za-z])u(m|rad|s)(?![A-Za-z])")
+
+
+def unit_text(unit: str) -> str:
+    """A unit as a page shows it: the file/JSON spelling ``um``, ``urad``, ``um/(mm·°C)`` with the micro
+    sign (``μm``, ``μrad``, ``μm/(mm·°C)``); other units unchanged."""
+    return _ASCII_MICRO.sub(r"μ\1", unit)
 
 
 def pct(v, digits: int = DEFAULT_DIGITS) -> str:
@@ -214,7 +223,7 @@ def environment() -> jinja2.Environment:
     env = jinja2.Environment(loader=jinja2.PackageLoader(_PACKAGE, "templates"), autoescape=True,
                              undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True,
                              keep_trailing_newline=True)
-    env.filters.update(num=num, qty=qty, um=um, pct=pct)
+    env.filters.update(num=num, qty=qty, um=um, pct=pct, unit=unit_text)
     return env
 
 
