@@ -1,5 +1,7 @@
-"""The application wing of volcomp: the command line, its workflows and the HTML reports.
+"""The application wing: the ``volcomp`` command line, its commands, workflows and reports.
 
-Nothing outside ``compensation.app`` imports it; it imports the library layers
-(``errormap`` ← ``training`` ← ``compensation``) one way.
+``cli.py`` and ``commands/`` (one module per sub-command: parse, call, print), ``workflows/``
+(orchestration: benchmark, diagnosis), ``reports/`` (HTML reports and figures). May import
+``errormap``, ``training`` and the library part of ``compensation``; nothing outside
+``compensation/app`` imports it.
 """

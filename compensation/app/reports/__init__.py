@@ -1,1 +1,1 @@
-"""The HTML reports: one toolkit (:mod:`.toolkit`), one layout and one stylesheet (``templates/``)."""
+"""Reports: the self-contained HTML reports and their figures."""
