@@ -60,7 +60,7 @@ def test_render_page_builds_the_nav_from_the_sections(tmp_path):
 
 
 def test_figure_embeds_png_and_escapes_its_alt(tmp_path):
-    from compensation.figures import pyplot
+    from compensation.app.reports.figures import pyplot
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(2, 1))
     ax.plot([0, 1], [0, 1])

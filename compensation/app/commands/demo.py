@@ -157,7 +157,7 @@ def run(args) -> int:
                "seed": args.seed}
     extra = {"training": {"run_id": train_info["run_id"], "seconds": train_s, "metrics": train_info["metrics"]}}
     paths = write_report(cmp, out, title="volcomp demo: flute-path compensation", context=context,
-                         extra_metrics=extra)
+                         extra_metrics=extra, kind="demo")
     print_table(cmp)
     try:
         log_to_mlflow(train_info["run_id"], args.tracking_uri, paths, cmp.metrics())

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import base64
 import functools
-import io
 import math
 import re
 from dataclasses import dataclass
@@ -150,6 +149,10 @@ class Table:
             return v
         return num(v, f if isinstance(f, int) else self.digits)
 
+    def __len__(self) -> int:
+        """The number of rows (a table without rows is false: ``{% if table %}``)."""
+        return len(self.rows)
+
     def body(self) -> list[tuple[str, list]]:
         classes = list(self.row_classes) if self.row_classes is not None else [""] * len(self.rows)
         return [(c, [self.cell(j, v) for j, v in enumerate(r)]) for c, r in zip(classes, self.rows)]
@@ -196,17 +199,9 @@ class Figure:
         return environment().get_template("_figure.html").render(f=self)
 
 
-def png_bytes(fig, dpi: int = DEFAULT_DPI) -> bytes:
-    """Render a matplotlib figure to PNG bytes and close it."""
-    from compensation.figures import pyplot
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
-    pyplot().close(fig)
-    return buf.getvalue()
-
-
 def figure(fig, alt: str, caption: str | None = None, dpi: int = DEFAULT_DPI) -> Figure:
     """A matplotlib figure as an embedded :class:`Figure` (the matplotlib figure is closed)."""
+    from .figures import png_bytes
     return Figure(png_bytes(fig, dpi), alt, caption)
 
 
