@@ -17,12 +17,20 @@ Decisions, the same on every page:
   Table headers carry the unit once: ``"RMS (μm)"``.
 * **Navigation** is built from the page's own ``<h2 id="...">`` headings (in-page anchors only).
 
-Usage::
+Usage (``reports/interpolation.py`` is the smallest complete page)::
 
-    from compensation.app.reports import toolkit as rt
-    page = rt.render_page("calibrate.html", title="PKM calibration", doc=doc,
-                          params=rt.Table(["name", "value"], rows), figures=[rt.figure(fig, "L-curve")])
-    rt.write_page(out / "report.html", page)
+    from .toolkit import Table, figure, kv_table, render_page, write_page
+    page = render_page("interpolate.html", title=f"PKM leg-command program: {machine.name}",
+                       setting=kv_table({"steps": n}), legs=Table(["leg", "max (mm)"], rows),
+                       figures=[figure(fig, "leg commands", "caption")], ...)
+    write_page(out / "report.html", page)
+
+Adding a page: copy ``templates/interpolate.html`` (extends ``base.html``: blocks ``kind``,
+``banner`` — say which residual the page shows —, ``content`` with ``<h2 id=...>`` sections) and
+``reports/interpolation.py`` (figures with :func:`figure`, tables with :class:`Table`, numbers
+raw — the templates format them with the ``num``/``um``/``qty`` filters — then :func:`render_page`
+and :func:`write_page`); the workflow or command calls it; add the kind to
+``tests/test_report_pages.py``.
 """
 from __future__ import annotations
 
