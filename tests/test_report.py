@@ -87,7 +87,7 @@ def test_report_html_is_self_contained_and_names_its_residuals(tmp_path, grinder
     paths = write_report(cmp, tmp_path / "rep", context={"model": "test"})
     text = paths["html"].read_text()
     assert "MODEL" in text and "TRUE" in text and "Model residual" in text and "True residual" in text
-    assert not re.search(r"""(src|href)=["'](?!data:)""", text)  # nothing external
+    assert not re.search(r"""(src|href)=["'](?!data:|#)""", text)  # nothing external (in-page anchors are fine)
     pngs = re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", text)
     assert len(pngs) >= 5 and all(base64.b64decode(p)[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
     metrics = json.loads(paths["metrics"].read_text())

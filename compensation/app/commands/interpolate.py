@@ -1,9 +1,10 @@
-"""``volcomp interpolate PATH --machine FILE [--calibration DIR] --out FILE``: PKM leg-command program.
+"""``volcomp interpolate PATH --machine FILE [--calibration DIR] --out FILE [--report PAGE]``: PKM leg-command program.
 
 PATH is ``sphere`` or ``hyperboloid`` (the stewart-interpolation paper's test parts) or a waypoint
 CSV (see ``compensation.pkm_interpolation.read_waypoints``). Time-division interpolation with the
 contour step ``f = feed * period``; with ``--calibration`` the identified parameters are used in
-the inverse kinematics (compensated commands).
+the inverse kinematics (compensated commands). ``--report PAGE`` also writes the program's HTML page
+(:mod:`compensation.app.reports.interpolation`).
 """
 from __future__ import annotations
 
@@ -29,6 +30,8 @@ def register(subparsers):
     p.add_argument("--machine", help="machine file (default: the built-in hexapod)")
     p.add_argument("--calibration", help="calibration folder or calibration.json (compensated commands)")
     p.add_argument("--out", help="output CSV (required with PATH)")
+    p.add_argument("--report", metavar="PAGE", help="also write an HTML page of the program (legs against their "
+                   "limits, steps, the calibration's corrections, figures)")
     p.add_argument("--sensitivity-plot", metavar="FILE",
                    help="tripod only: write the error-sensitivity plot (K vs lambda, K over the workspace) as PNG")
     p.add_argument("--feed-mm-min", type=float, default=1000.0, help="feed (mm/min), default 1000")
@@ -45,6 +48,8 @@ def run(args) -> int:
         raise UsageError("interpolate: give a PATH (with --out) or --sensitivity-plot FILE")
     if args.path is not None and args.out is None:
         raise UsageError("interpolate: --out is required with a PATH")
+    if args.report is not None and args.path is None:
+        raise UsageError("interpolate: --report needs a PATH")
     if args.sensitivity_plot is not None:
         if machine.kind != "tripod":
             raise UsageError(f"{machine.path}: --sensitivity-plot needs a tripod machine file, got {machine.kind!r}")
@@ -70,4 +75,15 @@ def run(args) -> int:
         raise InputError(f"{args.path}: {exc} (use --allow-out-of-range to write anyway)") from None
     out = prog.write_csv(Path(args.out))
     print(f"interpolate: wrote {out} ({len(path)} steps)")
+    if args.report is not None:
+        from ..reports.interpolation import write_interpolation_report
+        nominal = (leg_program(machine, path, None, check_limits=False).legs_mm if calibrated is not None else None)
+        setting = {"machine": f"{machine.name} ({machine.kind})", "path": args.path, "steps": len(path),
+                   "contour step f": f"{step:.4g} mm", "feed": f"{args.feed_mm_min:g} mm/min",
+                   "interpolation period": f"{args.period_ms:g} ms",
+                   "calibration": args.calibration or "none (nominal kinematics)",
+                   "leg limits checked": not args.allow_out_of_range, "program": str(out)}
+        page = write_interpolation_report(Path(args.report), prog, machine, setting, nominal,
+                                          sensitivity_png=args.sensitivity_plot)
+        print(f"interpolate: wrote {page}")
     return 0

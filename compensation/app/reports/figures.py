@@ -1,7 +1,9 @@
-"""Figures for the self-contained HTML reports: matplotlib on the Agg backend, PNG inlined as base64."""
+"""Figures of the HTML reports: matplotlib on the Agg backend, rendered to PNG bytes.
+
+The report toolkit (:mod:`.toolkit`) embeds them in the pages (:func:`.toolkit.figure`).
+"""
 from __future__ import annotations
 
-import base64
 import io
 
 
@@ -13,14 +15,9 @@ def pyplot():
     return plt
 
 
-def png_base64(fig, dpi: int = 100) -> str:
-    """Render ``fig`` to PNG, close it, and return the base64 text for a ``data:image/png`` URI."""
+def png_bytes(fig, dpi: int = 100) -> bytes:
+    """Render ``fig`` to PNG (tight bounding box), close it, and return the bytes."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     pyplot().close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
-
-
-def img_tag(fig, alt: str = "", dpi: int = 100) -> str:
-    """An ``<img>`` element with ``fig`` inlined."""
-    return f"<img alt='{alt}' src='data:image/png;base64,{png_base64(fig, dpi)}'>"
+    return buf.getvalue()

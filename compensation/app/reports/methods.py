@@ -2,7 +2,7 @@
 
 :func:`write_report` writes, atomically:
 
-* ``report.html`` — self-contained (PNG plots embedded as base64; matplotlib Agg): the
+* ``report.html`` — the ``compare.html`` page of the report toolkit (:mod:`.toolkit`): the
   residual per interpolation point for every method, as ``|r|`` and as ``|r|²`` (the
   grinder paper's Fig. 18 kind: the traditional residual repeats once per A turn), a
   table of max and mean per method, and the solver times. Every plot and table names its
@@ -15,17 +15,16 @@
 """
 from __future__ import annotations
 
-import functools
-import html
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from errormap.io import atomic_write, write_csv, write_json
+from errormap.io import write_csv, write_json
 
 from ...evaluate import RESIDUAL_DEFINITIONS
-from .figures import png_base64, pyplot
+from .figures import pyplot
+from .toolkit import Figure, Table, figure, kv_table, num, render_page, write_page
 
 # ----------------------------------------------------------------------------- plots
 
@@ -33,10 +32,10 @@ COLORS = {"traditional": "tab:red", "ga": "tab:green", "batched-ga": "tab:blue",
           "uncompensated": "0.6"}
 
 
-_png = functools.partial(png_base64, dpi=110)
+FIG_DPI = 110
 
 
-def _residual_plot(cmp: Comparison, kind: str, squared: bool) -> str | None:
+def _residual_plot(cmp: Comparison, kind: str, squared: bool) -> Figure | None:
     plt = pyplot()
 
     series = []
@@ -48,7 +47,7 @@ def _residual_plot(cmp: Comparison, kind: str, squared: bool) -> str | None:
     base = cmp.baseline_model_um if kind == "model" else cmp.baseline_true_um
     if not series:
         return None
-    fig, ax = plt.subplots(figsize=(10, 4.2))
+    fig, ax = plt.subplots(figsize=(11, 4.2))
     if kind == "true" and base is not None:
         series.insert(0, ("uncompensated", np.arange(len(base)), np.linalg.norm(base, axis=1)))
     for name, idx, v in series:
@@ -66,12 +65,15 @@ def _residual_plot(cmp: Comparison, kind: str, squared: bool) -> str | None:
     unit = "μm²" if squared else "μm"
     ax.set_ylabel(f"{kind} residual {'|r|²' if squared else '|r|'} ({unit})")
     ax.set_title(f"{kind.upper()} residual per interpolation point{' (squared)' if squared else ''}")
-    ax.legend(loc="upper right", fontsize=8, ncol=5)
+    # the legend sits outside the axes: inside, it hid the top curve (the uncompensated residual)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     ax.grid(True, which="major", alpha=0.3)
-    return _png(fig)
+    caption = RESIDUAL_DEFINITIONS[kind] + (" — squared, the grinder paper’s Fig. 18 kind" if squared and kind == "model"
+                                            else "")
+    return figure(fig, f"{kind} residual{' squared' if squared else ''} per interpolation point", caption, dpi=FIG_DPI)
 
 
-def _times_plot(cmp: Comparison) -> str:
+def _times_plot(cmp: Comparison) -> Figure:
     plt = pyplot()
     names = list(cmp.runs)
     secs = [cmp.runs[k].metrics["seconds"] for k in names]
@@ -85,75 +87,39 @@ def _times_plot(cmp: Comparison) -> str:
         a.set_yscale("log")
         a.grid(True, axis="y", alpha=0.3)
     fig.suptitle("Solver times")
-    return _png(fig)
+    fig.tight_layout()
+    return figure(fig, "solver times", "Solver wall time per method (total and per point).", dpi=FIG_DPI)
 
 
-def _fmt(v, spec=".4g") -> str:
-    return "—" if v is None else format(v, spec)
+RESIDUAL_DIGITS = 4
+"""Significant digits of the residuals in the table (a sub-nanometre model residual still shows its size)."""
 
 
-def render_html(cmp: Comparison, title: str, context: dict) -> str:
-    """The report as one self-contained HTML string."""
+def render_html(cmp: Comparison, title: str, context: dict, kind: str = "report") -> str:
+    """The report as one self-contained HTML page (``templates/compare.html``); ``kind`` names the
+    command that wrote it (``report`` or ``demo``)."""
     has_true = cmp.baseline_true_um is not None
-    rows = []
-    entries = [(k, r.metrics) for k, r in cmp.runs.items()] + [("uncompensated", cmp.baseline)]
-    for k, m in entries:
-        cells = [k, str(m.get("points", "")), _fmt(m.get("model_max_um")), _fmt(m.get("model_mean_um")),
-                 _fmt(m.get("model_max_sq_um2")), _fmt(m.get("model_mean_sq_um2"))]
-        if has_true:
-            cells += [_fmt(m.get("true_max_um")), _fmt(m.get("true_mean_um")),
-                      _fmt(m.get("true_max_sq_um2")), _fmt(m.get("true_mean_sq_um2"))]
-        cells += [_fmt(m.get("seconds"), ".3f"), str(m.get("failures", "—")), _fmt(m.get("max_correction_um"))]
-        rows.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
-    head = ["method", "points", "MODEL max |r| μm", "MODEL mean |r| μm", "MODEL max |r|² μm²",
-            "MODEL mean |r|² μm²"]
+    head = ["method", "points", "MODEL max |r| (μm)", "MODEL mean |r| (μm)", "MODEL max |r|² (μm²)",
+            "MODEL mean |r|² (μm²)"]
+    keys = ["model_max_um", "model_mean_um", "model_max_sq_um2", "model_mean_sq_um2"]
     if has_true:
-        head += ["TRUE max |r| μm", "TRUE mean |r| μm", "TRUE max |r|² μm²", "TRUE mean |r|² μm²"]
-    head += ["solver s", "failures", "max correction μm"]
-    table = ("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
-             + "".join(rows) + "</table>")
-    notes = "".join(f"<li>{html.escape(r.note)}</li>" for r in cmp.runs.values() if r.note)
-    ctx = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>" for k, v in context.items())
-    figs = []
-    for kind in ("model", "true"):
-        if kind == "true" and not has_true:
-            continue
-        for sq in (False, True):
-            png = _residual_plot(cmp, kind, sq)
-            if png:
-                figs.append(f'<figure><img alt="{kind} residual" src="data:image/png;base64,{png}">'
-                            f"<figcaption>{html.escape(RESIDUAL_DEFINITIONS[kind])}"
-                            f"{' — squared, the grinder paper’s Fig. 18 kind' if sq and kind == 'model' else ''}"
-                            "</figcaption></figure>")
-    figs.append(f'<figure><img alt="solver times" src="data:image/png;base64,{_times_plot(cmp)}">'
-                "<figcaption>Solver wall time per method (total and per point).</figcaption></figure>")
-    which = "MODEL and TRUE residuals" if has_true else "MODEL residual only (no truth machine given)"
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
-<style>
-body {{ font-family: sans-serif; margin: 2em; max-width: 1100px; }}
-table {{ border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }}
-td, th {{ border: 1px solid #ccc; padding: 3px 8px; text-align: right; }}
-th {{ background: #f3f3f3; }}
-figure {{ margin: 1.5em 0; }} img {{ max-width: 100%; }}
-.residual {{ background: #fff6d5; padding: 0.5em 1em; border-left: 4px solid #e0b000; }}
-</style></head><body>
-<h1>{html.escape(title)}</h1>
-<p class="residual">This report shows the <b>{which}</b>.<br>
-<b>Model residual</b>: {html.escape(RESIDUAL_DEFINITIONS['model'].split(': ', 1)[-1])}.<br>
-<b>True residual</b>: {html.escape(RESIDUAL_DEFINITIONS['true'].split(': ', 1)[-1])}.<br>
-The measured residual (measurement minus model at check points) is not shown here.</p>
-<h2>Setting</h2><table>{ctx}</table>
-<h2>Max and mean per method</h2>{table}
-{f'<ul>{notes}</ul>' if notes else ''}
-<h2>Residual per interpolation point</h2>
-{''.join(figs)}
-</body></html>
-"""
+        head += ["TRUE max |r| (μm)", "TRUE mean |r| (μm)", "TRUE max |r|² (μm²)", "TRUE mean |r|² (μm²)"]
+        keys += ["true_max_um", "true_mean_um", "true_max_sq_um2", "true_mean_sq_um2"]
+    head += ["solver (s)", "failures", "max correction (μm)"]
+    rows = [[k, m.get("points"), *[m.get(key) for key in keys], m.get("seconds"), m.get("failures"),
+             m.get("max_correction_um")]
+            for k, m in [(k, r.metrics) for k, r in cmp.runs.items()] + [("uncompensated", cmp.baseline)]]
+    figures = [f for kind_ in (("model", "true") if has_true else ("model",)) for sq in (False, True)
+               if (f := _residual_plot(cmp, kind_, sq)) is not None]
+    return render_page("compare.html", title=title, kind=kind, has_true=has_true,
+                       definitions={k: v.split(": ", 1)[-1] for k, v in RESIDUAL_DEFINITIONS.items()},
+                       setting=kv_table(context), methods=Table(head, rows, digits=RESIDUAL_DIGITS),
+                       notes=[r.note for r in cmp.runs.values() if r.note], residual_figures=figures,
+                       times_figure=_times_plot(cmp))
 
 
 def write_report(cmp: Comparison, out_dir, title: str = "volcomp compensation report", context: dict | None = None,
-                 extra_metrics: dict | None = None) -> dict:
+                 extra_metrics: dict | None = None, kind: str = "report") -> dict:
     """Write report.html, metrics.json and residuals.csv into ``out_dir`` (each atomically).
 
     Returns ``{"html": path, "metrics": path, "residuals": path}``.
@@ -167,12 +133,12 @@ def write_report(cmp: Comparison, out_dir, title: str = "volcomp compensation re
     if cmp.baseline_true_um is not None:
         cols["uncompensated_true_um"] = np.linalg.norm(cmp.baseline_true_um, axis=1)
     for k, r in cmp.runs.items():
-        for kind, arr in (("model", r.result.residual_um), ("true", r.true_residual_um)):
+        for which, arr in (("model", r.result.residual_um), ("true", r.true_residual_um)):
             if arr is None:
                 continue
             col = np.full(n, np.nan)
             col[r.index] = np.linalg.norm(np.asarray(arr), axis=1)
-            cols[f"{k}_{kind}_um"] = col
+            cols[f"{k}_{which}_um"] = col
     paths = {"residuals": write_csv(out / "residuals.csv", cols, header_comments=[
         "format: volcomp-residuals/1", "columns *_model_um: |model residual|, *_true_um: |true residual| (μm)"])}
     metrics = cmp.metrics()
@@ -181,10 +147,7 @@ def write_report(cmp: Comparison, out_dir, title: str = "volcomp compensation re
     if extra_metrics:
         metrics.update(extra_metrics)
     paths["metrics"] = write_json(out / "metrics.json", metrics)
-    text = render_html(cmp, title, context or {})
-    with atomic_write(out / "report.html", "w", encoding="utf-8") as fh:
-        fh.write(text)
-    paths["html"] = out / "report.html"
+    paths["html"] = write_page(out / "report.html", render_html(cmp, title, context or {}, kind))
     return paths
 
 
@@ -198,8 +161,9 @@ def print_table(cmp: Comparison, stream=None) -> None:
     hdr += f"{'seconds':>10}"
     print(hdr, file=stream)
     for k, m in [(k, r.metrics) for k, r in cmp.runs.items()] + [("uncompensated", cmp.baseline)]:
-        line = f"{k:<14}{m['points']:>7}{_fmt(m.get('model_max_um')):>14}{_fmt(m.get('model_mean_sq_um2')):>16}"
+        line = (f"{k:<14}{m['points']:>7}{num(m.get('model_max_um'), RESIDUAL_DIGITS):>14}"
+                f"{num(m.get('model_mean_sq_um2'), RESIDUAL_DIGITS):>16}")
         if has_true:
-            line += f"{_fmt(m.get('true_max_um')):>13}{_fmt(m.get('true_mean_um')):>14}"
-        line += f"{_fmt(m.get('seconds'), '.3f'):>10}"
+            line += f"{num(m.get('true_max_um'), RESIDUAL_DIGITS):>13}{num(m.get('true_mean_um'), RESIDUAL_DIGITS):>14}"
+        line += f"{num(m.get('seconds')):>10}"
         print(line, file=stream)

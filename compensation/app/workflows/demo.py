@@ -139,7 +139,7 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
                "seed": s.seed}
     extra = {"training": {"run_id": train_info["run_id"], "seconds": train_s, "metrics": train_info["metrics"]}}
     paths = write_report(cmp, s.out, title="volcomp demo: flute-path compensation", context=context,
-                         extra_metrics=extra)
+                         extra_metrics=extra, kind="demo")
     print_table(cmp, stream=out)
     try:
         log_to_mlflow(train_info["run_id"], s.tracking_uri, paths, cmp.metrics(), log=log)

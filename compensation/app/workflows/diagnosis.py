@@ -8,28 +8,26 @@
   OLS baseline, the controller model (JSON) and the compensation series (CSV).
 
 Everything is computed before anything is written; both files are written atomically.
-The report names its residual: the MEASURED residual (measurement − model prediction).
+The report (:mod:`compensation.app.reports.diagnosis`) names its residual: the MEASURED residual
+(measurement − model prediction).
 """
 from __future__ import annotations
 
 import dataclasses
-import functools
-import html
-import json
 from pathlib import Path
 
 import numpy as np
 
 from errormap.diagnosis.checks import load_checks
 from errormap.diagnosis.drift import load_drift_log
-from errormap.diagnosis.effects import Context
 from errormap.diagnosis.pipeline import DiagnosisSettings, diagnose
 from errormap.featurepoints import FeaturePoints
-from errormap.io import InputError, atomic_write, write_json
+from errormap.io import InputError, write_json
 from errormap.stats import residual_stats
 
 from ...fields import load_field
-from ..reports.figures import png_base64, pyplot
+from ..reports.diagnosis import checks_report, drift_report
+from ..reports.toolkit import write_page
 
 
 # -- learned path ---------------------------------------------------------------------------
@@ -95,242 +93,6 @@ def retrain_learned(fp: FeaturePoints, corrected, parent_run_id: str | None, *, 
     return fit_field(aug, settings, tracking=TrackSettings(tracking_uri=tracking_uri, parent_run_id=parent_run_id))
 
 
-# -- figures --------------------------------------------------------------------------------
-_png = functools.partial(png_base64, dpi=90)
-_plt = pyplot
-
-
-def _histograms(before, after, labels, title) -> str:
-    plt = _plt()
-    k = before.shape[1]
-    fig, axs = plt.subplots(1, k, figsize=(4.2 * k, 3.2), squeeze=False)
-    for j in range(k):
-        ax = axs[0, j]
-        lim = max(np.abs(before[:, j]).max(), np.abs(after[:, j]).max(), 1e-9)
-        bins = np.linspace(-lim, lim, 31)
-        ax.hist(before[:, j], bins=bins, alpha=0.5, label="before")
-        ax.hist(after[:, j], bins=bins, alpha=0.5, label="after")
-        ax.set_xlabel(f"{labels[j]} residual (μm)")
-        ax.legend(fontsize=8)
-    fig.suptitle(title)
-    return _png(fig)
-
-
-def _explaining_variable(term, ctx):
-    """The variable a term depends on at the points, with its label."""
-    k, ax = term.kind, term.axis
-    if k == "thermal":
-        return (ctx.cond("temp_c") - term.ref["ref_temp_c"]) * ctx.position(ax), f"(temp_c − ref)·({ax} − lo)  (°C·mm)"
-    if k == "drift":
-        return (ctx.cond("time_s") - term.ref["ref_time_s"]) / 3600 * ctx.position(ax), f"time·({ax} − lo)  (h·mm)"
-    if k == "reversal":
-        return ctx.cond(f"dir_{ax}") + 0.0, f"dir_{ax}"
-    if k == "periodic":
-        return ctx.axes[:, {"x": 0, "z": 1}[ax]], f"{ax}_mm"
-    if k == "harmonic":
-        return ctx.axes[:, 2] % 360.0, "a_deg"
-    return ctx.position("x") * ctx.position("z"), "(x − lo)(z − lo)  (mm²)"
-
-
-def _effect_figure(d, term, ctx, hold) -> str:
-    """Partial residual of ``term`` (projected on its element) against its variable, held-out part."""
-    plt = _plt()
-    others = sum((t.contribution(ctx) for t in d.selector.terms_ if t is not term), np.zeros_like(d.residual_before_um))
-    partial = d.residual_before_um - others
-    J = ctx.column(term.element)
-    w = np.einsum("ni,ni->n", J, J)
-    w = np.where(w > 1e-12, w, np.nan)
-    g_before = np.einsum("ni,ni->n", J, partial) / w
-    g_after = np.einsum("ni,ni->n", J, partial - term.contribution(ctx)) / w
-    v, label = _explaining_variable(term, ctx)
-    fig, axs = plt.subplots(1, 2, figsize=(9, 3.2), sharey=True)
-    for ax, g, name in zip(axs, (g_before, g_after), ("before", "after")):
-        ax.plot(v[hold], g[hold], ".", ms=3)
-        ax.set_xlabel(label)
-        ax.set_title(f"{name}: {term.cand.label}", fontsize=9)
-    axs[0].set_ylabel(f"residual on {element_label(term.element)} ({'μrad' if term.element.startswith('e') else 'μm'})")
-    return _png(fig)
-
-
-def _finding_figure(d, finding, hold) -> str:
-    plt = _plt()
-    j = ("dx", "dy", "dz").index(finding["output"])
-    inputs = {"x_mm": d.checks.axes[:, 0], "z_mm": d.checks.axes[:, 1], "a_deg": d.checks.axes[:, 2], **d.checks.conditions}
-    v = inputs.get(finding["input"], d.checks.seq.astype(float))
-    fig, ax = plt.subplots(figsize=(5, 3.2))
-    ax.plot(v[hold], d.residual_after_um[hold, j], ".", ms=3)
-    ax.set_xlabel(finding["input"] if finding["input"] != "none" else "seq")
-    ax.set_ylabel(f"{finding['output']} residual after (μm)")
-    return _png(fig)
-
-
-# -- HTML -----------------------------------------------------------------------------------
-def _table(rows, header) -> str:
-    h = "".join(f"<th>{html.escape(str(c))}</th>" for c in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><tr>{h}</tr>{body}</table>"
-
-
-def _fmt(v, nd=3):
-    if v is None:
-        return "—"
-    if isinstance(v, float):
-        return f"{v:.{nd}g}"
-    return str(v)
-
-
-def _page(title, parts) -> str:
-    css = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse;margin:1em 0}"
-           "td,th{border:1px solid #ccc;padding:3px 8px;font-size:13px}img{max-width:100%}")
-    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{css}</style></head><body><h1>{html.escape(title)}</h1>{''.join(parts)}</body></html>\n")
-
-
-def _img(b64, alt) -> str:
-    return f"<p><img alt='{html.escape(alt)}' src='data:image/png;base64,{b64}'></p>"
-
-
-def stages_html(s) -> str:
-    """The closed loop's three stages and the update's findings, as HTML."""
-    st = s["stages"]
-    kept = s.get("kept_stage", "updated_plus_effects")
-    rows = [[name + (" (kept)" if key == kept else ""), _fmt(st[key]["held_out"]["rms_um"]),
-             _fmt(st[key]["held_out"]["max_um"]), _fmt(st[key]["fitting"]["rms_um"])]
-            for name, key in (("identified", "identified"), ("update alone (whole residual)", "updated_alone"),
-                              ("updated", "updated"), ("updated + effects", "updated_plus_effects")) if key in st]
-    out = ["<h2>Closed loop: identified → updated → updated + effects</h2>",
-           _table(rows, ["model", "held-out RMS (μm)", "held-out max (μm)", "fitting RMS (μm)"])]
-    if "kept_why" in s:
-        out.append(f"<p><b>Model handed on:</b> {html.escape(kept)} — {html.escape(s['kept_why'])}.</p>")
-    u = s["update"]
-    out.append(f"<p>Check noise σ (marginal likelihood): {_fmt(u['check_noise_sigma_um'])} μm.</p>")
-    for j in u.get("joint_screen", []):
-        imit = ", ".join(f"{element_label(e['element'])} ({e['imitation_rms_um']:.2g} μm)"
-                         for e in j.get("update_alone_imitated_it_with", []))
-        out.append(f"<p><b>Missing effect, tested jointly with the update</b>: {html.escape(j['kind'])} "
-                   f"{html.escape(j['axis'])} on {html.escape(element_label(j['element']))} (F = {j['F']:.3g}, "
-                   f"p (Bonferroni over {j['n_candidates']}) = {j['p_adjusted']:.2g}). The update alone imitated it "
-                   f"by moving {html.escape(imit)}; it is kept out of the update. "
-                   + ("Confirmed: the search and the held-out gate kept this term.</p>" if j.get("confirmed") else
-                      "Not confirmed: the search on what the update left did not keep it (it stays only a "
-                      "proposal).</p>"))
-    if u["contradicted_by_sweeps"]:
-        out.append("<p><b>Updates the sweeps contradict</b> (evidence of an effect the 23 elements lack): "
-                   + html.escape(", ".join(f"{element_label(c['element'])} (p = {c['p_adjusted']:.2g})" for c in u["contradicted_by_sweeps"]))
-                   + "</p>")
-    if u["not_updated"]:
-        out.append("<p><b>Not updated by the checks</b> (stay at the sweep estimate): "
-                   + html.escape("; ".join(f"{element_label(c['element'])}: {c['why']}" for c in u["not_updated"])) + "</p>")
-    if s.get("effects_rejected"):
-        out.append("<p>Effects rejected: " + html.escape(s.get("effects_rejected_why", "")) + "</p>")
-    return "".join(out)
-
-
-def element_label(name: str) -> str:
-    """An element name with its ISO 230-1 name beside it (``dz_z (EZZ)``); other names as they are."""
-    from errormap.iso230 import ISO_NAME
-    return f"{name} ({ISO_NAME[name]})" if name in ISO_NAME else name
-
-
-def checks_report(d, summary, model_spec, checks_path) -> str:
-    s = summary
-    parts = [f"<p>Residual shown: <b>measured residual</b> (measurement − model prediction). Checks: "
-             f"{html.escape(str(checks_path))}; model: {html.escape(str(model_spec))}. {html.escape(s['split'])}. "
-             f"RMS and max are of the residual vector norm |r| on the held-out part.</p>"]
-    parts.append(_table([["held-out RMS (μm)", _fmt(s["rms_before_um"]), _fmt(s["rms_after_um"])],
-                         ["held-out max (μm)", _fmt(s["max_before_um"]), _fmt(s["max_after_um"])]],
-                        ["", "before", "after"]))
-    if "stages" in s:
-        parts.append(stages_html(s))
-    parts.append("<h2>Effects found</h2>")
-    if s["effects"]:
-        rows = []
-        for i, e in enumerate(s["effects"], 1):
-            ps = "; ".join(f"{k} = {_fmt(p['value'], 4)} ± {_fmt(p['se'], 2)} {p['unit']}" for k, p in e["parameters"].items())
-            rows.append([i, e["kind"], e["axis"], element_label(e["element"]), ps, _fmt(e["rms_reduction_um"]),
-                         _fmt(e["selection"].get("p_adjusted")), _fmt(e["selection"].get("delta_bic"), 4)])
-        parts.append(_table(rows, ["rank", "kind", "axis", "element (ISO 230-1)", "parameters", "held-out RMS reduction (μm)",
-                                   "p (Bonferroni)", "ΔBIC"]))
-    else:
-        parts.append("<p>No effect of the library passed the significance and forward-validation tests.</p>")
-    hold = d.hold_idx
-    parts.append(_img(_histograms(d.residual_before_um[hold], d.residual_after_um[hold], ("dx", "dy", "dz"),
-                                  "held-out measured residual, before and after"), "histograms"))
-    if d.selector.terms_:
-        ctx = Context.build(d.corrected.machine, d.checks.axes, d.checks.conditions, d.selector.terms_[0].ref)
-        for t in d.selector.terms_:
-            parts.append(_img(_effect_figure(d, t, ctx, hold), t.cand.label))
-    for key, name in (("unexplained_before", "before"), ("unexplained_after", "after")):
-        parts.append(f"<h2>Where the held-out residual lives ({name})</h2>")
-        f = s[key]
-        if f:
-            parts.append(_table([[u["output"], u["input"], u["pattern"],
-                                  (f"{u['period']:.4g} {u['period_unit']}" if "period" in u else ""),
-                                  _fmt(u["rms_um"]), _fmt(u["explained_fraction"]), _fmt(u["p_adjusted"])] for u in f],
-                                ["output", "input", "pattern", "period", "rms (μm)", "explained fraction", "p (Bonferroni)"]))
-        else:
-            parts.append("<p>No significant dependence on any input.</p>")
-    if s["unexplained_after"]:
-        parts.append(_img(_finding_figure(d, s["unexplained_after"][0], hold), "largest unexplained"))
-    if s.get("learned_retrain"):
-        parts.append(f"<h2>Learned field retrain</h2><pre>{html.escape(json.dumps(s['learned_retrain'], indent=1))}</pre>")
-    return _page("volcomp diagnose — check measurements", parts)
-
-
-def drift_report(log, sel, channels, log_path) -> str:
-    """HTML page of a drift-log diagnosis: ``sel`` a fitted DriftSelector, ``channels`` its report."""
-    plt = _plt()
-    _, hold = sel.split(log)
-    parts = [f"<p>Drift log {html.escape(str(log_path))}: fitted on the first {len(log.time_s) - len(hold)} rows, "
-             f"before/after on the last {len(hold)} (forward in time). Residual shown: measured displacement "
-             "minus the causal model's prediction (the MEASURED residual). The baseline is ordinary least squares "
-             "on every temperature and speed_rpm, fitted on the same rows.</p>"]
-    notes = log.notes or {}
-    if notes.get("dropped") or notes.get("filled"):
-        items = [f"<li>{html.escape(c)}: dropped — {html.escape(w)}</li>" for c, w in notes.get("dropped", {}).items()]
-        items += [f"<li>{html.escape(c)}: missing samples filled by linear interpolation, rows "
-                  f"{html.escape(', '.join(f'{a}–{b}' for a, b in r))}</li>" for c, r in notes.get("filled", {}).items()]
-        parts.append("<h2>Inputs repaired or dropped</h2><ul>" + "".join(items) + "</ul>")
-    fams = sorted({f for c in channels.values() for f in c["cv_rms_um"]})
-    rows = [[ch, c["model"], *[_fmt(c["cv_rms_um"].get(f)) for f in fams], _fmt(c["rms_before_um"]),
-             _fmt(c["rms_after_um"]), _fmt(c["rms_ols_um"]), _fmt(c["band95_um"]),
-             _fmt(c["band_coverage_heldout"])] for ch, c in channels.items()]
-    parts.append(_table(rows, ["channel", "chosen", *[f"CV {f}" for f in fams], "held-out before", "volcomp",
-                               "OLS baseline", "95 % band ±", "band coverage"]))
-    parts.append("<p>CV: rolling-origin cross-validation on the fitting part (RMS μm over all validation blocks of the "
-                 "ranking folds; best hyper-parameter per family). The chosen candidate is the best-ranked one that "
-                 "also beats the OLS baseline by more than one standard error of the fold-to-fold scatter on the "
-                 "horizon folds (validation blocks as long, relative to their training, as the held-out part is to "
-                 "the fitting part); otherwise the OLS baseline itself. The model never loses to OLS in "
-                 "validation.</p>")
-    sub = getattr(sel, "subset_modeller_", None)
-    if sub is not None:
-        sr = {ch: c for ch, c in sub.report_selection().items()}
-        parts.append("<h2>Sensor-subset search (subset_lag family)</h2>")
-        parts.append(_table([[ch, ", ".join(c["regressors"]) or "—", _fmt(c["lag_s"]),
-                              "AMBIGUOUS" if c["ambiguous"] else ""] for ch, c in sr.items()],
-                            ["channel", "regressors", "lag (s)", "selection"]))
-    pred = sel.model_.predict(log, sel.cache_)
-    for ch in sel.model_.channels:
-        d = log.disp_um[ch]
-        after = d - pred[ch]
-        fig, axs = plt.subplots(1, 2, figsize=(10, 3.2))
-        axs[0].plot(log.time_s / 3600, d, lw=0.8, label="before")
-        axs[0].plot(log.time_s / 3600, after, lw=0.8, label="after")
-        axs[0].axvline(log.time_s[hold[0]] / 3600, color="k", ls="--", lw=0.8)
-        axs[0].set_xlabel("time (h)")
-        axs[0].set_ylabel(f"{ch} (μm)")
-        axs[0].legend(fontsize=8)
-        lim = max(np.abs(d[hold]).max(), 1e-9)
-        bins = np.linspace(-lim, lim, 31)
-        axs[1].hist(d[hold], bins=bins, alpha=0.5, label="before")
-        axs[1].hist(after[hold], bins=bins, alpha=0.5, label="after")
-        axs[1].set_xlabel(f"held-out {ch} (μm)")
-        axs[1].legend(fontsize=8)
-        parts.append(_img(_png(fig), ch))
-    return _page("volcomp diagnose — drift log", parts)
-
-
 def compensation_columns(log, model, cache=None) -> dict:
     """The compensation series: ``time_s`` and per channel ``<ch>_pred_um``, ``<ch>_lo_um``, ``<ch>_hi_um``
     (prediction ± the 95 % band), causal."""
@@ -354,8 +116,7 @@ COMPENSATION_COMMENTS = ("compensation series: predicted thermal displacement pe
 def _write(out_dir, summary, page):
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out / "report.html", "w", encoding="utf-8") as fh:
-        fh.write(page)
+    write_page(out / "report.html", page)
     write_json(out / "diagnosis.json", summary)
     return out / "diagnosis.json", out / "report.html"
 
