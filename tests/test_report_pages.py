@@ -28,7 +28,7 @@ N_POSES = 60
 
 
 def _comparison(grinder):
-    from compensation.app.reports.methods import compare_methods
+    from compensation.app.workflows.compare import compare_methods
     from compensation.toolpath import flute_path
     from errormap.htm import HTMField
     from errormap.simulator import random_truth
