@@ -181,6 +181,7 @@ def test_rerun_leaves_no_stale_output(setup, capsys):
 def test_rapids_and_block_delete_options(setup, grinder, capsys):
     d, el, _, _, _ = setup
     src = d / "edge" / "rapid.nc"
+    src.parent.mkdir(exist_ok=True)  # under xdist this test may run before the one that made it
     src.write_text("G21 G90\nG0 X10 Z30 A0\nG1 Z1 F100\nG1 X20 A10\n/G1 X25\nG0 Z30\nM30\n")
     out = d / "out_rapids"
     base = ["compensate", str(src), "--model", str(el), "--method", "exact", "--max-segment-mm", "none", "--force"]
@@ -198,6 +199,7 @@ def test_rapids_and_block_delete_options(setup, grinder, capsys):
 def test_kept_rapid_outside_the_strokes_is_refused(setup, capsys):
     d, el, _, _, _ = setup
     src = d / "edge" / "rapid_out.nc"
+    src.parent.mkdir(exist_ok=True)  # under xdist this test may run before the one that made it
     src.write_text("G21 G90\nG0 X10 Z70 A0\nG1 Z1 F100\nG1 X20 A10\nM30\n")
     rc = main(["compensate", str(src), "--model", str(el), "--method", "exact", "--out", str(d / "out_ro")])
     assert rc == 3 and "line 2: stroke: kept rapid z_mm = 70" in capsys.readouterr().err
