@@ -1,51 +1,79 @@
-"""Rules of the house read from the source: which module may import what, and what importing does.
+"""The import rules of the house (docs/architecture.md), read from the source with ``ast``.
 
-Each rule is its own test function (other issues add theirs beside them).
+Layers import one way, ``errormap`` ← ``training`` ← ``compensation``, and the application wing
+``compensation/app`` sits on top: nothing outside it imports it, and its command modules do not
+import one another (what two commands share lives in ``app/options.py`` or a workflow). Every
+import counts, at module level or inside a function, absolute or relative.
 """
-from __future__ import annotations
-
 import ast
-import json
-import subprocess
-import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("errormap", "training", "compensation")
+APP = "compensation.app"
+COMMANDS = "compensation.app.commands"
 
 
-def imported_modules(path: Path) -> set[str]:
-    """Every module a file imports (top level or inside functions), relative imports resolved."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    package = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
-    out = set()
-    for node in ast.walk(tree):
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imported_modules(path: Path) -> set:
+    """Every module the source file ``path`` imports (see :func:`imports_of`)."""
+    return imports_of(path.read_text(encoding="utf-8"), module_name(path), path.name == "__init__.py")
+
+
+def imports_of(text: str, name: str, is_package: bool = False) -> set:
+    """Every module the source ``text`` of module ``name`` imports, as absolute dotted names
+    (``from a import b`` gives both ``a`` and ``a.b``: ``b`` may be a submodule)."""
+    package = name if is_package else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(text)):
         if isinstance(node, ast.Import):
-            out.update(a.name for a in node.names)
+            found.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
             if node.level:
-                base = package.split(".")[:len(package.split(".")) - (node.level - 1)]
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
                 mod = ".".join(base + ([node.module] if node.module else []))
             else:
                 mod = node.module
-            out.add(mod)
-            out.update(f"{mod}.{a.name}" for a in node.names)
-    return out
+            found.add(mod)
+            found.update(f"{mod}.{a.name}" for a in node.names if a.name != "*")
+    return found
 
 
+def sources(package: str):
+    return sorted((ROOT / package.replace(".", "/")).rglob("*.py"))
+
+
+def offenders(files, forbidden) -> list:
+    """``(module, imported)`` for every import in ``files`` that is ``forbidden`` or inside it."""
+    bad = []
+    for f in files:
+        for mod in sorted(imported_modules(f)):
+            if any(mod == p or mod.startswith(p + ".") for p in forbidden):
+                bad.append((module_name(f), mod))
+    return bad
+
+
+# -- the error field's layer (issue 18, errormap/field.py) ------------------------------------------
 def _field_layer_files():
-    return sorted((ROOT / "compensation" / "solvers").glob("*.py")) + [ROOT / "compensation" / "guards.py"]
+    """compensation/solvers/* and compensation/guards.py: they depend on errormap.field alone."""
+    return sources("compensation.solvers") + [ROOT / "compensation" / "guards.py"]
 
 
 def test_solvers_and_guards_import_neither_torch_nor_training():
-    """compensation/solvers/* and guards.py depend on errormap.field, not on the network's libraries."""
-    offenders = {}
-    for path in _field_layer_files():
-        bad = sorted(m for m in imported_modules(path) if m.split(".")[0] in ("torch", "training"))
-        if bad:
-            offenders[str(path.relative_to(ROOT))] = bad
-    assert not offenders, f"solvers/guards import torch or training: {offenders}"
-    # and at run time: nothing they import pulls torch or training in behind them
+    """compensation/solvers/* and guards.py import neither torch nor training, directly or behind
+    another import (checked in a fresh interpreter)."""
+    import subprocess
+    import sys
+    assert not offenders(_field_layer_files(), ("torch", "training"))
     code = ("import sys, compensation.guards, compensation.solvers.traditional, compensation.solvers.exact, "
             "compensation.solvers.ga, compensation.solvers.batched_ga; "
             "print([m for m in ('torch', 'training') if m in sys.modules])")
@@ -53,32 +81,32 @@ def test_solvers_and_guards_import_neither_torch_nor_training():
     assert out.stdout.strip() == "[]", out.stdout + out.stderr
 
 
-CAPABILITY_ATTRIBUTES = {"predict", "predict_columns", "float32_predict", "jacobian", "predict_and_jacobian",
-                         "offset_fitness", "calibrated_lo", "calibrated_hi", "axes_bounds", "in_lo_", "in_hi_",
-                         "elements", "stations", "calibrated_volume", "capabilities", "needs"}
+FIELD_MEMBERS = {"predict", "predict_columns", "float32_predict", "jacobian", "predict_and_jacobian",
+                 "offset_fitness", "calibrated_lo", "calibrated_hi", "axes_bounds", "in_lo_", "in_hi_",
+                 "elements", "stations", "calibrated_volume", "capabilities", "needs"}
+"""Names a solver or guard might probe a field for (the protocol's members and the old box attributes)."""
 
 
 def test_solvers_and_guards_never_probe_a_field():
     """Optional field methods are declared (``field.capabilities``), never probed with getattr/hasattr."""
-    offenders = []
+    found = []
     for path in _field_layer_files():
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("getattr", "hasattr")
                     and len(node.args) >= 2 and isinstance(node.args[1], ast.Constant)
-                    and node.args[1].value in CAPABILITY_ATTRIBUTES):
-                offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.func.id}(…, {node.args[1].value!r})")
-    assert not offenders, offenders
+                    and node.args[1].value in FIELD_MEMBERS):
+                found.append(f"{module_name(path)}:{node.lineno} {node.func.id}(…, {node.args[1].value!r})")
+    assert not found, found
 
 
 def test_machine_file_validators_live_in_one_module_without_a_cycle():
     """Both machine-file parsers take their check_* validators from errormap.machine_checks; the PKM
-    parser does not import errormap.machine (which dispatches to it)."""
+    parser does not import errormap.machine (which dispatches to it), and the checks import nothing of ours."""
     grinder = imported_modules(ROOT / "errormap" / "machine.py")
     pkm = imported_modules(ROOT / "errormap" / "pkm" / "machine_file.py")
     assert "errormap.machine_checks" in grinder and "errormap.machine_checks" in pkm
-    assert not any(m == "errormap.machine" or m.startswith("errormap.machine.") for m in pkm), sorted(pkm)
-    checks = imported_modules(ROOT / "errormap" / "machine_checks.py")
-    assert not any(m.split(".")[0] == "errormap" for m in checks), sorted(checks)
+    assert not offenders([ROOT / "errormap" / "pkm" / "machine_file.py"], ("errormap.machine",))
+    assert not offenders([ROOT / "errormap" / "machine_checks.py"], PACKAGES)
 
 
 IMPORT_EVERYTHING = """
@@ -105,6 +133,9 @@ print(json.dumps({"before": before, "after": state(), "modules": names}))
 def test_importing_any_module_changes_no_global_state():
     """Importing every module of the three packages leaves torch's default dtype and thread count,
     the environment and the logging configuration as they were (no import-time side effects)."""
+    import json
+    import subprocess
+    import sys
     out = subprocess.run([sys.executable, "-c", IMPORT_EVERYTHING % (PACKAGES,)], cwd=ROOT, capture_output=True,
                          text=True, check=True)
     res = json.loads(out.stdout.strip().splitlines()[-1])
