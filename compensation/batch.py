@@ -21,11 +21,12 @@ from __future__ import annotations
 
 import contextlib
 import os
-import sys
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field as dc_field
 
 import numpy as np
+
+from errormap.threads import limit_threads
 
 from .solvers import SolveResult, solve
 
@@ -96,11 +97,7 @@ def chunk_tasks(chunks, paths) -> list[ChunkTask]:
 @contextlib.contextmanager
 def one_torch_thread():
     """torch on one thread inside the block (when torch is loaded; nothing otherwise)."""
-    if "torch" not in sys.modules:
-        yield
-        return
-    from training.model import torch_threads
-    with torch_threads(1):
+    with limit_threads(1):
         yield
 
 

@@ -168,14 +168,14 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
     from errormap.sweeps import read_sweeps
     from errormap.uncertainty import covariance_path, smooth_identify
     from errormap.diagnosis.pipeline import DiagnosisSettings
-    from training.model import torch_threads
+    from errormap.threads import limit_threads
     from training.trainers import fit_field
 
     from .diagnosis import run_closed_loop
 
     machine = load_machine(m["machine"], expect_kind="grinder")
     name = m["name"]
-    with torch_threads(s.get("threads")):
+    with limit_threads(s.get("threads")):
         # 1. identify
         sm = smooth_identify(read_sweeps([str(p) for p in m["sweeps"]]), machine, noise_um=m["noise_um"],
                              n_boot=s["bootstrap"], seed=s["seed"])
