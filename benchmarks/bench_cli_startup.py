@@ -25,7 +25,7 @@ ROOT = HERE.parent
 def time_once(tree: Path, args) -> float:
     env = {**os.environ, "PYTHONPATH": str(tree)}
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "compensation.cli", *args], env=env, check=True, cwd=tree,
+    subprocess.run([sys.executable, "-m", "compensation.app.cli", *args], env=env, check=True, cwd=tree,
                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     return time.perf_counter() - t0
 
@@ -52,7 +52,7 @@ def main() -> None:
     text = "\n".join([
         "## `volcomp --help` start-up time (issue 17)",
         "",
-        f"Median of {a.runs} fresh interpreters each (`python -m compensation.cli …`, output discarded), the "
+        f"Median of {a.runs} fresh interpreters each (`python -m compensation.app.cli …`, output discarded), the "
         f"trees interleaved; load average {load0:.1f} → {load1:.1f} on this 2-core machine during the run. "
         "`--help` now imports only the command being run; the light help table imports no numerical library "
         "(numpy, torch, scipy, MLflow, matplotlib; `tests/test_cli_foundation.py` checks it).",

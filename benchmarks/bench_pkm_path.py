@@ -23,7 +23,8 @@ import time
 
 import numpy as np
 
-from compensation.pkm_interpolation import ToolPath, builtin_path, plot_tripod_sensitivity, true_path_residual
+from compensation.app.reports.tripod_sensitivity import plot_tripod_sensitivity
+from compensation.pkm_interpolation import ToolPath, builtin_path, true_path_residual
 from errormap.io import atomic_write
 from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator

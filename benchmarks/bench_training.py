@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def simulate(seed: int, out: Path) -> Path:
-    from compensation.cli import main
+    from compensation.app.cli import main
     if not (out / "featurepoints.csv").is_file():
         main(["simulate", "--seed", str(seed), "--out", str(out), "--checks", "20"])
     return out / "featurepoints.csv"

@@ -34,7 +34,7 @@ def _param_cover(effect, found, truth):
 
 
 def run_case(family: str, seed: int, effect: str) -> dict:
-    from compensation.cli import main
+    from compensation.app.cli import main
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
     from errormap.machine import load_machine

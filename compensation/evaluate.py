@@ -91,7 +91,7 @@ def residual_stats(residual_um, prefix: str) -> dict:
 
 
 def method_metrics(result, truth: TruthGrinder | None = None, true_residual=None) -> dict:
-    """Metrics of one solver result (see :mod:`compensation.report` for the metrics.json keys).
+    """Metrics of one solver result (see :mod:`compensation.app.reports.methods` for the metrics.json keys).
 
     ``result`` is a SolveResult; the true residual is computed from ``truth`` unless given.
     """

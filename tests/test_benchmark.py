@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compensation.benchmark import (PATH_CONDITIONS, BenchmarkSettings, FixedConditions, grinder_conditions,
+from compensation.app.workflows.benchmark import (PATH_CONDITIONS, BenchmarkSettings, FixedConditions, grinder_conditions,
                                     learned_pkm_commands, measured_pose_errors, pkm_true_residual, pose_inputs,
                                     quick_settings)
-from compensation.benchmark_report import render_html, summary_lines, verdicts
+from compensation.app.reports.benchmark import render_html, summary_lines, verdicts
 
 REQUIRED_ROW_KEYS = ("machine", "path", "condition", "true_rms_um", "true_max_um", "fit_seconds",
                      "compensate_seconds_per_point", "n_measurements")
@@ -209,7 +209,7 @@ def test_quick_benchmark_end_to_end(tmp_path):
     """``volcomp benchmark --quick`` (about a minute on 2 cores): rows, MLflow, report (and Chromium)."""
     from mlflow.tracking import MlflowClient
 
-    from compensation.cli import main
+    from compensation.app.cli import main
     out, uri = tmp_path / "out", f"sqlite:///{tmp_path / 'mlflow.db'}"
     assert main(["benchmark", "--quick", "--out", str(out), "--tracking-uri", uri]) == 0
     doc = json.loads((out / "benchmark.json").read_text())
@@ -249,7 +249,7 @@ def test_quick_benchmark_end_to_end(tmp_path):
 
 def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
     import training.trainers
-    from compensation.benchmark import Tracker, run_grinder
+    from compensation.app.workflows.benchmark import Tracker, run_grinder
 
     def broken(*a, **k):
         raise RuntimeError("no trainer here")

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation.cli import main
+from compensation.app.cli import main
 from errormap.elements import ElementSet
 from errormap.featurepoints import FeaturePoints
 from errormap.io import read_table
@@ -61,7 +61,7 @@ def test_command_help_lines_match_the_modules():
     """The light `volcomp --help` table says what each command module registers."""
     import argparse
 
-    from compensation.cli import COMMAND_HELP, build_parser
+    from compensation.app.cli import COMMAND_HELP, build_parser
     parser = build_parser()  # every module in full
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     registered = {c.dest: c.help for c in sub._choices_actions}
@@ -73,7 +73,7 @@ def test_help_and_version_import_no_numerical_library():
     import subprocess
     import sys
     code = ("import sys, contextlib, io\n"
-            "from compensation.cli import main\n"
+            "from compensation.app.cli import main\n"
             "for argv in (['--help'], ['--version']):\n"
             "    with contextlib.redirect_stdout(io.StringIO()) as out:\n"
             "        try: main(argv)\n"
@@ -86,7 +86,7 @@ def test_help_and_version_import_no_numerical_library():
 
 
 def test_error_line_is_one_line_and_bounded():
-    from compensation.cli import MAX_ERROR_CHARS, one_line
+    from compensation.app.cli import MAX_ERROR_CHARS, one_line
     msg = "f.csv: row 2, column 'x': " + "x" * 10_000 + "\nsecond line"
     s = one_line(msg)
     assert len(s) <= MAX_ERROR_CHARS and "\n" not in s and s.startswith("f.csv: row 2")

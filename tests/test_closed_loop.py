@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation.cli import main
+from compensation.app.cli import main
 from errormap.diagnosis.checks import CheckData
 from errormap.diagnosis.loop import closed_loop
 from errormap.diagnosis.update import update_elements

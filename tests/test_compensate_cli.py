@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation.cli import main
+from compensation.app.cli import main
 from compensation.pathio import read_path, write_axes_gcode, write_targets_csv
 from compensation.toolpath import flute_path
 from errormap.htm import HTMField
@@ -108,7 +108,7 @@ def test_allow_names_guards(setup, capsys):
 
 
 def test_interrupted_batch_leaves_whole_files_only(setup, grinder, monkeypatch, capsys):
-    import compensation.commands.compensate as cmd
+    import compensation.app.commands.compensate as cmd
     d, el, nc, csv, _ = setup
     real = cmd.solve
     calls = []

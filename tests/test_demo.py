@@ -3,7 +3,7 @@ import json
 
 import pytest
 
-from compensation.cli import main
+from compensation.app.cli import main
 
 REQUIRED = {"model_max_um", "model_mean_sq_um2", "true_max_um", "seconds", "points"}
 
@@ -35,7 +35,7 @@ def test_report_logs_to_the_default_store_when_no_uri_is_given(tmp_path, monkeyp
     the same run there (it used to look in MLflow's own default and not find the run)."""
     from mlflow.tracking import MlflowClient
 
-    from compensation.commands.demo import log_to_mlflow
+    from compensation.app.commands.demo import log_to_mlflow
     uri = f"sqlite:///{tmp_path / 'store.db'}"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     client = MlflowClient(uri)

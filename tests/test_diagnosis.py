@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from compensation.cli import main
-from compensation.diagnose import augmented_feature_points, retrain_learned, run_checks
+from compensation.app.cli import main
+from compensation.app.workflows.diagnosis import augmented_feature_points, retrain_learned, run_checks
 from errormap.diagnosis.checks import CheckData
 from errormap.diagnosis.pipeline import diagnose
 from errormap.featurepoints import make_feature_points
@@ -176,7 +176,7 @@ def test_missing_column_and_unit_mistake(grinder, tmp_path):
 def test_grid_aliasing_of_terms_is_detected(grinder):
     """A 40/rev worm harmonic on the 11-point A grid (every 36°) aliases to a constant: the
     learned retrain must not pretend feature points carry it; an x·z interaction survives."""
-    from compensation.diagnose import grid_aliasing
+    from compensation.app.workflows.diagnosis import grid_aliasing
     base = HTMField(grinder, random_truth(grinder, SEED).elements)
     fp = make_feature_points(grinder, base, n=11)
     worm = grid_aliasing(fp, run_pipeline(grinder, SEED, ["worm"]).corrected)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from compensation.cli import main
+from compensation.app.cli import main
 from errormap.diagnosis.drift import DriftLog, DriftModeller, load_drift_log, simulate_drift_log, smoothed
 from errormap.io import InputError, write_csv
 

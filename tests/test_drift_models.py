@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation.cli import main
+from compensation.app.cli import main
 from errormap.diagnosis.drift import DriftLog, load_drift_log
 from errormap.diagnosis.drift_models import (SCHEMA, SCHEMA_VERSION, ChannelFit, DriftModel, DriftSelector, Feature,
                                              feature_matrix, first_order, fit_ols, fit_pls_path, fit_ridge_path,

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation.cli import main
+from compensation.app.cli import main
 from errormap.io import read_table
 from errormap.machine import load_machine
 from errormap.simulator import random_truth

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from compensation import export as ex
-from compensation.cli import main
+from compensation.app.cli import main
 from compensation.toolpath import flute_path
 from errormap.elements import ElementSet
 from errormap.io import InputError

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from compensation import export as ex
-from compensation.cli import main
+from compensation.app.cli import main
 from errormap.diagnosis.drift import DriftLog
 from errormap.diagnosis.drift_models import ChannelFit, DriftModel, DriftSelector, Feature
 from errormap.diagnosis.drift_sim import simulate_lumped_log

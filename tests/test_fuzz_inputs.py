@@ -3,7 +3,7 @@
 Each test starts from a valid file and applies one random mutation (a cell replaced by random
 text or an absurd number, raw bytes inserted, a UTF-8 BOM, Latin-1 text, a line dropped or
 doubled, the file cut short). The readers are the CSV ones (sweeps, checks, tool paths, feature
-points), the element-set JSON and the machine TOML of every kind; and ``compensation.cli.main``
+points), the element-set JSON and the machine TOML of every kind; and ``compensation.app.cli.main``
 on the fast commands: nothing but exit 0 or 2 with one bounded line may come out of it.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from compensation.cli import MAX_ERROR_CHARS, UsageError, main
+from compensation.app.cli import MAX_ERROR_CHARS, UsageError, main
 from errormap.io import InputError
 from errormap.machine import MachineFileError, builtin_machine_path, load_machine
 

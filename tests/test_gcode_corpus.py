@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from compensation.cli import main
+from compensation.app.cli import main
 from compensation.gcode import AXES, tokenize
 from compensation.pathio import read_path, render_gcode, replan
 from compensation.solvers import solve

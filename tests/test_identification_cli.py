@@ -3,7 +3,7 @@ import json
 
 import numpy as np
 
-from compensation.cli import main
+from compensation.app.cli import main
 from errormap.elements import ElementSet
 from errormap.htm import HTMField
 from errormap.machine import builtin_machine_path, load_machine

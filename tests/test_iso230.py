@@ -125,7 +125,7 @@ def test_bad_shapes_refused(grinder):
 
 
 def test_identify_summary_shows_iso_names(grinder):
-    from compensation.commands.identify import iso_summary_lines
+    from compensation.app.commands.identify import iso_summary_lines
     from errormap.simulator import random_truth
     el = random_truth(grinder, 4).elements
     lines = iso_summary_lines(el)

@@ -3,7 +3,7 @@ import json
 
 import numpy as np
 
-from compensation.cli import main
+from compensation.app.cli import main
 from errormap.io import read_table
 from errormap.machine import load_machine
 from errormap.pkm.simulate import simulate_hexapod_poses

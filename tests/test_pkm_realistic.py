@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from compensation.cli import main
+from compensation.app.cli import main
 from errormap.io import write_csv
 from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator

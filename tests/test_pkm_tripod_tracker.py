@@ -81,8 +81,8 @@ def test_rotation_fitting_converges_with_repeats():
 def test_sensitivity_plot_written_and_shows_the_trends(tripod, tmp_path, capsys):
     """The tripod paper's findings as a plot (via the CLI) and its data: K grows with lambda and with the
     distance from the fixed platform."""
-    from compensation.cli import main
-    from compensation.pkm_interpolation import plot_tripod_sensitivity
+    from compensation.app.cli import main
+    from compensation.app.reports.tripod_sensitivity import plot_tripod_sensitivity
     from errormap.machine import builtin_machine_path
 
     png = tmp_path / "sens.png"

@@ -73,7 +73,7 @@ def test_served_model_equals_volcomp_predict(tracked):
            "MLFLOW_TRACKING_URI": store,
            # the scoring server is started as `uvicorn`, looked up on PATH: this interpreter's bin first
            "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])}
-    subprocess.run([sys.executable, "-m", "compensation.cli", "predict", "--model", res.run_id, "--tracking-uri", store,
+    subprocess.run([sys.executable, "-m", "compensation.app.cli", "predict", "--model", res.run_id, "--tracking-uri", store,
                     str(tmp / "pts.csv"), "--out", str(tmp / "pred.csv")], check=True, env=env, cwd=tmp,
                    capture_output=True, timeout=300)
     t = read_table(tmp / "pred.csv")

@@ -1,4 +1,4 @@
-"""Method comparison, true residual and the HTML report (compensation.report / evaluate)."""
+"""Method comparison, true residual and the HTML report (compensation.app.reports.methods / evaluate)."""
 import base64
 import json
 import re
@@ -6,10 +6,10 @@ import re
 import numpy as np
 import pytest
 
-import compensation.report as report_mod
-from compensation.cli import main
+import compensation.app.reports.methods as report_mod
+from compensation.app.cli import main
 from compensation.evaluate import load_truth, residual_stats, true_residual_um
-from compensation.report import compare_methods, subset_index, write_report
+from compensation.app.reports.methods import compare_methods, subset_index, write_report
 from compensation.solvers import solve
 from compensation.toolpath import flute_path
 from errormap.io import InputError

@@ -431,7 +431,7 @@ def test_default_tracking_uri(monkeypatch, tmp_path):
 
 # -- CLI ------------------------------------------------------------------------------------
 def test_cli_train_writes_metrics_and_run(tmp_path, monkeypatch, capsys):
-    from compensation.cli import main
+    from compensation.app.cli import main
     store_uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", store_uri)
     assert main(["simulate", "--seed", "0", "--out", str(tmp_path / "sim"), "--checks", "20"]) == 0
@@ -452,7 +452,7 @@ def test_cli_train_writes_metrics_and_run(tmp_path, monkeypatch, capsys):
 
 
 def test_cli_train_bad_input_exits_2(tmp_path, capsys):
-    from compensation.cli import main
+    from compensation.app.cli import main
     bad = tmp_path / "fp.csv"
     bad.write_text("x_mm,z_mm,a_deg,dx_um,dy_um\n" + "1,2,3,4,5\n" * 12)
     assert main(["train", str(bad), "--out", str(tmp_path / "o")]) == 2
@@ -487,7 +487,7 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
 def test_cli_train_is_reproducible_and_a_time_budget_says_how_to_repeat_it(tmp_path, monkeypatch, capsys):
     """Default training stops on iterations; a --max-time run records the iterations it reached,
     and --max-iter with that number gives the same weights bit for bit."""
-    from compensation.cli import main
+    from compensation.app.cli import main
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}")
     assert main(["simulate", "--seed", "0", "--out", str(tmp_path / "sim"), "--checks", "20"]) == 0
     fp = str(tmp_path / "sim" / "featurepoints.csv")
@@ -513,7 +513,7 @@ def test_cli_train_is_reproducible_and_a_time_budget_says_how_to_repeat_it(tmp_p
     (lambda d: d.__setitem__("dy_um", d["dy_um"] * 1000), "dy_um", "not nm, not a position"),
 ])
 def test_cli_train_names_the_unit_mistake(tmp_path, capsys, mistake, column, named):
-    from compensation.cli import main
+    from compensation.app.cli import main
     from errormap.io import read_table, write_csv
     assert main(["simulate", "--seed", "0", "--out", str(tmp_path / "sim"), "--checks", "20"]) == 0
     t = read_table(tmp_path / "sim" / "featurepoints.csv")

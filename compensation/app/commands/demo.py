@@ -25,9 +25,9 @@ from errormap.io import write_json
 from errormap.machine import load_machine
 
 from ..cli import UsageError
-from ..evaluate import load_truth
-from ..report import compare_methods, print_table, write_report
-from ..toolpath import check_in_strokes
+from ...evaluate import load_truth
+from ..reports.methods import compare_methods, print_table, write_report
+from ...toolpath import check_in_strokes
 from . import simulate as simulate_cmd
 from .report import add_flute_arguments, add_method_arguments, flute_from_args, parse_methods
 

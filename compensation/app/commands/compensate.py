@@ -40,12 +40,12 @@ from errormap.machine import load_machine
 from errormap.progress import Progress
 
 from ..cli import UsageError
-from ..diagnosed_model import add_condition_options, load_path_field
-from ..gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
-from ..pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
-from .. import guards
-from ..report import small_batch_threads
-from ..solvers import METHODS, solve
+from ...diagnosed_model import add_condition_options, load_path_field
+from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
+from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
+from ... import guards
+from ..reports.methods import small_batch_threads
+from ...solvers import METHODS, solve
 
 EXIT_REFUSED = 3
 SUMMARY_NAME = "compensate_summary.json"

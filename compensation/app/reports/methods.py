@@ -31,9 +31,9 @@ import numpy as np
 from errormap.io import atomic_write, write_csv, write_json
 from errormap.kinematics import inverse
 
-from .evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_stats, true_residual_um
-from .pathio import align_turns
-from .solvers import METHODS, solve
+from ...evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_stats, true_residual_um
+from ...pathio import align_turns
+from ...solvers import METHODS, solve
 from .figures import png_base64, pyplot
 
 REPORT_FORMAT = "volcomp-report/1"
@@ -122,7 +122,7 @@ def _solve(method, field_, targets, machine, options):
 def guard_counts(result, machine, field_, target_axes=None) -> dict:
     """Guard violations per guard name (reported, never enforced, in a comparison);
     ``target_axes`` (n, 3): the targets' nominal axes, checked too when given."""
-    from . import guards
+    from ... import guards
     try:
         rep = guards.check(result, machine, field_, allow="all", target_axes=target_axes)
     except TypeError:  # a field that does not say where it is calibrated

@@ -4,7 +4,7 @@
 under a set of measurement conditions, evaluates the TRUE residual (residual 2 of docs/kinematics.md: the
 simulated truth machine driven with the compensated commands, minus the target) along the
 test paths, records every run in MLflow under one parent run, and writes
-``DIR/benchmark.json`` and ``DIR/report.html`` (:mod:`compensation.benchmark_report`).
+``DIR/benchmark.json`` and ``DIR/report.html`` (:mod:`compensation.app.reports.benchmark`).
 
 **Grinder** (one simulated truth machine, seed ``truth_seed``):
 
@@ -265,7 +265,7 @@ class GrinderBench:
     def __init__(self, machine, s: BenchmarkSettings, tracker: Tracker):
         from errormap.simulator import random_axes
 
-        from .toolpath import flute_path
+        from ...toolpath import flute_path
         self.m, self.s, self.tracker = machine, s, tracker
         self.flute = flute_path(turns=s.flute_turns, points_per_turn=s.flute_points_per_turn)
         self.targets = self.flute.targets_mm
@@ -299,8 +299,8 @@ class GrinderBench:
 
     # -- compensation and true residual
     def compensate(self, field_, method, idx=None, volume=False):
-        from .evaluate import true_residual_um
-        from .solvers import solve
+        from ...evaluate import true_residual_um
+        from ...solvers import solve
         tg, nom, cond = (self.vol_targets, self.vol_axes, self.vol_cond) if volume else \
             (self.targets, self.nominal, self.path_cond)
         if idx is not None:
@@ -315,7 +315,7 @@ class GrinderBench:
                 "model_max_um": float(np.max(r.residual_norm_um)), "failures": int(np.count_nonzero(~r.success))}
 
     def uncompensated(self):
-        from .evaluate import true_residual_um
+        from ...evaluate import true_residual_um
         return _stats(true_residual_um(self.truth_, self.nominal, self.targets, self.path_cond))
 
     def train(self, elements, cond_name):
@@ -566,7 +566,7 @@ def pkm_true_residual(truth, machine, tip_cmd, R_cmd, tip_target, tool_length_mm
 
 
 def _pkm_paths(machine, s: BenchmarkSettings):
-    from .pkm_interpolation import ToolPath, builtin_path
+    from ...pkm_interpolation import ToolPath, builtin_path
     if machine.kind == "hexapod":
         return {n: builtin_path(n, s.pkm_path_step_mm) for n in ("sphere", "hyperboloid")}
     from errormap.pkm.hexapod import workspace_poses
@@ -581,7 +581,7 @@ def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) ->
     from errormap.pkm.simulate import simulate_poses
     from training.pose_field import fit_pose_field
 
-    from .pkm_interpolation import leg_program, true_path_residual
+    from ...pkm_interpolation import leg_program, true_path_residual
     kind = machine.kind
     paths = _pkm_paths(machine, s)
     if conditions is None:
@@ -672,7 +672,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
 
     Returns the ``benchmark.json`` document (``rows``, ``settings``, ``environment``, ``paths``).
     """
-    from .benchmark_report import render_html
+    from ..reports.benchmark import render_html
     s = settings or BenchmarkSettings()
     out = Path(out_dir)
     t_start = time.perf_counter()

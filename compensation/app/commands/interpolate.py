@@ -15,8 +15,9 @@ from errormap.machine import load_machine
 from errormap.pkm.calibration import load_calibrated_machine
 from errormap.pkm.hexapod import KinematicsError
 
-from compensation.pkm_interpolation import (builtin_path, contour_step_mm, leg_program, plot_tripod_sensitivity,
-                                            read_waypoints)
+from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints
+
+from ..reports.tripod_sensitivity import plot_tripod_sensitivity
 
 
 def register(subparsers):
@@ -35,7 +36,7 @@ def register(subparsers):
 
 
 def run(args) -> int:
-    from compensation.cli import UsageError
+    from compensation.app.cli import UsageError
     machine = load_machine(args.machine) if args.machine else load_machine(expect_kind="hexapod")
     if machine.kind not in ("hexapod", "tripod"):
         raise UsageError(f"{machine.path}: interpolate needs a hexapod or tripod machine file, got {machine.kind!r}")

@@ -24,7 +24,7 @@ from errormap.iso230 import ISO_NAME
 from errormap.machine import load_machine
 
 from ..cli import UsageError
-from .. import export as ex
+from ... import export as ex
 
 DEFAULT_TOLERANCE_UM = 1.0
 READ_BACK_TOL_UM = 1e-5
@@ -101,7 +101,7 @@ def _load_model(args, machine):
     if args.fmt == "iso-tables":
         raise UsageError("--format iso-tables needs an element-set model (JSON): ISO component tables are the 23 "
                          "elements' components")
-    from ..fields import load_field
+    from ...fields import load_field
     return ex.ModelError(machine, field=load_field(args.model, machine, args.tracking_uri)), f"{args.model} (learned field)"
 
 
@@ -149,7 +149,7 @@ def run(args) -> int:
         model.backlash = back
     truth = None
     if args.truth:
-        from ..evaluate import load_truth
+        from ...evaluate import load_truth
         truth = load_truth(args.truth, machine)
     sets = ex.check_sets(machine, args.check_points, args.seed)
     say = lambda s: print(s, file=sys.stderr)  # noqa: E731

@@ -26,8 +26,8 @@ from errormap.diagnosis.pipeline import DiagnosisSettings, diagnose
 from errormap.featurepoints import FeaturePoints
 from errormap.io import InputError, atomic_write, write_json
 
-from .fields import load_field
-from .figures import png_base64, pyplot
+from ...fields import load_field
+from ..reports.figures import png_base64, pyplot
 
 
 # -- learned path ---------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """The benchmark's self-contained HTML report (tables, PNG plots inlined as base64, matplotlib Agg).
 
-``render_html(doc)`` takes the ``benchmark.json`` document of :func:`compensation.benchmark.run_benchmark`
+``render_html(doc)`` takes the ``benchmark.json`` document of :func:`compensation.app.workflows.benchmark.run_benchmark`
 and returns the page. Every number on it comes from the rows; the "where each path wins" lines
 are computed from them (:func:`verdicts`).
 """

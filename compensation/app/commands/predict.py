@@ -8,7 +8,7 @@ import numpy as np
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
 
-from ..fields import load_field
+from ...fields import load_field
 
 
 def register(sub):
@@ -30,7 +30,7 @@ def register(sub):
 def _check_volume(args, table, axes, field) -> None:
     """Refuse points outside the field's calibrated volume (unless ``--allow extrapolate``),
     naming the first one's row and column; a far-off value is most often a unit mistake."""
-    from ..guards import calibrated_volume, volume_violations
+    from ...guards import calibrated_volume, volume_violations
     bad, reasons = volume_violations(axes, field)
     if not len(bad) or "extrapolate" in args.allow:
         return

@@ -4,7 +4,7 @@ Runs ``traditional``, ``ga``, ``batched-ga`` and ``exact`` (or ``--methods``) wi
 field on one path (``--path FILE`` or the built-in ``--flute``), computes the MODEL residual
 of each and — with ``--truth`` (a ``volcomp simulate`` folder or an element-set file) — the
 TRUE residual on the simulated machine, and writes ``DIR/report.html``, ``DIR/metrics.json``
-and ``DIR/residuals.csv`` (see :mod:`compensation.report`).
+and ``DIR/residuals.csv`` (see :mod:`compensation.app.reports.methods`).
 """
 from __future__ import annotations
 
@@ -13,12 +13,12 @@ from pathlib import Path
 from errormap.machine import load_machine
 
 from ..cli import UsageError
-from ..evaluate import load_truth
-from ..fields import load_field
-from ..pathio import read_path
-from ..report import DEFAULT_GA_BUDGET_S, compare_methods, print_table, write_report
-from ..solvers import METHODS
-from ..toolpath import FLUTE_DEFAULTS, LEAD_LAWS, check_in_strokes, flute_path
+from ...evaluate import load_truth
+from ...fields import load_field
+from ...pathio import read_path
+from ..reports.methods import DEFAULT_GA_BUDGET_S, compare_methods, print_table, write_report
+from ...solvers import METHODS
+from ...toolpath import FLUTE_DEFAULTS, LEAD_LAWS, check_in_strokes, flute_path
 
 
 def add_flute_arguments(p) -> None:

@@ -1,7 +1,7 @@
 """``volcomp benchmark``: learned vs parametric compensation on the same machines and measurements.
 
 Writes ``DIR/benchmark.json`` (one row per machine, path, condition) and ``DIR/report.html``;
-every run is tracked in MLflow under one parent run. See :mod:`compensation.benchmark` and
+every run is tracked in MLflow under one parent run. See :mod:`compensation.app.workflows.benchmark` and
 docs/benchmark.md.
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ def register(sub):
 
 
 def run(args) -> int:
-    from ..benchmark import BenchmarkSettings, quick_settings, run_benchmark
+    from ..workflows.benchmark import BenchmarkSettings, quick_settings, run_benchmark
     s = quick_settings() if args.quick else BenchmarkSettings()
     if args.train_s is not None:
         if not args.train_s > 0:

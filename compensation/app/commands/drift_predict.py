@@ -20,7 +20,7 @@ def register(sub):
 def run(args) -> int:
     import numpy as np
 
-    from compensation.diagnose import COMPENSATION_COMMENTS, compensation_columns
+    from compensation.app.workflows.diagnosis import COMPENSATION_COMMENTS, compensation_columns
     from errormap.diagnosis.drift import load_drift_log
     from errormap.diagnosis.drift_models import DriftModel
     from errormap.io import InputError, write_csv

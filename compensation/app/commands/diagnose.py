@@ -30,8 +30,8 @@ def register(sub):
 
 
 def run(args) -> int:
-    from compensation.cli import UsageError
-    from compensation.diagnose import run_checks, run_drift
+    from compensation.app.cli import UsageError
+    from compensation.app.workflows.diagnosis import run_checks, run_drift
     from errormap.diagnosis.drift_models import DriftSelector
     if (args.checks is None) == (args.drift is None):
         raise UsageError("give either CHECKS (with --model) or --drift LOG")

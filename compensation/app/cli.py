@@ -1,6 +1,6 @@
 """The ``volcomp`` command line.
 
-Each sub-command lives in ``compensation/commands/<name>.py`` with ``register(subparsers)``.
+Each sub-command lives in ``compensation/app/commands/<name>.py`` with ``register(subparsers)``.
 Only the module of the command being run is imported: ``volcomp --help`` and
 ``volcomp --version`` list the commands from :data:`COMMAND_HELP` and import no numerical
 library (numpy, torch, scipy, MLflow, matplotlib), so they answer in well under a second.
@@ -14,7 +14,7 @@ import importlib
 import sys
 
 # sub-commands and their one-line help, in the order `volcomp --help` lists them; command
-# ``a-b`` lives in ``compensation/commands/a_b.py``; tests/test_cli_foundation.py checks that
+# ``a-b`` lives in ``compensation/app/commands/a_b.py``; tests/test_cli_foundation.py checks that
 # each module registers exactly this help
 COMMAND_HELP = {
     "simulate": "simulate a truth grinder: elements, feature points, check measurements",
@@ -54,8 +54,8 @@ def version() -> str:
 
 
 def command_module(name: str) -> str:
-    """The module that holds command ``name`` (``drift-predict`` → ``compensation.commands.drift_predict``)."""
-    return f"compensation.commands.{name.replace('-', '_')}"
+    """The module that holds command ``name`` (``drift-predict`` → ``compensation.app.commands.drift_predict``)."""
+    return f"compensation.app.commands.{name.replace('-', '_')}"
 
 
 def _register(sub, name: str) -> bool:
@@ -127,7 +127,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    # `python -m compensation.cli`: run the imported module's main, so that the UsageError the
-    # commands import (compensation.cli.UsageError) is the one caught, not __main__'s twin
-    from compensation.cli import main as _main
+    # `python -m compensation.app.cli`: run the imported module's main, so that the UsageError the
+    # commands import (compensation.app.cli.UsageError) is the one caught, not __main__'s twin
+    from compensation.app.cli import main as _main
     sys.exit(_main())

@@ -67,7 +67,7 @@ def _save(fig, path: Path) -> None:
 
 
 def _plots(result, before, after, out: Path) -> list[Path]:
-    from ..figures import pyplot
+    from ..reports.figures import pyplot
     plt = pyplot()
     paths = []
     fig, ax = plt.subplots(figsize=(6, 3.5))
@@ -191,7 +191,7 @@ def _compare_rules(machine, args, fit, check, res, after) -> dict:
 
 
 def run(args) -> int:
-    from compensation.cli import UsageError
+    from compensation.app.cli import UsageError
     machine = load_machine(args.machine, expect_kind=None) if args.machine else load_machine(expect_kind="hexapod")
     if machine.kind not in ("hexapod", "tripod"):
         raise UsageError(f"{machine.path}: calibrate needs a hexapod or tripod machine file, got kind {machine.kind!r}")

@@ -1,0 +1,7 @@
+"""The application wing: the ``volcomp`` command line, its commands, workflows and reports.
+
+``cli.py`` and ``commands/`` (one module per sub-command: parse, call, print), ``workflows/``
+(orchestration: benchmark, diagnosis), ``reports/`` (HTML reports and figures). May import
+``errormap``, ``training`` and the library part of ``compensation``; nothing outside
+``compensation/app`` imports it.
+"""

@@ -1,0 +1,1 @@
+"""Workflows: the orchestration behind the commands (benchmark, diagnosis), one module each."""
