@@ -83,11 +83,15 @@ def stage_run(prog, model, out_dir) -> dict:
     compensate.py, in its order), timed; seconds per stage, points, peak RSS (MB)."""
     import resource
     t0, c0 = time.perf_counter(), time.process_time()
-    from compensation.commands import compensate  # noqa: F401  (what the command loads)
+    try:  # the application wing (issue 18); a checkout from before it (--baseline-root) has the old places
+        from compensation.app.commands import compensate  # noqa: F401  (what the command loads)
+        from compensation.app.reports.methods import small_batch_threads
+    except ImportError:
+        from compensation.commands import compensate  # noqa: F401
+        from compensation.report import small_batch_threads
     from compensation import guards
     from compensation.diagnosed_model import load_path_field
     from compensation.pathio import align_turns, read_path, render_compensated, replan, write_outputs
-    from compensation.report import small_batch_threads
     from compensation.solvers import solve
     from errormap.machine import load_machine
     t = {"startup": time.perf_counter() - t0}
@@ -140,7 +144,8 @@ def _cli_run(prog, model, out_dir, root):
     """``volcomp compensate`` itself: wall s and peak RSS MB (``os.wait4``, as /usr/bin/time -v)."""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(root)
-    cmd = [sys.executable, "-m", "compensation.cli", "compensate", str(prog), "--model", str(model),
+    cli = "compensation.app.cli" if (Path(root) / "compensation" / "app" / "cli.py").is_file() else "compensation.cli"
+    cmd = [sys.executable, "-m", cli, "compensate", str(prog), "--model", str(model),
            "--method", "exact", "--out", str(out_dir), "--force"]
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
@@ -220,7 +225,7 @@ def gcode_section(args, tmp) -> str:
              + (f"a learned field fitted to it ({args.train_iters} LM iterations, validation max {val_um:.3g} um; "
                 "timing only)" if val_um is not None else f"the learned model {learned}")
              + ". Each run is a fresh process; stages are the command's own steps in its order "
-             "(`stage_run`), the end-to-end row is the command itself (`python -m compensation.cli compensate`), "
+             "(`stage_run`), the end-to-end row is the command itself (`python -m compensation.app.cli compensate`), "
              "wall time, CPU time (user + system) and peak RSS from `os.wait4`. Each cell: wall s (CPU s); on a "
              "shared machine wall time waits for the cores, so CPU time is the steadier figure. One run each "
              "(no repeats: the load varies by more than the repeat spread).", "",
