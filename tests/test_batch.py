@@ -77,3 +77,26 @@ def test_cluster_options_are_checked(tmp_path, capsys):
     assert "--workers must be >= 1" in capsys.readouterr().err
     assert main(base + ["--chunk-points", "0"]) == 2
     assert "--chunk-points must be >= 1" in capsys.readouterr().err
+
+
+def small_learned_field(grinder):
+    """A small untrained-but-scaled MLP field (random weights, fixed seed): a torch field for the
+    determinism checks (its values do not matter here, only that torch computes them)."""
+    from training.model import MLPField
+    rng = np.random.default_rng(0)
+    axes = rng.random((500, 3)) * (grinder.stroke_hi - grinder.stroke_lo) + grinder.stroke_lo
+    e = np.column_stack([np.sin(axes[:, 0] / 30) * 5, np.cos(np.deg2rad(axes[:, 2])) * 3, axes[:, 1] / 10])
+    f = MLPField(hidden=(12, 12), activation="tanh").fit_scalers(axes, e)
+    f.theta_ = f.init_params(3)
+    return f
+
+
+@pytest.mark.parametrize("method", ["exact", "batched-ga"])
+def test_a_learned_field_gives_the_same_bits_with_any_workers(method, grinder):
+    field = small_learned_field(grinder)
+    paths = _paths(grinder)
+    opts = GA_OPTIONS.get(method, {})
+    one = solve_batch(method, field, grinder, paths, seed=3, options=opts, chunk_points=8, executor=LocalExecutor(1))
+    two = solve_batch(method, field, grinder, paths, seed=3, options=opts, chunk_points=8, executor=LocalExecutor(2))
+    for a, b in zip(one, two):
+        assert np.array_equal(a.axes, b.axes) and np.array_equal(a.residual_um, b.residual_um)

@@ -28,6 +28,7 @@ from compensation.toolpath import flute_path  # noqa: E402
 from errormap.htm import HTMField  # noqa: E402
 from errormap.io import write_csv  # noqa: E402
 from errormap.simulator import random_axes, random_truth  # noqa: E402
+from tests.test_batch import small_learned_field  # noqa: E402
 from tests.test_mlflow_server import mlflow_server  # noqa: E402,F401  (the fixture)
 
 pytestmark = pytest.mark.slow
@@ -95,11 +96,13 @@ def test_ray_batch_writes_the_local_runs_bytes(ray_session, batch, grinder, caps
              SimpleNamespace(targets_mm=fl.targets_mm[3:9], axes=fl.axes(grinder)[3:9])]
     opts = {"traditional": {}, "exact": {}, "batched-ga": {"generations": 10},
             "ga": {"generations": 2, "population": 10}}
+    learned = small_learned_field(grinder)  # torch in the workers: one thread, as locally
+    runs = [(field, m, o) for m, o in opts.items()] + [(learned, m, opts[m]) for m in ("exact", "batched-ga")]
     with RayExecutor() as ex:  # the session above: joined, left running
-        for method, o in opts.items():
-            local = solve_batch(method, field, grinder, paths, seed=11, options=o, chunk_points=16,
+        for f, method, o in runs:
+            local = solve_batch(method, f, grinder, paths, seed=11, options=o, chunk_points=16,
                                 executor=LocalExecutor(1))
-            remote = solve_batch(method, field, grinder, paths, seed=11, options=o, chunk_points=16, executor=ex)
+            remote = solve_batch(method, f, grinder, paths, seed=11, options=o, chunk_points=16, executor=ex)
             for a, b in zip(local, remote):
                 assert np.array_equal(a.axes, b.axes) and np.array_equal(a.residual_um, b.residual_um), method
     assert ray.is_initialized()

@@ -57,3 +57,33 @@ def test_repeated_names_and_a_wrong_format_are_refused(tmp_path):
     (tmp_path / "f.toml").write_text(f'[[machine]]\n{one}')
     with pytest.raises(InputError, match="key 'format'"):
         read_fleet(tmp_path / "f.toml")
+
+
+@pytest.mark.slow
+def test_a_fleet_runs_in_process_without_ray(tmp_path, grinder, capsys):
+    """Without --cluster the machines run one after another here (no Ray needed); a file store is
+    fine for one writer at a time."""
+    import json
+
+    from mlflow.tracking import MlflowClient
+
+    from compensation.app.cli import main
+    from errormap.io import write_csv
+    from errormap.simulator import TruthGrinder, random_truth
+    from errormap.sweeps import simulate_sweeps, write_sweeps
+    truth = random_truth(grinder, 3)
+    write_sweeps(tmp_path / "sweeps.csv", simulate_sweeps(TruthGrinder(grinder, truth.elements, {}), seed=3))
+    write_csv(tmp_path / "checks.csv", truth.check_measurements(n=150, seed=13),
+              header_comments=["format: volcomp-checks/1"])
+    (tmp_path / "fleet.toml").write_text('format = "volcomp-fleet/1"\n[[machine]]\nname = "only"\n'
+                                         'sweeps = "sweeps.csv"\nchecks = "checks.csv"\n')
+    uri = f"sqlite:///{tmp_path / 'ml.db'}"
+    rc = main(["fleet", str(tmp_path / "fleet.toml"), "--out", str(tmp_path / "out"), "--tracking-uri", uri,
+               "--train-iter", "2", "--bootstrap", "3", "--grid", "5", "--hidden", "5"])
+    assert rc == 0, capsys.readouterr().err
+    m = json.loads((tmp_path / "out" / "fleet_summary.json").read_text())["machines"][0]
+    assert m["status"] == "ok" and m["train_iterations"] <= 2
+    diag = json.loads((tmp_path / "out" / "only" / "diagnosis" / "diagnosis.json").read_text())
+    run = MlflowClient(tracking_uri=uri).get_run(m["run_id"])
+    assert run.data.metrics["diagnose_heldout_rms_updated_um"] == diag["stages"]["updated"]["held_out"]["rms_um"]
+    assert (tmp_path / "out" / "only" / "machine_summary.json").is_file()
