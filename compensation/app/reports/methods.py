@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from errormap.io import write_csv, write_json
 from ...evaluate import RESIDUAL_DEFINITIONS
 from .figures import pyplot
 from .toolkit import Figure, Table, figure, kv_table, num, render_page, write_page
+
+if TYPE_CHECKING:  # annotations only: the comparison is built by the compare workflow
+    from ..workflows.compare import Comparison
 
 # ----------------------------------------------------------------------------- plots
 

@@ -351,15 +351,16 @@ def compensate_true(machine, s: BenchmarkSettings, points: GrinderTestPoints, tr
     if method == "batched-ga":
         opts.update(seed=s.seed, generations=s.ga_generations)
     r = solve(method, field_, tg, machine, **opts)
-    rms, mx = _stats(true_residual_um(truth, r.axes, tg, cond))
-    return {"true_rms_um": rms, "true_max_um": mx, "seconds_per_point": r.seconds / len(tg), "points": len(tg),
+    st = residual_stats(true_residual_um(truth, r.axes, tg, cond))
+    return {"true_rms_um": st["rms_um"], "true_max_um": st["max_um"], "seconds_per_point": r.seconds / len(tg), "points": len(tg),
             "model_max_um": float(np.max(r.residual_norm_um)), "failures": int(np.count_nonzero(~r.success))}
 
 
 def uncompensated_true(points: GrinderTestPoints, truth) -> tuple[float, float]:
     """(RMS, max) TRUE residual of the nominal flute commands."""
     from ...evaluate import true_residual_um
-    return _stats(true_residual_um(truth, points.nominal_axes, points.targets_mm, points.path_cond))
+    st = residual_stats(true_residual_um(truth, points.nominal_axes, points.targets_mm, points.path_cond))
+    return st["rms_um"], st["max_um"]
 
 
 class NetworkTrainer:
