@@ -1,68 +1,12 @@
-"""The import rules of the house (docs/architecture.md), read from the source with ``ast``.
-
-Layers import one way, ``errormap`` ← ``training`` ← ``compensation``, and the application wing
-``compensation/app`` sits on top: nothing outside it imports it, and its command modules do not
-import one another (what two commands share lives in ``app/options.py`` or a workflow). Every
-import counts, at module level or inside a function, absolute or relative.
+"""The error field's layer, read from the source: the solvers and guards depend on the field
+protocol alone, the machine-file validators live in one module, and importing any module changes
+no global state (docs/architecture.md). The import walker is ``tests/test_architecture.py``'s.
 """
 import ast
-from pathlib import Path
 
-import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("errormap", "training", "compensation")
-APP = "compensation.app"
-COMMANDS = "compensation.app.commands"
+from test_architecture import PACKAGES, ROOT, imported_modules, module_name, offenders, sources
 
 
-def module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
-    if parts[-1] == "__init__":
-        parts.pop()
-    return ".".join(parts)
-
-
-def imported_modules(path: Path) -> set:
-    """Every module the source file ``path`` imports (see :func:`imports_of`)."""
-    return imports_of(path.read_text(encoding="utf-8"), module_name(path), path.name == "__init__.py")
-
-
-def imports_of(text: str, name: str, is_package: bool = False) -> set:
-    """Every module the source ``text`` of module ``name`` imports, as absolute dotted names
-    (``from a import b`` gives both ``a`` and ``a.b``: ``b`` may be a submodule)."""
-    package = name if is_package else name.rpartition(".")[0]
-    found = set()
-    for node in ast.walk(ast.parse(text)):
-        if isinstance(node, ast.Import):
-            found.update(a.name for a in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")
-                base = base[: len(base) - (node.level - 1)]
-                mod = ".".join(base + ([node.module] if node.module else []))
-            else:
-                mod = node.module
-            found.add(mod)
-            found.update(f"{mod}.{a.name}" for a in node.names if a.name != "*")
-    return found
-
-
-def sources(package: str):
-    return sorted((ROOT / package.replace(".", "/")).rglob("*.py"))
-
-
-def offenders(files, forbidden) -> list:
-    """``(module, imported)`` for every import in ``files`` that is ``forbidden`` or inside it."""
-    bad = []
-    for f in files:
-        for mod in sorted(imported_modules(f)):
-            if any(mod == p or mod.startswith(p + ".") for p in forbidden):
-                bad.append((module_name(f), mod))
-    return bad
-
-
-# -- the error field's layer (issue 18, errormap/field.py) ------------------------------------------
 def _field_layer_files():
     """compensation/solvers/* and compensation/guards.py: they depend on errormap.field alone."""
     return sources("compensation.solvers") + [ROOT / "compensation" / "guards.py"]
