@@ -11,7 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from compensation.cli import MAX_ERROR_CHARS
+from compensation.app.cli import MAX_ERROR_CHARS
 from errormap.machine import builtin_machine_path, load_machine
 from errormap.pkm.simulate import simulate_hexapod_poses
 from test_fuzz_inputs import mangled, mangled_toml, run_main
