@@ -19,7 +19,6 @@ options, progress) -> list[SolveResult]`` in task order. The library never impor
 """
 from __future__ import annotations
 
-import contextlib
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field as dc_field
@@ -94,15 +93,8 @@ def chunk_tasks(chunks, paths) -> list[ChunkTask]:
                       str(getattr(paths[c.file], "path", "") or f"input {c.file + 1}")) for c in chunks]
 
 
-@contextlib.contextmanager
-def one_torch_thread():
-    """torch on one thread inside the block (when torch is loaded; nothing otherwise)."""
-    with limit_threads(1):
-        yield
-
-
 def solve_chunk(method: str, field_, machine, task: ChunkTask, options: dict | None = None) -> SolveResult:
-    """Solve one chunk as every executor does (call it under :func:`one_torch_thread`).
+    """Solve one chunk as every executor does (call it under :func:`errormap.threads.limit_threads` (1)).
 
     The GA methods get a Generator on the chunk's own seed; ``batched-ga`` evolves the chunk
     as one block (one stream, no threads of its own); progress bars are off (the executor
@@ -172,7 +164,7 @@ class LocalExecutor:
                 progress(len(task.chunk))
             return r
 
-        with one_torch_thread():
+        with limit_threads(1):
             if self.workers == 1 or len(tasks) <= 1:
                 return [one(t) for t in tasks]
             with ThreadPoolExecutor(min(self.workers, len(tasks))) as pool:

@@ -24,7 +24,9 @@ import os
 import sys
 from collections import deque
 
-from compensation.batch import CHUNK_POINTS, LocalExecutor, default_workers, one_torch_thread, solve_chunk
+from errormap.threads import limit_threads
+
+from compensation.batch import CHUNK_POINTS, LocalExecutor, default_workers, solve_chunk
 
 EXIT_CLUSTER = 4
 """Exit status of a command whose work the cluster could not finish (nothing written)."""
@@ -80,7 +82,7 @@ class ChunkSolver:
         self.field, self.machine = payload
         self.fault = fault
         torch = sys.modules.get("torch")
-        if torch is not None:  # else one_torch_thread sets it when a solver loads torch
+        if torch is not None:  # else limit_threads(1) sets it when a solver loads torch
             torch.set_num_threads(1)
 
     def solve(self, i, method, task, options):
@@ -92,7 +94,7 @@ class ChunkSolver:
                 if not os.path.exists(marker):
                     open(marker, "w").close()
                     os._exit(17)
-        with one_torch_thread():
+        with limit_threads(1):
             return i, solve_chunk(method, self.field, self.machine, task, options)
 
     def pid(self):
