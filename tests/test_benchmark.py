@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compensation.app.workflows.benchmark import (PATH_CONDITIONS, BenchmarkSettings, FixedConditions, grinder_conditions,
+from compensation.app.workflows.benchmark import (PATH_CONDITIONS, BenchmarkSettings, grinder_conditions,
                                     learned_pkm_commands, measured_pose_errors, pkm_true_residual, pose_inputs,
                                     quick_settings)
 from compensation.app.reports.benchmark import render_html, summary_lines, verdicts
+from compensation.diagnosed_model import ConditionedField
 
 REQUIRED_ROW_KEYS = ("machine", "path", "condition", "true_rms_um", "true_max_um", "fit_seconds",
                      "compensate_seconds_per_point", "n_measurements")
@@ -42,29 +43,32 @@ def test_quick_settings_are_a_subset_of_the_default():
     assert d.train_s is None and d.pkm_train_s is None  # training stops on iterations: reproducible by default
 
 
-# -- fields at fixed path conditions -------------------------------------------------------------
+# -- fields at fixed path conditions (one class: compensation.diagnosed_model.ConditionedField) ------
 class _NeedsTemp:
     needs = ("temp_c",)
+    machine = None
+    terms = ()
+    calibrated_volume = None
 
     def predict(self, axes, **cond):
-        return np.tile(np.atleast_1d(cond["temp_c"])[:, None] if np.ndim(cond["temp_c"]) else
-                       np.full((len(axes), 1), cond["temp_c"]), (1, 3))
+        t = np.broadcast_to(np.asarray(cond["temp_c"], float), (len(axes),))
+        return np.tile(t[:, None], (1, 3))
 
 
-def test_fixed_conditions_pass_the_path_condition():
-    f = FixedConditions(_NeedsTemp(), PATH_CONDITIONS)
+def test_path_conditions_reach_the_corrected_field():
+    f = ConditionedField(_NeedsTemp(), PATH_CONDITIONS)
     out = f.predict(np.zeros((4, 3)))
     assert out.shape == (4, 3)
     assert np.all(out == PATH_CONDITIONS["temp_c"])
 
 
-def test_fixed_conditions_leave_plain_fields_alone():
-    class Plain:
+def test_conditioned_field_without_needs_is_the_plain_field():
+    class Plain(_NeedsTemp):
         needs = ()  # a corrected field whose terms need no condition
 
-        def predict(self, axes):
+        def predict(self, axes, **cond):
             return np.ones((len(axes), 3))
-    assert np.all(FixedConditions(Plain(), PATH_CONDITIONS).predict(np.zeros((2, 3))) == 1.0)
+    assert np.all(ConditionedField(Plain(), PATH_CONDITIONS).predict(np.zeros((2, 3))) == 1.0)
 
 
 # -- PKM learned path ------------------------------------------------------------------------------

@@ -230,6 +230,22 @@ def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tm
     assert not (tmp_path / "c3" / "nocol.csv").exists()
 
 
+def test_compensate_gcode_with_a_diagnosed_model_follows_the_replanned_vertices(grinder, tmp_path):
+    """A G-code path (no condition columns) with a thermal term: the option's temperature holds at
+    every vertex the replan adds to the long moves, and the model residual stays at solver level."""
+    truth = random_truth(grinder, 3, effects=["thermal"])
+    k = truth.effects["thermal"]["k_um_per_mm_c"]
+    model = _diagnosed_model(tmp_path, truth, [{"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [k],
+                                                "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}])
+    src = tmp_path / "long.nc"
+    src.write_text("G21 G90\nG1 X10 Z5 A0 F100\nG1 X150 Z40 A90\nG1 X30 Z10 A180\nM30\n")  # two moves of >100 mm
+    base = ["compensate", str(src), "--model", str(model), "--method", "exact", "--temp-c", "23.5"]
+    assert main(base + ["--out", str(tmp_path / "c"), "--max-segment-mm", "10"]) == 0
+    summ = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
+    assert summ["points"] > 3 * summ["moves_compensated"]  # the replan added vertices along the long moves
+    assert summ["model_max_um"] < COMP_TRUE_TOL_UM
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("effect, kind_axis", [("thermal", ("thermal", "x")), ("interaction", ("interaction", "x*z"))])
 def test_effects_the_update_imitates_are_named_by_the_joint_screen(grinder, effect, kind_axis):

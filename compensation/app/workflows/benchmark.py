@@ -226,27 +226,6 @@ def log_row(tracker: Tracker, row: dict) -> None:
 
 
 # ------------------------------------------------------------------------------- grinder
-class FixedConditions:
-    """A field that needs conditions (a diagnosis ``CorrectedField``: the ones it declares in
-    ``needs``), evaluated at fixed path conditions: an error field (:class:`errormap.field.ErrorField`,
-    ``predict(axes (n, 3)) -> (n, 3) μm``, the wrapped field's calibrated volume) for the solvers."""
-
-    capabilities = frozenset()
-
-    def __init__(self, field_, conditions: dict):
-        self.field = field_
-        self.conditions = dict(conditions)
-        self._needed = {k: self.conditions[k] for k in field_.needs}
-
-    @property
-    def calibrated_volume(self):
-        return self.field.calibrated_volume
-
-    def predict(self, axes):
-        cond = self._needed
-        return self.field.predict(axes, **cond) if cond else self.field.predict(axes)
-
-
 @dataclass
 class GrinderCondition:
     name: str
@@ -512,12 +491,14 @@ class GrinderBench:
 
     def closed_loop_row(self, truth, label, checks, base_row, base, common) -> None:
         from errormap.diagnosis.pipeline import diagnose
+
+        from ...diagnosed_model import ConditionedField
         s = self.s
         t0 = time.perf_counter()
         d = diagnose(self.m, base, checks)
         diag_s = time.perf_counter() - t0
         found = [f"{e['kind']}:{e['axis']}:{e['element']}" for e in d.effects]
-        corrected = FixedConditions(d.corrected, PATH_CONDITIONS)
+        corrected = ConditionedField(d.corrected, PATH_CONDITIONS)
         sol = {"exact": self._compensate(truth, corrected, "exact")}
         if base_row["path"] == "learned":
             sol["batched-ga"] = self._compensate(truth, corrected, "batched-ga", idx=self.points.ga_idx)

@@ -33,7 +33,8 @@ from compensation.app.cli import UsageError
 
 from ... import guards
 from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, solve_batch
-from ...diagnosed_model import ConditionedField, load_path_field, path_conditions, solve_with_conditions
+from ...diagnosed_model import (ConditionedField, load_path_field, path_conditions, replanned_conditions,
+                                solve_with_conditions)
 from ...gcode import DEFAULT_RAPIDS
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from ...solvers.threads import small_batch_threads
@@ -237,12 +238,12 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
     # a diagnosed model whose terms need conditions: per point from the path's columns, else the options
+    # (taken and checked once, before any work: a missing condition or a bad cell fails the batch here)
     needs = field_.needs if isinstance(field_, ConditionedField) else ()
     conds = [path_conditions(tp, needs, field_.conditions) if needs else None for tp in paths]
     plan_field = field_.corrected.base if needs else field_  # axes-only part
     paths = [replan(tp, machine, max_segment_mm=s.max_segment_mm, field=plan_field) for tp in paths]
-    if needs:  # replanning may add points: conditions of the replanned rows
-        conds = [path_conditions(tp, needs, field_.conditions) for tp in paths]
+    conds = [replanned_conditions(c, tp) for c, tp in zip(conds, paths)]
     # solve everything first (nothing is written before all results are back)
     bar = Progress(sum(len(tp) for tp in paths), f"compensate ({s.method}, points)", every_s=1.0)
     lock = threading.Lock()
