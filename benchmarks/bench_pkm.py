@@ -41,7 +41,8 @@ from scipy.spatial.transform import Rotation
 
 from errormap.io import atomic_write
 from errormap.machine import load_machine
-from errormap.pkm.calibration import PoseData, pose_errors_um
+from errormap.pkm.calibration import PoseData
+from errormap.pkm.pose_model import pose_errors_um
 from errormap.pkm.hexapod import forward_kinematics, inverse_kinematics, workspace_poses
 from errormap.pkm.legspace import plain_leg_fit
 from errormap.pkm.machine_file import hexapod_joints_from_radii

@@ -2,8 +2,9 @@
 
 Layers import one way, ``errormap`` ← ``training`` ← ``compensation``, and the application wing
 ``compensation/app`` sits on top: nothing outside it imports it, and its command modules do not
-import one another (what two commands share lives in ``app/options.py`` or a workflow). Every
-import counts, at module level or inside a function, absolute or relative.
+import one another (what two commands share lives in ``app/options.py`` or a workflow), and no two
+modules import each other, even through a chain. Every import counts, at module level or inside a
+function, absolute or relative.
 """
 import ast
 from pathlib import Path
@@ -99,3 +100,58 @@ def test_nothing_outside_the_app_wing_imports_it():
 def test_commands_do_not_import_one_another(path):
     others = [module_name(f) for f in sources(COMMANDS) if f != path and f.name != "__init__.py"]
     assert offenders([path], others) == []
+
+
+def module_graph() -> dict:
+    """{module: set of project modules it imports} over the three packages (imports of a package's
+    ``__init__`` re-exports count as imports of that package; ``a.b`` naming a symbol, not a
+    module, is dropped)."""
+    files = [f for p in PACKAGES for f in sources(p)]
+    names = {module_name(f) for f in files}
+    return {module_name(f): {m for m in imported_modules(f) if m in names and m != module_name(f)} for f in files}
+
+
+def cycles(graph: dict) -> list:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_two_modules_import_each_other():
+    """No import cycle between modules, even through an import inside a function (one of them
+    then only works because of the order things happen to be imported in). A package's
+    ``__init__`` that re-exports its submodules is left out: it is the package's front door."""
+    graph = {m: deps - PACKAGE_INITS for m, deps in module_graph().items() if m not in PACKAGE_INITS}
+    assert cycles(graph) == []
+
+
+PACKAGE_INITS = {module_name(f) for p in PACKAGES for f in sources(p) if f.name == "__init__.py"}

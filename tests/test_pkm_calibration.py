@@ -4,8 +4,8 @@ import pytest
 
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.pkm.calibration import (PKMCalibrator, calibration_to_dict, machine_from_vector, parameter_vector,
-                                      pose_jacobian, read_poses, rigid_motion_basis)
+from errormap.pkm.calibration import PKMCalibrator, calibration_to_dict, pose_jacobian, read_poses
+from errormap.pkm.pose_model import machine_from_vector, parameter_vector, rigid_motion_basis
 from errormap.pkm.hexapod import forward_kinematics, workspace_poses, inverse_kinematics
 from errormap.pkm.simulate import simulate_hexapod_poses, simulate_tripod_poses
 from compensation.pkm_interpolation import hyperboloid_pass, sphere_pass, true_path_residual

@@ -33,6 +33,7 @@ from scipy.stats import f as f_dist
 
 from .hexapod import forward_kinematics
 from .machine_file import PKM
+from .pose_model import machine_from_vector, parameter_vector, pose_errors_um, robust_registration
 
 LOOP_ALPHA = 0.01           # family-wise significance level of the loop (Bonferroni over candidates)
 LOOP_MIN_CV_GAIN = 0.05     # a term must cut the cross-validated leg RSS of its leg by >= 5 %
@@ -322,13 +323,11 @@ class PlainFit:
 
     def pose_errors_um(self, data, nominal: PKM) -> dict:
         """Measured residual on ``data`` (see :func:`errormap.pkm.calibration.pose_errors_um`)."""
-        from .calibration import pose_errors_um
         return pose_errors_um(self.machine, (self.frame_translation_mm, self.frame_rotation), data,
                               self.leg_terms, nominal)
 
 
 def _unpack(machine: PKM, p: np.ndarray, scales: bool, R0: np.ndarray):
-    from .calibration import machine_from_vector, parameter_vector
     k = machine.n_legs
     n = 8 * k if scales else 7 * k
     r = parameter_vector(machine)
@@ -346,7 +345,6 @@ def plain_leg_fit(machine: PKM, data, scales: bool = True, register: bool = True
     ``"pose"`` (forward-kinematics pose residual, orientation rows in rad times 500 mm).
     ``leg_terms``: fixed leg terms added to the model legs (their coefficients are not refitted).
     """
-    from .calibration import parameter_vector, robust_registration
     k = machine.n_legs
     has_rot = data.rotation is not None or machine.kind == "tripod"
     objective = objective or ("leg" if has_rot else "pose")
