@@ -131,15 +131,35 @@ def spatial_error_exact_chain(machine: Grinder, axes, values, chunk: int = 50_00
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _inv_rot(ex, ey, ez, v0, v1, v2):
-    """``Rot(ε)ᵀ·v`` for one point, ``Rot(ε) = RotX(ex)·RotY(ey)·RotZ(ez)`` (rad) written out
-    entry by entry (:func:`rot_xyz` without its matrices)."""
+def _rot_entries(ex, ey, ez):
+    """The 9 entries (row by row) of ``Rot(ε) = RotX(ex)·RotY(ey)·RotZ(ez)`` (rad), written out
+    (:func:`rot_xyz` without its matrices)."""
     cx, sx, cy, sy, cz, sz = np.cos(ex), np.sin(ex), np.cos(ey), np.sin(ey), np.cos(ez), np.sin(ez)
     sxsy, cxsy = sx * sy, cx * sy
-    r00, r01, r02 = cy * cz, -cy * sz, sy
-    r10, r11, r12 = sxsy * cz + cx * sz, cx * cz - sxsy * sz, -sx * cy
-    r20, r21, r22 = sx * sz - cxsy * cz, sx * cz + cxsy * sz, cx * cy
-    return (r00 * v0 + r10 * v1 + r20 * v2, r01 * v0 + r11 * v1 + r21 * v2, r02 * v0 + r12 * v1 + r22 * v2)
+    return (cy * cz, -cy * sz, sy,
+            sxsy * cz + cx * sz, cx * cz - sxsy * sz, -sx * cy,
+            sx * sz - cxsy * cz, sx * cz + cxsy * sz, cx * cy)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _apply_inv(r, v0, v1, v2):
+    """``Rᵀ·v`` with ``r`` the 9 entries of :func:`_rot_entries`."""
+    return (r[0] * v0 + r[3] * v1 + r[6] * v2, r[1] * v0 + r[4] * v1 + r[7] * v2, r[2] * v0 + r[5] * v1 + r[8] * v2)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _inv_rot(ex, ey, ez, v0, v1, v2):
+    """``Rot(ε)ᵀ·v`` for one point."""
+    return _apply_inv(_rot_entries(ex, ey, ez), v0, v1, v2)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _chain_constants(v, geo):
+    """The factors of the chain that no axis moves: ``(cos θ1, sin θ1, sin s_xz, cos s_xz, the 9
+    entries of Rot(0, ey_oa, ez_oa))``; computed once per call of a field kernel."""
+    th = geo[9]
+    s_rad = v[22] * 1e-6
+    return (np.cos(th), np.sin(th), np.sin(s_rad), np.cos(s_rad), _rot_entries(0.0, v[20] * 1e-6, v[21] * 1e-6))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -149,13 +169,19 @@ def _point_error(x, z, a_deg, v, geo):  # pragma: no cover - compiled
     ``v`` (23,) element values (μm / μrad, ELEMENT_NAMES order: the indices below, checked
     at import by ``_CHECK_IDX``), ``geo`` = (l1, l2, l3, l4, R, l5, l6, l7, l8, θ1 rad).
     """
-    l1, l2, l3, l4, R, l5, l6, l7, l8, th = geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6], geo[7], geo[8], geo[9]
-    ct, st = np.cos(th), np.sin(th)
+    return _point_error_c(x, z, a_deg, v, geo, _chain_constants(v, geo))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _point_error_c(x, z, a_deg, v, geo, cc):  # pragma: no cover - compiled
+    """:func:`_point_error` with its point-independent factors ``cc`` (:func:`_chain_constants`)
+    given: the same operations on the same values, so the same result bit for bit."""
+    l1, l2, l3, l4, R, l5, l6, l7, l8 = geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6], geo[7], geo[8]
+    ct, st, sin_s, cos_s, r_oa = cc
     a = a_deg * (np.pi / 180.0)
     # tool chain after RotZ(θ1): (l2, 0, l1) + RotZ(-θ1)·z·(sin s, 0, cos s) + δ_z + Rot(ε_z)·b, b = (l3, 0, l4 - R)
     b0, b2 = l3, l4 - R
-    s_rad = v[22] * 1e-6
-    zs = z * np.sin(s_rad)
+    zs = z * sin_s
     ex, ey, ez = v[9] * 1e-6, v[10] * 1e-6, v[11] * 1e-6
     cx, sx, cy, sy, cz, sz = np.cos(ex), np.sin(ex), np.cos(ey), np.sin(ey), np.cos(ez), np.sin(ez)
     rb0 = cy * cz * b0 + sy * b2
@@ -163,13 +189,13 @@ def _point_error(x, z, a_deg, v, geo):  # pragma: no cover - compiled
     rb2 = (sx * sz - cx * sy * cz) * b0 + cx * cy * b2
     lx = l2 + ct * zs + v[6] * 1e-3 + rb0
     ly = -st * zs + v[7] * 1e-3 + rb1
-    lz = l1 + z * np.cos(s_rad) + v[8] * 1e-3 + rb2
+    lz = l1 + z * cos_s + v[8] * 1e-3 + rb2
     # tool point in the MCS, then the work chain inverted: X carriage, A line, RotX(a), A body
     q0 = (ct * lx - st * ly) - (l5 + x) - v[0] * 1e-3
     q1 = (st * lx + ct * ly) - v[1] * 1e-3
     q2 = lz - l6 - v[2] * 1e-3
     q0, q1, q2 = _inv_rot(v[3] * 1e-6, v[4] * 1e-6, v[5] * 1e-6, q0, q1, q2)
-    q0, q1, q2 = _inv_rot(0.0, v[20] * 1e-6, v[21] * 1e-6, q0 - l7, q1 - v[18] * 1e-3, q2 - l8 - v[19] * 1e-3)
+    q0, q1, q2 = _apply_inv(r_oa, q0 - l7, q1 - v[18] * 1e-3, q2 - l8 - v[19] * 1e-3)
     ca, sa = np.cos(a), np.sin(a)
     q1, q2 = ca * q1 + sa * q2, ca * q2 - sa * q1
     q0, q1, q2 = _inv_rot(v[15] * 1e-6, v[16] * 1e-6, v[17] * 1e-6, q0 - v[12] * 1e-3, q1 - v[13] * 1e-3, q2 - v[14] * 1e-3)
@@ -233,12 +259,13 @@ def _field_kernel(axes, tx, cx, tz, cz, ta, ca, consts, a0, geo, out):  # pragma
     hh = np.empty(4)
     for j in range(5):
         v[18 + j] = consts[j]
+    cc = _chain_constants(v, geo)
     for k in range(axes.shape[0]):
         x, z, a = axes[k, 0], axes[k, 1], axes[k, 2]
         _bspline3(tx, cx, x, h, hh, v, 0)
         _bspline3(tz, cz, z, h, hh, v, 6)
         _bspline3(ta, ca, a0 + np.mod(a - a0, 360.0), h, hh, v, 12)
-        out[k, 0], out[k, 1], out[k, 2] = _point_error(x, z, a, v, geo)
+        out[k, 0], out[k, 1], out[k, 2] = _point_error_c(x, z, a, v, geo, cc)
 
 
 # -- the Jacobian dE/d(axes) in closed form: forward-mode differentiation written out ----------
@@ -300,18 +327,18 @@ def _el(v, dv, j, axis, k):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _point_error_dual(x, z, a_deg, v, dv, geo):  # pragma: no cover - compiled
-    """:func:`_point_error` with its derivatives: returns three duals (μm, μm per mm/mm/deg).
+def _point_error_dual(x, z, a_deg, v, dv, geo, cc):  # pragma: no cover - compiled
+    """:func:`_point_error_c` with its derivatives: returns three duals (μm, μm per mm/mm/deg).
 
-    ``dv`` (18,): d(element)/d(own axis) of the 18 function elements (per mm, per deg)."""
-    l1, l2, l3, l4, R, l5, l6, l7, l8, th = geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6], geo[7], geo[8], geo[9]
-    ct, st = np.cos(th), np.sin(th)
+    ``dv`` (18,): d(element)/d(own axis) of the 18 function elements (per mm, per deg);
+    ``cc``: :func:`_chain_constants` (no axis moves them: derivatives zero)."""
+    l1, l2, l3, l4, R, l5, l6, l7, l8 = geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6], geo[7], geo[8]
+    ct, st, sin_s, cos_s, r = cc
     X = (x, 1.0, 0.0, 0.0)
     Z = (z, 0.0, 1.0, 0.0)
     A = (a_deg * (np.pi / 180.0), 0.0, 0.0, np.pi / 180.0)
     b0, b2 = l3, l4 - R
-    s_rad = v[22] * 1e-6
-    zs = _dscale(Z, np.sin(s_rad))
+    zs = _dscale(Z, sin_s)
     ex, ey, ez = _el(v, dv, 9, 1, 1e-6), _el(v, dv, 10, 1, 1e-6), _el(v, dv, 11, 1, 1e-6)
     cx, sx = _dcos_sin(ex)
     cy, sy = _dcos_sin(ey)
@@ -321,14 +348,15 @@ def _point_error_dual(x, z, a_deg, v, dv, geo):  # pragma: no cover - compiled
     rb2 = _dadd(_dscale(_dsub(_dmul(sx, sz), _dmul(_dmul(cx, sy), cz)), b0), _dscale(_dmul(cx, cy), b2))
     lx = _dadd(_dadd(_dshift(_dscale(zs, ct), l2), _el(v, dv, 6, 1, 1e-3)), rb0)
     ly = _dadd(_dadd(_dscale(zs, -st), _el(v, dv, 7, 1, 1e-3)), rb1)
-    lz = _dadd(_dadd(_dshift(_dscale(Z, np.cos(s_rad)), l1), _el(v, dv, 8, 1, 1e-3)), rb2)
+    lz = _dadd(_dadd(_dshift(_dscale(Z, cos_s), l1), _el(v, dv, 8, 1, 1e-3)), rb2)
     q0 = _dsub(_dsub(_dsub(_dscale(lx, ct), _dscale(ly, st)), _dshift(X, l5)), _el(v, dv, 0, 0, 1e-3))
     q1 = _dsub(_dadd(_dscale(lx, st), _dscale(ly, ct)), _el(v, dv, 1, 0, 1e-3))
     q2 = _dsub(_dshift(lz, -l6), _el(v, dv, 2, 0, 1e-3))
     q0, q1, q2 = _inv_rot_dual(_el(v, dv, 3, 0, 1e-6), _el(v, dv, 4, 0, 1e-6), _el(v, dv, 5, 0, 1e-6), q0, q1, q2)
-    zero = (0.0, 0.0, 0.0, 0.0)
-    q0, q1, q2 = _inv_rot_dual(zero, (v[20] * 1e-6, 0.0, 0.0, 0.0), (v[21] * 1e-6, 0.0, 0.0, 0.0),
-                               _dshift(q0, -l7), _dshift(q1, -v[18] * 1e-3), _dshift(q2, -l8 - v[19] * 1e-3))
+    q0, q1, q2 = _dshift(q0, -l7), _dshift(q1, -v[18] * 1e-3), _dshift(q2, -l8 - v[19] * 1e-3)
+    q0, q1, q2 = (_dadd(_dadd(_dscale(q0, r[0]), _dscale(q1, r[3])), _dscale(q2, r[6])),  # Rot(0, ey_oa, ez_oa)ᵀ·q
+                  _dadd(_dadd(_dscale(q0, r[1]), _dscale(q1, r[4])), _dscale(q2, r[7])),
+                  _dadd(_dadd(_dscale(q0, r[2]), _dscale(q1, r[5])), _dscale(q2, r[8])))
     ca, sa = _dcos_sin(A)
     q1, q2 = _dadd(_dmul(ca, q1), _dmul(sa, q2)), _dsub(_dmul(ca, q2), _dmul(sa, q1))
     q0, q1, q2 = _inv_rot_dual(_el(v, dv, 15, 2, 1e-6), _el(v, dv, 16, 2, 1e-6), _el(v, dv, 17, 2, 1e-6),
@@ -396,12 +424,13 @@ def _field_jac_kernel(axes, tx, cx, tz, cz, ta, ca, consts, a0, geo, out, jac): 
     hh = np.empty(4)
     for j in range(5):
         v[18 + j] = consts[j]
+    cc = _chain_constants(v, geo)
     for k in range(axes.shape[0]):
         x, z, a = axes[k, 0], axes[k, 1], axes[k, 2]
         _bspline3_d(tx, cx, x, h, hh, v, dv, 0)
         _bspline3_d(tz, cz, z, h, hh, v, dv, 6)
         _bspline3_d(ta, ca, a0 + np.mod(a - a0, 360.0), h, hh, v, dv, 12)
-        e0, e1, e2 = _point_error_dual(x, z, a, v, dv, geo)
+        e0, e1, e2 = _point_error_dual(x, z, a, v, dv, geo, cc)
         out[k, 0], out[k, 1], out[k, 2] = e0[0], e1[0], e2[0]
         jac[k, 0, 0], jac[k, 0, 1], jac[k, 0, 2] = e0[1], e0[2], e0[3]
         jac[k, 1, 0], jac[k, 1, 1], jac[k, 1, 2] = e1[1], e1[2], e1[3]

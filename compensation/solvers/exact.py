@@ -16,9 +16,7 @@ Robustness:
 
 * Backtracking (Armijo) line search on ``|F|``: a step is halved (up to 20 times) until
   ``|F|`` decreases by at least ``1e-4·α``; a point where no step decreases ``|F|`` by
-  more than 1 %, even with a fresh Jacobian, stops (stagnation). A point whose full step
-  fails while ``|F|`` is within :data:`ROUNDOFF_ULPS` ulps of its target's coordinates has
-  reached float precision and stops at once (halving cannot beat round-off).
+  more than 1 %, even with a fresh Jacobian, stops (stagnation).
 * Steps are limited to ``max_step`` (1 mm, 1 mm, 90°) before the line search.
 * Jacobian: the kinematic part ``dfwd/dq`` is analytic and recomputed every iteration;
   the field part ``dE/dq`` comes from ``field.jacobian(axes)`` when the field has it, else
@@ -30,7 +28,9 @@ Robustness:
 * The ball is a hard limit: a root outside the 250 μm ball is projected onto the ball
   surface, reported with its (non-zero) residual and ``success = False``.
 * ``success``: ``|residual| ≤ tol_um`` (default 1e-4 μm) and inside the ball. Iteration
-  goes on to float precision (``|F| ≤ xtol_um``, default 1e-9 μm) or until stagnation.
+  goes on to float precision (``|F| ≤ xtol_um``, default 1e-9 μm, or within
+  :data:`ROUNDOFF_ULPS` ulps of the target's coordinates, where halving a step cannot beat
+  round-off) or until stagnation.
 
 Speed (issue 20): the per-point arithmetic of an iteration (residual, kinematic Jacobian,
 Cramer step, Armijo test, Broyden update) runs in compiled kernels over the points still
@@ -58,12 +58,12 @@ MAX_HALVINGS = 20
 SLOW = 0.99
 """An accepted step that leaves more than SLOW·|F| counts as no progress (stagnation)."""
 ROUNDOFF_ULPS = 1024.0
-"""``|F|`` within this many ulps of the target's largest coordinate is round-off: a full Newton
-step that fails there is not halved (nor retried with a fresh Jacobian), the point stops. F is the
-difference of two ~100 mm quantities, each through a chain of float64 operations: on the default
-grinder the points whose full step failed at the end sat 22-680 ulps of |p_d| above zero
-(1e-9-7e-9 μm), where 20 halvings and a retry only spent field evaluations (measured: 3 of
-the ~6 evaluations per point of a 100,000-point solve)."""
+"""``|F|`` within this many ulps of the target's largest coordinate is round-off: iteration stops
+there (as at ``xtol_um``), about 4.5e-8 μm for a 200 mm coordinate. F is the difference of two
+~100 mm quantities, each through a chain of float64 operations: on the default grinder the
+points whose full step failed at the end sat 22-680 ulps of |p_d| above zero (1e-9-7e-9 μm),
+where 20 halvings, a fresh Jacobian and a retry only spent field evaluations (measured: half
+of the ~10 evaluations per point of a 100,000-point solve)."""
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -205,12 +205,11 @@ def _trial_kernel(idx, pend, alpha, step, q, qt):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, armijo, slow, floor, q, E, F, fn, JE,
-                   accepted, crawl, noise, left):  # pragma: no cover - compiled
+def _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, armijo, slow, q, E, F, fn, JE,
+                   accepted, crawl, left):  # pragma: no cover - compiled
     """The Armijo test of the trial points (``qt``, their field ``Et``); accepted points take the
-    trial's ``q, E, F, |F|`` and a Broyden (secant) update of ``JE`` in place. A rejected point
-    whose ``|F|`` is at its round-off ``floor`` stops searching (``noise``); the other positions
-    still searching go to ``left`` (their ``α`` halved); returns how many."""
+    trial's ``q, E, F, |F|`` and a Broyden (secant) update of ``JE`` in place. The positions still
+    searching go to ``left`` (their ``α`` halved); returns how many."""
     nleft = 0
     for j in range(pend.shape[0]):
         p = pend[j]
@@ -238,8 +237,6 @@ def _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, armijo, slow, floor, 
             fn[i] = ft
             accepted[p] = True
             crawl[p] = ft > slow * f_old
-        elif f_old <= floor[i]:
-            noise[p] = True
         else:
             alpha[p] *= 0.5
             left[nleft] = p
@@ -247,18 +244,17 @@ def _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, armijo, slow, floor, 
     return nleft
 
 
-def _line_search(field, machine, kin, targets, floor, idx, step, q, E, F, fn, JE):
+def _line_search(field, machine, kin, targets, idx, step, q, E, F, fn, JE):
     """Backtracking (Armijo) along ``step`` for the points ``idx`` (int64 indices). Accepted points
     get their new ``q, E, F, fn`` and a Broyden (secant) update of ``JE``, in place. Returns
-    ``(accepted, crawl, noise, nfev)``, the first three per position in ``idx``: a step was taken /
-    it decreased ``|F|`` by less than ``SLOW`` / the full step failed at the round-off ``floor``.
+    ``(accepted, crawl, nfev)``, the first two per position in ``idx``: a step was taken / it
+    decreased ``|F|`` by less than ``SLOW``.
     """
     m = step.shape[0]
     nfev = 0
     alpha = np.ones(m)
     accepted = np.zeros(m, dtype=bool)
     crawl = np.zeros(m, dtype=bool)
-    noise = np.zeros(m, dtype=bool)
     pend = np.arange(m)
     left = np.empty(m, dtype=np.int64)
     for _h in range(MAX_HALVINGS):
@@ -266,12 +262,12 @@ def _line_search(field, machine, kin, targets, floor, idx, step, q, E, F, fn, JE
         _trial_kernel(idx, pend, alpha, step, q, qt)
         Et = np.ascontiguousarray(field_error_um(field, qt, machine))
         nfev += pend.size
-        k = _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, ARMIJO, SLOW, floor, q, E, F, fn, JE,
-                           accepted, crawl, noise, left)
+        k = _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, ARMIJO, SLOW, q, E, F, fn, JE,
+                           accepted, crawl, left)
         if k == 0:
             break
         pend = left[:k].copy()
-    return accepted, crawl, noise, nfev
+    return accepted, crawl, nfev
 
 
 def _newton(field, machine, targets, q0, xtol_um, max_iter):
@@ -296,7 +292,8 @@ def _newton(field, machine, targets, q0, xtol_um, max_iter):
     stale = np.zeros(n, dtype=bool)  # the field Jacobian needs recomputing
     tol = xtol_um * MM_PER_UM
     floor = ROUNDOFF_ULPS * np.finfo(float).eps * np.maximum(np.abs(targets).max(axis=1), 1.0)  # mm
-    idx = np.flatnonzero(fn > tol)
+    stop = np.maximum(tol, floor)  # float precision: xtol, or round-off where that is larger
+    idx = np.flatnonzero(fn > stop)
     for _ in range(max_iter):
         if idx.size == 0:
             break
@@ -309,13 +306,13 @@ def _newton(field, machine, targets, q0, xtol_um, max_iter):
             nfev += fe
         step = np.empty((idx.size, 3))
         _step_kernel(idx, q, JE, F, kin, MAX_STEP, step)
-        accepted, crawl, noise, fe = _line_search(field, machine, kin, targets, floor, idx, step, q, E, F, fn, JE)
+        accepted, crawl, fe = _line_search(field, machine, kin, targets, idx, step, q, E, F, fn, JE)
         nfev += fe
         iters[idx] += 1
         # no step decreased |F| (or only crawled): retry once with a fresh field Jacobian;
         # a failure right after a fresh Jacobian stops the point (stagnation)
         failed = ~accepted | crawl
-        keep = (fn[idx] > tol) & ~noise
+        keep = fn[idx] > stop[idx]
         if failed.any():
             keep &= ~(failed & refresh)
             stale[idx[failed]] = True
