@@ -273,38 +273,38 @@ def _field_kernel(axes, tx, cx, tz, cz, ta, ca, consts, a0, geo, out):  # pragma
 # derivatives along the three axes, and each operation applies the chain rule exactly (no step
 # size, no truncation): the same closed form as :func:`_point_error`, differentiated term by term.
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _dadd(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3])
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _dsub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3])
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _dmul(a, b):
     return (a[0] * b[0], a[1] * b[0] + a[0] * b[1], a[2] * b[0] + a[0] * b[2], a[3] * b[0] + a[0] * b[3])
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _dscale(a, k):
     return (a[0] * k, a[1] * k, a[2] * k, a[3] * k)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _dshift(a, k):
     return (a[0] + k, a[1], a[2], a[3])
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _dcos_sin(a):
     c, s = np.cos(a[0]), np.sin(a[0])
     return (c, -s * a[1], -s * a[2], -s * a[3]), (s, c * a[1], c * a[2], c * a[3])
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _inv_rot_dual(ex, ey, ez, v0, v1, v2):
     """:func:`_inv_rot` on duals (angles and vector)."""
     cx, sx = _dcos_sin(ex)
@@ -319,14 +319,14 @@ def _inv_rot_dual(ex, ey, ez, v0, v1, v2):
             _dadd(_dadd(_dmul(r02, v0), _dmul(r12, v1)), _dmul(r22, v2)))
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _el(v, dv, j, axis, k):
     """Element ``j`` as a dual scaled by ``k``: its value and its spline slope along its own axis."""
     g = dv[j] * k
     return (v[j] * k, g if axis == 0 else 0.0, g if axis == 1 else 0.0, g if axis == 2 else 0.0)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _point_error_dual(x, z, a_deg, v, dv, geo, cc):  # pragma: no cover - compiled
     """:func:`_point_error_c` with its derivatives: returns three duals (μm, μm per mm/mm/deg).
 
@@ -372,7 +372,7 @@ def _point_error_dual(x, z, a_deg, v, dv, geo, cc):  # pragma: no cover - compil
     return e0, e1, e2
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _bspline3_d(t, c, x, h, hh, v, dv, j0):  # pragma: no cover - compiled
     """:func:`_bspline3` and its slope: values into ``v[j0:j0 + 6]``, d/dx into ``dv[j0:j0 + 6]``.
 
