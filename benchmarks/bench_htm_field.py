@@ -3,8 +3,12 @@
 * field: μs per point of ``HTMField.predict`` (exact) — the reference pipeline (18 per-element
   splines + the (n, 3, 3) matrix chain ``spatial_error_exact_chain``) against the fast one (3
   vector-valued per-axis splines + the compiled closed form ``spatial_error_exact``);
-* solve: μs per point of ``solve_exact`` (Newton, forward-difference field Jacobian) on the same
-  targets with either field; and the largest difference of the commands (μm) between the two.
+* field + Jacobian: μs per point of ``HTMField.predict_and_jacobian`` (closed form, one pass);
+* solve: μs per point of ``solve_exact`` on the same targets with either field — the reference
+  declares no Jacobian (the solver differentiates it by forward differences, 3 more evaluations
+  per point), the fast one its closed-form Jacobian — and the largest difference of the commands
+  (μm) between the two. Both solves run the current solver; the solver before issue 20 is timed
+  against this one in ``bench_solve_scale.py`` (``--baseline-root``).
 
 Points: uniform over the strokes with A over several turns, truth ``random_truth(seed)``.
 Each seed is one job (``--jobs`` processes); per seed the median of ``--repeats`` runs.
@@ -29,7 +33,9 @@ from errormap.simulator import random_axes, random_truth
 
 
 class ReferenceHTMField(HTMField):
-    """The exact HTM field as it was before issue 20: per-element splines, matrix chain."""
+    """The exact HTM field as it was before issue 20: per-element splines, matrix chain, no Jacobian."""
+
+    capabilities = frozenset()
 
     def predict(self, axes):
         axes = np.asarray(axes, dtype=float)
@@ -43,9 +49,9 @@ class ReferenceHTMField(HTMField):
 def _median_time(fn, repeats):
     times = []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         out = fn()
-        times.append(time.perf_counter() - t0)
+        times.append(time.process_time() - t0)
     return statistics.median(times), out
 
 
@@ -60,13 +66,15 @@ def run_seed(seed, points, repeats, solve_points):
     new.predict(axes[:10]), ref.predict(axes[:10])  # compile / build splines outside the timing
     t_ref, e_ref = _median_time(lambda: ref.predict(axes), repeats)
     t_new, e_new = _median_time(lambda: new.predict(axes), repeats)
+    t_jac, _ = _median_time(lambda: new.predict_and_jacobian(axes), repeats)
     targets = forward(m, axes[:solve_points])
     s_ref, r_ref = _median_time(lambda: solve_exact(ref, targets, m, progress=False), repeats)
     s_new, r_new = _median_time(lambda: solve_exact(new, targets, m, progress=False), repeats)
     return {"seed": seed, "field_ref_us": t_ref / points * 1e6, "field_new_us": t_new / points * 1e6,
+            "field_jac_us": t_jac / points * 1e6,
             "field_diff_um": float(np.abs(e_new - e_ref).max()),
             "solve_ref_us": s_ref / solve_points * 1e6, "solve_new_us": s_new / solve_points * 1e6,
-            "commands_diff_um": float(np.abs(r_new.commands_mm - r_ref.commands_mm).max() * 1e3),
+            "commands_diff_um": float(np.abs(r_new.commands_mm - r_ref.commands_mm)[r_new.success & r_ref.success].max() * 1e3),
             "solved": f"{int(r_new.success.sum())}/{solve_points} vs {int(r_ref.success.sum())}/{solve_points}"}
 
 
@@ -79,6 +87,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "htm_field_results.md"))
     args = ap.parse_args()
+    load0 = os.getloadavg()[0]
     seeds = list(range(args.seeds))
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_seed, seeds, [args.points] * len(seeds), [args.repeats] * len(seeds),
@@ -87,16 +96,20 @@ def main():
              f"`python benchmarks/bench_htm_field.py --points {args.points} --solve-points {args.solve_points} "
              f"--seeds {args.seeds} --jobs {args.jobs} --repeats {args.repeats}` — default grinder, truth "
              "`random_truth(seed)`, points uniform over the strokes with A over -3..+3 extra turns; "
-             f"median of {args.repeats} runs per seed, reference and fast in the same process, one after the other; "
-             f"{os.cpu_count()} cores shared with other work. Reference = per-element splines + (n, 3, 3) matrix chain "
-             "(the field before issue 20); fast = per-axis vector splines + compiled closed-form chain. "
-             "Solve = `solve_exact` on the nominal tool points of the first solve-points axes (model residual).", "",
-             "| seed | field ref (μs/pt) | field fast (μs/pt) | speed-up | max |ΔE| (μm) | solve ref (μs/pt) "
-             "| solve fast (μs/pt) | speed-up | max |Δcommand| (μm) | solved fast vs ref |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             f"median of {args.repeats} runs per seed (CPU time of the process: the load of the shared cores inflates wall time), reference and fast in the same process, one after the other; "
+             f"{os.cpu_count()} cores shared with other work (load average {load0:.1f} at the start, "
+             f"{os.getloadavg()[0]:.1f} at the end). Reference = per-element splines + (n, 3, 3) matrix chain "
+             "(the field before issue 20); fast = per-axis vector splines + compiled closed-form chain; field + J = "
+             "`predict_and_jacobian` (value and closed-form Jacobian in one pass). "
+             "Solve = `solve_exact` (the current solver, CPU of one thread) on the nominal tool points of the first "
+             "solve-points axes (model residual): ref = the reference field without a Jacobian (forward differences), "
+             "fast = the fast field with its closed-form Jacobian.", "",
+             "| seed | field ref (μs/pt) | field fast (μs/pt) | speed-up | field + J fast (μs/pt) | max |ΔE| (μm) "
+             "| solve ref (μs/pt) | solve fast (μs/pt) | speed-up | max |Δcommand| on points both solve (μm) | solved fast vs ref |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['seed']} | {r['field_ref_us']:.2f} | {r['field_new_us']:.2f} | "
-                     f"{r['field_ref_us'] / r['field_new_us']:.1f}× | {r['field_diff_um']:.1e} | {r['solve_ref_us']:.1f} | "
+                     f"{r['field_ref_us'] / r['field_new_us']:.1f}× | {r['field_jac_us']:.2f} | {r['field_diff_um']:.1e} | {r['solve_ref_us']:.1f} | "
                      f"{r['solve_new_us']:.1f} | {r['solve_ref_us'] / r['solve_new_us']:.1f}× | "
                      f"{r['commands_diff_um']:.1e} | {r['solved']} |")
     text = "\n".join(lines) + "\n"

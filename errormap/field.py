@@ -35,7 +35,8 @@ capability              method
                         (:class:`OffsetFitness`)
 ======================  ==============================================================================
 
-The implementations: :class:`errormap.htm.HTMField` (the 23-element model; none of the options),
+The implementations: :class:`errormap.htm.HTMField` (the 23-element model; its exact form declares
+``jacobian`` and ``predict_and_jacobian``, in closed form),
 :class:`training.model.MLPField` (the network; all of them), the diagnosis's corrected field
 (:class:`errormap.diagnosis.corrected.CorrectedField`), the controller tables of
 :mod:`compensation.export`. Solvers and guards depend on this module alone.

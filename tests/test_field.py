@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from errormap.field import (CAPABILITIES, GRINDER_AXES, JACOBIAN, OFFSET_FITNESS, CalibratedVolume, ErrorField,
+from errormap.field import (CAPABILITIES, GRINDER_AXES, JACOBIAN, OFFSET_FITNESS, PREDICT_AND_JACOBIAN, CalibratedVolume, ErrorField,
                             check_field)
 from errormap.htm import HTMField
 from errormap.machine import load_machine
@@ -39,7 +39,9 @@ def test_the_fields_implement_the_protocol(machine):
     net, axes = small_network()
     for f in (htm, net, CorrectedField(machine, htm, []), TableField(htm.predict)):
         assert check_field(f) is f and isinstance(f, ErrorField)
-    assert htm.capabilities == frozenset() and net.capabilities == CAPABILITIES
+    # the exact HTM field has its closed-form Jacobian (issue 20); the first-order form has nothing
+    assert htm.capabilities == frozenset({JACOBIAN, PREDICT_AND_JACOBIAN}) and net.capabilities == CAPABILITIES
+    assert HTMField(machine, random_truth(machine, 0).elements, exact=False).capabilities == frozenset()
     assert htm.calibrated_volume == CalibratedVolume(machine.stroke_lo, machine.stroke_hi)
     assert net.calibrated_volume == CalibratedVolume(axes.min(axis=0), axes.max(axis=0))
     assert MLPField().calibrated_volume is None  # untrained: it cannot say

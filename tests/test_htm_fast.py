@@ -88,3 +88,40 @@ def test_field_equals_reference_pipeline_and_periodic_in_a(grinder):
 def test_values_shape_is_checked(grinder):
     with pytest.raises(ValueError, match="Expected element values of shape"):
         spatial_error_exact(grinder, np.zeros((3, 3)), np.zeros((3, 22)))
+
+
+FD_STEP = 1e-3
+"""Central-difference step (mm, mm, deg) for checking the closed-form Jacobian."""
+TOL_JACOBIAN = 1e-5
+"""μm per (mm, mm, deg). Central differences with step h err by ~h²/6·|E'''| (truncation) plus
+~1e-10 μm / h (round-off of E): at h = 1e-3 observed ≤ 2.4e-6 on the ×100 truth and the
+independent elements (|J| up to ~350), 1.1e-7 on the plain truth; the error shrinks 100× from
+h = 1e-2 to 1e-3, i.e. it is the differences' truncation, not the closed form. A missing term
+of the chain (a spline slope through a lever arm, a product of two element angles on the
+×100 field) is 1e-3 or more."""
+
+
+@pytest.mark.parametrize("case", ["truth", "truth_x100", "independent"])
+def test_closed_form_jacobian_matches_finite_differences(grinder, case):
+    el = (_independent_elements(grinder, 7) if case == "independent"
+          else random_truth(grinder, 3).elements.scaled(100.0 if case == "truth_x100" else 1.0))
+    field = HTMField(grinder, el)
+    axes = _axes_multi_turn(grinder, 3000, 11)
+    E, J = field.predict_and_jacobian(axes)
+    np.testing.assert_allclose(E, field.predict(axes), rtol=0, atol=TOL_CLOSED_FORM_UM)
+    fd = np.empty_like(J)
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = FD_STEP
+        fd[:, :, k] = (field.predict(axes + d) - field.predict(axes - d)) / (2 * FD_STEP)
+    assert np.abs(J).max() > 1.0  # a real slope
+    np.testing.assert_allclose(J, fd, rtol=0, atol=TOL_JACOBIAN)
+    np.testing.assert_array_equal(field.jacobian(axes), J)
+
+
+def test_jacobian_is_declared_by_the_exact_form_only(grinder):
+    el = random_truth(grinder, 0).elements
+    with pytest.raises(TypeError, match="no Jacobian"):
+        HTMField(grinder, el, exact=False).predict_and_jacobian(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="float64"):
+        HTMField(grinder, el).predict_and_jacobian(np.zeros((2, 3)), dtype=np.float32)

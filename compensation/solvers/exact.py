@@ -28,20 +28,28 @@ Robustness:
 * The ball is a hard limit: a root outside the 250 μm ball is projected onto the ball
   surface, reported with its (non-zero) residual and ``success = False``.
 * ``success``: ``|residual| ≤ tol_um`` (default 1e-4 μm) and inside the ball. Iteration
-  goes on to float precision (``|F| ≤ xtol_um``, default 1e-9 μm) or until stagnation.
+  goes on to float precision (``|F| ≤ xtol_um``, default 1e-9 μm, or within
+  :data:`ROUNDOFF_ULPS` ulps of the target's coordinates, where halving a step cannot beat
+  round-off) or until stagnation.
+
+Speed (issue 20): the per-point arithmetic of an iteration (residual, kinematic Jacobian,
+Cramer step, Armijo test, Broyden update) runs in compiled kernels over the points still
+iterating; the field is called once per line-search round on all trial points together, so
+any field works, and a field's own compiled kernel (the HTM field's) releases the GIL.
 """
 from __future__ import annotations
 
 import time
 
 import numpy as np
+from numba import njit
 
-from errormap.kinematics import forward
+from errormap.kinematics import forward, nominal_tool_at_z0
 from errormap.progress import Progress
 
 from .base import BALL_RADIUS_UM, SolveResult
 from ._common import (MM_PER_UM, UM_PER_MM, check_inputs, command_axes, field_error_and_jacobian_um, field_error_um,
-                      field_jacobian_um, forward_and_jacobian, make_result, project_to_ball, wrap180)
+                      field_jacobian_um, make_result, project_to_ball, wrap180)
 
 MAX_STEP = np.array([1.0, 1.0, 90.0])
 """Largest Newton step (x_mm, z_mm, a_deg) before the line search."""
@@ -49,31 +57,49 @@ ARMIJO = 1e-4
 MAX_HALVINGS = 20
 SLOW = 0.99
 """An accepted step that leaves more than SLOW·|F| counts as no progress (stagnation)."""
+ROUNDOFF_ULPS = 1024.0
+"""``|F|`` within this many ulps of the target's largest coordinate is round-off: iteration stops
+there (as at ``xtol_um``), about 4.5e-8 μm for a 200 mm coordinate. F is the difference of two
+~100 mm quantities, each through a chain of float64 operations: on the default grinder the
+points whose full step failed at the end sat 22-680 ulps of |p_d| above zero (1e-9-7e-9 μm),
+where 20 halvings, a fresh Jacobian and a retry only spent field evaluations (measured: half
+of the ~10 evaluations per point of a 100,000-point solve)."""
 
 
-def solve3(J, b) -> np.ndarray:
-    """Solve ``J x = b`` for a batch of 3×3 systems by Cramer's rule; (n,3,3),(n,3) -> (n,3).
-
-    Written out component by component (no temporaries of shape (n, 3, 3)). A
-    (numerically) singular system gives a zero step (the point then stagnates).
-    """
-    J = np.asarray(J, dtype=float)
-    b = np.asarray(b, dtype=float)
-    a00, a01, a02 = J[:, 0, 0], J[:, 0, 1], J[:, 0, 2]
-    a10, a11, a12 = J[:, 1, 0], J[:, 1, 1], J[:, 1, 2]
-    a20, a21, a22 = J[:, 2, 0], J[:, 2, 1], J[:, 2, 2]
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _solve3_point(a00, a01, a02, a10, a11, a12, a20, a21, a22, b0, b1, b2):  # pragma: no cover - compiled
+    """``J x = b`` for one 3×3 system by Cramer's rule (a zero step when numerically singular)."""
     m0 = a11 * a22 - a12 * a21  # cofactors of the first row
     m1 = a12 * a20 - a10 * a22
     m2 = a10 * a21 - a11 * a20
     det = a00 * m0 + a01 * m1 + a02 * m2
     col = np.sqrt(a00**2 + a10**2 + a20**2) * np.sqrt(a01**2 + a11**2 + a21**2) * np.sqrt(a02**2 + a12**2 + a22**2)
-    ok = np.abs(det) > 1e-13 * col
-    inv = np.where(ok, 1.0, 0.0) / np.where(ok, det, 1.0)
-    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    if not abs(det) > 1e-13 * col:
+        return 0.0, 0.0, 0.0
+    inv = 1.0 / det
+    return ((m0 * b0 + (a02 * a21 - a01 * a22) * b1 + (a01 * a12 - a02 * a11) * b2) * inv,
+            (m1 * b0 + (a00 * a22 - a02 * a20) * b1 + (a02 * a10 - a00 * a12) * b2) * inv,
+            (m2 * b0 + (a01 * a20 - a00 * a21) * b1 + (a00 * a11 - a01 * a10) * b2) * inv)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _solve3_kernel(J, b, x):  # pragma: no cover - compiled
+    for k in range(J.shape[0]):
+        x[k, 0], x[k, 1], x[k, 2] = _solve3_point(J[k, 0, 0], J[k, 0, 1], J[k, 0, 2], J[k, 1, 0], J[k, 1, 1],
+                                                  J[k, 1, 2], J[k, 2, 0], J[k, 2, 1], J[k, 2, 2],
+                                                  b[k, 0], b[k, 1], b[k, 2])
+
+
+def solve3(J, b) -> np.ndarray:
+    """Solve ``J x = b`` for a batch of 3×3 systems by Cramer's rule; (n,3,3),(n,3) -> (n,3).
+
+    Compiled, point by point (the Newton loop's own step, :func:`_solve3_point`). A
+    (numerically) singular system gives a zero step (the point then stagnates).
+    """
+    J = np.ascontiguousarray(J, dtype=float)
+    b = np.ascontiguousarray(b, dtype=float)
     x = np.empty_like(b)
-    x[:, 0] = (m0 * b0 + (a02 * a21 - a01 * a22) * b1 + (a01 * a12 - a02 * a11) * b2) * inv
-    x[:, 1] = (m1 * b0 + (a00 * a22 - a02 * a20) * b1 + (a02 * a10 - a00 * a12) * b2) * inv
-    x[:, 2] = (m2 * b0 + (a01 * a20 - a00 * a21) * b1 + (a00 * a11 - a01 * a10) * b2) * inv
+    _solve3_kernel(J, b, x)
     return x
 
 
@@ -121,111 +147,174 @@ def solve_exact(field, targets_mm, machine, *, target_axes=None, a_start_deg=Non
                              "outside_ball": np.flatnonzero(outside)})
 
 
-def _index(idx, pos):
-    """Point indices at positions ``pos`` of ``idx`` (a slice over all points or an index array)."""
-    return pos if isinstance(idx, slice) else idx[pos]
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _forward_point(x_mm, z_mm, a_deg, kin):  # pragma: no cover - compiled
+    """:func:`forward_and_jacobian` at one point: ``(p0, p1, p2, cos a, sin a)``; ``kin`` =
+    (t_x - l5 - l7, t_y, t_z(0) - l6 - l8) of :func:`_kinematic_constants`."""
+    h = z_mm + kin[2]
+    a = a_deg * (np.pi / 180.0)
+    c, s = np.cos(a), np.sin(a)
+    return kin[0] - x_mm, c * kin[1] + s * h, c * h - s * kin[1], c, s
 
 
-def _take(idx, mask):
-    """The entries of ``idx`` where ``mask`` holds; ``idx`` itself when the mask is all true
-    (so the common path, all points iterating, indexes with a slice: views, not copies)."""
-    return idx if mask.all() else _index(idx, np.flatnonzero(mask))
+def _kinematic_constants(machine) -> np.ndarray:
+    """The constants of :func:`_forward_point`, shape (3,), as :func:`forward_and_jacobian` forms them."""
+    t0 = nominal_tool_at_z0(machine)
+    return np.array([t0[0] - machine.l5 - machine.l7, t0[1], t0[2] - machine.l6 - machine.l8])
 
 
-def _line_search(field, machine, targets, idx, step, q, E, F, fn, JE, JK):
-    """Backtracking (Armijo) along ``step`` for the points ``idx``; ``pend`` are the positions (into
-    ``idx``) still searching. Accepted points get their new ``q, E, F, fn, JK`` and a Broyden
-    (secant) update of ``JE``, in place. Returns ``(accepted, crawl, nfev)``, the first two per
-    position in ``idx``: a step was taken / it decreased ``|F|`` by less than ``SLOW``.
+@njit(cache=True, nogil=True, error_model="numpy")
+def _residual_kernel(q, E, targets, kin, F, fn):  # pragma: no cover - compiled
+    """``F = fwd(q) + 1e-3·E - p_d`` (n, 3) mm and ``|F|`` (n,), in place."""
+    for i in range(q.shape[0]):
+        p0, p1, p2, c, s = _forward_point(q[i, 0], q[i, 1], q[i, 2], kin)
+        f0 = p0 + 1e-3 * E[i, 0] - targets[i, 0]
+        f1 = p1 + 1e-3 * E[i, 1] - targets[i, 1]
+        f2 = p2 + 1e-3 * E[i, 2] - targets[i, 2]
+        F[i, 0], F[i, 1], F[i, 2] = f0, f1, f2
+        fn[i] = np.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _step_kernel(idx, q, JE, F, kin, max_step, step):  # pragma: no cover - compiled
+    """The Newton step of the points ``idx``: ``(dfwd/dq + 1e-3·JE) step = -F`` with the kinematic
+    Jacobian analytic at ``q``, scaled down to ``max_step`` (per axis) where it exceeds it."""
+    r = np.pi / 180.0
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        p0, p1, p2, c, s = _forward_point(q[i, 0], q[i, 1], q[i, 2], kin)
+        J = JE[i]
+        s0, s1, s2 = _solve3_point(-1.0 + 1e-3 * J[0, 0], 1e-3 * J[0, 1], 1e-3 * J[0, 2],
+                                   1e-3 * J[1, 0], s + 1e-3 * J[1, 1], p2 * r + 1e-3 * J[1, 2],
+                                   1e-3 * J[2, 0], c + 1e-3 * J[2, 1], -p1 * r + 1e-3 * J[2, 2],
+                                   -F[i, 0], -F[i, 1], -F[i, 2])
+        big = max(abs(s0) / max_step[0], abs(s1) / max_step[1], abs(s2) / max_step[2])
+        if big > 1.0:
+            s0, s1, s2 = s0 / big, s1 / big, s2 / big
+        step[j, 0], step[j, 1], step[j, 2] = s0, s1, s2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _trial_kernel(idx, pend, alpha, step, q, qt):  # pragma: no cover - compiled
+    """Trial axes ``q + α·step`` of the pending positions ``pend`` (into ``idx``), into ``qt``."""
+    for j in range(pend.shape[0]):
+        p = pend[j]
+        i = idx[p]
+        for k in range(3):
+            qt[j, k] = q[i, k] + alpha[p] * step[p, k]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, armijo, slow, q, E, F, fn, JE,
+                   accepted, crawl, left):  # pragma: no cover - compiled
+    """The Armijo test of the trial points (``qt``, their field ``Et``); accepted points take the
+    trial's ``q, E, F, |F|`` and a Broyden (secant) update of ``JE`` in place. The positions still
+    searching go to ``left`` (their ``α`` halved); returns how many."""
+    nleft = 0
+    for j in range(pend.shape[0]):
+        p = pend[j]
+        i = idx[p]
+        p0, p1, p2, c, s = _forward_point(qt[j, 0], qt[j, 1], qt[j, 2], kin)
+        f0 = p0 + 1e-3 * Et[j, 0] - targets[i, 0]
+        f1 = p1 + 1e-3 * Et[j, 1] - targets[i, 1]
+        f2 = p2 + 1e-3 * Et[j, 2] - targets[i, 2]
+        ft = np.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+        f_old = fn[i]
+        if ft <= (1.0 - armijo * alpha[p]) * f_old:
+            # Broyden (secant) update of the field part, free: dE = JE·dq along the step
+            d0, d1, d2 = qt[j, 0] - q[i, 0], qt[j, 1] - q[i, 1], qt[j, 2] - q[i, 2]
+            dd = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-300)
+            w0, w1, w2 = d0 / dd, d1 / dd, d2 / dd
+            for r in range(3):
+                miss = (Et[j, r] - E[i, r]) - (JE[i, r, 0] * d0 + JE[i, r, 1] * d1 + JE[i, r, 2] * d2)
+                JE[i, r, 0] += miss * w0
+                JE[i, r, 1] += miss * w1
+                JE[i, r, 2] += miss * w2
+            for k in range(3):
+                q[i, k] = qt[j, k]
+                E[i, k] = Et[j, k]
+            F[i, 0], F[i, 1], F[i, 2] = f0, f1, f2
+            fn[i] = ft
+            accepted[p] = True
+            crawl[p] = ft > slow * f_old
+        else:
+            alpha[p] *= 0.5
+            left[nleft] = p
+            nleft += 1
+    return nleft
+
+
+def _line_search(field, machine, kin, targets, idx, step, q, E, F, fn, JE):
+    """Backtracking (Armijo) along ``step`` for the points ``idx`` (int64 indices). Accepted points
+    get their new ``q, E, F, fn`` and a Broyden (secant) update of ``JE``, in place. Returns
+    ``(accepted, crawl, nfev)``, the first two per position in ``idx``: a step was taken / it
+    decreased ``|F|`` by less than ``SLOW``.
     """
     m = step.shape[0]
     nfev = 0
     alpha = np.ones(m)
     accepted = np.zeros(m, dtype=bool)
     crawl = np.zeros(m, dtype=bool)
-    pend = None  # all of them
+    pend = np.arange(m)
+    left = np.empty(m, dtype=np.int64)
     for _h in range(MAX_HALVINGS):
-        ii = idx if pend is None else _index(idx, pend)
-        al = alpha if pend is None else alpha[pend]
-        qt = q[ii] + al[:, None] * (step if pend is None else step[pend])
-        Et = field_error_um(field, qt, machine)
-        Pt, JKt = forward_and_jacobian(machine, qt)
-        Ft = Pt + MM_PER_UM * Et - targets[ii]
-        ft = np.sqrt(np.einsum("ij,ij->i", Ft, Ft))
-        nfev += ft.size
-        f_old = fn[ii].copy()  # fn[ii] may be a view, and fn is updated below
-        ok = ft <= (1.0 - ARMIJO * al) * f_old
-        if ok.any():
-            if ok.all():
-                good, sel, pos = ii, slice(None), (slice(None) if pend is None else pend)
-            else:
-                sel = ok
-                pos = np.flatnonzero(ok) if pend is None else pend[ok]
-                good = _index(idx, pos)
-            # Broyden (secant) update of the field part, free: dE = JE·dq along the step
-            dq, dE = qt[sel] - q[good], Et[sel] - E[good]
-            JEg = JE[good]
-            miss = dE - np.einsum("nij,nj->ni", JEg, dq)
-            w = dq / np.maximum(np.einsum("ni,ni->n", dq, dq), 1e-300)[:, None]
-            JE[good] = JEg + miss[:, :, None] * w[:, None, :]
-            q[good], E[good], F[good], fn[good], JK[good] = qt[sel], Et[sel], Ft[sel], ft[sel], JKt[sel]
-            accepted[pos] = True
-            crawl[pos] = ft[sel] > SLOW * f_old[sel]
-            if ok.all():
-                break
-        pend = np.flatnonzero(~ok) if pend is None else pend[~ok]
-        alpha[pend] *= 0.5
+        qt = np.empty((pend.size, 3))
+        _trial_kernel(idx, pend, alpha, step, q, qt)
+        Et = np.ascontiguousarray(field_error_um(field, qt, machine))
+        nfev += pend.size
+        k = _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, ARMIJO, SLOW, q, E, F, fn, JE,
+                           accepted, crawl, left)
+        if k == 0:
+            break
+        pend = left[:k].copy()
     return accepted, crawl, nfev
 
 
 def _newton(field, machine, targets, q0, xtol_um, max_iter):
     """Newton–Broyden iterations with line search on one chunk; returns (q, E(q) μm, iterations, jacobians, nfev).
 
-    Arrays stay full length; ``idx`` selects the points still iterating (a slice while all
-    of them are, the usual case on a path).
+    Arrays stay full length; ``idx`` (int64) holds the points still iterating. The per-point
+    arithmetic (residual, kinematic Jacobian, step, Armijo test, Broyden update) runs in
+    compiled kernels; the field is called on the whole set of trial points at once.
     """
     n = len(targets)
-    q = q0.copy()
+    targets = np.ascontiguousarray(targets, dtype=float)
+    kin = _kinematic_constants(machine)
+    q = np.array(q0, dtype=float)
     iters = np.zeros(n, dtype=np.int32)
     n_jac = np.ones(n, dtype=np.int32)
     # value and field Jacobian at the start in one pass, in float32 where the field has it
-    # (only the first step's direction depends on them: every later value is float64); the
-    # kinematic Jacobian alongside
+    # (only the first step's direction depends on them: every later value is float64)
     E, JE, nfev = field_error_and_jacobian_um(field, q, machine, fast=True)
-    P, JK = forward_and_jacobian(machine, q)
-    F = P + MM_PER_UM * E - targets
-    fn = np.sqrt(np.einsum("ij,ij->i", F, F))
+    E, JE = np.ascontiguousarray(E), np.ascontiguousarray(JE)
+    F, fn = np.empty((n, 3)), np.empty(n)
+    _residual_kernel(q, E, targets, kin, F, fn)
     stale = np.zeros(n, dtype=bool)  # the field Jacobian needs recomputing
     tol = xtol_um * MM_PER_UM
-    idx = _take(slice(None), fn > tol)
+    floor = ROUNDOFF_ULPS * np.finfo(float).eps * np.maximum(np.abs(targets).max(axis=1), 1.0)  # mm
+    stop = np.maximum(tol, floor)  # float precision: xtol, or round-off where that is larger
+    idx = np.flatnonzero(fn > stop)
     for _ in range(max_iter):
-        if not isinstance(idx, slice) and idx.size == 0:
+        if idx.size == 0:
             break
-        refresh = None
-        if stale[idx].any():
-            refresh = _take(idx, stale[idx])
-            JE[refresh], fe = field_jacobian_um(field, q[refresh], machine, e0_um=E[refresh])
-            n_jac[refresh] += 1
-            stale[refresh] = False
+        refresh = stale[idx]
+        if refresh.any():
+            ri = idx[refresh]
+            JE[ri], fe = field_jacobian_um(field, q[ri], machine, e0_um=E[ri])
+            n_jac[ri] += 1
+            stale[ri] = False
             nfev += fe
-        step = solve3(JK[idx] + MM_PER_UM * JE[idx], -F[idx])
-        big = np.max(np.abs(step) / MAX_STEP, axis=1)
-        if np.any(big > 1.0):
-            step /= np.maximum(big, 1.0)[:, None]
-        m = step.shape[0]
-        accepted, crawl, fe = _line_search(field, machine, targets, idx, step, q, E, F, fn, JE, JK)
+        step = np.empty((idx.size, 3))
+        _step_kernel(idx, q, JE, F, kin, MAX_STEP, step)
+        accepted, crawl, fe = _line_search(field, machine, kin, targets, idx, step, q, E, F, fn, JE)
         nfev += fe
         iters[idx] += 1
         # no step decreased |F| (or only crawled): retry once with a fresh field Jacobian;
         # a failure right after a fresh Jacobian stops the point (stagnation)
         failed = ~accepted | crawl
-        keep = fn[idx] > tol
+        keep = fn[idx] > stop[idx]
         if failed.any():
-            idx_arr = _index(idx, np.arange(m))
-            if refresh is not None:
-                was_fresh = np.zeros(n, dtype=bool)
-                was_fresh[refresh] = True
-                keep &= ~(failed & was_fresh[idx_arr])
-            stale[idx_arr[failed]] = True
-        idx = _take(idx, keep)
+            keep &= ~(failed & refresh)
+            stale[idx[failed]] = True
+        idx = idx[keep]
     return q, E, iters, n_jac, nfev

@@ -11,14 +11,16 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 
 from errormap.kinematics import inverse
 
+from ...batch import CHUNK_POINTS, GA_METHODS, solve_batch
 from ...evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_metrics, true_residual_um
 from ...pathio import align_turns
-from ...solvers import METHODS, solve
+from ...solvers import METHODS
 from ...solvers.threads import small_batch_threads
 
 REPORT_FORMAT = "volcomp-report/1"
@@ -74,8 +76,19 @@ def subset_index(n: int, m: int) -> np.ndarray:
 
 
 def _solve(method, field_, targets, machine, options):
+    """One method on ``targets`` through the chunk plan of ``volcomp compensate``
+    (:func:`compensation.batch.solve_batch`: fixed chunks of ``CHUNK_POINTS``, per-chunk seeds
+    spawned from ``seed``), so the same ``--seed`` gives the GA methods the same streams, and the
+    same commands, as ``compensate`` on the same points. ``options``: ``target_axes`` (n, 3),
+    ``seed`` (GA methods), and any other solver keyword option."""
+    opts = dict(options)
+    axes = opts.pop("target_axes")
+    seed = opts.pop("seed", 0)
+    path = SimpleNamespace(targets_mm=np.ascontiguousarray(targets, dtype=float),
+                           axes=np.ascontiguousarray(axes, dtype=float), path="")
     with small_batch_threads(method, len(targets)):
-        return solve(method, field_, targets, machine, **options)
+        return solve_batch(method, field_, machine, [path], seed=seed if method in GA_METHODS else 0,
+                           chunk_points=CHUNK_POINTS, options=opts)[0]
 
 
 def guard_counts(result, machine, field_, target_axes=None) -> dict:
