@@ -47,6 +47,8 @@ import numpy as np
 
 from errormap.io import InputError
 
+from . import gcode_scan as gscan
+
 MM_PER_INCH = 25.4
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 """Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""
@@ -192,6 +194,8 @@ class GProgram:
     table: "MoveTable | None" = field(default=None, repr=False)
     """The moves as columns (:class:`MoveTable`, set by the block-wise reader); ``moves`` is then
     a lazy sequence that builds each :class:`GMove` only when asked for."""
+    data: bytes | None = field(default=None, repr=False)
+    """The file's bytes (block-wise reader; :func:`render_table` copies from them)."""
 
 
 def split_lines(text: str) -> list:
@@ -316,9 +320,10 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
         raise ValueError(f"Expected block_delete in {list(BLOCK_DELETE_CHOICES)} or None, got {block_delete!r}")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    lines = split_lines(path.read_bytes().decode("latin-1"))
+    data = path.read_bytes()
+    lines = split_lines(data.decode("latin-1"))
     if fast:
-        return _parse_blockwise(path, lines, rapids, block_delete)
+        return _parse_blockwise(path, lines, rapids, block_delete, data)
     st = _State()
     classes, moves = [], []
     for idx, line in enumerate(lines):
@@ -857,40 +862,42 @@ def _forward_fill(values, given, initial):
     return out
 
 
-def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete) -> GProgram:
+def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete, data: bytes) -> GProgram:
     n = len(lines)
-    bodies = [ln.rstrip("\r\n") for ln in lines]
-    match = _BULK_MOVE.fullmatch
-    ms = [match(b) for b in bodies]
-    is_move = np.fromiter(((m is not None and m.lastindex is not None and m.lastindex >= 2) for m in ms), bool, n)
-    pas = _BULK_PASS.fullmatch
-    bulk = is_move.copy()
-    rest = np.flatnonzero(~is_move)
-    bulk[rest] = np.fromiter((pas(bodies[i]) is not None for i in rest.tolist()), bool, rest.size)
-    # the bulk move lines: spans of G, X, Z, A and their numbers
+    buf = np.frombuffer(data, np.uint8)
+    starts, ends = gscan.line_bounds(buf)
+    kind, spans_all, vals_all = gscan.scan_lines(buf, starts, ends)
+    ask = np.flatnonzero(kind == gscan.KIND_ASK)
+    for i in ask.tolist():  # lines the kernel leaves to the patterns themselves
+        body = lines[i].rstrip("\r\n")
+        m = _BULK_MOVE.fullmatch(body)
+        if m is not None and m.lastindex is not None and m.lastindex >= 2:
+            kind[i] = gscan.KIND_MOVE
+            spans_all[i] = np.array(m.regs[1:5], dtype=np.int32)
+            for j in range(3):
+                if m.start(j + 2) >= 0:
+                    vals_all[i, j] = float(m.group(j + 2))
+        else:
+            kind[i] = gscan.KIND_PASS if _BULK_PASS.fullmatch(body) else gscan.KIND_OTHER
+    is_move = kind == gscan.KIND_MOVE
+    bulk = is_move | (kind == gscan.KIND_PASS)
     mlines = np.flatnonzero(is_move)
-    spans = np.array([ms[i].regs[1:5] for i in mlines.tolist()], dtype=np.int32).reshape(-1, 4, 2)
-    del ms
-    vals = np.full((mlines.size, 3), np.nan)
-    for j in range(3):
-        sel = np.flatnonzero(spans[:, j + 1, 0] >= 0)
-        txt = [bodies[i][s:e] for i, s, e in zip(mlines[sel].tolist(), spans[sel, j + 1, 0].tolist(),
-                                                 spans[sel, j + 1, 1].tolist())]
-        vals[sel, j] = np.fromiter(map(float, txt), float, len(txt))
+    spans = spans_all[mlines]
+    vals = vals_all[mlines]
+    del spans_all, vals_all
     gcode = np.full(mlines.size, -1, np.int8)  # -1: no G word, 0: G0, 1: G1
     sel = np.flatnonzero(spans[:, 0, 0] >= 0)
-    gcode[sel] = np.fromiter((bodies[i][e - 1] == "1" for i, e in
-                              zip(mlines[sel].tolist(), spans[sel, 0, 1].tolist())), bool, sel.size)
+    gcode[sel] = buf[starts[mlines[sel]] + spans[sel, 0, 1] - 1] == ord("1")
     given = np.isfinite(vals)
 
     st = _State()
     classes = ["pass"] * n
-    classes_move = "move"
+    moved = []  # ordinals (k0, k1) of the bulk moves read
     pieces, objects = [], []
 
     def per_line(i: int) -> None:
         try:
-            cls, move = _classify(bodies[i], i, st, rapids, block_delete)
+            cls, move = _classify(lines[i].rstrip("\r\n"), i, st, rapids, block_delete)
         except _Refuse as r:
             raise _err(path, i + 1, r.col, r.msg) from None
         classes[i] = cls
@@ -926,8 +933,7 @@ def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete) -> GPro
             pieces.append((mlines[k0:k0 + p], mode[sl].astype(np.int8), start[sl], end[sl],
                            np.full(p, st.inch), np.full(p, st.incremental), compensate[sl], known[sl],
                            np.full(p, -1), spans[k0:k0 + p]))
-            for i in mlines[k0:k0 + p].tolist():
-                classes[i] = classes_move
+            moved.append((k0, k0 + p))
             st.mode = "G0" if mode[p - 1] == 0 else "G1"
             st.pos = end[p - 1].copy()
         return k0 + p
@@ -947,10 +953,14 @@ def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete) -> GPro
                 per_line(int(mlines[k]))
                 k += 1
             k0 = k
+    if moved:
+        cls_arr = np.array(classes, dtype=object)
+        cls_arr[np.concatenate([mlines[a:b] for a, b in moved])] = "move"
+        classes = cls_arr.tolist()
     table = MoveTable.concat(pieces, objects)
     if not table.compensate.any():
         raise InputError(f"{path}: no G0/G1/G2/G3 motion with X, Z or A words to compensate found")
-    return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table)
+    return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table, data=data)
 
 
 def _fmt_column(values, decimals: int) -> list:

@@ -1,0 +1,308 @@
+"""Compiled kernels of the block-wise G-code reader and writer (issue 20).
+
+:func:`scan_lines` reads the whole file's bytes in one pass and puts each line in one of
+four kinds, exactly as the block-wise reader's two strict patterns (``gcode._BULK_MOVE``,
+``gcode._BULK_PASS``) would, without a Python call per line:
+
+``KIND_MOVE``   a plain move line (``_BULK_MOVE`` with an X, Z or A word): spans and values out;
+``KIND_PASS``   a blank or comment-only line (``_BULK_PASS``);
+``KIND_OTHER``  neither pattern matches: the per-line classifier reads it;
+``KIND_ASK``    the kernel does not decide (a number with more than 17 digits, or whose
+                value needs more than the exact ``mantissa / 10**k`` division): the patterns
+                themselves are asked, line by line.
+
+A number's value is ``mantissa / 10**decimals`` in float64 when the mantissa is below 2**53
+and there are at most 22 decimals: both operands are exact, so the one division is the
+correctly rounded decimal value — what Python's ``float(text)`` returns, bit for bit.
+Anything else is ``KIND_ASK``. tests/test_gcode_blockwise.py checks the kernel against the
+patterns line by line on generated lines.
+
+:func:`format_fixed` and :func:`render_lines` are the writer's side: numbers formatted with a
+fixed number of decimals exactly as ``format(v, ".6f")`` (ties and huge values through Python's
+own formatting), and the output bytes assembled line by line.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+KIND_OTHER, KIND_MOVE, KIND_PASS, KIND_ASK = 0, 1, 2, 3
+
+_POW10 = np.array([10.0 ** k for k in range(23)])
+_MANT_MAX = 2 ** 53
+
+_SP, _TAB, _CR = 32, 9, 13
+_ZERO, _NINE, _DOT, _PLUS, _MINUS = 48, 57, 46, 43, 45
+_LP, _RP, _SEMI = 40, 41, 59
+_N, _G, _X, _Z, _A, _F = 78, 71, 88, 90, 65, 70
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _blanks(buf, p, e):
+    while p < e and (buf[p] == _SP or buf[p] == _TAB):
+        p += 1
+    return p
+
+
+@njit(cache=True, nogil=True)
+def _number(buf, p, e, pow10):
+    """``[+-]?(\\d+(\\.\\d*)?|\\.\\d+)`` at ``p`` (greedy, as the pattern reads it).
+    Returns (status, end, value): status 0 no number, 1 number with value, 2 number the
+    kernel does not value exactly (too many digits)."""
+    q = p
+    neg = False
+    if q < e and (buf[q] == _PLUS or buf[q] == _MINUS):
+        neg = buf[q] == _MINUS
+        q += 1
+    mant = 0
+    ndig = 0
+    nfrac = 0
+    while q < e and _ZERO <= buf[q] <= _NINE:
+        if ndig < 18:
+            mant = mant * 10 + (buf[q] - _ZERO)
+        ndig += 1
+        q += 1
+    nint = ndig
+    if q < e and buf[q] == _DOT:
+        q += 1
+        while q < e and _ZERO <= buf[q] <= _NINE:
+            if ndig < 18:
+                mant = mant * 10 + (buf[q] - _ZERO)
+            ndig += 1
+            nfrac += 1
+            q += 1
+        if nint == 0 and nfrac == 0:
+            return 0, p, 0.0
+    elif nint == 0:
+        return 0, p, 0.0
+    if ndig > 17 or mant >= _MANT_MAX or nfrac > 22:
+        return 2, q, 0.0
+    v = mant / pow10[nfrac]
+    return 1, q, -v if neg else v
+
+
+@njit(cache=True, nogil=True)
+def _is_pass(buf, p, e):
+    """``[ \\t]*(?:\\([^)]*\\)[ \\t]*)*(?:;.*)?`` over buf[p:e]."""
+    p = _blanks(buf, p, e)
+    while p < e:
+        c = buf[p]
+        if c == _SEMI:
+            return True
+        if c != _LP:
+            return False
+        q = p + 1
+        while q < e and buf[q] != _RP:
+            q += 1
+        if q >= e:
+            return False
+        p = _blanks(buf, q + 1, e)
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _scan_one(buf, s, e, pow10, spans, vals, k):
+    """Kind of line buf[s:e] (body, no line ending); fills spans[k] (relative to s) and vals[k]."""
+    if _is_pass(buf, s, e):
+        return KIND_PASS
+    p = _blanks(buf, s, e)
+    if p < e and buf[p] == _N:
+        q = p + 1
+        while q < e and _ZERO <= buf[q] <= _NINE:
+            q += 1
+        if q == p + 1:
+            return KIND_OTHER
+        if q - p - 1 > 300:
+            return KIND_ASK
+        p = _blanks(buf, q, e)
+    if p < e and buf[p] == _G:
+        q = p + 1
+        while q < e and _ZERO <= buf[q] <= _NINE:
+            q += 1
+        nd = q - p - 1
+        ok = (nd == 1 and (buf[p + 1] == _ZERO or buf[p + 1] == _ZERO + 1)) or \
+             (nd == 2 and buf[p + 1] == _ZERO and (buf[p + 2] == _ZERO or buf[p + 2] == _ZERO + 1))
+        if not ok or (q < e and buf[q] == _DOT):
+            return KIND_OTHER
+        spans[k, 0, 0] = p - s
+        spans[k, 0, 1] = q - s
+        p = _blanks(buf, q, e)
+    axes = 0
+    for j in range(3):
+        letter = _X if j == 0 else (_Z if j == 1 else _A)
+        if p < e and buf[p] == letter:
+            st, q, v = _number(buf, p + 1, e, pow10)
+            if st == 0:
+                return KIND_OTHER
+            if st == 2:
+                return KIND_ASK
+            spans[k, j + 1, 0] = p + 1 - s
+            spans[k, j + 1, 1] = q - s
+            vals[k, j] = v
+            axes += 1
+            p = _blanks(buf, q, e)
+    if p < e and buf[p] == _F:
+        st, q, v = _number(buf, p + 1, e, pow10)
+        if st == 0:
+            return KIND_OTHER
+        if st == 2:
+            return KIND_ASK
+        p = _blanks(buf, q, e)
+    if p < e and buf[p] == _LP:
+        q = p + 1
+        while q < e and buf[q] != _RP:
+            q += 1
+        if q >= e:
+            return KIND_OTHER
+        p = _blanks(buf, q + 1, e)
+    if p < e and buf[p] != _SEMI:
+        return KIND_OTHER
+    return KIND_MOVE if axes else KIND_OTHER
+
+
+@njit(cache=True, nogil=True)
+def _scan(buf, starts, ends, pow10, kind, spans, vals):
+    for k in range(starts.size):
+        s, e = starts[k], ends[k]
+        while e > s and buf[e - 1] == _CR:
+            e -= 1
+        kind[k] = _scan_one(buf, s, e, pow10, spans, vals, k)
+        if kind[k] != KIND_MOVE:
+            spans[k, :, :] = -1
+            vals[k, :] = np.nan
+
+
+def line_bounds(buf: np.ndarray):
+    """Start and end (exclusive, before the ``\\n``) of every line of ``buf`` (uint8), as
+    :func:`compensation.gcode.split_lines` cuts them: (n,), (n,) int64."""
+    nl = np.flatnonzero(buf == 10)
+    starts = np.concatenate([[0], nl + 1]).astype(np.int64)
+    ends = np.concatenate([nl, [buf.size]]).astype(np.int64)
+    if starts[-1] == buf.size:  # the text ends with '\n' (or is empty): no last partial line
+        starts, ends = starts[:-1], ends[:-1]
+    return starts, ends
+
+
+def scan_lines(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray):
+    """Kinds (n,) int8, word spans (n, 4, 2) int32 (G, X, Z, A; relative to the line start,
+    -1 where absent) and X, Z, A values (n, 3) (NaN where absent) of every line."""
+    n = starts.size
+    kind = np.empty(n, np.int8)
+    spans = np.full((n, 4, 2), -1, np.int32)
+    vals = np.full((n, 3), np.nan)
+    _scan(buf, starts, ends, _POW10, kind, spans, vals)
+    return kind, spans, vals
+
+
+# ---------------------------------------------------------------------------- writing
+
+def format_fixed(values, decimals: int):
+    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``, a
+    negative zero written without its sign), as (magnitude in units of 10**-decimals (n,) int64,
+    negative (n,) bool). ``v * 10**decimals`` rounded is the exact rounding except within a few
+    ulps of a tie, and the product is exact enough only below 2**50: those values (and any
+    non-finite one) go through Python's formatting, one by one."""
+    v = np.asarray(values, dtype=float)
+    q = v * 10.0 ** decimals
+    r = np.rint(q)
+    fl = np.floor(q)
+    aq = np.abs(q)
+    doubt = ~(aq < 2.0 ** 50) | (np.abs((q - fl) - 0.5) <= np.maximum(1e-6, 8 * np.spacing(aq)))
+    mag = np.abs(r).astype(np.int64, copy=False) if not doubt.any() else np.where(doubt, 0, np.abs(r)).astype(np.int64)
+    for i in np.flatnonzero(doubt).tolist():
+        if not np.isfinite(v[i]):
+            raise ValueError(f"Expected finite values, got {v[i]}")
+        s = format(float(v[i]), f".{decimals}f")
+        mag[i] = int(s.lstrip("-").replace(".", ""))
+    neg = (v < 0) & (mag != 0)
+    return mag, neg
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _num_len(mag, neg, dec, pow10i):
+    ip = mag // pow10i[dec]
+    nd = 1
+    while ip >= 10:
+        ip //= 10
+        nd += 1
+    return nd + 1 + dec + (1 if neg else 0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_num(out, o, mag, neg, dec, pow10i):
+    n = _num_len(mag, neg, dec, pow10i)
+    end = o + n
+    q = end - 1
+    m = mag
+    for _ in range(dec):
+        out[q] = _ZERO + m % 10
+        m //= 10
+        q -= 1
+    out[q] = _DOT
+    q -= 1
+    while True:
+        out[q] = _ZERO + m % 10
+        m //= 10
+        q -= 1
+        if m == 0:
+            break
+    if neg:
+        out[q] = _MINUS
+    return end
+
+
+@njit(cache=True, nogil=True)
+def _render(buf, starts, stops, mode, spans, mags, negs, decs, blob, blob_off, pow10i, out, out_off, write):
+    """Output of every source line: ``mode`` 0 copy buf[starts:stops], 1 the line with its X, Z,
+    A numbers (absolute spans ``spans`` (n, 3, 2)) replaced by ``mags``/``negs`` (n, 3) with
+    ``decs`` (n, 3) decimals, 2 the bytes blob[blob_off[i]:blob_off[i + 1]]. First call
+    (``write`` False) fills ``out_off`` (n + 1,); the second writes ``out``."""
+    o = 0
+    for i in range(starts.size):
+        if write:
+            o = out_off[i]
+        else:
+            out_off[i] = o
+        m = mode[i]
+        if m == 0:
+            n = stops[i] - starts[i]
+            if write:
+                out[o:o + n] = buf[starts[i]:stops[i]]
+            o += n
+        elif m == 2:
+            n = blob_off[i + 1] - blob_off[i]
+            if write:
+                out[o:o + n] = blob[blob_off[i]:blob_off[i + 1]]
+            o += n
+        else:
+            pos = starts[i]
+            for j in range(3):
+                a, b = spans[i, j, 0], spans[i, j, 1]
+                n = a - pos
+                if write:
+                    out[o:o + n] = buf[pos:a]
+                    o = _put_num(out, o + n, mags[i, j], negs[i, j], decs[i, j], pow10i)
+                else:
+                    o += n + _num_len(mags[i, j], negs[i, j], decs[i, j], pow10i)
+                pos = b
+            n = stops[i] - pos
+            if write:
+                out[o:o + n] = buf[pos:stops[i]]
+            o += n
+    if not write:
+        out_off[starts.size] = o
+
+
+_POW10I = np.array([10 ** k for k in range(19)], dtype=np.int64)
+
+
+def render_lines(buf, starts, stops, mode, spans, mags, negs, decs, blob, blob_off):
+    """The output bytes (uint8 array) and each source line's output offsets (n + 1,); see
+    :func:`_render`. ``blob_off`` (n + 1,) indexes ``blob`` for the lines of mode 2."""
+    n = starts.size
+    out_off = np.empty(n + 1, np.int64)
+    empty = np.zeros(0, np.uint8)
+    _render(buf, starts, stops, mode, spans, mags, negs, decs, blob, blob_off, _POW10I, empty, out_off, False)
+    out = np.empty(int(out_off[n]), np.uint8)
+    _render(buf, starts, stops, mode, spans, mags, negs, decs, blob, blob_off, _POW10I, out, out_off, True)
+    return out, out_off
