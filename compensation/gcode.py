@@ -963,20 +963,13 @@ def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete, data: b
     return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table, data=data)
 
 
-def _fmt_column(values, decimals: int) -> list:
-    """:func:`fmt` of every value, (n,) -> list of str."""
-    zero_neg = "-" + f"{0.0:.{decimals}f}"
-    pos_zero = zero_neg[1:]
-    spec = f".{decimals}f"
-    out = [format(v, spec) for v in np.asarray(values, dtype=float).tolist()]
-    return [pos_zero if s == zero_neg else s for s in out]
-
-
 class _Groups(Sequence):
-    """``groups`` of :func:`render_table`: output lines per source line, built when asked for."""
+    """``groups`` of :func:`render_table`: output lines per source line, built when asked for.
+    ``changed[i]``: the output lines of a move written line by line; ``simple[i]``: a line
+    rewritten in bulk, its output ``text[off[i]:off[i + 1]]``; otherwise the line itself."""
 
-    def __init__(self, lines: list, out: list, changed: dict):
-        self._lines, self._out, self._changed = lines, out, changed
+    def __init__(self, lines: list, text: str, off, simple, changed: dict):
+        self._lines, self._text, self._off, self._simple, self._changed = lines, text, off, simple, changed
 
     def __len__(self) -> int:
         return len(self._lines)
@@ -985,10 +978,18 @@ class _Groups(Sequence):
         if isinstance(i, slice):
             return [self[j] for j in range(*i.indices(len(self)))]
         i = range(len(self))[i]
-        g = self._changed.get(i, False)
-        if g is False:
-            return [self._lines[i]]
-        return [self._out[i]] if g is None else list(g)
+        g = self._changed.get(i)
+        if g is not None:
+            return list(g)
+        if self._simple[i]:
+            return [self._text[self._off[i]:self._off[i + 1]]]
+        return [self._lines[i]]
+
+
+def _fixed_str(mag: int, neg: bool, decimals: int) -> str:
+    """The text of one number of :func:`gcode_scan.format_fixed`."""
+    d = str(mag).rjust(decimals + 1, "0")
+    return f"{'-' if neg else ''}{d[:-decimals]}.{d[-decimals:]}"
 
 
 def render_table(program: GProgram, axes, counts, header=()) -> tuple:
@@ -996,10 +997,12 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
 
     ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated
     move. Untouched lines are copied as they are; the X, Z, A numbers of every compensated
-    bulk line are formatted column-wise and put in place of the old ones (missing axes appended
-    after the last axis word, extra vertices as added lines), moves read line by line (arcs)
-    through the per-line writer. A program with incremental moves needs the controller's
-    position line by line: :func:`render_program`.
+    bulk line are formatted column-wise (:func:`gcode_scan.format_fixed`) and put in place of
+    the old ones by a compiled pass over the file's bytes (:func:`gcode_scan.render_lines`);
+    lines with missing axes (appended after the last axis word) or extra vertices (added
+    lines), and moves read line by line (arcs, through the per-line writer), are written here
+    and copied in. A program with incremental moves needs the controller's position line by
+    line: :func:`render_program`.
     """
     t = program.table
     if t is None or t.incremental.any():
@@ -1012,22 +1015,33 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
                          f"got {counts.shape} and {axes.shape}")
     if not np.all(np.isfinite(axes)):
         raise ValueError("Expected finite vertices, got NaN/inf")
+    if axes.size and np.abs(axes).max() >= gscan.FIXED_MAX:  # absurd numbers: the per-line writer
+        return render_program(program, np.split(axes, np.cumsum(counts)[:-1]), header=header)
     first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     inch_v = np.repeat(t.inch[rows], counts)
-    cols = []
-    for j in range(3):
+    mags = np.empty(axes.shape, np.int64)
+    negs = np.empty(axes.shape, bool)
+    decs = np.empty(axes.shape, np.int64)
+    decs[:, 2] = DECIMALS["deg"]
+    mags[:, 2], negs[:, 2] = gscan.format_fixed(axes[:, 2], DECIMALS["deg"])
+    for j in (0, 1):
         v = axes[:, j]
-        if j == 2:
-            cols.append(_fmt_column(v, DECIMALS["deg"]))
-            continue
-        col = np.empty(v.size, dtype=object)
         mm = ~inch_v
-        col[mm] = _fmt_column(v[mm], DECIMALS["mm"])
-        col[inch_v] = _fmt_column(v[inch_v] / MM_PER_INCH, DECIMALS["inch"])
-        cols.append(col.tolist())
-    xs, zs, as_ = cols
+        decs[:, j] = np.where(inch_v, DECIMALS["inch"], DECIMALS["mm"])
+        for sel, vals, dec in ((mm, v[mm], DECIMALS["mm"]), (inch_v, v[inch_v] / MM_PER_INCH, DECIMALS["inch"])):
+            if sel.any():
+                mags[sel, j], negs[sel, j] = gscan.format_fixed(vals, dec)
+
+    def word(v: int, j: int) -> str:
+        return _fixed_str(int(mags[v, j]), bool(negs[v, j]), int(decs[v, j]))
+
     lines = program.lines
-    out = list(lines)
+    data = program.data if program.data is not None else "".join(lines).encode("latin-1")
+    buf = np.frombuffer(data, np.uint8)
+    n = len(lines)
+    starts, _ = gscan.line_bounds(buf)
+    stops = np.append(starts[1:], buf.size)
+    mode = np.zeros(n, np.int8)
     changed = {}
     bulk = t.obj[rows] < 0
     sp = t.spans[rows]
@@ -1035,24 +1049,25 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         m = program.moves[int(rows[k])]
         q = axes[first[k]:first[k] + counts[k]]
         changed[m.index], _ = _render_move(lines[m.index], m, q, np.full(3, np.nan))
-        out[m.index] = "".join(changed[m.index])
     kb = np.flatnonzero(bulk)
     full = (sp[kb, 1:, 0] >= 0).all(axis=1)  # X, Z and A all on the line (the common case)
     one = counts[kb] == 1
-    # the common case in one pass: X Z A on the line, one vertex
-    fa = kb[full & one]
-    for i, f, sx, ex, sz, ez, sa, ea in zip(
-            t.line[rows[fa]].tolist(), first[fa].tolist(), *(sp[fa, j, e].tolist() for j in (1, 2, 3) for e in (0, 1))):
-        line = lines[i]
-        out[i] = f"{line[:sx]}{xs[f]}{line[ex:sz]}{zs[f]}{line[ez:sa]}{as_[f]}{line[ea:]}"
-    changed.update(dict.fromkeys(t.line[rows[fa]].tolist()))
+    fa = kb[full & one]  # the common case, in the compiled pass
+    fl = t.line[rows[fa]]
+    mode[fl] = 1
+    simple_spans = np.zeros((n, 3, 2), np.int64)
+    simple_spans[fl] = sp[fa, 1:, :] + starts[fl][:, None, None]
+    vmags = np.zeros((n, 3), np.int64)
+    vnegs = np.zeros((n, 3), bool)
+    vdecs = np.zeros((n, 3), np.int64)
+    vmags[fl], vnegs[fl], vdecs[fl] = mags[first[fa]], negs[first[fa]], decs[first[fa]]
     rest = kb[~(full & one)]
     for i, f, c, (sx, ex), (sz, ez), (sa, ea) in zip(
             t.line[rows[rest]].tolist(), first[rest].tolist(), counts[rest].tolist(),
             sp[rest, 1].tolist(), sp[rest, 2].tolist(), sp[rest, 3].tolist()):
         line = lines[i]
         body = line.rstrip("\r\n")
-        x, z, a = xs[f], zs[f], as_[f]
+        x, z, a = word(f, 0), word(f, 1), word(f, 2)
         hx, hz, ha = sx >= 0, sz >= 0, sa >= 0
         parts, pos = [], 0
         if hx:
@@ -1073,15 +1088,32 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         parts.append(body[pos:])
         first_line = "".join(parts)
         if c == 1:
-            out[i] = first_line + line[len(body):]
-            changed[i] = None
+            changed[i] = [first_line + line[len(body):]]
             continue
         ending = line[len(body):] or "\n"
-        extra = [f"X{xs[v]} Z{zs[v]} A{as_[v]}" + ending for v in range(f + 1, f + c)]
+        extra = [f"X{word(v, 0)} Z{word(v, 1)} A{word(v, 2)}" + ending for v in range(f + 1, f + c)]
         if not line.endswith("\n"):
             g = [first_line + ending] + extra[:-1] + [extra[-1][:-len(ending)]]
         else:
             g = [first_line + line[len(body):]] + extra
         changed[i] = g
-        out[i] = "".join(g)
-    return _with_header(out, header), _Groups(lines, out, changed)
+    blob_off = np.zeros(n + 1, np.int64)
+    blob = np.zeros(0, np.uint8)
+    if changed:
+        idx = np.array(sorted(changed), dtype=np.int64)
+        enc = ["".join(changed[i]).encode("latin-1") for i in idx.tolist()]
+        mode[idx] = 2
+        size = np.zeros(n, np.int64)
+        size[idx] = [len(e) for e in enc]
+        blob_off[1:] = np.cumsum(size)
+        blob = np.frombuffer(b"".join(enc), np.uint8)
+    out, off = gscan.render_lines(buf, starts, stops, mode, simple_spans, vmags, vnegs, vdecs, blob, blob_off)
+    text = out.tobytes().decode("latin-1")
+    at = 0  # the header goes after a leading '%' line and a program-number line (as _with_header)
+    if at < n and text[off[at]:off[at + 1]].strip() == "%":
+        at += 1
+    if at < n and re.match(r"[ \t]*[Oo][ \t]*\d", text[off[at]:off[at + 1]]):
+        at += 1
+    head = "".join(f"({_comment_safe(h)})\n" for h in header)
+    full_text = text[:off[at]] + head + text[off[at]:] if head else text
+    return full_text, _Groups(lines, text, off, mode == 1, changed)

@@ -196,6 +196,11 @@ def scan_lines(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray):
 
 # ---------------------------------------------------------------------------- writing
 
+FIXED_MAX = 1e9
+"""Largest magnitude :func:`format_fixed` takes (its integers hold 10**9 with 7 decimals);
+:func:`compensation.gcode.render_table` writes a program with larger numbers line by line."""
+
+
 def format_fixed(values, decimals: int):
     """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``, a
     negative zero written without its sign), as (magnitude in units of 10**-decimals (n,) int64,
@@ -203,6 +208,8 @@ def format_fixed(values, decimals: int):
     ulps of a tie, and the product is exact enough only below 2**50: those values (and any
     non-finite one) go through Python's formatting, one by one."""
     v = np.asarray(values, dtype=float)
+    if not np.all(np.abs(v) < FIXED_MAX):
+        raise ValueError(f"Expected finite values below {FIXED_MAX:g} in magnitude, got {v[~(np.abs(v) < FIXED_MAX)][0]}")
     q = v * 10.0 ** decimals
     r = np.rint(q)
     fl = np.floor(q)
@@ -210,8 +217,6 @@ def format_fixed(values, decimals: int):
     doubt = ~(aq < 2.0 ** 50) | (np.abs((q - fl) - 0.5) <= np.maximum(1e-6, 8 * np.spacing(aq)))
     mag = np.abs(r).astype(np.int64, copy=False) if not doubt.any() else np.where(doubt, 0, np.abs(r)).astype(np.int64)
     for i in np.flatnonzero(doubt).tolist():
-        if not np.isfinite(v[i]):
-            raise ValueError(f"Expected finite values, got {v[i]}")
         s = format(float(v[i]), f".{decimals}f")
         mag[i] = int(s.lstrip("-").replace(".", ""))
     neg = (v < 0) & (mag != 0)
