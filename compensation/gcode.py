@@ -47,7 +47,7 @@ import numpy as np
 
 from errormap.io import InputError
 
-from . import gcode_scan as gscan
+from . import gcode_kernels as gscan
 
 MM_PER_INCH = 25.4
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
@@ -321,9 +321,9 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     data = path.read_bytes()
-    lines = split_lines(data.decode("latin-1"))
     if fast:
-        return _parse_blockwise(path, lines, rapids, block_delete, data)
+        return _parse_blockwise(path, rapids, block_delete, data)
+    lines = split_lines(data.decode("latin-1"))
     st = _State()
     classes, moves = [], []
     for idx, line in enumerate(lines):
@@ -862,10 +862,33 @@ def _forward_fill(values, given, initial):
     return out
 
 
-def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete, data: bytes) -> GProgram:
-    n = len(lines)
+class _Lines(Sequence):
+    """``GProgram.lines`` of a block-wise read file: each line (its ending kept) cut from the
+    file's text when asked for, as :func:`split_lines` cuts them."""
+
+    def __init__(self, text: str, starts, stops):
+        self._text, self._starts, self._stops = text, starts, stops
+
+    def __len__(self) -> int:
+        return self._starts.size
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        i = range(len(self))[i]
+        return self._text[self._starts[i]:self._stops[i]]
+
+    def __iter__(self):
+        text = self._text
+        for s, e in zip(self._starts.tolist(), self._stops.tolist()):
+            yield text[s:e]
+
+
+def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes) -> GProgram:
     buf = np.frombuffer(data, np.uint8)
     starts, ends = gscan.line_bounds(buf)
+    lines = _Lines(data.decode("latin-1"), starts, np.append(starts[1:], buf.size))
+    n = len(lines)
     kind, spans_all, vals_all = gscan.scan_lines(buf, starts, ends)
     ask = np.flatnonzero(kind == gscan.KIND_ASK)
     for i in ask.tolist():  # lines the kernel leaves to the patterns themselves
@@ -987,7 +1010,7 @@ class _Groups(Sequence):
 
 
 def _fixed_str(mag: int, neg: bool, decimals: int) -> str:
-    """The text of one number of :func:`gcode_scan.format_fixed`."""
+    """The text of one number of :func:`gcode_kernels.format_fixed`."""
     d = str(mag).rjust(decimals + 1, "0")
     return f"{'-' if neg else ''}{d[:-decimals]}.{d[-decimals:]}"
 
@@ -997,8 +1020,8 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
 
     ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated
     move. Untouched lines are copied as they are; the X, Z, A numbers of every compensated
-    bulk line are formatted column-wise (:func:`gcode_scan.format_fixed`) and put in place of
-    the old ones by a compiled pass over the file's bytes (:func:`gcode_scan.render_lines`);
+    bulk line are formatted column-wise (:func:`gcode_kernels.format_fixed`) and put in place of
+    the old ones by a compiled pass over the file's bytes (:func:`gcode_kernels.render_lines`);
     lines with missing axes (appended after the last axis word) or extra vertices (added
     lines), and moves read line by line (arcs, through the per-line writer), are written here
     and copied in. A program with incremental moves needs the controller's position line by
@@ -1021,26 +1044,27 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
     inch_v = np.repeat(t.inch[rows], counts)
     mags = np.empty(axes.shape, np.int64)
     negs = np.empty(axes.shape, bool)
-    decs = np.empty(axes.shape, np.int64)
-    decs[:, 2] = DECIMALS["deg"]
+    decs = (DECIMALS["mm"], DECIMALS["inch"], DECIMALS["deg"])
     mags[:, 2], negs[:, 2] = gscan.format_fixed(axes[:, 2], DECIMALS["deg"])
     for j in (0, 1):
-        v = axes[:, j]
-        mm = ~inch_v
-        decs[:, j] = np.where(inch_v, DECIMALS["inch"], DECIMALS["mm"])
-        for sel, vals, dec in ((mm, v[mm], DECIMALS["mm"]), (inch_v, v[inch_v] / MM_PER_INCH, DECIMALS["inch"])):
-            if sel.any():
-                mags[sel, j], negs[sel, j] = gscan.format_fixed(vals, dec)
+        if inch_v.any():
+            col = np.where(inch_v, axes[:, j] / MM_PER_INCH, axes[:, j])
+            mags[:, j], negs[:, j] = gscan.format_fixed(col, np.where(inch_v, DECIMALS["inch"], DECIMALS["mm"]))
+        else:
+            mags[:, j], negs[:, j] = gscan.format_fixed(axes[:, j], DECIMALS["mm"])
 
     def word(v: int, j: int) -> str:
-        return _fixed_str(int(mags[v, j]), bool(negs[v, j]), int(decs[v, j]))
+        return _fixed_str(int(mags[v, j]), bool(negs[v, j]), decs[2] if j == 2 else decs[int(inch_v[v])])
 
     lines = program.lines
     data = program.data if program.data is not None else "".join(lines).encode("latin-1")
     buf = np.frombuffer(data, np.uint8)
     n = len(lines)
-    starts, _ = gscan.line_bounds(buf)
-    stops = np.append(starts[1:], buf.size)
+    if isinstance(lines, _Lines):
+        starts, stops = lines._starts, lines._stops
+    else:
+        starts, _ = gscan.line_bounds(buf)
+        stops = np.append(starts[1:], buf.size)
     mode = np.zeros(n, np.int8)
     changed = {}
     bulk = t.obj[rows] < 0
@@ -1053,14 +1077,11 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
     full = (sp[kb, 1:, 0] >= 0).all(axis=1)  # X, Z and A all on the line (the common case)
     one = counts[kb] == 1
     fa = kb[full & one]  # the common case, in the compiled pass
-    fl = t.line[rows[fa]]
-    mode[fl] = 1
-    simple_spans = np.zeros((n, 3, 2), np.int64)
-    simple_spans[fl] = sp[fa, 1:, :] + starts[fl][:, None, None]
-    vmags = np.zeros((n, 3), np.int64)
-    vnegs = np.zeros((n, 3), bool)
-    vdecs = np.zeros((n, 3), np.int64)
-    vmags[fl], vnegs[fl], vdecs[fl] = mags[first[fa]], negs[first[fa]], decs[first[fa]]
+    mode[t.line[rows[fa]]] = 1
+    row_of_line = np.full(n, -1, np.int64)
+    row_of_line[t.line[rows[fa]]] = rows[fa]
+    vert_of_row = np.full(len(t), -1, np.int64)
+    vert_of_row[rows] = first
     rest = kb[~(full & one)]
     for i, f, c, (sx, ex), (sz, ez), (sa, ea) in zip(
             t.line[rows[rest]].tolist(), first[rest].tolist(), counts[rest].tolist(),
@@ -1107,7 +1128,8 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         size[idx] = [len(e) for e in enc]
         blob_off[1:] = np.cumsum(size)
         blob = np.frombuffer(b"".join(enc), np.uint8)
-    out, off = gscan.render_lines(buf, starts, stops, mode, simple_spans, vmags, vnegs, vdecs, blob, blob_off)
+    out, off = gscan.render_lines(buf, starts, stops, mode, row_of_line, vert_of_row, t.spans, mags, negs, inch_v,
+                                  decs, blob, blob_off)
     text = out.tobytes().decode("latin-1")
     at = 0  # the header goes after a leading '%' line and a program-number line (as _with_header)
     if at < n and text[off[at]:off[at + 1]].strip() == "%":

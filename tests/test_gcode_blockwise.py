@@ -69,6 +69,7 @@ def _same(path, machine, field, options=OPTIONS, segments=(None, 0.5, "auto")):
             refused += 1
             continue
         assert prog_f.table is not None and prog_e.table is None
+        assert list(prog_f.lines) == prog_e.lines and len(prog_f.lines) == len(prog_e.lines)
         for seg in segments:
             assert _job_outputs(prog_f, machine, field, seg) == _job_outputs(prog_e, machine, field, seg), \
                 f"{path.name} {kw} max_segment={seg}: outputs differ"
@@ -254,7 +255,7 @@ def _fuzz_lines(n, seed=0):
 def test_scan_kernel_reads_lines_as_the_patterns_do():
     """Every line's kind, spans and values from the compiled kernel are the patterns' (the
     kernel may leave a line to them, KIND_ASK; it never decides otherwise)."""
-    from compensation import gcode_scan as gs
+    from compensation import gcode_kernels as gs
     lines = _fuzz_lines(N_FUZZ_LINES)
     data = "\n".join(lines).encode("latin-1")
     buf = np.frombuffer(data, np.uint8)
@@ -287,7 +288,7 @@ N_FORMAT_VALUES = 200_000  # random values plus ties and near-ties at every deci
 
 @pytest.mark.parametrize("decimals", sorted(set(g.DECIMALS.values())))
 def test_format_fixed_writes_what_fmt_writes(decimals):
-    from compensation import gcode_scan as gs
+    from compensation import gcode_kernels as gs
     rng = np.random.default_rng(decimals)
     v = np.concatenate([rng.uniform(-3000, 3000, N_FORMAT_VALUES // 2),
                         rng.normal(0, 1e-6, N_FORMAT_VALUES // 4),

@@ -44,7 +44,7 @@ def _blanks(buf, p, e):
     return p
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _number(buf, p, e, pow10):
     """``[+-]?(\\d+(\\.\\d*)?|\\.\\d+)`` at ``p`` (greedy, as the pattern reads it).
     Returns (status, end, value): status 0 no number, 1 number with value, 2 number the
@@ -81,7 +81,7 @@ def _number(buf, p, e, pow10):
     return 1, q, -v if neg else v
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _is_pass(buf, p, e):
     """``[ \\t]*(?:\\([^)]*\\)[ \\t]*)*(?:;.*)?`` over buf[p:e]."""
     p = _blanks(buf, p, e)
@@ -201,8 +201,9 @@ FIXED_MAX = 1e9
 :func:`compensation.gcode.render_table` writes a program with larger numbers line by line."""
 
 
-def format_fixed(values, decimals: int):
-    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``, a
+def format_fixed(values, decimals):
+    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``;
+    ``decimals`` an int or one per value), a
     negative zero written without its sign), as (magnitude in units of 10**-decimals (n,) int64,
     negative (n,) bool). ``v * 10**decimals`` rounded is the exact rounding except within a few
     ulps of a tie, and the product is exact enough only below 2**50: those values (and any
@@ -210,14 +211,15 @@ def format_fixed(values, decimals: int):
     v = np.asarray(values, dtype=float)
     if not np.all(np.abs(v) < FIXED_MAX):
         raise ValueError(f"Expected finite values below {FIXED_MAX:g} in magnitude, got {v[~(np.abs(v) < FIXED_MAX)][0]}")
-    q = v * 10.0 ** decimals
+    dec = np.asarray(decimals, dtype=np.int64)
+    q = v * 10.0 ** dec
     r = np.rint(q)
     fl = np.floor(q)
     aq = np.abs(q)
     doubt = ~(aq < 2.0 ** 50) | (np.abs((q - fl) - 0.5) <= np.maximum(1e-6, 8 * np.spacing(aq)))
     mag = np.abs(r).astype(np.int64, copy=False) if not doubt.any() else np.where(doubt, 0, np.abs(r)).astype(np.int64)
     for i in np.flatnonzero(doubt).tolist():
-        s = format(float(v[i]), f".{decimals}f")
+        s = format(float(v[i]), f".{int(np.broadcast_to(dec, v.shape)[i])}f")
         mag[i] = int(s.lstrip("-").replace(".", ""))
     neg = (v < 0) & (mag != 0)
     return mag, neg
@@ -256,44 +258,55 @@ def _put_num(out, o, mag, neg, dec, pow10i):
     return end
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _copy(out, o, buf, a, b):
+    for q in range(a, b):
+        out[o] = buf[q]
+        o += 1
+    return o
+
+
 @njit(cache=True, nogil=True)
-def _render(buf, starts, stops, mode, spans, mags, negs, decs, blob, blob_off, pow10i, out, out_off, write):
-    """Output of every source line: ``mode`` 0 copy buf[starts:stops], 1 the line with its X, Z,
-    A numbers (absolute spans ``spans`` (n, 3, 2)) replaced by ``mags``/``negs`` (n, 3) with
-    ``decs`` (n, 3) decimals, 2 the bytes blob[blob_off[i]:blob_off[i + 1]]. First call
+def _render(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, negs, inch, decs,
+            blob, blob_off, pow10i, out, out_off, write):
+    """Output of every source line: ``mode`` 0 copy buf[starts:stops]; 1 the line with its X,
+    Z, A numbers (table row ``r = row_of_line[i]``, word spans ``spans[r]`` relative to the line
+    start) replaced by vertex ``v = vert_of_row[r]``: ``mags[v]``/``negs[v]`` with ``decs``
+    (mm, inch, deg) decimals; 2 the bytes blob[blob_off[i]:blob_off[i + 1]]. First call
     (``write`` False) fills ``out_off`` (n + 1,); the second writes ``out``."""
     o = 0
     for i in range(starts.size):
-        if write:
-            o = out_off[i]
-        else:
+        if not write:
             out_off[i] = o
         m = mode[i]
         if m == 0:
-            n = stops[i] - starts[i]
             if write:
-                out[o:o + n] = buf[starts[i]:stops[i]]
-            o += n
+                o = _copy(out, o, buf, starts[i], stops[i])
+            else:
+                o += stops[i] - starts[i]
         elif m == 2:
-            n = blob_off[i + 1] - blob_off[i]
             if write:
-                out[o:o + n] = blob[blob_off[i]:blob_off[i + 1]]
-            o += n
+                o = _copy(out, o, blob, blob_off[i], blob_off[i + 1])
+            else:
+                o += blob_off[i + 1] - blob_off[i]
         else:
+            r = row_of_line[i]
+            v = vert_of_row[r]
             pos = starts[i]
             for j in range(3):
-                a, b = spans[i, j, 0], spans[i, j, 1]
-                n = a - pos
+                a = starts[i] + spans[r, j + 1, 0]
+                b = starts[i] + spans[r, j + 1, 1]
+                dec = decs[2] if j == 2 else (decs[1] if inch[v] else decs[0])
                 if write:
-                    out[o:o + n] = buf[pos:a]
-                    o = _put_num(out, o + n, mags[i, j], negs[i, j], decs[i, j], pow10i)
+                    o = _copy(out, o, buf, pos, a)
+                    o = _put_num(out, o, mags[v, j], negs[v, j], dec, pow10i)
                 else:
-                    o += n + _num_len(mags[i, j], negs[i, j], decs[i, j], pow10i)
+                    o += a - pos + _num_len(mags[v, j], negs[v, j], dec, pow10i)
                 pos = b
-            n = stops[i] - pos
             if write:
-                out[o:o + n] = buf[pos:stops[i]]
-            o += n
+                o = _copy(out, o, buf, pos, stops[i])
+            else:
+                o += stops[i] - pos
     if not write:
         out_off[starts.size] = o
 
@@ -301,13 +314,53 @@ def _render(buf, starts, stops, mode, spans, mags, negs, decs, blob, blob_off, p
 _POW10I = np.array([10 ** k for k in range(19)], dtype=np.int64)
 
 
-def render_lines(buf, starts, stops, mode, spans, mags, negs, decs, blob, blob_off):
+def render_lines(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, negs, inch, decs, blob, blob_off):
     """The output bytes (uint8 array) and each source line's output offsets (n + 1,); see
-    :func:`_render`. ``blob_off`` (n + 1,) indexes ``blob`` for the lines of mode 2."""
+    :func:`_render`. ``decs``: the decimals of mm, inch and deg numbers; ``blob_off`` (n + 1,)
+    indexes ``blob`` for the lines of mode 2."""
     n = starts.size
     out_off = np.empty(n + 1, np.int64)
     empty = np.zeros(0, np.uint8)
-    _render(buf, starts, stops, mode, spans, mags, negs, decs, blob, blob_off, _POW10I, empty, out_off, False)
+    decs = np.asarray(decs, np.int64)
+    args = (buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, negs, inch, decs, blob, blob_off, _POW10I)
+    _render(*args, empty, out_off, False)
     out = np.empty(int(out_off[n]), np.uint8)
-    _render(buf, starts, stops, mode, spans, mags, negs, decs, blob, blob_off, _POW10I, out, out_off, True)
+    _render(*args, out, out_off, True)
     return out, out_off
+
+
+# ---------------------------------------------------------------------------- planning
+
+@njit(cache=True, nogil=True)
+def _polyline_lengths(start, end, samples, ty, qx0, qz0, out):
+    """The nominal tool point is ``p = (qx0 - x, M(a)·(ty, qz0 + z))`` with ``M(a)`` the
+    rotation ``[[c, s], [-s, c]]``; between two samples of a linear move ``M(a_i)`` factors
+    out of the chord, so each chord is ``|(dx, M(da)·q_(i+1) - q_i)|`` with the same ``dx``
+    and ``da`` for every step: one sine and cosine a move."""
+    for k in range(start.shape[0]):
+        dx = (end[k, 0] - start[k, 0]) / samples
+        dz = (end[k, 1] - start[k, 1]) / samples
+        da = np.deg2rad((end[k, 2] - start[k, 2]) / samples)
+        c, s = np.cos(da), np.sin(da)
+        dx2 = dx * dx
+        total = 0.0
+        for i in range(samples):
+            z0 = qz0 + start[k, 1] + i * dz
+            z1 = qz0 + start[k, 1] + (i + 1) * dz
+            u = c * ty + s * z1 - ty
+            v = -s * ty + c * z1 - z0
+            total += np.sqrt(dx2 + u * u + v * v)
+        out[k] = total
+
+
+def linear_path_lengths_mm(machine, start, end, samples: int = 16):
+    """WCS length of the nominal tool path of linear axis moves ``start`` -> ``end`` (m, 3),
+    as the polyline through ``samples + 1`` equally spaced parameters (the closed form of
+    :func:`errormap.kinematics.forward`; chord lengths as :func:`_polyline_lengths` says): (m,)."""
+    from errormap.kinematics import nominal_tool_at_z0
+    start = np.ascontiguousarray(start, dtype=float)
+    end = np.ascontiguousarray(end, dtype=float)
+    tx, ty, tz0 = nominal_tool_at_z0(machine)
+    out = np.empty(start.shape[0])
+    _polyline_lengths(start, end, int(samples), ty, tx - machine.l5 - machine.l7, tz0 - machine.l6 - machine.l8, out)
+    return out
