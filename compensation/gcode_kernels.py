@@ -100,9 +100,10 @@ def _is_pass(buf, p, e):
     return True
 
 
-@njit(cache=True, nogil=True)
-def _scan_one(buf, s, e, pow10, spans, vals, k):
-    """Kind of line buf[s:e] (body, no line ending); fills spans[k] (relative to s) and vals[k]."""
+@njit(cache=True, nogil=True, inline="always")
+def _scan_one(buf, s, e, pow10, sp, v):
+    """Kind of line buf[s:e] (body, no line ending); a move's spans (relative to s) go to
+    ``sp`` (4, 2) and its values to ``v`` (3,) (scratch: copied out for moves only)."""
     if _is_pass(buf, s, e):
         return KIND_PASS
     p = _blanks(buf, s, e)
@@ -124,25 +125,25 @@ def _scan_one(buf, s, e, pow10, spans, vals, k):
              (nd == 2 and buf[p + 1] == _ZERO and (buf[p + 2] == _ZERO or buf[p + 2] == _ZERO + 1))
         if not ok or (q < e and buf[q] == _DOT):
             return KIND_OTHER
-        spans[k, 0, 0] = p - s
-        spans[k, 0, 1] = q - s
+        sp[0, 0] = p - s
+        sp[0, 1] = q - s
         p = _blanks(buf, q, e)
     axes = 0
     for j in range(3):
         letter = _X if j == 0 else (_Z if j == 1 else _A)
         if p < e and buf[p] == letter:
-            st, q, v = _number(buf, p + 1, e, pow10)
+            st, q, x = _number(buf, p + 1, e, pow10)
             if st == 0:
                 return KIND_OTHER
             if st == 2:
                 return KIND_ASK
-            spans[k, j + 1, 0] = p + 1 - s
-            spans[k, j + 1, 1] = q - s
-            vals[k, j] = v
+            sp[j + 1, 0] = p + 1 - s
+            sp[j + 1, 1] = q - s
+            v[j] = x
             axes += 1
             p = _blanks(buf, q, e)
     if p < e and buf[p] == _F:
-        st, q, v = _number(buf, p + 1, e, pow10)
+        st, q, x = _number(buf, p + 1, e, pow10)
         if st == 0:
             return KIND_OTHER
         if st == 2:
@@ -162,14 +163,21 @@ def _scan_one(buf, s, e, pow10, spans, vals, k):
 
 @njit(cache=True, nogil=True)
 def _scan(buf, starts, ends, pow10, kind, spans, vals):
+    sp = np.empty((4, 2), np.int32)
+    v = np.empty(3)
     for k in range(starts.size):
         s, e = starts[k], ends[k]
         while e > s and buf[e - 1] == _CR:
             e -= 1
-        kind[k] = _scan_one(buf, s, e, pow10, spans, vals, k)
-        if kind[k] != KIND_MOVE:
-            spans[k, :, :] = -1
-            vals[k, :] = np.nan
+        sp[:, :] = -1
+        v[:] = np.nan
+        kind[k] = _scan_one(buf, s, e, pow10, sp, v)
+        if kind[k] == KIND_MOVE:
+            for a in range(4):
+                spans[k, a, 0] = sp[a, 0]
+                spans[k, a, 1] = sp[a, 1]
+            for a in range(3):
+                vals[k, a] = v[a]
 
 
 def line_bounds(buf: np.ndarray):
