@@ -300,3 +300,16 @@ def test_format_fixed_writes_what_fmt_writes(decimals):
     assert got == [g.fmt(x, decimals) for x in v.tolist()]
     with pytest.raises(ValueError, match="Expected finite values below"):
         gs.format_fixed(np.array([1.0, 2.0 ** 60]), decimals)
+
+
+@pytest.mark.parametrize("seg", ["auto", 0.05, None])
+def test_replan_reuses_points_bit_for_bit(tmp_path, grinder, field, seg):
+    """replan keeps the targets of moves whose vertex count did not change: the tool path is
+    the one a fresh plan gives, bit for bit."""
+    path = tmp_path / "gen.nc"
+    path.write_bytes(_program(2, LINES_PER_PROGRAM, incremental=False).encode("latin-1"))
+    tp0 = pathio.read_path(path, grinder)
+    tp = pathio.replan(tp0, grinder, max_segment_mm=seg, field=field)
+    ref = pathio.gcode_toolpath(pathio.plan_gcode(tp0.source.program, grinder, 0.5, seg, field), grinder, path)
+    for a, b in ((tp.axes, ref.axes), (tp.targets_mm, ref.targets_mm), (tp.lines, ref.lines)):
+        assert a.shape == b.shape and a.tobytes() == b.tobytes()
