@@ -391,7 +391,7 @@ def _read_csv(path, machine) -> ToolPathFile:
                          f"{list(TARGET_COLUMNS)} (WCS targets); found columns {t.names}")
     if len(t) == 0:
         raise InputError(f"{path}: no data rows")
-    rows = np.array([t.row_number(k) for k in range(len(t))], dtype=int)
+    rows = t.row_number(0) + np.arange(len(t), dtype=int)  # Table.row_number(k), all at once
     if has_axes:
         axes = np.stack([t.float(c) for c in AXIS_COLUMNS], axis=1)
         return ToolPathFile(Path(path), "csv-axes", axes, forward(machine, axes), rows, t)
