@@ -79,16 +79,25 @@ STAGES = ("startup", "read+parse+plan", "field load", "replan auto", "solve", "g
 
 
 def stage_run(prog, model, out_dir) -> dict:
-    """The steps of ``volcomp compensate --method exact`` on one file (compensation/commands/
-    compensate.py, in its order), timed; seconds per stage, points, peak RSS (MB)."""
+    """The steps of ``volcomp compensate --method exact`` on one file (compensation/app/workflows/
+    compensate.py, in its order; the solve through ``compensation.batch.solve_batch`` where the
+    checkout has it), timed; seconds per stage, points, peak RSS (MB)."""
     import resource
     t0, c0 = time.perf_counter(), time.process_time()
     try:  # the application wing (issue 18); a checkout from before it (--baseline-root) has the old places
         from compensation.app.commands import compensate  # noqa: F401  (what the command loads)
-        from compensation.app.reports.methods import small_batch_threads
     except ImportError:
         from compensation.commands import compensate  # noqa: F401
-        from compensation.report import small_batch_threads
+    try:  # the command solves through the chunk plan (compensation.batch) since issue 20's cluster work
+        from compensation.batch import solve_batch
+    except ImportError:
+        solve_batch = None
+    for where in ("compensation.solvers.threads", "compensation.app.reports.methods", "compensation.report"):
+        try:
+            small_batch_threads = __import__(where, fromlist=["small_batch_threads"]).small_batch_threads
+            break
+        except (ImportError, AttributeError):
+            continue
     from compensation import guards
     from compensation.diagnosed_model import load_path_field
     from compensation.pathio import align_turns, read_path, render_compensated, replan, write_outputs
@@ -112,8 +121,11 @@ def stage_run(prog, model, out_dir) -> dict:
     now = lap("field load", now)
     tp = replan(tp, machine, max_segment_mm="auto", field=field)
     now = lap("replan auto", now)
-    with small_batch_threads("exact", len(tp)):
-        res = solve("exact", field, tp.targets_mm, machine, target_axes=tp.axes)
+    if solve_batch is not None:
+        res = solve_batch("exact", field, machine, [tp], seed=0)[0]
+    else:
+        with small_batch_threads("exact", len(tp)):
+            res = solve("exact", field, tp.targets_mm, machine, target_axes=tp.axes)
     now = lap("solve", now)
     res.axes = np.array(res.axes, dtype=float)
     res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
