@@ -295,8 +295,10 @@ def read_table(path) -> Table:
         row = text.count("\n", 0, text.index("\x00")) + 1
         raise InputError(f"{path}: row {row}: contains a NUL byte; expected a text (CSV) file")
     # rows are the lines an editor shows: split at \n, \r\n or \r only
-    if "\r" in text:
-        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    if "\r" in text:  # one pass for the common \r\n, a second only for a bare \r left over
+        text = text.replace("\r\n", "\n")
+        if "\r" in text:
+            text = text.replace("\r", "\n")
     # leading comment and blank lines, then the header line (line i, 0-based), then the body
     comments = []
     i, pos = 0, 0
