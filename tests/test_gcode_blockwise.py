@@ -313,3 +313,18 @@ def test_replan_reuses_points_bit_for_bit(tmp_path, grinder, field, seg):
     ref = pathio.gcode_toolpath(pathio.plan_gcode(tp0.source.program, grinder, 0.5, seg, field), grinder, path)
     for a, b in ((tp.axes, ref.axes), (tp.targets_mm, ref.targets_mm), (tp.lines, ref.lines)):
         assert a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_curvature_samples_one_short_move_per_window():
+    """Of a run of moves shorter than AUTO_SAMPLE_MM, the first move starting in each
+    AUTO_SHORT_WINDOW_MM of path is sampled; every longer move is."""
+    short = pathio.AUTO_SAMPLE_MM / 10  # 40 short moves make 1 mm
+    lengths = np.array([short] * 100 + [5.0] + [short] * 10)
+    keep = pathio._curvature_sampled(lengths)
+    starts = np.cumsum(lengths) - lengths
+    want = [k for k in range(100) if k == 0 or np.floor(starts[k] / pathio.AUTO_SHORT_WINDOW_MM)
+            != np.floor(starts[k - 1] / pathio.AUTO_SHORT_WINDOW_MM)]
+    assert np.flatnonzero(keep[:100]).tolist() == want and len(want) == 3  # 100 moves of 0.025 mm: 2.5 mm
+    assert keep[100] and keep[101]  # the long move, and the first short move after it
+    assert keep.sum() == len(want) + 2 + (np.floor(starts[102:] / pathio.AUTO_SHORT_WINDOW_MM)
+                                          != np.floor(starts[101:-1] / pathio.AUTO_SHORT_WINDOW_MM)).sum()
