@@ -49,10 +49,10 @@ COLS = ("x_mm", "z_mm", "a_deg")
 
 def read(path, fast: bool):
     eio.FAST_MIN_ROWS = 2000 if fast else 10**12
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     t = eio.read_table(path)
     v = np.stack([t.float(c) for c in COLS], axis=1)
-    return time.perf_counter() - t0, v
+    return time.perf_counter() - t0, time.process_time() - c0, v
 
 
 def gcode_program(n_lines: int, seed: int = 0) -> str:
@@ -79,16 +79,25 @@ STAGES = ("startup", "read+parse+plan", "field load", "replan auto", "solve", "g
 
 
 def stage_run(prog, model, out_dir) -> dict:
-    """The steps of ``volcomp compensate --method exact`` on one file (compensation/commands/
-    compensate.py, in its order), timed; seconds per stage, points, peak RSS (MB)."""
+    """The steps of ``volcomp compensate --method exact`` on one file (compensation/app/workflows/
+    compensate.py, in its order; the solve through ``compensation.batch.solve_batch`` where the
+    checkout has it), timed; seconds per stage, points, peak RSS (MB)."""
     import resource
     t0, c0 = time.perf_counter(), time.process_time()
     try:  # the application wing (issue 18); a checkout from before it (--baseline-root) has the old places
         from compensation.app.commands import compensate  # noqa: F401  (what the command loads)
-        from compensation.app.reports.methods import small_batch_threads
     except ImportError:
         from compensation.commands import compensate  # noqa: F401
-        from compensation.report import small_batch_threads
+    try:  # the command solves through the chunk plan (compensation.batch) since issue 20's cluster work
+        from compensation.batch import solve_batch
+    except ImportError:
+        solve_batch = None
+    for where in ("compensation.solvers.threads", "compensation.app.reports.methods", "compensation.report"):
+        try:
+            small_batch_threads = __import__(where, fromlist=["small_batch_threads"]).small_batch_threads
+            break
+        except (ImportError, AttributeError):
+            continue
     from compensation import guards
     from compensation.diagnosed_model import load_path_field
     from compensation.pathio import align_turns, read_path, render_compensated, replan, write_outputs
@@ -112,8 +121,11 @@ def stage_run(prog, model, out_dir) -> dict:
     now = lap("field load", now)
     tp = replan(tp, machine, max_segment_mm="auto", field=field)
     now = lap("replan auto", now)
-    with small_batch_threads("exact", len(tp)):
-        res = solve("exact", field, tp.targets_mm, machine, target_axes=tp.axes)
+    if solve_batch is not None:
+        res = solve_batch("exact", field, machine, [tp], seed=0)[0]
+    else:
+        with small_batch_threads("exact", len(tp)):
+            res = solve("exact", field, tp.targets_mm, machine, target_axes=tp.axes)
     now = lap("solve", now)
     res.axes = np.array(res.axes, dtype=float)
     res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
@@ -271,27 +283,32 @@ def main():
         return
     m = load_machine()
     rows = []
+    load = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.seeds):
             axes = random_axes(m, args.rows, np.random.default_rng(seed))
             path = os.path.join(tmp, f"path{seed}.csv")
             eio.write_csv(path, dict(zip(COLS, axes.T)), header_comments=["machine: default grinder"])
             size_mb = os.path.getsize(path) / 1e6
-            fast, slow = [], []
+            fast, slow, fast_cpu, slow_cpu = [], [], [], []
             for _ in range(args.repeats):
-                tf, vf = read(path, True)
-                ts, vs = read(path, False)
-                fast.append(tf), slow.append(ts)
+                tf, cf, vf = read(path, True)
+                ts, cs, vs = read(path, False)
+                fast.append(tf), slow.append(ts), fast_cpu.append(cf), slow_cpu.append(cs)
             assert np.array_equal(vf, vs), "fast and per-row readers disagree"
-            rows.append((seed, size_mb, statistics.median(slow), statistics.median(fast), np.array_equal(vf, vs)))
+            rows.append((seed, size_mb, statistics.median(slow), statistics.median(fast), np.array_equal(vf, vs),
+                         statistics.median(slow_cpu), statistics.median(fast_cpu)))
             print(rows[-1])
     lines = ["## CSV read, pyarrow fast path vs per-row reader (issue 20)", "",
              f"`python benchmarks/bench_scale_io.py --rows {args.rows} --repeats {args.repeats} --seeds {args.seeds}` — "
              f"{args.rows:,} rows x_mm,z_mm,a_deg written by write_csv (%.9g); read_table + Table.float of the 3 columns; "
-             f"median of {args.repeats} runs each, alternating in one process; {os.cpu_count()} cores shared with other work.", "",
-             "| seed | file (MB) | per-row reader (s) | pyarrow path (s) | speed-up | values equal |", "|---|---|---|---|---|---|"]
-    for seed, mb, ts, tf, eq in rows:
-        lines.append(f"| {seed} | {mb:.0f} | {ts:.2f} | {tf:.2f} | {ts / tf:.1f}× | {'bit for bit' if eq else 'NO'} |")
+             f"median of {args.repeats} runs each, alternating in one process; {os.cpu_count()} cores shared with other work "
+             f"(load average {load[0]:.1f} at the start, {os.getloadavg()[0]:.1f} at the end). Wall s (CPU s: user + "
+             "system of this process, pyarrow's threads included).", "",
+             "| seed | file (MB) | per-row reader (s) | pyarrow path (s) | speed-up (wall) | values equal |", "|---|---|---|---|---|---|"]
+    for seed, mb, ts, tf, eq, cs, cf in rows:
+        lines.append(f"| {seed} | {mb:.0f} | {ts:.2f} ({cs:.2f}) | {tf:.2f} ({cf:.2f}) | {ts / tf:.1f}× | "
+                     f"{'bit for bit' if eq else 'NO'} |")
     text = "\n".join(lines) + "\n"
     print(text)
     with eio.atomic_write(args.out, "w", encoding="utf-8") as fh:

@@ -47,6 +47,8 @@ import numpy as np
 
 from errormap.io import InputError
 
+from . import gcode_kernels as gscan
+
 MM_PER_INCH = 25.4
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 """Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""
@@ -192,6 +194,8 @@ class GProgram:
     table: "MoveTable | None" = field(default=None, repr=False)
     """The moves as columns (:class:`MoveTable`, set by the block-wise reader); ``moves`` is then
     a lazy sequence that builds each :class:`GMove` only when asked for."""
+    data: bytes | None = field(default=None, repr=False)
+    """The file's bytes (block-wise reader; :func:`render_table` copies from them)."""
 
 
 def split_lines(text: str) -> list:
@@ -316,9 +320,10 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
         raise ValueError(f"Expected block_delete in {list(BLOCK_DELETE_CHOICES)} or None, got {block_delete!r}")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    lines = split_lines(path.read_bytes().decode("latin-1"))
+    data = path.read_bytes()
     if fast:
-        return _parse_blockwise(path, lines, rapids, block_delete)
+        return _parse_blockwise(path, rapids, block_delete, data)
+    lines = split_lines(data.decode("latin-1"))
     st = _State()
     classes, moves = [], []
     for idx, line in enumerate(lines):
@@ -857,40 +862,65 @@ def _forward_fill(values, given, initial):
     return out
 
 
-def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete) -> GProgram:
+class _Lines(Sequence):
+    """``GProgram.lines`` of a block-wise read file: each line (its ending kept) cut from the
+    file's text when asked for, as :func:`split_lines` cuts them."""
+
+    def __init__(self, text: str, starts, stops):
+        self._text, self._starts, self._stops = text, starts, stops
+
+    def __len__(self) -> int:
+        return self._starts.size
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        i = range(len(self))[i]
+        return self._text[self._starts[i]:self._stops[i]]
+
+    def __iter__(self):
+        text = self._text
+        for s, e in zip(self._starts.tolist(), self._stops.tolist()):
+            yield text[s:e]
+
+
+def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes) -> GProgram:
+    buf = np.frombuffer(data, np.uint8)
+    starts, ends = gscan.line_bounds(buf)
+    lines = _Lines(data.decode("latin-1"), starts, np.append(starts[1:], buf.size))
     n = len(lines)
-    bodies = [ln.rstrip("\r\n") for ln in lines]
-    match = _BULK_MOVE.fullmatch
-    ms = [match(b) for b in bodies]
-    is_move = np.fromiter(((m is not None and m.lastindex is not None and m.lastindex >= 2) for m in ms), bool, n)
-    pas = _BULK_PASS.fullmatch
-    bulk = is_move.copy()
-    rest = np.flatnonzero(~is_move)
-    bulk[rest] = np.fromiter((pas(bodies[i]) is not None for i in rest.tolist()), bool, rest.size)
-    # the bulk move lines: spans of G, X, Z, A and their numbers
+    kind, spans_all, vals_all = gscan.scan_lines(buf, starts, ends)
+    ask = np.flatnonzero(kind == gscan.KIND_ASK)
+    for i in ask.tolist():  # lines the kernel leaves to the patterns themselves
+        body = lines[i].rstrip("\r\n")
+        m = _BULK_MOVE.fullmatch(body)
+        if m is not None and m.lastindex is not None and m.lastindex >= 2:
+            kind[i] = gscan.KIND_MOVE
+            spans_all[i] = np.array(m.regs[1:5], dtype=np.int32)
+            for j in range(3):
+                if m.start(j + 2) >= 0:
+                    vals_all[i, j] = float(m.group(j + 2))
+        else:
+            kind[i] = gscan.KIND_PASS if _BULK_PASS.fullmatch(body) else gscan.KIND_OTHER
+    is_move = kind == gscan.KIND_MOVE
+    bulk = is_move | (kind == gscan.KIND_PASS)
     mlines = np.flatnonzero(is_move)
-    spans = np.array([ms[i].regs[1:5] for i in mlines.tolist()], dtype=np.int32).reshape(-1, 4, 2)
-    del ms
-    vals = np.full((mlines.size, 3), np.nan)
-    for j in range(3):
-        sel = np.flatnonzero(spans[:, j + 1, 0] >= 0)
-        txt = [bodies[i][s:e] for i, s, e in zip(mlines[sel].tolist(), spans[sel, j + 1, 0].tolist(),
-                                                 spans[sel, j + 1, 1].tolist())]
-        vals[sel, j] = np.fromiter(map(float, txt), float, len(txt))
+    spans = spans_all[mlines]
+    vals = vals_all[mlines]
+    del spans_all, vals_all
     gcode = np.full(mlines.size, -1, np.int8)  # -1: no G word, 0: G0, 1: G1
     sel = np.flatnonzero(spans[:, 0, 0] >= 0)
-    gcode[sel] = np.fromiter((bodies[i][e - 1] == "1" for i, e in
-                              zip(mlines[sel].tolist(), spans[sel, 0, 1].tolist())), bool, sel.size)
+    gcode[sel] = buf[starts[mlines[sel]] + spans[sel, 0, 1] - 1] == ord("1")
     given = np.isfinite(vals)
 
     st = _State()
     classes = ["pass"] * n
-    classes_move = "move"
+    moved = []  # ordinals (k0, k1) of the bulk moves read
     pieces, objects = [], []
 
     def per_line(i: int) -> None:
         try:
-            cls, move = _classify(bodies[i], i, st, rapids, block_delete)
+            cls, move = _classify(lines[i].rstrip("\r\n"), i, st, rapids, block_delete)
         except _Refuse as r:
             raise _err(path, i + 1, r.col, r.msg) from None
         classes[i] = cls
@@ -926,8 +956,7 @@ def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete) -> GPro
             pieces.append((mlines[k0:k0 + p], mode[sl].astype(np.int8), start[sl], end[sl],
                            np.full(p, st.inch), np.full(p, st.incremental), compensate[sl], known[sl],
                            np.full(p, -1), spans[k0:k0 + p]))
-            for i in mlines[k0:k0 + p].tolist():
-                classes[i] = classes_move
+            moved.append((k0, k0 + p))
             st.mode = "G0" if mode[p - 1] == 0 else "G1"
             st.pos = end[p - 1].copy()
         return k0 + p
@@ -947,26 +976,23 @@ def _parse_blockwise(path: Path, lines: list, rapids: str, block_delete) -> GPro
                 per_line(int(mlines[k]))
                 k += 1
             k0 = k
+    if moved:
+        cls_arr = np.array(classes, dtype=object)
+        cls_arr[np.concatenate([mlines[a:b] for a, b in moved])] = "move"
+        classes = cls_arr.tolist()
     table = MoveTable.concat(pieces, objects)
     if not table.compensate.any():
         raise InputError(f"{path}: no G0/G1/G2/G3 motion with X, Z or A words to compensate found")
-    return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table)
-
-
-def _fmt_column(values, decimals: int) -> list:
-    """:func:`fmt` of every value, (n,) -> list of str."""
-    zero_neg = "-" + f"{0.0:.{decimals}f}"
-    pos_zero = zero_neg[1:]
-    spec = f".{decimals}f"
-    out = [format(v, spec) for v in np.asarray(values, dtype=float).tolist()]
-    return [pos_zero if s == zero_neg else s for s in out]
+    return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table, data=data)
 
 
 class _Groups(Sequence):
-    """``groups`` of :func:`render_table`: output lines per source line, built when asked for."""
+    """``groups`` of :func:`render_table`: output lines per source line, built when asked for.
+    ``changed[i]``: the output lines of a move written line by line; ``simple[i]``: a line
+    rewritten in bulk, its output ``text[off[i]:off[i + 1]]``; otherwise the line itself."""
 
-    def __init__(self, lines: list, out: list, changed: dict):
-        self._lines, self._out, self._changed = lines, out, changed
+    def __init__(self, lines: list, text: str, off, simple, changed: dict):
+        self._lines, self._text, self._off, self._simple, self._changed = lines, text, off, simple, changed
 
     def __len__(self) -> int:
         return len(self._lines)
@@ -975,10 +1001,18 @@ class _Groups(Sequence):
         if isinstance(i, slice):
             return [self[j] for j in range(*i.indices(len(self)))]
         i = range(len(self))[i]
-        g = self._changed.get(i, False)
-        if g is False:
-            return [self._lines[i]]
-        return [self._out[i]] if g is None else list(g)
+        g = self._changed.get(i)
+        if g is not None:
+            return list(g)
+        if self._simple[i]:
+            return [self._text[self._off[i]:self._off[i + 1]]]
+        return [self._lines[i]]
+
+
+def _fixed_str(mag: int, neg: bool, decimals: int) -> str:
+    """The text of one number of :func:`gcode_kernels.format_fixed`."""
+    d = str(mag).rjust(decimals + 1, "0")
+    return f"{'-' if neg else ''}{d[:-decimals]}.{d[-decimals:]}"
 
 
 def render_table(program: GProgram, axes, counts, header=()) -> tuple:
@@ -986,10 +1020,12 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
 
     ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated
     move. Untouched lines are copied as they are; the X, Z, A numbers of every compensated
-    bulk line are formatted column-wise and put in place of the old ones (missing axes appended
-    after the last axis word, extra vertices as added lines), moves read line by line (arcs)
-    through the per-line writer. A program with incremental moves needs the controller's
-    position line by line: :func:`render_program`.
+    bulk line are formatted column-wise (:func:`gcode_kernels.format_fixed`) and put in place of
+    the old ones by a compiled pass over the file's bytes (:func:`gcode_kernels.render_lines`);
+    lines with missing axes (appended after the last axis word) or extra vertices (added
+    lines), and moves read line by line (arcs, through the per-line writer), are written here
+    and copied in. A program with incremental moves needs the controller's position line by
+    line: :func:`render_program`.
     """
     t = program.table
     if t is None or t.incremental.any():
@@ -1002,22 +1038,34 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
                          f"got {counts.shape} and {axes.shape}")
     if not np.all(np.isfinite(axes)):
         raise ValueError("Expected finite vertices, got NaN/inf")
+    if axes.size and np.abs(axes).max() >= gscan.FIXED_MAX:  # absurd numbers: the per-line writer
+        return render_program(program, np.split(axes, np.cumsum(counts)[:-1]), header=header)
     first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     inch_v = np.repeat(t.inch[rows], counts)
-    cols = []
-    for j in range(3):
-        v = axes[:, j]
-        if j == 2:
-            cols.append(_fmt_column(v, DECIMALS["deg"]))
-            continue
-        col = np.empty(v.size, dtype=object)
-        mm = ~inch_v
-        col[mm] = _fmt_column(v[mm], DECIMALS["mm"])
-        col[inch_v] = _fmt_column(v[inch_v] / MM_PER_INCH, DECIMALS["inch"])
-        cols.append(col.tolist())
-    xs, zs, as_ = cols
+    mags = np.empty(axes.shape, np.int64)
+    negs = np.empty(axes.shape, bool)
+    decs = (DECIMALS["mm"], DECIMALS["inch"], DECIMALS["deg"])
+    mags[:, 2], negs[:, 2] = gscan.format_fixed(axes[:, 2], DECIMALS["deg"])
+    for j in (0, 1):
+        if inch_v.any():
+            col = np.where(inch_v, axes[:, j] / MM_PER_INCH, axes[:, j])
+            mags[:, j], negs[:, j] = gscan.format_fixed(col, np.where(inch_v, DECIMALS["inch"], DECIMALS["mm"]))
+        else:
+            mags[:, j], negs[:, j] = gscan.format_fixed(axes[:, j], DECIMALS["mm"])
+
+    def word(v: int, j: int) -> str:
+        return _fixed_str(int(mags[v, j]), bool(negs[v, j]), decs[2] if j == 2 else decs[int(inch_v[v])])
+
     lines = program.lines
-    out = list(lines)
+    data = program.data if program.data is not None else "".join(lines).encode("latin-1")
+    buf = np.frombuffer(data, np.uint8)
+    n = len(lines)
+    if isinstance(lines, _Lines):
+        starts, stops = lines._starts, lines._stops
+    else:
+        starts, _ = gscan.line_bounds(buf)
+        stops = np.append(starts[1:], buf.size)
+    mode = np.zeros(n, np.int8)
     changed = {}
     bulk = t.obj[rows] < 0
     sp = t.spans[rows]
@@ -1025,24 +1073,22 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         m = program.moves[int(rows[k])]
         q = axes[first[k]:first[k] + counts[k]]
         changed[m.index], _ = _render_move(lines[m.index], m, q, np.full(3, np.nan))
-        out[m.index] = "".join(changed[m.index])
     kb = np.flatnonzero(bulk)
     full = (sp[kb, 1:, 0] >= 0).all(axis=1)  # X, Z and A all on the line (the common case)
     one = counts[kb] == 1
-    # the common case in one pass: X Z A on the line, one vertex
-    fa = kb[full & one]
-    for i, f, sx, ex, sz, ez, sa, ea in zip(
-            t.line[rows[fa]].tolist(), first[fa].tolist(), *(sp[fa, j, e].tolist() for j in (1, 2, 3) for e in (0, 1))):
-        line = lines[i]
-        out[i] = f"{line[:sx]}{xs[f]}{line[ex:sz]}{zs[f]}{line[ez:sa]}{as_[f]}{line[ea:]}"
-    changed.update(dict.fromkeys(t.line[rows[fa]].tolist()))
+    fa = kb[full & one]  # the common case, in the compiled pass
+    mode[t.line[rows[fa]]] = 1
+    row_of_line = np.full(n, -1, np.int64)
+    row_of_line[t.line[rows[fa]]] = rows[fa]
+    vert_of_row = np.full(len(t), -1, np.int64)
+    vert_of_row[rows] = first
     rest = kb[~(full & one)]
     for i, f, c, (sx, ex), (sz, ez), (sa, ea) in zip(
             t.line[rows[rest]].tolist(), first[rest].tolist(), counts[rest].tolist(),
             sp[rest, 1].tolist(), sp[rest, 2].tolist(), sp[rest, 3].tolist()):
         line = lines[i]
         body = line.rstrip("\r\n")
-        x, z, a = xs[f], zs[f], as_[f]
+        x, z, a = word(f, 0), word(f, 1), word(f, 2)
         hx, hz, ha = sx >= 0, sz >= 0, sa >= 0
         parts, pos = [], 0
         if hx:
@@ -1063,15 +1109,33 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         parts.append(body[pos:])
         first_line = "".join(parts)
         if c == 1:
-            out[i] = first_line + line[len(body):]
-            changed[i] = None
+            changed[i] = [first_line + line[len(body):]]
             continue
         ending = line[len(body):] or "\n"
-        extra = [f"X{xs[v]} Z{zs[v]} A{as_[v]}" + ending for v in range(f + 1, f + c)]
+        extra = [f"X{word(v, 0)} Z{word(v, 1)} A{word(v, 2)}" + ending for v in range(f + 1, f + c)]
         if not line.endswith("\n"):
             g = [first_line + ending] + extra[:-1] + [extra[-1][:-len(ending)]]
         else:
             g = [first_line + line[len(body):]] + extra
         changed[i] = g
-        out[i] = "".join(g)
-    return _with_header(out, header), _Groups(lines, out, changed)
+    blob_off = np.zeros(n + 1, np.int64)
+    blob = np.zeros(0, np.uint8)
+    if changed:
+        idx = np.array(sorted(changed), dtype=np.int64)
+        enc = ["".join(changed[i]).encode("latin-1") for i in idx.tolist()]
+        mode[idx] = 2
+        size = np.zeros(n, np.int64)
+        size[idx] = [len(e) for e in enc]
+        blob_off[1:] = np.cumsum(size)
+        blob = np.frombuffer(b"".join(enc), np.uint8)
+    out, off = gscan.render_lines(buf, starts, stops, mode, row_of_line, vert_of_row, t.spans, mags, negs, inch_v,
+                                  decs, blob, blob_off)
+    text = out.tobytes().decode("latin-1")
+    at = 0  # the header goes after a leading '%' line and a program-number line (as _with_header)
+    if at < n and text[off[at]:off[at + 1]].strip() == "%":
+        at += 1
+    if at < n and re.match(r"[ \t]*[Oo][ \t]*\d", text[off[at]:off[at + 1]]):
+        at += 1
+    head = "".join(f"({_comment_safe(h)})\n" for h in header)
+    full_text = text[:off[at]] + head + text[off[at]:] if head else text
+    return full_text, _Groups(lines, text, off, mode == 1, changed)

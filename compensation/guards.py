@@ -142,12 +142,16 @@ def ball_violations(correction_um, radius_um: float = BALL_RADIUS_UM, tol_um: fl
 
 def _box_violations(axes, lo, hi, a_full_turn: bool, tol: float, what: str):
     """Shared box test with the A rule; axes (n, 3), lo/hi (3,). Returns (indices, reasons)."""
-    axes = np.asarray(axes, dtype=float)
+    vals = np.asarray(axes, dtype=float)
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
-    vals = axes.copy()
-    check = np.array([True, True, not a_full_turn])
-    out = (vals < lo - tol) | (vals > hi + tol) | ~np.isfinite(vals)
-    out &= check[None, :]
+    k = 2 if a_full_turn else 3  # the columns checked (A passes on a full turn)
+    cols = vals[:, :k]
+    # one pass for the common case (nothing out): NaN fails both comparisons, so it is caught
+    inside = (cols >= lo[:k] - tol) & (cols <= hi[:k] + tol)
+    if inside.all():
+        return np.zeros(0, np.intp), np.array([], dtype=object)
+    out = np.zeros(vals.shape, bool)
+    out[:, :k] = ~inside
     bad = np.flatnonzero(out.any(axis=1))
     reasons = []
     for i in bad:  # formatting the offenders only (a message, not a computation)
@@ -179,19 +183,20 @@ def calibrated_volume(field) -> tuple[np.ndarray, np.ndarray]:
 def volume_violations(axes, field, tol: float = 1e-9):
     """Axis commands (n, 3) outside the field's calibrated volume (A rule in the module docstring)."""
     lo, hi = calibrated_volume(field)
-    axes = np.array(axes, dtype=float, copy=True)
     full = hi[2] - lo[2] >= 360.0 - 1e-9
+    axes = np.asarray(axes, dtype=float)
     if not full:
+        axes = axes.copy()
         axes[:, 2] = lo[2] + np.mod(axes[:, 2] - lo[2], 360.0)
     return _box_violations(axes, lo, hi, a_full_turn=full, tol=tol, what="calibrated volume")
 
 
 def convergence_violations(result):
     """Points a solver reported as not successful strictly inside the ball; (indices, reasons)."""
-    r = np.linalg.norm(result.residual_um, axis=1)
     ball = float(result.info.get("ball_um", BALL_RADIUS_UM))
     bad = np.flatnonzero(~np.asarray(result.success, dtype=bool) & (result.correction_um < ball * (1.0 - ON_BALL_REL)))
-    return bad, np.array([f"{result.method} did not converge (|residual| {v:.3g} μm)" for v in r[bad]], dtype=object)
+    r = np.linalg.norm(np.asarray(result.residual_um)[bad], axis=1)
+    return bad, np.array([f"{result.method} did not converge (|residual| {v:.3g} μm)" for v in r], dtype=object)
 
 
 def _merge(first, second):

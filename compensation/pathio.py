@@ -36,6 +36,7 @@ import numpy as np
 from errormap.io import InputError, atomic_write, read_table
 from errormap.kinematics import forward, inverse
 
+from .gcode_kernels import linear_path_lengths_mm
 from .gcode import GProgram, arc_segments, fmt as _fmt, move_points, parse_program, render_program, render_table
 
 AXIS_COLUMNS = ("x_mm", "z_mm", "a_deg")
@@ -72,6 +73,7 @@ sagitta of the nominal arc, the other half the chord error of the compensation a
 move (the ``auto`` segment length)."""
 AUTO_SAMPLE_MM = 0.25      # spacing of the field samples that estimate its curvature along a move
 AUTO_MAX_SAMPLES = 64      # samples per move at most (long moves: coarser spacing)
+AUTO_SHORT_WINDOW_MM = 1.0  # of a run of moves shorter than AUTO_SAMPLE_MM, one sampled per this much path
 SEGMENT_LIMITS_MM = (0.01, 100.0)  # the auto segment length is clipped into this range
 
 
@@ -95,6 +97,9 @@ class GCodeJob:
     counts: np.ndarray | None = None
     """(number of compensated moves,) vertices per move (block-wise programs; ``params`` then
     builds each move's parameters from it when asked)."""
+    machine: object = field(default=None, repr=False)
+    """The machine :func:`gcode_toolpath` computed the job's points for (:func:`replan` reuses
+    them when the vertices stay the same)."""
 
     @property
     def compensated_moves(self) -> list:
@@ -134,13 +139,21 @@ def _sample_moves(moves, counts):
 
 
 def _path_lengths_mm(machine, moves, samples: int = 16) -> np.ndarray:
-    """WCS length of each move's nominal tool path (polyline of ``samples + 1`` points), (n,)."""
+    """WCS length of each move's nominal tool path (polyline of ``samples + 1`` points), (n,):
+    linear moves through :func:`compensation.gcode_kernels.linear_path_lengths_mm`, arcs
+    through :func:`move_points` and :func:`forward`."""
     if not moves:
         return np.zeros(0)
-    pts, owner = _sample_moves(moves, np.full(len(moves), samples))
-    seg = np.linalg.norm(np.diff(forward(machine, pts), axis=0), axis=1)
-    seg[owner[1:] != owner[:-1]] = 0.0
-    return np.bincount(owner[1:], weights=seg, minlength=len(moves))
+    start = np.array([m.start for m in moves]).reshape(-1, 3)
+    end = np.array([m.end for m in moves]).reshape(-1, 3)
+    out = linear_path_lengths_mm(machine, start, end, samples)
+    arcs = [k for k, m in enumerate(moves) if m.arc is not None]
+    if arcs:
+        pts, owner = _sample_moves([moves[k] for k in arcs], np.full(len(arcs), samples))
+        seg = np.linalg.norm(np.diff(forward(machine, pts), axis=0), axis=1)
+        seg[owner[1:] != owner[:-1]] = 0.0
+        out[arcs] = np.bincount(owner[1:], weights=seg, minlength=len(arcs))
+    return out
 
 
 def _long_moves(program):
@@ -148,17 +161,36 @@ def _long_moves(program):
     return [m for m in program.moves if m.compensate and m.kind != "rapid" and m.start_known]
 
 
+def _curvature_sampled(length_mm) -> np.ndarray:
+    """Which of the moves (lengths (n,), in program order) :func:`field_curvature_um_per_mm2`
+    samples: every move of at least :data:`AUTO_SAMPLE_MM`, and of each run of shorter moves
+    the first move starting in each :data:`AUTO_SHORT_WINDOW_MM` of the run's path; (n,) bool."""
+    length = np.asarray(length_mm, dtype=float)
+    short = length < AUTO_SAMPLE_MM
+    window = np.floor((np.cumsum(length) - length) / AUTO_SHORT_WINDOW_MM)
+    first = np.ones(length.size, bool)
+    first[1:] = (window[1:] != window[:-1]) | ~short[:-1]
+    return ~short | first
+
+
 def field_curvature_um_per_mm2(program: GProgram, machine, field) -> float:
     """Largest ``|d²E/ds²|`` (μm per mm² of WCS path) of the field along the program's moves.
 
-    Second differences of ``E`` sampled every :data:`AUTO_SAMPLE_MM` (at most
-    :data:`AUTO_MAX_SAMPLES` samples a move) along each compensated linear move and arc.
+    Second differences of ``E`` sampled every :data:`AUTO_SAMPLE_MM` (at least two intervals,
+    at most :data:`AUTO_MAX_SAMPLES` samples a move) along each compensated linear move and
+    arc. Of a run of moves shorter than :data:`AUTO_SAMPLE_MM` (CAM output of a fine curve:
+    thousands in a row), one move per :data:`AUTO_SHORT_WINDOW_MM` of path is sampled
+    (:func:`_curvature_sampled`): the field varies on the scale of its calibration grid, many
+    millimetres, so neighbouring short moves see the same curvature, and sampling each would
+    cost three field evaluations a line.
     """
     from .solvers._common import field_error_um
     if program.table is not None:
         rows = _long_rows(program.table)
         length = _table_lengths_mm(machine, program.table)[rows]
         rows, length = rows[length > 0.0], length[length > 0.0]
+        keep = _curvature_sampled(length)
+        rows, length = rows[keep], length[keep]
         if not rows.size:
             return 0.0
         n = np.clip(np.ceil(length / AUTO_SAMPLE_MM), 2, AUTO_MAX_SAMPLES).astype(int)
@@ -167,6 +199,8 @@ def field_curvature_um_per_mm2(program: GProgram, machine, field) -> float:
         moves = _long_moves(program)
         length = _path_lengths_mm(machine, moves)
         keep = length > 0.0
+        moves, length = [m for m, k in zip(moves, keep) if k], length[keep]
+        keep = _curvature_sampled(length)
         moves, length = [m for m, k in zip(moves, keep) if k], length[keep]
         if not moves:
             return 0.0
@@ -235,6 +269,7 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
 
 def gcode_toolpath(job: GCodeJob, machine, path) -> "ToolPathFile":
     """The :class:`ToolPathFile` of a planned G-code job: one row per vertex."""
+    job.machine = machine
     if job.counts is not None:
         axes, lines = _table_vertices(job)
         return ToolPathFile(Path(path), "gcode", axes, forward(machine, axes), lines, job)
@@ -286,15 +321,17 @@ def _sample_rows(table, rows, counts):
 
 
 def _table_lengths_mm(machine, table, samples: int = 16) -> np.ndarray:
-    """:func:`_path_lengths_mm` of every long move of a table (NaN for the other rows), in
-    blocks of :data:`TABLE_CHUNK` moves; computed once per machine and kept in the table."""
+    """:func:`_path_lengths_mm` of every long move of a table (NaN for the other rows);
+    computed once per machine and kept in the table."""
     hit = table.cache.get("lengths_mm")
     if hit is not None and hit[0] is machine and hit[1] == samples:
         return hit[2]
     rows = _long_rows(table)
     out = np.full(len(table), np.nan)
-    for b in range(0, rows.size, TABLE_CHUNK):
-        r = rows[b:b + TABLE_CHUNK]
+    out[rows] = linear_path_lengths_mm(machine, table.start[rows], table.end[rows], samples)
+    arcs = rows[table.kind[rows] == 2]
+    for b in range(0, arcs.size, TABLE_CHUNK):
+        r = arcs[b:b + TABLE_CHUNK]
         pts, owner = _sample_rows(table, r, np.full(r.size, samples))
         seg = np.linalg.norm(np.diff(forward(machine, pts), axis=0), axis=1)
         seg[owner[1:] != owner[:-1]] = 0.0
@@ -324,19 +361,20 @@ def _table_vertices(job: GCodeJob):
     t = job.program.table
     rows = np.flatnonzero(t.compensate)
     counts = job.counts
-    owner = np.repeat(np.arange(rows.size), counts)
+    lines = np.repeat(t.line[rows] + 1, counts).astype(int)
     first = np.concatenate([[0], np.cumsum(counts)[:-1]]) if rows.size else np.zeros(0, int)
-    j = (np.arange(owner.size) - first[owner] + 1).astype(float)  # 1..k
-    tt = j / counts[owner]
-    start, end = t.start[rows][owner], t.end[rows][owner]
-    axes = start + tt[:, None] * (end - start)
-    ends = counts[owner] == 1  # one vertex: the end itself (the start may be unknown)
-    axes[ends] = end[ends]
+    axes = np.repeat(t.end[rows], counts, axis=0)  # one vertex: the end itself (the start may be unknown)
+    if not np.all(counts == 1):
+        owner = np.repeat(np.arange(rows.size), counts)
+        multi = np.flatnonzero(counts[owner] > 1)  # vertices of moves cut into several
+        o = owner[multi]
+        tt = (multi - first[o] + 1).astype(float) / counts[o]
+        start, end = t.start[rows[o]], t.end[rows[o]]
+        axes[multi] = start + tt[:, None] * (end - start)
     for k in np.flatnonzero(t.kind[rows] == 2).tolist():
         sl = slice(first[k], first[k] + counts[k])
-        axes[sl] = move_points(t.objects[t.obj[rows[k]]], tt[sl])
-    return axes, np.repeat(t.line[rows] + 1, counts).astype(int)
-
+        axes[sl] = move_points(t.objects[t.obj[rows[k]]], (np.arange(counts[k]) + 1.0) / counts[k])
+    return axes, lines
 
 
 # ----------------------------------------------------------------------------- CSV
@@ -353,7 +391,7 @@ def _read_csv(path, machine) -> ToolPathFile:
                          f"{list(TARGET_COLUMNS)} (WCS targets); found columns {t.names}")
     if len(t) == 0:
         raise InputError(f"{path}: no data rows")
-    rows = np.array([t.row_number(k) for k in range(len(t))], dtype=int)
+    rows = t.row_number(0) + np.arange(len(t), dtype=int)  # Table.row_number(k), all at once
     if has_axes:
         axes = np.stack([t.float(c) for c in AXIS_COLUMNS], axis=1)
         return ToolPathFile(Path(path), "csv-axes", axes, forward(machine, axes), rows, t)
@@ -406,7 +444,32 @@ def replan(toolpath: ToolPathFile, machine, **options) -> ToolPathFile:
         return toolpath
     job = toolpath.source
     opts = {"arc_tolerance_um": job.arc_tolerance_um, "max_segment_mm": job.max_segment_mm, **options}
-    return gcode_toolpath(plan_gcode(job.program, machine, **opts), machine, toolpath.path)
+    new = plan_gcode(job.program, machine, **opts)
+    if (new.counts is not None and job.counts is not None and new.counts.shape == job.counts.shape
+            and machine is job.machine):
+        return _replanned_table(toolpath, new, machine)
+    return gcode_toolpath(new, machine, toolpath.path)
+
+
+def _replanned_table(toolpath: ToolPathFile, new: GCodeJob, machine) -> ToolPathFile:
+    """:func:`gcode_toolpath` of ``new``, a block-wise job planned again: a move whose vertex
+    count did not change has the same vertices (they depend on the count only), so its
+    targets are taken from ``toolpath``; only the other moves' go through :func:`forward`."""
+    old = toolpath.source
+    new.machine = machine
+    if np.array_equal(new.counts, old.counts):
+        return ToolPathFile(toolpath.path, "gcode", toolpath.axes, toolpath.targets_mm, toolpath.lines, new)
+    axes, lines = _table_vertices(new)
+    owner = np.repeat(np.arange(new.counts.size), new.counts)
+    new_first = np.concatenate([[0], np.cumsum(new.counts)[:-1]])
+    old_first = np.concatenate([[0], np.cumsum(old.counts)[:-1]])
+    same = (new.counts == old.counts)[owner]
+    targets = np.empty_like(axes)
+    idx = np.flatnonzero(same)
+    targets[idx] = toolpath.targets_mm[old_first[owner[idx]] + idx - new_first[owner[idx]]]
+    idx = np.flatnonzero(~same)
+    targets[idx] = forward(machine, axes[idx])
+    return ToolPathFile(toolpath.path, "gcode", axes, targets, lines, new)
 
 
 def align_turns(a_deg, a_ref_deg) -> np.ndarray:

@@ -295,7 +295,10 @@ def read_table(path) -> Table:
         row = text.count("\n", 0, text.index("\x00")) + 1
         raise InputError(f"{path}: row {row}: contains a NUL byte; expected a text (CSV) file")
     # rows are the lines an editor shows: split at \n, \r\n or \r only
-    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    if "\r" in text:  # one pass for the common \r\n, a second only for a bare \r left over
+        text = text.replace("\r\n", "\n")
+        if "\r" in text:
+            text = text.replace("\r", "\n")
     # leading comment and blank lines, then the header line (line i, 0-based), then the body
     comments = []
     i, pos = 0, 0
@@ -316,11 +319,21 @@ def read_table(path) -> Table:
     if dup:
         raise InputError(f"{path}: row {i + 1}: duplicated column name(s) {dup}")
     body = "" if end < 0 else text[end + 1:]
-    if end >= 0 and body.count("\n") + 1 >= FAST_MIN_ROWS:
+    if end >= 0 and _at_least_lines(body, FAST_MIN_ROWS):
         numeric = _parse_numeric_fast(body, header)
         if numeric is not None:
             return Table(path, header, None, i + 2, comments, numeric=numeric, lines=body)
     return Table(path, header, _parse_rows(path, body.split("\n") if end >= 0 else [], header, i + 2), i + 2, comments)
+
+
+def _at_least_lines(text: str, k: int) -> bool:
+    """``text.count("\\n") + 1 >= k`` without counting a long text to its end."""
+    pos = -1
+    for _ in range(k - 1):
+        pos = text.find("\n", pos + 1)
+        if pos < 0:
+            return False
+    return True
 
 
 FAST_MIN_ROWS = 2000

@@ -69,6 +69,7 @@ def _same(path, machine, field, options=OPTIONS, segments=(None, 0.5, "auto")):
             refused += 1
             continue
         assert prog_f.table is not None and prog_e.table is None
+        assert list(prog_f.lines) == prog_e.lines and len(prog_f.lines) == len(prog_e.lines)
         for seg in segments:
             assert _job_outputs(prog_f, machine, field, seg) == _job_outputs(prog_e, machine, field, seg), \
                 f"{path.name} {kw} max_segment={seg}: outputs differ"
@@ -228,3 +229,102 @@ def test_reference_return_keeps_the_previous_end(tmp_path, grinder, field):
         assert np.array_equal(prog.moves[2].end, [60.0, 5.0, 0.0])
         assert np.isnan(prog.moves[3].start[1])  # after G28 Z is unknown
     assert _same(path, grinder, field, options=[{"rapids": "compensate"}]) == 0
+
+
+# ------------------------------------------------------------------ the compiled kernels
+
+N_FUZZ_LINES = 20_000  # random lines from plain-looking fragments (seed 0): the kernel vs the patterns
+_FRAGMENTS = ["N10", "N", "G1", "G01", "G0", "G00", "G1.", "G10", "G001", "g1", "X", "X1", "X-1.5", "X+.5", "X.",
+              "X-.", "X1.", "X 1", "X1 0", "Z2.25", "Z-0", "Z", "A3", "A-720.125", "A1e2", "F200.", "F", "F.5",
+              "(c)", "(", ")", "(a)(b)", ";x", "; (y)", " ", "\t", "", "M3", "Y1", "X12345678901234567890",
+              "X9007199254740993", "X0.00000000000000000000001", "Z1.23456789012345678", "\r", "#1", "\xe9",
+              "N" + "1" * 301, "X" + "9" * 17]
+
+
+def _fuzz_lines(n, seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        k = int(rng.integers(1, 7))
+        parts = rng.choice(_FRAGMENTS, k)
+        sep = rng.choice(["", " ", "  ", "\t"], k)
+        out.append("".join(s + p for s, p in zip(sep, parts)) + rng.choice(["", "", "\r", "\r\r"]))
+    return out
+
+
+def test_scan_kernel_reads_lines_as_the_patterns_do():
+    """Every line's kind, spans and values from the compiled kernel are the patterns' (the
+    kernel may leave a line to them, KIND_ASK; it never decides otherwise)."""
+    from compensation import gcode_kernels as gs
+    lines = _fuzz_lines(N_FUZZ_LINES)
+    data = "\n".join(lines).encode("latin-1")
+    buf = np.frombuffer(data, np.uint8)
+    starts, ends = gs.line_bounds(buf)
+    assert starts.size == len(lines)
+    kind, spans, vals = gs.scan_lines(buf, starts, ends)
+    seen = set()
+    for i, line in enumerate(lines):
+        body = line.rstrip("\r\n")
+        m = g._BULK_MOVE.fullmatch(body)
+        is_move = m is not None and m.lastindex is not None and m.lastindex >= 2
+        want = gs.KIND_MOVE if is_move else (gs.KIND_PASS if g._BULK_PASS.fullmatch(body) else gs.KIND_OTHER)
+        seen.add(int(kind[i]))
+        if kind[i] == gs.KIND_ASK:
+            continue
+        assert kind[i] == want, repr(line)
+        if is_move:
+            assert spans[i].tolist() == [list(r) for r in m.regs[1:5]], repr(line)
+            for j in range(3):
+                if m.start(j + 2) >= 0:
+                    assert vals[i, j] == float(m.group(j + 2)) and \
+                        np.signbit(vals[i, j]) == np.signbit(float(m.group(j + 2))), repr(line)
+                else:
+                    assert np.isnan(vals[i, j])
+    assert seen == {gs.KIND_MOVE, gs.KIND_PASS, gs.KIND_OTHER, gs.KIND_ASK}
+
+
+N_FORMAT_VALUES = 200_000  # random values plus ties and near-ties at every decimal count used
+
+
+@pytest.mark.parametrize("decimals", sorted(set(g.DECIMALS.values())))
+def test_format_fixed_writes_what_fmt_writes(decimals):
+    from compensation import gcode_kernels as gs
+    rng = np.random.default_rng(decimals)
+    v = np.concatenate([rng.uniform(-3000, 3000, N_FORMAT_VALUES // 2),
+                        rng.normal(0, 1e-6, N_FORMAT_VALUES // 4),
+                        (rng.integers(-10**9, 10**9, N_FORMAT_VALUES // 8) + 0.5) / 10.0 ** decimals,
+                        np.nextafter((rng.integers(-10**9, 10**9, N_FORMAT_VALUES // 8) + 0.5) / 10.0 ** decimals, 0),
+                        [0.0, -0.0, 1e-300, -1e-300, 5e-7, -5e-7, 9.99e8, -9.99e8, 123.4565, 0.0000005]])
+    mags, negs = gs.format_fixed(v, decimals)
+    got = [g._fixed_str(int(m), bool(s), decimals) for m, s in zip(mags.tolist(), negs.tolist())]
+    assert got == [g.fmt(x, decimals) for x in v.tolist()]
+    with pytest.raises(ValueError, match="Expected finite values below"):
+        gs.format_fixed(np.array([1.0, 2.0 ** 60]), decimals)
+
+
+@pytest.mark.parametrize("seg", ["auto", 0.05, None])
+def test_replan_reuses_points_bit_for_bit(tmp_path, grinder, field, seg):
+    """replan keeps the targets of moves whose vertex count did not change: the tool path is
+    the one a fresh plan gives, bit for bit."""
+    path = tmp_path / "gen.nc"
+    path.write_bytes(_program(2, LINES_PER_PROGRAM, incremental=False).encode("latin-1"))
+    tp0 = pathio.read_path(path, grinder)
+    tp = pathio.replan(tp0, grinder, max_segment_mm=seg, field=field)
+    ref = pathio.gcode_toolpath(pathio.plan_gcode(tp0.source.program, grinder, 0.5, seg, field), grinder, path)
+    for a, b in ((tp.axes, ref.axes), (tp.targets_mm, ref.targets_mm), (tp.lines, ref.lines)):
+        assert a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_curvature_samples_one_short_move_per_window():
+    """Of a run of moves shorter than AUTO_SAMPLE_MM, the first move starting in each
+    AUTO_SHORT_WINDOW_MM of path is sampled; every longer move is."""
+    short = pathio.AUTO_SAMPLE_MM / 10  # 40 short moves make 1 mm
+    lengths = np.array([short] * 100 + [5.0] + [short] * 10)
+    keep = pathio._curvature_sampled(lengths)
+    starts = np.cumsum(lengths) - lengths
+    want = [k for k in range(100) if k == 0 or np.floor(starts[k] / pathio.AUTO_SHORT_WINDOW_MM)
+            != np.floor(starts[k - 1] / pathio.AUTO_SHORT_WINDOW_MM)]
+    assert np.flatnonzero(keep[:100]).tolist() == want and len(want) == 3  # 100 moves of 0.025 mm: 2.5 mm
+    assert keep[100] and keep[101]  # the long move, and the first short move after it
+    assert keep.sum() == len(want) + 2 + (np.floor(starts[102:] / pathio.AUTO_SHORT_WINDOW_MM)
+                                          != np.floor(starts[101:-1] / pathio.AUTO_SHORT_WINDOW_MM)).sum()

@@ -1,0 +1,374 @@
+"""Compiled kernels of the block-wise G-code reader and writer (issue 20).
+
+:func:`scan_lines` reads the whole file's bytes in one pass and puts each line in one of
+four kinds, exactly as the block-wise reader's two strict patterns (``gcode._BULK_MOVE``,
+``gcode._BULK_PASS``) would, without a Python call per line:
+
+``KIND_MOVE``   a plain move line (``_BULK_MOVE`` with an X, Z or A word): spans and values out;
+``KIND_PASS``   a blank or comment-only line (``_BULK_PASS``);
+``KIND_OTHER``  neither pattern matches: the per-line classifier reads it;
+``KIND_ASK``    the kernel does not decide (a number with more than 17 digits, or whose
+                value needs more than the exact ``mantissa / 10**k`` division): the patterns
+                themselves are asked, line by line.
+
+A number's value is ``mantissa / 10**decimals`` in float64 when the mantissa is below 2**53
+and there are at most 22 decimals: both operands are exact, so the one division is the
+correctly rounded decimal value — what Python's ``float(text)`` returns, bit for bit.
+Anything else is ``KIND_ASK``. tests/test_gcode_blockwise.py checks the kernel against the
+patterns line by line on generated lines.
+
+:func:`format_fixed` and :func:`render_lines` are the writer's side: numbers formatted with a
+fixed number of decimals exactly as ``format(v, ".6f")`` (ties and huge values through Python's
+own formatting), and the output bytes assembled line by line.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+KIND_OTHER, KIND_MOVE, KIND_PASS, KIND_ASK = 0, 1, 2, 3
+
+_POW10 = np.array([10.0 ** k for k in range(23)])
+_MANT_MAX = 2 ** 53
+
+_SP, _TAB, _CR = 32, 9, 13
+_ZERO, _NINE, _DOT, _PLUS, _MINUS = 48, 57, 46, 43, 45
+_LP, _RP, _SEMI = 40, 41, 59
+_N, _G, _X, _Z, _A, _F = 78, 71, 88, 90, 65, 70
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _blanks(buf, p, e):
+    while p < e and (buf[p] == _SP or buf[p] == _TAB):
+        p += 1
+    return p
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _number(buf, p, e, pow10):
+    """``[+-]?(\\d+(\\.\\d*)?|\\.\\d+)`` at ``p`` (greedy, as the pattern reads it).
+    Returns (status, end, value): status 0 no number, 1 number with value, 2 number the
+    kernel does not value exactly (too many digits)."""
+    q = p
+    neg = False
+    if q < e and (buf[q] == _PLUS or buf[q] == _MINUS):
+        neg = buf[q] == _MINUS
+        q += 1
+    mant = 0
+    ndig = 0
+    nfrac = 0
+    while q < e and _ZERO <= buf[q] <= _NINE:
+        if ndig < 18:
+            mant = mant * 10 + (buf[q] - _ZERO)
+        ndig += 1
+        q += 1
+    nint = ndig
+    if q < e and buf[q] == _DOT:
+        q += 1
+        while q < e and _ZERO <= buf[q] <= _NINE:
+            if ndig < 18:
+                mant = mant * 10 + (buf[q] - _ZERO)
+            ndig += 1
+            nfrac += 1
+            q += 1
+        if nint == 0 and nfrac == 0:
+            return 0, p, 0.0
+    elif nint == 0:
+        return 0, p, 0.0
+    if ndig > 17 or mant >= _MANT_MAX or nfrac > 22:
+        return 2, q, 0.0
+    v = mant / pow10[nfrac]
+    return 1, q, -v if neg else v
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _is_pass(buf, p, e):
+    """``[ \\t]*(?:\\([^)]*\\)[ \\t]*)*(?:;.*)?`` over buf[p:e]."""
+    p = _blanks(buf, p, e)
+    while p < e:
+        c = buf[p]
+        if c == _SEMI:
+            return True
+        if c != _LP:
+            return False
+        q = p + 1
+        while q < e and buf[q] != _RP:
+            q += 1
+        if q >= e:
+            return False
+        p = _blanks(buf, q + 1, e)
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _scan_one(buf, s, e, pow10, sp, v):
+    """Kind of line buf[s:e] (body, no line ending); a move's spans (relative to s) go to
+    ``sp`` (4, 2) and its values to ``v`` (3,) (scratch: copied out for moves only)."""
+    if _is_pass(buf, s, e):
+        return KIND_PASS
+    p = _blanks(buf, s, e)
+    if p < e and buf[p] == _N:
+        q = p + 1
+        while q < e and _ZERO <= buf[q] <= _NINE:
+            q += 1
+        if q == p + 1:
+            return KIND_OTHER
+        if q - p - 1 > 300:
+            return KIND_ASK
+        p = _blanks(buf, q, e)
+    if p < e and buf[p] == _G:
+        q = p + 1
+        while q < e and _ZERO <= buf[q] <= _NINE:
+            q += 1
+        nd = q - p - 1
+        ok = (nd == 1 and (buf[p + 1] == _ZERO or buf[p + 1] == _ZERO + 1)) or \
+             (nd == 2 and buf[p + 1] == _ZERO and (buf[p + 2] == _ZERO or buf[p + 2] == _ZERO + 1))
+        if not ok or (q < e and buf[q] == _DOT):
+            return KIND_OTHER
+        sp[0, 0] = p - s
+        sp[0, 1] = q - s
+        p = _blanks(buf, q, e)
+    axes = 0
+    for j in range(3):
+        letter = _X if j == 0 else (_Z if j == 1 else _A)
+        if p < e and buf[p] == letter:
+            st, q, x = _number(buf, p + 1, e, pow10)
+            if st == 0:
+                return KIND_OTHER
+            if st == 2:
+                return KIND_ASK
+            sp[j + 1, 0] = p + 1 - s
+            sp[j + 1, 1] = q - s
+            v[j] = x
+            axes += 1
+            p = _blanks(buf, q, e)
+    if p < e and buf[p] == _F:
+        st, q, x = _number(buf, p + 1, e, pow10)
+        if st == 0:
+            return KIND_OTHER
+        if st == 2:
+            return KIND_ASK
+        p = _blanks(buf, q, e)
+    if p < e and buf[p] == _LP:
+        q = p + 1
+        while q < e and buf[q] != _RP:
+            q += 1
+        if q >= e:
+            return KIND_OTHER
+        p = _blanks(buf, q + 1, e)
+    if p < e and buf[p] != _SEMI:
+        return KIND_OTHER
+    return KIND_MOVE if axes else KIND_OTHER
+
+
+@njit(cache=True, nogil=True)
+def _scan(buf, starts, ends, pow10, kind, spans, vals):
+    sp = np.empty((4, 2), np.int32)
+    v = np.empty(3)
+    for k in range(starts.size):
+        s, e = starts[k], ends[k]
+        while e > s and buf[e - 1] == _CR:
+            e -= 1
+        sp[:, :] = -1
+        v[:] = np.nan
+        kind[k] = _scan_one(buf, s, e, pow10, sp, v)
+        if kind[k] == KIND_MOVE:
+            for a in range(4):
+                spans[k, a, 0] = sp[a, 0]
+                spans[k, a, 1] = sp[a, 1]
+            for a in range(3):
+                vals[k, a] = v[a]
+
+
+def line_bounds(buf: np.ndarray):
+    """Start and end (exclusive, before the ``\\n``) of every line of ``buf`` (uint8), as
+    :func:`compensation.gcode.split_lines` cuts them: (n,), (n,) int64."""
+    nl = np.flatnonzero(buf == 10)
+    starts = np.concatenate([[0], nl + 1]).astype(np.int64)
+    ends = np.concatenate([nl, [buf.size]]).astype(np.int64)
+    if starts[-1] == buf.size:  # the text ends with '\n' (or is empty): no last partial line
+        starts, ends = starts[:-1], ends[:-1]
+    return starts, ends
+
+
+def scan_lines(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray):
+    """Kinds (n,) int8, word spans (n, 4, 2) int32 (G, X, Z, A; relative to the line start,
+    -1 where absent) and X, Z, A values (n, 3) (NaN where absent) of every line."""
+    n = starts.size
+    kind = np.empty(n, np.int8)
+    spans = np.full((n, 4, 2), -1, np.int32)
+    vals = np.full((n, 3), np.nan)
+    _scan(buf, starts, ends, _POW10, kind, spans, vals)
+    return kind, spans, vals
+
+
+# ---------------------------------------------------------------------------- writing
+
+FIXED_MAX = 1e9
+"""Largest magnitude :func:`format_fixed` takes (its integers hold 10**9 with 7 decimals);
+:func:`compensation.gcode.render_table` writes a program with larger numbers line by line."""
+
+
+def format_fixed(values, decimals):
+    """Every value as ``compensation.gcode.fmt`` writes it (``format(v, f".{decimals}f")``;
+    ``decimals`` an int or one per value), a
+    negative zero written without its sign), as (magnitude in units of 10**-decimals (n,) int64,
+    negative (n,) bool). ``v * 10**decimals`` rounded is the exact rounding except within a few
+    ulps of a tie, and the product is exact enough only below 2**50: those values (and any
+    non-finite one) go through Python's formatting, one by one."""
+    v = np.asarray(values, dtype=float)
+    if not np.all(np.abs(v) < FIXED_MAX):
+        raise ValueError(f"Expected finite values below {FIXED_MAX:g} in magnitude, got {v[~(np.abs(v) < FIXED_MAX)][0]}")
+    dec = np.asarray(decimals, dtype=np.int64)
+    q = v * 10.0 ** dec
+    r = np.rint(q)
+    fl = np.floor(q)
+    aq = np.abs(q)
+    doubt = ~(aq < 2.0 ** 50) | (np.abs((q - fl) - 0.5) <= np.maximum(1e-6, 8 * np.spacing(aq)))
+    mag = np.abs(r).astype(np.int64, copy=False) if not doubt.any() else np.where(doubt, 0, np.abs(r)).astype(np.int64)
+    for i in np.flatnonzero(doubt).tolist():
+        s = format(float(v[i]), f".{int(np.broadcast_to(dec, v.shape)[i])}f")
+        mag[i] = int(s.lstrip("-").replace(".", ""))
+    neg = (v < 0) & (mag != 0)
+    return mag, neg
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _num_len(mag, neg, dec, pow10i):
+    ip = mag // pow10i[dec]
+    nd = 1
+    while ip >= 10:
+        ip //= 10
+        nd += 1
+    return nd + 1 + dec + (1 if neg else 0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_num(out, o, mag, neg, dec, pow10i):
+    n = _num_len(mag, neg, dec, pow10i)
+    end = o + n
+    q = end - 1
+    m = mag
+    for _ in range(dec):
+        out[q] = _ZERO + m % 10
+        m //= 10
+        q -= 1
+    out[q] = _DOT
+    q -= 1
+    while True:
+        out[q] = _ZERO + m % 10
+        m //= 10
+        q -= 1
+        if m == 0:
+            break
+    if neg:
+        out[q] = _MINUS
+    return end
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _copy(out, o, buf, a, b):
+    for q in range(a, b):
+        out[o] = buf[q]
+        o += 1
+    return o
+
+
+@njit(cache=True, nogil=True)
+def _render(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, negs, inch, decs,
+            blob, blob_off, pow10i, out, out_off, write):
+    """Output of every source line: ``mode`` 0 copy buf[starts:stops]; 1 the line with its X,
+    Z, A numbers (table row ``r = row_of_line[i]``, word spans ``spans[r]`` relative to the line
+    start) replaced by vertex ``v = vert_of_row[r]``: ``mags[v]``/``negs[v]`` with ``decs``
+    (mm, inch, deg) decimals; 2 the bytes blob[blob_off[i]:blob_off[i + 1]]. First call
+    (``write`` False) fills ``out_off`` (n + 1,); the second writes ``out``."""
+    o = 0
+    for i in range(starts.size):
+        if not write:
+            out_off[i] = o
+        m = mode[i]
+        if m == 0:
+            if write:
+                o = _copy(out, o, buf, starts[i], stops[i])
+            else:
+                o += stops[i] - starts[i]
+        elif m == 2:
+            if write:
+                o = _copy(out, o, blob, blob_off[i], blob_off[i + 1])
+            else:
+                o += blob_off[i + 1] - blob_off[i]
+        else:
+            r = row_of_line[i]
+            v = vert_of_row[r]
+            pos = starts[i]
+            for j in range(3):
+                a = starts[i] + spans[r, j + 1, 0]
+                b = starts[i] + spans[r, j + 1, 1]
+                dec = decs[2] if j == 2 else (decs[1] if inch[v] else decs[0])
+                if write:
+                    o = _copy(out, o, buf, pos, a)
+                    o = _put_num(out, o, mags[v, j], negs[v, j], dec, pow10i)
+                else:
+                    o += a - pos + _num_len(mags[v, j], negs[v, j], dec, pow10i)
+                pos = b
+            if write:
+                o = _copy(out, o, buf, pos, stops[i])
+            else:
+                o += stops[i] - pos
+    if not write:
+        out_off[starts.size] = o
+
+
+_POW10I = np.array([10 ** k for k in range(19)], dtype=np.int64)
+
+
+def render_lines(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, negs, inch, decs, blob, blob_off):
+    """The output bytes (uint8 array) and each source line's output offsets (n + 1,); see
+    :func:`_render`. ``decs``: the decimals of mm, inch and deg numbers; ``blob_off`` (n + 1,)
+    indexes ``blob`` for the lines of mode 2."""
+    n = starts.size
+    out_off = np.empty(n + 1, np.int64)
+    empty = np.zeros(0, np.uint8)
+    decs = np.asarray(decs, np.int64)
+    args = (buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, negs, inch, decs, blob, blob_off, _POW10I)
+    _render(*args, empty, out_off, False)
+    out = np.empty(int(out_off[n]), np.uint8)
+    _render(*args, out, out_off, True)
+    return out, out_off
+
+
+# ---------------------------------------------------------------------------- planning
+
+@njit(cache=True, nogil=True)
+def _polyline_lengths(start, end, samples, ty, qx0, qz0, out):
+    """The nominal tool point is ``p = (qx0 - x, M(a)·(ty, qz0 + z))`` with ``M(a)`` the
+    rotation ``[[c, s], [-s, c]]``; between two samples of a linear move ``M(a_i)`` factors
+    out of the chord, so each chord is ``|(dx, M(da)·q_(i+1) - q_i)|`` with the same ``dx``
+    and ``da`` for every step: one sine and cosine a move."""
+    for k in range(start.shape[0]):
+        dx = (end[k, 0] - start[k, 0]) / samples
+        dz = (end[k, 1] - start[k, 1]) / samples
+        da = np.deg2rad((end[k, 2] - start[k, 2]) / samples)
+        c, s = np.cos(da), np.sin(da)
+        dx2 = dx * dx
+        total = 0.0
+        for i in range(samples):
+            z0 = qz0 + start[k, 1] + i * dz
+            z1 = qz0 + start[k, 1] + (i + 1) * dz
+            u = c * ty + s * z1 - ty
+            v = -s * ty + c * z1 - z0
+            total += np.sqrt(dx2 + u * u + v * v)
+        out[k] = total
+
+
+def linear_path_lengths_mm(machine, start, end, samples: int = 16):
+    """WCS length of the nominal tool path of linear axis moves ``start`` -> ``end`` (m, 3),
+    as the polyline through ``samples + 1`` equally spaced parameters (the closed form of
+    :func:`errormap.kinematics.forward`; chord lengths as :func:`_polyline_lengths` says): (m,)."""
+    from errormap.kinematics import nominal_tool_at_z0
+    start = np.ascontiguousarray(start, dtype=float)
+    end = np.ascontiguousarray(end, dtype=float)
+    tx, ty, tz0 = nominal_tool_at_z0(machine)
+    out = np.empty(start.shape[0])
+    _polyline_lengths(start, end, int(samples), ty, tx - machine.l5 - machine.l7, tz0 - machine.l6 - machine.l8, out)
+    return out
