@@ -170,7 +170,8 @@ def loop_lines(store: dict) -> list[str]:
         lines += [f"### family `{fam}` ({len(seeds)} seeds per case, {len(R)} runs)", ""]
         for meta in F["runs"]:
             lines.append(f"- `{meta['command']}`: {meta['n_runs']} runs in {meta['seconds']:.0f} s wall, "
-                         f"{meta['jobs']} jobs, CPU per run median {meta['cpu_s_median']:.1f} s ({meta['where']})")
+                         f"{meta['jobs']} jobs, CPU per run median {meta['cpu_s_median']:.1f} s ({meta['where']})"
+                         + (f". **{meta['note']}**" if meta.get("note") else ""))
         lines += ["", "| case | named right | effects reported (count over seeds) | sweeps-only RMS median / max (μm) "
                       "| band's predicted RMS median (μm) | 95 % band coverage median | held-out identified → update alone → "
                       "final, median (μm) | final max (μm) | final ≤ 2.2 μm | kept stage (count) | param 95 % covers truth |",
