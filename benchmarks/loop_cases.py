@@ -23,17 +23,44 @@ Z95 = 1.959963984540054
 FLUTE_CONDITIONS = ["--temp-c", "20", "--time-s", "0", "--dir-x", "1", "--dir-z", "1", "--dir-a", "1"]
 
 
+TRUTH_ELEMENT = {"thermal": "dx_x", "reversal": "dz_z", "pitch": "dx_x", "worm": "ex_a", "interaction": "dx_x"}
+"""The element each simulated effect acts on (errormap.simulator.TruthGrinder.element_values)."""
+
+
+def _implied_sign(machine, truth_element: str, found_element: str):
+    """Factor turning the truth's coefficient into the one a term on ``found_element`` has:
+    1 on the same element; on a WCS component, the sign of the truth element's Jacobian column
+    when that column is a constant unit vector along it (``dx_x`` acts as −x); else None (the
+    term's parameter lives in another unit or frame: not comparable)."""
+    from errormap.diagnosis.effects import WCS_ELEMENTS
+    from errormap.htm import IDX, error_jacobian
+    from errormap.simulator import random_axes
+    if found_element == truth_element:
+        return 1.0
+    if found_element not in WCS_ELEMENTS:
+        return None
+    col = error_jacobian(machine, random_axes(machine, 8, np.random.default_rng(0)))[:, :, IDX[truth_element]]
+    unit = np.zeros(3)
+    unit[WCS_ELEMENTS.index(found_element)] = 1.0
+    for sign in (1.0, -1.0):
+        if np.allclose(col, sign * unit, atol=1e-9):
+            return sign
+    return None
+
+
 def _param_cover(effect, found, truth):
-    """Whether the found effect's 95 % interval holds the true parameter (None if not comparable)."""
+    """Whether the found effect's 95 % interval holds the parameter the truth implies for the found
+    term (None if not comparable: see :func:`_implied_sign`)."""
     p = found["parameters"]
     t = truth.effects[effect]
     key = {"thermal": ("k_um_per_mm_c", "k_um_per_mm_c"), "reversal": ("backlash_um", "backlash_um"),
            "pitch": ("period_mm", "period_mm"), "worm": ("amplitude_urad", "amplitude_urad"),
            "interaction": ("corner_um", "corner_um")}[effect]
-    if key[0] not in p or not np.isfinite(p[key[0]].get("se") or np.nan):
+    sign = _implied_sign(truth.machine, TRUTH_ELEMENT[effect], found["element"])
+    if sign is None or key[0] not in p or not np.isfinite(p[key[0]].get("se") or np.nan):
         return None
     v, se = p[key[0]]["value"], p[key[0]]["se"]
-    tv = t[key[1]]
+    tv = t[key[1]] * (1.0 if effect in ("pitch", "worm") else sign)
     if effect == "worm":
         v, tv = abs(v), abs(tv)
     return bool(abs(v - tv) <= Z95 * se)

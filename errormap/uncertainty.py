@@ -218,6 +218,47 @@ def _smoother(y, Sigma, periodic: bool):
     return best[2], float(best[1]), float(np.trace(best[2]))
 
 
+def nullspace_smoother(Sigma, periodic: bool) -> np.ndarray:
+    """The λ → ∞ limit of :func:`_smoother` with the same weights: the weighted least-squares
+    projection of the station values onto the second-difference penalty's null space
+    (a constant and a slope in the station index; a constant for a periodic element), shape (m, m)."""
+    m = Sigma.shape[0]
+    var = np.diag(Sigma).copy()
+    if var.max() <= 0:
+        return np.eye(m)
+    var = np.maximum(var, 1e-3 * var.max())
+    X = np.ones((m, 1)) if periodic else np.stack([np.ones(m), np.arange(m, dtype=float)], axis=1)
+    Xw = X / var[:, None]
+    return X @ np.linalg.solve(X.T @ Xw, Xw.T)
+
+
+def nullspace_noise_cov(raw_cov, elements: ElementSet) -> np.ndarray:
+    """Covariance (P, P) of the station values after the heaviest smoothing of this family
+    (:func:`nullspace_smoother` per element, constants as identified), from the raw
+    identification's bootstrap covariance ``raw_cov`` (P, P): the tracker noise that no
+    second-difference smoother removes — per element the offset and slope the penalty does
+    not touch (the tracker pose and the frames carry most of the noise there). Propagated to
+    points (``J C Jᵀ``) it is the noise part of the prediction error at λ → ∞; the variance of
+    a Whittaker smoother falls towards it as λ grows (exactly so for uncorrelated station
+    noise; the cross-element lever-arm correlations of the bootstrap can make a point's
+    variance differ either way), so it is the noise-propagation floor of the smoothing
+    choice, not a bound on every estimator."""
+    lay = theta_layout(elements)
+    P = len(lay)
+    H = np.eye(P)
+    for k in FUNCTION_ELEMENTS:
+        idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
+        H[np.ix_(idx, idx)] = nullspace_smoother(raw_cov[np.ix_(idx, idx)], periodic=k in A_ELEMENTS)
+    return H @ raw_cov @ H.T
+
+
+def prediction_sd(machine: Grinder, elements: ElementSet, cov, axes) -> np.ndarray:
+    """Per-component standard deviation (n, 3) μm of the spatial error at ``axes`` for a θ
+    covariance ``cov`` (P, P) of ``elements``' layout (the diagonal of ``J Σ Jᵀ``)."""
+    A = theta_design(machine, elements, np.asarray(axes, dtype=float))
+    return np.sqrt(np.clip(np.einsum("nip,pq,niq->ni", A, cov, A, optimize=True), 0, None))
+
+
 def noise_from_residuals(result) -> float:
     """Ball-coordinate noise σ (μm) from an :class:`~errormap.identification.IdentificationResult`.
 
@@ -242,6 +283,9 @@ class SmoothIdentificationResult:
     covariance_: ElementCovariance
     noise_um: float
     smoothing: dict
+    raw_cov: np.ndarray | None = None
+    """(P, P) bootstrap covariance of the raw (interpolating) station values, before smoothing
+    (kept in memory, not written: :func:`nullspace_noise_cov` uses it)."""
 
     def summary_lines(self) -> list[str]:
         se = self.covariance_.station_se()
@@ -318,4 +362,4 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
             "n_boot": n_boot, "seed": seed, "noise_um": sigma, "noise_estimated": noise_um is None,
             "smoothed": bool(smooth)}
     return SmoothIdentificationResult(raw, elements, ElementCovariance(theta, C, elements, info, prior_extra), sigma,
-                                      smoothing)
+                                      smoothing, S)

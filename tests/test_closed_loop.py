@@ -299,3 +299,36 @@ def test_diagnose_cli_names_elements_the_checks_do_not_cover(tmp_path):
     stations = set(named["dx_x"]["stations"])
     assert set(range(10, 21)) <= stations and not stations & set(range(2, 8))
     assert "Not updated by the checks" in (tmp_path / "d" / "report.html").read_text()
+
+
+PERIOD_Z_MAX = 4.0
+"""The refined period must lie within 4 of its own standard errors of the truth (a single
+seeded draw: 4 SE leaves room for the linearisation, and a wrong period is off by hundreds)."""
+
+
+@pytest.mark.slow
+def test_joint_refit_refines_a_period_with_its_band(grinder):
+    """joint_refit on a pitch error started 0.2 % off its period (the search's periodogram and
+    bounded refinement hand on a period that close; over the X stroke that is a fraction of a
+    cycle, inside the Gauss–Newton step's reach): the period is pulled back and comes with a
+    finite standard error."""
+    from errormap.diagnosis.checks import CheckData
+    from errormap.diagnosis.effects import Candidate, Context, EffectTerm, design, reference
+    from errormap.diagnosis.joint import joint_refit
+    from errormap.htm import HTMField
+    from errormap.simulator import random_truth
+    from errormap.sweeps import simulate_sweeps
+    from errormap.uncertainty import smooth_identify
+    truth = random_truth(grinder, 4)
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=2.0, seed=54), grinder, n_boot=40)
+    checks = CheckData.from_columns(truth.check_measurements(480, 1.0, seed=5))
+    ctx = Context.build(grinder, checks.axes, checks.conditions, reference(grinder, checks.conditions))
+    r_id = checks.measured_um - HTMField(grinder, sm.elements_).predict(checks.axes)
+    cand = Candidate("periodic", "x", "dx_x")
+    r = r_id + (design(cand, ctx, 10.0) @ np.array([3.0, -2.0])).reshape(-1, 3)
+    start = EffectTerm(cand, np.array([3.0, -2.0]), ctx.ref, period_mm=10.02)
+    (t,), upd = joint_refit(grinder, sm.covariance_, checks.axes, r, ctx, [start])
+    p = t.parameters()["period_mm"]
+    assert np.isfinite(p["se"]) and p["se"] > 0
+    assert abs(p["value"] - 10.0) <= PERIOD_Z_MAX * p["se"], p
+    assert upd.elements_ is not None

@@ -196,3 +196,23 @@ def test_fits_and_layout_helpers():
     line = np.array([[[0, 0, 0], [10, 0, 0], [20, 0, 0.0]]])
     assert np.linalg.matrix_rank(station_jacobian(tri)[0]) == 6
     assert np.linalg.matrix_rank(station_jacobian(line)[0]) == 5
+
+
+NULLSPACE_ATOL = 1e-9   # exact algebra on 21 stations: round-off only
+
+
+def test_nullspace_smoother_keeps_lines_and_removes_the_rest():
+    """The λ → ∞ smoother (the noise floor's smoother) is a projection that keeps an offset and
+    slope (open axis) or a constant (periodic), and its noise covariance is at most the raw one."""
+    from errormap.uncertainty import nullspace_smoother
+    rng = np.random.default_rng(13)
+    m = 21
+    Sigma = np.diag(rng.uniform(0.5, 2.0, m))
+    H = nullspace_smoother(Sigma, periodic=False)
+    line = 3.0 - 0.7 * np.arange(m)
+    np.testing.assert_allclose(H @ line, line, atol=NULLSPACE_ATOL)
+    np.testing.assert_allclose(H @ H, H, atol=NULLSPACE_ATOL)
+    Hp = nullspace_smoother(Sigma, periodic=True)
+    np.testing.assert_allclose(Hp @ np.full(m, 2.5), np.full(m, 2.5), atol=NULLSPACE_ATOL)
+    assert np.linalg.matrix_rank(H) == 2 and np.linalg.matrix_rank(Hp) == 1
+    assert np.trace(H @ Sigma @ H.T) <= np.trace(Sigma)

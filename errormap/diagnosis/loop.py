@@ -31,7 +31,7 @@ from .checks import ERROR_COLUMNS, CheckData, measured_residual
 from .corrected import CorrectedField
 from .effects import Context, reference
 from .pipeline import Diagnosis, DiagnosisSettings, diagnose
-from .joint import joint_screen, stand_ins
+from .joint import joint_refit, joint_screen, stand_ins
 from .update import ModelUpdate, update_elements
 
 
@@ -112,6 +112,15 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
             r2 = r2 - c
         else:
             rejected.append(e)
+    upd_e, field_e = upd, updated
+    if kept:  # the kept terms re-estimated jointly with the update: their values and bands (joint.joint_refit)
+        terms_j, upd_e = joint_refit(machine, covariance, checks.axes[fit_idx], r0[fit_idx], ctx.subset(fit_idx),
+                                     [t for t, _ in kept], s.alpha)
+        field_e = HTMField(machine, upd_e.elements_)
+        r2 = measured_residual(checks, field_e)[0] - sum(t.contribution(ctx) for t in terms_j)
+        kept = [(tj, dict(e, **{k: v for k, v in tj.to_dict().items() if k in ("parameters", "coefficients", "period_mm")},
+                          estimate="joint with the model update (GLS against the update's marginal, see joint_refit)"))
+                for tj, (_, e) in zip(terms_j, kept)]
     for st in screen:  # a proposal counts only when the search and the held-out gate keep the same term
         st["confirmed"] = any((e["kind"], e["axis"]) == (st["kind"], st["axis"]) for _, e in kept)
     st0, st1, st2 = (residual_stats(r[hold_idx], ERROR_COLUMNS) for r in (r0, r1, r2))
@@ -121,7 +130,7 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
         "updated_plus_effects": {"held_out": st2, "fitting": residual_stats(r2[fit_idx], ERROR_COLUMNS)},
     }
     # the model handed on never loses, on the held-out checks, to a plainer stage
-    options = {"updated_plus_effects": (r2, upd, updated, [t for t, _ in kept]),
+    options = {"updated_plus_effects": (r2, upd_e, field_e, [t for t, _ in kept]),
                "updated": (r1, upd, updated, []),
                "identified": (r0, None, base, [])}
     if upd_alone is not None:
