@@ -213,40 +213,60 @@ def _spatial_error_kernel(axes, v, geo, out):  # pragma: no cover - compiled
         out[k, 0], out[k, 1], out[k, 2] = _point_error(axes[k, 0], axes[k, 1], axes[k, 2], v[k], geo)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _bspline3(t, c, x, h, hh, v, j0):  # pragma: no cover - compiled
-    """A cubic B-spline with vector coefficients ``c`` (m, 6) at ``x`` into ``v[j0:j0 + 6]``.
-
-    The interval is found as scipy does (``t[i] ≤ x < t[i+1]``, clipped to the end intervals
-    so points beyond them extrapolate the end polynomials) and the 4 non-zero basis values by
-    the Cox–de Boor recursion (scipy's ``_deBoor_D``); ``h``, ``hh`` are work arrays (4,).
-    """
-    k = 3
+@njit(cache=True, nogil=True)
+def _knot_interval(t, x, k):  # pragma: no cover - compiled
+    """The index ``i`` with ``t[i] ≤ x < t[i+1]`` as scipy finds it, clipped to the end intervals
+    (points beyond them extrapolate the end polynomials)."""
     nc = t.shape[0] - k - 1
     i = np.searchsorted(t, x, side="right") - 1
     if i < k:
         i = k
     elif i > nc - 1:
         i = nc - 1
-    h[0] = 1.0
-    for j in range(1, k + 1):
-        for m in range(j):
-            hh[m] = h[m]
-        h[0] = 0.0
-        for n in range(1, j + 1):
-            xb = t[i + n]
-            xa = t[i + n - j]
-            if xb == xa:
-                h[n] = 0.0
-                continue
-            w = hh[n - 1] / (xb - xa)
-            h[n - 1] += w * (xb - x)
-            h[n] = w * (x - xa)
+    return i
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _raise_degree(t, x, i, j, h, hh):  # pragma: no cover - compiled
+    """One Cox–de Boor step (scipy's ``_deBoor_D``): ``h[0:j]`` the degree ``j - 1`` basis values
+    of interval ``i`` at ``x`` → ``h[0:j + 1]`` those of degree ``j``; ``hh`` a work array."""
+    for m in range(j):
+        hh[m] = h[m]
+    h[0] = 0.0
+    for n in range(1, j + 1):
+        xb = t[i + n]
+        xa = t[i + n - j]
+        if xb == xa:
+            h[n] = 0.0
+            continue
+        w = hh[n - 1] / (xb - xa)
+        h[n - 1] += w * (xb - x)
+        h[n] = w * (x - xa)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _combine(h, c, i, k, v, j0):  # pragma: no cover - compiled
+    """``v[j0 + col] = Σ_m h[m] c[i - k + m, col]``: the spline's values from its basis values."""
     for col in range(c.shape[1]):
         acc = 0.0
         for m in range(k + 1):
             acc += h[m] * c[i - k + m, col]
         v[j0 + col] = acc
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bspline3(t, c, x, h, hh, v, j0):  # pragma: no cover - compiled
+    """A cubic B-spline with vector coefficients ``c`` (m, 6) at ``x`` into ``v[j0:j0 + 6]``.
+
+    The interval is found as scipy does (:func:`_knot_interval`) and the 4 non-zero basis values
+    by the Cox–de Boor recursion (:func:`_raise_degree`); ``h``, ``hh`` are work arrays (4,).
+    """
+    k = 3
+    i = _knot_interval(t, x, k)
+    h[0] = 1.0
+    for j in range(1, k + 1):
+        _raise_degree(t, x, i, j, h, hh)
+    _combine(h, c, i, k, v, j0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -379,12 +399,7 @@ def _bspline3_d(t, c, x, h, hh, v, dv, j0):  # pragma: no cover - compiled
     The slope from the degree-2 basis of the same interval (``s' = Σ 3·(c_j - c_{j-1}) /
     (t_{j+3} - t_j)·N_{j,2}``, the derivative of a B-spline written in B-splines)."""
     k = 3
-    nc = t.shape[0] - k - 1
-    i = np.searchsorted(t, x, side="right") - 1
-    if i < k:
-        i = k
-    elif i > nc - 1:
-        i = nc - 1
+    i = _knot_interval(t, x, k)
     h[0] = 1.0
     for j in range(1, k + 1):
         if j == k:  # h[0:3] = N_{i-2..i, 2}(x): the slope's basis
@@ -396,23 +411,8 @@ def _bspline3_d(t, c, x, h, hh, v, dv, j0):  # pragma: no cover - compiled
                     if den != 0.0:
                         acc += h[m] * k * (c[jj, col] - c[jj - 1, col]) / den
                 dv[j0 + col] = acc
-        for m in range(j):
-            hh[m] = h[m]
-        h[0] = 0.0
-        for n in range(1, j + 1):
-            xb = t[i + n]
-            xa = t[i + n - j]
-            if xb == xa:
-                h[n] = 0.0
-                continue
-            w = hh[n - 1] / (xb - xa)
-            h[n - 1] += w * (xb - x)
-            h[n] = w * (x - xa)
-    for col in range(c.shape[1]):
-        acc = 0.0
-        for m in range(k + 1):
-            acc += h[m] * c[i - k + m, col]
-        v[j0 + col] = acc
+        _raise_degree(t, x, i, j, h, hh)
+    _combine(h, c, i, k, v, j0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

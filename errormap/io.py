@@ -181,11 +181,14 @@ class Table:
     """
 
     def __init__(self, path: Path, names: list[str], rows: list[list[str]] | None, first_row: int, comments: list[str],
-                 numeric: dict | None = None, lines: str | None = None):
+                 numeric: dict | None = None, lines: str | None = None, row_lines: list[int] | None = None):
         self.path = path
         self.names = names
         self._rows = rows
-        self.first_row = first_row  # file line number of rows[0]
+        self.first_row = first_row  # file line number of the line after the header
+        # file line number of each data row when blank lines were skipped between them (else None:
+        # row k is on line first_row + k)
+        self._row_lines = row_lines
         self.comments = comments
         self._index = {n: i for i, n in enumerate(names)}
         # fast path (read_table on a large, plain numeric table): every column already parsed
@@ -198,7 +201,7 @@ class Table:
     def rows(self) -> list[list[str]]:
         """The raw cells, stripped, one list per data row (parsed on first use after the fast path)."""
         if self._rows is None:
-            self._rows = _parse_rows(self.path, self._lines.split("\n"), self.names, self.first_row)
+            self._rows, self._row_lines = _parse_rows(self.path, self._lines.split("\n"), self.names, self.first_row)
             self._lines = None
         return self._rows
 
@@ -219,8 +222,8 @@ class Table:
         return [r[i] for r in self.rows]
 
     def row_number(self, k: int) -> int:
-        """File line number (1-based) of data row ``k`` (0-based)."""
-        return self.first_row + k
+        """File line number (1-based) of data row ``k`` (0-based); blank lines between rows count."""
+        return self._row_lines[k] if self._row_lines is not None else self.first_row + k
 
     def float(self, name: str, allow_nan: bool = False, limit: float = MAX_ABS_VALUE) -> np.ndarray:
         """Column ``name`` as float64, shape (n,); bad cells raise naming row and column.
@@ -319,11 +322,14 @@ def read_table(path) -> Table:
     if dup:
         raise InputError(f"{path}: row {i + 1}: duplicated column name(s) {dup}")
     body = "" if end < 0 else text[end + 1:]
-    if end >= 0 and _at_least_lines(body, FAST_MIN_ROWS):
+    # the fast path only where rows follow one another line by line (a blank line inside the body
+    # would shift the row numbers its messages give)
+    if end >= 0 and _at_least_lines(body, FAST_MIN_ROWS) and "\n\n" not in body.rstrip("\n"):
         numeric = _parse_numeric_fast(body, header)
         if numeric is not None:
             return Table(path, header, None, i + 2, comments, numeric=numeric, lines=body)
-    return Table(path, header, _parse_rows(path, body.split("\n") if end >= 0 else [], header, i + 2), i + 2, comments)
+    rows, row_lines = _parse_rows(path, body.split("\n") if end >= 0 else [], header, i + 2)
+    return Table(path, header, rows, i + 2, comments, row_lines=row_lines)
 
 
 def _at_least_lines(text: str, k: int) -> bool:
@@ -341,10 +347,11 @@ FAST_MIN_ROWS = 2000
 per-row reader is as fast and needs no import)."""
 
 
-def _parse_rows(path, body: list[str], header: list[str], first_row: int) -> list[list[str]]:
+def _parse_rows(path, body: list[str], header: list[str], first_row: int) -> tuple[list[list[str]], list[int] | None]:
     """The per-row reader: cells stripped, blank rows skipped; a row with the wrong number of
-    cells or broken quoting raises :class:`InputError` naming its row."""
-    rows = []
+    cells or broken quoting raises :class:`InputError` naming its row. Returns the rows and,
+    when blank rows were skipped before the last of them, each row's file line number (else None)."""
+    rows, lines = [], []
     for k, line in enumerate(body):
         r = _csv_row(line, path, first_row + k)
         if not r or all(not c.strip() for c in r):
@@ -354,7 +361,9 @@ def _parse_rows(path, body: list[str], header: list[str], first_row: int) -> lis
                 f"{path}: row {first_row + k}: expected {len(header)} cells (columns {header}), got {len(r)}"
             )
         rows.append([c.strip() for c in r])
-    return rows
+        lines.append(first_row + k)
+    contiguous = not lines or lines[-1] - lines[0] == len(lines) - 1 and lines[0] == first_row
+    return rows, None if contiguous else lines
 
 
 def _parse_numeric_fast(text: str, header: list[str]) -> dict | None:

@@ -47,3 +47,22 @@ def test_write_csv_round_trip(tmp_path):
     t = read_table(p)
     np.testing.assert_array_equal(t.float("a"), [1.5, 2.25])
     assert t.int("n").tolist() == [1, 2] and t.meta()["k"] == "v"
+
+
+def test_row_numbers_count_blank_lines_between_rows(tmp_path):
+    """A bad cell after blank lines is named by the line an editor shows (both reader paths)."""
+    from errormap.io import FAST_MIN_ROWS
+    p = tmp_path / "gaps.csv"
+    p.write_text("# c\nx_mm,z_mm\n1,2\n\n3,4\n\n\n5,oops\n")
+    t = read_table(p)
+    assert [t.row_number(k) for k in range(len(t))] == [3, 5, 8]
+    with pytest.raises(InputError, match=r"row 8\b"):
+        t.float("z_mm")
+    # a long table (the pyarrow path's size) with one blank line: the rows after it keep their lines
+    body = "\n".join(f"{k},{k}" for k in range(FAST_MIN_ROWS))
+    q = tmp_path / "long.csv"
+    q.write_text("x_mm,z_mm\n" + body.replace("\n10,10\n", "\n\n10,10\n") + "\nnan,1\n")
+    t = read_table(q)
+    assert t.row_number(10) == 13 and t.row_number(9) == 11
+    with pytest.raises(InputError, match=rf"row {FAST_MIN_ROWS + 3}\b"):
+        t.float("x_mm")
