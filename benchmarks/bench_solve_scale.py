@@ -93,29 +93,12 @@ def _run_once(root, model_kind, model_path, points, workers, seed, out_npz) -> d
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
-def _learned(tmp, el_path, iters):
-    from errormap.elements import ElementSet
-    from errormap.featurepoints import FeaturePoints
-    from errormap.htm import HTMField
-    from errormap.machine import load_machine
-    from errormap.simulator import random_axes, volume_grid
-    from training.trainers import fit_field
-    m = load_machine()
-    f = HTMField(m, ElementSet.load(el_path))
-    grid = volume_grid(m, (11, 11, 11))
-    val = random_axes(m, 2000, np.random.default_rng(1))
-    fit = fit_field(FeaturePoints(grid, f.predict(grid), {}), trainer="lm", max_iter=iters, track=False,
-                    validation=(val, f.predict(val)), quiet=True, select_best=False)
-    out = Path(tmp) / "learned"
-    fit.field.save(out)
-    return out, fit.metrics.get("val_max_um")
-
-
 def main():
     if len(sys.argv) > 1 and sys.argv[1] == "--_child":
         kind, path, n, w, seed, out = sys.argv[2:8]
         print(json.dumps(child(kind, path, int(n), int(w), int(seed), out)))
         return
+    from bench_scale_io import _learned_model  # the same learned field as the end-to-end G-code benchmark
     ap = argparse.ArgumentParser()
     ap.add_argument("--points", type=int, default=1_000_000)
     ap.add_argument("--workers", default="1,2", help="thread counts of this checkout's runs")
@@ -137,7 +120,7 @@ def main():
         for seed in range(args.seeds):
             el_path = Path(tmp) / f"elements{seed}.json"
             random_truth(load_machine(), seed).elements.save(el_path)
-            learned, val_um = _learned(tmp, el_path, args.train_iters)
+            learned, val_um = _learned_model(tmp, el_path, args.train_iters)
             notes.append(f"seed {seed}: learned field validation max {val_um:.3g} μm")
             for label, kind, path in (("element set (HTM)", "htm", el_path),
                                       ("learned (paper MLP 10-15-25-15-10)", "mlp", learned)):
