@@ -30,7 +30,7 @@ full derivation, what is observable and what is a gauge choice: ``docs/identific
    in ``E_a``. Each element is then a cubic B-spline through its stations
    (:class:`errormap.elements.ElementSet`).
 
-Gauges (``gauge=``): ``"first-station"`` (default) puts the machine frame on the X
+Gauges (``gauge=``): ``"first-station"`` (the estimator's default) puts the machine frame on the X
 carriage at its first station, so every axis-motion element is zero at its first station,
 as :class:`~errormap.elements.ElementSet` documents; ``"reference-line"`` puts it on the
 fitted X line (x) and the X-Z plane (z), the paper's reference frame, so the X
@@ -38,7 +38,12 @@ straightness has no linear trend. Both give the same tool-point error: a rigid c
 the machine frame moves constants and linear trends between elements, and the tool point
 in the WCS is invariant under a rotation seen by both chains. The squareness is not
 observable apart from a linear trend of the Z straightness along the MCS x direction:
-:func:`move_squareness` moves it exactly.
+:func:`move_squareness` moves it exactly. ``"station-mean"`` (the default of the smoothed
+identification, :func:`errormap.uncertainty.smooth_identify`) starts from the first-station
+result and moves, exactly, the machine frame to the mean pose of the X carriage over all its
+stations (:func:`frame_to_station_mean`) and the A-axis line to its mean over the turn
+(:func:`a_line_to_turn_mean`): both are then averages of 21 (20) stations instead of one
+station's tracker noise, which a smoother cannot remove (it is a constant or a linear trend).
 """
 from __future__ import annotations
 
@@ -55,7 +60,7 @@ from .sweeps import (SWEEP_AXES, Sweeps, a_line_offset, compose, error_transform
                      sweeps_from_columns, x_carriage_nominal, z_carriage_nominal)
 from .transforms import apply, rot_x, rot_z, skew
 
-GAUGES = ("first-station", "reference-line")
+GAUGES = ("first-station", "reference-line", "station-mean")
 
 
 # -- geometric fits ----------------------------------------------------------------------------
@@ -173,6 +178,84 @@ def move_squareness(elements: ElementSet, s_xz_urad: float, machine: Grinder) ->
     out.constants["s_xz"] = float(s_xz_urad)
     out._splines = {}
     return out
+
+
+def _element_transforms(elements: ElementSet, names) -> tuple:
+    """``Trans(δ)·Rot(ε)`` of one body's six elements at its stations -> (R (m,3,3), t (m,3) mm)."""
+    f = elements.functions
+    return error_transform(np.stack([f[k] for k in names[:3]], axis=1), np.stack([f[k] for k in names[3:]], axis=1))
+
+
+def _put_elements(out: ElementSet, names, E, closed: bool = False) -> None:
+    vals = np.hstack([E[1] / UM, _euler_urad(E[0])])
+    for j, k in enumerate(names):
+        v = vals[:, j].copy()
+        if closed:
+            v[-1] = v[0]
+        out.functions[k] = v
+    out._splines = {}
+
+
+def frame_to_station_mean(elements: ElementSet, machine: Grinder) -> tuple:
+    """The same machine in the gauge whose frame is the X carriage's mean pose over its stations:
+    ``(elements, Γ)``, Γ = (R (3,3), t (3,) mm) the new machine frame in the old one.
+
+    With ``M(x) = N_X(x)·E_x(x)·N_X(x)⁻¹`` the carriage's error motion in the MCS, the frame
+    change Γ is the mean rotation of ``M`` and the translation that makes the mean of the new
+    ``E_x`` translations zero; ``E_x ← N_X⁻¹·Γ⁻¹·N_X·E_x`` and ``E_z ← N_Z⁻¹·Γ⁻¹·N_Z·E_z``
+    exactly. The A chain hangs on the X carriage at its first station and is unchanged; every
+    tool point in the WCS is unchanged (a rigid change seen by both chains)."""
+    cx, cz = elements.stations["x_mm"], elements.stations["z_mm"]
+    NX = x_carriage_nominal(machine, cx)
+    M = compose(compose(NX, _element_transforms(elements, X_ELEMENTS)), invert(NX))
+    GR = Rotation.from_matrix(M[0]).mean().as_matrix()
+    Gt = (apply(M[0], NX[1]) + M[1] - apply(GR, NX[1])).mean(axis=0)
+    Gi = invert((GR[None], Gt[None]))
+    out = elements.copy()
+    _put_elements(out, X_ELEMENTS, compose(compose(compose(invert(NX), Gi), NX), _element_transforms(elements, X_ELEMENTS)))
+    NZ = z_carriage_nominal(machine, cz, elements.constants["s_xz"])
+    _put_elements(out, Z_ELEMENTS, compose(compose(compose(invert(NZ), Gi), NZ), _element_transforms(elements, Z_ELEMENTS)))
+    return out, (GR, Gt)
+
+
+def _a_line(constants) -> tuple:
+    c = constants
+    return error_transform(np.array([[0.0, c["dy_oa"], c["dz_oa"]]]), np.array([[0.0, c["ey_oa"], c["ez_oa"]]]))
+
+
+def _a_chain(elements: ElementSet) -> tuple:
+    """``E_oa·RotX(a)·E_a(a)`` at the A stations -> (R (m,3,3), t (m,3))."""
+    ca = elements.stations["a_deg"]
+    return compose(compose(_a_line(elements.constants), (rot_x(np.deg2rad(ca)), np.zeros((ca.size, 3)))),
+                   _element_transforms(elements, A_ELEMENTS))
+
+
+def _split_a_chain(elements: ElementSet, W, n_iter: int = 4) -> ElementSet:
+    """``elements`` with the A chain ``W`` (R (m,3,3), t (m,3)) split as ``E_oa·RotX(a)·E_a(a)``, the
+    A line chosen so that the part of ``E_a`` that turns with the axis (δy, δz and εy, εz rotated
+    back by a) averages to zero over the turn's distinct stations (a fixed-point iteration on
+    the exact split; the turning part is what a change of the line adds)."""
+    ca = elements.stations["a_deg"]
+    back = rot_x(np.deg2rad(ca))[:-1]
+    c = elements.constants
+    p = np.array([c["dy_oa"], c["dz_oa"], c["ey_oa"], c["ez_oa"]], dtype=float)
+    unrot = (rot_x(np.deg2rad(-ca)), np.zeros((ca.size, 3)))
+    for _ in range(n_iter + 1):
+        line = {"dy_oa": p[0], "dz_oa": p[1], "ey_oa": p[2], "ez_oa": p[3]}
+        E_a = compose(unrot, compose(invert(_a_line(line)), W))
+        dv = apply(back, E_a[1][:-1] / UM).mean(axis=0)
+        ev = apply(back, _euler_urad(E_a[0])[:-1]).mean(axis=0)
+        p = p + np.array([dv[1], dv[2], ev[1], ev[2]])
+    out = elements.copy()
+    _put_elements(out, A_ELEMENTS, E_a, closed=True)
+    out.constants.update(line)
+    return out
+
+
+def a_line_to_turn_mean(elements: ElementSet) -> ElementSet:
+    """The same machine with the A-axis line at its mean over the turn (see :func:`_split_a_chain`);
+    ``E_oa·RotX(a)·E_a(a)``, hence every tool point, is unchanged."""
+    return _split_a_chain(elements, _a_chain(elements))
 
 
 # -- results --------------------------------------------------------------------------------
@@ -432,7 +515,7 @@ class TrackerIdentification:
         NX = x_carriage_nominal(machine, cx)
         TX = poses["X"]
         u_x, u_z = lines["X"], lines["Z"]
-        if self.gauge == "first-station":
+        if self.gauge in ("first-station", "station-mean"):
             G = compose((TX[0][:1], TX[1][:1]), invert((NX[0][:1], NX[1][:1])))
         else:
             z_dir = u_z - (u_z @ u_x) * u_x
@@ -464,6 +547,10 @@ class TrackerIdentification:
         assert set(constants) == set(CONSTANT_ELEMENTS)
         elements = ElementSet({"x_mm": cx, "z_mm": cz, "a_deg": ca}, functions, constants, machine.name,
                               machine.sha256)
+        if self.gauge == "station-mean":
+            elements, Gam = frame_to_station_mean(elements, machine)
+            elements = a_line_to_turn_mean(elements)
+            G = compose(G, (Gam[0][None], Gam[1][None]))
         self.elements_ = elements
         self.result_ = IdentificationResult(elements, reports, (G[0][0], G[1][0]), self.gauge, warnings)
         return self

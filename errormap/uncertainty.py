@@ -16,7 +16,12 @@ station value, and an interpolating spline through them passes it on. Here:
    inverse of the bootstrap variance at each station, λ chosen by the unbiased risk
    estimate with that known covariance (Mallows' C_p / UBRE):
    ``|y − Hy|²_W − tr(W(I−H)Σ(I−H)ᵀ) + tr(W H Σ Hᵀ)``. The element set keeps its format:
-   the smoothed station values, interpolated by the same cubic spline.
+   the smoothed station values, interpolated by the same cubic spline. The identification's gauge
+   is ``"station-mean"`` here by default (:mod:`errormap.identification`: the machine frame at
+   the X carriage's mean pose over its stations, the A line at its mean over the turn): in the
+   first-station gauge one X station's and one A station's tracker noise sit in every element's
+   constant and linear trend, which a second-difference smoother never touches
+   (``benchmarks/sweeps_gauge_results.md``).
 4. **Covariance of the result**: the smoother applied to every bootstrap draw, the sample
    covariance of those (rank ≤ n_boot − 1; it keeps the strong δ–ε lever-arm correlations
    through which tool-point errors cancel), plus, per element, an estimate of the smoother's squared
@@ -311,9 +316,11 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     ``sweeps``: as :func:`errormap.identification.identify`; ``noise_um``: known tracker σ
     per coordinate (default: estimated from the ball residuals); ``n_boot``: bootstrap draws;
     ``seed``: seeds the bootstrap; ``smooth=False`` keeps the interpolating station values
-    (the covariance is then that of the raw values). ``settings`` go to the identification.
+    (the covariance is then that of the raw values). ``settings`` go to the identification;
+    its ``gauge`` defaults to ``"station-mean"`` here (see module doc, step 3).
     """
     from .identification import TrackerIdentification
+    settings = {"gauge": "station-mean", **settings}
     from .simulator import TruthGrinder
     from .sweeps import simulate_sweeps
 
@@ -334,8 +341,9 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     H = np.eye(P)
     smoothing = {}
     lay = theta_layout(el)
+    blocks = {k: np.array([j for j, (n, _) in enumerate(lay) if n == k]) for k in FUNCTION_ELEMENTS}
     for k in FUNCTION_ELEMENTS:
-        idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
+        idx = blocks[k]
         if smooth:
             Hk, lam, edf = _smoother(y[idx], S[np.ix_(idx, idx)], periodic=k in A_ELEMENTS)
             H[np.ix_(idx, idx)] = Hk
@@ -350,7 +358,7 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     bias_var, prior_extra = np.zeros(P), np.zeros(P)
     IH = np.eye(P) - H
     for k in FUNCTION_ELEMENTS:
-        idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
+        idx = blocks[k]
         B = IH[np.ix_(idx, idx)]
         noise = np.trace(B @ S[np.ix_(idx, idx)] @ B.T) / idx.size
         bias_var[idx] = max(0.0, change2[idx].mean() - noise)

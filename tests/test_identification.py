@@ -20,6 +20,7 @@ from errormap.sweeps import simulate_sweeps
 SPATIAL_TOL_UM = 0.01          # the noise-free target on the tool-point error
 ELEMENT_TOL = 1e-6             # μm / μrad: noise-free recovery, limited by float rounding at metres
 GAUGE_TOL_UM = 1e-3            # two gauges: second-order Euler cross terms between stations
+MEAN_TOL_URAD = 1.0            # a station-0 tracker-noise angle (2 μm over ~100 mm balls: ~20 μrad) is far above
 ALIAS_TOL_URAD = 1e-5          # worm alias: constant to second order
 NOISY_RMS_BOUND_UM = 20.0      # σ = 2 μm: spatial prediction RMS (Monte Carlo mean ≈ 10 μm, benchmarks)
 N_POINTS = 10_000
@@ -70,6 +71,21 @@ def test_gauges_agree_on_the_tool_point(machine, truth, points):
     # the first-station gauge is zero at the first station; the reference-line gauge is not
     assert max(abs(a.functions[k][0]) for k in ("ez_x", "ey_x")) < ELEMENT_TOL
     assert max(abs(b.functions[k][0]) for k in ("ez_x", "ey_x")) > 1.0
+
+
+def test_station_mean_gauge_keeps_the_tool_point_and_averages_the_frame(machine, truth, points):
+    # with tracker noise: the station-mean gauge is an exact re-expression of the first-station result
+    cols = simulate_sweeps(truth, noise_um=2.0, seed=5)
+    a = identify(cols, machine, gauge="first-station").elements_
+    b = identify(cols, machine, gauge="station-mean").elements_
+    assert spatial_max_um(machine, a, b, points) < GAUGE_TOL_UM
+    # the X carriage's mean rotation over its stations is the frame: every X angle averages to zero
+    assert max(abs(b.functions[k].mean()) for k in ("ex_x", "ey_x", "ez_x")) < 1e-3 * MEAN_TOL_URAD
+    assert max(abs(a.functions[k][1:].mean()) for k in ("ey_x", "ez_x")) > MEAN_TOL_URAD
+    # the A line is the mean over the turn: the turning part of E_a averages to zero
+    ca = np.deg2rad(b.stations["a_deg"][:-1])
+    dy, dz = b.functions["dy_a"][:-1], b.functions["dz_a"][:-1]
+    assert abs(np.mean(np.cos(ca) * dy - np.sin(ca) * dz)) < 1e-3 and abs(np.mean(np.sin(ca) * dy + np.cos(ca) * dz)) < 1e-3
 
 
 @pytest.mark.parametrize("name", ["dy_x", "ey_x", "ex_z", "dz_z", "ex_a", "dy_a", "ez_oa", "dz_oa"])

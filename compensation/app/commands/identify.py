@@ -28,8 +28,12 @@ def register(sub):
     p.add_argument("--plot", default=None, metavar="PREFIX",
                    help="write one figure per axis: PREFIX_X.png, PREFIX_Z.png, PREFIX_A.png")
     p.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element set to overlay on the plots")
-    p.add_argument("--gauge", choices=GAUGES, default="first-station",
-                   help="machine-frame gauge (default first-station: elements zero at each axis' first station)")
+    p.add_argument("--gauge", choices=GAUGES, default="station-mean",
+                   help="machine-frame gauge (default station-mean: the frame at the X carriage's mean pose over "
+                        "its stations and the A line at its mean over the turn, so that no one station's tracker "
+                        "noise is left where smoothing cannot reach it; first-station: elements zero at each axis' "
+                        "first station; reference-line: the paper's frame). Tool points are the same in every "
+                        "gauge before smoothing; see docs/identification.md")
     p.add_argument("--raw", action="store_true",
                    help="interpolating splines through the noisy stations (the paper's method, no smoothing); "
                         "the covariance is still written")

@@ -32,7 +32,7 @@ class Identification:
 
 
 def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_boot: int = 100, seed: int = 0,
-                      smooth: bool = True, gauge: str = "first-station", sweeps=None) -> Identification:
+                      smooth: bool = True, gauge: str = "station-mean", sweeps=None) -> Identification:
     """Identify from ``sweep_files`` and write ``out`` (element set), its covariance and ``report``
     (default ``OUT.report.json``). ``sweeps``: the files already read (else read here)."""
     from errormap.uncertainty import covariance_path, smooth_identify
