@@ -213,13 +213,20 @@ def main(argv=None):
     with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("fork")) as ex:
         floor = list(ex.map(floor_case, [(f, s) for f in fams for s in range(args.seeds)]))
         mc = list(ex.map(mc_case, [(f, s, k) for f in fams for s in range(args.mc_truths) for k in range(args.draws)]))
-    res = {"command": "python benchmarks/bench_sweeps_band.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-           "seconds": time.perf_counter() - t0, "where": f"{os.cpu_count()} cores, shared", "floor": floor, "mc": mc}
-    (HERE / "sweeps_band_results.json").write_text(json.dumps(res, indent=1))
+    write_results("sweeps_band", argv, t0, render, floor=floor, mc=mc)
+
+
+def write_results(stem: str, argv, t0: float, render, **data) -> None:
+    """``benchmarks/<stem>_results.json`` and ``.md`` (rendered by ``render(res)``), the Markdown
+    written whole; ``res`` holds the command line, the wall time and ``data``."""
+    script = {"sweeps_band": "bench_sweeps_band.py", "sweeps_gauge": "bench_sweeps_gauge.py"}[stem]
+    res = {"command": f"python benchmarks/{script} " + " ".join(argv if argv is not None else sys.argv[1:]),
+           "seconds": time.perf_counter() - t0, "where": f"{os.cpu_count()} cores, shared", **data}
+    (HERE / f"{stem}_results.json").write_text(json.dumps(res, indent=1))
     md = render(res)
-    tmp = HERE / "sweeps_band_results.md.tmp"
+    tmp = HERE / f"{stem}_results.md.tmp"
     tmp.write_text(md)
-    tmp.replace(HERE / "sweeps_band_results.md")
+    tmp.replace(HERE / f"{stem}_results.md")
     print(md)
 
 

@@ -22,8 +22,6 @@ if __name__ == "__main__":
         os.environ.setdefault(_k, "1")
 
 import argparse
-import json
-import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -31,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench_sweeps_band import FAMILIES, N_PROBE, SWEEPS_TARGET_UM, Z95, _rms, _sd_rms, _sweeps
+from bench_sweeps_band import FAMILIES, N_PROBE, SWEEPS_TARGET_UM, Z95, _rms, _sd_rms, _sweeps, write_results
 
 HERE = Path(__file__).resolve().parent
 GAUGES = ("first-station", "station-mean")
@@ -101,14 +99,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("fork")) as ex:
         rows = list(ex.map(case, [(f, s) for f in fams for s in range(args.seeds)]))
-    res = {"command": "python benchmarks/bench_sweeps_gauge.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-           "seconds": time.perf_counter() - t0, "where": f"{os.cpu_count()} cores, shared", "rows": rows}
-    (HERE / "sweeps_gauge_results.json").write_text(json.dumps(res, indent=1))
-    md = render(res)
-    tmp = HERE / "sweeps_gauge_results.md.tmp"
-    tmp.write_text(md)
-    tmp.replace(HERE / "sweeps_gauge_results.md")
-    print(md)
+    write_results("sweeps_gauge", argv, t0, render, rows=rows)
 
 
 if __name__ == "__main__":
