@@ -97,14 +97,14 @@ def _sweeps(main, td, family, seed, noise_seed):
 def floor_case(args) -> dict:
     family, seed = args
     from compensation.app.cli import main
-    from errormap.elements import A_ELEMENTS, FUNCTION_ELEMENTS
+    from errormap.elements import A_ELEMENTS
     from errormap.htm import HTMField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
     from errormap.simulator import random_axes
     from errormap.truth_families import make_truth
     from errormap.uncertainty import (elements_from_theta, nullspace_noise_cov, prediction_sd, smooth_identify,
-                                      theta_from_elements, theta_layout)
+                                      theta_blocks, theta_from_elements)
     t0 = time.process_time()
     m = load_machine()
     noise_ss, probe_ss = spawn_seeds(seed, 2)
@@ -122,11 +122,9 @@ def floor_case(args) -> dict:
            "floor_um": _sd_rms(prediction_sd(m, sm.raw.elements_, nullspace_noise_cov(S, sm.raw.elements_), P)),
            "raw_rms_um": _rms(HTMField(m, sm.raw.elements_).predict(P) - et)}
     y = theta_from_elements(sm.raw.elements_)
-    lay = theta_layout(el)
     for crit in ("gcv", "reml"):
         H = np.eye(y.size)
-        for k in FUNCTION_ELEMENTS:
-            idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
+        for k, idx in theta_blocks(el).items():
             H[np.ix_(idx, idx)] = _criterion_smoother(y[idx], S[np.ix_(idx, idx)], k in A_ELEMENTS, crit)
         out[f"{crit}_rms_um"] = _rms(HTMField(m, elements_from_theta(H @ y, el)).predict(P) - et)
     known = smooth_identify(sw, m, noise_um=2.0)
@@ -219,8 +217,7 @@ def main(argv=None):
 def write_results(stem: str, argv, t0: float, render, **data) -> None:
     """``benchmarks/<stem>_results.json`` and ``.md`` (rendered by ``render(res)``), the Markdown
     written whole; ``res`` holds the command line, the wall time and ``data``."""
-    script = {"sweeps_band": "bench_sweeps_band.py", "sweeps_gauge": "bench_sweeps_gauge.py"}[stem]
-    res = {"command": f"python benchmarks/{script} " + " ".join(argv if argv is not None else sys.argv[1:]),
+    res = {"command": f"python benchmarks/bench_{stem}.py " + " ".join(argv if argv is not None else sys.argv[1:]),
            "seconds": time.perf_counter() - t0, "where": f"{os.cpu_count()} cores, shared", **data}
     (HERE / f"{stem}_results.json").write_text(json.dumps(res, indent=1))
     md = render(res)

@@ -186,8 +186,13 @@ def _element_transforms(elements: ElementSet, names) -> tuple:
     return error_transform(np.stack([f[k] for k in names[:3]], axis=1), np.stack([f[k] for k in names[3:]], axis=1))
 
 
+def _element_values(E) -> np.ndarray:
+    """The six element values (δ μm, ε μrad) of rigid transforms E = (R (m,3,3), t (m,3) mm), shape (m, 6)."""
+    return np.hstack([E[1] / UM, _euler_urad(E[0])])
+
+
 def _put_elements(out: ElementSet, names, E, closed: bool = False) -> None:
-    vals = np.hstack([E[1] / UM, _euler_urad(E[0])])
+    vals = _element_values(E)
     for j, k in enumerate(names):
         v = vals[:, j].copy()
         if closed:
@@ -223,19 +228,15 @@ def _a_line(constants) -> tuple:
     return error_transform(np.array([[0.0, c["dy_oa"], c["dz_oa"]]]), np.array([[0.0, c["ey_oa"], c["ez_oa"]]]))
 
 
-def _a_chain(elements: ElementSet) -> tuple:
-    """``E_oa·RotX(a)·E_a(a)`` at the A stations -> (R (m,3,3), t (m,3))."""
+def a_line_to_turn_mean(elements: ElementSet, n_iter: int = 4) -> ElementSet:
+    """The same machine with the A-axis line at its mean over the turn: the A chain
+    ``W(a) = E_oa·RotX(a)·E_a(a)`` at the A stations is split again, the line chosen so that the
+    part of ``E_a`` that turns with the axis (δy, δz and εy, εz rotated back by a) averages to
+    zero over the turn's distinct stations (a fixed-point iteration on the exact split; the
+    turning part is what a change of the line adds). ``W``, hence every tool point, is unchanged."""
     ca = elements.stations["a_deg"]
-    return compose(compose(_a_line(elements.constants), (rot_x(np.deg2rad(ca)), np.zeros((ca.size, 3)))),
-                   _element_transforms(elements, A_ELEMENTS))
-
-
-def _split_a_chain(elements: ElementSet, W, n_iter: int = 4) -> ElementSet:
-    """``elements`` with the A chain ``W`` (R (m,3,3), t (m,3)) split as ``E_oa·RotX(a)·E_a(a)``, the
-    A line chosen so that the part of ``E_a`` that turns with the axis (δy, δz and εy, εz rotated
-    back by a) averages to zero over the turn's distinct stations (a fixed-point iteration on
-    the exact split; the turning part is what a change of the line adds)."""
-    ca = elements.stations["a_deg"]
+    W = compose(compose(_a_line(elements.constants), (rot_x(np.deg2rad(ca)), np.zeros((ca.size, 3)))),
+                _element_transforms(elements, A_ELEMENTS))
     back = rot_x(np.deg2rad(ca))[:-1]
     c = elements.constants
     p = np.array([c["dy_oa"], c["dz_oa"], c["ey_oa"], c["ez_oa"]], dtype=float)
@@ -243,19 +244,12 @@ def _split_a_chain(elements: ElementSet, W, n_iter: int = 4) -> ElementSet:
     for _ in range(n_iter + 1):
         line = {"dy_oa": p[0], "dz_oa": p[1], "ey_oa": p[2], "ez_oa": p[3]}
         E_a = compose(unrot, compose(invert(_a_line(line)), W))
-        dv = apply(back, E_a[1][:-1] / UM).mean(axis=0)
-        ev = apply(back, _euler_urad(E_a[0])[:-1]).mean(axis=0)
-        p = p + np.array([dv[1], dv[2], ev[1], ev[2]])
+        turning = apply(back[:, None], _element_values(E_a)[:-1].reshape(-1, 2, 3)).mean(axis=0)  # rows δ, ε
+        p = p + turning[:, 1:].reshape(-1)
     out = elements.copy()
     _put_elements(out, A_ELEMENTS, E_a, closed=True)
     out.constants.update(line)
     return out
-
-
-def a_line_to_turn_mean(elements: ElementSet) -> ElementSet:
-    """The same machine with the A-axis line at its mean over the turn (see :func:`_split_a_chain`);
-    ``E_oa·RotX(a)·E_a(a)``, hence every tool point, is unchanged."""
-    return _split_a_chain(elements, _a_chain(elements))
 
 
 # -- results --------------------------------------------------------------------------------
@@ -538,7 +532,7 @@ class TrackerIdentification:
         E_a = compose((rot_x(np.deg2rad(-ca)), np.zeros((ca.size, 3))), compose(invert(E_oa), (W_R, W_t)))
         functions = {}
         for names, E in ((X_ELEMENTS, E_x), (Z_ELEMENTS, E_z), (A_ELEMENTS, E_a)):
-            vals = np.hstack([E[1] / UM, _euler_urad(E[0])])
+            vals = _element_values(E)
             for j, k in enumerate(names):
                 functions[k] = vals[:, j]
         for k in A_ELEMENTS:

@@ -69,6 +69,12 @@ def theta_layout(elements: ElementSet) -> list[tuple[str, int]]:
     return out + [(k, -1) for k in CONSTANT_ELEMENTS]
 
 
+def theta_blocks(elements: ElementSet) -> dict:
+    """Function element -> indices (m,) of its station values in θ (see :func:`theta_layout`)."""
+    names = np.array([k for k, _ in theta_layout(elements)])
+    return {k: np.flatnonzero(names == k) for k in FUNCTION_ELEMENTS}
+
+
 def theta_from_elements(elements: ElementSet) -> np.ndarray:
     """θ (P,) from an element set (see module doc)."""
     parts = [elements.functions[k][:-1] if k in A_ELEMENTS else elements.functions[k] for k in FUNCTION_ELEMENTS]
@@ -248,11 +254,8 @@ def nullspace_noise_cov(raw_cov, elements: ElementSet) -> np.ndarray:
     noise; the cross-element lever-arm correlations of the bootstrap can make a point's
     variance differ either way), so it is the noise-propagation floor of the smoothing
     choice, not a bound on every estimator."""
-    lay = theta_layout(elements)
-    P = len(lay)
-    H = np.eye(P)
-    for k in FUNCTION_ELEMENTS:
-        idx = np.array([j for j, (n, _) in enumerate(lay) if n == k])
+    H = np.eye(raw_cov.shape[0])
+    for k, idx in theta_blocks(elements).items():
         H[np.ix_(idx, idx)] = nullspace_smoother(raw_cov[np.ix_(idx, idx)], periodic=k in A_ELEMENTS)
     return H @ raw_cov @ H.T
 
@@ -320,10 +323,10 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     its ``gauge`` defaults to ``"station-mean"`` here (see module doc, step 3).
     """
     from .identification import TrackerIdentification
-    settings = {"gauge": "station-mean", **settings}
     from .simulator import TruthGrinder
     from .sweeps import simulate_sweeps
 
+    settings = {"gauge": "station-mean", **settings}
     est = TrackerIdentification(**settings)
     raw = est.fit(sweeps, machine).result_
     el = raw.elements_
@@ -340,8 +343,7 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     S = np.cov(Y.T) if n_boot > 1 else np.zeros((P, P))
     H = np.eye(P)
     smoothing = {}
-    lay = theta_layout(el)
-    blocks = {k: np.array([j for j, (n, _) in enumerate(lay) if n == k]) for k in FUNCTION_ELEMENTS}
+    blocks = theta_blocks(el)
     for k in FUNCTION_ELEMENTS:
         idx = blocks[k]
         if smooth:
