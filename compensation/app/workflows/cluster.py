@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from collections import deque
 
 from errormap.threads import limit_threads
@@ -41,7 +42,12 @@ IN_FLIGHT_PER_ACTOR = 2  # chunks queued on an actor: the next one's transfer ov
 FAULT_ENV = "VOLCOMP_CLUSTER_FAULT"
 """Test hook (fault injection): ``exit:FILE:CHUNK`` makes the worker that solves chunk CHUNK
 of input FILE (0-based) exit at once; ``exit-once:FILE:CHUNK:MARKER`` does so only while the
-file MARKER does not exist (it is created first), so a retry succeeds."""
+file MARKER does not exist (it is created first), so a retry succeeds. The worker dies
+:data:`FAULT_AFTER_S` into the chunk, as a crash mid-solve does."""
+
+FAULT_AFTER_S = 0.5
+"""Seconds into the faulty chunk before the worker exits: dying the instant a chunk starts can
+lose the reply of the chunk before it, still on its way out (Ray then retries that one too)."""
 
 
 class ClusterError(RuntimeError):
@@ -88,17 +94,39 @@ class ChunkSolver:
     def solve(self, i, method, task, options):
         if self.fault is not None:
             kind, f, c, marker = self.fault
-            if (task.chunk.file, task.chunk.index) == (f, c):
-                if kind == "exit":
-                    os._exit(17)
-                if not os.path.exists(marker):
+            if (task.chunk.file, task.chunk.index) == (f, c) and (kind == "exit" or not os.path.exists(marker)):
+                if kind == "exit-once":
                     open(marker, "w").close()
-                    os._exit(17)
+                time.sleep(FAULT_AFTER_S)
+                os._exit(17)
         with limit_threads(1):
             return i, solve_chunk(method, self.field, self.machine, task, options)
 
     def pid(self):
         return os.getpid()
+
+
+def _chunk_it_died_on(ray, refs, i, actor, wait_s: float = 60.0) -> int:
+    """The task a dead actor was solving, given task ``i`` failed on it: an actor runs its chunks
+    one at a time in the order they were sent (the queue's order), so the chunks queued behind
+    the one it died on fail with it and Ray may report any of them first. It is the earliest
+    sent of ``i`` and the actor's other tasks in ``refs`` (``{ref: (task, actor)}``) that failed;
+    those still running are waited for (up to ``wait_s``: a dead actor's fail at once) — one
+    that finished before the death is not the culprit even if its reply is still on the way."""
+    from ray.exceptions import RayError
+    others = [(ref, k) for ref, (k, a) in refs.items() if a is actor]
+    if others:
+        ray.wait([ref for ref, _ in others], num_returns=len(others), timeout=wait_s)
+    culprits = [i]
+    for ref, k in others:
+        if ray.wait([ref], timeout=0)[0]:
+            try:
+                ray.get(ref)
+                continue
+            except RayError:
+                pass
+        culprits.append(k)  # failed, or still not back after wait_s: it may be the one
+    return min(culprits)
 
 
 class RayExecutor:
@@ -192,6 +220,7 @@ class RayExecutor:
                         raise cause from None
                     raise
                 except RayError as exc:  # the worker died (after the retries) or the cluster failed
+                    i = _chunk_it_died_on(ray, refs, i, actor)
                     c = tasks[i].chunk
                     why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
                     raise ClusterError(f"chunk {c.index} (points {c.lo}-{c.hi - 1}) of {tasks[i].label} failed on "
