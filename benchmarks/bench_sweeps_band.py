@@ -202,16 +202,31 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=10, help="truths per family for part A (default 10)")
     ap.add_argument("--mc-truths", type=int, default=3, help="truths per family for the Monte Carlo (default 3)")
     ap.add_argument("--draws", type=int, default=8, help="sweep-noise draws per Monte Carlo truth (default 8)")
-    ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--family", choices=("default", "independent", "both"), default="both")
+    add_pool_args(ap)
     args = ap.parse_args(argv)
-    fams = FAMILIES if args.family == "both" else (args.family,)
-    import multiprocessing
+    fams = families(args)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("fork")) as ex:
+    with fork_pool(args.jobs) as ex:
         floor = list(ex.map(floor_case, [(f, s) for f in fams for s in range(args.seeds)]))
         mc = list(ex.map(mc_case, [(f, s, k) for f in fams for s in range(args.mc_truths) for k in range(args.draws)]))
     write_results("sweeps_band", argv, t0, render, floor=floor, mc=mc)
+
+
+def add_pool_args(ap) -> None:
+    """``--jobs`` (worker processes) and ``--family`` (truth families), as both sweeps benchmarks take them."""
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--family", choices=("default", "independent", "both"), default="both")
+
+
+def families(args) -> tuple:
+    """The truth families ``--family`` names."""
+    return FAMILIES if args.family == "both" else (args.family,)
+
+
+def fork_pool(jobs: int) -> ProcessPoolExecutor:
+    """``jobs`` forked worker processes (they inherit the imported modules and one-thread BLAS)."""
+    import multiprocessing
+    return ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"))
 
 
 def write_results(stem: str, argv, t0: float, render, **data) -> None:

@@ -24,12 +24,12 @@ if __name__ == "__main__":
 import argparse
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from bench_sweeps_band import FAMILIES, N_PROBE, SWEEPS_TARGET_UM, Z95, _rms, _sd_rms, _sweeps, write_results
+from bench_sweeps_band import (FAMILIES, N_PROBE, SWEEPS_TARGET_UM, Z95, _rms, _sd_rms, _sweeps, add_pool_args, families,
+                              fork_pool, write_results)
 
 HERE = Path(__file__).resolve().parent
 GAUGES = ("first-station", "station-mean")
@@ -91,14 +91,11 @@ def render(res: dict) -> str:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--family", choices=("default", "independent", "both"), default="both")
+    add_pool_args(ap)
     args = ap.parse_args(argv)
-    fams = FAMILIES if args.family == "both" else (args.family,)
-    import multiprocessing
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=args.jobs, mp_context=multiprocessing.get_context("fork")) as ex:
-        rows = list(ex.map(case, [(f, s) for f in fams for s in range(args.seeds)]))
+    with fork_pool(args.jobs) as ex:
+        rows = list(ex.map(case, [(f, s) for f in families(args) for s in range(args.seeds)]))
     write_results("sweeps_gauge", argv, t0, render, rows=rows)
 
 

@@ -114,12 +114,11 @@ def _chunk_it_died_on(ray, refs, i, actor, wait_s: float = 60.0) -> int:
     those still running are waited for (up to ``wait_s``: a dead actor's fail at once) — one
     that finished before the death is not the culprit even if its reply is still on the way."""
     from ray.exceptions import RayError
-    others = [(ref, k) for ref, (k, a) in refs.items() if a is actor]
-    if others:
-        ray.wait([ref for ref, _ in others], num_returns=len(others), timeout=wait_s)
+    others = {ref: k for ref, (k, a) in refs.items() if a is actor}
+    back = set(ray.wait(list(others), num_returns=len(others), timeout=wait_s)[0]) if others else set()
     culprits = [i]
-    for ref, k in others:
-        if ray.wait([ref], timeout=0)[0]:
+    for ref, k in others.items():
+        if ref in back:
             try:
                 ray.get(ref)
                 continue
