@@ -94,18 +94,16 @@ def _sweeps(main, td, family, seed, noise_seed):
     return read_sweeps([str(td / "sw.csv")])
 
 
-def floor_case(args) -> dict:
-    family, seed = args
+def loop_sweeps(family: str, seed: int):
+    """The closed-loop benchmark's no-effect sweeps for one truth (``volcomp sweeps`` 2 μm, noise
+    seed from ``spawn_seeds(seed, 2)[0]``) and the probe points scoring them: ``(machine, sweeps,
+    P (N_PROBE, 3) axes, true error at P (N_PROBE, 3) μm)``."""
     from compensation.app.cli import main
-    from errormap.elements import A_ELEMENTS
     from errormap.htm import HTMField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
     from errormap.simulator import random_axes
     from errormap.truth_families import make_truth
-    from errormap.uncertainty import (elements_from_theta, nullspace_noise_cov, prediction_sd, smooth_identify,
-                                      theta_blocks, theta_from_elements)
-    t0 = time.process_time()
     m = load_machine()
     noise_ss, probe_ss = spawn_seeds(seed, 2)
     truth = make_truth(m, seed, family=family)
@@ -113,6 +111,17 @@ def floor_case(args) -> dict:
     et = HTMField(m, truth.elements).predict(P)
     with tempfile.TemporaryDirectory() as td:
         sw = _sweeps(main, Path(td), family, seed, int(noise_ss.generate_state(1)[0]))
+    return m, sw, P, et
+
+
+def floor_case(args) -> dict:
+    family, seed = args
+    from errormap.elements import A_ELEMENTS
+    from errormap.htm import HTMField
+    from errormap.uncertainty import (elements_from_theta, nullspace_noise_cov, prediction_sd, smooth_identify,
+                                      theta_blocks, theta_from_elements)
+    t0 = time.process_time()
+    m, sw, P, et = loop_sweeps(family, seed)
     sm = smooth_identify(sw, m)
     el, S = sm.elements_, sm.raw_cov
     e = HTMField(m, el).predict(P) - et

@@ -22,14 +22,13 @@ if __name__ == "__main__":
         os.environ.setdefault(_k, "1")
 
 import argparse
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from bench_sweeps_band import (FAMILIES, N_PROBE, SWEEPS_TARGET_UM, Z95, _rms, _sd_rms, _sweeps, add_pool_args, families,
-                              fork_pool, write_results)
+from bench_sweeps_band import (FAMILIES, N_PROBE, SWEEPS_TARGET_UM, Z95, _rms, _sd_rms, add_pool_args, families,
+                              fork_pool, loop_sweeps, write_results)
 
 HERE = Path(__file__).resolve().parent
 GAUGES = ("first-station", "station-mean")
@@ -37,20 +36,9 @@ GAUGES = ("first-station", "station-mean")
 
 def case(args) -> dict:
     family, seed = args
-    from compensation.app.cli import main
     from errormap.htm import HTMField
-    from errormap.machine import load_machine
-    from errormap.seeds import spawn_seeds
-    from errormap.simulator import random_axes
-    from errormap.truth_families import make_truth
     from errormap.uncertainty import nullspace_noise_cov, prediction_sd, smooth_identify
-    m = load_machine()
-    noise_ss, probe_ss = spawn_seeds(seed, 2)
-    truth = make_truth(m, seed, family=family)
-    P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))
-    et = HTMField(m, truth.elements).predict(P)
-    with tempfile.TemporaryDirectory() as td:
-        sw = _sweeps(main, Path(td), family, seed, int(noise_ss.generate_state(1)[0]))
+    m, sw, P, et = loop_sweeps(family, seed)
     out = {"family": family, "seed": seed}
     for g in GAUGES:
         t0 = time.process_time()
