@@ -29,7 +29,9 @@ from errormap.elements import ElementSet
 from errormap.htm import HTMField
 from errormap.io import InputError
 
-FORMAT = "volcomp-diagnosed-model/1"
+from .fields import DIAGNOSED_FORMAT as FORMAT
+from .fields import resolve_model  # the format's one name, recognised by content there
+
 CONDITIONS = ("temp_c", "time_s", "dir_x", "dir_z", "dir_a")
 DIR_CONDITIONS = ("dir_x", "dir_z", "dir_a")
 TEMP_RANGE_C = (-40.0, 80.0)   # as for check measurements (kelvin or fahrenheit are refused)
@@ -38,12 +40,10 @@ FIXED_POINT_MAX_PASSES = 5
 
 
 def is_diagnosed_model(spec) -> bool:
-    p = Path(str(spec))
-    if p.suffix.lower() != ".json" or not p.is_file():
-        return False
+    """Whether ``spec`` is a diagnosed model, by its content (``format``), whatever its name."""
     try:
-        return json.loads(p.read_text(encoding="utf-8")).get("format") == FORMAT
-    except (json.JSONDecodeError, AttributeError):
+        return resolve_model(spec).kind == "diagnosed"
+    except InputError:
         return False
 
 
@@ -51,6 +51,9 @@ def load_diagnosed_model(path, machine) -> CorrectedField:
     """The updated elements plus the accepted terms, as a :class:`CorrectedField`."""
     path = Path(path)
     d = json.loads(path.read_text(encoding="utf-8"))
+    if not isinstance(d.get("elements"), str):
+        raise InputError(f"{path}: key 'elements': expected the updated element set's file name, got "
+                         f"{d.get('elements')!r}")
     el_path = path.parent / d["elements"]
     base = HTMField(machine, ElementSet.load(el_path))
     terms = []
@@ -178,7 +181,8 @@ def load_path_field(spec, machine, tracking_uri, conditions=None):
     """``load_field`` for compensation, with ``model.json`` of ``volcomp diagnose`` understood;
     ``conditions``: ``{name: value or None}`` for :data:`CONDITIONS` (a diagnosed model's terms;
     missing ones are checked per path, from its columns or these constants)."""
-    from .fields import load_field
-    if is_diagnosed_model(spec):
-        return ConditionedField(load_diagnosed_model(spec, machine), dict(conditions or {}), check=False)
-    return load_field(spec, machine, tracking_uri)
+    src = resolve_model(spec)
+    if src.kind == "diagnosed":
+        return ConditionedField(load_diagnosed_model(src.path, machine), dict(conditions or {}), check=False)
+    from . import fields  # looked up at call time (tests stand a field in for fields.load_field)
+    return fields.load_field(spec, machine, tracking_uri)

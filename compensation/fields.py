@@ -1,26 +1,132 @@
 """Loading an error field from what the user names on the command line.
 
-``--model`` accepts an element-set file (JSON, the HTM field), or an MLflow run id /
-``runs:/<id>/...`` / ``models:/...`` URI of a trained network (the learned field).
+``--model`` accepts an element-set file (the HTM field), a trained model folder or an MLflow run
+id / ``runs:/<id>/...`` / ``models:/...`` URI of a trained network (the learned field); the
+compensation commands also take the closed loop's ``model.json`` (see
+:mod:`compensation.diagnosed_model`).
+
+A file is recognised by its content, never by its name: :func:`resolve_model` reads the JSON's
+``format`` key (``schema`` for a drift model), a folder by the ``config.json`` of a trained model
+inside it (or in its ``model/`` sub-folder, a training run folder). Only a name that is neither a
+file nor a folder is taken for an MLflow reference, and then only in the forms MLflow knows.
 """
 from __future__ import annotations
 
+import json
+import re
+from dataclasses import dataclass
 from pathlib import Path
 
 from errormap.elements import ElementSet
 from errormap.htm import HTMField
-from errormap.io import InputError
+from errormap.io import InputError, decode_text
+
+ELEMENTS_FORMAT = "volcomp-elements/1"
+DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
+NETWORK_FORMAT = "volcomp-mlpfield/1"      # config.json of a trained model folder (training/model.py)
+DRIFT_SCHEMA = "volcomp.drift_model"       # the drift model's key 'schema' (errormap/diagnosis/drift_models.py)
+_RUN_ID = re.compile(r"^[0-9a-f]{32}$")    # an MLflow run id (training/tracking.py RUN_ID_RE)
+MAX_MODEL_FILE_BYTES = 64 << 20
+"""Largest model JSON read to find its kind (an element set is ~20 kB, a drift model ~100 kB):
+a larger file is not a model file and is refused before it is read whole."""
+
+KIND_NAMES = {"elements": f"element set ({ELEMENTS_FORMAT})",
+              "diagnosed": f"diagnosed model ({DIAGNOSED_FORMAT})",
+              "drift": f"drift model ({DRIFT_SCHEMA})",
+              "network": f"trained model folder ({NETWORK_FORMAT})",
+              "mlflow": "trained model in MLflow"}
+"""Each model kind as a person reads it (printed and recorded by every command that loads one)."""
 
 
-def load_field(spec: str, machine, tracking_uri: str | None = None):
-    """Return an object with ``predict(axes) -> (n, 3) μm`` for ``spec``."""
+@dataclass(frozen=True)
+class ModelSource:
+    """What ``--model`` names, recognised by content: ``kind`` (a key of :data:`KIND_NAMES`),
+    ``spec`` as given, ``path`` the file or folder that holds it (None for an MLflow reference)."""
+
+    kind: str
+    spec: str
+    path: Path | None
+
+    @property
+    def description(self) -> str:
+        return f"{KIND_NAMES[self.kind]}: {self.path if self.path is not None else self.spec}"
+
+    def to_dict(self) -> dict:
+        """The record a command writes into its output (summary JSON)."""
+        return {"kind": self.kind, "kind_name": KIND_NAMES[self.kind], "spec": self.spec,
+                "path": str(self.path) if self.path is not None else None}
+
+
+def _json_format(path: Path) -> str | None:
+    """The kind of the JSON model file ``path`` from its ``format`` / ``schema`` key (InputError when
+    the file is not JSON or names no model format volcomp reads)."""
+    if path.stat().st_size > MAX_MODEL_FILE_BYTES:
+        raise InputError(f"{path}: {path.stat().st_size} bytes is larger than any model file "
+                         f"({MAX_MODEL_FILE_BYTES >> 20} MiB); expected {_EXPECTED}")
+    try:
+        d = json.loads(decode_text(path.read_bytes(), path))
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"{path}: not a model file (not JSON: {exc}); expected {_EXPECTED}") from None
+    if not isinstance(d, dict):
+        raise InputError(f"{path}: not a model file (JSON {type(d).__name__}, no key 'format'); expected {_EXPECTED}")
+    fmt = d.get("format")
+    if fmt == ELEMENTS_FORMAT:
+        return "elements"
+    if fmt == DIAGNOSED_FORMAT:
+        return "diagnosed"
+    if fmt == NETWORK_FORMAT:
+        return "network"
+    if d.get("schema") == DRIFT_SCHEMA:
+        return "drift"
+    got = repr(str(fmt)) if fmt is not None else "missing"
+    raise InputError(f"{path}: key 'format': {got}; not a model file volcomp reads (expected {_EXPECTED})")
+
+
+_EXPECTED = (f"an element set (format {ELEMENTS_FORMAT!r}), a diagnosed model.json ({DIAGNOSED_FORMAT!r}), "
+             f"a drift model (schema {DRIFT_SCHEMA!r}) or a trained model folder")
+
+
+def resolve_model(spec) -> ModelSource:
+    """Recognise ``spec`` by content (see module doc); InputError for anything else."""
+    spec = str(spec).strip()
     p = Path(spec)
-    if p.suffix.lower() == ".json" or p.is_file():
-        if not p.is_file():
-            raise InputError(f"{spec}: no such element-set file")
-        return HTMField(machine, ElementSet.load(p))
+    if p.is_file():
+        kind = _json_format(p)
+        # a trained model's config.json names its folder
+        return ModelSource(kind, spec, p.parent if kind == "network" else p)
+    if p.is_dir():
+        for d in (p, p / "model"):
+            if (d / "config.json").is_file() and _json_format(d / "config.json") == "network":
+                return ModelSource("network", spec, d)
+        raise InputError(f"{p}: a folder, but not a trained model folder (no config.json of format "
+                         f"{NETWORK_FORMAT!r} in it or in {p / 'model'}); expected {_EXPECTED}")
+    if _RUN_ID.match(spec) or spec.startswith(("runs:/", "models:/")):
+        return ModelSource("mlflow", spec, None)
+    raise InputError(f"{spec}: no such file or folder, and not an MLflow run id (32 hex digits), runs:/ or "
+                     "models:/ URI")
+
+
+def require_kind(src: ModelSource, kinds, what: str) -> ModelSource:
+    """Refuse (InputError, one line) a model whose kind is not in ``kinds``; ``what``: what the
+    command does with it (\"predict evaluates\")."""
+    if src.kind not in kinds:
+        want = ", ".join(KIND_NAMES[k].split(" (")[0] for k in kinds)
+        hint = {"drift": "; a drift model is applied by `volcomp drift-predict` and exported with `volcomp export "
+                         "--format drift`",
+                "diagnosed": "; `volcomp compensate` takes a diagnosed model.json"}.get(src.kind, "")
+        raise InputError(f"{src.path or src.spec}: a {KIND_NAMES[src.kind]}, but {what} one of: {want}{hint}")
+    return src
+
+
+def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSource | None = None):
+    """An error field (``predict(axes) -> (n, 3) μm``) for ``spec``: an element set or a trained
+    network (folder or MLflow); other model kinds are refused naming what the file is."""
+    src = source or resolve_model(spec)
+    require_kind(src, ("elements", "network", "mlflow"), "this command evaluates")
+    if src.kind == "elements":
+        return HTMField(machine, ElementSet.load(src.path))
     try:
         from training.tracking import load_field as load_learned
     except ImportError as exc:  # pragma: no cover
-        raise InputError(f"{spec}: not an element-set file, and the learned-field loader is unavailable ({exc})") from None
-    return load_learned(spec, tracking_uri=tracking_uri)
+        raise InputError(f"{spec}: a trained model, and the learned-field loader is unavailable ({exc})") from None
+    return load_learned(str(src.path) if src.path is not None else src.spec, tracking_uri=tracking_uri)

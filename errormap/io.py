@@ -410,6 +410,17 @@ def _csv_row(line: str, path, row: int) -> list[str]:
         raise InputError(f"{path}: row {row}: not a CSV row ({exc})") from None
 
 
+def companion_path(path, tail: str) -> Path:
+    """The companion file of ``path`` (an element set's covariance ``tail = ".cov.npz"``, its
+    identification report ``".report.json"``): beside it, named after it whatever its suffix. Only a
+    ``.json`` suffix (any case) is replaced (``E.json`` → ``E.cov.npz``); any other name keeps its
+    whole name (``elements`` → ``elements.cov.npz``, ``E.v2`` → ``E.v2.cov.npz``), so two files
+    that differ only in their suffix never share a companion."""
+    p = Path(path)
+    base = p.name[:-len(".json")] if p.suffix.lower() == ".json" else p.name
+    return p.with_name(base + tail)
+
+
 def sha256_file(path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:

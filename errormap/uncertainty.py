@@ -44,7 +44,7 @@ from scipy.interpolate import make_interp_spline
 
 from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, ElementSet
 from .htm import error_jacobian
-from .io import InputError, atomic_write
+from .io import InputError, atomic_write, companion_path
 from .machine import Grinder
 
 LAMBDA_GRID = np.logspace(-4, 8, 49)
@@ -202,9 +202,9 @@ class ElementCovariance:
 
 
 def covariance_path(elements_path) -> Path:
-    """Where the covariance of an element-set file lives: ``NAME.cov.npz`` beside it."""
-    p = Path(elements_path)
-    return p.with_name(p.stem + ".cov.npz")
+    """Where the covariance of an element-set file lives: ``NAME.cov.npz`` beside it, whatever the
+    element set's suffix (:func:`errormap.io.companion_path`)."""
+    return companion_path(elements_path, ".cov.npz")
 
 
 def _smoother(y, Sigma, periodic: bool):

@@ -10,7 +10,7 @@ from errormap.machine import load_machine
 
 from compensation.app.cli import UsageError
 
-from ...fields import load_field
+from ...fields import KIND_NAMES, load_field, resolve_model
 
 
 def register(sub):
@@ -49,24 +49,24 @@ def run(args) -> int:
     t = read_table(args.points)
     t.require("x_mm", "z_mm", "a_deg")
     axes = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
-    field = load_field(args.model, machine, args.tracking_uri)
+    src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
+    field = load_field(args.model, machine, args.tracking_uri, source=src)
     _check_volume(args, t, axes, field)
-    print(f"predicting {len(axes)} points with {args.model} ...", file=sys.stderr)
+    print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
     e = field.predict(axes)
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
     if args.band:
-        from pathlib import Path
-
         from errormap.elements import ElementSet
         from errormap.uncertainty import Z95, ElementCovariance, covariance_path
-        if Path(str(args.model)).suffix.lower() != ".json":
-            raise UsageError("--band needs an element-set file (JSON) with its covariance beside it")
-        cov = ElementCovariance.load(covariance_path(args.model), ElementSet.load(args.model))
+        if src.kind != "elements":
+            raise UsageError(f"--band needs an element set with its covariance beside it; {args.model} is a "
+                             f"{KIND_NAMES[src.kind]}")
+        cov = ElementCovariance.load(covariance_path(src.path), ElementSet.load(src.path))
         sd = np.sqrt(np.diagonal(cov.prediction_cov(machine, axes), axis1=1, axis2=2))
         k = 1.0 if args.band == "1sigma" else Z95
         tag = "1sigma" if args.band == "1sigma" else "95"
         cols.update({f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
-    path = write_csv(args.out, cols)
+    path = write_csv(args.out, cols, header_comments=[f"model: {src.description}", f"model_kind: {src.kind}"])
     print(f"wrote {len(axes)} predictions to {path}")
     return 0

@@ -8,6 +8,7 @@ and ``DIR/residuals.csv`` (see :mod:`compensation.app.reports.methods`).
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from errormap.machine import load_machine
@@ -15,7 +16,7 @@ from errormap.machine import load_machine
 from compensation.app.cli import UsageError
 
 from ...evaluate import load_truth
-from ...fields import load_field
+from ...fields import load_field, resolve_model
 from ...pathio import read_path
 from ..options import add_flute_arguments, add_method_arguments, flute_from_args, parse_methods
 from ..reports.methods import print_table, write_report
@@ -64,11 +65,13 @@ def run(args) -> int:
         targets, nominal = tp.targets_mm, tp.axes
         path_info = {"path": str(args.path), "format": tp.kind, "points": len(tp)}
     truth = load_truth(args.truth, machine) if args.truth else None
-    field = load_field(args.model, machine, args.tracking_uri)
+    source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
+    print(f"report: model {source.description}", file=sys.stderr)
+    field = load_field(args.model, machine, args.tracking_uri, source=source)
     cmp = compare_methods(field, targets, machine, methods=methods, truth=truth, ga_points=args.ga_points,
                           ga_budget_s=args.ga_budget_s, seed=args.seed, nominal_axes=nominal)
     cmp.info.update({"machine": machine.name, "machine_file": machine.path, "model": args.model,
-                     "truth": args.truth, **path_info})
+                     "model_source": source.to_dict(), "truth": args.truth, **path_info})
     context = {"machine": f"{machine.name} ({machine.path})", "model (error field)": args.model,
                "truth": args.truth or "none (model residual only)", "path": path_info["path"],
                "points": path_info["points"], "seed": args.seed}

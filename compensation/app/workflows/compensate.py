@@ -20,6 +20,7 @@ file is the MODEL residual (the solver's own field).
 from __future__ import annotations
 
 import json
+import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +36,7 @@ from ... import guards
 from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, solve_batch
 from ...diagnosed_model import (ConditionedField, load_path_field, path_conditions, replanned_conditions,
                                 solve_with_conditions)
+from ...fields import resolve_model
 from ...gcode import DEFAULT_RAPIDS
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from ...solvers.threads import small_batch_threads
@@ -236,6 +238,8 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
     # parse and validate every input first: a bad file fails the batch before any work or output
     read_opts = {"rapids": s.rapids, "block_delete": s.block_delete, "arc_tolerance_um": s.arc_tolerance_um}
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
+    source = resolve_model(s.model)  # by content (format key), printed and recorded in the summary
+    print(f"compensate: model {source.description}", file=sys.stderr)
     field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
     # a diagnosed model whose terms need conditions: per point from the path's columns, else the options
     # (taken and checked once, before any work: a missing condition or a bad cell fails the batch here)
@@ -272,7 +276,7 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
         if not o.refused:
             o.entry["output"] = str(o.dst)
     summary_path = write_json(out_dir / SUMMARY_NAME, {
-        "method": s.method, "model": s.model, "machine": machine.path, "allow": list(s.allow),
+        "method": s.method, "model": s.model, "model_source": source.to_dict(), "machine": machine.path, "allow": list(s.allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "seed": s.seed, "chunk_points": s.chunk_points,
         "solved_on": executor.describe() if executor is not None else LocalExecutor().describe(),
         "files": [o.entry for o in outcomes],

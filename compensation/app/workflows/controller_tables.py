@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -64,8 +63,11 @@ class DriftSettings:
 
 def load_model(s: TableSettings, machine):
     """``(ModelError, description)`` of the element set or learned field ``s.model``."""
-    p = Path(s.model)
-    if p.suffix.lower() == ".json" or p.is_file():
+    from ...fields import load_field, require_kind, resolve_model
+    src = require_kind(resolve_model(s.model), ("elements", "network", "mlflow"), f"--format {s.fmt} tabulates")
+    print(f"export: model {src.description}", file=sys.stderr)
+    if src.kind == "elements":
+        p = src.path
         el = ElementSet.load(p)
         if el.machine_sha256 and el.machine_sha256 != machine.sha256:
             raise InputError(f"{p}: key 'machine_sha256': the model was made for machine file sha256 "
@@ -73,10 +75,10 @@ def load_model(s: TableSettings, machine):
                              f"({machine.path}); pass the model's --machine")
         return ex.ModelError(machine, el), f"{p} (element set, sha256 {sha256_file(p)})"
     if s.fmt == "iso-tables":
-        raise UsageError("--format iso-tables needs an element-set model (JSON): ISO component tables are the 23 "
+        raise UsageError("--format iso-tables needs an element set: ISO component tables are the 23 "
                          "elements' components")
-    from ...fields import load_field
-    return ex.ModelError(machine, field=load_field(s.model, machine, s.tracking_uri)), f"{s.model} (learned field)"
+    return (ex.ModelError(machine, field=load_field(s.model, machine, s.tracking_uri, source=src)),
+            f"{s.model} (learned field: {src.description})")
 
 
 def export_table(s: TableSettings, machine, on_check=None, log=None) -> dict:
@@ -187,7 +189,10 @@ def export_drift(s: DriftSettings, on_check=None, log=None) -> dict:
     from errormap.diagnosis.drift_models import DriftModel
     log = sys.stderr if log is None else log
     dt = s.sample_period_s
-    model = DriftModel.load(s.model)
+    from ...fields import require_kind, resolve_model
+    src = require_kind(resolve_model(s.model), ("drift",), "--format drift exports")
+    print(f"export: model {src.description}", file=sys.stderr)
+    model = DriftModel.load(src.path)
     model_desc = f"{s.model} (drift model, sha256 {sha256_file(s.model)})"
     drift_log, log_desc, clean = drift_check_log(s, log)
     step = float(np.median(np.diff(drift_log.time_s)))

@@ -14,6 +14,7 @@ The report (:mod:`compensation.app.reports.diagnosis`) names its residual: the M
 from __future__ import annotations
 
 import dataclasses
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,7 @@ from errormap.featurepoints import FeaturePoints
 from errormap.io import InputError, write_json
 from errormap.stats import residual_stats
 
-from ...fields import load_field
+from ...fields import load_field, require_kind, resolve_model
 from ..reports.diagnosis import checks_report, drift_report
 from ..reports.toolkit import write_page
 
@@ -135,19 +136,31 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
     ``DIR/updated_elements.json`` (with their covariance) and the final model to ``DIR/model.json``.
     """
     from errormap.uncertainty import covariance_path
-    if (update and field_ is None and Path(str(model_spec)).suffix.lower() == ".json"
-            and covariance_path(model_spec).is_file()):
-        return run_closed_loop(checks_path, machine, model_spec, out_dir, settings)
+    src = None
+    if field_ is None:  # the model is recognised by its content (format key), never by its file name
+        src = require_kind(resolve_model(model_spec), ("elements", "network", "mlflow"), "diagnose checks")
+        cov = covariance_path(src.path) if src.kind == "elements" else None
+        if update and cov is not None and cov.is_file():
+            print(f"diagnose: model {src.description}, covariance {cov}: closed loop (update, then effects)",
+                  file=sys.stderr)
+            return run_closed_loop(checks_path, machine, model_spec, out_dir, settings, source=src)
+        why = ("--no-update" if cov is not None and cov.is_file() else
+               f"no covariance {cov} beside it (written by `volcomp identify`)" if cov is not None else
+               "a learned field")
+        print(f"diagnose: model {src.description}; no model update ({why}): effects on the model as it is",
+              file=sys.stderr)
     checks = load_checks(checks_path, machine)
     settings = settings or DiagnosisSettings()
     settings.validate(len(checks))
-    learned = field_ is None and not (Path(str(model_spec)).suffix.lower() == ".json" or Path(str(model_spec)).is_file())
+    learned = src is not None and src.kind in ("network", "mlflow")
     fp = FeaturePoints.load(featurepoints) if featurepoints else None
     if field_ is None:
-        field_ = load_field(str(model_spec), machine, tracking_uri)
+        field_ = load_field(str(model_spec), machine, tracking_uri, source=src)
     d = diagnose(machine, field_, checks, settings)
     summary = dict(d.summary)
-    summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name})
+    summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name,
+                    "model_source": src.to_dict() if src is not None else {"kind": "field given by the caller"},
+                    "model_update": False})
     if d.selector.terms_ and fp is not None and (learned or fit_field is not None):
         axis_only = [t for t in d.selector.terms_ if not t.needs]
         alias = grid_aliasing(fp, d.corrected) if axis_only and len(axis_only) == len(d.selector.terms_) else None
@@ -173,19 +186,24 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
     return summary, _write(out_dir, summary, page)
 
 
-def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None):
-    """The closed loop on an identified element set with its covariance; returns (summary, paths)."""
+def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
+                    source=None):
+    """The closed loop on an identified element set with its covariance; returns (summary, paths).
+    ``source``: the recognised model (:class:`compensation.fields.ModelSource`), else resolved here."""
     from errormap.diagnosis.loop import closed_loop
     from errormap.elements import ElementSet
     from errormap.uncertainty import ElementCovariance, covariance_path
     checks = load_checks(checks_path, machine)
     settings = settings or DiagnosisSettings()
     settings.validate(len(checks))
-    el = ElementSet.load(model_spec)
-    cov = ElementCovariance.load(covariance_path(model_spec), el)
+    src = require_kind(source or resolve_model(model_spec), ("elements",), "the closed loop updates")
+    el = ElementSet.load(src.path)
+    cov = ElementCovariance.load(covariance_path(src.path), el)
     loop = closed_loop(machine, cov, checks, settings)
     summary = dict(loop.summary)
     summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name,
+                    "model_source": src.to_dict(), "model_update": True,
+                    "covariance_file": str(covariance_path(src.path)),
                     "residual": "measured (measurement − model prediction); stages judged on the same held-out checks"})
     page = checks_report(loop.diagnosis, summary, model_spec, checks_path)
     out_dir = Path(out_dir)

@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from errormap.io import write_json
+from errormap.io import companion_path, write_json
 from errormap.iso230 import ISO_NAME
 from errormap.sweeps import read_sweeps
 
@@ -40,7 +40,7 @@ def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_b
     sm = smooth_identify(sweeps, machine, noise_um=noise_um, n_boot=n_boot, seed=seed, smooth=smooth, gauge=gauge)
     res = sm.raw
     res.elements_ = sm.elements_
-    report = Path(report) if report else Path(out).with_suffix(".report.json")
+    report = Path(report) if report else companion_path(out, ".report.json")
     info = res.to_dict()
     info["iso230_names"] = dict(ISO_NAME)
     cov_path = covariance_path(out)
