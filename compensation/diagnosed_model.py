@@ -5,7 +5,7 @@ to the file) and the accepted effect terms (kind, axis, element, coefficients, p
 references). A term may need conditions (``temp_c``, ``time_s``, ``dir_x``, ``dir_z``,
 ``dir_a``). For compensating a path, each needed condition is taken per point from the CSV
 path file's column of that name when it has one (the check-measurement columns' names and
-rules: a finite number, ``dir_*`` ±1, ``temp_c`` within −40…80 °C), else from the constant
+rules: a finite number, ``dir_*`` ±1, ``temp_c`` within 0…45 °C, °F and kelvin named), else from the constant
 option (``--temp-c`` …) for the whole path; a needed condition found in neither is refused,
 naming the file, the column and the option (a column's bad cell: file, row and column).
 
@@ -28,13 +28,13 @@ from errormap.diagnosis.effects import Candidate, EffectTerm
 from errormap.elements import ElementSet
 from errormap.htm import HTMField
 from errormap.io import InputError
+from errormap.units import UNITS_CHECK, check_units, temperature_mistake
 
 from .fields import DIAGNOSED_FORMAT as FORMAT
 from .fields import resolve_model  # the format's one name, recognised by content there
 
 CONDITIONS = ("temp_c", "time_s", "dir_x", "dir_z", "dir_a")
 DIR_CONDITIONS = ("dir_x", "dir_z", "dir_a")
-TEMP_RANGE_C = (-40.0, 80.0)   # as for check measurements (kelvin or fahrenheit are refused)
 FIXED_POINT_TOL_UM = 1e-6      # the terms at the solution change by less than this between passes
 FIXED_POINT_MAX_PASSES = 5
 
@@ -103,11 +103,12 @@ class ConditionedField:
     __call__ = predict
 
 
-def path_conditions(tp, needs, constants: dict) -> dict:
+def path_conditions(tp, needs, constants: dict, units: str = UNITS_CHECK, units_option: str | None = None) -> dict:
     """Per-point conditions of tool path ``tp`` (a :class:`compensation.pathio.ToolPath`) for the
     condition names ``needs``: {name: (n,) array}, from the CSV's columns when present, else the
     constant in ``constants`` (None: not given). Refuses (InputError) a needed condition in
-    neither, and a bad cell (file, row, column)."""
+    neither, and a bad cell (file, row, column); temperatures go through the shared unit check
+    (:func:`errormap.units.check_units`, ``units`` / ``units_option`` as there)."""
     table = tp.source if tp.kind in ("csv-axes", "csv-targets") else None
     n = len(tp)
     out = {}
@@ -117,15 +118,16 @@ def path_conditions(tp, needs, constants: dict) -> dict:
                 v = table.int(c, allowed=(-1, 1)).astype(float)
             else:
                 v = table.float(c)
-                if c == "temp_c":
-                    bad = np.flatnonzero((v < TEMP_RANGE_C[0]) | (v > TEMP_RANGE_C[1]))
-                    if bad.size:
-                        raise InputError(f"{tp.path}: row {table.row_number(int(bad[0]))}, column 'temp_c': units do "
-                                         f"not fit: {v[bad[0]]:g} is outside {TEMP_RANGE_C} °C (kelvin or fahrenheit?)")
+                if c == "temp_c":  # °F or kelvin: the shared unit check
+                    check_units(tp.path, tp.lines, temps={"temp_c": v}, units=units, option=units_option)
             if v.shape != (n,):  # pragma: no cover - the table and the path have one row per point
                 raise InputError(f"{tp.path}: column '{c}' has {v.size} values for {n} points")
             out[c] = v
         elif constants.get(c) is not None:
+            if c == "temp_c":
+                m = temperature_mistake([float(constants[c])], units)
+                if m is not None:
+                    raise InputError(f"--temp-c: units do not fit: {m[1]}")
             out[c] = np.full(n, float(constants[c]))
         else:
             where = "a column" if table is not None else "columns (a G-code path has none)"

@@ -9,7 +9,8 @@ Formats (docs/schemas.md and docs/toolpaths.md):
   the nominal axes are ``inverse(targets)`` with A unwrapped along the path.
   (A file with both sets of columns is refused as ambiguous.) Extra columns and leading
   ``#`` comment lines are kept.
-* **G-code** — any file whose name does not end in ``.csv``; read by
+* **G-code** — any file whose first line (after blank and ``#`` lines) is not a CSV header
+  (:func:`is_csv`: told by content, whatever the file's name); read by
   :mod:`compensation.gcode` with an explicit allow-list (RS274 numbers, ``G0 G1 G2 G3``,
   ``G90/G91``, ``G20/G21``, arcs in ``G18``; everything that could move or reinterpret an
   axis otherwise is refused naming file, line, column and word). :func:`plan_gcode` places
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +37,7 @@ import numpy as np
 
 from errormap.io import InputError, atomic_write, read_table
 from errormap.kinematics import forward, inverse
+from errormap.units import UNITS_CHECK, check_units
 
 from .gcode_kernels import linear_path_lengths_mm
 from .gcode import GProgram, arc_segments, fmt as _fmt, move_points, parse_program, render_program, render_table
@@ -379,7 +382,7 @@ def _table_vertices(job: GCodeJob):
 
 # ----------------------------------------------------------------------------- CSV
 
-def _read_csv(path, machine) -> ToolPathFile:
+def _read_csv(path, machine, units: str = UNITS_CHECK, units_option: str | None = None) -> ToolPathFile:
     t = read_table(path)
     has_axes = all(c in t for c in AXIS_COLUMNS)
     has_targets = all(c in t for c in TARGET_COLUMNS)
@@ -392,10 +395,16 @@ def _read_csv(path, machine) -> ToolPathFile:
     if len(t) == 0:
         raise InputError(f"{path}: no data rows")
     rows = t.row_number(0) + np.arange(len(t), dtype=int)  # Table.row_number(k), all at once
+    # metres for mm, radians for degrees, °F for °C: the shared unit check, before any kinematics
+    temps = {"temp_c": t.float("temp_c")} if "temp_c" in t else None
     if has_axes:
         axes = np.stack([t.float(c) for c in AXIS_COLUMNS], axis=1)
+        check_units(path, rows, machine=machine, axes=axes, axes_columns=AXIS_COLUMNS, coverage="path", temps=temps,
+                    units=units, option=units_option)
         return ToolPathFile(Path(path), "csv-axes", axes, forward(machine, axes), rows, t)
     targets = np.stack([t.float(c) for c in TARGET_COLUMNS], axis=1)
+    check_units(path, rows, targets=targets, target_columns=TARGET_COLUMNS, temps=temps, units=units,
+                option=units_option)
     return ToolPathFile(Path(path), "csv-targets", inverse(machine, targets, unwrap=True), targets, rows, t)
 
 
@@ -416,22 +425,46 @@ def _render_csv(table, replace: dict, comments=()) -> str:
 
 # ----------------------------------------------------------------------------- API
 
+SNIFF_BYTES = 1 << 16
+"""How much of a tool-path file is read to tell a CSV from G-code (the header is on its first lines)."""
+
+
 def is_csv(path) -> bool:
-    return Path(path).suffix.lower() == ".csv"
+    """Whether the tool-path file ``path`` is a CSV path, by its content, whatever its name: its first
+    line that is neither blank nor a ``#`` comment is a CSV header naming the axis columns
+    (``x_mm, z_mm, a_deg``) or the target columns (``px_mm, py_mm, pz_mm``) — a row of column names,
+    at least two, one with a ``_`` (no G-code word has one). Anything else is read as
+    G-code (whose parser refuses what it does not understand, naming the line)."""
+    with open(path, "rb") as fh:
+        head = fh.read(SNIFF_BYTES)
+    text = head.decode("utf-8", errors="replace").lstrip("\ufeff")
+    for line in text.replace("\r", "\n").split("\n"):
+        if not line.strip() or line.startswith("#"):
+            continue
+        cells = [c.strip().strip('"') for c in line.split(",")]
+        # a header row of column names (G-code words have no '_'; the CSV reader then names what is missing)
+        return len(cells) >= 2 and all(_COLUMN_NAME.match(c) for c in cells) and any("_" in c for c in cells)
+    return False
+
+
+_COLUMN_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
 def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
-              arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM, max_segment_mm=None, field=None) -> ToolPathFile:
-    """Read a tool-path file (CSV by the ``.csv`` suffix, otherwise G-code) for ``machine``.
+              arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM, max_segment_mm=None, field=None,
+              units: str = UNITS_CHECK, units_option: str | None = None) -> ToolPathFile:
+    """Read a tool-path file for ``machine``: a CSV path or G-code, told apart by content
+    (:func:`is_csv`), never by the file's suffix.
 
     G-code options: ``rapids``, ``block_delete`` (:func:`compensation.gcode.parse_program`),
-    ``arc_tolerance_um``, ``max_segment_mm``, ``field`` (:func:`plan_gcode`).
+    ``arc_tolerance_um``, ``max_segment_mm``, ``field`` (:func:`plan_gcode`). CSV: ``units``,
+    ``units_option`` (:func:`errormap.units.check_units`).
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if is_csv(path):
-        return _read_csv(path, machine)
+        return _read_csv(path, machine, units, units_option)
     prog = parse_program(path, rapids=rapids, block_delete=block_delete)
     job = plan_gcode(prog, machine, arc_tolerance_um, max_segment_mm, field)
     return gcode_toolpath(job, machine, path)

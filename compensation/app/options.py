@@ -69,3 +69,12 @@ def add_condition_options(p) -> None:
 def conditions_from_args(args) -> dict:
     """``{condition: value or None}`` for :data:`compensation.diagnosed_model.CONDITIONS`."""
     return {c: getattr(args, c, None) for c in CONDITIONS}
+
+
+def add_units_option(p, what: str = "columns") -> None:
+    """``--units check|as-written`` (errormap/units.py): the one override of the shared unit check."""
+    from errormap.units import UNITS_CHECK, UNITS_CHOICES
+    p.add_argument("--units", choices=UNITS_CHOICES, default=UNITS_CHECK,
+                   help=f"check (default): refuse {what} whose numbers fit another unit better (metres for mm, "
+                        "radians for degrees, °F or kelvin for °C); as-written: they are in the units they name "
+                        "(recorded in the output)")

@@ -10,8 +10,8 @@ file line, header = row 1 — and the column):
 * a missing required column; a cell that is not a finite number (NaN, inf, text);
 * a direction that is not +1/-1; a ``seq`` that is not an integer;
 * units that do not fit: a measured error beyond ``MAX_ERROR_UM`` (a value in metres or nm, or
-  a position typed into an error column), a temperature outside ``TEMP_RANGE_C`` (kelvin or
-  fahrenheit), and — once the model is known, see :func:`measured_residual` — a measured
+  a position typed into an error column), a temperature outside 0 … 45 °C (°F or kelvin; the
+  shared check of :mod:`errormap.units`), and — once the model is known, see :func:`measured_residual` — a measured
   column ~1000× smaller than the model predicts (mm or m written as μm);
 * duplicated rows (every cell equal to an earlier row) and duplicated ``seq`` values;
 * a check point outside the X or Z stroke of the machine (A is periodic; any finite A passes).
@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io import InputError, read_table
+from ..units import TEMP_HARD_RANGE_C, UNITS_CHECK, check_units
 
 AXES_COLUMNS = ("x_mm", "z_mm", "a_deg")
 ERROR_COLUMNS = ("dx_um", "dy_um", "dz_um")
@@ -31,7 +32,7 @@ CONDITION_COLUMNS = ("time_s", "temp_c", "dir_x", "dir_z", "dir_a")
 DIR_COLUMNS = ("dir_x", "dir_z", "dir_a")
 MAX_ERROR_UM = 5000.0
 """Largest plausible measured error component (μm): 5 mm. The grinder's errors are < 250 μm."""
-TEMP_RANGE_C = (-40.0, 80.0)
+TEMP_RANGE_C = TEMP_HARD_RANGE_C  # refused even with --units as-written; 0 … 45 °C without it (errormap/units.py)
 STROKE_TOL_MM = 1e-6
 UNIT_RATIO = 50.0
 """A measured column whose RMS is this many times smaller than the model's prediction (which
@@ -94,8 +95,10 @@ def _fail(path, row, column, msg) -> InputError:
     return InputError(f"{path}: row {row}, column '{column}': {msg}")
 
 
-def load_checks(path, machine) -> CheckData:
-    """Read and validate a check-measurement CSV against ``machine``'s strokes (see module doc)."""
+def load_checks(path, machine, units: str = UNITS_CHECK, units_option: str | None = None) -> CheckData:
+    """Read and validate a check-measurement CSV against ``machine``'s strokes (see module doc).
+    ``units``, ``units_option``: :func:`errormap.units.check_units` (``"as-written"`` skips the
+    likely-unit-mistake tests; the option that says so is named in the messages)."""
     t = read_table(path)
     t.require(*REQUIRED_COLUMNS)
     if len(t) < 10:
@@ -116,18 +119,9 @@ def load_checks(path, machine) -> CheckData:
         raise _fail(path, rows[k], ERROR_COLUMNS[j],
                     f"units do not fit: {v:g} μm (= {v * 1e-6:g} m) is beyond the plausible {MAX_ERROR_UM:g} μm; "
                     "expected an error in μm (not nm, not a position)")
-    if "temp_c" in cond:
-        tc = cond["temp_c"]
-        bad = np.flatnonzero((tc < TEMP_RANGE_C[0]) | (tc > TEMP_RANGE_C[1]))
-        if bad.size:
-            raise _fail(path, rows[bad[0]], "temp_c",
-                        f"units do not fit: {tc[bad[0]]:g} is outside {TEMP_RANGE_C} °C (kelvin or fahrenheit?)")
-    # positions in metres, angles in radians
-    from ..machine import axes_unit_mistake
-    mistake = axes_unit_mistake(axes, machine)
-    if mistake is not None:
-        k, j, msg = mistake
-        raise _fail(path, rows[k], AXES_COLUMNS[j], f"units do not fit: {msg}")
+    # temperatures in °F or kelvin, positions in metres, angles in radians: the one shared check
+    check_units(path, rows, machine=machine, axes=axes, axes_columns=AXES_COLUMNS, coverage="volume",
+                temps={"temp_c": cond["temp_c"]} if "temp_c" in cond else None, units=units, option=units_option)
     # strokes (A is periodic: any finite value passes)
     for j, c in enumerate(AXES_COLUMNS[:2]):
         lo, hi = machine.strokes[c]

@@ -42,7 +42,7 @@ from errormap.machine import load_machine
 
 from compensation.app.cli import UsageError, one_line
 
-from ..options import add_condition_options, conditions_from_args
+from ..options import add_condition_options, add_units_option, conditions_from_args
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args, open_executor
 from ..workflows.compensate import CompensateSettings, compensate_files
 from ... import guards
@@ -58,8 +58,8 @@ def register(sub):
         "compensate", help="compensate tool-path files (CSV or G-code) with an error field",
         description="Compensate each FILE with --model and write DIR/<same name>. Reports the MODEL "
                     "residual. Exit status 3 when the guards refuse a file (unless --allow).")
-    p.add_argument("files", nargs="+", metavar="FILE", help="tool path: .csv (x_mm,z_mm,a_deg or "
-                   "px_mm,py_mm,pz_mm) or G-code (any other suffix)")
+    p.add_argument("files", nargs="+", metavar="FILE", help="tool path: CSV (a header x_mm,z_mm,a_deg or "
+                   "px_mm,py_mm,pz_mm) or G-code, told apart by content whatever the name")
     p.add_argument("--model", required=True, help="MLflow run id, runs:/ URI, element-set file (JSON), or the "
                    "diagnosed model (DIR/model.json of volcomp diagnose: updated elements + accepted terms)")
     p.add_argument("--method", required=True, choices=METHODS, help="compensation solver")
@@ -85,6 +85,7 @@ def register(sub):
                    help="split G1 moves and arcs into segments no longer than this (WCS mm); 'auto' "
                         "(default): from the field's curvature along the file's moves; 'none': no splitting")
     add_condition_options(p)
+    add_units_option(p, "CSV tool-path columns")
     add_cluster_options(p)
     p.set_defaults(func=run)
 
@@ -126,6 +127,7 @@ def run(args) -> int:
         tracking_uri=args.tracking_uri, seed=args.seed, allow=allow, rapids=args.rapids,
         block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
         max_segment_mm=max_segment, conditions=conditions_from_args(args), chunk_points=args.chunk_points)
+    settings.units = args.units  # the shared unit check of CSV paths and conditions (errormap/units.py)
     check_cluster_args(args)
     machine = load_machine(args.machine, expect_kind="grinder")
     try:

@@ -9,6 +9,8 @@ from errormap.machine import load_machine
 from training import DEFAULT_MAX_ITER
 from compensation.app.cli import UsageError
 
+from ..options import add_units_option
+
 
 def register(sub):
     p = sub.add_parser(
@@ -34,6 +36,7 @@ def register(sub):
     p.add_argument("--seed", type=int, default=0, help="seed of the retrain")
     p.add_argument("--no-update", action="store_true",
                    help="skip the model update even when the element set's covariance (NAME.cov.npz) is beside it")
+    add_units_option(p, "check-measurement columns")
     p.set_defaults(func=run)
 
 
@@ -74,7 +77,8 @@ def run(args) -> int:
         retrain = _retrain_settings(args)
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
         summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,
-                                    args.featurepoints, retrain, update=not args.no_update)
+                                    args.featurepoints, retrain, update=not args.no_update, units=args.units,
+                                    units_option="--units")
         if "stages" in summary:
             st = summary["stages"]
             print("held-out RMS: identified {:.3g} -> updated {:.3g} -> updated + effects {:.3g} um".format(

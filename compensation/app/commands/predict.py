@@ -7,9 +7,11 @@ import numpy as np
 
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
+from errormap.units import check_units
 
 from compensation.app.cli import UsageError
 
+from ..options import add_units_option
 from ...fields import KIND_NAMES, load_field, resolve_model
 
 
@@ -26,6 +28,7 @@ def register(sub):
     p.add_argument("--band", choices=("1sigma", "95"), default=None,
                    help="also write the half-width of a per-component band (1-σ or 95 %%) from the element set's "
                         "covariance (NAME.cov.npz beside it, written by `volcomp identify`)")
+    add_units_option(p, "points")
     p.set_defaults(func=run)
 
 
@@ -49,6 +52,8 @@ def run(args) -> int:
     t = read_table(args.points)
     t.require("x_mm", "z_mm", "a_deg")
     axes = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
+    check_units(t.path, [t.row_number(k) for k in range(len(t))], machine=machine, axes=axes, coverage="path",
+                units=args.units, option="--units")
     src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
     field = load_field(args.model, machine, args.tracking_uri, source=src)
     _check_volume(args, t, axes, field)
@@ -67,6 +72,7 @@ def run(args) -> int:
         k = 1.0 if args.band == "1sigma" else Z95
         tag = "1sigma" if args.band == "1sigma" else "95"
         cols.update({f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
-    path = write_csv(args.out, cols, header_comments=[f"model: {src.description}", f"model_kind: {src.kind}"])
+    path = write_csv(args.out, cols, header_comments=[f"model: {src.description}", f"model_kind: {src.kind}",
+                                                     f"units: {args.units}"])
     print(f"wrote {len(axes)} predictions to {path}")
     return 0

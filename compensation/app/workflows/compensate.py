@@ -63,6 +63,7 @@ class CompensateSettings:
     max_segment_mm: object = "auto"
     conditions: dict = field(default_factory=dict)
     chunk_points: int = CHUNK_POINTS
+    units: str = "check"   # errormap/units.py: "as-written" skips the likely-unit-mistake tests (recorded)
 
 
 @dataclass
@@ -236,7 +237,8 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
     plan = plan_outputs(files, out_dir)
     old_outputs = check_out_dir(out_dir, s.force)
     # parse and validate every input first: a bad file fails the batch before any work or output
-    read_opts = {"rapids": s.rapids, "block_delete": s.block_delete, "arc_tolerance_um": s.arc_tolerance_um}
+    read_opts = {"rapids": s.rapids, "block_delete": s.block_delete, "arc_tolerance_um": s.arc_tolerance_um,
+                 "units": s.units, "units_option": "--units"}
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     source = resolve_model(s.model)  # by content (format key), printed and recorded in the summary
     print(f"compensate: model {source.description}", file=sys.stderr)
@@ -244,7 +246,7 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
     # a diagnosed model whose terms need conditions: per point from the path's columns, else the options
     # (taken and checked once, before any work: a missing condition or a bad cell fails the batch here)
     needs = field_.needs if isinstance(field_, ConditionedField) else ()
-    conds = [path_conditions(tp, needs, field_.conditions) if needs else None for tp in paths]
+    conds = [path_conditions(tp, needs, field_.conditions, s.units, "--units") if needs else None for tp in paths]
     plan_field = field_.corrected.base if needs else field_  # axes-only part
     paths = [replan(tp, machine, max_segment_mm=s.max_segment_mm, field=plan_field) for tp in paths]
     conds = [replanned_conditions(c, tp) for c, tp in zip(conds, paths)]
@@ -276,7 +278,8 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
         if not o.refused:
             o.entry["output"] = str(o.dst)
     summary_path = write_json(out_dir / SUMMARY_NAME, {
-        "method": s.method, "model": s.model, "model_source": source.to_dict(), "machine": machine.path, "allow": list(s.allow),
+        "method": s.method, "model": s.model, "model_source": source.to_dict(), "units": s.units,
+        "machine": machine.path, "allow": list(s.allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "seed": s.seed, "chunk_points": s.chunk_points,
         "solved_on": executor.describe() if executor is not None else LocalExecutor().describe(),
         "files": [o.entry for o in outcomes],

@@ -124,7 +124,8 @@ def _write(out_dir, summary, page):
 
 def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
                tracking_uri=None, featurepoints=None, retrain=None, fit_field=None,
-               field_=None, update: bool = True):
+               field_=None, update: bool = True, units: str = "check",
+               units_option: str | None = None):
     """Diagnose ``checks_path`` against ``model_spec``; returns (summary, paths).
 
     ``field_`` overrides loading ``model_spec`` (tests, benchmarks). With a learned model
@@ -143,13 +144,14 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
         if update and cov is not None and cov.is_file():
             print(f"diagnose: model {src.description}, covariance {cov}: closed loop (update, then effects)",
                   file=sys.stderr)
-            return run_closed_loop(checks_path, machine, model_spec, out_dir, settings, source=src)
+            return run_closed_loop(checks_path, machine, model_spec, out_dir, settings, source=src, units=units,
+                                   units_option=units_option)
         why = ("--no-update" if cov is not None and cov.is_file() else
                f"no covariance {cov} beside it (written by `volcomp identify`)" if cov is not None else
                "a learned field")
         print(f"diagnose: model {src.description}; no model update ({why}): effects on the model as it is",
               file=sys.stderr)
-    checks = load_checks(checks_path, machine)
+    checks = load_checks(checks_path, machine, units=units, units_option=units_option)
     settings = settings or DiagnosisSettings()
     settings.validate(len(checks))
     learned = src is not None and src.kind in ("network", "mlflow")
@@ -160,7 +162,7 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
     summary = dict(d.summary)
     summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name,
                     "model_source": src.to_dict() if src is not None else {"kind": "field given by the caller"},
-                    "model_update": False})
+                    "model_update": False, "units": units})
     if d.selector.terms_ and fp is not None and (learned or fit_field is not None):
         axis_only = [t for t in d.selector.terms_ if not t.needs]
         alias = grid_aliasing(fp, d.corrected) if axis_only and len(axis_only) == len(d.selector.terms_) else None
@@ -187,13 +189,13 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
 
 
 def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
-                    source=None):
+                    source=None, units: str = "check", units_option: str | None = None):
     """The closed loop on an identified element set with its covariance; returns (summary, paths).
     ``source``: the recognised model (:class:`compensation.fields.ModelSource`), else resolved here."""
     from errormap.diagnosis.loop import closed_loop
     from errormap.elements import ElementSet
     from errormap.uncertainty import ElementCovariance, covariance_path
-    checks = load_checks(checks_path, machine)
+    checks = load_checks(checks_path, machine, units=units, units_option=units_option)
     settings = settings or DiagnosisSettings()
     settings.validate(len(checks))
     src = require_kind(source or resolve_model(model_spec), ("elements",), "the closed loop updates")
@@ -202,7 +204,7 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     loop = closed_loop(machine, cov, checks, settings)
     summary = dict(loop.summary)
     summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name,
-                    "model_source": src.to_dict(), "model_update": True,
+                    "model_source": src.to_dict(), "model_update": True, "units": units,
                     "covariance_file": str(covariance_path(src.path)),
                     "residual": "measured (measurement − model prediction); stages judged on the same held-out checks"})
     page = checks_report(loop.diagnosis, summary, model_spec, checks_path)

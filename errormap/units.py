@@ -1,0 +1,154 @@
+"""One unit check for every reader of numbers with units (lengths, angles, temperatures).
+
+Units are never guessed or converted: a file whose numbers fit another unit better than the one
+its column names (metres for mm, radians for degrees, °F or kelvin for °C) is refused with one
+line naming the file, the row, the column and the likely mistake (:class:`~errormap.io.InputError`,
+exit status 2). Every reader calls :func:`check_units` (check measurements, predict points, tool-path
+CSVs, the closed loop's per-point conditions) or one of the helpers below (sweeps: ball distances;
+PKM poses: tip spread, both through :func:`length_unit_guess`).
+
+``units``: :data:`UNITS_CHECK` (default) runs the plausibility tests; :data:`UNITS_AS_WRITTEN` (the
+``--units as-written`` option) is the user's word that the columns are in their named units: the
+likely-mistake tests are skipped and the choice is recorded in the command's output, while the hard
+bounds stay (a temperature outside :data:`TEMP_HARD_RANGE_C`, a value beyond a reader's limit).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .io import InputError
+
+UNITS_CHECK = "check"
+UNITS_AS_WRITTEN = "as-written"
+UNITS_CHOICES = (UNITS_CHECK, UNITS_AS_WRITTEN)
+
+TEMP_HARD_RANGE_C = (-40.0, 80.0)
+"""A machine or room temperature outside this is refused even with ``--units as-written``."""
+TEMP_PLAUSIBLE_C = (0.0, 45.0)
+"""A precision machine tool and its hall are at 15–25 °C; structures near a spindle reach ~40 °C.
+Above 45 °C a temperature column is far likelier °F (45 °F = 7.2 °C: every shop temperature above
+7.2 °C written in °F lands above 45) or kelvin; below 0 °C no such machine works."""
+FAHRENHEIT_RANGE = (45.0, 122.0)   # °F of 7 … 50 °C, named as the likely mistake
+KELVIN_RANGE = (250.0, 330.0)      # K of −23 … 57 °C, named as the likely mistake
+
+UNIT_MIN_POINTS = 10
+"""Below this many points a column's spread says nothing about its unit (as for feature points)."""
+METRE_REACH = 1.5e-3
+"""Path points all within this share of the stroke's far end of zero, while 1000× them lies in the
+stroke: the X/Z columns are metres (a tool path in mm that never leaves the first 0.3 mm of a 200 mm
+stroke is not a path)."""
+MIN_TARGET_EXTENT_MM = 5e-3
+"""A path of at least two distinct WCS targets spanning less than 5 μm in every coordinate is metres
+(a real path moves further than a tracker's noise)."""
+LENGTH_UNITS = (("metres", 1e-3), ("centimetres", 0.1), ("inches", 1 / 25.4), ("micrometres", 1e3))
+"""(name, length in that unit of 1 mm): a measured/nominal ratio near the factor names the unit."""
+LENGTH_RATIO_BAND = (0.8, 1.25)
+
+
+def length_unit_guess(ratio: float) -> str:
+    """The length unit a measured/nominal size ratio (1 for mm) points at, as a message tail, or ""."""
+    for name, f in LENGTH_UNITS:
+        if LENGTH_RATIO_BAND[0] < ratio / f < LENGTH_RATIO_BAND[1]:
+            return f"; this looks like {name} (multiply by {1 / f:g} to get mm)"
+    return ""
+
+
+def temperature_mistake(temp_c, units: str = UNITS_CHECK) -> tuple[int, str] | None:
+    """``(index, message)`` of the first temperature (°C, shape (n,)) whose unit does not fit, or None."""
+    t = np.asarray(temp_c, dtype=float).reshape(-1)
+    lo, hi = TEMP_PLAUSIBLE_C if units == UNITS_CHECK else TEMP_HARD_RANGE_C
+    bad = np.flatnonzero((t < lo) | (t > hi))
+    if not bad.size:
+        return None
+    k = int(bad[0])
+    v = float(t[k])
+    if KELVIN_RANGE[0] <= v <= KELVIN_RANGE[1]:
+        hint = f"kelvin? ({v:g} K = {v - 273.15:.1f} °C)"
+    elif FAHRENHEIT_RANGE[0] <= v <= FAHRENHEIT_RANGE[1]:
+        hint = f"°F? ({v:g} °F = {(v - 32) / 1.8:.1f} °C)"
+    else:
+        hint = "kelvin, °F or a typing mistake?"
+    why = (f"outside the {lo:g} … {hi:g} °C a machine tool works at" if units == UNITS_CHECK
+           else f"outside {lo:g} … {hi:g} °C")
+    return k, f"{v:g} °C is {why}: {hint}"
+
+
+def path_axes_mistake(axes, machine) -> tuple[int, int, str] | None:
+    """``(row index, column index, message)`` of a unit mistake in the axis columns of a tool path or
+    a set of points (``axes`` (n, 3): x_mm, z_mm, a_deg), or None. X/Z: every value within
+    :data:`METRE_REACH` of the stroke's far end of zero and 1000× them inside the stroke (metres);
+    A: the feature points' radian test (:func:`errormap.machine.axes_unit_mistake`)."""
+    from .machine import GRINDER_STROKE_KEYS, axes_unit_mistake
+    axes = np.asarray(axes, dtype=float)
+    if len(axes) >= 2:
+        for j in (0, 1):
+            lo, hi = machine.strokes[GRINDER_STROKE_KEYS[j]]
+            reach = METRE_REACH * max(abs(lo), abs(hi))
+            v = axes[:, j]
+            if (np.abs(v).max() > 0 and np.abs(v).max() <= reach and np.all(1000 * v >= lo - 1e-9)
+                    and np.all(1000 * v <= hi + 1e-9)):
+                k = int(np.argmax(np.abs(v)))
+                return k, j, (f"every value lies within {reach:.3g} mm of zero on a {hi - lo:g} mm stroke and "
+                              "1000× them fits the stroke: metres rather than mm?")
+    mistake = axes_unit_mistake(axes, machine)
+    if mistake is not None and mistake[1] == 2:
+        return mistake
+    return None
+
+
+def targets_mistake(targets_mm) -> tuple[int, int, str] | None:
+    """``(row index, column index, message)`` when WCS targets (n, 3) mm span less than
+    :data:`MIN_TARGET_EXTENT_MM` in every coordinate while not all equal (metres), or None."""
+    p = np.asarray(targets_mm, dtype=float)
+    if len(p) < 2:
+        return None
+    span = np.ptp(p, axis=0)
+    if span.max() > 0 and span.max() < MIN_TARGET_EXTENT_MM:
+        j = int(np.argmax(span))
+        return int(np.argmax(np.abs(p[:, j]))), j, (f"the whole path spans only {span.max():.3g} mm: metres "
+                                                    "rather than mm?")
+    return None
+
+
+def _fail(path, rows, k, column, msg, option):
+    row = f"row {int(rows[k])}, " if rows is not None else ""
+    tail = (f"; if the file really is in the units its columns name, pass {option} {UNITS_AS_WRITTEN}"
+            if option else "")
+    return InputError(f"{path}: {row}column '{column}': units do not fit: {msg}{tail}")
+
+
+def check_units(path, rows=None, *, machine=None, axes=None, axes_columns=("x_mm", "z_mm", "a_deg"),
+                coverage: str = "path", targets=None, target_columns=("px_mm", "py_mm", "pz_mm"),
+                temps=None, units: str = UNITS_CHECK, option: str | None = None) -> None:
+    """The one unit check every reader calls; raises :class:`InputError` (file, row, column, the
+    likely mistake) for the first column whose unit does not fit.
+
+    ``rows`` (n,): the file row of each point (None: no rows to name). ``axes`` (n, 3) with
+    ``machine``: ``coverage="volume"`` for data that covers the machine's volume (check
+    measurements, feature points: :func:`errormap.machine.axes_unit_mistake`), ``"path"`` for a tool
+    path or a set of points (:func:`path_axes_mistake`). ``targets`` (n, 3) mm WCS. ``temps``:
+    ``{column: (n,) °C}``. ``units``: see the module doc; ``option``: the command's option that
+    overrides (``"--units"``), named in the message (None: the command has none).
+    """
+    if units not in UNITS_CHOICES:
+        raise ValueError(f"Expected units in {UNITS_CHOICES}, got {units!r}")
+    for column, t in (temps or {}).items():
+        m = temperature_mistake(t, units)
+        if m is not None:
+            raise _fail(path, rows, m[0], column, m[1], option)
+    if units == UNITS_AS_WRITTEN:
+        return
+    if axes is not None:
+        if coverage == "volume":
+            from .machine import axes_unit_mistake
+            m = axes_unit_mistake(axes, machine)
+        elif coverage == "path":
+            m = path_axes_mistake(axes, machine)
+        else:
+            raise ValueError(f"Expected coverage 'volume' or 'path', got {coverage!r}")
+        if m is not None:
+            raise _fail(path, rows, m[0], axes_columns[m[1]], m[2], option)
+    if targets is not None:
+        m = targets_mistake(targets)
+        if m is not None:
+            raise _fail(path, rows, m[0], target_columns[m[1]], m[2], option)
