@@ -11,7 +11,7 @@ from errormap.sweeps import read_sweeps
 from compensation.app.cli import UsageError
 
 from ..reports.identification import iso_summary_lines, plot_elements
-from ..workflows.identification import identify_elements
+from ..workflows.identification import identify_elements, truth_in_gauge
 
 
 def register(sub):
@@ -63,9 +63,8 @@ def run(args) -> int:
     print(f"wrote covariance: {ident.covariance_path}")
     print(f"wrote report: {ident.report_path}")
     if args.plot:
-        if truth is not None:
-            from errormap.identification import move_squareness
-            truth = move_squareness(truth, elements.constants["s_xz"], machine)
+        if truth is not None:  # in the identified gauge and squareness split, so like is compared with like
+            truth = truth_in_gauge(truth, elements, machine, args.gauge)
         for p in plot_elements(elements, args.plot, truth):
             print(f"wrote plot: {p}")
     return 0

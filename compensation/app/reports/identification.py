@@ -18,8 +18,8 @@ def plot_elements(elements: ElementSet, prefix, truth: ElementSet | None = None)
     """One figure per axis (six elements each, the constants in the title), truth dashed when given.
 
     Written atomically as ``PREFIX_X.png``, ``PREFIX_Z.png``, ``PREFIX_A.png``; returns the paths.
-    The truth is shown after its squareness is moved to the identified value (the one split the
-    sweeps cannot observe), so like is compared with like.
+    The caller passes the truth in the identified gauge and squareness split
+    (:func:`compensation.app.workflows.identification.truth_in_gauge`), so like is compared with like.
     """
     from matplotlib.figure import Figure  # Agg canvas, no pyplot state
     c = elements.constants

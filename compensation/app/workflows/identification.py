@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from errormap.io import companion_path, write_json
 from errormap.iso230 import ISO_NAME
 from errormap.sweeps import read_sweeps
@@ -51,3 +53,25 @@ def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_b
     write_json(report, info)
     el_path = res.elements_.save(out)
     return Identification(sm, el_path, cov_path, report)
+
+
+def truth_in_gauge(truth, elements, machine, gauge: str):
+    """The truth element set expressed as the identification expresses ``elements``: in the same
+    machine frame (``gauge``), at the same stations, with the same squareness split — so that an
+    overlay compares like with like.
+
+    A truth set is written in its own frame (the simulator's: every axis-motion element zero at its
+    first station); the identified one in the gauge of the identification (station-mean by
+    default: the frame on the X carriage's mean pose, the A line at its mean over the turn), and
+    the two differ by a rigid frame change that moves constants and linear trends between
+    elements while leaving every tool point the same. The exact way to the identified frame is
+    the identification itself: noise-free sweeps of the truth at ``elements``' stations,
+    identified with ``gauge``, then the squareness moved to the identified value (the one split
+    the sweeps cannot observe). Returns an :class:`errormap.elements.ElementSet`."""
+    from errormap.identification import identify, move_squareness
+    from errormap.simulator import TruthGrinder
+    from errormap.sweeps import simulate_sweeps, sweeps_from_columns
+    cols = simulate_sweeps(TruthGrinder(machine, truth, {}), noise_um=0.0, seed=0,
+                           stations={k: np.asarray(v) for k, v in elements.stations.items()})
+    same = identify(sweeps_from_columns(cols, "<noise-free sweeps of the truth>"), machine, gauge=gauge).elements_
+    return move_squareness(same, elements.constants["s_xz"], machine)
