@@ -134,6 +134,23 @@ def layout_problem(points_mm, min_separation_mm: float = 1.0):
     return None
 
 
+def _check_length_unit(sw, ax: str, mounts) -> None:
+    """Refuse (InputError naming the file, the axis and the columns) sweeps whose ball distances are
+    a unit factor off the nominal mounts' (metres, centimetres, inches, μm written as mm): the median
+    measured/nominal distance ratio outside :data:`errormap.units.LENGTH_RATIO_BAND`, with a unit named."""
+    from .units import LENGTH_RATIO_BAND, length_unit_guess
+    b = np.asarray(sw.balls_mm, dtype=float)
+    pairs = ((0, 1), (0, 2), (1, 2))
+    nominal = np.array([np.linalg.norm(np.asarray(mounts[i]) - np.asarray(mounts[j])) for i, j in pairs])
+    measured = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in pairs], axis=1)
+    ratio = float(np.median(measured / nominal))
+    guess = length_unit_guess(ratio)
+    if guess and not LENGTH_RATIO_BAND[0] <= ratio <= LENGTH_RATIO_BAND[1]:
+        raise InputError(f"{sw.source}: axis {ax}, columns 'x_mm', 'y_mm', 'z_mm': units do not fit: the balls lie "
+                         f"{ratio:.4g} times as far apart as the machine file's [targets] mounts (expected 1 for "
+                         f"mm){guess}")
+
+
 def _layout_suspects(balls_mm, min_separation_mm: float) -> np.ndarray:
     """Indices of the stations (balls (m, 3, 3)) that :func:`layout_problem` may refuse, in order:
     the same tests at every station at once, with a 1 % margin so that rounding cannot hide one."""
@@ -371,6 +388,7 @@ class TrackerIdentification:
                 raise InputError(f"{machine.path or 'machine'}: key 'targets.{ax}': degenerate target layout for "
                                  f"axis {ax}: {why}")
             sw = sweeps[ax]
+            _check_length_unit(sw, ax, mounts)  # metres, inches, μm for mm: named before the layout tests
             for i in _layout_suspects(sw.balls_mm, self.min_separation_mm):  # vectorised screen, then the message
                 why = layout_problem(sw.balls_mm[i], self.min_separation_mm)
                 if why:

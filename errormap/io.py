@@ -14,6 +14,7 @@ import io
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -318,6 +319,7 @@ def read_table(path) -> Table:
     # lines are split at \n: a quoted cell cannot span lines, and csv's field-size limit
     # must not turn a long line into a traceback
     header = [h.strip() for h in _csv_row(line, path, i + 1)]
+    _check_separator(path, i + 1, header, text[end + 1:end + 1 + 4096] if end >= 0 else "")
     dup = sorted({h for h in header if header.count(h) > 1})
     if dup:
         raise InputError(f"{path}: row {i + 1}: duplicated column name(s) {dup}")
@@ -330,6 +332,26 @@ def read_table(path) -> Table:
             return Table(path, header, None, i + 2, comments, numeric=numeric, lines=body)
     rows, row_lines = _parse_rows(path, body.split("\n") if end >= 0 else [], header, i + 2)
     return Table(path, header, rows, i + 2, comments, row_lines=row_lines)
+
+
+_OTHER_SEPARATORS = ((";", "semicolon"), ("\t", "tab"))
+_DECIMAL_COMMA = re.compile(r"\d,\d")
+
+
+def _check_separator(path, row: int, header: list[str], body_head: str) -> None:
+    """Refuse a table whose header is one cell holding column names split by ``;`` or a tab — a
+    spreadsheet's export in a locale with a decimal comma (Excel writes ``x_mm;z_mm`` and ``1,5``) —
+    naming the separator, instead of a cell count that misleads ("expected 1 cells … got 2")."""
+    if len(header) != 1:
+        return
+    for sep, name in _OTHER_SEPARATORS:
+        names = [h.strip() for h in header[0].split(sep)]
+        if len(names) >= 2 and all(names):
+            first = next((ln for ln in body_head.split("\n") if ln.strip()), "")
+            comma = (" with decimal commas" if _DECIMAL_COMMA.search(first) else "")
+            raise InputError(f"{path}: row {row}: the columns are separated by {name}s ({names[:4]}"
+                             f"{' …' if len(names) > 4 else ''}): a spreadsheet's {name}-separated export"
+                             f"{comma}; save it as CSV with ',' between cells and '.' as the decimal point")
 
 
 def _at_least_lines(text: str, k: int) -> bool:
@@ -357,8 +379,10 @@ def _parse_rows(path, body: list[str], header: list[str], first_row: int) -> tup
         if not r or all(not c.strip() for c in r):
             continue
         if len(r) != len(header):
+            hint = ("; decimal commas? (write 1.5, not 1,5)" if len(r) > len(header) and _DECIMAL_COMMA.search(line)
+                    else "")
             raise InputError(
-                f"{path}: row {first_row + k}: expected {len(header)} cells (columns {header}), got {len(r)}"
+                f"{path}: row {first_row + k}: expected {len(header)} cells (columns {header}), got {len(r)}{hint}"
             )
         rows.append([c.strip() for c in r])
         lines.append(first_row + k)

@@ -269,7 +269,7 @@ def columns_from_table(table) -> dict:
     for k, a in enumerate(axis):
         if a not in SWEEP_AXES:
             raise InputError(f"{table.path}: row {table.row_number(k)}, column 'axis': expected one of "
-                             f"{list(SWEEP_AXES)}, got {a!r}")
+                             f"{list(SWEEP_AXES)}, got {str(a)!r}")
     n = len(table)
     cols = {"axis": axis, "station": table.int("station"), "command": table.float("command"),
             "target": table.int("target", allowed=(1, 2, 3)),
@@ -285,7 +285,7 @@ def columns_from_table(table) -> dict:
             want = "deg" if axis[k] == "A" else "mm"
             if units[k] != want:
                 raise InputError(f"{table.path}: row {table.row_number(k)}, column 'command_unit': axis {axis[k]}, "
-                                 f"station {cols['station'][k]}: expected {want!r}, got {units[k]!r} (mixed units)")
+                                 f"station {cols['station'][k]}: expected {want!r}, got {str(units[k])!r} (mixed units)")
     bad = (cols["station"] < 0) | (cols["station"] > MAX_STATION)
     if np.any(bad):
         k = int(np.argmax(bad))
@@ -314,6 +314,12 @@ def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "") 
 
     def where(k):
         return f"{files[k]}: row {rows[k]}"
+
+    if temp_c is not None:  # °F or kelvin: the shared unit check (errormap/units.py)
+        from .units import temperature_mistake
+        bad = temperature_mistake(temp_c)
+        if bad is not None:
+            raise InputError(f"{where(bad[0])}, column 'temp_c': units do not fit: {bad[1]}")
 
     out = {}
     for ax in SWEEP_AXES:

@@ -43,14 +43,16 @@ def parse_methods(text: str) -> tuple:
     return methods
 
 
-def add_method_arguments(p) -> None:
+def add_method_arguments(p, ga_budget_s: float = DEFAULT_GA_BUDGET_S) -> None:
+    """``--methods``, ``--ga-points``, ``--ga-budget-s`` (default ``ga_budget_s``: the help states the
+    value the command uses), ``--seed``."""
     p.add_argument("--methods", default=",".join(METHODS),
                    help=f"comma-separated methods (default {','.join(METHODS)})")
     p.add_argument("--ga-points", type=int, default=None,
                    help="run the per-point GA on this many evenly spaced points (default: as many as "
                         "fit in --ga-budget-s)")
-    p.add_argument("--ga-budget-s", type=float, default=DEFAULT_GA_BUDGET_S,
-                   help=f"time budget of the per-point GA when --ga-points is not given (default {DEFAULT_GA_BUDGET_S:g} s)")
+    p.add_argument("--ga-budget-s", type=float, default=ga_budget_s,
+                   help=f"time budget of the per-point GA when --ga-points is not given (default {ga_budget_s:g} s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the stochastic solvers")
 
 

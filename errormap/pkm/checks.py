@@ -21,6 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..io import InputError
+from ..units import length_unit_guess
 from .hexapod import angles_to_rotation, forward_kinematics
 from .machine_file import PKM
 
@@ -42,10 +43,7 @@ def check_position_units(source, machine: PKM, tip_mm: np.ndarray, nominal_tip_m
     ratio = _spread(tip_mm) / sn
     if UNIT_RATIO_RANGE[0] <= ratio <= UNIT_RATIO_RANGE[1]:
         return
-    guess = ""
-    for name, f in (("metres", 1e-3), ("centimetres", 0.1), ("inches", 1 / 25.4), ("micrometres", 1e3)):
-        if 0.8 < ratio / f < 1.25:
-            guess = f"; this file looks like {name} (multiply by {1 / f:g} to get mm)"
+    guess = length_unit_guess(ratio)  # the shared unit names (errormap/units.py)
     raise InputError(f"{source}: columns 'x_mm', 'y_mm', 'z_mm': the measured tips spread {ratio:.4g} times as far as "
                      f"the commanded poses do (expected 1 for mm){guess}")
 

@@ -27,6 +27,10 @@ from .compare import compare_methods
 from .simulate import simulate_truth, summary_lines
 
 
+DEMO_GA_BUDGET_S = 90.0
+"""The demo's per-point GA budget (s): ``volcomp demo``'s default and its --help, from this one name."""
+
+
 @dataclass
 class DemoSettings:
     """What one demo run does. ``flute``: the path (:func:`compensation.toolpath.flute_path`);
@@ -44,7 +48,7 @@ class DemoSettings:
     trainer: str = "lm"
     hidden: tuple | None = None
     ga_points: int | None = None
-    ga_budget_s: float = 90.0
+    ga_budget_s: float = DEMO_GA_BUDGET_S
 
 
 def train_field(fp_path: Path, s: DemoSettings, log=None):
