@@ -403,8 +403,8 @@ def _read_csv(path, machine, units: str = UNITS_CHECK, units_option: str | None 
                     units=units, option=units_option)
         return ToolPathFile(Path(path), "csv-axes", axes, forward(machine, axes), rows, t)
     targets = np.stack([t.float(c) for c in TARGET_COLUMNS], axis=1)
-    check_units(path, rows, targets=targets, target_columns=TARGET_COLUMNS, temps=temps, units=units,
-                option=units_option)
+    check_units(path, rows, machine=machine, targets=targets, target_columns=TARGET_COLUMNS, temps=temps,
+                units=units, option=units_option)
     return ToolPathFile(Path(path), "csv-targets", inverse(machine, targets, unwrap=True), targets, rows, t)
 
 

@@ -349,9 +349,9 @@ def _check_separator(path, row: int, header: list[str], body_head: str) -> None:
         if len(names) >= 2 and all(names):
             first = next((ln for ln in body_head.split("\n") if ln.strip()), "")
             comma = (" with decimal commas" if _DECIMAL_COMMA.search(first) else "")
-            raise InputError(f"{path}: row {row}: the columns are separated by {name}s ({names[:4]}"
-                             f"{' …' if len(names) > 4 else ''}): a spreadsheet's {name}-separated export"
-                             f"{comma}; save it as CSV with ',' between cells and '.' as the decimal point")
+            raise InputError(f"{path}: row {row}: cells separated by {name}s ({names[:3]}"
+                             f"{' …' if len(names) > 3 else ''}){comma}: a spreadsheet export; save it as CSV "
+                             "with ',' separators and '.' decimals")
 
 
 def _at_least_lines(text: str, k: int) -> bool:

@@ -68,9 +68,7 @@ def temperature_mistake(temp_c, units: str = UNITS_CHECK) -> tuple[int, str] | N
         hint = f"°F? ({v:g} °F = {(v - 32) / 1.8:.1f} °C)"
     else:
         hint = "kelvin, °F or a typing mistake?"
-    why = (f"outside the {lo:g} … {hi:g} °C a machine tool works at" if units == UNITS_CHECK
-           else f"outside {lo:g} … {hi:g} °C")
-    return k, f"{v:g} °C is {why}: {hint}"
+    return k, f"{v:g} °C is outside {lo:g} … {hi:g} °C: {hint}"
 
 
 def path_axes_mistake(axes, machine) -> tuple[int, int, str] | None:
@@ -88,19 +86,40 @@ def path_axes_mistake(axes, machine) -> tuple[int, int, str] | None:
             if (np.abs(v).max() > 0 and np.abs(v).max() <= reach and np.all(1000 * v >= lo - 1e-9)
                     and np.all(1000 * v <= hi + 1e-9)):
                 k = int(np.argmax(np.abs(v)))
-                return k, j, (f"every value lies within {reach:.3g} mm of zero on a {hi - lo:g} mm stroke and "
-                              "1000× them fits the stroke: metres rather than mm?")
+                return k, j, (f"all within {reach:.3g} mm of zero on a {hi - lo:g} mm stroke (1000× fits it): "
+                              "metres rather than mm?")
     mistake = axes_unit_mistake(axes, machine)
     if mistake is not None and mistake[1] == 2:
         return mistake
     return None
 
 
-def targets_mistake(targets_mm) -> tuple[int, int, str] | None:
-    """``(row index, column index, message)`` when WCS targets (n, 3) mm span less than
-    :data:`MIN_TARGET_EXTENT_MM` in every coordinate while not all equal (metres), or None."""
+def wcs_box_mm(machine) -> tuple[np.ndarray, np.ndarray]:
+    """The WCS bounding box (lo (3,), hi (3,)) mm of the nominal tool points over the machine's
+    strokes (a 5 × 5 × 25 grid of X, Z, A: its corners and the A turn)."""
+    from .kinematics import forward
+    g = [np.linspace(*machine.strokes[k], n) for k, n in (("x_mm", 5), ("z_mm", 5), ("a_deg", 25))]
+    axes = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
+    p = forward(machine, axes)
+    return p.min(axis=0), p.max(axis=0)
+
+
+def targets_mistake(targets_mm, machine) -> tuple[int, int, str] | None:
+    """``(row index, column index, message)`` when WCS targets (n, 3) mm are metres, or None: every
+    coordinate within :data:`METRE_REACH` of the WCS box's far extent of zero and 1000× them inside
+    the box (a real path does not stay within a few tenths of a mm of the WCS origin), or — without a
+    machine to size it — a path of distinct targets spanning less than :data:`MIN_TARGET_EXTENT_MM`."""
     p = np.asarray(targets_mm, dtype=float)
-    if len(p) < 2:
+    if len(p) < 2 or not np.abs(p).max() > 0:
+        return None
+    if machine is not None:
+        lo, hi = wcs_box_mm(machine)
+        reach = METRE_REACH * float(np.abs(np.concatenate([lo, hi])).max())
+        slack = 0.05 * (hi - lo)
+        if np.abs(p).max() <= reach and np.all(1000 * p >= lo - slack) and np.all(1000 * p <= hi + slack):
+            k, j = np.unravel_index(int(np.argmax(np.abs(p))), p.shape)
+            return int(k), int(j), (f"all within {reach:.3g} mm of the WCS origin while the machine reaches "
+                                    f"{reach / METRE_REACH:.4g} mm (1000× fits it): metres rather than mm?")
         return None
     span = np.ptp(p, axis=0)
     if span.max() > 0 and span.max() < MIN_TARGET_EXTENT_MM:
@@ -112,8 +131,7 @@ def targets_mistake(targets_mm) -> tuple[int, int, str] | None:
 
 def _fail(path, rows, k, column, msg, option):
     row = f"row {int(rows[k])}, " if rows is not None else ""
-    tail = (f"; if the file really is in the units its columns name, pass {option} {UNITS_AS_WRITTEN}"
-            if option else "")
+    tail = f" (if not, {option} {UNITS_AS_WRITTEN})" if option else ""
     return InputError(f"{path}: {row}column '{column}': units do not fit: {msg}{tail}")
 
 
@@ -126,7 +144,8 @@ def check_units(path, rows=None, *, machine=None, axes=None, axes_columns=("x_mm
     ``rows`` (n,): the file row of each point (None: no rows to name). ``axes`` (n, 3) with
     ``machine``: ``coverage="volume"`` for data that covers the machine's volume (check
     measurements, feature points: :func:`errormap.machine.axes_unit_mistake`), ``"path"`` for a tool
-    path or a set of points (:func:`path_axes_mistake`). ``targets`` (n, 3) mm WCS. ``temps``:
+    path or a set of points (:func:`path_axes_mistake`). ``targets`` (n, 3) mm WCS
+    (:func:`targets_mistake`, sized by ``machine`` when given). ``temps``:
     ``{column: (n,) °C}``. ``units``: see the module doc; ``option``: the command's option that
     overrides (``"--units"``), named in the message (None: the command has none).
     """
@@ -149,6 +168,6 @@ def check_units(path, rows=None, *, machine=None, axes=None, axes_columns=("x_mm
         if m is not None:
             raise _fail(path, rows, m[0], axes_columns[m[1]], m[2], option)
     if targets is not None:
-        m = targets_mistake(targets)
+        m = targets_mistake(targets, machine)
         if m is not None:
             raise _fail(path, rows, m[0], target_columns[m[1]], m[2], option)
