@@ -65,13 +65,11 @@ class FeaturePoints:
     def check_units(self, machine) -> None:
         """Refuse feature points whose units do not fit the machine, naming row, column and the
         likely mistake: axes in metres or radians, errors in mm, nm or positions."""
-        from .machine import axes_unit_mistake
+        from .units import check_units
         rows = self.rows if self.rows is not None else np.arange(1, len(self.axes) + 1)
         src = self.source or "feature points"
-        mistake = axes_unit_mistake(self.axes, machine)
-        if mistake is not None:
-            k, j, msg = mistake
-            raise InputError(f"{src}: row {rows[k]}, column '{COLUMNS[j]}': units do not fit: {msg}")
+        # metres, radians: the shared check (errormap/units.py), the volume-covering form
+        check_units(src, rows, machine=machine, axes=self.axes, axes_columns=COLUMNS[:3], coverage="volume")
         e = np.abs(self.errors_um)
         k, j = np.unravel_index(int(np.argmax(e)), e.shape)
         if e[k, j] > MAX_ERROR_UM:

@@ -1,6 +1,8 @@
 """``volcomp featurepoints``: the 11×11×11 feature-point dataset from an element set."""
 from __future__ import annotations
 
+import sys
+
 from errormap.elements import ElementSet
 from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField
@@ -19,7 +21,8 @@ def register(sub):
 
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind="grinder")
-    el = ElementSet.load(args.elements)
+    el = ElementSet.load(args.elements)  # by content: its format key, whatever the file's name
+    print(f"featurepoints: element set (volcomp-elements/1): {args.elements}", file=sys.stderr)
     fp = make_feature_points(machine, HTMField(machine, el), n=args.grid,
                              meta={"elements_file": args.elements, "elements_sha256": sha256_file(args.elements)})
     path = fp.save(args.out)
