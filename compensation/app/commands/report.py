@@ -18,7 +18,7 @@ from compensation.app.cli import UsageError
 from ...evaluate import load_truth
 from ...fields import load_field, resolve_model
 from ...pathio import read_path
-from ..options import add_flute_arguments, add_method_arguments, flute_from_args, parse_methods
+from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
 from ..reports.methods import print_table, write_report
 from ..workflows.compare import compare_methods
 from ...toolpath import check_in_strokes
@@ -39,6 +39,7 @@ def register(sub):
                    help="simulate folder (truth_elements.json + truth.json) or element-set file: adds the TRUE residual")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
     p.add_argument("--out", required=True, metavar="DIR")
+    add_units_option(p, "CSV tool-path columns")
     add_method_arguments(p)
     add_flute_arguments(p)
     p.set_defaults(func=run)
@@ -61,9 +62,9 @@ def run(args) -> int:
             raise UsageError(str(exc)) from None
         path_info = {"path": "flute", "flute": fl.settings.to_dict(), "points": len(fl)}
     else:
-        tp = read_path(args.path, machine)
+        tp = read_path(args.path, machine, units=args.units, units_option="--units")
         targets, nominal = tp.targets_mm, tp.axes
-        path_info = {"path": str(args.path), "format": tp.kind, "points": len(tp)}
+        path_info = {"path": str(args.path), "format": tp.kind, "points": len(tp), "units": args.units}
     truth = load_truth(args.truth, machine) if args.truth else None
     source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
     print(f"report: model {source.description}", file=sys.stderr)
