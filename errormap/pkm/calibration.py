@@ -760,6 +760,7 @@ def calibration_to_dict(result: CalibrationResult) -> dict:
     rot = Rotation.from_matrix(result.frame_rotation)
     m = result.machine
     return {
+        "format": CALIBRATION_FORMAT,
         "kind": m.kind,
         "machine": {"name": m.name, "path": m.path, "sha256": m.sha256},
         "parameters": result.parameter_table(),
@@ -791,8 +792,14 @@ def calibration_to_dict(result: CalibrationResult) -> dict:
     }
 
 
+CALIBRATION_FORMAT = "volcomp-pkm-calibration/1"
+"""The ``format`` key of ``calibration.json``: the file is recognised by it, whatever its name (files
+written before the key existed are recognised by their ``kind`` and ``identified_machine`` keys)."""
+
+
 def load_calibrated_machine(path, machine: PKM) -> PKM:
-    """The identified machine from ``calibration.json`` (a file or its folder), checked against ``machine``."""
+    """The identified machine from ``calibration.json`` (a file, whatever its name, or its folder),
+    recognised by its ``format`` key and checked against ``machine``."""
     import json
     p = Path(path)
     if p.is_dir():
@@ -801,10 +808,18 @@ def load_calibrated_machine(path, machine: PKM) -> PKM:
         raise InputError(f"{p}: no such calibration file")
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))
+    except ValueError as exc:
+        raise InputError(f"{p}: not a PKM calibration file (not JSON: {exc})") from None
+    fmt = doc.get("format") if isinstance(doc, dict) else None
+    if fmt is not None and fmt != CALIBRATION_FORMAT:
+        raise InputError(f"{p}: key 'format': {str(fmt)!r}; not a PKM calibration file (expected "
+                         f"{CALIBRATION_FORMAT!r}, written by `volcomp calibrate`)")
+    try:
         im = doc["identified_machine"]
         kind = doc["kind"]
-    except (ValueError, KeyError) as exc:
-        raise InputError(f"{p}: not a PKM calibration file ({exc})") from None
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"{p}: not a PKM calibration file (no key {exc}; expected format "
+                         f"{CALIBRATION_FORMAT!r})") from None
     if kind != machine.kind:
         raise InputError(f"{p}: key 'kind': calibration is for a {kind}, the machine file is a {machine.kind}")
     k = machine.n_legs
