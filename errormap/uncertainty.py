@@ -60,6 +60,11 @@ def _second_differences(m: int, periodic: bool) -> np.ndarray:
     return np.diff(np.eye(m), 2, axis=0)
 
 
+COMPANION_THETA_TOL = 1e-9
+"""Relative: a covariance file holds the θ of the element set it was saved with, and the element-set
+JSON keeps every float exactly (round-trip repr); a larger difference is another identification's file."""
+
+
 def theta_layout(elements: ElementSet) -> list[tuple[str, int]]:
     """``(element, station index)`` of every entry of θ (station −1 for a constant)."""
     out = []
@@ -198,6 +203,13 @@ class ElementCovariance:
             raise InputError(f"{path}: not a volcomp covariance file: {exc}") from None
         if lay != theta_layout(elements) or cov.shape != (len(lay), len(lay)):
             raise InputError(f"{path}: its parameter layout does not match the element set's stations")
+        own = theta_from_elements(elements)
+        k = int(np.argmax(np.abs(theta - own)))
+        if abs(theta[k] - own[k]) > COMPANION_THETA_TOL * max(1.0, float(np.abs(own).max())):
+            name, st = lay[k]
+            raise InputError(f"{path}: not the covariance of this element set: its values differ at {name}"
+                             f"{'' if st < 0 else f' station {st}'} ({theta[k]:.6g} vs {own[k]:.6g}); a companion "
+                             "left from another identification? Identify again or move the right one beside it")
         return cls(theta, cov, elements, info, extra)
 
 

@@ -344,3 +344,18 @@ def test_pkm_calibration_file_is_known_by_its_format_key(tmp_path):
     el = ElementSet.zeros(load_machine()).save(tmp_path / "calibration.json")  # the right name, the wrong content
     with pytest.raises(InputError, match=r"key 'format': 'volcomp-elements/1'; not a PKM calibration file"):
         load_calibrated_machine(el, m)
+
+
+def test_a_stale_covariance_companion_is_refused(machine, tmp_path):
+    """The companion is found by name; that it belongs to the element set is checked by content."""
+    from errormap.uncertainty import ElementCovariance, theta_from_elements, theta_layout
+    el = random_truth(machine, SEED).elements
+    p = len(theta_layout(el))
+    ElementCovariance(theta_from_elements(el), np.eye(p), el, {}).save(tmp_path / "E.cov.npz")
+    el.save(tmp_path / "E.json")
+    ElementCovariance.load(covariance_path(tmp_path / "E.json"), ElementSet.load(tmp_path / "E.json"))
+    other = el.copy()
+    other.constants["s_xz"] += 1.0
+    other.save(tmp_path / "E.json")                      # re-identified, the old companion left beside it
+    with pytest.raises(InputError, match=r"E\.cov\.npz: not the covariance of this element set: .* at s_xz"):
+        ElementCovariance.load(covariance_path(tmp_path / "E.json"), ElementSet.load(tmp_path / "E.json"))
