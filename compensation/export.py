@@ -569,6 +569,11 @@ def _is_float(s: str) -> bool:
         return False
 
 
+CHECKS_DIAGNOSIS_FORMAT = "volcomp-checks-diagnosis/1"
+"""The ``format`` key of ``diagnosis.json`` written by ``volcomp diagnose CHECKS`` (the drift
+diagnosis has its own content and no ``effects``)."""
+
+
 def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
     """Joint backlash (in its element's unit, μm or μrad) from ``diagnosis.json`` reversal terms, and the
     effects NOT exported.
@@ -584,6 +589,10 @@ def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
         d = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: not valid JSON: {exc}") from None
+    fmt = d.get("format") if isinstance(d, dict) else None
+    if fmt is not None and fmt != CHECKS_DIAGNOSIS_FORMAT:  # by content; files from before the key: by 'effects'
+        raise InputError(f"{path}: key 'format': {str(fmt)!r}; expected {CHECKS_DIAGNOSIS_FORMAT!r} (the "
+                         "diagnosis.json of `volcomp diagnose CHECKS`)")
     effects = d.get("effects") if isinstance(d, dict) else None
     if not isinstance(effects, list):
         raise InputError(f"{path}: key 'effects': expected a list of diagnosed effects")

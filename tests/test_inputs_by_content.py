@@ -359,3 +359,15 @@ def test_a_stale_covariance_companion_is_refused(machine, tmp_path):
     other.save(tmp_path / "E.json")                      # re-identified, the old companion left beside it
     with pytest.raises(InputError, match=r"E\.cov\.npz: not the covariance of this element set: .* at s_xz"):
         ElementCovariance.load(covariance_path(tmp_path / "E.json"), ElementSet.load(tmp_path / "E.json"))
+
+
+def test_export_diagnosis_is_known_by_its_format_key(tmp_path):
+    from compensation.export import CHECKS_DIAGNOSIS_FORMAT, backlash_from_diagnosis
+    good = tmp_path / "diag"
+    good.write_text(json.dumps({"format": CHECKS_DIAGNOSIS_FORMAT, "effects": [
+        {"kind": "reversal", "axis": "z", "element": "dz_z", "parameters": {"backlash_um": {"value": 1.5}}}]}))
+    assert backlash_from_diagnosis(good) == ({"z": 1.5}, [])
+    bad = tmp_path / "diagnosis.json"
+    bad.write_text(json.dumps({"format": "volcomp-elements/1", "effects": []}))
+    with pytest.raises(InputError, match=r"key 'format': 'volcomp-elements/1'; expected 'volcomp-checks-diagnosis/1'"):
+        backlash_from_diagnosis(bad)

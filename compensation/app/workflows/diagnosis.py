@@ -26,6 +26,7 @@ from errormap.featurepoints import FeaturePoints
 from errormap.io import InputError, write_json
 from errormap.stats import residual_stats
 
+from ...export import CHECKS_DIAGNOSIS_FORMAT
 from ...fields import load_field, require_kind, resolve_model
 from ..reports.diagnosis import checks_report, drift_report
 from ..reports.toolkit import write_page
@@ -160,8 +161,8 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
         field_ = load_field(str(model_spec), machine, tracking_uri, source=src)
     d = diagnose(machine, field_, checks, settings)
     summary = dict(d.summary)
-    summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name,
-                    "model_source": src.to_dict() if src is not None else {"kind": "field given by the caller"},
+    summary.update({"format": CHECKS_DIAGNOSIS_FORMAT, "checks": str(checks_path), "model": str(model_spec),
+                    "machine": machine.name, "model_source": src.to_dict() if src is not None else {"kind": "field given by the caller"},
                     "model_update": False, "units": units})
     if d.selector.terms_ and fp is not None and (learned or fit_field is not None):
         axis_only = [t for t in d.selector.terms_ if not t.needs]
@@ -203,8 +204,8 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     cov = ElementCovariance.load(covariance_path(src.path), el)
     loop = closed_loop(machine, cov, checks, settings)
     summary = dict(loop.summary)
-    summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name,
-                    "model_source": src.to_dict(), "model_update": True, "units": units,
+    summary.update({"format": CHECKS_DIAGNOSIS_FORMAT, "checks": str(checks_path), "model": str(model_spec),
+                    "machine": machine.name, "model_source": src.to_dict(), "model_update": True, "units": units,
                     "covariance_file": str(covariance_path(src.path)),
                     "residual": "measured (measurement − model prediction); stages judged on the same held-out checks"})
     page = checks_report(loop.diagnosis, summary, model_spec, checks_path)
