@@ -114,7 +114,9 @@ def require_kind(src: ModelSource, kinds, what: str) -> ModelSource:
         hint = {"drift": "; a drift model is applied by `volcomp drift-predict` and exported with `volcomp export "
                          "--format drift`",
                 "diagnosed": "; `volcomp compensate` takes a diagnosed model.json"}.get(src.kind, "")
-        raise InputError(f"{src.path or src.spec}: a {KIND_NAMES[src.kind]}, but {what} one of: {want}{hint}")
+        name = KIND_NAMES[src.kind]
+        article = "an" if name[0] in "aeiou" else "a"
+        raise InputError(f"{src.path or src.spec}: {article} {name}, but {what} one of: {want}{hint}")
     return src
 
 
