@@ -119,6 +119,7 @@ def test_identify_out_without_suffix_then_diagnose_runs_the_closed_loop(machine,
     assert a["rms_after_um"] == b["rms_after_um"] and a["effects"] == b["effects"]
 
 
+@pytest.mark.slow
 def test_diagnose_without_covariance_says_it_skips_the_update(machine, tmp_path, capsys):
     el = random_truth(machine, SEED).elements.save(tmp_path / "truth")
     checks = _checks(machine, tmp_path)
