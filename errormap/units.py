@@ -31,11 +31,9 @@ Above 45 °C a temperature column is far likelier °F (45 °F = 7.2 °C: every s
 FAHRENHEIT_RANGE = (45.0, 122.0)   # °F of 7 … 50 °C, named as the likely mistake
 KELVIN_RANGE = (250.0, 330.0)      # K of −23 … 57 °C, named as the likely mistake
 
-UNIT_MIN_POINTS = 10
-"""Below this many points a column's spread says nothing about its unit (as for feature points)."""
 METRE_REACH = 1.5e-3
-"""Path points all within this share of the stroke's far end of zero, while 1000× them lies in the
-stroke: the X/Z columns are metres (a tool path in mm that never leaves the first 0.3 mm of a 200 mm
+"""Path points all within this share of the stroke's larger end (|lo| or |hi|) of zero, while 1000× them
+lie in the stroke: the X/Z columns are metres (a tool path in mm that never leaves the first 0.3 mm of a 200 mm
 stroke is not a path)."""
 MIN_TARGET_EXTENT_MM = 5e-3
 """A path of at least two distinct WCS targets spanning less than 5 μm in every coordinate is metres
@@ -74,7 +72,7 @@ def temperature_mistake(temp_c, units: str = UNITS_CHECK) -> tuple[int, str] | N
 def path_axes_mistake(axes, machine) -> tuple[int, int, str] | None:
     """``(row index, column index, message)`` of a unit mistake in the axis columns of a tool path or
     a set of points (``axes`` (n, 3): x_mm, z_mm, a_deg), or None. X/Z: every value within
-    :data:`METRE_REACH` of the stroke's far end of zero and 1000× them inside the stroke (metres);
+    :data:`METRE_REACH` × the stroke's larger end of zero and 1000× them inside the stroke (metres);
     A: the feature points' radian test (:func:`errormap.machine.axes_unit_mistake`)."""
     from .machine import GRINDER_STROKE_KEYS, axes_unit_mistake
     axes = np.asarray(axes, dtype=float)
