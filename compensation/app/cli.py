@@ -107,9 +107,39 @@ def one_line(msg: str, limit: int = MAX_ERROR_CHARS) -> str:
     return s[: keep - keep // 3] + " ... " + s[len(s) - keep // 3:]
 
 
+INTERRUPTED_EXIT = 130  # 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C
+
+
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    name = _command_in(argv)
+    """Run one command; its exit status. Never a traceback for what a user can cause: bad
+    arguments, input or output paths (one line, exit 2; :mod:`compensation.app.validate`
+    checks every option before any work), Ctrl-C at any moment, also while the numerical
+    libraries are still being imported (one line, exit 130; outputs are written through
+    temporary files, which an interrupted writer removes, so nothing half-written stays)."""
+    command, as_program = None, argv is None
+    try:
+        argv = sys.argv[1:] if argv is None else list(argv)
+        command = _command_in(argv)
+        return _run(argv, command)
+    except KeyboardInterrupt:
+        return _interrupted(command, as_program)
+
+
+def _interrupted(command, as_program: bool) -> int:
+    import signal
+    if as_program:  # a second Ctrl-C while Python shuts down must not print a traceback either
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # pragma: no cover - not the main thread
+            pass
+    try:
+        print(f"volcomp{' ' + command if command else ''}: interrupted; nothing half-written", file=sys.stderr)
+    except (KeyboardInterrupt, OSError):  # pragma: no cover
+        pass
+    return INTERRUPTED_EXIT
+
+
+def _run(argv, name) -> int:
     parser = build_parser([name] if name else [])
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -118,13 +148,27 @@ def main(argv=None) -> int:
     from errormap.io import InputError
     from errormap.machine import MachineFileError
     try:
+        from .validate import check_args
+        check_args(args.command, args, _subparser(parser, args.command))
         return int(args.func(args) or 0)
     except (InputError, MachineFileError, UsageError) as exc:
         print(one_line(f"volcomp {args.command}: error: {exc}"), file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"volcomp {args.command}: interrupted; nothing half-written", file=sys.stderr)
-        return 130
+    except OSError as exc:
+        # a file system refusal while writing or reading (permission, disk full, a path that
+        # vanished): the user's environment, not a defect of the command
+        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
+        why = exc.strerror or type(exc).__name__
+        print(one_line(f"volcomp {args.command}: error:{where}: {why}"), file=sys.stderr)
+        return 2
+
+
+def _subparser(parser, name):
+    """The sub-parser of command ``name`` (None when the parser has no such command)."""
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            return a.choices.get(name)
+    return None
 
 
 if __name__ == "__main__":  # pragma: no cover
