@@ -70,10 +70,18 @@ def _register(sub, name: str) -> bool:
     return True
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``volcomp CMD: error: ... (volcomp CMD --help)``, exit 2."""
+
+    def error(self, message):
+        print(one_line(f"{self.prog}: error: {message} (see {self.prog} --help)"), file=sys.stderr)
+        sys.exit(2)
+
+
 def build_parser(commands=None) -> argparse.ArgumentParser:
     """The argument parser; ``commands``: names whose modules are imported and registered in
     full (default: all); the others get a light entry carrying only their help line."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="volcomp",
         description="Learned volumetric error compensation for precision machine tools.",
     )

@@ -46,6 +46,16 @@ MAX_GA_POINTS = MAX_PATH_POINTS
 MAX_WORKERS = 4096
 # seeds: numpy, torch and PyGAD all take a seed in [0, 2**32)
 MAX_SEED = 2**32 - 1
+# network size: parameters of the BP network (the paper's 10,15,25,15,10 has 1,188); the LM
+# Hessian alone is P² float64 (20,000 parameters: 3.2 GB)
+MAX_NETWORK_PARAMS = 20_000
+# LM holds the whole Jacobian (3 × feature points × parameters) and the Hessian in float64
+MAX_LM_BYTES = 4 * 2**30
+# points evaluated by one predict call (memory of a batch; a network holds every layer's
+# activations of the batch)
+PREDICT_BATCH = 65_536
+# interpolate: the contour step f = feed × period; below 1 μm a metre of path is over 1e6 steps
+MIN_CONTOUR_STEP_MM = 1e-3
 # iteration counts (LM iterations: each a Jacobian over the whole feature-point set)
 MAX_ITER = 10_000_000
 
@@ -158,17 +168,59 @@ class Grid:
 
 GRID = Grid()
 
+
+def network_params(hidden, a_encoding: str = "raw") -> int:
+    """Weights and biases of the BP network with ``hidden`` widths (3 or 4 inputs, 3 outputs)."""
+    sizes = [4 if a_encoding == "periodic" else 3, *hidden, 3]
+    return sum(a * b + b for a, b in zip(sizes[:-1], sizes[1:]))
+
+
+@dataclass(frozen=True)
+class Widths:
+    """``--hidden``: comma-separated layer widths >= 1, at most :data:`MAX_NETWORK_PARAMS` parameters."""
+
+    def check(self, flag: str, v) -> None:
+        try:
+            hidden = [int(h) for h in str(v).split(",")]
+        except ValueError:
+            raise UsageError(f"{flag}: expected comma-separated integers, got {v!r}") from None
+        if not hidden or min(hidden) < 1:
+            raise UsageError(f"{flag}: expected widths >= 1, got {v!r}")
+        n = network_params(hidden, "periodic")
+        if n > MAX_NETWORK_PARAMS:
+            raise UsageError(f"{flag}: a network {v} has {n:,} parameters, over the limit of "
+                             f"{MAX_NETWORK_PARAMS:,} (the paper's 10,15,25,15,10 has {network_params((10, 15, 25, 15, 10)):,})")
+
+
+def check_lm_size(n_points: int, hidden, a_encoding: str) -> None:
+    """Refuse an LM fit whose Jacobian (3n × P) and Hessian (P × P), float64, exceed :data:`MAX_LM_BYTES`."""
+    p = network_params(hidden, a_encoding)
+    need = 8 * (3 * n_points * p + p * p)
+    if need > MAX_LM_BYTES:
+        n_max = max(0, (MAX_LM_BYTES // 8 - p * p) // (3 * p))
+        raise UsageError(f"--trainer lm: {n_points:,} feature points x {p:,} network parameters need "
+                         f"{need / 2**30:.3g} GiB for the Jacobian, over the limit of {MAX_LM_BYTES / 2**30:g} GiB "
+                         f"(at most {n_max:,} points for this network; or --trainer adam / lbfgs)")
+
+
+def predict_batched(field, axes):
+    """``field.predict(axes)`` in batches of :data:`PREDICT_BATCH` points: bounded memory. Shape (n, 3)."""
+    import numpy as np
+    if len(axes) <= PREDICT_BATCH:
+        return field.predict(axes)
+    return np.concatenate([field.predict(axes[i:i + PREDICT_BATCH]) for i in range(0, len(axes), PREDICT_BATCH)])
+
 RULES: dict[str, dict] = {
     "simulate": {"noise_um": non_negative("um"), "checks": Count(1, MAX_CHECKS, "check measurements"),
                  "out": OUT_DIR},
     "featurepoints": {"grid": GRID, "out": OUT_FILE},
     "predict": {"out": OUT_FILE},
-    "train": {"out": OUT_DIR, "max_time": positive("s"), "mse_goal": non_negative(), "max_iter": ITER,
+    "train": {"out": OUT_DIR, "hidden": Widths(), "max_time": positive("s"), "mse_goal": non_negative(), "max_iter": ITER,
               "threads": Count(1, MAX_WORKERS, "threads")},
     "compensate": {"out": OUT_DIR, "show": Count(1), "arc_tolerance_um": positive("um"), "temp_c": FINITE,
                    "time_s": FINITE},
     "report": {"out": OUT_DIR, **METHODS, **FLUTE},
-    "demo": {"out": OUT_DIR, "train_iter": ITER, "train_s": positive("s"), **METHODS, **FLUTE},
+    "demo": {"out": OUT_DIR, "hidden": Widths(), "train_iter": ITER, "train_s": positive("s"), **METHODS, **FLUTE},
     "identify": {"out": OUT_FILE, "report": OUT_FILE, "plot": OUT_PREFIX, "noise_um": positive("um"),
                  "bootstrap": Count(2, MAX_BOOTSTRAP, "bootstrap draws")},
     "sweeps": {"out": OUT_FILE, "noise_um": non_negative("um"), "warmup_c": Number(-100.0, 100.0, unit="degC")},
@@ -179,7 +231,7 @@ RULES: dict[str, dict] = {
                     "feed_mm_min": positive("mm/min"), "period_ms": positive("ms")},
     "benchmark": {"out": OUT_DIR, "train_iter": ITER, "train_s": positive("s")},
     "drift-predict": {"out": OUT_FILE},
-    "fleet": {"out": OUT_DIR, "train_iter": ITER, "grid": GRID, "bootstrap": Count(2, MAX_BOOTSTRAP, "bootstrap draws")},
+    "fleet": {"out": OUT_DIR, "hidden": Widths(), "train_iter": ITER, "grid": GRID, "bootstrap": Count(2, MAX_BOOTSTRAP, "bootstrap draws")},
     "export": {"out": OUT_DIR, "tolerance_um": positive("um"), "points": Count(2),
                "check_points": Count(1, MAX_CHECKS, "check points"), "sample_period_s": positive("s")},
 }
@@ -214,6 +266,12 @@ def check_args(command: str, args, parser=None) -> None:
         rule.check(flag, value)
     if command in ("report", "demo"):
         _check_flute(args)
+    if command == "interpolate":
+        step_mm = args.feed_mm_min / 60.0 * args.period_ms / 1000.0
+        if step_mm < MIN_CONTOUR_STEP_MM:
+            raise UsageError(f"--feed-mm-min {args.feed_mm_min:g} x --period-ms {args.period_ms:g}: contour step "
+                             f"{step_mm:.3g} mm is under the limit of {MIN_CONTOUR_STEP_MM:g} mm (over 1e6 steps per "
+                             "metre of path)")
     for flag, value, rule in outs:
         rule.check(flag, value)
 
