@@ -109,7 +109,7 @@ def missing(tmp_path):
 
 def test_seed_minus_one_simulate(tmp_path):
     rc, _, err = run_cli(["simulate", "--seed", "-1", "--out", tmp_path / "sim"])
-    assert_one_line_refusal(rc, err, "--seed", ">= 0", "-1")
+    assert_one_line_refusal(rc, err, "--seed must be >= 0, got -1")
     assert not (tmp_path / "sim").exists()
 
 

@@ -13,6 +13,10 @@ import argparse
 import importlib
 import sys
 
+# UsageError is defined in validate (stdlib only, imports nothing of ours) and re-exported here,
+# where every command imports it from
+from compensation.app.validate import UsageError  # noqa: F401
+
 # sub-commands and their one-line help, in the order `volcomp --help` lists them; command
 # ``a-b`` lives in ``compensation/app/commands/a_b.py``; tests/test_cli_foundation.py checks that
 # each module registers exactly this help
@@ -40,8 +44,6 @@ COMMAND_MODULES = list(COMMAND_HELP)
 MAX_ERROR_CHARS = 300
 
 
-class UsageError(ValueError):
-    """A command was called with arguments that do not fit together."""
 
 
 def version() -> str:
@@ -156,7 +158,7 @@ def _run(argv, name) -> int:
     from errormap.io import InputError
     from errormap.machine import MachineFileError
     try:
-        from .validate import check_args
+        from compensation.app.validate import check_args
         check_args(args.command, args, _subparser(parser, args.command))
         return int(args.func(args) or 0)
     except (InputError, MachineFileError, UsageError) as exc:

@@ -24,7 +24,11 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from compensation.app.cli import UsageError
+
+
+class UsageError(ValueError):
+    """A command was called with arguments that do not fit together (one line, exit status 2);
+    ``compensation.app.cli.UsageError`` is this class."""
 
 # --- size limits (stated in the messages) ----------------------------------------------------
 # feature-point grid: n³ points; 5e6 points (--grid ≤ 170) take about 1 GB and a minute to
@@ -73,7 +77,7 @@ class Count:
         if not isinstance(v, int) or isinstance(v, bool):
             raise UsageError(f"{flag}: expected an integer, got {v!r}")
         if v < self.lo:
-            raise UsageError(f"{flag}: expected an integer >= {self.lo}, got {v}")
+            raise UsageError(f"{flag} must be >= {self.lo}, got {v}")
         if self.hi is not None and v > self.hi:
             why = f" ({self.what})" if self.what else ""
             raise UsageError(f"{flag}: {v} exceeds the limit of {self.hi:,}{why}")
