@@ -9,8 +9,6 @@ line (at most :data:`MAX_ERROR_CHARS` characters) and exit with status 2.
 """
 from __future__ import annotations
 
-import argparse
-import importlib
 import sys
 
 # UsageError is defined in validate (stdlib only, imports nothing of ours) and re-exported here,
@@ -62,6 +60,7 @@ def command_module(name: str) -> str:
 
 
 def _register(sub, name: str) -> bool:
+    import importlib
     try:
         mod = importlib.import_module(command_module(name))
     except ModuleNotFoundError as exc:
@@ -72,18 +71,23 @@ def _register(sub, name: str) -> bool:
     return True
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors: ``volcomp CMD: error: ... (volcomp CMD --help)``, exit 2."""
+def _parser_class():
+    """argparse with one-line errors: ``volcomp CMD: error: ... (see volcomp CMD --help)``, exit 2
+    (argparse is imported here, inside main's Ctrl-C handling, not when this module loads)."""
+    import argparse
 
-    def error(self, message):
-        print(one_line(f"{self.prog}: error: {message} (see {self.prog} --help)"), file=sys.stderr)
-        sys.exit(2)
+    class _Parser(argparse.ArgumentParser):
+        def error(self, message):
+            print(one_line(f"{self.prog}: error: {message} (see {self.prog} --help)"), file=sys.stderr)
+            sys.exit(2)
+
+    return _Parser
 
 
-def build_parser(commands=None) -> argparse.ArgumentParser:
+def build_parser(commands=None):
     """The argument parser; ``commands``: names whose modules are imported and registered in
     full (default: all); the others get a light entry carrying only their help line."""
-    parser = _Parser(
+    parser = _parser_class()(
         prog="volcomp",
         description="Learned volumetric error compensation for precision machine tools.",
     )
@@ -133,6 +137,22 @@ def main(argv=None) -> int:
         return _run(argv, command)
     except KeyboardInterrupt:
         return _interrupted(command, as_program)
+    except Exception as exc:
+        # a Ctrl-C inside a C extension's initialisation comes back as that import's error
+        # ("ImportError: initialization failed", the KeyboardInterrupt as its cause)
+        if _caused_by_interrupt(exc):
+            return _interrupted(command, as_program)
+        raise
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def _interrupted(command, as_program: bool) -> int:
@@ -175,6 +195,7 @@ def _run(argv, name) -> int:
 
 def _subparser(parser, name):
     """The sub-parser of command ``name`` (None when the parser has no such command)."""
+    import argparse
     for a in parser._actions:
         if isinstance(a, argparse._SubParsersAction):
             return a.choices.get(name)

@@ -14,15 +14,16 @@ Sizes derived from the options (the feature-point grid, a flute path's points, t
 per solver chunk, check counts) are bounded by the limits below, each stated in the message
 with the largest value that fits.
 
-Only the standard library is imported here: the check must cost nothing beside the work.
+Only ``math`` and ``os`` are imported at module level (see the note below the imports).
 """
 from __future__ import annotations
 
 import math
 import os
-import tempfile
-from dataclasses import dataclass
-from pathlib import Path
+
+# nothing else at import time: cli.py imports this module before main() runs, and a Ctrl-C in
+# that window (before main's handler) would be a traceback; pathlib, tempfile and the dataclass
+# machinery alone took 60-90 ms on the loaded test machine
 
 
 
@@ -65,13 +66,11 @@ MAX_ITER = 10_000_000
 
 
 # --- rules --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
 class Count:
     """An integer in ``[lo, hi]`` (``hi`` None: no upper limit); ``what`` names the limit's reason."""
 
-    lo: int = 1
-    hi: int | None = None
-    what: str = ""
+    def __init__(self, lo: int = 1, hi: int | None = None, what: str = ""):
+        self.lo, self.hi, self.what = lo, hi, what
 
     def check(self, flag: str, v) -> None:
         if not isinstance(v, int) or isinstance(v, bool):
@@ -83,15 +82,12 @@ class Count:
             raise UsageError(f"{flag}: {v} exceeds the limit of {self.hi:,}{why}")
 
 
-@dataclass(frozen=True)
 class Number:
     """A finite float with optional bounds; ``open_lo``/``open_hi``: the bound itself is excluded."""
 
-    lo: float | None = None
-    hi: float | None = None
-    open_lo: bool = False
-    open_hi: bool = False
-    unit: str = ""
+    def __init__(self, lo: float | None = None, hi: float | None = None, open_lo: bool = False,
+                 open_hi: bool = False, unit: str = ""):
+        self.lo, self.hi, self.open_lo, self.open_hi, self.unit = lo, hi, open_lo, open_hi, unit
 
     def check(self, flag: str, v) -> None:
         try:
@@ -118,12 +114,12 @@ class Number:
         return f"a finite number{u}"
 
 
-@dataclass(frozen=True)
 class OutPath:
     """An output path: ``kind`` ``"dir"`` (a folder the command creates or fills), ``"file"``
     (a file it writes whole) or ``"prefix"`` (files named PREFIX_*: the prefix's folder)."""
 
-    kind: str
+    def __init__(self, kind: str):
+        self.kind = kind
 
     def check(self, flag: str, v) -> None:
         check_output_path(flag, v, self.kind)
@@ -157,7 +153,6 @@ FLUTE = {"turns": positive(), "points_per_turn": Count(2, MAX_PATH_POINTS, "poin
 METHODS = {"ga_points": Count(1, MAX_GA_POINTS, "per-point GA runs"), "ga_budget_s": positive("s")}
 
 
-@dataclass(frozen=True)
 class Grid:
     """Points per axis of an n×n×n grid: n >= 2 and n³ <= :data:`MAX_GRID_POINTS`."""
 
@@ -179,7 +174,6 @@ def network_params(hidden, a_encoding: str = "raw") -> int:
     return sum(a * b + b for a, b in zip(sizes[:-1], sizes[1:]))
 
 
-@dataclass(frozen=True)
 class Widths:
     """``--hidden``: comma-separated layer widths >= 1, at most :data:`MAX_NETWORK_PARAMS` parameters."""
 
@@ -318,6 +312,7 @@ def check_output_path(flag: str, value, kind: str) -> None:
     wrong kind is in the way, no component of its folder is a file, and the nearest existing
     folder accepts a new file (probed by creating and removing one: permissions, read-only
     mounts and ownership all answer the same way, also for root)."""
+    from pathlib import Path
     text = str(value)
     if not text.strip():
         raise UsageError(f"{flag}: expected a path, got an empty string")
@@ -339,7 +334,8 @@ def check_output_path(flag: str, value, kind: str) -> None:
     _probe_writable(flag, text, folder)
 
 
-def _nearest_existing(p: Path) -> Path | None:
+def _nearest_existing(p):
+    from pathlib import Path
     p = Path(os.path.abspath(p))
     while True:
         if p.exists():
@@ -351,7 +347,8 @@ def _nearest_existing(p: Path) -> Path | None:
         p = p.parent
 
 
-def _probe_writable(flag: str, text: str, folder: Path) -> None:
+def _probe_writable(flag: str, text: str, folder) -> None:
+    import tempfile
     try:
         fd, probe = tempfile.mkstemp(prefix=".volcomp-write-probe.", dir=folder)
     except OSError as exc:
