@@ -26,10 +26,10 @@ import os
 # machinery alone took 60-90 ms on the loaded test machine
 
 
-
 class UsageError(ValueError):
     """A command was called with arguments that do not fit together (one line, exit status 2);
     ``compensation.app.cli.UsageError`` is this class."""
+
 
 # --- size limits (stated in the messages) ----------------------------------------------------
 # feature-point grid: n³ points; 5e6 points (--grid ≤ 170) take about 1 GB and a minute to
