@@ -222,6 +222,12 @@ def test_output_folder_that_cannot_be_written(tmp_path, missing, command):
     assert_one_line_refusal(rc, err, "--out", "cannot write in")
 
 
+def test_demo_trainer_checked_before_the_simulation(tmp_path):
+    rc, _, err = run_cli(["demo", "--trainer", "sgd", "--out", tmp_path / "demo"])
+    assert_one_line_refusal(rc, err, "--trainer", "'sgd'")
+    assert not (tmp_path / "demo").exists()
+
+
 def test_argparse_errors_are_one_line(tmp_path):
     rc, _, err = run_cli(["simulate", "--seed", "abc", "--out", tmp_path])
     assert_one_line_refusal(rc, err, "--seed", "invalid int value")

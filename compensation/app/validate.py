@@ -153,6 +153,15 @@ FLUTE = {"turns": positive(), "points_per_turn": Count(2, MAX_PATH_POINTS, "poin
 METHODS = {"ga_points": Count(1, MAX_GA_POINTS, "per-point GA runs"), "ga_budget_s": positive("s")}
 
 
+class Trainer:
+    """``demo --trainer``: one of ``training.trainers.TRAINERS`` (checked here, not after the simulation)."""
+
+    def check(self, flag: str, v) -> None:
+        from training.trainers import TRAINERS
+        if v not in TRAINERS:
+            raise UsageError(f"{flag}: expected one of {', '.join(TRAINERS)}, got {v!r}")
+
+
 class Grid:
     """Points per axis of an n×n×n grid: n >= 2 and n³ <= :data:`MAX_GRID_POINTS`."""
 
@@ -218,7 +227,7 @@ RULES: dict[str, dict] = {
     "compensate": {"out": OUT_DIR, "show": Count(1), "arc_tolerance_um": positive("um"), "temp_c": FINITE,
                    "time_s": FINITE},
     "report": {"out": OUT_DIR, **METHODS, **FLUTE},
-    "demo": {"out": OUT_DIR, "hidden": Widths(), "train_iter": ITER, "train_s": positive("s"), **METHODS, **FLUTE},
+    "demo": {"out": OUT_DIR, "hidden": Widths(), "trainer": Trainer(), "train_iter": ITER, "train_s": positive("s"), **METHODS, **FLUTE},
     "identify": {"out": OUT_FILE, "report": OUT_FILE, "plot": OUT_PREFIX, "noise_um": positive("um"),
                  "bootstrap": Count(2, MAX_BOOTSTRAP, "bootstrap draws")},
     "sweeps": {"out": OUT_FILE, "noise_um": non_negative("um"), "warmup_c": Number(-100.0, 100.0, unit="degC")},
