@@ -9,9 +9,11 @@ line (at most :data:`MAX_ERROR_CHARS` characters) and exit with status 2.
 """
 from __future__ import annotations
 
-import argparse
-import importlib
 import sys
+
+# UsageError is defined in validate (stdlib only, imports nothing of ours) and re-exported here,
+# where every command imports it from
+from compensation.app.validate import UsageError  # noqa: F401
 
 # sub-commands and their one-line help, in the order `volcomp --help` lists them; command
 # ``a-b`` lives in ``compensation/app/commands/a_b.py``; tests/test_cli_foundation.py checks that
@@ -40,8 +42,6 @@ COMMAND_MODULES = list(COMMAND_HELP)
 MAX_ERROR_CHARS = 300
 
 
-class UsageError(ValueError):
-    """A command was called with arguments that do not fit together."""
 
 
 def version() -> str:
@@ -60,6 +60,7 @@ def command_module(name: str) -> str:
 
 
 def _register(sub, name: str) -> bool:
+    import importlib
     try:
         mod = importlib.import_module(command_module(name))
     except ModuleNotFoundError as exc:
@@ -70,10 +71,23 @@ def _register(sub, name: str) -> bool:
     return True
 
 
-def build_parser(commands=None) -> argparse.ArgumentParser:
+def _parser_class():
+    """argparse with one-line errors: ``volcomp CMD: error: ... (see volcomp CMD --help)``, exit 2
+    (argparse is imported here, inside main's Ctrl-C handling, not when this module loads)."""
+    import argparse
+
+    class _Parser(argparse.ArgumentParser):
+        def error(self, message):
+            print(one_line(f"{self.prog}: error: {message} (see {self.prog} --help)"), file=sys.stderr)
+            sys.exit(2)
+
+    return _Parser
+
+
+def build_parser(commands=None):
     """The argument parser; ``commands``: names whose modules are imported and registered in
     full (default: all); the others get a light entry carrying only their help line."""
-    parser = argparse.ArgumentParser(
+    parser = _parser_class()(
         prog="volcomp",
         description="Learned volumetric error compensation for precision machine tools.",
     )
@@ -107,9 +121,55 @@ def one_line(msg: str, limit: int = MAX_ERROR_CHARS) -> str:
     return s[: keep - keep // 3] + " ... " + s[len(s) - keep // 3:]
 
 
+INTERRUPTED_EXIT = 130  # 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C
+
+
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    name = _command_in(argv)
+    """Run one command; its exit status. Never a traceback for what a user can cause: bad
+    arguments, input or output paths (one line, exit 2; :mod:`compensation.app.validate`
+    checks every option before any work), Ctrl-C at any moment, also while the numerical
+    libraries are still being imported (one line, exit 130; outputs are written through
+    temporary files, which an interrupted writer removes, so nothing half-written stays)."""
+    command, as_program = None, argv is None
+    try:
+        argv = sys.argv[1:] if argv is None else list(argv)
+        command = _command_in(argv)
+        return _run(argv, command)
+    except KeyboardInterrupt:
+        return _interrupted(command, as_program)
+    except Exception as exc:
+        # a Ctrl-C inside a C extension's initialisation comes back as that import's error
+        # ("ImportError: initialization failed", the KeyboardInterrupt as its cause)
+        if _caused_by_interrupt(exc):
+            return _interrupted(command, as_program)
+        raise
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def _interrupted(command, as_program: bool) -> int:
+    import signal
+    if as_program:  # a second Ctrl-C while Python shuts down must not print a traceback either
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # pragma: no cover - not the main thread
+            pass
+    try:
+        print(f"volcomp{' ' + command if command else ''}: interrupted; nothing half-written", file=sys.stderr)
+    except (KeyboardInterrupt, OSError):  # pragma: no cover
+        pass
+    return INTERRUPTED_EXIT
+
+
+def _run(argv, name) -> int:
     parser = build_parser([name] if name else [])
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -118,13 +178,28 @@ def main(argv=None) -> int:
     from errormap.io import InputError
     from errormap.machine import MachineFileError
     try:
+        from compensation.app.validate import check_args
+        check_args(args.command, args, _subparser(parser, args.command))
         return int(args.func(args) or 0)
     except (InputError, MachineFileError, UsageError) as exc:
         print(one_line(f"volcomp {args.command}: error: {exc}"), file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"volcomp {args.command}: interrupted; nothing half-written", file=sys.stderr)
-        return 130
+    except OSError as exc:
+        # a file system refusal while writing or reading (permission, disk full, a path that
+        # vanished): the user's environment, not a defect of the command
+        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
+        why = exc.strerror or type(exc).__name__
+        print(one_line(f"volcomp {args.command}: error:{where}: {why}"), file=sys.stderr)
+        return 2
+
+
+def _subparser(parser, name):
+    """The sub-parser of command ``name`` (None when the parser has no such command)."""
+    import argparse
+    for a in parser._actions:
+        if isinstance(a, argparse._SubParsersAction):
+            return a.choices.get(name)
+    return None
 
 
 if __name__ == "__main__":  # pragma: no cover

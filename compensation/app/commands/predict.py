@@ -58,7 +58,8 @@ def run(args) -> int:
     field = load_field(args.model, machine, args.tracking_uri, source=src)
     _check_volume(args, t, axes, field)
     print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
-    e = field.predict(axes)
+    from ..validate import predict_batched
+    e = predict_batched(field, axes)
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
     if args.band:

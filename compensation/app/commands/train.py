@@ -83,6 +83,9 @@ def run(args) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     fp = FeaturePoints.load(args.featurepoints)
+    if args.trainer == "lm":
+        from ..validate import check_lm_size
+        check_lm_size(len(fp.axes), hidden, args.a_encoding)
     from errormap.machine import load_machine
     mf = fp.meta.get("machine_file")
     fp.check_units(load_machine(mf if mf and Path(mf).is_file() else None, expect_kind="grinder"))
