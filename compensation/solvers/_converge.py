@@ -17,7 +17,8 @@ but not on all: on the demo's flute one point of 2,800 was left at 6.26 μm mode
 
 A point still above the tolerance keeps ``success = False``: the ``convergence`` guard
 (:mod:`compensation.guards`) refuses the file. ``stats``: how many points were retried and
-polished, how many stayed unconverged, and the seconds spent (the retry's cost).
+polished, how many stayed unconverged, the worst residual before and after, and the seconds
+spent (the retry's cost).
 """
 from __future__ import annotations
 
@@ -65,7 +66,8 @@ def converge(field, machine, targets_mm, axes_d, best_um, tol_um: float, ball_um
     res = model_residual_norm_um(field, machine, targets_mm, best, axes_d)
     nfev = len(best)
     bad = np.flatnonzero(~(res <= tol_um))
-    stats = {"retried": int(bad.size), "retry_rounds": 0, "polished": 0}
+    stats = {"retried": int(bad.size), "retry_rounds": 0, "polished": 0,
+             "worst_before_um": float(np.nan_to_num(res[bad], nan=np.inf).max()) if bad.size else 0.0}
     for r in range(retries):
         if not bad.size:
             break
@@ -86,14 +88,18 @@ def converge(field, machine, targets_mm, axes_d, best_um, tol_um: float, ball_um
         stats["polished"] = int(bad.size)
         bad = bad[~(res[bad] <= tol_um)]
     stats["unconverged"] = int(bad.size)
+    stats["worst_after_um"] = float(np.nan_to_num(res[bad], nan=np.inf).max()) if bad.size else 0.0
     stats["retry_seconds"] = time.perf_counter() - t0
     return best, nfev, stats
 
 
 def merge_stats(parts) -> dict:
-    """Sum of :func:`converge` stats over chunks (``retry_rounds``: the most any chunk needed)."""
-    out = {"retried": 0, "retry_rounds": 0, "polished": 0, "unconverged": 0, "retry_seconds": 0.0}
+    """Sum of :func:`converge` stats over chunks (``retry_rounds`` and the worst residuals: the
+    largest of any chunk)."""
+    out = {"retried": 0, "retry_rounds": 0, "polished": 0, "unconverged": 0, "retry_seconds": 0.0,
+           "worst_before_um": 0.0, "worst_after_um": 0.0}
     for s in parts:
         for k in out:
-            out[k] = max(out[k], s[k]) if k == "retry_rounds" else out[k] + s[k]
+            most = k in ("retry_rounds", "worst_before_um", "worst_after_um")
+            out[k] = max(out[k], s[k]) if most else out[k] + s[k]
     return out
