@@ -88,3 +88,19 @@ def test_converge_helper_reports_what_it_did(case, grinder):
     assert retry_radius_um(np.array([0.0]), 0, 250.0)[0] == RETRY_MIN_RADIUS_UM
     assert retry_radius_um(np.array([1e6]), 0, 250.0)[0] == 250.0
     assert np.linalg.norm(out, axis=1).max() <= 250.0
+
+
+def test_compensate_records_the_retry_in_its_summary(tmp_path, grinder, capsys):
+    import json
+
+    from compensation.app.cli import main
+    from compensation.pathio import write_axes_gcode
+    el = random_truth(grinder, 3).elements.save(tmp_path / "elements.json")
+    src = write_axes_gcode(tmp_path / "flute.nc", flute_path(turns=1, points_per_turn=20).axes(grinder))
+    rc = main(["compensate", str(src), "--model", str(el), "--method", "batched-ga", "--out", str(tmp_path / "o"),
+               "--max-segment-mm", "none"])
+    assert rc == 0
+    entry = json.loads((tmp_path / "o" / "compensate_summary.json").read_text())["files"][0]
+    st = entry["ga_retry"]
+    assert set(st) >= {"retried", "retry_rounds", "polished", "unconverged", "retry_seconds"}
+    assert st["unconverged"] == entry["failures"] == 0
