@@ -20,6 +20,7 @@ options, progress) -> list[SolveResult]`` in task order. The library never impor
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field as dc_field
 
@@ -28,6 +29,7 @@ import numpy as np
 from errormap.threads import limit_threads
 
 from .solvers import SolveResult, solve
+from .solvers._converge import merge_stats
 
 CHUNK_POINTS = 65_536
 """Points per chunk (default): large enough that a chunk's fixed costs (a task, a field call)
@@ -114,17 +116,22 @@ def solve_chunk(method: str, field_, machine, task: ChunkTask, options: dict | N
 def merge_results(parts: list[SolveResult], chunk_points: int) -> SolveResult:
     """One file's result from its chunks' results (in chunk order). ``seconds`` is the sum
     of the chunks' solve times (CPU-side work, not the batch's wall time)."""
+    info = {"chunks": len(parts), "chunk_points": chunk_points}
+    for key in ("ball_um", "tol_um"):  # what the guards and the summary read
+        if key in (parts[0].info or {}):
+            info[key] = parts[0].info[key]
+    retry = [p.info["retry"] for p in parts if "retry" in (p.info or {})]
+    if retry:  # the GA's retries and Newton polish (compensation.solvers._converge)
+        info["retry"] = merge_stats(retry)
     if len(parts) == 1:
         r = parts[0]
-        info = {"chunks": 1, "chunk_points": chunk_points}
         return SolveResult(r.method, r.targets_mm, r.commands_mm, r.axes, r.residual_um, r.correction_um,
                            r.success, r.nfev, r.seconds, r.message, info)
     cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
     messages = [p.message for p in parts if p.message]
     return SolveResult(parts[0].method, cat("targets_mm"), cat("commands_mm"), cat("axes"), cat("residual_um"),
                        cat("correction_um"), cat("success"), int(sum(p.nfev for p in parts)),
-                       float(sum(p.seconds for p in parts)), messages[0] if messages else "",
-                       {"chunks": len(parts), "chunk_points": chunk_points})
+                       float(sum(p.seconds for p in parts)), messages[0] if messages else "", info)
 
 
 def default_workers() -> int:
@@ -133,6 +140,10 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux
         return max(1, os.cpu_count() or 1)
+
+
+STOPPABLE = ("batched-ga",)
+"""Methods that take a ``stop`` event (polled at least once a generation) from the local executor."""
 
 
 class LocalExecutor:
@@ -158,8 +169,11 @@ class LocalExecutor:
         return False
 
     def run(self, method, field_, machine, tasks, options=None, progress=None) -> list[SolveResult]:
+        stop = threading.Event()  # Ctrl-C: the batched GA in the worker threads stops within a generation
+        opts = dict(options or {}, stop=stop) if method in STOPPABLE else options
+
         def one(task):
-            r = solve_chunk(method, field_, machine, task, options)
+            r = solve_chunk(method, field_, machine, task, opts)
             if progress is not None:
                 progress(len(task.chunk))
             return r
@@ -168,7 +182,11 @@ class LocalExecutor:
             if self.workers == 1 or len(tasks) <= 1:
                 return [one(t) for t in tasks]
             with ThreadPoolExecutor(min(self.workers, len(tasks))) as pool:
-                return list(pool.map(one, tasks))
+                try:
+                    return list(pool.map(one, tasks))
+                except BaseException:
+                    stop.set()  # before the pool waits for its threads; queued chunks are cancelled
+                    raise
 
 
 def solve_batch(method: str, field_, machine, paths, *, seed: int = 0, options: dict | None = None,

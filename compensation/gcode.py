@@ -55,6 +55,10 @@ DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 ARC_RADIUS_TOL_MM = 0.002
 """Start and end radius of an I/K arc may differ by this much (CAM output rounds centres);
 more is refused as an ill-defined arc (LinuxCNC refuses such arcs too)."""
+MAX_TOOL_DIGITS = 2
+"""A ``T`` word of more digits is refused: on lathe controls (Fanuc's T-code form ``Tttoo``)
+the digits after the tool number select a geometry/wear offset, which shifts the axes as
+``G43 H`` does (refused too); one or two digits are a tool number only, on every dialect."""
 BLOCK_DELETE_CHOICES = ("on", "off")
 RAPIDS_CHOICES = ("keep", "compensate")
 DEFAULT_RAPIDS = "keep"
@@ -377,11 +381,24 @@ def _checked_words(words):
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
         elif w.letter not in LETTER_RULES:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
+        elif w.letter == "T" and not _plain_tool_number(w):
+            raise _Refuse(w.start + 1, f"'T{w.text}': a T word of more than {MAX_TOOL_DIGITS} digits (or not a "
+                                       "whole number) may select a tool offset (lathe 'TttOO': tool tt, offset "
+                                       "OO) that shifts the axes, like G43 H; not supported (write the tool "
+                                       f"number alone, at most {MAX_TOOL_DIGITS} digits)")
         else:
             if w.letter in by:
                 raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
             by[w.letter] = w
     return by, gs, ms
+
+
+def _plain_tool_number(w: Word) -> bool:
+    """A ``T`` word that can only be a tool number: a whole number of at most
+    :data:`MAX_TOOL_DIGITS` digits as written (``T1``, ``T01``, ``T12``; not ``T0101``,
+    ``T101``, ``T1.5``, ``T-1``)."""
+    digits = w.text.replace(" ", "").replace("\t", "")
+    return digits.isdigit() and len(digits) <= MAX_TOOL_DIGITS
 
 
 def _modal_groups(gs) -> dict:
@@ -668,7 +685,10 @@ def _render_move(line: str, m: GMove, q, ctrl):
         vals, ctrl = _written_values(row, ctrl, m)
         written.append(vals)
     first = _rewrite_line(body, m, written[0])
-    extra = [" ".join(f"{a}{v}" for a, v in zip(AXES, w)) + ending for w in written[1:]]
+    # a block-delete move (run under --block-delete off) keeps its '/' on every piece, so
+    # that switching block delete on at the controller skips the whole move, not its first piece
+    slash = "/" if body.lstrip(" \t").startswith("/") else ""
+    extra = [slash + " ".join(f"{a}{v}" for a, v in zip(AXES, w)) + ending for w in written[1:]]
     if extra and not line.endswith("\n"):
         return [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]], ctrl
     return [first + line[len(body):]] + extra, ctrl

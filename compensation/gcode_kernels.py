@@ -180,6 +180,12 @@ def _scan(buf, starts, ends, pow10, kind, spans, vals):
                 vals[k, a] = v[a]
 
 
+KERNEL_BLOCK = 1 << 20
+"""Lines (moves) per call of the scanning and path-length kernels: ≈ 0.1 s of CPU each (measured
+0.11 s for 1,000,000 lines, 0.08 s for 1,000,000 path lengths), so a KeyboardInterrupt, which
+Python can raise only between compiled calls, acts within that time however long the file."""
+
+
 def line_bounds(buf: np.ndarray):
     """Start and end (exclusive, before the ``\\n``) of every line of ``buf`` (uint8), as
     :func:`compensation.gcode.split_lines` cuts them: (n,), (n,) int64."""
@@ -198,7 +204,9 @@ def scan_lines(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray):
     kind = np.empty(n, np.int8)
     spans = np.full((n, 4, 2), -1, np.int32)
     vals = np.full((n, 3), np.nan)
-    _scan(buf, starts, ends, _POW10, kind, spans, vals)
+    for a in range(0, n, KERNEL_BLOCK):  # Python between blocks: Ctrl-C acts within one block
+        b = min(n, a + KERNEL_BLOCK)
+        _scan(buf, starts[a:b], ends[a:b], _POW10, kind[a:b], spans[a:b], vals[a:b])
     return kind, spans, vals
 
 
@@ -370,5 +378,8 @@ def linear_path_lengths_mm(machine, start, end, samples: int = 16):
     end = np.ascontiguousarray(end, dtype=float)
     tx, ty, tz0 = nominal_tool_at_z0(machine)
     out = np.empty(start.shape[0])
-    _polyline_lengths(start, end, int(samples), ty, tx - machine.l5 - machine.l7, tz0 - machine.l6 - machine.l8, out)
+    qx0, qz0 = tx - machine.l5 - machine.l7, tz0 - machine.l6 - machine.l8
+    for a in range(0, start.shape[0], KERNEL_BLOCK):  # Ctrl-C acts within one block
+        b = min(start.shape[0], a + KERNEL_BLOCK)
+        _polyline_lengths(start[a:b], end[a:b], int(samples), ty, qx0, qz0, out[a:b])
     return out

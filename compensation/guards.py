@@ -196,7 +196,12 @@ def convergence_violations(result):
     ball = float(result.info.get("ball_um", BALL_RADIUS_UM))
     bad = np.flatnonzero(~np.asarray(result.success, dtype=bool) & (result.correction_um < ball * (1.0 - ON_BALL_REL)))
     r = np.linalg.norm(np.asarray(result.residual_um)[bad], axis=1)
-    return bad, np.array([f"{result.method} did not converge (|residual| {v:.3g} μm)" for v in r], dtype=object)
+    tol = result.info.get("tol_um")
+    retry = result.info.get("retry")
+    how = (f" > tolerance {tol:.3g} μm" if tol is not None else "") + (
+        " after the GA's retries and Newton polish" if retry and (retry.get("retry_rounds") or retry.get("polished"))
+        else "")
+    return bad, np.array([f"{result.method} did not converge (|residual| {v:.3g} μm{how})" for v in r], dtype=object)
 
 
 def _merge(first, second):

@@ -78,6 +78,14 @@ AUTO_SAMPLE_MM = 0.25      # spacing of the field samples that estimate its curv
 AUTO_MAX_SAMPLES = 64      # samples per move at most (long moves: coarser spacing)
 AUTO_SHORT_WINDOW_MM = 1.0  # of a run of moves shorter than AUTO_SAMPLE_MM, one sampled per this much path
 SEGMENT_LIMITS_MM = (0.01, 100.0)  # the auto segment length is clipped into this range
+MAX_VERTICES_PER_MOVE = 1_000_000
+"""A move cut into more vertices is refused before any is placed: at the smallest ``auto``
+segment (0.01 mm) that is a 10 m move, far beyond any stroke, so only a unit typo or an
+absurd ``--max-segment-mm`` gets there."""
+MAX_PATH_POINTS = 10_000_000
+"""Vertices of one file at most, checked before any is placed: ``compensate`` holds about
+1.2 kB per vertex from reading to writing (1.18 GB peak for 1,000,000 vertices measured,
+BENCHMARKS.md "G-code end to end"), so this bounds a file at about 12 GB."""
 
 
 @dataclass
@@ -237,6 +245,7 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
     """
     if not (np.isfinite(arc_tolerance_um) and arc_tolerance_um > 0):
         raise ValueError(f"Expected a positive arc tolerance in μm, got {arc_tolerance_um!r}")
+    check_move_extent(program, machine)
     kappa = None
     if isinstance(max_segment_mm, str):
         if max_segment_mm != "auto":
@@ -264,10 +273,90 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
         if m.kind == "arc":
             k = arc_segments(m, tol_geo_mm)
         if m.index in lengths:
-            k = max(k, int(np.ceil(lengths[m.index] / max_segment_mm - 1e-9)))
-        params.append(np.arange(1, k + 1, dtype=float) / k)
+            k = max(k, int(min(np.ceil(lengths[m.index] / max_segment_mm - 1e-9), 2.0 ** 62)))
+        params.append(k)
+    _check_vertex_counts(program, np.array(params, dtype=np.int64),
+                         [m.index for m in program.moves if m.compensate], max_segment_mm)
+    params = [np.arange(1, k + 1, dtype=float) / k for k in params]
     return GCodeJob(program, params, float(arc_tolerance_um), max_segment_mm,
                     np.array(kept, dtype=float).reshape(-1, 3), np.array(kept_lines, dtype=int), kappa)
+
+
+def stroke_diagonal_mm(machine) -> float:
+    """Length of the diagonal of the machine's X/Z strokes (mm): no move between two points
+    inside the strokes is longer."""
+    span = machine.stroke_hi[:2] - machine.stroke_lo[:2]
+    return float(np.hypot(span[0], span[1]))
+
+
+def _move_extent_mm(start, end, arcs) -> np.ndarray:
+    """Largest X/Z distance (mm) between two points of each move, (n,): the chord of a linear
+    move (from the stroke box when its start is unknown), and for an arc (``arcs``: {row:
+    geometry}) also ``2r·sin(min(|sweep|, π)/2)`` (its widest chord)."""
+    ext = np.hypot(end[:, 0] - start[:, 0], end[:, 1] - start[:, 1])
+    unknown = ~np.isfinite(ext)
+    if unknown.any():  # the first move: how far its end lies outside the strokes, at least
+        ext[unknown] = 0.0
+    for k, g in arcs.items():
+        r = max(g["r0"], g["r1"])
+        ext[k] = max(ext[k], 2.0 * r * np.sin(min(abs(g["sweep"]), np.pi) / 2.0))
+    return ext
+
+
+def check_move_extent(program: GProgram, machine) -> None:
+    """Refuse a move longer (in X/Z) than the machine's stroke diagonal, or one ending farther
+    than the diagonal outside the strokes: a likely unit typo (a number without its decimal
+    point, μm or inch for mm), caught before any vertex is placed. One :class:`InputError`
+    naming the file, line, column and word, the line's units and the stroke diagonal."""
+    diag = stroke_diagonal_mm(machine)
+    lo, hi = machine.stroke_lo[:2], machine.stroke_hi[:2]
+    t = program.table
+    if t is not None:
+        start, end = t.start, t.end
+        arcs = {k: t.objects[t.obj[k]].arc for k in np.flatnonzero(t.kind == 2).tolist()}
+    else:
+        moves = program.moves
+        start = np.array([m.start for m in moves], dtype=float).reshape(-1, 3)
+        end = np.array([m.end for m in moves], dtype=float).reshape(-1, 3)
+        arcs = {k: m.arc for k, m in enumerate(moves) if m.arc is not None}
+    ext = _move_extent_mm(start, end, arcs)
+    e = end[:, :2]
+    outside = np.hypot(np.clip(lo - e, 0.0, None), np.clip(e - hi, 0.0, None)).max(axis=1, initial=0.0) \
+        if e.size else np.zeros(0)
+    outside = np.where(np.isfinite(outside), outside, 0.0)
+    bad = np.flatnonzero((ext > diag) | (outside > diag))
+    if not bad.size:
+        return
+    k = int(bad[0])
+    m = program.moves[k]
+    words = [m.words[a] for a in ("X", "Z", "I", "K", "R") if a in m.words] or list(m.words.values())
+    w = max(words, key=lambda w: abs(w.value))  # a move has axis words
+    unit = "inch (G20)" if m.units == "inch" else "mm (G21 or no unit code)"
+    what = (f"a move of {ext[k]:.6g} mm" if ext[k] > diag else
+            f"an end {outside[k]:.6g} mm outside the X/Z strokes")
+    raise InputError(f"{program.path}: line {m.index + 1}, column {w.start + 1}: '{w.letter}{w.text}': {what}, "
+                     f"more than the machine's X/Z stroke diagonal {diag:.6g} mm; likely a unit typo (the line "
+                     f"is read in {unit}): a number without its decimal point, or μm or inch where mm was meant")
+
+
+def _check_vertex_counts(program: GProgram, counts, lines, max_segment_mm) -> None:
+    """Refuse before allocation a move cut into more than :data:`MAX_VERTICES_PER_MOVE`
+    vertices or a file of more than :data:`MAX_PATH_POINTS`; ``counts`` (k,) vertices of the
+    compensated moves, ``lines`` (k,) their 0-based lines."""
+    counts = np.asarray(counts, dtype=np.int64)
+    if not counts.size:
+        return
+    seg = f"--max-segment-mm {max_segment_mm:.6g}" if max_segment_mm is not None else "no splitting"
+    k = int(np.argmax(counts))
+    if counts[k] > MAX_VERTICES_PER_MOVE:
+        raise InputError(f"{program.path}: line {int(lines[k]) + 1}: the move would be cut into {int(counts[k]):,} "
+                         f"vertices ({seg}), more than the limit of {MAX_VERTICES_PER_MOVE:,} per move; "
+                         "give a larger --max-segment-mm")
+    total = float(counts.sum(dtype=float))
+    if total > MAX_PATH_POINTS:
+        raise InputError(f"{program.path}: the program would be cut into {total:,.0f} vertices ({seg}), more than "
+                         f"the limit of {MAX_PATH_POINTS:,} points per file; give a larger --max-segment-mm "
+                         "or split the program")
 
 
 def gcode_toolpath(job: GCodeJob, machine, path) -> "ToolPathFile":
@@ -352,8 +441,9 @@ def _plan_table(program, machine, arc_tolerance_um, max_segment_mm, kappa, tol_g
         counts[k] = arc_segments(t.objects[t.obj[k]], tol_geo_mm)
     if max_segment_mm is not None:
         rows = _long_rows(t)
-        split = np.ceil(_table_lengths_mm(machine, t)[rows] / max_segment_mm - 1e-9).astype(np.int64)
-        counts[rows] = np.maximum(counts[rows], split)
+        split = np.minimum(np.ceil(_table_lengths_mm(machine, t)[rows] / max_segment_mm - 1e-9), 2.0 ** 62)
+        counts[rows] = np.maximum(counts[rows], split.astype(np.int64))
+    _check_vertex_counts(program, counts[comp], t.line[comp], max_segment_mm)
     kept = ~comp
     return GCodeJob(program, _Params(counts[comp]), arc_tolerance_um, max_segment_mm,
                     t.end[kept].reshape(-1, 3), (t.line[kept] + 1).astype(int), kappa, counts=counts[comp])

@@ -65,6 +65,7 @@ from errormap.threads import limit_threads
 
 from .base import BALL_RADIUS_UM, SolveResult
 from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, project_to_ball
+from ._converge import RETRY_ROUNDS, converge, merge_stats
 from ._ga_kernels import breed, scatter
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
@@ -77,7 +78,8 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
                      mutation_probability: float = PAPER_GA["mutation_probability"],
                      mutation_step_um: float = PAPER_GA["mutation_step_um"], tol_um: float = DEFAULT_TOL_UM,
                      chunk: int = 8192, workers: int | None = None, fused: bool | None = None,
-                     progress: bool = True) -> SolveResult:
+                     progress: bool = True, retries: int = RETRY_ROUNDS, polish: bool = True,
+                     stop: threading.Event | None = None) -> SolveResult:
     """Batched GA over WCS targets, shape (n, 3) mm.
 
     The points are split into equal chunks of at most ``chunk`` points, their number a
@@ -89,6 +91,14 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
     ``workers``, not on timing. ``fused``: None (default) uses the fused float32 fitness when
     the field declares ``offset_fitness``; False forces the generic path. ``success``:
     |model residual| ≤ ``tol_um`` and inside the ball.
+
+    Points above ``tol_um`` after ``generations`` are retried (``retries`` GA re-runs from a
+    fresh population around their best) and then, with ``polish``, Newton-polished
+    (:mod:`._converge`); ``info["retry"]`` says how many and at what cost. Interruption: the
+    generation loop polls ``stop`` (a :class:`threading.Event`, e.g. set by an executor on
+    Ctrl-C) and the fitness runs in blocks of :data:`FITNESS_BLOCK` offspring, so a
+    KeyboardInterrupt (main thread) or ``stop`` acts within one block's time; on
+    KeyboardInterrupt in the main thread the chunk threads are stopped the same way.
     """
     t0 = time.perf_counter()
     targets, axes_d = check_inputs(field, targets_mm, machine, target_axes, a_start_deg, ball_um)
@@ -98,6 +108,9 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
         raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
     if workers is not None and not (isinstance(workers, (int, np.integer)) and workers >= 1):
         raise ValueError(f"Expected workers ≥ 1, got {workers!r}")
+    if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
+        raise ValueError(f"Expected retries in 0..10, got {retries!r}")
+    stop = threading.Event() if stop is None else stop
     has_kernel = OFFSET_FITNESS in field.capabilities
     use_fused = has_kernel if fused is None else bool(fused)
     if use_fused and not has_kernel:
@@ -121,16 +134,51 @@ def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_de
 
     def one(i):
         lo, hi = bounds[i], bounds[i + 1]
-        best[lo:hi], fe = ga.run(fitness[i], hi - lo, rngs[i], generations, bar)
-        return fe
+        b, fe = ga.run(fitness[i], hi - lo, rngs[i], generations, bar, stop=stop)
+
+        def rerun(sub, radius_um):  # the chunk's own stream, so the result depends on the seed only
+            init = b[sub][:, None, :] + radius_um[:, None, None] * uniform_in_ball(rngs[i], (sub.size, population), 1.0)
+            init[:, 0] = b[sub]  # the best so far survives (elitism)
+            init = project_to_ball(init, ball_um).astype(np.float32)
+            return ga.run(lambda pts, dT: fitness[i](sub[pts], dT), sub.size, rngs[i], generations, None,
+                          init=init, stop=stop)
+
+        best[lo:hi], fe2, st = converge(field, machine, targets[lo:hi], axes_d[lo:hi], b, tol_um, ball_um, rerun,
+                                        retries, polish)
+        return fe + fe2, st
 
     if workers == 1 or k == 1:
-        nfev = sum(one(i) for i in range(k))
+        done = [one(i) for i in range(k)]
     else:
         with limit_threads(1), ThreadPoolExecutor(workers) as pool:
-            nfev = sum(pool.map(one, range(k)))
+            try:
+                done = list(pool.map(one, range(k)))
+            except BaseException:
+                stop.set()  # before the pool waits: its threads stop at their next generation or block
+                raise
+    nfev = sum(fe for fe, _ in done)
     return ga_result("batched-ga", field, machine, targets, best, axes_d, nfev, t0, ball_um, tol_um, seed,
-                     parents=n_parents, fused=use_fused, chunks=k, workers=workers)
+                     parents=n_parents, fused=use_fused, chunks=k, workers=workers,
+                     retry=merge_stats([st for _, st in done]))
+
+
+FITNESS_BLOCK = 65_536
+"""Offspring per fitness call (a multiple of the fused kernel's own 16,384-column blocks, so the
+values are the same as in one call): bounds the time between two interruption polls (≈ 0.2 s
+on the HTM field's ≈ 3 μs per evaluation, ≈ 10 ms on the network's)."""
+
+
+def _blocked(fitness, pts, dT, F, stop) -> np.ndarray:
+    """``fitness(pts[:F], dT[:, :F])`` in blocks of :data:`FITNESS_BLOCK`, polling ``stop`` between."""
+    if F <= FITNESS_BLOCK:
+        return fitness(pts[:F], dT[:, :F])
+    out = np.empty(F, dtype=np.float32)
+    for a in range(0, F, FITNESS_BLOCK):
+        if stop is not None and stop.is_set():
+            raise KeyboardInterrupt("batched-ga stopped")
+        b = min(F, a + FITNESS_BLOCK)
+        out[a:b] = fitness(pts[a:b], np.ascontiguousarray(dT[:, a:b]))
+    return out
 
 
 class _LockedProgress(Progress):
@@ -174,8 +222,12 @@ class _BatchGA:
         self.p0 = q ** n_parents
         self.p1 = n_parents * crossover_probability * q ** (n_parents - 1)
 
-    def run(self, fitness, m, rng, generations, bar):
+    def run(self, fitness, m, rng, generations, bar, init=None, stop=None):
         """Evolve the populations of m points; returns (best offsets (m, 3) μm float64, evaluations).
+
+        ``init`` (m, P, 3) float32: the initial populations (default uniform in the ball);
+        ``bar``: a progress bar or None; ``stop``: an Event polled every generation and
+        every fitness block (raises KeyboardInterrupt when set).
 
         Randomness per generation, all from ``rng`` (numpy's PCG64 raw output): one 31-bit
         uniform per offspring picks the first parent, the cut point and the second parent as
@@ -186,9 +238,13 @@ class _BatchGA:
         paper's settings) are drawn as a binomial count and placed at random, so their
         probability is exact. The generation itself is :func:`._ga_kernels.breed`.
         """
+        if stop is not None and stop.is_set():
+            raise KeyboardInterrupt("batched-ga stopped")
         P, M, K = self.P, self.M, self.K
-        pop = uniform_in_ball(rng, (m, P), self.ball_um).astype(np.float32)
-        fit = fitness(np.repeat(np.arange(m), P), np.ascontiguousarray(pop.reshape(-1, 3).T)).reshape(m, P)
+        pop = (uniform_in_ball(rng, (m, P), self.ball_um).astype(np.float32) if init is None
+               else np.ascontiguousarray(init, dtype=np.float32))
+        fit = _blocked(fitness, np.repeat(np.arange(m), P), np.ascontiguousarray(pop.reshape(-1, 3).T), m * P,
+                       stop).reshape(m, P)
         nfev = m * P
         new_pop, new_fit = np.empty_like(pop), np.empty_like(fit)
         fresh_at = np.empty(m * K + 1, dtype=np.int64)
@@ -198,6 +254,8 @@ class _BatchGA:
         lonely_p = self.p0 + self.p1
         pm, step, ball = np.float32(self.pm), np.float32(self.step), np.float32(self.ball_um)
         for _ in range(generations):
+            if stop is not None and stop.is_set():
+                raise KeyboardInterrupt("batched-ga stopped")
             words = rng.bit_generator.random_raw(2 * m * K).view(np.uint32).reshape(m, K, 4)
             n_odd = int(rng.binomial(m * K, lonely_p)) if lonely_p > 0.0 else 0
             if n_odd:  # pools of one mate with themselves; empty pools take parent k mod M
@@ -207,10 +265,11 @@ class _BatchGA:
             if n_odd:
                 odd.reshape(-1)[at] = 0
             if F:
-                scatter(new_fit.reshape(-1), fresh_at, fitness(fresh_pt[:F], fresh_d[:, :F]), F)
+                scatter(new_fit.reshape(-1), fresh_at, _blocked(fitness, fresh_pt, fresh_d, F, stop), F)
                 nfev += F
             pop, new_pop = new_pop, pop
             fit, new_fit = new_fit, fit
-            bar.update(m)
+            if bar is not None:
+                bar.update(m)
         best = pop[np.arange(m), np.argmax(fit, axis=1)].astype(float)
         return project_to_ball(best, self.ball_um), nfev

@@ -147,6 +147,19 @@ def solve_exact(field, targets_mm, machine, *, target_axes=None, a_start_deg=Non
                              "outside_ball": np.flatnonzero(outside)})
 
 
+def newton_offsets(field, machine, targets_mm, offsets_um, axes_d, ball_um: float = BALL_RADIUS_UM,
+                   xtol_um: float = 1e-9, max_iter: int = 50) -> tuple[np.ndarray, int]:
+    """Newton polish of offsets ``d = (p_r − p_d)·1e3`` (m, 3) μm: the exact solver's iteration
+    started from the commands ``p_d + 1e-3·d`` (e.g. a GA's best) instead of the targets.
+    Returns the polished offsets (m, 3) μm, projected onto the ball ``ball_um``, and the field
+    evaluations. ``axes_d`` (m, 3): the targets' axes (A's turn)."""
+    targets = np.ascontiguousarray(targets_mm, dtype=float)
+    q0 = command_axes(machine, targets + MM_PER_UM * np.asarray(offsets_um, dtype=float), axes_d)
+    q, _, _, _, nfev = _newton(field, machine, targets, q0, xtol_um, max_iter)
+    q[:, 2] = axes_d[:, 2] + wrap180(q[:, 2] - axes_d[:, 2])
+    return project_to_ball((forward(machine, q) - targets) * UM_PER_MM, ball_um), nfev
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _forward_point(x_mm, z_mm, a_deg, kin):  # pragma: no cover - compiled
     """:func:`forward_and_jacobian` at one point: ``(p0, p1, p2, cos a, sin a)``; ``kin`` =

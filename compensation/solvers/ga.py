@@ -38,6 +38,7 @@ from errormap.progress import Progress
 
 from .base import BALL_RADIUS_UM, SolveResult
 from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, project_to_ball
+from ._converge import RETRY_ROUNDS, converge
 
 PAPER_GA = {
     "population": 40,
@@ -88,16 +89,20 @@ def solve_ga(field, targets_mm, machine, *, target_axes=None, a_start_deg=None, 
              crossover_probability: float = PAPER_GA["crossover_probability"],
              mutation_probability: float = PAPER_GA["mutation_probability"],
              mutation_step_um: float = PAPER_GA["mutation_step_um"], tol_um: float = DEFAULT_TOL_UM,
-             progress: bool = True) -> SolveResult:
+             progress: bool = True, retries: int = RETRY_ROUNDS, polish: bool = True) -> SolveResult:
     """PyGAD GA per target, WCS targets shape (n, 3) mm.
 
-    ``success``: |model residual| ≤ ``tol_um`` and inside the ball. ``info["fitness_um2"]``
-    holds each point's best squared residual as PyGAD saw it.
+    ``success``: |model residual| ≤ ``tol_um`` and inside the ball. Points above ``tol_um``
+    after ``generations`` are retried (``retries`` PyGAD runs from a fresh population around
+    their best, drawn from the point's own Generator) and then, with ``polish``,
+    Newton-polished (:mod:`._converge`); ``info["retry"]`` says how many and at what cost.
     """
     t0 = time.perf_counter()
     targets, axes_d = check_inputs(field, targets_mm, machine, target_axes, a_start_deg, ball_um)
     n_parents = check_ga_options(population, generations, selection_probability, crossover_probability,
                                  mutation_probability, mutation_step_um, tol_um)
+    if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
+        raise ValueError(f"Expected retries in 0..10, got {retries!r}")
     # one child Generator per point: point i's run depends only on (seed, i), not on n
     point_rngs = np.random.default_rng(seed).spawn(len(targets))
     best = np.empty((len(targets), 3))
@@ -110,13 +115,27 @@ def solve_ga(field, targets_mm, machine, *, target_axes=None, a_start_deg=None, 
                            n_parents, crossover_probability, mutation_probability, mutation_step_um, counter)
         nfev += counter[0]
         bar.update()
-    return ga_result("ga", field, machine, targets, best, axes_d, nfev, t0, ball_um, tol_um, seed,
-                     pygad_version=pygad.__version__, parents=n_parents)
+
+    def rerun(sub, radius_um):
+        out, counter = np.empty((sub.size, 3)), [0]
+        for j, (i, r) in enumerate(zip(sub.tolist(), radius_um.tolist())):
+            rng = point_rngs[i]  # the point's own stream: its result still depends on (seed, i) only
+            init = best[i] + r * uniform_in_ball(rng, (population,), 1.0)
+            init[0] = best[i]  # the best so far survives (elitism)
+            out[j] = _run_one(field, machine, targets[i], rng, int(rng.integers(0, 2**31 - 1)), ball_um, population,
+                              generations, n_parents, crossover_probability, mutation_probability, mutation_step_um,
+                              counter, init=project_to_ball(init, ball_um))
+        return out, counter[0]
+
+    best, fe, retry = converge(field, machine, targets, axes_d, best, tol_um, ball_um, rerun, retries, polish)
+    return ga_result("ga", field, machine, targets, best, axes_d, nfev + fe, t0, ball_um, tol_um, seed,
+                     pygad_version=pygad.__version__, parents=n_parents, retry=retry)
 
 
 def _run_one(field, machine, target, rng, seed, ball_um, population, generations, n_parents,
-             crossover_probability, mutation_probability, mutation_step_um, counter) -> np.ndarray:
-    """One PyGAD run for one target; returns the best offset d (3,) μm, inside the ball."""
+             crossover_probability, mutation_probability, mutation_step_um, counter, init=None) -> np.ndarray:
+    """One PyGAD run for one target; returns the best offset d (3,) μm, inside the ball.
+    ``init`` (population, 3) μm: the initial population (default uniform in the ball)."""
 
     def fitness(ga, solutions, indices):
         d = np.asarray(solutions, dtype=float).reshape(-1, 3)
@@ -129,7 +148,8 @@ def _run_one(field, machine, target, rng, seed, ball_um, population, generations
         return project_to_ball(np.asarray(offspring, dtype=float), ball_um)
 
     ga = pygad.GA(num_generations=generations, num_parents_mating=n_parents, fitness_func=fitness,
-                  fitness_batch_size=population, initial_population=uniform_in_ball(rng, (population,), ball_um),
+                  fitness_batch_size=population,
+                  initial_population=uniform_in_ball(rng, (population,), ball_um) if init is None else init,
                   gene_type=float, parent_selection_type="sss", keep_elitism=1,
                   crossover_type="single_point", crossover_probability=crossover_probability,
                   mutation_type="random", mutation_probability=mutation_probability,

@@ -162,6 +162,11 @@ def _print_file(o) -> None:
     print(f"{o.src}: {e['points']} points, model residual max {e['model_max_um']:.4g} um "
           f"mean {e['model_mean_um']:.4g} um, max correction {e['max_correction_um']:.1f} um, "
           f"failures {e['failures']}, guard violations {n_viol} {status}")
+    retry = e.get("ga_retry")
+    if retry and retry["retried"]:
+        print(f"  {retry['retried']} point(s) above the GA tolerance after its generations: retried "
+              f"({retry['retry_rounds']} round(s)), {retry['polished']} Newton-polished, {retry['unconverged']} "
+              f"still unconverged; {retry['retry_seconds']:.2f} s")
     if e["overridden"] and not o.refused:
         print(f"  warning: guards overridden ({', '.join(f'{g} {n}' for g, n in e['overridden'].items())} "
               f"point(s)); recorded in the output file's header and the summary")

@@ -203,6 +203,8 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, co
              "guard_violations": violations, "allowed_guards": sorted(report.allowed),
              "overridden": {g: n for g, n in violations.items() if n and g in report.allowed},
              "seconds": float(res.seconds), "chunks": (res.info or {}).get("chunks", 1)}
+    if "retry" in (res.info or {}):  # GA points retried / Newton-polished after the paper's generations
+        entry["ga_retry"] = dict(res.info["retry"])
     if tp.kind == "gcode":
         job = tp.source
         entry.update({"lines": len(job.program.lines),
