@@ -130,7 +130,8 @@ def log_to_mlflow(run_id, tracking_uri, paths: dict, metrics: dict, log=None) ->
     print(f"logged the report to MLflow run {run_id}", file=log)
 
 
-def budget_lines(s: DemoSettings, train_info: dict, train_s: float) -> dict:
+def budget_lines(s: DemoSettings, train_info: dict, train_s: float, ga_solved: int | None = None,
+                 n_points: int | None = None) -> dict:
     """The work the demo spent, as its page and ``metrics.json`` state it (``budget``)."""
     m = train_info.get("metrics") or {}
     train = (f"LM, at most {s.train_iter} iterations"
@@ -142,6 +143,8 @@ def budget_lines(s: DemoSettings, train_info: dict, train_s: float) -> dict:
                   f"{m.get('selected_iteration', m['iterations'])} ({m.get('stop_reason', 'stopped')})")
     ga = (f"{s.ga_points} evenly spaced points" if s.ga_points is not None
           else f"the evenly spaced points that fit in {s.ga_budget_s:g} s (PyGAD, one point at a time)")
+    if ga_solved is not None:
+        ga += f": {ga_solved} of {n_points} points solved"
     return {"training": train, "per-point ga": ga}
 
 
@@ -184,7 +187,8 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
                               ga_budget_s=s.ga_budget_s, seed=s.seed, nominal_axes=nominal, log=log)
     cmp.info.update({"machine": machine.name, "machine_file": machine.path, "model": train_info["model"],
                      "truth": str(sim_dir), "path": "flute", "flute": fl.settings.to_dict(), "points": len(fl)})
-    budget = budget_lines(s, train_info, train_s)
+    ga_run = cmp.runs.get("ga")
+    budget = budget_lines(s, train_info, train_s, len(ga_run.index) if ga_run is not None else None, len(fl))
     context = {"machine": f"{machine.name} ({machine.path})",
                "model (error field)": f"{train_info['model']}, trained {train_s:.0f} s on "
                                       f"{sim_dir / 'featurepoints.csv'}",
