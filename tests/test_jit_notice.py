@@ -5,7 +5,6 @@ import sys
 import textwrap
 from pathlib import Path
 
-import pytest
 
 KERNEL = textwrap.dedent('''
     from numba import njit

@@ -99,8 +99,8 @@ def train_field(fp_path: Path, s: DemoSettings, log=None):
     fp = FeaturePoints.load(fp_path)
     print(f"training the BP network on {len(fp.axes)} feature points ({s.trainer}, "
           f"at most {s.train_iter} iterations" + (f", {s.train_s:g} s" if s.train_s else "")
-          + (f", stopping when the selection error has not improved in {s.select_patience}" if s.select_patience
-             else "") + ") ...", file=log)
+          + (f", stopping when the selection error has not improved in {s.select_patience}"
+             if s.select_patience and s.trainer == "lm" else "") + ") ...", file=log)
     res = fit_field(fp, settings, tracking=TrackSettings(tracking_uri=s.tracking_uri or None))
     run_id = getattr(res, "run_id", None)
     metrics = dict(getattr(res, "metrics", {}) or {})
@@ -136,7 +136,7 @@ def budget_lines(s: DemoSettings, train_info: dict, train_s: float, ga_solved: i
     m = train_info.get("metrics") or {}
     train = (f"LM, at most {s.train_iter} iterations"
              + (f", early stop after {s.select_patience} iterations without improvement on the off-grid "
-                "selection points" if s.select_patience else "")
+                "selection points" if s.select_patience and s.trainer == "lm" else "")
              + (f", at most {s.train_s:g} s" if s.train_s else ""))
     if "iterations" in m:
         train += (f": ran {m['iterations']} iterations in {train_s:.0f} s, kept iteration "
