@@ -32,18 +32,25 @@ def _dispatchers(module):
 
 
 def cold_kernels(*modules) -> list[str]:
-    """``module.kernel`` names among ``modules`` whose numba cache index file does not exist
-    yet (their first call compiles). A kernel whose cache location cannot be read is left out:
-    the notice is a courtesy and never guesses."""
+    """``module.kernel`` names of the modules among ``modules`` that have no kernel compiled
+    yet, neither in this process nor in numba's cache (no cache index file): right after an
+    install. A module with some kernels cached counts as warm (a run compiles only the kernels
+    it calls; the rest would otherwise announce a compilation on every run). A kernel whose
+    cache location cannot be read counts as warm: the notice is a courtesy and never guesses."""
     cold = []
     for module in modules:
+        names, warm = [], False
         for name, disp in _dispatchers(module):
             try:
                 index = Path(disp._cache._cache_file._index_path)  # numba's FunctionCache (0.5x–0.6x)
             except AttributeError:
+                warm = True
                 continue
-            if not disp.signatures and not index.is_file():
-                cold.append(f"{module.__name__}.{name}")
+            if disp.signatures or index.is_file():
+                warm = True
+            names.append(f"{module.__name__}.{name}")
+        if names and not warm:
+            cold += [n for n in names if n not in cold]
     return cold
 
 

@@ -16,6 +16,10 @@ KERNEL = textwrap.dedent('''
     @njit(cache=True, inline="always")
     def helper(x):
         return x
+
+    @njit(cache=True)
+    def never_called(x):
+        return x
 ''')
 
 PROBE = textwrap.dedent('''
@@ -39,15 +43,17 @@ def _run(tmp_path: Path, cache: Path, what: str):
 
 
 def test_cold_cache_is_named_once_and_warm_cache_is_silent(tmp_path):
-    """A fresh numba cache: the kernel is named cold and ONE notice line goes to stderr; after its
-    first call (compiled, cached) it is no longer cold, and a new process says nothing."""
+    """A fresh numba cache: the module's kernels are named cold and ONE notice line goes to stderr;
+    after one of them is called (compiled, cached) the module is warm — also for the kernel this
+    run never called, which would otherwise announce a compilation on every run — and a new
+    process says nothing."""
     from errormap.jit import COLD_NOTICE
     (tmp_path / "kern.py").write_text(KERNEL)
     (tmp_path / "probe.py").write_text(PROBE)
     cache = tmp_path / "numba-cache"
     first = _run(tmp_path, cache, "call")
     assert first.returncode == 0, first.stderr
-    assert "cold: kern.twice\n" in first.stdout          # the inlined helper has no cache entry of its own
+    assert "cold: kern.never_called,kern.twice\n" in first.stdout  # the inlined helper has no cache entry
     assert "after call: \n" in first.stdout
     assert first.stderr.strip().splitlines() == [COLD_NOTICE]
     second = _run(tmp_path, cache, "look")

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from errormap.featurepoints import FeaturePoints
+from errormap import htm as htm_module
 from errormap.htm import HTMField
 from errormap.io import write_json
 from errormap.jit import notice_cold_kernels
@@ -157,6 +158,9 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
     clock = StageClock()
     fl = s.flute
     nominal = fl.axes(machine)
+    # one line before numba's first compilation after install: the HTM model's kernels (simulate)
+    # and every method's (compensate)
+    notice_cold_kernels(htm_module, *{m for method in s.methods for m in kernel_modules(method)}, log=log)
     print("[1/4] simulate", file=log)
     sim_dir = Path(s.out) / "sim"
     print(f"simulating truth grinder seed={s.sim_seed} effects=none ...", file=log)
@@ -181,7 +185,6 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
     print(f"trained in {train_s:.1f} s; model {train_info['model']}", file=log)
 
     print(f"[4/4] compensate the flute ({len(fl)} points) with {', '.join(s.methods)} and report", file=log)
-    notice_cold_kernels(*{m for method in s.methods for m in kernel_modules(method)}, log=log)
     with clock.stage("compensate"):
         cmp = compare_methods(field, fl.targets_mm, machine, methods=s.methods, truth=truth, ga_points=s.ga_points,
                               ga_budget_s=s.ga_budget_s, seed=s.seed, nominal_axes=nominal, log=log)
