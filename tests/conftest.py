@@ -1,4 +1,5 @@
 import os
+import resource
 import signal
 import subprocess
 import time
@@ -8,6 +9,44 @@ import numpy as np
 import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+# The tier rule (README "Tests and benchmarks"): a test that needs more than this many CPU seconds
+# (its own process and the subprocesses it starts, setup included; on 2 quiet cores that is about
+# its wall time under `-n 2`) is marked @pytest.mark.slow and runs in the slow tier, which
+# `.ci/run` runs after the fast one. CPU time, not wall time, so a loaded machine does not move it.
+SLOW_TIER_CPU_S = 5.0
+
+
+def _cpu_s() -> float:
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_setup(item):
+    item._cpu_start_s = _cpu_s()
+    yield
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    rep = outcome.get_result()
+    if call.when == "call" and hasattr(item, "_cpu_start_s"):
+        rep.user_properties.append(("cpu_s", round(_cpu_s() - item._cpu_start_s, 2)))
+        rep.user_properties.append(("slow", item.get_closest_marker("slow") is not None))
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Name the unmarked tests that broke the tier rule (a reminder; it fails nothing)."""
+    over = []
+    for rep in terminalreporter.stats.get("passed", []) + terminalreporter.stats.get("failed", []):
+        props = dict(getattr(rep, "user_properties", ()) or ())
+        if not props.get("slow", True) and props.get("cpu_s", 0.0) > SLOW_TIER_CPU_S:
+            over.append((props["cpu_s"], rep.nodeid))
+    if over:
+        terminalreporter.write_line(f"fast-tier tests over {SLOW_TIER_CPU_S:g} CPU s (mark them @pytest.mark.slow): "
+                                    + "; ".join(f"{n} {c:.1f} s" for c, n in sorted(over, reverse=True)[:10]))
 
 
 @pytest.fixture(scope="session")

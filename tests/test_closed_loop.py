@@ -278,6 +278,7 @@ def test_fallback_keeps_the_final_model_unless_a_plainer_stage_is_better_held_ou
     assert stage == "updated" and str(FALLBACK_Z) in why
 
 
+@pytest.mark.slow  # sweeps → simulate → identify → diagnose through the CLI: 5.4 CPU s (tier rule: > 5 s)
 def test_diagnose_cli_names_elements_the_checks_do_not_cover(tmp_path):
     """Checks only at x < 80 mm: the report names dx_x's stations beyond as staying at the
     sweep estimate, with the reason."""

@@ -25,6 +25,13 @@ def test_demo_tiny_end_to_end(tmp_path, capsys):
     for name, v in m["methods"].items():
         assert REQUIRED <= set(v), name
     assert m["methods"]["ga"]["points"] == 3 and m["methods"]["exact"]["points"] == 24
+    # the page and metrics.json state the budget used; demo.json times every stage
+    assert "3 of 24 points solved" in m["budget"]["per-point ga"]
+    assert f"ran {m['training']['metrics']['iterations']} iterations" in m["budget"]["training"]
+    assert "budget: training" in (out / "report.html").read_text()
+    stages = json.loads((out / "demo.json").read_text())["stages"]
+    assert set(stages) == {"simulate", "train", "compensate", "report"}
+    assert all(v["wall_s"] >= 0 and v["cpu_s"] >= 0 for v in stages.values())
     # the exact solver satisfies its own field far better than the traditional one-shot
     assert m["methods"]["exact"]["model_max_um"] < m["methods"]["traditional"]["model_max_um"]
     assert "MODEL" in (out / "report.html").read_text()

@@ -163,6 +163,7 @@ def test_dynamic_family_is_chosen_where_ols_cannot_follow_the_heat_path(seed):
     assert min(r["cv_rms_um"].values()) == pytest.approx(sel.cv_["z"][r["model"]])
 
 
+@pytest.mark.slow  # two 16-hour logs through the whole selection: 7.4 CPU s (tier rule: > 5 s)
 def test_chosen_model_never_loses_to_ols_in_validation():
     for seed in range(2):
         cols = simulate_rod_log(seed, hours=16, dt_s=60, n_dropouts=0)

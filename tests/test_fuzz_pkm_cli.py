@@ -45,6 +45,7 @@ def calibration(tmp_path_factory):
     return d
 
 
+@pytest.mark.slow  # a full calibration per drawn file: 6.7 CPU s (tier rule: > 5 s)
 @PKM_FUZZ
 @given(data=st.data())
 def test_fuzz_calibrate_poses(calibration, data):

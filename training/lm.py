@@ -185,7 +185,8 @@ def train_lm(model, theta0: torch.Tensor, u: torch.Tensor, y: torch.Tensor,
     """Levenberg–Marquardt from ``theta0`` on scaled features ``u`` (n, k) and targets ``y`` (n, 3).
 
     ``callback(iteration, mse, elapsed_s, mu)`` is called after every accepted step;
-    ``monitor(iteration, theta)`` too (model selection, see :func:`training.fit_field`).
+    ``monitor(iteration, theta)`` too (model selection, see :func:`training.fit_field`): a
+    non-empty string it returns stops training with that reason (early stopping).
     Returns the best parameters (the last accepted) and the history.
     """
     s = settings or LMSettings()
@@ -229,6 +230,9 @@ def train_lm(model, theta0: torch.Tensor, u: torch.Tensor, y: torch.Tensor,
             if callback is not None:
                 callback(h.iterations, sse / m, el, damping.mu)
             if monitor is not None:
-                monitor(h.iterations, theta)
+                stop = monitor(h.iterations, theta)
+                if stop:
+                    h.stop_reason = str(stop)
+                    break
     h.seconds = time.perf_counter() - t0
     return theta, h

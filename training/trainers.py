@@ -266,10 +266,14 @@ class FitResult:
 
 
 class _BestOnSelection:
-    """LM monitor: remembers the iterate with the smallest max |error| (μm) on selection points."""
+    """LM monitor: remembers the iterate with the smallest max |error| (μm) on selection points;
+    with ``patience`` > 0 it stops training once that error has not improved for ``patience``
+    accepted steps (the iterate it keeps is then the one a longer run would keep, unless the
+    error falls below the kept one again later)."""
 
-    def __init__(self, model, axes, errors_um, every: int):
+    def __init__(self, model, axes, errors_um, every: int, patience: int = 0):
         self.model, self.every = model, max(int(every), 1)
+        self.patience = max(int(patience), 0)
         self.u = torch.from_numpy(model.features(axes))
         self.errors_um = np.asarray(errors_um, float)
         self.best_max_um, self.best_iteration, self.best_theta = math.inf, 0, None
@@ -284,6 +288,10 @@ class _BestOnSelection:
             e = self._max_um(theta)
             if e < self.best_max_um:
                 self.best_max_um, self.best_iteration, self.best_theta = e, iteration, theta.detach().clone()
+            elif self.patience and iteration - self.best_iteration >= self.patience:
+                return (f"selection error not improved in {self.patience} iterations "
+                        f"(best {self.best_max_um:.4g} μm at iteration {self.best_iteration})")
+        return ""
 
     def finish(self, theta, hist):
         """The best iterate, the final one included."""
@@ -319,7 +327,9 @@ class TrainSettings:
     ``lm_settings``: damping/scaling/acceleration of the LM trainer (default :class:`LMSettings`);
     its stopping rules are replaced by the ones here. ``select_best`` (LM only): keep the iterate
     with the smallest max |error| on ``n_select`` selection points, checked every
-    ``select_every`` accepted steps (see :func:`fit_field`). ``threads``: torch threads.
+    ``select_every`` accepted steps (see :func:`fit_field`); ``select_patience`` (> 0, LM with
+    selection only): stop once that error has not improved for this many accepted steps (early
+    stopping; 0 = off, the default, so ``max_iter`` or the goals decide). ``threads``: torch threads.
     """
 
     trainer: str = "lm"
@@ -337,6 +347,7 @@ class TrainSettings:
     select_best: bool = True
     n_select: int = 5_000
     select_every: int = 5
+    select_patience: int = 0
     threads: int | None = None
 
     def __post_init__(self):
@@ -359,6 +370,8 @@ class TrainSettings:
         for name in ("n_validation", "n_select", "select_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"Expected {name} >= 1, got {getattr(self, name)}")
+        if not (int(self.select_patience) == self.select_patience and self.select_patience >= 0):
+            raise ValueError(f"Expected select_patience >= 0 (an integer; 0 = off), got {self.select_patience}")
 
     def lm(self, out_scale_um: float) -> LMSettings:
         """The trainer's settings: ``lm_settings`` with this object's stopping rules (scaled outputs)."""
@@ -428,7 +441,7 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, validatio
             sel_axes, sel_errors = (np.asarray(v, float) for v in selection)
         else:
             sel_axes, sel_errors = validation_points(ref[0], ref[1], n=s.n_select, seed=streams[SELECTION_STREAM])
-        selector = _BestOnSelection(model, sel_axes, sel_errors, s.select_every)
+        selector = _BestOnSelection(model, sel_axes, sel_errors, s.select_every, s.select_patience)
     hist = _train(model, axes, errors, s, selector, quiet)
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
@@ -488,6 +501,8 @@ def _fit_params(model, s: TrainSettings, meta: dict, hist, axes, errors, n_val: 
         "output_scale_um": model.out_scale_, "init": s.init,
         "select_best": bool(selected),
     }
+    if selected and s.select_patience:
+        params["select_patience"] = s.select_patience
     if s.trainer == "lm":
         lm = s.lm(model.out_scale_)
         params.update({"mu0": lm.mu0, "mu_dec": lm.mu_dec, "mu_inc": lm.mu_inc,

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from errormap.io import InputError, write_json
+from errormap.jit import notice_cold_kernels
 from errormap.progress import Progress
 
 from compensation.app.cli import UsageError
@@ -229,6 +230,16 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, co
     return outcome
 
 
+def kernel_modules(method: str) -> list:
+    """The modules whose numba kernels a ``compensate`` run with ``method`` compiles on first use:
+    the G-code planner's and the solver's own (the batched GA's generation step, the exact
+    solver's Newton kernels)."""
+    import importlib
+    names = ["compensation.gcode_kernels"] + {"exact": ["compensation.solvers.exact"],
+                                              "batched-ga": ["compensation.solvers._ga_kernels"]}.get(method, [])
+    return [importlib.import_module(n) for n in names]
+
+
 def compensate_files(files, machine, s: CompensateSettings, on_file=None, executor=None) -> CompensateRun:
     """Compensate ``files`` into ``s.out_dir`` in the order of work above; ``on_file(outcome)``
     is called after each file is guarded and rendered (before anything is written).
@@ -238,6 +249,7 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
     out_dir = Path(s.out_dir)
     plan = plan_outputs(files, out_dir)
     old_outputs = check_out_dir(out_dir, s.force)
+    notice_cold_kernels(*kernel_modules(s.method))  # one line before numba's first compilation after install
     # parse and validate every input first: a bad file fails the batch before any work or output
     read_opts = {"rapids": s.rapids, "block_delete": s.block_delete, "arc_tolerance_um": s.arc_tolerance_um,
                  "units": s.units, "units_option": "--units"}

@@ -5,18 +5,27 @@ simulate a truth grinder (``DIR/sim``) → its 11×11×11 feature points → tra
 method (:mod:`compensation.app.workflows.compare`) → ``DIR/report.html``, ``DIR/metrics.json``,
 ``DIR/residuals.csv`` (MODEL and TRUE residual) and ``DIR/demo.json``. The report files are
 also logged to the training's MLflow run.
+
+The demo's budget, stated on its page and in ``metrics.json`` (``budget``): LM stops when the
+error on the off-grid selection points has not improved for ``select_patience`` iterations
+(early stopping; the kept iterate is the best on those points, as in ``volcomp train``, which
+runs on to its iteration cap), and the per-point PyGAD ``ga`` runs on the evenly spaced points
+that fit in ``ga_budget_s``. ``demo.json`` records each stage's wall and CPU seconds.
 """
 from __future__ import annotations
 
 import math
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 from errormap.featurepoints import FeaturePoints
+from errormap import htm as htm_module
 from errormap.htm import HTMField
 from errormap.io import write_json
+from errormap.jit import notice_cold_kernels
 
 
 from compensation.app.cli import UsageError
@@ -24,10 +33,11 @@ from compensation.app.cli import UsageError
 from ...evaluate import load_truth
 from ..reports.methods import print_table, write_report
 from .compare import compare_methods
+from .compensate import kernel_modules
 from .simulate import simulate_truth, summary_lines
 
 
-DEMO_GA_BUDGET_S = 90.0
+DEMO_GA_BUDGET_S = 15.0  # the per-point PyGAD GA (about 1 s a point): a sample of the path, said so
 """The demo's per-point GA budget (s): ``volcomp demo``'s default and its --help, from this one name."""
 
 
@@ -49,6 +59,27 @@ class DemoSettings:
     hidden: tuple | None = None
     ga_points: int | None = None
     ga_budget_s: float = DEMO_GA_BUDGET_S
+    select_patience: int = 0
+
+
+class StageClock:
+    """Wall and CPU seconds of each stage of a run (``stages``: name -> {wall_s, cpu_s})."""
+
+    def __init__(self):
+        self.stages = {}
+
+    @contextmanager
+    def stage(self, name: str):
+        w0, c0 = time.perf_counter(), time.process_time()
+        try:
+            yield
+        finally:
+            self.stages[name] = {"wall_s": round(time.perf_counter() - w0, 3),
+                                 "cpu_s": round(time.process_time() - c0, 3)}
+
+    def line(self) -> str:
+        return "stage times (wall / CPU s): " + ", ".join(
+            f"{k} {v['wall_s']:.1f}/{v['cpu_s']:.1f}" for k, v in self.stages.items())
 
 
 def train_field(fp_path: Path, s: DemoSettings, log=None):
@@ -66,16 +97,21 @@ def train_field(fp_path: Path, s: DemoSettings, log=None):
     try:
         settings = TrainSettings(trainer=s.trainer, max_iter=s.train_iter, seed=s.seed,
                                  max_time_s=s.train_s if s.train_s is not None else math.inf,
+                                 select_patience=s.select_patience,
                                  **({"hidden": tuple(s.hidden)} if s.hidden else {}))
     except ValueError as exc:
         raise UsageError(f"training settings: {exc}") from None
     fp = FeaturePoints.load(fp_path)
     print(f"training the BP network on {len(fp.axes)} feature points ({s.trainer}, "
-          f"at most {s.train_iter} iterations" + (f", {s.train_s:g} s" if s.train_s else "") + ") ...",
-          file=log)
+          f"at most {s.train_iter} iterations" + (f", {s.train_s:g} s" if s.train_s else "")
+          + (f", stopping when the selection error has not improved in {s.select_patience}"
+             if s.select_patience and s.trainer == "lm" else "") + ") ...", file=log)
     res = fit_field(fp, settings, tracking=TrackSettings(tracking_uri=s.tracking_uri or None))
     run_id = getattr(res, "run_id", None)
     metrics = dict(getattr(res, "metrics", {}) or {})
+    hist = getattr(res, "history", None)
+    if hist is not None and getattr(hist, "stop_reason", ""):
+        metrics["stop_reason"] = hist.stop_reason
     return res.field, {"run_id": run_id, "metrics": metrics,
                        "model": f"runs:/{run_id}" if run_id else "trained network (not tracked)"}
 
@@ -99,26 +135,50 @@ def log_to_mlflow(run_id, tracking_uri, paths: dict, metrics: dict, log=None) ->
     print(f"logged the report to MLflow run {run_id}", file=log)
 
 
+def budget_lines(s: DemoSettings, train_info: dict, train_s: float, ga_solved: int | None = None,
+                 n_points: int | None = None) -> dict:
+    """The work the demo spent, as its page and ``metrics.json`` state it (``budget``)."""
+    m = train_info.get("metrics") or {}
+    train = (f"LM, at most {s.train_iter} iterations"
+             + (f", early stop after {s.select_patience} iterations without improvement on the off-grid "
+                "selection points" if s.select_patience and s.trainer == "lm" else "")
+             + (f", at most {s.train_s:g} s" if s.train_s else ""))
+    if "iterations" in m:
+        train += (f": ran {m['iterations']} iterations in {train_s:.0f} s, kept iteration "
+                  f"{m.get('selected_iteration', m['iterations'])} ({m.get('stop_reason', 'stopped')})")
+    ga = (f"{s.ga_points} evenly spaced points" if s.ga_points is not None
+          else f"the evenly spaced points that fit in {s.ga_budget_s:g} s (PyGAD, one point at a time)")
+    if ga_solved is not None:
+        ga += f": {ga_solved} of {n_points} points solved"
+    return {"training": train, "per-point ga": ga}
+
+
 def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
     """Run the demo on ``machine`` (a grinder); progress goes to ``log`` (stderr), the result lines to ``out`` (stdout).
     Returns the paths written (``html``, ``metrics``, ``residuals``)."""
     out = sys.stdout if out is None else out
     log = sys.stderr if log is None else log
     t_start = time.perf_counter()
+    clock = StageClock()
     fl = s.flute
     nominal = fl.axes(machine)
+    # one line before numba's first compilation after install: the HTM model's kernels (simulate)
+    # and every method's (compensate)
+    notice_cold_kernels(htm_module, *{m for method in s.methods for m in kernel_modules(method)}, log=log)
     print("[1/4] simulate", file=log)
     sim_dir = Path(s.out) / "sim"
     print(f"simulating truth grinder seed={s.sim_seed} effects=none ...", file=log)
-    sim_info = simulate_truth(machine, s.sim_seed, sim_dir, effects=[], noise_um=1.0, checks=400)
-    for line in summary_lines(sim_info, sim_dir):
-        print(line, file=out)
-    truth = load_truth(sim_dir, machine)
+    with clock.stage("simulate"):
+        sim_info = simulate_truth(machine, s.sim_seed, sim_dir, effects=[], noise_um=1.0, checks=400)
+        for line in summary_lines(sim_info, sim_dir):
+            print(line, file=out)
+        truth = load_truth(sim_dir, machine)
 
     print("[2/4] feature points: " + str(sim_dir / "featurepoints.csv"), file=log)
     print("[3/4] train", file=log)
     t0 = time.perf_counter()
-    field, train_info = train_field(sim_dir / "featurepoints.csv", s, log=log)
+    with clock.stage("train"):
+        field, train_info = train_field(sim_dir / "featurepoints.csv", s, log=log)
     if field is None:
         print("warning: training.fit_field is not available; the demo uses the 23-element HTM model of the "
               "truth elements as its error field instead of a trained network", file=log)
@@ -129,10 +189,13 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
     print(f"trained in {train_s:.1f} s; model {train_info['model']}", file=log)
 
     print(f"[4/4] compensate the flute ({len(fl)} points) with {', '.join(s.methods)} and report", file=log)
-    cmp = compare_methods(field, fl.targets_mm, machine, methods=s.methods, truth=truth, ga_points=s.ga_points,
-                          ga_budget_s=s.ga_budget_s, seed=s.seed, nominal_axes=nominal, log=log)
+    with clock.stage("compensate"):
+        cmp = compare_methods(field, fl.targets_mm, machine, methods=s.methods, truth=truth, ga_points=s.ga_points,
+                              ga_budget_s=s.ga_budget_s, seed=s.seed, nominal_axes=nominal, log=log)
     cmp.info.update({"machine": machine.name, "machine_file": machine.path, "model": train_info["model"],
                      "truth": str(sim_dir), "path": "flute", "flute": fl.settings.to_dict(), "points": len(fl)})
+    ga_run = cmp.runs.get("ga")
+    budget = budget_lines(s, train_info, train_s, len(ga_run.index) if ga_run is not None else None, len(fl))
     context = {"machine": f"{machine.name} ({machine.path})",
                "model (error field)": f"{train_info['model']}, trained {train_s:.0f} s on "
                                       f"{sim_dir / 'featurepoints.csv'}",
@@ -140,16 +203,21 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
                "path": f"variable-helix flute: {fl.settings.turns:g} turns × {fl.settings.points_per_turn} points, "
                        f"r = {fl.settings.radius_mm:g} mm, helix {fl.settings.helix_start_deg:g}° → "
                        f"{fl.settings.helix_end_deg:g}°",
+               **{f"budget: {k}": v for k, v in budget.items()},
                "seed": s.seed}
-    extra = {"training": {"run_id": train_info["run_id"], "seconds": train_s, "metrics": train_info["metrics"]}}
-    paths = write_report(cmp, s.out, title="volcomp demo: flute-path compensation", context=context,
-                         extra_metrics=extra, kind="demo")
-    print_table(cmp, stream=out)
-    try:
-        log_to_mlflow(train_info["run_id"], s.tracking_uri, paths, cmp.metrics(), log=log)
-    except Exception as exc:  # the report is written; tracking trouble must not lose it
-        print(f"warning: could not log the report to MLflow: {exc}", file=log)
+    extra = {"training": {"run_id": train_info["run_id"], "seconds": train_s, "metrics": train_info["metrics"]},
+             "budget": budget}
+    with clock.stage("report"):
+        paths = write_report(cmp, s.out, title="volcomp demo: flute-path compensation", context=context,
+                             extra_metrics=extra, kind="demo")
+        print_table(cmp, stream=out)
+        try:
+            log_to_mlflow(train_info["run_id"], s.tracking_uri, paths, cmp.metrics(), log=log)
+        except Exception as exc:  # the report is written; tracking trouble must not lose it
+            print(f"warning: could not log the report to MLflow: {exc}", file=log)
+    print(clock.line(), file=log)
     write_json(Path(s.out) / "demo.json", {"seconds": time.perf_counter() - t_start, "out": str(s.out),
+                                           "stages": clock.stages, "budget": budget,
                                            "sim": str(sim_dir), **{k: str(v) for k, v in paths.items()},
                                            "run_id": train_info["run_id"], "tracking_uri": s.tracking_uri})
     return paths

@@ -1,0 +1,37 @@
+"""`.ci/run` runs the fast tier and the slow tier; `.ci/tiers.py` writes the closing line for both."""
+import subprocess
+import sys
+from pathlib import Path
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+FAST = ('<?xml version="1.0"?><testsuites><testsuite name="pytest" errors="0" failures="1" skipped="2" '
+        'tests="10" time="12.5"></testsuite></testsuites>')
+SLOW = ('<?xml version="1.0"?><testsuites><testsuite name="pytest" errors="0" failures="0" skipped="0" '
+        'tests="3" time="30.25"></testsuite></testsuites>')
+
+
+def test_closing_line_adds_both_tiers(tmp_path):
+    (tmp_path / "f.xml").write_text(FAST)
+    (tmp_path / "s.xml").write_text(SLOW)
+    r = subprocess.run([sys.executable, str(ROOT / ".ci" / "tiers.py"), str(tmp_path / "f.xml"),
+                        str(tmp_path / "s.xml")], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0
+    assert r.stdout.strip() == ("1 failed, 10 passed, 2 skipped in 42.75s (fast tier: 1 failed, 7 passed, "
+                                "2 skipped in 12.50s; slow tier: 3 passed in 30.25s)")
+
+
+def test_a_missing_tier_is_named(tmp_path):
+    (tmp_path / "f.xml").write_text(FAST)
+    r = subprocess.run([sys.executable, str(ROOT / ".ci" / "tiers.py"), str(tmp_path / "f.xml"),
+                        str(tmp_path / "none.xml")], capture_output=True, text=True, timeout=60)
+    assert "slow tier: no result file" in r.stdout
+
+
+def test_ci_runs_both_tiers_and_the_readme_names_the_fast_one():
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert 'pytest -q -n 2 -m "not slow"' in ci and "pytest -q -n 2 -m slow" in ci
+    assert '-ne 5' in ci  # "no tests collected" is not a failure
+    readme = (ROOT / "README.md").read_text()
+    assert 'python -m pytest -q -n 2 -m "not slow"' in readme.split("\n## ")[0]
