@@ -373,6 +373,19 @@ class ResidualRegressor:
         mean, jac = self.model_.predict((X - self.x_mean_) / self.x_scale_, jacobian=True)
         return mean * self.y_scale_, jac * (self.y_scale_ / self.x_scale_)[None, None, :]
 
+    def with_data(self, X, Y) -> "ResidualRegressor":
+        """A copy conditioned on (``X`` (m, d), ``Y`` (m, 3)) with this fit's chosen family,
+        hyper-parameters and standardisation kept (no new selection): e.g. hyper-parameters
+        chosen on a fitting part, weights re-solved on all data. ``"none"`` stays none."""
+        import copy
+        X = self._check_fitted(X)
+        X, Y, _ = check_residual_data(X, Y)
+        out = copy.copy(self)
+        if self.model_ is not None:
+            out.model_ = _GP(1, None).set_state((X - self.x_mean_) / self.x_scale_, Y / self.y_scale_,
+                                                self.model_.theta_)
+        return out
+
     # -- persistence
     def to_dict(self) -> dict:
         """JSON-able state (format :data:`FORMAT`)."""

@@ -123,7 +123,7 @@ def _write(out_dir, summary, page):
 
 def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
                tracking_uri=None, featurepoints=None, retrain=None, fit_field=None,
-               field_=None, update: bool = True):
+               field_=None, update: bool = True, learn: bool = True):
     """Diagnose ``checks_path`` against ``model_spec``; returns (summary, paths).
 
     ``field_`` overrides loading ``model_spec`` (tests, benchmarks). With a learned model
@@ -137,7 +137,7 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
     from errormap.uncertainty import covariance_path
     if (update and field_ is None and Path(str(model_spec)).suffix.lower() == ".json"
             and covariance_path(model_spec).is_file()):
-        return run_closed_loop(checks_path, machine, model_spec, out_dir, settings)
+        return run_closed_loop(checks_path, machine, model_spec, out_dir, settings, learn=learn)
     checks = load_checks(checks_path, machine)
     settings = settings or DiagnosisSettings()
     settings.validate(len(checks))
@@ -173,8 +173,10 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
     return summary, _write(out_dir, summary, page)
 
 
-def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None):
-    """The closed loop on an identified element set with its covariance; returns (summary, paths)."""
+def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
+                    learn: bool = True):
+    """The closed loop on an identified element set with its covariance; returns (summary, paths).
+    ``learn``: after the loop, the learned-residual stage (:func:`compensation.hybrid.learned_stage`)."""
     from errormap.diagnosis.loop import closed_loop
     from errormap.elements import ElementSet
     from errormap.uncertainty import ElementCovariance, covariance_path
@@ -187,12 +189,30 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     summary = dict(loop.summary)
     summary.update({"checks": str(checks_path), "model": str(model_spec), "machine": machine.name,
                     "residual": "measured (measurement − model prediction); stages judged on the same held-out checks"})
+    learned = None
+    if learn:  # the learned residual on what the kept stage leaves (compensation.hybrid.learned_stage)
+        from compensation.hybrid import learned_stage
+        n_fit = int(round(settings.fit_fraction * len(checks)))
+        r_prev = checks.measured_um - loop.model.predict(checks.axes, **checks.conditions)
+        learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, len(checks)))
+        stage["base_stage"] = loop.kept_stage
+        summary["stages"] = dict(summary["stages"], learned_residual=stage)
+        summary["learned_residual"] = stage["learned"]
+        if learned is not None:
+            summary["base_stage"] = loop.kept_stage
+            summary["kept_stage"] = "learned_residual"
+            summary["kept_why"] = f"{summary['kept_why']}; then the learned residual was {stage['learned']['why']}"
+            summary["rms_final_um"] = stage["held_out"]["rms_um"]
+            summary["max_final_um"] = stage["held_out"]["max_um"]
     page = checks_report(loop.diagnosis, summary, model_spec, checks_path)
     out_dir = Path(out_dir)
     upd_path = out_dir / "updated_elements.json"
     summary["updated_elements_file"] = str(upd_path)
-    model = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "stage": loop.kept_stage,
+    model = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "stage": summary["kept_stage"],
              "terms": summary["effects"], "needs": sorted({c for e in summary["effects"] for c in e.get("needs", [])})}
+    if learned is not None:
+        model["base_stage"] = loop.kept_stage
+        model["learned_residual"] = learned.to_dict()
     paths = _write(out_dir, summary, page)
     # the kept stage's elements (the identified ones when the fallback keeps them) and their covariance
     loop.covariance.save(covariance_path(upd_path))
