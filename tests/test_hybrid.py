@@ -24,6 +24,10 @@ JAC_TOL_REL = 1e-6
 with μm-per-mm slopes): truncation O(h²·f''') and rounding ε·|E|/h ≈ 1e-10 relative; 1e-6 of the
 largest entry is far above both and far below any wrong term."""
 
+VALUE_TOL_UM = 1e-9
+"""predict_and_jacobian's value vs predict: the HTM model's two compiled kernels sum the chain in
+different orders (measured 2.5e-11 μm on ~100 μm errors); 1e-9 μm is round-off, not a model."""
+
 EXACT_MODEL_TOL_UM = 1e-6
 """The issue's figure for the exact solver's model residual on the hybrid field."""
 
@@ -83,7 +87,7 @@ def test_hybrid_field_value_jacobian_and_taper(grinder, staged):
     assert {JACOBIAN, PREDICT_AND_JACOBIAN} <= field.capabilities
     P = random_axes(grinder, 9, np.random.default_rng(3))
     e, J = field.predict_and_jacobian(P)
-    np.testing.assert_allclose(e, field.predict(P), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(e, field.predict(P), rtol=0, atol=VALUE_TOL_UM)
     h = np.array([1e-4, 1e-4, 1e-4])
     Jfd = np.stack([(field.predict(P + h[j] * np.eye(3)[j]) - field.predict(P - h[j] * np.eye(3)[j])) / (2 * h[j])
                     for j in range(3)], -1)

@@ -156,7 +156,7 @@ def _learned(s) -> dict | None:
                            "95 % band coverage"], rows), "figure": None}
     m = lr.get("map")
     if m:
-        fig, axs = _plt.subplots(1, 2, figsize=(9, 3.6))
+        fig, axs = _plt().subplots(1, 2, figsize=(9, 3.6))
         ext = [m["x_mm"][0], m["x_mm"][-1], m["z_mm"][0], m["z_mm"][-1]]
         for ax, key, title in ((axs[0], "norm_um", "learned correction |Δ| (μm)"),
                                (axs[1], "band95_um", "its 95 % band (μm)")):
