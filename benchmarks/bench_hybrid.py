@@ -5,7 +5,7 @@ Per seed and case (``none`` and the out-of-catalogue effects ``bump``, ``a_tilt`
 the user's CLI path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) →
 ``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on) →
 ``volcomp compensate VOLUME.csv --model DIR/model.json --method exact`` on 2,000 random volume
-points at the reference conditions, scored by the TRUE residual on the hidden truth (used only
+points (1 mm inside the X and Z strokes) at the reference conditions, scored by the TRUE residual on the hidden truth (used only
 here). The same ``model.json`` without its ``learned_residual`` key is the parametric loop alone
 (the stage the learned one was judged against), compensated and scored the same way.
 
@@ -42,6 +42,9 @@ RESULTS_JSON = HERE / "hybrid_results.json"
 RESULTS_MD = HERE / "hybrid_results.md"
 CASES = ("none", "bump", "a_tilt", "squareness")
 N_VOLUME = 2000
+EDGE_MM = 1.0
+"""Volume points are drawn 1 mm inside the X and Z strokes: a correction of up to ~0.25 mm must
+not push a command out of the stroke (the guards refuse that)."""
 Z95 = 1.959963984540054
 CONDITIONS = ["--temp-c", "20", "--time-s", "0", "--dir-x", "1", "--dir-z", "1", "--dir-a", "1"]
 
@@ -96,6 +99,9 @@ def run_case(family: str, seed: int, effect: str) -> dict:
         param["stage"] = model.get("base_stage", model["stage"])
         (td / "diag" / "model_parametric.json").write_text(json.dumps(param))
         P = random_axes(m, N_VOLUME, np.random.default_rng(probe_ss))
+        for k, name in ((0, "x_mm"), (1, "z_mm")):  # 1 mm inside the strokes: compensated commands stay in them
+            lo, hi = m.strokes[name]
+            P[:, k] = lo + EDGE_MM + (P[:, k] - lo) * (hi - lo - 2 * EDGE_MM) / (hi - lo)
         write_csv(td / "volume.csv", dict(zip(("x_mm", "z_mm", "a_deg"), P.T)), float_fmt="%.12g")
         targets = forward(m, P)
         for label, path in (("hybrid", td / "diag" / "model.json"), ("parametric", td / "diag" / "model_parametric.json")):
