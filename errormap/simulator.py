@@ -30,8 +30,9 @@ name           what it adds                                                     
 =============  ===================================================================  ===============================
 bump           a local bump of X's straightness over a region of X–Z:               A = 8 μm, centre at 60 % of X and
                ``dy_x += A·exp(−½((x−xc)/wx)² − ½((z−zc)/wz)²)``                     40 % of Z, w = 18 % of each stroke
-a_tilt         the A-axis line tilts more the further X travels:                     k = 120 μrad at the end of X
-               ``ey_oa += k·(x − x_lo)/Δx``
+a_tilt         the A axis's tilt (in its rotating frame) grows as X travels:          k = 120 μrad at the end of X
+               ``ey_a += k·(x − x_lo)/Δx`` (couples X and A: a tilt of the A-line
+               growing with X alone is X's own angular error, in the 23 elements)
 squareness     an X–Z squareness that varies along X:                                k = 100 μrad at mid-X
                ``s_xz += k·sin(π·(x − x_lo)/Δx)``
 =============  ===================================================================  ===============================
@@ -165,7 +166,7 @@ class TruthGrinder:
                     g = np.exp(-0.5 * ((x_rel / dx - p["x_frac"]) / w) ** 2 - 0.5 * ((z_rel / dz - p["z_frac"]) / w) ** 2)
                     v[:, IDX["dy_x"]] += p["amplitude_um"] * g
                 elif name == "a_tilt":
-                    v[:, IDX["ey_oa"]] += p["k_urad"] * x_rel / dx
+                    v[:, IDX["ey_a"]] += p["k_urad"] * x_rel / dx
                 else:
                     v[:, IDX["s_xz"]] += p["k_urad"] * np.sin(np.pi * x_rel / dx)
         return v
