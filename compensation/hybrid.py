@@ -44,6 +44,12 @@ CV_BLOCKS = 10
 """The fitting checks are cut into 10 contiguous seq blocks (time blocks) for the regressor's
 blocked cross-validation (5 folds of 2 blocks)."""
 
+MIN_FIT_CHECKS = 50
+"""Below 50 fitting checks (10 blocks of 5) a 4-input GP's cross-validation says nothing: not tried."""
+
+MIN_HELD_CHECKS = 10
+"""The held-out gate needs a standard error: at least 10 held-out checks."""
+
 MAP_N = 11
 """Points per linear axis of the learned correction's map in diagnosis.json (11 × 11 over X–Z)."""
 
@@ -205,6 +211,11 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     Returns ``(learned or None, stage)``: ``learned`` (refitted on all checks) when kept, and
     the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate)."""
     axes = np.asarray(axes, dtype=float)
+    if len(fit_idx) < MIN_FIT_CHECKS or len(hold_idx) < MIN_HELD_CHECKS:
+        return None, {"learned": {"family": "none", "kept": False, "cv_table": {}, "inputs": list(FEATURE_NAMES),
+                                  "cv": "not run", "held_out_gain_z": None, "held_out_band95_cover": None,
+                                  "why": f"declined: fewer than {MIN_FIT_CHECKS} fitting or {MIN_HELD_CHECKS} held-out "
+                                         f"checks ({len(fit_idx)}, {len(hold_idx)})"}}
     f, _ = axis_features(axes)
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
     reg = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_prev_um[fit_idx], groups=groups)

@@ -25,7 +25,8 @@ Families (:data:`FAMILIES`):
     hyper-parameters (one length scale per input, signal and noise variance) by maximum
     marginal likelihood (L-BFGS-B with the analytic gradient, ``n_restarts`` starts from the
     seed). Its band is the posterior standard deviation of the latent field
-    (``predict(..., return_std=True)``); ``noise_std_`` is the fitted measurement noise.
+    (``predict(..., return_std=True)``), calibrated on the cross-validation's held-out folds
+    (``band_scale_``); ``noise_std_`` is the fitted measurement noise (calibrated alike).
 
 The object is JSON-able (:meth:`ResidualRegressor.to_dict` / :meth:`ResidualRegressor.from_dict`,
 format :data:`FORMAT`): the standardisation, hyper-parameters, training inputs and weights, so
@@ -242,7 +243,11 @@ class ResidualRegressor:
         ``gain_se`` (mean paired drop of the squared norm against zero, and its standard error),
         ``coverage_95`` (fraction of held-out components within the family's 95 % band, latent
         std and fitted noise together), ``n`` (held-out points);
-    noise_std_ : (3,) fitted measurement noise of the chosen family (zeros for ``"none"``).
+    noise_std_ : (3,) fitted measurement noise of the chosen family (zeros for ``"none"``), times
+        ``band_scale_``;
+    band_scale_ : float — the band calibration from the cross-validation: the factor that makes the
+        CV's 95 % band (latent std and noise together) hold 95 % of the held-out components
+        (``cv_table_[family]["band_scale"]``); the std :meth:`predict` returns is multiplied by it.
     """
 
     def __init__(self, families=("gp",), n_splits: int = 5, seed=0, margin_se: float = 1.0, n_restarts: int = 1):
@@ -334,15 +339,20 @@ class ResidualRegressor:
             e_fam = ((Y[held] - pred[held]) ** 2).sum(1)
             cover = float(np.mean(np.abs(Y[held] - pred[held]) <= band[held]))
             table[fam] = self._row(e_fam, e_zero, cover)
+            # band calibration: the factor that makes the CV's 95 % band hold 95 % of the held-out components
+            zs = np.abs(Y[held] - pred[held]) / np.maximum(band[held] / Z95, 1e-300)
+            table[fam]["band_scale"] = float(np.quantile(zs, 0.95) / Z95)
         eligible = [f for f in fams if table[f]["gain_mean"] > self.margin_se * table[f]["gain_se"]
                     and table[f]["gain_mean"] > 0]
         self.cv_table_ = table
         self.chosen_ = min(eligible, key=lambda f: table[f]["cv_rms"]) if eligible else "none"
         self.model_ = None
         self.noise_std_ = np.zeros(3)
+        self.band_scale_ = 1.0
         if self.chosen_ != "none":
             self.model_ = self._new(self.chosen_, rng_final).fit(Xs, Ys)
-            self.noise_std_ = np.sqrt(self.model_.noise_var()) * self.y_scale_
+            self.band_scale_ = table[self.chosen_]["band_scale"]
+            self.noise_std_ = np.sqrt(self.model_.noise_var()) * self.y_scale_ * self.band_scale_
         return self
 
     @staticmethod
@@ -377,7 +387,7 @@ class ResidualRegressor:
         with limit_threads(1, ("blas",)):
             out = self.model_.predict((X - self.x_mean_) / self.x_scale_, return_std=return_std)
         if return_std:
-            return out[0] * self.y_scale_, out[1] * self.y_scale_
+            return out[0] * self.y_scale_, out[1] * self.y_scale_ * self.band_scale_
         return out * self.y_scale_
 
     def predict_and_jacobian(self, X):
@@ -415,7 +425,7 @@ class ResidualRegressor:
                "chosen": self.chosen_, "cv_table": self.cv_table_,
                "n_features_in": int(self.n_features_in_),
                "x_mean": self.x_mean_.tolist(), "x_scale": self.x_scale_.tolist(), "y_scale": self.y_scale_,
-               "noise_std": self.noise_std_.tolist()}
+               "noise_std": self.noise_std_.tolist(), "band_scale": float(self.band_scale_)}
         if self.model_ is not None:
             out["gp"] = {"theta": self.model_.theta_.tolist(), "X": self.model_.X_.tolist(),
                          "Y": self.model_.Y_.tolist()}
@@ -439,6 +449,7 @@ class ResidualRegressor:
             self.x_scale_ = np.asarray(doc["x_scale"], dtype=float)
             self.y_scale_ = float(doc["y_scale"])
             self.noise_std_ = np.asarray(doc["noise_std"], dtype=float)
+            self.band_scale_ = float(doc["band_scale"])
             self.model_ = None
             if self.chosen_ == "gp":
                 g = doc["gp"]

@@ -196,7 +196,8 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
         r_prev = checks.measured_um - loop.model.predict(checks.axes, **checks.conditions)
         learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, len(checks)))
         stage["base_stage"] = loop.kept_stage
-        summary["stages"] = dict(summary["stages"], learned_residual=stage)
+        if "held_out" in stage:  # the stage ran (enough checks): it is a stage beside the others
+            summary["stages"] = dict(summary["stages"], learned_residual=stage)
         summary["learned_residual"] = stage["learned"]
         if learned is not None:
             summary["base_stage"] = loop.kept_stage
