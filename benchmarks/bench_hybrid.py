@@ -115,7 +115,7 @@ def run_case(family: str, seed: int, effect: str) -> dict:
         cf = load_diagnosed_model(td / "diag" / "model.json", m)
         cond = truth.default_conditions(N_VOLUME)
         e_true = truth.spatial_error(P, **cond)
-        e_model = cf.predict(P, **cond)
+        e_model = cf.predict(P, **cond, time_s=np.zeros(N_VOLUME))  # the compensation's conditions (CONDITIONS)
         row["model_vs_truth_rms_um"] = _stats(e_model - e_true)["rms_um"]
         # the kept elements' own band (their posterior covariance, written beside them by diagnose)
         upd = ElementSet.load(td / "diag" / "updated_elements.json")
