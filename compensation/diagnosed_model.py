@@ -56,6 +56,12 @@ def load_diagnosed_model(path, machine) -> CorrectedField:
                          f"{d.get('elements')!r}")
     el_path = path.parent / d["elements"]
     base = HTMField(machine, ElementSet.load(el_path))
+    if d.get("learned_residual") is not None:  # the closed loop's learned stage (compensation.hybrid)
+        from .hybrid import HybridField, LearnedResidual
+        try:
+            base = HybridField(base, LearnedResidual.from_dict(d["learned_residual"]))
+        except ValueError as exc:
+            raise InputError(f"{path}: key 'learned_residual': {exc}") from None
     terms = []
     for i, t in enumerate(d.get("terms", [])):
         try:

@@ -22,6 +22,21 @@ interaction    X positioning depends on Z (column deflection):                  
                ``dx_x += k·(x - x_lo)(z - z_lo)/(Δx·Δz)``
 =============  ===================================================================  ===============================
 
+Out-of-catalogue effects (no kind of the diagnosis effect library can represent them; they are
+what the closed loop's learned residual stage is for):
+
+=============  ===================================================================  ===============================
+name           what it adds                                                         default magnitude
+=============  ===================================================================  ===============================
+bump           a local bump of X's straightness over a region of X–Z:               A = 8 μm, centre at 60 % of X and
+               ``dy_x += A·exp(−½((x−xc)/wx)² − ½((z−zc)/wz)²)``                     40 % of Z, w = 18 % of each stroke
+a_tilt         the A axis's tilt (in its rotating frame) grows as X travels:          k = 120 μrad at the end of X
+               ``ey_a += k·(x − x_lo)/Δx`` (couples X and A: a tilt of the A-line
+               growing with X alone is X's own angular error, in the 23 elements)
+squareness     an X–Z squareness that varies along X:                                k = 100 μrad at mid-X
+               ``s_xz += k·sin(π·(x − x_lo)/Δx)``
+=============  ===================================================================  ===============================
+
 Check measurements follow docs/schemas.md: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, time_s,
 temp_c, dir_x, dir_z, dir_a, seq``; points uniform over the strokes, taken every
 ``dt_s`` seconds while the machine warms (``temp_c = 20 + 4·(1 - exp(-t/2400 s))``),
@@ -55,7 +70,12 @@ EFFECT_DEFAULTS = {
     "pitch": {"amplitude_um": 4.0, "period_mm": 10.0, "phase_rad": 0.7},
     "worm": {"amplitude_urad": 100.0, "teeth": 40, "phase_rad": 1.1},
     "interaction": {"corner_um": 6.0},
+    "bump": {"amplitude_um": 8.0, "x_frac": 0.6, "z_frac": 0.4, "width_frac": 0.18},
+    "a_tilt": {"k_urad": 120.0},
+    "squareness": {"k_urad": 100.0},
 }
+OUT_OF_CATALOGUE = ("bump", "a_tilt", "squareness")
+"""Effects no kind of :mod:`errormap.diagnosis.effects` represents (module doc)."""
 EFFECT_NAMES = tuple(EFFECT_DEFAULTS)
 EFFECT_NEEDS = {"thermal": "temp_c", "reversal": "dir_z"}
 
@@ -138,6 +158,17 @@ class TruthGrinder:
                 dx = m.strokes["x_mm"][1] - m.strokes["x_mm"][0]
                 dz = m.strokes["z_mm"][1] - m.strokes["z_mm"][0]
                 v[:, IDX["dx_x"]] += p["corner_um"] * x_rel * z_rel / (dx * dz)
+            elif name in OUT_OF_CATALOGUE:
+                dx = m.strokes["x_mm"][1] - m.strokes["x_mm"][0]
+                dz = m.strokes["z_mm"][1] - m.strokes["z_mm"][0]
+                if name == "bump":
+                    w = p["width_frac"]
+                    g = np.exp(-0.5 * ((x_rel / dx - p["x_frac"]) / w) ** 2 - 0.5 * ((z_rel / dz - p["z_frac"]) / w) ** 2)
+                    v[:, IDX["dy_x"]] += p["amplitude_um"] * g
+                elif name == "a_tilt":
+                    v[:, IDX["ey_a"]] += p["k_urad"] * x_rel / dx
+                else:
+                    v[:, IDX["s_xz"]] += p["k_urad"] * np.sin(np.pi * x_rel / dx)
         return v
 
     def spatial_error(self, axes, **conditions) -> np.ndarray:

@@ -88,7 +88,7 @@ def independent_elements(machine: Grinder, rng: np.random.Generator, n_stations:
 
 
 def independent_effect_parameters(rng: np.random.Generator) -> dict:
-    """Per-seed parameters of the five effects (differ from the simulator's defaults)."""
+    """Per-seed parameters of the effects (differ from the simulator's defaults)."""
     return {
         "thermal": {"k_um_per_mm_c": rng.uniform(0.008, 0.014)},
         "reversal": {"backlash_um": rng.uniform(5.0, 10.0)},
@@ -97,6 +97,11 @@ def independent_effect_parameters(rng: np.random.Generator) -> dict:
         "worm": {"amplitude_urad": rng.uniform(60.0, 140.0), "teeth": int(rng.integers(30, 51)),
                  "phase_rad": rng.uniform(0, 2 * np.pi)},
         "interaction": {"corner_um": rng.uniform(4.0, 9.0) * rng.choice([-1.0, 1.0])},
+        # out-of-catalogue effects (drawn after the five, so their draws leave those unchanged)
+        "bump": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]), "x_frac": rng.uniform(0.3, 0.7),
+                 "z_frac": rng.uniform(0.3, 0.7), "width_frac": rng.uniform(0.14, 0.22)},
+        "a_tilt": {"k_urad": rng.uniform(80.0, 160.0) * rng.choice([-1.0, 1.0])},
+        "squareness": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
     }
 
 

@@ -34,6 +34,9 @@ def register(sub):
                    help="also stop the retrain after this many seconds (off by default: it makes the model depend "
                         "on the machine's load; the retrain records the iterations reached)")
     p.add_argument("--seed", type=int, default=0, help="seed of the retrain")
+    p.add_argument("--no-learned", action="store_true",
+                   help="closed loop: skip the learned-residual stage (a Gaussian process on what the physical "
+                        "model leaves at the checks, kept only if it beats the loop on the held-out checks)")
     p.add_argument("--no-update", action="store_true",
                    help="skip the model update even when the element set's covariance (NAME.cov.npz) is beside it")
     add_units_option(p, "check-measurement columns")
@@ -78,7 +81,7 @@ def run(args) -> int:
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
         summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,
                                     args.featurepoints, retrain, update=not args.no_update, units=args.units,
-                                    units_option="--units")
+                                    units_option="--units", learn=not args.no_learned)
         if "stages" in summary:
             st = summary["stages"]
             print("held-out RMS: identified {:.3g} -> updated {:.3g} -> updated + effects {:.3g} um".format(

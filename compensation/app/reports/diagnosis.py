@@ -123,7 +123,9 @@ def _stages(s) -> dict:
     rows = [[name + (" (kept)" if key == kept else ""), st[key]["held_out"]["rms_um"], st[key]["held_out"]["max_um"],
              st[key]["fitting"]["rms_um"]]
             for name, key in (("identified", "identified"), ("update alone (whole residual)", "updated_alone"),
-                              ("updated", "updated"), ("updated + effects", "updated_plus_effects")) if key in st]
+                              ("updated", "updated"), ("updated + effects", "updated_plus_effects"),
+                              ("+ learned residual (" + str(st.get("learned_residual", {}).get("learned", {}).get("family"))
+                               + ")", "learned_residual")) if key in st]
     u = s["update"]
     joint = []
     for j in u.get("joint_screen", []):
@@ -139,6 +141,35 @@ def _stages(s) -> dict:
                              for c in u["contradicted_by_sweeps"]],
             "not_updated": [f"{element_label(c['element'])}: {c['why']}" for c in u["not_updated"]],
             "rejected": s.get("effects_rejected_why", "") if s.get("effects_rejected") else ""}
+
+
+def _learned(s) -> dict | None:
+    """The learned-residual stage (compensation.hybrid): its CV table, gate and map figure."""
+    lr = s.get("learned_residual")
+    if not lr:
+        return None
+    rows = [[fam, r["cv_rms"], r["cv_rms_se"], r["gain_mean"], r["gain_se"],
+             "" if r.get("coverage_95") is None else r["coverage_95"]] for fam, r in lr["cv_table"].items()]
+    out = {"family": lr["family"], "kept": lr["kept"], "why": lr["why"], "inputs": ", ".join(lr["inputs"]),
+           "cv": lr["cv"], "z": lr["held_out_gain_z"], "cover": lr.get("held_out_band95_cover"),
+           "table": Table(["family", "CV RMS (μm)", "its SE (μm)", "mean gain over zero (μm²)", "its SE (μm²)",
+                           "95 % band coverage"], rows), "figure": None}
+    m = lr.get("map")
+    if m:
+        fig, axs = _plt().subplots(1, 2, figsize=(9, 3.6))
+        ext = [m["x_mm"][0], m["x_mm"][-1], m["z_mm"][0], m["z_mm"][-1]]
+        for ax, key, title in ((axs[0], "norm_um", "learned correction |Δ| (μm)"),
+                               (axs[1], "band95_um", "its 95 % band (μm)")):
+            im = ax.imshow(np.array(m[key]), origin="lower", extent=ext, aspect="auto", cmap="viridis")
+            ax.set_xlabel("x (mm)")
+            ax.set_ylabel("z (mm)")
+            ax.set_title(title, fontsize=9)
+            fig.colorbar(im, ax=ax)
+        fig.tight_layout()
+        out["figure"] = figure(fig, "learned map", "The learned correction over X–Z (vector norm, averaged over "
+                               "A = 0, 90, 180, 270°) and the norm of its 95 % band: it is zero, and its band the "
+                               "prior's, where the checks do not reach", dpi=FIG_DPI)
+    return out
 
 
 def _effects_table(effects) -> Table | None:
@@ -182,7 +213,8 @@ def checks_report(d, summary, model_spec, checks_path) -> str:
         unexplained=[(name, _unexplained_table(s[key])) for key, name in (("unexplained_before", "before"),
                                                                           ("unexplained_after", "after"))],
         finding_figure=_finding_figure(d, s["unexplained_after"][0], hold) if s["unexplained_after"] else None,
-        retrain=json.dumps(s["learned_retrain"], indent=1) if s.get("learned_retrain") else None)
+        retrain=json.dumps(s["learned_retrain"], indent=1) if s.get("learned_retrain") else None,
+        learned=_learned(s))
 
 
 def drift_report(log, sel, channels, log_path) -> str:

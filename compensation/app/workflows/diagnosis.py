@@ -126,7 +126,7 @@ def _write(out_dir, summary, page):
 def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
                tracking_uri=None, featurepoints=None, retrain=None, fit_field=None,
                field_=None, update: bool = True, units: str = "check",
-               units_option: str | None = None):
+               units_option: str | None = None, learn: bool = True):
     """Diagnose ``checks_path`` against ``model_spec``; returns (summary, paths).
 
     ``field_`` overrides loading ``model_spec`` (tests, benchmarks). With a learned model
@@ -146,7 +146,7 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
             print(f"diagnose: model {src.description}, covariance {cov}: closed loop (update, then effects)",
                   file=sys.stderr)
             return run_closed_loop(checks_path, machine, model_spec, out_dir, settings, source=src, units=units,
-                                   units_option=units_option)
+                                   units_option=units_option, learn=learn)
         why = ("--no-update" if cov is not None and cov.is_file() else
                f"no covariance {cov} beside it (written by `volcomp identify`)" if cov is not None else
                "a learned field")
@@ -190,9 +190,10 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
 
 
 def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
-                    source=None, units: str = "check", units_option: str | None = None):
+                    source=None, units: str = "check", units_option: str | None = None, learn: bool = True):
     """The closed loop on an identified element set with its covariance; returns (summary, paths).
-    ``source``: the recognised model (:class:`compensation.fields.ModelSource`), else resolved here."""
+    ``source``: the recognised model (:class:`compensation.fields.ModelSource`), else resolved here.
+    ``learn``: after the loop, the learned-residual stage (:func:`compensation.hybrid.learned_stage`)."""
     from errormap.diagnosis.loop import closed_loop
     from errormap.elements import ElementSet
     from errormap.uncertainty import ElementCovariance, covariance_path
@@ -208,12 +209,31 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
                     "machine": machine.name, "model_source": src.to_dict(), "model_update": True, "units": units,
                     "covariance_file": str(covariance_path(src.path)),
                     "residual": "measured (measurement − model prediction); stages judged on the same held-out checks"})
+    learned = None
+    if learn:  # the learned residual on what the kept stage leaves (compensation.hybrid.learned_stage)
+        from compensation.hybrid import learned_stage
+        n_fit = int(round(settings.fit_fraction * len(checks)))
+        r_prev = checks.measured_um - loop.model.predict(checks.axes, **checks.conditions)
+        learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, len(checks)))
+        stage["base_stage"] = loop.kept_stage
+        if "held_out" in stage:  # the stage ran (enough checks): it is a stage beside the others
+            summary["stages"] = dict(summary["stages"], learned_residual=stage)
+        summary["learned_residual"] = stage["learned"]
+        if learned is not None:
+            summary["base_stage"] = loop.kept_stage
+            summary["kept_stage"] = "learned_residual"
+            summary["kept_why"] = f"{summary['kept_why']}; then the learned residual was {stage['learned']['why']}"
+            summary["rms_final_um"] = stage["held_out"]["rms_um"]
+            summary["max_final_um"] = stage["held_out"]["max_um"]
     page = checks_report(loop.diagnosis, summary, model_spec, checks_path)
     out_dir = Path(out_dir)
     upd_path = out_dir / "updated_elements.json"
     summary["updated_elements_file"] = str(upd_path)
-    model = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "stage": loop.kept_stage,
+    model = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "stage": summary["kept_stage"],
              "terms": summary["effects"], "needs": sorted({c for e in summary["effects"] for c in e.get("needs", [])})}
+    if learned is not None:
+        model["base_stage"] = loop.kept_stage
+        model["learned_residual"] = learned.to_dict()
     paths = _write(out_dir, summary, page)
     # the kept stage's elements (the identified ones when the fallback keeps them) and their covariance
     loop.covariance.save(covariance_path(upd_path))

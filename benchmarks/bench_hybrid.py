@@ -1,0 +1,232 @@
+"""Benchmark of the closed loop's learned-residual stage (the hybrid field, issue 28).
+
+Per seed and case (``none`` and the out-of-catalogue effects ``bump``, ``a_tilt``,
+``squareness`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
+the user's CLI path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) →
+``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on) →
+``volcomp compensate VOLUME.csv --model DIR/model.json --method exact`` on 2,000 random volume
+points (1 mm inside the X and Z strokes) at the reference conditions, scored by the TRUE residual on the hidden truth (used only
+here). The same ``model.json`` without its ``learned_residual`` key is the parametric loop alone
+(the stage the learned one was judged against), compensated and scored the same way.
+
+Figures per row: TRUE RMS / max over the volume of the hybrid and of the parametric loop alone;
+the held-out MEASURED RMS of the kept stage beside the noise floor √3·σ̂ (σ̂ the loop's check
+noise estimate); whether the learned stage was kept; the learned band's 95 % coverage on the
+held-out checks (band of the learned part + fitted noise) and on the truth points (learned
+band alone, against the true error minus the hybrid's prediction); the exact solver's MODEL
+residual max on the hybrid as ``compensate`` reports it.
+
+Writes ``benchmarks/hybrid_results.md`` (and ``hybrid_results.json``, rows merged by
+(family, seed, case)). Run: ``python benchmarks/bench_hybrid.py --seeds 10 --jobs 1``.
+"""
+from __future__ import annotations
+
+import os
+
+if __name__ == "__main__":
+    for _k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_k, "1")
+
+import argparse
+import json
+import platform
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+RESULTS_JSON = HERE / "hybrid_results.json"
+RESULTS_MD = HERE / "hybrid_results.md"
+CASES = ("none", "bump", "a_tilt", "squareness")
+N_VOLUME = 2000
+NOISE_UM = 1.0
+"""The simulated check noise per component (a setting of the run, as an engineer knows his
+instrument's): the noise floor of the held-out vector RMS is √3·NOISE_UM."""
+EDGE_MM = 1.0
+"""Volume points are drawn 1 mm inside the X and Z strokes: a correction of up to ~0.25 mm must
+not push a command out of the stroke (the guards refuse that)."""
+Z95 = 1.959963984540054
+CONDITIONS = ["--temp-c", "20", "--time-s", "0", "--dir-x", "1", "--dir-z", "1", "--dir-a", "1"]
+
+
+def _stats(r_um) -> dict:
+    n = np.linalg.norm(r_um, axis=1)
+    return {"rms_um": float(np.sqrt(np.mean(n**2))), "max_um": float(n.max())}
+
+
+def _compensate(main, td, model, label):
+    from errormap.io import read_table
+    od = td / f"comp_{label}"
+    rc = main(["compensate", str(td / "volume.csv"), "--model", str(model), "--method", "exact", "--out", str(od),
+               *CONDITIONS])
+    if rc != 0:
+        return None, {"refused_exit": rc}
+    t = read_table(od / "volume.csv")
+    comp = np.stack([t.float(k) for k in ("x_mm", "z_mm", "a_deg")], axis=1)
+    summ = json.loads((od / "compensate_summary.json").read_text())["files"][0]
+    return comp, {"model_max_um": summ.get("model_max_um")}
+
+
+def run_case(family: str, seed: int, effect: str) -> dict:
+    from compensation.app.cli import main
+    from compensation.diagnosed_model import load_diagnosed_model
+    from compensation.evaluate import true_residual_um
+    from compensation.hybrid import HybridField
+    from errormap.elements import ElementSet
+    from errormap.io import write_csv
+    from errormap.kinematics import forward
+    from errormap.uncertainty import ElementCovariance, covariance_path
+    from errormap.machine import load_machine
+    from errormap.seeds import spawn_seeds
+    from errormap.simulator import random_axes
+    from errormap.truth_families import make_truth
+    t_cpu = time.process_time()
+    eff = [] if effect == "none" else [effect]
+    m = load_machine()
+    noise_ss, probe_ss = spawn_seeds(seed, 2)
+    truth = make_truth(m, seed, effects=eff, family=family)
+    row = {"family": family, "seed": seed, "effect": effect}
+    with tempfile.TemporaryDirectory() as td:
+        td = Path(td)
+        q = ["--family", family, "--seed", str(seed)] + sum((["--effect", e] for e in eff), [])
+        assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", str(int(noise_ss.generate_state(1)[0])),
+                     "--out", str(td / "sw.csv")]) == 0
+        assert main(["simulate", *q, "--checks", "800", "--noise-um", str(NOISE_UM), "--out", str(td / "sim")]) == 0
+        assert main(["identify", str(td / "sw.csv"), "--out", str(td / "el.json")]) == 0
+        assert main(["diagnose", str(td / "sim" / "checks.csv"), "--model", str(td / "el.json"),
+                     "--out", str(td / "diag")]) == 0
+        s = json.loads((td / "diag" / "diagnosis.json").read_text())
+        model = json.loads((td / "diag" / "model.json").read_text())
+        param = {k: v for k, v in model.items() if k != "learned_residual"}
+        param["stage"] = model.get("base_stage", model["stage"])
+        (td / "diag" / "model_parametric.json").write_text(json.dumps(param))
+        P = random_axes(m, N_VOLUME, np.random.default_rng(probe_ss))
+        for k, name in ((0, "x_mm"), (1, "z_mm")):  # 1 mm inside the strokes: compensated commands stay in them
+            lo, hi = m.strokes[name]
+            P[:, k] = lo + EDGE_MM + (P[:, k] - lo) * (hi - lo - 2 * EDGE_MM) / (hi - lo)
+        write_csv(td / "volume.csv", dict(zip(("x_mm", "z_mm", "a_deg"), P.T)), float_fmt="%.12g")
+        targets = forward(m, P)
+        for label, path in (("hybrid", td / "diag" / "model.json"), ("parametric", td / "diag" / "model_parametric.json")):
+            comp, info = _compensate(main, td, path, label)
+            row[label] = info if comp is None else dict(_stats(true_residual_um(truth, comp, targets)), **info)
+        cf = load_diagnosed_model(td / "diag" / "model.json", m)
+        cond = truth.default_conditions(N_VOLUME)
+        e_true = truth.spatial_error(P, **cond)
+        e_model = cf.predict(P, **cond, time_s=np.zeros(N_VOLUME))  # the compensation's conditions (CONDITIONS)
+        row["model_vs_truth_rms_um"] = _stats(e_model - e_true)["rms_um"]
+        # the kept elements' own band (their posterior covariance, written beside them by diagnose)
+        upd = ElementSet.load(td / "diag" / "updated_elements.json")
+        el_var = np.diagonal(ElementCovariance.load(covariance_path(td / "diag" / "updated_elements.json"), upd)
+                             .prediction_cov(m, P), axis1=1, axis2=2)
+        row["truth_band95_cover_elements_only"] = float(np.mean(np.abs(e_true - e_model) <= Z95 * np.sqrt(el_var)))
+        if isinstance(cf.base, HybridField):
+            _, sd = cf.base.learned.predict(P, return_std=True)
+            row["truth_band95_cover"] = float(np.mean(np.abs(e_true - e_model) <= Z95 * sd))
+            row["truth_band95_cover_total"] = float(np.mean(np.abs(e_true - e_model) <= Z95 * np.sqrt(sd**2 + el_var)))
+    lr = s.get("learned_residual", {})
+    st = s["stages"]
+    sigma = s["update"]["check_noise_sigma_um"]
+    row.update({"kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
+                "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
+                "learned_z": lr.get("held_out_gain_z"), "held_band95_cover": lr.get("held_out_band95_cover"),
+                "held_base_um": st[s.get("base_stage", s["kept_stage"])]["held_out"]["rms_um"],
+                "held_final_um": s["rms_final_um"], "noise_floor_um": float(np.sqrt(3) * sigma),
+                "effects": [f"{e['kind']} {e['axis']}" for e in s["effects"]],
+                "cpu_s": time.process_time() - t_cpu})
+    return row
+
+
+def _load_rows():
+    if RESULTS_JSON.is_file():
+        return json.loads(RESULTS_JSON.read_text())["rows"]
+    return []
+
+
+def _fmt(v, d=2):
+    return "—" if v is None else f"{v:.{d}f}"
+
+
+def write_results(rows, argv):
+    from errormap.io import atomic_write, write_json
+    write_json(RESULTS_JSON, {"rows": rows})
+    by = {}
+    for r in rows:
+        by.setdefault((r["family"], r["effect"]), []).append(r)
+    none = {(r["family"], r["seed"]): r for r in rows if r["effect"] == "none"}
+    lines = ["# Hybrid field: the learned residual stage of the closed loop (issue 28)", "",
+             "User's CLI path per seed: sweeps (2 μm) → simulate (800 checks, 1 μm) → identify → diagnose "
+             "(learned stage on) → compensate 2,000 random volume points (exact, reference conditions); "
+             "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
+             "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
+             "residual (the loop alone). Generated by `python benchmarks/bench_hybrid.py --seeds 10 --jobs 1 "
+             "[--family independent] [--cases …]` (rows merged from `hybrid_results.json`; this table rebuilt by "
+             "`" + " ".join(["bench_hybrid.py", *argv]) + "`).",
+             "", f"Machine: {platform.machine()}, Python {platform.python_version()}.", "",
+             "| family | case | seeds | learned kept | TRUE RMS hybrid (μm) | TRUE RMS parametric (μm) | "
+             "parametric / hybrid | hybrid / no-effect hybrid | TRUE max hybrid (μm) | held-out MEASURED RMS / floor √3·1 μm | "
+             "… / √3·σ̂ | band95 held-out | band95 truth (learned band) | band95 truth (learned ⊕ elements, rows) | "
+             "exact model max (μm) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for (fam, eff), rs in sorted(by.items()):
+        ok = [r for r in rs if "rms_um" in r.get("hybrid", {}) and "rms_um" in r.get("parametric", {})]
+        if not ok:
+            continue
+        h = np.array([r["hybrid"]["rms_um"] for r in ok])
+        p = np.array([r["parametric"]["rms_um"] for r in ok])
+        ref = [none.get((fam, r["seed"])) for r in ok]
+        rel = [r["hybrid"]["rms_um"] / n["hybrid"]["rms_um"] for r, n in zip(ok, ref) if n and "rms_um" in n["hybrid"]]
+        floor = np.array([r["held_final_um"] / (np.sqrt(3) * NOISE_UM) for r in ok])
+        floor_hat = np.array([r["held_final_um"] / r["noise_floor_um"] for r in ok])
+        hc = [r["held_band95_cover"] for r in ok if r.get("learned_kept") and r.get("held_band95_cover") is not None]
+        tc = [r["truth_band95_cover"] for r in ok if r.get("truth_band95_cover") is not None]
+        tt = [r["truth_band95_cover_total"] for r in ok if r.get("truth_band95_cover_total") is not None]
+        mm = [r["hybrid"].get("model_max_um") for r in ok if r["hybrid"].get("model_max_um") is not None]
+        lines.append(
+            f"| {fam} | {eff} | {len(ok)} | {sum(r['learned_kept'] for r in ok)}/{len(ok)} | "
+            f"{_fmt(h.mean())} (max {_fmt(h.max())}) | {_fmt(p.mean())} | {_fmt(np.mean(p / h))} (min {_fmt(np.min(p / h))}) | "
+            f"{_fmt(np.mean(rel)) if rel else '—'}{'' if not rel else f' (max {np.max(rel):.2f})'} | "
+            f"{_fmt(np.mean([r['hybrid']['max_um'] for r in ok]))} | {_fmt(floor.mean())} (max {_fmt(floor.max())}) | "
+            f"{_fmt(floor_hat.mean())} | {_fmt(np.mean(hc)) if hc else '—'} | {_fmt(np.mean(tc)) if tc else '—'} | "
+            f"{_fmt(np.mean(tt)) if tt else '—'} ({len(tt)}) | "
+            f"{('%.2g' % max(mm)) if mm else '—'} |")
+    lines += ["", "Per-row figures are in `benchmarks/hybrid_results.json`.", ""]
+    with atomic_write(RESULTS_MD, "w", encoding="utf-8") as fh:
+        fh.write("\n".join(lines))
+
+
+def main(argv=None):
+    import sys
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--seed-start", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--family", default="default", choices=("default", "independent"))
+    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--report-only", action="store_true", help="rebuild the Markdown from hybrid_results.json")
+    args = ap.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    if args.report_only:
+        write_results(_load_rows(), argv)
+        return
+    todo = [(args.family, s, c) for s in range(args.seed_start, args.seed_start + args.seeds)
+            for c in args.cases.split(",")]
+    rows = {(r["family"], r["seed"], r["effect"]): r for r in _load_rows()}
+    if args.jobs > 1:
+        with ProcessPoolExecutor(args.jobs) as ex:
+            for r in ex.map(run_case, *zip(*todo)):
+                rows[(r["family"], r["seed"], r["effect"])] = r
+                write_results(list(rows.values()), argv)
+    else:
+        for t in todo:
+            r = run_case(*t)
+            rows[(r["family"], r["seed"], r["effect"])] = r
+            print(json.dumps({k: r[k] for k in ("seed", "effect", "learned_kept", "hybrid", "parametric", "cpu_s")}),
+                  flush=True)
+            write_results(list(rows.values()), argv)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,251 @@
+"""The hybrid error field: the physical model plus a residual learned from the check measurements.
+
+After the closed loop (:func:`errormap.diagnosis.loop.closed_loop`) has updated the elements and
+accepted the effect terms it can name, the measured residual that is left at the checks is
+learned by a :class:`training.residual.ResidualRegressor` (:func:`learned_stage`):
+
+* inputs: the axes as ``(x_mm, z_mm, cos a, sin a)`` (A is periodic, so the learned part is too);
+  the conditions (temperature, time, direction) are NOT inputs: on the checks they grow with
+  ``seq``, so the later held-out block would be an extrapolation in them;
+* fitted on the fitting checks (its own cross-validation uses contiguous ``seq`` blocks, i.e.
+  BLOCKED in time), then KEPT only if it lowers the held-out squared residual norm, paired per
+  point, by more than :data:`KEEP_Z` standard errors over the stage before it; when kept, its
+  weights are re-solved on all checks with the hyper-parameters chosen on the fitting part;
+* outside the checks: the regressor decays to zero within a few length scales, and
+  :class:`LearnedResidual` multiplies it by a C¹ taper that is 1 inside the checks' box in X and
+  Z and falls to 0 within :data:`TAPER_FRAC` of the range outside it, so the learned part never
+  extrapolates a fit (the guards refuse points outside the calibrated volume anyway).
+
+:class:`HybridField` = base field + learned part is an :class:`errormap.field.ErrorField` with the
+base's Jacobian capabilities (value and Jacobian in closed form), so ``exact``, ``ga`` and
+``batched-ga`` solve with it.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN
+from errormap.stats import residual_stats
+from errormap.transforms import check_points
+from training.residual import Z95, ResidualRegressor
+
+FORMAT = "volcomp-learned-residual/1"
+"""The ``format`` of a learned residual inside ``model.json`` (key ``learned_residual``)."""
+
+KEEP_Z = 1.0
+"""The learned stage is kept when it beats the stage before it on the held-out checks by more
+than one paired standard error of the per-point squared-norm gain (the issue's rule)."""
+
+TAPER_FRAC = 0.1
+"""Outside the checks' box the learned part falls from 1 to 0 over 10 % of each linear axis's
+check range (a cubic smoothstep: value and slope continuous)."""
+
+CV_BLOCKS = 10
+"""The fitting checks are cut into 10 contiguous seq blocks (time blocks) for the regressor's
+blocked cross-validation (5 folds of 2 blocks)."""
+
+MIN_FIT_CHECKS = 50
+"""Below 50 fitting checks (10 blocks of 5) a 4-input GP's cross-validation says nothing: not tried."""
+
+MIN_HELD_CHECKS = 10
+"""The held-out gate needs a standard error: at least 10 held-out checks."""
+
+MAP_N = 11
+"""Points per linear axis of the learned correction's map in diagnosis.json (11 × 11 over X–Z)."""
+
+FEATURE_NAMES = ("x_mm", "z_mm", "cos_a", "sin_a")
+
+
+def axis_features(axes):
+    """axes (n, 3) (x_mm, z_mm, a_deg) → features (n, 4) and d(features)/d(axes) (n, 4, 3)."""
+    axes = np.asarray(axes, dtype=float)
+    a = np.deg2rad(axes[:, 2])
+    f = np.stack([axes[:, 0], axes[:, 1], np.cos(a), np.sin(a)], axis=1)
+    J = np.zeros((axes.shape[0], 4, 3))
+    J[:, 0, 0] = 1.0
+    J[:, 1, 1] = 1.0
+    J[:, 2, 2] = -np.sin(a) * np.pi / 180.0
+    J[:, 3, 2] = np.cos(a) * np.pi / 180.0
+    return f, J
+
+
+def _smoothstep_out(v, lo, hi, margin):
+    """Taper (n,) and its derivative in v: 1 inside [lo, hi], cubic fall to 0 over ``margin`` outside."""
+    d = np.maximum(lo - v, 0.0) + np.maximum(v - hi, 0.0)
+    sgn = np.where(v < lo, -1.0, np.where(v > hi, 1.0, 0.0))
+    t = np.clip(d / margin, 0.0, 1.0)
+    w = 1.0 - (3 * t**2 - 2 * t**3)
+    dw = -(6 * t - 6 * t**2) / margin * sgn
+    return w, dw
+
+
+class LearnedResidual:
+    """A fitted :class:`ResidualRegressor` on :func:`axis_features`, tapered to zero outside the
+    checks' box ``lo``/``hi`` (x_mm, z_mm)."""
+
+    def __init__(self, regressor: ResidualRegressor, lo, hi):
+        self.regressor = regressor
+        self.lo = np.asarray(lo, dtype=float)
+        self.hi = np.asarray(hi, dtype=float)
+        self.margin = TAPER_FRAC * np.maximum(self.hi - self.lo, 1e-9)
+
+    @property
+    def chosen(self) -> str:
+        return self.regressor.chosen_
+
+    def _taper(self, axes):
+        wx, dwx = _smoothstep_out(axes[:, 0], self.lo[0], self.hi[0], self.margin[0])
+        wz, dwz = _smoothstep_out(axes[:, 1], self.lo[1], self.hi[1], self.margin[1])
+        return wx * wz, np.stack([dwx * wz, wx * dwz, np.zeros_like(wx)], axis=1)
+
+    def predict(self, axes, return_std=False):
+        """Learned correction (n, 3) μm [, its 1-σ band (n, 3) μm] at axes (n, 3)."""
+        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        w, _ = self._taper(axes)
+        f, _ = axis_features(axes)
+        if return_std:
+            v, s = self.regressor.predict(f, return_std=True)
+            # outside the box the band is the regressor's prior there (its std grows away from data)
+            return v * w[:, None], s
+        return self.regressor.predict(f) * w[:, None]
+
+    def predict_and_jacobian(self, axes):
+        """(value (n, 3) μm, d/d(axes) (n, 3, 3)), closed form (taper × regressor, chain rule)."""
+        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        w, dw = self._taper(axes)
+        f, Jf = axis_features(axes)
+        v, Jv = self.regressor.predict_and_jacobian(f)                 # (n, 3), (n, 3, 4)
+        J = np.einsum("nkf,nfa->nka", Jv, Jf) * w[:, None, None] + v[:, :, None] * dw[:, None, :]
+        return v * w[:, None], J
+
+    def to_dict(self) -> dict:
+        return {"format": FORMAT, "features": list(FEATURE_NAMES), "box_lo": self.lo.tolist(),
+                "box_hi": self.hi.tolist(), "taper_frac": TAPER_FRAC, "regressor": self.regressor.to_dict()}
+
+    @classmethod
+    def from_dict(cls, doc) -> "LearnedResidual":
+        """ValueError on anything but :meth:`to_dict`'s output."""
+        if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+            raise ValueError(f"expected a learned residual (format {FORMAT!r})")
+        if list(doc.get("features", [])) != list(FEATURE_NAMES):
+            raise ValueError(f"expected features {list(FEATURE_NAMES)}, got {doc.get('features')!r}")
+        try:
+            lo, hi = np.asarray(doc["box_lo"], dtype=float), np.asarray(doc["box_hi"], dtype=float)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"bad box ({exc})") from None
+        if lo.shape != (2,) or hi.shape != (2,) or not np.all(lo <= hi):
+            raise ValueError("expected box_lo ≤ box_hi, two values each (x_mm, z_mm)")
+        reg = ResidualRegressor.from_dict(doc["regressor"])
+        if reg.n_features_in_ != len(FEATURE_NAMES):
+            raise ValueError(f"expected a regressor of {len(FEATURE_NAMES)} inputs")
+        return cls(reg, lo, hi)
+
+
+class HybridField:
+    """``base`` (an error field) + ``learned`` (:class:`LearnedResidual`): an
+    :class:`errormap.field.ErrorField` over the base's calibrated volume; declares ``jacobian``
+    and ``predict_and_jacobian`` when the base does (closed form: base's + learned part's)."""
+
+    kind = "hybrid"
+
+    def __init__(self, base, learned: LearnedResidual):
+        self.base = base
+        self.learned = learned
+        self.machine = getattr(base, "machine", None)
+
+    @property
+    def capabilities(self) -> frozenset:
+        return frozenset({JACOBIAN, PREDICT_AND_JACOBIAN}) & self.base.capabilities
+
+    @property
+    def calibrated_volume(self):
+        return self.base.calibrated_volume
+
+    def predict(self, axes) -> np.ndarray:
+        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        return np.asarray(self.base.predict(axes), dtype=float) + self.learned.predict(axes)
+
+    __call__ = predict
+
+    def predict_and_jacobian(self, axes, dtype=np.float64):
+        if PREDICT_AND_JACOBIAN not in self.capabilities:
+            raise TypeError("the hybrid field's base has no Jacobian")
+        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        e, J = self.base.predict_and_jacobian(axes)
+        v, Jv = self.learned.predict_and_jacobian(axes)
+        return e + v, J + Jv
+
+    def jacobian(self, axes) -> np.ndarray:
+        return self.predict_and_jacobian(axes)[1]
+
+
+def _paired_z(r_before, r_after):
+    g = np.sum(r_before**2, axis=1) - np.sum(r_after**2, axis=1)
+    se = g.std(ddof=1) / np.sqrt(g.size) if g.size > 1 else np.inf
+    return float(g.mean() / se) if se > 0 else 0.0, float(g.mean()), float(se)
+
+
+def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.0)) -> dict:
+    """The learned correction over X–Z (``MAP_N`` × ``MAP_N``), its norm and band, averaged over
+    the A positions ``a_deg``: {x_mm (MAP_N,), z_mm (MAP_N,), norm_um (MAP_N, MAP_N) [z, x],
+    band95_um (MAP_N, MAP_N)}."""
+    xs = np.linspace(*machine.strokes["x_mm"], MAP_N)
+    zs = np.linspace(*machine.strokes["z_mm"], MAP_N)
+    X, Z = np.meshgrid(xs, zs)
+    norm = np.zeros_like(X)
+    band = np.zeros_like(X)
+    for a in a_deg:
+        P = np.stack([X.ravel(), Z.ravel(), np.full(X.size, a)], axis=1)
+        v, s = learned.predict(P, return_std=True)
+        norm += np.linalg.norm(v, axis=1).reshape(X.shape) / len(a_deg)
+        band += Z95 * np.linalg.norm(s, axis=1).reshape(X.shape) / len(a_deg)
+    return {"x_mm": xs.tolist(), "z_mm": zs.tolist(), "a_deg_averaged": list(a_deg),
+            "norm_um": norm.tolist(), "band95_um": band.tolist()}
+
+
+def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=("gp",)):
+    """Fit the learned residual on what the previous stage leaves at the checks and gate it.
+
+    ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check;
+    ``axes`` (n, 3); ``fit_idx`` / ``hold_idx``: the loop's fitting and held-out checks.
+    Returns ``(learned or None, stage)``: ``learned`` (refitted on all checks) when kept, and
+    the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate)."""
+    axes = np.asarray(axes, dtype=float)
+    if len(fit_idx) < MIN_FIT_CHECKS or len(hold_idx) < MIN_HELD_CHECKS:
+        return None, {"learned": {"family": "none", "kept": False, "cv_table": {}, "inputs": list(FEATURE_NAMES),
+                                  "cv": "not run", "held_out_gain_z": None, "held_out_band95_cover": None,
+                                  "why": f"declined: fewer than {MIN_FIT_CHECKS} fitting or {MIN_HELD_CHECKS} held-out "
+                                         f"checks ({len(fit_idx)}, {len(hold_idx)})"}}
+    f, _ = axis_features(axes)
+    groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
+    reg = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_prev_um[fit_idx], groups=groups)
+    lo = axes[:, :2].min(0)
+    hi = axes[:, :2].max(0)
+    fitted = LearnedResidual(reg, axes[fit_idx, :2].min(0), axes[fit_idx, :2].max(0))
+    pred, sd = fitted.predict(axes, return_std=True)
+    r_new = r_prev_um - pred
+    z, gain, se = _paired_z(r_prev_um[hold_idx], r_new[hold_idx])
+    noise = reg.noise_std_
+    band = Z95 * np.sqrt(sd**2 + noise[None, :] ** 2)
+    cover = float(np.mean(np.abs(r_new[hold_idx]) <= band[hold_idx])) if reg.chosen_ != "none" else None
+    kept = reg.chosen_ != "none" and z > KEEP_Z
+    if reg.chosen_ == "none":
+        why = "declined: no family beat predicting zero in the blocked cross-validation on the fitting checks"
+    elif kept:
+        why = (f"kept: lowers the held-out squared residual by paired z = {z:.2f} (> {KEEP_Z}) over the stage before; "
+               "its weights were then re-solved on all checks with the hyper-parameters chosen on the fitting part")
+    else:
+        why = f"declined: on the held-out checks its paired z = {z:.2f} is not above {KEEP_Z}"
+    stage = {"held_out": residual_stats(r_new[hold_idx], ("dx_um", "dy_um", "dz_um")),
+             "fitting": residual_stats(r_new[fit_idx], ("dx_um", "dy_um", "dz_um")),
+             "learned": {"family": reg.chosen_, "cv_table": reg.cv_table_, "inputs": list(FEATURE_NAMES),
+                         "cv": f"blocked: {CV_BLOCKS} contiguous seq blocks of the fitting checks",
+                         "held_out_gain_um2": gain, "held_out_gain_se_um2": se, "held_out_gain_z": z,
+                         "held_out_band95_cover": cover, "noise_std_um": noise.tolist(),
+                         "kept": bool(kept), "why": why}}
+    if not kept:
+        return None, stage
+    reg_all = reg.with_data(f, r_prev_um)
+    learned = LearnedResidual(reg_all, lo, hi)
+    stage["learned"]["map"] = learned_map(learned, machine)
+    return learned, stage
