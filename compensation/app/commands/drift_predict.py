@@ -14,6 +14,9 @@ def register(sub):
     p.add_argument("model", help="drift_model.json (schema volcomp.drift_model)")
     p.add_argument("log", help="drift log CSV (time_s, temp_<sensor>_c, speed_rpm, ...)")
     p.add_argument("--out", required=True, help="compensation series CSV to write")
+    p.add_argument("--time-unit", choices=["s", "min", "h"], default=None,
+                   help="the unit of the log's time_s column when it is not seconds (default: seconds, checked "
+                        "from the step; recorded in the output's header)")
     p.set_defaults(func=run)
 
 
@@ -26,7 +29,7 @@ def run(args) -> int:
     from errormap.io import InputError, write_csv
 
     model = DriftModel.load(args.model)
-    log = load_drift_log(args.log, causal=True, require_displacement=False)
+    log = load_drift_log(args.log, causal=True, require_displacement=False, time_unit=args.time_unit)
     span = float(log.time_s[-1] - log.time_s[0])
     if span < model.max_delay_s:
         raise InputError(f"{args.log}: row {log.notes['last_row']}, column 'time_s': the log spans {span:g} s, shorter "
@@ -42,6 +45,7 @@ def run(args) -> int:
             d = log.disp_um[ch]
             a = d - cols[f"{ch}_pred_um"]
             print(f"{ch}: RMS {np.sqrt(np.mean(d**2)):.3g} -> {np.sqrt(np.mean(a**2)):.3g} μm over the log")
-    write_csv(args.out, cols, header_comments=(f"model: {args.model}", f"log: {args.log}", *COMPENSATION_COMMENTS))
+    write_csv(args.out, cols, header_comments=(f"model: {args.model}", f"log: {args.log}",
+                                                f"log time unit: {log.notes['time_unit']}", *COMPENSATION_COMMENTS))
     print(f"wrote {args.out}")
     return 0
