@@ -71,6 +71,7 @@ PLS_MAX_COMPONENTS = 12
 TRANSFER_LAMBDA = 1e-4
 BAND_QUANTILE = 0.95
 SUBSET_SEARCH_STEP_S = 60.0                      # the subset search runs on rows ≥ 60 s apart
+SHRINK_WEIGHTS = (1.0, 0.75, 0.5, 0.25)          # candidate weight in a blend w·candidate + (1 − w)·OLS
 SPEED_SCALE_RPM = 1e4                            # speed² features use (speed/1e4)² → documented as power 2 of speed/1e4
 
 
@@ -368,7 +369,7 @@ class SubsetLagFamily(_Family):
         # the search runs on rows at least ``search_step_s`` apart (thermal signals change over minutes)
         dt = float(np.median(np.diff(log.time_s)))
         q = max(1, int(round(SUBSET_SEARCH_STEP_S / dt)))
-        keep = np.arange(0, rows[-1] + 1, q)
+        keep = rows[::q]                   # (rows may skip a validation block: it is not searched on)
         dec = DriftLog(log.time_s[keep], {s: v[keep] for s, v in log.temps_c.items()},
                        {c: v[keep] for c, v in log.disp_um.items()},
                        None if log.speed_rpm is None else log.speed_rpm[keep], log.path)
@@ -388,8 +389,9 @@ class SubsetLagFamily(_Family):
 def default_families(subset_kw=None):
     """OLS (the baseline), the subset/lag search, the transfer model and the filter bank shrunk toward
     OLS by ridge and by PLS (chosen on development seeds 100–109, ``benchmarks/drift_rule_dev.md``)."""
+    from .drift_families import GreyBoxFamily, StableOLSFamily, ThermalNNFamily
     return [OLSFamily(), SubsetLagFamily(**(subset_kw or {})), TransferFamily(), RidgeTowardOLSFamily(),
-            PLSTowardOLSFamily()]
+            PLSTowardOLSFamily(), ThermalNNFamily(), GreyBoxFamily(), StableOLSFamily()]
 
 
 # -- the model ------------------------------------------------------------------------------
@@ -531,6 +533,19 @@ class DriftModel:
 
 
 # -- selection ------------------------------------------------------------------------------
+def _merge(feats, intercept, coef):
+    """Sum the coefficients of repeated features: (features, intercept, coef)."""
+    keys, out_f, out_c = {}, [], []
+    for f, c in zip(feats, coef):
+        if f.key in keys:
+            out_c[keys[f.key]] += float(c)
+        else:
+            keys[f.key] = len(out_f)
+            out_f.append(f)
+            out_c.append(float(c))
+    return out_f, float(intercept), np.array(out_c)
+
+
 def rolling_origin_folds(n_fit: int, n_folds: int = 4, start: float = 0.5):
     """Forward-chaining folds on rows 0..n_fit-1: [(train (a,), validate (b,))], training always earlier."""
     first = int(round(start * n_fit))
@@ -610,7 +625,8 @@ class DriftSelector:
 
     def __init__(self, fit_fraction: float = 0.6, n_folds: int = 4, cv_start: float = 0.5, families=None,
                  subset_kw: dict | None = None, horizon: float | None = None, n_horizon_folds: int = 4,
-                 gate_se: float = GATE_SE):
+                 gate_se: float = GATE_SE, n_novelty_folds: int = 3, n_novelty_blocks: int = 8,
+                 shrink_weights=SHRINK_WEIGHTS):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
@@ -619,6 +635,9 @@ class DriftSelector:
         self.horizon = horizon
         self.n_horizon_folds = n_horizon_folds
         self.gate_se = gate_se
+        self.n_novelty_folds = n_novelty_folds
+        self.n_novelty_blocks = n_novelty_blocks
+        self.shrink_weights = shrink_weights
 
     def split(self, log):
         n = len(log.time_s)
@@ -626,6 +645,7 @@ class DriftSelector:
         return np.arange(n_fit), np.arange(n_fit, n)
 
     def fit(self, log: DriftLog) -> "DriftSelector":
+        from .drift_families import input_matrix, mahalanobis, novelty_folds, whitener
         if not 0 < self.fit_fraction < 1:
             raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
         fams = self.families or default_families(self.subset_kw)
@@ -635,38 +655,59 @@ class DriftSelector:
         folds = rolling_origin_folds(len(fit), self.n_folds, self.cv_start)
         h = (1 - self.fit_fraction) / self.fit_fraction if self.horizon is None else self.horizon
         hfolds = horizon_folds(len(fit), h, self.n_horizon_folds, self.cv_start)
+        U = input_matrix(log, fit, cache)
+        nfolds, self.novelty_ = novelty_folds(U, self.n_novelty_blocks, self.n_novelty_folds) \
+            if self.n_novelty_folds else ([], np.zeros(0))
         self.fold_errors_ = []
         resid = cv_residuals(log, fams, chans, folds, cache, self.fold_errors_)
         hresid = cv_residuals(log, fams, chans, hfolds, cache, self.fold_errors_)
-        self.cv_, self.cv_horizon_, self.gate_, self.chosen_, self.band_, self.band_ols_ = {}, {}, {}, {}, {}, {}
-        for ch in chans:
-            scores, hrms = {}, {}
-            for (c, f, hy), rs in resid.items():
-                hr = hresid.get((c, f, hy), [])
-                # only candidates scored on every fold of both sets
-                if c == ch and len(rs) == len(folds) and len(hr) == len(hfolds):
-                    r = np.concatenate(rs)
-                    scores[(f, hy)] = (float(np.sqrt(np.mean(r**2))), float(np.quantile(np.abs(r), BAND_QUANTILE)))
-                    hrms[(f, hy)] = [float(np.sqrt(np.mean(x**2))) for x in hr]
-            if ("ols", "") not in scores:
-                raise ValueError(f"{log.path}: the OLS baseline could not be fitted on the cross-validation folds")
-            gate = {k: horizon_gate(hrms[("ols", "")], v, self.gate_se) for k, v in hrms.items()}
-            best = ("ols", "")
-            for k in sorted(scores, key=lambda k: scores[k][0]):
-                if k == ("ols", ""):
-                    break
-                if gate[k][0]:
-                    best = k
-                    break
+        nresid = cv_residuals(log, fams, chans, nfolds, cache, self.fold_errors_)
+        self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
+        self.band_, self.band_ols_, self.shrink_ = {}, {}, {}
 
-            def name(f, hy):
-                return f"{f}{'[' + hy + ']' if hy else ''}"
-            self.cv_[ch] = {name(*k): s[0] for k, s in scores.items()}
-            self.cv_horizon_[ch] = {name(*k): float(np.sqrt(np.mean(np.square(v)))) for k, v in hrms.items()}
-            self.gate_[ch] = {name(*k): g for k, g in gate.items()}
-            self.chosen_[ch] = best
-            self.band_[ch] = scores[best][1]
-            self.band_ols_[ch] = scores[("ols", "")][1]
+        def rms(x):
+            return float(np.sqrt(np.mean(np.square(x))))
+        for ch in chans:
+            base = ("ols", "")
+            full = {k[1:]: v for k, v in resid.items() if k[0] == ch and len(v) == len(folds)
+                    and len(hresid.get(k, [])) == len(hfolds) and len(nresid.get(k, [])) == len(nfolds)}
+            if base not in full:
+                raise ValueError(f"{log.path}: the OLS baseline could not be fitted on the cross-validation folds")
+            r0, h0, n0 = resid[(ch, *base)], hresid[(ch, *base)], nresid[(ch, *base)]
+            scores, gate = {}, {}
+            for k in full:
+                for w in ((1.0,) if k == base else self.shrink_weights):
+                    def blend(a, b):
+                        return [w * x + (1 - w) * y for x, y in zip(a, b)]
+                    r = np.concatenate(blend(resid[(ch, *k)], r0))
+                    hr = [rms(x) for x in blend(hresid[(ch, *k)], h0)]
+                    nr = [rms(x) for x in blend(nresid[(ch, *k)], n0)]
+                    key = (k[0], k[1], w)
+                    gh = horizon_gate([rms(x) for x in h0], hr, self.gate_se)
+                    gn = horizon_gate([rms(x) for x in n0], nr, self.gate_se) if nfolds else (True, 0.0, 0.0)
+                    rank = rms(r)
+                    scores[key] = {"ranking": rank, "horizon": rms(np.concatenate(blend(hresid[(ch, *k)], h0))),
+                                   "novelty": rms(np.concatenate(blend(nresid[(ch, *k)], n0))) if nfolds else 0.0,
+                                   "band": float(np.quantile(np.abs(np.concatenate(
+                                       [r] + (blend(nresid[(ch, *k)], n0) if nfolds else []))), BAND_QUANTILE)),
+                                   "gain": (np.log(rms(np.concatenate(r0)) / rank) + gh[1] + gn[1]) / (3 if nfolds else 2)}
+                    gate[key] = (gh, gn)
+            r_ols = scores[(*base, 1.0)]["ranking"]
+            ok = [k for k in scores if k[0] != "ols" and scores[k]["ranking"] < r_ols and gate[k][0][0] and gate[k][1][0]]
+            best = max(ok, key=lambda k: scores[k]["gain"]) if ok else (*base, 1.0)
+
+            def name(k):
+                f, hy, w = k
+                return f"{f}{'[' + hy + ']' if hy else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
+            self.cv_[ch] = {name(k): s["ranking"] for k, s in scores.items()}
+            self.cv_horizon_[ch] = {name(k): s["horizon"] for k, s in scores.items()}
+            self.cv_novelty_[ch] = {name(k): s["novelty"] for k, s in scores.items()}
+            self.gate_[ch] = {name(k): (g[0][0] and g[1][0], g[0][1], g[0][2], g[1][1], g[1][2])
+                              for k, g in gate.items()}
+            self.chosen_[ch] = best[:2]
+            self.shrink_[ch] = best[2]
+            self.band_[ch] = scores[best]["band"]
+            self.band_ols_[ch] = scores[(*base, 1.0)]["band"]
         final = {}
         for fam in fams:
             need = [ch for ch in chans if self.chosen_[ch][0] == fam.name or fam.name == "ols"]
@@ -674,14 +715,30 @@ class DriftSelector:
                 final[fam.name] = fam.fit(log, need, fit, cache)
                 if fam.name == "subset_lag":
                     self.subset_modeller_ = fam.last_modeller_
+        mu, W = whitener(U)
+        dval = [mahalanobis(U[va], *whitener(U[tr])) for tr, va in nfolds]
+        temps, speed = _inputs(log, fit)
         meta = {"log": str(log.path), "fit_rows": int(len(fit)), "fit_until_s": float(log.time_s[fit[-1]]),
-                "selection": f"rolling-origin CV on the fitting part: best of {len(folds)} ranking folds that "
-                             f"beats OLS by > {self.gate_se:g} SE on {len(hfolds)} horizon folds (horizon {h:.3g})"}
+                "selection": f"rolling-origin CV on the fitting part: the candidate (a family, or a family shrunk "
+                             f"toward OLS) of largest mean log-gain over OLS that is below OLS on {len(folds)} ranking "
+                             f"folds and beats OLS by > {self.gate_se:g} SE on {len(hfolds)} horizon folds (horizon "
+                             f"{h:.3g}) and on {len(nfolds)} novelty folds (the most novel blocks of the fitting "
+                             "part, held out); else OLS",
+                "novelty": {"inputs": temps + (["speed_rpm"] if speed else []), "mean": mu.tolist(),
+                            "whiten": W.tolist(),
+                            "validated_distance": float(np.quantile(np.concatenate(dval), 0.9)) if dval else None,
+                            "fit_distance_q99": float(np.quantile(mahalanobis(U, mu, W), 0.99))}}
         chosen = {}
         for ch in chans:
-            f, h = self.chosen_[ch]
-            feats, a, b = final[f][ch][h]
-            chosen[ch] = ChannelFit(f, h, feats, a, np.asarray(b), self.band_[ch])
+            f, hy = self.chosen_[ch]
+            feats, a, b = final[f][ch][hy]
+            w = self.shrink_[ch]
+            if w != 1.0:
+                fo, ao, bo = final["ols"][ch][""]
+                feats, a, b = _merge(list(feats) + list(fo), w * a + (1 - w) * ao,
+                                     np.concatenate([w * np.asarray(b), (1 - w) * np.asarray(bo)]))
+            chosen[ch] = ChannelFit(f, hy if w == 1.0 else f"{hy}{';' if hy else ''}shrink_to_ols_w={w:g}", feats, a,
+                                    np.asarray(b), self.band_[ch])
         self.model_ = DriftModel(chosen, meta)
         self.baseline_ = DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch])
                                      for ch in chans}, meta)
@@ -692,7 +749,7 @@ class DriftSelector:
         """Best CV RMS of each family for channel ``ch`` (over its hyper-parameters): {family: (candidate, RMS)}."""
         out = {}
         for k, v in self.cv_[ch].items():
-            f = k.split("[")[0]
+            f = k.split("[")[0].split("~")[0]
             if f not in out or v < out[f][1]:
                 out[f] = (k, v)
         return out
@@ -708,15 +765,19 @@ class DriftSelector:
             a = d - pred[ch][hold]
             b = d - base[ch][hold]
             f, h = self.chosen_[ch]
+            w = self.shrink_[ch]
+            name = f"{f}{'[' + h + ']' if h else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
             band = self.model_.channels[ch].band95_um
 
             def rms(v):
                 return float(np.sqrt(np.mean(v**2)))
-            out[ch] = {"model": f"{f}{'[' + h + ']' if h else ''}", "family": f,
+            out[ch] = {"model": name, "family": f, "shrink_weight": w,
                        "cv_rms_um": {k: v[1] for k, v in self.family_best(ch).items()},
                        "cv_rms_ols_um": self.cv_[ch]["ols"],
-                       "cv_horizon_rms_um": self.cv_horizon_[ch][f"{f}{'[' + h + ']' if h else ''}"],
+                       "cv_horizon_rms_um": self.cv_horizon_[ch][name],
                        "cv_horizon_rms_ols_um": self.cv_horizon_[ch]["ols"],
+                       "cv_novelty_rms_um": self.cv_novelty_[ch][name],
+                       "cv_novelty_rms_ols_um": self.cv_novelty_[ch]["ols"],
                        "best_ranked": min(self.cv_[ch], key=self.cv_[ch].get),
                        "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
                                                  if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
