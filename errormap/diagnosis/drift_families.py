@@ -110,28 +110,34 @@ class GreyBoxFamily(_Family):
 
 
 def _forward_bic(X, y, max_inputs):
-    """Forward stepwise least squares by BIC: the selected column indices."""
+    """Forward stepwise least squares (with intercept) by BIC, from the centred Gram matrix: the
+    selected column indices."""
     n = len(y)
+    Xc = X - X.mean(axis=0)
+    yc = y - y.mean()
+    G, b, yy = Xc.T @ Xc, Xc.T @ yc, float(yc @ yc)
     chosen = []
-    A = np.ones((n, 1))
-    rss = float(np.sum((y - y.mean()) ** 2))
-    bic = n * np.log(rss / n) + np.log(n)
+    bic = n * np.log(max(yy, 1e-300) / n) + np.log(n)
     while len(chosen) < min(max_inputs, X.shape[1]):
         best = None
         for j in range(X.shape[1]):
             if j in chosen:
                 continue
-            B = np.column_stack([A, X[:, j]])
-            r = float(np.sum((y - B @ np.linalg.lstsq(B, y, rcond=None)[0]) ** 2))
+            S = chosen + [j]
+            try:
+                r = yy - float(b[S] @ np.linalg.solve(G[np.ix_(S, S)], b[S]))
+            except np.linalg.LinAlgError:
+                continue
             if best is None or r < best[0]:
                 best = (r, j)
-        r, j = best
-        b = n * np.log(max(r, 1e-300) / n) + (len(chosen) + 2) * np.log(n)
-        if b >= bic:
+        if best is None:
             break
-        bic = b
+        r, j = best
+        bb = n * np.log(max(r, 1e-300) / n) + (len(chosen) + 2) * np.log(n)
+        if bb >= bic:
+            break
+        bic = bb
         chosen.append(j)
-        A = np.column_stack([A, X[:, j]])
     return chosen
 
 

@@ -774,6 +774,7 @@ class DriftSelector:
             out[ch] = {"model": name, "family": f, "shrink_weight": w,
                        "cv_rms_um": {k: v[1] for k, v in self.family_best(ch).items()},
                        "cv_rms_ols_um": self.cv_[ch]["ols"],
+                       "cv_ranking_rms_um": self.cv_[ch][name],
                        "cv_horizon_rms_um": self.cv_horizon_[ch][name],
                        "cv_horizon_rms_ols_um": self.cv_horizon_[ch]["ols"],
                        "cv_novelty_rms_um": self.cv_novelty_[ch][name],
