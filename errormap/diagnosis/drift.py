@@ -157,7 +157,7 @@ def check_time_unit(path, t, time_s, fitting: bool = True) -> None:
 
 
 def load_drift_log(path, causal: bool = False, require_displacement: bool = True,
-                   time_unit: str | None = None) -> DriftLog:
+                   time_unit: str | None = None, sparse_displacement: bool = False) -> DriftLog:
     """Read and validate a drift log; errors name the file, row and column.
 
     Temperatures and ``speed_rpm`` may have missing samples (empty cells or ``nan``): gaps of at
@@ -166,6 +166,7 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
     ``STUCK_S`` or more, drop that input; ``notes`` says which. Time and displacements must be complete.
     ``time_unit`` (None: seconds, checked from the content by :func:`check_time_unit`; ``"s"``, ``"min"``,
     ``"h"``: the user's statement, no check, converted to seconds and recorded in ``notes["time_unit"]``).
+    ``sparse_displacement``: displacement cells may be empty (NaN): on-machine measurements at some rows.
     """
     t = read_table(path)
     t.require("time_s")
@@ -216,12 +217,17 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
                          f"({'; '.join(f'{k}: {v}' for k, v in notes['dropped'].items())})")
     du = {}
     for c in disps:
-        v = t.float(c)
-        bad = np.flatnonzero(np.abs(v) > MAX_DISP_UM)
+        v = _missing_or_number(t, c) if sparse_displacement else t.float(c)
+        bad = np.flatnonzero(np.abs(np.nan_to_num(v)) > MAX_DISP_UM)
         if bad.size:
             raise InputError(f"{path}: row {t.row_number(bad[0])}, column '{c}': units do not fit: {v[bad[0]]:g} μm "
                              f"is beyond the plausible {MAX_DISP_UM:g} μm of thermal drift (nanometres?)")
-        if np.ptp(v) < MIN_DISP_PTP_UM:
+        if sparse_displacement:     # measurements at some rows only: the unit check needs a few of them
+            if np.isfinite(v).sum() >= 3 and np.nanmax(v) - np.nanmin(v) < MIN_DISP_PTP_UM:
+                k = int(np.nanargmax(np.abs(v)))
+                raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the measurements "
+                                 f"move by only {np.nanmax(v) - np.nanmin(v):.3g} μm (millimetres?)")
+        elif np.ptp(v) < MIN_DISP_PTP_UM:
             k = int(np.argmax(np.abs(v)))
             raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the channel moves by "
                              f"only {np.ptp(v):.3g} μm over the whole log (less than {MIN_DISP_PTP_UM:g} μm; "
