@@ -33,6 +33,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import nnls
 
+from ..io import InputError
+
 from .drift_models import (TAU_BANK_S, Feature, _Family, _inputs, _standardise, feature_matrix, fit_ols,
                            fit_ridge_path)
 
@@ -206,3 +208,17 @@ def novelty_folds(U, n_blocks: int = 8, n_folds: int = 3, guard: float = 0.25):
         folds.append((tr, np.arange(a, b)))
     order = np.argsort(score)[::-1][:n_folds]
     return [folds[i] for i in sorted(order)], np.array(score)
+
+
+def input_novelty(model, log) -> np.ndarray | None:
+    """Mahalanobis distance (n,) of each row's inputs from the model's fitting data (``fitted_on.novelty``
+    in drift_model.json), or None when the model records none. Causal: row by row."""
+    from .drift_models import input_values
+    nov = (model.meta or {}).get("novelty")
+    if not nov:
+        return None
+    try:
+        U = np.stack([input_values(log, name) for name in nov["inputs"]], axis=1)
+    except InputError:          # an input the model does not need is missing: no distance, the prediction stands
+        return None
+    return mahalanobis(U, np.asarray(nov["mean"], float), np.asarray(nov["whiten"], float).reshape(len(nov["inputs"]), -1))

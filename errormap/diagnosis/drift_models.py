@@ -396,7 +396,7 @@ def default_families(subset_kw=None):
 
 # -- the model ------------------------------------------------------------------------------
 # other volcomp files a user may hand over in place of a drift model, recognised by their ``format`` key
-OTHER_FORMATS = {"volcomp-elements/": "an element set (from `volcomp identify`)",
+OTHER_FORMATS = {"volcomp-elements/": "an element set",
                  "volcomp-identification/": "an identification result",
                  "volcomp-diagnosed-model/": "a diagnosed volumetric model (from `volcomp diagnose CHECKS`)",
                  "volcomp-sweeps/": "a sweeps file", "volcomp-fleet/": "a fleet file",
@@ -407,7 +407,7 @@ def _kind_of(fmt) -> str:
     """What a file with ``format`` = ``fmt`` is, in words."""
     for k, v in OTHER_FORMATS.items():
         if isinstance(fmt, str) and fmt.startswith(k):
-            return f"{v} (format {fmt!r})"
+            return f"{v} ({fmt})"
     return f"a file of format {fmt!r}"
 
 
@@ -488,8 +488,8 @@ class DriftModel:
             raise InputError(f"{path}: not a drift model: expected a JSON object with schema {SCHEMA!r}, "
                              f"got a JSON {type(obj).__name__}")
         if "schema" not in obj and "format" in obj:   # another volcomp file, recognised by its own key
-            raise InputError(f"{path}: key 'format': this is {_kind_of(obj['format'])}, not a drift model "
-                             f"(schema {SCHEMA!r}, written by `volcomp diagnose --drift` as drift_model.json)")
+            raise InputError(f"{path}: key 'format': {_kind_of(obj['format'])}, not a drift model "
+                             "(drift_model.json from `volcomp diagnose --drift`)")
         if need(obj, "schema", "") != SCHEMA:
             raise InputError(f"{path}: key 'schema': expected {SCHEMA!r}, got {obj.get('schema')!r}")
         if need(obj, "schema_version", "") != SCHEMA_VERSION:

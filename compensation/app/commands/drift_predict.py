@@ -52,6 +52,7 @@ def run(args) -> int:
 
     from compensation.app.workflows.diagnosis import COMPENSATION_COMMENTS, compensation_columns
     from errormap.diagnosis.drift import load_drift_log
+    from errormap.diagnosis.drift_families import input_novelty
     from errormap.diagnosis.drift_models import DriftModel
     from errormap.diagnosis.drift_update import DRIFT_PER_H, DriftUpdater
     from errormap.io import InputError, write_csv
@@ -71,6 +72,17 @@ def run(args) -> int:
               file=sys.stderr)
     head = [f"model: {args.model}", f"log: {args.log}", f"log time unit: {log.notes['time_unit']}"]
     cols = compensation_columns(log, model)       # raises naming any input the model needs and the log lacks
+    d = input_novelty(model, log)
+    if d is not None:
+        cols["input_distance"] = d
+        lim = model.meta["novelty"].get("validated_distance")
+        if lim:
+            out = float(np.mean(d > lim))
+            print(f"inputs beyond the validated range (Mahalanobis distance > {lim:.3g} from the fitting data): "
+                  f"{out:.0%} of the rows (max distance {d.max():.3g})"
+                  + ("; the model extrapolates there: check it with on-machine measurements (--update)"
+                     if out > 0.05 else ""))
+        head.append("input_distance: Mahalanobis distance of the row's inputs from the model's fitting data")
     if args.update:
         missing = [ch for ch in model.channels if ch not in log.disp_um]
         if len(missing) == len(model.channels):

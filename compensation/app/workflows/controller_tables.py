@@ -241,7 +241,11 @@ def export_drift(s: DriftSettings, on_check=None, log=None) -> dict:
                                       else "no simulated log (--log given)"},
                 "controller": {"ticks": f"every {dt:g} s from the log's first time; each tick reads the latest "
                                         f"logged value at or before it (within {ex.DRIFT_TICK_EPS_S:g} s)",
-                               "output": "the prediction of the latest tick at or before each log time"},
+                               "output": "the prediction of the latest tick at or before each log time",
+                               "update": "gains fixed between exports; `volcomp drift-predict MODEL LOG --update "
+                                         "--save-model NEW.json` re-fits offsets and gains from on-machine "
+                                         "measurements (Kalman filter on the parameters), then re-export NEW.json: "
+                                         "only the gain_<ch> columns change"},
                 "files": {ex.DRIFT_FILE: res["file"].stat().st_size},
                 "table_values": coef.n_values()}
         ex.write_manifest(tmp, info)
