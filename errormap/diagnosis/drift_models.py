@@ -30,8 +30,9 @@ Model families (per displacement channel; :class:`DriftSelector`):
   constants are fitted (grid of ``TAU_GRID_S`` pairs), plus every temperature as logged, ridge-
   stabilised.
 
-Selection: **rolling-origin (forward-chaining) cross-validation on the fitting part only**, two fold
-sets. The *ranking folds* (train on the first ``cv_start`` of the fitting part, validate on the next
+Selection (issue 29 added novelty folds, shrinkage toward OLS and three constrained families from
+:mod:`~errormap.diagnosis.drift_families`; :class:`DriftSelector` states the rule):
+**cross-validation on the fitting part only**, three fold sets. The *ranking folds* (train on the first ``cv_start`` of the fitting part, validate on the next
 block, grow, repeat; ``n_folds`` blocks) score every candidate by the RMS over all their validation
 rows. The *horizon folds* (:func:`horizon_folds`) validate on blocks as long, relative to their
 training, as the deployment's held-out part is to the fitting part. The chosen candidate is the
@@ -610,13 +611,20 @@ class DriftSelector:
       to their training part, as the deployment's held-out part is to the fitting part (``horizon``,
       default (1 − fit_fraction)/fit_fraction).
 
-    The chosen candidate is the best-ranked one that (a) scores below OLS on the ranking folds and
-    (b) passes :func:`horizon_gate` against OLS on the horizon folds (it beats the baseline over the
-    deployment's horizon by more than the fold-to-fold scatter: one standard error); if none does,
-    the OLS baseline itself. A model that loses to OLS in either validation is never returned.
+    * **novelty folds** (``n_novelty_folds`` of ``n_novelty_blocks`` blocks,
+      :func:`~errormap.diagnosis.drift_families.novelty_folds`): the blocks of the fitting part whose
+      inputs are farthest (Mahalanobis) from the rest, held out.
+
+    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights``:
+    w·candidate + (1 − w)·OLS). A candidate is eligible when it (a) scores below OLS on the ranking
+    folds and passes :func:`horizon_gate` against OLS (b) on the horizon folds and (c) on the novelty
+    folds; the eligible one of largest mean log-gain over OLS (over the three sets) is returned, else
+    the OLS baseline itself. A model that loses to OLS in any of its validations is never returned.
 
     Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
-    ``families`` (default :func:`default_families`).
+    ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
+    :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}},
+    ``shrink_`` {channel: w}, ``novelty_`` (n_novelty_blocks,) median distance of each block.
     Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}} (ranking folds),
     ``cv_horizon_`` {channel: {candidate: RMS μm}} (horizon folds), ``gate_`` {channel: {candidate:
     (passes, mean log gain, its se)}}, ``chosen_`` {channel: candidate}, ``baseline_`` (the OLS

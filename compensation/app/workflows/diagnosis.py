@@ -222,7 +222,9 @@ def run_drift(log_path, out_dir, selector=None, time_unit=None):
                "inputs_filled": log.notes.get("filled", {}), "inputs_dropped": log.notes.get("dropped", {}),
                "channels": channels, "model_file": f"drift_model.json ({SCHEMA} v{SCHEMA_VERSION})",
                "settings": {"fit_fraction": sel.fit_fraction, "n_folds": sel.n_folds, "cv_start": sel.cv_start,
-                            "n_horizon_folds": sel.n_horizon_folds, "gate_se": sel.gate_se}}
+                            "n_horizon_folds": sel.n_horizon_folds, "gate_se": sel.gate_se,
+                            "n_novelty_folds": sel.n_novelty_folds, "n_novelty_blocks": sel.n_novelty_blocks,
+                            "shrink_weights": list(sel.shrink_weights)}}
     sub = getattr(sel, "subset_modeller_", None)
     if sub is not None:
         summary["sensor_selection"] = sub.report_selection()
