@@ -623,7 +623,8 @@ class DriftSelector:
 
     Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
-    :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}},
+    :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
+    {channel: {candidate: mean log-gain over OLS}}, ``eligible_`` {channel: [candidates passing every gate]},
     ``shrink_`` {channel: w}, ``novelty_`` (n_novelty_blocks,) median distance of each block.
     Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}} (ranking folds),
     ``cv_horizon_`` {channel: {candidate: RMS μm}} (horizon folds), ``gate_`` {channel: {candidate:
@@ -671,7 +672,7 @@ class DriftSelector:
         hresid = cv_residuals(log, fams, chans, hfolds, cache, self.fold_errors_)
         nresid = cv_residuals(log, fams, chans, nfolds, cache, self.fold_errors_)
         self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
-        self.band_, self.band_ols_, self.shrink_ = {}, {}, {}
+        self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
 
         def rms(x):
             return float(np.sqrt(np.mean(np.square(x))))
@@ -712,6 +713,8 @@ class DriftSelector:
             self.cv_novelty_[ch] = {name(k): s["novelty"] for k, s in scores.items()}
             self.gate_[ch] = {name(k): (g[0][0] and g[1][0], g[0][1], g[0][2], g[1][1], g[1][2])
                               for k, g in gate.items()}
+            self.gain_[ch] = {name(k): float(s["gain"]) for k, s in scores.items()}
+            self.eligible_[ch] = sorted(name(k) for k in ok)
             self.chosen_[ch] = best[:2]
             self.shrink_[ch] = best[2]
             self.band_[ch] = scores[best]["band"]
