@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from errormap.diagnosis.drift import DriftLog, simulate_drift_log
-from errormap.diagnosis.drift_families import (GreyBoxFamily, StableOLSFamily, ThermalNNFamily, mahalanobis,
+from errormap.diagnosis.drift_models import (GreyBoxFamily, StableOLSFamily, ThermalNNFamily, mahalanobis,
                                                novelty_folds, whitener)
 from errormap.diagnosis.drift_models import DriftSelector, feature_matrix
 from errormap.diagnosis.drift_sim import SIMULATORS, simulate_lumped_log

@@ -52,7 +52,7 @@ def run(args) -> int:
 
     from compensation.app.workflows.diagnosis import COMPENSATION_COMMENTS, compensation_columns
     from errormap.diagnosis.drift import load_drift_log
-    from errormap.diagnosis.drift_families import input_novelty
+    from errormap.diagnosis.drift_models import input_novelty
     from errormap.diagnosis.drift_models import DriftModel
     from errormap.diagnosis.drift_update import DRIFT_PER_H, DriftUpdater
     from errormap.io import InputError, write_csv
