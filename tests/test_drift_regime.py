@@ -94,10 +94,10 @@ def test_future_outside_the_fit_range_never_much_worse_than_ols(family, seed):
     assert np.quantile(mahalanobis(U_hold, mu, W), 0.9) > np.quantile(mahalanobis(U_fit, mu, W), 0.99)
     for ch, r in rep.items():
         assert r["rms_after_um"] <= TOLERATED_LOSS * r["rms_ols_um"], (ch, r["model"], r["rms_after_um"], r["rms_ols_um"])
-        if r["model"] != "ols":        # never chosen against its own validation: below OLS on all three fold sets
+        if r["model"] != "ols":        # never chosen against its own validation: better than OLS on all three sets
             assert r["cv_ranking_rms_um"] < r["cv_rms_ols_um"]
-            assert r["cv_horizon_rms_um"] < r["cv_horizon_rms_ols_um"]
-            assert r["cv_novelty_rms_um"] < r["cv_novelty_rms_ols_um"]
+            _, m_h, se_h, m_n, se_n = sel.gate_[ch][r["model"]]     # per-fold mean log-gain over OLS > 1 SE
+            assert m_h > se_h and m_n > se_n and m_h > 0 and m_n > 0
 
 
 @pytest.mark.slow

@@ -389,10 +389,15 @@ class SubsetLagFamily(_Family):
 
 
 def default_families(subset_kw=None):
-    """OLS (the baseline), the subset/lag search, the transfer model and the filter bank shrunk toward
-    OLS by ridge and by PLS (chosen on development seeds 100–109, ``benchmarks/drift_rule_dev.md``)."""
+    """OLS (the baseline), the subset/lag search, the transfer model, the filter bank shrunk toward OLS by
+    ridge (chosen on development seeds 100–109, ``benchmarks/drift_rule_dev.md``), and the physically
+    constrained families of issue 29. The PLS bank toward OLS (``pls_ols``) is left out since issue 29: on
+    simulated logs whose later part leaves the fit range (development seeds: lumped 100–104, rod 100–102;
+    38 channel cases) it was the choice in 2 of the 4 cases worse than OLS by more than 5 % (1.33×,
+    1.15×); without it those became 1.01× and 0.81×, no case got worse, and the other two (1.06×,
+    1.23×, grey-box choices) stayed as they were. It stays available."""
     return [OLSFamily(), SubsetLagFamily(**(subset_kw or {})), TransferFamily(), RidgeTowardOLSFamily(),
-            PLSTowardOLSFamily(), ThermalNNFamily(), GreyBoxFamily(), StableOLSFamily()]
+            ThermalNNFamily(), GreyBoxFamily(), StableOLSFamily()]
 
 
 # -- the model ------------------------------------------------------------------------------
