@@ -62,9 +62,14 @@ def one(args):
             if first == r["model"]:
                 ungated = r["rms_after_um"]
             else:
-                f, hy = (first.split("[", 1) + [""])[:2]
+                cand, _, shrunk = first.partition("~ols(w=")       # a candidate shrunk toward OLS: blend
+                w = float(shrunk.rstrip(")")) if shrunk else 1.0
+                f, hy = (cand.split("[", 1) + [""])[:2]
                 feats, a, b = fams[f].fit(log, [ch], fit, sel.cache_)[ch][hy.rstrip("]")]
-                res = log.disp_um[ch][hold] - a - feature_matrix(log, feats, sel.cache_)[hold] @ b
+                fo, ao, bo = fams["ols"].fit(log, [ch], fit, sel.cache_)[ch][""]
+                p = w * (a + feature_matrix(log, feats, sel.cache_)[hold] @ b) + \
+                    (1 - w) * (ao + feature_matrix(log, fo, sel.cache_)[hold] @ bo)
+                res = log.disp_um[ch][hold] - p
                 ungated = float(np.sqrt(np.mean(res**2)))
             out.append({"family": family, "seed": seed, "split": ff, "channel": ch, "model": r["model"],
                         "before": r["rms_before_um"], "volcomp": r["rms_after_um"], "ols": r["rms_ols_um"],

@@ -642,6 +642,11 @@ DRIFT_PSEUDO_CODE = (
     "  a missed or invalid reading: use the last valid value of that input and still run the tick",
     "  a tick period dt' other than dt: a = exp(-dt'/tau_s), b = 1 - a for that tick (tau_s = 0: a = 0);",
     "  delay_samples/delay_frac hold for dt only",
+    "updating the gains (how these coefficients change on the machine): the gains are fixed between exports;",
+    "  `volcomp drift-predict MODEL LOG --update --save-model NEW.json` re-fits each channel's offset and gains",
+    "  from on-machine measurements of <ch>_um by a Kalman filter on the parameters (random walk, opened up on",
+    "  a 3-sigma innovation); `volcomp export NEW.json --format drift` then writes the new gain_<ch> columns.",
+    "  The filter rows (input, scale, power, tau_s, a, b, delay) do not change in an update: only gain_<ch>.",
 )
 
 

@@ -105,7 +105,7 @@ def test_smoothing_keeps_trends_and_reduces_noise():
 
 @pytest.mark.parametrize("case", ["time", "nan", "kelvin", "no_temp"])
 def test_bad_drift_log(tmp_path, case, capsys):
-    cols = simulate_drift_log(0, n=200)
+    cols = simulate_drift_log(0, n=400)     # 66 min at 10 s: a log to fit must span an hour (MIN_SPAN_S)
     cols.pop("_truth")
     if case == "time":
         cols["time_s"][50] = cols["time_s"][49]

@@ -152,12 +152,13 @@ def test_cli_refuses_an_impossible_tolerance_then_forces(fitted, tmp_path, capsy
 
 
 def test_cli_default_period_is_the_log_step_and_simulated_log_gives_the_true_residual(tmp_path):
-    """Without --log the check runs on a simulated log (lumped, seed 0, sampled every 15 s) and reports
+    """With --sim the check runs on a simulated log (lumped, seed 0, sampled every 15 s) and reports
     the true residual (noise-free displacement − prediction) beside 'before' (the displacement)."""
     p = tmp_path / "m.json"
     one_filter_model(tau_s=1800.0, delay_s=30.0, coef=3.0, intercept_um=-60.0).save(p)
     out = tmp_path / "o"
-    assert main(["export", str(p), "--format", "drift", "--out", str(out), "--tolerance-um", "1e-6"]) == 0
+    assert main(["export", str(p), "--format", "drift", "--out", str(out), "--tolerance-um", "1e-6",
+                 "--sim", "lumped"]) == 0
     info = json.loads((out / "export.json").read_text())
     assert info["sample_period_s"] == 15.0 and info["sample_period_given"] is False
     r = info["check"]["ch1"]

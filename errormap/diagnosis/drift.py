@@ -60,6 +60,9 @@ TEMP_RANGE_C = (-40.0, 150.0)
 MAX_STEP_S = 3600.0       # median sampling step beyond 1 h: milliseconds written as seconds?
 MAX_GAP_S = 600.0         # missing temperature/speed samples spanning ≤ 10 min are filled, longer: input dropped
 STUCK_S = 7200.0          # an input repeating one value exactly for ≥ 2 h is stuck: dropped
+MIN_STEP_S = 0.5          # median step below 0.5 s: a thermal log is sampled every seconds to minutes: hours/minutes?
+MIN_SPAN_S = 3600.0       # a log to FIT spanning < 1 h cannot show thermal responses of 0.5–5 h: minutes/hours?
+TIME_UNITS_S = {"s": 1.0, "min": 60.0, "h": 3600.0}
 
 
 @dataclass
@@ -132,13 +135,38 @@ def repair_input(t, name, v, time, causal: bool, stuck: bool = True):
     return out, filled, None
 
 
-def load_drift_log(path, causal: bool = False, require_displacement: bool = True) -> DriftLog:
+def check_time_unit(path, t, time_s, fitting: bool = True) -> None:
+    """Refuse a ``time_s`` column that looks like minutes or hours (one line: file, row, column, the
+    likely unit). Seconds are recognised from the content: the median step between samples is at least
+    ``MIN_STEP_S`` and, for a log to fit (``fitting``), the span is at least ``MIN_SPAN_S``. The likely
+    unit named is the first of minutes, hours under which step and span both become plausible."""
+    d = np.diff(time_s)
+    step, span = float(np.median(d)), float(time_s[-1] - time_s[0])
+    if step >= MIN_STEP_S and (not fitting or span >= MIN_SPAN_S):
+        return
+    guess = [u for u, f in TIME_UNITS_S.items() if f > 1 and MIN_STEP_S <= step * f <= MAX_STEP_S
+             and span * f >= MIN_SPAN_S]
+    why = (f"the median step is {step:.3g} s (below {MIN_STEP_S:g} s)" if step < MIN_STEP_S else
+           f"the log spans {span:.3g} s (under {MIN_SPAN_S / 3600:g} h: too short for thermal responses)")
+    likely = ({"min": "minutes", "h": "hours"}[guess[0]] + " (as " + guess[0] +
+              f": {step * TIME_UNITS_S[guess[0]]:.3g} s steps over {span * TIME_UNITS_S[guess[0]] / 3600:.3g} h)"
+              if guess else "minutes or hours")
+    row = 1 if step < MIN_STEP_S else len(time_s) - 1
+    raise InputError(f"{path}: row {t.row_number(row)}, column 'time_s': units do not fit: {why}; time in "
+                     f"{likely}? Convert to seconds or give --time-unit")
+
+
+def load_drift_log(path, causal: bool = False, require_displacement: bool = True,
+                   time_unit: str | None = None, sparse_displacement: bool = False) -> DriftLog:
     """Read and validate a drift log; errors name the file, row and column.
 
     Temperatures and ``speed_rpm`` may have missing samples (empty cells or ``nan``): gaps of at
     most ``MAX_GAP_S`` are filled — linearly interpolated, or held at the last value when ``causal``
     (applying a model: no future sample) — longer gaps, and an input stuck at one value for
     ``STUCK_S`` or more, drop that input; ``notes`` says which. Time and displacements must be complete.
+    ``time_unit`` (None: seconds, checked from the content by :func:`check_time_unit`; ``"s"``, ``"min"``,
+    ``"h"``: the user's statement, no check, converted to seconds and recorded in ``notes["time_unit"]``).
+    ``sparse_displacement``: displacement cells may be empty (NaN): on-machine measurements at some rows.
     """
     t = read_table(path)
     t.require("time_s")
@@ -157,10 +185,19 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
         what = "duplicated" if d[k - 1] == 0 else "decreasing"
         raise InputError(f"{path}: row {t.row_number(k)}, column 'time_s': {what} time {time[k]:g} "
                          f"(previous row {t.row_number(k - 1)} has {time[k - 1]:g}); expected increasing times")
+    if time_unit is None:
+        check_time_unit(path, t, time, fitting=require_displacement)
+    else:
+        if time_unit not in TIME_UNITS_S:
+            raise ValueError(f"Expected time_unit in {list(TIME_UNITS_S)}, got {time_unit!r}")
+        time = time * TIME_UNITS_S[time_unit]
+        d = np.diff(time)
     if np.median(d) > MAX_STEP_S:
         raise InputError(f"{path}: row {t.row_number(1)}, column 'time_s': units do not fit: the median step is "
                          f"{np.median(d):g} s (more than {MAX_STEP_S:g} s between samples; milliseconds?)")
-    notes = {"filled": {}, "dropped": {}, "last_row": t.row_number(len(t) - 1)}
+    notes = {"filled": {}, "dropped": {}, "last_row": t.row_number(len(t) - 1),
+             "time_unit": "s (checked from the content)" if time_unit is None else
+             f"{time_unit} (given by the user; converted to seconds)"}
     tc = {}
     for c in temps:
         v = _missing_or_number(t, c)
@@ -180,12 +217,17 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
                          f"({'; '.join(f'{k}: {v}' for k, v in notes['dropped'].items())})")
     du = {}
     for c in disps:
-        v = t.float(c)
-        bad = np.flatnonzero(np.abs(v) > MAX_DISP_UM)
+        v = _missing_or_number(t, c) if sparse_displacement else t.float(c)
+        bad = np.flatnonzero(np.abs(np.nan_to_num(v)) > MAX_DISP_UM)
         if bad.size:
             raise InputError(f"{path}: row {t.row_number(bad[0])}, column '{c}': units do not fit: {v[bad[0]]:g} μm "
                              f"is beyond the plausible {MAX_DISP_UM:g} μm of thermal drift (nanometres?)")
-        if np.ptp(v) < MIN_DISP_PTP_UM:
+        if sparse_displacement:     # measurements at some rows only: the unit check needs a few of them
+            if np.isfinite(v).sum() >= 3 and np.nanmax(v) - np.nanmin(v) < MIN_DISP_PTP_UM:
+                k = int(np.nanargmax(np.abs(v)))
+                raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the measurements "
+                                 f"move by only {np.nanmax(v) - np.nanmin(v):.3g} μm (millimetres?)")
+        elif np.ptp(v) < MIN_DISP_PTP_UM:
             k = int(np.argmax(np.abs(v)))
             raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the channel moves by "
                              f"only {np.ptp(v):.3g} μm over the whole log (less than {MIN_DISP_PTP_UM:g} μm; "

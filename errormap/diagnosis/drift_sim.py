@@ -90,9 +90,30 @@ def _dropouts(rng, cols, names, n, n_drop, max_rows):
     return out
 
 
+def _shift(t, speed, ambient, shift_at, shift_speed, shift_ambient_c):
+    """A later regime the earlier part did not cover: from the fraction ``shift_at`` of the log on, the
+    spindle runs ``shift_speed`` times faster and the ambient is ``shift_ambient_c`` warmer (a ramp over
+    1 h). ``shift_at`` None: unchanged. Returns (speed, ambient)."""
+    if shift_at is None:
+        return speed, ambient
+    if not 0 < shift_at < 1:
+        raise ValueError(f"Expected 0 < shift_at < 1, got {shift_at}")
+    t0 = shift_at * t[-1]
+    late = t >= t0
+    speed = np.where(late, speed * shift_speed, speed)
+    ambient = ambient + shift_ambient_c * np.clip((t - t0) / 3600.0, 0.0, 1.0)
+    return speed, ambient
+
+
+SHIFT_SPEED = 1.3       # the later regime's spindle speed factor (heat ∝ speed^1.6…2: ~1.5–1.7× the heat)
+SHIFT_AMBIENT_C = 2.0   # and its ambient offset: both leave the fit range of the earlier part
+
+
 def simulate_lumped_log(seed: int = 0, hours: float = 46.0, dt_s: float = 15.0, n_sensors: int = 18,
-                        n_dropouts: int = 3) -> dict:
-    """A lumped-network drift log (see module doc); 5 channels ``ch1_um … ch5_um``."""
+                        n_dropouts: int = 3, shift_at: float | None = None, shift_speed: float = SHIFT_SPEED,
+                        shift_ambient_c: float = SHIFT_AMBIENT_C) -> dict:
+    """A lumped-network drift log (see module doc); 5 channels ``ch1_um … ch5_um``. ``shift_at``: a
+    later regime outside the fit range (:func:`_shift`)."""
     if n_sensors < 8:
         raise ValueError(f"Expected n_sensors >= 8, got {n_sensors}")
     rng = np.random.default_rng(seed)
@@ -104,6 +125,7 @@ def simulate_lumped_log(seed: int = 0, hours: float = 46.0, dt_s: float = 15.0, 
     day = 24 * 3600.0
     ambient = 20.0 + rng.uniform(0.8, 2.0) * np.sin(2 * np.pi * t / day + rng.uniform(0, 2 * np.pi)) \
         + np.cumsum(rng.normal(0, 0.004, n))
+    speed, ambient = _shift(t, speed, ambient, shift_at, shift_speed, shift_ambient_c)
     # bodies: spindle, headstock, column, bed, ball screw; own time constants to ambient (h)
     tau_h = np.array([rng.uniform(0.5, 0.9), rng.uniform(1.2, 2.2), rng.uniform(2.5, 4.0),
                       rng.uniform(4.0, 5.0), rng.uniform(0.6, 1.5)])
@@ -161,9 +183,11 @@ def simulate_lumped_log(seed: int = 0, hours: float = 46.0, dt_s: float = 15.0, 
 
 
 def simulate_rod_log(seed: int = 0, hours: float = 40.0, dt_s: float = 20.0, n_sensors: int = 20,
-                     n_dropouts: int = 2) -> dict:
+                     n_dropouts: int = 2, shift_at: float | None = None, shift_speed: float = SHIFT_SPEED,
+                     shift_ambient_c: float = SHIFT_AMBIENT_C) -> dict:
     """A conducting-column drift log with coolant and door (see module doc); 4 channels
-    ``elong_um``, ``tilt_um``, ``delayed_um``, ``growth_um``."""
+    ``elong_um``, ``tilt_um``, ``delayed_um``, ``growth_um``. ``shift_at``: a later regime outside the
+    fit range (:func:`_shift`)."""
     rng = np.random.default_rng(seed)
     n = int(round(hours * 3600 / dt_s))
     t = np.arange(n) * dt_s
@@ -186,6 +210,8 @@ def simulate_rod_log(seed: int = 0, hours: float = 40.0, dt_s: float = 20.0, n_s
     ambient = 21.0 + rng.uniform(1.0, 2.5) * np.sin(2 * np.pi * t / day + rng.uniform(0, 2 * np.pi))
     door = rng.uniform(0.3, 0.7) * t[-1]
     ambient = ambient - rng.uniform(0.5, 1.5) * (t > door) * np.exp(-np.maximum(t - door, 0) / 5400.0)
+    speed, ambient = _shift(t, speed, ambient, shift_at, shift_speed, shift_ambient_c)
+    heat = (speed / 14000.0) ** 2
     # column of m segments: diffusion, heated at the top (spindle), losses to ambient and coolant at the top
     m = 10
     k_s = 1.0 / rng.uniform(600, 1500)          # 1/s between neighbours

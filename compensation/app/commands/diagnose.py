@@ -25,6 +25,10 @@ def register(sub):
     p.add_argument("--tracking-uri", default=None)
     p.add_argument("--featurepoints", default=None, help="feature points of a learned model (for the retrain)")
     p.add_argument("--fit-fraction", type=float, default=0.6, help="first part (by seq / time) used for fitting")
+    p.add_argument("--time-unit", choices=["s", "min", "h"], default=None,
+                   help="--drift: the unit of the log's time_s column when it is not seconds (default: seconds, "
+                        "checked from the step and the span; a log that looks like minutes or hours is refused); "
+                        "recorded in diagnosis.json and drift_model.json")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level")
     p.add_argument("--max-effects", type=int, default=4)
     p.add_argument("--retrain-iter", type=int, default=DEFAULT_MAX_ITER,
@@ -54,6 +58,20 @@ def _retrain_settings(args):
                          max_time_s=math.inf if args.retrain_time_s is None else args.retrain_time_s)
 
 
+def band_label(c: dict) -> str:
+    """The printed band, labelled with the coverage it was CHECKED to have on the held-out part (the band is
+    the 95th percentile of validation residuals inside the fitting part; on a later part that leaves the
+    fit range it may cover much less, and then it is not called a 95 % band)."""
+    cov = c["band_coverage_heldout"]
+    txt = f"band ±{c['band95_um']:.3g} μm covers {cov:.0%} of the held-out part"
+    if cov < BAND_CLAIM_COVERAGE:
+        txt += " (NOT a 95 % band here: 95 % of the validation residuals only)"
+    return txt
+
+
+BAND_CLAIM_COVERAGE = 0.9   # below this held-out coverage the band is flagged as not holding its 95 %
+
+
 def run(args) -> int:
     from compensation.app.workflows.diagnosis import run_checks, run_drift
     from errormap.diagnosis.drift_models import DriftSelector
@@ -64,14 +82,15 @@ def run(args) -> int:
             raise UsageError(f"--fit-fraction: expected a value between 0 and 1, got {args.fit_fraction:g}")
         print(f"modelling drift log {args.drift} ...", file=sys.stderr)
         sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha})
-        summary, paths = run_drift(args.drift, args.out, sel)
+        summary, paths = run_drift(args.drift, args.out, sel, time_unit=args.time_unit)
+        print(f"time unit of time_s: {summary['time_unit']}")
         for c, why in summary["inputs_dropped"].items():
             print(f"dropped input {c}: {why}")
         for c, rows in summary["inputs_filled"].items():
             print(f"filled missing samples of {c} (interpolated): rows {', '.join(f'{a}-{b}' for a, b in rows)}")
         for ch, c in summary["channels"].items():
             print(f"{ch}: {c['model']}: held-out RMS {c['rms_before_um']:.3g} -> {c['rms_after_um']:.3g} μm "
-                  f"(OLS baseline {c['rms_ols_um']:.3g} μm), 95 % band ±{c['band95_um']:.3g} μm")
+                  f"(OLS baseline {c['rms_ols_um']:.3g} μm), {band_label(c)}")
     else:
         if args.model is None:
             raise UsageError("CHECKS needs --model (element-set file or run id)")

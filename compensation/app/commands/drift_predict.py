@@ -1,20 +1,50 @@
-"""``volcomp drift-predict``: apply a saved drift model (``volcomp.drift_model``) to a new log, causally."""
+"""``volcomp drift-predict``: apply a saved drift model (``volcomp.drift_model``) to a new log, causally;
+with ``--update``, re-fit its parameters as on-machine measurements arrive."""
 from __future__ import annotations
 
 import sys
+
+from compensation.app.cli import UsageError
 
 
 def register(sub):
     p = sub.add_parser(
         "drift-predict", help="apply a saved drift model to a new log (causal compensation series)",
-        description="volcomp drift-predict MODEL LOG --out FILE.csv. MODEL is the drift_model.json written by "
-                    "`volcomp diagnose --drift`; LOG a drift log with the model's inputs (displacement columns "
+        description="volcomp drift-predict MODEL LOG --out FILE.csv [--update]. MODEL is the drift_model.json written "
+                    "by `volcomp diagnose --drift`; LOG a drift log with the model's inputs (displacement columns "
                     "optional: when present, RMS before/after is printed). The prediction at each time uses "
-                    "samples at or before it only; missing input samples are held at their last value.")
+                    "samples at or before it only; missing input samples are held at their last value. With "
+                    "--update, the log's displacement cells are on-machine measurements (empty where none was "
+                    "taken) and each channel's intercept and gains are re-fitted by a Kalman filter on the "
+                    "parameters as they arrive (the prediction at a row uses measurements strictly before it).")
     p.add_argument("model", help="drift_model.json (schema volcomp.drift_model)")
     p.add_argument("log", help="drift log CSV (time_s, temp_<sensor>_c, speed_rpm, ...)")
     p.add_argument("--out", required=True, help="compensation series CSV to write")
+    p.add_argument("--time-unit", choices=["s", "min", "h"], default=None,
+                   help="the unit of the log's time_s column when it is not seconds (default: seconds, checked "
+                        "from the step; recorded in the output's header)")
+    p.add_argument("--update", action="store_true",
+                   help="re-fit the model's parameters online from the log's displacement measurements")
+    p.add_argument("--save-model", default=None, metavar="FILE.json",
+                   help="--update: write the updated drift model (same schema; export it with --format drift)")
+    p.add_argument("--drift-per-h", type=float, default=None,
+                   help="--update: how fast the parameters may wander: fraction of the prior variance per hour "
+                        "(default 0.01)")
+    p.add_argument("--noise-um", type=float, default=None,
+                   help="--update: σ of one measurement in μm (default: half the model's band)")
     p.set_defaults(func=run)
+
+
+def _check_args(args):
+    if not args.update:
+        given = [k for k, v in {"--save-model": args.save_model, "--drift-per-h": args.drift_per_h,
+                                "--noise-um": args.noise_um}.items() if v is not None]
+        if given:
+            raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} with --update only")
+    if args.drift_per_h is not None and not (args.drift_per_h >= 0 and args.drift_per_h < float("inf")):
+        raise UsageError(f"--drift-per-h: expected a finite value >= 0, got {args.drift_per_h}")
+    if args.noise_um is not None and not (args.noise_um > 0 and args.noise_um < float("inf")):
+        raise UsageError(f"--noise-um: expected a positive number of μm, got {args.noise_um}")
 
 
 def run(args) -> int:
@@ -22,11 +52,15 @@ def run(args) -> int:
 
     from compensation.app.workflows.diagnosis import COMPENSATION_COMMENTS, compensation_columns
     from errormap.diagnosis.drift import load_drift_log
+    from errormap.diagnosis.drift_models import input_novelty
     from errormap.diagnosis.drift_models import DriftModel
+    from errormap.diagnosis.drift_update import DRIFT_PER_H, DriftUpdater
     from errormap.io import InputError, write_csv
 
+    _check_args(args)
     model = DriftModel.load(args.model)
-    log = load_drift_log(args.log, causal=True, require_displacement=False)
+    log = load_drift_log(args.log, causal=True, require_displacement=False, time_unit=args.time_unit,
+                         sparse_displacement=args.update)
     span = float(log.time_s[-1] - log.time_s[0])
     if span < model.max_delay_s:
         raise InputError(f"{args.log}: row {log.notes['last_row']}, column 'time_s': the log spans {span:g} s, shorter "
@@ -36,12 +70,52 @@ def run(args) -> int:
     for c, rows in log.notes["filled"].items():
         print(f"held last value over missing samples of {c}: rows {', '.join(f'{a}-{b}' for a, b in rows)}",
               file=sys.stderr)
+    head = [f"model: {args.model}", f"log: {args.log}", f"log time unit: {log.notes['time_unit']}"]
     cols = compensation_columns(log, model)       # raises naming any input the model needs and the log lacks
-    for ch in model.channels:
-        if ch in log.disp_um:
-            d = log.disp_um[ch]
-            a = d - cols[f"{ch}_pred_um"]
-            print(f"{ch}: RMS {np.sqrt(np.mean(d**2)):.3g} -> {np.sqrt(np.mean(a**2)):.3g} μm over the log")
-    write_csv(args.out, cols, header_comments=(f"model: {args.model}", f"log: {args.log}", *COMPENSATION_COMMENTS))
+    d = input_novelty(model, log)
+    if d is not None:
+        cols["input_distance"] = d
+        lim = model.meta["novelty"].get("validated_distance")
+        if lim:
+            out = float(np.mean(d > lim))
+            print(f"inputs beyond the validated range (Mahalanobis distance > {lim:.3g} from the fitting data): "
+                  f"{out:.0%} of the rows (max distance {d.max():.3g})"
+                  + ("; the model extrapolates there: check it with on-machine measurements (--update)"
+                     if out > 0.05 else ""))
+        head.append("input_distance: Mahalanobis distance of the row's inputs from the model's fitting data")
+    if args.update:
+        missing = [ch for ch in model.channels if ch not in log.disp_um]
+        if len(missing) == len(model.channels):
+            raise InputError(f"{args.log}: column '{missing[0]}_um': --update needs on-machine measurements of the "
+                             f"model's channels ({', '.join(c + '_um' for c in model.channels)}); the log has none")
+        upd = DriftUpdater(noise_um=args.noise_um,
+                           drift_per_h=DRIFT_PER_H if args.drift_per_h is None else args.drift_per_h)
+        res = upd.run(model, log, log.disp_um)
+        for ch in model.channels:
+            band = model.channels[ch].band95_um
+            cols[f"{ch}_fixed_pred_um"] = res.fixed_um[ch]
+            cols[f"{ch}_pred_um"] = res.pred_um[ch]
+            cols[f"{ch}_lo_um"] = res.pred_um[ch] - band
+            cols[f"{ch}_hi_um"] = res.pred_um[ch] + band
+        print("online update (Kalman filter on the parameters): a-priori error at the measurements, "
+              "RMS μm, updated vs the saved model")
+        for ch, rows in res.evolution().items():
+            if not rows:
+                print(f"{ch}: no measurement: the saved model is kept")
+                continue
+            for a, b, ru, rf, m in rows:
+                print(f"{ch}: rows {a + 2}-{b + 2} ({m} measurements): updated {ru:.3g}  saved model {rf:.3g}")
+        head += [f"online update: Kalman filter on the parameters, drift_per_h {upd.drift_per_h:g}, "
+                 f"noise_um {args.noise_um if args.noise_um else 'half the band'}; <ch>_pred_um uses measurements "
+                 "strictly before each row; <ch>_fixed_pred_um is the saved model"]
+        if args.save_model:
+            print(f"wrote {res.model.save(args.save_model)}")
+    else:
+        for ch in model.channels:
+            if ch in log.disp_um:
+                d = log.disp_um[ch]
+                a = d - cols[f"{ch}_pred_um"]
+                print(f"{ch}: RMS {np.sqrt(np.mean(d**2)):.3g} -> {np.sqrt(np.mean(a**2)):.3g} μm over the log")
+    write_csv(args.out, cols, header_comments=(*head, *COMPENSATION_COMMENTS))
     print(f"wrote {args.out}")
     return 0

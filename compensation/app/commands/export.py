@@ -62,10 +62,11 @@ def register(sub):
                    help="drift: the controller's fixed sample period (s) the coefficients are for (default: the "
                         "check log's median sampling step, where the controller reproduces the model exactly)")
     p.add_argument("--log", default=None, metavar="LOG.csv",
-                   help="drift: the log the controller is re-simulated on (default: a simulated log, --sim)")
+                   help="drift: the log the controller is re-simulated on (default: the model's own fitting log, "
+                        "recorded in drift_model.json; refused in one line when it is gone or changed)")
     p.add_argument("--sim", default=None, choices=("lumped", "rod"),
-                   help="drift without --log: the simulator family of the check log (default lumped)")
-    p.add_argument("--sim-seed", type=int, default=None, help="drift without --log: the simulator seed (default 0)")
+                   help="drift without --log: check on a simulated log of this family instead of the fitting log")
+    p.add_argument("--sim-seed", type=int, default=None, help="drift without --log: check on a simulated log of this seed (family lumped unless --sim)")
     p.add_argument("--force", action="store_true",
                    help="write even when the tolerance is not met (recorded in export.json)")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")

@@ -229,8 +229,8 @@ def drift_report(log, sel, channels, log_path) -> str:
     rows = [[ch, c["model"], *[c["cv_rms_um"].get(f) for f in fams], c["rms_before_um"], c["rms_after_um"],
              c["rms_ols_um"], c["band95_um"], c["band_coverage_heldout"]] for ch, c in channels.items()]
     table = Table(["channel", "chosen", *[f"CV {f} (μm)" for f in fams], "held-out RMS before (μm)",
-                   "held-out RMS after, volcomp (μm)", "held-out RMS after, OLS baseline (μm)", "95 % band ± (μm)",
-                   "band coverage (held-out)"], rows, left=2)
+                   "held-out RMS after, volcomp (μm)", "held-out RMS after, OLS baseline (μm)",
+                   "band ± (μm): 95 % of validation residuals", "band coverage CHECKED on the held-out part"], rows, left=2)
     sensors = None
     sub = getattr(sel, "subset_modeller_", None)
     if sub is not None:

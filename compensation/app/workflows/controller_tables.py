@@ -49,7 +49,8 @@ class TableSettings:
 @dataclass
 class DriftSettings:
     """One drift-coefficient export: ``sample_period_s`` None = the check log's median step;
-    ``log`` None = a simulated log of family ``sim`` (default lumped) and seed ``sim_seed``."""
+    ``log`` None: with ``sim`` / ``sim_seed``, a simulated log of family ``sim`` (default lumped) and seed
+    ``sim_seed``; without, the model's own fitting log recorded in ``drift_model.json`` (else refused)."""
 
     model: str
     out: str
@@ -160,11 +161,32 @@ def read_back_difference(table, back, machine, sets) -> float:
     return worst
 
 
-def drift_check_log(s: DriftSettings, progress=None):
+def fitting_log_of(model, model_path) -> str:
+    """The model's own fitting log (``fitted_on.log_path`` in drift_model.json, unchanged since: same
+    sha256), or a UsageError in one line asking for ``--log``."""
+    meta = model.meta or {}
+    p, h = meta.get("log_path"), meta.get("log_sha256")
+    if not p:
+        raise UsageError(f"{model_path}: the drift model records no fitting log (written before logs were recorded): "
+                         "give --log LOG.csv to check the controller on (or --sim for a simulated log)")
+    if not Path(p).is_file():
+        raise UsageError(f"{model_path}: the model's fitting log {p} is not found: give --log LOG.csv to check the "
+                         "controller on")
+    if h and sha256_file(p) != h:
+        raise UsageError(f"{model_path}: the model's fitting log {p} has changed since the fit (sha256 differs): "
+                         "give --log LOG.csv to check the controller on")
+    return p
+
+
+def drift_check_log(s: DriftSettings, progress=None, model=None):
     """The log the controller is re-simulated on, its description, and the noise-free displacement
     when it is simulated (``{channel: (n,)}``, else None); notes go to ``progress`` (stderr)."""
     from errormap.diagnosis.drift import DriftLog, load_drift_log
     progress = sys.stderr if progress is None else progress
+    if s.log is None and s.sim is None and s.sim_seed is None and model is not None:
+        path = fitting_log_of(model, s.model)
+        print(f"check log: the model's own fitting log {path} (recorded in {s.model})", file=progress)
+        s = DriftSettings(**{**s.__dict__, "log": path})
     if s.log is not None:
         if s.sim is not None or s.sim_seed is not None:
             raise UsageError("--sim and --sim-seed choose a simulated log: give them or --log, not both")
@@ -194,7 +216,7 @@ def export_drift(s: DriftSettings, on_check=None, log=None) -> dict:
     print(f"export: model {src.description}", file=sys.stderr)
     model = DriftModel.load(src.path)
     model_desc = f"{s.model} (drift model, sha256 {sha256_file(s.model)})"
-    drift_log, log_desc, clean = drift_check_log(s, log)
+    drift_log, log_desc, clean = drift_check_log(s, log, model)
     step = float(np.median(np.diff(drift_log.time_s)))
     if dt is None:
         dt = step
@@ -224,7 +246,11 @@ def export_drift(s: DriftSettings, on_check=None, log=None) -> dict:
                                       else "no simulated log (--log given)"},
                 "controller": {"ticks": f"every {dt:g} s from the log's first time; each tick reads the latest "
                                         f"logged value at or before it (within {ex.DRIFT_TICK_EPS_S:g} s)",
-                               "output": "the prediction of the latest tick at or before each log time"},
+                               "output": "the prediction of the latest tick at or before each log time",
+                               "update": "gains fixed between exports; `volcomp drift-predict MODEL LOG --update "
+                                         "--save-model NEW.json` re-fits offsets and gains from on-machine "
+                                         "measurements (Kalman filter on the parameters), then re-export NEW.json: "
+                                         "only the gain_<ch> columns change"},
                 "files": {ex.DRIFT_FILE: res["file"].stat().st_size},
                 "table_values": coef.n_values()}
         ex.write_manifest(tmp, info)

@@ -242,24 +242,30 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     return summary, list(paths) + [upd_path, covariance_path(upd_path), out_dir / "model.json"]
 
 
-def run_drift(log_path, out_dir, selector=None):
+def run_drift(log_path, out_dir, selector=None, time_unit=None):
     """Diagnose a drift log: model families chosen by rolling-origin CV, before/after with the OLS
     baseline beside. Writes diagnosis.json, report.html, drift_model.json (``volcomp.drift_model``)
     and drift_compensation.csv; returns (summary, paths)."""
     from errormap.diagnosis.drift_models import SCHEMA, SCHEMA_VERSION, DriftSelector
     from errormap.io import write_csv
-    log = load_drift_log(log_path)
+    log = load_drift_log(log_path, time_unit=time_unit)
     sel = (selector or DriftSelector()).fit(log)
+    from errormap.io import sha256_file
+    sel.model_.meta.update({"log_time_unit": log.notes["time_unit"], "log_path": str(Path(log_path).resolve()),
+                            "log_sha256": sha256_file(log_path)})   # the fitting log: export's default check log
     channels = sel.report(log)
     fit, hold = sel.split(log)
     summary = {"log": str(log_path), "residual": "measured displacement − causal drift model prediction",
                "split": f"by time: first {len(fit)} rows fit, last {len(hold)} held out",
                "baseline": "ordinary least squares on every temperature and speed_rpm (no filter, no lag)",
                "selection": sel.model_.meta["selection"],
+               "time_unit": log.notes["time_unit"],
                "inputs_filled": log.notes.get("filled", {}), "inputs_dropped": log.notes.get("dropped", {}),
                "channels": channels, "model_file": f"drift_model.json ({SCHEMA} v{SCHEMA_VERSION})",
                "settings": {"fit_fraction": sel.fit_fraction, "n_folds": sel.n_folds, "cv_start": sel.cv_start,
-                            "n_horizon_folds": sel.n_horizon_folds, "gate_se": sel.gate_se}}
+                            "n_horizon_folds": sel.n_horizon_folds, "gate_se": sel.gate_se,
+                            "n_novelty_folds": sel.n_novelty_folds, "n_novelty_blocks": sel.n_novelty_blocks,
+                            "shrink_weights": list(sel.shrink_weights)}}
     sub = getattr(sel, "subset_modeller_", None)
     if sub is not None:
         summary["sensor_selection"] = sub.report_selection()
