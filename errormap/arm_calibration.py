@@ -30,10 +30,15 @@ GENERIC_POSES = 400       # random poses within the limits that define the chain
 GENERIC_LIMIT_DEG = 170.0  # random revolute poses stay within ±this (a full turn adds nothing)
 
 
+ZERO_COLUMN_MM = 1e-8     # a slot moving the tool point less than this (mm per mm or rad, RMS over poses) does nothing
+
+
 def _scaled(J2d):
+    """Unit-norm columns (slots in mm and rad made comparable); a column that is zero up to rounding stays zero."""
     s = np.linalg.norm(J2d, axis=0)
-    s = np.where(s > 0, s, 1.0)
-    return J2d / s, s
+    zero = s <= ZERO_COLUMN_MM * np.sqrt(J2d.shape[0])
+    s = np.where(zero, 1.0, s)
+    return np.where(zero, 0.0, J2d / s), s
 
 
 def identifiable_slots(chain, q, errors=None) -> tuple[np.ndarray, list[dict], np.ndarray]:
