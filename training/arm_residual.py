@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from errormap.arm_simulate import gravity_moment_mm
+
 FAMILIES = ("gp_sincos", "gp_physics", "ridge_physics")
 Z95 = 1.959963984540054
 RIDGE_ALPHAS = np.logspace(-4, 2, 13)
@@ -29,16 +31,7 @@ HYPER_POSES = 300     # kernel hyper-parameters from at most this many fit poses
 def gravity_moments(chain, q, errors=None) -> np.ndarray:
     """Per joint the gravity moment (mm per unit mass, gravity along −z of the base) of unit masses at
     the downstream joint origins and the tool point, shape (n, nq)."""
-    F = chain.frames(q, errors)
-    jets = [int(np.flatnonzero(chain.joint == j)[0]) for j in range(chain.n_joints)]
-    org = np.stack([F[:, k, :3, 3] for k in jets] + [F[:, -1, :3, 3]], 1)           # (n, nq + 1, 3)
-    axes = np.stack([F[:, k, :3, chain.axis[k]] for k in jets], 1)                  # (n, nq, 3)
-    g = np.array([0.0, 0.0, -1.0])
-    out = np.zeros((len(F), chain.n_joints))
-    for j in range(chain.n_joints):
-        lever = org[:, j + 1:] - org[:, j:j + 1]                                     # (n, m, 3)
-        out[:, j] = np.einsum("ni,nmi->n", axes[:, j], np.cross(lever, g))
-    return out
+    return gravity_moment_mm(chain, q, errors)
 
 
 def features(chain, q, family: str, errors=None) -> np.ndarray:
