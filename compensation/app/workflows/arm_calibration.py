@@ -90,7 +90,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
                  stage_row("plain geometric LSQ", e_plain, "scipy least_squares, every DH slot + base + tool, "
                                                            "no identifiability handling"),
                  stage_row("volcomp geometric", e_geo, "LM on the identifiable slots (unidentifiable fixed)")]
-    learner, kept, why = None, "geometric", "learned stage not run (--no-learned)"
+    learner, plain_gp, kept, why = None, None, "geometric", "learned stage not run (--no-learned)"
     coverage_check = None
     if learned:
         rng_seeds = np.random.SeedSequence(seed).spawn(2)
@@ -119,6 +119,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         why = "learned stage not run"
     return {"stages": stages, "baselines": baselines, "kept_stage": kept, "kept_why": why, "notes": notes,
             "geometric_model": geo_kept, "volcomp_geometric": geo, "learner": learner,
+            "base_tool_model": base_tool, "plain_model": plain, "plain_gp": plain_gp,
             "coverage95_heldout": coverage_check}
 
 
