@@ -19,12 +19,13 @@ from __future__ import annotations
 import numpy as np
 
 from errormap.arm_simulate import gravity_moment_mm
+from errormap.threads import limit_threads
 
 FAMILIES = ("gp_sincos", "gp_physics", "ridge_physics")
 Z95 = 1.959963984540054
 RIDGE_ALPHAS = np.logspace(-4, 2, 13)
 MAX_FIT_POSES = 5000  # a dense GP is O(n³); beyond this the caller should subsample
-HYPER_POSES = 300     # kernel hyper-parameters from at most this many fit poses (random subset by seed): the
+HYPER_POSES = 200     # kernel hyper-parameters from at most this many fit poses (random subset by seed): the
 # marginal likelihood's O(n³) per step; the model itself then uses every fit pose with that kernel
 
 
@@ -69,7 +70,9 @@ class _Model:
                                                   random_state=int(np.random.default_rng(seed).integers(2 ** 31)))
             import warnings
             from sklearn.exceptions import ConvergenceWarning
-            with warnings.catch_warnings():  # a length scale at its bound means "this input does not matter"
+            # one BLAS thread: matrices a few hundred wide, and several threads spin against each other on a
+            # busy machine; a length scale at its bound means "this input does not matter" (no warning)
+            with warnings.catch_warnings(), limit_threads(1, ("blas",)):
                 warnings.simplefilter("ignore", ConvergenceWarning)
                 self.model.fit(Xs, Y)
             self.kernel = self.model.kernel_
@@ -90,7 +93,8 @@ class _Model:
     def predict(self, X):
         Xs = (X - self.mu) / self.sd
         if self.family.startswith("gp"):
-            m, s = self.model.predict(Xs, return_std=True)
+            with limit_threads(1, ("blas",)):
+                m, s = self.model.predict(Xs, return_std=True)
             s = s if s.ndim == 2 else np.repeat(s[:, None], 3, 1)
             return m, s
         m = self.model.predict(Xs)

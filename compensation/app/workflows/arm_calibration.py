@@ -64,7 +64,7 @@ def split(chain, s: ArmCalibrationSettings, data):
     return data.subset(idx[n_check:]), data.subset(idx[:n_check])
 
 
-def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None) -> dict:
+def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, families=None) -> dict:
     """Every stage and baseline on ``fit``, judged on ``check``. Returns the document's core:
     ``stages``, ``baselines``, ``kept_stage``, the models (geometric result, learner or None)."""
     from training.arm_residual import ArmResidualRegressor
@@ -100,7 +100,8 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         e_pgp = errors_mm(check, plain.predict(check.q) + plain_gp.predict(check.q))
         baselines.append(stage_row("plain GP on plain LSQ residual", e_pgp,
                                    "Gaussian process (ARD RBF) on joint sin/cos, fitted to the plain calibration's residual"))
-        learner = ArmResidualRegressor(chain, k_folds=k_folds, n_restarts=n_restarts, seed=rng_seeds[1]).fit(
+        fam = {} if families is None else {"families": tuple(families)}
+        learner = ArmResidualRegressor(chain, k_folds=k_folds, n_restarts=n_restarts, seed=rng_seeds[1], **fam).fit(
             fit.q, fit.xyz_mm - geo_kept.predict(fit.q), errors=geo_kept.params)
         m, sd = learner.predict(check.q, return_std=True)
         r = check.xyz_mm - geo_kept.predict(check.q) - m
