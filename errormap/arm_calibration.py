@@ -181,7 +181,7 @@ def _result(chain, poses, x, free, combos, sv, it, conv, method) -> GeometricRes
     s2 = float(rw @ rw / dof) if poses.sigma_mm is None else 1.0
     cov = np.zeros((chain.n_params, chain.n_params))
     cov[np.ix_(free, free)] = s2 * np.linalg.pinv(J.T @ J)
-    return GeometricResult(chain, x, free, cov, np.sqrt(np.diag(cov)), float(np.sqrt(np.mean(r ** 2))),
+    return GeometricResult(chain, x, free, cov, np.sqrt(np.maximum(np.diag(cov), 0.0)), float(np.sqrt(np.mean(r ** 2))),
                            float(np.sqrt(np.mean(np.sum(r ** 2, 1)))), sv, combos, it, conv, method)
 
 

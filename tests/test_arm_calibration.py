@@ -12,6 +12,7 @@ import pytest
 from errormap.arm_calibration import ArmCalibrator
 from errormap.arm_poses import ArmPoses, convert_tracker_grid, read_arm_poses, write_arm_poses
 from errormap.arm_simulate import draw_truth, measure, random_joints
+from errormap.io import read_table
 from errormap.machine import load_machine
 
 SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "serial-arms"
@@ -123,8 +124,8 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     r = cli("compensate", prog, "--machine", "ur5", "--model", tmp_path / "cal" / "calibration.json", "--out",
             tmp_path / "comp")
     assert r.returncode == 0, r.stdout + r.stderr
-    out = np.genfromtxt(tmp_path / "comp" / "prog.csv", delimiter=",", names=True, comments="#")
-    qn = np.stack([out[c] for c in ur5.joint_columns], 1)
+    out = read_table(tmp_path / "comp" / "prog.csv")
+    qn = np.stack([out.float(c) for c in ur5.joint_columns], 1)
     true_err = np.linalg.norm(t.tool_point(ur5, qn) - ur5.tool_point(qp), axis=1)
     before = np.linalg.norm(t.tool_point(ur5, qp) - ur5.tool_point(qp), axis=1)
     assert np.sqrt(np.mean(true_err ** 2)) <= FLOOR_FACTOR * NOISE_FLOOR_MM < np.sqrt(np.mean(before ** 2))
