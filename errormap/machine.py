@@ -1,7 +1,7 @@
 """Machine files (TOML): loading and validation.
 
 One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexapod``,
-``tripod``; schemas in ``docs/schemas.md``). The built-in default grinder ships as ``errormap/machines/grinder.toml``.
+``tripod``, ``serial``; schemas in ``docs/schemas.md``; serial chains in :mod:`errormap.chain_file`). The built-in default grinder ships as ``errormap/machines/grinder.toml``.
 Every error names the file and the key.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ A_TURN_TOL_DEG = 1e-9  # strokes.a_deg must span one turn to this
 
 
 def builtin_machine_path(kind: str = "grinder") -> Path:
-    """Path of a built-in machine file (``grinder``, ``hexapod`` or ``tripod``)."""
+    """Path of a built-in machine file (``grinder``, ``hexapod``, ``tripod``, ``ur5``, ``ur10``, ``wam``)."""
     p = Path(str(resources.files("errormap") / "machines" / f"{kind}.toml"))
     if not p.is_file():
         raise MachineFileError(f"no built-in machine file for kind {kind!r} ({p})")
@@ -113,8 +113,9 @@ def parse_grinder(doc: dict, path, sha: str = "") -> Grinder:
 def _parsers():
     """The parser of each ``[machine] kind``; the PKM schemas live with the PKM models (imported
     on first use: they need scipy, which a grinder-only run does not load)."""
+    from .chain_file import parse_serial
     from .pkm.machine_file import parse_hexapod, parse_tripod
-    return {"grinder": parse_grinder, "hexapod": parse_hexapod, "tripod": parse_tripod}
+    return {"grinder": parse_grinder, "hexapod": parse_hexapod, "tripod": parse_tripod, "serial": parse_serial}
 
 
 def load_machine(path=None, expect_kind: str | None = None):
@@ -124,6 +125,9 @@ def load_machine(path=None, expect_kind: str | None = None):
     Raises :class:`MachineFileError` naming the file and the offending key.
     """
     path = builtin_machine_path(expect_kind or "grinder") if path is None else Path(path)
+    if not path.is_file() and path.suffix == "" and len(path.parts) == 1:  # a built-in machine by name (--machine ur5)
+        named = Path(str(resources.files("errormap") / "machines" / f"{path.name}.toml"))
+        path = named if named.is_file() else path
     if not Path(path).is_file():
         raise MachineFileError(f"{path}: no such machine file")
     raw = Path(path).read_bytes()
@@ -137,7 +141,7 @@ def load_machine(path=None, expect_kind: str | None = None):
         raise MachineFileError(f"{path}: not valid TOML: {exc}") from None
     m = doc.get("machine")
     if not isinstance(m, dict) or "kind" not in m:
-        raise MachineFileError(f"{path}: missing key 'machine.kind' (one of grinder, hexapod, tripod)")
+        raise MachineFileError(f"{path}: missing key 'machine.kind' (one of grinder, hexapod, tripod, serial)")
     kind = m["kind"]
     parsers = _parsers()
     if not isinstance(kind, str) or kind not in parsers:

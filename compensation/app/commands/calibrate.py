@@ -24,8 +24,11 @@ from ..workflows.calibration import CalibrationSettings, run_calibration
 
 def register(subparsers):
     p = subparsers.add_parser("calibrate", help="identify a hexapod/tripod's kinematic parameters from measured poses")
+    # a serial chain (``kind = "serial"``, e.g. --machine ur5) goes to the arm calibration
+    # (compensation/app/workflows/arm_calibration.py; docs/arms.md)
     p.add_argument("poses", help="pose-measurement CSV (legs l1_mm.. or q1.., x_mm y_mm z_mm [+ rx_deg.. | qx qy qz qw])")
-    p.add_argument("--machine", help="machine file (kind hexapod or tripod; default: the built-in hexapod)")
+    p.add_argument("--machine", help="machine file or built-in name (kind hexapod, tripod or serial, e.g. ur5; "
+                   "default: the built-in hexapod)")
     p.add_argument("--out", required=True, help="output folder")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--check", help="separate pose CSV for the held-out residual")
@@ -35,6 +38,8 @@ def register(subparsers):
                    "(default: identify them)")
     p.add_argument("--scales", action="store_true", help=argparse_suppress())
     p.add_argument("--no-loop", action="store_true", help="skip the loop on leg residuals")
+    p.add_argument("--no-learned", action="store_true", help="serial chains: skip the learned residual stage")
+    p.add_argument("--folds", type=int, default=5, help="serial chains: CV folds of the learned stage (default 5)")
     p.add_argument("--no-register", action="store_true", help="the instrument frame is the machine frame")
     p.add_argument("--lever-mm", type=float, default=None, help="weight of orientation residuals (mm per rad; "
                    "default: estimated from the data, position noise / orientation noise)")
@@ -55,8 +60,11 @@ def argparse_suppress():
 
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None) if args.machine else load_machine(expect_kind="hexapod")
+    if machine.kind == "serial":
+        return run_serial(machine, args)
     if machine.kind not in ("hexapod", "tripod"):
-        raise UsageError(f"{machine.path}: calibrate needs a hexapod or tripod machine file, got kind {machine.kind!r}")
+        raise UsageError(f"{machine.path}: calibrate needs a hexapod, tripod or serial machine file, got kind "
+                         f"{machine.kind!r}")
     if args.scales and args.no_scales:
         raise UsageError("--scales and --no-scales contradict each other (scales are identified by default)")
     settings = CalibrationSettings(
@@ -75,3 +83,20 @@ def run(args) -> int:
         print("calibrate: success: false: " + "; ".join(doc["success_reasons"]))
     print(f"calibrate: wrote {out / 'calibration.json'}, {out / 'report.html'} and {len(cal.pngs)} PNGs")
     return 0 if cal.success else 1
+
+
+def run_serial(chain, args) -> int:
+    """The arm branch: geometric + learned stages, plain baselines beside them (docs/arms.md)."""
+    from ..workflows.arm_calibration import ArmCalibrationSettings, run_arm_calibration
+    if not 2 <= args.folds <= 20:
+        raise UsageError(f"--folds must be in [2, 20], got {args.folds}")
+    s = ArmCalibrationSettings(poses=args.poses, check=args.check, holdout=args.holdout, seed=args.seed,
+                               learned=not args.no_learned, k_folds=args.folds)
+    out = Path(args.out)
+    doc = run_arm_calibration(chain, s, out)
+    for r in doc["stages"] + doc["baselines"]:
+        print(f"calibrate: held-out {r['name']}: mean {r['mean_mm']:.4f} mm, RMS {r['rms_mm']:.4f} mm, "
+              f"max {r['max_mm']:.4f} mm")
+    print(f"calibrate: kept stage: {doc['kept_stage']} ({doc['kept_why']})")
+    print(f"calibrate: wrote {out / 'calibration.json'} and {out / 'report.html'}")
+    return 0

@@ -62,11 +62,13 @@ def register(sub):
                    "px_mm,py_mm,pz_mm) or G-code, told apart by content whatever the name")
     p.add_argument("--model", required=True, help="MLflow run id, runs:/ URI, element-set file (JSON), or the "
                    "diagnosed model (DIR/model.json of volcomp diagnose: updated elements + accepted terms)")
-    p.add_argument("--method", required=True, choices=METHODS, help="compensation solver")
+    p.add_argument("--method", default=None, choices=METHODS, help="compensation solver (required; serial "
+                   "chains: Newton on the calibrated chain, docs/arms.md)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (files keep their names)")
     p.add_argument("--force", action="store_true",
                    help="write into a DIR that already holds files (removing the previous run's outputs)")
-    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
+                   "grinder; a serial chain (e.g. ur5) compensates joint programs with its calibration.json")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
     p.add_argument("--seed", type=int, default=0, help="seed of the stochastic solvers (ga, batched-ga)")
     p.add_argument("--allow", nargs="?", const="all", default=None, metavar="GUARDS",
@@ -116,6 +118,13 @@ def parse_max_segment(text):
 
 
 def run(args) -> int:
+    if args.machine is not None:
+        m = load_machine(args.machine)
+        if m.kind == "serial":
+            from ..workflows.arm_compensate import run_arm_compensate
+            return run_arm_compensate(m, args)
+    if args.method is None:
+        raise UsageError("the following arguments are required: --method")
     if args.show < 1:
         raise UsageError("--show must be >= 1")
     if not (np.isfinite(args.arc_tolerance_um) and args.arc_tolerance_um > 0):

@@ -1,0 +1,78 @@
+"""The arm calibration report (``volcomp calibrate --machine ARM``): ``report.html`` (``arm_calibrate.html``).
+
+Per-pose held-out errors of every stage, the residual over the workspace (held-out tool points
+coloured by the kept stage's error) and the geometric stage's 95 % prediction band (J Σ Jᵀ) beside
+the residual it should cover.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .figures import pyplot
+from .toolkit import Table, figure, render_page, write_page
+
+FIG_DPI = 100
+Z95 = 1.959963984540054
+
+
+def _figures(chain, core, check) -> list:
+    plt = pyplot()
+    geo = core["geometric_model"]
+    pred = geo.predict(check.q)
+    e = {"nominal": np.linalg.norm(check.xyz_mm - chain.tool_point(check.q), axis=1),
+         "geometric": np.linalg.norm(check.xyz_mm - pred, axis=1)}
+    if core["learner"] is not None:
+        e["learned"] = np.linalg.norm(check.xyz_mm - pred - core["learner"].predict(check.q), axis=1)
+    figs = []
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    order = np.argsort(e["geometric"])
+    for k, v in e.items():
+        ax.plot(v[order], "o", ms=3, label=f"{k} (mean {v.mean():.3g} mm)")
+    ax.set_yscale("log")
+    ax.set_xlabel("held-out pose (sorted by geometric error)")
+    ax.set_ylabel("|measured − model| (mm)")
+    ax.legend(fontsize=8)
+    figs.append(figure(fig, "per-pose errors", "Measured residual per held-out pose, each stage.", dpi=FIG_DPI))
+    kept = e[core["kept_stage"]] if core["kept_stage"] in e else e["geometric"]
+    fig, axs = plt.subplots(1, 2, figsize=(8, 3.5))
+    for ax, (i, j, lab) in zip(axs, ((0, 1, "x–y"), (0, 2, "x–z"))):
+        sc = ax.scatter(check.xyz_mm[:, i], check.xyz_mm[:, j], c=kept, s=10, cmap="viridis")
+        ax.set_xlabel("xyz"[i] + " (mm)")
+        ax.set_ylabel("xyz"[j] + " (mm)")
+        ax.set_title(lab)
+    fig.colorbar(sc, ax=axs, label=f"{core['kept_stage']} error (mm)")
+    figs.append(figure(fig, "residual over the workspace", "Held-out tool points coloured by the kept stage's "
+                       "measured residual.", dpi=FIG_DPI))
+    band = np.sqrt(geo.band_std_mm(check.q) ** 2 + geo.sigma_mm ** 2)
+    r = check.xyz_mm - pred
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.plot(np.abs(r).ravel(), "o", ms=2, label="|residual| per component")
+    ax.plot(Z95 * band.ravel(), "-", lw=1, color="tab:red", label="95 % prediction band (J Σ Jᵀ + σ²)")
+    ax.set_xlabel("held-out pose × component")
+    ax.set_ylabel("mm")
+    cov = float(np.mean(np.abs(r) <= Z95 * band))
+    ax.set_title(f"geometric stage: {100 * cov:.1f} % of components inside the 95 % band")
+    ax.legend(fontsize=8)
+    figs.append(figure(fig, "prediction bands", "Geometric stage's 95 % prediction band and the held-out residual.",
+                       dpi=FIG_DPI))
+    return figs
+
+
+def write_report(doc: dict, chain, core, check, out) -> Path:
+    """``out/report.html`` (atomic) of an arm calibration."""
+    rows = [[("stage: " if i < len(doc["stages"]) else "baseline: ") + r["name"], r["mean_mm"], r["rms_mm"],
+             r["max_mm"], r["what"]] for i, r in enumerate(doc["stages"] + doc["baselines"])]
+    stages = Table(["model", "mean (mm)", "RMS (mm)", "max (mm)", "what"], rows, digits=4)
+    combos = Table(["unidentifiable combination (scaled null-space direction)"],
+                   [[c] for c in doc["geometric"]["unidentifiable_combinations"]])
+    params = Table(["slot", "value", "std error"], [[p["name"], p["value"], p["std"]]
+                                                   for p in doc["geometric"]["parameters"] if p["identified"]], digits=4)
+    ls = doc.get("learned_summary")
+    learned = None if ls is None else Table(["family", "CV mean (mm)", "CV RMS (mm)", "95 % coverage (CV)"],
+                                            [[r["family"], r["cv_mean_mm"], r["cv_rms_mm"], r["coverage95"]]
+                                             for r in ls["cv_table"]], digits=4)
+    page = render_page("arm_calibrate.html", title=f"arm calibration: {chain.name}", doc=doc, stages=stages,
+                       combos=combos, parameters=params, learned=learned, figures=_figures(chain, core, check))
+    return write_page(Path(out) / "report.html", page)

@@ -1,0 +1,75 @@
+"""``volcomp compensate PROGRAM.csv --machine ur5 --model DIR/calibration.json --out DIR``: arm joint commands.
+
+Each input is a measured-pose-style CSV of the arm: the joint columns (``q1_deg …``: the joint program,
+also Newton's starting point) and optionally target tool points ``x_mm, y_mm, z_mm``; without them the
+targets are the nominal chain's tool points at the programmed joints (the program's intent). The
+output ``DIR/<same name>`` holds the compensated joint columns, the targets and the MODEL residual
+(``model_residual_mm``: target − calibrated model at the compensated joints); a point that did not
+converge or leaves the joint limits fails the file (exit 3, nothing written for it).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from errormap.io import InputError, read_table, write_csv
+
+from compensation.app.cli import UsageError
+
+from ...arm_compensation import solve_joints
+from .arm_calibration import load_arm_model
+
+EXIT_REFUSED = 3
+
+
+def read_program(path, chain):
+    """(q (n, nq), targets (n, 3) or None, rows) of a joint-program / target CSV."""
+    t = read_table(path)
+    t.require(*chain.joint_columns)
+    q = np.stack([t.float(c) for c in chain.joint_columns], 1)
+    lo, hi = chain.joint_lo, chain.joint_hi
+    bad = (q < lo) | (q > hi)
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        raise InputError(f"{path}: row {t.row_number(k)}, column '{chain.joint_columns[j]}': {q[k, j]:g} is outside "
+                         f"the joint's limits [{lo[j]:g}, {hi[j]:g}]")
+    xyz = None
+    if any(c in t for c in ("x_mm", "y_mm", "z_mm")):
+        t.require("x_mm", "y_mm", "z_mm")
+        xyz = np.stack([t.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
+    return q, xyz
+
+
+def run_arm_compensate(chain, args) -> int:
+    if args.method not in (None, "exact"):
+        raise UsageError(f"--method {args.method}: a serial chain is compensated by Newton on its calibrated chain "
+                         "(--method exact or none)")
+    geo, learner = load_arm_model(chain, args.model)
+    out = Path(args.out)
+    srcs = [Path(f) for f in args.files]
+    for s in srcs:
+        if (out / s.name).resolve() == s.resolve():
+            raise UsageError(f"{s}: the output would overwrite the input; choose another --out")
+    jobs = [(s, *read_program(s, chain)) for s in srcs]
+    out.mkdir(parents=True, exist_ok=True)
+    status = 0
+    for src, q, xyz in jobs:
+        target = chain.tool_point(q) if xyz is None else xyz
+        sol = solve_joints(chain, geo.params, learner, target, q)
+        if not sol.converged.all():
+            k = int(np.flatnonzero(~sol.converged)[0])
+            print(f"volcomp compensate: {src}: refused (not written): {int((~sol.converged).sum())} point(s) did not "
+                  f"converge or leave the joint limits, first: point {k}, model residual {sol.residual_mm[k]:.3g} mm")
+            status = EXIT_REFUSED
+            continue
+        cols = {c: sol.q[:, i] for i, c in enumerate(chain.joint_columns)}
+        cols.update({"x_mm": target[:, 0], "y_mm": target[:, 1], "z_mm": target[:, 2],
+                     "model_residual_mm": sol.residual_mm})
+        write_csv(out / src.name, cols, header_comments=(
+            f"compensated for machine {chain.name} with {args.model}",
+            "residual: MODEL residual (target - calibrated model at the compensated joints)",
+            f"tool orientation kept: {sol.orientation_kept}"), float_fmt="%.10g")
+        print(f"{src}: {len(q)} points, model residual max {sol.residual_mm.max():.3g} mm, max joint change "
+              f"{np.abs(sol.q - q).max():.4g} deg -> {out / src.name}")
+    return status

@@ -1,0 +1,129 @@
+"""Measured-pose files of a serial chain (an arm): joint values and the measured tool point.
+
+Schema (``docs/arms.md``): one row per pose, the chain's joint columns ``q1_deg … qN_deg`` (``_mm``
+for prismatic joints; names from the machine file) and the measured tool point ``x_mm, y_mm, z_mm``
+in the chain's base frame (or the tracker's: calibration estimates the base frame); optional
+``sigma_mm`` (per-row measurement standard deviation per component), ``temp_c``, ``time_s``.
+
+Recognised by content, not by name: a file with the schema's columns, or the laser-tracker grid
+layout (``joint_1 … joint_N``, targets ``x_t, y_t, z_t`` and ``x_dif, y_dif, z_dif`` = measured −
+target), read as measured = target + dif (:func:`convert_tracker_grid` writes it in the schema).
+Refused, with one line naming file, row and column: metres where mm are declared, radians where
+degrees are, joint values outside the machine's limits, non-positive ``sigma_mm``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .io import InputError, read_table, write_csv
+
+XYZ = ("x_mm", "y_mm", "z_mm")
+GRID_TARGET = ("x_t", "y_t", "z_t")
+GRID_DIF = ("x_dif", "y_dif", "z_dif")
+METRE_REACH_FRACTION = 1 / 100  # tool points all within 1/100 of the arm's reach (mm) are metres
+RADIAN_SPAN = 0.5                # all revolute columns within ±2π and one spanning ≥ 0.5: radians
+MIN_POSES = 3
+
+
+@dataclass
+class ArmPoses:
+    """Measured poses: ``q`` (n, nq) joint values in the joints' units, ``xyz_mm`` (n, 3),
+    ``sigma_mm`` (n,) or None, ``temp_c``/``time_s`` (n,) or None; ``rows`` file line per pose."""
+
+    q: np.ndarray
+    xyz_mm: np.ndarray
+    sigma_mm: np.ndarray | None
+    temp_c: np.ndarray | None
+    time_s: np.ndarray | None
+    rows: np.ndarray
+    source: str
+    layout: str
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def subset(self, idx) -> "ArmPoses":
+        idx = np.asarray(idx)
+        pick = (lambda a: None if a is None else a[idx])
+        return ArmPoses(self.q[idx], self.xyz_mm[idx], pick(self.sigma_mm), pick(self.temp_c), pick(self.time_s),
+                        self.rows[idx], self.source, self.layout)
+
+
+def chain_reach_mm(chain) -> float:
+    """Sum of the chain's constant translations (mm): an upper bound of its reach."""
+    return float(sum(abs(e.value) for e in chain.ets if e.kind == "t"))
+
+
+def read_arm_poses(path, chain) -> ArmPoses:
+    """Read and check a measured-pose file of ``chain`` (schema or tracker-grid layout)."""
+    t = read_table(path)
+    nq = chain.n_joints
+    grid_cols = [f"joint_{i + 1}" for i in range(nq)]
+    if all(c in t for c in chain.joint_columns + list(XYZ)):
+        layout, qcols = "schema", chain.joint_columns
+        xyz = np.stack([t.float(c) for c in XYZ], 1)
+    elif all(c in t for c in grid_cols + list(GRID_TARGET) + list(GRID_DIF)):
+        if any(j.type != "revolute" for j in chain.joints):
+            raise InputError(f"{path}: the tracker-grid layout (joint_k in degrees) needs an all-revolute chain")
+        if f"joint_{nq + 1}" in t:
+            raise InputError(f"{path}: column 'joint_{nq + 1}': the file has more joints than machine "
+                             f"{chain.name!r} ({nq})")
+        layout, qcols = "tracker-grid", grid_cols
+        xyz = np.stack([t.float(a) + t.float(b) for a, b in zip(GRID_TARGET, GRID_DIF)], 1)
+    else:
+        have = [c for c in chain.joint_columns + list(XYZ) if c not in t]
+        raise InputError(f"{path}: not a measured-pose file of machine {chain.name!r}: missing column(s) {have} "
+                         f"(expected {chain.joint_columns + list(XYZ)}, or the tracker-grid layout joint_1.., x_t.., "
+                         f"x_dif..); found {t.names}")
+    if len(t) < MIN_POSES:
+        raise InputError(f"{path}: {len(t)} pose(s); calibration needs many more")
+    q = np.stack([t.float(c) for c in qcols], 1)
+    rows = np.array([t.row_number(k) for k in range(len(t))])
+    reach = chain_reach_mm(chain)
+    if np.abs(xyz).max() < METRE_REACH_FRACTION * reach:
+        k = int(np.argmax(np.abs(xyz).max(1)))
+        j = int(np.argmax(np.abs(xyz[k])))
+        raise InputError(f"{path}: row {rows[k]}, column '{(XYZ if layout == 'schema' else GRID_TARGET)[j]}': every "
+                         f"tool point lies within {np.abs(xyz).max():.3g} of the base, the arm reaches ~{reach:.0f} mm: "
+                         "metres rather than mm?")
+    rev = np.array([j.type == "revolute" for j in chain.joints])
+    if rev.any() and np.all(np.abs(q[:, rev]) <= 2 * np.pi + 1e-9) and np.ptp(q[:, rev], axis=0).max() >= RADIAN_SPAN:
+        j = int(np.flatnonzero(rev)[np.argmax(np.ptp(q[:, rev], axis=0))])
+        k = int(np.argmax(np.abs(q[:, j])))
+        raise InputError(f"{path}: row {rows[k]}, column '{qcols[j]}': every revolute joint value lies within ±2π: "
+                         "radians rather than degrees?")
+    lo, hi = chain.joint_lo, chain.joint_hi
+    bad = (q < lo) | (q > hi)
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        raise InputError(f"{path}: row {rows[k]}, column '{qcols[j]}': {q[k, j]:g} {chain.joints[j].unit} is outside "
+                         f"the joint's limits [{lo[j]:g}, {hi[j]:g}] of machine {chain.name!r}")
+    opt = {}
+    for c in ("sigma_mm", "temp_c", "time_s"):
+        opt[c] = t.float(c) if c in t else None
+    if opt["sigma_mm"] is not None and np.any(opt["sigma_mm"] <= 0):
+        k = int(np.argmax(opt["sigma_mm"] <= 0))
+        raise InputError(f"{path}: row {rows[k]}, column 'sigma_mm': expected a positive standard deviation, "
+                         f"got {opt['sigma_mm'][k]:g}")
+    return ArmPoses(q, xyz, opt["sigma_mm"], opt["temp_c"], opt["time_s"], rows, str(path), layout)
+
+
+def write_arm_poses(path, chain, poses: ArmPoses, comments=()) -> None:
+    """Write poses in the schema (``q1_deg … x_mm y_mm z_mm`` [+ optional columns]), atomically."""
+    cols = {c: poses.q[:, i] for i, c in enumerate(chain.joint_columns)}
+    cols.update({c: poses.xyz_mm[:, i] for i, c in enumerate(XYZ)})
+    for c in ("sigma_mm", "temp_c", "time_s"):
+        if getattr(poses, c) is not None:
+            cols[c] = getattr(poses, c)
+    write_csv(path, cols, header_comments=comments, float_fmt="%.10g")
+
+
+def convert_tracker_grid(src, dst, chain) -> ArmPoses:
+    """Convert a tracker-grid file (``joint_k``, ``x_t``, ``x_dif`` …) to the schema: measured = target + dif."""
+    p = read_arm_poses(src, chain)
+    if p.layout != "tracker-grid":
+        raise InputError(f"{src}: already in the measured-pose schema (columns {chain.joint_columns})")
+    write_arm_poses(dst, chain, p, comments=(f"converted from: {src}", "measured = target + dif"))
+    return p

@@ -1,0 +1,206 @@
+"""Machine files of ``kind = "serial"``: a serial chain as a DH / modified-DH table or an ET list.
+
+Schema (``docs/schemas.md``, version 1)::
+
+    [machine]
+    kind = "serial"
+    name = "ur5"
+    schema = 1
+    convention = "dh"          # "dh" | "mdh" | "et"
+
+    [[link]]                   # convention dh / mdh: one per joint, in order
+    joint = "q1"               # joint name (CSV column q1_deg)
+    type = "revolute"          # or "prismatic" (the joint drives θ, resp. d)
+    dh = [0.0, 90.0, 89.159, 0.0]   # a_mm, alpha_deg, d_mm, theta_deg (mdh: a_{i-1}, alpha_{i-1}, d_i, theta_i)
+    limits = [-360.0, 360.0]   # deg (revolute) or mm (prismatic)
+    direction = 1              # optional, +1 / -1
+
+    [[et]]                     # convention et: ordered elementary transforms
+    type = "tz"                # tx ty tz (value mm) / rx ry rz (value deg)
+    value = 89.159             # a fixed transform, or ...
+    joint = "q1"               # ... a joint (with limits, direction; optional error = "name": a zero offset slot)
+
+    [base]                     # optional nominal base frame (default identity)
+    xyz_mm = [0, 0, 0]
+    rotation = [[1,0,0],[0,1,0],[0,0,1]]   # orthonormal, det +1
+    [tool]
+    xyz_mm = [0.0, 0.09, 31.0] # tool point in the last frame
+    [errors]                   # optional
+    beta = true                # Hayati β slot on links with parallel consecutive axes
+    base = true                # 6 base-frame slots
+    tool = true                # 3 tool-point slots
+
+Every error names the file, the table and the key and raises :class:`MachineFileError`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .chain import ET_TYPES, Chain, Joint, base_ets, dh_ets, et, mdh_ets, tool_ets
+from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
+
+SERIAL_SCHEMA_VERSION = 1
+JOINT_TYPES = ("revolute", "prismatic")
+ORTHONORMAL_TOL = 1e-6   # |R Rᵀ − I| of a base rotation typed with 7+ significant digits
+RADIAN_LIKE = (np.pi / 2, np.pi, np.pi / 4)  # an α of 1.5708 is π/2 in radians, not 1.57°
+RADIAN_LIKE_TOL = 1e-3
+
+
+def _joint_limits(d: dict, where: str, jtype: str, path) -> tuple[float, float]:
+    if "limits" not in d:
+        raise MachineFileError(f"{path}: missing key '{where}.limits'")
+    lim = check_array(d["limits"], (2,), f"{where}.limits", path)
+    if not lim[1] > lim[0]:
+        raise MachineFileError(f"{path}: key '{where}.limits': expected [lo, hi] with hi > lo (a zero or inverted "
+                               f"stroke), got {d['limits']!r}")
+    if jtype == "revolute" and np.all(np.abs(lim) <= 2 * np.pi + 1e-9) and lim[1] - lim[0] >= 1.0:
+        raise MachineFileError(f"{path}: key '{where}.limits': {d['limits']!r} lie within ±2π: radians rather than "
+                               "degrees? (revolute limits are in deg)")
+    return float(lim[0]), float(lim[1])
+
+
+def _joint(d: dict, where: str, path, names: set) -> tuple[Joint, float]:
+    name = d.get("joint")
+    if not isinstance(name, str) or not name.isidentifier():
+        raise MachineFileError(f"{path}: key '{where}.joint': expected a joint name (identifier), got {short_repr(name)}")
+    if name in names:
+        raise MachineFileError(f"{path}: key '{where}.joint': duplicate joint name {name!r}")
+    names.add(name)
+    jtype = d.get("type", "revolute")
+    if jtype not in JOINT_TYPES:
+        raise MachineFileError(f"{path}: key '{where}.type': expected one of {list(JOINT_TYPES)}, got {short_repr(jtype)}")
+    lo, hi = _joint_limits(d, where, jtype, path)
+    sign = check_number(d, "direction", where, path) if "direction" in d else 1.0
+    if sign not in (1.0, -1.0):
+        raise MachineFileError(f"{path}: key '{where}.direction': expected 1 or -1, got {short_repr(d['direction'])}")
+    return Joint(name, jtype, lo, hi), sign
+
+
+def _dh_links(links, path, convention: str):
+    rows, types, signs, joints, names = [], [], [], [], set()
+    if not isinstance(links, list) or not links:
+        raise MachineFileError(f"{path}: missing or empty table array '[[link]]' (convention {convention!r})")
+    for i, d in enumerate(links):
+        where = f"link[{i}]"
+        if not isinstance(d, dict):
+            raise MachineFileError(f"{path}: '{where}': expected a table, got {short_repr(d)}")
+        check_known_keys(d, ("joint", "type", "dh", "limits", "direction"), where, path)
+        j, sign = _joint(d, where, path, names)
+        if "dh" not in d:
+            raise MachineFileError(f"{path}: missing key '{where}.dh' ([a_mm, alpha_deg, d_mm, theta_deg])")
+        if not isinstance(d["dh"], list) or len(d["dh"]) != 4:
+            n = len(d["dh"]) if isinstance(d["dh"], list) else "no"
+            raise MachineFileError(f"{path}: key '{where}.dh': expected 4 columns [a_mm, alpha_deg, d_mm, theta_deg], "
+                                   f"got {n} ({short_repr(d['dh'])})")
+        a, al, dd, th = check_array(d["dh"], (4,), f"{where}.dh", path)
+        for v, col in ((al, "alpha_deg"), (th, "theta_deg")):
+            if v != 0 and any(abs(abs(v) - r) < RADIAN_LIKE_TOL for r in RADIAN_LIKE):
+                raise MachineFileError(f"{path}: key '{where}.dh' ({col}): {v:g} is a multiple of π in radians; "
+                                       "angles are in degrees")
+        rows.append((a, np.radians(al), dd, np.radians(th)))
+        types.append(j.type)
+        signs.append(sign)
+        joints.append(j)
+    return rows, types, signs, joints
+
+
+def _et_list(items, path):
+    ets, joints, names = [], [], set()
+    if not isinstance(items, list) or not items:
+        raise MachineFileError(f"{path}: missing or empty table array '[[et]]' (convention 'et')")
+    for i, d in enumerate(items):
+        where = f"et[{i}]"
+        if not isinstance(d, dict):
+            raise MachineFileError(f"{path}: '{where}': expected a table, got {short_repr(d)}")
+        check_known_keys(d, ("type", "value", "joint", "limits", "direction", "error"), where, path)
+        t = d.get("type")
+        if t not in ET_TYPES:
+            raise MachineFileError(f"{path}: key '{where}.type': expected one of {list(ET_TYPES)}, got {short_repr(t)}")
+        rot = t[0] == "r"
+        if "joint" in d:
+            if "value" in d:
+                raise MachineFileError(f"{path}: key '{where}.value': a joint transform takes no value")
+            dj = dict(d)
+            dj.setdefault("type", None)
+            dj["type"] = "revolute" if rot else "prismatic"
+            j, sign = _joint({k: v for k, v in dj.items() if k in ("joint", "type", "limits", "direction")},
+                             where, path, names)
+            slot = d.get("error")
+            if slot is not None and (not isinstance(slot, str) or not slot):
+                raise MachineFileError(f"{path}: key '{where}.error': expected a slot name, got {short_repr(slot)}")
+            ets.append(et(t, 0.0, joint=len(joints), sign=sign,
+                          slot=None if slot is None else f"{j.name}.{slot}_{'rad' if rot else 'mm'}"))
+            joints.append(j)
+        else:
+            for k in ("limits", "direction"):
+                if k in d:
+                    raise MachineFileError(f"{path}: key '{where}.{k}': only a joint transform has {k}")
+            if "error" in d:
+                raise MachineFileError(f"{path}: key '{where}.error': an error slot on a fixed transform; link errors "
+                                       "belong to a [[link]] table (convention dh/mdh) or to a joint's offset")
+            v = check_number(d, "value", where, path)
+            ets.append(et(t, np.radians(v) if rot else v))
+    return ets, joints
+
+
+def _rotation(b: dict, path) -> np.ndarray:
+    if "rotation" not in b:
+        return np.eye(3)
+    R = check_array(b["rotation"], (3, 3), "base.rotation", path)
+    if np.abs(R @ R.T - np.eye(3)).max() > ORTHONORMAL_TOL or np.linalg.det(R) < 0:
+        raise MachineFileError(f"{path}: key 'base.rotation': not an orthonormal right-handed rotation "
+                               f"(|R Rᵀ − I| = {np.abs(R @ R.T - np.eye(3)).max():.3g}, det {np.linalg.det(R):.6g})")
+    return R
+
+
+def parse_serial(doc: dict, path, sha: str = "") -> Chain:
+    """Validate a parsed ``kind = "serial"`` machine file and compile its chain."""
+    check_known_keys(doc, ("machine", "link", "et", "base", "tool", "errors"), "", path)
+    m = check_table(doc, "machine", path)
+    check_known_keys(m, ("kind", "name", "schema", "convention", "description"), "machine", path)
+    name = m.get("name", "serial")
+    if not isinstance(name, str):
+        raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {short_repr(name)}")
+    ver = m.get("schema", SERIAL_SCHEMA_VERSION)
+    if ver != SERIAL_SCHEMA_VERSION:
+        raise MachineFileError(f"{path}: key 'machine.schema': this volcomp reads serial schema "
+                               f"{SERIAL_SCHEMA_VERSION}, got {short_repr(ver)}")
+    conv = m.get("convention")
+    if conv not in ("dh", "mdh", "et"):
+        raise MachineFileError(f"{path}: key 'machine.convention': expected one of ['dh', 'mdh', 'et'], got {short_repr(conv)}")
+    if conv == "et" and "link" in doc or conv != "et" and "et" in doc:
+        raise MachineFileError(f"{path}: key 'machine.convention': {conv!r} does not go with "
+                               f"{'[[link]]' if conv == 'et' else '[[et]]'}")
+    e = doc.get("errors", {})
+    if not isinstance(e, dict):
+        raise MachineFileError(f"{path}: 'errors': expected a table")
+    check_known_keys(e, ("beta", "base", "tool"), "errors", path)
+    flags = {}
+    for k in ("beta", "base", "tool"):
+        v = e.get(k, True)
+        if not isinstance(v, bool):
+            raise MachineFileError(f"{path}: key 'errors.{k}': expected true or false, got {short_repr(v)}")
+        flags[k] = v
+    b = doc.get("base", {})
+    if not isinstance(b, dict):
+        raise MachineFileError(f"{path}: 'base': expected a table")
+    check_known_keys(b, ("xyz_mm", "rotation"), "base", path)
+    base_xyz = check_array(b["xyz_mm"], (3,), "base.xyz_mm", path) if "xyz_mm" in b else np.zeros(3)
+    R = _rotation(b, path)
+    from scipy.spatial.transform import Rotation
+    rx, ry, rz = Rotation.from_matrix(R).as_euler("ZYX")[::-1]  # R = Rz Ry Rx
+    t = check_table(doc, "tool", path)
+    check_known_keys(t, ("xyz_mm",), "tool", path)
+    if "xyz_mm" not in t:
+        raise MachineFileError(f"{path}: missing key 'tool.xyz_mm'")
+    tool = check_array(t["xyz_mm"], (3,), "tool.xyz_mm", path)
+    if conv == "et":
+        body, joints = _et_list(doc.get("et"), path)
+    else:
+        rows, types, signs, joints = _dh_links(doc.get("link"), path, conv)
+        body = (dh_ets if conv == "dh" else mdh_ets)(rows, types, signs, beta=flags["beta"])
+    ets = base_ets(base_xyz, (rx, ry, rz), slots=flags["base"]) + body + tool_ets(tool, slots=flags["tool"])
+    try:
+        return Chain.compile(ets, joints, name=name, path=str(path), sha256=sha, convention=conv)
+    except ValueError as exc:
+        raise MachineFileError(f"{path}: {exc}") from None
