@@ -39,6 +39,7 @@ def _frame(cols):
 
 
 # -- causality -------------------------------------------------------------------------------
+@pytest.mark.slow  # over the 5 CPU s tier limit (README "Tests and benchmarks")
 def test_predictions_before_t_do_not_change_when_later_samples_change():
     cols, _ = _small_log()
     log = _frame(cols)
@@ -117,6 +118,7 @@ def test_horizon_gate_is_a_one_standard_error_rule():
     assert not horizon_gate(ols, [1.1, 1.2, 1.05, 1.3], k_se=0.0)[0]
 
 
+@pytest.mark.slow  # over the 5 CPU s tier limit (README "Tests and benchmarks")
 def test_selection_takes_the_eligible_candidate_of_largest_gain_over_ols():
     cols = simulate_rod_log(0, hours=16, dt_s=60, n_dropouts=0)
     cols.pop("_truth")
@@ -270,6 +272,7 @@ def test_bad_logs_one_line_exit_2_nothing_written(tmp_path, case, capsys):
     assert not out.exists()
 
 
+@pytest.mark.slow  # over the 5 CPU s tier limit (README "Tests and benchmarks")
 def test_short_gap_is_interpolated_long_gap_and_stuck_sensor_are_dropped_and_reported(tmp_path, capsys):
     cols, _ = _small_log(hours=24)               # 60 s rows
     cols["temp_s2_c"][100:105] = np.nan           # 6 min: filled

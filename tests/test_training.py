@@ -503,6 +503,7 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
     assert best.metrics["selection_max_um"] <= sel_last * (1 + SELECTION_TOL_REL)
 
 
+@pytest.mark.slow  # over the 5 CPU s tier limit (README "Tests and benchmarks")
 def test_cli_train_is_reproducible_and_a_time_budget_says_how_to_repeat_it(tmp_path, monkeypatch, capsys):
     """Default training stops on iterations; a --max-time run records the iterations it reached,
     and --max-iter with that number gives the same weights bit for bit."""
