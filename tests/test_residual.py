@@ -76,14 +76,21 @@ def test_decays_to_zero_far_from_data(fitted):
     assert np.all(s > inside)       # the band grows where there is no data
 
 
+ROUND_TRIP_RTOL = 1e-9  # rounding of the re-solved weights (see the test), far below any fitted effect
+
+
 @pytest.mark.slow  # shares the ~15 s CPU fit of the fixture
 def test_json_round_trip_predicts_identically(fitted):
     doc = json.loads(json.dumps(fitted.to_dict()))
     assert doc["format"] == FORMAT
     back = ResidualRegressor.from_dict(doc)
     X = np.random.default_rng(3).uniform(-1.5, 1.5, (50, 3))
-    np.testing.assert_array_equal(back.predict(X), fitted.predict(X))
-    np.testing.assert_array_equal(back.predict_and_jacobian(X)[1], fitted.predict_and_jacobian(X)[1])
+    # loading re-solves the GP weights from the stored data and hyper-parameters (Cholesky): the same
+    # numbers up to the solve's rounding, which depends on the BLAS thread count the fit ran with
+    # (measured 1e-11 relative under pytest-xdist); anything above that is a real round-trip loss
+    np.testing.assert_allclose(back.predict(X), fitted.predict(X), rtol=ROUND_TRIP_RTOL, atol=0)
+    np.testing.assert_allclose(back.predict_and_jacobian(X)[1], fitted.predict_and_jacobian(X)[1],
+                               rtol=ROUND_TRIP_RTOL, atol=ROUND_TRIP_RTOL)
     assert back.chosen_ == "gp" and back.cv_table_ == doc["cv_table"]
     with pytest.raises(ValueError, match="format"):
         ResidualRegressor.from_dict({"format": "something-else"})
