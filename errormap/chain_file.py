@@ -44,6 +44,14 @@ JOINT_TYPES = ("revolute", "prismatic")
 ORTHONORMAL_TOL = 1e-6   # |R Rᵀ − I| of a base rotation typed with 7+ significant digits
 RADIAN_LIKE = (np.pi / 2, np.pi, np.pi / 4)  # an α of 1.5708 is π/2 in radians, not 1.57°
 RADIAN_LIKE_TOL = 1e-3
+# Units by content (a length column holding degrees, a file or a tool point in metres):
+ANGLE_MAX_DEG = 360.0          # a DH angle beyond ±360° is no angle anyone writes: a length in its column
+RIGHT_ANGLES_DEG = (90.0, 180.0, 270.0, 360.0)  # what an angle column holds; a length column of only these is angles
+ANGLE_COLUMN_MIN = 2           # nonzero entries a length column needs before its pattern says "degrees": one
+                               # 90 or 180 mm link is a plausible length (real arms have them), two and none else not
+METRES_REACH_MM = 10.0         # every length of the chain (links + tool) adds up to under 10 mm: metres typed as mm
+TOOL_METRES_RATIO = 1e-3       # a nonzero tool point under 1/1000 of the links' summed lengths: metres (a 31 mm
+                               # reflector on a 1.2 m UR5 is 0.026 of it; the same point in metres 2.6e-5)
 
 
 def _joint_limits(d: dict, where: str, jtype: str, path) -> tuple[float, float]:
@@ -94,6 +102,10 @@ def _dh_links(links, path, convention: str):
                                    f"got {n} ({short_repr(d['dh'])})")
         a, al, dd, th = check_array(d["dh"], (4,), f"{where}.dh", path)
         for v, col in ((al, "alpha_deg"), (th, "theta_deg")):
+            if abs(v) > ANGLE_MAX_DEG:
+                raise MachineFileError(f"{path}: key '{where}.dh' ({col}): {v:g} is beyond ±{ANGLE_MAX_DEG:g}°: a length "
+                                       "in mm where an angle in degrees is expected? (columns [a_mm, alpha_deg, d_mm, "
+                                       "theta_deg])")
             if v != 0 and any(abs(abs(v) - r) < RADIAN_LIKE_TOL for r in RADIAN_LIKE):
                 raise MachineFileError(f"{path}: key '{where}.dh' ({col}): {v:g} is a multiple of π in radians; "
                                        "angles are in degrees")
@@ -141,6 +153,36 @@ def _et_list(items, path):
             v = check_number(d, "value", where, path)
             ets.append(et(t, np.radians(v) if rot else v))
     return ets, joints
+
+
+def _is_right_angle(v: float) -> bool:
+    return any(abs(abs(v) - r) < 1e-9 for r in RIGHT_ANGLES_DEG)
+
+
+def check_length_units(lengths, tool_mm, path) -> None:
+    """Refuse lengths that are degrees or metres, by content. ``lengths``: ``(key, column, value_mm)`` of
+    every fixed length of the chain (a DH row's a and d, an ET translation), in file order; ``tool_mm``
+    (3,). Three patterns: a length column whose nonzero entries (at least ``ANGLE_COLUMN_MIN``) are all
+    right angles (degrees in the wrong column); every length together under ``METRES_REACH_MM`` (a file
+    in metres); a nonzero tool point under ``TOOL_METRES_RATIO`` of the links' lengths (a tool in metres)."""
+    for col in dict.fromkeys(c for _, c, _ in lengths):
+        nz = [(k, v) for k, c, v in lengths if c == col and v != 0]
+        if len(nz) >= ANGLE_COLUMN_MIN and all(_is_right_angle(v) for _, v in nz):
+            key, v = nz[0]
+            raise MachineFileError(f"{path}: key '{key}' ({col}): {v:g}; every nonzero {col} of the chain is a right "
+                                   f"angle ({', '.join(f'{x:g}' for _, x in nz)}): degrees where lengths in mm are "
+                                   "expected? (dh columns are [a_mm, alpha_deg, d_mm, theta_deg])")
+    links_mm = float(sum(abs(v) for _, _, v in lengths))
+    tool_norm = float(np.linalg.norm(tool_mm))
+    if 0 < links_mm + tool_norm < METRES_REACH_MM:
+        key, col, v = max(lengths, key=lambda t: abs(t[2])) if links_mm >= tool_norm else ("tool.xyz_mm", "", tool_norm)
+        raise MachineFileError(f"{path}: key '{key}'{f' ({col})' if col else ''}: every length of the chain adds up "
+                               f"to {links_mm + tool_norm:.4g} mm (largest {abs(v):g}): metres rather than mm? "
+                               "(lengths are in mm)")
+    if 0 < tool_norm < TOOL_METRES_RATIO * links_mm:
+        raise MachineFileError(f"{path}: key 'tool.xyz_mm': a tool point {tool_norm:.4g} mm from the last frame on a "
+                               f"chain whose links add up to {links_mm:.4g} mm: metres rather than mm? (lengths are "
+                               "in mm; the flange point itself is [0, 0, 0])")
 
 
 def _rotation(b: dict, path) -> np.ndarray:
@@ -196,9 +238,13 @@ def parse_serial(doc: dict, path, sha: str = "") -> Chain:
     tool = check_array(t["xyz_mm"], (3,), "tool.xyz_mm", path)
     if conv == "et":
         body, joints = _et_list(doc.get("et"), path)
+        lengths = [(f"et[{i}].value", "translation", e.value) for i, e in enumerate(body)
+                   if e.kind == "t" and e.joint is None]
     else:
         rows, types, signs, joints = _dh_links(doc.get("link"), path, conv)
         body = (dh_ets if conv == "dh" else mdh_ets)(rows, types, signs, beta=flags["beta"])
+        lengths = [(f"link[{i}].dh", col, v) for i, r in enumerate(rows) for col, v in (("a_mm", r[0]), ("d_mm", r[2]))]
+    check_length_units(lengths, tool, path)
     ets = base_ets(base_xyz, (rx, ry, rz), slots=flags["base"]) + body + tool_ets(tool, slots=flags["tool"])
     try:
         return Chain.compile(ets, joints, name=name, path=str(path), sha256=sha, convention=conv)

@@ -119,6 +119,58 @@ def test_bad_machine_files_name_table_and_key(edit, words):
         assert w in msg
 
 
+def _builtin_doc(name):
+    import tomllib
+    return tomllib.loads((Path(load_machine(name).path)).read_text())
+
+
+def _swap_a_alpha(d):
+    """Every row typed [alpha, a, d, theta]: the a and alpha columns exchanged."""
+    for link in d["link"]:
+        link["dh"][0], link["dh"][1] = link["dh"][1], link["dh"][0]
+
+
+def _in_metres(d):
+    for link in d["link"]:
+        link["dh"][0] /= 1000
+        link["dh"][2] /= 1000
+    d["tool"]["xyz_mm"] = [v / 1000 for v in d["tool"]["xyz_mm"]]
+
+
+@pytest.mark.parametrize("name,edit,words", [
+    # the WAM's α column (±90) typed in the a column: a = -90, 90, -90, … (its a column holds ±45 mm)
+    ("wam", _swap_a_alpha, ["link[0].dh", "a_mm", "right angle", "degrees where lengths in mm"]),
+    # the UR5's a column (-425 mm) typed in the α column: an angle beyond ±360°
+    ("ur5", _swap_a_alpha, ["link[1].dh", "alpha_deg", "-425", "a length in mm where an angle"]),
+    ("ur5", lambda d: d["tool"].update(xyz_mm=[0.0, 0.00009, 0.031]), ["tool.xyz_mm", "metres rather than mm"]),
+    ("ur5", _in_metres, ["link[1].dh", "a_mm", "adds up to", "metres rather than mm"]),
+    # the d column holding 90° wherever the UR5 has an offset
+    ("ur5", lambda d: [lk.update(dh=[lk["dh"][0], lk["dh"][1], 90.0 if lk["dh"][2] else 0.0, lk["dh"][3]])
+                       for lk in d["link"]], ["link[0].dh", "d_mm", "right angle"]),
+])
+def test_lengths_in_degrees_or_metres_refused(name, edit, words):
+    """Units by content: degrees in a length column, an angle column holding a length, a file or a tool point in
+    metres. One line naming file, table and key."""
+    d = _builtin_doc(name)
+    edit(d)
+    with pytest.raises(MachineFileError) as ei:
+        parse_serial(d, "bad.toml")
+    msg = str(ei.value)
+    assert msg.startswith("bad.toml: ") and "\n" not in msg
+    for w in words:
+        assert w in msg, msg
+
+
+def test_plausible_lengths_are_not_refused():
+    """One 90 mm and one 180 mm link in different columns (real arms have such lengths), a tool at the flange
+    ([0, 0, 0]) and a sub-mm tool offset on a short chain are lengths, not degrees or metres."""
+    links = [{"joint": "q1", "dh": [90.0, 90.0, 180.0, 0.0], "limits": [-170.0, 170.0]},
+             {"joint": "q2", "dh": [300.0, 0.0, 0.0, 0.0], "limits": [-170.0, 170.0]}]
+    for tool in ([0.0, 0.0, 0.0], [0.0, 0.0, 0.8]):
+        c = parse_serial({"machine": {"kind": "serial", "convention": "dh"}, "link": links, "tool": {"xyz_mm": tool}}, "x")
+        assert c.n_joints == 2
+
+
 def test_error_slot_on_fixed_transform_refused():
     d = {"machine": {"kind": "serial", "convention": "et"}, "tool": {"xyz_mm": [0, 0, 0]},
          "et": [{"type": "rz", "joint": "q1", "limits": [-180.0, 180.0]}, {"type": "tx", "value": 3.0, "error": "da"}]}

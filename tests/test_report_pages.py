@@ -1,6 +1,7 @@
 """Every report page kind rendered in headless Chromium: no console errors, every image loads.
 
-One page of each kind — demo, report, diagnose, drift, calibrate, interpolate, benchmark — is written
+One page of each kind — demo, report, diagnose, drift, calibrate (a hexapod's and an arm's), interpolate,
+benchmark — is written
 by the code that writes it for the user, from small simulated inputs, then loaded from disk in one
 headless Chromium (DevTools protocol over a pipe, tests/chromium_cdp.py). Asserted per page: no
 console/log error, at least one ``<img>`` and every one decoded (complete, naturalWidth > 0), the one
@@ -20,11 +21,16 @@ from errormap.io import write_csv
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="headless Chromium not installed (apt-get install chromium)")
 
-KINDS = ("demo", "report", "diagnose", "drift", "calibrate", "interpolate", "benchmark")
+KINDS = ("demo", "report", "diagnose", "drift", "calibrate", "calibrate-arm", "interpolate", "benchmark")
+PAGE_KIND = {"calibrate-arm": "calibrate"}   # the page's own kind (brand line) where it differs from the writer's key
 POSE_NOISE_UM = 5.0        # as tests/test_pkm_cli.py
 CHECK_NOISE_UM = 1.0       # as tests/test_diagnosis.py
 N_CHECKS = 160             # enough for the worm harmonic to be found (a figure per effect), small enough to be fast
 N_POSES = 60
+N_ARM_POSES = 80           # a simulated UR5: enough for the 27 identifiable slots and a 2-fold learned stage
+ARM_NOISE_MM = 0.02        # tracker noise, as tests/test_arm_calibration.py
+ARM_LO_DEG = (-60.0, -120.0, 30.0, -120.0, 40.0, -30.0)   # the real UR5 grid's joint ranges
+ARM_HI_DEG = (60.0, -30.0, 140.0, 30.0, 150.0, 30.0)
 
 
 def _comparison(grinder):
@@ -86,6 +92,20 @@ def _calibrate(root, grinder):
     return root / "cal" / "report.html"
 
 
+def _calibrate_arm(root, grinder):
+    """A serial arm (built-in ur5, simulated link errors + sag + noise) with the learned stage: every section."""
+    from errormap.arm_poses import write_arm_poses
+    from errormap.arm_simulate import draw_truth, measure, random_joints
+    from errormap.machine import load_machine
+    ur5 = load_machine("ur5")
+    truth = draw_truth(ur5, 21)
+    q = random_joints(ARM_LO_DEG, ARM_HI_DEG, N_ARM_POSES, [21, 0])
+    write_arm_poses(root / "arm.csv", ur5, measure(ur5, truth, q, ARM_NOISE_MM, [21, 1]))
+    assert main(["calibrate", str(root / "arm.csv"), "--machine", "ur5", "--out", str(root / "arm-cal"),
+                 "--folds", "2"]) == 0
+    return root / "arm-cal" / "report.html"
+
+
 def _demo(root, grinder):
     """The real demo, tiny (as tests/test_demo.py): simulate → train → compensate → report."""
     out = root / "demo"
@@ -97,7 +117,7 @@ def _demo(root, grinder):
 FAST = {"report": _report, "diagnose": _diagnose, "drift": _drift, "interpolate": _interpolate,
         "benchmark": _benchmark}
 """Page kinds written in the default run (small inputs; ~40 s on a 2-core machine under load)."""
-SLOW = {"calibrate": _calibrate, "demo": _demo}
+SLOW = {"calibrate": _calibrate, "calibrate-arm": _calibrate_arm, "demo": _demo}
 """Page kinds whose writers are end-to-end runs (calibration, training): marked slow, still run in CI."""
 
 
@@ -129,7 +149,7 @@ def _assert_renders(page, kind, browser):
     assert all(u == seen.url or u.startswith("data:") for u in seen.requests), seen.requests   # works offline
     assert seen.title and seen.h1 == seen.title
     text = page.read_text(encoding="utf-8")
-    assert f"volcomp · {kind}</p>" in text and "<nav>" in text     # the one layout: brand, title, navigation
+    assert f"volcomp · {PAGE_KIND.get(kind, kind)}</p>" in text and "<nav>" in text     # the one layout: brand, title, navigation
     assert not re.search(r"\(um\)|\bum\b", re.sub(r"<[^>]+>", " ", text))   # μm, never "um"
     return seen
 
@@ -194,3 +214,21 @@ def test_the_calibration_page_escapes_names(pages):
     doc["notes"] = [hostile]
     page = render_html(doc, figures=[])
     assert "<script>" not in page and page.count("&lt;script&gt;") == 4   # <title>, <h1>, a note, a parameter
+
+
+@pytest.mark.slow
+def test_the_arm_calibration_page_escapes_names_and_shows_every_section(pages):
+    """The arm page prints names from the user's machine file (machine, slots) and the rule's words escaped,
+    and has every section of a run with the learned stage."""
+    from compensation.app.reports.arm_calibration import render_html
+    page = pages("calibrate-arm").read_text(encoding="utf-8")
+    for section in ("stages", "identifiability", "learned", "figures", "parameters"):
+        assert f'<h2 id="{section}">' in page
+    doc = json.loads((pages("calibrate-arm").parent / "calibration.json").read_text())
+    hostile = '<script>alert("x")</script>'
+    doc["machine"]["name"] = hostile
+    doc["notes"] = [hostile]
+    doc["kept_why"] = hostile
+    doc["geometric"]["parameters"][0].update(name=hostile, identified=True)
+    page = render_html(doc, figures=[])
+    assert "<script>" not in page and page.count("&lt;script&gt;") == 5   # <title>, <h1>, banner, a note, a slot

@@ -60,8 +60,8 @@ def _figures(chain, core, check) -> list:
     return figs
 
 
-def write_report(doc: dict, chain, core, check, out) -> Path:
-    """``out/report.html`` (atomic) of an arm calibration."""
+def render_html(doc: dict, figures=()) -> str:
+    """The page of an arm calibration document (``calibration.json``) with the given figures."""
     rows = [[("stage: " if i < len(doc["stages"]) else "baseline: ") + r["name"], r["mean_mm"], r["rms_mm"],
              r["max_mm"], r["what"]] for i, r in enumerate(doc["stages"] + doc["baselines"])]
     stages = Table(["model", "mean (mm)", "RMS (mm)", "max (mm)", "what"], rows, digits=4)
@@ -73,6 +73,10 @@ def write_report(doc: dict, chain, core, check, out) -> Path:
     learned = None if ls is None else Table(["family", "CV mean (mm)", "CV RMS (mm)", "95 % coverage (CV)"],
                                             [[r["family"], r["cv_mean_mm"], r["cv_rms_mm"], r["coverage95"]]
                                              for r in ls["cv_table"]], digits=4)
-    page = render_page("arm_calibrate.html", title=f"arm calibration: {chain.name}", doc=doc, stages=stages,
-                       combos=combos, parameters=params, learned=learned, figures=_figures(chain, core, check))
-    return write_page(Path(out) / "report.html", page)
+    return render_page("arm_calibrate.html", title=f"arm calibration: {doc['machine']['name']}", doc=doc,
+                       stages=stages, combos=combos, parameters=params, learned=learned, figures=list(figures))
+
+
+def write_report(doc: dict, chain, core, check, out) -> Path:
+    """``out/report.html`` (atomic) of an arm calibration."""
+    return write_page(Path(out) / "report.html", render_html(doc, _figures(chain, core, check)))

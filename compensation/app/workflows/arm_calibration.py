@@ -81,7 +81,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     if e_plain.mean() < e_geo.mean():
         geo_kept, e_geo_kept = plain, e_plain
         notes.append(f"the plain least-squares calibration beat volcomp's geometric stage on the held-out poses "
-                     f"({e_plain.mean():.4f} vs {e_geo.mean():.4f} mm mean): it is the geometric stage returned")
+                     f"({e_plain.mean():.6f} vs {e_geo.mean():.6f} mm mean): it is the geometric stage returned")
     else:
         e_geo_kept = e_geo
     stages = [stage_row("nominal", nominal, "nominal chain of the machine file"),
