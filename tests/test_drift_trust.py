@@ -120,3 +120,23 @@ def test_export_without_log_checks_on_the_fitting_log_or_asks_for_log(tmp_path, 
     assert main(["export", str(model), "--format", "drift", "--out", str(tmp_path / "o2")]) == 2
     err = [e for e in capsys.readouterr().err.splitlines() if "error" in e]
     assert len(err) == 1 and "--log" in err[0] and "not found" in err[0], err
+
+
+@pytest.mark.slow  # fits a drift model (over the 5 CPU s tier limit)
+def test_log_in_fahrenheit_is_refused_and_as_written_is_recorded(tmp_path, capsys):
+    """Issue 30: a drift log whose temperatures are in °F passed (−40 … 150 °C holds 68–110 °F)."""
+    cols = _cols()
+    temps = [c for c in cols if c.startswith("temp_")]
+    for c in temps:
+        cols[c] = np.asarray(cols[c]) * 1.8 + 32.0
+    write_csv(tmp_path / "log.csv", cols)
+    out = tmp_path / "out"
+    assert main(["diagnose", "--drift", str(tmp_path / "log.csv"), "--out", str(out)]) == 2
+    err = [e for e in capsys.readouterr().err.splitlines() if "error" in e]
+    assert len(err) == 1, err
+    for w in (str(tmp_path / "log.csv"), "row ", "column 'temp_", "°F", "--units as-written"):
+        assert w in err[0], (w, err[0])
+    assert not out.exists()
+    # the same log stated as °C (--units as-written) is taken, and the statement is recorded
+    assert main(["diagnose", "--drift", str(tmp_path / "log.csv"), "--out", str(out), "--units", "as-written"]) == 0
+    assert json.loads((out / "diagnosis.json").read_text())["units"] == "as written (given by the user)"

@@ -57,6 +57,10 @@ DISP_RE = re.compile(r"^(.+)_um$")
 MAX_DISP_UM = 1000.0      # a thermal drift beyond 1 mm is not plausible: nanometres written as μm?
 MIN_DISP_PTP_UM = 0.05    # a channel moving < 0.05 μm over a whole log carries nothing: millimetres?
 TEMP_RANGE_C = (-40.0, 150.0)
+# A log whose COOLEST sensor sits above this (its median) is in °F, not °C: a machine tool's log
+# carries sensors near the shop's air (the real 46 h log's coolest sensor: median 22 °C, its warmest
+# reading 41.9 °C), while the same log in °F puts every sensor above 68 °F. 45 °C = 113 °F.
+FAHRENHEIT_COOLEST_MEDIAN_C = 45.0
 MAX_STEP_S = 3600.0       # median sampling step beyond 1 h: milliseconds written as seconds?
 MAX_GAP_S = 600.0         # missing temperature/speed samples spanning ≤ 10 min are filled, longer: input dropped
 STUCK_S = 7200.0          # an input repeating one value exactly for ≥ 2 h is stuck: dropped
@@ -157,7 +161,8 @@ def check_time_unit(path, t, time_s, fitting: bool = True) -> None:
 
 
 def load_drift_log(path, causal: bool = False, require_displacement: bool = True,
-                   time_unit: str | None = None, sparse_displacement: bool = False) -> DriftLog:
+                   time_unit: str | None = None, sparse_displacement: bool = False,
+                   units: str = "check") -> DriftLog:
     """Read and validate a drift log; errors name the file, row and column.
 
     Temperatures and ``speed_rpm`` may have missing samples (empty cells or ``nan``): gaps of at
@@ -167,6 +172,8 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
     ``time_unit`` (None: seconds, checked from the content by :func:`check_time_unit`; ``"s"``, ``"min"``,
     ``"h"``: the user's statement, no check, converted to seconds and recorded in ``notes["time_unit"]``).
     ``sparse_displacement``: displacement cells may be empty (NaN): on-machine measurements at some rows.
+    ``units``: ``"check"`` refuses a log whose coolest sensor's median is above
+    :data:`FAHRENHEIT_COOLEST_MEDIAN_C` (°F); ``"as-written"``: the user states °C (recorded in ``notes["units"]``).
     """
     t = read_table(path)
     t.require("time_s")
@@ -212,6 +219,15 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
         if filled:
             notes["filled"][c] = filled
         tc[TEMP_RE.match(c).group(1)] = v
+    if units == "check" and tc:
+        med = {c: float(np.median(v)) for c, v in tc.items()}
+        cool = min(med, key=med.get)
+        if med[cool] > FAHRENHEIT_COOLEST_MEDIAN_C:
+            col = f"temp_{cool}_c"
+            raise InputError(f"{path}: row {t.row_number(0)}, column '{col}': units do not fit: even the coolest "
+                             f"sensor's median is {med[cool]:g} °C (above {FAHRENHEIT_COOLEST_MEDIAN_C:g} °C): °F? "
+                             f"({med[cool]:g} °F = {(med[cool] - 32) / 1.8:.1f} °C); --units as-written if it is °C")
+    notes["units"] = "checked from the content" if units == "check" else "as written (given by the user)"
     if not tc:
         raise InputError(f"{path}: column '{temps[0]}': every temperature column was dropped "
                          f"({'; '.join(f'{k}: {v}' for k, v in notes['dropped'].items())})")

@@ -82,7 +82,7 @@ def run(args) -> int:
             raise UsageError(f"--fit-fraction: expected a value between 0 and 1, got {args.fit_fraction:g}")
         print(f"modelling drift log {args.drift} ...", file=sys.stderr)
         sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha})
-        summary, paths = run_drift(args.drift, args.out, sel, time_unit=args.time_unit)
+        summary, paths = run_drift(args.drift, args.out, sel, time_unit=args.time_unit, units=args.units)
         print(f"time unit of time_s: {summary['time_unit']}")
         for c, why in summary["inputs_dropped"].items():
             print(f"dropped input {c}: {why}")

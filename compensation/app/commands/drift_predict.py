@@ -23,6 +23,8 @@ def register(sub):
     p.add_argument("--time-unit", choices=["s", "min", "h"], default=None,
                    help="the unit of the log's time_s column when it is not seconds (default: seconds, checked "
                         "from the step; recorded in the output's header)")
+    from ..options import add_units_option
+    add_units_option(p, "temperature columns")
     p.add_argument("--update", action="store_true",
                    help="re-fit the model's parameters online from the log's displacement measurements")
     p.add_argument("--save-model", default=None, metavar="FILE.json",
@@ -60,7 +62,7 @@ def run(args) -> int:
     _check_args(args)
     model = DriftModel.load(args.model)
     log = load_drift_log(args.log, causal=True, require_displacement=False, time_unit=args.time_unit,
-                         sparse_displacement=args.update)
+                         sparse_displacement=args.update, units=args.units)
     span = float(log.time_s[-1] - log.time_s[0])
     if span < model.max_delay_s:
         raise InputError(f"{args.log}: row {log.notes['last_row']}, column 'time_s': the log spans {span:g} s, shorter "
@@ -70,7 +72,8 @@ def run(args) -> int:
     for c, rows in log.notes["filled"].items():
         print(f"held last value over missing samples of {c}: rows {', '.join(f'{a}-{b}' for a, b in rows)}",
               file=sys.stderr)
-    head = [f"model: {args.model}", f"log: {args.log}", f"log time unit: {log.notes['time_unit']}"]
+    head = [f"model: {args.model}", f"log: {args.log}", f"log time unit: {log.notes['time_unit']}",
+            f"log temperature units: {log.notes['units']}"]
     cols = compensation_columns(log, model)       # raises naming any input the model needs and the log lacks
     d = input_novelty(model, log)
     if d is not None:

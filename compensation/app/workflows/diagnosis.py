@@ -242,20 +242,21 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     return summary, list(paths) + [upd_path, covariance_path(upd_path), out_dir / "model.json"]
 
 
-def run_drift(log_path, out_dir, selector=None, time_unit=None):
+def run_drift(log_path, out_dir, selector=None, time_unit=None, units: str = "check"):
     """Diagnose a drift log: model families chosen by rolling-origin CV, before/after with the OLS
     baseline beside. Writes diagnosis.json, report.html, drift_model.json (``volcomp.drift_model``)
     and drift_compensation.csv; returns (summary, paths)."""
     from errormap.diagnosis.drift_models import SCHEMA, SCHEMA_VERSION, DriftSelector
     from errormap.io import write_csv
-    log = load_drift_log(log_path, time_unit=time_unit)
+    log = load_drift_log(log_path, time_unit=time_unit, units=units)
     sel = (selector or DriftSelector()).fit(log)
     from errormap.io import sha256_file
-    sel.model_.meta.update({"log_time_unit": log.notes["time_unit"], "log_path": str(Path(log_path).resolve()),
+    sel.model_.meta.update({"log_time_unit": log.notes["time_unit"], "log_temperature_units": log.notes["units"], "log_path": str(Path(log_path).resolve()),
                             "log_sha256": sha256_file(log_path)})   # the fitting log: export's default check log
     channels = sel.report(log)
     fit, hold = sel.split(log)
-    summary = {"log": str(log_path), "residual": "measured displacement − causal drift model prediction",
+    summary = {"log": str(log_path), "units": log.notes["units"],
+               "residual": "measured displacement − causal drift model prediction",
                "split": f"by time: first {len(fit)} rows fit, last {len(hold)} held out",
                "baseline": "ordinary least squares on every temperature and speed_rpm (no filter, no lag)",
                "selection": sel.model_.meta["selection"],
