@@ -56,6 +56,25 @@ def chain_reach_mm(chain) -> float:
     return float(sum(abs(e.value) for e in chain.ets if e.kind == "t"))
 
 
+def check_joint_values(path, q, rows, chain, qcols=None) -> None:
+    """Refuse joint values (``q`` (n, nq) in the joints' units, ``rows`` the file's row numbers) that
+    look like radians where degrees are declared, or lie outside the joints' limits: one line naming
+    file, row and column (InputError)."""
+    qcols = list(chain.joint_columns if qcols is None else qcols)
+    rev = np.array([j.type == "revolute" for j in chain.joints])
+    if rev.any() and np.all(np.abs(q[:, rev]) <= 2 * np.pi + 1e-9) and np.ptp(q[:, rev], axis=0).max() >= RADIAN_SPAN:
+        j = int(np.flatnonzero(rev)[np.argmax(np.ptp(q[:, rev], axis=0))])
+        k = int(np.argmax(np.abs(q[:, j])))
+        raise InputError(f"{path}: row {rows[k]}, column '{qcols[j]}': every revolute joint value lies within ±2π: "
+                         "radians rather than degrees?")
+    lo, hi = chain.joint_lo, chain.joint_hi
+    bad = (q < lo) | (q > hi)
+    if bad.any():
+        k, j = np.argwhere(bad)[0]
+        raise InputError(f"{path}: row {rows[k]}, column '{qcols[j]}': {q[k, j]:g} {chain.joints[j].unit} is outside "
+                         f"the joint's limits [{lo[j]:g}, {hi[j]:g}] of machine {chain.name!r}")
+
+
 def read_arm_poses(path, chain) -> ArmPoses:
     """Read and check a measured-pose file of ``chain`` (schema or tracker-grid layout)."""
     t = read_table(path)
@@ -88,18 +107,7 @@ def read_arm_poses(path, chain) -> ArmPoses:
         raise InputError(f"{path}: row {rows[k]}, column '{(XYZ if layout == 'schema' else GRID_TARGET)[j]}': every "
                          f"tool point lies within {np.abs(xyz).max():.3g} of the base, the arm reaches ~{reach:.0f} mm: "
                          "metres rather than mm?")
-    rev = np.array([j.type == "revolute" for j in chain.joints])
-    if rev.any() and np.all(np.abs(q[:, rev]) <= 2 * np.pi + 1e-9) and np.ptp(q[:, rev], axis=0).max() >= RADIAN_SPAN:
-        j = int(np.flatnonzero(rev)[np.argmax(np.ptp(q[:, rev], axis=0))])
-        k = int(np.argmax(np.abs(q[:, j])))
-        raise InputError(f"{path}: row {rows[k]}, column '{qcols[j]}': every revolute joint value lies within ±2π: "
-                         "radians rather than degrees?")
-    lo, hi = chain.joint_lo, chain.joint_hi
-    bad = (q < lo) | (q > hi)
-    if bad.any():
-        k, j = np.argwhere(bad)[0]
-        raise InputError(f"{path}: row {rows[k]}, column '{qcols[j]}': {q[k, j]:g} {chain.joints[j].unit} is outside "
-                         f"the joint's limits [{lo[j]:g}, {hi[j]:g}] of machine {chain.name!r}")
+    check_joint_values(path, q, rows, chain, qcols)
     opt = {}
     for c in ("sigma_mm", "temp_c", "time_s"):
         opt[c] = t.float(c) if c in t else None

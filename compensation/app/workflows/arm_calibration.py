@@ -23,9 +23,9 @@ from errormap.arm_calibration import (ArmCalibrator, GeometricResult, check_pose
 from errormap.arm_poses import read_arm_poses
 from errormap.io import InputError, write_json
 
-from compensation.app.cli import UsageError
 
 from ..reports.arm_calibration import write_report
+from .calibration import holdout_split
 
 MODEL_FORMAT = "volcomp-arm-calibration/1"
 
@@ -57,11 +57,7 @@ def stage_row(name, e, what) -> dict:
 def split(chain, s: ArmCalibrationSettings, data):
     if s.check:
         return data, read_arm_poses(s.check, chain)
-    if not 0 < s.holdout < 1:
-        raise UsageError(f"--holdout must be in (0, 1), got {s.holdout}")
-    idx = np.random.default_rng(s.seed).permutation(len(data))
-    n_check = max(1, int(round(s.holdout * len(data))))
-    return data.subset(idx[n_check:]), data.subset(idx[:n_check])
+    return holdout_split(data, s.holdout, s.seed)
 
 
 def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, families=None) -> dict:

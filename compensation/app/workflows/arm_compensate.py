@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError, read_table, write_csv
+from errormap.arm_poses import check_joint_values
+from errormap.io import read_table, write_csv
 
 from compensation.app.cli import UsageError
 
@@ -28,12 +29,7 @@ def read_program(path, chain):
     t = read_table(path)
     t.require(*chain.joint_columns)
     q = np.stack([t.float(c) for c in chain.joint_columns], 1)
-    lo, hi = chain.joint_lo, chain.joint_hi
-    bad = (q < lo) | (q > hi)
-    if bad.any():
-        k, j = np.argwhere(bad)[0]
-        raise InputError(f"{path}: row {t.row_number(k)}, column '{chain.joint_columns[j]}': {q[k, j]:g} is outside "
-                         f"the joint's limits [{lo[j]:g}, {hi[j]:g}]")
+    check_joint_values(path, q, [t.row_number(k) for k in range(len(t))], chain)  # radians, joint limits
     xyz = None
     if any(c in t for c in ("x_mm", "y_mm", "z_mm")):
         t.require("x_mm", "y_mm", "z_mm")

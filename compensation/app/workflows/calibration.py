@@ -59,15 +59,21 @@ class CalibrationRun:
         return bool(self.doc["success"])
 
 
+def holdout_split(data, holdout: float, seed: int):
+    """(fit, held-out) of a pose set (anything with ``len`` and ``subset(idx)``): a random
+    ``holdout`` share held out, drawn from ``seed``; at least one pose held out."""
+    if not 0 < holdout < 1:
+        raise UsageError(f"--holdout must be in (0, 1), got {holdout}")
+    idx = np.random.default_rng(seed).permutation(len(data))
+    n_check = max(1, int(round(holdout * len(data))))
+    return data.subset(idx[n_check:]), data.subset(idx[:n_check])
+
+
 def split_poses(machine, s: CalibrationSettings, data):
-    """(fit, held-out) pose sets."""
+    """(fit, held-out) pose sets: ``--check`` poses, else a random hold-out."""
     if s.check:
         return data, read_poses(s.check, machine)
-    if not 0 < s.holdout < 1:
-        raise UsageError(f"--holdout must be in (0, 1), got {s.holdout}")
-    idx = np.random.default_rng(s.seed).permutation(len(data))
-    n_check = max(1, int(round(s.holdout * len(data))))
-    return data.subset(idx[n_check:]), data.subset(idx[:n_check])
+    return holdout_split(data, s.holdout, s.seed)
 
 
 def compare_rules(machine, s: CalibrationSettings, fit, check, res, after, log=None) -> dict:
