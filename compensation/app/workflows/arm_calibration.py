@@ -23,7 +23,6 @@ from errormap.arm_calibration import (ArmCalibrator, GeometricResult, check_pose
 from errormap.arm_poses import read_arm_poses
 from errormap.io import InputError, write_json
 
-
 from ..reports.arm_calibration import write_report
 from .calibration import holdout_split
 
