@@ -84,14 +84,20 @@ def _joint(d: dict, where: str, path, names: set) -> tuple[Joint, float]:
     return Joint(name, jtype, lo, hi), sign
 
 
-def _dh_links(links, path, convention: str):
-    rows, types, signs, joints, names = [], [], [], [], set()
-    if not isinstance(links, list) or not links:
-        raise MachineFileError(f"{path}: missing or empty table array '[[link]]' (convention {convention!r})")
-    for i, d in enumerate(links):
-        where = f"link[{i}]"
+def _tables(items, array: str, convention: str, path):
+    """``(where, table)`` of each entry of the table array ``[[array]]``: a non-empty list of tables."""
+    if not isinstance(items, list) or not items:
+        raise MachineFileError(f"{path}: missing or empty table array '[[{array}]]' (convention {convention!r})")
+    for i, d in enumerate(items):
+        where = f"{array}[{i}]"
         if not isinstance(d, dict):
             raise MachineFileError(f"{path}: '{where}': expected a table, got {short_repr(d)}")
+        yield where, d
+
+
+def _dh_links(links, path, convention: str):
+    rows, types, signs, joints, names = [], [], [], [], set()
+    for where, d in _tables(links, "link", convention, path):
         check_known_keys(d, ("joint", "type", "dh", "limits", "direction"), where, path)
         j, sign = _joint(d, where, path, names)
         if "dh" not in d:
@@ -118,12 +124,7 @@ def _dh_links(links, path, convention: str):
 
 def _et_list(items, path):
     ets, joints, names = [], [], set()
-    if not isinstance(items, list) or not items:
-        raise MachineFileError(f"{path}: missing or empty table array '[[et]]' (convention 'et')")
-    for i, d in enumerate(items):
-        where = f"et[{i}]"
-        if not isinstance(d, dict):
-            raise MachineFileError(f"{path}: '{where}': expected a table, got {short_repr(d)}")
+    for where, d in _tables(items, "et", "et", path):
         check_known_keys(d, ("type", "value", "joint", "limits", "direction", "error"), where, path)
         t = d.get("type")
         if t not in ET_TYPES:
