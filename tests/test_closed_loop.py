@@ -148,6 +148,7 @@ def test_predict_band_cli(tmp_path, capsys):
 COMP_TRUE_TOL_UM = 0.01  # model = truth exactly here; the exact solver's own residual is ~1e-10 μm
 
 
+@pytest.mark.slow  # over the 5 CPU s tier limit since the closed loop gained its learned stage
 def test_compensate_takes_the_diagnosed_model_and_its_conditions(grinder, tmp_path, capsys):
     from errormap.io import read_table
     from errormap.kinematics import forward
@@ -230,6 +231,7 @@ def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tm
     assert not (tmp_path / "c3" / "nocol.csv").exists()
 
 
+@pytest.mark.slow  # over the 5 CPU s tier limit since the closed loop gained its learned stage
 def test_compensate_gcode_with_a_diagnosed_model_follows_the_replanned_vertices(grinder, tmp_path):
     """A G-code path (no condition columns) with a thermal term: the option's temperature holds at
     every vertex the replan adds to the long moves, and the model residual stays at solver level."""
