@@ -131,17 +131,22 @@ def main(argv=None) -> int:
     libraries are still being imported (one line, exit 130; outputs are written through
     temporary files, which an interrupted writer removes, so nothing half-written stays)."""
     command, as_program = None, argv is None
+    pending = {"interrupt": False}  # set by the SIGINT handler until main() takes the interrupt
     try:
+        if as_program:
+            _install_interrupt_handler(pending)
         argv = sys.argv[1:] if argv is None else list(argv)
         command = _command_in(argv)
         return _run(argv, command)
     except KeyboardInterrupt:
-        return _interrupted(command, as_program)
+        return _interrupted(command, as_program, pending)
     except Exception as exc:
         # a Ctrl-C inside a C extension's initialisation comes back as that import's error
         # ("ImportError: initialization failed", the KeyboardInterrupt as its cause)
-        if _caused_by_interrupt(exc):
-            return _interrupted(command, as_program)
+        # and a Ctrl-C swallowed inside a C callback can leave a library broken (numba: "no compiled
+        # object yet"): an error while an interrupt is pending is that interrupt's consequence
+        if _caused_by_interrupt(exc) or pending["interrupt"]:
+            return _interrupted(command, as_program, pending)
         raise
 
 
@@ -155,8 +160,48 @@ def _caused_by_interrupt(exc: BaseException) -> bool:
     return False
 
 
-def _interrupted(command, as_program: bool) -> int:
+# A Ctrl-C that lands inside a C callback (numba's compiler calls back into Python while it
+# compiles a kernel) raises KeyboardInterrupt there, where the callback's caller prints "Exception
+# ignored" and goes on: the command would finish as if nothing was pressed. So the handler also
+# re-sends the interrupt to the main thread every REARM_S until main() has taken it.
+REARM_S = 0.25
+
+
+def _install_interrupt_handler(pending: dict) -> None:
+    """SIGINT → KeyboardInterrupt in the main thread, repeated every :data:`REARM_S` while
+    ``pending["interrupt"]`` (until :func:`main` takes it)."""
     import signal
+    import threading
+    import _thread
+
+    def rearm():
+        if pending["interrupt"]:
+            _thread.interrupt_main(signal.SIGINT)
+
+    def handler(signum, frame):
+        pending["interrupt"] = True
+        t = threading.Timer(REARM_S, rearm)
+        t.daemon = True
+        t.start()
+        raise KeyboardInterrupt
+
+    default_hook = sys.unraisablehook
+
+    def unraisable(u):  # the swallowed interrupt is not news: it is being re-sent to main
+        if not (isinstance(u.exc_value, KeyboardInterrupt) and pending["interrupt"]):
+            default_hook(u)
+
+    try:
+        signal.signal(signal.SIGINT, handler)
+    except ValueError:  # pragma: no cover - not the main thread
+        return
+    sys.unraisablehook = unraisable
+
+
+def _interrupted(command, as_program: bool, pending: dict | None = None) -> int:
+    import signal
+    if pending is not None:
+        pending["interrupt"] = False
     if as_program:  # a second Ctrl-C while Python shuts down must not print a traceback either
         try:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
