@@ -98,6 +98,17 @@ def _ur5_doc():
     return tomllib.loads((Path(load_machine("ur5").path)).read_text())
 
 
+def _assert_refused(doc, edit, words):
+    """``edit(doc)`` makes the file bad: one line naming the file and every word of ``words``."""
+    edit(doc)
+    with pytest.raises(MachineFileError) as ei:
+        parse_serial(doc, "bad.toml")
+    msg = str(ei.value)
+    assert msg.startswith("bad.toml: ") and "\n" not in msg
+    for w in words:
+        assert w in msg, msg
+
+
 @pytest.mark.parametrize("edit,words", [
     (lambda d: d["link"][1].update(dh=[-425.0, 0.0, 0.0]), ["link[1].dh", "4 columns"]),
     (lambda d: d["link"][2].update(limits=[10.0, 10.0]), ["link[2].limits", "inverted"]),
@@ -109,14 +120,7 @@ def _ur5_doc():
     (lambda d: d["machine"].update(schema=2), ["machine.schema"]),
 ])
 def test_bad_machine_files_name_table_and_key(edit, words):
-    d = _ur5_doc()
-    edit(d)
-    with pytest.raises(MachineFileError) as ei:
-        parse_serial(d, "bad.toml")
-    msg = str(ei.value)
-    assert msg.startswith("bad.toml: ") and "\n" not in msg
-    for w in words:
-        assert w in msg
+    _assert_refused(_ur5_doc(), edit, words)
 
 
 def _builtin_doc(name):
@@ -151,14 +155,7 @@ def _in_metres(d):
 def test_lengths_in_degrees_or_metres_refused(name, edit, words):
     """Units by content: degrees in a length column, an angle column holding a length, a file or a tool point in
     metres. One line naming file, table and key."""
-    d = _builtin_doc(name)
-    edit(d)
-    with pytest.raises(MachineFileError) as ei:
-        parse_serial(d, "bad.toml")
-    msg = str(ei.value)
-    assert msg.startswith("bad.toml: ") and "\n" not in msg
-    for w in words:
-        assert w in msg, msg
+    _assert_refused(_builtin_doc(name), edit, words)
 
 
 def test_plausible_lengths_are_not_refused():
