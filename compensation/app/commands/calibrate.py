@@ -88,8 +88,6 @@ def run(args) -> int:
 def run_serial(chain, args) -> int:
     """The arm branch: geometric + learned stages, plain baselines beside them (docs/arms.md)."""
     from ..workflows.arm_calibration import ArmCalibrationSettings, run_arm_calibration
-    if not 2 <= args.folds <= 20:
-        raise UsageError(f"--folds must be in [2, 20], got {args.folds}")
     s = ArmCalibrationSettings(poses=args.poses, check=args.check, holdout=args.holdout, seed=args.seed,
                                learned=not args.no_learned, k_folds=args.folds)
     out = Path(args.out)

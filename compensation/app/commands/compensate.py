@@ -125,10 +125,6 @@ def run(args) -> int:
             return run_arm_compensate(m, args)
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
-    if args.show < 1:
-        raise UsageError("--show must be >= 1")
-    if not (np.isfinite(args.arc_tolerance_um) and args.arc_tolerance_um > 0):
-        raise UsageError(f"--arc-tolerance-um must be > 0, got {args.arc_tolerance_um}")
     max_segment = parse_max_segment(args.max_segment_mm)
     allow = parse_allow(args.allow)
     settings = CompensateSettings(

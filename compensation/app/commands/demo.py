@@ -72,8 +72,6 @@ def run(args) -> int:
         check_in_strokes(machine, fl.axes(machine), "the flute path")
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if args.train_patience < 0:
-        raise UsageError(f"--train-patience: expected an integer >= 0 (0: off), got {args.train_patience}")
     hidden = None
     if args.hidden:
         try:

@@ -48,12 +48,9 @@ def register(sub):
 
 
 def _retrain_settings(args):
-    """The retrain's :class:`training.TrainSettings` from the options (bad values: UsageError)."""
+    """The retrain's :class:`training.TrainSettings` from the options (their ranges are checked before
+    run by compensation/app/validate.py)."""
     from training import TrainSettings
-    if args.retrain_iter < 1:
-        raise UsageError(f"--retrain-iter: expected at least 1 iteration, got {args.retrain_iter}")
-    if args.retrain_time_s is not None and not args.retrain_time_s > 0:
-        raise UsageError(f"--retrain-time-s: expected a positive number of seconds, got {args.retrain_time_s:g}")
     return TrainSettings(max_iter=args.retrain_iter, seed=args.seed,
                          max_time_s=math.inf if args.retrain_time_s is None else args.retrain_time_s)
 
@@ -78,8 +75,6 @@ def run(args) -> int:
     if (args.checks is None) == (args.drift is None):
         raise UsageError("give either CHECKS (with --model) or --drift LOG")
     if args.drift is not None:
-        if not 0 < args.fit_fraction < 1:
-            raise UsageError(f"--fit-fraction: expected a value between 0 and 1, got {args.fit_fraction:g}")
         print(f"modelling drift log {args.drift} ...", file=sys.stderr)
         sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha})
         summary, paths = run_drift(args.drift, args.out, sel, time_unit=args.time_unit, units=args.units)

@@ -43,10 +43,6 @@ def _check_args(args):
                                 "--noise-um": args.noise_um}.items() if v is not None]
         if given:
             raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} with --update only")
-    if args.drift_per_h is not None and not (args.drift_per_h >= 0 and args.drift_per_h < float("inf")):
-        raise UsageError(f"--drift-per-h: expected a finite value >= 0, got {args.drift_per_h}")
-    if args.noise_um is not None and not (args.noise_um > 0 and args.noise_um < float("inf")):
-        raise UsageError(f"--noise-um: expected a positive number of μm, got {args.noise_um}")
 
 
 def run(args) -> int:

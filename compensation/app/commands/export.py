@@ -111,10 +111,6 @@ def run(args) -> int:
     if given:
         raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to --format drift only")
     machine = load_machine(args.machine, expect_kind="grinder")
-    if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
-        raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
-    if args.check_points < 1:
-        raise UsageError(f"--check-points: expected >= 1, got {args.check_points}")
     if args.fmt != "linuxcnc" and (args.diagnosis or args.region):
         raise UsageError("--diagnosis and --region apply to --format linuxcnc only (the other formats carry no "
                          "reversal and are not averaged)")
@@ -155,8 +151,6 @@ def run_drift(args) -> int:
         verb = "does" if len(bad) == 1 else "do"
         raise UsageError(f"{', '.join(bad)} {verb} not apply to --format drift (a drift model needs no machine; "
                          "its truth is a simulated log: --sim/--sim-seed)")
-    if not (np.isfinite(args.tolerance_um) and args.tolerance_um > 0):
-        raise UsageError(f"--tolerance-um: expected a positive number, got {args.tolerance_um}")
     dt = args.sample_period_s
     if dt is not None and not (np.isfinite(dt) and 0 < dt <= ex.DRIFT_MAX_PERIOD_S):
         raise UsageError(f"--sample-period-s: expected a period in (0, {ex.DRIFT_MAX_PERIOD_S:g}] s, got {dt}")

@@ -47,11 +47,6 @@ def run(args) -> int:
         raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
     if not hidden or min(hidden) < 1:
         raise UsageError(f"--hidden: expected widths >= 1, got {args.hidden!r}")
-    for name in ("train_iter", "grid"):
-        if getattr(args, name) < (2 if name == "grid" else 1):
-            raise UsageError(f"--{name.replace('_', '-')} must be >= {2 if name == 'grid' else 1}")
-    if args.bootstrap < 2:
-        raise UsageError(f"--bootstrap must be >= 2, got {args.bootstrap}")
     machines = read_fleet(args.fleet)
     uri = args.tracking_uri or default_tracking_uri()
     check_tracking_uri(uri, len(machines), args.cluster == "ray")

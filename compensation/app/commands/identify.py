@@ -8,7 +8,6 @@ from errormap.identification import GAUGES
 from errormap.machine import load_machine
 from errormap.sweeps import read_sweeps
 
-from compensation.app.cli import UsageError
 
 from ..reports.identification import iso_summary_lines, plot_elements
 from ..workflows.identification import identify_elements, truth_in_gauge
@@ -49,8 +48,6 @@ def run(args) -> int:
     truth = ElementSet.load(args.truth) if args.truth else None
     sweeps = read_sweeps(args.sweeps)
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
-    if args.bootstrap < 2:
-        raise UsageError(f"--bootstrap must be >= 2, got {args.bootstrap}")
     ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,
                               n_boot=args.bootstrap, seed=args.seed, smooth=not args.raw, gauge=args.gauge,
                               sweeps=sweeps)

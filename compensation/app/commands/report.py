@@ -46,8 +46,6 @@ def register(sub):
 
 
 def run(args) -> int:
-    if args.ga_points is not None and args.ga_points < 1:
-        raise UsageError("--ga-points must be >= 1")
     methods = parse_methods(args.methods)
     machine = load_machine(args.machine, expect_kind="grinder")
     if args.flute:

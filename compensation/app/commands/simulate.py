@@ -6,7 +6,6 @@ import sys
 from errormap.machine import load_machine
 from errormap.simulator import EFFECT_NAMES
 
-from compensation.app.cli import UsageError
 
 from ..workflows.simulate import simulate_truth, summary_lines
 
@@ -28,10 +27,6 @@ def register(sub):
 
 
 def run(args) -> int:
-    if not args.noise_um >= 0:
-        raise UsageError(f"--noise-um: expected a number >= 0, got {args.noise_um}")
-    if args.checks < 1:
-        raise UsageError(f"--checks: expected at least 1, got {args.checks}")
     machine = load_machine(args.machine, expect_kind="grinder")
     print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
     info = simulate_truth(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,

@@ -35,8 +35,6 @@ def register(sub):
 
 
 def run(args) -> int:
-    if args.noise_um < 0:
-        raise UsageError(f"--noise-um must be >= 0, got {args.noise_um}")
     machine = load_machine(args.machine, expect_kind="grinder")
     if args.truth is not None:
         if args.effect:

@@ -70,11 +70,7 @@ def run(args) -> int:
     except ValueError:
         raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
     max_time = args.max_time if args.max_time is not None else math.inf
-    if not max_time > 0:
-        raise UsageError(f"--max-time must be > 0, got {max_time}")
     max_iter = args.max_iter if args.max_iter is not None else (QUICK_MAX_ITER if args.quick else DEFAULT_MAX_ITER)
-    if max_iter < 1:
-        raise UsageError(f"--max-iter must be >= 1, got {max_iter}")
     from training.trainers import TrackSettings, TrainSettings
     try:
         settings = TrainSettings(trainer=args.trainer, max_iter=max_iter, max_time_s=max_time, seed=args.seed,
