@@ -146,9 +146,14 @@ def load_machine(path=None, expect_kind: str | None = None):
     parsers = _parsers()
     if not isinstance(kind, str) or kind not in parsers:
         raise MachineFileError(f"{path}: key 'machine.kind': expected one of {sorted(parsers)}, got {short_repr(kind)}")
+    check_machine_kind(path, kind, expect_kind)
+    return parsers[kind](doc, path, sha256_bytes(raw))
+
+
+def check_machine_kind(path, kind: str, expect_kind: str | None) -> None:
+    """Refuse a machine file of ``kind`` where ``expect_kind`` is needed (None: any kind)."""
     if expect_kind is not None and kind != expect_kind:
         raise MachineFileError(f"{path}: key 'machine.kind': expected {expect_kind!r} here, got {kind!r}")
-    return parsers[kind](doc, path, sha256_bytes(raw))
 
 
 # -- unit plausibility of axis columns --------------------------------------------------------

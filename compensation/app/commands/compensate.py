@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.machine import load_machine
+from errormap.machine import check_machine_kind, load_machine
 
 from compensation.app.cli import UsageError, one_line
 
@@ -118,11 +118,10 @@ def parse_max_segment(text):
 
 
 def run(args) -> int:
-    if args.machine is not None:
-        m = load_machine(args.machine)
-        if m.kind == "serial":
-            from ..workflows.arm_compensate import run_arm_compensate
-            return run_arm_compensate(m, args)
+    machine = load_machine(args.machine)  # read once; its kind (content) picks the path
+    if machine.kind == "serial":
+        from ..workflows.arm_compensate import run_arm_compensate
+        return run_arm_compensate(machine, args)
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
     max_segment = parse_max_segment(args.max_segment_mm)
@@ -131,10 +130,10 @@ def run(args) -> int:
         method=args.method, model=args.model, out_dir=Path(args.out), force=args.force,
         tracking_uri=args.tracking_uri, seed=args.seed, allow=allow, rapids=args.rapids,
         block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
-        max_segment_mm=max_segment, conditions=conditions_from_args(args), chunk_points=args.chunk_points)
-    settings.units = args.units  # the shared unit check of CSV paths and conditions (errormap/units.py)
+        max_segment_mm=max_segment, conditions=conditions_from_args(args), chunk_points=args.chunk_points,
+        units=args.units)  # the shared unit check of CSV paths and conditions (errormap/units.py)
     check_cluster_args(args)
-    machine = load_machine(args.machine, expect_kind="grinder")
+    check_machine_kind(machine.path, machine.kind, "grinder")
     try:
         with open_executor(args) as executor:
             job = compensate_files(args.files, machine, settings, on_file=_print_file, executor=executor)
