@@ -1,7 +1,8 @@
 """Machine files (TOML): loading and validation.
 
 One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexapod``,
-``tripod``, ``serial``; schemas in ``docs/schemas.md``; serial chains in :mod:`errormap.chain_file`). The built-in default grinder ships as ``errormap/machines/grinder.toml``.
+``tripod``, ``serial``, ``machine-tool``; schemas in ``docs/schemas.md``; serial chains in
+:mod:`errormap.chain_file`, machine-tool chains in :mod:`errormap.mt_chain`). The built-in default grinder ships as ``errormap/machines/grinder.toml``.
 Every error names the file and the key.
 """
 from __future__ import annotations
@@ -114,8 +115,10 @@ def _parsers():
     """The parser of each ``[machine] kind``; the PKM schemas live with the PKM models (imported
     on first use: they need scipy, which a grinder-only run does not load)."""
     from .chain_file import parse_serial
+    from .mt_chain import parse_machine_tool
     from .pkm.machine_file import parse_hexapod, parse_tripod
-    return {"grinder": parse_grinder, "hexapod": parse_hexapod, "tripod": parse_tripod, "serial": parse_serial}
+    return {"grinder": parse_grinder, "hexapod": parse_hexapod, "tripod": parse_tripod, "serial": parse_serial,
+            "machine-tool": parse_machine_tool}
 
 
 def load_machine(path=None, expect_kind: str | None = None):
@@ -141,7 +144,8 @@ def load_machine(path=None, expect_kind: str | None = None):
         raise MachineFileError(f"{path}: not valid TOML: {exc}") from None
     m = doc.get("machine")
     if not isinstance(m, dict) or "kind" not in m:
-        raise MachineFileError(f"{path}: missing key 'machine.kind' (one of grinder, hexapod, tripod, serial)")
+        raise MachineFileError(f"{path}: missing key 'machine.kind' (one of grinder, hexapod, tripod, serial, "
+                               "machine-tool)")
     kind = m["kind"]
     parsers = _parsers()
     if not isinstance(kind, str) or kind not in parsers:
