@@ -10,8 +10,8 @@ canonical order (``machine.axis_columns``), ``P`` = its slots (``machine.slot_na
 Axis Jacobian: ``dE/dq = [J_q(q, e) − J_q(q, 0) + J_e(q, e)·de/dq] / 1e-3`` with ``J_q`` the
 chain's joint Jacobian, ``J_e`` its error-parameter Jacobian and ``de/dq`` the spline slopes of
 the component errors along their own axis. :func:`predict_numpy` / :func:`predict_and_jacobian_numpy`
-are the readable references; the compiled kernel (:mod:`errormap.mt_kernel`, where present) is
-tested against them.
+are the readable references; the compiled kernel (:mod:`errormap.mt_kernel`) is
+tested against them; :class:`ChainField` computes through the kernel.
 """
 from __future__ import annotations
 
@@ -87,9 +87,22 @@ class ChainField:
         """The element values at ``axes``, shape (n, P)."""
         return self.elements.values(axes)
 
+    def _axes(self, axes) -> np.ndarray:
+        axes = np.atleast_2d(np.asarray(axes, dtype=float))
+        if axes.ndim != 2 or axes.shape[1] != len(self.machine.axes):
+            raise ValueError(f"expected axes of shape (n, {len(self.machine.axes)}) "
+                             f"({', '.join(self.machine.axis_columns)}), got {np.shape(axes)}")
+        return axes
+
+    def _compiled(self):
+        """The kernels' arrays, packed per call (cheap; the element set's splines are cached there)."""
+        from .mt_kernel import CompiledChain
+        return CompiledChain(self.machine, self.elements)
+
     def predict(self, axes) -> np.ndarray:
-        """Spatial error (μm), shape (n, 3), at axes (n, k)."""
-        return predict_numpy(self.machine, self.elements, axes, self.chunk)
+        """Spatial error (μm), shape (n, 3), at axes (n, k): one compiled pass per point
+        (:mod:`errormap.mt_kernel`), equal to :func:`predict_numpy` to round-off (tested)."""
+        return self._compiled().predict(self._axes(axes))
 
     __call__ = predict
 
@@ -97,7 +110,7 @@ class ChainField:
         """``(E (n, 3) μm, dE/d(axes) (n, 3, k))``; float64 only."""
         if np.dtype(dtype) != np.float64:
             raise ValueError(f"Expected dtype float64 (ChainField declares no float32), got {np.dtype(dtype)}")
-        return predict_and_jacobian_numpy(self.machine, self.elements, axes, self.chunk)
+        return self._compiled().predict_and_jacobian(self._axes(axes))
 
     def jacobian(self, axes) -> np.ndarray:
         """dE/d(axes), shape (n, 3, k)."""
