@@ -4,9 +4,11 @@ One pass per point: the component errors from one vector-valued cubic B-spline p
 same knots and coefficients as :meth:`errormap.mt_elements.ChainElementSet.axis_spline`, basis
 by the Cox–de Boor recursion of :mod:`errormap.htm`), then the chain's ETs applied one by one to
 a running rotation ``R`` (3×3) and origin ``t`` (3,), for the actual chain (with the errors) and
-the nominal one (ETs that carry neither a joint nor a constant are skipped there: they are the
-identity without errors). With the Jacobian every quantity carries its derivatives along the k
-axes (forward mode, exact: no step, no truncation). Checked against the numpy reference
+the nominal one. Compiled once per field: the ETs that depend on a point (a joint, a component
+error) stay single ops, every run of constant ETs between them (fixed transforms, location and
+squareness errors at their values) is folded into one constant block (:meth:`CompiledChain._program`). The axis Jacobian is geometric and exact (no step, no truncation):
+each ET that depends on an axis adds its slope times its column (the tool point's motion per unit
+of the ET's value), accumulated after the pass (:func:`_chain_point_d`). Checked against the numpy reference
 :mod:`errormap.mt_field` in ``tests/test_mt_kernel.py``.
 
 Shapes: ``axes`` (n, k); ``out`` (n, 3) μm; ``jac`` (n, 3, k) μm per mm / per deg.
@@ -24,25 +26,35 @@ NCOMP = 6  # columns of a spline block (dx dy dz ex ey ez; absent components pad
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _chain_point(q, ev, kind_r, eaxis, value, joint, jscale, slot, coef, use, R, t):  # pragma: no cover - compiled
-    """The chain at one point (values only): ``R`` (3, 3), ``t`` (3,) set to the last frame.
-    ``ev`` (P,) slot values (or None-like zero-size for nominal: ``slot`` ignored when ev.size == 0);
-    ``use`` (m,) which ETs to apply."""
+def _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt, R, t, W, O, record):  # pragma: no cover - compiled
+    """A program (:meth:`CompiledChain._program`) at one point: ``R`` (3, 3), ``t`` (3,) set to the
+    last frame; ``ev`` (P,) slot values. With ``record`` the axis ``W[o]`` and origin ``O[o]`` of
+    every single-ET op are stored (the Jacobian's columns)."""
     for i in range(3):
         t[i] = 0.0
         for j in range(3):
             R[i, j] = 1.0 if i == j else 0.0
-    has_e = ev.shape[0] > 0
-    for m in range(kind_r.shape[0]):
-        if not use[m]:
+    for o in range(kind.shape[0]):
+        k = kind[o]
+        if k == 2:  # a constant block: t += R·Bt, R = R·BR
+            bi = block[o]
+            for i in range(3):
+                r0, r1, r2 = R[i, 0], R[i, 1], R[i, 2]
+                t[i] += r0 * Bt[bi, 0] + r1 * Bt[bi, 1] + r2 * Bt[bi, 2]
+                for j in range(3):
+                    R[i, j] = r0 * BR[bi, 0, j] + r1 * BR[bi, 1, j] + r2 * BR[bi, 2, j]
             continue
-        x = value[m]
-        if joint[m] >= 0:
-            x += jscale[m] * q[joint[m]]
-        if has_e and slot[m] >= 0:
-            x += coef[m] * ev[slot[m]]
-        a = eaxis[m]
-        if kind_r[m]:
+        a = eaxis[o]
+        if record:
+            for i in range(3):
+                W[o, i] = R[i, a]
+                O[o, i] = t[i]
+        x = value[o]
+        if joint[o] >= 0:
+            x += jscale[o] * q[joint[o]]
+        if slot[o] >= 0:
+            x += coef[o] * ev[slot[o]]
+        if k == 1:
             b = (a + 1) % 3
             c = (a + 2) % 3
             cs, sn = np.cos(x), np.sin(x)
@@ -56,60 +68,39 @@ def _chain_point(q, ev, kind_r, eaxis, value, joint, jscale, slot, coef, use, R,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _chain_point_d(q, ev, dev, kind_r, eaxis, value, joint, jscale, slot, coef, use, own, R, t, dR, dt, dx):  # pragma: no cover - compiled
-    """:func:`_chain_point` with derivatives along the k axes: ``dR`` (k, 3, 3), ``dt`` (k, 3);
-    ``dev`` (P,) d(slot)/d(own axis), ``own`` (P,) the axis column of each slot (-1: constant);
-    ``dx`` (k,) work array."""
-    k = q.shape[0]
-    for i in range(3):
-        t[i] = 0.0
-        for j in range(3):
-            R[i, j] = 1.0 if i == j else 0.0
-    for j in range(k):
-        for i in range(3):
-            dt[j, i] = 0.0
-            for l in range(3):
-                dR[j, i, l] = 0.0
-    has_e = ev.shape[0] > 0
-    for m in range(kind_r.shape[0]):
-        if not use[m]:
+def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_row, sgn):  # pragma: no cover - compiled
+    """Adds ``sgn`` × d(tool point)/d(axes) to ``jac_row`` (3, k) after :func:`_chain_point` with
+    ``record``. The Jacobian is geometric: an ET's value moves the tool point along its axis ``w``
+    (translation) or by ``w × (p − o)`` (rotation about ``w`` through the ET's origin ``o``), so
+    each ET that depends on an axis (its joint, or a component error of that axis with its spline
+    slope ``dev``) adds slope × that column: no derivatives are carried through the chain.
+    ``own`` (P,) the axis column of each slot (-1: constant)."""
+    for o in range(kind.shape[0]):
+        if kind[o] == 2:
             continue
-        x = value[m]
-        moving = False
-        for j in range(k):
-            dx[j] = 0.0
-        if joint[m] >= 0:
-            x += jscale[m] * q[joint[m]]
-            dx[joint[m]] += jscale[m]
-            moving = True
-        if has_e and slot[m] >= 0:
-            p = slot[m]
-            x += coef[m] * ev[p]
-            if own[p] >= 0:
-                dx[own[p]] += coef[m] * dev[p]
-                moving = True
-        a = eaxis[m]
-        if kind_r[m]:
-            b = (a + 1) % 3
-            c = (a + 2) % 3
-            cs, sn = np.cos(x), np.sin(x)
-            for i in range(3):
-                rb, rc = R[i, b], R[i, c]
-                nb = rb * cs + rc * sn
-                nc = rc * cs - rb * sn
-                for j in range(k):
-                    drb, drc = dR[j, i, b], dR[j, i, c]
-                    dR[j, i, b] = drb * cs + drc * sn + nc * dx[j]
-                    dR[j, i, c] = drc * cs - drb * sn - nb * dx[j]
-                R[i, b] = nb
-                R[i, c] = nc
+        dj = joint[o]
+        ds = -1
+        if slot[o] >= 0:
+            ds = own[slot[o]]
+        if dj < 0 and ds < 0:
+            continue
+        if kind[o] == 1:
+            r0, r1, r2 = t[0] - O[o, 0], t[1] - O[o, 1], t[2] - O[o, 2]
+            c0 = W[o, 1] * r2 - W[o, 2] * r1
+            c1 = W[o, 2] * r0 - W[o, 0] * r2
+            c2 = W[o, 0] * r1 - W[o, 1] * r0
         else:
-            for i in range(3):
-                for j in range(k):
-                    dt[j, i] += dR[j, i, a] * x
-                    if moving:
-                        dt[j, i] += R[i, a] * dx[j]
-                t[i] += R[i, a] * x
+            c0, c1, c2 = W[o, 0], W[o, 1], W[o, 2]
+        if dj >= 0:
+            g = sgn * jscale[o]
+            jac_row[0, dj] += g * c0
+            jac_row[1, dj] += g * c1
+            jac_row[2, dj] += g * c2
+        if ds >= 0:
+            g = sgn * coef[o] * dev[slot[o]]
+            jac_row[0, ds] += g * c0
+            jac_row[1, ds] += g * c1
+            jac_row[2, ds] += g * c2
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -139,14 +130,12 @@ def _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def field_kernel(axes, ops, use_nom, spl, consts, out):  # pragma: no cover - compiled
+def field_kernel(axes, prog, prog_nom, spl, consts, out):  # pragma: no cover - compiled
     """Spatial error (μm) at every point: ``out`` (n, 3)."""
-    kind_r, eaxis, value, joint, jscale, slot, coef, use_act = ops
     spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot = spl
     P = consts.shape[0]
     ev = np.empty(P)
     dev = np.empty(P)
-    none = np.empty(0)
     vbuf = np.empty(6)
     dbuf = np.empty(6)
     h = np.empty(4)
@@ -155,25 +144,26 @@ def field_kernel(axes, ops, use_nom, spl, consts, out):  # pragma: no cover - co
     t = np.empty(3)
     R0 = np.empty((3, 3))
     t0 = np.empty(3)
+    k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1 = prog
+    k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0 = prog_nom
+    W = np.empty((0, 3))
     for n in range(axes.shape[0]):
         q = axes[n]
         _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, False)
-        _chain_point(q, ev, kind_r, eaxis, value, joint, jscale, slot, coef, use_act, R, t)
-        _chain_point(q, none, kind_r, eaxis, value, joint, jscale, slot, coef, use_nom, R0, t0)
+        _chain_point(q, ev, k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, W, False)
+        _chain_point(q, ev, k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, W, False)
         for i in range(3):
             out[n, i] = (t[i] - t0[i]) * 1e3
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def field_jac_kernel(axes, ops, use_nom, spl, consts, own, out, jac):  # pragma: no cover - compiled
+def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragma: no cover - compiled
     """Spatial error (μm) and dE/d(axes): ``out`` (n, 3), ``jac`` (n, 3, k)."""
-    kind_r, eaxis, value, joint, jscale, slot, coef, use_act = ops
     spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot = spl
     P = consts.shape[0]
     k = axes.shape[1]
     ev = np.empty(P)
     dev = np.empty(P)
-    none = np.empty(0)
     vbuf = np.empty(6)
     dbuf = np.empty(6)
     h = np.empty(4)
@@ -182,20 +172,38 @@ def field_jac_kernel(axes, ops, use_nom, spl, consts, own, out, jac):  # pragma:
     t = np.empty(3)
     R0 = np.empty((3, 3))
     t0 = np.empty(3)
-    dR = np.empty((k, 3, 3))
-    dt = np.empty((k, 3))
-    dR0 = np.empty((k, 3, 3))
-    dt0 = np.empty((k, 3))
-    dx = np.empty(k)
+    k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1 = prog
+    k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0 = prog_nom
+    m = max(k1.shape[0], k0.shape[0])
+    W = np.empty((m, 3))
+    O = np.empty((m, 3))
+    J = np.empty((3, k))
     for n in range(axes.shape[0]):
         q = axes[n]
         _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, True)
-        _chain_point_d(q, ev, dev, kind_r, eaxis, value, joint, jscale, slot, coef, use_act, own, R, t, dR, dt, dx)
-        _chain_point_d(q, none, dev, kind_r, eaxis, value, joint, jscale, slot, coef, use_nom, own, R0, t0, dR0, dt0, dx)
+        for i in range(3):
+            for j in range(k):
+                J[i, j] = 0.0
+        _chain_point(q, ev, k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, O, True)
+        _jacobian_columns(dev, k1, j1, s1, sl1, c1, own, t, W, O, J, 1.0)
+        _chain_point(q, ev, k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, O, True)
+        _jacobian_columns(dev, k0, j0, s0, sl0, c0, own, t0, W, O, J, -1.0)
         for i in range(3):
             out[n, i] = (t[i] - t0[i]) * 1e3
             for j in range(k):
-                jac[n, i, j] = (dt[j, i] - dt0[j, i]) * 1e3
+                jac[n, i, j] = J[i, j] * 1e3
+
+
+def _et_matrix(kind_r: bool, axis: int, x: float) -> np.ndarray:
+    """One ET with value ``x`` (mm or rad) as a 4×4 matrix."""
+    T = np.eye(4)
+    if kind_r:
+        b, c = (axis + 1) % 3, (axis + 2) % 3
+        cs, sn = np.cos(x), np.sin(x)
+        T[b, b], T[b, c], T[c, b], T[c, c] = cs, -sn, sn, cs
+    else:
+        T[axis, 3] = x
+    return T
 
 
 class CompiledChain:
@@ -205,11 +213,8 @@ class CompiledChain:
     def __init__(self, machine: MachineTool, elements: ChainElementSet):
         ch = machine.chain
         scale = np.array([np.pi / 180 if j.type == "revolute" else 1.0 for j in ch.joints])
-        jscale = np.where(ch.joint >= 0, ch.sign * scale[np.maximum(ch.joint, 0)], 0.0)
-        use_act = np.ones(len(ch.ets), dtype=np.bool_)
-        self.ops = (ch.kind_r.astype(np.bool_), ch.axis.astype(np.int64), ch.value.astype(float),
-                    ch.joint.astype(np.int64), jscale, ch.slot.astype(np.int64), ch.coef.astype(float), use_act)
-        self.use_nom = (ch.joint >= 0) | (ch.value != 0.0)
+        self.jscale = np.where(ch.joint >= 0, ch.sign * scale[np.maximum(ch.joint, 0)], 0.0)
+        self.chain = ch
         col = {a.word: j for j, a in enumerate(machine.axes)}
         self.own = np.array([col[s.axis] if s.is_function else -1 for s in machine.slots], dtype=np.int64)
         idx = {n: p for p, n in enumerate(machine.slot_names)}
@@ -238,18 +243,55 @@ class CompiledChain:
         for k, v in elements.constants.items():
             self.consts[idx[k]] = v
         self.k = len(machine.axes)
+        self.prog = self._program(with_errors=True)
+        self.prog_nom = self._program(with_errors=False)
+
+    def _program(self, with_errors: bool):
+        """The chain as ops: an ET that depends on a point (a joint, or a component error when
+        ``with_errors``) stays one op; every run of ETs between them (fixed transforms, constant
+        error slots at their values) is folded into one constant block (3×3 rotation, translation):
+        ``(kind 0 translation | 1 rotation | 2 block, axis, value, joint, jscale, slot, coef, block,
+        BR (B, 3, 3), Bt (B, 3))``."""
+        ch = self.chain
+        ops, blocks, run = [], [], None
+        for m, e in enumerate(ch.ets):
+            p = ch.slot[m]
+            per_point = ch.joint[m] >= 0 or (with_errors and p >= 0 and self.own[p] >= 0)
+            if per_point:
+                if run is not None:
+                    blocks.append(run)
+                    ops.append((2, 0, 0.0, -1, 0.0, -1, 0.0, len(blocks) - 1))
+                    run = None
+                slot = p if with_errors else -1
+                ops.append((1 if ch.kind_r[m] else 0, ch.axis[m], ch.value[m], ch.joint[m], self.jscale[m], slot,
+                            ch.coef[m], -1))
+                continue
+            x = ch.value[m] + (ch.coef[m] * self.consts[p] if with_errors and p >= 0 else 0.0)
+            if x == 0.0:
+                continue
+            T = _et_matrix(bool(ch.kind_r[m]), int(ch.axis[m]), x)
+            run = T if run is None else run @ T
+        if run is not None:
+            blocks.append(run)
+            ops.append((2, 0, 0.0, -1, 0.0, -1, 0.0, len(blocks) - 1))
+        cols = list(zip(*ops)) if ops else [()] * 8
+        B = np.array(blocks).reshape(-1, 4, 4)
+        return (np.array(cols[0], dtype=np.int64), np.array(cols[1], dtype=np.int64), np.array(cols[2], dtype=float),
+                np.array(cols[3], dtype=np.int64), np.array(cols[4], dtype=float), np.array(cols[5], dtype=np.int64),
+                np.array(cols[6], dtype=float), np.array(cols[7], dtype=np.int64),
+                np.ascontiguousarray(B[:, :3, :3]), np.ascontiguousarray(B[:, :3, 3]))
 
     def predict(self, axes) -> np.ndarray:
         axes = np.ascontiguousarray(axes, dtype=float)
         out = np.empty((axes.shape[0], 3))
-        field_kernel(axes, self.ops, self.use_nom, self.spl, self.consts, out)
+        field_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, out)
         return out
 
     def predict_and_jacobian(self, axes):
         axes = np.ascontiguousarray(axes, dtype=float)
         out = np.empty((axes.shape[0], 3))
         jac = np.empty((axes.shape[0], 3, self.k))
-        field_jac_kernel(axes, self.ops, self.use_nom, self.spl, self.consts, self.own, out, jac)
+        field_jac_kernel(axes, self.prog, self.prog_nom, self.spl, self.consts, self.own, out, jac)
         return out, jac
 
 
