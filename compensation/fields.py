@@ -124,6 +124,9 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
     """An error field (``predict(axes) -> (n, 3) μm``) for ``spec``: an element set or a trained
     network (folder or MLflow); other model kinds are refused naming what the file is."""
     src = source or resolve_model(spec)
+    if getattr(machine, "kind", None) == "machine-tool":  # a chain machine: its element set, over its own axes
+        require_kind(src, ("elements",), f"on the machine-tool chain {machine.name!r} this command evaluates")
+        return load_chain_field(src.path, machine)
     require_kind(src, ("elements", "network", "mlflow"), "this command evaluates")
     if src.kind == "elements":
         return HTMField(machine, ElementSet.load(src.path))
@@ -132,3 +135,12 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
     except ImportError as exc:  # pragma: no cover
         raise InputError(f"{spec}: a trained model, and the learned-field loader is unavailable ({exc})") from None
     return load_learned(str(src.path) if src.path is not None else src.spec, tracking_uri=tracking_uri)
+
+
+def load_chain_field(path, machine):
+    """The :class:`errormap.mt_field.ChainField` of a machine-tool chain from an element-set file
+    (format ``volcomp-elements/1`` with the chain's element names; InputError naming the file and
+    the key otherwise)."""
+    from errormap.mt_elements import ChainElementSet
+    from errormap.mt_field import ChainField
+    return ChainField(machine, ChainElementSet.load(path, machine))

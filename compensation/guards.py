@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from errormap.field import GRINDER_AXES, check_field
+from errormap.field import GRINDER_AXES, check_field, machine_axes
 
 from .solvers.base import BALL_RADIUS_UM
 
@@ -140,55 +140,85 @@ def ball_violations(correction_um, radius_um: float = BALL_RADIUS_UM, tol_um: fl
     return bad, np.array(reasons, dtype=object)
 
 
-def _box_violations(axes, lo, hi, a_full_turn: bool, tol: float, what: str):
-    """Shared box test with the A rule; axes (n, 3), lo/hi (3,). Returns (indices, reasons)."""
+def _box_violations(axes, lo, hi, a_full_turn, tol: float, what: str, names=AXIS_NAMES):
+    """Shared box test with the rotary rule; axes (n, k), lo/hi (k,), ``names`` (k,) the axis
+    columns. ``a_full_turn``: a bool (the grinder: its A, the last column) or a (k,) bool array
+    (a machine-tool chain: per axis) marking the full-turn axes, which pass whatever their value.
+    Returns (indices, reasons)."""
     vals = np.asarray(axes, dtype=float)
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
-    k = 2 if a_full_turn else 3  # the columns checked (A passes on a full turn)
-    cols = vals[:, :k]
+    k_all = vals.shape[1]
+    if np.ndim(a_full_turn) == 0:
+        free = np.zeros(k_all, bool)
+        free[k_all - 1] = bool(a_full_turn)
+    else:
+        free = np.asarray(a_full_turn, dtype=bool)
+    chk = np.flatnonzero(~free)  # the columns checked (a full-turn axis passes)
+    cols = vals[:, chk]
     # one pass for the common case (nothing out): NaN fails both comparisons, so it is caught
-    inside = (cols >= lo[:k] - tol) & (cols <= hi[:k] + tol)
+    inside = (cols >= lo[chk] - tol) & (cols <= hi[chk] + tol)
     if inside.all():
         return np.zeros(0, np.intp), np.array([], dtype=object)
     out = np.zeros(vals.shape, bool)
-    out[:, :k] = ~inside
+    out[:, chk] = ~inside
     bad = np.flatnonzero(out.any(axis=1))
     reasons = []
     for i in bad:  # formatting the offenders only (a message, not a computation)
-        parts = [f"{AXIS_NAMES[k]} = {vals[i, k]:.6g} outside {what} [{lo[k]:g}, {hi[k]:g}]"
-                 for k in range(3) if out[i, k]]
+        parts = [f"{names[k]} = {vals[i, k]:.6g} outside {what} [{lo[k]:g}, {hi[k]:g}]"
+                 for k in range(k_all) if out[i, k]]
         reasons.append(", ".join(parts))
     return bad, np.array(reasons, dtype=object)
 
 
+def _is_chain(machine) -> bool:
+    """A machine-tool chain (``kind = "machine-tool"``): axes, strokes and full turns per axis."""
+    return getattr(machine, "kind", None) == "machine-tool"
+
+
 def stroke_violations(axes, machine, tol: float = 1e-9):
-    """Axis commands (n, 3) outside the machine's strokes (A rule in the module docstring)."""
+    """Axis commands (n, k) outside the machine's strokes (A rule in the module docstring; a
+    machine-tool chain: every full-turn rotary axis passes, the others are checked as commanded)."""
     lo, hi = machine.stroke_lo, machine.stroke_hi
+    if _is_chain(machine):
+        free = np.array([a.full_turn for a in machine.axes])
+        return _box_violations(axes, lo, hi, a_full_turn=free, tol=tol, what="stroke", names=machine.axis_columns)
     return _box_violations(axes, lo, hi, a_full_turn=hi[2] - lo[2] >= 360.0 - 1e-9, tol=tol, what="stroke")
 
 
-def calibrated_volume(field) -> tuple[np.ndarray, np.ndarray]:
-    """The field's calibrated box ``(lo, hi)``, each shape (3,) in (x_mm, z_mm, a_deg).
+def calibrated_volume(field, names=AXIS_NAMES) -> tuple[np.ndarray, np.ndarray]:
+    """The field's calibrated box ``(lo, hi)``, each shape (k,) over ``names`` (default the
+    grinder's x_mm, z_mm, a_deg; a machine-tool chain's field: its axis columns).
 
     The field's ``calibrated_volume`` (module docstring); raises TypeError when the field is
-    not an :class:`errormap.field.ErrorField` or its volume is None.
+    not an :class:`errormap.field.ErrorField`, its volume is None or over other axes.
     """
-    vol = check_field(field).calibrated_volume
+    vol = check_field(field, names).calibrated_volume
     if vol is None:
         raise TypeError(f"{type(field).__name__} does not say where it is calibrated (calibrated_volume is None; "
                         "see errormap.field)")
     return vol.lo_array, vol.hi_array
 
 
-def volume_violations(axes, field, tol: float = 1e-9):
-    """Axis commands (n, 3) outside the field's calibrated volume (A rule in the module docstring)."""
-    lo, hi = calibrated_volume(field)
-    full = hi[2] - lo[2] >= 360.0 - 1e-9
+def volume_violations(axes, field, tol: float = 1e-9, names=AXIS_NAMES):
+    """Axis commands (n, k) outside the field's calibrated volume over ``names`` (A rule in the
+    module docstring; over a chain's axes the same rule for each ``*_deg`` column: a calibrated
+    range of a full turn accepts every angle, a narrower one is checked folded into its turn)."""
+    names = tuple(names)
+    lo, hi = calibrated_volume(field, names)
     axes = np.asarray(axes, dtype=float)
-    if not full:
+    if names == AXIS_NAMES:
+        full = hi[2] - lo[2] >= 360.0 - 1e-9
+        if not full:
+            axes = axes.copy()
+            axes[:, 2] = lo[2] + np.mod(axes[:, 2] - lo[2], 360.0)
+        return _box_violations(axes, lo, hi, a_full_turn=full, tol=tol, what="calibrated volume")
+    rot = np.array([n.endswith("_deg") for n in names])
+    free = rot & (hi - lo >= 360.0 - 1e-9)
+    fold = np.flatnonzero(rot & ~free)
+    if fold.size:
         axes = axes.copy()
-        axes[:, 2] = lo[2] + np.mod(axes[:, 2] - lo[2], 360.0)
-    return _box_violations(axes, lo, hi, a_full_turn=full, tol=tol, what="calibrated volume")
+        axes[:, fold] = lo[fold] + np.mod(axes[:, fold] - lo[fold], 360.0)
+    return _box_violations(axes, lo, hi, a_full_turn=free, tol=tol, what="calibrated volume", names=names)
 
 
 def convergence_violations(result):
@@ -233,10 +263,11 @@ def check(result, machine, field, allow=(), volume_tol: float = 1e-9, stroke_tol
     if unknown:
         raise ValueError(f"Expected guard names from {list(GUARDS)} (or 'all'), got {unknown}")
     ball = float(result.info.get("ball_um", BALL_RADIUS_UM))
+    names = machine_axes(machine)
     found = {
         "ball": ball_violations(result.correction_um, ball, success=result.success),
         "stroke": stroke_violations(result.axes, machine, stroke_tol),
-        "volume": volume_violations(result.axes, field, volume_tol),
+        "volume": volume_violations(result.axes, field, volume_tol, names),
         "convergence": convergence_violations(result),
     }
     if target_axes is not None:
@@ -244,7 +275,7 @@ def check(result, machine, field, allow=(), volume_tol: float = 1e-9, stroke_tol
         if target_axes.shape != np.shape(result.axes):
             raise ValueError(f"Expected target_axes of shape {np.shape(result.axes)}, got {target_axes.shape}")
         found["stroke"] = _merge(found["stroke"], _targets(stroke_violations(target_axes, machine, stroke_tol)))
-        found["volume"] = _merge(found["volume"], _targets(volume_violations(target_axes, field, volume_tol)))
+        found["volume"] = _merge(found["volume"], _targets(volume_violations(target_axes, field, volume_tol, names)))
     return GuardReport(n_points=len(result.axes), violations={g: v[0] for g, v in found.items()},
                        reasons={g: v[1] for g, v in found.items()}, allowed=allowed)
 

@@ -26,8 +26,8 @@ def _relative_to(value: str, folder: Path) -> str:
         return value
     from .machine import builtin_machine_path
     p = Path(value)
-    if p.resolve() == builtin_machine_path().resolve():
-        return str(p.resolve())
+    if p.resolve() == builtin_machine_path().resolve() or p.resolve().parent == builtin_machine_path().resolve().parent:
+        return str(p.resolve())  # a built-in machine file (the grinder's or a named chain's)
     return os.path.relpath(p.resolve(), folder.resolve())
 
 
@@ -39,9 +39,12 @@ def _resolve(value: str, folder: Path) -> str:
 
 
 def grid_axes(machine, n: int = 11) -> np.ndarray:
-    """The n×n×n grid over the strokes (A from its lower stroke over 360°), shape (n³, 3)."""
-    g = [np.linspace(*machine.strokes[k], n) for k in ("x_mm", "z_mm", "a_deg")]
-    return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
+    """The n×n×n grid over the strokes (A from its lower stroke over 360°), shape (n³, 3); a
+    machine-tool chain: the grid over each of its k axes' strokes in ``machine.axis_columns``
+    order, shape (nᵏ, k)."""
+    names = machine.axis_columns if getattr(machine, "kind", None) == "machine-tool" else ("x_mm", "z_mm", "a_deg")
+    g = [np.linspace(*machine.strokes[k], n) for k in names]
+    return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, len(names))
 
 
 # errors of a real machine tool's volume: a largest |error| outside this range is a unit mistake
@@ -61,6 +64,12 @@ class FeaturePoints:
     meta: dict
     source: str = ""
     rows: np.ndarray | None = None
+    axis_columns: tuple = COLUMNS[:3]
+    """The axes' column names (a machine-tool chain: its own, e.g. x_mm, y_mm, z_mm)."""
+
+    @property
+    def columns(self) -> tuple:
+        return tuple(self.axis_columns) + COLUMNS[3:]
 
     def check_units(self, machine) -> None:
         """Refuse feature points whose units do not fit the machine, naming row, column and the
@@ -69,7 +78,8 @@ class FeaturePoints:
         rows = self.rows if self.rows is not None else np.arange(1, len(self.axes) + 1)
         src = self.source or "feature points"
         # metres, radians: the shared check (errormap/units.py), the volume-covering form
-        check_units(src, rows, machine=machine, axes=self.axes, axes_columns=COLUMNS[:3], coverage="volume")
+        check_units(src, rows, machine=machine, axes=self.axes, axes_columns=tuple(self.axis_columns),
+                    coverage="volume")
         e = np.abs(self.errors_um)
         k, j = np.unravel_index(int(np.argmax(e)), e.shape)
         if e[k, j] > MAX_ERROR_UM:
@@ -80,7 +90,7 @@ class FeaturePoints:
                              f"is {e[k, j]:.3g} μm over the whole volume; mm rather than μm?")
 
     def save(self, path) -> Path:
-        cols = dict(zip(COLUMNS, np.hstack([self.axes, self.errors_um]).T))
+        cols = dict(zip(self.columns, np.hstack([self.axes, self.errors_um]).T))
         folder = Path(path).parent
         meta = {k: (_relative_to(str(v), folder) if k in PATH_KEYS else v) for k, v in self.meta.items()}
         lines = ["format: volcomp-featurepoints/1"] + [f"{k}: {v}" for k, v in meta.items()]
@@ -89,21 +99,30 @@ class FeaturePoints:
     @classmethod
     def load(cls, path) -> "FeaturePoints":
         t = read_table(path)
-        t.require(*COLUMNS)
-        data = np.stack([t.float(c) for c in COLUMNS], axis=1)
+        meta = t.meta()
+        # a machine-tool chain's feature points name their axis columns in the header (axis_columns: ...)
+        names = tuple(c.strip() for c in meta["axis_columns"].split(",")) if "axis_columns" in meta else COLUMNS[:3]
+        cols = names + COLUMNS[3:]
+        t.require(*cols)
+        data = np.stack([t.float(c) for c in cols], axis=1)
         if len(t) < 10:
             raise InputError(f"{path}: expected at least 10 feature points, got {len(t)}")
-        meta = t.meta()
         for k in PATH_KEYS:
             if k in meta:
                 meta[k] = _resolve(meta[k], Path(path).parent)
-        return cls(data[:, :3], data[:, 3:], meta, str(path), np.array([t.row_number(k) for k in range(len(t))]))
+        k = len(names)
+        return cls(data[:, :k], data[:, k:], meta, str(path), np.array([t.row_number(k) for k in range(len(t))]),
+                   axis_columns=names)
 
 
 def make_feature_points(machine, field, n: int = 11, meta: dict | None = None) -> FeaturePoints:
     """Evaluate ``field.predict`` on the n×n×n grid."""
     axes = grid_axes(machine, n)
+    k = axes.shape[1]
     m = {"machine": machine.name, "machine_file": machine.path, "machine_sha256": machine.sha256,
-         "grid": f"{n}x{n}x{n}"}
+         "grid": "x".join([str(n)] * k)}
     m.update(meta or {})
-    return FeaturePoints(axes, field.predict(axes), m)
+    names = machine.axis_columns if getattr(machine, "kind", None) == "machine-tool" else COLUMNS[:3]
+    if getattr(machine, "kind", None) == "machine-tool":
+        m["axis_columns"] = ",".join(names)
+    return FeaturePoints(axes, field.predict(axes), m, axis_columns=tuple(names))

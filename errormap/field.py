@@ -55,6 +55,14 @@ import numpy as np
 GRINDER_AXES = ("x_mm", "z_mm", "a_deg")
 """Axis names (and order) of a grinder field's input columns."""
 
+
+def machine_axes(machine) -> tuple:
+    """The axis columns a field of ``machine`` takes, in order: a machine-tool chain's own
+    (``machine.axis_columns``: ``x_mm, y_mm, z_mm, a_deg, c_deg``...), else the grinder's
+    :data:`GRINDER_AXES`."""
+    cols = getattr(machine, "axis_columns", None)
+    return tuple(cols) if cols is not None else GRINDER_AXES
+
 JACOBIAN = "jacobian"
 PREDICT_AND_JACOBIAN = "predict_and_jacobian"
 FLOAT32 = "float32"

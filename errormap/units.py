@@ -92,9 +92,56 @@ def path_axes_mistake(axes, machine) -> tuple[int, int, str] | None:
     return None
 
 
+def chain_axes_mistake(axes, machine, coverage: str = "path") -> tuple[int, int, str] | None:
+    """The likely unit mistake in the axis columns of a machine-tool chain (``axes`` (n, k) in
+    ``machine.axis_columns`` order), or None: the grinder's tests, per axis of the chain.
+
+    Linear axes (mm): ``coverage="path"`` every value within :data:`METRE_REACH` × the stroke's
+    larger end of zero and 1000× them inside the stroke; ``"volume"`` the column's span about
+    1/1000 of the stroke (:func:`errormap.machine.axes_unit_mistake`'s test). Rotary axes (deg) whose
+    stroke spans at least 180°: values within ±2π spanning at least 3π/2 and off a 0.5° grid
+    (radians). Needs at least two points (path) or :data:`errormap.machine.UNIT_MIN_POINTS` (volume).
+    """
+    from .machine import DEGREE_GRID_DEG, METRE_MATCH_FRACTION, METRE_SPAN_FRACTION, RADIAN_MIN_SPAN, UNIT_MIN_POINTS
+    axes = np.asarray(axes, dtype=float)
+    if len(axes) < (2 if coverage == "path" else UNIT_MIN_POINTS):
+        return None
+    for j, ax in enumerate(machine.axes):
+        lo, hi = ax.stroke
+        v = axes[:, j]
+        if ax.kind == "linear":
+            stroke = hi - lo
+            reach = METRE_REACH * max(abs(lo), abs(hi))
+            top = float(np.abs(v).max())
+            if coverage == "path":
+                hit = 0 < top <= reach and np.all(1000 * v >= lo - 1e-9) and np.all(1000 * v <= hi + 1e-9)
+                msg = (f"all within {reach:.3g} mm of zero on a {stroke:g} mm stroke (1000× fits it): "
+                       "metres rather than mm?")
+            else:
+                span = float(np.ptp(v))
+                hit = (0 < span <= METRE_SPAN_FRACTION * stroke and span * 1000 >= METRE_MATCH_FRACTION * stroke
+                       and top <= reach)
+                msg = (f"values span only {span:.4g} mm of the {stroke:g} mm stroke; 1000× that fits it: "
+                       "metres rather than mm?")
+            if hit:
+                return int(np.argmax(np.abs(v))), j, msg
+        else:
+            span = float(np.ptp(v))
+            on_grid = np.allclose(v / DEGREE_GRID_DEG, np.round(v / DEGREE_GRID_DEG), rtol=0, atol=1e-9)
+            if (hi - lo >= 180 and np.all(np.abs(v) <= 2 * np.pi + 1e-6) and span >= RADIAN_MIN_SPAN
+                    and not on_grid):
+                return int(np.argmax(np.abs(v))), j, f"values lie within ±2π and span {span:.4g}: radians rather than degrees?"
+    return None
+
+
 def wcs_box_mm(machine) -> tuple[np.ndarray, np.ndarray]:
     """The WCS bounding box (lo (3,), hi (3,)) mm of the nominal tool points over the machine's
     strokes (a 5 × 5 × 25 grid of X, Z, A: its corners and the A turn)."""
+    if getattr(machine, "kind", None) == "machine-tool":  # a chain: 5 values per linear axis, 25 per rotary
+        g = [np.linspace(*a.stroke, 5 if a.kind == "linear" else 25) for a in machine.axes]
+        axes = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, len(g))
+        p = machine.nominal(axes)
+        return p.min(axis=0), p.max(axis=0)
     from .kinematics import forward
     g = [np.linspace(*machine.strokes[k], n) for k, n in (("x_mm", 5), ("z_mm", 5), ("a_deg", 25))]
     axes = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
@@ -140,7 +187,7 @@ def check_units(path, rows=None, *, machine=None, axes=None, axes_columns=("x_mm
     likely mistake) for the first column whose unit does not fit.
 
     ``rows`` (n,): the file row of each point (None: no rows to name). ``axes`` (n, 3) with
-    ``machine``: ``coverage="volume"`` for data that covers the machine's volume (check
+    ``machine`` (a machine-tool chain: (n, k) in its ``axis_columns``, :func:`chain_axes_mistake`): ``coverage="volume"`` for data that covers the machine's volume (check
     measurements, feature points: :func:`errormap.machine.axes_unit_mistake`), ``"path"`` for a tool
     path or a set of points (:func:`path_axes_mistake`). ``targets`` (n, 3) mm WCS
     (:func:`targets_mistake`, sized by ``machine`` when given). ``temps``:
@@ -155,7 +202,14 @@ def check_units(path, rows=None, *, machine=None, axes=None, axes_columns=("x_mm
             raise _fail(path, rows, m[0], column, m[1], option)
     if units == UNITS_AS_WRITTEN:
         return
-    if axes is not None:
+    if axes is not None and getattr(machine, "kind", None) == "machine-tool":
+        if coverage not in ("volume", "path"):
+            raise ValueError(f"Expected coverage 'volume' or 'path', got {coverage!r}")
+        m = chain_axes_mistake(axes, machine, coverage)
+        if m is not None:
+            cols = machine.axis_columns if tuple(axes_columns) == ("x_mm", "z_mm", "a_deg") else axes_columns
+            raise _fail(path, rows, m[0], cols[m[1]], m[2], option)
+    elif axes is not None:
         if coverage == "volume":
             from .machine import axes_unit_mistake
             m = axes_unit_mistake(axes, machine)

@@ -7,12 +7,13 @@ from errormap.elements import ElementSet
 from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField
 from errormap.io import sha256_file
-from errormap.machine import load_machine
+from errormap.machine import check_machine_kind, load_machine
 
 
 def register(sub):
     p = sub.add_parser("featurepoints", help="feature points (11x11x11 grid) from an element set")
-    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
+                   "grinder; a machine-tool chain (mill-xyz ...): the grid over its own axes")
     p.add_argument("--elements", required=True, help="element-set file (JSON)")
     p.add_argument("--grid", type=int, default=11, help="points per axis (default 11)")
     p.add_argument("--out", required=True, help="output CSV")
@@ -20,10 +21,22 @@ def register(sub):
 
 
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind="grinder")
-    el = ElementSet.load(args.elements)  # by content: its format key, whatever the file's name
+    machine = load_machine(args.machine)
+    if machine.kind == "machine-tool":  # a chain: its element set, the grid over its own axes
+        from compensation.app.cli import UsageError
+        from compensation.app.validate import MAX_GRID_POINTS
+        k = len(machine.axes)
+        if args.grid ** k > MAX_GRID_POINTS:
+            raise UsageError(f"--grid {args.grid}: {args.grid}^{k} = {args.grid ** k} points over the {k} axes of "
+                             f"{machine.name!r} exceeds {MAX_GRID_POINTS}; the largest that fits is "
+                             f"{int(MAX_GRID_POINTS ** (1 / k) + 1e-9)}")
+        from compensation.fields import load_chain_field
+        field = load_chain_field(args.elements, machine)
+    else:
+        check_machine_kind(machine.path, machine.kind, "grinder")
+        field = HTMField(machine, ElementSet.load(args.elements))  # by content: its format key, whatever the name
     print(f"featurepoints: element set (volcomp-elements/1): {args.elements}", file=sys.stderr)
-    fp = make_feature_points(machine, HTMField(machine, el), n=args.grid,
+    fp = make_feature_points(machine, field, n=args.grid,
                              meta={"elements_file": args.elements, "elements_sha256": sha256_file(args.elements)})
     path = fp.save(args.out)
     print(f"wrote {len(fp.axes)} feature points to {path}")

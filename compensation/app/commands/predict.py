@@ -6,7 +6,8 @@ import sys
 import numpy as np
 
 from errormap.io import InputError, read_table, write_csv
-from errormap.machine import load_machine
+from errormap.field import machine_axes
+from errormap.machine import check_machine_kind, load_machine
 from errormap.units import check_units
 
 from compensation.app.cli import UsageError
@@ -17,10 +18,12 @@ from ...fields import KIND_NAMES, load_field, resolve_model
 
 def register(sub):
     p = sub.add_parser("predict", help="evaluate an error field at axis points (CSV x_mm, z_mm, a_deg)")
-    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
+                   "grinder; a machine-tool chain (mill-xyz, five-axis-ac ...) takes its own axis columns")
     p.add_argument("--model", required=True, help="element-set file (JSON), MLflow run id or runs:/ URI")
     p.add_argument("--tracking-uri", default=None)
-    p.add_argument("points", help="CSV with x_mm, z_mm, a_deg")
+    p.add_argument("points", help="CSV with x_mm, z_mm, a_deg (a chain machine: its axis columns, e.g. "
+                   "x_mm, y_mm, z_mm)")
     p.add_argument("--out", required=True, help="output CSV (input columns + dx_um, dy_um, dz_um)")
     p.add_argument("--allow", action="append", default=[], choices=("extrapolate",),
                    help="extrapolate: predict also at points outside the model's calibrated volume "
@@ -32,36 +35,45 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _check_volume(args, table, axes, field) -> None:
+def _check_volume(args, table, axes, field, machine) -> None:
     """Refuse points outside the field's calibrated volume (unless ``--allow extrapolate``),
     naming the first one's row and column; a far-off value is most often a unit mistake."""
     from ...guards import calibrated_volume, volume_violations
-    bad, reasons = volume_violations(axes, field)
+    names = machine_axes(machine)
+    bad, reasons = volume_violations(axes, field, names=names)
     if not len(bad) or "extrapolate" in args.allow:
         return
-    lo, hi = calibrated_volume(field)
+    lo, hi = calibrated_volume(field, names)
     i = int(bad[0])
-    far = np.abs(axes[i, :2]) > 100 * np.maximum(np.abs(lo[:2]), np.abs(hi[:2]))
+    lin = np.array([n.endswith("_mm") for n in names])
+    far = np.abs(axes[i, lin]) > 100 * np.maximum(np.abs(lo[lin]), np.abs(hi[lin]))
     hint = "; positions in μm rather than mm?" if far.any() else ""
     raise InputError(f"{table.path}: row {table.row_number(i)}: {reasons[0]} ({len(bad)} of {len(axes)} points "
                      f"outside the calibrated volume{hint}); pass --allow extrapolate to predict there anyway")
 
 
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind="grinder")
+    machine = load_machine(args.machine)
+    if machine.kind != "machine-tool":
+        check_machine_kind(machine.path, machine.kind, "grinder")
+    names = machine_axes(machine)   # the grinder's x_mm, z_mm, a_deg or the chain's own columns
     t = read_table(args.points)
-    t.require("x_mm", "z_mm", "a_deg")
-    axes = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
-    check_units(t.path, [t.row_number(k) for k in range(len(t))], machine=machine, axes=axes, coverage="path",
-                units=args.units, option="--units")
+    t.require(*names)
+    axes = np.stack([t.float(c) for c in names], axis=1)
+    check_units(t.path, [t.row_number(k) for k in range(len(t))], machine=machine, axes=axes, axes_columns=names,
+                coverage="path", units=args.units, option="--units")
+    if args.band and machine.kind == "machine-tool":
+        raise UsageError(f"--band: the element covariance is the grinder's (volcomp identify); not available for "
+                         f"the machine-tool chain {machine.name!r}")
     src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
     field = load_field(args.model, machine, args.tracking_uri, source=src)
-    _check_volume(args, t, axes, field)
+    _check_volume(args, t, axes, field, machine)
     print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
     from ..validate import predict_batched
     e = predict_batched(field, axes)
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
+    meta = [f"machine: {machine.name}"] if machine.kind == "machine-tool" else []
     if args.band:
         from errormap.elements import ElementSet
         from errormap.uncertainty import Z95, ElementCovariance, covariance_path
@@ -73,7 +85,7 @@ def run(args) -> int:
         k = 1.0 if args.band == "1sigma" else Z95
         tag = "1sigma" if args.band == "1sigma" else "95"
         cols.update({f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
-    path = write_csv(args.out, cols, header_comments=[f"model: {src.description}", f"model_kind: {src.kind}",
+    path = write_csv(args.out, cols, header_comments=meta + [f"model: {src.description}", f"model_kind: {src.kind}",
                                                      f"units: {args.units}"])
     print(f"wrote {len(axes)} predictions to {path}")
     return 0
