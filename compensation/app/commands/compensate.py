@@ -30,6 +30,11 @@ strokes too. ``--allow GUARDS`` (comma-separated; bare ``--allow`` = all) overri
 guards explicitly: the file is written, the override is recorded in the file itself
 (a header comment in G-code, a ``#`` line in CSV) and in the summary.
 The residual reported per file is the MODEL residual (the solver's own field).
+
+A machine-tool chain (``--machine mill-xyz``, ``five-axis-ac`` ...) takes its own axis words and
+CSV columns, ``--method exact`` (Newton on the chain: the tool-tip position with the linear axes,
+rotary axes kept) and, with ``--truth ELEMENTS``, reports the TRUE residual as well
+(:mod:`compensation.app.workflows.mt_compensate`).
 """
 from __future__ import annotations
 
@@ -74,6 +79,9 @@ def register(sub):
     p.add_argument("--allow", nargs="?", const="all", default=None, metavar="GUARDS",
                    help="write commands even where these guards object (comma-separated from "
                         f"{', '.join(guards.GUARDS)}; bare --allow: all of them); violations are still reported")
+    p.add_argument("--truth", default=None, metavar="ELEMENTS",
+                   help="machine-tool chains: a truth element set of the same chain (simulated machine, given by a "
+                        "tester or benchmark, never used by the solver): the TRUE residual is reported beside the model's")
     p.add_argument("--show", type=int, default=10, help="offending points listed per refused file (default 10)")
     p.add_argument("--rapids", choices=RAPIDS_CHOICES, default=DEFAULT_RAPIDS,
                    help=f"G0 lines: keep as written or compensate their end point (default {DEFAULT_RAPIDS})")
@@ -124,6 +132,12 @@ def run(args) -> int:
         return run_arm_compensate(machine, args)
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
+    if machine.kind == "machine-tool":  # a chain file (mill-xyz, five-axis-ac ...): its own axes and G-code words
+        from ..workflows.mt_compensate import run_chain_compensate
+        return run_chain_compensate(machine, args, parse_allow(args.allow))
+    if args.truth is not None:
+        raise UsageError("--truth: the true residual of a compensated program is reported on machine-tool chains; "
+                         "for the grinder use `volcomp report --truth`")
     max_segment = parse_max_segment(args.max_segment_mm)
     allow = parse_allow(args.allow)
     settings = CompensateSettings(

@@ -1,0 +1,230 @@
+"""``volcomp compensate`` on a machine-tool chain (``--machine mill-xyz``, ``five-axis-ac`` ...).
+
+The grinder's order of work (:mod:`compensation.app.workflows.compensate`) over the machine's own
+axes: every input is read and checked first (G-code by :mod:`compensation.mt_gcode` with the
+machine's axis words, or a CSV with the machine's axis columns ``x_mm, y_mm, z_mm ...``; told apart
+by content), then the model (an element set of the chain, recognised by content), the exact chain
+solver (:mod:`compensation.solvers.chain_exact`: the tool-tip position with the linear axes, rotary
+axes kept, said in the summary), the guards (ball, strokes, calibrated volume, convergence;
+``--allow`` overrides and the override is written into the file and the summary), and the
+accepted files written as one set with ``compensate_summary.json`` last.
+
+Residuals: the MODEL residual of every file (the solver's own field); with ``truth`` (a truth
+element set of the same chain, given by a tester or a benchmark, never to the solver) also the
+TRUE residual — the tool point the truth machine reaches when driven with the compensated axes,
+minus the target — beside the uncompensated machine's true error (the baseline: the program run
+as written).
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from errormap.io import InputError, atomic_write, read_table, write_json
+from errormap.units import UNITS_CHECK, check_units
+
+from compensation.app.validate import UsageError
+
+from ... import guards
+from ...fields import load_chain_field, require_kind, resolve_model
+from ...gcode import DEFAULT_RAPIDS
+from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
+from ...pathio import DEFAULT_ARC_TOLERANCE_UM, is_csv
+from ...solvers.chain_exact import nominal_and_jacobian, solve_exact_chain
+from .compensate import SUMMARY_NAME, check_out_dir, plan_outputs
+
+DECIMALS = {"mm": 6, "deg": 6}  # 1 nm; 1e-6 deg
+
+
+@dataclass
+class ChainPath:
+    """One input: ``kind`` ``"gcode"`` or ``"csv-axes"``, ``axes`` (n, k) nominal axes of every
+    point (vertex), ``lines`` (n,) source line (G-code) or row (CSV), ``source`` the parsed job or
+    table."""
+
+    path: Path
+    kind: str
+    axes: np.ndarray
+    lines: np.ndarray
+    source: object
+
+
+@dataclass
+class ChainSettings:
+    method: str
+    model: str
+    out_dir: Path
+    force: bool = False
+    allow: tuple = ()
+    rapids: str = DEFAULT_RAPIDS
+    block_delete: str | None = None
+    arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM
+    units: str = UNITS_CHECK
+    truth: str | None = None
+    outcomes: list = field(default_factory=list)
+
+
+def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
+    """A tool-path file for the chain ``machine``: CSV with its axis columns, or G-code."""
+    path = Path(path)
+    if is_csv(path):
+        t = read_table(path)
+        cols = machine.axis_columns
+        t.require(*cols)
+        if len(t) == 0:
+            raise InputError(f"{path}: no data rows")
+        axes = np.stack([t.float(c) for c in cols], axis=1)
+        rows = t.row_number(0) + np.arange(len(t), dtype=int)
+        check_units(path, rows, machine=machine, axes=axes, axes_columns=cols, coverage="path", units=s.units,
+                    option="--units")
+        return ChainPath(path, "csv-axes", axes, rows, t)
+    prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete)
+    job = plan_chain_gcode(prog, s.arc_tolerance_um, field_)
+    check_units(path, job.lines, machine=machine, axes=job.axes, axes_columns=machine.axis_columns, coverage="path",
+                units=s.units, option="--units")
+    return ChainPath(path, "gcode", job.axes, job.lines, job)
+
+
+def _render(tp: ChainPath, axes, machine, comments) -> str:
+    if tp.kind == "csv-axes":
+        from ...pathio import _render_csv
+        dec = [DECIMALS[a.unit] for a in machine.axes]
+        return _render_csv(tp.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(machine.axis_columns)}, comments)
+    job = tp.source
+    verts, s = [], 0
+    for v in job.vertices:
+        verts.append(axes[s:s + len(v)])
+        s += len(v)
+    return render_chain_program(job.program, verts, header=comments)
+
+
+def true_residual_um(truth_field, machine, axes, targets_mm) -> np.ndarray:
+    """TRUE residual (μm), (n, 3): the truth machine's tool point at ``axes`` (nominal + its error)
+    minus the targets."""
+    p, _ = nominal_and_jacobian(machine, axes)
+    return (p - targets_mm) * 1e3 + truth_field.predict(axes)
+
+
+def _stats(r) -> dict:
+    nrm = np.linalg.norm(r, axis=1)
+    return {"max_um": float(nrm.max()), "rms_um": float(np.sqrt(np.mean(nrm ** 2))), "mean_um": float(nrm.mean())}
+
+
+def run_chain_compensate(machine, args, allow) -> int:
+    """The ``compensate`` command on a machine-tool chain; returns the exit status."""
+    if args.method != "exact":
+        raise UsageError(f"--method {args.method}: on the machine-tool chain {machine.name!r} only --method exact "
+                         "is available (Newton on the chain)")
+    if getattr(args, "cluster", None) not in (None, "local"):
+        raise UsageError(f"--cluster {args.cluster}: not available on a machine-tool chain (solved in this process)")
+    s = ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
+                      rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
+                      units=args.units, truth=args.truth)
+    plan = plan_outputs(args.files, s.out_dir)
+    old_outputs = check_out_dir(s.out_dir, s.force)
+    src = require_kind(resolve_model(s.model), ("elements",), f"on the machine-tool chain {machine.name!r} compensate "
+                                                              "takes")
+    print(f"compensate: model {src.description}", file=sys.stderr)
+    field_ = load_chain_field(src.path, machine)
+    truth = load_chain_field(s.truth, machine) if s.truth else None
+    paths = [read_chain_path(p, machine, s, field_) for p, _ in plan]
+    outcomes = []
+    for (p, dst), tp in zip(plan, paths):
+        targets, _ = nominal_and_jacobian(machine, tp.axes)
+        res = solve_exact_chain(field_, targets, machine, target_axes=tp.axes, progress=False)
+        report = guards.check(res, machine, field_, allow=allow, target_axes=tp.axes)
+        kept = []
+        if tp.kind == "gcode" and len(tp.source.kept_lines):
+            job = tp.source
+            mid = 0.5 * (machine.stroke_lo + machine.stroke_hi)
+            ka = np.where(np.isfinite(job.kept_axes), job.kept_axes, mid)
+            idx, reasons = guards.stroke_violations(ka, machine)
+            kept = [(int(job.kept_lines[i]), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
+        norm = np.linalg.norm(res.residual_um, axis=1)
+        viol = {g: int(len(v)) for g, v in report.violations.items()}
+        viol["stroke"] += len(kept)
+        entry = {"input": str(p), "output": None, "format": tp.kind, "points": len(tp.axes), "machine": machine.name,
+                 "residual": "model", "model_max_um": float(norm.max()), "model_mean_um": float(norm.mean()),
+                 "max_correction_um": float(res.correction_um.max()),
+                 "failures": int(np.count_nonzero(~res.success)), "guard_violations": viol,
+                 "allowed_guards": sorted(report.allowed),
+                 "overridden": {g: n for g, n in viol.items() if n and g in report.allowed},
+                 "compensated_axes": res.info["compensated_axes"], "kept_axes": res.info["kept_axes"],
+                 "seconds": float(res.seconds)}
+        if res.info.get("note"):
+            entry["note"] = res.info["note"]
+        if truth is not None:
+            entry["true"] = _stats(true_residual_um(truth, machine, res.axes, targets))
+            entry["true_uncompensated"] = _stats(true_residual_um(truth, machine, tp.axes, targets))
+            entry["truth"] = str(s.truth)
+        if tp.kind == "gcode":
+            job = tp.source
+            entry.update({"lines": len(job.program.lines), "moves_compensated": len(job.vertices),
+                          "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids,
+                          "arc_tolerance_um": s.arc_tolerance_um})
+        blocking = report.blocking
+        refused = bool(blocking) or (bool(kept) and "stroke" not in report.allowed)
+        text = None
+        if refused:
+            entry["refused"] = True
+            bad = np.unique(np.concatenate(list(blocking.values()))) if blocking else np.zeros(0, int)
+            listed = [(int(i), int(tp.lines[i]), "; ".join(r for r in report.point_reasons(int(i))
+                                                          if r.split(":")[0] in blocking)) for i in bad]
+            entry["refused_guards"] = sorted(blocking) or ["stroke"]
+        else:
+            listed = []
+            comments = []
+            if entry["overridden"]:
+                counts = ", ".join(f"{g} {n}" for g, n in entry["overridden"].items())
+                comments = [f"volcomp compensate: GUARDS OVERRIDDEN (--allow {','.join(entry['allowed_guards'])}): "
+                            f"{counts} point(s) violate; method={s.method} model={s.model}"]
+            elif tp.kind != "gcode":
+                comments = [f"compensated by volcomp: method={s.method} model={s.model} machine={machine.name}",
+                            f"model residual max {entry['model_max_um']:.4g} um"]
+            text = _render(tp, res.axes, machine, comments)
+        outcomes.append((p, dst, tp, entry, text, listed, kept if refused else []))
+        status = "REFUSED (not written)" if refused else f"-> {dst}"
+        tail = ""
+        if truth is not None:
+            tail = (f", TRUE residual max {entry['true']['max_um']:.4g} um rms {entry['true']['rms_um']:.4g} um "
+                    f"(uncompensated {entry['true_uncompensated']['max_um']:.4g} um max)")
+        print(f"{p}: {entry['points']} points, model residual max {entry['model_max_um']:.4g} um, max correction "
+              f"{entry['max_correction_um']:.1f} um{tail}, guard violations {sum(viol.values())} {status}")
+        if entry.get("note"):
+            print(f"  {entry['note']}")
+    written = {dst.name for _, dst, _, _, text, _, _ in outcomes if text is not None}
+    removed = []
+    for p in sorted(set(old_outputs) | {dst for _, dst, _, _, text, _, _ in outcomes if text is None}):
+        if p.is_file() and p.name not in written:
+            p.unlink()
+            removed.append(str(p))
+    import contextlib
+    with contextlib.ExitStack() as stack:  # all files in full to temporary files, then renamed together
+        for _, dst, tp, entry, text, _, _ in outcomes:
+            if text is not None:
+                fh = stack.enter_context(atomic_write(dst, "wb"))
+                fh.write(text.encode("latin-1" if tp.kind == "gcode" else "utf-8"))
+                entry["output"] = str(dst)
+    summary = write_json(s.out_dir / SUMMARY_NAME, {
+        "method": s.method, "model": s.model, "model_source": src.to_dict(), "units": s.units,
+        "machine": machine.path, "machine_name": machine.name, "allow": list(allow),
+        "residual": "model: p_r + E(axes(p_r)) - p_d (um)"
+                    + ("; true: truth tool point at the compensated axes - p_d (um)" if truth is not None else ""),
+        "files": [o[3] for o in outcomes], "removed_stale": removed})
+    print(f"wrote summary: {summary}")
+    refused = [o for o in outcomes if o[4] is None]
+    if refused:
+        for p, _, _, entry, _, listed, kept in refused:
+            print(f"volcomp compensate: {p}: refused by guard(s) {', '.join(entry['refused_guards'])}; "
+                  f"{len(listed) + len(kept)} offending point(s):", file=sys.stderr)
+            for line, reason in kept[:args.show]:
+                print(f"  line {line}: {reason}", file=sys.stderr)
+            for i, line, reason in listed[:args.show]:
+                print(f"  point {i} (line {line}): {reason}", file=sys.stderr)
+        print("volcomp compensate: refused files were not written; override explicitly with --allow GUARDS "
+              "(or bare --allow for all)", file=sys.stderr)
+        return 3
+    return 0
