@@ -75,14 +75,21 @@ def _nominal_kernel(axes, prog, own, P, J):  # pragma: no cover - compiled
                 J[n, i, j] = Jp[i, j]
 
 
+def _nominal_program(machine):
+    """The machine's chain packed for the kernels (its nominal program does not depend on the
+    element values: a zero element set packs it)."""
+    from errormap.mt_elements import ChainElementSet
+    from errormap.mt_kernel import CompiledChain
+    return CompiledChain(machine, ChainElementSet.zeros(machine))
+
+
 def nominal_and_jacobian(machine, axes, compiled=None) -> tuple[np.ndarray, np.ndarray]:
     """Nominal tool point (n, 3) mm and ``d(tool point)/d(axes)`` (n, 3, k) of ``machine`` at
     ``axes`` (n, k), compiled (equal to :meth:`MachineTool.nominal` / ``axis_jacobian``, tested).
-    ``compiled``: a :class:`errormap.mt_kernel.CompiledChain` of the machine (any element set)."""
+    ``compiled``: a :class:`errormap.mt_kernel.CompiledChain` of the machine (any element set;
+    packed here when None)."""
     if compiled is None:
-        from errormap.mt_elements import ChainElementSet
-        from errormap.mt_kernel import CompiledChain
-        compiled = CompiledChain(machine, ChainElementSet.zeros(machine))
+        compiled = _nominal_program(machine)
     axes = np.ascontiguousarray(axes, dtype=float)
     P = np.empty((axes.shape[0], 3))
     J = np.empty((axes.shape[0], 3, axes.shape[1]))
@@ -136,8 +143,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     if not (tol_um > 0 and xtol_um > 0 and max_iter >= 1 and chunk >= 1):
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
-    from errormap.mt_kernel import CompiledChain
-    compiled = CompiledChain(machine, field.elements) if hasattr(field, "elements") else None
+    compiled = _nominal_program(machine)
     k = len(machine.axes)
     if target_axes is None:
         axes_d = chain_inverse(machine, targets, compiled)
