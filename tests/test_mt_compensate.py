@@ -230,3 +230,32 @@ def test_compensate_chain_refuses_other_methods(tmp_path, mill_models, capsys):
     assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method", "ga",
                  "--out", str(tmp_path / "o")]) == 2
     assert "only --method exact" in capsys.readouterr().err
+
+
+EXPORT_TOLERANCE_UM = 1.0
+"""The export's default tolerance: the linear tables must rebuild the model's spatial error within 1 μm."""
+
+
+def test_export_iso_tables_over_the_mill(tmp_path, mill_models, capsys):
+    truth, est = mill_models
+    mt = load_machine("mill-xyz")
+    out = tmp_path / "exp"
+    assert main(["export", str(est), "--format", "iso-tables", "--machine", "mill-xyz", "--out", str(out),
+                 "--truth", str(truth), "--check-points", "500"]) == 0
+    doc = json.loads((out / "export.json").read_text())
+    assert doc["tolerance_met"] and doc["check"]["model"]["max_um"] <= EXPORT_TOLERANCE_UM
+    assert doc["check"]["baseline_none"]["model"]["max_um"] > 10 * EXPORT_TOLERANCE_UM
+    from errormap.io import read_table
+    el = ChainElementSet.load(est, mt)
+    for a in mt.axes:  # one table per axis, columns the derived ISO names, values the model's at the rows
+        t = read_table(out / f"iso_{a.word}.csv")
+        iso = [s.iso + "_" + s.unit for s in mt.slots if s.name in mt.slots_of(a.word)]
+        assert t.names == [a.column] + iso
+        pos = t.float(a.column)
+        want = np.asarray(el.axis_spline(a.word)(pos))
+        got = np.stack([t.float(c) for c in iso], axis=1)
+        assert np.abs(got - want).max() < TOL_CSV_REL * np.abs(want).max()
+    c = read_table(out / "iso_constants.csv")
+    assert list(c.raw("iso")) == ["EC0Y", "EB0Z", "EA0Z"]
+    assert main(["export", str(est), "--format", "linuxcnc", "--machine", "mill-xyz", "--out", str(tmp_path / "e2")]) == 2
+    assert "only --format iso-tables" in capsys.readouterr().err

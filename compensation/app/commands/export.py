@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.machine import load_machine
+from errormap.machine import check_machine_kind, load_machine
 
 from compensation.app.cli import UsageError
 
@@ -42,7 +42,8 @@ def register(sub):
                                                   "drift_model.json from `volcomp diagnose --drift`")
     p.add_argument("--format", required=True, choices=ex.ALL_FORMATS, dest="fmt", help="table format")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
+                   "grinder; a machine-tool chain (mill-xyz ...): --format iso-tables over its own axes")
     p.add_argument("--tolerance-um", type=float, default=DEFAULT_TOLERANCE_UM,
                    help=f"largest model residual the table may leave (um; default {DEFAULT_TOLERANCE_UM:g}); "
                         "sizes the iso-tables rows and the grid spacing")
@@ -110,7 +111,10 @@ def run(args) -> int:
     given = [k for k, v in drift_only.items() if v is not None]
     if given:
         raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to --format drift only")
-    machine = load_machine(args.machine, expect_kind="grinder")
+    machine = load_machine(args.machine)
+    if machine.kind == "machine-tool":  # a chain file: ISO tables per axis of its own axes
+        return run_chain_export(args, machine)
+    check_machine_kind(machine.path, machine.kind, "grinder")
     if args.fmt != "linuxcnc" and (args.diagnosis or args.region):
         raise UsageError("--diagnosis and --region apply to --format linuxcnc only (the other formats carry no "
                          "reversal and are not averaged)")
@@ -176,3 +180,50 @@ def format_drift_check(check: dict) -> list[str]:
     return lines
 
 
+
+
+def run_chain_export(args, machine) -> int:
+    """``--format iso-tables`` on a machine-tool chain (:mod:`compensation.mt_export`): per-axis ISO
+    tables of its element set, checked (linear interpolation between rows) before writing."""
+    from errormap.io import write_json
+    from ...fields import require_kind, resolve_model
+    from ... import mt_export
+    from errormap.mt_elements import ChainElementSet
+    if args.fmt != "iso-tables":
+        raise UsageError(f"--format {args.fmt}: on the machine-tool chain {machine.name!r} only --format iso-tables "
+                         "is available (the grid and per-joint tables are the grinder's)")
+    bad = [k for k, v in {"--diagnosis": args.diagnosis, "--region": args.region}.items() if v is not None]
+    if bad:
+        raise UsageError(f"{', '.join(bad)}: apply to the grinder's --format linuxcnc only")
+    src = require_kind(resolve_model(args.model), ("elements",), f"on the machine-tool chain {machine.name!r} export "
+                                                                 "takes")
+    el = ChainElementSet.load(src.path, machine)
+    truth = ChainElementSet.load(args.truth, machine) if args.truth else None
+    pts = mt_export.check_points(el, args.check_points, args.seed)
+    tables, n_rows, check = mt_export.build_chain_tables(el, args.tolerance_um, pts, truth)
+
+    def f(q):
+        return f"{q['max_um']:9.4g} / {q['p95_um']:9.4g} / {q['mean_um']:9.4g}"
+    print(f"check ({check['model']['n']} random points over the calibrated volume; table rows linear; residual norm, "
+          "um: max / p95 / mean)")
+    print(f"  table ({n_rows} rows per axis) model {f(check['model'])}" + (f"   true {f(check['true'])}" if truth else ""))
+    print(f"  no compensation          model {f(check['baseline_none']['model'])}"
+          + (f"   true {f(check['baseline_none']['true'])}" if truth else ""))
+    if truth is not None:
+        print(f"  exact (model)                                               true {f(check['baseline_exact']['true'])}")
+    met = check["model"]["max_um"] <= args.tolerance_um
+    if not met and not args.force:
+        raise UsageError(f"--tolerance-um {args.tolerance_um:g}: the tables leave {check['model']['max_um']:.4g} um "
+                         f"with {n_rows} rows per axis (the most: {mt_export.MAX_ROWS}); nothing written (--force "
+                         "writes anyway)")
+    out = Path(args.out)
+    files = mt_export.write_chain_tables(tables, el, out, src.description)
+    write_json(out / "export.json", {"format": "iso-tables", "machine": machine.name, "machine_file": machine.path,
+                                     "model": src.to_dict(), "rows_per_axis": n_rows, "tolerance_um": args.tolerance_um,
+                                     "tolerance_met": bool(met), "forced": bool(args.force and not met),
+                                     "check": check, "files": [p.name for p in files],
+                                     "residual": "model: table-rebuilt spatial error - the model's (um)"
+                                                 + ("; true: table-rebuilt - the truth's (um)" if truth else "")})
+    for p in files + [out / "export.json"]:
+        print(f"wrote: {p}")
+    return 0

@@ -1,0 +1,138 @@
+"""ISO 230-1 per-axis tables of a machine-tool chain's element set (``volcomp export --format
+iso-tables --machine mill-xyz``), checked before writing.
+
+Files (CSV, ``#`` header lines with the machine, its SHA-256 and the model):
+
+* ``iso_<W>.csv`` for every axis ``W`` with component errors: the position column (``x_mm``,
+  ``c_deg``) and one column per component error under its ISO name and unit (``EXX_um … ECX_urad``,
+  the chain's own derived names, :attr:`errormap.mt_chain.MachineTool.iso_names`), rows equally
+  spaced over the calibrated range (a full-turn rotary axis: one turn, last row = first);
+* ``iso_constants.csv``: the location errors (ISO 230-7) and squareness errors, one row each
+  (``name, iso, value, unit``).
+
+Values are the element values in the chain file's conventions (``docs/machines.md``: each
+component error applied right after its axis' motion, in the frame it moves in; squareness as the
+file names it) — a controller reading these must apply them with the same chain.
+
+The check (:func:`check_chain_tables`): a controller interpolates every component LINEARLY between
+rows. At seeded random points over the calibrated volume the spatial error rebuilt from the table
+(exact chain, :meth:`MachineTool.spatial_error`) is compared with the model's: the difference is
+what the table leaves after an exact compensation with it (the MODEL residual of the table, μm),
+beside no compensation (the model's error itself); with a truth element set the same against the
+truth (TRUE residual). Rows are doubled from the stations' count until the model residual meets the
+tolerance (at most :data:`MAX_ROWS`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from errormap.io import write_csv
+
+MAX_ROWS = 4097
+"""Most rows per axis table (a controller's table is bounded; 4,097 rows of a 1 m stroke are 0.25 mm apart)."""
+
+
+def _rows_axis(elements, a, n_rows):
+    s = elements.stations[a.column]
+    return np.linspace(s[0], s[-1], n_rows)
+
+
+def chain_tables(elements, n_rows: int) -> dict:
+    """``{word: (positions (m,), values (m, c) in slots_of(word) order)}`` at ``n_rows`` equally
+    spaced positions over each axis' stations (the model's own splines)."""
+    m = elements.machine
+    out = {}
+    for a in m.axes:
+        names = m.slots_of(a.word)
+        if not names:
+            continue
+        pos = _rows_axis(elements, a, n_rows)
+        out[a.word] = (pos, np.asarray(elements.axis_spline(a.word)(pos)).reshape(len(pos), len(names)))
+    return out
+
+
+def table_values(tables: dict, elements, axes) -> np.ndarray:
+    """Slot values (n, P) at ``axes`` (n, k) as a controller reads them from ``tables``: each
+    component linearly between rows (a full-turn axis folded into its turn), constants as they are."""
+    m = elements.machine
+    axes = np.atleast_2d(np.asarray(axes, dtype=float))
+    idx = {n: p for p, n in enumerate(m.slot_names)}
+    out = np.zeros((len(axes), len(m.slots)))
+    for j, a in enumerate(m.axes):
+        if a.word not in tables:
+            continue
+        pos, val = tables[a.word]
+        x = elements.wrap(a.column, axes[:, j]) if a.full_turn else np.clip(axes[:, j], pos[0], pos[-1])
+        for c, name in enumerate(m.slots_of(a.word)):
+            out[:, idx[name]] = np.interp(x, pos, val[:, c])
+    for k, v in elements.constants.items():
+        out[:, idx[k]] = v
+    return out
+
+
+def _stats(d) -> dict:
+    n = np.linalg.norm(d, axis=1)
+    return {"n": int(len(n)), "max_um": float(n.max()), "p95_um": float(np.percentile(n, 95)), "mean_um": float(n.mean())}
+
+
+def check_points(elements, n: int, seed) -> np.ndarray:
+    """Seeded random axes (n, k) over the calibrated volume (stations' range; strokes elsewhere)."""
+    m = elements.machine
+    lo = np.array([elements.stations[a.column][0] if a.column in elements.stations else a.stroke[0] for a in m.axes])
+    hi = np.array([elements.stations[a.column][-1] if a.column in elements.stations else a.stroke[1] for a in m.axes])
+    return np.random.default_rng(seed).uniform(lo, hi, (n, len(m.axes)))
+
+
+def check_chain_tables(tables, elements, axes, truth=None) -> dict:
+    """Model (and with ``truth`` true) residual the tables leave at ``axes`` (module docstring)."""
+    m = elements.machine
+    e_model = m.spatial_error(axes, elements.values(axes))
+    e_table = m.spatial_error(axes, table_values(tables, elements, axes))
+    out = {"model": _stats(e_table - e_model), "baseline_none": {"model": _stats(e_model)}}
+    if truth is not None:
+        e_true = m.spatial_error(axes, truth.values(axes))
+        out["true"] = _stats(e_table - e_true)
+        out["baseline_none"]["true"] = _stats(e_true)
+        out["baseline_exact"] = {"true": _stats(e_model - e_true)}
+    return out
+
+
+def build_chain_tables(elements, tolerance_um: float, axes, truth=None):
+    """Tables with rows doubled from the largest station count until the model residual at ``axes``
+    is within ``tolerance_um`` (or :data:`MAX_ROWS`): ``(tables, n_rows, check)``."""
+    n = max(len(s) for s in elements.stations.values()) if elements.stations else 2
+    while True:
+        tables = chain_tables(elements, n)
+        check = check_chain_tables(tables, elements, axes, truth)
+        if check["model"]["max_um"] <= tolerance_um or 2 * n - 1 > MAX_ROWS:
+            return tables, n, check
+        n = 2 * n - 1
+
+
+def write_chain_tables(tables, elements, folder, model_desc: str) -> list:
+    """``iso_<W>.csv`` per axis and ``iso_constants.csv`` (module docstring), each written atomically."""
+    from pathlib import Path
+    m = elements.machine
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    slot = {s.name: s for s in m.slots}
+    head = [f"machine: {m.name}", f"machine_sha256: {m.sha256}", f"model: {model_desc}",
+            "interpolation: linear between rows; values in the chain file's conventions (docs/machines.md)"]
+    written = []
+    for a in m.axes:
+        if a.word not in tables:
+            continue
+        pos, val = tables[a.word]
+        cols = {a.column: pos}
+        for c, name in enumerate(m.slots_of(a.word)):
+            cols[f"{slot[name].iso}_{slot[name].unit}"] = val[:, c]
+        written.append(write_csv(folder / f"iso_{a.word}.csv", cols,
+                                 header_comments=[f"format: volcomp-iso-table/1 axis {a.word}"] + head,
+                                 float_fmt="%.9g"))
+    names = list(m.constant_slots)
+    rows = {"name": np.array(names, dtype=object), "iso": np.array([slot[k].iso for k in names], dtype=object),
+            "value": np.array([elements.constants[k] for k in names]),
+            "unit": np.array([slot[k].unit for k in names], dtype=object)}
+    written.append(write_csv(folder / "iso_constants.csv", rows,
+                             header_comments=["format: volcomp-iso-constants/1"] + head, float_fmt="%.9g"))
+    return written
