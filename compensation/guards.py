@@ -17,6 +17,11 @@ Guard names (the keys of ``allow`` and of :attr:`GuardReport.violations`):
                  spans less than a turn, A is checked as commanded, without folding.
 ``volume``       an axis command or its target's nominal axes outside the field's calibrated
                  volume (below).
+
+On a machine-tool chain (``kind = "machine-tool"``) the same guards run over the machine's own
+axis columns (``machine.axis_columns``): every full-turn rotary axis passes the stroke guard, the
+others are checked as commanded; the volume is the field's over those names, each ``*_deg`` axis
+with the A rule below.
 ``convergence``  the solver did not converge for the point (``SolveResult.success`` False
                  with the correction inside the ball).
 
