@@ -515,8 +515,11 @@ def _render_move(line, m, q, ctrl, machine):
 
 def _rewrite_line(body, m, vals, ctrl_before, machine) -> str:
     words = machine.axis_words
-    edits = [(m.words[a].num_start, m.words[a].num_end, vals[j]) for j, a in enumerate(words) if a in m.words]
-    last_end = max(e for _, e, _ in edits)
+    kind = {a.word: a.kind for a in machine.axes}
+    # a rotary word whose value is unchanged keeps its text as written (the orientation is the program's)
+    edits = [(m.words[a].num_start, m.words[a].num_end, vals[j]) for j, a in enumerate(words) if a in m.words
+             and not (kind[a] == "rotary" and float(vals[j]) == m.words[a].value)]
+    last_end = max(m.words[a].num_end for a in words if a in m.words)
     missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(words)
                       if a not in m.words and _needed(j, vals, ctrl_before, m, machine))
     if missing:

@@ -209,19 +209,31 @@ def test_chain_gcode_refusals(tmp_path, mill_models, capsys, line, what):
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
 
 
+ROTARY_WRITTEN_DEG = 1e-6
+"""Rotary words are written with 6 decimals (or as the program wrote them): 1e-6 deg."""
+
+
 def test_compensate_five_axis_keeps_rotary_words(tmp_path, capsys):
     mt = load_machine("five-axis-ac")
     est = chain_elements(mt, 201, scale=8.0).save(tmp_path / "el.json")
     prog = tmp_path / "five.nc"
     prog.write_text("(5-AXIS TEST)\nG21 G90 G17\nT3 M6\nG0 X0. Y0. Z-200. A0. C0.\n"
-                    "G1 X50. Y20. Z-250. A-30. C45. F500.\nG1 X60. C90.\nG2 X80. Y40. I10. J10.\nM30\n")
+                    "G1 X50. Y20. Z-250. A-30. C45. F500.\nG1 X60. C90.\nG1 Y30. A-30. C90.\nG2 X80. Y30. I10. J0.\nM30\n")
     assert main(["compensate", str(prog), "--machine", "five-axis-ac", "--model", str(est), "--method", "exact",
                  "--out", str(tmp_path / "o")]) == 0
     assert "rotary axes a_deg, c_deg (tool orientation) are kept as commanded" in capsys.readouterr().out
     doc = json.loads((tmp_path / "o" / "compensate_summary.json").read_text())
     assert doc["files"][0]["kept_axes"] == ["a_deg", "c_deg"]
     text = (tmp_path / "o" / "five.nc").read_text()
-    assert "A-30." in text and "C45." in text  # rotary words as the program wrote them
+    from compensation.mt_gcode import parse_chain_program, plan_chain_gcode
+    written = plan_chain_gcode(parse_chain_program(tmp_path / "o" / "five.nc", mt), 1e9).axes  # one vertex a line
+    from compensation.pathio import DEFAULT_ARC_TOLERANCE_UM
+    planned = plan_chain_gcode(parse_chain_program(prog, mt), DEFAULT_ARC_TOLERANCE_UM,
+                               ChainField(mt, ChainElementSet.load(est, mt))).axes
+    assert written.shape == planned.shape
+    assert np.abs(written[:, 3:] - planned[:, 3:]).max() < ROTARY_WRITTEN_DEG  # the orientation as programmed
+    assert 0 < np.abs(written[:, :3] - planned[:, :3]).max() < 0.25          # linear axes corrected, in the ball
+    assert " A-30. C90. X" in text  # an unchanged rotary word keeps the program's text
     assert "T3 M6\n" in text and "(5-AXIS TEST)\n" in text
 
 
@@ -259,3 +271,35 @@ def test_export_iso_tables_over_the_mill(tmp_path, mill_models, capsys):
     assert list(c.raw("iso")) == ["EC0Y", "EB0Z", "EA0Z"]
     assert main(["export", str(est), "--format", "linuxcnc", "--machine", "mill-xyz", "--out", str(tmp_path / "e2")]) == 2
     assert "only --format iso-tables" in capsys.readouterr().err
+
+
+def test_compensate_chain_csv_and_guards(tmp_path, capsys):
+    mt = load_machine("mill-xyz")
+    big = chain_elements(mt, 301, scale=400.0).save(tmp_path / "big.json")  # errors beyond the 250 μm ball
+    ax = np.random.default_rng(302).uniform(mt.stroke_lo + 10, mt.stroke_hi - 10, (60, 3))
+    path = tmp_path / "path.csv"
+    np.savetxt(path, ax, delimiter=",", header="x_mm,y_mm,z_mm", comments="", fmt="%.6f")
+    args = ["compensate", str(path), "--machine", "mill-xyz", "--model", str(big), "--method", "exact"]
+    assert main(args + ["--out", str(tmp_path / "o1")]) == 3          # refused by the ball guard, nothing written
+    err = capsys.readouterr().err
+    assert "refused by guard(s) ball" in err and not (tmp_path / "o1" / "path.csv").exists()
+    assert main(args + ["--out", str(tmp_path / "o2"), "--allow", "ball,convergence"]) == 0
+    text = (tmp_path / "o2" / "path.csv").read_text()
+    assert text.startswith("# volcomp compensate: GUARDS OVERRIDDEN (--allow ball,convergence)")
+    doc = json.loads((tmp_path / "o2" / "compensate_summary.json").read_text())
+    assert doc["files"][0]["overridden"]["ball"] > 0
+    # a CSV within the ball: the compensated axis columns solve the model exactly
+    small = chain_elements(mt, 303).save(tmp_path / "small.json")
+    assert main(["compensate", str(path), "--machine", "mill-xyz", "--model", str(small), "--method", "exact",
+                 "--out", str(tmp_path / "o3")]) == 0
+    from errormap.io import read_table
+    t = read_table(tmp_path / "o3" / "path.csv")
+    q = np.stack([t.float(c) for c in mt.axis_columns], axis=1)
+    f = ChainField(mt, ChainElementSet.load(small, mt))
+    model = (mt.nominal(q) - mt.nominal(ax)) * 1e3 + f.predict(q)
+    assert np.abs(model).max() < CSV_ROUNDING_UM
+
+
+CSV_ROUNDING_UM = 2e-3
+"""The compensated CSV is written to 1 nm (6 decimals in mm): the model residual of the written
+numbers is that rounding (≤ √3·0.5 nm) times the chain's ~1 slope, plus the solver's 1e-6 μm."""
