@@ -303,3 +303,26 @@ def test_compensate_chain_csv_and_guards(tmp_path, capsys):
 CSV_ROUNDING_UM = 2e-3
 """The compensated CSV is written to 1 nm (6 decimals in mm): the model residual of the written
 numbers is that rounding (≤ √3·0.5 nm) times the chain's ~1 slope, plus the solver's 1e-6 μm."""
+
+
+def test_compensate_refuses_a_chain_without_three_linear_axes(tmp_path, capsys):
+    mt = load_machine("lathe-xzc")
+    est = chain_elements(mt, 401).save(tmp_path / "el.json")
+    prog = tmp_path / "p.nc"
+    prog.write_text("G18 G90\nG1 X10. Z-20. C0. F100.\nM30\n")
+    assert main(["compensate", str(prog), "--machine", "lathe-xzc", "--model", str(est), "--method", "exact",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "three linear axes" in err[0] and "lathe-xzc" in err[0]
+
+
+@pytest.mark.slow
+def test_exact_chain_solver_model_residual_1m_points():
+    """The issue's bound on the full scale: 1M points of mill-xyz (~5 CPU s)."""
+    mt = load_machine("mill-xyz")
+    f = ChainField(mt, chain_elements(mt, 501))
+    ax = np.random.default_rng(502).uniform(mt.stroke_lo, mt.stroke_hi, (1_000_000, 3))
+    targets, _ = nominal_and_jacobian(mt, ax)
+    r = solve_exact_chain(f, targets, mt, target_axes=ax, progress=False)
+    assert r.success.all()
+    assert np.linalg.norm(r.residual_um, axis=1).max() < TOL_MODEL_RESIDUAL_UM

@@ -33,7 +33,7 @@ from ...fields import load_chain_field, require_kind, resolve_model
 from ...gcode import DEFAULT_RAPIDS
 from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, is_csv
-from ...solvers.chain_exact import nominal_and_jacobian, solve_exact_chain
+from ...solvers.chain_exact import linear_axes, nominal_and_jacobian, solve_exact_chain
 from .compensate import SUMMARY_NAME, check_out_dir, plan_outputs
 
 DECIMALS = {"mm": 6, "deg": 6}  # 1 nm; 1e-6 deg
@@ -120,6 +120,10 @@ def run_chain_compensate(machine, args, allow) -> int:
                          "is available (Newton on the chain)")
     if getattr(args, "cluster", None) not in (None, "local"):
         raise UsageError(f"--cluster {args.cluster}: not available on a machine-tool chain (solved in this process)")
+    try:
+        linear_axes(machine)
+    except ValueError as exc:
+        raise UsageError(f"--machine {machine.name}: {exc}; compensate is not available on this machine") from None
     s = ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
                       rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
                       units=args.units, truth=args.truth)
