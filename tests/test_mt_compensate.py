@@ -298,6 +298,13 @@ def test_compensate_chain_csv_and_guards(tmp_path, capsys):
     f = ChainField(mt, ChainElementSet.load(small, mt))
     model = (mt.nominal(q) - mt.nominal(ax)) * 1e3 + f.predict(q)
     assert np.abs(model).max() < CSV_ROUNDING_UM
+    # a target outside the Y stroke (0..400 mm): the stroke and volume guards refuse the file
+    ax[7, 1] = 405.0
+    np.savetxt(path, ax, delimiter=",", header="x_mm,y_mm,z_mm", comments="", fmt="%.6f")
+    assert main(["compensate", str(path), "--machine", "mill-xyz", "--model", str(small), "--method", "exact",
+                 "--out", str(tmp_path / "o4")]) == 3
+    err = capsys.readouterr().err
+    assert "refused by guard(s) stroke, volume" in err and "y_mm = 405" in err
 
 
 CSV_ROUNDING_UM = 2e-3
