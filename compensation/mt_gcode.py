@@ -9,9 +9,9 @@ same pass-through and refusal rules — with three differences that come from th
 * **axis words** are the machine's: a word of an axis the machine lacks (``B`` on ``mill-xyz``, any
   of ``X Y Z U V W A B C``) is refused, naming the machine;
 * **arcs** ``G2/G3`` in the planes the machine has: ``G17`` (XY, centre ``I J``), ``G18`` (XZ,
-  ``I K``), ``G19`` (YZ, ``J K``), or ``R``; an arc in a plane of an axis the machine lacks, or a
-  centre word of another plane, is refused; the other axes of an arc line move linearly along it
-  (a helix);
+  ``I K``), ``G19`` (YZ, ``J K``), or ``R``; an arc in a plane of an axis the machine lacks (the
+  plane code alone is a state line, as on the grinder), or a centre word of another plane, is
+  refused; the other axes of an arc line move linearly along it (a helix);
 * the **tool-tip** is compensated: linear axes get the corrected numbers, rotary axes (the tool's
   orientation) are written as the program commands them.
 
@@ -181,12 +181,6 @@ def _classify(body, idx, st: _State, machine, rapids, block_delete):
     if bd and block_delete is None and (axis_words or arc_words or changes):
         raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
                                            "say whether the controller skips it: --block-delete on|off")
-    if "plane" in groups:
-        code, w = groups["plane"]
-        missing = [a for a in PLANES[code][:2] if a not in machine.axis_words]
-        if missing:
-            raise _Refuse(w.start + 1, f"'{code}': the machine {machine.name!r} has no {missing[0]} axis (arcs in that "
-                                       "plane are not possible)")
     _apply_modal(st, groups)
     motion_word = groups["motion"][1] if "motion" in groups else None
     _check_p_q(st, by, gs, axis_words, arc_words)
@@ -285,6 +279,10 @@ def _arc_geometry(st, move, arc_words, scale, machine, first):
     """Centre, radii and sweep of a G2/G3 arc in the active plane's (u, v) columns."""
     u_ax, v_ax, u_c, v_c = PLANES[st.plane]
     col = {a: j for j, a in enumerate(machine.axis_words)}
+    missing = [a for a in (u_ax, v_ax) if a not in col]
+    if missing:
+        raise _Refuse(first.start + 1, f"{st.mode} arc in the {st.plane} plane: the machine {machine.name!r} has no "
+                                       f"{missing[0]} axis")
     for w in arc_words:
         if w in CENTRE_WORDS and w not in (u_c, v_c):
             raise _Refuse(arc_words[w].start + 1, f"'{w}' on a {st.plane} arc (its centre words are {u_c} {v_c})")

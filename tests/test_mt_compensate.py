@@ -317,6 +317,12 @@ def test_compensate_refuses_a_chain_without_three_linear_axes(tmp_path, capsys):
     est = chain_elements(mt, 401).save(tmp_path / "el.json")
     prog = tmp_path / "p.nc"
     prog.write_text("G18 G90\nG1 X10. Z-20. C0. F100.\nM30\n")
+    from compensation.mt_gcode import parse_chain_program
+    from errormap.io import InputError
+    bad = tmp_path / "arc.nc"
+    bad.write_text("G17 G90\nG1 X10. Z-20. C0. F100.\nG2 X20. I5.\n")  # G17 alone is a state line
+    with pytest.raises(InputError, match="line 3, column 4: 'X20.': G2 arc in the G17 plane: .* has no Y axis"):
+        parse_chain_program(bad, mt)
     assert main(["compensate", str(prog), "--machine", "lathe-xzc", "--model", str(est), "--method", "exact",
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
