@@ -118,8 +118,16 @@ def run_chain_compensate(machine, args, allow) -> int:
     if args.method != "exact":
         raise UsageError(f"--method {args.method}: on the machine-tool chain {machine.name!r} only --method exact "
                          "is available (Newton on the chain)")
-    if getattr(args, "cluster", None) not in (None, "local"):
-        raise UsageError(f"--cluster {args.cluster}: not available on a machine-tool chain (solved in this process)")
+    from ..options import conditions_from_args
+    from ...batch import CHUNK_POINTS
+    unsupported = {"--cluster": getattr(args, "cluster", None), "--workers": getattr(args, "workers", None),
+                   "--max-segment-mm": None if str(args.max_segment_mm).strip().lower() == "auto" else args.max_segment_mm,
+                   "--chunk-points": None if getattr(args, "chunk_points", CHUNK_POINTS) == CHUNK_POINTS else args.chunk_points,
+                   **{f"--{k.replace('_', '-')}": v for k, v in conditions_from_args(args).items()}}
+    given = [k for k, v in unsupported.items() if v is not None]
+    if given:  # refused, never silently ignored
+        raise UsageError(f"{', '.join(given)}: not available on the machine-tool chain {machine.name!r} (one process; "
+                         "moves split from the field's curvature; an element set has no conditions)")
     try:
         linear_axes(machine)
     except ValueError as exc:
