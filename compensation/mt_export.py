@@ -136,3 +136,74 @@ def write_chain_tables(tables, elements, folder, model_desc: str) -> list:
     written.append(write_csv(folder / "iso_constants.csv", rows,
                              header_comments=["format: volcomp-iso-constants/1"] + head, float_fmt="%.9g"))
     return written
+
+
+# -- a 3-D grid over the linear axes ------------------------------------------------------------
+MAX_GRID_NODES = 2_000_000
+"""Most nodes of a chain's grid (3 values each: 6e6 numbers, a ~150 MB CSV)."""
+
+
+def linear_only(machine) -> None:
+    """ValueError unless every axis of ``machine`` is linear: a grid over the linear axes alone cannot
+    hold an error that depends on a rotary axis."""
+    rot = [a.column for a in machine.axes if a.kind != "linear"]
+    if rot:
+        raise ValueError(f"a grid over the linear axes cannot hold errors that depend on the rotary axes "
+                         f"{', '.join(rot)} of {machine.name!r}; use --format iso-tables")
+
+
+def chain_grid(elements, field, n: int):
+    """``(ticks per axis, values (n_1, …, n_k, 3) μm, interpolator)``: the field at the nodes of a
+    regular grid of ``n`` ticks per axis over the calibrated volume; trilinear between nodes (points
+    outside the grid clamped to it)."""
+    from scipy.interpolate import RegularGridInterpolator
+    m = elements.machine
+    ticks = [np.linspace(elements.stations[a.column][0], elements.stations[a.column][-1], n)
+             if a.column in elements.stations else np.linspace(*a.stroke, n) for a in m.axes]
+    nodes = np.stack(np.meshgrid(*ticks, indexing="ij"), axis=-1).reshape(-1, len(ticks))
+    vals = np.asarray(field.predict(nodes)).reshape(*[len(t) for t in ticks], 3)
+    interp = RegularGridInterpolator(ticks, vals, method="linear")
+
+    def grid_predict(axes):
+        axes = np.array(axes, dtype=float, copy=True)
+        for j, t in enumerate(ticks):
+            axes[:, j] = np.clip(axes[:, j], t[0], t[-1])
+        return interp(axes)
+    return ticks, vals, grid_predict
+
+
+def build_chain_grid(elements, field, tolerance_um: float, axes, truth_field=None):
+    """The grid with ticks per axis doubled (11, 21, 41 …) until the interpolated field is within
+    ``tolerance_um`` of the model at ``axes`` (or :data:`MAX_GRID_NODES`): ``(ticks, values, n, check)``."""
+    linear_only(elements.machine)
+    k = len(elements.machine.axes)
+    e_model = field.predict(axes)
+    n = 11
+    while True:
+        ticks, vals, grid = chain_grid(elements, field, n)
+        e_grid = grid(axes)
+        check = {"model": _stats(e_grid - e_model), "baseline_none": {"model": _stats(e_model)}}
+        if truth_field is not None:
+            e_true = truth_field.predict(axes)
+            check["true"] = _stats(e_grid - e_true)
+            check["baseline_none"]["true"] = _stats(e_true)
+            check["baseline_exact"] = {"true": _stats(e_model - e_true)}
+        if check["model"]["max_um"] <= tolerance_um or (2 * n - 1) ** k > MAX_GRID_NODES:
+            return ticks, vals, n, check
+        n = 2 * n - 1
+
+
+def write_chain_grid(ticks, vals, machine, folder, model_desc: str):
+    """``grid.csv``: the machine's axis columns and ``dx_um, dy_um, dz_um`` at every node (first axis
+    slowest), written atomically."""
+    from pathlib import Path
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    nodes = np.stack(np.meshgrid(*ticks, indexing="ij"), axis=-1).reshape(-1, len(ticks))
+    v = vals.reshape(-1, 3)
+    cols = {c: nodes[:, j] for j, c in enumerate(machine.axis_columns)}
+    cols.update({"dx_um": v[:, 0], "dy_um": v[:, 1], "dz_um": v[:, 2]})
+    head = ["format: volcomp-grid/1", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}",
+            f"model: {model_desc}", f"ticks: {' x '.join(str(len(t)) for t in ticks)} (first axis slowest)",
+            "interpolation: trilinear between nodes; volumetric error of the tool point in the workpiece frame, um"]
+    return [write_csv(folder / "grid.csv", cols, header_comments=head, float_fmt="%.9g")]

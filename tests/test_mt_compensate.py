@@ -273,7 +273,36 @@ def test_export_iso_tables_over_the_mill(tmp_path, mill_models, capsys):
     c = read_table(out / "iso_constants.csv")
     assert list(c.raw("iso")) == ["EC0Y", "EB0Z", "EA0Z"]
     assert main(["export", str(est), "--format", "linuxcnc", "--machine", "mill-xyz", "--out", str(tmp_path / "e2")]) == 2
-    assert "only --format iso-tables" in capsys.readouterr().err
+    assert "only --format iso-tables and grid" in capsys.readouterr().err
+
+
+GRID_TOLERANCE_UM = 5.0
+"""A coarse tolerance keeps the grid small in a fast test (21–41 ticks per axis instead of 81 at 1 μm:
+the CSV write is the cost); the check is the same at any tolerance."""
+
+
+def test_export_grid_over_the_mill_linear_axes(tmp_path, mill_models, capsys):
+    truth, est = mill_models
+    mt = load_machine("mill-xyz")
+    out = tmp_path / "grid"
+    assert main(["export", str(est), "--format", "grid", "--machine", "mill-xyz", "--out", str(out),
+                 "--truth", str(truth), "--check-points", "500", "--tolerance-um", str(GRID_TOLERANCE_UM)]) == 0
+    doc = json.loads((out / "export.json").read_text())
+    assert doc["tolerance_met"] and doc["check"]["model"]["max_um"] <= GRID_TOLERANCE_UM
+    assert doc["check"]["baseline_none"]["model"]["max_um"] > 5 * GRID_TOLERANCE_UM
+    from errormap.io import read_table
+    t = read_table(out / "grid.csv")
+    n = doc["grid_ticks_per_axis"]
+    assert len(t) == n ** 3 and t.names == list(mt.axis_columns) + ["dx_um", "dy_um", "dz_um"]
+    rows = np.arange(0, len(t), 997)
+    q = np.stack([t.float(c)[rows] for c in mt.axis_columns], axis=1)
+    got = np.stack([t.float(c)[rows] for c in ("dx_um", "dy_um", "dz_um")], axis=1)
+    want = ChainField(mt, ChainElementSet.load(est, mt)).predict(q)
+    assert np.abs(got - want).max() < TOL_CSV_REL * np.abs(want).max()
+    five = load_machine("five-axis-ac")
+    el5 = chain_elements(five, 5).save(tmp_path / "el5.json")
+    assert main(["export", str(el5), "--format", "grid", "--machine", "five-axis-ac", "--out", str(tmp_path / "g5")]) == 2
+    assert "cannot hold errors that depend on the rotary axes a_deg, c_deg" in capsys.readouterr().err
 
 
 def test_compensate_chain_csv_and_guards(tmp_path, capsys):

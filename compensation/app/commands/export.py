@@ -183,15 +183,21 @@ def format_drift_check(check: dict) -> list[str]:
 
 
 def run_chain_export(args, machine) -> int:
-    """``--format iso-tables`` on a machine-tool chain (:mod:`compensation.mt_export`): per-axis ISO
-    tables of its element set, checked (linear interpolation between rows) before writing."""
+    """``--format iso-tables`` (per-axis ISO tables, linear between rows) or ``grid`` (a 3-D grid over
+    an all-linear machine's axes, trilinear) on a machine-tool chain (:mod:`compensation.mt_export`),
+    checked before writing."""
     from errormap.io import write_json
     from ...fields import require_kind, resolve_model
     from ... import mt_export
     from errormap.mt_elements import ChainElementSet
-    if args.fmt != "iso-tables":
+    if args.fmt not in ("iso-tables", "grid"):
         raise UsageError(f"--format {args.fmt}: on the machine-tool chain {machine.name!r} only --format iso-tables "
-                         "is available (the grid and per-joint tables are the grinder's)")
+                         "and grid are available (the per-joint tables are the grinder's)")
+    if args.fmt == "grid":
+        try:
+            mt_export.linear_only(machine)
+        except ValueError as exc:
+            raise UsageError(f"--format grid: {exc}") from None
     bad = [k for k, v in {"--diagnosis": args.diagnosis, "--region": args.region}.items() if v is not None]
     if bad:
         raise UsageError(f"{', '.join(bad)}: apply to the grinder's --format linuxcnc only")
@@ -200,30 +206,40 @@ def run_chain_export(args, machine) -> int:
     el = ChainElementSet.load(src.path, machine)
     truth = ChainElementSet.load(args.truth, machine) if args.truth else None
     pts = mt_export.check_points(el, args.check_points, args.seed)
-    tables, n_rows, check = mt_export.build_chain_tables(el, args.tolerance_um, pts, truth)
+    if args.fmt == "grid":
+        from errormap.mt_field import ChainField
+        ticks, vals, n_rows, check = mt_export.build_chain_grid(
+            el, ChainField(machine, el), args.tolerance_um, pts, ChainField(machine, truth) if truth else None)
+    else:
+        tables, n_rows, check = mt_export.build_chain_tables(el, args.tolerance_um, pts, truth)
+    what = "grid ticks per axis" if args.fmt == "grid" else "rows per axis"
 
     def f(q):
         return f"{q['max_um']:9.4g} / {q['p95_um']:9.4g} / {q['mean_um']:9.4g}"
-    print(f"check ({check['model']['n']} random points over the calibrated volume; table rows linear; residual norm, "
+    interp = "trilinear between grid nodes" if args.fmt == "grid" else "table rows linear"
+    print(f"check ({check['model']['n']} random points over the calibrated volume; {interp}; residual norm, "
           "um: max / p95 / mean)")
-    print(f"  table ({n_rows} rows per axis) model {f(check['model'])}" + (f"   true {f(check['true'])}" if truth else ""))
+    print(f"  table ({n_rows} {what}) model {f(check['model'])}" + (f"   true {f(check['true'])}" if truth else ""))
     print(f"  no compensation          model {f(check['baseline_none']['model'])}"
           + (f"   true {f(check['baseline_none']['true'])}" if truth else ""))
     if truth is not None:
         print(f"  exact (model)                                               true {f(check['baseline_exact']['true'])}")
     met = check["model"]["max_um"] <= args.tolerance_um
     if not met and not args.force:
-        raise UsageError(f"--tolerance-um {args.tolerance_um:g}: the tables leave {check['model']['max_um']:.4g} um "
-                         f"with {n_rows} rows per axis (the most: {mt_export.MAX_ROWS}); nothing written (--force "
-                         "writes anyway)")
+        raise UsageError(f"--tolerance-um {args.tolerance_um:g}: the {args.fmt} leaves {check['model']['max_um']:.4g} "
+                         f"um with {n_rows} {what} (at the size limit); nothing written (--force writes anyway)")
     out = Path(args.out)
-    files = mt_export.write_chain_tables(tables, el, out, src.description)
-    write_json(out / "export.json", {"format": "iso-tables", "machine": machine.name, "machine_file": machine.path,
-                                     "model": src.to_dict(), "rows_per_axis": n_rows, "tolerance_um": args.tolerance_um,
+    if args.fmt == "grid":
+        files = mt_export.write_chain_grid(ticks, vals, machine, out, src.description)
+    else:
+        files = mt_export.write_chain_tables(tables, el, out, src.description)
+    write_json(out / "export.json", {"format": args.fmt, "machine": machine.name, "machine_file": machine.path,
+                                     "model": src.to_dict(), what.replace(" ", "_"): n_rows,
+                                     "tolerance_um": args.tolerance_um,
                                      "tolerance_met": bool(met), "forced": bool(args.force and not met),
                                      "check": check, "files": [p.name for p in files],
-                                     "residual": "model: table-rebuilt spatial error - the model's (um)"
-                                                 + ("; true: table-rebuilt - the truth's (um)" if truth else "")})
+                                     "residual": f"model: {args.fmt}-rebuilt spatial error - the model's (um)"
+                                                 + (f"; true: {args.fmt}-rebuilt - the truth's (um)" if truth else "")})
     for p in files + [out / "export.json"]:
         print(f"wrote: {p}")
     return 0
