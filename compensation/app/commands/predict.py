@@ -9,7 +9,7 @@ from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
 from errormap.units import check_units
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ..options import add_units_option
 from ...fields import KIND_NAMES, load_field, resolve_model

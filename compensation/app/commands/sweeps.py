@@ -7,7 +7,7 @@ from errormap.elements import ElementSet
 from errormap.machine import load_machine
 from errormap.simulator import EFFECT_NAMES, TruthGrinder
 from errormap.sweeps import simulate_sweeps, write_sweeps
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 
 def register(sub):

@@ -31,7 +31,7 @@ from errormap.io import InputError, write_json
 from errormap.jit import notice_cold_kernels
 from errormap.progress import Progress
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ... import guards
 from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, solve_batch
