@@ -34,6 +34,7 @@ COMMAND_HELP = {
     "benchmark": "learned vs parametric path on the same machines and measurements: report.html + benchmark.json",
     "drift-predict": "apply a saved drift model to a new log (causal compensation series)",
     "fleet": "identify → train → diagnose every machine of a fleet file, one task per machine (Ray)",
+    "machines": "list the built-in machines: name, kind and axes with strokes/limits",
     "export": "write controller compensation tables (ISO 230-1 per-axis, 3D grid, LinuxCNC per-joint, drift coefficients), checked against the model first",
 }
 COMMAND_MODULES = list(COMMAND_HELP)
