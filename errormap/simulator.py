@@ -81,6 +81,12 @@ OUT_OF_CATALOGUE = TRUTH_ONLY
 EFFECT_NAMES = SIMULATOR_NAMES
 """The simulator's effect names, from the registry (:mod:`errormap.effect_kinds`); a kind's
 canonical name (``periodic`` for ``pitch``) is accepted too and stored under this name."""
+EFFECT_CHOICES = EFFECT_NAMES + tuple(k.name for k in map(effect_kind, SIMULATOR_NAMES) if k.name != k.simulator)
+"""What ``--effect`` accepts: the simulator's names and the registry's canonical names of the same kinds
+(``periodic`` = ``pitch``, ``harmonic`` = ``worm``)."""
+EFFECT_HELP = ", ".join(EFFECT_NAMES) + " (" + ", ".join(
+    f"{k} = {effect_kind(k).simulator}" for k in EFFECT_CHOICES[len(EFFECT_NAMES):]) + ")"
+"""The ``--effect`` help: the names and the canonical names accepted beside them."""
 EFFECT_NEEDS = {k.simulator: k.needs_on(k.simulator_element.rpartition("_")[2])[0]
                 for k in map(effect_kind, SIMULATOR_NAMES) if k.needs}
 
@@ -96,8 +102,8 @@ def simulator_effects(effects) -> dict:
             key = simulator_name(name)
         except ValueError as exc:
             raise ValueError(f"Expected effects from {list(EFFECT_NAMES)}, got {name!r} ({exc})") from None
-        if key in out:
-            raise ValueError(f"effect {name!r} given twice (as {key!r})")
+        if key in out and (out[key] or {}) != (params or {}):
+            raise ValueError(f"effect {name!r} given twice (as {key!r}) with different parameters")
         out[key] = params
     return out
 
