@@ -1,7 +1,9 @@
 """Machine files (TOML): loading and validation.
 
 One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexapod``,
-``tripod``, ``serial``; schemas in ``docs/schemas.md``; serial chains in :mod:`errormap.chain_file`). The built-in default grinder ships as ``errormap/machines/grinder.toml``.
+``tripod``, ``serial``; the one registry of kinds is :func:`machine_kinds`, each kind's parser and
+axes; schemas in ``docs/schemas.md``; serial chains in :mod:`errormap.chain_file`). The built-in
+machines are the files in ``errormap/machines/`` (:func:`builtin_machines`), nothing else. The built-in default grinder ships as ``errormap/machines/grinder.toml``.
 Every error names the file and the key.
 """
 from __future__ import annotations

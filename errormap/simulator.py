@@ -87,8 +87,7 @@ EFFECT_CHOICES = EFFECT_NAMES + tuple(k.name for k in map(effect_kind, SIMULATOR
 EFFECT_HELP = ", ".join(EFFECT_NAMES) + " (" + ", ".join(
     f"{k} = {effect_kind(k).simulator}" for k in EFFECT_CHOICES[len(EFFECT_NAMES):]) + ")"
 """The ``--effect`` help: the names and the canonical names accepted beside them."""
-EFFECT_NEEDS = {k.simulator: k.needs_on(k.simulator_element.rpartition("_")[2])[0]
-                for k in map(effect_kind, SIMULATOR_NAMES) if k.needs}
+EFFECT_NEEDS = {"thermal": "temp_c", "reversal": "dir_z"}
 
 
 def simulator_effects(effects) -> dict:
