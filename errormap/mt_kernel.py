@@ -25,7 +25,7 @@ from .mt_elements import ChainElementSet
 NCOMP = 6  # columns of a spline block (dx dy dz ex ey ez; absent components padded with zeros)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt, R, t, W, O, record):  # pragma: no cover - compiled
     """A program (:meth:`CompiledChain._program`) at one point: ``R`` (3, 3), ``t`` (3,) set to the
     last frame; ``ev`` (P,) slot values. With ``record`` the axis ``W[o]`` and origin ``O[o]`` of
@@ -67,7 +67,7 @@ def _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR
                 t[i] += R[i, a] * x
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_row, sgn):  # pragma: no cover - compiled
     """Adds ``sgn`` × d(tool point)/d(axes) to ``jac_row`` (3, k) after :func:`_chain_point` with
     ``record``. The Jacobian is geometric: an ET's value moves the tool point along its axis ``w``
@@ -105,11 +105,9 @@ def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_ro
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, deriv):  # pragma: no cover - compiled
-    """The slot values ``ev`` (P,) (and slopes ``dev`` when ``deriv``) at one point from the
-    per-axis splines (``spl_s0`` the first station of a full-turn axis, NaN otherwise)."""
-    for p in range(ev.shape[0]):
-        ev[p] = consts[p]
-        dev[p] = 0.0
+    """The component-error values into ``ev`` (P,) (and slopes into ``dev`` when ``deriv``) at one
+    point from the per-axis splines (``spl_s0`` the first station of a full-turn axis, NaN
+    otherwise); the constant slots of ``ev`` and ``dev`` are set once per call (:func:`_init_slots`)."""
     for s in range(spl_axis.shape[0]):
         x = q[spl_axis[s]]
         s0 = spl_s0[s]
@@ -127,6 +125,14 @@ def _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts
                 ev[p] = vbuf[col]
                 if deriv:
                     dev[p] = dbuf[col]
+
+
+@njit(cache=True, nogil=True)
+def _init_slots(consts, ev, dev):  # pragma: no cover - compiled
+    """``ev`` = the constants (component slots overwritten per point), ``dev`` = 0."""
+    for p in range(ev.shape[0]):
+        ev[p] = consts[p]
+        dev[p] = 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -147,6 +153,7 @@ def field_kernel(axes, prog, prog_nom, spl, consts, out):  # pragma: no cover - 
     k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1 = prog
     k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0 = prog_nom
     W = np.empty((0, 3))
+    _init_slots(consts, ev, dev)
     for n in range(axes.shape[0]):
         q = axes[n]
         _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, False)
@@ -178,6 +185,7 @@ def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragm
     W = np.empty((m, 3))
     O = np.empty((m, 3))
     J = np.empty((3, k))
+    _init_slots(consts, ev, dev)
     for n in range(axes.shape[0]):
         q = axes[n]
         _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, True)
