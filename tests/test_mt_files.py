@@ -192,3 +192,14 @@ def test_builtin_machine_tool_loads_by_name(name):
     mt = load_machine(name)
     assert mt.kind == "machine-tool" and set(mt.targets) == set(mt.axis_words)
     assert len(set(mt.slot_names)) == len(mt.slot_names)
+
+
+def test_machines_page_example_loads(tmp_path):
+    import re
+    text = (Path(__file__).resolve().parents[1] / "docs" / "machines.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```toml\n(.*?)```", text, flags=re.S)
+    assert blocks
+    for i, b in enumerate(blocks):
+        p = tmp_path / f"m{i}.toml"
+        p.write_text(b, encoding="utf-8")
+        assert load_machine(p).kind == "machine-tool"
