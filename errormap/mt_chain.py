@@ -218,6 +218,42 @@ class MachineTool:
             out[sl] = self.chain.joint_jacobian(axes[sl], v)
         return out
 
+    def body_frames(self, word: str, axes, values=None):
+        """Actual frame of the moving body of axis ``word`` in the machine (base) frame, after its
+        motion and its component errors (where its ``[targets]`` are mounted): ``(R (n, 3, 3),
+        t (n, 3) mm)``, base <- body. ``axes`` (n, k); ``values`` (n, P) or (P,) μm/μrad, None nominal."""
+        if word not in self.body_index:
+            raise ValueError(f"expected an axis word of {self.name!r} {list(self.axis_words)}, got {word!r}")
+        axes, values = self._check(axes, values)
+        side, upto = self.body_index[word]
+        ets = (self.work_ets if side == "work" else self.tool_ets)[:upto]
+        n = axes.shape[0]
+        scale = np.array([np.pi / 180 if a.kind == "rotary" else 1.0 for a in self.axes])
+        index = {s: p for p, s in enumerate(self.slot_names)}
+        R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        t = np.zeros((n, 3))
+        for e in ets:
+            x = np.full(n, e.value)
+            if e.joint is not None:
+                x = x + e.sign * axes[:, e.joint] * scale[e.joint]
+            if e.slot is not None and values is not None:
+                v = values[index[e.slot]] if values.ndim == 1 else values[:, index[e.slot]]
+                x = x + e.coef * v
+            if e.kind == "t":
+                t = t + R[:, :, e.axis] * x[:, None]
+            else:
+                b, c = (e.axis + 1) % 3, (e.axis + 2) % 3
+                cs, sn = np.cos(x)[:, None], np.sin(x)[:, None]
+                rb, rc = R[:, :, b].copy(), R[:, :, c].copy()
+                R[:, :, b] = rb * cs + rc * sn
+                R[:, :, c] = rc * cs - rb * sn
+        return R, t
+
+    def target_points(self, word: str, axes, values=None) -> np.ndarray:
+        """The target balls of axis ``word``'s body in the machine frame, (n, m, 3) mm."""
+        R, t = self.body_frames(word, axes, values)
+        return np.einsum("nij,kj->nki", R, self.targets[word]) + t[:, None, :]
+
     def describe(self) -> dict:
         """The machine as plain data for JSON documents and ``volcomp machines``."""
         return {"name": self.name, "kind": self.kind,
