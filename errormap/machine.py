@@ -25,7 +25,8 @@ A_TURN_TOL_DEG = 1e-9  # strokes.a_deg must span one turn to this
 
 
 def builtin_machine_path(kind: str = "grinder") -> Path:
-    """Path of a built-in machine file (``grinder``, ``hexapod``, ``tripod``, ``ur5``, ``ur10``, ``wam``)."""
+    """Path of a built-in machine file (``grinder``, ``hexapod``, ``tripod``, ``ur5``, ``ur10``, ``wam``; the
+    machine-tool chains ``grinder-chain``, ``mill-xyz``, ``five-axis-ac``, ``lathe-xzc``)."""
     p = Path(str(resources.files("errormap") / "machines" / f"{kind}.toml"))
     if not p.is_file():
         raise MachineFileError(f"no built-in machine file for kind {kind!r} ({p})")

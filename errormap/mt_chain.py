@@ -98,7 +98,7 @@ class Slot:
         return self.kind == "component"
 
 
-@dataclass
+@dataclass(frozen=True)
 class MachineTool:
     """A compiled machine-tool chain file. ``axes`` in canonical word order; ``slots`` in chain
     order; ``chain`` the compiled ``inv(work)·tool`` chain (joints = ``axes``, parameters =
