@@ -337,7 +337,7 @@ def _joint_entry(d, where, path, side, words):
         raise MachineFileError(f"{path}: key '{where}.unit': a {kind} axis is in {unit}, got {short_repr(d['unit'])}"
                                + (" (degrees where mm are expected)" if d["unit"] in ("deg", "rad") else ""))
     along = d.get("along", DEFAULT_ALONG[word])
-    if along not in AXES:
+    if along not in ("x", "y", "z"):
         raise MachineFileError(f"{path}: key '{where}.along': expected one of ['x', 'y', 'z'], got {short_repr(along)}")
     sign = check_number(d, "direction", where, path) if "direction" in d else 1.0
     if sign not in (1.0, -1.0):
@@ -372,7 +372,7 @@ def _squareness(d, where, path, ax: MTAxis):
         if not isinstance(name, str) or not name.isidentifier():
             raise MachineFileError(f"{path}: key '{w}.name': expected a slot name (identifier), got {short_repr(name)}")
         tw = s.get("toward")
-        if tw not in AXES or AXES.index(tw) == ax.along:
+        if tw not in ("x", "y", "z") or AXES.index(tw) == ax.along:
             raise MachineFileError(f"{path}: key '{w}.toward': expected one of the two frame axes across "
                                    f"{AXES[ax.along]} ({[a for a in AXES if a != AXES[ax.along]]}), got {short_repr(tw)}")
         d_vec, t_vec = np.eye(3)[ax.along], np.eye(3)[AXES.index(tw)]
@@ -442,7 +442,7 @@ def _chain_side(items, side, path, geometry, words, axes, slots, placed):
         if "errors_of" in d:
             check_known_keys(d, ("errors_of",), where, path)
             w = d["errors_of"]
-            if w not in pending or w in placed:
+            if not isinstance(w, str) or w not in pending or w in placed:
                 raise MachineFileError(f"{path}: key '{where}.errors_of': {short_repr(w)} names no axis of this "
                                        f"[[{side}]] chain above it whose errors are still to be placed")
             cets, cslots, _ = pending[w]
@@ -490,7 +490,7 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     if not isinstance(name, str):
         raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {short_repr(name)}")
     ver = m.get("schema", None)
-    if ver != MT_SCHEMA_VERSION:
+    if isinstance(ver, bool) or ver != MT_SCHEMA_VERSION:
         raise MachineFileError(f"{path}: key 'machine.schema': this volcomp reads machine-tool schema "
                                f"{MT_SCHEMA_VERSION}, got {short_repr(ver)}")
     g = doc.get("geometry", {})
