@@ -205,6 +205,7 @@ def test_machines_page_example_loads(tmp_path):
         assert load_machine(p).kind == "machine-tool"
 
 
+@pytest.mark.slow  # 60 examples per file: up to ~5 s each on the shared cores
 @pytest.mark.parametrize("name", ["mill-xyz", "five-axis-ac", "grinder-chain"])
 def test_fuzz_machine_tool_files(name):
     """Mangled chain files (values, dropped and extra lines, stray bytes): loaded or refused with
