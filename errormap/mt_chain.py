@@ -218,6 +218,44 @@ class MachineTool:
             out[sl] = self.chain.joint_jacobian(axes[sl], v)
         return out
 
+    def inverse(self, points_mm, axes_start, free=None, tol_mm: float = 1e-10, max_iter: int = 50):
+        """Nominal inverse kinematics by Newton: axes that put the nominal tool point at
+        ``points_mm`` (n, 3) (workpiece frame, mm). ``axes_start`` (n, k) the starting axes, which
+        also give the values of the axes not solved for; ``free`` the axis words solved for
+        (exactly 3; default all axes of a 3-axis machine, the linear axes otherwise — a 5-axis
+        machine keeps the rotary axes of ``axes_start``, i.e. the tool orientation). Returns
+        ``(axes (n, k), converged (n,) bool)``: converged where the tool point is within ``tol_mm``
+        after at most ``max_iter`` steps (a point the free axes cannot reach does not converge)."""
+        pts = np.atleast_2d(np.asarray(points_mm, dtype=float))
+        q, _ = self._check(axes_start)
+        q = q.copy()
+        if pts.shape != (q.shape[0], 3):
+            raise ValueError(f"expected points of shape ({q.shape[0]}, 3), got {pts.shape}")
+        if free is None:
+            free = self.axis_words if len(self.axes) == 3 else tuple(a.word for a in self.axes if a.kind == "linear")
+        cols = [self.axis_words.index(w) for w in free]
+        if len(cols) != 3 or len(set(cols)) != 3:
+            raise ValueError(f"expected 3 distinct axis words of {list(self.axis_words)} to solve for, got {list(free)}")
+        active = np.ones(q.shape[0], dtype=bool)
+        for _ in range(max_iter):
+            idx = np.flatnonzero(active)
+            if idx.size == 0:
+                break
+            r = pts[idx] - self.tool_point(q[idx])
+            done = np.abs(r).max(axis=1) <= tol_mm
+            active[idx[done]] = False
+            idx, r = idx[~done], r[~done]
+            if idx.size == 0:
+                break
+            J = self.axis_jacobian(q[idx])[:, :, cols]
+            ok = np.abs(np.linalg.det(J)) > 1e-12
+            step = np.zeros((idx.size, 3))
+            step[ok] = np.linalg.solve(J[ok], r[ok][:, :, None])[:, :, 0]
+            active[idx[~ok]] = False
+            q[np.ix_(idx, cols)] += step
+        err = np.abs(pts - self.tool_point(q)).max(axis=1)
+        return q, err <= tol_mm
+
     def body_frames(self, word: str, axes, values=None):
         """Actual frame of the moving body of axis ``word`` in the machine (base) frame, after its
         motion and its component errors (where its ``[targets]`` are mounted): ``(R (n, 3, 3),

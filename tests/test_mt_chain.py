@@ -237,3 +237,38 @@ def test_body_frames_equal_the_grinder_sweep_frames():
         assert np.abs(R1 - R0).max() < TOL_EQUIV_UM * 1e-3   # a rotation entry × 1 m lever, in μm
         balls = ball_positions((R0, t0), g.targets[word])
         assert np.abs(mt.target_points(word, ax, v) - balls).max() * 1e3 < TOL_EQUIV_UM
+
+
+TOL_INVERSE_MM = 1e-9
+"""Newton converges quadratically to 1e-10 mm (its stopping tolerance); 1e-9 mm leaves round-off room."""
+
+
+def test_inverse_grinder_equals_closed_form_and_round_trips():
+    from errormap.kinematics import forward, inverse
+    g, mt = load_machine(), load_machine("grinder-chain")
+    rng = np.random.default_rng(61)
+    ax = rng.uniform(g.stroke_lo, g.stroke_hi, (2000, 3))
+    ax[:, 1] = rng.uniform(5.0, 60.0, 2000)   # off the A axis (ρ > 0): A is defined
+    p = forward(g, ax)
+    start = ax + rng.normal(0.0, [2.0, 2.0, 3.0], ax.shape)
+    q, ok = mt.inverse(p, start)
+    assert ok.all()
+    assert np.abs(mt.nominal(q) - p).max() < TOL_INVERSE_MM
+    closed = inverse(g, p, unwrap=False)
+    d = q - closed
+    d[:, 2] = (d[:, 2] + 180.0) % 360.0 - 180.0
+    assert np.abs(d).max() < 1e-6
+
+
+def test_inverse_five_axis_keeps_rotary_axes():
+    mt = load_machine("five-axis-ac")
+    rng = np.random.default_rng(62)
+    ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (500, 5))
+    p = mt.nominal(ax)
+    start = ax.copy()
+    start[:, :3] = 0.0
+    q, ok = mt.inverse(p, start)
+    assert ok.all()
+    np.testing.assert_array_equal(q[:, 3:], ax[:, 3:])
+    assert np.abs(mt.nominal(q) - p).max() < TOL_INVERSE_MM
+    np.testing.assert_allclose(q[:, :3], ax[:, :3], atol=1e-8)
