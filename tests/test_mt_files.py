@@ -222,3 +222,13 @@ def test_fuzz_machine_tool_files(name):
         reads_or_refuses(load_machine, data.draw(mangled_toml(text)), ".toml")
 
     fuzz()
+
+
+def test_grinder_command_refuses_a_valid_chain_file_by_kind(tmp_path, capsys):
+    """Commands not yet generic over chains refuse a machine-tool file in one line naming its kind
+    (never run it as a grinder)."""
+    rc = main(["simulate", "--machine", "mill-xyz", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert "machine.kind" in err and "'machine-tool'" in err
+    assert not (tmp_path / "o").exists()
