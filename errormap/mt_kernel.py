@@ -18,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .htm import _bspline3, _bspline3_d
 from .mt_chain import UM_MM, MachineTool
 from .mt_elements import ChainElementSet
 
@@ -103,6 +102,57 @@ def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_ro
             jac_row[2, ds] += g * c2
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _spline_at(knots, k0, nk, coefs, c0, x, h, hh, vbuf, dbuf, deriv):  # pragma: no cover - compiled
+    """One cubic vector B-spline stored at offsets (knots ``knots[k0:k0 + nk]``, coefficient rows
+    from ``c0``) at ``x``: values into ``vbuf`` (6,), with ``deriv`` slopes into ``dbuf``. The same
+    operations as :func:`errormap.htm._bspline3` / ``_bspline3_d`` (interval as scipy finds it,
+    clipped to the end intervals; Cox–de Boor; the slope from the degree-2 basis) without array
+    views per point."""
+    k = 3
+    nc = nk - k - 1
+    lo, hi = 0, nk
+    while lo < hi:  # np.searchsorted(t, x, side="right")
+        mid = (lo + hi) // 2
+        if knots[k0 + mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    i = lo - 1
+    if i < k:
+        i = k
+    elif i > nc - 1:
+        i = nc - 1
+    h[0] = 1.0
+    for j in range(1, k + 1):
+        if deriv and j == k:  # h[0:3] = the degree-2 basis of interval i: the slope
+            for col in range(6):
+                acc = 0.0
+                for m in range(k):
+                    jj = i - 2 + m
+                    den = knots[k0 + jj + k] - knots[k0 + jj]
+                    if den != 0.0:
+                        acc += h[m] * k * (coefs[c0 + jj, col] - coefs[c0 + jj - 1, col]) / den
+                dbuf[col] = acc
+        for m in range(j):
+            hh[m] = h[m]
+        h[0] = 0.0
+        for n in range(1, j + 1):
+            xb = knots[k0 + i + n]
+            xa = knots[k0 + i + n - j]
+            if xb == xa:
+                h[n] = 0.0
+                continue
+            w = hh[n - 1] / (xb - xa)
+            h[n - 1] += w * (xb - x)
+            h[n] = w * (x - xa)
+    for col in range(6):
+        acc = 0.0
+        for m in range(k + 1):
+            acc += h[m] * coefs[c0 + i - k + m, col]
+        vbuf[col] = acc
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, deriv):  # pragma: no cover - compiled
     """The component-error values into ``ev`` (P,) (and slopes into ``dev`` when ``deriv``) at one
@@ -113,12 +163,7 @@ def _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts
         s0 = spl_s0[s]
         if not np.isnan(s0):
             x = s0 + np.mod(x - s0, 360.0)
-        tk = knots[koff[s]:koff[s + 1]]
-        c = coefs[coff[s]:coff[s + 1]]
-        if deriv:
-            _bspline3_d(tk, c, x, h, hh, vbuf, dbuf, 0)
-        else:
-            _bspline3(tk, c, x, h, hh, vbuf, 0)
+        _spline_at(knots, koff[s], koff[s + 1] - koff[s], coefs, coff[s], x, h, hh, vbuf, dbuf, deriv)
         for col in range(6):
             p = spl_slot[s, col]
             if p >= 0:
