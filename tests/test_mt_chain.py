@@ -124,6 +124,10 @@ def test_grinder_element_file_loads_for_the_chain(tmp_path):
     np.testing.assert_array_equal(ce.values(ax), el.values(ax))
     ce.save(tmp_path / "el2.json")
     np.testing.assert_array_equal(ElementSet.load(tmp_path / "el2.json").values(ax), el.values(ax))
+    np.testing.assert_array_equal(ce.to_element_set().values(ax), el.values(ax))
+    np.testing.assert_array_equal(ce.scaled(2.0).values(ax), 2.0 * el.values(ax))
+    with pytest.raises(ValueError, match="23 elements"):
+        ChainElementSet.zeros(load_machine("mill-xyz")).to_element_set()
 
 
 # -- the mill against a hand-written HTM --------------------------------------------------------
