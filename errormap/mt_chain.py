@@ -397,7 +397,7 @@ def _squareness(d, where, path, ax: MTAxis):
     items = d.get("squareness", [])
     if not isinstance(items, list):
         raise MachineFileError(f"{path}: key '{where}.squareness': expected a list of tables "
-                               "{{ name = \"s_xz\", toward = \"x\", iso = \"EB0Z\" }}")
+                               "{ name = \"s_xz\", toward = \"x\", iso = \"EB0Z\" }")
     if items and ax.kind != "linear":
         raise MachineFileError(f"{path}: key '{where}.squareness': squareness belongs to a linear axis")
     before, after, slots = [], [], []
