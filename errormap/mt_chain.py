@@ -588,3 +588,23 @@ def _targets(t, path, axes):
             raise MachineFileError(f"{path}: key 'targets.{k}': expected a list of [x, y, z] mm, got {short_repr(v)}")
         out[k] = check_array(v, (n, 3), f"targets.{k}", path)
     return out
+
+
+def chain_from_grinder(machine) -> MachineTool:
+    """The chain of a ``kind = "grinder"`` machine file (:class:`errormap.machine.Grinder`): the
+    built-in ``grinder-chain.toml`` with that file's ``[geometry]``, strokes and targets, so any
+    grinder file (not only the default's numbers) has its chain. Name, path and sha256 are the
+    grinder file's."""
+    import tomllib
+    from importlib import resources
+    from pathlib import Path
+    p = Path(str(resources.files("errormap") / "machines" / "grinder-chain.toml"))
+    doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    doc["machine"]["name"] = machine.name
+    doc["geometry"] = {k: float(getattr(machine, k)) for k in doc["geometry"]}
+    for side in ("work", "tool"):
+        for d in doc[side]:
+            if "joint" in d:
+                d["stroke"] = list(machine.strokes[f"{d['axis'].lower()}_{'deg' if d['joint'] == 'rotary' else 'mm'}"])
+    doc["targets"] = {k: np.asarray(v, dtype=float).tolist() for k, v in machine.targets.items()}
+    return parse_machine_tool(doc, machine.path or p, machine.sha256)
