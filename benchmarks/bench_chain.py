@@ -22,7 +22,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from errormap.htm import HTMField
+from errormap.htm import HTMField, error_jacobian
 from errormap.io import atomic_write
 from errormap.machine import load_machine
 from errormap.mt_elements import ChainElementSet
@@ -34,6 +34,7 @@ OTHER_MACHINES = ("mill-xyz", "five-axis-ac", "lathe-xzc")
 ELEMENT_SCALE = 25.0  # μm / μrad per station: the size of a machine tool's component errors
 GOAL_RATIO = 1.5      # issue 26: the generic kernel within 1.5× of today's hand-written one
 GOAL_US = 3.0         # issue 26: field value + Jacobian ≤ 3 μs per point
+ERROR_JAC_POINTS = 50_000  # the hand-written error-transfer Jacobian is numpy with (n, 3, 23) temporaries
 
 
 def _median_time(fn, repeats):
@@ -78,9 +79,14 @@ def run_seed(seed, points, repeats):
     t_cv, e_c = _median_time(lambda: chain.predict(ax), repeats)
     t_hj, (_, j_h) = _median_time(lambda: hand.predict_and_jacobian(ax), repeats)
     t_cj, (_, j_c) = _median_time(lambda: chain.predict_and_jacobian(ax), repeats)
+    ne = min(points, ERROR_JAC_POINTS)
+    t_he, je_h = _median_time(lambda: error_jacobian(g, ax[:ne]), repeats)
+    t_ce, je_c = _median_time(lambda: chain.error_jacobian(ax[:ne]), repeats)
     row = {"seed": seed, "hand_v": t_hv / points * 1e6, "chain_v": t_cv / points * 1e6,
            "hand_j": t_hj / points * 1e6, "chain_j": t_cj / points * 1e6,
-           "diff_um": float(np.abs(e_c - e_h).max()), "diff_jac": float(np.abs(j_c - j_h).max()), "others": {}}
+           "diff_um": float(np.abs(e_c - e_h).max()), "diff_jac": float(np.abs(j_c - j_h).max()),
+           "hand_e": t_he / ne * 1e6, "chain_e": t_ce / ne * 1e6, "diff_e": float(np.abs(je_c - je_h).max()),
+           "others": {}}
     for name in OTHER_MACHINES:
         m = load_machine(name)
         f = ChainField(m, _random_elements(m, rng_el))
@@ -104,7 +110,8 @@ def main():
     seeds = list(range(args.seeds))
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_seed, seeds, [args.points] * len(seeds), [args.repeats] * len(seeds)))
-    med = {k: statistics.median(r[k] for r in rows) for k in ("hand_v", "chain_v", "hand_j", "chain_j")}
+    med = {k: statistics.median(r[k] for r in rows) for k in ("hand_v", "chain_v", "hand_j", "chain_j", "hand_e",
+                                                               "chain_e")}
     lines = ["## Machine-tool chains compiled once: the generic field kernel (issue 26)", "",
              f"`python benchmarks/bench_chain.py --points {args.points} --seeds {args.seeds} --jobs {args.jobs} "
              f"--repeats {args.repeats}` — CPU time of the process, median of {args.repeats} runs per seed, "
@@ -130,6 +137,11 @@ def main():
     lines += ["", f"Goal (issue 26): value + J within {GOAL_RATIO}× of today's kernel — "
               f"{'met' if ok_ratio else 'NOT met'} ({med['chain_j'] / med['hand_j']:.2f}×); ≤ {GOAL_US:g} μs/point — "
               f"{'met' if ok_us else 'NOT met'} ({med['chain_j']:.2f} μs).", "",
+              "Error-transfer Jacobian ∂E/∂(elements), (n, 3, 23) — what identification uses: hand-written "
+              "`errormap.htm.error_jacobian` (numpy) vs the compiled chain form `ChainField.error_jacobian`, "
+              f"first {min(args.points, ERROR_JAC_POINTS):,} points, μs/pt (medians over seeds): "
+              f"hand {med['hand_e']:.2f}, chain {med['chain_e']:.2f}; largest difference "
+              f"{max(r['diff_e'] for r in rows):.1e} μm per μm/μrad.", "",
               "Other built-in chains (generic kernel only; random element sets ±"
               f"{ELEMENT_SCALE:g} μm/μrad; medians over seeds):", "",
               "| machine | ETs in the compiled chain | error slots | value (μs/pt) | value + J (μs/pt) |",

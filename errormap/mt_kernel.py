@@ -1,17 +1,21 @@
 """The compiled (numba) field kernel of any machine-tool chain, generic over the compiled op arrays.
 
 One pass per point: the component errors from one vector-valued cubic B-spline per axis (the
-same knots and coefficients as :meth:`errormap.mt_elements.ChainElementSet.axis_spline`, basis
-by the Cox–de Boor recursion of :mod:`errormap.htm`), then the chain's ETs applied one by one to
-a running rotation ``R`` (3×3) and origin ``t`` (3,), for the actual chain (with the errors) and
-the nominal one. Compiled once per field: the ETs that depend on a point (a joint, a component
+same knots and coefficients as :meth:`errormap.mt_elements.ChainElementSet.axis_spline`, the same
+operations as the grinder's :func:`errormap.htm._bspline3`, evaluated at offsets in packed arrays:
+:func:`_spline_at`), then the chain's ops applied one by one to a running rotation ``R`` (3×3)
+and origin ``t`` (3,), for the actual chain (with the errors) and the nominal one. Packed once
+per field (:meth:`CompiledChain._program`): the ETs that depend on a point (a joint, a component
 error) stay single ops, every run of constant ETs between them (fixed transforms, location and
-squareness errors at their values) is folded into one constant block (:meth:`CompiledChain._program`). The axis Jacobian is geometric and exact (no step, no truncation):
-each ET that depends on an axis adds its slope times its column (the tool point's motion per unit
-of the ET's value), accumulated after the pass (:func:`_chain_point_d`). Checked against the numpy reference
-:mod:`errormap.mt_field` in ``tests/test_mt_kernel.py``.
+squareness errors at their values) is folded into one constant block. The axis Jacobian is
+geometric and exact (no step, no truncation): each ET that depends on an axis adds its slope
+times its column (the tool point's motion per unit of the ET's value), accumulated after the pass
+(:func:`_jacobian_columns`); the error-transfer Jacobian the same way for every slot
+(:func:`error_jacobian`). Checked against the numpy reference :mod:`errormap.mt_field` and
+:meth:`errormap.mt_chain.MachineTool.error_jacobian` in ``tests/test_mt_kernel.py``.
 
-Shapes: ``axes`` (n, k); ``out`` (n, 3) μm; ``jac`` (n, 3, k) μm per mm / per deg.
+Shapes: ``axes`` (n, k); ``out`` (n, 3) μm; ``jac`` (n, 3, k) μm per mm / per deg; error
+Jacobian (n, 3, P) μm per μm / per μrad.
 """
 from __future__ import annotations
 
