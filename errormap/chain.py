@@ -9,6 +9,13 @@ slots Δθ, Δd, Δa, Δα per link and a Hayati β slot (a rotation about y) on
 axes are parallel; a base frame (6 slots: tx ty tz rz ry rx) and a tool point (3 slots) complete
 the chain. Element names are derived from the chain (``link2.da_mm``, ``base.rz_rad``, ``tool.z_mm``).
 
+Machine tools (:mod:`errormap.mt_chain`) use two extensions, both off for arms: an error slot may
+enter several ETs, each with a coefficient ``coef`` (``value += coef * error``; a slot in an inverted
+part of a chain enters negated, a squareness slot tilts an axis by ``+s`` before and ``-s`` after its
+motion; the coefficient also carries the slot's unit, e.g. 1e-3 mm per μm), compiled with
+``shared_slots=True``; and error values may be given per pose, ``errors`` of shape (n, P) (a machine
+tool's component errors are functions of an axis position), beside the constant ``(P,)`` of an arm.
+
 Units: joint values are given in the joints' units (deg for revolute, mm for prismatic); error
 parameters are in mm (translations) and rad (rotations), as their names say. Shapes: ``q`` (n, nq),
 frames (n, 4, 4), tool-point error Jacobian (n, 3, n_params), joint Jacobian (n, 3 or 6, nq).
@@ -28,7 +35,8 @@ ET_TYPES = ("tx", "ty", "tz", "rx", "ry", "rz")
 class ET:
     """One elementary transform. ``kind`` 't' (translation, mm) or 'r' (rotation, rad) along/about
     ``axis`` (0, 1, 2 = x, y, z); ``value`` the constant part; ``joint`` the joint index or None;
-    ``sign`` the joint direction (+1/-1); ``slot`` the error-slot name or None."""
+    ``sign`` the joint direction (+1/-1); ``slot`` the error-slot name or None; ``coef`` the slot's
+    coefficient (the ET's value gains ``coef * error``; 1 for arms)."""
 
     kind: str
     axis: int
@@ -36,6 +44,7 @@ class ET:
     joint: int | None = None
     sign: float = 1.0
     slot: str | None = None
+    coef: float = 1.0
 
     @property
     def type(self) -> str:
@@ -61,9 +70,16 @@ class Joint:
         return f"{self.name}_{self.unit}"
 
 
-def et(type_: str, value: float = 0.0, joint: int | None = None, sign: float = 1.0, slot: str | None = None) -> ET:
+def et(type_: str, value: float = 0.0, joint: int | None = None, sign: float = 1.0, slot: str | None = None,
+       coef: float = 1.0) -> ET:
     """An :class:`ET` from a type word ``tx`` … ``rz`` (rotation values in rad)."""
-    return ET(type_[0], AXES.index(type_[1]), float(value), joint, float(sign), slot)
+    return ET(type_[0], AXES.index(type_[1]), float(value), joint, float(sign), slot, float(coef))
+
+
+def inverted(ets) -> list[ET]:
+    """The ETs of the inverse transform: the list reversed, every value, joint direction and slot
+    coefficient negated (``(T1·…·Tk)⁻¹ = Tk⁻¹·…·T1⁻¹`` and ``Tx(v)⁻¹ = Tx(−v)``, ``Rx(v)⁻¹ = Rx(−v)``)."""
+    return [ET(e.kind, e.axis, -e.value, e.joint, -e.sign, e.slot, -e.coef) for e in reversed(list(ets))]
 
 
 def base_ets(xyz_mm=(0.0, 0.0, 0.0), rpy_rad=(0.0, 0.0, 0.0), slots: bool = True) -> list[ET]:
@@ -138,37 +154,59 @@ class Chain:
     joint: np.ndarray = field(repr=False)
     sign: np.ndarray = field(repr=False)
     slot: np.ndarray = field(repr=False)
+    coef: np.ndarray = field(default=None, repr=False)
     path: str = ""
     sha256: str = ""
     kind: str = "serial"
     convention: str = "et"
 
     @classmethod
-    def compile(cls, ets, joints, name: str = "chain", **kw) -> "Chain":
-        """Check and compile ETs and joints once into index arrays."""
+    def compile(cls, ets, joints, name: str = "chain", shared_slots: bool = False, slot_order=None, **kw) -> "Chain":
+        """Check and compile ETs and joints once into index arrays. ``shared_slots``: a slot name may
+        enter several ETs (one parameter); otherwise a repeated name is refused. ``slot_order``: the
+        parameter order (every slot name once); default the order of first appearance."""
         ets = tuple(ets)
         joints = tuple(joints)
         names = [e.slot for e in ets if e.slot is not None]
         dup = sorted({n for n in names if names.count(n) > 1})
-        if dup:
+        if dup and not shared_slots:
             raise ValueError(f"duplicate error slot names {dup}")
+        names = list(dict.fromkeys(names))
+        if slot_order is not None:
+            if sorted(slot_order) != sorted(names) or len(set(slot_order)) != len(names):
+                raise ValueError(f"slot_order {list(slot_order)} is not a permutation of the chain's slots {names}")
+            names = list(slot_order)
         used = sorted({e.joint for e in ets if e.joint is not None})
         if used != list(range(len(joints))):
             raise ValueError(f"joints {[j.name for j in joints]} must each drive at least one transform")
         for e in ets:
             if e.joint is not None and (joints[e.joint].type == "revolute") != (e.kind == "r"):
                 raise ValueError(f"joint {joints[e.joint].name!r} ({joints[e.joint].type}) drives a {e.type} transform")
-        slot = np.full(len(ets), -1)
-        k = 0
-        for i, e in enumerate(ets):
-            if e.slot is not None:
-                slot[i] = k
-                k += 1
+        index = {n: k for k, n in enumerate(names)}
+        slot = np.array([-1 if e.slot is None else index[e.slot] for e in ets], dtype=np.int64)
         return cls(name=name, ets=ets, joints=joints, param_names=tuple(names),
                    kind_r=np.array([e.kind == "r" for e in ets]), axis=np.array([e.axis for e in ets]),
                    value=np.array([e.value for e in ets]),
                    joint=np.array([-1 if e.joint is None else e.joint for e in ets]),
-                   sign=np.array([e.sign for e in ets]), slot=slot, **kw)
+                   sign=np.array([e.sign for e in ets]), slot=slot,
+                   coef=np.array([e.coef for e in ets]), **kw)
+
+    def __post_init__(self):
+        if self.coef is None:
+            self.coef = np.ones(len(self.ets))
+
+    @property
+    def plain_slots(self) -> bool:
+        """Every slot in one ET with coefficient 1, in chain order (an arm): the selection path."""
+        s = self.slot[self.slot >= 0]
+        return bool(np.array_equal(s, np.arange(self.n_params)) and np.all(self.coef[self.slot >= 0] == 1.0))
+
+    def slot_matrix(self) -> np.ndarray:
+        """``S`` (n_et, n_params): ``S[k, p]`` the coefficient with which slot p enters ET k."""
+        S = np.zeros((len(self.ets), self.n_params))
+        k = np.flatnonzero(self.slot >= 0)
+        np.add.at(S, (k, self.slot[k]), self.coef[k])
+        return S
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -197,7 +235,8 @@ class Chain:
 
     # -- kinematics ----------------------------------------------------------------------------
     def et_values(self, q, errors=None) -> np.ndarray:
-        """Value of every ET per pose, shape (n, n_et): constant + sign*joint + error."""
+        """Value of every ET per pose, shape (n, n_et): constant + sign*joint + coef*error.
+        ``errors`` shape (n_params,) (the same for every pose) or (n, n_params) (per pose)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         if q.shape[1] != self.n_joints:
             raise ValueError(f"expected q of shape (n, {self.n_joints}), got {q.shape}")
@@ -206,10 +245,14 @@ class Chain:
         v[:, jm] += self.sign[jm] * (q * self._joint_scale())[:, self.joint[jm]]
         if errors is not None:
             e = np.asarray(errors, dtype=float)
-            if e.shape != (self.n_params,):
-                raise ValueError(f"expected errors of shape ({self.n_params},), got {e.shape}")
             sm = self.slot >= 0
-            v[:, sm] += e[self.slot[sm]]
+            if e.shape == (self.n_params,):
+                v[:, sm] += e[self.slot[sm]] * self.coef[sm]
+            elif e.shape == (q.shape[0], self.n_params):
+                v[:, sm] += e[:, self.slot[sm]] * self.coef[sm]
+            else:
+                raise ValueError(f"expected errors of shape ({self.n_params},) or ({q.shape[0]}, {self.n_params}), "
+                                 f"got {e.shape}")
         return v
 
     def frames(self, q, errors=None) -> np.ndarray:
@@ -252,10 +295,13 @@ class Chain:
         return np.moveaxis(lin, 1, 2), np.moveaxis(ang, 1, 2)
 
     def error_jacobian(self, q, errors=None, frames=None) -> np.ndarray:
-        """∂(tool point)/∂(error parameters), shape (n, 3, n_params) (mm per mm or per rad)."""
+        """∂(tool point)/∂(error parameters), shape (n, 3, n_params) (mm per mm or per rad; with
+        coefficients, mm per unit of the slot: a slot in several ETs sums their columns)."""
         F = self.frames(q, errors) if frames is None else frames
         lin, _ = self._columns(F)
-        return lin[:, :, self.slot >= 0]
+        if self.plain_slots:
+            return lin[:, :, self.slot >= 0]
+        return lin @ self.slot_matrix()
 
     def joint_jacobian(self, q, errors=None, orientation: bool = False, frames=None) -> np.ndarray:
         """∂(tool point [, rotation vector])/∂(joint values in their units), shape (n, 3 or 6, nq)."""

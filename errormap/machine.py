@@ -1,9 +1,10 @@
 """Machine files (TOML): loading and validation.
 
 One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexapod``,
-``tripod``, ``serial``; the one registry of kinds is :func:`machine_kinds`, each kind's parser and
-axes; schemas in ``docs/schemas.md``; serial chains in :mod:`errormap.chain_file`). The built-in
-machines are the files in ``errormap/machines/`` (:func:`builtin_machines`), nothing else. The built-in default grinder ships as ``errormap/machines/grinder.toml``.
+``tripod``, ``serial``, ``machine-tool``; the one registry of kinds is :func:`machine_kinds`, each
+kind's parser and axes; schemas in ``docs/schemas.md``; serial chains in :mod:`errormap.chain_file`,
+machine-tool chains in :mod:`errormap.mt_chain`). The built-in machines are the files in
+``errormap/machines/`` (:func:`builtin_machines`), nothing else. The built-in default grinder ships as ``errormap/machines/grinder.toml``.
 Every error names the file and the key.
 """
 from __future__ import annotations
@@ -26,7 +27,8 @@ A_TURN_TOL_DEG = 1e-9  # strokes.a_deg must span one turn to this
 
 
 def builtin_machine_path(kind: str = "grinder") -> Path:
-    """Path of a built-in machine file (``grinder``, ``hexapod``, ``tripod``, ``ur5``, ``ur10``, ``wam``)."""
+    """Path of a built-in machine file (``grinder``, ``hexapod``, ``tripod``, ``ur5``, ``ur10``, ``wam``; the
+    machine-tool chains ``grinder-chain``, ``mill-xyz``, ``five-axis-ac``, ``lathe-xzc``)."""
     p = Path(str(resources.files("errormap") / "machines" / f"{kind}.toml"))
     if not p.is_file():
         raise MachineFileError(f"no built-in machine file for kind {kind!r} ({p})")
@@ -153,6 +155,11 @@ def chain_axes(machine) -> list:
                         "deg" if j.type == "revolute" else "mm", float(j.lo), float(j.hi)) for j in machine.joints]
 
 
+def machine_tool_axes(machine) -> list:
+    """The axes of a machine-tool chain with their strokes (linear: mm, rotary: deg)."""
+    return [MachineAxis(a.word, a.kind, a.unit, float(a.stroke[0]), float(a.stroke[1])) for a in machine.axes]
+
+
 def pkm_axes(machine) -> list:
     """The legs of a parallel kinematic machine with their length limits (mm)."""
     return [MachineAxis(f"leg{i + 1}", "linear", "mm", float(lo), float(hi))
@@ -164,12 +171,14 @@ def machine_kinds() -> dict:
     their models (imported on first use: they need scipy, which a grinder-only run does not load).
     A new kind is one entry here (its parser and its axes)."""
     from .chain_file import parse_serial
+    from .mt_chain import parse_machine_tool
     from .pkm.machine_file import parse_hexapod, parse_tripod
     return {k.kind: k for k in (
         MachineKind("grinder", parse_grinder, grinder_axes, "docs/schemas.md"),
         MachineKind("hexapod", parse_hexapod, pkm_axes, "docs/pkm.md"),
         MachineKind("tripod", parse_tripod, pkm_axes, "docs/pkm.md"),
         MachineKind("serial", parse_serial, chain_axes, "docs/arms.md"),
+        MachineKind("machine-tool", parse_machine_tool, machine_tool_axes, "docs/machines.md"),
     )}
 
 
@@ -225,6 +234,10 @@ def load_machine(path=None, expect_kind: str | None = None):
     parsers = _parsers()
     if not isinstance(kind, str) or kind not in parsers:
         raise MachineFileError(f"{path}: key 'machine.kind': expected one of {sorted(parsers)}, got {short_repr(kind)}")
+    if kind == "machine-tool":  # a chain file is checked whole first: a broken one names its key, whatever the command
+        machine = parsers[kind](doc, path, sha256_bytes(raw))
+        check_machine_kind(path, kind, expect_kind)
+        return machine
     check_machine_kind(path, kind, expect_kind)
     return parsers[kind](doc, path, sha256_bytes(raw))
 

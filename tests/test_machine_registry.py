@@ -11,7 +11,8 @@ from errormap.machine import (MachineFileError, builtin_machines, load_machine, 
                               machine_kinds)
 
 MACHINES_DIR = Path(__file__).resolve().parents[1] / "errormap" / "machines"
-BUILTIN_KINDS = {"grinder", "hexapod", "tripod", "serial"}
+BUILTIN_KINDS = {"grinder", "hexapod", "tripod", "serial", "machine-tool"}
+CANONICAL_AXIS_ORDER = "XYZUVWABC"  # docs/machines.md: axis columns follow the words in this order
 
 
 def _file_axes(doc: dict) -> list:
@@ -24,6 +25,10 @@ def _file_axes(doc: dict) -> list:
         legs = doc["legs"]
         n = 6 if kind == "hexapod" else 3
         return [(f"leg{i + 1}", "mm", legs["min_mm"], legs["max_mm"]) for i in range(n)]
+    if kind == "machine-tool":
+        joints = [d for d in doc.get("work", []) + doc.get("tool", []) if "joint" in d]
+        joints.sort(key=lambda d: CANONICAL_AXIS_ORDER.index(d["axis"]))
+        return [(d["axis"], "mm" if d["joint"] == "linear" else "deg", *d["stroke"]) for d in joints]
     links = doc.get("link") or doc.get("et")
     return [(d["joint"], "mm" if d.get("type") == "prismatic" else "deg", *d["limits"])
             for d in links if "joint" in d]

@@ -1,0 +1,124 @@
+"""The error field of any machine-tool chain (:class:`errormap.field.ErrorField` over its axes).
+
+``ChainField(machine, elements)``: ``predict(axes (n, k)) -> (n, 3)`` μm, the exact spatial error
+of the tool point in the workpiece frame (actual minus nominal, ``inv(work)·tool`` with every
+element transform exact); ``jacobian(axes) -> (n, 3, k)`` μm per mm / per deg;
+``predict_and_jacobian``; ``error_jacobian(axes) -> (n, 3, P)`` μm per μm / per μrad (the
+error-transfer matrix for identification, at the nominal chain). ``k`` = the machine's axes in
+canonical order (``machine.axis_columns``), ``P`` = its slots (``machine.slot_names``).
+
+Axis Jacobian: ``dE/dq = [J_q(q, e) − J_q(q, 0) + J_e(q, e)·de/dq] / 1e-3`` with ``J_q`` the
+chain's joint Jacobian, ``J_e`` its error-parameter Jacobian and ``de/dq`` the spline slopes of
+the component errors along their own axis. :func:`predict_numpy` / :func:`predict_and_jacobian_numpy`
+are the readable references; the compiled kernel (:mod:`errormap.mt_kernel`) is
+tested against them; :class:`ChainField` computes through the kernel.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
+from .mt_chain import UM_MM, MachineTool
+from .mt_elements import ChainElementSet
+
+CHUNK = 4096  # points per numpy pass: the reference keeps (chunk, n_et + 1, 4, 4) frames
+
+
+def predict_numpy(machine: MachineTool, elements: ChainElementSet, axes, chunk: int = CHUNK) -> np.ndarray:
+    """Spatial error (μm), (n, k) -> (n, 3): element values pushed through the numpy chain."""
+    axes = np.atleast_2d(np.asarray(axes, dtype=float))
+    return machine.spatial_error(axes, elements.values(axes), chunk=chunk)
+
+
+def predict_and_jacobian_numpy(machine: MachineTool, elements: ChainElementSet, axes, chunk: int = CHUNK):
+    """``(E (n, 3) μm, dE/d(axes) (n, 3, k))`` by the numpy chain (the reference)."""
+    axes = np.atleast_2d(np.asarray(axes, dtype=float))
+    n, k = axes.shape
+    E = np.empty((n, 3))
+    J = np.empty((n, 3, k))
+    ch = machine.chain
+    col = {a.word: j for j, a in enumerate(machine.axes)}
+    own = np.array([col[s.axis] if s.is_function else -1 for s in machine.slots])
+    for s in range(0, n, chunk):
+        q = axes[s:s + chunk]
+        v = elements.values(q)
+        dv = elements.slopes(q)
+        F = ch.frames(q, v)
+        F0 = ch.frames(q)
+        E[s:s + chunk] = (F[:, -1, :3, 3] - F0[:, -1, :3, 3]) / UM_MM
+        Jq = ch.joint_jacobian(q, v, frames=F) - ch.joint_jacobian(q, frames=F0)
+        Je = ch.error_jacobian(q, v, frames=F)          # (m, 3, P) mm per μm/μrad
+        for p in np.flatnonzero(own >= 0):
+            Jq[:, :, own[p]] += Je[:, :, p] * dv[:, p, None]
+        J[s:s + chunk] = Jq / UM_MM
+    return E, J
+
+
+class ChainField:
+    """A machine-tool chain with its element set as an error field (module docstring).
+
+    ``calibrated_volume``: per axis the stations' range (axes without component errors: their
+    stroke). Declares ``jacobian`` and ``predict_and_jacobian``.
+    """
+
+    kind = "chain"
+
+    def __init__(self, machine: MachineTool, elements: ChainElementSet, chunk: int = CHUNK):
+        if elements.machine is not machine and elements.machine.slot_names != machine.slot_names:
+            raise ValueError("the element set belongs to another machine")
+        self.machine = machine
+        self.elements = elements
+        self.chunk = chunk
+
+    @property
+    def capabilities(self) -> frozenset:
+        return frozenset({JACOBIAN, PREDICT_AND_JACOBIAN})
+
+    @property
+    def calibrated_volume(self) -> CalibratedVolume:
+        lo, hi = [], []
+        for a in self.machine.axes:
+            s = self.elements.stations.get(a.column)
+            lo.append(float(s.min()) if s is not None else a.stroke[0])
+            hi.append(float(s.max()) if s is not None else a.stroke[1])
+        return CalibratedVolume(lo, hi, self.machine.axis_columns)
+
+    def element_values(self, axes) -> np.ndarray:
+        """The element values at ``axes``, shape (n, P)."""
+        return self.elements.values(axes)
+
+    def _axes(self, axes) -> np.ndarray:
+        axes = np.atleast_2d(np.asarray(axes, dtype=float))
+        if axes.ndim != 2 or axes.shape[1] != len(self.machine.axes):
+            raise ValueError(f"expected axes of shape (n, {len(self.machine.axes)}) "
+                             f"({', '.join(self.machine.axis_columns)}), got {np.shape(axes)}")
+        return axes
+
+    def _compiled(self):
+        """The kernels' arrays, packed per call (cheap; the element set's splines are cached there)."""
+        from .mt_kernel import CompiledChain
+        return CompiledChain(self.machine, self.elements)
+
+    def predict(self, axes) -> np.ndarray:
+        """Spatial error (μm), shape (n, 3), at axes (n, k): one compiled pass per point
+        (:mod:`errormap.mt_kernel`), equal to :func:`predict_numpy` to round-off (tested)."""
+        return self._compiled().predict(self._axes(axes))
+
+    __call__ = predict
+
+    def predict_and_jacobian(self, axes, dtype=np.float64):
+        """``(E (n, 3) μm, dE/d(axes) (n, 3, k))``; float64 only."""
+        if np.dtype(dtype) != np.float64:
+            raise ValueError(f"Expected dtype float64 (ChainField declares no float32), got {np.dtype(dtype)}")
+        return self._compiled().predict_and_jacobian(self._axes(axes))
+
+    def jacobian(self, axes) -> np.ndarray:
+        """dE/d(axes), shape (n, 3, k)."""
+        return self.predict_and_jacobian(axes)[1]
+
+    def error_jacobian(self, axes) -> np.ndarray:
+        """∂E/∂(element values) at the nominal chain, shape (n, 3, P), μm per μm / per μrad
+        (compiled, :func:`errormap.mt_kernel.error_jacobian`; the numpy form is
+        :meth:`MachineTool.error_jacobian`)."""
+        from .mt_kernel import error_jacobian
+        return error_jacobian(self.machine, self._axes(axes))
