@@ -105,14 +105,15 @@ def timed(fn, repeats):
 
 
 def run_field(name, field, machine, truth, targets, axes, args, log):
-    from compensation.solvers import solve
+    from compensation.solvers import SOLVERS, solve
     from errormap.threads import limit_threads
     n = len(targets)
     out = {}
-    # one-time costs (imports, numba compilation, PyGAD set-up) stay out of the timings
-    for method in ("traditional", "exact", "batched-ga", "ga"):
-        kw = {} if method == "traditional" else {"progress": False}
-        if method in ("ga", "batched-ga"):
+    # one-time costs (imports, numba compilation, PyGAD set-up) stay out of the timings: every
+    # solver of the registry once
+    for method, spec in SOLVERS.items():
+        kw = {"progress": False} if spec.progress else {}
+        if spec.seeded:
             kw["generations"] = 2
         solve(method, field, targets[:2], machine, target_axes=axes[:2], **kw)
     log(f"[{name}] traditional on {n} points")

@@ -28,14 +28,13 @@ import numpy as np
 
 from errormap.threads import limit_threads
 
-from .solvers import SolveResult, solve
+from .solvers import GA_METHODS, SolveResult, solve, solver_spec  # GA_METHODS: re-exported for the workflows
 from .solvers._converge import merge_stats
 
 CHUNK_POINTS = 65_536
 """Points per chunk (default): large enough that a chunk's fixed costs (a task, a field call)
 are small beside its solve, small enough that a 1M-point path gives 16 chunks to share out."""
 
-GA_METHODS = ("ga", "batched-ga")
 
 
 @dataclass(frozen=True)
@@ -104,11 +103,12 @@ def solve_chunk(method: str, field_, machine, task: ChunkTask, options: dict | N
     """
     opts = dict(options or {})
     opts.pop("seed", None)
-    if method in GA_METHODS:
+    spec = solver_spec(method)
+    if spec.seeded:
         opts["seed"] = np.random.default_rng(task.chunk.seed)
-    if method == "batched-ga":
+    if spec.blockwise:
         opts.update(workers=1, chunk=max(1, len(task.chunk)))
-    if method != "traditional":
+    if spec.progress:
         opts["progress"] = False
     return solve(method, field_, task.targets_mm, machine, target_axes=task.target_axes, **opts)
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from errormap.diagnosis.corrected import CorrectedField
 from errormap.diagnosis.effects import Candidate, EffectTerm
+from errormap.effect_kinds import diagnosed_kind
 from errormap.elements import ElementSet
 from errormap.htm import HTMField
 from errormap.io import InputError
@@ -64,6 +65,10 @@ def load_diagnosed_model(path, machine) -> CorrectedField:
             raise InputError(f"{path}: key 'learned_residual': {exc}") from None
     terms = []
     for i, t in enumerate(d.get("terms", [])):
+        try:
+            diagnosed_kind(t.get("kind") if isinstance(t, dict) else None)
+        except ValueError as exc:
+            raise InputError(f"{path}: key 'terms[{i}].kind': {exc}") from None
         try:
             ref = {"strokes": {k: tuple(machine.strokes[k]) for k in ("x_mm", "z_mm", "a_deg")},
                    "ref_temp_c": float(t["reference"]["ref_temp_c"]), "ref_time_s": float(t["reference"]["ref_time_s"])}

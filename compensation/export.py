@@ -58,6 +58,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
+from errormap.effect_kinds import diagnosed_kind
 from errormap.elements import ElementSet
 from errormap.field import CalibratedVolume
 from errormap.htm import IDX, spatial_error_exact
@@ -569,6 +570,8 @@ def _is_float(s: str) -> bool:
         return False
 
 
+BACKLASH_EXPORT = "linuxcnc-backlash"
+"""The registry's ``export`` of a kind a per-joint table carries (:mod:`errormap.effect_kinds`)."""
 CHECKS_DIAGNOSIS_FORMAT = "volcomp-checks-diagnosis/1"
 """The ``format`` key of ``diagnosis.json`` written by ``volcomp diagnose CHECKS`` (the drift
 diagnosis has its own content and no ``effects``)."""
@@ -600,7 +603,11 @@ def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
     for i, e in enumerate(effects):
         if not isinstance(e, dict) or "kind" not in e:
             raise InputError(f"{path}: key 'effects[{i}]': expected an object with 'kind'")
-        if e["kind"] != "reversal":
+        try:
+            spec = diagnosed_kind(e["kind"])  # the registry: an unknown kind is refused, never skipped
+        except ValueError as exc:
+            raise InputError(f"{path}: key 'effects[{i}].kind': {exc}") from None
+        if spec.export != BACKLASH_EXPORT:
             left.append(f"{e.get('kind')}({e.get('axis')}) on {e.get('element')}")
             continue
         j, el = e.get("axis"), e.get("element")

@@ -1,8 +1,10 @@
 """Machine files (TOML): loading and validation.
 
 One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexapod``,
-``tripod``, ``serial``, ``machine-tool``; schemas in ``docs/schemas.md``; serial chains in
-:mod:`errormap.chain_file`, machine-tool chains in :mod:`errormap.mt_chain`). The built-in default grinder ships as ``errormap/machines/grinder.toml``.
+``tripod``, ``serial``, ``machine-tool``; the one registry of kinds is :func:`machine_kinds`, each
+kind's parser and axes; schemas in ``docs/schemas.md``; serial chains in :mod:`errormap.chain_file`,
+machine-tool chains in :mod:`errormap.mt_chain`). The built-in machines are the files in
+``errormap/machines/`` (:func:`builtin_machines`), nothing else. The built-in default grinder ships as ``errormap/machines/grinder.toml``.
 Every error names the file and the key.
 """
 from __future__ import annotations
@@ -25,7 +27,8 @@ A_TURN_TOL_DEG = 1e-9  # strokes.a_deg must span one turn to this
 
 
 def builtin_machine_path(kind: str = "grinder") -> Path:
-    """Path of a built-in machine file (``grinder``, ``hexapod``, ``tripod``, ``ur5``, ``ur10``, ``wam``)."""
+    """Path of a built-in machine file (``grinder``, ``hexapod``, ``tripod``, ``ur5``, ``ur10``, ``wam``; the
+    machine-tool chains ``grinder-chain``, ``mill-xyz``, ``five-axis-ac``, ``lathe-xzc``)."""
     p = Path(str(resources.files("errormap") / "machines" / f"{kind}.toml"))
     if not p.is_file():
         raise MachineFileError(f"no built-in machine file for kind {kind!r} ({p})")
@@ -111,14 +114,97 @@ def parse_grinder(doc: dict, path, sha: str = "") -> Grinder:
     return Grinder(name=name, strokes=strokes, targets=targets, path=str(path), sha256=sha, **geom)
 
 
-def _parsers():
-    """The parser of each ``[machine] kind``; the PKM schemas live with the PKM models (imported
-    on first use: they need scipy, which a grinder-only run does not load)."""
+# -- the machine-kind registry --------------------------------------------------------------------
+@dataclass(frozen=True)
+class MachineAxis:
+    """One commanded axis of a machine as its file states it: ``name`` (the axis word or joint/leg
+    name), ``type`` (``linear`` or ``rotary``), ``unit`` (``mm`` or ``deg``) and its stroke or
+    limits ``lo``, ``hi`` in that unit."""
+
+    name: str
+    type: str
+    unit: str
+    lo: float
+    hi: float
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "type": self.type, "unit": self.unit, "lo": self.lo, "hi": self.hi}
+
+
+@dataclass(frozen=True)
+class MachineKind:
+    """One ``[machine] kind``: its parser ``parse(doc, path, sha) -> machine`` (a frozen dataclass),
+    ``axes(machine) -> [MachineAxis]`` (what ``volcomp machines`` lists) and the page documenting
+    its schema."""
+
+    kind: str
+    parse: object
+    axes: object
+    schema_doc: str
+
+
+def grinder_axes(machine: Grinder) -> list:
+    """X, Z (mm) and A (deg) with their strokes."""
+    return [MachineAxis(k.split("_")[0].upper(), "rotary" if k.endswith("_deg") else "linear", k.split("_")[1],
+                        *machine.strokes[k]) for k in GRINDER_STROKE_KEYS]
+
+
+def chain_axes(machine) -> list:
+    """The joints of a serial chain with their limits (revolute: deg, prismatic: mm)."""
+    return [MachineAxis(j.name, "rotary" if j.type == "revolute" else "linear",
+                        "deg" if j.type == "revolute" else "mm", float(j.lo), float(j.hi)) for j in machine.joints]
+
+
+def machine_tool_axes(machine) -> list:
+    """The axes of a machine-tool chain with their strokes (linear: mm, rotary: deg)."""
+    return [MachineAxis(a.word, a.kind, a.unit, float(a.stroke[0]), float(a.stroke[1])) for a in machine.axes]
+
+
+def pkm_axes(machine) -> list:
+    """The legs of a parallel kinematic machine with their length limits (mm)."""
+    return [MachineAxis(f"leg{i + 1}", "linear", "mm", float(lo), float(hi))
+            for i, (lo, hi) in enumerate(zip(machine.leg_min_mm, machine.leg_max_mm))]
+
+
+def machine_kinds() -> dict:
+    """The machine-kind registry: ``{kind: MachineKind}``. The PKM and serial-chain schemas live with
+    their models (imported on first use: they need scipy, which a grinder-only run does not load).
+    A new kind is one entry here (its parser and its axes)."""
     from .chain_file import parse_serial
     from .mt_chain import parse_machine_tool
     from .pkm.machine_file import parse_hexapod, parse_tripod
-    return {"grinder": parse_grinder, "hexapod": parse_hexapod, "tripod": parse_tripod, "serial": parse_serial,
-            "machine-tool": parse_machine_tool}
+    return {k.kind: k for k in (
+        MachineKind("grinder", parse_grinder, grinder_axes, "docs/schemas.md"),
+        MachineKind("hexapod", parse_hexapod, pkm_axes, "docs/pkm.md"),
+        MachineKind("tripod", parse_tripod, pkm_axes, "docs/pkm.md"),
+        MachineKind("serial", parse_serial, chain_axes, "docs/arms.md"),
+        MachineKind("machine-tool", parse_machine_tool, machine_tool_axes, "docs/machines.md"),
+    )}
+
+
+def _parsers():
+    """The parser of each ``[machine] kind``, from :func:`machine_kinds`."""
+    return {k: v.parse for k, v in machine_kinds().items()}
+
+
+def machine_kind(kind: str) -> MachineKind:
+    """The registry entry of ``kind``; ``ValueError`` naming the known kinds otherwise."""
+    kinds = machine_kinds()
+    if kind not in kinds:
+        raise ValueError(f"unknown machine kind {kind!r}; expected one of {sorted(kinds)}")
+    return kinds[kind]
+
+
+def machine_axes(machine) -> list:
+    """The commanded axes of a loaded machine (:class:`MachineAxis` list), by its kind's entry."""
+    return machine_kind(machine.kind).axes(machine)
+
+
+def builtin_machines() -> dict:
+    """``{name: path}`` of the built-in machine files, ``errormap/machines/<name>.toml``, sorted by
+    name: a built-in machine is a file there, nothing else."""
+    folder = Path(str(resources.files("errormap") / "machines"))
+    return {p.stem: p for p in sorted(folder.glob("*.toml"))}
 
 
 def load_machine(path=None, expect_kind: str | None = None):
@@ -129,8 +215,7 @@ def load_machine(path=None, expect_kind: str | None = None):
     """
     path = builtin_machine_path(expect_kind or "grinder") if path is None else Path(path)
     if not path.is_file() and path.suffix == "" and len(path.parts) == 1:  # a built-in machine by name (--machine ur5)
-        named = Path(str(resources.files("errormap") / "machines" / f"{path.name}.toml"))
-        path = named if named.is_file() else path
+        path = builtin_machines().get(path.name, path)
     if not Path(path).is_file():
         raise MachineFileError(f"{path}: no such machine file")
     raw = Path(path).read_bytes()
@@ -144,8 +229,7 @@ def load_machine(path=None, expect_kind: str | None = None):
         raise MachineFileError(f"{path}: not valid TOML: {exc}") from None
     m = doc.get("machine")
     if not isinstance(m, dict) or "kind" not in m:
-        raise MachineFileError(f"{path}: missing key 'machine.kind' (one of grinder, hexapod, tripod, serial, "
-                               "machine-tool)")
+        raise MachineFileError(f"{path}: missing key 'machine.kind' (one of {', '.join(machine_kinds())})")
     kind = m["kind"]
     parsers = _parsers()
     if not isinstance(kind, str) or kind not in parsers:

@@ -98,7 +98,7 @@ class Slot:
         return self.kind == "component"
 
 
-@dataclass
+@dataclass(frozen=True)
 class MachineTool:
     """A compiled machine-tool chain file. ``axes`` in canonical word order; ``slots`` in chain
     order; ``chain`` the compiled ``inv(work)·tool`` chain (joints = ``axes``, parameters =
@@ -218,6 +218,80 @@ class MachineTool:
             out[sl] = self.chain.joint_jacobian(axes[sl], v)
         return out
 
+    def inverse(self, points_mm, axes_start, free=None, tol_mm: float = 1e-10, max_iter: int = 50):
+        """Nominal inverse kinematics by Newton: axes that put the nominal tool point at
+        ``points_mm`` (n, 3) (workpiece frame, mm). ``axes_start`` (n, k) the starting axes, which
+        also give the values of the axes not solved for; ``free`` the axis words solved for
+        (exactly 3; default all axes of a 3-axis machine, the linear axes otherwise — a 5-axis
+        machine keeps the rotary axes of ``axes_start``, i.e. the tool orientation). Returns
+        ``(axes (n, k), converged (n,) bool)``: converged where the tool point is within ``tol_mm``
+        after at most ``max_iter`` steps (a point the free axes cannot reach does not converge)."""
+        pts = np.atleast_2d(np.asarray(points_mm, dtype=float))
+        q, _ = self._check(axes_start)
+        q = q.copy()
+        if pts.shape != (q.shape[0], 3):
+            raise ValueError(f"expected points of shape ({q.shape[0]}, 3), got {pts.shape}")
+        if free is None:
+            free = self.axis_words if len(self.axes) == 3 else tuple(a.word for a in self.axes if a.kind == "linear")
+        cols = [self.axis_words.index(w) for w in free]
+        if len(cols) != 3 or len(set(cols)) != 3:
+            raise ValueError(f"expected 3 distinct axis words of {list(self.axis_words)} to solve for, got {list(free)}")
+        active = np.ones(q.shape[0], dtype=bool)
+        for _ in range(max_iter):
+            idx = np.flatnonzero(active)
+            if idx.size == 0:
+                break
+            r = pts[idx] - self.tool_point(q[idx])
+            done = np.abs(r).max(axis=1) <= tol_mm
+            active[idx[done]] = False
+            idx, r = idx[~done], r[~done]
+            if idx.size == 0:
+                break
+            J = self.axis_jacobian(q[idx])[:, :, cols]
+            ok = np.abs(np.linalg.det(J)) > 1e-12
+            step = np.zeros((idx.size, 3))
+            step[ok] = np.linalg.solve(J[ok], r[ok][:, :, None])[:, :, 0]
+            active[idx[~ok]] = False
+            q[np.ix_(idx, cols)] += step
+        err = np.abs(pts - self.tool_point(q)).max(axis=1)
+        return q, err <= tol_mm
+
+    def body_frames(self, word: str, axes, values=None):
+        """Actual frame of the moving body of axis ``word`` in the machine (base) frame, after its
+        motion and its component errors (where its ``[targets]`` are mounted): ``(R (n, 3, 3),
+        t (n, 3) mm)``, base <- body. ``axes`` (n, k); ``values`` (n, P) or (P,) μm/μrad, None nominal."""
+        if word not in self.body_index:
+            raise ValueError(f"expected an axis word of {self.name!r} {list(self.axis_words)}, got {word!r}")
+        axes, values = self._check(axes, values)
+        side, upto = self.body_index[word]
+        ets = (self.work_ets if side == "work" else self.tool_ets)[:upto]
+        n = axes.shape[0]
+        scale = np.array([np.pi / 180 if a.kind == "rotary" else 1.0 for a in self.axes])
+        index = {s: p for p, s in enumerate(self.slot_names)}
+        R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        t = np.zeros((n, 3))
+        for e in ets:
+            x = np.full(n, e.value)
+            if e.joint is not None:
+                x = x + e.sign * axes[:, e.joint] * scale[e.joint]
+            if e.slot is not None and values is not None:
+                v = values[index[e.slot]] if values.ndim == 1 else values[:, index[e.slot]]
+                x = x + e.coef * v
+            if e.kind == "t":
+                t = t + R[:, :, e.axis] * x[:, None]
+            else:
+                b, c = (e.axis + 1) % 3, (e.axis + 2) % 3
+                cs, sn = np.cos(x)[:, None], np.sin(x)[:, None]
+                rb, rc = R[:, :, b].copy(), R[:, :, c].copy()
+                R[:, :, b] = rb * cs + rc * sn
+                R[:, :, c] = rc * cs - rb * sn
+        return R, t
+
+    def target_points(self, word: str, axes, values=None) -> np.ndarray:
+        """The target balls of axis ``word``'s body in the machine frame, (n, m, 3) mm."""
+        R, t = self.body_frames(word, axes, values)
+        return np.einsum("nij,kj->nki", R, self.targets[word]) + t[:, None, :]
+
     def describe(self) -> dict:
         """The machine as plain data for JSON documents and ``volcomp machines``."""
         return {"name": self.name, "kind": self.kind,
@@ -301,7 +375,7 @@ def _joint_entry(d, where, path, side, words):
         raise MachineFileError(f"{path}: key '{where}.unit': a {kind} axis is in {unit}, got {short_repr(d['unit'])}"
                                + (" (degrees where mm are expected)" if d["unit"] in ("deg", "rad") else ""))
     along = d.get("along", DEFAULT_ALONG[word])
-    if along not in AXES:
+    if along not in ("x", "y", "z"):
         raise MachineFileError(f"{path}: key '{where}.along': expected one of ['x', 'y', 'z'], got {short_repr(along)}")
     sign = check_number(d, "direction", where, path) if "direction" in d else 1.0
     if sign not in (1.0, -1.0):
@@ -323,7 +397,7 @@ def _squareness(d, where, path, ax: MTAxis):
     items = d.get("squareness", [])
     if not isinstance(items, list):
         raise MachineFileError(f"{path}: key '{where}.squareness': expected a list of tables "
-                               "{{ name = \"s_xz\", toward = \"x\", iso = \"EB0Z\" }}")
+                               "{ name = \"s_xz\", toward = \"x\", iso = \"EB0Z\" }")
     if items and ax.kind != "linear":
         raise MachineFileError(f"{path}: key '{where}.squareness': squareness belongs to a linear axis")
     before, after, slots = [], [], []
@@ -336,7 +410,7 @@ def _squareness(d, where, path, ax: MTAxis):
         if not isinstance(name, str) or not name.isidentifier():
             raise MachineFileError(f"{path}: key '{w}.name': expected a slot name (identifier), got {short_repr(name)}")
         tw = s.get("toward")
-        if tw not in AXES or AXES.index(tw) == ax.along:
+        if tw not in ("x", "y", "z") or AXES.index(tw) == ax.along:
             raise MachineFileError(f"{path}: key '{w}.toward': expected one of the two frame axes across "
                                    f"{AXES[ax.along]} ({[a for a in AXES if a != AXES[ax.along]]}), got {short_repr(tw)}")
         d_vec, t_vec = np.eye(3)[ax.along], np.eye(3)[AXES.index(tw)]
@@ -406,7 +480,7 @@ def _chain_side(items, side, path, geometry, words, axes, slots, placed):
         if "errors_of" in d:
             check_known_keys(d, ("errors_of",), where, path)
             w = d["errors_of"]
-            if w not in pending or w in placed:
+            if not isinstance(w, str) or w not in pending or w in placed:
                 raise MachineFileError(f"{path}: key '{where}.errors_of': {short_repr(w)} names no axis of this "
                                        f"[[{side}]] chain above it whose errors are still to be placed")
             cets, cslots, _ = pending[w]
@@ -454,7 +528,7 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     if not isinstance(name, str):
         raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {short_repr(name)}")
     ver = m.get("schema", None)
-    if ver != MT_SCHEMA_VERSION:
+    if isinstance(ver, bool) or ver != MT_SCHEMA_VERSION:
         raise MachineFileError(f"{path}: key 'machine.schema': this volcomp reads machine-tool schema "
                                f"{MT_SCHEMA_VERSION}, got {short_repr(ver)}")
     g = doc.get("geometry", {})
@@ -514,3 +588,23 @@ def _targets(t, path, axes):
             raise MachineFileError(f"{path}: key 'targets.{k}': expected a list of [x, y, z] mm, got {short_repr(v)}")
         out[k] = check_array(v, (n, 3), f"targets.{k}", path)
     return out
+
+
+def chain_from_grinder(machine) -> MachineTool:
+    """The chain of a ``kind = "grinder"`` machine file (:class:`errormap.machine.Grinder`): the
+    built-in ``grinder-chain.toml`` with that file's ``[geometry]``, strokes and targets, so any
+    grinder file (not only the default's numbers) has its chain. Name, path and sha256 are the
+    grinder file's."""
+    import tomllib
+    from importlib import resources
+    from pathlib import Path
+    p = Path(str(resources.files("errormap") / "machines" / "grinder-chain.toml"))
+    doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    doc["machine"]["name"] = machine.name
+    doc["geometry"] = {k: float(getattr(machine, k)) for k in doc["geometry"]}
+    for side in ("work", "tool"):
+        for d in doc[side]:
+            if "joint" in d:
+                d["stroke"] = list(machine.strokes[f"{d['axis'].lower()}_{'deg' if d['joint'] == 'rotary' else 'mm'}"])
+    doc["targets"] = {k: np.asarray(v, dtype=float).tolist() for k, v in machine.targets.items()}
+    return parse_machine_tool(doc, machine.path or p, machine.sha256)

@@ -112,6 +112,23 @@ class ChainElementSet:
                                {k: v.copy() for k, v in self.functions.items()}, dict(self.constants),
                                self.machine_name, self.machine_sha256)
 
+    def scaled(self, factor: float) -> "ChainElementSet":
+        """Every element times ``factor``."""
+        out = self.copy()
+        out.functions = {k: v * factor for k, v in out.functions.items()}
+        out.constants = {k: v * factor for k, v in out.constants.items()}
+        out._splines = {}
+        return out
+
+    def to_element_set(self):
+        """The grinder's :class:`errormap.elements.ElementSet` of the same values (a grinder chain
+        file's element set; refused for another machine's slots)."""
+        from .elements import ELEMENT_NAMES, ElementSet
+        if self.machine.slot_names != ELEMENT_NAMES:
+            raise ValueError(f"{self.machine.name!r} does not have the grinder's 23 elements")
+        return ElementSet(dict(self.stations), dict(self.functions), dict(self.constants),
+                          self.machine_name, self.machine_sha256)
+
     # -- evaluation ---------------------------------------------------------------------------
     def axis_spline(self, word: str):
         """One vector-valued cubic B-spline of the component errors of axis ``word`` (columns in

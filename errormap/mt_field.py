@@ -117,5 +117,8 @@ class ChainField:
         return self.predict_and_jacobian(axes)[1]
 
     def error_jacobian(self, axes) -> np.ndarray:
-        """∂E/∂(element values) at the nominal chain, shape (n, 3, P), μm per μm / per μrad."""
-        return self.machine.error_jacobian(axes)
+        """∂E/∂(element values) at the nominal chain, shape (n, 3, P), μm per μm / per μrad
+        (compiled, :func:`errormap.mt_kernel.error_jacobian`; the numpy form is
+        :meth:`MachineTool.error_jacobian`)."""
+        from .mt_kernel import error_jacobian
+        return error_jacobian(self.machine, self._axes(axes))

@@ -1,31 +1,34 @@
 """The compiled (numba) field kernel of any machine-tool chain, generic over the compiled op arrays.
 
 One pass per point: the component errors from one vector-valued cubic B-spline per axis (the
-same knots and coefficients as :meth:`errormap.mt_elements.ChainElementSet.axis_spline`, basis
-by the Cox–de Boor recursion of :mod:`errormap.htm`), then the chain's ETs applied one by one to
-a running rotation ``R`` (3×3) and origin ``t`` (3,), for the actual chain (with the errors) and
-the nominal one. Compiled once per field: the ETs that depend on a point (a joint, a component
+same knots and coefficients as :meth:`errormap.mt_elements.ChainElementSet.axis_spline`, the same
+operations as the grinder's :func:`errormap.htm._bspline3`, evaluated at offsets in packed arrays:
+:func:`_spline_at`), then the chain's ops applied one by one to a running rotation ``R`` (3×3)
+and origin ``t`` (3,), for the actual chain (with the errors) and the nominal one. Packed once
+per field (:meth:`CompiledChain._program`): the ETs that depend on a point (a joint, a component
 error) stay single ops, every run of constant ETs between them (fixed transforms, location and
-squareness errors at their values) is folded into one constant block (:meth:`CompiledChain._program`). The axis Jacobian is geometric and exact (no step, no truncation):
-each ET that depends on an axis adds its slope times its column (the tool point's motion per unit
-of the ET's value), accumulated after the pass (:func:`_chain_point_d`). Checked against the numpy reference
-:mod:`errormap.mt_field` in ``tests/test_mt_kernel.py``.
+squareness errors at their values) is folded into one constant block. The axis Jacobian is
+geometric and exact (no step, no truncation): each ET that depends on an axis adds its slope
+times its column (the tool point's motion per unit of the ET's value), accumulated after the pass
+(:func:`_jacobian_columns`); the error-transfer Jacobian the same way for every slot
+(:func:`error_jacobian`). Checked against the numpy reference :mod:`errormap.mt_field` and
+:meth:`errormap.mt_chain.MachineTool.error_jacobian` in ``tests/test_mt_kernel.py``.
 
-Shapes: ``axes`` (n, k); ``out`` (n, 3) μm; ``jac`` (n, 3, k) μm per mm / per deg.
+Shapes: ``axes`` (n, k); ``out`` (n, 3) μm; ``jac`` (n, 3, k) μm per mm / per deg; error
+Jacobian (n, 3, P) μm per μm / per μrad.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from .htm import _bspline3, _bspline3_d
 from .mt_chain import UM_MM, MachineTool
 from .mt_elements import ChainElementSet
 
 NCOMP = 6  # columns of a spline block (dx dy dz ex ey ez; absent components padded with zeros)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt, R, t, W, O, record):  # pragma: no cover - compiled
     """A program (:meth:`CompiledChain._program`) at one point: ``R`` (3, 3), ``t`` (3,) set to the
     last frame; ``ev`` (P,) slot values. With ``record`` the axis ``W[o]`` and origin ``O[o]`` of
@@ -67,7 +70,7 @@ def _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR
                 t[i] += R[i, a] * x
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_row, sgn):  # pragma: no cover - compiled
     """Adds ``sgn`` × d(tool point)/d(axes) to ``jac_row`` (3, k) after :func:`_chain_point` with
     ``record``. The Jacobian is geometric: an ET's value moves the tool point along its axis ``w``
@@ -103,30 +106,82 @@ def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_ro
             jac_row[2, ds] += g * c2
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _spline_at(knots, k0, nk, coefs, c0, x, h, hh, vbuf, dbuf, deriv):  # pragma: no cover - compiled
+    """One cubic vector B-spline stored at offsets (knots ``knots[k0:k0 + nk]``, coefficient rows
+    from ``c0``) at ``x``: values into ``vbuf`` (6,), with ``deriv`` slopes into ``dbuf``. The same
+    operations as :func:`errormap.htm._bspline3` / ``_bspline3_d`` (interval as scipy finds it,
+    clipped to the end intervals; Cox–de Boor; the slope from the degree-2 basis) without array
+    views per point."""
+    k = 3
+    nc = nk - k - 1
+    lo, hi = 0, nk
+    while lo < hi:  # np.searchsorted(t, x, side="right")
+        mid = (lo + hi) // 2
+        if knots[k0 + mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    i = lo - 1
+    if i < k:
+        i = k
+    elif i > nc - 1:
+        i = nc - 1
+    h[0] = 1.0
+    for j in range(1, k + 1):
+        if deriv and j == k:  # h[0:3] = the degree-2 basis of interval i: the slope
+            for col in range(6):
+                acc = 0.0
+                for m in range(k):
+                    jj = i - 2 + m
+                    den = knots[k0 + jj + k] - knots[k0 + jj]
+                    if den != 0.0:
+                        acc += h[m] * k * (coefs[c0 + jj, col] - coefs[c0 + jj - 1, col]) / den
+                dbuf[col] = acc
+        for m in range(j):
+            hh[m] = h[m]
+        h[0] = 0.0
+        for n in range(1, j + 1):
+            xb = knots[k0 + i + n]
+            xa = knots[k0 + i + n - j]
+            if xb == xa:
+                h[n] = 0.0
+                continue
+            w = hh[n - 1] / (xb - xa)
+            h[n - 1] += w * (xb - x)
+            h[n] = w * (x - xa)
+    for col in range(6):
+        acc = 0.0
+        for m in range(k + 1):
+            acc += h[m] * coefs[c0 + i - k + m, col]
+        vbuf[col] = acc
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, deriv):  # pragma: no cover - compiled
-    """The slot values ``ev`` (P,) (and slopes ``dev`` when ``deriv``) at one point from the
-    per-axis splines (``spl_s0`` the first station of a full-turn axis, NaN otherwise)."""
-    for p in range(ev.shape[0]):
-        ev[p] = consts[p]
-        dev[p] = 0.0
+    """The component-error values into ``ev`` (P,) (and slopes into ``dev`` when ``deriv``) at one
+    point from the per-axis splines (``spl_s0`` the first station of a full-turn axis, NaN
+    otherwise); the constant slots of ``ev`` and ``dev`` are set once per call (:func:`_init_slots`)."""
     for s in range(spl_axis.shape[0]):
         x = q[spl_axis[s]]
         s0 = spl_s0[s]
         if not np.isnan(s0):
             x = s0 + np.mod(x - s0, 360.0)
-        tk = knots[koff[s]:koff[s + 1]]
-        c = coefs[coff[s]:coff[s + 1]]
-        if deriv:
-            _bspline3_d(tk, c, x, h, hh, vbuf, dbuf, 0)
-        else:
-            _bspline3(tk, c, x, h, hh, vbuf, 0)
+        _spline_at(knots, koff[s], koff[s + 1] - koff[s], coefs, coff[s], x, h, hh, vbuf, dbuf, deriv)
         for col in range(6):
             p = spl_slot[s, col]
             if p >= 0:
                 ev[p] = vbuf[col]
                 if deriv:
                     dev[p] = dbuf[col]
+
+
+@njit(cache=True, nogil=True)
+def _init_slots(consts, ev, dev):  # pragma: no cover - compiled
+    """``ev`` = the constants (component slots overwritten per point), ``dev`` = 0."""
+    for p in range(ev.shape[0]):
+        ev[p] = consts[p]
+        dev[p] = 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -147,6 +202,7 @@ def field_kernel(axes, prog, prog_nom, spl, consts, out):  # pragma: no cover - 
     k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1 = prog
     k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0 = prog_nom
     W = np.empty((0, 3))
+    _init_slots(consts, ev, dev)
     for n in range(axes.shape[0]):
         q = axes[n]
         _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, False)
@@ -178,6 +234,7 @@ def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragm
     W = np.empty((m, 3))
     O = np.empty((m, 3))
     J = np.empty((3, k))
+    _init_slots(consts, ev, dev)
     for n in range(axes.shape[0]):
         q = axes[n]
         _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, True)
@@ -192,6 +249,85 @@ def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragm
             out[n, i] = (t[i] - t0[i]) * 1e3
             for j in range(k):
                 jac[n, i, j] = J[i, j] * 1e3
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def error_jac_kernel(axes, prog, jac):  # pragma: no cover - compiled
+    """∂(spatial error μm)/∂(slot values) at the nominal chain: ``jac`` (n, 3, P) zeroed by the
+    caller. Each ET carrying a slot adds coefficient × its column (translation: its axis;
+    rotation: axis × (tool point − origin)), × 1e3 for μm."""
+    kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt = prog
+    m = kind.shape[0]
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    W = np.empty((m, 3))
+    O = np.empty((m, 3))
+    ev = np.zeros(jac.shape[2])
+    for n in range(axes.shape[0]):
+        q = axes[n]
+        _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt, R, t, W, O, True)
+        for o in range(m):
+            if kind[o] == 2 or slot[o] < 0:
+                continue
+            if kind[o] == 1:
+                r0, r1, r2 = t[0] - O[o, 0], t[1] - O[o, 1], t[2] - O[o, 2]
+                c0 = W[o, 1] * r2 - W[o, 2] * r1
+                c1 = W[o, 2] * r0 - W[o, 0] * r2
+                c2 = W[o, 0] * r1 - W[o, 1] * r0
+            else:
+                c0, c1, c2 = W[o, 0], W[o, 1], W[o, 2]
+            g = coef[o] * 1e3
+            p = slot[o]
+            jac[n, 0, p] += g * c0
+            jac[n, 1, p] += g * c1
+            jac[n, 2, p] += g * c2
+
+
+def slot_program(chain):
+    """The chain as ops for :func:`error_jac_kernel`: every ET with a joint or a slot one op, runs
+    of fixed ETs folded into constant blocks (layout of :meth:`CompiledChain._program`)."""
+    scale = np.array([np.pi / 180 if j.type == "revolute" else 1.0 for j in chain.joints])
+    jscale = np.where(chain.joint >= 0, chain.sign * scale[np.maximum(chain.joint, 0)], 0.0)
+    return _pack(chain, jscale, lambda m: chain.joint[m] >= 0 or chain.slot[m] >= 0, lambda m: chain.slot[m],
+                 lambda m: chain.value[m])
+
+
+def error_jacobian(machine: MachineTool, axes) -> np.ndarray:
+    """Compiled :meth:`MachineTool.error_jacobian` at the nominal chain: (n, k) -> (n, 3, P) μm per
+    μm / per μrad (equal to the numpy form to round-off, tested)."""
+    axes = np.ascontiguousarray(np.atleast_2d(axes), dtype=float)
+    jac = np.zeros((axes.shape[0], 3, len(machine.slots)))
+    error_jac_kernel(axes, slot_program(machine.chain), jac)
+    return jac
+
+
+def _pack(ch, jscale, single, slot_of, const_value):
+    """Ops of chain ``ch``: ET ``m`` a single op where ``single(m)`` (with slot ``slot_of(m)``),
+    else folded with its neighbours at value ``const_value(m)`` into a constant block."""
+    ops, blocks, run = [], [], None
+    for m in range(len(ch.ets)):
+        if single(m):
+            if run is not None:
+                blocks.append(run)
+                ops.append((2, 0, 0.0, -1, 0.0, -1, 0.0, len(blocks) - 1))
+                run = None
+            ops.append((1 if ch.kind_r[m] else 0, ch.axis[m], ch.value[m], ch.joint[m], jscale[m], slot_of(m),
+                        ch.coef[m], -1))
+            continue
+        x = const_value(m)
+        if x == 0.0:
+            continue
+        T = _et_matrix(bool(ch.kind_r[m]), int(ch.axis[m]), x)
+        run = T if run is None else run @ T
+    if run is not None:
+        blocks.append(run)
+        ops.append((2, 0, 0.0, -1, 0.0, -1, 0.0, len(blocks) - 1))
+    cols = list(zip(*ops)) if ops else [()] * 8
+    B = np.array(blocks).reshape(-1, 4, 4)
+    return (np.array(cols[0], dtype=np.int64), np.array(cols[1], dtype=np.int64), np.array(cols[2], dtype=float),
+            np.array(cols[3], dtype=np.int64), np.array(cols[4], dtype=float), np.array(cols[5], dtype=np.int64),
+            np.array(cols[6], dtype=float), np.array(cols[7], dtype=np.int64),
+            np.ascontiguousarray(B[:, :3, :3]), np.ascontiguousarray(B[:, :3, 3]))
 
 
 def _et_matrix(kind_r: bool, axis: int, x: float) -> np.ndarray:
@@ -253,33 +389,14 @@ class CompiledChain:
         ``(kind 0 translation | 1 rotation | 2 block, axis, value, joint, jscale, slot, coef, block,
         BR (B, 3, 3), Bt (B, 3))``."""
         ch = self.chain
-        ops, blocks, run = [], [], None
-        for m, e in enumerate(ch.ets):
+
+        def per_point(m):
             p = ch.slot[m]
-            per_point = ch.joint[m] >= 0 or (with_errors and p >= 0 and self.own[p] >= 0)
-            if per_point:
-                if run is not None:
-                    blocks.append(run)
-                    ops.append((2, 0, 0.0, -1, 0.0, -1, 0.0, len(blocks) - 1))
-                    run = None
-                slot = p if with_errors else -1
-                ops.append((1 if ch.kind_r[m] else 0, ch.axis[m], ch.value[m], ch.joint[m], self.jscale[m], slot,
-                            ch.coef[m], -1))
-                continue
-            x = ch.value[m] + (ch.coef[m] * self.consts[p] if with_errors and p >= 0 else 0.0)
-            if x == 0.0:
-                continue
-            T = _et_matrix(bool(ch.kind_r[m]), int(ch.axis[m]), x)
-            run = T if run is None else run @ T
-        if run is not None:
-            blocks.append(run)
-            ops.append((2, 0, 0.0, -1, 0.0, -1, 0.0, len(blocks) - 1))
-        cols = list(zip(*ops)) if ops else [()] * 8
-        B = np.array(blocks).reshape(-1, 4, 4)
-        return (np.array(cols[0], dtype=np.int64), np.array(cols[1], dtype=np.int64), np.array(cols[2], dtype=float),
-                np.array(cols[3], dtype=np.int64), np.array(cols[4], dtype=float), np.array(cols[5], dtype=np.int64),
-                np.array(cols[6], dtype=float), np.array(cols[7], dtype=np.int64),
-                np.ascontiguousarray(B[:, :3, :3]), np.ascontiguousarray(B[:, :3, 3]))
+            return ch.joint[m] >= 0 or (with_errors and p >= 0 and self.own[p] >= 0)
+
+        return _pack(ch, self.jscale, per_point, lambda m: ch.slot[m] if with_errors else -1,
+                     lambda m: ch.value[m] + (ch.coef[m] * self.consts[ch.slot[m]] if with_errors and ch.slot[m] >= 0
+                                              else 0.0))
 
     def predict(self, axes) -> np.ndarray:
         axes = np.ascontiguousarray(axes, dtype=float)

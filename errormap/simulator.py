@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .effect_kinds import SIMULATOR_NAMES, TRUTH_ONLY, effect_kind, simulator_name
 from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
 from .htm import IDX, spatial_error_exact
 from .kinematics import forward
@@ -74,10 +75,36 @@ EFFECT_DEFAULTS = {
     "a_tilt": {"k_urad": 120.0},
     "squareness": {"k_urad": 100.0},
 }
-OUT_OF_CATALOGUE = ("bump", "a_tilt", "squareness")
-"""Effects no kind of :mod:`errormap.diagnosis.effects` represents (module doc)."""
-EFFECT_NAMES = tuple(EFFECT_DEFAULTS)
+OUT_OF_CATALOGUE = TRUTH_ONLY
+"""Effects no kind of :mod:`errormap.diagnosis.effects` represents (module doc; the registry,
+:mod:`errormap.effect_kinds`, marks them truth-only)."""
+EFFECT_NAMES = SIMULATOR_NAMES
+"""The simulator's effect names, from the registry (:mod:`errormap.effect_kinds`); a kind's
+canonical name (``periodic`` for ``pitch``) is accepted too and stored under this name."""
+EFFECT_CHOICES = EFFECT_NAMES + tuple(k.name for k in map(effect_kind, SIMULATOR_NAMES) if k.name != k.simulator)
+"""What ``--effect`` accepts: the simulator's names and the registry's canonical names of the same kinds
+(``periodic`` = ``pitch``, ``harmonic`` = ``worm``)."""
+EFFECT_HELP = ", ".join(EFFECT_NAMES) + " (" + ", ".join(
+    f"{k} = {effect_kind(k).simulator}" for k in EFFECT_CHOICES[len(EFFECT_NAMES):]) + ")"
+"""The ``--effect`` help: the names and the canonical names accepted beside them."""
 EFFECT_NEEDS = {"thermal": "temp_c", "reversal": "dir_z"}
+
+
+def simulator_effects(effects) -> dict:
+    """``{simulator name: parameters}`` from names or a name -> parameters mapping, each name
+    looked up in the registry (a canonical name such as ``periodic`` becomes ``pitch``);
+    ``ValueError`` for an unknown name or a kind the simulator cannot draw."""
+    eff = effects if isinstance(effects, dict) else {k: {} for k in effects}
+    out = {}
+    for name, params in eff.items():
+        try:
+            key = simulator_name(name)
+        except ValueError as exc:
+            raise ValueError(f"Expected effects from {list(EFFECT_NAMES)}, got {name!r} ({exc})") from None
+        if key in out and (out[key] or {}) != (params or {}):
+            raise ValueError(f"effect {name!r} given twice (as {key!r}) with different parameters")
+        out[key] = params
+    return out
 
 
 def random_elements(machine: Grinder, rng: np.random.Generator, n_stations: int = 21) -> ElementSet:
@@ -129,10 +156,7 @@ class TruthGrinder:
     seed: int | None = None
 
     def __post_init__(self):
-        unknown = sorted(set(self.effects) - set(EFFECT_NAMES))
-        if unknown:
-            raise ValueError(f"Expected effects from {list(EFFECT_NAMES)}, got unknown {unknown}")
-        self.effects = {k: {**EFFECT_DEFAULTS[k], **(v or {})} for k, v in self.effects.items()}
+        self.effects = {k: {**EFFECT_DEFAULTS[k], **(v or {})} for k, v in simulator_effects(self.effects).items()}
 
     def element_values(self, axes, temp_c=None, dir_x=None, dir_z=None, dir_a=None) -> np.ndarray:
         """True element values including the effects, shape (n, 23)."""
@@ -167,8 +191,12 @@ class TruthGrinder:
                     v[:, IDX["dy_x"]] += p["amplitude_um"] * g
                 elif name == "a_tilt":
                     v[:, IDX["ey_a"]] += p["k_urad"] * x_rel / dx
-                else:
+                elif name == "squareness":
                     v[:, IDX["s_xz"]] += p["k_urad"] * np.sin(np.pi * x_rel / dx)
+                else:  # pragma: no cover - a truth-only kind registered without its drawing here
+                    raise ValueError(f"the simulator cannot draw the truth-only effect {name!r}")
+            else:  # pragma: no cover - a registered simulator kind without its drawing here
+                raise ValueError(f"the simulator cannot draw the effect {name!r}")
         return v
 
     def spatial_error(self, axes, **conditions) -> np.ndarray:

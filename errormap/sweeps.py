@@ -38,7 +38,7 @@ from .elements import default_stations
 from .htm import IDX, UM, URAD
 from .io import InputError, read_table, write_csv
 from .machine import Grinder
-from .transforms import apply, rot_x, rot_xyz, rot_z
+from .transforms import apply, compose, error_transform, invert, rot_x, rot_z  # noqa: F401 (compose, invert: re-exported)
 
 SWEEP_AXES = ("X", "Z", "A")
 AXIS_STROKE_KEY = {"X": "x_mm", "Z": "z_mm", "A": "a_deg"}
@@ -47,26 +47,6 @@ OPTIONAL_COLUMNS = ("direction", "time_s", "temp_c")
 SWEEP_FORMAT = "volcomp-sweeps/1"
 REF_TEMP_C = 20.0
 MAX_STATION = 100_000  # station numbers count positions along one stroke; more is a typing mistake
-
-
-# -- rigid transforms as (R (n,3,3), t (n,3)) pairs ------------------------------------------
-def compose(a, b):
-    """``a·b`` for batched rigid transforms ``(R, t)``; shapes broadcast over the batch."""
-    Ra, ta = a
-    Rb, tb = b
-    return Ra @ Rb, apply(Ra, tb) + ta
-
-
-def invert(a):
-    """Inverse of a batched rigid transform ``(R, t)``."""
-    R, t = a
-    Rt = np.swapaxes(R, -1, -2)
-    return Rt, -apply(Rt, t)
-
-
-def error_transform(d_um, e_urad):
-    """``Trans(δ)·Rot(ε)`` for δ (n,3) μm and ε (n,3) μrad -> (R (n,3,3), t (n,3) mm)."""
-    return rot_xyz(np.asarray(e_urad, dtype=float) * URAD), np.asarray(d_um, dtype=float) * UM
 
 
 def x_carriage_nominal(machine: Grinder, x_mm):

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+MM_PER_UM = 1e-3
+RAD_PER_URAD = 1e-6
+
 
 def check_points(points, name: str = "points", width: int = 3) -> np.ndarray:
     """Convert to float64 of shape (n, width); a single point becomes (1, width).
@@ -91,3 +94,23 @@ def apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
 def apply_T(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Batched ``R.T @ v`` (the inverse rotation): shapes as :func:`apply`."""
     return np.einsum("...ji,...j->...i", R, v)
+
+
+# -- rigid transforms as (R (n,3,3), t (n,3)) pairs ------------------------------------------
+def compose(a, b):
+    """``a·b`` for batched rigid transforms ``(R, t)``; shapes broadcast over the batch."""
+    Ra, ta = a
+    Rb, tb = b
+    return Ra @ Rb, apply(Ra, tb) + ta
+
+
+def invert(a):
+    """Inverse of a batched rigid transform ``(R, t)``."""
+    R, t = a
+    Rt = np.swapaxes(R, -1, -2)
+    return Rt, -apply(Rt, t)
+
+
+def error_transform(d_um, e_urad):
+    """``Trans(δ)·Rot(ε)`` for δ (n,3) μm and ε (n,3) μrad -> (R (n,3,3), t (n,3) mm)."""
+    return rot_xyz(np.asarray(e_urad, dtype=float) * RAD_PER_URAD), np.asarray(d_um, dtype=float) * MM_PER_UM

@@ -31,7 +31,7 @@ from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, Ele
 from .htm import spatial_error_exact
 from .machine import Grinder
 from .seeds import spawn_rngs
-from .simulator import EFFECT_NAMES, REF_TEMP_C, TruthGrinder, random_truth, volume_grid
+from .simulator import REF_TEMP_C, TruthGrinder, random_truth, simulator_effects, volume_grid
 
 FAMILIES = ("default", "independent")
 TRUTH_STATIONS = 81
@@ -141,11 +141,7 @@ def independent_truth(machine: Grinder, seed: int, effects=()) -> IndependentTru
     e = spatial_error_exact(machine, grid, el.values(grid))
     el = el.scaled(r_scale.uniform(*TARGET_MAX_RANGE_UM) / np.linalg.norm(e, axis=1).max())
     drawn = independent_effect_parameters(r_eff)
-    eff = effects if isinstance(effects, dict) else {k: {} for k in effects}
-    unknown = sorted(set(eff) - set(EFFECT_NAMES))
-    if unknown:
-        raise ValueError(f"Expected effects from {list(EFFECT_NAMES)}, got unknown {unknown}")
-    params = {k: {**drawn[k], **(v or {})} for k, v in eff.items()}
+    params = {k: {**drawn[k], **(v or {})} for k, v in simulator_effects(effects).items()}
     return IndependentTruth(machine, el, params, seed)
 
 

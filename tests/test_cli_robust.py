@@ -238,7 +238,7 @@ def test_argparse_errors_are_one_line(tmp_path):
 def test_lm_memory_bounded(tmp_path):
     """Training LM on a feature-point set whose Jacobian would not fit is refused before training."""
     from compensation.app.validate import MAX_LM_BYTES, check_lm_size, network_params
-    from compensation.app.cli import UsageError
+    from compensation.app.validate import UsageError
     p = network_params((10, 15, 25, 15, 10))
     n_fit = (MAX_LM_BYTES // 8 - p * p) // (3 * p)
     check_lm_size(n_fit, (10, 15, 25, 15, 10), "raw")  # at the limit: accepted

@@ -46,5 +46,5 @@ def test_machine_file_examples_in_the_docs_load(tmp_path):
         p = tmp_path / f"m{i}.toml"
         p.write_text(b, encoding="utf-8")
         kinds.append(load_machine(p).kind)
-    assert kinds == ["grinder", "hexapod", "tripod", "serial"]
+    assert kinds == ["grinder", "hexapod", "tripod", "serial", "machine-tool"]
     assert load_machine(tmp_path / "m0.toml").sha256 != ""

@@ -1,6 +1,8 @@
 """Machine tools as chain files (issue 26): the chain engine's machine-tool extensions, the grinder
 reproduced from its chain file, the mill against a hand-written HTM, Jacobians against finite
 differences, the generic element set and field."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -111,8 +113,7 @@ def test_grinder_chain_equals_htm_field():
     _grinder_equivalence(5_000, 11)
 
 
-@pytest.mark.slow
-def test_grinder_chain_equals_htm_field_100k():
+def test_grinder_chain_equals_htm_field_100k():  # ~1.5 s: both compiled kernels
     _grinder_equivalence(N_EQUIV, 12)
 
 
@@ -125,6 +126,10 @@ def test_grinder_element_file_loads_for_the_chain(tmp_path):
     np.testing.assert_array_equal(ce.values(ax), el.values(ax))
     ce.save(tmp_path / "el2.json")
     np.testing.assert_array_equal(ElementSet.load(tmp_path / "el2.json").values(ax), el.values(ax))
+    np.testing.assert_array_equal(ce.to_element_set().values(ax), el.values(ax))
+    np.testing.assert_array_equal(ce.scaled(2.0).values(ax), 2.0 * el.values(ax))
+    with pytest.raises(ValueError, match="23 elements"):
+        ChainElementSet.zeros(load_machine("mill-xyz")).to_element_set()
 
 
 # -- the mill against a hand-written HTM --------------------------------------------------------
@@ -221,3 +226,77 @@ def test_error_jacobian_is_the_first_order_model():
         # second-order remainder: |ε|·(|δ| + |ε|·L) with ε in rad, L ~ 1.5 m reach, in μm
         bound = 10 * (scale * 1e-6) * (scale + scale * 1e-6 * 1.5e6) * len(mt.slots)
         assert np.abs(mt.spatial_error(ax, v) - lin).max() < bound
+
+
+def test_body_frames_equal_the_grinder_sweep_frames():
+    """The body frames of the chain file against errormap/sweeps.py's hand-written ones."""
+    from errormap.sweeps import ball_positions, body_frames
+    g, mt = load_machine(), load_machine("grinder-chain")
+    el = _grinder_elements(g, 51, scale_um=60.0)
+    ax = _grinder_axes(g, 3000, 52)
+    v = el.values(ax)
+    for word in ("X", "Z", "A"):
+        R0, t0 = body_frames(g, word, ax, v)
+        R1, t1 = mt.body_frames(word, ax, v)
+        assert np.abs(t1 - t0).max() * 1e3 < TOL_EQUIV_UM
+        assert np.abs(R1 - R0).max() < TOL_EQUIV_UM * 1e-3   # a rotation entry × 1 m lever, in μm
+        balls = ball_positions((R0, t0), g.targets[word])
+        assert np.abs(mt.target_points(word, ax, v) - balls).max() * 1e3 < TOL_EQUIV_UM
+
+
+TOL_INVERSE_MM = 1e-9
+"""Newton converges quadratically to 1e-10 mm (its stopping tolerance); 1e-9 mm leaves round-off room."""
+
+
+def test_inverse_grinder_equals_closed_form_and_round_trips():
+    from errormap.kinematics import forward, inverse
+    g, mt = load_machine(), load_machine("grinder-chain")
+    rng = np.random.default_rng(61)
+    ax = rng.uniform(g.stroke_lo, g.stroke_hi, (2000, 3))
+    ax[:, 1] = rng.uniform(5.0, 60.0, 2000)   # off the A axis (ρ > 0): A is defined
+    p = forward(g, ax)
+    start = ax + rng.normal(0.0, [2.0, 2.0, 3.0], ax.shape)
+    q, ok = mt.inverse(p, start)
+    assert ok.all()
+    assert np.abs(mt.nominal(q) - p).max() < TOL_INVERSE_MM
+    closed = inverse(g, p, unwrap=False)
+    d = q - closed
+    d[:, 2] = (d[:, 2] + 180.0) % 360.0 - 180.0
+    assert np.abs(d).max() < 1e-6
+
+
+def test_inverse_five_axis_keeps_rotary_axes():
+    mt = load_machine("five-axis-ac")
+    rng = np.random.default_rng(62)
+    ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (500, 5))
+    p = mt.nominal(ax)
+    start = ax.copy()
+    start[:, :3] = 0.0
+    q, ok = mt.inverse(p, start)
+    assert ok.all()
+    np.testing.assert_array_equal(q[:, 3:], ax[:, 3:])
+    assert np.abs(mt.nominal(q) - p).max() < TOL_INVERSE_MM
+    np.testing.assert_allclose(q[:, :3], ax[:, :3], atol=1e-8)
+
+
+def test_chain_from_any_grinder_file(tmp_path):
+    """A grinder file with other geometry, strokes and targets: its chain equals its HTM field."""
+    from errormap.mt_chain import chain_from_grinder
+    text = Path(load_machine().path).read_text()
+    for old, new in (("l1 = 420.0", "l1 = 455.5"), ("l7 = 40.0", "l7 = 52.25"), ("theta1_deg = 30.0", "theta1_deg = 12.5"),
+                     ("R = 25.0", "R = 31.0"), ("x_mm = [0.0, 200.0]", "x_mm = [-20.0, 150.0]")):
+        assert old in text
+        text = text.replace(old, new)
+    p = tmp_path / "g.toml"
+    p.write_text(text)
+    g = load_machine(p)
+    mt = chain_from_grinder(g)
+    assert mt.sha256 == g.sha256 and mt.strokes == g.strokes and mt.geometry["theta1_deg"] == 12.5
+    el = _grinder_elements(load_machine(), 71)
+    el = ElementSet({**el.stations, "x_mm": np.linspace(-20.0, 150.0, 21)}, el.functions, el.constants)
+    ax = _grinder_axes(g, 5000, 72)
+    E0, J0 = HTMField(g, el).predict_and_jacobian(ax)
+    E1, J1 = ChainField(mt, ChainElementSet.from_element_set(mt, el)).predict_and_jacobian(ax)
+    assert np.abs(E1 - E0).max() < TOL_EQUIV_UM and np.abs(J1 - J0).max() < TOL_JAC_EQUIV
+    for w in ("X", "Z", "A"):
+        np.testing.assert_array_equal(mt.targets[w], g.targets[w])

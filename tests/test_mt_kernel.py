@@ -7,7 +7,7 @@ import pytest
 from errormap.machine import load_machine
 from errormap.mt_elements import ChainElementSet
 from errormap.mt_field import ChainField, predict_and_jacobian_numpy, predict_numpy
-from errormap.mt_kernel import CompiledChain
+from errormap.mt_kernel import CompiledChain, error_jacobian
 
 TOL_KERNEL_UM = 1e-9
 """Same transforms, different operation order (running 3×3 frame vs 4×4 frame products): tool
@@ -49,6 +49,10 @@ def test_kernel_equals_numpy_reference(name):
     assert np.abs(J1 - J0).max() < TOL_KERNEL_JAC
     f = ChainField(mt, el)
     np.testing.assert_array_equal(f.predict(ax), cc.predict(ax))
+    # the error-transfer Jacobian (identification), compiled vs numpy
+    Je = error_jacobian(mt, ax)
+    assert np.abs(Je - mt.error_jacobian(ax)).max() < TOL_KERNEL_JAC
+    np.testing.assert_array_equal(f.error_jacobian(ax), Je)
 
 
 def test_field_refuses_wrong_axes_shape():

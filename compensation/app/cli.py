@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import sys
 
-# UsageError is defined in validate (stdlib only, imports nothing of ours) and re-exported here,
-# where every command imports it from
-from compensation.app.validate import UsageError  # noqa: F401
+# UsageError and the one-line error format live in validate (stdlib only, imports nothing of ours);
+# commands and workflows import them from there, never from this module (it imports every command)
+from compensation.app.validate import MAX_ERROR_CHARS, UsageError, one_line  # noqa: F401
 
 # sub-commands and their one-line help, in the order `volcomp --help` lists them; command
 # ``a-b`` lives in ``compensation/app/commands/a_b.py``; tests/test_cli_foundation.py checks that
@@ -34,14 +34,10 @@ COMMAND_HELP = {
     "benchmark": "learned vs parametric path on the same machines and measurements: report.html + benchmark.json",
     "drift-predict": "apply a saved drift model to a new log (causal compensation series)",
     "fleet": "identify → train → diagnose every machine of a fleet file, one task per machine (Ray)",
+    "machines": "list the built-in machines: name, kind and axes with strokes/limits",
     "export": "write controller compensation tables (ISO 230-1 per-axis, 3D grid, LinuxCNC per-joint, drift coefficients), checked against the model first",
 }
 COMMAND_MODULES = list(COMMAND_HELP)
-
-# an error line longer than this is cut in the middle (a value's repr can be megabytes)
-MAX_ERROR_CHARS = 300
-
-
 
 
 def version() -> str:
@@ -110,15 +106,6 @@ def _command_in(argv) -> str | None:
         if not a.startswith("-"):
             return a if a in COMMAND_HELP else None
     return None
-
-
-def one_line(msg: str, limit: int = MAX_ERROR_CHARS) -> str:
-    """``msg`` on one line, cut in the middle to at most ``limit`` characters."""
-    s = " ".join(str(msg).split())
-    if len(s) <= limit:
-        return s
-    keep = limit - 5
-    return s[: keep - keep // 3] + " ... " + s[len(s) - keep // 3:]
 
 
 INTERRUPTED_EXIT = 130  # 128 + SIGINT, what a shell reports for a command stopped by Ctrl-C

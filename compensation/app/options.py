@@ -3,7 +3,7 @@ the flute path and the method comparison (``report``, ``demo``), the constant co
 diagnosed model (``compensate``)."""
 from __future__ import annotations
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ..diagnosed_model import CONDITIONS
 from ..solvers import METHODS

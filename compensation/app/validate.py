@@ -31,6 +31,19 @@ class UsageError(ValueError):
     ``compensation.app.cli.UsageError`` is this class."""
 
 
+# an error line longer than this is cut in the middle (a value's repr can be megabytes)
+MAX_ERROR_CHARS = 300
+
+
+def one_line(msg: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """``msg`` on one line, cut in the middle to at most ``limit`` characters."""
+    s = " ".join(str(msg).split())
+    if len(s) <= limit:
+        return s
+    keep = limit - 5
+    return s[: keep - keep // 3] + " ... " + s[len(s) - keep // 3:]
+
+
 # --- size limits (stated in the messages) ----------------------------------------------------
 # feature-point grid: n³ points; at the limit (--grid 170, 4.9e6 points) featurepoints peaks at
 # 0.65 GB and takes 46 s CPU, a 420 MB CSV (measured); 1000³ was killed at ~24 GB

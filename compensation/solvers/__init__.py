@@ -1,8 +1,11 @@
-"""Compensation solvers behind one interface.
+"""Compensation solvers behind one interface, listed in ONE registry (:data:`SOLVERS`).
 
-``solve(method, field, targets_mm, machine, **options) -> SolveResult`` where ``method`` is
-one of ``traditional``, ``ga``, ``batched-ga``, ``exact``. Each solver module registers a
-function ``solve_<name>(field, targets_mm, machine, **options) -> SolveResult``.
+``solve(method, field, targets_mm, machine, **options) -> SolveResult`` where ``method`` is a
+name of :data:`SOLVERS` (``traditional``, ``ga``, ``batched-ga``, ``exact``). Each solver module
+holds a function ``solve_<module>(field, targets_mm, machine, **options) -> SolveResult``. The
+CLI's ``--method``/``--methods`` choices, the batch runner, the method comparison, the kernel
+warm-up of ``compensate``, the benchmark and docs/solvers.md read this table; a name not in it
+is refused in one place, :func:`solver_spec`.
 
 A field is anything with ``predict(axes) -> (n, 3) μm``; a field may also offer
 ``jacobian(axes) -> (n, 3, 3)`` (μm per mm, mm, deg of x, z, a); solvers that need the
@@ -11,19 +14,74 @@ derivative fall back to central differences when it does not.
 from __future__ import annotations
 
 import importlib
+import inspect
+from dataclasses import dataclass
 
 from .base import BALL_RADIUS_UM, SolveResult
 
-METHODS = ("traditional", "ga", "batched-ga", "exact")
-_MODULES = {"traditional": "traditional", "ga": "ga", "batched-ga": "batched_ga", "exact": "exact"}
+COMMON_ARGUMENTS = ("field", "targets_mm", "machine", "target_axes", "a_start_deg")
+"""What every solve function takes; the rest of its keywords are its options (:meth:`Solver.options`)."""
+
+
+@dataclass(frozen=True)
+class Solver:
+    """One solver: its name (``--method``), module (``compensation/solvers/<module>.py`` with
+    ``solve_<module>``), a one-line summary, the field capabilities it uses when the field
+    declares them (``errormap.field``; none is required: every solver runs on ``predict``
+    alone), whether it is stochastic (takes ``seed``), shows progress (takes ``progress``),
+    evolves a whole chunk as one block (takes ``workers``/``chunk``), and the modules whose
+    numba kernels it compiles on first use."""
+
+    name: str
+    module: str
+    summary: str
+    uses: frozenset = frozenset()
+    seeded: bool = False
+    progress: bool = True
+    blockwise: bool = False
+    kernels: tuple = ()
+
+    @property
+    def function_name(self) -> str:
+        return f"solve_{self.module}"
+
+    def function(self):
+        """The solve function (its module imported on first use: numba kernels load with it)."""
+        return getattr(importlib.import_module(f"compensation.solvers.{self.module}"), self.function_name)
+
+    def options(self) -> dict:
+        """``{option: default}``: the solve function's keywords beyond :data:`COMMON_ARGUMENTS`."""
+        sig = inspect.signature(self.function())
+        return {k: p.default for k, p in sig.parameters.items() if k not in COMMON_ARGUMENTS}
+
+
+SOLVERS = {s.name: s for s in (
+    Solver("traditional", "traditional", "subtract the field's error at the nominal axes once (no iteration)",
+           uses=frozenset({"predict_columns"}), progress=False),
+    Solver("ga", "ga", "the paper's genetic algorithm, one point at a time",
+           uses=frozenset({"float32", "predict_columns"}), seeded=True),
+    Solver("batched-ga", "batched_ga", "the same GA evolved for a block of points at once (numba breeding kernels)",
+           uses=frozenset({"float32", "offset_fitness", "predict_columns"}), seeded=True, blockwise=True,
+           kernels=("compensation.solvers._ga_kernels",)),
+    Solver("exact", "exact", "Newton on the field's own error (analytic Jacobian where the field declares it)",
+           uses=frozenset({"jacobian", "predict_and_jacobian", "float32", "predict_columns"}), kernels=("compensation.solvers.exact",)),
+)}
+METHODS = tuple(SOLVERS)
+"""The solver names, in the order reports list them."""
+GA_METHODS = tuple(n for n, s in SOLVERS.items() if s.seeded)
+
+
+def solver_spec(method: str) -> Solver:
+    """The registry entry of ``method``; raises ValueError naming the allowed methods (the one place
+    an unknown name is refused)."""
+    if not isinstance(method, str) or method not in SOLVERS:
+        raise ValueError(f"Expected method in {list(METHODS)}, got {method!r}")
+    return SOLVERS[method]
 
 
 def get_solver(method: str):
     """The solve function for ``method``; raises ValueError naming the allowed methods."""
-    if method not in _MODULES:
-        raise ValueError(f"Expected method in {list(METHODS)}, got {method!r}")
-    mod = importlib.import_module(f"compensation.solvers.{_MODULES[method]}")
-    return getattr(mod, "solve_" + _MODULES[method])
+    return solver_spec(method).function()
 
 
 def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
@@ -31,4 +89,5 @@ def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
     return get_solver(method)(field, targets_mm, machine, **options)
 
 
-__all__ = ["BALL_RADIUS_UM", "METHODS", "SolveResult", "get_solver", "solve"]
+__all__ = ["BALL_RADIUS_UM", "GA_METHODS", "METHODS", "SOLVERS", "SolveResult", "Solver", "get_solver", "solve",
+           "solver_spec"]

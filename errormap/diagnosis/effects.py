@@ -32,14 +32,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..effect_kinds import DIAGNOSED_KINDS, SINUSOID_KINDS, diagnosed_kind, effect_kind
 from ..elements import A_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS, element_unit
 from ..htm import IDX, error_jacobian
 
-KINDS = ("thermal", "drift", "reversal", "periodic", "harmonic", "interaction")
+KINDS = DIAGNOSED_KINDS
+"""The kinds of the library, from the registry (:mod:`errormap.effect_kinds`), in its order of preference."""
 WCS_ELEMENTS = ("dx", "dy", "dz")
 AXIS_ELEMENTS = {"x": X_ELEMENTS, "z": Z_ELEMENTS, "a": A_ELEMENTS, "x*z": X_ELEMENTS + Z_ELEMENTS}
-KIND_AXES = {"thermal": ("x", "z"), "drift": ("x", "z"), "reversal": ("x", "z", "a"),
-             "periodic": ("x", "z"), "harmonic": ("a",), "interaction": ("x*z",)}
+LINEAR_AXES, ROTARY_AXES = ("x", "z"), ("a",)
+KIND_AXES = {k: effect_kind(k).axes(LINEAR_AXES, ROTARY_AXES) for k in KINDS}
+SINUSOIDS = SINUSOID_KINDS
+"""Kinds fitted as ``s·sin + c·cos`` with a searched period or order."""
 AXIS_COL = {"x": 0, "z": 1, "a": 2}
 STROKE_KEY = {"x": "x_mm", "z": "z_mm", "a": "a_deg"}
 SECONDS_PER_HOUR = 3600.0
@@ -52,7 +56,7 @@ def unit_of(element: str) -> str:
 
 def needs(kind: str, axis: str) -> tuple[str, ...]:
     """Condition columns a term of ``kind`` on ``axis`` needs."""
-    return {"thermal": ("temp_c",), "drift": ("time_s",), "reversal": (f"dir_{axis}",)}.get(kind, ())
+    return diagnosed_kind(kind).needs_on(axis)
 
 
 @dataclass(frozen=True)
@@ -63,9 +67,12 @@ class Candidate:
     axis: str
     element: str
 
+    def __post_init__(self):
+        diagnosed_kind(self.kind)  # an unknown kind is an error here, never a default further on
+
     @property
     def n_linear(self) -> int:
-        return 2 if self.kind in ("periodic", "harmonic") else 1
+        return diagnosed_kind(self.kind).n_linear
 
     @property
     def label(self) -> str:
@@ -77,6 +84,7 @@ def library(available=CONDITION_NAMES, kinds=KINDS) -> list[Candidate]:
     out = []
     for kind in kinds:
         if kind not in KINDS:
+            diagnosed_kind(kind)  # names the known kinds (an alias such as 'pitch' is not a library kind)
             raise ValueError(f"Expected effect kinds from {KINDS}, got {kind!r}")
         for axis in KIND_AXES[kind]:
             if not set(needs(kind, axis)) <= set(available):
@@ -231,10 +239,9 @@ class EffectTerm:
         cov = self.cov if self.cov is not None else np.full((len(self.coef) + 1,) * 2, np.nan)
         se = np.sqrt(np.abs(np.diag(cov)))
         k = self.cand.kind
-        names = {"thermal": (f"k_{u}_per_mm_c", f"{u}/(mm·°C)"), "drift": (f"k_{u}_per_mm_h", f"{u}/(mm·h)"),
-                 "reversal": (f"backlash_{u}", u), "interaction": (f"corner_{u}", u)}
-        if k in names:
-            n, unit = names[k]
+        spec = diagnosed_kind(k)
+        if not spec.nonlinear:
+            n, unit = (t.format(u=u) for t in spec.parameters[0])
             return {n: {"value": float(self.coef[0]), "se": float(se[0]), "unit": unit}}
         s, c = self.coef
         amp = float(np.hypot(s, c))

@@ -27,9 +27,9 @@ import numpy as np
 from scipy import stats
 
 from ..elements import ELEMENT_NAMES
-from .effects import KINDS, WCS_ELEMENTS, Context, EffectTerm, design, library
+from .effects import KINDS, SINUSOIDS, WCS_ELEMENTS, Context, EffectTerm, design, library
 
-JOINT_KINDS = ("thermal", "drift", "reversal", "interaction")
+JOINT_KINDS = tuple(k for k in KINDS if k not in SINUSOIDS)
 """The linear kinds tested jointly (periodic/harmonic terms are not imitated by the smooth
 elements and are found by the periodogram search on what the update leaves)."""
 KIND_PREFERENCE = {k: i for i, k in enumerate(KINDS)}

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize, stats
 
-from .effects import (AXIS_COL, KINDS, Candidate, Context, EffectTerm, design, library, periodogram_trig,
+from .effects import (AXIS_COL, KINDS, SINUSOIDS, Candidate, Context, EffectTerm, design, library, periodogram_trig,
                       projected_periodogram)
 
 KIND_PREFERENCE = {k: i for i, k in enumerate(KINDS)}
@@ -77,7 +77,7 @@ class EffectSelector:
 
     def _search(self, cand: Candidate, ctx: Context, r: np.ndarray):
         """Best period (mm) or order for ``cand`` on residual ``r`` (n, 3); (None, None) if linear."""
-        if cand.kind not in ("periodic", "harmonic"):
+        if cand.kind not in SINUSOIDS:
             return None, None
         om, _ = self._omegas(cand, ctx)
         jcol = ctx.column(cand.element)
@@ -131,9 +131,9 @@ class EffectSelector:
         dof2 = N - D_sel.shape[1] - p
         F = ((rss0 - rss1) / p) / max(rss1 / dof2, 1e-300)
         pval = float(stats.f.sf(F, p, dof2)) if F > 0 else 1.0
-        M = self._omegas(cand, ctx)[1] if cand.kind in ("periodic", "harmonic") else 1.0
+        M = self._omegas(cand, ctx)[1] if cand.kind in SINUSOIDS else 1.0
         p_adj = min(1.0, pval * M * K)
-        n_nonlin = 1 if cand.kind in ("periodic", "harmonic") else 0
+        n_nonlin = 1 if cand.kind in SINUSOIDS else 0
         dbic = N * np.log(rss0 / max(rss1, 1e-300)) - (p + n_nonlin) * np.log(N)
         # forward validation: refit everything on the inner part, compare on the rest
         per_i, ord_i = self._search(cand, ci, res0_in.reshape(-1, 3))

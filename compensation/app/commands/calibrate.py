@@ -17,7 +17,7 @@ from pathlib import Path
 from errormap.machine import load_machine
 from errormap.pkm.calibration import PKMCalibrator
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ..workflows.calibration import CalibrationSettings, run_calibration
 

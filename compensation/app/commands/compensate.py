@@ -45,7 +45,7 @@ import numpy as np
 
 from errormap.machine import check_machine_kind, load_machine
 
-from compensation.app.cli import UsageError, one_line
+from compensation.app.validate import UsageError, one_line
 
 from ..options import add_condition_options, add_units_option, conditions_from_args
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args, open_executor

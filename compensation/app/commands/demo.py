@@ -21,7 +21,7 @@ from pathlib import Path
 from errormap.machine import load_machine
 from training import DEFAULT_MAX_ITER
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ..options import add_flute_arguments, add_method_arguments, flute_from_args, parse_methods
 from ..workflows.demo import DEMO_GA_BUDGET_S, DemoSettings, run_demo

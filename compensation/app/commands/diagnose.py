@@ -7,7 +7,7 @@ import sys
 from errormap.diagnosis.pipeline import DiagnosisSettings
 from errormap.machine import load_machine
 from training import DEFAULT_MAX_ITER
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ..options import add_units_option
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 
 def register(sub):

@@ -21,7 +21,7 @@ import numpy as np
 
 from errormap.machine import check_machine_kind, load_machine
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ..workflows.controller_tables import DriftSettings, TableSettings, export_drift, export_table
 from ... import export as ex

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from errormap.io import write_json
 
-from ..cli import UsageError, one_line
+from ..validate import UsageError, one_line
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args
 
 DEFAULT_TRAIN_ITER = 1000  # as `volcomp train`

@@ -18,7 +18,7 @@ from errormap.pkm.hexapod import KinematicsError
 
 from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ..reports.tripod_sensitivity import plot_tripod_sensitivity
 

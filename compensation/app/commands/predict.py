@@ -10,7 +10,7 @@ from errormap.field import machine_axes
 from errormap.machine import check_machine_kind, load_machine
 from errormap.units import check_units
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ..options import add_units_option
 from ...fields import KIND_NAMES, load_field, resolve_model

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from errormap.machine import load_machine
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ...evaluate import load_truth
 from ...fields import load_field, resolve_model

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from errormap.machine import load_machine
-from errormap.simulator import EFFECT_NAMES
+from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP
 
 
 from ..workflows.simulate import simulate_truth, summary_lines
@@ -19,8 +19,8 @@ def register(sub):
                    help="truth family: default (the simulator) or independent (other shapes, magnitudes, effect "
                         "parameters and check layout; errormap/truth_families.py)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--effect", action="append", default=[], choices=EFFECT_NAMES,
-                   help="add an undeclared effect (repeatable): " + ", ".join(EFFECT_NAMES))
+    p.add_argument("--effect", action="append", default=[], choices=EFFECT_CHOICES,
+                   help="add an undeclared effect (repeatable): " + EFFECT_HELP)
     p.add_argument("--noise-um", type=float, default=1.0, help="check-measurement noise σ per axis (μm)")
     p.add_argument("--checks", type=int, default=400, help="number of check measurements")
     p.set_defaults(func=run)

@@ -5,9 +5,9 @@ import sys
 
 from errormap.elements import ElementSet
 from errormap.machine import load_machine
-from errormap.simulator import EFFECT_NAMES, TruthGrinder
+from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP, TruthGrinder
 from errormap.sweeps import simulate_sweeps, write_sweeps
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 
 def register(sub):
@@ -19,8 +19,8 @@ def register(sub):
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element-set file (JSON)")
     src.add_argument("--seed", type=int, default=None, help="seed of a random truth grinder (as `volcomp simulate`)")
-    p.add_argument("--effect", action="append", default=[], choices=EFFECT_NAMES,
-                   help="undeclared effect in the truth (repeatable): " + ", ".join(EFFECT_NAMES))
+    p.add_argument("--effect", action="append", default=[], choices=EFFECT_CHOICES,
+                   help="undeclared effect in the truth (repeatable): " + EFFECT_HELP)
     p.add_argument("--family", choices=("default", "independent"), default="default",
                    help="truth family: default (the simulator) or independent (other shapes, magnitudes, effect "
                         "parameters and check layout; errormap/truth_families.py)")

@@ -12,7 +12,7 @@ from errormap.io import InputError, read_table
 # give the same model on any machine; a wall-clock budget is an explicit option. (The package
 # module ``training`` is light: these constants do not load torch.)
 from training import DEFAULT_MAX_ITER, QUICK_MAX_ITER
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 
 

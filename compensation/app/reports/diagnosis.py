@@ -10,7 +10,8 @@ import json
 
 import numpy as np
 
-from errormap.diagnosis.effects import Context
+from errormap.diagnosis.effects import AXIS_COL, Context
+from errormap.effect_kinds import diagnosed_kind
 
 from .figures import pyplot
 from .toolkit import Figure, Table, figure, num, qty, render_page, unit_text
@@ -46,26 +47,51 @@ def _histograms(before, after, labels, title) -> Figure:
     return figure(fig, "histograms", dpi=FIG_DPI)
 
 
+def _thermal_variable(term, ctx):
+    ax = term.axis
+    return (ctx.cond("temp_c") - term.ref["ref_temp_c"]) * ctx.position(ax), f"(temp_c − ref)·({ax} − lo)  (°C·mm)"
+
+
+def _drift_variable(term, ctx):
+    ax = term.axis
+    return (ctx.cond("time_s") - term.ref["ref_time_s"]) / 3600 * ctx.position(ax), f"time·({ax} − lo)  (h·mm)"
+
+
+def _reversal_variable(term, ctx):
+    return ctx.cond(f"dir_{term.axis}") + 0.0, f"dir_{term.axis}"
+
+
+def _periodic_variable(term, ctx):
+    ax, p = term.axis, float(term.period_mm)
+    return np.mod(ctx.axes[:, AXIS_COL[ax]], p), f"{ax}_mm folded on one period: {ax} mod {num(p, 4)} mm"
+
+
+def _harmonic_variable(term, ctx):
+    n = int(term.order)
+    return np.mod(n * ctx.axes[:, AXIS_COL[term.axis]], 360.0), f"phase of the {n}/rev harmonic: {n}·a_deg mod 360 (°)"
+
+
+def _interaction_variable(term, ctx):
+    p, q = term.axis.split("*")
+    return ctx.position(p) * ctx.position(q), f"({p} − lo)({q} − lo)  (mm²)"
+
+
+EXPLAINING_VARIABLE = {"thermal": _thermal_variable, "drift": _drift_variable, "reversal": _reversal_variable,
+                       "periodic": _periodic_variable, "harmonic": _harmonic_variable,
+                       "interaction": _interaction_variable}
+"""How the report draws each diagnosed kind (keyed by the registry's names, :mod:`errormap.effect_kinds`;
+``tests/test_effect_kinds.py`` checks it covers exactly the diagnosed kinds)."""
+
+
 def _explaining_variable(term, ctx):
     """The variable a term depends on at the points, with its label.
 
     Periodic terms are folded onto one period (a 40/rev worm harmonic over a whole turn shows
     40 cycles in a few hundred points, i.e. nothing; folded, every point falls on one sine).
+    An unknown kind is a ``ValueError`` (the registry's), never drawn as some other kind.
     """
-    k, ax = term.kind, term.axis
-    if k == "thermal":
-        return (ctx.cond("temp_c") - term.ref["ref_temp_c"]) * ctx.position(ax), f"(temp_c − ref)·({ax} − lo)  (°C·mm)"
-    if k == "drift":
-        return (ctx.cond("time_s") - term.ref["ref_time_s"]) / 3600 * ctx.position(ax), f"time·({ax} − lo)  (h·mm)"
-    if k == "reversal":
-        return ctx.cond(f"dir_{ax}") + 0.0, f"dir_{ax}"
-    if k == "periodic":
-        p = float(term.period_mm)
-        return np.mod(ctx.axes[:, {"x": 0, "z": 1}[ax]], p), f"{ax}_mm folded on one period: {ax} mod {num(p, 4)} mm"
-    if k == "harmonic":
-        n = int(term.order)
-        return np.mod(n * ctx.axes[:, 2], 360.0), f"phase of the {n}/rev harmonic: {n}·a_deg mod 360 (°)"
-    return ctx.position("x") * ctx.position("z"), "(x − lo)(z − lo)  (mm²)"
+    kind = diagnosed_kind(term.kind).name
+    return EXPLAINING_VARIABLE[kind](term, ctx)
 
 
 def _effect_figure(d, term, ctx, hold) -> Figure:

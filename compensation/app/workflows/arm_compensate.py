@@ -16,7 +16,7 @@ import numpy as np
 from errormap.arm_poses import check_joint_values
 from errormap.io import read_table, write_csv
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ...arm_compensation import solve_joints
 from .arm_calibration import load_arm_model

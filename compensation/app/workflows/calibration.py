@@ -20,7 +20,7 @@ from errormap.pkm.checks import check_pose_set
 from errormap.pkm.hexapod import KinematicsError
 from errormap.pkm.pipeline import rms_um, validated_calibration
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ..reports.calibration import write_html, write_plots
 

@@ -306,7 +306,7 @@ def add_cluster_options(p, chunks: bool = True) -> None:
 
 
 def check_cluster_args(args) -> None:
-    from ..cli import UsageError
+    from ..validate import UsageError
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers must be >= 1, got {args.workers}")
     if args.address is not None and args.cluster is None:

@@ -20,7 +20,7 @@ from errormap.kinematics import inverse
 from ...batch import CHUNK_POINTS, GA_METHODS, solve_batch
 from ...evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_metrics, true_residual_um
 from ...pathio import align_turns
-from ...solvers import METHODS
+from ...solvers import METHODS, solver_spec
 from ...solvers.threads import small_batch_threads
 
 REPORT_FORMAT = "volcomp-report/1"
@@ -117,14 +117,12 @@ def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga
     n = targets_mm.shape[0]
     nominal = inverse(machine, targets_mm, unwrap=True) if nominal_axes is None else np.asarray(nominal_axes, float)
     solver_options = solver_options or {}
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        raise ValueError(f"Expected methods from {list(METHODS)}, got {unknown}")
+    specs = [solver_spec(m) for m in methods]  # the registry refuses an unknown name
     runs = {}
-    for method in methods:
+    for method, spec in zip(methods, specs):
         opts = dict(solver_options.get(method, {}))
         opts.setdefault("target_axes", None)
-        if method in ("ga", "batched-ga"):
+        if spec.seeded:
             opts.setdefault("seed", seed)
         idx, note = np.arange(n), ""
         if method == "ga":

@@ -31,7 +31,7 @@ from errormap.io import InputError, write_json
 from errormap.jit import notice_cold_kernels
 from errormap.progress import Progress
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ... import guards
 from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, solve_batch
@@ -40,6 +40,7 @@ from ...diagnosed_model import (ConditionedField, load_path_field, path_conditio
 from ...fields import resolve_model
 from ...gcode import DEFAULT_RAPIDS
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
+from ...solvers import solver_spec
 from ...solvers.threads import small_batch_threads
 
 SUMMARY_NAME = "compensate_summary.json"
@@ -235,8 +236,7 @@ def kernel_modules(method: str) -> list:
     the G-code planner's and the solver's own (the batched GA's generation step, the exact
     solver's Newton kernels)."""
     import importlib
-    names = ["compensation.gcode_kernels"] + {"exact": ["compensation.solvers.exact"],
-                                              "batched-ga": ["compensation.solvers._ga_kernels"]}.get(method, [])
+    names = ["compensation.gcode_kernels", *solver_spec(method).kernels]
     return [importlib.import_module(n) for n in names]
 
 

@@ -18,7 +18,7 @@ from errormap.elements import ElementSet
 from errormap.io import InputError, sha256_file
 from errormap.iso230 import ISO_NAME
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ... import export as ex
 

@@ -28,7 +28,7 @@ from errormap.io import write_json
 from errormap.jit import notice_cold_kernels
 
 
-from compensation.app.cli import UsageError
+from compensation.app.validate import UsageError
 
 from ...evaluate import load_truth
 from ..reports.methods import print_table, write_report

@@ -118,7 +118,7 @@ def validate_inputs(machines) -> None:
 
 def check_tracking_uri(uri: str, n_machines: int, on_cluster: bool) -> None:
     """Refuse a file-based MLflow store when several machines would write to it at once."""
-    from ..cli import UsageError
+    from ..validate import UsageError
     if on_cluster and n_machines > 1 and not uri.startswith(SERVER_SCHEMES):
         raise UsageError(f"--cluster ray: {n_machines} machines would write to the MLflow store {uri} at once, "
                          "and a SQLite file (or a local file store) is not for many writers (nor seen by other "
@@ -142,7 +142,7 @@ def run_machine(m: dict, out_dir: str, settings: dict) -> dict:
     (``status`` ``"ok"`` or ``"failed"`` with a one-line ``error``; a failed machine's folder
     is removed). ``settings``: ``tracking_uri``, ``train_iter``, ``hidden``, ``bootstrap``,
     ``seed``, ``grid``, ``threads`` (torch threads, 1 on a cluster), ``fleet``."""
-    from ..cli import one_line
+    from ..validate import one_line
     t0 = time.perf_counter()
     folder = Path(out_dir) / m["name"]
     if folder.exists():  # a retried task starts clean

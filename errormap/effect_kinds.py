@@ -1,0 +1,172 @@
+"""The one table of effect kinds: what the simulator can draw, the diagnosis can fit, the report
+can draw and the export can write.
+
+An effect is a small physical term the 23 error elements do not carry (thermal growth, backlash,
+a ball-screw pitch error, …). Before this table a kind lived in two vocabularies — the
+simulator's ``pitch``/``worm`` and the diagnosis's ``periodic``/``harmonic`` — and in every
+module that dispatched on it. Both pairs are the same physics (``A·sin(2π·pos/P + φ)`` on a
+linear axis; ``A·sin(N·a + φ)`` on a rotary axis, ``a`` in rad), so each is ONE kind here: the
+canonical name is the diagnosis's, the simulator's name is its alias (and stays the name
+``volcomp simulate --effect`` and ``truth.json`` use, so every recorded run reads as before).
+
+Each entry says, generically (no machine's axis names):
+
+* ``acts_on`` — which axes it may act on: ``"linear"`` (any linear axis), ``"rotary"`` (any
+  rotary axis), ``"any"`` (any axis) or ``"pair"`` (two axes together; today the pairs of
+  linear axes);
+* ``parameters`` — its fitted parameters with units (``{u}`` is the unit of the element it acts
+  on: μm, or μrad for an angular element);
+* ``needs`` — the condition columns it depends on (``{axis}`` is the axis word);
+* ``simulator`` — the simulator's name for it and the element the simulator adds it to
+  (:class:`errormap.simulator.TruthGrinder`), ``None`` where the simulator cannot draw it;
+* ``diagnosed`` — whether the diagnosis library fits it (:mod:`errormap.diagnosis.effects`
+  ``basis``); ``truth_only`` kinds are what the simulator draws and no kind of the diagnosis can
+  represent (they are what the closed loop's learned residual stage is for);
+* ``report`` — the variable the report plots the term against (:mod:`compensation.app.reports.diagnosis`);
+* ``export`` — how ``volcomp export`` writes it (``"linuxcnc-backlash"``: the per-joint
+  forward/reverse difference of :func:`compensation.export.backlash_from_diagnosis`), ``None``:
+  not carried by a controller table (listed as left out).
+
+Every consumer looks a name up here; an unknown name is a ``ValueError`` naming the known ones,
+never a default. The consumers keep their functions keyed by the canonical name, and
+``tests/test_effect_kinds.py`` checks that each covers exactly the kinds it should.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+ACTS_ON = ("linear", "rotary", "any", "pair")
+
+
+@dataclass(frozen=True)
+class EffectKind:
+    """One effect kind (module doc); names of fields as there."""
+
+    name: str
+    aliases: tuple
+    acts_on: str
+    formula: str
+    parameters: tuple
+    """``((name template, unit template), ...)``; ``{u}``: the element's unit."""
+    needs: tuple = ()
+    """Condition columns; ``{axis}`` is the axis word (``dir_{axis}`` → ``dir_z``)."""
+    simulator: str | None = None
+    simulator_element: str | None = None
+    diagnosed: bool = True
+    truth_only: bool = False
+    nonlinear: str | None = None
+    """The parameter searched outside the linear fit (``period_mm`` by a periodogram, ``order``)."""
+    report: str | None = None
+    export: str | None = None
+
+    @property
+    def n_linear(self) -> int:
+        """Linear coefficients of the fitted term (a sinusoid: sin and cos)."""
+        return 2 if self.nonlinear else 1
+
+    def needs_on(self, axis: str) -> tuple:
+        """The condition columns a term of this kind on ``axis`` needs."""
+        return tuple(n.format(axis=axis) for n in self.needs)
+
+    def axes(self, linear=(), rotary=()) -> tuple:
+        """The axis words it may act on for a machine whose linear and rotary axis words are
+        given (``("x", "z")``, ``("a",)``): pairs as ``"x*z"``."""
+        linear, rotary = tuple(linear), tuple(rotary)
+        if self.acts_on == "linear":
+            return linear
+        if self.acts_on == "rotary":
+            return rotary
+        if self.acts_on == "any":
+            return linear + rotary
+        return tuple(f"{p}*{q}" for i, p in enumerate(linear) for q in linear[i + 1:])
+
+
+# The order is the diagnosis's preference between kinds that explain a residual equally well
+# (errormap/diagnosis/selection.py, joint.py): do not reorder.
+EFFECT_KINDS = (
+    EffectKind("thermal", (), "linear", "k·(temp_c − ref_temp_c)·(pos − lo)",
+               (("k_{u}_per_mm_c", "{u}/(mm·°C)"),), needs=("temp_c",),
+               simulator="thermal", simulator_element="dx_x",
+               report="(temp_c − ref)·(pos − lo)"),
+    EffectKind("drift", (), "linear", "k·(time_s − ref_time_s)/3600·(pos − lo)",
+               (("k_{u}_per_mm_h", "{u}/(mm·h)"),), needs=("time_s",),
+               report="time·(pos − lo)"),
+    EffectKind("reversal", ("backlash",), "any", "b/2·dir",
+               (("backlash_{u}", "{u}"),), needs=("dir_{axis}",),
+               simulator="reversal", simulator_element="dz_z",
+               report="dir", export="linuxcnc-backlash"),
+    EffectKind("periodic", ("pitch",), "linear", "A·sin(2π·pos/P + φ)",
+               (("amplitude_{u}", "{u}"), ("phase_rad", "rad"), ("period_mm", "mm")),
+               simulator="pitch", simulator_element="dx_x", nonlinear="period_mm",
+               report="pos folded on one period"),
+    EffectKind("harmonic", ("worm",), "rotary", "A·sin(N·a + φ)",
+               (("amplitude_{u}", "{u}"), ("phase_rad", "rad"), ("order", "per revolution")),
+               simulator="worm", simulator_element="ex_a", nonlinear="order",
+               report="phase of the N/rev harmonic"),
+    EffectKind("interaction", (), "pair", "k·(p − p_lo)(q − q_lo)/(Δp·Δq)",
+               (("corner_{u}", "{u}"),), simulator="interaction", simulator_element="dx_x",
+               report="(p − lo)(q − lo)"),
+    EffectKind("bump", (), "pair", "A·exp(−½((p−pc)/wp)² − ½((q−qc)/wq)²)",
+               (("amplitude_um", "um"), ("x_frac", "1"), ("z_frac", "1"), ("width_frac", "1")),
+               simulator="bump", simulator_element="dy_x", diagnosed=False, truth_only=True),
+    EffectKind("a_tilt", (), "pair", "k·(p − p_lo)/Δp on a rotary axis' tilt",
+               (("k_urad", "urad"),), simulator="a_tilt", simulator_element="ey_a",
+               diagnosed=False, truth_only=True),
+    EffectKind("squareness", (), "pair", "k·sin(π·(p − p_lo)/Δp) on a squareness",
+               (("k_urad", "urad"),), simulator="squareness", simulator_element="s_xz",
+               diagnosed=False, truth_only=True),
+)
+
+_BY_NAME = {k.name: k for k in EFFECT_KINDS}
+_BY_ALIAS = {a: k for k in EFFECT_KINDS for a in (k.name, *k.aliases)}
+
+DIAGNOSED_KINDS = tuple(k.name for k in EFFECT_KINDS if k.diagnosed)
+"""The kinds the diagnosis library fits, in its order of preference."""
+SIMULATED_KINDS = tuple(k.name for k in EFFECT_KINDS if k.simulator)
+SIMULATOR_NAMES = tuple(k.simulator for k in EFFECT_KINDS if k.simulator)
+"""The names the simulator knows its effects by (``--effect``, ``truth.json``)."""
+TRUTH_ONLY = tuple(k.simulator for k in EFFECT_KINDS if k.truth_only)
+"""Simulator effects no kind of the diagnosis represents."""
+SINUSOID_KINDS = tuple(k.name for k in EFFECT_KINDS if k.diagnosed and k.nonlinear)
+
+
+def effect_kind(name) -> EffectKind:
+    """The kind ``name`` (canonical or an alias); ``ValueError`` naming the known ones otherwise."""
+    kind = _BY_ALIAS.get(name) if isinstance(name, str) else None
+    if kind is None:
+        known = ", ".join(f"{k.name}" + (f" ({'/'.join(k.aliases)})" if k.aliases else "") for k in EFFECT_KINDS)
+        raise ValueError(f"unknown effect kind {name!r}; expected one of {known}")
+    return kind
+
+
+def diagnosed_kind(name) -> EffectKind:
+    """The kind named ``name`` (its canonical name: the diagnosis's vocabulary) if the diagnosis
+    fits it; ``ValueError`` naming the diagnosed kinds otherwise (an unknown name, a simulator
+    alias such as ``pitch``, or a truth-only kind the diagnosis cannot represent)."""
+    kind = _BY_ALIAS.get(name) if isinstance(name, str) else None
+    if kind is not None and kind.diagnosed and kind.name == name:
+        return kind
+    if kind is None:
+        why = f"unknown effect kind {name!r}"
+    elif kind.name != name:
+        why = f"effect kind {name!r} is the simulator's name; the diagnosis calls it {kind.name!r}"
+    else:
+        why = f"effect kind {name!r} is simulated only (no diagnosis kind represents it)"
+    raise ValueError(f"{why}; expected one of {list(DIAGNOSED_KINDS)}")
+
+
+def simulator_name(name) -> str:
+    """The simulator's name of kind ``name`` (``periodic`` → ``pitch``); ``ValueError`` for an
+    unknown name or a kind the simulator cannot draw."""
+    kind = effect_kind(name)
+    if kind.simulator is None:
+        raise ValueError(f"effect kind {name!r} cannot be simulated; expected one of {list(SIMULATOR_NAMES)}")
+    return kind.simulator
+
+
+def check_covers(table, kinds, what: str) -> None:
+    """Raise ``ValueError`` unless the keys of ``table`` are exactly ``kinds`` (a consumer's
+    dispatch table against the registry)."""
+    missing, extra = sorted(set(kinds) - set(table)), sorted(set(table) - set(kinds))
+    if missing or extra:
+        raise ValueError(f"{what}: the effect-kind registry has {missing} it lacks and it has {extra} the registry lacks")

@@ -1,0 +1,174 @@
+"""The effect-kind registry (errormap/effect_kinds.py): every kind the simulator can draw and the
+diagnosis can name is in it, the two vocabularies name the same physics, each consumer covers
+exactly its kinds, and an unknown kind is refused — in code a ValueError, in a user's file one
+line naming the file and the key (exit 2) — never drawn or exported as some other kind."""
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from compensation.app.cli import main
+from compensation.app.reports.diagnosis import EXPLAINING_VARIABLE, _explaining_variable
+from errormap import effect_kinds as ek
+from errormap.diagnosis import effects as fx
+from errormap.diagnosis.joint import JOINT_KINDS
+from errormap.elements import ElementSet
+from errormap.htm import IDX
+from errormap.simulator import EFFECT_DEFAULTS, EFFECT_NAMES, OUT_OF_CATALOGUE, TruthGrinder, random_axes
+from errormap.truth_families import independent_effect_parameters
+
+SEED = 11
+N_POINTS = 200
+SAME_PHYSICS_UM = 1e-9
+"""The simulator's sinusoid and the diagnosis's basis with the same parameters are the same
+formula evaluated in a different order (sin(w + φ) against A·cosφ·sin w + A·sinφ·cos w): they
+agree to float rounding of μm/μrad-sized values, far below a nanometre."""
+
+
+def test_every_name_is_registered_once():
+    names = [n for k in ek.EFFECT_KINDS for n in (k.name, *k.aliases)]
+    assert len(names) == len(set(names))
+    assert all(k.acts_on in ek.ACTS_ON for k in ek.EFFECT_KINDS)
+    for k in ek.EFFECT_KINDS:
+        assert ek.effect_kind(k.name) is k
+        assert all(ek.effect_kind(a) is k for a in k.aliases)
+
+
+def test_simulator_draws_registered_kinds_only():
+    assert EFFECT_NAMES == ek.SIMULATOR_NAMES
+    assert set(EFFECT_DEFAULTS) == set(ek.SIMULATOR_NAMES)
+    assert set(independent_effect_parameters(np.random.default_rng(0))) == set(ek.SIMULATOR_NAMES)
+    assert set(OUT_OF_CATALOGUE) == set(ek.TRUTH_ONLY) == {"bump", "a_tilt", "squareness"}
+    for name in EFFECT_NAMES:
+        kind = ek.effect_kind(name)
+        assert kind.simulator == name and kind.simulator_element in IDX
+        assert kind.truth_only == (not kind.diagnosed)
+
+
+def test_the_diagnosis_fits_exactly_the_diagnosed_kinds(grinder):
+    """Its library, the axes of each kind (generic in the registry, the grinder's words here),
+    the joint screen's kinds and a basis for every kind, from the registry."""
+    assert fx.KINDS == ek.DIAGNOSED_KINDS == ("thermal", "drift", "reversal", "periodic", "harmonic", "interaction")
+    assert fx.KIND_AXES == {"thermal": ("x", "z"), "drift": ("x", "z"), "reversal": ("x", "z", "a"),
+                            "periodic": ("x", "z"), "harmonic": ("a",), "interaction": ("x*z",)}
+    assert JOINT_KINDS == ("thermal", "drift", "reversal", "interaction")
+    assert not set(ek.TRUTH_ONLY) & set(fx.KINDS)
+    rng = np.random.default_rng(SEED)
+    axes = random_axes(grinder, N_POINTS, rng)
+    cond = {"temp_c": 20 + rng.random(N_POINTS), "time_s": np.arange(N_POINTS) * 10.0,
+            **{f"dir_{a}": rng.choice([-1.0, 1.0], N_POINTS) for a in "xza"}}
+    ctx = fx.Context.build(grinder, axes, cond, fx.reference(grinder, cond))
+    for kind in fx.KINDS:
+        spec = ek.diagnosed_kind(kind)
+        cand = fx.Candidate(kind, fx.KIND_AXES[kind][0], fx.AXIS_ELEMENTS[fx.KIND_AXES[kind][0]][0])
+        b = fx.basis(cand, ctx, period_mm=10.0, order=40)
+        assert b.shape == (N_POINTS, spec.n_linear) and np.all(np.isfinite(b))
+        term = fx.EffectTerm(cand, np.ones(spec.n_linear), ctx.ref, 10.0 if kind == "periodic" else None,
+                             40 if kind == "harmonic" else None)
+        assert set(term.parameters()) == {n.format(u=fx.unit_of(cand.element)) for n, _ in spec.parameters}
+
+
+def test_the_report_draws_exactly_the_diagnosed_kinds():
+    ek.check_covers(EXPLAINING_VARIABLE, ek.DIAGNOSED_KINDS, "report")
+    with pytest.raises(ValueError, match="report: the effect-kind registry has"):
+        ek.check_covers({k: None for k in ek.DIAGNOSED_KINDS[1:]}, ek.DIAGNOSED_KINDS, "report")
+
+
+@pytest.mark.parametrize("sim, canonical, element, params, basis_args", [
+    ("pitch", "periodic", "dx_x", {"amplitude_um": 3.0, "period_mm": 7.0, "phase_rad": 0.4},
+     {"period_mm": 7.0}),
+    ("worm", "harmonic", "ex_a", {"amplitude_urad": 90.0, "teeth": 37, "phase_rad": 2.1}, {"order": 37}),
+])
+def test_simulator_alias_is_the_same_physics_as_the_diagnosis_kind(grinder, sim, canonical, element, params,
+                                                                   basis_args):
+    """Merging ``pitch``/``periodic`` and ``worm``/``harmonic`` into one kind each is only right if
+    they are the same term: the simulator's addition to the element equals the diagnosis basis
+    with the amplitude and phase written as its ``s·sin + c·cos`` coefficients."""
+    assert ek.effect_kind(sim).name == canonical and ek.simulator_name(canonical) == sim
+    el = ElementSet.zeros(grinder)
+    axes = random_axes(grinder, N_POINTS, np.random.default_rng(SEED))
+    by_alias = TruthGrinder(grinder, el, {sim: params}).element_values(axes)[:, IDX[element]]
+    by_name = TruthGrinder(grinder, el, {canonical: params})
+    assert set(by_name.effects) == {sim}
+    amp = params.get("amplitude_um", params.get("amplitude_urad"))
+    coef = amp * np.array([np.cos(params["phase_rad"]), np.sin(params["phase_rad"])])
+    ctx = fx.Context.build(grinder, axes, {}, fx.reference(grinder, {}))
+    axis = fx.KIND_AXES[canonical][0]
+    fitted_form = fx.basis(fx.Candidate(canonical, axis, element), ctx, **basis_args) @ coef
+    np.testing.assert_allclose(by_alias, fitted_form, rtol=0, atol=SAME_PHYSICS_UM)
+    np.testing.assert_allclose(by_name.element_values(axes)[:, IDX[element]], by_alias, rtol=0, atol=0)
+
+
+def test_unknown_kinds_raise_in_code(grinder):
+    with pytest.raises(ValueError, match="unknown effect kind 'bogus'"):
+        ek.effect_kind("bogus")
+    with pytest.raises(ValueError, match="'bogus'"):
+        TruthGrinder(grinder, ElementSet.zeros(grinder), {"bogus": {}})
+    with pytest.raises(ValueError, match="unknown effect kind 'bogus'"):
+        fx.Candidate("bogus", "x", "dx_x")
+    with pytest.raises(ValueError, match="simulator's name; the diagnosis calls it 'periodic'"):
+        fx.Candidate("pitch", "x", "dx_x")
+    with pytest.raises(ValueError, match="simulated only"):
+        fx.library(kinds=("bump",))
+    with pytest.raises(ValueError, match="cannot be simulated"):
+        ek.simulator_name("drift")
+
+
+def test_the_report_no_longer_draws_an_unknown_kind_as_an_xz_interaction():
+    """Before the registry any kind the report did not know fell through to (x − lo)(z − lo)."""
+    term = SimpleNamespace(kind="bogus", axis="x*z")
+    with pytest.raises(ValueError, match="unknown effect kind 'bogus'"):
+        _explaining_variable(term, None)
+
+
+def _one_error_line(capsys) -> str:
+    """The one error line of a refused command (progress lines may precede it; no traceback)."""
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ": error" in ln]
+    assert len(lines) == 1 and "Traceback" not in err
+    return lines[0]
+
+
+def test_export_refuses_an_unknown_kind_in_a_diagnosis_file(grinder, tmp_path, capsys):
+    el_path = ElementSet.zeros(grinder).save(tmp_path / "el.json")
+    diag = tmp_path / "diagnosis.json"
+    diag.write_text(json.dumps({"effects": [
+        {"kind": "reversal", "axis": "z", "element": "dz_z", "parameters": {"backlash_um": {"value": 8.0}}},
+        {"kind": "wobble", "axis": "x", "element": "dx_x", "parameters": {}}]}))
+    out = tmp_path / "lc"
+    assert main(["export", str(el_path), "--format", "linuxcnc", "--diagnosis", str(diag), "--out", str(out),
+                 "--force"]) == 2
+    line = _one_error_line(capsys)
+    assert str(diag) in line and "effects[1].kind" in line and "'wobble'" in line
+    assert not out.exists()
+
+
+def test_compensate_refuses_an_unknown_kind_in_a_diagnosed_model(grinder, tmp_path, capsys):
+    ElementSet.zeros(grinder).save(tmp_path / "updated_elements.json")
+    model = tmp_path / "model.json"
+    model.write_text(json.dumps({"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json",
+                                 "terms": [{"kind": "wobble", "axis": "x", "element": "dx_x",
+                                            "coefficients": [1.0], "reference": {"ref_temp_c": 20.0,
+                                                                                 "ref_time_s": 0.0}}]}))
+    path = tmp_path / "path.csv"
+    mid = (grinder.stroke_lo + grinder.stroke_hi) / 2
+    path.write_text("x_mm,z_mm,a_deg\n" + "\n".join(f"{mid[0] + i},{mid[1]},{mid[2]}" for i in range(3)) + "\n")
+    out = tmp_path / "out"
+    assert main(["compensate", str(path), "--model", str(model), "--method", "exact", "--out", str(out)]) == 2
+    line = _one_error_line(capsys)
+    assert str(model) in line and "terms[0].kind" in line and "'wobble'" in line
+    assert not out.exists()
+
+
+def test_simulate_takes_the_canonical_name_for_the_simulator_one(tmp_path):
+    """``--effect periodic`` is ``--effect pitch``: the same truth, recorded under the simulator's name."""
+    out = {}
+    for name in ("pitch", "periodic"):
+        out[name] = tmp_path / name
+        assert main(["simulate", "--seed", "3", "--out", str(out[name]), "--effect", name, "--checks", "20"]) == 0
+    info = {n: json.loads((d / "truth.json").read_text()) for n, d in out.items()}
+    assert info["periodic"]["effects"] == info["pitch"]["effects"] and set(info["pitch"]["effects"]) == {"pitch"}
+    rows = {n: [ln for ln in (d / "checks.csv").read_text().splitlines() if not ln.startswith("#")]
+            for n, d in out.items()}
+    assert rows["periodic"] == rows["pitch"]
