@@ -82,6 +82,10 @@ def test_exact_chain_solver_without_target_axes_on_a_linear_machine():
     ax = np.random.default_rng(14).uniform(mt.stroke_lo, mt.stroke_hi, (300, 3))
     r = solve_exact_chain(f, mt.nominal(ax), mt, progress=False)
     assert np.abs(r.residual_um).max() < TOL_MODEL_RESIDUAL_UM
+    # the solver registry's "exact" takes a chain too (same solver)
+    from compensation.solvers import solve
+    r2 = solve("exact", f, mt.nominal(ax), mt, progress=False)
+    assert np.array_equal(r2.axes, r.axes) and r2.info["compensated_axes"] == ["x_mm", "y_mm", "z_mm"]
 
 
 def test_exact_chain_solver_ball_is_a_hard_limit():

@@ -85,7 +85,12 @@ def get_solver(method: str):
 
 
 def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
-    """Run solver ``method`` on WCS targets, shape (n, 3) mm."""
+    """Run solver ``method`` on WCS targets, shape (n, 3) mm. On a machine-tool chain
+    (``machine.kind == "machine-tool"``) ``exact`` is :func:`compensation.solvers.chain_exact.solve_exact_chain`
+    (the tool tip with the chain's linear axes, rotary axes kept); the other methods are the grinder's."""
+    if method == "exact" and getattr(machine, "kind", None) == "machine-tool":
+        from .chain_exact import solve_exact_chain
+        return solve_exact_chain(field, targets_mm, machine, **options)
     return get_solver(method)(field, targets_mm, machine, **options)
 
 

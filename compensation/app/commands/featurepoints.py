@@ -23,7 +23,7 @@ def register(sub):
 def run(args) -> int:
     machine = load_machine(args.machine)
     if machine.kind == "machine-tool":  # a chain: its element set, the grid over its own axes
-        from compensation.app.cli import UsageError
+        from compensation.app.validate import UsageError
         from compensation.app.validate import MAX_GRID_POINTS
         k = len(machine.axes)
         if args.grid ** k > MAX_GRID_POINTS:
