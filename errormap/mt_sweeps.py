@@ -48,6 +48,7 @@ class BodyChain:
     chain: Chain
     joint_cols: np.ndarray
     slot_cols: np.ndarray
+    n_slots: int
 
     def frames(self, axes, values) -> np.ndarray:
         """All cumulative frames (n, n_et + 1, 4, 4) for machine axes (n, k) and slot values (n, P)."""
@@ -72,8 +73,9 @@ class BodyChain:
         rot = self.chain.kind_r[None, None, :, None]
         lin = np.where(rot, np.cross(ax[:, None], balls[:, :, None] - org[:, None]), ax[:, None])  # (n, m, ne, 3)
         S = self.chain.slot_matrix()                                                    # (ne, Pb)
-        Jb = np.einsum("nkei,ep->nkip", lin, S)
-        return balls, Jb
+        J = np.zeros(balls.shape + (self.n_slots,))
+        J[..., self.slot_cols] = np.einsum("nkei,ep->nkip", lin, S)
+        return balls, J
 
 
 def body_chain(machine: MachineTool, word: str) -> BodyChain:
@@ -89,7 +91,8 @@ def body_chain(machine: MachineTool, word: str) -> BodyChain:
                     *machine.axes[j].stroke) for j in used]
     chain = Chain.compile(ets, joints, name=f"{machine.name}:{word}", shared_slots=True)
     idx = {n: i for i, n in enumerate(machine.slot_names)}
-    return BodyChain(word, chain, np.array(used, dtype=int), np.array([idx[n] for n in chain.param_names], dtype=int))
+    return BodyChain(word, chain, np.array(used, dtype=int), np.array([idx[n] for n in chain.param_names], dtype=int),
+                     len(machine.slot_names))
 
 
 def swept_words(machine: MachineTool) -> tuple:
