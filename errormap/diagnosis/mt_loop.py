@@ -61,6 +61,9 @@ PERIOD_GRID_MM = np.geomspace(2.0, 60.0, 240)
 """Periods tried for a periodic (pitch) term on a linear axis: 2–60 mm, 1.4 % apart."""
 HARMONIC_ORDERS = np.arange(2, 121)
 """Orders tried for a harmonic on a rotary axis (per turn)."""
+ROUNDS = 2
+"""Update/search rounds: from the second on the update is made on the residual minus the effects found,
+so that it does not take an effect up, then the search starts afresh (as the grinder's loop)."""
 REF_TEMP_C = 20.0
 OLS_RCOND = 1e-6
 """The plain least-squares baseline drops directions whose singular value is below this fraction of the
@@ -402,6 +405,15 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     accepted, rejected = [], []
     if effects:
         accepted, rejected, r2 = effect_search(machine, checks, resid_of[last], fit_idx, hold_idx, max_effects)
+        for _ in range(ROUNDS - 1):  # backfitting: update without what the effects explain, search afresh
+            if not accepted or last != "updated":
+                break
+            contrib = resid_of["updated"] - r2
+            upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], (r0 - contrib)[fit_idx])
+            r1 = resid(upd.elements_)
+            models["updated"], resid_of["updated"], sigma = upd.elements_, r1, upd.sigma_um
+            stages["updated"] = dict(stats(r1), dof=upd.dof, note="re-made without the accepted effects' part")
+            accepted, rejected, r2 = effect_search(machine, checks, r1, fit_idx, hold_idx, max_effects)
         stages["updated_plus_effects" if last == "updated" else "identified_plus_effects"] = stats(r2)
         resid_of["plus_effects"] = r2
     final = "plus_effects" if effects else last
