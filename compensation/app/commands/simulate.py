@@ -35,7 +35,8 @@ def register(sub):
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
     if machine.kind == "machine-tool":
-        from ..workflows.mt_loop import simulate_chain
+        from ..workflows.mt_loop import parse_effects, simulate_chain
+        parse_effects(machine, args.effect)
         print(f"simulating truth {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
         info = simulate_chain(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
                               checks=args.checks, family=args.family)

@@ -39,7 +39,8 @@ def register(sub):
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
     if machine.kind == "machine-tool":
-        from ..workflows.mt_loop import sweeps_chain
+        from ..workflows.mt_loop import parse_effects, sweeps_chain
+        parse_effects(machine, args.effect)
         print(f"simulating tracker sweeps of {machine.name} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
               file=sys.stderr)
         path, n, what = sweeps_chain(machine, args.out, seed=args.seed, truth_file=args.truth, effects=args.effect,
