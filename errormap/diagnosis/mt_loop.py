@@ -20,7 +20,11 @@ Stages, each judged by the MEASURED residual (measurement − prediction) on the
    two linear axes), each term = the chain's error-Jacobian column of the axis' own-direction
    element times the effect's shape; fitted on the fitting checks, accepted only when it
    lowers the held-out squared residual norm, paired per point, by more than
-   :data:`HELD_OUT_Z` standard errors (rank order; the first that fails stops the search).
+   :data:`HELD_OUT_Z` standard errors (rank order; the first that fails stops the search). The
+   accepted effects are then re-fitted JOINTLY with the update (their columns free, the
+   elements with the prior; an update made alone takes up part of an effect it can imitate,
+   e.g. the mean thermal growth of the fitting period), and the search goes on from there
+   (:data:`ROUNDS`).
 
 The plain baselines beside them: the unregularised least-squares update (the same parameters
 fitted to the fitting checks with no prior, ``baseline_ols_update``) and OLS of the identified
@@ -62,8 +66,8 @@ PERIOD_GRID_MM = np.geomspace(2.0, 60.0, 240)
 HARMONIC_ORDERS = np.arange(2, 121)
 """Orders tried for a harmonic on a rotary axis (per turn)."""
 ROUNDS = 2
-"""Update/search rounds: from the second on the update is made on the residual minus the effects found,
-so that it does not take an effect up, then the search starts afresh (as the grinder's loop)."""
+"""Update/search rounds: from the second on the update is made jointly with the effects found (so that it
+does not take an effect up), then the search goes on (as the grinder's loop re-fits jointly)."""
 REF_TEMP_C = 20.0
 OLS_RCOND = 1e-6
 """The plain least-squares baseline drops directions whose singular value is below this fraction of the
@@ -208,11 +212,14 @@ class ChainUpdate:
     elements_: ChainElementSet
     sigma_um: float
     dof: float
+    extra_coef: np.ndarray | None = None
 
 
-def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_fit, residual_fit) -> ChainUpdate:
+def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_fit, residual_fit,
+                    extra=None) -> ChainUpdate:
     """Gaussian update of the element parameters from check residuals (n, 3) μm at ``axes_fit`` (n, k),
-    prior covariance ``cov`` (N, N) of the identification (module doc)."""
+    prior covariance ``cov`` (N, N) of the identification (module doc). ``extra`` (n, 3, c): effect
+    columns fitted jointly with no prior (their coefficients in ``ChainUpdate.extra_coef``)."""
     m = elements.machine
     M = parameter_matrix(m, elements, axes_fit, slot_names, stations).reshape(-1, len(slot_names))
     r = np.asarray(residual_fit, float).reshape(-1)
@@ -220,17 +227,24 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
     keep = lam > 1e-12 * lam.max()
     L = U[:, keep] * np.sqrt(lam[keep])                                  # Δθ = L·z, z ~ N(0, I)
     Mz = M @ L
-    Uz, S, Vt = np.linalg.svd(Mz, full_matrices=False)
-    ur = Uz.T @ r
-    sigma = float(np.sqrt(np.mean(r**2)))
+    rp, Mp = r, Mz
+    if extra is not None:  # free columns: project them out, min |P⊥(r − Mz·z)|²/σ² + |z|², then b = E⁺(r − Mz·z)
+        E = np.asarray(extra, float).reshape(-1, np.shape(extra)[-1])
+        Q, _ = np.linalg.qr(E)
+        rp, Mp = r - Q @ (Q.T @ r), Mz - Q @ (Q.T @ Mz)
+    Uz, S, Vt = np.linalg.svd(Mp, full_matrices=False)
+    ur = Uz.T @ rp
+    sigma = float(np.sqrt(np.mean(rp**2)))
+    n_extra = 0 if extra is None else np.shape(extra)[-1]
     for _ in range(SIGMA_ITERATIONS):
         f = S**2 / (S**2 + sigma**2)                                     # shrinkage per direction
         fit = Uz @ (f * ur)
-        dof = float(f.sum())
-        sigma = float(np.sqrt(np.sum((r - fit) ** 2) / max(r.size - dof, 1.0)))
+        dof = float(f.sum()) + n_extra
+        sigma = float(np.sqrt(np.sum((rp - fit) ** 2) / max(r.size - dof, 1.0)))
     f = S**2 / (S**2 + sigma**2)
     z = Vt.T @ (f * ur / np.where(S > 0, S, 1.0))
-    return ChainUpdate(apply_parameters(elements, slot_names, stations, L @ z), sigma, float(f.sum()))
+    coef = None if extra is None else np.linalg.lstsq(E, r - Mz @ z, rcond=None)[0]
+    return ChainUpdate(apply_parameters(elements, slot_names, stations, L @ z), sigma, float(f.sum()), coef)
 
 
 def ols_update(elements: ChainElementSet, slot_names, stations, axes_fit, residual_fit) -> ChainElementSet:
@@ -328,7 +342,8 @@ def _paired_z(r_before, r_after) -> float:
     return float(gain.mean() / (sd / np.sqrt(gain.size))) if sd > 0 else 0.0
 
 
-def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4):
+def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
+                  exclude=()):
     """Forward search (module doc): ``(accepted terms, rejected (kind, axes, z) list, residual after)``."""
     Je = machine.error_jacobian(checks.axes)
     r = np.asarray(residual, float).copy()
@@ -337,7 +352,7 @@ def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hol
     for _ in range(max_effects):
         scored = []
         for kind, words in cands:
-            if any(t.kind == kind and t.axes == words for t in accepted):
+            if any(t.kind == kind and t.axes == words for t in accepted) or (kind, words) in exclude:
                 continue
             rss, shape, c, el = _fit_shape(machine, kind, words, checks.axes[fit_idx],
                                            {k: v[fit_idx] for k, v in checks.conditions.items()}, r[fit_idx],
@@ -405,15 +420,25 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     accepted, rejected = [], []
     if effects:
         accepted, rejected, r2 = effect_search(machine, checks, resid_of[last], fit_idx, hold_idx, max_effects)
-        for _ in range(ROUNDS - 1):  # backfitting: update without what the effects explain, search afresh
+        for _ in range(ROUNDS - 1):  # the update made jointly with the accepted effects, then the search goes on
             if not accepted or last != "updated":
                 break
-            contrib = resid_of["updated"] - r2
-            upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], (r0 - contrib)[fit_idx])
-            r1 = resid(upd.elements_)
-            models["updated"], resid_of["updated"], sigma = upd.elements_, r1, upd.sigma_um
-            stages["updated"] = dict(stats(r1), dof=upd.dof, note="re-made without the accepted effects' part")
-            accepted, rejected, r2 = effect_search(machine, checks, r1, fit_idx, hold_idx, max_effects)
+            E = np.concatenate([effect_columns(machine, t.kind, t.axes, checks.axes, checks.conditions, t.shape or None)[0]
+                                for t in accepted], axis=2)
+            upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], extra=E[fit_idx])
+            k = 0
+            for t in accepted:
+                c = t.coefficients.size
+                t.coefficients, k = upd.extra_coef[k:k + c], k + c
+            r_joint = resid(upd.elements_) - np.einsum("nic,c->ni", E, upd.extra_coef)
+            models["joint"], sigma = upd.elements_, upd.sigma_um
+            more, rejected, r2 = effect_search(machine, checks, r_joint, fit_idx, hold_idx, max_effects - len(accepted),
+                                               exclude=[(t.kind, t.axes) for t in accepted])
+            accepted += more
+            if not more:
+                break
+        if accepted and "joint" in models:
+            models["updated_plus_effects"] = models["joint"]
         stages["updated_plus_effects" if last == "updated" else "identified_plus_effects"] = stats(r2)
         resid_of["plus_effects"] = r2
     final = "plus_effects" if effects else last
@@ -436,4 +461,5 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             ("estimated by the update" if sigma is not None else None),
             "noise_floor_um": floor, "held_out_rms_um": held,
             "held_out_over_floor": None if floor is None else float(held / floor),
-            "_models": {"elements": models.get("updated", elements), "terms": accepted}}
+            "_models": {"elements": models.get("updated_plus_effects" if kept == "plus_effects" else kept,
+                                               models.get("updated", elements)), "terms": accepted}}
