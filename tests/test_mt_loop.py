@@ -111,7 +111,7 @@ def test_identification_noise_free_is_exact(name):
     sw = sweeps_from_columns(simulate_mt_sweeps(t, noise_um=0.0, seed=7), axes=swept_words(m))
     res = ChainIdentification().fit(sw, m).result_
     assert not res.unobservable
-    g = volume_grid(m, 2000)
+    g = m.stroke_lo + (m.stroke_hi - m.stroke_lo) * np.random.default_rng(0).random((2000, len(m.axes)))
     d = np.linalg.norm(ChainField(m, res.elements_).predict(g) - t.spatial_error(g), axis=1)
     assert d.max() < NOISE_FREE_UM
 
