@@ -221,3 +221,15 @@ def test_cli_closed_loop_on_the_mill(tmp_path, capsys, mill):
     assert s["held_out_rms_um"] < st["identified"]["held_out"]["rms_um"]
     assert s["held_out_rms_um"] < st["baseline_ols_linear"]["held_out"]["rms_um"]
     assert s["noise_floor_um"] == pytest.approx(np.sqrt(3.0))
+
+
+def test_cli_refuses_options_the_chain_path_does_not_use(tmp_path, capsys, mill):
+    t = make_mt_truth(mill, 0)
+    write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
+    _one_line_exit2(capsys, ["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--gauge", "reference-line",
+                             "--out", str(tmp_path / "E.json")], "--gauge")
+    from errormap.io import write_csv
+    write_csv(tmp_path / "checks.csv", t.check_measurements(20, seed=1))
+    t.elements.save(tmp_path / "mill.json")
+    _one_line_exit2(capsys, ["diagnose", str(tmp_path / "checks.csv"), "--machine", "mill-xyz", "--model",
+                             str(tmp_path / "mill.json"), "--alpha", "0.05", "--out", str(tmp_path / "d")], "--alpha")

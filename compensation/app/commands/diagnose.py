@@ -96,7 +96,10 @@ def run(args) -> int:
             raise UsageError("CHECKS needs --model (element-set file or run id)")
         machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
         if machine.kind == "machine-tool":
-            from compensation.app.workflows.mt_loop import diagnose_chain, diagnosis_lines
+            from compensation.app.workflows.mt_loop import diagnose_chain, diagnosis_lines, refuse_options
+            refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "no_learned": False,
+                                  "retrain_iter": DEFAULT_MAX_ITER, "retrain_time_s": None},
+                           "diagnose on a machine-tool chain (element-set models; effects gated on held-out z)")
             print(f"diagnosing {args.checks} against {args.model} on {machine.name} ...", file=sys.stderr)
             summary, paths = diagnose_chain(args.checks, machine, args.model, args.out, fit_fraction=args.fit_fraction,
                                             noise_um=args.noise_um, max_effects=args.max_effects,

@@ -48,7 +48,9 @@ def register(sub):
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
     if machine.kind == "machine-tool":
-        from ..workflows.mt_loop import identify_chain_files
+        from ..workflows.mt_loop import identify_chain_files, refuse_options
+        refuse_options(args, {"plot": None, "truth": None, "raw": False, "noise_um": None, "gauge": "station-mean",
+                              "bootstrap": 100}, "identify on a machine-tool chain (Gauss-Newton, first-station gauge)")
         print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
         res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report)
         for line in res.summary_lines():

@@ -15,6 +15,13 @@ from errormap.seeds import spawn_seeds
 from compensation.app.validate import UsageError
 
 
+def refuse_options(args, defaults: dict, what: str) -> None:
+    """A UsageError naming the first option given that the chain path does not use (never ignored silently)."""
+    for k, d in defaults.items():
+        if getattr(args, k, d) != d:
+            raise UsageError(f"--{k.replace('_', '-')} is not used by {what}; leave it out")
+
+
 def parse_effects(machine, effects) -> list:
     """``KIND[:AXES]`` strings checked against the machine (one-line UsageError naming the known kinds)."""
     from errormap.mt_simulate import effect_key, parse_effect
