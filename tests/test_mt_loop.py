@@ -233,3 +233,17 @@ def test_cli_refuses_options_the_chain_path_does_not_use(tmp_path, capsys, mill)
     t.elements.save(tmp_path / "mill.json")
     _one_line_exit2(capsys, ["diagnose", str(tmp_path / "checks.csv"), "--machine", "mill-xyz", "--model",
                              str(tmp_path / "mill.json"), "--alpha", "0.05", "--out", str(tmp_path / "d")], "--alpha")
+
+
+def test_chain_checks_refuse_radians_and_metres(tmp_path, five):
+    from errormap.diagnosis.mt_loop import load_mt_checks
+    from errormap.io import InputError, write_csv
+    t = make_mt_truth(five, 0)
+    ck = t.check_measurements(40, seed=1)
+    assert len(load_mt_checks(write_csv(tmp_path / "ok.csv", ck), five)) == 40
+    bad = dict(ck, c_deg=np.deg2rad(ck["c_deg"]))
+    with pytest.raises(InputError, match=r"column 'c_deg'.*radians"):
+        load_mt_checks(write_csv(tmp_path / "rad.csv", bad), five)
+    bad = dict(ck, x_mm=ck["x_mm"] / 1000)
+    with pytest.raises(InputError, match=r"column 'x_mm'.*metres"):
+        load_mt_checks(write_csv(tmp_path / "m.csv", bad), five)

@@ -133,6 +133,20 @@ def load_mt_checks(path, machine: MachineTool, units: str = "check") -> MTChecks
             k = out[0]
             raise InputError(f"{path}: row {rows[k]}, column '{a.column}': check point outside the stroke "
                              f"[{lo:g}, {hi:g}] {a.unit}: {axes[k, j]:g}")
+    if units == "check" and len(axes) >= MIN_CHECKS:  # metres for mm, radians for degrees (as the grinder's check)
+        for j, a in enumerate(machine.axes):
+            span, stroke = float(np.ptp(axes[:, j])), a.stroke[1] - a.stroke[0]
+            k = int(np.argmax(np.abs(axes[:, j])))
+            if (a.kind == "linear" and 0 < span <= stroke / 200 and span * 1000 >= stroke / 4
+                    and np.abs(axes[:, j]).max() <= 1.5e-3 * max(abs(a.stroke[0]), abs(a.stroke[1]))):
+                raise InputError(f"{path}: row {rows[k]}, column '{a.column}': units do not fit: values span only "
+                                 f"{span:.4g} mm of the {stroke:g} mm stroke; 1000x that fits it: metres rather than mm? "
+                                 "(--units as-written if they are mm)")
+            on_grid = np.allclose(axes[:, j] * 2, np.round(axes[:, j] * 2), rtol=0, atol=1e-9)
+            if (a.kind == "rotary" and stroke >= 180 and np.all(np.abs(axes[:, j]) <= 2 * np.pi + 1e-6)
+                    and span >= 1.5 * np.pi and not on_grid):
+                raise InputError(f"{path}: row {rows[k]}, column '{a.column}': units do not fit: values lie within "
+                                 f"±2π and span {span:.4g}: radians rather than degrees? (--units as-written if degrees)")
     cond = {}
     for c in condition_columns(machine):
         if c in t:
