@@ -64,7 +64,7 @@ def effect_for(machine, seed: int) -> str:
     return kinds[seed % len(kinds)]
 
 
-def run_case(machine_name: str, seed: int, effect: str | None, work: Path) -> dict:
+def run_case(machine_name: str, seed: int, effect: str | None, work: Path, checks: int = CHECKS) -> dict:
     from compensation.app.cli import main
     from errormap.machine import load_machine
     from errormap.mt_elements import ChainElementSet
@@ -79,7 +79,7 @@ def run_case(machine_name: str, seed: int, effect: str | None, work: Path) -> di
         base = ["--machine", machine_name, "--seed", str(seed), "--family", "independent", *eff]
         assert main(["sweeps", *base, "--noise-um", str(SWEEP_NOISE_UM), "--seed-noise", str(1000 + seed),
                      "--out", str(d / "sweeps.csv")]) == 0
-        assert main(["simulate", *base, "--noise-um", str(CHECK_NOISE_UM), "--checks", str(CHECKS),
+        assert main(["simulate", *base, "--noise-um", str(CHECK_NOISE_UM), "--checks", str(checks),
                      "--out", str(d / "sim")]) == 0
         assert main(["identify", str(d / "sweeps.csv"), "--machine", machine_name, "--out", str(d / "E.json")]) == 0
         assert main(["diagnose", str(d / "sim" / "checks.csv"), "--machine", machine_name, "--model", str(d / "E.json"),
@@ -99,7 +99,7 @@ def run_case(machine_name: str, seed: int, effect: str | None, work: Path) -> di
     s = json.loads((d / "diag" / "diagnosis.json").read_text())
     st = s["stages"]
     found = [(e["kind"], e["axis"]) for e in s["effects"]]
-    row = {"machine": machine_name, "seed": seed, "case": effect or "none", "cpu_s": cpu,
+    row = {"machine": machine_name, "seed": seed, "case": effect or "none", "checks": checks, "cpu_s": cpu,
            "true_rms_identified_um": true_rms(d / "E.json"), "true_rms_updated_um": true_rms(d / "diag" / "updated_elements.json"),
            "truth_rms_um": float(np.sqrt(np.mean(np.sum(tr**2, axis=1)))),
            "kept_stage": s["kept_stage"], "held_out_kept_um": s["held_out_rms_um"],
@@ -136,7 +136,7 @@ def _med(v):
 def markdown(rows, meta) -> str:
     out = ["# Closed loop on machine-tool chain files (mill-xyz, five-axis-ac)", "",
            f"`{meta['command']}` on {meta['platform']}, {meta['date']}. User's path only: `volcomp sweeps` (tracker noise "
-           f"{SWEEP_NOISE_UM} μm, 21 stations per axis, unknown seeded tracker pose) → `volcomp simulate` ({CHECKS} checks, "
+           f"{SWEEP_NOISE_UM} μm, 21 stations per axis, unknown seeded tracker pose) → `volcomp simulate` ({CHECKS} checks unless a row says otherwise, "
            f"noise {CHECK_NOISE_UM} μm) → `volcomp identify` → `volcomp diagnose --noise-um {CHECK_NOISE_UM}` (blocked 60/40 "
            "split by seq), truth of the INDEPENDENT family (81-station truth, other shapes and magnitudes than the default "
            "simulator); the truth is read only to score. *TRUE* = the model's error field vs the hidden truth, RMS of "
@@ -150,12 +150,12 @@ def markdown(rows, meta) -> str:
                 "| case | seeds | TRUE RMS identified (μm, median) | TRUE RMS updated (μm) | held-out kept (μm) | "
                 "held-out / floor (median, max) | ≤ 1.25 | held-out identified | OLS linear | OLS update | named right / clean |",
                 "|---|---|---|---|---|---|---|---|---|---|---|"]
-        for case in sorted({r["case"] for r in R}, key=lambda c: (c != "none", c)):
-            C = [r for r in R if r["case"] == case]
+        for case, nck in sorted({(r["case"], r.get("checks", CHECKS)) for r in R}, key=lambda c: (c[0] != "none", c)):
+            C = [r for r in R if r["case"] == case and r.get("checks", CHECKS) == nck]
             ok = sum(r["ratio"] <= GOAL_RATIO for r in C)
             nr = (f"{sum(r['clean'] for r in C)}/{len(C)} clean" if case == "none"
                   else f"{sum(r['named_right'] for r in C)}/{len(C)} named")
-            out.append(f"| {case} | {len(C)} | {_med([r['true_rms_identified_um'] for r in C]):.2f} | "
+            out.append(f"| {case}{'' if nck == CHECKS else f' ({nck} checks)'} | {len(C)} | {_med([r['true_rms_identified_um'] for r in C]):.2f} | "
                        f"{_med([r['true_rms_updated_um'] for r in C]):.2f} | {_med([r['held_out_kept_um'] for r in C]):.2f} | "
                        f"{_med([r['ratio'] for r in C]):.2f}, {max(r['ratio'] for r in C):.2f} | {ok}/{len(C)} | "
                        f"{_med([r['held_out_identified_um'] for r in C]):.2f} | {_med([r['held_out_ols_linear_um'] for r in C]):.2f} | "
@@ -172,6 +172,8 @@ def main(argv=None) -> int:
     ap.add_argument("--machine", action="append", default=None, help="mill-xyz and/or five-axis-ac (default both)")
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--seed-start", type=int, default=0)
+    ap.add_argument("--checks", type=int, default=CHECKS, help=f"check measurements per run (default {CHECKS})")
+    ap.add_argument("--no-effects", action="store_true", help="only the no-effect case")
     args = ap.parse_args(argv)
     from errormap.machine import load_machine
     rows = load_rows()
@@ -182,9 +184,10 @@ def main(argv=None) -> int:
         for mname in machines:
             m = load_machine(mname)
             for seed in range(args.seed_start, args.seed_start + args.seeds):
-                for eff in (None, effect_for(m, seed)):
-                    row = run_case(mname, seed, eff, Path(tmp))
-                    rows = [r for r in rows if (r["machine"], r["seed"], r["case"]) != (mname, seed, row["case"])] + [row]
+                for eff in (None,) + (() if args.no_effects else (effect_for(m, seed),)):
+                    row = run_case(mname, seed, eff, Path(tmp), args.checks)
+                    key = (mname, seed, row["case"], args.checks)
+                    rows = [r for r in rows if (r["machine"], r["seed"], r["case"], r.get("checks", CHECKS)) != key] + [row]
                     print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
                     save(rows, meta)
     return 0
