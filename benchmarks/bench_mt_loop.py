@@ -135,7 +135,8 @@ def _med(v):
 
 def markdown(rows, meta) -> str:
     out = ["# Closed loop on machine-tool chain files (mill-xyz, five-axis-ac)", "",
-           f"`{meta['command']}` on {meta['platform']}, {meta['date']}. User's path only: `volcomp sweeps` (tracker noise "
+           "; ".join(f"`{c}`" for c in meta.get("commands", [meta.get("command", "")]))
+           + f" on {meta['platform']}, {meta['date']} (one job, nice -n 10). User's path only: `volcomp sweeps` (tracker noise "
            f"{SWEEP_NOISE_UM} μm, 21 stations per axis, unknown seeded tracker pose) → `volcomp simulate` ({CHECKS} checks unless a row says otherwise, "
            f"noise {CHECK_NOISE_UM} μm) → `volcomp identify` → `volcomp diagnose --noise-um {CHECK_NOISE_UM}` (blocked 60/40 "
            "split by seq), truth of the INDEPENDENT family (81-station truth, other shapes and magnitudes than the default "
@@ -174,12 +175,19 @@ def main(argv=None) -> int:
     ap.add_argument("--seed-start", type=int, default=0)
     ap.add_argument("--checks", type=int, default=CHECKS, help=f"check measurements per run (default {CHECKS})")
     ap.add_argument("--no-effects", action="store_true", help="only the no-effect case")
+    ap.add_argument("--render", action="store_true", help="only rebuild mt_loop_results.md from the JSON rows")
     args = ap.parse_args(argv)
     from errormap.machine import load_machine
     rows = load_rows()
     machines = args.machine or ["mill-xyz", "five-axis-ac"]
-    meta = {"command": "python benchmarks/bench_mt_loop.py " + " ".join(sys.argv[1:] if argv is None else argv),
+    old = json.loads(JSON_PATH.read_text())["meta"] if JSON_PATH.is_file() else {}
+    cmd = "python benchmarks/bench_mt_loop.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    meta = {"commands": [c for c in old.get("commands", [old["command"]] if "command" in old else []) if c != cmd]
+            + ([] if args.render else [cmd]),
             "platform": f"{platform.machine()} (Python {platform.python_version()})", "date": time.strftime("%Y-%m-%d")}
+    if args.render:  # rebuild the Markdown from the JSON rows only
+        save(rows, meta)
+        return 0
     with tempfile.TemporaryDirectory(prefix="mtloop-") as tmp:
         for mname in machines:
             m = load_machine(mname)
