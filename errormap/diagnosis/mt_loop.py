@@ -63,6 +63,9 @@ SIGMA_ITERATIONS = 8
 """Fixed-point steps of the check-noise estimate in the update (converges in a few)."""
 PERIOD_GRID_MM = np.geomspace(2.0, 60.0, 240)
 """Periods tried for a periodic (pitch) term on a linear axis: 2–60 mm, 1.4 % apart."""
+PERIOD_REFINE = 0.015
+"""Then ±1.5 % around the best grid period in 121 steps (0.025 %): a 1 % period error over 40 cycles of a
+400 mm stroke is 0.4 of a cycle."""
 HARMONIC_ORDERS = np.arange(2, 121)
 """Orders tried for a harmonic on a rotary axis (per turn)."""
 ROUNDS = 2
@@ -230,13 +233,17 @@ class ChainUpdate:
 
 
 def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_fit, residual_fit,
-                    extra=None) -> ChainUpdate:
+                    extra=None, extra_shift=None) -> ChainUpdate:
     """Gaussian update of the element parameters from check residuals (n, 3) μm at ``axes_fit`` (n, k),
     prior covariance ``cov`` (N, N) of the identification (module doc). ``extra`` (n, 3, c): effect
-    columns fitted jointly with no prior (their coefficients in ``ChainUpdate.extra_coef``)."""
+    columns fitted jointly with no prior (their coefficients in ``ChainUpdate.extra_coef``);
+    ``extra_shift`` (N, c): what each effect coefficient put into the identified parameters during
+    the sweeps (its samples at the stations): the prior mean moves by ``−extra_shift·coef``."""
     m = elements.machine
     M = parameter_matrix(m, elements, axes_fit, slot_names, stations).reshape(-1, len(slot_names))
     r = np.asarray(residual_fit, float).reshape(-1)
+    if extra is not None and extra_shift is not None:
+        extra = np.asarray(extra, float) - (M @ extra_shift).reshape(np.shape(extra))
     lam, U = np.linalg.eigh(0.5 * (cov + cov.T))
     keep = lam > 1e-12 * lam.max()
     L = U[:, keep] * np.sqrt(lam[keep])                                  # Δθ = L·z, z ~ N(0, I)
@@ -258,7 +265,8 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
     f = S**2 / (S**2 + sigma**2)
     z = Vt.T @ (f * ur / np.where(S > 0, S, 1.0))
     coef = None if extra is None else np.linalg.lstsq(E, r - Mz @ z, rcond=None)[0]
-    return ChainUpdate(apply_parameters(elements, slot_names, stations, L @ z), sigma, float(f.sum()), coef)
+    delta = L @ z - (extra_shift @ coef if extra_shift is not None else 0.0)
+    return ChainUpdate(apply_parameters(elements, slot_names, stations, delta), sigma, float(f.sum()), coef)
 
 
 def ols_update(elements: ChainElementSet, slot_names, stations, axes_fit, residual_fit) -> ChainElementSet:
@@ -347,6 +355,16 @@ def _fit_shape(machine, kind, words, axes, cond, r, Je):
         rss = float(np.sum((r.reshape(-1) - X @ c) ** 2))
         if best is None or rss < best[0]:
             best = (rss, shape, c, el)
+    if kind == "periodic":  # refine: over a long stroke a 1.4 % period error drifts by cycles
+        p0 = best[1]["period_mm"]
+        for p in p0 * (1.0 + np.linspace(-PERIOD_REFINE, PERIOD_REFINE, 121)):
+            shape = {"period_mm": float(p)}
+            C, el = effect_columns(machine, kind, words, axes, cond, shape, Je)
+            X = C.reshape(-1, C.shape[2])
+            c = np.linalg.lstsq(X, r.reshape(-1), rcond=None)[0]
+            rss = float(np.sum((r.reshape(-1) - X @ c) ** 2))
+            if rss < best[0]:
+                best = (rss, shape, c, el)
     return best
 
 
@@ -385,6 +403,40 @@ def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hol
         accepted.append(EffectTerm(kind, words, el, shape or {}, c, z))
         r = r - contrib
     return accepted, rejected, r
+
+
+def sweep_shift(machine: MachineTool, elements: ChainElementSet, term: EffectTerm, slot_names, stations, cov):
+    """(N, c): per coefficient of ``term``, what it added to the identified parameters through the
+    sweeps — its element sampled at its axis' stations under the sweeps' conditions (reference
+    temperature, positive approach): a periodic or harmonic term aliased at the stations, a reversal's
+    +b/2. Stations the gauge holds at zero (zero prior variance) take the samples relative to the first
+    station's. Thermal (sweeps at 20 °C) and interaction (the other axes parked at their lower ends)
+    leave nothing there."""
+    N = len(slot_names)
+    c = term.coefficients.size
+    S = np.zeros((N, c))
+    if term.kind not in ("periodic", "harmonic", "reversal"):
+        return S
+    a = next(a for a in machine.axes if a.word == term.axes[0])
+    st = elements.stations[a.column]
+    if term.kind == "periodic":
+        ph = 2 * np.pi * st / term.shape["period_mm"]
+        f = np.stack([np.sin(ph), np.cos(ph)], axis=1)
+    elif term.kind == "harmonic":
+        ph = term.shape["order"] * np.deg2rad(st)
+        f = np.stack([np.sin(ph), np.cos(ph)], axis=1)
+    else:
+        f = np.full((st.size, 1), 0.5)
+    idx = {(s, i): j for j, (s, i) in enumerate(zip(slot_names, stations))}
+    j0 = idx.get((term.element, 0))
+    if j0 is None:
+        return S
+    rel = cov[j0, j0] <= 0.0  # station 0 held by the gauge
+    for i in range(st.size):
+        j = idx.get((term.element, i))
+        if j is not None:
+            S[j] = f[i] - (f[0] if rel else 0.0)
+    return S
 
 
 # -- the loop -----------------------------------------------------------------------------------
@@ -439,7 +491,9 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
                 break
             E = np.concatenate([effect_columns(machine, t.kind, t.axes, checks.axes, checks.conditions, t.shape or None)[0]
                                 for t in accepted], axis=2)
-            upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], extra=E[fit_idx])
+            shift = np.concatenate([sweep_shift(machine, elements, t, slot_names, stations, C) for t in accepted], axis=1)
+            upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], extra=E[fit_idx],
+                                  extra_shift=shift)
             k = 0
             for t in accepted:
                 c = t.coefficients.size
