@@ -274,8 +274,9 @@ def columns_from_table(table) -> dict:
     return cols
 
 
-def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "") -> Sweeps:
-    """Group sweep columns (as from :func:`simulate_sweeps` or a file) by axis and station.
+def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "", axes=SWEEP_AXES) -> Sweeps:
+    """Group sweep columns (as from :func:`simulate_sweeps` or a file) by axis and station;
+    ``axes``: the axis words to group (the grinder's X, Z, A; a chain machine's from its file).
 
     Refuses duplicated rows, missing targets, missing stations, inconsistent commands and
     commands that do not increase with the station number, naming the axis and station.
@@ -302,7 +303,7 @@ def sweeps_from_columns(cols: dict, source: str = "<columns>", setup: str = "") 
             raise InputError(f"{where(bad[0])}, column 'temp_c': units do not fit: {bad[1]}")
 
     out = {}
-    for ax in SWEEP_AXES:
+    for ax in axes:
         sel = np.flatnonzero(axis == ax)
         if sel.size == 0:
             continue

@@ -245,7 +245,7 @@ RULES: dict[str, dict] = {
                  "bootstrap": Count(2, MAX_BOOTSTRAP, "bootstrap draws")},
     "sweeps": {"out": OUT_FILE, "noise_um": non_negative("um"), "warmup_c": Number(-100.0, 100.0, unit="degC")},
     "diagnose": {"out": OUT_DIR, "fit_fraction": FRACTION, "alpha": FRACTION, "max_effects": Count(1),
-                 "retrain_iter": ITER, "retrain_time_s": positive("s")},
+                 "noise_um": positive("um"), "retrain_iter": ITER, "retrain_time_s": positive("s")},
     "calibrate": {"out": OUT_DIR, "holdout": FRACTION, "noise_um": positive("um"), "lever_mm": positive("mm"),
                   "folds": Count(2, 20, "CV folds of the learned stage")},
     "interpolate": {"out": OUT_FILE, "report": OUT_FILE, "sensitivity_plot": OUT_FILE,

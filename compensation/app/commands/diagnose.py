@@ -5,7 +5,7 @@ import math
 import sys
 
 from errormap.diagnosis.pipeline import DiagnosisSettings
-from errormap.machine import load_machine
+from errormap.machine import check_machine_kind, load_machine
 from training import DEFAULT_MAX_ITER
 from compensation.app.validate import UsageError
 
@@ -19,7 +19,12 @@ def register(sub):
                     "Writes DIR/diagnosis.json and DIR/report.html.")
     p.add_argument("checks", nargs="?", help="check-measurement CSV (x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, ...)")
     p.add_argument("--drift", default=None, metavar="LOG", help="drift log CSV (time_s, temp_<sensor>_c, <channel>_um)")
-    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in grinder. "
+                                                     "A machine-tool chain (mill-xyz, ...) runs the generic loop "
+                                                     "(errormap/diagnosis/mt_loop.py)")
+    p.add_argument("--noise-um", type=float, default=None,
+                   help="machine-tool chain: the checks' known noise σ per axis (μm) for the noise floor √3·σ; "
+                        "default: estimated by the update")
     p.add_argument("--model", default=None, help="element-set file (JSON) or MLflow run id of a learned field")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--tracking-uri", default=None)
@@ -89,7 +94,24 @@ def run(args) -> int:
     else:
         if args.model is None:
             raise UsageError("CHECKS needs --model (element-set file or run id)")
-        machine = load_machine(args.machine, expect_kind="grinder")
+        machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+        if machine.kind == "machine-tool":
+            from compensation.app.workflows.mt_loop import diagnose_chain, diagnosis_lines, refuse_options
+            refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "no_learned": False,
+                                  "retrain_iter": DEFAULT_MAX_ITER, "retrain_time_s": None},
+                           "diagnose on a machine-tool chain (element-set models; effects gated on held-out z)")
+            print(f"diagnosing {args.checks} against {args.model} on {machine.name} ...", file=sys.stderr)
+            summary, paths = diagnose_chain(args.checks, machine, args.model, args.out, fit_fraction=args.fit_fraction,
+                                            noise_um=args.noise_um, max_effects=args.max_effects,
+                                            update=not args.no_update, units=args.units)
+            for line in diagnosis_lines(summary):
+                print(line)
+            for p in paths:
+                print(f"wrote {p}")
+            return 0
+        check_machine_kind(machine.path, machine.kind, "grinder")
+        if args.noise_um is not None:
+            raise UsageError("--noise-um is for a machine-tool chain's checks (the grinder's loop estimates it)")
         settings = DiagnosisSettings(fit_fraction=args.fit_fraction, alpha=args.alpha, max_effects=args.max_effects)
         retrain = _retrain_settings(args)
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)

@@ -5,7 +5,7 @@ import sys
 
 from errormap.elements import ElementSet
 from errormap.identification import GAUGES
-from errormap.machine import load_machine
+from errormap.machine import check_machine_kind, load_machine
 from errormap.sweeps import read_sweeps
 
 
@@ -20,7 +20,9 @@ def register(sub):
                                    "line from the rotary body's initial state, B-spline elements. See "
                                    "docs/identification.md.")
     p.add_argument("sweeps", nargs="+", help="sweep file(s) (CSV) of one tracker set-up")
-    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in grinder. "
+                                                     "A machine-tool chain (mill-xyz, five-axis-ac, ...) is identified "
+                                                     "by Gauss-Newton on all balls (errormap/mt_identify.py)")
     p.add_argument("--out", required=True, help="output element-set file (JSON)")
     p.add_argument("--report", default=None,
                    help="identification report (JSON: conditioning, residuals per station); default OUT.report.json")
@@ -44,7 +46,20 @@ def register(sub):
 
 
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind="grinder")
+    machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+    if machine.kind == "machine-tool":
+        from ..workflows.mt_loop import identify_chain_files, refuse_options
+        refuse_options(args, {"plot": None, "truth": None, "raw": False, "noise_um": None, "gauge": "station-mean",
+                              "bootstrap": 100}, "identify on a machine-tool chain (Gauss-Newton, first-station gauge)")
+        print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
+        res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report)
+        for line in res.summary_lines():
+            print(line)
+        print(f"wrote elements: {el_path}")
+        print(f"wrote covariance: {cov_path}")
+        print(f"wrote report: {report}")
+        return 0
+    check_machine_kind(machine.path, machine.kind, "grinder")
     truth = ElementSet.load(args.truth) if args.truth else None
     sweeps = read_sweeps(args.sweeps)
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)

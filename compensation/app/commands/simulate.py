@@ -2,10 +2,11 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
-from errormap.machine import load_machine
+from errormap.machine import check_machine_kind, load_machine
 from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP
-
+from compensation.app.validate import UsageError
 
 from ..workflows.simulate import simulate_truth, summary_lines
 
@@ -13,21 +14,40 @@ from ..workflows.simulate import simulate_truth, summary_lines
 def register(sub):
     p = sub.add_parser("simulate", help="simulate a truth grinder: elements, feature points, check measurements",
                        description="Write DIR/truth_elements.json, DIR/featurepoints.csv, DIR/checks.csv and DIR/truth.json.")
-    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name (mill-xyz, five-axis-ac, ...); "
+                                                     "default: the built-in grinder")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--family", choices=("default", "independent"), default="default",
                    help="truth family: default (the simulator) or independent (other shapes, magnitudes, effect "
                         "parameters and check layout; errormap/truth_families.py)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--effect", action="append", default=[], choices=EFFECT_CHOICES,
-                   help="add an undeclared effect (repeatable): " + EFFECT_HELP)
+    p.add_argument("--effect", action="append", default=[],
+                   help="add an undeclared effect (repeatable): grinder " + EFFECT_HELP + "; a machine-tool "
+                        "chain KIND[:AXES] with KIND thermal, reversal, periodic (pitch), harmonic (worm), interaction, "
+                        "e.g. periodic:Y, harmonic:C, interaction:X*Z")
     p.add_argument("--noise-um", type=float, default=1.0, help="check-measurement noise σ per axis (μm)")
     p.add_argument("--checks", type=int, default=400, help="number of check measurements")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind="grinder")
+    machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+    if machine.kind == "machine-tool":
+        from ..workflows.mt_loop import parse_effects, simulate_chain
+        parse_effects(machine, args.effect)
+        print(f"simulating truth {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
+        info = simulate_chain(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
+                              checks=args.checks, family=args.family)
+        print(f"max spatial error {info['max_spatial_error_um']:.1f} μm over the volume (reference temperature, "
+              "positive approach)")
+        for k, v in info["files"].items():
+            print(f"wrote {k}: {v}")
+        print(f"wrote truth: {Path(args.out) / 'truth.json'}")
+        return 0
+    check_machine_kind(machine.path, machine.kind, "grinder")
+    bad = [e for e in args.effect if e not in EFFECT_CHOICES]
+    if bad:
+        raise UsageError(f"--effect: unknown effect {bad[0]!r} for the grinder (expected one of {', '.join(EFFECT_CHOICES)})")
     print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
     info = simulate_truth(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
                           checks=args.checks, family=getattr(args, "family", "default"))

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from errormap.elements import ElementSet
-from errormap.machine import load_machine
+from errormap.machine import check_machine_kind, load_machine
 from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP, TruthGrinder
 from errormap.sweeps import simulate_sweeps, write_sweeps
 from compensation.app.validate import UsageError
@@ -15,12 +15,14 @@ def register(sub):
                        description="Three target balls per moving body (machine file [targets]), 21 stations per "
                                    "axis, the tracker at a seeded unknown pose, isotropic noise. Writes one sweep "
                                    "file (one tracker set-up, axes X, Z and A).")
-    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
+    p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name (mill-xyz, five-axis-ac, ...); "
+                                                     "default: the built-in grinder")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element-set file (JSON)")
     src.add_argument("--seed", type=int, default=None, help="seed of a random truth grinder (as `volcomp simulate`)")
-    p.add_argument("--effect", action="append", default=[], choices=EFFECT_CHOICES,
-                   help="undeclared effect in the truth (repeatable): " + EFFECT_HELP)
+    p.add_argument("--effect", action="append", default=[],
+                   help="undeclared effect in the truth (repeatable): grinder " + EFFECT_HELP + "; a "
+                        "machine-tool chain KIND[:AXES] as `volcomp simulate`")
     p.add_argument("--family", choices=("default", "independent"), default="default",
                    help="truth family: default (the simulator) or independent (other shapes, magnitudes, effect "
                         "parameters and check layout; errormap/truth_families.py)")
@@ -35,7 +37,21 @@ def register(sub):
 
 
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind="grinder")
+    machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+    if machine.kind == "machine-tool":
+        from ..workflows.mt_loop import parse_effects, sweeps_chain
+        parse_effects(machine, args.effect)
+        print(f"simulating tracker sweeps of {machine.name} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
+              file=sys.stderr)
+        path, n, what = sweeps_chain(machine, args.out, seed=args.seed, truth_file=args.truth, effects=args.effect,
+                                     family=args.family, noise_um=args.noise_um, seed_noise=args.seed_noise,
+                                     bidirectional=args.bidirectional, warmup_c=args.warmup_c, setup=args.setup)
+        print(f"wrote {n} ball measurements of {what} to {path}")
+        return 0
+    check_machine_kind(machine.path, machine.kind, "grinder")
+    bad = [e for e in args.effect if e not in EFFECT_CHOICES]
+    if bad:
+        raise UsageError(f"--effect: unknown effect {bad[0]!r} for the grinder (expected one of {', '.join(EFFECT_CHOICES)})")
     if args.truth is not None:
         if args.effect:
             raise UsageError("--effect needs --seed (a truth element file carries no effects)")

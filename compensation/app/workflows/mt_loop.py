@@ -1,0 +1,163 @@
+"""The measurement side on any machine-tool chain file (``kind = "machine-tool"``): ``simulate``,
+``sweeps``, ``identify`` and ``diagnose`` when ``--machine`` names one (``mill-xyz``,
+``five-axis-ac``, a path). The grinder's commands are unchanged (its built-in file stays the
+default); these are the generic forms (``errormap/mt_simulate.py``, ``mt_sweeps.py``,
+``mt_identify.py``, ``diagnosis/mt_loop.py``)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from errormap.io import InputError, companion_path, decode_text, write_csv, write_json
+from errormap.seeds import spawn_seeds
+from compensation.app.validate import UsageError
+
+
+def refuse_options(args, defaults: dict, what: str) -> None:
+    """A UsageError naming the first option given that the chain path does not use (never ignored silently)."""
+    for k, d in defaults.items():
+        if getattr(args, k, d) != d:
+            raise UsageError(f"--{k.replace('_', '-')} is not used by {what}; leave it out")
+
+
+def parse_effects(machine, effects) -> list:
+    """``KIND[:AXES]`` strings checked against the machine (one-line UsageError naming the known kinds)."""
+    from errormap.mt_simulate import effect_key, parse_effect
+    out = []
+    for e in effects:
+        try:
+            out.append(effect_key(*parse_effect(machine, e)))
+        except ValueError as exc:
+            raise UsageError(f"--effect: {exc}") from None
+    return out
+
+
+def make_truth(machine, seed: int, effects=(), family: str = "default"):
+    from errormap.mt_simulate import make_mt_truth
+    return make_mt_truth(machine, seed, effects=parse_effects(machine, effects), family=family)
+
+
+def simulate_chain(machine, seed: int, out, effects=(), noise_um: float = 1.0, checks: int = 400,
+                   family: str = "default") -> dict:
+    """Write ``out/truth_elements.json`` (hidden truth), ``checks.csv`` and ``truth.json``."""
+    from errormap.mt_simulate import volume_grid
+    out = Path(out)
+    truth = make_truth(machine, seed, effects, family)
+    el_path = truth.elements.save(out / "truth_elements.json")
+    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=spawn_seeds(seed, 1)[0])
+    ck_path = write_csv(out / "checks.csv", measured, header_comments=[
+        "format: volcomp-checks/1", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}",
+        f"noise_um: {noise_um}", f"effects: {','.join(truth.effects) or 'none'}"])
+    grid = volume_grid(machine)
+    e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
+    info = {"seed": seed, "machine": machine.name, "machine_file": machine.path, "family": family,
+            "effects": truth.effects, "noise_um": noise_um, "max_spatial_error_um": float(e.max()),
+            "files": {"elements": str(el_path), "checks": str(ck_path)}}
+    write_json(out / "truth.json", info)
+    return info
+
+
+def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="default", noise_um=2.0, seed_noise=0,
+                 bidirectional=False, warmup_c=0.0, setup="setup-1") -> tuple:
+    """Simulate and write a sweep file of a truth (seeded, or an element-set file); ``(path, rows)``."""
+    from errormap.mt_elements import ChainElementSet
+    from errormap.mt_simulate import MTTruth
+    from errormap.mt_sweeps import simulate_mt_sweeps, write_sweeps
+    if truth_file is not None:
+        if effects:
+            raise UsageError("--effect needs --seed (a truth element file carries no effects)")
+        truth = MTTruth(machine, ChainElementSet.load(truth_file, machine), {})
+        what = f"truth {truth_file}"
+    else:
+        truth = make_truth(machine, seed, effects, family)
+        what = f"truth seed {seed} ({family} family)"
+    cols = simulate_mt_sweeps(truth, noise_um=noise_um, seed=seed_noise, bidirectional=bidirectional, warmup_c=warmup_c)
+    path = write_sweeps(out, cols, comments=[
+        f"setup: {setup}", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}", f"truth: {what}",
+        f"effects: {','.join(truth.effects) or 'none'}", f"noise_um: {noise_um}", f"seed_noise: {seed_noise}",
+        "tracker pose: seeded, unknown to the identification",
+        "each axis swept with the others parked at the lower ends of their strokes"])
+    return path, len(cols["axis"]), what
+
+
+def identify_chain_files(machine, sweep_files, out, report=None) -> tuple:
+    """Identify from one sweep file; write the element set, ``OUT.cov.npz`` and the report."""
+    from errormap.mt_identify import ChainIdentification
+    from errormap.mt_sweeps import read_mt_sweeps
+    if len(sweep_files) != 1:
+        raise UsageError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
+                         f"{len(sweep_files)}")
+    sweeps = read_mt_sweeps(sweep_files[0], machine)
+    res = ChainIdentification().fit(sweeps, machine).result_
+    cov_path = res.save_covariance(companion_path(out, ".cov.npz"))
+    report = Path(report) if report else companion_path(out, ".report.json")
+    info = res.to_dict()
+    info.update({"sweeps": [str(s) for s in sweep_files], "machine": machine.name, "machine_file": machine.path,
+                 "machine_sha256": machine.sha256, "elements_file": str(out), "covariance_file": str(cov_path),
+                 "iso230_names": dict(zip(machine.slot_names, machine.iso_names))})
+    write_json(report, info)
+    el_path = res.elements_.save(out)
+    return res, el_path, cov_path, report
+
+
+def load_chain_model(path, machine):
+    """An element set of ``machine`` (format key ``volcomp-elements/1``) and its covariance beside it
+    (``NAME.cov.npz``) when present."""
+    from errormap.mt_elements import ELEMENTS_FORMAT, ChainElementSet
+    from errormap.mt_identify import load_covariance
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such model file (a machine-tool chain takes an element-set file)")
+    try:
+        fmt = json.loads(decode_text(p.read_bytes(), p)).get("format")
+    except (json.JSONDecodeError, AttributeError, RecursionError):
+        fmt = None
+    if fmt != ELEMENTS_FORMAT:
+        raise InputError(f"{p}: key 'format': expected {ELEMENTS_FORMAT!r} (an element set of {machine.name!r}), "
+                         f"got {fmt!r}")
+    el = ChainElementSet.load(p, machine)
+    cp = companion_path(p, ".cov.npz")
+    return el, (load_covariance(cp) if cp.is_file() else None), (cp if cp.is_file() else None)
+
+
+def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=None, effects=True,
+                   max_effects=4, update=True, units="check") -> tuple:
+    """Held-out measured residual of an element set on checks (stages, noise floor, effects); writes
+    ``out/diagnosis.json`` and ``out/updated_elements.json``."""
+    from errormap.diagnosis.mt_loop import closed_loop_chain, load_mt_checks
+    el, cov, cov_path = load_chain_model(model, machine)
+    checks = load_mt_checks(checks_path, machine, units=units)
+    try:
+        summary = closed_loop_chain(machine, el, checks, cov=cov if update else None, fit_fraction=fit_fraction,
+                                    noise_um=noise_um, effects=effects, max_effects=max_effects)
+    except ValueError as exc:
+        raise InputError(f"{checks_path}: {exc}") from None
+    models = summary.pop("_models")
+    summary.update({"checks": str(checks_path), "model": str(model), "covariance": str(cov_path) if cov_path else None,
+                    "update": bool(update and cov is not None)})
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    models["elements"].save(out / "updated_elements.json")   # each file written whole (temporary file, rename)
+    write_json(out / "diagnosis.json", summary)
+    return summary, [out / "diagnosis.json", out / "updated_elements.json"]
+
+
+def diagnosis_lines(summary) -> list:
+    st = summary["stages"]
+    lines = []
+    for k, v in st.items():
+        if "held_out" in v:
+            lines.append(f"{k}: held-out MEASURED RMS {v['held_out']['rms_um']:.3g} um (fitting {v['fitting']['rms_um']:.3g} um)")
+        else:
+            lines.append(f"{k}: {v.get('failed', 'not run')}")
+    for e in summary["effects"]:
+        lines.append(f"effect: {e['kind']} axis {e['axis']} on {e['element']} (held-out gain z = {e['held_out_gain_z']:.1f})")
+    if not summary["effects"]:
+        lines.append("no effect found")
+    lines.append(f"kept stage: {summary['kept_stage']} ({summary['kept_why']})")
+    if summary["noise_floor_um"] is not None:
+        lines.append(f"noise floor {summary['noise_floor_um']:.3g} um (sigma {summary['noise_sigma_um']:.3g} um, "
+                     f"{summary['noise_sigma_source']}); held-out / floor = {summary['held_out_over_floor']:.3g}")
+    return lines

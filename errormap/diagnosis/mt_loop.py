@@ -1,0 +1,533 @@
+"""The closed loop on ANY machine-tool chain: checks → held-out measured residual, update, effects.
+
+The generic form of :mod:`errormap.diagnosis.loop` (the grinder's), over the machine's axes and
+element slots. Check measurements (``docs/schemas.md``): columns = the machine's axis columns
+(``x_mm, y_mm, z_mm, a_deg, c_deg`` …) and ``dx_um, dy_um, dz_um``; optional ``time_s``,
+``temp_c``, ``dir_<w>`` (+1/−1 per axis word), ``seq``. Blocked split as the grinder's: the
+first ``fit_fraction`` of the checks by ``seq`` fit, the rest is held out (a later time).
+
+Stages, each judged by the MEASURED residual (measurement − prediction) on the held-out checks:
+
+1. **identified** — the sweep identification as it is;
+2. **updated** — the element parameters re-estimated from the fitting checks with the sweep
+   identification's covariance as the prior (Gaussian, :func:`update_elements`): the tool-point
+   error is linear in small changes of the station values (spline basis) and constants through
+   the chain's error Jacobian; the check noise σ is estimated with the update (fixed point on
+   the residual with its effective degrees of freedom);
+3. **updated + effects** — a forward search over the generic effect kinds on every axis the
+   kind acts on (:data:`errormap.mt_simulate.EFFECT_KINDS`: thermal growth and periodic on
+   any linear axis, reversal on any axis, harmonic on any rotary axis, interaction between any
+   two linear axes), each term = the chain's error-Jacobian column of the axis' own-direction
+   element times the effect's shape; fitted on the fitting checks, accepted only when it
+   lowers the held-out squared residual norm, paired per point, by more than
+   :data:`HELD_OUT_Z` standard errors (rank order; the first that fails stops the search). The
+   accepted effects are then re-fitted JOINTLY with the update (their columns free, the
+   elements with the prior; an update made alone takes up part of an effect it can imitate,
+   e.g. the mean thermal growth of the fitting period), and the search goes on from there
+   (:data:`ROUNDS`).
+
+The plain baselines beside them: the unregularised least-squares update (the same parameters
+fitted to the fitting checks with no prior, ``baseline_ols_update``) and OLS of the identified
+model's residual on all axis columns (``baseline_ols_linear``). The model handed on is the last stage unless a
+plainer one (identified, updated) is better on the held-out checks by more than
+:data:`FALLBACK_Z` paired standard errors; ``kept_stage`` says which.
+
+Noise floor of the held-out figure: ``√3·σ`` (vector norm of isotropic noise σ per axis) with
+σ given (``noise_um``) or estimated by the update.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import make_interp_spline
+
+from ..io import InputError, read_table
+from ..mt_chain import MachineTool
+from ..mt_elements import ChainElementSet
+from ..stats import residual_stats
+from ..units import temperature_mistake
+
+ERROR_COLUMNS = ("dx_um", "dy_um", "dz_um")
+MAX_ERROR_UM = 5000.0
+"""Largest plausible measured error component (μm), as the grinder's checks."""
+STROKE_TOL = 1e-6
+MIN_CHECKS = 10
+FALLBACK_Z = 2.0
+"""A plainer stage replaces the final one when it lowers the held-out squared residual norm, paired per
+point, by more than 2 standard errors (one-sided p ≈ 0.02), as the grinder's loop."""
+HELD_OUT_Z = 3.0
+"""An effect is accepted when it lowers the held-out squared residual norm, paired per point, by more than
+3 standard errors (one-sided p ≈ 0.001; a few candidates in rank order), as the grinder's loop."""
+SIGMA_ITERATIONS = 8
+"""Fixed-point steps of the check-noise estimate in the update (converges in a few)."""
+PERIOD_GRID_MM = np.geomspace(2.0, 60.0, 240)
+"""Periods tried for a periodic (pitch) term on a linear axis: 2–60 mm, 1.4 % apart."""
+PERIOD_REFINE = 0.015
+"""Then ±1.5 % around the best grid period in 121 steps (0.025 %): a 1 % period error over 40 cycles of a
+400 mm stroke is 0.4 of a cycle."""
+HARMONIC_ORDERS = np.arange(2, 121)
+"""Orders tried for a harmonic on a rotary axis (per turn)."""
+ROUNDS = 2
+"""Update/search rounds: from the second on the update is made jointly with the effects found (so that it
+does not take an effect up), then the search goes on (as the grinder's loop re-fits jointly)."""
+REF_TEMP_C = 20.0
+OLS_RCOND = 1e-6
+"""The plain least-squares baseline drops directions whose singular value is below this fraction of the
+largest (numerically undetermined by the checks; min-norm there), else it returns values beyond any machine."""
+
+
+@dataclass
+class MTChecks:
+    """Checks of a machine tool in ``seq`` order: ``axes`` (n, k), ``measured_um`` (n, 3),
+    ``conditions`` (name -> (n,)), ``seq`` (n,), ``rows`` (n,) file lines."""
+
+    axes: np.ndarray
+    measured_um: np.ndarray
+    conditions: dict = field(default_factory=dict)
+    seq: np.ndarray | None = None
+    rows: np.ndarray | None = None
+    path: str = "<checks>"
+
+    def __post_init__(self):
+        n = len(self.axes)
+        self.seq = np.arange(n) if self.seq is None else np.asarray(self.seq, dtype=np.int64)
+        self.rows = np.zeros(n, dtype=np.int64) if self.rows is None else np.asarray(self.rows)
+        o = np.argsort(self.seq, kind="stable")
+        self.axes, self.measured_um = np.asarray(self.axes, float)[o], np.asarray(self.measured_um, float)[o]
+        self.conditions = {k: np.asarray(v, float)[o] for k, v in self.conditions.items()}
+        self.seq, self.rows = self.seq[o], self.rows[o]
+
+    def __len__(self):
+        return len(self.axes)
+
+    @classmethod
+    def from_columns(cls, machine: MachineTool, cols: dict, path: str = "<checks>") -> "MTChecks":
+        axes = np.stack([np.asarray(cols[c], float) for c in machine.axis_columns], axis=1)
+        meas = np.stack([np.asarray(cols[c], float) for c in ERROR_COLUMNS], axis=1)
+        cond = {k: np.asarray(v, float) for k, v in cols.items() if k in condition_columns(machine)}
+        return cls(axes, meas, cond, cols.get("seq"), None, path)
+
+
+def condition_columns(machine: MachineTool) -> tuple:
+    return ("time_s", "temp_c") + tuple(f"dir_{a.word.lower()}" for a in machine.axes)
+
+
+def load_mt_checks(path, machine: MachineTool, units: str = "check") -> MTChecks:
+    """Read and validate a machine tool's check CSV (module doc); errors name file, row, column."""
+    t = read_table(path)
+    t.require(*machine.axis_columns, *ERROR_COLUMNS)
+    if len(t) < MIN_CHECKS:
+        raise InputError(f"{path}: expected at least {MIN_CHECKS} check measurements, got {len(t)}")
+    rows = np.array([t.row_number(k) for k in range(len(t))])
+    axes = np.stack([t.float(c) for c in machine.axis_columns], axis=1)
+    meas = np.stack([t.float(c) for c in ERROR_COLUMNS], axis=1)
+    bad = np.argwhere(np.abs(meas) > MAX_ERROR_UM)
+    if bad.size:
+        k, j = bad[0]
+        raise InputError(f"{path}: row {rows[k]}, column '{ERROR_COLUMNS[j]}': units do not fit: {meas[k, j]:g} μm is "
+                         f"beyond the plausible {MAX_ERROR_UM:g} μm; expected an error in μm (not nm, not a position)")
+    for j, a in enumerate(machine.axes):
+        if a.full_turn:
+            continue
+        lo, hi = a.stroke
+        out = np.flatnonzero((axes[:, j] < lo - STROKE_TOL * max(1, abs(lo))) | (axes[:, j] > hi + STROKE_TOL * max(1, abs(hi))))
+        if out.size:
+            k = out[0]
+            raise InputError(f"{path}: row {rows[k]}, column '{a.column}': check point outside the stroke "
+                             f"[{lo:g}, {hi:g}] {a.unit}: {axes[k, j]:g}")
+    if units == "check" and len(axes) >= MIN_CHECKS:  # metres for mm, radians for degrees (as the grinder's check)
+        for j, a in enumerate(machine.axes):
+            span, stroke = float(np.ptp(axes[:, j])), a.stroke[1] - a.stroke[0]
+            k = int(np.argmax(np.abs(axes[:, j])))
+            if (a.kind == "linear" and 0 < span <= stroke / 200 and span * 1000 >= stroke / 4
+                    and np.abs(axes[:, j]).max() <= 1.5e-3 * max(abs(a.stroke[0]), abs(a.stroke[1]))):
+                raise InputError(f"{path}: row {rows[k]}, column '{a.column}': units do not fit: values span only "
+                                 f"{span:.4g} mm of the {stroke:g} mm stroke; 1000x that fits it: metres rather than mm? "
+                                 "(--units as-written if they are mm)")
+            on_grid = np.allclose(axes[:, j] * 2, np.round(axes[:, j] * 2), rtol=0, atol=1e-9)
+            if (a.kind == "rotary" and stroke >= 180 and np.all(np.abs(axes[:, j]) <= 2 * np.pi + 1e-6)
+                    and span >= 1.5 * np.pi and not on_grid):
+                raise InputError(f"{path}: row {rows[k]}, column '{a.column}': units do not fit: values lie within "
+                                 f"±2π and span {span:.4g}: radians rather than degrees? (--units as-written if degrees)")
+    cond = {}
+    for c in condition_columns(machine):
+        if c in t:
+            cond[c] = t.int(c, allowed=(-1, 1)).astype(float) if c.startswith("dir_") else t.float(c)
+    if "temp_c" in cond:
+        m = temperature_mistake(cond["temp_c"], units)
+        if m is not None:
+            raise InputError(f"{path}: row {rows[m[0]]}, column 'temp_c': units do not fit: {m[1]}")
+    seq = t.int("seq") if "seq" in t else None
+    if seq is not None:
+        u, first = np.unique(seq, return_index=True)
+        if u.size != seq.size:
+            dup = np.setdiff1d(np.arange(seq.size), first)[0]
+            raise InputError(f"{path}: row {rows[dup]}, column 'seq': duplicated value {seq[dup]}")
+    return MTChecks(axes, meas, cond, seq, rows, str(path))
+
+
+# -- the update ---------------------------------------------------------------------------------
+def spline_basis(stations, x, full_turn: bool) -> np.ndarray:
+    """Values at ``x`` (n,) of the interpolating cubic spline through each unit station vector,
+    (n, m); on a full turn the first station's column carries the closed pair (first = last)
+    and the last column is zero (its value is the first's)."""
+    m = len(stations)
+    Y = np.eye(m)
+    if full_turn:
+        Y[-1, 0] = 1.0
+        Y[:, -1] = 0.0
+        Y[-1, -1] = 0.0
+        x = stations[0] + np.mod(np.asarray(x, float) - stations[0], 360.0)
+    return make_interp_spline(stations, Y, k=3, bc_type="periodic" if full_turn else None)(x)
+
+
+def parameter_matrix(machine: MachineTool, elements: ChainElementSet, axes, slot_names, stations) -> np.ndarray:
+    """∂(tool-point error, μm)/∂(element parameters), (n, 3, N): parameter j is slot ``slot_names[j]`` at
+    station ``stations[j]`` (−1: a constant), linearised at ``elements``."""
+    axes = np.atleast_2d(np.asarray(axes, float))
+    Je = machine.error_jacobian(axes, elements.values(axes))           # (n, 3, P)
+    sidx = {n: j for j, n in enumerate(machine.slot_names)}
+    slot = {s.name: s for s in machine.slots}
+    col = {a.word: j for j, a in enumerate(machine.axes)}
+    basis = {}
+    M = np.zeros((axes.shape[0], 3, len(slot_names)))
+    for j, (s, i) in enumerate(zip(slot_names, stations)):
+        if i < 0:
+            M[:, :, j] = Je[:, :, sidx[s]]
+            continue
+        w = slot[s].axis
+        if w not in basis:
+            a = machine.axes[col[w]]
+            basis[w] = spline_basis(elements.stations[a.column], axes[:, col[w]], a.full_turn)
+        M[:, :, j] = Je[:, :, sidx[s]] * basis[w][:, i, None]
+    return M
+
+
+def apply_parameters(elements: ChainElementSet, slot_names, stations, delta) -> ChainElementSet:
+    """``elements`` with ``delta`` added to its parameters (module doc of :func:`parameter_matrix`)."""
+    out = elements.copy()
+    fun = {k: v.copy() for k, v in out.functions.items()}
+    const = dict(out.constants)
+    for s, i, d in zip(slot_names, stations, delta):
+        if i < 0:
+            const[s] += float(d)
+        else:
+            fun[s][i] += float(d)
+    for a in elements.machine.axes:  # a full turn stays closed
+        if a.full_turn:
+            for s in elements.machine.slots_of(a.word):
+                fun[s][-1] = fun[s][0]
+    return ChainElementSet(elements.machine, out.stations, fun, const, elements.machine_name, elements.machine_sha256)
+
+
+@dataclass
+class ChainUpdate:
+    """``elements_`` the updated set, ``sigma_um`` the check noise estimated with it, ``dof`` the
+    effective number of parameters the checks moved."""
+
+    elements_: ChainElementSet
+    sigma_um: float
+    dof: float
+    extra_coef: np.ndarray | None = None
+
+
+def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_fit, residual_fit,
+                    extra=None, extra_shift=None) -> ChainUpdate:
+    """Gaussian update of the element parameters from check residuals (n, 3) μm at ``axes_fit`` (n, k),
+    prior covariance ``cov`` (N, N) of the identification (module doc). ``extra`` (n, 3, c): effect
+    columns fitted jointly with no prior (their coefficients in ``ChainUpdate.extra_coef``);
+    ``extra_shift`` (N, c): what each effect coefficient put into the identified parameters during
+    the sweeps (its samples at the stations): the prior mean moves by ``−extra_shift·coef``."""
+    m = elements.machine
+    M = parameter_matrix(m, elements, axes_fit, slot_names, stations).reshape(-1, len(slot_names))
+    r = np.asarray(residual_fit, float).reshape(-1)
+    if extra is not None and extra_shift is not None:
+        extra = np.asarray(extra, float) - (M @ extra_shift).reshape(np.shape(extra))
+    lam, U = np.linalg.eigh(0.5 * (cov + cov.T))
+    keep = lam > 1e-12 * lam.max()
+    L = U[:, keep] * np.sqrt(lam[keep])                                  # Δθ = L·z, z ~ N(0, I)
+    Mz = M @ L
+    rp, Mp = r, Mz
+    if extra is not None:  # free columns: project them out, min |P⊥(r − Mz·z)|²/σ² + |z|², then b = E⁺(r − Mz·z)
+        E = np.asarray(extra, float).reshape(-1, np.shape(extra)[-1])
+        Q, _ = np.linalg.qr(E)
+        rp, Mp = r - Q @ (Q.T @ r), Mz - Q @ (Q.T @ Mz)
+    Uz, S, Vt = np.linalg.svd(Mp, full_matrices=False)
+    ur = Uz.T @ rp
+    sigma = float(np.sqrt(np.mean(rp**2)))
+    n_extra = 0 if extra is None else np.shape(extra)[-1]
+    for _ in range(SIGMA_ITERATIONS):
+        f = S**2 / (S**2 + sigma**2)                                     # shrinkage per direction
+        fit = Uz @ (f * ur)
+        dof = float(f.sum()) + n_extra
+        sigma = float(np.sqrt(np.sum((rp - fit) ** 2) / max(r.size - dof, 1.0)))
+    f = S**2 / (S**2 + sigma**2)
+    z = Vt.T @ (f * ur / np.where(S > 0, S, 1.0))
+    coef = None if extra is None else np.linalg.lstsq(E, r - Mz @ z, rcond=None)[0]
+    delta = L @ z - (extra_shift @ coef if extra_shift is not None else 0.0)
+    return ChainUpdate(apply_parameters(elements, slot_names, stations, delta), sigma, float(f.sum()), coef)
+
+
+def ols_update(elements: ChainElementSet, slot_names, stations, axes_fit, residual_fit) -> ChainElementSet:
+    """The plain baseline: the same parameters fitted to the fitting checks by unregularised least
+    squares (minimum norm over the directions above :data:`OLS_RCOND`), no prior."""
+    M = parameter_matrix(elements.machine, elements, axes_fit, slot_names, stations).reshape(-1, len(slot_names))
+    delta = np.linalg.lstsq(M, np.asarray(residual_fit, float).reshape(-1), rcond=OLS_RCOND)[0]
+    return apply_parameters(elements, slot_names, stations, delta)
+
+
+# -- effects ------------------------------------------------------------------------------------
+@dataclass
+class EffectTerm:
+    """A fitted effect: ``kind``, ``axes`` (words), ``element`` it acts on, ``shape`` parameters
+    (period, order), ``coefficients`` (of its basis columns), held-out ``gain_z``."""
+
+    kind: str
+    axes: tuple
+    element: str
+    shape: dict
+    coefficients: np.ndarray
+    gain_z: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "axis": "*".join(self.axes), "element": self.element, "shape": self.shape,
+                "coefficients": self.coefficients.tolist(), "held_out_gain_z": self.gain_z}
+
+
+def _own_element(machine: MachineTool, word: str) -> str | None:
+    a = next(a for a in machine.axes if a.word == word)
+    name = f"{'d' if a.kind == 'linear' else 'e'}{'xyz'[a.along]}_{word.lower()}"
+    return name if name in machine.slot_names else None
+
+
+def effect_candidates(machine: MachineTool, conditions: dict) -> list:
+    """``(kind, axis words)`` the search tries on this machine with these check columns."""
+    lin = [a.word for a in machine.axes if a.kind == "linear" and _own_element(machine, a.word)]
+    rot = [a.word for a in machine.axes if a.kind == "rotary" and _own_element(machine, a.word)]
+    out = []
+    if "temp_c" in conditions:
+        out += [("thermal", (w,)) for w in lin]
+    out += [("reversal", (w,)) for w in lin + rot if f"dir_{w.lower()}" in conditions]
+    out += [("periodic", (w,)) for w in lin]
+    out += [("harmonic", (w,)) for w in rot]
+    out += [("interaction", (v, w)) for i, v in enumerate(lin) for w in lin[i + 1:]]
+    return out
+
+
+def effect_columns(machine: MachineTool, kind: str, words, axes, conditions, shape=None, Je=None):
+    """Basis columns (n, 3, c) μm of an effect term per unit coefficient (μm or μrad on its element),
+    for a given ``shape`` (``period_mm`` / ``order``)."""
+    col = {a.word: j for j, a in enumerate(machine.axes)}
+    a = machine.axes[col[words[0]]]
+    el = _own_element(machine, words[0])
+    Je = machine.error_jacobian(axes) if Je is None else Je
+    jcol = Je[:, :, machine.slot_names.index(el)]
+    q = axes[:, col[words[0]]]
+    rel = q - a.stroke[0]
+    if kind == "thermal":
+        f = [(conditions["temp_c"] - REF_TEMP_C) * rel]
+    elif kind == "reversal":
+        f = [0.5 * conditions[f"dir_{words[0].lower()}"]]
+    elif kind == "periodic":
+        ph = 2 * np.pi * q / shape["period_mm"]
+        f = [np.sin(ph), np.cos(ph)]
+    elif kind == "harmonic":
+        ph = shape["order"] * np.deg2rad(q)
+        f = [np.sin(ph), np.cos(ph)]
+    elif kind == "interaction":
+        b = machine.axes[col[words[1]]]
+        f = [rel * (axes[:, col[words[1]]] - b.stroke[0]) / ((a.stroke[1] - a.stroke[0]) * (b.stroke[1] - b.stroke[0]))]
+    else:
+        raise ValueError(f"unknown effect kind {kind!r}")
+    return np.stack([jcol * fi[:, None] for fi in f], axis=2), el
+
+
+def _fit_shape(machine, kind, words, axes, cond, r, Je):
+    """Best shape (periodogram over the grid) and its columns, fitted on (axes, r)."""
+    grid = ([{"period_mm": float(p)} for p in PERIOD_GRID_MM] if kind == "periodic" else
+            [{"order": int(n)} for n in HARMONIC_ORDERS] if kind == "harmonic" else [None])
+    best = None
+    for shape in grid:
+        C, el = effect_columns(machine, kind, words, axes, cond, shape, Je)
+        X = C.reshape(-1, C.shape[2])
+        c = np.linalg.lstsq(X, r.reshape(-1), rcond=None)[0]
+        rss = float(np.sum((r.reshape(-1) - X @ c) ** 2))
+        if best is None or rss < best[0]:
+            best = (rss, shape, c, el)
+    if kind == "periodic":  # refine: over a long stroke a 1.4 % period error drifts by cycles
+        p0 = best[1]["period_mm"]
+        for p in p0 * (1.0 + np.linspace(-PERIOD_REFINE, PERIOD_REFINE, 121)):
+            shape = {"period_mm": float(p)}
+            C, el = effect_columns(machine, kind, words, axes, cond, shape, Je)
+            X = C.reshape(-1, C.shape[2])
+            c = np.linalg.lstsq(X, r.reshape(-1), rcond=None)[0]
+            rss = float(np.sum((r.reshape(-1) - X @ c) ** 2))
+            if rss < best[0]:
+                best = (rss, shape, c, el)
+    return best
+
+
+def _paired_z(r_before, r_after) -> float:
+    gain = np.sum(r_before**2, axis=1) - np.sum(r_after**2, axis=1)
+    sd = gain.std(ddof=1)
+    return float(gain.mean() / (sd / np.sqrt(gain.size))) if sd > 0 else 0.0
+
+
+def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
+                  exclude=()):
+    """Forward search (module doc): ``(accepted terms, rejected (kind, axes, z) list, residual after)``."""
+    Je = machine.error_jacobian(checks.axes)
+    r = np.asarray(residual, float).copy()
+    cands = effect_candidates(machine, checks.conditions)
+    accepted, rejected = [], []
+    for _ in range(max_effects):
+        scored = []
+        for kind, words in cands:
+            if any(t.kind == kind and t.axes == words for t in accepted) or (kind, words) in exclude:
+                continue
+            rss, shape, c, el = _fit_shape(machine, kind, words, checks.axes[fit_idx],
+                                           {k: v[fit_idx] for k, v in checks.conditions.items()}, r[fit_idx],
+                                           Je[fit_idx])
+            scored.append((rss, kind, words, shape, c, el))
+        if not scored:
+            break
+        scored.sort(key=lambda s: s[0])
+        rss, kind, words, shape, c, el = scored[0]
+        C, _ = effect_columns(machine, kind, words, checks.axes, checks.conditions, shape, Je)
+        contrib = np.einsum("nic,c->ni", C, c)
+        z = _paired_z(r[hold_idx], (r - contrib)[hold_idx])
+        if z <= HELD_OUT_Z:
+            rejected.append({"kind": kind, "axis": "*".join(words), "held_out_gain_z": z})
+            break
+        accepted.append(EffectTerm(kind, words, el, shape or {}, c, z))
+        r = r - contrib
+    return accepted, rejected, r
+
+
+def sweep_shift(machine: MachineTool, elements: ChainElementSet, term: EffectTerm, slot_names, stations, cov):
+    """(N, c): per coefficient of ``term``, what it added to the identified parameters through the
+    sweeps — its element sampled at its axis' stations under the sweeps' conditions (reference
+    temperature, positive approach): a periodic or harmonic term aliased at the stations, a reversal's
+    +b/2. Stations the gauge holds at zero (zero prior variance) take the samples relative to the first
+    station's. Thermal (sweeps at 20 °C) and interaction (the other axes parked at their lower ends)
+    leave nothing there."""
+    N = len(slot_names)
+    c = term.coefficients.size
+    S = np.zeros((N, c))
+    if term.kind not in ("periodic", "harmonic", "reversal"):
+        return S
+    a = next(a for a in machine.axes if a.word == term.axes[0])
+    st = elements.stations[a.column]
+    if term.kind == "periodic":
+        ph = 2 * np.pi * st / term.shape["period_mm"]
+        f = np.stack([np.sin(ph), np.cos(ph)], axis=1)
+    elif term.kind == "harmonic":
+        ph = term.shape["order"] * np.deg2rad(st)
+        f = np.stack([np.sin(ph), np.cos(ph)], axis=1)
+    else:
+        f = np.full((st.size, 1), 0.5)
+    idx = {(s, i): j for j, (s, i) in enumerate(zip(slot_names, stations))}
+    j0 = idx.get((term.element, 0))
+    if j0 is None:
+        return S
+    rel = cov[j0, j0] <= 0.0  # station 0 held by the gauge
+    for i in range(st.size):
+        j = idx.get((term.element, i))
+        if j is not None:
+            S[j] = f[i] - (f[0] if rel else 0.0)
+    return S
+
+
+# -- the loop -----------------------------------------------------------------------------------
+def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: MTChecks, cov=None,
+                      fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
+                      max_effects: int = 4) -> dict:
+    """Run the stages (module doc) and return the summary dict (``stages`` with held-out/fitting
+    statistics, ``kept_stage``, ``noise_floor_um``, ``effects``) and, under ``"_models"``, the element
+    sets of the stages (not JSON)."""
+    if not 0 < fit_fraction < 1:
+        raise ValueError(f"Expected 0 < fit_fraction < 1, got {fit_fraction}")
+    n = len(checks)
+    n_fit = int(round(fit_fraction * n))
+    if n_fit < 5 or n - n_fit < 5:
+        raise ValueError(f"Expected at least 5 fitting and 5 held-out checks, got {n_fit} and {n - n_fit}")
+    fit_idx, hold_idx = np.arange(n_fit), np.arange(n_fit, n)
+    from ..mt_field import ChainField
+
+    def resid(el):
+        return checks.measured_um - ChainField(machine, el).predict(checks.axes)
+
+    def stats(r):
+        return {"held_out": residual_stats(r[hold_idx], ERROR_COLUMNS), "fitting": residual_stats(r[fit_idx], ERROR_COLUMNS)}
+
+    r0 = resid(elements)
+    stages = {"identified": stats(r0)}
+    models = {"identified": elements}
+    resid_of = {"identified": r0}
+    sigma = None
+    if cov is not None:
+        slot_names, stations, C = cov
+        upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx])
+        r1 = resid(upd.elements_)
+        stages["updated"] = stats(r1)
+        stages["updated"]["dof"] = upd.dof
+        models["updated"], resid_of["updated"] = upd.elements_, r1
+        sigma = upd.sigma_um
+        try:
+            stages["baseline_ols_update"] = stats(resid(ols_update(elements, slot_names, stations, checks.axes[fit_idx],
+                                                                   r0[fit_idx])))
+        except ValueError as exc:  # the unregularised fit left the machine's range: reported, not used
+            stages["baseline_ols_update"] = {"failed": str(exc)}
+    X = np.hstack([np.ones((n, 1)), checks.axes])            # the plainest: the residual linear in the axes
+    B = np.linalg.lstsq(X[fit_idx], r0[fit_idx], rcond=None)[0]
+    stages["baseline_ols_linear"] = stats(r0 - X @ B)
+    last = "updated" if "updated" in models else "identified"
+    accepted, rejected = [], []
+    if effects:
+        accepted, rejected, r2 = effect_search(machine, checks, resid_of[last], fit_idx, hold_idx, max_effects)
+        for _ in range(ROUNDS - 1):  # the update made jointly with the accepted effects, then the search goes on
+            if not accepted or last != "updated":
+                break
+            E = np.concatenate([effect_columns(machine, t.kind, t.axes, checks.axes, checks.conditions, t.shape or None)[0]
+                                for t in accepted], axis=2)
+            shift = np.concatenate([sweep_shift(machine, elements, t, slot_names, stations, C) for t in accepted], axis=1)
+            upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], extra=E[fit_idx],
+                                  extra_shift=shift)
+            k = 0
+            for t in accepted:
+                c = t.coefficients.size
+                t.coefficients, k = upd.extra_coef[k:k + c], k + c
+            r_joint = resid(upd.elements_) - np.einsum("nic,c->ni", E, upd.extra_coef)
+            models["joint"], sigma = upd.elements_, upd.sigma_um
+            more, rejected, r2 = effect_search(machine, checks, r_joint, fit_idx, hold_idx, max_effects - len(accepted),
+                                               exclude=[(t.kind, t.axes) for t in accepted])
+            accepted += more
+            if not more:
+                break
+        if accepted and "joint" in models:
+            models["updated_plus_effects"] = models["joint"]
+        stages["updated_plus_effects" if last == "updated" else "identified_plus_effects"] = stats(r2)
+        resid_of["plus_effects"] = r2
+    final = "plus_effects" if effects else last
+    kept, why = final, "kept: no plainer stage is better on the held-out checks by more than "\
+                       f"{FALLBACK_Z} paired standard errors"
+    for plain in ("identified", "updated"):
+        if plain in resid_of and plain != final:
+            z = _paired_z(resid_of[kept][hold_idx], resid_of[plain][hold_idx])
+            if z > FALLBACK_Z:
+                kept, why = plain, f"fell back to {plain}: better on the held-out checks by paired z = {z:.2f}"
+    sig = noise_um if noise_um is not None else sigma
+    floor = None if sig is None else float(np.sqrt(3.0) * sig)
+    kept_name = {"plus_effects": "updated_plus_effects" if last == "updated" else "identified_plus_effects"}.get(kept, kept)
+    held = stages[kept_name]["held_out"]["rms_um"]
+    return {"machine": machine.name, "n_checks": n, "n_fit": n_fit, "n_held_out": n - n_fit,
+            "split": f"blocked by seq: first {fit_fraction:g} fit, the rest held out",
+            "stages": stages, "kept_stage": kept_name, "kept_why": why,
+            "effects": [t.to_dict() for t in accepted], "effects_rejected": rejected,
+            "noise_sigma_um": sig, "noise_sigma_source": "given" if noise_um is not None else
+            ("estimated by the update" if sigma is not None else None),
+            "noise_floor_um": floor, "held_out_rms_um": held,
+            "held_out_over_floor": None if floor is None else float(held / floor),
+            "_models": {"elements": models.get("updated_plus_effects" if kept == "plus_effects" else kept,
+                                               models.get("updated", elements)), "terms": accepted}}

@@ -1,0 +1,386 @@
+"""Identification of ANY machine-tool chain's error slots from laser-tracker sweeps.
+
+The generic form of :mod:`errormap.identification` (the grinder's per-station 9×6 method):
+one Gauss–Newton least squares on ALL ball positions of all sweeps of one tracker set-up,
+with the exact chain (:mod:`errormap.mt_sweeps` body chains), re-linearised at every step to
+the exact rigid motion until the update is below ``tol``.
+
+Unknowns: the tracker pose ``machine_in_tracker`` (6), every component error of every swept
+axis at each of its stations (6 per station), the constants (location errors of rotary axes,
+squareness). During the sweep of axis W the other axes stand at their first stations (the
+lower stroke ends; :func:`errormap.mt_sweeps.park_axes`), so their values there enter.
+
+Gauge (what the sweeps cannot tell apart, fixed the grinder's way, ``first-station``):
+
+* the machine frame is the body of the **root axis** (the first linear axis of the work
+  chain, else of the tool chain; :func:`root_axis`) at its first station: its six component errors are zero there;
+* a rotary axis' **location errors** are its line at the first station: the four component
+  errors across the axis (two offsets, two tilts) are zero there, the axial offset and the
+  roll stay in the component errors (the grinder's "A-axis line from the initial state");
+* a **squareness** is confounded with a linear trend of its axis' straightness: the
+  straightness towards the squareness' ``toward`` axis is tied equal at the axis' first and
+  last stations (the squareness carries the trend);
+* a **full-turn** rotary axis' last station is its first pose: one value for both.
+
+Whatever is still unobservable after this (a machine file whose targets or chain leave a
+direction free) is found by pivoted QR of the column-scaled Jacobian and named in the
+warnings; those parameters are held at zero. The tool point in the workpiece frame does not
+depend on the gauge (a rigid change of the machine frame is seen by both chains; a squareness
+moved into a straightness trend is the same motion).
+
+Results: a :class:`~errormap.mt_elements.ChainElementSet` (stations = the sweep commands,
+interpolating splines through them), the covariance of the element parameters
+(σ̂²·(JᵀJ)⁻¹ mapped through the gauge, σ̂ from the ball residuals), the ball residual per axis,
+the conditioning. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over
+``param_slot``/``param_station`` (station −1: a constant), μm² / μrad².
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg
+from scipy.spatial.transform import Rotation
+
+from .identification import _check_length_unit, layout_problem, rigid_fit
+from .io import InputError, atomic_write
+from .mt_chain import AXIS_WORDS, MachineTool
+from .mt_elements import ChainElementSet
+from .mt_sweeps import body_chain, park_axes, swept_words
+from .sweeps import Sweeps
+from .transforms import skew
+
+UM = 1e-3     # mm per μm
+URAD = 1e-6   # rad per μrad
+PARK_TOL = 1e-6
+"""A sweep's first command must equal the parked position (lower stroke end) to this (mm or deg, relative to
+max(1, |lo|)): the other sweeps were taken with this axis there."""
+TURN_TOL_DEG = 1e-6
+RANK_TOL = 1e-9
+"""A pivoted-QR diagonal below this fraction of the largest (column-scaled Jacobian) is an unobservable direction."""
+COV_FORMAT = "volcomp-chain-covariance/1"
+
+
+@dataclass
+class ChainIdentificationResult:
+    """``elements_``, ``machine_in_tracker`` (R (3,3), t (3,) mm), per-axis ball residual RMS
+    (μm, per station), ``sigma_um`` (σ̂ per coordinate), ``iterations``, ``condition`` (of the
+    column-scaled Jacobian), ``unobservable`` (names held at zero), ``warnings``, and the
+    covariance ``cov`` over ``param_slot``/``param_station``."""
+
+    elements_: ChainElementSet
+    machine_in_tracker: tuple
+    residual_rms_um: dict
+    sigma_um: float
+    iterations: int
+    condition: float
+    param_slot: list
+    param_station: np.ndarray
+    cov: np.ndarray
+    unobservable: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+
+    def summary_lines(self) -> list[str]:
+        lines = [f"axis {w}: {len(r)} stations, ball residual RMS max {r.max():.3g} um"
+                 for w, r in self.residual_rms_um.items()]
+        lines.append(f"Gauss-Newton: {self.iterations} iterations, sigma {self.sigma_um:.3g} um per coordinate, "
+                     f"scaled condition {self.condition:.3g}")
+        c = self.elements_.constants
+        if c:
+            lines.append("constants: " + ", ".join(f"{k} {v:.4g}" for k, v in c.items()))
+        if self.unobservable:
+            lines.append(f"unobservable (held at zero): {', '.join(self.unobservable)}")
+        return lines + [f"warning: {w}" for w in self.warnings]
+
+    def to_dict(self) -> dict:
+        return {"format": "volcomp-chain-identification/1", "gauge": "first-station",
+                "machine_in_tracker": {"R": self.machine_in_tracker[0].tolist(), "t_mm": self.machine_in_tracker[1].tolist()},
+                "residual_rms_um": {k: v.tolist() for k, v in self.residual_rms_um.items()},
+                "sigma_um": self.sigma_um, "iterations": self.iterations, "condition": self.condition,
+                "unobservable": self.unobservable, "warnings": self.warnings,
+                "constants": self.elements_.constants}
+
+    def save_covariance(self, path) -> Path:
+        """``.npz``: ``format``, ``slot``, ``station``, ``cov`` (atomic)."""
+        with atomic_write(path, "wb") as fh:
+            np.savez(fh, format=np.array(COV_FORMAT), slot=np.array(self.param_slot), station=self.param_station,
+                     cov=self.cov)
+        return Path(path)
+
+
+def load_covariance(path) -> tuple[list, np.ndarray, np.ndarray]:
+    """``(slot names, stations, cov)`` of a file :meth:`ChainIdentificationResult.save_covariance` wrote."""
+    try:
+        d = np.load(path, allow_pickle=False)
+        if str(d["format"]) != COV_FORMAT:
+            raise InputError(f"{path}: key 'format': expected {COV_FORMAT!r}, got {str(d['format'])!r}")
+        return [str(s) for s in d["slot"]], d["station"].astype(int), d["cov"].astype(float)
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputError(f"{path}: not a chain covariance file ({exc})") from None
+
+
+def _squareness_toward(machine: MachineTool, name: str) -> int:
+    """Frame axis (0, 1, 2) a squareness slot tilts its axis towards (from its ETs)."""
+    s = next(s for s in machine.slots if s.name == name)
+    ax = next(a for a in machine.axes if a.word == s.axis)
+    e = next(e for e in (*machine.work_ets, *machine.tool_ets) if e.slot == name)
+    return 3 - e.axis - ax.along
+
+
+def root_axis(machine: MachineTool) -> str:
+    """The axis whose body at its first station is the machine frame (module doc): the first linear
+    axis of the work chain, else of the tool chain (a rotary axis' line is placed relative to the
+    linear axes, as ISO 230-7 does), else the first axis of the work chain."""
+    kind = {a.word: a.kind for a in machine.axes}
+    for want in ("linear", None):
+        for side in ("work", "tool"):
+            cand = [(k, w) for w, (s, k) in machine.body_index.items() if s == side and want in (None, kind[w])]
+            if cand:
+                return min(cand)[1]
+    raise ValueError(f"{machine.name!r}: no axis with component errors")
+
+
+class ChainIdentification:
+    """Gauss–Newton identification of a machine-tool chain (module doc). ``fit(sweeps, machine)``
+    returns self with ``elements_`` and ``result_``.
+
+    Settings: ``max_iter`` / ``tol`` (largest update, μm or μrad) of the Gauss–Newton loop;
+    ``min_separation_mm``: balls closer than this coincide; ``distance_tol_mm``: allowed
+    difference between measured and nominal ball distances (mixed units, wrong mounts).
+    """
+
+    def __init__(self, max_iter: int = 30, tol: float = 1e-7, min_separation_mm: float = 1.0,
+                 distance_tol_mm: float = 2.0):
+        self.max_iter = max_iter
+        self.tol = tol
+        self.min_separation_mm = min_separation_mm
+        self.distance_tol_mm = distance_tol_mm
+
+    # -- validation ------------------------------------------------------------------------
+    def _check(self, sweeps: Sweeps, machine: MachineTool) -> list:
+        if not 1 <= self.max_iter <= 1000 or not self.tol > 0:
+            raise ValueError(f"Expected 1 <= max_iter <= 1000 and tol > 0, got {self.max_iter}, {self.tol}")
+        src = ", ".join(sweeps.sources) or "sweeps"
+        words = swept_words(machine)
+        missing = [w for w in words if w not in sweeps]
+        if missing:
+            raise InputError(f"{src}: axis/axes {missing} missing; every axis with error slots ({list(words)}) is "
+                             "needed from one tracker set-up (the bodies are related through it)")
+        warnings = []
+        for w in words:
+            ax = next(a for a in machine.axes if a.word == w)
+            if w not in machine.targets or machine.targets[w].shape[0] != 3:
+                raise InputError(f"{machine.path or machine.name}: key 'targets.{w}': three target balls are needed "
+                                 f"on the body of axis {w}")
+            mounts = machine.targets[w]
+            why = layout_problem(mounts, self.min_separation_mm)
+            if why:
+                raise InputError(f"{machine.path or machine.name}: key 'targets.{w}': degenerate target layout: {why}")
+            sw = sweeps[w]
+            _check_length_unit(sw, w, mounts)
+            nominal = np.array([np.linalg.norm(mounts[i] - mounts[j]) for i, j in ((0, 1), (0, 2), (1, 2))])
+            measured = np.stack([np.linalg.norm(sw.balls_mm[:, i] - sw.balls_mm[:, j], axis=1)
+                                 for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
+            bad = np.abs(measured - nominal).max(axis=1) > self.distance_tol_mm
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InputError(f"{sw.source}: axis {w}, station {sw.stations[i]}: ball distances "
+                                 f"{np.round(measured[i], 3).tolist()} mm do not match the nominal mounts' "
+                                 f"{np.round(nominal, 3).tolist()} mm (mixed units, or a wrong [targets] entry?)")
+            lo, hi = ax.stroke
+            if abs(sw.command[0] - lo) > PARK_TOL * max(1.0, abs(lo)):
+                raise InputError(f"{sw.source}: axis {w}, station {sw.stations[0]}: the first station must be at the "
+                                 f"lower stroke end {lo:g} {ax.unit} (where the other sweeps park axis {w}), got "
+                                 f"{sw.command[0]:g}")
+            if ax.full_turn and abs(sw.command[-1] - sw.command[0] - 360.0) > TURN_TOL_DEG:
+                raise InputError(f"{sw.source}: axis {w}: stations of a full-turn axis must span one turn (360 deg), "
+                                 f"got {sw.command[0]:g}..{sw.command[-1]:g} deg (mixed units?)")
+            if not ax.full_turn and sw.command[-1] < hi - PARK_TOL * max(1.0, abs(hi)):
+                warnings.append(f"axis {w}: stations cover {sw.command[0]:g}..{sw.command[-1]:g} of the stroke "
+                                f"{lo:g}..{hi:g}; elements are extrapolated beyond")
+            if sw.temp_c is not None and np.ptp(sw.temp_c) > 1.0:
+                warnings.append(f"axis {w}: temperature varied by {np.ptp(sw.temp_c):.2g} degC during the sweep; "
+                                "thermal drift is identified as geometry")
+        return warnings
+
+    # -- parameters -------------------------------------------------------------------------
+    def _layout(self, sweeps, machine):
+        """Full parameter list θ: G (6), per swept axis (station, component) values, constants; the map
+        ``free[j]`` of each θ to its free parameter (−1: held at zero by the gauge)."""
+        words = swept_words(machine)
+        names, stations = ["G.rx", "G.ry", "G.rz", "G.tx", "G.ty", "G.tz"], [-1] * 6
+        block = {}
+        for w in words:
+            m = sweeps[w].command.size
+            sl = machine.slots_of(w)
+            block[w] = len(names)
+            for i in range(m):
+                for s in sl:
+                    names.append(s)
+                    stations.append(i)
+        const0 = len(names)
+        for s in machine.constant_slots:
+            names.append(s)
+            stations.append(-1)
+        n = len(names)
+        free = np.arange(n)
+        root = root_axis(machine)
+        for w in words:
+            ax = next(a for a in machine.axes if a.word == w)
+            sl = machine.slots_of(w)
+            m = sweeps[w].command.size
+            at = lambda i, s: block[w] + i * len(sl) + sl.index(s)  # noqa: E731
+            for s in sl:
+                comp = s.split("_")[0]
+                across = comp[1] != "xyz"[ax.along]
+                has_loc = any(t.kind == "location" and t.axis == w for t in machine.slots)
+                if w == root or (ax.kind == "rotary" and has_loc and across):
+                    free[at(0, s)] = -1
+                if ax.full_turn:
+                    free[at(m - 1, s)] = free[at(0, s)]
+            for t in machine.slots:
+                if t.kind == "squareness" and t.axis == w:
+                    s = f"d{'xyz'[_squareness_toward(machine, t.name)]}_{w.lower()}"
+                    if s in sl:
+                        free[at(m - 1, s)] = free[at(0, s)]
+        # renumber the free parameters 0..nf-1
+        uniq = sorted(set(free[free >= 0].tolist()))
+        ren = {u: k for k, u in enumerate(uniq)}
+        free = np.array([ren[f] if f >= 0 else -1 for f in free])
+        return names, np.array(stations), free, block, const0
+
+    # -- the method -------------------------------------------------------------------------
+    def fit(self, sweeps: Sweeps, machine: MachineTool) -> "ChainIdentification":
+        """Identify every error slot of ``machine`` from ``sweeps`` (:class:`errormap.sweeps.Sweeps`)."""
+        warnings = self._check(sweeps, machine)
+        words = swept_words(machine)
+        names, stations, free, block, const0 = self._layout(sweeps, machine)
+        n_theta, nf = len(names), int(free.max()) + 1
+        A = np.zeros((n_theta, nf))
+        A[np.flatnonzero(free >= 0), free[free >= 0]] = 1.0
+        P = len(machine.slots)
+        sidx = {s: j for j, s in enumerate(machine.slot_names)}
+        park = park_axes(machine)
+        col = {a.word: j for j, a in enumerate(machine.axes)}
+        bodies = {w: body_chain(machine, w) for w in words}
+        # per sweep: poses, the θ index of every slot value per pose (n_w, P) (−1: none)
+        setup = {}
+        for w in words:
+            sw = sweeps[w]
+            m = sw.command.size
+            pts = np.tile(park, (m, 1))
+            pts[:, col[w]] = sw.command
+            tidx = np.full((m, P), -1)
+            for u in words:
+                sl = machine.slots_of(u)
+                for s in sl:
+                    if u == w:
+                        tidx[:, sidx[s]] = block[u] + np.arange(m) * len(sl) + sl.index(s)
+                    else:
+                        tidx[:, sidx[s]] = block[u] + sl.index(s)
+            for k, s in enumerate(machine.constant_slots):
+                tidx[:, sidx[s]] = const0 + k
+            setup[w] = (pts, tidx, sw.balls_mm)
+        theta = np.zeros(n_theta)
+
+        def slot_values(tidx):
+            return np.where(tidx >= 0, theta[np.maximum(tidx, 0)], 0.0)
+
+        # initial tracker pose: Kabsch of the nominal balls on the measured ones
+        nom = np.concatenate([bodies[w].balls(setup[w][0], np.zeros((len(setup[w][0]), P)), machine.targets[w])
+                              .reshape(-1, 3) for w in words])
+        meas = np.concatenate([setup[w][2].reshape(-1, 3) for w in words])
+        RG, tG = rigid_fit(nom[None], meas[None])
+        RG, tG = RG[0], tG[0]
+        unobservable, it = [], 0
+        keep = np.ones(nf, dtype=bool)
+        for it in range(1, self.max_iter + 1):
+            r, J = self._system(words, setup, bodies, machine, slot_values, RG, tG, n_theta)
+            Jf = J @ A
+            scale = np.linalg.norm(Jf, axis=0)
+            scale[scale == 0] = 1.0
+            Js = Jf / scale
+            if it == 1:  # the gauge left nothing free? pivoted QR names what is not
+                _, Rq, piv = scipy.linalg.qr(Js, mode="economic", pivoting=True)
+                d = np.abs(np.diag(Rq))
+                dead = piv[d < RANK_TOL * d[0]]
+                if dead.size:
+                    keep[dead] = False
+                    for f in dead:
+                        j = int(np.flatnonzero(free == f)[0])
+                        unobservable.append(names[j] + (f"@station{stations[j]}" if stations[j] >= 0 else ""))
+                    warnings.append(f"{len(dead)} parameter(s) unobservable from these sweeps, held at zero: "
+                                    f"{', '.join(unobservable[:8])}{' …' if len(unobservable) > 8 else ''}")
+            x = np.zeros(nf)
+            x[keep] = np.linalg.lstsq(Js[:, keep], r, rcond=None)[0] / scale[keep]
+            dth = A @ x
+            tG = tG + RG @ (dth[3:6] * UM)      # b_tracker = R_G·(Exp(ω)·b + τ) + t_G, linearised at ω = τ = 0
+            RG = RG @ Rotation.from_rotvec(dth[:3] * URAD).as_matrix()
+            theta[6:] += dth[6:]
+            if np.abs(dth).max() < self.tol:
+                break
+        r, J = self._system(words, setup, bodies, machine, slot_values, RG, tG, n_theta)
+        Jf = (J @ A)[:, keep]
+        scale = np.linalg.norm(Jf, axis=0)
+        scale[scale == 0] = 1.0
+        sv = np.linalg.svd(Jf / scale, compute_uv=False)
+        dof = max(r.size - int(keep.sum()), 1)
+        sigma = float(np.sqrt(r @ r / dof))
+        Jinv = np.linalg.pinv(Jf / scale)
+        cov_f = np.zeros((nf, nf))
+        cov_f[np.ix_(keep, keep)] = sigma**2 * (Jinv @ Jinv.T) / np.outer(scale, scale)
+        cov = A[6:] @ cov_f @ A[6:].T
+        # element set
+        st, fun = {}, {}
+        for w in words:
+            ax = next(a for a in machine.axes if a.word == w)
+            sl = machine.slots_of(w)
+            m = sweeps[w].command.size
+            vals = theta[block[w]:block[w] + m * len(sl)].reshape(m, len(sl))
+            st[ax.column] = sweeps[w].command.copy()
+            for j, s in enumerate(sl):
+                fun[s] = vals[:, j].copy()
+        const = {s: float(theta[const0 + k]) for k, s in enumerate(machine.constant_slots)}
+        elements = ChainElementSet(machine, st, fun, const, machine.name, machine.sha256)
+        rr = r.reshape(-1, 3)
+        res, o = {}, 0
+        for w in words:
+            m = setup[w][2].shape[0]
+            res[w] = np.sqrt(np.mean(rr[o:o + 3 * m].reshape(m, 3, 3) ** 2, axis=(1, 2)) * 3)
+            o += 3 * m
+        self.elements_ = elements
+        self.result_ = ChainIdentificationResult(elements, (RG, tG), res, sigma, it, float(sv[0] / sv[-1]),
+                                                 names[6:], stations[6:], cov, unobservable, warnings)
+        return self
+
+    @staticmethod
+    def _system(words, setup, bodies, machine, slot_values, RG, tG, n_theta):
+        """Residual (μm, measured − predicted, flattened) and its Jacobian (rows, n_theta) in μm per
+        μm/μrad (G: rotation μrad, translation μm in the machine frame)."""
+        rs, Js = [], []
+        for w in words:
+            pts, tidx, meas = setup[w]
+            v = slot_values(tidx)
+            b, Jb = bodies[w].balls_and_jacobian(pts, v, machine.targets[w])   # (m,3,3), (m,3,3,P) mm per unit
+            pred = b @ RG.T + tG
+            rs.append(((meas - pred) / UM).reshape(-1))
+            m = b.shape[0]
+            J = np.zeros((m, 3, 3, n_theta))
+            Jt = np.einsum("ij,nkjp->nkip", RG, Jb) / UM                          # μm per unit
+            Jv = J.transpose(0, 3, 1, 2)                                             # view (m, n_theta, 3, 3)
+            for p in np.flatnonzero((tidx >= 0).all(axis=0)):
+                np.add.at(Jv, (np.arange(m), tidx[:, p]), Jt[..., p])
+            J[..., 0:3] = -np.einsum("ij,nkjl->nkil", RG, skew(b)) * (URAD / UM)
+            J[..., 3:6] = RG
+            Js.append(J.reshape(-1, n_theta))
+        return np.concatenate(rs), np.concatenate(Js)
+
+
+def identify_chain(sweeps, machine: MachineTool, **settings) -> ChainIdentificationResult:
+    """Identify every slot of ``machine`` from ``sweeps`` (:class:`ChainIdentification` settings)."""
+    return ChainIdentification(**settings).fit(sweeps, machine).result_
+
+
+__all__ = ["ChainIdentification", "ChainIdentificationResult", "identify_chain", "load_covariance", "root_axis",
+           "AXIS_WORDS"]

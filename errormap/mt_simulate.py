@@ -1,0 +1,345 @@
+"""Seeded truth machines for ANY machine-tool chain file (:class:`errormap.mt_chain.MachineTool`).
+
+The generic form of :mod:`errormap.simulator` (default family) and :mod:`errormap.truth_families`
+(independent family), over the machine's element slots instead of the grinder's 23 names:
+
+* **component errors** (functions of their own axis, zero at the axis' first station — the
+  gauge of :class:`errormap.mt_elements.ChainElementSet`): default family — a cubic plus one
+  long-wave sinusoid on a linear axis or a rotary axis short of a full turn, harmonics 1–3 on
+  a full-turn rotary axis (periodic, closed at 360°), on 21 stations; independent family —
+  2–5 Gaussian bumps plus Chebyshev T1…T4 (harmonics 1…6 with amplitudes ∝ h^-1.5 on a full
+  turn), stored on 81 stations, so between the identification's stations the truth is no
+  21-knot spline;
+* **constants** (location errors of rotary axes, squareness): uniform in ±scale (default) or
+  ±(0.3…1)·scale (independent);
+* **magnitudes**: each slot's 1-σ scale by its kind (:data:`SCALE`, the grinder's band:
+  positioning 15 μm, straightness 8 μm, angular 20–25 μrad on linear axes; 4–5 μm and
+  20–60 μrad on rotary axes; location 60 μm / 150 μrad; squareness 80 μrad) — the
+  independent family draws each log-uniformly from :data:`SCALE_RANGE`; then the whole set
+  is scaled so the maximum spatial error over the volume is drawn in [165, 215] μm (default)
+  or [120, 260] μm (independent), as the grinder's families.
+
+Effects (canonical kind names of the project's effect table; ``KIND:AXES``, e.g.
+``periodic:X``, ``harmonic:C``, ``interaction:X*Z``; the grinder's simulator names ``pitch``
+and ``worm`` are aliases; without axes the grinder's choice: periodic and thermal on the first
+linear axis, reversal on the last linear axis, harmonic on the first rotary axis, interaction
+between the first and last linear axes):
+
+==============  ======================================================  ===========================
+kind            adds (to an element, so it goes through the chain)        default (independent: drawn)
+==============  ======================================================  ===========================
+thermal         linear axis W: ``d{along}_w += k·(temp_c − 20)·(w − lo)``  k = 0.0115 μm/(mm·°C)
+                                                                          (0.008–0.014)
+reversal        any axis W: ``d{along}_w`` (linear) or ``e{along}_w``      b = 8 μm / 8 μrad (5–10)
+                (rotary) ``+= b/2·dir_w``
+periodic        linear axis W: ``d{along}_w += A·sin(2π·w/P + φ)``          A = 4 μm, P = 10 mm
+                                                                          (2.5–5 μm, 6–14 mm)
+harmonic        rotary axis W: ``e{along}_w += A·sin(N·w + φ)``             A = 100 μrad, N = 40
+                                                                          (60–140 μrad, 30–50)
+interaction     linear axes V*W: ``d{along}_v += k·(v−lo)(w−lo)/(Δv·Δw)``   k = 6 μm (±4–9 μm)
+==============  ======================================================  ===========================
+
+Check measurements: columns ``<axis columns>, dx_um, dy_um, dz_um, time_s, temp_c, dir_<w>…,
+seq`` (``docs/schemas.md``); uniform random points (default) or a scrambled Sobol layout
+(independent) over the strokes, the warm-up of the grinder's families, a random approach
+direction per axis, isotropic Gaussian noise. Randomness from the seed only
+(:func:`errormap.seeds.spawn_rngs`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.polynomial import chebyshev
+from scipy.stats import qmc
+
+from .mt_chain import COMPONENTS, MachineTool
+from .mt_elements import ChainElementSet
+from .seeds import spawn_rngs
+
+FAMILIES = ("default", "independent")
+REF_TEMP_C = 20.0
+DEFAULT_STATIONS = 21
+TRUTH_STATIONS = 81
+"""Stations the independent truth is stored on (a spline through 81 points, not 21)."""
+TARGET_MAX_RANGE_UM = {"default": (165.0, 215.0), "independent": (120.0, 260.0)}
+"""Maximum spatial error over the volume (μm), drawn per seed: the grinder families' bands."""
+GRID_POINTS = 20_000
+"""About this many points in the volume grid the maximum error is taken over (per-axis count
+``round(GRID_POINTS ** (1/k))``, at least 5)."""
+
+# 1-σ scale (μm or μrad) of a slot by (axis kind, component) or slot kind: the grinder's band
+SCALE = {("linear", "d_along"): 15.0, ("linear", "d_across"): 8.0, ("linear", "e"): 22.0,
+         ("rotary", "d"): 4.5, ("rotary", "e_along"): 60.0, ("rotary", "e_across"): 20.0,
+         "location_d": 60.0, "location_e": 150.0, "squareness": 80.0}
+SCALE_RANGE = {("linear", "d_along"): (3.0, 25.0), ("linear", "d_across"): (2.0, 15.0), ("linear", "e"): (5.0, 40.0),
+               ("rotary", "d"): (1.0, 10.0), ("rotary", "e_along"): (10.0, 80.0), ("rotary", "e_across"): (5.0, 40.0),
+               "location_d": (10.0, 100.0), "location_e": (20.0, 200.0), "squareness": (10.0, 120.0)}
+
+EFFECT_KINDS = ("thermal", "reversal", "periodic", "harmonic", "interaction")
+EFFECT_ALIASES = {"pitch": "periodic", "worm": "harmonic", "backlash": "reversal"}
+EFFECT_DEFAULTS = {
+    "thermal": {"k_um_per_mm_c": 0.0115},
+    "reversal": {"backlash_um": 8.0},
+    "periodic": {"amplitude_um": 4.0, "period_mm": 10.0, "phase_rad": 0.7},
+    "harmonic": {"amplitude_urad": 100.0, "teeth": 40, "phase_rad": 1.1},
+    "interaction": {"corner_um": 6.0},
+}
+
+
+def _scale_key(machine: MachineTool, slot) -> object:
+    if slot.kind == "location":
+        return "location_d" if slot.unit == "um" else "location_e"
+    if slot.kind == "squareness":
+        return "squareness"
+    ax = next(a for a in machine.axes if a.word == slot.axis)
+    comp = slot.name.split("_")[0]
+    along = "xyz"[ax.along]
+    if ax.kind == "linear":
+        return ("linear", "e") if comp[0] == "e" else ("linear", "d_along" if comp[1] == along else "d_across")
+    if comp[0] == "d":
+        return ("rotary", "d")
+    return ("rotary", "e_along" if comp[1] == along else "e_across")
+
+
+def _default_profile(u, periodic, rng):
+    """Default family: cubic + one sinusoid (or harmonics 1–3 on a full turn), zero at u=0, max |.| = 1."""
+    if periodic:
+        th = 2 * np.pi * u
+        v = sum(rng.normal() / h * np.cos(h * th) + rng.normal() / h * np.sin(h * th) for h in (1, 2, 3))
+    else:
+        c = rng.normal(size=3)
+        w = rng.uniform(1.0, 2.5)
+        v = c[0] * u + c[1] * u**2 + c[2] * u**3 + 0.3 * rng.normal() * np.sin(2 * np.pi * w * u + rng.uniform(0, 2 * np.pi))
+    v = v - v[0]
+    return v / max(np.abs(v).max(), 1e-12)
+
+
+def _independent_profile(u, periodic, rng):
+    """Independent family: bumps + Chebyshev (Fourier h = 1…6 on a full turn), zero at u=0, max |.| = 1."""
+    if periodic:
+        h = np.arange(1, 7)
+        amp = rng.normal(size=6) / h**1.5
+        ph = rng.uniform(0, 2 * np.pi, 6)
+        v = (amp[None] * np.cos(h[None] * 2 * np.pi * u[:, None] + ph[None])).sum(axis=1)
+    else:
+        v = np.zeros_like(u)
+        for _ in range(int(rng.integers(2, 6))):
+            c, w = rng.uniform(-0.1, 1.1), rng.uniform(0.08, 0.35)
+            v += rng.normal() * np.exp(-0.5 * ((u - c) / w) ** 2)
+        v += chebyshev.chebval(2 * u - 1, np.r_[0.0, rng.normal(size=4) / np.arange(1, 5) ** 1.2])
+    v = v - v[0]
+    return v / max(np.abs(v).max(), 1e-12)
+
+
+def random_chain_elements(machine: MachineTool, rng: np.random.Generator, family: str = "default",
+                          n_stations: int | None = None) -> ChainElementSet:
+    """Unscaled random elements of ``family`` (module doc) on ``n_stations`` per axis."""
+    if family not in FAMILIES:
+        raise ValueError(f"Expected family in {FAMILIES}, got {family!r}")
+    n = n_stations or (DEFAULT_STATIONS if family == "default" else TRUTH_STATIONS)
+    u = np.linspace(0.0, 1.0, n)
+    stations, fun, const = {}, {}, {}
+    for a in machine.axes:
+        if machine.slots_of(a.word):
+            stations[a.column] = np.linspace(*a.stroke, n)
+    for s in machine.slots:
+        key = _scale_key(machine, s)
+        if family == "default":
+            scale = SCALE[key] * (abs(rng.normal(1.0, 0.3)) if s.is_function else 1.0)
+        else:
+            scale = float(np.exp(rng.uniform(*np.log(SCALE_RANGE[key]))))
+        if s.is_function:
+            ax = next(a for a in machine.axes if a.word == s.axis)
+            prof = (_default_profile if family == "default" else _independent_profile)(u, ax.full_turn, rng)
+            if ax.full_turn:
+                prof[-1] = prof[0]
+            fun[s.name] = scale * prof
+        else:
+            const[s.name] = scale * (rng.uniform(-1.0, 1.0) if family == "default"
+                                     else rng.choice([-1.0, 1.0]) * rng.uniform(0.3, 1.0))
+    return ChainElementSet(machine, stations, fun, const, machine.name, machine.sha256)
+
+
+def scaled(elements: ChainElementSet, factor: float) -> ChainElementSet:
+    """Every element multiplied by ``factor``."""
+    out = elements.copy()
+    out.functions = {k: v * factor for k, v in out.functions.items()}
+    out.constants = {k: v * factor for k, v in out.constants.items()}
+    out._splines = {}
+    return out
+
+
+def volume_grid(machine: MachineTool, n_points: int = GRID_POINTS) -> np.ndarray:
+    """A product grid over the strokes, about ``n_points`` points, shape (N, k)."""
+    k = len(machine.axes)
+    m = max(5, int(round(n_points ** (1.0 / k))))
+    g = [np.linspace(*a.stroke, m) for a in machine.axes]
+    return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, k)
+
+
+# -- effects -----------------------------------------------------------------------------------
+def parse_effect(machine: MachineTool, text: str) -> tuple[str, tuple]:
+    """``"KIND[:AXES]"`` -> ``(kind, axis words)``; an unknown kind or axis is a ValueError naming
+    the known ones (module doc for the defaults)."""
+    name, _, axes = str(text).partition(":")
+    kind = EFFECT_ALIASES.get(name.strip(), name.strip())
+    if kind not in EFFECT_KINDS:
+        raise ValueError(f"unknown effect kind {name!r} (known: {', '.join(EFFECT_KINDS)}; aliases "
+                         f"{', '.join(f'{a}={k}' for a, k in EFFECT_ALIASES.items())})")
+    lin = [a.word for a in machine.axes if a.kind == "linear"]
+    rot = [a.word for a in machine.axes if a.kind == "rotary"]
+    words = tuple(w.strip().upper() for w in axes.replace("*", ",").split(",") if w.strip()) if axes else ()
+    if not words:
+        words = {"thermal": lin[:1], "periodic": lin[:1], "reversal": lin[-1:], "harmonic": rot[:1],
+                 "interaction": (lin[0], lin[-1]) if len(lin) >= 2 else ()}[kind]
+        words = tuple(words)
+    want = {"thermal": (lin, 1), "periodic": (lin, 1), "reversal": (lin + rot, 1), "harmonic": (rot, 1),
+            "interaction": (lin, 2)}[kind]
+    if len(words) != want[1] or any(w not in want[0] for w in words) or len(set(words)) != len(words):
+        raise ValueError(f"effect {text!r}: {kind} acts on {want[1]} {'distinct ' if want[1] > 1 else ''}"
+                         f"axis word(s) of {want[0] or 'none on this machine'} (e.g. {kind}:"
+                         f"{'*'.join(want[0][:want[1]]) if want[0] else 'W'}), got {list(words) or 'none'}")
+    return kind, words
+
+
+def effect_key(kind: str, words) -> str:
+    return f"{kind}:{'*'.join(words)}"
+
+
+def independent_effect_parameters(rng: np.random.Generator) -> dict:
+    """Per-seed parameters of the independent family's effects (module doc)."""
+    return {
+        "thermal": {"k_um_per_mm_c": rng.uniform(0.008, 0.014)},
+        "reversal": {"backlash_um": rng.uniform(5.0, 10.0)},
+        "periodic": {"amplitude_um": rng.uniform(2.5, 5.0), "period_mm": rng.uniform(6.0, 14.0),
+                     "phase_rad": rng.uniform(0, 2 * np.pi)},
+        "harmonic": {"amplitude_urad": rng.uniform(60.0, 140.0), "teeth": int(rng.integers(30, 51)),
+                     "phase_rad": rng.uniform(0, 2 * np.pi)},
+        "interaction": {"corner_um": rng.uniform(4.0, 9.0) * rng.choice([-1.0, 1.0])},
+    }
+
+
+@dataclass
+class MTTruth:
+    """A simulated machine tool: true elements plus effects ``{"KIND:AXES": parameters}``."""
+
+    machine: MachineTool
+    elements: ChainElementSet
+    effects: dict = field(default_factory=dict)
+    seed: int | None = None
+    family: str = "default"
+
+    def __post_init__(self):
+        eff = {}
+        for key, p in self.effects.items():
+            kind, words = parse_effect(self.machine, key)
+            eff[effect_key(kind, words)] = {**EFFECT_DEFAULTS[kind], **(p or {})}
+        self.effects = eff
+
+    def _ax(self, word):
+        j = [a.word for a in self.machine.axes].index(word)
+        return j, self.machine.axes[j]
+
+    def needs(self) -> set:
+        """Condition columns the effects need (``temp_c``, ``dir_z`` ...)."""
+        out = set()
+        for key in self.effects:
+            kind, words = key.split(":")[0], key.split(":")[1].split("*")
+            if kind == "thermal":
+                out.add("temp_c")
+            if kind == "reversal":
+                out.add(f"dir_{words[0].lower()}")
+        return out
+
+    def element_values(self, axes, **conditions) -> np.ndarray:
+        """True element values including the effects, shape (n, P); ``conditions``: ``temp_c``,
+        ``dir_<w>`` arrays (n,) as the effects need."""
+        axes = np.atleast_2d(np.asarray(axes, dtype=float))
+        v = self.elements.values(axes)
+        idx = {n: j for j, n in enumerate(self.machine.slot_names)}
+        for key, p in self.effects.items():
+            kind, words = key.split(":")[0], key.split(":")[1].split("*")
+            j, ax = self._ax(words[0])
+            pos = axes[:, j]
+            rel = pos - ax.stroke[0]
+            comp = ("d" if ax.kind == "linear" else "e") + "xyz"[ax.along]
+            slot = f"{comp}_{ax.word.lower()}"
+            if slot not in idx:
+                raise ValueError(f"effect {key}: the machine has no element {slot} to carry it")
+            if kind == "thermal":
+                if "temp_c" not in conditions:
+                    raise ValueError(f"effect {key} needs temp_c")
+                v[:, idx[slot]] += p["k_um_per_mm_c"] * (np.asarray(conditions["temp_c"]) - REF_TEMP_C) * rel
+            elif kind == "reversal":
+                d = f"dir_{ax.word.lower()}"
+                if d not in conditions:
+                    raise ValueError(f"effect {key} needs the approach direction {d}")
+                v[:, idx[slot]] += 0.5 * p["backlash_um"] * np.asarray(conditions[d], dtype=float)
+            elif kind == "periodic":
+                v[:, idx[slot]] += p["amplitude_um"] * np.sin(2 * np.pi * pos / p["period_mm"] + p["phase_rad"])
+            elif kind == "harmonic":
+                v[:, idx[slot]] += p["amplitude_urad"] * np.sin(p["teeth"] * np.deg2rad(pos) + p["phase_rad"])
+            elif kind == "interaction":
+                j2, ax2 = self._ax(words[1])
+                span = (ax.stroke[1] - ax.stroke[0]) * (ax2.stroke[1] - ax2.stroke[0])
+                v[:, idx[slot]] += p["corner_um"] * rel * (axes[:, j2] - ax2.stroke[0]) / span
+        return v
+
+    def spatial_error(self, axes, **conditions) -> np.ndarray:
+        """True spatial error (μm) of the tool point in the workpiece frame, (n, k) -> (n, 3)."""
+        axes = np.atleast_2d(np.asarray(axes, dtype=float))
+        return self.machine.spatial_error(axes, self.element_values(axes, **conditions))
+
+    def default_conditions(self, n: int) -> dict:
+        """Reference temperature, positive approach on every axis."""
+        return {"temp_c": np.full(n, REF_TEMP_C), **{f"dir_{a.word.lower()}": np.ones(n) for a in self.machine.axes}}
+
+    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed=0, dt_s: float = 15.0) -> dict:
+        """Simulated check measurements (module doc): a dict of columns, each shape (n,)."""
+        m = self.machine
+        k = len(m.axes)
+        r_pts, r_env, r_noise = spawn_rngs(seed, 3)
+        lo, hi = m.stroke_lo, m.stroke_hi
+        t = np.arange(n) * dt_s
+        if self.family == "independent":
+            u = qmc.Sobol(k, scramble=True, seed=r_pts).random_base2(int(np.ceil(np.log2(max(n, 2)))))
+            u = u[r_pts.permutation(u.shape[0])[:n]]
+            rise, tau = r_env.uniform(3.0, 5.0), r_env.uniform(1500.0, 3500.0)
+            temp = (REF_TEMP_C + rise * (1.0 - np.exp(-t / tau))
+                    + 0.15 * np.sin(2 * np.pi * t / 5400.0 + r_env.uniform(0, 6.3)) + r_env.normal(0, 0.02, n))
+        else:
+            u = r_pts.random((n, k))
+            temp = REF_TEMP_C + 4.0 * (1.0 - np.exp(-t / 2400.0)) + r_env.normal(0, 0.02, n)
+        axes = lo + (hi - lo) * u
+        dirs = r_env.choice([-1, 1], size=(n, k)).astype(float)
+        cond = {"temp_c": temp, **{f"dir_{a.word.lower()}": dirs[:, j] for j, a in enumerate(m.axes)}}
+        e = self.spatial_error(axes, **cond) + r_noise.normal(0.0, noise_um, (n, 3))
+        out = {c: axes[:, j] for j, c in enumerate(m.axis_columns)}
+        out.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2], "time_s": t})
+        out.update(cond)
+        out["seq"] = np.arange(n)
+        return out
+
+
+def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "default") -> MTTruth:
+    """A seeded truth of ``family`` for ``machine`` (module doc); ``effects``: ``KIND[:AXES]``
+    strings, or a mapping of them to parameter overrides."""
+    if family not in FAMILIES:
+        raise ValueError(f"Expected family in {FAMILIES}, got {family!r}")
+    r_el, r_scale, r_eff = spawn_rngs(np.random.SeedSequence([seed, 0x3A7, FAMILIES.index(family)]), 3)
+    el = random_chain_elements(machine, r_el, family)
+    grid = volume_grid(machine)
+    e = machine.spatial_error(grid, el.values(grid))
+    el = scaled(el, r_scale.uniform(*TARGET_MAX_RANGE_UM[family]) / np.linalg.norm(e, axis=1).max())
+    eff = effects if isinstance(effects, dict) else {k: {} for k in effects}
+    drawn = independent_effect_parameters(r_eff) if family == "independent" else {}
+    params = {}
+    for key, over in eff.items():
+        kind, words = parse_effect(machine, key)
+        params[effect_key(kind, words)] = {**drawn.get(kind, {}), **(over or {})}
+    return MTTruth(machine, el, params, seed, family)
+
+
+__all__ = ["MTTruth", "make_mt_truth", "random_chain_elements", "volume_grid", "parse_effect", "EFFECT_KINDS",
+           "FAMILIES", "COMPONENTS"]

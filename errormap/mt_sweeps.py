@@ -1,0 +1,186 @@
+"""Laser-tracker axis sweeps of ANY machine-tool chain: the body chains, the simulator, the reader.
+
+The generic form of :mod:`errormap.sweeps` (the grinder's). A **body** is what an axis moves:
+the frame right after the axis' motion and component errors in its side's chain (work or tool;
+``MachineTool.body_index``), in the machine base frame. Three target balls per body
+(``[targets]`` of the machine file, in that body frame, mm) are measured by a tracker at an
+unknown rigid pose ``machine_in_tracker``.
+
+A sweep of axis ``W`` moves ``W`` through its stations (default 21 equally spaced over its
+stroke, a full-turn rotary axis 0 … 360° with the last station the first pose again) while
+every other axis is **parked at the lower end of its stroke** — its first station, where the
+identification's gauge puts it (``docs/identification.md``). Every axis with component
+errors is swept (one tracker set-up: the bodies are related through it).
+
+Sweep file: the grinder's (``docs/schemas.md`` "Axis sweeps"), ``axis`` = the machine's axis
+words (``X Y Z A C``…), ``command`` in the axis' unit (mm or deg).
+
+Shapes: axes (n, k) in ``machine.axis_columns`` order, slot values (n, P) in
+``machine.slot_names`` order, body frames (n, 4, 4), balls (n, 3, 3) [pose, target, xyz].
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .chain import ET, Chain, Joint
+from .io import InputError, read_table
+from .mt_chain import MachineTool
+from .sweeps import (OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SWEEP_FORMAT, Sweeps, _check_units, random_tracker_pose,
+                     sweeps_from_columns, write_sweeps)
+
+REF_TEMP_C = 20.0
+DEFAULT_STATIONS = 21
+UM_MM = 1e-3
+
+__all__ = ["BodyChain", "body_chain", "park_axes", "sweep_stations", "simulate_mt_sweeps", "read_mt_sweeps",
+           "write_sweeps", "SWEEP_FORMAT", "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
+
+
+@dataclass
+class BodyChain:
+    """The chain from the machine base to the body of axis ``word``: ``chain`` a compiled
+    :class:`~errormap.chain.Chain` over the joints it contains (``joint_cols`` their columns in
+    the machine's axes), parameters ``slot_cols`` (indices into ``machine.slot_names``)."""
+
+    word: str
+    chain: Chain
+    joint_cols: np.ndarray
+    slot_cols: np.ndarray
+    n_slots: int
+
+    def frames(self, axes, values) -> np.ndarray:
+        """All cumulative frames (n, n_et + 1, 4, 4) for machine axes (n, k) and slot values (n, P)."""
+        return self.chain.frames(np.asarray(axes, float)[:, self.joint_cols],
+                                 np.asarray(values, float)[:, self.slot_cols])
+
+    def balls(self, axes, values, mounts) -> np.ndarray:
+        """Ball centres in the base frame (mm), (n, m, 3) for mounts (m, 3)."""
+        F = self.frames(axes, values)[:, -1]
+        return np.einsum("nij,kj->nki", F[:, :3, :3], np.asarray(mounts, float)) + F[:, None, :3, 3]
+
+    def balls_and_jacobian(self, axes, values, mounts):
+        """``(balls (n, m, 3) mm, ∂balls/∂slot values (n, m, 3, P) mm per μm or μrad)`` (all P slots
+        of the machine; zero columns for slots outside this body's chain)."""
+        F = self.frames(axes, values)
+        n, ne = F.shape[0], len(self.chain.ets)
+        mounts = np.asarray(mounts, float)
+        last = F[:, -1]
+        balls = np.einsum("nij,kj->nki", last[:, :3, :3], mounts) + last[:, None, :3, 3]
+        ax = np.einsum("nmij,mj->nmi", F[:, :ne, :3, :3], np.eye(3)[self.chain.axis])   # (n, ne, 3)
+        org = F[:, :ne, :3, 3]
+        rot = self.chain.kind_r[None, None, :, None]
+        lin = np.where(rot, np.cross(ax[:, None], balls[:, :, None] - org[:, None]), ax[:, None])  # (n, m, ne, 3)
+        S = self.chain.slot_matrix()                                                    # (ne, Pb)
+        J = np.zeros(balls.shape + (self.n_slots,))
+        J[..., self.slot_cols] = np.einsum("nkei,ep->nkip", lin, S)
+        return balls, J
+
+
+def body_chain(machine: MachineTool, word: str) -> BodyChain:
+    """The :class:`BodyChain` of axis ``word`` (its side's ETs up to its body index)."""
+    if word not in machine.body_index:
+        raise ValueError(f"axis {word!r} has no body (no component errors placed) in {machine.name!r}")
+    side, k = machine.body_index[word]
+    ets = list((machine.work_ets if side == "work" else machine.tool_ets)[:k])
+    used = sorted({e.joint for e in ets if e.joint is not None})
+    remap = {j: i for i, j in enumerate(used)}
+    ets = [ET(e.kind, e.axis, e.value, None if e.joint is None else remap[e.joint], e.sign, e.slot, e.coef) for e in ets]
+    joints = [Joint(machine.axes[j].word.lower(), "revolute" if machine.axes[j].kind == "rotary" else "prismatic",
+                    *machine.axes[j].stroke) for j in used]
+    chain = Chain.compile(ets, joints, name=f"{machine.name}:{word}", shared_slots=True)
+    idx = {n: i for i, n in enumerate(machine.slot_names)}
+    return BodyChain(word, chain, np.array(used, dtype=int), np.array([idx[n] for n in chain.param_names], dtype=int),
+                     len(machine.slot_names))
+
+
+def swept_words(machine: MachineTool) -> tuple:
+    """The axes a sweep set-up covers: every axis with component errors, canonical order."""
+    return tuple(a.word for a in machine.axes if machine.slots_of(a.word))
+
+
+def park_axes(machine: MachineTool) -> np.ndarray:
+    """Where the other axes stand during a sweep: the lower stroke ends, shape (k,)."""
+    return machine.stroke_lo.copy()
+
+
+def sweep_stations(machine: MachineTool, n_stations: int = DEFAULT_STATIONS) -> dict:
+    """Commands per axis word, ``n_stations`` equally spaced over each stroke (a full turn: 0…360°
+    from the lower end, both ends measured)."""
+    return {a.word: np.linspace(*a.stroke, n_stations) for a in machine.axes if machine.slots_of(a.word)}
+
+
+def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, n_stations: int = DEFAULT_STATIONS,
+                       bidirectional: bool = False, dt_s: float = 20.0, warmup_c: float = 0.0) -> dict:
+    """Simulated tracker sweeps of an :class:`errormap.mt_simulate.MTTruth` (its effects included),
+    a dict of sweep-file columns (the grinder's :func:`errormap.sweeps.simulate_sweeps` layout)."""
+    if noise_um < 0:
+        raise ValueError(f"Expected noise_um >= 0, got {noise_um}")
+    m = truth.machine
+    missing = [w for w in swept_words(m) if w not in m.targets]
+    if missing:
+        raise ValueError(f"{m.path or m.name}: no [targets] for axis {missing[0]}: a sweep needs three balls per body")
+    rng = np.random.default_rng(seed)
+    R_mt, t_mt = random_tracker_pose(rng) if tracker_pose is None else (np.asarray(tracker_pose[0], float),
+                                                                         np.asarray(tracker_pose[1], float))
+    st = sweep_stations(m, n_stations)
+    park = park_axes(m)
+    words = [a.word for a in m.axes]
+    cols = {k: [] for k in ("axis", "station", "command", "target", "x_mm", "y_mm", "z_mm", "direction", "time_s",
+                            "temp_c")}
+    t_now = 0.0
+    for w in swept_words(m):
+        bc = body_chain(m, w)
+        cmd = st[w]
+        idx = np.arange(cmd.size)
+        for order, direction in [(idx, 1)] + ([(idx[::-1], -1)] if bidirectional else []):
+            n = len(order)
+            pts = np.tile(park, (n, 1))
+            pts[:, words.index(w)] = cmd[order]
+            time_s = t_now + dt_s * np.arange(n)
+            t_now = time_s[-1] + dt_s
+            temp = REF_TEMP_C + warmup_c * (1.0 - np.exp(-time_s / 2400.0))
+            cond = {"temp_c": temp, **{f"dir_{a.lower()}": np.ones(n) for a in words}}
+            cond[f"dir_{w.lower()}"] = np.full(n, float(direction))
+            balls = bc.balls(pts, truth.element_values(pts, **cond), m.targets[w])
+            balls = np.einsum("ij,nkj->nki", R_mt, balls) + t_mt
+            balls = balls + rng.normal(0.0, noise_um * UM_MM, balls.shape)
+            for k in range(balls.shape[1]):
+                cols["axis"].append(np.full(n, w))
+                cols["station"].append(order)
+                cols["command"].append(cmd[order])
+                cols["target"].append(np.full(n, k + 1))
+                for j, c in enumerate(("x_mm", "y_mm", "z_mm")):
+                    cols[c].append(balls[:, k, j])
+                cols["direction"].append(np.full(n, direction))
+                cols["time_s"].append(time_s)
+                cols["temp_c"].append(temp)
+    out = {k: np.concatenate(v) for k, v in cols.items()}
+    order = np.lexsort((out["target"], out["time_s"]))
+    return {k: v[order] for k, v in out.items()}
+
+
+def read_mt_sweeps(path, machine: MachineTool) -> Sweeps:
+    """Read one sweep file of ``machine`` (axis words from the machine); errors name file, row, column."""
+    t = read_table(path)
+    _check_units(t.names, t.path)
+    t.require(*REQUIRED_COLUMNS)
+    words = swept_words(machine)
+    axis = np.array(t.raw("axis"))
+    for k, a in enumerate(axis):
+        if a not in words:
+            raise InputError(f"{t.path}: row {t.row_number(k)}, column 'axis': expected one of {list(words)} "
+                             f"(the axes of {machine.name!r} with error slots), got {str(a)!r}")
+    n = len(t)
+    cols = {"axis": axis, "station": t.int("station"), "command": t.float("command"),
+            "target": t.int("target", allowed=(1, 2, 3)),
+            "x_mm": t.float("x_mm"), "y_mm": t.float("y_mm"), "z_mm": t.float("z_mm"),
+            "direction": t.int("direction", allowed=(1, -1)) if "direction" in t else np.ones(n, int),
+            "row": np.array([t.row_number(k) for k in range(n)]), "file": np.full(n, str(t.path))}
+    for k in ("time_s", "temp_c"):
+        if k in t:
+            cols[k] = t.float(k)
+    sw = sweeps_from_columns(cols, source=str(t.path), setup=t.meta().get("setup", ""), axes=words)
+    sw.sources = [str(t.path)]
+    return sw
