@@ -96,6 +96,18 @@ def test_network_learns_what_the_physical_part_leaves(fitted, data):
     assert fitted.params["physics"] == "first-order" and fitted.params["physics_stations"] == GRID
 
 
+def test_a_zeroed_network_is_the_physical_part_alone(data, machine):
+    from training.trainers import zero_network
+    fp, val = data
+    r = fit_field(fp, TrainSettings(max_iter=2, hidden=SMALL_NET, physics="first-order"), validation=val,
+                  track=False, quiet=True)
+    zero_network(r.field)
+    x = random_axes(machine, 20, np.random.default_rng(2))
+    assert np.array_equal(r.field.network_predict(x), np.zeros((20, 3)))
+    assert np.allclose(r.field.predict(x), r.field.physics_predict(x), rtol=0, atol=TOL_EXACT)
+    assert r.metrics["physics_alone_kept"] is False  # no selection points here: nothing to compare on
+
+
 def test_jacobian_is_the_sum_of_closed_forms(fitted, machine):
     f = fitted.field
     x = random_axes(machine, 30, np.random.default_rng(5))

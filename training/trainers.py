@@ -228,6 +228,16 @@ def reference_from_meta(meta: dict):
     return machine, HTMField(machine, ElementSet.load(el))
 
 
+def zero_network(model) -> None:
+    """Make the network part of ``model`` output exactly zero μm (last layer and output mean zeroed):
+    a :class:`PhysicsMLPField` is then its physical part alone."""
+    (o, n_in), _ = model.shapes[-2], model.shapes[-1]
+    theta = model.theta_.detach().clone()
+    theta[-(o * n_in + o):] = 0.0
+    model.theta_ = theta
+    model.out_mean_ = np.zeros(3)
+
+
 def machine_from_meta(meta: dict):
     """The grinder the feature points were made on (their ``machine_file``, else the built-in one)."""
     from errormap.machine import builtin_machine_path, load_machine
@@ -472,6 +482,11 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, validatio
             sel_errors = sel_errors - model.physics_predict(sel_axes)
         selector = _BestOnSelection(model, sel_axes, sel_errors, s.select_every, s.select_patience)
     hist = _train(model, axes, target, s, selector, quiet)
+    physics_kept_alone = False
+    if s.physics != "none" and selector is not None and selector.best_max_um > float(np.abs(sel_errors).max()):
+        # the plain baseline, the physical part alone, is better on the selection points: never return worse
+        zero_network(model)
+        physics_kept_alone = True
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
     if s.physics != "none":  # the physical part alone, beside: what the network added
@@ -481,6 +496,8 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, validatio
                     "iterations": hist.iterations, "train_seconds": hist.seconds})
     if selector is not None:
         metrics.update({"selected_iteration": selector.best_iteration, "selection_max_um": selector.best_max_um})
+    if s.physics != "none":
+        metrics["physics_alone_kept"] = physics_kept_alone
     params = _fit_params(model, s, meta, hist, axes, errors, len(val_axes), val_source, selector is not None)
     run_id = None
     if t.track or out_dir is not None:
