@@ -30,6 +30,8 @@ NET_ITERS = 15           # LM iterations of the small network on the remainder
 SMALL_NET = (8, 8)
 TOL_EXACT = 1e-12        # save/load round trip: float64 written with repr(), equal to rounding
 TOL_PATHS_UM = 1e-9      # value by predict vs predict_and_jacobian (two compiled paths) on ~200 μm: rounding
+EXACT_MODEL_TOL_UM = 1e-6   # the exact solver's model residual on a field with a closed-form Jacobian (issue 28)
+BATCHED_GA_MAX_UM = 0.265   # the paper's GA figure, the batched GA's bound on every point
 TOL_JAC_REL = 1e-6       # closed-form Jacobian vs central differences, relative to its largest entry
 
 
@@ -164,3 +166,15 @@ def test_cli_train_physics_and_bad_stations(tmp_path, monkeypatch, capsys, data)
     assert main(["train", str(tmp_path / "fp.csv"), "--out", str(tmp_path / "tr2"), "--physics", "first-order",
                  "--physics-stations", "3"]) == 2
     assert "--physics-stations" in capsys.readouterr().err
+
+
+def test_exact_and_batched_ga_solve_the_physics_field(fitted, machine):
+    from compensation.solvers import solve
+    from errormap.kinematics import forward
+    P = random_axes(machine, 40, np.random.default_rng(8))
+    P = P[P[:, 1] >= machine.strokes["z_mm"][0] + 5.0]  # away from the A axis (singular WCS)
+    targets = forward(machine, P)
+    res = solve("exact", fitted.field, targets, machine)
+    assert np.abs(res.residual_um).max() <= EXACT_MODEL_TOL_UM
+    res = solve("batched-ga", fitted.field, targets[:20], machine, seed=0)
+    assert np.linalg.norm(res.residual_um, axis=1).max() <= BATCHED_GA_MAX_UM
