@@ -70,3 +70,25 @@ def test_missing_run_is_one_clear_error(tmp_path):
     uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
     with pytest.raises(InputError, match="no learned residual"):
         load_learned_residual_doc("0" * 32, tracking_uri=uri)
+
+
+@pytest.mark.slow
+def test_diagnose_track_logs_the_kept_stage(tmp_path, capsys):
+    """sweeps → simulate (bump) → identify → diagnose --track: the kept learned residual is a run
+    whose JSON is the one model.json holds."""
+    from compensation.app.cli import main
+    from training.tracking import load_learned_residual_doc
+    uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
+    q = ["--seed", "1", "--effect", "bump"]
+    assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", "7", "--out", str(tmp_path / "sw.csv")]) == 0
+    assert main(["simulate", *q, "--checks", "800", "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
+    assert main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "el.json"), "--bootstrap", "40"]) == 0
+    capsys.readouterr()
+    assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--model", str(tmp_path / "el.json"),
+                 "--out", str(tmp_path / "d"), "--track", "--tracking-uri", uri]) == 0
+    s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    model = json.loads((tmp_path / "d" / "model.json").read_text())
+    assert s["kept_stage"] == "learned_residual"
+    rid = s["learned_residual"]["mlflow_run_id"]
+    assert model["mlflow_run_id"] == rid and f"learned residual logged as MLflow run {rid}" in capsys.readouterr().out
+    assert load_learned_residual_doc(rid, tracking_uri=uri) == json.loads(json.dumps(model["learned_residual"]))
