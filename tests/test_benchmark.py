@@ -35,6 +35,48 @@ def test_grinder_conditions_cover_density_noise_and_effects():
     assert all(c.stations == s.base_stations for c in conds if c.group == "effect")
 
 
+def test_out_of_catalogue_conditions_run_the_loop_at_each_check_count():
+    s = BenchmarkSettings()
+    ooc = [c for c in grinder_conditions(s) if c.group == "out-of-catalogue"]
+    assert {c.effect for c in ooc} == set(s.ooc_effects) | {None}
+    assert all(c.loop and c.stations == s.base_stations for c in ooc)
+    # each effect (and none) with the default checks and with each smaller count
+    assert sorted({c.n_checks for c in ooc}) == sorted({s.n_checks, *s.few_checks})
+    assert len(ooc) == (len(s.ooc_effects) + 1) * len({s.n_checks, *s.few_checks})
+    from errormap.simulator import OUT_OF_CATALOGUE
+    assert set(s.ooc_effects) <= set(OUT_OF_CATALOGUE)
+
+
+def _ooc_doc():
+    """Rows of the out-of-catalogue group: parametric loop and hybrid, with and without an effect."""
+    rows = []
+    for cond, par, hyb, kept in (("effect=bump", 1.4, 0.8, True), ("effect=none", 0.7, 0.7, False)):
+        for path, vol in (("parametric", par), ("hybrid", hyb)):
+            rows.append({"machine": "g", "machine_kind": "grinder", "path": path, "group": "out-of-catalogue",
+                         "condition": f"{cond} (after closed loop)", "closed_loop": True, "available": True,
+                         "true_rms_um": vol, "true_max_um": 3 * vol, "volume_rms_um": vol, "fit_seconds": 1.0,
+                         "compensate_seconds_per_point": 1e-4, "n_measurements": 589,
+                         **({"learned_kept": kept, "learned_family": "gp" if kept else "none",
+                             "checks_rms_after_um": 1.8, "check_noise_um": 1.0} if path == "hybrid" else {})})
+    return {"rows": rows, "settings": BenchmarkSettings().to_dict(), "path_conditions": PATH_CONDITIONS,
+            "seconds": 1.0, "environment": {"cpus": 2}, "residual": "true residual", "skipped": []}
+
+
+def test_conclusion_is_computed_from_the_rows():
+    from compensation.app.reports.benchmark import conclusion_lines, markdown_table
+    lines = conclusion_lines(_ooc_doc())
+    bump = next(line for line in lines if line.startswith("effect=bump"))
+    # 0.8 / 0.7 against the machine without the effect; 1.4 / 0.8 against the parametric loop
+    assert "×1.14" in bump and "×1.75" in bump and "kept, gp" in bump
+    assert any("kept in 1" in line for line in lines)
+    assert lines[-1] == "without an effect the learned stage was declined in 1 of 1 conditions"
+    doc = _ooc_doc()
+    doc["rows"][1]["volume_rms_um"] = 0.4  # other figures, other text: nothing is written by hand
+    assert "×3.5" in " ".join(conclusion_lines(doc))
+    table = markdown_table(_ooc_doc())
+    assert "hybrid RMS / max μm" in table and "(kept)" in table and "(declined)" in table
+
+
 def test_quick_settings_are_a_subset_of_the_default():
     q, d = quick_settings(), BenchmarkSettings()
     assert q.quick and not d.quick
@@ -227,14 +269,18 @@ def test_quick_benchmark_end_to_end(tmp_path):
     for r in rows:
         for k in REQUIRED_ROW_KEYS:
             assert k in r
-        assert r["path"] in ("learned", "parametric")
+        assert r["path"] in ("learned", "parametric", "hybrid")
         assert r["available"], r.get("not_available")
         assert r["true_rms_um"] <= r["true_max_um"]
         assert r["fit_seconds"] > 0 and r["compensate_seconds_per_point"] > 0 and r["n_measurements"] > 0
         # compensation helps: far below the uncompensated error (grinder ~125 um, PKM ~1 mm)
         assert r["true_rms_um"] < 0.5 * r["uncompensated_rms_um"]
     loop = [r for r in rows if r.get("closed_loop")]
-    assert {r["path"] for r in loop} == {"learned", "parametric"}
+    assert {r["path"] for r in loop} == {"learned", "parametric", "hybrid"}
+    hybrid = [r for r in rows if r["path"] == "hybrid"]
+    # the hybrid rows: the out-of-catalogue conditions and the same machine without an effect
+    assert {r["condition"] for r in hybrid} == {"effect=bump (after closed loop)", "effect=none (after closed loop)"}
+    assert all(isinstance(r["learned_kept"], bool) and r["learned_family"] for r in hybrid)
     assert all(r["n_measurements"] > 189 for r in loop)   # the check measurements are counted
 
     # MLflow: one parent run, every row and every training a child of it, outputs attached
@@ -263,6 +309,7 @@ def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
     monkeypatch.setattr(training.trainers, "fit_field", broken)
     s = quick_settings()
     s.effects, s.volume_points, s.flute_turns, s.flute_points_per_turn = (), 0, 0.25, 40
+    s.ooc_effects = ()
     rows = run_grinder(grinder, s, Tracker(None, enabled=False))
     par = [r for r in rows if r["path"] == "parametric"]
     lrn = [r for r in rows if r["path"] == "learned"]
@@ -271,3 +318,13 @@ def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
     assert not lrn[0]["available"]
     assert lrn[0]["true_rms_um"] is None
     assert "training failed: RuntimeError: no trainer here" in lrn[0]["not_available"]
+
+
+@pytest.mark.parametrize("name", ["mill-xyz", "ur5"])
+def test_benchmark_refuses_a_machine_kind_it_has_no_paths_for(name, tmp_path, capsys):
+    """A machine-tool chain or an arm used to give no rows and no word; now one line, exit 2, before any work."""
+    from compensation.app.cli import main
+    assert main(["benchmark", "--machine", name, "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and name in err[0] and "grinder, hexapod, tripod" in err[0]
+    assert not (tmp_path / "b").exists()

@@ -6,6 +6,8 @@ May import ``errormap``; never ``compensation``. The public names below load laz
 * :class:`training.model.MLPField` — the network as an error field
   (:class:`errormap.field.ErrorField`: ``predict``, ``calibrated_volume`` and every optional
   capability, ``jacobian`` to the fused GA fitness of :mod:`training.ga_fitness`; ``save``/``load``).
+* :class:`training.model.PhysicsMLPField` — the network on what an element set fitted to the same
+  feature points leaves (``fit_field(..., physics="first-order")``, :mod:`training.physics`).
 * :func:`training.trainers.fit_field` — train on feature points, measure, track in MLflow;
   :class:`training.trainers.TrainSettings` / :class:`~training.trainers.TrackSettings` say how.
 * :func:`training.trainers.validation_points` — random off-grid points from the HTM model.
@@ -18,6 +20,7 @@ QUICK_MAX_ITER = 300     # the demo-sized setting
 
 _LAZY = {
     "MLPField": "training.model",
+    "PhysicsMLPField": "training.model",
     "fit_field": "training.trainers",
     "FitResult": "training.trainers",
     "TrainSettings": "training.trainers",

@@ -582,8 +582,9 @@ class MLPField:
         do not match it. ``directory`` must be a model folder of its own (it is replaced).
         """
         d = Path(directory)
+        extra = self._extra_file_names()
         if d.is_dir():
-            foreign = sorted(p.name for p in d.iterdir() if p.name not in ("config.json",) + MODEL_FILES)
+            foreign = sorted(p.name for p in d.iterdir() if p.name not in ("config.json",) + MODEL_FILES + extra)
             if foreign:
                 raise InputError(f"{d}: a saved model replaces this folder whole, and it holds other files "
                                  f"({', '.join(foreign[:5])}); give a folder of its own")
@@ -592,7 +593,8 @@ class MLPField:
             write_json(tmp / "scalers.json", {k: (np.asarray(v).tolist()) for k, v in self.scalers().items()})
             with atomic_write(tmp / "weights.npy", "wb") as fh:
                 np.save(fh, self._theta().detach().numpy())
-            files = {n: sha256_file(tmp / n) for n in MODEL_FILES}
+            self._write_extra_files(tmp)
+            files = {n: sha256_file(tmp / n) for n in MODEL_FILES + extra}
             write_json(tmp / "config.json", {**self.config(), "files_sha256": files})
         return d
 
@@ -611,9 +613,15 @@ class MLPField:
         if not isinstance(cfg, dict) or cfg.get("format") != FORMAT:
             got = cfg.get("format") if isinstance(cfg, dict) else cfg
             raise InputError(f"{d / 'config.json'}: key 'format': expected {FORMAT!r}, got {got!r}")
+        if cfg.get("physics") and cls is MLPField:  # a network on what a fitted physical part leaves
+            return PhysicsMLPField.load(d)
+        extra = cls._extra_file_names()
+        for name in extra:
+            if not (d / name).is_file():
+                raise InputError(f"{d}: not a saved {cls.__name__} (missing {name})")
         # folders saved before the set was recorded carry no files_sha256 (MLflow runs kept from then)
         for name, sha in (cfg.get("files_sha256") or {}).items():
-            if name in MODEL_FILES and sha256_file(d / name) != sha:
+            if name in MODEL_FILES + extra and sha256_file(d / name) != sha:
                 raise InputError(f"{d / name}: does not belong to this model (SHA-256 differs from the one "
                                  f"config.json records); the folder holds a partial or mixed set")
         m = cls(cfg["hidden"], cfg["activation"], cfg["a_encoding"])
@@ -627,4 +635,97 @@ class MLPField:
         if theta.shape != (m.n_params,):
             raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
         m.theta_ = torch.from_numpy(theta.astype(np.float64))
+        m._read_extra_files(d)
         return m
+
+    @staticmethod
+    def _extra_file_names() -> tuple:
+        """Files a subclass saves beside the network's (their SHA-256 recorded in config.json)."""
+        return ()
+
+    def _write_extra_files(self, folder: Path) -> None:
+        pass
+
+    def _read_extra_files(self, folder: Path) -> None:
+        pass
+
+
+PHYSICS_FILES = ("physics_elements.json", "physics_machine.toml")
+
+
+class PhysicsMLPField(MLPField):
+    """The network on the residual of a fitted physical part: ``E = HTM(elements)(axes) + network(axes)``.
+
+    ``physics_`` is an :class:`~errormap.elements.ElementSet` fitted to the same feature points
+    the network is trained on (:func:`training.physics.fit_physics_elements`), evaluated with the
+    exact HTM model of ``physics_machine_``; the network (every setting of :class:`MLPField`) learns
+    the feature points minus that part. Value and Jacobian are the sums of the two parts' closed
+    forms. Capabilities: ``jacobian`` and ``predict_and_jacobian`` only (the float32 and fused
+    GA paths are the network's alone; solvers use the float64 value and Jacobian here).
+    Saved as the network's files plus ``physics_elements.json`` and ``physics_machine.toml``.
+    """
+
+    kind = "mlp+physics"
+    capabilities = frozenset({JACOBIAN, PREDICT_AND_JACOBIAN})
+
+    def set_physics(self, machine, elements) -> "PhysicsMLPField":
+        """Attach the physical part (a :class:`~errormap.machine.Grinder` and an element set); returns self."""
+        from errormap.htm import HTMField
+        self.physics_machine_ = machine
+        self.physics_ = elements
+        self._htm = HTMField(machine, elements)
+        return self
+
+    def _physics(self):
+        if "_htm" not in self.__dict__:
+            raise RuntimeError("PhysicsMLPField has no physical part: call set_physics or load")
+        return self._htm
+
+    def physics_predict(self, axes) -> np.ndarray:
+        """The physical part alone (μm), shape (n, 3)."""
+        return self._physics().predict(_check_axes(axes))
+
+    def network_predict(self, axes, dtype=np.float64) -> np.ndarray:
+        """The network alone (μm), shape (n, 3): what it learned on top of the physical part."""
+        return MLPField.predict(self, axes, dtype)
+
+    def predict(self, axes, dtype=np.float64) -> np.ndarray:
+        axes = _check_axes(axes)
+        return MLPField.predict(self, axes, dtype) + self._physics().predict(axes)
+
+    __call__ = predict
+
+    def predict_and_jacobian(self, axes, dtype=np.float64):
+        axes = _check_axes(axes)
+        e, J = MLPField.predict_and_jacobian(self, axes, dtype)
+        pe, pJ = self._physics().predict_and_jacobian(axes)
+        return e + pe, J + pJ
+
+    def predict_columns(self, xa):
+        """Columns (3, m) in, (3, m) out, float64 (not a declared capability: the sum is not fused)."""
+        x = xa.numpy() if isinstance(xa, torch.Tensor) else np.asarray(xa)
+        out = self.predict(np.ascontiguousarray(np.asarray(x, dtype=np.float64).T)).T
+        return torch.from_numpy(np.ascontiguousarray(out)).to(xa.dtype) if isinstance(xa, torch.Tensor) else out
+
+    def offset_fitness(self, machine, targets_mm):
+        raise TypeError("PhysicsMLPField declares no offset_fitness (the fused GA pipeline is the network's alone)")
+
+    def config(self) -> dict:
+        return {**super().config(), "physics": "first-order",
+                "physics_stations": int(self.physics_.stations["x_mm"].size) if "physics_" in self.__dict__ else None}
+
+    @staticmethod
+    def _extra_file_names() -> tuple:
+        return PHYSICS_FILES
+
+    def _write_extra_files(self, folder: Path) -> None:
+        self._physics()
+        self.physics_.save(folder / PHYSICS_FILES[0])
+        with atomic_write(folder / PHYSICS_FILES[1], "wb") as fh:
+            fh.write(Path(self.physics_machine_.path).read_bytes())
+
+    def _read_extra_files(self, folder: Path) -> None:
+        from errormap.elements import ElementSet
+        from errormap.machine import load_machine
+        self.set_physics(load_machine(folder / PHYSICS_FILES[1], expect_kind="grinder"),
+                         ElementSet.load(folder / PHYSICS_FILES[0]))

@@ -104,6 +104,90 @@ def log_fit(params: dict, metrics: dict, history, model_dir, artifacts, *, track
     return rid
 
 
+LEARNED_RESIDUAL_EXPERIMENT = "volcomp-learned-residual"
+LEARNED_RESIDUAL_FILE = "learned_residual.json"
+
+
+def _numeric_leaves(prefix: str, doc) -> dict:
+    """``{prefix.key.sub: float}`` for every finite number in a nested dict (MLflow metric names)."""
+    out = {}
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            out.update(_numeric_leaves(f"{prefix}.{k}" if prefix else str(k), v))
+    elif isinstance(doc, (int, float)) and not isinstance(doc, bool):
+        import math
+        if math.isfinite(float(doc)):
+            out[re.sub(r"[^0-9A-Za-z_.\-/ ]", "_", prefix)] = float(doc)
+    return out
+
+
+def log_learned_residual(stage: dict, learned_doc: dict, *, model_doc: dict | None = None, tracking_uri=None,
+                         run_name=None, tags=None, experiment: str = LEARNED_RESIDUAL_EXPERIMENT) -> str:
+    """Record the closed loop's kept learned residual as an MLflow run; returns its run id.
+
+    ``stage``: the stage's summary (``diagnosis.json`` ``stages.learned_residual``: ``learned`` with
+    the chosen family, the blocked-CV table, the held-out gate; ``held_out`` / ``fitting`` statistics);
+    ``learned_doc``: the learned residual's JSON (what ``model.json`` holds under ``learned_residual``);
+    ``model_doc``: the whole ``model.json`` (logged beside it when given).
+    Params: family, inputs, CV scheme, base stage, kept; metrics: every number of the held-out and
+    fitting statistics and of the gate (``held_out.rms_um``, ``learned.held_out_gain_z``, ...) and
+    the CV table (``cv_table.<family>.<column>``); artifacts: ``learned_residual.json``,
+    ``stage.json`` (the summary with its CV table), ``model.json``. Tag ``kind = learned_residual``.
+    """
+    import json
+
+    from mlflow.entities import Metric, Param
+    client, uri = _client(tracking_uri)
+    exp_id = _experiment_id(client, uri, experiment)
+    learned = stage.get("learned", {})
+    run_tags = {"kind": "learned_residual", **{k: str(v) for k, v in (tags or {}).items() if v is not None}}
+    run = client.create_run(exp_id, run_name=run_name or f"learned residual ({learned.get('family', '?')})",
+                            tags=run_tags)
+    rid = run.info.run_id
+    status = "FAILED"
+    try:
+        params = {"family": learned.get("family", ""), "inputs": ",".join(learned.get("inputs", [])),
+                  "cv": learned.get("cv", ""), "kept": learned.get("kept", ""), "why": learned.get("why", ""),
+                  "base_stage": stage.get("base_stage", "")}
+        client.log_batch(rid, params=[Param(k, str(v)[:6000]) for k, v in params.items()])
+        now = int(time.time() * 1000)
+        figures = {**_numeric_leaves("held_out", stage.get("held_out", {})),
+                   **_numeric_leaves("fitting", stage.get("fitting", {})),
+                   **_numeric_leaves("cv_table", learned.get("cv_table", {})),
+                   **{f"learned.{k}": v for k, v in _numeric_leaves("", {k: learned.get(k) for k in (
+                       "held_out_gain_um2", "held_out_gain_se_um2", "held_out_gain_z", "held_out_band95_cover")}).items()}}
+        ms = [Metric(k, v, now, 0) for k, v in figures.items()]
+        for i in range(0, len(ms), 1000):
+            client.log_batch(rid, metrics=ms[i:i + 1000])
+        with tempfile.TemporaryDirectory(prefix="volcomp-learned-") as tmp:
+            files = {LEARNED_RESIDUAL_FILE: learned_doc, "stage.json": stage}
+            if model_doc is not None:
+                files["model.json"] = model_doc
+            for name, doc in files.items():
+                (Path(tmp) / name).write_text(json.dumps(doc, indent=1, default=str), encoding="utf-8")
+                client.log_artifact(rid, str(Path(tmp) / name))
+        status = "FINISHED"
+    finally:
+        client.set_terminated(rid, status)
+    return rid
+
+
+def load_learned_residual_doc(run_id: str, tracking_uri: str | None = None) -> dict:
+    """The ``learned_residual.json`` a :func:`log_learned_residual` run holds (a dict)."""
+    import json
+
+    from mlflow.artifacts import download_artifacts
+    uri_store = tracking_uri or default_tracking_uri()
+    with tempfile.TemporaryDirectory(prefix="volcomp-learned-") as tmp:
+        try:
+            p = Path(download_artifacts(artifact_uri=f"runs:/{run_id}/{LEARNED_RESIDUAL_FILE}", dst_path=tmp,
+                                        tracking_uri=uri_store))
+        except Exception as exc:
+            raise InputError(f"{run_id}: no learned residual in MLflow store {uri_store}: "
+                             f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        return json.loads(p.read_text(encoding="utf-8"))
+
+
 def register_model(run_id: str, name: str, tracking_uri: str | None = None) -> str:
     """Register a run's ``model/`` artifact as a new version of ``name``; returns ``models:/name/version``."""
     from mlflow.tracking import MlflowClient

@@ -37,7 +37,8 @@ from errormap.threads import limit_threads
 
 from . import DEFAULT_MAX_ITER, QUICK_MAX_ITER  # noqa: F401  (QUICK_MAX_ITER re-exported)
 from .lm import LMSettings, TrainHistory, train_lm
-from .model import A_ENCODINGS, ACTIVATIONS, PAPER_HIDDEN, MLPField
+from .model import A_ENCODINGS, ACTIVATIONS, PAPER_HIDDEN, MLPField, PhysicsMLPField
+from .physics import MAX_STATIONS, MIN_STATIONS, PHYSICS
 
 TRAINERS = ("lm", "adam", "lbfgs")
 VALIDATION_STREAM, SELECTION_STREAM = 0, 1  # children of SeedSequence(seed): validation, selection points
@@ -227,6 +228,25 @@ def reference_from_meta(meta: dict):
     return machine, HTMField(machine, ElementSet.load(el))
 
 
+def zero_network(model) -> None:
+    """Make the network part of ``model`` output exactly zero μm (last layer and output mean zeroed):
+    a :class:`PhysicsMLPField` is then its physical part alone."""
+    (o, n_in), _ = model.shapes[-2], model.shapes[-1]
+    theta = model.theta_.detach().clone()
+    theta[-(o * n_in + o):] = 0.0
+    model.theta_ = theta
+    model.out_mean_ = np.zeros(3)
+
+
+def machine_from_meta(meta: dict):
+    """The grinder the feature points were made on (their ``machine_file``, else the built-in one)."""
+    from errormap.machine import builtin_machine_path, load_machine
+    mf = meta.get("machine_file") or None
+    if mf and not Path(mf).is_file() and meta.get("machine_sha256") in (None, "", sha256_file(builtin_machine_path())):
+        mf = None
+    return load_machine(mf, expect_kind="grinder")
+
+
 def data_hash(axes, errors) -> str:
     """SHA-256 of the training data (float64 bytes of axes then errors)."""
     h = hashlib.sha256()
@@ -349,8 +369,16 @@ class TrainSettings:
     select_every: int = 5
     select_patience: int = 0
     threads: int | None = None
+    physics: str = "none"
+    physics_stations: int | None = None
 
     def __post_init__(self):
+        if self.physics not in PHYSICS:
+            raise ValueError(f"Expected physics in {PHYSICS}, got {self.physics!r}")
+        if self.physics_stations is not None and not (
+                int(self.physics_stations) == self.physics_stations and MIN_STATIONS <= self.physics_stations <= MAX_STATIONS):
+            raise ValueError(f"Expected physics_stations in [{MIN_STATIONS}, {MAX_STATIONS}] (an integer) or None, "
+                             f"got {self.physics_stations}")
         if self.trainer not in TRAINERS:
             raise ValueError(f"Expected trainer in {TRAINERS}, got {self.trainer!r}")
         if self.init not in INITS:
@@ -434,21 +462,42 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, validatio
     # the initial weights use the seed itself; validation and selection points its children
     streams = spawn_seeds(s.seed, 2)
     (val_axes, val_errors), val_source = _validation_data(s, validation, ref, meta, streams[VALIDATION_STREAM])
-    model = MLPField(s.hidden, s.activation, s.a_encoding).fit_scalers(axes, errors)
+    if s.physics == "none":
+        model = MLPField(s.hidden, s.activation, s.a_encoding)
+        target = errors
+    else:  # the network learns the feature points minus a physical part fitted to the same points
+        from .physics import fit_physics_elements
+        machine = ref[0] if ref is not None else machine_from_meta(meta)
+        model = PhysicsMLPField(s.hidden, s.activation, s.a_encoding)
+        model.set_physics(machine, fit_physics_elements(machine, axes, errors, s.physics_stations))
+        target = errors - model.physics_predict(axes)
+    model.fit_scalers(axes, target)
     selector = None
     if s.select_best and s.trainer == "lm" and (selection is not None or ref is not None):
         if selection is not None:
             sel_axes, sel_errors = (np.asarray(v, float) for v in selection)
         else:
             sel_axes, sel_errors = validation_points(ref[0], ref[1], n=s.n_select, seed=streams[SELECTION_STREAM])
+        if s.physics != "none":
+            sel_errors = sel_errors - model.physics_predict(sel_axes)
         selector = _BestOnSelection(model, sel_axes, sel_errors, s.select_every, s.select_patience)
-    hist = _train(model, axes, errors, s, selector, quiet)
+    hist = _train(model, axes, target, s, selector, quiet)
+    physics_kept_alone = False
+    if s.physics != "none" and selector is not None and selector.best_max_um > float(np.abs(sel_errors).max()):
+        # the plain baseline, the physical part alone, is better on the selection points: never return worse
+        zero_network(model)
+        physics_kept_alone = True
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
+    if s.physics != "none":  # the physical part alone, beside: what the network added
+        metrics.update(fit_metrics("physics_train", model.physics_predict(axes), errors))
+        metrics.update(fit_metrics("physics_val", model.physics_predict(val_axes), val_errors))
     metrics.update({"final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
                     "iterations": hist.iterations, "train_seconds": hist.seconds})
     if selector is not None:
         metrics.update({"selected_iteration": selector.best_iteration, "selection_max_um": selector.best_max_um})
+    if s.physics != "none":
+        metrics["physics_alone_kept"] = physics_kept_alone
     params = _fit_params(model, s, meta, hist, axes, errors, len(val_axes), val_source, selector is not None)
     run_id = None
     if t.track or out_dir is not None:
@@ -499,8 +548,10 @@ def _fit_params(model, s: TrainSettings, meta: dict, hist, axes, errors, n_val: 
         "machine_sha256": meta.get("machine_sha256") or (sha256_file(machine_file) if machine_file and Path(machine_file).is_file() else ""),
         "elements_sha256": meta.get("elements_sha256", ""), "stop_reason": hist.stop_reason,
         "output_scale_um": model.out_scale_, "init": s.init,
-        "select_best": bool(selected),
+        "select_best": bool(selected), "physics": s.physics,
     }
+    if s.physics != "none":
+        params["physics_stations"] = int(model.physics_.stations["x_mm"].size)
     if selected and s.select_patience:
         params["select_patience"] = s.select_patience
     if s.trainer == "lm":

@@ -9,6 +9,7 @@ from __future__ import annotations
 import sys
 
 from errormap.machine import load_machine
+from compensation.app.validate import UsageError
 
 
 
@@ -37,6 +38,10 @@ def register(sub):
     p.set_defaults(func=run)
 
 
+BENCHMARK_KINDS = ("grinder", "hexapod", "tripod")
+"""The machine kinds the benchmark has learned and parametric paths for."""
+
+
 def run(args) -> int:
     from ..workflows.benchmark import BenchmarkSettings, quick_settings, run_benchmark
     s = quick_settings() if args.quick else BenchmarkSettings()
@@ -50,6 +55,11 @@ def run(args) -> int:
         s.truth_seed = args.truth_seed
     if args.machine:
         machines = [load_machine(p) for p in args.machine]
+        unsupported = [(p, m.kind) for p, m in zip(args.machine, machines) if m.kind not in BENCHMARK_KINDS]
+        if unsupported:  # refused before any work: a machine the benchmark has no paths for gave no rows, silently
+            p, kind = unsupported[0]
+            raise UsageError(f"--machine {p}: a {kind} machine; the benchmark runs {', '.join(BENCHMARK_KINDS)} "
+                             "machines (machine-tool chains: benchmarks/bench_mt_loop.py; arms: `volcomp calibrate`)")
     else:
         machines = [load_machine(None, expect_kind=k) for k in ("grinder", "hexapod", "tripod")]
     doc = run_benchmark(machines, args.out, s, tracking_uri=args.tracking_uri, track=not args.no_track)

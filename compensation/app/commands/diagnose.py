@@ -28,6 +28,9 @@ def register(sub):
     p.add_argument("--model", default=None, help="element-set file (JSON) or MLflow run id of a learned field")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--tracking-uri", default=None)
+    p.add_argument("--track", action="store_true",
+                   help="closed loop: log a kept learned residual as an MLflow run (its CV table, chosen family, "
+                        "JSON; store: --tracking-uri, else $MLFLOW_TRACKING_URI, else runs/mlflow.db)")
     p.add_argument("--featurepoints", default=None, help="feature points of a learned model (for the retrain)")
     p.add_argument("--fit-fraction", type=float, default=0.6, help="first part (by seq / time) used for fitting")
     p.add_argument("--time-unit", choices=["s", "min", "h"], default=None,
@@ -117,7 +120,7 @@ def run(args) -> int:
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
         summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,
                                     args.featurepoints, retrain, update=not args.no_update, units=args.units,
-                                    units_option="--units", learn=not args.no_learned)
+                                    units_option="--units", learn=not args.no_learned, track=args.track)
         if "stages" in summary:
             st = summary["stages"]
             print("held-out RMS: identified {:.3g} -> updated {:.3g} -> updated + effects {:.3g} um".format(
@@ -130,6 +133,9 @@ def run(args) -> int:
                 print(f"not updated by the checks: {c['element']}: {c['why']}")
             for e in summary.get("effects_rejected", []):
                 print(f"rejected: {e['kind']} axis {e['axis']} ({summary.get('effects_rejected_why', '')})")
+        rid = (summary.get("learned_residual") or {}).get("mlflow_run_id")
+        if rid:
+            print(f"learned residual logged as MLflow run {rid}")
         for i, e in enumerate(summary["effects"], 1):
             print(f"{i}. {e['kind']} axis {e['axis']} on {e['element']}: held-out RMS -{e['rms_reduction_um']:.3g} μm")
         if not summary["effects"]:

@@ -49,6 +49,13 @@ def register(sub):
     p.add_argument("--no-select", dest="select_best", action="store_false",
                    help="return the last LM iterate (the paper's rule) instead of the iterate that is best on "
                         "5,000 off-grid selection points of the HTM model (default; disjoint from validation)")
+    p.add_argument("--physics", choices=("none", "first-order"), default="none",
+                   help="none: the network learns the feature points (the paper's); first-order: the network learns "
+                        "what an element set fitted to the SAME feature points leaves (one linear least-squares "
+                        "solve, stations at the grid's nodes; the field is that HTM model plus the network)")
+    p.add_argument("--physics-stations", type=int, default=None,
+                   help="--physics first-order: stations per axis of the fitted element set (default: the "
+                        "feature-point grid's points per axis)")
     p.set_defaults(func=run)
 
 
@@ -75,7 +82,8 @@ def run(args) -> int:
     try:
         settings = TrainSettings(trainer=args.trainer, max_iter=max_iter, max_time_s=max_time, seed=args.seed,
                                  hidden=hidden, activation=args.activation, a_encoding=args.a_encoding,
-                                 mse_goal=args.mse_goal, threads=args.threads, select_best=args.select_best)
+                                 mse_goal=args.mse_goal, threads=args.threads, select_best=args.select_best,
+                                 physics=args.physics, physics_stations=args.physics_stations)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     fp = FeaturePoints.load(args.featurepoints)
@@ -102,6 +110,9 @@ def run(args) -> int:
         print(f"the wall-clock budget decided where training stopped; --max-iter {res.history.iterations} "
               "(without --max-time) reproduces this model")
     print(f"{'fit error (μm)':<16}{'max':>10}{'rms':>10}{'max dx':>10}{'max dy':>10}{'max dz':>10}")
+    if args.physics != "none":
+        print(f"physical part alone (element set fitted to the feature points, {res.params['physics_stations']} "
+              f"stations per axis): train max {m['physics_train_max_um']:.4f} μm, val max {m['physics_val_max_um']:.4f} μm")
     for p in ("train", "val"):
         print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
             f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um", f"{p}_max_dz_um")))

@@ -12,7 +12,7 @@ from markupsafe import Markup
 from .figures import pyplot
 from .toolkit import Figure, Table, figure, num, render_page, um
 
-PATH_COLORS = {"parametric": "tab:blue", "learned": "tab:orange"}
+PATH_COLORS = {"parametric": "tab:blue", "learned": "tab:orange", "hybrid": "tab:green"}
 PLOT_FLOOR_UM = 0.01
 """Line plots draw values below this (noise-free exact compensation, ~1e-9 μm) at this floor."""
 
@@ -130,6 +130,57 @@ def verdicts(doc) -> list[str]:
             ratio = max(p, l) / max(min(p, l), 1e-12)
             out.append(Markup("{}, {}: <b>{}</b> (true RMS parametric {}, learned {}, ×{})").format(
                 kind, cond, win, um(p), um(l), num(ratio)))
+        if "parametric" in d and "hybrid" in d:
+            p, h = d["parametric"]["true_rms_um"], d["hybrid"]["true_rms_um"]
+            out.append(Markup("{}, {}: hybrid (learned residual {}) true RMS {} against the parametric loop's {} (×{})").format(
+                kind, cond, "kept" if d["hybrid"].get("learned_kept") else "declined", um(h), um(p),
+                num(p / max(h, 1e-12))))
+    return out
+
+
+def _ooc_pairs(doc) -> dict:
+    """``{condition name: {"parametric": row, "hybrid": row}}`` of the out-of-catalogue group after the loop."""
+    by = {}
+    for r in _rows(doc, "grinder", group="out-of-catalogue"):
+        if r.get("closed_loop") and r["path"] in ("parametric", "hybrid"):
+            by.setdefault(r["condition"].replace(" (after closed loop)", ""), {})[r["path"]] = r
+    return {k: v for k, v in by.items() if len(v) == 2}
+
+
+def conclusion_lines(doc) -> list[str]:
+    """The out-of-catalogue conclusion, computed from the rows (never written by hand): per condition
+    the compensated volume's TRUE RMS of the parametric loop and of the hybrid, the machine without
+    an effect beside, whether the learned stage was kept, and the issue's two ratios."""
+    pairs = _ooc_pairs(doc)
+    if not pairs:
+        return []
+    key = "volume_rms_um"
+    clean = {c: d for c, d in pairs.items() if c.startswith("effect=none")}
+    out = []
+    for cond, d in pairs.items():
+        p, h = d["parametric"], d["hybrid"]
+        suffix = cond.split(",", 1)[1].strip() if "," in cond else ""
+        ref = next((v for c, v in clean.items() if (c.split(",", 1)[1].strip() if "," in c else "") == suffix), None)
+        line = (f"{cond}: compensated volume TRUE RMS parametric loop {num(p.get(key))} μm, hybrid {num(h.get(key))} μm "
+                f"(learned residual {'kept, ' + str(h.get('learned_family')) if h.get('learned_kept') else 'declined'}; "
+                f"held-out checks RMS {num(h.get('checks_rms_after_um'))} μm at {num(h.get('check_noise_um'))} μm noise "
+                f"per component)")
+        if not cond.startswith("effect=none") and ref is not None and None not in (p.get(key), h.get(key)):
+            base = ref["hybrid"].get(key)
+            line += (f"; against the same machine without the effect ({num(base)} μm) ×{num(h[key] / max(base, 1e-12))}, "
+                     f"parametric loop / hybrid ×{num(p[key] / max(h[key], 1e-12))}")
+        out.append(line)
+    eff = [(d["parametric"].get(key), d["hybrid"].get(key)) for c, d in pairs.items() if not c.startswith("effect=none")]
+    eff = [(a, b) for a, b in eff if a is not None and b is not None]
+    if eff:
+        gains = np.array([a / max(b, 1e-12) for a, b in eff])
+        kept = sum(bool(d["hybrid"].get("learned_kept")) for c, d in pairs.items() if not c.startswith("effect=none"))
+        out.append(f"over {len(eff)} out-of-catalogue conditions: the learned stage was kept in {kept}; the hybrid "
+                   f"lowers the parametric loop's volume RMS by ×{num(float(np.min(gains)))}–×{num(float(np.max(gains)))} "
+                   f"(median ×{num(float(np.median(gains)))})")
+    declined = [not d["hybrid"].get("learned_kept") for c, d in clean.items()]
+    if declined:
+        out.append(f"without an effect the learned stage was declined in {sum(declined)} of {len(declined)} conditions")
     return out
 
 
@@ -222,7 +273,7 @@ def render_html(doc: dict) -> str:
         pkm.append((kind, {"table": _table(h, PKM_COLS), "per_path": _per_path_table([r for r in h if r.get("available")]),
                            "figures": [f for f in figures if f is not None]}))
     return render_page("benchmark.html", title="volcomp benchmark: learned vs parametric compensation", doc=doc, s=s,
-                       summary=summary_lines(doc), verdicts=verdicts(doc), not_available=not_available,
+                       summary=summary_lines(doc) + conclusion_lines(doc), verdicts=verdicts(doc), not_available=not_available,
                        grinder=grinder, pkm=pkm, cost_figure=_cost_plot(doc),
                        train_stop=_stop(s, "train"), pkm_train_stop=_stop(s, "pkm_train"))
 
@@ -232,9 +283,11 @@ def markdown_table(doc: dict) -> str:
     by = {}
     for r in doc["rows"]:
         by.setdefault((r["machine_kind"], r["condition"]), {})[r["path"]] = r
+    hybrid = any(r["path"] == "hybrid" for r in doc["rows"])
     lines = ["| machine | condition | measurements | parametric RMS / max μm | learned RMS / max μm | "
-             "uncompensated RMS μm | fit s (par / learned) | compensate ms/point (par / learned) |",
-             "|---|---|---|---|---|---|---|---|"]
+             + ("hybrid RMS / max μm | volume RMS par / hybrid μm | " if hybrid else "")
+             + "uncompensated RMS μm | fit s (par / learned) | compensate ms/point (par / learned) |",
+             "|---|---|---|---|---|" + ("---|---|" if hybrid else "") + "---|---|---|"]
 
     def cell(r, a, b, scale=1.0):
         if r is None or not r.get("available"):
@@ -249,6 +302,13 @@ def markdown_table(doc: dict) -> str:
         fit = " / ".join(num(None if x is None else x.get("fit_seconds")) for x in (p, l))
         comp = " / ".join(num(None if x is None or x.get("compensate_seconds_per_point") is None
                               else 1e3 * x["compensate_seconds_per_point"]) for x in (p, l))
+        h = d.get("hybrid")
+        hy = ""
+        if hybrid:
+            vol = "—" if h is None or not h.get("available") else \
+                f"{num((p or {}).get('volume_rms_um'))} / {num(h.get('volume_rms_um'))}"
+            hy = ("— | " if h is None else f"{cell(h, 'true_rms_um', 'true_max_um')}"
+                  f"{'' if not h.get('available') else (' (kept)' if h.get('learned_kept') else ' (declined)')} | ") + f"{vol} | "
         lines.append(f"| {kind} | {cond} | {any_r.get('n_measurements')} | {cell(p, 'true_rms_um', 'true_max_um')} | "
-                     f"{cell(l, 'true_rms_um', 'true_max_um')} | {num(any_r.get('uncompensated_rms_um'))} | {fit} | {comp} |")
+                     f"{cell(l, 'true_rms_um', 'true_max_um')} | {hy}{num(any_r.get('uncompensated_rms_um'))} | {fit} | {comp} |")
     return "\n".join(lines)

@@ -75,6 +75,10 @@ class BenchmarkSettings:
     base_stations: int = 21
     base_noise_um: float = 1.0
     effects: tuple = ("thermal", "reversal", "pitch", "worm", "interaction")
+    # effects no catalogue kind represents (errormap.simulator.OUT_OF_CATALOGUE), each with the closed
+    # loop and its learned-residual stage (the hybrid column); plus the same machine without an effect
+    ooc_effects: tuple = ("bump", "a_tilt", "squareness")
+    few_checks: tuple = (150,)             # the out-of-catalogue conditions again with this many checks
     n_checks: int = 400
     check_noise_um: float = 1.0
     train_iter: int = 150                  # LM iterations per learned grinder condition (~30 s on 2 cores)
@@ -111,6 +115,7 @@ class BenchmarkSettings:
 def quick_settings() -> BenchmarkSettings:
     """The ``--quick`` variant (a test runs it): fewer conditions, tiny training, path subsets."""
     return BenchmarkSettings(stations=(21,), noises_um=(1.0,), effects=("thermal",), n_checks=200,
+                             ooc_effects=("bump",), few_checks=(),
                              train_iter=60, hidden=(8, 8), activation="tanh", a_encoding="periodic", paper_network=False,
                              ga_points=20, ga_generations=100, flute_turns=1.0, flute_points_per_turn=200,
                              volume_points=50,
@@ -233,6 +238,8 @@ class GrinderCondition:
     stations: int
     noise_um: float
     effect: str | None = None
+    n_checks: int | None = None   # check measurements of the closed loop (None: the settings' n_checks)
+    loop: bool = False            # run the closed loop (and its hybrid stage) even without an effect
 
 
 def grinder_conditions(s: BenchmarkSettings) -> list[GrinderCondition]:
@@ -247,6 +254,12 @@ def grinder_conditions(s: BenchmarkSettings) -> list[GrinderCondition]:
     for eff in s.effects:
         name = f"effect={eff}"
         out[name] = GrinderCondition(name, "effect", s.base_stations, s.base_noise_um, eff)
+    if s.ooc_effects:  # out of any catalogue, and the same machine without an effect, at each check count
+        for eff in (*s.ooc_effects, "none"):
+            for nc in dict.fromkeys((s.n_checks, *s.few_checks)):
+                name = f"effect={eff}" + (f", checks={nc}" if nc != s.n_checks else "")
+                out[name] = GrinderCondition(name, "out-of-catalogue", s.base_stations, s.base_noise_um,
+                                             None if eff == "none" else eff, nc, True)
     return list(out.values())
 
 
@@ -430,10 +443,12 @@ class GrinderBench:
         common = {"group": c.group, "stations": c.stations, "noise_um": c.noise_um, "effect": c.effect,
                   "test_path": f"flute ({len(self.points.targets_mm)} points)", "n_measurements": n_meas,
                   "uncompensated_rms_um": unc_rms, "uncompensated_max_um": unc_max}
-        label = c.name + (" (before closed loop)" if c.effect else "")
+        loop = bool(c.effect or c.loop)
+        label = c.name + (" (before closed loop)" if loop else "")
         par_field, par = self.parametric_row(truth, elements, id_s, label, common)
+        # the network is trained once per identified element set (a condition with other checks reuses it)
         learned = self.learned_row(truth, elements, id_s, c.name, label, common)
-        if c.effect and learned is not None:
+        if loop and learned is not None:
             mlp, lrn = learned
             self.closed_loop(c, truth, ((par, par_field), (lrn, mlp)), common)
 
@@ -478,18 +493,59 @@ class GrinderBench:
         ``(base row, base field)`` of ``bases``."""
         from errormap.diagnosis.checks import CheckData
         s = self.s
-        cols = truth.check_measurements(n=s.n_checks, noise_um=s.check_noise_um, seed=_streams(s.seed)["checks"])
+        n_checks = c.n_checks or s.n_checks
+        cols = truth.check_measurements(n=n_checks, noise_um=s.check_noise_um, seed=_streams(s.seed)["checks"])
         checks = CheckData.from_columns(cols, path=f"<simulated checks, {c.name}>")
         label = f"{c.name} (after closed loop)"
         for base_row, base in bases:
             _log(f"grinder: {base_row['path']}, {label}")
             try:
-                self.closed_loop_row(truth, label, checks, base_row, base, common)
+                d, row = self.closed_loop_row(truth, label, checks, base_row, base, common)
             except Exception as exc:  # never fake numbers: the row says why it is missing
                 self.log.add(_row(self.m.name, "grinder", base_row["path"], label, available=False, closed_loop=True,
                                   not_available=f"closed loop failed: {type(exc).__name__}: {exc}", **common))
+                continue
+            if base_row["path"] == "parametric" and c.group == "out-of-catalogue":
+                _log(f"grinder: hybrid, {label}")
+                try:
+                    self.hybrid_row(truth, label, d, row, common)
+                except Exception as exc:
+                    self.log.add(_row(self.m.name, "grinder", "hybrid", label, available=False, closed_loop=True,
+                                      not_available=f"learned-residual stage failed: {type(exc).__name__}: {exc}",
+                                      **common))
 
-    def closed_loop_row(self, truth, label, checks, base_row, base, common) -> None:
+    def hybrid_row(self, truth, label, d, loop_row, common) -> None:
+        """The parametric loop's corrected field + the learned residual stage on the same checks
+        (:func:`compensation.hybrid.learned_stage`: fitted on the loop's fitting checks, kept only if it
+        beats the loop on the held-out checks): the product's kept stage, compensated and judged by the truth."""
+        from ...diagnosed_model import ConditionedField
+        from ...hybrid import HybridField, learned_stage
+        s = self.s
+        t0 = time.perf_counter()
+        learned, stage = learned_stage(self.m, d.residual_after_um, d.checks.axes, d.fit_idx, d.hold_idx, seed=s.seed)
+        learn_s = time.perf_counter() - t0
+        base = ConditionedField(d.corrected, PATH_CONDITIONS)
+        field_ = HybridField(base, learned) if learned is not None else base
+        sol = {"exact": self._compensate(truth, field_, "exact")}
+        if learned is not None:
+            sol["batched-ga"] = self._compensate(truth, field_, "batched-ga", idx=self.points.ga_idx)
+        vol = self._volume(truth, field_)
+        st = stage.get("learned", {})
+        held = stage.get("held_out") if learned is not None else None
+        row = _row(self.m.name, "grinder", "hybrid", label, closed_loop=True, solver="exact",
+                   fit_seconds=loop_row["fit_seconds"] + learn_s, learn_seconds=learn_s,
+                   compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
+                   true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"], solvers=sol,
+                   effects_found=loop_row.get("effects_found"), n_checks=loop_row.get("n_checks"),
+                   learned_kept=learned is not None, learned_family=st.get("family"), learned_why=st.get("why"),
+                   learned_gain_z=st.get("held_out_gain_z"), learned_band95_cover=st.get("held_out_band95_cover"),
+                   checks_rms_before_um=loop_row.get("checks_rms_before_um"),
+                   checks_rms_after_um=held["rms_um"] if held else loop_row.get("checks_rms_after_um"),
+                   check_noise_um=s.check_noise_um,
+                   **{**common, "n_measurements": loop_row.get("n_measurements")})
+        self.log.add(_with_volume(row, vol))
+
+    def closed_loop_row(self, truth, label, checks, base_row, base, common):
         from errormap.diagnosis.pipeline import diagnose
 
         from ...diagnosed_model import ConditionedField
@@ -509,10 +565,11 @@ class GrinderBench:
                    fit_seconds=base_row["fit_seconds"] + diag_s, diagnosis_seconds=diag_s,
                    compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
                    true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
-                   solvers=sol, effects_found=found, n_checks=s.n_checks,
+                   solvers=sol, effects_found=found, n_checks=len(checks),
                    checks_rms_before_um=d.summary["rms_before_um"], checks_rms_after_um=d.summary["rms_after_um"],
-                   **{**common, "n_measurements": common["n_measurements"] + s.n_checks}, **extra)
+                   **{**common, "n_measurements": common["n_measurements"] + len(checks)}, **extra)
         self.log.add(_with_volume(row, vol))
+        return d, row
 
     def paper_network_row(self) -> None:
         """The learned path at the base condition with the paper's network (10-15-25-15-10, sigmoid, A raw)

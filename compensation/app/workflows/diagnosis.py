@@ -126,8 +126,9 @@ def _write(out_dir, summary, page):
 def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
                tracking_uri=None, featurepoints=None, retrain=None, fit_field=None,
                field_=None, update: bool = True, units: str = "check",
-               units_option: str | None = None, learn: bool = True):
+               units_option: str | None = None, learn: bool = True, track: bool = False):
     """Diagnose ``checks_path`` against ``model_spec``; returns (summary, paths).
+    ``track``: a kept learned residual is also logged as an MLflow run (``tracking_uri``).
 
     ``field_`` overrides loading ``model_spec`` (tests, benchmarks). With a learned model
     (a run id) and ``featurepoints`` given, axis-only effects trigger the retrain (``retrain``: its
@@ -146,7 +147,7 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
             print(f"diagnose: model {src.description}, covariance {cov}: closed loop (update, then effects)",
                   file=sys.stderr)
             return run_closed_loop(checks_path, machine, model_spec, out_dir, settings, source=src, units=units,
-                                   units_option=units_option, learn=learn)
+                                   units_option=units_option, learn=learn, track=track, tracking_uri=tracking_uri)
         why = ("--no-update" if cov is not None and cov.is_file() else
                f"no covariance {cov} beside it (written by `volcomp identify`)" if cov is not None else
                "a learned field")
@@ -190,7 +191,8 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
 
 
 def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
-                    source=None, units: str = "check", units_option: str | None = None, learn: bool = True):
+                    source=None, units: str = "check", units_option: str | None = None, learn: bool = True,
+                    track: bool = False, tracking_uri=None):
     """The closed loop on an identified element set with its covariance; returns (summary, paths).
     ``source``: the recognised model (:class:`compensation.fields.ModelSource`), else resolved here.
     ``learn``: after the loop, the learned-residual stage (:func:`compensation.hybrid.learned_stage`)."""
@@ -234,6 +236,13 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     if learned is not None:
         model["base_stage"] = loop.kept_stage
         model["learned_residual"] = learned.to_dict()
+        if track:  # the kept learned residual as an MLflow run (training.tracking.log_learned_residual)
+            from training.tracking import log_learned_residual
+            rid = log_learned_residual(summary["stages"]["learned_residual"], model["learned_residual"],
+                                       model_doc=model, tracking_uri=tracking_uri,
+                                       tags={"checks": str(checks_path), "model": str(model_spec)})
+            summary["learned_residual"] = dict(summary["learned_residual"], mlflow_run_id=rid)
+            model["mlflow_run_id"] = rid
     paths = _write(out_dir, summary, page)
     # the kept stage's elements (the identified ones when the fallback keeps them) and their covariance
     loop.covariance.save(covariance_path(upd_path))

@@ -1,0 +1,41 @@
+"""The small run of ``volcomp benchmark`` behind benchmarks/benchmark_results.md's out-of-catalogue section.
+
+The grinder only, ``quick_settings()`` (the (8, 8) tanh network with periodic A, LM 60 iterations,
+one flute turn, batched GA on 20 points) with: no catalogue effects; the out-of-catalogue effects
+``bump``, ``a_tilt``, ``squareness`` and the same machine without an effect, each with the closed
+loop at 400 and at 150 check measurements; 300 volume points. No MLflow. Prints the markdown table
+(``compensation.app.reports.benchmark.markdown_table``) and the conclusion lines computed from the
+rows (``conclusion_lines``); writes ``OUT/benchmark.json`` and ``OUT/report.html``.
+
+    nice -n 10 python benchmarks/bench_benchmark_ooc.py /tmp/bench_ooc
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def main(argv=None):
+    from compensation.app.reports.benchmark import conclusion_lines, markdown_table
+    from compensation.app.workflows.benchmark import quick_settings, run_benchmark
+    from errormap.machine import load_machine
+    out = (argv or sys.argv[1:] or ["runs/benchmark-ooc"])[0]
+    s = quick_settings()
+    s.effects = ()
+    s.ooc_effects = ("bump", "a_tilt", "squareness")
+    s.n_checks, s.few_checks = 400, (150,)
+    s.volume_points = 300
+    t0 = time.process_time()
+    doc = run_benchmark([load_machine(None, expect_kind="grinder")], out, s, track=False)
+    print("cpu_s", time.process_time() - t0, "wall_s", doc["seconds"])
+    print("settings", json.dumps({k: v for k, v in s.to_dict().items() if not k.startswith("pkm")}))
+    print(markdown_table(doc))
+    print("\n".join(conclusion_lines(doc)))
+
+
+if __name__ == "__main__":
+    main()
