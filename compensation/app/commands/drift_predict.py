@@ -90,8 +90,9 @@ def run(args) -> int:
         upd = DriftUpdater(noise_um=args.noise_um,
                            drift_per_h=DRIFT_PER_H if args.drift_per_h is None else args.drift_per_h)
         res = upd.run(model, log, log.disp_um)
+        bands = model.band_um(log)
         for ch in model.channels:
-            band = model.channels[ch].band95_um
+            band = bands[ch]
             cols[f"{ch}_fixed_pred_um"] = res.fixed_um[ch]
             cols[f"{ch}_pred_um"] = res.pred_um[ch]
             cols[f"{ch}_lo_um"] = res.pred_um[ch] - band
