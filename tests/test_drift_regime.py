@@ -116,4 +116,4 @@ def test_a_shrunk_choice_is_the_blend_of_candidate_and_ols():
     feats, a, b = fams[f].fit(log, [ch], fit, {})[ch][hy]
     fo, ao, bo = fams["ols"].fit(log, [ch], fit, {})[ch][""]
     want = w * (a + feature_matrix(log, feats) @ b) + (1 - w) * (ao + feature_matrix(log, fo) @ bo)
-    np.testing.assert_allclose(sel.model_.predict(log)[ch], want, atol=BLEND_ATOL_UM, rtol=0)
+    np.testing.assert_allclose(sel.model_.predict(log, distance_shrink=False)[ch], want, atol=BLEND_ATOL_UM, rtol=0)

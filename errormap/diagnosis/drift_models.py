@@ -730,6 +730,8 @@ class DriftSelector:
         rho_r = [relative_distance(U[tr], U[va]) for tr, va in folds]
         rho_h = [relative_distance(U[tr], U[va]) for tr, va in hfolds]
         rho_n = [relative_distance(U[tr], U[va]) for tr, va in nfolds]
+        gw = {id(rs): {sc: [distance_weight(q, sc) for q in rs] for sc in self.shrink_scales}
+              for rs in (rho_r, rho_h, rho_n)}
         self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
         self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
         self.scale_ = {}
@@ -748,7 +750,9 @@ class DriftSelector:
                 for w in ((1.0,) if k == base else self.shrink_weights):
                     def blend(a, b, rhos, s):
                         # per sample: OLS + w·g(ρ)·(candidate − OLS)
-                        return [y + w * distance_weight(q, s) * (x - y) for x, y, q in zip(a, b, rhos)]
+                        if not np.isfinite(s):
+                            return [y + w * (x - y) for x, y in zip(a, b)]
+                        return [y + w * g * (x - y) for x, y, g in zip(a, b, gw[id(rhos)][s])]
                     # g's scale: the one of lowest RMS on the novelty folds (ties: the least shrinkage)
                     sc = np.inf
                     if nfolds and k != base:
