@@ -209,6 +209,9 @@ def main(argv=None):
         return
     t0 = time.perf_counter()
     real = real_rows() if REAL.is_file() and not a.no_real else []
+    for r in real:
+        print(f"real {r['split']} {r['channel']} {r['model']} {r['volcomp'] / r['ols']:.3f}× OLS, band coverage "
+              f"{r['coverage']:.2f}", file=sys.stderr, flush=True)
     print(f"real log done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
     tasks = [(f, s, True) for f in a.families.split(",") for s in range(a.seeds)] if not a.no_sim else []
     if a.no_shift and not a.no_sim:

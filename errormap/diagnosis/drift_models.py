@@ -68,6 +68,9 @@ TAU_BANK_S = (0.0, 900.0, 3600.0, 10800.0)       # 15 min, 1 h, 3 h: spans the 0
 TAU_GRID_S = (300.0, 900.0, 1800.0, 3600.0, 7200.0, 14400.0, 28800.0)
 RIDGE_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1)   # λ·n added to the standardised Gram matrix
 GATE_SE = 1.0    # one-standard-error rule: a candidate must beat OLS over the deployment horizon by > 1 SE of the folds
+MAX_FOLD_LOSS = 1.05   # and lose to OLS by no more than 5 % on ANY horizon or novelty fold (the bound, per fold)
+MIN_GAIN = float(np.log(1.05))   # and be better than OLS by at least 5 % on average (mean log-gain) on the horizon and
+                                 # on the novelty folds: an advantage smaller than the tolerated loss is not worth its risk
 RIDGE_OLS_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)   # toward OLS: the large end is the baseline
 PLS_MAX_COMPONENTS = 12
 TRANSFER_LAMBDA = 1e-4
@@ -690,7 +693,8 @@ class DriftSelector:
     def __init__(self, fit_fraction: float = 0.6, n_folds: int = 4, cv_start: float = 0.5, families=None,
                  subset_kw: dict | None = None, horizon: float | None = None, n_horizon_folds: int = 4,
                  gate_se: float = GATE_SE, n_novelty_folds: int = 3, n_novelty_blocks: int = 8,
-                 shrink_weights=SHRINK_WEIGHTS, shrink_scales=SHRINK_SCALES):
+                 shrink_weights=SHRINK_WEIGHTS, shrink_scales=SHRINK_SCALES, max_fold_loss: float = MAX_FOLD_LOSS,
+                 min_gain: float = MIN_GAIN):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
@@ -703,6 +707,8 @@ class DriftSelector:
         self.n_novelty_blocks = n_novelty_blocks
         self.shrink_weights = shrink_weights
         self.shrink_scales = shrink_scales
+        self.max_fold_loss = max_fold_loss
+        self.min_gain = min_gain
 
     def split(self, log):
         n = len(log.time_s)
@@ -734,7 +740,7 @@ class DriftSelector:
               for rs in (rho_r, rho_h, rho_n)}
         self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
         self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
-        self.scale_ = {}
+        self.scale_, self.worst_fold_ = {}, {}
 
         def rms(x):
             return float(np.sqrt(np.mean(np.square(x))))
@@ -766,6 +772,7 @@ class DriftSelector:
                     gh = horizon_gate([rms(x) for x in h0], [rms(x) for x in hl], self.gate_se)
                     gn = horizon_gate([rms(x) for x in n0], [rms(x) for x in nl], self.gate_se) \
                         if nfolds else (True, 0.0, 0.0)
+                    worst = max(rms(x) / max(rms(y), 1e-300) for x, y in zip(hl + nl, h0 + n0))
                     rank = rms(r)
                     # band: 95th percentile of |residual| / max(1, ρ) on the horizon and novelty folds (held-out
                     # stretches as long as the deployment's, and the most novel ones); it grows as max(1, ρ)
@@ -773,11 +780,13 @@ class DriftSelector:
                     scores[key] = {"ranking": rank, "horizon": rms(np.concatenate(hl)),
                                    "novelty": rms(np.concatenate(nl)) if nfolds else 0.0,
                                    "band": float(np.quantile(np.concatenate(zb), BAND_QUANTILE)),
-                                   "scale": sc,
+                                   "scale": sc, "worst_fold": worst,
                                    "gain": (np.log(rms(np.concatenate(r0)) / rank) + gh[1] + gn[1]) / (3 if nfolds else 2)}
                     gate[key] = (gh, gn)
             r_ols = scores[(*base, 1.0)]["ranking"]
-            ok = [k for k in scores if k[0] != "ols" and scores[k]["ranking"] < r_ols and gate[k][0][0] and gate[k][1][0]]
+            ok = [k for k in scores if k[0] != "ols" and scores[k]["ranking"] < r_ols and gate[k][0][0] and gate[k][1][0]
+                  and scores[k]["worst_fold"] <= self.max_fold_loss
+                  and gate[k][0][1] >= self.min_gain and (not nfolds or gate[k][1][1] >= self.min_gain)]
             best = max(ok, key=lambda k: scores[k]["gain"]) if ok else (*base, 1.0)
 
             def name(k):
@@ -789,6 +798,7 @@ class DriftSelector:
             self.gate_[ch] = {name(k): (g[0][0] and g[1][0], g[0][1], g[0][2], g[1][1], g[1][2])
                               for k, g in gate.items()}
             self.gain_[ch] = {name(k): float(s["gain"]) for k, s in scores.items()}
+            self.worst_fold_[ch] = {name(k): float(s["worst_fold"]) for k, s in scores.items()}
             self.eligible_[ch] = sorted(name(k) for k in ok)
             self.chosen_[ch] = best[:2]
             self.shrink_[ch] = best[2]
@@ -874,6 +884,7 @@ class DriftSelector:
                        "best_ranked": min(self.cv_[ch], key=self.cv_[ch].get),
                        "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
                                                  if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
+                       "worst_fold_ratio": self.worst_fold_[ch][name],
                        "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
                        "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
                        "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
