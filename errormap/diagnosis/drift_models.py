@@ -673,11 +673,17 @@ class DriftSelector:
       :func:`novelty_folds`): the blocks of the fitting part whose
       inputs are farthest (Mahalanobis) from the rest, held out.
 
-    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights``:
-    w·candidate + (1 − w)·OLS). A candidate is eligible when it (a) scores below OLS on the ranking
-    folds and passes :func:`horizon_gate` against OLS (b) on the horizon folds and (c) on the novelty
-    folds; the eligible one of largest mean log-gain over OLS (over the three sets) is returned, else
-    the OLS baseline itself. A model that loses to OLS in any of its validations is never returned.
+    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights`` w0),
+    predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the distance of the sample's inputs from
+    the training data / that data's ``RANGE_QUANTILE`` distance, g = :func:`distance_weight` with the
+    scale of ``shrink_scales`` of lowest RMS on the novelty folds. A candidate is eligible when it
+    (a) scores below OLS on the ranking folds and passes :func:`horizon_gate` against OLS (b) on the
+    horizon folds and (c) on the novelty folds, (d) with a mean log-gain ≥ ``min_gain`` on each of (b)
+    and (c), and (e) no horizon or novelty fold worse than OLS by more than ``max_fold_loss``; the
+    eligible one of largest mean log-gain over OLS (over the three sets) is returned, else the OLS
+    baseline itself. A model that loses to OLS in any of its validations is never returned. Learned
+    too: ``scale_`` {channel: s of the chosen}, ``worst_fold_`` {channel: {candidate: worst RMS ratio to
+    OLS over the horizon and novelty folds}}.
 
     Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
