@@ -105,7 +105,7 @@ def render(real, sims, meta, out):
           "ranking folds AND beats OLS by more than one standard error on the horizon folds AND on the novelty "
           "folds (the most novel blocks of the fitting part by Mahalanobis distance of the standardised inputs, "
           "held out); the eligible one of largest mean log-gain over OLS is returned, else OLS itself. "
-          "Band: 95th percentile of |validation residual| / max(1, ρ) on the horizon and novelty folds, "
+          "Band: 95th percentile of |validation residual| on the horizon and novelty folds, "
           "times max(1, ρ) at each sample.", ""]
     if real:
         L += ["## The real log (first 60 % of a 46 h machine-tool log, 15 s sampling)", "",

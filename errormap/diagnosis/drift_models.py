@@ -724,6 +724,12 @@ class DriftSelector:
     def fit(self, log: DriftLog) -> "DriftSelector":
         if not 0 < self.fit_fraction < 1:
             raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
+        if not self.shrink_scales or not all(sc > 0 for sc in self.shrink_scales):
+            raise ValueError(f"Expected shrink_scales > 0 (inf: no per-sample shrinkage), got {self.shrink_scales}")
+        if not self.max_fold_loss >= 1.0:
+            raise ValueError(f"Expected max_fold_loss >= 1, got {self.max_fold_loss}")
+        if np.isnan(self.min_gain):
+            raise ValueError("Expected a number for min_gain, got nan")
         fams = self.families or default_families(self.subset_kw)
         fit, _ = self.split(log)
         chans = list(log.disp_um)
@@ -780,9 +786,11 @@ class DriftSelector:
                         if nfolds else (True, 0.0, 0.0)
                     worst = max(rms(x) / max(rms(y), 1e-300) for x, y in zip(hl + nl, h0 + n0))
                     rank = rms(r)
-                    # band: 95th percentile of |residual| / max(1, ρ) on the horizon and novelty folds (held-out
-                    # stretches as long as the deployment's, and the most novel ones); it grows as max(1, ρ)
-                    zb = [np.abs(x) / np.maximum(1.0, q) for x, q in zip(hl + nl, rho_h + rho_n)]
+                    # band: 95th percentile of |residual| on the horizon and novelty folds (held-out stretches as
+                    # long as the deployment's, and the most novel ones); at prediction it grows as max(1, ρ).
+                    # Not divided by the folds' own ρ: that made the band smaller than the folds' errors
+                    # (measured: 1 % held-out coverage on the real log's ch1/ch2 at its 36 % split)
+                    zb = [np.abs(x) for x in hl + nl]
                     scores[key] = {"ranking": rank, "horizon": rms(np.concatenate(hl)),
                                    "novelty": rms(np.concatenate(nl)) if nfolds else 0.0,
                                    "band": float(np.quantile(np.concatenate(zb), BAND_QUANTILE)),
