@@ -96,8 +96,10 @@ def sim_one(args):
 
 def render(real, sims, meta, out):
     L = ["# Drift models on a future that leaves the fit range (issue 29)", "",
-         f"`python benchmarks/bench_drift_regime.py --seeds {meta['seeds']} --jobs {meta['jobs']}`: "
-         f"{meta['wall_s']:.0f} s wall (load average {meta['load']:.1f}, {meta['where']}).", ""]
+         f"`python benchmarks/bench_drift_regime.py --seeds {meta['seeds']} --jobs {meta['jobs']} --no-shift`: "
+         f"{meta['wall_s']:.0f} s wall (load average {meta['load']:.1f}, {meta['where']})"
+         + ("; INTERRUPTED at the deadline: rendered from the parts that finished" if meta.get("interrupted") else "")
+         + ".", ""]
     L += ["Selection rule (docs/drift_model.md): a candidate — a family, or a family shrunk toward OLS, "
           "predicting OLS + w0·g(ρ)·(candidate − OLS) per sample (w0 ∈ 1, 0.75, 0.5, 0.25; ρ = distance of the "
           "sample's inputs from the fit data / the fit data's 99th-percentile distance; g = 1 for ρ ≤ 1, "
@@ -155,7 +157,9 @@ def sim_section(sims, meta, shifted):
               f"{SIM_SPLIT:.0%}, judged on the rest. Ratio = volcomp / OLS held-out RMS of the measured residual "
               f"(median, worst over seeds); *true*: noise-free displacement − prediction (median), OLS's beside.", ""]
     else:
-        L += [f"## The same simulated logs without a regime change ({meta['seeds']} seeds per family)", "",
+        L += [f"## The same simulated logs without a regime change ({len({(r['family'], r['seed']) for r in sims})} logs: "
+              + ", ".join(f"{f} seeds {sorted({r['seed'] for r in sims if r['family'] == f})}"
+                          for f in dict.fromkeys(r["family"] for r in sims)) + ")", "",
               f"As above but the later part runs as the fitting part did (no speed or ambient shift); fit on the first "
               f"{SIM_SPLIT:.0%}, judged on the rest (what `bench_drift.py` measured before issue 29; folded in here).", ""]
     L += ["| simulator | channel | before | **volcomp** | OLS | ratio median | ratio worst | seeds > OLS·1.05 | "
@@ -201,14 +205,33 @@ def main(argv=None):
     ap.add_argument("--where", default="the shared 2-core machine")
     ap.add_argument("--out", default=str(Path(__file__).with_name("drift_regime_results.md")))
     ap.add_argument("--render-only", action="store_true", help="re-render the .md from the saved .json")
+    ap.add_argument("--partial", default=None, help="append every finished part as a JSON line to this file")
+    ap.add_argument("--from-partial", default=None,
+                    help="render from a --partial file of an interrupted run (the sections say how many seeds ran)")
     a = ap.parse_args(argv)
     js = Path(a.out).with_suffix(".json")
     if a.render_only:
         saved = json.loads(js.read_text())
         print("\n".join(render(saved["real"], saved["sims"], saved["meta"], a.out)))
         return
+    if a.from_partial:
+        parts = [json.loads(line) for line in Path(a.from_partial).read_text().splitlines() if line.strip()]
+        meta = next(x["meta"] for x in parts if "meta" in x)
+        real = [r for x in parts for r in x.get("real", [])]
+        sims = [r for x in parts for r in x.get("sims", [])]
+        meta.update({"wall_s": parts[-1].get("t", 0.0), "interrupted": True})
+        write_json(js, {"meta": meta, "real": real, "sims": sims})
+        print("\n".join(render(real, sims, meta, a.out)))
+        return
     t0 = time.perf_counter()
+
+    def part(obj):
+        if a.partial:
+            with open(a.partial, "a", encoding="utf-8") as fh:
+                fh.write(json.dumps({**obj, "t": time.perf_counter() - t0}) + "\n")
+    part({"meta": {"seeds": a.seeds, "jobs": a.jobs, "load": os.getloadavg()[0], "where": a.where}})
     real = real_rows() if REAL.is_file() and not a.no_real else []
+    part({"real": real})
     for r in real:
         print(f"real {r['split']} {r['channel']} {r['model']} {r['volcomp'] / r['ols']:.3f}× OLS, band coverage "
               f"{r['coverage']:.2f}", file=sys.stderr, flush=True)
@@ -225,6 +248,7 @@ def main(argv=None):
         for t in tasks:
             rows = sim_one(t)
             sims += rows
+            part({"sims": rows})
             worst = max(rows, key=lambda r: r["volcomp"] / r["ols"])
             print(f"{t} done ({time.perf_counter() - t0:.0f} s): worst {worst['channel']} {worst['model']} "
                   f"{worst['volcomp'] / worst['ols']:.3f}× OLS", file=sys.stderr, flush=True)
