@@ -19,7 +19,8 @@
 The user's path throughout: the log is written as CSV, loaded as `volcomp diagnose --drift` does,
 DriftSelector chooses on the fitting part only, the held-out part judges.
 
-Run: ``python benchmarks/bench_drift_regime.py --seeds 10`` → benchmarks/drift_regime_results.md (+ .json).
+Run: ``python benchmarks/bench_drift_regime.py --seeds 10 --no-shift`` → benchmarks/drift_regime_results.md
+(+ .json); ``--partial FILE`` keeps every finished part, ``--from-partial FILE`` renders an interrupted run.
 """
 from __future__ import annotations
 

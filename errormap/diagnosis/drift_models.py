@@ -39,8 +39,10 @@ training, as the deployment's held-out part is to the fitting part. The chosen c
 best-ranked one that beats OLS on the horizon folds by more than one standard error of the
 fold-to-fold scatter (:func:`horizon_gate`); if none does, OLS. It is refitted on the whole fitting
 part. The returned model therefore never loses to OLS in validation; the report gives both. The 95 %
-band is the 95th percentile of the chosen candidate's |validation residual| on the ranking folds
-(forward in time, so it includes extrapolation error).
+band is the 95th percentile of the chosen candidate's |validation residual| on the horizon and novelty
+folds, grown at prediction by max(1, ρ) with the distance ρ of the inputs from the fit data
+(:meth:`DriftModel.band_um`); beyond ρ = 1 a channel's prediction shrinks toward its OLS baseline per
+sample (:meth:`DriftModel.predict`, :func:`distance_weight`).
 
 ``ridge_ols`` / ``pls_ols`` (:class:`RidgeTowardOLSFamily`, :class:`PLSTowardOLSFamily`): the filter
 bank fitted to the OLS baseline's residual, so that the penalty (ridge λ, or fewer PLS components)
