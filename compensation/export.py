@@ -654,7 +654,38 @@ DRIFT_PSEUDO_CODE = (
     "  from on-machine measurements of <ch>_um by a Kalman filter on the parameters (random walk, opened up on",
     "  a 3-sigma innovation); `volcomp export NEW.json --format drift` then writes the new gain_<ch> columns.",
     "  The filter rows (input, scale, power, tau_s, a, b, delay) do not change in an update: only gain_<ch>.",
+    "distance rule (export.json controller.distance_shrink, where a channel has one): the gains above are the model",
+    "  inside the fitting data's range. Per tick, rho = |(u - mean) . W| / range_distance over the raw inputs listed",
+    "  there; beyond rho = 1 the controller blends toward the baseline gains: pred = base + g * (pred - base),",
+    "  g = exp(-(rho - 1) / scale); base = sum over rows r of base_gain_<ch>_r * f_r. The 95 % band grows as",
+    "  band95_um * max(1, rho). A controller that does not run the rule runs the gains as written.",
 )
+
+
+def drift_distance_rule(model, coef: DriftCoefficients) -> dict | None:
+    """The per-sample shrinkage toward the baseline, in the coefficient file's rows: {"inputs", "mean", "whiten",
+    "range_distance", "rule", "channels": {ch: {"scale", "base_gains" (m,), "band95_um"}}}, or None when no
+    channel has one."""
+    nov = (model.meta or {}).get("novelty") or {}
+    chans = {ch: c for ch, c in model.channels.items() if c.base is not None and np.isfinite(c.shrink_scale)}
+    if not chans or not nov.get("range_distance"):
+        return None
+    feats = model.features
+    keys = [f.key for f in feats]
+    out = {}
+    for ch, c in chans.items():
+        bf, ba, bc = c.base
+        g = np.zeros(len(feats) + 1)
+        for f, b in zip(bf, bc):
+            g[keys.index(f.key)] += float(b)
+        g[-1] = float(ba)
+        out[ch] = {"scale": float(c.shrink_scale), "base_gains": g.tolist(), "band95_um": float(c.band95_um)}
+    return {"inputs": list(nov["inputs"]), "mean": list(nov["mean"]), "whiten": nov["whiten"],
+            "range_distance": float(nov["range_distance"]),
+            "rule": "rho = norm((u - mean) @ whiten) / range_distance on the latest raw inputs; g = 1 for rho <= 1, "
+                    "exp(-(rho - 1) / scale) beyond; pred = base + g * (gains . f - base), base = base_gains . f "
+                    "(same rows as the coefficient file); band = band95_um * max(1, rho)",
+            "channels": out}
 
 
 @dataclass
@@ -815,19 +846,22 @@ def check_drift_export(coef: DriftCoefficients, model, log, clean_um: dict | Non
 
     ``model`` — controller − ``model.predict(log)`` (the discretisation error of the export);
     ``measured`` (when the log has the channel) — displacement − controller, beside ``before``
-    (the displacement itself) and ``volcomp`` (displacement − model.predict);
+    (the displacement itself), ``volcomp`` (displacement − the fixed model the gains run) and
+    ``volcomp_distance_rule`` (displacement − model.predict with the per-sample shrinkage toward OLS);
     ``true`` (``clean_um`` of a simulated log) — the same three against the noise-free displacement.
     Returns ``{channel: {...}}``; statistics are max |·| and RMS over the log's samples (μm).
     """
     ctrl = controller_drift_at(coef, log)
+    fixed = model.predict(log, distance_shrink=False)     # what the gains run (the rule beyond d0 is the controller's)
     pred = model.predict(log)
     out = {}
     for ch in model.channels:
-        rec = {"model": residual_stats(ctrl[ch] - pred[ch]), "measured": None, "true": None}
+        rec = {"model": residual_stats(ctrl[ch] - fixed[ch]), "measured": None, "true": None}
         for key, d in (("measured", log.disp_um.get(ch)), ("true", (clean_um or {}).get(ch))):
             if d is not None:
                 rec[key] = {"controller": residual_stats(d - ctrl[ch]), "before": residual_stats(d),
-                            "volcomp": residual_stats(d - pred[ch])}
+                            "volcomp": residual_stats(d - fixed[ch]),
+                            "volcomp_distance_rule": residual_stats(d - pred[ch])}
         out[ch] = rec
     return out
 
@@ -1082,4 +1116,4 @@ __all__ = ["FORMATS", "ALL_FORMATS", "DriftCoefficients", "drift_coefficients", 
            "controller_drift", "check_drift_export",
            "LINUXCNC_MAX_POINTS", "ModelError", "IsoTables", "VolumetricGrid", "JointTables",
            "build_table", "check_export", "check_sets", "read_back", "write_table", "backlash_from_diagnosis",
-           "export_drift_coefficients"]
+           "export_drift_coefficients", "drift_distance_rule"]

@@ -7,7 +7,7 @@ import pytest
 from errormap.diagnosis.drift import DriftLog, simulate_drift_log
 from errormap.diagnosis.drift_models import (GreyBoxFamily, StableOLSFamily, ThermalNNFamily, mahalanobis,
                                                novelty_folds, whitener)
-from errormap.diagnosis.drift_models import DriftSelector, feature_matrix
+from errormap.diagnosis.drift_models import MAX_FOLD_LOSS, MIN_GAIN, DriftSelector, feature_matrix
 from errormap.diagnosis.drift_sim import SIMULATORS, simulate_lumped_log
 
 # the bound on a future outside the fit range: no channel worse than OLS by more than 5 %
@@ -98,6 +98,9 @@ def test_future_outside_the_fit_range_never_much_worse_than_ols(family, seed):
             assert r["cv_ranking_rms_um"] < r["cv_rms_ols_um"]
             _, m_h, se_h, m_n, se_n = sel.gate_[ch][r["model"]]     # per-fold mean log-gain over OLS > 1 SE
             assert m_h > se_h and m_n > se_n and m_h > 0 and m_n > 0
+            # ... by at least MIN_GAIN on average, and no horizon or novelty fold worse than OLS by > 5 %
+            assert m_h >= MIN_GAIN and m_n >= MIN_GAIN
+            assert sel.worst_fold_[ch][r["model"]] <= MAX_FOLD_LOSS
 
 
 @pytest.mark.slow
@@ -116,4 +119,4 @@ def test_a_shrunk_choice_is_the_blend_of_candidate_and_ols():
     feats, a, b = fams[f].fit(log, [ch], fit, {})[ch][hy]
     fo, ao, bo = fams["ols"].fit(log, [ch], fit, {})[ch][""]
     want = w * (a + feature_matrix(log, feats) @ b) + (1 - w) * (ao + feature_matrix(log, fo) @ bo)
-    np.testing.assert_allclose(sel.model_.predict(log)[ch], want, atol=BLEND_ATOL_UM, rtol=0)
+    np.testing.assert_allclose(sel.model_.predict(log, distance_shrink=False)[ch], want, atol=BLEND_ATOL_UM, rtol=0)

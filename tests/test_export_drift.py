@@ -43,7 +43,9 @@ def _frame(cols, path="<sim>"):
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
-    """A model fitted by the user's path (DriftSelector) on a 16 h simulated log sampled every 60 s."""
+    """A model fitted by the user's path (DriftSelector) on a 16 h simulated log sampled every 60 s (the tests
+    that use it are in the slow tier: the fit takes 5–6.5 CPU s; on a 12 h log every channel comes back OLS,
+    with no filter for the controller to run)."""
     cols = simulate_lumped_log(0, hours=16.0, dt_s=60.0, n_dropouts=0)
     cols.pop("_truth")
     log = _frame(cols)
@@ -80,6 +82,7 @@ def test_hand_value_of_a_one_filter_model(tmp_path):
     assert any("y_r = a_r * y_r + b_r * v_r" in h for h in head)
 
 
+@pytest.mark.slow  # uses the fitted fixture (a whole selection, > 5 CPU s)
 def test_round_trip_at_the_log_step_reproduces_the_model(fitted, tmp_path):
     """export → file → read back → the controller's recursion at the log's sampling step (60 s)
     reproduces DriftModel.predict on every channel and sample: the stated discretisation error at
@@ -97,6 +100,7 @@ def test_round_trip_at_the_log_step_reproduces_the_model(fitted, tmp_path):
         ex.export_drift_coefficients(model, tmp_path, 120.0, log, "test", tolerance_um=IMPOSSIBLE_UM)
 
 
+@pytest.mark.slow  # uses the fitted fixture (a whole selection, > 5 CPU s)
 def test_sub_step_controller_equals_the_model_on_the_held_resampled_log(fitted):
     """At dt = step/4 the controller sees each logged value held until the next: exactly the model run
     on the log resampled every 15 s with held values, read at the original times (an independent path
@@ -108,7 +112,7 @@ def test_sub_step_controller_equals_the_model_on_the_held_resampled_log(fitted):
     t = np.arange(0.0, log.time_s[-1] + 1e-9, 15.0)
     j = np.searchsorted(log.time_s, t, side="right") - 1
     fine = DriftLog(t, {s: v[j] for s, v in log.temps_c.items()}, {}, log.speed_rpm[j], "<held>")
-    ref = model.predict(fine)
+    ref = model.predict(fine, distance_shrink=False)    # the gains are the model without the distance rule
     at = np.searchsorted(t, log.time_s)
     for ch in model.channels:
         np.testing.assert_allclose(ctrl[ch], ref[ch][at], rtol=0, atol=RESAMPLED_UM)
@@ -132,6 +136,7 @@ def test_irregular_log_ticks_at_the_fixed_period_on_held_inputs():
     np.testing.assert_allclose(ctrl, ref[t.astype(int)], rtol=0, atol=RESAMPLED_UM)
 
 
+@pytest.mark.slow  # uses the fitted fixture (a whole selection, > 5 CPU s)
 def test_cli_refuses_an_impossible_tolerance_then_forces(fitted, tmp_path, capsys):
     _, _, d = fitted
     out = tmp_path / "o"
@@ -163,10 +168,11 @@ def test_cli_default_period_is_the_log_step_and_simulated_log_gives_the_true_res
     assert info["sample_period_s"] == 15.0 and info["sample_period_given"] is False
     r = info["check"]["ch1"]
     assert r["model"]["max_um"] <= ROUND_TRIP_UM
-    assert set(r["true"]) == {"before", "volcomp", "controller"}
+    assert set(r["true"]) == {"before", "volcomp", "volcomp_distance_rule", "controller"}
     assert r["true"]["controller"]["rms_um"] == pytest.approx(r["true"]["volcomp"]["rms_um"], abs=1e-6)
 
 
+@pytest.mark.slow  # uses the fitted fixture (a whole selection, > 5 CPU s)
 def test_bad_model_and_bad_coefficient_files_name_the_place(fitted, tmp_path, capsys):
     _, _, d = fitted
     obj = json.loads((d / "m.json").read_text())

@@ -159,7 +159,8 @@ class DriftUpdater:
             pred[ch], hist[ch] = out, h
             self.steps_[ch] = steps
             coef = phi[1:] / sj
-            chans[ch] = ChannelFit(c.family, c.hyper, list(c.features), float(phi[0] - cj @ coef), coef, c.band95_um)
+            chans[ch] = ChannelFit(c.family, c.hyper, list(c.features), float(phi[0] - cj @ coef), coef, c.band95_um,
+                                   c.base, c.shrink_scale)
         meta = dict(model.meta)
         meta["online_update"] = {"method": "Kalman filter on the parameters (random walk)",
                                  "drift_per_h": self.drift_per_h, "prior_um": self.prior_um,

@@ -82,6 +82,15 @@ def run(args) -> int:
                   + ("; the model extrapolates there: check it with on-machine measurements (--update)"
                      if out > 0.05 else ""))
         head.append("input_distance: Mahalanobis distance of the row's inputs from the model's fitting data")
+        rho = model.rho(log)
+        shr = [ch for ch, c in model.channels.items() if c.base is not None and np.isfinite(c.shrink_scale)]
+        if rho is not None:
+            print(f"inputs beyond the fitting data's range (rho > 1): {np.mean(rho > 1):.0%} of the rows; there the band "
+                  "grows as max(1, rho)" + (f" and {', '.join(shr)} shrink toward their OLS baseline"
+                                             + (" (not in the --update predictions)" if args.update else "")
+                                             if shr else ""))
+            head.append("<ch>_lo_um / <ch>_hi_um grow as max(1, rho), rho = input_distance / the fitting data's range "
+                        "distance" + (f"; {', '.join(shr)}: prediction shrunk toward OLS beyond rho = 1" if shr else ""))
     if args.update:
         missing = [ch for ch in model.channels if ch not in log.disp_um]
         if len(missing) == len(model.channels):
@@ -90,8 +99,9 @@ def run(args) -> int:
         upd = DriftUpdater(noise_um=args.noise_um,
                            drift_per_h=DRIFT_PER_H if args.drift_per_h is None else args.drift_per_h)
         res = upd.run(model, log, log.disp_um)
+        bands = model.band_um(log)
         for ch in model.channels:
-            band = model.channels[ch].band95_um
+            band = bands[ch]
             cols[f"{ch}_fixed_pred_um"] = res.fixed_um[ch]
             cols[f"{ch}_pred_um"] = res.pred_um[ch]
             cols[f"{ch}_lo_um"] = res.pred_um[ch] - band

@@ -177,6 +177,10 @@ def format_drift_check(check: dict) -> list[str]:
                 lines.append(f"      {key:8s} before {q['before']['max_um']:7.3g} / {q['before']['rms_um']:7.3g}   "
                              f"volcomp {q['volcomp']['max_um']:7.3g} / {q['volcomp']['rms_um']:7.3g}   "
                              f"controller {q['controller']['max_um']:7.3g} / {q['controller']['rms_um']:7.3g}")
+                if q.get("volcomp_distance_rule") and q["volcomp_distance_rule"] != q["volcomp"]:
+                    v = q["volcomp_distance_rule"]
+                    lines.append(f"      {'':8s} volcomp with the distance rule (export.json controller.distance_shrink) "
+                                 f"{v['max_um']:7.3g} / {v['rms_um']:7.3g}")
     return lines
 
 

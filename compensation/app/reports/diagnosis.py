@@ -256,7 +256,7 @@ def drift_report(log, sel, channels, log_path) -> str:
              c["rms_ols_um"], c["band95_um"], c["band_coverage_heldout"]] for ch, c in channels.items()]
     table = Table(["channel", "chosen", *[f"CV {f} (μm)" for f in fams], "held-out RMS before (μm)",
                    "held-out RMS after, volcomp (μm)", "held-out RMS after, OLS baseline (μm)",
-                   "band ± (μm): 95 % of validation residuals", "band coverage CHECKED on the held-out part"], rows, left=2)
+                   "band ± (μm) inside the fit range (× max(1, ρ) beyond): 95 % of horizon + novelty validation residuals", "band coverage CHECKED on the held-out part"], rows, left=2)
     sensors = None
     sub = getattr(sel, "subset_modeller_", None)
     if sub is not None:

@@ -99,9 +99,10 @@ def compensation_columns(log, model, cache=None) -> dict:
     """The compensation series: ``time_s`` and per channel ``<ch>_pred_um``, ``<ch>_lo_um``, ``<ch>_hi_um``
     (prediction ± the 95 % band), causal."""
     pred = model.predict(log, cache)
+    bands = model.band_um(log)
     cols = {"time_s": log.time_s}
     for ch, p in pred.items():
-        band = model.channels[ch].band95_um
+        band = bands[ch]
         cols[f"{ch}_pred_um"] = p
         cols[f"{ch}_lo_um"] = p - band
         cols[f"{ch}_hi_um"] = p + band
@@ -110,7 +111,8 @@ def compensation_columns(log, model, cache=None) -> dict:
 
 COMPENSATION_COMMENTS = ("compensation series: predicted thermal displacement per channel (um), causal "
                          "(the value at time_s uses log samples at or before time_s only)",
-                         "<ch>_lo_um / <ch>_hi_um: 95 % band from forward-chained validation residuals",
+                         "<ch>_lo_um / <ch>_hi_um: 95 % band from held-out validation residuals (horizon and novelty "
+                         "folds), grown by max(1, rho) with the inputs' distance rho from the fitting data",
                          "the controller corrects by subtracting <ch>_pred_um")
 
 
