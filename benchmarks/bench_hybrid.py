@@ -100,8 +100,11 @@ def run_case(family: str, seed: int, effect: str) -> dict:
                      "--out", str(td / "diag")]) == 0
         s = json.loads((td / "diag" / "diagnosis.json").read_text())
         model = json.loads((td / "diag" / "model.json").read_text())
-        param = {k: v for k, v in model.items() if k != "learned_residual"}
+        param = {k: v for k, v in model.items() if k not in ("learned_residual", "base_terms_replaced")}
         param["stage"] = model.get("base_stage", model["stage"])
+        # the loop alone had the condition terms the learned stage replaced (learned_stage's r_static_um)
+        param["terms"] = model["terms"] + model.get("base_terms_replaced", [])
+        param["needs"] = sorted({c for e in param["terms"] for c in e.get("needs", [])})
         (td / "diag" / "model_parametric.json").write_text(json.dumps(param))
         P = random_axes(m, N_VOLUME, np.random.default_rng(probe_ss))
         for k, name in ((0, "x_mm"), (1, "z_mm")):  # 1 mm inside the strokes: compensated commands stay in them
@@ -131,6 +134,7 @@ def run_case(family: str, seed: int, effect: str) -> dict:
     sigma = s["update"]["check_noise_sigma_um"]
     row.update({"kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
                 "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
+                "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
                 "learned_z": lr.get("held_out_gain_z"), "held_band95_cover": lr.get("held_out_band95_cover"),
                 "held_base_um": st[s.get("base_stage", s["kept_stage"])]["held_out"]["rms_um"],
                 "held_final_um": s["rms_final_um"], "noise_floor_um": float(np.sqrt(3) * sigma),

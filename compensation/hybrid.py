@@ -203,13 +203,23 @@ def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.
             "norm_um": norm.tolist(), "band95_um": band.tolist()}
 
 
-def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=("gp",)):
+def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=("gp",), r_static_um=None):
     """Fit the learned residual on what the previous stage leaves at the checks and gate it.
 
     ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check;
     ``axes`` (n, 3); ``fit_idx`` / ``hold_idx``: the loop's fitting and held-out checks.
+    ``r_static_um`` (n, 3) or None: the same stage's residual WITHOUT its condition terms
+    (temperature, time, direction), when it has some. A condition term fitted on checks whose
+    condition hardly varies (the machine warm after the first blocks) can stand in for a static
+    error the elements could not take up; at other conditions (the reference temperature of
+    compensation) it then subtracts what is not there. So the learned field of the axes is also
+    fitted on ``r_static_um`` (same blocked folds) and REPLACES the condition terms when its
+    cross-validated error is lower, paired per point over the same folds, by more than
+    :data:`KEEP_Z` standard errors (the early, still-warming blocks are where the two differ);
+    the held-out gate against the previous stage (with its terms) is then the same.
     Returns ``(learned or None, stage)``: ``learned`` (refitted on all checks) when kept, and
-    the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate)."""
+    the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate;
+    ``replaces_condition_terms`` True when the static variant was used)."""
     axes = np.asarray(axes, dtype=float)
     if len(fit_idx) < MIN_FIT_CHECKS or len(hold_idx) < MIN_HELD_CHECKS:
         return None, {"learned": {"family": "none", "kept": False, "cv_table": {}, "inputs": list(FEATURE_NAMES),
@@ -219,11 +229,26 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     f, _ = axis_features(axes)
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
     reg = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_prev_um[fit_idx], groups=groups)
+    r_base, replaces, alt = r_prev_um, False, None
+    if r_static_um is not None:
+        r_static_um = np.asarray(r_static_um, dtype=float)
+        reg_s = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_static_um[fit_idx], groups=groups)
+        e_with = reg.cv_sq_err_[reg.chosen_ if reg.chosen_ != "none" else "zero"]
+        e_static = reg_s.cv_sq_err_[reg_s.chosen_ if reg_s.chosen_ != "none" else "zero"]
+        z_s, g_s, se_s = _paired_z(np.sqrt(e_with)[:, None], np.sqrt(e_static)[:, None])
+        replaces = reg_s.chosen_ != "none" and z_s > KEEP_Z
+        alt = {"cv_rms_with_terms_um": float(np.sqrt(e_with.mean())), "cv_rms_static_um": float(np.sqrt(e_static.mean())),
+               "cv_gain_z": z_s, "cv_gain_um2": g_s, "cv_gain_se_um2": se_s, "static_family": reg_s.chosen_,
+               "replaces_condition_terms": bool(replaces),
+               "rule": (f"the learned field of the axes replaces the condition terms when its blocked-CV squared error, "
+                        f"paired per fitting check over the same folds, is lower by more than {KEEP_Z} standard errors")}
+        if replaces:
+            reg, r_base = reg_s, r_static_um
     lo = axes[:, :2].min(0)
     hi = axes[:, :2].max(0)
     fitted = LearnedResidual(reg, axes[fit_idx, :2].min(0), axes[fit_idx, :2].max(0))
     pred, sd = fitted.predict(axes, return_std=True)
-    r_new = r_prev_um - pred
+    r_new = r_base - pred
     z, gain, se = _paired_z(r_prev_um[hold_idx], r_new[hold_idx])
     noise = reg.noise_std_
     band = Z95 * np.sqrt(sd**2 + noise[None, :] ** 2)
@@ -242,10 +267,16 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                          "cv": f"blocked: {CV_BLOCKS} contiguous seq blocks of the fitting checks",
                          "held_out_gain_um2": gain, "held_out_gain_se_um2": se, "held_out_gain_z": z,
                          "held_out_band95_cover": cover, "noise_std_um": noise.tolist(),
-                         "kept": bool(kept), "why": why}}
+                         "kept": bool(kept), "why": why,
+                         "replaces_condition_terms": bool(kept and replaces)}}
+    if alt is not None:
+        stage["learned"]["condition_terms_vs_static"] = alt
+    if kept and replaces:
+        stage["learned"]["why"] = why + ("; it replaces the condition terms (a static field of the axes "
+                                         "cross-validates better than they do)")
     if not kept:
         return None, stage
-    reg_all = reg.with_data(f, r_prev_um)
+    reg_all = reg.with_data(f, r_base)
     learned = LearnedResidual(reg_all, lo, hi)
     stage["learned"]["map"] = learned_map(learned, machine)
     return learned, stage
