@@ -180,3 +180,59 @@ def test_out_of_catalogue_effects_are_seeded_and_visible(grinder, family):
         assert np.sqrt(np.mean(np.sum(d**2, axis=1))) >= OOC_MIN_RMS_UM
         again = make_truth(grinder, 1, effects=[eff], family=family).spatial_error(P) - base
         np.testing.assert_array_equal(d, again)
+
+
+STATIC_UM = 3.0
+"""Amplitude of the static error of X (dz, a smooth arch over the stroke, as a_tilt leaves) that a
+condition term imitates in the replacement test: ~2 μm RMS, above the 1 μm check noise."""
+
+THERMAL_UM_PER_MM_C = 0.01
+"""A real thermal growth of X (μm per mm per °C: ~8 μm at the end of a 200 mm stroke at +4 °C),
+the catalogue's thermal effect: the learned field of the axes must NOT replace its term."""
+
+
+def _warming_temp(n):
+    """The simulator's check temperatures (°C), shape (n,): 20 + 4·(1 − exp(−t/2400 s)), 15 s apart."""
+    return 20.0 + 4.0 * (1.0 - np.exp(-np.arange(n) * 15.0 / 2400.0))
+
+
+def _condition_term_fit(axes, temp, target, fit_idx):
+    """A thermal term dz ∝ (T − 20)·x fitted by least squares to ``target``'s dz on the fitting
+    checks (as the effect search would): its contribution (n, 3) μm."""
+    basis = (temp - 20.0) * axes[:, 0]
+    beta = np.dot(basis[fit_idx], target[fit_idx, 2]) / np.dot(basis[fit_idx], basis[fit_idx])
+    c = np.zeros_like(target)
+    c[:, 2] = beta * basis
+    return c
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("truth", ["static", "thermal"])
+def test_learned_field_replaces_a_condition_term_only_when_it_stood_in_for_a_static_error(grinder, truth):
+    rng = np.random.default_rng(SEED + 2)
+    n, n_fit = 800, 480
+    axes = random_axes(grinder, n, rng)
+    temp = _warming_temp(n)
+    u = (axes[:, 0] - grinder.strokes["x_mm"][0]) / np.ptp(grinder.strokes["x_mm"])
+    err = np.zeros((n, 3))
+    if truth == "static":
+        err[:, 2] = STATIC_UM * np.sin(np.pi * u) - STATIC_UM * 2 / np.pi
+    else:
+        err[:, 2] = THERMAL_UM_PER_MM_C * (temp - 20.0) * (axes[:, 0] - grinder.strokes["x_mm"][0])
+    r_static = err + NOISE_UM * rng.standard_normal((n, 3))   # the stage without its condition term
+    fit_idx, hold_idx = np.arange(n_fit), np.arange(n_fit, n)
+    r_prev = r_static - _condition_term_fit(axes, temp, r_static, fit_idx)
+    learned, stage = learned_stage(grinder, r_prev, axes, fit_idx, hold_idx, seed=SEED, r_static_um=r_static)
+    alt = stage["learned"]["condition_terms_vs_static"]
+    if truth == "static":
+        assert alt["replaces_condition_terms"] and alt["cv_gain_z"] > 1.0
+        assert learned is not None and stage["learned"]["replaces_condition_terms"]
+        # at the reference temperature (20 °C) the hybrid field now holds the static error
+        P = random_axes(grinder, 2000, np.random.default_rng(SEED + 3))
+        uP = (P[:, 0] - grinder.strokes["x_mm"][0]) / np.ptp(grinder.strokes["x_mm"])
+        e = STATIC_UM * np.sin(np.pi * uP) - STATIC_UM * 2 / np.pi
+        left = learned.predict(P)[:, 2] - e
+        assert np.sqrt(np.mean(left**2)) < BUMP_RECOVERY_REL * np.sqrt(np.mean(e**2))
+    else:
+        assert not alt["replaces_condition_terms"]
+        assert not stage["learned"]["replaces_condition_terms"]
