@@ -159,7 +159,25 @@ class HybridField:
 
     @property
     def calibrated_volume(self):
-        return self.base.calibrated_volume
+        """The base's calibrated box narrowed in X and Z to the checks' box the learned part was
+        fitted in (:attr:`LearnedResidual.lo` / ``hi``): outside it the learned part is tapered
+        away and says nothing, so the guards refuse commands there (``compensate --allow volume``
+        overrides, and the override is recorded in the output)."""
+        from errormap.field import CalibratedVolume
+        vol = self.base.calibrated_volume
+        if vol is None:
+            return None
+        lo, hi = vol.lo_array.copy(), vol.hi_array.copy()
+        names = list(vol.names)
+        for j, name in enumerate(("x_mm", "z_mm")):
+            if name in names:
+                k = names.index(name)
+                lo[k] = max(lo[k], self.learned.lo[j])
+                hi[k] = min(hi[k], self.learned.hi[j])
+        if np.any(lo > hi):   # disjoint boxes: nothing is calibrated; an empty box at the base's lo refuses all
+            hi = np.maximum(hi, lo)
+            lo = hi.copy()
+        return CalibratedVolume(tuple(lo), tuple(hi), vol.names)
 
     def predict(self, axes) -> np.ndarray:
         axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")

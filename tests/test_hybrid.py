@@ -155,6 +155,8 @@ def test_user_path_learns_an_out_of_catalogue_bump_and_compensates_with_it(tmp_p
     model = json.loads((tmp_path / "d" / "model.json").read_text())
     assert model["format"] == "volcomp-diagnosed-model/1" and model["stage"] == "learned_residual"
     P = random_axes(load_machine(), 100, np.random.default_rng(0))
+    lo, hi = np.array(model["learned_residual"]["box_lo"]), np.array(model["learned_residual"]["box_hi"])
+    P[:, :2] = lo + (P[:, :2] - P[:, :2].min(0)) / np.ptp(P[:, :2], axis=0) * (hi - lo) * 0.99 + 0.005 * (hi - lo)
     write_csv(tmp_path / "pts.csv", dict(zip(("x_mm", "z_mm", "a_deg"), P.T)), float_fmt="%.12g")
     assert main(["compensate", str(tmp_path / "pts.csv"), "--model", str(tmp_path / "d" / "model.json"),
                  "--method", "exact", "--out", str(tmp_path / "c"), "--temp-c", "20", "--time-s", "0",
@@ -236,3 +238,27 @@ def test_learned_field_replaces_a_condition_term_only_when_it_stood_in_for_a_sta
     else:
         assert not alt["replaces_condition_terms"]
         assert not stage["learned"]["replaces_condition_terms"]
+
+
+def test_hybrid_calibrated_volume_is_the_checks_box_and_the_guard_refuses_outside(grinder):
+    """The hybrid's calibrated volume is the base's narrowed to the checks' X–Z box; the volume
+    guard refuses a command outside it (and --allow volume would override, recorded by compensate)."""
+    from compensation import guards
+    from training.residual import ResidualRegressor
+    from compensation.hybrid import axis_features
+    rng = np.random.default_rng(SEED + 4)
+    axes = random_axes(grinder, 60, rng)
+    axes[:, 0] = 50.0 + 100.0 * rng.random(60)      # checks only over X 50…150 mm, Z 10…50 mm
+    axes[:, 1] = 10.0 + 40.0 * rng.random(60)
+    reg = ResidualRegressor(seed=SEED).fit(axis_features(axes)[0], NOISE_UM * rng.standard_normal((60, 3)))
+    lo, hi = axes[:, :2].min(0), axes[:, :2].max(0)
+    base = HTMField(grinder, random_truth(grinder, SEED).elements)
+    hyb = HybridField(base, LearnedResidual(reg, lo, hi))
+    vol = hyb.calibrated_volume
+    assert vol.lo[:2] == tuple(lo) and vol.hi[:2] == tuple(hi)
+    assert (vol.lo[2], vol.hi[2]) == (base.calibrated_volume.lo[2], base.calibrated_volume.hi[2])
+    inside = np.array([[100.0, 30.0, 45.0]])
+    outside = np.array([[lo[0] - 5.0, 30.0, 45.0], [100.0, hi[1] + 2.0, 45.0]])
+    assert len(guards.volume_violations(inside, hyb)[0]) == 0
+    assert list(guards.volume_violations(outside, hyb)[0]) == [0, 1]
+    assert len(guards.volume_violations(outside, base)[0]) == 0   # the base alone would have accepted them
