@@ -196,6 +196,25 @@ class HybridField:
     def jacobian(self, axes) -> np.ndarray:
         return self.predict_and_jacobian(axes)[1]
 
+    def band_std(self, axes, covariance=None) -> np.ndarray:
+        """The hybrid's TOTAL predictive 1-σ band per component, shape (n, 3) μm, at axes (n, 3):
+        the learned part's band (its posterior std, calibrated on its cross-validation) ⊕ the
+        elements' band ``diag(J Σ Jᵀ)`` from ``covariance`` (an
+        :class:`errormap.uncertainty.ElementCovariance` of the base's elements; None: the learned
+        band alone). Measurement noise is not in it (a band of the field, not of a measurement)."""
+        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        return total_band_std(self.learned, self.machine, axes, covariance)
+
+
+def total_band_std(learned, machine, axes, covariance=None) -> np.ndarray:
+    """(n, 3) μm: ``learned``'s 1-σ band (zeros when None) ⊕ the elements' ``diag(J Σ Jᵀ)``."""
+    var = np.zeros((len(axes), 3))
+    if learned is not None:
+        var += learned.predict(axes, return_std=True)[1] ** 2
+    if covariance is not None:
+        var += np.diagonal(covariance.prediction_cov(machine, axes), axis1=1, axis2=2)
+    return np.sqrt(var)
+
 
 def _paired_z(r_before, r_after):
     g = np.sum(r_before**2, axis=1) - np.sum(r_after**2, axis=1)
@@ -203,25 +222,33 @@ def _paired_z(r_before, r_after):
     return float(g.mean() / se) if se > 0 else 0.0, float(g.mean()), float(se)
 
 
-def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.0)) -> dict:
+def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.0), covariance=None) -> dict:
     """The learned correction over X–Z (``MAP_N`` × ``MAP_N``), its norm and band, averaged over
     the A positions ``a_deg``: {x_mm (MAP_N,), z_mm (MAP_N,), norm_um (MAP_N, MAP_N) [z, x],
-    band95_um (MAP_N, MAP_N)}."""
+    band95_um (MAP_N, MAP_N)} and, with the elements' ``covariance``, ``band95_total_um`` (the
+    hybrid's total band, :func:`total_band_std`, vector norm)."""
     xs = np.linspace(*machine.strokes["x_mm"], MAP_N)
     zs = np.linspace(*machine.strokes["z_mm"], MAP_N)
     X, Z = np.meshgrid(xs, zs)
     norm = np.zeros_like(X)
     band = np.zeros_like(X)
+    total = np.zeros_like(X)
     for a in a_deg:
         P = np.stack([X.ravel(), Z.ravel(), np.full(X.size, a)], axis=1)
         v, s = learned.predict(P, return_std=True)
         norm += np.linalg.norm(v, axis=1).reshape(X.shape) / len(a_deg)
         band += Z95 * np.linalg.norm(s, axis=1).reshape(X.shape) / len(a_deg)
-    return {"x_mm": xs.tolist(), "z_mm": zs.tolist(), "a_deg_averaged": list(a_deg),
-            "norm_um": norm.tolist(), "band95_um": band.tolist()}
+        if covariance is not None:
+            total += Z95 * np.linalg.norm(total_band_std(learned, machine, P, covariance), axis=1).reshape(X.shape) / len(a_deg)
+    out = {"x_mm": xs.tolist(), "z_mm": zs.tolist(), "a_deg_averaged": list(a_deg),
+           "norm_um": norm.tolist(), "band95_um": band.tolist()}
+    if covariance is not None:
+        out["band95_total_um"] = total.tolist()
+    return out
 
 
-def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=("gp",), r_static_um=None):
+def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=("gp",), r_static_um=None,
+                  covariance=None):
     """Fit the learned residual on what the previous stage leaves at the checks and gate it.
 
     ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check;
@@ -235,6 +262,10 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     cross-validated error is lower, paired per point over the same folds, by more than
     :data:`KEEP_Z` standard errors (the early, still-warming blocks are where the two differ);
     the held-out gate against the previous stage (with its terms) is then the same.
+    ``covariance``: the previous stage's element covariance (or None): with it, the stage also
+    reports the coverage of the hybrid's TOTAL band on the held-out checks
+    (``held_out_band95_cover_total``: learned band ⊕ elements' J Σ Jᵀ ⊕ the fitted noise) and
+    its map carries the total band.
     Returns ``(learned or None, stage)``: ``learned`` (refitted on all checks) when kept, and
     the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate;
     ``replaces_condition_terms`` True when the static variant was used)."""
@@ -271,6 +302,10 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     noise = reg.noise_std_
     band = Z95 * np.sqrt(sd**2 + noise[None, :] ** 2)
     cover = float(np.mean(np.abs(r_new[hold_idx]) <= band[hold_idx])) if reg.chosen_ != "none" else None
+    cover_total = None
+    if covariance is not None and reg.chosen_ != "none":
+        sd_t = total_band_std(fitted, machine, axes[hold_idx], covariance)
+        cover_total = float(np.mean(np.abs(r_new[hold_idx]) <= Z95 * np.sqrt(sd_t**2 + noise[None, :] ** 2)))
     kept = reg.chosen_ != "none" and z > KEEP_Z
     if reg.chosen_ == "none":
         why = "declined: no family beat predicting zero in the blocked cross-validation on the fitting checks"
@@ -284,7 +319,8 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
              "learned": {"family": reg.chosen_, "cv_table": reg.cv_table_, "inputs": list(FEATURE_NAMES),
                          "cv": f"blocked: {CV_BLOCKS} contiguous seq blocks of the fitting checks",
                          "held_out_gain_um2": gain, "held_out_gain_se_um2": se, "held_out_gain_z": z,
-                         "held_out_band95_cover": cover, "noise_std_um": noise.tolist(),
+                         "held_out_band95_cover": cover, "held_out_band95_cover_total": cover_total,
+                         "noise_std_um": noise.tolist(),
                          "kept": bool(kept), "why": why,
                          "replaces_condition_terms": bool(kept and replaces)}}
     if alt is not None:
@@ -296,5 +332,5 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
         return None, stage
     reg_all = reg.with_data(f, r_base)
     learned = LearnedResidual(reg_all, lo, hi)
-    stage["learned"]["map"] = learned_map(learned, machine)
+    stage["learned"]["map"] = learned_map(learned, machine, covariance=covariance)
     return learned, stage

@@ -221,7 +221,7 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
             r_static = checks.measured_um - CorrectedField(machine, loop.model.base, static).predict(
                 checks.axes, **checks.conditions)
         learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, len(checks)),
-                                       r_static_um=r_static)
+                                       r_static_um=r_static, covariance=loop.covariance)
         if learned is not None and stage["learned"]["replaces_condition_terms"]:
             cond = [e for e in summary["effects"] if e.get("needs")]
             summary["effects"] = [e for e in summary["effects"] if not e.get("needs")]
