@@ -262,3 +262,28 @@ def test_hybrid_calibrated_volume_is_the_checks_box_and_the_guard_refuses_outsid
     assert len(guards.volume_violations(inside, hyb)[0]) == 0
     assert list(guards.volume_violations(outside, hyb)[0]) == [0, 1]
     assert len(guards.volume_violations(outside, base)[0]) == 0   # the base alone would have accepted them
+
+
+BAND_TOL_UM = 1e-12
+"""The total band's square is the sum of two variances computed by the same code paths: round-off only."""
+
+
+def test_hybrid_total_band_is_learned_band_plus_element_band(grinder):
+    """band_std = sqrt(learned std² + diag(J Σ Jᵀ)); without a covariance, the learned band alone."""
+    from compensation.hybrid import axis_features
+    from errormap.uncertainty import ElementCovariance, theta_from_elements, theta_layout
+    from training.residual import ResidualRegressor
+    rng = np.random.default_rng(SEED + 5)
+    axes = random_axes(grinder, 80, rng)
+    r = _bump(grinder, axes) + NOISE_UM * rng.standard_normal(axes.shape)
+    reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(axis_features(axes)[0], r)
+    el = random_truth(grinder, SEED).elements
+    p = len(theta_layout(el))
+    cov = ElementCovariance(theta_from_elements(el), 0.25 * np.eye(p), el, {})
+    hyb = HybridField(HTMField(grinder, el), LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0)))
+    P = random_axes(grinder, 50, np.random.default_rng(SEED + 6))
+    _, s_learned = hyb.learned.predict(P, return_std=True)
+    el_var = np.diagonal(cov.prediction_cov(grinder, P), axis1=1, axis2=2)
+    assert np.all(el_var > 0) and np.all(s_learned > 0)
+    np.testing.assert_allclose(hyb.band_std(P), s_learned, atol=BAND_TOL_UM)
+    np.testing.assert_allclose(hyb.band_std(P, cov) ** 2, s_learned**2 + el_var, atol=BAND_TOL_UM)
