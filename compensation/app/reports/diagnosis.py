@@ -156,6 +156,7 @@ def _learned(s) -> dict | None:
            else lr.get("held_out_band95_cover"),
            "cover_what": ("the hybrid's total band: learned ⊕ elements ⊕ measurement noise"
                           if lr.get("held_out_band95_cover_total") is not None else "learned band ⊕ measurement noise"),
+           "replaced": ", ".join(f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])),
            "table": Table(["family", "CV RMS (μm)", "its SE (μm)", "mean gain over zero (μm²)", "its SE (μm²)",
                            "95 % band coverage"], rows), "figure": None}
     m = lr.get("map")

@@ -226,6 +226,7 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
             cond = [e for e in summary["effects"] if e.get("needs")]
             summary["effects"] = [e for e in summary["effects"] if not e.get("needs")]
             summary["effects_replaced_by_learned"] = cond
+            summary["effects_accepted"] = bool(summary["effects"])
         stage["base_stage"] = loop.kept_stage
         if "held_out" in stage:  # the stage ran (enough checks): it is a stage beside the others
             summary["stages"] = dict(summary["stages"], learned_residual=stage)
