@@ -72,11 +72,11 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
-N_GA = 100
+N_GA = 50
 """Points of the volume also compensated with ``batched-ga`` on the hybrid (its model residual
 and convergence; the GA is the slow solver, so a subset, and only for seeds below
 :data:`GA_SEEDS`)."""
-GA_SEEDS = 3
+GA_SEEDS = 1
 
 AMPLITUDE_KEY = {"bump": "amplitude_um", "a_tilt": "k_urad", "squareness": "k_urad"}
 """The parameter of each out-of-catalogue effect that ``--scale`` multiplies (magnitude sweep)."""
