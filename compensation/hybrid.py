@@ -11,10 +11,17 @@ learned by a :class:`training.residual.ResidualRegressor` (:func:`learned_stage`
   BLOCKED in time), then KEPT only if it lowers the held-out squared residual norm, paired per
   point, by more than :data:`KEEP_Z` standard errors over the stage before it; when kept, its
   weights are re-solved on all checks with the hyper-parameters chosen on the fitting part;
+* condition terms of the stage before it (temperature, time, direction) may be REPLACED by the
+  learned field of the axes when that cross-validates better on the same blocked folds
+  (:func:`learned_stage`, ``r_static_um``): on warm checks a thermal term can stand in for a
+  static error and subtract it at the reference temperature;
 * outside the checks: the regressor decays to zero within a few length scales, and
   :class:`LearnedResidual` multiplies it by a C¹ taper that is 1 inside the checks' box in X and
   Z and falls to 0 within :data:`TAPER_FRAC` of the range outside it, so the learned part never
-  extrapolates a fit (the guards refuse points outside the calibrated volume anyway).
+  extrapolates a fit; :attr:`HybridField.calibrated_volume` is the checks' box (within the
+  base's), so the guards refuse commands outside it unless overridden;
+* band: :meth:`HybridField.band_std` is the total predictive band, the learned part's
+  (CV-calibrated) ⊕ the elements' ``diag(J Σ Jᵀ)``.
 
 :class:`HybridField` = base field + learned part is an :class:`errormap.field.ErrorField` with the
 base's Jacobian capabilities (value and Jacobian in closed form), so ``exact``, ``ga`` and
