@@ -9,12 +9,18 @@ points (1 mm inside the X and Z strokes) at the reference conditions, scored by 
 here). The same ``model.json`` without its ``learned_residual`` key is the parametric loop alone
 (the stage the learned one was judged against), compensated and scored the same way.
 
-Figures per row: TRUE RMS / max over the volume of the hybrid and of the parametric loop alone;
+Figures per row: TRUE RMS / max over the volume of the hybrid and of the parametric loop alone
+(the loop alone keeps any condition terms the learned stage replaced: ``base_terms_replaced``);
 the held-out MEASURED RMS of the kept stage beside the noise floor √3·σ̂ (σ̂ the loop's check
-noise estimate); whether the learned stage was kept; the learned band's 95 % coverage on the
-held-out checks (band of the learned part + fitted noise) and on the truth points (learned
-band alone, against the true error minus the hybrid's prediction); the exact solver's MODEL
-residual max on the hybrid as ``compensate`` reports it.
+noise estimate); whether the learned stage was kept and whether it replaced condition terms;
+the 95 % coverage of the hybrid's TOTAL band (learned ⊕ elements' J Σ Jᵀ) on the held-out checks
+(⊕ the fitted noise) and on the truth points (against the true error minus the hybrid's
+prediction), and of the learned band alone on the truth points; the exact solver's MODEL
+residual max on the hybrid as ``compensate`` reports it, and for seeds below ``GA_SEEDS`` the
+``batched-ga`` solver's on ``N_GA`` of the volume points (max and failures).
+
+``--scale S`` multiplies the out-of-catalogue effect's default amplitude in the truth (magnitude
+sweep; rows ``EFFECT@xS``); ``--checks N`` simulates N checks instead of 800 (rows ``EFFECT@nN``).
 
 Writes ``benchmarks/hybrid_results.md`` (and ``hybrid_results.json``, rows merged by
 (family, seed, case)). Run: ``python benchmarks/bench_hybrid.py --seeds 10 --jobs 1``.
