@@ -9,12 +9,18 @@ points (1 mm inside the X and Z strokes) at the reference conditions, scored by 
 here). The same ``model.json`` without its ``learned_residual`` key is the parametric loop alone
 (the stage the learned one was judged against), compensated and scored the same way.
 
-Figures per row: TRUE RMS / max over the volume of the hybrid and of the parametric loop alone;
+Figures per row: TRUE RMS / max over the volume of the hybrid and of the parametric loop alone
+(the loop alone keeps any condition terms the learned stage replaced: ``base_terms_replaced``);
 the held-out MEASURED RMS of the kept stage beside the noise floor √3·σ̂ (σ̂ the loop's check
-noise estimate); whether the learned stage was kept; the learned band's 95 % coverage on the
-held-out checks (band of the learned part + fitted noise) and on the truth points (learned
-band alone, against the true error minus the hybrid's prediction); the exact solver's MODEL
-residual max on the hybrid as ``compensate`` reports it.
+noise estimate); whether the learned stage was kept and whether it replaced condition terms;
+the 95 % coverage of the hybrid's TOTAL band (learned ⊕ elements' J Σ Jᵀ) on the held-out checks
+(⊕ the fitted noise) and on the truth points (against the true error minus the hybrid's
+prediction), and of the learned band alone on the truth points; the exact solver's MODEL
+residual max on the hybrid as ``compensate`` reports it, and for seeds below ``GA_SEEDS`` the
+``batched-ga`` solver's on ``N_GA`` of the volume points (max and failures).
+
+``--scale S`` multiplies the out-of-catalogue effect's default amplitude in the truth (magnitude
+sweep; rows ``EFFECT@xS``); ``--checks N`` simulates N checks instead of 800 (rows ``EFFECT@nN``).
 
 Writes ``benchmarks/hybrid_results.md`` (and ``hybrid_results.json``, rows merged by
 (family, seed, case)). Run: ``python benchmarks/bench_hybrid.py --seeds 10 --jobs 1``.
@@ -42,6 +48,8 @@ RESULTS_JSON = HERE / "hybrid_results.json"
 RESULTS_MD = HERE / "hybrid_results.md"
 CASES = ("none", "bump", "a_tilt", "squareness")
 N_VOLUME = 2000
+N_CHECKS = 800
+"""Check measurements per machine (``--checks`` changes it: rows then carry ``@nN``)."""
 NOISE_UM = 1.0
 """The simulated check noise per component (a setting of the run, as an engineer knows his
 instrument's): the noise floor of the held-out vector RMS is √3·NOISE_UM."""
@@ -57,20 +65,65 @@ def _stats(r_um) -> dict:
     return {"rms_um": float(np.sqrt(np.mean(n**2))), "max_um": float(n.max())}
 
 
-def _compensate(main, td, model, label):
+def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     from errormap.io import read_table
     od = td / f"comp_{label}"
-    rc = main(["compensate", str(td / "volume.csv"), "--model", str(model), "--method", "exact", "--out", str(od),
+    rc = main(["compensate", str(td / points), "--model", str(model), "--method", method, "--out", str(od),
                *CONDITIONS])
     if rc != 0:
         return None, {"refused_exit": rc}
-    t = read_table(od / "volume.csv")
+    t = read_table(od / points)
     comp = np.stack([t.float(k) for k in ("x_mm", "z_mm", "a_deg")], axis=1)
     summ = json.loads((od / "compensate_summary.json").read_text())["files"][0]
-    return comp, {"model_max_um": summ.get("model_max_um")}
+    return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
-def run_case(family: str, seed: int, effect: str) -> dict:
+N_GA = 50
+"""Points of the volume also compensated with ``batched-ga`` on the hybrid (its model residual
+and convergence; the GA is the slow solver, so a subset, and only for seeds below
+:data:`GA_SEEDS`)."""
+GA_SEEDS = 1
+
+AMPLITUDE_KEY = {"bump": "amplitude_um", "a_tilt": "k_urad", "squareness": "k_urad"}
+"""The parameter of each out-of-catalogue effect that ``--scale`` multiplies (magnitude sweep)."""
+
+
+class _scaled_effect:
+    """Within the block, the simulator's default amplitude of ``effect`` times ``scale`` (the
+    truth's effect only: the user's path and every estimator are unchanged)."""
+
+    def __init__(self, effect, scale):
+        self.effect, self.scale = effect, scale
+
+    def __enter__(self):
+        from errormap import simulator
+        self.key = AMPLITUDE_KEY.get(self.effect)
+        if self.key is not None and self.scale != 1.0:
+            self.old = simulator.EFFECT_DEFAULTS[self.effect][self.key]
+            simulator.EFFECT_DEFAULTS[self.effect][self.key] = self.old * self.scale
+        return self
+
+    def __exit__(self, *exc):
+        from errormap import simulator
+        if self.key is not None and self.scale != 1.0:
+            simulator.EFFECT_DEFAULTS[self.effect][self.key] = self.old
+
+
+def run_case(family: str, seed: int, effect: str, scale: float = 1.0, checks: int = N_CHECKS) -> dict:
+    if scale != 1.0 and (family != "default" or effect not in AMPLITUDE_KEY):
+        raise ValueError("--scale applies to the default family's out-of-catalogue effects only")
+    with _scaled_effect(effect, scale):
+        row = _run_case(family, seed, effect, checks)
+    if scale != 1.0:
+        row["scale"] = scale
+        row["effect"] = f"{effect}@x{scale:g}"
+    if checks != N_CHECKS:
+        row["checks"] = checks
+        row["effect"] = f"{row['effect']}@n{checks}"
+    return row
+
+
+def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
     from compensation.app.cli import main
     from compensation.diagnosed_model import load_diagnosed_model
     from compensation.evaluate import true_residual_um
@@ -94,14 +147,17 @@ def run_case(family: str, seed: int, effect: str) -> dict:
         q = ["--family", family, "--seed", str(seed)] + sum((["--effect", e] for e in eff), [])
         assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", str(int(noise_ss.generate_state(1)[0])),
                      "--out", str(td / "sw.csv")]) == 0
-        assert main(["simulate", *q, "--checks", "800", "--noise-um", str(NOISE_UM), "--out", str(td / "sim")]) == 0
+        assert main(["simulate", *q, "--checks", str(checks), "--noise-um", str(NOISE_UM), "--out", str(td / "sim")]) == 0
         assert main(["identify", str(td / "sw.csv"), "--out", str(td / "el.json")]) == 0
         assert main(["diagnose", str(td / "sim" / "checks.csv"), "--model", str(td / "el.json"),
                      "--out", str(td / "diag")]) == 0
         s = json.loads((td / "diag" / "diagnosis.json").read_text())
         model = json.loads((td / "diag" / "model.json").read_text())
-        param = {k: v for k, v in model.items() if k != "learned_residual"}
+        param = {k: v for k, v in model.items() if k not in ("learned_residual", "base_terms_replaced")}
         param["stage"] = model.get("base_stage", model["stage"])
+        # the loop alone had the condition terms the learned stage replaced (learned_stage's r_static_um)
+        param["terms"] = model["terms"] + model.get("base_terms_replaced", [])
+        param["needs"] = sorted({c for e in param["terms"] for c in e.get("needs", [])})
         (td / "diag" / "model_parametric.json").write_text(json.dumps(param))
         P = random_axes(m, N_VOLUME, np.random.default_rng(probe_ss))
         for k, name in ((0, "x_mm"), (1, "z_mm")):  # 1 mm inside the strokes: compensated commands stay in them
@@ -112,6 +168,10 @@ def run_case(family: str, seed: int, effect: str) -> dict:
         for label, path in (("hybrid", td / "diag" / "model.json"), ("parametric", td / "diag" / "model_parametric.json")):
             comp, info = _compensate(main, td, path, label)
             row[label] = info if comp is None else dict(_stats(true_residual_um(truth, comp, targets)), **info)
+        if "learned_residual" in model and seed < GA_SEEDS:  # the GA solver on the hybrid field (a subset)
+            write_csv(td / "volume_ga.csv", dict(zip(("x_mm", "z_mm", "a_deg"), P[:N_GA].T)), float_fmt="%.12g")
+            comp, info = _compensate(main, td, td / "diag" / "model.json", "ga", "batched-ga", "volume_ga.csv")
+            row["hybrid_batched_ga"] = info if comp is None else dict(_stats(true_residual_um(truth, comp, targets[:N_GA])), **info)
         cf = load_diagnosed_model(td / "diag" / "model.json", m)
         cond = truth.default_conditions(N_VOLUME)
         e_true = truth.spatial_error(P, **cond)
@@ -131,7 +191,9 @@ def run_case(family: str, seed: int, effect: str) -> dict:
     sigma = s["update"]["check_noise_sigma_um"]
     row.update({"kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
                 "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
+                "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
                 "learned_z": lr.get("held_out_gain_z"), "held_band95_cover": lr.get("held_out_band95_cover"),
+                "held_band95_cover_total": lr.get("held_out_band95_cover_total"),
                 "held_base_um": st[s.get("base_stage", s["kept_stage"])]["held_out"]["rms_um"],
                 "held_final_um": s["rms_final_um"], "noise_floor_um": float(np.sqrt(3) * sigma),
                 "effects": [f"{e['kind']} {e['axis']}" for e in s["effects"]],
@@ -162,15 +224,18 @@ def write_results(rows, argv):
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
              "residual (the loop alone). Generated by `python benchmarks/bench_hybrid.py --seeds 10 --jobs 1 "
-             "[--family independent] [--cases …]` (rows merged from `hybrid_results.json`; this table rebuilt by "
+             "[--family independent] [--cases …] [--scale S] [--checks N]` (rows merged from `hybrid_results.json`; this table rebuilt by "
              "`" + " ".join(["bench_hybrid.py", *argv]) + "`).",
              "", f"Machine: {platform.machine()}, Python {platform.python_version()}.", "",
-             "| family | case | seeds | learned kept | TRUE RMS hybrid (μm) | TRUE RMS parametric (μm) | "
-             "parametric / hybrid | hybrid / no-effect hybrid | TRUE max hybrid (μm) | held-out MEASURED RMS / floor √3·1 μm | "
-             "… / √3·σ̂ | band95 held-out | band95 truth (learned band) | band95 truth (learned ⊕ elements, rows) | "
-             "exact model max (μm) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| family | case | seeds | learned kept | condition terms replaced | TRUE RMS hybrid (μm) | "
+             "TRUE RMS parametric (μm) | parametric / hybrid | hybrid / no-effect hybrid | TRUE max hybrid (μm) | "
+             "held-out MEASURED RMS / floor √3·1 μm | … / √3·σ̂ | band95 held-out (total band ⊕ noise) | "
+             "band95 truth (total band) | band95 truth (learned band alone) | exact model max (μm) | "
+             "batched-ga model max (μm), failures |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for (fam, eff), rs in sorted(by.items()):
+        if "@" in eff:
+            continue
         ok = [r for r in rs if "rms_um" in r.get("hybrid", {}) and "rms_um" in r.get("parametric", {})]
         if not ok:
             continue
@@ -180,18 +245,67 @@ def write_results(rows, argv):
         rel = [r["hybrid"]["rms_um"] / n["hybrid"]["rms_um"] for r, n in zip(ok, ref) if n and "rms_um" in n["hybrid"]]
         floor = np.array([r["held_final_um"] / (np.sqrt(3) * NOISE_UM) for r in ok])
         floor_hat = np.array([r["held_final_um"] / r["noise_floor_um"] for r in ok])
-        hc = [r["held_band95_cover"] for r in ok if r.get("learned_kept") and r.get("held_band95_cover") is not None]
+        kept = [r for r in ok if r.get("learned_kept")]
+        hc = [r.get("held_band95_cover_total") for r in kept if r.get("held_band95_cover_total") is not None]
         tc = [r["truth_band95_cover"] for r in ok if r.get("truth_band95_cover") is not None]
         tt = [r["truth_band95_cover_total"] for r in ok if r.get("truth_band95_cover_total") is not None]
         mm = [r["hybrid"].get("model_max_um") for r in ok if r["hybrid"].get("model_max_um") is not None]
+        ga = [r["hybrid_batched_ga"] for r in kept if "model_max_um" in r.get("hybrid_batched_ga", {})]
+        rep = sum(bool(r.get("replaced_terms")) for r in ok)
+        rng = lambda v: f"{np.mean(v):.2f} ({np.min(v):.2f}–{np.max(v):.2f}, {len(v)})" if v else "—"
         lines.append(
-            f"| {fam} | {eff} | {len(ok)} | {sum(r['learned_kept'] for r in ok)}/{len(ok)} | "
+            f"| {fam} | {eff} | {len(ok)} | {len(kept)}/{len(ok)} | {rep}/{len(ok)} | "
             f"{_fmt(h.mean())} (max {_fmt(h.max())}) | {_fmt(p.mean())} | {_fmt(np.mean(p / h))} (min {_fmt(np.min(p / h))}) | "
             f"{_fmt(np.mean(rel)) if rel else '—'}{'' if not rel else f' (max {np.max(rel):.2f})'} | "
             f"{_fmt(np.mean([r['hybrid']['max_um'] for r in ok]))} | {_fmt(floor.mean())} (max {_fmt(floor.max())}) | "
-            f"{_fmt(floor_hat.mean())} | {_fmt(np.mean(hc)) if hc else '—'} | {_fmt(np.mean(tc)) if tc else '—'} | "
-            f"{_fmt(np.mean(tt)) if tt else '—'} ({len(tt)}) | "
-            f"{('%.2g' % max(mm)) if mm else '—'} |")
+            f"{_fmt(floor_hat.mean())} | {rng(hc)} | {rng(tt)} | {rng(tc)} | "
+            f"{('%.2g' % max(mm)) if mm else '—'} | "
+            f"{('%.3f, %d of %d points' % (max(g['model_max_um'] for g in ga), sum(g['failures'] for g in ga), N_GA * len(ga))) if ga else '—'} |")
+    more = [r for r in rows if "@n" in r["effect"] and "rms_um" in r.get("hybrid", {})]
+    if more:
+        lines += ["", "## More checks", "",
+                  "The same machines with more check measurements (`--checks`; 60/40 by seq as always): the learned "
+                  "field's estimation error falls with the number of checks; 'no-effect' = the same seed's machine "
+                  "without the effect and with as many checks.", "",
+                  "| family | case | checks | seeds | learned kept | TRUE RMS parametric (μm) | TRUE RMS hybrid (μm) | "
+                  "parametric / hybrid | hybrid / no-effect | held-out MEASURED RMS / floor √3·1 μm |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
+        grp = {}
+        for r in more:
+            grp.setdefault((r["family"], r["effect"]), []).append(r)
+        ref_more = {(r["family"], r["seed"], r["effect"].split("@n")[1]): r for r in more if r["effect"].startswith("none@")}
+        for (fam, eff), rs in sorted(grp.items()):
+            base_eff, n_ch = eff.split("@n")
+            h = np.array([r["hybrid"]["rms_um"] for r in rs])
+            p = np.array([r["parametric"]["rms_um"] for r in rs])
+            rel = [r["hybrid"]["rms_um"] / ref_more[(fam, r["seed"], n_ch)]["hybrid"]["rms_um"] for r in rs
+                   if (fam, r["seed"], n_ch) in ref_more]
+            fl = np.array([r["held_final_um"] / (np.sqrt(3) * NOISE_UM) for r in rs])
+            lines.append(f"| {fam} | {base_eff} | {n_ch} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | "
+                         f"{p.mean():.2f} | {h.mean():.2f} | {np.mean(p / h):.2f} | "
+                         f"{(f'{np.mean(rel):.2f} (max {np.max(rel):.2f})') if rel else '—'} | {fl.mean():.2f} (max {fl.max():.2f}) |")
+    sweep = [r for r in rows if r["family"] == "default" and r["effect"].split("@")[0] in AMPLITUDE_KEY
+             and "@n" not in r["effect"] and "rms_um" in r.get("hybrid", {}) and "rms_um" in r.get("parametric", {})]
+    if any("@" in r["effect"] for r in sweep):
+        lines += ["", "## Magnitude sweep (default family)", "",
+                  "The out-of-catalogue effect's default amplitude times the scale (`--scale`; the truth only), same "
+                  "user's path; 'no-effect' = the same seed's machine without the effect.", "",
+                  "| case | scale | seeds | learned kept | TRUE RMS parametric (μm) | TRUE RMS hybrid (μm) | "
+                  "parametric / hybrid | hybrid / no-effect | parametric / no-effect |", "|---|---|---|---|---|---|---|---|---|"]
+        groups = {}
+        for r in sweep:
+            groups.setdefault((r["effect"].split("@")[0], float(r.get("scale", 1.0))), []).append(r)
+        for (eff, sc), rs in sorted(groups.items()):
+            if not any(k == eff and s_ != 1.0 for k, s_ in groups):
+                continue
+            rs = [r for r in rs if none.get(("default", r["seed"]))]
+            if not rs:
+                continue
+            h = np.array([r["hybrid"]["rms_um"] for r in rs])
+            p = np.array([r["parametric"]["rms_um"] for r in rs])
+            n0 = np.array([none[("default", r["seed"])]["hybrid"]["rms_um"] for r in rs])
+            lines.append(f"| {eff} | ×{sc:g} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | {p.mean():.2f} | "
+                         f"{h.mean():.2f} | {np.mean(p / h):.2f} | {np.mean(h / n0):.2f} | {np.mean(p / n0):.2f} |")
     lines += ["", "Per-row figures are in `benchmarks/hybrid_results.json`.", ""]
     with atomic_write(RESULTS_MD, "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))
@@ -205,14 +319,17 @@ def main(argv=None):
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--family", default="default", choices=("default", "independent"))
     ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--scale", type=float, default=1.0,
+                    help="magnitude sweep: the out-of-catalogue effects' default amplitude times this (default family)")
+    ap.add_argument("--checks", type=int, default=N_CHECKS, help="check measurements per machine")
     ap.add_argument("--report-only", action="store_true", help="rebuild the Markdown from hybrid_results.json")
     args = ap.parse_args(argv)
     argv = sys.argv[1:] if argv is None else argv
     if args.report_only:
         write_results(_load_rows(), argv)
         return
-    todo = [(args.family, s, c) for s in range(args.seed_start, args.seed_start + args.seeds)
-            for c in args.cases.split(",")]
+    todo = [(args.family, s, c, args.scale, args.checks) for s in range(args.seed_start, args.seed_start + args.seeds)
+            for c in args.cases.split(",") if args.scale == 1.0 or c != "none"]
     rows = {(r["family"], r["seed"], r["effect"]): r for r in _load_rows()}
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as ex:

@@ -11,10 +11,17 @@ learned by a :class:`training.residual.ResidualRegressor` (:func:`learned_stage`
   BLOCKED in time), then KEPT only if it lowers the held-out squared residual norm, paired per
   point, by more than :data:`KEEP_Z` standard errors over the stage before it; when kept, its
   weights are re-solved on all checks with the hyper-parameters chosen on the fitting part;
+* condition terms of the stage before it (temperature, time, direction) may be REPLACED by the
+  learned field of the axes when that cross-validates better on the same blocked folds
+  (:func:`learned_stage`, ``r_static_um``): on warm checks a thermal term can stand in for a
+  static error and subtract it at the reference temperature;
 * outside the checks: the regressor decays to zero within a few length scales, and
   :class:`LearnedResidual` multiplies it by a C¹ taper that is 1 inside the checks' box in X and
   Z and falls to 0 within :data:`TAPER_FRAC` of the range outside it, so the learned part never
-  extrapolates a fit (the guards refuse points outside the calibrated volume anyway).
+  extrapolates a fit; :attr:`HybridField.calibrated_volume` is the checks' box (within the
+  base's), so the guards refuse commands outside it unless overridden;
+* band: :meth:`HybridField.band_std` is the total predictive band, the learned part's
+  (CV-calibrated) ⊕ the elements' ``diag(J Σ Jᵀ)``.
 
 :class:`HybridField` = base field + learned part is an :class:`errormap.field.ErrorField` with the
 base's Jacobian capabilities (value and Jacobian in closed form), so ``exact``, ``ga`` and
@@ -159,7 +166,25 @@ class HybridField:
 
     @property
     def calibrated_volume(self):
-        return self.base.calibrated_volume
+        """The base's calibrated box narrowed in X and Z to the checks' box the learned part was
+        fitted in (:attr:`LearnedResidual.lo` / ``hi``): outside it the learned part is tapered
+        away and says nothing, so the guards refuse commands there (``compensate --allow volume``
+        overrides, and the override is recorded in the output)."""
+        from errormap.field import CalibratedVolume
+        vol = self.base.calibrated_volume
+        if vol is None:
+            return None
+        lo, hi = vol.lo_array.copy(), vol.hi_array.copy()
+        names = list(vol.names)
+        for j, name in enumerate(("x_mm", "z_mm")):
+            if name in names:
+                k = names.index(name)
+                lo[k] = max(lo[k], self.learned.lo[j])
+                hi[k] = min(hi[k], self.learned.hi[j])
+        if np.any(lo > hi):   # disjoint boxes: nothing is calibrated; an empty box at the base's lo refuses all
+            hi = np.maximum(hi, lo)
+            lo = hi.copy()
+        return CalibratedVolume(tuple(lo), tuple(hi), vol.names)
 
     def predict(self, axes) -> np.ndarray:
         axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
@@ -178,6 +203,25 @@ class HybridField:
     def jacobian(self, axes) -> np.ndarray:
         return self.predict_and_jacobian(axes)[1]
 
+    def band_std(self, axes, covariance=None) -> np.ndarray:
+        """The hybrid's TOTAL predictive 1-σ band per component, shape (n, 3) μm, at axes (n, 3):
+        the learned part's band (its posterior std, calibrated on its cross-validation) ⊕ the
+        elements' band ``diag(J Σ Jᵀ)`` from ``covariance`` (an
+        :class:`errormap.uncertainty.ElementCovariance` of the base's elements; None: the learned
+        band alone). Measurement noise is not in it (a band of the field, not of a measurement)."""
+        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        return total_band_std(self.learned, self.machine, axes, covariance)
+
+
+def total_band_std(learned, machine, axes, covariance=None) -> np.ndarray:
+    """(n, 3) μm: ``learned``'s 1-σ band (zeros when None) ⊕ the elements' ``diag(J Σ Jᵀ)``."""
+    var = np.zeros((len(axes), 3))
+    if learned is not None:
+        var += learned.predict(axes, return_std=True)[1] ** 2
+    if covariance is not None:
+        var += np.diagonal(covariance.prediction_cov(machine, axes), axis1=1, axis2=2)
+    return np.sqrt(var)
+
 
 def _paired_z(r_before, r_after):
     g = np.sum(r_before**2, axis=1) - np.sum(r_after**2, axis=1)
@@ -185,31 +229,53 @@ def _paired_z(r_before, r_after):
     return float(g.mean() / se) if se > 0 else 0.0, float(g.mean()), float(se)
 
 
-def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.0)) -> dict:
+def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.0), covariance=None) -> dict:
     """The learned correction over X–Z (``MAP_N`` × ``MAP_N``), its norm and band, averaged over
     the A positions ``a_deg``: {x_mm (MAP_N,), z_mm (MAP_N,), norm_um (MAP_N, MAP_N) [z, x],
-    band95_um (MAP_N, MAP_N)}."""
+    band95_um (MAP_N, MAP_N)} and, with the elements' ``covariance``, ``band95_total_um`` (the
+    hybrid's total band, :func:`total_band_std`, vector norm)."""
     xs = np.linspace(*machine.strokes["x_mm"], MAP_N)
     zs = np.linspace(*machine.strokes["z_mm"], MAP_N)
     X, Z = np.meshgrid(xs, zs)
     norm = np.zeros_like(X)
     band = np.zeros_like(X)
+    total = np.zeros_like(X)
     for a in a_deg:
         P = np.stack([X.ravel(), Z.ravel(), np.full(X.size, a)], axis=1)
         v, s = learned.predict(P, return_std=True)
         norm += np.linalg.norm(v, axis=1).reshape(X.shape) / len(a_deg)
         band += Z95 * np.linalg.norm(s, axis=1).reshape(X.shape) / len(a_deg)
-    return {"x_mm": xs.tolist(), "z_mm": zs.tolist(), "a_deg_averaged": list(a_deg),
-            "norm_um": norm.tolist(), "band95_um": band.tolist()}
+        if covariance is not None:
+            total += Z95 * np.linalg.norm(total_band_std(learned, machine, P, covariance), axis=1).reshape(X.shape) / len(a_deg)
+    out = {"x_mm": xs.tolist(), "z_mm": zs.tolist(), "a_deg_averaged": list(a_deg),
+           "norm_um": norm.tolist(), "band95_um": band.tolist()}
+    if covariance is not None:
+        out["band95_total_um"] = total.tolist()
+    return out
 
 
-def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=("gp",)):
+def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=("gp",), r_static_um=None,
+                  covariance=None):
     """Fit the learned residual on what the previous stage leaves at the checks and gate it.
 
     ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check;
     ``axes`` (n, 3); ``fit_idx`` / ``hold_idx``: the loop's fitting and held-out checks.
+    ``r_static_um`` (n, 3) or None: the same stage's residual WITHOUT its condition terms
+    (temperature, time, direction), when it has some. A condition term fitted on checks whose
+    condition hardly varies (the machine warm after the first blocks) can stand in for a static
+    error the elements could not take up; at other conditions (the reference temperature of
+    compensation) it then subtracts what is not there. So the learned field of the axes is also
+    fitted on ``r_static_um`` (same blocked folds) and REPLACES the condition terms when its
+    cross-validated error is lower, paired per point over the same folds, by more than
+    :data:`KEEP_Z` standard errors (the early, still-warming blocks are where the two differ);
+    the held-out gate against the previous stage (with its terms) is then the same.
+    ``covariance``: the previous stage's element covariance (or None): with it, the stage also
+    reports the coverage of the hybrid's TOTAL band on the held-out checks
+    (``held_out_band95_cover_total``: learned band ⊕ elements' J Σ Jᵀ ⊕ the fitted noise) and
+    its map carries the total band.
     Returns ``(learned or None, stage)``: ``learned`` (refitted on all checks) when kept, and
-    the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate)."""
+    the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate;
+    ``replaces_condition_terms`` True when the static variant was used)."""
     axes = np.asarray(axes, dtype=float)
     if len(fit_idx) < MIN_FIT_CHECKS or len(hold_idx) < MIN_HELD_CHECKS:
         return None, {"learned": {"family": "none", "kept": False, "cv_table": {}, "inputs": list(FEATURE_NAMES),
@@ -219,15 +285,34 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     f, _ = axis_features(axes)
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
     reg = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_prev_um[fit_idx], groups=groups)
+    r_base, replaces, alt = r_prev_um, False, None
+    if r_static_um is not None:
+        r_static_um = np.asarray(r_static_um, dtype=float)
+        reg_s = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_static_um[fit_idx], groups=groups)
+        e_with = reg.cv_sq_err_[reg.chosen_ if reg.chosen_ != "none" else "zero"]
+        e_static = reg_s.cv_sq_err_[reg_s.chosen_ if reg_s.chosen_ != "none" else "zero"]
+        z_s, g_s, se_s = _paired_z(np.sqrt(e_with)[:, None], np.sqrt(e_static)[:, None])
+        replaces = reg_s.chosen_ != "none" and z_s > KEEP_Z
+        alt = {"cv_rms_with_terms_um": float(np.sqrt(e_with.mean())), "cv_rms_static_um": float(np.sqrt(e_static.mean())),
+               "cv_gain_z": z_s, "cv_gain_um2": g_s, "cv_gain_se_um2": se_s, "static_family": reg_s.chosen_,
+               "replaces_condition_terms": bool(replaces),
+               "rule": (f"the learned field of the axes replaces the condition terms when its blocked-CV squared error, "
+                        f"paired per fitting check over the same folds, is lower by more than {KEEP_Z} standard errors")}
+        if replaces:
+            reg, r_base = reg_s, r_static_um
     lo = axes[:, :2].min(0)
     hi = axes[:, :2].max(0)
     fitted = LearnedResidual(reg, axes[fit_idx, :2].min(0), axes[fit_idx, :2].max(0))
     pred, sd = fitted.predict(axes, return_std=True)
-    r_new = r_prev_um - pred
+    r_new = r_base - pred
     z, gain, se = _paired_z(r_prev_um[hold_idx], r_new[hold_idx])
     noise = reg.noise_std_
     band = Z95 * np.sqrt(sd**2 + noise[None, :] ** 2)
     cover = float(np.mean(np.abs(r_new[hold_idx]) <= band[hold_idx])) if reg.chosen_ != "none" else None
+    cover_total = None
+    if covariance is not None and reg.chosen_ != "none":
+        sd_t = total_band_std(fitted, machine, axes[hold_idx], covariance)
+        cover_total = float(np.mean(np.abs(r_new[hold_idx]) <= Z95 * np.sqrt(sd_t**2 + noise[None, :] ** 2)))
     kept = reg.chosen_ != "none" and z > KEEP_Z
     if reg.chosen_ == "none":
         why = "declined: no family beat predicting zero in the blocked cross-validation on the fitting checks"
@@ -241,11 +326,18 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
              "learned": {"family": reg.chosen_, "cv_table": reg.cv_table_, "inputs": list(FEATURE_NAMES),
                          "cv": f"blocked: {CV_BLOCKS} contiguous seq blocks of the fitting checks",
                          "held_out_gain_um2": gain, "held_out_gain_se_um2": se, "held_out_gain_z": z,
-                         "held_out_band95_cover": cover, "noise_std_um": noise.tolist(),
-                         "kept": bool(kept), "why": why}}
+                         "held_out_band95_cover": cover, "held_out_band95_cover_total": cover_total,
+                         "noise_std_um": noise.tolist(),
+                         "kept": bool(kept), "why": why,
+                         "replaces_condition_terms": bool(kept and replaces)}}
+    if alt is not None:
+        stage["learned"]["condition_terms_vs_static"] = alt
+    if kept and replaces:
+        stage["learned"]["why"] = why + ("; it replaces the condition terms (a static field of the axes "
+                                         "cross-validates better than they do)")
     if not kept:
         return None, stage
-    reg_all = reg.with_data(f, r_prev_um)
+    reg_all = reg.with_data(f, r_base)
     learned = LearnedResidual(reg_all, lo, hi)
-    stage["learned"]["map"] = learned_map(learned, machine)
+    stage["learned"]["map"] = learned_map(learned, machine, covariance=covariance)
     return learned, stage

@@ -243,6 +243,9 @@ class ResidualRegressor:
         ``gain_se`` (mean paired drop of the squared norm against zero, and its standard error),
         ``coverage_95`` (fraction of held-out components within the family's 95 % band, latent
         std and fitted noise together), ``n`` (held-out points);
+    cv_held_idx_ : (n,) int — the CV's held-out points in the order of ``cv_sq_err_`` (every point once);
+    cv_sq_err_ : dict — per family and ``"zero"``: (n,) held-out squared error norm of each point
+        (for paired comparisons between fits on the same folds; not saved by :meth:`to_dict`);
     noise_std_ : (3,) fitted measurement noise of the chosen family (zeros for ``"none"``), times
         ``band_scale_``;
     band_scale_ : float — the band calibration from the cross-validation: the factor that makes the
@@ -323,6 +326,7 @@ class ResidualRegressor:
         held = np.concatenate(folds)
         e_zero = (Y[held] ** 2).sum(1)
         table = {"zero": self._row(e_zero, e_zero, None)}
+        cv_err = {"zero": e_zero}
         for fam in fams:
             pred = np.empty((n, 3))
             band = np.empty((n, 3))
@@ -339,12 +343,15 @@ class ResidualRegressor:
             e_fam = ((Y[held] - pred[held]) ** 2).sum(1)
             cover = float(np.mean(np.abs(Y[held] - pred[held]) <= band[held]))
             table[fam] = self._row(e_fam, e_zero, cover)
+            cv_err[fam] = e_fam
             # band calibration: the factor that makes the CV's 95 % band hold 95 % of the held-out components
             zs = np.abs(Y[held] - pred[held]) / np.maximum(band[held] / Z95, 1e-300)
             table[fam]["band_scale"] = float(np.quantile(zs, 0.95) / Z95)
         eligible = [f for f in fams if table[f]["gain_mean"] > self.margin_se * table[f]["gain_se"]
                     and table[f]["gain_mean"] > 0]
         self.cv_table_ = table
+        self.cv_held_idx_ = held
+        self.cv_sq_err_ = cv_err
         self.chosen_ = min(eligible, key=lambda f: table[f]["cv_rms"]) if eligible else "none"
         self.model_ = None
         self.noise_std_ = np.zeros(3)

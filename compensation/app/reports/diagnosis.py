@@ -177,15 +177,21 @@ def _learned(s) -> dict | None:
     rows = [[fam, r["cv_rms"], r["cv_rms_se"], r["gain_mean"], r["gain_se"],
              "" if r.get("coverage_95") is None else r["coverage_95"]] for fam, r in lr["cv_table"].items()]
     out = {"family": lr["family"], "kept": lr["kept"], "why": lr["why"], "inputs": ", ".join(lr["inputs"]),
-           "cv": lr["cv"], "z": lr["held_out_gain_z"], "cover": lr.get("held_out_band95_cover"),
+           "cv": lr["cv"], "z": lr["held_out_gain_z"],
+           "cover": lr.get("held_out_band95_cover_total") if lr.get("held_out_band95_cover_total") is not None
+           else lr.get("held_out_band95_cover"),
+           "cover_what": ("the hybrid's total band: learned ⊕ elements ⊕ measurement noise"
+                          if lr.get("held_out_band95_cover_total") is not None else "learned band ⊕ measurement noise"),
+           "replaced": ", ".join(f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])),
            "table": Table(["family", "CV RMS (μm)", "its SE (μm)", "mean gain over zero (μm²)", "its SE (μm²)",
                            "95 % band coverage"], rows), "figure": None}
     m = lr.get("map")
     if m:
         fig, axs = _plt().subplots(1, 2, figsize=(9, 3.6))
         ext = [m["x_mm"][0], m["x_mm"][-1], m["z_mm"][0], m["z_mm"][-1]]
-        for ax, key, title in ((axs[0], "norm_um", "learned correction |Δ| (μm)"),
-                               (axs[1], "band95_um", "its 95 % band (μm)")):
+        band_key, band_title = (("band95_total_um", "the hybrid's total 95 % band (μm)") if "band95_total_um" in m
+                                else ("band95_um", "its 95 % band (μm)"))
+        for ax, key, title in ((axs[0], "norm_um", "learned correction |Δ| (μm)"), (axs[1], band_key, band_title)):
             im = ax.imshow(np.array(m[key]), origin="lower", extent=ext, aspect="auto", cmap="viridis")
             ax.set_xlabel("x (mm)")
             ax.set_ylabel("z (mm)")

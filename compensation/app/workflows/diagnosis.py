@@ -218,7 +218,19 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
         from compensation.hybrid import learned_stage
         n_fit = int(round(settings.fit_fraction * len(checks)))
         r_prev = checks.measured_um - loop.model.predict(checks.axes, **checks.conditions)
-        learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, len(checks)))
+        static = [t for t in loop.model.terms if not t.needs]
+        r_static = None
+        if len(static) < len(loop.model.terms):  # condition terms: the learned field may replace them (learned_stage)
+            from errormap.diagnosis.corrected import CorrectedField
+            r_static = checks.measured_um - CorrectedField(machine, loop.model.base, static).predict(
+                checks.axes, **checks.conditions)
+        learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, len(checks)),
+                                       r_static_um=r_static, covariance=loop.covariance)
+        if learned is not None and stage["learned"]["replaces_condition_terms"]:
+            cond = [e for e in summary["effects"] if e.get("needs")]
+            summary["effects"] = [e for e in summary["effects"] if not e.get("needs")]
+            summary["effects_replaced_by_learned"] = cond
+            summary["effects_accepted"] = bool(summary["effects"])
         stage["base_stage"] = loop.kept_stage
         if "held_out" in stage:  # the stage ran (enough checks): it is a stage beside the others
             summary["stages"] = dict(summary["stages"], learned_residual=stage)
@@ -237,6 +249,8 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
              "terms": summary["effects"], "needs": sorted({c for e in summary["effects"] for c in e.get("needs", [])})}
     if learned is not None:
         model["base_stage"] = loop.kept_stage
+        if summary.get("effects_replaced_by_learned"):  # the loop alone (base_stage) had them too
+            model["base_terms_replaced"] = summary["effects_replaced_by_learned"]
         model["learned_residual"] = learned.to_dict()
         if track:  # the kept learned residual as an MLflow run (training.tracking.log_learned_residual)
             from training.tracking import log_learned_residual
