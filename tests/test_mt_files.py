@@ -227,7 +227,7 @@ def test_fuzz_machine_tool_files(name):
 def test_grinder_command_refuses_a_valid_chain_file_by_kind(tmp_path, capsys):
     """Commands not yet generic over chains refuse a machine-tool file in one line naming its kind
     (never run it as a grinder)."""
-    rc = main(["simulate", "--machine", "mill-xyz", "--out", str(tmp_path / "o")])
+    rc = main(["demo", "--machine", "mill-xyz", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1
     assert "machine.kind" in err and "'machine-tool'" in err
