@@ -389,12 +389,21 @@ def fit_model(chain, poses, model: str = "dh", max_iter: int = LM_MAX_ITER) -> G
     return _result(c, poses, x, free, combos, sv, it, conv, "volcomp")
 
 
-def cv_models(chain, poses, models=MODELS, k_folds: int = CV_FOLDS, seed=0, plain: bool = True) -> list[dict]:
+def cv_models(chain, poses, models=MODELS, k_folds: int = CV_FOLDS, seed=0, plain: bool = True,
+              groups=None) -> list[dict]:
     """k-fold CV inside ``poses`` of every slot set (and the plain LSQ baseline when ``plain``):
-    per candidate ``{"model", "cv_mean_mm", "cv_rms_mm"}`` of the held-out position error norm."""
+    per candidate ``{"model", "cv_mean_mm", "cv_rms_mm"}`` of the held-out position error norm.
+    ``groups`` (n,) block labels: each fold holds whole blocks (BLOCKED CV; at most ``k_folds``)."""
     from .seeds import spawn_rngs
     rng = spawn_rngs(seed, 1)[0]
-    lab = rng.permutation(len(poses)) % k_folds
+    if groups is None:
+        lab = rng.permutation(len(poses)) % k_folds
+    else:
+        u, inv = np.unique(np.asarray(groups), return_inverse=True)
+        if len(u) < 2:
+            raise ValueError("blocked CV needs at least 2 distinct groups")
+        k_folds = min(k_folds, len(u))
+        lab = (np.arange(len(u)) * k_folds // len(u))[inv]
     cands = list(models) + (["plain"] if plain else [])
     errs = {m: np.empty(len(poses)) for m in cands}
     for f in range(k_folds):
