@@ -76,7 +76,15 @@ def folds_sector(q1, k):
     return [(f"q1 sector {f} [{edges[f]:.0f}, {edges[f + 1]:.0f}] deg", lab != f, lab == f) for f in range(k)]
 
 
-def run_arm(name, folds, k_folds_inner, log, blocked=False):
+def _summary(pooled):
+    out = {}
+    for k, v in pooled.items():
+        e = np.concatenate(v)
+        out[k] = {"mean_mm": float(e.mean()), "rms_mm": float(np.sqrt(np.mean(e ** 2))), "max_mm": float(e.max())}
+    return out
+
+
+def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None):
     """Outer folds: every decision (slot set, plain LSQ instead, learned kept) is made by CV inside the
     outer fit part (:func:`calibrate_arm`); the outer held-out fold only reports (nested). ``blocked``:
     the inner CV is blocked too (joint-1 sectors of the fit part), as the outer one."""
@@ -115,11 +123,9 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False):
         print(f"[{name}] {label}: kept {core['kept_stage']} {errs['volcomp kept stage'].mean():.4f}, plain LSQ "
               f"{errs['plain geometric LSQ'].mean():.4f}, plain GP {errs['plain GP on plain LSQ residual'].mean():.4f} mm, "
               f"coverage {core['coverage95_heldout']:.3f} ({kept[-1]['cpu_s']:.0f} s CPU)", file=log, flush=True)
-    summary = {}
-    for k, v in pooled.items():
-        e = np.concatenate(v)
-        summary[k] = {"mean_mm": float(e.mean()), "rms_mm": float(np.sqrt(np.mean(e ** 2))), "max_mm": float(e.max())}
-    return summary, kept
+        if on_fold is not None:
+            on_fold(_summary(pooled), kept)
+    return _summary(pooled), kept
 
 
 def simulated(n_seeds, log, loop_seeds, k_inner):
@@ -190,18 +196,23 @@ def write_md(res, args):
         for row in ROW_ORDER:
             cells = []
             for kind in ("random", "blocked"):
-                s = r[kind]["summary"].get(row)
+                s = r[kind]["summary"].get(row) if kind in r else None
                 cells.append("—" if s is None else f"{fmt(s['mean_mm'], 4)} / {fmt(s['rms_mm'], 4)} / {fmt(s['max_mm'])}")
             it = ISSUE_TABLE[name].get(row)
             L.append(f"| {row} | {cells[0]} | {cells[1]} | {'—' if it is None else fmt(it[0]) + ' / ' + fmt(it[1])} |")
         L.append(f"| published MDH + GNN | — | — | {fmt(ISSUE_TABLE[name]['published MDH + GNN'][0])} / — |")
         for kind in ("random", "blocked"):
+            if kind not in r:
+                L += ["", f"{kind}: not run yet."]
+                continue
             ks = r[kind]["folds"]
+            part_note = (f" (PARTIAL: {len(ks)} of {r[kind]['n_folds_planned']} outer folds run)"
+                         if len(ks) < r[kind].get("n_folds_planned", len(ks)) else "")
             n_l = sum(f["kept"] == "learned" for f in ks)
             geo = sorted({f["geometric_model"] for f in ks})
             cov_raw = [f["coverage95_cv_raw"] for f in ks if f["coverage95_cv_raw"] is not None]
             covh = [f["coverage95_heldout"] for f in ks]
-            L += ["", f"{kind}: {len(ks)} outer folds; kept stage per fold: learned in {n_l}, "
+            L += ["", f"{kind}{part_note}: {len(ks)} outer folds; kept stage per fold: learned in {n_l}, "
                   f"{', '.join(sorted({f['kept'] for f in ks}))}; geometric model chosen by inner CV: {', '.join(geo)}; "
                   f"95 % band of the kept stage on the outer held-out fold: coverage {np.mean(covh):.3f} "
                   f"(per fold {', '.join(f'{c:.3f}' for c in covh)})"
@@ -277,11 +288,14 @@ def main(argv=None):
             data = read_arm_poses(DATA / f"{part}_grid.csv", chain)
             rr = {"n_poses": len(data)}
             reps = args.ur5_repeats if part == "ur5" else args.repeats
+            res["real"][part] = rr
             for kind, folds in (("random", folds_random(len(data), args.folds, reps, 0)),
                                 ("blocked", folds_sector(data.q[:, 0], args.sectors))):
-                s, k = run_arm(part, folds, args.inner_folds, log, blocked=kind == "blocked")
-                rr[kind] = {"summary": s, "folds": k}
-            res["real"][part] = rr
+                def on_fold(s, k, kind=kind, n=len(folds)):   # partial results after every outer fold
+                    rr[kind] = {"summary": s, "folds": k, "n_folds_planned": n}
+                    write_json(OUT_JSON, res)
+                    write_md(res, args)
+                run_arm(part, folds, args.inner_folds, log, blocked=kind == "blocked", on_fold=on_fold)
         write_json(OUT_JSON, res)   # partial results as each part finishes
         write_md(res, args)
     print(f"wrote {OUT_MD}")
