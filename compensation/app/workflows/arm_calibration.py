@@ -142,7 +142,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     else:
         why += "; learned stage not run"
     return {"stages": stages, "baselines": baselines, "kept_stage": kept, "kept_why": why, "notes": notes,
-            "geometric_model": geo_kept, "volcomp_geometric": geo, "geometric_fits": fits, "learner": learner,
+            "geometric_model": geo_kept, "geometric_stage": stage_name(model), "volcomp_geometric": geo, "geometric_fits": fits, "learner": learner,
             "base_tool_model": base_tool, "plain_model": plain, "plain_gp": plain_gp, "cv_geometric": cv,
             "coverage95_heldout": coverage_check}
 
