@@ -128,13 +128,16 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None):
     return _summary(pooled), kept
 
 
-def simulated(n_seeds, log, loop_seeds, k_inner):
+def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
+    """``only``: the "case, model" combinations to run (default all); ``cover``: earlier results kept."""
     chain = load_machine("ur5")
-    cover = {}
+    cover = dict(cover or {})
     cases = {"no sag": dict(compliance_rad_per_mm=np.zeros(6)), "with sag": {},
              "with sag + backlash": dict(backlash_rad=np.full(6, BACKLASH_RAD))}
     for case, kw in cases.items():
         for model in ("dh", "dh+compliance"):
+            if only and f"{case}, {model}" not in only:
+                continue
             inside, inside_c = [], []
             for seed in range(n_seeds):
                 t = draw_truth(chain, seed, **kw)
@@ -268,6 +271,7 @@ def main(argv=None):
     ap.add_argument("--inner-folds", type=int, default=3, help="CV folds of every decision inside an outer fit part")
     ap.add_argument("--loop-seeds", type=int, default=LOOP_SEEDS)
     ap.add_argument("--parts", default="wam,sim,ur5", help="what to run, in order: arm names and/or 'sim'")
+    ap.add_argument("--sim-only", default="", help="';'-separated 'case, model' coverage runs (default all)")
     ap.add_argument("--merge", action="store_true", help="keep the other parts' results from the existing json")
     args = ap.parse_args(argv)
     if args.quick:
@@ -281,8 +285,10 @@ def main(argv=None):
             res["sim"] = old["sim"]
     for part in args.parts.split(","):
         if part == "sim":
-            cover, loop = simulated(args.seeds, log, args.loop_seeds, args.inner_folds)
-            res["sim"] = {"coverage": cover, "loop": loop}
+            only = [c.strip() for c in args.sim_only.split(";")] if args.sim_only else None
+            old = res.get("sim", {})
+            cover, loop = simulated(args.seeds, log, args.loop_seeds, args.inner_folds, only, old.get("coverage"))
+            res["sim"] = {"coverage": cover, "loop": loop if args.loop_seeds else old.get("loop", [])}
         else:
             chain = load_machine(part)
             data = read_arm_poses(DATA / f"{part}_grid.csv", chain)
