@@ -244,6 +244,10 @@ def write_md(res, args):
     for k, v in res["sim"]["coverage"].items():
         L.append(f"| {k} ({len(v['per_seed'])} seeds) | {v['pooled']:.3f} | {v['seeds_at_least_90pct']:.2f} | "
                  f"{fmt(v['compliance_inside_band'])} |")
+    missing = [f"{c}, {m}" for c in ("no sag", "with sag", "with sag + backlash") for m in ("dh", "dh+compliance")
+               if f"{c}, {m}" not in res["sim"]["coverage"]]
+    if missing:
+        L += ["", "Not run in this run (`--sim-only`): " + "; ".join(missing) + "."]
     L += ["", f"Noise floor of a perfect model (RMS 3-D error against noisy measurements): "
           f"{np.sqrt(3) * NOISE_MM:.4f} mm; bound 1.25× = {1.25 * np.sqrt(3) * NOISE_MM:.4f} mm.", "",
           "| seed | kept | held-out RMS nominal+base/tool / plain LSQ / geometric (DH) / geometric+compliance / plain GP / "
