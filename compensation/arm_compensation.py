@@ -4,8 +4,10 @@ For each target tool point (and, where the chain has at least 6 joints, the tool
 nominal chain gives at the commanded joints — kept), Newton's method on the calibrated chain
 (geometric error slots + the learned residual when kept) from the commanded joints: position (and
 orientation) rows of the chain's joint Jacobian, the minimum-norm joint change (pseudo-inverse) for a
-redundant chain such as a 7-joint arm. The learned residual's slope enters the Jacobian by central
-differences (step :data:`LEARNED_FD_STEP` in the joints' units). Shapes: ``q`` (n, nq) in the joints' units, targets (n, 3) mm.
+redundant chain such as a 7-joint arm. The learned residual's slope enters the Jacobian in closed
+form (:meth:`training.arm_residual.ArmResidualRegressor.predict_and_jacobian`). ``chain`` is the
+calibrated model's chain (``GeometricResult.chain``: with compliance / harmonic joint slots where
+the geometric stage has them). Shapes: ``q`` (n, nq) in the joints' units, targets (n, 3) mm.
 """
 from __future__ import annotations
 
@@ -16,7 +18,6 @@ import numpy as np
 NEWTON_MAX_ITER = 30
 NEWTON_TOL_MM = 1e-6      # position residual at which a point has converged
 NEWTON_TOL_RAD = 1e-9     # orientation residual likewise
-LEARNED_FD_STEP = 1e-3    # deg (or mm): the learned residual varies over degrees; rounding stays far below
 LEVER_MM = 100.0          # orientation rows weighted as a 100 mm lever: comparable to position in mm
 
 
@@ -58,14 +59,13 @@ def solve_joints(chain, params, learner, target_mm, q_cmd, keep_orientation: boo
     lo, hi = chain.joint_lo, chain.joint_hi
     for _ in range(NEWTON_MAX_ITER):
         F = chain.frames(q, params)
-        dp = target - (F[:, -1, :3, 3] if learner is None else F[:, -1, :3, 3] + learner.predict(q))
         J = chain.joint_jacobian(q, params, orientation=orient, frames=F)
-        if learner is not None:
-            for j in range(chain.n_joints):
-                qp, qm = q.copy(), q.copy()
-                qp[:, j] += LEARNED_FD_STEP
-                qm[:, j] -= LEARNED_FD_STEP
-                J[:, :3, j] += (learner.predict(qp) - learner.predict(qm)) / (2 * LEARNED_FD_STEP)
+        if learner is None:
+            dp = target - F[:, -1, :3, 3]
+        else:
+            m, Jl = learner.predict_and_jacobian(q)
+            dp = target - F[:, -1, :3, 3] - m
+            J[:, :3] += Jl
         if orient:
             dr = _rotvec(target_R @ np.swapaxes(F[:, -1, :3, :3], 1, 2))
             r = np.concatenate([dp, LEVER_MM * dr], 1)

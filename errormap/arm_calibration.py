@@ -30,6 +30,14 @@ GENERIC_POSES = 400       # random poses within the limits that define the chain
 GENERIC_LIMIT_DEG = 170.0  # random revolute poses stay within ±this (a full turn adds nothing)
 
 
+MODELS = ("dh", "dh+compliance", "dh+compliance+harmonic")
+"""Slot sets of the geometric stage: link errors + base + tool; + joint compliance under gravity;
++ first-harmonic joint errors (encoder / gear eccentricity)."""
+CV_FOLDS = 5               # k-fold CV inside the fit set that chooses the slot set
+TIE_REL = 1e-3             # a richer slot set must lower the CV mean error by more than this (relative)
+GRAVITY_M_PER_MM = 1e-3    # gravity moments in m (per unit mass): compliance slots in rad per m
+LEVER_MIN_MM = 1.0         # a joint moving the tool point less than this per rad (RMS over generic poses) gets no
+# non-geometric slot: 1e-4 rad of deflection there is 0.1 µm, below any tracker (e.g. a wrist joint on the tool axis)
 ZERO_COLUMN_MM = 1e-8     # a slot moving the tool point less than this (mm per mm or rad, RMS over poses) does nothing
 
 
@@ -134,6 +142,12 @@ class GeometricResult:
     iterations: int
     converged: bool
     method: str = "volcomp"
+    cv_table: list = field(default_factory=list)
+
+    @property
+    def model(self) -> str:
+        """The slot set: ``"dh"`` (link errors + base + tool) or ``"dh+compliance"`` / ``"dh+compliance+harmonic"``."""
+        return getattr(self.chain, "model", "dh")
 
     def predict(self, q) -> np.ndarray:
         """Tool point of the identified chain, mm, shape (n, 3)."""
@@ -146,7 +160,7 @@ class GeometricResult:
 
     def to_dict(self) -> dict:
         names = self.chain.param_names
-        return {"method": self.method, "iterations": self.iterations, "converged": self.converged,
+        return {"method": self.method, "model": self.model, "cv_table": self.cv_table, "iterations": self.iterations, "converged": self.converged,
                 "sigma_mm": self.sigma_mm, "fit_rms_mm": self.fit_rms_mm,
                 "n_identified": int(self.free.sum()), "n_slots": len(names),
                 "parameters": [{"name": n, "value": float(v), "std": float(s) if f else None, "identified": bool(f)}
@@ -158,6 +172,7 @@ class GeometricResult:
     @classmethod
     def from_dict(cls, chain, d: dict) -> "GeometricResult":
         p = d["parameters"]
+        chain = extended_chain(chain, d.get("model", "dh"))
         if [x["name"] for x in p] != list(chain.param_names):
             raise InputError(f"model parameters {[x['name'] for x in p][:4]}... do not belong to machine {chain.name!r}")
         params = np.array([x["value"] for x in p], float)
@@ -165,7 +180,7 @@ class GeometricResult:
         free = np.array([x["identified"] for x in p], bool)
         return cls(chain, params, free, np.diag(std ** 2), std, d["sigma_mm"], d["fit_rms_mm"],
                    np.array(d["singular_values_scaled"]), [{"text": t} for t in d["unidentifiable_combinations"]],
-                   d["iterations"], d["converged"], d.get("method", "volcomp"))
+                   d["iterations"], d["converged"], d.get("method", "volcomp"), d.get("cv_table", []))
 
 
 def _weights(poses):
@@ -188,20 +203,32 @@ def _result(chain, poses, x, free, combos, sv, it, conv, method) -> GeometricRes
 class ArmCalibrator:
     """Geometric calibration of a serial chain (scikit-learn style: settings here, :meth:`fit` returns self).
 
-    ``max_iter``: LM iterations (1–10,000). After :meth:`fit`, ``result_`` is a :class:`GeometricResult`.
+    ``max_iter``: LM iterations (1–10,000). ``models``: candidate slot sets (:data:`MODELS`); with
+    more than one, each is cross-validated (``k_folds`` (2–20) random folds inside the fit poses,
+    ``seed``) and the lowest CV mean error wins (:func:`choose_model`). After :meth:`fit`,
+    ``result_`` is a :class:`GeometricResult` (its ``cv_table`` the CV figures).
     """
 
-    def __init__(self, chain, max_iter: int = LM_MAX_ITER):
+    def __init__(self, chain, max_iter: int = LM_MAX_ITER, models=("dh",), k_folds: int = CV_FOLDS, seed=0):
         if not 1 <= int(max_iter) <= 10_000:
             raise ValueError(f"max_iter must be in [1, 10000], got {max_iter}")
+        bad = [m for m in models if m not in MODELS]
+        if bad or not len(models):
+            raise ValueError(f"models must be from {MODELS}, got {list(models)}")
+        if not 2 <= int(k_folds) <= 20:
+            raise ValueError(f"k_folds must be in [2, 20], got {k_folds}")
         self.chain = chain
         self.max_iter = int(max_iter)
+        self.models, self.k_folds, self.seed = tuple(models), int(k_folds), seed
 
     def fit(self, poses) -> "ArmCalibrator":
-        c = self.chain
-        free, combos, sv = identifiable_slots(c, poses.q)
-        x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), self.max_iter)
-        self.result_ = _result(c, poses, x, free, combos, sv, it, conv, "volcomp")
+        table = []
+        model = self.models[0]
+        if len(self.models) > 1:
+            table = cv_models(self.chain, poses, self.models, self.k_folds, self.seed, plain=False)
+            model = choose_model(table)
+        self.result_ = fit_model(self.chain, poses, model, self.max_iter)
+        self.result_.cv_table = table
         return self
 
 
@@ -233,3 +260,166 @@ def fit_base_tool(chain, poses) -> GeometricResult:
     free = np.array([n.startswith(("base.", "tool.")) for n in chain.param_names])
     x, it, conv = _lm(chain, poses.q, poses.xyz_mm, np.zeros(chain.n_params), free, _weights(poses))
     return _result(chain, poses, x, free, [], np.array([]), it, conv, "nominal + base/tool")
+
+
+# ---------------------------------------------------------------- non-geometric joint slots
+
+
+
+class ExtendedChain:
+    """A serial chain with non-geometric joint slots after its own error slots.
+
+    The arm's own geometry (``chain``) is evaluated at effective joints ``q + Δθ(q)``, per revolute
+    joint ``i``:
+
+    Only revolute joints that move the tool point by at least :data:`LEVER_MIN_MM` per rad get slots.
+
+    * ``compliance.<qi>_rad_per_m`` — ``Δθ_i = c_i · τ_i(q)``, ``τ_i`` the gravity moment about the
+      joint's axis of unit masses at the downstream joint origins (link ends) and the tool point, from
+      the NOMINAL chain, gravity along −z of the chain's base frame (an upright arm), in m per unit
+      mass (:func:`errormap.arm_simulate.gravity_moment_mm` / 1000). A joint whose axis is vertical
+      carries no moment: its column is zero and the identifiability check fixes it;
+    * ``harmonic.<qi>.sin_rad`` / ``.cos_rad`` — ``Δθ_i = a_i sin q_i + b_i cos q_i`` (once-per-turn
+      encoder or gear eccentricity; the constant offset is the DH slot already).
+
+    Duck-types what calibration and compensation use of :class:`errormap.chain.Chain`
+    (``param_names``, ``tool_point``, ``error_jacobian``, ``frames``, ``fk``, ``joint_jacobian``);
+    everything else is the chain's. The joint Jacobian leaves out ∂Δθ/∂q (≈ c·∂τ/∂q, below 1e-4 of
+    the joint's own column for a sag of 0.1 mm): Newton still converges to the same point.
+    """
+
+    def __init__(self, chain, compliance: bool = True, harmonic: bool = False):
+        self.chain = chain
+        self.compliance, self.harmonic = bool(compliance), bool(harmonic)
+        self.model = "dh" + ("+compliance" if compliance else "") + ("+harmonic" if harmonic else "")
+        rng = np.random.default_rng(0)
+        qg = rng.uniform(np.maximum(chain.joint_lo, -GENERIC_LIMIT_DEG), np.minimum(chain.joint_hi, GENERIC_LIMIT_DEG),
+                         (GENERIC_POSES, chain.n_joints))
+        lever = np.degrees(np.sqrt(np.mean(np.sum(chain.joint_jacobian(qg) ** 2, axis=1), axis=0)))  # mm per rad
+        rev = [j for j, jt in enumerate(chain.joints) if jt.type == "revolute" and lever[j] >= LEVER_MIN_MM]
+        cols = chain.joint_columns
+        terms = []   # (name, joint, kind)
+        if compliance:
+            terms += [(f"compliance.{cols[j].rsplit('_', 1)[0]}_rad_per_m", j, "c") for j in rev]
+        if harmonic:
+            for j in rev:
+                b = cols[j].rsplit('_', 1)[0]
+                terms += [(f"harmonic.{b}.sin_rad", j, "s"), (f"harmonic.{b}.cos_rad", j, "k")]
+        self.terms = terms
+        self.param_names = tuple(chain.param_names) + tuple(t[0] for t in terms)
+        self.n_geo = chain.n_params
+
+    def __getattr__(self, name):
+        return getattr(self.__dict__["chain"], name)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names)
+
+    def _split(self, errors):
+        if errors is None:
+            return None, np.zeros(len(self.terms))
+        e = np.asarray(errors, float)
+        if e.shape != (self.n_params,):
+            raise ValueError(f"expected errors of shape ({self.n_params},), got {e.shape}")
+        return e[:self.n_geo], e[self.n_geo:]
+
+    def _basis(self, q) -> np.ndarray:
+        """∂Δθ/∂(extra slot) per pose, rad per slot unit, shape (n, n_extra)."""
+        from .arm_simulate import gravity_moment_mm
+        q = np.atleast_2d(np.asarray(q, float))
+        out = np.zeros((len(q), len(self.terms)))
+        tau = gravity_moment_mm(self.chain, q) * GRAVITY_M_PER_MM if self.compliance else None
+        for k, (_, j, kind) in enumerate(self.terms):
+            out[:, k] = tau[:, j] if kind == "c" else (np.sin if kind == "s" else np.cos)(np.radians(q[:, j]))
+        return out
+
+    def effective_joints(self, q, errors=None) -> np.ndarray:
+        """``q + Δθ(q)`` in the joints' units, shape (n, nq)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        _, ex = self._split(errors)
+        if not len(self.terms) or not np.any(ex):
+            return q
+        dth = self._basis(q) * ex[None, :]
+        qe = q.copy()
+        for k, (_, j, _) in enumerate(self.terms):
+            qe[:, j] += np.degrees(dth[:, k])
+        return qe
+
+    def frames(self, q, errors=None):
+        return self.chain.frames(self.effective_joints(q, errors), self._split(errors)[0])
+
+    def fk(self, q, errors=None):
+        return self.frames(q, errors)[:, -1]
+
+    def tool_point(self, q, errors=None):
+        return self.frames(q, errors)[:, -1, :3, 3]
+
+    def joint_jacobian(self, q, errors=None, orientation: bool = False, frames=None):
+        F = self.frames(q, errors) if frames is None else frames
+        return self.chain.joint_jacobian(q, self._split(errors)[0], orientation=orientation, frames=F)
+
+    def error_jacobian(self, q, errors=None, frames=None):
+        """∂(tool point)/∂(every slot), shape (n, 3, n_params)."""
+        F = self.frames(q, errors) if frames is None else frames
+        geo = self._split(errors)[0]
+        Jg = self.chain.error_jacobian(q, geo, frames=F)
+        if not self.terms:
+            return Jg
+        Jq = self.chain.joint_jacobian(q, geo, frames=F)            # per joint unit (deg)
+        B = np.degrees(self._basis(q))                              # deg per slot unit
+        cols = np.stack([Jq[:, :, j] * B[:, None, k] for k, (_, j, _) in enumerate(self.terms)], axis=2)
+        return np.concatenate([Jg, cols], axis=2)
+
+
+def extended_chain(chain, model: str):
+    """``chain`` itself for ``"dh"``, else its :class:`ExtendedChain` with the slot set ``model``."""
+    if model not in MODELS:
+        raise InputError(f"geometric model {model!r}: expected one of {MODELS}")
+    if model == "dh":
+        return chain
+    return ExtendedChain(chain, compliance=True, harmonic=model.endswith("harmonic"))
+
+
+def fit_model(chain, poses, model: str = "dh", max_iter: int = LM_MAX_ITER) -> GeometricResult:
+    """Volcomp's LM on the identifiable slots of the slot set ``model`` (:data:`MODELS`)."""
+    c = extended_chain(chain, model)
+    free, combos, sv = identifiable_slots(c, poses.q)
+    x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter)
+    return _result(c, poses, x, free, combos, sv, it, conv, "volcomp")
+
+
+def cv_models(chain, poses, models=MODELS, k_folds: int = CV_FOLDS, seed=0, plain: bool = True,
+              groups=None) -> list[dict]:
+    """k-fold CV inside ``poses`` of every slot set (and the plain LSQ baseline when ``plain``):
+    per candidate ``{"model", "cv_mean_mm", "cv_rms_mm"}`` of the held-out position error norm.
+    ``groups`` (n,) block labels: each fold holds whole blocks (BLOCKED CV; at most ``k_folds``)."""
+    from .seeds import spawn_rngs
+    rng = spawn_rngs(seed, 1)[0]
+    if groups is None:
+        lab = rng.permutation(len(poses)) % k_folds
+    else:
+        u, inv = np.unique(np.asarray(groups), return_inverse=True)
+        if len(u) < 2:
+            raise ValueError("blocked CV needs at least 2 distinct groups")
+        k_folds = min(k_folds, len(u))
+        lab = (np.arange(len(u)) * k_folds // len(u))[inv]
+    cands = list(models) + (["plain"] if plain else [])
+    errs = {m: np.empty(len(poses)) for m in cands}
+    for f in range(k_folds):
+        tr, te = poses.subset(np.flatnonzero(lab != f)), np.flatnonzero(lab == f)
+        for m in cands:
+            r = fit_plain_lsq(chain, tr) if m == "plain" else fit_model(chain, tr, m)
+            errs[m][te] = np.linalg.norm(poses.xyz_mm[te] - r.predict(poses.q[te]), axis=1)
+    return [{"model": m, "cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2)))}
+            for m, e in errs.items()]
+
+
+def choose_model(table: list[dict]) -> str:
+    """The candidate of ``table`` (:func:`cv_models`) with the lowest CV mean error; a richer slot set
+    (later in the table) only if it lowers it by more than :data:`TIE_REL`."""
+    best = table[0]
+    for r in table[1:]:
+        if r["cv_mean_mm"] < best["cv_mean_mm"] * (1 - TIE_REL):
+            best = r
+    return best["model"]

@@ -18,14 +18,21 @@ from .seeds import spawn_rngs
 
 @dataclass
 class ArmTruth:
-    """``errors`` (n_params,) the true error-slot values; ``compliance_rad_per_mm`` (nq,)."""
+    """``errors`` (n_params,) the true error-slot values; ``compliance_rad_per_mm`` (nq,);
+    ``backlash_rad`` (nq,) or None: each joint's lost motion; gravity holds the gear on one flank,
+    so the joint sits at ``±backlash/2`` by the sign of its gravity moment."""
 
     errors: np.ndarray
     compliance_rad_per_mm: np.ndarray
+    backlash_rad: np.ndarray | None = None
 
     def joint_sag_deg(self, chain, q) -> np.ndarray:
-        """Joint deflection under gravity, deg (revolute) / mm, shape (n, nq)."""
-        return np.degrees(self.compliance_rad_per_mm * gravity_moment_mm(chain, q, self.errors))
+        """Joint deflection under gravity (sag + backlash), deg (revolute) / mm, shape (n, nq)."""
+        m = gravity_moment_mm(chain, q, self.errors)
+        d = self.compliance_rad_per_mm * m
+        if self.backlash_rad is not None:
+            d = d + 0.5 * np.asarray(self.backlash_rad) * np.sign(m)
+        return np.degrees(d)
 
     def tool_point(self, chain, q) -> np.ndarray:
         """True tool point at commanded joints ``q``, mm, (n, 3)."""
@@ -46,9 +53,10 @@ def gravity_moment_mm(chain, q, errors=None) -> np.ndarray:
 
 
 def draw_truth(chain, seed, trans_sd_mm=0.2, rot_sd_rad=3e-4, base_sd_mm=2.0, base_sd_rad=2e-3,
-               compliance_rad_per_mm=None) -> ArmTruth:
+               compliance_rad_per_mm=None, backlash_rad=None) -> ArmTruth:
     """Random link/base/tool errors (normal, the given SDs) and a joint compliance (default: 3e-8 rad
-    per mm of gravity moment on every joint, about 0.1 mm of sag at a UR5's reach)."""
+    per mm of gravity moment on every joint, about 0.1 mm of sag at a UR5's reach); ``backlash_rad``
+    (nq,) lost motion per joint or None."""
     rng = spawn_rngs(seed, 1)[0]
     e = np.zeros(chain.n_params)
     for k, n in enumerate(chain.param_names):
@@ -56,7 +64,7 @@ def draw_truth(chain, seed, trans_sd_mm=0.2, rot_sd_rad=3e-4, base_sd_mm=2.0, ba
         e[k] = rng.normal(0, (base_sd_mm if base else trans_sd_mm) if n.endswith("_mm")
                           else (base_sd_rad if base else rot_sd_rad))
     c = np.full(chain.n_joints, 3e-8) if compliance_rad_per_mm is None else np.asarray(compliance_rad_per_mm, float)
-    return ArmTruth(e, c)
+    return ArmTruth(e, c, None if backlash_rad is None else np.asarray(backlash_rad, float))
 
 
 def measure(chain, truth: ArmTruth, q, noise_mm, seed, source="simulated") -> ArmPoses:

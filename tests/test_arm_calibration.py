@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from errormap.arm_calibration import ArmCalibrator
+from errormap.arm_calibration import ArmCalibrator, ExtendedChain, fit_model
 from errormap.arm_poses import ArmPoses, convert_tracker_grid, read_arm_poses, write_arm_poses
 from errormap.arm_simulate import draw_truth, measure, random_joints
 from errormap.io import read_table
@@ -24,6 +24,19 @@ NOISE_FLOOR_MM = np.sqrt(3) * NOISE_MM   # RMS 3-D error of a perfect model agai
 FLOOR_FACTOR = 1.25      # the issue's bound: held-out error / compensation within 1.25× the noise
 BAND_COVERAGE_MIN = 0.90  # share of identifiable slots × seeds inside their 95 % band (issue: ≥ 90 %)
 N_SEEDS = 20
+# compliance recovery: the identified compliance of the two shoulder/elbow joints (q2, q3: the large gravity
+# moments) within this relative error of the truth (3e-5 rad/m) on 400 poses at 0.02 mm noise. Measured on seed 0
+# (200 poses): 0.90x and 1.07x; the slot's own std there is ~12 % (q2) / 28 % (q3) of the value at 200 poses,
+# about 0.7x that at 400: 35 % is about 2 sigma of q3 at 400 poses.
+COMPLIANCE_REL_TOL = 0.35
+# ExtendedChain.error_jacobian against central differences: step 1e-6 in slot units (mm, rad, rad per m);
+# truncation ~ step² × curvature (≤ 1e3 mm per unit²) ≈ 1e-9 mm, rounding ~ 1e-16 × 1e3 mm / 1e-6 ≈ 1e-7 mm per unit
+JAC_FD_STEP = 1e-6
+JAC_FD_ATOL = 1e-5
+# the learned stage's closed-form joint Jacobian against central differences of its prediction
+# (step 1e-3 deg; the GP varies over tens of degrees: truncation ~1e-9, rounding ~1e-13 mm / 1e-3 deg)
+LEARNED_FD_STEP_DEG = 1e-3
+LEARNED_JAC_ATOL = 1e-7   # mm per deg
 Z95 = 1.959963984540054
 
 
@@ -111,12 +124,14 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     assert r.returncode == 0, r.stderr
     doc = json.loads((tmp_path / "cal" / "calibration.json").read_text())
     st = {s["name"]: s for s in doc["stages"]}
-    assert doc["kept_stage"] == "learned"
-    assert st["learned"]["rms_mm"] <= FLOOR_FACTOR * NOISE_FLOOR_MM
-    assert st["geometric"]["rms_mm"] > st["learned"]["rms_mm"]
     base = {s["name"]: s for s in doc["baselines"]}
-    assert st["learned"]["mean_mm"] <= base["plain GP on plain LSQ residual"]["mean_mm"] * 1.05 or \
-        st["learned"]["mean_mm"] <= FLOOR_FACTOR * NOISE_FLOOR_MM
+    kept = st[doc["kept_stage"]]
+    # the sag is a joint compliance: the CV inside the fit poses picks a stage that models it, and the kept
+    # stage reaches the noise floor on the held-out poses, below the DH-only stage and the plain baselines
+    assert doc["kept_stage"] in ("geometric+compliance", "geometric+compliance+harmonic", "learned"), doc["kept_why"]
+    assert kept["rms_mm"] <= FLOOR_FACTOR * NOISE_FLOOR_MM
+    assert st["geometric"]["rms_mm"] > kept["rms_mm"]
+    assert kept["mean_mm"] < min(base["plain geometric LSQ"]["mean_mm"], base["plain GP on plain LSQ residual"]["mean_mm"])
     # compensation: targets = nominal tool points of a joint program; TRUE residual of the commands
     qp = random_joints(UR5_LO + 5, UR5_HI - 5, 50, [7, 9])
     prog = tmp_path / "prog.csv"
@@ -131,39 +146,83 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     assert np.sqrt(np.mean(true_err ** 2)) <= FLOOR_FACTOR * NOISE_FLOOR_MM < np.sqrt(np.mean(before ** 2))
 
 
+@pytest.mark.slow
+def test_compliance_slots_recover_sag_and_restore_link_bands(ur5):
+    """Link errors + joint-stiffness sag: with the compliance slots, the compliance of the load-carrying
+    joints is recovered and the link errors lie within their 95 % bands (pooled over 20 seeds) of the
+    truth's identifiable equivalent (the DH fit to the truth's noise-free, sag-free tool points: the
+    judge's side); the DH-only stage does not reach that with sag (its bands miss the sag it absorbs)."""
+    t, p = _sim(ur5, 400, 0)
+    r = fit_model(ur5, p, "dh+compliance")
+    names = list(r.chain.param_names)
+    for j in ("q2", "q3"):
+        k = names.index(f"compliance.{j}_rad_per_m")
+        truth = t.compliance_rad_per_mm[int(j[1]) - 1] * 1000
+        assert r.free[k] and abs(r.params[k] - truth) <= COMPLIANCE_REL_TOL * truth
+    assert not any(n.startswith("compliance.q6") for n in names)   # on the tool axis: no load, no slot
+    inside = {"dh": [], "dh+compliance": []}
+    for seed in range(N_SEEDS):
+        t, p = _sim(ur5, 200, seed)
+        ref = fit_model(ur5, ArmPoses(p.q, ur5.tool_point(p.q, t.errors), None, None, None, p.rows, "truth", "schema"))
+        for m in inside:
+            r = fit_model(ur5, p, m)
+            ok = r.free[:ur5.n_params] & ref.free
+            inside[m].extend((np.abs(r.params[:ur5.n_params] - ref.params) <= Z95 * r.std[:ur5.n_params])[ok])
+    assert np.mean(inside["dh+compliance"]) >= BAND_COVERAGE_MIN > np.mean(inside["dh"])
+
+
+def test_extended_chain_jacobian_matches_differences(ur5):
+    c = ExtendedChain(ur5, compliance=True, harmonic=True)
+    q = random_joints(UR5_LO, UR5_HI, 5, [3, 0])
+    x = np.random.default_rng(1).normal(0, 1e-4, c.n_params)
+    J = c.error_jacobian(q, x)
+    for k in range(c.n_params):
+        d = np.zeros(c.n_params)
+        d[k] = JAC_FD_STEP
+        fd = (c.tool_point(q, x + d) - c.tool_point(q, x - d)) / (2 * JAC_FD_STEP)
+        assert np.allclose(J[:, :, k], fd, rtol=0, atol=JAC_FD_ATOL), c.param_names[k]
+
+
+def test_learned_stage_is_the_project_residual_regressor(ur5):
+    """The arm's learned stage is training/residual.py's ResidualRegressor on joint sin/cos + gravity
+    moments: JSON round trip predicts identically; its closed-form joint Jacobian matches differences."""
+    from training.arm_residual import ArmResidualRegressor
+    from training.residual import ResidualRegressor
+    q = random_joints(UR5_LO, UR5_HI, 120, [4, 0])
+    rng = np.random.default_rng(5)
+    y = 0.05 * np.stack([np.sin(np.radians(q[:, 1])), np.cos(np.radians(q[:, 2])), np.sin(np.radians(q[:, 3]))], 1)
+    y = y + rng.normal(0, NOISE_MM / 4, y.shape)
+    lr = ArmResidualRegressor(ur5, k_folds=3, seed=0).fit(q, y)
+    assert isinstance(lr.regressor_, ResidualRegressor) and lr.chosen_ == "gp"
+    back = ArmResidualRegressor.from_dict(ur5, json.loads(json.dumps(lr.to_dict())))
+    qt = random_joints(UR5_LO, UR5_HI, 6, [4, 1])
+    assert np.array_equal(back.predict(qt), lr.predict(qt))
+    m, J = lr.predict_and_jacobian(qt)
+    assert np.allclose(m, lr.predict(qt), rtol=0, atol=1e-12)
+    for j in range(ur5.n_joints):
+        qp, qm = qt.copy(), qt.copy()
+        qp[:, j] += LEARNED_FD_STEP_DEG
+        qm[:, j] -= LEARNED_FD_STEP_DEG
+        fd = (lr.predict(qp) - lr.predict(qm)) / (2 * LEARNED_FD_STEP_DEG)
+        assert np.allclose(J[:, :, j], fd, rtol=0, atol=LEARNED_JAC_ATOL)
+
+
 # --- the real UR5 tracker grid through the CLI, judged on a BLOCKED hold-out -----------------------------
-BENCH_JSON = Path(__file__).resolve().parents[1] / "benchmarks" / "arms_results.json"
 N_SECTORS = 4            # joint-1 quartiles, as benchmarks/bench_arms.py (--sectors 4, folds_sector)
 CHECK_SECTOR = 3         # the top quartile of joint 1 ([39, 57] deg on the grid, 250 poses) is the held-out region
-# The geometric stage must beat nominal + fitted base/tool by this factor on the held-out sector. Measured:
+# The DH geometric stage must beat nominal + fitted base/tool by this factor on the held-out sector. Measured:
 # 0.8545 / 0.0983 mm = 8.7x on this sector (the benchmark's pooled blocked figures: 0.714 / 0.106 = 6.8x);
 # 5x leaves room for a different BLAS / LM stop while still failing on a geometric stage that only fits
 # base and tool (1x) or half the link errors.
 BASE_TOOL_OVER_GEOMETRIC_MIN = 5.0
-# The same code on the same 750 / 250 poses is deterministic: the geometric stage must reproduce the
-# benchmark's figure for this fold (arms_results.json, "q1 sector 3 [39, 57] deg": 0.09833 mm; this test
-# measured 0.09833 mm) to within 2 % (LM stopping and BLAS summation order only).
-REPRODUCE_BENCH_REL = 0.02
-# ... and lie near the benchmark's plain least-squares calibration on the blocked folds (arms_results.md,
-# "plain geometric LSQ", blocked mean 0.1058 mm pooled over the 4 sectors; the per-sector figures of that
-# run range 0.091 - 0.133 mm, i.e. -14 % ... +25 %). Measured here: 0.0983 mm (-7 %); plain LSQ on this
-# sector 0.0993 mm. A 15 % bound: a sector within the benchmark's spread below the pooled figure.
-NEAR_PLAIN_LSQ_BENCH_REL = 0.15
-
-
-def _bench_blocked(arm, sector):
-    doc = json.loads(BENCH_JSON.read_text(encoding="utf-8"))["real"][arm]["blocked"]
-    fold = [f for f in doc["folds"] if f["fold"].startswith(f"q1 sector {sector} ")]
-    assert len(fold) == 1, f"{BENCH_JSON}: no blocked fold 'q1 sector {sector}'"
-    return doc["summary"]["plain geometric LSQ"]["mean_mm"], fold[0]
 
 
 @pytest.mark.slow
 def test_real_ur5_grid_blocked_sector_through_the_cli(tmp_path, ur5):
     """The real 1,000-pose UR5 tracker grid: fit on three joint-1 quartiles, check on the fourth (another
     region of the workspace), through ``volcomp calibrate … --check`` in-process. ``--no-learned``: the
-    learned stage's CV alone takes ~30 CPU s here; the geometric stages and the plain baselines are judged.
-    MEASURED residual on the held-out sector; about 20 CPU s."""
+    learned stage is left out; the three geometric slot sets (chosen by 5-fold CV inside the 750 fit poses) and
+    the plain baselines are judged. MEASURED residual on the held-out sector; a few CPU minutes."""
     from compensation.app.cli import main
     src = SHARED / "ur5_grid.csv"
     if not src.is_file():
@@ -180,17 +239,13 @@ def test_real_ur5_grid_blocked_sector_through_the_cli(tmp_path, ur5):
     doc = json.loads((tmp_path / "cal" / "calibration.json").read_text(encoding="utf-8"))
     assert doc["n_check_poses"] == held.sum() and doc["n_fit_poses"] == (~held).sum()
     assert q1[held].min() >= q1[~held].max()          # blocked: the held-out poses lie beyond every fit pose
+    from errormap.arm_calibration import choose_model
+    from compensation.app.workflows.arm_calibration import stage_name
     st = {s["name"]: s for s in doc["stages"]}
     base = {s["name"]: s for s in doc["baselines"]}
-    geo = st["geometric"]["mean_mm"]
-    assert base["nominal + base/tool"]["mean_mm"] >= BASE_TOOL_OVER_GEOMETRIC_MIN * geo
-    assert geo <= base["plain geometric LSQ"]["mean_mm"]      # never returns a model losing to the plain baseline
-    plain_bench, fold = _bench_blocked("ur5", CHECK_SECTOR)
-    assert fold["n_check"] == held.sum()
-    assert abs(geo - fold["geometric_mean_mm"]) <= REPRODUCE_BENCH_REL * fold["geometric_mean_mm"]
-    assert abs(geo - plain_bench) <= NEAR_PLAIN_LSQ_BENCH_REL * plain_bench
-    # the kept stage is one of the stages, and the lowest held-out one unless the rule says why not
-    assert doc["kept_stage"] in st
-    lowest = min(st.values(), key=lambda s: s["mean_mm"])["name"]
-    assert doc["kept_stage"] == lowest or "not" in doc["kept_why"], doc["kept_why"]
-    assert doc["kept_stage"] == "geometric" and "not run" in doc["kept_why"]
+    assert base["nominal + base/tool"]["mean_mm"] >= BASE_TOOL_OVER_GEOMETRIC_MIN * st["geometric"]["mean_mm"]
+    # the kept stage is the one the CV inside the fit poses chose (the held-out sector never decides)
+    cv = doc["geometric_cv"]
+    chosen = choose_model([r for r in cv if r["model"] != "plain"])
+    assert doc["kept_stage"] == stage_name(chosen) and "not run" in doc["kept_why"], doc["kept_why"]
+    assert {"geometric", "geometric+compliance", "geometric+compliance+harmonic"} <= set(st)

@@ -39,7 +39,7 @@ def register(subparsers):
     p.add_argument("--scales", action="store_true", help=argparse_suppress())
     p.add_argument("--no-loop", action="store_true", help="skip the loop on leg residuals")
     p.add_argument("--no-learned", action="store_true", help="serial chains: skip the learned residual stage")
-    p.add_argument("--folds", type=int, default=5, help="serial chains: CV folds of the learned stage (default 5)")
+    p.add_argument("--folds", type=int, default=5, help="serial chains: CV folds of every decision inside the fit poses: slot set, learned stage (default 5)")
     p.add_argument("--no-register", action="store_true", help="the instrument frame is the machine frame")
     p.add_argument("--lever-mm", type=float, default=None, help="weight of orientation residuals (mm per rad; "
                    "default: estimated from the data, position noise / orientation noise)")

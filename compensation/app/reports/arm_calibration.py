@@ -21,13 +21,14 @@ def _figures(chain, core, check) -> list:
     plt = pyplot()
     geo = core["geometric_model"]
     pred = geo.predict(check.q)
+    gname = core.get("geometric_stage", "geometric")
     e = {"nominal": np.linalg.norm(check.xyz_mm - chain.tool_point(check.q), axis=1),
-         "geometric": np.linalg.norm(check.xyz_mm - pred, axis=1)}
+         gname: np.linalg.norm(check.xyz_mm - pred, axis=1)}
     if core["learner"] is not None:
         e["learned"] = np.linalg.norm(check.xyz_mm - pred - core["learner"].predict(check.q), axis=1)
     figs = []
     fig, ax = plt.subplots(figsize=(7, 3.5))
-    order = np.argsort(e["geometric"])
+    order = np.argsort(e[gname])
     for k, v in e.items():
         ax.plot(v[order], "o", ms=3, label=f"{k} (mean {v.mean():.3g} mm)")
     ax.set_yscale("log")
@@ -35,7 +36,7 @@ def _figures(chain, core, check) -> list:
     ax.set_ylabel("|measured − model| (mm)")
     ax.legend(fontsize=8)
     figs.append(figure(fig, "per-pose errors", "Measured residual per held-out pose, each stage.", dpi=FIG_DPI))
-    kept = e[core["kept_stage"]] if core["kept_stage"] in e else e["geometric"]
+    kept = e[core["kept_stage"]] if core["kept_stage"] in e else e[gname]
     fig, axs = plt.subplots(1, 2, figsize=(8, 3.5))
     for ax, (i, j, lab) in zip(axs, ((0, 1, "x–y"), (0, 2, "x–z"))):
         sc = ax.scatter(check.xyz_mm[:, i], check.xyz_mm[:, j], c=kept, s=10, cmap="viridis")
@@ -53,7 +54,7 @@ def _figures(chain, core, check) -> list:
     ax.set_xlabel("held-out pose × component")
     ax.set_ylabel("mm")
     cov = float(np.mean(np.abs(r) <= Z95 * band))
-    ax.set_title(f"geometric stage: {100 * cov:.1f} % of components inside the 95 % band")
+    ax.set_title(f"{gname} stage: {100 * cov:.1f} % of components inside the 95 % band")
     ax.legend(fontsize=8)
     figs.append(figure(fig, "prediction bands", "Geometric stage's 95 % prediction band and the held-out residual.",
                        dpi=FIG_DPI))
@@ -70,11 +71,17 @@ def render_html(doc: dict, figures=()) -> str:
     params = Table(["slot", "value", "std error"], [[p["name"], p["value"], p["std"]]
                                                    for p in doc["geometric"]["parameters"] if p["identified"]], digits=4)
     ls = doc.get("learned_summary")
-    learned = None if ls is None else Table(["family", "CV mean (mm)", "CV RMS (mm)", "95 % coverage (CV)"],
-                                            [[r["family"], r["cv_mean_mm"], r["cv_rms_mm"], r["coverage95"]]
-                                             for r in ls["cv_table"]], digits=4)
+    learned = None if ls is None else Table(
+        ["candidate (CV inside the fit poses)", "CV RMS (mm)", "mean gain over zero (mm²)", "its std error (mm²)",
+         "95 % coverage before calibration"],
+        [[("geometric stage alone" if k == "zero" else k), r["cv_rms"], r["gain_mean"], r["gain_se"], r["coverage_95"]]
+         for k, r in ls["cv_table"].items()], digits=4)
+    gcv = doc.get("geometric_cv") or []
+    geocv = Table(["slot set", "CV mean (mm)", "CV RMS (mm)"], [[r["model"], r["cv_mean_mm"], r["cv_rms_mm"]]
+                                                                for r in gcv], digits=4) if gcv else None
     return render_page("arm_calibrate.html", title=f"arm calibration: {doc['machine']['name']}", doc=doc,
-                       stages=stages, combos=combos, parameters=params, learned=learned, figures=list(figures))
+                       stages=stages, combos=combos, parameters=params, learned=learned, geocv=geocv,
+                       figures=list(figures))
 
 
 def write_report(doc: dict, chain, core, check, out) -> Path:

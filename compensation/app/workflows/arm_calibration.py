@@ -5,9 +5,11 @@ fit poses: the nominal chain, the plain baselines (nominal + fitted base/tool; p
 calibration; a plain GP on the plain calibration's residual), volcomp's geometric stage
 (:class:`errormap.arm_calibration.ArmCalibrator`) and the learned residual stage
 (:class:`training.arm_residual.ArmResidualRegressor`). Every figure is the *measured residual*
-(measured − model) on the held-out poses. The kept stage: geometric, or volcomp's plain-LSQ
-fallback if the plain calibration did better on the held-out poses (never return a model that loses
-to the plain baseline), and the learned stage on top only if it beats the geometric stage there.
+(measured − model) on the held-out poses; every DECISION is made by k-fold CV inside the fit poses
+(the held-out poses only report): the geometric slot set (``dh``, ``dh+compliance``,
+``dh+compliance+harmonic``, :mod:`errormap.arm_calibration`), the plain LSQ fit instead where it did
+better in that CV (never return a model that loses to the plain baseline), and the learned stage on
+top only if the ResidualRegressor's CV says it beats the geometric stage.
 Writes ``calibration.json`` and ``report.html`` (:mod:`compensation.app.reports.arm_calibration`).
 """
 from __future__ import annotations
@@ -18,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.arm_calibration import (ArmCalibrator, GeometricResult, check_pose_set, fit_base_tool,
+from errormap.arm_calibration import (GeometricResult, check_pose_set, fit_base_tool,
                                       fit_plain_lsq)
 from errormap.arm_poses import read_arm_poses
 from errormap.io import InputError, write_json
@@ -26,7 +28,8 @@ from errormap.io import InputError, write_json
 from ..reports.arm_calibration import write_report
 from .calibration import holdout_split
 
-MODEL_FORMAT = "volcomp-arm-calibration/1"
+MODEL_FORMAT = "volcomp-arm-calibration/2"
+Z95 = 1.959963984540054
 
 
 @dataclass
@@ -59,63 +62,88 @@ def split(chain, s: ArmCalibrationSettings, data):
     return holdout_split(data, s.holdout, s.seed)
 
 
-def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, families=None) -> dict:
-    """Every stage and baseline on ``fit``, judged on ``check``. Returns the document's core:
-    ``stages``, ``baselines``, ``kept_stage``, the models (geometric result, learner or None)."""
+def stage_name(model: str) -> str:
+    """Stage name of a geometric slot set: ``"geometric"`` (DH) or ``"geometric+compliance"`` …"""
+    return "geometric" + model[len("dh"):]
+
+
+def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, groups=None) -> dict:
+    """Every stage and baseline on ``fit``, judged on ``check``. Every decision (the geometric slot
+    set, plain LSQ instead, the learned stage kept) is made by k-fold CV INSIDE ``fit`` (blocked by
+    ``groups`` (n_fit,) labels where given: whole blocks per fold); ``check`` only reports. Returns the document's core: ``stages``, ``baselines``, ``kept_stage``, the models."""
+    from errormap.arm_calibration import MODELS, choose_model, cv_models, fit_model
     from training.arm_residual import ArmResidualRegressor
     say = (lambda m: print(f"calibrate: {m}", file=log or sys.stderr))
+    s_geo, s_learn, s_plain = np.random.SeedSequence(seed).spawn(3)
     nominal = errors_mm(check, chain.tool_point(check.q))
     base_tool = fit_base_tool(chain, fit)
     plain = fit_plain_lsq(chain, fit)
-    geo = ArmCalibrator(chain).fit(fit).result_
-    e_bt, e_plain, e_geo = (errors_mm(check, m.predict(check.q)) for m in (base_tool, plain, geo))
-    say(f"held-out mean error: nominal {nominal.mean():.4f} mm, base/tool {e_bt.mean():.4f}, plain LSQ "
-        f"{e_plain.mean():.4f}, geometric {e_geo.mean():.4f}")
-    geo_kept = geo
+    cv = cv_models(chain, fit, MODELS, k_folds, s_geo, plain=True, groups=groups)
+    cvd = {r["model"]: r["cv_mean_mm"] for r in cv}
+    model = choose_model([r for r in cv if r["model"] != "plain"])
+    fits = {m: fit_model(chain, fit, m) for m in MODELS}
+    for m in MODELS:
+        fits[m].cv_table = cv
+    geo = fits["dh"]
+    e_bt, e_plain = (errors_mm(check, m.predict(check.q)) for m in (base_tool, plain))
+    e_fit = {m: errors_mm(check, r.predict(check.q)) for m, r in fits.items()}
+    say("CV mean error in the fit set: " + ", ".join(f"{r['model']} {r['cv_mean_mm']:.4f} mm" for r in cv)
+        + f"; held-out: nominal {nominal.mean():.4f}, base/tool {e_bt.mean():.4f}, plain LSQ {e_plain.mean():.4f}, "
+        + ", ".join(f"{stage_name(m)} {e.mean():.4f}" for m, e in e_fit.items()))
     notes = []
-    if e_plain.mean() < e_geo.mean():
-        geo_kept, e_geo_kept = plain, e_plain
-        notes.append(f"the plain least-squares calibration beat volcomp's geometric stage on the held-out poses "
-                     f"({e_plain.mean():.6f} vs {e_geo.mean():.6f} mm mean): it is the geometric stage returned")
-    else:
-        e_geo_kept = e_geo
-    stages = [stage_row("nominal", nominal, "nominal chain of the machine file"),
-              stage_row("geometric", e_geo_kept, f"{geo_kept.method}: LM on the identifiable error slots")]
+    geo_kept, kept = fits[model], stage_name(model)
+    cvk = "blocked " if groups is not None else ""
+    why = (f"{kept} had the lowest {k_folds}-fold {cvk}CV mean error inside the fit poses "
+           f"({cvd[model]:.4f} mm; " + ", ".join(f"{k} {v:.4f}" for k, v in cvd.items() if k != model) + ")")
+    if cvd["plain"] < cvd[model]:
+        geo_kept = plain
+        plain.cv_table = cv
+        notes.append(f"the plain least-squares calibration beat volcomp's {kept} in CV inside the fit poses "
+                     f"({cvd['plain']:.6f} vs {cvd[model]:.6f} mm mean): it is the geometric stage returned")
+        why += "; the plain LSQ fit did better in that CV and is returned as it"
+    e_geo_kept = errors_mm(check, geo_kept.predict(check.q))
+    stages = [stage_row("nominal", nominal, "nominal chain of the machine file")]
+    for m in MODELS:
+        r = geo_kept if (m == model and geo_kept is plain) else fits[m]
+        stages.append(stage_row(stage_name(m), e_fit[m] if r is fits[m] else e_geo_kept,
+                                f"{r.method}: LM on the identifiable slots of {m} (CV mean in fit set {cvd[m]:.4f} mm)"))
     baselines = [stage_row("nominal + base/tool", e_bt, "nominal chain, fitted base frame and tool point"),
                  stage_row("plain geometric LSQ", e_plain, "scipy least_squares, every DH slot + base + tool, "
                                                            "no identifiability handling"),
-                 stage_row("volcomp geometric", e_geo, "LM on the identifiable slots (unidentifiable fixed)")]
-    learner, plain_gp, kept, why = None, None, "geometric", "learned stage not run (--no-learned)"
-    coverage_check = None
+                 stage_row("volcomp geometric", e_fit["dh"], "LM on the identifiable DH slots (unidentifiable fixed)")]
+    learner, plain_gp = None, None
+    r_geo = check.xyz_mm - geo_kept.predict(check.q)
+    band_geo = np.sqrt(geo_kept.band_std_mm(check.q) ** 2 + geo_kept.sigma_mm ** 2)
+    coverage_check = float(np.mean(np.abs(r_geo) <= Z95 * band_geo))
     if learned:
-        rng_seeds = np.random.SeedSequence(seed).spawn(2)
-        plain_gp = ArmResidualRegressor(chain, families=("gp_sincos",), k_folds=k_folds, n_restarts=n_restarts,
-                                        seed=rng_seeds[0]).fit(fit.q, fit.xyz_mm - plain.predict(fit.q),
-                                                               errors=plain.params)
+        plain_gp = ArmResidualRegressor(chain, inputs="sincos", k_folds=k_folds, n_restarts=n_restarts, margin_se=0.0,
+                                        seed=s_plain).fit(fit.q, fit.xyz_mm - plain.predict(fit.q), groups)
         e_pgp = errors_mm(check, plain.predict(check.q) + plain_gp.predict(check.q))
         baselines.append(stage_row("plain GP on plain LSQ residual", e_pgp,
-                                   "Gaussian process (ARD RBF) on joint sin/cos, fitted to the plain calibration's residual"))
-        fam = {} if families is None else {"families": tuple(families)}
-        learner = ArmResidualRegressor(chain, k_folds=k_folds, n_restarts=n_restarts, seed=rng_seeds[1], **fam).fit(
-            fit.q, fit.xyz_mm - geo_kept.predict(fit.q), errors=geo_kept.params)
+                                   "Gaussian process on joint sin/cos, fitted to the plain calibration's residual"))
+        learner = ArmResidualRegressor(chain, inputs="physics", k_folds=k_folds, n_restarts=n_restarts,
+                                       seed=s_learn).fit(fit.q, fit.xyz_mm - geo_kept.predict(fit.q), groups)
         m, sd = learner.predict(check.q, return_std=True)
-        r = check.xyz_mm - geo_kept.predict(check.q) - m
+        r = r_geo - m
         e_l = np.linalg.norm(r, axis=1)
-        coverage_check = float(np.mean(np.abs(r) <= 1.959963984540054 * sd))
-        stages.append(stage_row("learned", e_l, f"geometric + {learner.chosen_} on its residual (chosen by "
-                                                f"{learner.k_folds}-fold CV in the fit set)"))
-        say(f"learned stage ({learner.chosen_}): held-out mean {e_l.mean():.4f} mm; plain GP {e_pgp.mean():.4f} mm")
-        if e_l.mean() < e_geo_kept.mean():
-            kept, why = "learned", (f"the learned stage beat the geometric stage on the held-out poses "
-                                    f"({e_l.mean():.4f} vs {e_geo_kept.mean():.4f} mm mean)")
+        stages.append(stage_row("learned", e_l, f"{kept} + GP on joint sin/cos and gravity moments "
+                                                f"({learner.k_folds}-fold CV in the fit set: {learner.chosen_})"))
+        say(f"learned stage (CV choice: {learner.chosen_}): held-out mean {e_l.mean():.4f} mm; plain GP {e_pgp.mean():.4f} mm")
+        gp = learner.cv_table_.get("gp", {})
+        if learner.chosen_ != "none":
+            kept = "learned"
+            coverage_check = float(np.mean(np.abs(r) <= Z95 * sd))
+            why += (f"; the learned stage beat it in {k_folds}-fold CV inside the fit poses (RMS "
+                    f"{gp['cv_rms']:.4f} vs {learner.cv_table_['zero']['cv_rms']:.4f} mm, gain > "
+                    f"{learner.margin_se:g} standard errors): kept")
         else:
-            why = (f"the learned stage did not beat the geometric stage on the held-out poses "
-                   f"({e_l.mean():.4f} vs {e_geo_kept.mean():.4f} mm mean): not kept")
+            why += (f"; the learned stage did not beat it by {learner.margin_se:g} standard errors in {k_folds}-fold "
+                    f"CV inside the fit poses: not kept")
     else:
-        why = "learned stage not run"
+        why += "; learned stage not run"
     return {"stages": stages, "baselines": baselines, "kept_stage": kept, "kept_why": why, "notes": notes,
-            "geometric_model": geo_kept, "volcomp_geometric": geo, "learner": learner,
-            "base_tool_model": base_tool, "plain_model": plain, "plain_gp": plain_gp,
+            "geometric_model": geo_kept, "geometric_stage": stage_name(model), "volcomp_geometric": geo, "geometric_fits": fits, "learner": learner,
+            "base_tool_model": base_tool, "plain_model": plain, "plain_gp": plain_gp, "cv_geometric": cv,
             "coverage95_heldout": coverage_check}
 
 
@@ -133,8 +161,9 @@ def model_document(chain, core, s, n_fit, n_check) -> dict:
     if learner is not None:
         doc["learned"] = learner.to_dict() if core["kept_stage"] == "learned" else None
         doc["learned_summary"] = {"chosen": learner.chosen_, "cv_table": learner.cv_table_,
-                                  "coverage95_cv": learner.coverage_,
-                                  "coverage95_heldout": core["coverage95_heldout"], "kept": core["kept_stage"] == "learned"}
+                                  "coverage95_cv": learner.coverage_, "kept": core["kept_stage"] == "learned"}
+    doc["geometric_cv"] = core["cv_geometric"]
+    doc["coverage95_heldout"] = core["coverage95_heldout"]
     return doc
 
 
@@ -153,7 +182,10 @@ def load_arm_model(chain, path):
     learner = None
     if d.get("kept_stage") == "learned" and d.get("learned"):
         from training.arm_residual import ArmResidualRegressor
-        learner = ArmResidualRegressor.from_dict(chain, d["learned"])
+        try:
+            learner = ArmResidualRegressor.from_dict(chain, d["learned"])
+        except (ValueError, KeyError) as exc:
+            raise InputError(f"{path}: key 'learned': {exc}") from None
     return geo, learner
 
 

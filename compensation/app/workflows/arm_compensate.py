@@ -52,7 +52,7 @@ def run_arm_compensate(chain, args) -> int:
     status = 0
     for src, q, xyz in jobs:
         target = chain.tool_point(q) if xyz is None else xyz
-        sol = solve_joints(chain, geo.params, learner, target, q)
+        sol = solve_joints(geo.chain, geo.params, learner, target, q)
         if not sol.converged.all():
             k = int(np.flatnonzero(~sol.converged)[0])
             print(f"volcomp compensate: {src}: refused (not written): {int((~sol.converged).sum())} point(s) did not "
