@@ -295,6 +295,23 @@ def chain_reference(machine, meta: dict):
     return ChainField(machine, ChainElementSet.load(el, machine))
 
 
+def ols_baseline(model: ChainMLPField, train_axes, train_errors_um, eval_axes) -> np.ndarray:
+    """The plain baseline an engineer tries first: ordinary least squares of each error component on
+    the axis columns (affine; a full-turn rotary axis as cos/sin, as the network takes it), fitted on
+    the training points and evaluated at ``eval_axes``; (m, k) -> (m, 3) μm."""
+    def design(a):
+        cols = [np.ones(len(a))]
+        for j, per in enumerate(model.periodic):
+            if per:
+                r = np.deg2rad(a[:, j])
+                cols += [np.cos(r), np.sin(r)]
+            else:
+                cols.append(a[:, j])
+        return np.column_stack(cols)
+    coef = np.linalg.lstsq(design(np.asarray(train_axes, float)), np.asarray(train_errors_um, float), rcond=None)[0]
+    return design(np.asarray(eval_axes, float)) @ coef
+
+
 def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, out_dir=None,
                     quiet: bool = False) -> ChainFitResult:
     """Train a :class:`ChainMLPField` on a chain's feature points (axes (n, k), errors (n, 3) μm).
@@ -304,6 +321,9 @@ def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, o
     ``n_validation`` random points of the element set the feature points name (SeedSequence(seed)
     child 0); the LM's iterate selection (``select_best``) uses ``n_select`` more from child 1.
     ``out_dir``: write ``model/`` and ``metrics.json`` there as a set. Not tracked in MLflow.
+    The metrics hold the plain baseline beside the network (:func:`ols_baseline` on the same
+    validation points, ``baseline_ols_val_*``) and ``beats_baseline``; a network whose validation RMS is not below the baseline's is refused
+    (InputError, nothing written): it is never returned.
     """
     from errormap.io import atomic_dir, write_json
     from errormap.seeds import spawn_seeds
@@ -343,6 +363,9 @@ def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, o
     cpu = time.process_time() - t0
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
+    base = fit_metrics("val", ols_baseline(model, axes, errors, val_axes), val_errors)
+    metrics.update({"baseline_ols_val_max_um": base["val_max_um"], "baseline_ols_val_rms_um": base["val_rms_um"]})
+    metrics["beats_baseline"] = bool(metrics["val_rms_um"] < base["val_rms_um"])
     metrics.update({"final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
                     "iterations": hist.iterations, "train_seconds": hist.seconds, "train_cpu_seconds": cpu})
     if selector is not None:
@@ -354,6 +377,11 @@ def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, o
               "data_sha256": data_hash(axes, errors), "machine": machine.name, "machine_sha256": machine.sha256 or "",
               "elements_sha256": meta.get("elements_sha256", ""), "stop_reason": hist.stop_reason,
               "output_scale_um": model.out_scale_, "init": s.init, "select_best": selector is not None}
+    if not metrics["beats_baseline"]:
+        raise InputError(f"{featurepoints.source or 'feature points'}: the trained network's validation RMS "
+                         f"{metrics['val_rms_um']:.4g} μm is not below the plain OLS baseline's "
+                         f"{base['val_rms_um']:.4g} μm ({val_source}); model not written (more feature points, "
+                         "iterations or another network)")
     if out_dir is not None:
         with atomic_dir(out_dir) as d:
             model.save(d / "model")

@@ -175,6 +175,8 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     for p in ("train", "val"):
         print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
             f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um", f"{p}_max_dz_um")))
+    print(f"{'baseline (OLS)':<16}{m['baseline_ols_val_max_um']:>10.4f}{m['baseline_ols_val_rms_um']:>10.4f}"
+          "   (affine least squares on the axes, same validation points)")
     print(f"wrote model: {out / 'model'} (inputs {', '.join(machine.axis_columns)}; machine {machine.name})")
     print(f"wrote metrics: {out / 'metrics.json'}")
     print(f"use it with: --machine {machine.name} --model {out / 'model'}")
