@@ -47,13 +47,14 @@ class ChainOffsetFitness:
     (n, 3, 3) the inverse nominal axis Jacobian of the linear axes (mm per mm) at ``axes_d``.
     """
 
-    def __init__(self, field, axes_d, lin, Ainv):
+    def __init__(self, field, axes_d, lin, Ainv, delta0_mm):
         self.field, self.axes_d, self.lin, self.Ainv = field, axes_d, lin, Ainv
+        self.delta0_mm = delta0_mm  # (n, 3) target minus the nominal point of axes_d (round-off)
 
     def axes(self, pts, d_um) -> np.ndarray:
         """Axes (m, k) reaching ``p_d + 1e-3·d`` nominally, rotary axes as programmed."""
         q = self.axes_d[pts].copy()
-        q[:, self.lin] += np.einsum("nij,nj->ni", self.Ainv[pts], MM_PER_UM * d_um)
+        q[:, self.lin] += np.einsum("nij,nj->ni", self.Ainv[pts], self.delta0_mm[pts] + MM_PER_UM * d_um)
         return q
 
     def residual_um(self, pts, d_um) -> np.ndarray:
@@ -107,7 +108,7 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
     n = len(targets)
     P0, J0 = nominal_and_jacobian(machine, axes_d, compiled)
     Ainv = np.linalg.inv(J0[:, :, lin])
-    fit = ChainOffsetFitness(field, axes_d, lin, Ainv)
+    fit = ChainOffsetFitness(field, axes_d, lin, Ainv, targets - P0)
     ga = _BatchGA(ball_um, population, n_parents, crossover_probability, mutation_probability, mutation_step_um)
     n_chunks = max(1, -(-n // chunk))
     bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
@@ -123,7 +124,6 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
         idx = np.arange(lo, hi)
         b, fe = ga.run(lambda pts, dT, _o=lo: fit(pts + _o, dT), hi - lo, rngs[i], generations, bar)
         nfev += fe
-        # P0 may differ from the target by round-off: offsets are of the nominal point P0
         res = np.linalg.norm(fit.residual_um(idx, b), axis=1)
         bad = np.flatnonzero(~(res <= tol_um))
         stats["retried"] += int(bad.size)
@@ -148,7 +148,7 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
             q, commands, _, _, fe = _newton(field, machine, compiled, targets[sub], axes_d[sub], lin,
                                             1e-9, 50)
             nfev += fe
-            new = project_to_ball((commands - P0[sub]) * UM_PER_MM, ball_um)
+            new = project_to_ball((commands - targets[sub]) * UM_PER_MM, ball_um)
             nr = np.linalg.norm(fit.residual_um(sub, new), axis=1)
             better = nr < res[bad]
             b[bad[better]], res[bad[better]] = new[better], nr[better]
@@ -159,7 +159,7 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
     bar.close()
     all_idx = np.arange(n)
     q = fit.axes(all_idx, best)
-    commands = P0 + MM_PER_UM * best
+    commands = targets + MM_PER_UM * best
     E = field.predict(q)
     nfev += n
     res = (commands - targets) * UM_PER_MM + E
