@@ -3,7 +3,6 @@ on a chain's feature points (the network takes the machine's axis columns), the 
 content and accepted by ``predict`` and ``compensate`` on that machine; ``batched-ga`` over a chain
 (the tool tip with the linear axes, rotary axes kept) within the GA's tolerance."""
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
