@@ -158,3 +158,14 @@ def test_train_on_mill_then_predict_and_compensate(smooth_mill, tmp_path, capsys
         e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
         assert e["failures"] == 0 and e["model_max_um"] <= bound
         assert e["true"]["max_um"] < TRUE_RESIDUAL_MAX_UM < e["true_uncompensated"]["max_um"] / 4
+
+
+def test_train_chain_refuses_a_network_that_loses_to_the_baseline(smooth_mill, tmp_path, capsys):
+    """One hidden unit after one LM step: no better than affine least squares (observed 14.2 vs 13.3 μm
+    RMS), so the command refuses it and writes nothing."""
+    _, fp = smooth_mill
+    out = tmp_path / "r"
+    assert main(["train", str(fp), "--out", str(out), "--hidden", "1", "--max-iter", "1", "--no-select"]) == 2
+    err = capsys.readouterr().err
+    assert "not below the plain OLS baseline" in err and len(err.strip().splitlines()[-1]) > 0
+    assert not out.exists()
