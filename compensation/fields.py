@@ -24,6 +24,7 @@ from errormap.io import InputError, decode_text
 ELEMENTS_FORMAT = "volcomp-elements/1"
 DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
 NETWORK_FORMAT = "volcomp-mlpfield/1"      # config.json of a trained model folder (training/model.py)
+CHAIN_NETWORK_FORMAT = "volcomp-chain-mlpfield/1"  # the same over a machine-tool chain (training/chain_model.py)
 DRIFT_SCHEMA = "volcomp.drift_model"       # the drift model's key 'schema' (errormap/diagnosis/drift_models.py)
 _RUN_ID = re.compile(r"^[0-9a-f]{32}$")    # an MLflow run id (training/tracking.py RUN_ID_RE)
 MAX_MODEL_FILE_BYTES = 64 << 20
@@ -34,6 +35,7 @@ KIND_NAMES = {"elements": f"element set ({ELEMENTS_FORMAT})",
               "diagnosed": f"diagnosed model ({DIAGNOSED_FORMAT})",
               "drift": f"drift model ({DRIFT_SCHEMA})",
               "network": f"trained model folder ({NETWORK_FORMAT})",
+              "chain-network": f"trained chain model folder ({CHAIN_NETWORK_FORMAT})",
               "mlflow": "trained model in MLflow"}
 """Each model kind as a person reads it (printed and recorded by every command that loads one)."""
 
@@ -76,6 +78,8 @@ def _json_format(path: Path) -> str | None:
         return "diagnosed"
     if fmt == NETWORK_FORMAT:
         return "network"
+    if fmt == CHAIN_NETWORK_FORMAT:
+        return "chain-network"
     if d.get("schema") == DRIFT_SCHEMA:
         return "drift"
     got = repr(str(fmt)) if fmt is not None else "missing"
@@ -83,7 +87,8 @@ def _json_format(path: Path) -> str | None:
 
 
 _EXPECTED = (f"an element set (format {ELEMENTS_FORMAT!r}), a diagnosed model.json ({DIAGNOSED_FORMAT!r}), "
-             f"a drift model (schema {DRIFT_SCHEMA!r}) or a trained model folder")
+             f"a drift model (schema {DRIFT_SCHEMA!r}) or a trained model folder ({NETWORK_FORMAT!r} or "
+             f"{CHAIN_NETWORK_FORMAT!r})")
 
 
 def resolve_model(spec) -> ModelSource:
@@ -93,11 +98,13 @@ def resolve_model(spec) -> ModelSource:
     if p.is_file():
         kind = _json_format(p)
         # a trained model's config.json names its folder
-        return ModelSource(kind, spec, p.parent if kind == "network" else p)
+        return ModelSource(kind, spec, p.parent if kind in ("network", "chain-network") else p)
     if p.is_dir():
         for d in (p, p / "model"):
-            if (d / "config.json").is_file() and _json_format(d / "config.json") == "network":
-                return ModelSource("network", spec, d)
+            if (d / "config.json").is_file():
+                kind = _json_format(d / "config.json")
+                if kind in ("network", "chain-network"):
+                    return ModelSource(kind, spec, d)
         raise InputError(f"{p}: a folder, but not a trained model folder (no config.json of format "
                          f"{NETWORK_FORMAT!r} in it or in {p / 'model'}); expected {_EXPECTED}")
     if _RUN_ID.match(spec) or spec.startswith(("runs:/", "models:/")):
@@ -125,8 +132,12 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
     network (folder or MLflow); other model kinds are refused naming what the file is."""
     src = source or resolve_model(spec)
     if getattr(machine, "kind", None) == "machine-tool":  # a chain machine: its element set, over its own axes
-        require_kind(src, ("elements",), f"on the machine-tool chain {machine.name!r} this command evaluates")
-        return load_chain_field(src.path, machine)
+        require_kind(src, ("elements", "chain-network"),
+                     f"on the machine-tool chain {machine.name!r} this command evaluates")
+        return load_chain_field(src.path, machine, src.kind)
+    if src.kind == "chain-network":
+        raise InputError(f"{src.path}: a {KIND_NAMES[src.kind]}, trained on a machine-tool chain; name that machine "
+                         "with --machine")
     require_kind(src, ("elements", "network", "mlflow"), "this command evaluates")
     if src.kind == "elements":
         return HTMField(machine, ElementSet.load(src.path))
@@ -137,10 +148,14 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
     return load_learned(str(src.path) if src.path is not None else src.spec, tracking_uri=tracking_uri)
 
 
-def load_chain_field(path, machine):
+def load_chain_field(path, machine, kind: str = "elements"):
     """The :class:`errormap.mt_field.ChainField` of a machine-tool chain from an element-set file
     (format ``volcomp-elements/1`` with the chain's element names; InputError naming the file and
-    the key otherwise)."""
+    the key otherwise); ``kind="chain-network"``: the trained network folder
+    (:class:`training.chain_model.ChainMLPField`), refused unless trained on this machine."""
+    if kind == "chain-network":
+        from training.chain_model import ChainMLPField, check_machine
+        return check_machine(ChainMLPField.load(path), machine, Path(path) / "config.json")
     from errormap.mt_elements import ChainElementSet
     from errormap.mt_field import ChainField
     return ChainField(machine, ChainElementSet.load(path, machine))

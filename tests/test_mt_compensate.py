@@ -245,7 +245,7 @@ def test_compensate_chain_refuses_other_methods(tmp_path, mill_models, capsys):
     _, est = mill_models
     assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method", "ga",
                  "--out", str(tmp_path / "o")]) == 2
-    assert "only --method exact" in capsys.readouterr().err
+    assert "the methods are batched-ga, exact" in capsys.readouterr().err
     assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method", "exact",
                  "--max-segment-mm", "5", "--out", str(tmp_path / "o")]) == 2
     assert "--max-segment-mm: not available on the machine-tool chain" in capsys.readouterr().err

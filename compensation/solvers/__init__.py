@@ -40,6 +40,10 @@ class Solver:
     progress: bool = True
     blockwise: bool = False
     kernels: tuple = ()
+    chain: str = ""
+    """On a machine-tool chain (``machine.kind == "machine-tool"``): ``"module:function"`` in
+    ``compensation/solvers/`` solving the tool tip with the chain's linear axes (rotary axes kept);
+    empty: the solver is the grinder's only."""
 
     @property
     def function_name(self) -> str:
@@ -54,6 +58,14 @@ class Solver:
         sig = inspect.signature(self.function())
         return {k: p.default for k, p in sig.parameters.items() if k not in COMMON_ARGUMENTS}
 
+    def chain_function(self):
+        """The solve function on a machine-tool chain; ValueError when the solver has none."""
+        if not self.chain:
+            raise ValueError(f"method {self.name!r} is not available on a machine-tool chain; "
+                             f"there: {', '.join(CHAIN_METHODS)}")
+        module, func = self.chain.split(":")
+        return getattr(importlib.import_module(f"compensation.solvers.{module}"), func)
+
 
 SOLVERS = {s.name: s for s in (
     Solver("traditional", "traditional", "subtract the field's error at the nominal axes once (no iteration)",
@@ -62,13 +74,16 @@ SOLVERS = {s.name: s for s in (
            uses=frozenset({"float32", "predict_columns"}), seeded=True),
     Solver("batched-ga", "batched_ga", "the same GA evolved for a block of points at once (numba breeding kernels)",
            uses=frozenset({"float32", "offset_fitness", "predict_columns"}), seeded=True, blockwise=True,
-           kernels=("compensation.solvers._ga_kernels",)),
+           kernels=("compensation.solvers._ga_kernels",), chain="chain_ga:solve_batched_ga_chain"),
     Solver("exact", "exact", "Newton on the field's own error (analytic Jacobian where the field declares it)",
-           uses=frozenset({"jacobian", "predict_and_jacobian", "float32", "predict_columns"}), kernels=("compensation.solvers.exact",)),
+           uses=frozenset({"jacobian", "predict_and_jacobian", "float32", "predict_columns"}), kernels=("compensation.solvers.exact",),
+           chain="chain_exact:solve_exact_chain"),
 )}
 METHODS = tuple(SOLVERS)
 """The solver names, in the order reports list them."""
 GA_METHODS = tuple(n for n, s in SOLVERS.items() if s.seeded)
+CHAIN_METHODS = tuple(n for n, s in SOLVERS.items() if s.chain)
+"""The solvers available on a machine-tool chain (their ``chain`` entry)."""
 
 
 def solver_spec(method: str) -> Solver:
@@ -86,13 +101,14 @@ def get_solver(method: str):
 
 def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
     """Run solver ``method`` on WCS targets, shape (n, 3) mm. On a machine-tool chain
-    (``machine.kind == "machine-tool"``) ``exact`` is :func:`compensation.solvers.chain_exact.solve_exact_chain`
-    (the tool tip with the chain's linear axes, rotary axes kept); the other methods are the grinder's."""
-    if method == "exact" and getattr(machine, "kind", None) == "machine-tool":
-        from .chain_exact import solve_exact_chain
-        return solve_exact_chain(field, targets_mm, machine, **options)
+    (``machine.kind == "machine-tool"``) the solver's ``chain`` entry runs (``exact``:
+    :func:`compensation.solvers.chain_exact.solve_exact_chain`, ``batched-ga``:
+    :func:`compensation.solvers.chain_ga.solve_batched_ga_chain`; the tool tip with the chain's linear
+    axes, rotary axes kept); a method without one is refused (ValueError)."""
+    if getattr(machine, "kind", None) == "machine-tool":
+        return solver_spec(method).chain_function()(field, targets_mm, machine, **options)
     return get_solver(method)(field, targets_mm, machine, **options)
 
 
-__all__ = ["BALL_RADIUS_UM", "GA_METHODS", "METHODS", "SOLVERS", "SolveResult", "Solver", "get_solver", "solve",
+__all__ = ["BALL_RADIUS_UM", "CHAIN_METHODS", "GA_METHODS", "METHODS", "SOLVERS", "SolveResult", "Solver", "get_solver", "solve",
            "solver_spec"]

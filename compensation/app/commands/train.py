@@ -1,6 +1,7 @@
 """``volcomp train``: fit the BP network to feature points; every fit is an MLflow run."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -22,7 +23,8 @@ def register(sub):
         description="Fit the paper's BP network (3 → 10-15-25-15-10 → 3, sigmoid) to FEATUREPOINTS, "
                     "measure max/RMS fit error (μm) on the feature points and on off-grid validation points, "
                     "record the run in MLflow and write DIR/metrics.json and DIR/model/.")
-    p.add_argument("featurepoints", help="feature-point CSV (volcomp simulate / featurepoints)")
+    p.add_argument("featurepoints", help="feature-point CSV (volcomp simulate / featurepoints); a machine-tool "
+                   "chain's (its header names axis_columns and the machine): the network takes that machine's axes")
     p.add_argument("--out", required=True, help="output folder (metrics.json, model/, plots)")
     p.add_argument("--trainer", choices=("lm", "adam", "lbfgs"), default="lm")
     p.add_argument("--max-time", type=float, default=None,
@@ -32,8 +34,9 @@ def register(sub):
     p.add_argument("--quick", action="store_true",
                    help=f"demo setting: at most {QUICK_MAX_ITER} iterations (unless --max-iter is given)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--a-encoding", choices=("raw", "periodic"), default="raw",
-                   help="A as one scaled input (the paper's) or as (cos a, sin a)")
+    p.add_argument("--a-encoding", choices=("raw", "periodic"), default=None,
+                   help="A as one scaled input (the paper's, the default) or as (cos a, sin a); the grinder's only "
+                        "(on a machine-tool chain every full-turn rotary axis is (cos, sin))")
     p.add_argument("--hidden", default="10,15,25,15,10", help="hidden layer widths, comma-separated")
     p.add_argument("--activation", choices=("sigmoid", "tanh", "softplus"), default="sigmoid")
     p.add_argument("--mse-goal", type=float, default=2.5e-10, help="MSE goal on the scaled outputs")
@@ -59,14 +62,15 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _read_validation(path):
+def _read_validation(path, axis_columns=("x_mm", "z_mm", "a_deg")):
     t = read_table(path)
-    cols = ("x_mm", "z_mm", "a_deg", "dx_um", "dy_um", "dz_um")
+    cols = tuple(axis_columns) + ("dx_um", "dy_um", "dz_um")
     t.require(*cols)
     d = np.stack([t.float(c) for c in cols], axis=1)
     if len(d) < 1:
         raise InputError(f"{path}: no validation points")
-    return d[:, :3], d[:, 3:]
+    k = len(axis_columns)
+    return d[:, :k], d[:, k:]
 
 
 def run(args) -> int:
@@ -81,15 +85,19 @@ def run(args) -> int:
     from training.trainers import TrackSettings, TrainSettings
     try:
         settings = TrainSettings(trainer=args.trainer, max_iter=max_iter, max_time_s=max_time, seed=args.seed,
-                                 hidden=hidden, activation=args.activation, a_encoding=args.a_encoding,
+                                 hidden=hidden, activation=args.activation, a_encoding=args.a_encoding or "raw",
                                  mse_goal=args.mse_goal, threads=args.threads, select_best=args.select_best,
                                  physics=args.physics, physics_stations=args.physics_stations)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     fp = FeaturePoints.load(args.featurepoints)
+    if "axis_columns" in fp.meta:  # a machine-tool chain's feature points (recognised by their header)
+        return _run_chain(args, fp, settings, max_iter, max_time, hidden)
+    if args.a_encoding is None:
+        settings = dataclasses.replace(settings, a_encoding="raw")
     if args.trainer == "lm":
         from ..validate import check_lm_size
-        check_lm_size(len(fp.axes), hidden, args.a_encoding)
+        check_lm_size(len(fp.axes), hidden, args.a_encoding or "raw")
     from errormap.machine import load_machine
     mf = fp.meta.get("machine_file")
     fp.check_units(load_machine(mf if mf and Path(mf).is_file() else None, expect_kind="grinder"))
@@ -120,4 +128,70 @@ def run(args) -> int:
     print(f"wrote plots: {out / 'fit_error_xz.png'}, {out / 'fit_featurepoints.png'}")
     print(f"wrote metrics: {out / 'metrics.json'}")
     print(f"load it with: --model runs:/{res.run_id}/model")
+    return 0
+
+
+def _chain_machine(fp):
+    """The machine-tool chain the feature points were made on: the recorded machine file, else the
+    built-in machine of the recorded name; its SHA-256 must be the recorded one."""
+    from errormap.machine import load_machine
+    src = fp.source or "feature points"
+    mf = fp.meta.get("machine_file")
+    name = fp.meta.get("machine")
+    if not (mf and Path(mf).is_file()) and not name:
+        raise InputError(f"{src}: header key 'machine': the chain's feature points name no machine (nor a readable "
+                         "machine_file)")
+    machine = load_machine(mf if mf and Path(mf).is_file() else name)
+    if machine.kind != "machine-tool":
+        raise InputError(f"{src}: header key 'axis_columns': given, but the machine {machine.name!r} is not a "
+                         "machine-tool chain")
+    sha = fp.meta.get("machine_sha256")
+    if sha and machine.sha256 and sha != machine.sha256:
+        raise InputError(f"{src}: header key 'machine_sha256': the feature points were made on another version of "
+                         f"the machine file {machine.path}")
+    if tuple(fp.axis_columns) != tuple(machine.axis_columns):
+        raise InputError(f"{src}: header key 'axis_columns': {', '.join(fp.axis_columns)}; the machine "
+                         f"{machine.name!r} has {', '.join(machine.axis_columns)}")
+    return machine
+
+
+def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
+    """``train`` on a machine-tool chain's feature points: :func:`training.chain_model.fit_chain_field`."""
+    given = [o for o, v in (("--a-encoding", args.a_encoding), ("--tracking-uri", args.tracking_uri),
+                            ("--run-name", args.run_name),
+                            ("--physics", None if args.physics == "none" else args.physics),
+                            ("--physics-stations", args.physics_stations)) if v is not None]
+    if given:  # refused, never silently ignored
+        raise UsageError(f"{', '.join(given)}: not available on a machine-tool chain's feature points (full-turn rotary "
+                         "axes are always (cos, sin); the chain network is written to --out, not recorded in MLflow; the physical "
+                         "part of --physics is the grinder's element model)")
+    machine = _chain_machine(fp)
+    fp.check_units(machine)
+    from training.chain_model import ChainMLPField, fit_chain_field
+    if args.trainer == "lm":
+        from ..validate import MAX_LM_BYTES
+        p = ChainMLPField.for_machine(machine, hidden=hidden).n_params
+        need = 8 * (3 * len(fp.axes) * p + p * p)
+        if need > MAX_LM_BYTES:
+            raise UsageError(f"--trainer lm: {len(fp.axes):,} feature points x {p:,} network parameters need "
+                             f"{need / 2**30:.3g} GiB for the Jacobian, over the limit of {MAX_LM_BYTES / 2**30:g} "
+                             "GiB (or --trainer adam / lbfgs)")
+    validation = _read_validation(args.validation, machine.axis_columns) if args.validation else None
+    out = Path(args.out)
+    print(f"training {args.trainer} on {len(fp.axes)} feature points of the machine-tool chain {machine.name!r} "
+          f"({', '.join(machine.axis_columns)}) from {args.featurepoints} (at most {max_iter} iterations"
+          + (f", {max_time:g} s" if math.isfinite(max_time) else "") + ") ...", file=sys.stderr)
+    res = fit_chain_field(fp, machine, settings, validation=validation, out_dir=out)
+    m = res.metrics
+    print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s "
+          f"({m['train_cpu_seconds']:.1f} CPU s): {res.history.stop_reason}")
+    print(f"{'fit error (μm)':<16}{'max':>10}{'rms':>10}{'max dx':>10}{'max dy':>10}{'max dz':>10}")
+    for p in ("train", "val"):
+        print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
+            f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um", f"{p}_max_dz_um")))
+    print(f"{'baseline (OLS)':<16}{m['baseline_ols_val_max_um']:>10.4f}{m['baseline_ols_val_rms_um']:>10.4f}"
+          "   (affine least squares on the axes, same validation points)")
+    print(f"wrote model: {out / 'model'} (inputs {', '.join(machine.axis_columns)}; machine {machine.name})")
+    print(f"wrote metrics: {out / 'metrics.json'}")
+    print(f"use it with: --machine {machine.name} --model {out / 'model'}")
     return 0

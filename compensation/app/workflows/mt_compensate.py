@@ -33,7 +33,7 @@ from ...fields import load_chain_field, require_kind, resolve_model
 from ...gcode import DEFAULT_RAPIDS
 from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, is_csv
-from ...solvers.chain_exact import linear_axes, nominal_and_jacobian, solve_exact_chain
+from ...solvers.chain_exact import linear_axes, nominal_and_jacobian
 from .compensate import SUMMARY_NAME, check_out_dir, plan_outputs
 
 DECIMALS = {"mm": 6, "deg": 6}  # 1 nm; 1e-6 deg
@@ -115,9 +115,10 @@ def _stats(r) -> dict:
 
 def run_chain_compensate(machine, args, allow) -> int:
     """The ``compensate`` command on a machine-tool chain; returns the exit status."""
-    if args.method != "exact":
-        raise UsageError(f"--method {args.method}: on the machine-tool chain {machine.name!r} only --method exact "
-                         "is available (Newton on the chain)")
+    from ...solvers import CHAIN_METHODS, solve, solver_spec
+    if args.method not in CHAIN_METHODS:
+        raise UsageError(f"--method {args.method}: on the machine-tool chain {machine.name!r} the methods are "
+                         f"{', '.join(CHAIN_METHODS)}")
     from ..options import conditions_from_args
     from ...batch import CHUNK_POINTS
     unsupported = {"--cluster": getattr(args, "cluster", None), "--workers": getattr(args, "workers", None),
@@ -137,16 +138,17 @@ def run_chain_compensate(machine, args, allow) -> int:
                       units=args.units, truth=args.truth)
     plan = plan_outputs(args.files, s.out_dir)
     old_outputs = check_out_dir(s.out_dir, s.force)
-    src = require_kind(resolve_model(s.model), ("elements",), f"on the machine-tool chain {machine.name!r} compensate "
-                                                              "takes")
+    src = require_kind(resolve_model(s.model), ("elements", "chain-network"),
+                       f"on the machine-tool chain {machine.name!r} compensate takes")
     print(f"compensate: model {src.description}", file=sys.stderr)
-    field_ = load_chain_field(src.path, machine)
+    field_ = load_chain_field(src.path, machine, src.kind)
     truth = load_chain_field(s.truth, machine) if s.truth else None
     paths = [read_chain_path(p, machine, s, field_) for p, _ in plan]
     outcomes = []
     for (p, dst), tp in zip(plan, paths):
         targets, _ = nominal_and_jacobian(machine, tp.axes)
-        res = solve_exact_chain(field_, targets, machine, target_axes=tp.axes, progress=False)
+        seeded = {"seed": args.seed} if solver_spec(s.method).seeded else {}
+        res = solve(s.method, field_, targets, machine, target_axes=tp.axes, progress=False, **seeded)
         report = guards.check(res, machine, field_, allow=allow, target_axes=tp.axes)
         kept = []
         if tp.kind == "gcode" and len(tp.source.kept_lines):
@@ -222,6 +224,7 @@ def run_chain_compensate(machine, args, allow) -> int:
                 entry["output"] = str(dst)
     summary = write_json(s.out_dir / SUMMARY_NAME, {
         "method": s.method, "model": s.model, "model_source": src.to_dict(), "units": s.units,
+        **({"seed": args.seed} if solver_spec(s.method).seeded else {}),
         "machine": machine.path, "machine_name": machine.name, "allow": list(allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)"
                     + ("; true: truth tool point at the compensated axes - p_d (um)" if truth is not None else ""),

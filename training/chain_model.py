@@ -1,0 +1,390 @@
+"""The error-field network over a machine-tool chain's own axes, and its training.
+
+:class:`ChainMLPField` is the grinder's :class:`training.model.MLPField` (same layers, activations,
+functional ``forward``/``param_jacobian``, trainers, output scaling, file set) with the inputs
+taken from a machine-tool chain (``kind = "machine-tool"``, ``docs/machines.md``): one input per
+axis column in the machine's canonical order (``x_mm, y_mm, z_mm`` on ``mill-xyz``; ``x_mm, y_mm,
+z_mm, a_deg, c_deg`` on ``five-axis-ac``), each mapped linearly from its training range to
+``[-1, 1]``, except a **full-turn rotary axis**, which enters as ``(cos q, sin q)`` — the grinder's
+``periodic`` encoding, so the field is exactly periodic in it and needs no seam closure. Output:
+``(dx_um, dy_um, dz_um)``, the tool point's spatial error in the workpiece frame.
+
+Inference (``predict``, ``predict_and_jacobian``, ``jacobian``): float64 torch on rows in blocks of
+``chunk`` points, the input Jacobian by forward-mode tangents written out (one tangent per axis,
+``dh' = σ'(z) ⊙ (W dh)``), shape (n, 3, k) μm per mm / per deg. Declares ``jacobian`` and
+``predict_and_jacobian`` (the exact chain solver needs them), not the grinder network's float32,
+column and fused-fitness paths.
+
+Files: the grinder's set (``config.json``, ``scalers.json``, ``weights.npy``, SHA-256 recorded)
+with ``format = "volcomp-chain-mlpfield/1"``; ``config.json`` records the axis columns, which of
+them are periodic and the machine's name and SHA-256, and :func:`check_machine` refuses the model
+on a machine with other axes or another name. :func:`fit_chain_field` trains it on a chain's
+feature points (validation and selection points: random points of the element set the feature
+points name, from children of the seed), like :func:`training.trainers.fit_field`.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
+from errormap.io import InputError, sha256_file
+
+from .model import MODEL_FILES, PAPER_HIDDEN, MLPField
+
+CHAIN_FORMAT = "volcomp-chain-mlpfield/1"
+
+
+class ChainMLPField(MLPField):
+    """An MLP error field over a machine-tool chain's axes (module docstring).
+
+    Settings: ``axis_columns`` (the machine's, in order), ``periodic`` (one bool per axis: a
+    full-turn rotary axis, fed as cos/sin), ``machine`` (its name), ``machine_sha256``,
+    ``hidden``, ``activation``, ``chunk``. Learned: ``theta_``, ``in_lo_``/``in_hi_`` (k,),
+    ``out_mean_`` (3,) μm, ``out_scale_`` μm.
+    """
+
+    kind = "chain-mlp"
+    capabilities = frozenset({JACOBIAN, PREDICT_AND_JACOBIAN})
+
+    def __init__(self, axis_columns, periodic=None, machine: str = "", machine_sha256: str = "",
+                 hidden=PAPER_HIDDEN, activation: str = "sigmoid", chunk: int = 65_536):
+        super().__init__(hidden, activation, "periodic", chunk)
+        self.axis_columns = tuple(str(c) for c in axis_columns)
+        self.periodic = tuple(bool(p) for p in (periodic if periodic is not None else [False] * len(self.axis_columns)))
+        self.machine = str(machine)
+        self.machine_sha256 = str(machine_sha256)
+        if not self.axis_columns or len(self.periodic) != len(self.axis_columns):
+            raise ValueError(f"Expected one periodic flag per axis column {self.axis_columns}, got {self.periodic}")
+        if any(p and not c.endswith("_deg") for c, p in zip(self.axis_columns, self.periodic)):
+            raise ValueError(f"Expected periodic axes in degrees, got {self.axis_columns} / {self.periodic}")
+
+    @classmethod
+    def for_machine(cls, machine, **settings) -> "ChainMLPField":
+        """The untrained field over ``machine``'s axes (a :class:`errormap.mt_chain.MachineTool`)."""
+        return cls(machine.axis_columns, [a.kind == "rotary" and a.full_turn for a in machine.axes],
+                   machine.name, machine.sha256 or "", **settings)
+
+    @property
+    def n_axes(self) -> int:
+        return len(self.axis_columns)
+
+    @property
+    def n_inputs(self) -> int:
+        return self.n_axes + sum(self.periodic)
+
+    def _check(self, axes) -> np.ndarray:
+        a = np.atleast_2d(np.asarray(axes, dtype=float))
+        if a.ndim != 2 or a.shape[1] != self.n_axes:
+            raise ValueError(f"expected axes of shape (n, {self.n_axes}) ({', '.join(self.axis_columns)}), "
+                             f"got {np.shape(axes)}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("axes contain NaN or infinite values")
+        return a
+
+    def fit_scalers(self, axes, errors_um) -> "ChainMLPField":
+        axes = self._check(axes)
+        e = np.asarray(errors_um, dtype=float)
+        lo, hi = axes.min(axis=0), axes.max(axis=0)
+        self.in_lo_, self.in_hi_ = lo, np.where(hi > lo, hi, lo + 1.0)
+        self.out_mean_ = 0.5 * (e.max(axis=0) + e.min(axis=0))
+        self.out_scale_ = float(max(0.5 * (e.max(axis=0) - e.min(axis=0)).max(), 1e-12))
+        return self
+
+    def _features_and_tangents(self, axes, jac: bool):
+        """Scaled inputs (n, n_inputs) and d(inputs)/d(axes) (n_inputs, k) per point or None."""
+        n = axes.shape[0]
+        s = 2.0 / (self.in_hi_ - self.in_lo_)
+        cols, tang = [], []
+        for j, per in enumerate(self.periodic):
+            if per:
+                r = np.deg2rad(axes[:, j])
+                c, sn = np.cos(r), np.sin(r)
+                cols += [c, sn]
+                if jac:
+                    k = math.pi / 180.0
+                    tang += [(j, -sn * k), (j, c * k)]
+            else:
+                cols.append((axes[:, j] - self.in_lo_[j]) * s[j] - 1.0)
+                if jac:
+                    tang.append((j, np.full(n, s[j])))
+        u = np.column_stack(cols)
+        if not jac:
+            return u, None
+        T = np.zeros((n, self.n_inputs, self.n_axes))
+        for i, (j, v) in enumerate(tang):
+            T[:, i, j] = v
+        return u, T
+
+    def features(self, axes) -> np.ndarray:
+        """Scaled network inputs, shape (n, n_inputs)."""
+        return self._features_and_tangents(self._check(axes), False)[0]
+
+    @property
+    def calibrated_volume(self) -> CalibratedVolume | None:
+        if "in_lo_" not in self.__dict__:
+            return None
+        return CalibratedVolume(self.in_lo_, self.in_hi_, self.axis_columns)
+
+    def predict(self, axes, dtype=np.float64) -> np.ndarray:
+        """Spatial error (dx_um, dy_um, dz_um), (n, k) -> (n, 3) μm, float64."""
+        return self._infer_rows(self._check(axes), jac=False)[0]
+
+    __call__ = predict
+
+    def predict_and_jacobian(self, axes, dtype=np.float64):
+        """``(E (n, 3) μm, dE/d(axes) (n, 3, k) μm per mm / per deg)``; float64 only."""
+        if np.dtype(dtype) != np.float64:
+            raise ValueError(f"Expected dtype float64 (ChainMLPField declares no float32), got {np.dtype(dtype)}")
+        return self._infer_rows(self._check(axes), jac=True)
+
+    def jacobian(self, axes) -> np.ndarray:
+        return self.predict_and_jacobian(axes)[1]
+
+    def jacobian_reference(self, axes) -> np.ndarray:
+        """Central differences of :meth:`predict` (the tests' reference), (n, 3, k)."""
+        axes = self._check(axes)
+        J = np.empty((axes.shape[0], 3, self.n_axes))
+        for j in range(self.n_axes):
+            h = 1e-4
+            ap, am = axes.copy(), axes.copy()
+            ap[:, j] += h
+            am[:, j] -= h
+            J[:, :, j] = (self.predict(ap) - self.predict(am)) / (2 * h)
+        return J
+
+    def _infer_rows(self, axes, jac: bool):
+        theta = self._theta().detach()
+        shapes = self.shapes
+        layers, k = [], 0
+        for (o, n_in), _ in zip(shapes[0::2], shapes[1::2]):
+            layers.append((theta[k:k + o * n_in].view(o, n_in), theta[k + o * n_in:k + o * n_in + o]))
+            k += o * n_in + o
+        n = axes.shape[0]
+        E = np.empty((n, 3))
+        J = np.empty((n, 3, self.n_axes)) if jac else None
+        blk = max(1, self.chunk)
+        with torch.inference_mode():
+            for s0 in range(0, n, blk):
+                u, T = self._features_and_tangents(axes[s0:s0 + blk], jac)
+                h = torch.from_numpy(u)
+                Tt = torch.from_numpy(T) if jac else None      # (m, units, k)
+                for i, (W, b) in enumerate(layers):
+                    z = h @ W.T + b
+                    if jac:
+                        Tt = torch.matmul(W, Tt)
+                    if i == len(layers) - 1:
+                        h = z
+                        break
+                    if self.activation == "sigmoid":
+                        h = torch.sigmoid(z)
+                        d = h * (1.0 - h)
+                    elif self.activation == "tanh":
+                        h = torch.tanh(z)
+                        d = 1.0 - h * h
+                    else:
+                        d = torch.sigmoid(z)
+                        h = torch.nn.functional.softplus(z)
+                    if jac:
+                        Tt = Tt * d.unsqueeze(2)
+                E[s0:s0 + blk] = h.numpy() * self.out_scale_ + self.out_mean_
+                if jac:
+                    J[s0:s0 + blk] = Tt.numpy() * self.out_scale_
+        return E, J
+
+    def predict_columns(self, xa):  # pragma: no cover - not declared (capabilities)
+        raise NotImplementedError("ChainMLPField declares no predict_columns")
+
+    def offset_fitness(self, machine, targets_mm):  # pragma: no cover - not declared (capabilities)
+        raise NotImplementedError("ChainMLPField declares no offset_fitness")
+
+    # -- files --------------------------------------------------------------------------
+    def config(self) -> dict:
+        return {"format": CHAIN_FORMAT, "hidden": list(self.hidden), "activation": self.activation,
+                "n_params": self.n_params, "inputs": list(self.axis_columns), "periodic": list(self.periodic),
+                "machine": self.machine, "machine_sha256": self.machine_sha256,
+                "outputs": ["dx_um", "dy_um", "dz_um"]}
+
+    def scalers(self) -> dict:
+        return {"in_lo": self.in_lo_, "in_hi": self.in_hi_, "out_mean_um": self.out_mean_,
+                "out_scale_um": self.out_scale_}
+
+    @classmethod
+    def load(cls, directory) -> "ChainMLPField":
+        """Load a folder written by :meth:`save` (InputError naming file and key otherwise)."""
+        d = Path(directory)
+        for name in ("config.json",) + MODEL_FILES:
+            if not (d / name).is_file():
+                raise InputError(f"{d}: not a saved chain network (missing {name})")
+        try:
+            cfg = json.loads((d / "config.json").read_text(encoding="utf-8"))
+            sc = json.loads((d / "scalers.json").read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{d}: config.json or scalers.json is not valid JSON: {exc}") from None
+        if not isinstance(cfg, dict) or cfg.get("format") != CHAIN_FORMAT:
+            got = cfg.get("format") if isinstance(cfg, dict) else cfg
+            raise InputError(f"{d / 'config.json'}: key 'format': expected {CHAIN_FORMAT!r}, got {got!r}")
+        for name, sha in (cfg.get("files_sha256") or {}).items():
+            if name in MODEL_FILES and sha256_file(d / name) != sha:
+                raise InputError(f"{d / name}: does not belong to this model (SHA-256 differs from the one "
+                                 f"config.json records); the folder holds a partial or mixed set")
+        try:
+            m = cls(cfg["inputs"], cfg["periodic"], cfg.get("machine", ""), cfg.get("machine_sha256", ""),
+                    cfg["hidden"], cfg["activation"])
+            m.in_lo_ = np.asarray(sc["in_lo"], dtype=float)
+            m.in_hi_ = np.asarray(sc["in_hi"], dtype=float)
+            m.out_mean_ = np.asarray(sc["out_mean_um"], dtype=float)
+            m.out_scale_ = float(sc["out_scale_um"])
+        except KeyError as exc:
+            raise InputError(f"{d}: config.json/scalers.json: missing key {exc}") from None
+        except (ValueError, TypeError) as exc:
+            raise InputError(f"{d / 'config.json'}: {exc}") from None
+        if m.in_lo_.shape != (m.n_axes,) or m.in_hi_.shape != (m.n_axes,) or m.out_mean_.shape != (3,):
+            raise InputError(f"{d / 'scalers.json'}: keys 'in_lo'/'in_hi': expected {m.n_axes} values "
+                             f"({', '.join(m.axis_columns)}) and 'out_mean_um' 3")
+        theta = np.load(d / "weights.npy", allow_pickle=False)
+        if theta.shape != (m.n_params,):
+            raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
+        m.theta_ = torch.from_numpy(theta.astype(np.float64))
+        return m
+
+
+def check_machine(model: ChainMLPField, machine, where) -> ChainMLPField:
+    """Refuse (InputError naming ``where``) a chain network trained on another machine: other axis
+    columns, or another machine name."""
+    if tuple(machine.axis_columns) != model.axis_columns:
+        raise InputError(f"{where}: key 'inputs': the network takes {', '.join(model.axis_columns)}, the machine "
+                         f"{machine.name!r} has {', '.join(machine.axis_columns)}")
+    if model.machine and model.machine != machine.name:
+        raise InputError(f"{where}: key 'machine': the network was trained on {model.machine!r}, not on "
+                         f"{machine.name!r}")
+    return model
+
+
+# -- training ------------------------------------------------------------------------------
+@dataclass
+class ChainFitResult:
+    """What :func:`fit_chain_field` returns: the trained field, metrics (μm), params, seconds."""
+
+    field: ChainMLPField
+    metrics: dict
+    seconds: float
+    history: object = None
+    params: dict = field(default_factory=dict)
+
+
+def random_chain_axes(machine, n: int, seed) -> np.ndarray:
+    """``n`` points uniform over the machine's strokes, (n, k) (off the grid with probability one)."""
+    rng = np.random.default_rng(seed)
+    return machine.stroke_lo + (machine.stroke_hi - machine.stroke_lo) * rng.random((int(n), len(machine.axes)))
+
+
+def chain_reference(machine, meta: dict):
+    """The element set's field named in the feature points' provenance (``elements_file``), or None."""
+    el = meta.get("elements_file")
+    if not el or not Path(el).is_file():
+        return None
+    from errormap.mt_elements import ChainElementSet
+    from errormap.mt_field import ChainField
+    return ChainField(machine, ChainElementSet.load(el, machine))
+
+
+def ols_baseline(model: ChainMLPField, train_axes, train_errors_um, eval_axes) -> np.ndarray:
+    """The plain baseline an engineer tries first: ordinary least squares of each error component on
+    the axis columns (affine; a full-turn rotary axis as cos/sin, as the network takes it), fitted on
+    the training points and evaluated at ``eval_axes``; (m, k) -> (m, 3) μm."""
+    def design(a):
+        cols = [np.ones(len(a))]
+        for j, per in enumerate(model.periodic):
+            if per:
+                r = np.deg2rad(a[:, j])
+                cols += [np.cos(r), np.sin(r)]
+            else:
+                cols.append(a[:, j])
+        return np.column_stack(cols)
+    coef = np.linalg.lstsq(design(np.asarray(train_axes, float)), np.asarray(train_errors_um, float), rcond=None)[0]
+    return design(np.asarray(eval_axes, float)) @ coef
+
+
+def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, out_dir=None,
+                    quiet: bool = False) -> ChainFitResult:
+    """Train a :class:`ChainMLPField` on a chain's feature points (axes (n, k), errors (n, 3) μm).
+
+    ``settings``: :class:`training.trainers.TrainSettings` (``a_encoding`` is not used: a full-turn
+    rotary axis is always cos/sin). ``validation``: ``(axes (m, k), errors (m, 3) μm)``; when None,
+    ``n_validation`` random points of the element set the feature points name (SeedSequence(seed)
+    child 0); the LM's iterate selection (``select_best``) uses ``n_select`` more from child 1.
+    ``out_dir``: write ``model/`` and ``metrics.json`` there as a set. Not tracked in MLflow.
+    The metrics hold the plain baseline beside the network (:func:`ols_baseline` on the same
+    validation points, ``baseline_ols_val_*``) and ``beats_baseline``; a network whose validation RMS is not below the baseline's is refused
+    (InputError, nothing written): it is never returned.
+    """
+    from errormap.io import atomic_dir, write_json
+    from errormap.seeds import spawn_seeds
+
+    from .trainers import (SELECTION_STREAM, VALIDATION_STREAM, TrainSettings, _BestOnSelection, _train,
+                           check_run_folder, data_hash, fit_metrics)
+    s = settings or TrainSettings()
+    if out_dir is not None:
+        check_run_folder(out_dir)
+    axes = np.asarray(featurepoints.axes, float)
+    errors = np.asarray(featurepoints.errors_um, float)
+    if tuple(featurepoints.axis_columns) != tuple(machine.axis_columns):
+        raise InputError(f"{featurepoints.source or 'feature points'}: axis columns "
+                         f"{', '.join(featurepoints.axis_columns)}; the machine {machine.name!r} has "
+                         f"{', '.join(machine.axis_columns)}")
+    meta = dict(getattr(featurepoints, "meta", {}) or {})
+    ref = chain_reference(machine, meta)
+    streams = spawn_seeds(s.seed, 2)
+    if validation is not None:
+        val_axes, val_errors = (np.asarray(v, float) for v in validation)
+        val_source = "given"
+    elif ref is not None:
+        val_axes = random_chain_axes(machine, s.n_validation, streams[VALIDATION_STREAM])
+        val_errors = ref.predict(val_axes)
+        val_source = (f"element set {meta.get('elements_file')} ({s.n_validation} random points, "
+                      f"SeedSequence({s.seed}) child {VALIDATION_STREAM})")
+    else:
+        raise InputError("no validation data: the feature points name no readable elements_file; pass validation "
+                         f"points (--validation FILE with {', '.join(machine.axis_columns)}, dx_um, dy_um, dz_um)")
+    model = ChainMLPField.for_machine(machine, hidden=s.hidden, activation=s.activation).fit_scalers(axes, errors)
+    selector = None
+    if s.select_best and s.trainer == "lm" and ref is not None:
+        sel_axes = random_chain_axes(machine, s.n_select, streams[SELECTION_STREAM])
+        selector = _BestOnSelection(model, sel_axes, ref.predict(sel_axes), s.select_every, s.select_patience)
+    t0 = time.process_time()
+    hist = _train(model, axes, errors, s, selector, quiet)
+    cpu = time.process_time() - t0
+    metrics = fit_metrics("train", model.predict(axes), errors)
+    metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
+    base = fit_metrics("val", ols_baseline(model, axes, errors, val_axes), val_errors)
+    metrics.update({"baseline_ols_val_max_um": base["val_max_um"], "baseline_ols_val_rms_um": base["val_rms_um"]})
+    metrics["beats_baseline"] = bool(metrics["val_rms_um"] < base["val_rms_um"])
+    metrics.update({"final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
+                    "iterations": hist.iterations, "train_seconds": hist.seconds, "train_cpu_seconds": cpu})
+    if selector is not None:
+        metrics.update({"selected_iteration": selector.best_iteration, "selection_max_um": selector.best_max_um})
+    params = {"hidden": ",".join(map(str, model.hidden)), "activation": s.activation, "inputs": ",".join(model.axis_columns),
+              "periodic": ",".join(c for c, p in zip(model.axis_columns, model.periodic) if p),
+              "n_params": model.n_params, "trainer": s.trainer, "mse_goal": s.mse_goal, "max_iter": s.max_iter,
+              "seed": s.seed, "n_train": len(axes), "n_val": len(val_axes), "validation_source": val_source,
+              "data_sha256": data_hash(axes, errors), "machine": machine.name, "machine_sha256": machine.sha256 or "",
+              "elements_sha256": meta.get("elements_sha256", ""), "stop_reason": hist.stop_reason,
+              "output_scale_um": model.out_scale_, "init": s.init, "select_best": selector is not None}
+    if not metrics["beats_baseline"]:
+        raise InputError(f"{featurepoints.source or 'feature points'}: the trained network's validation RMS "
+                         f"{metrics['val_rms_um']:.4g} μm is not below the plain OLS baseline's "
+                         f"{base['val_rms_um']:.4g} μm ({val_source}); model not written (more feature points, "
+                         "iterations or another network)")
+    if out_dir is not None:
+        with atomic_dir(out_dir) as d:
+            model.save(d / "model")
+            write_json(d / "metrics.json", {**metrics, "stop_reason": hist.stop_reason, "trainer": s.trainer,
+                                            "seconds": hist.seconds, "params": params})
+    return ChainFitResult(model, metrics, hist.seconds, hist, params)
