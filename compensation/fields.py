@@ -23,6 +23,7 @@ from errormap.io import InputError, decode_text
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
 DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
+CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"  # model.json of diagnose on a machine-tool chain (errormap/diagnosis/mt_model.py)
 NETWORK_FORMAT = "volcomp-mlpfield/1"      # config.json of a trained model folder (training/model.py)
 DRIFT_SCHEMA = "volcomp.drift_model"       # the drift model's key 'schema' (errormap/diagnosis/drift_models.py)
 _RUN_ID = re.compile(r"^[0-9a-f]{32}$")    # an MLflow run id (training/tracking.py RUN_ID_RE)
@@ -32,6 +33,7 @@ a larger file is not a model file and is refused before it is read whole."""
 
 KIND_NAMES = {"elements": f"element set ({ELEMENTS_FORMAT})",
               "diagnosed": f"diagnosed model ({DIAGNOSED_FORMAT})",
+              "chain-model": f"diagnosed chain model ({CHAIN_MODEL_FORMAT})",
               "drift": f"drift model ({DRIFT_SCHEMA})",
               "network": f"trained model folder ({NETWORK_FORMAT})",
               "mlflow": "trained model in MLflow"}
@@ -74,6 +76,8 @@ def _json_format(path: Path) -> str | None:
         return "elements"
     if fmt == DIAGNOSED_FORMAT:
         return "diagnosed"
+    if fmt == CHAIN_MODEL_FORMAT:
+        return "chain-model"
     if fmt == NETWORK_FORMAT:
         return "network"
     if d.get("schema") == DRIFT_SCHEMA:
@@ -83,6 +87,7 @@ def _json_format(path: Path) -> str | None:
 
 
 _EXPECTED = (f"an element set (format {ELEMENTS_FORMAT!r}), a diagnosed model.json ({DIAGNOSED_FORMAT!r}), "
+             f"a chain's diagnosed model.json ({CHAIN_MODEL_FORMAT!r}), "
              f"a drift model (schema {DRIFT_SCHEMA!r}) or a trained model folder")
 
 
@@ -113,7 +118,8 @@ def require_kind(src: ModelSource, kinds, what: str) -> ModelSource:
         want = ", ".join(KIND_NAMES[k].split(" (")[0] for k in kinds)
         hint = {"drift": "; a drift model is applied by `volcomp drift-predict` and exported with `volcomp export "
                          "--format drift`",
-                "diagnosed": "; `volcomp compensate` takes a diagnosed model.json"}.get(src.kind, "")
+                "diagnosed": "; `volcomp compensate` takes a diagnosed model.json",
+                "chain-model": "; a chain's model.json is for `predict` / `compensate` with --machine"}.get(src.kind, "")
         name = KIND_NAMES[src.kind]
         article = "an" if name[0] in "aeiou" else "a"
         raise InputError(f"{src.path or src.spec}: {article} {name}, but {what} one of: {want}{hint}")
@@ -125,7 +131,11 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
     network (folder or MLflow); other model kinds are refused naming what the file is."""
     src = source or resolve_model(spec)
     if getattr(machine, "kind", None) == "machine-tool":  # a chain machine: its element set, over its own axes
-        require_kind(src, ("elements",), f"on the machine-tool chain {machine.name!r} this command evaluates")
+        require_kind(src, ("elements", "chain-model"),
+                     f"on the machine-tool chain {machine.name!r} this command evaluates")
+        if src.kind == "chain-model":
+            from errormap.diagnosis.mt_model import load_chain_model_file
+            return load_chain_model_file(src.path, machine)
         return load_chain_field(src.path, machine)
     require_kind(src, ("elements", "network", "mlflow"), "this command evaluates")
     if src.kind == "elements":
