@@ -137,6 +137,30 @@ def test_compensate_and_predict_conditions_are_refused_in_one_line(tmp_path, cap
     assert np.abs(got - want).max() < 1e-6 * np.abs(want).max()
 
 
+@pytest.mark.parametrize("name", ["mill-xyz", "five-axis-ac"])
+def test_chain_effect_kinds_come_from_the_registry(name):
+    """One vocabulary: the chain simulator's kinds, aliases and the axes each may act on are the
+    registry's (errormap/effect_kinds.py); an unknown kind is an error, never a default."""
+    from errormap import effect_kinds as ek
+    from errormap import mt_simulate as ms
+    from errormap.diagnosis import mt_model
+    assert set(ms.EFFECT_KINDS) <= set(ek.DIAGNOSED_KINDS) and mt_model.KINDS == ms.EFFECT_KINDS
+    assert ms.EFFECT_ALIASES == {a: k.name for k in ek.EFFECT_KINDS if k.name in ms.EFFECT_KINDS for a in k.aliases}
+    mt = load_machine(name)
+    lin = tuple(a.word for a in mt.axes if a.kind == "linear")
+    rot = tuple(a.word for a in mt.axes if a.kind == "rotary")
+    for kind in ms.EFFECT_KINDS:
+        for ax in ek.effect_kind(kind).axes(lin, rot):
+            assert ms.parse_effect(mt, f"{kind}:{ax}") == (kind, tuple(ax.split("*")))
+        for alias in ek.effect_kind(kind).aliases:
+            if ek.effect_kind(kind).axes(lin, rot):
+                assert ms.parse_effect(mt, alias)[0] == kind
+    with pytest.raises(ValueError, match="unknown effect kind"):
+        ms.parse_effect(mt, "wobble:X")
+    with pytest.raises(ValueError, match="not simulated on a machine-tool chain"):
+        ms.parse_effect(mt, "drift:X")
+
+
 @pytest.mark.slow
 def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
     """simulate (truth hidden) → sweeps → identify → diagnose → compensate the pocket program with the

@@ -28,6 +28,7 @@ from ..io import InputError, decode_text, write_json
 from ..mt_chain import MachineTool
 from ..mt_elements import ChainElementSet
 from ..mt_field import ChainField
+from ..mt_simulate import EFFECT_KINDS
 from .mt_loop import EffectTerm, effect_columns
 
 CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"
@@ -35,7 +36,8 @@ TERM_STEP = {"linear": 1e-3, "rotary": 1e-3}
 """Central-difference step (mm / deg) of the terms' axis Jacobian. The shortest shape the search fits is a
 2 mm period (a harmonic of order 120 is 3° per cycle): truncation error h²/6·|t'''| ≤ 1e-6·(2π/2)³·10 μm
 / 6 ≈ 5e-7 μm/mm at 10 μm amplitude, round-off ~1e-16·10/1e-3 = 1e-12: far below what Newton needs."""
-KINDS = ("thermal", "reversal", "periodic", "harmonic", "interaction")
+KINDS = EFFECT_KINDS
+"""The kinds a chain model's terms may have: the chain's kinds from the registry (one vocabulary)."""
 
 
 def term_needs(machine: MachineTool, term: EffectTerm) -> tuple:
