@@ -27,6 +27,9 @@ TOL_JACOBIAN_REL = 1e-6
 """Axis Jacobian of the model field vs central differences of its value (step 1e-3 mm / deg): the
 difference's truncation h²/6·|E'''| ≤ 1e-6/6·(2π/6 mm)³·5 μm ≈ 1e-6 μm/mm on a 6 mm pitch term plus
 round-off 1e-13/1e-3; relative to the largest entry (~0.1–1 μm/mm), 1e-6 holds with a margin ≥ 10."""
+TOL_SAME_RESIDUAL_UM = 1e-6
+"""model.json's held-out RMS vs the figure diagnosis.json reports for the kept stage: the same numbers
+through the same field, up to the 9+ significant digits of the JSON/CSV round trip (~2 μm × 1e-9)."""
 CHECK_NOISE_UM = 1.0
 """Check noise (1 σ per axis) of the simulated checks in the whole-path test (the benchmark's)."""
 TOL_TRUE_RMS_UM = np.sqrt(3.0) * CHECK_NOISE_UM
@@ -176,6 +179,16 @@ def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
     assert [(e["kind"], e["axis"]) for e in diag["effects"]] == [("periodic", "Y")]
     model = json.loads((d / "diag" / "model.json").read_text())
     assert model["format"] == "volcomp-chain-model/1" and len(model["terms"]) == 1
+    # the file is the model the loop judged: its held-out MEASURED residual is diagnosis.json's
+    from errormap.diagnosis.mt_loop import load_mt_checks
+    mt = load_machine("mill-xyz")
+    ck = load_mt_checks(d / "sim" / "checks.csv", mt)
+    f = load_chain_model_file(d / "diag" / "model.json", mt)
+    f = f.with_conditions({c: ck.conditions[c] for c in f.needs})
+    r = ck.measured_um - f.predict(ck.axes)
+    held = r[diag["n_fit"]:]
+    rms = float(np.sqrt(np.mean(np.sum(held ** 2, axis=1))))
+    assert abs(rms - diag["held_out_rms_um"]) < TOL_SAME_RESIDUAL_UM
     true = {}
     for name, m in (("loop", d / "diag" / "model.json"), ("identified", d / "E.json"),
                     ("updated_elements_only", d / "diag" / "updated_elements.json")):
