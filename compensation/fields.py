@@ -23,6 +23,7 @@ from errormap.io import InputError, decode_text
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
 DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
+CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"  # model.json of diagnose on a machine-tool chain (errormap/diagnosis/mt_model.py)
 NETWORK_FORMAT = "volcomp-mlpfield/1"      # config.json of a trained model folder (training/model.py)
 CHAIN_NETWORK_FORMAT = "volcomp-chain-mlpfield/1"  # the same over a machine-tool chain (training/chain_model.py)
 DRIFT_SCHEMA = "volcomp.drift_model"       # the drift model's key 'schema' (errormap/diagnosis/drift_models.py)
@@ -33,6 +34,7 @@ a larger file is not a model file and is refused before it is read whole."""
 
 KIND_NAMES = {"elements": f"element set ({ELEMENTS_FORMAT})",
               "diagnosed": f"diagnosed model ({DIAGNOSED_FORMAT})",
+              "chain-model": f"diagnosed chain model ({CHAIN_MODEL_FORMAT})",
               "drift": f"drift model ({DRIFT_SCHEMA})",
               "network": f"trained model folder ({NETWORK_FORMAT})",
               "chain-network": f"trained chain model folder ({CHAIN_NETWORK_FORMAT})",
@@ -76,6 +78,8 @@ def _json_format(path: Path) -> str | None:
         return "elements"
     if fmt == DIAGNOSED_FORMAT:
         return "diagnosed"
+    if fmt == CHAIN_MODEL_FORMAT:
+        return "chain-model"
     if fmt == NETWORK_FORMAT:
         return "network"
     if fmt == CHAIN_NETWORK_FORMAT:
@@ -87,6 +91,7 @@ def _json_format(path: Path) -> str | None:
 
 
 _EXPECTED = (f"an element set (format {ELEMENTS_FORMAT!r}), a diagnosed model.json ({DIAGNOSED_FORMAT!r}), "
+             f"a chain's diagnosed model.json ({CHAIN_MODEL_FORMAT!r}), "
              f"a drift model (schema {DRIFT_SCHEMA!r}) or a trained model folder ({NETWORK_FORMAT!r} or "
              f"{CHAIN_NETWORK_FORMAT!r})")
 
@@ -120,7 +125,8 @@ def require_kind(src: ModelSource, kinds, what: str) -> ModelSource:
         want = ", ".join(KIND_NAMES[k].split(" (")[0] for k in kinds)
         hint = {"drift": "; a drift model is applied by `volcomp drift-predict` and exported with `volcomp export "
                          "--format drift`",
-                "diagnosed": "; `volcomp compensate` takes a diagnosed model.json"}.get(src.kind, "")
+                "diagnosed": "; `volcomp compensate` takes a diagnosed model.json",
+                "chain-model": "; a chain's model.json is for `predict` / `compensate` with --machine"}.get(src.kind, "")
         name = KIND_NAMES[src.kind]
         article = "an" if name[0] in "aeiou" else "a"
         raise InputError(f"{src.path or src.spec}: {article} {name}, but {what} one of: {want}{hint}")
@@ -132,8 +138,11 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
     network (folder or MLflow); other model kinds are refused naming what the file is."""
     src = source or resolve_model(spec)
     if getattr(machine, "kind", None) == "machine-tool":  # a chain machine: its element set, over its own axes
-        require_kind(src, ("elements", "chain-network"),
+        require_kind(src, ("elements", "chain-model", "chain-network"),
                      f"on the machine-tool chain {machine.name!r} this command evaluates")
+        if src.kind == "chain-model":
+            from errormap.diagnosis.mt_model import load_chain_model_file
+            return load_chain_model_file(src.path, machine)
         return load_chain_field(src.path, machine, src.kind)
     if src.kind == "chain-network":
         raise InputError(f"{src.path}: a {KIND_NAMES[src.kind]}, trained on a machine-tool chain; name that machine "

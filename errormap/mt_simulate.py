@@ -53,6 +53,8 @@ import numpy as np
 from numpy.polynomial import chebyshev
 from scipy.stats import qmc
 
+from .effect_kinds import EFFECT_KINDS as _REGISTRY
+from .effect_kinds import effect_kind
 from .mt_chain import COMPONENTS, MachineTool
 from .mt_elements import ChainElementSet
 from .seeds import spawn_rngs
@@ -76,8 +78,14 @@ SCALE_RANGE = {("linear", "d_along"): (3.0, 25.0), ("linear", "d_across"): (2.0,
                ("rotary", "d"): (1.0, 10.0), ("rotary", "e_along"): (10.0, 80.0), ("rotary", "e_across"): (5.0, 40.0),
                "location_d": (10.0, 100.0), "location_e": (20.0, 200.0), "squareness": (10.0, 120.0)}
 
-EFFECT_KINDS = ("thermal", "reversal", "periodic", "harmonic", "interaction")
-EFFECT_ALIASES = {"pitch": "periodic", "worm": "harmonic", "backlash": "reversal"}
+CHAIN_SIMULATED = ("thermal", "reversal", "periodic", "harmonic", "interaction")
+"""The registry's kinds this simulator draws on a chain (:meth:`MTTruth.element_values` dispatches on
+them; ``tests/test_mt_model.py`` checks the table against the registry)."""
+EFFECT_KINDS = tuple(k.name for k in _REGISTRY if k.name in CHAIN_SIMULATED)
+"""Canonical names (the registry's, :mod:`errormap.effect_kinds`), in the registry's order."""
+EFFECT_ALIASES = {a: k.name for k in _REGISTRY if k.name in EFFECT_KINDS for a in k.aliases}
+"""The registry's aliases of those kinds (``pitch`` → ``periodic``, ``worm`` → ``harmonic``,
+``backlash`` → ``reversal``)."""
 EFFECT_DEFAULTS = {
     "thermal": {"k_um_per_mm_c": 0.0115},
     "reversal": {"backlash_um": 8.0},
@@ -183,9 +191,13 @@ def parse_effect(machine: MachineTool, text: str) -> tuple[str, tuple]:
     """``"KIND[:AXES]"`` -> ``(kind, axis words)``; an unknown kind or axis is a ValueError naming
     the known ones (module doc for the defaults)."""
     name, _, axes = str(text).partition(":")
-    kind = EFFECT_ALIASES.get(name.strip(), name.strip())
+    try:
+        kind = effect_kind(name.strip()).name          # the registry: canonical name or alias
+    except ValueError:
+        kind = None
     if kind not in EFFECT_KINDS:
-        raise ValueError(f"unknown effect kind {name!r} (known: {', '.join(EFFECT_KINDS)}; aliases "
+        what = "unknown effect kind" if kind is None else "effect kind not simulated on a machine-tool chain:"
+        raise ValueError(f"{what} {name!r} (known: {', '.join(EFFECT_KINDS)}; aliases "
                          f"{', '.join(f'{a}={k}' for a, k in EFFECT_ALIASES.items())})")
     lin = [a.word for a in machine.axes if a.kind == "linear"]
     rot = [a.word for a in machine.axes if a.kind == "rotary"]
@@ -284,6 +296,8 @@ class MTTruth:
                 j2, ax2 = self._ax(words[1])
                 span = (ax.stroke[1] - ax.stroke[0]) * (ax2.stroke[1] - ax2.stroke[0])
                 v[:, idx[slot]] += p["corner_um"] * rel * (axes[:, j2] - ax2.stroke[0]) / span
+            else:  # never a default
+                raise ValueError(f"effect {key}: kind {kind!r} is not simulated on a machine-tool chain")
         return v
 
     def spatial_error(self, axes, **conditions) -> np.ndarray:

@@ -52,6 +52,24 @@ def _check_volume(args, table, axes, field, machine) -> None:
                      f"outside the calibrated volume{hint}); pass --allow extrapolate to predict there anyway")
 
 
+def _chain_conditions(t, needs, units) -> dict:
+    """Per-point conditions a chain model's effect terms need (``temp_c``, ``dir_<w>``) from the points
+    file's columns of those names (as the check files'); a missing column is refused naming it."""
+    from errormap.units import check_units
+    out = {}
+    for c in needs:
+        if c not in t:
+            raise InputError(f"{t.path}: the model's effect terms need the condition '{c}' at every point: add a "
+                             f"column '{c}' ({'°C' if c == 'temp_c' else '+1 or -1, the approach direction'})")
+        if c.startswith("dir_"):
+            out[c] = t.int(c, allowed=(-1, 1)).astype(float)
+        else:
+            out[c] = t.float(c)
+            check_units(t.path, [t.row_number(k) for k in range(len(t))], temps={"temp_c": out[c]}, units=units,
+                        option="--units")
+    return out
+
+
 def run(args) -> int:
     machine = load_machine(args.machine)
     if machine.kind != "machine-tool":
@@ -67,10 +85,18 @@ def run(args) -> int:
                          f"the machine-tool chain {machine.name!r}")
     src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
     field = load_field(args.model, machine, args.tracking_uri, source=src)
+    cond = None
+    if src.kind == "chain-model" and field.needs:  # a chain model's effect terms: conditions per point, from columns
+        cond = _chain_conditions(t, field.needs, args.units)
     _check_volume(args, t, axes, field, machine)
     print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
     from ..validate import predict_batched
-    e = predict_batched(field, axes)
+    if cond is None:
+        e = predict_batched(field, axes)
+    else:  # per-point conditions travel with their points, batch by batch
+        from ..validate import PREDICT_BATCH
+        e = np.concatenate([field.with_conditions({c: v[i:i + PREDICT_BATCH] for c, v in cond.items()})
+                            .predict(axes[i:i + PREDICT_BATCH]) for i in range(0, len(axes), PREDICT_BATCH)])
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
     meta = [f"machine: {machine.name}"] if machine.kind == "machine-tool" else []

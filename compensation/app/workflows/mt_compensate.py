@@ -113,6 +113,38 @@ def _stats(r) -> dict:
     return {"max_um": float(nrm.max()), "rms_um": float(np.sqrt(np.mean(nrm ** 2))), "mean_um": float(nrm.mean())}
 
 
+def chain_conditions(field_, conditions: dict, machine):
+    """``field_`` with the constant ``conditions`` its effect terms need (``--temp-c``, ``--dir-x`` …, one
+    value for the whole program); a condition given that the model does not use, or one it needs that the
+    chain path has no option for or that was not given, is refused in one line (UsageError)."""
+    needs = tuple(getattr(field_, "needs", ()))
+    extra = [c for c in conditions if c not in needs]
+    if extra:
+        raise UsageError(f"{', '.join('--' + c.replace('_', '-') for c in extra)}: the model has no effect term that "
+                         f"uses it on the machine-tool chain {machine.name!r}; leave it out")
+    from ...diagnosed_model import CONDITIONS
+    missing = [c for c in needs if c not in conditions]
+    if missing:
+        opts = [c for c in missing if c in CONDITIONS]
+        none = [c for c in missing if c not in CONDITIONS]
+        if none:
+            raise UsageError(f"the model's effect terms need the condition(s) {none}, which compensate on a chain "
+                             "cannot take yet (no option; the program has no condition columns)")
+        raise UsageError(f"the model's effect terms need the condition(s) {opts}: give them for the whole program "
+                         f"({', '.join('--' + c.replace('_', '-') for c in opts)})")
+    if needs:
+        if "temp_c" in conditions:
+            from errormap.units import temperature_mistake
+            m = temperature_mistake([float(conditions["temp_c"])], UNITS_CHECK)
+            if m is not None:
+                raise UsageError(f"--temp-c: units do not fit: {m[1]}")
+        for c in needs:
+            if c.startswith("dir_") and float(conditions[c]) not in (-1.0, 1.0):
+                raise UsageError(f"--{c.replace('_', '-')}: expected +1 or -1, got {conditions[c]}")
+        return field_.with_conditions({c: float(conditions[c]) for c in needs})
+    return field_
+
+
 def run_chain_compensate(machine, args, allow) -> int:
     """The ``compensate`` command on a machine-tool chain; returns the exit status."""
     from ...solvers import CHAIN_METHODS, solve, solver_spec
@@ -123,12 +155,12 @@ def run_chain_compensate(machine, args, allow) -> int:
     from ...batch import CHUNK_POINTS
     unsupported = {"--cluster": getattr(args, "cluster", None), "--workers": getattr(args, "workers", None),
                    "--max-segment-mm": None if str(args.max_segment_mm).strip().lower() == "auto" else args.max_segment_mm,
-                   "--chunk-points": None if getattr(args, "chunk_points", CHUNK_POINTS) == CHUNK_POINTS else args.chunk_points,
-                   **{f"--{k.replace('_', '-')}": v for k, v in conditions_from_args(args).items()}}
+                   "--chunk-points": None if getattr(args, "chunk_points", CHUNK_POINTS) == CHUNK_POINTS else args.chunk_points}
     given = [k for k, v in unsupported.items() if v is not None]
     if given:  # refused, never silently ignored
         raise UsageError(f"{', '.join(given)}: not available on the machine-tool chain {machine.name!r} (one process; "
-                         "moves split from the field's curvature; an element set has no conditions)")
+                         "moves split from the field's curvature)")
+    conditions = {k: v for k, v in conditions_from_args(args).items() if v is not None}
     try:
         linear_axes(machine)
     except ValueError as exc:
@@ -138,11 +170,17 @@ def run_chain_compensate(machine, args, allow) -> int:
                       units=args.units, truth=args.truth)
     plan = plan_outputs(args.files, s.out_dir)
     old_outputs = check_out_dir(s.out_dir, s.force)
-    src = require_kind(resolve_model(s.model), ("elements", "chain-network"),
+    src = require_kind(resolve_model(s.model), ("elements", "chain-model", "chain-network"),
                        f"on the machine-tool chain {machine.name!r} compensate takes")
     print(f"compensate: model {src.description}", file=sys.stderr)
-    field_ = load_chain_field(src.path, machine, src.kind)
-    truth = load_chain_field(s.truth, machine) if s.truth else None
+    if src.kind == "chain-model":
+        from errormap.diagnosis.mt_model import load_chain_model_file
+        field_ = load_chain_model_file(src.path, machine)
+    else:
+        field_ = load_chain_field(src.path, machine, src.kind)
+    field_ = chain_conditions(field_, conditions, machine)
+    from .mt_loop import load_chain_truth
+    truth = load_chain_truth(s.truth, machine) if s.truth else None
     paths = [read_chain_path(p, machine, s, field_) for p, _ in plan]
     outcomes = []
     for (p, dst), tp in zip(plan, paths):
@@ -174,6 +212,7 @@ def run_chain_compensate(machine, args, allow) -> int:
             entry["true"] = _stats(true_residual_um(truth, machine, res.axes, targets))
             entry["true_uncompensated"] = _stats(true_residual_um(truth, machine, tp.axes, targets))
             entry["truth"] = str(s.truth)
+            entry["truth_conditions"] = "reference: 20 C, positive approach on every axis"
         if tp.kind == "gcode":
             job = tp.source
             entry.update({"lines": len(job.program.lines), "moves_compensated": len(job.vertices),
@@ -223,6 +262,7 @@ def run_chain_compensate(machine, args, allow) -> int:
                 fh.write(text.encode("latin-1" if tp.kind == "gcode" else "utf-8"))
                 entry["output"] = str(dst)
     summary = write_json(s.out_dir / SUMMARY_NAME, {
+        "conditions": dict(getattr(field_, "conditions", {}) or {}),
         "method": s.method, "model": s.model, "model_source": src.to_dict(), "units": s.units,
         **({"seed": args.seed} if solver_spec(s.method).seeded else {}),
         "machine": machine.path, "machine_name": machine.name, "allow": list(allow),

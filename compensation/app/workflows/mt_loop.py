@@ -15,6 +15,47 @@ from errormap.seeds import spawn_seeds
 from compensation.app.validate import UsageError
 
 
+TRUTH_FORMAT = "volcomp-chain-truth/1"
+"""``truth.json`` of ``simulate --machine``: the hidden truth (element file beside it + effect parameters), for
+testers and benchmarks (``compensate --truth``), never for an estimator."""
+
+
+def load_chain_truth(path, machine):
+    """The truth's error field at the reference conditions (20 °C, positive approach on every axis) from
+    ``truth.json`` of ``simulate --machine`` (elements + effects) or a truth element set; InputError naming
+    the file and key otherwise."""
+    from errormap.mt_elements import ELEMENTS_FORMAT, ChainElementSet
+    from errormap.mt_field import ChainField
+    p = Path(path)
+    try:
+        d = json.loads(decode_text(p.read_bytes(), p))
+    except (OSError, json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"{p}: not a truth file ({exc})") from None
+    fmt = d.get("format") if isinstance(d, dict) else None
+    if fmt == ELEMENTS_FORMAT:
+        return ChainField(machine, ChainElementSet.load(p, machine))
+    if fmt != TRUTH_FORMAT:
+        raise InputError(f"{p}: key 'format': expected {TRUTH_FORMAT!r} (truth.json of simulate --machine) or "
+                         f"{ELEMENTS_FORMAT!r}, got {fmt!r}")
+    if d.get("machine_sha256") != machine.sha256:
+        raise InputError(f"{p}: key 'machine_sha256': the truth belongs to machine {d.get('machine')!r}, "
+                         f"not {machine.name!r}")
+    from errormap.mt_simulate import MTTruth
+    truth = MTTruth(machine, ChainElementSet.load(p.parent / str(d.get("elements")), machine), d.get("effects") or {})
+    return _TruthAtReference(truth)
+
+
+class _TruthAtReference:
+    """A truth machine (with its effects) at the reference conditions, ``predict(axes) -> (n, 3)`` μm."""
+
+    def __init__(self, truth):
+        self.truth = truth
+
+    def predict(self, axes):
+        axes = np.atleast_2d(np.asarray(axes, float))
+        return self.truth.spatial_error(axes, **self.truth.default_conditions(len(axes)))
+
+
 def refuse_options(args, defaults: dict, what: str) -> None:
     """A UsageError naming the first option given that the chain path does not use (never ignored silently)."""
     for k, d in defaults.items():
@@ -52,8 +93,10 @@ def simulate_chain(machine, seed: int, out, effects=(), noise_um: float = 1.0, c
         f"noise_um: {noise_um}", f"effects: {','.join(truth.effects) or 'none'}"])
     grid = volume_grid(machine)
     e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
-    info = {"seed": seed, "machine": machine.name, "machine_file": machine.path, "family": family,
+    info = {"format": TRUTH_FORMAT, "seed": seed, "machine": machine.name, "machine_file": machine.path,
+            "machine_sha256": machine.sha256, "family": family,
             "effects": truth.effects, "noise_um": noise_um, "max_spatial_error_um": float(e.max()),
+            "elements": el_path.name,
             "files": {"elements": str(el_path), "checks": str(ck_path)}}
     write_json(out / "truth.json", info)
     return info
@@ -139,9 +182,13 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
                     "update": bool(update and cov is not None)})
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    models["elements"].save(out / "updated_elements.json")   # each file written whole (temporary file, rename)
+    el_path = models["elements"].save(out / "updated_elements.json")   # each file written whole (temporary file, rename)
+    from errormap.diagnosis.mt_model import save_chain_model
+    terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
+    model_path = save_chain_model(out / "model.json", machine, el_path, terms, summary["kept_stage"])
+    summary["model_file"] = str(model_path)
     write_json(out / "diagnosis.json", summary)
-    return summary, [out / "diagnosis.json", out / "updated_elements.json"]
+    return summary, [out / "diagnosis.json", out / "updated_elements.json", model_path]
 
 
 def diagnosis_lines(summary) -> list:

@@ -1,0 +1,182 @@
+"""The chain loop's model file (``DIR/model.json`` of ``volcomp diagnose --machine M``) as an error field.
+
+``model.json`` (``format: volcomp-chain-model/1``) names the machine (name and sha256), the element
+set the loop handed on (a file beside it, ``updated_elements.json``) and the accepted effect terms
+(:class:`errormap.diagnosis.mt_loop.EffectTerm`: kind, axis words, element, shape, coefficients).
+It is written only as the loop kept it: when a plainer stage was kept, the terms list is empty.
+
+:class:`ChainModelField` is the error field of it over the machine's axes: ``E(q, c) = B(q) + t(q, c)``
+with ``B`` the :class:`errormap.mt_field.ChainField` of the elements and ``t`` the terms' spatial
+contribution — exactly the columns the loop fitted (the chain's error-Jacobian column of the term's
+element at the nominal chain times the effect's shape, times the coefficients;
+:func:`errormap.diagnosis.mt_loop.effect_columns`). Value (n, 3) μm and axis Jacobian (n, 3, k):
+``B``'s compiled Jacobian plus the terms' by central differences (:data:`TERM_STEP`).
+
+Conditions: a thermal term needs ``temp_c``, a reversal term ``dir_<w>`` (±1). They are given to
+the field as constants or per-point arrays (``conditions``); a needed one missing is an
+:class:`InputError` naming it when the field is evaluated (never a silent reference value).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..field import JACOBIAN, PREDICT_AND_JACOBIAN
+from ..io import InputError, decode_text, write_json
+from ..mt_chain import MachineTool
+from ..mt_elements import ChainElementSet
+from ..mt_field import ChainField
+from ..mt_simulate import EFFECT_KINDS
+from .mt_loop import EffectTerm, effect_columns
+
+CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"
+TERM_STEP = {"linear": 1e-3, "rotary": 1e-3}
+"""Central-difference step (mm / deg) of the terms' axis Jacobian. The shortest shape the search fits is a
+2 mm period (a harmonic of order 120 is 3° per cycle): truncation error h²/6·|t'''| ≤ 1e-6·(2π/2)³·10 μm
+/ 6 ≈ 5e-7 μm/mm at 10 μm amplitude, round-off ~1e-16·10/1e-3 = 1e-12: far below what Newton needs."""
+KINDS = EFFECT_KINDS
+"""The kinds a chain model's terms may have: the chain's kinds from the registry (one vocabulary)."""
+
+
+def term_needs(machine: MachineTool, term: EffectTerm) -> tuple:
+    """Condition names a term needs (``temp_c``, ``dir_<w>``)."""
+    if term.kind == "thermal":
+        return ("temp_c",)
+    if term.kind == "reversal":
+        return (f"dir_{term.axes[0].lower()}",)
+    return ()
+
+
+def save_chain_model(path, machine: MachineTool, elements_file, terms, kept_stage: str) -> Path:
+    """Write ``model.json`` (module doc); ``elements_file``: the element set's path (stored relative)."""
+    path = Path(path)
+    d = {"format": CHAIN_MODEL_FORMAT, "machine": machine.name, "machine_sha256": machine.sha256,
+         "elements": Path(elements_file).name, "kept_stage": kept_stage,
+         "terms": [t.to_dict() for t in terms],
+         "note": "E(q, c) = ChainField(elements)(q) + sum of the terms' columns (error-Jacobian column of the "
+                 "element at the nominal chain times the effect's shape) times their coefficients"}
+    return write_json(path, d)
+
+
+class ChainModelField:
+    """Elements plus effect terms of a machine-tool chain, an error field (module doc).
+
+    ``conditions``: {name: scalar or (n,)} for the terms that need them (per-point arrays must match the
+    number of points evaluated)."""
+
+    kind = "chain-model"
+
+    def __init__(self, machine: MachineTool, elements: ChainElementSet, terms=(), conditions=None):
+        self.machine = machine
+        self.base = ChainField(machine, elements)
+        self.elements = elements
+        self.terms = list(terms)
+        self.conditions = dict(conditions or {})
+
+    @property
+    def capabilities(self) -> frozenset:
+        return frozenset({JACOBIAN, PREDICT_AND_JACOBIAN})
+
+    @property
+    def calibrated_volume(self):
+        return self.base.calibrated_volume
+
+    @property
+    def needs(self) -> tuple:
+        out = []
+        for t in self.terms:
+            out += [c for c in term_needs(self.machine, t) if c not in out]
+        return tuple(out)
+
+    def with_conditions(self, conditions: dict) -> "ChainModelField":
+        return ChainModelField(self.machine, self.elements, self.terms, {**self.conditions, **conditions})
+
+    def _cond(self, n: int) -> dict:
+        missing = [c for c in self.needs if c not in self.conditions]
+        if missing:
+            raise InputError(f"the model's effect terms {[t.kind + ':' + '*'.join(t.axes) for t in self.terms]} "
+                             f"need the condition(s) {missing}")
+        out = {}
+        for c in self.needs:
+            v = np.asarray(self.conditions[c], float)
+            out[c] = np.full(n, float(v)) if v.ndim == 0 else v
+            if out[c].shape != (n,):
+                raise ValueError(f"condition {c!r}: {out[c].shape} values for {n} points")
+        return out
+
+    def terms_only(self, axes) -> np.ndarray:
+        """The terms' spatial contribution (μm), (n, k) -> (n, 3)."""
+        axes = np.atleast_2d(np.asarray(axes, float))
+        out = np.zeros((axes.shape[0], 3))
+        if not self.terms:
+            return out
+        cond = self._cond(axes.shape[0])
+        Je = self.machine.error_jacobian(axes)
+        for t in self.terms:
+            C, _ = effect_columns(self.machine, t.kind, t.axes, axes, cond, t.shape or None, Je)
+            out += np.einsum("nic,c->ni", C, np.asarray(t.coefficients, float))
+        return out
+
+    def predict(self, axes) -> np.ndarray:
+        """Spatial error (μm), (n, k) -> (n, 3)."""
+        axes = np.atleast_2d(np.asarray(axes, float))
+        return self.base.predict(axes) + self.terms_only(axes)
+
+    __call__ = predict
+
+    def predict_and_jacobian(self, axes, dtype=np.float64):
+        """``(E (n, 3) μm, dE/d(axes) (n, 3, k))``: the elements' compiled Jacobian plus the terms' by
+        central differences."""
+        axes = np.atleast_2d(np.asarray(axes, float))
+        E, J = self.base.predict_and_jacobian(axes, dtype=dtype)
+        if not self.terms:
+            return E, J
+        E = E + self.terms_only(axes)
+        J = J.copy()
+        for j, a in enumerate(self.machine.axes):
+            h = TERM_STEP[a.kind]
+            qp, qm = axes.copy(), axes.copy()
+            qp[:, j] += h
+            qm[:, j] -= h
+            J[:, :, j] += (self.terms_only(qp) - self.terms_only(qm)) / (2 * h)
+        return E, J
+
+    def jacobian(self, axes) -> np.ndarray:
+        return self.predict_and_jacobian(axes)[1]
+
+
+def load_chain_model_file(path, machine: MachineTool) -> ChainModelField:
+    """Read ``model.json`` (module doc) for ``machine``; errors name the file and the key (InputError)."""
+    path = Path(path)
+    try:
+        d = json.loads(decode_text(path.read_bytes(), path))
+    except (OSError, json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"{path}: not a chain model file ({exc})") from None
+    if not isinstance(d, dict) or d.get("format") != CHAIN_MODEL_FORMAT:
+        raise InputError(f"{path}: key 'format': expected {CHAIN_MODEL_FORMAT!r}")
+    if d.get("machine_sha256") not in (None, "", machine.sha256):
+        raise InputError(f"{path}: key 'machine_sha256': the model was made for machine {d.get('machine')!r} "
+                         f"({str(d.get('machine_sha256'))[:12]}…), not for {machine.name!r} "
+                         f"({machine.sha256[:12]}…)")
+    if not isinstance(d.get("elements"), str):
+        raise InputError(f"{path}: key 'elements': expected the element set's file name, got {d.get('elements')!r}")
+    el = ChainElementSet.load(path.parent / d["elements"], machine)
+    words = {a.word for a in machine.axes}
+    terms = []
+    for i, t in enumerate(d.get("terms", [])):
+        try:
+            kind, axes = t["kind"], tuple(str(t["axis"]).split("*"))
+            if kind not in KINDS:
+                raise ValueError(f"unknown effect kind {kind!r} (known: {', '.join(KINDS)})")
+            if not set(axes) <= words or len(axes) != (2 if kind == "interaction" else 1):
+                raise ValueError(f"axis {t['axis']!r} does not fit the kind on machine {machine.name!r}")
+            coef = np.asarray(t["coefficients"], float)
+            if coef.ndim != 1 or not np.all(np.isfinite(coef)):
+                raise ValueError("coefficients must be a list of finite numbers")
+            terms.append(EffectTerm(kind, axes, str(t["element"]), dict(t.get("shape") or {}), coef,
+                                    float(t.get("held_out_gain_z", 0.0))))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{path}: key 'terms[{i}]': {exc}") from None
+    return ChainModelField(machine, el, terms)
