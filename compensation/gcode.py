@@ -557,10 +557,20 @@ def _arc_centre(st, move, axis_words, arc_words, scale, first):
         raise _Refuse(first.start + 1, f"{st.mode} arc before the start position is known")
     u0, v0 = move.start[1], move.start[0]
     u1, v1 = move.end[1], move.end[0]
-    ccw = st.mode == "G3"
+    return plane_arc(u0, v0, u1, v1, st.mode, arc_words, ("K", "I"), st.arc_abs, scale, first,
+                     pair="I/K", both="I and K")
+
+
+def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both) -> dict:
+    """Centre, radii and sweep of a G2/G3 (``mode``) arc from (u0, v0) to (u1, v1) mm in its plane's
+    (u, v) coordinates; ``centre_words`` the words giving the centre's u and v offsets (G18: K, I; G17:
+    I, J), or ``R``; ``pair`` / ``both`` how the refusals name them. Shared by the grinder's reader and
+    the machine-tool chain reader (:mod:`compensation.mt_gcode`). Returns ``uc vc r0 r1 theta0 sweep``."""
+    u_c, v_c = centre_words
+    ccw = mode == "G3"
     if "R" in arc_words:
-        if "I" in arc_words or "K" in arc_words:
-            raise _Refuse(arc_words["R"].start + 1, "both R and I/K on an arc")
+        if u_c in arc_words or v_c in arc_words:
+            raise _Refuse(arc_words["R"].start + 1, f"both R and {pair} on an arc")
         r = arc_words["R"].value * scale
         d = math.hypot(u1 - u0, v1 - v0)
         if d < 1e-9 or abs(r) < 1e-9:
@@ -572,16 +582,16 @@ def _arc_centre(st, move, axis_words, arc_words, scale, first):
         mu, mv = (u0 + u1) / 2, (v0 + v1) / 2
         uc, vc = mu + sgn * h * (-(v1 - v0) / d), mv + sgn * h * ((u1 - u0) / d)
     else:
-        if "K" not in arc_words and "I" not in arc_words:
-            raise _Refuse(first.start + 1, f"{st.mode} without I/K or R")
-        i = arc_words["I"].value * scale if "I" in arc_words else (None if st.arc_abs else 0.0)
-        k = arc_words["K"].value * scale if "K" in arc_words else (None if st.arc_abs else 0.0)
-        if st.arc_abs:
-            if i is None or k is None:
-                raise _Refuse(first.start + 1, "absolute arc centre (G90.1) needs both I and K")
-            uc, vc = k, i
+        if u_c not in arc_words and v_c not in arc_words:
+            raise _Refuse(first.start + 1, f"{mode} without {pair} or R")
+        cu = arc_words[u_c].value * scale if u_c in arc_words else (None if arc_abs else 0.0)
+        cv = arc_words[v_c].value * scale if v_c in arc_words else (None if arc_abs else 0.0)
+        if arc_abs:
+            if cu is None or cv is None:
+                raise _Refuse(first.start + 1, f"absolute arc centre (G90.1) needs both {both}")
+            uc, vc = cu, cv
         else:
-            uc, vc = u0 + k, v0 + i
+            uc, vc = u0 + cu, v0 + cv
     r0 = math.hypot(u0 - uc, v0 - vc)
     r1 = math.hypot(u1 - uc, v1 - vc)
     if r0 < 1e-9:

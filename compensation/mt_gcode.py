@@ -29,7 +29,6 @@ own units and distance mode (incremental numbers as differences of what was writ
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,9 +36,10 @@ import numpy as np
 
 from errormap.io import InputError
 
-from .gcode import (ALLOWED_G, ALLOWED_M, ARC_RADIUS_TOL_MM, BLOCK_DELETE_CHOICES, DECIMALS, DEFAULT_RAPIDS,
-                    LETTER_RULES, MAX_TOOL_DIGITS, MM_PER_INCH, RAPIDS_CHOICES, REFUSED_G, REFUSED_LETTERS, _Refuse,
-                    _check_p_q, _err, _modal_groups, _plain_tool_number, _with_header, fmt, split_lines, tokenize)
+from .gcode import (ALLOWED_G, ALLOWED_M, BLOCK_DELETE_CHOICES, DECIMALS, DEFAULT_RAPIDS, LETTER_RULES,
+                    MAX_TOOL_DIGITS, MM_PER_INCH, RAPIDS_CHOICES, REFUSED_G, REFUSED_LETTERS, _Refuse, _check_p_q,
+                    _err, _modal_groups, _plain_tool_number, _with_header, arc_segments, fmt, plane_arc, split_lines,
+                    tokenize)
 
 ALL_AXIS_WORDS = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
 PLANES = {"G17": ("X", "Y", "I", "J"), "G18": ("Z", "X", "K", "I"), "G19": ("Y", "Z", "J", "K")}
@@ -290,46 +290,8 @@ def _arc_geometry(st, move, arc_words, scale, machine, first):
         raise _Refuse(first.start + 1, f"{st.mode} arc before the start position is known")
     ju, jv = col[u_ax], col[v_ax]
     u0, v0, u1, v1 = move.start[ju], move.start[jv], move.end[ju], move.end[jv]
-    ccw = st.mode == "G3"
-    if "R" in arc_words:
-        if u_c in arc_words or v_c in arc_words:
-            raise _Refuse(arc_words["R"].start + 1, f"both R and {u_c}/{v_c} on an arc")
-        r = arc_words["R"].value * scale
-        d = math.hypot(u1 - u0, v1 - v0)
-        if d < 1e-9 or abs(r) < 1e-9:
-            raise _Refuse(arc_words["R"].start + 1, "R-form arc with equal start and end (or zero R): undefined")
-        if d > 2 * abs(r) + ARC_RADIUS_TOL_MM:
-            raise _Refuse(arc_words["R"].start + 1, f"R {abs(r):.6g} mm is smaller than half the chord {d / 2:.6g} mm")
-        h = math.sqrt(max(r * r - d * d / 4, 0.0))
-        sgn = (1.0 if ccw else -1.0) * (1.0 if r > 0 else -1.0)
-        mu, mv = (u0 + u1) / 2, (v0 + v1) / 2
-        uc, vc = mu + sgn * h * (-(v1 - v0) / d), mv + sgn * h * ((u1 - u0) / d)
-    else:
-        if u_c not in arc_words and v_c not in arc_words:
-            raise _Refuse(first.start + 1, f"{st.mode} without {u_c}/{v_c} or R")
-        cu = arc_words[u_c].value * scale if u_c in arc_words else (None if st.arc_abs else 0.0)
-        cv = arc_words[v_c].value * scale if v_c in arc_words else (None if st.arc_abs else 0.0)
-        if st.arc_abs:
-            if cu is None or cv is None:
-                raise _Refuse(first.start + 1, f"absolute arc centre (G90.1) needs both {u_c} and {v_c}")
-            uc, vc = cu, cv
-        else:
-            uc, vc = u0 + cu, v0 + cv
-    r0 = math.hypot(u0 - uc, v0 - vc)
-    r1 = math.hypot(u1 - uc, v1 - vc)
-    if r0 < 1e-9:
-        raise _Refuse(first.start + 1, "arc of zero radius")
-    if abs(r1 - r0) > ARC_RADIUS_TOL_MM:
-        raise _Refuse(first.start + 1, f"arc start and end radii differ by {abs(r1 - r0) * 1e3:.3f} μm "
-                                       f"(more than {ARC_RADIUS_TOL_MM * 1e3:g} μm)")
-    t0 = math.atan2(v0 - vc, u0 - uc)
-    t1 = math.atan2(v1 - vc, u1 - uc)
-    full = math.hypot(u1 - u0, v1 - v0) < 1e-9
-    if ccw:
-        sweep = 2 * math.pi if full else (t1 - t0) % (2 * math.pi)
-    else:
-        sweep = -2 * math.pi if full else -((t0 - t1) % (2 * math.pi))
-    return {"ju": ju, "jv": jv, "uc": uc, "vc": vc, "r0": r0, "r1": r1, "theta0": t0, "sweep": sweep}
+    return {"ju": ju, "jv": jv, **plane_arc(u0, v0, u1, v1, st.mode, arc_words, (u_c, v_c), st.arc_abs, scale,
+                                             first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}")}
 
 
 # ---------------------------------------------------------------------------- geometry
@@ -351,13 +313,8 @@ def move_points(move: ChainMove, t) -> np.ndarray:
 
 
 def arc_chords(move: ChainMove, tol_mm: float) -> int:
-    """Chords so the sagitta of an arc stays within ``tol_mm`` (≥ 1)."""
-    g = move.arc
-    r = max(g["r0"], g["r1"])
-    if tol_mm >= r:
-        return max(1, int(math.ceil(abs(g["sweep"]) / math.pi)))
-    step = 2.0 * math.acos(1.0 - tol_mm / r)
-    return max(1, int(math.ceil(abs(g["sweep"]) / step - 1e-12)))
+    """Chords so the sagitta of an arc stays within ``tol_mm`` (≥ 1): the grinder reader's rule."""
+    return arc_segments(move, tol_mm)
 
 
 CURVATURE_FRACTIONS = (0.25, 0.5, 0.75)
