@@ -198,7 +198,30 @@ def _interrupted(command, as_program: bool, pending: dict | None = None) -> int:
         print(f"volcomp{' ' + command if command else ''}: interrupted; nothing half-written", file=sys.stderr)
     except (KeyboardInterrupt, OSError):  # pragma: no cover
         pass
+    if as_program:
+        _exit_now(INTERRUPTED_EXIT)
     return INTERRUPTED_EXIT
+
+
+def _exit_now(status: int) -> None:
+    """End the program with ``status`` without the interpreter's shutdown: an interrupt that landed
+    while numba compiled leaves LLVM half-way, and finalising it then can crash the process (signal
+    11 after the one-line message, seen in tests/test_cli_robust.py). Everything a command writes is
+    already whole or removed (temporary files are cleaned up while the interrupt unwinds); a local
+    Ray runtime is shut down first so that no worker outlives the command."""
+    import os
+    ray = sys.modules.get("ray")
+    try:
+        if ray is not None and ray.is_initialized():
+            ray.shutdown()
+    except BaseException:  # pragma: no cover - the exit must happen whatever Ray says
+        pass
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except BaseException:  # pragma: no cover
+            pass
+    os._exit(status)
 
 
 def _run(argv, name) -> int:
