@@ -121,6 +121,19 @@ def chain_inverse(machine, targets_mm, compiled=None) -> np.ndarray:
     return mid + solve3(np.repeat(J0, len(p), axis=0), p - P0)
 
 
+def target_axes_of(machine, targets, target_axes, compiled) -> np.ndarray:
+    """The programmed axes of each target, shape (n, k): ``target_axes`` as given (checked: finite, one
+    row per target, one column per axis of the machine) or the nominal inverse of the targets."""
+    if target_axes is None:
+        return chain_inverse(machine, targets, compiled)
+    k = len(machine.axes)
+    axes_d = np.array(target_axes, dtype=float)
+    if axes_d.shape != (len(targets), k) or not np.all(np.isfinite(axes_d)):
+        raise ValueError(f"Expected finite target_axes of shape ({len(targets)}, {k}) "
+                         f"({', '.join(machine.axis_columns)}), got {axes_d.shape}")
+    return axes_d
+
+
 def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: float = BALL_RADIUS_UM,
                       tol_um: float = 1e-4, xtol_um: float = 1e-9, max_iter: int = 50, chunk: int = 250_000,
                       progress: bool = True):
@@ -144,14 +157,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
     compiled = _nominal_program(machine)
-    k = len(machine.axes)
-    if target_axes is None:
-        axes_d = chain_inverse(machine, targets, compiled)
-    else:
-        axes_d = np.array(target_axes, dtype=float)
-        if axes_d.shape != (len(targets), k) or not np.all(np.isfinite(axes_d)):
-            raise ValueError(f"Expected finite target_axes of shape ({len(targets)}, {k}) "
-                             f"({', '.join(machine.axis_columns)}), got {axes_d.shape}")
+    axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
     q = axes_d.copy()
     commands = np.empty_like(targets)

@@ -36,7 +36,7 @@ from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
 from ._converge import RETRY_ROUNDS, retry_radius_um
 from .base import BALL_RADIUS_UM
 from .batched_ga import _BatchGA, _LockedProgress
-from .chain_exact import KEPT_NOTE, _newton, _nominal_program, chain_inverse, linear_axes, nominal_and_jacobian
+from .chain_exact import KEPT_NOTE, _newton, _nominal_program, linear_axes, nominal_and_jacobian, target_axes_of
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
 
@@ -97,14 +97,7 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
     if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
         raise ValueError(f"Expected retries in 0..10, got {retries!r}")
     compiled = _nominal_program(machine)
-    k = len(machine.axes)
-    if target_axes is None:
-        axes_d = chain_inverse(machine, targets, compiled)
-    else:
-        axes_d = np.array(target_axes, dtype=float)
-        if axes_d.shape != (len(targets), k) or not np.all(np.isfinite(axes_d)):
-            raise ValueError(f"Expected finite target_axes of shape ({len(targets)}, {k}) "
-                             f"({', '.join(machine.axis_columns)}), got {axes_d.shape}")
+    axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
     P0, J0 = nominal_and_jacobian(machine, axes_d, compiled)
     Ainv = np.linalg.inv(J0[:, :, lin])
