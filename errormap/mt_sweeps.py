@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .chain import ET, Chain, Joint
-from .io import InputError, read_table
+from .io import read_table
 from .mt_chain import MachineTool
-from .sweeps import (OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SWEEP_FORMAT, Sweeps, _check_units, random_tracker_pose,
-                     sweeps_from_columns, write_sweeps)
+from .sweeps import (OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SWEEP_FORMAT, Sweeps, columns_from_table,
+                     random_tracker_pose, sweeps_from_columns, write_sweeps)
 
 REF_TEMP_C = 20.0
 DEFAULT_STATIONS = 21
@@ -64,7 +64,7 @@ class BodyChain:
         """``(balls (n, m, 3) mm, ∂balls/∂slot values (n, m, 3, P) mm per μm or μrad)`` (all P slots
         of the machine; zero columns for slots outside this body's chain)."""
         F = self.frames(axes, values)
-        n, ne = F.shape[0], len(self.chain.ets)
+        ne = len(self.chain.ets)
         mounts = np.asarray(mounts, float)
         last = F[:, -1]
         balls = np.einsum("nij,kj->nki", last[:, :3, :3], mounts) + last[:, None, :3, 3]
@@ -164,23 +164,11 @@ def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, 
 def read_mt_sweeps(path, machine: MachineTool) -> Sweeps:
     """Read one sweep file of ``machine`` (axis words from the machine); errors name file, row, column."""
     t = read_table(path)
-    _check_units(t.names, t.path)
-    t.require(*REQUIRED_COLUMNS)
     words = swept_words(machine)
-    axis = np.array(t.raw("axis"))
-    for k, a in enumerate(axis):
-        if a not in words:
-            raise InputError(f"{t.path}: row {t.row_number(k)}, column 'axis': expected one of {list(words)} "
-                             f"(the axes of {machine.name!r} with error slots), got {str(a)!r}")
-    n = len(t)
-    cols = {"axis": axis, "station": t.int("station"), "command": t.float("command"),
-            "target": t.int("target", allowed=(1, 2, 3)),
-            "x_mm": t.float("x_mm"), "y_mm": t.float("y_mm"), "z_mm": t.float("z_mm"),
-            "direction": t.int("direction", allowed=(1, -1)) if "direction" in t else np.ones(n, int),
-            "row": np.array([t.row_number(k) for k in range(n)]), "file": np.full(n, str(t.path))}
-    for k in ("time_s", "temp_c"):
-        if k in t:
-            cols[k] = t.float(k)
+    rotary = tuple(a.word for a in machine.axes if a.kind == "rotary")
+    cols = columns_from_table(t, axes=words, rotary=rotary,
+                              axes_note=f" (the axes of {machine.name!r} with error slots)")
+    cols["file"] = np.full(len(t), str(t.path))
     sw = sweeps_from_columns(cols, source=str(t.path), setup=t.meta().get("setup", ""), axes=words)
     sw.sources = [str(t.path)]
     return sw

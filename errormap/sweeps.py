@@ -241,15 +241,17 @@ def _check_units(names, path):
                                  "convert the file, units are never guessed")
 
 
-def columns_from_table(table) -> dict:
-    """Validated sweep columns from a :class:`errormap.io.Table`; errors name file, row, column."""
+def columns_from_table(table, axes=SWEEP_AXES, rotary=("A",), axes_note: str = "") -> dict:
+    """Validated sweep columns from a :class:`errormap.io.Table`; errors name file, row, column.
+    ``axes``: the axis words a row may name (the grinder's X, Z, A; a chain machine's swept words),
+    ``rotary``: those commanded in deg; ``axes_note``: said after the expected words in a refusal."""
     _check_units(table.names, table.path)
     table.require(*REQUIRED_COLUMNS)
     axis = np.array(table.raw("axis"))
     for k, a in enumerate(axis):
-        if a not in SWEEP_AXES:
+        if a not in axes:
             raise InputError(f"{table.path}: row {table.row_number(k)}, column 'axis': expected one of "
-                             f"{list(SWEEP_AXES)}, got {str(a)!r}")
+                             f"{list(axes)}{axes_note}, got {str(a)!r}")
     n = len(table)
     cols = {"axis": axis, "station": table.int("station"), "command": table.float("command"),
             "target": table.int("target", allowed=(1, 2, 3)),
@@ -259,10 +261,10 @@ def columns_from_table(table) -> dict:
     for k in ("time_s", "temp_c"):
         if k in table:
             cols[k] = table.float(k)
-    if "command_unit" in table:  # optional, per row: mm for X/Z, deg for A
+    if "command_unit" in table:  # optional, per row: mm for linear axes, deg for rotary ones
         units = np.array(table.raw("command_unit"))
         for k in range(n):
-            want = "deg" if axis[k] == "A" else "mm"
+            want = "deg" if axis[k] in rotary else "mm"
             if units[k] != want:
                 raise InputError(f"{table.path}: row {table.row_number(k)}, column 'command_unit': axis {axis[k]}, "
                                  f"station {cols['station'][k]}: expected {want!r}, got {str(units[k])!r} (mixed units)")

@@ -253,3 +253,22 @@ def test_chain_checks_refuse_radians_and_metres(tmp_path, five):
     bad = dict(ck, x_mm=ck["x_mm"] / 1000)
     with pytest.raises(InputError, match=r"column 'x_mm'.*metres"):
         load_mt_checks(write_csv(tmp_path / "m.csv", bad), five)
+
+
+def test_chain_sweep_reader_shares_the_grinder_readers_row_checks(tmp_path, mill):
+    """The chain sweep file is read by the grinder's column checks (one reader): a station number
+    beyond the maximum and a command unit that does not fit the axis are refused naming row and column."""
+    from errormap.io import InputError, write_csv
+    from errormap.mt_sweeps import write_sweeps
+    cols = simulate_mt_sweeps(make_mt_truth(mill, 0), noise_um=1.0, seed=0)
+    write_sweeps(tmp_path / "ok.csv", cols)
+    assert sorted(read_mt_sweeps(tmp_path / "ok.csv", mill).axes) == ["X", "Y", "Z"]
+    bad = {k: np.array(v).copy() for k, v in cols.items()}
+    bad["station"][0] = 10 ** 9
+    write_csv(tmp_path / "station.csv", bad)
+    with pytest.raises(InputError, match=r"station\.csv: row \d+, column 'station'"):
+        read_mt_sweeps(tmp_path / "station.csv", mill)
+    unit = {**{k: np.array(v) for k, v in cols.items()}, "command_unit": np.full(len(cols["axis"]), "deg")}
+    write_csv(tmp_path / "unit.csv", unit)
+    with pytest.raises(InputError, match=r"unit\.csv: row \d+, column 'command_unit'.*expected 'mm'"):
+        read_mt_sweeps(tmp_path / "unit.csv", mill)
