@@ -346,6 +346,22 @@ class IdentificationResult:
                 "axes": {k: v.to_dict() for k, v in self.axes.items()}}
 
 
+def check_ball_distances(sw, axis_word: str, mounts_mm, tol_mm: float) -> None:
+    """Refuse a sweep whose measured ball-to-ball distances differ from the nominal mounts' by more
+    than ``tol_mm`` at any station (mixed units, or a wrong [targets] entry), naming axis and station.
+    ``sw.balls_mm`` (m, 3, 3), ``mounts_mm`` (3, 3)."""
+    mounts = np.asarray(mounts_mm, dtype=float)
+    pairs = ((0, 1), (0, 2), (1, 2))
+    nominal = np.array([np.linalg.norm(mounts[i] - mounts[j]) for i, j in pairs])
+    measured = np.stack([np.linalg.norm(sw.balls_mm[:, i] - sw.balls_mm[:, j], axis=1) for i, j in pairs], axis=1)
+    bad = np.abs(measured - nominal).max(axis=1) > tol_mm
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(f"{sw.source}: axis {axis_word}, station {sw.stations[i]}: ball distances "
+                         f"{np.round(measured[i], 3).tolist()} mm do not match the nominal mounts' "
+                         f"{np.round(nominal, 3).tolist()} mm (mixed units, or a wrong [targets] entry?)")
+
+
 # -- the estimator --------------------------------------------------------------------------
 class TrackerIdentification:
     """The paper's tracker identification as an estimator: ``fit(sweeps, machine)`` returns
@@ -393,15 +409,7 @@ class TrackerIdentification:
                 why = layout_problem(sw.balls_mm[i], self.min_separation_mm)
                 if why:
                     raise InputError(f"{sw.source}: axis {ax}, station {sw.stations[i]}: degenerate target layout: {why}")
-            nominal = np.array([np.linalg.norm(mounts[i] - mounts[j]) for i, j in ((0, 1), (0, 2), (1, 2))])
-            measured = np.stack([np.linalg.norm(sw.balls_mm[:, i] - sw.balls_mm[:, j], axis=1)
-                                 for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
-            bad = np.abs(measured - nominal).max(axis=1) > self.distance_tol_mm
-            if bad.any():
-                i = int(np.argmax(bad))
-                raise InputError(f"{sw.source}: axis {ax}, station {sw.stations[i]}: ball distances "
-                                 f"{np.round(measured[i], 3).tolist()} mm do not match the nominal mounts' "
-                                 f"{np.round(nominal, 3).tolist()} mm (mixed units, or a wrong [targets] entry?)")
+            check_ball_distances(sw, ax, mounts, self.distance_tol_mm)
             lo, hi = machine.strokes[{"X": "x_mm", "Z": "z_mm", "A": "a_deg"}[ax]]
             if ax == "A":
                 span = sw.command[-1] - sw.command[0]

@@ -43,7 +43,7 @@ import numpy as np
 import scipy.linalg
 from scipy.spatial.transform import Rotation
 
-from .identification import _check_length_unit, layout_problem, rigid_fit
+from .identification import _check_length_unit, check_ball_distances, layout_problem, rigid_fit
 from .io import InputError, atomic_write
 from .mt_chain import AXIS_WORDS, MachineTool
 from .mt_elements import ChainElementSet
@@ -179,15 +179,7 @@ class ChainIdentification:
                 raise InputError(f"{machine.path or machine.name}: key 'targets.{w}': degenerate target layout: {why}")
             sw = sweeps[w]
             _check_length_unit(sw, w, mounts)
-            nominal = np.array([np.linalg.norm(mounts[i] - mounts[j]) for i, j in ((0, 1), (0, 2), (1, 2))])
-            measured = np.stack([np.linalg.norm(sw.balls_mm[:, i] - sw.balls_mm[:, j], axis=1)
-                                 for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
-            bad = np.abs(measured - nominal).max(axis=1) > self.distance_tol_mm
-            if bad.any():
-                i = int(np.argmax(bad))
-                raise InputError(f"{sw.source}: axis {w}, station {sw.stations[i]}: ball distances "
-                                 f"{np.round(measured[i], 3).tolist()} mm do not match the nominal mounts' "
-                                 f"{np.round(nominal, 3).tolist()} mm (mixed units, or a wrong [targets] entry?)")
+            check_ball_distances(sw, w, mounts, self.distance_tol_mm)
             lo, hi = ax.stroke
             if abs(sw.command[0] - lo) > PARK_TOL * max(1.0, abs(lo)):
                 raise InputError(f"{sw.source}: axis {w}, station {sw.stations[0]}: the first station must be at the "
