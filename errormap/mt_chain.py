@@ -262,8 +262,18 @@ class MachineTool:
         t (n, 3) mm)``, base <- body. ``axes`` (n, k); ``values`` (n, P) or (P,) μm/μrad, None nominal."""
         if word not in self.body_index:
             raise ValueError(f"expected an axis word of {self.name!r} {list(self.axis_words)}, got {word!r}")
-        axes, values = self._check(axes, values)
         side, upto = self.body_index[word]
+        return self.side_frames(side, axes, values, upto=upto)
+
+    def side_frames(self, side: str, axes, values=None, upto: int | None = None):
+        """The frame after the first ``upto`` ETs (all when None) of the ``work`` or ``tool`` chain
+        as written (from the machine base), with every ET at its value, joint and slot value:
+        ``(R (n, 3, 3), t (n, 3) mm)``, base <- that frame. ``axes`` (n, k); ``values`` (n, P) or
+        (P,) μm/μrad, None nominal. ``side_frames("tool", q)[1]`` is the tool point in the machine
+        frame; :meth:`body_frames` is this at a body's ETs."""
+        if side not in ("work", "tool"):
+            raise ValueError(f"expected side 'work' or 'tool', got {side!r}")
+        axes, values = self._check(axes, values)
         ets = (self.work_ets if side == "work" else self.tool_ets)[:upto]
         n = axes.shape[0]
         scale = np.array([np.pi / 180 if a.kind == "rotary" else 1.0 for a in self.axes])
@@ -608,3 +618,28 @@ def chain_from_grinder(machine) -> MachineTool:
                 d["stroke"] = list(machine.strokes[f"{d['axis'].lower()}_{'deg' if d['joint'] == 'rotary' else 'mm'}"])
     doc["targets"] = {k: np.asarray(v, dtype=float).tolist() for k, v in machine.targets.items()}
     return parse_machine_tool(doc, machine.path or p, machine.sha256)
+
+
+def _grinder_key(machine) -> tuple:
+    """Everything of a grinder file that its chain depends on, as a hashable key."""
+    geo = tuple(float(getattr(machine, k)) for k in ("l1", "l2", "l3", "l4", "R", "l5", "l6", "l7", "l8", "theta1_deg"))
+    strokes = tuple(sorted((k, tuple(map(float, v))) for k, v in machine.strokes.items()))
+    targets = tuple(sorted((k, np.asarray(v, dtype=float).tobytes()) for k, v in machine.targets.items()))
+    return (machine.name, machine.path, machine.sha256, geo, strokes, targets)
+
+
+_GRINDER_CHAINS: dict = {}
+GRINDER_CHAIN_CACHE = 32  # distinct grinder files kept compiled (a session uses one or two)
+
+
+def grinder_chain(machine) -> MachineTool:
+    """:func:`chain_from_grinder`, compiled once per grinder file's content (cached by its name,
+    path, sha256, geometry, strokes and targets): the one source of the grinder's kinematics that
+    :mod:`errormap.kinematics`, :mod:`errormap.htm` and :mod:`errormap.sweeps` evaluate."""
+    key = _grinder_key(machine)
+    mt = _GRINDER_CHAINS.get(key)
+    if mt is None:
+        if len(_GRINDER_CHAINS) >= GRINDER_CHAIN_CACHE:
+            _GRINDER_CHAINS.pop(next(iter(_GRINDER_CHAINS)))
+        mt = _GRINDER_CHAINS[key] = chain_from_grinder(machine)
+    return mt
