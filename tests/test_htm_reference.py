@@ -89,7 +89,7 @@ def reference_frames(m, axes, v):
     """(work (n, 4, 4), tool (n, 4, 4)) in the machine frame; ``v`` (n, 23) μm / μrad (real or complex)."""
     n = axes.shape[0]
     dt = np.result_type(axes, v)
-    x, z, a = axes[:, 0], axes[:, 1], np.deg2rad(axes[:, 2])
+    x, z, a = axes[:, 0], axes[:, 1], axes[:, 2] * (np.pi / 180.0)
     s = v[:, ELEMENT_NAMES.index("s_xz")] * 1e-6
     th = np.full(n, np.deg2rad(m.theta1_deg), dtype=dt)
     zdir = np.einsum("nij,nj->ni", _rz(-th), np.stack([z * np.sin(s), 0 * z, z * np.cos(s)], -1))
