@@ -1,9 +1,10 @@
 """Benchmark (issue 20): the exact HTM field, reference vs fast, side by side in one run.
 
 * field: μs per point of ``HTMField.predict`` (exact) — the reference pipeline (18 per-element
-  splines + the (n, 3, 3) matrix chain ``spatial_error_exact_chain``) against the fast one (3
-  vector-valued per-axis splines + the compiled closed form ``spatial_error_exact``);
-* field + Jacobian: μs per point of ``HTMField.predict_and_jacobian`` (closed form, one pass);
+  splines + the (n, 3, 3) numpy matrix chain ``spatial_error_exact_chain``; the baseline's
+  hand-written one with ``--baseline-root``) against the fast one (3 vector-valued per-axis splines
+  + the compiled chain, ``HTMField.predict``);
+* field + Jacobian: μs per point of ``HTMField.predict_and_jacobian`` (exact, one pass);
 * solve: μs per point of ``solve_exact`` on the same targets with either field — the reference
   declares no Jacobian (the solver differentiates it by forward differences, 3 more evaluations
   per point), the fast one its closed-form Jacobian — and the largest difference of the commands
@@ -38,9 +39,17 @@ from errormap.simulator import random_axes, random_truth
 
 
 class ReferenceHTMField(HTMField):
-    """The exact HTM field as it was before issue 20: per-element splines, matrix chain, no Jacobian."""
+    """The exact HTM field as it was before issue 20: per-element splines, matrix chain, no Jacobian.
+
+    ``exact_chain(machine, axes, values, chunk)`` is the numpy matrix chain: the hand-written one of
+    the baseline (``--baseline-root``, the pipeline this column timed before issue 26 point 3) or,
+    without a baseline, the chain file's numpy reference (:func:`errormap.htm.spatial_error_exact_chain`)."""
 
     capabilities = frozenset()
+
+    def __init__(self, machine, elements, exact_chain=spatial_error_exact_chain):
+        super().__init__(machine, elements)
+        self.exact_chain = exact_chain
 
     def predict(self, axes):
         axes = np.asarray(axes, dtype=float)
@@ -48,7 +57,7 @@ class ReferenceHTMField(HTMField):
         cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
         v = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
                      + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
-        return spatial_error_exact_chain(self.machine, axes, v, chunk=self.chunk)
+        return self.exact_chain(self.machine, axes, v, chunk=self.chunk)
 
 
 def _median_time(fn, repeats):
@@ -67,15 +76,19 @@ def run_seed(seed, points, repeats, solve_points, baseline_root=None):
     rng = np.random.default_rng([seed, 20])
     axes = random_axes(m, points, rng)
     axes[:, 2] += 360.0 * rng.integers(-3, 4, points)
-    ref, new = ReferenceHTMField(m, el), HTMField(m, el)
+    old_htm = None
+    if baseline_root:
+        from baseline import baseline_module
+        old_htm = baseline_module(baseline_root, "htm")
+    ref = ReferenceHTMField(m, el, old_htm.spatial_error_exact_chain if old_htm else spatial_error_exact_chain)
+    new = HTMField(m, el)
     new.predict(axes[:10]), ref.predict(axes[:10])  # compile / build splines outside the timing
     t_ref, e_ref = _median_time(lambda: ref.predict(axes), repeats)
     t_new, e_new = _median_time(lambda: new.predict(axes), repeats)
     t_jac, (_, j_new) = _median_time(lambda: new.predict_and_jacobian(axes), repeats)
     old = {}
-    if baseline_root:
-        from baseline import baseline_module
-        hand = baseline_module(baseline_root, "htm").HTMField(m, el)
+    if old_htm is not None:
+        hand = old_htm.HTMField(m, el)
         hand.predict(axes[:10]), hand.predict_and_jacobian(axes[:10])
         t_hv, e_h = _median_time(lambda: hand.predict(axes), repeats)
         t_hj, (_, j_h) = _median_time(lambda: hand.predict_and_jacobian(axes), repeats)
@@ -116,7 +129,11 @@ def main():
              f"median of {args.repeats} runs per seed (CPU time of the process: the load of the shared cores inflates wall time), reference and fast in the same process, one after the other; "
              f"{os.cpu_count()} cores shared with other work (load average {load0:.1f} at the start, "
              f"{os.getloadavg()[0]:.1f} at the end). Reference = per-element splines + (n, 3, 3) matrix chain "
-             "(the field before issue 20); fast = per-axis vector splines + the grinder's chain file through the "
+             "(the field before issue 20; "
+             + ("the hand-written numpy chain of the baseline copy of main" if args.baseline_root else
+                "the chain file's numpy reference chain, chunks of 4,096 points — slower than the hand-written "
+                "numpy chain it replaced, so this speed-up is not comparable with runs before issue 26 point 3")
+             + "); fast = per-axis vector splines + the grinder's chain file through the "
              "generic compiled kernel (issue 26 point 3; the hand-written closed form before it); field + J = "
              "`predict_and_jacobian` (value and exact geometric Jacobian in one pass). "
              "Solve = `solve_exact` (the current solver, CPU of one thread) on the nominal tool points of the first "
