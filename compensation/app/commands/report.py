@@ -71,8 +71,6 @@ def run_chain_diagnosis(args) -> int:
     if machine.kind != "machine-tool":
         raise UsageError(f"--machine {machine.name}: the run is a machine-tool chain's; name that chain's file")
     out = Path(args.out) / "report.html" if args.out else None
-    if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
     path = write_chain_diagnosis_page(run_dir, machine, out)
     print(f"wrote html: {path}")
     return 0

@@ -176,6 +176,9 @@ def chain_diagnosis_page(run_dir, machine) -> str:
 
 
 def write_chain_diagnosis_page(run_dir, machine, out=None) -> Path:
-    """Write :func:`chain_diagnosis_page` to ``out`` (default ``run_dir/report.html``), atomically."""
+    """Write :func:`chain_diagnosis_page` to ``out`` (default ``run_dir/report.html``), atomically; ``out``'s
+    folder is made only once the page is built (a refused run leaves nothing)."""
     page = chain_diagnosis_page(run_dir, machine)
-    return write_page(Path(out) if out is not None else Path(run_dir) / "report.html", page)
+    out = Path(out) if out is not None else Path(run_dir) / "report.html"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return write_page(out, page)
