@@ -657,10 +657,10 @@ def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
     u_ax, v_ax, u_c, v_c = PLANES[st.plane]
     missing = [a for a in (u_ax, v_ax) if a not in ax.words]
     if missing:
-        where = (f"arcs in {', '.join(f'{p} ({PLANE_NAMES[p]})' for p in ax.planes)} only" if ax.planes
-                 else "no arc plane")
-        raise _Refuse(first.start + 1, f"{st.mode} arc in the {st.plane} plane ({PLANE_NAMES[st.plane]}): the machine "
-                                       f"{ax.machine!r} has no {missing[0]} axis ({where})")
+        where = (f"its arc planes: {', '.join(f'{p} {PLANE_NAMES[p]}' for p in ax.planes)}" if ax.planes
+                 else "it has no arc plane")
+        raise _Refuse(first.start + 1, f"{st.mode} arc in the {st.plane} plane: the machine {ax.machine!r} has no "
+                                       f"{missing[0]} axis ({where})")
     for w in arc_words:
         if w in CENTRE_AXIS and w not in (u_c, v_c):
             raise _Refuse(arc_words[w].start + 1, f"'{w}' on a {st.plane} arc (its centre words are {u_c} {v_c})")

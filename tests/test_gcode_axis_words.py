@@ -140,9 +140,9 @@ def test_lathe_program_written_back_keeps_c_and_every_other_line(tmp_path):
     ("G1 X10. B5.", 9, "has no B axis"),
     ("G1 U1.", 4, "has no U axis (its axes: X Z C; on lathe dialects U is incremental X)"),
     ("G3 X20. Z-10. J5.", 15, "arc centre Y offset, but the machine 'lathe-xzc' has no Y axis"),
-    ("G17 G3 X20. Z-10. I10.", 8, "G3 arc in the G17 plane (XY): the machine 'lathe-xzc' has no Y axis "
-                                  "(arcs in G18 (XZ) only)"),
-    ("G19 G2 Z-10. K5.", 8, "G19 plane (YZ): the machine 'lathe-xzc' has no Y axis"),
+    ("G17 G3 X20. Z-10. I10.", 8, "G3 arc in the G17 plane: the machine 'lathe-xzc' has no Y axis "
+                                  "(its arc planes: G18 XZ)"),
+    ("G19 G2 Z-10. K5.", 8, "G19 plane: the machine 'lathe-xzc' has no Y axis"),
     ("G1 X10. Z-20. A5.", 15, "has no A axis"),
 ])
 def test_lathe_refusals_name_line_column_and_machine(tmp_path, line, col, what):
@@ -204,8 +204,8 @@ def test_five_axis_refuses_a_word_it_lacks(tmp_path):
     ("G1 X2 Y1", 7, "the machine 'micro-drill flute grinder' has no Y axis (its axes: X Z A)"),
     ("G1 X2 C1", 7, "has no C axis"),
     ("G18 G2 X2 Z3 J1", 14, "arc centre Y offset, but the machine 'micro-drill flute grinder' has no Y axis"),
-    ("G17 G2 X2 Z3 I1", 8, "G17 plane (XY): the machine 'micro-drill flute grinder' has no Y axis "
-                           "(arcs in G18 (XZ) only)"),
+    ("G17 G2 X2 Z3 I1", 8, "G17 plane: the machine 'micro-drill flute grinder' has no Y axis "
+                           "(its arc planes: G18 XZ)"),
 ])
 def test_grinder_refusals_name_the_machine(tmp_path, line, col, what):
     from compensation.pathio import read_path
