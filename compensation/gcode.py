@@ -47,6 +47,7 @@ writer (:func:`_parse_blockwise`, :func:`render_table`; same result, in bulk).
 """
 from __future__ import annotations
 
+import functools
 import math
 import re
 from collections.abc import Sequence
@@ -124,6 +125,11 @@ class AxisWords:
         rotary = tuple(a.name for a in axes if a.type == "rotary")
         return cls(machine.name, words, rotary, rotary if keep_rotary else ())
 
+    @functools.cached_property
+    def is_rotary(self) -> tuple:
+        """Per word: rotary (deg) or not (linear, mm or inch)."""
+        return tuple(w in self.rotary for w in self.words)
+
     @property
     def planes(self) -> tuple:
         """The arc planes whose two axes the machine has (``("G18",)`` on the grinder)."""
@@ -137,10 +143,6 @@ class AxisWords:
         """``"X, Z and A"`` (``last="and"``) or ``"X, Z or A"``."""
         w = self.words
         return w[0] if len(w) == 1 else f"{', '.join(w[:-1])} {last} {w[-1]}"
-
-    def scales(self, inch: bool) -> np.ndarray:
-        """mm (deg) per written unit of each word, (k,): 25.4 for linear words under G20."""
-        return np.array([1.0 if (w in self.rotary or not inch) else MM_PER_INCH for w in self.words])
 
 
 GRINDER_WORDS = AxisWords("grinder", AXES, rotary=("A",))
@@ -478,20 +480,22 @@ def _checked_words(words, ax: AxisWords):
                 raise _Refuse(w.start + 1, f"'M{w.text}': M code not on the allow-list (may move or call a program)")
             ms.append(w)
             continue
-        if w.letter in AXIS_LETTERS and w.letter not in ax.words:
+        if w.letter in ax.words:
+            pass  # an axis word of the machine
+        elif w.letter in AXIS_LETTERS:
             hint = (f"; on lathe dialects {w.letter} is incremental {LATHE_INCREMENTAL[w.letter]}"
                     if w.letter in LATHE_INCREMENTAL else "")
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': the machine {ax.machine!r} has no {w.letter} axis "
                                        f"(its axes: {ax.listed}{hint}); not supported")
-        if w.letter in CENTRE_AXIS and CENTRE_AXIS[w.letter] not in ax.words:
+        elif w.letter in CENTRE_AXIS and CENTRE_AXIS[w.letter] not in ax.words:
             a = CENTRE_AXIS[w.letter]
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': arc centre {a} offset, but the machine {ax.machine!r} "
                                        f"has no {a} axis (its axes: {ax.listed}); not supported")
-        if w.letter in REFUSED_LETTERS:
+        elif w.letter in REFUSED_LETTERS:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
-        if w.letter not in LETTER_RULES:
+        elif w.letter not in LETTER_RULES:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
-        if w.letter == "T" and not _plain_tool_number(w):
+        elif w.letter == "T" and not _plain_tool_number(w):
             raise _Refuse(w.start + 1, f"'T{w.text}': a T word of more than {MAX_TOOL_DIGITS} digits (or not a "
                                        "whole number) may select a tool offset (lathe 'TttOO': tool tt, offset "
                                        "OO) that shifts the axes, like G43 H; not supported (write the tool "
@@ -594,9 +598,9 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     scale = MM_PER_INCH if st.inch else 1.0
     start = st.pos.copy()
     end = st.pos.copy()
-    for j, a in enumerate(ax.words):
+    for j, (a, rotary) in enumerate(zip(ax.words, ax.is_rotary)):
         if a in axis_words:
-            v = axis_words[a].value * (1.0 if a in ax.rotary else scale)
+            v = axis_words[a].value * (1.0 if rotary else scale)
             if st.incremental:
                 if not np.isfinite(start[j]):
                     raise _Refuse(axis_words[a].start + 1, f"incremental '{a}{axis_words[a].text}' before {a} "
@@ -853,8 +857,7 @@ def _written_values(row, ctrl, m: GMove, ax: AxisWords):
     position they take it to: the line's units and distance mode."""
     scale = MM_PER_INCH if m.units == "inch" else 1.0
     vals, new = [], ctrl.copy()
-    for j, a in enumerate(ax.words):
-        rotary = a in ax.rotary
+    for j, rotary in enumerate(ax.is_rotary):
         s = 1.0 if rotary else scale
         dec = DECIMALS["deg"] if rotary else DECIMALS[m.units]
         if m.incremental:
@@ -871,7 +874,7 @@ def _needed(j: int, vals, ctrl_before, m: GMove, ax: AxisWords) -> bool:
     """An axis word a written line must carry: every word that is not kept (the correction moves
     it), a kept one where the line had it or where its written value moves it."""
     a = ax.words[j]
-    if a not in ax.kept or a in m.words:
+    if not ax.kept or a not in ax.kept or a in m.words:
         return True
     return float(vals[j]) != 0.0 if m.incremental else not (np.isfinite(ctrl_before[j])
                                                            and abs(float(vals[j]) - ctrl_before[j]) < 1e-12)
