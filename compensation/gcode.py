@@ -130,6 +130,22 @@ class AxisWords:
         """Per word: rotary (deg) or not (linear, mm or inch)."""
         return tuple(w in self.rotary for w in self.words)
 
+    @functools.cached_property
+    def lacking(self) -> dict:
+        """Letter -> why it is refused, for the axis words of axes the machine lacks and the arc
+        centre words along them (``J`` without a Y axis)."""
+        out = {}
+        for w in AXIS_LETTERS:
+            if w not in self.words:
+                inc = LATHE_INCREMENTAL.get(w)
+                hint = f"; on lathe dialects {w} is incremental {inc}" if inc else ""
+                out[w] = f"the machine {self.machine!r} has no {w} axis (its axes: {self.listed}{hint})"
+        for c, a in CENTRE_AXIS.items():
+            if a not in self.words:
+                out[c] = (f"arc centre {a} offset, but the machine {self.machine!r} has no {a} axis "
+                          f"(its axes: {self.listed})")
+        return out
+
     @property
     def planes(self) -> tuple:
         """The arc planes whose two axes the machine has (``("G18",)`` on the grinder)."""
@@ -482,15 +498,8 @@ def _checked_words(words, ax: AxisWords):
             continue
         if w.letter in ax.words:
             pass  # an axis word of the machine
-        elif w.letter in AXIS_LETTERS:
-            hint = (f"; on lathe dialects {w.letter} is incremental {LATHE_INCREMENTAL[w.letter]}"
-                    if w.letter in LATHE_INCREMENTAL else "")
-            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': the machine {ax.machine!r} has no {w.letter} axis "
-                                       f"(its axes: {ax.listed}{hint}); not supported")
-        elif w.letter in CENTRE_AXIS and CENTRE_AXIS[w.letter] not in ax.words:
-            a = CENTRE_AXIS[w.letter]
-            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': arc centre {a} offset, but the machine {ax.machine!r} "
-                                       f"has no {a} axis (its axes: {ax.listed}); not supported")
+        elif w.letter in ax.lacking:
+            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {ax.lacking[w.letter]}; not supported")
         elif w.letter in REFUSED_LETTERS:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
         elif w.letter not in LETTER_RULES:
@@ -818,8 +827,11 @@ def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords = GRINDER_WORDS):
     # a block-delete move (run under --block-delete off) keeps its '/' on every piece, so
     # that switching block delete on at the controller skips the whole move, not its first piece
     slash = "/" if body.lstrip(" \t").startswith("/") else ""
-    extra = [slash + " ".join(f"{a}{vals[j]}" for j, a in enumerate(ax.words) if _needed(j, vals, c0, m, ax)) + ending
-             for vals, c0 in zip(written[1:], before[1:])]
+    if ax.kept:
+        extra = [slash + " ".join(f"{a}{vals[j]}" for j, a in enumerate(ax.words) if _needed(j, vals, c0, m, ax))
+                 + ending for vals, c0 in zip(written[1:], before[1:])]
+    else:  # every word on every added line (the grinder)
+        extra = [slash + " ".join(f"{a}{v}" for a, v in zip(ax.words, vals)) + ending for vals in written[1:]]
     if extra and not line.endswith("\n"):
         return [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]], ctrl
     return [first + line[len(body):]] + extra, ctrl
@@ -856,10 +868,10 @@ def _written_values(row, ctrl, m: GMove, ax: AxisWords):
     """The numbers written for one vertex ``row`` (k,) (text per axis) and the controller
     position they take it to: the line's units and distance mode."""
     scale = MM_PER_INCH if m.units == "inch" else 1.0
+    lin_fmt, rot_fmt = (scale, DECIMALS[m.units]), (1.0, DECIMALS["deg"])  # (scale, decimals)
     vals, new = [], ctrl.copy()
     for j, rotary in enumerate(ax.is_rotary):
-        s = 1.0 if rotary else scale
-        dec = DECIMALS["deg"] if rotary else DECIMALS[m.units]
+        s, dec = rot_fmt if rotary else lin_fmt
         if m.incremental:
             txt = fmt((row[j] - ctrl[j]) / s, dec)
             new[j] = ctrl[j] + float(txt) * s
@@ -882,13 +894,16 @@ def _needed(j: int, vals, ctrl_before, m: GMove, ax: AxisWords) -> bool:
 
 def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
     # a kept word whose value is unchanged keeps its text as written (a chain's tool orientation)
-    edits = [(m.words[a].num_start, m.words[a].num_end, vals[j]) for j, a in enumerate(ax.words) if a in m.words
-             and not (a in ax.kept and float(vals[j]) == m.words[a].value)]  # (start, end, text)
-    last_end = max(m.words[a].num_end for a in ax.words if a in m.words)
-    missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(ax.words)
-                      if a not in m.words and _needed(j, vals, ctrl_before, m, ax))
-    if missing:
-        edits.append((last_end, last_end, missing))
+    words, kept = m.words, ax.kept
+    given = [(j, words[a]) for j, a in enumerate(ax.words) if a in words]
+    edits = [(w.num_start, w.num_end, vals[j]) for j, w in given
+             if not (kept and w.letter in kept and float(vals[j]) == w.value)]  # (start, end, text)
+    last_end = max(w.num_end for _, w in given)
+    if len(given) < len(ax.words):
+        missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(ax.words)
+                          if a not in words and (not kept or _needed(j, vals, ctrl_before, m, ax)))
+        if missing:
+            edits.append((last_end, last_end, missing))
     if m.kind == "arc":
         if m.motion_word is not None:
             edits.append((m.motion_word.start, m.motion_word.num_end, "G1"))

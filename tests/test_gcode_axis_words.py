@@ -47,7 +47,8 @@ def test_axis_words_come_from_the_machine_file():
     lathe = AxisWords.of(load_machine("lathe-xzc"), keep_rotary=True)
     assert lathe.words == ("X", "Z", "C") and lathe.kept == ("C",) and lathe.planes == ("G18",)
     five = AxisWords.of(load_machine("five-axis-ac"), keep_rotary=True)
-    assert five.words == ("X", "Y", "Z", "A", "C") and five.rotary == ("A", "C") and five.planes == ("G17", "G18", "G19")
+    assert five.words == ("X", "Y", "Z", "A", "C") and five.rotary == ("A", "C")
+    assert five.planes == ("G17", "G18", "G19")
     with pytest.raises(ValueError, match="no G-code axis words"):
         AxisWords.of(load_machine("ur5"))
     with pytest.raises(ValueError, match="distinct axis words"):
