@@ -26,17 +26,28 @@ why each refused code is refused are :data:`ALLOWED_G`, :data:`REFUSED_G`,
 
 Numbers are read as RS274 reads them: spaces and tabs inside a number are ignored (``X1 0``
 is X10), an optional sign and decimal point, no exponent (``X1e2`` is refused), no
-parameters or expressions (``#1``, ``[1+2]``). Axis words ``X Z A`` (mm or inch, deg) are
-the grinder's axes; ``Y B C U V W`` are refused (no such axis here / incremental axis
-words of lathe dialects).
+parameters or expressions (``#1``, ``[1+2]``).
 
-Moves are kept as :class:`GMove` records (start and end in absolute mm / deg, whatever the
-program's mode and units were), so a caller can place vertices along each move
-(:func:`move_points`) and :func:`render_program` writes them back in the program's own
-distance mode and units.
+Axis words are the machine's (:class:`AxisWords`, from the machine file by
+:meth:`AxisWords.of`): ``X Z A`` on the grinder (the default), ``X Y Z`` on a 3-axis mill,
+``X Y Z A C`` on a five-axis machine, ``X Z C`` on a lathe; linear words in mm or inch, rotary
+ones in degrees. A word of an axis the machine lacks (``Y`` on the grinder, ``B`` on a mill;
+``U V W``, incremental axes on lathe dialects) is refused naming the machine, and so is an arc
+centre word along such an axis (``J`` without a Y axis). Arcs ``G2/G3`` run in the planes of the
+machine's linear axes: ``G17`` (XY, centre ``I J``), ``G18`` (XZ, ``I K``), ``G19`` (YZ,
+``J K``), or by ``R``; an arc in a plane whose axes the machine lacks (the plane code alone is a
+state line), or with a centre word of another plane, is refused; the other axes of an arc line
+move linearly along it.
+
+Moves are kept as :class:`GMove` records (start and end in absolute mm / deg in the machine's
+axis order, whatever the program's mode and units were), so a caller can place vertices along
+each move (:func:`move_points`) and :func:`render_program` writes them back in the program's
+own distance mode and units. The grinder's long programs go through a block-wise reader and
+writer (:func:`_parse_blockwise`, :func:`render_table`; same result, in bulk).
 """
 from __future__ import annotations
 
+import functools
 import math
 import re
 from collections.abc import Sequence
@@ -63,28 +74,117 @@ BLOCK_DELETE_CHOICES = ("on", "off")
 RAPIDS_CHOICES = ("keep", "compensate")
 DEFAULT_RAPIDS = "keep"
 AXES = ("X", "Z", "A")
+"""The grinder's axis words (the default :class:`AxisWords`)."""
+AXIS_LETTERS = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
+"""Letters that are axis words on some machine: refused where the machine has no such axis."""
+CENTRE_AXIS = {"I": "X", "J": "Y", "K": "Z"}
+"""Arc centre word -> the axis it offsets along."""
+PLANES = {"G17": ("X", "Y", "I", "J"), "G18": ("Z", "X", "K", "I"), "G19": ("Y", "Z", "J", "K")}
+"""Arc plane -> (u axis, v axis, u centre word, v centre word); the arc turns counter-clockwise
+(G3) from u towards v, seen from the positive third axis (RS274)."""
+PLANE_NAMES = {"G17": "XY", "G18": "XZ", "G19": "YZ"}
+LATHE_INCREMENTAL = {"U": "X", "V": "Y", "W": "Z"}
+"""On lathe dialects these letters are incremental X, Y, Z (refused unless the machine has the axis)."""
+
+
+@dataclass(frozen=True)
+class AxisWords:
+    """The axis words a program is read and written with: the machine's, in its axis order.
+
+    ``machine`` the name refusals give; ``words`` the axis words (``("X", "Z", "A")``);
+    ``rotary`` the words in degrees (the others are linear, mm or inch); ``kept`` the words kept
+    as the program wrote them where a compensated value equals the programmed one, and written
+    on an added or rewritten line only where they move (a chain's rotary axes: the tool
+    orientation); every other word is written on every compensated line.
+    """
+
+    machine: str
+    words: tuple
+    rotary: tuple = ()
+    kept: tuple = ()
+
+    def __post_init__(self):
+        bad = [w for w in self.words if w not in AXIS_LETTERS]
+        if bad or len(set(self.words)) != len(self.words) or not self.words:
+            raise ValueError(f"Expected distinct axis words of {list(AXIS_LETTERS)}, got {list(self.words)}")
+        if not set(self.rotary) <= set(self.words) or not set(self.kept) <= set(self.words):
+            raise ValueError(f"Expected rotary and kept words among {list(self.words)}, got {list(self.rotary)}, "
+                             f"{list(self.kept)}")
+
+    @classmethod
+    def of(cls, machine, keep_rotary: bool = False) -> "AxisWords":
+        """The axis words of a loaded machine (its file's axes, :func:`errormap.machine.machine_axes`);
+        ``keep_rotary``: rotary words kept as programmed (a chain's tool orientation). A machine whose
+        axes are not G-code axis words (an arm's joints, a PKM's legs) raises ``ValueError``."""
+        from errormap.machine import machine_axes
+        axes = machine_axes(machine)
+        words = tuple(a.name for a in axes)
+        if not all(w in AXIS_LETTERS for w in words):
+            raise ValueError(f"the machine {machine.name!r} ({machine.kind}) has no G-code axis words "
+                             f"(its axes: {' '.join(words)})")
+        rotary = tuple(a.name for a in axes if a.type == "rotary")
+        return cls(machine.name, words, rotary, rotary if keep_rotary else ())
+
+    @functools.cached_property
+    def is_rotary(self) -> tuple:
+        """Per word: rotary (deg) or not (linear, mm or inch)."""
+        return tuple(w in self.rotary for w in self.words)
+
+    @functools.cached_property
+    def lacking(self) -> dict:
+        """Letter -> why it is refused, for the axis words of axes the machine lacks and the arc
+        centre words along them (``J`` without a Y axis)."""
+        out = {}
+        for w in AXIS_LETTERS:
+            if w not in self.words:
+                inc = LATHE_INCREMENTAL.get(w)
+                hint = f"; on lathe dialects {w} is incremental {inc}" if inc else ""
+                out[w] = f"the machine {self.machine!r} has no {w} axis (its axes: {self.listed}{hint})"
+        for c, a in CENTRE_AXIS.items():
+            if a not in self.words:
+                out[c] = (f"arc centre {a} offset, but the machine {self.machine!r} has no {a} axis "
+                          f"(its axes: {self.listed})")
+        return out
+
+    @property
+    def planes(self) -> tuple:
+        """The arc planes whose two axes the machine has (``("G18",)`` on the grinder)."""
+        return tuple(p for p, (u, v, _, _) in PLANES.items() if u in self.words and v in self.words)
+
+    @property
+    def listed(self) -> str:
+        return " ".join(self.words)
+
+    def joined(self, last: str) -> str:
+        """``"X, Z and A"`` (``last="and"``) or ``"X, Z or A"``."""
+        w = self.words
+        return w[0] if len(w) == 1 else f"{', '.join(w[:-1])} {last} {w[-1]}"
+
+
+GRINDER_WORDS = AxisWords("grinder", AXES, rotary=("A",))
+"""The grinder's words: X, Z (mm/inch) and A (deg), all three written on every compensated line."""
 
 # ---------------------------------------------------------------------------- allow-list
 # G codes the reader understands. Value: (modal group, what the reader does).
 ALLOWED_G = {
     "G0": ("motion", "rapid move; compensated or kept as written (--rapids)"),
     "G1": ("motion", "linear move; compensated, split where long"),
-    "G2": ("motion", "clockwise arc in G18 (XZ); linearised and compensated"),
-    "G3": ("motion", "counter-clockwise arc in G18 (XZ); linearised and compensated"),
+    "G2": ("motion", "clockwise arc in a plane of the machine's linear axes; linearised and compensated"),
+    "G3": ("motion", "counter-clockwise arc in a plane of the machine's linear axes; linearised and compensated"),
     "G80": ("motion", "cancel motion mode (no axis words allowed after it)"),
     "G4": ("nonmodal", "dwell with P; refused with axis words (Fanuc G4 X is a dwell time)"),
     "G28": ("nonmodal", "return to the reference: bare, or with zero incremental words ('G28 G91 Z0'); "
                         "the axes it moves are unknown afterwards"),
     "G30": ("nonmodal", "return to the second reference: as G28"),
-    "G17": ("plane", "XY plane (arcs in it are refused: no Y axis)"),
-    "G18": ("plane", "XZ plane (arcs supported)"),
-    "G19": ("plane", "YZ plane (arcs in it are refused: no Y axis)"),
+    "G17": ("plane", "XY plane, centre I J (arcs in it are refused on a machine without X and Y: the grinder)"),
+    "G18": ("plane", "XZ plane, centre I K"),
+    "G19": ("plane", "YZ plane, centre J K (arcs in it are refused on a machine without Y and Z: the grinder)"),
     "G20": ("units", "inch; read exactly, written back in inch"),
     "G21": ("units", "mm"),
     "G90": ("distance", "absolute"),
     "G91": ("distance", "incremental; read exactly, written back incremental"),
-    "G90.1": ("arc_distance", "absolute arc centres I K"),
-    "G91.1": ("arc_distance", "incremental arc centres I K (the default)"),
+    "G90.1": ("arc_distance", "absolute arc centres I J K"),
+    "G91.1": ("arc_distance", "incremental arc centres I J K (the default)"),
     "G94": ("feed", "feed per minute"),
     "G95": ("feed", "feed per revolution"),
     "G40": ("cutter", "cutter compensation off"),
@@ -132,15 +232,13 @@ ALLOWED_M = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30, 48, 49, 50, 51, 52, 53, 60}
 Others (``M98``/``M99`` subprograms, user M codes) are refused."""
 LETTER_RULES = {
     "N": "line number", "F": "feed", "S": "spindle speed", "T": "tool number", "M": "see ALLOWED_M",
-    "G": "see ALLOWED_G", "X": "axis X (mm/inch)", "Z": "axis Z (mm/inch)", "A": "axis A (deg)",
-    "I": "arc centre X offset (G2/G3 only)", "K": "arc centre Z offset (G2/G3 only)",
+    "G": "see ALLOWED_G", **{a: "an axis word of the machine (linear mm/inch, rotary deg); refused where the "
+                                "machine has no such axis" for a in AXIS_LETTERS},
+    **{c: f"arc centre {a} offset (G2/G3 only, in a plane with {a})" for c, a in CENTRE_AXIS.items()},
     "R": "arc radius (G2/G3 only)", "P": "G4 dwell, G64 tolerance, or P1 on an arc",
     "Q": "G64 tolerance", "O": "program number on a line of its own",
 }
 REFUSED_LETTERS = {
-    "Y": "the grinder has no Y axis", "B": "the grinder has no B axis", "C": "the grinder has no C axis",
-    "U": "incremental X on lathe dialects / an extra axis", "V": "incremental Y / an extra axis",
-    "W": "incremental Z on lathe dialects / an extra axis", "J": "arc centre Y offset (arcs only in G18 XZ)",
     "E": "extruder / unknown axis", "H": "tool length offset number", "D": "cutter radius offset number",
     "L": "loop count / G10 data",
 }
@@ -164,9 +262,10 @@ class Word:
 
 @dataclass
 class GMove:
-    """One moving line. ``start``/``end`` (3,) absolute mm / deg (``start`` may hold NaN for an
-    axis not yet known); ``arc`` for G2/G3: dict with centre, radii, sweep; ``words`` the
-    line's X/Z/A/I/K/R/P words; ``units`` ``"mm"``/``"inch"``; ``incremental`` G91."""
+    """One moving line. ``start``/``end`` (k,) absolute mm / deg in the reader's axis order
+    (:class:`AxisWords`; ``start`` may hold NaN for an axis not yet known); ``arc`` for G2/G3:
+    dict with centre, radii, sweep in the plane's axis columns ``ju``, ``jv``; ``words`` the
+    line's axis and ``I J K R P`` words; ``units`` ``"mm"``/``"inch"``; ``incremental`` G91."""
 
     index: int
     kind: str            # "rapid", "linear" or "arc"
@@ -200,6 +299,8 @@ class GProgram:
     a lazy sequence that builds each :class:`GMove` only when asked for."""
     data: bytes | None = field(default=None, repr=False)
     """The file's bytes (block-wise reader; :func:`render_table` copies from them)."""
+    axis_words: AxisWords = GRINDER_WORDS
+    """The machine's axis words the program was read with (the moves' columns, in order)."""
 
 
 def split_lines(text: str) -> list:
@@ -306,18 +407,22 @@ def _err(path, lineno, col, msg):
 
 
 def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
-                  fast: bool = True) -> GProgram:
+                  fast: bool = True, axis_words: AxisWords | None = None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
-    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`): the common move and
-    comment lines in bulk, every other line through the exact per-line classifier; same
-    classes, moves and refusals as ``fast=False`` (the per-line reader, kept as the reference).
+    ``axis_words``: the machine's (:meth:`AxisWords.of`); default the grinder's ``X Z A``.
+
+    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`) where the words are the
+    grinder's: the common move and comment lines in bulk, every other line through the exact
+    per-line classifier; same classes, moves and refusals as ``fast=False`` (the per-line
+    reader, kept as the reference, and the reader of every other machine's words).
 
     ``rapids``: ``"keep"`` (G0 lines written as they are) or ``"compensate"``.
     ``block_delete``: ``None`` refuses a ``/`` line that moves or changes modal state;
     ``"on"`` skips ``/`` lines (the controller's switch is on); ``"off"`` runs them.
     """
     path = Path(path)
+    ax = GRINDER_WORDS if axis_words is None else axis_words
     if rapids not in RAPIDS_CHOICES:
         raise ValueError(f"Expected rapids in {list(RAPIDS_CHOICES)}, got {rapids!r}")
     if block_delete not in (None,) + BLOCK_DELETE_CHOICES:
@@ -325,42 +430,54 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     data = path.read_bytes()
-    if fast:
-        return _parse_blockwise(path, rapids, block_delete, data)
+    if fast and _bulk_words(ax):
+        return _parse_blockwise(path, rapids, block_delete, data, ax)
     lines = split_lines(data.decode("latin-1"))
-    st = _State()
+    st = _State(len(ax.words))
     classes, moves = [], []
     for idx, line in enumerate(lines):
         body = line.rstrip("\r\n")
         try:
-            cls, move = _classify(body, idx, st, rapids, block_delete)
+            cls, move = _classify(body, idx, st, rapids, block_delete, ax)
         except _Refuse as r:
             raise _err(path, idx + 1, r.col, r.msg) from None
         classes.append(cls)
         if move is not None:
             moves.append(move)
     if not any(m.compensate for m in moves):
-        raise InputError(f"{path}: no G0/G1/G2/G3 motion with X, Z or A words to compensate found")
-    return GProgram(path, lines, classes, moves, rapids, block_delete)
+        raise _no_motion(path, ax)
+    return GProgram(path, lines, classes, moves, rapids, block_delete, axis_words=ax)
+
+
+def _bulk_words(ax: AxisWords) -> bool:
+    """The block-wise reader and writer know the grinder's words only (X, Z mm/inch, A deg, all written)."""
+    return ax.words == AXES and ax.rotary == ("A",) and not ax.kept
+
+
+def _no_motion(path, ax: AxisWords) -> InputError:
+    return InputError(f"{path}: no G0/G1/G2/G3 motion with {ax.joined('or')} words to compensate found")
 
 
 class _State:
-    def __init__(self):
+    def __init__(self, k: int = 3):
         self.mode = None           # "G0".."G3" or None
         self.incremental = False
         self.arc_abs = False
         self.inch = False
         self.plane = "G17"         # the RS274 power-on default
-        self.pos = np.full(3, np.nan)
+        self.pos = np.full(k, np.nan)
 
 
-def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None):
-    """Public form of the per-line classifier: ``(class, GMove or None)``; updates ``state``."""
-    return _classify(body, -1, state, rapids, block_delete)
+def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
+                  axis_words: AxisWords | None = None):
+    """Public form of the per-line classifier: ``(class, GMove or None)``; updates ``state``
+    (``_State(len(axis_words.words))``)."""
+    return _classify(body, -1, state, rapids, block_delete, GRINDER_WORDS if axis_words is None else axis_words)
 
 
-def _checked_words(words):
-    """Check every word against the allow-lists: ``(by letter, [(G code, word)], [M words])``."""
+def _checked_words(words, ax: AxisWords):
+    """Check every word against the allow-lists and the machine's axis words:
+    ``(by letter, [(G code, word)], [M words])``."""
     by = {}
     gs, ms = [], []
     for w in words:
@@ -373,10 +490,16 @@ def _checked_words(words):
             if code not in ALLOWED_G:
                 raise _Refuse(w.start + 1, f"'{code}': unknown G code (not on the allow-list)")
             gs.append((code, w))
-        elif w.letter == "M":
+            continue
+        if w.letter == "M":
             if w.value != int(w.value) or int(w.value) not in ALLOWED_M:
                 raise _Refuse(w.start + 1, f"'M{w.text}': M code not on the allow-list (may move or call a program)")
             ms.append(w)
+            continue
+        if w.letter in ax.words:
+            pass  # an axis word of the machine
+        elif w.letter in ax.lacking:
+            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {ax.lacking[w.letter]}; not supported")
         elif w.letter in REFUSED_LETTERS:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
         elif w.letter not in LETTER_RULES:
@@ -386,10 +509,9 @@ def _checked_words(words):
                                        "whole number) may select a tool offset (lathe 'TttOO': tool tt, offset "
                                        "OO) that shifts the axes, like G43 H; not supported (write the tool "
                                        f"number alone, at most {MAX_TOOL_DIGITS} digits)")
-        else:
-            if w.letter in by:
-                raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
-            by[w.letter] = w
+        if w.letter in by:
+            raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
+        by[w.letter] = w
     return by, gs, ms
 
 
@@ -440,20 +562,20 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
                                                     f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else ""))
 
 
-def _classify(body, idx, st: _State, rapids, block_delete):
+def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     bd, words, pct = tokenize(body)
     if pct:
         return "pass", None
     if bd and block_delete == "on":
         return "skipped", None
-    by, gs, ms = _checked_words(words)
+    by, gs, ms = _checked_words(words, ax)
     groups = _modal_groups(gs)
     if "O" in by:
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
             raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
         return "pass", None
-    axis_words = {a: by[a] for a in AXES if a in by}
-    arc_words = {a: by[a] for a in ("I", "K", "R") if a in by}
+    axis_words = {a: by[a] for a in ax.words if a in by}
+    arc_words = {a: by[a] for a in ("I", "J", "K", "R") if a in by}
     changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal"))
     if bd and block_delete is None and (axis_words or arc_words or changes):
         raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
@@ -461,7 +583,7 @@ def _classify(body, idx, st: _State, rapids, block_delete):
     motion_word = _apply_modal(st, groups)
     _check_p_q(st, by, gs, axis_words, arc_words)
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
-        return _reference_return(st, groups, axis_words, arc_words)
+        return _reference_return(st, groups, axis_words, arc_words, ax)
     if "nonmodal" in groups and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
@@ -471,10 +593,10 @@ def _classify(body, idx, st: _State, rapids, block_delete):
             w = next(iter(arc_words.values()))
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words")
         return ("state" if changes else "pass"), None
-    return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids)
+    return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
 
 
-def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids) -> GMove:
+def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
     """The move of a line with axis words in the active motion mode; advances ``st.pos``."""
     first = min(axis_words.values(), key=lambda w: w.start)
     if st.mode is None:
@@ -485,9 +607,9 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids)
     scale = MM_PER_INCH if st.inch else 1.0
     start = st.pos.copy()
     end = st.pos.copy()
-    for j, a in enumerate(AXES):
+    for j, (a, rotary) in enumerate(zip(ax.words, ax.is_rotary)):
         if a in axis_words:
-            v = axis_words[a].value * (1.0 if a == "A" else scale)
+            v = axis_words[a].value * (1.0 if rotary else scale)
             if st.incremental:
                 if not np.isfinite(start[j]):
                     raise _Refuse(axis_words[a].start + 1, f"incremental '{a}{axis_words[a].text}' before {a} "
@@ -503,18 +625,21 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids)
         words["P"] = by["P"]
     known = np.isfinite(end)
     if compensate and not known.all():
-        missing = ", ".join(a for a, k in zip(AXES, known) if not k)
-        raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before X, Z and A are all known "
-                                       f"(no value yet for {missing})")
+        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
+        raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
+                                       f"known (no value yet for {missing})")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
                  compensate, known=known)
     if kind == "arc":
-        move.arc = _arc_geometry(st, move, axis_words, arc_words, scale)
+        try:
+            move.arc = _arc_geometry(st, move, arc_words, scale, ax, first)
+        except _Refuse as r:
+            raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
     st.pos = end
     return move
 
 
-def _reference_return(st, groups, axis_words, arc_words):
+def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords):
     """``G28``/``G30``: the machine goes to a reference position (not a program point, so
     not compensated; the line is written as it is). Accepted bare (all axes) or with zero
     incremental axis words (``G28 G91 Z0``: only Z, with no intermediate move); the axes
@@ -533,39 +658,37 @@ def _reference_return(st, groups, axis_words, arc_words):
                                        f"program point; only a bare {code} or zero incremental words "
                                        f"('{code} G91 Z0') are accepted")
     st.pos = st.pos.copy()  # the previous move's end is this array: it must keep its values
-    for j, a in enumerate(AXES):
+    for j, a in enumerate(ax.words):
         if not axis_words or a in axis_words:
             st.pos[j] = np.nan
     return "state", None
 
 
-def _arc_geometry(st, move, axis_words, arc_words, scale):
-    """Centre, radii and sweep of a G2/G3 arc in G18, in (u, v) = (Z, X) mm."""
-    first = min(axis_words.values(), key=lambda w: w.start)
-    try:
-        return _arc_centre(st, move, axis_words, arc_words, scale, first)
-    except _Refuse as r:
-        raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
-
-
-def _arc_centre(st, move, axis_words, arc_words, scale, first):
-    if st.plane != "G18":
-        raise _Refuse(first.start + 1, f"{st.mode} arc in the {st.plane} plane "
-                                       f"({'XY' if st.plane == 'G17' else 'YZ'}): it would move a Y axis; "
-                                       "only G18 (XZ) arcs of the compensated axes are supported")
+def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
+    """Centre, radii and sweep of a G2/G3 arc in the active plane's (u, v) axis columns
+    ``ju``, ``jv`` (:func:`plane_arc`)."""
+    u_ax, v_ax, u_c, v_c = PLANES[st.plane]
+    missing = [a for a in (u_ax, v_ax) if a not in ax.words]
+    if missing:
+        where = (f"its arc planes: {', '.join(f'{p} {PLANE_NAMES[p]}' for p in ax.planes)}" if ax.planes
+                 else "it has no arc plane")
+        raise _Refuse(first.start + 1, f"{st.mode} arc in the {st.plane} plane: the machine {ax.machine!r} has no "
+                                       f"{missing[0]} axis ({where})")
+    for w in arc_words:
+        if w in CENTRE_AXIS and w not in (u_c, v_c):
+            raise _Refuse(arc_words[w].start + 1, f"'{w}' on a {st.plane} arc (its centre words are {u_c} {v_c})")
     if not move.start_known:
         raise _Refuse(first.start + 1, f"{st.mode} arc before the start position is known")
-    u0, v0 = move.start[1], move.start[0]
-    u1, v1 = move.end[1], move.end[0]
-    return plane_arc(u0, v0, u1, v1, st.mode, arc_words, ("K", "I"), st.arc_abs, scale, first,
-                     pair="I/K", both="I and K")
+    ju, jv = ax.words.index(u_ax), ax.words.index(v_ax)
+    u0, v0, u1, v1 = move.start[ju], move.start[jv], move.end[ju], move.end[jv]
+    return {"ju": ju, "jv": jv, **plane_arc(u0, v0, u1, v1, st.mode, arc_words, (u_c, v_c), st.arc_abs, scale,
+                                             first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}")}
 
 
 def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both) -> dict:
     """Centre, radii and sweep of a G2/G3 (``mode``) arc from (u0, v0) to (u1, v1) mm in its plane's
     (u, v) coordinates; ``centre_words`` the words giving the centre's u and v offsets (G18: K, I; G17:
-    I, J), or ``R``; ``pair`` / ``both`` how the refusals name them. Shared by the grinder's reader and
-    the machine-tool chain reader (:mod:`compensation.mt_gcode`). Returns ``uc vc r0 r1 theta0 sweep``."""
+    I, J), or ``R``; ``pair`` / ``both`` how the refusals name them. Returns ``uc vc r0 r1 theta0 sweep``."""
     u_c, v_c = centre_words
     ccw = mode == "G3"
     if "R" in arc_words:
@@ -609,13 +732,16 @@ def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, fir
     return {"uc": uc, "vc": vc, "r0": r0, "r1": r1, "theta0": t0, "sweep": sweep}
 
 
+
 # ---------------------------------------------------------------------------- geometry
 
 def move_points(move: GMove, t) -> np.ndarray:
-    """Nominal axes (x_mm, z_mm, a_deg) at parameters ``t`` in [0, 1] along a move, (m,) -> (m, 3).
+    """Nominal axes (mm, deg; the reader's axis order) at parameters ``t`` in [0, 1] along a
+    move, (m,) -> (m, k).
 
     A linear move is linear in the axes (what the controller interpolates); an arc turns
-    uniformly in angle with the radius and A linear in the parameter.
+    uniformly in angle in its plane's columns with the radius linear in the parameter, the
+    other axes linear (a helix).
     """
     t = np.asarray(t, dtype=float)
     if move.arc is None:
@@ -625,10 +751,9 @@ def move_points(move: GMove, t) -> np.ndarray:
     g = move.arc
     th = g["theta0"] + t * g["sweep"]
     r = g["r0"] + t * (g["r1"] - g["r0"])
-    out = np.empty((t.size, 3))
-    out[:, 1] = g["uc"] + r * np.cos(th)
-    out[:, 0] = g["vc"] + r * np.sin(th)
-    out[:, 2] = move.start[2] + t * (move.end[2] - move.start[2])
+    out = move.start[None, :] + t[:, None] * (move.end - move.start)[None, :]
+    out[:, g["ju"]] = g["uc"] + r * np.cos(th)
+    out[:, g["jv"]] = g["vc"] + r * np.sin(th)
     return out
 
 
@@ -654,51 +779,59 @@ def fmt(v: float, decimals: int) -> str:
 def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, list]:
     """Write the program with each compensated move's vertices.
 
-    ``vertices[k]``: shape (m_k, 3) absolute axes (mm, deg) for the k-th *compensated* move,
-    in order, the last row the move's end. Returns ``(text, groups)`` where ``groups[i]``
-    is the list of output lines that source line ``i`` became (the header lines are not
-    in ``groups``). Lines of class ``pass``/``state``/``skipped`` and kept rapids come back
-    byte for byte; on a compensated line only the axis numbers change (missing axes are
-    appended after the last axis word, since a correction moves all three axes); an arc
-    line becomes ``G1`` (its ``I K R P`` words removed) and each extra vertex is an added
-    line ``X.. Z.. A..`` after it. ``header`` lines become ``(...)`` comments after a leading
-    ``%`` line and a program-number line, if any. Numbers are written in the line's own units and
-    distance mode; incremental numbers are differences of what was actually written, so
-    rounding never accumulates.
+    ``vertices[k]``: shape (m_k, k_axes) absolute axes (mm, deg; the reader's axis order) for
+    the k-th *compensated* move, in order, the last row the move's end. Returns ``(text,
+    groups)`` where ``groups[i]`` is the list of output lines that source line ``i`` became (the
+    header lines are not in ``groups``). Lines of class ``pass``/``state``/``skipped`` and kept
+    rapids come back byte for byte; on a compensated line only the axis numbers change (missing
+    axes are appended after the last axis word, since a correction moves every compensated
+    axis; a kept word, :class:`AxisWords`, keeps its text where its value is unchanged and is
+    appended only where it moves); an arc line becomes ``G1`` (its ``I J K R P`` words removed)
+    and each extra vertex is an added line ``X.. Z.. A..`` after it. ``header`` lines become
+    ``(...)`` comments after a leading ``%`` line and a program-number line, if any. Numbers are
+    written in the line's own units and distance mode; incremental numbers are differences of
+    what was actually written, so rounding never accumulates.
     """
     comp = [m for m in program.moves if m.compensate]
     if len(vertices) != len(comp):
         raise ValueError(f"Expected vertices for {len(comp)} compensated moves, got {len(vertices)}")
+    ax = program.axis_words
+    k_axes = len(ax.words)
     groups = [[ln] for ln in program.lines]
-    ctrl = np.full(3, np.nan)  # where the controller running the output is, mm / deg
+    ctrl = np.full(k_axes, np.nan)  # where the controller running the output is, mm / deg
     k = 0
     for m in program.moves:
         if not m.compensate:
-            ctrl = _kept_position(m, ctrl)
+            ctrl = _kept_position(m, ctrl, ax)
             continue
-        q = np.asarray(vertices[k], dtype=float).reshape(-1, 3)
+        q = np.asarray(vertices[k], dtype=float).reshape(-1, k_axes)
         k += 1
-        groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl)
+        groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax)
     out = [ln for g in groups for ln in g]
     return _with_header(out, header), groups
 
 
-def _render_move(line: str, m: GMove, q, ctrl):
-    """Output lines of one compensated move with vertices ``q`` (k, 3), and the controller
+def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords = GRINDER_WORDS):
+    """Output lines of one compensated move with vertices ``q`` (m, k), and the controller
     position after them (see :func:`render_program`)."""
     if not np.all(np.isfinite(q)):
         raise ValueError(f"Expected finite vertices, got NaN/inf for line {m.index + 1}")
     body = line.rstrip("\r\n")
     ending = line[len(body):] or "\n"
-    written = []
+    written, before = [], []
     for row in q:
-        vals, ctrl = _written_values(row, ctrl, m)
+        before.append(ctrl)
+        vals, ctrl = _written_values(row, ctrl, m, ax)
         written.append(vals)
-    first = _rewrite_line(body, m, written[0])
+    first = _rewrite_line(body, m, written[0], before[0], ax)
     # a block-delete move (run under --block-delete off) keeps its '/' on every piece, so
     # that switching block delete on at the controller skips the whole move, not its first piece
     slash = "/" if body.lstrip(" \t").startswith("/") else ""
-    extra = [slash + " ".join(f"{a}{v}" for a, v in zip(AXES, w)) + ending for w in written[1:]]
+    if ax.kept:
+        extra = [slash + " ".join(f"{a}{vals[j]}" for j, a in enumerate(ax.words) if _needed(j, vals, c0, m, ax))
+                 + ending for vals, c0 in zip(written[1:], before[1:])]
+    else:  # every word on every added line (the grinder)
+        extra = [slash + " ".join(f"{a}{v}" for a, v in zip(ax.words, vals)) + ending for vals in written[1:]]
     if extra and not line.endswith("\n"):
         return [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]], ctrl
     return [first + line[len(body):]] + extra, ctrl
@@ -720,23 +853,25 @@ def _comment_safe(text: str) -> str:
     return str(text).replace("(", "[").replace(")", "]").replace("\n", " ")
 
 
-def _kept_position(m: GMove, ctrl):
+def _kept_position(m: GMove, ctrl, ax: AxisWords):
     """Controller position after a line written as it was (a kept rapid)."""
     out = ctrl.copy()
     scale = MM_PER_INCH if m.units == "inch" else 1.0
-    for j, a in enumerate(AXES):
+    for j, a in enumerate(ax.words):
         if a in m.words:
-            v = m.words[a].value * (1.0 if a == "A" else scale)
+            v = m.words[a].value * (1.0 if a in ax.rotary else scale)
             out[j] = out[j] + v if m.incremental else v
     return out
 
 
-def _written_values(row, ctrl, m: GMove):
+def _written_values(row, ctrl, m: GMove, ax: AxisWords):
+    """The numbers written for one vertex ``row`` (k,) (text per axis) and the controller
+    position they take it to: the line's units and distance mode."""
     scale = MM_PER_INCH if m.units == "inch" else 1.0
+    lin_fmt, rot_fmt = (scale, DECIMALS[m.units]), (1.0, DECIMALS["deg"])  # (scale, decimals)
     vals, new = [], ctrl.copy()
-    for j in range(3):
-        s = 1.0 if j == 2 else scale
-        dec = DECIMALS["deg"] if j == 2 else DECIMALS[m.units]
+    for j, rotary in enumerate(ax.is_rotary):
+        s, dec = rot_fmt if rotary else lin_fmt
         if m.incremental:
             txt = fmt((row[j] - ctrl[j]) / s, dec)
             new[j] = ctrl[j] + float(txt) * s
@@ -747,21 +882,35 @@ def _written_values(row, ctrl, m: GMove):
     return vals, new
 
 
-def _rewrite_line(body: str, m: GMove, vals) -> str:
-    edits = []  # (start, end, text)
-    axis_spans = [(m.words[a].num_start, m.words[a].num_end, vals[j]) for j, a in enumerate(AXES) if a in m.words]
-    edits += axis_spans
-    last_end = max(e for _, e, _ in axis_spans)
-    missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(AXES) if a not in m.words)
-    if missing:
-        edits.append((last_end, last_end, missing))
+def _needed(j: int, vals, ctrl_before, m: GMove, ax: AxisWords) -> bool:
+    """An axis word a written line must carry: every word that is not kept (the correction moves
+    it), a kept one where the line had it or where its written value moves it."""
+    a = ax.words[j]
+    if not ax.kept or a not in ax.kept or a in m.words:
+        return True
+    return float(vals[j]) != 0.0 if m.incremental else not (np.isfinite(ctrl_before[j])
+                                                           and abs(float(vals[j]) - ctrl_before[j]) < 1e-12)
+
+
+def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
+    # a kept word whose value is unchanged keeps its text as written (a chain's tool orientation)
+    words, kept = m.words, ax.kept
+    given = [(j, words[a]) for j, a in enumerate(ax.words) if a in words]
+    edits = [(w.num_start, w.num_end, vals[j]) for j, w in given
+             if not (kept and w.letter in kept and float(vals[j]) == w.value)]  # (start, end, text)
+    last_end = max(w.num_end for _, w in given)
+    if len(given) < len(ax.words):
+        missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(ax.words)
+                          if a not in words and (not kept or _needed(j, vals, ctrl_before, m, ax)))
+        if missing:
+            edits.append((last_end, last_end, missing))
     if m.kind == "arc":
         if m.motion_word is not None:
             edits.append((m.motion_word.start, m.motion_word.num_end, "G1"))
         else:
-            first = min(m.words[a].start for a in AXES if a in m.words)
+            first = min(m.words[a].start for a in ax.words if a in m.words)
             edits.append((first, first, "G1 "))
-        for a in ("I", "K", "R", "P"):
+        for a in ("I", "J", "K", "R", "P"):
             if a in m.words:
                 w = m.words[a]
                 s = w.start - 1 if w.start > 0 and body[w.start - 1] in " \t" else w.start
@@ -914,7 +1063,7 @@ class _Lines(Sequence):
             yield text[s:e]
 
 
-def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes) -> GProgram:
+def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords = GRINDER_WORDS) -> GProgram:
     buf = np.frombuffer(data, np.uint8)
     starts, ends = gscan.line_bounds(buf)
     lines = _Lines(data.decode("latin-1"), starts, np.append(starts[1:], buf.size))
@@ -943,14 +1092,14 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes) -> GPro
     gcode[sel] = buf[starts[mlines[sel]] + spans[sel, 0, 1] - 1] == ord("1")
     given = np.isfinite(vals)
 
-    st = _State()
+    st = _State(len(ax.words))
     classes = ["pass"] * n
     moved = []  # ordinals (k0, k1) of the bulk moves read
     pieces, objects = [], []
 
     def per_line(i: int) -> None:
         try:
-            cls, move = _classify(lines[i].rstrip("\r\n"), i, st, rapids, block_delete)
+            cls, move = _classify(lines[i].rstrip("\r\n"), i, st, rapids, block_delete, ax)
         except _Refuse as r:
             raise _err(path, i + 1, r.col, r.msg) from None
         classes[i] = cls
@@ -1012,8 +1161,9 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes) -> GPro
         classes = cls_arr.tolist()
     table = MoveTable.concat(pieces, objects)
     if not table.compensate.any():
-        raise InputError(f"{path}: no G0/G1/G2/G3 motion with X, Z or A words to compensate found")
-    return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table, data=data)
+        raise _no_motion(path, ax)
+    return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table, data=data,
+                    axis_words=ax)
 
 
 class _Groups(Sequence):
@@ -1102,7 +1252,7 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
     for k in np.flatnonzero(~bulk).tolist():  # moves read line by line (arcs, ...)
         m = program.moves[int(rows[k])]
         q = axes[first[k]:first[k] + counts[k]]
-        changed[m.index], _ = _render_move(lines[m.index], m, q, np.full(3, np.nan))
+        changed[m.index], _ = _render_move(lines[m.index], m, q, np.full(3, np.nan), program.axis_words)
     kb = np.flatnonzero(bulk)
     full = (sp[kb, 1:, 0] >= 0).all(axis=1)  # X, Z and A all on the line (the common case)
     one = counts[kb] == 1

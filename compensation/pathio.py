@@ -40,7 +40,8 @@ from errormap.kinematics import forward, inverse
 from errormap.units import UNITS_CHECK, check_units
 
 from .gcode_kernels import linear_path_lengths_mm
-from .gcode import GProgram, arc_segments, fmt as _fmt, move_points, parse_program, render_program, render_table
+from .gcode import (AxisWords, GProgram, arc_segments, fmt as _fmt, move_points, parse_program, render_program,
+                    render_table)
 
 AXIS_COLUMNS = ("x_mm", "z_mm", "a_deg")
 TARGET_COLUMNS = ("px_mm", "py_mm", "pz_mm")
@@ -555,7 +556,7 @@ def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
         raise InputError(f"{path}: no such file")
     if is_csv(path):
         return _read_csv(path, machine, units, units_option)
-    prog = parse_program(path, rapids=rapids, block_delete=block_delete)
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=AxisWords.of(machine))
     job = plan_gcode(prog, machine, arc_tolerance_um, max_segment_mm, field)
     return gcode_toolpath(job, machine, path)
 
