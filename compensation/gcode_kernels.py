@@ -347,39 +347,85 @@ def render_lines(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags
 
 # ---------------------------------------------------------------------------- planning
 
-@njit(cache=True, nogil=True)
-def _polyline_lengths(start, end, samples, ty, qx0, qz0, out):
-    """The nominal tool point is ``p = (qx0 - x, M(a)·(ty, qz0 + z))`` with ``M(a)`` the
-    rotation ``[[c, s], [-s, c]]``; between two samples of a linear move ``M(a_i)`` factors
-    out of the chord, so each chord is ``|(dx, M(da)·q_(i+1) - q_i)|`` with the same ``dx``
-    and ``da`` for every step: one sine and cosine a move."""
-    for k in range(start.shape[0]):
-        dx = (end[k, 0] - start[k, 0]) / samples
-        dz = (end[k, 1] - start[k, 1]) / samples
-        da = np.deg2rad((end[k, 2] - start[k, 2]) / samples)
-        c, s = np.cos(da), np.sin(da)
-        dx2 = dx * dx
+@njit(cache=True, nogil=True, error_model="numpy")
+def _polyline_lengths(start, end, samples, prog, out):  # pragma: no cover - compiled
+    """WCS length of each move's nominal tool path ``start[j] -> end[j]`` (axes, (m, k)) as the
+    polyline through ``samples + 1`` equally spaced axis values, the tool point from the machine's
+    chain (``prog``: :attr:`errormap.mt_kernel.NominalChain.prog`, the ops of
+    :func:`errormap.mt_kernel._chain_point`). Per sample the tool point is the origin carried through
+    the ops from the last to the first (a point, not a frame: no 3×3 products). Along a linear move
+    every joint's value steps by the same amount, so a rotation op's cosine and sine advance by the
+    angle-addition rule: two sines and cosines per rotary joint a move, not one per sample."""
+    kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt = prog
+    m = kind.shape[0]
+    x0 = np.empty(m)
+    dx = np.empty(m)
+    cs = np.empty(m)
+    sn = np.empty(m)
+    cd = np.empty(m)
+    sd = np.empty(m)
+    for j in range(start.shape[0]):
+        for o in range(m):
+            if kind[o] == 2:
+                continue
+            x, d = value[o], 0.0
+            if joint[o] >= 0:
+                x += jscale[o] * start[j, joint[o]]
+                d = jscale[o] * ((end[j, joint[o]] - start[j, joint[o]]) / samples)
+            x0[o], dx[o] = x, d
+            if kind[o] == 1:
+                cs[o], sn[o], cd[o], sd[o] = np.cos(x), np.sin(x), np.cos(d), np.sin(d)
         total = 0.0
-        for i in range(samples):
-            z0 = qz0 + start[k, 1] + i * dz
-            z1 = qz0 + start[k, 1] + (i + 1) * dz
-            u = c * ty + s * z1 - ty
-            v = -s * ty + c * z1 - z0
-            total += np.sqrt(dx2 + u * u + v * v)
-        out[k] = total
+        p0 = p1 = p2 = 0.0
+        for i in range(samples + 1):
+            v0 = v1 = v2 = 0.0
+            for o in range(m - 1, -1, -1):
+                k = kind[o]
+                if k == 2:  # v = BR·v + Bt
+                    bi = block[o]
+                    w0 = BR[bi, 0, 0] * v0 + BR[bi, 0, 1] * v1 + BR[bi, 0, 2] * v2 + Bt[bi, 0]
+                    w1 = BR[bi, 1, 0] * v0 + BR[bi, 1, 1] * v1 + BR[bi, 1, 2] * v2 + Bt[bi, 1]
+                    w2 = BR[bi, 2, 0] * v0 + BR[bi, 2, 1] * v1 + BR[bi, 2, 2] * v2 + Bt[bi, 2]
+                    v0, v1, v2 = w0, w1, w2
+                elif k == 0:  # translation along the frame's axis
+                    x = x0[o] + i * dx[o]
+                    a = eaxis[o]
+                    if a == 0:
+                        v0 += x
+                    elif a == 1:
+                        v1 += x
+                    else:
+                        v2 += x
+                else:  # rotation about the frame's axis a: (v_b, v_c) turned by the op's angle
+                    a = eaxis[o]
+                    c, s = cs[o], sn[o]
+                    if a == 0:
+                        v1, v2 = c * v1 - s * v2, s * v1 + c * v2
+                    elif a == 1:
+                        v2, v0 = c * v2 - s * v0, s * v2 + c * v0
+                    else:
+                        v0, v1 = c * v0 - s * v1, s * v0 + c * v1
+            if i:
+                u0, u1, u2 = v0 - p0, v1 - p1, v2 - p2
+                total += np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+            p0, p1, p2 = v0, v1, v2
+            for o in range(m):  # the next sample's angles: cos(x + d), sin(x + d)
+                if kind[o] == 1:
+                    c, s = cs[o], sn[o]
+                    cs[o], sn[o] = c * cd[o] - s * sd[o], s * cd[o] + c * sd[o]
+        out[j] = total
 
 
 def linear_path_lengths_mm(machine, start, end, samples: int = 16):
-    """WCS length of the nominal tool path of linear axis moves ``start`` -> ``end`` (m, 3),
-    as the polyline through ``samples + 1`` equally spaced parameters (the closed form of
-    :func:`errormap.kinematics.forward`; chord lengths as :func:`_polyline_lengths` says): (m,)."""
-    from errormap.kinematics import nominal_tool_at_z0
+    """WCS length of the nominal tool path of linear axis moves ``start`` -> ``end`` (m, k), as the
+    polyline through ``samples + 1`` equally spaced parameters, the tool point from the machine's
+    chain (:class:`errormap.mt_kernel.NominalChain`; the grinder's chain file for the grinder): (m,)."""
+    from errormap.mt_kernel import NominalChain
+    prog = NominalChain(machine).prog
     start = np.ascontiguousarray(start, dtype=float)
     end = np.ascontiguousarray(end, dtype=float)
-    tx, ty, tz0 = nominal_tool_at_z0(machine)
     out = np.empty(start.shape[0])
-    qx0, qz0 = tx - machine.l5 - machine.l7, tz0 - machine.l6 - machine.l8
     for a in range(0, start.shape[0], KERNEL_BLOCK):  # Ctrl-C acts within one block
         b = min(start.shape[0], a + KERNEL_BLOCK)
-        _polyline_lengths(start[a:b], end[a:b], int(samples), ty, qx0, qz0, out[a:b])
+        _polyline_lengths(start[a:b], end[a:b], int(samples), prog, out[a:b])
     return out
