@@ -6,14 +6,14 @@ e.g. ``git archive`` of main before this work unpacked under /tmp), one after th
 warms up (kernels compiled / loaded), then times ``--repeats`` runs (CPU = ``time.process_time``,
 median). The outputs of the two checkouts are compared element by element:
 
-* ``exact``: :func:`compensation.solvers.exact.solve_exact` on ``--points`` targets at seeded random
+* ``exact``: :func:`compensation.solvers.exact.solve_exact` on ``--exact-points`` targets at seeded random
   axes inside the grinder's strokes, the HTM field of ``random_truth(grinder, seed)``;
 * ``exact-chain``: :func:`compensation.solvers.chain_exact.solve_exact_chain` on ``mill-xyz`` and
   ``five-axis-ac`` (seeded smooth element sets, ±20 μm / μrad; rotary axes kept);
 * ``batched-ga fused``: :func:`compensation.solvers.batched_ga.solve_batched_ga` with the learned
   field's fused float32 fitness (``training.ga_fitness``; the paper's network fitted to the HTM
-  field by ``--train-iters`` LM iterations, trained once, loaded by both), one worker, on the
-  flute path;
+  field by ``--train-iters`` LM iterations, trained once, loaded by both), one worker, on
+  ``--fused-points`` points spread evenly along the flute path (all 2,800 by default);
 * ``batched-ga generic``: the same on the HTM field (``fused=False``) on ``--ga-points`` points;
 * ``path lengths``: :func:`compensation.gcode_kernels.linear_path_lengths_mm` of ``--moves``
   seeded linear moves (16 chords each).
@@ -64,7 +64,7 @@ def child(case, args, out_npz) -> dict:
         from errormap.kinematics import forward
         from errormap.simulator import random_truth
         f = HTMField(g, random_truth(g, seed).elements)
-        ax = rng.uniform(g.stroke_lo, g.stroke_hi, (args.points, 3))
+        ax = rng.uniform(g.stroke_lo, g.stroke_hi, (args.exact_points, 3))
         tg = forward(g, ax)
 
         def run(k=None):
@@ -86,7 +86,7 @@ def child(case, args, out_npz) -> dict:
         if case.endswith("fused"):
             from training.model import MLPField
             f, fused = MLPField.load(args.model), True
-            tg, ax = _flute(g)
+            tg, ax = _flute(g, args.fused_points or None)
         else:
             from errormap.htm import HTMField
             from errormap.simulator import random_truth
@@ -118,9 +118,10 @@ def child(case, args, out_npz) -> dict:
 
 
 def _run(root, case, args, out_npz) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(root))
+    env = dict(os.environ, PYTHONPATH=str(root), OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # one core each
     cmd = [sys.executable, str(Path(__file__).resolve()), "--_child", case, str(out_npz), "--points", str(args.points),
-           "--moves", str(args.moves), "--ga-points", str(args.ga_points), "--repeats", str(args.repeats),
+           "--exact-points", str(args.exact_points), "--moves", str(args.moves), "--ga-points", str(args.ga_points), "--fused-points", str(args.fused_points),
+           "--repeats", str(args.repeats),
            "--seed", str(args.seed), "--model", str(args.model)]
     p = subprocess.run(cmd, env=env, capture_output=True, text=True)
     if p.returncode != 0:
@@ -131,9 +132,11 @@ def _run(root, case, args, out_npz) -> dict:
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--baseline-root", required=False, help="a checkout of main before this work")
-    ap.add_argument("--points", type=int, default=100_000, help="exact solver targets")
+    ap.add_argument("--points", type=int, default=100_000, help="exact-chain solver targets")
+    ap.add_argument("--exact-points", type=int, default=1_000_000, help="grinder exact solver targets")
     ap.add_argument("--moves", type=int, default=1_000_000, help="path-length moves")
     ap.add_argument("--ga-points", type=int, default=280, help="batched-ga points on the HTM field")
+    ap.add_argument("--fused-points", type=int, default=0, help="batched-ga fused points (0: the whole flute path)")
     ap.add_argument("--train-iters", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
@@ -182,18 +185,18 @@ def main():
     load1 = os.getloadavg()
     lines = ["## The grinder's solvers and path lengths on its chain, beside main's hand-written kinematics "
              "(issue 26 point 3)", "",
-             f"`nice -n 10 python benchmarks/bench_grinder_chain.py --baseline-root MAIN_CHECKOUT --points {args.points} "
-             f"--moves {args.moves} --ga-points {args.ga_points} --train-iters {args.train_iters} --repeats "
+             f"`nice -n 10 python benchmarks/bench_grinder_chain.py --baseline-root MAIN_CHECKOUT --points {args.points} --exact-points {args.exact_points} "
+             f"--moves {args.moves} --ga-points {args.ga_points} --fused-points {args.fused_points} --train-iters {args.train_iters} --repeats "
              f"{args.repeats} --seed {args.seed}` on this machine ({os.cpu_count()} cores, shared; load average "
              f"{load0[0]:.1f} at the start, {load1[0]:.1f} at the end). MAIN_CHECKOUT: main before this work "
              "(`git archive 0485cf2`). Each case: a fresh process per checkout, one after the other, warmed up, "
-             f"then {args.repeats} timed runs (CPU = `time.process_time`, median; each run's in the last columns). "
+             f"then {args.repeats} timed runs (one thread: OMP_NUM_THREADS=1; CPU = `time.process_time`, median; each run's in the last columns). "
              "Outputs compared element by element: commands (μm) of the solvers, lengths (mm) of the path "
              "kernel. Residuals are MODEL residuals (each solver against its own field), max over the solved "
              "points. exact: random axes in the grinder's strokes, HTM field of `random_truth(grinder, seed)`; "
              "exact-chain: seeded smooth ChainField (±20 μm / μrad), rotary axes kept; batched-ga fused: the "
-             f"paper's network fitted by {args.train_iters} LM iterations to that HTM field, on the flute path "
-             f"(2,800 points), one worker; batched-ga generic: the HTM field on {args.ga_points} flute points; "
+             f"paper's network fitted by {args.train_iters} LM iterations to that HTM field, on "
+             f"{args.fused_points or 'all 2,800'} evenly spread flute points, one worker; batched-ga generic: the HTM field on {args.ga_points} flute points; "
              "path lengths: seeded linear moves (A over ±2 turns), 16 chords each.", "",
              "| case | points / moves | main CPU (s) | new CPU (s) | new / main | max difference | same points "
              "succeeded | solved (new) | max model residual main / new (μm) | main CPU s of each run | new CPU s of each "

@@ -108,16 +108,21 @@ def test_path_lengths_from_the_chain_equal_the_closed_form(theta1_deg):
     assert np.all(got[:10] == 0.0)
 
 
-def test_path_lengths_on_a_chain_file_equal_the_chain_polyline():
+@pytest.mark.parametrize("name", ["five-axis-ac", "mill-xyz", "lathe-xzc"])
+def test_path_lengths_on_a_chain_file_equal_the_chain_polyline(name):
     """Any chain: the kernel's polyline equals the chain's own nominal tool point
-    (:meth:`MachineTool.nominal`, the numpy chain) at the samples."""
-    mt = load_machine("five-axis-ac")
+    (:meth:`MachineTool.nominal`, the numpy chain) at the samples. Each move keeps a random subset
+    of its axes still, so every branch of the kernel runs: a straight line, a leading rotation
+    alone, rotations walked per sample, rigid ops skipped in front."""
+    mt = load_machine(name)
     rng = np.random.default_rng(4)
-    n, samples = 500, 8
-    start = rng.uniform(mt.stroke_lo, mt.stroke_hi, (n, len(mt.axes)))
-    end = start + rng.normal(0.0, 2.0, start.shape) * np.where(mt.stroke_hi - mt.stroke_lo > 360, 10.0, 1.0)
+    n, samples = 2000, 8
+    k = len(mt.axes)
+    start = rng.uniform(mt.stroke_lo, mt.stroke_hi, (n, k))
+    step = rng.normal(0.0, 2.0, start.shape) * np.where(mt.stroke_hi - mt.stroke_lo > 360, 10.0, 1.0)
+    end = start + step * (rng.random((n, k)) < 0.5)
     t = np.arange(samples + 1) / samples
     q = start[:, None, :] + t[None, :, None] * (end - start)[:, None, :]
-    p = mt.nominal(q.reshape(-1, len(mt.axes))).reshape(n, samples + 1, 3)
+    p = mt.nominal(q.reshape(-1, k)).reshape(n, samples + 1, 3)
     ref = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
     np.testing.assert_allclose(linear_path_lengths_mm(mt, start, end, samples), ref, rtol=0, atol=PATH_TOL_MM)
