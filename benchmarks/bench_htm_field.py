@@ -1,9 +1,10 @@
 """Benchmark (issue 20): the exact HTM field, reference vs fast, side by side in one run.
 
 * field: μs per point of ``HTMField.predict`` (exact) — the reference pipeline (18 per-element
-  splines + the (n, 3, 3) matrix chain ``spatial_error_exact_chain``) against the fast one (3
-  vector-valued per-axis splines + the compiled closed form ``spatial_error_exact``);
-* field + Jacobian: μs per point of ``HTMField.predict_and_jacobian`` (closed form, one pass);
+  splines + the (n, 3, 3) numpy matrix chain ``spatial_error_exact_chain``; the baseline's
+  hand-written one with ``--baseline-root``) against the fast one (3 vector-valued per-axis splines
+  + the compiled chain, ``HTMField.predict``);
+* field + Jacobian: μs per point of ``HTMField.predict_and_jacobian`` (exact, one pass);
 * solve: μs per point of ``solve_exact`` on the same targets with either field — the reference
   declares no Jacobian (the solver differentiates it by forward differences, 3 more evaluations
   per point), the fast one its closed-form Jacobian — and the largest difference of the commands
@@ -12,7 +13,12 @@
 
 Points: uniform over the strokes with A over several turns, truth ``random_truth(seed)``.
 Each seed is one job (``--jobs`` processes); per seed the median of ``--repeats`` runs.
-Run: python benchmarks/bench_htm_field.py [--points N] [--seeds S] [--jobs J] [--repeats R]
+Since issue 26 point 3 the fast field is the grinder's chain file through the generic compiled
+kernel (errormap/mt_kernel.py); with ``--baseline-root DIR`` (a copy of main before that change,
+imported beside this checkout by benchmarks/baseline.py) the hand-written closed-form kernel it
+replaced is timed in the same process (field and field + J) with the ratio and the largest
+differences.
+Run: python benchmarks/bench_htm_field.py [--points N] [--seeds S] [--jobs J] [--repeats R] [--baseline-root DIR]
 """
 from __future__ import annotations
 
@@ -33,9 +39,17 @@ from errormap.simulator import random_axes, random_truth
 
 
 class ReferenceHTMField(HTMField):
-    """The exact HTM field as it was before issue 20: per-element splines, matrix chain, no Jacobian."""
+    """The exact HTM field as it was before issue 20: per-element splines, matrix chain, no Jacobian.
+
+    ``exact_chain(machine, axes, values, chunk)`` is the numpy matrix chain: the hand-written one of
+    the baseline (``--baseline-root``, the pipeline this column timed before issue 26 point 3) or,
+    without a baseline, the chain file's numpy reference (:func:`errormap.htm.spatial_error_exact_chain`)."""
 
     capabilities = frozenset()
+
+    def __init__(self, machine, elements, exact_chain=spatial_error_exact_chain):
+        super().__init__(machine, elements)
+        self.exact_chain = exact_chain
 
     def predict(self, axes):
         axes = np.asarray(axes, dtype=float)
@@ -43,7 +57,7 @@ class ReferenceHTMField(HTMField):
         cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
         v = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
                      + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
-        return spatial_error_exact_chain(self.machine, axes, v, chunk=self.chunk)
+        return self.exact_chain(self.machine, axes, v, chunk=self.chunk)
 
 
 def _median_time(fn, repeats):
@@ -55,18 +69,31 @@ def _median_time(fn, repeats):
     return statistics.median(times), out
 
 
-def run_seed(seed, points, repeats, solve_points):
+def run_seed(seed, points, repeats, solve_points, baseline_root=None):
     from compensation.solvers.exact import solve_exact
     m = load_machine()
     el = random_truth(m, seed).elements
     rng = np.random.default_rng([seed, 20])
     axes = random_axes(m, points, rng)
     axes[:, 2] += 360.0 * rng.integers(-3, 4, points)
-    ref, new = ReferenceHTMField(m, el), HTMField(m, el)
+    old_htm = None
+    if baseline_root:
+        from baseline import baseline_module
+        old_htm = baseline_module(baseline_root, "htm")
+    ref = ReferenceHTMField(m, el, old_htm.spatial_error_exact_chain if old_htm else spatial_error_exact_chain)
+    new = HTMField(m, el)
     new.predict(axes[:10]), ref.predict(axes[:10])  # compile / build splines outside the timing
     t_ref, e_ref = _median_time(lambda: ref.predict(axes), repeats)
     t_new, e_new = _median_time(lambda: new.predict(axes), repeats)
-    t_jac, _ = _median_time(lambda: new.predict_and_jacobian(axes), repeats)
+    t_jac, (_, j_new) = _median_time(lambda: new.predict_and_jacobian(axes), repeats)
+    old = {}
+    if old_htm is not None:
+        hand = old_htm.HTMField(m, el)
+        hand.predict(axes[:10]), hand.predict_and_jacobian(axes[:10])
+        t_hv, e_h = _median_time(lambda: hand.predict(axes), repeats)
+        t_hj, (_, j_h) = _median_time(lambda: hand.predict_and_jacobian(axes), repeats)
+        old = {"hand_us": t_hv / points * 1e6, "hand_jac_us": t_hj / points * 1e6,
+               "hand_diff_um": float(np.abs(e_new - e_h).max()), "hand_diff_jac": float(np.abs(j_new - j_h).max())}
     targets = forward(m, axes[:solve_points])
     s_ref, r_ref = _median_time(lambda: solve_exact(ref, targets, m, progress=False), repeats)
     s_new, r_new = _median_time(lambda: solve_exact(new, targets, m, progress=False), repeats)
@@ -75,7 +102,7 @@ def run_seed(seed, points, repeats, solve_points):
             "field_diff_um": float(np.abs(e_new - e_ref).max()),
             "solve_ref_us": s_ref / solve_points * 1e6, "solve_new_us": s_new / solve_points * 1e6,
             "commands_diff_um": float(np.abs(r_new.commands_mm - r_ref.commands_mm)[r_new.success & r_ref.success].max() * 1e3),
-            "solved": f"{int(r_new.success.sum())}/{solve_points} vs {int(r_ref.success.sum())}/{solve_points}"}
+            "solved": f"{int(r_new.success.sum())}/{solve_points} vs {int(r_ref.success.sum())}/{solve_points}", **old}
 
 
 def main():
@@ -86,21 +113,29 @@ def main():
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "htm_field_results.md"))
+    ap.add_argument("--baseline-root", default=None,
+                    help="a copy of main before issue 26 point 3: time its hand-written kernel beside the chain's")
     args = ap.parse_args()
     load0 = os.getloadavg()[0]
     seeds = list(range(args.seeds))
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_seed, seeds, [args.points] * len(seeds), [args.repeats] * len(seeds),
-                             [args.solve_points] * len(seeds)))
+                             [args.solve_points] * len(seeds), [args.baseline_root] * len(seeds)))
     lines = ["## Fast exact HTM field (issue 20)", "",
              f"`python benchmarks/bench_htm_field.py --points {args.points} --solve-points {args.solve_points} "
-             f"--seeds {args.seeds} --jobs {args.jobs} --repeats {args.repeats}` — default grinder, truth "
+             f"--seeds {args.seeds} --jobs {args.jobs} --repeats {args.repeats}"
+             + (" --baseline-root MAIN_BEFORE" if args.baseline_root else "") + "` — default grinder, truth "
              "`random_truth(seed)`, points uniform over the strokes with A over -3..+3 extra turns; "
              f"median of {args.repeats} runs per seed (CPU time of the process: the load of the shared cores inflates wall time), reference and fast in the same process, one after the other; "
              f"{os.cpu_count()} cores shared with other work (load average {load0:.1f} at the start, "
              f"{os.getloadavg()[0]:.1f} at the end). Reference = per-element splines + (n, 3, 3) matrix chain "
-             "(the field before issue 20); fast = per-axis vector splines + compiled closed-form chain; field + J = "
-             "`predict_and_jacobian` (value and closed-form Jacobian in one pass). "
+             "(the field before issue 20; "
+             + ("the hand-written numpy chain of the baseline copy of main" if args.baseline_root else
+                "the chain file's numpy reference chain, chunks of 4,096 points — slower than the hand-written "
+                "numpy chain it replaced, so this speed-up is not comparable with runs before issue 26 point 3")
+             + "); fast = per-axis vector splines + the grinder's chain file through the "
+             "generic compiled kernel (issue 26 point 3; the hand-written closed form before it); field + J = "
+             "`predict_and_jacobian` (value and exact geometric Jacobian in one pass). "
              "Solve = `solve_exact` (the current solver, CPU of one thread) on the nominal tool points of the first "
              "solve-points axes (model residual): ref = the reference field without a Jacobian (forward differences), "
              "fast = the fast field with its closed-form Jacobian.", "",
@@ -112,6 +147,16 @@ def main():
                      f"{r['field_ref_us'] / r['field_new_us']:.1f}× | {r['field_jac_us']:.2f} | {r['field_diff_um']:.1e} | {r['solve_ref_us']:.1f} | "
                      f"{r['solve_new_us']:.1f} | {r['solve_ref_us'] / r['solve_new_us']:.1f}× | "
                      f"{r['commands_diff_um']:.1e} | {r['solved']} |")
+    if args.baseline_root:
+        lines += ["", "Hand-written closed-form kernel (errormap/htm.py before issue 26 point 3, from a copy of main, "
+                  "commit 0485cf2) beside the chain kernel, same process, same points:", "",
+                  "| seed | field hand (μs/pt) | field chain (μs/pt) | ratio | field + J hand (μs/pt) | "
+                  "field + J chain (μs/pt) | ratio | max abs ΔE (μm) | max abs ΔJ (μm per mm/deg) |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for r in rows:
+            lines.append(f"| {r['seed']} | {r['hand_us']:.3f} | {r['field_new_us']:.3f} | "
+                         f"{r['field_new_us'] / r['hand_us']:.2f}× | {r['hand_jac_us']:.3f} | {r['field_jac_us']:.3f} | "
+                         f"{r['field_jac_us'] / r['hand_jac_us']:.2f}× | {r['hand_diff_um']:.1e} | {r['hand_diff_jac']:.1e} |")
     text = "\n".join(lines) + "\n"
     print(text)
     with atomic_write(args.out, "w", encoding="utf-8") as fh:

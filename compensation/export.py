@@ -512,9 +512,11 @@ def joint_tables_from_model(model_error, machine, n_points: int = LINUXCNC_MAX_P
 
 
 def write_joint_tables(tables: JointTables, folder) -> list[Path]:
+    """``joint_<j>.comp`` for every joint of ``tables.nominal`` (the grinder's x, z, a; a chain's linear joints,
+    :class:`compensation.mt_export.ChainJointTables`): lines ``nominal forward reverse``, 9 decimals."""
     from errormap.io import atomic_write
     out = []
-    for j in JOINTS:
+    for j in tables.nominal:
         fwd, rev = tables.actual(j)
         path = Path(folder) / f"joint_{j}.comp"
         with atomic_write(path, "w", encoding="utf-8") as fh:

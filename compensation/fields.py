@@ -138,8 +138,13 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
     network (folder or MLflow); other model kinds are refused naming what the file is."""
     src = source or resolve_model(spec)
     if getattr(machine, "kind", None) == "machine-tool":  # a chain machine: its element set, over its own axes
-        require_kind(src, ("elements", "chain-model", "chain-network"),
+        require_kind(src, ("elements", "chain-model", "chain-network", "mlflow"),
                      f"on the machine-tool chain {machine.name!r} this command evaluates")
+        if src.kind == "mlflow":  # a chain network recorded by `train --tracking-uri` on the chain's feature points
+            from training.chain_model import ChainMLPField, check_machine
+            from training.tracking import load_field as load_learned
+            return check_machine(load_learned(src.spec, tracking_uri=tracking_uri, loader=ChainMLPField.load),
+                                 machine, src.spec)
         if src.kind == "chain-model":
             from errormap.diagnosis.mt_model import load_chain_model_file
             return load_chain_model_file(src.path, machine)

@@ -207,3 +207,130 @@ def write_chain_grid(ticks, vals, machine, folder, model_desc: str):
             f"model: {model_desc}", f"ticks: {' x '.join(str(len(t)) for t in ticks)} (first axis slowest)",
             "interpolation: trilinear between nodes; volumetric error of the tool point in the workpiece frame, um"]
     return [write_csv(folder / "grid.csv", cols, header_comments=head, float_fmt="%.9g")]
+
+
+# -- LinuxCNC per-joint tables of the linear joints ----------------------------------------------
+JOINT_SAMPLES = 48
+"""Positions of the other axes each node's correction is averaged over (as the grinder's per-joint tables)."""
+TABLE_TEMP_C = 20.0
+"""A pitch table has no temperature input: a thermal term of the model is evaluated at the reference temperature."""
+
+
+class ChainJointTables:
+    """Per-joint LinuxCNC tables of a chain's LINEAR joints: ``nominal[j]``, ``forward[j]``, ``reverse[j]``
+    (m,) mm — the positions joint ``j`` (lower-case axis word) actually reaches when commanded to ``nominal``
+    approaching in + / − direction. ``joints``: ``{j: index into machine.axes}``. Written by the grinder's
+    writer (:func:`compensation.export.write_joint_tables`)."""
+
+    kind = "linuxcnc"
+
+    def __init__(self, nominal: dict, forward: dict, reverse: dict, joints: dict):
+        self.nominal, self.forward, self.reverse, self.joints = nominal, forward, reverse, joints
+
+    def actual(self, j: str):
+        return self.forward[j], self.reverse[j]
+
+    def command(self, axes, dirs) -> np.ndarray:
+        """Motor commands (n, k) for nominal axes ``axes`` (n, k) approached in ``dirs`` (n, k) ±1: each
+        tabulated joint ``q + (q − actual(q))``, linear between lines, clamped to the table; other axes as given."""
+        axes = np.asarray(axes, dtype=float)
+        out = axes.copy()
+        for j, k in self.joints.items():
+            nom = self.nominal[j]
+            q = axes[:, k]
+            act = np.where(dirs[:, k] >= 0, np.interp(q, nom, self.forward[j]), np.interp(q, nom, self.reverse[j]))
+            out[:, k] = q + (np.interp(q, nom, nom) - act)
+        return out
+
+    def n_values(self) -> int:
+        return int(sum(3 * v.size for v in self.nominal.values()))
+
+
+def _range(elements, a) -> tuple:
+    s = elements.stations.get(a.column)
+    return (float(s[0]), float(s[-1])) if s is not None else tuple(a.stroke)
+
+
+def model_at(field_, machine, dirs) -> object:
+    """``field_`` with the conditions its terms need: the approach directions ``dirs`` (n, k) ±1 and the
+    reference temperature :data:`TABLE_TEMP_C`."""
+    needs = tuple(getattr(field_, "needs", ()))
+    if not needs:
+        return field_
+    cond = {f"dir_{a.word.lower()}": dirs[:, j] for j, a in enumerate(machine.axes)}
+    cond["temp_c"] = np.full(len(dirs), TABLE_TEMP_C)
+    return field_.with_conditions({c: cond[c] for c in needs})
+
+
+def exact_corrections(field_, machine, axes, dirs):
+    """The exact chain solver's axis correction (n, k) at nominal ``axes`` approached in ``dirs``, and its
+    success mask (n,)."""
+    from .solvers import solve
+    from .solvers.chain_exact import nominal_and_jacobian
+    targets, _ = nominal_and_jacobian(machine, axes)
+    r = solve("exact", model_at(field_, machine, dirs), targets, machine, target_axes=axes, progress=False)
+    return r.axes - axes, np.asarray(r.success, bool)
+
+
+def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAMPLES, seed=0) -> ChainJointTables:
+    """One table per linear joint: at ``n_points`` nominal positions over its calibrated range, the exact
+    correction of that joint averaged over ``samples`` seeded positions of the other axes (their approach
+    directions drawn ±1); ``forward`` with the joint approached in +, ``reverse`` in − (equal unless the model
+    has a reversal term on that joint). Nodes where no sample is compensable take their neighbours' values."""
+    from .solvers.chain_exact import linear_axes
+    m = elements.machine
+    lin, _ = linear_axes(m)
+    rng = np.random.default_rng(seed)
+    lo = np.array([_range(elements, a)[0] for a in m.axes])
+    hi = np.array([_range(elements, a)[1] for a in m.axes])
+    needs = set(getattr(field_, "needs", ()))
+    nominal, fwd, rev, joints = {}, {}, {}, {}
+    for k in lin:
+        a = m.axes[k]
+        j = a.word.lower()
+        nom = np.linspace(lo[k], hi[k], n_points)
+        q = np.repeat(rng.uniform(lo, hi, (samples, len(m.axes)))[None], n_points, axis=0)
+        q[:, :, k] = nom[:, None]
+        q = q.reshape(-1, len(m.axes))
+        d = np.repeat(rng.choice([-1.0, 1.0], (samples, len(m.axes)))[None], n_points, axis=0).reshape(-1, len(m.axes))
+        out = []
+        for sign in ((1.0, -1.0) if f"dir_{j}" in needs else (1.0,)):
+            d[:, k] = sign
+            c, ok = exact_corrections(field_, m, q, d)
+            c, ok = c[:, k].reshape(n_points, samples), ok.reshape(n_points, samples)
+            cnt = ok.sum(axis=1)
+            if not np.any(cnt):
+                raise ValueError(f"joint {a.word}: the model cannot be compensated at any sampled point")
+            mean = np.where(ok, c, 0.0).sum(axis=1) / np.maximum(cnt, 1)
+            good = cnt > 0
+            mean[~good] = np.interp(nom[~good], nom[good], mean[good])
+            out.append(nom - mean)
+        nominal[j], fwd[j], rev[j], joints[j] = nom, out[0], out[-1], int(k)
+    return ChainJointTables(nominal, fwd, rev, joints)
+
+
+def check_chain_joint_tables(tables: ChainJointTables, field_, machine, axes, dirs, truth=None) -> dict:
+    """MODEL residual (and with ``truth`` TRUE) the joint tables leave at ``axes`` (n, k) approached in ``dirs``:
+    the tool point the model (truth) machine reaches with the table's commands minus the target, beside no
+    compensation and the model's exact compensation. ``truth``: ``predict_at(axes, dirs) -> (n, 3)`` μm."""
+    from .solvers.chain_exact import nominal_and_jacobian
+    targets, _ = nominal_and_jacobian(machine, axes)
+
+    def reached(q, f):
+        p, _ = nominal_and_jacobian(machine, q)
+        return (p - targets) * 1e3 + f(q)
+
+    def model(q):
+        return model_at(field_, machine, dirs).predict(q)
+    q_t = tables.command(axes, dirs)
+    c, _ = exact_corrections(field_, machine, axes, dirs)
+    q_x = axes + c
+    out = {"model": _stats(reached(q_t, model)), "baseline_none": {"model": _stats(model(axes))},
+           "baseline_exact": {"model": _stats(reached(q_x, model))}}
+    if truth is not None:
+        def tr(q):
+            return truth(q, dirs)
+        out["true"] = _stats(reached(q_t, tr))
+        out["baseline_none"]["true"] = _stats(tr(axes))
+        out["baseline_exact"]["true"] = _stats(reached(q_x, tr))
+    return out

@@ -58,7 +58,7 @@ from .io import InputError
 from .machine import Grinder
 from .sweeps import (SWEEP_AXES, Sweeps, a_line_offset, compose, error_transform, invert, read_sweeps,
                      sweeps_from_columns, x_carriage_nominal, z_carriage_nominal)
-from .transforms import apply, rot_x, rot_z, skew
+from .transforms import apply, rot_x, skew
 
 GAUGES = ("first-station", "reference-line", "station-mean")
 
@@ -184,12 +184,14 @@ def move_squareness(elements: ElementSet, s_xz_urad: float, machine: Grinder) ->
     """An equivalent element set with squareness ``s_xz_urad``: the difference moves exactly
     into the Z straightness/positioning (``d_z += RotZ(-θ1)·z·(u(s_old) - u(s_new))``,
     ``u(s) = (sin s, 0, cos s)``), which leaves every Z-carriage pose, hence the tool point,
-    unchanged. This is the one combination the sweeps cannot separate."""
+    unchanged. This is the one combination the sweeps cannot separate. The Z body's nominal
+    frames with either squareness come from the grinder's chain (:func:`z_carriage_nominal`):
+    ``d_z += R⁻¹·(t(s_old) - t(s_new))``."""
     out = elements.copy()
     z = out.stations["z_mm"]
-    u = lambda s: np.array([np.sin(s * URAD), 0.0, np.cos(s * URAD)])  # noqa: E731
-    th = rot_z(np.deg2rad(machine.theta1_deg))[0]
-    delta_um = (z[:, None] * (th.T @ (u(elements.constants["s_xz"]) - u(s_xz_urad)))) / UM
+    R, t_old = z_carriage_nominal(machine, z, elements.constants["s_xz"])
+    _, t_new = z_carriage_nominal(machine, z, s_xz_urad)
+    delta_um = np.einsum("nji,nj->ni", R, t_old - t_new) / UM
     for j, k in enumerate(("dx_z", "dy_z", "dz_z")):
         out.functions[k] = out.functions[k] + delta_um[:, j]
     out.constants["s_xz"] = float(s_xz_urad)

@@ -54,7 +54,7 @@ import numpy as np
 
 from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS
 from .machine import Grinder
-from .transforms import check_points, rot_x, rot_z
+from .transforms import check_points
 
 ISO_NAME = {
     "dx_x": "EXX", "dy_x": "EYX", "dz_x": "EZX", "ex_x": "EAX", "ey_x": "EBX", "ez_x": "ECX",
@@ -93,23 +93,26 @@ def label(name: str) -> str:
     return f"{name} ({ISO_NAME[name]})"
 
 
+def _body_frames(machine: Grinder, axes) -> dict:
+    """Nominal frames ``(R (n, 3, 3), t (n, 3) mm)`` machine <- the X, Z and A bodies at ``axes``
+    (n, 3): the grinder's chain file (:meth:`errormap.mt_chain.MachineTool.body_frames`, one
+    source for the kinematics)."""
+    from .mt_chain import grinder_chain
+    mt = grinder_chain(machine)
+    return {b: mt.body_frames(b, axes) for b in ("X", "Z", "A")}
+
+
 def reference_points_mm(machine: Grinder, axes) -> dict:
-    """Nominal reference points of the X, Z and A bodies in the MCS (mm), each shape (n, 3)."""
+    """Nominal reference points of the X, Z and A bodies in the MCS (mm), each shape (n, 3):
+    the origins of the bodies' frames in the grinder's chain (module docstring)."""
     axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
-    x, z = axes[:, 0], axes[:, 1]
-    zero = np.zeros_like(x)
-    th = np.deg2rad(machine.theta1_deg)
-    return {"X": np.stack([machine.l5 + x, zero, np.full_like(x, machine.l6)], axis=1),
-            "Z": np.stack([np.cos(th) * machine.l2 + zero, np.sin(th) * machine.l2 + zero, machine.l1 + z], axis=1),
-            "A": np.stack([machine.l5 + x + machine.l7, zero, np.full_like(x, machine.l6 + machine.l8)], axis=1)}
+    return {b: t for b, (_, t) in _body_frames(machine, axes).items()}
 
 
 def _frames(machine: Grinder, axes) -> dict:
-    """Rotation from each body's project frame to the MCS, shape (n, 3, 3)."""
-    n = axes.shape[0]
-    return {"X": np.broadcast_to(np.eye(3), (n, 3, 3)),
-            "Z": np.broadcast_to(rot_z(np.deg2rad(machine.theta1_deg))[0], (n, 3, 3)),
-            "A": rot_x(np.deg2rad(axes[:, 2]))}
+    """Rotation from each body's project frame to the MCS, shape (n, 3, 3) (the chain's nominal
+    body frames: X the identity, Z ``RotZ(θ1)``, A ``RotX(a)``)."""
+    return {b: R for b, (R, _) in _body_frames(machine, axes).items()}
 
 
 _TRIPLES = {"X": (X_ELEMENTS[:3], X_ELEMENTS[3:]), "Z": (Z_ELEMENTS[:3], Z_ELEMENTS[3:]),

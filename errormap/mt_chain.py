@@ -256,15 +256,146 @@ class MachineTool:
         err = np.abs(pts - self.tool_point(q)).max(axis=1)
         return q, err <= tol_mm
 
+    def closed_form_inverse(self):
+        """The nominal inverse in closed form where the chain's structure allows it, else None.
+
+        Recognised from the compiled ``inv(work)·tool`` chain (never from a name): three axes, one
+        of them rotary and driving one ET, only fixed ETs before it (``F0``) and no rotary joint
+        after it. Then the nominal tool point is ``p = F0·R_w(θ)·(c + L·u)`` with ``θ = θ0 + s·a``
+        the rotary ET's value, ``w`` its axis, ``u`` the two linear axes and ``c``, ``L`` (3, 2)
+        constant (the ETs after the rotary one move the origin affinely in ``u``); the two linear
+        directions must span a plane that the rotation tilts (its normal ``n`` not along ``w``).
+        ``n·R_w(−θ)·F0⁻¹p = n·c`` is ``A cos θ + B sin θ = C``: two roots
+        ``θ = atan2(B, A) ± acos(C / hypot(A, B))`` (the argument clipped to ±1: a point the
+        linear axes cannot reach is put at the nearest angle; on the rotary axis itself, where
+        ``A = B = 0``, θ = 0), each with ``u = L⁺·(R_w(−θ)·F0⁻¹p − c)``; of the two, the one whose
+        linear axes lie nearest the middle of their strokes (in half-strokes) is taken (on the
+        grinder: the wheel on the near side of the A axis). Returns a function
+        ``points (n, 3) mm -> axes (n, 3)`` with the rotary axis in degrees, not yet wrapped
+        (:meth:`inverse_closed`)."""
+        ch = self.chain
+        if len(self.axes) != 3:
+            return None
+        rot = [j for j, a in enumerate(self.axes) if a.kind == "rotary"]
+        lin = [j for j, a in enumerate(self.axes) if a.kind == "linear"]
+        if len(rot) != 1 or len(lin) != 2:
+            return None
+        r = rot[0]
+        drives = np.flatnonzero(ch.joint >= 0)
+        at = [m for m in drives if ch.joint[m] == r]
+        if len(at) != 1 or any(ch.joint[m] >= 0 for m in range(at[0])):
+            return None
+        m0 = at[0]
+        if any(ch.kind_r[m] and ch.joint[m] >= 0 for m in range(m0 + 1, len(ch.ets))):
+            return None
+        F0 = np.eye(4)
+        for m in range(m0):
+            F0 = F0 @ _et4(bool(ch.kind_r[m]), int(ch.axis[m]), float(ch.value[m]))
+        scale = np.where(ch.joint >= 0, ch.sign, 0.0)
+
+        def rest(u):  # origin after the rotary ET, (2,) linear axis values -> (3,) mm
+            T = np.eye(4)
+            for m in range(m0 + 1, len(ch.ets)):
+                x = ch.value[m]
+                if ch.joint[m] >= 0:
+                    x = x + scale[m] * u[lin.index(int(ch.joint[m]))]
+                T = T @ _et4(bool(ch.kind_r[m]), int(ch.axis[m]), float(x))
+            return T[:3, 3]
+
+        c = rest(np.zeros(2))
+        L = np.stack([rest(np.eye(2)[j]) - c for j in range(2)], axis=1)
+        n = np.cross(L[:, 0], L[:, 1])
+        if np.linalg.norm(n) < 1e-9 * max(1.0, np.linalg.norm(L) ** 2):
+            return None
+        n = n / np.linalg.norm(n)
+        w = np.eye(3)[int(ch.axis[m0])]
+        if np.linalg.norm(n - (n @ w) * w) < 1e-9:
+            return None
+        L_pinv = np.linalg.pinv(L)
+        F0_inv_R, F0_t = F0[:3, :3].T, F0[:3, 3]
+        theta0, s = float(ch.value[m0]), float(ch.sign[m0]) * np.pi / 180.0
+        lo = np.array([self.axes[j].stroke[0] for j in lin])
+        hi = np.array([self.axes[j].stroke[1] for j in lin])
+        mid, half = (lo + hi) / 2.0, np.maximum((hi - lo) / 2.0, 1e-12)
+
+        def solve(points_mm):
+            p = (np.asarray(points_mm, dtype=float) - F0_t) @ F0_inv_R.T       # F0⁻¹·p
+            par = (p @ w)[:, None] * w
+            perp = p - par
+            wxp = np.cross(w, p)
+            A, B, C = perp @ n, -(wxp @ n), n @ c - par @ n
+            rr = np.hypot(A, B)
+            ratio = np.divide(C, rr, out=np.ones_like(C), where=rr > 0.0)
+            phi, d = np.arctan2(B, A), np.arccos(np.clip(ratio, -1.0, 1.0))
+            best, best_cost = None, None
+            for th in (phi + d, phi - d):
+                cs, sn = np.cos(th)[:, None], np.sin(th)[:, None]
+                q = par + cs * perp - sn * wxp                                   # R_w(−θ)·p
+                u = (q - c) @ L_pinv.T
+                cost = (((u - mid) / half) ** 2).sum(axis=1)
+                ax = np.empty((p.shape[0], 3))
+                ax[:, lin[0]], ax[:, lin[1]] = u[:, 0], u[:, 1]
+                ax[:, r] = (th - theta0) / s
+                if best is None:
+                    best, best_cost = ax, cost
+                else:
+                    take = cost < best_cost
+                    best[take] = ax[take]
+            return best
+
+        return solve
+
+    def inverse_closed(self, points_mm, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:
+        """Nominal axes for workpiece-frame tool points by :meth:`closed_form_inverse` (refused with
+        ValueError where the chain has none), shape (n, 3) -> (n, 3). The rotary axis: with
+        ``unwrap`` the points are a path, unwrapped along it (multi-turn paths continue past 360°)
+        and the first point put in ``[lo, lo + 360)`` of its stroke, or nearest to ``a_start_deg``
+        when given; without ``unwrap`` each point's angle lies in ``[lo, lo + 360)``."""
+        solve = self._closed_form()
+        if solve is None:
+            raise ValueError(f"{self.name!r}: the chain has no closed-form inverse (use inverse, Newton)")
+        q = solve(np.atleast_2d(np.asarray(points_mm, dtype=float)))
+        r = next(j for j, a in enumerate(self.axes) if a.kind == "rotary")
+        a, a_lo = q[:, r], self.axes[r].stroke[0]
+        if unwrap:
+            a = np.rad2deg(np.unwrap(np.deg2rad(a)))
+            if a.size:
+                if a_start_deg is None:
+                    a = a - 360.0 * np.floor((a[0] - a_lo) / 360.0)
+                else:
+                    a = a - 360.0 * np.round((a[0] - a_start_deg) / 360.0)
+        else:
+            a = a_lo + np.mod(a - a_lo, 360.0)
+        q[:, r] = a
+        return q
+
+    def _closed_form(self):
+        """:meth:`closed_form_inverse`, built once per machine."""
+        key = "_closed_form_solver"
+        if key not in self.__dict__:
+            object.__setattr__(self, key, self.closed_form_inverse())
+        return self.__dict__[key]
+
     def body_frames(self, word: str, axes, values=None):
         """Actual frame of the moving body of axis ``word`` in the machine (base) frame, after its
         motion and its component errors (where its ``[targets]`` are mounted): ``(R (n, 3, 3),
         t (n, 3) mm)``, base <- body. ``axes`` (n, k); ``values`` (n, P) or (P,) μm/μrad, None nominal."""
         if word not in self.body_index:
             raise ValueError(f"expected an axis word of {self.name!r} {list(self.axis_words)}, got {word!r}")
-        axes, values = self._check(axes, values)
         side, upto = self.body_index[word]
-        ets = (self.work_ets if side == "work" else self.tool_ets)[:upto]
+        return self.side_frames(side, axes, values, upto=upto)
+
+    def side_frames(self, side: str, axes, values=None, upto: int | None = None, start: int = 0):
+        """The frame after the first ``upto`` ETs (all when None) of the ``work`` or ``tool`` chain
+        as written (from the machine base; from the frame after ET ``start`` when given, i.e. the
+        transform of ETs ``start .. upto - 1`` alone), with every ET at its value, joint and slot value:
+        ``(R (n, 3, 3), t (n, 3) mm)``, base <- that frame. ``axes`` (n, k); ``values`` (n, P) or
+        (P,) μm/μrad, None nominal. ``side_frames("tool", q)[1]`` is the tool point in the machine
+        frame; :meth:`body_frames` is this at a body's ETs."""
+        if side not in ("work", "tool"):
+            raise ValueError(f"expected side 'work' or 'tool', got {side!r}")
+        axes, values = self._check(axes, values)
+        ets = (self.work_ets if side == "work" else self.tool_ets)[start:upto]
         n = axes.shape[0]
         scale = np.array([np.pi / 180 if a.kind == "rotary" else 1.0 for a in self.axes])
         index = {s: p for p, s in enumerate(self.slot_names)}
@@ -608,3 +739,40 @@ def chain_from_grinder(machine) -> MachineTool:
                 d["stroke"] = list(machine.strokes[f"{d['axis'].lower()}_{'deg' if d['joint'] == 'rotary' else 'mm'}"])
     doc["targets"] = {k: np.asarray(v, dtype=float).tolist() for k, v in machine.targets.items()}
     return parse_machine_tool(doc, machine.path or p, machine.sha256)
+
+
+def _et4(kind_r: bool, axis: int, x: float) -> np.ndarray:
+    """One ET with value ``x`` (mm or rad) as a 4×4 matrix."""
+    T = np.eye(4)
+    if kind_r:
+        b, c = (axis + 1) % 3, (axis + 2) % 3
+        cs, sn = np.cos(x), np.sin(x)
+        T[b, b], T[b, c], T[c, b], T[c, c] = cs, -sn, sn, cs
+    else:
+        T[axis, 3] = x
+    return T
+
+
+def _grinder_key(machine) -> tuple:
+    """Everything of a grinder file that its chain depends on, as a hashable key."""
+    geo = tuple(float(getattr(machine, k)) for k in ("l1", "l2", "l3", "l4", "R", "l5", "l6", "l7", "l8", "theta1_deg"))
+    strokes = tuple(sorted((k, tuple(map(float, v))) for k, v in machine.strokes.items()))
+    targets = tuple(sorted((k, np.asarray(v, dtype=float).tobytes()) for k, v in machine.targets.items()))
+    return (machine.name, machine.path, machine.sha256, geo, strokes, targets)
+
+
+_GRINDER_CHAINS: dict = {}
+GRINDER_CHAIN_CACHE = 32  # distinct grinder files kept compiled (a session uses one or two)
+
+
+def grinder_chain(machine) -> MachineTool:
+    """:func:`chain_from_grinder`, compiled once per grinder file's content (cached by its name,
+    path, sha256, geometry, strokes and targets): the one source of the grinder's kinematics that
+    :mod:`errormap.kinematics`, :mod:`errormap.htm` and :mod:`errormap.sweeps` evaluate."""
+    key = _grinder_key(machine)
+    mt = _GRINDER_CHAINS.get(key)
+    if mt is None:
+        if len(_GRINDER_CHAINS) >= GRINDER_CHAIN_CACHE:
+            _GRINDER_CHAINS.pop(next(iter(_GRINDER_CHAINS)))
+        mt = _GRINDER_CHAINS[key] = chain_from_grinder(machine)
+    return mt

@@ -2,7 +2,7 @@
 
 One pass per point: the component errors from one vector-valued cubic B-spline per axis (the
 same knots and coefficients as :meth:`errormap.mt_elements.ChainElementSet.axis_spline`, the same
-operations as the grinder's :func:`errormap.htm._bspline3`, evaluated at offsets in packed arrays:
+operations as scipy's B-spline evaluation (interval search, Cox–de Boor), at offsets in packed arrays:
 :func:`_spline_at`), then the chain's ops applied one by one to a running rotation ``R`` (3×3)
 and origin ``t`` (3,), for the actual chain (with the errors) and the nominal one. Packed once
 per field (:meth:`CompiledChain._program`): the ETs that depend on a point (a joint, a component
@@ -110,7 +110,7 @@ def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_ro
 def _spline_at(knots, k0, nk, coefs, c0, x, h, hh, vbuf, dbuf, deriv):  # pragma: no cover - compiled
     """One cubic vector B-spline stored at offsets (knots ``knots[k0:k0 + nk]``, coefficient rows
     from ``c0``) at ``x``: values into ``vbuf`` (6,), with ``deriv`` slopes into ``dbuf``. The same
-    operations as :func:`errormap.htm._bspline3` / ``_bspline3_d`` (interval as scipy finds it,
+    operations as scipy's ``BSpline`` and its derivative (interval as scipy finds it,
     clipped to the end intervals; Cox–de Boor; the slope from the degree-2 basis) without array
     views per point."""
     k = 3
@@ -415,6 +415,107 @@ class CompiledChain:
 assert UM_MM == 1e-3, "the kernels write mm → μm as * 1e3"
 
 
+# -- nominal tool points and per-pose slot values (issue 26 point 3: the grinder's paths) ---------
+def nominal_program(chain):
+    """The chain as ops with no error slot (every joint ET one op, every run of fixed ETs one
+    constant block): the nominal chain for :func:`nominal_kernel` (layout of
+    :meth:`CompiledChain._program`)."""
+    scale = np.array([np.pi / 180 if j.type == "revolute" else 1.0 for j in chain.joints])
+    jscale = np.where(chain.joint >= 0, chain.sign * scale[np.maximum(chain.joint, 0)], 0.0)
+    return _pack(chain, jscale, lambda m: chain.joint[m] >= 0, lambda m: -1, lambda m: chain.value[m])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def nominal_kernel(axes, prog, out):  # pragma: no cover - compiled
+    """Nominal tool points (mm) of :func:`nominal_program`'s chain: ``axes`` (n, k), ``out`` (n, 3)."""
+    kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt = prog
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    W = np.empty((0, 3))
+    ev = np.zeros(0)
+    for n in range(axes.shape[0]):
+        _chain_point(axes[n], ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt, R, t, W, W, False)
+        for i in range(3):
+            out[n, i] = t[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def values_kernel(axes, values, prog, prog_nom, out):  # pragma: no cover - compiled
+    """Spatial error (μm) for slot values given per point: ``axes`` (n, k), ``values`` (n, P) μm /
+    μrad, ``prog`` :func:`slot_program` (every slotted ET one op), ``prog_nom``
+    :func:`nominal_program`; ``out`` (n, 3) = (actual − nominal tool point) × 1e3."""
+    k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1 = prog
+    k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0 = prog_nom
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    R0 = np.empty((3, 3))
+    t0 = np.empty(3)
+    W = np.empty((0, 3))
+    for n in range(axes.shape[0]):
+        q = axes[n]
+        _chain_point(q, values[n], k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, W, False)
+        _chain_point(q, values[n], k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, W, False)
+        for i in range(3):
+            out[n, i] = (t[i] - t0[i]) * 1e3
+
+
+class CompiledNominal:
+    """A machine's chain packed once for the point-by-point kernels that need no element set:
+    ``tool_points(axes (n, k)) -> (n, 3)`` mm (nominal forward kinematics, compiled),
+    ``spatial_error(axes (n, k), values (n, P)) -> (n, 3)`` μm (exact, slot values per point),
+    ``error_jacobian(axes) -> (n, 3, P)`` μm per μm / per μrad (at the nominal chain)."""
+
+    def __init__(self, machine: MachineTool):
+        self.machine = machine
+        self.k = len(machine.axes)
+        self.P = len(machine.slots)
+        self.prog_nom = nominal_program(machine.chain)
+        self.prog_slots = slot_program(machine.chain)
+
+    def _axes(self, axes) -> np.ndarray:
+        axes = np.ascontiguousarray(np.atleast_2d(axes), dtype=float)
+        if axes.ndim != 2 or axes.shape[1] != self.k:
+            raise ValueError(f"expected axes of shape (n, {self.k}), got {axes.shape}")
+        return axes
+
+    def tool_points(self, axes) -> np.ndarray:
+        axes = self._axes(axes)
+        out = np.empty((axes.shape[0], 3))
+        nominal_kernel(axes, self.prog_nom, out)
+        return out
+
+    def spatial_error(self, axes, values) -> np.ndarray:
+        axes = self._axes(axes)
+        values = np.ascontiguousarray(values, dtype=float)
+        if values.shape != (axes.shape[0], self.P):
+            raise ValueError(f"expected slot values of shape ({axes.shape[0]}, {self.P}), got {values.shape}")
+        out = np.empty((axes.shape[0], 3))
+        values_kernel(axes, values, self.prog_slots, self.prog_nom, out)
+        return out
+
+    def error_jacobian(self, axes) -> np.ndarray:
+        axes = self._axes(axes)
+        jac = np.zeros((axes.shape[0], 3, self.P))
+        error_jac_kernel(axes, self.prog_slots, jac)
+        return jac
+
+
+_GRINDER_NOMINAL: dict = {}
+
+
+def grinder_nominal(machine) -> CompiledNominal:
+    """:class:`CompiledNominal` of a grinder file's chain (:func:`errormap.mt_chain.grinder_chain`),
+    packed once per file content (same key and bound as that cache)."""
+    from .mt_chain import GRINDER_CHAIN_CACHE, _grinder_key, grinder_chain
+    key = _grinder_key(machine)
+    c = _GRINDER_NOMINAL.get(key)
+    if c is None:
+        if len(_GRINDER_NOMINAL) >= GRINDER_CHAIN_CACHE:
+            _GRINDER_NOMINAL.pop(next(iter(_GRINDER_NOMINAL)))
+        c = _GRINDER_NOMINAL[key] = CompiledNominal(grinder_chain(machine))
+    return c
+
+
 # ---------------------------------------------------------------------------- nominal chain
 # (issue 26 point 3: the solvers' and G-code kernels' one source of nominal kinematics)
 
@@ -439,7 +540,7 @@ def nominal_columns(prog, own, t, W, O, ev, Jp):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def nominal_kernel(axes, prog, own, P, J, jac):  # pragma: no cover - compiled
+def nominal_jacobian_kernel(axes, prog, own, P, J, jac):  # pragma: no cover - compiled
     """Nominal tool point ``P`` (n, 3) mm and, with ``jac``, its axis Jacobian ``J`` (n, 3, k) mm
     per mm / per deg at ``axes`` (n, k), for n points."""
     k = axes.shape[1]
@@ -472,15 +573,14 @@ class NominalChain:
 
     def __init__(self, machine):
         from .machine import Grinder
-        from .mt_chain import chain_from_grinder
-        mt = chain_from_grinder(machine) if isinstance(machine, Grinder) else machine
-        if not isinstance(mt, MachineTool):
+        if isinstance(machine, Grinder):  # its chain file, packed once per file content
+            packed = grinder_nominal(machine)
+            mt, self.prog = packed.machine, packed.prog_nom
+        elif isinstance(machine, MachineTool):
+            mt, self.prog = machine, nominal_program(machine.chain)
+        else:
             raise TypeError(f"Expected a machine-tool chain or a grinder machine, got {type(machine).__name__}")
-        ch = mt.chain
-        scale = np.array([np.pi / 180 if j.type == "revolute" else 1.0 for j in ch.joints])
-        jscale = np.where(ch.joint >= 0, ch.sign * scale[np.maximum(ch.joint, 0)], 0.0)
         self.machine_tool = mt
-        self.prog = _pack(ch, jscale, lambda m: ch.joint[m] >= 0, lambda m: -1, lambda m: ch.value[m] + 0.0)
         self.own = np.zeros(0, dtype=np.int64)
         self.k = len(mt.axes)
         self.kinds = tuple(a.kind for a in mt.axes)
@@ -499,5 +599,5 @@ class NominalChain:
             raise ValueError(f"Expected axes of shape (n, {self.k}) ({', '.join(self.columns)}), got {axes.shape}")
         P = np.empty((axes.shape[0], 3))
         J = np.empty((axes.shape[0], 3, self.k) if jac else (0, 3, self.k))
-        nominal_kernel(axes, self.prog, self.own, P, J, bool(jac))
+        nominal_jacobian_kernel(axes, self.prog, self.own, P, J, bool(jac))
         return P, (J if jac else None)

@@ -4,7 +4,8 @@ What is measured (the grinder paper, section 2.1): three target balls, not colli
 fixed on a moving body; the axis stops at every 1/20 of its stroke (21 stations; A every
 18°) and the tracker measures the three ball centres in its own frame.
 
-Body frames (the same chains as :mod:`errormap.htm`, in the machine frame MCS)::
+Body frames (the grinder's chain file, :func:`errormap.mt_chain.grinder_chain`, in the machine
+frame MCS)::
 
     X carriage  T_X(x)    = Trans(l5,0,l6)·Trans(x,0,0)·E_x(x)
     Z carriage  T_Z(z)    = RotZ(θ1)·Trans(l2,0,l1)·Trans(RotZ(-θ1)·z·(sin s_xz, 0, cos s_xz))·E_z(z)
@@ -34,11 +35,11 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .elements import default_stations
-from .htm import IDX, UM, URAD
+from .elements import ELEMENT_NAMES, default_stations
+from .htm import IDX, UM
 from .io import InputError, read_table, write_csv
 from .machine import Grinder
-from .transforms import apply, compose, error_transform, invert, rot_x, rot_z  # noqa: F401 (compose, invert: re-exported)
+from .transforms import compose, error_transform, invert  # noqa: F401 (re-exported for the identification)
 
 SWEEP_AXES = ("X", "Z", "A")
 AXIS_STROKE_KEY = {"X": "x_mm", "Z": "z_mm", "A": "a_deg"}
@@ -49,56 +50,54 @@ REF_TEMP_C = 20.0
 MAX_STATION = 100_000  # station numbers count positions along one stroke; more is a typing mistake
 
 
+def _chain(machine: Grinder):
+    from .mt_chain import grinder_chain
+    return grinder_chain(machine)
+
+
+def _axes_col(col: int, values) -> np.ndarray:
+    """Axes (n, 3) zero but column ``col`` = ``values`` (n,)."""
+    v = np.atleast_1d(np.asarray(values, dtype=float))
+    ax = np.zeros((v.shape[0], 3))
+    ax[:, col] = v
+    return ax
+
+
 def x_carriage_nominal(machine: Grinder, x_mm):
-    """``Trans(l5,0,l6)·Trans(x,0,0)`` for x shape (n,) -> (R, t)."""
-    x = np.atleast_1d(np.asarray(x_mm, dtype=float))
-    t = np.stack([machine.l5 + x, np.zeros_like(x), np.full_like(x, machine.l6)], axis=1)
-    return np.broadcast_to(np.eye(3), x.shape + (3, 3)).copy(), t
+    """``Trans(l5,0,l6)·Trans(x,0,0)`` for x shape (n,) -> (R, t): the X body's nominal frame
+    of the grinder's chain file."""
+    return _chain(machine).body_frames("X", _axes_col(0, x_mm))
 
 
 def z_carriage_nominal(machine: Grinder, z_mm, s_xz_urad=0.0):
-    """``RotZ(θ1)·Trans(l2,0,l1)·Trans(RotZ(-θ1)·z·(sin s, 0, cos s))`` -> (R, t), z shape (n,)."""
-    z = np.atleast_1d(np.asarray(z_mm, dtype=float))
-    s = np.broadcast_to(np.asarray(s_xz_urad, dtype=float) * URAD, z.shape)
-    th = rot_z(np.deg2rad(machine.theta1_deg))[0]
-    t = apply(th, np.array([machine.l2, 0.0, machine.l1])) + z[:, None] * np.stack(
-        [np.sin(s), np.zeros_like(s), np.cos(s)], axis=1)
-    return np.broadcast_to(th, z.shape + (3, 3)).copy(), t
+    """``RotZ(θ1)·Trans(l2,0,l1)·Trans(RotZ(-θ1)·z·(sin s, 0, cos s))`` -> (R, t), z shape (n,):
+    the Z body's frame of the grinder's chain file with the squareness ``s_xz`` only."""
+    ax = _axes_col(1, z_mm)
+    v = np.zeros((ax.shape[0], len(ELEMENT_NAMES)))
+    v[:, IDX["s_xz"]] = np.broadcast_to(np.asarray(s_xz_urad, dtype=float), ax.shape[:1])
+    return _chain(machine).body_frames("Z", ax, v)
 
 
 def a_line_offset(machine: Grinder, n: int):
-    """``Trans(l7,0,l8)`` repeated n times -> (R, t)."""
-    return np.broadcast_to(np.eye(3), (n, 3, 3)).copy(), np.tile([machine.l7, 0.0, machine.l8], (n, 1))
-
-
-def _part(values, names):
-    return np.stack([values[:, IDX[k]] for k in names], axis=1)
+    """``Trans(l7,0,l8)`` repeated n times -> (R, t): the nominal ETs of the work chain from the
+    X body to the A joint."""
+    mt = _chain(machine)
+    side, start = mt.body_index["X"]
+    a_col = mt.axis_words.index("A")
+    stop = next(m for m, e in enumerate(mt.work_ets) if e.joint == a_col)
+    return mt.side_frames(side, np.zeros((n, 3)), start=start, upto=stop)
 
 
 def body_frames(machine: Grinder, body: str, axes, values):
     """Actual frame of a moving body in the MCS.
 
     ``body`` X|Z|A; ``axes`` shape (n, 3) (x_mm, z_mm, a_deg); ``values`` shape (n, 23)
-    element values there. Returns ``(R (n,3,3), t (n,3) mm)``: MCS <- body.
+    element values there. Returns ``(R (n,3,3), t (n,3) mm)``: MCS <- body. The chain file's
+    body frames (:meth:`errormap.mt_chain.MachineTool.body_frames`).
     """
-    axes = np.asarray(axes, dtype=float)
-    v = np.asarray(values, dtype=float)
-    n = axes.shape[0]
-    if body == "Z":
-        return compose(z_carriage_nominal(machine, axes[:, 1], v[:, IDX["s_xz"]]),
-                       error_transform(_part(v, ("dx_z", "dy_z", "dz_z")), _part(v, ("ex_z", "ey_z", "ez_z"))))
-    tx = compose(x_carriage_nominal(machine, axes[:, 0]),
-                 error_transform(_part(v, ("dx_x", "dy_x", "dz_x")), _part(v, ("ex_x", "ey_x", "ez_x"))))
-    if body == "X":
-        return tx
-    if body != "A":
+    if body not in SWEEP_AXES:
         raise ValueError(f"Expected body X, Z or A, got {body!r}")
-    zeros = np.zeros(n)
-    e_oa = error_transform(np.stack([zeros, v[:, IDX["dy_oa"]], v[:, IDX["dz_oa"]]], axis=1),
-                           np.stack([zeros, v[:, IDX["ey_oa"]], v[:, IDX["ez_oa"]]], axis=1))
-    rot_a = (rot_x(np.deg2rad(axes[:, 2])), np.zeros((n, 3)))
-    e_a = error_transform(_part(v, ("dx_a", "dy_a", "dz_a")), _part(v, ("ex_a", "ey_a", "ez_a")))
-    return compose(compose(compose(compose(tx, a_line_offset(machine, n)), e_oa), rot_a), e_a)
+    return _chain(machine).body_frames(body, np.asarray(axes, dtype=float), np.asarray(values, dtype=float))
 
 
 def ball_positions(frames, mounts_mm) -> np.ndarray:

@@ -276,8 +276,11 @@ def test_export_iso_tables_over_the_mill(tmp_path, mill_models, capsys):
         assert np.abs(got - want).max() < TOL_CSV_REL * np.abs(want).max()
     c = read_table(out / "iso_constants.csv")
     assert list(c.raw("iso")) == ["EC0Y", "EB0Z", "EA0Z"]
-    assert main(["export", str(est), "--format", "linuxcnc", "--machine", "mill-xyz", "--out", str(tmp_path / "e2")]) == 2
-    assert "only --format iso-tables and grid" in capsys.readouterr().err
+    # per-joint pitch tables cannot carry what couples the axes: at the default 1 um they are refused, nothing written
+    assert main(["export", str(est), "--format", "linuxcnc", "--machine", "mill-xyz", "--check-points", "200",
+                 "--out", str(tmp_path / "e2")]) == 2
+    assert "--tolerance-um 1: the per-joint tables leave" in capsys.readouterr().err
+    assert not (tmp_path / "e2").exists()
 
 
 GRID_TOLERANCE_UM = 5.0

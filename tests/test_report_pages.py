@@ -21,8 +21,9 @@ from errormap.io import write_csv
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="headless Chromium not installed (apt-get install chromium)")
 
-KINDS = ("demo", "report", "diagnose", "drift", "calibrate", "calibrate-arm", "interpolate", "benchmark")
-PAGE_KIND = {"calibrate-arm": "calibrate"}   # the page's own kind (brand line) where it differs from the writer's key
+KINDS = ("demo", "report", "diagnose", "drift", "calibrate", "calibrate-arm", "interpolate", "benchmark",
+         "diagnose-chain")
+PAGE_KIND = {"calibrate-arm": "calibrate", "diagnose-chain": "diagnose"}   # the page's own kind (brand line) where it differs from the writer's key
 POSE_NOISE_UM = 5.0        # as tests/test_pkm_cli.py
 CHECK_NOISE_UM = 1.0       # as tests/test_diagnosis.py
 N_CHECKS = 160             # enough for the worm harmonic to be found (a figure per effect), small enough to be fast
@@ -114,10 +115,21 @@ def _demo(root, grinder):
     return out / "report.html"
 
 
+def _diagnose_chain(root, grinder):
+    """A machine-tool chain's diagnose run (mill-xyz, reversal:Z, against the truth's elements) → volcomp report RUN."""
+    sim, run = root / "mt-sim", root / "mt-diag"
+    assert main(["simulate", "--machine", "mill-xyz", "--seed", "2", "--effect", "reversal:Z", "--checks", "200",
+                 "--out", str(sim)]) == 0
+    assert main(["diagnose", str(sim / "checks.csv"), "--machine", "mill-xyz", "--model",
+                 str(sim / "truth_elements.json"), "--noise-um", "1", "--out", str(run)]) == 0
+    assert main(["report", str(run)]) == 0
+    return run / "report.html"
+
+
 FAST = {"report": _report, "diagnose": _diagnose, "drift": _drift, "interpolate": _interpolate,
         "benchmark": _benchmark}
 """Page kinds written in the default run (small inputs; ~40 s on a 2-core machine under load)."""
-SLOW = {"calibrate": _calibrate, "calibrate-arm": _calibrate_arm, "demo": _demo}
+SLOW = {"calibrate": _calibrate, "calibrate-arm": _calibrate_arm, "demo": _demo, "diagnose-chain": _diagnose_chain}
 """Page kinds whose writers are end-to-end runs (calibration, training): marked slow, still run in CI."""
 
 

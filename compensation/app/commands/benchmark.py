@@ -21,7 +21,9 @@ def register(sub):
                     "residual along the test paths and the cost. Default machines: the built-in grinder, hexapod "
                     "and tripod.")
     p.add_argument("--machine", action="append", default=None, metavar="FILE",
-                   help="machine file (TOML); repeat for several; default: built-in grinder, hexapod, tripod")
+                   help="machine file (TOML) or built-in name; repeat for several; default: built-in grinder, "
+                        "hexapod, tripod; a machine-tool chain (mill-xyz, five-axis-ac, a file): simulate → sweeps → "
+                        "identify → diagnose → exact compensation of its body diagonals, TRUE residual")
     p.add_argument("--out", default="runs/benchmark", metavar="DIR", help="output folder (default runs/benchmark)")
     p.add_argument("--quick", action="store_true",
                    help="reduced conditions and budgets (about a minute; what the test runs)")
@@ -38,8 +40,13 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-BENCHMARK_KINDS = ("grinder", "hexapod", "tripod")
+BENCHMARK_KINDS = ("grinder", "hexapod", "tripod", "machine-tool")
 """The machine kinds the benchmark has learned and parametric paths for."""
+
+
+def _name(row) -> str:
+    """The kind for the built-in kinds, the machine's name for a chain file (several chains share a kind)."""
+    return row["machine"] if row["machine_kind"] == "machine-tool" else row["machine_kind"]
 
 
 def run(args) -> int:
@@ -59,7 +66,7 @@ def run(args) -> int:
         if unsupported:  # refused before any work: a machine the benchmark has no paths for gave no rows, silently
             p, kind = unsupported[0]
             raise UsageError(f"--machine {p}: a {kind} machine; the benchmark runs {', '.join(BENCHMARK_KINDS)} "
-                             "machines (machine-tool chains: benchmarks/bench_mt_loop.py; arms: `volcomp calibrate`)")
+                             "machines and machine-tool chain files (arms: `volcomp calibrate`)")
     else:
         machines = [load_machine(None, expect_kind=k) for k in ("grinder", "hexapod", "tripod")]
     doc = run_benchmark(machines, args.out, s, tracking_uri=args.tracking_uri, track=not args.no_track)
@@ -68,9 +75,11 @@ def run(args) -> int:
     print(f"{'machine':8s} {'path':10s} {'true RMS um':>11s} {'max um':>9s}  condition")
     for r in doc["rows"]:
         if r["available"]:
-            print(f"{r['machine_kind']:8s} {r['path']:10s} {r['true_rms_um']:11.3f} {r['true_max_um']:9.3f}  {r['condition']}")
+            print(f"{_name(r):8s} {r['path']:10s} {r['true_rms_um']:11.3f} {r['true_max_um']:9.3f}  {r['condition']}")
         else:
-            print(f"{r['machine_kind']:8s} {r['path']:10s} {'n/a':>11s} {'':9s}  {r['condition']}: {r['not_available']}")
+            print(f"{_name(r):8s} {r['path']:10s} {'n/a':>11s} {'':9s}  {r['condition']}: {r['not_available']}")
+    for k in doc.get("skipped", []):
+        print(f"{k['machine']}: skipped: {k['why']}", file=sys.stderr)
     print(f"wrote {doc['paths']['json']}")
     print(f"wrote {doc['paths']['html']}")
     return 0

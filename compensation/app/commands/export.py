@@ -43,7 +43,7 @@ def register(sub):
     p.add_argument("--format", required=True, choices=ex.ALL_FORMATS, dest="fmt", help="table format")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
-                   "grinder; a machine-tool chain (mill-xyz ...): --format iso-tables over its own axes")
+                   "grinder; a machine-tool chain (mill-xyz ...): --format iso-tables, grid or linuxcnc over its own axes")
     p.add_argument("--tolerance-um", type=float, default=DEFAULT_TOLERANCE_UM,
                    help=f"largest model residual the table may leave (um; default {DEFAULT_TOLERANCE_UM:g}); "
                         "sizes the iso-tables rows and the grid spacing")
@@ -194,9 +194,11 @@ def run_chain_export(args, machine) -> int:
     from ...fields import require_kind, resolve_model
     from ... import mt_export
     from errormap.mt_elements import ChainElementSet
+    if args.fmt == "linuxcnc":
+        return run_chain_linuxcnc(args, machine)
     if args.fmt not in ("iso-tables", "grid"):
-        raise UsageError(f"--format {args.fmt}: on the machine-tool chain {machine.name!r} only --format iso-tables "
-                         "and grid are available (the per-joint tables are the grinder's)")
+        raise UsageError(f"--format {args.fmt}: on the machine-tool chain {machine.name!r} the formats are "
+                         "iso-tables, grid and linuxcnc")
     if args.fmt == "grid":
         try:
             mt_export.linear_only(machine)
@@ -244,6 +246,102 @@ def run_chain_export(args, machine) -> int:
                                      "check": check, "files": [p.name for p in files],
                                      "residual": f"model: {args.fmt}-rebuilt spatial error - the model's (um)"
                                                  + (f"; true: {args.fmt}-rebuilt - the truth's (um)" if truth else "")})
+    for p in files + [out / "export.json"]:
+        print(f"wrote: {p}")
+    return 0
+
+
+def _chain_truth(path, machine):
+    """``truth(axes, dirs) -> (n, 3)`` μm of ``--truth`` on a chain (truth.json of ``simulate --machine``: its
+    effects at the given approach directions and the tables' reference temperature; or a truth element set)."""
+    from ..workflows.mt_loop import load_chain_truth
+    from ... import mt_export
+    t = load_chain_truth(path, machine)
+    if not hasattr(t, "truth"):
+        return lambda q, dirs: t.predict(q)
+    sim = t.truth
+
+    def at(q, dirs):
+        cond = {f"dir_{a.word.lower()}": dirs[:, j] for j, a in enumerate(machine.axes)}
+        return sim.spatial_error(q, temp_c=np.full(len(q), mt_export.TABLE_TEMP_C), **cond)
+    return at
+
+
+def run_chain_linuxcnc(args, machine) -> int:
+    """``--format linuxcnc`` on a machine-tool chain: one pitch table per LINEAR joint (``joint_<w>.comp``),
+    that joint's exact correction averaged over the other axes, forward/reverse from a reversal term of a
+    chain ``model.json``; checked before writing (:mod:`compensation.mt_export`)."""
+    from errormap.io import write_json
+    from errormap.seeds import spawn_seeds
+    from ...fields import load_chain_field, require_kind, resolve_model
+    from ... import mt_export
+    from ...solvers.chain_exact import linear_axes
+    bad = [k for k, v in {"--diagnosis": args.diagnosis, "--region": args.region}.items() if v is not None]
+    if bad:
+        raise UsageError(f"{', '.join(bad)}: the grinder's; on the machine-tool chain {machine.name!r} the reversal "
+                         "comes from a chain model.json (volcomp diagnose --machine) and every joint is averaged "
+                         "over the calibrated volume")
+    if not 2 <= args.points <= ex.LINUXCNC_MAX_POINTS:
+        raise UsageError(f"--points: expected 2..{ex.LINUXCNC_MAX_POINTS}, got {args.points}")
+    try:
+        lin, rot = linear_axes(machine)
+    except ValueError as exc:
+        raise UsageError(f"--format linuxcnc: {exc}") from None
+    src = require_kind(resolve_model(args.model), ("elements", "chain-model"),
+                       f"on the machine-tool chain {machine.name!r} --format linuxcnc takes")
+    if src.kind == "chain-model":
+        from errormap.diagnosis.mt_model import load_chain_model_file
+        field_ = load_chain_model_file(src.path, machine)
+        el = field_.elements
+    else:
+        field_ = load_chain_field(src.path, machine, src.kind)
+        el = field_.elements
+    print(f"export: model {src.description}", file=sys.stderr)
+    left = [f"rotary joint {machine.axes[k].word}: no file (LinuxCNC takes one pitch table per joint; volcomp "
+            f"compensates the tool tip with the linear joints and keeps rotary joints as programmed, so what the "
+            f"rotary axis' own errors do is left in the residual below)" for k in rot]
+    terms = [f"{t.kind}:{'*'.join(t.axes)}" for t in getattr(field_, "terms", ())]
+    left += [f"effect term {t}: no temperature input in a pitch table; tabulated at {mt_export.TABLE_TEMP_C:g} C"
+             for t in terms if t.startswith("thermal:")]
+    for line in left:
+        print(f"note: {line}")
+    s_tab, s_pts, s_dir = spawn_seeds(args.seed, 3)
+    tables = mt_export.chain_joint_tables(field_, el, args.points, seed=s_tab)
+    pts = mt_export.check_points(el, args.check_points, s_pts)
+    dirs = np.random.default_rng(s_dir).choice([-1.0, 1.0], pts.shape)
+    truth = _chain_truth(args.truth, machine) if args.truth else None
+    check = mt_export.check_chain_joint_tables(tables, field_, machine, pts, dirs, truth)
+
+    def f(q):
+        return f"{q['max_um']:9.4g} / {q['p95_um']:9.4g} / {q['mean_um']:9.4g}"
+    print(f"check ({check['model']['n']} random points over the calibrated volume, random approach directions; "
+          "controller: each linear joint commanded q + (q - actual), linear between lines; residual norm, um: "
+          "max / p95 / mean)")
+    for name, q in (("table", check), ("no compensation", check["baseline_none"]),
+                    ("exact (model)", check["baseline_exact"])):
+        print(f"  {name:16s} model {f(q['model'])}" + (f"   true {f(q['true'])}" if truth else ""))
+    if check["model"]["max_um"] > check["baseline_none"]["model"]["max_um"]:
+        print("  warning: these tables leave MORE error than no compensation at the worst point")
+    met = check["model"]["max_um"] <= args.tolerance_um
+    if not met and not args.force:
+        raise UsageError(f"--tolerance-um {args.tolerance_um:g}: the per-joint tables leave a model residual up to "
+                         f"{check['model']['max_um']:.4g} um (a joint's table cannot carry what depends on the other "
+                         "axes); nothing written (--force writes anyway, recorded)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    files = ex.write_joint_tables(tables, out)
+    reversal = {j: float(np.max(np.abs(tables.forward[j] - tables.reverse[j]))) * 1e3 for j in tables.nominal}
+    write_json(out / "export.json", {
+        "format": "linuxcnc", "machine": machine.name, "machine_file": machine.path, "model": src.to_dict(),
+        "points_per_joint": args.points, "joints": {j: machine.axis_columns[k] for j, k in tables.joints.items()},
+        "max_forward_minus_reverse_um": reversal, "left_out": left, "tolerance_um": args.tolerance_um,
+        "tolerance_met": bool(met), "forced": bool(args.force and not met), "check": check,
+        "files": [p.name for p in files],
+        "linuxcnc": {"columns": "nominal forward reverse (mm)",
+                     "controller": "command = q + (q - actual(q)), actual = forward (moving +) or reverse (moving -), "
+                                   "linear between lines"},
+        "residual": "model: the model machine's tool point with the table's commands - the target (um)"
+                    + ("; true: the truth machine's (um)" if truth else "")})
     for p in files + [out / "export.json"]:
         print(f"wrote: {p}")
     return 0

@@ -70,6 +70,33 @@ def _chain_conditions(t, needs, units) -> dict:
     return out
 
 
+def _chain_covariance(args, src, machine) -> tuple:
+    """``--band`` on a machine-tool chain, checked before any work: the element set and its identification
+    covariance (``E.cov.npz`` of ``identify --machine`` beside it) as ``(elements, cov, cov_path)``."""
+    from errormap.uncertainty import covariance_path
+    from ..workflows.mt_loop import check_chain_covariance, load_chain_model
+    if src.kind != "elements":
+        raise UsageError(f"--band needs an element set of the chain with its covariance beside it (E.cov.npz of "
+                         f"volcomp identify --machine); {args.model} is a {KIND_NAMES[src.kind]}, which holds none")
+    el, cov, cov_path = load_chain_model(src.path, machine)
+    if cov is None:
+        raise InputError(f"{src.path}: --band needs the identification's covariance beside it "
+                         f"({covariance_path(src.path).name}, written by volcomp identify --machine); none found")
+    check_chain_covariance(machine, el, cov, cov_path)
+    return el, cov, cov_path
+
+
+def _chain_band(args, machine, axes, band_src) -> dict:
+    """The band columns on a chain: ``J Σ Jᵀ`` per point through the chain's parameter Jacobian."""
+    from errormap.uncertainty import Z95
+    from ..workflows.mt_loop import chain_band_sd
+    el, cov, cov_path = band_src
+    print(f"band: covariance {cov_path} ({len(cov[0])} parameters)", file=sys.stderr)
+    sd = chain_band_sd(machine, el, cov, axes, cov_path)
+    k, tag = (1.0, "1sigma") if args.band == "1sigma" else (Z95, "95")
+    return {f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))}
+
+
 def run(args) -> int:
     machine = load_machine(args.machine)
     if machine.kind != "machine-tool":
@@ -80,10 +107,8 @@ def run(args) -> int:
     axes = np.stack([t.float(c) for c in names], axis=1)
     check_units(t.path, [t.row_number(k) for k in range(len(t))], machine=machine, axes=axes, axes_columns=names,
                 coverage="path", units=args.units, option="--units")
-    if args.band and machine.kind == "machine-tool":
-        raise UsageError(f"--band: the element covariance is the grinder's (volcomp identify); not available for "
-                         f"the machine-tool chain {machine.name!r}")
     src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
+    band_src = _chain_covariance(args, src, machine) if args.band and machine.kind == "machine-tool" else None
     field = load_field(args.model, machine, args.tracking_uri, source=src)
     cond = None
     if src.kind == "chain-model" and field.needs:  # a chain model's effect terms: conditions per point, from columns
@@ -100,7 +125,9 @@ def run(args) -> int:
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
     meta = [f"machine: {machine.name}"] if machine.kind == "machine-tool" else []
-    if args.band:
+    if args.band and machine.kind == "machine-tool":
+        cols.update(_chain_band(args, machine, axes, band_src))
+    elif args.band:
         from errormap.elements import ElementSet
         from errormap.uncertainty import Z95, ElementCovariance, covariance_path
         if src.kind != "elements":

@@ -30,22 +30,60 @@ def register(sub):
         description="Run the compensation methods on a tool path and write DIR/report.html (self-contained), "
                     "DIR/metrics.json and DIR/residuals.csv. Shows the MODEL residual, and the TRUE residual "
                     "when --truth is given.")
-    p.add_argument("--model", required=True, help="MLflow run id, runs:/ URI, or element-set file (JSON)")
-    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder")
-    src = p.add_mutually_exclusive_group(required=True)
+    p.add_argument("run", nargs="?", default=None, metavar="RUN",
+                   help="a `volcomp diagnose --machine` output folder (machine-tool chain): write its page "
+                        "(RUN/report.html, or --out DIR/report.html) instead of comparing methods")
+    p.add_argument("--model", default=None, help="MLflow run id, runs:/ URI, or element-set file (JSON)")
+    p.add_argument("--machine", default=None, help="machine file (TOML); default: the built-in grinder (with RUN: "
+                   "the machine its model.json names)")
+    src = p.add_mutually_exclusive_group()
     src.add_argument("--path", help="tool-path file (CSV or G-code)")
     src.add_argument("--flute", action="store_true", help="the built-in variable-helix flute path")
     p.add_argument("--truth", default=None,
                    help="simulate folder (truth_elements.json + truth.json) or element-set file: adds the TRUE residual")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", default=None, metavar="DIR", help="output folder (required unless RUN is given)")
     add_units_option(p, "CSV tool-path columns")
     add_method_arguments(p)
     add_flute_arguments(p)
     p.set_defaults(func=run)
 
 
+def run_chain_diagnosis(args) -> int:
+    """``volcomp report RUN``: the page of a chain's diagnose run (:mod:`compensation.app.reports.mt_diagnosis`)."""
+    from errormap.io import InputError
+    from ..reports.mt_diagnosis import read_json, write_chain_diagnosis_page
+    bad = [f for f, v in (("--model", args.model), ("--path", args.path), ("--flute", args.flute),
+                          ("--truth", args.truth)) if v]
+    if bad:
+        raise UsageError(f"{', '.join(bad)}: with RUN (a diagnose run folder) the page shows that run; the method "
+                         "comparison takes --model and --path/--flute without RUN")
+    run_dir = Path(args.run)
+    if not run_dir.is_dir():
+        raise UsageError(f"RUN {run_dir}: not a folder (a volcomp diagnose --machine output folder)")
+    head = read_json(run_dir / "model.json", "model.json of volcomp diagnose --machine")
+    if head.get("format") != "volcomp-chain-model/1":
+        what = ("a grinder's diagnose run writes its own page (report.html) there"
+                if (run_dir / "report.html").is_file() else "not a diagnose --machine run")
+        raise InputError(f"{run_dir / 'model.json'}: key 'format': expected 'volcomp-chain-model/1', got "
+                         f"{head.get('format')!r} ({what})")
+    machine = load_machine(args.machine if args.machine else str(head.get("machine")))
+    if machine.kind != "machine-tool":
+        raise UsageError(f"--machine {machine.name}: the run is a machine-tool chain's; name that chain's file")
+    out = Path(args.out) / "report.html" if args.out else None
+    path = write_chain_diagnosis_page(run_dir, machine, out)
+    print(f"wrote html: {path}")
+    return 0
+
+
 def run(args) -> int:
+    if args.run is not None:
+        return run_chain_diagnosis(args)
+    missing = [f for f, v in (("--model", args.model), ("--path or --flute", args.path or args.flute),
+                              ("--out", args.out)) if not v]
+    if missing:
+        raise UsageError(f"{', '.join(missing)}: required to compare methods on a path (or give RUN, a diagnose "
+                         "--machine folder)")
     methods = parse_methods(args.methods)
     machine = load_machine(args.machine, expect_kind="grinder")
     if args.flute:

@@ -216,6 +216,13 @@ PKM_COLS = [("condition", "condition"), ("path", "path"), ("true_rms_um", "true 
             ("true_max_um", "true max (μm)"), ("uncompensated_rms_um", "uncompensated RMS (μm)"),
             ("n_measurements", "poses"), ("fit_seconds", "fit (s)"),
             ("compensate_seconds_per_point", "compensate (s/point)")]
+CHAIN_COLS = [("condition", "condition"), ("path", "path"), ("true_rms_um", "true RMS (μm)"),
+              ("true_max_um", "true max (μm)"), ("uncompensated_rms_um", "uncompensated RMS (μm)"),
+              ("uncompensated_max_um", "uncompensated max (μm)"), ("volume_rms_um", "volume RMS (μm)"),
+              ("volume_uncompensated_rms_um", "volume uncompensated RMS (μm)"),
+              ("checks_rms_after_um", "held-out measured RMS (μm)"),
+              ("held_out_ols_linear_um", "held-out OLS baseline (μm)"), ("noise_floor_um", "noise floor (μm)"),
+              ("effects_found", "effects found"), ("n_measurements", "measurements"), ("fit_seconds", "fit (s)")]
 
 
 def _solver_table(rows) -> Table:
@@ -259,6 +266,11 @@ def render_html(doc: dict) -> str:
         grinder = {"path_conditions": ", ".join(f"{k} = {v:g}" for k, v in doc["path_conditions"].items()),
                    "table": _table(g, GRINDER_COLS), "figures": [f for f in figures if f is not None],
                    "solvers": _solver_table([r for r in g if r.get("available")])}
+    chains = []
+    for name in dict.fromkeys(r["machine"] for r in _rows(doc, "machine-tool", available=None)):
+        c = [r for r in _rows(doc, "machine-tool", available=None) if r["machine"] == name]
+        chains.append((name, {"table": _table(c, CHAIN_COLS), "test_path": c[0].get("test_path"),
+                              "solvers": _solver_table([r for r in c if r.get("available")])}))
     pkm = []
     for kind in ("hexapod", "tripod"):
         h = _rows(doc, kind, available=None)
@@ -274,7 +286,7 @@ def render_html(doc: dict) -> str:
                            "figures": [f for f in figures if f is not None]}))
     return render_page("benchmark.html", title="volcomp benchmark: learned vs parametric compensation", doc=doc, s=s,
                        summary=summary_lines(doc) + conclusion_lines(doc), verdicts=verdicts(doc), not_available=not_available,
-                       grinder=grinder, pkm=pkm, cost_figure=_cost_plot(doc),
+                       grinder=grinder, chains=chains, pkm=pkm, cost_figure=_cost_plot(doc),
                        train_stop=_stop(s, "train"), pkm_train_stop=_stop(s, "pkm_train"))
 
 

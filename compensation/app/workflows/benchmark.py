@@ -34,6 +34,12 @@ frame), ``n_poses`` poses with noise ``noise_um``;
   compensation by iterating the commanded pose (:func:`learned_pkm_commands`);
 * test paths: the paper's sphere and hyperboloid passes (tripod: random workspace points).
 
+**Machine-tool chain files** (``kind = "machine-tool"``: mill-xyz, five-axis-ac, a user's file):
+per condition (no effect, each undeclared effect the chain has axes for) the user's path —
+simulate a hidden truth → sweeps → identify → diagnose → exact compensation of the four body
+diagonals with the identified set and with the loop's model — judged by the TRUE residual
+(:mod:`compensation.app.workflows.mt_benchmark`).
+
 Every figure is measured in this run; a part that cannot run is reported as not available
 with the reason, never filled in.
 """
@@ -105,6 +111,7 @@ class BenchmarkSettings:
     pkm_half_width_mm: tuple = (160.0, 160.0, 220.0)
     pkm_max_tilt_deg: float = 32.0
     tripod: bool = True
+    chain_path_points: int = 100           # machine-tool chains: points per body diagonal (4 diagonals)
     torch_threads: int = 1
     quick: bool = False
 
@@ -120,7 +127,7 @@ def quick_settings() -> BenchmarkSettings:
                              ga_points=20, ga_generations=100, flute_turns=1.0, flute_points_per_turn=200,
                              volume_points=50,
                              pkm_poses=(50,), pkm_noises_um=(5.0,), pkm_base_poses=50, pkm_train_iter=50,
-                             pkm_path_step_mm=4.0, tripod=True, quick=True)
+                             pkm_path_step_mm=4.0, tripod=True, chain_path_points=25, quick=True)
 
 
 def _log(msg: str) -> None:
@@ -829,7 +836,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
     from errormap.threads import limit_threads
     try:
         with limit_threads(s.torch_threads):
-            rows, skipped = _run_machines(machines, s, tracker)
+            rows, skipped = _run_machines(machines, s, tracker, out)
         total_s = time.perf_counter() - t_start
         doc = {"format": "volcomp-benchmark/1", "rows": rows, "skipped": skipped, "settings": s.to_dict(),
                "path_conditions": PATH_CONDITIONS, "seconds": total_s, "parent_run_id": tracker.parent_id,
@@ -861,7 +868,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
                 pass
 
 
-def _run_machines(machines, s: BenchmarkSettings, tracker: Tracker):
+def _run_machines(machines, s: BenchmarkSettings, tracker: Tracker, out_dir):
     rows, skipped = [], []
     for m in machines:
         t0 = time.perf_counter()
@@ -875,6 +882,11 @@ def _run_machines(machines, s: BenchmarkSettings, tracker: Tracker):
             if m.kind == "tripod":  # one condition: the tripod has no paper test path
                 conds = {(s.pkm_base_poses, s.pkm_base_noise_um): "baseline"}
             rows += run_pkm(m, s, tracker, conds)
+        elif m.kind == "machine-tool":  # a chain file: the user's path per condition (workflows/mt_benchmark.py)
+            from .mt_benchmark import run_chain
+            log = RowLog(tracker)
+            skipped += run_chain(m, s, log, out_dir, _row, _streams(s.seed), _log)
+            rows += log.rows
         _log(f"{m.kind} done in {time.perf_counter() - t0:.0f} s")
     return rows, skipped
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from errormap.featurepoints import FeaturePoints
-from errormap import htm as htm_module
+from errormap import mt_kernel as htm_kernels  # the HTM model's kernels: the grinder's chain file, compiled
 from errormap.htm import HTMField
 from errormap.io import write_json
 from errormap.jit import notice_cold_kernels
@@ -164,7 +164,7 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
     nominal = fl.axes(machine)
     # one line before numba's first compilation after install: the HTM model's kernels (simulate)
     # and every method's (compensate)
-    notice_cold_kernels(htm_module, *{m for method in s.methods for m in kernel_modules(method)}, log=log)
+    notice_cold_kernels(htm_kernels, *{m for method in s.methods for m in kernel_modules(method)}, log=log)
     print("[1/4] simulate", file=log)
     sim_dir = Path(s.out) / "sim"
     print(f"simulating truth grinder seed={s.sim_seed} effects=none ...", file=log)

@@ -170,10 +170,13 @@ def run_chain_compensate(machine, args, allow) -> int:
                       units=args.units, truth=args.truth)
     plan = plan_outputs(args.files, s.out_dir)
     old_outputs = check_out_dir(s.out_dir, s.force)
-    src = require_kind(resolve_model(s.model), ("elements", "chain-model", "chain-network"),
+    src = require_kind(resolve_model(s.model), ("elements", "chain-model", "chain-network", "mlflow"),
                        f"on the machine-tool chain {machine.name!r} compensate takes")
     print(f"compensate: model {src.description}", file=sys.stderr)
-    if src.kind == "chain-model":
+    if src.kind == "mlflow":  # a chain network recorded in MLflow (train --tracking-uri)
+        from ...fields import load_field
+        field_ = load_field(s.model, machine, getattr(args, "tracking_uri", None), source=src)
+    elif src.kind == "chain-model":
         from errormap.diagnosis.mt_model import load_chain_model_file
         field_ = load_chain_model_file(src.path, machine)
     else:

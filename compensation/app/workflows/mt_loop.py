@@ -165,6 +165,46 @@ def load_chain_model(path, machine):
     return el, (load_covariance(cp) if cp.is_file() else None), (cp if cp.is_file() else None)
 
 
+BAND_BATCH = 4096
+"""Points per block of the band: the parameter Jacobian is (n, 3, N) with N up to ~10^3 parameters (32 MB a block)."""
+
+
+def check_chain_covariance(machine, elements, cov, cov_path="<covariance>") -> None:
+    """Refuse (InputError naming ``cov_path`` and its key) a covariance ``(slot names, stations, Σ)`` that is not
+    one of ``elements``' parameters: shape, a slot the machine lacks, a station beyond the set's, a negative or
+    non-finite variance."""
+    slots, stations, C = cov
+    known = set(machine.slot_names)
+    col = {a.word: a.column for a in machine.axes}
+    slot_axis = {s.name: s.axis for s in machine.slots}
+    if C.shape != (len(slots), len(slots)) or len(stations) != len(slots):
+        raise InputError(f"{cov_path}: key 'cov': shape {C.shape} does not match its {len(slots)} parameters")
+    for j, (s, i) in enumerate(zip(slots, stations)):
+        if s not in known:
+            raise InputError(f"{cov_path}: key 'slot', entry {j}: {s!r} is not a slot of machine {machine.name!r}")
+        if i >= 0 and i >= len(elements.stations.get(col[slot_axis[s]], ())):
+            raise InputError(f"{cov_path}: key 'station', entry {j}: station {i} of {s} beyond the element set's "
+                             "stations (the covariance of another identification?)")
+    if not np.all(np.isfinite(C)) or np.any(np.diagonal(C) < 0):
+        raise InputError(f"{cov_path}: key 'cov': not a covariance (non-finite or negative variance)")
+
+
+def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.ndarray:
+    """Standard deviation (n, 3) μm of the element set's tool-point error at ``axes`` (n, k) from the
+    identification's covariance ``cov`` = ``(slot names, stations, Σ)`` (``E.cov.npz``): the diagonal of
+    ``J Σ Jᵀ`` per point, ``J`` (3, N) the parameter Jacobian (:func:`errormap.diagnosis.mt_loop.parameter_matrix`,
+    linearised at ``elements``); the covariance checked first (:func:`check_chain_covariance`)."""
+    from errormap.diagnosis.mt_loop import parameter_matrix
+    check_chain_covariance(machine, elements, cov, cov_path)
+    slots, stations, C = cov
+    axes = np.atleast_2d(np.asarray(axes, float))
+    out = np.empty((axes.shape[0], 3))
+    for i in range(0, axes.shape[0], BAND_BATCH):
+        M = parameter_matrix(machine, elements, axes[i:i + BAND_BATCH], slots, stations)   # (b, 3, N) μm / unit
+        out[i:i + BAND_BATCH] = np.sqrt(np.maximum(np.einsum("bij,jk,bik->bi", M, C, M, optimize=True), 0.0))
+    return out
+
+
 def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=None, effects=True,
                    max_effects=4, update=True, units="check") -> tuple:
     """Held-out measured residual of an element set on checks (stages, noise floor, effects); writes

@@ -1,0 +1,235 @@
+"""The benchmark's rows on a machine-tool chain file (``volcomp benchmark --machine mill-xyz``).
+
+Per condition (no effect, then each of the settings' undeclared effects the machine has axes for),
+the user's path as the CLI runs it, through the same workflow functions (:mod:`.mt_loop`), the files
+left in ``DIR/chains/MACHINE/CONDITION/``:
+
+1. a hidden truth of seed ``truth_seed`` (``simulate --machine``: truth elements + the effect);
+2. tracker sweeps of it (``sweeps --machine``, tracker noise ``base_noise_um``, seeded unknown
+   tracker pose) → ``identify`` (elements + covariance);
+3. ``n_checks`` check measurements (noise ``check_noise_um``) → ``diagnose`` (update with the
+   identification's covariance, effect search; ``model.json``);
+4. the test path: the four body diagonals of the linear axes' volume (ISO 230-6), inset
+   :data:`INSET` of each stroke, rotary axes at 0 (or their stroke middle), compensated by the
+   ``exact`` chain solver with the identified element set (row *before closed loop*) and with the
+   loop's ``model.json`` (row *after closed loop*); beside it ``volume_points`` uniform random points
+   over every axis (rotary axes kept as programmed).
+
+Residual: TRUE — the truth machine (its effects at the path's conditions :data:`PATH_TEMP_C` and the
+approach direction of each axis along the diagonal) driven with the compensated axes, minus the
+target. The uncompensated path (the program run as written) is the baseline on every row; the
+diagnosis's held-out MEASURED residual is beside the loop row with its plain baselines (OLS of the
+residual on the axes, the unregularised least-squares update) and the noise floor.
+"""
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from errormap.stats import residual_stats
+
+INSET = 0.02
+"""The diagonals start and end this fraction of each linear stroke inside its ends (the compensated axes
+must stay inside the strokes)."""
+PATH_TEMP_C = 24.0
+"""Temperature of the test path (a warm machine, as the grinder's flute path)."""
+EFFECTS = {"thermal": "thermal:X", "reversal": "reversal:Z", "pitch": "periodic:X", "worm": "harmonic:{rot}",
+           "interaction": "interaction:X*Z"}
+"""The grinder's undeclared effects (settings ``effects``) on a chain: the same kinds on the chain's
+axes; ``worm`` on the first full-turn rotary axis."""
+
+
+@dataclass
+class ChainPath:
+    """Test points: ``axes`` (n, k) nominal axes, ``cond`` {name: (n,)} the truth's conditions, ``name``."""
+
+    name: str
+    axes: np.ndarray
+    cond: dict
+
+
+def chain_effects(machine, names) -> tuple[list, list]:
+    """``([(grinder name, chain effect)], [skipped why])`` of the settings' effect names on ``machine``."""
+    words = [a.word for a in machine.axes]
+    rot = next((a.word for a in machine.axes if a.full_turn), None)
+    out, skipped = [], []
+    for n in names:
+        if n not in EFFECTS:
+            skipped.append(f"effect {n}: no chain form (the chain's simulator draws {', '.join(EFFECTS)})")
+            continue
+        if n == "worm" and rot is None:
+            skipped.append(f"effect {n}: {machine.name} has no full-turn rotary axis")
+            continue
+        e = EFFECTS[n].format(rot=rot)
+        need = e.split(":")[1].split("*")
+        if not all(w in words for w in need):
+            skipped.append(f"effect {n} ({e}): {machine.name} has no axis {[w for w in need if w not in words][0]}")
+            continue
+        out.append((n, e))
+    return out, skipped
+
+
+def _rotary_home(machine) -> np.ndarray:
+    """(k,) the value each rotary axis is held at on the diagonals: 0 where inside its stroke, else the middle."""
+    lo, hi = machine.stroke_lo, machine.stroke_hi
+    return np.where((lo <= 0.0) & (hi >= 0.0), 0.0, 0.5 * (lo + hi))
+
+
+def diagonal_path(machine, points_per_diagonal: int) -> ChainPath:
+    """The four body diagonals of the linear axes' box (ISO 230-6), each from a corner to the opposite one;
+    the approach direction of each axis is that of its motion along the diagonal."""
+    from ...solvers.chain_exact import linear_axes
+    lin, _ = linear_axes(machine)
+    lo, hi = machine.stroke_lo, machine.stroke_hi
+    span = hi - lo
+    a0, a1 = lo + INSET * span, hi - INSET * span
+    home = _rotary_home(machine)
+    t = np.linspace(0.0, 1.0, points_per_diagonal)
+    axes, dirs = [], []
+    for flip in ((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)):   # start corners; the end is the opposite corner
+        start, end = home.copy(), home.copy()
+        d = np.ones(len(machine.axes))
+        for f, j in zip(flip, lin):
+            start[j], end[j] = (a1[j], a0[j]) if f else (a0[j], a1[j])
+            d[j] = -1.0 if f else 1.0
+        axes.append(start + t[:, None] * (end - start))
+        dirs.append(np.broadcast_to(d, (len(t), len(d))))
+    axes, dirs = np.vstack(axes), np.vstack(dirs)
+    return ChainPath(f"4 body diagonals ({len(axes)} points)", axes, _conditions(machine, len(axes), dirs))
+
+
+def volume_path(machine, n: int, seed) -> ChainPath:
+    """``n`` uniform random points over every stroke, positive approach."""
+    rng = np.random.default_rng(seed)
+    lo, hi = machine.stroke_lo, machine.stroke_hi
+    axes = lo + (hi - lo) * rng.random((n, len(machine.axes)))
+    return ChainPath(f"volume ({n} points)", axes, _conditions(machine, n, np.ones((n, len(machine.axes)))))
+
+
+def _conditions(machine, n, dirs) -> dict:
+    return {"temp_c": np.full(n, PATH_TEMP_C), **{f"dir_{a.word.lower()}": dirs[:, j] for j, a in enumerate(machine.axes)}}
+
+
+class _TruthAt:
+    """The truth at a path's conditions: ``predict(axes) -> (n, 3)`` μm (axes: the path's points, in order)."""
+
+    def __init__(self, truth, cond):
+        self.truth, self.cond = truth, cond
+
+    def predict(self, axes):
+        return self.truth.spatial_error(axes, **self.cond)
+
+
+def compensate_chain_true(machine, truth, field_, path: ChainPath) -> dict:
+    """Exact compensation of ``path`` with ``field_``; TRUE residual (RMS, max) on ``truth`` at the path's
+    conditions, the solver's time per point, worst model residual and failures."""
+    from ...solvers import solve
+    from ...solvers.chain_exact import nominal_and_jacobian
+    from .mt_compensate import true_residual_um
+    targets, _ = nominal_and_jacobian(machine, path.axes)
+    r = solve("exact", field_, targets, machine, target_axes=path.axes, progress=False)
+    st = residual_stats(true_residual_um(_TruthAt(truth, path.cond), machine, r.axes, targets))
+    return {"true_rms_um": st["rms_um"], "true_max_um": st["max_um"], "seconds_per_point": r.seconds / len(targets),
+            "points": len(targets), "model_max_um": float(np.max(r.residual_norm_um)),
+            "failures": int(np.count_nonzero(~r.success))}
+
+
+def uncompensated_chain_true(machine, truth, path: ChainPath) -> dict:
+    """TRUE residual of the program run as written (the truth's own error along the path)."""
+    from ...solvers.chain_exact import nominal_and_jacobian
+    from .mt_compensate import true_residual_um
+    targets, _ = nominal_and_jacobian(machine, path.axes)
+    st = residual_stats(true_residual_um(_TruthAt(truth, path.cond), machine, path.axes, targets))
+    return {"true_rms_um": st["rms_um"], "true_max_um": st["max_um"]}
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text)
+
+
+def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
+    """The rows of ``machine`` (a machine-tool chain) under the settings ``s``; ``log``: the benchmark's
+    :class:`RowLog`, ``row``: its row constructor, ``streams``: its seed streams, ``note``: its logger.
+    Returns the skipped conditions (``[{"machine", "why"}]``)."""
+    from errormap.diagnosis.mt_model import load_chain_model_file
+    from errormap.mt_elements import ChainElementSet
+    from errormap.mt_field import ChainField
+    from errormap.mt_simulate import MTTruth
+    from .mt_loop import diagnose_chain, identify_chain_files, simulate_chain, sweeps_chain
+    skipped = []
+    try:
+        path = diagonal_path(machine, s.chain_path_points)
+    except ValueError as exc:  # not three linear axes: the exact chain solver has no tool-tip inverse
+        return [{"machine": machine.name, "why": f"compensation not available: {exc}"}]
+    volume = volume_path(machine, s.volume_points, streams["volume_points"]) if s.volume_points else None
+    effects, why = chain_effects(machine, s.effects)
+    skipped += [{"machine": machine.name, "why": w} for w in why]
+    sweep_seed = int(streams["sweep_noise"].generate_state(1)[0])
+    base = Path(out_dir) / "chains" / _slug(machine.name)
+    for gname, eff in [(None, None), *effects]:
+        cname = "effect=none" if eff is None else f"effect={gname} ({eff})"
+        d = base / _slug(cname)
+        note(f"{machine.name}: {cname}")
+        common = {"group": "chain", "effect": eff, "noise_um": s.base_noise_um, "test_path": path.name,
+                  "family": "default"}
+        try:
+            info = simulate_chain(machine, s.truth_seed, d / "sim", effects=() if eff is None else (eff,),
+                                  noise_um=s.check_noise_um, checks=s.n_checks)
+            # scoring only: the hidden truth, read back from the files the simulation wrote
+            truth = MTTruth(machine, ChainElementSet.load(d / "sim" / info["elements"], machine), info["effects"])
+            unc = uncompensated_chain_true(machine, truth, path)
+            common.update(uncompensated_rms_um=unc["true_rms_um"], uncompensated_max_um=unc["true_max_um"])
+            if volume is not None:
+                uv = uncompensated_chain_true(machine, truth, volume)
+                common.update(volume_uncompensated_rms_um=uv["true_rms_um"])
+            sw_path, n_sweep, _ = sweeps_chain(machine, d / "sweeps.csv", seed=s.truth_seed,
+                                               effects=() if eff is None else (eff,), noise_um=s.base_noise_um,
+                                               seed_noise=sweep_seed)
+            t0 = time.perf_counter()
+            _, el_path, _, _ = identify_chain_files(machine, [sw_path], d / "identified.json")
+            id_s = time.perf_counter() - t0
+            common["n_measurements"] = n_sweep
+            fields = [("before closed loop", ChainField(machine, ChainElementSet.load(el_path, machine)), id_s,
+                       {"closed_loop": False})]
+            t0 = time.perf_counter()
+            summary, _ = diagnose_chain(d / "sim" / "checks.csv", machine, el_path, d / "diagnosis",
+                                        noise_um=s.check_noise_um)
+            diag_s = time.perf_counter() - t0
+            lm = load_chain_model_file(summary["model_file"], machine)
+            st = summary["stages"]
+            floor = float(np.sqrt(3.0) * s.check_noise_um)
+            loop = {"closed_loop": True, "diagnosis_seconds": diag_s, "n_checks": s.n_checks,
+                    "kept_stage": summary["kept_stage"],
+                    "effects_found": [f"{e['kind']}:{e['axis']}" for e in summary["effects"]],
+                    "checks_rms_before_um": st["identified"]["held_out"]["rms_um"],
+                    "checks_rms_after_um": summary["held_out_rms_um"],
+                    "held_out_ols_linear_um": st["baseline_ols_linear"]["held_out"]["rms_um"],
+                    "held_out_ols_update_um": st["baseline_ols_update"].get("held_out", {}).get("rms_um"),
+                    "noise_floor_um": floor, "held_out_over_floor": summary["held_out_rms_um"] / floor,
+                    "n_measurements": n_sweep + s.n_checks}
+            fields.append(("after closed loop", lm, id_s + diag_s, loop))
+        except Exception as exc:  # the other conditions still run; the failure is a row, never faked numbers
+            log.add(row(machine.name, machine.kind, "parametric", cname, available=False,
+                        not_available=f"condition failed: {type(exc).__name__}: {exc}", **common))
+            continue
+        for label, fld, fit_s, extra in fields:
+            ex = compensate_chain_true(machine, truth, _at(fld, path.cond), path)
+            r = row(machine.name, machine.kind, "parametric", f"{cname} ({label})", solver="exact",
+                    fit_seconds=fit_s, identify_seconds=id_s,
+                    compensate_seconds_per_point=ex["seconds_per_point"], true_rms_um=ex["true_rms_um"],
+                    true_max_um=ex["true_max_um"], solvers={"exact": ex}, **{**common, **extra})
+            if volume is not None:
+                v = compensate_chain_true(machine, truth, _at(fld, volume.cond), volume)
+                r.update(volume_rms_um=v["true_rms_um"], volume_max_um=v["true_max_um"])
+            log.add(r)
+    return skipped
+
+
+def _at(field_, cond: dict):
+    """``field_`` told the path's conditions its effect terms need (as ``compensate --temp-c/--dir-x`` tells it)."""
+    needs = tuple(getattr(field_, "needs", ()))
+    return field_.with_conditions({c: cond[c] for c in needs}) if needs else field_

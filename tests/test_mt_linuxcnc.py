@@ -1,0 +1,114 @@
+"""``volcomp export --format linuxcnc`` on machine-tool chains: one pitch table per linear joint, checked
+before writing; the table writer is the grinder's."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from compensation.app.cli import main
+from errormap.machine import load_machine
+from errormap.mt_elements import ChainElementSet
+from errormap.mt_field import ChainField
+
+PITCH_ONLY_TOL_UM = 0.01
+"""A machine whose only errors are the linear joints' own positioning errors is compensated exactly by
+their pitch tables up to linear interpolation between 256 lines of a smooth ≤ 25 μm profile (< 1e-3 μm)
+and the exact solver's round-off; 0.01 μm leaves a margin."""
+FILE_DIGITS_MM = 1e-9
+"""The .comp files hold 9 decimals of mm."""
+BACKLASH_TOL_UM = 0.5
+"""The loop's reversal estimate on Z from 400 checks at 1 μm noise (seed 0: 8.23 μm for a simulated 8.0 μm
+backlash); the table's forward − reverse must carry it to within 0.5 μm."""
+
+
+def positioning_only(machine, seed=0) -> ChainElementSet:
+    """Elements with only each linear joint's positioning error along its own axis (smooth, ≤ 25 μm)."""
+    el = ChainElementSet.zeros(machine)
+    rng = np.random.default_rng(seed)
+    for a in machine.axes:
+        if a.kind != "linear":
+            continue
+        s = el.stations[a.column]
+        u = (s - s[0]) / (s[-1] - s[0])
+        el.functions[f"d{'xyz'[a.along]}_{a.word.lower()}"] = (rng.uniform(5, 15) * np.sin(2 * np.pi * u)
+                                                                + rng.uniform(-10, 10) * u)
+    return el
+
+
+def test_pitch_tables_compensate_a_machine_with_positioning_errors_only(tmp_path):
+    """Independent check of sign and joint direction: positioning errors alone are fully carried by the tables."""
+    from compensation import export as ex
+    from compensation import mt_export
+    m = load_machine("mill-xyz")
+    el = positioning_only(m)
+    fld = ChainField(m, el)
+    tables = mt_export.chain_joint_tables(fld, el, 256, samples=4, seed=0)
+    assert sorted(tables.nominal) == ["x", "y", "z"]
+    assert all(np.array_equal(tables.forward[j], tables.reverse[j]) for j in tables.nominal)  # no reversal term
+    pts = mt_export.check_points(el, 500, 1)
+    dirs = np.random.default_rng(2).choice([-1.0, 1.0], pts.shape)
+    check = mt_export.check_chain_joint_tables(tables, fld, m, pts, dirs)
+    assert check["model"]["max_um"] <= PITCH_ONLY_TOL_UM
+    assert check["baseline_none"]["model"]["max_um"] > 100 * PITCH_ONLY_TOL_UM
+    files = ex.write_joint_tables(tables, tmp_path)
+    assert [p.name for p in files] == ["joint_x.comp", "joint_y.comp", "joint_z.comp"]
+    back = np.loadtxt(tmp_path / "joint_y.comp")
+    assert back.shape == (256, 3)
+    assert np.max(np.abs(back - np.column_stack([tables.nominal["y"], *tables.actual("y")]))) <= FILE_DIGITS_MM
+
+
+def test_cli_five_axis_writes_the_linear_joints_and_says_what_it_does_with_the_rotary_ones(tmp_path, capsys):
+    m = load_machine("five-axis-ac")
+    model = positioning_only(m).save(tmp_path / "E.json")
+    out = tmp_path / "lx"
+    assert main(["export", str(model), "--format", "linuxcnc", "--machine", "five-axis-ac", "--points", "128",
+                 "--check-points", "300", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["export.json", "joint_x.comp", "joint_y.comp", "joint_z.comp"]
+    notes = [ln for ln in text.splitlines() if ln.startswith("note: rotary joint")]
+    assert [n.split()[3] for n in notes] == ["A:", "C:"]
+    info = json.loads((out / "export.json").read_text())
+    assert info["tolerance_met"] and info["check"]["model"]["max_um"] <= PITCH_ONLY_TOL_UM
+    assert info["joints"] == {"x": "x_mm", "y": "y_mm", "z": "z_mm"} and len(info["left_out"]) == 2
+
+
+@pytest.mark.parametrize("argv, word", [
+    (["--machine", "lathe-xzc"], "three linear axes"),
+    (["--machine", "mill-xyz", "--diagnosis", "d.json"], "--diagnosis"),
+    (["--machine", "mill-xyz", "--region", "0:1,0:1"], "--region"),
+    (["--machine", "mill-xyz", "--points", "300"], "--points"),
+])
+def test_cli_refusals_are_one_line(argv, word, tmp_path, capsys):
+    m = load_machine("mill-xyz")
+    model = positioning_only(m).save(tmp_path / "E.json")
+    assert main(["export", str(model), "--format", "linuxcnc", "--out", str(tmp_path / "o"), *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and word in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_reversal_of_the_loops_model_becomes_forward_minus_reverse(tmp_path, capsys):
+    """User's path: simulate (reversal:Z, 8 μm backlash) → sweeps → identify → diagnose → export the loop's
+    model.json: joint Z's forward − reverse carries the backlash, the others none; TRUE with --truth."""
+    base = ["--machine", "mill-xyz", "--seed", "0", "--effect", "reversal:Z"]
+    d = tmp_path
+    assert main(["simulate", *base, "--checks", "400", "--out", str(d / "sim")]) == 0
+    assert main(["sweeps", *base, "--out", str(d / "sw.csv")]) == 0
+    assert main(["identify", str(d / "sw.csv"), "--machine", "mill-xyz", "--out", str(d / "E.json")]) == 0
+    assert main(["diagnose", str(d / "sim" / "checks.csv"), "--machine", "mill-xyz", "--model", str(d / "E.json"),
+                 "--noise-um", "1", "--out", str(d / "diag")]) == 0
+    truth_b = json.loads((d / "sim" / "truth.json").read_text())["effects"]["reversal:Z"]["backlash_um"]
+    capsys.readouterr()
+    assert main(["export", str(d / "diag" / "model.json"), "--format", "linuxcnc", "--machine", "mill-xyz",
+                 "--truth", str(d / "sim" / "truth.json"), "--force", "--out", str(d / "lx")]) == 0
+    info = json.loads((d / "lx" / "export.json").read_text())
+    rev = info["max_forward_minus_reverse_um"]
+    assert abs(rev["z"] - truth_b) <= BACKLASH_TOL_UM and rev["x"] == rev["y"] == 0.0
+    c = info["check"]
+    assert c["true"]["max_um"] < c["baseline_none"]["true"]["max_um"]
+    assert c["model"]["mean_um"] < c["baseline_none"]["model"]["mean_um"]
+    z = np.loadtxt(d / "lx" / "joint_z.comp")
+    assert abs(np.median(z[:, 1] - z[:, 2]) * 1e3 - truth_b) <= BACKLASH_TOL_UM
