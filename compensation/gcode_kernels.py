@@ -182,8 +182,9 @@ def _scan(buf, starts, ends, pow10, kind, spans, vals):
 
 KERNEL_BLOCK = 1 << 20
 """Lines (moves) per call of the scanning and path-length kernels: ≈ 0.1 s of CPU each (measured
-0.11 s for 1,000,000 lines, 0.08 s for 1,000,000 path lengths), so a KeyboardInterrupt, which
-Python can raise only between compiled calls, acts within that time however long the file."""
+0.11 s for 1,000,000 lines, 0.085 s for 1,000,000 grinder path lengths through its chain), so a
+KeyboardInterrupt, which Python can raise only between compiled calls, acts within that time
+however long the file."""
 
 
 def line_bounds(buf: np.ndarray):
@@ -347,39 +348,165 @@ def render_lines(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags
 
 # ---------------------------------------------------------------------------- planning
 
-@njit(cache=True, nogil=True)
-def _polyline_lengths(start, end, samples, ty, qx0, qz0, out):
-    """The nominal tool point is ``p = (qx0 - x, M(a)·(ty, qz0 + z))`` with ``M(a)`` the
-    rotation ``[[c, s], [-s, c]]``; between two samples of a linear move ``M(a_i)`` factors
-    out of the chord, so each chord is ``|(dx, M(da)·q_(i+1) - q_i)|`` with the same ``dx``
-    and ``da`` for every step: one sine and cosine a move."""
-    for k in range(start.shape[0]):
-        dx = (end[k, 0] - start[k, 0]) / samples
-        dz = (end[k, 1] - start[k, 1]) / samples
-        da = np.deg2rad((end[k, 2] - start[k, 2]) / samples)
-        c, s = np.cos(da), np.sin(da)
-        dx2 = dx * dx
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _rotate(a, c, s, v0, v1, v2):  # pragma: no cover - compiled
+    """``v`` turned about the frame's axis ``a`` by the angle of cosine ``c``, sine ``s``."""
+    if a == 0:
+        return v0, c * v1 - s * v2, s * v1 + c * v2
+    if a == 1:
+        return s * v2 + c * v0, v1, c * v2 - s * v0
+    return c * v0 - s * v1, s * v0 + c * v1, v2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _polyline_lengths(start, end, samples, prog, out):  # pragma: no cover - compiled
+    """WCS length of each move's nominal tool path ``start[j] -> end[j]`` (axes, (m, k)) as the
+    polyline through ``samples + 1`` equally spaced axis values, the tool point from the machine's
+    chain (``prog``: :attr:`errormap.mt_kernel.NominalChain.prog`, the ops of
+    :func:`errormap.mt_kernel._chain_point`; nominal, so every op is rigid). Per sample ``i`` the
+    tool point is the origin carried through the ops from the last to the first (a point, not a
+    frame: no 3×3 products). Along a linear move every joint's value steps by the same amount, so:
+
+    * the ops before the first one that changes in the move are one rigid motion for every
+      sample: chord lengths do not depend on them, they are skipped;
+    * if that first op is a rotation (angle ``θ + i·δ``), ``|R(θ + (i+1)δ)·v' - R(θ + iδ)·v| =
+      |R(δ)·v' - v|``: only ``δ``'s cosine and sine are needed, the op is not walked per sample;
+    * the ops after the last rotation that turns in the move carry the origin to a point affine in
+      ``i``, ``u + i·w``: they are walked once a move, on ``u`` and ``w``;
+    * the ops between are walked per sample, a rotation's cosine and sine advanced by the
+      angle-addition rule (no sine or cosine per sample); with none, chord ``i`` is affine in
+      ``i`` too (``R(δ)·(u + (i+1)·w) - (u + i·w)``) and costs three multiply-adds and a root.
+
+    On the X-Z-A grinder that last case is every move: one sine and cosine (of A's step) a move."""
+    kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt = prog
+    m = kind.shape[0]
+    x0 = np.empty(m)
+    dx = np.empty(m)
+    cs = np.empty(m)
+    sn = np.empty(m)
+    cd = np.empty(m)
+    sd = np.empty(m)
+    shift = np.zeros(BR.shape[0], dtype=np.bool_)  # blocks without rotation: a shift only
+    for bi in range(BR.shape[0]):
+        shift[bi] = (BR[bi, 0, 0] == 1.0 and BR[bi, 1, 1] == 1.0 and BR[bi, 2, 2] == 1.0 and BR[bi, 0, 1] == 0.0
+                     and BR[bi, 0, 2] == 0.0 and BR[bi, 1, 0] == 0.0 and BR[bi, 1, 2] == 0.0 and BR[bi, 2, 0] == 0.0
+                     and BR[bi, 2, 1] == 0.0)
+    for j in range(start.shape[0]):
+        first = m      # the first op that changes in this move
+        for o in range(m):
+            if kind[o] == 2:
+                continue
+            x, d = value[o], 0.0
+            if joint[o] >= 0:
+                x += jscale[o] * start[j, joint[o]]
+                d = jscale[o] * ((end[j, joint[o]] - start[j, joint[o]]) / samples)
+            x0[o], dx[o] = x, d
+            if d != 0.0 and first == m:
+                first = o
+        lead = -1      # the leading rotation, turned by its step only
+        if first < m and kind[first] == 1:
+            lead = first
+            cd[lead], sd[lead] = np.cos(dx[lead]), np.sin(dx[lead])
+            first += 1
+        last = first - 1  # the last rotation that turns in the move (the per-sample part: first..last)
+        for o in range(first, m):
+            if kind[o] == 1:
+                if dx[o] != 0.0:
+                    cd[o], sd[o] = np.cos(dx[o]), np.sin(dx[o])
+                    last = o
+                cs[o], sn[o] = np.cos(x0[o]), np.sin(x0[o])
+        u0 = u1 = u2 = w0 = w1 = w2 = 0.0
+        for o in range(m - 1, last, -1):  # affine part: u + i·w
+            k = kind[o]
+            a = eaxis[o]
+            if k == 2:
+                bi = block[o]
+                if shift[bi]:
+                    u0, u1, u2 = u0 + Bt[bi, 0], u1 + Bt[bi, 1], u2 + Bt[bi, 2]
+                    continue
+                t0 = BR[bi, 0, 0] * u0 + BR[bi, 0, 1] * u1 + BR[bi, 0, 2] * u2 + Bt[bi, 0]
+                t1 = BR[bi, 1, 0] * u0 + BR[bi, 1, 1] * u1 + BR[bi, 1, 2] * u2 + Bt[bi, 1]
+                t2 = BR[bi, 2, 0] * u0 + BR[bi, 2, 1] * u1 + BR[bi, 2, 2] * u2 + Bt[bi, 2]
+                u0, u1, u2 = t0, t1, t2
+                t0 = BR[bi, 0, 0] * w0 + BR[bi, 0, 1] * w1 + BR[bi, 0, 2] * w2
+                t1 = BR[bi, 1, 0] * w0 + BR[bi, 1, 1] * w1 + BR[bi, 1, 2] * w2
+                t2 = BR[bi, 2, 0] * w0 + BR[bi, 2, 1] * w1 + BR[bi, 2, 2] * w2
+                w0, w1, w2 = t0, t1, t2
+            elif k == 0:
+                if a == 0:
+                    u0 += x0[o]
+                    w0 += dx[o]
+                elif a == 1:
+                    u1 += x0[o]
+                    w1 += dx[o]
+                else:
+                    u2 += x0[o]
+                    w2 += dx[o]
+            else:  # a rotation whose angle stays in this move
+                u0, u1, u2 = _rotate(a, cs[o], sn[o], u0, u1, u2)
+                w0, w1, w2 = _rotate(a, cs[o], sn[o], w0, w1, w2)
+        if last < first:  # the point is affine in i: chord i = R(δ)·(u + (i+1)·w) - (u + i·w)
+            if lead < 0:  # a straight line: every chord the same
+                out[j] = samples * np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+                continue
+            a = eaxis[lead]
+            r0, r1, r2 = _rotate(a, cd[lead], sd[lead], u0, u1, u2)
+            q0, q1, q2 = _rotate(a, cd[lead], sd[lead], w0, w1, w2)
+            c0, c1, c2 = r0 - u0 + q0, r1 - u1 + q1, r2 - u2 + q2    # chord 0
+            e0, e1, e2 = q0 - w0, q1 - w1, q2 - w2                   # its step per chord
+            total = 0.0
+            for i in range(samples):
+                d0, d1, d2 = c0 + i * e0, c1 + i * e1, c2 + i * e2
+                total += np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            out[j] = total
+            continue
         total = 0.0
-        for i in range(samples):
-            z0 = qz0 + start[k, 1] + i * dz
-            z1 = qz0 + start[k, 1] + (i + 1) * dz
-            u = c * ty + s * z1 - ty
-            v = -s * ty + c * z1 - z0
-            total += np.sqrt(dx2 + u * u + v * v)
-        out[k] = total
+        p0 = p1 = p2 = 0.0
+        for i in range(samples + 1):
+            v0, v1, v2 = u0 + i * w0, u1 + i * w1, u2 + i * w2
+            for o in range(last, first - 1, -1):
+                k = kind[o]
+                if k == 2:  # v = BR·v + Bt
+                    bi = block[o]
+                    t0 = BR[bi, 0, 0] * v0 + BR[bi, 0, 1] * v1 + BR[bi, 0, 2] * v2 + Bt[bi, 0]
+                    t1 = BR[bi, 1, 0] * v0 + BR[bi, 1, 1] * v1 + BR[bi, 1, 2] * v2 + Bt[bi, 1]
+                    t2 = BR[bi, 2, 0] * v0 + BR[bi, 2, 1] * v1 + BR[bi, 2, 2] * v2 + Bt[bi, 2]
+                    v0, v1, v2 = t0, t1, t2
+                elif k == 0:  # translation along the frame's axis
+                    x = x0[o] + i * dx[o]
+                    a = eaxis[o]
+                    if a == 0:
+                        v0 += x
+                    elif a == 1:
+                        v1 += x
+                    else:
+                        v2 += x
+                else:
+                    v0, v1, v2 = _rotate(eaxis[o], cs[o], sn[o], v0, v1, v2)
+            if i:  # chord from the last sample's point: R(δ)·v - p (lead rotation), else v - p
+                r0, r1, r2 = v0, v1, v2
+                if lead >= 0:
+                    r0, r1, r2 = _rotate(eaxis[lead], cd[lead], sd[lead], v0, v1, v2)
+                d0, d1, d2 = r0 - p0, r1 - p1, r2 - p2
+                total += np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            p0, p1, p2 = v0, v1, v2
+            for o in range(first, last + 1):  # the next sample's angles: cos(x + d), sin(x + d)
+                if kind[o] == 1 and dx[o] != 0.0:
+                    c, s = cs[o], sn[o]
+                    cs[o], sn[o] = c * cd[o] - s * sd[o], s * cd[o] + c * sd[o]
+        out[j] = total
 
 
 def linear_path_lengths_mm(machine, start, end, samples: int = 16):
-    """WCS length of the nominal tool path of linear axis moves ``start`` -> ``end`` (m, 3),
-    as the polyline through ``samples + 1`` equally spaced parameters (the closed form of
-    :func:`errormap.kinematics.forward`; chord lengths as :func:`_polyline_lengths` says): (m,)."""
-    from errormap.kinematics import nominal_tool_at_z0
+    """WCS length of the nominal tool path of linear axis moves ``start`` -> ``end`` (m, k), as the
+    polyline through ``samples + 1`` equally spaced parameters, the tool point from the machine's
+    chain (:class:`errormap.mt_kernel.NominalChain`; the grinder's chain file for the grinder): (m,)."""
+    from errormap.mt_kernel import NominalChain
+    prog = NominalChain(machine).prog
     start = np.ascontiguousarray(start, dtype=float)
     end = np.ascontiguousarray(end, dtype=float)
-    tx, ty, tz0 = nominal_tool_at_z0(machine)
     out = np.empty(start.shape[0])
-    qx0, qz0 = tx - machine.l5 - machine.l7, tz0 - machine.l6 - machine.l8
     for a in range(0, start.shape[0], KERNEL_BLOCK):  # Ctrl-C acts within one block
         b = min(start.shape[0], a + KERNEL_BLOCK)
-        _polyline_lengths(start[a:b], end[a:b], int(samples), ty, qx0, qz0, out[a:b])
+        _polyline_lengths(start[a:b], end[a:b], int(samples), prog, out[a:b])
     return out

@@ -514,3 +514,90 @@ def grinder_nominal(machine) -> CompiledNominal:
             _GRINDER_NOMINAL.pop(next(iter(_GRINDER_NOMINAL)))
         c = _GRINDER_NOMINAL[key] = CompiledNominal(grinder_chain(machine))
     return c
+
+
+# ---------------------------------------------------------------------------- nominal chain
+# (issue 26 point 3: the solvers' and G-code kernels' one source of nominal kinematics)
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def nominal_point(q, prog, R, t, W, O, ev, record):  # pragma: no cover - compiled
+    """The nominal tool point of ``prog`` (a program without errors, :attr:`NominalChain.prog`) at
+    axes ``q`` (k,) into ``t`` (3,) mm; with ``record`` the op columns for
+    :func:`nominal_columns` into ``W``, ``O`` (ops, 3). ``R`` (3, 3), ``ev`` (≥ 1,) scratch."""
+    kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt = prog
+    _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt, R, t, W, O, record)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def nominal_columns(prog, own, t, W, O, ev, Jp):  # pragma: no cover - compiled
+    """``Jp`` (3, k) = d(tool point)/d(axes), mm per mm / per deg, after :func:`nominal_point` with
+    ``record`` (geometric, exact: :func:`_jacobian_columns`)."""
+    kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt = prog
+    for i in range(3):
+        for j in range(Jp.shape[1]):
+            Jp[i, j] = 0.0
+    _jacobian_columns(ev, kind, joint, jscale, slot, coef, own, t, W, O, Jp, 1.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def nominal_jacobian_kernel(axes, prog, own, P, J, jac):  # pragma: no cover - compiled
+    """Nominal tool point ``P`` (n, 3) mm and, with ``jac``, its axis Jacobian ``J`` (n, 3, k) mm
+    per mm / per deg at ``axes`` (n, k), for n points."""
+    k = axes.shape[1]
+    m = max(prog[0].shape[0], 1)
+    W = np.empty((m, 3))
+    O = np.empty((m, 3))
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    ev = np.zeros(max(own.shape[0], 1))
+    Jp = np.empty((3, k))
+    for n in range(axes.shape[0]):
+        nominal_point(axes[n], prog, R, t, W, O, ev, jac)
+        for i in range(3):
+            P[n, i] = t[i]
+        if jac:
+            nominal_columns(prog, own, t, W, O, ev, Jp)
+            for i in range(3):
+                for j in range(k):
+                    J[n, i, j] = Jp[i, j]
+
+
+class NominalChain:
+    """The nominal (error-free) chain of a machine tool packed once for compiled kernels: ``prog``
+    the op arrays (the same ops as :attr:`CompiledChain.prog_nom`), ``own`` the slots' axis columns
+    (unused by a program without errors, kept for the kernels' signature), ``k`` the axes, ``kinds``
+    (k,) ``linear``/``rotary`` and ``full_turn`` (k,) bool per axis, ``columns`` the axis columns.
+
+    ``machine``: a :class:`errormap.mt_chain.MachineTool`, or any machine file that
+    :func:`errormap.mt_chain.chain_from_grinder` turns into one (the grinder)."""
+
+    def __init__(self, machine):
+        from .machine import Grinder
+        if isinstance(machine, Grinder):  # its chain file, packed once per file content
+            packed = grinder_nominal(machine)
+            mt, self.prog = packed.machine, packed.prog_nom
+        elif isinstance(machine, MachineTool):
+            mt, self.prog = machine, nominal_program(machine.chain)
+        else:
+            raise TypeError(f"Expected a machine-tool chain or a grinder machine, got {type(machine).__name__}")
+        self.machine_tool = mt
+        self.own = np.zeros(0, dtype=np.int64)
+        self.k = len(mt.axes)
+        self.kinds = tuple(a.kind for a in mt.axes)
+        self.full_turn = np.array([a.full_turn for a in mt.axes], dtype=bool)
+        self.columns = mt.axis_columns
+
+    def forward(self, axes) -> np.ndarray:
+        """Nominal tool point (n, 3) mm at ``axes`` (n, k)."""
+        return self.forward_and_jacobian(axes, jac=False)[0]
+
+    def forward_and_jacobian(self, axes, jac: bool = True):
+        """``(P (n, 3) mm, J (n, 3, k) mm per mm / per deg)`` at ``axes`` (n, k); ``J`` None
+        without ``jac``."""
+        axes = np.ascontiguousarray(axes, dtype=float)
+        if axes.ndim != 2 or axes.shape[1] != self.k:
+            raise ValueError(f"Expected axes of shape (n, {self.k}) ({', '.join(self.columns)}), got {axes.shape}")
+        P = np.empty((axes.shape[0], 3))
+        J = np.empty((axes.shape[0], 3, self.k) if jac else (0, 3, self.k))
+        nominal_jacobian_kernel(axes, self.prog, self.own, P, J, bool(jac))
+        return P, (J if jac else None)

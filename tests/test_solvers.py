@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 
 from compensation.solvers import METHODS, SolveResult, get_solver, solve
-from compensation.solvers._common import (fold_a, forward_and_jacobian, forward_jacobian, nominal_tool_at_z0,
-                                          project_to_ball)
+from compensation.solvers._common import fold_a, forward_and_jacobian, forward_jacobian, project_to_ball
 from compensation.solvers.exact import solve3
 from errormap.field import JACOBIAN, CalibratedVolume
-from errormap.kinematics import forward, inverse, tool_in_machine_nominal
+from errormap.kinematics import forward, inverse
 from errormap.machine import load_machine
 from errormap.transforms import rot_x
 
@@ -19,6 +18,8 @@ GA_TOL_UM = 0.265          # the paper's worst GA residual (max squared residual
 EXACT_TOL_UM = 1e-6        # exact solver: float precision, with margin
 TRAD_MIN_RESIDUAL_UM = 1.0  # the traditional method must leave a visible residual on these fields
 JAC_TOL = 1e-6             # analytic vs finite-difference kinematic Jacobian (mm per unit)
+CHAIN_POINT_TOL_MM = 1e-12  # the chain's op-by-op tool point vs the closed form: float64 round-off of ~500 mm sums
+CHAIN_JAC_TOL = 1e-13      # its geometric axis Jacobian vs the closed form's (entries ≤ ~4 mm/deg; round-off)
 CMD_FACTOR = 1.2           # |command error| ≤ CMD_FACTOR·|residual| for the linear field (|(I+1e-3A)^-1| < 1.2)
 
 
@@ -92,15 +93,43 @@ def test_forward_jacobian_matches_finite_differences(machine):
         np.testing.assert_allclose(J[:, :, k], dp, atol=JAC_TOL)
 
 
+def grinder_closed_form(machine, axes):
+    """Readable reference (the solvers' former hand-written kinematics, main 0485cf2): the grinder's
+    nominal tool point ``p = (t_x - l5 - l7 - x, c·t_y + s·h, c·h - s·t_y)`` with
+    ``h = t_z(0) - l6 - l8 + z``, ``t(0) = RotZ(θ1)·(l2 + l3, 0, l1 + l4 - R)``, and its axis Jacobian
+    (columns ``(-1, 0, 0)``, ``(0, s, c)``, ``(0, p_z, -p_y)·π/180``)."""
+    th = np.deg2rad(machine.theta1_deg)
+    tx, ty = np.cos(th) * (machine.l2 + machine.l3), np.sin(th) * (machine.l2 + machine.l3)
+    tz = machine.l1 + machine.l4 - machine.R
+    h = axes[:, 1] + tz - machine.l6 - machine.l8
+    a = np.deg2rad(axes[:, 2])
+    c, s = np.cos(a), np.sin(a)
+    p = np.column_stack([tx - machine.l5 - machine.l7 - axes[:, 0], c * ty + s * h, c * h - s * ty])
+    J = np.zeros((len(axes), 3, 3))
+    J[:, 0, 0] = -1.0
+    J[:, 1, 1], J[:, 2, 1] = s, c
+    J[:, 1, 2], J[:, 2, 2] = p[:, 2] * np.pi / 180, -p[:, 1] * np.pi / 180
+    return p, J
+
+
 @pytest.mark.parametrize("theta1_deg", [None, 7.0])
-def test_closed_form_kinematics_equal_the_chains(machine, theta1_deg):
+def test_chain_kinematics_equal_the_closed_form(machine, theta1_deg):
+    """The solvers' nominal kinematics come from the grinder's chain (one source, issue 26): equal to
+    the closed form written out here and to :func:`errormap.kinematics.forward`, on 100,000 points
+    (A over several turns), also for a grinder file with other geometry."""
     mach = machine if theta1_deg is None else dataclasses.replace(machine, theta1_deg=theta1_deg)
     rng = np.random.default_rng(2)
-    axes = np.column_stack([rng.uniform(0, 200, 50), rng.uniform(0, 60, 50), rng.uniform(-400, 800, 50)])
+    n = 100_000
+    axes = np.column_stack([rng.uniform(0, 200, n), rng.uniform(0, 60, n), rng.uniform(-400, 800, n)])
     p, J = forward_and_jacobian(mach, axes)
-    np.testing.assert_allclose(p, forward(mach, axes), rtol=0, atol=1e-12)
+    p_ref, J_ref = grinder_closed_form(mach, axes)
+    np.testing.assert_allclose(p, p_ref, rtol=0, atol=CHAIN_POINT_TOL_MM)
+    np.testing.assert_allclose(J, J_ref, rtol=0, atol=CHAIN_JAC_TOL)
+    np.testing.assert_allclose(p, forward(mach, axes), rtol=0, atol=CHAIN_POINT_TOL_MM)
     np.testing.assert_array_equal(J, forward_jacobian(mach, axes))
-    np.testing.assert_allclose(nominal_tool_at_z0(mach), tool_in_machine_nominal(mach, [0.0])[0], rtol=0, atol=1e-12)
+    p_only, none = forward_and_jacobian(mach, axes[:100], jac=False)
+    assert none is None
+    np.testing.assert_array_equal(p_only, p[:100])
 
 
 def test_solve3_matches_numpy():

@@ -7,10 +7,15 @@ round trip through numpy between them. float32 is ample here: the offsets resolv
 250 μm, and the field's float32 error is ~1e-4 μm (``tests/test_model_inference.py``) against
 the GA's ~0.01 μm resolution; the solver recomputes commands and residuals in float64.
 
-IK (:func:`errormap.kinematics.inverse`): ``x = c_x - p_x``, ``h = sqrt(p_y² + p_z² - t_y²)``,
-``z = h - c_h``, ``a = atan2(p_y, p_z) - atan2(t_y, h)`` (deg), which ``predict_columns``
-folds into the field's turn (the generic path folds into the stroke's turn first; E is
-periodic, so both are the same point of the field).
+IK: the closed-form inverse of a chain whose nominal tool point is
+``p = (c_x - q0, Rot_x(-q2)·(t_y, c_h + q1))`` (a linear axis along -x, a linear axis along the
+radius of a rotary axis about x: the X-Z-A grinder): ``x = c_x - p_x``,
+``h = sqrt(p_y² + p_z² - t_y²)``, ``z = h - c_h``, ``a = atan2(p_y, p_z) - atan2(t_y, h)`` (deg), which
+``predict_columns`` folds into the field's turn (the generic path folds into the stroke's turn
+first; E is periodic, so both are the same point of the field). The constants ``(c_x, t_y, c_h)``
+are read from the machine's chain (:func:`closed_form_constants`: its nominal tool point at zero
+axes), and the form itself is checked on the chain there; a machine of another form is refused,
+never given a wrong inverse. No machine's geometry is named here.
 """
 from __future__ import annotations
 
@@ -19,9 +24,42 @@ import math
 import numpy as np
 import torch
 
-from errormap.kinematics import nominal_tool_at_z0
+from errormap.mt_kernel import NominalChain
 
 MM_PER_UM = 1e-3
+CLOSED_FORM_TOL_MM = 1e-9
+"""Largest difference between the chain's nominal tool point and the closed form at the check
+points for the form to hold: round-off of the chain's ~500 mm sums is ~1e-13 mm, a real
+difference of form is millimetres."""
+CHECK_A_DEG = (-450.0, -90.0, 0.0, 37.0, 200.0, 719.0)
+"""Rotary-axis values of the check points (several turns, both signs)."""
+
+
+def closed_form_constants(machine) -> tuple[float, float, float]:
+    """``(c_x, t_y, c_h)`` of the fused kernel's closed-form inverse, from the machine's chain.
+
+    The nominal tool point at zero axes is ``(c_x, t_y, c_h)`` for a chain of the form
+    ``p = (c_x - q0, Rot_x(-q2)·(t_y, c_h + q1))``; the form is checked against the chain at a
+    grid of axes (the linear strokes' ends and middle × :data:`CHECK_A_DEG`) to
+    :data:`CLOSED_FORM_TOL_MM`. ValueError for a machine whose chain has another form.
+    """
+    chain = NominalChain(machine)
+    if chain.k != 3 or chain.kinds != ("linear", "linear", "rotary"):
+        raise ValueError(f"the fused GA fitness inverts a chain of two linear axes and a rotary one; "
+                         f"{chain.machine_tool.name!r} has {', '.join(chain.columns)}")
+    cx, ty, ch = (float(v) for v in chain.forward(np.zeros((1, 3)))[0])
+    mt = chain.machine_tool
+    lo, hi = mt.stroke_lo, mt.stroke_hi
+    g = np.array(np.meshgrid([lo[0], 0.5 * (lo[0] + hi[0]), hi[0]], [lo[1], 0.5 * (lo[1] + hi[1]), hi[1]],
+                             CHECK_A_DEG, indexing="ij")).reshape(3, -1).T
+    a = np.deg2rad(g[:, 2])
+    h = ch + g[:, 1]
+    closed = np.column_stack([cx - g[:, 0], np.cos(a) * ty + np.sin(a) * h, np.cos(a) * h - np.sin(a) * ty])
+    miss = float(np.abs(chain.forward(g) - closed).max())
+    if not miss <= CLOSED_FORM_TOL_MM:
+        raise ValueError(f"the fused GA fitness's closed-form inverse does not fit the chain of {mt.name!r} "
+                         f"(off by {miss:.3g} mm at the check points); use the generic fitness (fused=False)")
+    return cx, ty, ch
 
 
 class FusedOffsetFitness:
@@ -38,10 +76,7 @@ class FusedOffsetFitness:
 
     def __init__(self, field, machine, targets_mm):
         self.field = field
-        t0 = nominal_tool_at_z0(machine)
-        self.cx = float(t0[0] - machine.l5 - machine.l7)
-        self.ty = float(t0[1])
-        self.ch = float(t0[2] - machine.l6 - machine.l8)
+        self.cx, self.ty, self.ch = closed_form_constants(machine)
         targets = np.asarray(targets_mm, dtype=float)
         # per-point constants; x in float64 first (c_x - p_x), then float32
         self.x = torch.from_numpy((self.cx - targets[:, 0]).astype(np.float32))

@@ -25,8 +25,9 @@ import time
 import numpy as np
 
 from errormap.field import FLOAT32, JACOBIAN, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, check_field
-from errormap.kinematics import inverse, nominal_tool_at_z0
+from errormap.kinematics import inverse
 from errormap.machine import Grinder
+from errormap.mt_kernel import NominalChain
 from errormap.threads import limit_threads
 from errormap.transforms import check_points
 
@@ -190,37 +191,14 @@ def field_error_and_jacobian_um(field, axes, machine, chunk: int = FIELD_CHUNK, 
 
 
 def forward_and_jacobian(machine, axes, jac: bool = True):
-    """Nominal tool point ``p`` (n, 3) mm and ``dp/d(axes)`` (n, 3, 3) mm per (mm, mm, deg).
-
-    ``p = (t_x - l5 - l7 - x, c·t_y + s·h, -s·t_y + c·h)`` with ``h = t_z(0) - l6 - l8 + z``
-    (the nominal tool point ``t`` moves along the machine Z only), so the columns of the
-    Jacobian are ``(-1, 0, 0)``, ``(0, s, c)`` and ``(0, c·h - s·t_y, -s·h - c·t_y)·π/180``.
-    Equal to :func:`errormap.kinematics.forward` (tested); written out for the Newton loop,
-    where the general chain's overhead would dominate. ``jac=False`` returns ``(p, None)``.
-    """
-    axes = np.asarray(axes, dtype=float)
-    t0 = nominal_tool_at_z0(machine)
-    ty = t0[1]
-    h = axes[:, 1] + (t0[2] - machine.l6 - machine.l8)
-    a = np.deg2rad(axes[:, 2])
-    c, s = np.cos(a), np.sin(a)
-    p = np.empty_like(axes)
-    p[:, 0] = (t0[0] - machine.l5 - machine.l7) - axes[:, 0]
-    p[:, 1] = c * ty + s * h
-    p[:, 2] = c * h - s * ty
-    if not jac:
-        return p, None
-    J = np.zeros((axes.shape[0], 3, 3))
-    J[:, 0, 0] = -1.0
-    J[:, 1, 1] = s
-    J[:, 2, 1] = c
-    J[:, 1, 2] = p[:, 2] * (np.pi / 180.0)
-    J[:, 2, 2] = -p[:, 1] * (np.pi / 180.0)
-    return p, J
+    """Nominal tool point ``p`` (n, 3) mm and ``dp/d(axes)`` (n, 3, k) mm per mm / per deg of the
+    machine's chain (:class:`errormap.mt_kernel.NominalChain`: for the grinder its chain file, the
+    same one source as every chain), at ``axes`` (n, k). ``jac=False`` returns ``(p, None)``."""
+    return NominalChain(machine).forward_and_jacobian(axes, jac)
 
 
 def forward_jacobian(machine, axes) -> np.ndarray:
-    """``d p / d(axes)`` of the nominal forward kinematics, mm per (mm, mm, deg), (n, 3, 3)."""
+    """``d p / d(axes)`` of the nominal forward kinematics, mm per mm / per deg, (n, 3, k)."""
     return forward_and_jacobian(machine, axes)[1]
 
 

@@ -15,16 +15,14 @@ rotary axes (the tool's orientation relative to the workpiece on a 5-axis machin
 the program commands them, and the result says so (``info["kept_axes"]``). A machine with other
 than three linear axes is refused (a lathe's X, Z cannot place a point in 3-D; not solved here).
 
-**Why it is exact and fast.** With the rotary axes fixed, the nominal tool point is an affine
-function of the linear axes (a product of translations along frame axes and fixed rotations), so
-``fwd(q) = fwd(q_d) + A·(q_lin − q_lin,d)`` holds exactly with ``A = dfwd/dq_lin`` at ``q_d``:
-the chain is walked once per point (a compiled pass over the chain's op arrays, the field kernel's
-own :func:`errormap.mt_kernel._chain_point`), the Newton loop only calls the field's compiled
-``predict_and_jacobian`` and a 3×3 Cramer solve (:func:`compensation.solvers.exact.solve3`).
+**One Newton core.** The iteration is the exact solver's own (:func:`compensation.solvers.exact.newton`:
+the chain's nominal tool point and geometric axis Jacobian in compiled kernels over its op arrays,
+the field's compiled ``predict`` on the trial points, its ``predict_and_jacobian`` at the start
+and where a step fails, Broyden updates between), on the linear axes.
 
-Robustness: a step is halved (up to :data:`MAX_HALVINGS` times) until ``|F|`` decreases
-(Armijo, :data:`ARMIJO`); iteration stops at ``|F| ≤ xtol_um`` or at round-off
-(:data:`ROUNDOFF_ULPS` ulps of the target's largest coordinate), at stagnation or ``max_iter``.
+Robustness (as the exact solver's): a step is halved until ``|F|`` decreases (Armijo); iteration
+stops at ``|F| ≤ xtol_um`` or at round-off (``ROUNDOFF_ULPS`` ulps of the target's largest
+coordinate), at stagnation or ``max_iter``.
 The 250 μm ball is a hard limit: a root outside it is projected onto the ball's surface and
 reported with its residual and ``success = False`` (the guards then refuse it unless overridden).
 ``success``: ``|residual| ≤ tol_um`` and inside the ball. Shapes: targets (n, 3) mm, axes (n, k)
@@ -35,66 +33,32 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from numba import njit
 
 from errormap.field import PREDICT_AND_JACOBIAN, check_field
-from errormap.mt_kernel import _chain_point, _jacobian_columns
+from errormap.mt_kernel import NominalChain
 from errormap.progress import Progress
 from errormap.transforms import check_points
 
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
 from .base import BALL_RADIUS_UM
-from .exact import ARMIJO, MAX_HALVINGS, ROUNDOFF_ULPS, SLOW, solve3
+from .exact import newton, solve3
 
 KEPT_NOTE = ("tool-tip position compensated with the linear axes {lin}; the rotary axes {rot} (tool orientation) "
              "are kept as commanded")
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _nominal_kernel(axes, prog, own, P, J):  # pragma: no cover - compiled
-    """Nominal tool point ``P`` (n, 3) mm and its axis Jacobian ``J`` (n, 3, k) mm per mm / per deg
-    of a chain program without errors (:meth:`errormap.mt_kernel.CompiledChain._program`)."""
-    kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt = prog
-    k = axes.shape[1]
-    m = kind.shape[0]
-    W = np.empty((max(m, 1), 3))
-    O = np.empty((max(m, 1), 3))
-    R = np.empty((3, 3))
-    t = np.empty(3)
-    ev = np.zeros(max(own.shape[0], 1))
-    Jp = np.empty((3, k))
-    for n in range(axes.shape[0]):
-        _chain_point(axes[n], ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt, R, t, W, O, True)
-        for i in range(3):
-            for j in range(k):
-                Jp[i, j] = 0.0
-        _jacobian_columns(ev, kind, joint, jscale, slot, coef, own, t, W, O, Jp, 1.0)
-        for i in range(3):
-            P[n, i] = t[i]
-            for j in range(k):
-                J[n, i, j] = Jp[i, j]
-
-
-def _nominal_program(machine):
-    """The machine's chain packed for the kernels (its nominal program does not depend on the
-    element values: a zero element set packs it)."""
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_kernel import CompiledChain
-    return CompiledChain(machine, ChainElementSet.zeros(machine))
+def _nominal_program(machine) -> NominalChain:
+    """The machine's nominal chain packed once for the compiled kernels."""
+    return NominalChain(machine)
 
 
 def nominal_and_jacobian(machine, axes, compiled=None) -> tuple[np.ndarray, np.ndarray]:
     """Nominal tool point (n, 3) mm and ``d(tool point)/d(axes)`` (n, 3, k) of ``machine`` at
     ``axes`` (n, k), compiled (equal to :meth:`MachineTool.nominal` / ``axis_jacobian``, tested).
-    ``compiled``: a :class:`errormap.mt_kernel.CompiledChain` of the machine (any element set;
-    packed here when None)."""
+    ``compiled``: the machine's :class:`errormap.mt_kernel.NominalChain` (packed here when None)."""
     if compiled is None:
         compiled = _nominal_program(machine)
-    axes = np.ascontiguousarray(axes, dtype=float)
-    P = np.empty((axes.shape[0], 3))
-    J = np.empty((axes.shape[0], 3, axes.shape[1]))
-    _nominal_kernel(axes, compiled.prog_nom, compiled.own, P, J)
-    return P, J
+    return compiled.forward_and_jacobian(axes)
 
 
 def linear_axes(machine) -> tuple[np.ndarray, np.ndarray]:
@@ -167,7 +131,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     bar = Progress(n, "exact (chain)", enabled=progress)
     for s in range(0, n, chunk):
         sl = slice(s, min(n, s + chunk))
-        q[sl], commands[sl], E[sl], iters[sl], fe = _newton(field, machine, compiled, targets[sl], axes_d[sl], lin,
+        q[sl], commands[sl], E[sl], iters[sl], fe = _newton(field, compiled, targets[sl], axes_d[sl], lin,
                                                             xtol_um, max_iter)
         nfev += fe
         bar.update(sl.stop - sl.start)
@@ -191,50 +155,26 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     return make_result("exact", targets, commands, q, res, converged, nfev, t0, ball_um, info=info)
 
 
-def _newton(field, machine, compiled, targets, axes_d, lin, xtol_um, max_iter):
-    """Newton on the linear axes of one chunk; returns ``(q (m, k), p_r (m, 3) mm, E (m, 3) μm at q,
-    iterations (m,), field evaluations)``."""
-    m = len(targets)
-    P0, J0 = nominal_and_jacobian(machine, axes_d, compiled)
-    A = np.ascontiguousarray(J0[:, :, lin])                       # (m, 3, 3) mm per mm, constant per point
-    q = axes_d.copy()
-    dq = np.zeros((m, 3))                                        # linear-axis offsets from axes_d
-    E, JE = field.predict_and_jacobian(q)
-    nfev = 2 * m
-    F = P0 + 1e-3 * E - targets
-    fn = np.linalg.norm(F, axis=1)
-    scale = np.abs(targets).max(axis=1)
-    stop = np.maximum(xtol_um * MM_PER_UM, ROUNDOFF_ULPS * np.spacing(np.maximum(scale, 1.0)))
-    iters = np.zeros(m, dtype=np.int32)
-    idx = np.flatnonzero(fn > stop)
-    for _ in range(max_iter):
-        if not idx.size:
-            break
-        step = solve3(A[idx] + 1e-3 * JE[idx][:, :, lin], -F[idx])
-        alpha = np.ones(idx.size)
-        pend = np.arange(idx.size)
-        accepted = np.zeros(idx.size, bool)
-        for _h in range(MAX_HALVINGS + 1):
-            if not pend.size:
-                break
-            ii = idx[pend]
-            dqt = dq[ii] + alpha[pend, None] * step[pend]
-            qt = axes_d[ii].copy()
-            qt[:, lin] += dqt
-            Et, JEt = field.predict_and_jacobian(qt)
-            nfev += 2 * ii.size
-            Ft = P0[ii] + np.einsum("nij,nj->ni", A[ii], dqt) + 1e-3 * Et - targets[ii]
-            ft = np.linalg.norm(Ft, axis=1)
-            ok = ft <= (1.0 - ARMIJO * alpha[pend]) * fn[ii]
-            good = pend[ok]
-            gi = ii[ok]
-            dq[gi], q[gi], E[gi], JE[gi], F[gi] = dqt[ok], qt[ok], Et[ok], JEt[ok], Ft[ok]
-            slow = ft[ok] > SLOW * fn[gi]
-            fn[gi] = ft[ok]
-            accepted[good] = ~slow
-            alpha[pend[~ok]] *= 0.5
-            pend = pend[~ok]
-        iters[idx] += 1
-        idx = idx[accepted & (fn[idx] > stop[idx])]
-    commands = P0 + np.einsum("nij,nj->ni", A, dq)
-    return q, commands, E, iters, nfev
+class _ChainFieldEval:
+    """A chain field for the exact solver's Newton core (:func:`compensation.solvers.exact.newton`):
+    its compiled ``predict`` (trial points) and ``predict_and_jacobian`` (start, refreshes)."""
+
+    def __init__(self, field):
+        self.field = field
+
+    def start(self, q):
+        E, JE = self.field.predict_and_jacobian(q)
+        return E, JE, 2 * len(q)
+
+    def value(self, q):
+        return self.field.predict(q)
+
+    def jacobian(self, q, e0):
+        return self.field.predict_and_jacobian(q)[1], 2 * len(q)
+
+
+def _newton(field, compiled, targets, axes_d, lin, xtol_um, max_iter):
+    """The exact solver's Newton core on the linear axes of one chunk (rotary axes kept); returns
+    ``(q (m, k), p_r (m, 3) mm, E (m, 3) μm at q, iterations (m,), field evaluations)``."""
+    q, E, iters, _, nfev = newton(_ChainFieldEval(field), compiled, lin, targets, axes_d, xtol_um, max_iter)
+    return q, compiled.forward(q), E, iters, nfev

@@ -138,8 +138,7 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
             stats["retry_rounds"] = max(stats["retry_rounds"], r + 1)
         if polish and bad.size:
             sub = idx[bad]
-            q, commands, _, _, fe = _newton(field, machine, compiled, targets[sub], axes_d[sub], lin,
-                                            1e-9, 50)
+            q, commands, _, _, fe = _newton(field, compiled, targets[sub], axes_d[sub], lin, 1e-9, 50)
             nfev += fe
             new = project_to_ball((commands - targets[sub]) * UM_PER_MM, ball_um)
             nr = np.linalg.norm(fit.residual_um(sub, new), axis=1)

@@ -5,7 +5,9 @@ Solve for the axis command ``q`` (x_mm, z_mm, a_deg) of each target ``p_d``::
     F(q) = fwd(q) + 1e-3·E(q) - p_d = 0          (mm)
     J(q) = dfwd/dq + 1e-3·dE/dq                   (mm per mm, mm, deg)
 
-then ``p_r = fwd(q)``. Why axis space and not WCS: in the WCS the field ``E(IK(p))`` is
+then ``p_r = fwd(q)``. ``fwd`` and ``dfwd/dq`` are the machine's chain
+(:class:`errormap.mt_kernel.NominalChain`: for the grinder its chain file, the one source of the
+kinematics; no hand-written copy here). Why axis space and not WCS: in the WCS the field ``E(IK(p))`` is
 steep near the A axis (its tangential slope grows like ``|E|/ρ``, and ρ is 0.1 mm at
 z = 0 on the default grinder), so the WCS map ``p ↦ p + E(IK(p))`` can fold and a WCS
 fixed-point or Newton iteration diverges there. In axis space both ``fwd`` and ``E`` are
@@ -17,14 +19,15 @@ Robustness:
 * Backtracking (Armijo) line search on ``|F|``: a step is halved (up to 20 times) until
   ``|F|`` decreases by at least ``1e-4·α``; a point where no step decreases ``|F|`` by
   more than 1 %, even with a fresh Jacobian, stops (stagnation).
-* Steps are limited to ``max_step`` (1 mm, 1 mm, 90°) before the line search.
-* Jacobian: the kinematic part ``dfwd/dq`` is analytic and recomputed every iteration;
+* Steps are limited to ``max_step`` (1 mm per linear, 90° per rotary axis) before the line search.
+* Jacobian: the kinematic part ``dfwd/dq`` is geometric and exact (the chain's op columns,
+  :func:`errormap.mt_kernel.nominal_columns`) and recomputed every iteration;
   the field part ``dE/dq`` comes from ``field.jacobian(axes)`` when the field has it, else
   from forward differences in axis space, once per point, then is updated along every
   accepted step by Broyden's secant rule (no extra evaluations); it is recomputed only
   where the line search fails or stalls. (The first step's modest reduction near the A
   axis is the kinematics' curvature — a 130 μm correction on a 0.4 mm radius turns A by
-  ~20° — which the fresh analytic kinematic Jacobian handles in the next steps.)
+  ~20° — which the fresh kinematic Jacobian handles in the next steps.)
 * The ball is a hard limit: a root outside the 250 μm ball is projected onto the ball
   surface, reported with its (non-zero) residual and ``success = False``.
 * ``success``: ``|residual| ≤ tol_um`` (default 1e-4 μm) and inside the ball. Iteration
@@ -32,9 +35,15 @@ Robustness:
   :data:`ROUNDOFF_ULPS` ulps of the target's coordinates, where halving a step cannot beat
   round-off) or until stagnation.
 
+Which axes move is read from the chain (:func:`solved_axes`): a machine with three linear axes
+is solved on them and keeps its rotary axes as commanded (the chain solver,
+:mod:`compensation.solvers.chain_exact`); a three-axis machine with a rotary axis (the X-Z-A
+grinder) is solved on all three, its full-turn axis kept on the target's turn. One Newton core
+(:func:`newton`) serves both; each entry point supplies its field's evaluation.
+
 Speed (issue 20): the per-point arithmetic of an iteration (residual, kinematic Jacobian,
-Cramer step, Armijo test, Broyden update) runs in compiled kernels over the points still
-iterating; the field is called once per line-search round on all trial points together, so
+Cramer step, Armijo test, Broyden update) runs in compiled kernels over the chain's op arrays
+for the points still iterating; the field is called once per line-search round on all trial points together, so
 any field works, and a field's own compiled kernel (the HTM field's) releases the GIL.
 """
 from __future__ import annotations
@@ -44,15 +53,16 @@ import time
 import numpy as np
 from numba import njit
 
-from errormap.kinematics import forward, nominal_tool_at_z0
+from errormap.mt_kernel import NominalChain, nominal_columns, nominal_point
 from errormap.progress import Progress
 
 from .base import BALL_RADIUS_UM, SolveResult
 from ._common import (MM_PER_UM, UM_PER_MM, check_inputs, command_axes, field_error_and_jacobian_um, field_error_um,
                       field_jacobian_um, make_result, project_to_ball, wrap180)
 
-MAX_STEP = np.array([1.0, 1.0, 90.0])
-"""Largest Newton step (x_mm, z_mm, a_deg) before the line search."""
+MAX_STEP_MM = 1.0
+MAX_STEP_DEG = 90.0
+"""Largest Newton step of a linear (mm) and of a rotary (deg) axis before the line search."""
 ARMIJO = 1e-4
 MAX_HALVINGS = 20
 SLOW = 0.99
@@ -116,21 +126,24 @@ def solve_exact(field, targets_mm, machine, *, target_axes=None, a_start_deg=Non
     if not (tol_um > 0 and xtol_um > 0 and max_iter >= 1 and chunk >= 1):
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
+    chain = NominalChain(machine)
+    sol = solved_axes(chain)
+    ev = _MachineFieldEval(field, machine)
     n = len(targets)
     q = axes_d.copy()
-    E = np.empty_like(q)
+    E = np.empty((n, 3))
     iters = np.zeros(n, dtype=np.int32)
     n_jac = np.zeros(n, dtype=np.int32)
     nfev = 0
     bar = Progress(n, "exact", enabled=progress)
     for s in range(0, n, chunk):
         sl = slice(s, min(n, s + chunk))
-        q[sl], E[sl], it, nj, fe = _newton(field, machine, targets[sl], axes_d[sl], xtol_um, max_iter)
+        q[sl], E[sl], it, nj, fe = newton(ev, chain, sol, targets[sl], axes_d[sl], xtol_um, max_iter)
         iters[sl], n_jac[sl] = it, nj
         nfev += fe
         bar.update(sl.stop - sl.start)
-    q[:, 2] = axes_d[:, 2] + wrap180(q[:, 2] - axes_d[:, 2])
-    commands = forward(machine, q)
+    keep_turn(chain, q, axes_d)
+    commands = chain.forward(q)
     # the ball as a hard limit: roots outside it are projected onto its surface
     d_um = (commands - targets) * UM_PER_MM
     outside = np.linalg.norm(d_um, axis=1) > ball_um
@@ -155,51 +168,103 @@ def newton_offsets(field, machine, targets_mm, offsets_um, axes_d, ball_um: floa
     evaluations. ``axes_d`` (m, 3): the targets' axes (A's turn)."""
     targets = np.ascontiguousarray(targets_mm, dtype=float)
     q0 = command_axes(machine, targets + MM_PER_UM * np.asarray(offsets_um, dtype=float), axes_d)
-    q, _, _, _, nfev = _newton(field, machine, targets, q0, xtol_um, max_iter)
-    q[:, 2] = axes_d[:, 2] + wrap180(q[:, 2] - axes_d[:, 2])
-    return project_to_ball((forward(machine, q) - targets) * UM_PER_MM, ball_um), nfev
+    chain = NominalChain(machine)
+    q, _, _, _, nfev = newton(_MachineFieldEval(field, machine), chain, solved_axes(chain), targets, q0,
+                              xtol_um, max_iter)
+    keep_turn(chain, q, axes_d)
+    return project_to_ball((chain.forward(q) - targets) * UM_PER_MM, ball_um), nfev
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _forward_point(x_mm, z_mm, a_deg, kin):  # pragma: no cover - compiled
-    """:func:`forward_and_jacobian` at one point: ``(p0, p1, p2, cos a, sin a)``; ``kin`` =
-    (t_x - l5 - l7, t_y, t_z(0) - l6 - l8) of :func:`_kinematic_constants`."""
-    h = z_mm + kin[2]
-    a = a_deg * (np.pi / 180.0)
-    c, s = np.cos(a), np.sin(a)
-    return kin[0] - x_mm, c * kin[1] + s * h, c * h - s * kin[1], c, s
+# ---------------------------------------------------------------------------- the generic Newton core
+
+def solved_axes(chain: NominalChain) -> np.ndarray:
+    """Indices (3,) of the axes the exact solvers move to place the tool point, read from the
+    machine's chain: its linear axes when it has three (rotary axes, the tool's orientation, are
+    kept as commanded), else every axis of a three-axis machine (e.g. two linear axes and a
+    rotary one, as the X-Z-A grinder: the rotary axis is solved). ValueError otherwise."""
+    lin = [j for j, kd in enumerate(chain.kinds) if kd == "linear"]
+    if len(lin) == 3:
+        return np.array(lin, dtype=np.int64)
+    if chain.k == 3:
+        return np.arange(3, dtype=np.int64)
+    raise ValueError(f"the exact solver places the tool point with three axes: the three linear axes, or the "
+                     f"three axes of a three-axis machine; {chain.machine_tool.name!r} has {len(lin)} linear of "
+                     f"{chain.k} ({', '.join(chain.columns)})")
 
 
-def _kinematic_constants(machine) -> np.ndarray:
-    """The constants of :func:`_forward_point`, shape (3,), as :func:`forward_and_jacobian` forms them."""
-    t0 = nominal_tool_at_z0(machine)
-    return np.array([t0[0] - machine.l5 - machine.l7, t0[1], t0[2] - machine.l6 - machine.l8])
+def max_step(chain: NominalChain, sol) -> np.ndarray:
+    """Largest Newton step of each solved axis (3,): :data:`MAX_STEP_MM` or :data:`MAX_STEP_DEG` by
+    the axis' kind."""
+    return np.array([MAX_STEP_MM if chain.kinds[j] == "linear" else MAX_STEP_DEG for j in sol])
+
+
+def keep_turn(chain: NominalChain, q, axes_d) -> None:
+    """Full-turn axes of ``q`` (n, k) moved by whole turns onto the turn of ``axes_d`` (in place):
+    ``q = q_d + wrap180(q - q_d)``, so a path whose targets are continuous gets continuous axes."""
+    for j in np.flatnonzero(chain.full_turn):
+        q[:, j] = axes_d[:, j] + wrap180(q[:, j] - axes_d[:, j])
+
+
+class _MachineFieldEval:
+    """The field of a grinder-kind machine for :func:`newton` through :mod:`._common` (A folded into
+    the calibrated turn, chunks, float32 start where the field declares it, finite differences for
+    a field without a Jacobian). Shapes: axes (m, k), values (m, 3) μm, Jacobians (m, 3, k)."""
+
+    def __init__(self, field, machine):
+        self.field, self.machine = field, machine
+
+    def start(self, q):
+        """Value and Jacobian at the start, one pass, in float32 where the field has it (only the
+        first step's direction depends on them: every later value is float64)."""
+        return field_error_and_jacobian_um(self.field, q, self.machine, fast=True)
+
+    def value(self, q):
+        return field_error_um(self.field, q, self.machine)
+
+    def jacobian(self, q, e0):
+        return field_jacobian_um(self.field, q, self.machine, e0_um=e0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _residual_kernel(q, E, targets, kin, F, fn):  # pragma: no cover - compiled
-    """``F = fwd(q) + 1e-3·E - p_d`` (n, 3) mm and ``|F|`` (n,), in place."""
+def _residual_kernel(q, E, targets, prog, F, fn):  # pragma: no cover - compiled
+    """``F = fwd(q) + 1e-3·E - p_d`` (n, 3) mm and ``|F|`` (n,), in place; ``fwd`` the chain's
+    nominal tool point (:func:`errormap.mt_kernel.nominal_point`)."""
+    m = max(prog[0].shape[0], 1)
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    W = np.empty((m, 3))
+    ev = np.zeros(1)
     for i in range(q.shape[0]):
-        p0, p1, p2, c, s = _forward_point(q[i, 0], q[i, 1], q[i, 2], kin)
-        f0 = p0 + 1e-3 * E[i, 0] - targets[i, 0]
-        f1 = p1 + 1e-3 * E[i, 1] - targets[i, 1]
-        f2 = p2 + 1e-3 * E[i, 2] - targets[i, 2]
+        nominal_point(q[i], prog, R, t, W, W, ev, False)
+        f0 = t[0] + 1e-3 * E[i, 0] - targets[i, 0]
+        f1 = t[1] + 1e-3 * E[i, 1] - targets[i, 1]
+        f2 = t[2] + 1e-3 * E[i, 2] - targets[i, 2]
         F[i, 0], F[i, 1], F[i, 2] = f0, f1, f2
         fn[i] = np.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _step_kernel(idx, q, JE, F, kin, max_step, step):  # pragma: no cover - compiled
-    """The Newton step of the points ``idx``: ``(dfwd/dq + 1e-3·JE) step = -F`` with the kinematic
-    Jacobian analytic at ``q``, scaled down to ``max_step`` (per axis) where it exceeds it."""
-    r = np.pi / 180.0
+def _step_kernel(idx, q, JE, F, prog, own, sol, max_step, step):  # pragma: no cover - compiled
+    """The Newton step of the points ``idx`` on the solved axes ``sol`` (3,):
+    ``(dfwd/dq + 1e-3·JE) step = -F`` with the chain's nominal axis Jacobian at ``q``
+    (:func:`errormap.mt_kernel.nominal_columns`), scaled down to ``max_step`` (per solved axis)
+    where it exceeds it."""
+    m = max(prog[0].shape[0], 1)
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    W = np.empty((m, 3))
+    O = np.empty((m, 3))
+    ev = np.zeros(1)
+    Jp = np.empty((3, q.shape[1]))
+    a, b, c = sol[0], sol[1], sol[2]
     for j in range(idx.shape[0]):
         i = idx[j]
-        p0, p1, p2, c, s = _forward_point(q[i, 0], q[i, 1], q[i, 2], kin)
+        nominal_point(q[i], prog, R, t, W, O, ev, True)
+        nominal_columns(prog, own, t, W, O, ev, Jp)
         J = JE[i]
-        s0, s1, s2 = _solve3_point(-1.0 + 1e-3 * J[0, 0], 1e-3 * J[0, 1], 1e-3 * J[0, 2],
-                                   1e-3 * J[1, 0], s + 1e-3 * J[1, 1], p2 * r + 1e-3 * J[1, 2],
-                                   1e-3 * J[2, 0], c + 1e-3 * J[2, 1], -p1 * r + 1e-3 * J[2, 2],
+        s0, s1, s2 = _solve3_point(Jp[0, a] + 1e-3 * J[0, a], Jp[0, b] + 1e-3 * J[0, b], Jp[0, c] + 1e-3 * J[0, c],
+                                   Jp[1, a] + 1e-3 * J[1, a], Jp[1, b] + 1e-3 * J[1, b], Jp[1, c] + 1e-3 * J[1, c],
+                                   Jp[2, a] + 1e-3 * J[2, a], Jp[2, b] + 1e-3 * J[2, b], Jp[2, c] + 1e-3 * J[2, c],
                                    -F[i, 0], -F[i, 1], -F[i, 2])
         big = max(abs(s0) / max_step[0], abs(s1) / max_step[1], abs(s2) / max_step[2])
         if big > 1.0:
@@ -208,43 +273,53 @@ def _step_kernel(idx, q, JE, F, kin, max_step, step):  # pragma: no cover - comp
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _trial_kernel(idx, pend, alpha, step, q, qt):  # pragma: no cover - compiled
-    """Trial axes ``q + α·step`` of the pending positions ``pend`` (into ``idx``), into ``qt``."""
+def _trial_kernel(idx, pend, alpha, step, q, sol, qt):  # pragma: no cover - compiled
+    """Trial axes ``q + α·step`` (step on the solved axes ``sol``) of the pending positions ``pend``
+    (into ``idx``), into ``qt`` (m, k)."""
     for j in range(pend.shape[0]):
         p = pend[j]
         i = idx[p]
-        for k in range(3):
-            qt[j, k] = q[i, k] + alpha[p] * step[p, k]
+        for k in range(q.shape[1]):
+            qt[j, k] = q[i, k]
+        for c in range(3):
+            qt[j, sol[c]] = q[i, sol[c]] + alpha[p] * step[p, c]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, armijo, slow, q, E, F, fn, JE,
+def _accept_kernel(idx, pend, alpha, qt, Et, targets, prog, sol, armijo, slow, q, E, F, fn, JE,
                    accepted, crawl, left):  # pragma: no cover - compiled
     """The Armijo test of the trial points (``qt``, their field ``Et``); accepted points take the
-    trial's ``q, E, F, |F|`` and a Broyden (secant) update of ``JE`` in place. The positions still
-    searching go to ``left`` (their ``α`` halved); returns how many."""
+    trial's ``q, E, F, |F|`` and a Broyden (secant) update of ``JE``'s solved columns in place. The
+    positions still searching go to ``left`` (their ``α`` halved); returns how many."""
+    m = max(prog[0].shape[0], 1)
+    R = np.empty((3, 3))
+    t = np.empty(3)
+    W = np.empty((m, 3))
+    ev = np.zeros(1)
+    a, b, c = sol[0], sol[1], sol[2]
     nleft = 0
     for j in range(pend.shape[0]):
         p = pend[j]
         i = idx[p]
-        p0, p1, p2, c, s = _forward_point(qt[j, 0], qt[j, 1], qt[j, 2], kin)
-        f0 = p0 + 1e-3 * Et[j, 0] - targets[i, 0]
-        f1 = p1 + 1e-3 * Et[j, 1] - targets[i, 1]
-        f2 = p2 + 1e-3 * Et[j, 2] - targets[i, 2]
+        nominal_point(qt[j], prog, R, t, W, W, ev, False)
+        f0 = t[0] + 1e-3 * Et[j, 0] - targets[i, 0]
+        f1 = t[1] + 1e-3 * Et[j, 1] - targets[i, 1]
+        f2 = t[2] + 1e-3 * Et[j, 2] - targets[i, 2]
         ft = np.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
         f_old = fn[i]
         if ft <= (1.0 - armijo * alpha[p]) * f_old:
             # Broyden (secant) update of the field part, free: dE = JE·dq along the step
-            d0, d1, d2 = qt[j, 0] - q[i, 0], qt[j, 1] - q[i, 1], qt[j, 2] - q[i, 2]
+            d0, d1, d2 = qt[j, a] - q[i, a], qt[j, b] - q[i, b], qt[j, c] - q[i, c]
             dd = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-300)
             w0, w1, w2 = d0 / dd, d1 / dd, d2 / dd
             for r in range(3):
-                miss = (Et[j, r] - E[i, r]) - (JE[i, r, 0] * d0 + JE[i, r, 1] * d1 + JE[i, r, 2] * d2)
-                JE[i, r, 0] += miss * w0
-                JE[i, r, 1] += miss * w1
-                JE[i, r, 2] += miss * w2
-            for k in range(3):
+                miss = (Et[j, r] - E[i, r]) - (JE[i, r, a] * d0 + JE[i, r, b] * d1 + JE[i, r, c] * d2)
+                JE[i, r, a] += miss * w0
+                JE[i, r, b] += miss * w1
+                JE[i, r, c] += miss * w2
+            for k in range(q.shape[1]):
                 q[i, k] = qt[j, k]
+            for k in range(3):
                 E[i, k] = Et[j, k]
             F[i, 0], F[i, 1], F[i, 2] = f0, f1, f2
             fn[i] = ft
@@ -257,7 +332,7 @@ def _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, armijo, slow, q, E, F
     return nleft
 
 
-def _line_search(field, machine, kin, targets, idx, step, q, E, F, fn, JE):
+def _line_search(ev, chain, sol, targets, idx, step, q, E, F, fn, JE):
     """Backtracking (Armijo) along ``step`` for the points ``idx`` (int64 indices). Accepted points
     get their new ``q, E, F, fn`` and a Broyden (secant) update of ``JE``, in place. Returns
     ``(accepted, crawl, nfev)``, the first two per position in ``idx``: a step was taken / it
@@ -271,11 +346,11 @@ def _line_search(field, machine, kin, targets, idx, step, q, E, F, fn, JE):
     pend = np.arange(m)
     left = np.empty(m, dtype=np.int64)
     for _h in range(MAX_HALVINGS):
-        qt = np.empty((pend.size, 3))
-        _trial_kernel(idx, pend, alpha, step, q, qt)
-        Et = np.ascontiguousarray(field_error_um(field, qt, machine))
+        qt = np.empty((pend.size, q.shape[1]))
+        _trial_kernel(idx, pend, alpha, step, q, sol, qt)
+        Et = np.ascontiguousarray(ev.value(qt))
         nfev += pend.size
-        k = _accept_kernel(idx, pend, alpha, qt, Et, targets, kin, ARMIJO, SLOW, q, E, F, fn, JE,
+        k = _accept_kernel(idx, pend, alpha, qt, Et, targets, chain.prog, sol, ARMIJO, SLOW, q, E, F, fn, JE,
                            accepted, crawl, left)
         if k == 0:
             break
@@ -283,25 +358,28 @@ def _line_search(field, machine, kin, targets, idx, step, q, E, F, fn, JE):
     return accepted, crawl, nfev
 
 
-def _newton(field, machine, targets, q0, xtol_um, max_iter):
-    """Newton–Broyden iterations with line search on one chunk; returns (q, E(q) μm, iterations, jacobians, nfev).
+def newton(ev, chain: NominalChain, sol, targets, q0, xtol_um, max_iter):
+    """Newton–Broyden iterations with line search on one chunk; returns (q (m, k), E(q) (m, 3) μm,
+    iterations, jacobians, nfev).
 
-    Arrays stay full length; ``idx`` (int64) holds the points still iterating. The per-point
-    arithmetic (residual, kinematic Jacobian, step, Armijo test, Broyden update) runs in
-    compiled kernels; the field is called on the whole set of trial points at once.
+    ``ev``: the field (``start(q) -> (E, JE, nfev)``, ``value(q) -> E``, ``jacobian(q, E) ->
+    (JE, nfev)``; JE (m, 3, k)); ``chain`` the machine's nominal chain; ``sol`` (3,) the solved axes
+    (:func:`solved_axes`; the others stay at ``q0``). Arrays stay full length; ``idx`` (int64)
+    holds the points still iterating. The per-point arithmetic (residual, kinematic Jacobian, step,
+    Armijo test, Broyden update) runs in compiled kernels over the chain's op arrays; the field is
+    called on the whole set of trial points at once.
     """
     n = len(targets)
     targets = np.ascontiguousarray(targets, dtype=float)
-    kin = _kinematic_constants(machine)
+    sol = np.ascontiguousarray(sol, dtype=np.int64)
+    steps = max_step(chain, sol)
     q = np.array(q0, dtype=float)
     iters = np.zeros(n, dtype=np.int32)
     n_jac = np.ones(n, dtype=np.int32)
-    # value and field Jacobian at the start in one pass, in float32 where the field has it
-    # (only the first step's direction depends on them: every later value is float64)
-    E, JE, nfev = field_error_and_jacobian_um(field, q, machine, fast=True)
-    E, JE = np.ascontiguousarray(E), np.ascontiguousarray(JE)
+    E, JE, nfev = ev.start(q)
+    E, JE = np.ascontiguousarray(E, dtype=float), np.ascontiguousarray(JE, dtype=float)
     F, fn = np.empty((n, 3)), np.empty(n)
-    _residual_kernel(q, E, targets, kin, F, fn)
+    _residual_kernel(q, E, targets, chain.prog, F, fn)
     stale = np.zeros(n, dtype=bool)  # the field Jacobian needs recomputing
     tol = xtol_um * MM_PER_UM
     floor = ROUNDOFF_ULPS * np.finfo(float).eps * np.maximum(np.abs(targets).max(axis=1), 1.0)  # mm
@@ -313,13 +391,13 @@ def _newton(field, machine, targets, q0, xtol_um, max_iter):
         refresh = stale[idx]
         if refresh.any():
             ri = idx[refresh]
-            JE[ri], fe = field_jacobian_um(field, q[ri], machine, e0_um=E[ri])
+            JE[ri], fe = ev.jacobian(q[ri], E[ri])
             n_jac[ri] += 1
             stale[ri] = False
             nfev += fe
         step = np.empty((idx.size, 3))
-        _step_kernel(idx, q, JE, F, kin, MAX_STEP, step)
-        accepted, crawl, fe = _line_search(field, machine, kin, targets, idx, step, q, E, F, fn, JE)
+        _step_kernel(idx, q, JE, F, chain.prog, chain.own, sol, steps, step)
+        accepted, crawl, fe = _line_search(ev, chain, sol, targets, idx, step, q, E, F, fn, JE)
         nfev += fe
         iters[idx] += 1
         # no step decreased |F| (or only crawled): retry once with a fresh field Jacobian;
