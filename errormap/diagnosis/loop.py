@@ -193,8 +193,9 @@ def refit_on_all_checks(machine, covariance, checks: CheckData, loop: ClosedLoop
         terms, upd = joint_refit(machine, covariance, checks.axes, r0, ctx, loop.model.terms, loop.alpha)
     else:
         terms = []
-        # the identified model's residual itself when the stage's terms were all taken off (the
-        # learned stage replaced its condition terms): nothing is then kept out of the update
+        # the residual the kept update was made on (the screen's proposed terms kept out of it); the
+        # identified model's residual itself when the kept stage had terms and they were all taken off
+        # (the learned stage replaced its condition terms): nothing is then kept out of the update
         target = r0 if loop.update_target_um is None else loop.update_target_um
         upd = update_elements(machine, covariance, checks.axes, target, alpha=loop.alpha)
     return CorrectedField(machine, HTMField(machine, upd.elements_), terms), upd.covariance_
