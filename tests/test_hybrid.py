@@ -406,3 +406,28 @@ def test_predict_on_a_hybrid_model_total_band_and_outside_flag(grinder, staged, 
                  "--band", "1sigma"]) == 0
     t1, _ = _read(out1)
     np.testing.assert_allclose(t1.float("dy_band1sigma_um"), sd[:, 1], rtol=BAND_TOL_REL)
+
+
+@pytest.mark.slow
+def test_solvers_on_a_hybrid_with_the_ensemble_family(grinder):
+    """The deep-ensemble family inside the hybrid field: closed-form Jacobian, so exact and batched-ga
+    solve with it to the issue's figures (EXACT_MODEL_TOL_UM, BATCHED_GA_MAX_UM)."""
+    from compensation.hybrid import axis_features
+    from training.residual import ResidualRegressor
+    rng = np.random.default_rng(SEED)
+    axes = random_axes(grinder, 480, rng)
+    r = _bump(grinder, axes) + NOISE_UM * rng.standard_normal(axes.shape)
+    f, _ = axis_features(axes)
+    reg = ResidualRegressor(families=("ensemble",), seed=SEED).fit(f, r, groups=np.repeat(np.arange(10), 48))
+    assert reg.chosen_ == "ensemble"
+    learned = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0))
+    field = HybridField(HTMField(grinder, random_truth(grinder, SEED).elements), learned)
+    check_field(field)
+    P = random_axes(grinder, 60, np.random.default_rng(5))
+    inside = np.all((P[:, :2] >= learned.lo) & (P[:, :2] <= learned.hi), axis=1)
+    P = P[inside][:40]
+    targets = forward(grinder, P)
+    res = solve("exact", field, targets, grinder)
+    assert np.abs(res.residual_um).max() <= EXACT_MODEL_TOL_UM
+    res = solve("batched-ga", field, targets[:20], grinder)
+    assert np.linalg.norm(res.residual_um, axis=1).max() <= BATCHED_GA_MAX_UM
