@@ -3,11 +3,11 @@
 The grinder only, ``quick_settings()`` (the (8, 8) tanh network with periodic A, LM 60 iterations,
 one flute turn, batched GA on 20 points) with: no catalogue effects; the out-of-catalogue effects
 ``bump``, ``a_tilt``, ``squareness`` and the same machine without an effect, each with the closed
-loop at 400 and at 150 check measurements; 300 volume points. No MLflow. Prints the markdown table
+loop at 800, 150 and 1600 check measurements (``--checks N``, repeatable, replaces them); 300 volume points. No MLflow. Prints the markdown table
 (``compensation.app.reports.benchmark.markdown_table``) and the conclusion lines computed from the
 rows (``conclusion_lines``); writes ``OUT/benchmark.json`` and ``OUT/report.html``.
 
-    nice -n 10 python benchmarks/bench_benchmark_ooc.py /tmp/bench_ooc
+    nice -n 10 python benchmarks/bench_benchmark_ooc.py /tmp/bench_ooc [--checks 800 --checks 150 --checks 1600]
 """
 from __future__ import annotations
 
@@ -23,11 +23,16 @@ def main(argv=None):
     from compensation.app.reports.benchmark import conclusion_lines, markdown_table
     from compensation.app.workflows.benchmark import quick_settings, run_benchmark
     from errormap.machine import load_machine
-    out = (argv or sys.argv[1:] or ["runs/benchmark-ooc"])[0]
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", nargs="?", default="runs/benchmark-ooc")
+    ap.add_argument("--checks", type=int, action="append", default=None)
+    args = ap.parse_args(argv)
+    out = args.out
     s = quick_settings()
     s.effects = ()
     s.ooc_effects = ("bump", "a_tilt", "squareness")
-    s.n_checks, s.few_checks = 400, (150,)
+    s.ooc_checks = tuple(args.checks or (800, 150, 1600))
     s.volume_points = 300
     t0 = time.process_time()
     doc = run_benchmark([load_machine(None, expect_kind="grinder")], out, s, track=False)

@@ -3,7 +3,8 @@
 Per seed and case (``none`` and the out-of-catalogue effects ``bump``, ``a_tilt``,
 ``squareness`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
 the user's CLI path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) →
-``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on) →
+``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on, its families GP and
+deep ensemble; the kept stage re-estimated on all checks after the choice) →
 ``volcomp compensate VOLUME.csv --model DIR/model.json --method exact`` on 2,000 random volume
 points (1 mm inside the X and Z strokes) at the reference conditions, scored by the TRUE residual on the hidden truth (used only
 here). The same ``model.json`` without its ``learned_residual`` key is the parametric loop alone
@@ -207,27 +208,83 @@ def _load_rows():
     return []
 
 
+PREVIOUS_NOTE = ("rows of the code before the refit on all checks and the ensemble family (main at 0485cf2: the "
+                 "kept stage's elements and learned part estimated on the 60 % fitting checks only, GP the only "
+                 "learned family); same seeds, same simulated measurements")
+
+
+def _load_previous():
+    """The previous code's rows kept in hybrid_results.json (``previous_rows``) for the before/after table."""
+    if RESULTS_JSON.is_file():
+        return json.loads(RESULTS_JSON.read_text()).get("previous_rows", [])
+    return []
+
+
+def _before_after(rows, previous) -> list:
+    """Markdown lines: per (family, case) over the seeds measured by both codes, the TRUE RMS of the hybrid
+    and of the loop alone before → after (paired by seed)."""
+    prev = {(r["family"], r["seed"], r["effect"]): r for r in previous if "rms_um" in r.get("hybrid", {})}
+    grp = {}
+    for r in rows:
+        k = (r["family"], r["seed"], r["effect"])
+        if k in prev and "rms_um" in r.get("hybrid", {}) and "rms_um" in r.get("parametric", {}):
+            grp.setdefault((r["family"], r["effect"]), []).append((prev[k], r))
+    if not grp:
+        return []
+    out = ["", "## Before / after: the kept stage estimated on all checks after the choice; the ensemble family", "",
+           "Paired by seed (the same simulated machine and measurements): before = " + PREVIOUS_NOTE + "; after = this "
+           "code (the choice of stage, effect terms, learned family and keep decision on the 60/40 split as before, then "
+           "the kept elements/terms and the learned part re-estimated on all checks; learned families GP and deep "
+           "ensemble on the same blocked folds). TRUE RMS over the volume (μm).", "",
+           "| family | case | seeds | hybrid before | hybrid after | loop alone before | loop alone after | "
+           "learned kept before → after | family chosen after |", "|---|---|---|---|---|---|---|---|---|"]
+    for (fam, eff), prs in sorted(grp.items()):
+        hb = np.mean([a["hybrid"]["rms_um"] for a, _ in prs])
+        ha = np.mean([b["hybrid"]["rms_um"] for _, b in prs])
+        pb = np.mean([a["parametric"]["rms_um"] for a, _ in prs])
+        pa = np.mean([b["parametric"]["rms_um"] for _, b in prs])
+        fams = {}
+        for _, b in prs:
+            if b.get("learned_kept"):
+                fams[b.get("learned_family")] = fams.get(b.get("learned_family"), 0) + 1
+        out.append(f"| {fam} | {eff} | {len(prs)} | {hb:.2f} | {ha:.2f} | {pb:.2f} | {pa:.2f} | "
+                   f"{sum(bool(a.get('learned_kept')) for a, _ in prs)} → {sum(bool(b.get('learned_kept')) for _, b in prs)} | "
+                   f"{', '.join(f'{k} {v}' for k, v in sorted(fams.items())) or '—'} |")
+    return out
+
+
+def _families(kept) -> str:
+    """' (gp 3, ensemble 1)': the learned family each kept row chose, counted."""
+    c = {}
+    for r in kept:
+        c[r.get("learned_family")] = c.get(r.get("learned_family"), 0) + 1
+    return f" ({', '.join(f'{k} {v}' for k, v in sorted(c.items()))})" if c else ""
+
+
 def _fmt(v, d=2):
     return "—" if v is None else f"{v:.{d}f}"
 
 
-def write_results(rows, argv):
+def write_results(rows, argv, previous=None):
     from errormap.io import atomic_write, write_json
-    write_json(RESULTS_JSON, {"rows": rows})
+    previous = _load_previous() if previous is None else previous
+    write_json(RESULTS_JSON, {"rows": rows, **({"previous_rows": previous, "previous_note": PREVIOUS_NOTE}
+                                               if previous else {})})
     by = {}
     for r in rows:
         by.setdefault((r["family"], r["effect"]), []).append(r)
     none = {(r["family"], r["seed"]): r for r in rows if r["effect"] == "none"}
     lines = ["# Hybrid field: the learned residual stage of the closed loop (issue 28)", "",
              "User's CLI path per seed: sweeps (2 μm) → simulate (800 checks, 1 μm) → identify → diagnose "
-             "(learned stage on) → compensate 2,000 random volume points (exact, reference conditions); "
+             "(learned stage on: GP and deep ensemble cross-validated on the same blocked folds; stages chosen on the "
+             "60/40 split, the kept stage then re-estimated on all checks) → compensate 2,000 random volume points (exact, reference conditions); "
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
              "residual (the loop alone). Generated by `python benchmarks/bench_hybrid.py --seeds 10 --jobs 1 "
              "[--family independent] [--cases …] [--scale S] [--checks N]` (rows merged from `hybrid_results.json`; this table rebuilt by "
              "`" + " ".join(["bench_hybrid.py", *argv]) + "`).",
              "", f"Machine: {platform.machine()}, Python {platform.python_version()}.", "",
-             "| family | case | seeds | learned kept | condition terms replaced | TRUE RMS hybrid (μm) | "
+             "| family | case | seeds | learned kept (family) | condition terms replaced | TRUE RMS hybrid (μm) | "
              "TRUE RMS parametric (μm) | parametric / hybrid | hybrid / no-effect hybrid | TRUE max hybrid (μm) | "
              "held-out MEASURED RMS / floor √3·1 μm | … / √3·σ̂ | band95 held-out (total band ⊕ noise) | "
              "band95 truth (total band) | band95 truth (learned band alone) | exact model max (μm) | "
@@ -254,7 +311,7 @@ def write_results(rows, argv):
         rep = sum(bool(r.get("replaced_terms")) for r in ok)
         rng = lambda v: f"{np.mean(v):.2f} ({np.min(v):.2f}–{np.max(v):.2f}, {len(v)})" if v else "—"
         lines.append(
-            f"| {fam} | {eff} | {len(ok)} | {len(kept)}/{len(ok)} | {rep}/{len(ok)} | "
+            f"| {fam} | {eff} | {len(ok)} | {len(kept)}/{len(ok)}{_families(kept)} | {rep}/{len(ok)} | "
             f"{_fmt(h.mean())} (max {_fmt(h.max())}) | {_fmt(p.mean())} | {_fmt(np.mean(p / h))} (min {_fmt(np.min(p / h))}) | "
             f"{_fmt(np.mean(rel)) if rel else '—'}{'' if not rel else f' (max {np.max(rel):.2f})'} | "
             f"{_fmt(np.mean([r['hybrid']['max_um'] for r in ok]))} | {_fmt(floor.mean())} (max {_fmt(floor.max())}) | "
@@ -306,6 +363,7 @@ def write_results(rows, argv):
             n0 = np.array([none[("default", r["seed"])]["hybrid"]["rms_um"] for r in rs])
             lines.append(f"| {eff} | ×{sc:g} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | {p.mean():.2f} | "
                          f"{h.mean():.2f} | {np.mean(p / h):.2f} | {np.mean(h / n0):.2f} | {np.mean(p / n0):.2f} |")
+    lines += _before_after(rows, previous)
     lines += ["", "Per-row figures are in `benchmarks/hybrid_results.json`.", ""]
     with atomic_write(RESULTS_MD, "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))

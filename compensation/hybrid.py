@@ -34,7 +34,7 @@ import numpy as np
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN
 from errormap.stats import residual_stats
 from errormap.transforms import check_points
-from training.residual import Z95, ResidualRegressor
+from training.residual import FAMILY_NAMES, Z95, ResidualRegressor
 
 FORMAT = "volcomp-learned-residual/1"
 """The ``format`` of a learned residual inside ``model.json`` (key ``learned_residual``)."""
@@ -61,6 +61,11 @@ MAP_N = 11
 """Points per linear axis of the learned correction's map in diagnosis.json (11 × 11 over X–Z)."""
 
 FEATURE_NAMES = ("x_mm", "z_mm", "cos_a", "sin_a")
+
+LEARNED_FAMILIES = ("gp", "ensemble")
+"""The learned families the stage cross-validates on the same blocked folds (the Gaussian
+process and the deep ensemble of :mod:`training.residual`); the rule of
+:class:`~training.residual.ResidualRegressor` picks one (or none) and the stage names it."""
 
 
 def axis_features(axes):
@@ -254,8 +259,16 @@ def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.
     return out
 
 
-def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=("gp",), r_static_um=None,
-                  covariance=None):
+REFIT_MODES = ("hyper", "weights")
+"""How the kept learned stage is estimated on all checks before it is shipped: ``"hyper"`` —
+the chosen family re-estimated (standardisation, hyper-parameters, weights) on all checks
+(:meth:`training.residual.ResidualRegressor.refit`); ``"weights"`` — the fitting part's
+hyper-parameters kept, the weights re-solved on all checks
+(:meth:`~training.residual.ResidualRegressor.with_data`)."""
+
+
+def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=LEARNED_FAMILIES, r_static_um=None,
+                  covariance=None, refit_residual=None, refit_mode: str = "hyper"):
     """Fit the learned residual on what the previous stage leaves at the checks and gate it.
 
     ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check;
@@ -273,10 +286,17 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     reports the coverage of the hybrid's TOTAL band on the held-out checks
     (``held_out_band95_cover_total``: learned band ⊕ elements' J Σ Jᵀ ⊕ the fitted noise) and
     its map carries the total band.
+    ``refit_residual``: None, or a callable ``(replaces_condition_terms: bool) -> (n, 3)`` giving the
+    residual at every check of the base model RE-ESTIMATED ON ALL CHECKS (without its condition
+    terms when the learned field replaces them): the shipped learned part is then estimated on
+    that residual (``refit_mode``, :data:`REFIT_MODES`) instead of the validated base's.
+    Selection, gate and every held-out figure are made before any refit (the validated ones).
     Returns ``(learned or None, stage)``: ``learned`` (refitted on all checks) when kept, and
     the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate;
     ``replaces_condition_terms`` True when the static variant was used)."""
     axes = np.asarray(axes, dtype=float)
+    if refit_mode not in REFIT_MODES:
+        raise ValueError(f"Expected refit_mode one of {REFIT_MODES}, got {refit_mode!r}")
     if len(fit_idx) < MIN_FIT_CHECKS or len(hold_idx) < MIN_HELD_CHECKS:
         return None, {"learned": {"family": "none", "kept": False, "cv_table": {}, "inputs": list(FEATURE_NAMES),
                                   "cv": "not run", "held_out_gain_z": None, "held_out_band95_cover": None,
@@ -318,12 +338,17 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
         why = "declined: no family beat predicting zero in the blocked cross-validation on the fitting checks"
     elif kept:
         why = (f"kept: lowers the held-out squared residual by paired z = {z:.2f} (> {KEEP_Z}) over the stage before; "
-               "its weights were then re-solved on all checks with the hyper-parameters chosen on the fitting part")
+               "it was then estimated on all checks before it was shipped (see 'shipped')")
     else:
         why = f"declined: on the held-out checks its paired z = {z:.2f} is not above {KEEP_Z}"
     stage = {"held_out": residual_stats(r_new[hold_idx], ("dx_um", "dy_um", "dz_um")),
              "fitting": residual_stats(r_new[fit_idx], ("dx_um", "dy_um", "dz_um")),
-             "learned": {"family": reg.chosen_, "cv_table": reg.cv_table_, "inputs": list(FEATURE_NAMES),
+             "learned": {"family": reg.chosen_, "family_name": FAMILY_NAMES.get(reg.chosen_, reg.chosen_),
+                         "families_compared": list(families),
+                         "selection_rule": (f"each family cross-validated on the same blocked folds; eligible if its mean "
+                                            f"paired gain over zero exceeds {reg.margin_se} standard error(s); of those "
+                                            f"the lowest CV RMS wins"),
+                         "cv_table": reg.cv_table_, "inputs": list(FEATURE_NAMES),
                          "cv": f"blocked: {CV_BLOCKS} contiguous seq blocks of the fitting checks",
                          "held_out_gain_um2": gain, "held_out_gain_se_um2": se, "held_out_gain_z": z,
                          "held_out_band95_cover": cover, "held_out_band95_cover_total": cover_total,
@@ -337,7 +362,20 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                                          "cross-validates better than they do)")
     if not kept:
         return None, stage
-    reg_all = reg.with_data(f, r_base)
+    if refit_residual is not None:
+        r_ship = np.asarray(refit_residual(bool(replaces)), dtype=float)
+        base_refit = True
+    else:
+        r_ship, base_refit = r_base, False
+    reg_all = reg.refit(f, r_ship, seed=seed) if refit_mode == "hyper" else reg.with_data(f, r_ship)
+    stage["learned"]["shipped"] = {
+        "estimated_on_checks": int(len(axes)), "refit_mode": refit_mode, "base_refit_on_all_checks": base_refit,
+        "note": ("the family, the keep decision and every held-out figure come from the fitting/held-out split; "
+                 "the shipped learned part was then estimated on all "
+                 f"{len(axes)} checks ({'hyper-parameters and weights' if refit_mode == 'hyper' else 'weights only, hyper-parameters of the fitting part'})"
+                 + (", on the residual of the base model re-estimated on all checks" if base_refit else ""))}
+    if refit_mode == "hyper" and reg_all.model_ is not None:
+        stage["learned"]["noise_std_um"] = reg_all.noise_std_.tolist()
     learned = LearnedResidual(reg_all, lo, hi)
     stage["learned"]["map"] = learned_map(learned, machine, covariance=covariance)
     return learned, stage

@@ -40,9 +40,10 @@ def test_out_of_catalogue_conditions_run_the_loop_at_each_check_count():
     ooc = [c for c in grinder_conditions(s) if c.group == "out-of-catalogue"]
     assert {c.effect for c in ooc} == set(s.ooc_effects) | {None}
     assert all(c.loop and c.stations == s.base_stations for c in ooc)
-    # each effect (and none) with the default checks and with each smaller count
-    assert sorted({c.n_checks for c in ooc}) == sorted({s.n_checks, *s.few_checks})
-    assert len(ooc) == (len(s.ooc_effects) + 1) * len({s.n_checks, *s.few_checks})
+    # each effect (and none) at every check count: 800, 150 and 1600 (issue 28)
+    assert sorted({c.n_checks for c in ooc}) == sorted(s.ooc_checks) == [150, 800, 1600]
+    assert len(ooc) == (len(s.ooc_effects) + 1) * len(s.ooc_checks)
+    assert {c.name for c in ooc if c.effect == "bump"} == {f"effect=bump, checks={n}" for n in s.ooc_checks}
     from errormap.simulator import OUT_OF_CATALOGUE
     assert set(s.ooc_effects) <= set(OUT_OF_CATALOGUE)
 
@@ -405,3 +406,41 @@ def test_benchmark_cli_on_a_chain_writes_rows_beside_the_grinders_format(tmp_pat
     html = (out / "report.html").read_text()
     assert "Machine-tool chain mill-xyz" in html and "held-out measured RMS" in html
     assert "mill-xyz parametric" in capsys.readouterr().out
+
+
+def test_benchmark_checks_option_sets_the_out_of_catalogue_counts(monkeypatch, tmp_path, capsys):
+    """--checks N (repeatable) replaces the out-of-catalogue conditions' check counts; a count the check
+    reader would refuse is refused before any work (one line, exit 2)."""
+    from compensation.app.cli import main
+    import compensation.app.workflows.benchmark as wb
+    seen = {}
+
+    def fake_run(machines, out, s, tracking_uri=None, track=True):
+        seen["checks"] = s.ooc_checks
+        return {"rows": [], "seconds": 0.0, "paths": {"json": "b.json", "html": "r.html"}}
+    monkeypatch.setattr(wb, "run_benchmark", fake_run)
+    assert main(["benchmark", "--quick", "--no-track", "--checks", "1600", "--checks", "150", "--checks", "1600",
+                 "--out", str(tmp_path / "b")]) == 0
+    assert seen["checks"] == (1600, 150)
+    capsys.readouterr()
+    assert main(["benchmark", "--checks", "5", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--checks must be >= 10" in err[0]
+
+
+def test_conclusion_lines_per_check_count():
+    """With two check counts the conclusion adds one line per count, computed from the rows."""
+    from compensation.app.reports.benchmark import conclusion_lines
+    rows = []
+    for cond, par, hyb, kept in (("effect=bump, checks=800", 1.4, 0.7, True), ("effect=bump, checks=150", 1.5, 1.2, True),
+                                 ("effect=a_tilt, checks=150", 2.4, 2.4, False), ("effect=none, checks=800", 0.7, 0.7, False),
+                                 ("effect=none, checks=150", 0.8, 0.8, False)):
+        for path, vol in (("parametric", par), ("hybrid", hyb)):
+            rows.append({"machine": "g", "machine_kind": "grinder", "path": path, "group": "out-of-catalogue",
+                         "condition": f"{cond} (after closed loop)", "closed_loop": True, "available": True,
+                         "true_rms_um": vol, "volume_rms_um": vol, "n_checks": int(cond.rsplit("=", 1)[1]),
+                         **({"learned_kept": kept, "learned_family": "gp" if kept else "none"} if path == "hybrid" else {})})
+    lines = conclusion_lines({"rows": rows})
+    assert "at 150 checks: the learned stage kept in 1 of 2 out-of-catalogue conditions; parametric loop / hybrid ×1.00–×1.25" in lines
+    assert "at 800 checks: the learned stage kept in 1 of 1 out-of-catalogue conditions; parametric loop / hybrid ×2.00–×2.00" in lines
+    assert lines[-1] == "without an effect the learned stage was declined in 2 of 2 conditions"

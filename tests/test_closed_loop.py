@@ -335,3 +335,26 @@ def test_joint_refit_refines_a_period_with_its_band(grinder):
     assert np.isfinite(p["se"]) and p["se"] > 0
     assert abs(p["value"] - 10.0) <= PERIOD_Z_MAX * p["se"], p
     assert upd.elements_ is not None
+
+
+REFIT_TRUE_GAIN = 1.0
+"""refit_on_all_checks: the kept stage re-estimated on all 600 checks (instead of its 360 fitting
+checks) must not be further from the truth over the volume (more data, same estimator; the
+benchmark's 10 seeds show the typical gain)."""
+
+
+@pytest.mark.slow  # a closed loop and its refit: over the 5 CPU s tier limit
+def test_refit_on_all_checks_uses_every_check_and_leaves_the_validated_figures(grinder, indep):
+    from errormap.diagnosis.loop import refit_on_all_checks
+    truth, sm = indep
+    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, 1.0, seed=11))
+    loop = closed_loop(grinder, sm.covariance_, checks)
+    held = json.dumps(loop.summary["stages"], sort_keys=True, default=str)
+    assert loop.kept_stage != "identified" and loop.update_target_um.shape == (N_CHECKS, 3)
+    model, cov = refit_on_all_checks(grinder, sm.covariance_, checks, loop)
+    assert json.dumps(loop.summary["stages"], sort_keys=True, default=str) == held   # the validated figures stay
+    assert cov.elements is not loop.covariance.elements and model.terms == [] == loop.model.terms
+    P = random_axes(grinder, 2000, np.random.default_rng(3))
+    e_true = truth.spatial_error(P, **truth.default_conditions(len(P)))
+    rms = lambda f: float(np.sqrt(np.mean(np.sum((f.predict(P) - e_true) ** 2, 1))))
+    assert rms(model) <= REFIT_TRUE_GAIN * rms(loop.model)

@@ -295,3 +295,139 @@ def test_hybrid_total_band_is_learned_band_plus_element_band(grinder):
     assert np.all(el_var > 0) and np.all(s_learned > 0)
     np.testing.assert_allclose(hyb.band_std(P), s_learned, atol=BAND_TOL_UM)
     np.testing.assert_allclose(hyb.band_std(P, cov) ** 2, s_learned**2 + el_var, atol=BAND_TOL_UM)
+
+
+# --- volcomp predict on a diagnosed (hybrid) model.json (issue 28 point 3) -----------------------
+
+PREDICT_TOL_UM = 1e-6
+"""predict's CSV vs the field in memory: write_csv's default %.9g keeps 9 significant digits, i.e.
+≤ 5e-7 μm on values below 1000 μm; 1e-6 μm is that rounding, not a model."""
+
+BAND_TOL_REL = 1e-8
+"""The band column vs Z95·√(learned std² + diag(J Σ Jᵀ)) computed here: the same formula, only the
+CSV's 9 significant digits (5e-9 relative) between them."""
+
+
+def _read(path):
+    from errormap.io import read_table
+    t = read_table(path)
+    header = [ln[1:].strip() for ln in path.read_text(encoding="utf-8").splitlines() if ln.startswith("#")]
+    return t, header
+
+
+def _identified(tmp_path):
+    """An element set with its covariance, as volcomp identify writes them (small bootstrap)."""
+    from compensation.app.cli import main
+    sw = tmp_path / "sw.csv"
+    assert main(["sweeps", "--seed", "2", "--out", str(sw)]) == 0
+    el = tmp_path / "el.json"
+    assert main(["identify", str(sw), "--out", str(el), "--bootstrap", "10"]) == 0
+    return el
+
+
+def _points(grinder, lo, hi, path):
+    """6 points inside the checks' box (lo, hi: x_mm, z_mm) and 2 outside it in X but inside the strokes
+    (half-way between the box's edge and the stroke's end)."""
+    rng = np.random.default_rng(11)
+    inside = np.c_[rng.uniform(lo[0], hi[0], 6), rng.uniform(lo[1], hi[1], 6), rng.uniform(0, 360, 6)]
+    xs = grinder.strokes["x_mm"]
+    z_mid = 0.5 * (lo[1] + hi[1])
+    outside = np.array([[0.5 * (hi[0] + xs[1]), z_mid, 10.0], [0.5 * (xs[0] + lo[0]), z_mid, 200.0]])
+    P = np.r_[inside, outside]
+    path.write_text("x_mm,z_mm,a_deg\n" + "\n".join(",".join(f"{v:.9g}" for v in p) for p in P) + "\n")
+    return np.array([[float(f"{v:.9g}") for v in p] for p in P])
+
+
+def test_predict_on_a_diagnosed_model_without_covariance_writes_no_band(grinder, tmp_path, capsys):
+    """Elements + no learned part: the prediction is the model's; no covariance beside the elements →
+    no band columns (a zero band would be a false claim) and --band is refused naming the file."""
+    from compensation.app.cli import main
+    truth = random_truth(grinder, SEED)
+    truth.elements.save(tmp_path / "updated_elements.json")
+    (tmp_path / "model.json").write_text(json.dumps({
+        "format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "terms": [], "stage": "updated"}))
+    pts = tmp_path / "p.csv"
+    P = _points(grinder, [0.0, 0.0], [1.0, 1.0], pts)[:6]
+    pts.write_text("x_mm,z_mm,a_deg\n" + "\n".join(",".join(f"{v:.9g}" for v in p) for p in P) + "\n")
+    out = tmp_path / "o.csv"
+    assert main(["predict", str(pts), "--model", str(tmp_path / "model.json"), "--out", str(out)]) == 0
+    t, header = _read(out)
+    e = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], 1)
+    np.testing.assert_allclose(e, HTMField(grinder, truth.elements).predict(P), rtol=0, atol=PREDICT_TOL_UM)
+    assert "dx_band95_um" not in t.names and "learned_part" not in t.names
+    assert "stage: updated" in header and any(h.startswith("band: none") for h in header)
+    capsys.readouterr()
+    assert main(["predict", str(pts), "--model", str(tmp_path / "model.json"), "--out", str(tmp_path / "o2.csv"),
+                 "--band", "95"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "updated_elements.cov.npz" in err[0]
+
+
+@pytest.mark.slow
+def test_predict_on_a_hybrid_model_total_band_and_outside_flag(grinder, staged, tmp_path, capsys):
+    """The kept stage's prediction (elements + learned residual), its TOTAL 95 % band (learned ⊕ the
+    elements' J Σ Jᵀ), learned_part 'unknown' outside the checks' box; outside refused unless
+    --allow volume, which the header records."""
+    from compensation.app.cli import main
+    from errormap.elements import ElementSet
+    from errormap.uncertainty import Z95, ElementCovariance, covariance_path
+    _, learned, _ = staged
+    el = _identified(tmp_path)
+    (tmp_path / "model.json").write_text(json.dumps({
+        "format": "volcomp-diagnosed-model/1", "elements": el.name, "terms": [],
+        "stage": "learned_residual", "learned_residual": learned.to_dict()}))
+    pts = tmp_path / "p.csv"
+    xs = grinder.strokes["x_mm"]
+    assert xs[0] < learned.lo[0] and learned.hi[0] < xs[1]   # random checks never reach the strokes' ends exactly
+    P = _points(grinder, learned.lo, learned.hi, pts)
+    model = tmp_path / "model.json"
+    capsys.readouterr()
+    assert main(["predict", str(pts), "--model", str(model), "--out", str(tmp_path / "refused.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--allow" in err[0] and not (tmp_path / "refused.csv").exists()
+    out = tmp_path / "o.csv"
+    assert main(["predict", str(pts), "--model", str(model), "--out", str(out), "--allow", "volume"]) == 0
+    t, header = _read(out)
+    e = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], 1)
+    field = HybridField(HTMField(grinder, ElementSet.load(el)), learned)
+    np.testing.assert_allclose(e, field.predict(P), rtol=0, atol=PREDICT_TOL_UM)
+    cov = ElementCovariance.load(covariance_path(el), ElementSet.load(el))
+    sd = np.sqrt(learned.predict(P, return_std=True)[1] ** 2
+                 + np.diagonal(cov.prediction_cov(grinder, P), axis1=1, axis2=2))
+    band = np.stack([t.float(f"{c}_band95_um") for c in ("dx", "dy", "dz")], 1)
+    np.testing.assert_allclose(band, Z95 * sd, rtol=BAND_TOL_REL)
+    assert list(t.raw("learned_part")) == ["fitted"] * 6 + ["unknown"] * 2
+    assert "stage: learned_residual" in header
+    assert any(h.startswith("allowed: volume (2 of 8 points") for h in header)
+    assert any("Gaussian process" in h or "deep ensemble" in h for h in header)
+    # 1-sigma on request: the same band / Z95
+    out1 = tmp_path / "o1.csv"
+    assert main(["predict", str(pts), "--model", str(model), "--out", str(out1), "--allow", "volume",
+                 "--band", "1sigma"]) == 0
+    t1, _ = _read(out1)
+    np.testing.assert_allclose(t1.float("dy_band1sigma_um"), sd[:, 1], rtol=BAND_TOL_REL)
+
+
+@pytest.mark.slow
+def test_solvers_on_a_hybrid_with_the_ensemble_family(grinder):
+    """The deep-ensemble family inside the hybrid field: closed-form Jacobian, so exact and batched-ga
+    solve with it to the issue's figures (EXACT_MODEL_TOL_UM, BATCHED_GA_MAX_UM)."""
+    from compensation.hybrid import axis_features
+    from training.residual import ResidualRegressor
+    rng = np.random.default_rng(SEED)
+    axes = random_axes(grinder, 480, rng)
+    r = _bump(grinder, axes) + NOISE_UM * rng.standard_normal(axes.shape)
+    f, _ = axis_features(axes)
+    reg = ResidualRegressor(families=("ensemble",), seed=SEED).fit(f, r, groups=np.repeat(np.arange(10), 48))
+    assert reg.chosen_ == "ensemble"
+    learned = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0))
+    field = HybridField(HTMField(grinder, random_truth(grinder, SEED).elements), learned)
+    check_field(field)
+    P = random_axes(grinder, 60, np.random.default_rng(5))
+    inside = np.all((P[:, :2] >= learned.lo) & (P[:, :2] <= learned.hi), axis=1)
+    P = P[inside][:40]
+    targets = forward(grinder, P)
+    res = solve("exact", field, targets, grinder)
+    assert np.abs(res.residual_um).max() <= EXACT_MODEL_TOL_UM
+    res = solve("batched-ga", field, targets[:20], grinder)
+    assert np.linalg.norm(res.residual_um, axis=1).max() <= BATCHED_GA_MAX_UM

@@ -92,3 +92,13 @@ def test_diagnose_track_logs_the_kept_stage(tmp_path, capsys):
     rid = s["learned_residual"]["mlflow_run_id"]
     assert model["mlflow_run_id"] == rid and f"learned residual logged as MLflow run {rid}" in capsys.readouterr().out
     assert load_learned_residual_doc(rid, tracking_uri=uri) == json.loads(json.dumps(model["learned_residual"]))
+    # the family chosen by validation, named; the shipped stage estimated on all 800 checks after the
+    # choice, the held-out figures the validated ones (issue 28: refit after selection)
+    lr = s["learned_residual"]
+    assert lr["families_compared"] == ["gp", "ensemble"] and lr["family"] in lr["cv_table"]
+    assert lr["family_name"].split(" ")[0] in ("Gaussian", "deep")
+    assert lr["shipped"]["estimated_on_checks"] == 800 and lr["shipped"]["base_refit_on_all_checks"] is True
+    assert s["refit_on_all_checks"]["checks"] == 800
+    assert s["rms_final_um"] == s["stages"]["learned_residual"]["held_out"]["rms_um"]
+    assert model["learned_family"]["family"] == lr["family"] and model["learned_family"]["estimated_on_checks"] == 800
+    assert model["learned_family"]["name"] == lr["family_name"]

@@ -27,6 +27,12 @@ Families (:data:`FAMILIES`):
     seed). Its band is the posterior standard deviation of the latent field
     (``predict(..., return_std=True)``), calibrated on the cross-validation's held-out folds
     (``band_scale_``); ``noise_std_`` is the fitted measurement noise (calibrated alike).
+``ensemble``
+    A deep ensemble of small MLPs (:class:`training.ensemble.MLPEnsemble`: 5 members from
+    ``SeedSequence.spawn``, weight decay toward zero); the members' mean is the prediction, their
+    spread the band (calibrated on the same held-out folds), the mean's training residual the
+    noise; Jacobian closed form through the networks. It is cross-validated on the SAME blocked
+    folds as the GP, and the stated rule picks between them.
 
 The object is JSON-able (:meth:`ResidualRegressor.to_dict` / :meth:`ResidualRegressor.from_dict`,
 format :data:`FORMAT`): the standardisation, hyper-parameters, training inputs and weights, so
@@ -47,8 +53,13 @@ __all__ = ["ResidualRegressor", "FAMILIES", "FORMAT", "check_residual_data"]
 FORMAT = "volcomp-residual-regressor/1"
 """The ``format`` key of :meth:`ResidualRegressor.to_dict`."""
 
-FAMILIES = ("gp",)
+FAMILIES = ("gp", "ensemble")
 """The regressor families :class:`ResidualRegressor` can cross-validate."""
+
+FAMILY_NAMES = {"gp": "Gaussian process (zero mean, ARD squared-exponential kernel + white noise, per output)",
+                "ensemble": "deep ensemble (5 tanh MLPs 2×16, weight decay; mean and spread)",
+                "none": "none (the physical model alone)"}
+"""What each family is, in words (diagnosis.json / model.json / the report name the chosen one)."""
 
 Z95 = 1.959963984540054
 """Two-sided 95 % normal quantile: the band of ``cv_table_``'s coverage."""
@@ -293,6 +304,9 @@ class ResidualRegressor:
     def _new(self, family, rng):
         if family == "gp":
             return _GP(self.n_restarts, rng)
+        if family == "ensemble":
+            from .ensemble import MLPEnsemble
+            return MLPEnsemble(seed=int(rng.integers(0, 2**63 - 1)))
         raise ValueError(family)
 
     # -- fit
@@ -415,9 +429,42 @@ class ResidualRegressor:
         X = self._check_fitted(X)
         X, Y, _ = check_residual_data(X, Y)
         out = copy.copy(self)
-        if self.model_ is not None:
+        if isinstance(self.model_, _GP):
             out.model_ = _GP(1, None).set_state((X - self.x_mean_) / self.x_scale_, Y / self.y_scale_,
                                                 self.model_.theta_)
+        elif self.model_ is not None:   # an ensemble has no hyper-parameters fitted: its members are retrained
+            from .ensemble import MLPEnsemble
+            m = self.model_
+            with limit_threads(1, ("blas",)):
+                out.model_ = MLPEnsemble(seed=int(spawn_rngs(self.seed, 5)[4].integers(0, 2**63 - 1)), n_members=m.n_members,
+                                         hidden=m.hidden, weight_decay=m.weight_decay, max_iter=m.max_iter).fit(
+                    (X - self.x_mean_) / self.x_scale_, Y / self.y_scale_)
+        return out
+
+    def refit(self, X, Y, seed=None) -> "ResidualRegressor":
+        """A copy with the CHOSEN family re-estimated on (``X`` (m, d), ``Y`` (m, 3)): the
+        standardisation and the hyper-parameters (maximum marginal likelihood, as in :meth:`fit`)
+        from these data, no new selection — the validation chose the family and whether to keep
+        it; this is the chosen model estimated on all the data. The band calibration
+        (``band_scale_``) and ``cv_table_`` stay the cross-validation's (they are what was
+        validated). ``"none"`` stays none. ``seed``: the restarts' seed (default: this fit's)."""
+        import copy
+        X = self._check_fitted(X)
+        X, Y, _ = check_residual_data(X, Y)
+        out = copy.copy(self)
+        if self.model_ is None:
+            return out
+        with limit_threads(1, ("blas",)):
+            out.x_mean_ = X.mean(0)
+            sd = X.std(0)
+            out.x_scale_ = np.where(sd > 0, sd, 1.0)
+            out.y_scale_ = float(np.sqrt(np.mean(Y * Y))) or 1.0
+            rng = spawn_rngs(self.seed if seed is None else seed, 4)[3]
+            Xs, Ys = (X - out.x_mean_) / out.x_scale_, Y / out.y_scale_
+            out.model_ = self._new(self.chosen_, rng).fit(Xs, Ys)
+        if isinstance(out.model_, _GP):   # the weights solved as from_dict solves them (same BLAS threads):
+            out.model_ = _GP(1, None).set_state(Xs, Ys, out.model_.theta_)   # the shipped field == the reloaded one
+        out.noise_std_ = np.sqrt(out.model_.noise_var()) * out.y_scale_ * out.band_scale_
         return out
 
     # -- persistence
@@ -433,9 +480,11 @@ class ResidualRegressor:
                "n_features_in": int(self.n_features_in_),
                "x_mean": self.x_mean_.tolist(), "x_scale": self.x_scale_.tolist(), "y_scale": self.y_scale_,
                "noise_std": self.noise_std_.tolist(), "band_scale": float(self.band_scale_)}
-        if self.model_ is not None:
+        if isinstance(self.model_, _GP):
             out["gp"] = {"theta": self.model_.theta_.tolist(), "X": self.model_.X_.tolist(),
                          "Y": self.model_.Y_.tolist()}
+        elif self.model_ is not None:
+            out["ensemble"] = self.model_.state()
         return out
 
     @classmethod
@@ -462,6 +511,11 @@ class ResidualRegressor:
                 g = doc["gp"]
                 self.model_ = _GP(1, None).set_state(np.asarray(g["X"], dtype=float), np.asarray(g["Y"], dtype=float),
                                                      np.asarray(g["theta"], dtype=float))
+            elif self.chosen_ == "ensemble":
+                from .ensemble import MLPEnsemble
+                self.model_ = MLPEnsemble.from_state(doc["ensemble"])
+                if (self.model_.d_, self.model_.k_) != (self.n_features_in_, 3):
+                    raise ValueError("Expected an ensemble of n_features_in inputs and 3 outputs")
             elif self.chosen_ != "none":
                 raise ValueError(f"unknown family {self.chosen_!r}")
         except (KeyError, TypeError) as exc:

@@ -63,6 +63,11 @@ class ClosedLoop:
     covariance: object = None
     """:class:`~errormap.uncertainty.ElementCovariance` of the kept model's elements (``.elements``;
     the identification's own when the identified stage is kept)."""
+    update_target_um: object = None
+    """(n, 3) over ALL checks: the residual the kept stage's element update was made on (the
+    identified model's residual minus what was kept out of the update), or None for the
+    identified stage or a joint refit (:func:`refit_on_all_checks`)."""
+    alpha: float = 0.01
 
 
 def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSettings | None = None,
@@ -84,10 +89,12 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
     # effects the update would imitate: tested jointly with it; what is proposed is kept out of the update
     screen_terms, screen = joint_screen(upd, ctx.subset(fit_idx), r0[fit_idx], s.alpha, s.max_effects)
     upd_alone = None
+    target = r0
     if screen_terms:
         upd_alone = upd
         proposed = sum(t.contribution(ctx) for t in screen_terms)
-        upd = update_elements(machine, covariance, checks.axes[fit_idx], (r0 - proposed)[fit_idx], alpha=s.alpha)
+        target = r0 - proposed
+        upd = update_elements(machine, covariance, checks.axes[fit_idx], target[fit_idx], alpha=s.alpha)
         imitated = stand_ins(machine, upd_alone, upd)
         for st in screen:
             st["update_alone_imitated_it_with"] = imitated
@@ -97,7 +104,8 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
         if not d.selector.terms_:
             break
         terms = CorrectedField(machine, base, d.selector.terms_).terms_only(checks.axes, **checks.conditions)
-        upd = update_elements(machine, covariance, checks.axes[fit_idx], (r0 - terms)[fit_idx], alpha=s.alpha)
+        target = r0 - terms
+        upd = update_elements(machine, covariance, checks.axes[fit_idx], target[fit_idx], alpha=s.alpha)
         updated = HTMField(machine, upd.elements_)
         d = diagnose(machine, updated, checks, s)
     r1 = d.residual_before_um
@@ -159,8 +167,38 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
     if rejected:
         summary["effects_rejected_why"] = (f"not a significant held-out improvement over the update (and the effects "
                                            f"ranked before it): paired z ≤ {HELD_OUT_Z} on the per-point squared residual")
+    targets = {"updated": target, "updated_alone": r0, "identified": None,
+               "updated_plus_effects": None if terms_k else target}
     return ClosedLoop(upd, d, model, accepted, summary, kept_stage,
-                      covariance if upd_k is None else upd_k.covariance_)
+                      covariance if upd_k is None else upd_k.covariance_, targets[kept_stage], s.alpha)
+
+
+def refit_on_all_checks(machine, covariance, checks: CheckData, loop: ClosedLoop):
+    """The kept stage of ``loop`` re-estimated on ALL checks (fitting and held-out together).
+
+    The loop CHOOSES on the fitting/held-out split (which stage, which effect terms); once the
+    choice is made, the standard practice is to estimate the chosen model on all the data it
+    has. Same estimators as the loop: the element update (:func:`.update.update_elements`,
+    sweep prior ``covariance``) on the residual the kept update was made on, or, with kept
+    effect terms, their joint refit with the update (:func:`.joint.joint_refit`); the identified
+    stage has nothing to refit. The held-out figures of the loop stay the validated ones (made
+    before this refit). Returns ``(model, element covariance)``: a :class:`CorrectedField` with the
+    kept stage's terms (re-estimated) and the refitted elements' posterior covariance."""
+    if loop.kept_stage == "identified":
+        return loop.model, loop.covariance
+    base = HTMField(machine, covariance.elements)
+    r0, _ = measured_residual(checks, base)
+    if loop.model.terms:
+        ctx = Context.build(machine, checks.axes, checks.conditions, loop.model.terms[0].ref)
+        terms, upd = joint_refit(machine, covariance, checks.axes, r0, ctx, loop.model.terms, loop.alpha)
+    else:
+        terms = []
+        # the residual the kept update was made on (the screen's proposed terms kept out of it); the
+        # identified model's residual itself when the kept stage had terms and they were all taken off
+        # (the learned stage replaced its condition terms): nothing is then kept out of the update
+        target = r0 if loop.update_target_um is None else loop.update_target_um
+        upd = update_elements(machine, covariance, checks.axes, target, alpha=loop.alpha)
+    return CorrectedField(machine, HTMField(machine, upd.elements_), terms), upd.covariance_
 
 
 def _fallback(options: dict, hold_idx) -> tuple[str, str]:

@@ -35,6 +35,9 @@ def register(sub):
     p.add_argument("--train-s", type=float, default=None,
                    help="also stop each training after this many seconds (off by default: it makes the results depend "
                         "on the machine's load; benchmark.json records the iterations reached)")
+    p.add_argument("--checks", type=int, action="append", default=None, metavar="N",
+                   help="check measurements of the out-of-catalogue conditions' closed loop (and its hybrid stage); "
+                        "repeat for several counts, each a row per effect (default 800, 150 and 1600; --quick 200)")
     p.add_argument("--seed", type=int, default=None, help="seed of measurements and training (default 0)")
     p.add_argument("--truth-seed", type=int, default=None, help="seed of the simulated truth grinder (default 0)")
     p.set_defaults(func=run)
@@ -56,6 +59,8 @@ def run(args) -> int:
         s.train_iter = args.train_iter
     if args.train_s is not None:
         s.train_s = args.train_s
+    if args.checks:   # each >= 1 and <= MAX_CHECKS (validate.py), checked before run
+        s.ooc_checks = tuple(dict.fromkeys(args.checks))
     if args.seed is not None:
         s.seed = args.seed
     if args.truth_seed is not None:

@@ -20,17 +20,22 @@ def register(sub):
     p = sub.add_parser("predict", help="evaluate an error field at axis points (CSV x_mm, z_mm, a_deg)")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
                    "grinder; a machine-tool chain (mill-xyz, five-axis-ac ...) takes its own axis columns")
-    p.add_argument("--model", required=True, help="element-set file (JSON), MLflow run id or runs:/ URI")
+    p.add_argument("--model", required=True, help="element-set file (JSON), a diagnosed DIR/model.json (volcomp "
+                   "diagnose: the kept stage, the hybrid's learned residual included), MLflow run id or runs:/ URI")
     p.add_argument("--tracking-uri", default=None)
     p.add_argument("points", help="CSV with x_mm, z_mm, a_deg (a chain machine: its axis columns, e.g. "
                    "x_mm, y_mm, z_mm)")
     p.add_argument("--out", required=True, help="output CSV (input columns + dx_um, dy_um, dz_um)")
-    p.add_argument("--allow", action="append", default=[], choices=("extrapolate",),
-                   help="extrapolate: predict also at points outside the model's calibrated volume "
-                        "(refused by default: a model says nothing reliable there)")
+    p.add_argument("--allow", action="append", default=[], choices=("extrapolate", "volume"),
+                   help="extrapolate (or volume, compensate's name for the same guard): predict also at points "
+                        "outside the model's calibrated volume (refused by default: a model says nothing reliable "
+                        "there; a diagnosed model with a learned residual: outside the checks' box); the override "
+                        "is recorded in the output's header")
     p.add_argument("--band", choices=("1sigma", "95"), default=None,
                    help="also write the half-width of a per-component band (1-σ or 95 %%) from the element set's "
-                        "covariance (NAME.cov.npz beside it, written by `volcomp identify`)")
+                        "covariance (NAME.cov.npz beside it, written by `volcomp identify`); a diagnosed model.json "
+                        "writes its TOTAL band (learned residual's (+) the kept elements') always, 95 %% unless "
+                        "--band 1sigma")
     add_units_option(p, "points")
     p.set_defaults(func=run)
 
@@ -41,8 +46,8 @@ def _check_volume(args, table, axes, field, machine) -> None:
     from ...guards import calibrated_volume, volume_violations
     names = machine_axes(machine)
     bad, reasons = volume_violations(axes, field, names=names)
-    if not len(bad) or "extrapolate" in args.allow:
-        return
+    if not len(bad) or "extrapolate" in args.allow or "volume" in args.allow:
+        return len(bad)
     lo, hi = calibrated_volume(field, names)
     i = int(bad[0])
     lin = np.array([n.endswith("_mm") for n in names])
@@ -50,6 +55,84 @@ def _check_volume(args, table, axes, field, machine) -> None:
     hint = "; positions in μm rather than mm?" if far.any() else ""
     raise InputError(f"{table.path}: row {table.row_number(i)}: {reasons[0]} ({len(bad)} of {len(axes)} points "
                      f"outside the calibrated volume{hint}); pass --allow extrapolate to predict there anyway")
+
+
+DIAGNOSED_CONDITIONS = ("temp_c", "time_s", "dir_x", "dir_z", "dir_a")
+
+
+def _diagnosed_conditions(t, needs, units) -> dict:
+    """Per-point conditions a diagnosed model's effect terms need, from the points file's columns of
+    those names (the check files' names and rules); a missing column is refused naming it."""
+    out = {}
+    for c in needs:
+        if c not in t:
+            raise InputError(f"{t.path}: the diagnosed model's effect terms need the condition '{c}' at every point: "
+                             f"add a column '{c}'")
+        if c.startswith("dir_"):
+            out[c] = t.int(c, allowed=(-1, 1)).astype(float)
+        else:
+            out[c] = t.float(c)
+            if c == "temp_c":
+                check_units(t.path, [t.row_number(k) for k in range(len(t))], temps={"temp_c": out[c]}, units=units,
+                            option="--units")
+    return out
+
+
+def _predict_diagnosed(args, t, axes, machine, src, names):
+    """A diagnosed model.json: the kept stage's prediction (elements + effect terms + the learned
+    residual when kept), its TOTAL band (learned ⊕ the elements' J Σ Jᵀ, the hybrid's
+    :meth:`compensation.hybrid.HybridField.band_std`; 95 % unless ``--band 1sigma``) and, with a
+    learned residual, a column ``learned_part``: ``fitted`` inside the checks' box, ``unknown``
+    outside (the learned part is tapered to zero there and says nothing). Points outside the
+    calibrated volume (the checks' box for a hybrid) are refused unless ``--allow volume``
+    (or ``extrapolate``), and the override is recorded in the header. → (columns, header lines)."""
+    import json
+    from compensation.diagnosed_model import load_diagnosed_model
+    from compensation.hybrid import HybridField, total_band_std
+    from errormap.elements import ElementSet
+    from errormap.uncertainty import Z95, ElementCovariance, covariance_path
+    field = load_diagnosed_model(src.path, machine)
+    n_out = _check_volume(args, t, axes, field, machine)
+    cond = _diagnosed_conditions(t, field.needs, args.units)
+    doc = json.loads(src.path.read_text(encoding="utf-8"))
+    el_path = src.path.parent / doc["elements"]
+    cov = None
+    if covariance_path(el_path).is_file():
+        cov = ElementCovariance.load(covariance_path(el_path), ElementSet.load(el_path))
+    elif args.band:   # the band asked for, half of it missing: refused, never a band without the elements' part
+        raise UsageError(f"--band needs the kept elements' covariance {covariance_path(el_path)} (written beside "
+                         f"them by volcomp diagnose); not found")
+    print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
+    e = field.predict(axes, **cond)
+    hybrid = field.base if isinstance(field.base, HybridField) else None
+    cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
+    cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
+    k, tag = (1.0, "1sigma") if args.band == "1sigma" else (Z95, "95")
+    if cov is not None:   # the TOTAL band: learned (when kept) ⊕ the elements' J Σ Jᵀ
+        sd = total_band_std(hybrid.learned if hybrid else None, machine, axes, cov)
+        cols.update({f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
+    stage = doc.get("stage")
+    meta = [f"stage: {stage}"]
+    if hybrid is not None:
+        lo, hi = hybrid.learned.lo, hybrid.learned.hi
+        inside = np.all((axes[:, :2] >= lo - 1e-9) & (axes[:, :2] <= hi + 1e-9), axis=1)
+        cols["learned_part"] = np.where(inside, "fitted", "unknown")
+        from training.residual import FAMILY_NAMES
+        meta += [f"learned residual: {FAMILY_NAMES.get(hybrid.learned.chosen, hybrid.learned.chosen)}; "
+                 f"checks' box x_mm {lo[0]:.6g}..{hi[0]:.6g}, z_mm {lo[1]:.6g}..{hi[1]:.6g} "
+                 f"(learned_part unknown outside it: {int((~inside).sum())} of {len(axes)} points)"]
+    if cov is not None:
+        meta.append(f"band: total {'1-sigma' if tag == '1sigma' else '95 %'} per component = "
+                    + ("learned residual's band (cross-validation calibrated; outside the checks' box its prior) "
+                       "(+) " if hybrid is not None else "")
+                    + "the elements' J Sigma J^T"
+                    + (" (effect terms' own uncertainty not included)" if field.terms else ""))
+    else:
+        meta.append(f"band: none (the kept elements' covariance {covariance_path(el_path).name} was not found)")
+    if n_out:
+        meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
+                    f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
+    return cols, meta
 
 
 def _chain_conditions(t, needs, units) -> dict:
@@ -108,6 +191,12 @@ def run(args) -> int:
     check_units(t.path, [t.row_number(k) for k in range(len(t))], machine=machine, axes=axes, axes_columns=names,
                 coverage="path", units=args.units, option="--units")
     src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
+    if src.kind == "diagnosed" and machine.kind != "machine-tool":  # the grinder's closed loop (and hybrid) model
+        cols, meta = _predict_diagnosed(args, t, axes, machine, src, names)
+        path = write_csv(args.out, cols, header_comments=meta + [f"model: {src.description}",
+                                                                 f"model_kind: {src.kind}", f"units: {args.units}"])
+        print(f"wrote {len(axes)} predictions to {path}")
+        return 0
     band_src = _chain_covariance(args, src, machine) if args.band and machine.kind == "machine-tool" else None
     field = load_field(args.model, machine, args.tracking_uri, source=src)
     cond = None

@@ -147,6 +147,17 @@ def _ooc_pairs(doc) -> dict:
     return {k: v for k, v in by.items() if len(v) == 2}
 
 
+def _checks_of(cond: str, row: dict):
+    """The check count of an out-of-catalogue condition: the row's ``n_checks``, else the name's
+    ``checks=N`` (None when neither says)."""
+    if row.get("n_checks") is not None:
+        return int(row["n_checks"])
+    for part in cond.split(","):
+        if part.strip().startswith("checks="):
+            return int(part.strip().split("=", 1)[1])
+    return None
+
+
 def conclusion_lines(doc) -> list[str]:
     """The out-of-catalogue conclusion, computed from the rows (never written by hand): per condition
     the compensated volume's TRUE RMS of the parametric loop and of the hybrid, the machine without
@@ -178,6 +189,16 @@ def conclusion_lines(doc) -> list[str]:
         out.append(f"over {len(eff)} out-of-catalogue conditions: the learned stage was kept in {kept}; the hybrid "
                    f"lowers the parametric loop's volume RMS by ×{num(float(np.min(gains)))}–×{num(float(np.max(gains)))} "
                    f"(median ×{num(float(np.median(gains)))})")
+    by_count = {}   # the same figures per check count (the condition's ", checks=N" suffix; none: n_checks)
+    for c, d in pairs.items():
+        if not c.startswith("effect=none") and None not in (d["parametric"].get(key), d["hybrid"].get(key)):
+            by_count.setdefault(_checks_of(c, d["hybrid"]), []).append(d)
+    if len(by_count) > 1:
+        for n, ds in sorted(by_count.items(), key=lambda kv: (kv[0] is None, kv[0] or 0)):
+            g = np.array([d["parametric"][key] / max(d["hybrid"][key], 1e-12) for d in ds])
+            out.append(f"at {n if n is not None else '?'} checks: the learned stage kept in "
+                       f"{sum(bool(d['hybrid'].get('learned_kept')) for d in ds)} of {len(ds)} out-of-catalogue "
+                       f"conditions; parametric loop / hybrid ×{num(float(np.min(g)))}–×{num(float(np.max(g)))}")
     declined = [not d["hybrid"].get("learned_kept") for c, d in clean.items()]
     if declined:
         out.append(f"without an effect the learned stage was declined in {sum(declined)} of {len(declined)} conditions")

@@ -162,6 +162,7 @@ def _stages(s) -> dict:
                       "imitation": imit, "confirmed": bool(j.get("confirmed"))})
     return {"table": Table(["model", "held-out RMS (μm)", "held-out max (μm)", "fitting RMS (μm)"], rows),
             "kept": kept if "kept_why" in s else None, "kept_why": s.get("kept_why"), "joint": joint,
+            "refit": (s.get("refit_on_all_checks") or {}).get("note"),
             "noise_sigma_um": u["check_noise_sigma_um"],
             "contradicted": [f"{element_label(c['element'])} (p = {num(c['p_adjusted'], 2)})"
                              for c in u["contradicted_by_sweeps"]],
@@ -176,7 +177,10 @@ def _learned(s) -> dict | None:
         return None
     rows = [[fam, r["cv_rms"], r["cv_rms_se"], r["gain_mean"], r["gain_se"],
              "" if r.get("coverage_95") is None else r["coverage_95"]] for fam, r in lr["cv_table"].items()]
-    out = {"family": lr["family"], "kept": lr["kept"], "why": lr["why"], "inputs": ", ".join(lr["inputs"]),
+    out = {"family": lr["family"], "family_name": lr.get("family_name", lr["family"]),
+           "compared": ", ".join(lr.get("families_compared", [])), "rule": lr.get("selection_rule"),
+           "shipped": (lr.get("shipped") or {}).get("note"),
+           "kept": lr["kept"], "why": lr["why"], "inputs": ", ".join(lr["inputs"]),
            "cv": lr["cv"], "z": lr["held_out_gain_z"],
            "cover": lr.get("held_out_band95_cover_total") if lr.get("held_out_band95_cover_total") is not None
            else lr.get("held_out_band95_cover"),

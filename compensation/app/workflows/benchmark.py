@@ -84,7 +84,9 @@ class BenchmarkSettings:
     # effects no catalogue kind represents (errormap.simulator.OUT_OF_CATALOGUE), each with the closed
     # loop and its learned-residual stage (the hybrid column); plus the same machine without an effect
     ooc_effects: tuple = ("bump", "a_tilt", "squareness")
-    few_checks: tuple = (150,)             # the out-of-catalogue conditions again with this many checks
+    # check counts of the out-of-catalogue conditions (each effect and none at every count: the learned
+    # stage's estimation error against the number of checks; `volcomp benchmark --checks N`, repeatable)
+    ooc_checks: tuple = (800, 150, 1600)
     n_checks: int = 400
     check_noise_um: float = 1.0
     train_iter: int = 150                  # LM iterations per learned grinder condition (~30 s on 2 cores)
@@ -122,7 +124,7 @@ class BenchmarkSettings:
 def quick_settings() -> BenchmarkSettings:
     """The ``--quick`` variant (a test runs it): fewer conditions, tiny training, path subsets."""
     return BenchmarkSettings(stations=(21,), noises_um=(1.0,), effects=("thermal",), n_checks=200,
-                             ooc_effects=("bump",), few_checks=(),
+                             ooc_effects=("bump",), ooc_checks=(200,),
                              train_iter=60, hidden=(8, 8), activation="tanh", a_encoding="periodic", paper_network=False,
                              ga_points=20, ga_generations=100, flute_turns=1.0, flute_points_per_turn=200,
                              volume_points=50,
@@ -263,7 +265,7 @@ def grinder_conditions(s: BenchmarkSettings) -> list[GrinderCondition]:
         out[name] = GrinderCondition(name, "effect", s.base_stations, s.base_noise_um, eff)
     if s.ooc_effects:  # out of any catalogue, and the same machine without an effect, at each check count
         for eff in (*s.ooc_effects, "none"):
-            for nc in dict.fromkeys((s.n_checks, *s.few_checks)):
+            for nc in dict.fromkeys(s.ooc_checks):
                 name = f"effect={eff}" + (f", checks={nc}" if nc != s.n_checks else "")
                 out[name] = GrinderCondition(name, "out-of-catalogue", s.base_stations, s.base_noise_um,
                                              None if eff == "none" else eff, nc, True)

@@ -194,11 +194,15 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
 
 def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
                     source=None, units: str = "check", units_option: str | None = None, learn: bool = True,
-                    track: bool = False, tracking_uri=None):
+                    track: bool = False, tracking_uri=None, refit_all: bool = True, refit_mode: str = "hyper"):
     """The closed loop on an identified element set with its covariance; returns (summary, paths).
     ``source``: the recognised model (:class:`compensation.fields.ModelSource`), else resolved here.
-    ``learn``: after the loop, the learned-residual stage (:func:`compensation.hybrid.learned_stage`)."""
-    from errormap.diagnosis.loop import closed_loop
+    ``learn``: after the loop, the learned-residual stage (:func:`compensation.hybrid.learned_stage`).
+    ``refit_all``: once the stages are chosen on the fitting/held-out split, the kept stage
+    (elements, effect terms: :func:`errormap.diagnosis.loop.refit_on_all_checks`) and the kept
+    learned part (``refit_mode``, :data:`compensation.hybrid.REFIT_MODES`) are re-estimated on
+    ALL checks before they are written; the held-out figures stay the validated ones."""
+    from errormap.diagnosis.loop import closed_loop, refit_on_all_checks
     from errormap.elements import ElementSet
     from errormap.uncertainty import ElementCovariance, covariance_path
     checks = load_checks(checks_path, machine, units=units, units_option=units_option)
@@ -214,18 +218,37 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
                     "covariance_file": str(covariance_path(src.path)),
                     "residual": "measured (measurement − model prediction); stages judged on the same held-out checks"})
     learned = None
+    ship_cov = loop.covariance   # the elements (and their covariance) written as the kept stage's
+    refit_cache = {}
+
+    def _refit(replaces: bool):
+        """The kept stage re-estimated on all checks (without its condition terms when ``replaces``)."""
+        if replaces not in refit_cache:
+            import dataclasses
+            lp = loop
+            if replaces:
+                lp = dataclasses.replace(loop, model=CorrectedField(machine, loop.model.base,
+                                                                   [t for t in loop.model.terms if not t.needs]))
+            refit_cache[replaces] = refit_on_all_checks(machine, cov, checks, lp)
+        return refit_cache[replaces]
+
     if learn:  # the learned residual on what the kept stage leaves (compensation.hybrid.learned_stage)
         from compensation.hybrid import learned_stage
+        from errormap.diagnosis.corrected import CorrectedField
         n_fit = int(round(settings.fit_fraction * len(checks)))
         r_prev = checks.measured_um - loop.model.predict(checks.axes, **checks.conditions)
         static = [t for t in loop.model.terms if not t.needs]
         r_static = None
         if len(static) < len(loop.model.terms):  # condition terms: the learned field may replace them (learned_stage)
-            from errormap.diagnosis.corrected import CorrectedField
             r_static = checks.measured_um - CorrectedField(machine, loop.model.base, static).predict(
                 checks.axes, **checks.conditions)
+        refit_r = None
+        if refit_all:
+            def refit_r(replaces):
+                return checks.measured_um - _refit(replaces)[0].predict(checks.axes, **checks.conditions)
         learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, len(checks)),
-                                       r_static_um=r_static, covariance=loop.covariance)
+                                       r_static_um=r_static, covariance=loop.covariance, refit_residual=refit_r,
+                                       refit_mode=refit_mode)
         if learned is not None and stage["learned"]["replaces_condition_terms"]:
             cond = [e for e in summary["effects"] if e.get("needs")]
             summary["effects"] = [e for e in summary["effects"] if not e.get("needs")]
@@ -241,6 +264,24 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
             summary["kept_why"] = f"{summary['kept_why']}; then the learned residual was {stage['learned']['why']}"
             summary["rms_final_um"] = stage["held_out"]["rms_um"]
             summary["max_final_um"] = stage["held_out"]["max_um"]
+    if refit_all and loop.kept_stage != "identified":
+        replaced = bool(learned is not None and summary.get("effects_replaced_by_learned"))
+        model_refit, ship_cov = _refit(replaced)
+        by_label = {(t.kind, t.axis, t.element): t for t in model_refit.terms}
+        refit_effects = []
+        for e in summary["effects"]:
+            t = by_label.get((e["kind"], e["axis"], e.get("element")))
+            if t is not None:
+                e = dict(e, **{k: v for k, v in t.to_dict().items() if k in ("parameters", "coefficients", "period_mm")},
+                         estimate_shipped="re-estimated on all checks jointly with the element update (joint_refit)")
+            refit_effects.append(e)
+        summary["effects"] = refit_effects
+        summary["refit_on_all_checks"] = {
+            "checks": int(len(checks)), "stage": loop.kept_stage,
+            "note": ("the stages, effect terms and learned family were chosen on the fitting/held-out split (the held-out "
+                     f"figures above are those); the shipped elements{', terms' if refit_effects else ''}"
+                     f"{' and learned residual' if learned is not None else ''} were then re-estimated on all "
+                     f"{len(checks)} checks")}
     page = checks_report(loop.diagnosis, summary, model_spec, checks_path)
     out_dir = Path(out_dir)
     upd_path = out_dir / "updated_elements.json"
@@ -252,6 +293,10 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
         if summary.get("effects_replaced_by_learned"):  # the loop alone (base_stage) had them too
             model["base_terms_replaced"] = summary["effects_replaced_by_learned"]
         model["learned_residual"] = learned.to_dict()
+        lr = summary["learned_residual"]   # the family validation chose, by name, and on what it was estimated
+        model["learned_family"] = {"family": lr["family"], "name": lr.get("family_name", lr["family"]),
+                                   "compared": lr.get("families_compared"),
+                                   "estimated_on_checks": (lr.get("shipped") or {}).get("estimated_on_checks")}
         if track:  # the kept learned residual as an MLflow run (training.tracking.log_learned_residual)
             from training.tracking import log_learned_residual
             rid = log_learned_residual(summary["stages"]["learned_residual"], model["learned_residual"],
@@ -261,8 +306,8 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
             model["mlflow_run_id"] = rid
     paths = _write(out_dir, summary, page)
     # the kept stage's elements (the identified ones when the fallback keeps them) and their covariance
-    loop.covariance.save(covariance_path(upd_path))
-    loop.covariance.elements.save(upd_path)
+    ship_cov.save(covariance_path(upd_path))
+    ship_cov.elements.save(upd_path)
     write_json(out_dir / "model.json", model)
     return summary, list(paths) + [upd_path, covariance_path(upd_path), out_dir / "model.json"]
 
