@@ -66,6 +66,7 @@ def real_rows():
                         "cv_h": r["cv_horizon_rms_um"], "cv_h_ols": r["cv_horizon_rms_ols_um"],
                         "cv_n": r["cv_novelty_rms_um"], "cv_n_ols": r["cv_novelty_rms_ols_um"],
                         "band": r["band95_um"], "coverage": r["band_coverage_heldout"],
+                        "halfwidth": r["band_halfwidth_heldout_median_um"],
                         "scale": r["distance_scale"], "rho": r["heldout_rho_median"],
                         "cpu_s": time.process_time() - t0})
     return out
@@ -91,8 +92,8 @@ def sim_one(args):
              "volcomp": r["rms_after_um"], "ols": r["rms_ols_um"],
              "true": _rms(truth["clean_um"][ch][hold] - pred[ch][hold]),
              "true_ols": _rms(truth["clean_um"][ch][hold] - base[ch][hold]), "noise": truth["noise_um"][ch],
-             "coverage": r["band_coverage_heldout"], "scale": r["distance_scale"], "rho": r["heldout_rho_median"],
-             "shifted": shifted, "cpu_s": cpu} for ch, r in rep.items()]
+             "coverage": r["band_coverage_heldout"], "halfwidth": r["band_halfwidth_heldout_median_um"],
+             "scale": r["distance_scale"], "rho": r["heldout_rho_median"], "shifted": shifted, "cpu_s": cpu} for ch, r in rep.items()]
 
 
 def render(real, sims, meta, out):
@@ -117,14 +118,15 @@ def render(real, sims, meta, out):
               "Held-out RMS (μm) of the MEASURED residual on the part after the fit; *OLS*: one least-squares "
               "fit on every temperature + speed on the same fitting rows; *before*: the displacement itself.", "",
               "| split (of the full log) | channel | chosen | s (distance scale) | held-out ρ median | before | "
-              "**volcomp** | OLS | volcomp / OLS | band ± (μm, at ρ ≤ 1) | band coverage held out |", "|" + "---|" * 11]
+              "**volcomp** | OLS | volcomp / OLS | band ± (μm, at ρ ≤ 1) | band ± held out (median μm) | "
+              "band coverage held out |", "|" + "---|" * 12]
         names = {0.6: "fit 0–36 % → judge 36–60 %", 0.8: "fit 0–48 % → judge 48–60 %"}
         for r in real:
             sc = r.get("scale")
             L.append(f"| {names[r['split']]} | {r['channel']} | {r['model']} | {'∞' if sc is None else f'{sc:g}'} | "
                      f"{r.get('rho', float('nan')):.2f} | {r['before']:.3g} | "
                      f"**{r['volcomp']:.3g}** | {r['ols']:.3g} | {r['volcomp'] / r['ols']:.2f} | {r['band']:.3g} | "
-                     f"{r['coverage']:.2f} |")
+                     f"{r.get('halfwidth', float('nan')):.3g} | {r['coverage']:.2f} |")
         worse = [r for r in real if r["volcomp"] > r["ols"] * (1 + 1e-9)]
         L += ["", f"Channels × splits above OLS: {len(worse)} of {len(real)}"
               + (": " + "; ".join(f"{r['channel']} at {r['split']}" for r in worse) if worse else "")
@@ -166,8 +168,8 @@ def sim_section(sims, meta, shifted):
               f"As above but the later part runs as the fitting part did (no speed or ambient shift); fit on the first "
               f"{SIM_SPLIT:.0%}, judged on the rest (what `bench_drift.py` measured before issue 29; folded in here).", ""]
     L += ["| simulator | channel | before | **volcomp** | OLS | ratio median | ratio worst | seeds > OLS·1.05 | "
-          "seeds < OLS | true volcomp / OLS | band coverage held out (median, min) | families chosen |",
-          "|" + "---|" * 12]
+          "seeds < OLS | true volcomp / OLS | band coverage held out (median, min) | band ± held out (median μm) | "
+          "families chosen |", "|" + "---|" * 13]
     bad, med_bad, med_ratio_bad = [], [], []
     for f in dict.fromkeys(r["family"] for r in sims):
         for ch in dict.fromkeys(r["channel"] for r in sims if r["family"] == f):
@@ -188,6 +190,7 @@ def sim_section(sims, meta, shifted):
                      f"{np.median(ratio):.2f} | {max(ratio):.2f} | {len(over)} | {sum(x < 1 for x in ratio)}/{len(c)} | "
                      f"{np.median([r['true'] for r in c]):.3g} / {np.median([r['true_ols'] for r in c]):.3g} | "
                      f"{np.median([r['coverage'] for r in c]):.2f}, {min(r['coverage'] for r in c):.2f} | "
+                     f"{np.median([r.get('halfwidth', float('nan')) for r in c]):.3g} | "
                      f"{', '.join(f'{k} {v}' for k, v in sorted(fams.items()))} |")
     L += ["", f"Seed × channel cases worse than OLS by more than 5 %: {len(bad)} of {len(sims)}"
           + (" (" + "; ".join(f"{r['family']} seed {r['seed']} {r['channel']} {r['model']} "

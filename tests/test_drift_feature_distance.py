@@ -4,6 +4,7 @@ leave its fit range while every raw input stays inside — so a channel's ρ is 
 its features'; the band's scale is a split-conformal quantile of fold residuals; after each Kalman update the
 distance is measured from the fit data plus the measurements seen so far, causally."""
 import numpy as np
+import pytest
 
 from errormap.diagnosis.drift import DriftLog
 from errormap.diagnosis.drift_models import (RANGE_QUANTILE, ChannelFit, DriftModel, Feature, conformal_quantile,
@@ -166,3 +167,49 @@ def test_updated_prediction_up_to_a_row_ignores_later_samples():
     np.testing.assert_allclose(b.pred_um["ch1"][:cut + 1], a.pred_um["ch1"][:cut + 1], atol=CAUSAL_ATOL_UM, rtol=0)
     np.testing.assert_allclose(b.band_um["ch1"][:cut + 1], a.band_um["ch1"][:cut + 1], atol=CAUSAL_ATOL_UM, rtol=0)
     assert np.abs(b.pred_um["ch1"][cut + 1:] - a.pred_um["ch1"][cut + 1:]).max() > 1.0
+
+
+# -- the selection rule: hedged weights, the best worst fold ------------------------------------------------------
+def test_selection_settings_are_checked_before_fitting():
+    from errormap.diagnosis.drift_models import DriftSelector
+    log, _ = _slow_state_log()
+    for kw in ({"selection": "median"}, {"shrink_weights": (1.5,)}, {"shrink_weights": ()}, {"hedge_weight": 0.0},
+               {"confident_worst_fold": 2.0}):
+        with pytest.raises(ValueError, match=next(iter(kw)).split("_")[0]):
+            DriftSelector(**kw).fit(log)
+
+
+def _eligible_keys(sel, ch):
+    names = set(sel.eligible_[ch])
+    out = []
+    for k in sel.candidates_[ch]:
+        f, hy, w = k
+        if f"{f}{'[' + hy + ']' if hy else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})") in names:
+            out.append(k)
+    return out
+
+
+@pytest.mark.slow   # a whole selection on a 46 h log at 120 s (~6 CPU s)
+def test_the_chosen_candidate_is_hedged_and_has_the_best_worst_fold():
+    from errormap.diagnosis.drift_models import CONFIDENT_WORST_FOLD, HEDGE_WEIGHT, DriftSelector
+    from errormap.diagnosis.drift_sim import SIMULATORS
+    cols = SIMULATORS["lumped"](0, dt_s=120.0, shift_at=0.6, n_dropouts=0)
+    cols.pop("_truth")
+    log = DriftLog(cols["time_s"], {k[5:-2]: v for k, v in cols.items() if k.startswith("temp_")},
+                   {k[:-3]: v for k, v in cols.items() if k.endswith("_um")}, cols.get("speed_rpm"), "<sim>")
+    sel = DriftSelector(fit_fraction=0.6).fit(log)
+    picked = 0
+    for ch, (f, hy) in sel.chosen_.items():
+        ok = _eligible_keys(sel, ch)
+        if f == "ols":
+            assert not ok                                  # OLS only where no candidate passed every gate
+            continue
+        picked += 1
+        w = sel.shrink_[ch]
+        worst = {k: sel.candidates_[ch][k]["worst_all"] for k in ok}
+        # more than half the candidate only where it beat OLS by 2× on every fold
+        assert w <= HEDGE_WEIGHT or worst[(f, hy, w)] <= CONFIDENT_WORST_FOLD
+        assert worst[(f, hy, w)] == min(worst.values())    # the eligible candidate of the best worst fold
+        # its worst fold is its largest RMS ratio to OLS over the ranking, horizon and novelty folds
+        assert worst[(f, hy, w)] == max(max(x) for x in sel.candidates_[ch][(f, hy, w)]["fold_ratios"])
+    assert picked                                          # the rule was exercised on this log

@@ -35,8 +35,10 @@ features' distance from the fit data, :meth:`DriftModel.channel_rho`), the updat
 has learned there and is trusted there. The reference (mean and covariance of the fit data, recovered
 from the saved whitening matrix: C = pinv(W·Wᵀ), ``fit_rows`` samples) grows by each measured row's inputs
 after that row's update; the range distance d0 stays the fit data's. The band grows as max(1, ρ) with the
-same ρ (``UpdateResult.band_um``). The baseline itself is not updated. The saved updated model keeps the fit
-data's reference (the measurements are not in it): a later ``--update`` run re-grows it from its own log.
+same ρ (``UpdateResult.band_um``). The baseline is updated from the same measurements by the same filter, so
+the shrinkage blends two current models (a stale baseline would undo, beyond ρ = 1, what the update learned).
+The saved updated model keeps the fit data's reference (the measurements are not in it): a later ``--update``
+run re-grows it from its own log.
 """
 from __future__ import annotations
 
