@@ -77,20 +77,32 @@ RIDGE_OLS_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)   # toward OLS: th
 PLS_MAX_COMPONENTS = 12
 TRANSFER_LAMBDA = 1e-4
 BAND_QUANTILE = 0.95
+BAND_RULE = "fold_residual"   # band95_um = the split-conformal BAND_QUANTILE of |residual| on the horizon and novelty
+#   folds (times max(1, ρ) at prediction: conservative). "rho_scaled": of |residual| / max(1, ρ_fold) — calibrated to
+#   cover BAND_QUANTILE of the fold rows exactly, but measured to cover 1–90 % of the real log's pseudo-futures
+#   (the future's errors outgrow the folds'); both are computed and reported (``band_alt_``), one is the model's
 SUBSET_SEARCH_STEP_S = 60.0                      # the subset search runs on rows ≥ 60 s apart
 SHRINK_WEIGHTS = (1.0, 0.75, 0.5, 0.25)          # candidate weight in a blend w·candidate + (1 − w)·OLS
-HEDGE_WEIGHT = 0.5   # ... but more than half the candidate only where it beat OLS by 2× on EVERY fold (worst fold
-CONFIDENT_WORST_FOLD = 0.5   # RMS ratio ≤ 0.5): a hedge — the blend's error is at most the mean of the two, so a
-#   candidate twice as bad as OLS on the future costs ≤ 1.5× at w = 0.5, one 10 % worse ≤ 1.05×; a full-weight
-#   candidate must be more than twice as bad, relative to OLS, as on its worst validation stretch to lose.
-#   Decided on development seeds 100–104 (both simulators, regime change; 45 channel cases;
-#   benchmarks/drift_dev_results.md): with selection by the worst fold (SELECTION) 4 → 1 case above 1.05× (worst
-#   3.05× → 1.051×), 32 → 35 below OLS, geometric-mean ratio to OLS 0.802 → 0.826 (the exception for 2× winners
-#   changes nothing there; it keeps a dynamic model at full weight where OLS cannot follow the heat path at all)
-SELECTION = "worst_fold"   # among the eligible, the candidate whose WORST validation fold (ranking, horizon, novelty:
-#   RMS ratio to OLS) is best; "mean_gain": the largest mean log-gain (the rule before). The future is treated as
-#   possibly as hard as the hardest stretch the fitting part showed. Development seeds as above: 4 → 2 cases above
-#   1.05× alone, 1 with the weights above
+HEDGE_WEIGHT = 1.0   # a weight above HEDGE_WEIGHT only where every fold's RMS ratio to OLS is ≤ CONFIDENT_WORST_FOLD;
+CONFIDENT_WORST_FOLD = 0.5   # 1.0: no hedge (the default). The hedge (0.5: at most half a candidate unless it beat
+#   OLS by 2× on every fold: the blend's error is at most the mean of the two) with SELECTION = "worst_fold" was
+#   decided on development seeds 100–104 (both simulators, regime change; 45 channel cases;
+#   benchmarks/drift_dev_results.md): 4 → 1 case above 1.05× (worst 3.05× → 1.051×), 32 → 35 below OLS. It is NOT
+#   the default: on the real machine-tool log (fit 0–48 %, judged on 48–60 %) it turned ch1 from 0.41× OLS
+#   (thermal_nn at full weight, worst fold 0.94×) into 1.15× (transfer~ols(w=0.5): the eligible worst folds were
+#   0.87–0.98×, too close to rank by, and the transfer model extrapolated furthest) and ch2 from 0.35× into 0.67×
+SELECTION = "mean_gain"   # among the eligible, the candidate of largest mean log-gain over OLS; "worst_fold": the one
+#   whose WORST validation fold (ranking, horizon, novelty: RMS ratio to OLS) is best (development seeds as above:
+#   4 → 2 cases above 1.05× alone, 1 with the hedge; not the default for the real log's sake, see HEDGE_WEIGHT)
+FEATURE_DISTANCE = False   # ρ also on each candidate's own features (filtered inputs, states, selected sensors), the
+#   larger of the two: a setting, not the default. On the benchmark's simulated logs (13 of 20 run) it fixed the case
+#   it was made for (lumped seed 1 ch2, greybox τ = 3 h: 1.83× → 0.76× OLS) but made others worse (lumped seed 0 ch3
+#   0.89× → 1.06×, seed 4 ch4 1.00× → 1.0497×; the 120 s test log lumped seed 0 ch4: ridge_ols, 1.19×): a candidate's
+#   features are farther out on the folds (small or novel training sets) than on the deployment's held-out part, so
+#   the validation credits the shrinkage more than the deployment gets it (docs/drift_model.md)
+RANKING_FOLD_LOSS = True   # the per-fold loss bound MAX_FOLD_LOSS on the ranking folds too (the last one is the stretch
+#   nearest the future): benchmark rod seed 6 tilt, subset_lag~ols(w=0.25), had every horizon and novelty fold ≤ 1.01×
+#   OLS and its last ranking fold 1.10×; it lost 1.06× on the future
 RANGE_QUANTILE = 0.99   # the fit data's typical range d0: this quantile of its rows' own input distances
 SHRINK_SCALES = (np.inf, 2.0, 1.0, 0.5, 0.25)   # per-sample shrinkage g(ρ) = exp(−(ρ − 1)/s) beyond ρ = d/d0 = 1
                                                 # (inf: none); s chosen per candidate on the novelty folds
@@ -727,23 +739,24 @@ class DriftSelector:
       :func:`novelty_folds`): the blocks of the fitting part whose
       inputs are farthest (Mahalanobis) from the rest, held out.
 
-    Candidates are every family × hyper-parameter shrunk toward OLS (``shrink_weights`` w0; above
-    ``hedge_weight`` only where the worst fold's RMS ratio to OLS is ≤ ``confident_worst_fold``: a hedge),
-    predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the larger of the distance
+    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights`` w0; above
+    ``hedge_weight`` only where the worst fold's RMS ratio to OLS is ≤ ``confident_worst_fold``, a hedge that
+    is off by default), predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the larger of the distance
     of the sample's raw inputs and of the candidate's own features from the training data, each over that
     data's ``RANGE_QUANTILE`` distance, g = :func:`distance_weight` with the
     scale of ``shrink_scales`` of lowest RMS on the novelty folds. A candidate is eligible when it
     (a) scores below OLS on the ranking folds and passes :func:`horizon_gate` against OLS (b) on the
     horizon folds and (c) on the novelty folds, (d) with a mean log-gain ≥ ``min_gain`` on each of (b)
     and (c), and (e) no fold (horizon, novelty, and with ``ranking_fold_loss`` ranking) worse than OLS by
-    more than ``max_fold_loss``; the eligible one whose worst fold (largest RMS ratio to OLS over all
-    three sets) is smallest is returned (``selection="worst_fold"``; ``"mean_gain"``: the largest mean
-    log-gain, the rule before), else the OLS baseline itself. A model that loses to OLS in any of its validations is never returned. Learned
+    more than ``max_fold_loss``; the eligible one of largest mean log-gain over OLS (over the three sets)
+    is returned (``selection="mean_gain"``; ``"worst_fold"``: the one whose worst fold, the largest RMS
+    ratio to OLS over all three sets, is smallest), else the OLS baseline itself. A model that loses to OLS in any of its validations is never returned. Learned
     too: ``scale_`` {channel: s of the chosen}, ``worst_fold_`` {channel: {candidate: worst RMS ratio to
     OLS over the horizon and novelty folds}}.
 
     Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
     ``feature_distance`` (ρ also on the candidate's own features), ``ranking_fold_loss``, ``selection``,
+    ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
     {channel: {candidate: mean log-gain over OLS}}, ``eligible_`` {channel: [candidates passing every gate]},
@@ -759,8 +772,9 @@ class DriftSelector:
                  subset_kw: dict | None = None, horizon: float | None = None, n_horizon_folds: int = 4,
                  gate_se: float = GATE_SE, n_novelty_folds: int = 3, n_novelty_blocks: int = 8,
                  shrink_weights=SHRINK_WEIGHTS, shrink_scales=SHRINK_SCALES, max_fold_loss: float = MAX_FOLD_LOSS,
-                 min_gain: float = MIN_GAIN, feature_distance: bool = True, ranking_fold_loss: bool = True,
-                 selection: str = SELECTION, hedge_weight: float = HEDGE_WEIGHT,
+                 min_gain: float = MIN_GAIN, feature_distance: bool = FEATURE_DISTANCE,
+                 ranking_fold_loss: bool = RANKING_FOLD_LOSS,
+                 selection: str = SELECTION, hedge_weight: float = HEDGE_WEIGHT, band_rule: str = BAND_RULE,
                  confident_worst_fold: float = CONFIDENT_WORST_FOLD):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
@@ -780,6 +794,7 @@ class DriftSelector:
         self.ranking_fold_loss = ranking_fold_loss
         self.selection = selection
         self.hedge_weight = hedge_weight
+        self.band_rule = band_rule
         self.confident_worst_fold = confident_worst_fold
 
     def split(self, log):
@@ -796,6 +811,8 @@ class DriftSelector:
             raise ValueError(f"Expected max_fold_loss >= 1, got {self.max_fold_loss}")
         if np.isnan(self.min_gain):
             raise ValueError("Expected a number for min_gain, got nan")
+        if self.band_rule not in ("fold_residual", "rho_scaled"):
+            raise ValueError(f"Expected band_rule 'fold_residual' or 'rho_scaled', got {self.band_rule!r}")
         if self.selection not in ("worst_fold", "mean_gain"):
             raise ValueError(f"Expected selection 'worst_fold' or 'mean_gain', got {self.selection!r}")
         if not self.shrink_weights or not all(0 < w <= 1 for w in self.shrink_weights):
@@ -839,6 +856,7 @@ class DriftSelector:
         self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
         self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
         self.scale_, self.worst_fold_, self.fold_ratios_, self.fold_rho_, self.candidates_ = {}, {}, {}, {}, {}
+        self.band_alt_ = {}
 
         def rms(x):
             return float(np.sqrt(np.mean(np.square(x))))
@@ -880,13 +898,15 @@ class DriftSelector:
                     worst_all = max(rms(x) / max(rms(y), 1e-300) for x, y in zip(rl + hl + nl, r0 + h0 + n0))
                     rank = rms(r)
                     # band: calibrated on the horizon and novelty folds alone (held-out stretches as long as the
-                    # deployment's, and the most novel ones), as a split-conformal quantile of the score
-                    # |residual| / max(1, ρ) — the same growth max(1, ρ) the band has at prediction — so that the
-                    # band covers BAND_QUANTILE of the fold rows by construction
+                    # deployment's, and the most novel ones), as a split-conformal quantile of |residual|
+                    # ("fold_residual") or of |residual| / max(1, ρ) ("rho_scaled": the same growth max(1, ρ) the
+                    # band has at prediction, so it covers BAND_QUANTILE of the fold rows by construction)
                     zb = np.concatenate([np.abs(x) / np.maximum(1.0, q) for x, q in zip(hl + nl, rho_h + rho_n)])
                     scores[key] = {"ranking": rank, "horizon": rms(np.concatenate(hl)),
                                    "novelty": rms(np.concatenate(nl)) if nfolds else 0.0,
-                                   "band": conformal_quantile(zb, BAND_QUANTILE),
+                                   "band_rho_scaled": conformal_quantile(zb, BAND_QUANTILE),
+                                   "band_fold_residual": conformal_quantile(
+                                       np.abs(np.concatenate(hl + nl)), BAND_QUANTILE),
                                    "scale": sc, "worst_fold": worst, "worst_all": worst_all,
                                    "fold_rho": float(np.quantile(np.concatenate(rho_h + rho_n), 0.95)),
                                    "fold_ratios": ([rms(x) / max(rms(y), 1e-300) for x, y in zip(rl, r0)],
@@ -921,8 +941,10 @@ class DriftSelector:
             self.chosen_[ch] = best[:2]
             self.shrink_[ch] = best[2]
             self.scale_[ch] = scores[best]["scale"]
-            self.band_[ch] = scores[best]["band"]
-            self.band_ols_[ch] = scores[(*base, 1.0)]["band"]
+            alt = "rho_scaled" if self.band_rule == "fold_residual" else "fold_residual"
+            self.band_[ch] = scores[best][f"band_{self.band_rule}"]
+            self.band_alt_[ch] = (alt, scores[best][f"band_{alt}"])
+            self.band_ols_[ch] = scores[(*base, 1.0)][f"band_{self.band_rule}"]
         final = {}
         for fam in fams:
             need = [ch for ch in chans if self.chosen_[ch][0] == fam.name or fam.name == "ols"]
@@ -997,6 +1019,8 @@ class DriftSelector:
             w = self.shrink_[ch]
             name = f"{f}{'[' + h + ']' if h else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
             band = self.model_.channels[ch].band95_um
+            alt_band = self.band_alt_[ch][1] * (np.ones(len(log.time_s)) if rhos[ch] is None
+                                                else np.maximum(1.0, rhos[ch]))
 
             def rms(v):
                 return float(np.sqrt(np.mean(v**2)))
@@ -1017,7 +1041,11 @@ class DriftSelector:
                        "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
                        "heldout_rho_median": None if rhos[ch] is None else float(np.median(rhos[ch][hold])),
                        "band95_um": band, "band_coverage_heldout": float(np.mean(np.abs(a) <= bands[ch][hold])),
-                       "band_halfwidth_heldout_median_um": float(np.median(bands[ch][hold]))}
+                       "band_halfwidth_heldout_median_um": float(np.median(bands[ch][hold])),
+                       "band_rule": self.band_rule, "band_alt_rule": self.band_alt_[ch][0],
+                       "band_alt95_um": self.band_alt_[ch][1],
+                       "band_alt_coverage_heldout": float(np.mean(np.abs(a) <= alt_band[hold])),
+                       "band_alt_halfwidth_heldout_median_um": float(np.median(alt_band[hold]))}
         return out
 
 
