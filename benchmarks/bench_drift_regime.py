@@ -107,9 +107,9 @@ def render(real, sims, meta, out):
          + ("; INTERRUPTED at the deadline: rendered from the parts that finished" if meta.get("interrupted") else "")
          + ".", ""]
     L += ["Selection rule (docs/drift_model.md): a candidate — a family, or a family shrunk toward OLS, "
-          "predicting OLS + w0·g(ρ)·(candidate − OLS) per sample (w0 ∈ 1, 0.75, 0.5, 0.25; ρ = the larger of the distance of the sample's raw "
-          "inputs and of the candidate's own features (filtered inputs, states, selected sensors) from the fit "
-          "data, each over the fit data's 99th-percentile distance; g = 1 for ρ ≤ 1, exp(−(ρ − 1)/s) beyond, s "
+          "predicting OLS + w0·g(ρ)·(candidate − OLS) per sample (w0 ∈ 1, 0.75, 0.5, 0.25; ρ = the distance of the sample's raw inputs from the "
+          "fit data over the fit data's 99th-percentile distance — on the candidate's own features too only as a "
+          "setting, not the default; g = 1 for ρ ≤ 1, exp(−(ρ − 1)/s) beyond, s "
           "chosen on the novelty folds) — is eligible only when it is below OLS on the ranking folds AND beats OLS "
           "by more than one standard error on the horizon folds AND on the novelty folds (the most novel blocks of "
           "the fitting part by Mahalanobis distance of the standardised inputs, held out), by at least 5 % on "
