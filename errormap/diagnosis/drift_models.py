@@ -77,8 +77,33 @@ RIDGE_OLS_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)   # toward OLS: th
 PLS_MAX_COMPONENTS = 12
 TRANSFER_LAMBDA = 1e-4
 BAND_QUANTILE = 0.95
+BAND_RULE = "fold_residual"   # band95_um = the split-conformal BAND_QUANTILE of |residual| on the horizon and novelty
+#   folds (times max(1, ρ) at prediction: conservative). "rho_scaled": of |residual| / max(1, ρ_fold) — calibrated to
+#   cover BAND_QUANTILE of the fold rows exactly, but measured to cover 1–90 % of the real log's pseudo-futures
+#   (the future's errors outgrow the folds'); both are computed and reported (``band_alt_``), one is the model's
 SUBSET_SEARCH_STEP_S = 60.0                      # the subset search runs on rows ≥ 60 s apart
 SHRINK_WEIGHTS = (1.0, 0.75, 0.5, 0.25)          # candidate weight in a blend w·candidate + (1 − w)·OLS
+HEDGE_WEIGHT = 1.0   # a weight above HEDGE_WEIGHT only where every fold's RMS ratio to OLS is ≤ CONFIDENT_WORST_FOLD;
+CONFIDENT_WORST_FOLD = 0.5   # 1.0: no hedge (the default). The hedge (0.5: at most half a candidate unless it beat
+#   OLS by 2× on every fold: the blend's error is at most the mean of the two) with SELECTION = "worst_fold" was
+#   decided on development seeds 100–104 (both simulators, regime change; 45 channel cases;
+#   benchmarks/drift_dev_results.md): 4 → 1 case above 1.05× (worst 3.05× → 1.051×), 32 → 35 below OLS. It is NOT
+#   the default: on the real machine-tool log (fit 0–48 %, judged on 48–60 %) it turned ch1 from 0.41× OLS
+#   (thermal_nn at full weight, worst fold 0.94×) into 1.15× (transfer~ols(w=0.5): the eligible worst folds were
+#   0.87–0.98×, too close to rank by, and the transfer model extrapolated furthest) and ch2 from 0.35× into 0.67×
+SELECTION = "mean_gain"   # among the eligible, the candidate of largest mean log-gain over OLS; "worst_fold": the one
+#   whose WORST validation fold (ranking, horizon, novelty: RMS ratio to OLS) is best (development seeds as above:
+#   4 → 2 cases above 1.05× alone, 1 with the hedge; not the default for the real log's sake, see HEDGE_WEIGHT)
+FEATURE_DISTANCE = False   # ρ also on each candidate's own features (filtered inputs, states, selected sensors), the
+#   larger of the two: a setting, not the default. On the benchmark's simulated logs (13 of 20 run) it fixed the case
+#   it was made for (lumped seed 1 ch2, greybox τ = 3 h: 1.83× → 0.76× OLS; the default now gets 0.76× there too, by
+#   RANKING_FOLD_LOSS) but made others worse (lumped seed 0 ch3
+#   0.89× → 1.06×, seed 4 ch4 1.00× → 1.0497×; the 120 s test log lumped seed 0 ch4: ridge_ols, 1.19×): a candidate's
+#   features are farther out on the folds (small or novel training sets) than on the deployment's held-out part, so
+#   the validation credits the shrinkage more than the deployment gets it (docs/drift_model.md)
+RANKING_FOLD_LOSS = True   # the per-fold loss bound MAX_FOLD_LOSS on the ranking folds too (the last one is the stretch
+#   nearest the future): benchmark rod seed 6 tilt, subset_lag~ols(w=0.25), had every horizon and novelty fold ≤ 1.01×
+#   OLS and its last ranking fold 1.10×; it lost 1.06× on the future
 RANGE_QUANTILE = 0.99   # the fit data's typical range d0: this quantile of its rows' own input distances
 SHRINK_SCALES = (np.inf, 2.0, 1.0, 0.5, 0.25)   # per-sample shrinkage g(ρ) = exp(−(ρ − 1)/s) beyond ρ = d/d0 = 1
                                                 # (inf: none); s chosen per candidate on the novelty folds
@@ -435,6 +460,8 @@ class ChannelFit:
     band95_um: float = float("nan")
     base: tuple | None = None          # (features, intercept, coef) of the OLS baseline the prediction shrinks toward
     shrink_scale: float = float("inf")  # g(ρ) = exp(−(ρ − 1)/shrink_scale) beyond ρ = 1; inf: no per-sample shrinkage
+    novelty: dict | None = None         # the distance on the channel's OWN features (:func:`feature_novelty`): ρ of the
+                                        # channel = max(ρ of the raw inputs, ρ of these features)
 
 
 class DriftModel:
@@ -448,13 +475,28 @@ class DriftModel:
     def features(self) -> list:
         seen = {}
         for c in self.channels.values():
-            for f in list(c.features) + (list(c.base[0]) if c.base is not None else []):
+            for f in list(c.features) + (list(c.base[0]) if c.base is not None else []) + \
+                    (list(c.novelty["features"]) if c.novelty else []):
                 seen.setdefault(f.key, f)
         return list(seen.values())
 
     def rho(self, log) -> np.ndarray | None:
-        """ρ (n,) of every row of ``log`` (distance of its inputs from the fit data / d0), or None."""
+        """ρ (n,) of every row of ``log`` (distance of its raw inputs from the fit data / d0), or None."""
         return input_rho(self, log)
+
+    def channel_rho(self, log, cache: dict | None = None) -> dict:
+        """{channel: ρ (n,) or None}: the larger of the raw inputs' ρ (:meth:`rho`) and the ρ of the channel's own
+        features (``ChannelFit.novelty``: its filtered inputs / states, its selected sensors), row by row (causal)."""
+        raw = self.rho(log)
+        cache = {} if cache is None else cache
+        out = {}
+        for ch, c in self.channels.items():
+            r = raw
+            if c.novelty:
+                rf = novelty_rho(c.novelty, feature_matrix(log, c.novelty["features"], cache))
+                r = rf if r is None else np.maximum(r, rf)
+            out[ch] = r
+        return out
 
     @property
     def inputs(self) -> list:
@@ -472,21 +514,22 @@ class DriftModel:
         cache = {} if cache is None else cache
         out = {ch: c.intercept_um + feature_matrix(log, c.features, cache) @ c.coef for ch, c in self.channels.items()}
         if distance_shrink and any(c.base is not None and np.isfinite(c.shrink_scale) for c in self.channels.values()):
-            rho = self.rho(log)
-            if rho is not None:
-                for ch, c in self.channels.items():
-                    if c.base is not None and np.isfinite(c.shrink_scale):
-                        bf, ba, bc = c.base
-                        b = ba + feature_matrix(log, bf, cache) @ np.asarray(bc)
-                        out[ch] = b + distance_weight(rho, c.shrink_scale) * (out[ch] - b)
+            rhos = self.channel_rho(log, cache)
+            for ch, c in self.channels.items():
+                rho = rhos[ch]
+                if rho is not None and c.base is not None and np.isfinite(c.shrink_scale):
+                    bf, ba, bc = c.base
+                    b = ba + feature_matrix(log, bf, cache) @ np.asarray(bc)
+                    out[ch] = b + distance_weight(rho, c.shrink_scale) * (out[ch] - b)
         return out
 
-    def band_um(self, log) -> dict:
-        """The 95 % band half-width per row {channel: (n,) μm}: ``band95_um · max(1, ρ)`` (constant where the
-        model records no distance)."""
-        rho = self.rho(log)
-        g = np.ones(len(log.time_s)) if rho is None else np.maximum(1.0, rho)
-        return {ch: c.band95_um * g for ch, c in self.channels.items()}
+    def band_um(self, log, cache: dict | None = None) -> dict:
+        """The 95 % band half-width per row {channel: (n,) μm}: ``band95_um · max(1, ρ)`` with the channel's ρ
+        (:meth:`channel_rho`; constant where the model records no distance)."""
+        rhos = self.channel_rho(log, cache)
+        one = np.ones(len(log.time_s))
+        return {ch: c.band95_um * (one if rhos[ch] is None else np.maximum(1.0, rhos[ch]))
+                for ch, c in self.channels.items()}
 
     # -- controller form --------------------------------------------------------------------
     def to_json(self) -> dict:
@@ -518,7 +561,15 @@ class DriftModel:
                "terms": [{"feature": ids[f.key], "coef": float(b), "unit": f.unit()} for f, b in zip(c.features, c.coef)],
                "band95_um": c.band95_um,
                "band_rule": "band(t) = band95_um * max(1, rho(t)); rho = Mahalanobis distance of the inputs at t "
-                            "from the fitting data (fitted_on.novelty) / fitted_on.novelty.range_distance"}
+                            "from the fitting data (fitted_on.novelty) / fitted_on.novelty.range_distance; where the "
+                            "channel has feature_distance, rho = max(that, the same distance of its listed features)"}
+        if c.novelty:
+            nv = c.novelty
+            out["feature_distance"] = {
+                "rule": "rho_features(t) = norm((f(t) - mean) @ whiten) / range_distance over the listed features f "
+                        "(the channel's own filtered inputs); the channel's rho = max(rho_inputs, rho_features)",
+                "features": [ids[f.key] for f in nv["features"]], "mean": np.asarray(nv["mean"], float).tolist(),
+                "whiten": np.asarray(nv["whiten"], float).tolist(), "range_distance": float(nv["range_distance"])}
         if c.base is not None and np.isfinite(c.shrink_scale):
             bf, ba, bc = c.base
             out["distance_shrink"] = {
@@ -569,9 +620,19 @@ class DriftModel:
                         raise ValueError(f"distance_shrink.scale must be > 0, got {scale}")
                     base = ([feats[t["feature"]] for t in ds["base"]["terms"]], float(ds["base"]["intercept_um"]),
                             np.array([float(t["coef"]) for t in ds["base"]["terms"]]))
+                nv = None
+                if c.get("feature_distance") is not None:
+                    fd = c["feature_distance"]
+                    nf = [feats[i] for i in fd["features"]]
+                    Wf = np.array(fd["whiten"], float).reshape(len(nf), -1)
+                    mf = np.array(fd["mean"], float)
+                    d0 = float(fd["range_distance"])
+                    if mf.shape != (len(nf),) or not d0 > 0:
+                        raise ValueError("feature_distance: expected one mean per feature and range_distance > 0")
+                    nv = {"features": nf, "mean": mf, "whiten": Wf, "range_distance": d0}
                 chans[ch] = ChannelFit(c.get("family", ""), c.get("hyper", ""), fl, float(c["intercept_um"]),
                                        np.array([float(t["coef"]) for t in terms]), float(c.get("band95_um") or "nan"),
-                                       base, scale)
+                                       base, scale, nv)
             except (KeyError, TypeError, ValueError) as exc:
                 raise InputError(f"{path}: key 'channels.{ch}': expected intercept_um and terms "
                                  f"[{{feature, coef}}] naming listed features ({exc!r})") from None
@@ -631,8 +692,10 @@ def horizon_folds(n_fit: int, horizon: float, n_folds: int = 4, start: float = 0
     return out
 
 
-def cv_residuals(log: DriftLog, families, channels, folds, cache: dict, errors: list | None = None) -> dict:
+def cv_residuals(log: DriftLog, families, channels, folds, cache: dict, errors: list | None = None,
+                 features: dict | None = None) -> dict:
     """Validation residuals of every candidate on every fold: {(channel, family, hyper): [(len(va),) per fold]}.
+    ``features`` (a dict, filled when given): {(channel, family, hyper): [the candidate's features per fold]}.
 
     A family that cannot fit a fold (``ValueError``) drops out of it (its message goes to ``errors``);
     a candidate missing from any fold is incomplete and must not be scored."""
@@ -649,6 +712,8 @@ def cv_residuals(log: DriftLog, families, channels, folds, cache: dict, errors: 
                 y = log.disp_um[ch][va]
                 for h, (feats, a, b) in hyp.items():
                     resid.setdefault((ch, fam.name, h), []).append(y - a - feature_matrix(log, feats, cache)[va] @ b)
+                    if features is not None:
+                        features.setdefault((ch, fam.name, h), []).append(list(feats))
     return resid
 
 
@@ -675,19 +740,24 @@ class DriftSelector:
       :func:`novelty_folds`): the blocks of the fitting part whose
       inputs are farthest (Mahalanobis) from the rest, held out.
 
-    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights`` w0),
-    predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the distance of the sample's inputs from
-    the training data / that data's ``RANGE_QUANTILE`` distance, g = :func:`distance_weight` with the
+    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights`` w0; above
+    ``hedge_weight`` only where the worst fold's RMS ratio to OLS is ≤ ``confident_worst_fold``, a hedge that
+    is off by default), predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the larger of the distance
+    of the sample's raw inputs and of the candidate's own features from the training data, each over that
+    data's ``RANGE_QUANTILE`` distance, g = :func:`distance_weight` with the
     scale of ``shrink_scales`` of lowest RMS on the novelty folds. A candidate is eligible when it
     (a) scores below OLS on the ranking folds and passes :func:`horizon_gate` against OLS (b) on the
     horizon folds and (c) on the novelty folds, (d) with a mean log-gain ≥ ``min_gain`` on each of (b)
-    and (c), and (e) no horizon or novelty fold worse than OLS by more than ``max_fold_loss``; the
-    eligible one of largest mean log-gain over OLS (over the three sets) is returned, else the OLS
-    baseline itself. A model that loses to OLS in any of its validations is never returned. Learned
+    and (c), and (e) no fold (horizon, novelty, and with ``ranking_fold_loss`` ranking) worse than OLS by
+    more than ``max_fold_loss``; the eligible one of largest mean log-gain over OLS (over the three sets)
+    is returned (``selection="mean_gain"``; ``"worst_fold"``: the one whose worst fold, the largest RMS
+    ratio to OLS over all three sets, is smallest), else the OLS baseline itself. A model that loses to OLS in any of its validations is never returned. Learned
     too: ``scale_`` {channel: s of the chosen}, ``worst_fold_`` {channel: {candidate: worst RMS ratio to
     OLS over the horizon and novelty folds}}.
 
     Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
+    ``feature_distance`` (ρ also on the candidate's own features), ``ranking_fold_loss``, ``selection``,
+    ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
     {channel: {candidate: mean log-gain over OLS}}, ``eligible_`` {channel: [candidates passing every gate]},
@@ -695,14 +765,18 @@ class DriftSelector:
     Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}} (ranking folds),
     ``cv_horizon_`` {channel: {candidate: RMS μm}} (horizon folds), ``gate_`` {channel: {candidate:
     (passes, mean log gain, its se)}}, ``chosen_`` {channel: candidate}, ``baseline_`` (the OLS
-    :class:`DriftModel`), ``subset_modeller_``.
+    :class:`DriftModel`), ``subset_modeller_``, ``candidates_`` {channel: {(family, hyper, w0): every
+    validation statistic of the candidate}}.
     """
 
     def __init__(self, fit_fraction: float = 0.6, n_folds: int = 4, cv_start: float = 0.5, families=None,
                  subset_kw: dict | None = None, horizon: float | None = None, n_horizon_folds: int = 4,
                  gate_se: float = GATE_SE, n_novelty_folds: int = 3, n_novelty_blocks: int = 8,
                  shrink_weights=SHRINK_WEIGHTS, shrink_scales=SHRINK_SCALES, max_fold_loss: float = MAX_FOLD_LOSS,
-                 min_gain: float = MIN_GAIN):
+                 min_gain: float = MIN_GAIN, feature_distance: bool = FEATURE_DISTANCE,
+                 ranking_fold_loss: bool = RANKING_FOLD_LOSS,
+                 selection: str = SELECTION, hedge_weight: float = HEDGE_WEIGHT, band_rule: str = BAND_RULE,
+                 confident_worst_fold: float = CONFIDENT_WORST_FOLD):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
@@ -717,6 +791,12 @@ class DriftSelector:
         self.shrink_scales = shrink_scales
         self.max_fold_loss = max_fold_loss
         self.min_gain = min_gain
+        self.feature_distance = feature_distance
+        self.ranking_fold_loss = ranking_fold_loss
+        self.selection = selection
+        self.hedge_weight = hedge_weight
+        self.band_rule = band_rule
+        self.confident_worst_fold = confident_worst_fold
 
     def split(self, log):
         n = len(log.time_s)
@@ -732,6 +812,15 @@ class DriftSelector:
             raise ValueError(f"Expected max_fold_loss >= 1, got {self.max_fold_loss}")
         if np.isnan(self.min_gain):
             raise ValueError("Expected a number for min_gain, got nan")
+        if self.band_rule not in ("fold_residual", "rho_scaled"):
+            raise ValueError(f"Expected band_rule 'fold_residual' or 'rho_scaled', got {self.band_rule!r}")
+        if self.selection not in ("worst_fold", "mean_gain"):
+            raise ValueError(f"Expected selection 'worst_fold' or 'mean_gain', got {self.selection!r}")
+        if not self.shrink_weights or not all(0 < w <= 1 for w in self.shrink_weights):
+            raise ValueError(f"Expected shrink_weights in (0, 1], got {self.shrink_weights}")
+        if not 0 < self.hedge_weight <= 1 or not 0 < self.confident_worst_fold <= 1:
+            raise ValueError(f"Expected hedge_weight and confident_worst_fold in (0, 1], got {self.hedge_weight}, "
+                             f"{self.confident_worst_fold}")
         fams = self.families or default_families(self.subset_kw)
         fit, _ = self.split(log)
         chans = list(log.disp_um)
@@ -743,18 +832,32 @@ class DriftSelector:
         nfolds, self.novelty_ = novelty_folds(U, self.n_novelty_blocks, self.n_novelty_folds) \
             if self.n_novelty_folds else ([], np.zeros(0))
         self.fold_errors_ = []
-        resid = cv_residuals(log, fams, chans, folds, cache, self.fold_errors_)
-        hresid = cv_residuals(log, fams, chans, hfolds, cache, self.fold_errors_)
-        nresid = cv_residuals(log, fams, chans, nfolds, cache, self.fold_errors_)
-        # ρ of every validation row from its fold's training rows (the per-sample shrinkage and the band grow with it)
-        rho_r = [relative_distance(U[tr], U[va]) for tr, va in folds]
-        rho_h = [relative_distance(U[tr], U[va]) for tr, va in hfolds]
-        rho_n = [relative_distance(U[tr], U[va]) for tr, va in nfolds]
-        gw = {id(rs): {sc: [distance_weight(q, sc) for q in rs] for sc in self.shrink_scales}
-              for rs in (rho_r, rho_h, rho_n)}
+        fr, fh, fn = {}, {}, {}
+        resid = cv_residuals(log, fams, chans, folds, cache, self.fold_errors_, fr)
+        hresid = cv_residuals(log, fams, chans, hfolds, cache, self.fold_errors_, fh)
+        nresid = cv_residuals(log, fams, chans, nfolds, cache, self.fold_errors_, fn)
+        # ρ of every validation row from its fold's training rows (the per-sample shrinkage and the band grow with it):
+        # the raw inputs' ρ, and per candidate the larger of it and the ρ of the candidate's OWN features (its filtered
+        # inputs / states, its selected sensors): a model extrapolates in what it computes from, not only in the raw inputs
+        raw_rho = {id(fs): [relative_distance(U[tr], U[va]) for tr, va in fs] for fs in (folds, hfolds, nfolds)}
+        frho_cache = {}
+
+        def cand_rho(fs, featlists):
+            out = []
+            for i, ((tr, va), feats) in enumerate(zip(fs, featlists)):
+                r = raw_rho[id(fs)][i]
+                if self.feature_distance and feats:
+                    key = (id(fs), i, tuple(f.key for f in feats))
+                    if key not in frho_cache:
+                        F = feature_matrix(log, feats, cache)
+                        frho_cache[key] = np.maximum(r, relative_distance(F[tr], F[va]))
+                    r = frho_cache[key]
+                out.append(r)
+            return out
         self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
         self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
-        self.scale_, self.worst_fold_ = {}, {}
+        self.scale_, self.worst_fold_, self.fold_ratios_, self.fold_rho_, self.candidates_ = {}, {}, {}, {}, {}
+        self.band_alt_ = {}
 
         def rms(x):
             return float(np.sqrt(np.mean(np.square(x))))
@@ -767,12 +870,15 @@ class DriftSelector:
             r0, h0, n0 = resid[(ch, *base)], hresid[(ch, *base)], nresid[(ch, *base)]
             scores, gate = {}, {}
             for k in full:
+                rho_r = cand_rho(folds, fr[(ch, *k)])
+                rho_h = cand_rho(hfolds, fh[(ch, *k)])
+                rho_n = cand_rho(nfolds, fn[(ch, *k)])
                 for w in ((1.0,) if k == base else self.shrink_weights):
                     def blend(a, b, rhos, s):
                         # per sample: OLS + w·g(ρ)·(candidate − OLS)
                         if not np.isfinite(s):
                             return [y + w * (x - y) for x, y in zip(a, b)]
-                        return [y + w * g * (x - y) for x, y, g in zip(a, b, gw[id(rhos)][s])]
+                        return [y + w * distance_weight(q, s) * (x - y) for x, y, q in zip(a, b, rhos)]
                     # g's scale: the one of lowest RMS on the novelty folds (ties: the least shrinkage)
                     sc = np.inf
                     if nfolds and k != base:
@@ -786,24 +892,38 @@ class DriftSelector:
                     gh = horizon_gate([rms(x) for x in h0], [rms(x) for x in hl], self.gate_se)
                     gn = horizon_gate([rms(x) for x in n0], [rms(x) for x in nl], self.gate_se) \
                         if nfolds else (True, 0.0, 0.0)
-                    worst = max(rms(x) / max(rms(y), 1e-300) for x, y in zip(hl + nl, h0 + n0))
+                    # the per-fold loss bound: on every horizon and novelty fold, and (``ranking_fold_loss``) on every
+                    # ranking fold too — the last ranking fold is the stretch nearest the future
+                    lr, l0 = (rl + hl + nl, r0 + h0 + n0) if self.ranking_fold_loss else (hl + nl, h0 + n0)
+                    worst = max(rms(x) / max(rms(y), 1e-300) for x, y in zip(lr, l0))
+                    worst_all = max(rms(x) / max(rms(y), 1e-300) for x, y in zip(rl + hl + nl, r0 + h0 + n0))
                     rank = rms(r)
-                    # band: 95th percentile of |residual| on the horizon and novelty folds (held-out stretches as
-                    # long as the deployment's, and the most novel ones); at prediction it grows as max(1, ρ).
-                    # Not divided by the folds' own ρ: that made the band smaller than the folds' errors
-                    # (measured: 1 % held-out coverage on the real log's ch1/ch2 at its 36 % split)
-                    zb = [np.abs(x) for x in hl + nl]
+                    # band: calibrated on the horizon and novelty folds alone (held-out stretches as long as the
+                    # deployment's, and the most novel ones), as a split-conformal quantile of |residual|
+                    # ("fold_residual") or of |residual| / max(1, ρ) ("rho_scaled": the same growth max(1, ρ) the
+                    # band has at prediction, so it covers BAND_QUANTILE of the fold rows by construction)
+                    zb = np.concatenate([np.abs(x) / np.maximum(1.0, q) for x, q in zip(hl + nl, rho_h + rho_n)])
                     scores[key] = {"ranking": rank, "horizon": rms(np.concatenate(hl)),
                                    "novelty": rms(np.concatenate(nl)) if nfolds else 0.0,
-                                   "band": float(np.quantile(np.concatenate(zb), BAND_QUANTILE)),
-                                   "scale": sc, "worst_fold": worst,
+                                   "band_rho_scaled": conformal_quantile(zb, BAND_QUANTILE),
+                                   "band_fold_residual": conformal_quantile(
+                                       np.abs(np.concatenate(hl + nl)), BAND_QUANTILE),
+                                   "scale": sc, "worst_fold": worst, "worst_all": worst_all,
+                                   "fold_rho": float(np.quantile(np.concatenate(rho_h + rho_n), 0.95)),
+                                   "fold_ratios": ([rms(x) / max(rms(y), 1e-300) for x, y in zip(rl, r0)],
+                                                   [rms(x) / max(rms(y), 1e-300) for x, y in zip(hl, h0)],
+                                                   [rms(x) / max(rms(y), 1e-300) for x, y in zip(nl, n0)]),
                                    "gain": (np.log(rms(np.concatenate(r0)) / rank) + gh[1] + gn[1]) / (3 if nfolds else 2)}
                     gate[key] = (gh, gn)
             r_ols = scores[(*base, 1.0)]["ranking"]
             ok = [k for k in scores if k[0] != "ols" and scores[k]["ranking"] < r_ols and gate[k][0][0] and gate[k][1][0]
                   and scores[k]["worst_fold"] <= self.max_fold_loss
+                  and (k[2] <= self.hedge_weight or scores[k]["worst_all"] <= self.confident_worst_fold)
                   and gate[k][0][1] >= self.min_gain and (not nfolds or gate[k][1][1] >= self.min_gain)]
-            best = max(ok, key=lambda k: scores[k]["gain"]) if ok else (*base, 1.0)
+            if self.selection == "worst_fold":     # the best worst fold (ties: the larger mean gain)
+                best = min(ok, key=lambda k: (scores[k]["worst_all"], -scores[k]["gain"])) if ok else (*base, 1.0)
+            else:
+                best = max(ok, key=lambda k: scores[k]["gain"]) if ok else (*base, 1.0)
 
             def name(k):
                 f, hy, w = k
@@ -815,12 +935,17 @@ class DriftSelector:
                               for k, g in gate.items()}
             self.gain_[ch] = {name(k): float(s["gain"]) for k, s in scores.items()}
             self.worst_fold_[ch] = {name(k): float(s["worst_fold"]) for k, s in scores.items()}
+            self.fold_ratios_[ch] = {name(k): s["fold_ratios"] for k, s in scores.items()}
+            self.fold_rho_[ch] = {name(k): s["fold_rho"] for k, s in scores.items()}
+            self.candidates_[ch] = {k: dict(s, gate=gate[k]) for k, s in scores.items()}
             self.eligible_[ch] = sorted(name(k) for k in ok)
             self.chosen_[ch] = best[:2]
             self.shrink_[ch] = best[2]
             self.scale_[ch] = scores[best]["scale"]
-            self.band_[ch] = scores[best]["band"]
-            self.band_ols_[ch] = scores[(*base, 1.0)]["band"]
+            alt = "rho_scaled" if self.band_rule == "fold_residual" else "fold_residual"
+            self.band_[ch] = scores[best][f"band_{self.band_rule}"]
+            self.band_alt_[ch] = (alt, scores[best][f"band_{alt}"])
+            self.band_ols_[ch] = scores[(*base, 1.0)][f"band_{self.band_rule}"]
         final = {}
         for fam in fams:
             need = [ch for ch in chans if self.chosen_[ch][0] == fam.name or fam.name == "ols"]
@@ -832,11 +957,17 @@ class DriftSelector:
         dval = [mahalanobis(U[va], *whitener(U[tr])) for tr, va in nfolds]
         temps, speed = _inputs(log, fit)
         meta = {"log": str(log.path), "fit_rows": int(len(fit)), "fit_until_s": float(log.time_s[fit[-1]]),
-                "selection": f"rolling-origin CV on the fitting part: the candidate (a family, or a family shrunk "
-                             f"toward OLS) of largest mean log-gain over OLS that is below OLS on {len(folds)} ranking "
-                             f"folds and beats OLS by > {self.gate_se:g} SE on {len(hfolds)} horizon folds (horizon "
+                "selection": f"rolling-origin CV on the fitting part: the candidate (a family blended with OLS, "
+                             f"weight {', '.join(f'{w:g}' for w in self.shrink_weights)}; above "
+                             f"{self.hedge_weight:g} only where every fold's RMS is ≤ {self.confident_worst_fold:g}× "
+                             f"OLS's) "
+                             + ("whose worst fold (RMS ratio to OLS) is smallest" if self.selection == "worst_fold"
+                                else "of largest mean log-gain over OLS")
+                             + f" among those below OLS on {len(folds)} ranking "
+                             f"folds that beat OLS by > {self.gate_se:g} SE on {len(hfolds)} horizon folds (horizon "
                              f"{h:.3g}) and on {len(nfolds)} novelty folds (the most novel blocks of the fitting "
-                             "part, held out); else OLS",
+                             f"part, held out), with no fold worse than OLS by more than {self.max_fold_loss:g}×; "
+                             "else OLS",
                 "novelty": {"inputs": temps + (["speed_rpm"] if speed else []), "mean": mu.tolist(),
                             "whiten": W.tolist(),
                             "validated_distance": float(np.quantile(np.concatenate(dval), 0.9)) if dval else None,
@@ -852,9 +983,12 @@ class DriftSelector:
                 feats, a, b = _merge(list(feats) + list(fo), w * a + (1 - w) * ao,
                                      np.concatenate([w * np.asarray(b), (1 - w) * np.asarray(bo)]))
             sc = self.scale_[ch]
+            own = final[f][ch][hy][0]
+            nv = feature_novelty(own, feature_matrix(log, own, cache)[fit]) \
+                if self.feature_distance and f != "ols" and own else None
             chosen[ch] = ChannelFit(f, hy if w == 1.0 else f"{hy}{';' if hy else ''}shrink_to_ols_w={w:g}", feats, a,
                                     np.asarray(b), self.band_[ch], base=final["ols"][ch][""] if np.isfinite(sc) else None,
-                                    shrink_scale=float(sc))
+                                    shrink_scale=float(sc), novelty=nv)
         self.model_ = DriftModel(chosen, meta)
         self.baseline_ = DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch])
                                      for ch in chans}, meta)
@@ -875,8 +1009,8 @@ class DriftSelector:
         _, hold = self.split(log)
         pred = self.model_.predict(log, self.cache_)
         base = self.baseline_.predict(log, self.cache_)
-        bands = self.model_.band_um(log)
-        rho = self.model_.rho(log)
+        bands = self.model_.band_um(log, self.cache_)
+        rhos = self.model_.channel_rho(log, self.cache_)
         out = {}
         for ch in self.model_.channels:
             d = log.disp_um[ch][hold]
@@ -886,6 +1020,8 @@ class DriftSelector:
             w = self.shrink_[ch]
             name = f"{f}{'[' + h + ']' if h else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
             band = self.model_.channels[ch].band95_um
+            alt_band = self.band_alt_[ch][1] * (np.ones(len(log.time_s)) if rhos[ch] is None
+                                                else np.maximum(1.0, rhos[ch]))
 
             def rms(v):
                 return float(np.sqrt(np.mean(v**2)))
@@ -904,8 +1040,13 @@ class DriftSelector:
                        "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
                        "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
                        "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
-                       "heldout_rho_median": None if rho is None else float(np.median(rho[hold])),
-                       "band95_um": band, "band_coverage_heldout": float(np.mean(np.abs(a) <= bands[ch][hold]))}
+                       "heldout_rho_median": None if rhos[ch] is None else float(np.median(rhos[ch][hold])),
+                       "band95_um": band, "band_coverage_heldout": float(np.mean(np.abs(a) <= bands[ch][hold])),
+                       "band_halfwidth_heldout_median_um": float(np.median(bands[ch][hold])),
+                       "band_rule": self.band_rule, "band_alt_rule": self.band_alt_[ch][0],
+                       "band_alt95_um": self.band_alt_[ch][1],
+                       "band_alt_coverage_heldout": float(np.mean(np.abs(a) <= alt_band[hold])),
+                       "band_alt_halfwidth_heldout_median_um": float(np.median(alt_band[hold]))}
         return out
 
 
@@ -1095,6 +1236,16 @@ def mahalanobis(U, mu, W) -> np.ndarray:
     return np.linalg.norm((U - mu) @ W, axis=1)
 
 
+def conformal_quantile(scores, level: float) -> float:
+    """Split-conformal quantile of ``scores`` (n,): the ⌈(n + 1)·level⌉-th smallest (the largest when that
+    exceeds n), so that a new exchangeable score falls at or below it with probability ≥ ``level``."""
+    z = np.sort(np.asarray(scores, float).ravel())
+    if not z.size:
+        return float("nan")
+    k = int(np.ceil((z.size + 1) * level))
+    return float(z[min(k, z.size) - 1])
+
+
 def distance_weight(rho, scale: float) -> np.ndarray:
     """g(ρ) (n,) of the per-sample shrinkage toward OLS: 1 for ρ = d/d0 ≤ 1 (inside the fit data's typical
     range), exp(−(ρ − 1)/scale) beyond; ``scale`` = inf keeps 1 everywhere. Monotone non-increasing in ρ."""
@@ -1110,6 +1261,20 @@ def relative_distance(U_train, U_new) -> np.ndarray:
     mu, W = whitener(U_train)
     d0 = float(np.quantile(mahalanobis(U_train, mu, W), RANGE_QUANTILE))
     return mahalanobis(U_new, mu, W) / max(d0, 1e-12)
+
+
+def feature_novelty(features, F_fit) -> dict:
+    """The distance reference of a channel's own ``features`` from their values on the fit rows ``F_fit`` (n, p):
+    {"features", "mean" (p,), "whiten" (p, r), "range_distance"} (:func:`whitener`, d0 = the ``RANGE_QUANTILE``
+    of the fit rows' own distances)."""
+    mu, W = whitener(F_fit)
+    return {"features": list(features), "mean": mu, "whiten": W,
+            "range_distance": max(float(np.quantile(mahalanobis(F_fit, mu, W), RANGE_QUANTILE)), 1e-12)}
+
+
+def novelty_rho(nov: dict, F) -> np.ndarray:
+    """ρ (n,) of the rows of ``F`` (n, p) (the features of ``nov``) from the reference of :func:`feature_novelty`."""
+    return mahalanobis(F, np.asarray(nov["mean"], float), np.asarray(nov["whiten"], float)) / nov["range_distance"]
 
 
 def input_matrix(log, rows, cache) -> np.ndarray:

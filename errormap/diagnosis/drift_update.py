@@ -26,6 +26,19 @@ after the last measurement strictly before that row — never a measurement at o
 random walk alone adapts slowly (that is its job: measurement noise must not move the gains); an
 abrupt change — a 3 σ innovation — is met by opening the covariance up (an adaptive, fading-memory
 filter), and the rows where that happened are reported (``steps_``).
+
+**The distance rule in updated predictions.** Where the saved model shrinks a channel toward its OLS
+baseline beyond ρ = 1 (``ChannelFit.shrink_scale``; ρ the larger of the raw inputs' and the channel's own
+features' distance from the fit data, :meth:`DriftModel.channel_rho`), the updated prediction does the same,
+``base + g(ρ)·(updated − base)``, but ρ is measured from the fit data **plus the measured rows seen so far**
+(strictly before the predicted row): once the machine has been measured in a new regime, the updated model
+has learned there and is trusted there. The reference (mean and covariance of the fit data, recovered
+from the saved whitening matrix: C = pinv(W·Wᵀ), ``fit_rows`` samples) grows by each measured row's inputs
+after that row's update; the range distance d0 stays the fit data's. The band grows as max(1, ρ) with the
+same ρ (``UpdateResult.band_um``). The baseline is updated from the same measurements by the same filter, so
+the shrinkage blends two current models (a stale baseline would undo, beyond ρ = 1, what the update learned).
+The saved updated model keeps the fit data's reference (the measurements are not in it): a later ``--update``
+run re-grows it from its own log.
 """
 from __future__ import annotations
 
@@ -33,7 +46,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .drift_models import ChannelFit, DriftModel, feature_matrix
+from ..io import InputError
+
+from .drift_models import (COV_FLOOR, ChannelFit, DriftModel, distance_weight, feature_matrix, input_values,
+                           mahalanobis)
 
 MIN_WARM_ROWS = 10
 FLOOR_C = 1.0           # a temperature feature's scale is at least 1 °C (gains in μm per °C or per larger excursion)
@@ -53,7 +69,8 @@ MAX_INFLATE = 1e4       # ... and scales the parameter covariance by e²/S (at m
 
 @dataclass
 class UpdateResult:
-    """``pred_um`` / ``fixed_um`` {channel: (n,)}: updated (a priori) and saved-model predictions;
+    """``pred_um`` / ``fixed_um`` {channel: (n,)}: updated (a priori) and saved-model predictions (both as
+    delivered: with the distance rule where the channel has one);
     ``measured`` {channel: (m,) row indices}; ``model`` the DriftModel with the final parameters;
     ``history`` {channel: [(row, a priori error μm, fixed-model error μm)]}."""
 
@@ -62,6 +79,8 @@ class UpdateResult:
     measured: dict
     model: DriftModel
     history: dict = field(default_factory=dict)
+    rho: dict = field(default_factory=dict)        # {channel: (n,) ρ from the fit data + measurements before each row}
+    band_um: dict = field(default_factory=dict)    # {channel: (n,) band95 · max(1, ρ)}
 
     def evolution(self, n_windows: int = 4) -> dict:
         """Per channel: [(first time index, last, RMS updated, RMS fixed, measurements)] over ``n_windows``
@@ -79,6 +98,39 @@ class UpdateResult:
                              float(np.sqrt(np.mean(e[:, 2] ** 2))), int(len(e))))
             out[ch] = rows
         return out
+
+
+class RunningReference:
+    """The distance reference of :func:`~errormap.diagnosis.drift_models.whitener`, grown sample by sample.
+
+    Built from a saved ``mean`` (k,), whitening matrix ``whiten`` (k, r) and the number of samples ``n`` it was
+    computed from (covariance recovered as pinv(W·Wᵀ)); :meth:`add` merges one sample (k,) (Welford);
+    :meth:`distance` gives the Mahalanobis distances (m,) of rows (m, k) from the current reference. Until a
+    sample is added the saved (mean, whiten) are used exactly."""
+
+    def __init__(self, mean, whiten, n: int):
+        self.mu = np.asarray(mean, float)
+        self.W = np.asarray(whiten, float).reshape(len(self.mu), -1)
+        self.n = int(max(n, 2))
+        self._M = None                     # scatter matrix n·C, built at the first add
+
+    def add(self, u):
+        if self._M is None:                # the saved covariance (the whitener's, ddof = 1) as a scatter matrix
+            self._M = (self.n - 1) * np.linalg.pinv(self.W @ self.W.T)
+        u = np.asarray(u, float)
+        self.n += 1
+        d = u - self.mu
+        self.mu = self.mu + d / self.n
+        self._M = self._M + np.outer(d, u - self.mu)
+        C = self._M / (self.n - 1)
+        sd = np.sqrt(np.maximum(np.diag(C), 0.0))
+        sd = np.where(sd > 0, sd, 1.0)
+        ev, V = np.linalg.eigh(C / np.outer(sd, sd))
+        keep = ev > COV_FLOOR * max(ev.max(), 1e-300)
+        self.W = (V[:, keep] / np.sqrt(ev[keep])) / sd[:, None]
+
+    def distance(self, U):
+        return mahalanobis(U, self.mu, self.W)
 
 
 class DriftUpdater:
@@ -100,6 +152,66 @@ class DriftUpdater:
         if not (np.isfinite(self.drift_per_h) and self.drift_per_h >= 0):
             raise ValueError(f"Expected drift_per_h >= 0, got {self.drift_per_h}")
 
+    @staticmethod
+    def _rho(refs, rows, n) -> np.ndarray:
+        """ρ (n,) at every row from the references as they stood before it: rows up to and including a measured
+        row r use the fit data + the measured rows before r; r joins the references after."""
+        rho = np.empty(n)
+
+        def at(a, b):
+            return np.max([ref.distance(X[a:b]) / d0 for ref, X, d0 in refs], axis=0)
+        k0 = 0
+        for r in rows:
+            rho[k0:r + 1] = at(k0, r + 1)
+            for ref, X, _ in refs:
+                ref.add(X[r])
+            k0 = r + 1
+        if k0 < n:
+            rho[k0:] = at(k0, n)
+        return rho
+
+    def _kalman(self, F, intercept_um, coef, features, t, y, rows, band):
+        """The filter of the module doc on one linear model (features ``F`` (n, p), its intercept and coef (p,)):
+        (a-priori prediction (n,), final intercept, final coef (p,), rows where a step opened the filter)."""
+        n = len(t)
+        warm = max(int(rows[0]), MIN_WARM_ROWS)
+        cj = F[0]
+        sj = np.maximum(F[:warm].std(axis=0), [scale_floor(f) for f in features])
+        Z = (F - cj) / sj
+        sp = self.prior_um or band
+        R = (self.noise_um or band / 2) ** 2
+        phi = np.concatenate([[intercept_um + cj @ coef], coef * sj])
+        P0 = np.eye(len(phi)) * sp**2
+        P = P0.copy()
+        Q = P0 * self.drift_per_h
+        out = np.empty(n)
+        steps = []
+        last_t = t[rows[0]]
+        k0 = 0
+        for r in rows:                           # rows up to and including r use φ from before r's update
+            X = np.column_stack([np.ones(r + 1 - k0), Z[k0:r + 1]])
+            out[k0:r + 1] = X @ phi
+            x = X[-1]
+            P = P + Q * (t[r] - last_t) / 3600.0
+            last_t = t[r]
+            e = y[r] - x @ phi
+            Px = P @ x
+            S = x @ Px + R
+            if e * e > STEP_CHI2 * S:             # an innovation beyond 3 σ: a step, open the filter up
+                infl = min(e * e / S, MAX_INFLATE)
+                P, Px = P * infl, Px * infl
+                S = x @ Px + R
+                steps.append(int(r))
+            K = Px / S
+            phi = phi + K * e
+            P = P - np.outer(K, Px)
+            P = 0.5 * (P + P.T)
+            k0 = r + 1
+        if k0 < n:
+            out[k0:] = np.column_stack([np.ones(n - k0), Z[k0:]]) @ phi
+        c = phi[1:] / sj
+        return out, float(phi[0] - cj @ c), c, steps
+
     def run(self, model: DriftModel, log, measured_um: dict) -> UpdateResult:
         """``measured_um`` {channel: (n,)} with NaN where the channel was not measured. Returns an
         :class:`UpdateResult`; channels without a measurement keep the saved model."""
@@ -108,63 +220,58 @@ class DriftUpdater:
         t = np.asarray(log.time_s, float)
         n = len(t)
         cache = {}
-        pred, fixed, meas, hist, chans = {}, {}, {}, {}, {}
+        pred, fixed, meas, hist, chans, rho_out, band_out = {}, {}, {}, {}, {}, {}, {}
+        saved = model.predict(log, cache)                                   # the saved model as it predicts (distance rule)
+        saved_rho = model.channel_rho(log, cache)
+        nov = (model.meta or {}).get("novelty") or {}
+        n_fit = int((model.meta or {}).get("fit_rows") or 2)
+        try:
+            U = np.stack([input_values(log, i) for i in nov["inputs"]], axis=1) if nov.get("range_distance") else None
+        except InputError:
+            U = None
         for ch, c in model.channels.items():
             F = feature_matrix(log, c.features, cache)                       # (n, p)
-            base = c.intercept_um + F @ c.coef
-            fixed[ch] = base
+            fixed[ch] = saved[ch]
             y = np.asarray(measured_um.get(ch, np.full(n, np.nan)), float)
             rows = np.flatnonzero(np.isfinite(y))
             meas[ch] = rows
+            band95 = c.band95_um
             if not rows.size:
-                pred[ch], hist[ch], chans[ch] = base.copy(), [], c
+                pred[ch], hist[ch], chans[ch] = saved[ch].copy(), [], c
+                rho_out[ch] = saved_rho[ch]
+                band_out[ch] = band95 * (np.ones(n) if saved_rho[ch] is None else np.maximum(1.0, saved_rho[ch]))
                 continue
-            warm = max(int(rows[0]), MIN_WARM_ROWS)
-            cj = F[0]
-            sj = np.maximum(F[:warm].std(axis=0), [scale_floor(f) for f in c.features])
-            Z = (F - cj) / sj
+            # the distance references (raw inputs; the channel's own features) grown by the measured rows
+            refs = []
+            if U is not None:
+                refs.append((RunningReference(nov["mean"], nov["whiten"], n_fit), U, float(nov["range_distance"])))
+            if c.novelty:
+                refs.append((RunningReference(c.novelty["mean"], c.novelty["whiten"], n_fit),
+                             feature_matrix(log, c.novelty["features"], cache), float(c.novelty["range_distance"])))
+            rho = self._rho(refs, rows, n) if refs else None
             band = c.band95_um if np.isfinite(c.band95_um) and c.band95_um > 0 else max(float(np.std(y[rows])), 1.0)
-            sp = self.prior_um or band
-            R = (self.noise_um or band / 2) ** 2
-            phi = np.concatenate([[c.intercept_um + cj @ c.coef], c.coef * sj])
-            P0 = np.eye(len(phi)) * sp**2
-            P = P0.copy()
-            Q = P0 * self.drift_per_h
-            out = np.empty(n)
-            h, steps = [], []
-            last_t = t[rows[0]]
-            k0 = 0
-            for r in rows:                           # rows up to and including r use φ from before r's update
-                X = np.column_stack([np.ones(r + 1 - k0), Z[k0:r + 1]])
-                out[k0:r + 1] = X @ phi
-                x = X[-1]
-                P = P + Q * (t[r] - last_t) / 3600.0
-                last_t = t[r]
-                e = y[r] - x @ phi
-                h.append((int(r), float(e), float(y[r] - base[r])))
-                Px = P @ x
-                S = x @ Px + R
-                if e * e > STEP_CHI2 * S:             # an innovation beyond 3 σ: a step, open the filter up
-                    infl = min(e * e / S, MAX_INFLATE)
-                    P, Px = P * infl, Px * infl
-                    S = x @ Px + R
-                    steps.append(int(r))
-                K = Px / S
-                phi = phi + K * e
-                P = P - np.outer(K, Px)
-                P = 0.5 * (P + P.T)
-                k0 = r + 1
-            if k0 < n:
-                out[k0:] = np.column_stack([np.ones(n - k0), Z[k0:]]) @ phi
-            pred[ch], hist[ch] = out, h
+            lin, a_new, coef, steps = self._kalman(F, c.intercept_um, c.coef, c.features, t, y, rows, band)
+            out = lin
+            base_new = c.base
+            if rho is not None and c.base is not None and np.isfinite(c.shrink_scale):
+                # the baseline is updated from the same measurements by the same filter: the shrinkage blends two
+                # current models (a stale baseline would undo what the update learned in the new regime)
+                bf, ba, bc = c.base
+                blin, ba_new, bc_new, _ = self._kalman(feature_matrix(log, bf, cache), ba, np.asarray(bc, float), bf,
+                                                       t, y, rows, band)
+                out = blin + distance_weight(rho, c.shrink_scale) * (lin - blin)
+                base_new = (list(bf), ba_new, bc_new)
+            pred[ch] = out
+            hist[ch] = [(int(r), float(y[r] - out[r]), float(y[r] - saved[ch][r])) for r in rows]
+            rho_out[ch] = rho
+            band_out[ch] = band95 * (np.ones(n) if rho is None else np.maximum(1.0, rho))
             self.steps_[ch] = steps
-            coef = phi[1:] / sj
-            chans[ch] = ChannelFit(c.family, c.hyper, list(c.features), float(phi[0] - cj @ coef), coef, c.band95_um,
-                                   c.base, c.shrink_scale)
+            chans[ch] = ChannelFit(c.family, c.hyper, list(c.features), a_new, coef, c.band95_um,
+                                   base_new, c.shrink_scale, c.novelty)
         meta = dict(model.meta)
         meta["online_update"] = {"method": "Kalman filter on the parameters (random walk)",
                                  "drift_per_h": self.drift_per_h, "prior_um": self.prior_um,
                                  "noise_um": self.noise_um,
                                  "measurements": {ch: int(len(v)) for ch, v in meas.items()},
                                  "log": str(log.path)}
-        return UpdateResult(pred, fixed, meas, DriftModel(chans, meta), hist)
+        return UpdateResult(pred, fixed, meas, DriftModel(chans, meta), hist, rho_out, band_out)

@@ -87,7 +87,8 @@ def run(args) -> int:
         if rho is not None:
             print(f"inputs beyond the fitting data's range (rho > 1): {np.mean(rho > 1):.0%} of the rows; there the band "
                   "grows as max(1, rho)" + (f" and {', '.join(shr)} shrink toward their OLS baseline"
-                                             + (" (not in the --update predictions)" if args.update else "")
+                                             + (" (in the --update predictions rho is measured from the fitting "
+                                                "data and the measured rows before each row)" if args.update else "")
                                              if shr else ""))
             head.append("<ch>_lo_um / <ch>_hi_um grow as max(1, rho), rho = input_distance / the fitting data's range "
                         "distance" + (f"; {', '.join(shr)}: prediction shrunk toward OLS beyond rho = 1" if shr else ""))
@@ -99,7 +100,7 @@ def run(args) -> int:
         upd = DriftUpdater(noise_um=args.noise_um,
                            drift_per_h=DRIFT_PER_H if args.drift_per_h is None else args.drift_per_h)
         res = upd.run(model, log, log.disp_um)
-        bands = model.band_um(log)
+        bands = res.band_um
         for ch in model.channels:
             band = bands[ch]
             cols[f"{ch}_fixed_pred_um"] = res.fixed_um[ch]
