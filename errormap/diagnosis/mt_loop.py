@@ -43,6 +43,7 @@ import numpy as np
 import scipy.linalg
 from scipy.interpolate import make_interp_spline
 
+from ..effect_kinds import effect_kind
 from ..io import InputError, read_table
 from ..mt_chain import MachineTool
 from ..mt_elements import ChainElementSet
@@ -77,6 +78,22 @@ SMOOTH_GRID = np.r_[0.0, np.geomspace(0.1, 1e4, 21)]
 """Weights of the update's smoothness prior tried by GCV on the fitting checks: 0 (the sweep prior alone)
 and 0.1–10⁴, a factor 1.78 apart (on the 5-axis machine GCV picks 3–200; the GCV curve is flat within a
 factor 2 of its minimum)."""
+SPAN_RANK_TOL = 1e-9
+"""A pivoted-QR diagonal of the column-scaled slot Jacobian below this fraction of the largest is a
+direction the slots do not span (as the identification's :data:`errormap.mt_identify.RANK_TOL`)."""
+REPRESENTED_TOL = 1e-2
+"""An effect term whose columns leave less than this fraction of their norm outside the span of the
+element slots (over the checks) is represented by the slots. The span is the first-order one at the
+identified elements and the term's column the nominal chain's, so a represented term leaves a
+second-order part of the order of the angular errors (5e-5 to 7e-5 on the built-in chains with
+their simulated elements, ≤ 1e-3 for angular errors up to 1 mrad); a term the slots cannot
+represent leaves 0.2 or more (a generic column 0.7 or more, :data:`SPAN_ROWS_PER_PARAM`). 1e-2
+sits an order of magnitude from either side."""
+SPAN_ROWS_PER_PARAM = 2.0
+"""Representability is decided only when the checks give at least this many rows (3 per check) per
+element parameter: with fewer, the slots' many station values fit any column at the checks (a
+generic column keeps a fraction ≈ √(1 − N/rows) ≥ 0.7 of its norm outside the span at this ratio);
+else nothing is declared represented and every term is searched."""
 OLS_RCOND = 1e-6
 """The plain least-squares baseline drops directions whose singular value is below this fraction of the
 largest (numerically undetermined by the checks; min-norm there), else it returns values beyond any machine."""
@@ -292,6 +309,9 @@ class ChainUpdate:
     smoothing: float = 0.0
     gcv: list = field(default_factory=list)
     gcv_value: float = float("nan")
+    gain: np.ndarray | None = None
+    """(N, 3n) the change of the element parameters per unit change of the fitting residual (flattened)
+    at the chosen weight and noise; ``None`` when effect columns were fitted jointly."""
 
 
 def check_smoothing(smoothing) -> None:
@@ -373,8 +393,12 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
     w, dof, _ = solve(weight, s2)
     z, coef = w[:K], (w[K:] if c else None)
     delta = L @ z - (S @ coef if c else 0.0)
+    gain = None
+    if not c:
+        A = XtX + s2 * (np.diag(prior) + weight * GtG)
+        gain = L @ np.linalg.solve(A, X.T)
     return ChainUpdate(apply_parameters(elements, slot_names, stations, delta), float(np.sqrt(s2)), dof - c, coef,
-                       weight, table, best["gcv"])
+                       weight, table, best["gcv"], gain)
 
 
 def ols_update(elements: ChainElementSet, slot_names, stations, axes_fit, residual_fit,
@@ -426,7 +450,96 @@ def effect_candidates(machine: MachineTool, conditions: dict) -> list:
     out += [("reversal", (w,)) for w in lin + rot if f"dir_{w.lower()}" in conditions]
     out += [("periodic", (w,)) for w in lin]
     out += [("harmonic", (w,)) for w in rot]
-    out += [("interaction", (v, w)) for i, v in enumerate(lin) for w in lin[i + 1:]]
+    out += [("interaction", (v, w)) for v in lin for w in lin if v != w]   # on v's own element: v*w ≠ w*v
+    return out
+
+
+def full_parameters(elements: ChainElementSet) -> tuple[list, np.ndarray]:
+    """Every element parameter of the chain: each slot at each station of its axis (a full turn's
+    last station is its first: left out) and the constants, as ``(slot names, stations)`` (−1: a
+    constant), the parameters :func:`parameter_matrix` takes."""
+    m = elements.machine
+    names, stations = [], []
+    for a in m.axes:
+        if not m.slots_of(a.word):
+            continue
+        n = elements.stations[a.column].size - (1 if a.full_turn else 0)
+        for i in range(n):
+            for s in m.slots_of(a.word):
+                names.append(s)
+                stations.append(i)
+    for s in m.constant_slots:
+        names.append(s)
+        stations.append(-1)
+    return names, np.array(stations)
+
+
+@dataclass
+class SlotSpan:
+    """The span of the chain's element parameters over a set of points: ``Q`` (3n, rank) an
+    orthonormal basis of the columns of ``∂(tool-point error)/∂(parameters)``, its ``rank`` and the
+    number of parameters ``n_params`` (pivoted QR, relative tolerance :data:`SPAN_RANK_TOL`)."""
+
+    Q: np.ndarray
+    rank: int
+    n_params: int
+
+    @classmethod
+    def of(cls, elements: ChainElementSet, axes) -> "SlotSpan":
+        names, stations = full_parameters(elements)
+        M = parameter_matrix(elements.machine, elements, axes, names, stations).reshape(-1, len(names))
+        scale = np.linalg.norm(M, axis=0)
+        scale[scale == 0] = 1.0
+        Q, R, _ = scipy.linalg.qr(M / scale, mode="economic", pivoting=True)
+        d = np.abs(np.diag(R))
+        rank = int(np.sum(d > SPAN_RANK_TOL * d[0])) if d.size else 0
+        return cls(Q[:, :rank], rank, len(names))
+
+    def outside(self, columns) -> np.ndarray:
+        """Per column of ``columns`` (n, 3, c): the fraction of its norm outside the span, (c,)."""
+        C = np.asarray(columns, float).reshape(-1, np.shape(columns)[-1])
+        out = C - self.Q @ (self.Q.T @ C)
+        return np.linalg.norm(out, axis=0) / np.maximum(np.linalg.norm(C, axis=0), 1e-300)
+
+    def rank_with(self, columns) -> int:
+        """Numerical rank of the span augmented by ``columns`` (n, 3, c): ``rank`` + the columns'
+        independent parts above :data:`REPRESENTED_TOL` of their norm."""
+        C = np.asarray(columns, float).reshape(-1, np.shape(columns)[-1])
+        nrm = np.maximum(np.linalg.norm(C, axis=0), 1e-300)
+        out = (C - self.Q @ (self.Q.T @ C)) / nrm
+        sv = np.linalg.svd(out, compute_uv=False)
+        return self.rank + int(np.sum(sv > REPRESENTED_TOL))
+
+
+def representable_terms(machine: MachineTool, elements: ChainElementSet, axes, conditions, span=None) -> list:
+    """Which effect candidates without a shape parameter (:func:`effect_candidates`: thermal,
+    reversal, interaction) the element slots can represent over the points ``axes`` (n, k): the rank
+    of the slots' Jacobian (every slot at every station, :func:`full_parameters`) is unchanged by the
+    term's columns (less than :data:`REPRESENTED_TOL` of their norm outside the span). Such a term is
+    taken up by the element update; it is reported as absorbed, not searched. E.g. an interaction
+    V·W on V's own direction is an angular error of V (a function of v) through a lever arm that
+    grows with w exactly when moving W moves the tool point relative to V's carriage across v:
+    represented then, not otherwise (W carried by V on the workpiece side, or V on the tool side with
+    W not beyond it). ``[{"kind", "axis", "element", "outside_fraction", "rank_slots",
+    "rank_with_term", "represented"}]`` for every such candidate; ``[]`` when the points give fewer
+    than :data:`SPAN_ROWS_PER_PARAM` rows per parameter (not decidable there)."""
+    axes = np.asarray(axes, float)
+    if span is None:
+        if 3 * len(axes) < SPAN_ROWS_PER_PARAM * len(full_parameters(elements)[0]):
+            return []
+        span = SlotSpan.of(elements, axes)
+    Je = machine.error_jacobian(axes)
+    out = []
+    for kind, words in effect_candidates(machine, conditions):
+        if effect_kind(kind).nonlinear:
+            continue
+        C, el = effect_columns(machine, kind, words, axes, conditions, None, Je)
+        if not np.any(C):   # e.g. thermal at a constant reference temperature: nothing to represent
+            continue
+        frac = float(span.outside(C).max())
+        out.append({"kind": kind, "axis": "*".join(words), "element": el, "outside_fraction": frac,
+                    "rank_slots": span.rank, "rank_with_term": span.rank_with(C),
+                    "represented": bool(frac < REPRESENTED_TOL)})
     return out
 
 
@@ -458,28 +571,34 @@ def effect_columns(machine: MachineTool, kind: str, words, axes, conditions, sha
     return np.stack([jcol * fi[:, None] for fi in f], axis=2), el
 
 
-def _fit_shape(machine, kind, words, axes, cond, r, Je):
-    """Best shape (periodogram over the grid) and its columns, fitted on (axes, r)."""
+def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None):
+    """Best shape (periodogram over the grid) and its columns, fitted on the fitting checks:
+    ``(rss, shape, coefficients, element, columns at all checks (n, 3, c))``. ``response``: maps an
+    effect's columns (n, 3, c) to what of them is left after the element update (the update's linear
+    response removed; module doc of :func:`effect_search`)."""
     grid = ([{"period_mm": float(p)} for p in PERIOD_GRID_MM] if kind == "periodic" else
             [{"order": int(n)} for n in HARMONIC_ORDERS] if kind == "harmonic" else [None])
+    rf = r_fit.reshape(-1)
+
+    def one(shape):
+        C, el = effect_columns(machine, kind, words, checks.axes, checks.conditions, shape, Je)
+        if response is not None:
+            C = response(C)
+        X = C[fit_idx].reshape(-1, C.shape[2])
+        c = np.linalg.lstsq(X, rf, rcond=None)[0]
+        return float(np.sum((rf - X @ c) ** 2)), shape, c, el, C
+
     best = None
     for shape in grid:
-        C, el = effect_columns(machine, kind, words, axes, cond, shape, Je)
-        X = C.reshape(-1, C.shape[2])
-        c = np.linalg.lstsq(X, r.reshape(-1), rcond=None)[0]
-        rss = float(np.sum((r.reshape(-1) - X @ c) ** 2))
-        if best is None or rss < best[0]:
-            best = (rss, shape, c, el)
+        cand = one(shape)
+        if best is None or cand[0] < best[0]:
+            best = cand
     if kind == "periodic":  # refine: over a long stroke a 1.4 % period error drifts by cycles
         p0 = best[1]["period_mm"]
         for p in p0 * (1.0 + np.linspace(-PERIOD_REFINE, PERIOD_REFINE, 121)):
-            shape = {"period_mm": float(p)}
-            C, el = effect_columns(machine, kind, words, axes, cond, shape, Je)
-            X = C.reshape(-1, C.shape[2])
-            c = np.linalg.lstsq(X, r.reshape(-1), rcond=None)[0]
-            rss = float(np.sum((r.reshape(-1) - X @ c) ** 2))
-            if rss < best[0]:
-                best = (rss, shape, c, el)
+            cand = one({"period_mm": float(p)})
+            if cand[0] < best[0]:
+                best = cand
     return best
 
 
@@ -490,8 +609,12 @@ def _paired_z(r_before, r_after) -> float:
 
 
 def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
-                  exclude=()):
-    """Forward search (module doc): ``(accepted terms, rejected (kind, axes, z) list, residual after)``."""
+                  exclude=(), response=None):
+    """Forward search (module doc): ``(accepted terms, rejected (kind, axes, z) list, residual after)``.
+    ``exclude``: ``(kind, words)`` not tried (found, or represented by the slots); ``response``: when the
+    residual is an element update's, the map of an effect's columns to what the update leaves of them
+    (``C − M·gain·C_fit``): the update has taken up the part of an effect the slots can imitate, so the
+    term is fitted and judged by the rest, with its own coefficient."""
     Je = machine.error_jacobian(checks.axes)
     r = np.asarray(residual, float).copy()
     cands = effect_candidates(machine, checks.conditions)
@@ -501,15 +624,12 @@ def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hol
         for kind, words in cands:
             if any(t.kind == kind and t.axes == words for t in accepted) or (kind, words) in exclude:
                 continue
-            rss, shape, c, el = _fit_shape(machine, kind, words, checks.axes[fit_idx],
-                                           {k: v[fit_idx] for k, v in checks.conditions.items()}, r[fit_idx],
-                                           Je[fit_idx])
-            scored.append((rss, kind, words, shape, c, el))
+            rss, shape, c, el, C = _fit_shape(machine, kind, words, checks, fit_idx, r[fit_idx], Je, response)
+            scored.append((rss, kind, words, shape, c, el, C))
         if not scored:
             break
         scored.sort(key=lambda s: s[0])
-        rss, kind, words, shape, c, el = scored[0]
-        C, _ = effect_columns(machine, kind, words, checks.axes, checks.conditions, shape, Je)
+        rss, kind, words, shape, c, el, C = scored[0]
         contrib = np.einsum("nic,c->ni", C, c)
         z = _paired_z(r[hold_idx], (r - contrib)[hold_idx])
         if z <= HELD_OUT_Z:
@@ -612,8 +732,23 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     stages["baseline_ols_linear"] = stats(r0 - X @ B)
     last = "updated" if "updated" in models else "identified"
     accepted, rejected = [], []
+    absorbed, response = [], None
     if effects:
-        accepted, rejected, r2 = effect_search(machine, checks, resid_of[last], fit_idx, hold_idx, max_effects)
+        terms = representable_terms(machine, elements, checks.axes, checks.conditions)
+        absorbed = [{**t, "note": f"{t['kind']} {t['axis']} on {t['element']}: the element slots represent this term "
+                     f"over the checks (rank {t['rank_slots']} with and without it; "
+                     f"{t['outside_fraction']:.1e} of it outside their span), so the element update absorbs it: "
+                     "it is in the updated elements, not a missed effect"} for t in terms if t["represented"]]
+        exclude = [(t["kind"], tuple(t["axis"].split("*"))) for t in absorbed]
+        if last == "updated" and upd.gain is not None:   # what the update leaves of an effect's columns
+            Mall = parameter_matrix(machine, elements, checks.axes, slot_names, stations).reshape(-1, len(slot_names))
+            gain = upd.gain
+
+            def response(Cols):
+                Cf = Cols[fit_idx].reshape(-1, Cols.shape[2])
+                return Cols - (Mall @ (gain @ Cf)).reshape(Cols.shape)
+        accepted, rejected, r2 = effect_search(machine, checks, resid_of[last], fit_idx, hold_idx, max_effects,
+                                               exclude=exclude, response=response)
         for _ in range(ROUNDS - 1):  # the update made jointly with the accepted effects, then the search goes on
             if not accepted or last != "updated":
                 break
@@ -629,7 +764,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             r_joint = resid(upd.elements_) - np.einsum("nic,c->ni", E, upd.extra_coef)
             models["joint"], sigma = upd.elements_, upd.sigma_um
             more, rejected, r2 = effect_search(machine, checks, r_joint, fit_idx, hold_idx, max_effects - len(accepted),
-                                               exclude=[(t.kind, t.axes) for t in accepted])
+                                               exclude=exclude + [(t.kind, t.axes) for t in accepted], response=response)
             accepted += more
             if not more:
                 break
@@ -652,7 +787,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     return {"machine": machine.name, "n_checks": n, "n_fit": n_fit, "n_held_out": n - n_fit,
             "split": f"blocked by seq: first {fit_fraction:g} fit, the rest held out",
             "stages": stages, "kept_stage": kept_name, "kept_why": why, "update_prior": prior,
-            "effects": [t.to_dict() for t in accepted], "effects_rejected": rejected,
+            "effects": [t.to_dict() for t in accepted], "effects_rejected": rejected, "effects_absorbed": absorbed,
             "noise_sigma_um": sig, "noise_sigma_source": "given" if noise_um is not None else
             ("estimated by the update" if sigma is not None else None),
             "noise_floor_um": floor, "held_out_rms_um": held,
