@@ -220,7 +220,9 @@ def markdown(rows, meta) -> str:
             nr = (f"{sum(r['clean'] for r in C)}/{len(C)} clean" if case == "none"
                   else f"{sum(r['named_right'] for r in C)}/{len(C)} reported absorbed by the update"
                   if all(r.get("represented") for r in C) else f"{sum(r['named_right'] for r in C)}/{len(C)} named")
-            out.append(f"| {case}{'' if nck == CHECKS else f' ({nck} checks)'} | {len(C)} | {_med([r['true_rms_identified_um'] for r in C]):.2f} | "
+            old = sum("effects_absorbed" not in r for r in C)   # rows run before the representability check
+            mark = "" if not old else f" † ({old} of {len(C)} runs)" if old < len(C) else " †"
+            out.append(f"| {case}{'' if nck == CHECKS else f' ({nck} checks)'}{mark} | {len(C)} | {_med([r['true_rms_identified_um'] for r in C]):.2f} | "
                        f"{_med([r['true_rms_updated_um'] for r in C]):.2f} | "
                        f"{_cnt(C, 'true_rms_loop_model_um')} | {_cnt(C, 'true_rms_compensated_loop_um')} / "
                        f"{_cnt(C, 'true_rms_compensated_identified_um')} | {_med([r['held_out_kept_um'] for r in C]):.2f} | "
@@ -228,6 +230,9 @@ def markdown(rows, meta) -> str:
                        f"{_med([r['held_out_identified_um'] for r in C]):.2f} | {_med([r['held_out_ols_linear_um'] for r in C]):.2f} | "
                        f"{_med([r['held_out_ols_update_um'] for r in C]):.3g} | {nr} |")
         ok = sum(r["ratio"] <= GOAL_RATIO for r in R)
+        if any("effects_absorbed" not in r for r in R):
+            out += ["", "† rows from an earlier state of the loop (before the representability check; rows of the earliest "
+                    "commands above also before the update's smoothness prior), not re-run since (CPU budget)."]
         out += ["", f"Uncompensated (the truth's own error at the score points): TRUE RMS median "
                 f"{_med([r.get('truth_rms_um') for r in R]):.1f} μm.",
                 "", f"All {len(R)} runs: held-out ≤ {GOAL_RATIO} × floor in {ok}; median CPU per run "
