@@ -150,6 +150,8 @@ def run_case(machine_name: str, seed: int, effect: str | None, work: Path, check
            "kept_stage": s["kept_stage"], "held_out_kept_um": s["held_out_rms_um"],
            "held_out_identified_um": st["identified"]["held_out"]["rms_um"],
            "held_out_updated_um": st.get("updated", {}).get("held_out", {}).get("rms_um"),
+           "held_out_sweep_prior_um": st.get("baseline_update_sweep_prior", {}).get("held_out", {}).get("rms_um"),
+           "smoothing_weight": (s.get("update_prior") or {}).get("smoothing_weight"),
            "held_out_ols_linear_um": st["baseline_ols_linear"]["held_out"]["rms_um"],
            "held_out_ols_update_um": st["baseline_ols_update"].get("held_out", {}).get("rms_um"),
            "ratio": s["held_out_rms_um"] / FLOOR_UM, "effects_found": found}
@@ -200,7 +202,8 @@ def markdown(rows, meta) -> str:
            f"‖Δe‖ over {SCORE_POINTS} uniform random points of the volume (seed {SCORE_SEED}) (reference temperature, positive approach); *held-out* = "
            f"MEASURED residual (vector norm) on the last 40 % of the checks; noise floor √3·σ = {FLOOR_UM:.2f} μm "
            f"(goal ≤ {GOAL_RATIO} × floor). Baselines on the same held-out checks: OLS of the identified model's residual on "
-           "all axis columns; the unregularised least-squares update of the same parameters (no prior). "
+           "all axis columns; the unregularised least-squares update of the same parameters (no prior); the update with "
+           "the sweep prior alone (no smoothness prior). "
            "*TRUE RMS loop model.json*: the model the loop hands on (updated elements + accepted effect terms, at the "
            "reference conditions), the one `predict` / `compensate --machine` read; *TRUE RMS compensated*: the same "
            "points as targets, solved by the exact chain solver with that model (beside: with the identified model), "
@@ -212,8 +215,9 @@ def markdown(rows, meta) -> str:
         out += [f"## {mname}", "",
                 "| case | seeds | TRUE RMS identified (μm, median) | TRUE RMS updated (μm) | TRUE RMS loop model.json (μm) | "
                 "TRUE RMS compensated: loop / identified (μm) | held-out kept (μm) | "
-                "held-out / floor (median, max) | ≤ 1.25 | held-out identified | OLS linear | OLS update | named right / clean |",
-                "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                "held-out / floor (median, max) | ≤ 1.25 | held-out identified | OLS linear | OLS update | "
+                "update, sweep prior alone | named right / clean |",
+                "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for case, nck in sorted({(r["case"], r.get("checks", CHECKS)) for r in R}, key=lambda c: (c[0] != "none", c)):
             C = [r for r in R if r["case"] == case and r.get("checks", CHECKS) == nck]
             ok = sum(r["ratio"] <= GOAL_RATIO for r in C)
@@ -228,7 +232,7 @@ def markdown(rows, meta) -> str:
                        f"{_cnt(C, 'true_rms_compensated_identified_um')} | {_med([r['held_out_kept_um'] for r in C]):.2f} | "
                        f"{_med([r['ratio'] for r in C]):.2f}, {max(r['ratio'] for r in C):.2f} | {ok}/{len(C)} | "
                        f"{_med([r['held_out_identified_um'] for r in C]):.2f} | {_med([r['held_out_ols_linear_um'] for r in C]):.2f} | "
-                       f"{_med([r['held_out_ols_update_um'] for r in C]):.3g} | {nr} |")
+                       f"{_med([r['held_out_ols_update_um'] for r in C]):.3g} | {_cnt(C, 'held_out_sweep_prior_um')} | {nr} |")
         ok = sum(r["ratio"] <= GOAL_RATIO for r in R)
         if any("effects_absorbed" not in r for r in R):
             out += ["", "† rows from an earlier state of the loop (before the representability check; rows of the earliest "
