@@ -85,7 +85,7 @@ REPRESENTED_TOL = 1e-2
 """An effect term whose columns leave less than this fraction of their norm outside the span of the
 element slots (over the checks) is represented by the slots. The span is the first-order one at the
 identified elements and the term's column the nominal chain's, so a represented term leaves a
-second-order part of the order of the angular errors (5e-5 to 7e-5 on the built-in chains with
+second-order part of the order of the angular errors (3e-5 to 7e-5 on the built-in chains with
 their simulated elements, ≤ 1e-3 for angular errors up to 1 mrad); a term the slots cannot
 represent leaves 0.2 or more (a generic column 0.7 or more, :data:`SPAN_ROWS_PER_PARAM`). 1e-2
 sits an order of magnitude from either side."""
