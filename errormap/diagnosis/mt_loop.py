@@ -40,8 +40,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
 from scipy.interpolate import make_interp_spline
 
+from ..effect_kinds import effect_kind
 from ..io import InputError, read_table
 from ..mt_chain import MachineTool
 from ..mt_elements import ChainElementSet
@@ -72,6 +74,26 @@ ROUNDS = 2
 """Update/search rounds: from the second on the update is made jointly with the effects found (so that it
 does not take an effect up), then the search goes on (as the grinder's loop re-fits jointly)."""
 REF_TEMP_C = 20.0
+SMOOTH_GRID = np.r_[0.0, np.geomspace(0.1, 1e4, 21)]
+"""Weights of the update's smoothness prior tried by GCV on the fitting checks: 0 (the sweep prior alone)
+and 0.1–10⁴, a factor 1.78 apart (on the 5-axis machine GCV picks 3–200; the GCV curve is flat within a
+factor 2 of its minimum)."""
+SPAN_RANK_TOL = 1e-9
+"""A pivoted-QR diagonal of the column-scaled slot Jacobian below this fraction of the largest is a
+direction the slots do not span (as the identification's :data:`errormap.mt_identify.RANK_TOL`)."""
+REPRESENTED_TOL = 1e-2
+"""An effect term whose columns leave less than this fraction of their norm outside the span of the
+element slots (over the checks) is represented by the slots. The span is the first-order one at the
+identified elements and the term's column the nominal chain's, so a represented term leaves a
+second-order part of the order of the angular errors (3e-5 to 7e-5 on the built-in chains with
+their simulated elements, ≤ 1e-3 for angular errors up to 1 mrad); a term the slots cannot
+represent leaves 0.2 or more (a generic column 0.7 or more, :data:`SPAN_ROWS_PER_PARAM`). 1e-2
+sits an order of magnitude from either side."""
+SPAN_ROWS_PER_PARAM = 2.0
+"""Representability is decided only when the checks give at least this many rows (3 per check) per
+element parameter: with fewer, the slots' many station values fit any column at the checks (a
+generic column keeps a fraction ≈ √(1 − N/rows) ≥ 0.7 of its norm outside the span at this ratio);
+else nothing is declared represented and every term is searched."""
 OLS_RCOND = 1e-6
 """The plain least-squares baseline drops directions whose singular value is below this fraction of the
 largest (numerically undetermined by the checks; min-norm there), else it returns values beyond any machine."""
@@ -221,60 +243,177 @@ def apply_parameters(elements: ChainElementSet, slot_names, stations, delta) -> 
     return ChainElementSet(elements.machine, out.stations, fun, const, elements.machine_name, elements.machine_sha256)
 
 
+def parameter_values(elements: ChainElementSet, slot_names, stations) -> np.ndarray:
+    """The element parameters of ``elements`` as a vector (N,) in the order of ``slot_names`` /
+    ``stations`` (station −1: a constant), μm or μrad."""
+    return np.array([elements.constants[s] if i < 0 else elements.functions[s][i] for s, i in zip(slot_names, stations)])
+
+
+def second_differences(elements: ChainElementSet, slot_names, stations, M) -> np.ndarray:
+    """The roughness operator of the smoothness prior, (R, N): one row per element slot and interior
+    station of its axis, the second divided difference of the slot's station values along its axis
+    (times the squared mean station spacing: a plain second difference on equal spacing; cyclic over a
+    full turn, whose last station is its first), scaled by the slot's RMS tool-point sensitivity over
+    the checks (the mean column RMS of its station parameters in ``M`` (rows, N), μm per μm or μrad):
+    ``‖D·θ‖²`` is a roughness in tool-point μm², so one weight fits slots of both units. Constants
+    have no rows."""
+    machine = elements.machine
+    slot = {s.name: s for s in machine.slots}
+    idx = {(s, int(i)): j for j, (s, i) in enumerate(zip(slot_names, stations))}
+    colrms = np.sqrt(np.mean(np.asarray(M, float) ** 2, axis=0))
+    rows = []
+    for s in machine.function_slots:
+        a = next(a for a in machine.axes if a.word == slot[s].axis)
+        st = np.asarray(elements.stations[a.column], float)
+        m = st.size
+        js = [idx.get((s, i)) for i in range(m)]
+        if a.full_turn:          # stations 0..m-2 on a circle; m-1 is station 0 again
+            m -= 1
+            js = js[:m]
+            pos = st[:m]
+            nxt = lambda i: (i + 1) % m  # noqa: E731
+            prv = lambda i: (i - 1) % m  # noqa: E731
+            inner = range(m)
+        else:
+            pos = st
+            nxt, prv = (lambda i: i + 1), (lambda i: i - 1)
+            inner = range(1, m - 1)
+        known = [j for j in js if j is not None]
+        if m < 3 or not known:
+            continue
+        scale = float(np.mean(colrms[known]))
+        hbar = (st[-1] - st[0]) / (st.size - 1)
+        for i in inner:
+            h1 = (pos[i] - pos[prv(i)]) % 360.0 if a.full_turn else pos[i] - pos[prv(i)]
+            h2 = (pos[nxt(i)] - pos[i]) % 360.0 if a.full_turn else pos[nxt(i)] - pos[i]
+            w = 2.0 * hbar**2 / (h1 + h2)
+            row = np.zeros(len(slot_names))
+            for j, c in ((js[prv(i)], w / h1), (js[i], -w / h1 - w / h2), (js[nxt(i)], w / h2)):
+                if j is not None:
+                    row[j] += c * scale
+            rows.append(row)
+    return np.array(rows).reshape(-1, len(slot_names))
+
+
 @dataclass
 class ChainUpdate:
     """``elements_`` the updated set, ``sigma_um`` the check noise estimated with it, ``dof`` the
-    effective number of parameters the checks moved."""
+    effective number of parameters the checks moved; ``smoothing`` the weight of the smoothness
+    prior used and ``gcv`` the table ``[{"weight", "gcv", "dof"}]`` it was chosen from (GCV on the
+    fitting checks; weight 0 = the sweep prior alone)."""
 
     elements_: ChainElementSet
     sigma_um: float
     dof: float
     extra_coef: np.ndarray | None = None
+    smoothing: float = 0.0
+    gcv: list = field(default_factory=list)
+    gcv_value: float = float("nan")
+    gain: np.ndarray | None = None
+    """(N, 3n) the change of the element parameters per unit change of the fitting residual (flattened)
+    at the chosen weight and noise; ``None`` when effect columns were fitted jointly."""
+
+
+def check_smoothing(smoothing) -> None:
+    """``"gcv"`` or a weight ≥ 0 (finite)."""
+    if isinstance(smoothing, str):
+        if smoothing != "gcv":
+            raise ValueError(f"Expected smoothing 'gcv' or a weight >= 0, got {smoothing!r}")
+        return
+    if not (np.isfinite(smoothing) and smoothing >= 0):
+        raise ValueError(f"Expected smoothing 'gcv' or a finite weight >= 0, got {smoothing!r}")
 
 
 def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_fit, residual_fit,
-                    extra=None, extra_shift=None) -> ChainUpdate:
-    """Gaussian update of the element parameters from check residuals (n, 3) μm at ``axes_fit`` (n, k),
-    prior covariance ``cov`` (N, N) of the identification (module doc). ``extra`` (n, 3, c): effect
-    columns fitted jointly with no prior (their coefficients in ``ChainUpdate.extra_coef``);
-    ``extra_shift`` (N, c): what each effect coefficient put into the identified parameters during
-    the sweeps (its samples at the stations): the prior mean moves by ``−extra_shift·coef``."""
+                    extra=None, extra_shift=None, smoothing="gcv") -> ChainUpdate:
+    """Gaussian update of the element parameters from check residuals (n, 3) μm at ``axes_fit`` (n, k).
+
+    Model: the sweep identification measured the parameters, ``θ_id ~ N(θ, cov)`` (``cov`` (N, N)
+    its covariance, gauge directions of zero variance held); the checks measure ``r = M·Δθ + noise``
+    (σ per coordinate, estimated: fixed point on the residual with its effective degrees of freedom);
+    a smoothness prior on the UPDATED values along each axis, ``weight·‖D·(θ_id + Δθ)‖²/σ²``
+    (:func:`second_differences`; the sweeps' station noise is white along the stations, the
+    geometry is not). ``smoothing``: the weight, or ``"gcv"``: chosen on :data:`SMOOTH_GRID`
+    (0 included: the sweep prior alone) by generalised cross-validation on the fitting checks
+    (``n·RSS/(n − dof)²``), never on held-out checks.
+
+    ``extra`` (n, 3, c): effect columns fitted jointly with no prior (their coefficients in
+    ``ChainUpdate.extra_coef``); ``extra_shift`` (N, c): what each effect coefficient put into the
+    identified parameters during the sweeps (its samples at the stations): the measured values are
+    ``θ_id − extra_shift·coef`` and the smoothness prior applies to those."""
+    check_smoothing(smoothing)
     m = elements.machine
-    M = parameter_matrix(m, elements, axes_fit, slot_names, stations).reshape(-1, len(slot_names))
+    N = len(slot_names)
+    M = parameter_matrix(m, elements, axes_fit, slot_names, stations).reshape(-1, N)
     r = np.asarray(residual_fit, float).reshape(-1)
-    if extra is not None and extra_shift is not None:
-        extra = np.asarray(extra, float) - (M @ extra_shift).reshape(np.shape(extra))
+    c = 0 if extra is None else np.shape(extra)[-1]
+    S = np.zeros((N, c)) if extra_shift is None or extra is None else np.asarray(extra_shift, float)
     lam, U = np.linalg.eigh(0.5 * (cov + cov.T))
     keep = lam > 1e-12 * lam.max()
-    L = U[:, keep] * np.sqrt(lam[keep])                                  # Δθ = L·z, z ~ N(0, I)
-    Mz = M @ L
-    rp, Mp = r, Mz
-    if extra is not None:  # free columns: project them out, min |P⊥(r − Mz·z)|²/σ² + |z|², then b = E⁺(r − Mz·z)
-        E = np.asarray(extra, float).reshape(-1, np.shape(extra)[-1])
-        Q, _ = np.linalg.qr(E)
-        rp, Mp = r - Q @ (Q.T @ r), Mz - Q @ (Q.T @ Mz)
-    Uz, S, Vt = np.linalg.svd(Mp, full_matrices=False)
-    ur = Uz.T @ rp
-    sigma = float(np.sqrt(np.mean(rp**2)))
-    n_extra = 0 if extra is None else np.shape(extra)[-1]
-    for _ in range(SIGMA_ITERATIONS):
-        f = S**2 / (S**2 + sigma**2)                                     # shrinkage per direction
-        fit = Uz @ (f * ur)
-        dof = float(f.sum()) + n_extra
-        sigma = float(np.sqrt(np.sum((rp - fit) ** 2) / max(r.size - dof, 1.0)))
-    f = S**2 / (S**2 + sigma**2)
-    z = Vt.T @ (f * ur / np.where(S > 0, S, 1.0))
-    coef = None if extra is None else np.linalg.lstsq(E, r - Mz @ z, rcond=None)[0]
-    delta = L @ z - (extra_shift @ coef if extra_shift is not None else 0.0)
-    return ChainUpdate(apply_parameters(elements, slot_names, stations, delta), sigma, float(f.sum()), coef)
+    L = U[:, keep] * np.sqrt(lam[keep])                                  # Δθ = L·z − S·b, z ~ N(0, I)
+    K = L.shape[1]
+    X = M @ L
+    if c:
+        E = np.asarray(extra, float).reshape(-1, c) - M @ S
+        X = np.hstack([X, E])
+    D = second_differences(elements, slot_names, stations, M)
+    G = D @ np.hstack([L, -S])                                           # roughness of the update
+    d0 = D @ parameter_values(elements, slot_names, stations)           # roughness of the identified values
+    XtX, Xtr, GtG, Gtd = X.T @ X, X.T @ r, G.T @ G, G.T @ d0
+    prior = np.r_[np.ones(K), np.zeros(c)]
+
+    def solve(weight, s2):
+        A = XtX + s2 * (np.diag(prior) + weight * GtG)
+        try:
+            f = scipy.linalg.cho_factor(A)
+            w = scipy.linalg.cho_solve(f, Xtr - s2 * weight * Gtd)
+            dof = float(np.trace(scipy.linalg.cho_solve(f, XtX)))
+        except np.linalg.LinAlgError:   # an effect column the elements can imitate exactly: min-norm
+            Ai = np.linalg.pinv(A)
+            w, dof = Ai @ (Xtr - s2 * weight * Gtd), float(np.trace(Ai @ XtX))
+        return w, dof, float(np.sum((r - X @ w) ** 2))
+
+    def noise(weight):
+        s2 = float(np.mean(r**2))
+        for _ in range(SIGMA_ITERATIONS):
+            _, dof, rss = solve(weight, s2)
+            s2 = rss / max(r.size - dof, 1.0)
+        return s2
+
+    s2 = noise(0.0)
+    table = []
+    grid = SMOOTH_GRID if smoothing == "gcv" else [float(smoothing)]
+    for weight in grid:
+        _, dof, rss = solve(float(weight), s2)
+        table.append({"weight": float(weight), "gcv": r.size * rss / max(r.size - dof, 1.0) ** 2, "dof": dof})
+    best = min(table, key=lambda t: t["gcv"])
+    weight = best["weight"]
+    if weight > 0:
+        s2 = noise(weight)
+    w, dof, _ = solve(weight, s2)
+    z, coef = w[:K], (w[K:] if c else None)
+    delta = L @ z - (S @ coef if c else 0.0)
+    gain = None
+    if not c:
+        A = XtX + s2 * (np.diag(prior) + weight * GtG)
+        gain = L @ np.linalg.solve(A, X.T)
+    return ChainUpdate(apply_parameters(elements, slot_names, stations, delta), float(np.sqrt(s2)), dof - c, coef,
+                       weight, table, best["gcv"], gain)
 
 
-def ols_update(elements: ChainElementSet, slot_names, stations, axes_fit, residual_fit) -> ChainElementSet:
+def ols_update(elements: ChainElementSet, slot_names, stations, axes_fit, residual_fit,
+               return_gcv: bool = False):
     """The plain baseline: the same parameters fitted to the fitting checks by unregularised least
-    squares (minimum norm over the directions above :data:`OLS_RCOND`), no prior."""
+    squares (minimum norm over the directions above :data:`OLS_RCOND`), no prior. ``return_gcv``:
+    also its GCV on the fitting checks (``n·RSS/(n − rank)²``), the figure the update is compared with."""
     M = parameter_matrix(elements.machine, elements, axes_fit, slot_names, stations).reshape(-1, len(slot_names))
-    delta = np.linalg.lstsq(M, np.asarray(residual_fit, float).reshape(-1), rcond=OLS_RCOND)[0]
-    return apply_parameters(elements, slot_names, stations, delta)
+    r = np.asarray(residual_fit, float).reshape(-1)
+    delta, _, rank, _ = np.linalg.lstsq(M, r, rcond=OLS_RCOND)
+    el = apply_parameters(elements, slot_names, stations, delta)
+    if not return_gcv:
+        return el
+    rss = float(np.sum((r - M @ delta) ** 2))
+    return el, (r.size * rss / (r.size - rank) ** 2 if r.size > rank else float("inf"))
 
 
 # -- effects ------------------------------------------------------------------------------------
@@ -311,7 +450,96 @@ def effect_candidates(machine: MachineTool, conditions: dict) -> list:
     out += [("reversal", (w,)) for w in lin + rot if f"dir_{w.lower()}" in conditions]
     out += [("periodic", (w,)) for w in lin]
     out += [("harmonic", (w,)) for w in rot]
-    out += [("interaction", (v, w)) for i, v in enumerate(lin) for w in lin[i + 1:]]
+    out += [("interaction", (v, w)) for v in lin for w in lin if v != w]   # on v's own element: v*w ≠ w*v
+    return out
+
+
+def full_parameters(elements: ChainElementSet) -> tuple[list, np.ndarray]:
+    """Every element parameter of the chain: each slot at each station of its axis (a full turn's
+    last station is its first: left out) and the constants, as ``(slot names, stations)`` (−1: a
+    constant), the parameters :func:`parameter_matrix` takes."""
+    m = elements.machine
+    names, stations = [], []
+    for a in m.axes:
+        if not m.slots_of(a.word):
+            continue
+        n = elements.stations[a.column].size - (1 if a.full_turn else 0)
+        for i in range(n):
+            for s in m.slots_of(a.word):
+                names.append(s)
+                stations.append(i)
+    for s in m.constant_slots:
+        names.append(s)
+        stations.append(-1)
+    return names, np.array(stations)
+
+
+@dataclass
+class SlotSpan:
+    """The span of the chain's element parameters over a set of points: ``Q`` (3n, rank) an
+    orthonormal basis of the columns of ``∂(tool-point error)/∂(parameters)``, its ``rank`` and the
+    number of parameters ``n_params`` (pivoted QR, relative tolerance :data:`SPAN_RANK_TOL`)."""
+
+    Q: np.ndarray
+    rank: int
+    n_params: int
+
+    @classmethod
+    def of(cls, elements: ChainElementSet, axes) -> "SlotSpan":
+        names, stations = full_parameters(elements)
+        M = parameter_matrix(elements.machine, elements, axes, names, stations).reshape(-1, len(names))
+        scale = np.linalg.norm(M, axis=0)
+        scale[scale == 0] = 1.0
+        Q, R, _ = scipy.linalg.qr(M / scale, mode="economic", pivoting=True)
+        d = np.abs(np.diag(R))
+        rank = int(np.sum(d > SPAN_RANK_TOL * d[0])) if d.size else 0
+        return cls(Q[:, :rank], rank, len(names))
+
+    def outside(self, columns) -> np.ndarray:
+        """Per column of ``columns`` (n, 3, c): the fraction of its norm outside the span, (c,)."""
+        C = np.asarray(columns, float).reshape(-1, np.shape(columns)[-1])
+        out = C - self.Q @ (self.Q.T @ C)
+        return np.linalg.norm(out, axis=0) / np.maximum(np.linalg.norm(C, axis=0), 1e-300)
+
+    def rank_with(self, columns) -> int:
+        """Numerical rank of the span augmented by ``columns`` (n, 3, c): ``rank`` + the columns'
+        independent parts above :data:`REPRESENTED_TOL` of their norm."""
+        C = np.asarray(columns, float).reshape(-1, np.shape(columns)[-1])
+        nrm = np.maximum(np.linalg.norm(C, axis=0), 1e-300)
+        out = (C - self.Q @ (self.Q.T @ C)) / nrm
+        sv = np.linalg.svd(out, compute_uv=False)
+        return self.rank + int(np.sum(sv > REPRESENTED_TOL))
+
+
+def representable_terms(machine: MachineTool, elements: ChainElementSet, axes, conditions, span=None) -> list:
+    """Which effect candidates without a shape parameter (:func:`effect_candidates`: thermal,
+    reversal, interaction) the element slots can represent over the points ``axes`` (n, k): the rank
+    of the slots' Jacobian (every slot at every station, :func:`full_parameters`) is unchanged by the
+    term's columns (less than :data:`REPRESENTED_TOL` of their norm outside the span). Such a term is
+    taken up by the element update; it is reported as absorbed, not searched. E.g. an interaction
+    V·W on V's own direction is an angular error of V (a function of v) through a lever arm that
+    grows with w exactly when moving W moves the tool point relative to V's carriage across v:
+    represented then, not otherwise (W carried by V on the workpiece side, or V on the tool side with
+    W not beyond it). ``[{"kind", "axis", "element", "outside_fraction", "rank_slots",
+    "rank_with_term", "represented"}]`` for every such candidate; ``[]`` when the points give fewer
+    than :data:`SPAN_ROWS_PER_PARAM` rows per parameter (not decidable there)."""
+    axes = np.asarray(axes, float)
+    if span is None:
+        if 3 * len(axes) < SPAN_ROWS_PER_PARAM * len(full_parameters(elements)[0]):
+            return []
+        span = SlotSpan.of(elements, axes)
+    Je = machine.error_jacobian(axes)
+    out = []
+    for kind, words in effect_candidates(machine, conditions):
+        if effect_kind(kind).nonlinear:
+            continue
+        C, el = effect_columns(machine, kind, words, axes, conditions, None, Je)
+        if not np.any(C):   # e.g. thermal at a constant reference temperature: nothing to represent
+            continue
+        frac = float(span.outside(C).max())
+        out.append({"kind": kind, "axis": "*".join(words), "element": el, "outside_fraction": frac,
+                    "rank_slots": span.rank, "rank_with_term": span.rank_with(C),
+                    "represented": bool(frac < REPRESENTED_TOL)})
     return out
 
 
@@ -343,28 +571,34 @@ def effect_columns(machine: MachineTool, kind: str, words, axes, conditions, sha
     return np.stack([jcol * fi[:, None] for fi in f], axis=2), el
 
 
-def _fit_shape(machine, kind, words, axes, cond, r, Je):
-    """Best shape (periodogram over the grid) and its columns, fitted on (axes, r)."""
+def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None):
+    """Best shape (periodogram over the grid) and its columns, fitted on the fitting checks:
+    ``(rss, shape, coefficients, element, columns at all checks (n, 3, c))``. ``response``: maps an
+    effect's columns (n, 3, c) to what of them is left after the element update (the update's linear
+    response removed; module doc of :func:`effect_search`)."""
     grid = ([{"period_mm": float(p)} for p in PERIOD_GRID_MM] if kind == "periodic" else
             [{"order": int(n)} for n in HARMONIC_ORDERS] if kind == "harmonic" else [None])
+    rf = r_fit.reshape(-1)
+
+    def one(shape):
+        C, el = effect_columns(machine, kind, words, checks.axes, checks.conditions, shape, Je)
+        if response is not None:
+            C = response(C)
+        X = C[fit_idx].reshape(-1, C.shape[2])
+        c = np.linalg.lstsq(X, rf, rcond=None)[0]
+        return float(np.sum((rf - X @ c) ** 2)), shape, c, el, C
+
     best = None
     for shape in grid:
-        C, el = effect_columns(machine, kind, words, axes, cond, shape, Je)
-        X = C.reshape(-1, C.shape[2])
-        c = np.linalg.lstsq(X, r.reshape(-1), rcond=None)[0]
-        rss = float(np.sum((r.reshape(-1) - X @ c) ** 2))
-        if best is None or rss < best[0]:
-            best = (rss, shape, c, el)
+        cand = one(shape)
+        if best is None or cand[0] < best[0]:
+            best = cand
     if kind == "periodic":  # refine: over a long stroke a 1.4 % period error drifts by cycles
         p0 = best[1]["period_mm"]
         for p in p0 * (1.0 + np.linspace(-PERIOD_REFINE, PERIOD_REFINE, 121)):
-            shape = {"period_mm": float(p)}
-            C, el = effect_columns(machine, kind, words, axes, cond, shape, Je)
-            X = C.reshape(-1, C.shape[2])
-            c = np.linalg.lstsq(X, r.reshape(-1), rcond=None)[0]
-            rss = float(np.sum((r.reshape(-1) - X @ c) ** 2))
-            if rss < best[0]:
-                best = (rss, shape, c, el)
+            cand = one({"period_mm": float(p)})
+            if cand[0] < best[0]:
+                best = cand
     return best
 
 
@@ -375,8 +609,12 @@ def _paired_z(r_before, r_after) -> float:
 
 
 def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
-                  exclude=()):
-    """Forward search (module doc): ``(accepted terms, rejected (kind, axes, z) list, residual after)``."""
+                  exclude=(), response=None):
+    """Forward search (module doc): ``(accepted terms, rejected (kind, axes, z) list, residual after)``.
+    ``exclude``: ``(kind, words)`` not tried (found, or represented by the slots); ``response``: when the
+    residual is an element update's, the map of an effect's columns to what the update leaves of them
+    (``C − M·gain·C_fit``): the update has taken up the part of an effect the slots can imitate, so the
+    term is fitted and judged by the rest, with its own coefficient."""
     Je = machine.error_jacobian(checks.axes)
     r = np.asarray(residual, float).copy()
     cands = effect_candidates(machine, checks.conditions)
@@ -386,15 +624,12 @@ def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hol
         for kind, words in cands:
             if any(t.kind == kind and t.axes == words for t in accepted) or (kind, words) in exclude:
                 continue
-            rss, shape, c, el = _fit_shape(machine, kind, words, checks.axes[fit_idx],
-                                           {k: v[fit_idx] for k, v in checks.conditions.items()}, r[fit_idx],
-                                           Je[fit_idx])
-            scored.append((rss, kind, words, shape, c, el))
+            rss, shape, c, el, C = _fit_shape(machine, kind, words, checks, fit_idx, r[fit_idx], Je, response)
+            scored.append((rss, kind, words, shape, c, el, C))
         if not scored:
             break
         scored.sort(key=lambda s: s[0])
-        rss, kind, words, shape, c, el = scored[0]
-        C, _ = effect_columns(machine, kind, words, checks.axes, checks.conditions, shape, Je)
+        rss, kind, words, shape, c, el, C = scored[0]
         contrib = np.einsum("nic,c->ni", C, c)
         z = _paired_z(r[hold_idx], (r - contrib)[hold_idx])
         if z <= HELD_OUT_Z:
@@ -442,12 +677,13 @@ def sweep_shift(machine: MachineTool, elements: ChainElementSet, term: EffectTer
 # -- the loop -----------------------------------------------------------------------------------
 def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: MTChecks, cov=None,
                       fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
-                      max_effects: int = 4) -> dict:
+                      max_effects: int = 4, smoothing="gcv") -> dict:
     """Run the stages (module doc) and return the summary dict (``stages`` with held-out/fitting
     statistics, ``kept_stage``, ``noise_floor_um``, ``effects``) and, under ``"_models"``, the element
     sets of the stages (not JSON)."""
     if not 0 < fit_fraction < 1:
         raise ValueError(f"Expected 0 < fit_fraction < 1, got {fit_fraction}")
+    check_smoothing(smoothing)
     n = len(checks)
     n_fit = int(round(fit_fraction * n))
     if n_fit < 5 or n - n_fit < 5:
@@ -465,27 +701,54 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     stages = {"identified": stats(r0)}
     models = {"identified": elements}
     resid_of = {"identified": r0}
-    sigma = None
+    sigma, prior = None, None
     if cov is not None:
         slot_names, stations, C = cov
-        upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx])
+        upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=smoothing)
+        plain = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=0.0)
+        stages["baseline_update_sweep_prior"] = stats(resid(plain.elements_))   # the update without the smoothness prior
+        stages["baseline_update_sweep_prior"]["gcv"] = plain.gcv_value
+        ols_el, ols_gcv = None, float("inf")
+        try:
+            ols_el, ols_gcv = ols_update(elements, slot_names, stations, checks.axes[fit_idx], r0[fit_idx], return_gcv=True)
+            stages["baseline_ols_update"] = stats(resid(ols_el))
+            stages["baseline_ols_update"]["gcv"] = ols_gcv
+        except ValueError as exc:  # the unregularised fit left the machine's range: reported, not used
+            stages["baseline_ols_update"] = {"failed": str(exc)}
+        prior = {"smoothing_weight": upd.smoothing, "chosen_by": "GCV on the fitting checks" if smoothing == "gcv"
+                 else "given", "gcv": upd.gcv_value, "gcv_table": upd.gcv, "gcv_ols_update": ols_gcv if np.isfinite(ols_gcv) else None,
+                 "kept": "update with the smoothness prior"}
+        if ols_el is not None and ols_gcv < upd.gcv_value:   # never keep a prior that loses to the plain fit
+            upd = ChainUpdate(ols_el, upd.sigma_um, float(len(slot_names)), None, 0.0, upd.gcv, ols_gcv)
+            prior["kept"] = "the unregularised least-squares update (lower GCV on the fitting checks)"
         r1 = resid(upd.elements_)
         stages["updated"] = stats(r1)
         stages["updated"]["dof"] = upd.dof
+        stages["updated"]["smoothing_weight"] = upd.smoothing
         models["updated"], resid_of["updated"] = upd.elements_, r1
         sigma = upd.sigma_um
-        try:
-            stages["baseline_ols_update"] = stats(resid(ols_update(elements, slot_names, stations, checks.axes[fit_idx],
-                                                                   r0[fit_idx])))
-        except ValueError as exc:  # the unregularised fit left the machine's range: reported, not used
-            stages["baseline_ols_update"] = {"failed": str(exc)}
     X = np.hstack([np.ones((n, 1)), checks.axes])            # the plainest: the residual linear in the axes
     B = np.linalg.lstsq(X[fit_idx], r0[fit_idx], rcond=None)[0]
     stages["baseline_ols_linear"] = stats(r0 - X @ B)
     last = "updated" if "updated" in models else "identified"
     accepted, rejected = [], []
+    absorbed, response = [], None
     if effects:
-        accepted, rejected, r2 = effect_search(machine, checks, resid_of[last], fit_idx, hold_idx, max_effects)
+        terms = representable_terms(machine, elements, checks.axes, checks.conditions)
+        absorbed = [{**t, "note": f"{t['kind']} {t['axis']} on {t['element']}: the element slots represent this term "
+                     f"over the checks (rank {t['rank_slots']} with and without it; "
+                     f"{t['outside_fraction']:.1e} of it outside their span), so the element update absorbs it: "
+                     "it is in the updated elements, not a missed effect"} for t in terms if t["represented"]]
+        exclude = [(t["kind"], tuple(t["axis"].split("*"))) for t in absorbed]
+        if last == "updated" and upd.gain is not None:   # what the update leaves of an effect's columns
+            Mall = parameter_matrix(machine, elements, checks.axes, slot_names, stations).reshape(-1, len(slot_names))
+            gain = upd.gain
+
+            def response(Cols):
+                Cf = Cols[fit_idx].reshape(-1, Cols.shape[2])
+                return Cols - (Mall @ (gain @ Cf)).reshape(Cols.shape)
+        accepted, rejected, r2 = effect_search(machine, checks, resid_of[last], fit_idx, hold_idx, max_effects,
+                                               exclude=exclude, response=response)
         for _ in range(ROUNDS - 1):  # the update made jointly with the accepted effects, then the search goes on
             if not accepted or last != "updated":
                 break
@@ -493,7 +756,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
                                 for t in accepted], axis=2)
             shift = np.concatenate([sweep_shift(machine, elements, t, slot_names, stations, C) for t in accepted], axis=1)
             upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], extra=E[fit_idx],
-                                  extra_shift=shift)
+                                  extra_shift=shift, smoothing=smoothing)
             k = 0
             for t in accepted:
                 c = t.coefficients.size
@@ -501,7 +764,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             r_joint = resid(upd.elements_) - np.einsum("nic,c->ni", E, upd.extra_coef)
             models["joint"], sigma = upd.elements_, upd.sigma_um
             more, rejected, r2 = effect_search(machine, checks, r_joint, fit_idx, hold_idx, max_effects - len(accepted),
-                                               exclude=[(t.kind, t.axes) for t in accepted])
+                                               exclude=exclude + [(t.kind, t.axes) for t in accepted], response=response)
             accepted += more
             if not more:
                 break
@@ -523,8 +786,8 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     held = stages[kept_name]["held_out"]["rms_um"]
     return {"machine": machine.name, "n_checks": n, "n_fit": n_fit, "n_held_out": n - n_fit,
             "split": f"blocked by seq: first {fit_fraction:g} fit, the rest held out",
-            "stages": stages, "kept_stage": kept_name, "kept_why": why,
-            "effects": [t.to_dict() for t in accepted], "effects_rejected": rejected,
+            "stages": stages, "kept_stage": kept_name, "kept_why": why, "update_prior": prior,
+            "effects": [t.to_dict() for t in accepted], "effects_rejected": rejected, "effects_absorbed": absorbed,
             "noise_sigma_um": sig, "noise_sigma_source": "given" if noise_um is not None else
             ("estimated by the update" if sigma is not None else None),
             "noise_floor_um": floor, "held_out_rms_um": held,

@@ -243,6 +243,8 @@ def diagnosis_lines(summary) -> list:
         lines.append(f"effect: {e['kind']} axis {e['axis']} on {e['element']} (held-out gain z = {e['held_out_gain_z']:.1f})")
     if not summary["effects"]:
         lines.append("no effect found")
+    for e in summary.get("effects_absorbed", []):
+        lines.append(f"absorbed by the update: {e['note']}")
     lines.append(f"kept stage: {summary['kept_stage']} ({summary['kept_why']})")
     if summary["noise_floor_um"] is not None:
         lines.append(f"noise floor {summary['noise_floor_um']:.3g} um (sigma {summary['noise_sigma_um']:.3g} um, "
