@@ -25,7 +25,10 @@ def _figures(chain, core, check) -> list:
     e = {"nominal": np.linalg.norm(check.xyz_mm - chain.tool_point(check.q), axis=1),
          gname: np.linalg.norm(check.xyz_mm - pred, axis=1)}
     if core["learner"] is not None:
-        e["learned"] = np.linalg.norm(check.xyz_mm - pred - core["learner"].predict(check.q), axis=1)
+        vgeo = core.get("volcomp_geometric_model", geo)
+        e["learned"] = np.linalg.norm(check.xyz_mm - vgeo.predict(check.q) - core["learner"].predict(check.q), axis=1)
+    if core.get("kept_learner") is not None and core["kept_stage"] not in e:
+        e[core["kept_stage"]] = np.linalg.norm(check.xyz_mm - pred - core["kept_learner"].predict(check.q), axis=1)
     figs = []
     fig, ax = plt.subplots(figsize=(7, 3.5))
     order = np.argsort(e[gname])
