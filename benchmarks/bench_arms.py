@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections import Counter
 import sys
 import time
 from pathlib import Path
@@ -216,7 +217,6 @@ def write_md(res, args):
             ks = r[kind]["folds"]
             part_note = (f" (PARTIAL: {len(ks)} of {r[kind]['n_folds_planned']} outer folds run)"
                          if len(ks) < r[kind].get("n_folds_planned", len(ks)) else "")
-            from collections import Counter
             n_kept = ", ".join(f"{k} in {v}" for k, v in Counter(f["kept"] for f in ks).most_common())
             geo = sorted({f["geometric_model"] for f in ks})
             cov_raw = [f["coverage95_cv_raw"] for f in ks if f["coverage95_cv_raw"] is not None]
@@ -225,7 +225,10 @@ def write_md(res, args):
                   f"95 % band of the kept stage on the outer held-out fold: coverage {np.mean(covh):.3f} "
                   f"(per fold {', '.join(f'{c:.3f}' for c in covh)})"
                   + (f"; the GP's uncalibrated band in its inner CV: {np.mean(cov_raw):.3f}" if cov_raw else "")
-                  + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s."]
+                  + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s."
+                  + ("" if all("cv_pipelines" in f for f in ks) else
+                     " RUN BEFORE the pipeline CV (point 5 of docs/arms.md): its kept stage is volcomp's choice "
+                     "without the plain pipelines as candidates.")]
         L.append("")
     L += ["Rows: `geometric (DH)` volcomp's LM on the identifiable DH + base + tool slots; `geometric+compliance` adds "
           "a compliance slot per load-carrying joint (Δθ = c·τ(q), τ the gravity moment of unit masses at the "

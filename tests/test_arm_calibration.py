@@ -27,6 +27,10 @@ N_SEEDS = 20
 # the pipeline CV refits each fold's geometric stage itself where not handed the fold fits: the same LM from the
 # same start on the same poses gives the same figure up to round-off
 PIPELINE_CV_ATOL_MM = 1e-9
+# ... except the plain LSQ fit: rank-deficient by design (no identifiability handling), so a refit lands elsewhere
+# in its flat valley as BLAS sums in another order; measured 2.2e-7 mm on this set, 1e-5 mm is far below its
+# 0.034 mm CV figure and far above that round-off
+PLAIN_REFIT_ATOL_MM = 1e-5
 # the judge's reference fit (noise-free, sag-free tool points of the truth, on the estimate's identified slots)
 # must reproduce them: measured 2e-13 mm RMS (LM to round-off); 1e-6 mm fails on a slot set that cannot
 REF_FIT_RMS_MAX_MM = 1e-6
@@ -205,7 +209,7 @@ def test_pipeline_cv_refits_on_the_geometric_cv_folds(ur5):
     for ff in (fold_fits, None):
         got = cv_pipelines(ur5, p, pipes, 3, 5, fold_fits=ff)
         assert abs(got["geometric"]["cv_mean_mm"] - table["dh"]) <= PIPELINE_CV_ATOL_MM
-        assert abs(got["plain geometric LSQ"]["cv_mean_mm"] - table["plain"]) <= PIPELINE_CV_ATOL_MM
+        assert abs(got["plain geometric LSQ"]["cv_mean_mm"] - table["plain"]) <= PLAIN_REFIT_ATOL_MM
 
 
 def test_extended_chain_jacobian_matches_differences(ur5):
