@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 from errormap.arm_calibration import fit_model, fit_slots  # noqa: E402
 from errormap.arm_poses import ArmPoses, read_arm_poses  # noqa: E402
 from errormap.arm_simulate import draw_truth, measure, random_joints  # noqa: E402
-from errormap.io import write_json  # noqa: E402
+from errormap.io import atomic_write, write_json  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
 
 from compensation.app.workflows.arm_calibration import calibrate_arm  # noqa: E402
@@ -152,7 +152,9 @@ def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
                 ref = fit_slots(chain, ArmPoses(q, chain.tool_point(q, t.errors), None, None, None, p.rows, "truth",
                                                 "schema"), r.free[:ng])
                 ok = r.free[:ng]
-                half.append(float(np.median(Z95 * r.std[:ng][ok])))
+                mm = np.array([nm.endswith("_mm") for nm in chain.param_names])
+                half.append((float(np.median(Z95 * r.std[:ng][ok & mm])),
+                             float(np.median(Z95 * r.std[:ng][ok & ~mm])) * 1e6))
                 n_slots.append(int(ok.sum()))
                 inside.append(float(np.mean((np.abs(r.params[:ng] - ref.params) <= Z95 * r.std[:ng])[ok])))
                 if model != "dh":
@@ -161,7 +163,7 @@ def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
                     inside_c.append(float(np.mean(np.abs(r.params[cj] - truth_c) <= Z95 * r.std[cj])))
             cover[f"{case}, {model}"] = {"pooled": float(np.mean(inside)), "per_seed": inside,
                                          "seeds_at_least_90pct": float(np.mean(np.array(inside) >= 0.9)),
-                                         "median_band_halfwidth": float(np.median(half)), "n_slots": n_slots,
+                                         "median_band_halfwidth_mm_urad": np.median(np.array(half), axis=0).tolist(), "n_slots": n_slots,
                                          "compliance_inside_band": float(np.mean(inside_c)) if inside_c else None}
             print(f"[sim] link-error band coverage ({case}, {model}): {np.mean(inside):.3f}", file=log, flush=True)
     # learned stage + compensation on one seed per run of the loop (seed 7; the CLI test does the same)
@@ -185,6 +187,11 @@ def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
         print(f"[sim] seed {100 + seed}: kept {core['kept_stage']} RMS {rows[core['kept_stage']]['rms_mm']:.4f} mm, comp TRUE "
               f"{loop[-1]['compensation_true_rms_mm']:.4f} mm", file=log, flush=True)
     return cover, loop
+
+
+def _write_md(path, text):
+    with atomic_write(path, "w", encoding="utf-8") as f:   # whole or not at all
+        f.write(text)
 
 
 def fmt(v, d=3):
@@ -244,7 +251,7 @@ def write_md(res, args):
           "choice), so the kept stage never loses to a plain baseline in the inner validation. Every "
           "decision is nested: the outer held-out fold only reports.", ""]
     if "sim" not in res:
-        OUT_MD.write_text("\n".join(L + ["(simulated-arm section not run yet)", ""]), encoding="utf-8")
+        _write_md(OUT_MD, "\n".join(L + ["(simulated-arm section not run yet)", ""]))
         return
     L += ["## Simulated UR5 (link errors + joint-stiffness sag [+ backlash] + tracker noise 0.02 mm)", "",
           "Geometric stage on 200 random poses per seed: share of identified link/base/tool slots whose 95 % band "
@@ -255,16 +262,18 @@ def write_md(res, args):
           "`exact-band expectation`: the share of seeds reaching ≥ 90 % if every band held its slot with probability "
           "0.95 independently (binomial over the seed's identified slots) — what honest 95 % bands give.", "",
           "| case, slot set | link slots inside band (pooled) | seeds with ≥ 90 % inside | exact-band expectation | "
-          "median band half-width (slot units) | compliance slots inside band |",
+          "median 95 % band half-width, length slots (mm) / angle slots (µrad) | compliance slots inside band |",
           "|---|---|---|---|---|---|"]
     from scipy.stats import binom
-    for k, v in res["sim"]["coverage"].items():
+    order = [f"{c}, {m}" for c in ("no sag", "with sag", "with sag + backlash") for m in ("dh", "dh+compliance")]
+    for k, v in sorted(res["sim"]["coverage"].items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else 99):
         ns = v.get("n_slots")
+        hw = v.get("median_band_halfwidth_mm_urad")
         expect = (f"{np.mean([binom.cdf(int(np.floor(0.1 * n)), n, 0.05) for n in ns]):.2f} "
                   f"({min(ns)}–{max(ns)} slots)") if ns else "—"
         n_ok = int(round(v['seeds_at_least_90pct'] * len(v['per_seed'])))
         L.append(f"| {k} ({len(v['per_seed'])} seeds) | {v['pooled']:.3f} | {n_ok} of {len(v['per_seed'])} | {expect} | "
-                 f"{fmt(v.get('median_band_halfwidth'), 4)} | {fmt(v['compliance_inside_band'])} |")
+                 f"{'—' if hw is None else f'{hw[0]:.4f} / {hw[1]:.1f}'} | {fmt(v['compliance_inside_band'])} |")
     missing = [f"{c}, {m}" for c in ("no sag", "with sag", "with sag + backlash") for m in ("dh", "dh+compliance")
                if f"{c}, {m}" not in res["sim"]["coverage"]]
     if missing:
@@ -281,7 +290,7 @@ def write_md(res, args):
                  f"{fmt(s['compensation_true_rms_mm'], 4)} ({s['converged']}/{s['points']} converged) | "
                  f"{fmt(s['uncompensated_true_rms_mm'], 4)} |")
     L.append("")
-    OUT_MD.write_text("\n".join(L), encoding="utf-8")
+    _write_md(OUT_MD, "\n".join(L))
 
 
 def main(argv=None):
@@ -298,7 +307,11 @@ def main(argv=None):
     ap.add_argument("--parts", default="wam,sim,ur5", help="what to run, in order: arm names and/or 'sim'")
     ap.add_argument("--sim-only", default="", help="';'-separated 'case, model' coverage runs (default all)")
     ap.add_argument("--merge", action="store_true", help="keep the other parts' results from the existing json")
+    ap.add_argument("--out", default=None, help="write <OUT>.json / <OUT>.md instead of benchmarks/arms_results.*")
     args = ap.parse_args(argv)
+    global OUT_MD, OUT_JSON
+    if args.out:
+        OUT_MD, OUT_JSON = Path(args.out + ".md"), Path(args.out + ".json")
     if args.quick:
         args.repeats, args.ur5_repeats, args.folds, args.seeds, args.loop_seeds = 1, 1, 3, min(args.seeds, 3), 1
     log = sys.stderr
