@@ -284,8 +284,8 @@ class ExtendedChain:
 
     Duck-types what calibration and compensation use of :class:`errormap.chain.Chain`
     (``param_names``, ``tool_point``, ``error_jacobian``, ``frames``, ``fk``, ``joint_jacobian``);
-    everything else is the chain's. The joint Jacobian leaves out ∂Δθ/∂q (≈ c·∂τ/∂q, below 1e-4 of
-    the joint's own column for a sag of 0.1 mm): Newton still converges to the same point.
+    everything else is the chain's. The joint Jacobian is that of the effective joints,
+    ``J(q + Δθ) · (I + ∂Δθ/∂q)`` (∂τ/∂q by :func:`errormap.arm_simulate.gravity_moment_jacobian_mm`).
     """
 
     def __init__(self, chain, compliance: bool = True, harmonic: bool = False):
@@ -334,6 +334,20 @@ class ExtendedChain:
             out[:, k] = tau[:, j] if kind == "c" else (np.sin if kind == "s" else np.cos)(np.radians(q[:, j]))
         return out
 
+    def _basis_jacobian(self, q) -> np.ndarray:
+        """∂(∂Δθ/∂slot)/∂q: rad per slot unit per joint unit, shape (n, n_extra, nq)."""
+        from .arm_simulate import gravity_moment_jacobian_mm
+        q = np.atleast_2d(np.asarray(q, float))
+        out = np.zeros((len(q), len(self.terms), q.shape[1]))
+        dtau = gravity_moment_jacobian_mm(self.chain, q) * GRAVITY_M_PER_MM if self.compliance else None
+        for k, (_, j, kind) in enumerate(self.terms):
+            if kind == "c":
+                out[:, k, :] = dtau[:, j, :]
+            else:
+                r = np.radians(q[:, j])
+                out[:, k, j] = (np.cos(r) if kind == "s" else -np.sin(r)) * (np.pi / 180)
+        return out
+
     def effective_joints(self, q, errors=None) -> np.ndarray:
         """``q + Δθ(q)`` in the joints' units, shape (n, nq)."""
         q = np.atleast_2d(np.asarray(q, float))
@@ -356,8 +370,19 @@ class ExtendedChain:
         return self.frames(q, errors)[:, -1, :3, 3]
 
     def joint_jacobian(self, q, errors=None, orientation: bool = False, frames=None):
+        """∂(tool point [, rotation vector])/∂q of the extended chain, ``J(q + Δθ) · (I + ∂Δθ/∂q)``,
+        shape (n, 3 or 6, nq) per joint unit."""
         F = self.frames(q, errors) if frames is None else frames
-        return self.chain.joint_jacobian(q, self._split(errors)[0], orientation=orientation, frames=F)
+        geo, ex = self._split(errors)
+        J = self.chain.joint_jacobian(q, geo, orientation=orientation, frames=F)
+        if not len(self.terms) or not np.any(ex):
+            return J
+        q = np.atleast_2d(np.asarray(q, float))
+        dq = np.zeros((len(q), q.shape[1], q.shape[1]))       # ∂(Δθ in joint units)/∂q
+        B = np.degrees(self._basis_jacobian(q)) * ex[None, :, None]
+        for k, (_, j, _) in enumerate(self.terms):
+            dq[:, j, :] += B[:, k, :]
+        return J + np.einsum("nij,njk->nik", J, dq)
 
     def error_jacobian(self, q, errors=None, frames=None):
         """∂(tool point)/∂(every slot), shape (n, 3, n_params)."""
@@ -389,28 +414,48 @@ def fit_model(chain, poses, model: str = "dh", max_iter: int = LM_MAX_ITER) -> G
     return _result(c, poses, x, free, combos, sv, it, conv, "volcomp")
 
 
-def cv_models(chain, poses, models=MODELS, k_folds: int = CV_FOLDS, seed=0, plain: bool = True,
-              groups=None) -> list[dict]:
-    """k-fold CV inside ``poses`` of every slot set (and the plain LSQ baseline when ``plain``):
-    per candidate ``{"model", "cv_mean_mm", "cv_rms_mm"}`` of the held-out position error norm.
-    ``groups`` (n,) block labels: each fold holds whole blocks (BLOCKED CV; at most ``k_folds``)."""
+def fit_slots(chain, poses, free, model: str = "dh", max_iter: int = LM_MAX_ITER) -> GeometricResult:
+    """LM on the given slots ``free`` (n_params of the slot set ``model``,) — e.g. another fit's identified
+    set: the same parameterisation, so that two fits' slot values can be compared one by one."""
+    c = extended_chain(chain, model)
+    free = np.asarray(free, bool)
+    if free.shape != (c.n_params,):
+        raise ValueError(f"free must have shape ({c.n_params},), got {free.shape}")
+    x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter)
+    return _result(c, poses, x, free, [], np.array([]), it, conv, "volcomp")
+
+
+def cv_labels(n: int, k_folds: int = CV_FOLDS, seed=0, groups=None) -> np.ndarray:
+    """Fold label per pose, (n,) ints 0..k-1: shuffled k-fold from ``seed``, or with ``groups`` (n,)
+    block labels whole blocks per fold (BLOCKED CV; at most ``k_folds`` folds)."""
     from .seeds import spawn_rngs
     rng = spawn_rngs(seed, 1)[0]
     if groups is None:
-        lab = rng.permutation(len(poses)) % k_folds
-    else:
-        u, inv = np.unique(np.asarray(groups), return_inverse=True)
-        if len(u) < 2:
-            raise ValueError("blocked CV needs at least 2 distinct groups")
-        k_folds = min(k_folds, len(u))
-        lab = (np.arange(len(u)) * k_folds // len(u))[inv]
+        return rng.permutation(n) % k_folds
+    u, inv = np.unique(np.asarray(groups), return_inverse=True)
+    if len(u) < 2:
+        raise ValueError("blocked CV needs at least 2 distinct groups")
+    k_folds = min(k_folds, len(u))
+    return (np.arange(len(u)) * k_folds // len(u))[inv]
+
+
+def cv_models(chain, poses, models=MODELS, k_folds: int = CV_FOLDS, seed=0, plain: bool = True,
+              groups=None, fold_fits: dict | None = None) -> list[dict]:
+    """k-fold CV inside ``poses`` of every slot set (and the plain LSQ baseline when ``plain``):
+    per candidate ``{"model", "cv_mean_mm", "cv_rms_mm"}`` of the held-out position error norm.
+    ``groups`` (n,) block labels: each fold holds whole blocks (BLOCKED CV; at most ``k_folds``).
+    Folds: :func:`cv_labels`. ``fold_fits``: a dict filled with ``(fold, model) → GeometricResult`` (the fits
+    on each fold's fit part, for a later CV of whole pipelines on the same folds without refitting)."""
+    lab = cv_labels(len(poses), k_folds, seed, groups)
     cands = list(models) + (["plain"] if plain else [])
     errs = {m: np.empty(len(poses)) for m in cands}
-    for f in range(k_folds):
+    for f in range(int(lab.max()) + 1):
         tr, te = poses.subset(np.flatnonzero(lab != f)), np.flatnonzero(lab == f)
         for m in cands:
             r = fit_plain_lsq(chain, tr) if m == "plain" else fit_model(chain, tr, m)
             errs[m][te] = np.linalg.norm(poses.xyz_mm[te] - r.predict(poses.q[te]), axis=1)
+            if fold_fits is not None:
+                fold_fits[(f, m)] = r
     return [{"model": m, "cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2)))}
             for m, e in errs.items()]
 

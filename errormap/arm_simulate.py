@@ -15,6 +15,9 @@ import numpy as np
 from .arm_poses import ArmPoses
 from .seeds import spawn_rngs
 
+MOMENT_FD_STEP_DEG = 1e-3   # central difference of the gravity moments (a smooth trigonometric function of q):
+# truncation ~ step² × the moment's third derivative ≈ 1e-10 of the moment, far below anything a fit or a GP input resolves
+
 
 @dataclass
 class ArmTruth:
@@ -50,6 +53,19 @@ def gravity_moment_mm(chain, q, errors=None) -> np.ndarray:
     for j in range(chain.n_joints):
         out[:, j] = np.einsum("ni,nmi->n", axes[:, j], np.cross(org[:, j + 1:] - org[:, j:j + 1], g))
     return out
+
+
+def gravity_moment_jacobian_mm(chain, q, errors=None) -> np.ndarray:
+    """∂(gravity moments)/∂q of :func:`gravity_moment_mm` by central differences (step
+    :data:`MOMENT_FD_STEP_DEG` in the joints' units), mm per joint unit, shape (n, nq, nq) ``[pose, moment, joint]``."""
+    q = np.atleast_2d(np.asarray(q, float))
+    n, nq = q.shape
+    qs = np.repeat(q[None], 2 * nq, 0)
+    for j in range(nq):
+        qs[2 * j, :, j] += MOMENT_FD_STEP_DEG
+        qs[2 * j + 1, :, j] -= MOMENT_FD_STEP_DEG
+    m = gravity_moment_mm(chain, qs.reshape(-1, nq), errors).reshape(nq, 2, n, nq)
+    return np.moveaxis((m[:, 0] - m[:, 1]) / (2 * MOMENT_FD_STEP_DEG), 0, 2)
 
 
 def draw_truth(chain, seed, trans_sd_mm=0.2, rot_sd_rad=3e-4, base_sd_mm=2.0, base_sd_rad=2e-3,

@@ -21,14 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from errormap.arm_simulate import gravity_moment_mm
+from errormap.arm_simulate import gravity_moment_jacobian_mm, gravity_moment_mm
 
 from .residual import ResidualRegressor
 
 FORMAT = "volcomp-arm-residual/2"
 INPUTS = ("physics", "sincos")
-MOMENT_FD_STEP_DEG = 1e-3   # central difference of the gravity moments (a smooth trigonometric function of q):
-# truncation ~ step² · moment'' ≈ 1e-10 of the moment, far below anything a GP input resolves
 M_PER_MM = 1e-3
 
 
@@ -46,7 +44,7 @@ def features(chain, q, inputs: str = "physics") -> np.ndarray:
 
 def feature_jacobian(chain, q, inputs: str = "physics") -> np.ndarray:
     """∂features/∂q per pose, shape (n, d, nq) (per joint unit): sin/cos analytic, gravity moments by
-    central differences (:data:`MOMENT_FD_STEP_DEG`)."""
+    central differences (:func:`errormap.arm_simulate.gravity_moment_jacobian_mm`)."""
     q = np.atleast_2d(np.asarray(q, float))
     n, nq = q.shape
     rev = np.flatnonzero([j.type == "revolute" for j in chain.joints])
@@ -63,11 +61,7 @@ def feature_jacobian(chain, q, inputs: str = "physics") -> np.ndarray:
         D[:, 2 * nr + i, j] = 1.0 / span[j]
     if inputs != "sincos":
         o = 2 * nr + len(pri)
-        for j in range(nq):
-            qp, qm = q.copy(), q.copy()
-            qp[:, j] += MOMENT_FD_STEP_DEG
-            qm[:, j] -= MOMENT_FD_STEP_DEG
-            D[:, o:, j] = (gravity_moment_mm(chain, qp) - gravity_moment_mm(chain, qm)) * M_PER_MM / (2 * MOMENT_FD_STEP_DEG)
+        D[:, o:, :] = gravity_moment_jacobian_mm(chain, q) * M_PER_MM
     return D
 
 
@@ -132,3 +126,35 @@ class ArmResidualRegressor:
         self = cls(chain, d["inputs"], d["k_folds"], d["n_restarts"], d["margin_se"])
         self.regressor_ = ResidualRegressor.from_dict(d["regressor"])
         return self._fitted()
+
+
+def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None, fold_fits=None) -> dict:
+    """Inner CV of whole pipelines (geometric stage [+ learned residual]) on the folds of
+    :func:`errormap.arm_calibration.cv_labels` (``k_folds``, ``seed``, ``groups``: the geometric CV's folds).
+
+    ``pipelines``: name → ``(model, learner)``, ``model`` a slot set of :data:`errormap.arm_calibration.MODELS`
+    or ``"plain"`` (the plain LSQ fit), ``learner`` a fitted :class:`ArmResidualRegressor` or None. Per fold
+    the geometric stage is REFITTED on the fold's fit part (taken from ``fold_fits`` of
+    :func:`~errormap.arm_calibration.cv_models` where there), and the learner's GP keeps the
+    hyper-parameters it chose on all of ``poses`` while its weights are re-solved on that refit's residual
+    at the fold's fit part (:meth:`training.residual.ResidualRegressor.with_data`); the held-out fold is
+    predicted. Returns name → ``{"cv_mean_mm", "cv_rms_mm", "errors_mm"}`` (``errors_mm`` (n,) held-out
+    position error norm per pose)."""
+    from errormap.arm_calibration import cv_labels, fit_model, fit_plain_lsq
+    lab = cv_labels(len(poses), k_folds, seed, groups)
+    fold_fits = {} if fold_fits is None else fold_fits
+    err = {k: np.empty(len(poses)) for k in pipelines}
+    for f in range(int(lab.max()) + 1):
+        itr, ite = np.flatnonzero(lab != f), np.flatnonzero(lab == f)
+        tr = poses.subset(itr)
+        for name, (model, learner) in pipelines.items():
+            if (f, model) not in fold_fits:
+                fold_fits[(f, model)] = fit_plain_lsq(chain, tr) if model == "plain" else fit_model(chain, tr, model)
+            geo = fold_fits[(f, model)]
+            pred = geo.predict(poses.q[ite])
+            if learner is not None and learner.chosen_ != "none":
+                reg = learner.regressor_.with_data(features(chain, tr.q, learner.inputs), tr.xyz_mm - geo.predict(tr.q))
+                pred = pred + reg.predict(features(chain, poses.q[ite], learner.inputs))
+            err[name][ite] = np.linalg.norm(poses.xyz_mm[ite] - pred, axis=1)
+    return {k: {"cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2))), "errors_mm": e}
+            for k, e in err.items()}

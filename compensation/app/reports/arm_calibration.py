@@ -19,13 +19,21 @@ Z95 = 1.959963984540054
 
 def _figures(chain, core, check) -> list:
     plt = pyplot()
-    geo = core["geometric_model"]
+    geo = core["geometric_model"]                       # the kept stage's geometric part
+    vgeo = core.get("volcomp_geometric_model", geo)     # volcomp's geometric choice (under the learned stage)
     pred = geo.predict(check.q)
-    gname = core.get("geometric_stage", "geometric")
+
+    def label(g):
+        return "plain geometric LSQ" if g.method.startswith("plain") else core.get("geometric_stage", "geometric")
+    gname = label(vgeo)
     e = {"nominal": np.linalg.norm(check.xyz_mm - chain.tool_point(check.q), axis=1),
-         gname: np.linalg.norm(check.xyz_mm - pred, axis=1)}
+         gname: np.linalg.norm(check.xyz_mm - vgeo.predict(check.q), axis=1)}
+    if label(geo) not in e:
+        e[label(geo)] = np.linalg.norm(check.xyz_mm - pred, axis=1)
     if core["learner"] is not None:
-        e["learned"] = np.linalg.norm(check.xyz_mm - pred - core["learner"].predict(check.q), axis=1)
+        e["learned"] = np.linalg.norm(check.xyz_mm - vgeo.predict(check.q) - core["learner"].predict(check.q), axis=1)
+    if core.get("kept_learner") is not None and core["kept_stage"] not in e:
+        e[core["kept_stage"]] = np.linalg.norm(check.xyz_mm - pred - core["kept_learner"].predict(check.q), axis=1)
     figs = []
     fig, ax = plt.subplots(figsize=(7, 3.5))
     order = np.argsort(e[gname])
@@ -36,7 +44,7 @@ def _figures(chain, core, check) -> list:
     ax.set_ylabel("|measured − model| (mm)")
     ax.legend(fontsize=8)
     figs.append(figure(fig, "per-pose errors", "Measured residual per held-out pose, each stage.", dpi=FIG_DPI))
-    kept = e[core["kept_stage"]] if core["kept_stage"] in e else e[gname]
+    kept = e[core["kept_stage"]] if core["kept_stage"] in e else e[label(geo)]
     fig, axs = plt.subplots(1, 2, figsize=(8, 3.5))
     for ax, (i, j, lab) in zip(axs, ((0, 1, "x–y"), (0, 2, "x–z"))):
         sc = ax.scatter(check.xyz_mm[:, i], check.xyz_mm[:, j], c=kept, s=10, cmap="viridis")
@@ -54,7 +62,7 @@ def _figures(chain, core, check) -> list:
     ax.set_xlabel("held-out pose × component")
     ax.set_ylabel("mm")
     cov = float(np.mean(np.abs(r) <= Z95 * band))
-    ax.set_title(f"{gname} stage: {100 * cov:.1f} % of components inside the 95 % band")
+    ax.set_title(f"{label(geo)} stage: {100 * cov:.1f} % of components inside the 95 % band")
     ax.legend(fontsize=8)
     figs.append(figure(fig, "prediction bands", "Geometric stage's 95 % prediction band and the held-out residual.",
                        dpi=FIG_DPI))

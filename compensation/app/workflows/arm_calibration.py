@@ -30,6 +30,8 @@ from .calibration import holdout_split
 
 MODEL_FORMAT = "volcomp-arm-calibration/2"
 Z95 = 1.959963984540054
+KEPT_WITH_LEARNER = ("learned", "plain GP on plain LSQ residual")
+"""Kept stages that carry a learned residual (``calibration.json`` key ``learned``)."""
 
 
 @dataclass
@@ -78,7 +80,8 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     nominal = errors_mm(check, chain.tool_point(check.q))
     base_tool = fit_base_tool(chain, fit)
     plain = fit_plain_lsq(chain, fit)
-    cv = cv_models(chain, fit, MODELS, k_folds, s_geo, plain=True, groups=groups)
+    fold_fits = {}
+    cv = cv_models(chain, fit, MODELS, k_folds, s_geo, plain=True, groups=groups, fold_fits=fold_fits)
     cvd = {r["model"]: r["cv_mean_mm"] for r in cv}
     model = choose_model([r for r in cv if r["model"] != "plain"])
     fits = {m: fit_model(chain, fit, m) for m in MODELS}
@@ -101,17 +104,17 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         notes.append(f"the plain least-squares calibration beat volcomp's {kept} in CV inside the fit poses "
                      f"({cvd['plain']:.6f} vs {cvd[model]:.6f} mm mean): it is the geometric stage returned")
         why += "; the plain LSQ fit did better in that CV and is returned as it"
-    e_geo_kept = errors_mm(check, geo_kept.predict(check.q))
+        kept = "plain geometric LSQ"
     stages = [stage_row("nominal", nominal, "nominal chain of the machine file")]
     for m in MODELS:
-        r = geo_kept if (m == model and geo_kept is plain) else fits[m]
-        stages.append(stage_row(stage_name(m), e_fit[m] if r is fits[m] else e_geo_kept,
-                                f"{r.method}: LM on the identifiable slots of {m} (CV mean in fit set {cvd[m]:.4f} mm)"))
+        stages.append(stage_row(stage_name(m), e_fit[m], f"{fits[m].method}: LM on the identifiable slots of {m} "
+                                                         f"(CV mean in fit set {cvd[m]:.4f} mm)"))
     baselines = [stage_row("nominal + base/tool", e_bt, "nominal chain, fitted base frame and tool point"),
                  stage_row("plain geometric LSQ", e_plain, "scipy least_squares, every DH slot + base + tool, "
                                                            "no identifiability handling"),
                  stage_row("volcomp geometric", e_fit["dh"], "LM on the identifiable DH slots (unidentifiable fixed)")]
-    learner, plain_gp = None, None
+    learner, plain_gp, kept_learner, pipeline_cv = None, None, None, None
+    geo_volcomp = geo_kept
     r_geo = check.xyz_mm - geo_kept.predict(check.q)
     band_geo = np.sqrt(geo_kept.band_std_mm(check.q) ** 2 + geo_kept.sigma_mm ** 2)
     coverage_check = float(np.mean(np.abs(r_geo) <= Z95 * band_geo))
@@ -131,7 +134,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         say(f"learned stage (CV choice: {learner.chosen_}): held-out mean {e_l.mean():.4f} mm; plain GP {e_pgp.mean():.4f} mm")
         gp = learner.cv_table_.get("gp", {})
         if learner.chosen_ != "none":
-            kept = "learned"
+            kept, kept_learner = "learned", learner
             coverage_check = float(np.mean(np.abs(r) <= Z95 * sd))
             why += (f"; the learned stage beat it in {k_folds}-fold CV inside the fit poses (RMS "
                     f"{gp['cv_rms']:.4f} vs {learner.cv_table_['zero']['cv_rms']:.4f} mm, gain > "
@@ -139,11 +142,41 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         else:
             why += (f"; the learned stage did not beat it by {learner.margin_se:g} standard errors in {k_folds}-fold "
                     f"CV inside the fit poses: not kept")
+        # never lose to the plain pipelines in validation: volcomp's choice against the plain LSQ fit and the
+        # plain GP on its residual, all three cross-validated as whole pipelines on the geometric CV's folds
+        from training.arm_residual import cv_pipelines
+        pipes = {kept: ("plain" if geo_kept is plain else model, kept_learner),
+                 "plain geometric LSQ": ("plain", None), "plain GP on plain LSQ residual": ("plain", plain_gp)}
+        pipeline_cv = cv_pipelines(chain, fit, pipes, k_folds, s_geo, groups, fold_fits)
+        best = min(pipeline_cv, key=lambda k: (pipeline_cv[k]["cv_mean_mm"], k != kept))   # ties: volcomp's choice
+        pcv_text = ", ".join(f"{k} {v['cv_mean_mm']:.4f}" for k, v in pipeline_cv.items())
+        if best != kept:
+            notes.append(f"the plain pipeline '{best}' beat volcomp's {kept} in the pipeline CV inside the fit poses "
+                         f"({pcv_text} mm mean): it is the stage returned")
+            why += f"; in the CV of whole pipelines inside the fit poses ({pcv_text} mm mean) {best} did better: kept"
+            kept, geo_kept = best, plain
+            kept_learner = plain_gp if best == "plain GP on plain LSQ residual" and plain_gp.chosen_ != "none" else None
+            r_geo = check.xyz_mm - plain.predict(check.q)
+            if kept_learner is None:
+                band_geo = np.sqrt(plain.band_std_mm(check.q) ** 2 + plain.sigma_mm ** 2)
+                coverage_check = float(np.mean(np.abs(r_geo) <= Z95 * band_geo))
+            else:
+                m, sd = kept_learner.predict(check.q, return_std=True)
+                coverage_check = float(np.mean(np.abs(r_geo - m) <= Z95 * sd))
+        else:
+            why += f"; it was not worse than the plain pipelines in their CV inside the fit poses ({pcv_text} mm mean)"
+        say(f"pipeline CV inside the fit poses: {pcv_text} mm mean; kept {kept}")
     else:
         why += "; learned stage not run"
+    if kept not in [r["name"] for r in stages]:     # a plain pipeline kept: it is a stage of the document too
+        row = next(r for r in baselines if r["name"] == kept)
+        stages.append({**row, "what": row["what"] + " (kept: it did better in the CV inside the fit poses)"})
     return {"stages": stages, "baselines": baselines, "kept_stage": kept, "kept_why": why, "notes": notes,
-            "geometric_model": geo_kept, "geometric_stage": stage_name(model), "volcomp_geometric": geo, "geometric_fits": fits, "learner": learner,
+            "geometric_model": geo_kept, "kept_learner": kept_learner, "volcomp_geometric_model": geo_volcomp,
+            "geometric_stage": stage_name(model), "volcomp_geometric": geo, "geometric_fits": fits, "learner": learner,
             "base_tool_model": base_tool, "plain_model": plain, "plain_gp": plain_gp, "cv_geometric": cv,
+            "cv_pipelines": None if pipeline_cv is None else
+            [{"pipeline": k, "cv_mean_mm": v["cv_mean_mm"], "cv_rms_mm": v["cv_rms_mm"]} for k, v in pipeline_cv.items()],
             "coverage95_heldout": coverage_check}
 
 
@@ -159,10 +192,12 @@ def model_document(chain, core, s, n_fit, n_check) -> dict:
            "kept_why": core["kept_why"], "notes": core["notes"],
            "geometric": geo.to_dict(), "learned": None}
     if learner is not None:
-        doc["learned"] = learner.to_dict() if core["kept_stage"] == "learned" else None
+        kl = core.get("kept_learner")
+        doc["learned"] = kl.to_dict() if kl is not None else None
         doc["learned_summary"] = {"chosen": learner.chosen_, "cv_table": learner.cv_table_,
                                   "coverage95_cv": learner.coverage_, "kept": core["kept_stage"] == "learned"}
     doc["geometric_cv"] = core["cv_geometric"]
+    doc["pipeline_cv"] = core.get("cv_pipelines")
     doc["coverage95_heldout"] = core["coverage95_heldout"]
     return doc
 
@@ -180,7 +215,7 @@ def load_arm_model(chain, path):
         raise InputError(f"{path}: key 'machine': calibrated for {d['machine']['name']!r}, not {chain.name!r}")
     geo = GeometricResult.from_dict(chain, d["geometric"])
     learner = None
-    if d.get("kept_stage") == "learned" and d.get("learned"):
+    if d.get("kept_stage") in KEPT_WITH_LEARNER and d.get("learned"):
         from training.arm_residual import ArmResidualRegressor
         try:
             learner = ArmResidualRegressor.from_dict(chain, d["learned"])
