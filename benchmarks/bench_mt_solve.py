@@ -32,16 +32,7 @@ ELEMENT_SCALE_UM = 20.0
 
 def chain_elements(mt, seed, scale=ELEMENT_SCALE_UM, n_stations=11):
     from errormap.mt_elements import ChainElementSet
-    rng = np.random.default_rng(seed)
-    z = ChainElementSet.zeros(mt, n_stations)
-    fun = {}
-    for s in mt.slots:
-        if s.is_function:
-            f = rng.normal(0.0, scale, n_stations)
-            if next(a for a in mt.axes if a.word == s.axis).full_turn:
-                f[-1] = f[0]
-            fun[s.name] = f
-    return ChainElementSet(mt, z.stations, fun, {k: rng.normal(0.0, scale) for k in mt.constant_slots})
+    return ChainElementSet.random(mt, seed, scale, n_stations)
 
 
 def cases(seed):

@@ -494,14 +494,8 @@ def joint_tables_from_model(model_error, machine, n_points: int = LINUXCNC_MAX_P
         c, ok = model_corrections(model_error, machine, q.reshape(-1, 3))
         c = c[:, k].reshape(n_points, samples)
         ok = ok.reshape(n_points, samples)
-        cnt = ok.sum(axis=1)
-        if not np.any(cnt):
-            raise ValueError(f"joint {j}: the model cannot be compensated at any sampled point of the fitting region")
-        mean = np.where(ok, c, 0.0).sum(axis=1) / np.maximum(cnt, 1)
-        # nodes where no sample is compensable (e.g. on the A axis, outside the 250 μm ball) take the
-        # linear interpolation of their neighbours; counted in ``unfilled``
-        good = cnt > 0
-        mean[~good] = np.interp(nom[~good], nom[good], mean[good])
+        mean, good = node_means(nom, c, ok, f"joint {j}: the model cannot be compensated at any sampled point "
+                                            f"of the fitting region")
         unfilled[j] = int((~good).sum())
         if j == "a":
             mean[-1] = mean[0] = 0.5 * (mean[0] + mean[-1])   # one turn closes
@@ -509,6 +503,20 @@ def joint_tables_from_model(model_error, machine, n_points: int = LINUXCNC_MAX_P
     out = JointTables(nominal, corr, {j: float(b) for j, b in (backlash or {}).items()})
     out.unfilled = unfilled
     return out
+
+
+def node_means(nom, c, ok, empty_message: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per table node the mean correction over its compensable samples: ``c``, ``ok`` (n_nodes, samples)
+    at the nodes ``nom`` (n_nodes,). Nodes where no sample is compensable (e.g. on the A axis, outside the
+    250 μm ball) take the linear interpolation of their neighbours. Returns ``(mean (n_nodes,), filled
+    (n_nodes,) bool)``; ValueError ``empty_message`` when no node has a compensable sample."""
+    cnt = ok.sum(axis=1)
+    if not np.any(cnt):
+        raise ValueError(empty_message)
+    mean = np.where(ok, c, 0.0).sum(axis=1) / np.maximum(cnt, 1)
+    good = cnt > 0
+    mean[~good] = np.interp(nom[~good], nom[good], mean[good])
+    return mean, good
 
 
 def write_joint_tables(tables: JointTables, folder) -> list[Path]:

@@ -28,6 +28,8 @@ import numpy as np
 
 from errormap.io import write_csv
 
+from .export import node_means
+
 MAX_ROWS = 4097
 """Most rows per axis table (a controller's table is bounded; 4,097 rows of a 1 m stroke are 0.25 mm apart)."""
 
@@ -298,12 +300,7 @@ def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAM
             d[:, k] = sign
             c, ok = exact_corrections(field_, m, q, d)
             c, ok = c[:, k].reshape(n_points, samples), ok.reshape(n_points, samples)
-            cnt = ok.sum(axis=1)
-            if not np.any(cnt):
-                raise ValueError(f"joint {a.word}: the model cannot be compensated at any sampled point")
-            mean = np.where(ok, c, 0.0).sum(axis=1) / np.maximum(cnt, 1)
-            good = cnt > 0
-            mean[~good] = np.interp(nom[~good], nom[good], mean[good])
+            mean, _ = node_means(nom, c, ok, f"joint {a.word}: the model cannot be compensated at any sampled point")
             out.append(nom - mean)
         nominal[j], fwd[j], rev[j], joints[j] = nom, out[0], out[-1], int(k)
     return ChainJointTables(nominal, fwd, rev, joints)

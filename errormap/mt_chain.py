@@ -290,7 +290,7 @@ class MachineTool:
             return None
         F0 = np.eye(4)
         for m in range(m0):
-            F0 = F0 @ _et4(bool(ch.kind_r[m]), int(ch.axis[m]), float(ch.value[m]))
+            F0 = F0 @ et_matrix(bool(ch.kind_r[m]), int(ch.axis[m]), float(ch.value[m]))
         scale = np.where(ch.joint >= 0, ch.sign, 0.0)
 
         def rest(u):  # origin after the rotary ET, (2,) linear axis values -> (3,) mm
@@ -299,7 +299,7 @@ class MachineTool:
                 x = ch.value[m]
                 if ch.joint[m] >= 0:
                     x = x + scale[m] * u[lin.index(int(ch.joint[m]))]
-                T = T @ _et4(bool(ch.kind_r[m]), int(ch.axis[m]), float(x))
+                T = T @ et_matrix(bool(ch.kind_r[m]), int(ch.axis[m]), float(x))
             return T[:3, 3]
 
         c = rest(np.zeros(2))
@@ -741,7 +741,7 @@ def chain_from_grinder(machine) -> MachineTool:
     return parse_machine_tool(doc, machine.path or p, machine.sha256)
 
 
-def _et4(kind_r: bool, axis: int, x: float) -> np.ndarray:
+def et_matrix(kind_r: bool, axis: int, x: float) -> np.ndarray:
     """One ET with value ``x`` (mm or rad) as a 4×4 matrix."""
     T = np.eye(4)
     if kind_r:

@@ -102,6 +102,23 @@ class ChainElementSet:
                    {k: 0.0 for k in machine.constant_slots}, machine.name, machine.sha256)
 
     @classmethod
+    def random(cls, machine: MachineTool, seed: int, scale_um: float = 20.0,
+               n_stations: int = 11) -> "ChainElementSet":
+        """A seeded element set of independent normal values (σ ``scale_um`` μm or μrad) at
+        ``n_stations`` stations per axis, full-turn axes closed: a test and benchmark fixture, not a
+        truth family (those are :mod:`errormap.mt_simulate`'s)."""
+        rng = np.random.default_rng(seed)
+        z = cls.zeros(machine, n_stations)
+        fun = {}
+        for s in machine.slots:
+            if s.is_function:
+                f = rng.normal(0.0, scale_um, n_stations)
+                if next(a for a in machine.axes if a.word == s.axis).full_turn:
+                    f[-1] = f[0]
+                fun[s.name] = f
+        return cls(machine, z.stations, fun, {k: rng.normal(0.0, scale_um) for k in machine.constant_slots})
+
+    @classmethod
     def from_element_set(cls, machine: MachineTool, elements) -> "ChainElementSet":
         """A grinder :class:`errormap.elements.ElementSet` as the element set of its chain file."""
         return cls(machine, dict(elements.stations), dict(elements.functions), dict(elements.constants),

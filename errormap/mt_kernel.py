@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .mt_chain import UM_MM, MachineTool
+from .mt_chain import UM_MM, MachineTool, et_matrix
 from .mt_elements import ChainElementSet
 
 NCOMP = 6  # columns of a spline block (dx dy dz ex ey ez; absent components padded with zeros)
@@ -317,7 +317,7 @@ def _pack(ch, jscale, single, slot_of, const_value):
         x = const_value(m)
         if x == 0.0:
             continue
-        T = _et_matrix(bool(ch.kind_r[m]), int(ch.axis[m]), x)
+        T = et_matrix(bool(ch.kind_r[m]), int(ch.axis[m]), x)
         run = T if run is None else run @ T
     if run is not None:
         blocks.append(run)
@@ -328,18 +328,6 @@ def _pack(ch, jscale, single, slot_of, const_value):
             np.array(cols[3], dtype=np.int64), np.array(cols[4], dtype=float), np.array(cols[5], dtype=np.int64),
             np.array(cols[6], dtype=float), np.array(cols[7], dtype=np.int64),
             np.ascontiguousarray(B[:, :3, :3]), np.ascontiguousarray(B[:, :3, 3]))
-
-
-def _et_matrix(kind_r: bool, axis: int, x: float) -> np.ndarray:
-    """One ET with value ``x`` (mm or rad) as a 4×4 matrix."""
-    T = np.eye(4)
-    if kind_r:
-        b, c = (axis + 1) % 3, (axis + 2) % 3
-        cs, sn = np.cos(x), np.sin(x)
-        T[b, b], T[b, c], T[c, b], T[c, c] = cs, -sn, sn, cs
-    else:
-        T[axis, 3] = x
-    return T
 
 
 class CompiledChain:

@@ -157,16 +157,9 @@ def reference_error_jacobian(m, axes):
 # -- random inputs ----------------------------------------------------------------------------
 def random_elements(machine, seed, scale_um=60.0):
     """Random element values (not the simulator's): normal ±scale at 21 stations, closed A
-    profiles, non-zero constants."""
-    rng = np.random.default_rng(seed)
-    st = ElementSet.zeros(machine).stations
-    fun = {}
-    for k in FUNCTION_ELEMENTS:
-        v = rng.normal(0.0, scale_um, 21)
-        if k in A_ELEMENTS:
-            v[-1] = v[0]
-        fun[k] = v
-    return ElementSet(st, fun, {k: rng.normal(0.0, scale_um) for k in CONSTANT_ELEMENTS})
+    profiles, non-zero constants (the chain tests' generator)."""
+    from tests.test_mt_chain import _grinder_elements
+    return _grinder_elements(machine, seed, scale_um)
 
 
 def random_axes(machine, n, seed):

@@ -60,14 +60,16 @@ def _check_volume(args, table, axes, field, machine) -> None:
 DIAGNOSED_CONDITIONS = ("temp_c", "time_s", "dir_x", "dir_z", "dir_a")
 
 
-def _diagnosed_conditions(t, needs, units) -> dict:
-    """Per-point conditions a diagnosed model's effect terms need, from the points file's columns of
-    those names (the check files' names and rules); a missing column is refused naming it."""
+def _point_conditions(t, needs, units, model: str = "model") -> dict:
+    """Per-point conditions a model's effect terms need (``temp_c``, ``time_s``, ``dir_<w>``) from the
+    points file's columns of those names (the check files' names and rules); a missing column is
+    refused naming it."""
     out = {}
     for c in needs:
         if c not in t:
-            raise InputError(f"{t.path}: the diagnosed model's effect terms need the condition '{c}' at every point: "
-                             f"add a column '{c}'")
+            hint = "°C" if c == "temp_c" else "+1 or -1, the approach direction" if c.startswith("dir_") else "s"
+            raise InputError(f"{t.path}: the {model}'s effect terms need the condition '{c}' at every point: add a "
+                             f"column '{c}' ({hint})")
         if c.startswith("dir_"):
             out[c] = t.int(c, allowed=(-1, 1)).astype(float)
         else:
@@ -93,7 +95,7 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
     from errormap.uncertainty import Z95, ElementCovariance, covariance_path
     field = load_diagnosed_model(src.path, machine)
     n_out = _check_volume(args, t, axes, field, machine)
-    cond = _diagnosed_conditions(t, field.needs, args.units)
+    cond = _point_conditions(t, field.needs, args.units, "diagnosed model")
     doc = json.loads(src.path.read_text(encoding="utf-8"))
     el_path = src.path.parent / doc["elements"]
     cov = None
@@ -133,24 +135,6 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
         meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
                     f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
     return cols, meta
-
-
-def _chain_conditions(t, needs, units) -> dict:
-    """Per-point conditions a chain model's effect terms need (``temp_c``, ``dir_<w>``) from the points
-    file's columns of those names (as the check files'); a missing column is refused naming it."""
-    from errormap.units import check_units
-    out = {}
-    for c in needs:
-        if c not in t:
-            raise InputError(f"{t.path}: the model's effect terms need the condition '{c}' at every point: add a "
-                             f"column '{c}' ({'°C' if c == 'temp_c' else '+1 or -1, the approach direction'})")
-        if c.startswith("dir_"):
-            out[c] = t.int(c, allowed=(-1, 1)).astype(float)
-        else:
-            out[c] = t.float(c)
-            check_units(t.path, [t.row_number(k) for k in range(len(t))], temps={"temp_c": out[c]}, units=units,
-                        option="--units")
-    return out
 
 
 def _chain_covariance(args, src, machine) -> tuple:
@@ -201,7 +185,7 @@ def run(args) -> int:
     field = load_field(args.model, machine, args.tracking_uri, source=src)
     cond = None
     if src.kind == "chain-model" and field.needs:  # a chain model's effect terms: conditions per point, from columns
-        cond = _chain_conditions(t, field.needs, args.units)
+        cond = _point_conditions(t, field.needs, args.units)
     _check_volume(args, t, axes, field, machine)
     print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
     from ..validate import predict_batched
