@@ -390,7 +390,7 @@ def test_compensate_refuses_a_chain_it_cannot_solve(tmp_path, capsys):
     assert main(["compensate", str(lathe_prog), "--machine", "lathe-xzc", "--model", str(lathe_est), "--method",
                  "batched-ga", "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "three linear axes" in err[0] and "lathe-xzc" in err[0]
+    assert len(err) == 1 and "three linear axes" in err[0] and "lathe-xzc" in err[0] and "--method exact takes it" in err[0]
 
 
 @pytest.mark.slow

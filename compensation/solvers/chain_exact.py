@@ -68,11 +68,12 @@ def nominal_and_jacobian(machine, axes, compiled=None) -> tuple[np.ndarray, np.n
 
 def linear_axes(machine) -> tuple[np.ndarray, np.ndarray]:
     """Indices (into ``machine.axes``) of the linear axes and of the rotary axes; ValueError
-    unless there are exactly three linear axes (the tool-tip position has three coordinates)."""
+    unless there are exactly three linear axes (what needs a slide per coordinate: the GA's linear
+    offsets, per-joint tables, body diagonals; the exact solver uses :func:`solved_and_kept`)."""
     lin = np.array([j for j, a in enumerate(machine.axes) if a.kind == "linear"], dtype=np.intp)
     rot = np.array([j for j, a in enumerate(machine.axes) if a.kind != "linear"], dtype=np.intp)
     if len(lin) != 3:
-        raise ValueError(f"the exact chain solver compensates the tool-tip position with three linear axes; "
+        raise ValueError(f"this needs three linear axes (one slide per coordinate of the tool point); "
                          f"{machine.name!r} has {len(lin)} ({', '.join(machine.axis_columns[j] for j in lin)})")
     return lin, rot
 

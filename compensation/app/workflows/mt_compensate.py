@@ -161,10 +161,15 @@ def run_chain_compensate(machine, args, allow) -> int:
         raise UsageError(f"{', '.join(given)}: not available on the machine-tool chain {machine.name!r} (one process; "
                          "moves split from the field's curvature)")
     conditions = {k: v for k, v in conditions_from_args(args).items() if v is not None}
+    solvable = False
     try:  # exact: the three solved axes read from the chain (a lathe's X, Z, C); the GA: three linear axes
-        solved_and_kept(machine) if args.method == "exact" else linear_axes(machine)
+        solvable = solved_and_kept(machine) is not None
+        if args.method != "exact":
+            linear_axes(machine)
     except ValueError as exc:
-        raise UsageError(f"--machine {machine.name}: {exc}; compensate is not available on this machine") from None
+        hint = "; --method exact takes it" if args.method != "exact" and solvable else ""
+        raise UsageError(f"--machine {machine.name} --method {args.method}: {exc}{hint}; compensate is not available "
+                         f"on this machine") from None
     s = ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
                       rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
                       units=args.units, truth=args.truth)
