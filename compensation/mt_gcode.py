@@ -5,9 +5,10 @@ line by line as the grinder's (allow-lists, RS274 number syntax, pass-through, r
 line and column) — with the machine's axis words (:meth:`compensation.gcode.AxisWords.of`: ``X Y Z``
 on ``mill-xyz``, ``X Y Z A C`` on ``five-axis-ac``, ``X Z C`` on ``lathe-xzc``), its arc planes
 (``G17``/``G18``/``G19`` where it has both axes) and one difference in writing: the **tool tip** is
-compensated, so linear axes get the corrected numbers and rotary axes (the tool's orientation) are
-kept as the program commands them (``keep_rotary``: an unchanged rotary word keeps its text, and is
-written on an added line only where it moves).
+compensated, so the axes the exact solver moves (:func:`compensation.solvers.chain_exact.solved_and_kept`)
+get the corrected numbers on every compensated line — a lathe's X, Z and C — and the rotary axes it
+keeps (the tool's orientation on a five-axis machine) stay as the program commands them (an
+unchanged kept word keeps its text, and is written on an added line only where it moves).
 
 This module adds what the chain path plans on top of the reader: the vertices of every compensated
 move (arcs in chords, every move split so the compensation between vertices stays within the
@@ -15,6 +16,7 @@ tolerance of the field, :func:`plan_chain_gcode`).
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,9 +31,16 @@ MAX_SEGMENTS_PER_MOVE = 100_000
 
 def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None) -> GProgram:
     """Read a G-code file for the machine-tool chain ``machine``: :func:`compensation.gcode.parse_program`
-    with its axis words, rotary words kept as programmed (module docstring). Moves' ``start``/``end``
-    are in ``machine.axis_columns`` order."""
+    with its axis words, the rotary words of the axes the exact solver keeps kept as programmed, a
+    solved rotary axis (a lathe's C) written like a linear one (module docstring). Moves'
+    ``start``/``end`` are in ``machine.axis_columns`` order."""
     words = AxisWords.of(machine, keep_rotary=True)
+    from .solvers.chain_exact import solved_and_kept
+    try:
+        solved = {machine.axes[j].word for j in solved_and_kept(machine)[0]}
+    except ValueError:  # not solvable (compensate refuses it): every rotary word kept, as read
+        solved = set()
+    words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
     return parse_program(path, rapids=rapids, block_delete=block_delete, fast=False, axis_words=words)
 
 

@@ -111,7 +111,7 @@ def test_lathe_reads_g18_arcs_over_x_z_with_c(tmp_path):
     np.testing.assert_array_equal(inc.end, [10.5, -20.0, 45.0])
 
 
-def test_lathe_program_written_back_keeps_c_and_every_other_line(tmp_path):
+def test_lathe_program_written_back_writes_c_and_keeps_every_other_line(tmp_path):
     mt = load_machine("lathe-xzc")
     path = _write(tmp_path, "lathe.nc", LATHE_PROGRAM)
     prog = parse_chain_program(path, mt)
@@ -124,11 +124,13 @@ def test_lathe_program_written_back_keeps_c_and_every_other_line(tmp_path):
     for i, ln in enumerate(src):
         if i not in moved:
             assert ln in out  # every non-motion line byte for byte
-    # the arcs became G1 chords (I K R gone); C turns along the G3 arc, so its chords carry it; on the
-    # G2 arc C stays at 30: no C word is added there
-    assert "G1 X10.014277 Z-19.788878 C0.379747\n" in out and "G1 X19.813478 Z-9.989677\n" in out
+    # the arcs became G1 chords (I K R gone); the lathe's C is one of the three axes the exact solver
+    # moves (X, Z, C), so it is written on every compensated line, like X and Z: along the G3 arc's
+    # chords and on the G2 arc (where C stays at 30) alike
+    assert "G1 X10.014277 Z-19.788878 C0.379747\n" in out and "G1 X19.813478 Z-9.989677 C30.000000\n" in out
     assert not re.search(r"\b[IKR]-?\d", text) and not re.search(r"\bG[23]\b", text)
-    assert "G91 G1 X0.500000 C15. Z0.000000\n" in out  # incremental: differences of what was written
+    assert "G91 G1 X0.500000 C15.000000 Z0.000000\n" in out  # incremental: differences of what was written
+    assert "G1 X12.012300 Z-17.987700 C45.000000\n" in out  # C added where the source line had none
     back = plan_chain_gcode(parse_chain_program(_write(tmp_path, "out.nc", text), mt), 1e9).axes
     want = np.concatenate(_shifted(job, mt))
     assert back.shape == want.shape

@@ -1,5 +1,6 @@
 """Commands over machine-tool chains (issue 26 point 5): predict and featurepoints over a chain's
-axes, the exact chain solver (Newton on the linear axes, rotary axes kept), G-code over a chain
+axes, the exact chain solver (Newton on three linear axes, rotary axes kept; the lathe's X, Z, C in
+tests/test_lathe_compensate.py), G-code over a chain
 (axis words from the machine) compensated with a TRUE residual against a truth element set."""
 import json
 from pathlib import Path
@@ -90,11 +91,25 @@ def test_exact_chain_solver_ball_is_a_hard_limit():
     assert np.all(r.correction_um <= 250.0 * (1 + 1e-9))
 
 
-def test_exact_chain_solver_refuses_a_machine_without_three_linear_axes():
-    mt = load_machine("lathe-xzc")
+def four_axis_lathe(tmp_path) -> Path:
+    """A machine file with two linear and two rotary axes (the lathe with a B axis under the tool): the
+    exact solver has neither three linear axes nor three axes in all, so it cannot say which to move."""
+    text = (Path(__file__).resolve().parents[1] / "errormap" / "machines" / "lathe-xzc.toml").read_text()
+    text = text.replace('name = "lathe-xzc"', 'name = "lathe-xzbc"').replace(
+        '[[tool]]\nty = "tool_height"', '[[tool]]\njoint = "rotary"\naxis = "B"\nstroke = [-90.0, 90.0]\n'
+                                        '[[tool]]\nty = "tool_height"').replace(
+        "[targets]", "[targets]\nB = [[0.0, 0.0, 0.0], [50.0, 0.0, 10.0], [0.0, 50.0, 20.0]]")
+    assert 'axis = "B"' in text
+    path = tmp_path / "lathe_xzbc.toml"
+    path.write_text(text)
+    return path
+
+
+def test_exact_chain_solver_refuses_a_machine_it_cannot_solve(tmp_path):
+    mt = load_machine(str(four_axis_lathe(tmp_path)))
     f = ChainField(mt, chain_elements(mt, 17))
-    with pytest.raises(ValueError, match="three linear axes"):
-        solve_exact_chain(f, np.zeros((2, 3)), mt, target_axes=np.zeros((2, 3)), progress=False)
+    with pytest.raises(ValueError, match="three linear axes, or the three axes of a three-axis machine.*2 linear of 4"):
+        solve_exact_chain(f, np.zeros((2, 3)), mt, target_axes=np.zeros((2, 4)), progress=False)
 
 
 # -- the command line ----------------------------------------------------------------------------
@@ -343,21 +358,31 @@ CSV_ROUNDING_UM = 2e-3
 numbers is that rounding (≤ √3·0.5 nm) times the chain's ~1 slope, plus the solver's 1e-6 μm."""
 
 
-def test_compensate_refuses_a_chain_without_three_linear_axes(tmp_path, capsys):
-    mt = load_machine("lathe-xzc")
+def test_compensate_refuses_a_chain_it_cannot_solve(tmp_path, capsys):
+    mf = four_axis_lathe(tmp_path)
+    mt = load_machine(str(mf))
     est = chain_elements(mt, 401).save(tmp_path / "el.json")
     prog = tmp_path / "p.nc"
-    prog.write_text("G18 G90\nG1 X10. Z-20. C0. F100.\nM30\n")
+    prog.write_text("G18 G90\nG1 X10. Z200. B0. C0. F100.\nM30\n")
     from compensation.mt_gcode import parse_chain_program
     from errormap.io import InputError
     bad = tmp_path / "arc.nc"
     bad.write_text("G17 G90\nG1 X10. Z-20. C0. F100.\nG2 X20. I5.\n")  # G17 alone is a state line
     with pytest.raises(InputError, match="line 3, column 4: 'X20.': G2 arc in the G17 plane: .* has no Y axis"):
-        parse_chain_program(bad, mt)
-    assert main(["compensate", str(prog), "--machine", "lathe-xzc", "--model", str(est), "--method", "exact",
+        parse_chain_program(bad, load_machine("lathe-xzc"))
+    assert main(["compensate", str(prog), "--machine", str(mf), "--model", str(est), "--method", "exact",
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "three linear axes" in err[0] and "lathe-xzc" in err[0]
+    assert len(err) == 1 and "three axes of a three-axis machine" in err[0] and "lathe-xzbc" in err[0]
+    assert not (tmp_path / "o").exists()
+    # the lathe's GA is refused the same way: it needs three linear axes (its linear offsets are exact only there)
+    lathe_est = chain_elements(load_machine("lathe-xzc"), 402).save(tmp_path / "lathe_el.json")
+    lathe_prog = tmp_path / "lathe.nc"
+    lathe_prog.write_text("G18 G90\nG1 X10. Z200. C0. F100.\nM30\n")
+    assert main(["compensate", str(lathe_prog), "--machine", "lathe-xzc", "--model", str(lathe_est), "--method",
+                 "batched-ga", "--out", str(tmp_path / "o2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "three linear axes" in err[0] and "lathe-xzc" in err[0] and "--method exact takes it" in err[0]
 
 
 @pytest.mark.slow

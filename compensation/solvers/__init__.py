@@ -103,8 +103,9 @@ def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
     """Run solver ``method`` on WCS targets, shape (n, 3) mm. On a machine-tool chain
     (``machine.kind == "machine-tool"``) the solver's ``chain`` entry runs (``exact``:
     :func:`compensation.solvers.chain_exact.solve_exact_chain`, ``batched-ga``:
-    :func:`compensation.solvers.chain_ga.solve_batched_ga_chain`; the tool tip with the chain's linear
-    axes, rotary axes kept); a method without one is refused (ValueError)."""
+    :func:`compensation.solvers.chain_ga.solve_batched_ga_chain`; the tool tip with the chain's three
+    linear axes, rotary axes kept, or with exact every axis of a three-axis machine such as a lathe's
+    X, Z, C); a method without one is refused (ValueError)."""
     if getattr(machine, "kind", None) == "machine-tool":
         return solver_spec(method).chain_function()(field, targets_mm, machine, **options)
     return get_solver(method)(field, targets_mm, machine, **options)

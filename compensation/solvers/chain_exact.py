@@ -4,21 +4,24 @@ For each target ``p_d`` (WCS mm, the nominal tool point of the program's axes ``
 axis command ``q`` such that the machine, driven to ``q``, puts the tool point on ``p_d``::
 
     F(q) = fwd(q) + 1e-3·E(q) − p_d = 0          (mm)
-    J(q) = dfwd/dq_lin + 1e-3·dE/dq_lin           (mm per mm)
+    J(q) = dfwd/dq_s + 1e-3·dE/dq_s               (mm per mm or per deg; q_s the three solved axes)
 
 with ``fwd`` the machine's nominal forward kinematics (:meth:`errormap.mt_chain.MachineTool.nominal`)
 and ``E`` the field (``predict_and_jacobian``, μm). Then ``p_r = fwd(q)`` and the model residual
 ``(p_r − p_d)·1e3 + E(q)`` equals ``F(q)·1e3``.
 
-**Which axes move.** The tool-tip POSITION is compensated with the machine's three linear axes;
-rotary axes (the tool's orientation relative to the workpiece on a 5-axis machine) are kept as
-the program commands them, and the result says so (``info["kept_axes"]``). A machine with other
-than three linear axes is refused (a lathe's X, Z cannot place a point in 3-D; not solved here).
+**Which axes move** (:func:`solved_and_kept`, the exact solver's rule
+:func:`compensation.solvers.exact.solved_axes`, read from the chain, never from the name). The
+tool-tip POSITION is compensated with three axes: the machine's three linear axes when it has
+three, rotary axes (the tool's orientation relative to the workpiece on a 5-axis machine) kept as
+the program commands them, and the result says so (``info["kept_axes"]``); else every axis of a
+three-axis machine (a lathe's X, Z and C: the rotary axis solved, and put on the commanded turn by
+:func:`compensation.solvers.exact.keep_turn`). Any other machine is refused (ValueError).
 
 **One Newton core.** The iteration is the exact solver's own (:func:`compensation.solvers.exact.newton`:
 the chain's nominal tool point and geometric axis Jacobian in compiled kernels over its op arrays,
 the field's compiled ``predict`` on the trial points, its ``predict_and_jacobian`` at the start
-and where a step fails, Broyden updates between), on the linear axes.
+and where a step fails, Broyden updates between), on the solved axes.
 
 Robustness (as the exact solver's): a step is halved until ``|F|`` decreases (Armijo); iteration
 stops at ``|F| ≤ xtol_um`` or at round-off (``ROUNDOFF_ULPS`` ulps of the target's largest
@@ -41,10 +44,12 @@ from errormap.transforms import check_points
 
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
 from .base import BALL_RADIUS_UM
-from .exact import newton, solve3
+from .exact import keep_turn, newton, solve3, solved_axes
 
 KEPT_NOTE = ("tool-tip position compensated with the linear axes {lin}; the rotary axes {rot} (tool orientation) "
              "are kept as commanded")
+SOLVED_NOTE = ("tool-tip position compensated with {sol} (every axis of the machine; the rotary axes {rot} solved, "
+               "on the commanded turn)")
 
 
 def _nominal_program(machine) -> NominalChain:
@@ -63,13 +68,25 @@ def nominal_and_jacobian(machine, axes, compiled=None) -> tuple[np.ndarray, np.n
 
 def linear_axes(machine) -> tuple[np.ndarray, np.ndarray]:
     """Indices (into ``machine.axes``) of the linear axes and of the rotary axes; ValueError
-    unless there are exactly three linear axes (the tool-tip position has three coordinates)."""
+    unless there are exactly three linear axes (what needs a slide per coordinate: the GA's linear
+    offsets, per-joint tables, body diagonals; the exact solver uses :func:`solved_and_kept`)."""
     lin = np.array([j for j, a in enumerate(machine.axes) if a.kind == "linear"], dtype=np.intp)
     rot = np.array([j for j, a in enumerate(machine.axes) if a.kind != "linear"], dtype=np.intp)
     if len(lin) != 3:
-        raise ValueError(f"the exact chain solver compensates the tool-tip position with three linear axes; "
+        raise ValueError(f"this needs three linear axes (one slide per coordinate of the tool point); "
                          f"{machine.name!r} has {len(lin)} ({', '.join(machine.axis_columns[j] for j in lin)})")
     return lin, rot
+
+
+def solved_and_kept(machine, compiled=None) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (into ``machine.axes``) of the axes the exact chain solver moves (3,) and of those it
+    keeps as commanded (k - 3,): :func:`compensation.solvers.exact.solved_axes` on the machine's chain
+    (``compiled``, packed here when None). ValueError for a machine it cannot solve."""
+    if compiled is None:
+        compiled = _nominal_program(machine)
+    sol = np.asarray(solved_axes(compiled), dtype=np.intp)
+    kept = np.array([j for j in range(compiled.k) if j not in set(sol.tolist())], dtype=np.intp)
+    return sol, kept
 
 
 def chain_inverse(machine, targets_mm, compiled=None) -> np.ndarray:
@@ -113,14 +130,14 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     check_field(field, machine.axis_columns)
     if PREDICT_AND_JACOBIAN not in field.capabilities:
         raise TypeError(f"{type(field).__name__} declares no predict_and_jacobian; the exact chain solver needs it")
-    lin, rot = linear_axes(machine)
+    compiled = _nominal_program(machine)
+    sol, kept = solved_and_kept(machine, compiled)
     targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
     if not (np.isfinite(ball_um) and ball_um > 0):
         raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
     if not (tol_um > 0 and xtol_um > 0 and max_iter >= 1 and chunk >= 1):
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
-    compiled = _nominal_program(machine)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
     q = axes_d.copy()
@@ -131,7 +148,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     bar = Progress(n, "exact (chain)", enabled=progress)
     for s in range(0, n, chunk):
         sl = slice(s, min(n, s + chunk))
-        q[sl], commands[sl], E[sl], iters[sl], fe = _newton(field, compiled, targets[sl], axes_d[sl], lin,
+        q[sl], commands[sl], E[sl], iters[sl], fe = _newton(field, compiled, targets[sl], axes_d[sl], sol,
                                                             xtol_um, max_iter)
         nfev += fe
         bar.update(sl.stop - sl.start)
@@ -141,7 +158,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
         P0, J0 = nominal_and_jacobian(machine, axes_d[outside], compiled)
         commands[outside] = targets[outside] + MM_PER_UM * project_to_ball(d_um[outside], ball_um)
         qo = axes_d[outside].copy()
-        qo[:, lin] += solve3(J0[:, :, lin], commands[outside] - P0)
+        qo[:, sol] += solve3(J0[:, :, sol], commands[outside] - P0)
         q[outside] = qo
         E[outside] = field.predict(qo)
         nfev += int(outside.sum())
@@ -149,9 +166,12 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     converged = (np.linalg.norm(res, axis=1) <= tol_um) & ~outside
     names = machine.axis_columns
     info = {"iterations": iters, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside),
-            "compensated_axes": [names[j] for j in lin], "kept_axes": [names[j] for j in rot]}
-    if len(rot):
+            "compensated_axes": [names[j] for j in sol], "kept_axes": [names[j] for j in kept]}
+    if len(kept):
         info["note"] = KEPT_NOTE.format(lin=", ".join(info["compensated_axes"]), rot=", ".join(info["kept_axes"]))
+    elif any(compiled.kinds[j] != "linear" for j in sol):
+        info["note"] = SOLVED_NOTE.format(sol=", ".join(info["compensated_axes"]),
+                                          rot=", ".join(names[j] for j in sol if compiled.kinds[j] != "linear"))
     return make_result("exact", targets, commands, q, res, converged, nfev, t0, ball_um, info=info)
 
 
@@ -173,8 +193,10 @@ class _ChainFieldEval:
         return self.field.predict_and_jacobian(q)[1], 2 * len(q)
 
 
-def _newton(field, compiled, targets, axes_d, lin, xtol_um, max_iter):
-    """The exact solver's Newton core on the linear axes of one chunk (rotary axes kept); returns
+def _newton(field, compiled, targets, axes_d, sol, xtol_um, max_iter):
+    """The exact solver's Newton core on the solved axes ``sol`` (3,) of one chunk (the others kept
+    at ``axes_d``; a solved full-turn axis put on the turn of ``axes_d``); returns
     ``(q (m, k), p_r (m, 3) mm, E (m, 3) μm at q, iterations (m,), field evaluations)``."""
-    q, E, iters, _, nfev = newton(_ChainFieldEval(field), compiled, lin, targets, axes_d, xtol_um, max_iter)
+    q, E, iters, _, nfev = newton(_ChainFieldEval(field), compiled, sol, targets, axes_d, xtol_um, max_iter)
+    keep_turn(compiled, q, axes_d)
     return q, compiled.forward(q), E, iters, nfev

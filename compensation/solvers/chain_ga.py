@@ -10,8 +10,9 @@ any chain instead of the grinder's hand-written inverse kinematics:
 
 with ``q_d`` the program's axes of the target, ``A = dfwd/dq_lin`` the machine's nominal axis
 Jacobian at ``q_d`` (:func:`compensation.solvers.chain_exact.nominal_and_jacobian`). As in the
-exact chain solver the **tool-tip position** is compensated with the machine's three linear
-axes and the rotary axes are **kept as programmed**; with them fixed the nominal tool point is
+exact chain solver on a machine with three linear axes the **tool-tip position** is compensated
+with them and the rotary axes are **kept as programmed** (a machine without three linear axes,
+the lathe, is refused here; the exact chain solver moves its X, Z and C); with them fixed the nominal tool point is
 affine in the linear axes, so ``q(d)`` is the exact nominal inverse of ``p_d + 1e-3·d`` (one
 3×3 inverse per point, computed once). ``E`` is the field's ``predict`` over
 ``machine.axis_columns`` (float64 numpy; any chain field: the element set's

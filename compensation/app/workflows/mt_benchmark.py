@@ -163,7 +163,7 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
     skipped = []
     try:
         path = diagonal_path(machine, s.chain_path_points)
-    except ValueError as exc:  # not three linear axes: the exact chain solver has no tool-tip inverse
+    except ValueError as exc:  # not three linear axes: no body diagonals of three slides (ISO 230-6)
         return [{"machine": machine.name, "why": f"compensation not available: {exc}"}]
     volume = volume_path(machine, s.volume_points, streams["volume_points"]) if s.volume_points else None
     effects, why = chain_effects(machine, s.effects)
