@@ -15,7 +15,7 @@ from compensation.solvers.chain_exact import solve_exact_chain, solved_and_kept
 from errormap.machine import load_machine
 from errormap.mt_field import ChainField
 
-from test_mt_compensate import TOL_KINEMATICS_MM, TOL_MODEL_RESIDUAL_UM, chain_elements
+from test_mt_compensate import TOL_MODEL_RESIDUAL_UM, chain_elements, solve_and_check
 
 LATHE = "lathe-xzc"
 SPINDLE_CLEARANCE_MM = 5.0
@@ -46,13 +46,7 @@ def test_exact_chain_solver_on_the_lathe_model_residual_and_c_on_the_commanded_t
     ax[:, 0] = np.where(np.abs(x) < SPINDLE_CLEARANCE_MM, np.sign(x + 1e-12) * SPINDLE_CLEARANCE_MM, x)
     ax[:, 2] += rng.integers(-2, 3, n) * 360.0  # programs on other turns of C (±2 turns)
     targets = mt.nominal(ax)
-    r = solve_exact_chain(f, targets, mt, target_axes=ax, progress=False)
-    assert r.success.all()
-    # the model residual recomputed independently: numpy chain + the field at the returned axes
-    model = (mt.nominal(r.axes) - targets) * 1e3 + f.predict(r.axes)
-    assert np.abs(model).max() < TOL_MODEL_RESIDUAL_UM
-    assert np.abs(r.residual_um - model).max() < TOL_MODEL_RESIDUAL_UM
-    assert np.abs(r.commands_mm - mt.nominal(r.axes)).max() < TOL_KINEMATICS_MM
+    r = solve_and_check(mt, f, targets, ax)
     # C solved (it moved) and on the commanded turn
     dc = r.axes[:, 2] - ax[:, 2]
     assert np.abs(dc).max() < C_CORRECTION_MAX_DEG and np.abs(dc).max() > 0.0

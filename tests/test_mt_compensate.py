@@ -36,6 +36,19 @@ def chain_elements(mt, seed, scale=ELEMENT_SCALE_UM, n_stations=11):
     return ChainElementSet.random(mt, seed, scale, n_stations)
 
 
+def solve_and_check(mt, f, targets, ax):
+    """``solve_exact_chain`` on ``targets`` (n, 3) from nominal ``ax`` (n, k), every point solved, its
+    model residual recomputed independently (numpy chain + the field at the returned axes) within
+    :data:`TOL_MODEL_RESIDUAL_UM`, commands = the chain's nominal at the returned axes."""
+    r = solve_exact_chain(f, targets, mt, target_axes=ax, progress=False)
+    assert r.success.all()
+    model = (mt.nominal(r.axes) - targets) * 1e3 + f.predict(r.axes)
+    assert np.abs(model).max() < TOL_MODEL_RESIDUAL_UM
+    assert np.abs(r.residual_um - model).max() < TOL_MODEL_RESIDUAL_UM
+    assert np.abs(r.commands_mm - mt.nominal(r.axes)).max() < TOL_KINEMATICS_MM
+    return r
+
+
 @pytest.mark.parametrize("name", ["mill-xyz", "five-axis-ac", "lathe-xzc", "grinder-chain"])
 def test_compiled_nominal_and_axis_jacobian_equal_the_chain(name):
     mt = load_machine(name)
@@ -53,13 +66,7 @@ def test_exact_chain_solver_model_residual(name):
     rng = np.random.default_rng(12)
     ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (5000, len(mt.axes)))
     targets = mt.nominal(ax)
-    r = solve_exact_chain(f, targets, mt, target_axes=ax, progress=False)
-    assert r.success.all()
-    # the model residual recomputed independently: numpy chain + the field at the returned axes
-    model = (mt.nominal(r.axes) - targets) * 1e3 + f.predict(r.axes)
-    assert np.abs(model).max() < TOL_MODEL_RESIDUAL_UM
-    assert np.abs(r.residual_um - model).max() < TOL_MODEL_RESIDUAL_UM
-    assert np.abs(r.commands_mm - mt.nominal(r.axes)).max() < TOL_KINEMATICS_MM
+    r = solve_and_check(mt, f, targets, ax)
     rot = [j for j, a in enumerate(mt.axes) if a.kind == "rotary"]
     assert np.array_equal(r.axes[:, rot], ax[:, rot])  # tool orientation kept exactly
     assert r.info["kept_axes"] == [mt.axis_columns[j] for j in rot]
