@@ -39,7 +39,8 @@ def test_chunk_boundaries_are_fixed_by_point_count_and_seeds_spawned_per_file():
         plan_chunks([3], chunk_points=0)
 
 
-@pytest.mark.parametrize("method", ["traditional", "exact", "batched-ga", "ga"])
+@pytest.mark.parametrize("method", ["traditional", pytest.param("exact", marks=pytest.mark.slow),  # over 5 CPU s in CI (tier rule)
+                                    "batched-ga", "ga"])
 def test_result_does_not_depend_on_workers_nor_on_the_other_files(method, grinder, field):
     paths = _paths(grinder)
     opts = GA_OPTIONS.get(method, {})

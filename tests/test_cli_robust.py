@@ -246,6 +246,7 @@ def test_lm_memory_bounded(tmp_path):
         check_lm_size(n_fit + 1, (10, 15, 25, 15, 10), "raw")
 
 
+@pytest.mark.slow  # over 5 CPU s in the fresh-clone CI run of 2026-11-24 (tier rule)
 def test_predict_batched_equals_whole(grinder):
     """Batches of PREDICT_BATCH give the same predictions as one call (an HTM field, per point)."""
     import numpy as np

@@ -184,6 +184,7 @@ def _diagnosed_model(tmp_path, truth, terms):
     return tmp_path / "model.json"
 
 
+@pytest.mark.slow  # over 5 CPU s in the fresh-clone CI run of 2026-11-24 (tier rule)
 def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tmp_path, capsys):
     """A reversal term (dir_z) and a thermal term (temp_c), both per point from the CSV's columns:
     the commands land on the targets on the truth under each point's own conditions."""

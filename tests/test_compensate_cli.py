@@ -25,6 +25,7 @@ def setup(tmp_path_factory, grinder):
     return d, el, nc, csv, HTMField(grinder, truth.elements)
 
 
+@pytest.mark.slow  # over 5 CPU s in the fresh-clone CI run of 2026-11-24 (tier rule)
 def test_batch_writes_each_file_and_summary(setup, grinder, capsys):
     d, el, nc, csv, field = setup
     before = (nc.read_bytes(), csv.read_bytes())
