@@ -406,25 +406,11 @@ assert UM_MM == 1e-3, "the kernels write mm → μm as * 1e3"
 # -- nominal tool points and per-pose slot values (issue 26 point 3: the grinder's paths) ---------
 def nominal_program(chain):
     """The chain as ops with no error slot (every joint ET one op, every run of fixed ETs one
-    constant block): the nominal chain for :func:`nominal_kernel` (layout of
+    constant block): the nominal chain for :func:`nominal_jacobian_kernel` (layout of
     :meth:`CompiledChain._program`)."""
     scale = np.array([np.pi / 180 if j.type == "revolute" else 1.0 for j in chain.joints])
     jscale = np.where(chain.joint >= 0, chain.sign * scale[np.maximum(chain.joint, 0)], 0.0)
     return _pack(chain, jscale, lambda m: chain.joint[m] >= 0, lambda m: -1, lambda m: chain.value[m])
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def nominal_kernel(axes, prog, out):  # pragma: no cover - compiled
-    """Nominal tool points (mm) of :func:`nominal_program`'s chain: ``axes`` (n, k), ``out`` (n, 3)."""
-    kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt = prog
-    R = np.empty((3, 3))
-    t = np.empty(3)
-    W = np.empty((0, 3))
-    ev = np.zeros(0)
-    for n in range(axes.shape[0]):
-        _chain_point(axes[n], ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt, R, t, W, W, False)
-        for i in range(3):
-            out[n, i] = t[i]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -469,7 +455,7 @@ class CompiledNominal:
     def tool_points(self, axes) -> np.ndarray:
         axes = self._axes(axes)
         out = np.empty((axes.shape[0], 3))
-        nominal_kernel(axes, self.prog_nom, out)
+        nominal_jacobian_kernel(axes, self.prog_nom, _NO_SLOTS, out, _NO_JACOBIAN, False)
         return out
 
     def spatial_error(self, axes, values) -> np.ndarray:
@@ -487,6 +473,9 @@ class CompiledNominal:
         error_jac_kernel(axes, self.prog_slots, jac)
         return jac
 
+
+_NO_SLOTS = np.zeros(0, dtype=np.int64)  # a nominal program's slot columns (none)
+_NO_JACOBIAN = np.empty((0, 3, 0))       # nominal_jacobian_kernel without its Jacobian
 
 _GRINDER_NOMINAL: dict = {}
 
