@@ -40,9 +40,10 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _check_volume(args, table, axes, field, machine) -> None:
+def _check_volume(args, table, axes, field, machine) -> int:
     """Refuse points outside the field's calibrated volume (unless ``--allow extrapolate``),
-    naming the first one's row and column; a far-off value is most often a unit mistake."""
+    naming the first one's row and column; a far-off value is most often a unit mistake. Returns the
+    number of points outside that the override let through."""
     from ...guards import calibrated_volume, volume_violations
     names = machine_axes(machine)
     bad, reasons = volume_violations(axes, field, names=names)
@@ -57,7 +58,12 @@ def _check_volume(args, table, axes, field, machine) -> None:
                      f"outside the calibrated volume{hint}); pass --allow extrapolate to predict there anyway")
 
 
-DIAGNOSED_CONDITIONS = ("temp_c", "time_s", "dir_x", "dir_z", "dir_a")
+def _band_columns(sd, band) -> dict:
+    """``{dx_band<tag>_um: …}`` from per-component standard deviations ``sd`` (n, 3) μm: 1-σ for
+    ``--band 1sigma``, else the 95 % half-width."""
+    from errormap.uncertainty import Z95
+    k, tag = (1.0, "1sigma") if band == "1sigma" else (Z95, "95")
+    return {f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))}
 
 
 def _point_conditions(t, needs, units, model: str = "model") -> dict:
@@ -92,7 +98,7 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
     from compensation.diagnosed_model import load_diagnosed_model
     from compensation.hybrid import HybridField, total_band_std
     from errormap.elements import ElementSet
-    from errormap.uncertainty import Z95, ElementCovariance, covariance_path
+    from errormap.uncertainty import ElementCovariance, covariance_path
     field = load_diagnosed_model(src.path, machine)
     n_out = _check_volume(args, t, axes, field, machine)
     cond = _point_conditions(t, field.needs, args.units, "diagnosed model")
@@ -109,10 +115,9 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
     hybrid = field.base if isinstance(field.base, HybridField) else None
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
-    k, tag = (1.0, "1sigma") if args.band == "1sigma" else (Z95, "95")
     if cov is not None:   # the TOTAL band: learned (when kept) ⊕ the elements' J Σ Jᵀ
         sd = total_band_std(hybrid.learned if hybrid else None, machine, axes, cov)
-        cols.update({f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
+        cols.update(_band_columns(sd, args.band))
     stage = doc.get("stage")
     meta = [f"stage: {stage}"]
     if hybrid is not None:
@@ -124,7 +129,7 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
                  f"checks' box x_mm {lo[0]:.6g}..{hi[0]:.6g}, z_mm {lo[1]:.6g}..{hi[1]:.6g} "
                  f"(learned_part unknown outside it: {int((~inside).sum())} of {len(axes)} points)"]
     if cov is not None:
-        meta.append(f"band: total {'1-sigma' if tag == '1sigma' else '95 %'} per component = "
+        meta.append(f"band: total {'1-sigma' if args.band == '1sigma' else '95 %'} per component = "
                     + ("learned residual's band (cross-validation calibrated; outside the checks' box its prior) "
                        "(+) " if hybrid is not None else "")
                     + "the elements' J Sigma J^T"
@@ -155,13 +160,10 @@ def _chain_covariance(args, src, machine) -> tuple:
 
 def _chain_band(args, machine, axes, band_src) -> dict:
     """The band columns on a chain: ``J Σ Jᵀ`` per point through the chain's parameter Jacobian."""
-    from errormap.uncertainty import Z95
     from ..workflows.mt_loop import chain_band_sd
     el, cov, cov_path = band_src
     print(f"band: covariance {cov_path} ({len(cov[0])} parameters)", file=sys.stderr)
-    sd = chain_band_sd(machine, el, cov, axes, cov_path)
-    k, tag = (1.0, "1sigma") if args.band == "1sigma" else (Z95, "95")
-    return {f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))}
+    return _band_columns(chain_band_sd(machine, el, cov, axes, cov_path), args.band)
 
 
 def run(args) -> int:
@@ -202,15 +204,13 @@ def run(args) -> int:
         cols.update(_chain_band(args, machine, axes, band_src))
     elif args.band:
         from errormap.elements import ElementSet
-        from errormap.uncertainty import Z95, ElementCovariance, covariance_path
+        from errormap.uncertainty import ElementCovariance, covariance_path
         if src.kind != "elements":
             raise UsageError(f"--band needs an element set with its covariance beside it; {args.model} is a "
                              f"{KIND_NAMES[src.kind]}")
         cov = ElementCovariance.load(covariance_path(src.path), ElementSet.load(src.path))
         sd = np.sqrt(np.diagonal(cov.prediction_cov(machine, axes), axis1=1, axis2=2))
-        k = 1.0 if args.band == "1sigma" else Z95
-        tag = "1sigma" if args.band == "1sigma" else "95"
-        cols.update({f"{c}_band{tag}_um": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
+        cols.update(_band_columns(sd, args.band))
     path = write_csv(args.out, cols, header_comments=meta + [f"model: {src.description}", f"model_kind: {src.kind}",
                                                      f"units: {args.units}"])
     print(f"wrote {len(axes)} predictions to {path}")
