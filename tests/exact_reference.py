@@ -35,7 +35,7 @@ def case(name):
     from errormap.seeds import spawn_rngs
     rng_axes, rng_field = spawn_rngs(SEED, 2)
     n = CASES[name]
-    m = load_machine("grinder" if name == "grinder" else name)
+    m = load_machine(name)
     field_seed = int(rng_field.integers(2**31))
     if name == "grinder":
         from compensation.solvers.exact import solve_exact
