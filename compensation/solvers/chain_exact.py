@@ -52,17 +52,12 @@ SOLVED_NOTE = ("tool-tip position compensated with {sol} (every axis of the mach
                "on the commanded turn)")
 
 
-def _nominal_program(machine) -> NominalChain:
-    """The machine's nominal chain packed once for the compiled kernels."""
-    return NominalChain(machine)
-
-
 def nominal_and_jacobian(machine, axes, compiled=None) -> tuple[np.ndarray, np.ndarray]:
     """Nominal tool point (n, 3) mm and ``d(tool point)/d(axes)`` (n, 3, k) of ``machine`` at
     ``axes`` (n, k), compiled (equal to :meth:`MachineTool.nominal` / ``axis_jacobian``, tested).
     ``compiled``: the machine's :class:`errormap.mt_kernel.NominalChain` (packed here when None)."""
     if compiled is None:
-        compiled = _nominal_program(machine)
+        compiled = NominalChain(machine)
     return compiled.forward_and_jacobian(axes)
 
 
@@ -83,7 +78,7 @@ def solved_and_kept(machine, compiled=None) -> tuple[np.ndarray, np.ndarray]:
     keeps as commanded (k - 3,): :func:`compensation.solvers.exact.solved_axes` on the machine's chain
     (``compiled``, packed here when None). ValueError for a machine it cannot solve."""
     if compiled is None:
-        compiled = _nominal_program(machine)
+        compiled = NominalChain(machine)
     sol = np.asarray(solved_axes(compiled), dtype=np.intp)
     kept = np.array([j for j in range(compiled.k) if j not in set(sol.tolist())], dtype=np.intp)
     return sol, kept
@@ -130,7 +125,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     check_field(field, machine.axis_columns)
     if PREDICT_AND_JACOBIAN not in field.capabilities:
         raise TypeError(f"{type(field).__name__} declares no predict_and_jacobian; the exact chain solver needs it")
-    compiled = _nominal_program(machine)
+    compiled = NominalChain(machine)
     sol, kept = solved_and_kept(machine, compiled)
     targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
     if not (np.isfinite(ball_um) and ball_um > 0):

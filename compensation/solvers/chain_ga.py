@@ -31,13 +31,14 @@ import time
 import numpy as np
 
 from errormap.field import check_field
+from errormap.mt_kernel import NominalChain
 from errormap.transforms import check_points
 
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
 from ._converge import RETRY_ROUNDS, retry_radius_um
 from .base import BALL_RADIUS_UM
 from .batched_ga import _BatchGA, _LockedProgress
-from .chain_exact import KEPT_NOTE, _newton, _nominal_program, linear_axes, nominal_and_jacobian, target_axes_of
+from .chain_exact import KEPT_NOTE, _newton, linear_axes, nominal_and_jacobian, target_axes_of
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
 
@@ -97,7 +98,7 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
         raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
     if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
         raise ValueError(f"Expected retries in 0..10, got {retries!r}")
-    compiled = _nominal_program(machine)
+    compiled = NominalChain(machine)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
     P0, J0 = nominal_and_jacobian(machine, axes_d, compiled)
