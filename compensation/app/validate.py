@@ -254,7 +254,7 @@ RULES: dict[str, dict] = {
               "threads": Count(1, MAX_WORKERS, "threads"),
               "physics_stations": Count(4, 61, "stations per axis of the fitted element set")},
     "compensate": {"out": OUT_DIR, "show": Count(1), "arc_tolerance_um": positive("um"), "temp_c": FINITE,
-                   "time_s": FINITE},
+                   "time_s": FINITE, "max_rotary_correction_deg": Number(0.0, 180.0, open_lo=True, unit="deg")},
     "report": {"out": OUT_DIR, **METHODS, **FLUTE},
     "demo": {"out": OUT_DIR, "hidden": Widths(), "trainer": Trainer(), "train_iter": ITER, "train_s": positive("s"),
              "train_patience": Count(0, MAX_ITER, "LM iterations without improvement (0: off)"), **METHODS, **FLUTE},

@@ -28,8 +28,25 @@ stops at ``|F| ≤ xtol_um`` or at round-off (``ROUNDOFF_ULPS`` ulps of the targ
 coordinate), at stagnation or ``max_iter``.
 The 250 μm ball is a hard limit: a root outside it is projected onto the ball's surface and
 reported with its residual and ``success = False`` (the guards then refuse it unless overridden).
-``success``: ``|residual| ≤ tol_um`` and inside the ball. Shapes: targets (n, 3) mm, axes (n, k)
-in ``machine.axis_columns`` order.
+``success``: ``|residual| ≤ tol_um``, inside the ball and within the rotary bound below. Shapes:
+targets (n, 3) mm, axes (n, k) in ``machine.axis_columns`` order.
+
+**Rotary continuity guard** (a solved rotary axis, the lathe's C). The compensated command ``p_r``
+lies in the ball of radius ``b`` (``ball_um``) around the target ``p_d``; seen from the rotary
+axis' line, a point at distance ``r`` from it subtends at most ``asin(b / r)`` of the ball, and
+for ``r ≤ b`` (the ball holds the axis) every point of the ball is reached by turning at most 90°
+(the linear axis crossing the axis line for the rest). So a compensated rotary command may differ
+from the programmed one by at most::
+
+    Δθ_max = min( degrees(asin(min(1, b / r))), rotary_limit_deg )
+
+with ``r = |∂p/∂θ|·180/π`` (mm) the target's distance from that axis (the chain's own axis
+Jacobian at the programmed axes: a turn dθ moves the point by r·dθ) and ``rotary_limit_deg`` the
+caller's limit (``compensate --max-rotary-correction-deg``; None: no limit beyond the ball's).
+A point whose solved rotary command differs by more (Newton near the spindle axis can swing the
+lathe's C by ~130° between nearby points) is **refused**: ``success`` False, the programmed
+axes kept (correction 0, the residual is the field's error there: never silently swung), and
+``info["rotary_refused"]`` / ``info["rotary_reasons"]`` say which and why.
 """
 from __future__ import annotations
 
@@ -110,16 +127,72 @@ def target_axes_of(machine, targets, target_axes, compiled) -> np.ndarray:
     return axes_d
 
 
+def check_rotary_limit(rotary_limit_deg):
+    """``rotary_limit_deg`` as a float (None: no limit beyond the ball's, returned as inf); ValueError
+    unless a positive number of degrees (at most 180)."""
+    if rotary_limit_deg is None:
+        return np.inf
+    v = float(rotary_limit_deg)
+    if not (np.isfinite(v) and 0.0 < v <= 180.0):
+        raise ValueError(f"Expected a rotary correction limit in (0, 180] degrees, got {rotary_limit_deg!r}")
+    return v
+
+
+def rotary_bound_deg(radius_mm, ball_um: float = BALL_RADIUS_UM, rotary_limit_deg=None) -> np.ndarray:
+    """Largest compensated change of a solved rotary axis (n,) deg at targets ``radius_mm`` (n,) mm from
+    its line: ``min(degrees(asin(min(1, b/r))), rotary_limit_deg)`` with ``b = ball_um·1e-3`` mm
+    (module docstring)."""
+    r = np.asarray(radius_mm, dtype=float)
+    with np.errstate(divide="ignore"):
+        ratio = np.where(r > 0.0, (ball_um * MM_PER_UM) / np.where(r > 0.0, r, 1.0), np.inf)
+    return np.minimum(np.degrees(np.arcsin(np.minimum(1.0, ratio))), check_rotary_limit(rotary_limit_deg))
+
+
+def rotary_radius_mm(J_deg) -> np.ndarray:
+    """Distance (n,) mm of the tool point from a rotary axis' line: ``|∂p/∂θ|·180/π`` from that axis'
+    column (n, 3) of the nominal axis Jacobian (mm per degree)."""
+    return np.linalg.norm(J_deg, axis=1) * (180.0 / np.pi)
+
+
+def rotary_guard(compiled, machine, axes_d, q, sol, ball_um, rotary_limit_deg):
+    """Points whose solved rotary command leaves its bound; returns (refused (n,) bool, reasons
+    {index: text}). Only solved rotary axes are checked (kept ones are not moved)."""
+    n = len(axes_d)
+    refused = np.zeros(n, dtype=bool)
+    reasons: dict = {}
+    rot = [int(j) for j in sol if compiled.kinds[j] != "linear"]
+    if not rot or n == 0:
+        return refused, reasons
+    _, J_d = nominal_and_jacobian(machine, axes_d, compiled)
+    names = machine.axis_columns
+    limit = check_rotary_limit(rotary_limit_deg)
+    for j in rot:
+        r = rotary_radius_mm(J_d[:, :, j])
+        bound = rotary_bound_deg(r, ball_um, rotary_limit_deg)
+        swing = np.abs(q[:, j] - axes_d[:, j])
+        bad = ~(swing <= bound * (1.0 + 1e-12))
+        for i in np.flatnonzero(bad).tolist():
+            by = ("the --max-rotary-correction-deg limit" if limit <= bound[i]
+                  else f"asin(ball {ball_um:g} um / r {r[i]:.4g} mm)")
+            text = (f"rotary continuity: {names[j]} would turn by {swing[i]:.4g} deg from the programmed "
+                    f"{axes_d[i, j]:.6g} deg, more than {bound[i]:.4g} deg ({by}); refused, programmed axes kept")
+            reasons[i] = f"{reasons[i]}; {text}" if i in reasons else text
+        refused |= bad
+    return refused, reasons
+
+
 def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: float = BALL_RADIUS_UM,
                       tol_um: float = 1e-4, xtol_um: float = 1e-9, max_iter: int = 50, chunk: int = 250_000,
-                      progress: bool = True):
+                      rotary_limit_deg=None, progress: bool = True):
     """Exact compensation of WCS targets (n, 3) mm on a machine-tool chain (module docstring).
 
     ``target_axes`` (n, k): the program's axes of each target (required when the machine has
     rotary axes: they are kept). ``field``: an error field over ``machine.axis_columns`` that
-    declares ``predict_and_jacobian`` (:class:`errormap.mt_field.ChainField`). Returns a
+    declares ``predict_and_jacobian`` (:class:`errormap.mt_field.ChainField`). ``rotary_limit_deg``:
+    a limit on a solved rotary axis' correction below the ball's bound (module docstring). Returns a
     :class:`~compensation.solvers.base.SolveResult` with ``axes`` (n, k); ``info``: iterations per
-    point, ``compensated_axes``, ``kept_axes``, ``note``, ``outside_ball``.
+    point, ``compensated_axes``, ``kept_axes``, ``note``, ``outside_ball``, ``rotary_refused``
+    (indices), ``rotary_reasons`` (one text per refused index).
     """
     t0 = time.perf_counter()
     check_field(field, machine.axis_columns)
@@ -133,6 +206,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     if not (tol_um > 0 and xtol_um > 0 and max_iter >= 1 and chunk >= 1):
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
+    check_rotary_limit(rotary_limit_deg)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
     q = axes_d.copy()
@@ -157,11 +231,21 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
         q[outside] = qo
         E[outside] = field.predict(qo)
         nfev += int(outside.sum())
+    refused, reasons = rotary_guard(compiled, machine, axes_d, q, sol, ball_um, rotary_limit_deg)
+    if refused.any():  # never silently swung: the programmed axes are kept, the point is unsolved
+        q[refused] = axes_d[refused]
+        commands[refused] = compiled.forward(axes_d[refused])
+        E[refused] = field.predict(axes_d[refused])
+        nfev += int(refused.sum())
     res = (commands - targets) * UM_PER_MM + E
-    converged = (np.linalg.norm(res, axis=1) <= tol_um) & ~outside
+    converged = (np.linalg.norm(res, axis=1) <= tol_um) & ~outside & ~refused
     names = machine.axis_columns
     info = {"iterations": iters, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside),
             "compensated_axes": [names[j] for j in sol], "kept_axes": [names[j] for j in kept]}
+    if any(compiled.kinds[j] != "linear" for j in sol):
+        info["rotary_refused"] = np.flatnonzero(refused)
+        info["rotary_reasons"] = [reasons[i] for i in np.flatnonzero(refused).tolist()]
+        info["rotary_limit_deg"] = None if rotary_limit_deg is None else float(rotary_limit_deg)
     if len(kept):
         info["note"] = KEPT_NOTE.format(lin=", ".join(info["compensated_axes"]), rot=", ".join(info["kept_axes"]))
     elif any(compiled.kinds[j] != "linear" for j in sol):

@@ -94,6 +94,10 @@ def register(sub):
     p.add_argument("--max-segment-mm", default="auto",
                    help="split G1 moves and arcs into segments no longer than this (WCS mm); 'auto' "
                         "(default): from the field's curvature along the file's moves; 'none': no splitting")
+    p.add_argument("--max-rotary-correction-deg", type=float, default=None, metavar="DEG",
+                   help="machine-tool chains whose solver moves a rotary axis (lathe-xzc's C): refuse a point whose "
+                        "compensated rotary command differs from the programmed one by more than DEG (default: only "
+                        "the ball's bound asin(ball/r), r the target's distance from the axis)")
     add_condition_options(p)
     add_units_option(p, "CSV tool-path columns")
     add_cluster_options(p)
@@ -127,6 +131,9 @@ def parse_max_segment(text):
 
 def run(args) -> int:
     machine = load_machine(args.machine)  # read once; its kind (content) picks the path
+    if getattr(args, "max_rotary_correction_deg", None) is not None and machine.kind != "machine-tool":
+        raise UsageError(f"--max-rotary-correction-deg: only on machine-tool chains whose solver moves a rotary axis "
+                         f"(e.g. lathe-xzc); {machine.name!r} is a {machine.kind} machine")
     if machine.kind == "serial":
         from ..workflows.arm_compensate import run_arm_compensate
         return run_arm_compensate(machine, args)

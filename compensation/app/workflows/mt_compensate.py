@@ -145,6 +145,21 @@ def chain_conditions(field_, conditions: dict, machine):
     return field_
 
 
+def rotary_refusals(res, report) -> int:
+    """Points the exact chain solver refused by its rotary continuity guard
+    (:func:`compensation.solvers.chain_exact.rotary_guard`): their guard reason (convergence: the point
+    is unsolved) is replaced by the solver's own (which axis, by how much, the bound); returns their
+    count (0 where the solver moves no rotary axis)."""
+    idx = np.asarray(res.info.get("rotary_refused", ()), dtype=np.intp)
+    if not len(idx):
+        return 0
+    why = dict(zip(idx.tolist(), res.info["rotary_reasons"]))
+    conv = report.violations["convergence"]
+    report.reasons["convergence"] = np.array([why.get(int(i), r) for i, r in zip(conv, report.reasons["convergence"])],
+                                             dtype=object)
+    return int(len(idx))
+
+
 def run_chain_compensate(machine, args, allow) -> int:
     """The ``compensate`` command on a machine-tool chain; returns the exit status."""
     from ...solvers import CHAIN_METHODS, solve, solver_spec
@@ -170,6 +185,13 @@ def run_chain_compensate(machine, args, allow) -> int:
         hint = "; --method exact takes it" if args.method != "exact" and solvable else ""
         raise UsageError(f"--machine {machine.name} --method {args.method}: {exc}{hint}; compensate is not available "
                          f"on this machine") from None
+    rotary_limit = getattr(args, "max_rotary_correction_deg", None)
+    if rotary_limit is not None:
+        sol, _ = solved_and_kept(machine)
+        if all(machine.axes[j].kind == "linear" for j in sol):
+            raise UsageError(f"--max-rotary-correction-deg: the solver moves no rotary axis on {machine.name!r} "
+                             f"(it moves {', '.join(machine.axis_columns[j] for j in sol)}; the rotary axes are kept "
+                             "as programmed); leave it out")
     s = ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
                       rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
                       units=args.units, truth=args.truth)
@@ -194,8 +216,10 @@ def run_chain_compensate(machine, args, allow) -> int:
     for (p, dst), tp in zip(plan, paths):
         targets, _ = nominal_and_jacobian(machine, tp.axes)
         seeded = {"seed": args.seed} if solver_spec(s.method).seeded else {}
-        res = solve(s.method, field_, targets, machine, target_axes=tp.axes, progress=False, **seeded)
+        limit = {"rotary_limit_deg": rotary_limit} if rotary_limit is not None else {}
+        res = solve(s.method, field_, targets, machine, target_axes=tp.axes, progress=False, **seeded, **limit)
         report = guards.check(res, machine, field_, allow=allow, target_axes=tp.axes)
+        rotary_refused = rotary_refusals(res, report)
         kept = []
         if tp.kind == "gcode" and len(tp.source.kept_lines):
             job = tp.source
@@ -216,6 +240,9 @@ def run_chain_compensate(machine, args, allow) -> int:
                  "seconds": float(res.seconds)}
         if res.info.get("note"):
             entry["note"] = res.info["note"]
+        if "rotary_refused" in res.info:
+            entry["rotary_refused"] = rotary_refused
+            entry["rotary_limit_deg"] = res.info.get("rotary_limit_deg")
         if truth is not None:
             entry["true"] = _stats(true_residual_um(truth, machine, res.axes, targets))
             entry["true_uncompensated"] = _stats(true_residual_um(truth, machine, tp.axes, targets))
@@ -256,6 +283,9 @@ def run_chain_compensate(machine, args, allow) -> int:
               f"{entry['max_correction_um']:.1f} um{tail}, guard violations {sum(viol.values())} {status}")
         if entry.get("note"):
             print(f"  {entry['note']}")
+        if rotary_refused:
+            print(f"  rotary continuity: {rotary_refused} point(s) refused (their rotary correction exceeds "
+                  f"asin(ball/r){' or the limit' if rotary_limit is not None else ''}; programmed axes kept)")
     written = {dst.name for _, dst, _, _, text, _, _ in outcomes if text is not None}
     removed = []
     for p in sorted(set(old_outputs) | {dst for _, dst, _, _, text, _, _ in outcomes if text is None}):
