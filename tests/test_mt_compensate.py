@@ -257,9 +257,9 @@ def test_compensate_five_axis_keeps_rotary_words(tmp_path, capsys):
 
 def test_compensate_chain_refuses_other_methods(tmp_path, mill_models, capsys):
     _, est = mill_models
-    assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method", "ga",
-                 "--out", str(tmp_path / "o")]) == 2
-    assert "the methods are batched-ga, exact" in capsys.readouterr().err
+    assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method",
+                 "traditional", "--out", str(tmp_path / "o")]) == 2
+    assert "the methods are ga, batched-ga, exact" in capsys.readouterr().err
     assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method", "exact",
                  "--max-segment-mm", "5", "--out", str(tmp_path / "o")]) == 2
     assert "--max-segment-mm: not available on the machine-tool chain" in capsys.readouterr().err
@@ -382,14 +382,11 @@ def test_compensate_refuses_a_chain_it_cannot_solve(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "three axes of a three-axis machine" in err[0] and "lathe-xzbc" in err[0]
     assert not (tmp_path / "o").exists()
-    # the lathe's GA is refused the same way: it needs three linear axes (its linear offsets are exact only there)
-    lathe_est = chain_elements(load_machine("lathe-xzc"), 402).save(tmp_path / "lathe_el.json")
-    lathe_prog = tmp_path / "lathe.nc"
-    lathe_prog.write_text("G18 G90\nG1 X10. Z200. C0. F100.\nM30\n")
-    assert main(["compensate", str(lathe_prog), "--machine", "lathe-xzc", "--model", str(lathe_est), "--method",
-                 "batched-ga", "--out", str(tmp_path / "o2")]) == 2
+    # the GA is refused the same way (it moves the exact solver's axes: the 4-axis lathe has no three to move)
+    assert main(["compensate", str(prog), "--machine", str(mf), "--model", str(est), "--method", "batched-ga",
+                 "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "three linear axes" in err[0] and "lathe-xzc" in err[0] and "--method exact takes it" in err[0]
+    assert len(err) == 1 and "three axes of a three-axis machine" in err[0] and "lathe-xzbc" in err[0]
 
 
 @pytest.mark.slow

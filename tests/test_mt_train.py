@@ -109,10 +109,10 @@ def test_batched_ga_on_a_chain_model_residual(name, n):
 
 
 def test_chain_methods_registry():
-    assert set(CHAIN_METHODS) == {"exact", "batched-ga"}
+    assert set(CHAIN_METHODS) == {"exact", "batched-ga", "ga"}
     mt = load_machine("mill-xyz")
     with pytest.raises(ValueError, match="not available on a machine-tool chain"):
-        solve("ga", ChainField(mt, chain_elements(mt, 1)), np.zeros((1, 3)), mt)
+        solve("traditional", ChainField(mt, chain_elements(mt, 1)), np.zeros((1, 3)), mt)
 
 
 @pytest.fixture()

@@ -71,7 +71,7 @@ SOLVERS = {s.name: s for s in (
     Solver("traditional", "traditional", "subtract the field's error at the nominal axes once (no iteration)",
            uses=frozenset({"predict_columns"}), progress=False),
     Solver("ga", "ga", "the paper's genetic algorithm, one point at a time",
-           uses=frozenset({"float32", "predict_columns"}), seeded=True),
+           uses=frozenset({"float32", "predict_columns"}), seeded=True, chain="chain_ga:solve_ga_chain"),
     Solver("batched-ga", "batched_ga", "the same GA evolved for a block of points at once (numba breeding kernels)",
            uses=frozenset({"float32", "offset_fitness", "predict_columns"}), seeded=True, blockwise=True,
            kernels=("compensation.solvers._ga_kernels",), chain="chain_ga:solve_batched_ga_chain"),

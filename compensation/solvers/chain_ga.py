@@ -1,22 +1,39 @@
-"""The batched GA on a machine-tool chain (``kind = "machine-tool"``): the generic chain fitness.
+"""The GA on a machine-tool chain (``kind = "machine-tool"``): the generic chain fitness.
 
 Same GA as :mod:`compensation.solvers.batched_ga` (the paper's population, generations and
-PyGAD operators, :class:`~compensation.solvers.batched_ga._BatchGA`), on offsets ``d`` (μm) of
-the commanded tool point around each target ``p_d``. What differs is the fitness, written for
-any chain instead of the grinder's hand-written inverse kinematics:
+PyGAD operators, :class:`~compensation.solvers.batched_ga._BatchGA`) for ``batched-ga``, and PyGAD
+itself one point at a time (as :mod:`compensation.solvers.ga`) for ``ga``. The genes are three
+numbers in the 250 μm ball; what they move is the axes the exact chain solver moves
+(:func:`compensation.solvers.chain_exact.solved_and_kept`, read from the chain):
+
+**Three linear axes** (mill, five-axis): the genes are offsets ``d`` (μm) of the commanded tool
+point around each target ``p_d``::
 
     q(d) = q_d  with the linear axes  q_lin = q_d,lin + A⁻¹·(1e-3·d)
     fitness(d) = −|d + E(q(d))|²          (μm²)
 
 with ``q_d`` the program's axes of the target, ``A = dfwd/dq_lin`` the machine's nominal axis
-Jacobian at ``q_d`` (:func:`compensation.solvers.chain_exact.nominal_and_jacobian`). As in the
-exact chain solver on a machine with three linear axes the **tool-tip position** is compensated
-with them and the rotary axes are **kept as programmed** (a machine without three linear axes,
-the lathe, is refused here; the exact chain solver moves its X, Z and C); with them fixed the nominal tool point is
-affine in the linear axes, so ``q(d)`` is the exact nominal inverse of ``p_d + 1e-3·d`` (one
-3×3 inverse per point, computed once). ``E`` is the field's ``predict`` over
-``machine.axis_columns`` (float64 numpy; any chain field: the element set's
-:class:`errormap.mt_field.ChainField` or a trained network).
+Jacobian at ``q_d`` (:func:`compensation.solvers.chain_exact.nominal_and_jacobian`); the rotary
+axes are **kept as programmed**. With them fixed the nominal tool point is affine in the linear
+axes, so ``q(d)`` is the exact nominal inverse of ``p_d + 1e-3·d`` (one 3×3 inverse per point,
+computed once).
+
+**A solved rotary axis** (the lathe: X, Z and C all solved): the genes ``g`` are the solved axes'
+offsets from the programmed command, scaled so that the gene ball is the search region::
+
+    q(g) = q_d  with  q_s = q_d,s + s·g          s = 1e-3 mm/μm (linear), Δθ_max/b deg (rotary)
+    p(g) = fwd(q(g)),   r(g) = (p(g) − p_d)·1e3 + E(q(g))                  (μm)
+    fitness(g) = −(|r(g)| + max(0, |p(g) − p_d|·1e3 − b))²                 (μm²)
+
+``b`` the ball radius and ``Δθ_max = min(asin(min(1, b/r)), limit)`` the exact solver's rotary
+continuity bound at the target's distance ``r`` from the axis
+(:func:`compensation.solvers.chain_exact.rotary_bound_deg`): a rotary gene of ``b`` turns by
+``Δθ_max``, so (for ``r ≫ b``) one gene unit moves the tool point by about 1 μm along every gene,
+and no gene can swing the rotary axis past its bound. The tool point's own 250 μm ball is the
+second term (zero inside it).
+
+``E`` is the field's ``predict`` over ``machine.axis_columns`` (float64 numpy; any chain field:
+the element set's :class:`errormap.mt_field.ChainField` or a trained network).
 
 After the generations, points above ``tol_um`` are retried (GA re-runs from a fresh population
 around their best, radii as :mod:`._converge`) and then polished by the exact chain solver's
@@ -38,7 +55,8 @@ from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
 from ._converge import RETRY_ROUNDS, retry_radius_um
 from .base import BALL_RADIUS_UM
 from .batched_ga import _BatchGA, _LockedProgress
-from .chain_exact import KEPT_NOTE, _newton, linear_axes, nominal_and_jacobian, target_axes_of
+from .chain_exact import (KEPT_NOTE, SOLVED_NOTE, _newton, check_rotary_limit, linear_axes, nominal_and_jacobian,
+                          rotary_bound_deg, rotary_guard, rotary_radius_mm, solved_and_kept, target_axes_of)
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
 
@@ -63,10 +81,172 @@ class ChainOffsetFitness:
         """Model residual ``d + E(q(d))`` (m, 3) μm, float64."""
         return d_um + self.field.predict(self.axes(pts, d_um))
 
+    def fitness64(self, pts, d_um) -> np.ndarray:
+        """``−|d + E(q(d))|²`` (m,) μm², float64 (NaN → −inf)."""
+        r = self.residual_um(pts, d_um)
+        f = -np.einsum("ij,ij->i", r, r)
+        return np.where(np.isnan(f), -np.inf, f)
+
+    def genes_of(self, pts, q, commands_mm, targets_mm, ball_um) -> np.ndarray:
+        """Genes (m, 3) of a Newton polish's axes ``q`` / commands: the tool-point offset in the ball."""
+        return project_to_ball((commands_mm - targets_mm) * UM_PER_MM, ball_um)
+
     def __call__(self, pts: np.ndarray, dT: np.ndarray) -> np.ndarray:
         r = self.residual_um(pts, dT.T.astype(float))
         f = -np.einsum("ij,ij->i", r, r)
         return np.where(np.isnan(f), -np.inf, f).astype(np.float32)
+
+
+class ChainAxisFitness:
+    """``fitness(points (k,) int64, genes (3, k) float32) -> (k,) float32`` on a chain whose solved
+    axes include a rotary one (module docstring): genes are the solved axes' scaled offsets.
+
+    ``compiled`` the machine's :class:`errormap.mt_kernel.NominalChain`, ``targets`` (n, 3) mm,
+    ``axes_d`` (n, k) programmed axes, ``sol`` (3,) solved axes, ``scale`` (n, 3) axis units per gene
+    unit, ``ball_um`` the tool point's ball.
+    """
+
+    def __init__(self, field, compiled, targets, axes_d, sol, scale, ball_um):
+        self.field, self.compiled, self.targets, self.axes_d = field, compiled, targets, axes_d
+        self.sol, self.scale, self.ball_um = sol, scale, float(ball_um)
+
+    def axes(self, pts, g) -> np.ndarray:
+        """Axes (m, k): the programmed ones with the solved axes moved by ``scale·g``."""
+        q = self.axes_d[pts].copy()
+        q[:, self.sol] += self.scale[pts] * g
+        return q
+
+    def commands_mm(self, pts, g) -> np.ndarray:
+        """Nominal tool point (m, 3) mm of the axes of genes ``g``."""
+        return self.compiled.forward(self.axes(pts, g))
+
+    def residual_um(self, pts, g) -> np.ndarray:
+        """Model residual ``(p(g) − p_d)·1e3 + E(q(g))`` (m, 3) μm, float64."""
+        q = self.axes(pts, g)
+        return (self.compiled.forward(q) - self.targets[pts]) * UM_PER_MM + self.field.predict(q)
+
+    def fitness64(self, pts, g) -> np.ndarray:
+        """``−(|r| + max(0, |p − p_d| − b))²`` (m,) μm², float64 (NaN → −inf)."""
+        q = self.axes(pts, g)
+        d = (self.compiled.forward(q) - self.targets[pts]) * UM_PER_MM
+        r = np.linalg.norm(d + self.field.predict(q), axis=1)
+        f = -(r + np.maximum(0.0, np.linalg.norm(d, axis=1) - self.ball_um)) ** 2
+        return np.where(np.isnan(f), -np.inf, f)
+
+    def genes_of(self, pts, q, commands_mm, targets_mm, ball_um) -> np.ndarray:
+        """Genes (m, 3) of a Newton polish's axes ``q`` (projected onto the gene ball)."""
+        return project_to_ball((q[:, self.sol] - self.axes_d[pts][:, self.sol]) / self.scale[pts], ball_um)
+
+    def __call__(self, pts: np.ndarray, dT: np.ndarray) -> np.ndarray:
+        return self.fitness64(pts, dT.T.astype(float)).astype(np.float32)
+
+
+def chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg=None):
+    """The GA's fitness on ``machine`` and the axes it moves: ``(fitness, moved (3,), kept, note)``.
+    Three linear axes: :class:`ChainOffsetFitness` (rotary axes kept); else the exact solver's axes
+    (:func:`~compensation.solvers.chain_exact.solved_and_kept`) and :class:`ChainAxisFitness`, the
+    rotary genes' range ``Δθ_max`` from the ball and the target's radius (ValueError if neither)."""
+    names = machine.axis_columns
+    lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
+    if len(lin) == 3:
+        if rotary_limit_deg is not None:
+            raise ValueError("a rotary correction limit applies only where the solver moves a rotary axis")
+        lin, rot = linear_axes(machine)
+        P0, J0 = nominal_and_jacobian(machine, axes_d, compiled)
+        fit = ChainOffsetFitness(field, axes_d, lin, np.linalg.inv(J0[:, :, lin]), targets - P0)
+        note = (KEPT_NOTE.format(lin=", ".join(names[j] for j in lin), rot=", ".join(names[j] for j in rot))
+                if len(rot) else None)
+        return fit, lin, rot, note
+    sol, kept = solved_and_kept(machine, compiled)
+    _, J = nominal_and_jacobian(machine, axes_d, compiled)
+    scale = np.empty((len(targets), 3))
+    for c, j in enumerate(sol):
+        if compiled.kinds[j] == "linear":
+            scale[:, c] = MM_PER_UM
+        else:
+            scale[:, c] = rotary_bound_deg(rotary_radius_mm(J[:, :, j]), ball_um, rotary_limit_deg) / ball_um
+    fit = ChainAxisFitness(field, compiled, targets, axes_d, sol, scale, ball_um)
+    note = SOLVED_NOTE.format(sol=", ".join(names[j] for j in sol),
+                              rot=", ".join(names[j] for j in sol if compiled.kinds[j] != "linear"))
+    return fit, sol, kept, note
+
+
+def _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
+           crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg):
+    """Shared validation of the chain GAs; returns (targets (n, 3), mating parents)."""
+    check_field(field, machine.axis_columns)
+    solved_and_kept(machine)  # ValueError for a machine the chain solvers cannot place the tool point on
+    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
+    if not (np.isfinite(ball_um) and ball_um > 0):
+        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+    n_parents = check_ga_options(population, generations, selection_probability, crossover_probability,
+                                 mutation_probability, mutation_step_um, tol_um)
+    if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
+        raise ValueError(f"Expected retries in 0..10, got {retries!r}")
+    check_rotary_limit(rotary_limit_deg)
+    return targets, n_parents
+
+
+def _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_um, ball_um, retries, polish,
+                      rerun, stats):
+    """Retries (``rerun(sub_local, init (s, P, 3)) -> (genes (s, 3), evaluations)``) and the Newton polish
+    of the points of ``idx`` (m,) whose best genes ``b`` (m, 3) leave a model residual above ``tol_um``;
+    ``b`` updated in place; returns the field evaluations."""
+    nfev = 0
+    res = np.linalg.norm(fit.residual_um(idx, b), axis=1)
+    bad = np.flatnonzero(~(res <= tol_um))
+    stats["retried"] += int(bad.size)
+    for r in range(retries):
+        if not bad.size:
+            break
+        radius = retry_radius_um(np.where(np.isfinite(res[bad]), res[bad], ball_um), r, ball_um)
+        new, fe = rerun(bad, radius)
+        nfev += fe
+        nr = np.linalg.norm(fit.residual_um(idx[bad], new), axis=1)
+        better = nr < res[bad]
+        b[bad[better]], res[bad[better]] = new[better], nr[better]
+        bad = bad[~(res[bad] <= tol_um)]
+        stats["retry_rounds"] = max(stats["retry_rounds"], r + 1)
+    if polish and bad.size:
+        sub = idx[bad]
+        q, commands, _, _, fe = _newton(field, compiled, targets[sub], axes_d[sub], moved, 1e-9, 50)
+        nfev += fe
+        new = fit.genes_of(sub, q, commands, targets[sub], ball_um)
+        nr = np.linalg.norm(fit.residual_um(sub, new), axis=1)
+        better = nr < res[bad]
+        b[bad[better]], res[bad[better]] = new[better], nr[better]
+        stats["polished"] += int(bad.size)
+        bad = bad[~(res[bad] <= tol_um)]
+    stats["unconverged"] += int(bad.size)
+    return nfev
+
+
+def _chain_result(method, fit, field, compiled, machine, targets, axes_d, best, moved, kept, note, nfev, t0,
+                  ball_um, tol_um, rotary_limit_deg, info):
+    """The GA's result from its best genes (n, 3): axes, commands, float64 model residual, the rotary
+    guard's report (a solved rotary axis; the genes cannot pass its bound, so none is refused)."""
+    n = len(targets)
+    all_idx = np.arange(n)
+    q = fit.axes(all_idx, best)
+    if isinstance(fit, ChainOffsetFitness):
+        commands = targets + MM_PER_UM * best
+    else:
+        commands = compiled.forward(q)
+    E = field.predict(q)
+    nfev += n
+    res = (commands - targets) * UM_PER_MM + E
+    converged = np.linalg.norm(res, axis=1) <= tol_um
+    names = machine.axis_columns
+    info = {**info, "compensated_axes": [names[j] for j in moved], "kept_axes": [names[j] for j in kept]}
+    if note:
+        info["note"] = note
+    if isinstance(fit, ChainAxisFitness):
+        refused, reasons = rotary_guard(compiled, machine, axes_d, q, moved, ball_um, rotary_limit_deg)
+        converged &= ~refused
+        info["rotary_refused"] = np.flatnonzero(refused)
+        info["rotary_reasons"] = [reasons[i] for i in np.flatnonzero(refused).tolist()]
+        info["rotary_limit_deg"] = None if rotary_limit_deg is None else float(rotary_limit_deg)
+    return make_result(method, targets, commands, q, res, converged, nfev, t0, ball_um, info=info)
 
 
 def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball_um: float = BALL_RADIUS_UM,
@@ -77,33 +257,26 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
                            mutation_probability: float = PAPER_GA["mutation_probability"],
                            mutation_step_um: float = PAPER_GA["mutation_step_um"], tol_um: float = DEFAULT_TOL_UM,
                            chunk: int = 8192, retries: int = RETRY_ROUNDS, polish: bool = True,
-                           progress: bool = True):
+                           rotary_limit_deg=None, progress: bool = True):
     """Batched GA over WCS targets (n, 3) mm on a machine-tool chain (module docstring).
 
     ``target_axes`` (n, k): the program's axes of each target (required when the machine has
-    rotary axes: they are kept). Chunks of at most ``chunk`` points evolve one after another,
-    each from its own child Generator of ``seed``. Returns a
-    :class:`~compensation.solvers.base.SolveResult` with ``axes`` (n, k); ``info``:
-    ``compensated_axes``, ``kept_axes``, ``note``, ``retry`` (retried / polished / unconverged).
+    rotary axes). Chunks of at most ``chunk`` points evolve one after another, each from its own
+    child Generator of ``seed``. ``rotary_limit_deg``: a solved rotary axis' limit (as the exact
+    chain solver's). Returns a :class:`~compensation.solvers.base.SolveResult` with ``axes`` (n, k);
+    ``info``: ``compensated_axes``, ``kept_axes``, ``note``, ``retry`` (retried / polished /
+    unconverged), ``rotary_refused`` where a rotary axis is solved.
     """
     t0 = time.perf_counter()
-    check_field(field, machine.axis_columns)
-    lin, rot = linear_axes(machine)
-    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
-    if not (np.isfinite(ball_um) and ball_um > 0):
-        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
-    n_parents = check_ga_options(population, generations, selection_probability, crossover_probability,
-                                 mutation_probability, mutation_step_um, tol_um)
+    targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
+                                crossover_probability, mutation_probability, mutation_step_um, tol_um, retries,
+                                rotary_limit_deg)
     if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
         raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
-    if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
-        raise ValueError(f"Expected retries in 0..10, got {retries!r}")
     compiled = NominalChain(machine)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
-    P0, J0 = nominal_and_jacobian(machine, axes_d, compiled)
-    Ainv = np.linalg.inv(J0[:, :, lin])
-    fit = ChainOffsetFitness(field, axes_d, lin, Ainv, targets - P0)
+    fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)
     ga = _BatchGA(ball_um, population, n_parents, crossover_probability, mutation_probability, mutation_step_um)
     n_chunks = max(1, -(-n // chunk))
     bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
@@ -119,49 +292,95 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
         idx = np.arange(lo, hi)
         b, fe = ga.run(lambda pts, dT, _o=lo: fit(pts + _o, dT), hi - lo, rngs[i], generations, bar)
         nfev += fe
-        res = np.linalg.norm(fit.residual_um(idx, b), axis=1)
-        bad = np.flatnonzero(~(res <= tol_um))
-        stats["retried"] += int(bad.size)
-        for r in range(retries):
-            if not bad.size:
-                break
-            radius = retry_radius_um(np.where(np.isfinite(res[bad]), res[bad], ball_um), r, ball_um)
-            init = b[bad][:, None, :] + radius[:, None, None] * uniform_in_ball(rngs[i], (bad.size, population), 1.0)
-            init[:, 0] = b[bad]
+
+        def rerun(bad, radius, _b=b, _idx=idx, _rng=rngs[i]):
+            init = _b[bad][:, None, :] + radius[:, None, None] * uniform_in_ball(_rng, (bad.size, population), 1.0)
+            init[:, 0] = _b[bad]
             init = project_to_ball(init, ball_um).astype(np.float32)
-            sub = idx[bad]
-            new, fe = ga.run(lambda pts, dT, _s=sub: fit(_s[pts], dT), bad.size, rngs[i], generations, None,
-                             init=init)
-            nfev += fe
-            nr = np.linalg.norm(fit.residual_um(sub, new), axis=1)
-            better = nr < res[bad]
-            b[bad[better]], res[bad[better]] = new[better], nr[better]
-            bad = bad[~(res[bad] <= tol_um)]
-            stats["retry_rounds"] = max(stats["retry_rounds"], r + 1)
-        if polish and bad.size:
-            sub = idx[bad]
-            q, commands, _, _, fe = _newton(field, compiled, targets[sub], axes_d[sub], lin, 1e-9, 50)
-            nfev += fe
-            new = project_to_ball((commands - targets[sub]) * UM_PER_MM, ball_um)
-            nr = np.linalg.norm(fit.residual_um(sub, new), axis=1)
-            better = nr < res[bad]
-            b[bad[better]], res[bad[better]] = new[better], nr[better]
-            stats["polished"] += int(bad.size)
-            bad = bad[~(res[bad] <= tol_um)]
-        stats["unconverged"] += int(bad.size)
+            sub = _idx[bad]
+            return ga.run(lambda pts, dT, _s=sub: fit(_s[pts], dT), bad.size, _rng, generations, None, init=init)
+
+        nfev += _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_um, ball_um, retries,
+                                  polish, rerun, stats)
         best[lo:hi] = b
     bar.close()
-    all_idx = np.arange(n)
-    q = fit.axes(all_idx, best)
-    commands = targets + MM_PER_UM * best
-    E = field.predict(q)
-    nfev += n
-    res = (commands - targets) * UM_PER_MM + E
-    converged = np.linalg.norm(res, axis=1) <= tol_um
-    names = machine.axis_columns
     info = {"tol_um": tol_um, "seed": seed if isinstance(seed, (int, np.integer)) else None, "parents": n_parents,
-            "chunks": n_chunks, "retry": stats, "compensated_axes": [names[j] for j in lin],
-            "kept_axes": [names[j] for j in rot]}
-    if len(rot):
-        info["note"] = KEPT_NOTE.format(lin=", ".join(info["compensated_axes"]), rot=", ".join(info["kept_axes"]))
-    return make_result("batched-ga", targets, commands, q, res, converged, nfev, t0, ball_um, info=info)
+            "chunks": n_chunks, "retry": stats}
+    return _chain_result("batched-ga", fit, field, compiled, machine, targets, axes_d, best, moved, kept, note, nfev,
+                         t0, ball_um, tol_um, rotary_limit_deg, info)
+
+
+def solve_ga_chain(field, targets_mm, machine, *, target_axes=None, ball_um: float = BALL_RADIUS_UM,
+                   seed: int = 0, population: int = PAPER_GA["population"],
+                   generations: int = PAPER_GA["generations"],
+                   selection_probability: float = PAPER_GA["selection_probability"],
+                   crossover_probability: float = PAPER_GA["crossover_probability"],
+                   mutation_probability: float = PAPER_GA["mutation_probability"],
+                   mutation_step_um: float = PAPER_GA["mutation_step_um"], tol_um: float = DEFAULT_TOL_UM,
+                   retries: int = RETRY_ROUNDS, polish: bool = True, rotary_limit_deg=None,
+                   progress: bool = True):
+    """PyGAD per target on a machine-tool chain (the reference GA, a loop over points on purpose): the
+    genes and fitness of :func:`chain_fitness` (module docstring), PyGAD's settings as
+    :func:`compensation.solvers.ga.solve_ga` (steady-state selection of 0.7·40 parents, single-point
+    crossover 0.7, random mutation ±1 gene unit with probability 0.2, elitism 1, offspring projected
+    onto the gene ball). Point i's run depends only on ``(seed, i)`` (its own child Generator, which
+    also draws PyGAD's ``random_seed``). Retries and polish as :func:`solve_batched_ga_chain`."""
+    import pygad
+
+    t0 = time.perf_counter()
+    targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
+                                crossover_probability, mutation_probability, mutation_step_um, tol_um, retries,
+                                rotary_limit_deg)
+    compiled = NominalChain(machine)
+    axes_d = target_axes_of(machine, targets, target_axes, compiled)
+    n = len(targets)
+    fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)
+    point_rngs = np.random.default_rng(seed).spawn(n)
+    counter = [0]
+
+    def run_one(i, init=None):
+        rng = point_rngs[i]
+        pt = np.array([i], dtype=np.intp)
+
+        def fitness(ga, solutions, indices):
+            g = np.asarray(solutions, dtype=float).reshape(-1, 3)
+            counter[0] += len(g)
+            return list(fit.fitness64(np.repeat(pt, len(g)), g))
+
+        def on_mutation(ga, offspring):
+            return project_to_ball(np.asarray(offspring, dtype=float), ball_um)
+
+        pop = uniform_in_ball(rng, (population,), ball_um) if init is None else init
+        ga = pygad.GA(num_generations=generations, num_parents_mating=n_parents, fitness_func=fitness,
+                      fitness_batch_size=population, initial_population=pop, gene_type=float,
+                      parent_selection_type="sss", keep_elitism=1, crossover_type="single_point",
+                      crossover_probability=crossover_probability, mutation_type="random",
+                      mutation_probability=mutation_probability, mutation_by_replacement=False,
+                      random_mutation_min_val=-mutation_step_um, random_mutation_max_val=mutation_step_um,
+                      on_mutation=on_mutation, random_seed=int(rng.integers(0, 2**31 - 1)), suppress_warnings=True)
+        ga.run()
+        solution, _, _ = ga.best_solution(ga.last_generation_fitness)
+        return project_to_ball(np.asarray(solution, dtype=float), ball_um)
+
+    bar = _LockedProgress(n, "ga chain (PyGAD)", enabled=progress)
+    best = np.empty((n, 3))
+    for i in range(n):  # the per-point reference: a loop on purpose
+        best[i] = run_one(i)
+        bar.update(1)
+    bar.close()
+
+    def rerun(bad, radius):
+        out = np.empty((bad.size, 3))
+        for j, (i, r) in enumerate(zip(bad.tolist(), radius.tolist())):
+            init = best[i] + r * uniform_in_ball(point_rngs[i], (population,), 1.0)
+            init[0] = best[i]  # the best so far survives (elitism)
+            out[j] = run_one(i, project_to_ball(init, ball_um))
+        return out, 0
+
+    stats = {"retried": 0, "retry_rounds": 0, "polished": 0, "unconverged": 0}
+    nfev = _retry_and_polish(fit, field, compiled, targets, axes_d, moved, np.arange(n), best, tol_um, ball_um,
+                             retries, polish, rerun, stats)
+    info = {"tol_um": tol_um, "seed": seed if isinstance(seed, (int, np.integer)) else None, "parents": n_parents,
+            "retry": stats, "pygad_version": pygad.__version__}
+    return _chain_result("ga", fit, field, compiled, machine, targets, axes_d, best, moved, kept, note,
+                         nfev + counter[0], t0, ball_um, tol_um, rotary_limit_deg, info)

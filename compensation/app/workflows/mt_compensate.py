@@ -33,7 +33,7 @@ from ...fields import load_chain_field, require_kind, resolve_model
 from ...gcode import DEFAULT_RAPIDS
 from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, is_csv
-from ...solvers.chain_exact import linear_axes, nominal_and_jacobian, solved_and_kept
+from ...solvers.chain_exact import nominal_and_jacobian, solved_and_kept
 from .compensate import SUMMARY_NAME, check_out_dir, plan_outputs
 
 DECIMALS = {"mm": 6, "deg": 6}  # 1 nm; 1e-6 deg
@@ -176,14 +176,10 @@ def run_chain_compensate(machine, args, allow) -> int:
         raise UsageError(f"{', '.join(given)}: not available on the machine-tool chain {machine.name!r} (one process; "
                          "moves split from the field's curvature)")
     conditions = {k: v for k, v in conditions_from_args(args).items() if v is not None}
-    solvable = False
-    try:  # exact: the three solved axes read from the chain (a lathe's X, Z, C); the GA: three linear axes
-        solvable = solved_and_kept(machine) is not None
-        if args.method != "exact":
-            linear_axes(machine)
+    try:  # every chain method moves the three axes read from the chain (a lathe's X, Z, C; a mill's X, Y, Z)
+        solved_and_kept(machine)
     except ValueError as exc:
-        hint = "; --method exact takes it" if args.method != "exact" and solvable else ""
-        raise UsageError(f"--machine {machine.name} --method {args.method}: {exc}{hint}; compensate is not available "
+        raise UsageError(f"--machine {machine.name} --method {args.method}: {exc}; compensate is not available "
                          f"on this machine") from None
     rotary_limit = getattr(args, "max_rotary_correction_deg", None)
     if rotary_limit is not None:
