@@ -520,8 +520,9 @@ def node_means(nom, c, ok, empty_message: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_joint_tables(tables: JointTables, folder) -> list[Path]:
-    """``joint_<j>.comp`` for every joint of ``tables.nominal`` (the grinder's x, z, a; a chain's linear joints,
-    :class:`compensation.mt_export.ChainJointTables`): lines ``nominal forward reverse``, 9 decimals."""
+    """``joint_<j>.comp`` for every joint of ``tables.nominal`` (the grinder's x, z, a; a chain's solved joints,
+    :class:`compensation.mt_export.ChainJointTables`): lines ``nominal forward reverse`` in the joint's unit
+    (mm; deg for a rotary joint), 9 decimals."""
     from errormap.io import atomic_write
     out = []
     for j in tables.nominal:

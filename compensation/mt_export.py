@@ -211,7 +211,7 @@ def write_chain_grid(ticks, vals, machine, folder, model_desc: str):
     return [write_csv(folder / "grid.csv", cols, header_comments=head, float_fmt="%.9g")]
 
 
-# -- LinuxCNC per-joint tables of the linear joints ----------------------------------------------
+# -- LinuxCNC per-joint tables of the joints the exact solver moves -------------------------------
 JOINT_SAMPLES = 48
 """Positions of the other axes each node's correction is averaged over (as the grinder's per-joint tables)."""
 TABLE_TEMP_C = 20.0
@@ -219,29 +219,38 @@ TABLE_TEMP_C = 20.0
 
 
 class ChainJointTables:
-    """Per-joint LinuxCNC tables of a chain's LINEAR joints: ``nominal[j]``, ``forward[j]``, ``reverse[j]``
-    (m,) mm — the positions joint ``j`` (lower-case axis word) actually reaches when commanded to ``nominal``
-    approaching in + / − direction. ``joints``: ``{j: index into machine.axes}``. Written by the grinder's
-    writer (:func:`compensation.export.write_joint_tables`)."""
+    """Per-joint LinuxCNC tables of the joints the exact chain solver moves (a mill's X Y Z; a lathe's X, Z
+    and C): ``nominal[j]``, ``forward[j]``, ``reverse[j]`` (m,) in the joint's unit (mm; deg for a rotary
+    joint) — the positions joint ``j`` (lower-case axis word) actually reaches when commanded to ``nominal``
+    approaching in + / − direction. ``joints``: ``{j: index into machine.axes}``; ``units``: ``{j: "mm" |
+    "deg"}``; ``turns``: ``{j: first node}`` for a full-turn rotary joint, whose table covers one turn and
+    is read with the position folded into it. Written by the grinder's writer
+    (:func:`compensation.export.write_joint_tables`)."""
 
     kind = "linuxcnc"
 
-    def __init__(self, nominal: dict, forward: dict, reverse: dict, joints: dict):
+    def __init__(self, nominal: dict, forward: dict, reverse: dict, joints: dict, units: dict | None = None,
+                 turns: dict | None = None):
         self.nominal, self.forward, self.reverse, self.joints = nominal, forward, reverse, joints
+        self.units = units if units is not None else {j: "mm" for j in nominal}
+        self.turns = turns or {}
 
     def actual(self, j: str):
         return self.forward[j], self.reverse[j]
 
     def command(self, axes, dirs) -> np.ndarray:
         """Motor commands (n, k) for nominal axes ``axes`` (n, k) approached in ``dirs`` (n, k) ±1: each
-        tabulated joint ``q + (q − actual(q))``, linear between lines, clamped to the table; other axes as given."""
+        tabulated joint ``q + (q − actual(q))``, linear between lines, clamped to the table (a full-turn
+        joint: its position folded into the table's turn first); other axes as given."""
         axes = np.asarray(axes, dtype=float)
         out = axes.copy()
         for j, k in self.joints.items():
             nom = self.nominal[j]
             q = axes[:, k]
+            if j in self.turns:
+                q = self.turns[j] + np.mod(q - self.turns[j], 360.0)
             act = np.where(dirs[:, k] >= 0, np.interp(q, nom, self.forward[j]), np.interp(q, nom, self.reverse[j]))
-            out[:, k] = q + (np.interp(q, nom, nom) - act)
+            out[:, k] = axes[:, k] + (np.interp(q, nom, nom) - act)
         return out
 
     def n_values(self) -> int:
@@ -274,36 +283,66 @@ def exact_corrections(field_, machine, axes, dirs):
     return r.axes - axes, np.asarray(r.success, bool)
 
 
+def weighted_node_means(nom, c, ok, w, empty_message: str) -> np.ndarray:
+    """Per table node the ``w``-weighted mean correction over its compensable samples (``c``, ``ok``, ``w``
+    (n_nodes, samples)); nodes with none take their neighbours' interpolation (as :func:`node_means`)."""
+    ww = np.where(ok, w, 0.0)
+    tot = ww.sum(axis=1)
+    good = tot > 0
+    if not good.any():
+        raise ValueError(empty_message)
+    mean = (ww * np.where(ok, c, 0.0)).sum(axis=1) / np.where(good, tot, 1.0)
+    mean[~good] = np.interp(nom[~good], nom[good], mean[good])
+    return mean
+
+
 def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAMPLES, seed=0) -> ChainJointTables:
-    """One table per linear joint: at ``n_points`` nominal positions over its calibrated range, the exact
-    correction of that joint averaged over ``samples`` seeded positions of the other axes (their approach
-    directions drawn ±1); ``forward`` with the joint approached in +, ``reverse`` in − (equal unless the model
-    has a reversal term on that joint). Nodes where no sample is compensable take their neighbours' values."""
-    from .solvers.chain_exact import linear_axes
+    """One table per joint the exact chain solver moves (:func:`compensation.solvers.chain_exact.solved_and_kept`:
+    a mill's X, Y, Z; a lathe's X, Z and C; rotary joints it keeps get none): at ``n_points`` nominal positions
+    over its calibrated range, the exact correction of that joint averaged over ``samples`` seeded positions of
+    the other axes (their approach directions drawn ±1); ``forward`` with the joint approached in +, ``reverse``
+    in − (equal unless the model has a reversal term on that joint). Nodes where no sample is compensable take
+    their neighbours' values.
+
+    A rotary joint's table is in degrees. Its samples are weighted by ``r²`` (``r`` the tool point's distance
+    from the axis, from the chain's axis Jacobian): the node value is the least-squares angle over the samples'
+    tool-point displacements ``r·Δθ`` (a plain mean would be ruled by the samples near the axis, where a small
+    sideways error needs a large turn). A full-turn joint's table covers one turn of its calibrated range, the
+    last line equal to the first."""
+    from .solvers.chain_exact import nominal_and_jacobian, rotary_radius_mm, solved_and_kept
     m = elements.machine
-    lin, _ = linear_axes(m)
+    sol, _ = solved_and_kept(m)
     rng = np.random.default_rng(seed)
     lo = np.array([_range(elements, a)[0] for a in m.axes])
     hi = np.array([_range(elements, a)[1] for a in m.axes])
     needs = set(getattr(field_, "needs", ()))
-    nominal, fwd, rev, joints = {}, {}, {}, {}
-    for k in lin:
+    nominal, fwd, rev, joints, units, turns = {}, {}, {}, {}, {}, {}
+    for k in sol:
+        k = int(k)
         a = m.axes[k]
         j = a.word.lower()
+        rotary = a.kind != "linear"
         nom = np.linspace(lo[k], hi[k], n_points)
         q = np.repeat(rng.uniform(lo, hi, (samples, len(m.axes)))[None], n_points, axis=0)
         q[:, :, k] = nom[:, None]
         q = q.reshape(-1, len(m.axes))
         d = np.repeat(rng.choice([-1.0, 1.0], (samples, len(m.axes)))[None], n_points, axis=0).reshape(-1, len(m.axes))
+        w = rotary_radius_mm(nominal_and_jacobian(m, q)[1][:, :, k]).reshape(n_points, samples) ** 2 if rotary else None
         out = []
         for sign in ((1.0, -1.0) if f"dir_{j}" in needs else (1.0,)):
             d[:, k] = sign
             c, ok = exact_corrections(field_, m, q, d)
             c, ok = c[:, k].reshape(n_points, samples), ok.reshape(n_points, samples)
-            mean, _ = node_means(nom, c, ok, f"joint {a.word}: the model cannot be compensated at any sampled point")
+            msg = f"joint {a.word}: the model cannot be compensated at any sampled point"
+            mean = weighted_node_means(nom, c, ok, w, msg) if rotary else node_means(nom, c, ok, msg)[0]
+            if rotary and a.full_turn and hi[k] - lo[k] >= 360.0 - 1e-9:
+                mean[-1] = mean[0]  # one turn: the last line is the first
             out.append(nom - mean)
-        nominal[j], fwd[j], rev[j], joints[j] = nom, out[0], out[-1], int(k)
-    return ChainJointTables(nominal, fwd, rev, joints)
+        nominal[j], fwd[j], rev[j], joints[j] = nom, out[0], out[-1], k
+        units[j] = "deg" if rotary else "mm"
+        if rotary and a.full_turn and hi[k] - lo[k] >= 360.0 - 1e-9:
+            turns[j] = float(lo[k])
+    return ChainJointTables(nominal, fwd, rev, joints, units, turns)
 
 
 def check_chain_joint_tables(tables: ChainJointTables, field_, machine, axes, dirs, truth=None) -> dict:

@@ -75,7 +75,6 @@ def test_cli_five_axis_writes_the_linear_joints_and_says_what_it_does_with_the_r
 
 
 @pytest.mark.parametrize("argv, word", [
-    (["--machine", "lathe-xzc"], "three linear axes"),
     (["--machine", "mill-xyz", "--diagnosis", "d.json"], "--diagnosis"),
     (["--machine", "mill-xyz", "--region", "0:1,0:1"], "--region"),
     (["--machine", "mill-xyz", "--points", "300"], "--points"),

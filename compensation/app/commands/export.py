@@ -268,14 +268,15 @@ def _chain_truth(path, machine):
 
 
 def run_chain_linuxcnc(args, machine) -> int:
-    """``--format linuxcnc`` on a machine-tool chain: one pitch table per LINEAR joint (``joint_<w>.comp``),
-    that joint's exact correction averaged over the other axes, forward/reverse from a reversal term of a
-    chain ``model.json``; checked before writing (:mod:`compensation.mt_export`)."""
+    """``--format linuxcnc`` on a machine-tool chain: one pitch table per joint the exact solver moves
+    (``joint_<w>.comp``: a mill's X, Y, Z; a lathe's X, Z and C, the rotary one in degrees), that joint's exact
+    correction averaged over the other axes, forward/reverse from a reversal term of a chain ``model.json``;
+    checked before writing (:mod:`compensation.mt_export`)."""
     from errormap.io import write_json
     from errormap.seeds import spawn_seeds
     from ...fields import load_chain_field, require_kind, resolve_model
     from ... import mt_export
-    from ...solvers.chain_exact import linear_axes
+    from ...solvers.chain_exact import solved_and_kept
     bad = [k for k, v in {"--diagnosis": args.diagnosis, "--region": args.region}.items() if v is not None]
     if bad:
         raise UsageError(f"{', '.join(bad)}: the grinder's; on the machine-tool chain {machine.name!r} the reversal "
@@ -284,7 +285,7 @@ def run_chain_linuxcnc(args, machine) -> int:
     if not 2 <= args.points <= ex.LINUXCNC_MAX_POINTS:
         raise UsageError(f"--points: expected 2..{ex.LINUXCNC_MAX_POINTS}, got {args.points}")
     try:
-        lin, rot = linear_axes(machine)
+        _, rot = solved_and_kept(machine)
     except ValueError as exc:
         raise UsageError(f"--format linuxcnc: {exc}") from None
     src = require_kind(resolve_model(args.model), ("elements", "chain-model"),
@@ -314,9 +315,15 @@ def run_chain_linuxcnc(args, machine) -> int:
 
     def f(q):
         return f"{q['max_um']:9.4g} / {q['p95_um']:9.4g} / {q['mean_um']:9.4g}"
+    rotary = [j for j, u in tables.units.items() if u != "mm"]
+    for j in rotary:
+        print(f"note: rotary joint {j.upper()}: table in degrees, its correction averaged over the other axes weighted "
+              f"by r^2 (r the tool point's distance from its axis: the least-squares angle)"
+              + (f"; one turn from {tables.turns[j]:g} deg, read with the position folded into it (modulo 360)"
+                 if j in tables.turns else ""))
     print(f"check ({check['model']['n']} random points over the calibrated volume, random approach directions; "
-          "controller: each linear joint commanded q + (q - actual), linear between lines; residual norm, um: "
-          "max / p95 / mean)")
+          f"controller: each {'tabulated' if rotary else 'linear'} joint commanded q + (q - actual), linear between "
+          "lines; residual norm, um: max / p95 / mean)")
     for name, q in (("table", check), ("no compensation", check["baseline_none"]),
                     ("exact (model)", check["baseline_exact"])):
         print(f"  {name:16s} model {f(q['model'])}" + (f"   true {f(q['true'])}" if truth else ""))
@@ -337,7 +344,9 @@ def run_chain_linuxcnc(args, machine) -> int:
         "max_forward_minus_reverse_um": reversal, "left_out": left, "tolerance_um": args.tolerance_um,
         "tolerance_met": bool(met), "forced": bool(args.force and not met), "check": check,
         "files": [p.name for p in files],
-        "linuxcnc": {"columns": "nominal forward reverse (mm)",
+        **({"joint_units": dict(tables.units), "joint_turns_from_deg": dict(tables.turns)} if rotary else {}),
+        "linuxcnc": {"columns": "nominal forward reverse (mm)" if not rotary else
+                     "nominal forward reverse (the joint's unit: mm, deg for a rotary joint)",
                      "controller": "command = q + (q - actual(q)), actual = forward (moving +) or reverse (moving -), "
                                    "linear between lines"},
         "residual": "model: the model machine's tool point with the table's commands - the target (um)"
