@@ -296,7 +296,13 @@ def weighted_node_means(nom, c, ok, w, empty_message: str) -> np.ndarray:
     return mean
 
 
-def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAMPLES, seed=0) -> ChainJointTables:
+ROTARY_WEIGHTS = ("r2", "plain")
+"""How a rotary joint's samples are averaged: ``r2`` (the least-squares angle, the default) or ``plain`` (the
+unweighted mean of the linear joints; kept for the benchmark's comparison)."""
+
+
+def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAMPLES, seed=0,
+                       rotary_weight: str = "r2") -> ChainJointTables:
     """One table per joint the exact chain solver moves (:func:`compensation.solvers.chain_exact.solved_and_kept`:
     a mill's X, Y, Z; a lathe's X, Z and C; rotary joints it keeps get none): at ``n_points`` nominal positions
     over its calibrated range, the exact correction of that joint averaged over ``samples`` seeded positions of
@@ -310,6 +316,8 @@ def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAM
     sideways error needs a large turn). A full-turn joint's table covers one turn of its calibrated range, the
     last line equal to the first."""
     from .solvers.chain_exact import nominal_and_jacobian, rotary_radius_mm, solved_and_kept
+    if rotary_weight not in ROTARY_WEIGHTS:
+        raise ValueError(f"Expected rotary_weight in {ROTARY_WEIGHTS}, got {rotary_weight!r}")
     m = elements.machine
     sol, _ = solved_and_kept(m)
     rng = np.random.default_rng(seed)
@@ -328,6 +336,8 @@ def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAM
         q = q.reshape(-1, len(m.axes))
         d = np.repeat(rng.choice([-1.0, 1.0], (samples, len(m.axes)))[None], n_points, axis=0).reshape(-1, len(m.axes))
         w = rotary_radius_mm(nominal_and_jacobian(m, q)[1][:, :, k]).reshape(n_points, samples) ** 2 if rotary else None
+        if rotary and rotary_weight == "plain":
+            w = np.ones_like(w)
         out = []
         for sign in ((1.0, -1.0) if f"dir_{j}" in needs else (1.0,)):
             d[:, k] = sign
