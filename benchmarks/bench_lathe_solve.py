@@ -153,7 +153,7 @@ def main():
              "max model residual of the solved (μm) |", "|---|---|---|---|---|---|---|", *near, "",
              "The bound is min(asin(min(1, b/r)), limit), b = 250 μm, r = the target's distance from the C axis. "
              "The GA's C gene spans the bound, so the GA is never refused by it; the exact solver's Newton can "
-             "overshoot it and is then refused (programmed axes kept).", "",
+             "overshoot it and is then refused (programmed axes kept). With a 10° limit the GA leaves unsolved the points whose root needs a larger turn (it cannot search beyond the bound).", "",
              "### LinuxCNC tables X, Z, C after the user's path with worm:C (TRUE residual, max / p95 / mean μm, "
              "2,000 check points)", "",
              "| seed | tables X Z C (C r²-weighted) | tables, C plain mean | tables X Z only | no compensation | "
