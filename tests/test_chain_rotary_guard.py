@@ -142,3 +142,8 @@ def test_rotary_limit_option_refused_where_nothing_turns(tmp_path, capsys):
     assert main(["compensate", str(path), "--machine", LATHE, "--model", str(el), "--method", "exact",
                  "--max-rotary-correction-deg", "0", "--out", str(tmp_path / "o")]) == 2
     assert "--max-rotary-correction-deg: expected a number in (0, 180] deg" in capsys.readouterr().err
+    # the grinder (the default machine) and the arms: refused, never silently ignored
+    assert main(["compensate", str(path), "--model", str(el), "--method", "exact", "--max-rotary-correction-deg", "5",
+                 "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "--max-rotary-correction-deg: only on machine-tool chains" in err and len(err.strip().splitlines()) == 1
