@@ -9,8 +9,8 @@ not constants. This script shows that nothing changed for the default machine:
   every compensated program of ``tests/data/gcode_corpus`` (with the options its ``expect:`` line
   names) and on a ``--lines`` program of ``bench_scale_io.gcode_program``, run by this checkout and
   by ``--baseline-root``; every output file's SHA-256 compared.
-* **speed**: CPU time of the block-wise read (``parse_program``) and write (``render_table``,
-  stand-in vertices) of that program, each checkout in its own fresh process, interleaved,
+* **speed**: CPU time of the block-wise read (``parse_program`` with the default machine's words,
+  as ``compensate`` passes them) and write (``render_table``, stand-in vertices) of that program, each checkout in its own fresh process, interleaved,
   ``--repeats`` times (median; numba caches warmed by a first run that is not counted).
 
 ``python benchmarks/bench_gcode_words.py --baseline-root DIR`` writes
@@ -51,10 +51,12 @@ print("RESULT " + json.dumps(digests))
 _SPEED = r"""
 import json, sys, time
 import numpy as np
-from compensation.gcode import parse_program, render_table
+from compensation.gcode import AxisWords, parse_program, render_table
+from errormap.machine import load_machine
 prog_path = sys.argv[1]
+ax = AxisWords.of(load_machine())  # the machine's words, as the command passes them (not timed)
 c0 = time.process_time()
-prog = parse_program(prog_path)
+prog = parse_program(prog_path, axis_words=ax)
 c1 = time.process_time()
 t = prog.table
 rows = np.flatnonzero(t.compensate)

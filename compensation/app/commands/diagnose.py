@@ -108,6 +108,8 @@ def run(args) -> int:
             summary, paths = diagnose_chain(args.checks, machine, args.model, args.out, fit_fraction=args.fit_fraction,
                                             noise_um=args.noise_um, max_effects=args.max_effects,
                                             update=not args.no_update, units=args.units)
+            from compensation.app.reports.mt_diagnosis import write_chain_diagnosis_page
+            paths.append(write_chain_diagnosis_page(args.out, machine))  # the page of the run, as the grinder's
             for line in diagnosis_lines(summary):
                 print(line)
             for p in paths:
