@@ -281,3 +281,20 @@ def test_render_program_writes_every_grinder_word(tmp_path):
     prog = parse_program(path, fast=False)
     text, _ = render_program(prog, [np.array([[1.0, 2.0, 3.0]]), np.array([[2.0, 2.0, 3.0]])])
     assert text == "G21 G90\nG1 X1.000000 Z2.000000 A3.000000 F100\nX2.000000 Z2.000000 A3.000000\nM30\n"
+
+
+@pytest.mark.parametrize("machine,block_wise", [("mill-xyz", True), ("five-axis-ac", False)])
+def test_chain_reader_is_block_wise_where_it_can(tmp_path, machine, block_wise):
+    """A chain's program goes through the block-wise reader when its machine has three axis words, none kept
+    (the mill), else line by line (a five-axis machine keeps A and C); the moves are the per-line reader's."""
+    import dataclasses
+    mt = load_machine(machine)
+    path = (Path(__file__).parent / "data" / "mill_pocket.nc" if block_wise
+            else _write(tmp_path, "five.nc", FIVE_PROGRAM))
+    prog = parse_chain_program(path, mt)
+    assert (prog.table is not None) == block_wise
+    ref = parse_program(path, fast=False, axis_words=prog.axis_words)
+    assert prog.classes == ref.classes
+    rec = [(m.index, m.kind, m.start.tobytes(), m.end.tobytes(), m.units, sorted(m.words)) for m in prog.moves]
+    assert rec == [(m.index, m.kind, m.start.tobytes(), m.end.tobytes(), m.units, sorted(m.words)) for m in ref.moves]
+    assert dataclasses.asdict(prog.axis_words) == dataclasses.asdict(ref.axis_words)
