@@ -98,7 +98,7 @@ def run(args) -> int:
     else:
         if args.model is None:
             raise UsageError("CHECKS needs --model (element-set file or run id)")
-        machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+        machine = load_machine(args.machine)  # None: the built-in default machine
         if machine.kind == "machine-tool":
             from compensation.app.workflows.mt_loop import diagnose_chain, diagnosis_lines, refuse_options
             refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "no_learned": False,

@@ -57,7 +57,7 @@ def noise_seed(args) -> tuple[int, str]:
 
 
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+    machine = load_machine(args.machine)  # None: the built-in default machine
     args.seed_noise, noise_from = noise_seed(args)
     print(f"noise seed {args.seed_noise} ({noise_from})")
     if machine.kind == "machine-tool":
