@@ -29,9 +29,10 @@ is X10), an optional sign and decimal point, no exponent (``X1e2`` is refused), 
 parameters or expressions (``#1``, ``[1+2]``).
 
 Axis words are the machine's (:class:`AxisWords`, from the machine file by
-:meth:`AxisWords.of`): ``X Z A`` on the grinder (the default), ``X Y Z`` on a 3-axis mill,
-``X Y Z A C`` on a five-axis machine, ``X Z C`` on a lathe; linear words in mm or inch, rotary
-ones in degrees. A word of an axis the machine lacks (``Y`` on the grinder, ``B`` on a mill;
+:meth:`AxisWords.of`; where a caller names no machine, the built-in default machine's file,
+read when called: :func:`default_axis_words`): ``X Z A`` on an X-Z-A machine, ``X Y Z`` on a
+3-axis mill, ``X Y Z A C`` on a five-axis machine, ``X Z C`` on a lathe; linear words in mm or
+inch, rotary ones in degrees. A word of an axis the machine lacks (``Y`` on an X-Z-A machine, ``B`` on a mill;
 ``U V W``, incremental axes on lathe dialects) is refused naming the machine, and so is an arc
 centre word along such an axis (``J`` without a Y axis). Arcs ``G2/G3`` run in the planes of the
 machine's linear axes: ``G17`` (XY, centre ``I J``), ``G18`` (XZ, ``I K``), ``G19`` (YZ,
@@ -42,8 +43,9 @@ move linearly along it.
 Moves are kept as :class:`GMove` records (start and end in absolute mm / deg in the machine's
 axis order, whatever the program's mode and units were), so a caller can place vertices along
 each move (:func:`move_points`) and :func:`render_program` writes them back in the program's
-own distance mode and units. The grinder's long programs go through a block-wise reader and
-writer (:func:`_parse_blockwise`, :func:`render_table`; same result, in bulk).
+own distance mode and units. Long programs of a machine with three axis words, each written on
+every compensated line, go through a block-wise reader and writer (:func:`_parse_blockwise`,
+:func:`render_table`; same result, in bulk).
 """
 from __future__ import annotations
 
@@ -73,8 +75,6 @@ the digits after the tool number select a geometry/wear offset, which shifts the
 BLOCK_DELETE_CHOICES = ("on", "off")
 RAPIDS_CHOICES = ("keep", "compensate")
 DEFAULT_RAPIDS = "keep"
-AXES = ("X", "Z", "A")
-"""The grinder's axis words (the default :class:`AxisWords`)."""
 AXIS_LETTERS = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
 """Letters that are axis words on some machine: refused where the machine has no such axis."""
 CENTRE_AXIS = {"I": "X", "J": "Y", "K": "Z"}
@@ -91,7 +91,7 @@ LATHE_INCREMENTAL = {"U": "X", "V": "Y", "W": "Z"}
 class AxisWords:
     """The axis words a program is read and written with: the machine's, in its axis order.
 
-    ``machine`` the name refusals give; ``words`` the axis words (``("X", "Z", "A")``);
+    ``machine`` the name refusals give; ``words`` the axis words (``("X", "Y", "Z")``);
     ``rotary`` the words in degrees (the others are linear, mm or inch); ``kept`` the words kept
     as the program wrote them where a compensated value equals the programmed one, and written
     on an added or rewritten line only where they move (a chain's rotary axes: the tool
@@ -148,7 +148,7 @@ class AxisWords:
 
     @property
     def planes(self) -> tuple:
-        """The arc planes whose two axes the machine has (``("G18",)`` on the grinder)."""
+        """The arc planes whose two axes the machine has (``("G18",)`` on an X-Z-A machine)."""
         return tuple(p for p, (u, v, _, _) in PLANES.items() if u in self.words and v in self.words)
 
     @property
@@ -161,8 +161,12 @@ class AxisWords:
         return w[0] if len(w) == 1 else f"{', '.join(w[:-1])} {last} {w[-1]}"
 
 
-GRINDER_WORDS = AxisWords("grinder", AXES, rotary=("A",))
-"""The grinder's words: X, Z (mm/inch) and A (deg), all three written on every compensated line."""
+def default_axis_words() -> AxisWords:
+    """The axis words of the built-in default machine (:func:`errormap.machine.load_machine` with no
+    path), read from its file when called (never at import): the reader's words where a caller
+    names no machine."""
+    from errormap.machine import load_machine
+    return AxisWords.of(load_machine())
 
 # ---------------------------------------------------------------------------- allow-list
 # G codes the reader understands. Value: (modal group, what the reader does).
@@ -176,9 +180,9 @@ ALLOWED_G = {
     "G28": ("nonmodal", "return to the reference: bare, or with zero incremental words ('G28 G91 Z0'); "
                         "the axes it moves are unknown afterwards"),
     "G30": ("nonmodal", "return to the second reference: as G28"),
-    "G17": ("plane", "XY plane, centre I J (arcs in it are refused on a machine without X and Y: the grinder)"),
+    "G17": ("plane", "XY plane, centre I J (arcs in it are refused on a machine without X and Y)"),
     "G18": ("plane", "XZ plane, centre I K"),
-    "G19": ("plane", "YZ plane, centre J K (arcs in it are refused on a machine without Y and Z: the grinder)"),
+    "G19": ("plane", "YZ plane, centre J K (arcs in it are refused on a machine without Y and Z)"),
     "G20": ("units", "inch; read exactly, written back in inch"),
     "G21": ("units", "mm"),
     "G90": ("distance", "absolute"),
@@ -299,8 +303,9 @@ class GProgram:
     a lazy sequence that builds each :class:`GMove` only when asked for."""
     data: bytes | None = field(default=None, repr=False)
     """The file's bytes (block-wise reader; :func:`render_table` copies from them)."""
-    axis_words: AxisWords = GRINDER_WORDS
-    """The machine's axis words the program was read with (the moves' columns, in order)."""
+    axis_words: AxisWords | None = None
+    """The machine's axis words the program was read with (the moves' columns, in order); the
+    readers always set it."""
 
 
 def split_lines(text: str) -> list:
@@ -410,10 +415,11 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
                   fast: bool = True, axis_words: AxisWords | None = None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
-    ``axis_words``: the machine's (:meth:`AxisWords.of`); default the grinder's ``X Z A``.
+    ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
+    (:func:`default_axis_words`, read from its file now).
 
-    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`) where the words are the
-    grinder's: the common move and comment lines in bulk, every other line through the exact
+    ``fast`` (default): the block-wise reader (:func:`_parse_blockwise`) where the machine has three
+    axis words, none kept (:func:`_bulk_words`): the common move and comment lines in bulk, every other line through the exact
     per-line classifier; same classes, moves and refusals as ``fast=False`` (the per-line
     reader, kept as the reference, and the reader of every other machine's words).
 
@@ -422,13 +428,13 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     ``"on"`` skips ``/`` lines (the controller's switch is on); ``"off"`` runs them.
     """
     path = Path(path)
-    ax = GRINDER_WORDS if axis_words is None else axis_words
     if rapids not in RAPIDS_CHOICES:
         raise ValueError(f"Expected rapids in {list(RAPIDS_CHOICES)}, got {rapids!r}")
     if block_delete not in (None,) + BLOCK_DELETE_CHOICES:
         raise ValueError(f"Expected block_delete in {list(BLOCK_DELETE_CHOICES)} or None, got {block_delete!r}")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
+    ax = default_axis_words() if axis_words is None else axis_words
     data = path.read_bytes()
     if fast and _bulk_words(ax):
         return _parse_blockwise(path, rapids, block_delete, data, ax)
@@ -450,8 +456,9 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
 
 
 def _bulk_words(ax: AxisWords) -> bool:
-    """The block-wise reader and writer know the grinder's words only (X, Z mm/inch, A deg, all written)."""
-    return ax.words == AXES and ax.rotary == ("A",) and not ax.kept
+    """The block-wise reader and writer know machines of three axis words (any letters, linear or
+    rotary), each written on every compensated line (none kept)."""
+    return len(ax.words) == 3 and not ax.kept
 
 
 def _no_motion(path, ax: AxisWords) -> InputError:
@@ -471,8 +478,8 @@ class _State:
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
                   axis_words: AxisWords | None = None):
     """Public form of the per-line classifier: ``(class, GMove or None)``; updates ``state``
-    (``_State(len(axis_words.words))``)."""
-    return _classify(body, -1, state, rapids, block_delete, GRINDER_WORDS if axis_words is None else axis_words)
+    (``_State(len(axis_words.words))``); ``axis_words`` ``None``: :func:`default_axis_words`."""
+    return _classify(body, -1, state, rapids, block_delete, default_axis_words() if axis_words is None else axis_words)
 
 
 def _checked_words(words, ax: AxisWords):
@@ -787,7 +794,7 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
     axes are appended after the last axis word, since a correction moves every compensated
     axis; a kept word, :class:`AxisWords`, keeps its text where its value is unchanged and is
     appended only where it moves); an arc line becomes ``G1`` (its ``I J K R P`` words removed)
-    and each extra vertex is an added line ``X.. Z.. A..`` after it. ``header`` lines become
+    and each extra vertex is an added line of the axis words (``X.. Z.. A..``) after it. ``header`` lines become
     ``(...)`` comments after a leading ``%`` line and a program-number line, if any. Numbers are
     written in the line's own units and distance mode; incremental numbers are differences of
     what was actually written, so rounding never accumulates.
@@ -811,7 +818,7 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
     return _with_header(out, header), groups
 
 
-def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords = GRINDER_WORDS):
+def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords):
     """Output lines of one compensated move with vertices ``q`` (m, k), and the controller
     position after them (see :func:`render_program`)."""
     if not np.all(np.isfinite(q)):
@@ -830,7 +837,7 @@ def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords = GRINDER_WORDS):
     if ax.kept:
         extra = [slash + " ".join(f"{a}{vals[j]}" for j, a in enumerate(ax.words) if _needed(j, vals, c0, m, ax))
                  + ending for vals, c0 in zip(written[1:], before[1:])]
-    else:  # every word on every added line (the grinder)
+    else:  # every word on every added line
         extra = [slash + " ".join(f"{a}{v}" for a, v in zip(ax.words, vals)) + ending for vals in written[1:]]
     if extra and not line.endswith("\n"):
         return [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]], ctrl
@@ -934,14 +941,18 @@ def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
 
 _BULK_NUM = r"[+-]?(?:\d{1,300}(?:\.\d*)?|\.\d+)"
 """A plain RS274 number, no blanks inside; at most 300 digits before the point, so it is finite."""
-_BULK_MOVE = re.compile(
-    r"[ \t]*(?:N\d{1,300}[ \t]*)?(?:(G0?[01])[ \t]*)?"
-    rf"(?:X({_BULK_NUM})[ \t]*)?(?:Z({_BULK_NUM})[ \t]*)?(?:A({_BULK_NUM})[ \t]*)?(?:F{_BULK_NUM}[ \t]*)?"
-    r"(?:\([^)]*\)[ \t]*)?(?:;.*)?")
-"""A plain move line: optional N, optional G0/G1 (G00/G01), then X, Z, A in this order (any of
-them), optional F, an optional trailing comment. Upper case, blanks only between words; a
-number followed by blanks and a digit (RS274 reads 'X1 0' as X10) does not match. Group 1 is
-the G word, groups 2-4 the X, Z, A numbers."""
+
+
+@functools.lru_cache(maxsize=16)
+def _bulk_move(words: tuple) -> re.Pattern:
+    """A plain move line of a machine with the three axis words ``words`` (``("X", "Z", "A")``):
+    optional N, optional G0/G1 (G00/G01), then the three axis words in this order (any of them),
+    optional F, an optional trailing comment. Upper case, blanks only between words; a number
+    followed by blanks and a digit (RS274 reads 'X1 0' as X10) does not match. Group 1 is the G
+    word, groups 2-4 the three axis numbers."""
+    axes = "".join(rf"(?:{w}({_BULK_NUM})[ \t]*)?" for w in words)
+    return re.compile(r"[ \t]*(?:N\d{1,300}[ \t]*)?(?:(G0?[01])[ \t]*)?" + axes + rf"(?:F{_BULK_NUM}[ \t]*)?"
+                      r"(?:\([^)]*\)[ \t]*)?(?:;.*)?")
 _BULK_PASS = re.compile(r"[ \t]*(?:\([^)]*\)[ \t]*)*(?:;.*)?")
 """A blank or comment-only line (class pass)."""
 BULK_MIN_RUN = 32
@@ -955,8 +966,8 @@ class MoveTable:
     ``line`` (n,) 0-based line; ``kind`` (n,) 0 rapid, 1 linear, 2 arc; ``start``/``end``
     (n, 3) absolute mm / deg (NaN: not known); ``inch``, ``incremental``, ``compensate`` (n,)
     bool; ``known`` (n, 3); ``obj`` (n,) index into ``objects`` (the :class:`GMove` of a move
-    read line by line) or -1 for a move read in bulk, whose G, X, Z, A word spans in its
-    line are ``spans`` (n, 4, 2) (-1 where absent).
+    read line by line) or -1 for a move read in bulk, whose G word and three axis word
+    spans in its line are ``spans`` (n, 4, 2) (-1 where absent).
     """
 
     line: np.ndarray
@@ -998,8 +1009,8 @@ class _LazyMoves(Sequence):
     """``GProgram.moves`` of a block-wise read program: the :class:`GMove` of each move, built
     from the table when first asked for (a bulk move's words are re-read from its line)."""
 
-    def __init__(self, table: MoveTable, lines: list):
-        self._t, self._lines, self._cache = table, lines, {}
+    def __init__(self, table: MoveTable, lines: list, words: tuple):
+        self._t, self._lines, self._words, self._cache = table, lines, words, {}
 
     def __len__(self) -> int:
         return len(self._t)
@@ -1019,7 +1030,7 @@ class _LazyMoves(Sequence):
         i = int(t.line[k])
         body = self._lines[i].rstrip("\r\n")
         words = {}
-        for j, a in enumerate(AXES):
+        for j, a in enumerate(self._words):
             s, e = (int(v) for v in t.spans[k, j + 1])
             if s >= 0:
                 words[a] = Word(a, float(body[s:e]), body[s:e], s - 1, s, e)
@@ -1063,16 +1074,18 @@ class _Lines(Sequence):
             yield text[s:e]
 
 
-def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords = GRINDER_WORDS) -> GProgram:
+def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords) -> GProgram:
     buf = np.frombuffer(data, np.uint8)
     starts, ends = gscan.line_bounds(buf)
     lines = _Lines(data.decode("latin-1"), starts, np.append(starts[1:], buf.size))
     n = len(lines)
-    kind, spans_all, vals_all = gscan.scan_lines(buf, starts, ends)
+    kind, spans_all, vals_all = gscan.scan_lines(buf, starts, ends, ax.words)
+    bulk_move = _bulk_move(ax.words)
+    linear = ~np.array(ax.is_rotary)  # the columns scaled by the line's units (mm or inch)
     ask = np.flatnonzero(kind == gscan.KIND_ASK)
     for i in ask.tolist():  # lines the kernel leaves to the patterns themselves
         body = lines[i].rstrip("\r\n")
-        m = _BULK_MOVE.fullmatch(body)
+        m = bulk_move.fullmatch(body)
         if m is not None and m.lastindex is not None and m.lastindex >= 2:
             kind[i] = gscan.KIND_MOVE
             spans_all[i] = np.array(m.regs[1:5], dtype=np.int32)
@@ -1116,7 +1129,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
         mode0 = {"G0": 0, "G1": 1}.get(st.mode, -1)
         mode = np.where(last >= 0, gm[np.maximum(last, 0)], mode0)
         scale = MM_PER_INCH if st.inch else 1.0
-        v = vals[k0:k1] * np.array([scale, scale, 1.0])
+        v = vals[k0:k1] * np.where(linear, scale, 1.0)
         giv = given[k0:k1]
         bad = mode < 0
         if st.incremental:
@@ -1162,8 +1175,8 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
     table = MoveTable.concat(pieces, objects)
     if not table.compensate.any():
         raise _no_motion(path, ax)
-    return GProgram(path, lines, classes, _LazyMoves(table, lines), rapids, block_delete, table=table, data=data,
-                    axis_words=ax)
+    return GProgram(path, lines, classes, _LazyMoves(table, lines, ax.words), rapids, block_delete, table=table,
+                    data=data, axis_words=ax)
 
 
 class _Groups(Sequence):
@@ -1199,7 +1212,7 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
     """:func:`render_program` of a block-wise read program in absolute mode, in bulk: same text.
 
     ``axes`` (n, 3): every compensated vertex in order; ``counts`` vertices per compensated
-    move. Untouched lines are copied as they are; the X, Z, A numbers of every compensated
+    move. Untouched lines are copied as they are; the three axis numbers of every compensated
     bulk line are formatted column-wise (:func:`gcode_kernels.format_fixed`) and put in place of
     the old ones by a compiled pass over the file's bytes (:func:`gcode_kernels.render_lines`);
     lines with missing axes (appended after the last axis word) or extra vertices (added
@@ -1224,17 +1237,21 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
     inch_v = np.repeat(t.inch[rows], counts)
     mags = np.empty(axes.shape, np.int64)
     negs = np.empty(axes.shape, bool)
-    decs = (DECIMALS["mm"], DECIMALS["inch"], DECIMALS["deg"])
-    mags[:, 2], negs[:, 2] = gscan.format_fixed(axes[:, 2], DECIMALS["deg"])
-    for j in (0, 1):
-        if inch_v.any():
+    ax = program.axis_words
+    words = ax.words
+    # per axis column: decimals written on a mm line, on an inch line (rotary: degrees on both)
+    decs = np.array([(DECIMALS["deg"],) * 2 if r else (DECIMALS["mm"], DECIMALS["inch"]) for r in ax.is_rotary])
+    for j, rotary in enumerate(ax.is_rotary):
+        if rotary:
+            mags[:, j], negs[:, j] = gscan.format_fixed(axes[:, j], DECIMALS["deg"])
+        elif inch_v.any():
             col = np.where(inch_v, axes[:, j] / MM_PER_INCH, axes[:, j])
             mags[:, j], negs[:, j] = gscan.format_fixed(col, np.where(inch_v, DECIMALS["inch"], DECIMALS["mm"]))
         else:
             mags[:, j], negs[:, j] = gscan.format_fixed(axes[:, j], DECIMALS["mm"])
 
     def word(v: int, j: int) -> str:
-        return _fixed_str(int(mags[v, j]), bool(negs[v, j]), decs[2] if j == 2 else decs[int(inch_v[v])])
+        return _fixed_str(int(mags[v, j]), bool(negs[v, j]), int(decs[j, int(inch_v[v])]))
 
     lines = program.lines
     data = program.data if program.data is not None else "".join(lines).encode("latin-1")
@@ -1254,7 +1271,7 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         q = axes[first[k]:first[k] + counts[k]]
         changed[m.index], _ = _render_move(lines[m.index], m, q, np.full(3, np.nan), program.axis_words)
     kb = np.flatnonzero(bulk)
-    full = (sp[kb, 1:, 0] >= 0).all(axis=1)  # X, Z and A all on the line (the common case)
+    full = (sp[kb, 1:, 0] >= 0).all(axis=1)  # all three axis words on the line (the common case)
     one = counts[kb] == 1
     fa = kb[full & one]  # the common case, in the compiled pass
     mode[t.line[rows[fa]]] = 1
@@ -1263,36 +1280,24 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
     vert_of_row = np.full(len(t), -1, np.int64)
     vert_of_row[rows] = first
     rest = kb[~(full & one)]
-    for i, f, c, (sx, ex), (sz, ez), (sa, ea) in zip(
-            t.line[rows[rest]].tolist(), first[rest].tolist(), counts[rest].tolist(),
-            sp[rest, 1].tolist(), sp[rest, 2].tolist(), sp[rest, 3].tolist()):
+    for i, f, c, spans3 in zip(t.line[rows[rest]].tolist(), first[rest].tolist(), counts[rest].tolist(),
+                               sp[rest, 1:].tolist()):
         line = lines[i]
         body = line.rstrip("\r\n")
-        x, z, a = word(f, 0), word(f, 1), word(f, 2)
-        hx, hz, ha = sx >= 0, sz >= 0, sa >= 0
+        vals = [word(f, j) for j in range(3)]
         parts, pos = [], 0
-        if hx:
-            parts += [body[pos:sx], x]
-            pos = ex
-        if hz:
-            parts += [body[pos:sz], z]
-            pos = ez
-        if ha:
-            parts += [body[pos:sa], a]
-            pos = ea
-        if not hx:
-            parts.append(" X" + x)
-        if not hz:
-            parts.append(" Z" + z)
-        if not ha:
-            parts.append(" A" + a)
+        for (sj, ej), v in zip(spans3, vals):  # the words on the line, in place
+            if sj >= 0:
+                parts += [body[pos:sj], v]
+                pos = ej
+        parts += [f" {w}{v}" for w, v, (sj, _) in zip(words, vals, spans3) if sj < 0]  # the missing ones appended
         parts.append(body[pos:])
         first_line = "".join(parts)
         if c == 1:
             changed[i] = [first_line + line[len(body):]]
             continue
         ending = line[len(body):] or "\n"
-        extra = [f"X{word(v, 0)} Z{word(v, 1)} A{word(v, 2)}" + ending for v in range(f + 1, f + c)]
+        extra = [" ".join(f"{w}{word(v, j)}" for j, w in enumerate(words)) + ending for v in range(f + 1, f + c)]
         if not line.endswith("\n"):
             g = [first_line + ending] + extra[:-1] + [extra[-1][:-len(ending)]]
         else:

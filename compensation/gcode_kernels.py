@@ -1,10 +1,10 @@
 """Compiled kernels of the block-wise G-code reader and writer (issue 20).
 
 :func:`scan_lines` reads the whole file's bytes in one pass and puts each line in one of
-four kinds, exactly as the block-wise reader's two strict patterns (``gcode._BULK_MOVE``,
+four kinds, exactly as the block-wise reader's two strict patterns (``gcode._bulk_move``,
 ``gcode._BULK_PASS``) would, without a Python call per line:
 
-``KIND_MOVE``   a plain move line (``_BULK_MOVE`` with an X, Z or A word): spans and values out;
+``KIND_MOVE``   a plain move line (``_bulk_move`` with one of the three axis words): spans and values out;
 ``KIND_PASS``   a blank or comment-only line (``_BULK_PASS``);
 ``KIND_OTHER``  neither pattern matches: the per-line classifier reads it;
 ``KIND_ASK``    the kernel does not decide (a number with more than 17 digits, or whose
@@ -34,7 +34,7 @@ _MANT_MAX = 2 ** 53
 _SP, _TAB, _CR = 32, 9, 13
 _ZERO, _NINE, _DOT, _PLUS, _MINUS = 48, 57, 46, 43, 45
 _LP, _RP, _SEMI = 40, 41, 59
-_N, _G, _X, _Z, _A, _F = 78, 71, 88, 90, 65, 70
+_N, _G, _F = 78, 71, 70
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -101,9 +101,10 @@ def _is_pass(buf, p, e):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _scan_one(buf, s, e, pow10, sp, v):
-    """Kind of line buf[s:e] (body, no line ending); a move's spans (relative to s) go to
-    ``sp`` (4, 2) and its values to ``v`` (3,) (scratch: copied out for moves only)."""
+def _scan_one(buf, s, e, pow10, letters, sp, v):
+    """Kind of line buf[s:e] (body, no line ending); ``letters`` (3,) the axis words' bytes, in
+    the order a plain line writes them; a move's spans (relative to s) go to ``sp`` (4, 2) and
+    its values to ``v`` (3,) (scratch: copied out for moves only)."""
     if _is_pass(buf, s, e):
         return KIND_PASS
     p = _blanks(buf, s, e)
@@ -130,8 +131,7 @@ def _scan_one(buf, s, e, pow10, sp, v):
         p = _blanks(buf, q, e)
     axes = 0
     for j in range(3):
-        letter = _X if j == 0 else (_Z if j == 1 else _A)
-        if p < e and buf[p] == letter:
+        if p < e and buf[p] == letters[j]:
             st, q, x = _number(buf, p + 1, e, pow10)
             if st == 0:
                 return KIND_OTHER
@@ -162,7 +162,7 @@ def _scan_one(buf, s, e, pow10, sp, v):
 
 
 @njit(cache=True, nogil=True)
-def _scan(buf, starts, ends, pow10, kind, spans, vals):
+def _scan(buf, starts, ends, pow10, letters, kind, spans, vals):
     sp = np.empty((4, 2), np.int32)
     v = np.empty(3)
     for k in range(starts.size):
@@ -171,7 +171,7 @@ def _scan(buf, starts, ends, pow10, kind, spans, vals):
             e -= 1
         sp[:, :] = -1
         v[:] = np.nan
-        kind[k] = _scan_one(buf, s, e, pow10, sp, v)
+        kind[k] = _scan_one(buf, s, e, pow10, letters, sp, v)
         if kind[k] == KIND_MOVE:
             for a in range(4):
                 spans[k, a, 0] = sp[a, 0]
@@ -182,7 +182,7 @@ def _scan(buf, starts, ends, pow10, kind, spans, vals):
 
 KERNEL_BLOCK = 1 << 20
 """Lines (moves) per call of the scanning and path-length kernels: ≈ 0.1 s of CPU each (measured
-0.11 s for 1,000,000 lines, 0.085 s for 1,000,000 grinder path lengths through its chain), so a
+0.11 s for 1,000,000 lines, 0.085 s for 1,000,000 X-Z-A path lengths through the chain), so a
 KeyboardInterrupt, which Python can raise only between compiled calls, acts within that time
 however long the file."""
 
@@ -198,16 +198,20 @@ def line_bounds(buf: np.ndarray):
     return starts, ends
 
 
-def scan_lines(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray):
-    """Kinds (n,) int8, word spans (n, 4, 2) int32 (G, X, Z, A; relative to the line start,
-    -1 where absent) and X, Z, A values (n, 3) (NaN where absent) of every line."""
+def scan_lines(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, words):
+    """Kinds (n,) int8, word spans (n, 4, 2) int32 (the G word and the three axis words
+    ``words``, e.g. ``("X", "Z", "A")``, in that order; relative to the line start, -1 where
+    absent) and the three axis values (n, 3) (NaN where absent) of every line."""
+    if len(words) != 3 or not all(isinstance(w, str) and len(w) == 1 for w in words):
+        raise ValueError(f"Expected three one-letter axis words, got {list(words)}")
+    letters = np.frombuffer("".join(words).encode("ascii"), np.uint8).copy()
     n = starts.size
     kind = np.empty(n, np.int8)
     spans = np.full((n, 4, 2), -1, np.int32)
     vals = np.full((n, 3), np.nan)
     for a in range(0, n, KERNEL_BLOCK):  # Python between blocks: Ctrl-C acts within one block
         b = min(n, a + KERNEL_BLOCK)
-        _scan(buf, starts[a:b], ends[a:b], _POW10, kind[a:b], spans[a:b], vals[a:b])
+        _scan(buf, starts[a:b], ends[a:b], _POW10, letters, kind[a:b], spans[a:b], vals[a:b])
     return kind, spans, vals
 
 
@@ -286,10 +290,10 @@ def _copy(out, o, buf, a, b):
 @njit(cache=True, nogil=True)
 def _render(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, negs, inch, decs,
             blob, blob_off, pow10i, out, out_off, write):
-    """Output of every source line: ``mode`` 0 copy buf[starts:stops]; 1 the line with its X,
-    Z, A numbers (table row ``r = row_of_line[i]``, word spans ``spans[r]`` relative to the line
-    start) replaced by vertex ``v = vert_of_row[r]``: ``mags[v]``/``negs[v]`` with ``decs``
-    (mm, inch, deg) decimals; 2 the bytes blob[blob_off[i]:blob_off[i + 1]]. First call
+    """Output of every source line: ``mode`` 0 copy buf[starts:stops]; 1 the line with its three
+    axis numbers (table row ``r = row_of_line[i]``, word spans ``spans[r]`` relative to the line
+    start) replaced by vertex ``v = vert_of_row[r]``: ``mags[v]``/``negs[v]`` with ``decs[j]``
+    (column ``j``: decimals on a mm line, on an inch line) decimals; 2 the bytes blob[blob_off[i]:blob_off[i + 1]]. First call
     (``write`` False) fills ``out_off`` (n + 1,); the second writes ``out``."""
     o = 0
     for i in range(starts.size):
@@ -313,7 +317,7 @@ def _render(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, neg
             for j in range(3):
                 a = starts[i] + spans[r, j + 1, 0]
                 b = starts[i] + spans[r, j + 1, 1]
-                dec = decs[2] if j == 2 else (decs[1] if inch[v] else decs[0])
+                dec = decs[j, 1] if inch[v] else decs[j, 0]
                 if write:
                     o = _copy(out, o, buf, pos, a)
                     o = _put_num(out, o, mags[v, j], negs[v, j], dec, pow10i)
@@ -333,12 +337,15 @@ _POW10I = np.array([10 ** k for k in range(19)], dtype=np.int64)
 
 def render_lines(buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, negs, inch, decs, blob, blob_off):
     """The output bytes (uint8 array) and each source line's output offsets (n + 1,); see
-    :func:`_render`. ``decs``: the decimals of mm, inch and deg numbers; ``blob_off`` (n + 1,)
+    :func:`_render`. ``decs`` (3, 2): per axis column the decimals written on a mm line and on an
+    inch line (a rotary column: its degrees' decimals twice); ``blob_off`` (n + 1,)
     indexes ``blob`` for the lines of mode 2."""
     n = starts.size
     out_off = np.empty(n + 1, np.int64)
     empty = np.zeros(0, np.uint8)
     decs = np.asarray(decs, np.int64)
+    if decs.shape != (3, 2):
+        raise ValueError(f"Expected decimals of shape (3, 2) (per axis column: mm line, inch line), got {decs.shape}")
     args = (buf, starts, stops, mode, row_of_line, vert_of_row, spans, mags, negs, inch, decs, blob, blob_off, _POW10I)
     _render(*args, empty, out_off, False)
     out = np.empty(int(out_off[n]), np.uint8)
@@ -377,7 +384,8 @@ def _polyline_lengths(start, end, samples, prog, out):  # pragma: no cover - com
       angle-addition rule (no sine or cosine per sample); with none, chord ``i`` is affine in
       ``i`` too (``R(δ)·(u + (i+1)·w) - (u + i·w)``) and costs three multiply-adds and a root.
 
-    On the X-Z-A grinder that last case is every move: one sine and cosine (of A's step) a move."""
+    On the built-in default machine (X, Z, A) that last case is every move: one sine and cosine
+    (of A's step) a move."""
     kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt = prog
     m = kind.shape[0]
     x0 = np.empty(m)
@@ -500,7 +508,7 @@ def _polyline_lengths(start, end, samples, prog, out):  # pragma: no cover - com
 def linear_path_lengths_mm(machine, start, end, samples: int = 16):
     """WCS length of the nominal tool path of linear axis moves ``start`` -> ``end`` (m, k), as the
     polyline through ``samples + 1`` equally spaced parameters, the tool point from the machine's
-    chain (:class:`errormap.mt_kernel.NominalChain`; the grinder's chain file for the grinder): (m,)."""
+    chain (:class:`errormap.mt_kernel.NominalChain`, compiled from the machine's file): (m,)."""
     from errormap.mt_kernel import NominalChain
     prog = NominalChain(machine).prog
     start = np.ascontiguousarray(start, dtype=float)

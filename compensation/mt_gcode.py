@@ -1,7 +1,7 @@
 """G-code over a machine-tool chain (``kind = "machine-tool"``): the one reader with the machine's words.
 
 A program for a chain machine is read and written by :mod:`compensation.gcode` — the same contract
-line by line as the grinder's (allow-lists, RS274 number syntax, pass-through, refusals naming file,
+line by line as every machine's (allow-lists, RS274 number syntax, pass-through, refusals naming file,
 line and column) — with the machine's axis words (:meth:`compensation.gcode.AxisWords.of`: ``X Y Z``
 on ``mill-xyz``, ``X Y Z A C`` on ``five-axis-ac``, ``X Z C`` on ``lathe-xzc``), its arc planes
 (``G17``/``G18``/``G19`` where it has both axes) and one difference in writing: the **tool tip** is
@@ -41,11 +41,11 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     except ValueError:  # not solvable (compensate refuses it): every rotary word kept, as read
         solved = set()
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
-    return parse_program(path, rapids=rapids, block_delete=block_delete, fast=False, axis_words=words)
+    return parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words)  # block-wise where it can
 
 
 def arc_chords(move, tol_mm: float) -> int:
-    """Chords so the sagitta of an arc stays within ``tol_mm`` (≥ 1): the grinder reader's rule."""
+    """Chords so the sagitta of an arc stays within ``tol_mm`` (≥ 1): the reader's rule (:func:`compensation.gcode.arc_segments`)."""
     return arc_segments(move, tol_mm)
 
 

@@ -23,7 +23,10 @@ full derivation, what is observable and what is a gauge choice: ``docs/identific
    initial pose (from the nominal mounts, SVD) to its pose at the station; all bodies are
    then expressed in one estimated machine frame ``machine_in_tracker`` and the element
    transforms are peeled off the chains of :mod:`errormap.htm` exactly:
-   ``E_x = N_x⁻¹·G⁻¹·T_X``, ``E_z = N_z(s)⁻¹·G⁻¹·T_Z``, ``E_oa·RotX(a)·E_a = (T_X(x0)·Trans(l7,0,l8))⁻¹·G⁻¹·T_A``.
+   ``E_x = N_x⁻¹·G⁻¹·T_X``, ``E_z = N_z(s)⁻¹·G⁻¹·T_Z``, ``E_oa·Rot(a)·E_a = (T_X(x0)·Trans(l7,0,l8))⁻¹·G⁻¹·T_A``,
+   ``Rot(a)`` the rotary joint of the machine's chain file (its axis and direction, :func:`rotary_line`;
+   RotX(a) on the grinder), ``E_oa`` its location slots (the chain's ETs between the carriage and the
+   joint: δ and ε across the rotary axis).
    Squareness ``s_xz = asin(u_X·u_Z)`` from the fitted X and Z lines (the paper); the
    A-axis line ``E_oa`` from the rotary body's initial state (the paper), the rest of the
    initial state (its axial and roll parts, zero on a machine the model describes) stays
@@ -58,7 +61,7 @@ from .io import InputError
 from .machine import Grinder
 from .sweeps import (SWEEP_AXES, Sweeps, a_line_offset, compose, error_transform, invert, read_sweeps,
                      sweeps_from_columns, x_carriage_nominal, z_carriage_nominal)
-from .transforms import apply, rot_x, skew
+from .transforms import apply, rot_x, rot_y, rot_z, skew
 
 GAUGES = ("first-station", "reference-line", "station-mean")
 
@@ -242,29 +245,80 @@ def frame_to_station_mean(elements: ElementSet, machine: Grinder) -> tuple:
     return out, (GR, Gt)
 
 
-def _a_line(constants) -> tuple:
-    c = constants
-    return error_transform(np.array([[0.0, c["dy_oa"], c["dz_oa"]]]), np.array([[0.0, c["ey_oa"], c["ez_oa"]]]))
+@dataclass(frozen=True)
+class RotaryLine:
+    """The rotary joint of a machine's chain file as the identification needs it.
+
+    ``word`` its axis word; ``along`` the joint frame's axis it turns about (0 x, 1 y, 2 z);
+    ``direction`` ±1; ``slots`` the location slots between the carriage and the joint, in chain
+    order: ``(name, kind, axis)`` with kind ``"t"`` (δ, μm) or ``"r"`` (ε, μrad) along ``axis``."""
+
+    word: str
+    along: int
+    direction: float
+    slots: tuple
+
+    def turn(self, angle_deg) -> np.ndarray:
+        """The joint's rotation at ``angle_deg`` (n,) -> (n, 3, 3)."""
+        return (rot_x, rot_y, rot_z)[self.along](np.deg2rad(self.direction * np.asarray(angle_deg, dtype=float)))
+
+    def transform(self, values: dict) -> tuple:
+        """``Trans(δ)·Rot(ε)`` of the line slots' ``values`` ({name: μm or μrad}) -> (R (1,3,3), t (1,3) mm)."""
+        d, e = np.zeros((1, 3)), np.zeros((1, 3))
+        for name, kind, axis in self.slots:
+            (d if kind == "t" else e)[0, axis] = values[name]
+        return error_transform(d, e)
+
+    def values(self, d_um, e_urad) -> dict:
+        """The line slots' values read from a displacement (3,) μm and rotation (3,) μrad."""
+        return {name: float((d_um if kind == "t" else e_urad)[axis]) for name, kind, axis in self.slots}
 
 
-def a_line_to_turn_mean(elements: ElementSet, n_iter: int = 4) -> ElementSet:
-    """The same machine with the A-axis line at its mean over the turn: the A chain
-    ``W(a) = E_oa·RotX(a)·E_a(a)`` at the A stations is split again, the line chosen so that the
-    part of ``E_a`` that turns with the axis (δy, δz and εy, εz rotated back by a) averages to
-    zero over the turn's distinct stations (a fixed-point iteration on the exact split; the
-    turning part is what a change of the line adds). ``W``, hence every tool point, is unchanged."""
+def rotary_line(machine: Grinder) -> RotaryLine:
+    """The rotary joint of the machine's chain file (:func:`errormap.mt_chain.grinder_chain`): the one
+    rotary axis, its direction, and the constant slots of the work chain between the carriage before
+    it and the joint (the A-axis line on the grinder: δy, δz, εy, εz across A, which turns about x)."""
+    from .mt_chain import grinder_chain
+    mt = grinder_chain(machine)
+    rotary = [a for a in mt.axes if a.kind == "rotary"]
+    if len(rotary) != 1:
+        raise ValueError(f"expected one rotary axis in {machine.name!r}, got {[a.word for a in rotary]}")
+    ax = rotary[0]
+    ets = mt.work_ets if ax.side == "work" else mt.tool_ets
+    col = mt.axis_words.index(ax.word)
+    at = next(m for m, e in enumerate(ets) if e.joint == col)
+    before = next((m for m in range(at - 1, -1, -1) if ets[m].joint is not None), -1)
+    const = set(CONSTANT_ELEMENTS)
+    slots = tuple((e.slot, e.kind, e.axis) for e in ets[before + 1:at] if e.slot in const)
+    return RotaryLine(ax.word, ax.along, float(ax.direction), slots)
+
+
+def _a_line(constants, line: RotaryLine) -> tuple:
+    return line.transform(constants)
+
+
+def a_line_to_turn_mean(elements: ElementSet, machine: Grinder, n_iter: int = 4) -> ElementSet:
+    """The same machine with the rotary axis' line at its mean over the turn: the rotary chain
+    ``W(a) = E_oa·Rot(a)·E_a(a)`` (``Rot`` the chain file's joint, :func:`rotary_line`) at the A
+    stations is split again, the line chosen so that the part of ``E_a`` that turns with the axis
+    (its δ and ε across the axis, the line's slots, rotated back by a) averages to zero over the
+    turn's distinct stations (a fixed-point iteration on the exact split; the turning part is what a
+    change of the line adds). ``W``, hence every tool point, is unchanged."""
+    rl = rotary_line(machine)
     ca = elements.stations["a_deg"]
-    W = compose(compose(_a_line(elements.constants), (rot_x(np.deg2rad(ca)), np.zeros((ca.size, 3)))),
+    W = compose(compose(_a_line(elements.constants, rl), (rl.turn(ca), np.zeros((ca.size, 3)))),
                 _element_transforms(elements, A_ELEMENTS))
-    back = rot_x(np.deg2rad(ca))[:-1]
+    back = rl.turn(ca)[:-1]
     c = elements.constants
-    p = np.array([c["dy_oa"], c["dz_oa"], c["ey_oa"], c["ez_oa"]], dtype=float)
-    unrot = (rot_x(np.deg2rad(-ca)), np.zeros((ca.size, 3)))
+    names = [s[0] for s in rl.slots]
+    rows = [(0 if kind == "t" else 1, axis) for _, kind, axis in rl.slots]  # rows δ, ε of `turning`
+    p = np.array([c[k] for k in names], dtype=float)
+    unrot = (rl.turn(-ca), np.zeros((ca.size, 3)))
     for _ in range(n_iter + 1):
-        line = {"dy_oa": p[0], "dz_oa": p[1], "ey_oa": p[2], "ez_oa": p[3]}
-        E_a = compose(unrot, compose(invert(_a_line(line)), W))
+        line = dict(zip(names, p.tolist()))
+        E_a = compose(unrot, compose(invert(_a_line(line, rl)), W))
         turning = apply(back[:, None], _element_values(E_a)[:-1].reshape(-1, 2, 3)).mean(axis=0)  # rows δ, ε
-        p = p + turning[:, 1:].reshape(-1)
+        p = p + np.array([turning[r, a] for r, a in rows])
     out = elements.copy()
     _put_elements(out, A_ELEMENTS, E_a, closed=True)
     out.constants.update(line)
@@ -399,6 +453,7 @@ class TrackerIdentification:
             raise InputError(f"{src}: axis/axes {missing} missing; X, Z and A are all needed from one tracker "
                              "set-up (squareness and the A-axis line relate the bodies through it)")
         warnings = []
+        rotary = rotary_line(machine).word
         for ax in SWEEP_AXES:
             mounts = machine.targets[ax]
             why = layout_problem(mounts, self.min_separation_mm)
@@ -413,7 +468,7 @@ class TrackerIdentification:
                     raise InputError(f"{sw.source}: axis {ax}, station {sw.stations[i]}: degenerate target layout: {why}")
             check_ball_distances(sw, ax, mounts, self.distance_tol_mm)
             lo, hi = machine.strokes[{"X": "x_mm", "Z": "z_mm", "A": "a_deg"}[ax]]
-            if ax == "A":
+            if ax == rotary:
                 span = sw.command[-1] - sw.command[0]
                 if abs(span - 360.0) > 1e-6:
                     raise InputError(f"{sw.source}: axis A: stations must span one turn (360 deg), got "
@@ -428,11 +483,11 @@ class TrackerIdentification:
         return warnings
 
     # per-axis solve -----------------------------------------------------------------------
-    def _reference(self, sw) -> tuple:
-        """Reference frame (tracker <- reference) and fit details for one axis."""
+    def _reference(self, sw, rl: RotaryLine) -> tuple:
+        """Reference frame (tracker <- reference) and fit details for one axis (``rl``: the rotary one)."""
         b = sw.balls_mm
         ball1 = b[0, 0]
-        if sw.axis == "A":
+        if sw.axis == rl.word:
             circles = [fit_circle(b[:, k]) for k in range(3)]
             normals = np.array([c[1] for c in circles])
             x_dir = normals.mean(axis=0)
@@ -459,14 +514,15 @@ class TrackerIdentification:
         R = np.stack([x_dir, y_dir, np.cross(x_dir, y_dir)], axis=1)
         return (R, foot), fit
 
-    def _solve_axis(self, sw, ref):
-        """Re-linearised least squares of the 9×6 system at every station (vectorised)."""
+    def _solve_axis(self, sw, ref, rl: RotaryLine):
+        """Re-linearised least squares of the 9×6 system at every station (vectorised); ``rl`` the
+        machine's rotary joint (the nominal motion of its sweep)."""
         R_ref, t_ref = ref
         P = np.einsum("ji,mkj->mki", R_ref, sw.balls_mm - t_ref)  # reference coordinates (m, 3, 3)
         m = P.shape[0]
         d_cmd = sw.command - sw.command[0]
-        if sw.axis == "A":
-            Rn, tn = rot_x(np.deg2rad(d_cmd)), np.zeros((m, 3))
+        if sw.axis == rl.word:
+            Rn, tn = rl.turn(d_cmd), np.zeros((m, 3))
         else:
             Rn, tn = np.broadcast_to(np.eye(3), (m, 3, 3)).copy(), d_cmd[:, None] * np.eye(3)[0]
         R = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
@@ -495,7 +551,7 @@ class TrackerIdentification:
         D = compose((Rn, tn), (R, t))
         D_tr = compose(compose((R_ref[None], t_ref[None]), D), invert((R_ref[None], t_ref[None])))
         # the measured rotation/travel must match the command (mixed units show here)
-        if sw.axis == "A":
+        if sw.axis == rl.word:
             ang = np.rad2deg(np.linalg.norm(Rotation.from_matrix(D[0]).as_rotvec(), axis=1))
             want = np.abs((d_cmd + 180.0) % 360.0 - 180.0)
             bad = np.abs(ang - want) > self.angle_tol_deg
@@ -520,20 +576,21 @@ class TrackerIdentification:
         if not isinstance(sweeps, Sweeps):
             sweeps = sweeps_from_columns(sweeps) if isinstance(sweeps, dict) else read_sweeps(sweeps)
         warnings = self._check(sweeps, machine)
+        rl = rotary_line(machine)
         poses, reports, lines = {}, {}, {}
         for ax in SWEEP_AXES:
             sw = sweeps[ax]
-            ref, fit = self._reference(sw)
-            D_tr, cond, rms, rmax, err, it = self._solve_axis(sw, ref)
+            ref, fit = self._reference(sw, rl)
+            D_tr, cond, rms, rmax, err, it = self._solve_axis(sw, ref, rl)
             T0 = rigid_fit(machine.targets[ax], sw.balls_mm[:1])
             poses[ax] = compose(D_tr, T0)
             reversal = None
             if len(sw.by_direction) == 2:
                 reversal = np.sqrt(np.mean(np.sum((sw.by_direction[1] - sw.by_direction[-1]) ** 2, axis=2), axis=1)) / UM
             reports[ax] = AxisReport(ax, sw.command.copy(), cond, rms, rmax, err, ref, it, fit, reversal)
-            if ax != "A":
+            if ax != rl.word:
                 lines[ax] = fit["line_direction"]
-        cx, cz, ca = sweeps["X"].command, sweeps["Z"].command, sweeps["A"].command
+        cx, cz, ca = sweeps["X"].command, sweeps["Z"].command, sweeps[rl.word].command
         NX = x_carriage_nominal(machine, cx)
         TX = poses["X"]
         u_x, u_z = lines["X"], lines["Z"]
@@ -549,15 +606,14 @@ class TrackerIdentification:
         E_x = compose(invert(NX), compose(Gi, TX))
         E_z = compose(invert(z_carriage_nominal(machine, cz, s_urad)), compose(Gi, poses["Z"]))
         pre = compose(compose((NX[0][:1], NX[1][:1]), (E_x[0][:1], E_x[1][:1])), a_line_offset(machine, 1))
-        W_R, W_t = compose(invert(pre), compose(Gi, poses["A"]))
+        W_R, W_t = compose(invert(pre), compose(Gi, poses[rl.word]))
         # first and last A stations are the same physical pose: average them
         W_R[0] = W_R[-1] = Rotation.from_matrix(W_R[[0, -1]]).mean().as_matrix()
         W_t[0] = W_t[-1] = W_t[[0, -1]].mean(axis=0)
-        M0 = compose((W_R[:1], W_t[:1]), (rot_x(np.deg2rad(-ca[0])), np.zeros((1, 3))))
-        eps0 = _euler_urad(M0[0])[0]
-        d_oa_um = M0[1][0] / UM
-        E_oa = error_transform(np.array([[0.0, d_oa_um[1], d_oa_um[2]]]), np.array([[0.0, eps0[1], eps0[2]]]))
-        E_a = compose((rot_x(np.deg2rad(-ca)), np.zeros((ca.size, 3))), compose(invert(E_oa), (W_R, W_t)))
+        M0 = compose((W_R[:1], W_t[:1]), (rl.turn(-ca[:1]), np.zeros((1, 3))))
+        line = rl.values(M0[1][0] / UM, _euler_urad(M0[0])[0])  # the initial state across the axis
+        E_oa = rl.transform(line)
+        E_a = compose((rl.turn(-ca), np.zeros((ca.size, 3))), compose(invert(E_oa), (W_R, W_t)))
         functions = {}
         for names, E in ((X_ELEMENTS, E_x), (Z_ELEMENTS, E_z), (A_ELEMENTS, E_a)):
             vals = _element_values(E)
@@ -565,13 +621,13 @@ class TrackerIdentification:
                 functions[k] = vals[:, j]
         for k in A_ELEMENTS:
             functions[k][-1] = functions[k][0]
-        constants = {"dy_oa": d_oa_um[1], "dz_oa": d_oa_um[2], "ey_oa": eps0[1], "ez_oa": eps0[2], "s_xz": s_urad}
+        constants = {**line, "s_xz": s_urad}
         assert set(constants) == set(CONSTANT_ELEMENTS)
         elements = ElementSet({"x_mm": cx, "z_mm": cz, "a_deg": ca}, functions, constants, machine.name,
                               machine.sha256)
         if self.gauge == "station-mean":
             elements, Gam = frame_to_station_mean(elements, machine)
-            elements = a_line_to_turn_mean(elements)
+            elements = a_line_to_turn_mean(elements, machine)
             G = compose(G, (Gam[0][None], Gam[1][None]))
         self.elements_ = elements
         self.result_ = IdentificationResult(elements, reports, (G[0][0], G[1][0]), self.gauge, warnings)

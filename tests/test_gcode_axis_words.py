@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compensation.gcode import (GRINDER_WORDS, AxisWords, move_points, parse_program, render_program)
+import compensation.gcode as gcode
+from compensation.gcode import (AxisWords, default_axis_words, move_points, parse_program, render_program,
+                               render_table)
 from compensation.mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
 from errormap.io import InputError
 from errormap.machine import load_machine
@@ -43,7 +45,7 @@ def _shifted(job, mt):
 def test_axis_words_come_from_the_machine_file():
     g = AxisWords.of(load_machine())
     assert g.words == ("X", "Z", "A") and g.rotary == ("A",) and g.kept == () and g.planes == ("G18",)
-    assert (g.words, g.rotary, g.kept) == (GRINDER_WORDS.words, GRINDER_WORDS.rotary, GRINDER_WORDS.kept)
+    assert default_axis_words() == g
     lathe = AxisWords.of(load_machine("lathe-xzc"), keep_rotary=True)
     assert lathe.words == ("X", "Z", "C") and lathe.kept == ("C",) and lathe.planes == ("G18",)
     five = AxisWords.of(load_machine("five-axis-ac"), keep_rotary=True)
@@ -53,6 +55,60 @@ def test_axis_words_come_from_the_machine_file():
         AxisWords.of(load_machine("ur5"))
     with pytest.raises(ValueError, match="distinct axis words"):
         AxisWords("m", ("X", "X"))
+
+
+def test_default_words_are_read_from_the_default_machine_when_called(monkeypatch):
+    """No machine's words live in the reader: the default is the built-in default machine's file,
+    loaded when a caller names none (here another machine stands in for it), never at import."""
+    assert not [k for k, v in vars(gcode).items() if isinstance(v, AxisWords)]
+    import errormap.machine as em
+    mill = load_machine("mill-xyz")
+    monkeypatch.setattr(em, "load_machine", lambda *a, **k: mill)
+    assert default_axis_words().words == ("X", "Y", "Z")
+
+
+MILL_LINES = 120  # plain X Y Z lines of the generated mill program (seed 0): several bulk runs
+
+
+def _mill_program(seed: int) -> str:
+    """A three-axis program: plain moves with missing words, G17 arcs, an inch section, comments."""
+    rng = np.random.default_rng(seed)
+    out = ["%", "O1234 (MILL)", "G21 G90 G17", "T1 M6", "G0 X0. Y0. Z5.", "G1 Z-1. F300."]
+    for i in range(MILL_LINES):
+        words = [f"{w}{v:.4f}" for w, v in zip("XYZ", rng.uniform(-50, 50, 3)) if rng.random() < 0.8] or ["X1."]
+        out.append(("N%d " % i if i % 3 == 0 else "") + " ".join(words) + (" (c)" if i % 7 == 0 else ""))
+        if i == 40:
+            out += ["G1 X0. Y0.", "G2 X10. Y0. I5. J0.", "G1 X10. Y0. Z0."]
+        if i == 80:
+            out += ["G20", "X0.5 Y0.25 Z0.1", "G21"]
+    return "\n".join(out + ["M30", "%"]) + "\n"
+
+
+@pytest.mark.parametrize("machine", ["mill-xyz", "lathe-xzc"])
+def test_blockwise_reader_of_another_three_word_machine_is_the_per_line_one(tmp_path, machine, monkeypatch):
+    """The block-wise reader and writer take the machine's three words as arguments: a mill's X Y Z
+    (all linear) and a lathe's X Z C (C rotary, all words written) read into the same classes and
+    moves as the per-line reader, and render_table writes the same bytes as render_program."""
+    monkeypatch.setattr(gcode, "BULK_MIN_RUN", 1)
+    ax = AxisWords.of(load_machine(machine))
+    text = _mill_program(0)
+    if machine == "lathe-xzc":
+        text = text.replace("Y", "C").replace("G17", "G18").replace("J0.", "K0.")
+    path = _write(tmp_path, "p.nc", text)
+    fast, slow = (parse_program(path, fast=f, axis_words=ax) for f in (True, False))
+    assert fast.table is not None and slow.table is None
+    assert fast.classes == slow.classes
+    assert [(m.index, m.kind, m.start.tobytes(), m.end.tobytes(), m.units, sorted(m.words)) for m in fast.moves] == \
+        [(m.index, m.kind, m.start.tobytes(), m.end.tobytes(), m.units, sorted(m.words)) for m in slow.moves]
+    comp = [m for m in slow.moves if m.compensate]
+    rng = np.random.default_rng(1)
+    verts = [np.vstack([move_points(m, [0.5, 1.0])] if k % 5 == 0 else [m.end[None, :]]) + rng.normal(0, 1e-3, 3)
+             for k, m in enumerate(comp)]
+    counts = [len(v) for v in verts]
+    want, _ = render_program(slow, verts, header=["test"])
+    got, _ = render_table(fast, np.vstack(verts), counts, header=["test"])
+    assert got == want
+    assert any(len(v) > 1 for v in verts) and any(not set(ax.words) <= set(m.words) for m in comp)
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.name)
@@ -225,3 +281,20 @@ def test_render_program_writes_every_grinder_word(tmp_path):
     prog = parse_program(path, fast=False)
     text, _ = render_program(prog, [np.array([[1.0, 2.0, 3.0]]), np.array([[2.0, 2.0, 3.0]])])
     assert text == "G21 G90\nG1 X1.000000 Z2.000000 A3.000000 F100\nX2.000000 Z2.000000 A3.000000\nM30\n"
+
+
+@pytest.mark.parametrize("machine,block_wise", [("mill-xyz", True), ("five-axis-ac", False)])
+def test_chain_reader_is_block_wise_where_it_can(tmp_path, machine, block_wise):
+    """A chain's program goes through the block-wise reader when its machine has three axis words, none kept
+    (the mill), else line by line (a five-axis machine keeps A and C); the moves are the per-line reader's."""
+    import dataclasses
+    mt = load_machine(machine)
+    path = (Path(__file__).parent / "data" / "mill_pocket.nc" if block_wise
+            else _write(tmp_path, "five.nc", FIVE_PROGRAM))
+    prog = parse_chain_program(path, mt)
+    assert (prog.table is not None) == block_wise
+    ref = parse_program(path, fast=False, axis_words=prog.axis_words)
+    assert prog.classes == ref.classes
+    rec = [(m.index, m.kind, m.start.tobytes(), m.end.tobytes(), m.units, sorted(m.words)) for m in prog.moves]
+    assert rec == [(m.index, m.kind, m.start.tobytes(), m.end.tobytes(), m.units, sorted(m.words)) for m in ref.moves]
+    assert dataclasses.asdict(prog.axis_words) == dataclasses.asdict(ref.axis_words)

@@ -252,20 +252,23 @@ def _fuzz_lines(n, seed=0):
     return out
 
 
-def test_scan_kernel_reads_lines_as_the_patterns_do():
+@pytest.mark.parametrize("words", [("X", "Z", "A"), ("Z", "A", "Y")], ids="".join)
+def test_scan_kernel_reads_lines_as_the_patterns_do(words):
     """Every line's kind, spans and values from the compiled kernel are the patterns' (the
-    kernel may leave a line to them, KIND_ASK; it never decides otherwise)."""
+    kernel may leave a line to them, KIND_ASK; it never decides otherwise), for the default
+    machine's words and for another three letters in another order (the letters are arguments)."""
     from compensation import gcode_kernels as gs
     lines = _fuzz_lines(N_FUZZ_LINES)
     data = "\n".join(lines).encode("latin-1")
     buf = np.frombuffer(data, np.uint8)
     starts, ends = gs.line_bounds(buf)
     assert starts.size == len(lines)
-    kind, spans, vals = gs.scan_lines(buf, starts, ends)
+    kind, spans, vals = gs.scan_lines(buf, starts, ends, words)
+    pattern = g._bulk_move(words)
     seen = set()
     for i, line in enumerate(lines):
         body = line.rstrip("\r\n")
-        m = g._BULK_MOVE.fullmatch(body)
+        m = pattern.fullmatch(body)
         is_move = m is not None and m.lastindex is not None and m.lastindex >= 2
         want = gs.KIND_MOVE if is_move else (gs.KIND_PASS if g._BULK_PASS.fullmatch(body) else gs.KIND_OTHER)
         seen.add(int(kind[i]))

@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from compensation.app.cli import main
-from compensation.gcode import AXES, tokenize
+from compensation.gcode import tokenize
 from compensation.pathio import read_path, render_gcode, replan
 from compensation.solvers import solve
 from errormap.htm import HTMField
@@ -24,6 +24,9 @@ from errormap.kinematics import forward
 from errormap.simulator import random_truth
 
 CORPUS = Path(__file__).parent / "data" / "gcode_corpus"
+AXES = ("X", "Z", "A")
+"""The axis words the corpus is written for: the built-in default machine's (test_gcode_axis_words
+checks them against its file)."""
 PROGRAMS = sorted(p for p in CORPUS.iterdir() if p.is_file())
 TOL_REREAD_MM = 1.3e-6
 """Re-read vertex vs compensated vertex: half a unit of the last written decimal, 0.5e-6 mm

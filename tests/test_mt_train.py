@@ -134,8 +134,9 @@ def test_train_chain_refuses_grinder_options(smooth_mill, tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_train_on_mill_then_predict_and_compensate(smooth_mill, tmp_path, capsys):
+def test_train_on_mill_then_predict_and_compensate(smooth_mill, tmp_path, capsys, monkeypatch):
     truth, fp = smooth_mill
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}")  # tracked, as always
     run = tmp_path / "run"
     assert main(["train", str(fp), "--out", str(run), "--hidden", "10,10", "--max-iter", "100", "--seed", "0"]) == 0
     m = json.loads((run / "metrics.json").read_text())

@@ -1,5 +1,5 @@
-"""A machine-tool chain's network recorded in MLflow like the grinder's (``train --tracking-uri``), and used
-from there (``predict`` / ``compensate --machine ... --model runs:/<id>/model``)."""
+"""A machine-tool chain's network recorded in MLflow like the grinder's (always: ``--tracking-uri``, else the
+default store), and used from there (``predict`` / ``compensate --machine ... --model runs:/<id>/model``)."""
 from __future__ import annotations
 
 import json
@@ -21,12 +21,22 @@ TOL_MODEL_RESIDUAL_EXACT_UM = 1e-6
 """As tests/test_mt_train.py: the exact chain solver on a network field reaches round-off."""
 
 
-def test_run_name_without_a_store_is_refused(smooth_mill, tmp_path, capsys):  # noqa: F811
+@pytest.mark.slow
+def test_chain_network_is_tracked_by_default_like_the_grinders(smooth_mill, tmp_path, capsys, monkeypatch):  # noqa: F811
+    """No --tracking-uri: the run goes to the default store ($MLFLOW_TRACKING_URI, else runs/mlflow.db), as the
+    grinder's train does; --run-name names it there."""
+    from mlflow.tracking import MlflowClient
     _, fp = smooth_mill
-    assert main(["train", str(fp), "--out", str(tmp_path / "r"), "--run-name", "x"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--run-name" in err[0] and "--tracking-uri" in err[0]
-    assert not (tmp_path / "r").exists()
+    uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    run = tmp_path / "r"
+    assert main(["train", str(fp), "--out", str(run), "--hidden", "10,10", "--max-iter", "100", "--seed", "0",
+                 "--run-name", "default-store"]) == 0
+    out = capsys.readouterr().out
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["tracking_uri"] == uri and f"--model runs:/{m['run_id']}/model --tracking-uri {uri}" in out
+    r = MlflowClient(tracking_uri=uri).get_run(m["run_id"])
+    assert r.info.run_name == "default-store" and r.data.tags["kind"] == "chain-network"
 
 
 @pytest.mark.slow

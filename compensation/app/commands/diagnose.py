@@ -98,7 +98,7 @@ def run(args) -> int:
     else:
         if args.model is None:
             raise UsageError("CHECKS needs --model (element-set file or run id)")
-        machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+        machine = load_machine(args.machine)  # None: the built-in default machine
         if machine.kind == "machine-tool":
             from compensation.app.workflows.mt_loop import diagnose_chain, diagnosis_lines, refuse_options
             refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "no_learned": False,
@@ -108,6 +108,8 @@ def run(args) -> int:
             summary, paths = diagnose_chain(args.checks, machine, args.model, args.out, fit_fraction=args.fit_fraction,
                                             noise_um=args.noise_um, max_effects=args.max_effects,
                                             update=not args.no_update, units=args.units)
+            from compensation.app.reports.mt_diagnosis import write_chain_diagnosis_page
+            paths.append(write_chain_diagnosis_page(args.out, machine))  # the page of the run, as the grinder's
             for line in diagnosis_lines(summary):
                 print(line)
             for p in paths:

@@ -5,6 +5,7 @@ import sys
 
 from errormap.elements import ElementSet
 from errormap.machine import check_machine_kind, load_machine
+from errormap.seeds import spawn_seeds
 from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP, TruthGrinder
 from errormap.sweeps import simulate_sweeps, write_sweeps
 from compensation.app.validate import UsageError
@@ -28,7 +29,9 @@ def register(sub):
                         "parameters and check layout; errormap/truth_families.py)")
     p.add_argument("--out", required=True, help="output sweep CSV")
     p.add_argument("--noise-um", type=float, default=2.0, help="tracker noise σ per coordinate (μm, default 2)")
-    p.add_argument("--seed-noise", type=int, default=0, help="seed of the tracker pose and the noise")
+    p.add_argument("--seed-noise", type=int, default=None,
+                   help="seed of the tracker pose and the noise (default: derived from --seed, a child of its "
+                        "SeedSequence, printed and written in the file; with --truth: 0)")
     p.add_argument("--bidirectional", action="store_true", help="also sweep each axis back down (direction -1)")
     p.add_argument("--warmup-c", type=float, default=0.0,
                    help="temperature rise over the run (°C; default 0: reference temperature)")
@@ -36,8 +39,27 @@ def register(sub):
     p.set_defaults(func=run)
 
 
+NOISE_CHILD = 3
+"""The noise seed derived from ``--seed`` is child 3 of ``SeedSequence(seed)`` (:func:`errormap.seeds.spawn_seeds`):
+children 0-2 are the simulator's points, environment and check noise of the same seed
+(errormap/mt_simulate.py, errormap/truth_families.py), so the sweeps' noise is a stream of its own."""
+
+
+def noise_seed(args) -> tuple[int, str]:
+    """The tracker pose and noise seed and where it came from: ``--seed-noise`` as given; else derived from
+    ``--seed`` (:data:`NOISE_CHILD`, as an int that ``--seed-noise`` reproduces); else (``--truth``) 0."""
+    if args.seed_noise is not None:
+        return args.seed_noise, "--seed-noise"
+    if args.seed is not None:
+        child = spawn_seeds(args.seed, NOISE_CHILD + 1)[NOISE_CHILD]
+        return int(child.generate_state(1)[0]), f"derived from --seed {args.seed}; --seed-noise N reproduces it"
+    return 0, "default with --truth"
+
+
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+    machine = load_machine(args.machine)  # None: the built-in default machine
+    args.seed_noise, noise_from = noise_seed(args)
+    print(f"noise seed {args.seed_noise} ({noise_from})")
     if machine.kind == "machine-tool":
         from ..workflows.mt_loop import parse_effects, sweeps_chain
         parse_effects(machine, args.effect)

@@ -163,9 +163,6 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     if given:  # refused, never silently ignored
         raise UsageError(f"{', '.join(given)}: not available on a machine-tool chain's feature points (full-turn rotary "
                          "axes are always (cos, sin); the physical part of --physics is the grinder's element model)")
-    if args.run_name is not None and args.tracking_uri is None:
-        raise UsageError("--run-name: a machine-tool chain's network is recorded in MLflow only with --tracking-uri "
-                         "(name the store)")
     machine = _chain_machine(fp)
     fp.check_units(machine)
     from training.chain_model import ChainMLPField, fit_chain_field
@@ -194,17 +191,19 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
           "   (affine least squares on the axes, same validation points)")
     print(f"wrote model: {out / 'model'} (inputs {', '.join(machine.axis_columns)}; machine {machine.name})")
     print(f"wrote metrics: {out / 'metrics.json'}")
-    if args.tracking_uri is not None:
-        run_id = _track_chain(args, res, machine, out)
-        print(f"run id: {run_id}")
-        print(f"use it with: --machine {machine.name} --model runs:/{run_id}/model --tracking-uri {args.tracking_uri}")
+    from training.tracking import default_tracking_uri
+    uri = args.tracking_uri or default_tracking_uri()   # tracked like the grinder's network: always, this store
+    run_id = _track_chain(args, res, machine, out, uri)
+    print(f"run id: {run_id}")
+    print(f"use it with: --machine {machine.name} --model runs:/{run_id}/model --tracking-uri {uri}")
     print(f"use it with: --machine {machine.name} --model {out / 'model'}")
     return 0
 
 
-def _track_chain(args, res, machine, out) -> str:
-    """Record the chain network's fit as an MLflow run like the grinder's (params, every metric with the OLS
-    baseline, the loss per iteration, ``model/`` as saved, ``metrics.json``); the run id goes into metrics.json."""
+def _track_chain(args, res, machine, out, uri: str) -> str:
+    """Record the chain network's fit as an MLflow run in the store ``uri``, like the grinder's (params, every
+    metric with the OLS baseline, the loss per iteration, ``model/`` as saved, ``metrics.json``); the run id and
+    the store go into metrics.json."""
     import json
     from errormap.io import write_json
     from training.tracking import log_fit
@@ -212,7 +211,7 @@ def _track_chain(args, res, machine, out) -> str:
     tags = {"machine": machine.name, "kind": "chain-network",
             "featurepoints_file": str(Path(args.featurepoints).resolve())}
     run_id = log_fit(res.params, metrics, res.history, out / "model", [out / "metrics.json"],
-                     tracking_uri=args.tracking_uri, run_name=args.run_name, tags=tags, pyfunc=False)
+                     tracking_uri=uri, run_name=args.run_name, tags=tags, pyfunc=False)
     doc = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
-    write_json(out / "metrics.json", {**doc, "run_id": run_id, "tracking_uri": args.tracking_uri})
+    write_json(out / "metrics.json", {**doc, "run_id": run_id, "tracking_uri": uri})
     return run_id

@@ -232,6 +232,10 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
 
 
 def diagnosis_lines(summary) -> list:
+    """The lines ``volcomp diagnose --machine`` prints: per stage its held-out MEASURED RMS, the effects
+    named, the terms the element update absorbed (``effects_absorbed``: printed only when there are any
+    and the update ran; without an update nothing absorbed them, and ``diagnosis.json`` still lists
+    them), the kept stage and the noise floor."""
     st = summary["stages"]
     lines = []
     for k, v in st.items():
@@ -243,8 +247,9 @@ def diagnosis_lines(summary) -> list:
         lines.append(f"effect: {e['kind']} axis {e['axis']} on {e['element']} (held-out gain z = {e['held_out_gain_z']:.1f})")
     if not summary["effects"]:
         lines.append("no effect found")
-    for e in summary.get("effects_absorbed", []):
-        lines.append(f"absorbed by the update: {e['note']}")
+    if "held_out" in st.get("updated", {}):  # absorbed only where an update ran (diagnosis.json keeps them always)
+        for e in summary.get("effects_absorbed", []):
+            lines.append(f"absorbed by the update: {e['note']}")
     lines.append(f"kept stage: {summary['kept_stage']} ({summary['kept_why']})")
     if summary["noise_floor_um"] is not None:
         lines.append(f"noise floor {summary['noise_floor_um']:.3g} um (sigma {summary['noise_sigma_um']:.3g} um, "
