@@ -69,7 +69,13 @@ PERIOD_REFINE = 0.015
 """Then ±1.5 % around the best grid period in 121 steps (0.025 %): a 1 % period error over 40 cycles of a
 400 mm stroke is 0.4 of a cycle."""
 HARMONIC_ORDERS = np.arange(2, 121)
-"""Orders tried for a harmonic on a rotary axis (per turn)."""
+"""Orders tried for a harmonic on a rotary axis (per turn), those the stations resolve left out (:func:`shape_band`)."""
+SHAPE_NYQUIST = 2.0
+"""Station spacings per cycle at and above which a periodic or harmonic shape is resolved by the element
+stations (sampling theorem): such a shape is the element's own geometry, which the sweeps measure at the
+stations and the update refines, not an effect term (:func:`shape_band`). Decided on development seeds
+100–104: with the smoothness prior the update leaves part of a truth's low-order geometry (orders 3–6 on a
+rotary axis with 18° stations), and a harmonic term of that order took it up in 7 of 60 effect runs."""
 ROUNDS = 2
 """Update/search rounds: from the second on the update is made jointly with the effects found (so that it
 does not take an effect up), then the search goes on (as the grinder's loop re-fits jointly)."""
@@ -312,6 +318,11 @@ class ChainUpdate:
     gain: np.ndarray | None = None
     """(N, 3n) the change of the element parameters per unit change of the fitting residual (flattened)
     at the chosen weight and noise; ``None`` when effect columns were fitted jointly."""
+    extra_cov: np.ndarray | None = None
+    """(c, c) posterior covariance of ``extra_coef`` (the elements' prior and the smoothness prior
+    marginalised: ``σ²·(A⁻¹)`` of the effect block), ``None`` without effect columns."""
+    plain: "ChainUpdate | None" = None
+    """With ``with_plain``: the update at weight 0 (the sweep prior alone), from the same solves."""
 
 
 def check_smoothing(smoothing) -> None:
@@ -325,7 +336,7 @@ def check_smoothing(smoothing) -> None:
 
 
 def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_fit, residual_fit,
-                    extra=None, extra_shift=None, smoothing="gcv") -> ChainUpdate:
+                    extra=None, extra_shift=None, smoothing="gcv", with_plain: bool = False) -> ChainUpdate:
     """Gaussian update of the element parameters from check residuals (n, 3) μm at ``axes_fit`` (n, k).
 
     Model: the sweep identification measured the parameters, ``θ_id ~ N(θ, cov)`` (``cov`` (N, N)
@@ -340,7 +351,9 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
     ``extra`` (n, 3, c): effect columns fitted jointly with no prior (their coefficients in
     ``ChainUpdate.extra_coef``); ``extra_shift`` (N, c): what each effect coefficient put into the
     identified parameters during the sweeps (its samples at the stations): the measured values are
-    ``θ_id − extra_shift·coef`` and the smoothness prior applies to those."""
+    ``θ_id − extra_shift·coef`` and the smoothness prior applies to those. ``with_plain``: also the
+    update at weight 0 (``ChainUpdate.plain``; the grid holds weight 0, solved at the noise of weight 0:
+    the same as ``smoothing=0.0``)."""
     check_smoothing(smoothing)
     m = elements.machine
     N = len(slot_names)
@@ -383,9 +396,16 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
     s2 = noise(0.0)
     table = []
     grid = SMOOTH_GRID if smoothing == "gcv" else [float(smoothing)]
+    sol = {}
     for weight in grid:
-        _, dof, rss = solve(float(weight), s2)
+        sol[float(weight)] = w, dof, rss = solve(float(weight), s2)
         table.append({"weight": float(weight), "gcv": r.size * rss / max(r.size - dof, 1.0) ** 2, "dof": dof})
+    plain = None
+    if with_plain and not c and 0.0 in sol:   # the sweep prior alone (weight 0 at its own noise), from the same solves
+        w0, dof0, _ = sol[0.0]
+        t0 = next(t for t in table if t["weight"] == 0.0)
+        plain = ChainUpdate(apply_parameters(elements, slot_names, stations, L @ w0), float(np.sqrt(s2)), dof0, None,
+                            0.0, [t0], t0["gcv"])
     best = min(table, key=lambda t: t["gcv"])
     weight = best["weight"]
     if weight > 0:
@@ -393,12 +413,14 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
     w, dof, _ = solve(weight, s2)
     z, coef = w[:K], (w[K:] if c else None)
     delta = L @ z - (S @ coef if c else 0.0)
-    gain = None
+    gain, extra_cov = None, None
+    A = XtX + s2 * (np.diag(prior) + weight * GtG)
     if not c:
-        A = XtX + s2 * (np.diag(prior) + weight * GtG)
         gain = L @ np.linalg.solve(A, X.T)
+    else:
+        extra_cov = s2 * np.linalg.pinv(A)[K:, K:]
     return ChainUpdate(apply_parameters(elements, slot_names, stations, delta), float(np.sqrt(s2)), dof - c, coef,
-                       weight, table, best["gcv"], gain)
+                       weight, table, best["gcv"], gain, extra_cov, plain)
 
 
 def ols_update(elements: ChainElementSet, slot_names, stations, axes_fit, residual_fit,
@@ -428,10 +450,12 @@ class EffectTerm:
     shape: dict
     coefficients: np.ndarray
     gain_z: float = 0.0
+    joint_chi2: float | None = None
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "axis": "*".join(self.axes), "element": self.element, "shape": self.shape,
-                "coefficients": self.coefficients.tolist(), "held_out_gain_z": self.gain_z}
+                "coefficients": self.coefficients.tolist(), "held_out_gain_z": self.gain_z,
+                **({} if self.joint_chi2 is None else {"joint_chi2": self.joint_chi2})}
 
 
 def _own_element(machine: MachineTool, word: str) -> str | None:
@@ -571,13 +595,52 @@ def effect_columns(machine: MachineTool, kind: str, words, axes, conditions, sha
     return np.stack([jcol * fi[:, None] for fi in f], axis=2), el
 
 
-def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None):
+def shape_band(elements: ChainElementSet) -> dict:
+    """Per axis word, the shapes a periodic or harmonic term may take (:data:`SHAPE_NYQUIST`): a
+    harmonic's lowest order ``{"min_order": N}`` on a rotary axis, a period's upper bound
+    ``{"max_period_mm": P}`` on a linear axis. A shape the element stations resolve (at least two
+    stations per cycle) is measured by the sweeps as the element's own geometry and carried by its
+    station values; only what aliases between the stations is an effect term."""
+    m = elements.machine
+    out = {}
+    for a in m.axes:
+        st = np.asarray(elements.stations.get(a.column, ()), float)
+        if st.size < 2:
+            continue
+        step = float(np.max(np.diff(st)))
+        if a.kind == "rotary":
+            out[a.word] = {"min_order": int(np.floor(360.0 / (SHAPE_NYQUIST * step))) + 1}
+        else:
+            out[a.word] = {"max_period_mm": SHAPE_NYQUIST * step}
+    return out
+
+
+def _shape_functions(kind, q, shapes) -> np.ndarray:
+    """Per-point shape functions (n, G, 2) of the periodic / harmonic ``shapes`` (G) at axis values ``q`` (n,)."""
+    if kind == "periodic":
+        ph = 2 * np.pi * q[:, None] / np.array([s["period_mm"] for s in shapes])[None]
+    else:
+        ph = np.deg2rad(q)[:, None] * np.array([s["order"] for s in shapes], float)[None]
+    return np.stack([np.sin(ph), np.cos(ph)], axis=2)
+
+
+def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None, band=None):
     """Best shape (periodogram over the grid) and its columns, fitted on the fitting checks:
-    ``(rss, shape, coefficients, element, columns at all checks (n, 3, c))``. ``response``: maps an
-    effect's columns (n, 3, c) to what of them is left after the element update (the update's linear
-    response removed; module doc of :func:`effect_search`)."""
-    grid = ([{"period_mm": float(p)} for p in PERIOD_GRID_MM] if kind == "periodic" else
-            [{"order": int(n)} for n in HARMONIC_ORDERS] if kind == "harmonic" else [None])
+    ``(rss, shape, coefficients, element, columns at all checks (n, 3, c))``, ``None`` when the band
+    leaves no shape. ``response``: maps an effect's columns (n, 3, c) to what of them is left after
+    the element update (the update's linear response removed; module doc of :func:`effect_search`),
+    ``response(C, fit_only=True)`` its fitting rows (n_fit, 3, c). ``band``: :func:`shape_band` of the
+    axis (None: the whole grid). The grid is scored in one batch (normal equations per shape); the
+    best shape is then re-fitted by least squares as a single one."""
+    band = band or {}
+    if kind == "periodic":
+        grid = [{"period_mm": float(p)} for p in PERIOD_GRID_MM if p < band.get("max_period_mm", np.inf)]
+    elif kind == "harmonic":
+        grid = [{"order": int(n)} for n in HARMONIC_ORDERS if n >= band.get("min_order", 0)]
+    else:
+        grid = [None]
+    if not grid:
+        return None
     rf = r_fit.reshape(-1)
 
     def one(shape):
@@ -588,18 +651,35 @@ def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None):
         c = np.linalg.lstsq(X, rf, rcond=None)[0]
         return float(np.sum((rf - X @ c) ** 2)), shape, c, el, C
 
-    best = None
-    for shape in grid:
-        cand = one(shape)
-        if best is None or cand[0] < best[0]:
-            best = cand
+    if grid == [None]:
+        return one(None)
+    col = {a.word: j for j, a in enumerate(machine.axes)}
+    jcol = Je[:, :, machine.slot_names.index(_own_element(machine, words[0]))]
+    q = checks.axes[:, col[words[0]]]
+
+    def best_of(shapes):
+        F = _shape_functions(kind, q, shapes)                              # (n, G, 2)
+        C = (jcol[:, :, None, None] * F[:, None]).reshape(len(q), 3, -1)   # (n, 3, 2G): shape g in 2g, 2g+1
+        Cf = response(C, fit_only=True) if response is not None else C[fit_idx]
+        X = Cf.reshape(-1, len(shapes), 2)                                 # (3 n_fit, G, 2)
+        XtX = np.einsum("rgi,rgj->gij", X, X)
+        Xtr = np.einsum("rgi,r->gi", X, rf)
+        try:
+            coef = np.linalg.solve(XtX, Xtr[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            coef = np.stack([np.linalg.lstsq(A, b, rcond=None)[0] for A, b in zip(XtX, Xtr)])
+        rss = float(rf @ rf) - np.einsum("gi,gi->g", Xtr, coef)
+        return int(np.argmin(rss)), rss
+
+    g, rss = best_of(grid)
+    shape = grid[g]
     if kind == "periodic":  # refine: over a long stroke a 1.4 % period error drifts by cycles
-        p0 = best[1]["period_mm"]
-        for p in p0 * (1.0 + np.linspace(-PERIOD_REFINE, PERIOD_REFINE, 121)):
-            cand = one({"period_mm": float(p)})
-            if cand[0] < best[0]:
-                best = cand
-    return best
+        p0 = shape["period_mm"]
+        fine = [{"period_mm": float(p)} for p in p0 * (1.0 + np.linspace(-PERIOD_REFINE, PERIOD_REFINE, 121))]
+        gf, rssf = best_of(fine)
+        if rssf[gf] < rss[g]:
+            shape = fine[gf]
+    return one(shape)
 
 
 def _paired_z(r_before, r_after) -> float:
@@ -609,12 +689,13 @@ def _paired_z(r_before, r_after) -> float:
 
 
 def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
-                  exclude=(), response=None):
+                  exclude=(), response=None, bands=None):
     """Forward search (module doc): ``(accepted terms, rejected (kind, axes, z) list, residual after)``.
     ``exclude``: ``(kind, words)`` not tried (found, or represented by the slots); ``response``: when the
     residual is an element update's, the map of an effect's columns to what the update leaves of them
     (``C − M·gain·C_fit``): the update has taken up the part of an effect the slots can imitate, so the
-    term is fitted and judged by the rest, with its own coefficient."""
+    term is fitted and judged by the rest, with its own coefficient. ``bands``: :func:`shape_band`
+    (None: every shape of the grids)."""
     Je = machine.error_jacobian(checks.axes)
     r = np.asarray(residual, float).copy()
     cands = effect_candidates(machine, checks.conditions)
@@ -624,8 +705,11 @@ def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hol
         for kind, words in cands:
             if any(t.kind == kind and t.axes == words for t in accepted) or (kind, words) in exclude:
                 continue
-            rss, shape, c, el, C = _fit_shape(machine, kind, words, checks, fit_idx, r[fit_idx], Je, response)
-            scored.append((rss, kind, words, shape, c, el, C))
+            best = _fit_shape(machine, kind, words, checks, fit_idx, r[fit_idx], Je, response,
+                              (bands or {}).get(words[0]))
+            if best is not None:
+                rss, shape, c, el, C = best
+                scored.append((rss, kind, words, shape, c, el, C))
         if not scored:
             break
         scored.sort(key=lambda s: s[0])
@@ -704,8 +788,10 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     sigma, prior = None, None
     if cov is not None:
         slot_names, stations, C = cov
-        upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=smoothing)
-        plain = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=0.0)
+        upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=smoothing,
+                              with_plain=True)
+        plain = upd.plain if upd.plain is not None else update_elements(
+            elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=0.0)
         stages["baseline_update_sweep_prior"] = stats(resid(plain.elements_))   # the update without the smoothness prior
         stages["baseline_update_sweep_prior"]["gcv"] = plain.gcv_value
         ols_el, ols_gcv = None, float("inf")
@@ -742,13 +828,17 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
         exclude = [(t["kind"], tuple(t["axis"].split("*"))) for t in absorbed]
         if last == "updated" and upd.gain is not None:   # what the update leaves of an effect's columns
             Mall = parameter_matrix(machine, elements, checks.axes, slot_names, stations).reshape(-1, len(slot_names))
+            Mfit = Mall.reshape(n, 3, -1)[fit_idx].reshape(-1, len(slot_names))
             gain = upd.gain
 
-            def response(Cols):
+            def response(Cols, fit_only=False):
                 Cf = Cols[fit_idx].reshape(-1, Cols.shape[2])
+                if fit_only:
+                    return (Cf - Mfit @ (gain @ Cf)).reshape(len(fit_idx), 3, -1)
                 return Cols - (Mall @ (gain @ Cf)).reshape(Cols.shape)
+        bands = shape_band(elements)
         accepted, rejected, r2 = effect_search(machine, checks, resid_of[last], fit_idx, hold_idx, max_effects,
-                                               exclude=exclude, response=response)
+                                               exclude=exclude, response=response, bands=bands)
         for _ in range(ROUNDS - 1):  # the update made jointly with the accepted effects, then the search goes on
             if not accepted or last != "updated":
                 break
@@ -761,10 +851,13 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             for t in accepted:
                 c = t.coefficients.size
                 t.coefficients, k = upd.extra_coef[k:k + c], k + c
+                cv = upd.extra_cov[k - c:k, k - c:k]
+                t.joint_chi2 = float(t.coefficients @ np.linalg.pinv(cv) @ t.coefficients)
             r_joint = resid(upd.elements_) - np.einsum("nic,c->ni", E, upd.extra_coef)
             models["joint"], sigma = upd.elements_, upd.sigma_um
             more, rejected, r2 = effect_search(machine, checks, r_joint, fit_idx, hold_idx, max_effects - len(accepted),
-                                               exclude=exclude + [(t.kind, t.axes) for t in accepted], response=response)
+                                               exclude=exclude + [(t.kind, t.axes) for t in accepted], response=response,
+                                               bands=bands)
             accepted += more
             if not more:
                 break
