@@ -335,6 +335,17 @@ def check_smoothing(smoothing) -> None:
         raise ValueError(f"Expected smoothing 'gcv' or a finite weight >= 0, got {smoothing!r}")
 
 
+def _cho_inverse(f) -> np.ndarray:
+    """The inverse (N, N) of a matrix from its ``scipy.linalg.cho_factor`` (LAPACK potri: a third of the
+    work of solving for N right-hand sides)."""
+    c, lower = f
+    inv, info = scipy.linalg.lapack.dpotri(c, lower=lower)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"potri failed (info {info})")
+    tri = np.tril(inv) if lower else np.triu(inv)
+    return tri + tri.T - np.diag(np.diag(tri))
+
+
 def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_fit, residual_fit,
                     extra=None, extra_shift=None, smoothing="gcv", with_plain: bool = False) -> ChainUpdate:
     """Gaussian update of the element parameters from check residuals (n, 3) μm at ``axes_fit`` (n, k).
@@ -380,7 +391,7 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
         try:
             f = scipy.linalg.cho_factor(A)
             w = scipy.linalg.cho_solve(f, Xtr - s2 * weight * Gtd)
-            dof = float(np.trace(scipy.linalg.cho_solve(f, XtX)))
+            dof = float(np.sum(_cho_inverse(f) * XtX))     # trace(A⁻¹·XᵀX), both symmetric
         except np.linalg.LinAlgError:   # an effect column the elements can imitate exactly: min-norm
             Ai = np.linalg.pinv(A)
             w, dof = Ai @ (Xtr - s2 * weight * Gtd), float(np.trace(Ai @ XtX))
