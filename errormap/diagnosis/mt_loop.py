@@ -23,11 +23,14 @@ Stages, each judged by the MEASURED residual (measurement − prediction) on the
    :data:`HELD_OUT_Z` standard errors (rank order; the first that fails stops the search). The
    accepted effects are then re-fitted JOINTLY with the update (their columns free, the
    elements with the prior; an update made alone takes up part of an effect it can imitate,
-   e.g. the mean thermal growth of the fitting period), and the search goes on from there
-   (:data:`ROUNDS`).
+   e.g. the mean thermal growth of the fitting period); a term whose coefficients the joint fit
+   does not support (Wald χ² at or below :func:`joint_threshold`, fitting checks only) is dropped,
+   and the search goes on from there (:data:`ROUNDS`). Periodic and harmonic shapes the element
+   stations resolve are not searched (:func:`shape_band`): they are the element's own geometry.
 
 The plain baselines beside them: the unregularised least-squares update (the same parameters
-fitted to the fitting checks with no prior, ``baseline_ols_update``) and OLS of the identified
+fitted to the fitting checks with no prior, ``baseline_ols_update``; kept instead of the prior update when
+its GCV of the chain's own fitting residual is lower, :func:`fitting_gcv`) and OLS of the identified
 model's residual on all axis columns (``baseline_ols_linear``). The model handed on is the last stage unless a
 plainer one (identified, updated) is better on the held-out checks by more than
 :data:`FALLBACK_Z` paired standard errors; ``kept_stage`` says which.
