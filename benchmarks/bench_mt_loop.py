@@ -109,9 +109,10 @@ def run_case(machine_name: str, seed: int, effect: str | None, work: Path, check
         assert main(["simulate", *base, "--noise-um", str(CHECK_NOISE_UM), "--checks", str(checks),
                      "--out", str(d / "sim")]) == 0
         assert main(["identify", str(d / "sweeps.csv"), "--machine", machine_name, "--out", str(d / "E.json")]) == 0
+        t1 = time.process_time()
         assert main(["diagnose", str(d / "sim" / "checks.csv"), "--machine", machine_name, "--model", str(d / "E.json"),
                      "--noise-um", str(CHECK_NOISE_UM), "--out", str(d / "diag")]) == 0
-    cpu = time.process_time() - t0
+    cpu, cpu_diag = time.process_time() - t0, time.process_time() - t1
     # scoring only: the hidden truth
     info = json.loads((d / "sim" / "truth.json").read_text())
     truth = MTTruth(m, ChainElementSet.load(d / "sim" / "truth_elements.json", m), info["effects"], seed, "independent")
@@ -142,6 +143,9 @@ def run_case(machine_name: str, seed: int, effect: str | None, work: Path, check
     st = s["stages"]
     found = [(e["kind"], e["axis"]) for e in s["effects"]]
     row = {"machine": machine_name, "seed": seed, "case": effect or "none", "checks": checks, "cpu_s": cpu,
+           "cpu_diagnose_s": cpu_diag, "truth_effects": info["effects"],
+           "terms": [{k: e.get(k) for k in ("kind", "axis", "shape", "held_out_gain_z", "joint_chi2")} for e in s["effects"]],
+           "rejected": s.get("effects_rejected", []),
            "true_rms_identified_um": true_rms(d / "E.json"), "true_rms_updated_um": true_rms(d / "diag" / "updated_elements.json"),
            "truth_rms_um": float(np.sqrt(np.mean(np.sum(tr**2, axis=1)))),
            "true_rms_loop_model_um": loop_rms, "model_terms": len(lm.terms),
@@ -234,13 +238,27 @@ def markdown(rows, meta) -> str:
                        f"{_med([r['held_out_identified_um'] for r in C]):.2f} | {_med([r['held_out_ols_linear_um'] for r in C]):.2f} | "
                        f"{_med([r['held_out_ols_update_um'] for r in C]):.3g} | {_cnt(C, 'held_out_sweep_prior_um')} | {nr} |")
         ok = sum(r["ratio"] <= GOAL_RATIO for r in R)
+        extra = [(r, t) for r in R if r["case"] != "none" for t in r.get("terms", [])
+                 if (t["kind"], t["axis"]) != tuple(r["case"].split(":"))]
+        extra += [(r, t) for r in R if r["case"] == "none" for t in r.get("terms", [])]
+        if extra:
+            out += ["", "Terms reported besides the simulated one (seed, case: kind axis shape, held-out gain z, joint χ²): "
+                    + "; ".join(f"{r['seed']}, {r['case']}: {t['kind']} {t['axis']} {t['shape'] or ''}, z {t['held_out_gain_z']:.2f}"
+                                + (f", χ² {t['joint_chi2']:.1f}" if t.get("joint_chi2") is not None else "") for r, t in extra) + "."]
+        missed = [r for r in R if r["case"] != "none" and not r.get("named_right")]
+        if missed:
+            out += ["", "Missed (seed, case: the simulated effect's parameters; the search's last candidate and its held-out "
+                    "gain z, below the acceptance threshold 3): " + "; ".join(
+                        f"{r['seed']}, {r['case']}: {r.get('truth_effects', {})}; "
+                        + (", ".join(f"{x['kind']} {x['axis']} z {x['held_out_gain_z']:.2f}" for x in r.get("rejected", [])) or "—")
+                        for r in missed) + "."]
         if any("effects_absorbed" not in r for r in R):
             out += ["", "† rows from an earlier state of the loop (before the representability check; rows of the earliest "
                     "commands above also before the update's smoothness prior), not re-run since (CPU budget)."]
         out += ["", f"Uncompensated (the truth's own error at the score points): TRUE RMS median "
                 f"{_med([r.get('truth_rms_um') for r in R]):.1f} μm.",
                 "", f"All {len(R)} runs: held-out ≤ {GOAL_RATIO} × floor in {ok}; median CPU per run "
-                f"{_med([r['cpu_s'] for r in R]):.1f} s. Effects wrongly reported on effect runs (besides the simulated one): "
+                f"{_med([r['cpu_s'] for r in R]):.1f} s (the diagnose step alone {_cnt(R, 'cpu_diagnose_s')} s). Effects wrongly reported on effect runs (besides the simulated one): "
                 f"{sum(r.get('extra_effects', 0) for r in R)}.", ""]
     return "\n".join(out) + "\n"
 

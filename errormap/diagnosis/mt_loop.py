@@ -23,11 +23,14 @@ Stages, each judged by the MEASURED residual (measurement − prediction) on the
    :data:`HELD_OUT_Z` standard errors (rank order; the first that fails stops the search). The
    accepted effects are then re-fitted JOINTLY with the update (their columns free, the
    elements with the prior; an update made alone takes up part of an effect it can imitate,
-   e.g. the mean thermal growth of the fitting period), and the search goes on from there
-   (:data:`ROUNDS`).
+   e.g. the mean thermal growth of the fitting period); a term whose coefficients the joint fit
+   does not support (Wald χ² at or below :func:`joint_threshold`, fitting checks only) is dropped,
+   and the search goes on from there (:data:`ROUNDS`). Periodic and harmonic shapes the element
+   stations resolve are not searched (:func:`shape_band`): they are the element's own geometry.
 
 The plain baselines beside them: the unregularised least-squares update (the same parameters
-fitted to the fitting checks with no prior, ``baseline_ols_update``) and OLS of the identified
+fitted to the fitting checks with no prior, ``baseline_ols_update``; kept instead of the prior update when
+its GCV of the chain's own fitting residual is lower, :func:`fitting_gcv`) and OLS of the identified
 model's residual on all axis columns (``baseline_ols_linear``). The model handed on is the last stage unless a
 plainer one (identified, updated) is better on the held-out checks by more than
 :data:`FALLBACK_Z` paired standard errors; ``kept_stage`` says which.
@@ -41,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
+import scipy.stats
 from scipy.interpolate import make_interp_spline
 
 from ..effect_kinds import effect_kind
@@ -61,6 +65,13 @@ point, by more than 2 standard errors (one-sided p ≈ 0.02), as the grinder's l
 HELD_OUT_Z = 3.0
 """An effect is accepted when it lowers the held-out squared residual norm, paired per point, by more than
 3 standard errors (one-sided p ≈ 0.001; a few candidates in rank order), as the grinder's loop."""
+JOINT_Z = HELD_OUT_Z
+"""A term accepted on the held-out checks stays only if the joint fit with the element update (the fitting
+checks, the update's prior and smoothness prior) still gives its coefficients a Wald χ² above the level of
+this many standard errors, corrected for the shapes tried (:func:`joint_threshold`): an update made before
+the term was found (its σ inflated by the unmodelled effect) leaves element geometry behind that a term can
+take up, and the joint fit gives it back to the elements. Decided on development seeds 100–114 (a 2.3 mm
+periodic term on X at held-out z 3.05, joint χ² 2.2, threshold 28; every simulated effect above 60)."""
 SIGMA_ITERATIONS = 8
 """Fixed-point steps of the check-noise estimate in the update (converges in a few)."""
 PERIOD_GRID_MM = np.geomspace(2.0, 60.0, 240)
@@ -69,7 +80,13 @@ PERIOD_REFINE = 0.015
 """Then ±1.5 % around the best grid period in 121 steps (0.025 %): a 1 % period error over 40 cycles of a
 400 mm stroke is 0.4 of a cycle."""
 HARMONIC_ORDERS = np.arange(2, 121)
-"""Orders tried for a harmonic on a rotary axis (per turn)."""
+"""Orders tried for a harmonic on a rotary axis (per turn), those the stations resolve left out (:func:`shape_band`)."""
+SHAPE_NYQUIST = 2.0
+"""Station spacings per cycle at and above which a periodic or harmonic shape is resolved by the element
+stations (sampling theorem): such a shape is the element's own geometry, which the sweeps measure at the
+stations and the update refines, not an effect term (:func:`shape_band`). Decided on development seeds
+100–104: with the smoothness prior the update leaves part of a truth's low-order geometry (orders 3–6 on a
+rotary axis with 18° stations), and a harmonic term of that order took it up in 7 of 60 effect runs."""
 ROUNDS = 2
 """Update/search rounds: from the second on the update is made jointly with the effects found (so that it
 does not take an effect up), then the search goes on (as the grinder's loop re-fits jointly)."""
@@ -312,6 +329,11 @@ class ChainUpdate:
     gain: np.ndarray | None = None
     """(N, 3n) the change of the element parameters per unit change of the fitting residual (flattened)
     at the chosen weight and noise; ``None`` when effect columns were fitted jointly."""
+    extra_cov: np.ndarray | None = None
+    """(c, c) posterior covariance of ``extra_coef`` (the elements' prior and the smoothness prior
+    marginalised: ``σ²·(A⁻¹)`` of the effect block), ``None`` without effect columns."""
+    plain: "ChainUpdate | None" = None
+    """With ``with_plain``: the update at weight 0 (the sweep prior alone), from the same solves."""
 
 
 def check_smoothing(smoothing) -> None:
@@ -324,8 +346,19 @@ def check_smoothing(smoothing) -> None:
         raise ValueError(f"Expected smoothing 'gcv' or a finite weight >= 0, got {smoothing!r}")
 
 
+def _cho_inverse(f) -> np.ndarray:
+    """The inverse (N, N) of a matrix from its ``scipy.linalg.cho_factor`` (LAPACK potri: a third of the
+    work of solving for N right-hand sides)."""
+    c, lower = f
+    inv, info = scipy.linalg.lapack.dpotri(c, lower=lower)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"potri failed (info {info})")
+    tri = np.tril(inv) if lower else np.triu(inv)
+    return tri + tri.T - np.diag(np.diag(tri))
+
+
 def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_fit, residual_fit,
-                    extra=None, extra_shift=None, smoothing="gcv") -> ChainUpdate:
+                    extra=None, extra_shift=None, smoothing="gcv", with_plain: bool = False) -> ChainUpdate:
     """Gaussian update of the element parameters from check residuals (n, 3) μm at ``axes_fit`` (n, k).
 
     Model: the sweep identification measured the parameters, ``θ_id ~ N(θ, cov)`` (``cov`` (N, N)
@@ -340,7 +373,9 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
     ``extra`` (n, 3, c): effect columns fitted jointly with no prior (their coefficients in
     ``ChainUpdate.extra_coef``); ``extra_shift`` (N, c): what each effect coefficient put into the
     identified parameters during the sweeps (its samples at the stations): the measured values are
-    ``θ_id − extra_shift·coef`` and the smoothness prior applies to those."""
+    ``θ_id − extra_shift·coef`` and the smoothness prior applies to those. ``with_plain``: also the
+    update at weight 0 (``ChainUpdate.plain``; the grid holds weight 0, solved at the noise of weight 0:
+    the same as ``smoothing=0.0``)."""
     check_smoothing(smoothing)
     m = elements.machine
     N = len(slot_names)
@@ -367,7 +402,7 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
         try:
             f = scipy.linalg.cho_factor(A)
             w = scipy.linalg.cho_solve(f, Xtr - s2 * weight * Gtd)
-            dof = float(np.trace(scipy.linalg.cho_solve(f, XtX)))
+            dof = float(np.sum(_cho_inverse(f) * XtX))     # trace(A⁻¹·XᵀX), both symmetric
         except np.linalg.LinAlgError:   # an effect column the elements can imitate exactly: min-norm
             Ai = np.linalg.pinv(A)
             w, dof = Ai @ (Xtr - s2 * weight * Gtd), float(np.trace(Ai @ XtX))
@@ -383,9 +418,16 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
     s2 = noise(0.0)
     table = []
     grid = SMOOTH_GRID if smoothing == "gcv" else [float(smoothing)]
+    sol = {}
     for weight in grid:
-        _, dof, rss = solve(float(weight), s2)
+        sol[float(weight)] = w, dof, rss = solve(float(weight), s2)
         table.append({"weight": float(weight), "gcv": r.size * rss / max(r.size - dof, 1.0) ** 2, "dof": dof})
+    plain = None
+    if with_plain and not c and 0.0 in sol:   # the sweep prior alone (weight 0 at its own noise), from the same solves
+        w0, dof0, _ = sol[0.0]
+        t0 = next(t for t in table if t["weight"] == 0.0)
+        plain = ChainUpdate(apply_parameters(elements, slot_names, stations, L @ w0), float(np.sqrt(s2)), dof0, None,
+                            0.0, [t0], t0["gcv"])
     best = min(table, key=lambda t: t["gcv"])
     weight = best["weight"]
     if weight > 0:
@@ -393,27 +435,41 @@ def update_elements(elements: ChainElementSet, slot_names, stations, cov, axes_f
     w, dof, _ = solve(weight, s2)
     z, coef = w[:K], (w[K:] if c else None)
     delta = L @ z - (S @ coef if c else 0.0)
-    gain = None
+    gain, extra_cov = None, None
+    A = XtX + s2 * (np.diag(prior) + weight * GtG)
     if not c:
-        A = XtX + s2 * (np.diag(prior) + weight * GtG)
         gain = L @ np.linalg.solve(A, X.T)
+    else:
+        extra_cov = s2 * np.linalg.pinv(A)[K:, K:]
     return ChainUpdate(apply_parameters(elements, slot_names, stations, delta), float(np.sqrt(s2)), dof - c, coef,
-                       weight, table, best["gcv"], gain)
+                       weight, table, best["gcv"], gain, extra_cov, plain)
 
 
 def ols_update(elements: ChainElementSet, slot_names, stations, axes_fit, residual_fit,
                return_gcv: bool = False):
     """The plain baseline: the same parameters fitted to the fitting checks by unregularised least
     squares (minimum norm over the directions above :data:`OLS_RCOND`), no prior. ``return_gcv``:
-    also its GCV on the fitting checks (``n·RSS/(n − rank)²``), the figure the update is compared with."""
+    also its GCV on the fitting checks (``n·RSS/(n − rank)²``), the figure the update is compared with,
+    RSS of the chain's own residual with the fitted elements (:func:`fitting_gcv`), not of the
+    linearisation: a large unregularised step leaves the linear range of the chain (a fit whose
+    linear residual is 12 μm left 974 μm through the chain on a development seed)."""
     M = parameter_matrix(elements.machine, elements, axes_fit, slot_names, stations).reshape(-1, len(slot_names))
     r = np.asarray(residual_fit, float).reshape(-1)
     delta, _, rank, _ = np.linalg.lstsq(M, r, rcond=OLS_RCOND)
     el = apply_parameters(elements, slot_names, stations, delta)
     if not return_gcv:
         return el
-    rss = float(np.sum((r - M @ delta) ** 2))
-    return el, (r.size * rss / (r.size - rank) ** 2 if r.size > rank else float("inf"))
+    return el, fitting_gcv(elements, el, axes_fit, residual_fit, float(rank))
+
+
+def fitting_gcv(elements: ChainElementSet, updated: ChainElementSet, axes_fit, residual_fit, dof: float) -> float:
+    """GCV ``n·RSS/(n − dof)²`` on the fitting checks of an updated element set, RSS of the chain's own
+    residual: ``residual_fit`` (n, 3) of ``elements`` minus the change of the chain's prediction at
+    ``axes_fit`` (n, k), so that a step beyond the linear range is judged by what it does."""
+    from ..mt_field import ChainField
+    m = elements.machine
+    r = np.asarray(residual_fit, float) - (ChainField(m, updated).predict(axes_fit) - ChainField(m, elements).predict(axes_fit))
+    return r.size * float(np.sum(r**2)) / (r.size - dof) ** 2 if r.size > dof else float("inf")
 
 
 # -- effects ------------------------------------------------------------------------------------
@@ -428,10 +484,26 @@ class EffectTerm:
     shape: dict
     coefficients: np.ndarray
     gain_z: float = 0.0
+    joint_chi2: float | None = None
+    """Wald χ² of the coefficients in the joint fit with the element update (:func:`joint_threshold`)."""
+    n_shapes: int = 1
+    """Shapes the search tried for this kind and axis on the same fitting checks (periods, orders; 1 without a shape)."""
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "axis": "*".join(self.axes), "element": self.element, "shape": self.shape,
-                "coefficients": self.coefficients.tolist(), "held_out_gain_z": self.gain_z}
+                "coefficients": self.coefficients.tolist(), "held_out_gain_z": self.gain_z,
+                **({} if self.joint_chi2 is None else {"joint_chi2": self.joint_chi2,
+                                                        "joint_chi2_threshold": joint_threshold(self)}),
+                "shapes_tried": self.n_shapes}
+
+
+def joint_threshold(term: EffectTerm) -> float:
+    """The Wald χ² a term's coefficients must exceed in the joint fit with the element update (fitting checks
+    only, :data:`JOINT_Z`): the one-sided level of ``JOINT_Z`` standard errors, Bonferroni-corrected over the
+    shapes tried (the shape is the best of ``n_shapes`` on the same checks), with as many degrees of freedom
+    as the term has coefficients."""
+    p = scipy.stats.norm.sf(JOINT_Z) / max(int(term.n_shapes), 1)
+    return float(scipy.stats.chi2.isf(p, df=max(np.size(term.coefficients), 1)))
 
 
 def _own_element(machine: MachineTool, word: str) -> str | None:
@@ -571,13 +643,52 @@ def effect_columns(machine: MachineTool, kind: str, words, axes, conditions, sha
     return np.stack([jcol * fi[:, None] for fi in f], axis=2), el
 
 
-def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None):
+def shape_band(elements: ChainElementSet) -> dict:
+    """Per axis word, the shapes a periodic or harmonic term may take (:data:`SHAPE_NYQUIST`): a
+    harmonic's lowest order ``{"min_order": N}`` on a rotary axis, a period's upper bound
+    ``{"max_period_mm": P}`` on a linear axis. A shape the element stations resolve (at least two
+    stations per cycle) is measured by the sweeps as the element's own geometry and carried by its
+    station values; only what aliases between the stations is an effect term."""
+    m = elements.machine
+    out = {}
+    for a in m.axes:
+        st = np.asarray(elements.stations.get(a.column, ()), float)
+        if st.size < 2:
+            continue
+        step = float(np.max(np.diff(st)))
+        if a.kind == "rotary":
+            out[a.word] = {"min_order": int(np.floor(360.0 / (SHAPE_NYQUIST * step))) + 1}
+        else:
+            out[a.word] = {"max_period_mm": SHAPE_NYQUIST * step}
+    return out
+
+
+def _shape_functions(kind, q, shapes) -> np.ndarray:
+    """Per-point shape functions (n, G, 2) of the periodic / harmonic ``shapes`` (G) at axis values ``q`` (n,)."""
+    if kind == "periodic":
+        ph = 2 * np.pi * q[:, None] / np.array([s["period_mm"] for s in shapes])[None]
+    else:
+        ph = np.deg2rad(q)[:, None] * np.array([s["order"] for s in shapes], float)[None]
+    return np.stack([np.sin(ph), np.cos(ph)], axis=2)
+
+
+def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None, band=None):
     """Best shape (periodogram over the grid) and its columns, fitted on the fitting checks:
-    ``(rss, shape, coefficients, element, columns at all checks (n, 3, c))``. ``response``: maps an
-    effect's columns (n, 3, c) to what of them is left after the element update (the update's linear
-    response removed; module doc of :func:`effect_search`)."""
-    grid = ([{"period_mm": float(p)} for p in PERIOD_GRID_MM] if kind == "periodic" else
-            [{"order": int(n)} for n in HARMONIC_ORDERS] if kind == "harmonic" else [None])
+    ``(rss, shape, coefficients, element, columns at all checks (n, 3, c), shapes tried)``, ``None`` when the band
+    leaves no shape. ``response``: maps an effect's columns (n, 3, c) to what of them is left after
+    the element update (the update's linear response removed; module doc of :func:`effect_search`),
+    ``response(C, fit_only=True)`` its fitting rows (n_fit, 3, c). ``band``: :func:`shape_band` of the
+    axis (None: the whole grid). The grid is scored in one batch (normal equations per shape); the
+    best shape is then re-fitted by least squares as a single one."""
+    band = band or {}
+    if kind == "periodic":
+        grid = [{"period_mm": float(p)} for p in PERIOD_GRID_MM if p < band.get("max_period_mm", np.inf)]
+    elif kind == "harmonic":
+        grid = [{"order": int(n)} for n in HARMONIC_ORDERS if n >= band.get("min_order", 0)]
+    else:
+        grid = [None]
+    if not grid:
+        return None
     rf = r_fit.reshape(-1)
 
     def one(shape):
@@ -586,20 +697,37 @@ def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None):
             C = response(C)
         X = C[fit_idx].reshape(-1, C.shape[2])
         c = np.linalg.lstsq(X, rf, rcond=None)[0]
-        return float(np.sum((rf - X @ c) ** 2)), shape, c, el, C
+        return float(np.sum((rf - X @ c) ** 2)), shape, c, el, C, len(grid)
 
-    best = None
-    for shape in grid:
-        cand = one(shape)
-        if best is None or cand[0] < best[0]:
-            best = cand
+    if grid == [None]:
+        return one(None)
+    col = {a.word: j for j, a in enumerate(machine.axes)}
+    jcol = Je[:, :, machine.slot_names.index(_own_element(machine, words[0]))]
+    q = checks.axes[:, col[words[0]]]
+
+    def best_of(shapes):
+        F = _shape_functions(kind, q, shapes)                              # (n, G, 2)
+        C = (jcol[:, :, None, None] * F[:, None]).reshape(len(q), 3, -1)   # (n, 3, 2G): shape g in 2g, 2g+1
+        Cf = response(C, fit_only=True) if response is not None else C[fit_idx]
+        X = Cf.reshape(-1, len(shapes), 2)                                 # (3 n_fit, G, 2)
+        XtX = np.einsum("rgi,rgj->gij", X, X)
+        Xtr = np.einsum("rgi,r->gi", X, rf)
+        try:
+            coef = np.linalg.solve(XtX, Xtr[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            coef = np.stack([np.linalg.lstsq(A, b, rcond=None)[0] for A, b in zip(XtX, Xtr)])
+        rss = float(rf @ rf) - np.einsum("gi,gi->g", Xtr, coef)
+        return int(np.argmin(rss)), rss
+
+    g, rss = best_of(grid)
+    shape = grid[g]
     if kind == "periodic":  # refine: over a long stroke a 1.4 % period error drifts by cycles
-        p0 = best[1]["period_mm"]
-        for p in p0 * (1.0 + np.linspace(-PERIOD_REFINE, PERIOD_REFINE, 121)):
-            cand = one({"period_mm": float(p)})
-            if cand[0] < best[0]:
-                best = cand
-    return best
+        p0 = shape["period_mm"]
+        fine = [{"period_mm": float(p)} for p in p0 * (1.0 + np.linspace(-PERIOD_REFINE, PERIOD_REFINE, 121))]
+        gf, rssf = best_of(fine)
+        if rssf[gf] < rss[g]:
+            shape = fine[gf]
+    return one(shape)
 
 
 def _paired_z(r_before, r_after) -> float:
@@ -609,12 +737,13 @@ def _paired_z(r_before, r_after) -> float:
 
 
 def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
-                  exclude=(), response=None):
+                  exclude=(), response=None, bands=None):
     """Forward search (module doc): ``(accepted terms, rejected (kind, axes, z) list, residual after)``.
     ``exclude``: ``(kind, words)`` not tried (found, or represented by the slots); ``response``: when the
     residual is an element update's, the map of an effect's columns to what the update leaves of them
     (``C − M·gain·C_fit``): the update has taken up the part of an effect the slots can imitate, so the
-    term is fitted and judged by the rest, with its own coefficient."""
+    term is fitted and judged by the rest, with its own coefficient. ``bands``: :func:`shape_band`
+    (None: every shape of the grids)."""
     Je = machine.error_jacobian(checks.axes)
     r = np.asarray(residual, float).copy()
     cands = effect_candidates(machine, checks.conditions)
@@ -624,18 +753,20 @@ def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hol
         for kind, words in cands:
             if any(t.kind == kind and t.axes == words for t in accepted) or (kind, words) in exclude:
                 continue
-            rss, shape, c, el, C = _fit_shape(machine, kind, words, checks, fit_idx, r[fit_idx], Je, response)
-            scored.append((rss, kind, words, shape, c, el, C))
+            best = _fit_shape(machine, kind, words, checks, fit_idx, r[fit_idx], Je, response,
+                              (bands or {}).get(words[0]))
+            if best is not None:
+                scored.append((best[0], kind, words) + tuple(best[1:]))
         if not scored:
             break
         scored.sort(key=lambda s: s[0])
-        rss, kind, words, shape, c, el, C = scored[0]
+        rss, kind, words, shape, c, el, C, n_shapes = scored[0]
         contrib = np.einsum("nic,c->ni", C, c)
         z = _paired_z(r[hold_idx], (r - contrib)[hold_idx])
         if z <= HELD_OUT_Z:
             rejected.append({"kind": kind, "axis": "*".join(words), "held_out_gain_z": z})
             break
-        accepted.append(EffectTerm(kind, words, el, shape or {}, c, z))
+        accepted.append(EffectTerm(kind, words, el, shape or {}, c, z, n_shapes=n_shapes))
         r = r - contrib
     return accepted, rejected, r
 
@@ -704,8 +835,10 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     sigma, prior = None, None
     if cov is not None:
         slot_names, stations, C = cov
-        upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=smoothing)
-        plain = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=0.0)
+        upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=smoothing,
+                              with_plain=True)
+        plain = upd.plain if upd.plain is not None else update_elements(
+            elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=0.0)
         stages["baseline_update_sweep_prior"] = stats(resid(plain.elements_))   # the update without the smoothness prior
         stages["baseline_update_sweep_prior"]["gcv"] = plain.gcv_value
         ols_el, ols_gcv = None, float("inf")
@@ -715,10 +848,13 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             stages["baseline_ols_update"]["gcv"] = ols_gcv
         except ValueError as exc:  # the unregularised fit left the machine's range: reported, not used
             stages["baseline_ols_update"] = {"failed": str(exc)}
+        upd_gcv = fitting_gcv(elements, upd.elements_, checks.axes[fit_idx], r0[fit_idx], upd.dof)
         prior = {"smoothing_weight": upd.smoothing, "chosen_by": "GCV on the fitting checks" if smoothing == "gcv"
-                 else "given", "gcv": upd.gcv_value, "gcv_table": upd.gcv, "gcv_ols_update": ols_gcv if np.isfinite(ols_gcv) else None,
+                 else "given", "gcv": upd.gcv_value, "gcv_table": upd.gcv, "gcv_chain": upd_gcv,
+                 "gcv_ols_update": ols_gcv if np.isfinite(ols_gcv) else None,
+                 "gcv_compared": "n·RSS/(n − dof)² of the chain's own residual on the fitting checks",
                  "kept": "update with the smoothness prior"}
-        if ols_el is not None and ols_gcv < upd.gcv_value:   # never keep a prior that loses to the plain fit
+        if ols_el is not None and ols_gcv < upd_gcv:   # never keep a prior that loses to the plain fit
             upd = ChainUpdate(ols_el, upd.sigma_um, float(len(slot_names)), None, 0.0, upd.gcv, ols_gcv)
             prior["kept"] = "the unregularised least-squares update (lower GCV on the fitting checks)"
         r1 = resid(upd.elements_)
@@ -731,7 +867,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     B = np.linalg.lstsq(X[fit_idx], r0[fit_idx], rcond=None)[0]
     stages["baseline_ols_linear"] = stats(r0 - X @ B)
     last = "updated" if "updated" in models else "identified"
-    accepted, rejected = [], []
+    accepted, rejected, dropped = [], [], []
     absorbed, response = [], None
     if effects:
         terms = representable_terms(machine, elements, checks.axes, checks.conditions)
@@ -742,32 +878,58 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
         exclude = [(t["kind"], tuple(t["axis"].split("*"))) for t in absorbed]
         if last == "updated" and upd.gain is not None:   # what the update leaves of an effect's columns
             Mall = parameter_matrix(machine, elements, checks.axes, slot_names, stations).reshape(-1, len(slot_names))
+            Mfit = Mall.reshape(n, 3, -1)[fit_idx].reshape(-1, len(slot_names))
             gain = upd.gain
 
-            def response(Cols):
+            def response(Cols, fit_only=False):
                 Cf = Cols[fit_idx].reshape(-1, Cols.shape[2])
+                if fit_only:
+                    return (Cf - Mfit @ (gain @ Cf)).reshape(len(fit_idx), 3, -1)
                 return Cols - (Mall @ (gain @ Cf)).reshape(Cols.shape)
+        bands = shape_band(elements)
         accepted, rejected, r2 = effect_search(machine, checks, resid_of[last], fit_idx, hold_idx, max_effects,
-                                               exclude=exclude, response=response)
-        for _ in range(ROUNDS - 1):  # the update made jointly with the accepted effects, then the search goes on
-            if not accepted or last != "updated":
-                break
+                                               exclude=exclude, response=response, bands=bands)
+        def joint(terms):   # the update made jointly with the terms (their columns free), each term's Wald χ²
             E = np.concatenate([effect_columns(machine, t.kind, t.axes, checks.axes, checks.conditions, t.shape or None)[0]
-                                for t in accepted], axis=2)
-            shift = np.concatenate([sweep_shift(machine, elements, t, slot_names, stations, C) for t in accepted], axis=1)
-            upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], extra=E[fit_idx],
-                                  extra_shift=shift, smoothing=smoothing)
+                                for t in terms], axis=2)
+            shift = np.concatenate([sweep_shift(machine, elements, t, slot_names, stations, C) for t in terms], axis=1)
+            u = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], extra=E[fit_idx],
+                                extra_shift=shift, smoothing=smoothing)
             k = 0
-            for t in accepted:
+            for t in terms:
                 c = t.coefficients.size
-                t.coefficients, k = upd.extra_coef[k:k + c], k + c
-            r_joint = resid(upd.elements_) - np.einsum("nic,c->ni", E, upd.extra_coef)
-            models["joint"], sigma = upd.elements_, upd.sigma_um
-            more, rejected, r2 = effect_search(machine, checks, r_joint, fit_idx, hold_idx, max_effects - len(accepted),
-                                               exclude=exclude + [(t.kind, t.axes) for t in accepted], response=response)
-            accepted += more
-            if not more:
+                t.coefficients, k = u.extra_coef[k:k + c], k + c
+                cv = u.extra_cov[k - c:k, k - c:k]
+                t.joint_chi2 = float(t.coefficients @ np.linalg.pinv(cv) @ t.coefficients)
+            return u, resid(u.elements_) - np.einsum("nic,c->ni", E, u.extra_coef)
+
+        dropped = []
+        pending, rounds_left = bool(accepted), ROUNDS - 1
+        while pending and last == "updated":  # joint fit, the weak terms dropped, then the search goes on (once)
+            u, r_joint = joint(accepted)
+            weak = [t for t in accepted if t.joint_chi2 <= joint_threshold(t)]
+            if weak:
+                dropped += [{"kind": t.kind, "axis": "*".join(t.axes), "shape": t.shape, "held_out_gain_z": t.gain_z,
+                             "joint_chi2": t.joint_chi2, "joint_chi2_threshold": joint_threshold(t)} for t in weak]
+                accepted = [t for t in accepted if t not in weak]
+                u, r_joint = joint(accepted) if accepted else (None, resid_of["updated"])
+            if u is not None:
+                models["joint"], sigma = u.elements_, u.sigma_um
+            else:
+                models.pop("joint", None)
+                sigma = upd.sigma_um
+            r2 = r_joint
+            if rounds_left == 0:
                 break
+            rounds_left -= 1
+            more, rejected, r_more = effect_search(
+                machine, checks, r_joint, fit_idx, hold_idx, max_effects - len(accepted),
+                exclude=exclude + [(t.kind, t.axes) for t in accepted] + [(d["kind"], tuple(d["axis"].split("*"))) for d in dropped],
+                response=response, bands=bands)
+            accepted += more
+            pending = bool(more)
+            if not more:
+                r2 = r_more
         if accepted and "joint" in models:
             models["updated_plus_effects"] = models["joint"]
         stages["updated_plus_effects" if last == "updated" else "identified_plus_effects"] = stats(r2)
@@ -788,6 +950,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             "split": f"blocked by seq: first {fit_fraction:g} fit, the rest held out",
             "stages": stages, "kept_stage": kept_name, "kept_why": why, "update_prior": prior,
             "effects": [t.to_dict() for t in accepted], "effects_rejected": rejected, "effects_absorbed": absorbed,
+            "effects_dropped_in_joint_fit": dropped,
             "noise_sigma_um": sig, "noise_sigma_source": "given" if noise_um is not None else
             ("estimated by the update" if sigma is not None else None),
             "noise_floor_um": floor, "held_out_rms_um": held,
