@@ -764,7 +764,8 @@ class DriftSelector:
     ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
-    {channel: {candidate: mean log-gain over OLS}}, ``eligible_`` {channel: [candidates passing every gate]},
+    {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number ``selection`` ranks
+    the eligible by (:func:`fold_gain_score`)}}, ``eligible_`` {channel: [candidates passing every gate]},
     ``shrink_`` {channel: w}, ``novelty_`` (n_novelty_blocks,) median distance of each block.
     Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}} (ranking folds),
     ``cv_horizon_`` {channel: {candidate: RMS μm}} (horizon folds), ``gate_`` {channel: {candidate:
@@ -861,7 +862,7 @@ class DriftSelector:
         self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
         self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
         self.scale_, self.worst_fold_, self.fold_ratios_, self.fold_rho_, self.candidates_ = {}, {}, {}, {}, {}
-        self.band_alt_ = {}
+        self.band_alt_, self.score_ = {}, {}
 
         def rms(x):
             return float(np.sqrt(np.mean(np.square(x))))
@@ -944,6 +945,7 @@ class DriftSelector:
             self.gate_[ch] = {name(k): (g[0][0] and g[1][0], g[0][1], g[0][2], g[1][1], g[1][2])
                               for k, g in gate.items()}
             self.gain_[ch] = {name(k): float(s["gain"]) for k, s in scores.items()}
+            self.score_[ch] = {name(k): fold_gain_score(s, self.selection) for k, s in scores.items()}
             self.worst_fold_[ch] = {name(k): float(s["worst_fold"]) for k, s in scores.items()}
             self.fold_ratios_[ch] = {name(k): s["fold_ratios"] for k, s in scores.items()}
             self.fold_rho_[ch] = {name(k): s["fold_rho"] for k, s in scores.items()}
