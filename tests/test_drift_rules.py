@@ -98,3 +98,32 @@ def test_band_grows_with_the_models_gamma_and_round_trips(tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps(obj))
     with pytest.raises(InputError, match="channels.z"):
         DriftModel.load(tmp_path / "bad.json")
+
+
+@pytest.mark.slow   # two selections on a 46 h log at 120 s (~12 CPU s)
+def test_lcb_selection_and_rho_power_band_in_a_fitted_model():
+    from errormap.diagnosis.drift_models import DriftSelector
+    from errormap.diagnosis.drift_sim import SIMULATORS
+    cols = SIMULATORS["lumped"](0, dt_s=120.0, shift_at=0.6, n_dropouts=0)
+    cols.pop("_truth")
+    log = DriftLog(cols["time_s"], {k[5:-2]: v for k, v in cols.items() if k.startswith("temp_")},
+                   {k[:-3]: v for k, v in cols.items() if k.endswith("_um")}, cols.get("speed_rpm"), "<sim>")
+    sel = DriftSelector(fit_fraction=0.6, selection="lcb", band_rule="rho_power").fit(log)
+    plain = DriftSelector(fit_fraction=0.6).fit(log)        # the default rule and band
+    rep = sel.report(log)
+    for ch, (f, hy) in sel.chosen_.items():
+        # the lower bound only removes candidates: eligible under it ⊆ eligible under the default
+        assert set(sel.eligible_[ch]) <= set(plain.eligible_[ch])
+        if f != "ols":
+            name = rep[ch]["model"]
+            assert sel.score_[ch][name] > 0 and sel.score_[ch][name] == max(sel.score_[ch][k] for k in sel.eligible_[ch])
+        else:
+            assert not sel.eligible_[ch]
+        # the model carries the chosen candidate's (q, γ); the report gives every band rule on the same rows
+        c = sel.model_.channels[ch]
+        assert (c.band95_um, c.band_gamma) == sel.band_[ch] and c.band_gamma in BAND_GAMMAS
+        assert set(rep[ch]["bands_heldout"]) == {"fold_residual", "rho_scaled", "rho_power", "fold_flat"}
+        assert rep[ch]["bands_heldout"]["rho_power"]["coverage"] == rep[ch]["band_coverage_heldout"]
+        # the flat band is the default band's scale without growth: never wider, held out
+        fr, ff = (rep[ch]["bands_heldout"][b]["halfwidth_median_um"] for b in ("fold_residual", "fold_flat"))
+        assert ff <= fr
