@@ -6,9 +6,12 @@ seeds DISJOINT from the benchmark's (default 100–109; the benchmark runs 0–9
 held-out RMS of the MEASURED residual beside OLS, band coverage and median half-width. A rule change is
 kept only when it helps here; its effect on the benchmark's seeds is then reported by bench_drift_regime.
 
-Run: ``python benchmarks/bench_drift_dev.py --candidates cand.jsonl`` (every candidate's validation statistics and
-held-out RMS, one JSON line per log), then ``--rules cand.jsonl`` → benchmarks/drift_dev_results.md (the rule
-variants compared offline on the same candidates); ``--variants feature,raw`` runs whole selections per variant
+Run: ``python benchmarks/bench_drift_dev.py --candidates cand.jsonl --seeds 100-104 [--no-shift]`` (every
+candidate's validation statistics, held-out RMS and held-out coverage of every band rule, one JSON line per log),
+``--candidates real.jsonl --real F [--upto U]`` (the real log: fitted on F of its first U — ``--upto`` = F gives
+the pseudo-future INSIDE the benchmark's fitting part, on which a rule may be decided), then ``--rules cand.jsonl
+--no-shift-rules … --nested-candidates … --real-candidates …`` → benchmarks/drift_dev_results.md (the rule
+variants and the band rules compared offline on the same candidates); ``--variants feature,raw`` runs whole selections per variant
 (``--partial FILE`` appends every finished log as a JSON line).
 """
 from __future__ import annotations
@@ -138,7 +141,7 @@ def head_of(log, fraction):
 LN_MIN_GAIN = float(np.log(1.05))
 # rule variants compared offline on the same candidates (``--rules``): (weights allowed, per-fold loss bound,
 # order among the eligible (drift_models.SELECTIONS)[, worst-fold ratio under which w above w_max is allowed])
-RULES = {"mean gain (the rule before)": (1.0, 1.05, "mean_gain"),
+RULES = {"mean gain (the default)": (1.0, 1.05, "mean_gain"),
          "worst fold, w ≤ 0.5 unless every fold ≤ 0.5× OLS": (0.5, 1.05, "worst_fold", 0.5),
          "worst fold, w ≤ 1": (1.0, 1.05, "worst_fold"),
          "lower confidence bound (95 %, t over the horizon + novelty folds; must be > 0)": (1.0, 1.05, "lcb"),

@@ -972,8 +972,13 @@ class DriftSelector:
                              f"weight {', '.join(f'{w:g}' for w in self.shrink_weights)}; above "
                              f"{self.hedge_weight:g} only where every fold's RMS is ≤ {self.confident_worst_fold:g}× "
                              f"OLS's) "
-                             + ("whose worst fold (RMS ratio to OLS) is smallest" if self.selection == "worst_fold"
-                                else "of largest mean log-gain over OLS")
+                             + {"worst_fold": "whose worst fold (RMS ratio to OLS) is smallest",
+                                "mean_gain": "of largest mean log-gain over OLS",
+                                "lcb": f"of largest one-sided {LCB_LEVEL:.0%} lower confidence bound on its horizon "
+                                       "and novelty fold log-gains (Student's t), itself above 0",
+                                "median_fold": "of largest median horizon/novelty fold log-gain",
+                                "rho_weighted": "of largest horizon/novelty fold log-gain weighted by the folds' "
+                                                "median distance"}[self.selection]
                              + f" among those below OLS on {len(folds)} ranking "
                              f"folds that beat OLS by > {self.gate_se:g} SE on {len(hfolds)} horizon folds (horizon "
                              f"{h:.3g}) and on {len(nfolds)} novelty folds (the most novel blocks of the fitting "
@@ -1050,6 +1055,7 @@ class DriftSelector:
                        "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
                                                  if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
                        "worst_fold_ratio": self.worst_fold_[ch][name],
+                       "selection_score": self.score_[ch][name],
                        "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
                        "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
                        "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
