@@ -189,7 +189,9 @@ def rule_text():
             "rho_power": "q·max(1, ρ)^γ: for each γ of " + ", ".join(f"{g:g}" for g in BAND_GAMMAS) + " q is the "
                          "split-conformal 95 % quantile of |residual| / max(1, ρ)^γ on the horizon and novelty "
                          "folds; γ is the smallest that also covers 95 % of the fold rows outside the range "
-                         "(ρ > 1) and of the farther half of them"}
+                         "(ρ > 1) and of the farther half of them",
+            "fold_flat": "the split-conformal 95 % quantile of |validation residual| on the horizon and novelty folds, "
+                         "not grown with ρ"}
     return ("Selection rule (docs/drift_model.md): a candidate — a family, or a family shrunk toward OLS, "
             "predicting OLS + w0·g(ρ)·(candidate − OLS) per sample (w0 ∈ 1, 0.75, 0.5, 0.25; ρ = the distance of the "
             "sample's raw inputs from the fit data over the fit data's 99th-percentile distance; g = 1 for ρ ≤ 1, "
