@@ -6,9 +6,12 @@ seeds DISJOINT from the benchmark's (default 100–109; the benchmark runs 0–9
 held-out RMS of the MEASURED residual beside OLS, band coverage and median half-width. A rule change is
 kept only when it helps here; its effect on the benchmark's seeds is then reported by bench_drift_regime.
 
-Run: ``python benchmarks/bench_drift_dev.py --candidates cand.jsonl`` (every candidate's validation statistics and
-held-out RMS, one JSON line per log), then ``--rules cand.jsonl`` → benchmarks/drift_dev_results.md (the rule
-variants compared offline on the same candidates); ``--variants feature,raw`` runs whole selections per variant
+Run: ``python benchmarks/bench_drift_dev.py --candidates cand.jsonl --seeds 100-104 [--no-shift]`` (every
+candidate's validation statistics, held-out RMS and held-out coverage of every band rule, one JSON line per log),
+``--candidates real.jsonl --real F [--upto U]`` (the real log: fitted on F of its first U — ``--upto`` = F gives
+the pseudo-future INSIDE the benchmark's fitting part, on which a rule may be decided), then ``--rules cand.jsonl
+--no-shift-rules … --nested-candidates … --real-candidates …`` → benchmarks/drift_dev_results.md (the rule
+variants and the band rules compared offline on the same candidates); ``--variants feature,raw`` runs whole selections per variant
 (``--partial FILE`` appends every finished log as a JSON line).
 """
 from __future__ import annotations
@@ -75,8 +78,8 @@ def candidates(family, seed, shift=True):
 
 def candidates_of(log, fit_fraction, family, seed):
     """:func:`candidates` on a loaded ``log`` fitted on its first ``fit_fraction`` (rows tagged family, seed)."""
-    from errormap.diagnosis.drift_models import (default_families, distance_weight, feature_matrix, input_matrix,
-                                                   relative_distance)
+    from errormap.diagnosis.drift_models import (BAND_RULES, band_of, default_families, distance_weight,
+                                                 feature_matrix, input_matrix, relative_distance)
     sel = DriftSelector(fit_fraction=fit_fraction).fit(log)
     fit, hold = sel.split(log)
     cache = sel.cache_
@@ -102,14 +105,21 @@ def candidates_of(log, fit_fraction, family, seed):
             feats, a, b = final[f][ch][hy]
             F = feature_matrix(log, feats, cache)
             cand = a + F @ np.asarray(b)
-            rho = np.maximum(raw, relative_distance(F[fit], F)) if feats else raw
+            rho = np.maximum(raw, relative_distance(F[fit], F)) if feats and sel.feature_distance else raw
             pred = ols + w * distance_weight(rho, st["scale"]) * (cand - ols)
             g = st["gate"]
+            err = np.abs(y - pred[hold])
+            grow = np.maximum(1.0, rho[hold])
+            gp = band_of(st, "rho_power")[1]
+            bands = {b: band_of(st, b)[0] * grow ** band_of(st, b)[1] for b in BAND_RULES}
             out.append({"family": family, "seed": seed, "channel": ch, "cand": f, "hyper": hy, "w": w,
                         "ranking": st["ranking"], "horizon": st["horizon"], "novelty": st["novelty"],
                         "scale": None if not np.isfinite(st["scale"]) else st["scale"],
                         "worst_fold": st["worst_fold"], "gain": st["gain"], "fold_rho": st["fold_rho"],
-                        "fold_ratios": st["fold_ratios"], "gate_h": [bool(g[0][0]), g[0][1], g[0][2]],
+                        "fold_ratios": st["fold_ratios"], "fold_rho_each": st["fold_rho_each"],
+                        "band_gamma": gp,
+                        "band_cover": {k: float(np.mean(err <= b)) for k, b in bands.items()},
+                        "band_half": {k: float(np.median(b)) for k, b in bands.items()}, "gate_h": [bool(g[0][0]), g[0][1], g[0][2]],
                         "gate_n": [bool(g[1][0]), g[1][1], g[1][2]],
                         "heldout": _rms(y - pred[hold]), "heldout_ols": r_ols,
                         "heldout_rho_median": float(np.median(rho[hold])),
@@ -117,85 +127,151 @@ def candidates_of(log, fit_fraction, family, seed):
     return out
 
 
+def head_of(log, fraction):
+    """The first ``fraction`` of ``log``'s rows as a log (every column cut; the rest is never seen)."""
+    import dataclasses
+    n = int(round(fraction * len(log.time_s)))
+    cut = {k: v[:n] for k, v in log.temps_c.items()}
+    return dataclasses.replace(log, time_s=log.time_s[:n], temps_c=cut,
+                               disp_um={k: v[:n] for k, v in log.disp_um.items()},
+                               speed_rpm=None if log.speed_rpm is None else log.speed_rpm[:n],
+                               path=f"{log.path}[:{fraction:g}]")
+
+
 LN_MIN_GAIN = float(np.log(1.05))
 # rule variants compared offline on the same candidates (``--rules``): (weights allowed, per-fold loss bound,
-# order among the eligible[, worst-fold ratio under which w above w_max is allowed]); "gain": largest mean log-gain, "worst": smallest worst-fold RMS ratio to OLS
-RULES = {"mean gain, w ≤ 1 (the default)": (1.0, 1.05, "gain"),
-         "**worst fold, w ≤ 0.5 unless every fold ≤ 0.5× OLS (chosen here; not the default: it lost on the real "
-         "log, docs/drift_model.md)**": (0.5, 1.05, "worst", 0.5),
-         "worst fold, w ≤ 1": (1.0, 1.05, "worst"),
-         "mean gain, w ≤ 0.5": (0.5, 1.05, "gain"),
-         "mean gain, w ≤ 1, no fold above OLS": (1.0, 1.0, "gain"),
-         "worst fold, w ≤ 0.5": (0.5, 1.05, "worst"),
-         "worst fold, w ≤ 0.75": (0.75, 1.05, "worst"),
-         "worst fold, w ≤ 0.25": (0.25, 1.05, "worst")}
+# order among the eligible (drift_models.SELECTIONS)[, worst-fold ratio under which w above w_max is allowed])
+RULES = {"mean gain (the default)": (1.0, 1.05, "mean_gain"),
+         "worst fold, w ≤ 0.5 unless every fold ≤ 0.5× OLS": (0.5, 1.05, "worst_fold", 0.5),
+         "worst fold, w ≤ 1": (1.0, 1.05, "worst_fold"),
+         "lower confidence bound (95 %, t over the horizon + novelty folds; must be > 0)": (1.0, 1.05, "lcb"),
+         "median fold (horizon + novelty)": (1.0, 1.05, "median_fold"),
+         "ρ-weighted fold gain (horizon + novelty)": (1.0, 1.05, "rho_weighted"),
+         "mean gain, gates at 0.5 SE instead of 1": (1.0, 1.05, "mean_gain", 0.0, 0.5),
+         "lower confidence bound, gates at 0.5 SE instead of 1": (1.0, 1.05, "lcb", 0.0, 0.5)}
 
 
-def apply_rule(cands, w_max, loss, order, confident=0.0):
-    """The held-out ratio to OLS of the candidate a rule returns among ``cands`` (one channel of one log)."""
+def apply_rule(cands, w_max, loss, order, confident=0.0, k_se=1.0):
+    """(held-out ratio to OLS, candidate name, the candidate's row) of what a rule returns among ``cands`` (one
+    channel of one log); the gates are DriftSelector's."""
+    from errormap.diagnosis.drift_models import fold_gain_score
     ols = next(c for c in cands if c["cand"] == "ols")
 
     def eligible(c):
         worst = max(max(x) for x in c["fold_ratios"])
-        return (c["cand"] != "ols" and (c["w"] <= w_max or worst <= confident) and c["ranking"] < ols["ranking"] and c["gate_h"][0]
-                and c["gate_n"][0] and c["gate_h"][1] >= LN_MIN_GAIN and c["gate_n"][1] >= LN_MIN_GAIN
-                and max(max(x) for x in c["fold_ratios"]) <= loss)
+        return (c["cand"] != "ols" and (c["w"] <= w_max or worst <= confident) and c["ranking"] < ols["ranking"]
+                and c["gate_h"][1] > k_se * c["gate_h"][2] and c["gate_n"][1] > k_se * c["gate_n"][2]
+                and c["gate_h"][1] >= LN_MIN_GAIN
+                and c["gate_n"][1] >= LN_MIN_GAIN and worst <= loss
+                and (order != "lcb" or fold_gain_score(c, "lcb") > 0))
     ok = [c for c in cands if eligible(c)]
     if not ok:
-        return 1.0, "ols"
-    if order == "gain":
-        best = max(ok, key=lambda c: c["gain"])
-    else:
-        best = min(ok, key=lambda c: (max(max(x) for x in c["fold_ratios"]), -c["gain"]))
-    return best["heldout"] / best["heldout_ols"], best["cand"]
+        return 1.0, "ols", ols
+    best = max(ok, key=lambda c: (fold_gain_score(c, order), c["gain"]))
+    w = "" if best["w"] == 1.0 else f"~ols(w={best['w']:g})"
+    return best["heldout"] / best["heldout_ols"], f"{best['cand']}{w}", best
 
 
-def render_rules(rows, out, real_rows=()):
+def _group(rows):
     by = {}
     for r in rows:
         by.setdefault((r["family"], r["seed"], r["channel"]), []).append(r)
-    logs = sorted({(k[0], k[1]) for k in by})
+    return by
+
+
+from errormap.diagnosis.drift_models import BAND_RULES  # noqa: E402
+
+
+def render_rules(sets, out):
+    """``sets``: {title: candidate rows}; titles starting "real" are the real log (one column per case), the others
+    simulated logs (summary per rule)."""
     L = ["# Drift selection rule on development seeds (issue 29)", "",
-         "`python benchmarks/bench_drift_dev.py --candidates cand.jsonl --seeds 100-104 --families lumped,rod`, then "
-         "`--rules cand.jsonl`: every candidate of every channel (validation statistics on the fitting part; held-out "
-         "RMS of the MEASURED residual after refitting on it, predicted with the per-sample distance rule), on "
-         f"simulated logs with the regime change from 60 % (as in bench_drift_regime) — {len(logs)} logs, "
-         + ", ".join(f"{f} seeds {sorted({s for g, s in logs if g == f})}" for f in dict.fromkeys(g for g, _ in logs))
-         + ", disjoint from the benchmark's 0–9 — and the rule variants applied to the same candidates. Every variant "
-         "keeps the gates (below OLS on the ranking folds; > 1 SE and ≥ 5 % mean gain on the horizon and on the "
-         "novelty folds; ρ = max(raw inputs, the candidate's own features)).", "",
-         "| rule | cases | > OLS·1.05 | worst ratio | < OLS | geometric-mean ratio | channels whose median ratio ≥ 1 |",
-         "|---|---|---|---|---|---|---|"]
-    bad_lines = []
-    for name, rule in RULES.items():
-        res = {k: apply_rule(c, *rule) for k, c in by.items()}
-        v = np.array([x for x, _ in res.values()])
-        med = {}
-        for (f, _, ch), (x, _) in res.items():
-            med.setdefault((f, ch), []).append(x)
-        notbelow = [f"{f} {ch} ({np.median(x):.3f})" for (f, ch), x in med.items() if np.median(x) >= 1 - 1e-9]
-        bad = sorted(((x, k, c) for k, (x, c) in res.items() if x > TOLERATED_LOSS), reverse=True)
-        L.append(f"| {name} | {len(v)} | {len(bad)} | {v.max():.3f} | {int((v < 1 - 1e-9).sum())} | "
-                 f"{np.exp(np.mean(np.log(v))):.3f} | {'; '.join(notbelow) or 'none'} |")
-        if bad:
-            bad_lines.append(f"* {name}: " + "; ".join(f"{k[0]} s{k[1]} {k[2]} {c} {x:.3f}×" for x, k, c in bad))
-    L += ["", "Cases above OLS·1.05:", ""] + bad_lines
-    if real_rows:
-        rb = {}
-        for r in real_rows:
-            rb.setdefault((r["seed"], r["channel"]), []).append(r)
-        keys = sorted(rb)
-        L += ["", "## The same rules on the real machine-tool log", "",
-              "`--real-candidates FILE` (the candidates of `log_first60.csv` fitted on the given fraction of it, "
-              "judged on the rest: the pseudo-future of bench_drift_regime). Held-out RMS ratio to OLS of the "
-              "MEASURED residual:", "",
-              "| rule | " + " | ".join(f"fit {f:.0%} of the part, {ch}" for f, ch in keys) + " |",
-              "|---|" + "---|" * len(keys)]
+         "`python benchmarks/bench_drift_dev.py --candidates FILE --seeds 100-104 [--no-shift]`, `--candidates FILE "
+         "--real F [--upto U]`, then `--rules dev_shift.jsonl --no-shift-rules dev_noshift.jsonl --real-candidates "
+         "real_pf.jsonl --nested-candidates real_nested.jsonl`: every candidate of every channel (validation "
+         "statistics on the fitting part; held-out RMS of the MEASURED residual after refitting on it, predicted with "
+         "the per-sample distance rule), and the rule variants applied offline to the same candidates. Simulated: "
+         "development seeds 100–104 of both simulators, disjoint from bench_drift_regime's 0–9, with and without the "
+         "regime change from 60 %. Real: the shared first 60 % of the machine-tool log; *fitting part* = a "
+         "pseudo-future INSIDE the benchmark's fitting parts (the first 36 %, fit on its first 60 % = 0–21.6 %, judged "
+         "on 21.6–36 %; the first 48 %, fit on its first 80 % = 0–38.4 %, judged on 38.4–48 %): what a rule may be "
+         "decided on; *pseudo-future* = the benchmark's splits (fit 0–36 % → 36–60 %, 0–48 % → 48–60 %): reported, "
+         "not decided on. Every variant keeps the gates (below OLS on the ranking folds; > 1 SE and ≥ 5 % mean gain "
+         "on the horizon and on the novelty folds; no fold above OLS·1.05).", ""]
+    sims = {t: _group(r) for t, r in sets.items() if not t.startswith("real") and r}
+    reals = {t: _group(r) for t, r in sets.items() if t.startswith("real") and r}
+    for t, by in sims.items():
+        logs = sorted({(k[0], k[1]) for k in by})
+        L += [f"## {t} ({len(logs)} logs, {len(by)} channel cases)", "",
+              "| rule | > OLS·1.05 | worst ratio | < OLS | geometric-mean ratio | channels whose median ratio ≥ 1 |",
+              "|---|---|---|---|---|---|"]
+        bad_lines = []
         for name, rule in RULES.items():
-            L.append(f"| {name} | " + " | ".join(f"{apply_rule(rb[k], *rule)[0]:.3f}" for k in keys) + " |")
+            res = {k: apply_rule(c, *rule)[:2] for k, c in by.items()}
+            v = np.array([x for x, _ in res.values()])
+            med = {}
+            for (f, _, ch), (x, _) in res.items():
+                med.setdefault((f, ch), []).append(x)
+            notbelow = [f"{f} {ch} ({np.median(x):.3f})" for (f, ch), x in med.items() if np.median(x) >= 1 - 1e-9]
+            bad = sorted(((x, k, c) for k, (x, c) in res.items() if x > TOLERATED_LOSS), reverse=True)
+            L.append(f"| {name} | {len(bad)} | {v.max():.3f} | {int((v < 1 - 1e-9).sum())} | "
+                     f"{np.exp(np.mean(np.log(v))):.3f} | {'; '.join(notbelow) or 'none'} |")
+            if bad:
+                bad_lines.append(f"* {name}: " + "; ".join(f"{k[0]} s{k[1]} {k[2]} {c} {x:.3f}×" for x, k, c in bad))
+        L += ["", "Cases above OLS·1.05:", ""] + (bad_lines or ["* none"]) + [""]
+    for t, by in reals.items():
+        keys = sorted(by)
+        L += [f"## {t}", "", "Held-out RMS ratio to OLS of the MEASURED residual (candidate returned):", "",
+              "| rule | " + " | ".join(f"{_split_name(t, s)}, {ch}" for _, s, ch in keys) + " | above OLS | below |",
+              "|---|" + "---|" * (len(keys) + 2)]
+        for name, rule in RULES.items():
+            res = [apply_rule(by[k], *rule) for k in keys]
+            L.append(f"| {name} | " + " | ".join(f"{x:.3f} ({c})" for x, c, _ in res)
+                     + f" | {sum(x > 1 + 1e-9 for x, _, _ in res)} | {sum(x < 1 - 1e-9 for x, _, _ in res)} |")
+        L.append("")
+    # the bands of what the default rule returns
+    L += ["## 95 % bands of the returned model (default rule), held out", "",
+          "Per band rule: coverage of the held-out MEASURED residual (median, min, cases in 90–98 %), median "
+          "half-width μm. *fold_residual*: the conformal quantile of |residual| on the horizon and novelty folds × "
+          "max(1, ρ); *rho_scaled*: of |residual| / max(1, ρ) × max(1, ρ); *rho_power*: q·max(1, ρ)^γ, γ the "
+          "smallest making the folds' out-of-range rows (ρ > 1, and the farther half of them) covered at 95 % too.", "",
+          "| data | cases | " + " | ".join(f"{b}: coverage median, min, in 90–98 % | {b}: ± median μm"
+                                             for b in BAND_RULES) + " | γ (median, range) |",
+          "|---|---|" + "---|---|" * len(BAND_RULES) + "---|"]
+    default = next(r for r in RULES.values() if r[2] == _default_selection())
+    for t, by in {**sims, **reals}.items():
+        picked = [apply_rule(c, *default)[2] for c in by.values()]
+        cells = []
+        for b in BAND_RULES:
+            cov = np.array([p["band_cover"][b] for p in picked])
+            cells += [f"{np.median(cov):.2f}, {cov.min():.2f}, {int(((cov >= 0.9) & (cov <= 0.98)).sum())}/{len(cov)}",
+                      f"{np.median([p['band_half'][b] for p in picked]):.3g}"]
+        g = [p["band_gamma"] for p in picked]
+        L.append(f"| {t} | {len(picked)} | " + " | ".join(cells) + f" | {np.median(g):g}, {min(g):g}–{max(g):g} |")
+    if reals:
+        L += ["", "Real log, per case (band rule: coverage, ± median μm):", "",
+              "| data | case | " + " | ".join(BAND_RULES) + " | γ |", "|---|---|" + "---|" * len(BAND_RULES) + "---|"]
+        for t, by in reals.items():
+            for k in sorted(by):
+                p = apply_rule(by[k], *default)[2]
+                L.append(f"| {t} | {_split_name(t, k[1])}, {k[2]} | " + " | ".join(
+                    f"{p['band_cover'][b]:.2f}, {p['band_half'][b]:.3g}" for b in BAND_RULES) + f" | {p['band_gamma']:g} |")
     with atomic_write(out, "w", encoding="utf-8") as fh:
         fh.write("\n".join(L) + "\n")
     return L
+
+
+def _default_selection():
+    from errormap.diagnosis.drift_models import SELECTION
+    return SELECTION
+
+
+def _split_name(title, frac):
+    """A real case's split in words: the benchmark's pseudo-futures, or the one inside its fitting part."""
+    full = 0.6 * frac
+    if "fitting part" in title:
+        return f"fit 0–{full * frac:.1%} → {full * frac:.1%}–{full:.0%}"
+    return f"fit 0–{full:.0%} → {full:.0%}–60%"
 
 
 def render(rows, out):
@@ -240,17 +316,28 @@ def main(argv=None):
     ap.add_argument("--candidates", default=None, help="dump every candidate's statistics (JSON lines) to FILE")
     ap.add_argument("--rules", default=None, help="compare the rule variants offline on a --candidates FILE")
     ap.add_argument("--real-candidates", default=None, help="with --rules: the real log's candidates (--real F)")
+    ap.add_argument("--no-shift-rules", default=None, help="with --rules: candidates of logs without regime change")
+    ap.add_argument("--nested-candidates", default=None,
+                    help="with --rules: the real log's candidates inside a fitting part (--real F --upto U)")
+    ap.add_argument("--no-shift", action="store_true", help="with --candidates: the logs without regime change")
+    ap.add_argument("--upto", type=float, default=None,
+                    help="with --real: keep only the first UPTO of the log (a fitting part; its rest is never read)")
     ap.add_argument("--real", type=float, default=None,
                     help="dump the candidates of the real log fitted on this fraction (to --candidates FILE)")
     a = ap.parse_args(argv)
     if a.rules:
-        rows = [r for line in Path(a.rules).read_text().splitlines() if line.strip() for r in json.loads(line)]
-        real = [r for line in Path(a.real_candidates).read_text().splitlines() if line.strip()
-                for r in json.loads(line)] if a.real_candidates else []
-        print("\n".join(render_rules(rows, a.out, real)))
+        def rows_of(f):
+            return [r for line in Path(f).read_text().splitlines() if line.strip() for r in json.loads(line)] if f else []
+        sets = {"simulated, regime change from 60 %": rows_of(a.rules),
+                "simulated, no regime change": rows_of(a.no_shift_rules),
+                "real log, pseudo-future inside the fitting part (decided on)": rows_of(a.nested_candidates),
+                "real log, the benchmark's pseudo-future (reported)": rows_of(a.real_candidates)}
+        print("\n".join(render_rules(sets, a.out)))
         return
     if a.candidates and a.real is not None:
         log = load_drift_log(REAL)
+        if a.upto is not None:      # the log's first ``upto`` only: a pseudo-future inside a fitting part
+            log = head_of(log, a.upto)
         with open(a.candidates, "a", encoding="utf-8") as fh:
             fh.write(json.dumps(candidates_of(log, a.real, "real", a.real)) + "\n")
         return
@@ -259,7 +346,7 @@ def main(argv=None):
         for f in a.families.split(","):
             for s in range(lo, hi + 1):
                 t0 = time.process_time()
-                r = candidates(f, s)
+                r = candidates(f, s, shift=not a.no_shift)
                 with open(a.candidates, "a", encoding="utf-8") as fh:
                     fh.write(json.dumps(r) + "\n")
                 ch = [x for x in r if x["chosen"]]

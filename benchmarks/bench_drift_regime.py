@@ -38,7 +38,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from errormap.diagnosis.drift import load_drift_log  # noqa: E402
-from errormap.diagnosis.drift_models import DriftSelector  # noqa: E402
+from errormap.diagnosis.drift_models import (BAND_GAMMAS, BAND_RULE, BAND_RULES, LCB_LEVEL,  # noqa: E402
+                                             SELECTION, DriftSelector)
 from errormap.diagnosis.drift_sim import SHIFT_AMBIENT_C, SHIFT_SPEED, SIMULATORS  # noqa: E402
 from errormap.io import atomic_write, write_csv, write_json  # noqa: E402
 
@@ -68,7 +69,7 @@ def real_rows():
                         "band": r["band95_um"], "coverage": r["band_coverage_heldout"],
                         "halfwidth": r["band_halfwidth_heldout_median_um"], "alt_rule": r["band_alt_rule"],
                         "alt_coverage": r["band_alt_coverage_heldout"],
-                        "alt_halfwidth": r["band_alt_halfwidth_heldout_median_um"],
+                        "alt_halfwidth": r["band_alt_halfwidth_heldout_median_um"], "bands": r["bands_heldout"],
                         "scale": r["distance_scale"], "rho": r["heldout_rho_median"],
                         "cpu_s": time.process_time() - t0})
     return out
@@ -96,7 +97,7 @@ def sim_one(args):
              "true_ols": _rms(truth["clean_um"][ch][hold] - base[ch][hold]), "noise": truth["noise_um"][ch],
              "coverage": r["band_coverage_heldout"], "halfwidth": r["band_halfwidth_heldout_median_um"],
              "alt_rule": r["band_alt_rule"], "alt_coverage": r["band_alt_coverage_heldout"],
-             "alt_halfwidth": r["band_alt_halfwidth_heldout_median_um"],
+             "alt_halfwidth": r["band_alt_halfwidth_heldout_median_um"], "bands": r["bands_heldout"],
              "scale": r["distance_scale"], "rho": r["heldout_rho_median"], "shifted": shifted, "cpu_s": cpu} for ch, r in rep.items()]
 
 
@@ -106,27 +107,15 @@ def render(real, sims, meta, out):
          f"{meta['wall_s']:.0f} s wall (load average {meta['load']:.1f}, {meta['where']})"
          + ("; INTERRUPTED at the deadline: rendered from the parts that finished" if meta.get("interrupted") else "")
          + ".", ""]
-    L += ["Selection rule (docs/drift_model.md): a candidate — a family, or a family shrunk toward OLS, "
-          "predicting OLS + w0·g(ρ)·(candidate − OLS) per sample (w0 ∈ 1, 0.75, 0.5, 0.25; ρ = the distance of the sample's raw inputs from the "
-          "fit data over the fit data's 99th-percentile distance — on the candidate's own features too only as a "
-          "setting, not the default; g = 1 for ρ ≤ 1, exp(−(ρ − 1)/s) beyond, s "
-          "chosen on the novelty folds) — is eligible only when it is below OLS on the ranking folds AND beats OLS "
-          "by more than one standard error on the horizon folds AND on the novelty folds (the most novel blocks of "
-          "the fitting part by Mahalanobis distance of the standardised inputs, held out), by at least 5 % on "
-          "average on each of those two sets, and loses to OLS by no more than 5 % on any ranking, horizon or "
-          "novelty fold; the eligible one of largest mean log-gain over OLS is returned, else OLS itself. (Selection "
-          "by the worst fold with a hedge, decided on development seeds 100–104, benchmarks/drift_dev_results.md, "
-          "is not the default: it lost on the real log, docs/drift_model.md.) Band: the split-conformal 95 % "
-          "quantile of |validation residual| on the horizon and novelty folds, times max(1, ρ) at each sample; "
-          "beside it the ρ-scaled band (the quantile of |residual| / max(1, ρ_fold), calibrated to cover 95 % of "
-          "the fold rows), measured but not the default.", ""]
+    L += [rule_text(), ""]
     if real:
         L += ["## The real log (first 60 % of a 46 h machine-tool log, 15 s sampling)", "",
               "Held-out RMS (μm) of the MEASURED residual on the part after the fit; *OLS*: one least-squares "
               "fit on every temperature + speed on the same fitting rows; *before*: the displacement itself.", "",
               "| split (of the full log) | channel | chosen | s (distance scale) | held-out ρ median | before | "
               "**volcomp** | OLS | volcomp / OLS | band ± (μm, at ρ ≤ 1) | band ± held out (median μm) | "
-              "band coverage held out | ρ-scaled band: ± held out (median μm), coverage |", "|" + "---|" * 13]
+              "band coverage held out | " + " | ".join(f"{b} band: ± held out (median μm), coverage" for b in _alt())
+              + " |", "|" + "---|" * (12 + len(_alt()))]
         names = {0.6: "fit 0–36 % → judge 36–60 %", 0.8: "fit 0–48 % → judge 48–60 %"}
         for r in real:
             sc = r.get("scale")
@@ -134,7 +123,8 @@ def render(real, sims, meta, out):
                      f"{r.get('rho', float('nan')):.2f} | {r['before']:.3g} | "
                      f"**{r['volcomp']:.3g}** | {r['ols']:.3g} | {r['volcomp'] / r['ols']:.2f} | {r['band']:.3g} | "
                      f"{r.get('halfwidth', float('nan')):.3g} | {r['coverage']:.2f} | "
-                     f"{r.get('alt_halfwidth', float('nan')):.3g}, {r.get('alt_coverage', float('nan')):.2f} |")
+                     + " | ".join(f"{_band(r, b, 'halfwidth_median_um'):.3g}, {_band(r, b, 'coverage'):.2f}"
+                                  for b in _alt()) + " |")
         worse = [r for r in real if r["volcomp"] > r["ols"] * (1 + 1e-9)]
         L += ["", f"Channels × splits above OLS: {len(worse)} of {len(real)}"
               + (": " + "; ".join(f"{r['channel']} at {r['split']}" for r in worse) if worse else "")
@@ -161,6 +151,60 @@ def render(real, sims, meta, out):
     return L
 
 
+def _alt():
+    """The band rules reported beside the model's (``BAND_RULE``)."""
+    return [b for b in BAND_RULES if b != BAND_RULE]
+
+
+def _band(r, rule, key):
+    """One band rule's held-out figure of a row (nan for rows saved before the rule existed)."""
+    return (r.get("bands") or {}).get(rule, {}).get(key, float("nan"))
+
+
+def band_summary(rows):
+    """Held-out coverage of every band rule over ``rows``: median, cases in 90–98 %, at ≥ 90 %, median ± μm."""
+    parts = []
+    for b in BAND_RULES:
+        cov = np.array([_band(r, b, "coverage") for r in rows])
+        parts.append(f"{b}{' (the model’s)' if b == BAND_RULE else ''}: median {np.nanmedian(cov):.2f}, "
+                     f"{int(((cov >= 0.9) & (cov <= 0.98)).sum())} of {len(rows)} in 90–98 %, "
+                     f"{int((cov >= 0.9).sum())} at 90 % or more, median half-width "
+                     f"{np.nanmedian([_band(r, b, 'halfwidth_median_um') for r in rows]):.3g} μm")
+    return f"Band coverage held out over all {len(rows)} cases — " + "; ".join(parts) + "."
+
+
+def rule_text():
+    """The selection and band rules in force (from drift_models' constants), in words."""
+    order = {"mean_gain": "the eligible one of largest mean log-gain over OLS",
+             "worst_fold": "the eligible one whose worst fold (RMS ratio to OLS) is smallest",
+             "lcb": f"the eligible one of largest lower confidence bound on its fold log-gains (one-sided "
+                    f"{LCB_LEVEL:.0%}, Student's t over the horizon and novelty folds: mean − t·SE), which must "
+                    "itself be above 0",
+             "median_fold": "the eligible one of largest median fold log-gain (horizon and novelty folds)",
+             "rho_weighted": "the eligible one of largest fold log-gain weighted by each fold's median ρ"}[SELECTION]
+    band = {"fold_residual": "the split-conformal 95 % quantile of |validation residual| on the horizon and novelty "
+                             "folds, times max(1, ρ) at each sample",
+            "rho_scaled": "the split-conformal 95 % quantile of |residual| / max(1, ρ_fold) on the horizon and "
+                          "novelty folds, times max(1, ρ) at each sample",
+            "rho_power": "q·max(1, ρ)^γ: for each γ of " + ", ".join(f"{g:g}" for g in BAND_GAMMAS) + " q is the "
+                         "split-conformal 95 % quantile of |residual| / max(1, ρ)^γ on the horizon and novelty "
+                         "folds; γ is the smallest that also covers 95 % of the fold rows outside the range "
+                         "(ρ > 1) and of the farther half of them",
+            "fold_flat": "the split-conformal 95 % quantile of |validation residual| on the horizon and novelty folds, "
+                         "not grown with ρ"}
+    return ("Selection rule (docs/drift_model.md): a candidate — a family, or a family shrunk toward OLS, "
+            "predicting OLS + w0·g(ρ)·(candidate − OLS) per sample (w0 ∈ 1, 0.75, 0.5, 0.25; ρ = the distance of the "
+            "sample's raw inputs from the fit data over the fit data's 99th-percentile distance; g = 1 for ρ ≤ 1, "
+            "exp(−(ρ − 1)/s) beyond, s chosen on the novelty folds) — is eligible only when it is below OLS on the "
+            "ranking folds AND beats OLS by more than one standard error on the horizon folds AND on the novelty "
+            "folds (the most novel blocks of the fitting part by Mahalanobis distance of the standardised inputs, "
+            "held out), by at least 5 % on average on each of those two sets, and loses to OLS by no more than 5 % "
+            f"on any ranking, horizon or novelty fold; {order} is returned, else OLS itself (the variants were "
+            "compared on development seeds 100–104 and inside the real log's fitting parts, "
+            f"benchmarks/drift_dev_results.md). Band: {band[BAND_RULE]}; beside it the other band rules ("
+            + "; ".join(f"{b}: {band[b]}" for b in _alt()) + "), measured, not the model's.")
+
+
 def sim_section(sims, meta, shifted):
     L = []
     if shifted:
@@ -177,7 +221,8 @@ def sim_section(sims, meta, shifted):
               f"{SIM_SPLIT:.0%}, judged on the rest (what `bench_drift.py` measured before issue 29; folded in here).", ""]
     L += ["| simulator | channel | before | **volcomp** | OLS | ratio median | ratio worst | seeds > OLS·1.05 | "
           "seeds < OLS | true volcomp / OLS | band coverage held out (median, min) | band ± held out (median μm) | "
-          "ρ-scaled band: coverage (median, min), ± (median μm) | families chosen |", "|" + "---|" * 14]
+          + " | ".join(f"{b} band: coverage (median, min), ± (median μm)" for b in _alt())
+          + " | families chosen |", "|" + "---|" * (13 + len(_alt()))]
     bad, med_bad, med_ratio_bad = [], [], []
     for f in dict.fromkeys(r["family"] for r in sims):
         for ch in dict.fromkeys(r["channel"] for r in sims if r["family"] == f):
@@ -199,22 +244,17 @@ def sim_section(sims, meta, shifted):
                      f"{np.median([r['true'] for r in c]):.3g} / {np.median([r['true_ols'] for r in c]):.3g} | "
                      f"{np.median([r['coverage'] for r in c]):.2f}, {min(r['coverage'] for r in c):.2f} | "
                      f"{np.median([r.get('halfwidth', float('nan')) for r in c]):.3g} | "
-                     f"{np.median([r.get('alt_coverage', float('nan')) for r in c]):.2f}, "
-                     f"{min(r.get('alt_coverage', float('nan')) for r in c):.2f}, "
-                     f"{np.median([r.get('alt_halfwidth', float('nan')) for r in c]):.3g} | "
-                     f"{', '.join(f'{k} {v}' for k, v in sorted(fams.items()))} |")
+                     + "".join(f"{np.median([_band(r, b, 'coverage') for r in c]):.2f}, "
+                               f"{min(_band(r, b, 'coverage') for r in c):.2f}, "
+                               f"{np.median([_band(r, b, 'halfwidth_median_um') for r in c]):.3g} | " for b in _alt())
+                     + f"{', '.join(f'{k} {v}' for k, v in sorted(fams.items()))} |")
     L += ["", f"Seed × channel cases worse than OLS by more than 5 %: {len(bad)} of {len(sims)}"
           + (" (" + "; ".join(f"{r['family']} seed {r['seed']} {r['channel']} {r['model']} "
                               f"{r['volcomp'] / r['ols']:.2f}×" for r in bad) + ")" if bad else "")
           + ". Channels whose median RMS is not below OLS's: " + ("; ".join(med_bad) if med_bad else "none")
           + "; whose median ratio is not below 1 (at least half the seeds tie or lose): "
           + ("; ".join(med_ratio_bad) if med_ratio_bad else "none") + ".",
-          "", f"Band coverage held out over all {len(sims)} cases: median {np.median([r['coverage'] for r in sims]):.2f}, "
-          f"{sum(r['coverage'] >= 0.9 for r in sims)} of {len(sims)} at 90 % or more, median half-width "
-          f"{np.median([r.get('halfwidth', float('nan')) for r in sims]):.3g} μm; the ρ-scaled band: median "
-          f"{np.median([r.get('alt_coverage', float('nan')) for r in sims]):.2f}, "
-          f"{sum(r.get('alt_coverage', 0) >= 0.9 for r in sims)} of {len(sims)} at 90 % or more, median half-width "
-          f"{np.median([r.get('alt_halfwidth', float('nan')) for r in sims]):.3g} μm.",
+          "", band_summary(sims),
           "", f"CPU per log: {np.median([r['cpu_s'] for r in sims]):.0f} s (median).", ""]
     return L
 

@@ -669,7 +669,7 @@ DRIFT_PSEUDO_CODE = (
     "  inside the fitting data's range. Per tick, rho = |(u - mean) . W| / range_distance over the raw inputs listed",
     "  there; beyond rho = 1 the controller blends toward the baseline gains: pred = base + g * (pred - base),",
     "  g = exp(-(rho - 1) / scale); base = sum over rows r of base_gain_<ch>_r * f_r. The 95 % band grows as",
-    "  band95_um * max(1, rho). Where a channel lists feature_distance, rho is the larger of that and the same",
+    "  band95_um * max(1, rho) ** band_gamma. Where a channel lists feature_distance, rho is the larger of that and the same",
     "  distance over the filter outputs f_r of its listed rows (its own filtered inputs: a slow state can leave its",
     "  range while every raw input stays inside). A controller that does not run the rule runs the gains as written.",
 )
@@ -677,7 +677,7 @@ DRIFT_PSEUDO_CODE = (
 
 def drift_distance_rule(model, coef: DriftCoefficients) -> dict | None:
     """The per-sample shrinkage toward the baseline, in the coefficient file's rows: {"inputs", "mean", "whiten",
-    "range_distance", "rule", "channels": {ch: {"scale", "base_gains" (m,), "band95_um"}}}, or None when no
+    "range_distance", "rule", "channels": {ch: {"scale", "base_gains" (m,), "band95_um", "band_gamma"}}}, or None when no
     channel has one."""
     nov = (model.meta or {}).get("novelty") or {}
     chans = {ch: c for ch, c in model.channels.items() if c.base is not None and np.isfinite(c.shrink_scale)}
@@ -692,7 +692,8 @@ def drift_distance_rule(model, coef: DriftCoefficients) -> dict | None:
         for f, b in zip(bf, bc):
             g[keys.index(f.key)] += float(b)
         g[-1] = float(ba)
-        out[ch] = {"scale": float(c.shrink_scale), "base_gains": g.tolist(), "band95_um": float(c.band95_um)}
+        out[ch] = {"scale": float(c.shrink_scale), "base_gains": g.tolist(), "band95_um": float(c.band95_um),
+                   "band_gamma": float(c.band_gamma)}
         if c.novelty:       # the distance on the channel's own filtered features (rows of the coefficient file)
             nv = c.novelty
             out[ch]["feature_distance"] = {"rows": [keys.index(f.key) for f in nv["features"]],
@@ -703,7 +704,7 @@ def drift_distance_rule(model, coef: DriftCoefficients) -> dict | None:
             "range_distance": float(nov["range_distance"]),
             "rule": "rho = norm((u - mean) @ whiten) / range_distance on the latest raw inputs; g = 1 for rho <= 1, "
                     "exp(-(rho - 1) / scale) beyond; pred = base + g * (gains . f - base), base = base_gains . f "
-                    "(same rows as the coefficient file); band = band95_um * max(1, rho); where a channel has "
+                    "(same rows as the coefficient file); band = band95_um * max(1, rho) ** band_gamma; where a channel has "
                     "feature_distance: rho = max(rho, norm((f[rows] - mean) @ whiten) / range_distance) over the filter "
                     "outputs f of those coefficient rows",
             "channels": out}

@@ -231,6 +231,6 @@ def test_the_worst_fold_rule_chooses_a_hedged_candidate_of_the_best_worst_fold()
     # the two band scales from the same fold residuals: the ρ-scaled scores |r| / max(1, ρ) are each ≤ |r|, so
     # their conformal quantile is ≤ the undivided one (the default), and both are positive
     for ch in plain.chosen_:
-        alt_rule, alt = plain.band_alt_[ch]
-        assert alt_rule == "rho_scaled" and 0 < alt <= plain.band_[ch]
-        assert plain.model_.channels[ch].band95_um == plain.band_[ch]
+        alt, gamma_alt = plain.band_alt_[ch]["rho_scaled"]
+        assert gamma_alt == 1.0 and 0 < alt <= plain.band_[ch][0]
+        assert plain.model_.channels[ch].band95_um == plain.band_[ch][0]

@@ -119,7 +119,7 @@ def test_horizon_gate_is_a_one_standard_error_rule():
 
 
 @pytest.mark.slow  # over the 5 CPU s tier limit (README "Tests and benchmarks")
-def test_selection_takes_the_eligible_candidate_of_largest_gain_over_ols():
+def test_selection_takes_the_eligible_candidate_of_largest_score_under_the_rule():
     cols = simulate_rod_log(0, hours=16, dt_s=60, n_dropouts=0)
     cols.pop("_truth")
     log = _frame(cols)
@@ -137,13 +137,14 @@ def test_selection_takes_the_eligible_candidate_of_largest_gain_over_ols():
             # per fold, on the horizon and the novelty folds: mean ln(RMS_ols / RMS_chosen) above one SE
             _, m_h, se_h, m_n, se_n = sel.gate_[ch][chosen]
             assert m_h > se_h and m_n > se_n and m_h > 0 and m_n > 0
-            assert sel.gain_[ch][chosen] == max(sel.gain_[ch][k] for k in eligible)
+            # the eligible one of largest score under the selection rule in force (SELECTION: drift_model.md)
+            assert sel.score_[ch][chosen] == max(sel.score_[ch][k] for k in eligible)
         else:
             assert not eligible
         # everything ranked ahead of the choice below OLS but not chosen was refused by a gate or gained less
         ranked = sorted(scores, key=scores.get)
         ahead = [k for k in ranked[:ranked.index(chosen)] if scores[k] < scores["ols"]]
-        assert all(k not in eligible or sel.gain_[ch][k] <= sel.gain_[ch][chosen] for k in ahead)
+        assert all(k not in eligible or sel.score_[ch][k] <= sel.score_[ch][chosen] for k in ahead)
     # an infinitely strict gate keeps the baseline on every channel: the same predictions as OLS
     strict = DriftSelector(fit_fraction=0.6, gate_se=np.inf).fit(log)
     assert all(c == ("ols", "") for c in strict.chosen_.values())

@@ -462,6 +462,7 @@ class ChannelFit:
     shrink_scale: float = float("inf")  # g(ρ) = exp(−(ρ − 1)/shrink_scale) beyond ρ = 1; inf: no per-sample shrinkage
     novelty: dict | None = None         # the distance on the channel's OWN features (:func:`feature_novelty`): ρ of the
                                         # channel = max(ρ of the raw inputs, ρ of these features)
+    band_gamma: float = 1.0             # the band grows as band95_um · max(1, ρ)^band_gamma (:func:`rho_power_band`)
 
 
 class DriftModel:
@@ -524,11 +525,11 @@ class DriftModel:
         return out
 
     def band_um(self, log, cache: dict | None = None) -> dict:
-        """The 95 % band half-width per row {channel: (n,) μm}: ``band95_um · max(1, ρ)`` with the channel's ρ
-        (:meth:`channel_rho`; constant where the model records no distance)."""
+        """The 95 % band half-width per row {channel: (n,) μm}: ``band95_um · max(1, ρ)^band_gamma`` with the
+        channel's ρ (:meth:`channel_rho`; constant where the model records no distance)."""
         rhos = self.channel_rho(log, cache)
         one = np.ones(len(log.time_s))
-        return {ch: c.band95_um * (one if rhos[ch] is None else np.maximum(1.0, rhos[ch]))
+        return {ch: c.band95_um * (one if rhos[ch] is None else np.maximum(1.0, rhos[ch]) ** c.band_gamma)
                 for ch, c in self.channels.items()}
 
     # -- controller form --------------------------------------------------------------------
@@ -559,8 +560,8 @@ class DriftModel:
     def _channel_json(c, ids, ch) -> dict:
         out = {"output": f"{ch}_um", "family": c.family, "hyper": c.hyper, "intercept_um": c.intercept_um,
                "terms": [{"feature": ids[f.key], "coef": float(b), "unit": f.unit()} for f, b in zip(c.features, c.coef)],
-               "band95_um": c.band95_um,
-               "band_rule": "band(t) = band95_um * max(1, rho(t)); rho = Mahalanobis distance of the inputs at t "
+               "band95_um": c.band95_um, "band_gamma": float(c.band_gamma),
+               "band_rule": "band(t) = band95_um * max(1, rho(t)) ** band_gamma; rho = Mahalanobis distance of the inputs at t "
                             "from the fitting data (fitted_on.novelty) / fitted_on.novelty.range_distance; where the "
                             "channel has feature_distance, rho = max(that, the same distance of its listed features)"}
         if c.novelty:
@@ -630,9 +631,12 @@ class DriftModel:
                     if mf.shape != (len(nf),) or not d0 > 0:
                         raise ValueError("feature_distance: expected one mean per feature and range_distance > 0")
                     nv = {"features": nf, "mean": mf, "whiten": Wf, "range_distance": d0}
+                gamma = float(c.get("band_gamma", 1.0))     # files before the ρ-power band: γ = 1
+                if not 0 <= gamma <= 10:
+                    raise ValueError(f"band_gamma must be in [0, 10], got {gamma}")
                 chans[ch] = ChannelFit(c.get("family", ""), c.get("hyper", ""), fl, float(c["intercept_um"]),
                                        np.array([float(t["coef"]) for t in terms]), float(c.get("band95_um") or "nan"),
-                                       base, scale, nv)
+                                       base, scale, nv, gamma)
             except (KeyError, TypeError, ValueError) as exc:
                 raise InputError(f"{path}: key 'channels.{ch}': expected intercept_um and terms "
                                  f"[{{feature, coef}}] naming listed features ({exc!r})") from None
@@ -760,7 +764,8 @@ class DriftSelector:
     ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
-    {channel: {candidate: mean log-gain over OLS}}, ``eligible_`` {channel: [candidates passing every gate]},
+    {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number ``selection`` ranks
+    the eligible by (:func:`fold_gain_score`)}}, ``eligible_`` {channel: [candidates passing every gate]},
     ``shrink_`` {channel: w}, ``novelty_`` (n_novelty_blocks,) median distance of each block.
     Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}} (ranking folds),
     ``cv_horizon_`` {channel: {candidate: RMS μm}} (horizon folds), ``gate_`` {channel: {candidate:
@@ -812,10 +817,10 @@ class DriftSelector:
             raise ValueError(f"Expected max_fold_loss >= 1, got {self.max_fold_loss}")
         if np.isnan(self.min_gain):
             raise ValueError("Expected a number for min_gain, got nan")
-        if self.band_rule not in ("fold_residual", "rho_scaled"):
-            raise ValueError(f"Expected band_rule 'fold_residual' or 'rho_scaled', got {self.band_rule!r}")
-        if self.selection not in ("worst_fold", "mean_gain"):
-            raise ValueError(f"Expected selection 'worst_fold' or 'mean_gain', got {self.selection!r}")
+        if self.band_rule not in BAND_RULES:
+            raise ValueError(f"Expected band_rule in {BAND_RULES}, got {self.band_rule!r}")
+        if self.selection not in SELECTIONS:
+            raise ValueError(f"Expected selection in {SELECTIONS}, got {self.selection!r}")
         if not self.shrink_weights or not all(0 < w <= 1 for w in self.shrink_weights):
             raise ValueError(f"Expected shrink_weights in (0, 1], got {self.shrink_weights}")
         if not 0 < self.hedge_weight <= 1 or not 0 < self.confident_worst_fold <= 1:
@@ -857,7 +862,7 @@ class DriftSelector:
         self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
         self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
         self.scale_, self.worst_fold_, self.fold_ratios_, self.fold_rho_, self.candidates_ = {}, {}, {}, {}, {}
-        self.band_alt_ = {}
+        self.band_alt_, self.score_ = {}, {}
 
         def rms(x):
             return float(np.sqrt(np.mean(np.square(x))))
@@ -910,6 +915,11 @@ class DriftSelector:
                                        np.abs(np.concatenate(hl + nl)), BAND_QUANTILE),
                                    "scale": sc, "worst_fold": worst, "worst_all": worst_all,
                                    "fold_rho": float(np.quantile(np.concatenate(rho_h + rho_n), 0.95)),
+                                   "fold_rho_each": ([float(np.median(q)) for q in rho_r],
+                                                     [float(np.median(q)) for q in rho_h],
+                                                     [float(np.median(q)) for q in rho_n]),
+                                   "band_rho_power": rho_power_band(np.abs(np.concatenate(hl + nl)),
+                                                                    np.concatenate(rho_h + rho_n)),
                                    "fold_ratios": ([rms(x) / max(rms(y), 1e-300) for x, y in zip(rl, r0)],
                                                    [rms(x) / max(rms(y), 1e-300) for x, y in zip(hl, h0)],
                                                    [rms(x) / max(rms(y), 1e-300) for x, y in zip(nl, n0)]),
@@ -920,10 +930,11 @@ class DriftSelector:
                   and scores[k]["worst_fold"] <= self.max_fold_loss
                   and (k[2] <= self.hedge_weight or scores[k]["worst_all"] <= self.confident_worst_fold)
                   and gate[k][0][1] >= self.min_gain and (not nfolds or gate[k][1][1] >= self.min_gain)]
-            if self.selection == "worst_fold":     # the best worst fold (ties: the larger mean gain)
-                best = min(ok, key=lambda k: (scores[k]["worst_all"], -scores[k]["gain"])) if ok else (*base, 1.0)
-            else:
-                best = max(ok, key=lambda k: scores[k]["gain"]) if ok else (*base, 1.0)
+            if self.selection == "lcb":     # the lower confidence bound must itself be above OLS
+                ok = [k for k in ok if fold_gain_score(scores[k], "lcb") > 0]
+            # the largest score (ties: the larger mean gain); "worst_fold": the best worst fold
+            best = max(ok, key=lambda k: (fold_gain_score(scores[k], self.selection), scores[k]["gain"])) \
+                if ok else (*base, 1.0)
 
             def name(k):
                 f, hy, w = k
@@ -934,6 +945,7 @@ class DriftSelector:
             self.gate_[ch] = {name(k): (g[0][0] and g[1][0], g[0][1], g[0][2], g[1][1], g[1][2])
                               for k, g in gate.items()}
             self.gain_[ch] = {name(k): float(s["gain"]) for k, s in scores.items()}
+            self.score_[ch] = {name(k): fold_gain_score(s, self.selection) for k, s in scores.items()}
             self.worst_fold_[ch] = {name(k): float(s["worst_fold"]) for k, s in scores.items()}
             self.fold_ratios_[ch] = {name(k): s["fold_ratios"] for k, s in scores.items()}
             self.fold_rho_[ch] = {name(k): s["fold_rho"] for k, s in scores.items()}
@@ -942,10 +954,9 @@ class DriftSelector:
             self.chosen_[ch] = best[:2]
             self.shrink_[ch] = best[2]
             self.scale_[ch] = scores[best]["scale"]
-            alt = "rho_scaled" if self.band_rule == "fold_residual" else "fold_residual"
-            self.band_[ch] = scores[best][f"band_{self.band_rule}"]
-            self.band_alt_[ch] = (alt, scores[best][f"band_{alt}"])
-            self.band_ols_[ch] = scores[(*base, 1.0)][f"band_{self.band_rule}"]
+            self.band_[ch] = band_of(scores[best], self.band_rule)
+            self.band_alt_[ch] = {r: band_of(scores[best], r) for r in BAND_RULES if r != self.band_rule}
+            self.band_ols_[ch] = band_of(scores[(*base, 1.0)], self.band_rule)
         final = {}
         for fam in fams:
             need = [ch for ch in chans if self.chosen_[ch][0] == fam.name or fam.name == "ols"]
@@ -961,8 +972,13 @@ class DriftSelector:
                              f"weight {', '.join(f'{w:g}' for w in self.shrink_weights)}; above "
                              f"{self.hedge_weight:g} only where every fold's RMS is ≤ {self.confident_worst_fold:g}× "
                              f"OLS's) "
-                             + ("whose worst fold (RMS ratio to OLS) is smallest" if self.selection == "worst_fold"
-                                else "of largest mean log-gain over OLS")
+                             + {"worst_fold": "whose worst fold (RMS ratio to OLS) is smallest",
+                                "mean_gain": "of largest mean log-gain over OLS",
+                                "lcb": f"of largest one-sided {LCB_LEVEL:.0%} lower confidence bound on its horizon "
+                                       "and novelty fold log-gains (Student's t), itself above 0",
+                                "median_fold": "of largest median horizon/novelty fold log-gain",
+                                "rho_weighted": "of largest horizon/novelty fold log-gain weighted by the folds' "
+                                                "median distance"}[self.selection]
                              + f" among those below OLS on {len(folds)} ranking "
                              f"folds that beat OLS by > {self.gate_se:g} SE on {len(hfolds)} horizon folds (horizon "
                              f"{h:.3g}) and on {len(nfolds)} novelty folds (the most novel blocks of the fitting "
@@ -987,11 +1003,12 @@ class DriftSelector:
             nv = feature_novelty(own, feature_matrix(log, own, cache)[fit]) \
                 if self.feature_distance and f != "ols" and own else None
             chosen[ch] = ChannelFit(f, hy if w == 1.0 else f"{hy}{';' if hy else ''}shrink_to_ols_w={w:g}", feats, a,
-                                    np.asarray(b), self.band_[ch], base=final["ols"][ch][""] if np.isfinite(sc) else None,
-                                    shrink_scale=float(sc), novelty=nv)
+                                    np.asarray(b), self.band_[ch][0],
+                                    base=final["ols"][ch][""] if np.isfinite(sc) else None,
+                                    shrink_scale=float(sc), novelty=nv, band_gamma=self.band_[ch][1])
         self.model_ = DriftModel(chosen, meta)
-        self.baseline_ = DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch])
-                                     for ch in chans}, meta)
+        self.baseline_ = DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch][0],
+                                                    band_gamma=self.band_ols_[ch][1]) for ch in chans}, meta)
         self.cache_ = cache
         return self
 
@@ -1020,8 +1037,9 @@ class DriftSelector:
             w = self.shrink_[ch]
             name = f"{f}{'[' + h + ']' if h else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
             band = self.model_.channels[ch].band95_um
-            alt_band = self.band_alt_[ch][1] * (np.ones(len(log.time_s)) if rhos[ch] is None
-                                                else np.maximum(1.0, rhos[ch]))
+            grow = np.ones(len(log.time_s)) if rhos[ch] is None else np.maximum(1.0, rhos[ch])
+            alt = {r: qg[0] * grow ** qg[1] for r, qg in self.band_alt_[ch].items()}
+            alt_rule = next(iter(alt))
 
             def rms(v):
                 return float(np.sqrt(np.mean(v**2)))
@@ -1037,16 +1055,26 @@ class DriftSelector:
                        "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
                                                  if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
                        "worst_fold_ratio": self.worst_fold_[ch][name],
+                       "selection_score": self.score_[ch][name],
                        "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
                        "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
                        "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
                        "heldout_rho_median": None if rhos[ch] is None else float(np.median(rhos[ch][hold])),
                        "band95_um": band, "band_coverage_heldout": float(np.mean(np.abs(a) <= bands[ch][hold])),
                        "band_halfwidth_heldout_median_um": float(np.median(bands[ch][hold])),
-                       "band_rule": self.band_rule, "band_alt_rule": self.band_alt_[ch][0],
-                       "band_alt95_um": self.band_alt_[ch][1],
-                       "band_alt_coverage_heldout": float(np.mean(np.abs(a) <= alt_band[hold])),
-                       "band_alt_halfwidth_heldout_median_um": float(np.median(alt_band[hold]))}
+                       "band_gamma": self.model_.channels[ch].band_gamma,
+                       "band_rule": self.band_rule, "band_alt_rule": alt_rule,
+                       "band_alt95_um": self.band_alt_[ch][alt_rule][0],
+                       "band_alt_coverage_heldout": float(np.mean(np.abs(a) <= alt[alt_rule][hold])),
+                       "band_alt_halfwidth_heldout_median_um": float(np.median(alt[alt_rule][hold])),
+                       # every band rule on the same held-out part: {rule: {q_um, gamma, coverage, halfwidth_median_um}}
+                       "bands_heldout": {self.band_rule: {
+                           "q_um": band, "gamma": self.model_.channels[ch].band_gamma,
+                           "coverage": float(np.mean(np.abs(a) <= bands[ch][hold])),
+                           "halfwidth_median_um": float(np.median(bands[ch][hold]))}} | {
+                           r: {"q_um": self.band_alt_[ch][r][0], "gamma": self.band_alt_[ch][r][1],
+                               "coverage": float(np.mean(np.abs(a) <= v[hold])),
+                               "halfwidth_median_um": float(np.median(v[hold]))} for r, v in alt.items()}}
         return out
 
 
@@ -1234,6 +1262,83 @@ def whitener(U):
 def mahalanobis(U, mu, W) -> np.ndarray:
     """Distances (n,) of the rows of ``U`` (n, k) from the reference of :func:`whitener`."""
     return np.linalg.norm((U - mu) @ W, axis=1)
+
+
+BAND_GAMMAS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)   # exponents γ tried for the ρ-power band q·max(1, ρ)^γ
+BAND_SUBSET_SE = 1.0   # a subset's coverage counts as reaching the level within one binomial standard error of it
+LCB_LEVEL = 0.95   # one-sided level of the lower confidence bound on the fold log-gains ("lcb" selection)
+
+
+BAND_RULES = ("fold_residual", "rho_scaled", "rho_power", "fold_flat")
+
+
+def band_of(stats: dict, rule: str) -> tuple[float, float]:
+    """(q μm, γ) of a candidate's band under ``rule`` (band(ρ) = q·max(1, ρ)^γ) from its validation statistics:
+    ``fold_residual`` and ``rho_scaled`` grow with γ = 1, ``rho_power`` with its fitted γ; ``fold_flat`` is the
+    split-conformal quantile of ``fold_residual`` without growth (γ = 0: the folds' far rows are in it already)."""
+    if rule == "rho_power":
+        q, g = stats["band_rho_power"]
+        return float(q), float(g)
+    if rule == "fold_flat":
+        return float(stats["band_fold_residual"]), 0.0
+    return float(stats[f"band_{rule}"]), 1.0
+
+
+def rho_power_band(abs_resid, rho, level: float = BAND_QUANTILE, gammas=BAND_GAMMAS) -> tuple[float, float]:
+    """The ρ-power band of validation residuals: (q, γ) with band(ρ) = q·max(1, ρ)^γ.
+
+    ``abs_resid`` (n,) |residual| μm and ``rho`` (n,) of the fold rows. For each γ, q is the split-conformal
+    ``level`` quantile of |r| / max(1, ρ)^γ (so the fold rows are covered at ``level`` whatever γ); γ is the
+    smallest of ``gammas`` for which the band ALSO covers ``level`` of the out-of-range rows (ρ > 1) and of
+    the farther half of them (each within ``BAND_SUBSET_SE`` binomial standard errors of it): the band's growth with ρ is fitted on how the folds' errors grew with it,
+    not assumed. No row with ρ > 1: γ = 1 (the conservative growth of the default band); no γ enough: the
+    largest."""
+    r = np.asarray(abs_resid, float)
+    q_rho = np.maximum(1.0, np.asarray(rho, float))
+    out = q_rho > 1.0
+    if not out.any():
+        return conformal_quantile(r, level), 1.0
+    far = out & (q_rho >= np.median(q_rho[out]))
+    for g in gammas:
+        grow = q_rho ** g
+        q = conformal_quantile(r / grow, level)
+        if all(np.mean(r[m] <= q * grow[m]) >= level - BAND_SUBSET_SE * np.sqrt(level * (1 - level) / m.sum())
+               for m in (out, far)):
+            return q, float(g)
+    return q, float(gammas[-1])
+
+
+def fold_gain_score(stats: dict, selection: str) -> float:
+    """The number by which an eligible candidate is ranked (larger is better) under ``selection``, from its
+    validation statistics (``DriftSelector.candidates_`` values: ``gain``, ``fold_ratios`` = (ranking,
+    horizon, novelty) RMS ratios to OLS per fold, ``fold_rho_each`` = the folds' median ρ).
+
+    d_i = −ln(ratio_i) on the horizon and novelty folds (K of them). ``mean_gain``: the mean log-gain over the
+    ranking, horizon and novelty sets; ``worst_fold``: −ln of the worst ratio over every fold; ``lcb``: the
+    one-sided ``LCB_LEVEL`` lower confidence bound mean(d) − t·sd(d)/√K (t of Student's law, K − 1 degrees);
+    ``median_fold``: the median d; ``rho_weighted``: the mean of d weighted by each fold's median ρ (folds
+    farther out count more, as the deployment's future is farther out than most folds)."""
+    if selection == "mean_gain":
+        return float(stats["gain"])
+    fr = stats["fold_ratios"]
+    if selection == "worst_fold":
+        return -float(np.log(max(max(x) for x in fr)))
+    d = -np.log(np.asarray(list(fr[1]) + list(fr[2]), float))
+    if selection == "median_fold":
+        return float(np.median(d))
+    if selection == "rho_weighted":
+        w = np.maximum(np.asarray(list(stats["fold_rho_each"][1]) + list(stats["fold_rho_each"][2]), float), 1e-12)
+        return float(np.sum(w * d) / np.sum(w))
+    if selection == "lcb":
+        from scipy.stats import t as student_t
+        k = len(d)
+        if k < 2:
+            return float(d.mean()) if k else 0.0
+        return float(d.mean() - student_t.ppf(LCB_LEVEL, k - 1) * d.std(ddof=1) / np.sqrt(k))
+    raise ValueError(f"Expected selection in {SELECTIONS}, got {selection!r}")
+
+
+SELECTIONS = ("mean_gain", "worst_fold", "lcb", "median_fold", "rho_weighted")
 
 
 def conformal_quantile(scores, level: float) -> float:

@@ -34,8 +34,8 @@ features' distance from the fit data, :meth:`DriftModel.channel_rho`), the updat
 (strictly before the predicted row): once the machine has been measured in a new regime, the updated model
 has learned there and is trusted there. The reference (mean and covariance of the fit data, recovered
 from the saved whitening matrix: C = pinv(W·Wᵀ), ``fit_rows`` samples) grows by each measured row's inputs
-after that row's update; the range distance d0 stays the fit data's. The band grows as max(1, ρ) with the
-same ρ (``UpdateResult.band_um``). The baseline is updated from the same measurements by the same filter, so
+after that row's update; the range distance d0 stays the fit data's. The band grows as max(1, ρ)^band_gamma
+with the same ρ (``UpdateResult.band_um``). The baseline is updated from the same measurements by the same filter, so
 the shrinkage blends two current models (a stale baseline would undo, beyond ρ = 1, what the update learned).
 The saved updated model keeps the fit data's reference (the measurements are not in it): a later ``--update``
 run re-grows it from its own log.
@@ -80,7 +80,7 @@ class UpdateResult:
     model: DriftModel
     history: dict = field(default_factory=dict)
     rho: dict = field(default_factory=dict)        # {channel: (n,) ρ from the fit data + measurements before each row}
-    band_um: dict = field(default_factory=dict)    # {channel: (n,) band95 · max(1, ρ)}
+    band_um: dict = field(default_factory=dict)    # {channel: (n,) band95 · max(1, ρ)^band_gamma}
 
     def evolution(self, n_windows: int = 4) -> dict:
         """Per channel: [(first time index, last, RMS updated, RMS fixed, measurements)] over ``n_windows``
@@ -239,7 +239,8 @@ class DriftUpdater:
             if not rows.size:
                 pred[ch], hist[ch], chans[ch] = saved[ch].copy(), [], c
                 rho_out[ch] = saved_rho[ch]
-                band_out[ch] = band95 * (np.ones(n) if saved_rho[ch] is None else np.maximum(1.0, saved_rho[ch]))
+                band_out[ch] = band95 * (np.ones(n) if saved_rho[ch] is None
+                                         else np.maximum(1.0, saved_rho[ch]) ** c.band_gamma)
                 continue
             # the distance references (raw inputs; the channel's own features) grown by the measured rows
             refs = []
@@ -264,10 +265,10 @@ class DriftUpdater:
             pred[ch] = out
             hist[ch] = [(int(r), float(y[r] - out[r]), float(y[r] - saved[ch][r])) for r in rows]
             rho_out[ch] = rho
-            band_out[ch] = band95 * (np.ones(n) if rho is None else np.maximum(1.0, rho))
+            band_out[ch] = band95 * (np.ones(n) if rho is None else np.maximum(1.0, rho) ** c.band_gamma)
             self.steps_[ch] = steps
             chans[ch] = ChannelFit(c.family, c.hyper, list(c.features), a_new, coef, c.band95_um,
-                                   base_new, c.shrink_scale, c.novelty)
+                                   base_new, c.shrink_scale, c.novelty, c.band_gamma)
         meta = dict(model.meta)
         meta["online_update"] = {"method": "Kalman filter on the parameters (random walk)",
                                  "drift_per_h": self.drift_per_h, "prior_um": self.prior_um,

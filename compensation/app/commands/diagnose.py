@@ -68,7 +68,9 @@ def band_label(c: dict) -> str:
     the 95th percentile of validation residuals inside the fitting part; on a later part that leaves the
     fit range it may cover much less, and then it is not called a 95 % band)."""
     cov = c["band_coverage_heldout"]
-    txt = (f"band ±{c['band95_um']:.3g} μm (× max(1, ρ) with the inputs' distance ρ from the fit data) covers "
+    g = c.get("band_gamma", 1.0)
+    grow = "max(1, ρ)" if g == 1.0 else f"max(1, ρ)^{g:g}"
+    txt = (f"band ±{c['band95_um']:.3g} μm (× {grow} with the inputs' distance ρ from the fit data) covers "
            f"{cov:.0%} of the held-out part")
     if cov < BAND_CLAIM_COVERAGE:
         txt += " (NOT a 95 % band here: 95 % of the validation residuals only)"
