@@ -298,9 +298,9 @@ class MachineTool:
         linear axes lie nearest the middle of their strokes (in half-strokes) is taken (on the
         grinder: the wheel on the near side of the A axis). Returns a function
         ``points (n, 3) mm -> axes (n, 3)`` with the rotary axis in degrees, not yet wrapped
-        (:meth:`inverse_closed`). This numpy form is the readable reference; :meth:`inverse_closed`
-        runs the same constants (:meth:`closed_form_constants`) compiled
-        (:class:`errormap.mt_kernel.ClosedFormInverse`), equal to it to round-off (tested)."""
+        (:meth:`inverse_closed`). This numpy form is the readable reference;
+        :func:`errormap.kinematics.inverse` runs the same constants (:meth:`closed_form_constants`)
+        compiled (:func:`errormap.mt_kernel.closed_form_solver`), equal to it to round-off (tested)."""
         k = self.closed_form_constants()
         if k is None:
             return None
@@ -393,29 +393,16 @@ class MachineTool:
         solve = self._closed_form()
         if solve is None:
             raise ValueError(f"{self.name!r}: the chain has no closed-form inverse (use inverse, Newton)")
-        points = np.atleast_2d(np.asarray(points_mm, dtype=float))
-        if not unwrap:  # the angle put in [lo, lo + 360) in the same compiled pass
-            return solve(points, fold=True)
-        q = solve(points)
+        q = solve(np.atleast_2d(np.asarray(points_mm, dtype=float)))
         r = next(j for j, a in enumerate(self.axes) if a.kind == "rotary")
-        a, a_lo = q[:, r], self.axes[r].stroke[0]
-        a = np.rad2deg(np.unwrap(np.deg2rad(a)))
-        if a.size:
-            if a_start_deg is None:
-                a = a - 360.0 * np.floor((a[0] - a_lo) / 360.0)
-            else:
-                a = a - 360.0 * np.round((a[0] - a_start_deg) / 360.0)
-        q[:, r] = a
+        q[:, r] = rotary_on_turn(q[:, r], self.axes[r].stroke[0], unwrap, a_start_deg)
         return q
 
     def _closed_form(self):
-        """:meth:`closed_form_inverse` compiled (:class:`errormap.mt_kernel.ClosedFormInverse` of
-        :meth:`closed_form_constants`), built once per machine; None where there is none."""
+        """:meth:`closed_form_inverse`, built once per machine."""
         key = "_closed_form_solver"
         if key not in self.__dict__:
-            from .mt_kernel import ClosedFormInverse
-            k = self.closed_form_constants()
-            object.__setattr__(self, key, None if k is None else ClosedFormInverse(k))
+            object.__setattr__(self, key, self.closed_form_inverse())
         return self.__dict__[key]
 
     def body_frames(self, word: str, axes, values=None):
@@ -781,6 +768,23 @@ def chain_from_grinder(machine) -> MachineTool:
                 d["stroke"] = list(machine.strokes[f"{d['axis'].lower()}_{'deg' if d['joint'] == 'rotary' else 'mm'}"])
     doc["targets"] = {k: np.asarray(v, dtype=float).tolist() for k, v in machine.targets.items()}
     return parse_machine_tool(doc, machine.path or p, machine.sha256)
+
+
+def rotary_on_turn(a_deg, a_lo: float, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:
+    """A rotary axis' values (n,) deg put on a turn (:meth:`MachineTool.inverse_closed`): with
+    ``unwrap`` a path, unwrapped along it (multi-turn paths continue past 360°) and the first point
+    put in ``[a_lo, a_lo + 360)``, or nearest to ``a_start_deg`` when given; without ``unwrap`` each
+    value in ``[a_lo, a_lo + 360)``."""
+    a = np.asarray(a_deg, dtype=float)
+    if not unwrap:
+        return a_lo + np.mod(a - a_lo, 360.0)
+    a = np.rad2deg(np.unwrap(np.deg2rad(a)))
+    if a.size:
+        if a_start_deg is None:
+            a = a - 360.0 * np.floor((a[0] - a_lo) / 360.0)
+        else:
+            a = a - 360.0 * np.round((a[0] - a_start_deg) / 360.0)
+    return a
 
 
 def et_matrix(kind_r: bool, axis: int, x: float) -> np.ndarray:

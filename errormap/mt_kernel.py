@@ -659,7 +659,8 @@ def closed_inverse_kernel(points, F0_inv_R, F0_t, w, normal, c, L_pinv, theta0, 
 
 class ClosedFormInverse:
     """A chain's closed-form nominal inverse compiled (:func:`closed_inverse_kernel`) from its
-    constants (:meth:`errormap.mt_chain.MachineTool.closed_form_constants`): ``inv(points (n, 3)
+    constants ``k`` (:meth:`errormap.mt_chain.MachineTool.closed_form_constants`; built once per
+    machine by :func:`closed_form_solver`): ``inv(points (n, 3)
     mm, fold=False) -> axes (n, 3)``, the rotary axis in degrees (with ``fold`` in ``[lo, lo +
     360)`` of its stroke, else not yet wrapped: within a turn of ``θ0``)."""
 
@@ -678,3 +679,17 @@ class ClosedFormInverse:
         out = np.empty((points.shape[0], 3))
         closed_inverse_kernel(points, *self._args, bool(fold), float(self.k.rotary_lo), out)
         return out
+
+
+def closed_form_solver(machine: MachineTool) -> ClosedFormInverse:
+    """The chain's closed-form nominal inverse compiled (:class:`ClosedFormInverse` of
+    :meth:`errormap.mt_chain.MachineTool.closed_form_constants`), built once per machine (kept on
+    it, as its other compiled forms). ValueError where the chain has no closed form."""
+    key = "_closed_form_compiled"
+    if key not in machine.__dict__:
+        k = machine.closed_form_constants()
+        object.__setattr__(machine, key, None if k is None else ClosedFormInverse(k))
+    solve = machine.__dict__[key]
+    if solve is None:
+        raise ValueError(f"{machine.name!r}: the chain has no closed-form inverse (use inverse, Newton)")
+    return solve
