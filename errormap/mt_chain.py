@@ -99,6 +99,32 @@ class Slot:
 
 
 @dataclass(frozen=True)
+class ClosedForm:
+    """The constants of a chain's closed-form nominal inverse (:meth:`MachineTool.closed_form_inverse`):
+    ``F0_inv_R`` (3, 3), ``F0_t`` (3,) mm the fixed frame before the rotary ET (``F0⁻¹·p =
+    F0_inv_R·(p − F0_t)``), ``w_axis`` the rotary ET's axis (0, 1, 2 = x, y, z), ``normal`` (3,) the
+    linear axes' plane normal, ``c`` (3,) mm and ``L_pinv`` (2, 3) the origin after the rotary ET
+    and the pseudo-inverse of its linear directions, ``theta0`` rad and ``scale`` rad per deg the
+    rotary ET's value ``θ = θ0 + scale·a``, ``mid``, ``half`` (2,) the linear strokes' middles and
+    half-lengths, ``lin`` the two linear axes' columns, ``rotary`` the rotary axis' column and
+    ``rotary_lo`` its stroke's start (deg)."""
+
+    F0_inv_R: np.ndarray
+    F0_t: np.ndarray
+    w_axis: int
+    normal: np.ndarray
+    c: np.ndarray
+    L_pinv: np.ndarray
+    theta0: float
+    scale: float
+    mid: np.ndarray
+    half: np.ndarray
+    lin: tuple
+    rotary: int
+    rotary_lo: float
+
+
+@dataclass(frozen=True)
 class MachineTool:
     """A compiled machine-tool chain file. ``axes`` in canonical word order; ``slots`` in chain
     order; ``chain`` the compiled ``inv(work)·tool`` chain (joints = ``axes``, parameters =
@@ -272,7 +298,46 @@ class MachineTool:
         linear axes lie nearest the middle of their strokes (in half-strokes) is taken (on the
         grinder: the wheel on the near side of the A axis). Returns a function
         ``points (n, 3) mm -> axes (n, 3)`` with the rotary axis in degrees, not yet wrapped
-        (:meth:`inverse_closed`)."""
+        (:meth:`inverse_closed`). This numpy form is the readable reference;
+        :func:`errormap.kinematics.inverse` runs the same constants (:meth:`closed_form_constants`)
+        compiled (:func:`errormap.mt_kernel.closed_form_solver`), equal to it to round-off (tested)."""
+        k = self.closed_form_constants()
+        if k is None:
+            return None
+        lin, r, w = list(k.lin), k.rotary, np.eye(3)[k.w_axis]
+        n, c, L_pinv, F0_inv_R, F0_t = k.normal, k.c, k.L_pinv, k.F0_inv_R, k.F0_t
+        theta0, s, mid, half = k.theta0, k.scale, k.mid, k.half
+
+        def solve(points_mm):
+            p = (np.asarray(points_mm, dtype=float) - F0_t) @ F0_inv_R.T       # F0⁻¹·p
+            par = (p @ w)[:, None] * w
+            perp = p - par
+            wxp = np.cross(w, p)
+            A, B, C = perp @ n, -(wxp @ n), n @ c - par @ n
+            rr = np.hypot(A, B)
+            ratio = np.divide(C, rr, out=np.ones_like(C), where=rr > 0.0)
+            phi, d = np.arctan2(B, A), np.arccos(np.clip(ratio, -1.0, 1.0))
+            best, best_cost = None, None
+            for th in (phi + d, phi - d):
+                cs, sn = np.cos(th)[:, None], np.sin(th)[:, None]
+                q = par + cs * perp - sn * wxp                                   # R_w(−θ)·p
+                u = (q - c) @ L_pinv.T
+                cost = (((u - mid) / half) ** 2).sum(axis=1)
+                ax = np.empty((p.shape[0], 3))
+                ax[:, lin[0]], ax[:, lin[1]] = u[:, 0], u[:, 1]
+                ax[:, r] = (th - theta0) / s
+                if best is None:
+                    best, best_cost = ax, cost
+                else:
+                    take = cost < best_cost
+                    best[take] = ax[take]
+            return best
+
+        return solve
+
+    def closed_form_constants(self):
+        """The constants of :meth:`closed_form_inverse` (:class:`ClosedForm`), or None where the
+        chain's structure has no closed form."""
         ch = self.chain
         if len(self.axes) != 3:
             return None
@@ -311,39 +376,13 @@ class MachineTool:
         w = np.eye(3)[int(ch.axis[m0])]
         if np.linalg.norm(n - (n @ w) * w) < 1e-9:
             return None
-        L_pinv = np.linalg.pinv(L)
-        F0_inv_R, F0_t = F0[:3, :3].T, F0[:3, 3]
-        theta0, s = float(ch.value[m0]), float(ch.sign[m0]) * np.pi / 180.0
         lo = np.array([self.axes[j].stroke[0] for j in lin])
         hi = np.array([self.axes[j].stroke[1] for j in lin])
-        mid, half = (lo + hi) / 2.0, np.maximum((hi - lo) / 2.0, 1e-12)
-
-        def solve(points_mm):
-            p = (np.asarray(points_mm, dtype=float) - F0_t) @ F0_inv_R.T       # F0⁻¹·p
-            par = (p @ w)[:, None] * w
-            perp = p - par
-            wxp = np.cross(w, p)
-            A, B, C = perp @ n, -(wxp @ n), n @ c - par @ n
-            rr = np.hypot(A, B)
-            ratio = np.divide(C, rr, out=np.ones_like(C), where=rr > 0.0)
-            phi, d = np.arctan2(B, A), np.arccos(np.clip(ratio, -1.0, 1.0))
-            best, best_cost = None, None
-            for th in (phi + d, phi - d):
-                cs, sn = np.cos(th)[:, None], np.sin(th)[:, None]
-                q = par + cs * perp - sn * wxp                                   # R_w(−θ)·p
-                u = (q - c) @ L_pinv.T
-                cost = (((u - mid) / half) ** 2).sum(axis=1)
-                ax = np.empty((p.shape[0], 3))
-                ax[:, lin[0]], ax[:, lin[1]] = u[:, 0], u[:, 1]
-                ax[:, r] = (th - theta0) / s
-                if best is None:
-                    best, best_cost = ax, cost
-                else:
-                    take = cost < best_cost
-                    best[take] = ax[take]
-            return best
-
-        return solve
+        return ClosedForm(F0_inv_R=np.ascontiguousarray(F0[:3, :3].T), F0_t=F0[:3, 3].copy(),
+                          w_axis=int(ch.axis[m0]), normal=n, c=c, L_pinv=np.linalg.pinv(L),
+                          theta0=float(ch.value[m0]), scale=float(ch.sign[m0]) * np.pi / 180.0,
+                          mid=(lo + hi) / 2.0, half=np.maximum((hi - lo) / 2.0, 1e-12), lin=tuple(lin), rotary=r,
+                          rotary_lo=float(self.axes[r].stroke[0]))
 
     def inverse_closed(self, points_mm, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:
         """Nominal axes for workpiece-frame tool points by :meth:`closed_form_inverse` (refused with
@@ -356,17 +395,7 @@ class MachineTool:
             raise ValueError(f"{self.name!r}: the chain has no closed-form inverse (use inverse, Newton)")
         q = solve(np.atleast_2d(np.asarray(points_mm, dtype=float)))
         r = next(j for j, a in enumerate(self.axes) if a.kind == "rotary")
-        a, a_lo = q[:, r], self.axes[r].stroke[0]
-        if unwrap:
-            a = np.rad2deg(np.unwrap(np.deg2rad(a)))
-            if a.size:
-                if a_start_deg is None:
-                    a = a - 360.0 * np.floor((a[0] - a_lo) / 360.0)
-                else:
-                    a = a - 360.0 * np.round((a[0] - a_start_deg) / 360.0)
-        else:
-            a = a_lo + np.mod(a - a_lo, 360.0)
-        q[:, r] = a
+        q[:, r] = rotary_on_turn(q[:, r], self.axes[r].stroke[0], unwrap, a_start_deg)
         return q
 
     def _closed_form(self):
@@ -739,6 +768,23 @@ def chain_from_grinder(machine) -> MachineTool:
                 d["stroke"] = list(machine.strokes[f"{d['axis'].lower()}_{'deg' if d['joint'] == 'rotary' else 'mm'}"])
     doc["targets"] = {k: np.asarray(v, dtype=float).tolist() for k, v in machine.targets.items()}
     return parse_machine_tool(doc, machine.path or p, machine.sha256)
+
+
+def rotary_on_turn(a_deg, a_lo: float, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:
+    """A rotary axis' values (n,) deg put on a turn (:meth:`MachineTool.inverse_closed`): with
+    ``unwrap`` a path, unwrapped along it (multi-turn paths continue past 360°) and the first point
+    put in ``[a_lo, a_lo + 360)``, or nearest to ``a_start_deg`` when given; without ``unwrap`` each
+    value in ``[a_lo, a_lo + 360)``."""
+    a = np.asarray(a_deg, dtype=float)
+    if not unwrap:
+        return a_lo + np.mod(a - a_lo, 360.0)
+    a = np.rad2deg(np.unwrap(np.deg2rad(a)))
+    if a.size:
+        if a_start_deg is None:
+            a = a - 360.0 * np.floor((a[0] - a_lo) / 360.0)
+        else:
+            a = a - 360.0 * np.round((a[0] - a_start_deg) / 360.0)
+    return a
 
 
 def et_matrix(kind_r: bool, axis: int, x: float) -> np.ndarray:

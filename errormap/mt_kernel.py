@@ -28,6 +28,23 @@ from .mt_elements import ChainElementSet
 NCOMP = 6  # columns of a spline block (dx dy dz ex ey ez; absent components padded with zeros)
 
 
+SMALL_ANGLE_RAD = 0.0009765625
+"""Below this angle (2⁻¹⁰ rad) the kernels take cosine and sine from their Taylor series to x⁶ and
+x⁷ (:func:`_cos_sin`): the next terms are below 1e-28 relative, so each is the exactly rounded value
+up to the last rounding (equal to the library's bit for bit on the component errors' μrad angles,
+tested), without a library call for each of the nine error rotations a point."""
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cos_sin(x):  # pragma: no cover - compiled
+    """``(cos x, sin x)``; by their series for ``|x| <`` :data:`SMALL_ANGLE_RAD`."""
+    if abs(x) < SMALL_ANGLE_RAD:
+        x2 = x * x
+        return (1.0 + x2 * (-0.5 + x2 * (1.0 / 24.0 - x2 * (1.0 / 720.0))),
+                x + x * x2 * (-1.0 / 6.0 + x2 * (1.0 / 120.0 - x2 * (1.0 / 5040.0))))
+    return np.cos(x), np.sin(x)
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR, Bt, R, t, W, O, record):  # pragma: no cover - compiled
     """A program (:meth:`CompiledChain._program`) at one point: ``R`` (3, 3), ``t`` (3,) set to the
@@ -60,7 +77,7 @@ def _chain_point(q, ev, kind, eaxis, value, joint, jscale, slot, coef, block, BR
         if k == 1:
             b = (a + 1) % 3
             c = (a + 2) % 3
-            cs, sn = np.cos(x), np.sin(x)
+            cs, sn = _cos_sin(x)
             for i in range(3):
                 rb, rc = R[i, b], R[i, c]
                 R[i, b] = rb * cs + rc * sn
@@ -107,26 +124,26 @@ def _jacobian_columns(dev, kind, joint, jscale, slot, coef, own, t, W, O, jac_ro
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _spline_at(knots, k0, nk, coefs, c0, x, h, hh, vbuf, dbuf, deriv):  # pragma: no cover - compiled
+def _spline_at(knots, k0, nk, coefs, c0, x, h, hh, vbuf, dbuf, deriv, inv_h):  # pragma: no cover - compiled
     """One cubic vector B-spline stored at offsets (knots ``knots[k0:k0 + nk]``, coefficient rows
-    from ``c0``) at ``x``: values into ``vbuf`` (6,), with ``deriv`` slopes into ``dbuf``. The same
+    from ``c0``) at ``x``: values into ``vbuf`` (6,), with ``deriv`` slopes into ``dbuf``; ``inv_h``
+    the number of its intervals over their span (where the interval search starts). The same
     operations as scipy's ``BSpline`` and its derivative (interval as scipy finds it,
     clipped to the end intervals; Cox–de Boor; the slope from the degree-2 basis) without array
     views per point."""
     k = 3
     nc = nk - k - 1
-    lo, hi = 0, nk
-    while lo < hi:  # np.searchsorted(t, x, side="right")
-        mid = (lo + hi) // 2
-        if knots[k0 + mid] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    i = lo - 1
-    if i < k:
-        i = k
-    elif i > nc - 1:
-        i = nc - 1
+    # the interval np.searchsorted(t, x, side="right") - 1 clipped to [k, nc - 1]: the last knot
+    # ≤ x; guessed from the mean interval ``1 / inv_h`` (exact for evenly spaced stations), then
+    # moved until t[i] ≤ x < t[i + 1] (a guess only saves the search, it never decides)
+    i = k
+    g = (x - knots[k0 + k]) * inv_h
+    if g > 0.0:  # (NaN: the first interval, as before)
+        i = k + int(min(g, float(nc - 1 - k)))
+    while i < nc - 1 and knots[k0 + i + 1] <= x:
+        i += 1
+    while i > k and knots[k0 + i] > x:
+        i -= 1
     h[0] = 1.0
     for j in range(1, k + 1):
         if deriv and j == k:  # h[0:3] = the degree-2 basis of interval i: the slope
@@ -158,7 +175,8 @@ def _spline_at(knots, k0, nk, coefs, c0, x, h, hh, vbuf, dbuf, deriv):  # pragma
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, deriv):  # pragma: no cover - compiled
+def _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h, consts, ev, dev, vbuf, dbuf, h, hh,
+                 deriv):  # pragma: no cover - compiled
     """The component-error values into ``ev`` (P,) (and slopes into ``dev`` when ``deriv``) at one
     point from the per-axis splines (``spl_s0`` the first station of a full-turn axis, NaN
     otherwise); the constant slots of ``ev`` and ``dev`` are set once per call (:func:`_init_slots`)."""
@@ -167,7 +185,7 @@ def _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts
         s0 = spl_s0[s]
         if not np.isnan(s0):
             x = s0 + np.mod(x - s0, 360.0)
-        _spline_at(knots, koff[s], koff[s + 1] - koff[s], coefs, coff[s], x, h, hh, vbuf, dbuf, deriv)
+        _spline_at(knots, koff[s], koff[s + 1] - koff[s], coefs, coff[s], x, h, hh, vbuf, dbuf, deriv, spl_inv_h[s])
         for col in range(6):
             p = spl_slot[s, col]
             if p >= 0:
@@ -187,7 +205,7 @@ def _init_slots(consts, ev, dev):  # pragma: no cover - compiled
 @njit(cache=True, nogil=True, error_model="numpy")
 def field_kernel(axes, prog, prog_nom, spl, consts, out):  # pragma: no cover - compiled
     """Spatial error (μm) at every point: ``out`` (n, 3)."""
-    spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot = spl
+    spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h = spl
     P = consts.shape[0]
     ev = np.empty(P)
     dev = np.empty(P)
@@ -205,7 +223,7 @@ def field_kernel(axes, prog, prog_nom, spl, consts, out):  # pragma: no cover - 
     _init_slots(consts, ev, dev)
     for n in range(axes.shape[0]):
         q = axes[n]
-        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, False)
+        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h, consts, ev, dev, vbuf, dbuf, h, hh, False)
         _chain_point(q, ev, k1, a1, v1, j1, s1, sl1, c1, b1, BR1, Bt1, R, t, W, W, False)
         _chain_point(q, ev, k0, a0, v0, j0, s0, sl0, c0, b0, BR0, Bt0, R0, t0, W, W, False)
         for i in range(3):
@@ -215,7 +233,7 @@ def field_kernel(axes, prog, prog_nom, spl, consts, out):  # pragma: no cover - 
 @njit(cache=True, nogil=True, error_model="numpy")
 def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragma: no cover - compiled
     """Spatial error (μm) and dE/d(axes): ``out`` (n, 3), ``jac`` (n, 3, k)."""
-    spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot = spl
+    spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h = spl
     P = consts.shape[0]
     k = axes.shape[1]
     ev = np.empty(P)
@@ -237,7 +255,7 @@ def field_jac_kernel(axes, prog, prog_nom, spl, consts, own, out, jac):  # pragm
     _init_slots(consts, ev, dev)
     for n in range(axes.shape[0]):
         q = axes[n]
-        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, consts, ev, dev, vbuf, dbuf, h, hh, True)
+        _slot_values(q, spl_axis, spl_s0, knots, koff, coefs, coff, spl_slot, spl_inv_h, consts, ev, dev, vbuf, dbuf, h, hh, True)
         for i in range(3):
             for j in range(k):
                 J[i, j] = 0.0
@@ -359,10 +377,12 @@ class CompiledChain:
             spl_slot.append(row)
         koff = np.cumsum([0] + [len(t) for t in knots]).astype(np.int64)
         coff = np.cumsum([0] + [len(c) for c in coefs]).astype(np.int64)
+        # intervals per unit of the knot span: the interval search's first guess (_spline_at)
+        inv_h = [(len(t) - 7) / (t[-4] - t[3]) if t[-4] > t[3] else 0.0 for t in knots]
         self.spl = (np.array(spl_axis, dtype=np.int64), np.array(spl_s0, dtype=float),
                     np.concatenate(knots) if knots else np.zeros(0), koff,
                     np.ascontiguousarray(np.concatenate(coefs)) if coefs else np.zeros((0, NCOMP)), coff,
-                    np.array(spl_slot, dtype=np.int64).reshape(-1, NCOMP))
+                    np.array(spl_slot, dtype=np.int64).reshape(-1, NCOMP), np.array(inv_h, dtype=float))
         self.consts = np.zeros(len(machine.slots))
         for k, v in elements.constants.items():
             self.consts[idx[k]] = v
@@ -578,3 +598,98 @@ class NominalChain:
         J = np.empty((axes.shape[0], 3, self.k) if jac else (0, 3, self.k))
         nominal_jacobian_kernel(axes, self.prog, self.own, P, J, bool(jac))
         return P, (J if jac else None)
+
+
+# ---------------------------------------------------------------------------- closed-form inverse
+# (issue 26: the grinder's nominal inverse on its chain, compiled; the batched GA's generic
+# fitness calls it on every offspring)
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def closed_inverse_kernel(points, F0_inv_R, F0_t, w, normal, c, L_pinv, theta0, scale, mid, half, lin0, lin1, r,
+                          fold, a_lo, out):  # pragma: no cover - compiled
+    """:meth:`errormap.mt_chain.MachineTool.closed_form_inverse` point by point: ``points`` (n, 3)
+    mm -> ``out`` (n, 3) axes, the rotary one in degrees (with ``fold`` put in ``[a_lo, a_lo +
+    360)``). The same closed form as that numpy reference, with the two roots ``θ = φ ± δ`` (``cos φ
+    = A/ρ``, ``sin φ = B/ρ``, ``cos δ = C/ρ``, ``sin δ ≥ 0``) turned into cosines and sines by the
+    angle-addition rule, and one ``atan2`` for the root taken: no ``acos`` and no cosine or sine per
+    root. Equal to the reference to round-off, the angle modulo a turn (tested)."""
+    w0, w1, w2 = w[0], w[1], w[2]
+    nc = normal[0] * c[0] + normal[1] * c[1] + normal[2] * c[2]
+    ihalf0, ihalf1 = 1.0 / half[0], 1.0 / half[1]
+    for i in range(points.shape[0]):
+        d0, d1, d2 = points[i, 0] - F0_t[0], points[i, 1] - F0_t[1], points[i, 2] - F0_t[2]
+        p0 = d0 * F0_inv_R[0, 0] + d1 * F0_inv_R[0, 1] + d2 * F0_inv_R[0, 2]   # F0⁻¹·p
+        p1 = d0 * F0_inv_R[1, 0] + d1 * F0_inv_R[1, 1] + d2 * F0_inv_R[1, 2]
+        p2 = d0 * F0_inv_R[2, 0] + d1 * F0_inv_R[2, 1] + d2 * F0_inv_R[2, 2]
+        pw = p0 * w0 + p1 * w1 + p2 * w2
+        a0, a1, a2 = pw * w0, pw * w1, pw * w2                        # along w
+        e0, e1, e2 = p0 - a0, p1 - a1, p2 - a2                        # across w
+        x0, x1, x2 = w1 * p2 - w2 * p1, w2 * p0 - w0 * p2, w0 * p1 - w1 * p0  # w × p
+        A = e0 * normal[0] + e1 * normal[1] + e2 * normal[2]
+        B = -(x0 * normal[0] + x1 * normal[1] + x2 * normal[2])
+        C = nc - (a0 * normal[0] + a1 * normal[1] + a2 * normal[2])
+        rr = np.sqrt(A * A + B * B)
+        cphi, sphi, cd = 1.0, 0.0, 1.0  # on the rotary axis (A = B = 0): θ = 0
+        if rr > 0.0:
+            ir = 1.0 / rr
+            cphi, sphi, cd = A * ir, B * ir, C * ir
+        if cd < -1.0:  # a point the linear axes cannot reach: the nearest angle
+            cd = -1.0
+        elif cd > 1.0:
+            cd = 1.0
+        sd = np.sqrt((1.0 - cd) * (1.0 + cd))
+        best_cost, cbest, sbest = 0.0, 1.0, 0.0
+        for root in range(2):
+            sg = 1.0 if root == 0 else -1.0                           # θ = φ + δ, then φ − δ
+            cs = cphi * cd - sg * sphi * sd
+            sn = sphi * cd + sg * cphi * sd
+            q0, q1, q2 = a0 + cs * e0 - sn * x0, a1 + cs * e1 - sn * x1, a2 + cs * e2 - sn * x2  # R_w(−θ)·p
+            q0, q1, q2 = q0 - c[0], q1 - c[1], q2 - c[2]
+            u0 = q0 * L_pinv[0, 0] + q1 * L_pinv[0, 1] + q2 * L_pinv[0, 2]
+            u1 = q0 * L_pinv[1, 0] + q1 * L_pinv[1, 1] + q2 * L_pinv[1, 2]
+            g0, g1 = (u0 - mid[0]) * ihalf0, (u1 - mid[1]) * ihalf1
+            cost = g0 * g0 + g1 * g1
+            if root == 0 or cost < best_cost:
+                best_cost, cbest, sbest = cost, cs, sn
+                out[i, lin0], out[i, lin1] = u0, u1
+        out[i, r] = (np.arctan2(sbest, cbest) - theta0) / scale
+        if fold:
+            out[i, r] = a_lo + np.mod(out[i, r] - a_lo, 360.0)
+
+
+class ClosedFormInverse:
+    """A chain's closed-form nominal inverse compiled (:func:`closed_inverse_kernel`) from its
+    constants ``k`` (:meth:`errormap.mt_chain.MachineTool.closed_form_constants`; built once per
+    machine by :func:`closed_form_solver`): ``inv(points (n, 3)
+    mm, fold=False) -> axes (n, 3)``, the rotary axis in degrees (with ``fold`` in ``[lo, lo +
+    360)`` of its stroke, else not yet wrapped: within a turn of ``θ0``)."""
+
+    def __init__(self, k):
+        self.k = k
+        self._args = (np.ascontiguousarray(k.F0_inv_R, dtype=float), np.ascontiguousarray(k.F0_t, dtype=float),
+                      np.eye(3)[k.w_axis], np.ascontiguousarray(k.normal, dtype=float),
+                      np.ascontiguousarray(k.c, dtype=float), np.ascontiguousarray(k.L_pinv, dtype=float),
+                      float(k.theta0), float(k.scale), np.ascontiguousarray(k.mid, dtype=float),
+                      np.ascontiguousarray(k.half, dtype=float), int(k.lin[0]), int(k.lin[1]), int(k.rotary))
+
+    def __call__(self, points_mm, fold: bool = False) -> np.ndarray:
+        points = np.ascontiguousarray(points_mm, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"expected points of shape (n, 3), got {points.shape}")
+        out = np.empty((points.shape[0], 3))
+        closed_inverse_kernel(points, *self._args, bool(fold), float(self.k.rotary_lo), out)
+        return out
+
+
+def closed_form_solver(machine: MachineTool) -> ClosedFormInverse:
+    """The chain's closed-form nominal inverse compiled (:class:`ClosedFormInverse` of
+    :meth:`errormap.mt_chain.MachineTool.closed_form_constants`), built once per machine (kept on
+    it, as its other compiled forms). ValueError where the chain has no closed form."""
+    key = "_closed_form_compiled"
+    if key not in machine.__dict__:
+        k = machine.closed_form_constants()
+        object.__setattr__(machine, key, None if k is None else ClosedFormInverse(k))
+    solve = machine.__dict__[key]
+    if solve is None:
+        raise ValueError(f"{machine.name!r}: the chain has no closed-form inverse (use inverse, Newton)")
+    return solve

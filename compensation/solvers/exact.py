@@ -73,7 +73,24 @@ there (as at ``xtol_um``), about 4.5e-8 μm for a 200 mm coordinate. F is the di
 ~100 mm quantities, each through a chain of float64 operations: on the default grinder the
 points whose full step failed at the end sat 22-680 ulps of |p_d| above zero (1e-9-7e-9 μm),
 where 20 halvings, a fresh Jacobian and a retry only spent field evaluations (measured: half
-of the ~10 evaluations per point of a 100,000-point solve)."""
+of the ~10 evaluations per point of a 100,000-point solve). A tighter stop is a setting
+(``solve_exact(roundoff_ulps=…)``): 16 ulps with ``xtol_um=1e-10`` costs 3 % more CPU (5.9 % more
+field evaluations) on 100,000 grinder points and brings two exact solvers to agree within 7.9e-10
+μm (``benchmarks/grinder_chain_results.md``); the default stays, as the agreement below 1e-7 μm
+buys no accuracy a machine can show."""
+
+
+MAX_ROUNDOFF_ULPS = 1e6
+"""Largest ``roundoff_ulps`` (1e6 ulps of a 200 mm coordinate is 4.4e-5 μm, below the default
+success threshold ``tol_um`` = 1e-4 μm)."""
+
+
+def check_roundoff_ulps(roundoff_ulps) -> float:
+    """``roundoff_ulps`` as a float in ``[0, MAX_ROUNDOFF_ULPS]``; ValueError otherwise."""
+    if isinstance(roundoff_ulps, bool) or not isinstance(roundoff_ulps, (int, float, np.integer, np.floating)) \
+            or not 0.0 <= float(roundoff_ulps) <= MAX_ROUNDOFF_ULPS:
+        raise ValueError(f"Expected roundoff_ulps in [0, {MAX_ROUNDOFF_ULPS:g}], got {roundoff_ulps!r}")
+    return float(roundoff_ulps)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -115,17 +132,23 @@ def solve3(J, b) -> np.ndarray:
 
 def solve_exact(field, targets_mm, machine, *, target_axes=None, a_start_deg=None,
                 ball_um: float = BALL_RADIUS_UM, tol_um: float = 1e-4, xtol_um: float = 1e-9,
-                max_iter: int = 50, chunk: int = 250_000, progress: bool = True) -> SolveResult:
+                max_iter: int = 50, chunk: int = 250_000, progress: bool = True,
+                roundoff_ulps: float = ROUNDOFF_ULPS) -> SolveResult:
     """Exact compensation of WCS targets, shape (n, 3) mm (see the module docstring).
 
     Works in chunks of ``chunk`` points to bound peak memory. ``info`` holds the iteration
     count per point (``iterations``) and Jacobian evaluations (``jacobians``).
+    ``roundoff_ulps`` (0 … 1e6, default :data:`ROUNDOFF_ULPS`): iteration also stops where
+    ``|F|`` is within this many ulps of the target's largest coordinate; a smaller value iterates
+    on to ``xtol_um`` or stagnation (to compare two solvers below their round-off,
+    ``benchmarks/bench_grinder_chain.py``); it does not change ``success`` (``tol_um``).
     """
     t0 = time.perf_counter()
     targets, axes_d = check_inputs(field, targets_mm, machine, target_axes, a_start_deg, ball_um)
     if not (tol_um > 0 and xtol_um > 0 and max_iter >= 1 and chunk >= 1):
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
+    check_roundoff_ulps(roundoff_ulps)
     chain = NominalChain(machine)
     sol = solved_axes(chain)
     ev = _MachineFieldEval(field, machine)
@@ -138,7 +161,8 @@ def solve_exact(field, targets_mm, machine, *, target_axes=None, a_start_deg=Non
     bar = Progress(n, "exact", enabled=progress)
     for s in range(0, n, chunk):
         sl = slice(s, min(n, s + chunk))
-        q[sl], E[sl], it, nj, fe = newton(ev, chain, sol, targets[sl], axes_d[sl], xtol_um, max_iter)
+        q[sl], E[sl], it, nj, fe = newton(ev, chain, sol, targets[sl], axes_d[sl], xtol_um, max_iter,
+                                          roundoff_ulps=roundoff_ulps)
         iters[sl], n_jac[sl] = it, nj
         nfev += fe
         bar.update(sl.stop - sl.start)
@@ -358,9 +382,10 @@ def _line_search(ev, chain, sol, targets, idx, step, q, E, F, fn, JE):
     return accepted, crawl, nfev
 
 
-def newton(ev, chain: NominalChain, sol, targets, q0, xtol_um, max_iter):
+def newton(ev, chain: NominalChain, sol, targets, q0, xtol_um, max_iter, roundoff_ulps: float = ROUNDOFF_ULPS):
     """Newton–Broyden iterations with line search on one chunk; returns (q (m, k), E(q) (m, 3) μm,
-    iterations, jacobians, nfev).
+    iterations, jacobians, nfev). A point stops at ``|F| ≤ max(xtol_um, roundoff_ulps ulps of its
+    target's largest coordinate)``, at stagnation or after ``max_iter`` iterations.
 
     ``ev``: the field (``start(q) -> (E, JE, nfev)``, ``value(q) -> E``, ``jacobian(q, E) ->
     (JE, nfev)``; JE (m, 3, k)); ``chain`` the machine's nominal chain; ``sol`` (3,) the solved axes
@@ -382,7 +407,7 @@ def newton(ev, chain: NominalChain, sol, targets, q0, xtol_um, max_iter):
     _residual_kernel(q, E, targets, chain.prog, F, fn)
     stale = np.zeros(n, dtype=bool)  # the field Jacobian needs recomputing
     tol = xtol_um * MM_PER_UM
-    floor = ROUNDOFF_ULPS * np.finfo(float).eps * np.maximum(np.abs(targets).max(axis=1), 1.0)  # mm
+    floor = roundoff_ulps * np.finfo(float).eps * np.maximum(np.abs(targets).max(axis=1), 1.0)  # mm
     stop = np.maximum(tol, floor)  # float precision: xtol, or round-off where that is larger
     idx = np.flatnonzero(fn > stop)
     for _ in range(max_iter):
