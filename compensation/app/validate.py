@@ -247,7 +247,7 @@ def predict_batched(field, axes):
 
 RULES: dict[str, dict] = {
     "simulate": {"noise_um": non_negative("um"), "checks": Count(1, MAX_CHECKS, "check measurements"),
-                 "out": OUT_DIR},
+                 "poses": Count(3, MAX_CHECKS, "poses"), "out": OUT_DIR},
     "featurepoints": {"grid": GRID, "out": OUT_FILE},
     "predict": {"out": OUT_FILE},
     "train": {"out": OUT_DIR, "hidden": Widths(), "max_time": positive("s"), "mse_goal": non_negative(), "max_iter": ITER,

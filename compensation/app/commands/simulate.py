@@ -12,8 +12,11 @@ from ..workflows.simulate import simulate_truth, summary_lines
 
 
 def register(sub):
-    p = sub.add_parser("simulate", help="simulate a truth grinder: elements, feature points, check measurements",
-                       description="Write DIR/truth_elements.json, DIR/featurepoints.csv, DIR/checks.csv and DIR/truth.json.")
+    p = sub.add_parser("simulate", help="simulate a truth machine and its measurements (a machine tool: elements, "
+                                        "feature points, checks; a serial arm: tracker poses)",
+                       description="A machine tool: write DIR/truth_elements.json, DIR/featurepoints.csv, DIR/checks.csv "
+                                   "and DIR/truth.json. A serial arm (--machine ur5|ur10|wam|FILE): write DIR/poses.csv, "
+                                   "DIR/checks.csv, DIR/program.csv and DIR/truth.json (docs/arms.md).")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name (mill-xyz, five-axis-ac, ...); "
                                                      "default: the built-in grinder")
     p.add_argument("--seed", type=int, default=0)
@@ -24,14 +27,36 @@ def register(sub):
     p.add_argument("--effect", action="append", default=[],
                    help="add an undeclared effect (repeatable): grinder " + EFFECT_HELP + "; a machine-tool "
                         "chain KIND[:AXES] with KIND thermal, reversal, periodic (pitch), harmonic (worm), interaction, "
-                        "e.g. periodic:Y, harmonic:C, interaction:X*Z")
-    p.add_argument("--noise-um", type=float, default=1.0, help="check-measurement noise σ per axis (μm)")
-    p.add_argument("--checks", type=int, default=400, help="number of check measurements")
+                        "e.g. periodic:Y, harmonic:C, interaction:X*Z; a serial arm: sag, backlash")
+    p.add_argument("--noise-um", type=float, default=None,
+                   help="measurement noise σ per axis (μm); default 1 for machine tools, 20 for a serial arm's tracker")
+    p.add_argument("--checks", type=int, default=None,
+                   help="number of check measurements (default 400; a serial arm: 100 held-out poses)")
+    p.add_argument("--poses", type=int, default=None,
+                   help="a serial arm only: number of fitting poses (default 200)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+    if machine.kind == "serial":
+        from ..workflows.simulate_serial import DEFAULT_ARM_NOISE_UM, simulate_serial
+        noise = DEFAULT_ARM_NOISE_UM if args.noise_um is None else args.noise_um
+        print(f"simulating truth arm {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
+        info = simulate_serial(machine, args.seed, args.out, effects=args.effect, noise_um=noise,
+                               poses=200 if args.poses is None else args.poses,
+                               checks=100 if args.checks is None else args.checks)
+        print(f"tool point error of the truth at the fitting poses: {info['uncompensated_rms_mm']:.3f} mm RMS")
+        for k, v in info["files"].items():
+            print(f"wrote {k}: {v}")
+        print(f"wrote truth: {Path(args.out) / 'truth.json'} (the judge's; never an input of calibrate)")
+        return 0
+    if args.poses is not None:
+        raise UsageError("--poses: only a serial arm is simulated by poses (machine tools: --checks)")
+    if args.noise_um is None:
+        args.noise_um = 1.0
+    if args.checks is None:
+        args.checks = 400
     if machine.kind == "machine-tool":
         from ..workflows.mt_loop import parse_effects, simulate_chain
         parse_effects(machine, args.effect)
