@@ -19,17 +19,17 @@ from compensation.app.validate import MAX_ERROR_CHARS, UsageError, one_line  # n
 # ``a-b`` lives in ``compensation/app/commands/a_b.py``; tests/test_cli_foundation.py checks that
 # each module registers exactly this help
 COMMAND_HELP = {
-    "simulate": "simulate a truth grinder: elements, feature points, check measurements",
-    "featurepoints": "feature points (11x11x11 grid) from an element set",
-    "predict": "evaluate an error field at axis points (CSV x_mm, z_mm, a_deg)",
+    "simulate": "simulate a truth machine and its measurements (a machine tool: elements, feature points, checks; a serial arm: tracker poses)",
+    "featurepoints": "feature points (a grid over the machine's axes) from an element set",
+    "predict": "evaluate an error field at axis points (CSV with the machine's axis columns, e.g. x_mm, z_mm, a_deg)",
     "train": "train the error-field network (LM by default) on feature points, tracked in MLflow",
     "compensate": "compensate tool-path files (CSV or G-code) with an error field",
     "report": "compare compensation methods on a path: report.html + metrics.json",
     "demo": "the whole pipeline on the default machine: simulate → train → compensate → report",
-    "identify": "identify the 23 error elements from laser-tracker sweeps",
-    "sweeps": "simulate laser-tracker axis sweeps of a truth grinder (sweep CSV)",
+    "identify": "identify the machine's error elements from laser-tracker sweeps",
+    "sweeps": "simulate laser-tracker axis sweeps of a truth machine tool (sweep CSV)",
     "diagnose": "measured residual -> effects the model lacks, before/after report; or a drift log",
-    "calibrate": "identify a hexapod/tripod's kinematic parameters from measured poses",
+    "calibrate": "identify a parallel machine's (hexapod/tripod) or a serial arm's kinematic parameters from measured poses",
     "interpolate": "hexapod/tripod leg-command program for a tool path",
     "benchmark": "learned vs parametric path on the same machines and measurements: report.html + benchmark.json",
     "drift-predict": "apply a saved drift model to a new log (causal compensation series)",

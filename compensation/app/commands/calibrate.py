@@ -23,7 +23,7 @@ from ..workflows.calibration import CalibrationSettings, run_calibration
 
 
 def register(subparsers):
-    p = subparsers.add_parser("calibrate", help="identify a hexapod/tripod's kinematic parameters from measured poses")
+    p = subparsers.add_parser("calibrate", help="identify a parallel machine's (hexapod/tripod) or a serial arm's kinematic parameters from measured poses")
     # a serial chain (``kind = "serial"``, e.g. --machine ur5) goes to the arm calibration
     # (compensation/app/workflows/arm_calibration.py; docs/arms.md)
     p.add_argument("poses", help="pose-measurement CSV (legs l1_mm.. or q1.., x_mm y_mm z_mm [+ rx_deg.. | qx qy qz qw])")

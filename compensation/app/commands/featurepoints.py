@@ -11,7 +11,7 @@ from errormap.machine import check_machine_kind, load_machine
 
 
 def register(sub):
-    p = sub.add_parser("featurepoints", help="feature points (11x11x11 grid) from an element set")
+    p = sub.add_parser("featurepoints", help="feature points (a grid over the machine's axes) from an element set")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
                    "grinder; a machine-tool chain (mill-xyz ...): the grid over its own axes")
     p.add_argument("--elements", required=True, help="element-set file (JSON)")

@@ -14,7 +14,7 @@ from ..workflows.identification import identify_elements, truth_in_gauge
 
 
 def register(sub):
-    p = sub.add_parser("identify", help="identify the 23 error elements from laser-tracker sweeps",
+    p = sub.add_parser("identify", help="identify the machine's error elements from laser-tracker sweeps",
                        description="The grinder paper's method (section 2.1): reference lines/circles, the 9x6 "
                                    "least-squares system per station, squareness from the X and Z lines, the A-axis "
                                    "line from the rotary body's initial state, B-spline elements. See "

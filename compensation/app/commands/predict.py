@@ -17,7 +17,7 @@ from ...fields import KIND_NAMES, load_field, resolve_model
 
 
 def register(sub):
-    p = sub.add_parser("predict", help="evaluate an error field at axis points (CSV x_mm, z_mm, a_deg)")
+    p = sub.add_parser("predict", help="evaluate an error field at axis points (CSV with the machine's axis columns, e.g. x_mm, z_mm, a_deg)")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
                    "grinder; a machine-tool chain (mill-xyz, five-axis-ac ...) takes its own axis columns")
     p.add_argument("--model", required=True, help="element-set file (JSON), a diagnosed DIR/model.json (volcomp "

@@ -12,8 +12,8 @@ from ..workflows.simulate import simulate_truth, summary_lines
 
 
 def register(sub):
-    p = sub.add_parser("simulate", help="simulate a truth machine and its measurements (a machine tool: elements, "
-                                        "feature points, checks; a serial arm: tracker poses)",
+    p = sub.add_parser("simulate", help="simulate a truth machine and its measurements (a machine tool: elements, feature points, "
+                                        "checks; a serial arm: tracker poses)",
                        description="A machine tool: write DIR/truth_elements.json, DIR/featurepoints.csv, DIR/checks.csv "
                                    "and DIR/truth.json. A serial arm (--machine ur5|ur10|wam|FILE): write DIR/poses.csv, "
                                    "DIR/checks.csv, DIR/program.csv and DIR/truth.json (docs/arms.md).")

@@ -12,7 +12,7 @@ from compensation.app.validate import UsageError
 
 
 def register(sub):
-    p = sub.add_parser("sweeps", help="simulate laser-tracker axis sweeps of a truth grinder (sweep CSV)",
+    p = sub.add_parser("sweeps", help="simulate laser-tracker axis sweeps of a truth machine tool (sweep CSV)",
                        description="Three target balls per moving body (machine file [targets]), 21 stations per "
                                    "axis, the tracker at a seeded unknown pose, isotropic noise. Writes one sweep "
                                    "file (one tracker set-up, axes X, Z and A).")
