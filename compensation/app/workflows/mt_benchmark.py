@@ -300,4 +300,7 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
 def _at(field_, cond: dict):
     """``field_`` told the path's conditions its effect terms need (as ``compensate --temp-c/--dir-x`` tells it)."""
     needs = tuple(getattr(field_, "needs", ()))
-    return field_.with_conditions({c: cond[c] for c in needs}) if needs else field_
+    # a condition constant along the path is told as one value: the solver may evaluate the field on a subset
+    # of the points (its retries of unconverged points, as near a turning centre's spindle axis)
+    return field_.with_conditions({c: (float(cond[c][0]) if np.all(cond[c] == cond[c][0]) else cond[c])
+                                   for c in needs}) if needs else field_
