@@ -104,8 +104,10 @@ def main():
     for row in g.slots:
         L.append(f"| {row['slot']} | {row['group']} | {row['n']} | {row['sd_median']:.3g} | {row['z_rms']:.2f} | "
                  f"{row['volume_rms_um']:.2f} |")
-    L += ["", "Per group (all slots of an axis, or the constants): rank and condition of its columns of the sweep "
-          "Jacobian (column-scaled), and its σ propagated to the tool point over the grid (RMS μm).", "",
+    L += ["", "Per group (all slots of an axis, or the constants): its station values (parameters), the free ones "
+          "among them (rank: not held by the gauge or the rank test, each tie counted once), the condition of its "
+          "block of the identification's correlation matrix, and its σ propagated to the tool point over the grid "
+          "(RMS μm of 32 draws from its covariance block).", "",
           "| group | parameters | rank | condition | propagated σ RMS μm |", "|---|---|---|---|---|"]
     for row in g.groups:
         L.append(f"| {row['group']} | {row['n']} | {row['rank']} | {row['condition']:.3g} | {row['sigma_rms_um']:.2f} |")
