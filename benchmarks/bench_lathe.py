@@ -24,7 +24,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 PROGRAM = ("%\nO1000 (LATHE X Z C)\nG18 G90 G21\nT1 M6\nG0 X80. Z350. C0.\n"
            "G1 X60. Z320. C0. F200.\nG1 Z260. C90.\nG2 X80. Z240. I20. K0.\nG1 X120. C180.\n"
@@ -110,7 +109,8 @@ def main():
           "(RMS μm of 32 draws from its covariance block).", "",
           "| group | parameters | rank | condition | propagated σ RMS μm |", "|---|---|---|---|---|"]
     for row in g.groups:
-        L.append(f"| {row['group']} | {row['n']} | {row['rank']} | {row['condition']:.3g} | {row['sigma_rms_um']:.2f} |")
+        L.append(f"| {row['group']} | {row['n']} | {row['rank']} | {row['condition']:.3g} | "
+                 f"{row['sigma_rms_um']:.2f} |")
     Path(a.out).write_text("\n".join(L) + "\n")
 
 
