@@ -378,7 +378,9 @@ def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
     from compensation.app.workflows.benchmark import RowLog, Tracker, _row, _streams
     from compensation.app.workflows.mt_benchmark import chain_effects, run_chain
     from errormap.machine import load_machine
-    lathe = load_machine("lathe-xzc")
+    src = (Path(__file__).resolve().parents[1] / "errormap" / "machines" / "lathe-xzc.toml").read_text()
+    (tmp_path / "half-turn.toml").write_text(src.replace("stroke = [0.0, 360.0]", "stroke = [0.0, 180.0]"))
+    lathe = load_machine(tmp_path / "half-turn.toml")   # a C that is no full turn: no judging path
     log = RowLog(Tracker(None, enabled=False))
     s = _chain_settings()
     skipped = run_chain(lathe, s, log, tmp_path, _row, _streams(0), lambda msg: None)

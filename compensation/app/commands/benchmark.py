@@ -23,7 +23,8 @@ def register(sub):
     p.add_argument("--machine", action="append", default=None, metavar="FILE",
                    help="machine file (TOML) or built-in name; repeat for several; default: built-in grinder, "
                         "hexapod, tripod; a machine-tool chain (mill-xyz, five-axis-ac, a file): simulate → sweeps → "
-                        "identify → diagnose → exact compensation of its body diagonals, TRUE residual")
+                        "identify → diagnose → exact compensation of its body diagonals (a turning centre such as "
+                        "lathe-xzc: lines along X and Z and a face/diameter set at 8 C positions), TRUE residual")
     p.add_argument("--out", default="runs/benchmark", metavar="DIR", help="output folder (default runs/benchmark)")
     p.add_argument("--quick", action="store_true",
                    help="reduced conditions and budgets (about a minute; what the test runs)")

@@ -10,7 +10,11 @@ left in ``DIR/chains/MACHINE/CONDITION/``:
 3. ``n_checks`` check measurements (noise ``check_noise_um``) → ``diagnose`` (update with the
    identification's covariance, effect search; ``model.json``);
 4. the test path: the four body diagonals of the linear axes' volume (ISO 230-6), inset
-   :data:`INSET` of each stroke, rotary axes at 0 (or their stroke middle), compensated by the
+   :data:`INSET` of each stroke, rotary axes at 0 (or their stroke middle); on a machine with two
+   linear axes and one full-turn rotary axis (a turning centre with a C axis), which has no body
+   diagonals, the turning path of :func:`turning_path` (a line along each linear axis, ISO 230-2-like,
+   and a face/diameter set of points at :data:`TURNING_C_POSITIONS` positions of the rotary axis);
+   compensated by the
    ``exact`` chain solver with the identified element set (row *before closed loop*) and with the
    loop's ``model.json`` (row *after closed loop*); beside it ``volume_points`` uniform random points
    over every axis (rotary axes kept as programmed).
@@ -41,6 +45,17 @@ EFFECTS = {"thermal": "thermal:X", "reversal": "reversal:Z", "pitch": "periodic:
            "interaction": "interaction:X*Z"}
 """The grinder's undeclared effects (settings ``effects``) on a chain: the same kinds on the chain's
 axes; ``worm`` on the first full-turn rotary axis."""
+
+
+TURNING_C_POSITIONS = 8
+"""Positions of the rotary axis (equally spaced over the turn) of the turning path's face/diameter set."""
+TURNING_CLEARANCE_MM = 10.0
+"""Points whose nominal tool point is closer than this to the rotary axis' line are left out of the turning
+path: there the rotary axis' lever (|d tool point / d angle| in mm per rad) vanishes and the exact solver
+must turn it far for a sideways error (``tests/test_lathe_compensate.py``); a turning program does not
+ask a C move on the centre line."""
+TURNING_RADIUS_FRACTION = 0.75
+"""The diameter line and set: the radial axis at this fraction of its stroke."""
 
 
 @dataclass
@@ -100,6 +115,59 @@ def diagonal_path(machine, points_per_diagonal: int) -> ChainPath:
         dirs.append(np.broadcast_to(d, (len(t), len(d))))
     axes, dirs = np.vstack(axes), np.vstack(dirs)
     return ChainPath(f"4 body diagonals ({len(axes)} points)", axes, _conditions(machine, len(axes), dirs))
+
+
+def turning_path(machine, points_per_line: int) -> ChainPath:
+    """The judging path of a machine with two linear axes and one full-turn rotary axis (module doc): a
+    line along each linear axis (the other linear axis at :data:`TURNING_RADIUS_FRACTION` of its stroke
+    for the first axis' line, at its stroke middle for the second's, the rotary axis at 0), then at
+    :data:`TURNING_C_POSITIONS` rotary positions a face set (first linear axis' lower end + inset, four
+    positions of the second) and a diameter set (second axis at the radius fraction, four positions of the
+    first). Points nearer than :data:`TURNING_CLEARANCE_MM` to the rotary axis' line are left out. Positive
+    approach on every axis. ValueError for any other machine."""
+    from ...solvers.chain_exact import nominal_and_jacobian
+    lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
+    rot = [j for j, a in enumerate(machine.axes) if a.kind == "rotary"]
+    if len(machine.axes) != 3 or len(lin) != 2 or len(rot) != 1 or not machine.axes[rot[0]].full_turn:
+        raise ValueError(f"{machine.name}: the turning path needs two linear axes and one full-turn rotary axis "
+                         f"(its axes: {' '.join(a.word for a in machine.axes)})")
+    lo, hi = machine.stroke_lo, machine.stroke_hi
+    a0, a1 = lo + INSET * (hi - lo), hi - INSET * (hi - lo)
+    r = rot[0]
+    pts = []
+    for j, other, at in ((lin[0], lin[1], TURNING_RADIUS_FRACTION), (lin[1], lin[0], 0.5)):
+        line = np.zeros((points_per_line, 3))
+        line[:, j] = np.linspace(a0[j], a1[j], points_per_line)
+        line[:, other] = lo[other] + at * (hi[other] - lo[other])
+        pts.append(line)
+    u = np.linspace(0.0, 1.0, 4)
+    for c in lo[r] + (hi[r] - lo[r]) * np.arange(TURNING_C_POSITIONS) / TURNING_C_POSITIONS:
+        for j, other, at in ((lin[1], lin[0], None), (lin[0], lin[1], TURNING_RADIUS_FRACTION)):
+            blk = np.zeros((4, 3))
+            blk[:, j] = a0[j] + u * (a1[j] - a0[j])
+            blk[:, other] = a0[other] if at is None else lo[other] + at * (hi[other] - lo[other])
+            blk[:, r] = c
+            pts.append(blk)
+    axes = np.vstack(pts)
+    _, J = nominal_and_jacobian(machine, axes)
+    lever_mm = np.linalg.norm(J[:, :, r], axis=1) * (180.0 / np.pi)  # mm per rad
+    axes = axes[lever_mm >= TURNING_CLEARANCE_MM]
+    n = len(axes)
+    name = (f"turning: lines along {machine.axes[lin[0]].word} and {machine.axes[lin[1]].word}, face/diameter set "
+            f"at {TURNING_C_POSITIONS} {machine.axes[r].word} positions ({n} points)")
+    return ChainPath(name, axes, _conditions(machine, n, np.ones((n, 3))))
+
+
+def judging_path(machine, points: int) -> ChainPath:
+    """The benchmark's test path of ``machine``: the body diagonals where it has three linear axes, else the
+    turning path; ValueError naming both reasons for any other machine."""
+    try:
+        return diagonal_path(machine, points)
+    except ValueError as exc:
+        try:
+            return turning_path(machine, points)
+        except ValueError as exc2:
+            raise ValueError(f"{exc}; {exc2}") from None
 
 
 def volume_path(machine, n: int, seed) -> ChainPath:
@@ -162,8 +230,8 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
     from .mt_loop import diagnose_chain, identify_chain_files, simulate_chain, sweeps_chain
     skipped = []
     try:
-        path = diagonal_path(machine, s.chain_path_points)
-    except ValueError as exc:  # not three linear axes: no body diagonals of three slides (ISO 230-6)
+        path = judging_path(machine, s.chain_path_points)
+    except ValueError as exc:  # neither three linear axes (body diagonals) nor a turning centre
         return [{"machine": machine.name, "why": f"compensation not available: {exc}"}]
     volume = volume_path(machine, s.volume_points, streams["volume_points"]) if s.volume_points else None
     effects, why = chain_effects(machine, s.effects)
@@ -232,4 +300,7 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
 def _at(field_, cond: dict):
     """``field_`` told the path's conditions its effect terms need (as ``compensate --temp-c/--dir-x`` tells it)."""
     needs = tuple(getattr(field_, "needs", ()))
-    return field_.with_conditions({c: cond[c] for c in needs}) if needs else field_
+    # a condition constant along the path is told as one value: the solver may evaluate the field on a subset
+    # of the points (its retries of unconverged points, as near a turning centre's spindle axis)
+    return field_.with_conditions({c: (float(cond[c][0]) if np.all(cond[c] == cond[c][0]) else cond[c])
+                                   for c in needs}) if needs else field_
