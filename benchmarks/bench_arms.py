@@ -35,7 +35,8 @@ from errormap.arm_simulate import draw_truth, measure, random_joints  # noqa: E4
 from errormap.io import atomic_write, write_json  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
 
-from compensation.app.workflows.arm_calibration import calibrate_arm  # noqa: E402
+from compensation.app.workflows.arm_calibration import (PIPELINE_RULES, PLAIN_GP, calibrate_arm,  # noqa: E402
+                                                        choose_pipeline)
 from compensation.arm_compensation import solve_joints  # noqa: E402
 
 DATA = ROOT / ".." / "shared" / "data" / "serial-arms"
@@ -85,7 +86,7 @@ def _summary(pooled):
     return out
 
 
-def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None):
+def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, variants=False):
     """Outer folds: every decision (slot set, plain LSQ instead, learned kept) is made by CV inside the
     outer fit part (:func:`calibrate_arm`); the outer held-out fold only reports (nested). ``blocked``:
     the inner CV is blocked too (joint-1 sectors of the fit part), as the outer one."""
@@ -122,12 +123,81 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None):
                      "kept_mean_mm": float(errs["volcomp kept stage"].mean()),
                      "plain_gp_mean_mm": float(errs["plain GP on plain LSQ residual"].mean()),
                      "cpu_s": time.process_time() - t0})
+        kept[-1]["rules"] = rule_outcomes(core, errs)
+        if variants:
+            kept[-1]["variants"] = learned_variants(chain, fit, check, core, k_folds_inner, log)
         print(f"[{name}] {label}: kept {core['kept_stage']} {errs['volcomp kept stage'].mean():.4f}, plain LSQ "
               f"{errs['plain geometric LSQ'].mean():.4f}, plain GP {errs['plain GP on plain LSQ residual'].mean():.4f} mm, "
               f"coverage {core['coverage95_heldout']:.3f} ({kept[-1]['cpu_s']:.0f} s CPU)", file=log, flush=True)
         if on_fold is not None:
             on_fold(_summary(pooled), kept)
     return _summary(pooled), kept
+
+
+def rule_outcomes(core, errs):
+    """Per pipeline rule (:data:`PIPELINE_RULES`): the pipeline it keeps from this fold's inner CV and that
+    pipeline's OUTER held-out mean error (the rule is applied to the inner CV only; the outer fold reports)."""
+    pcv, vol = core["pipeline_cv_errors"], core["pipeline_volcomp"]
+    outer = {vol: errs["volcomp kept stage"] if core["kept_stage"] == vol else
+             errs["learned (GP on the chosen geometric stage)"] if vol == "learned" else
+             errs["geometric stage chosen by inner CV"],
+             "plain geometric LSQ": errs["plain geometric LSQ"], PLAIN_GP: errs[PLAIN_GP]}
+    out = {"inner_cv_mean_mm": {k: v["cv_mean_mm"] for k, v in pcv.items()},
+           "outer_mean_mm": {k: float(v.mean()) for k, v in outer.items()}}
+    for rule in PIPELINE_RULES:
+        k = choose_pipeline(pcv, vol, rule)
+        out[rule] = {"kept": k, "errors_mm": outer[k].tolist()}
+    return out
+
+
+VARIANTS = {  # name → (inputs, residual of which geometric stage, margin_se)
+    "GP physics on the inner-CV geometric stage (volcomp's learned stage)": ("physics", "geo", 1.0),
+    "GP physics+h2 on the inner-CV geometric stage": ("physics+h2", "geo", 1.0),
+    "GP physics+wrist on the inner-CV geometric stage": ("physics+wrist", "geo", 1.0),
+    "GP physics on the plain LSQ residual": ("physics", "plain", 1.0),
+    "GP sincos on the plain LSQ residual (plain GP)": ("sincos", "plain", 0.0),
+}
+AVERAGE_TOP = 2   # the averaging rule: the mean prediction of the this many variants with the lowest inner-CV mean
+
+
+def learned_variants(chain, fit, check, core, k_inner, log):
+    """Point 2's tried variants of the learned stage, each with its INNER-CV mean error (its ResidualRegressor's
+    own k-fold CV inside the outer fit part, hyper-parameters re-estimated per inner fold; the geometric stage
+    under it fitted on the whole outer fit part) and its OUTER held-out mean error; the variant with the lowest
+    inner-CV mean, and the average of the AVERAGE_TOP best by inner CV, chosen on inner CV only."""
+    from training.arm_residual import ArmResidualRegressor
+    geo = {"geo": core["volcomp_geometric_model"], "plain": core["plain_model"]}
+    rows, inner_pred, outer_pred = {}, {}, {}
+    for vname, (inputs, base, margin) in VARIANTS.items():
+        t0 = time.process_time()
+        if vname.startswith("GP physics on the inner-CV"):
+            lr = core["learner"]
+        elif vname.startswith("GP sincos on the plain"):
+            lr = core["plain_gp"]
+        else:
+            lr = ArmResidualRegressor(chain, inputs=inputs, k_folds=k_inner, n_restarts=1, margin_se=margin,
+                                      seed=0).fit(fit.q, fit.xyz_mm - geo[base].predict(fit.q))
+        g_fit, g_chk = geo[base].predict(fit.q), geo[base].predict(check.q)
+        reg = lr.regressor_
+        ip = np.zeros_like(g_fit)
+        if lr.chosen_ != "none":
+            ip = reg.cv_pred_["gp"]
+        inner_pred[vname] = g_fit + ip
+        outer_pred[vname] = g_chk + lr.predict(check.q)
+        e_in = np.linalg.norm(fit.xyz_mm - inner_pred[vname], axis=1)
+        e_out = np.linalg.norm(check.xyz_mm - outer_pred[vname], axis=1)
+        rows[vname] = {"inner_cv_mean_mm": float(e_in.mean()), "outer_mean_mm": float(e_out.mean()),
+                       "chosen": lr.chosen_, "outer_errors_mm": e_out.tolist(), "cpu_s": time.process_time() - t0}
+        print(f"  variant {vname}: inner {e_in.mean():.4f} outer {e_out.mean():.4f} ({lr.chosen_})", file=log, flush=True)
+    order = sorted(rows, key=lambda k: rows[k]["inner_cv_mean_mm"])
+    top = order[:AVERAGE_TOP]
+    e_in = np.linalg.norm(fit.xyz_mm - np.mean([inner_pred[k] for k in top], 0), axis=1)
+    e_out = np.linalg.norm(check.xyz_mm - np.mean([outer_pred[k] for k in top], 0), axis=1)
+    rows[f"average of the {AVERAGE_TOP} best by inner CV"] = {"inner_cv_mean_mm": float(e_in.mean()),
+                                                              "outer_mean_mm": float(e_out.mean()), "members": top,
+                                                              "outer_errors_mm": e_out.tolist()}
+    rows["lowest inner CV"] = {"picked": order[0], "outer_errors_mm": rows[order[0]]["outer_errors_mm"]}
+    return rows
 
 
 def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
@@ -306,6 +376,8 @@ def main(argv=None):
     ap.add_argument("--loop-seeds", type=int, default=LOOP_SEEDS)
     ap.add_argument("--parts", default="wam,sim,ur5", help="what to run, in order: arm names and/or 'sim'")
     ap.add_argument("--sim-only", default="", help="';'-separated 'case, model' coverage runs (default all)")
+    ap.add_argument("--kinds", default="random,blocked", help="which outer splits to run")
+    ap.add_argument("--variants", default="ur5", help="arms whose random folds also run the learned-stage variants")
     ap.add_argument("--merge", action="store_true", help="keep the other parts' results from the existing json")
     ap.add_argument("--out", default=None, help="write <OUT>.json / <OUT>.md instead of benchmarks/arms_results.*")
     args = ap.parse_args(argv)
@@ -339,7 +411,10 @@ def main(argv=None):
                     rr[kind] = {"summary": s, "folds": k, "n_folds_planned": n}
                     write_json(OUT_JSON, res)
                     write_md(res, args)
-                run_arm(part, folds, args.inner_folds, log, blocked=kind == "blocked", on_fold=on_fold)
+                if kind not in args.kinds.split(","):
+                    continue
+                run_arm(part, folds, args.inner_folds, log, blocked=kind == "blocked", on_fold=on_fold,
+                        variants=part in args.variants.split(",") and kind == "random")
         write_json(OUT_JSON, res)   # partial results as each part finishes
         write_md(res, args)
     print(f"wrote {OUT_MD}")
