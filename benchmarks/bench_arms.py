@@ -161,13 +161,16 @@ AVERAGE_TOP = 2   # the averaging rule: the mean prediction of the this many var
 
 
 def learned_variants(chain, fit, check, core, k_inner, log):
-    """Point 2's tried variants of the learned stage, each with its INNER-CV mean error (its ResidualRegressor's
-    own k-fold CV inside the outer fit part, hyper-parameters re-estimated per inner fold; the geometric stage
-    under it fitted on the whole outer fit part) and its OUTER held-out mean error; the variant with the lowest
-    inner-CV mean, and the average of the AVERAGE_TOP best by inner CV, chosen on inner CV only."""
-    from training.arm_residual import ArmResidualRegressor
-    geo = {"geo": core["volcomp_geometric_model"], "plain": core["plain_model"]}
-    rows, inner_pred, outer_pred = {}, {}, {}
+    """Point 2's tried variants of the learned stage, each with its INNER-CV mean error — the CV of the whole
+    pipeline inside the outer fit part (:func:`training.arm_residual.cv_pipelines`: the geometric stage refitted
+    and the GP's hyper-parameters re-estimated on each inner fold's fit part; the folds of the calibration's own
+    geometric CV) — and its OUTER held-out mean error; the variant with the lowest inner-CV mean, and the average of
+    the AVERAGE_TOP best by inner CV, chosen on inner CV only."""
+    from training.arm_residual import ArmResidualRegressor, cv_pipelines
+    gv = core["volcomp_geometric_model"]
+    geo = {"geo": (gv, "plain" if gv is core["plain_model"] else gv.model), "plain": (core["plain_model"], "plain")}
+    s_geo = np.random.SeedSequence(0).spawn(3)[0]          # calibrate_arm(seed=0)'s geometric CV folds
+    rows, inner_pred, outer_pred, fold_fits = {}, {}, {}, {}
     for vname, (inputs, base, margin) in VARIANTS.items():
         t0 = time.process_time()
         if vname.startswith("GP physics on the inner-CV"):
@@ -176,19 +179,15 @@ def learned_variants(chain, fit, check, core, k_inner, log):
             lr = core["plain_gp"]
         else:
             lr = ArmResidualRegressor(chain, inputs=inputs, k_folds=k_inner, n_restarts=1, margin_se=margin,
-                                      seed=0).fit(fit.q, fit.xyz_mm - geo[base].predict(fit.q))
-        g_fit, g_chk = geo[base].predict(fit.q), geo[base].predict(check.q)
-        reg = lr.regressor_
-        ip = np.zeros_like(g_fit)
-        if lr.chosen_ != "none":
-            ip = reg.cv_pred_["gp"]
-        inner_pred[vname] = g_fit + ip
-        outer_pred[vname] = g_chk + lr.predict(check.q)
-        e_in = np.linalg.norm(fit.xyz_mm - inner_pred[vname], axis=1)
+                                      seed=0).fit(fit.q, fit.xyz_mm - geo[base][0].predict(fit.q))
+        cv = cv_pipelines(chain, fit, {vname: (geo[base][1], lr)}, k_inner, s_geo, fold_fits=fold_fits)[vname]
+        inner_pred[vname] = cv["pred_mm"]
+        outer_pred[vname] = geo[base][0].predict(check.q) + lr.predict(check.q)
         e_out = np.linalg.norm(check.xyz_mm - outer_pred[vname], axis=1)
-        rows[vname] = {"inner_cv_mean_mm": float(e_in.mean()), "outer_mean_mm": float(e_out.mean()),
+        rows[vname] = {"inner_cv_mean_mm": cv["cv_mean_mm"], "outer_mean_mm": float(e_out.mean()),
                        "chosen": lr.chosen_, "outer_errors_mm": e_out.tolist(), "cpu_s": time.process_time() - t0}
-        print(f"  variant {vname}: inner {e_in.mean():.4f} outer {e_out.mean():.4f} ({lr.chosen_})", file=log, flush=True)
+        print(f"  variant {vname}: inner {cv['cv_mean_mm']:.4f} outer {e_out.mean():.4f} ({lr.chosen_})", file=log,
+              flush=True)
     order = sorted(rows, key=lambda k: rows[k]["inner_cv_mean_mm"])
     top = order[:AVERAGE_TOP]
     e_in = np.linalg.norm(fit.xyz_mm - np.mean([inner_pred[k] for k in top], 0), axis=1)
@@ -196,67 +195,136 @@ def learned_variants(chain, fit, check, core, k_inner, log):
     rows[f"average of the {AVERAGE_TOP} best by inner CV"] = {"inner_cv_mean_mm": float(e_in.mean()),
                                                               "outer_mean_mm": float(e_out.mean()), "members": top,
                                                               "outer_errors_mm": e_out.tolist()}
-    rows["lowest inner CV"] = {"picked": order[0], "outer_errors_mm": rows[order[0]]["outer_errors_mm"]}
+    rows["lowest inner CV"] = {"picked": order[0], "outer_errors_mm": rows[order[0]]["outer_errors_mm"],
+                               "inner": "pipeline-cv"}
     return rows
 
 
-def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
-    """``only``: the "case, model" combinations to run (default all); ``cover``: earlier results kept."""
+COMBO_CASES = {"with sag, dh+compliance": ({}, "dh+compliance"), "no sag, dh": (dict(compliance_rad_per_mm=np.zeros(6)), "dh")}
+
+
+def combination_coverage(n_seeds, log):
+    """Point 4: the band judge read per slot, per seed and on identifiable combinations. Per seed the identified
+    link/base/tool slots' estimate minus the truth's identifiable equivalent (as :func:`simulated`), δ, with its
+    marginal covariance Σ (the fit's own σ² (JᵀJ)⁻¹ block, not widened). Combinations: the slots in the pivot order
+    of a QR with column pivoting of the column-scaled error Jacobian at the FIT poses and the estimate (fit data
+    only), R the upper Cholesky factor of Σ⁻¹ in that order (Σ⁻¹ = RᵀR): y = R δ has unit covariance, row k the
+    combination of pivot slot k with the slots after it — what the data determine, each with its own 95 % band
+    |y_k| ≤ 1.96."""
+    from scipy.linalg import qr
+    from scipy.stats import chi2 as chi2_dist
     chain = load_machine("ur5")
-    cover = dict(cover or {})
-    cases = {"no sag": dict(compliance_rad_per_mm=np.zeros(6)), "with sag": {},
-             "with sag + backlash": dict(backlash_rad=np.full(6, BACKLASH_RAD))}
-    for case, kw in cases.items():
-        for model in ("dh", "dh+compliance"):
-            if only and f"{case}, {model}" not in only:
-                continue
-            inside, inside_c, half, n_slots = [], [], [], []
-            for seed in range(n_seeds):
-                t = draw_truth(chain, seed, **kw)
-                q = random_joints(UR5_LO, UR5_HI, 200, [seed, 0])
-                p = measure(chain, t, q, NOISE_MM, [seed, 1])
-                r = fit_model(chain, p, model)
-                ng = chain.n_params
-                # the true link errors' identifiable equivalent in the estimate's parameterisation: the DH fit on
-                # the estimate's identified link slots to noise-free, sag-free tool points (judge's side)
-                ref = fit_slots(chain, ArmPoses(q, chain.tool_point(q, t.errors), None, None, None, p.rows, "truth",
-                                                "schema"), r.free[:ng])
-                ok = r.free[:ng]
-                mm = np.array([nm.endswith("_mm") for nm in chain.param_names])
-                half.append((float(np.median(Z95 * r.std[:ng][ok & mm])),
-                             float(np.median(Z95 * r.std[:ng][ok & ~mm])) * 1e6))
-                n_slots.append(int(ok.sum()))
-                inside.append(float(np.mean((np.abs(r.params[:ng] - ref.params) <= Z95 * r.std[:ng])[ok])))
-                if model != "dh":
-                    cj = [k for k, n in enumerate(r.chain.param_names) if n.startswith("compliance.") and r.free[k]]
-                    truth_c = np.array([t.compliance_rad_per_mm[r.chain.terms[k - ng][1]] * 1000 for k in cj])
-                    inside_c.append(float(np.mean(np.abs(r.params[cj] - truth_c) <= Z95 * r.std[cj])))
-            cover[f"{case}, {model}"] = {"pooled": float(np.mean(inside)), "per_seed": inside,
-                                         "seeds_at_least_90pct": float(np.mean(np.array(inside) >= 0.9)),
-                                         "median_band_halfwidth_mm_urad": np.median(np.array(half), axis=0).tolist(), "n_slots": n_slots,
-                                         "compliance_inside_band": float(np.mean(inside_c)) if inside_c else None}
-            print(f"[sim] link-error band coverage ({case}, {model}): {np.mean(inside):.3f}", file=log, flush=True)
-    # learned stage + compensation on one seed per run of the loop (seed 7; the CLI test does the same)
-    loop = []
-    for seed in range(loop_seeds):
-        t = draw_truth(chain, 100 + seed)
-        fit = measure(chain, t, random_joints(UR5_LO, UR5_HI, 400, [100 + seed, 0]), NOISE_MM, [100 + seed, 1])
-        check = measure(chain, t, random_joints(UR5_LO, UR5_HI, 100, [100 + seed, 2]), NOISE_MM, [100 + seed, 3])
-        core = calibrate_arm(chain, fit, check, learned=True, k_folds=k_inner, n_restarts=1, seed=seed, log=log)
-        rows = {s["name"]: s for s in core["stages"] + core["baselines"]}
-        qp = random_joints(UR5_LO + 5, UR5_HI - 5, 100, [100 + seed, 4])
-        learner = core["kept_learner"]
-        sol = solve_joints(core["geometric_model"].chain, core["geometric_model"].params, learner, chain.tool_point(qp), qp)
-        true_after = np.linalg.norm(t.tool_point(chain, sol.q) - chain.tool_point(qp), axis=1)
-        true_before = np.linalg.norm(t.tool_point(chain, qp) - chain.tool_point(qp), axis=1)
-        loop.append({"seed": 100 + seed, "kept": core["kept_stage"], "kept_rms_mm": rows[core["kept_stage"]]["rms_mm"],
-                     "heldout_rms_mm": {k: v["rms_mm"] for k, v in rows.items()},
-                     "compensation_true_rms_mm": float(np.sqrt(np.mean(true_after ** 2))),
-                     "uncompensated_true_rms_mm": float(np.sqrt(np.mean(true_before ** 2))),
-                     "converged": int(sol.converged.sum()), "points": len(qp)})
-        print(f"[sim] seed {100 + seed}: kept {core['kept_stage']} RMS {rows[core['kept_stage']]['rms_mm']:.4f} mm, comp TRUE "
-              f"{loop[-1]['compensation_true_rms_mm']:.4f} mm", file=log, flush=True)
-    return cover, loop
+    out = {}
+    for case, (kw, model) in COMBO_CASES.items():
+        slot_in, seed_slot, seed_combo, worst = {}, [], [], Counter()
+        half, chi2, dof, pin = [], [], [], []
+        for seed in range(n_seeds):
+            t = draw_truth(chain, seed, **kw)
+            q = random_joints(UR5_LO, UR5_HI, 200, [seed, 0])
+            p = measure(chain, t, q, NOISE_MM, [seed, 1])
+            r = fit_model(chain, p, model)
+            ng = chain.n_params
+            ok = r.free[:ng]
+            ref = fit_slots(chain, ArmPoses(q, chain.tool_point(q, t.errors), None, None, None, p.rows, "truth",
+                                            "schema"), ok)
+            idx = np.flatnonzero(ok)
+            d = (r.params[:ng] - ref.params)[idx]
+            sd = r.std[:ng][idx]
+            ins = np.abs(d) <= Z95 * sd
+            for k, i in enumerate(idx):
+                slot_in.setdefault(chain.param_names[i], []).append(bool(ins[k]))
+            seed_slot.append(float(ins.mean()))
+            J = r.chain.error_jacobian(q, r.params)[:, :, idx].reshape(-1, len(idx))
+            nrm = np.linalg.norm(J, axis=0)
+            _, _, piv = qr(J / np.where(nrm > 0, nrm, 1.0), mode="economic", pivoting=True)
+            S = r.cov[np.ix_(idx, idx)][np.ix_(piv, piv)]
+            R = np.linalg.cholesky(np.linalg.inv(S)).T
+            y = R @ d[piv]
+            cin = np.abs(y) <= Z95
+            seed_combo.append(float(cin.mean()))
+            worst.update(chain.param_names[idx[piv[k]]] for k in np.flatnonzero(~cin))
+            chi2.append(float(d @ np.linalg.solve(r.cov[np.ix_(idx, idx)], d)))
+            dof.append(len(idx))
+            # what the data do determine: the tool point. Its 95 % band (J Σ Jᵀ) against the TRUE noise-free tool
+            # point (sag included where simulated) on 200 new poses
+            qn = random_joints(UR5_LO, UR5_HI, 200, [seed, 5])
+            pin.append(float(np.mean(np.abs(r.predict(qn) - t.tool_point(chain, qn)) <= Z95 * r.band_std_mm(qn))))
+            mm = np.array([chain.param_names[i].endswith("_mm") for i in idx])
+            half.append((float(np.median(Z95 * sd[mm])), float(np.median(Z95 * sd[~mm])) * 1e6))
+        per_slot = {k: float(np.mean(v)) for k, v in slot_in.items()}
+        out[case] = {"per_slot_fraction_of_seeds": per_slot, "min_slot": min(per_slot.values()),
+                     "min_slot_name": min(per_slot, key=per_slot.get),
+                     "slots_at_least_90pct": int(sum(v >= 0.9 for v in per_slot.values())), "n_slot_names": len(per_slot),
+                     "per_seed_slots": seed_slot, "per_seed_combos": seed_combo,
+                     "seeds_slots_90": int(sum(v >= 0.9 for v in seed_slot)),
+                     "seeds_combos_90": int(sum(v >= 0.9 for v in seed_combo)),
+                     "pooled_slots": float(np.mean(seed_slot)), "pooled_combos": float(np.mean(seed_combo)),
+                     "combos_outside_by_pivot_slot": dict(worst.most_common(6)),
+                     "median_band_halfwidth_mm_urad": np.median(np.array(half), axis=0).tolist(),
+                     "chi2": chi2, "dof": dof,
+                     "seeds_chi2_within_95": int(sum(c <= chi2_dist.ppf(0.95, k) for c, k in zip(chi2, dof))),
+                     "tool_point_band_inside_per_seed": pin, "tool_point_band_pooled": float(np.mean(pin)),
+                     "seeds_tool_point_90": int(sum(v >= 0.9 for v in pin))}
+        print(f"[combos] {case}: slots per seed >= 90 %: {out[case]['seeds_slots_90']}/{n_seeds}, combos "
+              f"{out[case]['seeds_combos_90']}/{n_seeds}; min slot {out[case]['min_slot']:.2f} "
+              f"({out[case]['min_slot_name']}); chi2 within its 95 % quantile {out[case]['seeds_chi2_within_95']}/{n_seeds}; "
+              f"tool-point band {out[case]['tool_point_band_pooled']:.3f}", file=log, flush=True)
+    return out
+
+
+def rules_md(r):
+    """Point 3: each pipeline rule, applied to the inner CV of every outer fold; the outer pooled mean of what it
+    kept, the plain GP beside it, and each pipeline's inner-CV mean against its outer mean."""
+    L = []
+    for kind in ("random", "blocked"):
+        ks = [f for f in r.get(kind, {}).get("folds", []) if "rules" in f]
+        if not ks:
+            continue
+        e_gp = r[kind]["summary"][PLAIN_GP]["mean_mm"]     # every fold's plain GP held-out errors, pooled
+        L += ["", f"Pipeline rules on the {kind} outer folds ({len(ks)} folds; each rule applied to the inner CV of "
+              "whole pipelines only; outer pooled mean of the pipeline it kept, mm):", "",
+              "| rule | kept (folds) | outer mean (mm) | plain GP on plain LSQ residual (mm) |", "|---|---|---|---|"]
+        for rule in PIPELINE_RULES:
+            n_kept = ", ".join(f"{k} {v}" for k, v in Counter(f["rules"][rule]["kept"] for f in ks).most_common())
+            e = float(np.mean(np.concatenate([f["rules"][rule]["errors_mm"] for f in ks])))
+            L.append(f"| {rule} | {n_kept} | {e:.4f} | {e_gp:.4f} |")
+        L += ["", "| pipeline | inner-CV mean, averaged over the outer folds (mm) | outer mean, averaged over the outer folds (mm) |",
+              "|---|---|---|"]
+        first = (lambda d: d[next(iter(d))])       # volcomp's own choice is the first pipeline of every fold
+        L.append(f"| volcomp's choice ({', '.join(sorted({next(iter(f['rules']['inner_cv_mean_mm'])) for f in ks}))}) | "
+                 f"{np.mean([first(f['rules']['inner_cv_mean_mm']) for f in ks]):.4f} | "
+                 f"{np.mean([first(f['rules']['outer_mean_mm']) for f in ks]):.4f} |")
+        for nm in ("plain geometric LSQ", PLAIN_GP):
+            L.append(f"| {nm} | {np.mean([f['rules']['inner_cv_mean_mm'][nm] for f in ks]):.4f} | "
+                     f"{np.mean([f['rules']['outer_mean_mm'][nm] for f in ks]):.4f} |")
+    return L
+
+
+def variants_md(r):
+    """Point 2: every tried variant of the learned stage, its inner-CV and outer figure, and the rules' picks."""
+    ks = [f for f in r.get("random", {}).get("folds", [])
+          if f.get("variants", {}).get("lowest inner CV", {}).get("inner") == "pipeline-cv"]
+    if not ks:
+        return []
+    L = ["", f"Learned-stage variants on the random outer folds ({len(ks)} folds{'' if len(ks) == r['random'].get('n_folds_planned', len(ks)) else ' — PARTIAL, of ' + str(r['random']['n_folds_planned'])}). "
+         "Inner CV: the whole pipeline's k-fold CV inside the outer fit part (geometric stage refitted and GP "
+         "hyper-parameters re-estimated on every inner fold's fit part; a learner its own CV declined adds nothing); "
+         "outer: pooled held-out mean. Rules decided on inner CV only: `lowest "
+         f"inner CV` keeps the variant with the lowest inner-CV mean per fold; `average of the {AVERAGE_TOP} best` "
+         "averages the predictions of the two lowest.", "",
+         "| variant | inner-CV mean, averaged over folds (mm) | outer mean (mm) | learner kept by its own CV (folds) |",
+         "|---|---|---|---|"]
+    for v in ks[0]["variants"]:
+        if v == "lowest inner CV":
+            continue
+        rows = [f["variants"][v] for f in ks]
+        e = float(np.mean(np.concatenate([x["outer_errors_mm"] for x in rows])))
+        kept = sum(x.get("chosen") == "gp" for x in rows) if "chosen" in rows[0] else "—"
+        L.append(f"| {v} | {np.mean([x['inner_cv_mean_mm'] for x in rows]):.4f} | {e:.4f} | {kept} |")
+    picks = Counter(f["variants"]["lowest inner CV"]["picked"] for f in ks)
+    e = float(np.mean(np.concatenate([f["variants"]["lowest inner CV"]["outer_errors_mm"] for f in ks])))
+    L.append(f"| rule: lowest inner CV ({'; '.join(f'{k}: {n}' for k, n in picks.most_common())}) | — | {e:.4f} | — |")
+    return L
 
 
 def _write_md(path, text):
@@ -306,6 +374,7 @@ def write_md(res, args):
                   + ("" if all("cv_pipelines" in f for f in ks) else
                      " RUN BEFORE the pipeline CV (point 5 of docs/arms.md): its kept stage is volcomp's choice "
                      "without the plain pipelines as candidates.")]
+        L += rules_md(r) + variants_md(r)
         L.append("")
     L += ["Rows: `geometric (DH)` volcomp's LM on the identifiable DH + base + tool slots; `geometric+compliance` adds "
           "a compliance slot per load-carrying joint (Δθ = c·τ(q), τ the gravity moment of unit masses at the "
@@ -316,9 +385,10 @@ def write_md(res, args):
           "gravity moments) on that stage's residual; `volcomp kept stage` what `volcomp calibrate` returns: the "
           "learned stage where its CV inside the fit part beat the geometric stage, else the geometric stage; then that "
           "choice, the plain LSQ fit and the plain GP on its residual are cross-validated as whole pipelines on the same "
-          "inner folds (geometric stage refitted per fold, GP weights re-solved on the refit's residual with the "
-          "hyper-parameters of the whole fit part) and the lowest inner-CV mean error is returned (ties: volcomp's "
-          "choice), so the kept stage never loses to a plain baseline in the inner validation. Every "
+          "inner folds (geometric stage refitted per fold, the GP's standardisation and hyper-parameters re-estimated "
+          "on each inner fold's fit part: nothing of the inner held-out fold reaches them) and the lowest inner-CV mean "
+          "error is returned (ties: volcomp's choice), so the kept stage never loses to a plain baseline in the inner "
+          "validation. Every "
           "decision is nested: the outer held-out fold only reports.", ""]
     if "sim" not in res:
         _write_md(OUT_MD, "\n".join(L + ["(simulated-arm section not run yet)", ""]))
@@ -336,7 +406,7 @@ def write_md(res, args):
           "|---|---|---|---|---|---|"]
     from scipy.stats import binom
     order = [f"{c}, {m}" for c in ("no sag", "with sag", "with sag + backlash") for m in ("dh", "dh+compliance")]
-    for k, v in sorted(res["sim"]["coverage"].items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else 99):
+    for k, v in sorted(res["sim"].get("coverage", {}).items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else 99):
         ns = v.get("n_slots")
         hw = v.get("median_band_halfwidth_mm_urad")
         expect = (f"{np.mean([binom.cdf(int(np.floor(0.1 * n)), n, 0.05) for n in ns]):.2f} "
@@ -345,14 +415,14 @@ def write_md(res, args):
         L.append(f"| {k} ({len(v['per_seed'])} seeds) | {v['pooled']:.3f} | {n_ok} of {len(v['per_seed'])} | {expect} | "
                  f"{'—' if hw is None else f'{hw[0]:.4f} / {hw[1]:.1f}'} | {fmt(v['compliance_inside_band'])} |")
     missing = [f"{c}, {m}" for c in ("no sag", "with sag", "with sag + backlash") for m in ("dh", "dh+compliance")
-               if f"{c}, {m}" not in res["sim"]["coverage"]]
+               if f"{c}, {m}" not in res["sim"].get("coverage", {})]
     if missing:
         L += ["", "Not run in this run (`--sim-only`): " + "; ".join(missing) + "."]
     L += ["", f"Noise floor of a perfect model (RMS 3-D error against noisy measurements): "
           f"{np.sqrt(3) * NOISE_MM:.4f} mm; bound 1.25× = {1.25 * np.sqrt(3) * NOISE_MM:.4f} mm.", "",
           "| seed | kept | held-out RMS nominal+base/tool / plain LSQ / geometric (DH) / geometric+compliance / plain GP / "
           "kept (mm) | compensated commands TRUE RMS (mm) | uncompensated TRUE RMS (mm) |", "|---|---|---|---|---|"]
-    for s in res["sim"]["loop"]:
+    for s in res["sim"].get("loop", []):
         h = s["heldout_rms_mm"]
         L.append(f"| {s['seed']} | {s['kept']} | {fmt(h['nominal + base/tool'], 4)} / {fmt(h['plain geometric LSQ'], 4)} / "
                  f"{fmt(h['geometric'], 4)} / {fmt(h['geometric+compliance'], 4)} / "
@@ -394,11 +464,13 @@ def main(argv=None):
         if "sim" in old:
             res["sim"] = old["sim"]
     for part in args.parts.split(","):
-        if part == "sim":
+        if part == "combos":
+            res.setdefault("sim", {})["combos"] = combination_coverage(args.seeds, log)
+        elif part == "sim":
             only = [c.strip() for c in args.sim_only.split(";")] if args.sim_only else None
             old = res.get("sim", {})
             cover, loop = simulated(args.seeds, log, args.loop_seeds, args.inner_folds, only, old.get("coverage"))
-            res["sim"] = {"coverage": cover, "loop": loop if args.loop_seeds else old.get("loop", [])}
+            res["sim"] = {**old, "coverage": cover, "loop": loop if args.loop_seeds else old.get("loop", [])}
         else:
             chain = load_machine(part)
             data = read_arm_poses(DATA / f"{part}_grid.csv", chain)

@@ -186,13 +186,15 @@ def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None,
     (:meth:`training.residual.ResidualRegressor.refit`), with ``hyper="fit"`` the hyper-parameters of all
     ``poses`` kept and only the weights re-solved (:meth:`~training.residual.ResidualRegressor.with_data`;
     the held-out fold then leaks into them). The held-out fold is predicted. Returns name →
-    ``{"cv_mean_mm", "cv_rms_mm", "errors_mm"}`` (``errors_mm`` (n,) held-out position error norm per pose)."""
+    ``{"cv_mean_mm", "cv_rms_mm", "errors_mm", "pred_mm"}`` (``errors_mm`` (n,) held-out position error norm per
+    pose, ``pred_mm`` (n, 3) the held-out prediction)."""
     if hyper not in HYPER:
         raise ValueError(f"hyper must be one of {HYPER}, got {hyper!r}")
     from errormap.arm_calibration import cv_labels, fit_model, fit_plain_lsq
     lab = cv_labels(len(poses), k_folds, seed, groups)
     fold_fits = {} if fold_fits is None else fold_fits
     err = {k: np.empty(len(poses)) for k in pipelines}
+    held = {k: np.empty((len(poses), 3)) for k in pipelines}
     for f in range(int(lab.max()) + 1):
         itr, ite = np.flatnonzero(lab != f), np.flatnonzero(lab == f)
         tr = poses.subset(itr)
@@ -206,5 +208,6 @@ def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None,
                 reg = learner.regressor_.refit(X, Y) if hyper == "fold" else learner.regressor_.with_data(X, Y)
                 pred = pred + reg.predict(features(chain, poses.q[ite], learner.inputs))
             err[name][ite] = np.linalg.norm(poses.xyz_mm[ite] - pred, axis=1)
-    return {k: {"cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2))), "errors_mm": e}
-            for k, e in err.items()}
+            held[name][ite] = pred
+    return {k: {"cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2))), "errors_mm": e,
+                "pred_mm": held[k]} for k, e in err.items()}
