@@ -200,6 +200,65 @@ def learned_variants(chain, fit, check, core, k_inner, log):
     return rows
 
 
+def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
+    """``only``: the "case, model" combinations to run (default all); ``cover``: earlier results kept."""
+    chain = load_machine("ur5")
+    cover = dict(cover or {})
+    cases = {"no sag": dict(compliance_rad_per_mm=np.zeros(6)), "with sag": {},
+             "with sag + backlash": dict(backlash_rad=np.full(6, BACKLASH_RAD))}
+    for case, kw in cases.items():
+        for model in ("dh", "dh+compliance"):
+            if only and f"{case}, {model}" not in only:
+                continue
+            inside, inside_c, half, n_slots = [], [], [], []
+            for seed in range(n_seeds):
+                t = draw_truth(chain, seed, **kw)
+                q = random_joints(UR5_LO, UR5_HI, 200, [seed, 0])
+                p = measure(chain, t, q, NOISE_MM, [seed, 1])
+                r = fit_model(chain, p, model)
+                ng = chain.n_params
+                # the true link errors' identifiable equivalent in the estimate's parameterisation: the DH fit on
+                # the estimate's identified link slots to noise-free, sag-free tool points (judge's side)
+                ref = fit_slots(chain, ArmPoses(q, chain.tool_point(q, t.errors), None, None, None, p.rows, "truth",
+                                                "schema"), r.free[:ng])
+                ok = r.free[:ng]
+                mm = np.array([nm.endswith("_mm") for nm in chain.param_names])
+                half.append((float(np.median(Z95 * r.std[:ng][ok & mm])),
+                             float(np.median(Z95 * r.std[:ng][ok & ~mm])) * 1e6))
+                n_slots.append(int(ok.sum()))
+                inside.append(float(np.mean((np.abs(r.params[:ng] - ref.params) <= Z95 * r.std[:ng])[ok])))
+                if model != "dh":
+                    cj = [k for k, n in enumerate(r.chain.param_names) if n.startswith("compliance.") and r.free[k]]
+                    truth_c = np.array([t.compliance_rad_per_mm[r.chain.terms[k - ng][1]] * 1000 for k in cj])
+                    inside_c.append(float(np.mean(np.abs(r.params[cj] - truth_c) <= Z95 * r.std[cj])))
+            cover[f"{case}, {model}"] = {"pooled": float(np.mean(inside)), "per_seed": inside,
+                                         "seeds_at_least_90pct": float(np.mean(np.array(inside) >= 0.9)),
+                                         "median_band_halfwidth_mm_urad": np.median(np.array(half), axis=0).tolist(), "n_slots": n_slots,
+                                         "compliance_inside_band": float(np.mean(inside_c)) if inside_c else None}
+            print(f"[sim] link-error band coverage ({case}, {model}): {np.mean(inside):.3f}", file=log, flush=True)
+    # learned stage + compensation on one seed per run of the loop (seed 7; the CLI test does the same)
+    loop = []
+    for seed in range(loop_seeds):
+        t = draw_truth(chain, 100 + seed)
+        fit = measure(chain, t, random_joints(UR5_LO, UR5_HI, 400, [100 + seed, 0]), NOISE_MM, [100 + seed, 1])
+        check = measure(chain, t, random_joints(UR5_LO, UR5_HI, 100, [100 + seed, 2]), NOISE_MM, [100 + seed, 3])
+        core = calibrate_arm(chain, fit, check, learned=True, k_folds=k_inner, n_restarts=1, seed=seed, log=log)
+        rows = {s["name"]: s for s in core["stages"] + core["baselines"]}
+        qp = random_joints(UR5_LO + 5, UR5_HI - 5, 100, [100 + seed, 4])
+        learner = core["kept_learner"]
+        sol = solve_joints(core["geometric_model"].chain, core["geometric_model"].params, learner, chain.tool_point(qp), qp)
+        true_after = np.linalg.norm(t.tool_point(chain, sol.q) - chain.tool_point(qp), axis=1)
+        true_before = np.linalg.norm(t.tool_point(chain, qp) - chain.tool_point(qp), axis=1)
+        loop.append({"seed": 100 + seed, "kept": core["kept_stage"], "kept_rms_mm": rows[core["kept_stage"]]["rms_mm"],
+                     "heldout_rms_mm": {k: v["rms_mm"] for k, v in rows.items()},
+                     "compensation_true_rms_mm": float(np.sqrt(np.mean(true_after ** 2))),
+                     "uncompensated_true_rms_mm": float(np.sqrt(np.mean(true_before ** 2))),
+                     "converged": int(sol.converged.sum()), "points": len(qp)})
+        print(f"[sim] seed {100 + seed}: kept {core['kept_stage']} RMS {rows[core['kept_stage']]['rms_mm']:.4f} mm, comp TRUE "
+              f"{loop[-1]['compensation_true_rms_mm']:.4f} mm", file=log, flush=True)
+    return cover, loop
+
+
 COMBO_CASES = {"with sag, dh+compliance": ({}, "dh+compliance"), "no sag, dh": (dict(compliance_rad_per_mm=np.zeros(6)), "dh")}
 
 
@@ -327,6 +386,35 @@ def variants_md(r):
     return L
 
 
+def combos_md(c):
+    """Point 4: the band judge read per slot, per seed, on the pivoted-QR combinations, as a χ² and on the tool point."""
+    if not c:
+        return []
+    L = ["", "The same judge read five ways (`combos` part; 20 seeds, 200 poses each; bands NOT widened: the fit's own "
+         "σ² (JᵀJ)⁻¹): (a) per slot, the share of seeds whose band holds the truth's equivalent (min over slots; slots "
+         "with ≥ 90 %); (b) per seed, ≥ 90 % of its identified slots inside; (c) per seed, ≥ 90 % of the identified "
+         "combinations inside: y = R δ, δ the estimate minus the truth's equivalent in the pivot order of a QR with "
+         "column pivoting of the column-scaled error Jacobian at the fit poses, R the upper Cholesky factor of Σ⁻¹ "
+         "(unit covariance; row k = pivot slot k with the slots after it), |y_k| ≤ 1.96; (d) δᵀ Σ⁻¹ δ within the "
+         "χ² 95 % quantile of its dimension (seeds); (e) the tool point, which the data do determine: 200 new poses "
+         "per seed, share of components whose 95 % band J Σ Jᵀ holds the TRUE noise-free tool point.", "",
+         "| case | (a) min slot / slots ≥ 90 % | (b) seeds, slots ≥ 90 % | (c) seeds, combinations ≥ 90 % (pooled) | "
+         "(d) seeds with χ² inside its 95 % quantile; median χ² / dim | (e) tool-point band inside (pooled; seeds ≥ 90 %) | "
+         "median 95 % half-width length / angle slots (mm / µrad) |", "|---|---|---|---|---|---|---|"]
+    for case, v in c.items():
+        n = len(v["per_seed_slots"])
+        L.append(f"| {case} | {v['min_slot']:.2f} ({v['min_slot_name']}) / {v['slots_at_least_90pct']} of "
+                 f"{v['n_slot_names']} | {v['seeds_slots_90']} of {n} (pooled {v['pooled_slots']:.3f}) | "
+                 f"{v['seeds_combos_90']} of {n} ({v['pooled_combos']:.3f}) | {v['seeds_chi2_within_95']} of {n}; "
+                 f"{np.median(v['chi2']):.0f} / {int(np.median(v['dof']))} | {v['tool_point_band_pooled']:.3f}; "
+                 f"{v['seeds_tool_point_90']} of {n} | {v['median_band_halfwidth_mm_urad'][0]:.4f} / "
+                 f"{v['median_band_halfwidth_mm_urad'][1]:.1f} |")
+    worst = {case: v["combos_outside_by_pivot_slot"] for case, v in c.items()}
+    L += ["", "Combinations most often outside, by pivot slot (seeds): " + "; ".join(
+        f"{case}: " + ", ".join(f"{k} {n}" for k, n in w.items()) for case, w in worst.items()) + "."]
+    return L
+
+
 def _write_md(path, text):
     with atomic_write(path, "w", encoding="utf-8") as f:   # whole or not at all
         f.write(text)
@@ -418,6 +506,7 @@ def write_md(res, args):
                if f"{c}, {m}" not in res["sim"].get("coverage", {})]
     if missing:
         L += ["", "Not run in this run (`--sim-only`): " + "; ".join(missing) + "."]
+    L += combos_md(res["sim"].get("combos"))
     L += ["", f"Noise floor of a perfect model (RMS 3-D error against noisy measurements): "
           f"{np.sqrt(3) * NOISE_MM:.4f} mm; bound 1.25× = {1.25 * np.sqrt(3) * NOISE_MM:.4f} mm.", "",
           "| seed | kept | held-out RMS nominal+base/tool / plain LSQ / geometric (DH) / geometric+compliance / plain GP / "
