@@ -259,6 +259,7 @@ def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
     return cover, loop
 
 
+CHOL_JITTER = 1e-12   # added to the slots' correlation matrix before its Cholesky factor (condition up to ~1e11 here)
 COMBO_CASES = {"with sag, dh+compliance": ({}, "dh+compliance"), "no sag, dh": (dict(compliance_rad_per_mm=np.zeros(6)), "dh")}
 
 
@@ -267,10 +268,10 @@ def combination_coverage(n_seeds, log):
     link/base/tool slots' estimate minus the truth's identifiable equivalent (as :func:`simulated`), δ, with its
     marginal covariance Σ (the fit's own σ² (JᵀJ)⁻¹ block, not widened). Combinations: the slots in the pivot order
     of a QR with column pivoting of the column-scaled error Jacobian at the FIT poses and the estimate (fit data
-    only), R the upper Cholesky factor of Σ⁻¹ in that order (Σ⁻¹ = RᵀR): y = R δ has unit covariance, row k the
-    combination of pivot slot k with the slots after it — what the data determine, each with its own 95 % band
-    |y_k| ≤ 1.96."""
-    from scipy.linalg import qr
+    only), L the lower Cholesky factor of the slots' correlation matrix in that order: y = L⁻¹ (δ / σ) has unit
+    covariance, row k the combination of pivot slot k with the slots pivoted before it — each with its own 95 %
+    band |y_k| ≤ 1.96."""
+    from scipy.linalg import qr, solve_triangular
     from scipy.stats import chi2 as chi2_dist
     chain = load_machine("ur5")
     out = {}
@@ -297,8 +298,9 @@ def combination_coverage(n_seeds, log):
             nrm = np.linalg.norm(J, axis=0)
             _, _, piv = qr(J / np.where(nrm > 0, nrm, 1.0), mode="economic", pivoting=True)
             S = r.cov[np.ix_(idx, idx)][np.ix_(piv, piv)]
-            R = np.linalg.cholesky(np.linalg.inv(S)).T
-            y = R @ d[piv]
+            C = S / np.outer(sd[piv], sd[piv])                 # correlation: the slot units scaled out
+            L_c = np.linalg.cholesky(C + CHOL_JITTER * np.eye(len(C)))
+            y = solve_triangular(L_c, d[piv] / sd[piv], lower=True)
             cin = np.abs(y) <= Z95
             seed_combo.append(float(cin.mean()))
             worst.update(chain.param_names[idx[piv[k]]] for k in np.flatnonzero(~cin))
@@ -393,9 +395,10 @@ def combos_md(c):
     L = ["", "The same judge read five ways (`combos` part; 20 seeds, 200 poses each; bands NOT widened: the fit's own "
          "σ² (JᵀJ)⁻¹): (a) per slot, the share of seeds whose band holds the truth's equivalent (min over slots; slots "
          "with ≥ 90 %); (b) per seed, ≥ 90 % of its identified slots inside; (c) per seed, ≥ 90 % of the identified "
-         "combinations inside: y = R δ, δ the estimate minus the truth's equivalent in the pivot order of a QR with "
-         "column pivoting of the column-scaled error Jacobian at the fit poses, R the upper Cholesky factor of Σ⁻¹ "
-         "(unit covariance; row k = pivot slot k with the slots after it), |y_k| ≤ 1.96; (d) δᵀ Σ⁻¹ δ within the "
+         "combinations inside: y = L⁻¹ (δ / σ), δ the estimate minus the truth's equivalent in the pivot order of a QR "
+         "with column pivoting of the column-scaled error Jacobian at the fit poses, σ the slots' standard errors, L "
+         "the lower Cholesky factor of their correlation matrix (y has unit covariance; row k = pivot slot k with "
+         "the slots pivoted before it), |y_k| ≤ 1.96; (d) δᵀ Σ⁻¹ δ within the "
          "χ² 95 % quantile of its dimension (seeds); (e) the tool point, which the data do determine: 200 new poses "
          "per seed, share of components whose 95 % band J Σ Jᵀ holds the TRUE noise-free tool point.", "",
          "| case | (a) min slot / slots ≥ 90 % | (b) seeds, slots ≥ 90 % | (c) seeds, combinations ≥ 90 % (pooled) | "

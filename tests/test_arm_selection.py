@@ -99,8 +99,11 @@ def test_pipeline_cv_hyper_parameters_see_no_held_out_fold(ur5):
     assert a.chosen_ == b.chosen_ == "gp"
     assert not np.allclose(a.regressor_.model_.theta_, b.regressor_.model_.theta_)
     ff = {}
-    fold = [cv_pipelines(ur5, p, {"learned": ("dh", lr)}, 3, 7, fold_fits=ff)["learned"]["errors_mm"] for lr in (a, b)]
+    cvs = [cv_pipelines(ur5, p, {"learned": ("dh", lr)}, 3, 7, fold_fits=ff)["learned"] for lr in (a, b)]
+    fold = [c["errors_mm"] for c in cvs]
     assert np.allclose(fold[0], fold[1], rtol=0, atol=NO_LEAK_ATOL_MM)
+    # the held-out predictions handed back are the ones the errors were measured on
+    assert np.allclose(np.linalg.norm(p.xyz_mm - cvs[0]["pred_mm"], axis=1), fold[0], rtol=0, atol=NO_LEAK_ATOL_MM)
     fit = [cv_pipelines(ur5, p, {"learned": ("dh", lr)}, 3, 7, fold_fits=ff, hyper="fit")["learned"]["errors_mm"]
            for lr in (a, b)]
     assert np.abs(fit[0] - fit[1]).max() > 1e3 * NO_LEAK_ATOL_MM
