@@ -334,12 +334,14 @@ def rules_md(r):
     """Point 3: each pipeline rule, applied to the inner CV of every outer fold; the outer pooled mean of what it
     kept, the plain GP beside it, and each pipeline's inner-CV mean against its outer mean."""
     L = []
-    for kind in ("random", "blocked"):
-        ks = [f for f in r.get(kind, {}).get("folds", []) if "rules" in f]
+    for kind in [k for k, v in r.items() if isinstance(v, dict) and "folds" in v]:
+        ks = [f for f in r[kind]["folds"] if "rules" in f]
         if not ks:
             continue
         e_gp = r[kind]["summary"][PLAIN_GP]["mean_mm"]     # every fold's plain GP held-out errors, pooled
-        L += ["", f"Pipeline rules on the {kind} outer folds ({len(ks)} folds; each rule applied to the inner CV of "
+        planned = r[kind].get("n_folds_planned", len(ks))
+        part = "" if len(ks) == planned else f", PARTIAL: {len(ks)} of {planned} run"
+        L += ["", f"Pipeline rules on the {kind} outer folds ({len(ks)} folds{part}; each rule applied to the inner CV of "
               "whole pipelines only; outer pooled mean of the pipeline it kept, mm):", "",
               "| rule | kept (folds) | outer mean (mm) | plain GP on plain LSQ residual (mm) |", "|---|---|---|---|"]
         for rule in PIPELINE_RULES:
