@@ -461,6 +461,9 @@ def write_md(res, args):
                   f"(per fold {', '.join(f'{c:.3f}' for c in covh)})"
                   + (f"; the GP's uncalibrated band in its inner CV: {np.mean(cov_raw):.3f}" if cov_raw else "")
                   + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s."
+                  + ("" if all("rules" in f for f in ks) else
+                     " RUN BEFORE the leak fix (point 1): its pipeline CV kept the GP hyper-parameters chosen on all fit "
+                     "poses and re-solved only the weights per inner fold.")
                   + ("" if all("cv_pipelines" in f for f in ks) else
                      " RUN BEFORE the pipeline CV (point 5 of docs/arms.md): its kept stage is volcomp's choice "
                      "without the plain pipelines as candidates.")]
