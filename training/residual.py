@@ -257,8 +257,6 @@ class ResidualRegressor:
     cv_held_idx_ : (n,) int — the CV's held-out points in the order of ``cv_sq_err_`` (every point once);
     cv_sq_err_ : dict — per family and ``"zero"``: (n,) held-out squared error norm of each point
         (for paired comparisons between fits on the same folds; not saved by :meth:`to_dict`);
-    cv_pred_ : dict — per family: (n, 3) its held-out CV prediction at every point, in ``X``'s row order
-        (to combine or compare fits on the same folds; not saved by :meth:`to_dict`);
     noise_std_ : (3,) fitted measurement noise of the chosen family (zeros for ``"none"``), times
         ``band_scale_``;
     band_scale_ : float — the band calibration from the cross-validation: the factor that makes the
@@ -343,7 +341,6 @@ class ResidualRegressor:
         e_zero = (Y[held] ** 2).sum(1)
         table = {"zero": self._row(e_zero, e_zero, None)}
         cv_err = {"zero": e_zero}
-        self.cv_pred_ = {}
         for fam in fams:
             pred = np.empty((n, 3))
             band = np.empty((n, 3))
@@ -361,7 +358,6 @@ class ResidualRegressor:
             cover = float(np.mean(np.abs(Y[held] - pred[held]) <= band[held]))
             table[fam] = self._row(e_fam, e_zero, cover)
             cv_err[fam] = e_fam
-            self.cv_pred_[fam] = pred
             # band calibration: the factor that makes the CV's 95 % band hold 95 % of the held-out components
             zs = np.abs(Y[held] - pred[held]) / np.maximum(band[held] / Z95, 1e-300)
             table[fam]["band_scale"] = float(np.quantile(zs, 0.95) / Z95)
