@@ -35,7 +35,8 @@ from errormap.arm_simulate import draw_truth, measure, random_joints  # noqa: E4
 from errormap.io import atomic_write, write_json  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
 
-from compensation.app.workflows.arm_calibration import calibrate_arm  # noqa: E402
+from compensation.app.workflows.arm_calibration import (PIPELINE_RULES, PLAIN_GP, calibrate_arm,  # noqa: E402
+                                                        choose_pipeline)
 from compensation.arm_compensation import solve_joints  # noqa: E402
 
 DATA = ROOT / ".." / "shared" / "data" / "serial-arms"
@@ -85,7 +86,7 @@ def _summary(pooled):
     return out
 
 
-def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None):
+def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, variants=False):
     """Outer folds: every decision (slot set, plain LSQ instead, learned kept) is made by CV inside the
     outer fit part (:func:`calibrate_arm`); the outer held-out fold only reports (nested). ``blocked``:
     the inner CV is blocked too (joint-1 sectors of the fit part), as the outer one."""
@@ -122,12 +123,81 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None):
                      "kept_mean_mm": float(errs["volcomp kept stage"].mean()),
                      "plain_gp_mean_mm": float(errs["plain GP on plain LSQ residual"].mean()),
                      "cpu_s": time.process_time() - t0})
+        kept[-1]["rules"] = rule_outcomes(core, errs)
+        if variants:
+            kept[-1]["variants"] = learned_variants(chain, fit, check, core, k_folds_inner, log)
         print(f"[{name}] {label}: kept {core['kept_stage']} {errs['volcomp kept stage'].mean():.4f}, plain LSQ "
               f"{errs['plain geometric LSQ'].mean():.4f}, plain GP {errs['plain GP on plain LSQ residual'].mean():.4f} mm, "
               f"coverage {core['coverage95_heldout']:.3f} ({kept[-1]['cpu_s']:.0f} s CPU)", file=log, flush=True)
         if on_fold is not None:
             on_fold(_summary(pooled), kept)
     return _summary(pooled), kept
+
+
+def rule_outcomes(core, errs):
+    """Per pipeline rule (:data:`PIPELINE_RULES`): the pipeline it keeps from this fold's inner CV and that
+    pipeline's OUTER held-out mean error (the rule is applied to the inner CV only; the outer fold reports)."""
+    pcv, vol = core["pipeline_cv_errors"], core["pipeline_volcomp"]
+    outer = {vol: errs["volcomp kept stage"] if core["kept_stage"] == vol else
+             errs["learned (GP on the chosen geometric stage)"] if vol == "learned" else
+             errs["geometric stage chosen by inner CV"],
+             "plain geometric LSQ": errs["plain geometric LSQ"], PLAIN_GP: errs[PLAIN_GP]}
+    out = {"inner_cv_mean_mm": {k: v["cv_mean_mm"] for k, v in pcv.items()},
+           "outer_mean_mm": {k: float(v.mean()) for k, v in outer.items()}}
+    for rule in PIPELINE_RULES:
+        k = choose_pipeline(pcv, vol, rule)
+        out[rule] = {"kept": k, "errors_mm": outer[k].tolist()}
+    return out
+
+
+VARIANTS = {  # name → (inputs, residual of which geometric stage, margin_se)
+    "GP physics on the inner-CV geometric stage (volcomp's learned stage)": ("physics", "geo", 1.0),
+    "GP physics+h2 on the inner-CV geometric stage": ("physics+h2", "geo", 1.0),
+    "GP physics+wrist on the inner-CV geometric stage": ("physics+wrist", "geo", 1.0),
+    "GP physics on the plain LSQ residual": ("physics", "plain", 1.0),
+    "GP sincos on the plain LSQ residual (plain GP)": ("sincos", "plain", 0.0),
+}
+AVERAGE_TOP = 2   # the averaging rule: the mean prediction of the this many variants with the lowest inner-CV mean
+
+
+def learned_variants(chain, fit, check, core, k_inner, log):
+    """Point 2's tried variants of the learned stage, each with its INNER-CV mean error — the CV of the whole
+    pipeline inside the outer fit part (:func:`training.arm_residual.cv_pipelines`: the geometric stage refitted
+    and the GP's hyper-parameters re-estimated on each inner fold's fit part; the folds of the calibration's own
+    geometric CV) — and its OUTER held-out mean error; the variant with the lowest inner-CV mean, and the average of
+    the AVERAGE_TOP best by inner CV, chosen on inner CV only."""
+    from training.arm_residual import ArmResidualRegressor, cv_pipelines
+    gv = core["volcomp_geometric_model"]
+    geo = {"geo": (gv, "plain" if gv is core["plain_model"] else gv.model), "plain": (core["plain_model"], "plain")}
+    s_geo = np.random.SeedSequence(0).spawn(3)[0]          # calibrate_arm(seed=0)'s geometric CV folds
+    rows, inner_pred, outer_pred, fold_fits = {}, {}, {}, {}
+    for vname, (inputs, base, margin) in VARIANTS.items():
+        t0 = time.process_time()
+        if vname.startswith("GP physics on the inner-CV"):
+            lr = core["learner"]
+        elif vname.startswith("GP sincos on the plain"):
+            lr = core["plain_gp"]
+        else:
+            lr = ArmResidualRegressor(chain, inputs=inputs, k_folds=k_inner, n_restarts=1, margin_se=margin,
+                                      seed=0).fit(fit.q, fit.xyz_mm - geo[base][0].predict(fit.q))
+        cv = cv_pipelines(chain, fit, {vname: (geo[base][1], lr)}, k_inner, s_geo, fold_fits=fold_fits)[vname]
+        inner_pred[vname] = cv["pred_mm"]
+        outer_pred[vname] = geo[base][0].predict(check.q) + lr.predict(check.q)
+        e_out = np.linalg.norm(check.xyz_mm - outer_pred[vname], axis=1)
+        rows[vname] = {"inner_cv_mean_mm": cv["cv_mean_mm"], "outer_mean_mm": float(e_out.mean()),
+                       "chosen": lr.chosen_, "outer_errors_mm": e_out.tolist(), "cpu_s": time.process_time() - t0}
+        print(f"  variant {vname}: inner {cv['cv_mean_mm']:.4f} outer {e_out.mean():.4f} ({lr.chosen_})", file=log,
+              flush=True)
+    order = sorted(rows, key=lambda k: rows[k]["inner_cv_mean_mm"])
+    top = order[:AVERAGE_TOP]
+    e_in = np.linalg.norm(fit.xyz_mm - np.mean([inner_pred[k] for k in top], 0), axis=1)
+    e_out = np.linalg.norm(check.xyz_mm - np.mean([outer_pred[k] for k in top], 0), axis=1)
+    rows[f"average of the {AVERAGE_TOP} best by inner CV"] = {"inner_cv_mean_mm": float(e_in.mean()),
+                                                              "outer_mean_mm": float(e_out.mean()), "members": top,
+                                                              "outer_errors_mm": e_out.tolist()}
+    rows["lowest inner CV"] = {"picked": order[0], "outer_errors_mm": rows[order[0]]["outer_errors_mm"],
+                               "inner": "pipeline-cv"}
+    return rows
 
 
 def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
@@ -189,6 +259,164 @@ def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
     return cover, loop
 
 
+EIG_REL_MIN = 1e-12   # correlation eigen-directions below this share of the largest carry no variance in the fit's
+#                       covariance (σ² pinv(JᵀJ) truncates them): not judged, counted
+COMBO_CASES = {"with sag, dh+compliance": ({}, "dh+compliance"), "no sag, dh": (dict(compliance_rad_per_mm=np.zeros(6)), "dh")}
+
+
+def combination_coverage(n_seeds, log):
+    """Point 4: the band judge read per slot, per seed and on identifiable combinations. Per seed the identified
+    link/base/tool slots' estimate minus the truth's identifiable equivalent (as :func:`simulated`), δ, with its
+    marginal covariance Σ (the fit's own σ² (JᵀJ)⁻¹ block, not widened). Combinations: the eigen-directions v_k of
+    the slots' correlation matrix C = Σ / σσᵀ (uncorrelated combinations of the scaled slots, from the fit's own
+    covariance), y_k = v_kᵀ (δ / σ) / √λ_k with unit variance, each with its own 95 % band |y_k| ≤ 1.96; a
+    direction with λ_k below EIG_REL_MIN of the largest has no variance in Σ and is counted, not judged."""
+    from scipy.stats import chi2 as chi2_dist
+    chain = load_machine("ur5")
+    out = {}
+    for case, (kw, model) in COMBO_CASES.items():
+        slot_in, seed_slot, seed_combo, worst = {}, [], [], Counter()
+        half, chi2, dof, pin, n_dropped = [], [], [], [], []
+        for seed in range(n_seeds):
+            t = draw_truth(chain, seed, **kw)
+            q = random_joints(UR5_LO, UR5_HI, 200, [seed, 0])
+            p = measure(chain, t, q, NOISE_MM, [seed, 1])
+            r = fit_model(chain, p, model)
+            ng = chain.n_params
+            ok = r.free[:ng]
+            ref = fit_slots(chain, ArmPoses(q, chain.tool_point(q, t.errors), None, None, None, p.rows, "truth",
+                                            "schema"), ok)
+            idx = np.flatnonzero(ok)
+            d = (r.params[:ng] - ref.params)[idx]
+            sd = r.std[:ng][idx]
+            ins = np.abs(d) <= Z95 * sd
+            for k, i in enumerate(idx):
+                slot_in.setdefault(chain.param_names[i], []).append(bool(ins[k]))
+            seed_slot.append(float(ins.mean()))
+            C = r.cov[np.ix_(idx, idx)] / np.outer(sd, sd)       # correlation: the slot units scaled out
+            w, V = np.linalg.eigh(C)
+            keep = w > EIG_REL_MIN * w.max()
+            y = (V[:, keep].T @ (d / sd)) / np.sqrt(w[keep])
+            cin = np.abs(y) <= Z95
+            seed_combo.append(float(cin.mean()))
+            n_dropped.append(int((~keep).sum()))
+            worst.update(chain.param_names[idx[np.argmax(np.abs(V[:, keep][:, k]))]] for k in np.flatnonzero(~cin))
+            chi2.append(float(y @ y))
+            dof.append(int(keep.sum()))
+            # what the data do determine: the tool point. Its 95 % band (J Σ Jᵀ) against the TRUE noise-free tool
+            # point (sag included where simulated) on 200 new poses
+            qn = random_joints(UR5_LO, UR5_HI, 200, [seed, 5])
+            pin.append(float(np.mean(np.abs(r.predict(qn) - t.tool_point(chain, qn)) <= Z95 * r.band_std_mm(qn))))
+            mm = np.array([chain.param_names[i].endswith("_mm") for i in idx])
+            half.append((float(np.median(Z95 * sd[mm])), float(np.median(Z95 * sd[~mm])) * 1e6))
+        per_slot = {k: float(np.mean(v)) for k, v in slot_in.items()}
+        out[case] = {"per_slot_fraction_of_seeds": per_slot, "min_slot": min(per_slot.values()),
+                     "min_slot_name": min(per_slot, key=per_slot.get),
+                     "slots_at_least_90pct": int(sum(v >= 0.9 for v in per_slot.values())), "n_slot_names": len(per_slot),
+                     "per_seed_slots": seed_slot, "per_seed_combos": seed_combo,
+                     "seeds_slots_90": int(sum(v >= 0.9 for v in seed_slot)),
+                     "seeds_combos_90": int(sum(v >= 0.9 for v in seed_combo)),
+                     "pooled_slots": float(np.mean(seed_slot)), "pooled_combos": float(np.mean(seed_combo)),
+                     "combos_outside_by_pivot_slot": dict(worst.most_common(6)),
+                     "median_band_halfwidth_mm_urad": np.median(np.array(half), axis=0).tolist(),
+                     "chi2": chi2, "dof": dof, "n_directions_without_variance": n_dropped,
+                     "seeds_chi2_within_95": int(sum(c <= chi2_dist.ppf(0.95, k) for c, k in zip(chi2, dof))),
+                     "tool_point_band_inside_per_seed": pin, "tool_point_band_pooled": float(np.mean(pin)),
+                     "seeds_tool_point_90": int(sum(v >= 0.9 for v in pin))}
+        print(f"[combos] {case}: slots per seed >= 90 %: {out[case]['seeds_slots_90']}/{n_seeds}, combos "
+              f"{out[case]['seeds_combos_90']}/{n_seeds}; min slot {out[case]['min_slot']:.2f} "
+              f"({out[case]['min_slot_name']}); chi2 within its 95 % quantile {out[case]['seeds_chi2_within_95']}/{n_seeds}; "
+              f"tool-point band {out[case]['tool_point_band_pooled']:.3f}", file=log, flush=True)
+    return out
+
+
+def rules_md(r):
+    """Point 3: each pipeline rule, applied to the inner CV of every outer fold; the outer pooled mean of what it
+    kept, the plain GP beside it, and each pipeline's inner-CV mean against its outer mean."""
+    L = []
+    for kind in [k for k, v in r.items() if isinstance(v, dict) and "folds" in v]:
+        ks = [f for f in r[kind]["folds"] if "rules" in f]
+        if not ks:
+            continue
+        e_gp = r[kind]["summary"][PLAIN_GP]["mean_mm"]     # every fold's plain GP held-out errors, pooled
+        planned = r[kind].get("n_folds_planned", len(ks))
+        part = "" if len(ks) == planned else f", PARTIAL: {len(ks)} of {planned} run"
+        L += ["", f"Pipeline rules on the {kind} outer folds ({len(ks)} folds{part}; each rule applied to the inner CV of "
+              "whole pipelines only; outer pooled mean of the pipeline it kept, mm):", "",
+              "| rule | kept (folds) | outer mean (mm) | plain GP on plain LSQ residual (mm) |", "|---|---|---|---|"]
+        for rule in PIPELINE_RULES:
+            n_kept = ", ".join(f"{k} {v}" for k, v in Counter(f["rules"][rule]["kept"] for f in ks).most_common())
+            e = float(np.mean(np.concatenate([f["rules"][rule]["errors_mm"] for f in ks])))
+            L.append(f"| {rule} | {n_kept} | {e:.4f} | {e_gp:.4f} |")
+        L += ["", "| pipeline | inner-CV mean, averaged over the outer folds (mm) | outer mean, averaged over the outer folds (mm) |",
+              "|---|---|---|"]
+        first = (lambda d: d[next(iter(d))])       # volcomp's own choice is the first pipeline of every fold
+        L.append(f"| volcomp's choice ({', '.join(sorted({next(iter(f['rules']['inner_cv_mean_mm'])) for f in ks}))}) | "
+                 f"{np.mean([first(f['rules']['inner_cv_mean_mm']) for f in ks]):.4f} | "
+                 f"{np.mean([first(f['rules']['outer_mean_mm']) for f in ks]):.4f} |")
+        for nm in ("plain geometric LSQ", PLAIN_GP):
+            L.append(f"| {nm} | {np.mean([f['rules']['inner_cv_mean_mm'][nm] for f in ks]):.4f} | "
+                     f"{np.mean([f['rules']['outer_mean_mm'][nm] for f in ks]):.4f} |")
+    return L
+
+
+def variants_md(r):
+    """Point 2: every tried variant of the learned stage, its inner-CV and outer figure, and the rules' picks."""
+    ks = [f for f in r.get("random", {}).get("folds", [])
+          if f.get("variants", {}).get("lowest inner CV", {}).get("inner") == "pipeline-cv"]
+    if not ks:
+        return []
+    L = ["", f"Learned-stage variants on the random outer folds ({len(ks)} folds{'' if len(ks) == r['random'].get('n_folds_planned', len(ks)) else ' — PARTIAL, of ' + str(r['random']['n_folds_planned'])}). "
+         "Inner CV: the whole pipeline's k-fold CV inside the outer fit part (geometric stage refitted and GP "
+         "hyper-parameters re-estimated on every inner fold's fit part; a learner its own CV declined adds nothing); "
+         "outer: pooled held-out mean. Rules decided on inner CV only: `lowest "
+         f"inner CV` keeps the variant with the lowest inner-CV mean per fold; `average of the {AVERAGE_TOP} best` "
+         "averages the predictions of the two lowest.", "",
+         "| variant | inner-CV mean, averaged over folds (mm) | outer mean (mm) | learner kept by its own CV (folds) |",
+         "|---|---|---|---|"]
+    for v in ks[0]["variants"]:
+        if v == "lowest inner CV":
+            continue
+        rows = [f["variants"][v] for f in ks]
+        e = float(np.mean(np.concatenate([x["outer_errors_mm"] for x in rows])))
+        kept = sum(x.get("chosen") == "gp" for x in rows) if "chosen" in rows[0] else "—"
+        L.append(f"| {v} | {np.mean([x['inner_cv_mean_mm'] for x in rows]):.4f} | {e:.4f} | {kept} |")
+    picks = Counter(f["variants"]["lowest inner CV"]["picked"] for f in ks)
+    e = float(np.mean(np.concatenate([f["variants"]["lowest inner CV"]["outer_errors_mm"] for f in ks])))
+    L.append(f"| rule: lowest inner CV ({'; '.join(f'{k}: {n}' for k, n in picks.most_common())}) | — | {e:.4f} | — |")
+    return L
+
+
+def combos_md(c):
+    """Point 4: the band judge read per slot, per seed, on uncorrelated slot combinations, as a χ² and on the tool point."""
+    if not c:
+        return []
+    L = ["", "The same judge read five ways (`combos` part; 20 seeds, 200 poses each; bands NOT widened: the fit's own "
+         "σ² (JᵀJ)⁻¹): (a) per slot, the share of seeds whose band holds the truth's equivalent (min over slots; slots "
+         "with ≥ 90 %); (b) per seed, ≥ 90 % of its identified slots inside; (c) per seed, ≥ 90 % of the identified "
+         "combinations inside: y_k = v_kᵀ (δ / σ) / √λ_k, δ the estimate minus the truth's equivalent, σ the slots' "
+         "standard errors, (λ_k, v_k) the eigen-pairs of their correlation matrix (uncorrelated combinations, unit "
+         "variance; directions with λ_k < 1e-12 λ_max carry no variance in the fit's covariance and are not "
+         "judged), |y_k| ≤ 1.96; (d) δᵀ Σ⁻¹ δ within the "
+         "χ² 95 % quantile of its dimension (seeds); (e) the tool point, which the data do determine: 200 new poses "
+         "per seed, share of components whose 95 % band J Σ Jᵀ holds the TRUE noise-free tool point.", "",
+         "| case | (a) min slot / slots ≥ 90 % | (b) seeds, slots ≥ 90 % | (c) seeds, combinations ≥ 90 % (pooled) | "
+         "(d) seeds with χ² inside its 95 % quantile; median χ² / dim | (e) tool-point band inside (pooled; seeds ≥ 90 %) | "
+         "median 95 % half-width length / angle slots (mm / µrad) |", "|---|---|---|---|---|---|---|"]
+    for case, v in c.items():
+        n = len(v["per_seed_slots"])
+        L.append(f"| {case} | {v['min_slot']:.2f} ({v['min_slot_name']}) / {v['slots_at_least_90pct']} of "
+                 f"{v['n_slot_names']} | {v['seeds_slots_90']} of {n} (pooled {v['pooled_slots']:.3f}) | "
+                 f"{v['seeds_combos_90']} of {n} ({v['pooled_combos']:.3f}) | {v['seeds_chi2_within_95']} of {n}; "
+                 f"{np.median(v['chi2']):.0f} / {int(np.median(v['dof']))} | {v['tool_point_band_pooled']:.3f}; "
+                 f"{v['seeds_tool_point_90']} of {n} | {v['median_band_halfwidth_mm_urad'][0]:.4f} / "
+                 f"{v['median_band_halfwidth_mm_urad'][1]:.1f} |")
+    worst = {case: v["combos_outside_by_pivot_slot"] for case, v in c.items()}
+    L += ["", "Combinations most often outside, named by their largest-weight slot (seeds): " + "; ".join(
+        f"{case}: " + ", ".join(f"{k} {n}" for k, n in w.items()) for case, w in worst.items()) + "."]
+    return L
+
+
 def _write_md(path, text):
     with atomic_write(path, "w", encoding="utf-8") as f:   # whole or not at all
         f.write(text)
@@ -233,9 +461,13 @@ def write_md(res, args):
                   f"(per fold {', '.join(f'{c:.3f}' for c in covh)})"
                   + (f"; the GP's uncalibrated band in its inner CV: {np.mean(cov_raw):.3f}" if cov_raw else "")
                   + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s."
+                  + ("" if all("rules" in f for f in ks) else
+                     " RUN BEFORE the leak fix (point 1): its pipeline CV kept the GP hyper-parameters chosen on all fit "
+                     "poses and re-solved only the weights per inner fold.")
                   + ("" if all("cv_pipelines" in f for f in ks) else
                      " RUN BEFORE the pipeline CV (point 5 of docs/arms.md): its kept stage is volcomp's choice "
                      "without the plain pipelines as candidates.")]
+        L += rules_md(r) + variants_md(r)
         L.append("")
     L += ["Rows: `geometric (DH)` volcomp's LM on the identifiable DH + base + tool slots; `geometric+compliance` adds "
           "a compliance slot per load-carrying joint (Δθ = c·τ(q), τ the gravity moment of unit masses at the "
@@ -246,9 +478,10 @@ def write_md(res, args):
           "gravity moments) on that stage's residual; `volcomp kept stage` what `volcomp calibrate` returns: the "
           "learned stage where its CV inside the fit part beat the geometric stage, else the geometric stage; then that "
           "choice, the plain LSQ fit and the plain GP on its residual are cross-validated as whole pipelines on the same "
-          "inner folds (geometric stage refitted per fold, GP weights re-solved on the refit's residual with the "
-          "hyper-parameters of the whole fit part) and the lowest inner-CV mean error is returned (ties: volcomp's "
-          "choice), so the kept stage never loses to a plain baseline in the inner validation. Every "
+          "inner folds (geometric stage refitted per fold, the GP's standardisation and hyper-parameters re-estimated "
+          "on each inner fold's fit part: nothing of the inner held-out fold reaches them) and the lowest inner-CV mean "
+          "error is returned (ties: volcomp's choice), so the kept stage never loses to a plain baseline in the inner "
+          "validation. Every "
           "decision is nested: the outer held-out fold only reports.", ""]
     if "sim" not in res:
         _write_md(OUT_MD, "\n".join(L + ["(simulated-arm section not run yet)", ""]))
@@ -266,7 +499,7 @@ def write_md(res, args):
           "|---|---|---|---|---|---|"]
     from scipy.stats import binom
     order = [f"{c}, {m}" for c in ("no sag", "with sag", "with sag + backlash") for m in ("dh", "dh+compliance")]
-    for k, v in sorted(res["sim"]["coverage"].items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else 99):
+    for k, v in sorted(res["sim"].get("coverage", {}).items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else 99):
         ns = v.get("n_slots")
         hw = v.get("median_band_halfwidth_mm_urad")
         expect = (f"{np.mean([binom.cdf(int(np.floor(0.1 * n)), n, 0.05) for n in ns]):.2f} "
@@ -275,14 +508,15 @@ def write_md(res, args):
         L.append(f"| {k} ({len(v['per_seed'])} seeds) | {v['pooled']:.3f} | {n_ok} of {len(v['per_seed'])} | {expect} | "
                  f"{'—' if hw is None else f'{hw[0]:.4f} / {hw[1]:.1f}'} | {fmt(v['compliance_inside_band'])} |")
     missing = [f"{c}, {m}" for c in ("no sag", "with sag", "with sag + backlash") for m in ("dh", "dh+compliance")
-               if f"{c}, {m}" not in res["sim"]["coverage"]]
+               if f"{c}, {m}" not in res["sim"].get("coverage", {})]
     if missing:
         L += ["", "Not run in this run (`--sim-only`): " + "; ".join(missing) + "."]
+    L += combos_md(res["sim"].get("combos"))
     L += ["", f"Noise floor of a perfect model (RMS 3-D error against noisy measurements): "
           f"{np.sqrt(3) * NOISE_MM:.4f} mm; bound 1.25× = {1.25 * np.sqrt(3) * NOISE_MM:.4f} mm.", "",
           "| seed | kept | held-out RMS nominal+base/tool / plain LSQ / geometric (DH) / geometric+compliance / plain GP / "
           "kept (mm) | compensated commands TRUE RMS (mm) | uncompensated TRUE RMS (mm) |", "|---|---|---|---|---|"]
-    for s in res["sim"]["loop"]:
+    for s in res["sim"].get("loop", []):
         h = s["heldout_rms_mm"]
         L.append(f"| {s['seed']} | {s['kept']} | {fmt(h['nominal + base/tool'], 4)} / {fmt(h['plain geometric LSQ'], 4)} / "
                  f"{fmt(h['geometric'], 4)} / {fmt(h['geometric+compliance'], 4)} / "
@@ -306,6 +540,8 @@ def main(argv=None):
     ap.add_argument("--loop-seeds", type=int, default=LOOP_SEEDS)
     ap.add_argument("--parts", default="wam,sim,ur5", help="what to run, in order: arm names and/or 'sim'")
     ap.add_argument("--sim-only", default="", help="';'-separated 'case, model' coverage runs (default all)")
+    ap.add_argument("--kinds", default="random,blocked", help="which outer splits to run")
+    ap.add_argument("--variants", default="ur5", help="arms whose random folds also run the learned-stage variants")
     ap.add_argument("--merge", action="store_true", help="keep the other parts' results from the existing json")
     ap.add_argument("--out", default=None, help="write <OUT>.json / <OUT>.md instead of benchmarks/arms_results.*")
     args = ap.parse_args(argv)
@@ -322,11 +558,13 @@ def main(argv=None):
         if "sim" in old:
             res["sim"] = old["sim"]
     for part in args.parts.split(","):
-        if part == "sim":
+        if part == "combos":
+            res.setdefault("sim", {})["combos"] = combination_coverage(args.seeds, log)
+        elif part == "sim":
             only = [c.strip() for c in args.sim_only.split(";")] if args.sim_only else None
             old = res.get("sim", {})
             cover, loop = simulated(args.seeds, log, args.loop_seeds, args.inner_folds, only, old.get("coverage"))
-            res["sim"] = {"coverage": cover, "loop": loop if args.loop_seeds else old.get("loop", [])}
+            res["sim"] = {**old, "coverage": cover, "loop": loop if args.loop_seeds else old.get("loop", [])}
         else:
             chain = load_machine(part)
             data = read_arm_poses(DATA / f"{part}_grid.csv", chain)
@@ -339,7 +577,10 @@ def main(argv=None):
                     rr[kind] = {"summary": s, "folds": k, "n_folds_planned": n}
                     write_json(OUT_JSON, res)
                     write_md(res, args)
-                run_arm(part, folds, args.inner_folds, log, blocked=kind == "blocked", on_fold=on_fold)
+                if kind not in args.kinds.split(","):
+                    continue
+                run_arm(part, folds, args.inner_folds, log, blocked=kind == "blocked", on_fold=on_fold,
+                        variants=part in args.variants.split(",") and kind == "random")
         write_json(OUT_JSON, res)   # partial results as each part finishes
         write_md(res, args)
     print(f"wrote {OUT_MD}")

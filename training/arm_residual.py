@@ -9,7 +9,13 @@ Inputs (derived from the chain, nothing machine-specific), ``inputs``:
     the NOMINAL chain, in m (:func:`errormap.arm_simulate.gravity_moment_mm`) — what a
     joint-stiffness sag or a gear's load-dependent deflection follows;
 ``"sincos"``
-    the joints alone (sin/cos): the plain learner an engineer tries first.
+    the joints alone (sin/cos): the plain learner an engineer tries first;
+``"physics+h2"``
+    ``"physics"`` and each revolute joint's second harmonic (sin 2q, cos 2q: a twice-per-turn gear or
+    encoder error);
+``"physics+wrist"``
+    ``"physics"`` and the products of the last three revolute joints' sin/cos in pairs (s_i s_j, s_i c_j,
+    c_i s_j, c_i c_j for i < j: a wrist error that depends on two joints together).
 
 Output: the 3-D position residual (measured − geometric model), mm. Everything else — the GP,
 its hyper-parameters by marginal likelihood, the choice against predicting zero by CV inside the fit
@@ -26,8 +32,16 @@ from errormap.arm_simulate import gravity_moment_jacobian_mm, gravity_moment_mm
 from .residual import ResidualRegressor
 
 FORMAT = "volcomp-arm-residual/2"
-INPUTS = ("physics", "sincos")
+INPUTS = ("physics", "sincos", "physics+h2", "physics+wrist")
+WRIST_JOINTS = 3
+"""The last this many revolute joints are the wrist of ``"physics+wrist"``."""
 M_PER_MM = 1e-3
+
+
+def _wrist_pairs(rev):
+    """Pairs (a, b), a < b, of indices into the revolute joints: the last :data:`WRIST_JOINTS` of them."""
+    w = list(range(max(0, len(rev) - WRIST_JOINTS), len(rev)))
+    return [(a, b) for i, a in enumerate(w) for b in w[i + 1:]]
 
 
 def features(chain, q, inputs: str = "physics") -> np.ndarray:
@@ -39,29 +53,53 @@ def features(chain, q, inputs: str = "physics") -> np.ndarray:
     base = np.concatenate([np.sin(r), np.cos(r), q[:, ~rev] / span], 1)
     if inputs == "sincos":
         return base
-    return np.concatenate([base, gravity_moment_mm(chain, q) * M_PER_MM], 1)
+    out = [base, gravity_moment_mm(chain, q) * M_PER_MM]
+    if inputs == "physics+h2":
+        out += [np.sin(2 * r), np.cos(2 * r)]
+    elif inputs == "physics+wrist":
+        s, c = np.sin(r), np.cos(r)
+        out += [np.stack([s[:, a] * s[:, b], s[:, a] * c[:, b], c[:, a] * s[:, b], c[:, a] * c[:, b]], 1)
+                for a, b in _wrist_pairs(np.flatnonzero(rev))]
+    return np.concatenate(out, 1)
 
 
 def feature_jacobian(chain, q, inputs: str = "physics") -> np.ndarray:
-    """∂features/∂q per pose, shape (n, d, nq) (per joint unit): sin/cos analytic, gravity moments by
-    central differences (:func:`errormap.arm_simulate.gravity_moment_jacobian_mm`)."""
+    """∂features/∂q per pose, shape (n, d, nq) (per joint unit): sin/cos and their harmonics and products
+    analytic, gravity moments by central differences (:func:`errormap.arm_simulate.gravity_moment_jacobian_mm`)."""
     q = np.atleast_2d(np.asarray(q, float))
     n, nq = q.shape
     rev = np.flatnonzero([j.type == "revolute" for j in chain.joints])
     pri = np.flatnonzero([j.type != "revolute" for j in chain.joints])
     nr = len(rev)
-    d = 2 * nr + len(pri) + (0 if inputs == "sincos" else nq)
+    d = features(chain, q[:1], inputs).shape[1]
     D = np.zeros((n, d, nq))
     k = np.pi / 180
+    r = np.radians(q[:, rev])
+    s, c = np.sin(r), np.cos(r)
     for i, j in enumerate(rev):
-        D[:, i, j] = np.cos(np.radians(q[:, j])) * k
-        D[:, nr + i, j] = -np.sin(np.radians(q[:, j])) * k
+        D[:, i, j] = c[:, i] * k
+        D[:, nr + i, j] = -s[:, i] * k
     span = np.maximum(chain.joint_hi - chain.joint_lo, 1e-9)
     for i, j in enumerate(pri):
         D[:, 2 * nr + i, j] = 1.0 / span[j]
-    if inputs != "sincos":
-        o = 2 * nr + len(pri)
-        D[:, o:, :] = gravity_moment_jacobian_mm(chain, q) * M_PER_MM
+    if inputs == "sincos":
+        return D
+    o = 2 * nr + len(pri)
+    D[:, o:o + nq, :] = gravity_moment_jacobian_mm(chain, q) * M_PER_MM
+    o += nq
+    if inputs == "physics+h2":
+        for i, j in enumerate(rev):
+            D[:, o + i, j] = 2 * np.cos(2 * r[:, i]) * k
+            D[:, o + nr + i, j] = -2 * np.sin(2 * r[:, i]) * k
+    elif inputs == "physics+wrist":
+        for a, b in _wrist_pairs(rev):
+            ja, jb = rev[a], rev[b]
+            # (s_a s_b, s_a c_b, c_a s_b, c_a c_b): d/dq_a and d/dq_b
+            D[:, o, ja], D[:, o, jb] = c[:, a] * s[:, b] * k, s[:, a] * c[:, b] * k
+            D[:, o + 1, ja], D[:, o + 1, jb] = c[:, a] * c[:, b] * k, -s[:, a] * s[:, b] * k
+            D[:, o + 2, ja], D[:, o + 2, jb] = -s[:, a] * s[:, b] * k, c[:, a] * c[:, b] * k
+            D[:, o + 3, ja], D[:, o + 3, jb] = -s[:, a] * c[:, b] * k, -c[:, a] * s[:, b] * k
+            o += 4
     return D
 
 
@@ -128,22 +166,35 @@ class ArmResidualRegressor:
         return self._fitted()
 
 
-def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None, fold_fits=None) -> dict:
+HYPER = ("fold", "fit")
+"""Where a learner's GP hyper-parameters come from in :func:`cv_pipelines`: ``"fold"`` re-estimated (maximum
+marginal likelihood) on each inner fold's fit part, nothing of the held-out fold seen; ``"fit"`` kept from all
+fit poses, weights re-solved per fold (the earlier rule: the held-out fold leaks into the hyper-parameters)."""
+
+
+def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None, fold_fits=None,
+                 hyper: str = "fold") -> dict:
     """Inner CV of whole pipelines (geometric stage [+ learned residual]) on the folds of
     :func:`errormap.arm_calibration.cv_labels` (``k_folds``, ``seed``, ``groups``: the geometric CV's folds).
 
     ``pipelines``: name → ``(model, learner)``, ``model`` a slot set of :data:`errormap.arm_calibration.MODELS`
     or ``"plain"`` (the plain LSQ fit), ``learner`` a fitted :class:`ArmResidualRegressor` or None. Per fold
     the geometric stage is REFITTED on the fold's fit part (taken from ``fold_fits`` of
-    :func:`~errormap.arm_calibration.cv_models` where there), and the learner's GP keeps the
-    hyper-parameters it chose on all of ``poses`` while its weights are re-solved on that refit's residual
-    at the fold's fit part (:meth:`training.residual.ResidualRegressor.with_data`); the held-out fold is
-    predicted. Returns name → ``{"cv_mean_mm", "cv_rms_mm", "errors_mm"}`` (``errors_mm`` (n,) held-out
-    position error norm per pose)."""
+    :func:`~errormap.arm_calibration.cv_models` where there), and the learner (its family and inputs as
+    chosen) is re-estimated on that refit's residual at the fold's fit part: with ``hyper="fold"`` (default)
+    its standardisation and GP hyper-parameters from the fold's fit part alone
+    (:meth:`training.residual.ResidualRegressor.refit`), with ``hyper="fit"`` the hyper-parameters of all
+    ``poses`` kept and only the weights re-solved (:meth:`~training.residual.ResidualRegressor.with_data`;
+    the held-out fold then leaks into them). The held-out fold is predicted. Returns name →
+    ``{"cv_mean_mm", "cv_rms_mm", "errors_mm", "pred_mm"}`` (``errors_mm`` (n,) held-out position error norm per
+    pose, ``pred_mm`` (n, 3) the held-out prediction)."""
+    if hyper not in HYPER:
+        raise ValueError(f"hyper must be one of {HYPER}, got {hyper!r}")
     from errormap.arm_calibration import cv_labels, fit_model, fit_plain_lsq
     lab = cv_labels(len(poses), k_folds, seed, groups)
     fold_fits = {} if fold_fits is None else fold_fits
     err = {k: np.empty(len(poses)) for k in pipelines}
+    held = {k: np.empty((len(poses), 3)) for k in pipelines}
     for f in range(int(lab.max()) + 1):
         itr, ite = np.flatnonzero(lab != f), np.flatnonzero(lab == f)
         tr = poses.subset(itr)
@@ -153,8 +204,10 @@ def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None,
             geo = fold_fits[(f, model)]
             pred = geo.predict(poses.q[ite])
             if learner is not None and learner.chosen_ != "none":
-                reg = learner.regressor_.with_data(features(chain, tr.q, learner.inputs), tr.xyz_mm - geo.predict(tr.q))
+                X, Y = features(chain, tr.q, learner.inputs), tr.xyz_mm - geo.predict(tr.q)
+                reg = learner.regressor_.refit(X, Y) if hyper == "fold" else learner.regressor_.with_data(X, Y)
                 pred = pred + reg.predict(features(chain, poses.q[ite], learner.inputs))
             err[name][ite] = np.linalg.norm(poses.xyz_mm[ite] - pred, axis=1)
-    return {k: {"cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2))), "errors_mm": e}
-            for k, e in err.items()}
+            held[name][ite] = pred
+    return {k: {"cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2))), "errors_mm": e,
+                "pred_mm": held[k]} for k, e in err.items()}

@@ -69,7 +69,29 @@ def stage_name(model: str) -> str:
     return "geometric" + model[len("dh"):]
 
 
-def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, groups=None) -> dict:
+PIPELINE_RULES = ("lowest", "one-se")
+"""How the CV of whole pipelines picks (:func:`choose_pipeline`)."""
+PLAIN_GP = "plain GP on plain LSQ residual"
+
+
+def choose_pipeline(pipeline_cv: dict, volcomp: str, rule: str = "lowest") -> str:
+    """The pipeline returned from the inner CV of whole pipelines (``pipeline_cv``: name → ``{"cv_mean_mm",
+    "errors_mm" (n,)}``, ``volcomp`` the name of volcomp's own choice). ``"lowest"``: the lowest CV mean error,
+    ties to volcomp's choice. ``"one-se"``: the lowest CV mean error, but a pipeline other than the plain GP
+    (where it is a candidate: the baseline the product must not lose to) only if its paired per-pose gain
+    over the plain GP exceeds one standard error of that gain — else the plain GP."""
+    if rule not in PIPELINE_RULES:
+        raise ValueError(f"pipeline rule must be one of {PIPELINE_RULES}, got {rule!r}")
+    best = min(pipeline_cv, key=lambda k: (pipeline_cv[k]["cv_mean_mm"], k != volcomp))
+    if rule == "lowest" or PLAIN_GP not in pipeline_cv or best == PLAIN_GP:
+        return best
+    gain = pipeline_cv[PLAIN_GP]["errors_mm"] - pipeline_cv[best]["errors_mm"]
+    se = gain.std(ddof=1) / np.sqrt(len(gain)) if len(gain) > 1 else np.inf
+    return best if gain.mean() > se else PLAIN_GP
+
+
+def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, groups=None,
+                  pipeline_rule: str = "lowest") -> dict:
     """Every stage and baseline on ``fit``, judged on ``check``. Every decision (the geometric slot
     set, plain LSQ instead, the learned stage kept) is made by k-fold CV INSIDE ``fit`` (blocked by
     ``groups`` (n_fit,) labels where given: whole blocks per fold); ``check`` only reports. Returns the document's core: ``stages``, ``baselines``, ``kept_stage``, the models."""
@@ -113,7 +135,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
                  stage_row("plain geometric LSQ", e_plain, "scipy least_squares, every DH slot + base + tool, "
                                                            "no identifiability handling"),
                  stage_row("volcomp geometric", e_fit["dh"], "LM on the identifiable DH slots (unidentifiable fixed)")]
-    learner, plain_gp, kept_learner, pipeline_cv = None, None, None, None
+    learner, plain_gp, kept_learner, pipeline_cv, pipe_volcomp = None, None, None, None, None
     geo_volcomp = geo_kept
     r_geo = check.xyz_mm - geo_kept.predict(check.q)
     band_geo = np.sqrt(geo_kept.band_std_mm(check.q) ** 2 + geo_kept.sigma_mm ** 2)
@@ -148,7 +170,8 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         pipes = {kept: ("plain" if geo_kept is plain else model, kept_learner),
                  "plain geometric LSQ": ("plain", None), "plain GP on plain LSQ residual": ("plain", plain_gp)}
         pipeline_cv = cv_pipelines(chain, fit, pipes, k_folds, s_geo, groups, fold_fits)
-        best = min(pipeline_cv, key=lambda k: (pipeline_cv[k]["cv_mean_mm"], k != kept))   # ties: volcomp's choice
+        pipe_volcomp = kept
+        best = choose_pipeline(pipeline_cv, kept, pipeline_rule)
         pcv_text = ", ".join(f"{k} {v['cv_mean_mm']:.4f}" for k, v in pipeline_cv.items())
         if best != kept:
             notes.append(f"the plain pipeline '{best}' beat volcomp's {kept} in the pipeline CV inside the fit poses "
@@ -175,6 +198,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
             "geometric_model": geo_kept, "kept_learner": kept_learner, "volcomp_geometric_model": geo_volcomp,
             "geometric_stage": stage_name(model), "volcomp_geometric": geo, "geometric_fits": fits, "learner": learner,
             "base_tool_model": base_tool, "plain_model": plain, "plain_gp": plain_gp, "cv_geometric": cv,
+            "pipeline_cv_errors": pipeline_cv, "pipeline_volcomp": pipe_volcomp,
             "cv_pipelines": None if pipeline_cv is None else
             [{"pipeline": k, "cv_mean_mm": v["cv_mean_mm"], "cv_rms_mm": v["cv_rms_mm"]} for k, v in pipeline_cv.items()],
             "coverage95_heldout": coverage_check}
