@@ -48,14 +48,17 @@ def solve_joints(chain, params, learner, target_mm, q_cmd, keep_orientation: boo
                  target_R=None) -> ArmSolution:
     """Joint commands that make the calibrated chain reach ``target_mm`` (n, 3), Newton from ``q_cmd``.
 
-    ``target_R`` (n, 3, 3): tool orientations to keep (default: the nominal chain's at ``q_cmd``);
+    ``target_R`` (n, 3, 3): tool orientations to keep (default: the CALIBRATED chain's at ``q_cmd``: the
+    tool keeps the orientation it has at the programmed joints and only its point moves; tracker points
+    carry no orientation, so the calibrated roll of the tool about its own axis is a gauge choice of the
+    fit — a nominal-orientation target would turn the wrist by that arbitrary angle);
     orientation is kept when ``keep_orientation`` and the chain has ≥ 6 joints.
     """
     q = np.array(q_cmd, float)
     target = np.asarray(target_mm, float)
     orient = keep_orientation and chain.n_joints >= 6
     if orient and target_R is None:
-        target_R = chain.fk(q)[:, :3, :3]
+        target_R = chain.frames(q, params)[:, -1, :3, :3]
     lo, hi = chain.joint_lo, chain.joint_hi
     for _ in range(NEWTON_MAX_ITER):
         F = chain.frames(q, params)
