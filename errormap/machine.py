@@ -245,7 +245,17 @@ def load_machine(path=None, expect_kind: str | None = None):
 def check_machine_kind(path, kind: str, expect_kind: str | None) -> None:
     """Refuse a machine file of ``kind`` where ``expect_kind`` is needed (None: any kind)."""
     if expect_kind is not None and kind != expect_kind:
-        raise MachineFileError(f"{path}: key 'machine.kind': expected {expect_kind!r} here, got {kind!r}")
+        hint = KIND_HINTS.get(kind, "")
+        raise MachineFileError(f"{path}: key 'machine.kind': expected {expect_kind!r} here, got {kind!r}"
+                               + (f" ({hint})" if hint else ""))
+
+
+# what a machine of each kind is for, said when a command meant for another kind is given one
+KIND_HINTS = {
+    "serial": "a serial arm: use volcomp calibrate, compensate or predict",
+    "hexapod": "a parallel machine: use volcomp calibrate or interpolate",
+    "tripod": "a parallel machine: use volcomp calibrate or interpolate",
+}
 
 
 # -- unit plausibility of axis columns --------------------------------------------------------

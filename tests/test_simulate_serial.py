@@ -69,6 +69,14 @@ def test_cli_refusals(tmp_path, capsys):
     assert main(["simulate", "--machine", "mill-xyz", "--poses", "10", "--out", str(tmp_path / "y")]) == 2
     assert "--poses" in capsys.readouterr().err
     assert main(["simulate", "--machine", "ur5", "--poses", "2", "--out", str(tmp_path / "z")]) == 2
+    capsys.readouterr()
+    # a command meant for machine tools names what an arm takes instead
+    assert main(["featurepoints", "--machine", "ur5", "--elements", str(tmp_path / "e.json"), "--out",
+                 str(tmp_path / "fp.csv")]) == 2
+    assert "a serial arm: use volcomp calibrate, compensate or predict" in capsys.readouterr().err
+    assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal.json"), str(tmp_path / "p.csv"),
+                 "--out", str(tmp_path / "o.csv"), "--band", "95"]) == 2
+    assert "--band: an arm's calibration.json" in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -94,3 +102,10 @@ def test_users_path_simulate_calibrate_compensate_lands_within_the_noise(tmp_pat
     before = np.linalg.norm(truth.tool_point(ur5, q0) - target, axis=1)
     assert np.sqrt(np.mean(after ** 2)) <= FLOOR_FACTOR * NOISE_FLOOR_MM < np.sqrt(np.mean(before ** 2))
     assert np.abs(q1 - q0).max() <= MAX_JOINT_CHANGE_DEG
+    # predict: the calibrated tool-point error at the program's joints against the truth's (judge's side)
+    assert main(["predict", "--machine", "ur5", "--model", str(d / "cal" / "calibration.json"), str(d / "program.csv"),
+                 "--out", str(d / "pred.csv")]) == 0
+    pred = read_table(d / "pred.csv")
+    dp = np.stack([pred.float(c) for c in ("dx_mm", "dy_mm", "dz_mm")], 1)
+    miss = np.linalg.norm(dp - (truth.tool_point(ur5, q0) - target), axis=1)
+    assert np.sqrt(np.mean(miss ** 2)) <= FLOOR_FACTOR * NOISE_FLOOR_MM

@@ -21,10 +21,12 @@ def register(sub):
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
                    "grinder; a machine-tool chain (mill-xyz, five-axis-ac ...) takes its own axis columns")
     p.add_argument("--model", required=True, help="element-set file (JSON), a diagnosed DIR/model.json (volcomp "
-                   "diagnose: the kept stage, the hybrid's learned residual included), MLflow run id or runs:/ URI")
+                   "diagnose: the kept stage, the hybrid's learned residual included), MLflow run id or runs:/ URI; "
+                   "an arm (--machine ur5 ...): its DIR/calibration.json (volcomp calibrate)")
     p.add_argument("--tracking-uri", default=None)
     p.add_argument("points", help="CSV with x_mm, z_mm, a_deg (a chain machine: its axis columns, e.g. "
-                   "x_mm, y_mm, z_mm)")
+                   "x_mm, y_mm, z_mm; an arm: its joint columns q1_deg ..., output the calibrated tool point and "
+                   "dx_mm, dy_mm, dz_mm against the nominal chain)")
     p.add_argument("--out", required=True, help="output CSV (input columns + dx_um, dy_um, dz_um)")
     p.add_argument("--allow", action="append", default=[], choices=("extrapolate", "volume"),
                    help="extrapolate (or volume, compensate's name for the same guard): predict also at points "
@@ -168,6 +170,9 @@ def _chain_band(args, machine, axes, band_src) -> dict:
 
 def run(args) -> int:
     machine = load_machine(args.machine)
+    if machine.kind == "serial":   # an arm: its calibration.json at joint configurations
+        from ..workflows.arm_predict import run_arm_predict
+        return run_arm_predict(machine, args)
     if machine.kind != "machine-tool":
         check_machine_kind(machine.path, machine.kind, "grinder")
     names = machine_axes(machine)   # the grinder's x_mm, z_mm, a_deg or the chain's own columns
