@@ -47,7 +47,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 RESULTS_JSON = HERE / "hybrid_results.json"
 RESULTS_MD = HERE / "hybrid_results.md"
-CASES = ("none", "bump", "a_tilt", "squareness")
+CASES = ("none", "bump", "a_tilt", "squareness", "squareness_xz")
 N_VOLUME = 2000
 N_CHECKS = 800
 """Check measurements per machine (``--checks`` changes it: rows then carry ``@nN``)."""
@@ -79,13 +79,17 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
+CODE_ROUND = 4
+"""Rows measured by this code carry ``code_round`` 4; rows without it were measured by the previous
+round's code (learned families GP squared-exponential and ensemble) and are labelled so."""
+
 N_GA = 50
 """Points of the volume also compensated with ``batched-ga`` on the hybrid (its model residual
 and convergence; the GA is the slow solver, so a subset, and only for seeds below
 :data:`GA_SEEDS`)."""
 GA_SEEDS = 1
 
-AMPLITUDE_KEY = {"bump": "amplitude_um", "a_tilt": "k_urad", "squareness": "k_urad"}
+AMPLITUDE_KEY = {"bump": "amplitude_um", "a_tilt": "k_urad", "squareness": "k_urad", "squareness_xz": "k_urad"}
 """The parameter of each out-of-catalogue effect that ``--scale`` multiplies (magnitude sweep)."""
 
 
@@ -110,11 +114,34 @@ class _scaled_effect:
             simulator.EFFECT_DEFAULTS[self.effect][self.key] = self.old
 
 
-def run_case(family: str, seed: int, effect: str, scale: float = 1.0, checks: int = N_CHECKS) -> dict:
+class _learned_families:
+    """Within the block, the closed loop's learned stage cross-validates only ``families`` (a
+    variant row of the kernel comparison; None: the default set, unchanged)."""
+
+    def __init__(self, families):
+        self.families = families
+
+    def __enter__(self):
+        from compensation import hybrid
+        self.old = hybrid.LEARNED_FAMILIES
+        if self.families is not None:
+            hybrid.LEARNED_FAMILIES = tuple(self.families)
+        return self
+
+    def __exit__(self, *exc):
+        from compensation import hybrid
+        hybrid.LEARNED_FAMILIES = self.old
+
+
+def run_case(family: str, seed: int, effect: str, scale: float = 1.0, checks: int = N_CHECKS,
+             families=None) -> dict:
     if scale != 1.0 and (family != "default" or effect not in AMPLITUDE_KEY):
         raise ValueError("--scale applies to the default family's out-of-catalogue effects only")
-    with _scaled_effect(effect, scale):
+    with _scaled_effect(effect, scale), _learned_families(families):
         row = _run_case(family, seed, effect, checks)
+    if families is not None:
+        row["learned_families"] = list(families)
+        row["effect"] = f"{row['effect']}@f{'+'.join(families)}"
     if scale != 1.0:
         row["scale"] = scale
         row["effect"] = f"{effect}@x{scale:g}"
@@ -176,6 +203,9 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
         cf = load_diagnosed_model(td / "diag" / "model.json", m)
         cond = truth.default_conditions(N_VOLUME)
         e_true = truth.spatial_error(P, **cond)
+        if eff:   # what the effect adds to the truth over the volume (the size the loop and the hybrid face)
+            e_without = make_truth(m, seed, effects=[], family=family).spatial_error(P, **cond)
+            row["effect_rms_um"] = _stats(e_true - e_without)["rms_um"]
         e_model = cf.predict(P, **cond, time_s=np.zeros(N_VOLUME))  # the compensation's conditions (CONDITIONS)
         row["model_vs_truth_rms_um"] = _stats(e_model - e_true)["rms_um"]
         # the kept elements' own band (their posterior covariance, written beside them by diagnose)
@@ -193,12 +223,13 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
     row.update({"kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
                 "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
-                "learned_z": lr.get("held_out_gain_z"), "held_band95_cover": lr.get("held_out_band95_cover"),
+                "learned_z": lr.get("held_out_gain_z"),
+                "learned_cv_rms_um": {k: v.get("cv_rms") for k, v in (lr.get("cv_table") or {}).items()}, "held_band95_cover": lr.get("held_out_band95_cover"),
                 "held_band95_cover_total": lr.get("held_out_band95_cover_total"),
                 "held_base_um": st[s.get("base_stage", s["kept_stage"])]["held_out"]["rms_um"],
                 "held_final_um": s["rms_final_um"], "noise_floor_um": float(np.sqrt(3) * sigma),
                 "effects": [f"{e['kind']} {e['axis']}" for e in s["effects"]],
-                "cpu_s": time.process_time() - t_cpu})
+                "cpu_s": time.process_time() - t_cpu, "code_round": CODE_ROUND})
     return row
 
 
@@ -208,9 +239,8 @@ def _load_rows():
     return []
 
 
-PREVIOUS_NOTE = ("rows of the code before the refit on all checks and the ensemble family (main at 0485cf2: the "
-                 "kept stage's elements and learned part estimated on the 60 % fitting checks only, GP the only "
-                 "learned family); same seeds, same simulated measurements")
+PREVIOUS_NOTE = ("rows of the previous round's code (main at afa191b: learned families GP with the squared-exponential "
+                 "kernel and the deep ensemble; no Matérn kernels); same seeds, same simulated measurements")
 
 
 def _load_previous():
@@ -231,11 +261,10 @@ def _before_after(rows, previous) -> list:
             grp.setdefault((r["family"], r["effect"]), []).append((prev[k], r))
     if not grp:
         return []
-    out = ["", "## Before / after: the kept stage estimated on all checks after the choice; the ensemble family", "",
+    out = ["", "## Before / after: the Matérn kernels among the learned families", "",
            "Paired by seed (the same simulated machine and measurements): before = " + PREVIOUS_NOTE + "; after = this "
-           "code (the choice of stage, effect terms, learned family and keep decision on the 60/40 split as before, then "
-           "the kept elements/terms and the learned part re-estimated on all checks; learned families GP and deep "
-           "ensemble on the same blocked folds). TRUE RMS over the volume (μm).", "",
+           "code (learned families: GP with the squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and the deep "
+           "ensemble, on the same blocked folds; the rest unchanged). TRUE RMS over the volume (μm).", "",
            "| family | case | seeds | hybrid before | hybrid after | loop alone before | loop alone after | "
            "learned kept before → after | family chosen after |", "|---|---|---|---|---|---|---|---|---|"]
     for (fam, eff), prs in sorted(grp.items()):
@@ -250,6 +279,94 @@ def _before_after(rows, previous) -> list:
         out.append(f"| {fam} | {eff} | {len(prs)} | {hb:.2f} | {ha:.2f} | {pb:.2f} | {pa:.2f} | "
                    f"{sum(bool(a.get('learned_kept')) for a, _ in prs)} → {sum(bool(b.get('learned_kept')) for _, b in prs)} | "
                    f"{', '.join(f'{k} {v}' for k, v in sorted(fams.items())) or '—'} |")
+    return out
+
+
+def _own_error(rows) -> list:
+    """Markdown lines: the learned part's own error per case and check count, √(h² − n²) with h the
+    hybrid's TRUE RMS and n the same seed's no-effect machine's (same checks), paired by seed."""
+    by = {(r["family"], r["seed"], r["effect"]): r for r in rows if "rms_um" in r.get("hybrid", {})
+          and "@f" not in r["effect"] and "@x" not in r["effect"]}
+    grp = {}
+    for (fam, seed, eff), r in by.items():
+        base, _, n_ch = eff.partition("@n")
+        if base == "none":
+            continue
+        ref = by.get((fam, seed, "none" + (f"@n{n_ch}" if n_ch else "")))
+        if ref is None:
+            continue
+        h, n = r["hybrid"]["rms_um"], ref["hybrid"]["rms_um"]
+        grp.setdefault((fam, base, int(n_ch or N_CHECKS)), []).append(
+            (seed, h, n, r["parametric"]["rms_um"], r.get("effect_rms_um", np.nan)))
+    if not grp:
+        return []
+    for (fam, base, n_ch), v in list(grp.items()):   # the default count on the seeds of another count: paired
+        if n_ch != N_CHECKS and (fam, base, N_CHECKS) in grp:
+            ss = {x[0] for x in v}
+            grp[(fam, base, f"{N_CHECKS} (seeds of {n_ch})")] = [x for x in grp[(fam, base, N_CHECKS)] if x[0] in ss]
+    out = ["", "## The learned part's own error", "",
+           "√(h² − n²) per seed (h: the hybrid's TRUE RMS over the volume; n: the same seed's machine without the "
+           "effect, same checks; 0 where h ≤ n), mean over the seeds; the same for the loop alone (p). 'effect' = the "
+           "RMS over the volume of what the effect adds to the truth (truth with it minus truth without it, the same "
+           "points); 'absorbed by the loop' = 1 − √(p² − n²)/effect: the share of the effect the loop's catalogue "
+           "(elements and effect terms) already compensates. Paired seeds only.", "",
+           "| family | case | checks | seeds | hybrid h (μm) | no-effect n (μm) | learned part's own error √(h²−n²) (μm) | "
+           "loop alone p (μm) | loop's own error √(p²−n²) (μm) | effect RMS (μm) | absorbed by the loop |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for (fam, eff, n_ch), v in sorted(grp.items(), key=lambda kv: (kv[0][0], kv[0][1], str(kv[0][2]))):
+        v = np.array([x[1:] for x in v], dtype=float)
+        own = np.sqrt(np.maximum(v[:, 0] ** 2 - v[:, 1] ** 2, 0.0))
+        own_p = np.sqrt(np.maximum(v[:, 2] ** 2 - v[:, 1] ** 2, 0.0))
+        eff_ok = np.isfinite(v[:, 3])
+        ab = (f"{np.mean(1 - own_p[eff_ok] / v[eff_ok, 3]):.0%}" if eff_ok.any() else "—")
+        out.append(f"| {fam} | {eff} | {n_ch} | {len(v)} | {v[:, 0].mean():.2f} | {v[:, 1].mean():.2f} | "
+                   f"{own.mean():.2f} | {v[:, 2].mean():.2f} | {own_p.mean():.2f} | "
+                   f"{(f'{np.mean(v[eff_ok, 3]):.2f}') if eff_ok.any() else '—'} | {ab} |")
+    return out
+
+
+def _variants(rows) -> list:
+    """Markdown lines: the learned families compared one at a time (``--learned-families``) beside the
+    default set on the same seeds: the validation figures (blocked-CV RMS of the family on the fitting
+    checks, held-out MEASURED RMS of the kept stage) and the TRUE RMS, side by side."""
+    var = [r for r in rows if "@f" in r["effect"] and "rms_um" in r.get("hybrid", {})]
+    if not var:
+        return []
+    by = {(r["family"], r["seed"], r["effect"]): r for r in rows if "rms_um" in r.get("hybrid", {})}
+    grp = {}
+    for r in var:
+        base, _, fams = r["effect"].partition("@f")
+        grp.setdefault((r["family"], base, fams), []).append(r)
+    seeds = {}
+    for (fam, base, _), rs in grp.items():
+        seeds.setdefault((fam, base), set()).update(r["seed"] for r in rs)
+    for (fam, base), ss in seeds.items():   # the default set on the same seeds
+        rs = [by[(fam, s_, base)] for s_ in sorted(ss) if (fam, s_, base) in by]
+        if rs:
+            grp[(fam, base, "default set")] = rs
+    out = ["", "## Learned families and kernels compared (validation and TRUE side by side)", "",
+           "Each variant: the closed loop's learned stage cross-validating only the named families "
+           "(`--learned-families`), same seeds, same measurements. Validation = what the loop sees: the blocked-CV "
+           "RMS (fitting checks, 10 seq blocks) of the family (or of the chosen one for the default set) and the "
+           "held-out MEASURED RMS of the kept stage. TRUE = the compensated volume against the hidden truth (never "
+           "used by any choice). The default set (all families, chosen per machine by the blocked CV) is what ships.", "",
+           "| family | case | learned families | seeds | kept | chosen | blocked-CV RMS (μm) | held-out MEASURED RMS (μm) | "
+           "TRUE RMS hybrid (μm) |", "|---|---|---|---|---|---|---|---|---|"]
+    for (fam, base, fams), rs in sorted(grp.items()):
+        cv = []
+        for r in rs:
+            t = r.get("learned_cv_rms_um") or {}
+            k = r.get("learned_family") if fams == "default set" else fams.split("+")[0] if "+" not in fams else r.get("learned_family")
+            if k in t and t[k] is not None:
+                cv.append(t[k])
+        chosen = {}
+        for r in rs:
+            if r.get("learned_kept"):
+                chosen[r.get("learned_family")] = chosen.get(r.get("learned_family"), 0) + 1
+        out.append(f"| {fam} | {base} | {fams} | {len(rs)} | {sum(bool(r.get('learned_kept')) for r in rs)}/{len(rs)} | "
+                   f"{', '.join(f'{k} {v}' for k, v in sorted(chosen.items())) or '—'} | "
+                   f"{(f'{np.mean(cv):.3f}') if cv else '—'} | {np.mean([r['held_final_um'] for r in rs]):.3f} | "
+                   f"{np.mean([r['hybrid']['rms_um'] for r in rs]):.3f} |")
     return out
 
 
@@ -318,7 +435,7 @@ def write_results(rows, argv, previous=None):
             f"{_fmt(floor_hat.mean())} | {rng(hc)} | {rng(tt)} | {rng(tc)} | "
             f"{('%.2g' % max(mm)) if mm else '—'} | "
             f"{('%.3f, %d of %d points' % (max(g['model_max_um'] for g in ga), sum(g['failures'] for g in ga), N_GA * len(ga))) if ga else '—'} |")
-    more = [r for r in rows if "@n" in r["effect"] and "rms_um" in r.get("hybrid", {})]
+    more = [r for r in rows if "@n" in r["effect"] and "@f" not in r["effect"] and "rms_um" in r.get("hybrid", {})]
     if more:
         lines += ["", "## More checks", "",
                   "The same machines with more check measurements (`--checks`; 60/40 by seq as always): the learned "
@@ -338,11 +455,12 @@ def write_results(rows, argv, previous=None):
             rel = [r["hybrid"]["rms_um"] / ref_more[(fam, r["seed"], n_ch)]["hybrid"]["rms_um"] for r in rs
                    if (fam, r["seed"], n_ch) in ref_more]
             fl = np.array([r["held_final_um"] / (np.sqrt(3) * NOISE_UM) for r in rs])
-            lines.append(f"| {fam} | {base_eff} | {n_ch} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | "
+            lines.append(f"| {fam} | {base_eff}{'' if all(r.get('code_round') for r in rs) else ' (previous round)'} | {n_ch} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | "
                          f"{p.mean():.2f} | {h.mean():.2f} | {np.mean(p / h):.2f} | "
                          f"{(f'{np.mean(rel):.2f} (max {np.max(rel):.2f})') if rel else '—'} | {fl.mean():.2f} (max {fl.max():.2f}) |")
     sweep = [r for r in rows if r["family"] == "default" and r["effect"].split("@")[0] in AMPLITUDE_KEY
-             and "@n" not in r["effect"] and "rms_um" in r.get("hybrid", {}) and "rms_um" in r.get("parametric", {})]
+             and "@n" not in r["effect"] and "@f" not in r["effect"] and "rms_um" in r.get("hybrid", {})
+             and "rms_um" in r.get("parametric", {})]
     if any("@" in r["effect"] for r in sweep):
         lines += ["", "## Magnitude sweep (default family)", "",
                   "The out-of-catalogue effect's default amplitude times the scale (`--scale`; the truth only), same "
@@ -363,6 +481,8 @@ def write_results(rows, argv, previous=None):
             n0 = np.array([none[("default", r["seed"])]["hybrid"]["rms_um"] for r in rs])
             lines.append(f"| {eff} | ×{sc:g} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | {p.mean():.2f} | "
                          f"{h.mean():.2f} | {np.mean(p / h):.2f} | {np.mean(h / n0):.2f} | {np.mean(p / n0):.2f} |")
+    lines += _own_error(rows)
+    lines += _variants(rows)
     lines += _before_after(rows, previous)
     lines += ["", "Per-row figures are in `benchmarks/hybrid_results.json`.", ""]
     with atomic_write(RESULTS_MD, "w", encoding="utf-8") as fh:
@@ -380,13 +500,17 @@ def main(argv=None):
     ap.add_argument("--scale", type=float, default=1.0,
                     help="magnitude sweep: the out-of-catalogue effects' default amplitude times this (default family)")
     ap.add_argument("--checks", type=int, default=N_CHECKS, help="check measurements per machine")
+    ap.add_argument("--learned-families", default=None,
+                    help="kernel/family comparison: the learned stage cross-validates only these (comma list; rows "
+                         "EFFECT@fFAMS); default: the closed loop's own set")
     ap.add_argument("--report-only", action="store_true", help="rebuild the Markdown from hybrid_results.json")
     args = ap.parse_args(argv)
     argv = sys.argv[1:] if argv is None else argv
     if args.report_only:
         write_results(_load_rows(), argv)
         return
-    todo = [(args.family, s, c, args.scale, args.checks) for s in range(args.seed_start, args.seed_start + args.seeds)
+    fams = None if args.learned_families is None else tuple(args.learned_families.split(","))
+    todo = [(args.family, s, c, args.scale, args.checks, fams) for s in range(args.seed_start, args.seed_start + args.seeds)
             for c in args.cases.split(",") if args.scale == 1.0 or c != "none"]
     rows = {(r["family"], r["seed"], r["effect"]): r for r in _load_rows()}
     if args.jobs > 1:
