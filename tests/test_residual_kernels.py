@@ -53,6 +53,12 @@ def test_matern_family_jacobian_and_round_trip(family):
     back = ResidualRegressor.from_dict(json.loads(json.dumps(r.to_dict())))
     np.testing.assert_allclose(back.predict(Xq), v, rtol=ROUND_TRIP_RTOL, atol=0)
     assert back.model_.kernel == GP_KERNELS[family]
+    # re-estimated on other data (the refit on all checks): the same kernel, and it reloads to the same numbers
+    X2, Y2 = _data(4)
+    for again in (r.refit(X2, Y2, seed=1), r.with_data(X2, Y2)):
+        assert again.model_.kernel == GP_KERNELS[family]
+        back2 = ResidualRegressor.from_dict(json.loads(json.dumps(again.to_dict())))
+        np.testing.assert_allclose(back2.predict(Xq), again.predict(Xq), rtol=ROUND_TRIP_RTOL, atol=0)
     doc = r.to_dict()
     doc["gp"]["kernel"] = "rbf"                   # a file whose kernel contradicts its family is refused
     with pytest.raises(ValueError, match="kernel"):
