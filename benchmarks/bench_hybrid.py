@@ -331,48 +331,62 @@ def _own_error(rows) -> list:
 
 
 def _variants(rows) -> list:
-    """Markdown lines: the learned families compared one at a time (``--learned-families``) beside the
-    default set on the same seeds: the validation figures (blocked-CV RMS of the family on the fitting
-    checks, held-out MEASURED RMS of the kept stage) and the TRUE RMS, side by side."""
-    var = [r for r in rows if "@f" in r["effect"] and "rms_um" in r.get("hybrid", {})]
+    """Markdown lines: the learned families compared. (1) Validation: the mean blocked-CV RMS of every
+    family (and of predicting zero) on the fitting checks, from the default set's rows (every family is
+    cross-validated there on the same folds), and how often each was chosen. (2) The learned stage
+    cross-validating only some families (``--learned-families``) beside the default set, on the seeds
+    every variant of the case has: the held-out MEASURED RMS (validation) and the TRUE RMS side by side."""
+    ok = [r for r in rows if "rms_um" in r.get("hybrid", {})]
+    dflt = [r for r in ok if "@" not in r["effect"] and r.get("learned_cv_rms_um")]
+    out = []
+    if dflt:
+        fams = ["zero"] + [f for f in FAMILY_ORDER if any(f in r["learned_cv_rms_um"] for r in dflt)]
+        out += ["", "## Learned families and kernels compared", "",
+                "Validation (what the loop sees, never the truth): the blocked-CV RMS (μm; fitting checks, 10 seq "
+                "blocks) of each learned family, every family cross-validated on the same folds in each run of the "
+                "default set, mean over the seeds; 'chosen' = how often the stated rule (eligible: mean paired gain "
+                "over zero above its standard error; lowest CV RMS) picked it and the held-out gate then kept it.", "",
+                "| family | case | seeds | " + " | ".join(f"CV RMS {f}" for f in fams) + " | chosen and kept |",
+                "|---|---|---|" + "---|" * len(fams) + "---|"]
+        grp = {}
+        for r in dflt:
+            grp.setdefault((r["family"], r["effect"]), []).append(r)
+        for (fam, eff), rs in sorted(grp.items()):
+            cells = []
+            for f in fams:
+                v = [r["learned_cv_rms_um"][f] for r in rs if r["learned_cv_rms_um"].get(f) is not None]
+                cells.append(f"{np.mean(v):.3f}" if v else "—")
+            kept = [r for r in rs if r.get("learned_kept")]
+            out.append(f"| {fam} | {eff} | {len(rs)} | " + " | ".join(cells) + f" | {len(kept)}/{len(rs)}{_families(kept)} |")
+    var = [r for r in ok if "@f" in r["effect"]]
     if not var:
-        return []
-    by = {(r["family"], r["seed"], r["effect"]): r for r in rows if "rms_um" in r.get("hybrid", {})}
+        return out
+    by = {(r["family"], r["seed"], r["effect"]): r for r in ok}
     grp = {}
     for r in var:
-        base, _, fams = r["effect"].partition("@f")
-        grp.setdefault((r["family"], base, fams), []).append(r)
-    seeds = {}
-    for (fam, base, _), rs in grp.items():
-        seeds.setdefault((fam, base), set()).update(r["seed"] for r in rs)
-    for (fam, base), ss in seeds.items():   # the default set on the same seeds
-        rs = [by[(fam, s_, base)] for s_ in sorted(ss) if (fam, s_, base) in by]
-        if rs:
-            grp[(fam, base, "default set")] = rs
-    out = ["", "## Learned families and kernels compared (validation and TRUE side by side)", "",
-           "Each variant: the closed loop's learned stage cross-validating only the named families "
-           "(`--learned-families`), same seeds, same measurements. Validation = what the loop sees: the blocked-CV "
-           "RMS (fitting checks, 10 seq blocks) of the family (or of the chosen one for the default set) and the "
-           "held-out MEASURED RMS of the kept stage. TRUE = the compensated volume against the hidden truth (never "
-           "used by any choice). The default set (all families, chosen per machine by the blocked CV) is what ships.", "",
-           "| family | case | learned families | seeds | kept | chosen | blocked-CV RMS (μm) | held-out MEASURED RMS (μm) | "
-           "TRUE RMS hybrid (μm) |", "|---|---|---|---|---|---|---|---|---|"]
-    for (fam, base, fams), rs in sorted(grp.items()):
-        cv = []
-        for r in rs:
-            t = r.get("learned_cv_rms_um") or {}
-            k = r.get("learned_family") if fams == "default set" else fams.split("+")[0] if "+" not in fams else r.get("learned_family")
-            if k in t and t[k] is not None:
-                cv.append(t[k])
-        chosen = {}
-        for r in rs:
-            if r.get("learned_kept"):
-                chosen[r.get("learned_family")] = chosen.get(r.get("learned_family"), 0) + 1
-        out.append(f"| {fam} | {base} | {fams} | {len(rs)} | {sum(bool(r.get('learned_kept')) for r in rs)}/{len(rs)} | "
-                   f"{', '.join(f'{k} {v}' for k, v in sorted(chosen.items())) or '—'} | "
-                   f"{(f'{np.mean(cv):.3f}') if cv else '—'} | {np.mean([r['held_final_um'] for r in rs]):.3f} | "
-                   f"{np.mean([r['hybrid']['rms_um'] for r in rs]):.3f} |")
+        base, _, fams_ = r["effect"].partition("@f")
+        grp.setdefault((r["family"], base), {}).setdefault(fams_, {})[r["seed"]] = r
+    out += ["", "Variants: the learned stage cross-validating only the named families (`--learned-families`; "
+            "'gp+ensemble' is the previous round's set), beside the default set (all families, the CV picks per "
+            "machine: what ships), on the seeds every variant of the case has; the same measurements. Held-out "
+            "MEASURED RMS = validation; TRUE RMS = the compensated volume against the hidden truth (used by no "
+            "choice).", "",
+            "| family | case | learned families | seeds | kept | chosen | held-out MEASURED RMS (μm) | TRUE RMS hybrid (μm) |",
+            "|---|---|---|---|---|---|---|---|"]
+    for (fam, base), vs in sorted(grp.items()):
+        vs["default set"] = {r["seed"]: r for r in ok if r["family"] == fam and r["effect"] == base}
+        common = sorted(set.intersection(*(set(v) for v in vs.values())))
+        if not common:
+            continue
+        for name, v in sorted(vs.items()):
+            rs = [v[s_] for s_ in common]
+            kept = [r for r in rs if r.get("learned_kept")]
+            out.append(f"| {fam} | {base} | {name} | {len(rs)} | {len(kept)}/{len(rs)} | {_families(kept).strip(' ()') or '—'} | "
+                       f"{np.mean([r['held_final_um'] for r in rs]):.3f} | {np.mean([r['hybrid']['rms_um'] for r in rs]):.3f} |")
     return out
+
+
+FAMILY_ORDER = ("gp", "gp_matern52", "gp_matern32", "ensemble")
 
 
 def _families(kept) -> str:
