@@ -322,7 +322,7 @@ def _own_error(rows) -> list:
         v = np.array([x[1:] for x in v], dtype=float)
         own = np.sqrt(np.maximum(v[:, 0] ** 2 - v[:, 1] ** 2, 0.0))
         own_p = np.sqrt(np.maximum(v[:, 2] ** 2 - v[:, 1] ** 2, 0.0))
-        eff_ok = np.isfinite(v[:, 3])
+        eff_ok = np.isfinite(v[:, 3]) & (np.nan_to_num(v[:, 3]) > 0)   # a thermal effect is zero at 20 °C
         ab = (f"{np.mean(1 - own_p[eff_ok] / v[eff_ok, 3]):.0%}" if eff_ok.any() else "—")
         out.append(f"| {fam} | {eff} | {n_ch} | {len(v)} | {v[:, 0].mean():.2f} | {v[:, 1].mean():.2f} | "
                    f"{own.mean():.2f} | {v[:, 2].mean():.2f} | {own_p.mean():.2f} | "
