@@ -1,7 +1,7 @@
 """Benchmark of the closed loop's learned-residual stage (the hybrid field, issue 28).
 
 Per seed and case (``none`` and the out-of-catalogue effects ``bump``, ``a_tilt``,
-``squareness`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
+``squareness``, ``squareness_xz`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
 the user's CLI path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) →
 ``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on, its families GP and
 deep ensemble; the kept stage re-estimated on all checks after the choice) →
@@ -21,7 +21,12 @@ residual max on the hybrid as ``compensate`` reports it, and for seeds below ``G
 ``batched-ga`` solver's on ``N_GA`` of the volume points (max and failures).
 
 ``--scale S`` multiplies the out-of-catalogue effect's default amplitude in the truth (magnitude
-sweep; rows ``EFFECT@xS``); ``--checks N`` simulates N checks instead of 800 (rows ``EFFECT@nN``).
+sweep; rows ``EFFECT@xS``); ``--checks N`` simulates N checks instead of 800 (rows ``EFFECT@nN``);
+``--learned-families F1,F2`` lets the learned stage cross-validate only those families (the
+kernel comparison; rows ``EFFECT@fF1+F2``), reported beside the default set with the validation
+figures (blocked-CV RMS, held-out MEASURED RMS) and the TRUE RMS side by side. Per row also the
+effect's own RMS over the volume (truth with it minus truth without it), so the share of the
+effect the loop's catalogue absorbs is reported.
 
 Writes ``benchmarks/hybrid_results.md`` (and ``hybrid_results.json``, rows merged by
 (family, seed, case)). Run: ``python benchmarks/bench_hybrid.py --seeds 10 --jobs 1``.
@@ -47,7 +52,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 RESULTS_JSON = HERE / "hybrid_results.json"
 RESULTS_MD = HERE / "hybrid_results.md"
-CASES = ("none", "bump", "a_tilt", "squareness")
+CASES = ("none", "bump", "a_tilt", "squareness", "squareness_xz")
 N_VOLUME = 2000
 N_CHECKS = 800
 """Check measurements per machine (``--checks`` changes it: rows then carry ``@nN``)."""
@@ -79,13 +84,17 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
+CODE_ROUND = 4
+"""Rows measured by this code carry ``code_round`` 4; rows without it were measured by the previous
+round's code (learned families GP squared-exponential and ensemble) and are labelled so."""
+
 N_GA = 50
 """Points of the volume also compensated with ``batched-ga`` on the hybrid (its model residual
 and convergence; the GA is the slow solver, so a subset, and only for seeds below
 :data:`GA_SEEDS`)."""
 GA_SEEDS = 1
 
-AMPLITUDE_KEY = {"bump": "amplitude_um", "a_tilt": "k_urad", "squareness": "k_urad"}
+AMPLITUDE_KEY = {"bump": "amplitude_um", "a_tilt": "k_urad", "squareness": "k_urad", "squareness_xz": "k_urad"}
 """The parameter of each out-of-catalogue effect that ``--scale`` multiplies (magnitude sweep)."""
 
 
@@ -110,11 +119,34 @@ class _scaled_effect:
             simulator.EFFECT_DEFAULTS[self.effect][self.key] = self.old
 
 
-def run_case(family: str, seed: int, effect: str, scale: float = 1.0, checks: int = N_CHECKS) -> dict:
+class _learned_families:
+    """Within the block, the closed loop's learned stage cross-validates only ``families`` (a
+    variant row of the kernel comparison; None: the default set, unchanged)."""
+
+    def __init__(self, families):
+        self.families = families
+
+    def __enter__(self):
+        from compensation import hybrid
+        self.old = hybrid.LEARNED_FAMILIES
+        if self.families is not None:
+            hybrid.LEARNED_FAMILIES = tuple(self.families)
+        return self
+
+    def __exit__(self, *exc):
+        from compensation import hybrid
+        hybrid.LEARNED_FAMILIES = self.old
+
+
+def run_case(family: str, seed: int, effect: str, scale: float = 1.0, checks: int = N_CHECKS,
+             families=None) -> dict:
     if scale != 1.0 and (family != "default" or effect not in AMPLITUDE_KEY):
         raise ValueError("--scale applies to the default family's out-of-catalogue effects only")
-    with _scaled_effect(effect, scale):
+    with _scaled_effect(effect, scale), _learned_families(families):
         row = _run_case(family, seed, effect, checks)
+    if families is not None:
+        row["learned_families"] = list(families)
+        row["effect"] = f"{row['effect']}@f{'+'.join(families)}"
     if scale != 1.0:
         row["scale"] = scale
         row["effect"] = f"{effect}@x{scale:g}"
@@ -176,6 +208,9 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
         cf = load_diagnosed_model(td / "diag" / "model.json", m)
         cond = truth.default_conditions(N_VOLUME)
         e_true = truth.spatial_error(P, **cond)
+        if eff:   # what the effect adds to the truth over the volume (the size the loop and the hybrid face)
+            e_without = make_truth(m, seed, effects=[], family=family).spatial_error(P, **cond)
+            row["effect_rms_um"] = _stats(e_true - e_without)["rms_um"]
         e_model = cf.predict(P, **cond, time_s=np.zeros(N_VOLUME))  # the compensation's conditions (CONDITIONS)
         row["model_vs_truth_rms_um"] = _stats(e_model - e_true)["rms_um"]
         # the kept elements' own band (their posterior covariance, written beside them by diagnose)
@@ -193,12 +228,13 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
     row.update({"kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
                 "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
-                "learned_z": lr.get("held_out_gain_z"), "held_band95_cover": lr.get("held_out_band95_cover"),
+                "learned_z": lr.get("held_out_gain_z"),
+                "learned_cv_rms_um": {k: v.get("cv_rms") for k, v in (lr.get("cv_table") or {}).items()}, "held_band95_cover": lr.get("held_out_band95_cover"),
                 "held_band95_cover_total": lr.get("held_out_band95_cover_total"),
                 "held_base_um": st[s.get("base_stage", s["kept_stage"])]["held_out"]["rms_um"],
                 "held_final_um": s["rms_final_um"], "noise_floor_um": float(np.sqrt(3) * sigma),
                 "effects": [f"{e['kind']} {e['axis']}" for e in s["effects"]],
-                "cpu_s": time.process_time() - t_cpu})
+                "cpu_s": time.process_time() - t_cpu, "code_round": CODE_ROUND})
     return row
 
 
@@ -208,9 +244,8 @@ def _load_rows():
     return []
 
 
-PREVIOUS_NOTE = ("rows of the code before the refit on all checks and the ensemble family (main at 0485cf2: the "
-                 "kept stage's elements and learned part estimated on the 60 % fitting checks only, GP the only "
-                 "learned family); same seeds, same simulated measurements")
+PREVIOUS_NOTE = ("rows of the previous round's code (main at afa191b: learned families GP with the squared-exponential "
+                 "kernel and the deep ensemble; no Matérn kernels); same seeds, same simulated measurements")
 
 
 def _load_previous():
@@ -231,11 +266,10 @@ def _before_after(rows, previous) -> list:
             grp.setdefault((r["family"], r["effect"]), []).append((prev[k], r))
     if not grp:
         return []
-    out = ["", "## Before / after: the kept stage estimated on all checks after the choice; the ensemble family", "",
+    out = ["", "## Before / after: the Matérn kernels among the learned families", "",
            "Paired by seed (the same simulated machine and measurements): before = " + PREVIOUS_NOTE + "; after = this "
-           "code (the choice of stage, effect terms, learned family and keep decision on the 60/40 split as before, then "
-           "the kept elements/terms and the learned part re-estimated on all checks; learned families GP and deep "
-           "ensemble on the same blocked folds). TRUE RMS over the volume (μm).", "",
+           "code (learned families: GP with the squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and the deep "
+           "ensemble, on the same blocked folds; the rest unchanged). TRUE RMS over the volume (μm).", "",
            "| family | case | seeds | hybrid before | hybrid after | loop alone before | loop alone after | "
            "learned kept before → after | family chosen after |", "|---|---|---|---|---|---|---|---|---|"]
     for (fam, eff), prs in sorted(grp.items()):
@@ -251,6 +285,108 @@ def _before_after(rows, previous) -> list:
                    f"{sum(bool(a.get('learned_kept')) for a, _ in prs)} → {sum(bool(b.get('learned_kept')) for _, b in prs)} | "
                    f"{', '.join(f'{k} {v}' for k, v in sorted(fams.items())) or '—'} |")
     return out
+
+
+def _own_error(rows) -> list:
+    """Markdown lines: the learned part's own error per case and check count, √(h² − n²) with h the
+    hybrid's TRUE RMS and n the same seed's no-effect machine's (same checks), paired by seed."""
+    by = {(r["family"], r["seed"], r["effect"]): r for r in rows if "rms_um" in r.get("hybrid", {})
+          and "@f" not in r["effect"] and "@x" not in r["effect"]}
+    grp = {}
+    for (fam, seed, eff), r in by.items():
+        base, _, n_ch = eff.partition("@n")
+        if base == "none":
+            continue
+        ref = by.get((fam, seed, "none" + (f"@n{n_ch}" if n_ch else "")))
+        if ref is None:
+            continue
+        h, n = r["hybrid"]["rms_um"], ref["hybrid"]["rms_um"]
+        grp.setdefault((fam, base, int(n_ch or N_CHECKS)), []).append(
+            (seed, h, n, r["parametric"]["rms_um"], r.get("effect_rms_um", np.nan)))
+    if not grp:
+        return []
+    for (fam, base, n_ch), v in list(grp.items()):   # the default count on the seeds of another count: paired
+        if n_ch != N_CHECKS and (fam, base, N_CHECKS) in grp:
+            ss = {x[0] for x in v}
+            grp[(fam, base, f"{N_CHECKS} (seeds of {n_ch})")] = [x for x in grp[(fam, base, N_CHECKS)] if x[0] in ss]
+    out = ["", "## The learned part's own error", "",
+           "√(h² − n²) per seed (h: the hybrid's TRUE RMS over the volume; n: the same seed's machine without the "
+           "effect, same checks; 0 where h ≤ n), mean over the seeds; the same for the loop alone (p). 'effect' = the "
+           "RMS over the volume of what the effect adds to the truth (truth with it minus truth without it, the same "
+           "points); 'absorbed by the loop' = 1 − √(p² − n²)/effect: the share of the effect the loop's catalogue "
+           "(elements and effect terms) already compensates. Paired seeds only.", "",
+           "| family | case | checks | seeds | hybrid h (μm) | no-effect n (μm) | learned part's own error √(h²−n²) (μm) | "
+           "loop alone p (μm) | loop's own error √(p²−n²) (μm) | effect RMS (μm) | absorbed by the loop |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for (fam, eff, n_ch), v in sorted(grp.items(), key=lambda kv: (kv[0][0], kv[0][1], str(kv[0][2]))):
+        v = np.array([x[1:] for x in v], dtype=float)
+        own = np.sqrt(np.maximum(v[:, 0] ** 2 - v[:, 1] ** 2, 0.0))
+        own_p = np.sqrt(np.maximum(v[:, 2] ** 2 - v[:, 1] ** 2, 0.0))
+        eff_ok = np.isfinite(v[:, 3]) & (np.nan_to_num(v[:, 3]) > 0)   # a thermal effect is zero at 20 °C
+        ab = (f"{np.mean(1 - own_p[eff_ok] / v[eff_ok, 3]):.0%}" if eff_ok.any() else "—")
+        out.append(f"| {fam} | {eff} | {n_ch} | {len(v)} | {v[:, 0].mean():.2f} | {v[:, 1].mean():.2f} | "
+                   f"{own.mean():.2f} | {v[:, 2].mean():.2f} | {own_p.mean():.2f} | "
+                   f"{(f'{np.mean(v[eff_ok, 3]):.2f}') if eff_ok.any() else '—'} | {ab} |")
+    return out
+
+
+def _variants(rows) -> list:
+    """Markdown lines: the learned families compared. (1) Validation: the mean blocked-CV RMS of every
+    family (and of predicting zero) on the fitting checks, from the default set's rows (every family is
+    cross-validated there on the same folds), and how often each was chosen. (2) The learned stage
+    cross-validating only some families (``--learned-families``) beside the default set, on the seeds
+    every variant of the case has: the held-out MEASURED RMS (validation) and the TRUE RMS side by side."""
+    ok = [r for r in rows if "rms_um" in r.get("hybrid", {})]
+    dflt = [r for r in ok if "@" not in r["effect"] and r.get("learned_cv_rms_um")]
+    out = []
+    if dflt:
+        fams = ["zero"] + [f for f in FAMILY_ORDER if any(f in r["learned_cv_rms_um"] for r in dflt)]
+        out += ["", "## Learned families and kernels compared", "",
+                "Validation (what the loop sees, never the truth): the blocked-CV RMS (μm; fitting checks, 10 seq "
+                "blocks) of each learned family, every family cross-validated on the same folds in each run of the "
+                "default set, mean over the seeds; 'chosen' = how often the stated rule (eligible: mean paired gain "
+                "over zero above its standard error; lowest CV RMS) picked it and the held-out gate then kept it.", "",
+                "| family | case | seeds | " + " | ".join(f"CV RMS {f}" for f in fams) + " | chosen and kept |",
+                "|---|---|---|" + "---|" * len(fams) + "---|"]
+        grp = {}
+        for r in dflt:
+            grp.setdefault((r["family"], r["effect"]), []).append(r)
+        for (fam, eff), rs in sorted(grp.items()):
+            cells = []
+            for f in fams:
+                v = [r["learned_cv_rms_um"][f] for r in rs if r["learned_cv_rms_um"].get(f) is not None]
+                cells.append(f"{np.mean(v):.3f}" if v else "—")
+            kept = [r for r in rs if r.get("learned_kept")]
+            out.append(f"| {fam} | {eff} | {len(rs)} | " + " | ".join(cells) + f" | {len(kept)}/{len(rs)}{_families(kept)} |")
+    var = [r for r in ok if "@f" in r["effect"]]
+    if not var:
+        return out
+    by = {(r["family"], r["seed"], r["effect"]): r for r in ok}
+    grp = {}
+    for r in var:
+        base, _, fams_ = r["effect"].partition("@f")
+        grp.setdefault((r["family"], base), {}).setdefault(fams_, {})[r["seed"]] = r
+    out += ["", "Variants: the learned stage cross-validating only the named families (`--learned-families`; "
+            "'gp+ensemble' is the previous round's set), beside the default set (all families, the CV picks per "
+            "machine: what ships), on the seeds every variant of the case has; the same measurements. Held-out "
+            "MEASURED RMS = validation; TRUE RMS = the compensated volume against the hidden truth (used by no "
+            "choice).", "",
+            "| family | case | learned families | seeds | kept | chosen | held-out MEASURED RMS (μm) | TRUE RMS hybrid (μm) |",
+            "|---|---|---|---|---|---|---|---|"]
+    for (fam, base), vs in sorted(grp.items()):
+        vs["default set"] = {r["seed"]: r for r in ok if r["family"] == fam and r["effect"] == base}
+        common = sorted(set.intersection(*(set(v) for v in vs.values())))
+        if not common:
+            continue
+        for name, v in sorted(vs.items()):
+            rs = [v[s_] for s_ in common]
+            kept = [r for r in rs if r.get("learned_kept")]
+            out.append(f"| {fam} | {base} | {name} | {len(rs)} | {len(kept)}/{len(rs)} | {_families(kept).strip(' ()') or '—'} | "
+                       f"{np.mean([r['held_final_um'] for r in rs]):.3f} | {np.mean([r['hybrid']['rms_um'] for r in rs]):.3f} |")
+    return out
+
+
+FAMILY_ORDER = ("gp", "gp_matern52", "gp_matern32", "ensemble")
 
 
 def _families(kept) -> str:
@@ -276,12 +412,13 @@ def write_results(rows, argv, previous=None):
     none = {(r["family"], r["seed"]): r for r in rows if r["effect"] == "none"}
     lines = ["# Hybrid field: the learned residual stage of the closed loop (issue 28)", "",
              "User's CLI path per seed: sweeps (2 μm) → simulate (800 checks, 1 μm) → identify → diagnose "
-             "(learned stage on: GP and deep ensemble cross-validated on the same blocked folds; stages chosen on the "
+             "(learned stage on: GP with squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and deep ensemble "
+             "cross-validated on the same blocked folds; stages chosen on the "
              "60/40 split, the kept stage then re-estimated on all checks) → compensate 2,000 random volume points (exact, reference conditions); "
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
              "residual (the loop alone). Generated by `python benchmarks/bench_hybrid.py --seeds 10 --jobs 1 "
-             "[--family independent] [--cases …] [--scale S] [--checks N]` (rows merged from `hybrid_results.json`; this table rebuilt by "
+             "[--family independent] [--cases …] [--scale S] [--checks N] [--learned-families F]` (rows merged from `hybrid_results.json`; this table rebuilt by "
              "`" + " ".join(["bench_hybrid.py", *argv]) + "`).",
              "", f"Machine: {platform.machine()}, Python {platform.python_version()}.", "",
              "| family | case | seeds | learned kept (family) | condition terms replaced | TRUE RMS hybrid (μm) | "
@@ -318,7 +455,7 @@ def write_results(rows, argv, previous=None):
             f"{_fmt(floor_hat.mean())} | {rng(hc)} | {rng(tt)} | {rng(tc)} | "
             f"{('%.2g' % max(mm)) if mm else '—'} | "
             f"{('%.3f, %d of %d points' % (max(g['model_max_um'] for g in ga), sum(g['failures'] for g in ga), N_GA * len(ga))) if ga else '—'} |")
-    more = [r for r in rows if "@n" in r["effect"] and "rms_um" in r.get("hybrid", {})]
+    more = [r for r in rows if "@n" in r["effect"] and "@f" not in r["effect"] and "rms_um" in r.get("hybrid", {})]
     if more:
         lines += ["", "## More checks", "",
                   "The same machines with more check measurements (`--checks`; 60/40 by seq as always): the learned "
@@ -338,11 +475,12 @@ def write_results(rows, argv, previous=None):
             rel = [r["hybrid"]["rms_um"] / ref_more[(fam, r["seed"], n_ch)]["hybrid"]["rms_um"] for r in rs
                    if (fam, r["seed"], n_ch) in ref_more]
             fl = np.array([r["held_final_um"] / (np.sqrt(3) * NOISE_UM) for r in rs])
-            lines.append(f"| {fam} | {base_eff} | {n_ch} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | "
+            lines.append(f"| {fam} | {base_eff}{'' if all(r.get('code_round') for r in rs) else ' (previous round)'} | {n_ch} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | "
                          f"{p.mean():.2f} | {h.mean():.2f} | {np.mean(p / h):.2f} | "
                          f"{(f'{np.mean(rel):.2f} (max {np.max(rel):.2f})') if rel else '—'} | {fl.mean():.2f} (max {fl.max():.2f}) |")
     sweep = [r for r in rows if r["family"] == "default" and r["effect"].split("@")[0] in AMPLITUDE_KEY
-             and "@n" not in r["effect"] and "rms_um" in r.get("hybrid", {}) and "rms_um" in r.get("parametric", {})]
+             and "@n" not in r["effect"] and "@f" not in r["effect"] and "rms_um" in r.get("hybrid", {})
+             and "rms_um" in r.get("parametric", {})]
     if any("@" in r["effect"] for r in sweep):
         lines += ["", "## Magnitude sweep (default family)", "",
                   "The out-of-catalogue effect's default amplitude times the scale (`--scale`; the truth only), same "
@@ -363,6 +501,8 @@ def write_results(rows, argv, previous=None):
             n0 = np.array([none[("default", r["seed"])]["hybrid"]["rms_um"] for r in rs])
             lines.append(f"| {eff} | ×{sc:g} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | {p.mean():.2f} | "
                          f"{h.mean():.2f} | {np.mean(p / h):.2f} | {np.mean(h / n0):.2f} | {np.mean(p / n0):.2f} |")
+    lines += _own_error(rows)
+    lines += _variants(rows)
     lines += _before_after(rows, previous)
     lines += ["", "Per-row figures are in `benchmarks/hybrid_results.json`.", ""]
     with atomic_write(RESULTS_MD, "w", encoding="utf-8") as fh:
@@ -380,13 +520,17 @@ def main(argv=None):
     ap.add_argument("--scale", type=float, default=1.0,
                     help="magnitude sweep: the out-of-catalogue effects' default amplitude times this (default family)")
     ap.add_argument("--checks", type=int, default=N_CHECKS, help="check measurements per machine")
+    ap.add_argument("--learned-families", default=None,
+                    help="kernel/family comparison: the learned stage cross-validates only these (comma list; rows "
+                         "EFFECT@fFAMS); default: the closed loop's own set")
     ap.add_argument("--report-only", action="store_true", help="rebuild the Markdown from hybrid_results.json")
     args = ap.parse_args(argv)
     argv = sys.argv[1:] if argv is None else argv
     if args.report_only:
         write_results(_load_rows(), argv)
         return
-    todo = [(args.family, s, c, args.scale, args.checks) for s in range(args.seed_start, args.seed_start + args.seeds)
+    fams = None if args.learned_families is None else tuple(args.learned_families.split(","))
+    todo = [(args.family, s, c, args.scale, args.checks, fams) for s in range(args.seed_start, args.seed_start + args.seeds)
             for c in args.cases.split(",") if args.scale == 1.0 or c != "none"]
     rows = {(r["family"], r["seed"], r["effect"]): r for r in _load_rows()}
     if args.jobs > 1:

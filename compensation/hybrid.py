@@ -62,10 +62,11 @@ MAP_N = 11
 
 FEATURE_NAMES = ("x_mm", "z_mm", "cos_a", "sin_a")
 
-LEARNED_FAMILIES = ("gp", "ensemble")
+LEARNED_FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32")
 """The learned families the stage cross-validates on the same blocked folds (the Gaussian
-process and the deep ensemble of :mod:`training.residual`); the rule of
-:class:`~training.residual.ResidualRegressor` picks one (or none) and the stage names it."""
+process with the squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and the deep ensemble of
+:mod:`training.residual`); the rule of :class:`~training.residual.ResidualRegressor` picks one
+(or none) and the stage names it."""
 
 
 def axis_features(axes):
@@ -267,7 +268,7 @@ hyper-parameters kept, the weights re-solved on all checks
 (:meth:`~training.residual.ResidualRegressor.with_data`)."""
 
 
-def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=LEARNED_FAMILIES, r_static_um=None,
+def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=None, r_static_um=None,
                   covariance=None, refit_residual=None, refit_mode: str = "hyper"):
     """Fit the learned residual on what the previous stage leaves at the checks and gate it.
 
@@ -282,6 +283,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     cross-validated error is lower, paired per point over the same folds, by more than
     :data:`KEEP_Z` standard errors (the early, still-warming blocks are where the two differ);
     the held-out gate against the previous stage (with its terms) is then the same.
+    ``families``: the learned families cross-validated (None: :data:`LEARNED_FAMILIES` at call time).
     ``covariance``: the previous stage's element covariance (or None): with it, the stage also
     reports the coverage of the hybrid's TOTAL band on the held-out checks
     (``held_out_band95_cover_total``: learned band ⊕ elements' J Σ Jᵀ ⊕ the fitted noise) and
@@ -295,6 +297,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate;
     ``replaces_condition_terms`` True when the static variant was used)."""
     axes = np.asarray(axes, dtype=float)
+    families = tuple(LEARNED_FAMILIES if families is None else families)
     if refit_mode not in REFIT_MODES:
         raise ValueError(f"Expected refit_mode one of {REFIT_MODES}, got {refit_mode!r}")
     if len(fit_idx) < MIN_FIT_CHECKS or len(hold_idx) < MIN_HELD_CHECKS:

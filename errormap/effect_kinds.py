@@ -115,6 +115,9 @@ EFFECT_KINDS = (
     EffectKind("squareness", (), "pair", "k·sin(π·(p − p_lo)/Δp) on a squareness",
                (("k_urad", "urad"),), simulator="squareness", simulator_element="s_xz",
                diagnosed=False, truth_only=True),
+    EffectKind("squareness_xz", (), "pair", "k·sin(π·(p − p_lo)/Δp)·sin(π·(q − q_lo)/Δq) on a squareness",
+               (("k_urad", "urad"),), simulator="squareness_xz", simulator_element="s_xz",
+               diagnosed=False, truth_only=True),
 )
 
 _BY_NAME = {k.name: k for k in EFFECT_KINDS}

@@ -35,6 +35,9 @@ a_tilt         the A axis's tilt (in its rotating frame) grows as X travels:    
                growing with X alone is X's own angular error, in the 23 elements)
 squareness     an X–Z squareness that varies along X:                                k = 100 μrad at mid-X
                ``s_xz += k·sin(π·(x − x_lo)/Δx)``
+squareness_xz  an X–Z squareness that varies over X and Z together (not separable:     k = 100 μrad at mid-X, mid-Z
+               no element profile of one axis, nor X's angles times the Z lever,
+               represents it): ``s_xz += k·sin(π·(x − x_lo)/Δx)·sin(π·(z − z_lo)/Δz)``
 =============  ===================================================================  ===============================
 
 Check measurements follow docs/schemas.md: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, time_s,
@@ -74,6 +77,7 @@ EFFECT_DEFAULTS = {
     "bump": {"amplitude_um": 8.0, "x_frac": 0.6, "z_frac": 0.4, "width_frac": 0.18},
     "a_tilt": {"k_urad": 120.0},
     "squareness": {"k_urad": 100.0},
+    "squareness_xz": {"k_urad": 100.0},
 }
 OUT_OF_CATALOGUE = TRUTH_ONLY
 """Effects no kind of :mod:`errormap.diagnosis.effects` represents (module doc; the registry,
@@ -193,6 +197,8 @@ class TruthGrinder:
                     v[:, IDX["ey_a"]] += p["k_urad"] * x_rel / dx
                 elif name == "squareness":
                     v[:, IDX["s_xz"]] += p["k_urad"] * np.sin(np.pi * x_rel / dx)
+                elif name == "squareness_xz":
+                    v[:, IDX["s_xz"]] += p["k_urad"] * np.sin(np.pi * x_rel / dx) * np.sin(np.pi * z_rel / dz)
                 else:  # pragma: no cover - a truth-only kind registered without its drawing here
                     raise ValueError(f"the simulator cannot draw the truth-only effect {name!r}")
             else:  # pragma: no cover - a registered simulator kind without its drawing here

@@ -102,6 +102,8 @@ def independent_effect_parameters(rng: np.random.Generator) -> dict:
                  "z_frac": rng.uniform(0.3, 0.7), "width_frac": rng.uniform(0.14, 0.22)},
         "a_tilt": {"k_urad": rng.uniform(80.0, 160.0) * rng.choice([-1.0, 1.0])},
         "squareness": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
+        # drawn last (issue 28, round 4), so every draw above is unchanged
+        "squareness_xz": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
     }
 
 

@@ -53,10 +53,19 @@ __all__ = ["ResidualRegressor", "FAMILIES", "FORMAT", "check_residual_data"]
 FORMAT = "volcomp-residual-regressor/1"
 """The ``format`` key of :meth:`ResidualRegressor.to_dict`."""
 
-FAMILIES = ("gp", "ensemble")
+GP_KERNELS = {"gp": "rbf", "gp_matern52": "matern52", "gp_matern32": "matern32"}
+"""The Gaussian-process families and their kernel (:func:`_kernel`): the squared exponential
+(infinitely smooth), Matérn 5/2 (twice differentiable) and Matérn 3/2 (once differentiable: the
+roughest that still has the closed-form Jacobian the solvers need). A local feature (a bump of a
+few length scales) may be fitted with less smoothing by a rougher kernel; which one serves is
+decided by the blocked cross-validation like any other family."""
+
+FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32")
 """The regressor families :class:`ResidualRegressor` can cross-validate."""
 
 FAMILY_NAMES = {"gp": "Gaussian process (zero mean, ARD squared-exponential kernel + white noise, per output)",
+                "gp_matern52": "Gaussian process (zero mean, ARD Matérn 5/2 kernel + white noise, per output)",
+                "gp_matern32": "Gaussian process (zero mean, ARD Matérn 3/2 kernel + white noise, per output)",
                 "ensemble": "deep ensemble (5 tanh MLPs 2×16, weight decay; mean and spread)",
                 "none": "none (the physical model alone)"}
 """What each family is, in words (diagnosis.json / model.json / the report name the chosen one)."""
@@ -115,14 +124,35 @@ def _sqdist_by_dim(A, B, inv_l2):
     return np.maximum(d2, 0.0)
 
 
-def _gp_nll(theta, X, y, D):
+_SQRT3, _SQRT5 = np.sqrt(3.0), np.sqrt(5.0)
+
+
+def _kernel(S, sf2, kind="rbf"):
+    """Kernel and its radial derivative factor from the scaled squared distance S = Σ_j Δ_j²/l_j².
+
+    S (n, m) → (K (n, m), H (n, m)) with dK/dlog l_j = H ⊙ Δ_j²/l_j² and dK/dx_j = −H ⊙ Δ_j/l_j²
+    (one form for every kernel: the marginal-likelihood gradient and the Jacobian use H)."""
+    if kind == "rbf":
+        K = sf2 * np.exp(-0.5 * S)
+        return K, K
+    r = np.sqrt(S)
+    if kind == "matern52":
+        e = sf2 * np.exp(-_SQRT5 * r)
+        return e * (1.0 + _SQRT5 * r + (5.0 / 3.0) * S), (5.0 / 3.0) * e * (1.0 + _SQRT5 * r)
+    if kind == "matern32":
+        e = sf2 * np.exp(-_SQRT3 * r)
+        return e * (1.0 + _SQRT3 * r), 3.0 * e
+    raise ValueError(f"Expected a kernel in {sorted(set(GP_KERNELS.values()))}, got {kind!r}")
+
+
+def _gp_nll(theta, X, y, D, kind="rbf"):
     """Negative log marginal likelihood and its gradient in θ = (log l (d), log sf², log sn²).
 
-    X (n, d) standardised, y (n,), D (d, n, n) squared differences per input."""
+    X (n, d) standardised, y (n,), D (d, n, n) squared differences per input; ``kind`` the kernel."""
     d = X.shape[1]
     inv_l2 = np.exp(-2.0 * theta[:d])
     sf2, sn2 = np.exp(theta[d]), np.exp(theta[d + 1])
-    Kf = sf2 * np.exp(-0.5 * np.tensordot(inv_l2, D, axes=1))
+    Kf, H = _kernel(np.tensordot(inv_l2, D, axes=1), sf2, kind)
     K = Kf + sn2 * np.eye(len(y))
     try:
         c = cho_factor(K, lower=True, check_finite=False)
@@ -135,21 +165,22 @@ def _gp_nll(theta, X, y, D):
         return 1e25, np.zeros_like(theta)
     Kinv = np.tril(Kinv) + np.tril(Kinv, -1).T
     W = np.outer(alpha, alpha) - Kinv
-    WK = W * Kf
     grad = np.empty_like(theta)
-    # dK/dlog l_j = Kf ⊙ D_j / l_j²
-    grad[:d] = -0.5 * inv_l2 * np.tensordot(D, WK, axes=([1, 2], [0, 1]))
-    grad[d] = -0.5 * WK.sum()
+    # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential)
+    grad[:d] = -0.5 * inv_l2 * np.tensordot(D, W * H, axes=([1, 2], [0, 1]))
+    grad[d] = -0.5 * (W * Kf).sum()
     grad[d + 1] = -0.5 * sn2 * np.trace(W)
     return nll, grad
 
 
 class _GP:
-    """One zero-mean GP per output column on standardised inputs (see module doc)."""
+    """One zero-mean GP per output column on standardised inputs (see module doc); ``kernel``
+    one of the values of :data:`GP_KERNELS`."""
 
-    def __init__(self, n_restarts: int, rng):
+    def __init__(self, n_restarts: int, rng, kernel: str = "rbf"):
         self.n_restarts = int(n_restarts)
         self.rng = rng
+        self.kernel = kernel
 
     def fit(self, Xs, Ys):
         """Xs (n, d) standardised, Ys (n, 3) scaled → self (theta_ (3, d+2), alpha_ (3, n), L_ (3, n, n))."""
@@ -167,7 +198,7 @@ class _GP:
             best = None
             for t0 in starts:
                 t0 = np.clip(t0, [b[0] for b in bounds], [b[1] for b in bounds])
-                r = minimize(_gp_nll, t0, args=(Xs, y, D), jac=True, method="L-BFGS-B", bounds=bounds,
+                r = minimize(_gp_nll, t0, args=(Xs, y, D, self.kernel), jac=True, method="L-BFGS-B", bounds=bounds,
                              options={"maxiter": 100})
                 if best is None or r.fun < best.fun:
                     best = r
@@ -185,7 +216,7 @@ class _GP:
         self.L_ = np.empty((Ys.shape[1], n, n))
         for k in range(Ys.shape[1]):
             inv_l2, sf2, sn2 = self._hyp(k)
-            K = sf2 * np.exp(-0.5 * _sqdist_by_dim(self.X_, self.X_, inv_l2)) + sn2 * np.eye(n)
+            K = _kernel(_sqdist_by_dim(self.X_, self.X_, inv_l2), sf2, self.kernel)[0] + sn2 * np.eye(n)
             L = np.linalg.cholesky(K)
             self.L_[k] = L
             self.alpha_[k] = cho_solve((L, True), Ys[:, k], check_finite=False)
@@ -211,14 +242,14 @@ class _GP:
             Xc = Xs[s:s + PREDICT_CHUNK]
             for k in range(K3):
                 inv_l2, sf2, _ = self._hyp(k)
-                Ks = sf2 * np.exp(-0.5 * _sqdist_by_dim(Xc, self.X_, inv_l2))     # (c, n)
+                Ks, Hs = _kernel(_sqdist_by_dim(Xc, self.X_, inv_l2), sf2, self.kernel)   # (c, n) each
                 mean[s:s + len(Xc), k] = Ks @ self.alpha_[k]
                 if return_std:
                     v = solve_triangular(self.L_[k], Ks.T, lower=True, check_finite=False)
                     std[s:s + len(Xc), k] = np.sqrt(np.maximum(sf2 - (v * v).sum(0), 0.0))
                 if jacobian:
-                    w = Ks * self.alpha_[k][None, :]                                 # (c, n)
-                    # d/dx_j k(x, x_i) = −k (x_j − x_ij)/l_j²
+                    w = Hs * self.alpha_[k][None, :]                                 # (c, n)
+                    # d/dx_j k(x, x_i) = −H (x_j − x_ij)/l_j²
                     jac[s:s + len(Xc), k, :] = -inv_l2[None, :] * (Xc * w.sum(1)[:, None] - w @ self.X_)
         out = (mean,)
         if return_std:
@@ -302,8 +333,8 @@ class ResidualRegressor:
         return [np.flatnonzero(np.isin(g_rank, b)) for b in bounds]
 
     def _new(self, family, rng):
-        if family == "gp":
-            return _GP(self.n_restarts, rng)
+        if family in GP_KERNELS:
+            return _GP(self.n_restarts, rng, GP_KERNELS[family])
         if family == "ensemble":
             from .ensemble import MLPEnsemble
             return MLPEnsemble(seed=int(rng.integers(0, 2**63 - 1)))
@@ -430,8 +461,8 @@ class ResidualRegressor:
         X, Y, _ = check_residual_data(X, Y)
         out = copy.copy(self)
         if isinstance(self.model_, _GP):
-            out.model_ = _GP(1, None).set_state((X - self.x_mean_) / self.x_scale_, Y / self.y_scale_,
-                                                self.model_.theta_)
+            out.model_ = _GP(1, None, self.model_.kernel).set_state((X - self.x_mean_) / self.x_scale_,
+                                                                    Y / self.y_scale_, self.model_.theta_)
         elif self.model_ is not None:   # an ensemble has no hyper-parameters fitted: its members are retrained
             from .ensemble import MLPEnsemble
             m = self.model_
@@ -463,7 +494,7 @@ class ResidualRegressor:
             Xs, Ys = (X - out.x_mean_) / out.x_scale_, Y / out.y_scale_
             out.model_ = self._new(self.chosen_, rng).fit(Xs, Ys)
         if isinstance(out.model_, _GP):   # the weights solved as from_dict solves them (same BLAS threads):
-            out.model_ = _GP(1, None).set_state(Xs, Ys, out.model_.theta_)   # the shipped field == the reloaded one
+            out.model_ = _GP(1, None, out.model_.kernel).set_state(Xs, Ys, out.model_.theta_)   # shipped == reloaded
         out.noise_std_ = np.sqrt(out.model_.noise_var()) * out.y_scale_ * out.band_scale_
         return out
 
@@ -482,7 +513,7 @@ class ResidualRegressor:
                "noise_std": self.noise_std_.tolist(), "band_scale": float(self.band_scale_)}
         if isinstance(self.model_, _GP):
             out["gp"] = {"theta": self.model_.theta_.tolist(), "X": self.model_.X_.tolist(),
-                         "Y": self.model_.Y_.tolist()}
+                         "Y": self.model_.Y_.tolist(), "kernel": self.model_.kernel}
         elif self.model_ is not None:
             out["ensemble"] = self.model_.state()
         return out
@@ -507,9 +538,12 @@ class ResidualRegressor:
             self.noise_std_ = np.asarray(doc["noise_std"], dtype=float)
             self.band_scale_ = float(doc["band_scale"])
             self.model_ = None
-            if self.chosen_ == "gp":
+            if self.chosen_ in GP_KERNELS:
                 g = doc["gp"]
-                self.model_ = _GP(1, None).set_state(np.asarray(g["X"], dtype=float), np.asarray(g["Y"], dtype=float),
+                if g.get("kernel", "rbf") != GP_KERNELS[self.chosen_]:   # files before the kernels: rbf
+                    raise ValueError(f"Expected the kernel {GP_KERNELS[self.chosen_]!r} of family {self.chosen_!r}, "
+                                     f"got {g.get('kernel', 'rbf')!r}")
+                self.model_ = _GP(1, None, GP_KERNELS[self.chosen_]).set_state(np.asarray(g["X"], dtype=float), np.asarray(g["Y"], dtype=float),
                                                      np.asarray(g["theta"], dtype=float))
             elif self.chosen_ == "ensemble":
                 from .ensemble import MLPEnsemble

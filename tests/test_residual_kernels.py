@@ -1,0 +1,74 @@
+"""The Matérn kernels of training.residual: marginal-likelihood gradient, Jacobian, round trip, choice by CV."""
+import json
+
+import numpy as np
+import pytest
+
+from training.residual import GP_KERNELS, ResidualRegressor, _gp_nll
+
+GRAD_TOL_REL = 1e-5
+"""Analytic marginal-likelihood gradient vs central differences (h = 1e-6 in log units): the
+difference is O(h²)·f''' plus rounding ε·|nll|/h ≈ 1e-10·|nll|; 1e-5 of the largest gradient entry
+is far above both and far below any wrong term (a missing factor is O(1))."""
+
+JAC_TOL_REL = 1e-6
+"""Closed-form Jacobian vs central differences (h = 1e-5): O(h²)·f''' ≈ 1e-9 relative plus ε/h;
+both Matérn kernels used here are at least once continuously differentiable, so the closed form
+holds also at the training points."""
+
+ROUND_TRIP_RTOL = 1e-9
+"""Loading re-solves the weights by Cholesky: rounding only (see test_residual)."""
+
+
+def _data(seed, n=60):
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(-1, 1, (n, 2))
+    Y = np.c_[np.sin(2 * X[:, 0]), X[:, 0] * X[:, 1], np.exp(-4 * X[:, 1] ** 2)] + 0.05 * rng.standard_normal((n, 3))
+    return X, Y
+
+
+@pytest.mark.parametrize("kind", sorted(set(GP_KERNELS.values())))
+def test_nll_gradient_matches_finite_differences(kind):
+    X, Y = _data(0, n=40)
+    D = np.moveaxis((X[:, None, :] - X[None, :, :]) ** 2, 2, 0).copy()
+    theta = np.array([np.log(0.7), np.log(1.3), np.log(0.8), np.log(0.01)])
+    f0, g = _gp_nll(theta, X, Y[:, 0], D, kind)
+    h = 1e-6
+    gfd = np.array([(_gp_nll(theta + h * e, X, Y[:, 0], D, kind)[0] - _gp_nll(theta - h * e, X, Y[:, 0], D, kind)[0])
+                    / (2 * h) for e in np.eye(len(theta))])
+    assert np.abs(g - gfd).max() <= GRAD_TOL_REL * np.abs(g).max()
+
+
+@pytest.mark.parametrize("family", ["gp_matern52", "gp_matern32"])
+def test_matern_family_jacobian_and_round_trip(family):
+    X, Y = _data(1)
+    r = ResidualRegressor(families=(family,), seed=0, margin_se=0.0).fit(X, Y)
+    assert r.chosen_ == family
+    Xq = np.random.default_rng(2).uniform(-1, 1, (6, 2))
+    Xq[0] = X[3]                                  # at a training point too
+    v, J = r.predict_and_jacobian(Xq)
+    h = 1e-5
+    Jfd = np.stack([(r.predict(Xq + h * np.eye(2)[j]) - r.predict(Xq - h * np.eye(2)[j])) / (2 * h) for j in range(2)], -1)
+    assert np.abs(J - Jfd).max() <= JAC_TOL_REL * np.abs(J).max()
+    back = ResidualRegressor.from_dict(json.loads(json.dumps(r.to_dict())))
+    np.testing.assert_allclose(back.predict(Xq), v, rtol=ROUND_TRIP_RTOL, atol=0)
+    assert back.model_.kernel == GP_KERNELS[family]
+    # re-estimated on other data (the refit on all checks): the same kernel, and it reloads to the same numbers
+    X2, Y2 = _data(4)
+    for again in (r.refit(X2, Y2, seed=1), r.with_data(X2, Y2)):
+        assert again.model_.kernel == GP_KERNELS[family]
+        back2 = ResidualRegressor.from_dict(json.loads(json.dumps(again.to_dict())))
+        np.testing.assert_allclose(back2.predict(Xq), again.predict(Xq), rtol=ROUND_TRIP_RTOL, atol=0)
+    doc = r.to_dict()
+    doc["gp"]["kernel"] = "rbf"                   # a file whose kernel contradicts its family is refused
+    with pytest.raises(ValueError, match="kernel"):
+        ResidualRegressor.from_dict(doc)
+
+
+def test_choice_among_kernels_is_the_lowest_cv_rms():
+    X, Y = _data(3)
+    fams = ("gp", "gp_matern52", "gp_matern32")
+    r = ResidualRegressor(families=fams, seed=0).fit(X, Y)
+    eligible = [f for f in fams if r.cv_table_[f]["gain_mean"] > r.cv_table_[f]["gain_se"]]
+    assert r.chosen_ == min(eligible, key=lambda f: r.cv_table_[f]["cv_rms"])
+    assert r.model_.kernel == GP_KERNELS[r.chosen_]
