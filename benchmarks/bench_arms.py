@@ -568,7 +568,8 @@ def main(argv=None):
         else:
             chain = load_machine(part)
             data = read_arm_poses(DATA / f"{part}_grid.csv", chain)
-            rr = {"n_poses": len(data)}
+            # --merge keeps this arm's other kinds too (a run of --kinds random keeps the blocked result)
+            rr = {**(res["real"].get(part, {}) if args.merge else {}), "n_poses": len(data)}
             reps = args.ur5_repeats if part == "ur5" else args.repeats
             res["real"][part] = rr
             for kind, folds in (("random", folds_random(len(data), args.folds, reps, 0)),
