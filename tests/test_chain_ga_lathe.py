@@ -16,29 +16,15 @@ from errormap.machine import load_machine
 from errormap.mt_field import ChainField
 from errormap.mt_kernel import NominalChain
 
+from chain_fixtures import lathe_targets as _targets
 from test_mt_compensate import chain_elements
 
 LATHE = "lathe-xzc"
 GA_TOL_UM = DEFAULT_TOL_UM
 """The grinder GA's bar (0.265 μm, the paper's tolerance): every point must reach it."""
-FAR_MM = 5.0
-"""Targets at least 5 mm from the spindle axis (see tests/test_chain_rotary_guard.py)."""
-NEAR_MM = 0.5
-"""Targets within 0.5 mm of the spindle axis (where Newton may swing C)."""
 BOUND_REL = 1e-9
 """The GA's rotary gene is at most the ball radius (projected), so |ΔC| ≤ Δθ_max up to float32 genes
 scaled back: 1e-9 relative."""
-
-
-def _targets(mt, n, seed, near=False):
-    rng = np.random.default_rng(seed)
-    ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (n, 3))
-    if near:
-        ax[:, 0] = rng.uniform(-NEAR_MM, NEAR_MM, n)
-    else:
-        ax[:, 0] = np.where(np.abs(ax[:, 0]) < FAR_MM, np.sign(ax[:, 0] + 1e-12) * FAR_MM, ax[:, 0])
-    ax[:, 2] += rng.integers(-1, 2, n) * 360.0  # programs on other turns of C
-    return ax, mt.nominal(ax)
 
 
 def _model_um(mt, f, r, targets):
