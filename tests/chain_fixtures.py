@@ -22,3 +22,15 @@ def lathe_targets(mt, n, seed, near=False):
         ax[:, 0] = np.where(np.abs(ax[:, 0]) < FAR_MM, np.sign(ax[:, 0] + 1e-12) * FAR_MM, ax[:, 0])
     ax[:, 2] += rng.integers(-1, 2, n) * 360.0  # programs on other turns of C
     return ax, mt.nominal(ax)
+
+
+def axes_beyond_strokes(mt, rng, n, margin, turns):
+    """Random axes (n, k) of machine ``mt`` uniform over each stroke widened by ``margin`` × its span on
+    both sides, full-turn axes moved by a random whole number of turns in ``[-turns, turns]`` (360°
+    each); drawn from the Generator ``rng`` (the strokes first, then each full-turn axis in order)."""
+    span = mt.stroke_hi - mt.stroke_lo
+    ax = rng.uniform(mt.stroke_lo - margin * span, mt.stroke_hi + margin * span, (n, len(mt.axes)))
+    for j, a in enumerate(mt.axes):
+        if a.full_turn:
+            ax[:, j] += 360.0 * rng.integers(-turns, turns + 1, n)
+    return ax
