@@ -200,6 +200,20 @@ def learned_variants(chain, fit, check, core, k_inner, log):
     return rows
 
 
+def _seed_fit_and_reference(chain, seed, truth_kw, model):
+    """One simulated seed of the band judges: the truth ``draw_truth(chain, seed, **truth_kw)``, 200 seeded
+    joint poses measured with NOISE_MM, the ``model`` fit ``r``, and ``ref``: the true link errors' identifiable
+    equivalent in the estimate's parameterisation, the DH fit on the estimate's identified link slots to
+    noise-free, sag-free tool points (judge's side). Returns (truth, fit, reference)."""
+    t = draw_truth(chain, seed, **truth_kw)
+    q = random_joints(UR5_LO, UR5_HI, 200, [seed, 0])
+    p = measure(chain, t, q, NOISE_MM, [seed, 1])
+    r = fit_model(chain, p, model)
+    ref = fit_slots(chain, ArmPoses(q, chain.tool_point(q, t.errors), None, None, None, p.rows, "truth", "schema"),
+                    r.free[:chain.n_params])
+    return t, r, ref
+
+
 def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
     """``only``: the "case, model" combinations to run (default all); ``cover``: earlier results kept."""
     chain = load_machine("ur5")
@@ -212,15 +226,8 @@ def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
                 continue
             inside, inside_c, half, n_slots = [], [], [], []
             for seed in range(n_seeds):
-                t = draw_truth(chain, seed, **kw)
-                q = random_joints(UR5_LO, UR5_HI, 200, [seed, 0])
-                p = measure(chain, t, q, NOISE_MM, [seed, 1])
-                r = fit_model(chain, p, model)
+                t, r, ref = _seed_fit_and_reference(chain, seed, kw, model)
                 ng = chain.n_params
-                # the true link errors' identifiable equivalent in the estimate's parameterisation: the DH fit on
-                # the estimate's identified link slots to noise-free, sag-free tool points (judge's side)
-                ref = fit_slots(chain, ArmPoses(q, chain.tool_point(q, t.errors), None, None, None, p.rows, "truth",
-                                                "schema"), r.free[:ng])
                 ok = r.free[:ng]
                 mm = np.array([nm.endswith("_mm") for nm in chain.param_names])
                 half.append((float(np.median(Z95 * r.std[:ng][ok & mm])),
@@ -278,14 +285,9 @@ def combination_coverage(n_seeds, log):
         slot_in, seed_slot, seed_combo, worst = {}, [], [], Counter()
         half, chi2, dof, pin, n_dropped = [], [], [], [], []
         for seed in range(n_seeds):
-            t = draw_truth(chain, seed, **kw)
-            q = random_joints(UR5_LO, UR5_HI, 200, [seed, 0])
-            p = measure(chain, t, q, NOISE_MM, [seed, 1])
-            r = fit_model(chain, p, model)
+            t, r, ref = _seed_fit_and_reference(chain, seed, kw, model)
             ng = chain.n_params
             ok = r.free[:ng]
-            ref = fit_slots(chain, ArmPoses(q, chain.tool_point(q, t.errors), None, None, None, p.rows, "truth",
-                                            "schema"), ok)
             idx = np.flatnonzero(ok)
             d = (r.params[:ng] - ref.params)[idx]
             sd = r.std[:ng][idx]

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -28,21 +29,10 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "tests"))  # the seeded targets the lathe tests use
+from chain_fixtures import lathe_targets as _targets  # noqa: E402
 LATHE = "lathe-xzc"
-FAR_MM = 5.0
-NEAR_MM = 0.5
 LIMIT_DEG = 10.0
-
-
-def _targets(mt, n, seed, near):
-    rng = np.random.default_rng(seed)
-    ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (n, 3))
-    if near:
-        ax[:, 0] = rng.uniform(-NEAR_MM, NEAR_MM, n)
-    else:
-        ax[:, 0] = np.where(np.abs(ax[:, 0]) < FAR_MM, np.sign(ax[:, 0] + 1e-12) * FAR_MM, ax[:, 0])
-    ax[:, 2] += rng.integers(-1, 2, n) * 360.0
-    return ax, mt.nominal(ax)
 
 
 def part_a(args):

@@ -16,29 +16,23 @@ from errormap.machine import load_machine
 from errormap.mt_field import ChainField
 from errormap.mt_kernel import NominalChain
 
+from chain_fixtures import lathe_targets as _targets
 from test_mt_compensate import chain_elements
 
 LATHE = "lathe-xzc"
 GA_TOL_UM = DEFAULT_TOL_UM
 """The grinder GA's bar (0.265 μm, the paper's tolerance): every point must reach it."""
-FAR_MM = 5.0
-"""Targets at least 5 mm from the spindle axis (see tests/test_chain_rotary_guard.py)."""
-NEAR_MM = 0.5
-"""Targets within 0.5 mm of the spindle axis (where Newton may swing C)."""
 BOUND_REL = 1e-9
 """The GA's rotary gene is at most the ball radius (projected), so |ΔC| ≤ Δθ_max up to float32 genes
 scaled back: 1e-9 relative."""
 
 
-def _targets(mt, n, seed, near=False):
-    rng = np.random.default_rng(seed)
-    ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (n, 3))
-    if near:
-        ax[:, 0] = rng.uniform(-NEAR_MM, NEAR_MM, n)
-    else:
-        ax[:, 0] = np.where(np.abs(ax[:, 0]) < FAR_MM, np.sign(ax[:, 0] + 1e-12) * FAR_MM, ax[:, 0])
-    ax[:, 2] += rng.integers(-1, 2, n) * 360.0  # programs on other turns of C
-    return ax, mt.nominal(ax)
+def _lathe_case(seed, n, near=False):
+    """The lathe, the field of its seeded element set ``chain_elements(mt, seed)`` and ``n`` targets
+    of :func:`chain_fixtures.lathe_targets` with seed ``seed + 1``: (machine, field, axes, targets)."""
+    mt = load_machine(LATHE)
+    ax, t = _targets(mt, n, seed + 1, near)
+    return mt, ChainField(mt, chain_elements(mt, seed)), ax, t
 
 
 def _model_um(mt, f, r, targets):
@@ -46,9 +40,7 @@ def _model_um(mt, f, r, targets):
 
 
 def test_gene_scale_follows_the_ball_and_the_radius():
-    mt = load_machine(LATHE)
-    f = ChainField(mt, chain_elements(mt, 3))
-    ax, t = _targets(mt, 50, 4)
+    mt, f, ax, t = _lathe_case(3, 50)
     fit, moved, kept, note = chain_fitness(f, mt, NominalChain(mt), t, ax, 250.0)
     assert isinstance(fit, ChainAxisFitness) and [mt.axis_columns[j] for j in moved] == ["x_mm", "z_mm", "c_deg"]
     assert len(kept) == 0 and "c_deg solved" in note
@@ -64,9 +56,7 @@ def test_gene_scale_follows_the_ball_and_the_radius():
 
 
 def test_batched_ga_on_the_lathe_small_and_seeded():
-    mt = load_machine(LATHE)
-    f = ChainField(mt, chain_elements(mt, 27))
-    ax, t = _targets(mt, 40, 28)
+    mt, f, ax, t = _lathe_case(27, 40)
     r = solve_batched_ga_chain(f, t, mt, target_axes=ax, seed=3, progress=False)
     assert r.success.all() and _model_um(mt, f, r, t).max() <= GA_TOL_UM
     again = solve_batched_ga_chain(f, t, mt, target_axes=ax, seed=3, progress=False)
@@ -75,9 +65,7 @@ def test_batched_ga_on_the_lathe_small_and_seeded():
 
 @pytest.mark.slow
 def test_batched_ga_on_the_lathe_every_point_converged():
-    mt = load_machine(LATHE)
-    f = ChainField(mt, chain_elements(mt, 21))
-    ax, t = _targets(mt, 300, 22)
+    mt, f, ax, t = _lathe_case(21, 300)
     r = solve_batched_ga_chain(f, t, mt, target_axes=ax, seed=0, progress=False)
     model = _model_um(mt, f, r, t)
     assert r.success.all() and model.max() <= GA_TOL_UM
@@ -88,9 +76,7 @@ def test_batched_ga_on_the_lathe_every_point_converged():
 
 @pytest.mark.slow
 def test_batched_ga_near_the_spindle_axis_stays_within_the_rotary_bound():
-    mt = load_machine(LATHE)
-    f = ChainField(mt, chain_elements(mt, 23))
-    ax, t = _targets(mt, 200, 24, near=True)
+    mt, f, ax, t = _lathe_case(23, 200, near=True)
     r = solve_batched_ga_chain(f, t, mt, target_axes=ax, seed=1, progress=False)
     _, J = NominalChain(mt).forward_and_jacobian(ax)
     bound = rotary_bound_deg(rotary_radius_mm(J[:, :, 2]), 250.0)
@@ -103,9 +89,7 @@ def test_batched_ga_near_the_spindle_axis_stays_within_the_rotary_bound():
 
 @pytest.mark.slow
 def test_pygad_ga_on_the_lathe():
-    mt = load_machine(LATHE)
-    f = ChainField(mt, chain_elements(mt, 25))
-    ax, t = _targets(mt, 6, 26)
+    mt, f, ax, t = _lathe_case(25, 6)
     r = solve_ga_chain(f, t, mt, target_axes=ax, seed=0, progress=False)
     assert r.method == "ga" and r.success.all() and _model_um(mt, f, r, t).max() <= GA_TOL_UM
     assert "pygad_version" in r.info and r.info["compensated_axes"] == ["x_mm", "z_mm", "c_deg"]

@@ -13,6 +13,8 @@ from errormap.machine import load_machine
 from errormap.mt_elements import ChainElementSet
 from errormap.mt_field import ChainField
 
+from test_mt_linuxcnc import check_and_write_tables
+
 LATHE = "lathe-xzc"
 ANGULAR_ONLY_TOL_UM = 0.01
 """A lathe whose only error is the spindle's angular positioning error EC(C) (≤ 80 μrad, one and two waves per
@@ -47,7 +49,6 @@ def test_weighted_node_means():
 def test_c_table_compensates_a_spindle_with_angular_error_only(tmp_path):
     """Independent check of the rotary table's sign, unit and direction: the spindle's angular error alone is
     fully carried by C's table (degrees), the linear tables carry nothing."""
-    from compensation import export as ex
     m = load_machine(LATHE)
     el = angular_only(m)
     fld = ChainField(m, el)
@@ -60,13 +61,8 @@ def test_c_table_compensates_a_spindle_with_angular_error_only(tmp_path):
     assert max(np.abs(tables.nominal[j] - tables.forward[j]).max() for j in "xz") < 1e-9  # nothing on X, Z
     pts = mt_export.check_points(el, 500, 1)
     pts[:, 2] += np.random.default_rng(3).integers(-1, 2, len(pts)) * 360.0  # C on other turns: folded
-    dirs = np.random.default_rng(2).choice([-1.0, 1.0], pts.shape)
-    check = mt_export.check_chain_joint_tables(tables, fld, m, pts, dirs)
-    assert check["model"]["max_um"] <= ANGULAR_ONLY_TOL_UM
-    assert check["baseline_none"]["model"]["max_um"] > 100 * ANGULAR_ONLY_TOL_UM
-    files = ex.write_joint_tables(tables, tmp_path)
+    files, back = check_and_write_tables(tables, fld, m, pts, ANGULAR_ONLY_TOL_UM, tmp_path, "c")
     assert [p.name for p in files] == ["joint_x.comp", "joint_z.comp", "joint_c.comp"]
-    back = np.loadtxt(tmp_path / "joint_c.comp")
     assert back.shape == (256, 3) and back[0, 0] == 0.0 and back[-1, 0] == 360.0
     assert np.max(np.abs(back - np.column_stack([tables.nominal["c"], *tables.actual("c")]))) <= FILE_DIGITS
 

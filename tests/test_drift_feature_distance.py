@@ -197,11 +197,8 @@ CONFIDENT = 0.5
 @pytest.mark.slow   # two selections on a 46 h log at 120 s (~12 CPU s)
 def test_the_worst_fold_rule_chooses_a_hedged_candidate_of_the_best_worst_fold():
     from errormap.diagnosis.drift_models import DriftSelector
-    from errormap.diagnosis.drift_sim import SIMULATORS
-    cols = SIMULATORS["lumped"](0, dt_s=120.0, shift_at=0.6, n_dropouts=0)
-    cols.pop("_truth")
-    log = DriftLog(cols["time_s"], {k[5:-2]: v for k, v in cols.items() if k.startswith("temp_")},
-                   {k[:-3]: v for k, v in cols.items() if k.endswith("_um")}, cols.get("speed_rpm"), "<sim>")
+    from errormap.diagnosis.drift_sim import SIMULATORS, drift_log_of
+    log = drift_log_of(SIMULATORS["lumped"](0, dt_s=120.0, shift_at=0.6, n_dropouts=0))
     sel = DriftSelector(fit_fraction=0.6, selection="worst_fold", hedge_weight=HEDGE,
                         confident_worst_fold=CONFIDENT).fit(log)
     plain = DriftSelector(fit_fraction=0.6).fit(log)        # the default: largest mean gain, no hedge

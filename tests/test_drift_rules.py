@@ -103,11 +103,8 @@ def test_band_grows_with_the_models_gamma_and_round_trips(tmp_path):
 @pytest.mark.slow   # two selections on a 46 h log at 120 s (~12 CPU s)
 def test_lcb_selection_and_rho_power_band_in_a_fitted_model():
     from errormap.diagnosis.drift_models import DriftSelector
-    from errormap.diagnosis.drift_sim import SIMULATORS
-    cols = SIMULATORS["lumped"](0, dt_s=120.0, shift_at=0.6, n_dropouts=0)
-    cols.pop("_truth")
-    log = DriftLog(cols["time_s"], {k[5:-2]: v for k, v in cols.items() if k.startswith("temp_")},
-                   {k[:-3]: v for k, v in cols.items() if k.endswith("_um")}, cols.get("speed_rpm"), "<sim>")
+    from errormap.diagnosis.drift_sim import SIMULATORS, drift_log_of
+    log = drift_log_of(SIMULATORS["lumped"](0, dt_s=120.0, shift_at=0.6, n_dropouts=0))
     sel = DriftSelector(fit_fraction=0.6, selection="lcb", band_rule="rho_power").fit(log)
     plain = DriftSelector(fit_fraction=0.6).fit(log)        # the default rule and band
     rep = sel.report(log)

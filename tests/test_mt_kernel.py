@@ -9,6 +9,8 @@ from errormap.mt_elements import ChainElementSet
 from errormap.mt_field import ChainField, predict_and_jacobian_numpy, predict_numpy
 from errormap.mt_kernel import CompiledChain, error_jacobian
 
+from chain_fixtures import axes_beyond_strokes
+
 TOL_KERNEL_UM = 1e-9
 """Same transforms, different operation order (running 3×3 frame vs 4×4 frame products): tool
 points up to ~1 m, one ulp 1.1e-10 μm; observed ≤ 4e-12 μm."""
@@ -35,11 +37,7 @@ def test_kernel_equals_numpy_reference(name):
     mt = load_machine(name)
     el = _elements(mt, 13)
     rng = np.random.default_rng(14)
-    span = mt.stroke_hi - mt.stroke_lo
-    ax = rng.uniform(mt.stroke_lo - 0.1 * span, mt.stroke_hi + 0.1 * span, (3000, len(mt.axes)))
-    for j, a in enumerate(mt.axes):
-        if a.full_turn:
-            ax[:, j] += 360.0 * rng.integers(-3, 4, len(ax))
+    ax = axes_beyond_strokes(mt, rng, 3000, 0.1, 3)
     cc = CompiledChain(mt, el)
     E0 = predict_numpy(mt, el, ax)
     E1, J1 = cc.predict_and_jacobian(ax)

@@ -15,6 +15,8 @@ from errormap.mt_elements import ChainElementSet
 from errormap.mt_field import predict_and_jacobian_numpy, predict_numpy
 from errormap.mt_kernel import SMALL_ANGLE_RAD, CompiledChain, _cos_sin, closed_form_solver
 
+from chain_fixtures import axes_beyond_strokes
+
 TOL_KERNEL_UM = 1e-9
 """The kernel against the numpy reference field: same transforms, different operation order (as
 tests/test_mt_kernel.py): one ulp of a 1 m tool point is 1.1e-10 μm; observed ≤ 3.2e-10 μm on these
@@ -86,11 +88,7 @@ def test_kernel_on_uneven_stations_equals_numpy_reference(name):
     mt = load_machine(name)
     el = _uneven_elements(mt, 21)
     rng = np.random.default_rng(22)
-    span = mt.stroke_hi - mt.stroke_lo
-    ax = rng.uniform(mt.stroke_lo - 0.05 * span, mt.stroke_hi + 0.05 * span, (1000, len(mt.axes)))
-    for j, a in enumerate(mt.axes):
-        if a.full_turn:
-            ax[:, j] += 360.0 * rng.integers(-2, 3, len(ax))
+    ax = axes_beyond_strokes(mt, rng, 1000, 0.05, 2)
     for col, st in el.stations.items():  # exactly on every station, where the interval changes
         j = mt.axis_columns.index(col)
         ax[:len(st), j] = st

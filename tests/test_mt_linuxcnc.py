@@ -37,9 +37,23 @@ def positioning_only(machine, seed=0) -> ChainElementSet:
     return el
 
 
+def check_and_write_tables(tables, fld, machine, pts, tol_um, out_dir, joint):
+    """Joint tables judged before writing, as ``export`` does: at the check points ``pts`` (n, k) with seeded
+    random approach directions the tables leave at most ``tol_um`` μm of the MODEL (the field ``fld``) and no
+    compensation more than 100 × that; then written to ``out_dir``. Returns (written paths, the table of
+    ``joint`` read back (lines, 3))."""
+    from compensation import export as ex
+    from compensation import mt_export
+    dirs = np.random.default_rng(2).choice([-1.0, 1.0], pts.shape)
+    check = mt_export.check_chain_joint_tables(tables, fld, machine, pts, dirs)
+    assert check["model"]["max_um"] <= tol_um
+    assert check["baseline_none"]["model"]["max_um"] > 100 * tol_um
+    files = ex.write_joint_tables(tables, out_dir)
+    return files, np.loadtxt(out_dir / f"joint_{joint}.comp")
+
+
 def test_pitch_tables_compensate_a_machine_with_positioning_errors_only(tmp_path):
     """Independent check of sign and joint direction: positioning errors alone are fully carried by the tables."""
-    from compensation import export as ex
     from compensation import mt_export
     m = load_machine("mill-xyz")
     el = positioning_only(m)
@@ -48,13 +62,8 @@ def test_pitch_tables_compensate_a_machine_with_positioning_errors_only(tmp_path
     assert sorted(tables.nominal) == ["x", "y", "z"]
     assert all(np.array_equal(tables.forward[j], tables.reverse[j]) for j in tables.nominal)  # no reversal term
     pts = mt_export.check_points(el, 500, 1)
-    dirs = np.random.default_rng(2).choice([-1.0, 1.0], pts.shape)
-    check = mt_export.check_chain_joint_tables(tables, fld, m, pts, dirs)
-    assert check["model"]["max_um"] <= PITCH_ONLY_TOL_UM
-    assert check["baseline_none"]["model"]["max_um"] > 100 * PITCH_ONLY_TOL_UM
-    files = ex.write_joint_tables(tables, tmp_path)
+    files, back = check_and_write_tables(tables, fld, m, pts, PITCH_ONLY_TOL_UM, tmp_path, "y")
     assert [p.name for p in files] == ["joint_x.comp", "joint_y.comp", "joint_z.comp"]
-    back = np.loadtxt(tmp_path / "joint_y.comp")
     assert back.shape == (256, 3)
     assert np.max(np.abs(back - np.column_stack([tables.nominal["y"], *tables.actual("y")]))) <= FILE_DIGITS_MM
 

@@ -188,19 +188,27 @@ FLOOR_RATIO = 1.25
 """The loop's goal: held-out MEASURED RMS within 1.25 × the noise floor √3·σ (the issue's figure)."""
 
 
+def _diagnose_five_axis_harmonic_c(tmp_path, seed):
+    """The user's path through the CLI on the five-axis machine with a worm-gear harmonic on C, development
+    seed ``seed``: sweeps (noise 2 μm, noise seed 1000 + seed) → simulate (800 checks, noise 1 μm) → identify →
+    diagnose; returns the diagnosis summary (``diagnosis.json``)."""
+    from compensation.app.cli import main
+    base = ["--machine", "five-axis-ac", "--seed", str(seed), "--family", "independent", "--effect", "harmonic:C"]
+    assert main(["sweeps", *base, "--noise-um", "2", "--seed-noise", str(1000 + seed),
+                 "--out", str(tmp_path / "sw.csv")]) == 0
+    assert main(["simulate", *base, "--checks", "800", "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
+    assert main(["identify", str(tmp_path / "sw.csv"), "--machine", "five-axis-ac", "--out", str(tmp_path / "E.json")]) == 0
+    assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--machine", "five-axis-ac", "--model",
+                 str(tmp_path / "E.json"), "--noise-um", "1", "--out", str(tmp_path / "d")]) == 0
+    return json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+
+
 @pytest.mark.slow
 def test_cli_term_the_joint_fit_does_not_support_is_dropped(tmp_path):
     """User's path on the five-axis machine, development seed 107 with a worm-gear harmonic on C: the held-out
     search also admitted a 2.3 mm periodic term on X (z just above 3); the joint fit with the update gives it a
     χ² far below its threshold, so it is dropped and reported so; the harmonic stays, named with its order band."""
-    from compensation.app.cli import main
-    base = ["--machine", "five-axis-ac", "--seed", "107", "--family", "independent", "--effect", "harmonic:C"]
-    assert main(["sweeps", *base, "--noise-um", "2", "--seed-noise", "1107", "--out", str(tmp_path / "sw.csv")]) == 0
-    assert main(["simulate", *base, "--checks", "800", "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
-    assert main(["identify", str(tmp_path / "sw.csv"), "--machine", "five-axis-ac", "--out", str(tmp_path / "E.json")]) == 0
-    assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--machine", "five-axis-ac", "--model",
-                 str(tmp_path / "E.json"), "--noise-um", "1", "--out", str(tmp_path / "d")]) == 0
-    s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    s = _diagnose_five_axis_harmonic_c(tmp_path, 107)
     assert [(e["kind"], e["axis"]) for e in s["effects"]] == [("harmonic", "C")]
     assert s["effects"][0]["shape"]["order"] >= shape_band(ChainElementSet.load(tmp_path / "E.json",
                                                                                 load_machine("five-axis-ac")))["C"]["min_order"]
@@ -242,14 +250,7 @@ def test_cli_plain_update_beyond_the_linear_range_is_not_kept(tmp_path):
     the unregularised update's linearised GCV was below the prior update's, but through the chain its fitting
     residual is hundreds of μm; judged by the chain's own residual the prior update is kept, the harmonic named,
     held-out within the goal."""
-    from compensation.app.cli import main
-    base = ["--machine", "five-axis-ac", "--seed", "112", "--family", "independent", "--effect", "harmonic:C"]
-    assert main(["sweeps", *base, "--noise-um", "2", "--seed-noise", "1112", "--out", str(tmp_path / "sw.csv")]) == 0
-    assert main(["simulate", *base, "--checks", "800", "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
-    assert main(["identify", str(tmp_path / "sw.csv"), "--machine", "five-axis-ac", "--out", str(tmp_path / "E.json")]) == 0
-    assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--machine", "five-axis-ac", "--model",
-                 str(tmp_path / "E.json"), "--noise-um", "1", "--out", str(tmp_path / "d")]) == 0
-    s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    s = _diagnose_five_axis_harmonic_c(tmp_path, 112)
     assert s["update_prior"]["kept"] == "update with the smoothness prior"
     assert s["update_prior"]["gcv_ols_update"] > s["update_prior"]["gcv_chain"]
     assert [(e["kind"], e["axis"]) for e in s["effects"]] == [("harmonic", "C")]

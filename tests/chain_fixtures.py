@@ -1,0 +1,36 @@
+"""Seeded inputs shared by the machine-tool chain tests and benchmarks (tests and
+``benchmarks/bench_lathe_solve.py``, which puts ``tests/`` on its path to import them)."""
+from __future__ import annotations
+
+import numpy as np
+
+FAR_MM = 5.0
+"""'Far' from the lathe's spindle axis: |X| ≥ 5 mm (see tests/test_chain_rotary_guard.py)."""
+NEAR_MM = 0.5
+"""'Near' the lathe's spindle axis: |X| < 0.5 mm (where Newton may swing C)."""
+
+
+def lathe_targets(mt, n, seed, near=False):
+    """Seeded programmed axes (n, 3) of ``lathe-xzc`` (X mm, Z mm, C deg) inside the strokes, C on ±1
+    extra turns, and their nominal tool points (n, 3) mm: ``near`` puts |X| < NEAR_MM, otherwise
+    |X| ≥ FAR_MM (points closer are pushed out to FAR_MM on their side)."""
+    rng = np.random.default_rng(seed)
+    ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (n, 3))
+    if near:
+        ax[:, 0] = rng.uniform(-NEAR_MM, NEAR_MM, n)
+    else:
+        ax[:, 0] = np.where(np.abs(ax[:, 0]) < FAR_MM, np.sign(ax[:, 0] + 1e-12) * FAR_MM, ax[:, 0])
+    ax[:, 2] += rng.integers(-1, 2, n) * 360.0  # programs on other turns of C
+    return ax, mt.nominal(ax)
+
+
+def axes_beyond_strokes(mt, rng, n, margin, turns):
+    """Random axes (n, k) of machine ``mt`` uniform over each stroke widened by ``margin`` × its span on
+    both sides, full-turn axes moved by a random whole number of turns in ``[-turns, turns]`` (360°
+    each); drawn from the Generator ``rng`` (the strokes first, then each full-turn axis in order)."""
+    span = mt.stroke_hi - mt.stroke_lo
+    ax = rng.uniform(mt.stroke_lo - margin * span, mt.stroke_hi + margin * span, (n, len(mt.axes)))
+    for j, a in enumerate(mt.axes):
+        if a.full_turn:
+            ax[:, j] += 360.0 * rng.integers(-turns, turns + 1, n)
+    return ax
