@@ -331,6 +331,16 @@ def test_benchmark_refuses_a_machine_kind_it_has_no_paths_for(name, tmp_path, ca
     assert not (tmp_path / "b").exists()
 
 
+def test_run_benchmark_refuses_an_unknown_kind_before_any_work(tmp_path):
+    """The workflow itself (not only the command) refuses a kind it has no path for: no row, no file."""
+    from types import SimpleNamespace
+    from compensation.app.validate import UsageError
+    from compensation.app.workflows.benchmark import run_benchmark
+    with pytest.raises(UsageError, match="'serial-arm'"):
+        run_benchmark([SimpleNamespace(name="ur5", kind="serial-arm")], tmp_path / "b", quick_settings(), track=False)
+    assert not (tmp_path / "b").exists()
+
+
 # -- machine-tool chains ---------------------------------------------------------------------------
 CHAIN_MIN_GAIN = 5.0
 """The identified mill (sweeps at 1 um) must leave at most a fifth of the uncompensated TRUE error on the

@@ -821,6 +821,10 @@ def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) ->
 
 
 # ------------------------------------------------------------------------------- driver
+BENCHMARK_KINDS = ("grinder", "hexapod", "tripod", "machine-tool")
+"""The machine kinds the benchmark has a user's path for (``_run_machines``); any other is refused."""
+
+
 def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, tracking_uri: str | None = None,
                   track: bool = True) -> dict:
     """Run the benchmark on ``machines`` (loaded machine objects) and write the outputs.
@@ -829,6 +833,11 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
     """
     from ..reports.benchmark import render_html
     s = settings or BenchmarkSettings()
+    unknown = sorted({m.kind for m in machines} - set(BENCHMARK_KINDS))
+    if unknown:  # refused before any work, never skipped in silence
+        from ..validate import UsageError
+        raise UsageError(f"benchmark: no benchmark for machine kind(s) {', '.join(map(repr, unknown))}; "
+                         f"it judges {', '.join(BENCHMARK_KINDS)}")
     out = Path(out_dir)
     t_start = time.perf_counter()
     tracker = Tracker(tracking_uri, enabled=track, run_name="benchmark (quick)" if s.quick else "benchmark")
