@@ -10,6 +10,7 @@ import sys
 
 from errormap.machine import load_machine
 from compensation.app.validate import UsageError
+from compensation.app.workflows.benchmark import BENCHMARK_KINDS
 
 
 
@@ -24,7 +25,9 @@ def register(sub):
                    help="machine file (TOML) or built-in name; repeat for several; default: built-in grinder, "
                         "hexapod, tripod; a machine-tool chain (mill-xyz, five-axis-ac, a file): simulate → sweeps → "
                         "identify → diagnose → exact compensation of its body diagonals (a turning centre such as "
-                        "lathe-xzc: lines along X and Z and a face/diameter set at 8 C positions), TRUE residual")
+                        "lathe-xzc: lines along X and Z and a face/diameter set at 8 C positions), TRUE residual; a serial arm (ur5, ur10, wam, a file): simulate → calibrate → "
+                        "compensate a joint program per arm effect, TRUE landing error of the plain LSQ, geometric "
+                        "and kept stages")
     p.add_argument("--out", default="runs/benchmark", metavar="DIR", help="output folder (default runs/benchmark)")
     p.add_argument("--quick", action="store_true",
                    help="reduced conditions and budgets (about a minute; what the test runs)")
@@ -44,8 +47,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-BENCHMARK_KINDS = ("grinder", "hexapod", "tripod", "machine-tool")
-"""The machine kinds the benchmark has learned and parametric paths for."""
 
 
 def _name(row) -> str:
@@ -71,8 +72,7 @@ def run(args) -> int:
         unsupported = [(p, m.kind) for p, m in zip(args.machine, machines) if m.kind not in BENCHMARK_KINDS]
         if unsupported:  # refused before any work: a machine the benchmark has no paths for gave no rows, silently
             p, kind = unsupported[0]
-            raise UsageError(f"--machine {p}: a {kind} machine; the benchmark runs {', '.join(BENCHMARK_KINDS)} "
-                             "machines and machine-tool chain files (arms: `volcomp calibrate`)")
+            raise UsageError(f"--machine {p}: a {kind} machine; the benchmark runs {', '.join(BENCHMARK_KINDS)} machines")
     else:
         machines = [load_machine(None, expect_kind=k) for k in ("grinder", "hexapod", "tripod")]
     doc = run_benchmark(machines, args.out, s, tracking_uri=args.tracking_uri, track=not args.no_track)

@@ -245,6 +245,12 @@ CHAIN_COLS = [("condition", "condition"), ("path", "path"), ("true_rms_um", "tru
               ("held_out_ols_linear_um", "held-out OLS baseline (μm)"), ("noise_floor_um", "noise floor (μm)"),
               ("effects_found", "effects found"), ("n_measurements", "measurements"), ("fit_seconds", "fit (s)")]
 
+ARM_COLS = [("condition", "condition"), ("path", "path"), ("stage", "stage"), ("true_rms_um", "true RMS (μm)"),
+            ("true_max_um", "true max (μm)"), ("uncompensated_rms_um", "uncompensated RMS (μm)"),
+            ("checks_rms_after_um", "held-out measured RMS (μm)"), ("noise_floor_um", "noise floor (μm)"),
+            ("n_measurements", "poses"), ("fit_seconds", "calibrate (CPU s)"),
+            ("compensate_seconds_per_point", "compensate (CPU s/point)")]
+
 
 def _solver_table(rows) -> Table:
     out = []
@@ -292,6 +298,10 @@ def render_html(doc: dict) -> str:
         c = [r for r in _rows(doc, "machine-tool", available=None) if r["machine"] == name]
         chains.append((name, {"table": _table(c, CHAIN_COLS), "test_path": c[0].get("test_path"),
                               "solvers": _solver_table([r for r in c if r.get("available")])}))
+    arms = []
+    for name in dict.fromkeys(r["machine"] for r in _rows(doc, "serial", available=None)):
+        a = [r for r in _rows(doc, "serial", available=None) if r["machine"] == name]
+        arms.append((name, {"table": _table(a, ARM_COLS), "test_path": a[0].get("test_path") or "a joint program"}))
     pkm = []
     for kind in ("hexapod", "tripod"):
         h = _rows(doc, kind, available=None)
@@ -307,7 +317,7 @@ def render_html(doc: dict) -> str:
                            "figures": [f for f in figures if f is not None]}))
     return render_page("benchmark.html", title="volcomp benchmark: learned vs parametric compensation", doc=doc, s=s,
                        summary=summary_lines(doc) + conclusion_lines(doc), verdicts=verdicts(doc), not_available=not_available,
-                       grinder=grinder, chains=chains, pkm=pkm, cost_figure=_cost_plot(doc),
+                       grinder=grinder, chains=chains, arms=arms, pkm=pkm, cost_figure=_cost_plot(doc),
                        train_stop=_stop(s, "train"), pkm_train_stop=_stop(s, "pkm_train"))
 
 

@@ -114,6 +114,14 @@ class BenchmarkSettings:
     pkm_max_tilt_deg: float = 32.0
     tripod: bool = True
     chain_path_points: int = 100           # machine-tool chains: points per body diagonal (4 diagonals)
+    # serial arms (--machine ur5 …; workflows/arm_benchmark.py): one seeded truth arm per condition (no effect,
+    # then each arm effect), measured by a tracker at arm_noise_um, calibrated and compensated as the commands do
+    arm_effects: tuple = ((), ("sag",), ("backlash",), ("sag", "backlash"))
+    arm_poses: int = 300                   # fitting poses (the real UR5 grid has 1,000; the WAM's 216)
+    arm_checks: int = 100                  # held-out poses (MEASURED residual beside the TRUE one)
+    arm_noise_um: float = 20.0             # tracker σ per component (simulate_serial's default)
+    arm_learned: bool = True               # run the learned residual stage (its CV decides whether it is kept)
+    arm_k_folds: int = 5
     torch_threads: int = 1
     quick: bool = False
 
@@ -129,7 +137,8 @@ def quick_settings() -> BenchmarkSettings:
                              ga_points=20, ga_generations=100, flute_turns=1.0, flute_points_per_turn=200,
                              volume_points=50,
                              pkm_poses=(50,), pkm_noises_um=(5.0,), pkm_base_poses=50, pkm_train_iter=50,
-                             pkm_path_step_mm=4.0, tripod=True, chain_path_points=25, quick=True)
+                             pkm_path_step_mm=4.0, tripod=True, chain_path_points=25, arm_effects=(("sag",),),
+                             arm_poses=200, arm_checks=50, arm_learned=False, quick=True)
 
 
 def _log(msg: str) -> None:
@@ -821,7 +830,7 @@ def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) ->
 
 
 # ------------------------------------------------------------------------------- driver
-BENCHMARK_KINDS = ("grinder", "hexapod", "tripod", "machine-tool")
+BENCHMARK_KINDS = ("grinder", "hexapod", "tripod", "machine-tool", "serial")
 """The machine kinds the benchmark has a user's path for (``_run_machines``); any other is refused."""
 
 
@@ -897,6 +906,11 @@ def _run_machines(machines, s: BenchmarkSettings, tracker: Tracker, out_dir):
             from .mt_benchmark import run_chain
             log = RowLog(tracker)
             skipped += run_chain(m, s, log, out_dir, _row, _streams(s.seed), _log)
+            rows += log.rows
+        elif m.kind == "serial":  # an arm: simulate → calibrate → compensate per condition (workflows/arm_benchmark.py)
+            from .arm_benchmark import run_arm
+            log = RowLog(tracker)
+            skipped += run_arm(m, s, log, out_dir, _row, _log)
             rows += log.rows
         _log(f"{m.kind} done in {time.perf_counter() - t0:.0f} s")
     return rows, skipped
