@@ -115,3 +115,19 @@ def test_constrained_families_are_causal(family):
                      np.r_[log.speed_rpm[:cut], log.speed_rpm[cut:] * 0.5], log.path)
     for hyper, model in res.items():
         np.testing.assert_allclose(_predict(later, model)[:cut], _predict(log, model)[:cut], atol=EXACT_ATOL, rtol=0)
+
+
+def test_measured_families_are_not_defaults_and_run_in_a_selection():
+    """The families are available to DriftSelector (``families=``) and the chosen model keeps the controller form:
+    written to JSON and read back, it predicts what the selector's model predicts."""
+    from errormap.diagnosis.drift_models import DriftModel, DriftSelector, default_families, measured_families
+    names = {f.name for f in measured_families()}
+    assert names == {"gradient", "modes", "greybox_modes", "ols_stable_lag"}
+    assert not names & {f.name for f in default_families()}
+    base = _log(5, n=1200)
+    T = base.temps_c
+    log = _with(base, ch=4.0 * (T[sorted(T)[1]] - T[sorted(T)[4]]) + 2.0 * first_order(base.time_s, T[sorted(T)[0]], 3600.0))
+    sel = DriftSelector(fit_fraction=0.6, families=[OLSFamily()] + measured_families()).fit(log)
+    assert set(sel.cv_["ch"]) >= {"gradient[sum0]", "modes[k=1]", "greybox_modes[k=1;tau=900]", "ols_stable_lag[k=3]"}
+    back = DriftModel.from_json(sel.model_.to_json())
+    np.testing.assert_allclose(back.predict(log)["ch"], sel.model_.predict(log)["ch"], atol=EXACT_ATOL, rtol=0)
