@@ -201,6 +201,10 @@ def render_families(sets):
     variants.update({f"+ {f}": {f} for f in present})
     variants["+ all of them"] = set(present)
     L = ["## Families of issue 29's third round (the default rule, with and without each)", "",
+         "Every log's candidates dumped with `--with-families` (`--candidates FILE --seeds 100-104 --with-families`, "
+         "the same with `--seeds 100-102 --no-shift`, `--real 0.6 --upto 0.6`, `--real 0.8 --upto 0.8`, `--real 0.6`, "
+         "`--real 0.8`, and `--seeds 0-9` for the benchmark's own logs), then `--rules … --judge-candidates FILE`; the "
+         "rule tables above use the default families' candidates only. "
          "Each variant applies the default rule to the candidates of the earlier families plus the named ones (the "
          "rule is per candidate against OLS, so adding a family can only add eligible candidates). *sim*: cases > "
          "OLS·1.05, worst ratio, cases < OLS, geometric-mean ratio; *real*: cases above OLS, below, geometric-mean "

@@ -1113,6 +1113,11 @@ class DriftSelector:
 #   and fitted by plain least squares. A sensor that enters only on some stretches of the log is
 #   left out: it is what made OLS on all sensors swing when a later stretch differs.
 #
+# Measured in issue 29's third round and NOT defaults (:func:`measured_families`; docs/drift_model.md):
+# ``gradient`` (temperature differences to the coolest sensor; ``sum0`` without any absolute temperature),
+# ``modes`` (OLS on the first k principal components of the temperatures in °C), ``greybox_modes`` (the
+# grey-box state on those modes), ``ols_stable_lag`` (stably selected inputs through one lag each).
+#
 # Novelty folds (:func:`novelty_folds`): the fitting part is cut into ``n_blocks`` contiguous blocks;
 # each block's inputs are scored by their Mahalanobis distance from the OTHER rows (mean and covariance
 # of the inputs outside the block and its guard rows, whitened on the principal axes, eigenvalues
