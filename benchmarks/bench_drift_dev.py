@@ -151,7 +151,8 @@ RULES = {"mean gain (the default)": (1.0, 1.05, "mean_gain"),
          "median fold (horizon + novelty)": (1.0, 1.05, "median_fold"),
          "ρ-weighted fold gain (horizon + novelty)": (1.0, 1.05, "rho_weighted"),
          "mean gain, gates at 0.5 SE instead of 1": (1.0, 1.05, "mean_gain", 0.0, 0.5),
-         "lower confidence bound, gates at 0.5 SE instead of 1": (1.0, 1.05, "lcb", 0.0, 0.5)}
+         "lower confidence bound, gates at 0.5 SE instead of 1": (1.0, 1.05, "lcb", 0.0, 0.5),
+         "mean fold gain without the best fold (horizon + novelty; must be ≥ 5 %)": (1.0, 1.05, "trimmed_fold")}
 
 
 def apply_rule(cands, w_max, loss, order, confident=0.0, k_se=1.0):
@@ -166,7 +167,8 @@ def apply_rule(cands, w_max, loss, order, confident=0.0, k_se=1.0):
                 and c["gate_h"][1] > k_se * c["gate_h"][2] and c["gate_n"][1] > k_se * c["gate_n"][2]
                 and c["gate_h"][1] >= LN_MIN_GAIN
                 and c["gate_n"][1] >= LN_MIN_GAIN and worst <= loss
-                and (order != "lcb" or fold_gain_score(c, "lcb") > 0))
+                and (order != "lcb" or fold_gain_score(c, "lcb") > 0)
+                and (order != "trimmed_fold" or fold_gain_score(c, "trimmed_fold") >= LN_MIN_GAIN))
     ok = [c for c in cands if eligible(c)]
     if not ok:
         return 1.0, "ols", ols
@@ -236,13 +238,11 @@ def render_families(sets):
     return L
 
 
-def render_rules(sets, out, judge=None):
+def render_rules(sets, out):
     """``sets``: {title: candidate rows}; titles starting "real" are the real log (one column per case), the others
-    simulated logs (summary per rule). ``judge``: candidate rows of the benchmark's own seeds, reported in the
-    families' section only (judged, never decided on)."""
+    simulated logs (summary per rule)."""
     from errormap.diagnosis.drift_models import default_families
-    fam_lines = render_families({**sets, **({"simulated, the benchmark's seeds 0–9, regime change (judged)": judge}
-                                            if judge else {})})
+    fam_lines = render_families(sets)
     names = {f.name for f in default_families()}
     sets = {t: [r for r in rows if r["cand"] in names] for t, rows in sets.items()}
     L = ["# Drift selection rule on development seeds (issue 29)", "",
@@ -382,8 +382,8 @@ def main(argv=None):
                     help="with --rules: the real log's candidates inside a fitting part (--real F --upto U)")
     ap.add_argument("--no-shift", action="store_true", help="with --candidates: the logs without regime change")
     ap.add_argument("--judge-candidates", default=None,
-                    help="with --rules: candidates of the benchmark's seeds (--seeds 0-9 --with-families), reported in "
-                         "the families' section only")
+                    help="with --rules: candidates of the benchmark's seeds (--seeds 0-9), reported beside the "
+                         "development seeds (judged, never decided on)")
     ap.add_argument("--with-families", action="store_true",
                     help="with --candidates: the measured non-default families are candidates too (their comparison "
                          "is a section of --rules' output)")
@@ -398,8 +398,10 @@ def main(argv=None):
         sets = {"simulated, regime change from 60 %": rows_of(a.rules),
                 "simulated, no regime change": rows_of(a.no_shift_rules),
                 "real log, pseudo-future inside the fitting part (decided on)": rows_of(a.nested_candidates),
-                "real log, the benchmark's pseudo-future (reported)": rows_of(a.real_candidates)}
-        print("\n".join(render_rules(sets, a.out, rows_of(a.judge_candidates))))
+                "real log, the benchmark's pseudo-future (reported)": rows_of(a.real_candidates),
+                "simulated, the benchmark's seeds 0–9, regime change (judged, not decided on)":
+                    rows_of(a.judge_candidates)}
+        print("\n".join(render_rules(sets, a.out)))
         return
     if a.candidates and a.real is not None:
         log = load_drift_log(REAL)

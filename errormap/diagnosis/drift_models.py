@@ -944,6 +944,8 @@ class DriftSelector:
                   and gate[k][0][1] >= self.min_gain and (not nfolds or gate[k][1][1] >= self.min_gain)]
             if self.selection == "lcb":     # the lower confidence bound must itself be above OLS
                 ok = [k for k in ok if fold_gain_score(scores[k], "lcb") > 0]
+            if self.selection == "trimmed_fold":    # the gain without its best fold must still be worth its risk
+                ok = [k for k in ok if fold_gain_score(scores[k], "trimmed_fold") >= self.min_gain]
             # the largest score (ties: the larger mean gain); "worst_fold": the best worst fold
             best = max(ok, key=lambda k: (fold_gain_score(scores[k], self.selection), scores[k]["gain"])) \
                 if ok else (*base, 1.0)
@@ -989,6 +991,8 @@ class DriftSelector:
                                 "lcb": f"of largest one-sided {LCB_LEVEL:.0%} lower confidence bound on its horizon "
                                        "and novelty fold log-gains (Student's t), itself above 0",
                                 "median_fold": "of largest median horizon/novelty fold log-gain",
+                                "trimmed_fold": "of largest mean horizon/novelty fold log-gain without its best fold "
+                                                f"(itself at least {self.min_gain:.3g})",
                                 "rho_weighted": "of largest horizon/novelty fold log-gain weighted by the folds' "
                                                 "median distance"}[self.selection]
                              + f" among those below OLS on {len(folds)} ranking "
@@ -1529,7 +1533,9 @@ def fold_gain_score(stats: dict, selection: str) -> float:
     ranking, horizon and novelty sets; ``worst_fold``: −ln of the worst ratio over every fold; ``lcb``: the
     one-sided ``LCB_LEVEL`` lower confidence bound mean(d) − t·sd(d)/√K (t of Student's law, K − 1 degrees);
     ``median_fold``: the median d; ``rho_weighted``: the mean of d weighted by each fold's median ρ (folds
-    farther out count more, as the deployment's future is farther out than most folds)."""
+    farther out count more, as the deployment's future is farther out than most folds); ``trimmed_fold``: the
+    mean d without the largest one (a gain one lucky fold carries does not count; the selector also requires it
+    ≥ ``min_gain``)."""
     if selection == "mean_gain":
         return float(stats["gain"])
     fr = stats["fold_ratios"]
@@ -1541,6 +1547,8 @@ def fold_gain_score(stats: dict, selection: str) -> float:
     if selection == "rho_weighted":
         w = np.maximum(np.asarray(list(stats["fold_rho_each"][1]) + list(stats["fold_rho_each"][2]), float), 1e-12)
         return float(np.sum(w * d) / np.sum(w))
+    if selection == "trimmed_fold":
+        return float(np.sort(d)[:-1].mean()) if len(d) > 1 else float(d.mean()) if len(d) else 0.0
     if selection == "lcb":
         from scipy.stats import t as student_t
         k = len(d)
@@ -1550,7 +1558,7 @@ def fold_gain_score(stats: dict, selection: str) -> float:
     raise ValueError(f"Expected selection in {SELECTIONS}, got {selection!r}")
 
 
-SELECTIONS = ("mean_gain", "worst_fold", "lcb", "median_fold", "rho_weighted")
+SELECTIONS = ("mean_gain", "worst_fold", "lcb", "median_fold", "rho_weighted", "trimmed_fold")
 
 
 def conformal_quantile(scores, level: float) -> float:
