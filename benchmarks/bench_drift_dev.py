@@ -10,8 +10,9 @@ Run: ``python benchmarks/bench_drift_dev.py --candidates cand.jsonl --seeds 100-
 candidate's validation statistics, held-out RMS and held-out coverage of every band rule, one JSON line per log),
 ``--candidates real.jsonl --real F [--upto U]`` (the real log: fitted on F of its first U — ``--upto`` = F gives
 the pseudo-future INSIDE the benchmark's fitting part, on which a rule may be decided), then ``--rules cand.jsonl
---no-shift-rules … --nested-candidates … --real-candidates …`` → benchmarks/drift_dev_results.md (the rule
-variants and the band rules compared offline on the same candidates); ``--variants feature,raw`` runs whole selections per variant
+--no-shift-rules … --nested-candidates … --real-candidates … [--judge-candidates …]`` →
+benchmarks/drift_dev_results.md (the rule variants and the band rules compared offline on the same candidates;
+with ``--with-families`` on the dumps, also the default rule with and without each measured non-default family); ``--variants feature,raw`` runs whole selections per variant
 (``--partial FILE`` appends every finished log as a JSON line).
 """
 from __future__ import annotations
@@ -62,7 +63,7 @@ def one(family, seed, variant):
              "halfwidth": r["band_halfwidth_heldout_median_um"], "cpu_s": cpu} for ch, r in rep.items()]
 
 
-def candidates(family, seed, shift=True):
+def candidates(family, seed, shift=True, extra=False):
     """Every candidate of every channel on one development log: its validation statistics (the selector's
     ``candidates_``) and its HELD-OUT RMS after refitting on the whole fitting part, predicted as the model would
     (OLS + w·g(ρ)·(candidate − OLS), ρ = max(raw inputs, its own features) from the fit rows), OLS's beside:
@@ -73,20 +74,22 @@ def candidates(family, seed, shift=True):
         path = Path(d) / "log.csv"
         write_csv(path, cols)
         log = load_drift_log(path)
-    return candidates_of(log, SIM_SPLIT, family, seed)
+    return candidates_of(log, SIM_SPLIT, family, seed, extra)
 
 
-def candidates_of(log, fit_fraction, family, seed):
-    """:func:`candidates` on a loaded ``log`` fitted on its first ``fit_fraction`` (rows tagged family, seed)."""
+def candidates_of(log, fit_fraction, family, seed, extra=False):
+    """:func:`candidates` on a loaded ``log`` fitted on its first ``fit_fraction`` (rows tagged family, seed);
+    ``extra``: the measured, non-default families (``drift_models.measured_families``) are candidates too."""
     from errormap.diagnosis.drift_models import (BAND_RULES, band_of, default_families, distance_weight,
-                                                 feature_matrix, input_matrix, relative_distance)
-    sel = DriftSelector(fit_fraction=fit_fraction).fit(log)
+                                                 feature_matrix, input_matrix, measured_families, relative_distance)
+    families = default_families() + (measured_families() if extra else [])
+    sel = DriftSelector(fit_fraction=fit_fraction, families=families).fit(log)
     fit, hold = sel.split(log)
     cache = sel.cache_
     n = len(log.time_s)
     chans = list(log.disp_um)
     final = {}
-    for fam in default_families():
+    for fam in families:
         try:
             final[fam.name] = fam.fit(log, chans, fit, cache)
         except ValueError:
@@ -148,7 +151,8 @@ RULES = {"mean gain (the default)": (1.0, 1.05, "mean_gain"),
          "median fold (horizon + novelty)": (1.0, 1.05, "median_fold"),
          "ρ-weighted fold gain (horizon + novelty)": (1.0, 1.05, "rho_weighted"),
          "mean gain, gates at 0.5 SE instead of 1": (1.0, 1.05, "mean_gain", 0.0, 0.5),
-         "lower confidence bound, gates at 0.5 SE instead of 1": (1.0, 1.05, "lcb", 0.0, 0.5)}
+         "lower confidence bound, gates at 0.5 SE instead of 1": (1.0, 1.05, "lcb", 0.0, 0.5),
+         "mean fold gain without the best fold (horizon + novelty; must be ≥ 5 %)": (1.0, 1.05, "trimmed_fold")}
 
 
 def apply_rule(cands, w_max, loss, order, confident=0.0, k_se=1.0):
@@ -163,7 +167,8 @@ def apply_rule(cands, w_max, loss, order, confident=0.0, k_se=1.0):
                 and c["gate_h"][1] > k_se * c["gate_h"][2] and c["gate_n"][1] > k_se * c["gate_n"][2]
                 and c["gate_h"][1] >= LN_MIN_GAIN
                 and c["gate_n"][1] >= LN_MIN_GAIN and worst <= loss
-                and (order != "lcb" or fold_gain_score(c, "lcb") > 0))
+                and (order != "lcb" or fold_gain_score(c, "lcb") > 0)
+                and (order != "trimmed_fold" or fold_gain_score(c, "trimmed_fold") >= LN_MIN_GAIN))
     ok = [c for c in cands if eligible(c)]
     if not ok:
         return 1.0, "ols", ols
@@ -182,9 +187,64 @@ def _group(rows):
 from errormap.diagnosis.drift_models import BAND_RULES  # noqa: E402
 
 
+# families measured in issue 29's third round: each is compared with the candidates of the families before it
+# (the default rule applied with and without it); the rule tables use the default families' candidates only
+FAMILIES_TRIED = ("gradient", "modes", "greybox_modes", "ols_stable_lag")   # drift_models.measured_families()
+
+
+def render_families(sets):
+    """Markdown lines: the default rule on the candidates of the earlier families, then with each family of
+    ``FAMILIES_TRIED`` added (and all of them): per data set, the summary and every case whose choice changed."""
+    rule = next(r for r in RULES.values() if r[2] == _default_selection())
+    present = sorted({r["cand"] for rows in sets.values() for r in rows} & set(FAMILIES_TRIED))
+    if not present:
+        return []
+    variants = {"before (the earlier families)": set()}
+    variants.update({f"+ {f}": {f} for f in present})
+    variants["+ all of them"] = set(present)
+    L = ["## Families of issue 29's third round (the default rule, with and without each)", "",
+         "Every log's candidates dumped with `--with-families` (`--candidates FILE --seeds 100-104 --with-families`, "
+         "the same with `--seeds 100-102 --no-shift`, `--real 0.6 --upto 0.6`, `--real 0.8 --upto 0.8`, `--real 0.6`, "
+         "`--real 0.8`, and `--seeds 0-9` for the benchmark's own logs), then `--rules … --judge-candidates FILE`; the "
+         "rule tables above use the default families' candidates only. "
+         "Each variant applies the default rule to the candidates of the earlier families plus the named ones (the "
+         "rule is per candidate against OLS, so adding a family can only add eligible candidates). *sim*: cases > "
+         "OLS·1.05, worst ratio, cases < OLS, geometric-mean ratio; *real*: cases above OLS, below, geometric-mean "
+         "ratio.", "",
+         "| families | " + " | ".join(t for t, r in sets.items() if r) + " |", "|---|" + "---|" * sum(bool(r) for r in sets.values())]
+    changed = []
+    for name, add in variants.items():
+        cells = []
+        for t, rows in sets.items():
+            if not rows:
+                continue
+            by = _group([r for r in rows if r["cand"] not in FAMILIES_TRIED or r["cand"] in add])
+            base = _group([r for r in rows if r["cand"] not in FAMILIES_TRIED])
+            res = {k: apply_rule(c, *rule)[:2] for k, c in by.items()}
+            v = np.array([x for x, _ in res.values()])
+            gm = float(np.exp(np.mean(np.log(v))))
+            if t.startswith("real"):
+                cells.append(f"{int((v > 1 + 1e-9).sum())} above, {int((v < 1 - 1e-9).sum())} below, {gm:.3f}")
+            else:
+                cells.append(f"{int((v > TOLERATED_LOSS).sum())}, {v.max():.3f}, {int((v < 1 - 1e-9).sum())}, {gm:.3f}")
+            if add:
+                for k in sorted(res):
+                    x0, c0 = apply_rule(base[k], *rule)[:2]
+                    if res[k][1] != c0:
+                        where = f"{_split_name(t, k[1])}, {k[2]}" if t.startswith("real") else f"{k[0]} s{k[1]} {k[2]}"
+                        changed.append(f"* {name}, {t}: {where}: {c0} {x0:.3f} → {res[k][1]} {res[k][0]:.3f}")
+        L.append(f"| {name} | " + " | ".join(cells) + " |")
+    L += ["", "Cases whose choice changed (held-out ratio to OLS before → after):", ""] + (changed or ["* none"]) + [""]
+    return L
+
+
 def render_rules(sets, out):
     """``sets``: {title: candidate rows}; titles starting "real" are the real log (one column per case), the others
     simulated logs (summary per rule)."""
+    from errormap.diagnosis.drift_models import default_families
+    fam_lines = render_families(sets)
+    names = {f.name for f in default_families()}
+    sets = {t: [r for r in rows if r["cand"] in names] for t, rows in sets.items()}
     L = ["# Drift selection rule on development seeds (issue 29)", "",
          "`python benchmarks/bench_drift_dev.py --candidates FILE --seeds 100-104 [--no-shift]`, `--candidates FILE "
          "--real F [--upto U]`, then `--rules dev_shift.jsonl --no-shift-rules dev_noshift.jsonl --real-candidates "
@@ -256,6 +316,7 @@ def render_rules(sets, out):
                 p = apply_rule(by[k], *default)[2]
                 L.append(f"| {t} | {_split_name(t, k[1])}, {k[2]} | " + " | ".join(
                     f"{p['band_cover'][b]:.2f}, {p['band_half'][b]:.3g}" for b in BAND_RULES) + f" | {p['band_gamma']:g} |")
+    L += [""] + fam_lines
     with atomic_write(out, "w", encoding="utf-8") as fh:
         fh.write("\n".join(L) + "\n")
     return L
@@ -320,6 +381,12 @@ def main(argv=None):
     ap.add_argument("--nested-candidates", default=None,
                     help="with --rules: the real log's candidates inside a fitting part (--real F --upto U)")
     ap.add_argument("--no-shift", action="store_true", help="with --candidates: the logs without regime change")
+    ap.add_argument("--judge-candidates", default=None,
+                    help="with --rules: candidates of the benchmark's seeds (--seeds 0-9), reported beside the "
+                         "development seeds (judged, never decided on)")
+    ap.add_argument("--with-families", action="store_true",
+                    help="with --candidates: the measured non-default families are candidates too (their comparison "
+                         "is a section of --rules' output)")
     ap.add_argument("--upto", type=float, default=None,
                     help="with --real: keep only the first UPTO of the log (a fitting part; its rest is never read)")
     ap.add_argument("--real", type=float, default=None,
@@ -331,7 +398,9 @@ def main(argv=None):
         sets = {"simulated, regime change from 60 %": rows_of(a.rules),
                 "simulated, no regime change": rows_of(a.no_shift_rules),
                 "real log, pseudo-future inside the fitting part (decided on)": rows_of(a.nested_candidates),
-                "real log, the benchmark's pseudo-future (reported)": rows_of(a.real_candidates)}
+                "real log, the benchmark's pseudo-future (reported)": rows_of(a.real_candidates),
+                "simulated, the benchmark's seeds 0–9, regime change (judged, not decided on)":
+                    rows_of(a.judge_candidates)}
         print("\n".join(render_rules(sets, a.out)))
         return
     if a.candidates and a.real is not None:
@@ -339,14 +408,14 @@ def main(argv=None):
         if a.upto is not None:      # the log's first ``upto`` only: a pseudo-future inside a fitting part
             log = head_of(log, a.upto)
         with open(a.candidates, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps(candidates_of(log, a.real, "real", a.real)) + "\n")
+            fh.write(json.dumps(candidates_of(log, a.real, "real", a.real, a.with_families)) + "\n")
         return
     if a.candidates:
         lo, hi = (int(x) for x in a.seeds.split("-"))
         for f in a.families.split(","):
             for s in range(lo, hi + 1):
                 t0 = time.process_time()
-                r = candidates(f, s, shift=not a.no_shift)
+                r = candidates(f, s, shift=not a.no_shift, extra=a.with_families)
                 with open(a.candidates, "a", encoding="utf-8") as fh:
                     fh.write(json.dumps(r) + "\n")
                 ch = [x for x in r if x["chosen"]]

@@ -181,7 +181,9 @@ def rule_text():
                     f"{LCB_LEVEL:.0%}, Student's t over the horizon and novelty folds: mean − t·SE), which must "
                     "itself be above 0",
              "median_fold": "the eligible one of largest median fold log-gain (horizon and novelty folds)",
-             "rho_weighted": "the eligible one of largest fold log-gain weighted by each fold's median ρ"}[SELECTION]
+             "rho_weighted": "the eligible one of largest fold log-gain weighted by each fold's median ρ",
+             "trimmed_fold": "the eligible one of largest mean fold log-gain without its best fold (horizon and "
+                             "novelty folds), which must itself be at least 5 %"}[SELECTION]
     band = {"fold_residual": "the split-conformal 95 % quantile of |validation residual| on the horizon and novelty "
                              "folds, times max(1, ρ) at each sample",
             "rho_scaled": "the split-conformal 95 % quantile of |residual| / max(1, ρ_fold) on the horizon and "

@@ -39,9 +39,14 @@ def test_fold_gain_scores_by_hand():
     carried = _stats([0.3, 1.04, 1.0, 1.02], [1.0, 1.01, 0.99])
     assert -np.log(np.array([0.3, 1.04, 1.0, 1.02, 1.0, 1.01, 0.99])).mean() > 0
     assert fold_gain_score(carried, "lcb") < 0
+    # the trimmed mean: the best fold (d largest, ratio 0.5) left out
+    assert abs(fold_gain_score(st, "trimmed_fold") - np.sort(d)[:-1].mean()) < EXACT
+    assert abs(fold_gain_score(carried, "trimmed_fold")
+               + np.log(np.array([1.04, 1.0, 1.02, 1.0, 1.01, 0.99])).mean()) < EXACT
+    assert fold_gain_score(carried, "trimmed_fold") < 0      # a gain one fold carries does not count
     with pytest.raises(ValueError, match="selection"):
         fold_gain_score(st, "best_guess")
-    assert set(SELECTIONS) == {"mean_gain", "worst_fold", "lcb", "median_fold", "rho_weighted"}
+    assert set(SELECTIONS) == {"mean_gain", "worst_fold", "lcb", "median_fold", "rho_weighted", "trimmed_fold"}
 
 
 @pytest.mark.parametrize("power", [0.0, 1.0, 2.0])
@@ -124,3 +129,20 @@ def test_lcb_selection_and_rho_power_band_in_a_fitted_model():
         # the flat band is the default band's scale without growth: never wider, held out
         fr, ff = (rep[ch]["bands_heldout"][b]["halfwidth_median_um"] for b in ("fold_residual", "fold_flat"))
         assert ff <= fr
+
+
+@pytest.mark.slow   # two selections on a 46 h log at 120 s (~12 CPU s)
+def test_trimmed_fold_selection_only_removes_candidates_and_ranks_by_the_trimmed_gain():
+    from errormap.diagnosis.drift_models import MIN_GAIN, DriftSelector
+    from errormap.diagnosis.drift_sim import SIMULATORS, drift_log_of
+    log = drift_log_of(SIMULATORS["rod"](0, dt_s=120.0, shift_at=0.6, n_dropouts=0))
+    sel = DriftSelector(fit_fraction=0.6, selection="trimmed_fold").fit(log)
+    plain = DriftSelector(fit_fraction=0.6).fit(log)
+    for ch, (f, _) in sel.chosen_.items():
+        assert set(sel.eligible_[ch]) <= set(plain.eligible_[ch])
+        assert all(sel.score_[ch][k] >= MIN_GAIN for k in sel.eligible_[ch])
+        if f != "ols":
+            name = sel.report(log)[ch]["model"]
+            assert sel.score_[ch][name] == max(sel.score_[ch][k] for k in sel.eligible_[ch])
+        else:
+            assert not sel.eligible_[ch]
