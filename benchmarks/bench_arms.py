@@ -52,6 +52,7 @@ UR5_LO = np.array([-60.0, -120.0, 30.0, -120.0, 40.0, -30.0])
 UR5_HI = np.array([60.0, -30.0, 140.0, 30.0, 150.0, 30.0])
 NOISE_MM = 0.02
 BACKLASH_RAD = 2e-5  # lost motion per joint (4 arcsec): ±1e-5 rad by the gravity moment's sign, ~0.01 mm at full reach
+REPEAT_INNER = 4  # the repeated-inner-CV rule: this many further random inner splits (5 inner CVs averaged)
 LOOP_SEEDS = 2  # learned stage + compensation on this many simulated arms (a GP on 400 poses each)
 Z95 = 1.959963984540054
 ROW_ORDER = ["nominal", "nominal + base/tool", "plain geometric LSQ", "geometric (DH)", "geometric+compliance",
@@ -86,10 +87,11 @@ def _summary(pooled):
     return out
 
 
-def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, variants=False):
+def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, variants=False, repeat_inner=0):
     """Outer folds: every decision (slot set, plain LSQ instead, learned kept) is made by CV inside the
     outer fit part (:func:`calibrate_arm`); the outer held-out fold only reports (nested). ``blocked``:
-    the inner CV is blocked too (joint-1 sectors of the fit part), as the outer one."""
+    the inner CV is blocked too (joint-1 sectors of the fit part), as the outer one. ``repeat_inner``: this many
+    further inner pipeline CVs on new random folds for the rule ``lowest, repeated inner CV``."""
     chain = load_machine(name)
     data = read_arm_poses(DATA / f"{name}_grid.csv", chain)
     pooled, kept = {}, []
@@ -123,7 +125,11 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
                      "kept_mean_mm": float(errs["volcomp kept stage"].mean()),
                      "plain_gp_mean_mm": float(errs["plain GP on plain LSQ residual"].mean()),
                      "cpu_s": time.process_time() - t0})
-        kept[-1]["rules"] = rule_outcomes(core, errs)
+        vol = core["pipeline_volcomp"]
+        p_vol = geo.predict(check.q) + (core["learner"].predict(check.q) if vol == "learned" else 0.0)
+        p_pgp = pl.predict(check.q) + core["plain_gp"].predict(check.q)
+        kept[-1]["rules"] = rule_outcomes(core, errs, fit, check, p_vol, p_pgp,
+                                          repeat_cv=(chain, repeat_inner, k_folds_inner, groups) if repeat_inner else None)
         if variants:
             kept[-1]["variants"] = learned_variants(chain, fit, check, core, k_folds_inner, log)
         print(f"[{name}] {label}: kept {core['kept_stage']} {errs['volcomp kept stage'].mean():.4f}, plain LSQ "
@@ -134,9 +140,29 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
     return _summary(pooled), kept
 
 
-def rule_outcomes(core, errs):
-    """Per pipeline rule (:data:`PIPELINE_RULES`): the pipeline it keeps from this fold's inner CV and that
-    pipeline's OUTER held-out mean error (the rule is applied to the inner CV only; the outer fold reports)."""
+STACK_WEIGHTS = np.linspace(0.0, 1.0, 21)   # the stacking rule's grid of weights on volcomp's choice (step 0.05)
+STACK = "stack"                               # rule: blend volcomp's choice and the plain GP, weight by inner CV
+REPEATED = "lowest, repeated inner CV"        # rule: "lowest" on the inner CV averaged over several random splits
+BENCH_RULES = PIPELINE_RULES + (REPEATED, STACK)
+
+
+def stack_weight(y_mm, p_vol_mm, p_pgp_mm):
+    """The weight w ∈ :data:`STACK_WEIGHTS` on volcomp's pipeline that minimises the mean position error of
+    w·p_vol + (1 − w)·p_pgp on INNER out-of-fold predictions (each (n, 3) mm; ties to the larger w), and the
+    inner mean error (mm) per weight (21,)."""
+    e = np.array([np.linalg.norm(y_mm - (w * p_vol_mm + (1 - w) * p_pgp_mm), axis=1).mean() for w in STACK_WEIGHTS])
+    i = len(e) - 1 - int(np.argmin(e[::-1]))
+    return float(STACK_WEIGHTS[i]), e
+
+
+def rule_outcomes(core, errs, fit, check, p_vol, p_pgp, repeat_cv=None):
+    """Per pipeline rule (:data:`BENCH_RULES`): the pipeline it keeps from this fold's inner CV and that
+    pipeline's OUTER held-out mean error (the rule is applied to the inner CV only; the outer fold reports).
+    ``p_vol``, ``p_pgp`` (n_check, 3): the outer predictions of volcomp's choice and the plain GP (for the
+    stacking rule, whose weight comes from the two pipelines' inner out-of-fold predictions). ``repeat_cv``:
+    (chain, repeats, k, groups) → the whole-pipeline CV is run on ``repeats`` further random splits (new refits)
+    and the means averaged with the first for the rule :data:`REPEATED`."""
+    from training.arm_residual import cv_pipelines
     pcv, vol = core["pipeline_cv_errors"], core["pipeline_volcomp"]
     outer = {vol: errs["volcomp kept stage"] if core["kept_stage"] == vol else
              errs["learned (GP on the chosen geometric stage)"] if vol == "learned" else
@@ -147,16 +173,43 @@ def rule_outcomes(core, errs):
     for rule in PIPELINE_RULES:
         k = choose_pipeline(pcv, vol, rule)
         out[rule] = {"kept": k, "errors_mm": outer[k].tolist()}
+    w, e_w = stack_weight(fit.xyz_mm, pcv[vol]["pred_mm"], pcv[PLAIN_GP]["pred_mm"])
+    e_stack = np.linalg.norm(check.xyz_mm - (w * p_vol + (1 - w) * p_pgp), axis=1)
+    out[STACK] = {"kept": f"w={w:.2f}", "weight": w, "inner_mean_by_weight_mm": e_w.tolist(),
+                  "errors_mm": e_stack.tolist()}
+    if repeat_cv is not None:
+        chain, reps, k_in, groups = repeat_cv
+        geo = core["volcomp_geometric_model"]
+        pipes = {vol: ("plain" if geo is core["plain_model"] else geo.model,
+                       core["learner"] if vol == "learned" else None),
+                 "plain geometric LSQ": ("plain", None), PLAIN_GP: ("plain", core["plain_gp"])}
+        means = {k: [v["cv_mean_mm"]] for k, v in pcv.items()}
+        for ss in np.random.SeedSequence([0, 7]).spawn(reps):   # new inner splits (random: blocked sectors are fixed)
+            if groups is not None:
+                break
+            for k, v in cv_pipelines(chain, fit, pipes, k_in, ss).items():
+                means[k].append(v["cv_mean_mm"])
+        avg = {k: {"cv_mean_mm": float(np.mean(v))} for k, v in means.items()}
+        k = choose_pipeline(avg, vol, "lowest")
+        out[REPEATED] = {"kept": k, "errors_mm": outer[k].tolist(), "inner_cv_means_mm": means}
     return out
 
 
-VARIANTS = {  # name → (inputs, residual of which geometric stage, margin_se)
-    "GP physics on the inner-CV geometric stage (volcomp's learned stage)": ("physics", "geo", 1.0),
-    "GP physics+h2 on the inner-CV geometric stage": ("physics+h2", "geo", 1.0),
-    "GP physics+wrist on the inner-CV geometric stage": ("physics+wrist", "geo", 1.0),
-    "GP physics on the plain LSQ residual": ("physics", "plain", 1.0),
-    "GP sincos on the plain LSQ residual (plain GP)": ("sincos", "plain", 0.0),
+VOLCOMP_VARIANT = "GP physics, kernel chosen by its own CV (volcomp's learned stage)"
+PLAIN_VARIANT = "GP sincos on the plain LSQ residual (plain GP)"
+VARIANTS = {  # name → (inputs, residual of which geometric stage, margin_se, GP families)
+    VOLCOMP_VARIANT: ("physics", "geo", 1.0, None),
+    "GP physics, squared exponential (the learned stage before)": ("physics", "geo", 1.0, ("gp",)),
+    "GP physics, Matérn 5/2": ("physics", "geo", 1.0, ("gp_matern52",)),
+    "GP physics, Matérn 3/2": ("physics", "geo", 1.0, ("gp_matern32",)),
+    "GP physics+h2 on the inner-CV geometric stage": ("physics+h2", "geo", 1.0, ("gp",)),
+    "GP physics+wrist on the inner-CV geometric stage": ("physics+wrist", "geo", 1.0, ("gp",)),
+    "GP physics on the plain LSQ residual": ("physics", "plain", 1.0, ("gp",)),
+    PLAIN_VARIANT: ("sincos", "plain", 0.0, None),
 }
+VARIANTS_RUN = (VOLCOMP_VARIANT, "GP physics, squared exponential (the learned stage before)", "GP physics, Matérn 5/2",
+                "GP physics, Matérn 3/2", PLAIN_VARIANT)
+"""The variants run by default (the kernels of step 1 of this session); the others were measured before."""
 AVERAGE_TOP = 2   # the averaging rule: the mean prediction of the this many variants with the lowest inner-CV mean
 
 
@@ -171,15 +224,16 @@ def learned_variants(chain, fit, check, core, k_inner, log):
     geo = {"geo": (gv, "plain" if gv is core["plain_model"] else gv.model), "plain": (core["plain_model"], "plain")}
     s_geo = np.random.SeedSequence(0).spawn(3)[0]          # calibrate_arm(seed=0)'s geometric CV folds
     rows, inner_pred, outer_pred, fold_fits = {}, {}, {}, {}
-    for vname, (inputs, base, margin) in VARIANTS.items():
+    for vname in VARIANTS_RUN:
+        inputs, base, margin, fams = VARIANTS[vname]
         t0 = time.process_time()
-        if vname.startswith("GP physics on the inner-CV"):
+        if vname == VOLCOMP_VARIANT:
             lr = core["learner"]
-        elif vname.startswith("GP sincos on the plain"):
+        elif vname == PLAIN_VARIANT:
             lr = core["plain_gp"]
         else:
             lr = ArmResidualRegressor(chain, inputs=inputs, k_folds=k_inner, n_restarts=1, margin_se=margin,
-                                      seed=0).fit(fit.q, fit.xyz_mm - geo[base][0].predict(fit.q))
+                                      seed=0, families=fams).fit(fit.q, fit.xyz_mm - geo[base][0].predict(fit.q))
         cv = cv_pipelines(chain, fit, {vname: (geo[base][1], lr)}, k_inner, s_geo, fold_fits=fold_fits)[vname]
         inner_pred[vname] = cv["pred_mm"]
         outer_pred[vname] = geo[base][0].predict(check.q) + lr.predict(check.q)
@@ -345,11 +399,16 @@ def rules_md(r):
         part = "" if len(ks) == planned else f", PARTIAL: {len(ks)} of {planned} run"
         L += ["", f"Pipeline rules on the {kind} outer folds ({len(ks)} folds{part}; each rule applied to the inner CV of "
               "whole pipelines only; outer pooled mean of the pipeline it kept, mm):", "",
-              "| rule | kept (folds) | outer mean (mm) | plain GP on plain LSQ residual (mm) |", "|---|---|---|---|"]
-        for rule in PIPELINE_RULES:
+              "| rule | kept (folds) | outer mean (mm) (per-fold mean minus the plain GP's, ± its standard error) | "
+              "plain GP on plain LSQ residual (mm) |", "|---|---|---|---|"]
+        for rule in BENCH_RULES:
+            if not all(rule in f["rules"] for f in ks):
+                continue
             n_kept = ", ".join(f"{k} {v}" for k, v in Counter(f["rules"][rule]["kept"] for f in ks).most_common())
-            e = float(np.mean(np.concatenate([f["rules"][rule]["errors_mm"] for f in ks])))
-            L.append(f"| {rule} | {n_kept} | {e:.4f} | {e_gp:.4f} |")
+            e_r = np.concatenate([f["rules"][rule]["errors_mm"] for f in ks])
+            d = [np.mean(f["rules"][rule]["errors_mm"]) - f["rules"]["outer_mean_mm"][PLAIN_GP] for f in ks]
+            L.append(f"| {rule} | {n_kept} | {e_r.mean():.4f} (per fold − plain GP {np.mean(d):+.4f} ± "
+                     f"{np.std(d, ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float('nan'):.4f}) | {e_gp:.4f} |")
         L += ["", "| pipeline | inner-CV mean, averaged over the outer folds (mm) | outer mean, averaged over the outer folds (mm) |",
               "|---|---|---|"]
         first = (lambda d: d[next(iter(d))])       # volcomp's own choice is the first pipeline of every fold
@@ -374,14 +433,15 @@ def variants_md(r):
          "outer: pooled held-out mean. Rules decided on inner CV only: `lowest "
          f"inner CV` keeps the variant with the lowest inner-CV mean per fold; `average of the {AVERAGE_TOP} best` "
          "averages the predictions of the two lowest.", "",
-         "| variant | inner-CV mean, averaged over folds (mm) | outer mean (mm) | learner kept by its own CV (folds) |",
+         "| variant | inner-CV mean, averaged over folds (mm) | outer mean (mm) | family kept by the learner's own CV (folds) |",
          "|---|---|---|---|"]
     for v in ks[0]["variants"]:
         if v == "lowest inner CV":
             continue
         rows = [f["variants"][v] for f in ks]
         e = float(np.mean(np.concatenate([x["outer_errors_mm"] for x in rows])))
-        kept = sum(x.get("chosen") == "gp" for x in rows) if "chosen" in rows[0] else "—"
+        kept = (", ".join(f"{k} {n}" for k, n in Counter(x["chosen"] for x in rows).most_common())
+                if "chosen" in rows[0] else "—")
         L.append(f"| {v} | {np.mean([x['inner_cv_mean_mm'] for x in rows]):.4f} | {e:.4f} | {kept} |")
     picks = Counter(f["variants"]["lowest inner CV"]["picked"] for f in ks)
     e = float(np.mean(np.concatenate([f["variants"]["lowest inner CV"]["outer_errors_mm"] for f in ks])))
@@ -544,6 +604,8 @@ def main(argv=None):
     ap.add_argument("--sim-only", default="", help="';'-separated 'case, model' coverage runs (default all)")
     ap.add_argument("--kinds", default="random,blocked", help="which outer splits to run")
     ap.add_argument("--variants", default="ur5", help="arms whose random folds also run the learned-stage variants")
+    ap.add_argument("--repeat-inner", default="wam", help="arms whose random folds also run the rule 'lowest, "
+                    "repeated inner CV' (REPEAT_INNER further inner splits)")
     ap.add_argument("--merge", action="store_true", help="keep the other parts' results from the existing json")
     ap.add_argument("--out", default=None, help="write <OUT>.json / <OUT>.md instead of benchmarks/arms_results.*")
     args = ap.parse_args(argv)
@@ -583,7 +645,8 @@ def main(argv=None):
                 if kind not in args.kinds.split(","):
                     continue
                 run_arm(part, folds, args.inner_folds, log, blocked=kind == "blocked", on_fold=on_fold,
-                        variants=part in args.variants.split(",") and kind == "random")
+                        variants=part in args.variants.split(",") and kind == "random",
+                        repeat_inner=REPEAT_INNER if part in args.repeat_inner.split(",") and kind == "random" else 0)
         write_json(OUT_JSON, res)   # partial results as each part finishes
         write_md(res, args)
     print(f"wrote {OUT_MD}")
