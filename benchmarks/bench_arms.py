@@ -87,7 +87,8 @@ def _summary(pooled):
     return out
 
 
-def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, variants=False, repeat_inner=0):
+def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, variants=False, repeat_inner=0,
+            kernels=False):
     """Outer folds: every decision (slot set, plain LSQ instead, learned kept) is made by CV inside the
     outer fit part (:func:`calibrate_arm`); the outer held-out fold only reports (nested). ``blocked``:
     the inner CV is blocked too (joint-1 sectors of the fit part), as the outer one. ``repeat_inner``: this many
@@ -132,6 +133,8 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
                                           repeat_cv=(chain, repeat_inner, k_folds_inner, groups) if repeat_inner else None)
         if variants:
             kept[-1]["variants"] = learned_variants(chain, fit, check, core, k_folds_inner, log)
+        if kernels:
+            kept[-1]["kernels"] = kernel_candidates(chain, fit, check, core, log)
         print(f"[{name}] {label}: kept {core['kept_stage']} {errs['volcomp kept stage'].mean():.4f}, plain LSQ "
               f"{errs['plain geometric LSQ'].mean():.4f}, plain GP {errs['plain GP on plain LSQ residual'].mean():.4f} mm, "
               f"coverage {core['coverage95_heldout']:.3f} ({kept[-1]['cpu_s']:.0f} s CPU)", file=log, flush=True)
@@ -252,6 +255,57 @@ def learned_variants(chain, fit, check, core, k_inner, log):
     rows["lowest inner CV"] = {"picked": order[0], "outer_errors_mm": rows[order[0]]["outer_errors_mm"],
                                "inner": "pipeline-cv"}
     return rows
+
+
+def kernel_candidates(chain, fit, check, core, log):
+    """Step 1's kernels of the learned stage: each GP family the learner cross-validated (its own k-fold CV inside
+    the outer fit part, on the residual of the chosen geometric stage — the CV that picks the kernel) with that
+    inner CV RMS and whether it beat predicting zero by the margin, then re-estimated on all fit poses
+    (:meth:`training.residual.ResidualRegressor.refit` with ``family``) and judged on the OUTER held-out fold;
+    ``zero`` is the geometric stage alone. ``picked``: the learner's choice (inner CV only)."""
+    from training.arm_residual import features
+    lr, geo = core["learner"], core["volcomp_geometric_model"]
+    reg = lr.regressor_
+    X, Y = features(chain, fit.q, lr.inputs), fit.xyz_mm - geo.predict(fit.q)
+    Xc, base = features(chain, check.q, lr.inputs), geo.predict(check.q)
+    rows = {}
+    for fam in reg.cv_table_:
+        cv = reg.cv_table_[fam]
+        pred = base if fam == "zero" else base + reg.refit(X, Y, family=fam).predict(Xc)
+        e = np.linalg.norm(check.xyz_mm - pred, axis=1)
+        rows[fam] = {"inner_cv_rms_mm": cv["cv_rms"], "outer_errors_mm": e.tolist(),
+                     "beats_zero": fam != "zero" and cv["gain_mean"] > max(lr.margin_se * cv["gain_se"], 0.0)}
+    print("  kernels: " + ", ".join(f"{k} inner RMS {v['inner_cv_rms_mm']:.4f} outer mean "
+                                    f"{np.mean(v['outer_errors_mm']):.4f}" for k, v in rows.items())
+          + f"; picked {lr.chosen_}", file=log, flush=True)
+    return {"families": rows, "picked": "zero" if lr.chosen_ == "none" else lr.chosen_}
+
+
+def kernels_md(r):
+    """Step 1's table: each kernel's inner CV and outer figure, and what the inner CV picked."""
+    ks = [f for f in r.get("random", {}).get("folds", []) if "kernels" in f]
+    if not ks:
+        return []
+    planned = r["random"].get("n_folds_planned", len(ks))
+    L = ["", f"GP kernel of the learned stage on the random outer folds ({len(ks)} folds"
+         f"{'' if len(ks) == planned else f', PARTIAL: of {planned}'}). Inner: the learner's own k-fold CV inside the "
+         "outer fit part on the residual of the chosen geometric stage (RMS 3-D error, hyper-parameters re-estimated "
+         "on each inner fit part) — the CV that picks the kernel (lowest inner RMS among those beating `zero` by one "
+         "paired standard error); outer: each kernel re-estimated on all fit poses and judged on the outer held-out "
+         "fold (pooled). `zero`: the geometric stage alone. Nothing here was picked on the outer folds.", "",
+         "| candidate | inner CV RMS, averaged over folds (mm) | beat zero in inner CV (folds) | picked by inner CV (folds) "
+         "| outer mean / RMS (mm) |", "|---|---|---|---|---|"]
+    picks = Counter(f["kernels"]["picked"] for f in ks)
+    for fam in ks[0]["kernels"]["families"]:
+        rows = [f["kernels"]["families"][fam] for f in ks]
+        e = np.concatenate([x["outer_errors_mm"] for x in rows])
+        L.append(f"| {fam} | {np.mean([x['inner_cv_rms_mm'] for x in rows]):.4f} | "
+                 f"{'—' if fam == 'zero' else sum(x['beats_zero'] for x in rows)} | {picks.get(fam, 0)} | "
+                 f"{e.mean():.4f} / {np.sqrt(np.mean(e ** 2)):.4f} |")
+    e = np.concatenate([f["kernels"]["families"][f["kernels"]["picked"]]["outer_errors_mm"] for f in ks])
+    L.append(f"| rule: the inner CV's pick per fold | — | — | {', '.join(f'{k} {n}' for k, n in picks.most_common())} | "
+             f"{e.mean():.4f} / {np.sqrt(np.mean(e ** 2)):.4f} |")
+    return L
 
 
 def _seed_fit_and_reference(chain, seed, truth_kw, model):
@@ -529,7 +583,7 @@ def write_md(res, args):
                   + ("" if all("cv_pipelines" in f for f in ks) else
                      " RUN BEFORE the pipeline CV (point 5 of docs/arms.md): its kept stage is volcomp's choice "
                      "without the plain pipelines as candidates.")]
-        L += rules_md(r) + variants_md(r)
+        L += kernels_md(r) + rules_md(r) + variants_md(r)
         L.append("")
     L += ["Rows: `geometric (DH)` volcomp's LM on the identifiable DH + base + tool slots; `geometric+compliance` adds "
           "a compliance slot per load-carrying joint (Δθ = c·τ(q), τ the gravity moment of unit masses at the "
@@ -603,7 +657,10 @@ def main(argv=None):
     ap.add_argument("--parts", default="wam,sim,ur5", help="what to run, in order: arm names and/or 'sim'")
     ap.add_argument("--sim-only", default="", help="';'-separated 'case, model' coverage runs (default all)")
     ap.add_argument("--kinds", default="random,blocked", help="which outer splits to run")
-    ap.add_argument("--variants", default="ur5", help="arms whose random folds also run the learned-stage variants")
+    ap.add_argument("--variants", default="", help="arms whose random folds also run the learned-stage variants "
+                    "(whole-pipeline inner CV per variant: costly on the UR5)")
+    ap.add_argument("--kernels", default="ur5,wam", help="arms whose random folds also judge every GP kernel the "
+                    "learner cross-validated on the outer fold")
     ap.add_argument("--repeat-inner", default="wam", help="arms whose random folds also run the rule 'lowest, "
                     "repeated inner CV' (REPEAT_INNER further inner splits)")
     ap.add_argument("--merge", action="store_true", help="keep the other parts' results from the existing json")
@@ -646,7 +703,8 @@ def main(argv=None):
                     continue
                 run_arm(part, folds, args.inner_folds, log, blocked=kind == "blocked", on_fold=on_fold,
                         variants=part in args.variants.split(",") and kind == "random",
-                        repeat_inner=REPEAT_INNER if part in args.repeat_inner.split(",") and kind == "random" else 0)
+                        repeat_inner=REPEAT_INNER if part in args.repeat_inner.split(",") and kind == "random" else 0,
+                        kernels=part in args.kernels.split(",") and kind == "random")
         write_json(OUT_JSON, res)   # partial results as each part finishes
         write_md(res, args)
     print(f"wrote {OUT_MD}")
