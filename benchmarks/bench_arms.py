@@ -572,11 +572,14 @@ def write_md(res, args):
             geo = sorted({f["geometric_model"] for f in ks})
             cov_raw = [f["coverage95_cv_raw"] for f in ks if f["coverage95_cv_raw"] is not None]
             covh = [f["coverage95_heldout"] for f in ks]
+            # the fold-fit leak hit random inner folds only (blocked inner folds come from the groups, the same each call)
+            stale = "" if kind != "random" or all("rules" in f and STACK in f["rules"] for f in ks) else (
+                " RUN BEFORE the fold fix (docs/arms.md point 5): its pipeline CV reused fold fits of other folds.")
             L += ["", f"{kind}{part_note}: {len(ks)} outer folds; kept stage: {n_kept}; geometric model chosen by inner CV: {', '.join(geo)}; "
                   f"95 % band of the kept stage on the outer held-out fold: coverage {np.mean(covh):.3f} "
                   f"(per fold {', '.join(f'{c:.3f}' for c in covh)})"
                   + (f"; the GP's uncalibrated band in its inner CV: {np.mean(cov_raw):.3f}" if cov_raw else "")
-                  + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s."
+                  + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s." + stale
                   + ("" if all("rules" in f for f in ks) else
                      " RUN BEFORE the leak fix (point 1): its pipeline CV kept the GP hyper-parameters chosen on all fit "
                      "poses and re-solved only the weights per inner fold.")
@@ -595,7 +598,9 @@ def write_md(res, args):
           "learned stage where its CV inside the fit part beat the geometric stage, else the geometric stage; then that "
           "choice, the plain LSQ fit and the plain GP on its residual are cross-validated as whole pipelines on the same "
           "inner folds (geometric stage refitted per fold, the GP's standardisation and hyper-parameters re-estimated "
-          "on each inner fold's fit part: nothing of the inner held-out fold reaches them) and the lowest inner-CV mean "
+          "on each inner fold's fit part: nothing of the inner held-out fold reaches them; the folds are the slot-set "
+          "CV's own — before this session's fix a random-fold pipeline CV drew other folds and reused the slot-set "
+          "CV's fold fits, judging geometric fits on poses they had seen) and the lowest inner-CV mean "
           "error is returned (ties: volcomp's choice), so the kept stage never loses to a plain baseline in the inner "
           "validation. Every "
           "decision is nested: the outer held-out fold only reports.", ""]
