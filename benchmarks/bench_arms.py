@@ -451,6 +451,9 @@ def rules_md(r):
         e_gp = r[kind]["summary"][PLAIN_GP]["mean_mm"]     # every fold's plain GP held-out errors, pooled
         planned = r[kind].get("n_folds_planned", len(ks))
         part = "" if len(ks) == planned else f", PARTIAL: {len(ks)} of {planned} run"
+        if "random" in kind and not all(STACK in f["rules"] for f in ks):
+            part += ("; RUN BEFORE the fold fix (docs/arms.md point 5): its pipeline CV reused fold fits of other "
+                     "folds, which flattered the geometric part of every pipeline")
         L += ["", f"Pipeline rules on the {kind} outer folds ({len(ks)} folds{part}; each rule applied to the inner CV of "
               "whole pipelines only; outer pooled mean of the pipeline it kept, mm):", "",
               "| rule | kept (folds) | outer mean (mm) (per-fold mean minus the plain GP's, ± its standard error) | "
