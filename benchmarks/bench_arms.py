@@ -143,19 +143,9 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
     return _summary(pooled), kept
 
 
-STACK_WEIGHTS = np.linspace(0.0, 1.0, 21)   # the stacking rule's grid of weights on volcomp's choice (step 0.05)
 STACK = "stack"                               # rule: blend volcomp's choice and the plain GP, weight by inner CV
 REPEATED = "lowest, repeated inner CV"        # rule: "lowest" on the inner CV averaged over several random splits
 BENCH_RULES = PIPELINE_RULES + (REPEATED, STACK)
-
-
-def stack_weight(y_mm, p_vol_mm, p_pgp_mm):
-    """The weight w ∈ :data:`STACK_WEIGHTS` on volcomp's pipeline that minimises the mean position error of
-    w·p_vol + (1 − w)·p_pgp on INNER out-of-fold predictions (each (n, 3) mm; ties to the larger w), and the
-    inner mean error (mm) per weight (21,)."""
-    e = np.array([np.linalg.norm(y_mm - (w * p_vol_mm + (1 - w) * p_pgp_mm), axis=1).mean() for w in STACK_WEIGHTS])
-    i = len(e) - 1 - int(np.argmin(e[::-1]))
-    return float(STACK_WEIGHTS[i]), e
 
 
 def rule_outcomes(core, errs, fit, check, p_vol, p_pgp, repeat_cv=None):
@@ -165,7 +155,7 @@ def rule_outcomes(core, errs, fit, check, p_vol, p_pgp, repeat_cv=None):
     stacking rule, whose weight comes from the two pipelines' inner out-of-fold predictions). ``repeat_cv``:
     (chain, repeats, k, groups) → the whole-pipeline CV is run on ``repeats`` further random splits (new refits)
     and the means averaged with the first for the rule :data:`REPEATED`."""
-    from training.arm_residual import cv_pipelines
+    from training.arm_residual import cv_pipelines, stack_weight
     pcv, vol = core["pipeline_cv_errors"], core["pipeline_volcomp"]
     outer = {vol: errs["volcomp kept stage"] if core["kept_stage"] == vol else
              errs["learned (GP on the chosen geometric stage)"] if vol == "learned" else

@@ -194,3 +194,17 @@ def test_kernel_chosen_by_cv_and_kept_in_json(ur5):
     for bad in ((), ("ensemble",), ("gp", "gp")):
         with pytest.raises(ValueError, match="families"):
             ArmResidualRegressor(ur5, families=bad)
+
+
+def test_stack_weight_from_inner_predictions():
+    """The stacking rule's weight: errors of opposite sign cancel at w = 0.5; a perfect volcomp pipeline gets w = 1,
+    a perfect plain GP w = 0; equal predictions tie toward volcomp (w = 1)."""
+    from training.arm_residual import stack_weight
+    rng = np.random.default_rng(3)
+    y = rng.normal(0, 1, (50, 3))
+    e = rng.normal(0, 0.1, (50, 3))
+    assert stack_weight(y, y + e, y - e)[0] == 0.5
+    assert stack_weight(y, y, y + e)[0] == 1.0
+    assert stack_weight(y, y + e, y)[0] == 0.0
+    w, curve = stack_weight(y, y + e, y + e)
+    assert w == 1.0 and np.ptp(curve) <= 1e-12 * curve.min()   # equal up to round-off: STACK_TIE_REL

@@ -225,3 +225,21 @@ def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None,
             held[name][ite] = pred
     return {k: {"cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2))), "errors_mm": e,
                 "pred_mm": held[k]} for k, e in err.items()}
+
+
+STACK_WEIGHTS = np.linspace(0.0, 1.0, 21)
+"""The stacking rule's grid of weights on volcomp's pipeline (step 0.05)."""
+STACK_TIE_REL = 1e-12
+"""Weights whose inner mean error is within this (relative) of the lowest tie (round-off of w·a + (1 − w)·a)."""
+
+
+def stack_weight(y_mm, p_vol_mm, p_pgp_mm):
+    """Stacking of two pipelines on their INNER out-of-fold predictions (:func:`cv_pipelines` ``pred_mm``): the
+    weight w ∈ :data:`STACK_WEIGHTS` that minimises the mean position error of w·p_vol + (1 − w)·p_pgp against the
+    measured ``y_mm`` (all (n, 3) mm; ties to the larger w, i.e. toward volcomp's pipeline). Returns (w, the inner
+    mean error (mm) per weight (21,)). Measured in ``benchmarks/bench_arms.py`` (rule ``stack``); the command does
+    not yet return a blended model."""
+    y, a, b = (np.asarray(v, float) for v in (y_mm, p_vol_mm, p_pgp_mm))
+    e = np.array([np.linalg.norm(y - (w * a + (1 - w) * b), axis=1).mean() for w in STACK_WEIGHTS])
+    i = int(np.flatnonzero(e <= e.min() * (1 + STACK_TIE_REL))[-1])
+    return float(STACK_WEIGHTS[i]), e
