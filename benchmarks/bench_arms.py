@@ -52,6 +52,7 @@ UR5_LO = np.array([-60.0, -120.0, 30.0, -120.0, 40.0, -30.0])
 UR5_HI = np.array([60.0, -30.0, 140.0, 30.0, 150.0, 30.0])
 NOISE_MM = 0.02
 BACKLASH_RAD = 2e-5  # lost motion per joint (4 arcsec): ±1e-5 rad by the gravity moment's sign, ~0.01 mm at full reach
+REPEAT_INNER = 4  # the repeated-inner-CV rule: this many further random inner splits (5 inner CVs averaged)
 LOOP_SEEDS = 2  # learned stage + compensation on this many simulated arms (a GP on 400 poses each)
 Z95 = 1.959963984540054
 ROW_ORDER = ["nominal", "nominal + base/tool", "plain geometric LSQ", "geometric (DH)", "geometric+compliance",
@@ -86,10 +87,12 @@ def _summary(pooled):
     return out
 
 
-def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, variants=False):
+def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, variants=False, repeat_inner=0,
+            kernels=False):
     """Outer folds: every decision (slot set, plain LSQ instead, learned kept) is made by CV inside the
     outer fit part (:func:`calibrate_arm`); the outer held-out fold only reports (nested). ``blocked``:
-    the inner CV is blocked too (joint-1 sectors of the fit part), as the outer one."""
+    the inner CV is blocked too (joint-1 sectors of the fit part), as the outer one. ``repeat_inner``: this many
+    further inner pipeline CVs on new random folds for the rule ``lowest, repeated inner CV``."""
     chain = load_machine(name)
     data = read_arm_poses(DATA / f"{name}_grid.csv", chain)
     pooled, kept = {}, []
@@ -123,9 +126,15 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
                      "kept_mean_mm": float(errs["volcomp kept stage"].mean()),
                      "plain_gp_mean_mm": float(errs["plain GP on plain LSQ residual"].mean()),
                      "cpu_s": time.process_time() - t0})
-        kept[-1]["rules"] = rule_outcomes(core, errs)
+        vol = core["pipeline_volcomp"]
+        p_vol = geo.predict(check.q) + (core["learner"].predict(check.q) if vol == "learned" else 0.0)
+        p_pgp = pl.predict(check.q) + core["plain_gp"].predict(check.q)
+        kept[-1]["rules"] = rule_outcomes(core, errs, fit, check, p_vol, p_pgp,
+                                          repeat_cv=(chain, repeat_inner, k_folds_inner, groups) if repeat_inner else None)
         if variants:
             kept[-1]["variants"] = learned_variants(chain, fit, check, core, k_folds_inner, log)
+        if kernels:
+            kept[-1]["kernels"] = kernel_candidates(chain, fit, check, core, log)
         print(f"[{name}] {label}: kept {core['kept_stage']} {errs['volcomp kept stage'].mean():.4f}, plain LSQ "
               f"{errs['plain geometric LSQ'].mean():.4f}, plain GP {errs['plain GP on plain LSQ residual'].mean():.4f} mm, "
               f"coverage {core['coverage95_heldout']:.3f} ({kept[-1]['cpu_s']:.0f} s CPU)", file=log, flush=True)
@@ -134,9 +143,19 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
     return _summary(pooled), kept
 
 
-def rule_outcomes(core, errs):
-    """Per pipeline rule (:data:`PIPELINE_RULES`): the pipeline it keeps from this fold's inner CV and that
-    pipeline's OUTER held-out mean error (the rule is applied to the inner CV only; the outer fold reports)."""
+STACK = "stack"                               # rule: blend volcomp's choice and the plain GP, weight by inner CV
+REPEATED = "lowest, repeated inner CV"        # rule: "lowest" on the inner CV averaged over several random splits
+BENCH_RULES = PIPELINE_RULES + (REPEATED, STACK)
+
+
+def rule_outcomes(core, errs, fit, check, p_vol, p_pgp, repeat_cv=None):
+    """Per pipeline rule (:data:`BENCH_RULES`): the pipeline it keeps from this fold's inner CV and that
+    pipeline's OUTER held-out mean error (the rule is applied to the inner CV only; the outer fold reports).
+    ``p_vol``, ``p_pgp`` (n_check, 3): the outer predictions of volcomp's choice and the plain GP (for the
+    stacking rule, whose weight comes from the two pipelines' inner out-of-fold predictions). ``repeat_cv``:
+    (chain, repeats, k, groups) → the whole-pipeline CV is run on ``repeats`` further random splits (new refits)
+    and the means averaged with the first for the rule :data:`REPEATED`."""
+    from training.arm_residual import cv_pipelines, stack_weight
     pcv, vol = core["pipeline_cv_errors"], core["pipeline_volcomp"]
     outer = {vol: errs["volcomp kept stage"] if core["kept_stage"] == vol else
              errs["learned (GP on the chosen geometric stage)"] if vol == "learned" else
@@ -147,16 +166,43 @@ def rule_outcomes(core, errs):
     for rule in PIPELINE_RULES:
         k = choose_pipeline(pcv, vol, rule)
         out[rule] = {"kept": k, "errors_mm": outer[k].tolist()}
+    w, e_w = stack_weight(fit.xyz_mm, pcv[vol]["pred_mm"], pcv[PLAIN_GP]["pred_mm"])
+    e_stack = np.linalg.norm(check.xyz_mm - (w * p_vol + (1 - w) * p_pgp), axis=1)
+    out[STACK] = {"kept": f"w={w:.2f}", "weight": w, "inner_mean_by_weight_mm": e_w.tolist(),
+                  "errors_mm": e_stack.tolist()}
+    if repeat_cv is not None:
+        chain, reps, k_in, groups = repeat_cv
+        geo = core["volcomp_geometric_model"]
+        pipes = {vol: ("plain" if geo is core["plain_model"] else geo.model,
+                       core["learner"] if vol == "learned" else None),
+                 "plain geometric LSQ": ("plain", None), PLAIN_GP: ("plain", core["plain_gp"])}
+        means = {k: [v["cv_mean_mm"]] for k, v in pcv.items()}
+        for ss in np.random.SeedSequence([0, 7]).spawn(reps):   # new inner splits (random: blocked sectors are fixed)
+            if groups is not None:
+                break
+            for k, v in cv_pipelines(chain, fit, pipes, k_in, ss).items():
+                means[k].append(v["cv_mean_mm"])
+        avg = {k: {"cv_mean_mm": float(np.mean(v))} for k, v in means.items()}
+        k = choose_pipeline(avg, vol, "lowest")
+        out[REPEATED] = {"kept": k, "errors_mm": outer[k].tolist(), "inner_cv_means_mm": means}
     return out
 
 
-VARIANTS = {  # name → (inputs, residual of which geometric stage, margin_se)
-    "GP physics on the inner-CV geometric stage (volcomp's learned stage)": ("physics", "geo", 1.0),
-    "GP physics+h2 on the inner-CV geometric stage": ("physics+h2", "geo", 1.0),
-    "GP physics+wrist on the inner-CV geometric stage": ("physics+wrist", "geo", 1.0),
-    "GP physics on the plain LSQ residual": ("physics", "plain", 1.0),
-    "GP sincos on the plain LSQ residual (plain GP)": ("sincos", "plain", 0.0),
+VOLCOMP_VARIANT = "GP physics, kernel chosen by its own CV (volcomp's learned stage)"
+PLAIN_VARIANT = "GP sincos on the plain LSQ residual (plain GP)"
+VARIANTS = {  # name → (inputs, residual of which geometric stage, margin_se, GP families)
+    VOLCOMP_VARIANT: ("physics", "geo", 1.0, None),
+    "GP physics, squared exponential (the learned stage before)": ("physics", "geo", 1.0, ("gp",)),
+    "GP physics, Matérn 5/2": ("physics", "geo", 1.0, ("gp_matern52",)),
+    "GP physics, Matérn 3/2": ("physics", "geo", 1.0, ("gp_matern32",)),
+    "GP physics+h2 on the inner-CV geometric stage": ("physics+h2", "geo", 1.0, ("gp",)),
+    "GP physics+wrist on the inner-CV geometric stage": ("physics+wrist", "geo", 1.0, ("gp",)),
+    "GP physics on the plain LSQ residual": ("physics", "plain", 1.0, ("gp",)),
+    PLAIN_VARIANT: ("sincos", "plain", 0.0, None),
 }
+VARIANTS_RUN = (VOLCOMP_VARIANT, "GP physics, squared exponential (the learned stage before)", "GP physics, Matérn 5/2",
+                "GP physics, Matérn 3/2", PLAIN_VARIANT)
+"""The variants run by default (the kernels of step 1 of this session); the others were measured before."""
 AVERAGE_TOP = 2   # the averaging rule: the mean prediction of the this many variants with the lowest inner-CV mean
 
 
@@ -171,15 +217,16 @@ def learned_variants(chain, fit, check, core, k_inner, log):
     geo = {"geo": (gv, "plain" if gv is core["plain_model"] else gv.model), "plain": (core["plain_model"], "plain")}
     s_geo = np.random.SeedSequence(0).spawn(3)[0]          # calibrate_arm(seed=0)'s geometric CV folds
     rows, inner_pred, outer_pred, fold_fits = {}, {}, {}, {}
-    for vname, (inputs, base, margin) in VARIANTS.items():
+    for vname in VARIANTS_RUN:
+        inputs, base, margin, fams = VARIANTS[vname]
         t0 = time.process_time()
-        if vname.startswith("GP physics on the inner-CV"):
+        if vname == VOLCOMP_VARIANT:
             lr = core["learner"]
-        elif vname.startswith("GP sincos on the plain"):
+        elif vname == PLAIN_VARIANT:
             lr = core["plain_gp"]
         else:
             lr = ArmResidualRegressor(chain, inputs=inputs, k_folds=k_inner, n_restarts=1, margin_se=margin,
-                                      seed=0).fit(fit.q, fit.xyz_mm - geo[base][0].predict(fit.q))
+                                      seed=0, families=fams).fit(fit.q, fit.xyz_mm - geo[base][0].predict(fit.q))
         cv = cv_pipelines(chain, fit, {vname: (geo[base][1], lr)}, k_inner, s_geo, fold_fits=fold_fits)[vname]
         inner_pred[vname] = cv["pred_mm"]
         outer_pred[vname] = geo[base][0].predict(check.q) + lr.predict(check.q)
@@ -198,6 +245,57 @@ def learned_variants(chain, fit, check, core, k_inner, log):
     rows["lowest inner CV"] = {"picked": order[0], "outer_errors_mm": rows[order[0]]["outer_errors_mm"],
                                "inner": "pipeline-cv"}
     return rows
+
+
+def kernel_candidates(chain, fit, check, core, log):
+    """Step 1's kernels of the learned stage: each GP family the learner cross-validated (its own k-fold CV inside
+    the outer fit part, on the residual of the chosen geometric stage — the CV that picks the kernel) with that
+    inner CV RMS and whether it beat predicting zero by the margin, then re-estimated on all fit poses
+    (:meth:`training.residual.ResidualRegressor.refit` with ``family``) and judged on the OUTER held-out fold;
+    ``zero`` is the geometric stage alone. ``picked``: the learner's choice (inner CV only)."""
+    from training.arm_residual import features
+    lr, geo = core["learner"], core["volcomp_geometric_model"]
+    reg = lr.regressor_
+    X, Y = features(chain, fit.q, lr.inputs), fit.xyz_mm - geo.predict(fit.q)
+    Xc, base = features(chain, check.q, lr.inputs), geo.predict(check.q)
+    rows = {}
+    for fam in reg.cv_table_:
+        cv = reg.cv_table_[fam]
+        pred = base if fam == "zero" else base + reg.refit(X, Y, family=fam).predict(Xc)
+        e = np.linalg.norm(check.xyz_mm - pred, axis=1)
+        rows[fam] = {"inner_cv_rms_mm": cv["cv_rms"], "outer_errors_mm": e.tolist(),
+                     "beats_zero": fam != "zero" and cv["gain_mean"] > max(lr.margin_se * cv["gain_se"], 0.0)}
+    print("  kernels: " + ", ".join(f"{k} inner RMS {v['inner_cv_rms_mm']:.4f} outer mean "
+                                    f"{np.mean(v['outer_errors_mm']):.4f}" for k, v in rows.items())
+          + f"; picked {lr.chosen_}", file=log, flush=True)
+    return {"families": rows, "picked": "zero" if lr.chosen_ == "none" else lr.chosen_}
+
+
+def kernels_md(r):
+    """Step 1's table: each kernel's inner CV and outer figure, and what the inner CV picked."""
+    ks = [f for f in r.get("random", {}).get("folds", []) if "kernels" in f]
+    if not ks:
+        return []
+    planned = r["random"].get("n_folds_planned", len(ks))
+    L = ["", f"GP kernel of the learned stage on the random outer folds ({len(ks)} folds"
+         f"{'' if len(ks) == planned else f', PARTIAL: of {planned}'}). Inner: the learner's own k-fold CV inside the "
+         "outer fit part on the residual of the chosen geometric stage (RMS 3-D error, hyper-parameters re-estimated "
+         "on each inner fit part) — the CV that picks the kernel (lowest inner RMS among those beating `zero` by one "
+         "paired standard error); outer: each kernel re-estimated on all fit poses and judged on the outer held-out "
+         "fold (pooled). `zero`: the geometric stage alone. Nothing here was picked on the outer folds.", "",
+         "| candidate | inner CV RMS, averaged over folds (mm) | beat zero in inner CV (folds) | picked by inner CV (folds) "
+         "| outer mean / RMS (mm) |", "|---|---|---|---|---|"]
+    picks = Counter(f["kernels"]["picked"] for f in ks)
+    for fam in ks[0]["kernels"]["families"]:
+        rows = [f["kernels"]["families"][fam] for f in ks]
+        e = np.concatenate([x["outer_errors_mm"] for x in rows])
+        L.append(f"| {fam} | {np.mean([x['inner_cv_rms_mm'] for x in rows]):.4f} | "
+                 f"{'—' if fam == 'zero' else sum(x['beats_zero'] for x in rows)} | {picks.get(fam, 0)} | "
+                 f"{e.mean():.4f} / {np.sqrt(np.mean(e ** 2)):.4f} |")
+    e = np.concatenate([f["kernels"]["families"][f["kernels"]["picked"]]["outer_errors_mm"] for f in ks])
+    L.append(f"| rule: the inner CV's pick per fold | — | — | {', '.join(f'{k} {n}' for k, n in picks.most_common())} | "
+             f"{e.mean():.4f} / {np.sqrt(np.mean(e ** 2)):.4f} |")
+    return L
 
 
 def _seed_fit_and_reference(chain, seed, truth_kw, model):
@@ -343,13 +441,21 @@ def rules_md(r):
         e_gp = r[kind]["summary"][PLAIN_GP]["mean_mm"]     # every fold's plain GP held-out errors, pooled
         planned = r[kind].get("n_folds_planned", len(ks))
         part = "" if len(ks) == planned else f", PARTIAL: {len(ks)} of {planned} run"
+        if "random" in kind and not all(STACK in f["rules"] for f in ks):
+            part += ("; RUN BEFORE the fold fix (docs/arms.md point 5): its pipeline CV reused fold fits of other "
+                     "folds, which flattered the geometric part of every pipeline")
         L += ["", f"Pipeline rules on the {kind} outer folds ({len(ks)} folds{part}; each rule applied to the inner CV of "
               "whole pipelines only; outer pooled mean of the pipeline it kept, mm):", "",
-              "| rule | kept (folds) | outer mean (mm) | plain GP on plain LSQ residual (mm) |", "|---|---|---|---|"]
-        for rule in PIPELINE_RULES:
+              "| rule | kept (folds) | outer mean (mm) (per-fold mean minus the plain GP's, ± its standard error) | "
+              "plain GP on plain LSQ residual (mm) |", "|---|---|---|---|"]
+        for rule in BENCH_RULES:
+            if not all(rule in f["rules"] for f in ks):
+                continue
             n_kept = ", ".join(f"{k} {v}" for k, v in Counter(f["rules"][rule]["kept"] for f in ks).most_common())
-            e = float(np.mean(np.concatenate([f["rules"][rule]["errors_mm"] for f in ks])))
-            L.append(f"| {rule} | {n_kept} | {e:.4f} | {e_gp:.4f} |")
+            e_r = np.concatenate([f["rules"][rule]["errors_mm"] for f in ks])
+            d = [np.mean(f["rules"][rule]["errors_mm"]) - f["rules"]["outer_mean_mm"][PLAIN_GP] for f in ks]
+            L.append(f"| {rule} | {n_kept} | {e_r.mean():.4f} (per fold − plain GP {np.mean(d):+.4f} ± "
+                     f"{np.std(d, ddof=1) / np.sqrt(len(d)) if len(d) > 1 else float('nan'):.4f}) | {e_gp:.4f} |")
         L += ["", "| pipeline | inner-CV mean, averaged over the outer folds (mm) | outer mean, averaged over the outer folds (mm) |",
               "|---|---|---|"]
         first = (lambda d: d[next(iter(d))])       # volcomp's own choice is the first pipeline of every fold
@@ -374,14 +480,15 @@ def variants_md(r):
          "outer: pooled held-out mean. Rules decided on inner CV only: `lowest "
          f"inner CV` keeps the variant with the lowest inner-CV mean per fold; `average of the {AVERAGE_TOP} best` "
          "averages the predictions of the two lowest.", "",
-         "| variant | inner-CV mean, averaged over folds (mm) | outer mean (mm) | learner kept by its own CV (folds) |",
+         "| variant | inner-CV mean, averaged over folds (mm) | outer mean (mm) | family kept by the learner's own CV (folds) |",
          "|---|---|---|---|"]
     for v in ks[0]["variants"]:
         if v == "lowest inner CV":
             continue
         rows = [f["variants"][v] for f in ks]
         e = float(np.mean(np.concatenate([x["outer_errors_mm"] for x in rows])))
-        kept = sum(x.get("chosen") == "gp" for x in rows) if "chosen" in rows[0] else "—"
+        kept = (", ".join(f"{k} {n}" for k, n in Counter(x["chosen"] for x in rows).most_common())
+                if "chosen" in rows[0] else "—")
         L.append(f"| {v} | {np.mean([x['inner_cv_mean_mm'] for x in rows]):.4f} | {e:.4f} | {kept} |")
     picks = Counter(f["variants"]["lowest inner CV"]["picked"] for f in ks)
     e = float(np.mean(np.concatenate([f["variants"]["lowest inner CV"]["outer_errors_mm"] for f in ks])))
@@ -458,18 +565,21 @@ def write_md(res, args):
             geo = sorted({f["geometric_model"] for f in ks})
             cov_raw = [f["coverage95_cv_raw"] for f in ks if f["coverage95_cv_raw"] is not None]
             covh = [f["coverage95_heldout"] for f in ks]
+            # the fold-fit leak hit random inner folds only (blocked inner folds come from the groups, the same each call)
+            stale = "" if kind != "random" or all("rules" in f and STACK in f["rules"] for f in ks) else (
+                " RUN BEFORE the fold fix (docs/arms.md point 5): its pipeline CV reused fold fits of other folds.")
             L += ["", f"{kind}{part_note}: {len(ks)} outer folds; kept stage: {n_kept}; geometric model chosen by inner CV: {', '.join(geo)}; "
                   f"95 % band of the kept stage on the outer held-out fold: coverage {np.mean(covh):.3f} "
                   f"(per fold {', '.join(f'{c:.3f}' for c in covh)})"
                   + (f"; the GP's uncalibrated band in its inner CV: {np.mean(cov_raw):.3f}" if cov_raw else "")
-                  + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s."
+                  + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s." + stale
                   + ("" if all("rules" in f for f in ks) else
                      " RUN BEFORE the leak fix (point 1): its pipeline CV kept the GP hyper-parameters chosen on all fit "
                      "poses and re-solved only the weights per inner fold.")
                   + ("" if all("cv_pipelines" in f for f in ks) else
                      " RUN BEFORE the pipeline CV (point 5 of docs/arms.md): its kept stage is volcomp's choice "
                      "without the plain pipelines as candidates.")]
-        L += rules_md(r) + variants_md(r)
+        L += kernels_md(r) + rules_md(r) + variants_md(r)
         L.append("")
     L += ["Rows: `geometric (DH)` volcomp's LM on the identifiable DH + base + tool slots; `geometric+compliance` adds "
           "a compliance slot per load-carrying joint (Δθ = c·τ(q), τ the gravity moment of unit masses at the "
@@ -481,7 +591,9 @@ def write_md(res, args):
           "learned stage where its CV inside the fit part beat the geometric stage, else the geometric stage; then that "
           "choice, the plain LSQ fit and the plain GP on its residual are cross-validated as whole pipelines on the same "
           "inner folds (geometric stage refitted per fold, the GP's standardisation and hyper-parameters re-estimated "
-          "on each inner fold's fit part: nothing of the inner held-out fold reaches them) and the lowest inner-CV mean "
+          "on each inner fold's fit part: nothing of the inner held-out fold reaches them; the folds are the slot-set "
+          "CV's own — before this session's fix a random-fold pipeline CV drew other folds and reused the slot-set "
+          "CV's fold fits, judging geometric fits on poses they had seen) and the lowest inner-CV mean "
           "error is returned (ties: volcomp's choice), so the kept stage never loses to a plain baseline in the inner "
           "validation. Every "
           "decision is nested: the outer held-out fold only reports.", ""]
@@ -543,7 +655,12 @@ def main(argv=None):
     ap.add_argument("--parts", default="wam,sim,ur5", help="what to run, in order: arm names and/or 'sim'")
     ap.add_argument("--sim-only", default="", help="';'-separated 'case, model' coverage runs (default all)")
     ap.add_argument("--kinds", default="random,blocked", help="which outer splits to run")
-    ap.add_argument("--variants", default="ur5", help="arms whose random folds also run the learned-stage variants")
+    ap.add_argument("--variants", default="", help="arms whose random folds also run the learned-stage variants "
+                    "(whole-pipeline inner CV per variant: costly on the UR5)")
+    ap.add_argument("--kernels", default="ur5,wam", help="arms whose random folds also judge every GP kernel the "
+                    "learner cross-validated on the outer fold")
+    ap.add_argument("--repeat-inner", default="wam", help="arms whose random folds also run the rule 'lowest, "
+                    "repeated inner CV' (REPEAT_INNER further inner splits)")
     ap.add_argument("--merge", action="store_true", help="keep the other parts' results from the existing json")
     ap.add_argument("--out", default=None, help="write <OUT>.json / <OUT>.md instead of benchmarks/arms_results.*")
     args = ap.parse_args(argv)
@@ -583,7 +700,9 @@ def main(argv=None):
                 if kind not in args.kinds.split(","):
                     continue
                 run_arm(part, folds, args.inner_folds, log, blocked=kind == "blocked", on_fold=on_fold,
-                        variants=part in args.variants.split(",") and kind == "random")
+                        variants=part in args.variants.split(",") and kind == "random",
+                        repeat_inner=REPEAT_INNER if part in args.repeat_inner.split(",") and kind == "random" else 0,
+                        kernels=part in args.kernels.split(",") and kind == "random")
         write_json(OUT_JSON, res)   # partial results as each part finishes
         write_md(res, args)
     print(f"wrote {OUT_MD}")

@@ -427,9 +427,14 @@ def fit_slots(chain, poses, free, model: str = "dh", max_iter: int = LM_MAX_ITER
 
 def cv_labels(n: int, k_folds: int = CV_FOLDS, seed=0, groups=None) -> np.ndarray:
     """Fold label per pose, (n,) ints 0..k-1: shuffled k-fold from ``seed``, or with ``groups`` (n,)
-    block labels whole blocks per fold (BLOCKED CV; at most ``k_folds`` folds)."""
+    block labels whole blocks per fold (BLOCKED CV; at most ``k_folds`` folds).
+
+    The same ``seed`` gives the same folds on every call, also when it is a ``SeedSequence`` object (spawning
+    from it advances its count of children: the labels are drawn from a copy, so a later CV on "the same
+    folds" — :func:`training.arm_residual.cv_pipelines` reusing this CV's fold fits — really is on them)."""
+    import copy
     from .seeds import spawn_rngs
-    rng = spawn_rngs(seed, 1)[0]
+    rng = spawn_rngs(copy.deepcopy(seed), 1)[0]
     if groups is None:
         return rng.permutation(n) % k_folds
     u, inv = np.unique(np.asarray(groups), return_inverse=True)
@@ -437,6 +442,11 @@ def cv_labels(n: int, k_folds: int = CV_FOLDS, seed=0, groups=None) -> np.ndarra
         raise ValueError("blocked CV needs at least 2 distinct groups")
     k_folds = min(k_folds, len(u))
     return (np.arange(len(u)) * k_folds // len(u))[inv]
+
+
+FOLD_LABELS = "labels"
+"""Key of the fold labels (n,) in a ``fold_fits`` dict of :func:`cv_models`: a CV reusing the fold fits checks
+that its folds are these (a fit on another fold's fit part would have seen the held-out poses)."""
 
 
 def cv_models(chain, poses, models=MODELS, k_folds: int = CV_FOLDS, seed=0, plain: bool = True,
@@ -456,6 +466,8 @@ def cv_models(chain, poses, models=MODELS, k_folds: int = CV_FOLDS, seed=0, plai
             errs[m][te] = np.linalg.norm(poses.xyz_mm[te] - r.predict(poses.q[te]), axis=1)
             if fold_fits is not None:
                 fold_fits[(f, m)] = r
+    if fold_fits is not None:
+        fold_fits[FOLD_LABELS] = lab
     return [{"model": m, "cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2)))}
             for m, e in errs.items()]
 

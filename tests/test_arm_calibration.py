@@ -154,6 +154,10 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     assert kept["rms_mm"] <= FLOOR_FACTOR * NOISE_FLOOR_MM
     assert st["geometric"]["rms_mm"] > kept["rms_mm"]
     assert kept["mean_mm"] < min(base["plain geometric LSQ"]["mean_mm"], base["plain GP on plain LSQ residual"]["mean_mm"])
+    # the learned stage's kernel is chosen by CV inside the fit poses: every GP kernel was cross-validated there
+    from training.arm_residual import KERNEL_FAMILIES
+    assert set(KERNEL_FAMILIES) <= set(doc["learned_summary"]["cv_table"])
+    assert doc["learned_summary"]["chosen"] in KERNEL_FAMILIES + ("none",)
     # never lose to the plain pipelines in the inner validation: the kept stage's pipeline CV is the lowest
     pcv = {r["pipeline"]: r["cv_mean_mm"] for r in doc["pipeline_cv"]}
     assert pcv[doc["kept_stage"]] <= min(pcv["plain geometric LSQ"], pcv["plain GP on plain LSQ residual"])

@@ -107,3 +107,104 @@ def test_pipeline_cv_hyper_parameters_see_no_held_out_fold(ur5):
     fit = [cv_pipelines(ur5, p, {"learned": ("dh", lr)}, 3, 7, fold_fits=ff, hyper="fit")["learned"]["errors_mm"]
            for lr in (a, b)]
     assert np.abs(fit[0] - fit[1]).max() > 1e3 * NO_LEAK_ATOL_MM
+
+
+# --- the folds of the pipeline CV are the geometric CV's (also for a SeedSequence seed) ------------------------
+# the plain LSQ pipeline of the pipeline CV and the geometric CV's "plain" row are the same fits on the same folds
+# handed over (fold_fits): identical operations, identical figures to round-off
+SAME_FOLDS_ATOL_MM = 1e-12
+
+
+def test_cv_labels_same_for_the_same_seed_sequence():
+    """calibrate_arm hands one SeedSequence to the geometric CV and then to the pipeline CV: spawning from it
+    advances it, and the second CV drew other folds while reusing the first CV's fold fits (fits that had seen
+    the poses they were then judged on). The labels are drawn from a copy: same folds every call."""
+    ss = np.random.SeedSequence(0).spawn(3)[0]
+    first = cv_labels(200, 3, ss)
+    assert np.array_equal(cv_labels(200, 3, ss), first)
+    assert np.array_equal(cv_labels(200, 3, np.random.SeedSequence(0).spawn(3)[0]), first)
+    assert not np.array_equal(cv_labels(200, 3, np.random.SeedSequence(0).spawn(3)[1]), first)
+
+
+def test_fold_fits_of_other_folds_are_refused(ur5):
+    t = draw_truth(ur5, 22)
+    p = measure(ur5, t, random_joints(UR5_LO, UR5_HI, 60, [22, 0]), NOISE_MM, [22, 1])
+    ff = {}
+    cv_pipelines(ur5, p, {"geometric": ("dh", None)}, 3, 1, fold_fits=ff)
+    with pytest.raises(ValueError, match="other folds"):
+        cv_pipelines(ur5, p, {"geometric": ("dh", None)}, 3, 2, fold_fits=ff)
+
+
+@pytest.mark.slow
+def test_calibrate_arm_pipeline_cv_is_on_the_geometric_cv_folds(ur5):
+    """Through calibrate_arm (seeds as SeedSequence children): the plain LSQ pipeline's pipeline-CV figure is the
+    geometric CV's plain figure, and volcomp's geometric pipeline (the learner declined or not) is judged on the
+    same folds as its slot set was chosen on."""
+    from compensation.app.workflows.arm_calibration import calibrate_arm
+    t = draw_truth(ur5, 23)
+    fit = measure(ur5, t, random_joints(UR5_LO, UR5_HI, 120, [23, 0]), NOISE_MM, [23, 1])
+    check = measure(ur5, t, random_joints(UR5_LO, UR5_HI, 30, [23, 2]), NOISE_MM, [23, 3])
+    core = calibrate_arm(ur5, fit, check, learned=True, k_folds=3)
+    geo_cv = {r["model"]: r["cv_mean_mm"] for r in core["cv_geometric"]}
+    pcv = core["pipeline_cv_errors"]
+    assert abs(pcv["plain geometric LSQ"]["cv_mean_mm"] - geo_cv["plain"]) <= SAME_FOLDS_ATOL_MM
+    vol = core["pipeline_volcomp"]
+    if vol != "learned":
+        model = core["volcomp_geometric_model"].model
+        assert abs(pcv[vol]["cv_mean_mm"] - geo_cv[model]) <= SAME_FOLDS_ATOL_MM
+
+
+# --- the learned stage's GP kernel, chosen by its own CV ---------------------------------------------------------
+# the same GP (family, data, single deterministic start) estimated twice: equal to the optimiser's round-off
+REFIT_SAME_ATOL_MM = 1e-9
+
+def test_kernel_chosen_by_cv_and_kept_in_json(ur5):
+    """families=KERNEL_FAMILIES: every kernel is cross-validated against zero; the kept one is the lowest CV RMS of
+    those that beat zero by the margin; the JSON keeps the families and predicts identically; a file from before
+    the kernel choice (no "families") reads as the squared exponential alone."""
+    import json
+    from training.arm_residual import KERNEL_FAMILIES
+    from training.residual import GP_KERNELS
+    t = draw_truth(ur5, 24, compliance_rad_per_mm=np.full(ur5.n_joints, SOFT_COMPLIANCE_RAD_PER_MM))
+    p = measure(ur5, t, random_joints(UR5_LO, UR5_HI, 90, [24, 0]), NOISE_MM, [24, 1])
+    res = p.xyz_mm - fit_model(ur5, p, "dh").predict(p.q)
+    lr = ArmResidualRegressor(ur5, k_folds=3, families=KERNEL_FAMILIES).fit(p.q, res)
+    tab = lr.cv_table_
+    assert set(KERNEL_FAMILIES) <= set(tab)
+    eligible = [f for f in KERNEL_FAMILIES if tab[f]["gain_mean"] > max(lr.margin_se * tab[f]["gain_se"], 0)]
+    assert eligible, "the soft arm's sag residual is far above the noise: some kernel must beat zero"
+    assert lr.chosen_ == min(eligible, key=lambda f: tab[f]["cv_rms"])
+    assert lr.regressor_.model_.kernel == GP_KERNELS[lr.chosen_]
+    d = json.loads(json.dumps(lr.to_dict()))
+    back = ArmResidualRegressor.from_dict(ur5, d)
+    qt = random_joints(UR5_LO, UR5_HI, 5, [24, 2])
+    assert back.families == KERNEL_FAMILIES and np.array_equal(back.predict(qt), lr.predict(qt))
+    # refit(family=): any cross-validated kernel re-estimated on given data (the benchmark's per-kernel outer figure);
+    # the chosen one reproduces the fitted learner (same data, same deterministic single start)
+    X = features(ur5, p.q, "physics")
+    same = lr.regressor_.refit(X, res, family=lr.chosen_)
+    assert np.allclose(same.predict(features(ur5, qt, "physics")), lr.predict(qt), rtol=0, atol=REFIT_SAME_ATOL_MM)
+    other = next(f for f in KERNEL_FAMILIES if f != lr.chosen_)
+    assert lr.regressor_.refit(X, res, family=other).model_.kernel == GP_KERNELS[other]
+    with pytest.raises(ValueError, match="cross-validated family"):
+        lr.regressor_.refit(X, res, family="zero")
+    old = ArmResidualRegressor(ur5, k_folds=3).fit(p.q, res).to_dict()
+    del old["families"]
+    assert ArmResidualRegressor.from_dict(ur5, old).families == ("gp",)
+    for bad in ((), ("ensemble",), ("gp", "gp")):
+        with pytest.raises(ValueError, match="families"):
+            ArmResidualRegressor(ur5, families=bad)
+
+
+def test_stack_weight_from_inner_predictions():
+    """The stacking rule's weight: errors of opposite sign cancel at w = 0.5; a perfect volcomp pipeline gets w = 1,
+    a perfect plain GP w = 0; equal predictions tie toward volcomp (w = 1)."""
+    from training.arm_residual import stack_weight
+    rng = np.random.default_rng(3)
+    y = rng.normal(0, 1, (50, 3))
+    e = rng.normal(0, 0.1, (50, 3))
+    assert stack_weight(y, y + e, y - e)[0] == 0.5
+    assert stack_weight(y, y, y + e)[0] == 1.0
+    assert stack_weight(y, y + e, y)[0] == 0.0
+    w, curve = stack_weight(y, y + e, y + e)
+    assert w == 1.0 and np.ptp(curve) <= 1e-12 * curve.min()   # equal up to round-off: STACK_TIE_REL

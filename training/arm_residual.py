@@ -29,10 +29,14 @@ import numpy as np
 
 from errormap.arm_simulate import gravity_moment_jacobian_mm, gravity_moment_mm
 
-from .residual import ResidualRegressor
+from .residual import GP_KERNELS, ResidualRegressor
 
 FORMAT = "volcomp-arm-residual/2"
 INPUTS = ("physics", "sincos", "physics+h2", "physics+wrist")
+KERNEL_FAMILIES = ("gp", "gp_matern52", "gp_matern32")
+"""The Gaussian-process families the command's learned stage cross-validates (squared exponential, Matérn 5/2,
+Matérn 3/2, :data:`training.residual.GP_KERNELS`): the one with the lowest CV error inside the fit poses that beats
+predicting zero is kept — the kernel is chosen by that CV, never by name or on held-out poses."""
 WRIST_JOINTS = 3
 """The last this many revolute joints are the wrist of ``"physics+wrist"``."""
 M_PER_MM = 1e-3
@@ -106,23 +110,29 @@ def feature_jacobian(chain, q, inputs: str = "physics") -> np.ndarray:
 class ArmResidualRegressor:
     """Learned residual of an arm (scikit-learn style): ``inputs`` (:data:`INPUTS`), ``k_folds`` (2–20)
     CV folds of :class:`ResidualRegressor`, ``n_restarts`` (1–10) marginal-likelihood starts,
-    ``margin_se`` (≥ 0) the paired standard errors by which the GP must beat zero, ``seed``.
+    ``margin_se`` (≥ 0) the paired standard errors by which the GP must beat zero, ``seed``,
+    ``families`` the GP families cross-validated (a non-empty subset of :data:`KERNEL_FAMILIES`; default the
+    squared exponential alone; the command passes all three: the kernel is then chosen by the CV).
 
-    After :meth:`fit`: ``regressor_`` (the fitted ResidualRegressor), ``chosen_`` (``"gp"`` or
-    ``"none"``), ``cv_table_`` (its CV table), ``coverage_`` (95 % band coverage of the GP's held-out
-    CV folds, before the band calibration; the calibrated band holds 95 % there by construction).
+    After :meth:`fit`: ``regressor_`` (the fitted ResidualRegressor), ``chosen_`` (the chosen family of
+    ``families`` or ``"none"``), ``cv_table_`` (its CV table), ``coverage_`` (95 % band coverage of the chosen
+    GP's held-out CV folds — of the first family where none is chosen —, before the band calibration; the
+    calibrated band holds 95 % there by construction).
     """
 
     def __init__(self, chain, inputs: str = "physics", k_folds: int = 5, n_restarts: int = 1, margin_se: float = 1.0,
-                 seed=0):
+                 seed=0, families=("gp",)):
         if inputs not in INPUTS:
             raise ValueError(f"inputs must be one of {INPUTS}, got {inputs!r}")
+        families = tuple(families)
+        if not families or any(f not in KERNEL_FAMILIES for f in families) or len(set(families)) != len(families):
+            raise ValueError(f"families must be distinct members of {KERNEL_FAMILIES}, got {families!r}")
         if not 2 <= int(k_folds) <= 20:
             raise ValueError(f"k_folds must be in [2, 20], got {k_folds}")
         if not 1 <= int(n_restarts) <= 10:
             raise ValueError(f"n_restarts must be in [1, 10], got {n_restarts}")
         self.chain, self.inputs, self.k_folds, self.n_restarts = chain, inputs, int(k_folds), int(n_restarts)
-        self.margin_se, self.seed = float(margin_se), seed
+        self.margin_se, self.seed, self.families = float(margin_se), seed, families
 
     def fit(self, q, residual_mm, groups=None) -> "ArmResidualRegressor":
         """``q`` (n, nq) joint values, ``residual_mm`` (n, 3) = measured − geometric model; ``groups``
@@ -131,7 +141,7 @@ class ArmResidualRegressor:
         Y = np.asarray(residual_mm, float)
         if len(q) != len(Y) or Y.shape[1:] != (3,):
             raise ValueError(f"expected q (n, nq) and residual (n, 3), got {q.shape} and {Y.shape}")
-        self.regressor_ = ResidualRegressor(("gp",), n_splits=self.k_folds, seed=self.seed, margin_se=self.margin_se,
+        self.regressor_ = ResidualRegressor(self.families, n_splits=self.k_folds, seed=self.seed, margin_se=self.margin_se,
                                             n_restarts=self.n_restarts).fit(features(self.chain, q, self.inputs), Y, groups)
         return self._fitted()
 
@@ -139,7 +149,8 @@ class ArmResidualRegressor:
         r = self.regressor_
         self.chosen_ = r.chosen_
         self.cv_table_ = r.cv_table_
-        self.coverage_ = r.cv_table_.get("gp", {}).get("coverage_95")
+        fam = r.chosen_ if r.chosen_ in GP_KERNELS else self.families[0]
+        self.coverage_ = r.cv_table_.get(fam, {}).get("coverage_95")
         return self
 
     def predict(self, q, return_std: bool = False):
@@ -155,13 +166,14 @@ class ArmResidualRegressor:
 
     def to_dict(self) -> dict:
         return {"format": FORMAT, "inputs": self.inputs, "k_folds": self.k_folds, "n_restarts": self.n_restarts,
-                "margin_se": self.margin_se, "regressor": self.regressor_.to_dict()}
+                "margin_se": self.margin_se, "families": list(self.families), "regressor": self.regressor_.to_dict()}
 
     @classmethod
     def from_dict(cls, chain, d: dict) -> "ArmResidualRegressor":
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             raise ValueError(f"expected an arm residual (format {FORMAT!r})")
-        self = cls(chain, d["inputs"], d["k_folds"], d["n_restarts"], d["margin_se"])
+        self = cls(chain, d["inputs"], d["k_folds"], d["n_restarts"], d["margin_se"],
+                   families=d.get("families", ("gp",)))   # files before the kernel choice: the squared exponential
         self.regressor_ = ResidualRegressor.from_dict(d["regressor"])
         return self._fitted()
 
@@ -190,9 +202,11 @@ def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None,
     pose, ``pred_mm`` (n, 3) the held-out prediction)."""
     if hyper not in HYPER:
         raise ValueError(f"hyper must be one of {HYPER}, got {hyper!r}")
-    from errormap.arm_calibration import cv_labels, fit_model, fit_plain_lsq
+    from errormap.arm_calibration import FOLD_LABELS, cv_labels, fit_model, fit_plain_lsq
     lab = cv_labels(len(poses), k_folds, seed, groups)
     fold_fits = {} if fold_fits is None else fold_fits
+    if not np.array_equal(fold_fits.setdefault(FOLD_LABELS, lab), lab):
+        raise ValueError("fold_fits were fitted on other folds: reusing them would leak the held-out poses")
     err = {k: np.empty(len(poses)) for k in pipelines}
     held = {k: np.empty((len(poses), 3)) for k in pipelines}
     for f in range(int(lab.max()) + 1):
@@ -211,3 +225,21 @@ def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None,
             held[name][ite] = pred
     return {k: {"cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2))), "errors_mm": e,
                 "pred_mm": held[k]} for k, e in err.items()}
+
+
+STACK_WEIGHTS = np.linspace(0.0, 1.0, 21)
+"""The stacking rule's grid of weights on volcomp's pipeline (step 0.05)."""
+STACK_TIE_REL = 1e-12
+"""Weights whose inner mean error is within this (relative) of the lowest tie (round-off of w·a + (1 − w)·a)."""
+
+
+def stack_weight(y_mm, p_vol_mm, p_pgp_mm):
+    """Stacking of two pipelines on their INNER out-of-fold predictions (:func:`cv_pipelines` ``pred_mm``): the
+    weight w ∈ :data:`STACK_WEIGHTS` that minimises the mean position error of w·p_vol + (1 − w)·p_pgp against the
+    measured ``y_mm`` (all (n, 3) mm; ties to the larger w, i.e. toward volcomp's pipeline). Returns (w, the inner
+    mean error (mm) per weight (21,)). Measured in ``benchmarks/bench_arms.py`` (rule ``stack``); the command does
+    not yet return a blended model."""
+    y, a, b = (np.asarray(v, float) for v in (y_mm, p_vol_mm, p_pgp_mm))
+    e = np.array([np.linalg.norm(y - (w * a + (1 - w) * b), axis=1).mean() for w in STACK_WEIGHTS])
+    i = int(np.flatnonzero(e <= e.min() * (1 + STACK_TIE_REL))[-1])
+    return float(STACK_WEIGHTS[i]), e

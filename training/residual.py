@@ -472,18 +472,24 @@ class ResidualRegressor:
                     (X - self.x_mean_) / self.x_scale_, Y / self.y_scale_)
         return out
 
-    def refit(self, X, Y, seed=None) -> "ResidualRegressor":
+    def refit(self, X, Y, seed=None, family=None) -> "ResidualRegressor":
         """A copy with the CHOSEN family re-estimated on (``X`` (m, d), ``Y`` (m, 3)): the
         standardisation and the hyper-parameters (maximum marginal likelihood, as in :meth:`fit`)
         from these data, no new selection — the validation chose the family and whether to keep
         it; this is the chosen model estimated on all the data. The band calibration
         (``band_scale_``) and ``cv_table_`` stay the cross-validation's (they are what was
-        validated). ``"none"`` stays none. ``seed``: the restarts' seed (default: this fit's)."""
+        validated). ``"none"`` stays none. ``seed``: the restarts' seed (default: this fit's).
+        ``family``: re-estimate this cross-validated family instead of the chosen one (default: the chosen one;
+        for comparing the candidates on other data; its CV band calibration is used)."""
         import copy
         X = self._check_fitted(X)
         X, Y, _ = check_residual_data(X, Y)
         out = copy.copy(self)
-        if self.model_ is None:
+        if family is not None:
+            if family not in self.cv_table_ or family == "zero":
+                raise ValueError(f"Expected a cross-validated family of {sorted(self.cv_table_)}, got {family!r}")
+            out.chosen_, out.band_scale_ = family, self.cv_table_[family]["band_scale"]
+        elif self.model_ is None:
             return out
         with limit_threads(1, ("blas",)):
             out.x_mean_ = X.mean(0)
@@ -492,7 +498,7 @@ class ResidualRegressor:
             out.y_scale_ = float(np.sqrt(np.mean(Y * Y))) or 1.0
             rng = spawn_rngs(self.seed if seed is None else seed, 4)[3]
             Xs, Ys = (X - out.x_mean_) / out.x_scale_, Y / out.y_scale_
-            out.model_ = self._new(self.chosen_, rng).fit(Xs, Ys)
+            out.model_ = self._new(out.chosen_, rng).fit(Xs, Ys)
         if isinstance(out.model_, _GP):   # the weights solved as from_dict solves them (same BLAS threads):
             out.model_ = _GP(1, None, out.model_.kernel).set_state(Xs, Ys, out.model_.theta_)   # shipped == reloaded
         out.noise_std_ = np.sqrt(out.model_.noise_var()) * out.y_scale_ * out.band_scale_

@@ -91,12 +91,17 @@ def choose_pipeline(pipeline_cv: dict, volcomp: str, rule: str = "lowest") -> st
 
 
 def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, groups=None,
-                  pipeline_rule: str = "lowest") -> dict:
+                  pipeline_rule: str = "lowest", learner_families=None) -> dict:
     """Every stage and baseline on ``fit``, judged on ``check``. Every decision (the geometric slot
-    set, plain LSQ instead, the learned stage kept) is made by k-fold CV INSIDE ``fit`` (blocked by
-    ``groups`` (n_fit,) labels where given: whole blocks per fold); ``check`` only reports. Returns the document's core: ``stages``, ``baselines``, ``kept_stage``, the models."""
+    set, plain LSQ instead, the learned stage kept and its GP kernel) is made by k-fold CV INSIDE ``fit``
+    (blocked by ``groups`` (n_fit,) labels where given: whole blocks per fold); ``check`` only reports.
+    ``learner_families``: the GP families the learned stage cross-validates (default
+    :data:`training.arm_residual.KERNEL_FAMILIES`). Returns the document's core: ``stages``, ``baselines``,
+    ``kept_stage``, the models."""
     from errormap.arm_calibration import MODELS, choose_model, cv_models, fit_model
-    from training.arm_residual import ArmResidualRegressor
+    from training.arm_residual import KERNEL_FAMILIES, ArmResidualRegressor
+    from training.residual import FAMILY_NAMES
+    learner_families = KERNEL_FAMILIES if learner_families is None else tuple(learner_families)
     say = (lambda m: print(f"calibrate: {m}", file=log or sys.stderr))
     s_geo, s_learn, s_plain = np.random.SeedSequence(seed).spawn(3)
     nominal = errors_mm(check, chain.tool_point(check.q))
@@ -147,18 +152,24 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         baselines.append(stage_row("plain GP on plain LSQ residual", e_pgp,
                                    "Gaussian process on joint sin/cos, fitted to the plain calibration's residual"))
         learner = ArmResidualRegressor(chain, inputs="physics", k_folds=k_folds, n_restarts=n_restarts,
-                                       seed=s_learn).fit(fit.q, fit.xyz_mm - geo_kept.predict(fit.q), groups)
+                                       seed=s_learn, families=learner_families).fit(
+            fit.q, fit.xyz_mm - geo_kept.predict(fit.q), groups)
         m, sd = learner.predict(check.q, return_std=True)
         r = r_geo - m
         e_l = np.linalg.norm(r, axis=1)
-        stages.append(stage_row("learned", e_l, f"{kept} + GP on joint sin/cos and gravity moments "
-                                                f"({learner.k_folds}-fold CV in the fit set: {learner.chosen_})"))
-        say(f"learned stage (CV choice: {learner.chosen_}): held-out mean {e_l.mean():.4f} mm; plain GP {e_pgp.mean():.4f} mm")
-        gp = learner.cv_table_.get("gp", {})
+        fam_cv = ", ".join(f"{f} {learner.cv_table_[f]['cv_rms']:.4f}" for f in learner_families)
+        stages.append(stage_row("learned", e_l, f"{kept} + GP on joint sin/cos and gravity moments; kernel by "
+                                                f"{learner.k_folds}-fold CV in the fit set (RMS mm: {fam_cv}; zero "
+                                                f"{learner.cv_table_['zero']['cv_rms']:.4f}): "
+                                                f"{FAMILY_NAMES.get(learner.chosen_, learner.chosen_)}"))
+        say(f"learned stage (CV choice: {learner.chosen_}; CV RMS {fam_cv}): held-out mean {e_l.mean():.4f} mm; "
+            f"plain GP {e_pgp.mean():.4f} mm")
+        gp = learner.cv_table_.get(learner.chosen_, {})
         if learner.chosen_ != "none":
             kept, kept_learner = "learned", learner
             coverage_check = float(np.mean(np.abs(r) <= Z95 * sd))
-            why += (f"; the learned stage beat it in {k_folds}-fold CV inside the fit poses (RMS "
+            why += (f"; the learned stage ({learner.chosen_}, the lowest CV error of {', '.join(learner_families)}) "
+                    f"beat it in {k_folds}-fold CV inside the fit poses (RMS "
                     f"{gp['cv_rms']:.4f} vs {learner.cv_table_['zero']['cv_rms']:.4f} mm, gain > "
                     f"{learner.margin_se:g} standard errors): kept")
         else:
