@@ -92,8 +92,13 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     od = td / f"comp_{label}"
     rc = main(["compensate", str(td / points), "--model", str(model), "--method", method, "--out", str(od),
                *CONDITIONS])
-    if rc != 0:
-        return None, {"refused_exit": rc}
+    if rc != 0:   # why: the guards' counts and the largest correction from compensate's summary
+        out = {"refused_exit": rc}
+        sp = od / "compensate_summary.json"
+        if sp.is_file():
+            f0 = json.loads(sp.read_text())["files"][0]
+            out.update({k: f0.get(k) for k in ("guard_violations", "max_correction_um", "points")})
+        return None, out
     t = read_table(od / points)
     comp = np.stack([t.float(k) for k in ("x_mm", "z_mm", "a_deg")], axis=1)
     summ = json.loads((od / "compensate_summary.json").read_text())["files"][0]
@@ -498,6 +503,18 @@ def write_results(rows, argv, previous=None):
             f"{_fmt(floor_hat.mean())} | {rng(hc)} | {rng(tt)} | {rng(tc)} | "
             f"{('%.2g' % max(mm)) if mm else '—'} | "
             f"{('%.3f, %d of %d points' % (max(g['model_max_um'] for g in ga), sum(g['failures'] for g in ga), N_GA * len(ga))) if ga else '—'} |")
+    refused = [r for r in rows if "refused_exit" in r.get("hybrid", {}) or "refused_exit" in r.get("parametric", {})]
+    if refused:
+        lines += ["", "Refused by the compensation guards (the user's `compensate` exits 3 and writes nothing; the row "
+                  "is not in the table above): family, seed, case — guard counts of the loop alone (parametric) and "
+                  "the largest correction its solver reached.", ""]
+        for r in sorted(refused, key=lambda r: (r["family"], r["seed"], r["effect"])):
+            p_ = r.get("parametric", {})
+            g = p_.get("guard_violations")
+            lines.append(f"- {r['family']}, seed {r['seed']}, {r['effect']}: "
+                         + (f"guards {', '.join(f'{k} {v}' for k, v in g.items() if v)} of {p_.get('points')} points, "
+                            f"max correction {p_.get('max_correction_um'):.1f} μm" if g else "refused (exit 3; guard counts "
+                            "not recorded by the code of that run)"))
     more = [r for r in rows if "@n" in r["effect"] and "@f" not in r["effect"] and "rms_um" in r.get("hybrid", {})]
     if more:
         lines += ["", "## More checks", "",

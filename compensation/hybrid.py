@@ -60,11 +60,13 @@ MIN_HELD_CHECKS = 10
 MAP_N = 11
 """Points per linear axis of the learned correction's map in diagnosis.json (11 × 11 over X–Z)."""
 
-LEARNED_FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32", "gp_sum")
+LEARNED_FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32")
 """The learned families the stage cross-validates on the same blocked folds (the Gaussian
-process with the squared-exponential, Matérn 5/2 and Matérn 3/2 kernels, with the sum of a long-
-and a short-length-scale squared exponential, and the deep ensemble of :mod:`training.residual`);
-the rule of :class:`~training.residual.ResidualRegressor` picks one (or none) and the stage names it."""
+process with the squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and the deep ensemble of
+:mod:`training.residual`); the rule of :class:`~training.residual.ResidualRegressor` picks one (or
+none) and the stage names it. ``gp_sum`` (a long- plus a short-length-scale squared exponential) is
+a candidate the stage can be given (``families``) but not in the default set: on the blocked folds
+it cross-validated no better than ``gp`` (benchmarks/hybrid_results.md, input and kernel variants)."""
 
 FEATURE_NAMES = ("x_mm", "z_mm", "cos_a", "sin_a")
 """The features of the ``axes`` input set (the default before the input sets were compared)."""
@@ -80,10 +82,12 @@ the same field of the part is the same function whatever A brought the tool ther
 that rotates with the work (a tilt of the A axis) is a low-order function of the point; on the
 axes it is a product of the radius and the angle's sine and cosine."""
 
-LEARNED_INPUTS = ("axes", "work", "axes+work")
-"""The input sets the learned stage cross-validates (each with every family of
-:data:`LEARNED_FAMILIES`, on the same blocked folds); the lowest CV RMS of the eligible
-(input set, family) pairs wins, the stage names both."""
+LEARNED_INPUTS = ("axes",)
+"""The input sets the learned stage cross-validates by default (each with every family of
+:data:`LEARNED_FAMILIES`, on the same blocked folds; the lowest CV RMS of the eligible
+(input set, family) pairs wins, the stage names both). The work-frame sets are candidates the
+stage can be given (``inputs``) but not in the default set: on the blocked folds they
+cross-validated no better than the axes (benchmarks/hybrid_results.md, input and kernel variants)."""
 
 
 def axis_features(axes):
