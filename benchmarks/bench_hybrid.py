@@ -1,7 +1,7 @@
 """Benchmark of the closed loop's learned-residual stage (the hybrid field, issue 28).
 
 Per seed and case (``none`` and the out-of-catalogue effects ``bump``, ``a_tilt``,
-``squareness``, ``squareness_xz`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
+``squareness``, ``squareness_xz``, ``a_lobe_x`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
 the user's CLI path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) →
 ``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on, its families GP and
 deep ensemble; the kept stage re-estimated on all checks after the choice) →
@@ -24,7 +24,12 @@ residual max on the hybrid as ``compensate`` reports it, and for seeds below ``G
 sweep; rows ``EFFECT@xS``); ``--checks N`` simulates N checks instead of 800 (rows ``EFFECT@nN``);
 ``--learned-families F1,F2`` lets the learned stage cross-validate only those families (the
 kernel comparison; rows ``EFFECT@fF1+F2``), reported beside the default set with the validation
-figures (blocked-CV RMS, held-out MEASURED RMS) and the TRUE RMS side by side. Per row also the
+figures (blocked-CV RMS, held-out MEASURED RMS) and the TRUE RMS side by side; ``--learned-inputs
+I1,I2`` the same for the learned part's input sets (:data:`compensation.hybrid.INPUT_SETS`; rows
+``EFFECT@iI1+I2``). Rows the compensation guards refuse carry the guard counts (the seed is then
+reported as refused, with why). ``--record-benchmark DIR --wall-s S`` saves the conclusion of a
+finished ``volcomp benchmark --out DIR`` run into ``hybrid_volcomp_benchmark.json`` (a section of
+the results). Per row also the
 effect's own RMS over the volume (truth with it minus truth without it), so the share of the
 effect the loop's catalogue absorbs is reported.
 
@@ -284,6 +289,33 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
                 "effects": [f"{e['kind']} {e['axis']}" for e in s["effects"]],
                 "cpu_s": time.process_time() - t_cpu, "code_round": CODE_ROUND})
     return row
+
+
+VOLCOMP_BENCHMARK_JSON = HERE / "hybrid_volcomp_benchmark.json"
+"""One run of ``volcomp benchmark`` with its default settings, as recorded by ``--record-benchmark DIR``:
+the command, its wall time, the machine's load and the conclusion lines the command's report
+computed from its rows (:func:`compensation.app.reports.benchmark.conclusion_lines`)."""
+
+
+def _volcomp_benchmark() -> list:
+    if not VOLCOMP_BENCHMARK_JSON.is_file():
+        return []
+    d = json.loads(VOLCOMP_BENCHMARK_JSON.read_text())
+    return (["", "## `volcomp benchmark` with its default settings", "",
+             f"Command: `{d['command']}`; {d['wall_s']:.0f} s wall ({d.get('note', '')}). Its summary and "
+             f"out-of-catalogue conclusion, generated from its rows by the command's report (`summary_lines`, "
+             f"`conclusion_lines`), verbatim:", ""]
+            + [f"- {line}" for line in d.get("summary", []) + d["conclusion"]])
+
+
+def record_benchmark(out_dir, command: str, wall_s: float, note: str) -> None:
+    """Save the conclusion lines of a finished ``volcomp benchmark --out OUT_DIR`` run (its
+    ``benchmark.json``) with the command and its wall time into :data:`VOLCOMP_BENCHMARK_JSON`."""
+    from compensation.app.reports.benchmark import conclusion_lines, summary_lines
+    from errormap.io import write_json
+    doc = json.loads((Path(out_dir) / "benchmark.json").read_text())
+    write_json(VOLCOMP_BENCHMARK_JSON, {"command": command, "wall_s": float(wall_s), "note": note,
+                                        "summary": summary_lines(doc), "conclusion": conclusion_lines(doc)})
 
 
 def _load_rows():
@@ -578,6 +610,7 @@ def write_results(rows, argv, previous=None):
             lines.append(f"| {eff} | ×{sc:g} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | {p.mean():.2f} | "
                          f"{h.mean():.2f} | {np.mean(p / h):.2f} | {np.mean(h / n0):.2f} | {np.mean(p / n0):.2f} |")
     lines += ["", "## The round-5 out-of-catalogue effect: design (written before any result on it)", "", A_LOBE_X_DESIGN]
+    lines += _volcomp_benchmark()
     lines += _own_error(rows)
     lines += _variants(rows)
     lines += _before_after(rows, previous)
@@ -603,9 +636,20 @@ def main(argv=None):
     ap.add_argument("--learned-inputs", default=None,
                     help="input comparison: the learned stage cross-validates only these input sets (comma list of "
                          "axes, work, axes+work; rows EFFECT@iINPUTS); default: the closed loop's own set")
+    ap.add_argument("--record-benchmark", default=None, metavar="DIR",
+                    help="save the summary/conclusion of a finished `volcomp benchmark --out DIR` run (with --wall-s, "
+                         "--command, --note) and rebuild the Markdown")
+    ap.add_argument("--wall-s", type=float, default=None)
+    ap.add_argument("--command", default="volcomp benchmark --no-track --out DIR")
+    ap.add_argument("--note", default="")
     ap.add_argument("--report-only", action="store_true", help="rebuild the Markdown from hybrid_results.json")
     args = ap.parse_args(argv)
     argv = sys.argv[1:] if argv is None else argv
+    if args.record_benchmark is not None:
+        record_benchmark(args.record_benchmark, args.command, args.wall_s if args.wall_s is not None else float("nan"),
+                         args.note)
+        write_results(_load_rows(), argv)
+        return
     if args.report_only:
         write_results(_load_rows(), argv)
         return
