@@ -1,7 +1,7 @@
 """Benchmark of the closed loop's learned-residual stage (the hybrid field, issue 28).
 
 Per seed and case (``none`` and the out-of-catalogue effects ``bump``, ``a_tilt``,
-``squareness``, ``squareness_xz`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
+``squareness``, ``squareness_xz``, ``a_lobe_x`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
 the user's CLI path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) →
 ``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on, its families GP and
 deep ensemble; the kept stage re-estimated on all checks after the choice) →
@@ -24,7 +24,12 @@ residual max on the hybrid as ``compensate`` reports it, and for seeds below ``G
 sweep; rows ``EFFECT@xS``); ``--checks N`` simulates N checks instead of 800 (rows ``EFFECT@nN``);
 ``--learned-families F1,F2`` lets the learned stage cross-validate only those families (the
 kernel comparison; rows ``EFFECT@fF1+F2``), reported beside the default set with the validation
-figures (blocked-CV RMS, held-out MEASURED RMS) and the TRUE RMS side by side. Per row also the
+figures (blocked-CV RMS, held-out MEASURED RMS) and the TRUE RMS side by side; ``--learned-inputs
+I1,I2`` the same for the learned part's input sets (:data:`compensation.hybrid.INPUT_SETS`; rows
+``EFFECT@iI1+I2``). Rows the compensation guards refuse carry the guard counts (the seed is then
+reported as refused, with why). ``--record-benchmark DIR --wall-s S`` saves the conclusion of a
+finished ``volcomp benchmark --out DIR`` run into ``hybrid_volcomp_benchmark.json`` (a section of
+the results). Per row also the
 effect's own RMS over the volume (truth with it minus truth without it), so the share of the
 effect the loop's catalogue absorbs is reported.
 
@@ -52,7 +57,23 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 RESULTS_JSON = HERE / "hybrid_results.json"
 RESULTS_MD = HERE / "hybrid_results.md"
-CASES = ("none", "bump", "a_tilt", "squareness", "squareness_xz")
+CASES = ("none", "bump", "a_tilt", "squareness", "squareness_xz", "a_lobe_x")
+
+A_LOBE_X_DESIGN = (
+    "`a_lobe_x` was designed in round 5 and this text written before any result on it. What it is: the A "
+    "axis's two-lobe (oval) radial error motion, local in X and changing sign across the region, "
+    "`dy_a += A·u·exp(½ − ½u²)·cos(2a + φ)`, `u = ((x − x_lo)/Δx − 0.5)/0.15`, A = 6 μm at its peak, φ = 0.4 rad "
+    "(the independent family draws A 4.5–7.5 μm with a random sign, the centre 35–65 % of X, the width 12–18 %, φ "
+    "uniform). Why the catalogue cannot represent it: the loop's model is the 23 elements, each a profile of ONE "
+    "axis (X, Z or A) or a constant, plus the effect kinds (thermal, drift, reversal: conditions; periodic: a "
+    "sinusoid of one axis's position; harmonic: a sinusoid of A alone; interaction: X's positioning bilinear in "
+    "X·Z). A sum of one-axis profiles f(x) + g(a) takes up only the effect's means over A and over X: its mean "
+    "over A is exactly zero (cos 2a over a turn) and its mean over X nearly zero (u·exp(−u²/2) is odd about the "
+    "centre and the stroke holds ±3.3 widths), so to first order no element profile, no harmonic of A and no "
+    "periodic term absorbs it, and the only pair kind (interaction) is X·Z on X's positioning, not X with A. So, "
+    "unlike `squareness`/`squareness_xz` (80–87 % absorbed by the loop), '≥ 2× better than the loop' is "
+    "meaningful for it. Its parameters were fixed before any run and are not tuned after.")
+"""The design of the round-5 out-of-catalogue effect, written into the results file (issue 28, step 2)."""
 N_VOLUME = 2000
 N_CHECKS = 800
 """Check measurements per machine (``--checks`` changes it: rows then carry ``@nN``)."""
@@ -76,15 +97,20 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     od = td / f"comp_{label}"
     rc = main(["compensate", str(td / points), "--model", str(model), "--method", method, "--out", str(od),
                *CONDITIONS])
-    if rc != 0:
-        return None, {"refused_exit": rc}
+    if rc != 0:   # why: the guards' counts and the largest correction from compensate's summary
+        out = {"refused_exit": rc}
+        sp = od / "compensate_summary.json"
+        if sp.is_file():
+            f0 = json.loads(sp.read_text())["files"][0]
+            out.update({k: f0.get(k) for k in ("guard_violations", "max_correction_um", "points")})
+        return None, out
     t = read_table(od / points)
     comp = np.stack([t.float(k) for k in ("x_mm", "z_mm", "a_deg")], axis=1)
     summ = json.loads((od / "compensate_summary.json").read_text())["files"][0]
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
-CODE_ROUND = 4
+CODE_ROUND = 5
 """Rows measured by this code carry ``code_round`` 4; rows without it were measured by the previous
 round's code (learned families GP squared-exponential and ensemble) and are labelled so."""
 
@@ -94,7 +120,8 @@ and convergence; the GA is the slow solver, so a subset, and only for seeds belo
 :data:`GA_SEEDS`)."""
 GA_SEEDS = 1
 
-AMPLITUDE_KEY = {"bump": "amplitude_um", "a_tilt": "k_urad", "squareness": "k_urad", "squareness_xz": "k_urad"}
+AMPLITUDE_KEY = {"bump": "amplitude_um", "a_tilt": "k_urad", "squareness": "k_urad", "squareness_xz": "k_urad",
+                 "a_lobe_x": "amplitude_um"}
 """The parameter of each out-of-catalogue effect that ``--scale`` multiplies (magnitude sweep)."""
 
 
@@ -138,12 +165,35 @@ class _learned_families:
         hybrid.LEARNED_FAMILIES = self.old
 
 
+class _learned_inputs:
+    """Within the block, the closed loop's learned stage cross-validates only the input sets
+    ``inputs`` (:data:`compensation.hybrid.INPUT_SETS`; a variant row of the input comparison;
+    None: the default, unchanged)."""
+
+    def __init__(self, inputs):
+        self.inputs = inputs
+
+    def __enter__(self):
+        from compensation import hybrid
+        self.old = hybrid.LEARNED_INPUTS
+        if self.inputs is not None:
+            hybrid.LEARNED_INPUTS = tuple(self.inputs)
+        return self
+
+    def __exit__(self, *exc):
+        from compensation import hybrid
+        hybrid.LEARNED_INPUTS = self.old
+
+
 def run_case(family: str, seed: int, effect: str, scale: float = 1.0, checks: int = N_CHECKS,
-             families=None) -> dict:
+             families=None, inputs=None) -> dict:
     if scale != 1.0 and (family != "default" or effect not in AMPLITUDE_KEY):
         raise ValueError("--scale applies to the default family's out-of-catalogue effects only")
-    with _scaled_effect(effect, scale), _learned_families(families):
+    with _scaled_effect(effect, scale), _learned_families(families), _learned_inputs(inputs):
         row = _run_case(family, seed, effect, checks)
+    if inputs is not None:
+        row["learned_inputs"] = list(inputs)
+        row["effect"] = f"{row['effect']}@i{'+'.join(inputs)}"
     if families is not None:
         row["learned_families"] = list(families)
         row["effect"] = f"{row['effect']}@f{'+'.join(families)}"
@@ -227,6 +277,9 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
     sigma = s["update"]["check_noise_sigma_um"]
     row.update({"kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
                 "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
+                "learned_input_set": lr.get("input_set", "axes"),
+                "learned_inputs_cv": {k: {"family": v["family"], "cv_rms": v["cv_rms"]}
+                                      for k, v in (lr.get("inputs_table") or {}).items()},
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
                 "learned_z": lr.get("held_out_gain_z"),
                 "learned_cv_rms_um": {k: v.get("cv_rms") for k, v in (lr.get("cv_table") or {}).items()}, "held_band95_cover": lr.get("held_out_band95_cover"),
@@ -236,6 +289,33 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
                 "effects": [f"{e['kind']} {e['axis']}" for e in s["effects"]],
                 "cpu_s": time.process_time() - t_cpu, "code_round": CODE_ROUND})
     return row
+
+
+VOLCOMP_BENCHMARK_JSON = HERE / "hybrid_volcomp_benchmark.json"
+"""One run of ``volcomp benchmark`` with its default settings, as recorded by ``--record-benchmark DIR``:
+the command, its wall time, the machine's load and the conclusion lines the command's report
+computed from its rows (:func:`compensation.app.reports.benchmark.conclusion_lines`)."""
+
+
+def _volcomp_benchmark() -> list:
+    if not VOLCOMP_BENCHMARK_JSON.is_file():
+        return []
+    d = json.loads(VOLCOMP_BENCHMARK_JSON.read_text())
+    return (["", "## `volcomp benchmark` with its default settings", "",
+             f"Command: `{d['command']}`; {d['wall_s']:.0f} s wall ({d.get('note', '')}). Its summary and "
+             f"out-of-catalogue conclusion, generated from its rows by the command's report (`summary_lines`, "
+             f"`conclusion_lines`), verbatim:", ""]
+            + [f"- {line}" for line in d.get("summary", []) + d["conclusion"]])
+
+
+def record_benchmark(out_dir, command: str, wall_s: float, note: str) -> None:
+    """Save the conclusion lines of a finished ``volcomp benchmark --out OUT_DIR`` run (its
+    ``benchmark.json``) with the command and its wall time into :data:`VOLCOMP_BENCHMARK_JSON`."""
+    from compensation.app.reports.benchmark import conclusion_lines, summary_lines
+    from errormap.io import write_json
+    doc = json.loads((Path(out_dir) / "benchmark.json").read_text())
+    write_json(VOLCOMP_BENCHMARK_JSON, {"command": command, "wall_s": float(wall_s), "note": note,
+                                        "summary": summary_lines(doc), "conclusion": conclusion_lines(doc)})
 
 
 def _load_rows():
@@ -358,35 +438,50 @@ def _variants(rows) -> list:
                 cells.append(f"{np.mean(v):.3f}" if v else "—")
             kept = [r for r in rs if r.get("learned_kept")]
             out.append(f"| {fam} | {eff} | {len(rs)} | " + " | ".join(cells) + f" | {len(kept)}/{len(rs)}{_families(kept)} |")
-    var = [r for r in ok if "@f" in r["effect"]]
+    var = [r for r in ok if ("@f" in r["effect"] or "@i" in r["effect"]) and "@n" not in r["effect"]
+           and "@x" not in r["effect"]]
     if not var:
         return out
-    by = {(r["family"], r["seed"], r["effect"]): r for r in ok}
+    dflt_by = {(r["family"], r["seed"], r["effect"]): r for r in ok if "@" not in r["effect"]}
     grp = {}
     for r in var:
-        base, _, fams_ = r["effect"].partition("@f")
-        grp.setdefault((r["family"], base), {}).setdefault(fams_, {})[r["seed"]] = r
-    out += ["", "Variants: the learned stage cross-validating only the named families (`--learned-families`; "
-            "'gp+ensemble' is the previous round's set), beside the default set (all families, the CV picks per "
-            "machine: what ships), on the seeds every variant of the case has; the same measurements. Held-out "
-            "MEASURED RMS = validation; TRUE RMS = the compensated volume against the hidden truth (used by no "
-            "choice).", "",
-            "| family | case | learned families | seeds | kept | chosen | held-out MEASURED RMS (μm) | TRUE RMS hybrid (μm) |",
-            "|---|---|---|---|---|---|---|---|"]
-    for (fam, base), vs in sorted(grp.items()):
-        vs["default set"] = {r["seed"]: r for r in ok if r["family"] == fam and r["effect"] == base}
-        common = sorted(set.intersection(*(set(v) for v in vs.values())))
-        if not common:
+        base, _, name = r["effect"].partition("@")
+        grp.setdefault((r["family"], base, name), []).append(r)
+    out += ["", "Variants: the learned stage cross-validating only the named input sets (`--learned-inputs`: `axes` = "
+            "(x, z, cos a, sin a); `work` = the nominal tool point in the work frame (x, ρ sin a, ρ cos a), ρ = ρ0 + z; "
+            "`axes+work` = both) and families (`--learned-families`; `gp_sum` = a long- plus a short-length-scale ARD "
+            "squared exponential; 'gp+ensemble' is the round-3 set), each beside the default set (what ships: axes, "
+            "the four families gp, gp_matern52, gp_matern32, ensemble; the CV picks per machine) on the SAME seeds and "
+            "measurements. Validation = what the loop sees: the blocked-CV RMS of the chosen fit (μm; fitting checks, "
+            "10 seq blocks; of the static variant when it replaced condition terms; 'zero' when declined) and the "
+            "held-out MEASURED RMS; TRUE RMS = the compensated volume against the hidden truth (used by no choice).", "",
+            "| family | case | variant | seeds | kept | chosen | CV RMS variant | CV RMS default | held-out MEASURED "
+            "variant (μm) | … default | TRUE RMS variant (μm) | … default |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+
+    def _cv(r):
+        t = r.get("learned_cv_rms_um") or {}
+        return t.get(r.get("learned_family")) if r.get("learned_family") not in (None, "none") else t.get("zero")
+
+    for (fam, base, name), rs in sorted(grp.items()):
+        pairs = [(r, dflt_by.get((fam, r["seed"], base))) for r in sorted(rs, key=lambda r: r["seed"])]
+        pairs = [(r, d) for r, d in pairs if d is not None]
+        if not pairs:
             continue
-        for name, v in sorted(vs.items()):
-            rs = [v[s_] for s_ in common]
-            kept = [r for r in rs if r.get("learned_kept")]
-            out.append(f"| {fam} | {base} | {name} | {len(rs)} | {len(kept)}/{len(rs)} | {_families(kept).strip(' ()') or '—'} | "
-                       f"{np.mean([r['held_final_um'] for r in rs]):.3f} | {np.mean([r['hybrid']['rms_um'] for r in rs]):.3f} |")
+        kept = [r for r, _ in pairs if r.get("learned_kept")]
+        cv_v = [_cv(r) for r, _ in pairs]
+        cv_d = [_cv(d) for _, d in pairs]
+        cvs = (f"{np.mean(cv_v):.3f}" if None not in cv_v else "—", f"{np.mean(cv_d):.3f}" if None not in cv_d else "—")
+        label = name.replace("@", ", ").replace("i", "inputs ", 1) if name.startswith("i") else name.replace("f", "families ", 1)
+        label = label.replace(", f", ", families ")
+        out.append(f"| {fam} | {base} | {label} | {len(pairs)} | {len(kept)}/{len(pairs)} | "
+                   f"{_families(kept).strip(' ()') or '—'} | {cvs[0]} | {cvs[1]} | "
+                   f"{np.mean([r['held_final_um'] for r, _ in pairs]):.3f} | {np.mean([d['held_final_um'] for _, d in pairs]):.3f} | "
+                   f"{np.mean([r['hybrid']['rms_um'] for r, _ in pairs]):.3f} | {np.mean([d['hybrid']['rms_um'] for _, d in pairs]):.3f} |")
     return out
 
 
-FAMILY_ORDER = ("gp", "gp_matern52", "gp_matern32", "ensemble")
+FAMILY_ORDER = ("gp", "gp_matern52", "gp_matern32", "ensemble", "gp_sum")
 
 
 def _families(kept) -> str:
@@ -413,12 +508,13 @@ def write_results(rows, argv, previous=None):
     lines = ["# Hybrid field: the learned residual stage of the closed loop (issue 28)", "",
              "User's CLI path per seed: sweeps (2 μm) → simulate (800 checks, 1 μm) → identify → diagnose "
              "(learned stage on: GP with squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and deep ensemble "
-             "cross-validated on the same blocked folds; stages chosen on the "
+             "on the axes (x, z, cos a, sin a), cross-validated on the same blocked folds; stages chosen on the "
              "60/40 split, the kept stage then re-estimated on all checks) → compensate 2,000 random volume points (exact, reference conditions); "
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
              "residual (the loop alone). Generated by `python benchmarks/bench_hybrid.py --seeds 10 --jobs 1 "
-             "[--family independent] [--cases …] [--scale S] [--checks N] [--learned-families F]` (rows merged from `hybrid_results.json`; this table rebuilt by "
+             "[--family independent] [--seed-start S0] [--cases …] [--scale S] [--checks N] [--learned-families F] "
+             "[--learned-inputs I]` (rows merged from `hybrid_results.json`; this table rebuilt by "
              "`" + " ".join(["bench_hybrid.py", *argv]) + "`).",
              "", f"Machine: {platform.machine()}, Python {platform.python_version()}.", "",
              "| family | case | seeds | learned kept (family) | condition terms replaced | TRUE RMS hybrid (μm) | "
@@ -455,6 +551,18 @@ def write_results(rows, argv, previous=None):
             f"{_fmt(floor_hat.mean())} | {rng(hc)} | {rng(tt)} | {rng(tc)} | "
             f"{('%.2g' % max(mm)) if mm else '—'} | "
             f"{('%.3f, %d of %d points' % (max(g['model_max_um'] for g in ga), sum(g['failures'] for g in ga), N_GA * len(ga))) if ga else '—'} |")
+    refused = [r for r in rows if "refused_exit" in r.get("hybrid", {}) or "refused_exit" in r.get("parametric", {})]
+    if refused:
+        lines += ["", "Refused by the compensation guards (the user's `compensate` exits 3 and writes nothing; the row "
+                  "is not in the table above): family, seed, case — guard counts of the loop alone (parametric) and "
+                  "the largest correction its solver reached.", ""]
+        for r in sorted(refused, key=lambda r: (r["family"], r["seed"], r["effect"])):
+            p_ = r.get("parametric", {})
+            g = p_.get("guard_violations")
+            lines.append(f"- {r['family']}, seed {r['seed']}, {r['effect']}: "
+                         + (f"guards {', '.join(f'{k} {v}' for k, v in g.items() if v)} of {p_.get('points')} points, "
+                            f"max correction {p_.get('max_correction_um'):.1f} μm" if g else "refused (exit 3; guard counts "
+                            "not recorded by the code of that run)"))
     more = [r for r in rows if "@n" in r["effect"] and "@f" not in r["effect"] and "rms_um" in r.get("hybrid", {})]
     if more:
         lines += ["", "## More checks", "",
@@ -501,6 +609,8 @@ def write_results(rows, argv, previous=None):
             n0 = np.array([none[("default", r["seed"])]["hybrid"]["rms_um"] for r in rs])
             lines.append(f"| {eff} | ×{sc:g} | {len(rs)} | {sum(r['learned_kept'] for r in rs)}/{len(rs)} | {p.mean():.2f} | "
                          f"{h.mean():.2f} | {np.mean(p / h):.2f} | {np.mean(h / n0):.2f} | {np.mean(p / n0):.2f} |")
+    lines += ["", "## The round-5 out-of-catalogue effect: design (written before any result on it)", "", A_LOBE_X_DESIGN]
+    lines += _volcomp_benchmark()
     lines += _own_error(rows)
     lines += _variants(rows)
     lines += _before_after(rows, previous)
@@ -523,14 +633,29 @@ def main(argv=None):
     ap.add_argument("--learned-families", default=None,
                     help="kernel/family comparison: the learned stage cross-validates only these (comma list; rows "
                          "EFFECT@fFAMS); default: the closed loop's own set")
+    ap.add_argument("--learned-inputs", default=None,
+                    help="input comparison: the learned stage cross-validates only these input sets (comma list of "
+                         "axes, work, axes+work; rows EFFECT@iINPUTS); default: the closed loop's own set")
+    ap.add_argument("--record-benchmark", default=None, metavar="DIR",
+                    help="save the summary/conclusion of a finished `volcomp benchmark --out DIR` run (with --wall-s, "
+                         "--command, --note) and rebuild the Markdown")
+    ap.add_argument("--wall-s", type=float, default=None)
+    ap.add_argument("--command", default="volcomp benchmark --no-track --out DIR")
+    ap.add_argument("--note", default="")
     ap.add_argument("--report-only", action="store_true", help="rebuild the Markdown from hybrid_results.json")
     args = ap.parse_args(argv)
     argv = sys.argv[1:] if argv is None else argv
+    if args.record_benchmark is not None:
+        record_benchmark(args.record_benchmark, args.command, args.wall_s if args.wall_s is not None else float("nan"),
+                         args.note)
+        write_results(_load_rows(), argv)
+        return
     if args.report_only:
         write_results(_load_rows(), argv)
         return
     fams = None if args.learned_families is None else tuple(args.learned_families.split(","))
-    todo = [(args.family, s, c, args.scale, args.checks, fams) for s in range(args.seed_start, args.seed_start + args.seeds)
+    inps = None if args.learned_inputs is None else tuple(args.learned_inputs.split(","))
+    todo = [(args.family, s, c, args.scale, args.checks, fams, inps) for s in range(args.seed_start, args.seed_start + args.seeds)
             for c in args.cases.split(",") if args.scale == 1.0 or c != "none"]
     rows = {(r["family"], r["seed"], r["effect"]): r for r in _load_rows()}
     if args.jobs > 1:

@@ -60,13 +60,34 @@ MIN_HELD_CHECKS = 10
 MAP_N = 11
 """Points per linear axis of the learned correction's map in diagnosis.json (11 × 11 over X–Z)."""
 
-FEATURE_NAMES = ("x_mm", "z_mm", "cos_a", "sin_a")
-
 LEARNED_FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32")
 """The learned families the stage cross-validates on the same blocked folds (the Gaussian
 process with the squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and the deep ensemble of
-:mod:`training.residual`); the rule of :class:`~training.residual.ResidualRegressor` picks one
-(or none) and the stage names it."""
+:mod:`training.residual`); the rule of :class:`~training.residual.ResidualRegressor` picks one (or
+none) and the stage names it. ``gp_sum`` (a long- plus a short-length-scale squared exponential) is
+a candidate the stage can be given (``families``) but not in the default set: on the blocked folds
+it cross-validated no better than ``gp`` (benchmarks/hybrid_results.md, input and kernel variants)."""
+
+FEATURE_NAMES = ("x_mm", "z_mm", "cos_a", "sin_a")
+"""The features of the ``axes`` input set (the default before the input sets were compared)."""
+
+INPUT_SETS = {"axes": FEATURE_NAMES,
+              "work": ("x_mm", "wy_mm", "wz_mm"),
+              "axes+work": FEATURE_NAMES + ("wy_mm", "wz_mm")}
+"""What the learned part can take as inputs (:func:`input_features`): ``axes`` — the axes with A
+on the circle; ``work`` — the nominal tool point in the work frame, ``x`` and the point's
+``(wy, wz) = ρ·(sin a, cos a)`` with ``ρ = ρ0 + z`` its radius about the A axis (the work frame's
+x is an affine map of the X axis, so X itself is used); ``axes+work`` — both. In the work frame
+the same field of the part is the same function whatever A brought the tool there, and an error
+that rotates with the work (a tilt of the A axis) is a low-order function of the point; on the
+axes it is a product of the radius and the angle's sine and cosine."""
+
+LEARNED_INPUTS = ("axes",)
+"""The input sets the learned stage cross-validates by default (each with every family of
+:data:`LEARNED_FAMILIES`, on the same blocked folds; the lowest CV RMS of the eligible
+(input set, family) pairs wins, the stage names both). The work-frame sets are candidates the
+stage can be given (``inputs``) but not in the default set: on the blocked folds they
+cross-validated no better than the axes (benchmarks/hybrid_results.md, input and kernel variants)."""
 
 
 def axis_features(axes):
@@ -82,6 +103,40 @@ def axis_features(axes):
     return f, J
 
 
+def work_features(axes, rho0_mm: float):
+    """axes (n, 3) → the nominal tool point in the work frame as (x_mm, wy_mm, wz_mm) (n, 3) and its
+    derivative in the axes (n, 3, 3): ``wy = ρ sin a``, ``wz = ρ cos a``, ``ρ = rho0_mm + z``
+    (the machine's radius of the tool point about the A axis at z = 0)."""
+    axes = np.asarray(axes, dtype=float)
+    a = np.deg2rad(axes[:, 2])
+    rho = float(rho0_mm) + axes[:, 1]
+    s, c = np.sin(a), np.cos(a)
+    f = np.stack([axes[:, 0], rho * s, rho * c], axis=1)
+    J = np.zeros((axes.shape[0], 3, 3))
+    J[:, 0, 0] = 1.0
+    J[:, 1, 1] = s
+    J[:, 2, 1] = c
+    J[:, 1, 2] = rho * c * np.pi / 180.0
+    J[:, 2, 2] = -rho * s * np.pi / 180.0
+    return f, J
+
+
+def input_features(axes, inputs: str = "axes", rho0_mm: float | None = None):
+    """axes (n, 3) → the features of input set ``inputs`` (:data:`INPUT_SETS`) (n, d) and
+    d(features)/d(axes) (n, d, 3); ``rho0_mm`` needed for the work-frame sets."""
+    if inputs not in INPUT_SETS:
+        raise ValueError(f"Expected inputs one of {sorted(INPUT_SETS)}, got {inputs!r}")
+    if inputs == "axes":
+        return axis_features(axes)
+    if rho0_mm is None or not np.isfinite(rho0_mm):
+        raise ValueError(f"the input set {inputs!r} needs the machine's rho0_mm")
+    fw, Jw = work_features(axes, rho0_mm)
+    if inputs == "work":
+        return fw, Jw
+    fa, Ja = axis_features(axes)
+    return np.concatenate([fa, fw[:, 1:]], axis=1), np.concatenate([Ja, Jw[:, 1:]], axis=1)
+
+
 def _smoothstep_out(v, lo, hi, margin):
     """Taper (n,) and its derivative in v: 1 inside [lo, hi], cubic fall to 0 over ``margin`` outside."""
     d = np.maximum(lo - v, 0.0) + np.maximum(v - hi, 0.0)
@@ -93,18 +148,33 @@ def _smoothstep_out(v, lo, hi, margin):
 
 
 class LearnedResidual:
-    """A fitted :class:`ResidualRegressor` on :func:`axis_features`, tapered to zero outside the
-    checks' box ``lo``/``hi`` (x_mm, z_mm)."""
+    """A fitted :class:`ResidualRegressor` on the features of input set ``inputs``
+    (:func:`input_features`; ``rho0_mm`` the machine's tool radius at z = 0 for the work-frame
+    sets), tapered to zero outside the checks' box ``lo``/``hi`` (x_mm, z_mm)."""
 
-    def __init__(self, regressor: ResidualRegressor, lo, hi):
+    def __init__(self, regressor: ResidualRegressor, lo, hi, inputs: str = "axes", rho0_mm: float | None = None):
+        if inputs not in INPUT_SETS:
+            raise ValueError(f"Expected inputs one of {sorted(INPUT_SETS)}, got {inputs!r}")
+        if inputs != "axes" and (rho0_mm is None or not np.isfinite(rho0_mm)):
+            raise ValueError(f"the input set {inputs!r} needs rho0_mm")
         self.regressor = regressor
         self.lo = np.asarray(lo, dtype=float)
         self.hi = np.asarray(hi, dtype=float)
         self.margin = TAPER_FRAC * np.maximum(self.hi - self.lo, 1e-9)
+        self.inputs = inputs
+        self.rho0_mm = None if inputs == "axes" else float(rho0_mm)
 
     @property
     def chosen(self) -> str:
         return self.regressor.chosen_
+
+    @property
+    def feature_names(self) -> tuple:
+        return INPUT_SETS[self.inputs]
+
+    def features(self, axes):
+        """axes (n, 3) → features (n, d), d(features)/d(axes) (n, d, 3)."""
+        return input_features(axes, self.inputs, self.rho0_mm)
 
     def _taper(self, axes):
         wx, dwx = _smoothstep_out(axes[:, 0], self.lo[0], self.hi[0], self.margin[0])
@@ -115,7 +185,7 @@ class LearnedResidual:
         """Learned correction (n, 3) μm [, its 1-σ band (n, 3) μm] at axes (n, 3)."""
         axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
         w, _ = self._taper(axes)
-        f, _ = axis_features(axes)
+        f, _ = self.features(axes)
         if return_std:
             v, s = self.regressor.predict(f, return_std=True)
             # outside the box the band is the regressor's prior there (its std grows away from data)
@@ -126,22 +196,38 @@ class LearnedResidual:
         """(value (n, 3) μm, d/d(axes) (n, 3, 3)), closed form (taper × regressor, chain rule)."""
         axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
         w, dw = self._taper(axes)
-        f, Jf = axis_features(axes)
-        v, Jv = self.regressor.predict_and_jacobian(f)                 # (n, 3), (n, 3, 4)
+        f, Jf = self.features(axes)
+        v, Jv = self.regressor.predict_and_jacobian(f)                 # (n, 3), (n, 3, d)
         J = np.einsum("nkf,nfa->nka", Jv, Jf) * w[:, None, None] + v[:, :, None] * dw[:, None, :]
         return v * w[:, None], J
 
     def to_dict(self) -> dict:
-        return {"format": FORMAT, "features": list(FEATURE_NAMES), "box_lo": self.lo.tolist(),
-                "box_hi": self.hi.tolist(), "taper_frac": TAPER_FRAC, "regressor": self.regressor.to_dict()}
+        out = {"format": FORMAT, "features": list(self.feature_names), "inputs": self.inputs,
+               "box_lo": self.lo.tolist(), "box_hi": self.hi.tolist(), "taper_frac": TAPER_FRAC,
+               "regressor": self.regressor.to_dict()}
+        if self.rho0_mm is not None:
+            out["rho0_mm"] = self.rho0_mm
+        return out
 
     @classmethod
     def from_dict(cls, doc) -> "LearnedResidual":
-        """ValueError on anything but :meth:`to_dict`'s output."""
+        """ValueError on anything but :meth:`to_dict`'s output (a file without ``inputs``, written
+        before the input sets, has the ``axes`` features)."""
         if not isinstance(doc, dict) or doc.get("format") != FORMAT:
             raise ValueError(f"expected a learned residual (format {FORMAT!r})")
-        if list(doc.get("features", [])) != list(FEATURE_NAMES):
-            raise ValueError(f"expected features {list(FEATURE_NAMES)}, got {doc.get('features')!r}")
+        inputs = doc.get("inputs", "axes")
+        if inputs not in INPUT_SETS:
+            raise ValueError(f"expected inputs one of {sorted(INPUT_SETS)}, got {inputs!r}")
+        if list(doc.get("features", [])) != list(INPUT_SETS[inputs]):
+            raise ValueError(f"expected features {list(INPUT_SETS[inputs])}, got {doc.get('features')!r}")
+        rho0 = None
+        if inputs != "axes":
+            try:
+                rho0 = float(doc["rho0_mm"])
+            except (KeyError, TypeError, ValueError):
+                raise ValueError(f"expected a number rho0_mm for the inputs {inputs!r}") from None
+            if not np.isfinite(rho0):
+                raise ValueError("expected a finite rho0_mm")
         try:
             lo, hi = np.asarray(doc["box_lo"], dtype=float), np.asarray(doc["box_hi"], dtype=float)
         except (KeyError, TypeError, ValueError) as exc:
@@ -149,9 +235,9 @@ class LearnedResidual:
         if lo.shape != (2,) or hi.shape != (2,) or not np.all(lo <= hi):
             raise ValueError("expected box_lo ≤ box_hi, two values each (x_mm, z_mm)")
         reg = ResidualRegressor.from_dict(doc["regressor"])
-        if reg.n_features_in_ != len(FEATURE_NAMES):
-            raise ValueError(f"expected a regressor of {len(FEATURE_NAMES)} inputs")
-        return cls(reg, lo, hi)
+        if reg.n_features_in_ != len(INPUT_SETS[inputs]):
+            raise ValueError(f"expected a regressor of {len(INPUT_SETS[inputs])} inputs")
+        return cls(reg, lo, hi, inputs, rho0)
 
 
 class HybridField:
@@ -268,8 +354,27 @@ hyper-parameters kept, the weights re-solved on all checks
 (:meth:`~training.residual.ResidualRegressor.with_data`)."""
 
 
+def _fit_inputs(feats, r_um, fit_idx, groups, families, seed):
+    """Cross-validate every family on every input set (same blocked folds: they depend on
+    ``groups`` only) → (input set, its fitted :class:`ResidualRegressor`, table): the input set
+    whose chosen family has the lowest CV RMS (the first set when every one declines); table per
+    input set: ``family`` chosen there, its ``cv_rms``, the ``zero`` CV RMS, and per family
+    ``cv_rms_by_family``."""
+    regs, table = {}, {}
+    for name, f in feats.items():
+        reg = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_um[fit_idx], groups=groups)
+        regs[name] = reg
+        table[name] = {"family": reg.chosen_,
+                       "cv_rms": reg.cv_table_[reg.chosen_ if reg.chosen_ != "none" else "zero"]["cv_rms"],
+                       "cv_rms_zero": reg.cv_table_["zero"]["cv_rms"],
+                       "cv_rms_by_family": {k: v["cv_rms"] for k, v in reg.cv_table_.items()}}
+    fitted = [n for n in feats if regs[n].chosen_ != "none"]
+    best = min(fitted, key=lambda n: table[n]["cv_rms"]) if fitted else next(iter(feats))
+    return best, regs[best], table
+
+
 def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=None, r_static_um=None,
-                  covariance=None, refit_residual=None, refit_mode: str = "hyper"):
+                  covariance=None, refit_residual=None, refit_mode: str = "hyper", inputs=None):
     """Fit the learned residual on what the previous stage leaves at the checks and gate it.
 
     ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check;
@@ -283,7 +388,9 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     cross-validated error is lower, paired per point over the same folds, by more than
     :data:`KEEP_Z` standard errors (the early, still-warming blocks are where the two differ);
     the held-out gate against the previous stage (with its terms) is then the same.
-    ``families``: the learned families cross-validated (None: :data:`LEARNED_FAMILIES` at call time).
+    ``families``: the learned families cross-validated (None: :data:`LEARNED_FAMILIES` at call time);
+    ``inputs``: the input sets (:data:`INPUT_SETS`) each family is cross-validated on (None:
+    :data:`LEARNED_INPUTS` at call time; the work-frame sets need ``machine.rho0_mm``).
     ``covariance``: the previous stage's element covariance (or None): with it, the stage also
     reports the coverage of the hybrid's TOTAL band on the held-out checks
     (``held_out_band95_cover_total``: learned band ⊕ elements' J Σ Jᵀ ⊕ the fitted noise) and
@@ -305,27 +412,31 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                                   "cv": "not run", "held_out_gain_z": None, "held_out_band95_cover": None,
                                   "why": f"declined: fewer than {MIN_FIT_CHECKS} fitting or {MIN_HELD_CHECKS} held-out "
                                          f"checks ({len(fit_idx)}, {len(hold_idx)})"}}
-    f, _ = axis_features(axes)
+    inputs = tuple(LEARNED_INPUTS if inputs is None else inputs)
+    rho0 = getattr(machine, "rho0_mm", None) if any(i != "axes" for i in inputs) else None
+    feats = {name: input_features(axes, name, rho0)[0] for name in inputs}
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
-    reg = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_prev_um[fit_idx], groups=groups)
+    inp, reg, inputs_table = _fit_inputs(feats, r_prev_um, fit_idx, groups, families, seed)
     r_base, replaces, alt = r_prev_um, False, None
     if r_static_um is not None:
         r_static_um = np.asarray(r_static_um, dtype=float)
-        reg_s = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_static_um[fit_idx], groups=groups)
+        inp_s, reg_s, inputs_table_s = _fit_inputs(feats, r_static_um, fit_idx, groups, families, seed)
         e_with = reg.cv_sq_err_[reg.chosen_ if reg.chosen_ != "none" else "zero"]
         e_static = reg_s.cv_sq_err_[reg_s.chosen_ if reg_s.chosen_ != "none" else "zero"]
         z_s, g_s, se_s = _paired_z(np.sqrt(e_with)[:, None], np.sqrt(e_static)[:, None])
         replaces = reg_s.chosen_ != "none" and z_s > KEEP_Z
         alt = {"cv_rms_with_terms_um": float(np.sqrt(e_with.mean())), "cv_rms_static_um": float(np.sqrt(e_static.mean())),
                "cv_gain_z": z_s, "cv_gain_um2": g_s, "cv_gain_se_um2": se_s, "static_family": reg_s.chosen_,
+               "static_input_set": inp_s,
                "replaces_condition_terms": bool(replaces),
                "rule": (f"the learned field of the axes replaces the condition terms when its blocked-CV squared error, "
                         f"paired per fitting check over the same folds, is lower by more than {KEEP_Z} standard errors")}
         if replaces:
-            reg, r_base = reg_s, r_static_um
+            reg, r_base, inp, inputs_table = reg_s, r_static_um, inp_s, inputs_table_s
+    f = feats[inp]
     lo = axes[:, :2].min(0)
     hi = axes[:, :2].max(0)
-    fitted = LearnedResidual(reg, axes[fit_idx, :2].min(0), axes[fit_idx, :2].max(0))
+    fitted = LearnedResidual(reg, axes[fit_idx, :2].min(0), axes[fit_idx, :2].max(0), inp, rho0)
     pred, sd = fitted.predict(axes, return_std=True)
     r_new = r_base - pred
     z, gain, se = _paired_z(r_prev_um[hold_idx], r_new[hold_idx])
@@ -348,10 +459,11 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
              "fitting": residual_stats(r_new[fit_idx], ("dx_um", "dy_um", "dz_um")),
              "learned": {"family": reg.chosen_, "family_name": FAMILY_NAMES.get(reg.chosen_, reg.chosen_),
                          "families_compared": list(families),
-                         "selection_rule": (f"each family cross-validated on the same blocked folds; eligible if its mean "
-                                            f"paired gain over zero exceeds {reg.margin_se} standard error(s); of those "
-                                            f"the lowest CV RMS wins"),
-                         "cv_table": reg.cv_table_, "inputs": list(FEATURE_NAMES),
+                         "selection_rule": (f"each (input set, family) cross-validated on the same blocked folds; eligible if "
+                                            f"its mean paired gain over zero exceeds {reg.margin_se} standard error(s); of "
+                                            f"those the lowest CV RMS wins"),
+                         "cv_table": reg.cv_table_, "inputs": list(INPUT_SETS[inp]), "input_set": inp,
+                         "input_sets_compared": list(inputs), "inputs_table": inputs_table,
                          "cv": f"blocked: {CV_BLOCKS} contiguous seq blocks of the fitting checks",
                          "held_out_gain_um2": gain, "held_out_gain_se_um2": se, "held_out_gain_z": z,
                          "held_out_band95_cover": cover, "held_out_band95_cover_total": cover_total,
@@ -379,6 +491,6 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                  + (", on the residual of the base model re-estimated on all checks" if base_refit else ""))}
     if refit_mode == "hyper" and reg_all.model_ is not None:
         stage["learned"]["noise_std_um"] = reg_all.noise_std_.tolist()
-    learned = LearnedResidual(reg_all, lo, hi)
+    learned = LearnedResidual(reg_all, lo, hi, inp, rho0)
     stage["learned"]["map"] = learned_map(learned, machine, covariance=covariance)
     return learned, stage

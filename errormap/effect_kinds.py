@@ -118,6 +118,10 @@ EFFECT_KINDS = (
     EffectKind("squareness_xz", (), "pair", "k·sin(π·(p − p_lo)/Δp)·sin(π·(q − q_lo)/Δq) on a squareness",
                (("k_urad", "urad"),), simulator="squareness_xz", simulator_element="s_xz",
                diagnosed=False, truth_only=True),
+    EffectKind("a_lobe_x", (), "pair", "A·u·exp(½ − ½u²)·cos(2a + φ), u = ((p − p_lo)/Δp − pc)/w, on a rotary "
+               "axis' radial motion",
+               (("amplitude_um", "um"), ("x_frac", "1"), ("width_frac", "1"), ("phase_rad", "rad")),
+               simulator="a_lobe_x", simulator_element="dy_a", diagnosed=False, truth_only=True),
 )
 
 _BY_NAME = {k.name: k for k in EFFECT_KINDS}

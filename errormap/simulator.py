@@ -38,6 +38,10 @@ squareness     an X–Z squareness that varies along X:                         
 squareness_xz  an X–Z squareness that varies over X and Z together (not separable:     k = 100 μrad at mid-X, mid-Z
                no element profile of one axis, nor X's angles times the Z lever,
                represents it): ``s_xz += k·sin(π·(x − x_lo)/Δx)·sin(π·(z − z_lo)/Δz)``
+a_lobe_x       the A axis's two-lobe (oval) radial error motion, local in X and          A = 6 μm at its peak, centre
+               changing sign across the region (X and A jointly: its mean over A is      at 50 % of X, w = 15 % of X,
+               zero and its mean over X nearly so, so no one-axis profile takes it up):  φ = 0.4 rad
+               ``dy_a += A·u·exp(½ − ½u²)·cos(2a + φ)``, ``u = ((x − x_lo)/Δx − xc)/w``
 =============  ===================================================================  ===============================
 
 Check measurements follow docs/schemas.md: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, time_s,
@@ -78,6 +82,7 @@ EFFECT_DEFAULTS = {
     "a_tilt": {"k_urad": 120.0},
     "squareness": {"k_urad": 100.0},
     "squareness_xz": {"k_urad": 100.0},
+    "a_lobe_x": {"amplitude_um": 6.0, "x_frac": 0.5, "width_frac": 0.15, "phase_rad": 0.4},
 }
 OUT_OF_CATALOGUE = TRUTH_ONLY
 """Effects no kind of :mod:`errormap.diagnosis.effects` represents (module doc; the registry,
@@ -199,6 +204,10 @@ class TruthGrinder:
                     v[:, IDX["s_xz"]] += p["k_urad"] * np.sin(np.pi * x_rel / dx)
                 elif name == "squareness_xz":
                     v[:, IDX["s_xz"]] += p["k_urad"] * np.sin(np.pi * x_rel / dx) * np.sin(np.pi * z_rel / dz)
+                elif name == "a_lobe_x":
+                    u = (x_rel / dx - p["x_frac"]) / p["width_frac"]
+                    v[:, IDX["dy_a"]] += (p["amplitude_um"] * u * np.exp(0.5 - 0.5 * u * u)
+                                          * np.cos(2.0 * np.deg2rad(axes[:, 2]) + p["phase_rad"]))
                 else:  # pragma: no cover - a truth-only kind registered without its drawing here
                     raise ValueError(f"the simulator cannot draw the truth-only effect {name!r}")
             else:  # pragma: no cover - a registered simulator kind without its drawing here

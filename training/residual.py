@@ -53,19 +53,23 @@ __all__ = ["ResidualRegressor", "FAMILIES", "FORMAT", "check_residual_data"]
 FORMAT = "volcomp-residual-regressor/1"
 """The ``format`` key of :meth:`ResidualRegressor.to_dict`."""
 
-GP_KERNELS = {"gp": "rbf", "gp_matern52": "matern52", "gp_matern32": "matern32"}
+GP_KERNELS = {"gp": "rbf", "gp_matern52": "matern52", "gp_matern32": "matern32", "gp_sum": "rbf_sum"}
 """The Gaussian-process families and their kernel (:func:`_kernel`): the squared exponential
 (infinitely smooth), Matérn 5/2 (twice differentiable) and Matérn 3/2 (once differentiable: the
 roughest that still has the closed-form Jacobian the solvers need). A local feature (a bump of a
 few length scales) may be fitted with less smoothing by a rougher kernel; which one serves is
-decided by the blocked cross-validation like any other family."""
+decided by the blocked cross-validation like any other family. ``rbf_sum`` is the sum of a
+LONG- and a SHORT-length-scale ARD squared exponential (:data:`SUM_LOG_LENGTH_BOUNDS`): a smooth
+trend over the volume plus a local feature, each with its own length scales and variance."""
 
-FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32")
+FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32", "gp_sum")
 """The regressor families :class:`ResidualRegressor` can cross-validate."""
 
 FAMILY_NAMES = {"gp": "Gaussian process (zero mean, ARD squared-exponential kernel + white noise, per output)",
                 "gp_matern52": "Gaussian process (zero mean, ARD Matérn 5/2 kernel + white noise, per output)",
                 "gp_matern32": "Gaussian process (zero mean, ARD Matérn 3/2 kernel + white noise, per output)",
+                "gp_sum": ("Gaussian process (zero mean, sum of a long- and a short-length-scale ARD "
+                           "squared-exponential kernel + white noise, per output)"),
                 "ensemble": "deep ensemble (5 tanh MLPs 2×16, weight decay; mean and spread)",
                 "none": "none (the physical model alone)"}
 """What each family is, in words (diagnosis.json / model.json / the report name the chosen one)."""
@@ -78,6 +82,12 @@ LOG_LENGTH_BOUNDS = (np.log(0.05), np.log(5.0))
 point; 5 σ is already nearly flat over the data (which spans about ±1.7 σ), and the bound keeps
 the learned part decaying to zero within a few data widths outside the data (no extrapolation
 of a trend: at 15 σ outside, the kernel is exp(−4.5) of its value inside)."""
+
+SUM_LOG_LENGTH_BOUNDS = ((np.log(0.7), np.log(5.0)), (np.log(0.05), np.log(0.7)))
+"""The ``rbf_sum`` kernel's two parts, in standardised input units: the LONG part's length
+scales from 0.7 σ to the single kernel's upper bound (5 σ), the SHORT part's from the single
+kernel's lower bound (0.05 σ) to 0.7 σ, so the two parts cannot swap roles (the split at 0.7 σ:
+about a fifth of the data's width, ±1.7 σ)."""
 
 LOG_VAR_BOUNDS = (np.log(1e-6), np.log(10.0))
 """Signal and noise variances relative to the output's mean square (outputs are scaled by their
@@ -145,15 +155,51 @@ def _kernel(S, sf2, kind="rbf"):
     raise ValueError(f"Expected a kernel in {sorted(set(GP_KERNELS.values()))}, got {kind!r}")
 
 
+def _n_theta(d, kind):
+    """Hyper-parameters of a kernel on d inputs: (log l (d), log sf², log sn²), or for
+    ``rbf_sum`` (log l_long (d), log l_short (d), log sf²_long, log sf²_short, log sn²)."""
+    return 2 * d + 3 if kind == "rbf_sum" else d + 2
+
+
+def _parts(theta, d, kind):
+    """θ → ([(inv_l2 (d,), sf², base kind, index slice of its log l, index of its log sf²), …], sn²):
+    one part per kernel summand (two for ``rbf_sum``)."""
+    if kind == "rbf_sum":
+        return ([(np.exp(-2.0 * theta[:d]), float(np.exp(theta[2 * d])), "rbf", slice(0, d), 2 * d),
+                 (np.exp(-2.0 * theta[d:2 * d]), float(np.exp(theta[2 * d + 1])), "rbf", slice(d, 2 * d), 2 * d + 1)],
+                float(np.exp(theta[2 * d + 2])))
+    return [(np.exp(-2.0 * theta[:d]), float(np.exp(theta[d])), kind, slice(0, d), d)], float(np.exp(theta[d + 1]))
+
+
+def _theta_bounds(d, kind):
+    if kind == "rbf_sum":
+        return [SUM_LOG_LENGTH_BOUNDS[0]] * d + [SUM_LOG_LENGTH_BOUNDS[1]] * d + [LOG_VAR_BOUNDS] * 3
+    return [LOG_LENGTH_BOUNDS] * d + [LOG_VAR_BOUNDS] * 2
+
+
+def _theta_starts(d, kind, var, n_restarts, rng):
+    """Marginal-likelihood starting points: the first deterministic, the others drawn from ``rng``."""
+    if kind == "rbf_sum":
+        starts = [np.r_[np.full(d, np.log(2.0)), np.full(d, np.log(0.3)), np.log(0.4 * var), np.log(0.1 * var),
+                        np.log(0.5 * var)]]
+        for _ in range(n_restarts - 1):
+            starts.append(np.r_[rng.uniform(np.log(0.7), np.log(5.0), d), rng.uniform(np.log(0.05), np.log(0.7), d),
+                                np.log(var) + rng.uniform(-2, 0, 3)])
+        return starts
+    starts = [np.r_[np.zeros(d), np.log(0.5 * var), np.log(0.5 * var)]]
+    for _ in range(n_restarts - 1):
+        starts.append(np.r_[rng.uniform(-1.0, 1.0, d), np.log(var) + rng.uniform(-2, 0, 2)])
+    return starts
+
+
 def _gp_nll(theta, X, y, D, kind="rbf"):
-    """Negative log marginal likelihood and its gradient in θ = (log l (d), log sf², log sn²).
+    """Negative log marginal likelihood and its gradient in θ (:func:`_n_theta` layout).
 
     X (n, d) standardised, y (n,), D (d, n, n) squared differences per input; ``kind`` the kernel."""
     d = X.shape[1]
-    inv_l2 = np.exp(-2.0 * theta[:d])
-    sf2, sn2 = np.exp(theta[d]), np.exp(theta[d + 1])
-    Kf, H = _kernel(np.tensordot(inv_l2, D, axes=1), sf2, kind)
-    K = Kf + sn2 * np.eye(len(y))
+    parts, sn2 = _parts(theta, d, kind)
+    KH = [_kernel(np.tensordot(inv_l2, D, axes=1), sf2, base) for inv_l2, sf2, base, _, _ in parts]
+    K = sum(k for k, _ in KH) + sn2 * np.eye(len(y))
     try:
         c = cho_factor(K, lower=True, check_finite=False)
     except np.linalg.LinAlgError:
@@ -166,10 +212,11 @@ def _gp_nll(theta, X, y, D, kind="rbf"):
     Kinv = np.tril(Kinv) + np.tril(Kinv, -1).T
     W = np.outer(alpha, alpha) - Kinv
     grad = np.empty_like(theta)
-    # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential)
-    grad[:d] = -0.5 * inv_l2 * np.tensordot(D, W * H, axes=([1, 2], [0, 1]))
-    grad[d] = -0.5 * (W * Kf).sum()
-    grad[d + 1] = -0.5 * sn2 * np.trace(W)
+    for (inv_l2, _, _, sl, isf), (Kf, H) in zip(parts, KH):
+        # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential)
+        grad[sl] = -0.5 * inv_l2 * np.tensordot(D, W * H, axes=([1, 2], [0, 1]))
+        grad[isf] = -0.5 * (W * Kf).sum()
+    grad[-1] = -0.5 * sn2 * np.trace(W)
     return nll, grad
 
 
@@ -183,20 +230,18 @@ class _GP:
         self.kernel = kernel
 
     def fit(self, Xs, Ys):
-        """Xs (n, d) standardised, Ys (n, 3) scaled → self (theta_ (3, d+2), alpha_ (3, n), L_ (3, n, n))."""
+        """Xs (n, d) standardised, Ys (n, 3) scaled → self (theta_ (3, p) with p = :func:`_n_theta`,
+        alpha_ (3, n), L_ (3, n, n))."""
         n, d = Xs.shape
         D = (Xs[:, None, :] - Xs[None, :, :]) ** 2
         D = np.moveaxis(D, 2, 0).copy()
-        bounds = [LOG_LENGTH_BOUNDS] * d + [LOG_VAR_BOUNDS] * 2
+        bounds = _theta_bounds(d, self.kernel)
         thetas = []
         for k in range(Ys.shape[1]):
             y = Ys[:, k]
             var = max(float(np.mean(y * y)), 1e-12)
-            starts = [np.r_[np.zeros(d), np.log(0.5 * var), np.log(0.5 * var)]]
-            for _ in range(self.n_restarts - 1):
-                starts.append(np.r_[self.rng.uniform(-1.0, 1.0, d), np.log(var) + self.rng.uniform(-2, 0, 2)])
             best = None
-            for t0 in starts:
+            for t0 in _theta_starts(d, self.kernel, var, self.n_restarts, self.rng):
                 t0 = np.clip(t0, [b[0] for b in bounds], [b[1] for b in bounds])
                 r = minimize(_gp_nll, t0, args=(Xs, y, D, self.kernel), jac=True, method="L-BFGS-B", bounds=bounds,
                              options={"maxiter": 100})
@@ -207,29 +252,40 @@ class _GP:
         return self
 
     def set_state(self, Xs, Ys, theta):
-        """Fix the hyper-parameters ``theta`` (3, d+2) and solve for the weights on (Xs, Ys)."""
+        """Fix the hyper-parameters ``theta`` (3, p) and solve for the weights on (Xs, Ys)."""
         n, d = Xs.shape
         self.X_ = np.asarray(Xs, dtype=float)
         self.Y_ = np.asarray(Ys, dtype=float)
         self.theta_ = np.asarray(theta, dtype=float)
+        if self.theta_.ndim != 2 or self.theta_.shape[1] != _n_theta(d, self.kernel):
+            raise ValueError(f"Expected theta of shape (k, {_n_theta(d, self.kernel)}) for kernel {self.kernel!r} "
+                             f"on {d} inputs, got {self.theta_.shape}")
         self.alpha_ = np.empty((Ys.shape[1], n))
         self.L_ = np.empty((Ys.shape[1], n, n))
         for k in range(Ys.shape[1]):
-            inv_l2, sf2, sn2 = self._hyp(k)
-            K = _kernel(_sqdist_by_dim(self.X_, self.X_, inv_l2), sf2, self.kernel)[0] + sn2 * np.eye(n)
+            K = self._k(k, self.X_, self.X_)[0] + self._hyp(k)[1] * np.eye(n)
             L = np.linalg.cholesky(K)
             self.L_[k] = L
             self.alpha_[k] = cho_solve((L, True), Ys[:, k], check_finite=False)
         return self
 
     def _hyp(self, k):
-        d = self.X_.shape[1]
-        t = self.theta_[k]
-        return np.exp(-2.0 * t[:d]), float(np.exp(t[d])), float(np.exp(t[d + 1]))
+        """Output k's kernel parts and noise variance (:func:`_parts`)."""
+        return _parts(self.theta_[k], self.X_.shape[1], self.kernel)
+
+    def _k(self, k, A, B):
+        """Output k's kernel between A (m, d) and B (n, d): (K (m, n), [(H (m, n), inv_l2 (d,)) per part], sf² total)."""
+        parts, _ = self._hyp(k)
+        K, HS = 0.0, []
+        for inv_l2, sf2, base, _, _ in parts:
+            Kp, Hp = _kernel(_sqdist_by_dim(A, B, inv_l2), sf2, base)
+            K = K + Kp
+            HS.append((Hp, inv_l2))
+        return K, HS, sum(p[1] for p in parts)
 
     def noise_var(self):
         """(3,) fitted noise variances (scaled units)."""
-        return np.array([self._hyp(k)[2] for k in range(self.theta_.shape[0])])
+        return np.array([self._hyp(k)[1] for k in range(self.theta_.shape[0])])
 
     def predict(self, Xs, return_std=False, jacobian=False):
         """Mean (m, 3) [, latent std (m, 3)] [, dmean/dXs (m, 3, d)] in scaled units."""
@@ -241,16 +297,18 @@ class _GP:
         for s in range(0, m, PREDICT_CHUNK):
             Xc = Xs[s:s + PREDICT_CHUNK]
             for k in range(K3):
-                inv_l2, sf2, _ = self._hyp(k)
-                Ks, Hs = _kernel(_sqdist_by_dim(Xc, self.X_, inv_l2), sf2, self.kernel)   # (c, n) each
+                Ks, HS, sf2 = self._k(k, Xc, self.X_)                           # (c, n)
                 mean[s:s + len(Xc), k] = Ks @ self.alpha_[k]
                 if return_std:
                     v = solve_triangular(self.L_[k], Ks.T, lower=True, check_finite=False)
                     std[s:s + len(Xc), k] = np.sqrt(np.maximum(sf2 - (v * v).sum(0), 0.0))
                 if jacobian:
-                    w = Hs * self.alpha_[k][None, :]                                 # (c, n)
-                    # d/dx_j k(x, x_i) = −H (x_j − x_ij)/l_j²
-                    jac[s:s + len(Xc), k, :] = -inv_l2[None, :] * (Xc * w.sum(1)[:, None] - w @ self.X_)
+                    J = 0.0
+                    for Hs, inv_l2 in HS:
+                        w = Hs * self.alpha_[k][None, :]                             # (c, n)
+                        # d/dx_j k(x, x_i) = −H (x_j − x_ij)/l_j²
+                        J = J - inv_l2[None, :] * (Xc * w.sum(1)[:, None] - w @ self.X_)
+                    jac[s:s + len(Xc), k, :] = J
         out = (mean,)
         if return_std:
             out += (std,)

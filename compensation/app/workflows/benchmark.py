@@ -83,7 +83,7 @@ class BenchmarkSettings:
     effects: tuple = ("thermal", "reversal", "pitch", "worm", "interaction")
     # effects no catalogue kind represents (errormap.simulator.OUT_OF_CATALOGUE), each with the closed
     # loop and its learned-residual stage (the hybrid column); plus the same machine without an effect
-    ooc_effects: tuple = ("bump", "a_tilt", "squareness")
+    ooc_effects: tuple = ("bump", "a_tilt", "squareness", "a_lobe_x")
     # check counts of the out-of-catalogue conditions (each effect and none at every count: the learned
     # stage's estimation error against the number of checks; `volcomp benchmark --checks N`, repeatable)
     ooc_checks: tuple = (800, 150, 1600)

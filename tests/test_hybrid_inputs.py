@@ -1,0 +1,129 @@
+"""The learned part's input sets (axes / the tool point in the work frame / both) and the round-5
+out-of-catalogue effect ``a_lobe_x`` (issue 28)."""
+import json
+
+import numpy as np
+import pytest
+
+from compensation.hybrid import INPUT_SETS, LearnedResidual, _fit_inputs, input_features, work_features
+from errormap.kinematics import forward
+from errormap.simulator import random_axes, random_truth
+from training.residual import ResidualRegressor
+
+SEED = 0
+
+WORK_POINT_TOL_MM = 1e-9
+"""The work-frame features vs the chain's forward kinematics (py, pz): the same closed form
+evaluated by two code paths on values up to ~60 mm, round-off only (ε·60 mm ≈ 1e-14 mm)."""
+
+JAC_TOL_REL = 1e-6
+"""Closed-form Jacobian vs central differences (h = 1e-4 mm/deg): truncation O(h²·f''') and rounding
+ε·|f|/h ≈ 1e-10 relative; 1e-6 of the largest entry is far above both and far below a wrong term."""
+
+ROUND_TRIP_RTOL = 1e-9
+"""Loading re-solves the GP weights by Cholesky: rounding only."""
+
+MEAN_OVER_A_TOL = 1e-12
+"""a_lobe_x's mean over a full turn of A (72 equally spaced positions) is exactly zero for
+cos(2a + φ): what is left is round-off on values of a few μm."""
+
+ADDITIVE_SHARE_MAX = 0.01
+"""The share of a_lobe_x's (default parameters) mean square that the best sum of one-axis profiles
+f(x) + g(a) takes up on a full X × A grid: the effect's mean over A is zero and its mean over X
+is the odd profile's tail beyond ±3.3 widths (about 1e-3 of the peak); 1 % bounds that with room
+and is far below any effect a one-axis element profile could represent."""
+
+
+def test_work_features_are_the_tool_point_in_the_work_frame(grinder):
+    axes = random_axes(grinder, 200, np.random.default_rng(SEED))
+    f, J = work_features(axes, grinder.rho0_mm)
+    p = forward(grinder, axes)
+    np.testing.assert_allclose(f[:, 1:], p[:, 1:], atol=WORK_POINT_TOL_MM, rtol=0)
+    np.testing.assert_allclose(f[:, 0], axes[:, 0], atol=0, rtol=0)
+    h = 1e-4
+    for name in INPUT_SETS:
+        f, J = input_features(axes, name, grinder.rho0_mm)
+        assert f.shape == (200, len(INPUT_SETS[name])) and J.shape == (200, len(INPUT_SETS[name]), 3)
+        Jfd = np.stack([(input_features(axes + h * e, name, grinder.rho0_mm)[0]
+                         - input_features(axes - h * e, name, grinder.rho0_mm)[0]) / (2 * h) for e in np.eye(3)], -1)
+        assert np.abs(J - Jfd).max() <= JAC_TOL_REL * np.abs(J).max()
+    with pytest.raises(ValueError, match="rho0_mm"):
+        input_features(axes, "work", None)
+    with pytest.raises(ValueError, match="inputs"):
+        input_features(axes, "joints", grinder.rho0_mm)
+
+
+@pytest.mark.parametrize("inputs", ["work", "axes+work"])
+def test_learned_residual_on_work_inputs_jacobian_and_round_trip(grinder, inputs):
+    rng = np.random.default_rng(SEED + 1)
+    axes = random_axes(grinder, 80, rng)
+    f, _ = input_features(axes, inputs, grinder.rho0_mm)
+    r = np.c_[np.sin(axes[:, 0] / 40.0), 0.05 * axes[:, 1] * np.cos(np.deg2rad(axes[:, 2])), np.zeros(80)]
+    reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(f, r + 0.05 * rng.standard_normal(r.shape))
+    lr = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0), inputs, grinder.rho0_mm)
+    P = random_axes(grinder, 12, np.random.default_rng(SEED + 2))
+    P[0, :2] = axes[:, :2].max(0) + 3.0                     # in the taper outside the box too
+    v, J = lr.predict_and_jacobian(P)
+    h = 1e-4
+    Jfd = np.stack([(lr.predict(P + h * e) - lr.predict(P - h * e)) / (2 * h) for e in np.eye(3)], -1)
+    assert np.abs(J - Jfd).max() <= JAC_TOL_REL * np.abs(J).max()
+    doc = json.loads(json.dumps(lr.to_dict()))
+    assert doc["inputs"] == inputs and doc["features"] == list(INPUT_SETS[inputs])
+    back = LearnedResidual.from_dict(doc)
+    np.testing.assert_allclose(back.predict(P), v, rtol=ROUND_TRIP_RTOL, atol=0)
+    for key, bad, msg in (("rho0_mm", None, "rho0_mm"), ("inputs", "joints", "inputs"),
+                          ("features", ["x_mm"], "features")):
+        d2 = dict(doc)
+        if bad is None:
+            del d2[key]
+        else:
+            d2[key] = bad
+        with pytest.raises(ValueError, match=msg):
+            LearnedResidual.from_dict(d2)
+
+
+def test_learned_residual_file_without_inputs_is_the_axes_set(grinder):
+    """A model.json written before the input sets (no ``inputs`` key) loads with the axes features."""
+    rng = np.random.default_rng(SEED + 3)
+    axes = random_axes(grinder, 40, rng)
+    f, _ = input_features(axes, "axes")
+    reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(f, rng.standard_normal((40, 3)))
+    doc = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0)).to_dict()
+    del doc["inputs"]
+    back = LearnedResidual.from_dict(doc)
+    assert back.inputs == "axes" and back.rho0_mm is None
+
+
+def test_input_set_choice_is_the_lowest_cv_rms_on_the_same_folds(grinder):
+    """_fit_inputs cross-validates every input set on the same blocked folds and keeps the one whose
+    chosen family has the lowest CV RMS."""
+    rng = np.random.default_rng(SEED + 4)
+    axes = random_axes(grinder, 120, rng)
+    wz = (grinder.rho0_mm + axes[:, 1]) * np.cos(np.deg2rad(axes[:, 2]))
+    r = np.c_[0.1 * axes[:, 0] / 200.0 * wz, np.zeros(120), np.zeros(120)] + 0.3 * rng.standard_normal((120, 3))
+    feats = {n: input_features(axes, n, grinder.rho0_mm)[0] for n in INPUT_SETS}
+    groups = np.repeat(np.arange(10), 12)
+    best, reg, table = _fit_inputs(feats, r, np.arange(120), groups, ("gp",), SEED)
+    fitted = [n for n in INPUT_SETS if table[n]["family"] != "none"]
+    assert fitted and best == min(fitted, key=lambda n: table[n]["cv_rms"])
+    assert reg.n_features_in_ == len(INPUT_SETS[best])
+    # the folds are the same for every input set: predicting zero has the same CV RMS on each
+    assert len({round(table[n]["cv_rms_zero"], 12) for n in INPUT_SETS}) == 1
+
+
+def test_a_lobe_x_is_not_a_sum_of_one_axis_profiles(grinder):
+    """The round-5 effect: zero mean over A, and no f(x) + g(a) takes up more than 1 % of it."""
+    from errormap.htm import IDX
+    with_ = random_truth(grinder, SEED, effects=["a_lobe_x"])
+    without = random_truth(grinder, SEED)
+    xs = np.linspace(*grinder.strokes["x_mm"], 81)
+    a_s = np.arange(72) * 5.0
+    X, A = np.meshgrid(xs, a_s, indexing="ij")
+    P = np.stack([X.ravel(), np.full(X.size, 30.0), A.ravel()], axis=1)
+    d = (with_.element_values(P) - without.element_values(P))[:, IDX["dy_a"]].reshape(X.shape)
+    others = np.delete(with_.element_values(P) - without.element_values(P), IDX["dy_a"], axis=1)
+    assert np.all(others == 0.0)
+    assert np.abs(d).max() > 5.0                                  # A = 6 μm at its peak (sampled grid)
+    assert np.abs(d.mean(axis=1)).max() <= MEAN_OVER_A_TOL
+    additive = d.mean(axis=1, keepdims=True) + d.mean(axis=0, keepdims=True) - d.mean()
+    assert np.mean(additive**2) <= ADDITIVE_SHARE_MAX * np.mean(d**2)
