@@ -72,7 +72,8 @@ FEATURE_REUSE_TOL_UM = 1e-6
 
 @dataclass
 class BenchmarkSettings:
-    """What the benchmark runs. Defaults: the full benchmark (≤ 20 min on 2 cores)."""
+    """What the benchmark runs. Defaults: the full benchmark (about 23 CPU minutes; ~1 h wall on a loaded 2-core
+    machine, docs/benchmark.md "Run time")."""
 
     truth_seed: int = 0
     seed: int = 0
