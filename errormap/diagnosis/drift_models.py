@@ -1239,6 +1239,25 @@ def _forward_bic(X, y, max_inputs):
     return chosen
 
 
+def _stable_selection(X, y, edges, max_inputs, group=None):
+    """Forward BIC on each leave-one-block-out subsample of the rows (``edges``: block bounds): per column,
+    how often it was selected (count (p,)), and per group of columns (``group`` (p,) ints, default one
+    per column) in how many subsamples any of its columns was (presence (g,)), each for the first k
+    selected, for every k of ``max_inputs``: {k: (count (p,), presence (g,))}."""
+    group = np.arange(X.shape[1]) if group is None else np.asarray(group)
+    ng = int(group.max()) + 1 if group.size else 0
+    out = {k: (np.zeros(X.shape[1]), np.zeros(ng)) for k in max_inputs}
+    n = edges[-1]
+    for j in range(len(edges) - 1):
+        keep = np.r_[0:edges[j], edges[j + 1]:n]
+        sel = _forward_bic(X[keep], y[keep], max(max_inputs))
+        for k in max_inputs:
+            cnt, pres = out[k]
+            cnt[sel[:k]] += 1
+            pres[np.unique(group[sel[:k]])] += 1
+    return out
+
+
 class StableOLSFamily(_Family):
     """OLS on the inputs that forward selection picks in ≥ ``freq`` of the block subsamples."""
 
@@ -1256,10 +1275,7 @@ class StableOLSFamily(_Family):
         out = {}
         for ch in channels:
             y = log.disp_um[ch][rows]
-            count = np.zeros(len(feats))
-            for k in range(self.n_sub):
-                keep = np.r_[0:edges[k], edges[k + 1]:len(rows)]
-                count[_forward_bic(X[keep], y[keep], self.max_inputs)] += 1
+            count, _ = _stable_selection(X, y, edges, (self.max_inputs,))[self.max_inputs]
             sel = np.flatnonzero(count >= self.freq * self.n_sub)
             fs = [feats[i] for i in sel]
             out[ch] = {"": (fs, *fit_ols(X[:, sel], y))}
@@ -1267,25 +1283,6 @@ class StableOLSFamily(_Family):
 
 
 STABLE_LAG_MAX_INPUTS = (3, 6)      # "a few" inputs: the hyper-parameter (forward selection is nested, one run gives both)
-
-
-def _stable_selection(X, y, edges, max_inputs, freq, group=None):
-    """Forward BIC on each leave-one-block-out subsample of the rows (``edges``: block bounds): per column,
-    how often it was selected (count (p,)), and per group of columns (``group`` (p,) ints, default one
-    per column) in how many subsamples any of its columns was (presence (g,)), each for the first k
-    selected, for every k of ``max_inputs``: {k: (count (p,), presence (g,))}."""
-    group = np.arange(X.shape[1]) if group is None else np.asarray(group)
-    ng = int(group.max()) + 1 if group.size else 0
-    out = {k: (np.zeros(X.shape[1]), np.zeros(ng)) for k in max_inputs}
-    n = edges[-1]
-    for j in range(len(edges) - 1):
-        keep = np.r_[0:edges[j], edges[j + 1]:n]
-        sel = _forward_bic(X[keep], y[keep], max(max_inputs))
-        for k in max_inputs:
-            cnt, pres = out[k]
-            cnt[sel[:k]] += 1
-            pres[np.unique(group[sel[:k]])] += 1
-    return out
 
 
 class StableLagOLSFamily(_Family):
@@ -1312,7 +1309,7 @@ class StableLagOLSFamily(_Family):
         out = {}
         for ch in channels:
             y = log.disp_um[ch][rows]
-            stab = _stable_selection(X, y, edges, self.max_inputs, self.freq, group)
+            stab = _stable_selection(X, y, edges, self.max_inputs, group)
             hyp = {}
             for k in self.max_inputs:
                 cnt, pres = stab[k]
@@ -1369,7 +1366,7 @@ class GradientFamily(_Family):
             hyp = {}
             a, c = fit_ols(Z[:, sum0], y)
             hyp["sum0"] = (feats, a, M[:, sum0] @ c)
-            cnt, _ = _stable_selection(Z, y, edges, (self.max_inputs,), self.freq)[self.max_inputs]
+            cnt, _ = _stable_selection(Z, y, edges, (self.max_inputs,))[self.max_inputs]
             sel = np.flatnonzero(cnt >= self.freq * self.n_sub)
             a, c = fit_ols(Z[:, sel], y)
             hyp["stable"] = (feats, a, M[:, sel] @ c)
@@ -1378,6 +1375,25 @@ class GradientFamily(_Family):
 
 
 MODE_COUNTS = (1, 2, 3, 5)           # temperature modes kept (the hyper-parameter)
+
+
+def _mode_maps(X, nt: int, speed: bool, counts) -> dict:
+    """The maps raw inputs → (first k temperature modes, speed) for each k of ``counts`` that the ``nt``
+    temperatures allow: {k: M (p, k + speed)}. ``X`` (n, p): the training rows' temperatures (first ``nt``
+    columns, °C) then the speed; the modes are the principal directions of the temperatures centred on
+    these rows, not scaled."""
+    T = X[:, :nt]
+    _, _, Vt = np.linalg.svd(T - T.mean(axis=0), full_matrices=False)
+    out = {}
+    for k in counts:
+        if k > nt:
+            continue
+        M = np.zeros((X.shape[1], k + int(speed)))
+        M[:nt, :k] = Vt[:k].T
+        if speed:
+            M[nt, k] = 1.0
+        out[k] = M
+    return out
 
 
 class ModesFamily(_Family):
@@ -1399,18 +1415,10 @@ class ModesFamily(_Family):
         ins = temps + (["speed_rpm"] if speed else [])
         feats = [Feature(i) for i in ins]
         X = feature_matrix(log, feats, cache)[rows]
-        nt = len(temps)
-        T = X[:, :nt]
-        _, sv, Vt = np.linalg.svd(T - T.mean(axis=0), full_matrices=False)
+        modes = _mode_maps(X, len(temps), speed, self.counts)
         out = {ch: {} for ch in channels}
         Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
-        for k in self.counts:
-            if k > nt:
-                continue
-            M = np.zeros((len(ins), k + int(speed)))
-            M[:nt, :k] = Vt[:k].T
-            if speed:
-                M[nt, k] = 1.0
+        for k, M in modes.items():
             A = np.column_stack([np.ones(len(rows)), X @ M])
             th = np.linalg.lstsq(A, Y, rcond=None)[0]
             for j, ch in enumerate(channels):
@@ -1435,23 +1443,15 @@ class GreyBoxModesFamily(_Family):
     def fit(self, log, channels, rows, cache):
         temps, speed = _inputs(log, rows)
         ins = temps + (["speed_rpm"] if speed else [])
-        nt = len(temps)
         raw = [Feature(i) for i in ins]
         X = feature_matrix(log, raw, cache)[rows]
-        T = X[:, :nt]
-        _, _, Vt = np.linalg.svd(T - T.mean(axis=0), full_matrices=False)
+        modes = _mode_maps(X, len(temps), speed, self.counts)
         Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
         out = {ch: {} for ch in channels}
         for tau in self.taus:
             lag = [Feature(i, tau) for i in ins]
             XL = feature_matrix(log, lag, cache)[rows]
-            for k in self.counts:
-                if k > nt:
-                    continue
-                M = np.zeros((len(ins), k + int(speed)))       # raw inputs → (modes, speed)
-                M[:nt, :k] = Vt[:k].T
-                if speed:
-                    M[nt, k] = 1.0
+            for k, M in modes.items():
                 q = M.shape[1]
                 A = np.column_stack([np.ones(len(rows)), X @ M, XL @ M])
                 th = np.linalg.lstsq(A, Y, rcond=None)[0]
