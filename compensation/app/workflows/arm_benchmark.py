@@ -41,9 +41,9 @@ def _landing_um(chain, truth, geo, learner, q_prog, target):
     return 1000.0 * np.linalg.norm(truth.tool_point(chain, sol.q) - target, axis=1), dt, sol.converged
 
 
-def run_arm(machine, s, log, out_dir, row, note) -> list:
-    """Add the arm rows of ``machine`` (a serial chain) to ``log`` (:class:`RowLog`); returns the
-    skipped-condition list (always empty: a failing condition is a row marked not available)."""
+def run_arm(machine, s, log, out_dir, row, note) -> None:
+    """Add the arm rows of ``machine`` (a serial chain) to ``log`` (:class:`RowLog`); a failing condition is a
+    row marked not available, never skipped."""
     from errormap.arm_poses import read_arm_poses
 
     from .arm_calibration import calibrate_arm, errors_mm
@@ -95,4 +95,3 @@ def run_arm(machine, s, log, out_dir, row, note) -> list:
                         true_rms_um=float(np.sqrt(np.mean(e ** 2))), true_max_um=float(e.max()),
                         checks_rms_after_um=float(1000.0 * np.sqrt(np.mean(held ** 2))),
                         fit_seconds=fit_s, compensate_seconds_per_point=dt, **common, **unc_stats, **extra))
-    return []

@@ -831,8 +831,41 @@ def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) ->
 
 
 # ------------------------------------------------------------------------------- driver
-BENCHMARK_KINDS = ("grinder", "hexapod", "tripod", "machine-tool", "serial")
-"""The machine kinds the benchmark has a user's path for (``_run_machines``); any other is refused."""
+def _bench_grinder(m, s, tracker, out_dir):
+    return run_grinder(m, s, tracker), []
+
+
+def _bench_pkm(m, s, tracker, out_dir):
+    if m.kind == "tripod" and not s.tripod:
+        return [], [{"machine": m.name, "why": "tripod disabled in the settings"}]
+    conds = None
+    if m.kind == "tripod":  # one condition: the tripod has no paper test path
+        conds = {(s.pkm_base_poses, s.pkm_base_noise_um): "baseline"}
+    return run_pkm(m, s, tracker, conds), []
+
+
+def _bench_chain(m, s, tracker, out_dir):
+    """A chain file: the user's path per condition (workflows/mt_benchmark.py)."""
+    from .mt_benchmark import run_chain
+    log = RowLog(tracker)
+    skipped = run_chain(m, s, log, out_dir, _row, _streams(s.seed), _log)
+    return log.rows, skipped
+
+
+def _bench_arm(m, s, tracker, out_dir):
+    """An arm: simulate → calibrate → compensate per condition (workflows/arm_benchmark.py)."""
+    from .arm_benchmark import run_arm
+    log = RowLog(tracker)
+    run_arm(m, s, log, out_dir, _row, _log)
+    return log.rows, []
+
+
+BENCH_BY_KIND = {"grinder": _bench_grinder, "hexapod": _bench_pkm, "tripod": _bench_pkm,
+                 "machine-tool": _bench_chain, "serial": _bench_arm}
+"""Each machine kind's benchmark: ``(machine, settings, tracker, out_dir) -> (rows, skipped)``."""
+
+BENCHMARK_KINDS = tuple(BENCH_BY_KIND)
+"""The machine kinds the benchmark has a user's path for; any other is refused before any work."""
 
 
 def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, tracking_uri: str | None = None,
@@ -843,11 +876,12 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
     """
     from ..reports.benchmark import render_html
     s = settings or BenchmarkSettings()
-    unknown = sorted({m.kind for m in machines} - set(BENCHMARK_KINDS))
+    unknown = [m for m in machines if m.kind not in BENCH_BY_KIND]
     if unknown:  # refused before any work, never skipped in silence
         from ..validate import UsageError
-        raise UsageError(f"benchmark: no benchmark for machine kind(s) {', '.join(map(repr, unknown))}; "
-                         f"it judges {', '.join(BENCHMARK_KINDS)}")
+        m = unknown[0]
+        raise UsageError(f"benchmark: machine {m.name!r} ({getattr(m, 'path', '') or 'built in'}) is of kind "
+                         f"{m.kind!r}; the benchmark runs {', '.join(BENCHMARK_KINDS)} machines")
     out = Path(out_dir)
     t_start = time.perf_counter()
     tracker = Tracker(tracking_uri, enabled=track, run_name="benchmark (quick)" if s.quick else "benchmark")
@@ -893,26 +927,9 @@ def _run_machines(machines, s: BenchmarkSettings, tracker: Tracker, out_dir):
     rows, skipped = [], []
     for m in machines:
         t0 = time.perf_counter()
-        if m.kind == "grinder":
-            rows += run_grinder(m, s, tracker)
-        elif m.kind in ("hexapod", "tripod"):
-            if m.kind == "tripod" and not s.tripod:
-                skipped.append({"machine": m.name, "why": "tripod disabled in the settings"})
-                continue
-            conds = None
-            if m.kind == "tripod":  # one condition: the tripod has no paper test path
-                conds = {(s.pkm_base_poses, s.pkm_base_noise_um): "baseline"}
-            rows += run_pkm(m, s, tracker, conds)
-        elif m.kind == "machine-tool":  # a chain file: the user's path per condition (workflows/mt_benchmark.py)
-            from .mt_benchmark import run_chain
-            log = RowLog(tracker)
-            skipped += run_chain(m, s, log, out_dir, _row, _streams(s.seed), _log)
-            rows += log.rows
-        elif m.kind == "serial":  # an arm: simulate → calibrate → compensate per condition (workflows/arm_benchmark.py)
-            from .arm_benchmark import run_arm
-            log = RowLog(tracker)
-            skipped += run_arm(m, s, log, out_dir, _row, _log)
-            rows += log.rows
+        r, k = BENCH_BY_KIND[m.kind](m, s, tracker, out_dir)
+        rows += r
+        skipped += k
         _log(f"{m.kind} done in {time.perf_counter() - t0:.0f} s")
     return rows, skipped
 
