@@ -47,6 +47,7 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
     from errormap.arm_poses import read_arm_poses
 
     from .arm_calibration import calibrate_arm, errors_mm
+    from .arm_compensate import read_program
     from .simulate_serial import load_serial_truth, simulate_serial
     base = Path(out_dir) / "arms" / machine.name
     floor_um = float(np.sqrt(3) * s.arm_noise_um)
@@ -61,10 +62,8 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
                             poses=s.arm_poses, checks=s.arm_checks)
             truth = load_serial_truth(d / "truth.json", machine)
             fit, check = read_arm_poses(d / "poses.csv", machine), read_arm_poses(d / "checks.csv", machine)
-            from errormap.io import read_table
-            t = read_table(d / "program.csv")
-            q_prog = np.stack([t.float(c) for c in machine.joint_columns], 1)
-            target = machine.tool_point(q_prog)
+            q_prog, _ = read_program(d / "program.csv", machine)     # joints only: the targets are the nominal
+            target = machine.tool_point(q_prog)                        # tool points, as `compensate` takes them
             unc = 1000.0 * np.linalg.norm(truth.tool_point(machine, q_prog) - target, axis=1)
             t0 = time.process_time()
             core = calibrate_arm(machine, fit, check, learned=s.arm_learned, k_folds=s.arm_k_folds, seed=s.seed,
