@@ -121,15 +121,24 @@ def work_features(axes, rho0_mm: float):
     return f, J
 
 
-def input_features(axes, inputs: str = "axes", rho0_mm: float | None = None):
-    """axes (n, 3) → the features of input set ``inputs`` (:data:`INPUT_SETS`) (n, d) and
-    d(features)/d(axes) (n, d, 3); ``rho0_mm`` needed for the work-frame sets."""
+def check_input_set(inputs: str, rho0_mm: float | None = None) -> float | None:
+    """ValueError unless ``inputs`` is an input set (:data:`INPUT_SETS`) and, for the work-frame sets, ``rho0_mm``
+    a finite number; returns the ``rho0_mm`` the set uses (None for ``axes``)."""
     if inputs not in INPUT_SETS:
         raise ValueError(f"Expected inputs one of {sorted(INPUT_SETS)}, got {inputs!r}")
     if inputs == "axes":
-        return axis_features(axes)
+        return None
     if rho0_mm is None or not np.isfinite(rho0_mm):
         raise ValueError(f"the input set {inputs!r} needs the machine's rho0_mm")
+    return float(rho0_mm)
+
+
+def input_features(axes, inputs: str = "axes", rho0_mm: float | None = None):
+    """axes (n, 3) → the features of input set ``inputs`` (:data:`INPUT_SETS`) (n, d) and
+    d(features)/d(axes) (n, d, 3); ``rho0_mm`` needed for the work-frame sets."""
+    rho0_mm = check_input_set(inputs, rho0_mm)
+    if inputs == "axes":
+        return axis_features(axes)
     fw, Jw = work_features(axes, rho0_mm)
     if inputs == "work":
         return fw, Jw
@@ -153,16 +162,12 @@ class LearnedResidual:
     sets), tapered to zero outside the checks' box ``lo``/``hi`` (x_mm, z_mm)."""
 
     def __init__(self, regressor: ResidualRegressor, lo, hi, inputs: str = "axes", rho0_mm: float | None = None):
-        if inputs not in INPUT_SETS:
-            raise ValueError(f"Expected inputs one of {sorted(INPUT_SETS)}, got {inputs!r}")
-        if inputs != "axes" and (rho0_mm is None or not np.isfinite(rho0_mm)):
-            raise ValueError(f"the input set {inputs!r} needs rho0_mm")
+        rho0_mm = check_input_set(inputs, rho0_mm)
         self.regressor = regressor
         self.lo = np.asarray(lo, dtype=float)
         self.hi = np.asarray(hi, dtype=float)
         self.margin = TAPER_FRAC * np.maximum(self.hi - self.lo, 1e-9)
-        self.inputs = inputs
-        self.rho0_mm = None if inputs == "axes" else float(rho0_mm)
+        self.inputs, self.rho0_mm = inputs, rho0_mm
 
     @property
     def chosen(self) -> str:
@@ -354,6 +359,11 @@ hyper-parameters kept, the weights re-solved on all checks
 (:meth:`~training.residual.ResidualRegressor.with_data`)."""
 
 
+def _cv_key(reg) -> str:
+    """The CV-table key of what ``reg`` predicts: its chosen family, or ``"zero"`` where it chose none."""
+    return reg.chosen_ if reg.chosen_ != "none" else "zero"
+
+
 def _fit_inputs(feats, r_um, fit_idx, groups, families, seed):
     """Cross-validate every family on every input set (same blocked folds: they depend on
     ``groups`` only) → (input set, its fitted :class:`ResidualRegressor`, table): the input set
@@ -365,7 +375,7 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed):
         reg = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_um[fit_idx], groups=groups)
         regs[name] = reg
         table[name] = {"family": reg.chosen_,
-                       "cv_rms": reg.cv_table_[reg.chosen_ if reg.chosen_ != "none" else "zero"]["cv_rms"],
+                       "cv_rms": reg.cv_table_[_cv_key(reg)]["cv_rms"],
                        "cv_rms_zero": reg.cv_table_["zero"]["cv_rms"],
                        "cv_rms_by_family": {k: v["cv_rms"] for k, v in reg.cv_table_.items()}}
     fitted = [n for n in feats if regs[n].chosen_ != "none"]
@@ -421,8 +431,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     if r_static_um is not None:
         r_static_um = np.asarray(r_static_um, dtype=float)
         inp_s, reg_s, inputs_table_s = _fit_inputs(feats, r_static_um, fit_idx, groups, families, seed)
-        e_with = reg.cv_sq_err_[reg.chosen_ if reg.chosen_ != "none" else "zero"]
-        e_static = reg_s.cv_sq_err_[reg_s.chosen_ if reg_s.chosen_ != "none" else "zero"]
+        e_with, e_static = reg.cv_sq_err_[_cv_key(reg)], reg_s.cv_sq_err_[_cv_key(reg_s)]
         z_s, g_s, se_s = _paired_z(np.sqrt(e_with)[:, None], np.sqrt(e_static)[:, None])
         replaces = reg_s.chosen_ != "none" and z_s > KEEP_Z
         alt = {"cv_rms_with_terms_um": float(np.sqrt(e_with.mean())), "cv_rms_static_um": float(np.sqrt(e_static.mean())),
