@@ -63,7 +63,7 @@ def one(family, seed, variant):
              "halfwidth": r["band_halfwidth_heldout_median_um"], "cpu_s": cpu} for ch, r in rep.items()]
 
 
-def candidates(family, seed, shift=True, extra=False):
+def candidates(family, seed, shift=True, extra=False, weights=None):
     """Every candidate of every channel on one development log: its validation statistics (the selector's
     ``candidates_``) and its HELD-OUT RMS after refitting on the whole fitting part, predicted as the model would
     (OLS + w·g(ρ)·(candidate − OLS), ρ = max(raw inputs, its own features) from the fit rows), OLS's beside:
@@ -74,16 +74,18 @@ def candidates(family, seed, shift=True, extra=False):
         path = Path(d) / "log.csv"
         write_csv(path, cols)
         log = load_drift_log(path)
-    return candidates_of(log, SIM_SPLIT, family, seed, extra)
+    return candidates_of(log, SIM_SPLIT, family, seed, extra, weights)
 
 
-def candidates_of(log, fit_fraction, family, seed, extra=False):
+def candidates_of(log, fit_fraction, family, seed, extra=False, weights=None):
     """:func:`candidates` on a loaded ``log`` fitted on its first ``fit_fraction`` (rows tagged family, seed);
-    ``extra``: the measured, non-default families (``drift_models.measured_families``) are candidates too."""
+    ``extra``: the measured, non-default families (``drift_models.measured_families``) are candidates too;
+    ``weights``: the blend weights w of the candidates (default: the selector's ``SHRINK_WEIGHTS``)."""
     from errormap.diagnosis.drift_models import (BAND_RULES, band_of, default_families, distance_weight,
                                                  feature_matrix, input_matrix, measured_families, relative_distance)
     families = default_families() + (measured_families() if extra else [])
-    sel = DriftSelector(fit_fraction=fit_fraction, families=families).fit(log)
+    kw = {} if weights is None else {"shrink_weights": tuple(weights)}
+    sel = DriftSelector(fit_fraction=fit_fraction, families=families, **kw).fit(log)
     fit, hold = sel.split(log)
     cache = sel.cache_
     n = len(log.time_s)
@@ -387,11 +389,19 @@ def main(argv=None):
     ap.add_argument("--with-families", action="store_true",
                     help="with --candidates: the measured non-default families are candidates too (their comparison "
                          "is a section of --rules' output)")
+    ap.add_argument("--weights", default=None,
+                    help="with --candidates: the blend weights w of the candidates, comma-separated (default: the "
+                         "selector's SHRINK_WEIGHTS; 'fine': SHRINK_WEIGHTS_FINE)")
     ap.add_argument("--upto", type=float, default=None,
                     help="with --real: keep only the first UPTO of the log (a fitting part; its rest is never read)")
     ap.add_argument("--real", type=float, default=None,
                     help="dump the candidates of the real log fitted on this fraction (to --candidates FILE)")
     a = ap.parse_args(argv)
+    if a.weights == "fine":
+        from errormap.diagnosis.drift_models import SHRINK_WEIGHTS_FINE
+        a.weights = SHRINK_WEIGHTS_FINE
+    elif a.weights:
+        a.weights = tuple(float(x) for x in a.weights.split(","))
     if a.rules:
         def rows_of(f):
             return [r for line in Path(f).read_text().splitlines() if line.strip() for r in json.loads(line)] if f else []
@@ -408,14 +418,14 @@ def main(argv=None):
         if a.upto is not None:      # the log's first ``upto`` only: a pseudo-future inside a fitting part
             log = head_of(log, a.upto)
         with open(a.candidates, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps(candidates_of(log, a.real, "real", a.real, a.with_families)) + "\n")
+            fh.write(json.dumps(candidates_of(log, a.real, "real", a.real, a.with_families, a.weights)) + "\n")
         return
     if a.candidates:
         lo, hi = (int(x) for x in a.seeds.split("-"))
         for f in a.families.split(","):
             for s in range(lo, hi + 1):
                 t0 = time.process_time()
-                r = candidates(f, s, shift=not a.no_shift, extra=a.with_families)
+                r = candidates(f, s, shift=not a.no_shift, extra=a.with_families, weights=a.weights)
                 with open(a.candidates, "a", encoding="utf-8") as fh:
                     fh.write(json.dumps(r) + "\n")
                 ch = [x for x in r if x["chosen"]]

@@ -83,6 +83,9 @@ BAND_RULE = "fold_residual"   # band95_um = the split-conformal BAND_QUANTILE of
 #   (the future's errors outgrow the folds'); both are computed and reported (``band_alt_``), one is the model's
 SUBSET_SEARCH_STEP_S = 60.0                      # the subset search runs on rows ≥ 60 s apart
 SHRINK_WEIGHTS = (1.0, 0.75, 0.5, 0.25)          # candidate weight in a blend w·candidate + (1 − w)·OLS
+SHRINK_WEIGHTS_FINE = (1.0, 0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)   # a setting (``shrink_weights``),
+#   measured in issue 29's fourth round: the blend grid in steps of 1/8; a smaller w passes a per-fold bound that a
+#   larger one fails (the blend's fold RMS ≤ w·RMS_candidate + (1 − w)·RMS_OLS), at a proportionally smaller gain
 HEDGE_WEIGHT = 1.0   # a weight above HEDGE_WEIGHT only where every fold's RMS ratio to OLS is ≤ CONFIDENT_WORST_FOLD;
 CONFIDENT_WORST_FOLD = 0.5   # 1.0: no hedge (the default). The hedge (0.5: at most half a candidate unless it beat
 #   OLS by 2× on every fold: the blend's error is at most the mean of the two) with SELECTION = "worst_fold" was
