@@ -242,9 +242,9 @@ def render_families(sets):
 
 # blend grids compared in issue 29's fourth round (the default rule on the candidates whose weight w is in the grid;
 # the decision rule, written before the dumps were read, is in docs/drift_model.md)
-GRIDS = {"A: the default grid (1, 0.75, 0.5, 0.25)": (1.0, 0.75, 0.5, 0.25),
+GRIDS = {"A: the grid before (1, 0.75, 0.5, 0.25)": (1.0, 0.75, 0.5, 0.25),
          "B: A + 0.125": (1.0, 0.75, 0.5, 0.25, 0.125),
-         "C: steps of 1/8 (SHRINK_WEIGHTS_FINE)": (1.0, 0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)}
+         "C: steps of 1/8 (the default since)": (1.0, 0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)}
 GRID_FILES = {"dev.jsonl": "development seeds 100–104, regime change from 60 % (decided on)",
               "devns.jsonl": "development seeds 100–102, no regime change (decided on)",
               "nested.jsonl": "real log, pseudo-future inside the fitting part (decided on)",
@@ -265,7 +265,7 @@ def render_grids(folder):
          "`--real 0.8`, `DIR/judge.jsonl --seeds 0-9`, `DIR/judgens.jsonl --seeds 0-9 --no-shift`), then `--rules … "
          "--grid-candidates DIR`. Each grid: the default rule (largest mean gain, every gate) on the candidates whose "
          "w is in the grid (a candidate's statistics do not depend on the other weights, so grid A reproduces the "
-         "default). *sim*: cases > OLS·1.05, worst ratio, cases < OLS, geometric-mean ratio, channels whose median "
+         "rule before this round, and the tables above, computed on candidates of grid A). *sim*: cases > OLS·1.05, worst ratio, cases < OLS, geometric-mean ratio, channels whose median "
          "ratio ≥ 1; *real*: the held-out RMS ratio to OLS of the MEASURED residual per case.", ""]
     changed = []
     for fname, title in GRID_FILES.items():
