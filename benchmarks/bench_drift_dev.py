@@ -262,8 +262,9 @@ def render_grids(folder):
          "Candidates dumped with `--weights fine` (every family blended with OLS at w = 1, 0.875, …, 0.125: "
          "`--candidates DIR/dev.jsonl --seeds 100-104`, `DIR/devns.jsonl --seeds 100-102 --no-shift`, "
          "`DIR/nested.jsonl --real 0.6 --upto 0.6` and `--real 0.8 --upto 0.8`, `DIR/pf.jsonl --real 0.6` and "
-         "`--real 0.8`, `DIR/judge.jsonl --seeds 0-9`, `DIR/judgens.jsonl --seeds 0-9 --no-shift`), then `--rules … "
-         "--grid-candidates DIR`. Each grid: the default rule (largest mean gain, every gate) on the candidates whose "
+         "`--real 0.8`; optionally `DIR/judge.jsonl --seeds 0-9`, `DIR/judgens.jsonl --seeds 0-9 --no-shift`), then "
+         "`--rules … --grid-candidates DIR` (the sets present: " + ", ".join(
+             t for f, t in GRID_FILES.items() if (Path(folder) / f).exists()) + "). Each grid: the default rule (largest mean gain, every gate) on the candidates whose "
          "w is in the grid (a candidate's statistics do not depend on the other weights, so grid A reproduces the "
          "rule before this round, and the tables above, computed on candidates of grid A). *sim*: cases > OLS·1.05, worst ratio, cases < OLS, geometric-mean ratio, channels whose median "
          "ratio ≥ 1; *real*: the held-out RMS ratio to OLS of the MEASURED residual per case.", ""]
