@@ -63,7 +63,7 @@ def one(family, seed, variant):
              "halfwidth": r["band_halfwidth_heldout_median_um"], "cpu_s": cpu} for ch, r in rep.items()]
 
 
-def candidates(family, seed, shift=True, extra=False):
+def candidates(family, seed, shift=True, extra=False, weights=None):
     """Every candidate of every channel on one development log: its validation statistics (the selector's
     ``candidates_``) and its HELD-OUT RMS after refitting on the whole fitting part, predicted as the model would
     (OLS + w·g(ρ)·(candidate − OLS), ρ = max(raw inputs, its own features) from the fit rows), OLS's beside:
@@ -74,16 +74,18 @@ def candidates(family, seed, shift=True, extra=False):
         path = Path(d) / "log.csv"
         write_csv(path, cols)
         log = load_drift_log(path)
-    return candidates_of(log, SIM_SPLIT, family, seed, extra)
+    return candidates_of(log, SIM_SPLIT, family, seed, extra, weights)
 
 
-def candidates_of(log, fit_fraction, family, seed, extra=False):
+def candidates_of(log, fit_fraction, family, seed, extra=False, weights=None):
     """:func:`candidates` on a loaded ``log`` fitted on its first ``fit_fraction`` (rows tagged family, seed);
-    ``extra``: the measured, non-default families (``drift_models.measured_families``) are candidates too."""
+    ``extra``: the measured, non-default families (``drift_models.measured_families``) are candidates too;
+    ``weights``: the blend weights w of the candidates (default: the selector's ``SHRINK_WEIGHTS``)."""
     from errormap.diagnosis.drift_models import (BAND_RULES, band_of, default_families, distance_weight,
                                                  feature_matrix, input_matrix, measured_families, relative_distance)
     families = default_families() + (measured_families() if extra else [])
-    sel = DriftSelector(fit_fraction=fit_fraction, families=families).fit(log)
+    kw = {} if weights is None else {"shrink_weights": tuple(weights)}
+    sel = DriftSelector(fit_fraction=fit_fraction, families=families, **kw).fit(log)
     fit, hold = sel.split(log)
     cache = sel.cache_
     n = len(log.time_s)
@@ -238,9 +240,84 @@ def render_families(sets):
     return L
 
 
-def render_rules(sets, out):
+# blend grids compared in issue 29's fourth round (the default rule on the candidates whose weight w is in the grid;
+# the decision rule, written before the dumps were read, is in docs/drift_model.md)
+GRIDS = {"A: the grid before (1, 0.75, 0.5, 0.25)": (1.0, 0.75, 0.5, 0.25),
+         "B: A + 0.125": (1.0, 0.75, 0.5, 0.25, 0.125),
+         "C: steps of 1/8 (the default since)": (1.0, 0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)}
+GRID_FILES = {"dev.jsonl": "development seeds 100–104, regime change from 60 % (decided on)",
+              "devns.jsonl": "development seeds 100–102, no regime change (decided on)",
+              "nested.jsonl": "real log, pseudo-future inside the fitting part (decided on)",
+              "pf.jsonl": "real log, the benchmark's pseudo-future (judged, not decided on)",
+              "judge.jsonl": "the benchmark's seeds 0–9, regime change (judged, not decided on)",
+              "judgens.jsonl": "the benchmark's seeds 0–9, no regime change (judged, not decided on)"}
+
+
+def render_grids(folder):
+    """Markdown lines: the default rule applied to the candidates of each blend grid of ``GRIDS`` (dumped with
+    ``--weights fine`` into ``folder``/``GRID_FILES``): per data set the summary, per real case the ratio, and every
+    case whose choice differs from grid A."""
+    rule = next(r for r in RULES.values() if r[2] == _default_selection())
+    L = ["## Blend grids toward OLS (issue 29, fourth round)", "",
+         "Candidates dumped with `--weights fine` (every family blended with OLS at w = 1, 0.875, …, 0.125: "
+         "`--candidates DIR/dev.jsonl --seeds 100-104`, `DIR/devns.jsonl --seeds 100-102 --no-shift`, "
+         "`DIR/nested.jsonl --real 0.6 --upto 0.6` and `--real 0.8 --upto 0.8`, `DIR/pf.jsonl --real 0.6` and "
+         "`--real 0.8`; optionally `DIR/judge.jsonl --seeds 0-9`, `DIR/judgens.jsonl --seeds 0-9 --no-shift`), then "
+         "`--rules … --grid-candidates DIR` (the sets present: " + ", ".join(
+             t for f, t in GRID_FILES.items() if (Path(folder) / f).exists()) + "). Each grid: the default rule (largest mean gain, every gate) on the candidates whose "
+         "w is in the grid (a candidate's statistics do not depend on the other weights, so grid A reproduces the "
+         "rule before this round, and the tables above, computed on candidates of grid A). *sim*: cases > OLS·1.05, worst ratio, cases < OLS, geometric-mean ratio, channels whose median "
+         "ratio ≥ 1; *real*: the held-out RMS ratio to OLS of the MEASURED residual per case.", ""]
+    changed = []
+    for fname, title in GRID_FILES.items():
+        path = Path(folder) / fname
+        if not path.exists():
+            continue
+        rows = [r for line in path.read_text().splitlines() if line.strip() for r in json.loads(line)]
+        grouped = {g: _group([r for r in rows if r["w"] in ws]) for g, ws in GRIDS.items()}
+        res = {g: {k: apply_rule(c, *rule)[:2] for k, c in by.items()} for g, by in grouped.items()}
+        first = next(iter(GRIDS))
+        if rows[0]["family"] == "real":
+            keys = sorted(res[first])
+            L += [f"### {title}", "", "| grid | " + " | ".join(f"{_split_name(title, s)}, {ch}" for _, s, ch in keys)
+                  + " | above OLS | below | geometric mean |", "|---|" + "---|" * (len(keys) + 3)]
+            for g, r in res.items():
+                v = np.array([r[k][0] for k in keys])
+                L.append(f"| {g} | " + " | ".join(f"{r[k][0]:.3f} ({r[k][1]})" for k in keys)
+                         + f" | {int((v > 1 + 5e-4).sum())} | {int((v < 1 - 5e-4).sum())} | "
+                           f"{np.exp(np.mean(np.log(v))):.3f} |")
+        else:
+            n_logs = len({(k[0], k[1]) for k in res[first]})
+            L += [f"### {title} ({n_logs} logs, {len(res[first])} channel cases)", "",
+                  "| grid | > OLS·1.05 | worst ratio | < OLS | geometric mean | median ratio per channel |",
+                  "|---|---|---|---|---|---|"]
+            for g, r in res.items():
+                v = np.array([x for x, _ in r.values()])
+                med = {}
+                for (f, _, ch), (x, _) in sorted(r.items()):
+                    med.setdefault(f"{f} {ch}", []).append(x)
+                L.append(f"| {g} | {int((v > TOLERATED_LOSS).sum())} | {v.max():.3f} | {int((v < 1 - 5e-4).sum())} | "
+                         f"{np.exp(np.mean(np.log(v))):.3f} | "
+                         + ", ".join(f"{c} {np.median(x):.2f}" for c, x in med.items()) + " |")
+            for g, r in res.items():
+                bad = sorted(((x, k, c) for k, (x, c) in r.items() if x > TOLERATED_LOSS), reverse=True)
+                if bad:
+                    L.append(f"\n* {g}, above OLS·1.05: " + "; ".join(f"{k[0]} s{k[1]} {k[2]} {c} {x:.3f}×"
+                                                                       for x, k, c in bad))
+        L.append("")
+        for g, r in res.items():
+            for k in sorted(r):
+                if g != first and r[k][1] != res[first][k][1]:
+                    where = f"{_split_name(title, k[1])}, {k[2]}" if k[0] == "real" else f"{k[0]} s{k[1]} {k[2]}"
+                    changed.append(f"* {g}, {title}: {where}: {res[first][k][1]} {res[first][k][0]:.3f} → "
+                                   f"{r[k][1]} {r[k][0]:.3f}")
+    L += ["Cases whose choice differs from grid A (held-out ratio to OLS, A → the grid):", ""] + (changed or ["* none"])
+    return L + [""]
+
+
+def render_rules(sets, out, grid_folder=None):
     """``sets``: {title: candidate rows}; titles starting "real" are the real log (one column per case), the others
-    simulated logs (summary per rule)."""
+    simulated logs (summary per rule); ``grid_folder``: the blend-grid comparison (:func:`render_grids`) too."""
     from errormap.diagnosis.drift_models import default_families
     fam_lines = render_families(sets)
     names = {f.name for f in default_families()}
@@ -317,6 +394,8 @@ def render_rules(sets, out):
                 L.append(f"| {t} | {_split_name(t, k[1])}, {k[2]} | " + " | ".join(
                     f"{p['band_cover'][b]:.2f}, {p['band_half'][b]:.3g}" for b in BAND_RULES) + f" | {p['band_gamma']:g} |")
     L += [""] + fam_lines
+    if grid_folder:
+        L += render_grids(grid_folder)
     with atomic_write(out, "w", encoding="utf-8") as fh:
         fh.write("\n".join(L) + "\n")
     return L
@@ -384,14 +463,25 @@ def main(argv=None):
     ap.add_argument("--judge-candidates", default=None,
                     help="with --rules: candidates of the benchmark's seeds (--seeds 0-9), reported beside the "
                          "development seeds (judged, never decided on)")
+    ap.add_argument("--grid-candidates", default=None,
+                    help="with --rules: a folder of candidates dumped with --weights fine (dev.jsonl, devns.jsonl, "
+                         "nested.jsonl, pf.jsonl, judge.jsonl, judgens.jsonl; those present): the blend grids compared")
     ap.add_argument("--with-families", action="store_true",
                     help="with --candidates: the measured non-default families are candidates too (their comparison "
                          "is a section of --rules' output)")
+    ap.add_argument("--weights", default=None,
+                    help="with --candidates: the blend weights w of the candidates, comma-separated (default: the "
+                         "selector's SHRINK_WEIGHTS; 'fine': SHRINK_WEIGHTS_FINE)")
     ap.add_argument("--upto", type=float, default=None,
                     help="with --real: keep only the first UPTO of the log (a fitting part; its rest is never read)")
     ap.add_argument("--real", type=float, default=None,
                     help="dump the candidates of the real log fitted on this fraction (to --candidates FILE)")
     a = ap.parse_args(argv)
+    if a.weights == "fine":
+        from errormap.diagnosis.drift_models import SHRINK_WEIGHTS_FINE
+        a.weights = SHRINK_WEIGHTS_FINE
+    elif a.weights:
+        a.weights = tuple(float(x) for x in a.weights.split(","))
     if a.rules:
         def rows_of(f):
             return [r for line in Path(f).read_text().splitlines() if line.strip() for r in json.loads(line)] if f else []
@@ -401,21 +491,21 @@ def main(argv=None):
                 "real log, the benchmark's pseudo-future (reported)": rows_of(a.real_candidates),
                 "simulated, the benchmark's seeds 0–9, regime change (judged, not decided on)":
                     rows_of(a.judge_candidates)}
-        print("\n".join(render_rules(sets, a.out)))
+        print("\n".join(render_rules(sets, a.out, a.grid_candidates)))
         return
     if a.candidates and a.real is not None:
         log = load_drift_log(REAL)
         if a.upto is not None:      # the log's first ``upto`` only: a pseudo-future inside a fitting part
             log = head_of(log, a.upto)
         with open(a.candidates, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps(candidates_of(log, a.real, "real", a.real, a.with_families)) + "\n")
+            fh.write(json.dumps(candidates_of(log, a.real, "real", a.real, a.with_families, a.weights)) + "\n")
         return
     if a.candidates:
         lo, hi = (int(x) for x in a.seeds.split("-"))
         for f in a.families.split(","):
             for s in range(lo, hi + 1):
                 t0 = time.process_time()
-                r = candidates(f, s, shift=not a.no_shift, extra=a.with_families)
+                r = candidates(f, s, shift=not a.no_shift, extra=a.with_families, weights=a.weights)
                 with open(a.candidates, "a", encoding="utf-8") as fh:
                     fh.write(json.dumps(r) + "\n")
                 ch = [x for x in r if x["chosen"]]

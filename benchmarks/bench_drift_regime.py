@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from errormap.diagnosis.drift import load_drift_log  # noqa: E402
 from errormap.diagnosis.drift_models import (BAND_GAMMAS, BAND_RULE, BAND_RULES, LCB_LEVEL,  # noqa: E402
-                                             SELECTION, DriftSelector)
+                                             SELECTION, SHRINK_WEIGHTS, DriftSelector)
 from errormap.diagnosis.drift_sim import SHIFT_AMBIENT_C, SHIFT_SPEED, SIMULATORS  # noqa: E402
 from errormap.io import atomic_write, write_csv, write_json  # noqa: E402
 
@@ -195,7 +195,8 @@ def rule_text():
             "fold_flat": "the split-conformal 95 % quantile of |validation residual| on the horizon and novelty folds, "
                          "not grown with ρ"}
     return ("Selection rule (docs/drift_model.md): a candidate — a family, or a family shrunk toward OLS, "
-            "predicting OLS + w0·g(ρ)·(candidate − OLS) per sample (w0 ∈ 1, 0.75, 0.5, 0.25; ρ = the distance of the "
+            "predicting OLS + w0·g(ρ)·(candidate − OLS) per sample (w0 ∈ " + ", ".join(f"{w:g}" for w in SHRINK_WEIGHTS)
+            + "; ρ = the distance of the "
             "sample's raw inputs from the fit data over the fit data's 99th-percentile distance; g = 1 for ρ ≤ 1, "
             "exp(−(ρ − 1)/s) beyond, s chosen on the novelty folds) — is eligible only when it is below OLS on the "
             "ranking folds AND beats OLS by more than one standard error on the horizon folds AND on the novelty "

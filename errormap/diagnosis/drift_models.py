@@ -82,7 +82,14 @@ BAND_RULE = "fold_residual"   # band95_um = the split-conformal BAND_QUANTILE of
 #   cover BAND_QUANTILE of the fold rows exactly, but measured to cover 1–90 % of the real log's pseudo-futures
 #   (the future's errors outgrow the folds'); both are computed and reported (``band_alt_``), one is the model's
 SUBSET_SEARCH_STEP_S = 60.0                      # the subset search runs on rows ≥ 60 s apart
-SHRINK_WEIGHTS = (1.0, 0.75, 0.5, 0.25)          # candidate weight in a blend w·candidate + (1 − w)·OLS
+SHRINK_WEIGHTS = (1.0, 0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)   # candidate weight w in a blend
+#   w·candidate + (1 − w)·OLS (w = 0: OLS itself, the fallback). Steps of 1/8 since issue 29's fourth round, decided
+#   by a rule written before the figures (docs/drift_model.md) on development seeds 100–104 and inside the real log's
+#   fitting parts against the earlier grid SHRINK_WEIGHTS_COARSE: 5 → 4 cases above 1.05× OLS of 45 (worst 3.05× →
+#   2.12×), geometric-mean ratio 0.818 → 0.796, no regime change 1 → 1 (1.55× → 1.18×); real fitting parts 0 above /
+#   6 below either way, but one case's gain smaller (ch1 at 38.4 %: 0.37× → 0.72× OLS)
+SHRINK_WEIGHTS_COARSE = (1.0, 0.75, 0.5, 0.25)   # the grid before issue 29's fourth round (a setting)
+SHRINK_WEIGHTS_FINE = SHRINK_WEIGHTS             # the name the fourth round measured it under (bench_drift_dev --weights fine)
 HEDGE_WEIGHT = 1.0   # a weight above HEDGE_WEIGHT only where every fold's RMS ratio to OLS is ≤ CONFIDENT_WORST_FOLD;
 CONFIDENT_WORST_FOLD = 0.5   # 1.0: no hedge (the default). The hedge (0.5: at most half a candidate unless it beat
 #   OLS by 2× on every fold: the blend's error is at most the mean of the two) with SELECTION = "worst_fold" was
@@ -684,6 +691,78 @@ def _merge(feats, intercept, coef):
     return out_f, float(intercept), np.array(out_c)
 
 
+def blend_with_ols(cand, ols, w: float):
+    """(features, intercept, coef) of the blend ``w``·cand + (1 − ``w``)·ols of two linear models on causal features
+    (each a (features, intercept, coef) triple): again one such model, the coefficients of a feature both use summed.
+    ``w`` = 0 returns ``ols`` itself, ``w`` = 1 ``cand`` itself (exactly: no arithmetic on either)."""
+    if not 0.0 <= w <= 1.0:
+        raise ValueError(f"Expected a blend weight in [0, 1], got {w}")
+    if w == 0.0:
+        return ols
+    if w == 1.0:
+        return cand
+    (feats, a, b), (fo, ao, bo) = cand, ols
+    return _merge(list(feats) + list(fo), w * a + (1 - w) * ao,
+                  np.concatenate([w * np.asarray(b), (1 - w) * np.asarray(bo)]))
+
+
+def _rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def _blend_residuals(w: float, cand, ols, rhos, scale: float) -> list:
+    """Per fold, the residual of OLS + w·g(ρ)·(candidate − OLS) (residuals are target − prediction, so the blend's is
+    the same blend of the two residuals): lists of (n_i,) arrays; ``scale`` = inf: g = 1 (a fixed blend)."""
+    if not np.isfinite(scale):
+        return [y + w * (x - y) for x, y in zip(cand, ols)]
+    return [y + w * distance_weight(q, scale) * (x - y) for x, y, q in zip(cand, ols, rhos)]
+
+
+def blend_statistics(w: float, scale: float, cand: tuple, ols: tuple, rhos: tuple, gate_se: float = GATE_SE,
+                     ranking_fold_loss: bool = RANKING_FOLD_LOSS) -> tuple[dict, tuple]:
+    """Validation statistics of a candidate blended with OLS at weight ``w`` (per-sample scale ``scale``).
+
+    ``cand``, ``ols``, ``rhos``: (ranking, horizon, novelty) lists of per-fold (n_i,) arrays — the candidate's and
+    OLS's validation residuals (μm) and each row's ρ from its fold's training rows; an empty novelty list: no
+    novelty folds. Returns (stats, gate): ``stats`` as in ``DriftSelector.candidates_`` (RMS on each set, the
+    worst fold's RMS ratio to OLS under the per-fold bound (``ranking_fold_loss``: the ranking folds count) and
+    over all folds, per-fold ratios, band quantiles, the mean log-gain over OLS), ``gate`` = (horizon, novelty)
+    :func:`horizon_gate` results."""
+    (res_r, res_h, res_n), (r0, h0, n0), (rho_r, rho_h, rho_n) = cand, ols, rhos
+    nfolds = len(n0) > 0
+    rl = _blend_residuals(w, res_r, r0, rho_r, scale)
+    hl = _blend_residuals(w, res_h, h0, rho_h, scale)
+    nl = _blend_residuals(w, res_n, n0, rho_n, scale)
+    r = np.concatenate(rl)
+    gh = horizon_gate([_rms(x) for x in h0], [_rms(x) for x in hl], gate_se)
+    gn = horizon_gate([_rms(x) for x in n0], [_rms(x) for x in nl], gate_se) if nfolds else (True, 0.0, 0.0)
+    # the per-fold loss bound: on every horizon and novelty fold, and (``ranking_fold_loss``) on every
+    # ranking fold too — the last ranking fold is the stretch nearest the future
+    lr, l0 = (rl + hl + nl, r0 + h0 + n0) if ranking_fold_loss else (hl + nl, h0 + n0)
+    worst = max(_rms(x) / max(_rms(y), 1e-300) for x, y in zip(lr, l0))
+    worst_all = max(_rms(x) / max(_rms(y), 1e-300) for x, y in zip(rl + hl + nl, r0 + h0 + n0))
+    rank = _rms(r)
+    # band: calibrated on the horizon and novelty folds alone (held-out stretches as long as the
+    # deployment's, and the most novel ones), as a split-conformal quantile of |residual|
+    # ("fold_residual") or of |residual| / max(1, ρ) ("rho_scaled": the same growth max(1, ρ) the
+    # band has at prediction, so it covers BAND_QUANTILE of the fold rows by construction)
+    zb = np.concatenate([np.abs(x) / np.maximum(1.0, q) for x, q in zip(hl + nl, rho_h + rho_n)])
+    stats = {"ranking": rank, "horizon": _rms(np.concatenate(hl)),
+             "novelty": _rms(np.concatenate(nl)) if nfolds else 0.0,
+             "band_rho_scaled": conformal_quantile(zb, BAND_QUANTILE),
+             "band_fold_residual": conformal_quantile(np.abs(np.concatenate(hl + nl)), BAND_QUANTILE),
+             "scale": scale, "worst_fold": worst, "worst_all": worst_all,
+             "fold_rho": float(np.quantile(np.concatenate(rho_h + rho_n), 0.95)),
+             "fold_rho_each": ([float(np.median(q)) for q in rho_r], [float(np.median(q)) for q in rho_h],
+                               [float(np.median(q)) for q in rho_n]),
+             "band_rho_power": rho_power_band(np.abs(np.concatenate(hl + nl)), np.concatenate(rho_h + rho_n)),
+             "fold_ratios": ([_rms(x) / max(_rms(y), 1e-300) for x, y in zip(rl, r0)],
+                             [_rms(x) / max(_rms(y), 1e-300) for x, y in zip(hl, h0)],
+                             [_rms(x) / max(_rms(y), 1e-300) for x, y in zip(nl, n0)]),
+             "gain": (np.log(_rms(np.concatenate(r0)) / rank) + gh[1] + gn[1]) / (3 if nfolds else 2)}
+    return stats, (gh, gn)
+
+
 def rolling_origin_folds(n_fit: int, n_folds: int = 4, start: float = 0.5):
     """Forward-chaining folds on rows 0..n_fit-1: [(train (a,), validate (b,))], training always earlier."""
     first = int(round(start * n_fit))
@@ -815,6 +894,20 @@ class DriftSelector:
         self.band_rule = band_rule
         self.confident_worst_fold = confident_worst_fold
 
+    def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
+        """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes
+        every gate of the rule in force against OLS, whose ranking-fold RMS is ``ranking_ols``: below it on the
+        ranking folds, > ``gate_se`` SE and a mean log-gain ≥ ``min_gain`` on the horizon and (``novelty``) the
+        novelty folds, no fold above ``max_fold_loss``× OLS, the hedge, and the selection's own floor."""
+        (ok_h, gain_h, _), (ok_n, gain_n, _) = gate
+        return bool(stats["ranking"] < ranking_ols and ok_h and ok_n and stats["worst_fold"] <= self.max_fold_loss
+                    and (w <= self.hedge_weight or stats["worst_all"] <= self.confident_worst_fold)
+                    and gain_h >= self.min_gain and (not novelty or gain_n >= self.min_gain)
+                    # "lcb": the lower confidence bound must itself be above OLS; "trimmed_fold": the gain without
+                    # its best fold must still be worth its risk
+                    and (self.selection != "lcb" or fold_gain_score(stats, "lcb") > 0)
+                    and (self.selection != "trimmed_fold" or fold_gain_score(stats, "trimmed_fold") >= self.min_gain))
+
     def split(self, log):
         n = len(log.time_s)
         n_fit = int(round(self.fit_fraction * n))
@@ -875,9 +968,6 @@ class DriftSelector:
         self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
         self.scale_, self.worst_fold_, self.fold_ratios_, self.fold_rho_, self.candidates_ = {}, {}, {}, {}, {}
         self.band_alt_, self.score_ = {}, {}
-
-        def rms(x):
-            return float(np.sqrt(np.mean(np.square(x))))
         for ch in chans:
             base = ("ols", "")
             full = {k[1:]: v for k, v in resid.items() if k[0] == ch and len(v) == len(folds)
@@ -891,61 +981,17 @@ class DriftSelector:
                 rho_h = cand_rho(hfolds, fh[(ch, *k)])
                 rho_n = cand_rho(nfolds, fn[(ch, *k)])
                 for w in ((1.0,) if k == base else self.shrink_weights):
-                    def blend(a, b, rhos, s):
-                        # per sample: OLS + w·g(ρ)·(candidate − OLS)
-                        if not np.isfinite(s):
-                            return [y + w * (x - y) for x, y in zip(a, b)]
-                        return [y + w * distance_weight(q, s) * (x - y) for x, y, q in zip(a, b, rhos)]
                     # g's scale: the one of lowest RMS on the novelty folds (ties: the least shrinkage)
                     sc = np.inf
                     if nfolds and k != base:
-                        sc = min(self.shrink_scales, key=lambda s: (round(rms(np.concatenate(
-                            blend(nresid[(ch, *k)], n0, rho_n, s))), 12), -s))
-                    rl = blend(resid[(ch, *k)], r0, rho_r, sc)
-                    hl = blend(hresid[(ch, *k)], h0, rho_h, sc)
-                    nl = blend(nresid[(ch, *k)], n0, rho_n, sc)
-                    r = np.concatenate(rl)
+                        sc = min(self.shrink_scales, key=lambda s: (round(_rms(np.concatenate(
+                            _blend_residuals(w, nresid[(ch, *k)], n0, rho_n, s))), 12), -s))
                     key = (k[0], k[1], w)
-                    gh = horizon_gate([rms(x) for x in h0], [rms(x) for x in hl], self.gate_se)
-                    gn = horizon_gate([rms(x) for x in n0], [rms(x) for x in nl], self.gate_se) \
-                        if nfolds else (True, 0.0, 0.0)
-                    # the per-fold loss bound: on every horizon and novelty fold, and (``ranking_fold_loss``) on every
-                    # ranking fold too — the last ranking fold is the stretch nearest the future
-                    lr, l0 = (rl + hl + nl, r0 + h0 + n0) if self.ranking_fold_loss else (hl + nl, h0 + n0)
-                    worst = max(rms(x) / max(rms(y), 1e-300) for x, y in zip(lr, l0))
-                    worst_all = max(rms(x) / max(rms(y), 1e-300) for x, y in zip(rl + hl + nl, r0 + h0 + n0))
-                    rank = rms(r)
-                    # band: calibrated on the horizon and novelty folds alone (held-out stretches as long as the
-                    # deployment's, and the most novel ones), as a split-conformal quantile of |residual|
-                    # ("fold_residual") or of |residual| / max(1, ρ) ("rho_scaled": the same growth max(1, ρ) the
-                    # band has at prediction, so it covers BAND_QUANTILE of the fold rows by construction)
-                    zb = np.concatenate([np.abs(x) / np.maximum(1.0, q) for x, q in zip(hl + nl, rho_h + rho_n)])
-                    scores[key] = {"ranking": rank, "horizon": rms(np.concatenate(hl)),
-                                   "novelty": rms(np.concatenate(nl)) if nfolds else 0.0,
-                                   "band_rho_scaled": conformal_quantile(zb, BAND_QUANTILE),
-                                   "band_fold_residual": conformal_quantile(
-                                       np.abs(np.concatenate(hl + nl)), BAND_QUANTILE),
-                                   "scale": sc, "worst_fold": worst, "worst_all": worst_all,
-                                   "fold_rho": float(np.quantile(np.concatenate(rho_h + rho_n), 0.95)),
-                                   "fold_rho_each": ([float(np.median(q)) for q in rho_r],
-                                                     [float(np.median(q)) for q in rho_h],
-                                                     [float(np.median(q)) for q in rho_n]),
-                                   "band_rho_power": rho_power_band(np.abs(np.concatenate(hl + nl)),
-                                                                    np.concatenate(rho_h + rho_n)),
-                                   "fold_ratios": ([rms(x) / max(rms(y), 1e-300) for x, y in zip(rl, r0)],
-                                                   [rms(x) / max(rms(y), 1e-300) for x, y in zip(hl, h0)],
-                                                   [rms(x) / max(rms(y), 1e-300) for x, y in zip(nl, n0)]),
-                                   "gain": (np.log(rms(np.concatenate(r0)) / rank) + gh[1] + gn[1]) / (3 if nfolds else 2)}
-                    gate[key] = (gh, gn)
+                    scores[key], gate[key] = blend_statistics(
+                        w, sc, (resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)]), (r0, h0, n0),
+                        (rho_r, rho_h, rho_n), self.gate_se, self.ranking_fold_loss)
             r_ols = scores[(*base, 1.0)]["ranking"]
-            ok = [k for k in scores if k[0] != "ols" and scores[k]["ranking"] < r_ols and gate[k][0][0] and gate[k][1][0]
-                  and scores[k]["worst_fold"] <= self.max_fold_loss
-                  and (k[2] <= self.hedge_weight or scores[k]["worst_all"] <= self.confident_worst_fold)
-                  and gate[k][0][1] >= self.min_gain and (not nfolds or gate[k][1][1] >= self.min_gain)]
-            if self.selection == "lcb":     # the lower confidence bound must itself be above OLS
-                ok = [k for k in ok if fold_gain_score(scores[k], "lcb") > 0]
-            if self.selection == "trimmed_fold":    # the gain without its best fold must still be worth its risk
-                ok = [k for k in ok if fold_gain_score(scores[k], "trimmed_fold") >= self.min_gain]
+            ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, bool(nfolds))]
             # the largest score (ties: the larger mean gain); "worst_fold": the best worst fold
             best = max(ok, key=lambda k: (fold_gain_score(scores[k], self.selection), scores[k]["gain"])) \
                 if ok else (*base, 1.0)
@@ -1010,10 +1056,7 @@ class DriftSelector:
             f, hy = self.chosen_[ch]
             feats, a, b = final[f][ch][hy]
             w = self.shrink_[ch]
-            if w != 1.0:
-                fo, ao, bo = final["ols"][ch][""]
-                feats, a, b = _merge(list(feats) + list(fo), w * a + (1 - w) * ao,
-                                     np.concatenate([w * np.asarray(b), (1 - w) * np.asarray(bo)]))
+            feats, a, b = blend_with_ols((feats, a, b), final["ols"][ch][""], w)
             sc = self.scale_[ch]
             own = final[f][ch][hy][0]
             nv = feature_novelty(own, feature_matrix(log, own, cache)[fit]) \
