@@ -8,8 +8,10 @@ calibration; a plain GP on the plain calibration's residual), volcomp's geometri
 (measured − model) on the held-out poses; every DECISION is made by k-fold CV inside the fit poses
 (the held-out poses only report): the geometric slot set (``dh``, ``dh+compliance``,
 ``dh+compliance+harmonic``, :mod:`errormap.arm_calibration`), the plain LSQ fit instead where it did
-better in that CV (never return a model that loses to the plain baseline), and the learned stage on
-top only if the ResidualRegressor's CV says it beats the geometric stage.
+better in that CV (never return a model that loses to the plain baseline), the learned stage on
+top only if the ResidualRegressor's CV says it beats the geometric stage, and then among whole pipelines
+(volcomp's choice, the plain LSQ fit, the plain GP on its residual, and ``stacked``: volcomp's choice and
+the plain GP blended with the weight their out-of-fold predictions choose) the lowest CV mean error.
 Writes ``calibration.json`` and ``report.html`` (:mod:`compensation.app.reports.arm_calibration`).
 """
 from __future__ import annotations
