@@ -35,7 +35,7 @@ from errormap.arm_simulate import draw_truth, measure, random_joints  # noqa: E4
 from errormap.io import atomic_write, write_json  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
 
-from compensation.app.workflows.arm_calibration import (PIPELINE_RULES, PLAIN_GP, calibrate_arm,  # noqa: E402
+from compensation.app.workflows.arm_calibration import (PIPELINE_RULES, PLAIN_GP, STACKED, calibrate_arm,  # noqa: E402
                                                         choose_pipeline)
 from compensation.arm_compensation import solve_joints  # noqa: E402
 
@@ -57,7 +57,8 @@ LOOP_SEEDS = 2  # learned stage + compensation on this many simulated arms (a GP
 Z95 = 1.959963984540054
 ROW_ORDER = ["nominal", "nominal + base/tool", "plain geometric LSQ", "geometric (DH)", "geometric+compliance",
              "geometric+compliance+harmonic", "geometric stage chosen by inner CV", "plain GP on plain LSQ residual",
-             "learned (GP on the chosen geometric stage)", "volcomp kept stage"]
+             "learned (GP on the chosen geometric stage)", "stacked (the command's candidate)", "volcomp kept stage"]
+STACKED_ROW = "stacked (the command's candidate)"
 
 
 def folds_random(n, k, repeats, seed):
@@ -116,6 +117,7 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
                 "geometric stage chosen by inner CV": err(geo.predict(check.q)),
                 "plain GP on plain LSQ residual": err(pl.predict(check.q) + core["plain_gp"].predict(check.q)),
                 "learned (GP on the chosen geometric stage)": learned,
+                STACKED_ROW: err(core["stacked"].point(check.q)),
                 "volcomp kept stage": err(kgeo.predict(check.q) + (0.0 if kl is None else kl.predict(check.q)))}
         for k, v in errs.items():
             pooled.setdefault(k, []).append(v)
@@ -126,6 +128,10 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
                      "kept_mean_mm": float(errs["volcomp kept stage"].mean()),
                      "plain_gp_mean_mm": float(errs["plain GP on plain LSQ residual"].mean()),
                      "cpu_s": time.process_time() - t0})
+        st, st_sd = core["stacked"], core["stacked"].predict(check.q, return_std=True)[1]
+        kept[-1]["stacked"] = {**{k: v for k, v in core["stacked_summary"].items() if k != "band_rule"},
+                               "coverage95_heldout": float(np.mean(np.abs(check.xyz_mm - st.point(check.q))
+                                                                   <= Z95 * st_sd))}
         vol = core["pipeline_volcomp"]
         p_vol = geo.predict(check.q) + (core["learner"].predict(check.q) if vol == "learned" else 0.0)
         p_pgp = pl.predict(check.q) + core["plain_gp"].predict(check.q)
@@ -160,7 +166,7 @@ def rule_outcomes(core, errs, fit, check, p_vol, p_pgp, repeat_cv=None):
     outer = {vol: errs["volcomp kept stage"] if core["kept_stage"] == vol else
              errs["learned (GP on the chosen geometric stage)"] if vol == "learned" else
              errs["geometric stage chosen by inner CV"],
-             "plain geometric LSQ": errs["plain geometric LSQ"], PLAIN_GP: errs[PLAIN_GP]}
+             "plain geometric LSQ": errs["plain geometric LSQ"], PLAIN_GP: errs[PLAIN_GP], STACKED: errs[STACKED_ROW]}
     out = {"inner_cv_mean_mm": {k: v["cv_mean_mm"] for k, v in pcv.items()},
            "outer_mean_mm": {k: float(v.mean()) for k, v in outer.items()}}
     for rule in PIPELINE_RULES:
@@ -176,7 +182,7 @@ def rule_outcomes(core, errs, fit, check, p_vol, p_pgp, repeat_cv=None):
         pipes = {vol: ("plain" if geo is core["plain_model"] else geo.model,
                        core["learner"] if vol == "learned" else None),
                  "plain geometric LSQ": ("plain", None), PLAIN_GP: ("plain", core["plain_gp"])}
-        means = {k: [v["cv_mean_mm"]] for k, v in pcv.items()}
+        means = {k: [v["cv_mean_mm"]] for k, v in pcv.items() if k != STACKED}   # the three pipelines re-split
         for ss in np.random.SeedSequence([0, 7]).spawn(reps):   # new inner splits (random: blocked sectors are fixed)
             if groups is not None:
                 break
@@ -354,7 +360,13 @@ def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
         sol = solve_joints(core["geometric_model"].chain, core["geometric_model"].params, learner, chain.tool_point(qp), qp)
         true_after = np.linalg.norm(t.tool_point(chain, sol.q) - chain.tool_point(qp), axis=1)
         true_before = np.linalg.norm(t.tool_point(chain, qp) - chain.tool_point(qp), axis=1)
-        loop.append({"seed": 100 + seed, "kept": core["kept_stage"], "kept_rms_mm": rows[core["kept_stage"]]["rms_mm"],
+        st = core["stacked"]        # the stacked candidate compensated too, kept or not (its Jacobian in the Newton step)
+        sol_st = solve_joints(st.geometric.chain, st.geometric.params, st, chain.tool_point(qp), qp)
+        true_st = np.linalg.norm(t.tool_point(chain, sol_st.q) - chain.tool_point(qp), axis=1)
+        e_st = np.linalg.norm(check.xyz_mm - st.point(check.q), axis=1)
+        loop.append({"stacked": {"weight": st.weight, "heldout_rms_mm": float(np.sqrt(np.mean(e_st ** 2))),
+                                 "compensation_true_rms_mm": float(np.sqrt(np.mean(true_st ** 2))),
+                                 "converged": int(sol_st.converged.sum())},"seed": 100 + seed, "kept": core["kept_stage"], "kept_rms_mm": rows[core["kept_stage"]]["rms_mm"],
                      "heldout_rms_mm": {k: v["rms_mm"] for k, v in rows.items()},
                      "compensation_true_rms_mm": float(np.sqrt(np.mean(true_after ** 2))),
                      "uncompensated_true_rms_mm": float(np.sqrt(np.mean(true_before ** 2))),
@@ -462,7 +474,9 @@ def rules_md(r):
         L.append(f"| volcomp's choice ({', '.join(sorted({next(iter(f['rules']['inner_cv_mean_mm'])) for f in ks}))}) | "
                  f"{np.mean([first(f['rules']['inner_cv_mean_mm']) for f in ks]):.4f} | "
                  f"{np.mean([first(f['rules']['outer_mean_mm']) for f in ks]):.4f} |")
-        for nm in ("plain geometric LSQ", PLAIN_GP):
+        for nm in ("plain geometric LSQ", PLAIN_GP, STACKED):
+            if not all(nm in f["rules"]["inner_cv_mean_mm"] for f in ks):
+                continue
             L.append(f"| {nm} | {np.mean([f['rules']['inner_cv_mean_mm'][nm] for f in ks]):.4f} | "
                      f"{np.mean([f['rules']['outer_mean_mm'][nm] for f in ks]):.4f} |")
     return L
@@ -535,6 +549,16 @@ def fmt(v, d=3):
     return "—" if v is None else f"{v:.{d}f}"
 
 
+def stacked_note(ks) -> str:
+    """The stacked candidate's weights and band coverage over the outer folds (folds run before it: nothing)."""
+    st = [f["stacked"] for f in ks if "stacked" in f]
+    if not st:
+        return ""
+    return (f"; stacked candidate: weight on volcomp's pipeline per fold {', '.join(format(x['weight'], '.2f') for x in st)}, "
+            f"its 95 % band (w·s_a + (1 − w)·s_b) covers {np.mean([x['coverage95_cv'] for x in st]):.3f} in the inner "
+            f"CV and {np.mean([x['coverage95_heldout'] for x in st]):.3f} on the outer held-out folds")
+
+
 def write_md(res, args):
     L = ["# Arm calibration: real laser-tracker data and a simulated arm", "",
          "Produced by `python benchmarks/bench_arms.py" + (" --quick" if args.quick else "") + "`. "
@@ -572,6 +596,7 @@ def write_md(res, args):
                   f"95 % band of the kept stage on the outer held-out fold: coverage {np.mean(covh):.3f} "
                   f"(per fold {', '.join(f'{c:.3f}' for c in covh)})"
                   + (f"; the GP's uncalibrated band in its inner CV: {np.mean(cov_raw):.3f}" if cov_raw else "")
+                  + stacked_note(ks)
                   + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s." + stale
                   + ("" if all("rules" in f for f in ks) else
                      " RUN BEFORE the leak fix (point 1): its pipeline CV kept the GP hyper-parameters chosen on all fit "
@@ -629,14 +654,18 @@ def write_md(res, args):
     L += ["", f"Noise floor of a perfect model (RMS 3-D error against noisy measurements): "
           f"{np.sqrt(3) * NOISE_MM:.4f} mm; bound 1.25× = {1.25 * np.sqrt(3) * NOISE_MM:.4f} mm.", "",
           "| seed | kept | held-out RMS nominal+base/tool / plain LSQ / geometric (DH) / geometric+compliance / plain GP / "
-          "kept (mm) | compensated commands TRUE RMS (mm) | uncompensated TRUE RMS (mm) |", "|---|---|---|---|---|"]
+          "kept (mm) | compensated commands TRUE RMS (mm) | uncompensated TRUE RMS (mm) | stacked candidate: weight, "
+          "held-out RMS, compensated TRUE RMS (mm) |", "|---|---|---|---|---|---|"]
     for s in res["sim"].get("loop", []):
         h = s["heldout_rms_mm"]
         L.append(f"| {s['seed']} | {s['kept']} | {fmt(h['nominal + base/tool'], 4)} / {fmt(h['plain geometric LSQ'], 4)} / "
                  f"{fmt(h['geometric'], 4)} / {fmt(h['geometric+compliance'], 4)} / "
                  f"{fmt(h['plain GP on plain LSQ residual'], 4)} / {fmt(s['kept_rms_mm'], 4)} | "
                  f"{fmt(s['compensation_true_rms_mm'], 4)} ({s['converged']}/{s['points']} converged) | "
-                 f"{fmt(s['uncompensated_true_rms_mm'], 4)} |")
+                 f"{fmt(s['uncompensated_true_rms_mm'], 4)} | "
+                 + (f"{s['stacked']['weight']:.2f}, {fmt(s['stacked']['heldout_rms_mm'], 4)}, "
+                    f"{fmt(s['stacked']['compensation_true_rms_mm'], 4)} ({s['stacked']['converged']}/{s['points']} "
+                    "converged)" if "stacked" in s else "not run") + " |")
     L.append("")
     _write_md(OUT_MD, "\n".join(L))
 

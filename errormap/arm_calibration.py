@@ -143,6 +143,9 @@ class GeometricResult:
     converged: bool
     method: str = "volcomp"
     cv_table: list = field(default_factory=list)
+    full_covariance: bool = True
+    """False for a stage read from a file written before the covariance was saved (its ``cov`` then holds the
+    standard errors alone: J Σ Jᵀ without the correlations is no band)."""
 
     @property
     def model(self) -> str:
@@ -167,7 +170,8 @@ class GeometricResult:
                                for n, v, s, f in zip(names, self.params, self.std, self.free)],
                 "fixed_slots": [n for n, f in zip(names, self.free) if not f],
                 "unidentifiable_combinations": [c["text"] for c in self.fixed],
-                "singular_values_scaled": self.singular_values.tolist()}
+                "singular_values_scaled": self.singular_values.tolist(),
+                "covariance_identified": self.cov[np.ix_(self.free, self.free)].tolist()}
 
     @classmethod
     def from_dict(cls, chain, d: dict) -> "GeometricResult":
@@ -178,9 +182,18 @@ class GeometricResult:
         params = np.array([x["value"] for x in p], float)
         std = np.array([x["std"] or 0.0 for x in p], float)
         free = np.array([x["identified"] for x in p], bool)
-        return cls(chain, params, free, np.diag(std ** 2), std, d["sigma_mm"], d["fit_rms_mm"],
-                   np.array(d["singular_values_scaled"]), [{"text": t} for t in d["unidentifiable_combinations"]],
-                   d["iterations"], d["converged"], d.get("method", "volcomp"), d.get("cv_table", []))
+        cov, full = np.diag(std ** 2), "covariance_identified" in d   # files before it: the standard errors only
+        if full:
+            c = np.asarray(d["covariance_identified"], float)
+            if c.shape != (free.sum(),) * 2:
+                raise InputError(f"model key 'covariance_identified': shape {c.shape}, expected {(int(free.sum()),) * 2}")
+            cov = np.zeros((len(p), len(p)))
+            cov[np.ix_(free, free)] = c
+        out = cls(chain, params, free, cov, std, d["sigma_mm"], d["fit_rms_mm"],
+                  np.array(d["singular_values_scaled"]), [{"text": t} for t in d["unidentifiable_combinations"]],
+                  d["iterations"], d["converged"], d.get("method", "volcomp"), d.get("cv_table", []))
+        out.full_covariance = full
+        return out
 
 
 def _weights(poses):

@@ -78,8 +78,8 @@ def test_cli_refusals(tmp_path, capsys):
                  str(tmp_path / "fp.csv")]) == 2
     assert "a serial arm: use volcomp simulate, calibrate, compensate, predict or benchmark" in capsys.readouterr().err
     assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal.json"), str(tmp_path / "p.csv"),
-                 "--out", str(tmp_path / "o.csv"), "--band", "95"]) == 2
-    assert "--band: an arm's calibration.json" in capsys.readouterr().err
+                 "--out", str(tmp_path / "o.csv"), "--band", "95"]) == 2   # an arm's band: its stage's (no file here)
+    assert "not a readable calibration.json" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -164,6 +164,14 @@ class ArmResidualRegressor:
         m, dX = self.regressor_.predict_and_jacobian(features(self.chain, q, self.inputs))
         return m, np.einsum("nkd,ndj->nkj", dX, feature_jacobian(self.chain, q, self.inputs))
 
+    def with_regressor(self, regressor) -> "ArmResidualRegressor":
+        """A copy of this learner (chain, inputs, settings) carrying another fitted ``regressor``
+        (:class:`ResidualRegressor`, e.g. its :meth:`~ResidualRegressor.refit` on a fold's fit part)."""
+        import copy
+        out = copy.copy(self)
+        out.regressor_ = regressor
+        return out._fitted()
+
     def to_dict(self) -> dict:
         return {"format": FORMAT, "inputs": self.inputs, "k_folds": self.k_folds, "n_restarts": self.n_restarts,
                 "margin_se": self.margin_se, "families": list(self.families), "regressor": self.regressor_.to_dict()}
@@ -199,7 +207,8 @@ def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None,
     ``poses`` kept and only the weights re-solved (:meth:`~training.residual.ResidualRegressor.with_data`;
     the held-out fold then leaks into them). The held-out fold is predicted. Returns name →
     ``{"cv_mean_mm", "cv_rms_mm", "errors_mm", "pred_mm"}`` (``errors_mm`` (n,) held-out position error norm per
-    pose, ``pred_mm`` (n, 3) the held-out prediction)."""
+    pose, ``pred_mm`` (n, 3) the held-out prediction, ``std_mm`` (n, 3) its band std: :func:`pipeline_std_mm` of the
+    fold's refit pipeline)."""
     if hyper not in HYPER:
         raise ValueError(f"hyper must be one of {HYPER}, got {hyper!r}")
     from errormap.arm_calibration import FOLD_LABELS, cv_labels, fit_model, fit_plain_lsq
@@ -209,6 +218,7 @@ def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None,
         raise ValueError("fold_fits were fitted on other folds: reusing them would leak the held-out poses")
     err = {k: np.empty(len(poses)) for k in pipelines}
     held = {k: np.empty((len(poses), 3)) for k in pipelines}
+    sd = {k: np.empty((len(poses), 3)) for k in pipelines}
     for f in range(int(lab.max()) + 1):
         itr, ite = np.flatnonzero(lab != f), np.flatnonzero(lab == f)
         tr = poses.subset(itr)
@@ -217,14 +227,18 @@ def cv_pipelines(chain, poses, pipelines: dict, k_folds: int, seed, groups=None,
                 fold_fits[(f, model)] = fit_plain_lsq(chain, tr) if model == "plain" else fit_model(chain, tr, model)
             geo = fold_fits[(f, model)]
             pred = geo.predict(poses.q[ite])
+            reg_fold = None
             if learner is not None and learner.chosen_ != "none":
                 X, Y = features(chain, tr.q, learner.inputs), tr.xyz_mm - geo.predict(tr.q)
                 reg = learner.regressor_.refit(X, Y) if hyper == "fold" else learner.regressor_.with_data(X, Y)
                 pred = pred + reg.predict(features(chain, poses.q[ite], learner.inputs))
+                reg_fold = reg
             err[name][ite] = np.linalg.norm(poses.xyz_mm[ite] - pred, axis=1)
             held[name][ite] = pred
+            sd[name][ite] = pipeline_std_mm(geo, None if reg_fold is None else learner.with_regressor(reg_fold),
+                                            poses.q[ite])
     return {k: {"cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2))), "errors_mm": e,
-                "pred_mm": held[k]} for k, e in err.items()}
+                "pred_mm": held[k], "std_mm": sd[k]} for k, e in err.items()}
 
 
 STACK_WEIGHTS = np.linspace(0.0, 1.0, 21)
@@ -237,9 +251,145 @@ def stack_weight(y_mm, p_vol_mm, p_pgp_mm):
     """Stacking of two pipelines on their INNER out-of-fold predictions (:func:`cv_pipelines` ``pred_mm``): the
     weight w ∈ :data:`STACK_WEIGHTS` that minimises the mean position error of w·p_vol + (1 − w)·p_pgp against the
     measured ``y_mm`` (all (n, 3) mm; ties to the larger w, i.e. toward volcomp's pipeline). Returns (w, the inner
-    mean error (mm) per weight (21,)). Measured in ``benchmarks/bench_arms.py`` (rule ``stack``); the command does
-    not yet return a blended model."""
+    mean error (mm) per weight (21,)). The command's candidate stage ``stacked`` (:class:`StackedResidual`) uses
+    this weight; its own CV figure is :func:`stack_cv`'s (the weight chosen without the judged fold)."""
     y, a, b = (np.asarray(v, float) for v in (y_mm, p_vol_mm, p_pgp_mm))
     e = np.array([np.linalg.norm(y - (w * a + (1 - w) * b), axis=1).mean() for w in STACK_WEIGHTS])
     i = int(np.flatnonzero(e <= e.min() * (1 + STACK_TIE_REL))[-1])
     return float(STACK_WEIGHTS[i]), e
+
+
+def pipeline_std_mm(geo, learner, q) -> np.ndarray:
+    """Standard deviation of a new measurement about a pipeline's prediction at ``q`` (n, nq), shape (n, 3) mm — the
+    band rule of every arm stage: with a learner (``chosen_ != "none"``) the learner's own (an
+    :class:`ArmResidualRegressor`: the GP's CV-calibrated latent std and its noise; a :class:`StackedResidual`: its
+    blend rule); else the geometric stage's J Σ Jᵀ and its residual σ (``geo`` a
+    :class:`errormap.arm_calibration.GeometricResult`)."""
+    if learner is not None and learner.chosen_ != "none":
+        return learner.predict(q, return_std=True)[1]
+    return np.sqrt(geo.band_std_mm(q) ** 2 + geo.sigma_mm ** 2)
+
+
+def stack_cv(y_mm, p_a_mm, p_b_mm, labels, s_a_mm=None, s_b_mm=None) -> dict:
+    """The CV figure of the stack itself, on the out-of-fold predictions of its two pipelines (:func:`cv_pipelines`
+    ``pred_mm``, (n, 3) mm, on the folds ``labels`` (n,)): per fold f the weight is chosen by :func:`stack_weight`
+    on the OTHER folds' out-of-fold predictions and applied to fold f, so the judged fold's measurements do not
+    choose its weight (an in-sample weight would make the stack's figure the lower envelope of the two by
+    construction). Returns ``{"cv_mean_mm", "cv_rms_mm", "errors_mm" (n,), "pred_mm" (n, 3), "std_mm" (n, 3) (the
+    band rule of :class:`StackedResidual` on the pipelines' stds ``s_a_mm``, ``s_b_mm``; None without them),
+    "fold_weights" (k,)}``."""
+    y, a, b = (np.asarray(v, float) for v in (y_mm, p_a_mm, p_b_mm))
+    lab = np.asarray(labels)
+    pred, sd, ws = np.empty_like(y), None if s_a_mm is None else np.empty_like(y), []
+    for f in range(int(lab.max()) + 1):
+        te, tr = lab == f, lab != f
+        w = stack_weight(y[tr], a[tr], b[tr])[0]
+        ws.append(w)
+        pred[te] = w * a[te] + (1 - w) * b[te]
+        if sd is not None:
+            sd[te] = w * np.asarray(s_a_mm)[te] + (1 - w) * np.asarray(s_b_mm)[te]
+    e = np.linalg.norm(y - pred, axis=1)
+    return {"cv_mean_mm": float(e.mean()), "cv_rms_mm": float(np.sqrt(np.mean(e ** 2))), "errors_mm": e,
+            "pred_mm": pred, "std_mm": sd, "fold_weights": ws}
+
+
+STACK_FORMAT = "volcomp-arm-stack/1"
+STACK_BAND_RULE = ("per component, w·s_a + (1 − w)·s_b with s_a, s_b the two pipelines' band stds (each its stage's "
+                   "rule: a GP's CV-calibrated latent std ⊕ its noise, a geometric stage's J Σ Jᵀ ⊕ its residual σ): the "
+                   "largest std of w·e_a + (1 − w)·e_b whatever the correlation of the two pipelines' errors")
+"""The band rule of the stacked stage (conservative: exact for perfectly correlated errors, wider otherwise)."""
+
+
+class StackedResidual:
+    """The stacked stage of an arm calibration: ``weight``·(pipeline a) + (1 − ``weight``)·(pipeline b), each
+    pipeline ``(geometric, learner)`` — a :class:`errormap.arm_calibration.GeometricResult` and an
+    :class:`ArmResidualRegressor` or None (``chosen_ == "none"`` counts as none).
+
+    It is written as a residual over its PRIMARY pipeline's geometric stage (``primary``: a where
+    ``weight`` ≥ 0.5, else b; :attr:`geometric`), so everything that takes a geometric stage and a learner takes
+    it unchanged: the model's tool point is ``geometric.predict(q) + predict(q)``, its joint Jacobian
+    ``geometric.chain.joint_jacobian(q) + predict_and_jacobian(q)[1]`` = w·J_a + (1 − w)·J_b (the Newton solver
+    of :mod:`compensation.arm_compensation`). The tool ORIENTATION is the primary chain's (tracker points carry
+    none; it is the fit's gauge choice). ``weight`` 1 (or 0) is pipeline a (b) bit for bit: the other pipeline is
+    not evaluated. Band: :data:`STACK_BAND_RULE`."""
+
+    chosen_ = "stacked"
+
+    def __init__(self, weight: float, a, b, names=("a", "b")):
+        w = float(weight)
+        if not 0.0 <= w <= 1.0:
+            raise ValueError(f"weight must be in [0, 1], got {weight}")
+        self.weight, self.names = w, tuple(names)
+        self.pipelines = tuple((g, None if (l is None or l.chosen_ == "none") else l) for g, l in (a, b))
+        self.weights = (w, 1.0 - w)
+        self.primary = 0 if w >= 0.5 else 1
+
+    @property
+    def geometric(self):
+        """The primary pipeline's geometric stage (the chain the residual is written over)."""
+        return self.pipelines[self.primary][0]
+
+    def _other(self):
+        o = 1 - self.primary
+        return (self.weights[o], *self.pipelines[o]) if self.weights[o] > 0 else None
+
+    def predict(self, q, return_std: bool = False):
+        """Residual over :attr:`geometric` (n, 3) mm [and the band std (n, 3) of :data:`STACK_BAND_RULE`]."""
+        q = np.atleast_2d(np.asarray(q, float))
+        w_p, (g_p, l_p) = self.weights[self.primary], self.pipelines[self.primary]
+        r = w_p * l_p.predict(q) if l_p is not None else np.zeros((len(q), 3))
+        sd = w_p * pipeline_std_mm(g_p, l_p, q) if return_std else None
+        other = self._other()
+        if other is not None:
+            w_o, g_o, l_o = other
+            p_o = g_o.predict(q) if l_o is None else g_o.predict(q) + l_o.predict(q)
+            r = r + w_o * (p_o - g_p.predict(q))
+            if return_std:
+                sd = sd + w_o * pipeline_std_mm(g_o, l_o, q)
+        return (r, sd) if return_std else r
+
+    def predict_and_jacobian(self, q):
+        """(residual over :attr:`geometric` (n, 3) mm, its ∂/∂q (n, 3, nq) per joint unit): w_p·J_lp +
+        w_o·(J_go + J_lo − J_gp), so that J_gp + this = w_a·J_a + (1 − w_a)·J_b."""
+        q = np.atleast_2d(np.asarray(q, float))
+        w_p, (g_p, l_p) = self.weights[self.primary], self.pipelines[self.primary]
+        nq = q.shape[1]
+        if l_p is not None:
+            m, J = l_p.predict_and_jacobian(q)
+            r, J = w_p * m, w_p * J
+        else:
+            r, J = np.zeros((len(q), 3)), np.zeros((len(q), 3, nq))
+        other = self._other()
+        if other is not None:
+            w_o, g_o, l_o = other
+            p_o, J_o = g_o.predict(q), g_o.chain.joint_jacobian(q, g_o.params)
+            if l_o is not None:
+                m, Jl = l_o.predict_and_jacobian(q)
+                p_o, J_o = p_o + m, J_o + Jl
+            r = r + w_o * (p_o - g_p.predict(q))
+            J = J + w_o * (J_o - g_p.chain.joint_jacobian(q, g_p.params))
+        return r, J
+
+    def point(self, q) -> np.ndarray:
+        """The blended tool point (n, 3) mm."""
+        return self.geometric.predict(q) + self.predict(q)
+
+    def to_dict(self) -> dict:
+        return {"format": STACK_FORMAT, "weight": self.weight, "names": list(self.names), "band_rule": STACK_BAND_RULE,
+                "pipelines": [{"name": n, "weight": w, "geometric": g.to_dict(),
+                               "learned": None if l is None else l.to_dict()}
+                              for n, w, (g, l) in zip(self.names, self.weights, self.pipelines)]}
+
+    @classmethod
+    def from_dict(cls, chain, d: dict) -> "StackedResidual":
+        """The stage :meth:`to_dict` wrote, for ``chain`` (the machine's nominal chain); ValueError / KeyError on
+        anything else."""
+        from errormap.arm_calibration import GeometricResult
+        if not isinstance(d, dict) or d.get("format") != STACK_FORMAT:
+            raise ValueError(f"expected a stacked arm stage (format {STACK_FORMAT!r})")
+        ps = d["pipelines"]
+        if not isinstance(ps, list) or len(ps) != 2:
+            raise ValueError("a stacked stage holds exactly two pipelines")
+        pipes = [(GeometricResult.from_dict(chain, p["geometric"]),
+                  None if p["learned"] is None else ArmResidualRegressor.from_dict(chain, p["learned"])) for p in ps]
+        return cls(d["weight"], *pipes, names=[p["name"] for p in ps])

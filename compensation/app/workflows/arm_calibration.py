@@ -8,8 +8,10 @@ calibration; a plain GP on the plain calibration's residual), volcomp's geometri
 (measured − model) on the held-out poses; every DECISION is made by k-fold CV inside the fit poses
 (the held-out poses only report): the geometric slot set (``dh``, ``dh+compliance``,
 ``dh+compliance+harmonic``, :mod:`errormap.arm_calibration`), the plain LSQ fit instead where it did
-better in that CV (never return a model that loses to the plain baseline), and the learned stage on
-top only if the ResidualRegressor's CV says it beats the geometric stage.
+better in that CV (never return a model that loses to the plain baseline), the learned stage on
+top only if the ResidualRegressor's CV says it beats the geometric stage, and then among whole pipelines
+(volcomp's choice, the plain LSQ fit, the plain GP on its residual, and ``stacked``: volcomp's choice and
+the plain GP blended with the weight their out-of-fold predictions choose) the lowest CV mean error.
 Writes ``calibration.json`` and ``report.html`` (:mod:`compensation.app.reports.arm_calibration`).
 """
 from __future__ import annotations
@@ -28,7 +30,11 @@ from errormap.io import InputError, write_json
 from ..reports.arm_calibration import write_report
 from .calibration import holdout_split
 
-MODEL_FORMAT = "volcomp-arm-calibration/2"
+MODEL_FORMAT = "volcomp-arm-calibration/3"
+READ_FORMATS = (MODEL_FORMAT, "volcomp-arm-calibration/2")
+"""Formats :func:`load_arm_model` reads (/2: before the stacked stage; its stages are all readable as /3's)."""
+STACKED = "stacked"
+"""Stage name of the blend of volcomp's pipeline and the plain GP (:class:`training.arm_residual.StackedResidual`)."""
 Z95 = 1.959963984540054
 KEPT_WITH_LEARNER = ("learned", "plain GP on plain LSQ residual")
 """Kept stages that carry a learned residual (``calibration.json`` key ``learned``)."""
@@ -141,6 +147,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
                                                            "no identifiability handling"),
                  stage_row("volcomp geometric", e_fit["dh"], "LM on the identifiable DH slots (unidentifiable fixed)")]
     learner, plain_gp, kept_learner, pipeline_cv, pipe_volcomp = None, None, None, None, None
+    stacked, stacked_summary = None, None
     geo_volcomp = geo_kept
     r_geo = check.xyz_mm - geo_kept.predict(check.q)
     band_geo = np.sqrt(geo_kept.band_std_mm(check.q) ** 2 + geo_kept.sigma_mm ** 2)
@@ -177,14 +184,40 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
                     f"CV inside the fit poses: not kept")
         # never lose to the plain pipelines in validation: volcomp's choice against the plain LSQ fit and the
         # plain GP on its residual, all three cross-validated as whole pipelines on the geometric CV's folds
-        from training.arm_residual import cv_pipelines
+        from errormap.arm_calibration import FOLD_LABELS
+        from training.arm_residual import STACK_BAND_RULE, StackedResidual, cv_pipelines, stack_cv, stack_weight
         pipes = {kept: ("plain" if geo_kept is plain else model, kept_learner),
                  "plain geometric LSQ": ("plain", None), "plain GP on plain LSQ residual": ("plain", plain_gp)}
         pipeline_cv = cv_pipelines(chain, fit, pipes, k_folds, s_geo, groups, fold_fits)
         pipe_volcomp = kept
+        # the stacked candidate: volcomp's choice and the plain GP blended, the weight fitted to their out-of-fold
+        # predictions on these folds; its CV figure with each fold's weight chosen on the other folds (stack_cv)
+        pa, pb = pipeline_cv[kept], pipeline_cv[PLAIN_GP]
+        w_stack = stack_weight(fit.xyz_mm, pa["pred_mm"], pb["pred_mm"])[0]
+        pipeline_cv[STACKED] = stack_cv(fit.xyz_mm, pa["pred_mm"], pb["pred_mm"], fold_fits[FOLD_LABELS],
+                                        pa["std_mm"], pb["std_mm"])
+        stacked = StackedResidual(w_stack, (geo_kept, kept_learner), (plain, plain_gp), names=(kept, PLAIN_GP))
+        st_cv = pipeline_cv[STACKED]
+        stacked_summary = {
+            "weight": w_stack, "pipelines": [kept, PLAIN_GP], "fold_weights": st_cv["fold_weights"],
+            "cv_mean_mm": st_cv["cv_mean_mm"], "band_rule": STACK_BAND_RULE,
+            "coverage95_cv": float(np.mean(np.abs(fit.xyz_mm - st_cv["pred_mm"]) <= Z95 * st_cv["std_mm"]))}
+        e_st = errors_mm(check, stacked.point(check.q))
+        stages.append(stage_row(STACKED, e_st, f"{w_stack:.2f}·({kept}) + {1 - w_stack:.2f}·({PLAIN_GP}), the weight "
+                                               f"fitted to their {k_folds}-fold out-of-fold predictions inside the fit "
+                                               f"poses (its CV mean {st_cv['cv_mean_mm']:.4f} mm with each fold's "
+                                               f"weight chosen on the other folds)"))
+        say(f"stacked: weight {w_stack:.2f} on {kept} (per fold {', '.join(f'{x:.2f}' for x in st_cv['fold_weights'])}); "
+            f"held-out mean {e_st.mean():.4f} mm")
         best = choose_pipeline(pipeline_cv, kept, pipeline_rule)
         pcv_text = ", ".join(f"{k} {v['cv_mean_mm']:.4f}" for k, v in pipeline_cv.items())
-        if best != kept:
+        if best == STACKED:
+            why += (f"; in the CV of whole pipelines inside the fit poses ({pcv_text} mm mean) the stacked pipeline "
+                    f"({w_stack:.2f}·{kept} + {1 - w_stack:.2f}·{PLAIN_GP}) did best: kept")
+            kept, geo_kept, kept_learner = STACKED, stacked.geometric, stacked
+            sd = stacked.predict(check.q, return_std=True)[1]
+            coverage_check = float(np.mean(np.abs(check.xyz_mm - stacked.point(check.q)) <= Z95 * sd))
+        elif best != kept:
             notes.append(f"the plain pipeline '{best}' beat volcomp's {kept} in the pipeline CV inside the fit poses "
                          f"({pcv_text} mm mean): it is the stage returned")
             why += f"; in the CV of whole pipelines inside the fit poses ({pcv_text} mm mean) {best} did better: kept"
@@ -210,6 +243,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
             "geometric_stage": stage_name(model), "volcomp_geometric": geo, "geometric_fits": fits, "learner": learner,
             "base_tool_model": base_tool, "plain_model": plain, "plain_gp": plain_gp, "cv_geometric": cv,
             "pipeline_cv_errors": pipeline_cv, "pipeline_volcomp": pipe_volcomp,
+            "stacked": stacked, "stacked_summary": stacked_summary,
             "cv_pipelines": None if pipeline_cv is None else
             [{"pipeline": k, "cv_mean_mm": v["cv_mean_mm"], "cv_rms_mm": v["cv_rms_mm"]} for k, v in pipeline_cv.items()],
             "coverage95_heldout": coverage_check}
@@ -231,6 +265,11 @@ def model_document(chain, core, s, n_fit, n_check) -> dict:
         doc["learned"] = kl.to_dict() if kl is not None else None
         doc["learned_summary"] = {"chosen": learner.chosen_, "cv_table": learner.cv_table_,
                                   "coverage95_cv": learner.coverage_, "kept": core["kept_stage"] == "learned"}
+    if core.get("stacked_summary") is not None:
+        doc["stacked_summary"] = {**core["stacked_summary"], "kept": core["kept_stage"] == STACKED}
+    if core["kept_stage"] == STACKED:        # both pipelines and the weight; "geometric" is its primary pipeline's
+        doc["learned"] = None
+        doc["stacked"] = core["kept_learner"].to_dict()
     doc["geometric_cv"] = core["cv_geometric"]
     doc["pipeline_cv"] = core.get("cv_pipelines")
     doc["coverage95_heldout"] = core["coverage95_heldout"]
@@ -244,11 +283,25 @@ def load_arm_model(chain, path):
         d = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a readable calibration.json ({exc})") from None
-    if not isinstance(d, dict) or d.get("format") != MODEL_FORMAT:
+    if not isinstance(d, dict) or d.get("format") not in READ_FORMATS:
         raise InputError(f"{path}: key 'format': expected {MODEL_FORMAT!r} (an arm calibration.json)")
-    if d["machine"]["name"] != chain.name or d["machine"]["joints"] != chain.joint_columns:
-        raise InputError(f"{path}: key 'machine': calibrated for {d['machine']['name']!r}, not {chain.name!r}")
-    geo = GeometricResult.from_dict(chain, d["geometric"])
+    m = d.get("machine")
+    if not isinstance(m, dict) or m.get("name") != chain.name or m.get("joints") != chain.joint_columns:
+        raise InputError(f"{path}: key 'machine': calibrated for "
+                         f"{m.get('name') if isinstance(m, dict) else None!r}, not {chain.name!r}")
+    if d.get("kept_stage") == STACKED:
+        from training.arm_residual import StackedResidual
+        if not isinstance(d.get("stacked"), dict):
+            raise InputError(f"{path}: key 'stacked': missing (the kept stage is {STACKED!r})")
+        try:
+            st = StackedResidual.from_dict(chain, d["stacked"])
+        except (ValueError, KeyError, TypeError, InputError) as exc:
+            raise InputError(f"{path}: key 'stacked': {exc}") from None
+        return st.geometric, st
+    try:
+        geo = GeometricResult.from_dict(chain, d["geometric"])
+    except (KeyError, TypeError, InputError) as exc:
+        raise InputError(f"{path}: key 'geometric': {exc}") from None
     learner = None
     if d.get("kept_stage") in KEPT_WITH_LEARNER and d.get("learned"):
         from training.arm_residual import ArmResidualRegressor
