@@ -481,7 +481,7 @@ def _variants(rows) -> list:
     return out
 
 
-FAMILY_ORDER = ("gp", "gp_matern52", "gp_matern32", "ensemble", "gp_sum")
+FAMILY_ORDER = ("gp", "gp_matern52", "gp_matern32", "ensemble", "gp_sum", "gp_additive", "basis")
 
 
 def _families(kept) -> str:
@@ -643,7 +643,13 @@ def main(argv=None):
     ap.add_argument("--command", default="volcomp benchmark --no-track --out DIR")
     ap.add_argument("--note", default="")
     ap.add_argument("--report-only", action="store_true", help="rebuild the Markdown from hybrid_results.json")
+    ap.add_argument("--dev", action="store_true",
+                    help="development seeds: rows go to hybrid_dev_results.json/.md (the choices of candidates and "
+                         "settings are made there, never on the results file's seeds)")
     args = ap.parse_args(argv)
+    if args.dev:
+        global RESULTS_JSON, RESULTS_MD
+        RESULTS_JSON, RESULTS_MD = HERE / "hybrid_dev_results.json", HERE / "hybrid_dev_results.md"
     argv = sys.argv[1:] if argv is None else argv
     if args.record_benchmark is not None:
         record_benchmark(args.record_benchmark, args.command, args.wall_s if args.wall_s is not None else float("nan"),

@@ -82,6 +82,14 @@ the same field of the part is the same function whatever A brought the tool ther
 that rotates with the work (a tilt of the A axis) is a low-order function of the point; on the
 axes it is a product of the radius and the angle's sine and cosine."""
 
+INPUT_GROUPS = {"axes": ((0,), (1,), (2, 3)),
+                "work": ((0,), (1,), (2,)),
+                "axes+work": ((0,), (1,), (2, 3), (4,), (5,))}
+"""The columns of each input set that belong to one input (:class:`training.residual.ResidualRegressor`
+``input_groups``): cos a and sin a are one rotary axis, so the ``gp_additive`` family's terms
+(each group alone and each pair of groups) are functions of X, of Z, of A, and of each pair of
+them — never of cos a without sin a."""
+
 LEARNED_INPUTS = ("axes",)
 """The input sets the learned stage cross-validates by default (each with every family of
 :data:`LEARNED_FAMILIES`, on the same blocked folds; the lowest CV RMS of the eligible
@@ -372,7 +380,8 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed):
     ``cv_rms_by_family``."""
     regs, table = {}, {}
     for name, f in feats.items():
-        reg = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_um[fit_idx], groups=groups)
+        reg = ResidualRegressor(families=families, seed=seed, input_groups=INPUT_GROUPS[name]).fit(
+            f[fit_idx], r_um[fit_idx], groups=groups)
         regs[name] = reg
         table[name] = {"family": reg.chosen_,
                        "cv_rms": reg.cv_table_[_cv_key(reg)]["cv_rms"],
