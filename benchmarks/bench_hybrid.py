@@ -110,9 +110,9 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
-CODE_ROUND = 5
-"""Rows measured by this code carry ``code_round`` 4; rows without it were measured by the previous
-round's code (learned families GP squared-exponential and ensemble) and are labelled so."""
+CODE_ROUND = 6
+"""Rows measured by this code carry ``code_round`` 6 (the main table marks a case whose rows come from
+an earlier round's code); rows without it were measured by the round-3 code (learned families GP squared-exponential and ensemble) and are labelled so."""
 
 N_GA = 50
 """Points of the volume also compensated with ``batched-ga`` on the hybrid (its model residual
@@ -542,6 +542,9 @@ def write_results(rows, argv, previous=None):
         mm = [r["hybrid"].get("model_max_um") for r in ok if r["hybrid"].get("model_max_um") is not None]
         ga = [r["hybrid_batched_ga"] for r in kept if "model_max_um" in r.get("hybrid_batched_ga", {})]
         rep = sum(bool(r.get("replaced_terms")) for r in ok)
+        rounds = sorted({r.get("code_round") or 3 for r in ok})
+        if rounds != [CODE_ROUND]:   # not re-measured by this code: say whose figures they are
+            eff = f"{eff} (round {', '.join(map(str, rounds))} code)"
         rng = lambda v: f"{np.mean(v):.2f} ({np.min(v):.2f}–{np.max(v):.2f}, {len(v)})" if v else "—"
         lines.append(
             f"| {fam} | {eff} | {len(ok)} | {len(kept)}/{len(ok)}{_families(kept)} | {rep}/{len(ok)} | "
