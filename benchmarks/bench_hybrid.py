@@ -508,7 +508,9 @@ def write_results(rows, argv, previous=None):
     lines = ["# Hybrid field: the learned residual stage of the closed loop (issue 28)", "",
              "User's CLI path per seed: sweeps (2 μm) → simulate (800 checks, 1 μm) → identify → diagnose "
              "(learned stage on: GP with squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and deep ensemble "
-             "on the axes (x, z, cos a, sin a), cross-validated on the same blocked folds; stages chosen on the "
+             "on the axes (x, z, cos a, sin a), cross-validated on the same blocked folds; rows '[variant: families "
+             "…]' add the round-6 candidates `gp_additive` (additive GP) and `basis` (Legendre × Fourier basis "
+             "regression) to that set, the same machines and measurements; stages chosen on the "
              "60/40 split, the kept stage then re-estimated on all checks) → compensate 2,000 random volume points (exact, reference conditions); "
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
@@ -523,15 +525,21 @@ def write_results(rows, argv, previous=None):
              "band95 truth (total band) | band95 truth (learned band alone) | exact model max (μm) | "
              "batched-ga model max (μm), failures |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    none_var = {(r["family"], r["seed"], r["effect"].partition("@")[2]): r for r in rows
+                if r["effect"].startswith("none@")}
     for (fam, eff), rs in sorted(by.items()):
-        if "@" in eff:
+        base, _, var = eff.partition("@")
+        # a families variant of this code round (--learned-families) gets the full row too, beside the default
+        if var and not (var.startswith("f") and "@" not in var and all(r.get("code_round") == CODE_ROUND for r in rs)):
             continue
         ok = [r for r in rs if "rms_um" in r.get("hybrid", {}) and "rms_um" in r.get("parametric", {})]
         if not ok:
             continue
         h = np.array([r["hybrid"]["rms_um"] for r in ok])
         p = np.array([r["parametric"]["rms_um"] for r in ok])
-        ref = [none.get((fam, r["seed"])) for r in ok]
+        ref = [none.get((fam, r["seed"])) if not var else none_var.get((fam, r["seed"], var)) for r in ok]
+        if var:
+            eff = f"{base} [variant: families {var[1:].replace('+', ', ')}]"
         rel = [r["hybrid"]["rms_um"] / n["hybrid"]["rms_um"] for r, n in zip(ok, ref) if n and "rms_um" in n["hybrid"]]
         floor = np.array([r["held_final_um"] / (np.sqrt(3) * NOISE_UM) for r in ok])
         floor_hat = np.array([r["held_final_um"] / r["noise_floor_um"] for r in ok])
