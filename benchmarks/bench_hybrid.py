@@ -110,9 +110,9 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
-CODE_ROUND = 5
-"""Rows measured by this code carry ``code_round`` 4; rows without it were measured by the previous
-round's code (learned families GP squared-exponential and ensemble) and are labelled so."""
+CODE_ROUND = 6
+"""Rows measured by this code carry ``code_round`` 6 (the main table marks a case whose rows come from
+an earlier round's code); rows without it were measured by the round-3 code (learned families GP squared-exponential and ensemble) and are labelled so."""
 
 N_GA = 50
 """Points of the volume also compensated with ``batched-ga`` on the hybrid (its model residual
@@ -481,7 +481,7 @@ def _variants(rows) -> list:
     return out
 
 
-FAMILY_ORDER = ("gp", "gp_matern52", "gp_matern32", "ensemble", "gp_sum")
+FAMILY_ORDER = ("gp", "gp_matern52", "gp_matern32", "ensemble", "gp_sum", "gp_additive", "basis")
 
 
 def _families(kept) -> str:
@@ -508,7 +508,9 @@ def write_results(rows, argv, previous=None):
     lines = ["# Hybrid field: the learned residual stage of the closed loop (issue 28)", "",
              "User's CLI path per seed: sweeps (2 μm) → simulate (800 checks, 1 μm) → identify → diagnose "
              "(learned stage on: GP with squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and deep ensemble "
-             "on the axes (x, z, cos a, sin a), cross-validated on the same blocked folds; stages chosen on the "
+             "on the axes (x, z, cos a, sin a), cross-validated on the same blocked folds; rows '[variant: families "
+             "…]' add the round-6 candidates `gp_additive` (additive GP) and `basis` (Legendre × Fourier basis "
+             "regression) to that set, the same machines and measurements; stages chosen on the "
              "60/40 split, the kept stage then re-estimated on all checks) → compensate 2,000 random volume points (exact, reference conditions); "
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
@@ -523,15 +525,21 @@ def write_results(rows, argv, previous=None):
              "band95 truth (total band) | band95 truth (learned band alone) | exact model max (μm) | "
              "batched-ga model max (μm), failures |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    none_var = {(r["family"], r["seed"], r["effect"].partition("@")[2]): r for r in rows
+                if r["effect"].startswith("none@")}
     for (fam, eff), rs in sorted(by.items()):
-        if "@" in eff:
+        base, _, var = eff.partition("@")
+        # a families variant of this code round (--learned-families) gets the full row too, beside the default
+        if var and not (var.startswith("f") and "@" not in var and all(r.get("code_round") == CODE_ROUND for r in rs)):
             continue
         ok = [r for r in rs if "rms_um" in r.get("hybrid", {}) and "rms_um" in r.get("parametric", {})]
         if not ok:
             continue
         h = np.array([r["hybrid"]["rms_um"] for r in ok])
         p = np.array([r["parametric"]["rms_um"] for r in ok])
-        ref = [none.get((fam, r["seed"])) for r in ok]
+        ref = [none.get((fam, r["seed"])) if not var else none_var.get((fam, r["seed"], var)) for r in ok]
+        if var:
+            eff = f"{base} [variant: families {var[1:].replace('+', ', ')}]"
         rel = [r["hybrid"]["rms_um"] / n["hybrid"]["rms_um"] for r, n in zip(ok, ref) if n and "rms_um" in n["hybrid"]]
         floor = np.array([r["held_final_um"] / (np.sqrt(3) * NOISE_UM) for r in ok])
         floor_hat = np.array([r["held_final_um"] / r["noise_floor_um"] for r in ok])
@@ -542,6 +550,9 @@ def write_results(rows, argv, previous=None):
         mm = [r["hybrid"].get("model_max_um") for r in ok if r["hybrid"].get("model_max_um") is not None]
         ga = [r["hybrid_batched_ga"] for r in kept if "model_max_um" in r.get("hybrid_batched_ga", {})]
         rep = sum(bool(r.get("replaced_terms")) for r in ok)
+        rounds = sorted({r.get("code_round") or 3 for r in ok})
+        if rounds != [CODE_ROUND]:   # not re-measured by this code: say whose figures they are
+            eff = f"{eff} (round {', '.join(map(str, rounds))} code)"
         rng = lambda v: f"{np.mean(v):.2f} ({np.min(v):.2f}–{np.max(v):.2f}, {len(v)})" if v else "—"
         lines.append(
             f"| {fam} | {eff} | {len(ok)} | {len(kept)}/{len(ok)}{_families(kept)} | {rep}/{len(ok)} | "
@@ -643,7 +654,13 @@ def main(argv=None):
     ap.add_argument("--command", default="volcomp benchmark --no-track --out DIR")
     ap.add_argument("--note", default="")
     ap.add_argument("--report-only", action="store_true", help="rebuild the Markdown from hybrid_results.json")
+    ap.add_argument("--dev", action="store_true",
+                    help="development seeds: rows go to hybrid_dev_results.json/.md (the choices of candidates and "
+                         "settings are made there, never on the results file's seeds)")
     args = ap.parse_args(argv)
+    if args.dev:
+        global RESULTS_JSON, RESULTS_MD
+        RESULTS_JSON, RESULTS_MD = HERE / "hybrid_dev_results.json", HERE / "hybrid_dev_results.md"
     argv = sys.argv[1:] if argv is None else argv
     if args.record_benchmark is not None:
         record_benchmark(args.record_benchmark, args.command, args.wall_s if args.wall_s is not None else float("nan"),

@@ -64,9 +64,22 @@ LEARNED_FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32")
 """The learned families the stage cross-validates on the same blocked folds (the Gaussian
 process with the squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and the deep ensemble of
 :mod:`training.residual`); the rule of :class:`~training.residual.ResidualRegressor` picks one (or
-none) and the stage names it. ``gp_sum`` (a long- plus a short-length-scale squared exponential) is
-a candidate the stage can be given (``families``) but not in the default set: on the blocked folds
-it cross-validated no better than ``gp`` (benchmarks/hybrid_results.md, input and kernel variants)."""
+none) and the stage names it. ``gp_sum`` (a long- plus a short-length-scale squared exponential)
+is a candidate the stage can be given (``families``) but not in the default set: on the blocked
+folds it cross-validated no better than ``gp`` (benchmarks/hybrid_results.md).
+
+:data:`CANDIDATE_FAMILIES` (``gp_additive``, ``basis``) are candidates too, not in the default set:
+on the development seeds 100–102 (decided on the held-out MEASURED RMS, never the truth) they
+lowered or kept the held-out RMS (tilt 2.120 against 2.132 μm, a_lobe_x 2.079 against 2.222, bump
+equal; benchmarks/hybrid_dev_results.md), but with them the condition-term rule of
+:func:`learned_stage` no longer replaces a thermal term that stands in for a static error on the
+designed case of ``tests/test_hybrid.py`` (the additive GP fits the residual WITH the term almost as
+well as without it: blocked-CV RMS 1.7515 against 1.7506 μm, paired z 0.45, below :data:`KEEP_Z`);
+a term kept there subtracts a static error at the reference temperature. Until that rule is made
+to hold with them, they are measured as a variant (``bench_hybrid.py --learned-families``)."""
+
+CANDIDATE_FAMILIES = ("gp_additive", "basis")
+"""The lower-variance families measured beside the default set (see :data:`LEARNED_FAMILIES`)."""
 
 FEATURE_NAMES = ("x_mm", "z_mm", "cos_a", "sin_a")
 """The features of the ``axes`` input set (the default before the input sets were compared)."""
@@ -81,6 +94,14 @@ x is an affine map of the X axis, so X itself is used); ``axes+work`` — both. 
 the same field of the part is the same function whatever A brought the tool there, and an error
 that rotates with the work (a tilt of the A axis) is a low-order function of the point; on the
 axes it is a product of the radius and the angle's sine and cosine."""
+
+INPUT_GROUPS = {"axes": ((0,), (1,), (2, 3)),
+                "work": ((0,), (1,), (2,)),
+                "axes+work": ((0,), (1,), (2, 3), (4,), (5,))}
+"""The columns of each input set that belong to one input (:class:`training.residual.ResidualRegressor`
+``input_groups``): cos a and sin a are one rotary axis, so the ``gp_additive`` family's terms
+(each group alone and each pair of groups) are functions of X, of Z, of A, and of each pair of
+them — never of cos a without sin a."""
 
 LEARNED_INPUTS = ("axes",)
 """The input sets the learned stage cross-validates by default (each with every family of
@@ -372,7 +393,8 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed):
     ``cv_rms_by_family``."""
     regs, table = {}, {}
     for name, f in feats.items():
-        reg = ResidualRegressor(families=families, seed=seed).fit(f[fit_idx], r_um[fit_idx], groups=groups)
+        reg = ResidualRegressor(families=families, seed=seed, input_groups=INPUT_GROUPS[name]).fit(
+            f[fit_idx], r_um[fit_idx], groups=groups)
         regs[name] = reg
         table[name] = {"family": reg.chosen_,
                        "cv_rms": reg.cv_table_[_cv_key(reg)]["cv_rms"],

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from training.residual import GP_KERNELS, ResidualRegressor, _gp_nll, _n_theta
+from training.residual import GP_KERNELS, ResidualRegressor, _gp_nll, _n_theta, additive_terms
 
 GRAD_TOL_REL = 1e-5
 """Analytic marginal-likelihood gradient vs central differences (h = 1e-6 in log units): the
@@ -32,13 +32,17 @@ def test_nll_gradient_matches_finite_differences(kind):
     X, Y = _data(0, n=40)
     D = np.moveaxis((X[:, None, :] - X[None, :, :]) ** 2, 2, 0).copy()
     theta = np.array([np.log(0.7), np.log(1.3), np.log(0.8), np.log(0.01)])
+    terms = None
     if kind == "rbf_sum":   # long (1.5, 2.0) and short (0.3, 0.2) length scales, their variances, the noise
         theta = np.log([1.5, 2.0, 0.3, 0.2, 0.6, 0.2, 0.01])
-    assert len(theta) == _n_theta(2, kind)
-    f0, g = _gp_nll(theta, X, Y[:, 0], D, kind)
+    if kind == "additive":  # shared length scales (0.7, 1.3), the variances of x0, x1, x0·x1, the noise
+        terms = additive_terms(2)
+        theta = np.log([0.7, 1.3, 0.5, 0.3, 0.2, 0.01])
+    assert len(theta) == _n_theta(2, kind, terms)
+    f0, g = _gp_nll(theta, X, Y[:, 0], D, kind, terms)
     h = 1e-6
-    gfd = np.array([(_gp_nll(theta + h * e, X, Y[:, 0], D, kind)[0] - _gp_nll(theta - h * e, X, Y[:, 0], D, kind)[0])
-                    / (2 * h) for e in np.eye(len(theta))])
+    gfd = np.array([(_gp_nll(theta + h * e, X, Y[:, 0], D, kind, terms)[0]
+                     - _gp_nll(theta - h * e, X, Y[:, 0], D, kind, terms)[0]) / (2 * h) for e in np.eye(len(theta))])
     assert np.abs(g - gfd).max() <= GRAD_TOL_REL * np.abs(g).max()
 
 

@@ -48,21 +48,28 @@ from scipy.optimize import minimize
 from errormap.seeds import spawn_rngs
 from errormap.threads import limit_threads
 
-__all__ = ["ResidualRegressor", "FAMILIES", "FORMAT", "check_residual_data"]
+__all__ = ["ResidualRegressor", "FAMILIES", "FORMAT", "check_residual_data", "additive_terms", "check_input_groups"]
 
 FORMAT = "volcomp-residual-regressor/1"
 """The ``format`` key of :meth:`ResidualRegressor.to_dict`."""
 
-GP_KERNELS = {"gp": "rbf", "gp_matern52": "matern52", "gp_matern32": "matern32", "gp_sum": "rbf_sum"}
+GP_KERNELS = {"gp": "rbf", "gp_matern52": "matern52", "gp_matern32": "matern32", "gp_sum": "rbf_sum",
+              "gp_additive": "additive"}
 """The Gaussian-process families and their kernel (:func:`_kernel`): the squared exponential
 (infinitely smooth), Matérn 5/2 (twice differentiable) and Matérn 3/2 (once differentiable: the
 roughest that still has the closed-form Jacobian the solvers need). A local feature (a bump of a
 few length scales) may be fitted with less smoothing by a rougher kernel; which one serves is
 decided by the blocked cross-validation like any other family. ``rbf_sum`` is the sum of a
 LONG- and a SHORT-length-scale ARD squared exponential (:data:`SUM_LOG_LENGTH_BOUNDS`): a smooth
-trend over the volume plus a local feature, each with its own length scales and variance."""
+trend over the volume plus a local feature, each with its own length scales and variance.
+``additive`` is an ADDITIVE kernel (:func:`additive_terms`): a sum of squared exponentials, one on
+each input group alone (first order) and one on each pair of groups (second order), with one
+length scale per input shared by every term it enters and one variance per term, all by maximum
+marginal likelihood. A field that is a sum of one- and two-group functions is then learned with
+far fewer effective degrees of freedom than by one ARD kernel on all inputs at once (which can
+represent any interaction of every input, so it must also estimate them)."""
 
-FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32", "gp_sum")
+FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32", "gp_sum", "gp_additive", "basis")
 """The regressor families :class:`ResidualRegressor` can cross-validate."""
 
 FAMILY_NAMES = {"gp": "Gaussian process (zero mean, ARD squared-exponential kernel + white noise, per output)",
@@ -70,6 +77,10 @@ FAMILY_NAMES = {"gp": "Gaussian process (zero mean, ARD squared-exponential kern
                 "gp_matern32": "Gaussian process (zero mean, ARD Matérn 3/2 kernel + white noise, per output)",
                 "gp_sum": ("Gaussian process (zero mean, sum of a long- and a short-length-scale ARD "
                            "squared-exponential kernel + white noise, per output)"),
+                "gp_additive": ("Gaussian process (zero mean, additive kernel: squared exponentials on each input group and "
+                                "each pair of groups, one variance per term + white noise, per output)"),
+                "basis": ("Bayesian regression on a tensor-product basis (Legendre in each linear input × Fourier in each "
+                          "rotary one, total degree ≤ 6, prior variance decaying with degree, by marginal likelihood)"),
                 "ensemble": "deep ensemble (5 tanh MLPs 2×16, weight decay; mean and spread)",
                 "none": "none (the physical model alone)"}
 """What each family is, in words (diagnosis.json / model.json / the report name the chosen one)."""
@@ -92,6 +103,12 @@ about a fifth of the data's width, ±1.7 σ)."""
 LOG_VAR_BOUNDS = (np.log(1e-6), np.log(10.0))
 """Signal and noise variances relative to the output's mean square (outputs are scaled by their
 RMS): 1e-6 is 'nothing', 10 is ten times all there is."""
+
+ADDITIVE_MAX_ORDER = 2
+"""The additive kernel's terms go up to pairs of input groups (first and second order): the orders
+an engineer's error budget is written in (an error of one axis, a coupling of two). It is fixed in
+advance for every input set, not chosen from the effects a benchmark designs; a field of three
+groups at once is left to the full ARD kernels, which the cross-validation compares with it."""
 
 PREDICT_CHUNK = 2048
 """Rows of X predicted at once (the cross-kernel is chunk × n_train × d floats)."""
@@ -155,15 +172,56 @@ def _kernel(S, sf2, kind="rbf"):
     raise ValueError(f"Expected a kernel in {sorted(set(GP_KERNELS.values()))}, got {kind!r}")
 
 
-def _n_theta(d, kind):
+def check_input_groups(groups, d):
+    """``groups`` (None, or a sequence of sequences of column indices) → a tuple of tuples that
+    partitions ``range(d)`` (None: each column its own group); ValueError otherwise."""
+    if groups is None:
+        return tuple((j,) for j in range(d))
+    try:
+        out = tuple(tuple(int(j) for j in g) for g in groups)
+    except (TypeError, ValueError):
+        raise ValueError(f"Expected input groups as sequences of column indices, got {groups!r}") from None
+    flat = sorted(j for g in out for j in g)
+    if any(len(g) == 0 for g in out) or flat != list(range(d)):
+        raise ValueError(f"Expected input groups that partition the {d} input columns, got {groups!r}")
+    return out
+
+
+def additive_terms(d, groups=None):
+    """The terms of the ``additive`` kernel on d inputs: every input group alone, then every pair of
+    groups (:data:`ADDITIVE_MAX_ORDER`), each as a sorted tuple of column indices. ``groups``: see
+    :func:`check_input_groups` (e.g. ``((0,), (1,), (2, 3))`` keeps cos a and sin a together: one
+    rotary axis)."""
+    from itertools import combinations
+    groups = check_input_groups(groups, d)
+    terms = []
+    for order in range(1, min(ADDITIVE_MAX_ORDER, len(groups)) + 1):
+        for combo in combinations(groups, order):
+            terms.append(tuple(sorted(j for g in combo for j in g)))
+    return tuple(terms)
+
+
+def _n_theta(d, kind, terms=None):
     """Hyper-parameters of a kernel on d inputs: (log l (d), log sf², log sn²), or for
-    ``rbf_sum`` (log l_long (d), log l_short (d), log sf²_long, log sf²_short, log sn²)."""
+    ``rbf_sum`` (log l_long (d), log l_short (d), log sf²_long, log sf²_short, log sn²), or for
+    ``additive`` (log l (d), log sf² per term of ``terms``, log sn²)."""
+    if kind == "additive":
+        return d + len(terms) + 1
     return 2 * d + 3 if kind == "rbf_sum" else d + 2
 
 
-def _parts(theta, d, kind):
+def _parts(theta, d, kind, terms=None):
     """θ → ([(inv_l2 (d,), sf², base kind, index slice of its log l, index of its log sf²), …], sn²):
-    one part per kernel summand (two for ``rbf_sum``)."""
+    one part per kernel summand (two for ``rbf_sum``; one per term for ``additive``, whose
+    ``inv_l2`` is zero on the inputs outside the term and whose length scales are shared)."""
+    if kind == "additive":
+        inv_l2 = np.exp(-2.0 * theta[:d])
+        parts = []
+        for t, dims in enumerate(terms):
+            mask = np.zeros(d)
+            mask[list(dims)] = 1.0
+            parts.append((inv_l2 * mask, float(np.exp(theta[d + t])), "rbf", slice(0, d), d + t))
+        return parts, float(np.exp(theta[-1]))
     if kind == "rbf_sum":
         return ([(np.exp(-2.0 * theta[:d]), float(np.exp(theta[2 * d])), "rbf", slice(0, d), 2 * d),
                  (np.exp(-2.0 * theta[d:2 * d]), float(np.exp(theta[2 * d + 1])), "rbf", slice(d, 2 * d), 2 * d + 1)],
@@ -171,14 +229,23 @@ def _parts(theta, d, kind):
     return [(np.exp(-2.0 * theta[:d]), float(np.exp(theta[d])), kind, slice(0, d), d)], float(np.exp(theta[d + 1]))
 
 
-def _theta_bounds(d, kind):
+def _theta_bounds(d, kind, terms=None):
+    if kind == "additive":
+        return [LOG_LENGTH_BOUNDS] * d + [LOG_VAR_BOUNDS] * (len(terms) + 1)
     if kind == "rbf_sum":
         return [SUM_LOG_LENGTH_BOUNDS[0]] * d + [SUM_LOG_LENGTH_BOUNDS[1]] * d + [LOG_VAR_BOUNDS] * 3
     return [LOG_LENGTH_BOUNDS] * d + [LOG_VAR_BOUNDS] * 2
 
 
-def _theta_starts(d, kind, var, n_restarts, rng):
+def _theta_starts(d, kind, var, n_restarts, rng, terms=None):
     """Marginal-likelihood starting points: the first deterministic, the others drawn from ``rng``."""
+    if kind == "additive":   # half the variance shared evenly by the terms, half noise (as the single kernel)
+        T = len(terms)
+        starts = [np.r_[np.zeros(d), np.full(T, np.log(0.5 * var / T)), np.log(0.5 * var)]]
+        for _ in range(n_restarts - 1):
+            starts.append(np.r_[rng.uniform(-1.0, 1.0, d), np.log(var / T) + rng.uniform(-2, 0, T),
+                                np.log(var) + rng.uniform(-2, 0)])
+        return starts
     if kind == "rbf_sum":
         starts = [np.r_[np.full(d, np.log(2.0)), np.full(d, np.log(0.3)), np.log(0.4 * var), np.log(0.1 * var),
                         np.log(0.5 * var)]]
@@ -192,12 +259,13 @@ def _theta_starts(d, kind, var, n_restarts, rng):
     return starts
 
 
-def _gp_nll(theta, X, y, D, kind="rbf"):
+def _gp_nll(theta, X, y, D, kind="rbf", terms=None):
     """Negative log marginal likelihood and its gradient in θ (:func:`_n_theta` layout).
 
-    X (n, d) standardised, y (n,), D (d, n, n) squared differences per input; ``kind`` the kernel."""
+    X (n, d) standardised, y (n,), D (d, n, n) squared differences per input; ``kind`` the kernel
+    (``terms`` its terms for ``additive``)."""
     d = X.shape[1]
-    parts, sn2 = _parts(theta, d, kind)
+    parts, sn2 = _parts(theta, d, kind, terms)
     KH = [_kernel(np.tensordot(inv_l2, D, axes=1), sf2, base) for inv_l2, sf2, base, _, _ in parts]
     K = sum(k for k, _ in KH) + sn2 * np.eye(len(y))
     try:
@@ -211,10 +279,11 @@ def _gp_nll(theta, X, y, D, kind="rbf"):
         return 1e25, np.zeros_like(theta)
     Kinv = np.tril(Kinv) + np.tril(Kinv, -1).T
     W = np.outer(alpha, alpha) - Kinv
-    grad = np.empty_like(theta)
+    grad = np.zeros_like(theta)
     for (inv_l2, _, _, sl, isf), (Kf, H) in zip(parts, KH):
-        # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential)
-        grad[sl] = -0.5 * inv_l2 * np.tensordot(D, W * H, axes=([1, 2], [0, 1]))
+        # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential); summed over the parts
+        # that share a length scale (``additive``; 0 + g is g exactly for the kernels that do not)
+        grad[sl] += -0.5 * inv_l2 * np.tensordot(D, W * H, axes=([1, 2], [0, 1]))
         grad[isf] = -0.5 * (W * Kf).sum()
     grad[-1] = -0.5 * sn2 * np.trace(W)
     return nll, grad
@@ -222,12 +291,18 @@ def _gp_nll(theta, X, y, D, kind="rbf"):
 
 class _GP:
     """One zero-mean GP per output column on standardised inputs (see module doc); ``kernel``
-    one of the values of :data:`GP_KERNELS`."""
+    one of the values of :data:`GP_KERNELS`; ``groups`` the input groups of the ``additive`` kernel
+    (:func:`additive_terms`; None: one group per input)."""
 
-    def __init__(self, n_restarts: int, rng, kernel: str = "rbf"):
+    def __init__(self, n_restarts: int, rng, kernel: str = "rbf", groups=None):
         self.n_restarts = int(n_restarts)
         self.rng = rng
         self.kernel = kernel
+        self.groups = groups
+
+    def _terms(self, d):
+        """The additive kernel's terms on d inputs (None for the other kernels)."""
+        return additive_terms(d, self.groups) if self.kernel == "additive" else None
 
     def fit(self, Xs, Ys):
         """Xs (n, d) standardised, Ys (n, 3) scaled → self (theta_ (3, p) with p = :func:`_n_theta`,
@@ -235,15 +310,16 @@ class _GP:
         n, d = Xs.shape
         D = (Xs[:, None, :] - Xs[None, :, :]) ** 2
         D = np.moveaxis(D, 2, 0).copy()
-        bounds = _theta_bounds(d, self.kernel)
+        terms = self._terms(d)
+        bounds = _theta_bounds(d, self.kernel, terms)
         thetas = []
         for k in range(Ys.shape[1]):
             y = Ys[:, k]
             var = max(float(np.mean(y * y)), 1e-12)
             best = None
-            for t0 in _theta_starts(d, self.kernel, var, self.n_restarts, self.rng):
+            for t0 in _theta_starts(d, self.kernel, var, self.n_restarts, self.rng, terms):
                 t0 = np.clip(t0, [b[0] for b in bounds], [b[1] for b in bounds])
-                r = minimize(_gp_nll, t0, args=(Xs, y, D, self.kernel), jac=True, method="L-BFGS-B", bounds=bounds,
+                r = minimize(_gp_nll, t0, args=(Xs, y, D, self.kernel, terms), jac=True, method="L-BFGS-B", bounds=bounds,
                              options={"maxiter": 100})
                 if best is None or r.fun < best.fun:
                     best = r
@@ -257,8 +333,9 @@ class _GP:
         self.X_ = np.asarray(Xs, dtype=float)
         self.Y_ = np.asarray(Ys, dtype=float)
         self.theta_ = np.asarray(theta, dtype=float)
-        if self.theta_.ndim != 2 or self.theta_.shape[1] != _n_theta(d, self.kernel):
-            raise ValueError(f"Expected theta of shape (k, {_n_theta(d, self.kernel)}) for kernel {self.kernel!r} "
+        p = _n_theta(d, self.kernel, self._terms(d))
+        if self.theta_.ndim != 2 or self.theta_.shape[1] != p:
+            raise ValueError(f"Expected theta of shape (k, {p}) for kernel {self.kernel!r} "
                              f"on {d} inputs, got {self.theta_.shape}")
         self.alpha_ = np.empty((Ys.shape[1], n))
         self.L_ = np.empty((Ys.shape[1], n, n))
@@ -271,7 +348,8 @@ class _GP:
 
     def _hyp(self, k):
         """Output k's kernel parts and noise variance (:func:`_parts`)."""
-        return _parts(self.theta_[k], self.X_.shape[1], self.kernel)
+        d = self.X_.shape[1]
+        return _parts(self.theta_[k], d, self.kernel, self._terms(d))
 
     def _k(self, k, A, B):
         """Output k's kernel between A (m, d) and B (n, d): (K (m, n), [(H (m, n), inv_l2 (d,)) per part], sf² total)."""
@@ -334,6 +412,11 @@ class ResidualRegressor:
         A family must beat zero by more than this many paired standard errors of its mean CV gain.
     n_restarts : int ≥ 1
         Marginal-likelihood starts per output (the first from unit length scales).
+    input_groups : None or sequence of sequences of column indices
+        The inputs that belong together (one physical axis, e.g. the cos and sin of a rotary
+        axis): the terms of the ``gp_additive`` family (:func:`additive_terms`); a partition of
+        the columns, checked at :meth:`fit`. None: each column its own group. The other families
+        ignore it.
 
     Attributes after :meth:`fit`
     ----------------------------
@@ -353,12 +436,14 @@ class ResidualRegressor:
         (``cv_table_[family]["band_scale"]``); the std :meth:`predict` returns is multiplied by it.
     """
 
-    def __init__(self, families=("gp",), n_splits: int = 5, seed=0, margin_se: float = 1.0, n_restarts: int = 1):
+    def __init__(self, families=("gp",), n_splits: int = 5, seed=0, margin_se: float = 1.0, n_restarts: int = 1,
+                 input_groups=None):
         self.families = families
         self.n_splits = n_splits
         self.seed = seed
         self.margin_se = margin_se
         self.n_restarts = n_restarts
+        self.input_groups = input_groups
 
     # -- validation
     def _check_settings(self):
@@ -390,12 +475,21 @@ class ResidualRegressor:
         bounds = np.array_split(np.arange(len(order)), k)
         return [np.flatnonzero(np.isin(g_rank, b)) for b in bounds]
 
+    def _groups(self):
+        """The checked input groups as lists (None when not set)."""
+        if self.input_groups is None:
+            return None
+        return [list(g) for g in check_input_groups(self.input_groups, self.n_features_in_)]
+
     def _new(self, family, rng):
         if family in GP_KERNELS:
-            return _GP(self.n_restarts, rng, GP_KERNELS[family])
+            return _GP(self.n_restarts, rng, GP_KERNELS[family], self._groups())
         if family == "ensemble":
             from .ensemble import MLPEnsemble
             return MLPEnsemble(seed=int(rng.integers(0, 2**63 - 1)))
+        if family == "basis":
+            from .basis import BasisRegression
+            return BasisRegression(groups=self._groups())
         raise ValueError(family)
 
     # -- fit
@@ -420,6 +514,7 @@ class ResidualRegressor:
             raise ValueError(f"Expected at least {2 * self.n_splits} points for {self.n_splits}-fold CV, got {n}")
         rng_folds, rng_cv, rng_final = spawn_rngs(self.seed, 3)
         self.n_features_in_ = d
+        self._groups()   # ValueError now, before any fit, unless the input groups partition the d columns
         self.x_mean_ = X.mean(0)
         sd = X.std(0)
         self.x_scale_ = np.where(sd > 0, sd, 1.0)
@@ -519,8 +614,12 @@ class ResidualRegressor:
         X, Y, _ = check_residual_data(X, Y)
         out = copy.copy(self)
         if isinstance(self.model_, _GP):
-            out.model_ = _GP(1, None, self.model_.kernel).set_state((X - self.x_mean_) / self.x_scale_,
+            out.model_ = _GP(1, None, self.model_.kernel, self.model_.groups).set_state((X - self.x_mean_) / self.x_scale_,
                                                                     Y / self.y_scale_, self.model_.theta_)
+        elif self.chosen_ == "basis":   # its hyper-parameters kept, the posterior re-solved
+            from .basis import BasisRegression
+            out.model_ = BasisRegression(self.model_.groups, self.model_.degree).set_state(
+                (X - self.x_mean_) / self.x_scale_, Y / self.y_scale_, self.model_.theta_)
         elif self.model_ is not None:   # an ensemble has no hyper-parameters fitted: its members are retrained
             from .ensemble import MLPEnsemble
             m = self.model_
@@ -558,7 +657,7 @@ class ResidualRegressor:
             Xs, Ys = (X - out.x_mean_) / out.x_scale_, Y / out.y_scale_
             out.model_ = self._new(out.chosen_, rng).fit(Xs, Ys)
         if isinstance(out.model_, _GP):   # the weights solved as from_dict solves them (same BLAS threads):
-            out.model_ = _GP(1, None, out.model_.kernel).set_state(Xs, Ys, out.model_.theta_)   # shipped == reloaded
+            out.model_ = _GP(1, None, out.model_.kernel, out.model_.groups).set_state(Xs, Ys, out.model_.theta_)   # shipped == reloaded
         out.noise_std_ = np.sqrt(out.model_.noise_var()) * out.y_scale_ * out.band_scale_
         return out
 
@@ -578,8 +677,14 @@ class ResidualRegressor:
         if isinstance(self.model_, _GP):
             out["gp"] = {"theta": self.model_.theta_.tolist(), "X": self.model_.X_.tolist(),
                          "Y": self.model_.Y_.tolist(), "kernel": self.model_.kernel}
+            if self.model_.kernel == "additive":   # its terms follow from the groups (None: one per input)
+                out["gp"]["groups"] = self.model_.groups
+        elif self.chosen_ == "basis":
+            out["basis"] = self.model_.state()
         elif self.model_ is not None:
             out["ensemble"] = self.model_.state()
+        if self.input_groups is not None:
+            out["settings"]["input_groups"] = self._groups()
         return out
 
     @classmethod
@@ -591,11 +696,13 @@ class ResidualRegressor:
             st = doc["settings"]
             self = cls(families=tuple(st["families"]), n_splits=st["n_splits"],
                        seed=st["seed"] if st["seed"] is not None else 0,
-                       margin_se=st["margin_se"], n_restarts=st["n_restarts"])
+                       margin_se=st["margin_se"], n_restarts=st["n_restarts"],
+                       input_groups=st.get("input_groups"))
             self._check_settings()
             self.chosen_ = str(doc["chosen"])
             self.cv_table_ = doc["cv_table"]
             self.n_features_in_ = int(doc["n_features_in"])
+            self._groups()   # ValueError unless the saved input groups partition the columns
             self.x_mean_ = np.asarray(doc["x_mean"], dtype=float)
             self.x_scale_ = np.asarray(doc["x_scale"], dtype=float)
             self.y_scale_ = float(doc["y_scale"])
@@ -607,8 +714,16 @@ class ResidualRegressor:
                 if g.get("kernel", "rbf") != GP_KERNELS[self.chosen_]:   # files before the kernels: rbf
                     raise ValueError(f"Expected the kernel {GP_KERNELS[self.chosen_]!r} of family {self.chosen_!r}, "
                                      f"got {g.get('kernel', 'rbf')!r}")
-                self.model_ = _GP(1, None, GP_KERNELS[self.chosen_]).set_state(np.asarray(g["X"], dtype=float), np.asarray(g["Y"], dtype=float),
+                groups = g.get("groups") if self.chosen_ == "gp_additive" else None
+                if groups is not None:
+                    groups = [list(x) for x in check_input_groups(groups, self.n_features_in_)]
+                self.model_ = _GP(1, None, GP_KERNELS[self.chosen_], groups).set_state(np.asarray(g["X"], dtype=float), np.asarray(g["Y"], dtype=float),
                                                      np.asarray(g["theta"], dtype=float))
+            elif self.chosen_ == "basis":
+                from .basis import BasisRegression
+                self.model_ = BasisRegression.from_state(doc["basis"])
+                if (self.model_.X_.shape[1], self.model_.Y_.shape[1]) != (self.n_features_in_, 3):
+                    raise ValueError("Expected a basis regression of n_features_in inputs and 3 outputs")
             elif self.chosen_ == "ensemble":
                 from .ensemble import MLPEnsemble
                 self.model_ = MLPEnsemble.from_state(doc["ensemble"])
