@@ -75,22 +75,37 @@ def check_joint_values(path, q, rows, chain, qcols=None) -> None:
                          f"the joint's limits [{lo[j]:g}, {hi[j]:g}] of machine {chain.name!r}")
 
 
+def tracker_grid_columns(t, chain, path):
+    """The joint columns ``joint_1 … joint_N`` of table ``t`` when it has the laser-tracker grid layout of
+    ``chain`` (those columns in degrees with ``x_t…`` targets and ``x_dif…`` differences), else None;
+    InputError where the layout is there but does not fit the chain (a prismatic joint, more joints)."""
+    nq = chain.n_joints
+    grid_cols = [f"joint_{i + 1}" for i in range(nq)]
+    if not all(c in t for c in grid_cols + list(GRID_TARGET) + list(GRID_DIF)):
+        return None
+    if any(j.type != "revolute" for j in chain.joints):
+        raise InputError(f"{path}: the tracker-grid layout (joint_k in degrees) needs an all-revolute chain")
+    if f"joint_{nq + 1}" in t:
+        raise InputError(f"{path}: column 'joint_{nq + 1}': the file has more joints than machine "
+                         f"{chain.name!r} ({nq})")
+    return grid_cols
+
+
+def tracker_grid_points(t) -> np.ndarray:
+    """The measured tool points (n, 3) mm of a tracker-grid table: target + difference, in the tracker's frame."""
+    return np.stack([t.float(a) + t.float(b) for a, b in zip(GRID_TARGET, GRID_DIF)], 1)
+
+
 def read_arm_poses(path, chain) -> ArmPoses:
     """Read and check a measured-pose file of ``chain`` (schema or tracker-grid layout)."""
     t = read_table(path)
-    nq = chain.n_joints
-    grid_cols = [f"joint_{i + 1}" for i in range(nq)]
+    grid_cols = tracker_grid_columns(t, chain, path)
     if all(c in t for c in chain.joint_columns + list(XYZ)):
         layout, qcols = "schema", chain.joint_columns
         xyz = np.stack([t.float(c) for c in XYZ], 1)
-    elif all(c in t for c in grid_cols + list(GRID_TARGET) + list(GRID_DIF)):
-        if any(j.type != "revolute" for j in chain.joints):
-            raise InputError(f"{path}: the tracker-grid layout (joint_k in degrees) needs an all-revolute chain")
-        if f"joint_{nq + 1}" in t:
-            raise InputError(f"{path}: column 'joint_{nq + 1}': the file has more joints than machine "
-                             f"{chain.name!r} ({nq})")
+    elif grid_cols is not None:
         layout, qcols = "tracker-grid", grid_cols
-        xyz = np.stack([t.float(a) + t.float(b) for a, b in zip(GRID_TARGET, GRID_DIF)], 1)
+        xyz = tracker_grid_points(t)
     else:
         have = [c for c in chain.joint_columns + list(XYZ) if c not in t]
         raise InputError(f"{path}: not a measured-pose file of machine {chain.name!r}: missing column(s) {have} "

@@ -116,6 +116,24 @@ def test_tracker_grid_layout_is_measured_equals_target_plus_dif(tmp_path, ur5):
     assert np.allclose(back.xyz_mm, want, rtol=0, atol=1e-8) and np.allclose(back.q[:, 0], d["joint_1"], atol=1e-8)
 
 
+
+CSV_REL = 1e-9   # write_arm_poses writes 10 significant digits: a value read back is within 5e-10 of it, relatively
+
+
+def test_predict_reads_the_tracker_grid_layout_as_calibrate_does(tmp_path, ur5):
+    """``predict``'s reader takes a tracker-grid file's joints and measured points exactly as ``calibrate``'s
+    (the same columns and sums, bit for bit); a joint program's ``x_mm…`` are targets and give no measurement."""
+    from compensation.app.workflows.arm_predict import read_points
+    src = SHARED / "ur5_grid.csv"
+    if not src.is_file():
+        pytest.skip(f"{src} not present (the shared serial-arm data)")
+    q, measured = read_points(src, ur5)
+    poses = read_arm_poses(src, ur5)
+    assert np.array_equal(q, poses.q) and np.array_equal(measured, poses.xyz_mm)
+    write_arm_poses(tmp_path / "schema.csv", ur5, poses.subset(np.arange(20)))   # q1_deg… and x_mm…
+    q2, none = read_points(tmp_path / "schema.csv", ur5)
+    assert none is None and np.allclose(q2, poses.q[:20], rtol=CSV_REL, atol=0)
+
 @pytest.mark.slow
 def test_geometric_stage_recovers_link_errors_within_bands(ur5):
     """20 seeds of a simulated UR5 (link + base + tool errors, tracker noise): the identified slots lie
@@ -321,6 +339,9 @@ CHECK_SECTOR = 3         # the top quartile of joint 1 ([39, 57] deg on the grid
 # 5x leaves room for a different BLAS / LM stop while still failing on a geometric stage that only fits
 # base and tool (1x) or half the link errors.
 BASE_TOOL_OVER_GEOMETRIC_MIN = 5.0
+# predict's measured residual and calibrate's held-out row are the same computation on the same poses (the kept
+# stage at the check poses' joints); they differ only by the CSV's 10 significant digits.
+SAME_FIGURE_MM = 1e-6
 
 
 @pytest.mark.slow
@@ -355,3 +376,17 @@ def test_real_ur5_grid_blocked_sector_through_the_cli(tmp_path, ur5):
     chosen = choose_model([r for r in cv if r["model"] != "plain"])
     assert doc["kept_stage"] == stage_name(chosen) and "not run" in doc["kept_why"], doc["kept_why"]
     assert {"geometric", "geometric+compliance", "geometric+compliance+harmonic"} <= set(st)
+    # predict reads the held-out sector in the tracker's own layout (joint_k, x_t…, x_dif…) and reports the
+    # MEASURED residual per pose: the same figure as calibrate's held-out row of the kept stage
+    import csv
+    with open(src, newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    with open(tmp_path / "check_grid.csv", "w", newline="", encoding="utf-8") as fh:
+        csv.writer(fh).writerows([rows[0]] + [r for r, h in zip(rows[1:], held) if h])
+    assert main(["predict", "--machine", "ur5", "--model", str(tmp_path / "cal" / "calibration.json"),
+                 str(tmp_path / "check_grid.csv"), "--out", str(tmp_path / "pred.csv")]) == 0
+    from errormap.io import read_table
+    t = read_table(tmp_path / "pred.csv")
+    e = np.linalg.norm(np.stack([t.float(c) for c in ("ex_mm", "ey_mm", "ez_mm")], 1), axis=1)
+    assert len(e) == held.sum()
+    assert e.mean() == pytest.approx(st[doc["kept_stage"]]["mean_mm"], abs=SAME_FIGURE_MM)

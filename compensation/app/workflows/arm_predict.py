@@ -1,8 +1,12 @@
 """``volcomp predict program.csv --machine ur5 --model DIR/calibration.json --out pred.csv``: an arm's
 calibrated tool-point error at joint configurations.
 
-Input: a CSV with the chain's joint columns (``q1_deg …``; other columns are ignored), checked for
-radians and the joint limits like every arm file. Output: the joint columns, the calibrated model's
+Input: a CSV with the chain's joint columns (``q1_deg …``; other columns are ignored), or a measured-pose
+file in the laser-tracker grid layout (``joint_1 …`` in degrees, ``x_t…``, ``x_dif…``; recognised by its
+columns), checked for radians and the joint limits like every arm file. For a tracker-grid file the
+output also holds the MEASURED residual per pose, ``ex_mm, ey_mm, ez_mm`` = measured − calibrated tool
+point (the calibration's frame is the tracker's when it was fitted on such a file), and its mean / RMS /
+max are printed: a check of the calibration on poses it did not see. Output: the joint columns, the calibrated model's
 tool point ``x_mm, y_mm, z_mm`` (kept stage: geometric slots [+ joint slots] [+ the learned residual])
 and its error against the nominal chain, ``dx_mm, dy_mm, dz_mm`` — what the arm does where the program
 meant the nominal point (the negative of what ``compensate`` corrects). With ``--band 95`` (or ``1sigma``) also
@@ -14,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from errormap.io import write_csv
+from errormap.arm_poses import check_joint_values, tracker_grid_columns, tracker_grid_points
+from errormap.io import read_table, write_csv
 
 from compensation.app.validate import UsageError
 
@@ -36,12 +41,25 @@ def stage_kind(learner) -> str:
     return "stacked" if learner.chosen_ == "stacked" else "learned"
 
 
+def read_points(path, chain):
+    """(q (n, nq) joint values, measured tool points (n, 3) mm or None) of ``predict``'s input: a joint program
+    (:func:`read_program`; its ``x_mm…`` are targets, not measurements, and are ignored here) or a tracker-grid
+    measured-pose file (its joints ``joint_k`` and its measured points)."""
+    t = read_table(path)
+    grid = None if all(c in t for c in chain.joint_columns) else tracker_grid_columns(t, chain, path)
+    if grid is None:
+        return read_program(path, chain)[0], None
+    q = np.stack([t.float(c) for c in grid], 1)
+    check_joint_values(path, q, [t.row_number(k) for k in range(len(t))], chain, grid)
+    return q, tracker_grid_points(t)
+
+
 def run_arm_predict(chain, args) -> int:
     if getattr(args, "allow", None):
         raise UsageError("--allow: an arm's joint values are checked against the machine's joint limits; nothing "
                          "to allow")
     geo, learner = load_arm_model(chain, args.model)
-    q, _ = read_program(args.points, chain)
+    q, measured = read_points(args.points, chain)
     band = getattr(args, "band", None)
     if band and (learner is None or learner.chosen_ == "none") and not geo.full_covariance:
         raise UsageError(f"--band: {args.model} holds the geometric stage's standard errors but not its covariance "
@@ -53,6 +71,10 @@ def run_arm_predict(chain, args) -> int:
     cols.update({c: d[:, i] for i, c in enumerate(("dx_mm", "dy_mm", "dz_mm"))})
     meta = [f"machine: {chain.name}", f"model: {args.model}",
             "x_mm..z_mm: calibrated tool point; dx_mm..dz_mm: calibrated minus nominal"]
+    if measured is not None:
+        e = measured - p
+        cols.update({c: e[:, i] for i, c in enumerate(("ex_mm", "ey_mm", "ez_mm"))})
+        meta.append("ex_mm..ez_mm: MEASURED residual, measured (tracker-grid target + difference) minus calibrated")
     if band:
         from training.arm_residual import pipeline_std_mm
         k, tag = (1.0, "1sigma") if band == "1sigma" else (Z95, "95")
@@ -64,4 +86,8 @@ def run_arm_predict(chain, args) -> int:
     n = np.linalg.norm(d, axis=1)
     print(f"wrote {len(q)} predictions to {path} (calibrated − nominal: RMS {np.sqrt(np.mean(n ** 2)):.4f} mm, "
           f"max {n.max():.4f} mm)")
+    if measured is not None:
+        m = np.linalg.norm(measured - p, axis=1)
+        print(f"measured − calibrated at these {len(q)} poses: mean {m.mean():.4f} mm, RMS {np.sqrt(np.mean(m ** 2)):.4f} mm, "
+              f"max {m.max():.4f} mm")
     return 0
