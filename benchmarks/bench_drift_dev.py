@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from errormap.diagnosis.drift import load_drift_log  # noqa: E402
-from errormap.diagnosis.drift_models import DriftSelector  # noqa: E402
+from errormap.diagnosis.drift_models import SHRINK_WEIGHTS, SHRINK_WEIGHTS_COARSE, DriftSelector  # noqa: E402
 from errormap.diagnosis.drift_sim import SIMULATORS  # noqa: E402
 from errormap.io import atomic_write, write_csv, write_json  # noqa: E402
 
@@ -242,9 +242,9 @@ def render_families(sets):
 
 # blend grids compared in issue 29's fourth round (the default rule on the candidates whose weight w is in the grid;
 # the decision rule, written before the dumps were read, is in docs/drift_model.md)
-GRIDS = {"A: the grid before (1, 0.75, 0.5, 0.25)": (1.0, 0.75, 0.5, 0.25),
-         "B: A + 0.125": (1.0, 0.75, 0.5, 0.25, 0.125),
-         "C: steps of 1/8 (the default since)": (1.0, 0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)}
+GRIDS = {"A: the grid before (1, 0.75, 0.5, 0.25)": SHRINK_WEIGHTS_COARSE,
+         "B: A + 0.125": SHRINK_WEIGHTS_COARSE + (0.125,),
+         "C: steps of 1/8 (the default since)": SHRINK_WEIGHTS}
 GRID_FILES = {"dev.jsonl": "development seeds 100–104, regime change from 60 % (decided on)",
               "devns.jsonl": "development seeds 100–102, no regime change (decided on)",
               "nested.jsonl": "real log, pseudo-future inside the fitting part (decided on)",
@@ -471,15 +471,14 @@ def main(argv=None):
                          "is a section of --rules' output)")
     ap.add_argument("--weights", default=None,
                     help="with --candidates: the blend weights w of the candidates, comma-separated (default: the "
-                         "selector's SHRINK_WEIGHTS; 'fine': SHRINK_WEIGHTS_FINE)")
+                         "selector's SHRINK_WEIGHTS; 'fine': the steps of 1/8, which SHRINK_WEIGHTS is now)")
     ap.add_argument("--upto", type=float, default=None,
                     help="with --real: keep only the first UPTO of the log (a fitting part; its rest is never read)")
     ap.add_argument("--real", type=float, default=None,
                     help="dump the candidates of the real log fitted on this fraction (to --candidates FILE)")
     a = ap.parse_args(argv)
     if a.weights == "fine":
-        from errormap.diagnosis.drift_models import SHRINK_WEIGHTS_FINE
-        a.weights = SHRINK_WEIGHTS_FINE
+        a.weights = SHRINK_WEIGHTS
     elif a.weights:
         a.weights = tuple(float(x) for x in a.weights.split(","))
     if a.rules:

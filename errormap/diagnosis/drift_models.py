@@ -89,7 +89,6 @@ SHRINK_WEIGHTS = (1.0, 0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)   # candidat
 #   2.12×), geometric-mean ratio 0.818 → 0.796, no regime change 1 → 1 (1.55× → 1.18×); real fitting parts 0 above /
 #   6 below either way, but one case's gain smaller (ch1 at 38.4 %: 0.37× → 0.72× OLS)
 SHRINK_WEIGHTS_COARSE = (1.0, 0.75, 0.5, 0.25)   # the grid before issue 29's fourth round (a setting)
-SHRINK_WEIGHTS_FINE = SHRINK_WEIGHTS             # the name the fourth round measured it under (bench_drift_dev --weights fine)
 HEDGE_WEIGHT = 1.0   # a weight above HEDGE_WEIGHT only where every fold's RMS ratio to OLS is ≤ CONFIDENT_WORST_FOLD;
 CONFIDENT_WORST_FOLD = 0.5   # 1.0: no hedge (the default). The hedge (0.5: at most half a candidate unless it beat
 #   OLS by 2× on every fold: the blend's error is at most the mean of the two) with SELECTION = "worst_fold" was
@@ -1439,6 +1438,16 @@ def _mode_maps(X, nt: int, speed: bool, counts) -> dict:
     return out
 
 
+def _mode_inputs(log, channels, rows, cache, counts):
+    """What the mode families fit on: (raw input names (temperatures, then the speed where it varies), their
+    matrix X (n, p) on ``rows``, :func:`_mode_maps` of X for ``counts``, the displacements Y (n, channels))."""
+    temps, speed = _inputs(log, rows)
+    ins = temps + (["speed_rpm"] if speed else [])
+    X = feature_matrix(log, [Feature(i) for i in ins], cache)[rows]
+    Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
+    return ins, X, _mode_maps(X, len(temps), speed, counts), Y
+
+
 class ModesFamily(_Family):
     """OLS on the first k MODES of the temperature field + the spindle speed: the principal components of the
     temperatures in °C (centred on the training rows, not scaled: a mode is a pattern of kelvins across the
@@ -1454,13 +1463,9 @@ class ModesFamily(_Family):
         self.counts = tuple(counts)
 
     def fit(self, log, channels, rows, cache):
-        temps, speed = _inputs(log, rows)
-        ins = temps + (["speed_rpm"] if speed else [])
+        ins, X, modes, Y = _mode_inputs(log, channels, rows, cache, self.counts)
         feats = [Feature(i) for i in ins]
-        X = feature_matrix(log, feats, cache)[rows]
-        modes = _mode_maps(X, len(temps), speed, self.counts)
         out = {ch: {} for ch in channels}
-        Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
         for k, M in modes.items():
             A = np.column_stack([np.ones(len(rows)), X @ M])
             th = np.linalg.lstsq(A, Y, rcond=None)[0]
@@ -1484,12 +1489,8 @@ class GreyBoxModesFamily(_Family):
         self.counts, self.taus = tuple(counts), tuple(taus)
 
     def fit(self, log, channels, rows, cache):
-        temps, speed = _inputs(log, rows)
-        ins = temps + (["speed_rpm"] if speed else [])
+        ins, X, modes, Y = _mode_inputs(log, channels, rows, cache, self.counts)
         raw = [Feature(i) for i in ins]
-        X = feature_matrix(log, raw, cache)[rows]
-        modes = _mode_maps(X, len(temps), speed, self.counts)
-        Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
         out = {ch: {} for ch in channels}
         for tau in self.taus:
             lag = [Feature(i, tau) for i in ins]
