@@ -24,12 +24,20 @@ from .arm_calibration import load_arm_model
 EXIT_REFUSED = 3
 
 
-def read_program(path, chain):
-    """(q (n, nq), targets (n, 3) or None, rows) of a joint-program / target CSV."""
-    t = read_table(path)
-    t.require(*chain.joint_columns)
-    q = np.stack([t.float(c) for c in chain.joint_columns], 1)
-    check_joint_values(path, q, [t.row_number(k) for k in range(len(t))], chain)  # radians, joint limits
+def joint_values(path, t, chain, columns=None) -> np.ndarray:
+    """The joint values (n, nq) in columns ``columns`` (default: the chain's ``q1_deg …``) of table ``t`` read
+    from ``path``, refused as radians or outside the joint limits (:func:`check_joint_values`)."""
+    columns = list(chain.joint_columns if columns is None else columns)
+    t.require(*columns)
+    q = np.stack([t.float(c) for c in columns], 1)
+    check_joint_values(path, q, [t.row_number(k) for k in range(len(t))], chain, columns)
+    return q
+
+
+def read_program(path, chain, t=None):
+    """(q (n, nq), targets (n, 3) or None) of a joint-program / target CSV (``t``: its table, already read)."""
+    t = read_table(path) if t is None else t
+    q = joint_values(path, t, chain)
     xyz = None
     if any(c in t for c in ("x_mm", "y_mm", "z_mm")):
         t.require("x_mm", "y_mm", "z_mm")

@@ -18,14 +18,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from errormap.arm_poses import check_joint_values, tracker_grid_columns, tracker_grid_points
+from errormap.arm_poses import tracker_grid_columns, tracker_grid_points
 from errormap.io import read_table, write_csv
 
 from compensation.app.validate import UsageError
 
 from ...arm_compensation import model_point
 from .arm_calibration import load_arm_model
-from .arm_compensate import read_program
+from .arm_compensate import joint_values, read_program
 
 
 Z95 = 1.959963984540054
@@ -48,10 +48,8 @@ def read_points(path, chain):
     t = read_table(path)
     grid = None if all(c in t for c in chain.joint_columns) else tracker_grid_columns(t, chain, path)
     if grid is None:
-        return read_program(path, chain)[0], None
-    q = np.stack([t.float(c) for c in grid], 1)
-    check_joint_values(path, q, [t.row_number(k) for k in range(len(t))], chain, grid)
-    return q, tracker_grid_points(t)
+        return read_program(path, chain, t)[0], None
+    return joint_values(path, t, chain, grid), tracker_grid_points(t)
 
 
 def run_arm_predict(chain, args) -> int:
