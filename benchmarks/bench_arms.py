@@ -366,7 +366,8 @@ def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
         e_st = np.linalg.norm(check.xyz_mm - st.point(check.q), axis=1)
         loop.append({"stacked": {"weight": st.weight, "heldout_rms_mm": float(np.sqrt(np.mean(e_st ** 2))),
                                  "compensation_true_rms_mm": float(np.sqrt(np.mean(true_st ** 2))),
-                                 "converged": int(sol_st.converged.sum())},"seed": 100 + seed, "kept": core["kept_stage"], "kept_rms_mm": rows[core["kept_stage"]]["rms_mm"],
+                                 "converged": int(sol_st.converged.sum())},
+                     "seed": 100 + seed, "kept": core["kept_stage"], "kept_rms_mm": rows[core["kept_stage"]]["rms_mm"],
                      "heldout_rms_mm": {k: v["rms_mm"] for k, v in rows.items()},
                      "compensation_true_rms_mm": float(np.sqrt(np.mean(true_after ** 2))),
                      "uncompensated_true_rms_mm": float(np.sqrt(np.mean(true_before ** 2))),
