@@ -449,6 +449,7 @@ def render(rows, out):
 RANGE_VARIANTS = {"A": {}, "B": {"input_range": True}, "C": {"input_range": True, "scale_folds": "horizon_novelty"}}
 RANGE_NESTED = ((0.6, 0.6), (0.8, 0.8))   # (keep the first U of the real log's shared part, fit on F of it): inside
 #                                           the benchmark's fitting parts (0–21.6 % → 21.6–36 %, 0–38.4 % → 38.4–48 %)
+RANGE_PSEUDO_FUTURES = (0.6, 0.8)          # bench_drift_regime's real splits: 0–36 % → 36–60 %, 0–48 % → 48–60 %
 
 
 def range_case(kind, seed, variant, real_log=None):
@@ -458,8 +459,11 @@ def range_case(kind, seed, variant, real_log=None):
     if kind == "real":
         upto, ff = RANGE_NESTED[seed]
         log = head_of(real_log, upto)
+    elif kind == "real-pf":          # the benchmark's pseudo-futures (judged, never decided on)
+        ff = RANGE_PSEUDO_FUTURES[seed]
+        log = real_log
     else:
-        fam = kind.split("-")[0]
+        fam = kind.split("-")[0]       # "-j": the benchmark's seeds 0–9 (judged), with the regime change
         cols = SIMULATORS[fam](seed, dt_s=SIM_DT_S, shift_at=None if kind.endswith("-ns") else SIM_SPLIT)
         cols.pop("_truth")
         with tempfile.TemporaryDirectory() as d:
@@ -481,7 +485,9 @@ def render_range(rows, out):
     """Markdown of the input-range round: per data set and variant, cases above 1.05× OLS, worst, below OLS (ratio
     < 0.9995), above OLS (> 1.0005), geometric-mean ratio; then every case whose ratio changed against A."""
     sets = {"dev, regime change (seeds 100–104)": ("lumped", "rod"), "dev, none (seeds 100–102)": ("lumped-ns", "rod-ns"),
-            "real, inside the fitting parts": ("real",)}
+            "real, inside the fitting parts": ("real",),
+            "JUDGED: benchmark seeds 0–9, regime change (A: drift_regime_results.json)": ("lumped-j", "rod-j"),
+            "JUDGED: real pseudo-futures 36–60 %, 48–60 % (A: drift_regime_results.json)": ("real-pf",)}
     by = {}
     for r in rows:
         by.setdefault(r["variant"], {})[(r["kind"], r["seed"], r["channel"])] = r
@@ -547,6 +553,9 @@ def main(argv=None):
     ap.add_argument("--range-round", default=None,
                     help="issue 29's fifth round: run RANGE_VARIANTS on the development logs and the real fitting parts, "
                          "one JSON line per finished log to FILE (resumed), then render --range-out")
+    ap.add_argument("--range-judge", action="store_true",
+                    help="with --range-round: after the decision, variants B and C on the benchmark's seeds 0–9 "
+                         "(regime change) and the real pseudo-futures (A from drift_regime_results.json)")
     ap.add_argument("--range-out", default=str(Path(__file__).with_name("drift_dev_range_results.md")))
     a = ap.parse_args(argv)
     if a.range_round:
@@ -562,6 +571,20 @@ def main(argv=None):
         todo = [(k, s) for k in ("lumped", "rod") for s in range(100, 105)] + \
                [(k, s) for k in ("lumped-ns", "rod-ns") for s in range(100, 103)] + \
                ([("real", i) for i in range(len(RANGE_NESTED))] if real is not None else [])
+        if a.range_judge:
+            reg = json.loads(Path(__file__).with_name("drift_regime_results.json").read_text())
+            a_rows = [[{"kind": f"{r['family']}-j", "seed": r["seed"], "variant": "A", "channel": r["channel"],
+                        "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"], "scale": r["scale"],
+                        "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
+                      for r in reg["sims"] if r["shifted"]] + \
+                     [[{"kind": "real-pf", "seed": RANGE_PSEUDO_FUTURES.index(r["split"]), "variant": "A",
+                        "channel": r["channel"], "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"],
+                        "scale": r["scale"], "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
+                      for r in reg["real"]]
+            rows += [r for x in a_rows for r in x]
+            todo = ([("real-pf", i) for i in range(len(RANGE_PSEUDO_FUTURES))] if real is not None else []) + \
+                [(k, s) for k in ("rod-j", "lumped-j") for s in range(10)]
+            done |= {(r[0]["kind"], r[0]["seed"], "A") for r in a_rows}
         for k, s in todo:
             for v in RANGE_VARIANTS:
                 if (k, s, v) in done:

@@ -854,6 +854,8 @@ class DriftSelector:
     Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
     ``feature_distance`` (ρ also on the candidate's own features), ``ranking_fold_loss``, ``selection``,
     ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
+    ``input_range`` (ρ also from each raw input's exceedance of its own fit range, :func:`range_rho`; recorded in
+    ``fitted_on.novelty.input_range``), ``scale_folds`` (``SCALE_FOLDS``: the folds whose rows choose s),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
     {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number ``selection`` ranks
