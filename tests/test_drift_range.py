@@ -9,8 +9,8 @@ import pytest
 
 from errormap.diagnosis.drift import DriftLog
 from errormap.diagnosis.drift_models import (RANGE_QUANTILE, SCALE_FOLDS, ChannelFit, DriftModel, DriftSelector,
-                                             Feature, distance_weight, input_range_of, mahalanobis, range_rho,
-                                             relative_distance, whitener)
+                                             Feature, distance_weight, feature_matrix, input_range_of, mahalanobis,
+                                             range_rho, relative_distance, whitener)
 from errormap.diagnosis.drift_update import DriftUpdater
 
 # ρ of the range term is 1 + (u − max)/sd: a few float operations on values of order 10
@@ -91,7 +91,6 @@ def test_model_shrinks_by_the_larger_distance_and_equals_the_fixed_model_inside(
     pred = model.predict(log)["ch1"]
     c = model.channels["ch1"]
     bf, ba, bc = c.base
-    from errormap.diagnosis.drift_models import feature_matrix
     base = ba + feature_matrix(log, bf) @ bc
     np.testing.assert_allclose(pred, base + distance_weight(rho, c.shrink_scale) * (fixed - base), rtol=0,
                                atol=SAME_UM)
@@ -152,10 +151,10 @@ def test_selector_records_the_range_and_checks_its_settings():
     log = _log()
     sel = DriftSelector(fit_fraction=0.6, input_range=True, scale_folds="horizon_novelty", n_novelty_folds=2,
                         n_novelty_blocks=6).fit(log)
-    rng_ref = sel.model_.meta["novelty"]["input_range"]
+    ref = sel.model_.meta["novelty"]["input_range"]
     U = np.stack([log.temps_c["a"], log.temps_c["b"], log.speed_rpm], axis=1)[:540]
-    np.testing.assert_array_equal(rng_ref["lo"], U.min(axis=0))
-    np.testing.assert_array_equal(rng_ref["hi"], U.max(axis=0))
+    np.testing.assert_array_equal(ref["lo"], U.min(axis=0))
+    np.testing.assert_array_equal(ref["hi"], U.max(axis=0))
     assert "input_range" not in DriftSelector(fit_fraction=0.6, n_novelty_folds=2,
                                               n_novelty_blocks=6).fit(log).model_.meta["novelty"]
 
