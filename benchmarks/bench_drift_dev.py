@@ -445,6 +445,80 @@ def render(rows, out):
     return L
 
 
+# issue 29's fifth round: the input-range distance (docs/drift_model.md), whole selections per variant
+RANGE_VARIANTS = {"A": {}, "B": {"input_range": True}, "C": {"input_range": True, "scale_folds": "horizon_novelty"}}
+RANGE_NESTED = ((0.6, 0.6), (0.8, 0.8))   # (keep the first U of the real log's shared part, fit on F of it): inside
+#                                           the benchmark's fitting parts (0–21.6 % → 21.6–36 %, 0–38.4 % → 38.4–48 %)
+RANGE_PSEUDO_FUTURES = (0.6, 0.8)          # bench_drift_regime's real splits: 0–36 % → 36–60 %, 0–48 % → 48–60 %
+
+
+def range_case(kind, seed, variant, real_log=None):
+    """One log under one variant of ``RANGE_VARIANTS``: rows {kind, seed, variant, channel, model, volcomp, ols,
+    scale, rho, coverage, cpu_s}. ``kind``: "lumped" / "rod" (regime change), "lumped-ns" / "rod-ns" (none), "real"
+    (``seed`` = the index into ``RANGE_NESTED``; ``real_log`` the loaded shared log)."""
+    if kind == "real":
+        upto, ff = RANGE_NESTED[seed]
+        log = head_of(real_log, upto)
+    elif kind == "real-pf":          # the benchmark's pseudo-futures (judged, never decided on)
+        ff = RANGE_PSEUDO_FUTURES[seed]
+        log = real_log
+    else:
+        fam = kind.split("-")[0]       # "-j": the benchmark's seeds 0–9 (judged), with the regime change
+        cols = SIMULATORS[fam](seed, dt_s=SIM_DT_S, shift_at=None if kind.endswith("-ns") else SIM_SPLIT)
+        cols.pop("_truth")
+        with tempfile.TemporaryDirectory() as d:
+            path = Path(d) / "log.csv"
+            write_csv(path, cols)
+            log = load_drift_log(path)
+        ff = SIM_SPLIT
+    t0 = time.process_time()
+    sel = DriftSelector(fit_fraction=ff, **RANGE_VARIANTS[variant]).fit(log)
+    rep = sel.report(log)
+    cpu = time.process_time() - t0
+    return [{"kind": kind, "seed": seed, "variant": variant, "channel": ch, "model": r["model"],
+             "volcomp": r["rms_after_um"], "ols": r["rms_ols_um"], "scale": r["distance_scale"],
+             "rho": r["heldout_rho_median"], "coverage": r["band_coverage_heldout"], "cpu_s": cpu}
+            for ch, r in rep.items()]
+
+
+def render_range(rows, out):
+    """Markdown of the input-range round: per data set and variant, cases above 1.05× OLS, worst, below OLS (ratio
+    < 0.9995), above OLS (> 1.0005), geometric-mean ratio; then every case whose ratio changed against A."""
+    sets = {"dev, regime change (seeds 100–104)": ("lumped", "rod"), "dev, none (seeds 100–102)": ("lumped-ns", "rod-ns"),
+            "real, inside the fitting parts": ("real",),
+            "JUDGED: benchmark seeds 0–9, regime change (A: drift_regime_results.json)": ("lumped-j", "rod-j"),
+            "JUDGED: real pseudo-futures 36–60 %, 48–60 % (A: drift_regime_results.json)": ("real-pf",)}
+    by = {}
+    for r in rows:
+        by.setdefault(r["variant"], {})[(r["kind"], r["seed"], r["channel"])] = r
+    L = ["# Issue 29's fifth round: the input-range distance on the development data", "",
+         "`python benchmarks/bench_drift_dev.py --range-round FILE` (whole selections; held-out MEASURED RMS ratio "
+         "to OLS). A: the default; B: `input_range=True`; C: B + `scale_folds=\"horizon_novelty\"`. "
+         "Real log: 0 = fit 0–21.6 % → judge 21.6–36 %, 1 = fit 0–38.4 % → judge 38.4–48 % (of the full log).", "",
+         "| data | variant | cases | > 1.05× OLS | worst | below OLS | above OLS | geometric mean | CPU s |",
+         "|---|---|---|---|---|---|---|---|---|"]
+    for name, kinds in sets.items():
+        for v in RANGE_VARIANTS:
+            rr = [r for k, r in by.get(v, {}).items() if k[0] in kinds]
+            if not rr:
+                continue
+            q = np.array([r["volcomp"] / r["ols"] for r in rr])
+            cpu = sum({(r["kind"], r["seed"]): r["cpu_s"] for r in rr}.values())
+            L.append(f"| {name} | {v} | {len(q)} | {int((q > TOLERATED_LOSS).sum())} | {q.max():.3f} | "
+                     f"{int((q < 0.9995).sum())} | {int((q > 1.0005).sum())} | {np.exp(np.mean(np.log(q))):.3f} | "
+                     f"{cpu:.0f} |")
+    L += ["", "Cases whose choice or ratio changed against A (kind, seed, channel: A → variant):", ""]
+    for v in list(RANGE_VARIANTS)[1:]:
+        for k, r in sorted(by.get(v, {}).items(), key=lambda kv: str(kv[0])):
+            a = by.get("A", {}).get(k)
+            if a and (a["model"] != r["model"] or abs(a["volcomp"] - r["volcomp"]) > 1e-9 * max(1.0, a["volcomp"])):
+                L.append(f"- {v}: {k[0]} {k[1]} {k[2]}: {a['model']} {a['volcomp'] / a['ols']:.3f}× (s = {a['scale']}) → "
+                         f"{r['model']} {r['volcomp'] / r['ols']:.3f}× (s = {r['scale']})")
+    with atomic_write(out, "w", encoding="utf-8") as fh:
+        fh.write("\n".join(L) + "\n")
+    return L
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="100-109")
@@ -476,7 +550,53 @@ def main(argv=None):
                     help="with --real: keep only the first UPTO of the log (a fitting part; its rest is never read)")
     ap.add_argument("--real", type=float, default=None,
                     help="dump the candidates of the real log fitted on this fraction (to --candidates FILE)")
+    ap.add_argument("--range-round", default=None,
+                    help="issue 29's fifth round: run RANGE_VARIANTS on the development logs and the real fitting parts, "
+                         "one JSON line per finished log to FILE (resumed), then render --range-out")
+    ap.add_argument("--range-judge", action="store_true",
+                    help="with --range-round: after the decision, variants B and C on the benchmark's seeds 0–9 "
+                         "(regime change) and the real pseudo-futures (A from drift_regime_results.json)")
+    ap.add_argument("--range-out", default=str(Path(__file__).with_name("drift_dev_range_results.md")))
     a = ap.parse_args(argv)
+    if a.range_round:
+        done = set()
+        rows = []
+        if Path(a.range_round).exists():
+            for line in Path(a.range_round).read_text().splitlines():
+                if line.strip():
+                    r = json.loads(line)
+                    rows += r
+                    done.add((r[0]["kind"], r[0]["seed"], r[0]["variant"]))
+        real = load_drift_log(REAL) if REAL.exists() else None
+        todo = [(k, s) for k in ("lumped", "rod") for s in range(100, 105)] + \
+               [(k, s) for k in ("lumped-ns", "rod-ns") for s in range(100, 103)] + \
+               ([("real", i) for i in range(len(RANGE_NESTED))] if real is not None else [])
+        if a.range_judge:
+            reg = json.loads(Path(__file__).with_name("drift_regime_results.json").read_text())
+            a_rows = [[{"kind": f"{r['family']}-j", "seed": r["seed"], "variant": "A", "channel": r["channel"],
+                        "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"], "scale": r["scale"],
+                        "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
+                      for r in reg["sims"] if r["shifted"]] + \
+                     [[{"kind": "real-pf", "seed": RANGE_PSEUDO_FUTURES.index(r["split"]), "variant": "A",
+                        "channel": r["channel"], "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"],
+                        "scale": r["scale"], "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
+                      for r in reg["real"]]
+            rows += [r for x in a_rows for r in x]
+            todo = ([("real-pf", i) for i in range(len(RANGE_PSEUDO_FUTURES))] if real is not None else []) + \
+                [(k, s) for k in ("rod-j", "lumped-j") for s in range(10)]
+            done |= {(r[0]["kind"], r[0]["seed"], "A") for r in a_rows}
+        for k, s in todo:
+            for v in RANGE_VARIANTS:
+                if (k, s, v) in done:
+                    continue
+                r = range_case(k, s, v, real)
+                rows += r
+                with open(a.range_round, "a", encoding="utf-8") as fh:
+                    fh.write(json.dumps(r) + "\n")
+                print(f"{k} {s} {v}: " + ", ".join(f"{x['channel']} {x['volcomp'] / x['ols']:.3f}" for x in r),
+                      file=sys.stderr, flush=True)
+        print("\n".join(render_range(rows, a.range_out)))
+        return
     if a.weights == "fine":
         a.weights = SHRINK_WEIGHTS
     elif a.weights:

@@ -700,7 +700,11 @@ def drift_distance_rule(model, coef: DriftCoefficients) -> dict | None:
                                            "mean": np.asarray(nv["mean"], float).tolist(),
                                            "whiten": np.asarray(nv["whiten"], float).tolist(),
                                            "range_distance": float(nv["range_distance"])}
-    return {"inputs": list(nov["inputs"]), "mean": list(nov["mean"]), "whiten": nov["whiten"],
+    extra = {}
+    if nov.get("input_range"):      # DriftSelector(input_range=True): the per-input range term of rho travels too
+        extra["input_range"] = dict(nov["input_range"], rule="rho = max(rho, 1 + max_i max(u_i - hi_i, lo_i - u_i, 0) "
+                                                              "/ sd_i) on a tick where some input is outside [lo, hi]")
+    return extra | {"inputs": list(nov["inputs"]), "mean": list(nov["mean"]), "whiten": nov["whiten"],
             "range_distance": float(nov["range_distance"]),
             "rule": "rho = norm((u - mean) @ whiten) / range_distance on the latest raw inputs; g = 1 for rho <= 1, "
                     "exp(-(rho - 1) / scale) beyond; pred = base + g * (gains . f - base), base = base_gains . f "

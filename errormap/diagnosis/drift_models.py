@@ -111,6 +111,8 @@ RANKING_FOLD_LOSS = True   # the per-fold loss bound MAX_FOLD_LOSS on the rankin
 #   nearest the future): benchmark rod seed 6 tilt, subset_lag~ols(w=0.25), had every horizon and novelty fold ≤ 1.01×
 #   OLS and its last ranking fold 1.10×; it lost 1.06× on the future
 RANGE_QUANTILE = 0.99   # the fit data's typical range d0: this quantile of its rows' own input distances
+INPUT_RANGE = False   # ρ also from the per-input range exceedance (issue 29's fifth round; a setting, measured, not the default)
+SCALE_FOLDS = ("novelty", "horizon_novelty")   # the folds whose rows choose the distance scale s (the first: the default)
 SHRINK_SCALES = (np.inf, 2.0, 1.0, 0.5, 0.25)   # per-sample shrinkage g(ρ) = exp(−(ρ − 1)/s) beyond ρ = d/d0 = 1
                                                 # (inf: none); s chosen per candidate on the novelty folds
 SPEED_SCALE_RPM = 1e4                            # speed² features use (speed/1e4)² → documented as power 2 of speed/1e4
@@ -852,6 +854,8 @@ class DriftSelector:
     Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
     ``feature_distance`` (ρ also on the candidate's own features), ``ranking_fold_loss``, ``selection``,
     ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
+    ``input_range`` (ρ also from each raw input's exceedance of its own fit range, :func:`range_rho`; recorded in
+    ``fitted_on.novelty.input_range``), ``scale_folds`` (``SCALE_FOLDS``: the folds whose rows choose s),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
     {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number ``selection`` ranks
@@ -871,7 +875,8 @@ class DriftSelector:
                  min_gain: float = MIN_GAIN, feature_distance: bool = FEATURE_DISTANCE,
                  ranking_fold_loss: bool = RANKING_FOLD_LOSS,
                  selection: str = SELECTION, hedge_weight: float = HEDGE_WEIGHT, band_rule: str = BAND_RULE,
-                 confident_worst_fold: float = CONFIDENT_WORST_FOLD):
+                 confident_worst_fold: float = CONFIDENT_WORST_FOLD, input_range: bool = INPUT_RANGE,
+                 scale_folds: str = SCALE_FOLDS[0]):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
@@ -892,6 +897,8 @@ class DriftSelector:
         self.hedge_weight = hedge_weight
         self.band_rule = band_rule
         self.confident_worst_fold = confident_worst_fold
+        self.input_range = input_range
+        self.scale_folds = scale_folds
 
     def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
         """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes
@@ -925,6 +932,8 @@ class DriftSelector:
             raise ValueError(f"Expected band_rule in {BAND_RULES}, got {self.band_rule!r}")
         if self.selection not in SELECTIONS:
             raise ValueError(f"Expected selection in {SELECTIONS}, got {self.selection!r}")
+        if self.scale_folds not in SCALE_FOLDS:
+            raise ValueError(f"Expected scale_folds in {SCALE_FOLDS}, got {self.scale_folds!r}")
         if not self.shrink_weights or not all(0 < w <= 1 for w in self.shrink_weights):
             raise ValueError(f"Expected shrink_weights in (0, 1], got {self.shrink_weights}")
         if not 0 < self.hedge_weight <= 1 or not 0 < self.confident_worst_fold <= 1:
@@ -948,7 +957,8 @@ class DriftSelector:
         # ρ of every validation row from its fold's training rows (the per-sample shrinkage and the band grow with it):
         # the raw inputs' ρ, and per candidate the larger of it and the ρ of the candidate's OWN features (its filtered
         # inputs / states, its selected sensors): a model extrapolates in what it computes from, not only in the raw inputs
-        raw_rho = {id(fs): [relative_distance(U[tr], U[va]) for tr, va in fs] for fs in (folds, hfolds, nfolds)}
+        raw_rho = {id(fs): [relative_distance(U[tr], U[va], self.input_range) for tr, va in fs]
+                   for fs in (folds, hfolds, nfolds)}
         frho_cache = {}
 
         def cand_rho(fs, featlists):
@@ -981,10 +991,14 @@ class DriftSelector:
                 rho_n = cand_rho(nfolds, fn[(ch, *k)])
                 for w in ((1.0,) if k == base else self.shrink_weights):
                     # g's scale: the one of lowest RMS on the novelty folds (ties: the least shrinkage)
+                    # ("horizon_novelty": on the horizon and novelty folds' rows together)
                     sc = np.inf
                     if nfolds and k != base:
+                        sres, s0, srho = nresid[(ch, *k)], n0, rho_n
+                        if self.scale_folds == "horizon_novelty":
+                            sres, s0, srho = hresid[(ch, *k)] + sres, h0 + s0, rho_h + srho
                         sc = min(self.shrink_scales, key=lambda s: (round(_rms(np.concatenate(
-                            _blend_residuals(w, nresid[(ch, *k)], n0, rho_n, s))), 12), -s))
+                            _blend_residuals(w, sres, s0, srho, s))), 12), -s))
                     key = (k[0], k[1], w)
                     scores[key], gate[key] = blend_statistics(
                         w, sc, (resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)]), (r0, h0, n0),
@@ -1050,6 +1064,8 @@ class DriftSelector:
                             "validated_distance": float(np.quantile(np.concatenate(dval), 0.9)) if dval else None,
                             "fit_distance_q99": float(np.quantile(mahalanobis(U, mu, W), 0.99)),
                             "range_distance": float(np.quantile(mahalanobis(U, mu, W), RANGE_QUANTILE))}}
+        if self.input_range:
+            meta["novelty"]["input_range"] = {k: v.tolist() for k, v in input_range_of(U).items()}
         chosen = {}
         for ch in chans:
             f, hy = self.chosen_[ch]
@@ -1624,12 +1640,34 @@ def distance_weight(rho, scale: float) -> np.ndarray:
     return np.exp(-np.maximum(rho - 1.0, 0.0) / scale)
 
 
-def relative_distance(U_train, U_new) -> np.ndarray:
+def relative_distance(U_train, U_new, input_range: bool = False) -> np.ndarray:
     """ρ (m,) = Mahalanobis distance of the rows of ``U_new`` (m, k) from ``U_train`` (n, k), divided by the
-    ``RANGE_QUANTILE`` of the training rows' own distances (ρ ≤ 1: inside the training data's typical range)."""
+    ``RANGE_QUANTILE`` of the training rows' own distances (ρ ≤ 1: inside the training data's typical range).
+    ``input_range``: the larger of that and :func:`range_rho` (each input's exceedance of its own training range)."""
     mu, W = whitener(U_train)
     d0 = float(np.quantile(mahalanobis(U_train, mu, W), RANGE_QUANTILE))
-    return mahalanobis(U_new, mu, W) / max(d0, 1e-12)
+    rho = mahalanobis(U_new, mu, W) / max(d0, 1e-12)
+    return np.maximum(rho, range_rho(input_range_of(U_train), U_new)) if input_range else rho
+
+
+def input_range_of(U) -> dict:
+    """The per-input range reference of the rows of ``U`` (n, k): {"lo" (k,), "hi" (k,), "sd" (k,)} — each input's
+    minimum, maximum and standard deviation (a constant input: sd 1, in its own unit)."""
+    U = np.asarray(U, float)
+    sd = U.std(axis=0)
+    return {"lo": U.min(axis=0), "hi": U.max(axis=0), "sd": np.where(sd > 0, sd, 1.0)}
+
+
+def range_rho(ref: dict, U) -> np.ndarray:
+    """The per-input range ρ (m,) of the rows of ``U`` (m, k): 1 + the largest exceedance, over the inputs, of the
+    input's range in ``ref`` (:func:`input_range_of`) in its standard deviations, on a row where some input is
+    outside its range; 0 on a row where every input is inside (so that max(ρ, this) is ρ there). Correlated sensors
+    moving together beyond their ranges are ONE principal direction of the whole-vector distance, which dilutes
+    their move among all the others; this does not."""
+    U = np.asarray(U, float)
+    lo, hi, sd = (np.asarray(ref[k], float) for k in ("lo", "hi", "sd"))
+    e = np.maximum(0.0, np.maximum(U - hi, lo - U) / sd).max(axis=1)
+    return np.where(e > 0, 1.0 + e, 0.0)
 
 
 def feature_novelty(features, F_fit) -> dict:
@@ -1692,4 +1730,10 @@ def input_rho(model, log) -> np.ndarray | None:
     if not d0:
         return None
     d = input_novelty(model, log)
-    return None if d is None else d / float(d0)
+    if d is None:
+        return None
+    rho = d / float(d0)
+    if nov.get("input_range"):       # the per-input range term (DriftSelector(input_range=True)); older files have none
+        U = np.stack([input_values(log, name) for name in nov["inputs"]], axis=1)
+        rho = np.maximum(rho, range_rho(nov["input_range"], U))
+    return rho

@@ -48,7 +48,7 @@ import numpy as np
 
 from ..io import InputError
 
-from .drift_models import (COV_FLOOR, ChannelFit, DriftModel, distance_weight, feature_matrix, input_values,
+from .drift_models import (COV_FLOOR, ChannelFit, DriftModel, distance_weight, feature_matrix, input_values, range_rho,
                            mahalanobis)
 
 MIN_WARM_ROWS = 10
@@ -250,6 +250,9 @@ class DriftUpdater:
                 refs.append((RunningReference(c.novelty["mean"], c.novelty["whiten"], n_fit),
                              feature_matrix(log, c.novelty["features"], cache), float(c.novelty["range_distance"])))
             rho = self._rho(refs, rows, n) if refs else None
+            if rho is not None and U is not None and nov.get("input_range"):
+                # the per-input range term (DriftSelector(input_range=True)): from the fitting data's ranges only
+                rho = np.maximum(rho, range_rho(nov["input_range"], U))
             band = c.band95_um if np.isfinite(c.band95_um) and c.band95_um > 0 else max(float(np.std(y[rows])), 1.0)
             lin, a_new, coef, steps = self._kalman(F, c.intercept_um, c.coef, c.features, t, y, rows, band)
             out = lin
