@@ -4,8 +4,9 @@ After the closed loop (:func:`errormap.diagnosis.loop.closed_loop`) has updated 
 accepted the effect terms it can name, the measured residual that is left at the checks is
 learned by a :class:`training.residual.ResidualRegressor` (:func:`learned_stage`):
 
-* inputs: the axes as ``(x_mm, z_mm, cos a, sin a)`` (A is periodic, so the learned part is too);
-  the conditions (temperature, time, direction) are NOT inputs: on the checks they grow with
+* inputs: the machine's axes, from its axis list (:func:`errormap.field.machine_axes`): each linear
+  axis its value, each rotary axis the cosine and sine of its angle, one input group (periodic in
+  it) — on the grinder ``(x_mm, z_mm, cos a, sin a)`` (:func:`axes_feature_names`); the conditions (temperature, time, direction) are NOT inputs: on the checks they grow with
   ``seq``, so the later held-out block would be an extrapolation in them;
 * fitted on the fitting checks (its own cross-validation uses contiguous ``seq`` blocks, i.e.
   BLOCKED in time), then KEPT only if it lowers the held-out squared residual norm, paired per
@@ -16,8 +17,8 @@ learned by a :class:`training.residual.ResidualRegressor` (:func:`learned_stage`
   (:func:`learned_stage`, ``r_static_um``): on warm checks a thermal term can stand in for a
   static error and subtract it at the reference temperature;
 * outside the checks: the regressor decays to zero within a few length scales, and
-  :class:`LearnedResidual` multiplies it by a C¹ taper that is 1 inside the checks' box in X and
-  Z and falls to 0 within :data:`TAPER_FRAC` of the range outside it, so the learned part never
+  :class:`LearnedResidual` multiplies it by a C¹ taper that is 1 inside the checks' box in the
+  machine's linear axes (the grinder's X and Z) and falls to 0 within :data:`TAPER_FRAC` of the range outside it, so the learned part never
   extrapolates a fit; :attr:`HybridField.calibrated_volume` is the checks' box (within the
   base's), so the guards refuse commands outside it unless overridden;
 * band: :meth:`HybridField.band_std` is the total predictive band, the learned part's
@@ -31,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN
+from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, machine_axes
 from errormap.stats import residual_stats
 from errormap.transforms import check_points
 from training.residual import FAMILY_NAMES, Z95, ResidualRegressor
@@ -81,27 +82,72 @@ to hold with them, they are measured as a variant (``bench_hybrid.py --learned-f
 CANDIDATE_FAMILIES = ("gp_additive", "basis")
 """The lower-variance families measured beside the default set (see :data:`LEARNED_FAMILIES`)."""
 
-FEATURE_NAMES = ("x_mm", "z_mm", "cos_a", "sin_a")
-"""The features of the ``axes`` input set (the default before the input sets were compared)."""
+def is_rotary(column: str) -> bool:
+    """An axis column in degrees (``*_deg``: the project's unit-in-the-name rule) is a rotary axis; every
+    other (``*_mm``) a linear one."""
+    return str(column).endswith("_deg")
+
+
+def axis_stem(column: str) -> str:
+    """``"a_deg"`` → ``"a"``: the axis name without its unit."""
+    return str(column).rsplit("_", 1)[0]
+
+
+def axes_feature_names(columns) -> tuple:
+    """The features of the ``axes`` input set of a machine whose axis columns are ``columns``: each
+    linear axis its value (``x_mm``), each rotary axis the cosine and sine of its angle (``cos_a``,
+    ``sin_a``: the learned part is periodic in it), in the machine's axis order."""
+    out = []
+    for c in columns:
+        out += [f"cos_{axis_stem(c)}", f"sin_{axis_stem(c)}"] if is_rotary(c) else [str(c)]
+    return tuple(out)
+
+
+def axes_input_groups(columns) -> tuple:
+    """The feature columns of :func:`axes_feature_names` that belong to one axis (a rotary axis's cos
+    and sin are one input): a tuple of index tuples, one per axis."""
+    groups, k = [], 0
+    for c in columns:
+        w = 2 if is_rotary(c) else 1
+        groups.append(tuple(range(k, k + w)))
+        k += w
+    return tuple(groups)
+
+
+def linear_columns(columns) -> tuple:
+    """The indices of the linear axes in ``columns`` (the learned part's box and taper are over them)."""
+    return tuple(j for j, c in enumerate(columns) if not is_rotary(c))
+
+
+FEATURE_NAMES = axes_feature_names(GRINDER_AXES)
+"""The grinder's ``axes`` features, ``(x_mm, z_mm, cos_a, sin_a)``: a learned residual file that names
+no ``axes`` was written for the grinder (every other machine's file names its axis columns)."""
+
+WORK_AXES = GRINDER_AXES
+"""The work-frame input sets need a machine with two linear axes and one rotary axis whose tool point
+turns about that axis at radius ``rho0_mm + z`` (the grinder: its ``rho0_mm``); on any other
+machine only the ``axes`` set exists."""
 
 INPUT_SETS = {"axes": FEATURE_NAMES,
               "work": ("x_mm", "wy_mm", "wz_mm"),
               "axes+work": FEATURE_NAMES + ("wy_mm", "wz_mm")}
-"""What the learned part can take as inputs (:func:`input_features`): ``axes`` — the axes with A
-on the circle; ``work`` — the nominal tool point in the work frame, ``x`` and the point's
+"""What the learned part can take as inputs (:func:`input_features`), named for the grinder
+(:func:`input_set_features` gives any machine's): ``axes`` — the axes with each rotary axis on the
+circle; ``work`` — the nominal tool point in the work frame, ``x`` and the point's
 ``(wy, wz) = ρ·(sin a, cos a)`` with ``ρ = ρ0 + z`` its radius about the A axis (the work frame's
-x is an affine map of the X axis, so X itself is used); ``axes+work`` — both. In the work frame
+x is an affine map of the X axis, so X itself is used); ``axes+work`` — both (the work-frame sets
+only on a machine of :data:`WORK_AXES` with a ``rho0_mm``). In the work frame
 the same field of the part is the same function whatever A brought the tool there, and an error
 that rotates with the work (a tilt of the A axis) is a low-order function of the point; on the
 axes it is a product of the radius and the angle's sine and cosine."""
 
-INPUT_GROUPS = {"axes": ((0,), (1,), (2, 3)),
+INPUT_GROUPS = {"axes": axes_input_groups(GRINDER_AXES),
                 "work": ((0,), (1,), (2,)),
-                "axes+work": ((0,), (1,), (2, 3), (4,), (5,))}
+                "axes+work": axes_input_groups(GRINDER_AXES) + ((4,), (5,))}
 """The columns of each input set that belong to one input (:class:`training.residual.ResidualRegressor`
-``input_groups``): cos a and sin a are one rotary axis, so the ``gp_additive`` family's terms
-(each group alone and each pair of groups) are functions of X, of Z, of A, and of each pair of
-them — never of cos a without sin a."""
+``input_groups``), for the grinder (:func:`input_set_groups` gives any machine's): cos a and sin a are
+one rotary axis, so the ``gp_additive`` family's terms (each group alone and each pair of groups) are
+functions of X, of Z, of A, and of each pair of them — never of cos a without sin a."""
 
 LEARNED_INPUTS = ("axes",)
 """The input sets the learned stage cross-validates by default (each with every family of
@@ -111,16 +157,39 @@ stage can be given (``inputs``) but not in the default set: on the blocked folds
 cross-validated no better than the axes (benchmarks/hybrid_results.md, input and kernel variants)."""
 
 
-def axis_features(axes):
-    """axes (n, 3) (x_mm, z_mm, a_deg) → features (n, 4) and d(features)/d(axes) (n, 4, 3)."""
+def input_set_features(inputs: str, columns=GRINDER_AXES) -> tuple:
+    """The feature names of input set ``inputs`` on a machine whose axis columns are ``columns``."""
+    if inputs == "axes":
+        return axes_feature_names(columns)
+    return INPUT_SETS[inputs]
+
+
+def input_set_groups(inputs: str, columns=GRINDER_AXES) -> tuple:
+    """The input groups (:data:`INPUT_GROUPS`) of input set ``inputs`` on a machine of ``columns``."""
+    if inputs == "axes":
+        return axes_input_groups(columns)
+    return INPUT_GROUPS[inputs]
+
+
+def axis_features(axes, columns=GRINDER_AXES):
+    """axes (n, k) in the machine's axis columns ``columns`` (default the grinder's x_mm, z_mm,
+    a_deg) → the ``axes`` features (n, d) (:func:`axes_feature_names`: a linear axis its value, a
+    rotary one cos and sin of its angle) and d(features)/d(axes) (n, d, k)."""
     axes = np.asarray(axes, dtype=float)
-    a = np.deg2rad(axes[:, 2])
-    f = np.stack([axes[:, 0], axes[:, 1], np.cos(a), np.sin(a)], axis=1)
-    J = np.zeros((axes.shape[0], 4, 3))
-    J[:, 0, 0] = 1.0
-    J[:, 1, 1] = 1.0
-    J[:, 2, 2] = -np.sin(a) * np.pi / 180.0
-    J[:, 3, 2] = np.cos(a) * np.pi / 180.0
+    cols, Jcols = [], []
+    n, k = axes.shape[0], len(columns)
+    for j, c in enumerate(columns):
+        if is_rotary(c):
+            a = np.deg2rad(axes[:, j])
+            cols += [np.cos(a), np.sin(a)]
+            Jcols += [(j, -np.sin(a) * np.pi / 180.0), (j, np.cos(a) * np.pi / 180.0)]
+        else:
+            cols.append(axes[:, j])
+            Jcols.append((j, 1.0))
+    f = np.stack(cols, axis=1)
+    J = np.zeros((n, len(cols), k))
+    for i, (j, v) in enumerate(Jcols):
+        J[:, i, j] = v
     return f, J
 
 
@@ -142,28 +211,33 @@ def work_features(axes, rho0_mm: float):
     return f, J
 
 
-def check_input_set(inputs: str, rho0_mm: float | None = None) -> float | None:
-    """ValueError unless ``inputs`` is an input set (:data:`INPUT_SETS`) and, for the work-frame sets, ``rho0_mm``
-    a finite number; returns the ``rho0_mm`` the set uses (None for ``axes``)."""
+def check_input_set(inputs: str, rho0_mm: float | None = None, columns=GRINDER_AXES) -> float | None:
+    """ValueError unless ``inputs`` is an input set (:data:`INPUT_SETS`) and, for the work-frame sets, the
+    machine's axis columns are :data:`WORK_AXES` and ``rho0_mm`` a finite number; returns the
+    ``rho0_mm`` the set uses (None for ``axes``)."""
     if inputs not in INPUT_SETS:
         raise ValueError(f"Expected inputs one of {sorted(INPUT_SETS)}, got {inputs!r}")
     if inputs == "axes":
         return None
+    if tuple(columns) != WORK_AXES:
+        raise ValueError(f"the input set {inputs!r} needs a machine of axes {', '.join(WORK_AXES)} "
+                         f"(this one has {', '.join(columns)}); only 'axes' exists here")
     if rho0_mm is None or not np.isfinite(rho0_mm):
         raise ValueError(f"the input set {inputs!r} needs the machine's rho0_mm")
     return float(rho0_mm)
 
 
-def input_features(axes, inputs: str = "axes", rho0_mm: float | None = None):
-    """axes (n, 3) → the features of input set ``inputs`` (:data:`INPUT_SETS`) (n, d) and
-    d(features)/d(axes) (n, d, 3); ``rho0_mm`` needed for the work-frame sets."""
-    rho0_mm = check_input_set(inputs, rho0_mm)
+def input_features(axes, inputs: str = "axes", rho0_mm: float | None = None, columns=GRINDER_AXES):
+    """axes (n, k) in the axis columns ``columns`` → the features of input set ``inputs``
+    (:data:`INPUT_SETS`) (n, d) and d(features)/d(axes) (n, d, k); ``rho0_mm`` needed for the
+    work-frame sets (grinder only: :data:`WORK_AXES`)."""
+    rho0_mm = check_input_set(inputs, rho0_mm, columns)
     if inputs == "axes":
-        return axis_features(axes)
+        return axis_features(axes, columns)
     fw, Jw = work_features(axes, rho0_mm)
     if inputs == "work":
         return fw, Jw
-    fa, Ja = axis_features(axes)
+    fa, Ja = axis_features(axes, columns)
     return np.concatenate([fa, fw[:, 1:]], axis=1), np.concatenate([Ja, Jw[:, 1:]], axis=1)
 
 
@@ -180,13 +254,20 @@ def _smoothstep_out(v, lo, hi, margin):
 class LearnedResidual:
     """A fitted :class:`ResidualRegressor` on the features of input set ``inputs``
     (:func:`input_features`; ``rho0_mm`` the machine's tool radius at z = 0 for the work-frame
-    sets), tapered to zero outside the checks' box ``lo``/``hi`` (x_mm, z_mm)."""
+    sets) of a machine whose axis columns are ``axes`` (default the grinder's), tapered to zero
+    outside the checks' box ``lo``/``hi`` over its LINEAR axes (:func:`linear_columns`, in axis order)."""
 
-    def __init__(self, regressor: ResidualRegressor, lo, hi, inputs: str = "axes", rho0_mm: float | None = None):
-        rho0_mm = check_input_set(inputs, rho0_mm)
+    def __init__(self, regressor: ResidualRegressor, lo, hi, inputs: str = "axes", rho0_mm: float | None = None,
+                 axes=GRINDER_AXES):
+        self.axes = tuple(str(c) for c in axes)
+        rho0_mm = check_input_set(inputs, rho0_mm, self.axes)
+        self.linear = linear_columns(self.axes)
         self.regressor = regressor
         self.lo = np.asarray(lo, dtype=float)
         self.hi = np.asarray(hi, dtype=float)
+        if self.lo.shape != (len(self.linear),) or self.hi.shape != (len(self.linear),):
+            raise ValueError(f"expected box_lo and box_hi of {len(self.linear)} values "
+                             f"({', '.join(self.box_names) or 'no linear axis'})")
         self.margin = TAPER_FRAC * np.maximum(self.hi - self.lo, 1e-9)
         self.inputs, self.rho0_mm = inputs, rho0_mm
 
@@ -196,20 +277,45 @@ class LearnedResidual:
 
     @property
     def feature_names(self) -> tuple:
-        return INPUT_SETS[self.inputs]
+        return input_set_features(self.inputs, self.axes)
+
+    @property
+    def box_names(self) -> tuple:
+        """The axis columns of the checks' box (the linear axes), in the order of ``lo``/``hi``."""
+        return tuple(self.axes[j] for j in self.linear)
+
+    @property
+    def axes_label(self) -> str:
+        return f"axes ({', '.join(self.axes)})"
 
     def features(self, axes):
-        """axes (n, 3) → features (n, d), d(features)/d(axes) (n, d, 3)."""
-        return input_features(axes, self.inputs, self.rho0_mm)
+        """axes (n, k) → features (n, d), d(features)/d(axes) (n, d, k)."""
+        return input_features(axes, self.inputs, self.rho0_mm, self.axes)
+
+    def inside(self, axes, tol: float = 1e-9) -> np.ndarray:
+        """(n,) bool: the points of axes (n, k) inside the checks' box (every linear axis within lo/hi ± tol)."""
+        axes = check_points(axes, self.axes_label, len(self.axes))
+        v = axes[:, list(self.linear)]
+        return np.all((v >= self.lo - tol) & (v <= self.hi + tol), axis=1)
 
     def _taper(self, axes):
-        wx, dwx = _smoothstep_out(axes[:, 0], self.lo[0], self.hi[0], self.margin[0])
-        wz, dwz = _smoothstep_out(axes[:, 1], self.lo[1], self.hi[1], self.margin[1])
-        return wx * wz, np.stack([dwx * wz, wx * dwz, np.zeros_like(wx)], axis=1)
+        """The taper (n,) = Π over the linear axes of their smoothsteps, and its derivative (n, k)."""
+        ws = [_smoothstep_out(axes[:, j], self.lo[i], self.hi[i], self.margin[i]) for i, j in enumerate(self.linear)]
+        w = np.ones(axes.shape[0])
+        for wi, _ in ws:
+            w = w * wi
+        dw = np.zeros(axes.shape)
+        for i, j in enumerate(self.linear):
+            rest = np.ones(axes.shape[0])
+            for m, (wm, _) in enumerate(ws):
+                if m != i:
+                    rest = rest * wm
+            dw[:, j] = ws[i][1] * rest
+        return w, dw
 
     def predict(self, axes, return_std=False):
-        """Learned correction (n, 3) μm [, its 1-σ band (n, 3) μm] at axes (n, 3)."""
-        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        """Learned correction (n, 3) μm [, its 1-σ band (n, 3) μm] at axes (n, k)."""
+        axes = check_points(axes, self.axes_label, len(self.axes))
         w, _ = self._taper(axes)
         f, _ = self.features(axes)
         if return_std:
@@ -219,8 +325,8 @@ class LearnedResidual:
         return self.regressor.predict(f) * w[:, None]
 
     def predict_and_jacobian(self, axes):
-        """(value (n, 3) μm, d/d(axes) (n, 3, 3)), closed form (taper × regressor, chain rule)."""
-        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        """(value (n, 3) μm, d/d(axes) (n, 3, k)), closed form (taper × regressor, chain rule)."""
+        axes = check_points(axes, self.axes_label, len(self.axes))
         w, dw = self._taper(axes)
         f, Jf = self.features(axes)
         v, Jv = self.regressor.predict_and_jacobian(f)                 # (n, 3), (n, 3, d)
@@ -228,9 +334,14 @@ class LearnedResidual:
         return v * w[:, None], J
 
     def to_dict(self) -> dict:
+        """The saved form; ``axes`` (the machine's axis columns) is written when they are not the
+        grinder's (a file without it has the grinder's, as every file written before it)."""
         out = {"format": FORMAT, "features": list(self.feature_names), "inputs": self.inputs,
                "box_lo": self.lo.tolist(), "box_hi": self.hi.tolist(), "taper_frac": TAPER_FRAC,
                "regressor": self.regressor.to_dict()}
+        if self.axes != GRINDER_AXES:
+            out["axes"] = list(self.axes)
+            out["box_axes"] = list(self.box_names)
         if self.rho0_mm is not None:
             out["rho0_mm"] = self.rho0_mm
         return out
@@ -238,14 +349,23 @@ class LearnedResidual:
     @classmethod
     def from_dict(cls, doc) -> "LearnedResidual":
         """ValueError on anything but :meth:`to_dict`'s output (a file without ``inputs``, written
-        before the input sets, has the ``axes`` features)."""
+        before the input sets, has the ``axes`` features; one without ``axes`` the grinder's axes)."""
         if not isinstance(doc, dict) or doc.get("format") != FORMAT:
             raise ValueError(f"expected a learned residual (format {FORMAT!r})")
+        axes = doc.get("axes", list(GRINDER_AXES))
+        if (not isinstance(axes, list) or not axes or not all(isinstance(c, str) for c in axes)
+                or not all(c.endswith(("_mm", "_deg")) for c in axes) or len(set(axes)) != len(axes)):
+            raise ValueError(f"expected axes a list of distinct axis columns (*_mm, *_deg), got {axes!r}")
+        axes = tuple(axes)
         inputs = doc.get("inputs", "axes")
         if inputs not in INPUT_SETS:
             raise ValueError(f"expected inputs one of {sorted(INPUT_SETS)}, got {inputs!r}")
-        if list(doc.get("features", [])) != list(INPUT_SETS[inputs]):
-            raise ValueError(f"expected features {list(INPUT_SETS[inputs])}, got {doc.get('features')!r}")
+        names = input_set_features(inputs, axes)
+        if list(doc.get("features", [])) != list(names):
+            raise ValueError(f"expected features {list(names)}, got {doc.get('features')!r}")
+        lin = linear_columns(axes)
+        if "box_axes" in doc and list(doc["box_axes"]) != [axes[j] for j in lin]:
+            raise ValueError(f"expected box_axes {[axes[j] for j in lin]} (the linear axes), got {doc['box_axes']!r}")
         rho0 = None
         if inputs != "axes":
             try:
@@ -254,16 +374,18 @@ class LearnedResidual:
                 raise ValueError(f"expected a number rho0_mm for the inputs {inputs!r}") from None
             if not np.isfinite(rho0):
                 raise ValueError("expected a finite rho0_mm")
+            check_input_set(inputs, rho0, axes)
         try:
             lo, hi = np.asarray(doc["box_lo"], dtype=float), np.asarray(doc["box_hi"], dtype=float)
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"bad box ({exc})") from None
-        if lo.shape != (2,) or hi.shape != (2,) or not np.all(lo <= hi):
-            raise ValueError("expected box_lo ≤ box_hi, two values each (x_mm, z_mm)")
+        if lo.shape != (len(lin),) or hi.shape != (len(lin),) or not np.all(lo <= hi):
+            raise ValueError(f"expected box_lo ≤ box_hi, {len(lin)} values each "
+                             f"({', '.join(axes[j] for j in lin)})")
         reg = ResidualRegressor.from_dict(doc["regressor"])
-        if reg.n_features_in_ != len(INPUT_SETS[inputs]):
-            raise ValueError(f"expected a regressor of {len(INPUT_SETS[inputs])} inputs")
-        return cls(reg, lo, hi, inputs, rho0)
+        if reg.n_features_in_ != len(names):
+            raise ValueError(f"expected a regressor of {len(names)} inputs")
+        return cls(reg, lo, hi, inputs, rho0, axes)
 
 
 class HybridField:
@@ -284,7 +406,7 @@ class HybridField:
 
     @property
     def calibrated_volume(self):
-        """The base's calibrated box narrowed in X and Z to the checks' box the learned part was
+        """The base's calibrated box narrowed in its linear axes to the checks' box the learned part was
         fitted in (:attr:`LearnedResidual.lo` / ``hi``): outside it the learned part is tapered
         away and says nothing, so the guards refuse commands there (``compensate --allow volume``
         overrides, and the override is recorded in the output)."""
@@ -294,7 +416,7 @@ class HybridField:
             return None
         lo, hi = vol.lo_array.copy(), vol.hi_array.copy()
         names = list(vol.names)
-        for j, name in enumerate(("x_mm", "z_mm")):
+        for j, name in enumerate(self.learned.box_names):
             if name in names:
                 k = names.index(name)
                 lo[k] = max(lo[k], self.learned.lo[j])
@@ -305,7 +427,7 @@ class HybridField:
         return CalibratedVolume(tuple(lo), tuple(hi), vol.names)
 
     def predict(self, axes) -> np.ndarray:
-        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        axes = check_points(axes, self.learned.axes_label, len(self.learned.axes))
         return np.asarray(self.base.predict(axes), dtype=float) + self.learned.predict(axes)
 
     __call__ = predict
@@ -313,7 +435,7 @@ class HybridField:
     def predict_and_jacobian(self, axes, dtype=np.float64):
         if PREDICT_AND_JACOBIAN not in self.capabilities:
             raise TypeError("the hybrid field's base has no Jacobian")
-        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        axes = check_points(axes, self.learned.axes_label, len(self.learned.axes))
         e, J = self.base.predict_and_jacobian(axes)
         v, Jv = self.learned.predict_and_jacobian(axes)
         return e + v, J + Jv
@@ -327,7 +449,7 @@ class HybridField:
         elements' band ``diag(J Σ Jᵀ)`` from ``covariance`` (an
         :class:`errormap.uncertainty.ElementCovariance` of the base's elements; None: the learned
         band alone). Measurement noise is not in it (a band of the field, not of a measurement)."""
-        axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
+        axes = check_points(axes, self.learned.axes_label, len(self.learned.axes))
         return total_band_std(self.learned, self.machine, axes, covariance)
 
 
@@ -347,26 +469,50 @@ def _paired_z(r_before, r_after):
     return float(g.mean() / se) if se > 0 else 0.0, float(g.mean()), float(se)
 
 
-def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.0), covariance=None) -> dict:
-    """The learned correction over X–Z (``MAP_N`` × ``MAP_N``), its norm and band, averaged over
-    the A positions ``a_deg``: {x_mm (MAP_N,), z_mm (MAP_N,), norm_um (MAP_N, MAP_N) [z, x],
+def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.0), covariance=None) -> dict | None:
+    """The learned correction over the plane of the machine's FIRST TWO LINEAR axes (the grinder's
+    X–Z; ``MAP_N`` × ``MAP_N`` over their strokes), its norm and band, averaged over the rotary
+    positions ``a_deg`` (every rotary axis at the same angle, clipped to its stroke when that is less
+    than a turn; a machine without a rotary axis: one evaluation), any further linear axis at the
+    middle of its stroke: {<first linear column> (MAP_N,), <second> (MAP_N,) — ``x_mm``, ``z_mm`` on
+    the grinder —, ``<rotary columns>_averaged``, norm_um (MAP_N, MAP_N) [second, first],
     band95_um (MAP_N, MAP_N)} and, with the elements' ``covariance``, ``band95_total_um`` (the
-    hybrid's total band, :func:`total_band_std`, vector norm)."""
-    xs = np.linspace(*machine.strokes["x_mm"], MAP_N)
-    zs = np.linspace(*machine.strokes["z_mm"], MAP_N)
+    hybrid's total band, :func:`total_band_std`, vector norm). None on a machine with fewer than two
+    linear axes (no plane to map)."""
+    cols, lin = learned.axes, learned.linear
+    if len(lin) < 2:
+        return None
+    c1, c2 = cols[lin[0]], cols[lin[1]]
+    rot = [j for j, c in enumerate(cols) if is_rotary(c)]
+    xs = np.linspace(*machine.strokes[c1], MAP_N)
+    zs = np.linspace(*machine.strokes[c2], MAP_N)
     X, Z = np.meshgrid(xs, zs)
     norm = np.zeros_like(X)
     band = np.zeros_like(X)
     total = np.zeros_like(X)
-    for a in a_deg:
-        P = np.stack([X.ravel(), Z.ravel(), np.full(X.size, a)], axis=1)
+    angles = tuple(a_deg) if rot else (None,)
+    for a in angles:
+        columns = []
+        for j, c in enumerate(cols):
+            if j == lin[0]:
+                columns.append(X.ravel())
+            elif j == lin[1]:
+                columns.append(Z.ravel())
+            elif j in rot:
+                lo_j, hi_j = machine.strokes[c]
+                columns.append(np.full(X.size, a if hi_j - lo_j >= 360.0 else float(np.clip(a, lo_j, hi_j))))
+            else:
+                columns.append(np.full(X.size, 0.5 * (machine.strokes[c][0] + machine.strokes[c][1])))
+        P = np.stack(columns, axis=1)
         v, s = learned.predict(P, return_std=True)
-        norm += np.linalg.norm(v, axis=1).reshape(X.shape) / len(a_deg)
-        band += Z95 * np.linalg.norm(s, axis=1).reshape(X.shape) / len(a_deg)
+        norm += np.linalg.norm(v, axis=1).reshape(X.shape) / len(angles)
+        band += Z95 * np.linalg.norm(s, axis=1).reshape(X.shape) / len(angles)
         if covariance is not None:
-            total += Z95 * np.linalg.norm(total_band_std(learned, machine, P, covariance), axis=1).reshape(X.shape) / len(a_deg)
-    out = {"x_mm": xs.tolist(), "z_mm": zs.tolist(), "a_deg_averaged": list(a_deg),
-           "norm_um": norm.tolist(), "band95_um": band.tolist()}
+            total += Z95 * np.linalg.norm(total_band_std(learned, machine, P, covariance), axis=1).reshape(X.shape) / len(angles)
+    out = {c1: xs.tolist(), c2: zs.tolist()}
+    if rot:
+        out["+".join(cols[j] for j in rot) + "_averaged"] = list(a_deg)
+    out.update({"norm_um": norm.tolist(), "band95_um": band.tolist()})
     if covariance is not None:
         out["band95_total_um"] = total.tolist()
     return out
@@ -385,7 +531,7 @@ def _cv_key(reg) -> str:
     return reg.chosen_ if reg.chosen_ != "none" else "zero"
 
 
-def _fit_inputs(feats, r_um, fit_idx, groups, families, seed):
+def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns=GRINDER_AXES):
     """Cross-validate every family on every input set (same blocked folds: they depend on
     ``groups`` only) → (input set, its fitted :class:`ResidualRegressor`, table): the input set
     whose chosen family has the lowest CV RMS (the first set when every one declines); table per
@@ -393,7 +539,7 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed):
     ``cv_rms_by_family``."""
     regs, table = {}, {}
     for name, f in feats.items():
-        reg = ResidualRegressor(families=families, seed=seed, input_groups=INPUT_GROUPS[name]).fit(
+        reg = ResidualRegressor(families=families, seed=seed, input_groups=input_set_groups(name, columns)).fit(
             f[fit_idx], r_um[fit_idx], groups=groups)
         regs[name] = reg
         table[name] = {"family": reg.chosen_,
@@ -435,24 +581,26 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     Returns ``(learned or None, stage)``: ``learned`` (refitted on all checks) when kept, and
     the stage's summary for diagnosis.json (held-out and fitting statistics, CV table, gate;
     ``replaces_condition_terms`` True when the static variant was used)."""
-    axes = np.asarray(axes, dtype=float)
+    columns = tuple(machine_axes(machine))
+    axes = check_points(axes, f"axes ({', '.join(columns)})", len(columns))
+    lin = list(linear_columns(columns))
     families = tuple(LEARNED_FAMILIES if families is None else families)
     if refit_mode not in REFIT_MODES:
         raise ValueError(f"Expected refit_mode one of {REFIT_MODES}, got {refit_mode!r}")
     if len(fit_idx) < MIN_FIT_CHECKS or len(hold_idx) < MIN_HELD_CHECKS:
-        return None, {"learned": {"family": "none", "kept": False, "cv_table": {}, "inputs": list(FEATURE_NAMES),
+        return None, {"learned": {"family": "none", "kept": False, "cv_table": {}, "inputs": list(axes_feature_names(columns)),
                                   "cv": "not run", "held_out_gain_z": None, "held_out_band95_cover": None,
                                   "why": f"declined: fewer than {MIN_FIT_CHECKS} fitting or {MIN_HELD_CHECKS} held-out "
                                          f"checks ({len(fit_idx)}, {len(hold_idx)})"}}
     inputs = tuple(LEARNED_INPUTS if inputs is None else inputs)
     rho0 = getattr(machine, "rho0_mm", None) if any(i != "axes" for i in inputs) else None
-    feats = {name: input_features(axes, name, rho0)[0] for name in inputs}
+    feats = {name: input_features(axes, name, rho0, columns)[0] for name in inputs}
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
-    inp, reg, inputs_table = _fit_inputs(feats, r_prev_um, fit_idx, groups, families, seed)
+    inp, reg, inputs_table = _fit_inputs(feats, r_prev_um, fit_idx, groups, families, seed, columns)
     r_base, replaces, alt = r_prev_um, False, None
     if r_static_um is not None:
         r_static_um = np.asarray(r_static_um, dtype=float)
-        inp_s, reg_s, inputs_table_s = _fit_inputs(feats, r_static_um, fit_idx, groups, families, seed)
+        inp_s, reg_s, inputs_table_s = _fit_inputs(feats, r_static_um, fit_idx, groups, families, seed, columns)
         e_with, e_static = reg.cv_sq_err_[_cv_key(reg)], reg_s.cv_sq_err_[_cv_key(reg_s)]
         z_s, g_s, se_s = _paired_z(np.sqrt(e_with)[:, None], np.sqrt(e_static)[:, None])
         replaces = reg_s.chosen_ != "none" and z_s > KEEP_Z
@@ -465,9 +613,9 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
         if replaces:
             reg, r_base, inp, inputs_table = reg_s, r_static_um, inp_s, inputs_table_s
     f = feats[inp]
-    lo = axes[:, :2].min(0)
-    hi = axes[:, :2].max(0)
-    fitted = LearnedResidual(reg, axes[fit_idx, :2].min(0), axes[fit_idx, :2].max(0), inp, rho0)
+    lo = axes[:, lin].min(0)
+    hi = axes[:, lin].max(0)
+    fitted = LearnedResidual(reg, axes[fit_idx][:, lin].min(0), axes[fit_idx][:, lin].max(0), inp, rho0, columns)
     pred, sd = fitted.predict(axes, return_std=True)
     r_new = r_base - pred
     z, gain, se = _paired_z(r_prev_um[hold_idx], r_new[hold_idx])
@@ -493,7 +641,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                          "selection_rule": (f"each (input set, family) cross-validated on the same blocked folds; eligible if "
                                             f"its mean paired gain over zero exceeds {reg.margin_se} standard error(s); of "
                                             f"those the lowest CV RMS wins"),
-                         "cv_table": reg.cv_table_, "inputs": list(INPUT_SETS[inp]), "input_set": inp,
+                         "cv_table": reg.cv_table_, "inputs": list(input_set_features(inp, columns)), "input_set": inp,
                          "input_sets_compared": list(inputs), "inputs_table": inputs_table,
                          "cv": f"blocked: {CV_BLOCKS} contiguous seq blocks of the fitting checks",
                          "held_out_gain_um2": gain, "held_out_gain_se_um2": se, "held_out_gain_z": z,
@@ -522,6 +670,6 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                  + (", on the residual of the base model re-estimated on all checks" if base_refit else ""))}
     if refit_mode == "hyper" and reg_all.model_ is not None:
         stage["learned"]["noise_std_um"] = reg_all.noise_std_.tolist()
-    learned = LearnedResidual(reg_all, lo, hi, inp, rho0)
+    learned = LearnedResidual(reg_all, lo, hi, inp, rho0, columns)
     stage["learned"]["map"] = learned_map(learned, machine, covariance=covariance)
     return learned, stage
