@@ -570,7 +570,8 @@ def band_note(ks) -> str:
     m = (lambda key, d=b: np.mean([x[key] for x in d if x.get(key) is not None]))
     inner = "; ".join(f"{k} {np.mean([x['blockings'][k]['coverage95_before'] for x in b]):.3f} → "
                       f"{np.mean([x['blockings'][k]['coverage95_after'] for x in b]):.3f}" for k in b[0]["blockings"])
-    icv = (f", interleaved inner CV {m('coverage95_cv_before'):.3f} → {m('coverage95_cv_after'):.3f}"
+    icv = (f", the inner pipeline CV (its folds: random under random outer folds, joint-1 sectors under blocked ones; the "
+           f"98 % cap is taken on it) {m('coverage95_cv_before'):.3f} → {m('coverage95_cv_after'):.3f}"
            if any(x.get("coverage95_cv_before") is not None for x in b) else "")
     return (f"; BLOCKED BAND RULE: factor per fold {', '.join(format(x['factor'], '.2f') for x in b)}; the kept stage's "
             f"95 % band covers {m('coverage95_heldout_before'):.3f} unscaled → {m('coverage95_heldout_after'):.3f} scaled "
