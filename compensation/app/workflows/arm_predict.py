@@ -79,9 +79,9 @@ def run_arm_predict(chain, args) -> int:
         sd = band_c * pipeline_std_mm(geo, learner, q)
         cols.update({f"{c}_band{tag}_mm": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
         meta.append(f"band: {'1-sigma' if band == '1sigma' else '95 %'} half-width per component of a new measurement "
-                    f"about the kept stage ({BAND_RULES[stage_kind(learner)]}), times {band_c:.4g}: the factor that "
-                    "makes the 95 % band hold 95 % on blocked inner CVs of the fit poses (calibration.json "
-                    "band_calibration; 1 for a file without it)")
+                    f"about the kept stage ({BAND_RULES[stage_kind(learner)]}), times {band_c:.4g}: the blocked band "
+                    "factor (calibration.json band_calibration: 95 % on blocked inner CVs of the fit poses, at most 98 % "
+                    "on the interleaved one; 1 for a file without it)")
     path = write_csv(args.out, cols, header_comments=meta, float_fmt="%.10g")
     n = np.linalg.norm(d, axis=1)
     print(f"wrote {len(q)} predictions to {path} (calibrated − nominal: RMS {np.sqrt(np.mean(n ** 2)):.4f} mm, "
