@@ -452,8 +452,9 @@ def blocked_band_scale(chain, poses, pipes: dict, blockings: dict, k_folds: int,
                          b["std_mm"])
         else:
             r = next(iter(cv.values()))
-        out[name] = {"n_blocks": int(min(k_folds, len(np.unique(lab)))), "factor": band_factor(y, r["pred_mm"], r["std_mm"]),
-                     "cv_mean_mm": r["cv_mean_mm"], "_z": np.abs(y - r["pred_mm"]) / np.maximum(r["std_mm"], 1e-300)}
+        out[name] = {"n_blocks": int(min(k_folds, len(np.unique(lab)))),
+                     "factor": band_factor(y, r["pred_mm"], r["std_mm"]), "cv_mean_mm": r["cv_mean_mm"],
+                     "_z": np.abs(y - r["pred_mm"]) / np.maximum(r["std_mm"], 1e-300)}
     c_blocked, c = combine_band_factors([v["factor"] for v in out.values()], cap)
     for v in out.values():
         z = v.pop("_z")

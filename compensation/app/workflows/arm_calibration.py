@@ -283,7 +283,8 @@ def kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline
     cal["coverage95_heldout_after"] = float(np.mean(z <= Z95 * c))
     if icv is not None:
         zi = np.abs(fit.xyz_mm - icv["pred_mm"]) / np.maximum(icv["std_mm"], 1e-300)
-        cal["coverage95_cv_before"], cal["coverage95_cv_after"] = float(np.mean(zi <= Z95)), float(np.mean(zi <= Z95 * c))
+        cal["coverage95_cv_before"] = float(np.mean(zi <= Z95))
+        cal["coverage95_cv_after"] = float(np.mean(zi <= Z95 * c))
     return cal
 
 
