@@ -127,7 +127,7 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
                      "cv_geometric": core["cv_geometric"], "cv_pipelines": core["cv_pipelines"],
                      "kept_mean_mm": float(errs["volcomp kept stage"].mean()),
                      "plain_gp_mean_mm": float(errs["plain GP on plain LSQ residual"].mean()),
-                     "cpu_s": time.process_time() - t0})
+                     "cpu_s": time.process_time() - t0, "band": core["band_calibration"]})
         st, st_sd = core["stacked"], core["stacked"].predict(check.q, return_std=True)[1]
         kept[-1]["stacked"] = {**{k: v for k, v in core["stacked_summary"].items() if k != "band_rule"},
                                "coverage95_heldout": float(np.mean(np.abs(check.xyz_mm - st.point(check.q))
@@ -371,7 +371,7 @@ def simulated(n_seeds, log, loop_seeds, k_inner, only=None, cover=None):
                      "heldout_rms_mm": {k: v["rms_mm"] for k, v in rows.items()},
                      "compensation_true_rms_mm": float(np.sqrt(np.mean(true_after ** 2))),
                      "uncompensated_true_rms_mm": float(np.sqrt(np.mean(true_before ** 2))),
-                     "converged": int(sol.converged.sum()), "points": len(qp)})
+                     "converged": int(sol.converged.sum()), "points": len(qp), "band": core["band_calibration"]})
         print(f"[sim] seed {100 + seed}: kept {core['kept_stage']} RMS {rows[core['kept_stage']]['rms_mm']:.4f} mm, comp TRUE "
               f"{loop[-1]['compensation_true_rms_mm']:.4f} mm", file=log, flush=True)
     return cover, loop
@@ -560,6 +560,24 @@ def stacked_note(ks) -> str:
             f"CV and {np.mean([x['coverage95_heldout'] for x in st]):.3f} on the outer held-out folds")
 
 
+def band_note(ks) -> str:
+    """The blocked band rule over the outer folds (docs/arms.md, "Band of the kept stage"): its factor per fold and the
+    kept stage's 95 % coverage before (the stage's own band) and after (times the factor) — on the outer held-out folds
+    and on the inner blocked and interleaved CVs (folds run before the rule: nothing)."""
+    b = [f["band"] for f in ks if f.get("band")]
+    if not b:
+        return ""
+    m = (lambda key, d=b: np.mean([x[key] for x in d if x.get(key) is not None]))
+    inner = "; ".join(f"{k} {np.mean([x['blockings'][k]['coverage95_before'] for x in b]):.3f} → "
+                      f"{np.mean([x['blockings'][k]['coverage95_after'] for x in b]):.3f}" for k in b[0]["blockings"])
+    icv = (f", the inner pipeline CV (its folds: random under random outer folds, joint-1 sectors under blocked ones; the "
+           f"98 % cap is taken on it) {m('coverage95_cv_before'):.3f} → {m('coverage95_cv_after'):.3f}"
+           if any(x.get("coverage95_cv_before") is not None for x in b) else "")
+    return (f"; BLOCKED BAND RULE: factor per fold {', '.join(format(x['factor'], '.2f') for x in b)}; the kept stage's "
+            f"95 % band covers {m('coverage95_heldout_before'):.3f} unscaled → {m('coverage95_heldout_after'):.3f} scaled "
+            f"on the outer held-out folds (inner blocked CVs: {inner}{icv})")
+
+
 def write_md(res, args):
     L = ["# Arm calibration: real laser-tracker data and a simulated arm", "",
          "Produced by `python benchmarks/bench_arms.py" + (" --quick" if args.quick else "") + "`. "
@@ -597,7 +615,7 @@ def write_md(res, args):
                   f"95 % band of the kept stage on the outer held-out fold: coverage {np.mean(covh):.3f} "
                   f"(per fold {', '.join(f'{c:.3f}' for c in covh)})"
                   + (f"; the GP's uncalibrated band in its inner CV: {np.mean(cov_raw):.3f}" if cov_raw else "")
-                  + stacked_note(ks)
+                  + stacked_note(ks) + band_note(ks)
                   + f"; CPU {sum(f['cpu_s'] for f in ks):.0f} s." + stale
                   + ("" if all("rules" in f for f in ks) else
                      " RUN BEFORE the leak fix (point 1): its pipeline CV kept the GP hyper-parameters chosen on all fit "
@@ -667,6 +685,12 @@ def write_md(res, args):
                  + (f"{s['stacked']['weight']:.2f}, {fmt(s['stacked']['heldout_rms_mm'], 4)}, "
                     f"{fmt(s['stacked']['compensation_true_rms_mm'], 4)} ({s['stacked']['converged']}/{s['points']} "
                     "converged)" if "stacked" in s else "not run") + " |")
+    bl = [s for s in res["sim"].get("loop", []) if s.get("band")]
+    if bl:
+        L += ["", "Blocked band rule on the simulated arm (kept stage; the 100 held-out poses): "
+              + "; ".join(f"seed {s['seed']}: factor {s['band']['factor']:.3f}, 95 % band covers "
+                          f"{s['band']['coverage95_heldout_before']:.3f} unscaled → {s['band']['coverage95_heldout_after']:.3f}"
+                          for s in bl) + "."]
     L.append("")
     _write_md(OUT_MD, "\n".join(L))
 

@@ -493,3 +493,29 @@ def choose_model(table: list[dict]) -> str:
         if r["cv_mean_mm"] < best["cv_mean_mm"] * (1 - TIE_REL):
             best = r
     return best["model"]
+
+
+BAND_BLOCKINGS = ("order", "sector")
+"""The blockings of the fit poses the band calibration is checked on (:func:`content_blocks`)."""
+
+
+def _rank_blocks(key, k: int) -> np.ndarray:
+    """k contiguous blocks of (nearly) equal size along ``key`` (n,), ties in file order: labels (n,) 0..k-1."""
+    n = len(key)
+    rank = np.empty(n, int)
+    rank[np.argsort(np.asarray(key, float), kind="stable")] = np.arange(n)
+    return rank * int(k) // n
+
+
+def content_blocks(poses, k: int) -> dict:
+    """Contiguous blocks of the poses, formed from the file's content alone (never its name), for checking a band on
+    another part of the data than interleaved folds see: name (:data:`BAND_BLOCKINGS`) → labels (n,) ints 0..k-1.
+
+    ``"order"``: ``k`` runs of consecutive poses in acquisition order — by ``time_s`` where the file has it, else by
+    the file's row order (a later stretch of the session); ``"sector"``: ``k`` contiguous ranges of the FIRST joint's
+    value, equal counts (another region of the workspace around the base axis). ``k`` in [2, n]."""
+    n = len(poses)
+    if not 2 <= int(k) <= n:
+        raise ValueError(f"k must be in [2, {n}], got {k}")
+    order = poses.time_s if poses.time_s is not None else poses.rows
+    return {"order": _rank_blocks(order, k), "sector": _rank_blocks(poses.q[:, 0], k)}

@@ -34,6 +34,7 @@ BLEND_LINEAR_ATOL = 1e-12
 ROUNDTRIP_ATOL_MM = 1e-12
 # predict / compensate write %.10g: 10 significant digits of ~1,000 mm tool points
 CSV_ATOL_MM = 1e-6
+CSV_REL = 1e-9   # %.10g keeps 10 significant digits: a ratio of two written bands to ~1e-10
 NEWTON_MODEL_RES_MM = 1e-5   # compensate's own convergence: 10× its 1e-6 mm tolerance
 RIGGED_WEIGHT = 0.6          # a blend of both pipelines for the wiring test
 
@@ -184,6 +185,31 @@ def test_bad_stacked_files_refused_in_one_line(ur5, geo_pair, tmp_path, capsys):
         assert len(err.splitlines()) == 1 and str(p) in err and words in err, (name, err)
 
 
+def test_predict_applies_the_files_band_factor_and_refuses_a_bad_one(ur5, geo_pair, tmp_path, capsys):
+    """``band_calibration.factor`` multiplies the kept stage's band in ``predict --band`` (a file without the key: 1);
+    a factor that is not a finite number ≥ 1 is refused in one line, exit 2."""
+    fit, a, b = geo_pair
+    st = StackedResidual(0.6, a, b)
+    p, prog = tmp_path / "cal.json", tmp_path / "prog.csv"
+    prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in r) for r in fit.q[:5]))
+    bands = {}
+    for c in (None, 1.7):
+        doc = _doc(ur5, st) if c is None else {**_doc(ur5, st), "band_calibration": {"factor": c}}
+        p.write_text(json.dumps(doc))
+        assert main(["predict", "--machine", "ur5", "--model", str(p), str(prog), "--out", str(tmp_path / "o.csv"),
+                     "--band", "95"]) == 0
+        t = read_table(tmp_path / "o.csv")
+        bands[c] = np.stack([t.float(k) for k in ("dx_band95_mm", "dy_band95_mm", "dz_band95_mm")], 1)
+    assert np.allclose(bands[1.7], 1.7 * bands[None], rtol=CSV_REL, atol=0)
+    capsys.readouterr()
+    for bad in (0.5, float("nan"), "2", None):
+        p.write_text(json.dumps({**_doc(ur5, st), "band_calibration": {"factor": bad}}))
+        assert main(["predict", "--machine", "ur5", "--model", str(p), str(prog), "--out", str(tmp_path / "o.csv"),
+                     "--band", "95"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "band_calibration.factor" in err and str(p) in err, (bad, err)
+
+
 def test_old_files_load_and_their_geometric_band_is_refused(ur5, geo_pair, tmp_path, capsys):
     """A /2 file (before the stacked stage and the saved covariance) still loads and predicts; a band that would need
     the covariance it lacks is refused in one line."""
@@ -261,7 +287,9 @@ def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, 
     p = np.stack([pred.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
     band = np.stack([pred.float(c) for c in ("dx_band95_mm", "dy_band95_mm", "dz_band95_mm")], 1)
     assert np.abs(p - st.point(q_in)).max() <= CSV_ATOL_MM
-    assert np.allclose(band, 1.959963984540054 * st.predict(q_in, return_std=True)[1], rtol=1e-9, atol=0)
+    c = doc["band_calibration"]["factor"]        # the blocked band rule's factor (≥ 1), applied by predict
+    assert c >= 1.0 and set(doc["band_calibration"]["blockings"]) == {"order", "sector"}
+    assert np.allclose(band, 1.959963984540054 * c * st.predict(q_in, return_std=True)[1], rtol=1e-9, atol=0)
     assert main(["compensate", str(prog), "--machine", "ur5", "--model", str(tmp_path / "cal" / "calibration.json"),
                  "--out", str(tmp_path / "comp")]) == 0
     comp = read_table(tmp_path / "comp" / "prog.csv")

@@ -393,3 +393,72 @@ class StackedResidual:
         pipes = [(GeometricResult.from_dict(chain, p["geometric"]),
                   None if p["learned"] is None else ArmResidualRegressor.from_dict(chain, p["learned"])) for p in ps]
         return cls(d["weight"], *pipes, names=[p["name"] for p in ps])
+
+
+BAND_COVERAGE = 0.95
+"""The coverage the band calibration asks of the 95 % band on every blocked inner CV (:func:`blocked_band_scale`)."""
+BAND_COVERAGE_MAX_INTERLEAVED = 0.98
+"""The most the scaled 95 % band may cover on the interleaved inner CV (the pipeline CV's out-of-fold predictions): a
+wider band is no longer a 95 % band where the data are dense (the cap of :func:`blocked_band_scale`)."""
+BAND_RULE_BLOCKED = ("the kept stage's band std (its own rule) times one factor c = max(1, min(c_blocked, c_cap)): "
+                     "c_blocked the largest over the blockings of the fit poses (acquisition-order runs: time_s, else "
+                     "file row order; equal-count sectors of the first joint) of q95(|measured − prediction| / std) / "
+                     "1.96 over the components of that blocking's out-of-fold predictions (the pipeline refitted per "
+                     "block, its GP re-estimated), so that the 95 % band holds 95 % on every blocked inner CV; c_cap "
+                     "the factor at which it would hold 98 % on the interleaved inner CV (none where that CV was not "
+                     "run): never wider than that where the data are dense, never narrower than the stage's own "
+                     "interleaved calibration")
+"""The blocked band rule of the arm calibration's kept stage (``calibration.json`` ``band_calibration.rule``)."""
+
+
+def band_factor(y_mm, pred_mm, std_mm, coverage: float = BAND_COVERAGE) -> float:
+    """The factor c on ``std_mm`` that makes the band ±1.96·c·std hold ``coverage`` of the components of ``y_mm`` −
+    ``pred_mm`` (all (n, 3) mm): the ``coverage`` quantile of |y − pred| / std over the components, over 1.96."""
+    from .residual import Z95
+    z = np.abs(np.asarray(y_mm, float) - pred_mm) / np.maximum(np.asarray(std_mm, float), 1e-300)
+    return float(np.quantile(z.ravel(), coverage) / Z95)
+
+
+def combine_band_factors(factors, cap=None) -> tuple[float, float]:
+    """(c_blocked, c) of :data:`BAND_RULE_BLOCKED`: c_blocked = max(1, ``factors``), c = max(1, min(c_blocked, ``cap``))
+    (``cap`` None: c = c_blocked)."""
+    c_blocked = max([1.0] + [float(f) for f in factors])
+    return c_blocked, (c_blocked if cap is None else max(1.0, min(c_blocked, float(cap))))
+
+
+def blocked_band_scale(chain, poses, pipes: dict, blockings: dict, k_folds: int, seed, stacked=None,
+                       cap=None) -> dict:
+    """The band factor of the kept stage from BLOCKED inner CVs (:data:`BAND_RULE_BLOCKED`).
+
+    ``pipes``: the kept stage's pipeline(s), name → ``(model, learner)`` as :func:`cv_pipelines` takes them (one, or
+    the two of a stack); ``stacked``: None, or ``(name_a, name_b)``, the stack's pipelines (its weight per block chosen
+    on the other blocks, :func:`stack_cv`). ``blockings``: name → block labels (n,) of ``poses``
+    (:func:`errormap.arm_calibration.content_blocks`). Per blocking the pipelines are refitted on each block's
+    complement (geometric stage refitted, GP re-estimated: ``hyper="fold"``) and predict the block; the factor of that
+    blocking is :func:`band_factor` of those out-of-fold predictions and band stds; c_blocked the largest (at least 1).
+    ``cap``: None, or the factor at which the band would hold :data:`BAND_COVERAGE_MAX_INTERLEAVED` on the interleaved
+    CV; then c = max(1, min(c_blocked, cap)). Returns ``{"factor": c, "factor_blocked", "cap_interleaved", "rule",
+    "blockings": {name: {"n_blocks", "factor", "coverage95_before", "coverage95_after", "cv_mean_mm"}}}`` — before:
+    the stage's band as it was (its interleaved-CV calibration), after: times c."""
+    from .residual import Z95
+    out = {}
+    y = poses.xyz_mm
+    for name, lab in blockings.items():
+        cv = cv_pipelines(chain, poses, pipes, k_folds, seed, groups=lab, fold_fits={})
+        if stacked is not None:
+            from errormap.arm_calibration import cv_labels
+            a, b = cv[stacked[0]], cv[stacked[1]]
+            r = stack_cv(y, a["pred_mm"], b["pred_mm"], cv_labels(len(poses), k_folds, seed, lab), a["std_mm"],
+                         b["std_mm"])
+        else:
+            r = next(iter(cv.values()))
+        out[name] = {"n_blocks": int(min(k_folds, len(np.unique(lab)))),
+                     "factor": band_factor(y, r["pred_mm"], r["std_mm"]), "cv_mean_mm": r["cv_mean_mm"],
+                     "_z": np.abs(y - r["pred_mm"]) / np.maximum(r["std_mm"], 1e-300)}
+    c_blocked, c = combine_band_factors([v["factor"] for v in out.values()], cap)
+    for v in out.values():
+        z = v.pop("_z")
+        v["coverage95_before"] = float(np.mean(z <= Z95))
+        v["coverage95_after"] = float(np.mean(z <= Z95 * c))
+    return {"factor": c, "factor_blocked": c_blocked, "cap_interleaved": None if cap is None else float(cap),
+            "rule": BAND_RULE_BLOCKED, "blockings": out}

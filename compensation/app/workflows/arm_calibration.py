@@ -97,13 +97,14 @@ def choose_pipeline(pipeline_cv: dict, volcomp: str, rule: str = "lowest") -> st
 
 
 def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, groups=None,
-                  pipeline_rule: str = "lowest", learner_families=None) -> dict:
+                  pipeline_rule: str = "lowest", learner_families=None, band_blocked: bool = True) -> dict:
     """Every stage and baseline on ``fit``, judged on ``check``. Every decision (the geometric slot
     set, plain LSQ instead, the learned stage kept and its GP kernel) is made by k-fold CV INSIDE ``fit``
     (blocked by ``groups`` (n_fit,) labels where given: whole blocks per fold); ``check`` only reports.
     ``learner_families``: the GP families the learned stage cross-validates (default
-    :data:`training.arm_residual.KERNEL_FAMILIES`). Returns the document's core: ``stages``, ``baselines``,
-    ``kept_stage``, the models."""
+    :data:`training.arm_residual.KERNEL_FAMILIES`). ``band_blocked``: scale the kept stage's band so that it holds 95 %
+    on blocked inner CVs of the fit poses (:func:`kept_band_calibration`; False: the band as its stage's rule gives it,
+    ``band_calibration`` None). Returns the document's core: ``stages``, ``baselines``, ``kept_stage``, the models."""
     from errormap.arm_calibration import MODELS, choose_model, cv_models, fit_model
     from training.arm_residual import KERNEL_FAMILIES, ArmResidualRegressor
     from training.residual import FAMILY_NAMES
@@ -235,6 +236,18 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         say(f"pipeline CV inside the fit poses: {pcv_text} mm mean; kept {kept}")
     else:
         why += "; learned stage not run"
+        pipes = {kept: ("plain" if geo_kept is plain else model, None)}
+    band_cal = None
+    if band_blocked:
+        band_cal = kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline_cv, geo_kept,
+                                         kept_learner, k_folds, s_geo)
+        coverage_check = band_cal["coverage95_heldout_after"]
+        cap = band_cal["cap_interleaved"]
+        say(f"band calibrated on blocked inner CVs: factor {band_cal['factor']:.3f} (blocked "
+            f"{band_cal['factor_blocked']:.3f}, interleaved 98 % cap {'none' if cap is None else format(cap, '.3f')}; "
+            + ", ".join(f"{k} {v['factor']:.3f}, coverage {v['coverage95_before']:.3f} → {v['coverage95_after']:.3f}"
+                        for k, v in band_cal["blockings"].items())
+            + f"); held-out coverage {band_cal['coverage95_heldout_before']:.3f} → {coverage_check:.3f}")
     if kept not in [r["name"] for r in stages]:     # a plain pipeline kept: it is a stage of the document too
         row = next(r for r in baselines if r["name"] == kept)
         stages.append({**row, "what": row["what"] + " (kept: it did better in the CV inside the fit poses)"})
@@ -246,7 +259,33 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
             "stacked": stacked, "stacked_summary": stacked_summary,
             "cv_pipelines": None if pipeline_cv is None else
             [{"pipeline": k, "cv_mean_mm": v["cv_mean_mm"], "cv_rms_mm": v["cv_rms_mm"]} for k, v in pipeline_cv.items()],
-            "coverage95_heldout": coverage_check}
+            "coverage95_heldout": coverage_check, "band_calibration": band_cal}
+
+
+def kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline_cv, geo_kept, kept_learner, k_folds,
+                          seed) -> dict:
+    """The kept stage's band factor from blocked inner CVs (:func:`training.arm_residual.blocked_band_scale` on the
+    fit poses' :func:`errormap.arm_calibration.content_blocks`), with the 95 % coverage before / after it on the
+    interleaved pipeline CV (where run) and on the held-out poses (``check``, which only reports)."""
+    from errormap.arm_calibration import content_blocks
+    from training.arm_residual import BAND_COVERAGE_MAX_INTERLEAVED, band_factor, blocked_band_scale, pipeline_std_mm
+    if kept == STACKED:
+        run, stacked = {pipe_volcomp: pipes[pipe_volcomp], PLAIN_GP: pipes[PLAIN_GP]}, (pipe_volcomp, PLAIN_GP)
+    else:
+        run, stacked = {kept: pipes[kept]}, None
+    icv = pipeline_cv.get(kept) if pipeline_cv is not None else None
+    cap = None if icv is None else band_factor(fit.xyz_mm, icv["pred_mm"], icv["std_mm"], BAND_COVERAGE_MAX_INTERLEAVED)
+    cal = blocked_band_scale(chain, fit, run, content_blocks(fit, k_folds), k_folds, seed, stacked=stacked, cap=cap)
+    c = cal["factor"]
+    p = geo_kept.predict(check.q) + (0.0 if kept_learner is None else kept_learner.predict(check.q))
+    z = np.abs(check.xyz_mm - p) / np.maximum(pipeline_std_mm(geo_kept, kept_learner, check.q), 1e-300)
+    cal["coverage95_heldout_before"] = float(np.mean(z <= Z95))
+    cal["coverage95_heldout_after"] = float(np.mean(z <= Z95 * c))
+    if icv is not None:
+        zi = np.abs(fit.xyz_mm - icv["pred_mm"]) / np.maximum(icv["std_mm"], 1e-300)
+        cal["coverage95_cv_before"] = float(np.mean(zi <= Z95))
+        cal["coverage95_cv_after"] = float(np.mean(zi <= Z95 * c))
+    return cal
 
 
 def model_document(chain, core, s, n_fit, n_check) -> dict:
@@ -273,11 +312,25 @@ def model_document(chain, core, s, n_fit, n_check) -> dict:
     doc["geometric_cv"] = core["cv_geometric"]
     doc["pipeline_cv"] = core.get("cv_pipelines")
     doc["coverage95_heldout"] = core["coverage95_heldout"]
+    doc["band_calibration"] = core.get("band_calibration")
     return doc
 
 
-def load_arm_model(chain, path):
-    """(GeometricResult, learner or None) of a ``calibration.json`` written for ``chain``."""
+def band_scale_of(d: dict, path) -> float:
+    """The kept stage's band factor of a read ``calibration.json`` (``band_calibration.factor``; 1 for a file written
+    before the blocked band rule, or one calibrated without it); InputError on anything but a finite factor ≥ 1."""
+    bc = d.get("band_calibration")
+    if bc is None:
+        return 1.0
+    c = bc.get("factor") if isinstance(bc, dict) else None
+    if isinstance(c, bool) or not isinstance(c, (int, float)) or not np.isfinite(c) or c < 1.0:
+        raise InputError(f"{path}: key 'band_calibration.factor': expected a finite factor ≥ 1, got {c!r}")
+    return float(c)
+
+
+def load_arm_model(chain, path, band_scale: bool = False):
+    """(GeometricResult, learner or None) of a ``calibration.json`` written for ``chain``; with ``band_scale`` also
+    the kept stage's band factor (:func:`band_scale_of`)."""
     import json
     try:
         d = json.loads(Path(path).read_text(encoding="utf-8"))
@@ -297,7 +350,7 @@ def load_arm_model(chain, path):
             st = StackedResidual.from_dict(chain, d["stacked"])
         except (ValueError, KeyError, TypeError, InputError) as exc:
             raise InputError(f"{path}: key 'stacked': {exc}") from None
-        return st.geometric, st
+        return (st.geometric, st, band_scale_of(d, path)) if band_scale else (st.geometric, st)
     try:
         geo = GeometricResult.from_dict(chain, d["geometric"])
     except (KeyError, TypeError, InputError) as exc:
@@ -309,7 +362,7 @@ def load_arm_model(chain, path):
             learner = ArmResidualRegressor.from_dict(chain, d["learned"])
         except (ValueError, KeyError) as exc:
             raise InputError(f"{path}: key 'learned': {exc}") from None
-    return geo, learner
+    return (geo, learner, band_scale_of(d, path)) if band_scale else (geo, learner)
 
 
 def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict:

@@ -56,7 +56,7 @@ def run_arm_predict(chain, args) -> int:
     if getattr(args, "allow", None):
         raise UsageError("--allow: an arm's joint values are checked against the machine's joint limits; nothing "
                          "to allow")
-    geo, learner = load_arm_model(chain, args.model)
+    geo, learner, band_c = load_arm_model(chain, args.model, band_scale=True)
     q, measured = read_points(args.points, chain)
     band = getattr(args, "band", None)
     if band and (learner is None or learner.chosen_ == "none") and not geo.full_covariance:
@@ -76,10 +76,12 @@ def run_arm_predict(chain, args) -> int:
     if band:
         from training.arm_residual import pipeline_std_mm
         k, tag = (1.0, "1sigma") if band == "1sigma" else (Z95, "95")
-        sd = pipeline_std_mm(geo, learner, q)
+        sd = band_c * pipeline_std_mm(geo, learner, q)
         cols.update({f"{c}_band{tag}_mm": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
         meta.append(f"band: {'1-sigma' if band == '1sigma' else '95 %'} half-width per component of a new measurement "
-                    f"about the kept stage ({BAND_RULES[stage_kind(learner)]})")
+                    f"about the kept stage ({BAND_RULES[stage_kind(learner)]}), times {band_c:.4g}: the blocked band "
+                    "factor (calibration.json band_calibration: 95 % on blocked inner CVs of the fit poses, at most 98 % "
+                    "on the interleaved one; 1 for a file without it)")
     path = write_csv(args.out, cols, header_comments=meta, float_fmt="%.10g")
     n = np.linalg.norm(d, axis=1)
     print(f"wrote {len(q)} predictions to {path} (calibrated − nominal: RMS {np.sqrt(np.mean(n ** 2)):.4f} mm, "
