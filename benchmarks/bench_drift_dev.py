@@ -47,17 +47,26 @@ def _rms(v):
     return float(np.sqrt(np.mean(np.square(v))))
 
 
-def one(family, seed, variant):
-    cols = SIMULATORS[family](seed, dt_s=SIM_DT_S, shift_at=SIM_SPLIT)
+def simulated_log(family, seed, shift=True):
+    """The development log of one simulator family and seed (regime change at ``SIM_SPLIT`` when ``shift``), its
+    truth dropped, written as a drift-log file and read back the way the command reads one."""
+    cols = SIMULATORS[family](seed, dt_s=SIM_DT_S, shift_at=SIM_SPLIT if shift else None)
     cols.pop("_truth")
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "log.csv"
         write_csv(path, cols)
-        log = load_drift_log(path)
+        return load_drift_log(path)
+
+
+def selected_report(log, fit_fraction, settings):
+    """(the selector's per-channel report, CPU s of the selection and the report) for ``DriftSelector(**settings)``."""
     t0 = time.process_time()
-    sel = DriftSelector(fit_fraction=SIM_SPLIT, **VARIANTS[variant]).fit(log)
-    rep = sel.report(log)
-    cpu = time.process_time() - t0
+    rep = DriftSelector(fit_fraction=fit_fraction, **settings).fit(log).report(log)
+    return rep, time.process_time() - t0
+
+
+def one(family, seed, variant):
+    rep, cpu = selected_report(simulated_log(family, seed), SIM_SPLIT, VARIANTS[variant])
     return [{"family": family, "seed": seed, "variant": variant, "channel": ch, "model": r["model"],
              "volcomp": r["rms_after_um"], "ols": r["rms_ols_um"], "coverage": r["band_coverage_heldout"],
              "halfwidth": r["band_halfwidth_heldout_median_um"], "cpu_s": cpu} for ch, r in rep.items()]
@@ -68,12 +77,7 @@ def candidates(family, seed, shift=True, extra=False, weights=None):
     ``candidates_``) and its HELD-OUT RMS after refitting on the whole fitting part, predicted as the model would
     (OLS + w·g(ρ)·(candidate − OLS), ρ = max(raw inputs, its own features) from the fit rows), OLS's beside:
     the data on which rule variants are compared offline (``--rules``)."""
-    cols = SIMULATORS[family](seed, dt_s=SIM_DT_S, shift_at=SIM_SPLIT if shift else None)
-    cols.pop("_truth")
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "log.csv"
-        write_csv(path, cols)
-        log = load_drift_log(path)
+    log = simulated_log(family, seed, shift)
     return candidates_of(log, SIM_SPLIT, family, seed, extra, weights)
 
 
@@ -464,17 +468,9 @@ def range_case(kind, seed, variant, real_log=None):
         log = real_log
     else:
         fam = kind.split("-")[0]       # "-j": the benchmark's seeds 0–9 (judged), with the regime change
-        cols = SIMULATORS[fam](seed, dt_s=SIM_DT_S, shift_at=None if kind.endswith("-ns") else SIM_SPLIT)
-        cols.pop("_truth")
-        with tempfile.TemporaryDirectory() as d:
-            path = Path(d) / "log.csv"
-            write_csv(path, cols)
-            log = load_drift_log(path)
+        log = simulated_log(fam, seed, shift=not kind.endswith("-ns"))
         ff = SIM_SPLIT
-    t0 = time.process_time()
-    sel = DriftSelector(fit_fraction=ff, **RANGE_VARIANTS[variant]).fit(log)
-    rep = sel.report(log)
-    cpu = time.process_time() - t0
+    rep, cpu = selected_report(log, ff, RANGE_VARIANTS[variant])
     return [{"kind": kind, "seed": seed, "variant": variant, "channel": ch, "model": r["model"],
              "volcomp": r["rms_after_um"], "ols": r["rms_ols_um"], "scale": r["distance_scale"],
              "rho": r["heldout_rho_median"], "coverage": r["band_coverage_heldout"], "cpu_s": cpu}

@@ -20,8 +20,9 @@ JSON_ATOL_UM = 1e-9
 TOLERATED_LOSS = 1.05
 
 
-def _log(seed=0, n=900, n_in=600, far=4.0):
-    """Two temperatures and a speed; rows ≥ ``n_in`` ramp out of the first rows' range (up to ``far`` spreads)."""
+def _log(seed=0, n=900, n_in=600, far=4.0, speed_ramp=True):
+    """Two temperatures and a speed; rows ≥ ``n_in`` ramp out of the first rows' range (up to ``far`` spreads):
+    temperature a, and the speed too when ``speed_ramp`` (else only a leaves its range)."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) * 60.0
     a = 20 + np.sin(t / 7000.0) + 0.05 * rng.normal(size=n)
@@ -29,7 +30,7 @@ def _log(seed=0, n=900, n_in=600, far=4.0):
     sp = 5000 + 2000 * np.sin(t / 3000.0)
     ramp = np.clip((np.arange(n) - n_in) / (n - n_in), 0, 1)
     a = a + far * ramp
-    sp = sp + 3000 * far * ramp
+    sp = sp + 3000 * far * ramp * speed_ramp
     d = 3 * (a - 20) - 2 * (b - 22) + 1e-3 * (sp - 5000)
     return DriftLog(t, {"a": a, "b": b}, {"ch1": d}, sp, "<test>")
 

@@ -12,6 +12,7 @@ from errormap.diagnosis.drift_models import (RANGE_QUANTILE, SCALE_FOLDS, Channe
                                              Feature, distance_weight, feature_matrix, input_range_of, mahalanobis,
                                              range_rho, relative_distance, whitener)
 from errormap.diagnosis.drift_update import DriftUpdater
+from tests.test_drift_distance import _log as _distance_log
 
 # ρ of the range term is 1 + (u − max)/sd: a few float operations on values of order 10
 RHO_ATOL = 1e-12
@@ -52,16 +53,9 @@ def test_range_rho_sees_a_correlated_move_the_whole_vector_distance_dilutes():
     np.testing.assert_allclose(range_rho(ref, one), [3.0], rtol=0, atol=RHO_ATOL)
 
 
-def _log(n=900, n_in=600, far=4.0, seed=0):
-    """Two temperatures and a speed; from row ``n_in`` temperature a ramps out of its range (up to ``far`` °C)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * 60.0
-    a = 20 + np.sin(t / 7000.0) + 0.05 * rng.normal(size=n)
-    b = 22 + np.cos(t / 5000.0) + 0.05 * rng.normal(size=n)
-    sp = 5000 + 2000 * np.sin(t / 3000.0)
-    a = a + far * np.clip((np.arange(n) - n_in) / (n - n_in), 0, 1)
-    d = 3 * (a - 20) - 2 * (b - 22) + 1e-3 * (sp - 5000)
-    return DriftLog(t, {"a": a, "b": b}, {"ch1": d}, sp, "<test>")
+def _log():
+    """Two temperatures and a speed; from row 600 of 900 temperature a ramps 4 °C out of its range (the speed stays)."""
+    return _distance_log(speed_ramp=False)
 
 
 def _model(log, n_in=600, scale=0.5, with_range=True):
