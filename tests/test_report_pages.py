@@ -234,9 +234,10 @@ def test_the_arm_calibration_page_escapes_names_and_shows_every_section(pages):
     and has every section of a run with the learned stage."""
     from compensation.app.reports.arm_calibration import render_html
     page = pages("calibrate-arm").read_text(encoding="utf-8")
-    for section in ("stages", "identifiability", "learned", "figures", "parameters"):
+    for section in ("stages", "identifiability", "band-calibration", "learned", "figures", "parameters"):
         assert f'<h2 id="{section}">' in page
     doc = json.loads((pages("calibrate-arm").parent / "calibration.json").read_text())
+    assert f'{doc["band_calibration"]["factor"]:.3f}' in page   # the factor predict --band applies, on the page
     hostile = '<script>alert("x")</script>'
     doc["machine"]["name"] = hostile
     doc["notes"] = [hostile]

@@ -87,9 +87,14 @@ def render_html(doc: dict, figures=()) -> str:
     gcv = doc.get("geometric_cv") or []
     geocv = Table(["slot set", "CV mean (mm)", "CV RMS (mm)"], [[r["model"], r["cv_mean_mm"], r["cv_rms_mm"]]
                                                                 for r in gcv], digits=4) if gcv else None
+    bc = doc.get("band_calibration")
+    bands = None if not bc else Table(
+        ["blocking of the fit poses (inner CV)", "blocks", "factor", "95 % coverage before", "after"],
+        [[name, b["n_blocks"], b["factor"], b["coverage95_before"], b["coverage95_after"]]
+         for name, b in bc["blockings"].items()], digits=3)
     return render_page("arm_calibrate.html", title=f"arm calibration: {doc['machine']['name']}", doc=doc,
                        stages=stages, combos=combos, parameters=params, learned=learned, geocv=geocv,
-                       figures=list(figures))
+                       bands=bands, figures=list(figures))
 
 
 def write_report(doc: dict, chain, core, check, out) -> Path:
