@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from errormap.field import GRINDER_AXES, check_field, machine_axes
+from errormap.field import GRINDER_AXES, check_field, is_rotary_column, machine_axes
 
 from .solvers.base import BALL_RADIUS_UM
 
@@ -217,7 +217,7 @@ def volume_violations(axes, field, tol: float = 1e-9, names=AXIS_NAMES):
             axes = axes.copy()
             axes[:, 2] = lo[2] + np.mod(axes[:, 2] - lo[2], 360.0)
         return _box_violations(axes, lo, hi, a_full_turn=full, tol=tol, what="calibrated volume")
-    rot = np.array([n.endswith("_deg") for n in names])
+    rot = np.array([is_rotary_column(n) for n in names])
     free = rot & (hi - lo >= 360.0 - 1e-9)
     fold = np.flatnonzero(rot & ~free)
     if fold.size:

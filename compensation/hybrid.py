@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, machine_axes
+from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, is_rotary_column, machine_axes
 from errormap.stats import residual_stats
 from errormap.transforms import check_points
 from training.residual import FAMILY_NAMES, Z95, ResidualRegressor
@@ -82,12 +82,6 @@ to hold with them, they are measured as a variant (``bench_hybrid.py --learned-f
 CANDIDATE_FAMILIES = ("gp_additive", "basis")
 """The lower-variance families measured beside the default set (see :data:`LEARNED_FAMILIES`)."""
 
-def is_rotary(column: str) -> bool:
-    """An axis column in degrees (``*_deg``: the project's unit-in-the-name rule) is a rotary axis; every
-    other (``*_mm``) a linear one."""
-    return str(column).endswith("_deg")
-
-
 def axis_stem(column: str) -> str:
     """``"a_deg"`` → ``"a"``: the axis name without its unit."""
     return str(column).rsplit("_", 1)[0]
@@ -99,7 +93,7 @@ def axes_feature_names(columns) -> tuple:
     ``sin_a``: the learned part is periodic in it), in the machine's axis order."""
     out = []
     for c in columns:
-        out += [f"cos_{axis_stem(c)}", f"sin_{axis_stem(c)}"] if is_rotary(c) else [str(c)]
+        out += [f"cos_{axis_stem(c)}", f"sin_{axis_stem(c)}"] if is_rotary_column(c) else [str(c)]
     return tuple(out)
 
 
@@ -108,7 +102,7 @@ def axes_input_groups(columns) -> tuple:
     and sin are one input): a tuple of index tuples, one per axis."""
     groups, k = [], 0
     for c in columns:
-        w = 2 if is_rotary(c) else 1
+        w = 2 if is_rotary_column(c) else 1
         groups.append(tuple(range(k, k + w)))
         k += w
     return tuple(groups)
@@ -116,7 +110,7 @@ def axes_input_groups(columns) -> tuple:
 
 def linear_columns(columns) -> tuple:
     """The indices of the linear axes in ``columns`` (the learned part's box and taper are over them)."""
-    return tuple(j for j, c in enumerate(columns) if not is_rotary(c))
+    return tuple(j for j, c in enumerate(columns) if not is_rotary_column(c))
 
 
 FEATURE_NAMES = axes_feature_names(GRINDER_AXES)
@@ -179,7 +173,7 @@ def axis_features(axes, columns=GRINDER_AXES):
     cols, Jcols = [], []
     n, k = axes.shape[0], len(columns)
     for j, c in enumerate(columns):
-        if is_rotary(c):
+        if is_rotary_column(c):
             a = np.deg2rad(axes[:, j])
             cols += [np.cos(a), np.sin(a)]
             Jcols += [(j, -np.sin(a) * np.pi / 180.0), (j, np.cos(a) * np.pi / 180.0)]
@@ -483,7 +477,7 @@ def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.
     if len(lin) < 2:
         return None
     c1, c2 = cols[lin[0]], cols[lin[1]]
-    rot = [j for j, c in enumerate(cols) if is_rotary(c)]
+    rot = [j for j, c in enumerate(cols) if is_rotary_column(c)]
     xs = np.linspace(*machine.strokes[c1], MAP_N)
     zs = np.linspace(*machine.strokes[c2], MAP_N)
     X, Z = np.meshgrid(xs, zs)

@@ -63,6 +63,13 @@ def machine_axes(machine) -> tuple:
     cols = getattr(machine, "axis_columns", None)
     return tuple(cols) if cols is not None else GRINDER_AXES
 
+
+def is_rotary_column(column: str) -> bool:
+    """An axis column in degrees (``*_deg``: the project's unit-in-the-name rule) is a rotary axis;
+    every other (``*_mm``) a linear one."""
+    return str(column).endswith("_deg")
+
+
 JACOBIAN = "jacobian"
 PREDICT_AND_JACOBIAN = "predict_and_jacobian"
 FLOAT32 = "float32"

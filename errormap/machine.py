@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .field import is_rotary_column
 from .io import sha256_bytes
 # MachineFileError is raised here and imported from here by callers (one class, defined with the checks)
 from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
@@ -145,7 +146,7 @@ class MachineKind:
 
 def grinder_axes(machine: Grinder) -> list:
     """X, Z (mm) and A (deg) with their strokes."""
-    return [MachineAxis(k.split("_")[0].upper(), "rotary" if k.endswith("_deg") else "linear", k.split("_")[1],
+    return [MachineAxis(k.split("_")[0].upper(), "rotary" if is_rotary_column(k) else "linear", k.split("_")[1],
                         *machine.strokes[k]) for k in GRINDER_STROKE_KEYS]
 
 

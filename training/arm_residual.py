@@ -411,12 +411,23 @@ BAND_RULE_BLOCKED = ("the kept stage's band std (its own rule) times one factor 
 """The blocked band rule of the arm calibration's kept stage (``calibration.json`` ``band_calibration.rule``)."""
 
 
+def band_z(y_mm, pred_mm, std_mm) -> np.ndarray:
+    """|y − pred| / std per component (n, 3) of ``y_mm`` − ``pred_mm`` in units of the band std ``std_mm`` (all (n, 3)
+    mm; a zero std counts as 1e-300 mm)."""
+    return np.abs(np.asarray(y_mm, float) - pred_mm) / np.maximum(np.asarray(std_mm, float), 1e-300)
+
+
+def coverage_before_after(z, c: float) -> tuple[float, float]:
+    """(the share of the components ``z`` (:func:`band_z`) inside the 95 % band, the same inside the band times ``c``)."""
+    from .residual import Z95
+    return float(np.mean(z <= Z95)), float(np.mean(z <= Z95 * c))
+
+
 def band_factor(y_mm, pred_mm, std_mm, coverage: float = BAND_COVERAGE) -> float:
     """The factor c on ``std_mm`` that makes the band ±1.96·c·std hold ``coverage`` of the components of ``y_mm`` −
     ``pred_mm`` (all (n, 3) mm): the ``coverage`` quantile of |y − pred| / std over the components, over 1.96."""
     from .residual import Z95
-    z = np.abs(np.asarray(y_mm, float) - pred_mm) / np.maximum(np.asarray(std_mm, float), 1e-300)
-    return float(np.quantile(z.ravel(), coverage) / Z95)
+    return float(np.quantile(band_z(y_mm, pred_mm, std_mm).ravel(), coverage) / Z95)
 
 
 def combine_band_factors(factors, cap=None) -> tuple[float, float]:
@@ -440,7 +451,6 @@ def blocked_band_scale(chain, poses, pipes: dict, blockings: dict, k_folds: int,
     CV; then c = max(1, min(c_blocked, cap)). Returns ``{"factor": c, "factor_blocked", "cap_interleaved", "rule",
     "blockings": {name: {"n_blocks", "factor", "coverage95_before", "coverage95_after", "cv_mean_mm"}}}`` — before:
     the stage's band as it was (its interleaved-CV calibration), after: times c."""
-    from .residual import Z95
     out = {}
     y = poses.xyz_mm
     for name, lab in blockings.items():
@@ -454,11 +464,9 @@ def blocked_band_scale(chain, poses, pipes: dict, blockings: dict, k_folds: int,
             r = next(iter(cv.values()))
         out[name] = {"n_blocks": int(min(k_folds, len(np.unique(lab)))),
                      "factor": band_factor(y, r["pred_mm"], r["std_mm"]), "cv_mean_mm": r["cv_mean_mm"],
-                     "_z": np.abs(y - r["pred_mm"]) / np.maximum(r["std_mm"], 1e-300)}
+                     "_z": band_z(y, r["pred_mm"], r["std_mm"])}
     c_blocked, c = combine_band_factors([v["factor"] for v in out.values()], cap)
     for v in out.values():
-        z = v.pop("_z")
-        v["coverage95_before"] = float(np.mean(z <= Z95))
-        v["coverage95_after"] = float(np.mean(z <= Z95 * c))
+        v["coverage95_before"], v["coverage95_after"] = coverage_before_after(v.pop("_z"), c)
     return {"factor": c, "factor_blocked": c_blocked, "cap_interleaved": None if cap is None else float(cap),
             "rule": BAND_RULE_BLOCKED, "blockings": out}

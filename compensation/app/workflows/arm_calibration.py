@@ -268,7 +268,8 @@ def kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline
     fit poses' :func:`errormap.arm_calibration.content_blocks`), with the 95 % coverage before / after it on the
     interleaved pipeline CV (where run) and on the held-out poses (``check``, which only reports)."""
     from errormap.arm_calibration import content_blocks
-    from training.arm_residual import BAND_COVERAGE_MAX_INTERLEAVED, band_factor, blocked_band_scale, pipeline_std_mm
+    from training.arm_residual import (BAND_COVERAGE_MAX_INTERLEAVED, band_factor, band_z, blocked_band_scale,
+                                       coverage_before_after, pipeline_std_mm)
     if kept == STACKED:
         run, stacked = {pipe_volcomp: pipes[pipe_volcomp], PLAIN_GP: pipes[PLAIN_GP]}, (pipe_volcomp, PLAIN_GP)
     else:
@@ -278,13 +279,11 @@ def kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline
     cal = blocked_band_scale(chain, fit, run, content_blocks(fit, k_folds), k_folds, seed, stacked=stacked, cap=cap)
     c = cal["factor"]
     p = geo_kept.predict(check.q) + (0.0 if kept_learner is None else kept_learner.predict(check.q))
-    z = np.abs(check.xyz_mm - p) / np.maximum(pipeline_std_mm(geo_kept, kept_learner, check.q), 1e-300)
-    cal["coverage95_heldout_before"] = float(np.mean(z <= Z95))
-    cal["coverage95_heldout_after"] = float(np.mean(z <= Z95 * c))
+    cal["coverage95_heldout_before"], cal["coverage95_heldout_after"] = coverage_before_after(
+        band_z(check.xyz_mm, p, pipeline_std_mm(geo_kept, kept_learner, check.q)), c)
     if icv is not None:
-        zi = np.abs(fit.xyz_mm - icv["pred_mm"]) / np.maximum(icv["std_mm"], 1e-300)
-        cal["coverage95_cv_before"] = float(np.mean(zi <= Z95))
-        cal["coverage95_cv_after"] = float(np.mean(zi <= Z95 * c))
+        cal["coverage95_cv_before"], cal["coverage95_cv_after"] = coverage_before_after(
+            band_z(fit.xyz_mm, icv["pred_mm"], icv["std_mm"]), c)
     return cal
 
 
