@@ -148,7 +148,7 @@ def chain_diagnosis_page(run_dir, machine) -> str:
     run_dir = Path(run_dir)
     doc = read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine")
     check_chain_diagnosis(doc, run_dir / "diagnosis.json")
-    model = load_chain_model_file(run_dir / "model.json", machine)
+    model = load_chain_model_file(run_dir / "model.json", machine, learned="ignore")   # its elements only
     updated = model.elements
     ident_path = Path(str(doc.get("model") or ""))
     identified, ident_note = None, f"the identified set ({ident_path}) is not readable: the updated set alone"
