@@ -95,6 +95,18 @@ def test_errormap_reader_refuses_a_model_with_a_learned_residual(hybrid_dir):
         load_chain_model_file(d / "model.json", m, learned="drop")
 
 
+def test_export_refuses_a_chain_model_with_a_learned_residual_in_one_line(hybrid_dir, tmp_path, capsys):
+    """The LinuxCNC tables carry the elements and terms only: a model with a learned part is refused, never
+    exported without it."""
+    m, d, _ = hybrid_dir
+    capsys.readouterr()
+    assert main(["export", str(d / "model.json"), "--format", "linuxcnc", "--machine", MACHINE,
+                 "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "learned_residual" in err[0]
+    assert not (tmp_path / "x").exists() or not any((tmp_path / "x").iterdir())
+
+
 def test_chain_hybrid_field_is_base_plus_learned_with_the_checks_box(hybrid_dir):
     m, d, learned = hybrid_dir
     f = load_chain_model(d / "model.json", m)
