@@ -260,8 +260,9 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
         summary["learned_residual"] = stage["learned"]
         if learned is not None:
             if stage["learned"]["replaces_condition_terms"]:
-                summary["effects_replaced_by_learned"] = [e for e in summary["effects"] if e.get("needs")
-                                                          or e["kind"] in ("thermal", "reversal")]
+                kept_terms = {(t.kind, "*".join(t.axes)) for t in terms}   # the static ones the hybrid keeps
+                summary["effects_replaced_by_learned"] = [e for e in summary["effects"]
+                                                          if (e["kind"], e["axis"]) not in kept_terms]
                 summary["effects"] = [e for e in summary["effects"] if e not in summary["effects_replaced_by_learned"]]
             summary["base_stage"] = summary["kept_stage"]
             summary["held_out_rms_base_um"] = summary["held_out_rms_um"]
