@@ -290,8 +290,13 @@ def write_results(rows, argv) -> None:
              "Cases (designed before any run, over the machine's axis list): `bump` — a local bump "
              f"(A = {BUMP_UM:g} μm, centre {BUMP_CENTRE} of the strokes, width {BUMP_WIDTH:g}) of the first linear "
              "axis's positioning error over the first two linear axes; `sq_grow` — a squareness between the first "
-             f"two linear axes that grows along the third ({SQ_GROW_URAD:g} μrad at the end of its stroke), as the "
-             "second axis's straightness toward the first; `none` — no effect.", ""]
+             f"two linear axes that grows linearly along the third ({SQ_GROW_URAD:g} μrad at the end of its stroke), "
+             "as the second axis's straightness toward the first (designed before any run; after the first seed it "
+             "showed to lie in the span of the element slots — an angular error through a lever arm — so the element "
+             "update absorbs it: a catalogue case, kept as such); `sq_grow_sin` — the same squareness growing as a "
+             f"half sine along the third axis ({SQ_GROW_URAD:g} μrad at its mid-stroke; added after the first seed, "
+             "chosen by the span test below, not by any TRUE figure); `none` — no effect. Judged per case: the "
+             "hybrid's TRUE RMS against the loop alone and against the same seed's machine without the effect.", ""]
     by = {}
     for r in rows:
         by.setdefault((r["machine"], r["case"]), []).append(r)
@@ -326,7 +331,7 @@ def write_results(rows, argv) -> None:
                 f"{_fmt(_med([r.get('held_band95_cover') for r in rs]), 3)} | "
                 f"{'—' if not [x for x in mm if x is not None] else f'{max(x for x in mm if x is not None):.1e}'} |")
         lines.append("")
-        lines += ["Span test (the loop's representability test, :func:`span_outside`: the fraction of the effect's "
+        lines += ["Span test (the loop's representability test, `span_outside`: the fraction of the effect's "
                   "error columns outside the span of the element slots; ~0 = the element update absorbs it): "
                   + ", ".join(f"`{c}` {span_outside(mname, c):.2g}" for c in sel if c != "none"), ""]
         det = [r for c in sel for r in by[(mname, c)]]
