@@ -145,9 +145,9 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
             from training.tracking import load_field as load_learned
             return check_machine(load_learned(src.spec, tracking_uri=tracking_uri, loader=ChainMLPField.load),
                                  machine, src.spec)
-        if src.kind == "chain-model":
-            from errormap.diagnosis.mt_model import load_chain_model_file
-            return load_chain_model_file(src.path, machine)
+        if src.kind == "chain-model":   # elements + terms (+ the learned residual when the loop kept it)
+            from .mt_hybrid import load_chain_model
+            return load_chain_model(src.path, machine)
         return load_chain_field(src.path, machine, src.kind)
     if src.kind == "chain-network":
         raise InputError(f"{src.path}: a {KIND_NAMES[src.kind]}, trained on a machine-tool chain; name that machine "

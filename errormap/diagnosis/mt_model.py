@@ -49,15 +49,32 @@ def term_needs(machine: MachineTool, term: EffectTerm) -> tuple:
     return ()
 
 
-def save_chain_model(path, machine: MachineTool, elements_file, terms, kept_stage: str) -> Path:
-    """Write ``model.json`` (module doc); ``elements_file``: the element set's path (stored relative)."""
+def save_chain_model(path, machine: MachineTool, elements_file, terms, kept_stage: str, extra=None) -> Path:
+    """Write ``model.json`` (module doc); ``elements_file``: the element set's path (stored relative).
+    ``extra``: further keys (the learned-residual stage's ``learned_residual``, ``base_stage``,
+    ``learned_family``, ``base_terms_replaced``, written by the compensation layer, which owns the
+    learned part; :data:`LEARNED_KEY`)."""
     path = Path(path)
     d = {"format": CHAIN_MODEL_FORMAT, "machine": machine.name, "machine_sha256": machine.sha256,
          "elements": Path(elements_file).name, "kept_stage": kept_stage,
          "terms": [t.to_dict() for t in terms],
          "note": "E(q, c) = ChainField(elements)(q) + sum of the terms' columns (error-Jacobian column of the "
                  "element at the nominal chain times the effect's shape) times their coefficients"}
+    if extra:
+        if LEARNED_KEY in extra:
+            d["note"] += ("; + the learned residual (learned_residual: a regressor of the axes, tapered to zero "
+                          "outside the checks' box; read by compensation.mt_hybrid)")
+        d.update(extra)
     return write_json(path, d)
+
+
+LEARNED_KEY = "learned_residual"
+"""The key of a kept learned-residual stage in ``model.json`` (:mod:`compensation.hybrid`'s saved form). The
+learned part lives in the compensation layer: :func:`load_chain_model_file` reads the elements and terms
+only and REFUSES a file that has it unless told to ignore it (``learned="ignore"``: a caller that needs the
+elements alone, the report page), so no reader silently drops the kept stage's learned part;
+``compensation.mt_hybrid.load_chain_model`` reads the whole model."""
+LEARNED_MODES = ("refuse", "ignore")
 
 
 class ChainModelField:
@@ -147,8 +164,13 @@ class ChainModelField:
         return self.predict_and_jacobian(axes)[1]
 
 
-def load_chain_model_file(path, machine: MachineTool) -> ChainModelField:
-    """Read ``model.json`` (module doc) for ``machine``; errors name the file and the key (InputError)."""
+def load_chain_model_file(path, machine: MachineTool, learned: str = "refuse") -> ChainModelField:
+    """Read ``model.json`` (module doc) for ``machine``; errors name the file and the key (InputError).
+    ``learned``: what to do with a kept learned residual (:data:`LEARNED_KEY`): ``"refuse"`` (an
+    InputError naming the key: this reader would drop it) or ``"ignore"`` (the elements and terms alone,
+    for a caller that needs only them)."""
+    if learned not in LEARNED_MODES:
+        raise ValueError(f"Expected learned one of {LEARNED_MODES}, got {learned!r}")
     path = Path(path)
     try:
         d = json.loads(decode_text(path.read_bytes(), path))
@@ -156,6 +178,9 @@ def load_chain_model_file(path, machine: MachineTool) -> ChainModelField:
         raise InputError(f"{path}: not a chain model file ({exc})") from None
     if not isinstance(d, dict) or d.get("format") != CHAIN_MODEL_FORMAT:
         raise InputError(f"{path}: key 'format': expected {CHAIN_MODEL_FORMAT!r}")
+    if d.get(LEARNED_KEY) is not None and learned == "refuse":
+        raise InputError(f"{path}: key '{LEARNED_KEY}': the model's kept stage includes a learned residual, which "
+                         "this command does not carry (predict and compensate --machine do); it is not dropped silently")
     if d.get("machine_sha256") not in (None, "", machine.sha256):
         raise InputError(f"{path}: key 'machine_sha256': the model was made for machine {d.get('machine')!r} "
                          f"({str(d.get('machine_sha256'))[:12]}…), not for {machine.name!r} "

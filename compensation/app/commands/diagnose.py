@@ -103,13 +103,14 @@ def run(args) -> int:
         machine = load_machine(args.machine)  # None: the built-in default machine
         if machine.kind == "machine-tool":
             from compensation.app.workflows.mt_loop import diagnose_chain, diagnosis_lines, refuse_options
-            refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "no_learned": False,
+            refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "track": False,
                                   "retrain_iter": DEFAULT_MAX_ITER, "retrain_time_s": None},
                            "diagnose on a machine-tool chain (element-set models; effects gated on held-out z)")
             print(f"diagnosing {args.checks} against {args.model} on {machine.name} ...", file=sys.stderr)
             summary, paths = diagnose_chain(args.checks, machine, args.model, args.out, fit_fraction=args.fit_fraction,
                                             noise_um=args.noise_um, max_effects=args.max_effects,
-                                            update=not args.no_update, units=args.units)
+                                            update=not args.no_update, units=args.units,
+                                            learn=not args.no_learned)
             from compensation.app.reports.mt_diagnosis import write_chain_diagnosis_page
             paths.append(write_chain_diagnosis_page(args.out, machine))  # the page of the run, as the grinder's
             for line in diagnosis_lines(summary):

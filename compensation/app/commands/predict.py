@@ -123,13 +123,7 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
     stage = doc.get("stage")
     meta = [f"stage: {stage}"]
     if hybrid is not None:
-        lo, hi = hybrid.learned.lo, hybrid.learned.hi
-        inside = np.all((axes[:, :2] >= lo - 1e-9) & (axes[:, :2] <= hi + 1e-9), axis=1)
-        cols["learned_part"] = np.where(inside, "fitted", "unknown")
-        from training.residual import FAMILY_NAMES
-        meta += [f"learned residual: {FAMILY_NAMES.get(hybrid.learned.chosen, hybrid.learned.chosen)}; "
-                 f"checks' box x_mm {lo[0]:.6g}..{hi[0]:.6g}, z_mm {lo[1]:.6g}..{hi[1]:.6g} "
-                 f"(learned_part unknown outside it: {int((~inside).sum())} of {len(axes)} points)"]
+        meta += _learned_part(cols, hybrid.learned, axes)
     if cov is not None:
         meta.append(f"band: total {'1-sigma' if args.band == '1sigma' else '95 %'} per component = "
                     + ("learned residual's band (cross-validation calibrated; outside the checks' box its prior) "
@@ -142,6 +136,18 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
         meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
                     f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
     return cols, meta
+
+
+def _learned_part(cols, learned, axes) -> list:
+    """A hybrid's ``learned_part`` column into ``cols`` — ``fitted`` inside the checks' box (every linear axis of
+    the learned residual's ``box_axes`` within its range), ``unknown`` outside (the learned part is tapered to
+    zero there and says nothing) — and its header line (the family and the box, axis by axis)."""
+    inside = learned.inside(axes)
+    cols["learned_part"] = np.where(inside, "fitted", "unknown")
+    from training.residual import FAMILY_NAMES
+    box = ", ".join(f"{n} {lo:.6g}..{hi:.6g}" for n, lo, hi in zip(learned.box_names, learned.lo, learned.hi))
+    return [f"learned residual: {FAMILY_NAMES.get(learned.chosen, learned.chosen)}; checks' box {box} "
+            f"(learned_part unknown outside it: {int((~inside).sum())} of {len(axes)} points)"]
 
 
 def _chain_covariance(args, src, machine) -> tuple:
@@ -193,7 +199,7 @@ def run(args) -> int:
     cond = None
     if src.kind == "chain-model" and field.needs:  # a chain model's effect terms: conditions per point, from columns
         cond = _point_conditions(t, field.needs, args.units)
-    _check_volume(args, t, axes, field, machine)
+    n_out = _check_volume(args, t, axes, field, machine)
     print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
     from ..validate import predict_batched
     if cond is None:
@@ -205,6 +211,14 @@ def run(args) -> int:
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
     meta = [f"machine: {machine.name}"] if machine.kind == "machine-tool" else []
+    from ...hybrid import HybridField
+    if isinstance(field, HybridField):   # a chain loop's model.json with its kept learned residual
+        import json
+        doc = json.loads(src.path.read_text(encoding="utf-8"))
+        meta += [f"stage: {doc.get('kept_stage')} on {doc.get('base_stage')}"] + _learned_part(cols, field.learned, axes)
+    if n_out and machine.kind == "machine-tool":   # the override recorded (the grinder's own paths: as before)
+        meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
+                    f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
     if args.band and machine.kind == "machine-tool":
         cols.update(_chain_band(args, machine, axes, band_src))
     elif args.band:

@@ -191,21 +191,44 @@ def _learned(s) -> dict | None:
                            "95 % band coverage"], rows), "figure": None}
     m = lr.get("map")
     if m:
-        fig, axs = _plt().subplots(1, 2, figsize=(9, 3.6))
-        ext = [m["x_mm"][0], m["x_mm"][-1], m["z_mm"][0], m["z_mm"][-1]]
-        band_key, band_title = (("band95_total_um", "the hybrid's total 95 % band (μm)") if "band95_total_um" in m
-                                else ("band95_um", "its 95 % band (μm)"))
-        for ax, key, title in ((axs[0], "norm_um", "learned correction |Δ| (μm)"), (axs[1], band_key, band_title)):
-            im = ax.imshow(np.array(m[key]), origin="lower", extent=ext, aspect="auto", cmap="viridis")
-            ax.set_xlabel("x (mm)")
-            ax.set_ylabel("z (mm)")
-            ax.set_title(title, fontsize=9)
-            fig.colorbar(im, ax=ax)
-        fig.tight_layout()
-        out["figure"] = figure(fig, "learned map", "The learned correction over X–Z (vector norm, averaged over "
-                               "A = 0, 90, 180, 270°) and the norm of its 95 % band: it is zero, and its band the "
-                               "prior's, where the checks do not reach", dpi=FIG_DPI)
+        out["figure"] = learned_map_figure(m)
     return out
+
+
+def map_axes(m: dict) -> tuple:
+    """The two axis columns a learned map (:func:`compensation.hybrid.learned_map`) spans, in its order: its
+    first two ``*_mm`` keys (the machine's first two linear axes: the grinder's x_mm, z_mm; a mill's x_mm,
+    y_mm), and the ``<rotary columns>_averaged`` key or None."""
+    lin = [k for k in m if k.endswith("_mm")][:2]
+    if len(lin) != 2:
+        raise ValueError(f"a learned map over two linear axes, got keys {list(m)}")
+    return lin[0], lin[1], next((k for k in m if k.endswith("_averaged")), None)
+
+
+def learned_map_figure(m: dict) -> Figure:
+    """The learned correction's map (its norm and its band over the first two linear axes) as a figure; the
+    axis names come from the map's keys (:func:`map_axes`)."""
+    c1, c2, rot = map_axes(m)
+    s1, s2 = c1.rsplit("_", 1)[0], c2.rsplit("_", 1)[0]
+    fig, axs = _plt().subplots(1, 2, figsize=(9, 3.6))
+    ext = [m[c1][0], m[c1][-1], m[c2][0], m[c2][-1]]
+    band_key, band_title = (("band95_total_um", "the hybrid's total 95 % band (μm)") if "band95_total_um" in m
+                            else ("band95_um", "its 95 % band (μm)"))
+    for ax, key, title in ((axs[0], "norm_um", "learned correction |Δ| (μm)"), (axs[1], band_key, band_title)):
+        im = ax.imshow(np.array(m[key]), origin="lower", extent=ext, aspect="auto", cmap="viridis")
+        ax.set_xlabel(f"{s1} (mm)")
+        ax.set_ylabel(f"{s2} (mm)")
+        ax.set_title(title, fontsize=9)
+        fig.colorbar(im, ax=ax)
+    fig.tight_layout()
+    if rot is not None:
+        names = "/".join(c.rsplit("_", 1)[0].upper() for c in rot[:-len("_averaged")].split("+"))
+        over = f"averaged over {names} = {', '.join(f'{a:g}' for a in m[rot])}°"
+    else:
+        over = "any further linear axis at mid-stroke"
+    return figure(fig, "learned map", f"The learned correction over {s1.upper()}–{s2.upper()} (vector norm, {over}) "
+                  "and the norm of its 95 % band: it is zero, and its band the prior's, where the checks do not reach",
+                  dpi=FIG_DPI)
 
 
 def _effects_table(effects) -> Table | None:

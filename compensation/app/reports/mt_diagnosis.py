@@ -15,6 +15,7 @@ import numpy as np
 
 from errormap.io import InputError, decode_text
 
+from .diagnosis import _learned
 from .figures import pyplot
 from .toolkit import Figure, Table, figure, kv_table, render_page, write_page
 
@@ -25,7 +26,9 @@ DIAGNOSIS_KEYS = ("stages", "kept_stage", "kept_why", "effects", "n_fit", "n_hel
 """Keys a chain diagnose run's ``diagnosis.json`` has (the folder is recognised by them and ``model.json``'s format)."""
 STAGE_NOTE = {"identified": "the sweeps' element set", "updated": "Gaussian update of the elements from the checks",
               "baseline_ols_update": "baseline: unregularised least-squares update",
-              "baseline_ols_linear": "baseline: OLS on the axes", "updated_plus_effects": "update + named effects"}
+              "baseline_ols_linear": "baseline: OLS on the axes", "updated_plus_effects": "update + named effects",
+              "learned_residual": "learned residual of the axes on what the loop leaves (kept only if it beats the "
+                                  "loop on the held-out checks)"}
 
 
 def read_json(path: Path, what: str) -> dict:
@@ -148,7 +151,7 @@ def chain_diagnosis_page(run_dir, machine) -> str:
     run_dir = Path(run_dir)
     doc = read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine")
     check_chain_diagnosis(doc, run_dir / "diagnosis.json")
-    model = load_chain_model_file(run_dir / "model.json", machine)
+    model = load_chain_model_file(run_dir / "model.json", machine, learned="ignore")   # its elements only
     updated = model.elements
     ident_path = Path(str(doc.get("model") or ""))
     identified, ident_note = None, f"the identified set ({ident_path}) is not readable: the updated set alone"
@@ -172,7 +175,7 @@ def chain_diagnosis_page(run_dir, machine) -> str:
                        summary=summary, stages=_stage_table(doc), stage_figure=_stage_figure(doc), effects=acc,
                        rejected=rej, element_figures=_element_figures(machine, updated, identified),
                        constants=_constants_table(machine, updated, identified), kept=doc["kept_stage"],
-                       ratio=ratio, floor=floor)
+                       ratio=ratio, floor=floor, learned=_learned(doc))
 
 
 def write_chain_diagnosis_page(run_dir, machine, out=None) -> Path:

@@ -265,7 +265,7 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
                        {"closed_loop": False})]
             t0 = time.perf_counter()
             summary, _ = diagnose_chain(d / "sim" / "checks.csv", machine, el_path, d / "diagnosis",
-                                        noise_um=s.check_noise_um)
+                                        noise_um=s.check_noise_um, learn=False)   # the parametric column: the loop alone
             diag_s = time.perf_counter() - t0
             lm = load_chain_model_file(summary["model_file"], machine)
             st = summary["stages"]

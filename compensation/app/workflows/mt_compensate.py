@@ -199,9 +199,9 @@ def run_chain_compensate(machine, args, allow) -> int:
     if src.kind == "mlflow":  # a chain network recorded in MLflow (train --tracking-uri)
         from ...fields import load_field
         field_ = load_field(s.model, machine, getattr(args, "tracking_uri", None), source=src)
-    elif src.kind == "chain-model":
-        from errormap.diagnosis.mt_model import load_chain_model_file
-        field_ = load_chain_model_file(src.path, machine)
+    elif src.kind == "chain-model":   # elements + terms (+ the learned residual when the loop kept it)
+        from ...mt_hybrid import load_chain_model
+        field_ = load_chain_model(src.path, machine)
     else:
         field_ = load_chain_field(src.path, machine, src.kind)
     field_ = chain_conditions(field_, conditions, machine)

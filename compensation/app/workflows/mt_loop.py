@@ -205,10 +205,40 @@ def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.n
     return out
 
 
+def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0, families=None):
+    """The learned-residual stage after the chain loop (:func:`compensation.hybrid.learned_stage`, the grinder's
+    stage and keep rule): fitted on what the loop's kept model (``elements`` + ``terms``, at the checks' own
+    conditions) leaves at the fitting checks, kept only if it lowers the held-out squared residual, paired per
+    point, by more than :data:`compensation.hybrid.KEEP_Z` standard errors over the loop's kept stage. When the
+    kept model has condition terms (thermal, reversal), the learned field of the axes may replace them
+    (``r_static_um``: the same model without them). The chain's element update carries no posterior covariance
+    here, so the band is the learned part's (⊕ the fitted noise on the held-out checks).
+    → ``(learned or None, stage, static terms)``: ``static terms`` the terms the hybrid keeps (all of
+    ``terms``, or those without conditions when the learned field replaced the others)."""
+    from compensation.hybrid import learned_stage
+    from errormap.diagnosis.mt_model import ChainModelField, term_needs
+    n, n_fit = len(checks), int(summary["n_fit"])
+
+    def residual(ts):
+        f = ChainModelField(machine, elements, ts)
+        f = f.with_conditions({c: checks.conditions[c] for c in f.needs})
+        return checks.measured_um - f.predict(checks.axes)
+
+    r_prev = residual(terms)
+    static = [t for t in terms if not term_needs(machine, t)]
+    r_static = residual(static) if len(static) < len(terms) else None
+    learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, n), seed=seed,
+                                   families=families, r_static_um=r_static)
+    replaced = learned is not None and stage["learned"]["replaces_condition_terms"]
+    return learned, stage, (static if replaced else list(terms))
+
+
 def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=None, effects=True,
-                   max_effects=4, update=True, units="check") -> tuple:
-    """Held-out measured residual of an element set on checks (stages, noise floor, effects); writes
-    ``out/diagnosis.json`` and ``out/updated_elements.json``."""
+                   max_effects=4, update=True, units="check", learn: bool = True) -> tuple:
+    """Held-out measured residual of an element set on checks (stages, noise floor, effects), then (``learn``)
+    the learned-residual stage on what the kept stage leaves (:func:`chain_learned_stage`); writes
+    ``out/diagnosis.json``, ``out/updated_elements.json`` and ``out/model.json`` (with ``learned_residual``
+    when that stage is kept: :mod:`compensation.mt_hybrid`)."""
     from errormap.diagnosis.mt_loop import closed_loop_chain, load_mt_checks
     el, cov, cov_path = load_chain_model(model, machine)
     checks = load_mt_checks(checks_path, machine, units=units)
@@ -220,12 +250,39 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     models = summary.pop("_models")
     summary.update({"checks": str(checks_path), "model": str(model), "covariance": str(cov_path) if cov_path else None,
                     "update": bool(update and cov is not None)})
+    terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
+    extra = None
+    if learn:
+        learned, stage, terms = chain_learned_stage(machine, checks, models["elements"], terms, summary)
+        stage["base_stage"] = summary["kept_stage"]
+        if "held_out" in stage:  # the stage ran (enough checks): a stage beside the others
+            summary["stages"] = dict(summary["stages"], learned_residual=stage)
+        summary["learned_residual"] = stage["learned"]
+        if learned is not None:
+            if stage["learned"]["replaces_condition_terms"]:
+                kept_terms = {(t.kind, "*".join(t.axes)) for t in terms}   # the static ones the hybrid keeps
+                summary["effects_replaced_by_learned"] = [e for e in summary["effects"]
+                                                          if (e["kind"], e["axis"]) not in kept_terms]
+                summary["effects"] = [e for e in summary["effects"] if e not in summary["effects_replaced_by_learned"]]
+            summary["base_stage"] = summary["kept_stage"]
+            summary["held_out_rms_base_um"] = summary["held_out_rms_um"]
+            summary["kept_stage"] = "learned_residual"
+            summary["kept_why"] = f"{summary['kept_why']}; then the learned residual was {stage['learned']['why']}"
+            summary["held_out_rms_um"] = stage["held_out"]["rms_um"]
+            if summary.get("noise_floor_um"):
+                summary["held_out_over_floor"] = float(summary["held_out_rms_um"] / summary["noise_floor_um"])
+            lr = stage["learned"]
+            extra = {"learned_residual": learned.to_dict(), "base_stage": summary["base_stage"],
+                     "learned_family": {"family": lr["family"], "name": lr.get("family_name", lr["family"]),
+                                        "compared": lr.get("families_compared"),
+                                        "estimated_on_checks": (lr.get("shipped") or {}).get("estimated_on_checks")}}
+            if summary.get("effects_replaced_by_learned"):
+                extra["base_terms_replaced"] = summary["effects_replaced_by_learned"]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     el_path = models["elements"].save(out / "updated_elements.json")   # each file written whole (temporary file, rename)
     from errormap.diagnosis.mt_model import save_chain_model
-    terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
-    model_path = save_chain_model(out / "model.json", machine, el_path, terms, summary["kept_stage"])
+    model_path = save_chain_model(out / "model.json", machine, el_path, terms, summary["kept_stage"], extra)
     summary["model_file"] = str(model_path)
     write_json(out / "diagnosis.json", summary)
     return summary, [out / "diagnosis.json", out / "updated_elements.json", model_path]
@@ -250,6 +307,9 @@ def diagnosis_lines(summary) -> list:
     if "held_out" in st.get("updated", {}):  # absorbed only where an update ran (diagnosis.json keeps them always)
         for e in summary.get("effects_absorbed", []):
             lines.append(f"absorbed by the update: {e['note']}")
+    lr = summary.get("learned_residual")
+    if lr is not None:
+        lines.append(f"learned residual ({lr.get('family_name', lr['family'])}): {lr['why']}")
     lines.append(f"kept stage: {summary['kept_stage']} ({summary['kept_why']})")
     if summary["noise_floor_um"] is not None:
         lines.append(f"noise floor {summary['noise_floor_um']:.3g} um (sigma {summary['noise_sigma_um']:.3g} um, "
