@@ -7,7 +7,8 @@ harmonic on C where a full-turn rotary axis exists), truth of the INDEPENDENT fa
 runs the CLI as a user would (``compensation.app.cli.main``): ``volcomp sweeps --machine M``
 (2 μm tracker noise, 21 stations, seeded unknown tracker pose) → ``volcomp simulate --machine M``
 (800 checks at 1 μm; the checks file is what the loop sees) → ``volcomp identify`` →
-``volcomp diagnose --noise-um 1`` (60/40 blocked split by seq). The truth (``truth_elements.json``
+``volcomp diagnose --noise-um 1 --no-learned`` (the parametric loop alone; its learned stage is
+measured by ``bench_hybrid_chain.py``) (60/40 blocked split by seq). The truth (``truth_elements.json``
 + the effect) is read only to score:
 
 * **TRUE** RMS ‖Δe‖ over 4,000 uniform random points of the volume (reference temperature, positive
@@ -111,7 +112,7 @@ def run_case(machine_name: str, seed: int, effect: str | None, work: Path, check
         assert main(["identify", str(d / "sweeps.csv"), "--machine", machine_name, "--out", str(d / "E.json")]) == 0
         t1 = time.process_time()
         assert main(["diagnose", str(d / "sim" / "checks.csv"), "--machine", machine_name, "--model", str(d / "E.json"),
-                     "--noise-um", str(CHECK_NOISE_UM), "--out", str(d / "diag")]) == 0
+                     "--noise-um", str(CHECK_NOISE_UM), "--no-learned", "--out", str(d / "diag")]) == 0
     cpu, cpu_diag = time.process_time() - t0, time.process_time() - t1
     # scoring only: the hidden truth
     info = json.loads((d / "sim" / "truth.json").read_text())
@@ -200,7 +201,7 @@ def markdown(rows, meta) -> str:
            "; ".join(f"`{c}`" for c in meta.get("commands", [meta.get("command", "")]))
            + f" on {meta['platform']}, {meta['date']} (one job, nice -n 10). User's path only: `volcomp sweeps` (tracker noise "
            f"{SWEEP_NOISE_UM} μm, 21 stations per axis, unknown seeded tracker pose) → `volcomp simulate` ({CHECKS} checks unless a row says otherwise, "
-           f"noise {CHECK_NOISE_UM} μm) → `volcomp identify` → `volcomp diagnose --noise-um {CHECK_NOISE_UM}` (blocked 60/40 "
+           f"noise {CHECK_NOISE_UM} μm) → `volcomp identify` → `volcomp diagnose --noise-um {CHECK_NOISE_UM} --no-learned` (the parametric loop alone; blocked 60/40 "
            "split by seq), truth of the INDEPENDENT family (81-station truth, other shapes and magnitudes than the default "
            "simulator); the truth is read only to score. *TRUE* = the model's error field vs the hidden truth, RMS of "
            f"‖Δe‖ over {SCORE_POINTS} uniform random points of the volume (seed {SCORE_SEED}) (reference temperature, positive approach); *held-out* = "
