@@ -889,6 +889,10 @@ class DriftSelector:
     ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
     ``input_range`` (ρ also from each raw input's exceedance of its own fit range, :func:`range_rho`; recorded in
     ``fitted_on.novelty.input_range``), ``scale_folds`` (``SCALE_FOLDS``: the folds whose rows choose s),
+    ``disagreement`` / ``disagreement_quantile`` (``DISAGREEMENTS``; the disagreement gate on the returned model: its
+    prediction − OLS clipped to :func:`disagreement_interval` of the chosen blend's differences from OLS on every
+    validation row, ``fold_delta_`` {channel: (m,) μm}; ``disagreement_`` {channel: (lo, hi) or None}; the selection
+    itself is unchanged),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
     {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number ``selection`` ranks
