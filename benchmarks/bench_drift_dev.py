@@ -13,7 +13,10 @@ the pseudo-future INSIDE the benchmark's fitting part, on which a rule may be de
 --no-shift-rules … --nested-candidates … --real-candidates … [--judge-candidates …]`` →
 benchmarks/drift_dev_results.md (the rule variants and the band rules compared offline on the same candidates;
 with ``--with-families`` on the dumps, also the default rule with and without each measured non-default family); ``--variants feature,raw`` runs whole selections per variant
-(``--partial FILE`` appends every finished log as a JSON line).
+(``--partial FILE`` appends every finished log as a JSON line). ``--gate-round FILE [--gate-judge]`` (issue 29's sixth
+round): one default selection per log, the disagreement gate's variants (``GATE_VARIANTS``) applied to its model →
+benchmarks/drift_dev_gate_results.md (development logs and the real fitting parts; with ``--gate-judge`` also the
+benchmark's seeds 0–9 with and without the regime change and the real pseudo-futures, judged after the decision).
 """
 from __future__ import annotations
 
