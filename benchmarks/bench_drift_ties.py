@@ -8,7 +8,7 @@ Measured on the real log fitted on its first 36 % (``DriftSelector(fit_fraction=
 fold statistics of the fitting part are read (the held-out 36–60 % is never looked at here): per tie channel the
 candidates of largest horizon mean log-gain over OLS, with the gates' numbers.
 
-Run: ``python benchmarks/bench_drift_ties.py`` → benchmarks/drift_ties_results.md (about 3 CPU min). Skips without
+Run: ``python benchmarks/bench_drift_ties.py`` → benchmarks/drift_ties_results.md (about 15 CPU s). Skips without
 the shared log.
 """
 from __future__ import annotations
