@@ -115,6 +115,9 @@ INPUT_RANGE = False   # ρ also from the per-input range exceedance (issue 29's 
 SCALE_FOLDS = ("novelty", "horizon_novelty")   # the folds whose rows choose the distance scale s (the first: the default)
 SHRINK_SCALES = (np.inf, 2.0, 1.0, 0.5, 0.25)   # per-sample shrinkage g(ρ) = exp(−(ρ − 1)/s) beyond ρ = d/d0 = 1
                                                 # (inf: none); s chosen per candidate on the novelty folds
+DISAGREEMENTS = (None, "abs", "signed")   # the disagreement gate (issue 29's sixth round): None = off (the default)
+DISAGREEMENT_QUANTILE = 1.0   # the gate's interval from the folds' candidate − OLS differences Δ: "abs": |Δ| up to
+#   this quantile of |Δ| (1.0: the largest); "signed": Δ between its (1 − q)/2 and (1 + q)/2 quantiles
 SPEED_SCALE_RPM = 1e4                            # speed² features use (speed/1e4)² → documented as power 2 of speed/1e4
 
 
@@ -483,6 +486,8 @@ class ChannelFit:
     novelty: dict | None = None         # the distance on the channel's OWN features (:func:`feature_novelty`): ρ of the
                                         # channel = max(ρ of the raw inputs, ρ of these features)
     band_gamma: float = 1.0             # the band grows as band95_um · max(1, ρ)^band_gamma (:func:`rho_power_band`)
+    disagreement_um: tuple | None = None  # (lo, hi) μm: the disagreement gate, prediction = base + clip(model − base,
+                                          # lo, hi) (:func:`disagreement_clip`); None: no gate
 
 
 class DriftModel:
@@ -530,18 +535,29 @@ class DriftModel:
     def predict(self, log: DriftLog, cache: dict | None = None, distance_shrink: bool = True) -> dict:
         """{channel: (n,) μm}. With ``distance_shrink`` (default), a channel that has a baseline and a finite
         ``shrink_scale`` predicts ``base + g(ρ)·(model − base)`` per sample (ρ: :meth:`rho`; g: :func:`distance_weight`),
-        which equals the fixed linear model wherever ρ ≤ 1. ``distance_shrink=False``: the fixed linear model
-        (what the exported controller gains run). Causal: ρ at a row uses that row's inputs only."""
+        which equals the fixed linear model wherever ρ ≤ 1; then a channel with ``disagreement_um`` (lo, hi) clips
+        that prediction's difference from the baseline to [lo, hi] (:func:`disagreement_clip`: the model unchanged
+        where it differs from the baseline no more than it did on the validation folds). ``distance_shrink=False``:
+        the fixed linear model, neither per-sample rule (what the exported controller gains run). Causal: both
+        rules at a row use that row's inputs (and the causal features) only."""
         cache = {} if cache is None else cache
         out = {ch: c.intercept_um + feature_matrix(log, c.features, cache) @ c.coef for ch, c in self.channels.items()}
-        if distance_shrink and any(c.base is not None and np.isfinite(c.shrink_scale) for c in self.channels.values()):
-            rhos = self.channel_rho(log, cache)
-            for ch, c in self.channels.items():
-                rho = rhos[ch]
-                if rho is not None and c.base is not None and np.isfinite(c.shrink_scale):
-                    bf, ba, bc = c.base
-                    b = ba + feature_matrix(log, bf, cache) @ np.asarray(bc)
-                    out[ch] = b + distance_weight(rho, c.shrink_scale) * (out[ch] - b)
+        if not distance_shrink:
+            return out
+        rhos = self.channel_rho(log, cache) \
+            if any(c.base is not None and np.isfinite(c.shrink_scale) for c in self.channels.values()) else {}
+        for ch, c in self.channels.items():
+            if c.base is None:
+                continue
+            bf, ba, bc = c.base
+            shrink = rhos.get(ch) is not None and np.isfinite(c.shrink_scale)
+            if not shrink and c.disagreement_um is None:
+                continue
+            b = ba + feature_matrix(log, bf, cache) @ np.asarray(bc)
+            if shrink:
+                out[ch] = b + distance_weight(rhos[ch], c.shrink_scale) * (out[ch] - b)
+            if c.disagreement_um is not None:
+                out[ch] = disagreement_clip(out[ch], b, *c.disagreement_um)
         return out
 
     def band_um(self, log, cache: dict | None = None) -> dict:
@@ -591,6 +607,16 @@ class DriftModel:
                         "(the channel's own filtered inputs); the channel's rho = max(rho_inputs, rho_features)",
                 "features": [ids[f.key] for f in nv["features"]], "mean": np.asarray(nv["mean"], float).tolist(),
                 "whiten": np.asarray(nv["whiten"], float).tolist(), "range_distance": float(nv["range_distance"])}
+        if c.base is not None and c.disagreement_um is not None:
+            bf, ba, bc = c.base
+            out["disagreement_gate"] = {
+                "rule": "prediction_um(t) = base(t) + clip(p(t) - base(t), lo_um, hi_um); p: the prediction after the "
+                        "distance_shrink rule where the channel has one, else the model (intercept_um + terms); base: "
+                        "the OLS baseline below; [lo_um, hi_um]: the model's difference from the baseline on the "
+                        "validation folds",
+                "lo_um": float(c.disagreement_um[0]), "hi_um": float(c.disagreement_um[1]),
+                "base": {"intercept_um": float(ba), "terms": [{"feature": ids[f.key], "coef": float(b), "unit": f.unit()}
+                                                            for f, b in zip(bf, bc)]}}
         if c.base is not None and np.isfinite(c.shrink_scale):
             bf, ba, bc = c.base
             out["distance_shrink"] = {
@@ -633,7 +659,14 @@ class DriftModel:
             try:
                 terms = c["terms"]
                 fl = [feats[t["feature"]] for t in terms]
-                base, scale = None, float("inf")
+                base, scale, gate = None, float("inf"), None
+                if c.get("disagreement_gate") is not None:    # files before issue 29's sixth round have none
+                    dg = c["disagreement_gate"]
+                    gate = (float(dg["lo_um"]), float(dg["hi_um"]))
+                    if not gate[0] <= 0 <= gate[1]:
+                        raise ValueError(f"disagreement_gate: expected lo_um <= 0 <= hi_um, got {gate}")
+                    base = ([feats[t["feature"]] for t in dg["base"]["terms"]], float(dg["base"]["intercept_um"]),
+                            np.array([float(t["coef"]) for t in dg["base"]["terms"]]))
                 if c.get("distance_shrink") is not None:
                     ds = c["distance_shrink"]
                     scale = float(ds["scale"])
@@ -656,7 +689,7 @@ class DriftModel:
                     raise ValueError(f"band_gamma must be in [0, 10], got {gamma}")
                 chans[ch] = ChannelFit(c.get("family", ""), c.get("hyper", ""), fl, float(c["intercept_um"]),
                                        np.array([float(t["coef"]) for t in terms]), float(c.get("band95_um") or "nan"),
-                                       base, scale, nv, gamma)
+                                       base, scale, nv, gamma, gate)
             except (KeyError, TypeError, ValueError) as exc:
                 raise InputError(f"{path}: key 'channels.{ch}': expected intercept_um and terms "
                                  f"[{{feature, coef}}] naming listed features ({exc!r})") from None
@@ -856,6 +889,10 @@ class DriftSelector:
     ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
     ``input_range`` (ρ also from each raw input's exceedance of its own fit range, :func:`range_rho`; recorded in
     ``fitted_on.novelty.input_range``), ``scale_folds`` (``SCALE_FOLDS``: the folds whose rows choose s),
+    ``disagreement`` / ``disagreement_quantile`` (``DISAGREEMENTS``; the disagreement gate on the returned model: its
+    prediction − OLS clipped to :func:`disagreement_interval` of the chosen blend's differences from OLS on every
+    validation row, ``fold_delta_`` {channel: (m,) μm}; ``disagreement_`` {channel: (lo, hi) or None}; the selection
+    itself is unchanged),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
     {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number ``selection`` ranks
@@ -876,7 +913,8 @@ class DriftSelector:
                  ranking_fold_loss: bool = RANKING_FOLD_LOSS,
                  selection: str = SELECTION, hedge_weight: float = HEDGE_WEIGHT, band_rule: str = BAND_RULE,
                  confident_worst_fold: float = CONFIDENT_WORST_FOLD, input_range: bool = INPUT_RANGE,
-                 scale_folds: str = SCALE_FOLDS[0]):
+                 scale_folds: str = SCALE_FOLDS[0], disagreement: str | None = DISAGREEMENTS[0],
+                 disagreement_quantile: float = DISAGREEMENT_QUANTILE):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
@@ -899,6 +937,8 @@ class DriftSelector:
         self.confident_worst_fold = confident_worst_fold
         self.input_range = input_range
         self.scale_folds = scale_folds
+        self.disagreement = disagreement
+        self.disagreement_quantile = disagreement_quantile
 
     def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
         """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes
@@ -934,6 +974,10 @@ class DriftSelector:
             raise ValueError(f"Expected selection in {SELECTIONS}, got {self.selection!r}")
         if self.scale_folds not in SCALE_FOLDS:
             raise ValueError(f"Expected scale_folds in {SCALE_FOLDS}, got {self.scale_folds!r}")
+        if self.disagreement not in DISAGREEMENTS:
+            raise ValueError(f"Expected disagreement in {DISAGREEMENTS}, got {self.disagreement!r}")
+        if not 0 < self.disagreement_quantile <= 1:
+            raise ValueError(f"Expected 0 < disagreement_quantile <= 1, got {self.disagreement_quantile}")
         if not self.shrink_weights or not all(0 < w <= 1 for w in self.shrink_weights):
             raise ValueError(f"Expected shrink_weights in (0, 1], got {self.shrink_weights}")
         if not 0 < self.hedge_weight <= 1 or not 0 < self.confident_worst_fold <= 1:
@@ -976,7 +1020,7 @@ class DriftSelector:
         self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
         self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
         self.scale_, self.worst_fold_, self.fold_ratios_, self.fold_rho_, self.candidates_ = {}, {}, {}, {}, {}
-        self.band_alt_, self.score_ = {}, {}
+        self.band_alt_, self.score_, self.fold_delta_, self.disagreement_ = {}, {}, {}, {}
         for ch in chans:
             base = ("ols", "")
             full = {k[1:]: v for k, v in resid.items() if k[0] == ch and len(v) == len(folds)
@@ -1030,6 +1074,18 @@ class DriftSelector:
             self.band_[ch] = band_of(scores[best], self.band_rule)
             self.band_alt_[ch] = {r: band_of(scores[best], r) for r in BAND_RULES if r != self.band_rule}
             self.band_ols_[ch] = band_of(scores[(*base, 1.0)], self.band_rule)
+            # the disagreement gate's data: on every validation row (ranking, horizon, novelty), the chosen blend's
+            # prediction − OLS's, both fitted on the fold's training rows (= OLS's residual − the blend's)
+            if best[0] == "ols":
+                self.fold_delta_[ch] = np.zeros(0)
+            else:
+                k = best[:2]
+                rr = (cand_rho(folds, fr[(ch, *k)]), cand_rho(hfolds, fh[(ch, *k)]), cand_rho(nfolds, fn[(ch, *k)]))
+                self.fold_delta_[ch] = np.concatenate([
+                    y - x for cr, yr, qr in zip((resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)]), (r0, h0, n0), rr)
+                    for x, y in zip(_blend_residuals(best[2], cr, yr, qr, scores[best]["scale"]), yr)])
+            self.disagreement_[ch] = None if self.disagreement is None or best[0] == "ols" else \
+                disagreement_interval(self.fold_delta_[ch], self.disagreement, self.disagreement_quantile)
         final = {}
         for fam in fams:
             need = [ch for ch in chans if self.chosen_[ch][0] == fam.name or fam.name == "ols"]
@@ -1066,6 +1122,8 @@ class DriftSelector:
                             "range_distance": float(np.quantile(mahalanobis(U, mu, W), RANGE_QUANTILE))}}
         if self.input_range:
             meta["novelty"]["input_range"] = {k: v.tolist() for k, v in input_range_of(U).items()}
+        if self.disagreement is not None:
+            meta["disagreement_gate"] = {"mode": self.disagreement, "quantile": float(self.disagreement_quantile)}
         chosen = {}
         for ch in chans:
             f, hy = self.chosen_[ch]
@@ -1078,8 +1136,9 @@ class DriftSelector:
                 if self.feature_distance and f != "ols" and own else None
             chosen[ch] = ChannelFit(f, hy if w == 1.0 else f"{hy}{';' if hy else ''}shrink_to_ols_w={w:g}", feats, a,
                                     np.asarray(b), self.band_[ch][0],
-                                    base=final["ols"][ch][""] if np.isfinite(sc) else None,
-                                    shrink_scale=float(sc), novelty=nv, band_gamma=self.band_[ch][1])
+                                    base=final["ols"][ch][""] if np.isfinite(sc) or self.disagreement_[ch] else None,
+                                    shrink_scale=float(sc), novelty=nv, band_gamma=self.band_[ch][1],
+                                    disagreement_um=self.disagreement_[ch])
         self.model_ = DriftModel(chosen, meta)
         self.baseline_ = DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch][0],
                                                     band_gamma=self.band_ols_[ch][1]) for ch in chans}, meta)
@@ -1133,6 +1192,9 @@ class DriftSelector:
                        "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
                        "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
                        "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
+                       "disagreement_um": None if self.disagreement_[ch] is None else list(self.disagreement_[ch]),
+                       "fold_disagreement_max_um": float(np.abs(self.fold_delta_[ch]).max())
+                       if self.fold_delta_[ch].size else 0.0,
                        "heldout_rho_median": None if rhos[ch] is None else float(np.median(rhos[ch][hold])),
                        "band95_um": band, "band_coverage_heldout": float(np.mean(np.abs(a) <= bands[ch][hold])),
                        "band_halfwidth_heldout_median_um": float(np.median(bands[ch][hold])),
@@ -1638,6 +1700,34 @@ def distance_weight(rho, scale: float) -> np.ndarray:
     if not np.isfinite(scale):
         return np.ones_like(rho)
     return np.exp(-np.maximum(rho - 1.0, 0.0) / scale)
+
+
+def disagreement_interval(delta_um, mode: str, quantile: float = DISAGREEMENT_QUANTILE) -> tuple[float, float]:
+    """(lo, hi) μm of the disagreement gate from the validation folds' differences ``delta_um`` (m,) = the chosen
+    model's prediction − OLS's (both fitted on each fold's training rows): ``mode`` "abs": ±the ``quantile`` of |Δ|
+    (1.0: the largest); "signed": the (1 − q)/2 and (1 + q)/2 quantiles of Δ, widened to contain 0 (the baseline
+    itself is always allowed). No rows: (0, 0), the baseline."""
+    if mode not in DISAGREEMENTS[1:]:
+        raise ValueError(f"Expected disagreement in {DISAGREEMENTS[1:]}, got {mode!r}")
+    if not 0 < quantile <= 1:
+        raise ValueError(f"Expected 0 < disagreement_quantile <= 1, got {quantile}")
+    d = np.asarray(delta_um, float).ravel()
+    d = d[np.isfinite(d)]
+    if not d.size:
+        return 0.0, 0.0
+    if mode == "abs":
+        c = float(np.quantile(np.abs(d), quantile))
+        return -c, c
+    lo, hi = np.quantile(d, [(1 - quantile) / 2, (1 + quantile) / 2])
+    return float(min(lo, 0.0)), float(max(hi, 0.0))
+
+
+def disagreement_clip(pred_um, base_um, lo_um: float, hi_um: float) -> np.ndarray:
+    """The disagreement gate (n,): ``base + clip(pred − base, lo, hi)`` — the prediction unchanged where it differs
+    from the baseline by no more than it did on the validation folds, moved to that limit toward the baseline
+    beyond. Row by row (causal)."""
+    base = np.asarray(base_um, float)
+    return base + np.clip(np.asarray(pred_um, float) - base, lo_um, hi_um)
 
 
 def relative_distance(U_train, U_new, input_range: bool = False) -> np.ndarray:
