@@ -144,8 +144,9 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         stages.append(stage_row(stage_name(m), e_fit[m], f"{fits[m].method}: LM on the identifiable slots of {m} "
                                                          f"(CV mean in fit set {cvd[m]:.4f} mm)"))
     baselines = [stage_row("nominal + base/tool", e_bt, "nominal chain, fitted base frame and tool point"),
-                 stage_row("plain geometric LSQ", e_plain, "scipy least_squares, every DH slot + base + tool, "
-                                                           "no identifiability handling"),
+                 stage_row("plain geometric LSQ", e_plain, "unregularised least squares on every DH slot + base + "
+                                                           "tool (Gauss–Newton, minimum-norm step: no motion along "
+                                                           "combinations the poses do not determine)"),
                  stage_row("volcomp geometric", e_fit["dh"], "LM on the identifiable DH slots (unidentifiable fixed)")]
     learner, plain_gp, kept_learner, pipeline_cv, pipe_volcomp = None, None, None, None, None
     stacked, stacked_summary = None, None
