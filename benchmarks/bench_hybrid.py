@@ -3,8 +3,8 @@
 Per seed and case (``none`` and the out-of-catalogue effects ``bump``, ``a_tilt``,
 ``squareness``, ``squareness_xz``, ``a_lobe_x`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
 the user's CLI path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) →
-``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on, its families GP and
-deep ensemble; the kept stage re-estimated on all checks after the choice) →
+``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on, its families
+:data:`compensation.hybrid.LEARNED_FAMILIES`; the kept stage re-estimated on all checks after the choice) →
 ``volcomp compensate VOLUME.csv --model DIR/model.json --method exact`` on 2,000 random volume
 points (1 mm inside the X and Z strokes) at the reference conditions, scored by the TRUE residual on the hidden truth (used only
 here). The same ``model.json`` without its ``learned_residual`` key is the parametric loop alone
@@ -110,9 +110,11 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
-CODE_ROUND = 6
-"""Rows measured by this code carry ``code_round`` 6 (the main table marks a case whose rows come from
-an earlier round's code); rows without it were measured by the round-3 code (learned families GP squared-exponential and ensemble) and are labelled so."""
+CODE_ROUND = 7
+"""Rows measured by this code carry ``code_round`` 7 (round 7: the default families add ``gp_additive``
+and ``basis``, and condition terms stay only when their coefficient beside the static learned field is
+above :data:`compensation.hybrid.TERM_KEEP_Z` standard errors; the main table marks a case whose rows
+come from an earlier round's code); rows without it were measured by the round-3 code (learned families GP squared-exponential and ensemble) and are labelled so."""
 
 N_GA = 50
 """Points of the volume also compensated with ``batched-ga`` on the hybrid (its model residual
@@ -281,6 +283,10 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
                 "learned_inputs_cv": {k: {"family": v["family"], "cv_rms": v["cv_rms"]}
                                       for k, v in (lr.get("inputs_table") or {}).items()},
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
+                "condition_terms_test": {k: (lr.get("condition_terms_vs_static") or {}).get(k)
+                                         for k in ("term_coefficient", "term_coefficient_se", "term_z",
+                                                   "term_test_family", "cv_gain_z")}
+                if lr.get("condition_terms_vs_static") else None,
                 "learned_z": lr.get("held_out_gain_z"),
                 "learned_cv_rms_um": {k: v.get("cv_rms") for k, v in (lr.get("cv_table") or {}).items()}, "held_band95_cover": lr.get("held_out_band95_cover"),
                 "held_band95_cover_total": lr.get("held_out_band95_cover_total"),
@@ -452,7 +458,7 @@ def _variants(rows) -> list:
             "`axes+work` = both) and families (`--learned-families`; `gp_sum` = a long- plus a short-length-scale ARD "
             "squared exponential; 'gp+ensemble' is the round-3 set), each beside the default set (what ships: axes, "
             "the four families gp, gp_matern52, gp_matern32, ensemble; the CV picks per machine) on the SAME seeds and "
-            "measurements. Validation = what the loop sees: the blocked-CV RMS of the chosen fit (μm; fitting checks, "
+            "measurements (rows of round 6; the round-7 default set is those six families). Validation = what the loop sees: the blocked-CV RMS of the chosen fit (μm; fitting checks, "
             "10 seq blocks; of the static variant when it replaced condition terms; 'zero' when declined) and the "
             "held-out MEASURED RMS; TRUE RMS = the compensated volume against the hidden truth (used by no choice).", "",
             "| family | case | variant | seeds | kept | chosen | CV RMS variant | CV RMS default | held-out MEASURED "
@@ -507,10 +513,12 @@ def write_results(rows, argv, previous=None):
     none = {(r["family"], r["seed"]): r for r in rows if r["effect"] == "none"}
     lines = ["# Hybrid field: the learned residual stage of the closed loop (issue 28)", "",
              "User's CLI path per seed: sweeps (2 μm) → simulate (800 checks, 1 μm) → identify → diagnose "
-             "(learned stage on: GP with squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and deep ensemble "
-             "on the axes (x, z, cos a, sin a), cross-validated on the same blocked folds; rows '[variant: families "
-             "…]' add the round-6 candidates `gp_additive` (additive GP) and `basis` (Legendre × Fourier basis "
-             "regression) to that set, the same machines and measurements; stages chosen on the "
+             "(learned stage on: GP with squared-exponential, Matérn 5/2 and Matérn 3/2 kernels, deep ensemble, "
+             "additive GP (`gp_additive`) and Legendre × Fourier basis regression (`basis`) on the axes (x, z, cos a, "
+             "sin a), cross-validated on the same blocked folds — the round-7 default set, measured by round-7 code; "
+             "rows of earlier rounds' code are labelled so (their default set was the first four; rows '[variant: "
+             "families …]' are round 6's measurement of the six); condition terms stay only when their coefficient "
+             "beside the static learned field is > 3 standard errors (round 7); stages chosen on the "
              "60/40 split, the kept stage then re-estimated on all checks) → compensate 2,000 random volume points (exact, reference conditions); "
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
