@@ -110,10 +110,11 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
-CODE_ROUND = 7
-"""Rows measured by this code carry ``code_round`` 7 (round 7: the default families add ``gp_additive``
+CODE_ROUND = 8
+"""Rows measured by this code carry ``code_round`` 8 (round 7: the default families add ``gp_additive``
 and ``basis``, and condition terms stay only when their coefficient beside the static learned field is
-above :data:`compensation.hybrid.TERM_KEEP_Z` standard errors; the main table marks a case whose rows
+above :data:`compensation.hybrid.TERM_KEEP_Z` standard errors; round 8: and within
+:data:`compensation.hybrid.TERM_CONSISTENT_Z` standard errors of 1; the main table marks a case whose rows
 come from an earlier round's code); rows without it were measured by the round-3 code (learned families GP squared-exponential and ensemble) and are labelled so."""
 
 N_GA = 50
@@ -285,7 +286,7 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
                 "condition_terms_test": {k: (lr.get("condition_terms_vs_static") or {}).get(k)
                                          for k in ("term_coefficient", "term_coefficient_se", "term_z",
-                                                   "term_test_family", "cv_gain_z")}
+                                                   "term_test_family", "term_z_from_one", "cv_gain_z")}
                 if lr.get("condition_terms_vs_static") else None,
                 "learned_z": lr.get("held_out_gain_z"),
                 "learned_cv_rms_um": {k: v.get("cv_rms") for k, v in (lr.get("cv_table") or {}).items()}, "held_band95_cover": lr.get("held_out_band95_cover"),
@@ -518,7 +519,7 @@ def write_results(rows, argv, previous=None):
              "sin a), cross-validated on the same blocked folds — the round-7 default set, measured by round-7 code; "
              "rows of earlier rounds' code are labelled so (their default set was the first four; rows '[variant: "
              "families …]' are round 6's measurement of the six); condition terms stay only when their coefficient "
-             "beside the static learned field is > 3 standard errors (round 7); stages chosen on the "
+             "beside the static learned field is > 3 standard errors (round 7) and within 3 standard errors of 1 (round 8); stages chosen on the "
              "60/40 split, the kept stage then re-estimated on all checks) → compensate 2,000 random volume points (exact, reference conditions); "
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
