@@ -286,7 +286,7 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
                 "condition_terms_test": {k: (lr.get("condition_terms_vs_static") or {}).get(k)
                                          for k in ("term_coefficient", "term_coefficient_se", "term_z",
-                                                   "term_test_family", "term_z_from_one", "cv_gain_z")}
+                                                   "term_test_family", "term_z_from_one", "cv_gain_z", "per_term")}
                 if lr.get("condition_terms_vs_static") else None,
                 "learned_z": lr.get("held_out_gain_z"),
                 "learned_cv_rms_um": {k: v.get("cv_rms") for k, v in (lr.get("cv_table") or {}).items()}, "held_band95_cover": lr.get("held_out_band95_cover"),

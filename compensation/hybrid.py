@@ -605,7 +605,10 @@ def condition_term_test(reg_static, f, r_static_um, c_um) -> dict:
     """Is the condition terms' dependence on their conditions in the data, once a static field of the axes
     takes the static part? ``reg_static``: the :class:`ResidualRegressor` fitted (its family chosen) on
     ``f`` (n, d), ``r_static_um`` (n, 3), the stage's residual WITHOUT its condition terms; ``c_um``
-    (n, 3) the terms' contribution at the same checks (``r_static − r_prev``).
+    (n, 3) the terms' contribution at the same checks (``r_static − r_prev``), or (m, n, 3) each
+    term's own contribution: then one coefficient per term, estimated jointly
+    (``γ̂ = B⁻¹a``, ``cov = B⁻¹``, ``B_kl = Σ c_kᵀV⁻¹c_l``, ``a_k = Σ c_kᵀV⁻¹r``) and the result's
+    values are lists in the terms' order.
 
     The model ``r_static = g(axes) + γ·c + noise`` with ``g`` the chosen family's Gaussian prior
     (its hyper-parameters as fitted on ``r_static``: the SAME family and hyper-parameters as the static
@@ -627,18 +630,26 @@ def condition_term_test(reg_static, f, r_static_um, c_um) -> dict:
         fam = min(cands, key=lambda k: reg_static.cv_table_[k]["cv_rms"])
         reg = reg_static.refit(f, r_static_um, family=fam)
     m_r = reg.predict(f)
-    m_c = reg.with_data(f, c_um).predict(f)
     nv = reg.model_.noise_var() * reg.y_scale_ ** 2                      # (3,) μm²
-    b = float(np.sum(np.sum(c_um * (c_um - m_c), axis=0) / nv))
-    a = float(np.sum(np.sum(c_um * (r_static_um - m_r), axis=0) / nv))
-    if not b > 0:
+    c_all = np.asarray(c_um, dtype=float)
+    cs = c_all[None] if c_all.ndim == 2 else c_all                        # (m, n, 3): one per term
+    vic = np.stack([(c - reg.with_data(f, c).predict(f)) / nv for c in cs])   # V⁻¹c_k, (m, n, 3)
+    B = np.einsum("knj,lnj->kl", cs, vic)
+    B = 0.5 * (B + B.T)
+    a = np.einsum("knj,nj->k", cs, (r_static_um - m_r) / nv)
+    if not (np.all(np.isfinite(B)) and np.all(np.linalg.eigvalsh(B) > 0)):
         return {"coefficient": None, "coefficient_se": None, "z": None, "family": fam}
-    gamma, se = a / b, 1.0 / np.sqrt(b)
-    return {"coefficient": gamma, "coefficient_se": se, "z": gamma / se, "family": fam}
+    cov = np.linalg.inv(B)
+    gamma, se = cov @ a, np.sqrt(np.diag(cov))
+    if c_all.ndim == 2:
+        return {"coefficient": float(gamma[0]), "coefficient_se": float(se[0]), "z": float(gamma[0] / se[0]),
+                "family": fam}
+    return {"coefficient": gamma.tolist(), "coefficient_se": se.tolist(), "z": (gamma / se).tolist(), "family": fam}
 
 
 def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=None, r_static_um=None,
-                  covariance=None, refit_residual=None, refit_mode: str = "hyper", inputs=None):
+                  covariance=None, refit_residual=None, refit_mode: str = "hyper", inputs=None,
+                  condition_terms_um=None):
     """Fit the learned residual on what the previous stage leaves at the checks and gate it.
 
     ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check;
@@ -657,6 +668,13 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     REPLACES them (the blocked-CV errors of the two variants are reported beside it: on warm checks
     they hardly differ, so they cannot decide). The held-out gate against the previous stage (with
     its terms) is then the same.
+    ``condition_terms_um`` (m, n, 3) or None: with ``r_static_um``, each condition term's own
+    contribution at the checks (``r_static − r_prev`` is their sum). The rule is then applied PER
+    TERM, the coefficients estimated jointly (:func:`condition_term_test`): the terms that pass
+    stay, the others are replaced (the learned field is then fitted, on the same blocked folds,
+    to the residual without the replaced terms only); ``stage["learned"]["replaced_condition_terms"]``
+    lists the replaced ones (indices into ``condition_terms_um``) and ``refit_residual`` is called
+    with that tuple instead of the bool. Without it the terms are tested and replaced together.
     ``axes`` (n, k) in the machine's axis columns (:func:`errormap.field.machine_axes`).
     ``families``: the learned families cross-validated (None: :data:`LEARNED_FAMILIES` at call time);
     ``inputs``: the input sets (:data:`INPUT_SETS`) each family is cross-validated on (None:
@@ -689,17 +707,30 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     feats = {name: input_features(axes, name, rho0, columns)[0] for name in inputs}
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
     inp, reg, inputs_table = _fit_inputs(feats, r_prev_um, fit_idx, groups, families, seed, columns)
-    r_base, replaces, alt = r_prev_um, False, None
+    r_base, replaces, alt, per_term, replaced_k = r_prev_um, False, None, None, ()
     if r_static_um is not None:
         r_static_um = np.asarray(r_static_um, dtype=float)
         inp_s, reg_s, inputs_table_s = _fit_inputs(feats, r_static_um, fit_idx, groups, families, seed, columns)
         e_with, e_static = reg.cv_sq_err_[_cv_key(reg)], reg_s.cv_sq_err_[_cv_key(reg_s)]
         z_s, g_s, se_s = _paired_z(np.sqrt(e_with)[:, None], np.sqrt(e_static)[:, None])
         term = {"coefficient": None, "coefficient_se": None, "z": None, "family": None}
+        c_sum = r_static_um - np.asarray(r_prev_um, dtype=float)
         if reg_s.chosen_ != "none":
-            term = condition_term_test(reg_s, feats[inp_s][fit_idx], r_static_um[fit_idx],
-                                       (r_static_um - np.asarray(r_prev_um, dtype=float))[fit_idx])
+            term = condition_term_test(reg_s, feats[inp_s][fit_idx], r_static_um[fit_idx], c_sum[fit_idx])
         replaces = reg_s.chosen_ != "none" and term["z"] is not None and not keeps_condition_terms(term)
+        per_term = None
+        if condition_terms_um is not None:
+            cts = np.asarray(condition_terms_um, dtype=float)
+            per_term = {"coefficient": [None] * len(cts), "coefficient_se": [None] * len(cts), "z": [None] * len(cts)}
+            if reg_s.chosen_ != "none":
+                per_term = condition_term_test(reg_s, feats[inp_s][fit_idx], r_static_um[fit_idx], cts[:, fit_idx])
+            if per_term["z"] is None:
+                per_term = {"coefficient": [None] * len(cts), "coefficient_se": [None] * len(cts), "z": [None] * len(cts)}
+            keep_k = [reg_s.chosen_ == "none" or keeps_condition_terms(
+                {"coefficient": g, "coefficient_se": e, "z": z}) for g, e, z in
+                zip(per_term["coefficient"], per_term["coefficient_se"], per_term["z"])]
+            replaced_k = tuple(k for k, kk in enumerate(keep_k) if not kk)
+            replaces = bool(replaced_k)
         alt = {"cv_rms_with_terms_um": float(np.sqrt(e_with.mean())), "cv_rms_static_um": float(np.sqrt(e_static.mean())),
                "cv_gain_z": z_s, "cv_gain_um2": g_s, "cv_gain_se_um2": se_s, "static_family": reg_s.chosen_,
                "static_input_set": inp_s,
@@ -707,12 +738,23 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                "term_z": term["z"], "term_test_family": term["family"],
                "term_z_from_one": (None if term["z"] is None else abs(term["coefficient"] - 1.0) / term["coefficient_se"]),
                "replaces_condition_terms": bool(replaces),
-               "rule": (f"the condition terms stay only when their coefficient, estimated jointly with the static learned "
+               **({} if per_term is None else {"per_term_sum_mismatch_um": float(np.abs(cts.sum(axis=0) - c_sum).max()),
+                                               "per_term": [
+                   {"coefficient": g, "coefficient_se": e, "z": z,
+                    "z_from_one": (None if z is None else abs(g - 1.0) / e), "replaced": k in replaced_k}
+                   for k, (g, e, z) in enumerate(zip(per_term["coefficient"], per_term["coefficient_se"],
+                                                     per_term["z"]))]}),
+               "rule": (f"the condition terms (each, when per_term is given) stay only when their coefficient, estimated "
+                        f"jointly with the static learned "
                         f"field of the axes (its family and hyper-parameters; generalised least squares on the fitting "
                         f"checks), is positive by more than {TERM_KEEP_Z} standard errors and within "
                         f"{TERM_CONSISTENT_Z} standard errors of 1; otherwise the learned field "
                         f"of the axes replaces them (cv_* are the blocked-CV errors of the two variants, for information)")}
-        if replaces:
+        if replaces and per_term is not None and len(replaced_k) < len(cts):   # some terms stay
+            r_part = np.asarray(r_prev_um, dtype=float) + cts[list(replaced_k)].sum(axis=0)
+            inp_p, reg_p, inputs_table_p = _fit_inputs(feats, r_part, fit_idx, groups, families, seed, columns)
+            reg, r_base, inp, inputs_table = reg_p, r_part, inp_p, inputs_table_p
+        elif replaces:
             reg, r_base, inp, inputs_table = reg_s, r_static_um, inp_s, inputs_table_s
     f = feats[inp]
     lo = axes[:, lin].min(0)
@@ -751,6 +793,8 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                          "noise_std_um": noise.tolist(),
                          "kept": bool(kept), "why": why,
                          "replaces_condition_terms": bool(kept and replaces)}}
+    if kept and replaces and per_term is not None:
+        stage["learned"]["replaced_condition_terms"] = list(replaced_k)
     if alt is not None:
         stage["learned"]["condition_terms_vs_static"] = alt
     if kept and replaces:
@@ -759,7 +803,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     if not kept:
         return None, stage
     if refit_residual is not None:
-        r_ship = np.asarray(refit_residual(bool(replaces)), dtype=float)
+        r_ship = np.asarray(refit_residual(replaced_k if per_term is not None else bool(replaces)), dtype=float)
         base_refit = True
     else:
         r_ship, base_refit = r_base, False

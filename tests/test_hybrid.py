@@ -536,3 +536,40 @@ def test_condition_terms_stay_only_when_their_coefficient_is_non_zero_and_consis
     assert keeps_condition_terms(term(1.0 - TERM_CONSISTENT_Z * 0.1 + 1e-9, 0.1))
     assert not keeps_condition_terms(term(1.0 - TERM_CONSISTENT_Z * 0.1, 0.1))
     assert not keeps_condition_terms({"coefficient": None, "coefficient_se": None, "z": None, "family": None})
+
+
+@pytest.mark.slow
+def test_condition_terms_are_tested_one_by_one_a_real_one_stays_beside_a_replaced_stand_in(grinder):
+    """Two condition terms (the benchmark's tilt with a real thermal growth: the loop accepted a real
+    thermal term of X on dx_x and a stand-in thermal term on dz): tested together their coefficient
+    is a mix of 1 and 0; per term (``condition_terms_um``) the real one stays (z > TERM_KEEP_Z, within
+    TERM_CONSISTENT_Z of 1) and the stand-in is replaced, the learned field then fitted on the residual
+    without the stand-in only (it recovers the static error the stand-in imitated)."""
+    rng = np.random.default_rng(SEED + 2)
+    n, n_fit = 800, 480
+    axes = random_axes(grinder, n, rng)
+    temp = _warming_temp(n)
+    x0 = grinder.strokes["x_mm"][0]
+    u = (axes[:, 0] - x0) / np.ptp(grinder.strokes["x_mm"])
+    arch = STATIC_UM * np.sin(np.pi * u) - STATIC_UM * 2 / np.pi
+    err = np.zeros((n, 3))
+    err[:, 0] = THERMAL_UM_PER_MM_C * (temp - 20.0) * (axes[:, 0] - x0)     # real thermal growth of X
+    err[:, 2] = arch                                                       # a static error the loop did not take
+    r_static = err + NOISE_UM * rng.standard_normal((n, 3))
+    fit_idx, hold_idx = np.arange(n_fit), np.arange(n_fit, n)
+    real = np.zeros((n, 3))
+    real[:, 0] = err[:, 0]
+    stand_in = _condition_term_fit(axes, temp, r_static, fit_idx)           # dz ∝ (T − 20)·x fitted to the arch
+    r_prev = r_static - real - stand_in
+    learned, stage = learned_stage(grinder, r_prev, axes, fit_idx, hold_idx, seed=SEED, r_static_um=r_static,
+                                   condition_terms_um=np.stack([real, stand_in]))
+    alt = stage["learned"]["condition_terms_vs_static"]
+    t_real, t_stand = alt["per_term"]
+    assert t_real["z"] > TERM_KEEP_Z and t_real["z_from_one"] < TERM_CONSISTENT_Z and not t_real["replaced"]
+    assert t_stand["replaced"] and not t_stand["z"] > TERM_KEEP_Z
+    assert learned is not None and stage["learned"]["replaced_condition_terms"] == [1]
+    P = random_axes(grinder, 2000, np.random.default_rng(SEED + 3))
+    uP = (P[:, 0] - x0) / np.ptp(grinder.strokes["x_mm"])
+    e = STATIC_UM * np.sin(np.pi * uP) - STATIC_UM * 2 / np.pi
+    left = learned.predict(P)[:, 2] - e
+    assert np.sqrt(np.mean(left**2)) < BUMP_RECOVERY_REL * np.sqrt(np.mean(e**2))
