@@ -78,7 +78,11 @@ They are then replaced like a stand-in. 3 standard errors, two-sided, drops a re
 of machines. Written (round 8) after the judged round-7 tilt machines that kept a term at
 γ̂ 0.28–0.39 (5.6–8 se below 1) and before any judged run of this rule; the development seeds'
 figures are in docs/diagnosis.md. The alternative, shipping the terms scaled by γ̂, was not taken:
-on a machine without thermal growth it still ships γ̂ times the stand-in."""
+on a machine without thermal growth it still ships γ̂ times the stand-in. Applied PER TERM when
+:func:`learned_stage` is given each term's contribution (``condition_terms_um``; the grinder loop
+does): on development seeds with a real thermal growth of X beside the tilt, the loop accepted the
+real term (dx_x) and a stand-in (dz) together, and their joint coefficient (0.74–0.80 ± 0.05) would
+have replaced the real one too."""
 
 
 def keeps_condition_terms(term: dict) -> bool:
