@@ -225,8 +225,10 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
 
     def _refit(replaced: tuple):
         """The kept stage re-estimated on all checks without the condition terms ``replaced`` (indices
-        into ``cond_terms``)."""
-        replaced = tuple(replaced)
+        into ``cond_terms``; True / False: all / none of them, as learned_stage passes it when it tested no
+        term on its own)."""
+        replaced = (tuple(range(len(cond_terms))) if replaced is True else () if replaced is False
+                    else tuple(replaced))
         if replaced not in refit_cache:
             import dataclasses
             lp = loop
