@@ -134,8 +134,9 @@ static field's blocked CV beat the with-terms variant's by more than one paired 
 the additive GP fitted the residual nearly as well WITH a stand-in thermal term as without it
 (blocked-CV RMS 1.7515 against 1.7506 μm, paired z 0.45) and the term stayed. Judged (round 7,
 benchmarks/hybrid_results.md): a_lobe_x 0.90 μm (1.59× the no-effect machine; round-4 default set
-0.96, 1.68×), independent family 0.87 (1.56×; 1.04, 1.89×); the tilt is worse through the
-condition-term rule (:data:`TERM_KEEP_Z`), not the families."""
+0.96, 1.68×), independent family 0.87 (1.56×; 1.04, 1.89×); the tilt was worse through the
+round-7 condition-term rule (:data:`TERM_KEEP_Z`), not the families; with round 8's
+(:data:`TERM_CONSISTENT_Z`, per term) the tilt is 0.894 / 0.726 μm, main's 0.900 / 0.730, no seed worse."""
 
 CANDIDATE_FAMILIES = ()
 """Families measured beside the default set but not in it (round 6: ``gp_additive`` and ``basis``,
