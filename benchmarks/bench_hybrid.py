@@ -3,8 +3,8 @@
 Per seed and case (``none`` and the out-of-catalogue effects ``bump``, ``a_tilt``,
 ``squareness``, ``squareness_xz``, ``a_lobe_x`` of :mod:`errormap.simulator`; catalogue effects may be added with ``--cases``),
 the user's CLI path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) →
-``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on, its families GP and
-deep ensemble; the kept stage re-estimated on all checks after the choice) →
+``volcomp identify`` → ``volcomp diagnose`` (60/40 by seq; the learned stage on, its families
+:data:`compensation.hybrid.LEARNED_FAMILIES`; the kept stage re-estimated on all checks after the choice) →
 ``volcomp compensate VOLUME.csv --model DIR/model.json --method exact`` on 2,000 random volume
 points (1 mm inside the X and Z strokes) at the reference conditions, scored by the TRUE residual on the hidden truth (used only
 here). The same ``model.json`` without its ``learned_residual`` key is the parametric loop alone
@@ -110,9 +110,12 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
-CODE_ROUND = 6
-"""Rows measured by this code carry ``code_round`` 6 (the main table marks a case whose rows come from
-an earlier round's code); rows without it were measured by the round-3 code (learned families GP squared-exponential and ensemble) and are labelled so."""
+CODE_ROUND = 8
+"""Rows measured by this code carry ``code_round`` 8 (round 7: the default families add ``gp_additive``
+and ``basis``, and condition terms stay only when their coefficient beside the static learned field is
+above :data:`compensation.hybrid.TERM_KEEP_Z` standard errors; round 8: and within
+:data:`compensation.hybrid.TERM_CONSISTENT_Z` standard errors of 1; the main table marks a case whose rows
+come from an earlier round's code); rows without it were measured by the round-3 code (learned families GP squared-exponential and ensemble) and are labelled so."""
 
 N_GA = 50
 """Points of the volume also compensated with ``batched-ga`` on the hybrid (its model residual
@@ -220,7 +223,7 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
     from errormap.simulator import random_axes
     from errormap.truth_families import make_truth
     t_cpu = time.process_time()
-    eff = [] if effect == "none" else [effect]
+    eff = [] if effect == "none" else effect.split("+")   # "a_tilt+thermal": both effects in the truth
     m = load_machine()
     noise_ss, probe_ss = spawn_seeds(seed, 2)
     truth = make_truth(m, seed, effects=eff, family=family)
@@ -281,6 +284,10 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
                 "learned_inputs_cv": {k: {"family": v["family"], "cv_rms": v["cv_rms"]}
                                       for k, v in (lr.get("inputs_table") or {}).items()},
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
+                "condition_terms_test": {k: (lr.get("condition_terms_vs_static") or {}).get(k)
+                                         for k in ("term_coefficient", "term_coefficient_se", "term_z",
+                                                   "term_test_family", "term_z_from_one", "cv_gain_z", "per_term")}
+                if lr.get("condition_terms_vs_static") else None,
                 "learned_z": lr.get("held_out_gain_z"),
                 "learned_cv_rms_um": {k: v.get("cv_rms") for k, v in (lr.get("cv_table") or {}).items()}, "held_band95_cover": lr.get("held_out_band95_cover"),
                 "held_band95_cover_total": lr.get("held_out_band95_cover_total"),
@@ -333,6 +340,61 @@ def _load_previous():
     if RESULTS_JSON.is_file():
         return json.loads(RESULTS_JSON.read_text()).get("previous_rows", [])
     return []
+
+
+MAIN_NOTE = ("rows of main at 9489a52 (round-4/5 code: the learned families gp, ensemble, gp_matern52, gp_matern32; "
+             "condition terms replaced when the static field's blocked CV beats the with-terms variant's by more than "
+             "one paired standard error), same seeds, same simulated measurements; the judge of round 8")
+MAIN_CASES = ("none", "bump", "a_tilt", "a_lobe_x")
+
+
+def _load_main():
+    """main's rows kept in hybrid_results.json (``main_rows``) for the seed-for-seed table."""
+    if RESULTS_JSON.is_file():
+        return json.loads(RESULTS_JSON.read_text()).get("main_rows", [])
+    return []
+
+
+def _rms(r, key="hybrid"):
+    return (r or {}).get(key, {}).get("rms_um")
+
+
+def _against_main(rows, main_rows) -> list:
+    """Seed for seed: this code's TRUE RMS of the hybrid against main's (``main_rows``) on the same
+    machine, per family and case of :data:`MAIN_CASES`; per seed the replaced terms and this code's
+    condition-term coefficient ± se."""
+    if not main_rows:
+        return []
+    m = {(r["family"], r["seed"], r["effect"]): r for r in main_rows}
+    out = ["", "## Seed for seed against main", "",
+           f"Main: {MAIN_NOTE}. This code: round {CODE_ROUND}. TRUE RMS of the compensated volume (μm), the same seed's "
+           "machine and measurements; 'terms' = condition terms the learned field replaced (main / this code); γ̂ ± se "
+           "= this code's coefficient of the loop's condition terms beside the static learned field, z = γ̂/se, "
+           "z₁ = |γ̂ − 1|/se (terms stay when z > 3 and z₁ < 3). Refused seeds are left out.", "",
+           "| family | case | seeds | main mean | this mean | this − main mean | seeds worse by > 0.05 μm | "
+           "seeds better by > 0.05 μm | per seed: main → this (terms main/this; γ̂ ± se) |",
+           "|---|---|---|---|---|---|---|---|---|"]
+    for fam in ("default", "independent"):
+        for case in MAIN_CASES:
+            pairs = sorted(((r, m.get((fam, r["seed"], case))) for r in rows
+                            if r["family"] == fam and r["effect"] == case and r.get("code_round") == CODE_ROUND),
+                           key=lambda p: p[0]["seed"])
+            pairs = [(r, q) for r, q in pairs if _rms(r) is not None and _rms(q) is not None]
+            if not pairs:
+                continue
+            d = np.array([_rms(r) - _rms(q) for r, q in pairs])
+            cells = []
+            for r, q in pairs:
+                t = r.get("condition_terms_test") or {}
+                g = (f"; {t['term_coefficient']:.2f} ± {t['term_coefficient_se']:.2f}"
+                     if t.get("term_coefficient") is not None else "")
+                terms = ("" if not (q.get("replaced_terms") or r.get("replaced_terms") or g) else
+                         f" ({len(q.get('replaced_terms') or [])}/{len(r.get('replaced_terms') or [])}{g})")
+                cells.append(f"s{r['seed']} {_rms(q):.2f} → {_rms(r):.2f}{terms}")
+            out.append(f"| {fam} | {case} | {len(pairs)} | {np.mean([_rms(q) for _, q in pairs]):.3f} | "
+                       f"{np.mean([_rms(r) for r, _ in pairs]):.3f} | {d.mean():+.3f} | {int(np.sum(d > 0.05))} | "
+                       f"{int(np.sum(d < -0.05))} | {'; '.join(cells)} |")
+    return out
 
 
 def _before_after(rows, previous) -> list:
@@ -452,7 +514,7 @@ def _variants(rows) -> list:
             "`axes+work` = both) and families (`--learned-families`; `gp_sum` = a long- plus a short-length-scale ARD "
             "squared exponential; 'gp+ensemble' is the round-3 set), each beside the default set (what ships: axes, "
             "the four families gp, gp_matern52, gp_matern32, ensemble; the CV picks per machine) on the SAME seeds and "
-            "measurements. Validation = what the loop sees: the blocked-CV RMS of the chosen fit (μm; fitting checks, "
+            "measurements (rows of round 6; the round-7 default set is those six families). Validation = what the loop sees: the blocked-CV RMS of the chosen fit (μm; fitting checks, "
             "10 seq blocks; of the static variant when it replaced condition terms; 'zero' when declined) and the "
             "held-out MEASURED RMS; TRUE RMS = the compensated volume against the hidden truth (used by no choice).", "",
             "| family | case | variant | seeds | kept | chosen | CV RMS variant | CV RMS default | held-out MEASURED "
@@ -496,21 +558,25 @@ def _fmt(v, d=2):
     return "—" if v is None else f"{v:.{d}f}"
 
 
-def write_results(rows, argv, previous=None):
+def write_results(rows, argv, previous=None, main_rows=None):
     from errormap.io import atomic_write, write_json
     previous = _load_previous() if previous is None else previous
+    main_rows = _load_main() if main_rows is None else main_rows
     write_json(RESULTS_JSON, {"rows": rows, **({"previous_rows": previous, "previous_note": PREVIOUS_NOTE}
-                                               if previous else {})})
+                                               if previous else {}),
+                              **({"main_rows": main_rows, "main_note": MAIN_NOTE} if main_rows else {})})
     by = {}
     for r in rows:
         by.setdefault((r["family"], r["effect"]), []).append(r)
     none = {(r["family"], r["seed"]): r for r in rows if r["effect"] == "none"}
     lines = ["# Hybrid field: the learned residual stage of the closed loop (issue 28)", "",
              "User's CLI path per seed: sweeps (2 μm) → simulate (800 checks, 1 μm) → identify → diagnose "
-             "(learned stage on: GP with squared-exponential, Matérn 5/2 and Matérn 3/2 kernels and deep ensemble "
-             "on the axes (x, z, cos a, sin a), cross-validated on the same blocked folds; rows '[variant: families "
-             "…]' add the round-6 candidates `gp_additive` (additive GP) and `basis` (Legendre × Fourier basis "
-             "regression) to that set, the same machines and measurements; stages chosen on the "
+             "(learned stage on: GP with squared-exponential, Matérn 5/2 and Matérn 3/2 kernels, deep ensemble, "
+             "additive GP (`gp_additive`) and Legendre × Fourier basis regression (`basis`) on the axes (x, z, cos a, "
+             "sin a), cross-validated on the same blocked folds — the round-7 default set, measured by round-7 code; "
+             "rows of earlier rounds' code are labelled so (their default set was the first four; rows '[variant: "
+             "families …]' are round 6's measurement of the six); condition terms stay only when their coefficient "
+             "beside the static learned field is > 3 standard errors (round 7) and within 3 standard errors of 1 (round 8); stages chosen on the "
              "60/40 split, the kept stage then re-estimated on all checks) → compensate 2,000 random volume points (exact, reference conditions); "
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "
@@ -624,6 +690,7 @@ def write_results(rows, argv, previous=None):
     lines += _volcomp_benchmark()
     lines += _own_error(rows)
     lines += _variants(rows)
+    lines += _against_main(rows, main_rows)
     lines += _before_after(rows, previous)
     lines += ["", "Per-row figures are in `benchmarks/hybrid_results.json`.", ""]
     with atomic_write(RESULTS_MD, "w", encoding="utf-8") as fh:
@@ -637,7 +704,8 @@ def main(argv=None):
     ap.add_argument("--seed-start", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--family", default="default", choices=("default", "independent"))
-    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--cases", default=",".join(CASES),
+                    help="comma list of cases; a case may join effects with + (a_tilt+thermal: both in the truth)")
     ap.add_argument("--scale", type=float, default=1.0,
                     help="magnitude sweep: the out-of-catalogue effects' default amplitude times this (default family)")
     ap.add_argument("--checks", type=int, default=N_CHECKS, help="check measurements per machine")
@@ -654,6 +722,9 @@ def main(argv=None):
     ap.add_argument("--command", default="volcomp benchmark --no-track --out DIR")
     ap.add_argument("--note", default="")
     ap.add_argument("--report-only", action="store_true", help="rebuild the Markdown from hybrid_results.json")
+    ap.add_argument("--main-json", default=None, metavar="JSON",
+                    help="store main's rows of the cases in MAIN_CASES from this hybrid_results.json (main_rows) for the "
+                         "seed-for-seed table, and rebuild the Markdown")
     ap.add_argument("--dev", action="store_true",
                     help="development seeds: rows go to hybrid_dev_results.json/.md (the choices of candidates and "
                          "settings are made there, never on the results file's seeds)")
@@ -666,6 +737,10 @@ def main(argv=None):
         record_benchmark(args.record_benchmark, args.command, args.wall_s if args.wall_s is not None else float("nan"),
                          args.note)
         write_results(_load_rows(), argv)
+        return
+    if args.main_json is not None:
+        main_rows = [r for r in json.loads(Path(args.main_json).read_text())["rows"] if r["effect"] in MAIN_CASES]
+        write_results(_load_rows(), argv, main_rows=main_rows)
         return
     if args.report_only:
         write_results(_load_rows(), argv)

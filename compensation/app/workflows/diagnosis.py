@@ -221,16 +221,23 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     ship_cov = loop.covariance   # the elements (and their covariance) written as the kept stage's
     refit_cache = {}
 
-    def _refit(replaces: bool):
-        """The kept stage re-estimated on all checks (without its condition terms when ``replaces``)."""
-        if replaces not in refit_cache:
+    cond_terms = [t for t in loop.model.terms if t.needs]
+
+    def _refit(replaced: tuple):
+        """The kept stage re-estimated on all checks without the condition terms ``replaced`` (indices
+        into ``cond_terms``; True / False: all / none of them, as learned_stage passes it when it tested no
+        term on its own)."""
+        replaced = (tuple(range(len(cond_terms))) if replaced is True else () if replaced is False
+                    else tuple(replaced))
+        if replaced not in refit_cache:
             import dataclasses
             lp = loop
-            if replaces:
+            if replaced:
+                drop = {id(cond_terms[k]) for k in replaced}
                 lp = dataclasses.replace(loop, model=CorrectedField(machine, loop.model.base,
-                                                                   [t for t in loop.model.terms if not t.needs]))
-            refit_cache[replaces] = refit_on_all_checks(machine, cov, checks, lp)
-        return refit_cache[replaces]
+                                                                   [t for t in loop.model.terms if id(t) not in drop]))
+            refit_cache[replaced] = refit_on_all_checks(machine, cov, checks, lp)
+        return refit_cache[replaced]
 
     if learn:  # the learned residual on what the kept stage leaves (compensation.hybrid.learned_stage)
         from compensation.hybrid import learned_stage
@@ -238,20 +245,24 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
         n_fit = int(round(settings.fit_fraction * len(checks)))
         r_prev = checks.measured_um - loop.model.predict(checks.axes, **checks.conditions)
         static = [t for t in loop.model.terms if not t.needs]
-        r_static = None
-        if len(static) < len(loop.model.terms):  # condition terms: the learned field may replace them (learned_stage)
-            r_static = checks.measured_um - CorrectedField(machine, loop.model.base, static).predict(
-                checks.axes, **checks.conditions)
+        r_static, c_terms = None, None
+        if cond_terms:  # condition terms: the learned field may replace them, each on its own (learned_stage)
+            p_static = CorrectedField(machine, loop.model.base, static).predict(checks.axes, **checks.conditions)
+            r_static = checks.measured_um - p_static
+            c_terms = np.stack([CorrectedField(machine, loop.model.base, static + [t]).predict(
+                checks.axes, **checks.conditions) - p_static for t in cond_terms])
         refit_r = None
         if refit_all:
-            def refit_r(replaces):
-                return checks.measured_um - _refit(replaces)[0].predict(checks.axes, **checks.conditions)
+            def refit_r(replaced):
+                return checks.measured_um - _refit(replaced)[0].predict(checks.axes, **checks.conditions)
         learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, len(checks)),
                                        r_static_um=r_static, covariance=loop.covariance, refit_residual=refit_r,
-                                       refit_mode=refit_mode)
+                                       refit_mode=refit_mode, condition_terms_um=c_terms)
+        replaced_k = tuple(stage["learned"].get("replaced_condition_terms", ()))
         if learned is not None and stage["learned"]["replaces_condition_terms"]:
-            cond = [e for e in summary["effects"] if e.get("needs")]
-            summary["effects"] = [e for e in summary["effects"] if not e.get("needs")]
+            gone = {(cond_terms[k].kind, cond_terms[k].axis, cond_terms[k].element) for k in replaced_k}
+            cond = [e for e in summary["effects"] if e.get("needs") and (e["kind"], e["axis"], e.get("element")) in gone]
+            summary["effects"] = [e for e in summary["effects"] if e not in cond]
             summary["effects_replaced_by_learned"] = cond
             summary["effects_accepted"] = bool(summary["effects"])
         stage["base_stage"] = loop.kept_stage
@@ -265,7 +276,7 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
             summary["rms_final_um"] = stage["held_out"]["rms_um"]
             summary["max_final_um"] = stage["held_out"]["max_um"]
     if refit_all and loop.kept_stage != "identified":
-        replaced = bool(learned is not None and summary.get("effects_replaced_by_learned"))
+        replaced = replaced_k if (learned is not None and summary.get("effects_replaced_by_learned")) else ()
         model_refit, ship_cov = _refit(replaced)
         by_label = {(t.kind, t.axis, t.element): t for t in model_refit.terms}
         refit_effects = []
