@@ -5,10 +5,11 @@ it only gathers ``benchmarks/*_results.md`` in a fixed order under a common head
 """
 from __future__ import annotations
 
+import argparse
 import pathlib
 
 HERE = pathlib.Path(__file__).resolve().parent
-ORDER = ["demo", "suite", "benchmark", "foundation", "training", "solvers", "identification", "diagnosis", "sweeps_band", "sweeps_gauge", "hybrid", "surrogate", "chain", "grinder_chain", "mt_solve", "lathe", "lathe_solve", "gcode_words", "mt_train", "mt_loop", "drift_regime", "drift_dev", "arms", "pkm",
+ORDER = ["demo", "suite", "benchmark", "foundation", "training", "solvers", "identification", "diagnosis", "sweeps_band", "sweeps_gauge", "hybrid", "hybrid_chain", "hybrid_dev", "surrogate", "chain", "grinder_chain", "mt_solve", "lathe", "lathe_solve", "gcode_words", "mt_train", "mt_loop", "drift_regime", "drift_dev", "drift_dev_range", "drift_dev_gate", "drift_ties", "arms", "pkm",
          "pkm_path", "toolpath", "export", "export_drift", "cli_startup", "house",
          "scale_out", "scale_gcode", "solve_scale", "cluster"]
 # raw tables of a script whose section (named in ORDER) quotes them: not repeated in BENCHMARKS.md
@@ -24,6 +25,7 @@ side by side in one run. Regenerate a section by running its script, then
 
 
 def main() -> None:
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args()  # --help answers, writes nothing
     files = {p.name[: -len("_results.md")]: p for p in HERE.glob("*_results.md")}
     names = [n for n in ORDER if n in files] + sorted(set(files) - set(ORDER) - QUOTED)
     parts = [HEADER] + [files[n].read_text().strip() + "\n" for n in names]
