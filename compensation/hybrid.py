@@ -802,9 +802,12 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
         stage["learned"]["replaced_condition_terms"] = list(replaced_k)
     if alt is not None:
         stage["learned"]["condition_terms_vs_static"] = alt
-    if kept and replaces:
-        stage["learned"]["why"] = why + ("; it replaces the condition terms (a static field of the axes "
-                                         "cross-validates better than they do)")
+    if kept and replaces:   # why, in the rule's words (condition_terms_vs_static holds the coefficients)
+        which = ("the condition terms" if per_term is None else
+                 f"condition term(s) {', '.join(str(k) for k in replaced_k)} of {len(cts)} (0-based)")
+        stage["learned"]["why"] = why + (f"; it replaces {which}: their coefficient beside a static field of the axes "
+                                         f"is not above {TERM_KEEP_Z:g} standard errors or not within "
+                                         f"{TERM_CONSISTENT_Z:g} standard errors of 1, so they stood in for a static error")
     if not kept:
         return None, stage
     if refit_residual is not None:

@@ -187,6 +187,8 @@ def _learned(s) -> dict | None:
            "cover_what": ("the hybrid's total band: learned ⊕ elements ⊕ measurement noise"
                           if lr.get("held_out_band95_cover_total") is not None else "learned band ⊕ measurement noise"),
            "replaced": ", ".join(f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])),
+           # the rule that replaced them, as the run recorded it (it changed between rounds: diagnosis.json says which)
+           "replaced_rule": (lr.get("condition_terms_vs_static") or {}).get("rule"),
            "table": Table(["family", "CV RMS (μm)", "its SE (μm)", "mean gain over zero (μm²)", "its SE (μm²)",
                            "95 % band coverage"], rows), "figure": None}
     m = lr.get("map")
