@@ -362,3 +362,27 @@ def test_report_section_states_the_rule_that_replaced_the_condition_terms():
     text = " ".join(html.split())
     assert "replaces the condition terms</b> thermal Y: " + rule in text
     assert "cross-validates better" not in text
+
+
+def test_learned_map_caption_names_the_rotary_angles_it_was_evaluated_at():
+    """five-axis-ac's A turns only over [-120, 30]°: the map's A positions 0, 90, 180, 270 are clipped to
+    0, 30, 30, 30 (C, a full turn, keeps them); the map records that and its caption says so, instead of
+    'averaged over A/C = 0, 90, 180, 270°' (what was asked, not what was evaluated)."""
+    from compensation.app.reports.diagnosis import learned_map_figure
+    from compensation.hybrid import learned_map, linear_columns
+    m = load_machine("five-axis-ac")
+    seen = []
+
+    class Stub:   # the map needs the learned part's axes, linear axes and predict only
+        axes = tuple(m.axis_columns)
+        linear = linear_columns(axes)
+
+        def predict(self, P, return_std=False):
+            seen.append(P[0].copy())
+            return np.ones((len(P), 3)), np.ones((len(P), 3))
+
+    mp = learned_map(Stub(), m)
+    assert mp["rotary_deg"] == {"a_deg": [0.0, 30.0, 30.0, 30.0], "c_deg": [0.0, 90.0, 180.0, 270.0]}
+    a, c = m.axis_columns.index("a_deg"), m.axis_columns.index("c_deg")
+    assert [p[a] for p in seen] == [0.0, 30.0, 30.0, 30.0] and [p[c] for p in seen] == [0.0, 90.0, 180.0, 270.0]
+    assert "averaged over A = 0, 30, 30, 30°; C = 0, 90, 180, 270°" in str(learned_map_figure(mp))
