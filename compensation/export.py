@@ -678,6 +678,17 @@ DRIFT_PSEUDO_CODE = (
 )
 
 
+def _base_gains(c, keys) -> list:
+    """A channel's OLS baseline (``ChannelFit.base``) in the coefficient file's rows: one gain per feature ``keys``
+    (the model's features, in order) and the offset last."""
+    bf, ba, bc = c.base
+    g = np.zeros(len(keys) + 1)
+    for f, b in zip(bf, bc):
+        g[keys.index(f.key)] += float(b)
+    g[-1] = float(ba)
+    return g.tolist()
+
+
 def drift_distance_rule(model, coef: DriftCoefficients) -> dict | None:
     """The per-sample shrinkage toward the baseline, in the coefficient file's rows: {"inputs", "mean", "whiten",
     "range_distance", "rule", "channels": {ch: {"scale", "base_gains" (m,), "band95_um", "band_gamma"}}}, or None when no
@@ -686,16 +697,10 @@ def drift_distance_rule(model, coef: DriftCoefficients) -> dict | None:
     chans = {ch: c for ch, c in model.channels.items() if c.base is not None and np.isfinite(c.shrink_scale)}
     if not chans or not nov.get("range_distance"):
         return None
-    feats = model.features
-    keys = [f.key for f in feats]
+    keys = [f.key for f in model.features]
     out = {}
     for ch, c in chans.items():
-        bf, ba, bc = c.base
-        g = np.zeros(len(feats) + 1)
-        for f, b in zip(bf, bc):
-            g[keys.index(f.key)] += float(b)
-        g[-1] = float(ba)
-        out[ch] = {"scale": float(c.shrink_scale), "base_gains": g.tolist(), "band95_um": float(c.band95_um),
+        out[ch] = {"scale": float(c.shrink_scale), "base_gains": _base_gains(c, keys), "band95_um": float(c.band95_um),
                    "band_gamma": float(c.band_gamma)}
         if c.novelty:       # the distance on the channel's own filtered features (rows of the coefficient file)
             nv = c.novelty
@@ -724,14 +729,8 @@ def drift_disagreement_rule(model, coef: DriftCoefficients) -> dict | None:
     if not chans:
         return None
     keys = [f.key for f in model.features]
-    out = {}
-    for ch, c in chans.items():
-        bf, ba, bc = c.base
-        g = np.zeros(len(keys) + 1)
-        for f, b in zip(bf, bc):
-            g[keys.index(f.key)] += float(b)
-        g[-1] = float(ba)
-        out[ch] = {"lo_um": float(c.disagreement_um[0]), "hi_um": float(c.disagreement_um[1]), "base_gains": g.tolist()}
+    out = {ch: {"lo_um": float(c.disagreement_um[0]), "hi_um": float(c.disagreement_um[1]),
+                "base_gains": _base_gains(c, keys)} for ch, c in chans.items()}
     return {"rule": "pred = base + min(max(p - base, lo_um), hi_um); p: the prediction after distance_shrink where the "
                     "channel has it, else gains . f; base = base_gains . f (same rows as the coefficient file)",
             "channels": out}

@@ -530,7 +530,8 @@ def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.
     positions ``a_deg`` (every rotary axis at the same angle, clipped to its stroke when that is less
     than a turn; a machine without a rotary axis: one evaluation), any further linear axis at the
     middle of its stroke: {<first linear column> (MAP_N,), <second> (MAP_N,) — ``x_mm``, ``z_mm`` on
-    the grinder —, ``<rotary columns>_averaged``, norm_um (MAP_N, MAP_N) [second, first],
+    the grinder —, ``<rotary columns>_averaged`` (``a_deg``), ``rotary_deg`` {rotary column: the angles it
+    was evaluated at, after the clipping}, norm_um (MAP_N, MAP_N) [second, first],
     band95_um (MAP_N, MAP_N)} and, with the elements' ``covariance``, ``band95_total_um`` (the
     hybrid's total band, :func:`total_band_std`, vector norm). None on a machine with fewer than two
     linear axes (no plane to map)."""
@@ -546,6 +547,7 @@ def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.
     band = np.zeros_like(X)
     total = np.zeros_like(X)
     angles = tuple(a_deg) if rot else (None,)
+    evaluated = {cols[j]: [] for j in rot}   # the angle each rotary axis was at (clipped to a short stroke)
     for a in angles:
         columns = []
         for j, c in enumerate(cols):
@@ -555,7 +557,9 @@ def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.
                 columns.append(Z.ravel())
             elif j in rot:
                 lo_j, hi_j = machine.strokes[c]
-                columns.append(np.full(X.size, a if hi_j - lo_j >= 360.0 else float(np.clip(a, lo_j, hi_j))))
+                v = float(a) if hi_j - lo_j >= 360.0 else float(np.clip(a, lo_j, hi_j))
+                evaluated[c].append(v)
+                columns.append(np.full(X.size, v))
             else:
                 columns.append(np.full(X.size, 0.5 * (machine.strokes[c][0] + machine.strokes[c][1])))
         P = np.stack(columns, axis=1)
@@ -567,6 +571,7 @@ def learned_map(learned: LearnedResidual, machine, a_deg=(0.0, 90.0, 180.0, 270.
     out = {c1: xs.tolist(), c2: zs.tolist()}
     if rot:
         out["+".join(cols[j] for j in rot) + "_averaged"] = list(a_deg)
+        out["rotary_deg"] = evaluated   # per rotary axis the angles actually averaged over (the figure's caption)
     out.update({"norm_um": norm.tolist(), "band95_um": band.tolist()})
     if covariance is not None:
         out["band95_total_um"] = total.tolist()
@@ -802,9 +807,12 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
         stage["learned"]["replaced_condition_terms"] = list(replaced_k)
     if alt is not None:
         stage["learned"]["condition_terms_vs_static"] = alt
-    if kept and replaces:
-        stage["learned"]["why"] = why + ("; it replaces the condition terms (a static field of the axes "
-                                         "cross-validates better than they do)")
+    if kept and replaces:   # why, in the rule's words (condition_terms_vs_static holds the coefficients)
+        which = ("the condition terms" if per_term is None else
+                 f"condition term(s) {', '.join(str(k) for k in replaced_k)} of {len(cts)} (0-based)")
+        stage["learned"]["why"] = why + (f"; it replaces {which}: their coefficient beside a static field of the axes "
+                                         f"is not above {TERM_KEEP_Z:g} standard errors or not within "
+                                         f"{TERM_CONSISTENT_Z:g} standard errors of 1, so they stood in for a static error")
     if not kept:
         return None, stage
     if refit_residual is not None:

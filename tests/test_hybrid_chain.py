@@ -247,3 +247,142 @@ def test_chain_loop_declines_the_learned_stage_without_an_effect(tmp_path):
     assert not s["learned_residual"]["kept"] and s["kept_stage"] != "learned_residual"
     assert "learned_residual" not in model and "base_stage" not in s
     assert isinstance(load_chain_model_file(d / "model.json", m), ChainModelField)   # the loop's model as before
+
+
+# -- condition terms on a chain: tested one by one (the grinder's per-term γ̂ rule) -------------------------
+CHAIN_THERMAL_UM_PER_MM_C = 0.004
+"""A real thermal growth of X on the mill (μm per mm per °C on dx_x: ~10 μm at the end of the 600 mm stroke at
++4 °C), the catalogue's thermal effect of the chain loop: its term must stay beside the learned field."""
+CHAIN_SLOPE_UM_PER_MM = 0.01
+"""A static scale error of Y's positioning (dy growing 0.01 μm per mm: 4 μm at the end of the 400 mm stroke, ~2.3 μm
+RMS, above the 1 μm check noise) left in the residual, which a stand-in thermal term of Y imitates on warming checks
+(the machine at +2.7 °C on average): the learned field must replace that term, not the real one of X."""
+
+
+def _warming_checks(m, n, seed):
+    """n checks of the mill in time order, the machine warming as the simulator's (20 + 4·(1 − e^(−t/2400 s)),
+    15 s apart), and the chain's two thermal terms' unit columns (X on dx_x, Y on dy_y) at them."""
+    from errormap.diagnosis.mt_loop import MTChecks, effect_columns
+    rng = np.random.default_rng(seed)
+    axes = m.stroke_lo + (m.stroke_hi - m.stroke_lo) * rng.random((n, len(m.axes)))
+    temp = 20.0 + 4.0 * (1.0 - np.exp(-np.arange(n) * 15.0 / 2400.0))
+    cols = [effect_columns(m, "thermal", (w,), axes, {"temp_c": temp})[0][:, :, 0] for w in ("X", "Y")]
+    return axes, temp, cols, MTChecks
+
+
+def _thermal_term(word, coef):
+    from errormap.diagnosis.mt_loop import EffectTerm
+    return EffectTerm("thermal", (word,), f"d{word.lower()}_{word.lower()}", {}, np.array([float(coef)]))
+
+
+def test_chain_learned_stage_hands_each_condition_term_to_the_rule_and_keeps_the_others(monkeypatch):
+    """chain_learned_stage gives learned_stage each condition term's own contribution (they add up to the
+    residual without them minus the one with them), and the hybrid keeps every term but the replaced ones
+    (here the second condition term: a static term and the first condition term stay)."""
+    import compensation.hybrid as hybrid
+    from compensation.app.workflows.mt_loop import chain_learned_stage
+    from errormap.diagnosis.mt_loop import EffectTerm
+    m = load_machine(MACHINE)
+    n = 60
+    axes, temp, (cx, cy), MTChecks = _warming_checks(m, n, SEED)
+    checks = MTChecks(axes, np.random.default_rng(1).standard_normal((n, 3)), {"temp_c": temp})
+    static = EffectTerm("interaction", ("X", "Y"), "dx_x", {}, np.array([2.0]))
+    terms = [static, _thermal_term("X", 0.004), _thermal_term("Y", -0.002)]
+    seen = {}
+
+    def fake(machine, r_prev, ax, fit_idx, hold_idx, **kw):
+        seen.update(kw, r_prev=r_prev)
+        if kw["condition_terms_um"] is None:   # nothing the learned field could replace
+            return object(), {"learned": {"replaces_condition_terms": False}}
+        return object(), {"learned": {"replaces_condition_terms": True, "replaced_condition_terms": [1]}}
+
+    monkeypatch.setattr(hybrid, "learned_stage", fake)
+    learned, stage, kept = chain_learned_stage(m, checks, ChainElementSet.zeros(m), terms, {"n_fit": 36})
+    c = np.asarray(seen["condition_terms_um"])
+    assert c.shape == (2, n, 3)
+    np.testing.assert_allclose(c[0], 0.004 * cx, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(c[1], -0.002 * cy, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(seen["r_static_um"] - seen["r_prev"], c.sum(axis=0), rtol=0, atol=1e-9)
+    assert kept == [static, terms[1]]
+    # no condition term: nothing to replace, no per-term contributions
+    seen.clear()
+    chain_learned_stage(m, checks, ChainElementSet.zeros(m), [static], {"n_fit": 36})
+    assert seen["condition_terms_um"] is None and seen["r_static_um"] is None
+
+
+@pytest.mark.slow
+def test_chain_real_thermal_term_stays_beside_a_replaced_stand_in():
+    """The grinder's per-term case on the mill: the loop accepted a real thermal term of X and a stand-in thermal
+    term of Y (fitted on warming checks to a static scale error of Y). Tested together their coefficient is a mix
+    (measured 0.52 ± 0.04, 12 se from 1: the joint rule replaced both, the real one too); per term the real one
+    stays (1.02 ± 0.06: z > TERM_KEEP_Z, within TERM_CONSISTENT_Z of 1) and the stand-in is replaced
+    (0.01 ± 0.06), so the shipped hybrid keeps the real term."""
+    from compensation.app.workflows.mt_loop import chain_learned_stage
+    from compensation.hybrid import TERM_CONSISTENT_Z, TERM_KEEP_Z
+    m = load_machine(MACHINE)
+    n, n_fit = 800, 480
+    axes, temp, (cx, cy), MTChecks = _warming_checks(m, n, SEED + 2)
+    j = m.axis_columns.index("y_mm")
+    scale = np.zeros((n, 3))
+    scale[:, 1] = CHAIN_SLOPE_UM_PER_MM * (axes[:, j] - m.stroke_lo[j])
+    real = CHAIN_THERMAL_UM_PER_MM_C * cx
+    meas = real + scale + np.random.default_rng(SEED + 3).standard_normal((n, 3))
+    beta = np.sum(cy[:n_fit] * scale[:n_fit]) / np.sum(cy[:n_fit] ** 2)   # the stand-in, fitted as the search would
+    terms = [_thermal_term("X", CHAIN_THERMAL_UM_PER_MM_C), _thermal_term("Y", beta)]
+    learned, stage, kept = chain_learned_stage(m, MTChecks(axes, meas, {"temp_c": temp}), ChainElementSet.zeros(m),
+                                               terms, {"n_fit": n_fit}, seed=SEED, families=("gp",))
+    alt = stage["learned"]["condition_terms_vs_static"]
+    assert alt["term_z_from_one"] >= TERM_CONSISTENT_Z     # the joint coefficient alone would replace both terms
+    t_real, t_stand = alt["per_term"]
+    assert t_real["z"] > TERM_KEEP_Z and t_real["z_from_one"] < TERM_CONSISTENT_Z and not t_real["replaced"]
+    assert t_stand["replaced"] and not t_stand["z"] > TERM_KEEP_Z
+    assert learned is not None and stage["learned"]["replaced_condition_terms"] == [1]
+    assert kept == [terms[0]]
+    # the stage's why gives the rule that decided (not the blocked-CV comparison of earlier rounds)
+    assert "it replaces condition term(s) 1 of 2" in stage["learned"]["why"]
+    assert "cross-validates better" not in stage["learned"]["why"]
+
+
+def test_report_section_states_the_rule_that_replaced_the_condition_terms():
+    """The learned-residual section (one template for the grinder's page and a chain's) names the replaced terms
+    with the rule the run recorded (diagnosis.json ``condition_terms_vs_static.rule``: the γ̂ rule since round 7),
+    not the blocked-CV comparison of earlier rounds."""
+    from compensation.app.reports.diagnosis import _learned
+    from compensation.app.reports.toolkit import environment
+    from compensation.hybrid import TERM_CONSISTENT_Z, TERM_KEEP_Z
+    rule = (f"the condition terms stay only when their coefficient ... is positive by more than {TERM_KEEP_Z} standard "
+            f"errors and within {TERM_CONSISTENT_Z} standard errors of 1")
+    lr = {"family": "gp", "family_name": "Gaussian process", "families_compared": ["gp"], "selection_rule": "lowest",
+          "kept": True, "why": "kept: z 5", "inputs": ["x_mm", "y_mm", "z_mm"], "cv": "blocked", "held_out_gain_z": 5.0,
+          "held_out_band95_cover": 0.95, "cv_table": {}, "condition_terms_vs_static": {"rule": rule}}
+    s = {"learned_residual": lr, "effects_replaced_by_learned": [{"kind": "thermal", "axis": "Y"}]}
+    for page in ("mt_diagnose.html", "diagnose.html"):
+        assert '{% include "_learned.html" %}' in environment().loader.get_source(environment(), page)[0]
+    html = environment().get_template("_learned.html").render(learned=_learned(s))
+    text = " ".join(html.split())
+    assert "replaces the condition terms</b> thermal Y: " + rule in text
+    assert "cross-validates better" not in text
+
+
+def test_learned_map_caption_names_the_rotary_angles_it_was_evaluated_at():
+    """five-axis-ac's A turns only over [-120, 30]°: the map's A positions 0, 90, 180, 270 are clipped to
+    0, 30, 30, 30 (C, a full turn, keeps them); the map records that and its caption says so, instead of
+    'averaged over A/C = 0, 90, 180, 270°' (what was asked, not what was evaluated)."""
+    from compensation.app.reports.diagnosis import learned_map_figure
+    from compensation.hybrid import learned_map, linear_columns
+    m = load_machine("five-axis-ac")
+    seen = []
+
+    class Stub:   # the map needs the learned part's axes, linear axes and predict only
+        axes = tuple(m.axis_columns)
+        linear = linear_columns(axes)
+
+        def predict(self, P, return_std=False):
+            seen.append(P[0].copy())
+            return np.ones((len(P), 3)), np.ones((len(P), 3))
+
+    mp = learned_map(Stub(), m)
+    assert mp["rotary_deg"] == {"a_deg": [0.0, 30.0, 30.0, 30.0], "c_deg": [0.0, 90.0, 180.0, 270.0]}
+    a, c = m.axis_columns.index("a_deg"), m.axis_columns.index("c_deg")
+    assert [p[a] for p in seen] == [0.0, 30.0, 30.0, 30.0] and [p[c] for p in seen] == [0.0, 90.0, 180.0, 270.0]
+    assert "averaged over A = 0, 30, 30, 30°; C = 0, 90, 180, 270°" in str(learned_map_figure(mp))

@@ -187,6 +187,8 @@ def _learned(s) -> dict | None:
            "cover_what": ("the hybrid's total band: learned ⊕ elements ⊕ measurement noise"
                           if lr.get("held_out_band95_cover_total") is not None else "learned band ⊕ measurement noise"),
            "replaced": ", ".join(f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])),
+           # the rule that replaced them, as the run recorded it (it changed between rounds: diagnosis.json says which)
+           "replaced_rule": (lr.get("condition_terms_vs_static") or {}).get("rule"),
            "table": Table(["family", "CV RMS (μm)", "its SE (μm)", "mean gain over zero (μm²)", "its SE (μm²)",
                            "95 % band coverage"], rows), "figure": None}
     m = lr.get("map")
@@ -221,7 +223,11 @@ def learned_map_figure(m: dict) -> Figure:
         ax.set_title(title, fontsize=9)
         fig.colorbar(im, ax=ax)
     fig.tight_layout()
-    if rot is not None:
+    if rot is not None and isinstance(m.get("rotary_deg"), dict) and m["rotary_deg"]:
+        # the angles each rotary axis was at (a short stroke clips them: five-axis-ac's A [-120, 30])
+        over = "averaged over " + "; ".join(f"{c.rsplit('_', 1)[0].upper()} = {', '.join(f'{a:g}' for a in v)}°"
+                                            for c, v in m["rotary_deg"].items())
+    elif rot is not None:   # a map written before rotary_deg: the positions asked for
         names = "/".join(c.rsplit("_", 1)[0].upper() for c in rot[:-len("_averaged")].split("+"))
         over = f"averaged over {names} = {', '.join(f'{a:g}' for a in m[rot])}°"
     else:

@@ -211,26 +211,36 @@ def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0
     conditions) leaves at the fitting checks, kept only if it lowers the held-out squared residual, paired per
     point, by more than :data:`compensation.hybrid.KEEP_Z` standard errors over the loop's kept stage. When the
     kept model has condition terms (thermal, reversal), the learned field of the axes may replace them
-    (``r_static_um``: the same model without them). The chain's element update carries no posterior covariance
-    here, so the band is the learned part's (⊕ the fitted noise on the held-out checks).
+    (``r_static_um``: the same model without them), each term tested on its own as on the grinder
+    (``condition_terms_um``: each condition term's contribution at the checks; the per-term γ̂ rule of
+    :data:`compensation.hybrid.TERM_CONSISTENT_Z`): a real term stays beside a replaced stand-in. The chain's
+    element update carries no posterior covariance here, so the band is the learned part's (⊕ the fitted noise
+    on the held-out checks).
     → ``(learned or None, stage, static terms)``: ``static terms`` the terms the hybrid keeps (all of
-    ``terms``, or those without conditions when the learned field replaced the others)."""
+    ``terms``, or all but the condition terms the learned field replaced)."""
     from compensation.hybrid import learned_stage
     from errormap.diagnosis.mt_model import ChainModelField, term_needs
     n, n_fit = len(checks), int(summary["n_fit"])
 
-    def residual(ts):
+    def prediction(ts):
         f = ChainModelField(machine, elements, ts)
         f = f.with_conditions({c: checks.conditions[c] for c in f.needs})
-        return checks.measured_um - f.predict(checks.axes)
+        return f.predict(checks.axes)
 
-    r_prev = residual(terms)
+    r_prev = checks.measured_um - prediction(terms)
     static = [t for t in terms if not term_needs(machine, t)]
-    r_static = residual(static) if len(static) < len(terms) else None
+    cond = [t for t in terms if term_needs(machine, t)]
+    r_static, c_terms = None, None
+    if cond:   # each condition term's own contribution (the terms' columns add up: ChainModelField)
+        p_static = prediction(static)
+        r_static = checks.measured_um - p_static
+        c_terms = np.stack([prediction(static + [t]) - p_static for t in cond])
     learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, n), seed=seed,
-                                   families=families, r_static_um=r_static)
-    replaced = learned is not None and stage["learned"]["replaces_condition_terms"]
-    return learned, stage, (static if replaced else list(terms))
+                                   families=families, r_static_um=r_static, condition_terms_um=c_terms)
+    if learned is None or not stage["learned"]["replaces_condition_terms"]:
+        return learned, stage, list(terms)
+    gone = {id(cond[k]) for k in stage["learned"]["replaced_condition_terms"]}
+    return learned, stage, [t for t in terms if id(t) not in gone]
 
 
 def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=None, effects=True,
@@ -260,9 +270,9 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
         summary["learned_residual"] = stage["learned"]
         if learned is not None:
             if stage["learned"]["replaces_condition_terms"]:
-                kept_terms = {(t.kind, "*".join(t.axes)) for t in terms}   # the static ones the hybrid keeps
+                kept_terms = {(t.kind, "*".join(t.axes), t.element) for t in terms}   # the terms the hybrid keeps
                 summary["effects_replaced_by_learned"] = [e for e in summary["effects"]
-                                                          if (e["kind"], e["axis"]) not in kept_terms]
+                                                          if (e["kind"], e["axis"], e["element"]) not in kept_terms]
                 summary["effects"] = [e for e in summary["effects"] if e not in summary["effects_replaced_by_learned"]]
             summary["base_stage"] = summary["kept_stage"]
             summary["held_out_rms_base_um"] = summary["held_out_rms_um"]
