@@ -126,6 +126,10 @@ def test_predict_refuses_outside_the_calibrated_volume(tmp_path, capsys):
     assert "row 3" in err and "x_mm" in err and "μm rather than mm" in err and "--allow extrapolate" in err
     assert not (tmp_path / "p.csv").exists()
     assert main(argv + ["--allow", "extrapolate"]) == 0
+    head = [ln for ln in (tmp_path / "p.csv").read_text().splitlines() if ln.startswith("#")]
+    # the override is recorded in the output itself: which points it let through and by which option
+    assert any("allowed: volume (1 of 2 points outside the calibrated volume, --allow extrapolate)" in ln
+               for ln in head), head
 
 
 @pytest.mark.parametrize("column, scale, named", [("x_mm", 1e-3, "metres rather than mm"),

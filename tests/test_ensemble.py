@@ -106,6 +106,7 @@ def test_ensemble_state_with_wrong_shapes_is_refused(ens):
         ResidualRegressor.from_dict(doc)
 
 
+@pytest.mark.slow   # 9.4 CPU s (README: a test over 5 CPU s is in the slow tier)
 def test_refit_reestimates_the_chosen_family_on_all_data(data):
     X, Y, Xt = data
     n_fit = int(0.6 * N)

@@ -362,6 +362,10 @@ def test_report_section_states_the_rule_that_replaced_the_condition_terms():
     text = " ".join(html.split())
     assert "replaces the condition terms</b> thermal Y: " + rule in text
     assert "cross-validates better" not in text
+    assert "<b>Kept</b> — z 5." in text               # the verdict once, not "Kept — kept: …"
+    lr.update(kept=False, why="declined: no family beat predicting zero")
+    text = " ".join(environment().get_template("_learned.html").render(learned=_learned(s)).split())
+    assert "<b>Declined</b> — no family beat predicting zero." in text
 
 
 def test_learned_map_caption_names_the_rotary_angles_it_was_evaluated_at():

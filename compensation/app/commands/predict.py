@@ -216,7 +216,7 @@ def run(args) -> int:
         import json
         doc = json.loads(src.path.read_text(encoding="utf-8"))
         meta += [f"stage: {doc.get('kept_stage')} on {doc.get('base_stage')}"] + _learned_part(cols, field.learned, axes)
-    if n_out and machine.kind == "machine-tool":   # the override recorded (the grinder's own paths: as before)
+    if n_out:   # the override recorded in the output itself, on every machine
         meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
                     f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
     if args.band and machine.kind == "machine-tool":
