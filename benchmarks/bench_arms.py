@@ -56,7 +56,7 @@ REPEAT_INNER = 4  # the repeated-inner-CV rule: this many further random inner s
 LOOP_SEEDS = 2  # learned stage + compensation on this many simulated arms (a GP on 400 poses each)
 Z95 = 1.959963984540054
 ROW_ORDER = ["nominal", "nominal + base/tool", "plain geometric LSQ", "geometric (DH)", "geometric+compliance",
-             "geometric+compliance+harmonic", "geometric stage chosen by inner CV", "plain GP on plain LSQ residual",
+             "geometric+compliance+harmonic", "geometric+compliance+table", "geometric stage chosen by inner CV", "plain GP on plain LSQ residual",
              "learned (GP on the chosen geometric stage)", "stacked (the command's candidate)", "volcomp kept stage"]
 STACKED_ROW = "stacked (the command's candidate)"
 
@@ -114,6 +114,8 @@ def run_arm(name, folds, k_folds_inner, log, blocked=False, on_fold=None, varian
                 "geometric (DH)": err(fits["dh"].predict(check.q)),
                 "geometric+compliance": err(fits["dh+compliance"].predict(check.q)),
                 "geometric+compliance+harmonic": err(fits["dh+compliance+harmonic"].predict(check.q)),
+                **({"geometric+compliance+table": err(fits["dh+compliance+table"].predict(check.q))}
+                   if "dh+compliance+table" in fits else {}),
                 "geometric stage chosen by inner CV": err(geo.predict(check.q)),
                 "plain GP on plain LSQ residual": err(pl.predict(check.q) + core["plain_gp"].predict(check.q)),
                 "learned (GP on the chosen geometric stage)": learned,

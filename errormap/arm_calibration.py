@@ -30,9 +30,24 @@ GENERIC_POSES = 400       # random poses within the limits that define the chain
 GENERIC_LIMIT_DEG = 170.0  # random revolute poses stay within ±this (a full turn adds nothing)
 
 
-MODELS = ("dh", "dh+compliance", "dh+compliance+harmonic")
-"""Slot sets of the geometric stage: link errors + base + tool; + joint compliance under gravity;
-+ first-harmonic joint errors (encoder / gear eccentricity)."""
+TABLE_MODEL = "dh+compliance+table"
+"""A slot set (the last of :data:`MODELS`, ``docs/arms.md``): link errors +
+base + tool + joint compliance + a JOINT-ERROR TABLE per joint, Δθ_i(q_i) linear between knots every
+:data:`TABLE_STEP_DEG` (:class:`ExtendedChain` ``table``) — the non-parametric form of the first-harmonic slots (a
+gear's or encoder's cyclic error over a few degrees, which one sine per turn cannot follow)."""
+TABLE_STEP_DEG = 5.0
+"""Knot spacing of the joint-error table, deg (knots at multiples of it)."""
+TABLE_SPAN_DEG = 180.0
+"""Table knots lie within ±this of the joint zero (and inside the joint's limits): beyond, the table is zero."""
+TABLE_MIN_SUPPORT = 10.0
+"""A table knot is identified only where the fit poses give it at least this much support (Σ over poses of its hat
+function, in poses): a knot seen by one or two poses at the edge of the data would fit them and swing freely."""
+MODELS = ("dh", "dh+compliance", "dh+compliance+harmonic", TABLE_MODEL)
+"""Slot sets of the geometric stage, chosen by CV inside the fit poses: link errors + base + tool; + joint compliance
+under gravity; + first-harmonic joint errors (encoder / gear eccentricity); the joint-error table instead of the
+harmonics (:data:`TABLE_MODEL`)."""
+ALL_MODELS = MODELS
+"""Every slot set :func:`extended_chain` builds (a ``calibration.json`` may hold any of them)."""
 CV_FOLDS = 5               # k-fold CV inside the fit set that chooses the slot set
 TIE_REL = 1e-3             # a richer slot set must lower the CV mean error by more than this (relative)
 GRAVITY_M_PER_MM = 1e-3    # gravity moments in m (per unit mass): compliance slots in rad per m
@@ -49,10 +64,13 @@ def _scaled(J2d):
     return np.where(zero, 0.0, J2d / s), s
 
 
-def identifiable_slots(chain, q, errors=None) -> tuple[np.ndarray, list[dict], np.ndarray]:
-    """(free mask (n_params,), null combinations, scaled singular values) from the Jacobian at ``q``."""
+def identifiable_slots(chain, q, errors=None, exclude=None) -> tuple[np.ndarray, list[dict], np.ndarray]:
+    """(free mask (n_params,), null combinations, scaled singular values) from the Jacobian at ``q``; ``exclude``
+    (n_params,) bool: slots held at nominal whatever the data (their columns count as zero)."""
     from scipy.linalg import qr
     J = chain.error_jacobian(q, errors).reshape(-1, chain.n_params)
+    if exclude is not None:
+        J = np.where(np.asarray(exclude, bool)[None, :], 0.0, J)
     Js, _ = _scaled(J)
     _, R, piv = qr(Js, mode="economic", pivoting=True)
     d = np.abs(np.diag(R))
@@ -342,10 +360,11 @@ class ExtendedChain:
     ``J(q + Δθ) · (I + ∂Δθ/∂q)`` (∂τ/∂q by :func:`errormap.arm_simulate.gravity_moment_jacobian_mm`).
     """
 
-    def __init__(self, chain, compliance: bool = True, harmonic: bool = False):
+    def __init__(self, chain, compliance: bool = True, harmonic: bool = False, table: bool = False):
         self.chain = chain
-        self.compliance, self.harmonic = bool(compliance), bool(harmonic)
-        self.model = "dh" + ("+compliance" if compliance else "") + ("+harmonic" if harmonic else "")
+        self.compliance, self.harmonic, self.table = bool(compliance), bool(harmonic), bool(table)
+        self.model = ("dh" + ("+compliance" if compliance else "") + ("+harmonic" if harmonic else "")
+                      + ("+table" if table else ""))
         rng = np.random.default_rng(0)
         qg = rng.uniform(np.maximum(chain.joint_lo, -GENERIC_LIMIT_DEG), np.minimum(chain.joint_hi, GENERIC_LIMIT_DEG),
                          (GENERIC_POSES, chain.n_joints))
@@ -359,7 +378,20 @@ class ExtendedChain:
             for j in rev:
                 b = cols[j].rsplit('_', 1)[0]
                 terms += [(f"harmonic.{b}.sin_rad", j, "s"), (f"harmonic.{b}.cos_rad", j, "k")]
+        knots = []   # (n_table,) knot of each table term, deg
+        if table:
+            for j in rev:
+                b = cols[j].rsplit('_', 1)[0]
+                lo = max(chain.joint_lo[j], -TABLE_SPAN_DEG)
+                hi = min(chain.joint_hi[j], TABLE_SPAN_DEG)
+                for kn in np.arange(np.ceil(lo / TABLE_STEP_DEG), np.floor(hi / TABLE_STEP_DEG) + 1) * TABLE_STEP_DEG:
+                    terms.append((f"table.{b}.at_{kn:+g}deg_rad", j, "t"))
+                    knots.append(float(kn))
         self.terms = terms
+        self._table_idx = np.array([k for k, t in enumerate(terms) if t[2] == "t"], int)
+        self._table_joint = np.array([terms[k][1] for k in self._table_idx], int)
+        self._table_knot_deg = np.array(knots, float)
+        self._term_joint = np.array([t[1] for t in terms], int)   # (n_extra,) the joint each slot turns
         self.param_names = tuple(chain.param_names) + tuple(t[0] for t in terms)
         self.n_geo = chain.n_params
 
@@ -385,7 +417,12 @@ class ExtendedChain:
         out = np.zeros((len(q), len(self.terms)))
         tau = gravity_moment_mm(self.chain, q) * GRAVITY_M_PER_MM if self.compliance else None
         for k, (_, j, kind) in enumerate(self.terms):
+            if kind == "t":
+                continue
             out[:, k] = tau[:, j] if kind == "c" else (np.sin if kind == "s" else np.cos)(np.radians(q[:, j]))
+        if len(self._table_idx):   # hat functions: 1 at the knot, 0 one step away (linear interpolation of a table)
+            u = (q[:, self._table_joint] - self._table_knot_deg[None, :]) / TABLE_STEP_DEG
+            out[:, self._table_idx] = np.maximum(0.0, 1.0 - np.abs(u))
         return out
 
     def _basis_jacobian(self, q) -> np.ndarray:
@@ -395,11 +432,17 @@ class ExtendedChain:
         out = np.zeros((len(q), len(self.terms), q.shape[1]))
         dtau = gravity_moment_jacobian_mm(self.chain, q) * GRAVITY_M_PER_MM if self.compliance else None
         for k, (_, j, kind) in enumerate(self.terms):
+            if kind == "t":
+                continue
             if kind == "c":
                 out[:, k, :] = dtau[:, j, :]
             else:
                 r = np.radians(q[:, j])
                 out[:, k, j] = (np.cos(r) if kind == "s" else -np.sin(r)) * (np.pi / 180)
+        if len(self._table_idx):   # the hat's slope, per deg (one-sided at a knot: the right-hand slope)
+            u = (q[:, self._table_joint] - self._table_knot_deg[None, :]) / TABLE_STEP_DEG
+            slope = np.where((u >= 0) & (u < 1), -1.0, np.where((u < 0) & (u > -1), 1.0, 0.0)) / TABLE_STEP_DEG
+            out[:, self._table_idx, self._table_joint] = slope
         return out
 
     def effective_joints(self, q, errors=None) -> np.ndarray:
@@ -410,8 +453,11 @@ class ExtendedChain:
             return q
         dth = self._basis(q) * ex[None, :]
         qe = q.copy()
-        for k, (_, j, _) in enumerate(self.terms):
-            qe[:, j] += np.degrees(dth[:, k])
+        for k, (_, j, kind) in enumerate(self.terms):
+            if kind != "t":
+                qe[:, j] += np.degrees(dth[:, k])
+        for j in np.unique(self._table_joint):   # a table's hats, summed per joint
+            qe[:, j] += np.degrees(dth[:, self._table_idx[self._table_joint == j]].sum(1))
         return qe
 
     def frames(self, q, errors=None):
@@ -434,8 +480,11 @@ class ExtendedChain:
         q = np.atleast_2d(np.asarray(q, float))
         dq = np.zeros((len(q), q.shape[1], q.shape[1]))       # ∂(Δθ in joint units)/∂q
         B = np.degrees(self._basis_jacobian(q)) * ex[None, :, None]
-        for k, (_, j, _) in enumerate(self.terms):
-            dq[:, j, :] += B[:, k, :]
+        for k, (_, j, kind) in enumerate(self.terms):
+            if kind != "t":
+                dq[:, j, :] += B[:, k, :]
+        for j in np.unique(self._table_joint):
+            dq[:, j, :] += B[:, self._table_idx[self._table_joint == j], :].sum(1)
         return J + np.einsum("nij,njk->nik", J, dq)
 
     def error_jacobian(self, q, errors=None, frames=None):
@@ -447,23 +496,41 @@ class ExtendedChain:
             return Jg
         Jq = self.chain.joint_jacobian(q, geo, frames=F)            # per joint unit (deg)
         B = np.degrees(self._basis(q))                              # deg per slot unit
-        cols = np.stack([Jq[:, :, j] * B[:, None, k] for k, (_, j, _) in enumerate(self.terms)], axis=2)
+        cols = Jq[:, :, self._term_joint] * B[:, None, :]
         return np.concatenate([Jg, cols], axis=2)
 
 
 def extended_chain(chain, model: str):
     """``chain`` itself for ``"dh"``, else its :class:`ExtendedChain` with the slot set ``model``."""
-    if model not in MODELS:
-        raise InputError(f"geometric model {model!r}: expected one of {MODELS}")
+    if model not in ALL_MODELS:
+        raise InputError(f"geometric model {model!r}: expected one of {ALL_MODELS}")
     if model == "dh":
         return chain
-    return ExtendedChain(chain, compliance=True, harmonic=model.endswith("harmonic"))
+    return ExtendedChain(chain, compliance=True, harmonic="+harmonic" in model, table=model.endswith("+table"))
+
+
+def table_held(c, q) -> np.ndarray | None:
+    """The joint-error table slots of the extended chain ``c`` held at zero on the poses ``q`` (n, nq): (n_params,)
+    bool, or None for a chain without a table. Held: every knot whose support (Σ over poses of its hat) is below
+    :data:`TABLE_MIN_SUPPORT`, and per joint the knot of the largest support — its value is the table's zero, so the
+    joint's constant offset stays the DH slot's (the hats sum to one: a table with every knot free and the DH offset
+    is one exact dependency, and a weak constant drift along it was measured: 1.6° on the UR5's joint 5)."""
+    if not getattr(c, "table", False):
+        return None
+    held = np.zeros(c.n_params, bool)
+    w = c._basis(q)[:, c._table_idx].sum(0)
+    held[c.n_geo + c._table_idx[w < TABLE_MIN_SUPPORT]] = True
+    for j in np.unique(c._table_joint):
+        k = np.flatnonzero(c._table_joint == j)
+        held[c.n_geo + c._table_idx[k[np.argmax(w[k])]]] = True
+    return held
 
 
 def fit_model(chain, poses, model: str = "dh", max_iter: int = LM_MAX_ITER) -> GeometricResult:
-    """Volcomp's LM on the identifiable slots of the slot set ``model`` (:data:`MODELS`)."""
+    """Volcomp's LM on the identifiable slots of the slot set ``model`` (:data:`ALL_MODELS`; a joint-error table's
+    knots held at zero where :func:`table_held` says)."""
     c = extended_chain(chain, model)
-    free, combos, sv = identifiable_slots(c, poses.q)
+    free, combos, sv = identifiable_slots(c, poses.q, exclude=table_held(c, poses.q))
     x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter)
     return _result(c, poses, x, free, combos, sv, it, conv, "volcomp")
 
