@@ -56,7 +56,9 @@ def _cache_path(cache: Path, case: str, seed: int, k: int, scale: float) -> Path
 
 
 def run_one(case, seed, k, scale, cache: Path) -> dict:
+    import bench_hybrid
     from bench_hybrid import run_case
+    bench_hybrid.GA_SEEDS = 0   # the GA subset is a solver figure, not a residual: not run for the budget
     p = _cache_path(cache, case, seed, k, scale)
     meta = p.with_suffix(".json")
     if p.is_file() and meta.is_file():
