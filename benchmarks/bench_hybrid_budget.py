@@ -89,7 +89,13 @@ def budget(case, seed, draws, scale, cache: Path) -> dict:
     h, p = load(case, scale, "hybrid"), load(case, scale, "parametric")
     n = load("none", 1.0, "hybrid")
     metas = [json.loads(_cache_path(cache, case, seed, k, scale).with_suffix(".json").read_text()) for k in range(draws)]
+    own_bias, left = (h - n).mean(axis=0), (p - n).mean(axis=0)
+    alpha = float(np.sum(own_bias * left) / np.sum(left * left))
+    explained = float(1.0 - np.sum((own_bias - alpha * left) ** 2) / np.sum(own_bias**2))
     return {"case": case, "seed": seed, "scale": scale, "draws": draws,
+            # the learned part's common error along what the loop leaves of the effect (mean over draws of
+            # r_parametric − r_none): own bias ≈ α·leftover is the learner taking only (1 − α) of it (shrinkage)
+            "shrinkage": {"alpha": alpha, "explained": explained},
             "learned_kept": sum(bool(m["learned_kept"]) for m in metas),
             "families": [m.get("learned_family") for m in metas],
             "replaced_terms": sum(bool(m.get("replaced_terms")) for m in metas),
@@ -103,13 +109,18 @@ HEADER = ("Default family, 800 checks at 1 μm, 2,000 volume points; per seed th
           "TRUE RMS); bias = √B² (the part of the residual common to all draws); sd = √V (the spread across draws); "
           "B² + V = RMS². 'own' = the learned part's own error field r_k − r_k^none (same seed, same noise vectors). "
           "Rows 'all': means over the seeds of the squared figures, then √. 'excess bias share' = (B²_h − B²_n) / "
-          "(h² − n²): the share of what the effect adds to the hybrid's mean square that is common to every draw.")
+          "(h² − n²): the share of what the effect adds to the hybrid's mean square that is common to every draw. "
+          "'leftover' = the mean over draws of r_parametric − r_none (what the loop alone leaves of the effect, the "
+          "learned part's target); α = ⟨own bias, leftover⟩ / ⟨leftover, leftover⟩ over the volume points (raw draw "
+          "means): α > 0 is the learner taking only 1 − α of its target, and the share of the own bias's mean "
+          "square that α·leftover explains.")
 
 
 def table_lines(doc: dict, per_seed: bool = True) -> list:
     L = ["| case | scale | seed | learned kept | hybrid RMS h (μm) | h bias | h sd | no-effect RMS n | n bias | n sd | "
-         "h/n | loop alone p | p/h | own RMS | own bias | own sd | excess bias share |",
-         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+         "h/n | loop alone p | p/h | own RMS | own bias | own sd | excess bias share | own bias = α·leftover: α "
+         "(share of own bias² explained) |",
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     grp = {}
     for b in sorted(doc["budgets"], key=lambda b: (b["case"], b["scale"], b["seed"])):
         grp.setdefault((b["case"], b["scale"]), []).append(b)
@@ -124,13 +135,20 @@ def table_lines(doc: dict, per_seed: bool = True) -> list:
         return (f"| {label[0]} | ×{label[1]:g} | {seed} | {kept}/{sum(b['draws'] for b in bs)} | {h:.3f} | "
                 f"{m('hybrid', 'bias2_um2'):.3f} | {m('hybrid', 'var_um2'):.3f} | {n:.3f} | {m('none', 'bias2_um2'):.3f} | "
                 f"{m('none', 'var_um2'):.3f} | {h / n:.2f} | {p:.3f} | {p / h:.2f} | {m('own', 'mse_um2'):.3f} | "
-                f"{m('own', 'bias2_um2'):.3f} | {m('own', 'var_um2'):.3f} | {share:.0%} |")
+                f"{m('own', 'bias2_um2'):.3f} | {m('own', 'var_um2'):.3f} | {share:.0%} | {_shrink(bs)} |")
 
     for key, bs in sorted(grp.items()):
         if per_seed:
             L += [line(key, b["seed"], [b]) for b in bs]
         L.append(line(key, f"all ({len(bs)})", bs))
     return L
+
+
+def _shrink(bs) -> str:
+    v = [b["shrinkage"] for b in bs if "shrinkage" in b]
+    if not v:
+        return "—"
+    return f"{np.mean([x['alpha'] for x in v]):.2f} ({np.mean([x['explained'] for x in v]):.0%})"
 
 
 def write_report(doc: dict, argv) -> None:
@@ -163,6 +181,13 @@ def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     from errormap.io import write_json
     doc = json.loads(RESULTS_JSON.read_text()) if RESULTS_JSON.is_file() else {"runs": [], "budgets": []}
+    if args.report_only and Path(args.cache).is_dir():   # recompute the budgets from the cached residuals
+        for i, b in enumerate(doc["budgets"]):
+            try:
+                doc["budgets"][i] = budget(b["case"], b["seed"], b["draws"], b["scale"], Path(args.cache))
+            except FileNotFoundError:
+                pass
+        write_json(RESULTS_JSON, doc)
     if not args.report_only:
         cache = Path(args.cache)
         cache.mkdir(parents=True, exist_ok=True)
