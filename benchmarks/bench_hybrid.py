@@ -442,7 +442,7 @@ def _own_error(rows) -> list:
     """Markdown lines: the learned part's own error per case and check count, √(h² − n²) with h the
     hybrid's TRUE RMS and n the same seed's no-effect machine's (same checks), paired by seed."""
     by = {(r["family"], r["seed"], r["effect"]): r for r in rows if "rms_um" in r.get("hybrid", {})
-          and "@f" not in r["effect"] and "@x" not in r["effect"]}
+          and "@f" not in r["effect"] and "@i" not in r["effect"]}
     grp = {}
     for (fam, seed, eff), r in by.items():
         base, _, n_ch = eff.partition("@n")
@@ -460,12 +460,17 @@ def _own_error(rows) -> list:
         if n_ch != N_CHECKS and (fam, base, N_CHECKS) in grp:
             ss = {x[0] for x in v}
             grp[(fam, base, f"{N_CHECKS} (seeds of {n_ch})")] = [x for x in grp[(fam, base, N_CHECKS)] if x[0] in ss]
+        plain, _, sc = base.partition("@x")   # the default amplitude on the seeds of a scaled one: paired
+        if sc and n_ch == N_CHECKS and (fam, plain, N_CHECKS) in grp:
+            ss = {x[0] for x in v}
+            grp[(fam, plain, f"{N_CHECKS} (seeds of ×{sc})")] = [x for x in grp[(fam, plain, N_CHECKS)] if x[0] in ss]
     out = ["", "## The learned part's own error", "",
            "√(h² − n²) per seed (h: the hybrid's TRUE RMS over the volume; n: the same seed's machine without the "
            "effect, same checks; 0 where h ≤ n), mean over the seeds; the same for the loop alone (p). 'effect' = the "
            "RMS over the volume of what the effect adds to the truth (truth with it minus truth without it, the same "
            "points); 'absorbed by the loop' = 1 − √(p² − n²)/effect: the share of the effect the loop's catalogue "
-           "(elements and effect terms) already compensates. Paired seeds only.", "",
+           "(elements and effect terms) already compensates. Paired seeds only. 'EFFECT@xS' = the effect's amplitude "
+           "times S (`--scale`; beside it the default amplitude on the same seeds).", "",
            "| family | case | checks | seeds | hybrid h (μm) | no-effect n (μm) | learned part's own error √(h²−n²) (μm) | "
            "loop alone p (μm) | loop's own error √(p²−n²) (μm) | effect RMS (μm) | absorbed by the loop |",
            "|---|---|---|---|---|---|---|---|---|---|---|"]
