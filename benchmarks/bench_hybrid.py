@@ -189,11 +189,15 @@ class _learned_inputs:
 
 
 def run_case(family: str, seed: int, effect: str, scale: float = 1.0, checks: int = N_CHECKS,
-             families=None, inputs=None) -> dict:
+             families=None, inputs=None, check_noise_seed=None, residuals: bool = False) -> dict:
+    """One row (see the module doc). ``check_noise_seed``: None (the results table) the checks' noise of the
+    seed's own stream; an int: ``volcomp simulate --seed-check-noise`` redraws only the checks' noise (the
+    error budget, benchmarks/bench_hybrid_budget.py). ``residuals``: also return the TRUE residual vectors
+    of the volume points (``row["residuals_um"]``: hybrid and parametric, arrays (N_VOLUME, 3); not JSON)."""
     if scale != 1.0 and (family != "default" or effect not in AMPLITUDE_KEY):
         raise ValueError("--scale applies to the default family's out-of-catalogue effects only")
     with _scaled_effect(effect, scale), _learned_families(families), _learned_inputs(inputs):
-        row = _run_case(family, seed, effect, checks)
+        row = _run_case(family, seed, effect, checks, check_noise_seed=check_noise_seed, residuals=residuals)
     if inputs is not None:
         row["learned_inputs"] = list(inputs)
         row["effect"] = f"{row['effect']}@i{'+'.join(inputs)}"
@@ -209,7 +213,8 @@ def run_case(family: str, seed: int, effect: str, scale: float = 1.0, checks: in
     return row
 
 
-def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
+def _run_case(family: str, seed: int, effect: str, checks: int = 800, check_noise_seed=None,
+              residuals: bool = False) -> dict:
     from compensation.app.cli import main
     from compensation.diagnosed_model import load_diagnosed_model
     from compensation.evaluate import true_residual_um
@@ -233,7 +238,9 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
         q = ["--family", family, "--seed", str(seed)] + sum((["--effect", e] for e in eff), [])
         assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", str(int(noise_ss.generate_state(1)[0])),
                      "--out", str(td / "sw.csv")]) == 0
-        assert main(["simulate", *q, "--checks", str(checks), "--noise-um", str(NOISE_UM), "--out", str(td / "sim")]) == 0
+        redraw = [] if check_noise_seed is None else ["--seed-check-noise", str(int(check_noise_seed))]
+        assert main(["simulate", *q, "--checks", str(checks), "--noise-um", str(NOISE_UM), *redraw,
+                     "--out", str(td / "sim")]) == 0
         assert main(["identify", str(td / "sw.csv"), "--out", str(td / "el.json")]) == 0
         assert main(["diagnose", str(td / "sim" / "checks.csv"), "--model", str(td / "el.json"),
                      "--out", str(td / "diag")]) == 0
@@ -254,6 +261,8 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800) -> dict:
         for label, path in (("hybrid", td / "diag" / "model.json"), ("parametric", td / "diag" / "model_parametric.json")):
             comp, info = _compensate(main, td, path, label)
             row[label] = info if comp is None else dict(_stats(true_residual_um(truth, comp, targets)), **info)
+            if residuals and comp is not None:
+                row.setdefault("residuals_um", {})[label] = true_residual_um(truth, comp, targets)
         if "learned_residual" in model and seed < GA_SEEDS:  # the GA solver on the hybrid field (a subset)
             write_csv(td / "volume_ga.csv", dict(zip(("x_mm", "z_mm", "a_deg"), P[:N_GA].T)), float_fmt="%.12g")
             comp, info = _compensate(main, td, td / "diag" / "model.json", "ga", "batched-ga", "volume_ga.csv")
@@ -433,7 +442,7 @@ def _own_error(rows) -> list:
     """Markdown lines: the learned part's own error per case and check count, √(h² − n²) with h the
     hybrid's TRUE RMS and n the same seed's no-effect machine's (same checks), paired by seed."""
     by = {(r["family"], r["seed"], r["effect"]): r for r in rows if "rms_um" in r.get("hybrid", {})
-          and "@f" not in r["effect"] and "@x" not in r["effect"]}
+          and "@f" not in r["effect"] and "@i" not in r["effect"]}
     grp = {}
     for (fam, seed, eff), r in by.items():
         base, _, n_ch = eff.partition("@n")
@@ -451,12 +460,17 @@ def _own_error(rows) -> list:
         if n_ch != N_CHECKS and (fam, base, N_CHECKS) in grp:
             ss = {x[0] for x in v}
             grp[(fam, base, f"{N_CHECKS} (seeds of {n_ch})")] = [x for x in grp[(fam, base, N_CHECKS)] if x[0] in ss]
+        plain, _, sc = base.partition("@x")   # the default amplitude on the seeds of a scaled one: paired
+        if sc and n_ch == N_CHECKS and (fam, plain, N_CHECKS) in grp:
+            ss = {x[0] for x in v}
+            grp[(fam, plain, f"{N_CHECKS} (seeds of ×{sc})")] = [x for x in grp[(fam, plain, N_CHECKS)] if x[0] in ss]
     out = ["", "## The learned part's own error", "",
            "√(h² − n²) per seed (h: the hybrid's TRUE RMS over the volume; n: the same seed's machine without the "
            "effect, same checks; 0 where h ≤ n), mean over the seeds; the same for the loop alone (p). 'effect' = the "
            "RMS over the volume of what the effect adds to the truth (truth with it minus truth without it, the same "
            "points); 'absorbed by the loop' = 1 − √(p² − n²)/effect: the share of the effect the loop's catalogue "
-           "(elements and effect terms) already compensates. Paired seeds only.", "",
+           "(elements and effect terms) already compensates. Paired seeds only. 'EFFECT@xS' = the effect's amplitude "
+           "times S (`--scale`; beside it the default amplitude on the same seeds).", "",
            "| family | case | checks | seeds | hybrid h (μm) | no-effect n (μm) | learned part's own error √(h²−n²) (μm) | "
            "loop alone p (μm) | loop's own error √(p²−n²) (μm) | effect RMS (μm) | absorbed by the loop |",
            "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -470,6 +484,26 @@ def _own_error(rows) -> list:
                    f"{own.mean():.2f} | {v[:, 2].mean():.2f} | {own_p.mean():.2f} | "
                    f"{(f'{np.mean(v[eff_ok, 3]):.2f}') if eff_ok.any() else '—'} | {ab} |")
     return out
+
+
+BUDGET_JSON = HERE / "hybrid_budget_results.json"
+"""The error budget's runs (``benchmarks/bench_hybrid_budget.py``: the checks' noise redrawn on fixed machines)."""
+
+
+def _budget() -> list:
+    """Markdown lines: the learned stage's error budget (bias and variance over redrawn check noise), summarised
+    from :data:`BUDGET_JSON` when it exists (per seed and per draw: ``hybrid_budget_results.md``)."""
+    if not BUDGET_JSON.is_file():
+        return []
+    from bench_hybrid_budget import HEADER, table_lines
+    doc = json.loads(BUDGET_JSON.read_text())
+    if not doc.get("budgets"):
+        return []
+    return (["", "## Error budget of the learned stage", "",
+             "Is the learned part's own error variance (the noise of 800 checks) or bias (the learner's structure, "
+             "the taper, what the loop's element update absorbs)? Generated by `python benchmarks/bench_hybrid_budget.py "
+             "--cases a_tilt,bump --seeds 3 --draws 4` (and `--scale` rows where present; per seed and per draw in "
+             "`benchmarks/hybrid_budget_results.md`). " + HEADER, ""] + table_lines(doc, per_seed=False))
 
 
 def _variants(rows) -> list:
@@ -689,6 +723,7 @@ def write_results(rows, argv, previous=None, main_rows=None):
     lines += ["", "## The round-5 out-of-catalogue effect: design (written before any result on it)", "", A_LOBE_X_DESIGN]
     lines += _volcomp_benchmark()
     lines += _own_error(rows)
+    lines += _budget()
     lines += _variants(rows)
     lines += _against_main(rows, main_rows)
     lines += _before_after(rows, previous)

@@ -228,15 +228,20 @@ class TruthGrinder:
         """Conditions for evaluating paths: reference temperature, positive approach."""
         return {"temp_c": np.full(n, REF_TEMP_C), "dir_x": np.ones(n), "dir_z": np.ones(n), "dir_a": np.ones(n)}
 
-    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed: int = 0, dt_s: float = 15.0) -> dict:
-        """Simulated check measurements in the docs/schemas.md schema: a dict of columns, each shape (n,)."""
+    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed: int = 0, dt_s: float = 15.0,
+                           noise_seed=None) -> dict:
+        """Simulated check measurements in the docs/schemas.md schema: a dict of columns, each shape (n,).
+        ``noise_seed``: None (default) draws the measurement noise from the same stream as the layout
+        (points, temperatures, directions), after it; a seed draws only the noise from a stream of its own,
+        the layout unchanged (a redraw of the instrument's noise on the same machine and program)."""
         rng = np.random.default_rng(seed)
         axes = random_axes(self.machine, n, rng)
         t = np.arange(n) * dt_s
         temp = REF_TEMP_C + 4.0 * (1.0 - np.exp(-t / 2400.0)) + rng.normal(0, 0.02, n)
         dirs = rng.choice([-1, 1], size=(n, 3))
         cond = {"temp_c": temp, "dir_x": dirs[:, 0], "dir_z": dirs[:, 1], "dir_a": dirs[:, 2]}
-        e = self.spatial_error(axes, **cond) + rng.normal(0.0, noise_um, (n, 3))
+        r_noise = rng if noise_seed is None else np.random.default_rng(noise_seed)
+        e = self.spatial_error(axes, **cond) + r_noise.normal(0.0, noise_um, (n, 3))
         return {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": axes[:, 2],
                 "dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2],
                 "time_s": t, "temp_c": temp, "dir_x": dirs[:, 0], "dir_z": dirs[:, 1], "dir_a": dirs[:, 2],

@@ -116,9 +116,13 @@ class IndependentTruth(TruthGrinder):
 
     family = "independent"
 
-    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed: int = 0, dt_s: float = 15.0) -> dict:
-        """Check measurements (DESIGN.md schema), a dict of columns each shape (n,)."""
+    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed: int = 0, dt_s: float = 15.0,
+                           noise_seed=None) -> dict:
+        """Check measurements (DESIGN.md schema), a dict of columns each shape (n,). ``noise_seed``: None
+        (default) the noise stream of ``seed``; a seed: only the noise redrawn, the layout unchanged."""
         r_pts, r_env, r_noise = spawn_rngs(seed, 3)
+        if noise_seed is not None:
+            r_noise = np.random.default_rng(noise_seed)
         lo, hi = self.machine.stroke_lo, self.machine.stroke_hi
         u = qmc.Sobol(3, scramble=True, seed=r_pts).random_base2(int(np.ceil(np.log2(max(n, 2)))))
         u = u[r_pts.permutation(u.shape[0])[:n]]  # Sobol order is structured: measure n of them in random order

@@ -32,6 +32,9 @@ def register(sub):
                    help="measurement noise σ per axis (μm); default 1 for machine tools, 20 for a serial arm's tracker")
     p.add_argument("--checks", type=int, default=None,
                    help="number of check measurements (default 400; a serial arm: 100 held-out poses)")
+    p.add_argument("--seed-check-noise", type=int, default=None,
+                   help="the grinder only: redraw only the check measurements' noise from this seed (the same machine, "
+                        "points and conditions); default: the noise of --seed's own stream")
     p.add_argument("--poses", type=int, default=None,
                    help="a serial arm only: number of fitting poses (default 200)")
     p.set_defaults(func=run)
@@ -39,6 +42,8 @@ def register(sub):
 
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+    if args.seed_check_noise is not None and machine.kind != "grinder":
+        raise UsageError("--seed-check-noise: the grinder only")
     if machine.kind == "serial":
         from ..workflows.simulate_serial import DEFAULT_ARM_NOISE_UM, simulate_serial
         noise = DEFAULT_ARM_NOISE_UM if args.noise_um is None else args.noise_um
@@ -75,7 +80,8 @@ def run(args) -> int:
         raise UsageError(f"--effect: unknown effect {bad[0]!r} for the grinder (expected one of {', '.join(EFFECT_CHOICES)})")
     print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
     info = simulate_truth(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
-                          checks=args.checks, family=getattr(args, "family", "default"))
+                          checks=args.checks, family=getattr(args, "family", "default"),
+                          check_noise_seed=getattr(args, "seed_check_noise", None))
     for line in summary_lines(info, args.out):
         print(line)
     return 0

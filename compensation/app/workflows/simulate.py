@@ -13,10 +13,12 @@ from errormap.seeds import spawn_seeds
 
 
 def simulate_truth(machine, seed: int, out, effects=(), noise_um: float = 1.0, checks: int = 400,
-                   family: str = "default") -> dict:
+                   family: str = "default", check_noise_seed=None) -> dict:
     """Write ``out/truth_elements.json``, ``featurepoints.csv``, ``checks.csv`` and ``truth.json``
     for the truth grinder of ``seed`` (``errormap.truth_families.make_truth``); returns the
-    ``truth.json`` document (``files``: the paths written, ``max_spatial_error_um`` over the volume)."""
+    ``truth.json`` document (``files``: the paths written, ``max_spatial_error_um`` over the volume).
+    ``check_noise_seed``: None (default) the checks' noise from the seed's own stream; an int redraws
+    only the checks' noise (same machine, same points and conditions)."""
     from errormap.truth_families import make_truth
     out = Path(out)
     effects = list(effects)
@@ -27,15 +29,18 @@ def simulate_truth(machine, seed: int, out, effects=(), noise_um: float = 1.0, c
     fp.meta["elements_sha256"] = sha256_file(el_path)
     fp_path = fp.save(out / "featurepoints.csv")
     # the truth takes the seed itself, the check measurements a child stream of it
-    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=spawn_seeds(seed, 1)[0])
+    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=spawn_seeds(seed, 1)[0],
+                                        noise_seed=check_noise_seed)
     ck_path = write_csv(out / "checks.csv", measured, header_comments=[
         "format: volcomp-checks/1", f"machine: {machine.name}", f"noise_um: {noise_um}",
-        f"effects: {','.join(effects) or 'none'}"])
+        f"effects: {','.join(effects) or 'none'}"]
+        + ([] if check_noise_seed is None else [f"check_noise_seed: {check_noise_seed}"]))
     grid = volume_grid(machine)
     e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
     info = {"seed": seed, "machine": machine.name, "machine_file": machine.path,
             "family": family, "effects": {k: EFFECT_DEFAULTS[k] | truth.effects[k] for k in truth.effects},
-            "noise_um": noise_um, "max_spatial_error_um": float(e.max()),
+            "noise_um": noise_um, **({} if check_noise_seed is None else {"check_noise_seed": check_noise_seed}),
+            "max_spatial_error_um": float(e.max()),
             "files": {"elements": str(el_path), "featurepoints": str(fp_path), "checks": str(ck_path)}}
     write_json(out / "truth.json", info)
     return info

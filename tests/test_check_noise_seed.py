@@ -1,0 +1,60 @@
+"""``volcomp simulate --seed-check-noise`` (issue 28, the learned stage's error budget): redraws only the
+check measurements' noise — the same machine, points, temperatures and directions — and without it the checks
+are today's, bit for bit (the results tables' figures stay reproducible)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from compensation.app.cli import main
+from errormap.io import read_table
+from errormap.machine import load_machine
+from errormap.truth_families import make_truth
+
+N, SIGMA = 50, 1.0
+LAYOUT = ("x_mm", "z_mm", "a_deg", "time_s", "temp_c", "dir_x", "dir_z", "dir_a", "seq")
+
+
+@pytest.mark.parametrize("family", ["default", "independent"])
+def test_redraw_changes_only_the_noise(family):
+    truth = make_truth(load_machine(), 2, effects=["a_tilt"], family=family)
+    a = truth.check_measurements(N, SIGMA, seed=7)
+    b = truth.check_measurements(N, SIGMA, seed=7, noise_seed=11)
+    for k in LAYOUT:
+        np.testing.assert_array_equal(a[k], b[k])          # the layout and conditions: identical
+    d = np.stack([a[k] - b[k] for k in ("dx_um", "dy_um", "dz_um")], axis=1)
+    # the difference is the two noise draws' (the error itself is the same): the redraw is exactly
+    # default_rng(11)'s noise, so a − b + that draw is the default draw, a N(0, σ²) sample
+    noise_a = d + np.random.default_rng(11).normal(0.0, SIGMA, (N, 3))
+    assert np.all(np.abs(d) > 0)
+    # 150 standard normals: |mean| < 4 se and sd within 30 % of σ (loose: a check of scale, not a test of the RNG)
+    assert abs(noise_a.mean()) < 4 * SIGMA / np.sqrt(3 * N) and 0.7 < noise_a.std() / SIGMA < 1.3
+
+
+def test_default_noise_is_todays_stream():
+    """Without ``noise_seed`` the noise is the layout stream's next draw, as before the option existed."""
+    from errormap.simulator import random_axes, random_truth
+    m = load_machine()
+    truth = random_truth(m, 3, effects=["bump"])
+    a = truth.check_measurements(N, SIGMA, seed=5)
+    rng = np.random.default_rng(5)                          # the draw order of TruthGrinder.check_measurements
+    axes = random_axes(m, N, rng)
+    rng.normal(0, 0.02, N)
+    rng.choice([-1, 1], size=(N, 3))
+    noise = rng.normal(0.0, SIGMA, (N, 3))
+    cond = {k: a[k] for k in ("temp_c", "dir_x", "dir_z", "dir_a")}
+    e = truth.spatial_error(axes, **cond) + noise
+    np.testing.assert_array_equal(np.stack([a["dx_um"], a["dy_um"], a["dz_um"]], axis=1), e)
+
+
+def test_cli_option(tmp_path, capsys):
+    def sim(name, *opts):
+        assert main(["simulate", "--seed", "4", "--checks", str(N), *opts, "--out", str(tmp_path / name)]) == 0
+        return read_table(tmp_path / name / "checks.csv")
+    a, b, c = sim("a"), sim("b", "--seed-check-noise", "9"), sim("c", "--seed-check-noise", "9")
+    np.testing.assert_array_equal(a.float("x_mm"), b.float("x_mm"))
+    assert not np.array_equal(a.float("dx_um"), b.float("dx_um"))
+    np.testing.assert_array_equal(b.float("dx_um"), c.float("dx_um"))     # the seed reproduces the draw
+    assert "check_noise_seed: 9" in (tmp_path / "b" / "checks.csv").read_text()
+    assert "check_noise_seed" not in (tmp_path / "a" / "checks.csv").read_text()
+    assert main(["simulate", "--machine", "mill-xyz", "--seed-check-noise", "1", "--out", str(tmp_path / "m")]) != 0
