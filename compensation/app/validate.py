@@ -169,7 +169,7 @@ OUT_DIR, OUT_FILE, OUT_PREFIX = OutPath("dir"), OutPath("file"), OutPath("prefix
 
 # options that mean the same in every command that has them
 COMMON = {
-    "seed": SEED, "sim_seed": SEED, "truth_seed": SEED, "seed_noise": SEED,
+    "seed": SEED, "sim_seed": SEED, "truth_seed": SEED, "seed_noise": SEED, "seed_check_noise": SEED,
     "workers": Count(1, MAX_WORKERS, "workers"),
     "chunk_points": Count(1, MAX_CHUNK_POINTS, "points per chunk held in memory by one worker"),
 }
