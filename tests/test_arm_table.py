@@ -128,3 +128,14 @@ def test_table_learns_a_cyclic_joint_error_and_round_trips(ur5):
     q_out = check.q[:3].copy()
     q_out[:, 0] = UR5_HI[0] + 2 * TABLE_STEP_DEG
     assert np.array_equal(g.chain.effective_joints(q_out, g.params)[:, 0], q_out[:, 0])
+
+
+def test_report_counts_a_tables_held_knots_per_joint_and_names_every_other_fixed_slot():
+    """The identifiability line of the arm report: a table's held knots (~60 a joint on the real UR5) are counted per
+    joint, every other fixed slot is named; the stage table's sentence column is the one that wraps."""
+    from compensation.app.reports.arm_calibration import fixed_slots_text
+    names = ["base.z_mm", "table.q1.at_-180deg_rad", "table.q1.at_+5deg_rad", "link2.dd_mm", "table.q3.at_+0deg_rad",
+             "table.q1.at_+2.5deg_rad"]
+    assert fixed_slots_text(names) == "base.z_mm, link2.dd_mm, table.q1: 3 knots, table.q3: 1 knot"
+    assert fixed_slots_text([]) == "none"
+    assert fixed_slots_text(["tablet.q1.at_5deg_rad"]) == "tablet.q1.at_5deg_rad"   # not a table knot: named

@@ -6,6 +6,8 @@ the residual it should cover.
 """
 from __future__ import annotations
 
+import re
+
 from pathlib import Path
 
 import numpy as np
@@ -69,11 +71,30 @@ def _figures(chain, core, check) -> list:
     return figs
 
 
+_TABLE_KNOT = re.compile(r"^table\.([^.]+)\.at_[-+0-9.e]+deg_rad$")
+
+
+def fixed_slots_text(names) -> str:
+    """The slots a fit held at nominal, for a reader: every slot by name, except a joint-error table's knots, which
+    are counted per joint (``table.q1: 58 knots``) — a table has ~70 knots a joint, most of them held where the
+    poses give them no support, and listing each buried the page's other slots."""
+    plain, knots = [], {}
+    for n in names:
+        m = _TABLE_KNOT.match(n)
+        if m:
+            knots[m.group(1)] = knots.get(m.group(1), 0) + 1
+        else:
+            plain.append(n)
+    plain += [f"table.{j}: {k} knot{'s' if k > 1 else ''}" for j, k in knots.items()]
+    return ", ".join(plain) or "none"
+
+
 def render_html(doc: dict, figures=()) -> str:
     """The page of an arm calibration document (``calibration.json``) with the given figures."""
     rows = [[("stage: " if i < len(doc["stages"]) else "baseline: ") + r["name"], r["mean_mm"], r["rms_mm"],
              r["max_mm"], r["what"]] for i, r in enumerate(doc["stages"] + doc["baselines"])]
-    stages = Table(["model", "mean (mm)", "RMS (mm)", "max (mm)", "what"], rows, digits=4)
+    # css "notes": the last column (what each row is, a sentence) wraps instead of running off the page
+    stages = Table(["model", "mean (mm)", "RMS (mm)", "max (mm)", "what"], rows, digits=4, css_class="notes")
     combos = Table(["unidentifiable combination (scaled null-space direction)"],
                    [[c] for c in doc["geometric"]["unidentifiable_combinations"]])
     params = Table(["slot", "value", "std error"], [[p["name"], p["value"], p["std"]]
@@ -93,7 +114,7 @@ def render_html(doc: dict, figures=()) -> str:
         [[name, b["n_blocks"], b["factor"], b["coverage95_before"], b["coverage95_after"]]
          for name, b in bc["blockings"].items()], digits=3)
     return render_page("arm_calibrate.html", title=f"arm calibration: {doc['machine']['name']}", doc=doc,
-                       stages=stages, combos=combos, parameters=params, learned=learned, geocv=geocv,
+                       fixed_slots=fixed_slots_text(doc["geometric"]["fixed_slots"]), stages=stages, combos=combos, parameters=params, learned=learned, geocv=geocv,
                        bands=bands, figures=list(figures))
 
 
