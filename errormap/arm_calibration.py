@@ -15,6 +15,7 @@ Lengths mm, angles rad (as the slot names say); ``q`` (n, nq) in the joints' uni
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,6 +40,15 @@ TABLE_STEP_DEG = 5.0
 """Knot spacing of the joint-error table, deg (knots at multiples of it)."""
 TABLE_SPAN_DEG = 180.0
 """Table knots lie within ±this of the joint zero (and inside the joint's limits): beyond, the table is zero."""
+TABLE_KNOT_RE = re.compile(r"^table\.([^.]+)\.at_[-+0-9.e]+deg_rad$")
+"""A joint-error table knot's slot name (:func:`table_knot_name`); group 1: the joint's column stem (``q1``)."""
+
+
+def table_knot_name(joint: str, knot_deg: float) -> str:
+    """The slot name of the table knot of ``joint`` (its column stem, ``q1``) at ``knot_deg``: ``table.q1.at_+5deg_rad``."""
+    return f"table.{joint}.at_{knot_deg:+g}deg_rad"
+
+
 TABLE_MIN_SUPPORT = 10.0
 """A table knot is identified only where the fit poses give it at least this much support (Σ over poses of its hat
 function, in poses): a knot seen by one or two poses at the edge of the data would fit them and swing freely."""
@@ -46,8 +56,6 @@ MODELS = ("dh", "dh+compliance", "dh+compliance+harmonic", TABLE_MODEL)
 """Slot sets of the geometric stage, chosen by CV inside the fit poses: link errors + base + tool; + joint compliance
 under gravity; + first-harmonic joint errors (encoder / gear eccentricity); the joint-error table instead of the
 harmonics (:data:`TABLE_MODEL`)."""
-ALL_MODELS = MODELS
-"""Every slot set :func:`extended_chain` builds (a ``calibration.json`` may hold any of them)."""
 CV_FOLDS = 5               # k-fold CV inside the fit set that chooses the slot set
 TIE_REL = 1e-3             # a richer slot set must lower the CV mean error by more than this (relative)
 GRAVITY_M_PER_MM = 1e-3    # gravity moments in m (per unit mass): compliance slots in rad per m
@@ -385,7 +393,7 @@ class ExtendedChain:
                 lo = max(chain.joint_lo[j], -TABLE_SPAN_DEG)
                 hi = min(chain.joint_hi[j], TABLE_SPAN_DEG)
                 for kn in np.arange(np.ceil(lo / TABLE_STEP_DEG), np.floor(hi / TABLE_STEP_DEG) + 1) * TABLE_STEP_DEG:
-                    terms.append((f"table.{b}.at_{kn:+g}deg_rad", j, "t"))
+                    terms.append((table_knot_name(b, kn), j, "t"))
                     knots.append(float(kn))
         self.terms = terms
         self._table_idx = np.array([k for k, t in enumerate(terms) if t[2] == "t"], int)
@@ -502,8 +510,8 @@ class ExtendedChain:
 
 def extended_chain(chain, model: str):
     """``chain`` itself for ``"dh"``, else its :class:`ExtendedChain` with the slot set ``model``."""
-    if model not in ALL_MODELS:
-        raise InputError(f"geometric model {model!r}: expected one of {ALL_MODELS}")
+    if model not in MODELS:
+        raise InputError(f"geometric model {model!r}: expected one of {MODELS}")
     if model == "dh":
         return chain
     return ExtendedChain(chain, compliance=True, harmonic="+harmonic" in model, table=model.endswith("+table"))
@@ -527,7 +535,7 @@ def table_held(c, q) -> np.ndarray | None:
 
 
 def fit_model(chain, poses, model: str = "dh", max_iter: int = LM_MAX_ITER) -> GeometricResult:
-    """Volcomp's LM on the identifiable slots of the slot set ``model`` (:data:`ALL_MODELS`; a joint-error table's
+    """Volcomp's LM on the identifiable slots of the slot set ``model`` (:data:`MODELS`; a joint-error table's
     knots held at zero where :func:`table_held` says)."""
     c = extended_chain(chain, model)
     free, combos, sv = identifiable_slots(c, poses.q, exclude=table_held(c, poses.q))

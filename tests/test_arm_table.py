@@ -139,3 +139,6 @@ def test_report_counts_a_tables_held_knots_per_joint_and_names_every_other_fixed
     assert fixed_slots_text(names) == "base.z_mm, link2.dd_mm, table.q1: 3 knots, table.q3: 1 knot"
     assert fixed_slots_text([]) == "none"
     assert fixed_slots_text(["tablet.q1.at_5deg_rad"]) == "tablet.q1.at_5deg_rad"   # not a table knot: named
+    # the names the chain writes are the names the report counts (one format, errormap.arm_calibration)
+    from errormap.arm_calibration import TABLE_KNOT_RE, table_knot_name
+    assert [TABLE_KNOT_RE.match(table_knot_name("q2", k)).group(1) for k in (-180.0, 0.0, 2.5)] == ["q2"] * 3

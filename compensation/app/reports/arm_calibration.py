@@ -6,11 +6,11 @@ the residual it should cover.
 """
 from __future__ import annotations
 
-import re
-
 from pathlib import Path
 
 import numpy as np
+
+from errormap.arm_calibration import TABLE_KNOT_RE
 
 from .figures import pyplot
 from .toolkit import Table, figure, render_page, write_page
@@ -71,16 +71,13 @@ def _figures(chain, core, check) -> list:
     return figs
 
 
-_TABLE_KNOT = re.compile(r"^table\.([^.]+)\.at_[-+0-9.e]+deg_rad$")
-
-
 def fixed_slots_text(names) -> str:
     """The slots a fit held at nominal, for a reader: every slot by name, except a joint-error table's knots, which
     are counted per joint (``table.q1: 58 knots``) — a table has ~70 knots a joint, most of them held where the
     poses give them no support, and listing each buried the page's other slots."""
     plain, knots = [], {}
     for n in names:
-        m = _TABLE_KNOT.match(n)
+        m = TABLE_KNOT_RE.match(n)
         if m:
             knots[m.group(1)] = knots.get(m.group(1), 0) + 1
         else:
