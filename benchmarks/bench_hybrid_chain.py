@@ -243,7 +243,8 @@ def run_case(machine_name: str, seed: int, case: str, ga: bool = False) -> dict:
             row["hybrid_batched_ga"] = _compensate(main, m, d, d / "diag" / "model.json", "ga", ref, P,
                                                    method="batched-ga", n=N_GA)
     lr = s.get("learned_residual") or {}
-    row.update({"kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
+    from compensation.hybrid import LEARNED_FAMILIES
+    row.update({"learned_families": list(LEARNED_FAMILIES), "kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
                 "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
                 "learned_z": lr.get("held_out_gain_z"), "held_band95_cover": lr.get("held_out_band95_cover"),
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
@@ -277,7 +278,7 @@ def write_results(rows, argv) -> None:
     write_json(RESULTS_JSON, {"commands": commands, "rows": rows})
     lines = ["# The learned-residual stage in the chain machines' closed loop (mill-xyz, five-axis-ac)", "",
              f"{'; '.join(f'`{c}`' for c in commands)} on {platform.machine()} (Python "
-             f"{platform.python_version()}), {time.strftime('%Y-%m-%d')}, one job, nice -n 10. User's path only "
+             f"{platform.python_version()}), {time.strftime('%Y-%m-%d')}, one job, under nice. User's path only "
              "(module doc of the script): sweeps (2 μm) and 800 checks (1 μm) of a truth of the independent family "
              "with the case's effect → `volcomp identify --machine` → `volcomp diagnose --machine --noise-um 1` "
              "(60/40 blocked split by seq, the learned stage on) → `volcomp compensate --machine --model "
@@ -342,7 +343,8 @@ def write_results(rows, argv) -> None:
                          f"{r['kept_stage']}, effects [{', '.join(r['effects'])}]"
                          f"{', replaced ' + ', '.join(r['replaced_terms']) if r['replaced_terms'] else ''}, "
                          f"{_fmt((r.get('hybrid') or {}).get('rms_um'))} / {_fmt((r.get('loop') or {}).get('rms_um'))}, "
-                         f"{r['cpu_s']:.0f} s")
+                         f"{r['cpu_s']:.0f} s, families compared: "
+                         + ("+".join(r["learned_families"]) if r.get("learned_families") else "not recorded (the four of the time)"))
         ga = [r for r in det if "hybrid_batched_ga" in r]
         for r in ga:
             g = r["hybrid_batched_ga"]
