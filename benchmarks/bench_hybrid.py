@@ -213,6 +213,21 @@ def run_case(family: str, seed: int, effect: str, scale: float = 1.0, checks: in
     return row
 
 
+def user_path(main, td: Path, family: str, seed: int, eff, noise_ss, checks: int = N_CHECKS, check_noise_seed=None):
+    """The user's CLI path into ``td``: ``sweeps`` (2 μm, the noise seed from ``noise_ss``) → ``simulate``
+    (``checks`` at :data:`NOISE_UM`; ``check_noise_seed`` redraws only their noise) → ``identify`` →
+    ``diagnose``; writes ``sw.csv``, ``sim/``, ``el.json`` and ``diag/``."""
+    q = ["--family", family, "--seed", str(seed)] + sum((["--effect", e] for e in eff), [])
+    assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", str(int(noise_ss.generate_state(1)[0])),
+                 "--out", str(td / "sw.csv")]) == 0
+    redraw = [] if check_noise_seed is None else ["--seed-check-noise", str(int(check_noise_seed))]
+    assert main(["simulate", *q, "--checks", str(checks), "--noise-um", str(NOISE_UM), *redraw,
+                 "--out", str(td / "sim")]) == 0
+    assert main(["identify", str(td / "sw.csv"), "--out", str(td / "el.json")]) == 0
+    assert main(["diagnose", str(td / "sim" / "checks.csv"), "--model", str(td / "el.json"),
+                 "--out", str(td / "diag")]) == 0
+
+
 def _run_case(family: str, seed: int, effect: str, checks: int = 800, check_noise_seed=None,
               residuals: bool = False) -> dict:
     from compensation.app.cli import main
@@ -235,15 +250,7 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800, check_nois
     row = {"family": family, "seed": seed, "effect": effect}
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)
-        q = ["--family", family, "--seed", str(seed)] + sum((["--effect", e] for e in eff), [])
-        assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", str(int(noise_ss.generate_state(1)[0])),
-                     "--out", str(td / "sw.csv")]) == 0
-        redraw = [] if check_noise_seed is None else ["--seed-check-noise", str(int(check_noise_seed))]
-        assert main(["simulate", *q, "--checks", str(checks), "--noise-um", str(NOISE_UM), *redraw,
-                     "--out", str(td / "sim")]) == 0
-        assert main(["identify", str(td / "sw.csv"), "--out", str(td / "el.json")]) == 0
-        assert main(["diagnose", str(td / "sim" / "checks.csv"), "--model", str(td / "el.json"),
-                     "--out", str(td / "diag")]) == 0
+        user_path(main, td, family, seed, eff, noise_ss, checks, check_noise_seed)
         s = json.loads((td / "diag" / "diagnosis.json").read_text())
         model = json.loads((td / "diag" / "model.json").read_text())
         param = {k: v for k, v in model.items() if k not in ("learned_residual", "base_terms_replaced")}
