@@ -104,16 +104,21 @@ def element_gp_fit(F, J, y):
     return r.x, r
 
 
+def _element_cov(F1, J1, F2, J2, ell, s2):
+    """(3·n1, 3·n2) covariance of the element GP's outputs: ``Σ_k s_k² J_k(a) J_k(b)ᵀ k(a, b)`` per pair of points."""
+    A1 = (J1 * np.sqrt(s2)).reshape(3 * len(F1), -1)
+    A2 = (J2 * np.sqrt(s2)).reshape(3 * len(F2), -1)
+    return (A1 @ A2.T) * np.kron(np.exp(-0.5 * _sq_by_dim(F1, F2, ell).sum(-1)), np.ones((3, 3)))
+
+
 def element_gp_predict(theta, F, J, y, Fs, Js):
+    """The posterior mean (m, 3) at ``Fs`` (m, d), ``Js`` (m, 3, E) of the element GP fitted on (F, J, y)."""
     n, d = F.shape
     E = J.shape[2]
     ell, s2, sn2 = np.exp(theta[:d]), np.exp(theta[d:d + E]), np.exp(theta[-1])
-    A = (J * np.sqrt(s2)).reshape(3 * n, E)
-    K = (A @ A.T) * np.kron(np.exp(-0.5 * _sq_by_dim(F, F, ell).sum(-1)), np.ones((3, 3))) + sn2 * np.eye(3 * n)
+    K = _element_cov(F, J, F, J, ell, s2) + sn2 * np.eye(3 * n)
     al = cho_solve(cho_factor(K, lower=True), y.reshape(-1))
-    As = (Js * np.sqrt(s2)).reshape(3 * len(Fs), E)
-    Ks = (As @ A.T) * np.kron(np.exp(-0.5 * _sq_by_dim(Fs, F, ell).sum(-1)), np.ones((3, 3)))
-    return (Ks @ al).reshape(-1, 3)
+    return (_element_cov(Fs, Js, F, J, ell, s2) @ al).reshape(-1, 3)
 
 
 def run_case(case: str, seed: int, element_gp: bool = True, family: str = "default") -> dict:
@@ -166,10 +171,15 @@ def run_case(case: str, seed: int, element_gp: bool = True, family: str = "defau
     n = len(A)
     Fc, Fv = axis_features(A)[0], axis_features(P)[0]
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(n / CV_BLOCKS)))[:n]
-    for label, y in (("gp_measured", y_meas), ("gp_noise_free", y_true)):
-        reg = ResidualRegressor(families=("gp",), seed=seed, input_groups=input_set_groups("axes")).fit(Fc, y, groups=groups)
-        if reg.chosen_ == "none":   # the form's reach, declined or not: the family refitted on every check
-            reg = reg.refit(Fc, y, family="gp")
+
+    def gp(F, y, g):
+        """The gp family fitted on (F, y) with blocked folds ``g``; the form's reach, declined or not: where the CV
+        declines it, the family refitted on every row."""
+        reg = ResidualRegressor(families=("gp",), seed=seed, input_groups=input_set_groups("axes")).fit(F, y, groups=g)
+        return reg if reg.chosen_ != "none" else reg.refit(F, y, family="gp")
+
+    fits = {"gp_measured": gp(Fc, y_meas, groups), "gp_noise_free": gp(Fc, y_true, groups)}
+    for label, reg in fits.items():
         row[f"{label}_um"] = _rms(left - reg.predict(Fv))
     # the out-of-fold gain: would scaling the gp's prediction help? Per output component, the least-squares
     # gain of the measured residual on the gp's blocked out-of-fold prediction (hyper-parameters re-estimated
@@ -177,16 +187,12 @@ def run_case(case: str, seed: int, element_gp: bool = True, family: str = "defau
     oof = np.zeros_like(y_meas)
     for b in range(CV_BLOCKS):
         tr, te = groups != b, groups == b
-        rb = ResidualRegressor(families=("gp",), seed=seed, input_groups=input_set_groups("axes")).fit(
-            Fc[tr], y_meas[tr], groups=groups[tr])
-        oof[te] = (rb if rb.chosen_ != "none" else rb.refit(Fc[tr], y_meas[tr], family="gp")).predict(Fc[te])
+        oof[te] = gp(Fc[tr], y_meas[tr], groups[tr]).predict(Fc[te])
     den = np.sum(oof * oof, axis=0)
     gain = np.where(den > 0, np.sum(oof * y_meas, axis=0) / np.where(den > 0, den, 1.0), 0.0)
-    reg = ResidualRegressor(families=("gp",), seed=seed, input_groups=input_set_groups("axes")).fit(Fc, y_meas, groups=groups)
-    reg = reg if reg.chosen_ != "none" else reg.refit(Fc, y_meas, family="gp")
     gcomp = np.sqrt(np.mean(y_meas ** 2, axis=0))   # the components' size, to name the one that carries the residual
     row.update({"oof_gain": gain.tolist(), "residual_rms_by_component_um": gcomp.tolist(),
-                "gp_measured_gained_um": _rms(left - reg.predict(Fv) * gain)})
+                "gp_measured_gained_um": _rms(left - fits["gp_measured"].predict(Fv) * gain)})
     if case != "none" and element_gp:
         mu, sd = Fc.mean(0), Fc.std(0)
         J, Jv = error_jacobian(m, A), error_jacobian(m, P)
@@ -195,7 +201,7 @@ def run_case(case: str, seed: int, element_gp: bool = True, family: str = "defau
         t0 = time.process_time()
         th, res = element_gp_fit((Fc - mu) / sd, J / scale, y_meas)
         pv = element_gp_predict(th, (Fc - mu) / sd, J / scale, y_meas, (Fv - mu) / sd, Jv / scale)
-        s = np.sqrt(np.exp(th[4:4 + J.shape[2]]))
+        s = np.sqrt(np.exp(th[Fc.shape[1]:Fc.shape[1] + J.shape[2]]))   # θ = (log ℓ (d), log s_k² (E), log σ²)
         top = np.argsort(-s)[:3]
         row.update({"element_gp_um": _rms(left - pv), "element_gp_cpu_s": time.process_time() - t0,
                     "element_gp_iterations": int(res.nit),
