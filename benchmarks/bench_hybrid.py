@@ -110,12 +110,13 @@ def _compensate(main, td, model, label, method="exact", points="volume.csv"):
     return comp, {"model_max_um": summ.get("model_max_um"), "failures": summ.get("failures")}
 
 
-CODE_ROUND = 8
-"""Rows measured by this code carry ``code_round`` 8 (round 7: the default families add ``gp_additive``
+CODE_ROUND = 11
+"""Rows measured by this code carry ``code_round`` 11 (round 7: the default families add ``gp_additive``
 and ``basis``, and condition terms stay only when their coefficient beside the static learned field is
 above :data:`compensation.hybrid.TERM_KEEP_Z` standard errors; round 8: and within
-:data:`compensation.hybrid.TERM_CONSISTENT_Z` standard errors of 1; the main table marks a case whose rows
-come from an earlier round's code); rows without it were measured by the round-3 code (learned families GP squared-exponential and ensemble) and are labelled so."""
+:data:`compensation.hybrid.TERM_CONSISTENT_Z` standard errors of 1; rounds 9–10 changed no product code;
+round 11: the output frame, :data:`compensation.hybrid.LEARNED_FRAMES`; the main table marks a case whose
+rows come from an earlier round's code); rows without it were measured by the round-3 code (learned families GP squared-exponential and ensemble) and are labelled so."""
 
 N_GA = 50
 """Points of the volume also compensated with ``batched-ga`` on the hybrid (its model residual
@@ -297,6 +298,7 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800, check_nois
     row.update({"kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
                 "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
                 "learned_input_set": lr.get("input_set", "axes"),
+                "learned_output_frame": lr.get("output_frame", "work"),
                 "learned_inputs_cv": {k: {"family": v["family"], "cv_rms": v["cv_rms"]}
                                       for k, v in (lr.get("inputs_table") or {}).items()},
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
@@ -358,9 +360,9 @@ def _load_previous():
     return []
 
 
-MAIN_NOTE = ("rows of main at 9489a52 (round-4/5 code: the learned families gp, ensemble, gp_matern52, gp_matern32; "
-             "condition terms replaced when the static field's blocked CV beats the with-terms variant's by more than "
-             "one paired standard error), same seeds, same simulated measurements; the judge of round 8")
+MAIN_NOTE = ("rows of main at 7223ae8 (round-8 code: six learned families, the per-term condition rule; the residual "
+             "learned in the work frame only), same seeds, same simulated measurements; the judge of round 11 (the "
+             "output frame)")
 MAIN_CASES = ("none", "bump", "a_tilt", "a_lobe_x")
 
 
@@ -617,7 +619,10 @@ def write_results(rows, argv, previous=None, main_rows=None):
              "sin a), cross-validated on the same blocked folds — the round-7 default set, measured by round-7 code; "
              "rows of earlier rounds' code are labelled so (their default set was the first four; rows '[variant: "
              "families …]' are round 6's measurement of the six); condition terms stay only when their coefficient "
-             "beside the static learned field is > 3 standard errors (round 7) and within 3 standard errors of 1 (round 8); stages chosen on the "
+             "beside the static learned field is > 3 standard errors (round 7) and within 3 standard errors of 1 (round 8); "
+             "since round 11 every input set and family also in the machine frame (the residual turned by the work "
+             "frame's rotation; `compensation.hybrid.LEARNED_FRAMES`), the frame chosen by the same CV — rows of "
+             "round 11 code are unlabelled, earlier rounds' labelled with their round; stages chosen on the "
              "60/40 split, the kept stage then re-estimated on all checks) → compensate 2,000 random volume points (exact, reference conditions); "
              "TRUE = against the hidden truth; MEASURED = held-out checks (last 40 % by seq) minus the kept "
              "stage's prediction; noise floor = √3·σ̂. 'parametric' = the same model.json without its learned "

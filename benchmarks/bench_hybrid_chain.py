@@ -246,6 +246,8 @@ def run_case(machine_name: str, seed: int, case: str, ga: bool = False) -> dict:
     from compensation.hybrid import LEARNED_FAMILIES
     row.update({"learned_families": list(LEARNED_FAMILIES), "kept_stage": s["kept_stage"], "base_stage": s.get("base_stage", s["kept_stage"]),
                 "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
+                "learned_output_frame": lr.get("output_frame", "work"),
+                "output_frames_compared": lr.get("output_frames_compared", ["work"]),
                 "learned_z": lr.get("held_out_gain_z"), "held_band95_cover": lr.get("held_out_band95_cover"),
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
                 "held_final_um": s["held_out_rms_um"], "held_loop_um": s.get("held_out_rms_base_um", s["held_out_rms_um"]),
@@ -297,7 +299,11 @@ def write_results(rows, argv) -> None:
              "update absorbs it: a catalogue case, kept as such); `sq_grow_sin` — the same squareness growing as a "
              f"half sine along the third axis ({SQ_GROW_URAD:g} μrad at its mid-stroke; added after the first seed, "
              "chosen by the span test below, not by any TRUE figure); `none` — no effect. Judged per case: the "
-             "hybrid's TRUE RMS against the loop alone and against the same seed's machine without the effect.", ""]
+             "hybrid's TRUE RMS against the loop alone and against the same seed's machine without the effect.", "",
+             "Output frame (round 11, `compensation.hybrid.LEARNED_FRAMES`): rows that record it compared the work and "
+             "the machine frame; rows before round 11 the work frame alone. On `mill-xyz`, whose work frame turns with "
+             "no axis, round 11 compares the work frame alone, so its rows are what round 11 gives; on `five-axis-ac` "
+             "only the rows that name their frame were measured with round 11.", ""]
     by = {}
     for r in rows:
         by.setdefault((r["machine"], r["case"]), []).append(r)
@@ -344,7 +350,9 @@ def write_results(rows, argv) -> None:
                          f"{', replaced ' + ', '.join(r['replaced_terms']) if r['replaced_terms'] else ''}, "
                          f"{_fmt((r.get('hybrid') or {}).get('rms_um'))} / {_fmt((r.get('loop') or {}).get('rms_um'))}, "
                          f"{r['cpu_s']:.0f} s, families compared: "
-                         + ("+".join(r["learned_families"]) if r.get("learned_families") else "not recorded (the four of the time)"))
+                         + ("+".join(r["learned_families"]) if r.get("learned_families") else "not recorded (the four of the time)")
+                         + (f", output frame {r['learned_output_frame']} of {'+'.join(r['output_frames_compared'])}"
+                            if "output_frames_compared" in r else ", output frame: work (before round 11)"))
         ga = [r for r in det if "hybrid_batched_ga" in r]
         for r in ga:
             g = r["hybrid_batched_ga"]

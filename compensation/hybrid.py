@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, is_rotary_column, machine_axes
+from errormap.mt_chain import WorkRotation, machine_tool_of
 from errormap.stats import residual_stats
 from errormap.transforms import check_points
 from training.residual import FAMILY_NAMES, Z95, ResidualRegressor
@@ -212,6 +213,51 @@ stage can be given (``inputs``) but not in the default set: on the blocked folds
 cross-validated no better than the axes (benchmarks/hybrid_results.md, input and kernel variants)."""
 
 
+OUTPUT_FRAMES = ("work", "machine")
+"""The frames the learned part can learn the residual in. ``work``: as measured, in the workpiece frame
+(the spatial error's frame). ``machine``: turned into the machine (base) frame by the nominal rotation
+of the work frame (:class:`errormap.mt_chain.WorkRotation`, from the machine's work chain), learned
+there, and turned back: ``r_work = R(axes)ᵀ·g(axes)``. An error of a body that does not turn with the
+work (a slide on the tool side, whose error the rotary axes under the work turn with the part: on the
+grinder ``r = (0, −cos a, sin a)·e_y(x, z)`` for a y error of the X slide) is, in the machine frame, one
+field of the linear axes per direction instead of a product of that field with the angle's cosine and
+sine in two components; an error of the turning body itself (the A axis' own motion) is simplest in the
+work frame. Which one holds is a property of the machine at hand, so both are cross-validated
+(:data:`LEARNED_FRAMES`) and the lowest CV RMS wins, as for the input sets (the CV RMS is of the vector,
+the same in both frames). Only on a machine whose work frame turns with an axis (on the others the two
+frames differ by a constant rotation and learn the same)."""
+
+LEARNED_FRAMES = ("work", "machine")
+"""The output frames the learned stage cross-validates by default (:data:`OUTPUT_FRAMES`; each with
+every input set and family, on the same blocked folds). Decided on two diagnostic machines (round 11,
+docs/diagnosis.md), then judged (benchmarks/hybrid_results.md, round-11 rows): on the bump, a y error
+of the X slide local in X–Z, the machine frame cross-validated lower and was chosen on 20 of 20
+machines of both truth families, TRUE error 0.08–0.18 μm lower on every one; on the A-axis tilt and
+lobe, errors of the turning axis, the work frame cross-validated lower on every machine (results equal
+to the work frame alone); on no-effect machines the stage stayed declined (30 of 30)."""
+
+
+def frame_key(inputs: str, frame: str) -> str:
+    """The key of an (input set, output frame) candidate in the stage's ``inputs_table``: the input
+    set's name in the work frame (as before there were frames), ``"<set>@machine"`` in the machine frame."""
+    return inputs if frame == "work" else f"{inputs}@{frame}"
+
+
+def split_frame_key(key: str) -> tuple:
+    """:func:`frame_key`'s inverse: ``(input set, output frame)``."""
+    inputs, _, frame = key.partition("@")
+    return inputs, frame or "work"
+
+
+def to_frame(r_um, R, frame: str):
+    """``r_um`` (n, 3) (or (m, n, 3)) in the work frame → in ``frame`` (``R`` (n, 3, 3) base <- work at
+    the same points; the work frame: unchanged)."""
+    r_um = np.asarray(r_um, dtype=float)
+    if frame == "work":
+        return r_um
+    return np.einsum("nij,...nj->...ni", R, r_um)
+
+
 def input_set_features(inputs: str, columns=GRINDER_AXES) -> tuple:
     """The feature names of input set ``inputs`` on a machine whose axis columns are ``columns``."""
     if inputs == "axes":
@@ -313,8 +359,15 @@ class LearnedResidual:
     outside the checks' box ``lo``/``hi`` over its LINEAR axes (:func:`linear_columns`, in axis order)."""
 
     def __init__(self, regressor: ResidualRegressor, lo, hi, inputs: str = "axes", rho0_mm: float | None = None,
-                 axes=GRINDER_AXES):
+                 axes=GRINDER_AXES, frame: str = "work", rotation: WorkRotation | None = None):
         self.axes = tuple(str(c) for c in axes)
+        if frame not in OUTPUT_FRAMES:
+            raise ValueError(f"Expected an output frame of {list(OUTPUT_FRAMES)}, got {frame!r}")
+        if (frame == "work") != (rotation is None):
+            raise ValueError("the machine output frame needs the work rotation, the work frame none")
+        if rotation is not None and rotation.n_axes != len(self.axes):
+            raise ValueError(f"expected a work rotation of {len(self.axes)} axes, got {rotation.n_axes}")
+        self.frame, self.rotation = frame, rotation
         rho0_mm = check_input_set(inputs, rho0_mm, self.axes)
         self.linear = linear_columns(self.axes)
         self.regressor = regressor
@@ -368,25 +421,46 @@ class LearnedResidual:
             dw[:, j] = ws[i][1] * rest
         return w, dw
 
+    def work_var(self, axes, var_um2) -> np.ndarray:
+        """Per-component variances ``var_um2`` ((n, 3) or (3,), μm²) of independent components in the
+        learned frame → the work frame's per-component variances (n, 3) at axes (n, k)."""
+        var = np.broadcast_to(np.asarray(var_um2, dtype=float), (len(axes), 3))
+        if self.rotation is None:
+            return np.array(var)
+        R = self.rotation(axes)[0]
+        return np.einsum("nji,nj->ni", R * R, var)
+
     def predict(self, axes, return_std=False):
-        """Learned correction (n, 3) μm [, its 1-σ band (n, 3) μm] at axes (n, k)."""
+        """Learned correction (n, 3) μm [, its 1-σ band (n, 3) μm] at axes (n, k), in the work frame
+        (learned in the machine frame: turned back, ``Rᵀ·g``, its band's variances with it)."""
         axes = check_points(axes, self.axes_label, len(self.axes))
         w, _ = self._taper(axes)
         f, _ = self.features(axes)
         if return_std:
             v, s = self.regressor.predict(f, return_std=True)
             # outside the box the band is the regressor's prior there (its std grows away from data)
-            return v * w[:, None], s
-        return self.regressor.predict(f) * w[:, None]
+            v = v * w[:, None]
+            if self.rotation is None:
+                return v, s
+            R = self.rotation(axes)[0]
+            return np.einsum("nji,nj->ni", R, v), np.sqrt(np.einsum("nji,nj->ni", R * R, s * s))
+        v = self.regressor.predict(f) * w[:, None]
+        return v if self.rotation is None else np.einsum("nji,nj->ni", self.rotation(axes)[0], v)
 
     def predict_and_jacobian(self, axes):
-        """(value (n, 3) μm, d/d(axes) (n, 3, k)), closed form (taper × regressor, chain rule)."""
+        """(value (n, 3) μm, d/d(axes) (n, 3, k)), closed form (taper × regressor, chain rule; in the
+        machine frame ``d(Rᵀg) = dRᵀ·g + Rᵀ·dg``)."""
         axes = check_points(axes, self.axes_label, len(self.axes))
         w, dw = self._taper(axes)
         f, Jf = self.features(axes)
         v, Jv = self.regressor.predict_and_jacobian(f)                 # (n, 3), (n, 3, d)
         J = np.einsum("nkf,nfa->nka", Jv, Jf) * w[:, None, None] + v[:, :, None] * dw[:, None, :]
-        return v * w[:, None], J
+        v = v * w[:, None]
+        if self.rotation is None:
+            return v, J
+        R, dR = self.rotation(axes)                                     # (n, 3, 3), (n, 3, 3, k)
+        return (np.einsum("nji,nj->ni", R, v),
+                np.einsum("nji,nja->nia", R, J) + np.einsum("njia,nj->nia", dR, v))
 
     def to_dict(self) -> dict:
         """The saved form; ``axes`` (the machine's axis columns) is written when they are not the
@@ -399,6 +473,9 @@ class LearnedResidual:
             out["box_axes"] = list(self.box_names)
         if self.rho0_mm is not None:
             out["rho0_mm"] = self.rho0_mm
+        if self.rotation is not None:   # a file without output_frame learned in the work frame
+            out["output_frame"] = self.frame
+            out["work_rotation"] = self.rotation.to_dict()
         return out
 
     @classmethod
@@ -440,7 +517,17 @@ class LearnedResidual:
         reg = ResidualRegressor.from_dict(doc["regressor"])
         if reg.n_features_in_ != len(names):
             raise ValueError(f"expected a regressor of {len(names)} inputs")
-        return cls(reg, lo, hi, inputs, rho0, axes)
+        frame = doc.get("output_frame", "work")
+        if frame not in OUTPUT_FRAMES:
+            raise ValueError(f"expected output_frame one of {list(OUTPUT_FRAMES)}, got {frame!r}")
+        rotation = None
+        if frame != "work":
+            if "work_rotation" not in doc:
+                raise ValueError(f"expected work_rotation with output_frame {frame!r}")
+            rotation = WorkRotation.from_dict(doc["work_rotation"])
+            if rotation.n_axes != len(axes):
+                raise ValueError(f"expected a work_rotation of {len(axes)} axes, got {rotation.n_axes}")
+        return cls(reg, lo, hi, inputs, rho0, axes, frame, rotation)
 
 
 class HybridField:
@@ -591,23 +678,27 @@ def _cv_key(reg) -> str:
     return reg.chosen_ if reg.chosen_ != "none" else "zero"
 
 
-def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns=GRINDER_AXES):
-    """Cross-validate every family on every input set (same blocked folds: they depend on
-    ``groups`` only) → (input set, its fitted :class:`ResidualRegressor`, table): the input set
-    whose chosen family has the lowest CV RMS (the first set when every one declines); table per
-    input set: ``family`` chosen there, its ``cv_rms``, the ``zero`` CV RMS, and per family
-    ``cv_rms_by_family``."""
+def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns=GRINDER_AXES, R=None, frames=("work",)):
+    """Cross-validate every family on every input set and output frame (same blocked folds: they
+    depend on ``groups`` only) → (key, its fitted :class:`ResidualRegressor`, table): the
+    (input set, frame) candidate (:func:`frame_key`) whose chosen family has the lowest CV RMS (the
+    first when every one declines); table per candidate: ``family`` chosen there, its ``cv_rms``,
+    the ``zero`` CV RMS, per family ``cv_rms_by_family``, and ``output_frame``. ``R`` (n, 3, 3) the
+    work frame's rotation at the checks (base <- work), needed for a frame other than ``work``."""
     regs, table = {}, {}
     for name, f in feats.items():
-        reg = ResidualRegressor(families=families, seed=seed, input_groups=input_set_groups(name, columns)).fit(
-            f[fit_idx], r_um[fit_idx], groups=groups)
-        regs[name] = reg
-        table[name] = {"family": reg.chosen_,
-                       "cv_rms": reg.cv_table_[_cv_key(reg)]["cv_rms"],
-                       "cv_rms_zero": reg.cv_table_["zero"]["cv_rms"],
-                       "cv_rms_by_family": {k: v["cv_rms"] for k, v in reg.cv_table_.items()}}
-    fitted = [n for n in feats if regs[n].chosen_ != "none"]
-    best = min(fitted, key=lambda n: table[n]["cv_rms"]) if fitted else next(iter(feats))
+        for frame in frames:
+            key = frame_key(name, frame)
+            reg = ResidualRegressor(families=families, seed=seed, input_groups=input_set_groups(name, columns)).fit(
+                f[fit_idx], to_frame(r_um, R, frame)[fit_idx], groups=groups)
+            regs[key] = reg
+            table[key] = {"family": reg.chosen_,
+                          "cv_rms": reg.cv_table_[_cv_key(reg)]["cv_rms"],
+                          "cv_rms_zero": reg.cv_table_["zero"]["cv_rms"],
+                          "cv_rms_by_family": {k: v["cv_rms"] for k, v in reg.cv_table_.items()},
+                          "output_frame": frame}
+    fitted = [n for n in regs if regs[n].chosen_ != "none"]
+    best = min(fitted, key=lambda n: table[n]["cv_rms"]) if fitted else next(iter(regs))
     return best, regs[best], table
 
 
@@ -659,7 +750,7 @@ def condition_term_test(reg_static, f, r_static_um, c_um) -> dict:
 
 def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=None, r_static_um=None,
                   covariance=None, refit_residual=None, refit_mode: str = "hyper", inputs=None,
-                  condition_terms_um=None):
+                  condition_terms_um=None, frames=None):
     """Fit the learned residual on what the previous stage leaves at the checks and gate it.
 
     ``r_prev_um`` (n, 3): measured residual of the previous (kept) stage at every check;
@@ -689,6 +780,8 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     ``families``: the learned families cross-validated (None: :data:`LEARNED_FAMILIES` at call time);
     ``inputs``: the input sets (:data:`INPUT_SETS`) each family is cross-validated on (None:
     :data:`LEARNED_INPUTS` at call time; the work-frame sets need ``machine.rho0_mm``).
+    ``frames``: the output frames (:data:`OUTPUT_FRAMES`) each input set is cross-validated in (None:
+    :data:`LEARNED_FRAMES` at call time; ``machine`` only where the machine's work frame turns with an axis).
     ``covariance``: the previous stage's element covariance (or None): with it, the stage also
     reports the coverage of the hybrid's TOTAL band on the held-out checks
     (``held_out_band95_cover_total``: learned band ⊕ elements' J Σ Jᵀ ⊕ the fitted noise) and
@@ -713,27 +806,38 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                                   "why": f"declined: fewer than {MIN_FIT_CHECKS} fitting or {MIN_HELD_CHECKS} held-out "
                                          f"checks ({len(fit_idx)}, {len(hold_idx)})"}}
     inputs = tuple(LEARNED_INPUTS if inputs is None else inputs)
+    frames = tuple(LEARNED_FRAMES if frames is None else frames)
+    if not frames or any(fr not in OUTPUT_FRAMES for fr in frames):
+        raise ValueError(f"Expected output frames from {list(OUTPUT_FRAMES)}, got {list(frames)}")
+    rotation = machine_tool_of(machine).work_rotation() if any(fr != "work" for fr in frames) else None
+    if rotation is not None and not rotation.turns:   # a constant rotation: the frames learn the same
+        frames, rotation = ("work",), None
+    R_chk = None if rotation is None else rotation(axes)[0]
     rho0 = getattr(machine, "rho0_mm", None) if any(i != "axes" for i in inputs) else None
     feats = {name: input_features(axes, name, rho0, columns)[0] for name in inputs}
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
-    inp, reg, inputs_table = _fit_inputs(feats, r_prev_um, fit_idx, groups, families, seed, columns)
+    fit_cands = (lambda r: _fit_inputs(feats, r, fit_idx, groups, families, seed, columns, R_chk, frames))
+    key, reg, inputs_table = fit_cands(r_prev_um)
     r_base, replaces, alt, per_term, replaced_k = r_prev_um, False, None, None, ()
     if r_static_um is not None:
         r_static_um = np.asarray(r_static_um, dtype=float)
-        inp_s, reg_s, inputs_table_s = _fit_inputs(feats, r_static_um, fit_idx, groups, families, seed, columns)
+        key_s, reg_s, inputs_table_s = fit_cands(r_static_um)
+        inp_s, frame_s = split_frame_key(key_s)
         e_with, e_static = reg.cv_sq_err_[_cv_key(reg)], reg_s.cv_sq_err_[_cv_key(reg_s)]
         z_s, g_s, se_s = _paired_z(np.sqrt(e_with)[:, None], np.sqrt(e_static)[:, None])
         term = {"coefficient": None, "coefficient_se": None, "z": None, "family": None}
         c_sum = r_static_um - np.asarray(r_prev_um, dtype=float)
         if reg_s.chosen_ != "none":
-            term = condition_term_test(reg_s, feats[inp_s][fit_idx], r_static_um[fit_idx], c_sum[fit_idx])
+            term = condition_term_test(reg_s, feats[inp_s][fit_idx], to_frame(r_static_um, R_chk, frame_s)[fit_idx],
+                                       to_frame(c_sum, R_chk, frame_s)[fit_idx])
         replaces = reg_s.chosen_ != "none" and term["z"] is not None and not keeps_condition_terms(term)
         per_term = None
         if condition_terms_um is not None:
             cts = np.asarray(condition_terms_um, dtype=float)
             per_term = {"coefficient": [None] * len(cts), "coefficient_se": [None] * len(cts), "z": [None] * len(cts)}
             if reg_s.chosen_ != "none":
-                per_term = condition_term_test(reg_s, feats[inp_s][fit_idx], r_static_um[fit_idx], cts[:, fit_idx])
+                per_term = condition_term_test(reg_s, feats[inp_s][fit_idx], to_frame(r_static_um, R_chk, frame_s)[fit_idx],
+                                               to_frame(cts, R_chk, frame_s)[:, fit_idx])
             if per_term["z"] is None:
                 per_term = {"coefficient": [None] * len(cts), "coefficient_se": [None] * len(cts), "z": [None] * len(cts)}
             keep_k = [reg_s.chosen_ == "none" or keeps_condition_terms(
@@ -743,7 +847,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
             replaces = bool(replaced_k)
         alt = {"cv_rms_with_terms_um": float(np.sqrt(e_with.mean())), "cv_rms_static_um": float(np.sqrt(e_static.mean())),
                "cv_gain_z": z_s, "cv_gain_um2": g_s, "cv_gain_se_um2": se_s, "static_family": reg_s.chosen_,
-               "static_input_set": inp_s,
+               "static_input_set": inp_s, "static_output_frame": frame_s,
                "term_coefficient": term["coefficient"], "term_coefficient_se": term["coefficient_se"],
                "term_z": term["z"], "term_test_family": term["family"],
                "term_z_from_one": (None if term["z"] is None else abs(term["coefficient"] - 1.0) / term["coefficient_se"]),
@@ -762,24 +866,28 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                         f"of the axes replaces them (cv_* are the blocked-CV errors of the two variants, for information)")}
         if replaces and per_term is not None and len(replaced_k) < len(cts):   # some terms stay
             r_part = np.asarray(r_prev_um, dtype=float) + cts[list(replaced_k)].sum(axis=0)
-            inp_p, reg_p, inputs_table_p = _fit_inputs(feats, r_part, fit_idx, groups, families, seed, columns)
-            reg, r_base, inp, inputs_table = reg_p, r_part, inp_p, inputs_table_p
+            key_p, reg_p, inputs_table_p = fit_cands(r_part)
+            reg, r_base, key, inputs_table = reg_p, r_part, key_p, inputs_table_p
         elif replaces:
-            reg, r_base, inp, inputs_table = reg_s, r_static_um, inp_s, inputs_table_s
+            reg, r_base, key, inputs_table = reg_s, r_static_um, key_s, inputs_table_s
+    inp, frame = split_frame_key(key)
     f = feats[inp]
     lo = axes[:, lin].min(0)
     hi = axes[:, lin].max(0)
-    fitted = LearnedResidual(reg, axes[fit_idx][:, lin].min(0), axes[fit_idx][:, lin].max(0), inp, rho0, columns)
+    rot = rotation if frame != "work" else None
+    fitted = LearnedResidual(reg, axes[fit_idx][:, lin].min(0), axes[fit_idx][:, lin].max(0), inp, rho0, columns,
+                             frame, rot)
     pred, sd = fitted.predict(axes, return_std=True)
     r_new = r_base - pred
     z, gain, se = _paired_z(r_prev_um[hold_idx], r_new[hold_idx])
-    noise = reg.noise_std_
-    band = Z95 * np.sqrt(sd**2 + noise[None, :] ** 2)
+    noise = reg.noise_std_                                  # (3,) in the learned frame
+    noise_var = fitted.work_var(axes, noise ** 2)           # (n, 3) in the work frame
+    band = Z95 * np.sqrt(sd**2 + noise_var)
     cover = float(np.mean(np.abs(r_new[hold_idx]) <= band[hold_idx])) if reg.chosen_ != "none" else None
     cover_total = None
     if covariance is not None and reg.chosen_ != "none":
         sd_t = total_band_std(fitted, machine, axes[hold_idx], covariance)
-        cover_total = float(np.mean(np.abs(r_new[hold_idx]) <= Z95 * np.sqrt(sd_t**2 + noise[None, :] ** 2)))
+        cover_total = float(np.mean(np.abs(r_new[hold_idx]) <= Z95 * np.sqrt(sd_t**2 + noise_var[hold_idx])))
     kept = reg.chosen_ != "none" and z > KEEP_Z
     if reg.chosen_ == "none":
         why = "declined: no family beat predicting zero in the blocked cross-validation on the fitting checks"
@@ -792,11 +900,12 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
              "fitting": residual_stats(r_new[fit_idx], ("dx_um", "dy_um", "dz_um")),
              "learned": {"family": reg.chosen_, "family_name": FAMILY_NAMES.get(reg.chosen_, reg.chosen_),
                          "families_compared": list(families),
-                         "selection_rule": (f"each (input set, family) cross-validated on the same blocked folds; eligible if "
+                         "selection_rule": (f"each (input set, output frame, family) cross-validated on the same blocked folds; eligible if "
                                             f"its mean paired gain over zero exceeds {reg.margin_se} standard error(s); of "
                                             f"those the lowest CV RMS wins"),
                          "cv_table": reg.cv_table_, "inputs": list(input_set_features(inp, columns)), "input_set": inp,
                          "input_sets_compared": list(inputs), "inputs_table": inputs_table,
+                         "output_frame": frame, "output_frames_compared": list(frames),
                          "cv": f"blocked: {CV_BLOCKS} contiguous seq blocks of the fitting checks",
                          "held_out_gain_um2": gain, "held_out_gain_se_um2": se, "held_out_gain_z": z,
                          "held_out_band95_cover": cover, "held_out_band95_cover_total": cover_total,
@@ -820,6 +929,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
         base_refit = True
     else:
         r_ship, base_refit = r_base, False
+    r_ship = to_frame(r_ship, R_chk, frame)
     reg_all = reg.refit(f, r_ship, seed=seed) if refit_mode == "hyper" else reg.with_data(f, r_ship)
     stage["learned"]["shipped"] = {
         "estimated_on_checks": int(len(axes)), "refit_mode": refit_mode, "base_refit_on_all_checks": base_refit,
@@ -829,6 +939,6 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
                  + (", on the residual of the base model re-estimated on all checks" if base_refit else ""))}
     if refit_mode == "hyper" and reg_all.model_ is not None:
         stage["learned"]["noise_std_um"] = reg_all.noise_std_.tolist()
-    learned = LearnedResidual(reg_all, lo, hi, inp, rho0, columns)
+    learned = LearnedResidual(reg_all, lo, hi, inp, rho0, columns, frame, rot)
     stage["learned"]["map"] = learned_map(learned, machine, covariance=covariance)
     return learned, stage

@@ -125,6 +125,78 @@ class ClosedForm:
 
 
 @dataclass(frozen=True)
+class WorkRotation:
+    """The nominal rotation of the workpiece frame in the machine (base) frame, ``base <- work``, as
+    data: the work chain's rotation ETs in order (translations do not turn the frame; error slots
+    are left out: nominal), each ``(axis, value_rad, column, rad_per_unit)`` — a rotation about x, y
+    or z (0, 1, 2) by ``value_rad + rad_per_unit * axes[:, column]`` (``column`` -1: a fixed rotation).
+    ``n_axes`` the number of axis columns it takes. A residual measured in the work frame (the spatial
+    error's frame) is ``R(axes)ᵀ`` times the same vector in the machine frame. Built by
+    :meth:`MachineTool.work_rotation`; saved as :meth:`to_dict` (the learned residual's file)."""
+
+    ets: tuple
+    n_axes: int
+
+    def __call__(self, axes) -> tuple:
+        """``R`` (n, 3, 3), base <- work, and ``dR/d(axes)`` (n, 3, 3, k) (per deg or mm of each column)
+        at ``axes`` (n, k), closed form: the product of the ETs' rotations and, per joint ET, the
+        product with that ET's derivative ``Rot·K`` (``K`` the unit axis' cross-product matrix)."""
+        axes = np.asarray(axes, dtype=float)
+        if axes.ndim != 2 or axes.shape[1] != self.n_axes:
+            raise ValueError(f"expected axes of shape (n, {self.n_axes}), got {axes.shape}")
+        n = axes.shape[0]
+        rots, ders = [], []
+        for ax, v, col, k in self.ets:
+            x = np.full(n, float(v)) if col < 0 else v + k * axes[:, col]
+            b, c = (ax + 1) % 3, (ax + 2) % 3
+            cs, sn = np.cos(x), np.sin(x)
+            Rt = np.zeros((n, 3, 3))
+            Rt[:, ax, ax] = 1.0
+            Rt[:, b, b], Rt[:, b, c], Rt[:, c, b], Rt[:, c, c] = cs, -sn, sn, cs
+            Kx = np.zeros((3, 3))
+            Kx[c, b], Kx[b, c] = 1.0, -1.0
+            rots.append(Rt)
+            ders.append(Rt @ Kx)
+        m = len(rots)
+        pre = [np.broadcast_to(np.eye(3), (n, 3, 3))]
+        for Rt in rots:
+            pre.append(pre[-1] @ Rt)
+        suf = [np.broadcast_to(np.eye(3), (n, 3, 3))]
+        for Rt in reversed(rots):
+            suf.append(Rt @ suf[-1])
+        suf = suf[::-1]          # suf[i] = rots[i] ... rots[m-1]; suf[m] = I
+        dR = np.zeros((n, 3, 3, self.n_axes))
+        for i, (ax, v, col, k) in enumerate(self.ets):
+            if col >= 0:
+                dR[:, :, :, col] += k * (pre[i] @ ders[i] @ suf[i + 1])
+        return np.array(pre[m]), dR
+
+    @property
+    def turns(self) -> bool:
+        """Whether the work frame turns with an axis (any rotation ET is a joint)."""
+        return any(col >= 0 for _, _, col, _ in self.ets)
+
+    def to_dict(self) -> dict:
+        return {"n_axes": int(self.n_axes),
+                "ets": [[int(a), float(v), int(c), float(k)] for a, v, c, k in self.ets]}
+
+    @classmethod
+    def from_dict(cls, doc) -> "WorkRotation":
+        """ValueError on anything but :meth:`to_dict`'s output."""
+        try:
+            n_axes = int(doc["n_axes"])
+            ets = tuple((int(a), float(v), int(c), float(k)) for a, v, c, k in doc["ets"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"expected a work rotation {{n_axes, ets: [[axis, value_rad, column, rad_per_unit], ...]}} "
+                             f"({exc})") from None
+        if n_axes < 1 or any(a not in (0, 1, 2) or not -1 <= c < n_axes or not (np.isfinite(v) and np.isfinite(k))
+                             for a, v, c, k in ets):
+            raise ValueError("expected work rotation ETs about axis 0, 1 or 2, of finite values, on a column "
+                             f"-1..{n_axes - 1}")
+        return cls(ets, n_axes)
+
+
+@dataclass(frozen=True)
 class MachineTool:
     """A compiled machine-tool chain file. ``axes`` in canonical word order; ``slots`` in chain
     order; ``chain`` the compiled ``inv(work)·tool`` chain (joints = ``axes``, parameters =
@@ -404,6 +476,15 @@ class MachineTool:
         if key not in self.__dict__:
             object.__setattr__(self, key, self.closed_form_inverse())
         return self.__dict__[key]
+
+    def work_rotation(self) -> WorkRotation:
+        """The nominal rotation of the work frame in the machine frame as data (:class:`WorkRotation`):
+        the work chain's rotation ETs, joints in this machine's axis columns (deg → rad)."""
+        scale = [np.pi / 180 if a.kind == "rotary" else 1.0 for a in self.axes]
+        ets = tuple((int(e.axis), float(e.value), -1 if e.joint is None else int(e.joint),
+                     0.0 if e.joint is None else float(e.sign) * scale[e.joint])
+                    for e in self.work_ets if e.kind == "r" and (e.joint is not None or e.value != 0.0))
+        return WorkRotation(ets, len(self.axes))
 
     def body_frames(self, word: str, axes, values=None):
         """Actual frame of the moving body of axis ``word`` in the machine (base) frame, after its
@@ -809,6 +890,12 @@ def _grinder_key(machine) -> tuple:
 
 _GRINDER_CHAINS: dict = {}
 GRINDER_CHAIN_CACHE = 32  # distinct grinder files kept compiled (a session uses one or two)
+
+
+def machine_tool_of(machine) -> MachineTool:
+    """``machine`` as a machine-tool chain: a :class:`MachineTool` itself, a grinder file's machine its
+    chain (:func:`grinder_chain`)."""
+    return machine if isinstance(machine, MachineTool) else grinder_chain(machine)
 
 
 def grinder_chain(machine) -> MachineTool:

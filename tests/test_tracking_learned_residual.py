@@ -49,6 +49,7 @@ def test_kept_learned_residual_is_a_run_with_its_cv_table_family_and_json(kept, 
     assert run.info.status == "FINISHED"
     assert run.data.params["family"] == learned.chosen == stage["learned"]["family"]
     assert run.data.params["kept"] == "True" and run.data.tags["kind"] == "learned_residual"
+    assert run.data.params["output_frame"] == learned.frame == stage["learned"]["output_frame"]
     m = run.data.metrics
     assert m["held_out.rms_um"] == pytest.approx(stage["held_out"]["rms_um"], rel=0, abs=0)
     assert m["learned.held_out_gain_z"] == pytest.approx(stage["learned"]["held_out_gain_z"], rel=0, abs=0)

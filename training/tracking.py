@@ -133,7 +133,7 @@ def log_learned_residual(stage: dict, learned_doc: dict, *, model_doc: dict | No
     the chosen family, the blocked-CV table, the held-out gate; ``held_out`` / ``fitting`` statistics);
     ``learned_doc``: the learned residual's JSON (what ``model.json`` holds under ``learned_residual``);
     ``model_doc``: the whole ``model.json`` (logged beside it when given).
-    Params: family, inputs, CV scheme, base stage, kept; metrics: every number of the held-out and
+    Params: family, inputs, output frame, CV scheme, base stage, kept; metrics: every number of the held-out and
     fitting statistics and of the gate (``held_out.rms_um``, ``learned.held_out_gain_z``, ...) and
     the CV table (``cv_table.<family>.<column>``); artifacts: ``learned_residual.json``,
     ``stage.json`` (the summary with its CV table), ``model.json``. Tag ``kind = learned_residual``.
@@ -151,6 +151,7 @@ def log_learned_residual(stage: dict, learned_doc: dict, *, model_doc: dict | No
     status = "FAILED"
     try:
         params = {"family": learned.get("family", ""), "inputs": ",".join(learned.get("inputs", [])),
+                  "output_frame": learned.get("output_frame", "work"),
                   "cv": learned.get("cv", ""), "kept": learned.get("kept", ""), "why": learned.get("why", ""),
                   "base_stage": stage.get("base_stage", "")}
         client.log_batch(rid, params=[Param(k, str(v)[:6000]) for k, v in params.items()])

@@ -170,6 +170,12 @@ def _stages(s) -> dict:
             "rejected": s.get("effects_rejected_why", "") if s.get("effects_rejected") else ""}
 
 
+FRAME_WORDS = {"work": "learned in the work frame, as measured",
+               "machine": "learned in the machine frame (the residual turned by the work frame's nominal rotation, "
+                          "and turned back)"}
+"""How the report names the learned part's output frame (compensation.hybrid.OUTPUT_FRAMES)."""
+
+
 def _learned(s) -> dict | None:
     """The learned-residual stage (compensation.hybrid): its CV table, gate and map figure."""
     lr = s.get("learned_residual")
@@ -190,7 +196,15 @@ def _learned(s) -> dict | None:
            # the rule that replaced them, as the run recorded it (it changed between rounds: diagnosis.json says which)
            "replaced_rule": (lr.get("condition_terms_vs_static") or {}).get("rule"),
            "table": Table(["family", "CV RMS (μm)", "its SE (μm)", "mean gain over zero (μm²)", "its SE (μm²)",
-                           "95 % band coverage"], rows), "figure": None}
+                           "95 % band coverage"], rows), "figure": None,
+           "frame": FRAME_WORDS.get(lr.get("output_frame", "work"), lr.get("output_frame")),
+           "frames_table": None}
+    cands = lr.get("inputs_table") or {}
+    if len(cands) > 1:   # more than one (input set, output frame) candidate: each one's chosen family and CV RMS
+        out["frames_table"] = Table(
+            ["input set", "output frame", "family chosen there", "CV RMS (μm)", "zero's CV RMS (μm)"],
+            [[k.split("@")[0], v.get("output_frame", "work"), v["family"], v["cv_rms"], v["cv_rms_zero"]]
+             for k, v in cands.items()])
     m = lr.get("map")
     if m:
         out["figure"] = learned_map_figure(m)
