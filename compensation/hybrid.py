@@ -36,6 +36,7 @@ import numpy as np
 
 from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, is_rotary_column, machine_axes
 from errormap.mt_chain import WorkRotation, machine_tool_of
+from errormap.progress import Progress
 from errormap.stats import residual_stats
 from errormap.transforms import check_points
 from training.residual import FAMILY_NAMES, Z95, ResidualRegressor
@@ -686,17 +687,20 @@ def _fit_inputs(feats, r_um, fit_idx, groups, families, seed, columns=GRINDER_AX
     the ``zero`` CV RMS, per family ``cv_rms_by_family``, and ``output_frame``. ``R`` (n, 3, 3) the
     work frame's rotation at the checks (base <- work), needed for a frame other than ``work``."""
     regs, table = {}, {}
-    for name, f in feats.items():
-        for frame in frames:
-            key = frame_key(name, frame)
-            reg = ResidualRegressor(families=families, seed=seed, input_groups=input_set_groups(name, columns)).fit(
-                f[fit_idx], to_frame(r_um, R, frame)[fit_idx], groups=groups)
-            regs[key] = reg
-            table[key] = {"family": reg.chosen_,
-                          "cv_rms": reg.cv_table_[_cv_key(reg)]["cv_rms"],
-                          "cv_rms_zero": reg.cv_table_["zero"]["cv_rms"],
-                          "cv_rms_by_family": {k: v["cv_rms"] for k, v in reg.cv_table_.items()},
-                          "output_frame": frame}
+    with Progress(len(feats) * len(frames) * len(families), "learned residual: blocked CV") as bar:
+        for name, f in feats.items():
+            for frame in frames:
+                key = frame_key(name, frame)
+                reg = ResidualRegressor(families=families, seed=seed, input_groups=input_set_groups(name, columns),
+                                        progress=lambda fam, key=key: bar.update(1, f"{key} {fam}")).fit(
+                    f[fit_idx], to_frame(r_um, R, frame)[fit_idx], groups=groups)
+                reg.progress = None                  # the bar's hook is not part of the fitted model
+                regs[key] = reg
+                table[key] = {"family": reg.chosen_,
+                              "cv_rms": reg.cv_table_[_cv_key(reg)]["cv_rms"],
+                              "cv_rms_zero": reg.cv_table_["zero"]["cv_rms"],
+                              "cv_rms_by_family": {k: v["cv_rms"] for k, v in reg.cv_table_.items()},
+                              "output_frame": frame}
     fitted = [n for n in regs if regs[n].chosen_ != "none"]
     best = min(fitted, key=lambda n: table[n]["cv_rms"]) if fitted else next(iter(regs))
     return best, regs[best], table

@@ -21,7 +21,8 @@ outputs, ``predict(Xs, return_std, jacobian)``, ``noise_var()``):
 * the Jacobian d(mean)/d(input) is closed form (Legendre derivatives by their recurrence, the
   harmonics' derivative through the angle, the envelope's).
 
-Numpy/scipy only; a fit is a few hundred columns, milliseconds per marginal-likelihood evaluation.
+Numpy/scipy only; a fit factorises the smaller of the p × p coefficient and the n × n data-space matrix,
+milliseconds per marginal-likelihood evaluation.
 """
 from __future__ import annotations
 
@@ -189,24 +190,49 @@ class BasisRegression:
         logdet = n * np.log(sn2) + 2 * np.log(np.diag(c[0])).sum() + np.log(v).sum()
         return 0.5 * (quad + logdet + n * np.log(2 * np.pi))
 
+    def _nlml_dual(self, theta, S, y):
+        """:meth:`_nlml` in the data space, for more columns than points: the same marginal likelihood with the
+        (n, n) covariance ``K = σ² Σ_d q^d S_d + sn² I``; ``S`` (D+1, n, n) the per-degree Gram blocks
+        ``S_d = Φ_d Φ_dᵀ`` (``Φ_d`` the columns of total degree d)."""
+        n = len(y)
+        K = np.tensordot(np.exp(theta[0] + theta[1] * np.arange(len(S))), S, axes=1)
+        K[np.diag_indices(n)] += np.exp(theta[2])
+        try:
+            c = cho_factor(K, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            return 1e25
+        alpha = cho_solve(c, y, check_finite=False)
+        return 0.5 * (y @ alpha + 2 * np.log(np.diag(c[0])).sum() + n * np.log(2 * np.pi))
+
     def fit(self, Xs, Ys):
         """Xs (n, d) standardised, Ys (n, k) scaled → self (hyper-parameters per output by maximum marginal
-        likelihood, then the posterior)."""
+        likelihood, then the posterior). The marginal likelihood is evaluated in the coefficient space (p × p)
+        when there are fewer columns p than points n, in the data space (n × n, :meth:`_nlml_dual`) otherwise:
+        the same function, the smaller factorisation (a five-axis machine's basis has 1,092 columns for a few
+        hundred checks)."""
         Xs, Ys = np.asarray(Xs, dtype=float), np.asarray(Ys, dtype=float)
         self._setup(Xs)
         Phi, _ = self._design(Xs)
-        G = Phi.T @ Phi
+        dual = Phi.shape[1] > Phi.shape[0]
+        if dual:
+            S = np.stack([Phi[:, self.col_degree_ == d] @ Phi[:, self.col_degree_ == d].T
+                          for d in range(self.degree + 1)])
+        else:
+            G = Phi.T @ Phi
         thetas = []
         bounds = [LOG_VAR_BOUNDS, LOG_Q_BOUNDS, LOG_VAR_BOUNDS]
         for k in range(Ys.shape[1]):
             y = Ys[:, k]
             var = max(float(np.mean(y * y)), 1e-12)
-            b, yy = Phi.T @ y, float(y @ y)
+            if dual:
+                fun, args = self._nlml_dual, (S, y)
+            else:
+                fun, args = self._nlml, (G, Phi.T @ y, float(y @ y), len(y))
             best = None
             for t0 in ([np.log(0.5 * var), np.log(0.3), np.log(0.5 * var)],
                        [np.log(0.1 * var), np.log(0.7), np.log(0.8 * var)]):
-                r = minimize(self._nlml, np.clip(t0, [b_[0] for b_ in bounds], [b_[1] for b_ in bounds]),
-                             args=(G, b, yy, len(y)), method="L-BFGS-B", bounds=bounds, options={"maxiter": 200})
+                r = minimize(fun, np.clip(t0, [b_[0] for b_ in bounds], [b_[1] for b_ in bounds]),
+                             args=args, method="L-BFGS-B", bounds=bounds, options={"maxiter": 200})
                 if best is None or r.fun < best.fun:
                     best = r
             thetas.append(best.x)

@@ -265,6 +265,8 @@ def _gp_nll(theta, X, y, D, kind="rbf", terms=None):
     X (n, d) standardised, y (n,), D (d, n, n) squared differences per input; ``kind`` the kernel
     (``terms`` its terms for ``additive``)."""
     d = X.shape[1]
+    if kind == "additive":
+        return _additive_nll(theta, y, D, terms)
     parts, sn2 = _parts(theta, d, kind, terms)
     KH = [_kernel(np.tensordot(inv_l2, D, axes=1), sf2, base) for inv_l2, sf2, base, _, _ in parts]
     K = sum(k for k, _ in KH) + sn2 * np.eye(len(y))
@@ -286,6 +288,65 @@ def _gp_nll(theta, X, y, D, kind="rbf", terms=None):
         grad[sl] += -0.5 * inv_l2 * np.tensordot(D, W * H, axes=([1, 2], [0, 1]))
         grad[isf] = -0.5 * (W * Kf).sum()
     grad[-1] = -0.5 * sn2 * np.trace(W)
+    return nll, grad
+
+
+def _atoms(d, terms):
+    """The finest partition of the d inputs of which every additive term is a union: inputs in the same
+    terms are one atom (a rotary axis's cos and sin) → (atoms: tuple of column tuples, per term the atom
+    indices it is made of)."""
+    sig = {}
+    for j in range(d):
+        sig.setdefault(tuple(j in t for t in terms), []).append(j)
+    atoms = tuple(tuple(v) for v in sig.values())
+    return atoms, tuple(tuple(a for a, cols in enumerate(atoms) if cols[0] in t) for t in terms)
+
+
+def _nll_from_K(K, y):
+    """(nll, W = ααᵀ − K⁻¹) of a zero-mean GP with covariance K (n, n) at y (n,); None where K is not
+    positive definite."""
+    try:
+        c = cho_factor(K, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    alpha = cho_solve(c, y, check_finite=False)
+    nll = 0.5 * y @ alpha + np.log(np.diag(c[0])).sum() + 0.5 * len(y) * np.log(2 * np.pi)
+    Kinv, info = dpotri(c[0], lower=1)          # K⁻¹ from its Cholesky factor (lower triangle filled)
+    if info != 0:
+        return None
+    Kinv = np.tril(Kinv) + np.tril(Kinv, -1).T
+    return nll, np.outer(alpha, alpha) - Kinv
+
+
+def _additive_nll(theta, y, D, terms):
+    """:func:`_gp_nll` of the ``additive`` kernel, assembled per atom (:func:`_atoms`): each term's squared
+    exponential is the product of its atoms' ``exp(−½ Σ_j Δ_j²/l_j²)`` and each length scale's gradient sums
+    ``W ⊙ K_t`` over the terms that hold it first — the same function and gradient as the per-term form
+    (:func:`_parts`), a few times fewer (n, n) operations on a machine with many axes (15 terms on five)."""
+    d, n = D.shape[0], len(y)
+    atoms, made_of = _atoms(d, terms)
+    inv_l2 = np.exp(-2.0 * theta[:d])
+    E = [np.exp(-0.5 * np.tensordot(inv_l2[list(cols)], D[list(cols)], axes=1)) for cols in atoms]
+    Ks = []
+    for t, parts in enumerate(made_of):
+        k = np.exp(theta[d + t]) * E[parts[0]]
+        for a in parts[1:]:
+            k = k * E[a]
+        Ks.append(k)
+    K = sum(Ks)
+    K[np.diag_indices(n)] += np.exp(theta[-1])
+    got = _nll_from_K(K, y)
+    if got is None:
+        return 1e25, np.zeros_like(theta)
+    nll, W = got
+    grad = np.zeros_like(theta)
+    for a, cols in enumerate(atoms):
+        M = W * sum(Ks[t] for t, parts in enumerate(made_of) if a in parts)
+        for j in cols:
+            grad[j] = -0.5 * inv_l2[j] * np.vdot(D[j], M)
+    for t in range(len(terms)):
+        grad[d + t] = -0.5 * np.vdot(W, Ks[t])
+    grad[-1] = -0.5 * np.exp(theta[-1]) * np.trace(W)
     return nll, grad
 
 
@@ -417,6 +478,9 @@ class ResidualRegressor:
         axis): the terms of the ``gp_additive`` family (:func:`additive_terms`); a partition of
         the columns, checked at :meth:`fit`. None: each column its own group. The other families
         ignore it.
+    progress : None or callable
+        Called with each family's name once its cross-validation is done (a progress bar's hook;
+        not part of the fitted state).
 
     Attributes after :meth:`fit`
     ----------------------------
@@ -437,13 +501,14 @@ class ResidualRegressor:
     """
 
     def __init__(self, families=("gp",), n_splits: int = 5, seed=0, margin_se: float = 1.0, n_restarts: int = 1,
-                 input_groups=None):
+                 input_groups=None, progress=None):
         self.families = families
         self.n_splits = n_splits
         self.seed = seed
         self.margin_se = margin_se
         self.n_restarts = n_restarts
         self.input_groups = input_groups
+        self.progress = progress
 
     # -- validation
     def _check_settings(self):
@@ -545,6 +610,8 @@ class ResidualRegressor:
             # band calibration: the factor that makes the CV's 95 % band hold 95 % of the held-out components
             zs = np.abs(Y[held] - pred[held]) / np.maximum(band[held] / Z95, 1e-300)
             table[fam]["band_scale"] = float(np.quantile(zs, 0.95) / Z95)
+            if self.progress is not None:
+                self.progress(fam)
         eligible = [f for f in fams if table[f]["gain_mean"] > self.margin_se * table[f]["gain_se"]
                     and table[f]["gain_mean"] > 0]
         self.cv_table_ = table
