@@ -215,8 +215,8 @@ class BasisRegression:
         Phi, _ = self._design(Xs)
         dual = Phi.shape[1] > Phi.shape[0]
         if dual:
-            S = np.stack([Phi[:, self.col_degree_ == d] @ Phi[:, self.col_degree_ == d].T
-                          for d in range(self.degree + 1)])
+            blocks = (Phi[:, self.col_degree_ == d] for d in range(self.degree + 1))
+            S = np.stack([B @ B.T for B in blocks])
         else:
             G = Phi.T @ Phi
         thetas = []

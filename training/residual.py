@@ -40,6 +40,8 @@ a saved regressor predicts bit-for-bit like the fitted one.
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.linalg.lapack import dpotri
@@ -270,31 +272,25 @@ def _gp_nll(theta, X, y, D, kind="rbf", terms=None):
     parts, sn2 = _parts(theta, d, kind, terms)
     KH = [_kernel(np.tensordot(inv_l2, D, axes=1), sf2, base) for inv_l2, sf2, base, _, _ in parts]
     K = sum(k for k, _ in KH) + sn2 * np.eye(len(y))
-    try:
-        c = cho_factor(K, lower=True, check_finite=False)
-    except np.linalg.LinAlgError:
+    got = _nll_from_K(K, y)
+    if got is None:
         return 1e25, np.zeros_like(theta)
-    alpha = cho_solve(c, y, check_finite=False)
-    nll = 0.5 * y @ alpha + np.log(np.diag(c[0])).sum() + 0.5 * len(y) * np.log(2 * np.pi)
-    Kinv, info = dpotri(c[0], lower=1)          # K⁻¹ from its Cholesky factor (lower triangle filled)
-    if info != 0:
-        return 1e25, np.zeros_like(theta)
-    Kinv = np.tril(Kinv) + np.tril(Kinv, -1).T
-    W = np.outer(alpha, alpha) - Kinv
+    nll, W = got
     grad = np.zeros_like(theta)
     for (inv_l2, _, _, sl, isf), (Kf, H) in zip(parts, KH):
-        # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential); summed over the parts
-        # that share a length scale (``additive``; 0 + g is g exactly for the kernels that do not)
+        # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential); each part has its own
+        # length scales here (the additive kernel, whose terms share them, is :func:`_additive_nll`)
         grad[sl] += -0.5 * inv_l2 * np.tensordot(D, W * H, axes=([1, 2], [0, 1]))
         grad[isf] = -0.5 * (W * Kf).sum()
     grad[-1] = -0.5 * sn2 * np.trace(W)
     return nll, grad
 
 
+@lru_cache(maxsize=32)
 def _atoms(d, terms):
     """The finest partition of the d inputs of which every additive term is a union: inputs in the same
     terms are one atom (a rotary axis's cos and sin) → (atoms: tuple of column tuples, per term the atom
-    indices it is made of)."""
+    indices it is made of). Cached: the marginal likelihood asks for it at every evaluation."""
     sig = {}
     for j in range(d):
         sig.setdefault(tuple(j in t for t in terms), []).append(j)
