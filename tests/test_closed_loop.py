@@ -359,3 +359,32 @@ def test_refit_on_all_checks_uses_every_check_and_leaves_the_validated_figures(g
     e_true = truth.spatial_error(P, **truth.default_conditions(len(P)))
     rms = lambda f: float(np.sqrt(np.mean(np.sum((f.predict(P) - e_true) ** 2, 1))))
     assert rms(model) <= REFIT_TRUE_GAIN * rms(loop.model)
+
+
+REFIT_STAGE_REPRODUCE_UM = 1e-9
+"""refit_stage on the loop's own fitting checks without an offset runs the loop's own estimator on the
+same rows (the same update, the same σ grid): equal to the loop's kept model up to round-off of μm-sized
+predictions (the same floating-point operations; 1e-9 μm leaves room only for summation order)."""
+
+
+@pytest.mark.slow  # a closed loop and three refits: over the 5 CPU s tier limit
+def test_refit_stage_reproduces_the_loop_and_takes_an_offset_off_its_target(grinder, indep):
+    from errormap.diagnosis.loop import refit_stage
+    truth, sm = indep
+    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, 1.0, seed=11))
+    loop = closed_loop(grinder, sm.covariance_, checks)
+    fit_idx = np.arange(int(round(0.6 * N_CHECKS)))
+    model, cov = refit_stage(grinder, sm.covariance_, checks, loop, idx=fit_idx)
+    P = random_axes(grinder, 500, np.random.default_rng(4))
+    assert np.max(np.abs(model.predict(P) - loop.model.predict(P))) <= REFIT_STAGE_REPRODUCE_UM
+    # an offset (what another model part explains) is taken off the residual the kept update is made on
+    off = np.zeros((N_CHECKS, 3))
+    off[:, 1] = 0.5 * np.sin(checks.axes[:, 0] / 20.0)          # μm
+    m1, _ = refit_stage(grinder, sm.covariance_, checks, loop, offset_um=off, idx=fit_idx)
+    assert np.max(np.abs(m1.predict(P) - model.predict(P))) > 0.01   # it moved the update
+    assert loop.model.terms == []                                      # this seed keeps no term: a plain update
+    direct = update_elements(grinder, sm.covariance_, checks.axes[fit_idx],
+                             (loop.update_target_um - off)[fit_idx], alpha=loop.alpha)
+    assert np.max(np.abs(m1.predict(P) - HTMField(grinder, direct.elements_).predict(P))) <= REFIT_STAGE_REPRODUCE_UM
+    with pytest.raises(ValueError, match="offset of shape"):
+        refit_stage(grinder, sm.covariance_, checks, loop, offset_um=off[:10], idx=fit_idx)

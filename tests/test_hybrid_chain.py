@@ -218,7 +218,10 @@ def test_chain_loop_keeps_the_learned_stage_on_a_bump_and_compensates_with_it(tm
     lo, hi = m.stroke_lo + 0.01 * (m.stroke_hi - m.stroke_lo), m.stroke_hi - 0.01 * (m.stroke_hi - m.stroke_lo)
     P = lo + (hi - lo) * rng.random((400, 3))
     write_csv(tmp_path / "v.csv", dict(zip(m.axis_columns, P.T)), float_fmt="%.12g")
-    alone = {k: v for k, v in model.items() if k not in ("learned_residual", "base_stage", "learned_family")}
+    # the loop alone: its own elements and terms (the hybrid's base was backfitted with the learned part)
+    assert "backfit" in s["learned_residual"] and model["loop_alone"]["elements"] == "loop_elements.json"
+    alone = {k: v for k, v in model.items() if k not in ("learned_residual", "base_stage", "learned_family", "loop_alone")}
+    alone.update(elements=model["loop_alone"]["elements"], terms=model["loop_alone"]["terms"])
     (d / "loop.json").write_text(json.dumps(alone))
     targets, _ = nominal_and_jacobian(m, P)
 
@@ -297,7 +300,7 @@ def test_chain_learned_stage_hands_each_condition_term_to_the_rule_and_keeps_the
         return object(), {"learned": {"replaces_condition_terms": True, "replaced_condition_terms": [1]}}
 
     monkeypatch.setattr(hybrid, "learned_stage", fake)
-    learned, stage, kept = chain_learned_stage(m, checks, ChainElementSet.zeros(m), terms, {"n_fit": 36})
+    learned, stage, kept, _ = chain_learned_stage(m, checks, ChainElementSet.zeros(m), terms, {"n_fit": 36})
     c = np.asarray(seen["condition_terms_um"])
     assert c.shape == (2, n, 3)
     np.testing.assert_allclose(c[0], 0.004 * cx, rtol=1e-12, atol=1e-12)
@@ -329,7 +332,7 @@ def test_chain_real_thermal_term_stays_beside_a_replaced_stand_in():
     meas = real + scale + np.random.default_rng(SEED + 3).standard_normal((n, 3))
     beta = np.sum(cy[:n_fit] * scale[:n_fit]) / np.sum(cy[:n_fit] ** 2)   # the stand-in, fitted as the search would
     terms = [_thermal_term("X", CHAIN_THERMAL_UM_PER_MM_C), _thermal_term("Y", beta)]
-    learned, stage, kept = chain_learned_stage(m, MTChecks(axes, meas, {"temp_c": temp}), ChainElementSet.zeros(m),
+    learned, stage, kept, _ = chain_learned_stage(m, MTChecks(axes, meas, {"temp_c": temp}), ChainElementSet.zeros(m),
                                                terms, {"n_fit": n_fit}, seed=SEED, families=("gp",))
     alt = stage["learned"]["condition_terms_vs_static"]
     assert alt["term_z_from_one"] >= TERM_CONSISTENT_Z     # the joint coefficient alone would replace both terms

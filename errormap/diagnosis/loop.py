@@ -184,20 +184,37 @@ def refit_on_all_checks(machine, covariance, checks: CheckData, loop: ClosedLoop
     stage has nothing to refit. The held-out figures of the loop stay the validated ones (made
     before this refit). Returns ``(model, element covariance)``: a :class:`CorrectedField` with the
     kept stage's terms (re-estimated) and the refitted elements' posterior covariance."""
+    return refit_stage(machine, covariance, checks, loop)
+
+
+def refit_stage(machine, covariance, checks: CheckData, loop: ClosedLoop, offset_um=None, idx=None):
+    """The kept stage of ``loop`` re-estimated on the checks ``idx`` (None: all of them) with
+    ``offset_um`` (n, 3) μm, over ALL checks, taken off the residual it is estimated on — what another
+    part of the model (the learned residual) already explains, so that the update does not take it up
+    too (backfitting: :func:`compensation.hybrid.learned_stage`). Same estimators as
+    :func:`refit_on_all_checks` (which is this with no offset on all checks); with ``idx`` the loop's
+    fitting checks and no offset it reproduces the loop's own kept stage. Returns ``(model, element
+    covariance)`` (the identified stage: the loop's model, nothing refitted)."""
     if loop.kept_stage == "identified":
         return loop.model, loop.covariance
+    n = len(checks)
+    idx = np.arange(n) if idx is None else np.asarray(idx)
+    off = np.zeros((n, 3)) if offset_um is None else np.asarray(offset_um, dtype=float)
+    if off.shape != (n, 3) or not np.all(np.isfinite(off)):
+        raise ValueError(f"Expected a finite offset of shape {(n, 3)}, got {off.shape}")
     base = HTMField(machine, covariance.elements)
     r0, _ = measured_residual(checks, base)
     if loop.model.terms:
         ctx = Context.build(machine, checks.axes, checks.conditions, loop.model.terms[0].ref)
-        terms, upd = joint_refit(machine, covariance, checks.axes, r0, ctx, loop.model.terms, loop.alpha)
+        terms, upd = joint_refit(machine, covariance, checks.axes[idx], (r0 - off)[idx], ctx.subset(idx),
+                                 loop.model.terms, loop.alpha)
     else:
         terms = []
         # the residual the kept update was made on (the screen's proposed terms kept out of it); the
         # identified model's residual itself when the kept stage had terms and they were all taken off
         # (the learned stage replaced its condition terms): nothing is then kept out of the update
         target = r0 if loop.update_target_um is None else loop.update_target_um
-        upd = update_elements(machine, covariance, checks.axes, target, alpha=loop.alpha)
+        upd = update_elements(machine, covariance, checks.axes[idx], (target - off)[idx], alpha=loop.alpha)
     return CorrectedField(machine, HTMField(machine, upd.elements_), terms), upd.covariance_
 
 

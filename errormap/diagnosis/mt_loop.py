@@ -944,6 +944,39 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
                 kept, why = plain, f"fell back to {plain}: better on the held-out checks by paired z = {z:.2f}"
     sig = noise_um if noise_um is not None else sigma
     floor = None if sig is None else float(np.sqrt(3.0) * sig)
+    refit = None
+    if kept in ("updated", "plus_effects") and last == "updated":
+        ols_kept = prior is not None and prior["kept"] != "update with the smoothness prior"
+
+        def refit(terms, offset_um, idx):
+            """The kept stage's update re-estimated on the checks ``idx`` with ``offset_um`` (n, 3) μm taken off the
+            identified model's residual (what another part of the model explains: the learned residual's
+            backfitting, :func:`compensation.hybrid.learned_stage`) — jointly with ``terms`` (copies, their
+            coefficients re-estimated) when there are any, else the update the loop kept (with the smoothness prior,
+            its weight by the loop's rule, or the unregularised one when the loop kept that). → ``(elements, terms,
+            residual at every check (n, 3))``."""
+            import copy
+            idx = np.asarray(idx)
+            t = r0 - np.asarray(offset_um, dtype=float)
+            if not terms:
+                if ols_kept:
+                    el = ols_update(elements, slot_names, stations, checks.axes[idx], t[idx])
+                else:
+                    el = update_elements(elements, slot_names, stations, C, checks.axes[idx], t[idx],
+                                         smoothing=smoothing).elements_
+                return el, [], resid(el)
+            E = np.concatenate([effect_columns(machine, q.kind, q.axes, checks.axes, checks.conditions, q.shape or None)[0]
+                                for q in terms], axis=2)
+            shift = np.concatenate([sweep_shift(machine, elements, q, slot_names, stations, C) for q in terms], axis=1)
+            u = update_elements(elements, slot_names, stations, C, checks.axes[idx], t[idx], extra=E[idx],
+                                extra_shift=shift, smoothing=smoothing)
+            out, k = [], 0
+            for q in terms:
+                c = q.coefficients.size
+                q = copy.copy(q)
+                q.coefficients, k = np.array(u.extra_coef[k:k + c]), k + c
+                out.append(q)
+            return u.elements_, out, resid(u.elements_) - np.einsum("nic,c->ni", E, u.extra_coef)
     kept_name = {"plus_effects": "updated_plus_effects" if last == "updated" else "identified_plus_effects"}.get(kept, kept)
     held = stages[kept_name]["held_out"]["rms_um"]
     return {"machine": machine.name, "n_checks": n, "n_fit": n_fit, "n_held_out": n - n_fit,
@@ -956,4 +989,5 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             "noise_floor_um": floor, "held_out_rms_um": held,
             "held_out_over_floor": None if floor is None else float(held / floor),
             "_models": {"elements": models.get("updated_plus_effects" if kept == "plus_effects" else kept,
-                                               models.get("updated", elements)), "terms": accepted}}
+                                               models.get("updated", elements)), "terms": accepted,
+                        "refit": refit}}

@@ -198,7 +198,12 @@ def _learned(s) -> dict | None:
            "table": Table(["family", "CV RMS (μm)", "its SE (μm)", "mean gain over zero (μm²)", "its SE (μm²)",
                            "95 % band coverage"], rows), "figure": None,
            "frame": FRAME_WORDS.get(lr.get("output_frame", "work"), lr.get("output_frame")),
-           "frames_table": None}
+           "frames_table": None, "backfit": None}
+    bf = lr.get("backfit")
+    if bf:   # backfitted with the element update it sits on (compensation.hybrid.BACKFIT_ROUNDS)
+        out["backfit"] = {"rounds": bf["rounds"], "rms": bf["held_out_sequential"]["rms_um"],
+                          "z": bf["held_out_gain_z_sequential"],
+                          "steps": ", ".join(f"{v:.3g}" for v in bf["step_rms_um"])}
     cands = lr.get("inputs_table") or {}
     if len(cands) > 1:   # more than one (input set, output frame) candidate: each one's chosen family and CV RMS
         out["frames_table"] = Table(

@@ -192,6 +192,21 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
     return summary, _write(out_dir, summary, page)
 
 
+def _with_terms_of(effects: list, terms, note: str | None) -> list:
+    """``effects`` (diagnosis.json's dicts) with the parameters, coefficients and periods of the same-labelled
+    (kind, axis, element) term of ``terms`` (re-estimated :class:`~errormap.diagnosis.effects` terms); ``note``
+    recorded under ``estimate_shipped`` on each one changed."""
+    by_label = {(t.kind, t.axis, t.element): t for t in terms}
+    out = []
+    for e in effects:
+        t = by_label.get((e["kind"], e["axis"], e.get("element")))
+        if t is not None:
+            e = dict(e, **{k: v for k, v in t.to_dict().items() if k in ("parameters", "coefficients", "period_mm")},
+                     **({} if note is None else {"estimate_shipped": note}))
+        out.append(e)
+    return out
+
+
 def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
                     source=None, units: str = "check", units_option: str | None = None, learn: bool = True,
                     track: bool = False, tracking_uri=None, refit_all: bool = True, refit_mode: str = "hyper"):
@@ -202,7 +217,8 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     (elements, effect terms: :func:`errormap.diagnosis.loop.refit_on_all_checks`) and the kept
     learned part (``refit_mode``, :data:`compensation.hybrid.REFIT_MODES`) are re-estimated on
     ALL checks before they are written; the held-out figures stay the validated ones."""
-    from errormap.diagnosis.loop import closed_loop, refit_on_all_checks
+    from errormap.diagnosis.corrected import CorrectedField
+    from errormap.diagnosis.loop import closed_loop, refit_on_all_checks, refit_stage
     from errormap.elements import ElementSet
     from errormap.uncertainty import ElementCovariance, covariance_path
     checks = load_checks(checks_path, machine, units=units, units_option=units_option)
@@ -239,6 +255,24 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
             refit_cache[replaced] = refit_on_all_checks(machine, cov, checks, lp)
         return refit_cache[replaced]
 
+    backfit_base = {}   # "all" / "fit": the base of the learned stage's last backfitting round on those checks
+
+    def _base_update(replaced, offset_um, idx):
+        """The kept stage without the condition terms ``replaced`` re-estimated on the checks ``idx`` with
+        ``offset_um`` (the learned part's prediction) taken off (:func:`errormap.diagnosis.loop.refit_stage`);
+        → its residual at every check (learned_stage's backfitting)."""
+        import dataclasses
+        replaced = (tuple(range(len(cond_terms))) if replaced is True else () if replaced is False
+                    else tuple(replaced))
+        lp = loop
+        if replaced:
+            drop = {id(cond_terms[k]) for k in replaced}
+            lp = dataclasses.replace(loop, model=CorrectedField(machine, loop.model.base,
+                                                               [t for t in loop.model.terms if id(t) not in drop]))
+        fitted = refit_stage(machine, cov, checks, lp, offset_um=offset_um, idx=idx)
+        backfit_base["all" if len(idx) == len(checks) else "fit"] = fitted
+        return checks.measured_um - fitted[0].predict(checks.axes, **checks.conditions)
+
     if learn:  # the learned residual on what the kept stage leaves (compensation.hybrid.learned_stage)
         from compensation.hybrid import learned_stage
         from errormap.diagnosis.corrected import CorrectedField
@@ -257,7 +291,8 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
                 return checks.measured_um - _refit(replaced)[0].predict(checks.axes, **checks.conditions)
         learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, len(checks)),
                                        r_static_um=r_static, covariance=loop.covariance, refit_residual=refit_r,
-                                       refit_mode=refit_mode, condition_terms_um=c_terms)
+                                       refit_mode=refit_mode, condition_terms_um=c_terms,
+                                       base_update=None if loop.kept_stage == "identified" else _base_update)
         replaced_k = tuple(stage["learned"].get("replaced_condition_terms", ()))
         if learned is not None and stage["learned"]["replaces_condition_terms"]:
             gone = {(cond_terms[k].kind, cond_terms[k].axis, cond_terms[k].element) for k in replaced_k}
@@ -275,24 +310,35 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
             summary["kept_why"] = f"{summary['kept_why']}; then the learned residual was {stage['learned']['why']}"
             summary["rms_final_um"] = stage["held_out"]["rms_um"]
             summary["max_final_um"] = stage["held_out"]["max_um"]
+    loop_alone = None   # with backfitting: (element covariance, effects) of the loop alone, without it
     if refit_all and loop.kept_stage != "identified":
         replaced = replaced_k if (learned is not None and summary.get("effects_replaced_by_learned")) else ()
-        model_refit, ship_cov = _refit(replaced)
-        by_label = {(t.kind, t.axis, t.element): t for t in model_refit.terms}
-        refit_effects = []
-        for e in summary["effects"]:
-            t = by_label.get((e["kind"], e["axis"], e.get("element")))
-            if t is not None:
-                e = dict(e, **{k: v for k, v in t.to_dict().items() if k in ("parameters", "coefficients", "period_mm")},
-                         estimate_shipped="re-estimated on all checks jointly with the element update (joint_refit)")
-            refit_effects.append(e)
+        backfitted = learned is not None and "backfit" in summary["learned_residual"]
+        # the backfitted hybrid ships the base of its last round on all checks (learned_stage)
+        model_refit, ship_cov = backfit_base["all"] if backfitted else _refit(replaced)
+        loop_effects = summary["effects"]
+        refit_effects = _with_terms_of(summary["effects"], model_refit.terms,
+                                       "re-estimated on all checks jointly with the element update (joint_refit)")
         summary["effects"] = refit_effects
+        if backfitted:   # the loop alone (base_stage) without backfitting, as it would ship without the learned part
+            loop_model, loop_cov = _refit(replaced)
+            loop_alone = (loop_cov, _with_terms_of(loop_effects, loop_model.terms,
+                                                   "re-estimated on all checks jointly with the element update"))
+        if backfitted:
+            summary["learned_residual"]["backfit"]["shipped_base"] = (
+                "the elements and terms shipped are the base of the last backfitting round on all checks (estimated "
+                "with the learned part's prediction taken off their residual)")
         summary["refit_on_all_checks"] = {
             "checks": int(len(checks)), "stage": loop.kept_stage,
             "note": ("the stages, effect terms and learned family were chosen on the fitting/held-out split (the held-out "
                      f"figures above are those); the shipped elements{', terms' if refit_effects else ''}"
                      f"{' and learned residual' if learned is not None else ''} were then re-estimated on all "
                      f"{len(checks)} checks")}
+    elif learned is not None and "fit" in backfit_base and "backfit" in summary["learned_residual"]:
+        # not refitted on all checks: the backfitted hybrid ships the base of its last round on the fitting checks
+        loop_alone = (ship_cov, summary["effects"])
+        model_fit, ship_cov = backfit_base["fit"]
+        summary["effects"] = _with_terms_of(summary["effects"], model_fit.terms, None)
     page = checks_report(loop.diagnosis, summary, model_spec, checks_path)
     out_dir = Path(out_dir)
     upd_path = out_dir / "updated_elements.json"
@@ -304,6 +350,14 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
         if summary.get("effects_replaced_by_learned"):  # the loop alone (base_stage) had them too
             model["base_terms_replaced"] = summary["effects_replaced_by_learned"]
         model["learned_residual"] = learned.to_dict()
+        if loop_alone is not None:   # the base was backfitted: what the loop alone would ship, for comparison
+            loop_path = out_dir / "loop_elements.json"
+            loop_alone[0].save(covariance_path(loop_path))
+            loop_alone[0].elements.save(loop_path)
+            model["loop_alone"] = {"elements": loop_path.name, "terms": loop_alone[1],
+                                   "note": ("the base stage's elements and terms as the loop alone estimates them (not "
+                                            "backfitted with the learned part): a model.json with these in place of "
+                                            "'elements' and 'terms' and without 'learned_residual' is the loop alone")}
         lr = summary["learned_residual"]   # the family validation chose, by name, and on what it was estimated
         model["learned_family"] = {"family": lr["family"], "name": lr.get("family_name", lr["family"]),
                                    "compared": lr.get("families_compared"),
@@ -320,7 +374,9 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     ship_cov.save(covariance_path(upd_path))
     ship_cov.elements.save(upd_path)
     write_json(out_dir / "model.json", model)
-    return summary, list(paths) + [upd_path, covariance_path(upd_path), out_dir / "model.json"]
+    extra = [] if "loop_alone" not in model else [out_dir / "loop_elements.json",
+                                                 covariance_path(out_dir / "loop_elements.json")]
+    return summary, list(paths) + [upd_path, covariance_path(upd_path), out_dir / "model.json"] + extra
 
 
 def run_drift(log_path, out_dir, selector=None, time_unit=None, units: str = "check"):

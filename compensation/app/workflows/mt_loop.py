@@ -205,7 +205,7 @@ def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.n
     return out
 
 
-def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0, families=None):
+def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0, families=None, refit=None):
     """The learned-residual stage after the chain loop (:func:`compensation.hybrid.learned_stage`, the grinder's
     stage and keep rule): fitted on what the loop's kept model (``elements`` + ``terms``, at the checks' own
     conditions) leaves at the fitting checks, kept only if it lowers the held-out squared residual, paired per
@@ -216,8 +216,13 @@ def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0
     :data:`compensation.hybrid.TERM_CONSISTENT_Z`): a real term stays beside a replaced stand-in. The chain's
     element update carries no posterior covariance here, so the band is the learned part's (⊕ the fitted noise
     on the held-out checks).
-    → ``(learned or None, stage, static terms)``: ``static terms`` the terms the hybrid keeps (all of
-    ``terms``, or all but the condition terms the learned field replaced)."""
+    ``refit``: None, or the loop's re-estimation of its kept stage (``closed_loop_chain``'s ``_models["refit"]``:
+    ``(terms, offset_um, idx) -> (elements, terms, residual)``): the learned part is then backfitted with the
+    element update (:data:`compensation.hybrid.BACKFIT_ROUNDS`), and the elements and terms returned are the
+    base of the last round.
+    → ``(learned or None, stage, static terms, elements)``: ``static terms`` the terms the hybrid keeps (all of
+    ``terms``, or all but the condition terms the learned field replaced, their coefficients the backfitted
+    ones when backfitted), ``elements`` the hybrid's elements (``elements``, or the backfitted ones)."""
     from compensation.hybrid import learned_stage
     from errormap.diagnosis.mt_model import ChainModelField, term_needs
     n, n_fit = len(checks), int(summary["n_fit"])
@@ -235,12 +240,30 @@ def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0
         p_static = prediction(static)
         r_static = checks.measured_um - p_static
         c_terms = np.stack([prediction(static + [t]) - p_static for t in cond])
+    last = {}
+
+    def base_update(replaced, offset_um, idx):
+        """The loop's kept stage without the condition terms ``replaced`` (indices into the condition terms, or
+        True / False: all / none) re-estimated on the checks ``idx`` with ``offset_um`` taken off → its residual
+        at every check, at the checks' own conditions."""
+        replaced = (tuple(range(len(cond))) if replaced is True else () if replaced is False else tuple(replaced))
+        gone = {id(cond[k]) for k in replaced}
+        el, ts, _ = refit([t for t in terms if id(t) not in gone], offset_um, idx)
+        f = ChainModelField(machine, el, ts)
+        f = f.with_conditions({c: checks.conditions[c] for c in f.needs})
+        last["base"] = (el, ts)
+        return checks.measured_um - f.predict(checks.axes)
+
     learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, n), seed=seed,
-                                   families=families, r_static_um=r_static, condition_terms_um=c_terms)
+                                   families=families, r_static_um=r_static, condition_terms_um=c_terms,
+                                   base_update=None if refit is None else base_update)
+    if learned is not None and "base" in last and "backfit" in stage["learned"]:   # the last round's base
+        el, ts = last["base"]
+        return learned, stage, ts, el
     if learned is None or not stage["learned"]["replaces_condition_terms"]:
-        return learned, stage, list(terms)
+        return learned, stage, list(terms), elements
     gone = {id(cond[k]) for k in stage["learned"]["replaced_condition_terms"]}
-    return learned, stage, [t for t in terms if id(t) not in gone]
+    return learned, stage, [t for t in terms if id(t) not in gone], elements
 
 
 def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=None, effects=True,
@@ -262,8 +285,19 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
                     "update": bool(update and cov is not None)})
     terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
     extra = None
+    loop_alone = None   # with backfitting: the loop's own elements and terms (what it ships without the learned part)
     if learn:
-        learned, stage, terms = chain_learned_stage(machine, checks, models["elements"], terms, summary)
+        loop_terms = list(terms)
+        learned, stage, terms, backfit_el = chain_learned_stage(machine, checks, models["elements"], terms, summary,
+                                                                refit=models.get("refit"))
+        if learned is not None and "backfit" in stage["learned"]:   # the backfitted base is the hybrid's
+            kept_labels = {(t.kind, tuple(t.axes), t.element) for t in terms}
+            loop_alone = (models["elements"], [t for t in loop_terms if (t.kind, tuple(t.axes), t.element) in kept_labels])
+            models["elements"] = backfit_el
+            stage["learned"]["backfit"]["shipped_base"] = (
+                "the elements and terms shipped are the base of the last backfitting round on the fitting checks "
+                "(estimated with the learned part's prediction taken off their residual); diagnosis.json's effect "
+                "coefficients are the loop's, model.json's the backfitted ones")
         stage["base_stage"] = summary["kept_stage"]
         if "held_out" in stage:  # the stage ran (enough checks): a stage beside the others
             summary["stages"] = dict(summary["stages"], learned_residual=stage)
@@ -288,14 +322,21 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
                                         "estimated_on_checks": (lr.get("shipped") or {}).get("estimated_on_checks")}}
             if summary.get("effects_replaced_by_learned"):
                 extra["base_terms_replaced"] = summary["effects_replaced_by_learned"]
+            if loop_alone is not None:
+                extra["loop_alone"] = {"elements": "loop_elements.json", "terms": [t.to_dict() for t in loop_alone[1]],
+                                       "note": ("the base stage's elements and terms as the loop alone estimates them "
+                                                "(not backfitted with the learned part): a model.json with these in "
+                                                "place of 'elements' and 'terms' and without 'learned_residual' is the "
+                                                "loop alone")}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     el_path = models["elements"].save(out / "updated_elements.json")   # each file written whole (temporary file, rename)
+    paths_extra = [] if loop_alone is None else [loop_alone[0].save(out / "loop_elements.json")]
     from errormap.diagnosis.mt_model import save_chain_model
     model_path = save_chain_model(out / "model.json", machine, el_path, terms, summary["kept_stage"], extra)
     summary["model_file"] = str(model_path)
     write_json(out / "diagnosis.json", summary)
-    return summary, [out / "diagnosis.json", out / "updated_elements.json", model_path]
+    return summary, [out / "diagnosis.json", out / "updated_elements.json", model_path] + paths_extra
 
 
 def diagnosis_lines(summary) -> list:
