@@ -84,7 +84,7 @@ BUMP_CENTRE = (0.6, 0.4)
 BUMP_WIDTH = 0.15
 SQ_GROW_URAD = 25.0
 N_GA = 50
-LEARNED_KEYS = ("learned_residual", "base_stage", "learned_family", "base_terms_replaced")
+LEARNED_KEYS = ("learned_residual", "base_stage", "learned_family", "base_terms_replaced", "loop_alone")
 
 
 def ooc_truth(machine, seed: int, case: str):
@@ -229,7 +229,9 @@ def run_case(machine_name: str, seed: int, case: str, ga: bool = False) -> dict:
         model = json.loads((d / "diag" / "model.json").read_text())
         alone = {k: v for k, v in model.items() if k not in LEARNED_KEYS}
         alone["kept_stage"] = model.get("base_stage", model["kept_stage"])
-        alone["terms"] = model["terms"] + model.get("base_terms_replaced", [])
+        own = model.get("loop_alone") or {}   # a backfitted hybrid's base is not the loop's (round 12)
+        alone["elements"] = own.get("elements", model["elements"])
+        alone["terms"] = own.get("terms", model["terms"]) + model.get("base_terms_replaced", [])
         (d / "diag" / "model_loop.json").write_text(json.dumps(alone))
         P = _volume(m, np.random.default_rng([seed, 2024]))
         ref = _AtReference(truth)
@@ -248,6 +250,7 @@ def run_case(machine_name: str, seed: int, case: str, ga: bool = False) -> dict:
                 "learned_kept": bool(lr.get("kept")), "learned_family": lr.get("family"),
                 "learned_output_frame": lr.get("output_frame", "work"),
                 "output_frames_compared": lr.get("output_frames_compared", ["work"]),
+                "code_round": 12, "learned_backfit_steps_um": (lr.get("backfit") or {}).get("step_rms_um"),
                 "learned_z": lr.get("held_out_gain_z"), "held_band95_cover": lr.get("held_out_band95_cover"),
                 "replaced_terms": [f"{e['kind']} {e['axis']}" for e in s.get("effects_replaced_by_learned", [])],
                 "held_final_um": s["held_out_rms_um"], "held_loop_um": s.get("held_out_rms_base_um", s["held_out_rms_um"]),
@@ -303,7 +306,11 @@ def write_results(rows, argv) -> None:
              "Output frame (round 11, `compensation.hybrid.LEARNED_FRAMES`): rows that record it compared the work and "
              "the machine frame; rows before round 11 the work frame alone. On `mill-xyz`, whose work frame turns with "
              "no axis, round 11 compares the work frame alone, so its rows are what round 11 gives; on `five-axis-ac` "
-             "only the rows that name their frame were measured with round 11.", ""]
+             "only the rows that name their frame were measured with round 11. Round 12 (`compensation.hybrid.BACKFIT_ROUNDS`): "
+             "the learned part backfitted with the element update; rows measured with it say so ('backfitted', or "
+             "'round 12' where no family was chosen); the others are earlier rounds' (the learned part fitted after "
+             "the update). *loop alone* reads the loop's own elements and terms (`model.json` `loop_alone`) where the "
+             "hybrid's base was backfitted.", ""]
     by = {}
     for r in rows:
         by.setdefault((r["machine"], r["case"]), []).append(r)
@@ -352,7 +359,10 @@ def write_results(rows, argv) -> None:
                          f"{r['cpu_s']:.0f} s, families compared: "
                          + ("+".join(r["learned_families"]) if r.get("learned_families") else "not recorded (the four of the time)")
                          + (f", output frame {r['learned_output_frame']} of {'+'.join(r['output_frames_compared'])}"
-                            if "output_frames_compared" in r else ", output frame: work (before round 11)"))
+                            if "output_frames_compared" in r else ", output frame: work (before round 11)")
+                         + ("" if r.get("code_round", 0) < 12 else
+                            ", backfitted with the update (round 12)" if r.get("learned_backfit_steps_um") else
+                            ", round 12 (not backfitted: no family chosen)"))
         ga = [r for r in det if "hybrid_batched_ga" in r]
         for r in ga:
             g = r["hybrid_batched_ga"]

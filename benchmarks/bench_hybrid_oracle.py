@@ -143,9 +143,12 @@ def run_case(case: str, seed: int, element_gp: bool = True, family: str = "defau
         td = Path(td)
         user_path(main, td, family, seed, eff, noise_ss)
         model = json.loads((td / "diag" / "model.json").read_text())
-        static = {k: v for k, v in model.items() if k not in ("learned_residual", "base_terms_replaced")}
+        static = {k: v for k, v in model.items() if k not in ("learned_residual", "base_terms_replaced", "loop_alone")}
         static["stage"] = model.get("base_stage", model["stage"])
-        static["terms"] = [e for e in model["terms"] + model.get("base_terms_replaced", []) if not e.get("needs")]
+        alone = model.get("loop_alone") or {}   # a backfitted hybrid's base is not the loop's (round 12)
+        static["elements"] = alone.get("elements", model["elements"])
+        static["terms"] = [e for e in alone.get("terms", model["terms"]) + model.get("base_terms_replaced", [])
+                           if not e.get("needs")]
         static["needs"] = []
         (td / "diag" / "static.json").write_text(json.dumps(static))
         f_static = load_diagnosed_model(td / "diag" / "static.json", m)
