@@ -239,37 +239,33 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
 
     cond_terms = [t for t in loop.model.terms if t.needs]
 
-    def _refit(replaced: tuple):
-        """The kept stage re-estimated on all checks without the condition terms ``replaced`` (indices
-        into ``cond_terms``; True / False: all / none of them, as learned_stage passes it when it tested no
-        term on its own)."""
+    def _loop_without(replaced) -> tuple:
+        """``(indices, loop)``: the condition terms ``replaced`` (indices into ``cond_terms``; True / False: all /
+        none of them, as learned_stage passes it when it tested no term on its own) and the loop with its kept
+        model without them."""
         replaced = (tuple(range(len(cond_terms))) if replaced is True else () if replaced is False
                     else tuple(replaced))
+        if not replaced:
+            return replaced, loop
+        drop = {id(cond_terms[k]) for k in replaced}
+        return replaced, dataclasses.replace(loop, model=CorrectedField(
+            machine, loop.model.base, [t for t in loop.model.terms if id(t) not in drop]))
+
+    def _refit(replaced: tuple):
+        """The kept stage re-estimated on all checks without the condition terms ``replaced``
+        (:func:`_loop_without`)."""
+        replaced, lp = _loop_without(replaced)
         if replaced not in refit_cache:
-            import dataclasses
-            lp = loop
-            if replaced:
-                drop = {id(cond_terms[k]) for k in replaced}
-                lp = dataclasses.replace(loop, model=CorrectedField(machine, loop.model.base,
-                                                                   [t for t in loop.model.terms if id(t) not in drop]))
             refit_cache[replaced] = refit_on_all_checks(machine, cov, checks, lp)
         return refit_cache[replaced]
 
     backfit_base = {}   # "all" / "fit": the base of the learned stage's last backfitting round on those checks
 
     def _base_update(replaced, offset_um, idx):
-        """The kept stage without the condition terms ``replaced`` re-estimated on the checks ``idx`` with
-        ``offset_um`` (the learned part's prediction) taken off (:func:`errormap.diagnosis.loop.refit_stage`);
-        → its residual at every check (learned_stage's backfitting)."""
-        import dataclasses
-        replaced = (tuple(range(len(cond_terms))) if replaced is True else () if replaced is False
-                    else tuple(replaced))
-        lp = loop
-        if replaced:
-            drop = {id(cond_terms[k]) for k in replaced}
-            lp = dataclasses.replace(loop, model=CorrectedField(machine, loop.model.base,
-                                                               [t for t in loop.model.terms if id(t) not in drop]))
-        fitted = refit_stage(machine, cov, checks, lp, offset_um=offset_um, idx=idx)
+        """The kept stage without the condition terms ``replaced`` (:func:`_loop_without`) re-estimated on the
+        checks ``idx`` with ``offset_um`` (the learned part's prediction) taken off
+        (:func:`errormap.diagnosis.loop.refit_stage`); → its residual at every check (learned_stage's backfitting)."""
+        fitted = refit_stage(machine, cov, checks, _loop_without(replaced)[1], offset_um=offset_um, idx=idx)
         backfit_base["all" if len(idx) == len(checks) else "fit"] = fitted
         return checks.measured_um - fitted[0].predict(checks.axes, **checks.conditions)
 
@@ -324,7 +320,6 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
             loop_model, loop_cov = _refit(replaced)
             loop_alone = (loop_cov, _with_terms_of(loop_effects, loop_model.terms,
                                                    "re-estimated on all checks jointly with the element update"))
-        if backfitted:
             summary["learned_residual"]["backfit"]["shipped_base"] = (
                 "the elements and terms shipped are the base of the last backfitting round on all checks (estimated "
                 "with the learned part's prediction taken off their residual)")
