@@ -122,6 +122,10 @@ EFFECT_KINDS = (
                "axis' radial motion",
                (("amplitude_um", "um"), ("x_frac", "1"), ("width_frac", "1"), ("phase_rad", "rad")),
                simulator="a_lobe_x", simulator_element="dy_a", diagnosed=False, truth_only=True),
+    EffectKind("xz_saddle", (), "pair", "A·u·exp(½ − ½u²)·(1 − v²)·exp(−½v²), u = ((p − p_lo)/Δp − pc)/w, "
+               "v = ((q − q_lo)/Δq − qc)/w, on the second axis' straightness",
+               (("amplitude_um", "um"), ("x_frac", "1"), ("z_frac", "1"), ("width_frac", "1")),
+               simulator="xz_saddle", simulator_element="dy_z", diagnosed=False, truth_only=True),
 )
 
 _BY_NAME = {k.name: k for k in EFFECT_KINDS}

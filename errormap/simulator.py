@@ -42,6 +42,13 @@ a_lobe_x       the A axis's two-lobe (oval) radial error motion, local in X and 
                changing sign across the region (X and A jointly: its mean over A is      at 50 % of X, w = 15 % of X,
                zero and its mean over X nearly so, so no one-axis profile takes it up):  φ = 0.4 rad
                ``dy_a += A·u·exp(½ − ½u²)·cos(2a + φ)``, ``u = ((x − x_lo)/Δx − xc)/w``
+xz_saddle      a local saddle-shaped warp of Z's straightness (in Y) over a region of   A = 8 μm at its peak, centre
+               X–Z: along X it changes sign across the region, along Z it rises in      at 50 % of X and 50 % of Z,
+               the middle and falls on either side (X and Z jointly: its means over     w = 15 % of each stroke
+               X and over Z are nearly zero, and along Z it is even about its centre,
+               so neither a one-axis profile nor X's angles times the Z lever takes it
+               up): ``dy_z += A·u·exp(½ − ½u²)·(1 − v²)·exp(−½v²)``,
+               ``u = ((x − x_lo)/Δx − xc)/w``, ``v = ((z − z_lo)/Δz − zc)/w``
 =============  ===================================================================  ===============================
 
 Check measurements follow docs/schemas.md: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, time_s,
@@ -83,6 +90,7 @@ EFFECT_DEFAULTS = {
     "squareness": {"k_urad": 100.0},
     "squareness_xz": {"k_urad": 100.0},
     "a_lobe_x": {"amplitude_um": 6.0, "x_frac": 0.5, "width_frac": 0.15, "phase_rad": 0.4},
+    "xz_saddle": {"amplitude_um": 8.0, "x_frac": 0.5, "z_frac": 0.5, "width_frac": 0.15},
 }
 OUT_OF_CATALOGUE = TRUTH_ONLY
 """Effects no kind of :mod:`errormap.diagnosis.effects` represents (module doc; the registry,
@@ -208,6 +216,11 @@ class TruthGrinder:
                     u = (x_rel / dx - p["x_frac"]) / p["width_frac"]
                     v[:, IDX["dy_a"]] += (p["amplitude_um"] * u * np.exp(0.5 - 0.5 * u * u)
                                           * np.cos(2.0 * np.deg2rad(axes[:, 2]) + p["phase_rad"]))
+                elif name == "xz_saddle":
+                    u = (x_rel / dx - p["x_frac"]) / p["width_frac"]
+                    w = (z_rel / dz - p["z_frac"]) / p["width_frac"]
+                    v[:, IDX["dy_z"]] += (p["amplitude_um"] * u * np.exp(0.5 - 0.5 * u * u)
+                                          * (1.0 - w * w) * np.exp(-0.5 * w * w))
                 else:  # pragma: no cover - a truth-only kind registered without its drawing here
                     raise ValueError(f"the simulator cannot draw the truth-only effect {name!r}")
             else:  # pragma: no cover - a registered simulator kind without its drawing here

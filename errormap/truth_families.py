@@ -107,6 +107,9 @@ def independent_effect_parameters(rng: np.random.Generator) -> dict:
         # drawn last (issue 28, round 5), so every draw above is unchanged
         "a_lobe_x": {"amplitude_um": rng.uniform(4.5, 7.5) * rng.choice([-1.0, 1.0]), "x_frac": rng.uniform(0.35, 0.65),
                      "width_frac": rng.uniform(0.12, 0.18), "phase_rad": rng.uniform(0.0, 2 * np.pi)},
+        # drawn last (issue 28, round 13), so every draw above is unchanged
+        "xz_saddle": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]), "x_frac": rng.uniform(0.35, 0.65),
+                      "z_frac": rng.uniform(0.4, 0.6), "width_frac": rng.uniform(0.12, 0.18)},
     }
 
 

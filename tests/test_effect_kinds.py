@@ -39,7 +39,8 @@ def test_simulator_draws_registered_kinds_only():
     assert EFFECT_NAMES == ek.SIMULATOR_NAMES
     assert set(EFFECT_DEFAULTS) == set(ek.SIMULATOR_NAMES)
     assert set(independent_effect_parameters(np.random.default_rng(0))) == set(ek.SIMULATOR_NAMES)
-    assert set(OUT_OF_CATALOGUE) == set(ek.TRUTH_ONLY) == {"bump", "a_tilt", "squareness", "squareness_xz", "a_lobe_x"}
+    assert set(OUT_OF_CATALOGUE) == set(ek.TRUTH_ONLY) == {"bump", "a_tilt", "squareness", "squareness_xz", "a_lobe_x",
+                                                                "xz_saddle"}
     for name in EFFECT_NAMES:
         kind = ek.effect_kind(name)
         assert kind.simulator == name and kind.simulator_element in IDX

@@ -107,4 +107,5 @@ def test_effects_need_their_conditions(grinder):
     with pytest.raises(ValueError, match="unknown"):
         random_truth(grinder, 0, effects=["gravity"])
     assert set(EFFECT_NAMES) == {"thermal", "reversal", "pitch", "worm", "interaction",
-                                 "bump", "a_tilt", "squareness", "squareness_xz", "a_lobe_x"}  # the last five: out of the effect catalogue
+                                 "bump", "a_tilt", "squareness", "squareness_xz", "a_lobe_x",
+                                 "xz_saddle"}  # the last six: out of the effect catalogue
