@@ -52,31 +52,59 @@ def load_diagnosed_model(path, machine) -> CorrectedField:
     """The updated elements plus the accepted terms, as a :class:`CorrectedField`."""
     path = Path(path)
     d = json.loads(path.read_text(encoding="utf-8"))
-    if not isinstance(d.get("elements"), str):
-        raise InputError(f"{path}: key 'elements': expected the updated element set's file name, got "
-                         f"{d.get('elements')!r}")
-    el_path = path.parent / d["elements"]
-    base = HTMField(machine, ElementSet.load(el_path))
-    if d.get("learned_residual") is not None:  # the closed loop's learned stage (compensation.hybrid)
+    return diagnosed_field(d, machine, lambda name: ElementSet.load(path.parent / name), path)
+
+
+def diagnosed_field(doc: dict, machine, load_elements, where) -> CorrectedField:
+    """``model.json``'s content ``doc`` as a :class:`CorrectedField` (what :func:`load_diagnosed_model`
+    builds from the file); ``load_elements(name) -> ElementSet``: the element set ``doc`` names by
+    file name (key ``elements``); ``where``: the file (or a label) an error names."""
+    if not isinstance(doc.get("elements"), str):
+        raise InputError(f"{where}: key 'elements': expected the updated element set's file name, got "
+                         f"{doc.get('elements')!r}")
+    base = HTMField(machine, load_elements(doc["elements"]))
+    if doc.get("learned_residual") is not None:  # the closed loop's learned stage (compensation.hybrid)
         from .hybrid import HybridField, LearnedResidual
         try:
-            base = HybridField(base, LearnedResidual.from_dict(d["learned_residual"]))
+            base = HybridField(base, LearnedResidual.from_dict(doc["learned_residual"]))
         except ValueError as exc:
-            raise InputError(f"{path}: key 'learned_residual': {exc}") from None
+            raise InputError(f"{where}: key 'learned_residual': {exc}") from None
     terms = []
-    for i, t in enumerate(d.get("terms", [])):
+    for i, t in enumerate(doc.get("terms", [])):
         try:
             diagnosed_kind(t.get("kind") if isinstance(t, dict) else None)
         except ValueError as exc:
-            raise InputError(f"{path}: key 'terms[{i}].kind': {exc}") from None
+            raise InputError(f"{where}: key 'terms[{i}].kind': {exc}") from None
         try:
             ref = {"strokes": {k: tuple(machine.strokes[k]) for k in ("x_mm", "z_mm", "a_deg")},
                    "ref_temp_c": float(t["reference"]["ref_temp_c"]), "ref_time_s": float(t["reference"]["ref_time_s"])}
             terms.append(EffectTerm(Candidate(t["kind"], t["axis"], t["element"]), np.asarray(t["coefficients"], float),
                                     ref, t.get("period_mm"), t.get("order")))
         except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{path}: key 'terms[{i}]': malformed term ({exc})") from None
+            raise InputError(f"{where}: key 'terms[{i}]': malformed term ({exc})") from None
     return CorrectedField(machine, base, terms)
+
+
+LEARNED_KEYS = ("learned_residual", "base_stage", "base_terms_replaced", "loop_alone", "learned_family",
+                "mlflow_run_id")
+"""The keys of ``model.json`` that only a kept learned residual writes."""
+
+
+def loop_alone_model(doc: dict) -> dict:
+    """The loop alone of ``model.json``'s content ``doc``: what the closed loop ships without its learned
+    part (a copy of ``doc`` when none was kept). Its elements and terms are ``loop_alone``'s where
+    the learned part was backfitted with the element update (the shipped base is then not the loop's), the
+    condition terms the learned part replaced (``base_terms_replaced``) are added back, and the keys of the
+    learned part (:data:`LEARNED_KEYS`) are left out; its stage is ``base_stage``."""
+    if doc.get("learned_residual") is None:
+        return dict(doc)
+    own = doc.get("loop_alone") or {}
+    out = {k: v for k, v in doc.items() if k not in LEARNED_KEYS}
+    out["stage"] = doc.get("base_stage", doc["stage"])
+    out["elements"] = own.get("elements", doc["elements"])
+    out["terms"] = list(own.get("terms", doc["terms"])) + list(doc.get("base_terms_replaced", []))
+    out["needs"] = sorted({c for e in out["terms"] for c in e.get("needs", [])})
+    return out
 
 
 class ConditionedField:

@@ -474,3 +474,88 @@ def test_conclusion_lines_per_check_count():
     assert "at 150 checks: the learned stage kept in 1 of 2 out-of-catalogue conditions; parametric loop / hybrid ×1.00–×1.25" in lines
     assert "at 800 checks: the learned stage kept in 1 of 1 out-of-catalogue conditions; parametric loop / hybrid ×2.00–×2.00" in lines
     assert lines[-1] == "without an effect the learned stage was declined in 2 of 2 conditions"
+
+
+# -- the out-of-catalogue loop: the user's path (volcomp identify → volcomp diagnose) -------------------
+def _small_bench(grinder):
+    """A GrinderBench on a short flute (0.25 turn, 40 points), no volume points, no MLflow."""
+    from compensation.app.workflows.benchmark import GrinderBench, Tracker
+    s = quick_settings()
+    s.volume_points, s.flute_turns, s.flute_points_per_turn, s.ga_points = 0, 0.25, 40, 8
+    return GrinderBench(grinder, s, Tracker(None, enabled=False))
+
+
+def test_out_of_catalogue_loop_runs_the_users_path_and_other_loops_the_effect_search(grinder, monkeypatch):
+    """On an out-of-catalogue condition the parametric base runs the user's path (both its rows: parametric
+    loop and hybrid); the learned base there, and every base on a catalogue effect, the effect search."""
+    from compensation.app.workflows.benchmark import GrinderBench, GrinderCondition, grinder_truth
+    g = _small_bench(grinder)
+    calls = []
+    monkeypatch.setattr(GrinderBench, "user_loop_rows", lambda self, c, *a: calls.append(("user", c.name)))
+    monkeypatch.setattr(GrinderBench, "closed_loop_row",
+                        lambda self, truth, label, checks, base_row, *a: calls.append((base_row["path"], len(checks))))
+    bases = (({"path": "parametric"}, None), ({"path": "learned"}, None))
+    ooc = GrinderCondition("effect=squareness", "out-of-catalogue", 21, 1.0, "squareness", 60, True)
+    eff = GrinderCondition("effect=thermal", "effect", 21, 1.0, "thermal", 50)
+    for c in (ooc, eff):
+        g.closed_loop(c, grinder_truth(grinder, g.s, c.effect), bases, {})
+    assert calls == [("user", ooc.name), ("learned", 60), ("parametric", 50), ("learned", 50)]
+
+
+ROW_MATCH_TOL_UM = 1e-6
+"""The benchmark's rows against the CLI run on the same numbers: the sweeps and checks are written with 17
+significant digits (a double round-trips exactly), so both runs compute the same thing; the margin only
+covers summation order (the residual figures are ~1 μm)."""
+
+
+@pytest.mark.slow  # two closed loops with their learned stage on 300 checks: minutes of CPU
+def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_path):
+    """The out-of-catalogue rows are the user's path: the hybrid row is what `volcomp compensate --model
+    DIR/model.json` gives after `volcomp identify` and `volcomp diagnose` on the same sweeps and checks, the
+    parametric row the same with model.json's loop alone (no learned part); their held-out figures are the
+    ones diagnosis.json reports, and the parametric loop is the element-updated one."""
+    from compensation.app.cli import main
+    from compensation.app.workflows.benchmark import (EFFECTS_LOOP, USER_LOOP, GrinderCondition, _streams,
+                                                      compensate_true, condition_sweeps, grinder_truth)
+    from compensation.diagnosed_model import load_diagnosed_model
+    from errormap.io import write_csv
+    from errormap.sweeps import SWEEP_FORMAT
+    g = _small_bench(grinder)
+    s = g.s
+    c = GrinderCondition("effect=squareness, checks=300", "out-of-catalogue", s.base_stations, s.base_noise_um,
+                         "squareness", 300, True)
+    truth = grinder_truth(grinder, s, c.effect)
+    g.closed_loop(c, truth, (({"path": "parametric"}, None),), {"n_measurements": 0})
+    rows = {r["path"]: r for r in g.rows}
+    assert set(rows) == {"parametric", "hybrid"} and all(r["available"] for r in rows.values()), rows
+    assert {r["loop_method"] for r in rows.values()} == {USER_LOOP} != EFFECTS_LOOP
+
+    # the same sweeps and checks through the CLI, as a user runs it
+    write_csv(tmp_path / "sw.csv", condition_sweeps(s, truth, c), header_comments=[f"format: {SWEEP_FORMAT}"],
+              float_fmt="%.17g")
+    cols = truth.check_measurements(n=c.n_checks, noise_um=s.check_noise_um, seed=_streams(s.seed)["checks"])
+    write_csv(tmp_path / "checks.csv", cols, header_comments=["format: volcomp-checks/1"], float_fmt="%.17g")
+    assert main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "el.json"),
+                 "--bootstrap", str(s.identify_bootstrap)]) == 0
+    d = tmp_path / "d"
+    assert main(["diagnose", str(tmp_path / "checks.csv"), "--model", str(tmp_path / "el.json"), "--out", str(d)]) == 0
+    summary = json.loads((d / "diagnosis.json").read_text())
+    model = json.loads((d / "model.json").read_text())
+    # the loop alone: model.json with loop_alone's elements and terms, the replaced condition terms, no learned part
+    alone = {k: v for k, v in model.items() if k not in ("learned_residual", "loop_alone", "base_terms_replaced")}
+    own = model.get("loop_alone") or {}
+    alone.update(elements=own.get("elements", model["elements"]), stage=model.get("base_stage", model["stage"]),
+                 terms=own.get("terms", model["terms"]) + model.get("base_terms_replaced", []))
+    (d / "alone.json").write_text(json.dumps(alone))
+    assert alone["stage"] in ("updated", "updated_plus_effects", "updated_alone")   # the elements were updated
+    for path, name in (("hybrid", "model.json"), ("parametric", "alone.json")):
+        f = ConditionedField(load_diagnosed_model(d / name, grinder), PATH_CONDITIONS)
+        cli = compensate_true(grinder, s, g.points, truth, f, "exact")
+        row = rows[path]
+        assert row["stage"] == json.loads((d / name).read_text())["stage"]
+        assert abs(row["true_rms_um"] - cli["true_rms_um"]) <= ROW_MATCH_TOL_UM, (path, row["true_rms_um"], cli)
+        assert abs(row["true_max_um"] - cli["true_max_um"]) <= ROW_MATCH_TOL_UM, (path, row["true_max_um"], cli)
+        held = summary["stages"][row["stage"]]["held_out"]["rms_um"]
+        assert abs(row["checks_rms_after_um"] - held) <= ROW_MATCH_TOL_UM
+    assert rows["hybrid"]["learned_kept"] == ("learned_residual" in model)
+    assert rows["hybrid"]["learned_family"] == summary["learned_residual"]["family"]

@@ -146,13 +146,13 @@ BAND95_COVER_LO, BAND95_COVER_HI = 0.90, 0.98
 binomial SE at 95 % is 0.7 %, so the range is not met by chance alone)."""
 
 
-def _user_path(tmp_path, seed: int, effect: str) -> dict:
-    """sweeps (2 μm, noise seed 7) → simulate (``effect``, 800 checks at 1 μm) → identify (40 bootstrap draws)
-    → diagnose into ``tmp_path/d``; → diagnosis.json."""
+def _user_path(tmp_path, seed: int, effect: str, checks: int = 800) -> dict:
+    """sweeps (2 μm, noise seed 7) → simulate (``effect``, ``checks`` checks at 1 μm) → identify (40 bootstrap
+    draws) → diagnose into ``tmp_path/d``; → diagnosis.json."""
     from compensation.app.cli import main
     q = ["--seed", str(seed), "--effect", effect]
     assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", "7", "--out", str(tmp_path / "sw.csv")]) == 0
-    assert main(["simulate", *q, "--checks", "800", "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
+    assert main(["simulate", *q, "--checks", str(checks), "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
     assert main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "el.json"), "--bootstrap", "40"]) == 0
     assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--model", str(tmp_path / "el.json"),
                  "--out", str(tmp_path / "d")]) == 0
@@ -672,3 +672,73 @@ def test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt(t
         err[label] = float(np.sqrt(np.mean(np.sum((f.predict(P, **cond, time_s=np.zeros(len(P))) - e_true) ** 2, 1))))
     print("tilt user path, model error vs the truth (μm):", err)
     assert err["model"] < TILT_LOOP_FRACTION * err["alone"], err
+
+
+CORE_FIELD_TOL_UM = 1e-9
+"""The core's in-memory fields against those loaded from the files it wrote: the same doubles (JSON and npz
+round-trip a double exactly) evaluated by the same code, so only round-off could differ (VALUE_TOL_UM)."""
+
+ANY_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0, "dir_a": 1.0}
+"""Conditions at which the diagnosed fields are compared (any values; those of the benchmark's flute path)."""
+
+
+@pytest.mark.slow  # the user's path (sweeps → simulate → identify → diagnose at 400 checks): minutes of CPU
+def test_run_closed_loop_writes_what_the_in_memory_core_decides(tmp_path, monkeypatch):
+    """`volcomp diagnose`'s closed loop is closed_loop_model (in memory) plus writing: diagnosis.json, model.json
+    and the element sets are its result byte for byte, and its kept and loop-alone fields are those `volcomp
+    compensate` builds from model.json and from model.json with loop_alone in place of elements and terms and
+    without the learned part."""
+    from compensation.app.workflows import diagnosis
+    from compensation.diagnosed_model import loop_alone_model
+    from errormap.io import write_json
+    seen, core = [], diagnosis.closed_loop_model
+
+    def recording(*a, **k):
+        seen.append(core(*a, **k))
+        return seen[-1]
+    monkeypatch.setattr(diagnosis, "closed_loop_model", recording)
+    _user_path(tmp_path, 1, "bump", checks=400)
+    (res,) = seen
+    d, mine = tmp_path / "d", tmp_path / "mine"
+    assert res.learned is not None and res.loop_alone is not None   # the branch that writes every file
+    mine.mkdir()
+    write_json(mine / "diagnosis.json", dict(res.summary, updated_elements_file=str(d / "updated_elements.json")))
+    write_json(mine / "model.json", res.model)
+    res.ship_cov.elements.save(mine / "updated_elements.json")
+    res.loop_alone[0].elements.save(mine / "loop_elements.json")
+    for name in ("diagnosis.json", "model.json", "updated_elements.json", "loop_elements.json"):
+        assert (mine / name).read_bytes() == (d / name).read_bytes(), name
+    model = json.loads((d / "model.json").read_text())
+    alone = {k: v for k, v in model.items() if k not in ("learned_residual", "loop_alone", "base_terms_replaced")}
+    alone.update(elements=model["loop_alone"]["elements"], stage=model["base_stage"],
+                 terms=model["loop_alone"]["terms"] + model.get("base_terms_replaced", []))
+    (d / "alone.json").write_text(json.dumps(alone))
+    assert loop_alone_model(model)["terms"] == alone["terms"] and loop_alone_model(model)["stage"] == alone["stage"]
+    m = load_machine()
+    P = random_axes(m, 500, np.random.default_rng(3))
+    cond = {k: np.full(len(P), v) for k, v in ANY_CONDITIONS.items()}
+    for in_memory, name in ((res.kept_field(m), "model.json"), (res.loop_alone_field(m), "alone.json")):
+        from_file = load_diagnosed_model(d / name, m)
+        np.testing.assert_allclose(in_memory.predict(P, **cond), from_file.predict(P, **cond), rtol=0,
+                                   atol=CORE_FIELD_TOL_UM, err_msg=name)
+
+
+def test_loop_alone_model_is_model_json_without_its_learned_part():
+    """The loop alone of a model.json: loop_alone's elements and terms plus the replaced condition terms, the
+    base stage, no learned key; a model.json without a learned part is its own loop alone."""
+    from compensation.diagnosed_model import LEARNED_KEYS, loop_alone_model
+    t = {"kind": "thermal", "axis": "z", "element": "dz_z", "needs": ["temp_c"]}
+    s = {"kind": "periodic", "axis": "x", "element": "dx_x"}
+    plain = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "stage": "updated",
+             "terms": [s], "needs": []}
+    assert loop_alone_model(plain) == plain
+    hybrid = dict(plain, stage="learned_residual", base_stage="updated_plus_effects", learned_residual={"family": "gp"},
+                  base_terms_replaced=[t], learned_family={"family": "gp"},
+                  loop_alone={"elements": "loop_elements.json", "terms": [dict(s, coefficients=[1.0])]})
+    alone = loop_alone_model(hybrid)
+    assert not set(alone) & set(LEARNED_KEYS)
+    assert alone == {"format": "volcomp-diagnosed-model/1", "elements": "loop_elements.json",
+                     "stage": "updated_plus_effects", "terms": [dict(s, coefficients=[1.0]), t], "needs": ["temp_c"]}
+    no_backfit = {k: v for k, v in hybrid.items() if k != "loop_alone"}   # the base is the loop's own
+    assert loop_alone_model(no_backfit)["elements"] == "updated_elements.json"
+    assert loop_alone_model(no_backfit)["terms"] == [s, t]

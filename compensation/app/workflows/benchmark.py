@@ -23,7 +23,14 @@ test paths, records every run in MLflow under one parent run, and writes
   simulator in the truth, before and after the closed loop (check measurements →
   ``errormap.diagnosis.diagnose`` → ``CorrectedField`` = base field + the found terms →
   compensate with it). The learned path after the loop is the network plus the parametric
-  terms (the 11×11×11 grid aliases pitch and worm-gear periods, see docs/benchmark.md).
+  terms (the 11×11×11 grid aliases pitch and worm-gear periods, see docs/benchmark.md);
+* out-of-catalogue conditions (``ooc_effects`` × ``ooc_checks``, and the same machine without an
+  effect): after the loop the parametric path runs the user's path instead — the sweeps identified as
+  ``volcomp identify`` does (smoothing, element covariance), then ``volcomp diagnose``'s closed loop on
+  the checks (:func:`compensation.app.workflows.diagnosis.closed_loop_model`: element update, effects,
+  the learned residual backfitted with the update, all re-estimated on all checks); its loop alone is
+  the parametric row, its kept model (``model.json``) the hybrid row. Each row says which loop ran
+  (``loop_method``: :data:`USER_LOOP` or :data:`EFFECTS_LOOP`).
 
 **Hexapod** (and the tripod): simulated pose measurements (``simulate_poses``, known instrument
 frame), ``n_poses`` poses with noise ``noise_um``;
@@ -67,6 +74,11 @@ TRUTH_CONDITIONS = ("temp_c", "dir_x", "dir_z", "dir_a")
 """The conditions the simulated truth grinder's effects depend on (``time_s`` is only for fitted drift terms)."""
 
 EXPERIMENT = "volcomp-benchmark"
+USER_LOOP = ("the user's path: volcomp identify (smoothing, covariance) → volcomp diagnose (element update + effects "
+             "+ learned residual backfitted with the update, re-estimated on all checks)")
+"""Which loop a row ran (key ``loop_method``): the out-of-catalogue conditions' parametric loop and hybrid."""
+EFFECTS_LOOP = "effect search on the base field (errormap.diagnosis.diagnose; no element update)"
+"""Which loop a row ran (key ``loop_method``): every other condition's, and the learned base's (it has no elements)."""
 FEATURE_REUSE_TOL_UM = 1e-6
 
 
@@ -88,6 +100,9 @@ class BenchmarkSettings:
     # check counts of the out-of-catalogue conditions (each effect and none at every count: the learned
     # stage's estimation error against the number of checks; `volcomp benchmark --checks N`, repeatable)
     ooc_checks: tuple = (800, 150, 1600)
+    # the out-of-catalogue conditions' loop runs the user's path: `volcomp identify` (smoothing, covariance from
+    # this many bootstrap draws: its default) → `volcomp diagnose` on the element set (workflows/diagnosis.py)
+    identify_bootstrap: int = 100
     n_checks: int = 400
     check_noise_um: float = 1.0
     train_iter: int = 150                  # LM iterations per learned grinder condition (~30 s on 2 cores)
@@ -239,7 +254,8 @@ class Tracker:
 def log_row(tracker: Tracker, row: dict) -> None:
     """Record a result row as a child run (params: the condition; metrics: the numbers)."""
     params = {k: row.get(k) for k in ("machine", "path", "condition", "group", "stations", "noise_um", "effect",
-                                      "closed_loop", "n_poses", "solver", "test_path") if row.get(k) is not None}
+                                      "closed_loop", "loop_method", "n_poses", "solver", "test_path")
+              if row.get(k) is not None}
     metrics = {k: v for k, v in row.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
     for s, d in (row.get("solvers") or {}).items():
         for k, v in d.items():
@@ -340,15 +356,33 @@ def grinder_truth(machine, s: BenchmarkSettings, effect=None):
     return random_truth(machine, s.truth_seed, effects=(effect,) if effect else ())
 
 
+def condition_sweeps(s: BenchmarkSettings, truth, c: GrinderCondition) -> dict:
+    """Simulated tracker sweeps of ``truth`` under condition ``c`` (columns, as a sweep file holds them)."""
+    from errormap.sweeps import simulate_sweeps
+    return simulate_sweeps(truth, noise_um=c.noise_um, seed=_streams(s.seed)["sweep_noise"], n_stations=c.stations)
+
+
 def identify_from_sweeps(machine, s: BenchmarkSettings, truth, c: GrinderCondition):
     """Simulated tracker sweeps of ``truth`` under condition ``c`` → the 23 identified elements.
     Returns ``(elements, identification seconds, number of ball-centre measurements)``."""
     from errormap.identification import identify
-    from errormap.sweeps import simulate_sweeps
-    sw = simulate_sweeps(truth, noise_um=c.noise_um, seed=_streams(s.seed)["sweep_noise"], n_stations=c.stations)
+    sw = condition_sweeps(s, truth, c)
     t0 = time.perf_counter()
     res = identify(sw, machine)
     return res.elements_, time.perf_counter() - t0, len(sw["axis"])
+
+
+def identify_with_covariance(machine, s: BenchmarkSettings, truth, c: GrinderCondition):
+    """The same sweeps identified as ``volcomp identify`` does with its defaults
+    (:func:`compensation.app.workflows.identification.identify_elements` → :func:`errormap.uncertainty.smooth_identify`:
+    penalised smoothing, station-mean gauge, tracker noise estimated from the ball residuals,
+    ``s.identify_bootstrap`` bootstrap draws of seed 0). Returns ``(ElementCovariance, seconds)``: the element
+    set and its covariance, what ``volcomp diagnose`` finds beside the element-set file."""
+    from errormap.uncertainty import smooth_identify
+    sw = condition_sweeps(s, truth, c)
+    t0 = time.perf_counter()
+    sm = smooth_identify(sw, machine, n_boot=s.identify_bootstrap, seed=0)
+    return sm.covariance_, time.perf_counter() - t0
 
 
 def compensate_true(machine, s: BenchmarkSettings, points: GrinderTestPoints, truth, field_, method: str,
@@ -508,8 +542,10 @@ class GrinderBench:
         return mlp, row
 
     def closed_loop(self, c, truth, bases, common) -> None:
-        """Checks → diagnosis → corrected field → compensate → true residual, for each
-        ``(base row, base field)`` of ``bases``."""
+        """Checks → the closed loop → compensate → true residual, for each ``(base row, base field)`` of
+        ``bases``: on an out-of-catalogue condition the parametric base runs the user's path
+        (:meth:`user_loop_rows`: the parametric loop and the hybrid), every other base the effect
+        search on its field (:meth:`closed_loop_row`)."""
         from errormap.diagnosis.checks import CheckData
         s = self.s
         n_checks = c.n_checks or s.n_checks
@@ -517,52 +553,65 @@ class GrinderBench:
         checks = CheckData.from_columns(cols, path=f"<simulated checks, {c.name}>")
         label = f"{c.name} (after closed loop)"
         for base_row, base in bases:
+            if base_row["path"] == "parametric" and c.group == "out-of-catalogue":
+                self.user_loop_rows(c, truth, label, checks, common)
+                continue
             _log(f"grinder: {base_row['path']}, {label}")
             try:
-                d, row = self.closed_loop_row(truth, label, checks, base_row, base, common)
+                self.closed_loop_row(truth, label, checks, base_row, base, common)
             except Exception as exc:  # never fake numbers: the row says why it is missing
                 self.log.add(_row(self.m.name, "grinder", base_row["path"], label, available=False, closed_loop=True,
+                                  loop_method=EFFECTS_LOOP,
                                   not_available=f"closed loop failed: {type(exc).__name__}: {exc}", **common))
-                continue
-            if base_row["path"] == "parametric" and c.group == "out-of-catalogue":
-                _log(f"grinder: hybrid, {label}")
-                try:
-                    self.hybrid_row(truth, label, d, row, common)
-                except Exception as exc:
-                    self.log.add(_row(self.m.name, "grinder", "hybrid", label, available=False, closed_loop=True,
-                                      not_available=f"learned-residual stage failed: {type(exc).__name__}: {exc}",
-                                      **common))
 
-    def hybrid_row(self, truth, label, d, loop_row, common) -> None:
-        """The parametric loop's corrected field + the learned residual stage on the same checks
-        (:func:`compensation.hybrid.learned_stage`: fitted on the loop's fitting checks, kept only if it
-        beats the loop on the held-out checks): the product's kept stage, compensated and judged by the truth."""
-        from ...diagnosed_model import ConditionedField
-        from ...hybrid import HybridField, learned_stage
+    def user_loop_rows(self, c, truth, label, checks, common) -> None:
+        """The user's path on the checks: ``volcomp identify`` (:func:`identify_with_covariance`) → ``volcomp
+        diagnose`` with that element set (:func:`compensation.app.workflows.diagnosis.closed_loop_model`: the
+        element update, the effects, the learned residual backfitted with the update and gated on the held-out
+        checks, the kept stage re-estimated on all checks) → compensate, judged by the truth. Two rows: the
+        parametric loop is the loop alone (``model.json`` without its learned part:
+        :func:`compensation.diagnosed_model.loop_alone_model`), the hybrid the kept model (``model.json``);
+        both at :data:`PATH_CONDITIONS`."""
+        from ...diagnosed_model import ConditionedField, loop_alone_model
+        from .diagnosis import closed_loop_model
         s = self.s
-        t0 = time.perf_counter()
-        learned, stage = learned_stage(self.m, d.residual_after_um, d.checks.axes, d.fit_idx, d.hold_idx, seed=s.seed)
-        learn_s = time.perf_counter() - t0
-        base = ConditionedField(d.corrected, PATH_CONDITIONS)
-        field_ = HybridField(base, learned) if learned is not None else base
-        sol = {"exact": self._compensate(truth, field_, "exact")}
-        if learned is not None:
-            sol["batched-ga"] = self._compensate(truth, field_, "batched-ga", idx=self.points.ga_idx)
-        vol = self._volume(truth, field_)
-        st = stage.get("learned", {})
-        held = stage.get("held_out") if learned is not None else None
-        row = _row(self.m.name, "grinder", "hybrid", label, closed_loop=True, solver="exact",
-                   fit_seconds=loop_row["fit_seconds"] + learn_s, learn_seconds=learn_s,
-                   compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
-                   true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"], solvers=sol,
-                   effects_found=loop_row.get("effects_found"), n_checks=loop_row.get("n_checks"),
-                   learned_kept=learned is not None, learned_family=st.get("family"), learned_why=st.get("why"),
-                   learned_gain_z=st.get("held_out_gain_z"), learned_band95_cover=st.get("held_out_band95_cover"),
-                   checks_rms_before_um=loop_row.get("checks_rms_before_um"),
-                   checks_rms_after_um=held["rms_um"] if held else loop_row.get("checks_rms_after_um"),
-                   check_noise_um=s.check_noise_um,
-                   **{**common, "n_measurements": loop_row.get("n_measurements")})
-        self.log.add(_with_volume(row, vol))
+        _log(f"grinder: identify + diagnose (the user's path), {label}")
+        done = []
+        try:
+            cov, id_s = identify_with_covariance(self.m, s, truth, c)
+            t0 = time.perf_counter()
+            res = closed_loop_model(self.m, cov, checks)
+            loop_s = time.perf_counter() - t0
+            summary, lr = res.summary, res.summary.get("learned_residual") or {}
+            learned = {"learned_kept": res.learned is not None, "learned_family": lr.get("family"),
+                       "learned_why": lr.get("why"), "learned_gain_z": lr.get("held_out_gain_z"),
+                       "learned_band95_cover": lr.get("held_out_band95_cover"), "learned_backfitted": "backfit" in lr}
+            models = {"parametric": (loop_alone_model(res.model), res.loop_alone_field(self.m)),
+                      "hybrid": (res.model, res.kept_field(self.m))}
+            for path, (doc, corrected) in models.items():
+                _log(f"grinder: {path}, {label}")
+                field_ = ConditionedField(corrected, PATH_CONDITIONS)
+                sol = {"exact": self._compensate(truth, field_, "exact")}
+                if path == "hybrid" and res.learned is not None:
+                    sol["batched-ga"] = self._compensate(truth, field_, "batched-ga", idx=self.points.ga_idx)
+                row = _row(self.m.name, "grinder", path, label, closed_loop=True, loop_method=USER_LOOP,
+                           solver="exact", fit_seconds=id_s + loop_s, identify_seconds=id_s, diagnosis_seconds=loop_s,
+                           compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
+                           true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
+                           solvers=sol, effects_found=[f"{e['kind']}:{e['axis']}:{e['element']}" for e in doc["terms"]],
+                           stage=doc["stage"], n_checks=len(checks),
+                           checks_rms_before_um=summary["stages"]["identified"]["held_out"]["rms_um"],
+                           checks_rms_after_um=summary["stages"][doc["stage"]]["held_out"]["rms_um"],
+                           check_noise_um=s.check_noise_um, **(learned if path == "hybrid" else {}),
+                           **{**common, "n_measurements": common["n_measurements"] + len(checks)})
+                self.log.add(_with_volume(row, self._volume(truth, field_)))
+                done.append(path)
+        except Exception as exc:  # never fake numbers: the rows say why they are missing
+            for path in ("parametric", "hybrid"):
+                if path not in done:
+                    self.log.add(_row(self.m.name, "grinder", path, label, available=False, closed_loop=True,
+                                      loop_method=USER_LOOP,
+                                      not_available=f"closed loop failed: {type(exc).__name__}: {exc}", **common))
 
     def closed_loop_row(self, truth, label, checks, base_row, base, common):
         from errormap.diagnosis.pipeline import diagnose
@@ -580,8 +629,8 @@ class GrinderBench:
         vol = self._volume(truth, corrected)
         extra = {k: base_row.get(k) for k in ("identify_seconds", "train_seconds", "training_run_id",
                                                "reused_training_of") if base_row.get(k) is not None}
-        row = _row(self.m.name, "grinder", base_row["path"], label, closed_loop=True, solver="exact",
-                   fit_seconds=base_row["fit_seconds"] + diag_s, diagnosis_seconds=diag_s,
+        row = _row(self.m.name, "grinder", base_row["path"], label, closed_loop=True, loop_method=EFFECTS_LOOP,
+                   solver="exact", fit_seconds=base_row["fit_seconds"] + diag_s, diagnosis_seconds=diag_s,
                    compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
                    true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
                    solvers=sol, effects_found=found, n_checks=len(checks),

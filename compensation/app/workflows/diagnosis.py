@@ -4,6 +4,10 @@
   the measured residual, the effects that explain it (:mod:`errormap.diagnosis`), before/after
   on the held-out part, and, for a learned model with axis-only effects and feature points,
   the retrain of the network on feature points plus the new terms (:func:`retrain_learned`).
+* :func:`closed_loop_model` — the closed loop on an element set with its covariance, in memory (update,
+  effects, the learned residual with backfitting, the re-estimate on all checks): a :class:`ClosedLoopResult`
+  that also builds the kept and the loop-alone fields; :func:`run_closed_loop` loads the files for it
+  and writes its result (``model.json`` …).
 * :func:`run_drift` — a drift log: causal model chosen by rolling-origin CV, before/after beside the
   OLS baseline, the controller model (JSON) and the compensation series (CSV).
 
@@ -207,31 +211,84 @@ def _with_terms_of(effects: list, terms, note: str | None) -> list:
     return out
 
 
-def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
-                    source=None, units: str = "check", units_option: str | None = None, learn: bool = True,
-                    track: bool = False, tracking_uri=None, refit_all: bool = True, refit_mode: str = "hyper"):
-    """The closed loop on an identified element set with its covariance; returns (summary, paths).
-    ``source``: the recognised model (:class:`compensation.fields.ModelSource`), else resolved here.
+UPDATED_ELEMENTS = "updated_elements.json"
+"""The kept stage's element set, as ``model.json`` names it (beside it, with its covariance)."""
+LOOP_ELEMENTS = "loop_elements.json"
+"""The loop alone's own element set (a backfitted hybrid's base is not the loop's), as ``model.json`` names it."""
+IN_MEMORY = "<closed loop in memory>"
+"""What an error about a model built in memory names, for want of a file."""
+
+
+@dataclasses.dataclass
+class ClosedLoopResult:
+    """What the closed loop decides (:func:`closed_loop_model`), before anything is written.
+
+    summary : dict         diagnosis.json's content, less the output files' names
+    loop : ClosedLoop      :func:`errormap.diagnosis.loop.closed_loop`'s result (its diagnosis is the report's)
+    ship_cov : ElementCovariance   the kept stage's elements and covariance (``updated_elements.json``)
+    learned : LearnedResidual | None   the kept learned residual (``model.json`` ``learned_residual``)
+    loop_alone : (ElementCovariance, list[dict]) | None   a backfitted hybrid: the loop alone's own elements
+                           (``loop_elements.json``) and terms (``model.json`` ``loop_alone``)
+    model : dict           model.json's content; it names the element sets by :data:`UPDATED_ELEMENTS`
+                           and :data:`LOOP_ELEMENTS`
+    """
+
+    summary: dict
+    loop: object
+    ship_cov: object
+    learned: object
+    loop_alone: tuple | None
+    model: dict
+
+    def _elements(self, name: str):
+        """The element set ``model`` names ``name`` (:data:`UPDATED_ELEMENTS`, :data:`LOOP_ELEMENTS`)."""
+        sets = {UPDATED_ELEMENTS: self.ship_cov.elements}
+        if self.loop_alone is not None:
+            sets[LOOP_ELEMENTS] = self.loop_alone[0].elements
+        if name not in sets:
+            raise InputError(f"{IN_MEMORY}: key 'elements': {name!r} is none of {sorted(sets)}")
+        return sets[name]
+
+    def kept_field(self, machine):
+        """The kept model, as ``volcomp compensate --model DIR/model.json`` builds it
+        (:func:`compensation.diagnosed_model.diagnosed_field`): a :class:`CorrectedField`."""
+        from ...diagnosed_model import diagnosed_field
+        return diagnosed_field(self.model, machine, self._elements, IN_MEMORY)
+
+    def loop_alone_field(self, machine):
+        """The loop alone, as ``model.json`` describes it without its learned part
+        (:func:`compensation.diagnosed_model.loop_alone_model`): a :class:`CorrectedField`; the kept
+        model when no learned residual was kept."""
+        from ...diagnosed_model import diagnosed_field, loop_alone_model
+        return diagnosed_field(loop_alone_model(self.model), machine, self._elements, IN_MEMORY)
+
+
+def closed_loop_model(machine, cov, checks, settings: DiagnosisSettings | None = None, *, learn: bool = True,
+                      refit_all: bool = True, refit_mode: str = "hyper", provenance: dict | None = None
+                      ) -> ClosedLoopResult:
+    """The closed loop on an identified element set with its covariance ``cov``
+    (:class:`errormap.uncertainty.ElementCovariance`, as ``volcomp identify`` writes it) and the check
+    measurements ``checks`` (:class:`errormap.diagnosis.checks.CheckData`), in memory: everything that
+    decides the numbers of :func:`run_closed_loop`, which writes them.
     ``learn``: after the loop, the learned-residual stage (:func:`compensation.hybrid.learned_stage`).
     ``refit_all``: once the stages are chosen on the fitting/held-out split, the kept stage
     (elements, effect terms: :func:`errormap.diagnosis.loop.refit_on_all_checks`) and the kept
     learned part (``refit_mode``, :data:`compensation.hybrid.REFIT_MODES`) are re-estimated on
-    ALL checks before they are written; the held-out figures stay the validated ones."""
+    ALL checks; the held-out figures stay the validated ones.
+    ``provenance``: what the inputs were, as diagnosis.json records them (keys ``checks``, ``model``,
+    ``model_source``, ``units``, ``covariance_file``; default: the checks' path and "in memory")."""
     from errormap.diagnosis.corrected import CorrectedField
     from errormap.diagnosis.loop import closed_loop, refit_on_all_checks, refit_stage
-    from errormap.elements import ElementSet
-    from errormap.uncertainty import ElementCovariance, covariance_path
-    checks = load_checks(checks_path, machine, units=units, units_option=units_option)
     settings = settings or DiagnosisSettings()
     settings.validate(len(checks))
-    src = require_kind(source or resolve_model(model_spec), ("elements",), "the closed loop updates")
-    el = ElementSet.load(src.path)
-    cov = ElementCovariance.load(covariance_path(src.path), el)
+    prov = {"checks": str(checks.path), "model": IN_MEMORY,
+            "model_source": {"kind": "element covariance given by the caller"}, "units": "check",
+            "covariance_file": None, **(provenance or {})}
     loop = closed_loop(machine, cov, checks, settings)
     summary = dict(loop.summary)
-    summary.update({"format": CHECKS_DIAGNOSIS_FORMAT, "checks": str(checks_path), "model": str(model_spec),
-                    "machine": machine.name, "model_source": src.to_dict(), "model_update": True, "units": units,
-                    "covariance_file": str(covariance_path(src.path)),
+    summary.update({"format": CHECKS_DIAGNOSIS_FORMAT, "checks": prov["checks"], "model": prov["model"],
+                    "machine": machine.name, "model_source": prov["model_source"], "model_update": True,
+                    "units": prov["units"], "covariance_file": prov["covariance_file"],
                     "residual": "measured (measurement − model prediction); stages judged on the same held-out checks"})
     learned = None
     ship_cov = loop.covariance   # the elements (and their covariance) written as the kept stage's
@@ -334,11 +391,7 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
         loop_alone = (ship_cov, summary["effects"])
         model_fit, ship_cov = backfit_base["fit"]
         summary["effects"] = _with_terms_of(summary["effects"], model_fit.terms, None)
-    page = checks_report(loop.diagnosis, summary, model_spec, checks_path)
-    out_dir = Path(out_dir)
-    upd_path = out_dir / "updated_elements.json"
-    summary["updated_elements_file"] = str(upd_path)
-    model = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "stage": summary["kept_stage"],
+    model = {"format": "volcomp-diagnosed-model/1", "elements": UPDATED_ELEMENTS, "stage": summary["kept_stage"],
              "terms": summary["effects"], "needs": sorted({c for e in summary["effects"] for c in e.get("needs", [])})}
     if learned is not None:
         model["base_stage"] = loop.kept_stage
@@ -346,10 +399,7 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
             model["base_terms_replaced"] = summary["effects_replaced_by_learned"]
         model["learned_residual"] = learned.to_dict()
         if loop_alone is not None:   # the base was backfitted: what the loop alone would ship, for comparison
-            loop_path = out_dir / "loop_elements.json"
-            loop_alone[0].save(covariance_path(loop_path))
-            loop_alone[0].elements.save(loop_path)
-            model["loop_alone"] = {"elements": loop_path.name, "terms": loop_alone[1],
+            model["loop_alone"] = {"elements": LOOP_ELEMENTS, "terms": loop_alone[1],
                                    "note": ("the base stage's elements and terms as the loop alone estimates them (not "
                                             "backfitted with the learned part): a model.json with these in place of "
                                             "'elements' and 'terms' and without 'learned_residual' is the loop alone")}
@@ -357,20 +407,52 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
         model["learned_family"] = {"family": lr["family"], "name": lr.get("family_name", lr["family"]),
                                    "compared": lr.get("families_compared"),
                                    "estimated_on_checks": (lr.get("shipped") or {}).get("estimated_on_checks")}
-        if track:  # the kept learned residual as an MLflow run (training.tracking.log_learned_residual)
-            from training.tracking import log_learned_residual
-            rid = log_learned_residual(summary["stages"]["learned_residual"], model["learned_residual"],
-                                       model_doc=model, tracking_uri=tracking_uri,
-                                       tags={"checks": str(checks_path), "model": str(model_spec)})
-            summary["learned_residual"] = dict(summary["learned_residual"], mlflow_run_id=rid)
-            model["mlflow_run_id"] = rid
+    return ClosedLoopResult(summary, loop, ship_cov, learned, loop_alone, model)
+
+
+def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
+                    source=None, units: str = "check", units_option: str | None = None, learn: bool = True,
+                    track: bool = False, tracking_uri=None, refit_all: bool = True, refit_mode: str = "hyper"):
+    """The closed loop on an identified element set with its covariance; returns (summary, paths).
+    ``source``: the recognised model (:class:`compensation.fields.ModelSource`), else resolved here.
+    Loads the files, runs :func:`closed_loop_model` (``learn``, ``refit_all``, ``refit_mode`` are its
+    own) and writes its result: ``DIR/diagnosis.json``, ``DIR/report.html``, the kept stage's elements
+    and covariance (``DIR/updated_elements.json``), ``DIR/model.json`` and, for a backfitted hybrid, the
+    loop alone's elements (``DIR/loop_elements.json``). ``track``: a kept learned residual is also logged
+    as an MLflow run (``tracking_uri``)."""
+    from errormap.elements import ElementSet
+    from errormap.uncertainty import ElementCovariance, covariance_path
+    checks = load_checks(checks_path, machine, units=units, units_option=units_option)
+    (settings or DiagnosisSettings()).validate(len(checks))
+    src = require_kind(source or resolve_model(model_spec), ("elements",), "the closed loop updates")
+    el = ElementSet.load(src.path)
+    cov = ElementCovariance.load(covariance_path(src.path), el)
+    res = closed_loop_model(machine, cov, checks, settings, learn=learn, refit_all=refit_all, refit_mode=refit_mode,
+                            provenance={"checks": str(checks_path), "model": str(model_spec),
+                                        "model_source": src.to_dict(), "units": units,
+                                        "covariance_file": str(covariance_path(src.path))})
+    page = checks_report(res.loop.diagnosis, res.summary, model_spec, checks_path)
+    out_dir = Path(out_dir)
+    upd_path = out_dir / UPDATED_ELEMENTS
+    summary, model = dict(res.summary, updated_elements_file=str(upd_path)), dict(res.model)
+    if track and res.learned is not None:  # the kept learned residual as an MLflow run (training.tracking.log_learned_residual)
+        from training.tracking import log_learned_residual
+        rid = log_learned_residual(summary["stages"]["learned_residual"], model["learned_residual"],
+                                   model_doc=model, tracking_uri=tracking_uri,
+                                   tags={"checks": str(checks_path), "model": str(model_spec)})
+        summary["learned_residual"] = dict(summary["learned_residual"], mlflow_run_id=rid)
+        model["mlflow_run_id"] = rid
     paths = _write(out_dir, summary, page)
     # the kept stage's elements (the identified ones when the fallback keeps them) and their covariance
-    ship_cov.save(covariance_path(upd_path))
-    ship_cov.elements.save(upd_path)
+    res.ship_cov.save(covariance_path(upd_path))
+    res.ship_cov.elements.save(upd_path)
+    extra = []
+    if "loop_alone" in model:   # the base was backfitted: what the loop alone would ship, for comparison
+        loop_path = out_dir / LOOP_ELEMENTS
+        res.loop_alone[0].save(covariance_path(loop_path))
+        res.loop_alone[0].elements.save(loop_path)
+        extra = [loop_path, covariance_path(loop_path)]
     write_json(out_dir / "model.json", model)
-    extra = [] if "loop_alone" not in model else [out_dir / "loop_elements.json",
-                                                 covariance_path(out_dir / "loop_elements.json")]
     return summary, list(paths) + [upd_path, covariance_path(upd_path), out_dir / "model.json"] + extra
 
 
