@@ -249,7 +249,7 @@ def user_path(main, td: Path, family: str, seed: int, eff, noise_ss, checks: int
 def _run_case(family: str, seed: int, effect: str, checks: int = 800, check_noise_seed=None,
               residuals: bool = False) -> dict:
     from compensation.app.cli import main
-    from compensation.diagnosed_model import load_diagnosed_model
+    from compensation.diagnosed_model import load_diagnosed_model, loop_alone_model
     from compensation.evaluate import true_residual_um
     from compensation.hybrid import HybridField
     from errormap.elements import ElementSet
@@ -271,15 +271,9 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800, check_nois
         user_path(main, td, family, seed, eff, noise_ss, checks, check_noise_seed)
         s = json.loads((td / "diag" / "diagnosis.json").read_text())
         model = json.loads((td / "diag" / "model.json").read_text())
-        param = {k: v for k, v in model.items() if k not in ("learned_residual", "base_terms_replaced")}
-        param["stage"] = model.get("base_stage", model["stage"])
-        # a backfitted hybrid's base is not the loop's: the loop alone's own elements and terms (model.json loop_alone)
-        alone = param.pop("loop_alone", None) or {}
-        param["elements"] = alone.get("elements", model["elements"])
-        # the loop alone had the condition terms the learned stage replaced (learned_stage's r_static_um)
-        param["terms"] = alone.get("terms", model["terms"]) + model.get("base_terms_replaced", [])
-        param["needs"] = sorted({c for e in param["terms"] for c in e.get("needs", [])})
-        (td / "diag" / "model_parametric.json").write_text(json.dumps(param))
+        # the loop alone: its own elements and terms where the hybrid's base was backfitted, with the condition
+        # terms the learned stage replaced (compensation.diagnosed_model.loop_alone_model)
+        (td / "diag" / "model_parametric.json").write_text(json.dumps(loop_alone_model(model)))
         P = random_axes(m, N_VOLUME, np.random.default_rng(probe_ss))
         for k, name in ((0, "x_mm"), (1, "z_mm")):  # 1 mm inside the strokes: compensated commands stay in them
             lo, hi = m.strokes[name]

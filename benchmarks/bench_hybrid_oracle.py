@@ -124,7 +124,7 @@ def element_gp_predict(theta, F, J, y, Fs, Js):
 def run_case(case: str, seed: int, element_gp: bool = True, family: str = "default") -> dict:
     from bench_hybrid import EDGE_MM, N_VOLUME, user_path
     from compensation.app.cli import main
-    from compensation.diagnosed_model import load_diagnosed_model
+    from compensation.diagnosed_model import load_diagnosed_model, loop_alone_model
     from compensation.hybrid import CV_BLOCKS, axis_features, input_set_groups
     from errormap.htm import ELEMENT_NAMES, error_jacobian
     from errormap.io import read_table
@@ -143,12 +143,8 @@ def run_case(case: str, seed: int, element_gp: bool = True, family: str = "defau
         td = Path(td)
         user_path(main, td, family, seed, eff, noise_ss)
         model = json.loads((td / "diag" / "model.json").read_text())
-        static = {k: v for k, v in model.items() if k not in ("learned_residual", "base_terms_replaced", "loop_alone")}
-        static["stage"] = model.get("base_stage", model["stage"])
-        alone = model.get("loop_alone") or {}   # a backfitted hybrid's base is not the loop's (round 12)
-        static["elements"] = alone.get("elements", model["elements"])
-        static["terms"] = [e for e in alone.get("terms", model["terms"]) + model.get("base_terms_replaced", [])
-                           if not e.get("needs")]
+        static = loop_alone_model(model)   # the loop alone (its own base where backfitted), static terms only
+        static["terms"] = [e for e in static["terms"] if not e.get("needs")]
         static["needs"] = []
         (td / "diag" / "static.json").write_text(json.dumps(static))
         f_static = load_diagnosed_model(td / "diag" / "static.json", m)

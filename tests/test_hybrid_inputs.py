@@ -36,9 +36,9 @@ and is far below any effect a one-axis element profile could represent."""
 
 LINEAR_SPAN_SHARE_MAX = 0.01
 """The share of xz_saddle's (default parameters) mean square spatial error that the linearised
-element model takes up — every element a free profile of its own axis (hat functions on the
-identification's 21 stations; A: a Fourier series to 9/rev) and every constant, through the
-error-transfer Jacobian — on a symmetric X × Z × A grid: the effect is orthogonal to that span up to
+element model takes up — every element a free profile of its own axis (the element set's splines
+on its 21 stations) and every constant, through the error-transfer Jacobian
+(:func:`errormap.uncertainty.theta_design`) — on a symmetric X × Z × A grid: the effect is orthogonal to that span up to
 the odd X profile's tail beyond ±3.3 widths and the Z wavelet's beyond ±3.3 (measured 2e-5);
 1 % bounds that with room."""
 LINEAR_SPAN_SQUARENESS_MIN = 0.99
@@ -141,41 +141,21 @@ def test_a_lobe_x_is_not_a_sum_of_one_axis_profiles(grinder):
     assert np.mean(additive**2) <= ADDITIVE_SHARE_MAX * np.mean(d**2)
 
 
-def _linear_element_span(grinder, P, J):
-    """The linearised element model at points ``P`` shape (n, 3) whose error-transfer Jacobian is
-    ``J`` shape (n, 3, 23): columns, shape (3n, k), each an element's Jacobian column times one
-    basis function of its own axis (hats on 21 stations for X and Z, Fourier to 9/rev for A) or a
-    constant."""
-    from errormap.elements import A_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS
-
-    def hats(v, stations):
-        return np.stack([np.interp(v, stations, e) for e in np.eye(stations.size)], axis=1)
-
-    a = np.deg2rad(P[:, 2])
-    basis = {"x": hats(P[:, 0], np.linspace(*grinder.strokes["x_mm"], 21)),
-             "z": hats(P[:, 1], np.linspace(*grinder.strokes["z_mm"], 21)),
-             "a": np.stack([np.ones_like(a)] + [f(h * a) for h in range(1, 10) for f in (np.cos, np.sin)], axis=1),
-             "c": np.ones((P.shape[0], 1))}
-    cols = []
-    for j, name in enumerate(ELEMENT_NAMES):
-        B = basis["x" if name in X_ELEMENTS else "z" if name in Z_ELEMENTS else "a" if name in A_ELEMENTS else "c"]
-        cols.append(J[:, :, j, None] * B[:, None, :])
-    return np.concatenate(cols, axis=2).reshape(3 * P.shape[0], -1)
-
-
 def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     """The round-13 effect: only Z's straightness in Y changes, and no element profile of one axis
     (nor any constant) takes it up, through the chain's error transfer; squareness, which the loop
     absorbs, is taken up wholly by the same projection."""
     from errormap.htm import IDX, error_jacobian
+    from errormap.uncertainty import theta_design
     xs = np.linspace(*grinder.strokes["x_mm"], 21)
     zs = np.linspace(*grinder.strokes["z_mm"], 21)
     X, Z, A = np.meshgrid(xs, zs, np.arange(24) * 15.0, indexing="ij")
     P = np.stack([X.ravel(), Z.ravel(), A.ravel()], axis=1)
     J = error_jacobian(grinder, P)
-    M = _linear_element_span(grinder, P, J)
+    truth = random_truth(grinder, SEED)
+    M = theta_design(grinder, truth.elements, P).reshape(3 * P.shape[0], -1)   # the element model, linearised
     MtM = M.T @ M
-    without = random_truth(grinder, SEED).element_values(P)
+    without = truth.element_values(P)
     shares = {}
     for name in ("xz_saddle", "squareness"):
         dv = random_truth(grinder, SEED, effects=[name]).element_values(P) - without
@@ -183,7 +163,7 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
             assert np.all(np.delete(dv, IDX["dy_z"], axis=1) == 0.0)
             assert np.abs(dv[:, IDX["dy_z"]]).max() > 7.0            # A = 8 μm at its peak (sampled grid)
         d = np.einsum("nie,ne->ni", J, dv).ravel()
-        r = d - M @ np.linalg.lstsq(MtM, M.T @ d, rcond=None)[0]       # the normal equations: 371 columns
+        r = d - M @ np.linalg.lstsq(MtM, M.T @ d, rcond=None)[0]       # the normal equations: 377 columns
         shares[name] = 1.0 - (r @ r) / (d @ d)
     assert shares["xz_saddle"] <= LINEAR_SPAN_SHARE_MAX
     assert shares["squareness"] >= LINEAR_SPAN_SQUARENESS_MIN
