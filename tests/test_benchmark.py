@@ -216,6 +216,28 @@ def test_verdicts_name_the_winner_from_the_numbers():
     assert "ratio 2.5" in line
 
 
+def test_summary_counts_the_hybrid_against_the_loop_on_the_same_checks():
+    """The closed loop's hybrid row beside its parametric loop: lower where the learned stage was kept,
+    equal (declined: the hybrid is the loop, the same numbers) where it was not, on the test path and
+    on the compensated volume; the ratio is the median of parametric / hybrid."""
+    doc = _doc()
+    for cond, par, hyb in (("effect=bump, checks=800 (after closed loop)", (2.0, 1.2), (1.0, 0.6)),
+                           ("effect=none, checks=800 (after closed loop)", (0.8, 0.6), (0.8, 0.6))):
+        for path, (flute, vol) in (("parametric", par), ("hybrid", hyb)):
+            doc["rows"].append({"machine": "g", "machine_kind": "grinder", "path": path, "condition": cond,
+                                "group": "out-of-catalogue", "available": True, "true_rms_um": flute,
+                                "true_max_um": 2 * flute, "volume_rms_um": vol, "fit_seconds": 1.0,
+                                "compensate_seconds_per_point": 1e-4, "n_measurements": 989})
+    lines = summary_lines(doc)
+    assert lines[0].startswith("grinder: parametric lower true RMS in 2 of 2 conditions, learned in 0")
+    (hyb_line,) = [line for line in lines if "hybrid" in line]
+    assert hyb_line.startswith("grinder: hybrid (the closed loop's learned residual) against the parametric loop "
+                               "on the same checks, 2 conditions: hybrid lower in 1, equal in 1 (stage declined), "
+                               "higher in 0; median parametric / hybrid RMS ratio 1.50 on the test path")
+    assert hyb_line.endswith("hybrid lower in 1, equal in 1 (stage declined), higher in 0; median parametric / "
+                             "hybrid RMS ratio 1.50 on the compensated volume")
+
+
 def test_report_is_self_contained_and_says_what_is_missing():
     page = render_html(_doc())
     assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")

@@ -206,20 +206,45 @@ def conclusion_lines(doc) -> list[str]:
 
 
 def summary_lines(doc) -> list[str]:
-    """Per machine kind: how many conditions each path wins, and the median ratio of true RMS."""
+    """Per machine kind: how many conditions each path wins, and the median ratio of true RMS; where the
+    closed loop has a hybrid row (the loop's learned residual on the checks), one more line: the hybrid
+    against the parametric loop of the same checks, on the test path and on the compensated volume
+    (equal where the learned stage was declined: the hybrid is then the loop)."""
     out = []
     by = {}
+    rows_by = {}
     for r in _rows(doc):
         by.setdefault(r["machine_kind"], {}).setdefault(r["condition"], {})[r["path"]] = r["true_rms_um"]
+        rows_by.setdefault(r["machine_kind"], {}).setdefault(r["condition"], {})[r["path"]] = r
     for kind, conds in by.items():
         pairs = [(d["parametric"], d["learned"]) for d in conds.values() if "parametric" in d and "learned" in d]
-        if not pairs:
-            continue
-        p = np.array(pairs)
-        wins = int(np.sum(p[:, 0] < p[:, 1]))
-        out.append(f"{kind}: parametric lower true RMS in {wins} of {len(p)} conditions, learned in {len(p) - wins}; "
-                   f"median learned / parametric RMS ratio {num(np.median(p[:, 1] / np.maximum(p[:, 0], 1e-12)))}")
+        if pairs:
+            p = np.array(pairs)
+            wins = int(np.sum(p[:, 0] < p[:, 1]))
+            out.append(f"{kind}: parametric lower true RMS in {wins} of {len(p)} conditions, learned in "
+                       f"{len(p) - wins}; median learned / parametric RMS ratio "
+                       f"{num(np.median(p[:, 1] / np.maximum(p[:, 0], 1e-12)))}")
+        hyb = [(d["parametric"], d["hybrid"]) for d in rows_by[kind].values()
+               if "parametric" in d and "hybrid" in d and d["hybrid"].get("true_rms_um") is not None
+               and d["parametric"].get("true_rms_um") is not None]
+        if hyb:
+            out.append(f"{kind}: hybrid (the closed loop's learned residual) against the parametric loop on the same "
+                       f"checks, {len(hyb)} conditions: {_hybrid_counts(hyb, 'true_rms_um')} on the test path; "
+                       f"{_hybrid_counts(hyb, 'volume_rms_um')} on the compensated volume")
     return out
+
+
+def _hybrid_counts(pairs, key) -> str:
+    """'lower in a, equal in e (stage declined), higher in h; median parametric / hybrid ratio r' over the
+    (parametric row, hybrid row) pairs that have ``key``; equal = the hybrid is the loop (declined)."""
+    p = np.array([(a[key], b[key]) for a, b in pairs if a.get(key) is not None and b.get(key) is not None], float)
+    if not len(p):
+        return "no figures"
+    eq = np.isclose(p[:, 0], p[:, 1], rtol=1e-12, atol=0.0)
+    lower = int(np.sum(~eq & (p[:, 1] < p[:, 0])))
+    higher = int(np.sum(~eq & (p[:, 1] > p[:, 0])))
+    return (f"hybrid lower in {lower}, equal in {int(eq.sum())} (stage declined), higher in {higher}; median "
+            f"parametric / hybrid RMS ratio {num(np.median(p[:, 0] / np.maximum(p[:, 1], 1e-12)))}")
 
 
 def _table(rows, cols) -> Table:
