@@ -212,21 +212,18 @@ def summary_lines(doc) -> list[str]:
     (equal where the learned stage was declined: the hybrid is then the loop)."""
     out = []
     by = {}
-    rows_by = {}
     for r in _rows(doc):
-        by.setdefault(r["machine_kind"], {}).setdefault(r["condition"], {})[r["path"]] = r["true_rms_um"]
-        rows_by.setdefault(r["machine_kind"], {}).setdefault(r["condition"], {})[r["path"]] = r
+        by.setdefault(r["machine_kind"], {}).setdefault(r["condition"], {})[r["path"]] = r
     for kind, conds in by.items():
-        pairs = [(d["parametric"], d["learned"]) for d in conds.values() if "parametric" in d and "learned" in d]
+        pairs = [(d["parametric"]["true_rms_um"], d["learned"]["true_rms_um"]) for d in conds.values()
+                 if "parametric" in d and "learned" in d]
         if pairs:
             p = np.array(pairs)
             wins = int(np.sum(p[:, 0] < p[:, 1]))
             out.append(f"{kind}: parametric lower true RMS in {wins} of {len(p)} conditions, learned in "
                        f"{len(p) - wins}; median learned / parametric RMS ratio "
                        f"{num(np.median(p[:, 1] / np.maximum(p[:, 0], 1e-12)))}")
-        hyb = [(d["parametric"], d["hybrid"]) for d in rows_by[kind].values()
-               if "parametric" in d and "hybrid" in d and d["hybrid"].get("true_rms_um") is not None
-               and d["parametric"].get("true_rms_um") is not None]
+        hyb = [(d["parametric"], d["hybrid"]) for d in conds.values() if "parametric" in d and "hybrid" in d]
         if hyb:
             out.append(f"{kind}: hybrid (the closed loop's learned residual) against the parametric loop on the same "
                        f"checks, {len(hyb)} conditions: {_hybrid_counts(hyb, 'true_rms_um')} on the test path; "
