@@ -107,6 +107,10 @@ FEATURE_DISTANCE = False   # ρ also on each candidate's own features (filtered 
 #   0.89× → 1.06×, seed 4 ch4 1.00× → 1.0497×; the 120 s test log lumped seed 0 ch4: ridge_ols, 1.19×): a candidate's
 #   features are farther out on the folds (small or novel training sets) than on the deployment's held-out part, so
 #   the validation credits the shrinkage more than the deployment gets it (docs/drift_model.md)
+HORIZON_MIN_TRAIN = None   # the horizon folds' validation ends from cv_start (their first fold trains on cv_start/(1 + h)
+#                            of the fitting part: 30 % at f = 0.6); a share here makes every fold train on at least it
+#                            (issue 29's seventh round, a setting: docs/drift_model.md)
+HORIZON_LAST_START = 0.9   # with HORIZON_MIN_TRAIN, the first validation end never later than this share of the fitting part
 RANKING_FOLD_LOSS = True   # the per-fold loss bound MAX_FOLD_LOSS on the ranking folds too (the last one is the stretch
 #   nearest the future): benchmark rod seed 6 tilt, subset_lag~ols(w=0.25), had every horizon and novelty fold ≤ 1.01×
 #   OLS and its last ranking fold 1.10×; it lost 1.06× on the future
@@ -804,14 +808,21 @@ def rolling_origin_folds(n_fit: int, n_folds: int = 4, start: float = 0.5):
     return [(np.arange(edges[i]), np.arange(edges[i], edges[i + 1])) for i in range(n_folds) if edges[i + 1] > edges[i]]
 
 
-def horizon_folds(n_fit: int, horizon: float, n_folds: int = 4, start: float = 0.5):
+def horizon_folds(n_fit: int, horizon: float, n_folds: int = 4, start: float = 0.5, min_train: float | None = None):
     """Forward-chaining folds whose validation block is as long, relative to its training block, as the
     deployment's: fold i trains on rows [0, m_i) and validates on [m_i, m_i·(1 + horizon)); the
     validation ends are evenly spaced from ``start``·n_fit to n_fit (blocks may overlap).
     ``horizon`` = held-out length / fitting length of the deployment ((1 − f)/f for a fit fraction f).
+    ``min_train`` (a share of the fitting part, or None): the first validation end moves to
+    min(max(``start``, ``min_train``·(1 + horizon)), ``HORIZON_LAST_START``)·n_fit, so that no fold trains on
+    less than ``min_train`` of the fitting part where the horizon allows (issue 29's seventh round).
     Returns [(train (m_i,), validate (b_i,))], training always earlier."""
     if horizon <= 0:
         raise ValueError(f"Expected horizon > 0, got {horizon}")
+    if min_train is not None:
+        if not 0 < min_train < 1:
+            raise ValueError(f"Expected 0 < min_train < 1, got {min_train}")
+        start = min(max(start, min_train * (1.0 + horizon)), HORIZON_LAST_START)
     ends = np.linspace(start * n_fit, n_fit, n_folds).round().astype(int)
     out = []
     for e in ends:
@@ -893,6 +904,8 @@ class DriftSelector:
     prediction − OLS clipped to :func:`disagreement_interval` of the chosen blend's differences from OLS on every
     validation row, ``fold_delta_`` {channel: (m,) μm}; ``disagreement_`` {channel: (lo, hi) or None}; the selection
     itself is unchanged),
+    ``horizon_min_train`` (None, the default: the horizon folds' validation ends from ``cv_start``; a share: no
+    horizon fold trains on less of the fitting part, :func:`horizon_folds`),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
     {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number ``selection`` ranks
@@ -914,7 +927,7 @@ class DriftSelector:
                  selection: str = SELECTION, hedge_weight: float = HEDGE_WEIGHT, band_rule: str = BAND_RULE,
                  confident_worst_fold: float = CONFIDENT_WORST_FOLD, input_range: bool = INPUT_RANGE,
                  scale_folds: str = SCALE_FOLDS[0], disagreement: str | None = DISAGREEMENTS[0],
-                 disagreement_quantile: float = DISAGREEMENT_QUANTILE):
+                 disagreement_quantile: float = DISAGREEMENT_QUANTILE, horizon_min_train: float | None = HORIZON_MIN_TRAIN):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
@@ -939,6 +952,7 @@ class DriftSelector:
         self.scale_folds = scale_folds
         self.disagreement = disagreement
         self.disagreement_quantile = disagreement_quantile
+        self.horizon_min_train = horizon_min_train
 
     def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
         """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes
@@ -976,6 +990,8 @@ class DriftSelector:
             raise ValueError(f"Expected scale_folds in {SCALE_FOLDS}, got {self.scale_folds!r}")
         if self.disagreement not in DISAGREEMENTS:
             raise ValueError(f"Expected disagreement in {DISAGREEMENTS}, got {self.disagreement!r}")
+        if self.horizon_min_train is not None and not 0 < self.horizon_min_train < 1:
+            raise ValueError(f"Expected 0 < horizon_min_train < 1 (or None), got {self.horizon_min_train}")
         if not 0 < self.disagreement_quantile <= 1:
             raise ValueError(f"Expected 0 < disagreement_quantile <= 1, got {self.disagreement_quantile}")
         if not self.shrink_weights or not all(0 < w <= 1 for w in self.shrink_weights):
@@ -989,7 +1005,7 @@ class DriftSelector:
         cache = {}
         folds = rolling_origin_folds(len(fit), self.n_folds, self.cv_start)
         h = (1 - self.fit_fraction) / self.fit_fraction if self.horizon is None else self.horizon
-        hfolds = horizon_folds(len(fit), h, self.n_horizon_folds, self.cv_start)
+        hfolds = horizon_folds(len(fit), h, self.n_horizon_folds, self.cv_start, self.horizon_min_train)
         U = input_matrix(log, fit, cache)
         nfolds, self.novelty_ = novelty_folds(U, self.n_novelty_blocks, self.n_novelty_folds) \
             if self.n_novelty_folds else ([], np.zeros(0))
