@@ -17,6 +17,10 @@ with ``--with-families`` on the dumps, also the default rule with and without ea
 round): one default selection per log, the disagreement gate's variants (``GATE_VARIANTS``) applied to its model →
 benchmarks/drift_dev_gate_results.md (development logs and the real fitting parts; with ``--gate-judge`` also the
 benchmark's seeds 0–9 with and without the regime change and the real pseudo-futures, judged after the decision).
+``--horizon-round FILE [--horizon-judge]`` (issue 29's seventh round): whole selections under ``HORIZON_VARIANTS``
+(A; H = horizon folds that train on at least half of the fitting part) on the same logs →
+benchmarks/drift_dev_horizon_results.md (judged: A from drift_regime_results.json, H on the benchmark's seeds with and
+without the regime change and the real pseudo-futures).
 """
 from __future__ import annotations
 
@@ -457,12 +461,21 @@ RANGE_VARIANTS = {"A": {}, "B": {"input_range": True}, "C": {"input_range": True
 RANGE_NESTED = ((0.6, 0.6), (0.8, 0.8))   # (keep the first U of the real log's shared part, fit on F of it): inside
 #                                           the benchmark's fitting parts (0–21.6 % → 21.6–36 %, 0–38.4 % → 38.4–48 %)
 RANGE_PSEUDO_FUTURES = (0.6, 0.8)          # bench_drift_regime's real splits: 0–36 % → 36–60 %, 0–48 % → 48–60 %
+# issue 29's seventh round (docs/drift_model.md): horizon folds that train on at least half of the fitting part
+HORIZON_VARIANTS = {"A": {}, "H": {"horizon_min_train": 0.5}}
+HORIZON_HEAD = ["# Issue 29's seventh round: horizon folds that train on at least half of the fitting part", "",
+                "`python benchmarks/bench_drift_dev.py --horizon-round FILE [--horizon-judge]` (whole selections; "
+                "held-out MEASURED RMS ratio to OLS). A: the default; H: `horizon_min_train=0.5`. Real log: 0 = fit "
+                "0–21.6 % → judge 21.6–36 %, 1 = fit 0–38.4 % → judge 38.4–48 % (of the full log); pseudo-futures 0 = "
+                "fit 0–36 % → 36–60 %, 1 = fit 0–48 % → 48–60 % (looked at before the rule was written: reported, "
+                "not a clean judgement)."]
 
 
-def range_case(kind, seed, variant, real_log=None):
-    """One log under one variant of ``RANGE_VARIANTS``: rows {kind, seed, variant, channel, model, volcomp, ols,
-    scale, rho, coverage, cpu_s}. ``kind``: "lumped" / "rod" (regime change), "lumped-ns" / "rod-ns" (none), "real"
-    (``seed`` = the index into ``RANGE_NESTED``; ``real_log`` the loaded shared log)."""
+def range_case(kind, seed, variant, real_log=None, variants=None):
+    """One log under one variant of ``variants`` (default ``RANGE_VARIANTS``): rows {kind, seed, variant, channel,
+    model, volcomp, ols, scale, rho, coverage, cpu_s}. ``kind``: "lumped" / "rod" (regime change), "lumped-ns" /
+    "rod-ns" (none), "-j" / "-jns" the benchmark's seeds with / without it (judged), "real" (``seed`` = the index
+    into ``RANGE_NESTED``; ``real_log`` the loaded shared log)."""
     if kind == "real":
         upto, ff = RANGE_NESTED[seed]
         log = head_of(real_log, upto)
@@ -471,33 +484,38 @@ def range_case(kind, seed, variant, real_log=None):
         log = real_log
     else:
         fam = kind.split("-")[0]       # "-j": the benchmark's seeds 0–9 (judged), with the regime change
-        log = simulated_log(fam, seed, shift=not kind.endswith("-ns"))
+        log = simulated_log(fam, seed, shift=not kind.endswith("ns"))   # "-ns", "-jns": none
         ff = SIM_SPLIT
-    rep, cpu = selected_report(log, ff, RANGE_VARIANTS[variant])
+    rep, cpu = selected_report(log, ff, (variants or RANGE_VARIANTS)[variant])
     return [{"kind": kind, "seed": seed, "variant": variant, "channel": ch, "model": r["model"],
              "volcomp": r["rms_after_um"], "ols": r["rms_ols_um"], "scale": r["distance_scale"],
              "rho": r["heldout_rho_median"], "coverage": r["band_coverage_heldout"], "cpu_s": cpu}
             for ch, r in rep.items()]
 
 
-def render_range(rows, out):
-    """Markdown of the input-range round: per data set and variant, cases above 1.05× OLS, worst, below OLS (ratio
+ROUND_SETS = {"dev, regime change (seeds 100–104)": ("lumped", "rod"), "dev, none (seeds 100–102)": ("lumped-ns", "rod-ns"),
+              "real, inside the fitting parts": ("real",),
+              "JUDGED: benchmark seeds 0–9, regime change (A: drift_regime_results.json)": ("lumped-j", "rod-j"),
+              "JUDGED: benchmark seeds 0–9, no regime change (A: drift_regime_results.json)": ("lumped-jns", "rod-jns"),
+              "JUDGED: real pseudo-futures 36–60 %, 48–60 % (A: drift_regime_results.json)": ("real-pf",)}
+
+
+def render_range(rows, out, variants=None, head=None):
+    """Markdown of a round of whole selections per variant (default the input-range round: ``RANGE_VARIANTS`` and
+    its heading; ``head``: the first lines): per data set and variant, cases above 1.05× OLS, worst, below OLS (ratio
     < 0.9995), above OLS (> 1.0005), geometric-mean ratio; then every case whose ratio changed against A."""
-    sets = {"dev, regime change (seeds 100–104)": ("lumped", "rod"), "dev, none (seeds 100–102)": ("lumped-ns", "rod-ns"),
-            "real, inside the fitting parts": ("real",),
-            "JUDGED: benchmark seeds 0–9, regime change (A: drift_regime_results.json)": ("lumped-j", "rod-j"),
-            "JUDGED: real pseudo-futures 36–60 %, 48–60 % (A: drift_regime_results.json)": ("real-pf",)}
+    variants = variants or RANGE_VARIANTS
     by = {}
     for r in rows:
         by.setdefault(r["variant"], {})[(r["kind"], r["seed"], r["channel"])] = r
-    L = ["# Issue 29's fifth round: the input-range distance on the development data", "",
+    L = (head or ["# Issue 29's fifth round: the input-range distance on the development data", "",
          "`python benchmarks/bench_drift_dev.py --range-round FILE` (whole selections; held-out MEASURED RMS ratio "
          "to OLS). A: the default; B: `input_range=True`; C: B + `scale_folds=\"horizon_novelty\"`. "
-         "Real log: 0 = fit 0–21.6 % → judge 21.6–36 %, 1 = fit 0–38.4 % → judge 38.4–48 % (of the full log).", "",
+         "Real log: 0 = fit 0–21.6 % → judge 21.6–36 %, 1 = fit 0–38.4 % → judge 38.4–48 % (of the full log)."]) + ["",
          "| data | variant | cases | > 1.05× OLS | worst | below OLS | above OLS | geometric mean | CPU s |",
          "|---|---|---|---|---|---|---|---|---|"]
-    for name, kinds in sets.items():
-        for v in RANGE_VARIANTS:
+    for name, kinds in ROUND_SETS.items():
+        for v in variants:
             rr = [r for k, r in by.get(v, {}).items() if k[0] in kinds]
             if not rr:
                 continue
@@ -507,7 +525,7 @@ def render_range(rows, out):
                      f"{int((q < 0.9995).sum())} | {int((q > 1.0005).sum())} | {np.exp(np.mean(np.log(q))):.3f} | "
                      f"{cpu:.0f} |")
     L += ["", "Cases whose choice or ratio changed against A (kind, seed, channel: A → variant):", ""]
-    for v in list(RANGE_VARIANTS)[1:]:
+    for v in list(variants)[1:]:
         for k, r in sorted(by.get(v, {}).items(), key=lambda kv: str(kv[0])):
             a = by.get("A", {}).get(k)
             if a and (a["model"] != r["model"] or abs(a["volcomp"] - r["volcomp"]) > 1e-9 * max(1.0, a["volcomp"])):
@@ -668,6 +686,14 @@ def main(argv=None):
                     help="with --range-round: after the decision, variants B and C on the benchmark's seeds 0–9 "
                          "(regime change) and the real pseudo-futures (A from drift_regime_results.json)")
     ap.add_argument("--range-out", default=str(Path(__file__).with_name("drift_dev_range_results.md")))
+    ap.add_argument("--horizon-round", default=None,
+                    help="issue 29's seventh round: HORIZON_VARIANTS (A, H = horizon_min_train 0.5) on the development "
+                         "logs and the real fitting parts, one JSON line per finished log to FILE (resumed), then "
+                         "render --horizon-out")
+    ap.add_argument("--horizon-judge", action="store_true",
+                    help="with --horizon-round: after the decision, H on the benchmark's seeds 0–9 (both families, with "
+                         "and without the regime change) and the real pseudo-futures (A from drift_regime_results.json)")
+    ap.add_argument("--horizon-out", default=str(Path(__file__).with_name("drift_dev_horizon_results.md")))
     ap.add_argument("--gate-round", default=None,
                     help="issue 29's sixth round: the disagreement gate's variants (GATE_VARIANTS) on the development "
                          "logs and the real fitting parts, one JSON line per finished log to FILE (resumed), then "
@@ -703,11 +729,16 @@ def main(argv=None):
                                           if x["variant"] in ("A", "G1")), file=sys.stderr, flush=True)
         print("\n".join(render_gate(rows, a.gate_out)))
         return
-    if a.range_round:
+    if a.range_round or a.horizon_round:
+        if a.range_round:
+            path, judge, out, variants, head = a.range_round, a.range_judge, a.range_out, RANGE_VARIANTS, None
+        else:
+            path, judge, out, variants, head = (a.horizon_round, a.horizon_judge, a.horizon_out, HORIZON_VARIANTS,
+                                                HORIZON_HEAD)
         done = set()
         rows = []
-        if Path(a.range_round).exists():
-            for line in Path(a.range_round).read_text().splitlines():
+        if Path(path).exists():
+            for line in Path(path).read_text().splitlines():
                 if line.strip():
                     r = json.loads(line)
                     rows += r
@@ -716,31 +747,32 @@ def main(argv=None):
         todo = [(k, s) for k in ("lumped", "rod") for s in range(100, 105)] + \
                [(k, s) for k in ("lumped-ns", "rod-ns") for s in range(100, 103)] + \
                ([("real", i) for i in range(len(RANGE_NESTED))] if real is not None else [])
-        if a.range_judge:
+        if judge:
             reg = json.loads(Path(__file__).with_name("drift_regime_results.json").read_text())
-            a_rows = [[{"kind": f"{r['family']}-j", "seed": r["seed"], "variant": "A", "channel": r["channel"],
-                        "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"], "scale": r["scale"],
-                        "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
-                      for r in reg["sims"] if r["shifted"]] + \
+            kinds = ("rod-j", "lumped-j") if a.range_round else ("rod-j", "lumped-j", "rod-jns", "lumped-jns")
+            a_rows = [[{"kind": f"{r['family']}-j" + ("" if r.get("shifted", True) else "ns"), "seed": r["seed"], "variant": "A",
+                        "channel": r["channel"], "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"],
+                        "scale": r["scale"], "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
+                      for r in reg["sims"] if r.get("shifted", True) or not a.range_round] + \
                      [[{"kind": "real-pf", "seed": RANGE_PSEUDO_FUTURES.index(r["split"]), "variant": "A",
                         "channel": r["channel"], "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"],
                         "scale": r["scale"], "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
                       for r in reg["real"]]
             rows += [r for x in a_rows for r in x]
             todo = ([("real-pf", i) for i in range(len(RANGE_PSEUDO_FUTURES))] if real is not None else []) + \
-                [(k, s) for k in ("rod-j", "lumped-j") for s in range(10)]
+                [(k, s) for k in kinds for s in range(10)]
             done |= {(r[0]["kind"], r[0]["seed"], "A") for r in a_rows}
         for k, s in todo:
-            for v in RANGE_VARIANTS:
+            for v in variants:
                 if (k, s, v) in done:
                     continue
-                r = range_case(k, s, v, real)
+                r = range_case(k, s, v, real, variants)
                 rows += r
-                with open(a.range_round, "a", encoding="utf-8") as fh:
+                with open(path, "a", encoding="utf-8") as fh:
                     fh.write(json.dumps(r) + "\n")
                 print(f"{k} {s} {v}: " + ", ".join(f"{x['channel']} {x['volcomp'] / x['ols']:.3f}" for x in r),
                       file=sys.stderr, flush=True)
-        print("\n".join(render_range(rows, a.range_out)))
+        print("\n".join(render_range(rows, out, variants, head)))
         return
     if a.weights == "fine":
         a.weights = SHRINK_WEIGHTS

@@ -102,6 +102,31 @@ def test_horizon_folds_validate_over_the_deployment_horizon(fit_fraction):
         assert abs(len(va) - h * len(tr)) <= ROUNDING_ROWS * (1 + h)
 
 
+@pytest.mark.parametrize("fit_fraction,first_end", [(0.6, 0.5 * (1 + 2 / 3)), (0.8, 0.5 * 1.25), (0.5, 0.9)])
+def test_horizon_folds_with_min_train_never_train_on_less(fit_fraction, first_end):
+    """horizon_min_train (issue 29's seventh round): the first validation end moves to
+    min(max(start, min_train·(1 + h)), HORIZON_LAST_START), so every fold trains on at least half of the fitting
+    part where the horizon allows (f = 0.6, 0.8), and from 0.9 of it where it does not (f = 0.5: h = 1)."""
+    n_fit = 1200
+    h = (1 - fit_fraction) / fit_fraction
+    folds = horizon_folds(n_fit, h, 4, 0.5, min_train=0.5)
+    assert len(folds) == 4
+    assert folds[-1][1][-1] == n_fit - 1
+    assert folds[0][1][-1] + 1 == round(first_end * n_fit)
+    if 0.5 * (1 + h) <= 0.9:
+        assert all(len(tr) >= 0.5 * n_fit - ROUNDING_ROWS for tr, _ in folds)
+    for tr, va in folds:
+        assert tr[0] == 0 and tr[-1] + 1 == va[0]
+        assert abs(len(va) - h * len(tr)) <= ROUNDING_ROWS * (1 + h)
+    # None keeps the folds of the default exactly
+    assert all(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+               for a, b in zip(horizon_folds(n_fit, h, 4, 0.5, None), horizon_folds(n_fit, h, 4, 0.5)))
+    with pytest.raises(ValueError, match="min_train"):
+        horizon_folds(n_fit, h, 4, 0.5, min_train=1.0)
+    with pytest.raises(ValueError, match="horizon_min_train"):
+        DriftSelector(horizon_min_train=0.0).fit(None)
+
+
 def test_horizon_gate_is_a_one_standard_error_rule():
     ols = [1.0, 1.0, 1.0, 1.0]
     # a steady 10 % gain on every fold: no scatter, passes

@@ -482,7 +482,8 @@ def run_drift(log_path, out_dir, selector=None, time_unit=None, units: str = "ch
                             "n_novelty_folds": sel.n_novelty_folds, "n_novelty_blocks": sel.n_novelty_blocks,
                             "shrink_weights": list(sel.shrink_weights), "selection": sel.selection,
                             "hedge_weight": sel.hedge_weight, "feature_distance": sel.feature_distance,
-                            "ranking_fold_loss": sel.ranking_fold_loss, "band_rule": sel.band_rule}}
+                            "ranking_fold_loss": sel.ranking_fold_loss, "band_rule": sel.band_rule,
+                            "horizon_min_train": sel.horizon_min_train}}
     sub = getattr(sel, "subset_modeller_", None)
     if sub is not None:
         summary["sensor_selection"] = sub.report_selection()
