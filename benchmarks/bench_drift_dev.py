@@ -463,6 +463,14 @@ RANGE_NESTED = ((0.6, 0.6), (0.8, 0.8))   # (keep the first U of the real log's 
 RANGE_PSEUDO_FUTURES = (0.6, 0.8)          # bench_drift_regime's real splits: 0–36 % → 36–60 %, 0–48 % → 48–60 %
 # issue 29's seventh round (docs/drift_model.md): horizon folds that train on at least half of the fitting part
 HORIZON_VARIANTS = {"A": {}, "H": {"horizon_min_train": 0.5}}
+# issue 29's eighth round (docs/drift_model.md): the distance scale chosen to pass the gates
+SCALE_VARIANTS = {"A": {}, "S": {"scale_rule": "gated"}}
+SCALE_HEAD = ["# Issue 29's eighth round: the distance scale chosen to pass the gates", "",
+              "`python benchmarks/bench_drift_dev.py --scale-round FILE [--scale-judge]` (whole selections; held-out "
+              "MEASURED RMS ratio to OLS). A: the default; S: `scale_rule=\"gated\"`. Real log: 0 = fit 0–21.6 % → "
+              "judge 21.6–36 %, 1 = fit 0–38.4 % → judge 38.4–48 % (of the full log); pseudo-futures 0 = fit 0–36 % → "
+              "36–60 %, 1 = fit 0–48 % → 48–60 % (their candidates were looked at before the rule was written: "
+              "reported, not a clean judgement)."]
 HORIZON_HEAD = ["# Issue 29's seventh round: horizon folds that train on at least half of the fitting part", "",
                 "`python benchmarks/bench_drift_dev.py --horizon-round FILE [--horizon-judge]` (whole selections; "
                 "held-out MEASURED RMS ratio to OLS). A: the default; H: `horizon_min_train=0.5`. Real log: 0 = fit "
@@ -694,6 +702,14 @@ def main(argv=None):
                     help="with --horizon-round: after the decision, H on the benchmark's seeds 0–9 (both families, with "
                          "and without the regime change) and the real pseudo-futures (A from drift_regime_results.json)")
     ap.add_argument("--horizon-out", default=str(Path(__file__).with_name("drift_dev_horizon_results.md")))
+    ap.add_argument("--scale-round", default=None,
+                    help="issue 29's eighth round: SCALE_VARIANTS (A, S = scale_rule gated) on the development logs and "
+                         "the real fitting parts, one JSON line per finished log to FILE (resumed), then render "
+                         "--scale-out")
+    ap.add_argument("--scale-judge", action="store_true",
+                    help="with --scale-round: after the decision, S on the benchmark's seeds 0–9 (both families, with "
+                         "and without the regime change) and the real pseudo-futures (A from drift_regime_results.json)")
+    ap.add_argument("--scale-out", default=str(Path(__file__).with_name("drift_dev_scale_results.md")))
     ap.add_argument("--gate-round", default=None,
                     help="issue 29's sixth round: the disagreement gate's variants (GATE_VARIANTS) on the development "
                          "logs and the real fitting parts, one JSON line per finished log to FILE (resumed), then "
@@ -729,12 +745,14 @@ def main(argv=None):
                                           if x["variant"] in ("A", "G1")), file=sys.stderr, flush=True)
         print("\n".join(render_gate(rows, a.gate_out)))
         return
-    if a.range_round or a.horizon_round:
+    if a.range_round or a.horizon_round or a.scale_round:
         if a.range_round:
             path, judge, out, variants, head = a.range_round, a.range_judge, a.range_out, RANGE_VARIANTS, None
-        else:
+        elif a.horizon_round:
             path, judge, out, variants, head = (a.horizon_round, a.horizon_judge, a.horizon_out, HORIZON_VARIANTS,
                                                 HORIZON_HEAD)
+        else:
+            path, judge, out, variants, head = a.scale_round, a.scale_judge, a.scale_out, SCALE_VARIANTS, SCALE_HEAD
         done = set()
         rows = []
         if Path(path).exists():

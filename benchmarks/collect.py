@@ -9,7 +9,7 @@ import argparse
 import pathlib
 
 HERE = pathlib.Path(__file__).resolve().parent
-ORDER = ["demo", "suite", "benchmark", "foundation", "training", "solvers", "identification", "diagnosis", "sweeps_band", "sweeps_gauge", "hybrid", "hybrid_budget", "hybrid_oracle", "hybrid_chain", "hybrid_dev", "surrogate", "chain", "grinder_chain", "mt_solve", "lathe", "lathe_solve", "gcode_words", "mt_train", "mt_loop", "drift_regime", "drift_deploy", "drift_dev", "drift_dev_range", "drift_dev_gate", "drift_dev_horizon", "drift_ties", "arms", "pkm",
+ORDER = ["demo", "suite", "benchmark", "foundation", "training", "solvers", "identification", "diagnosis", "sweeps_band", "sweeps_gauge", "hybrid", "hybrid_budget", "hybrid_oracle", "hybrid_chain", "hybrid_dev", "surrogate", "chain", "grinder_chain", "mt_solve", "lathe", "lathe_solve", "gcode_words", "mt_train", "mt_loop", "drift_regime", "drift_deploy", "drift_dev", "drift_dev_range", "drift_dev_gate", "drift_dev_horizon", "drift_dev_scale", "drift_ties", "arms", "pkm",
          "pkm_path", "toolpath", "export", "export_drift", "cli_startup", "house",
          "scale_out", "scale_gcode", "solve_scale", "cluster"]
 # raw tables of a script whose section (named in ORDER) quotes them: not repeated in BENCHMARKS.md

@@ -355,3 +355,38 @@ def test_drift_predict_refuses_log_shorter_than_the_longest_lag_and_missing_inpu
                  str(tmp_path / "p.csv")]) == 2
     assert "column 'temp_s1_c'" in capsys.readouterr().err
     assert not (tmp_path / "p.csv").exists()
+
+
+def test_gated_scale_only_adds_eligible_candidates_each_passing_at_the_largest_passing_scale():
+    """scale_rule="gated" (issue 29's eighth round): a candidate eligible at its novelty-chosen scale keeps it and its
+    statistics; one that fails there takes the LARGEST scale of shrink_scales under which it passes every gate (so it
+    is eligible, and no larger scale would pass); the eligible set only grows."""
+    from errormap.diagnosis.drift_models import OLSFamily, ThermalNNFamily, TransferFamily
+    cols = simulate_rod_log(4, hours=10, dt_s=60, n_dropouts=0, shift_at=0.6)
+    cols.pop("_truth")
+    log = _frame(cols)
+    fams = [OLSFamily(), ThermalNNFamily(), TransferFamily()]
+    a = DriftSelector(fit_fraction=0.6, families=fams).fit(log)
+    g = DriftSelector(fit_fraction=0.6, families=fams, scale_rule="gated").fit(log)
+    added, at_scale = 0, {}
+    for ch in a.chosen_:
+        assert set(a.eligible_[ch]) <= set(g.eligible_[ch])
+        r_ols = g.candidates_[ch][("ols", "", 1.0)]["ranking"]
+        for k, st in g.candidates_[ch].items():
+            st0 = a.candidates_[ch][k]
+            ok0 = a.eligible(st0, st0["gate"], k[2], r_ols)
+            if k[0] == "ols" or ok0 or st["scale"] == st0["scale"]:
+                assert st["scale"] == st0["scale"] and st["ranking"] == st0["ranking"]
+                continue
+            added += 1
+            assert g.eligible(st, st["gate"], k[2], r_ols)
+            for s_big in (x for x in a.shrink_scales if x > st["scale"]):    # no larger scale passes
+                one = at_scale.setdefault(s_big, DriftSelector(fit_fraction=0.6, families=fams,
+                                                              shrink_scales=(s_big,)).fit(log)).candidates_[ch][k]
+                assert not g.eligible(one, one["gate"], k[2], r_ols)
+    # the log (rod seed 4, 10 h) was chosen, among rod / lumped seeds 0–5, as one where candidates are rescued and a
+    # channel's choice changes (elong and growth: OLS → thermal_nn)
+    assert added >= 1
+    assert g.chosen_["elong"][0] != "ols" and a.chosen_["elong"][0] == "ols"
+    with pytest.raises(ValueError, match="scale_rule"):
+        DriftSelector(scale_rule="largest").fit(log)

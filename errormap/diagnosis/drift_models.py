@@ -117,6 +117,9 @@ RANKING_FOLD_LOSS = True   # the per-fold loss bound MAX_FOLD_LOSS on the rankin
 RANGE_QUANTILE = 0.99   # the fit data's typical range d0: this quantile of its rows' own input distances
 INPUT_RANGE = False   # ρ also from the per-input range exceedance (issue 29's fifth round; a setting, measured, not the default)
 SCALE_FOLDS = ("novelty", "horizon_novelty")   # the folds whose rows choose the distance scale s (the first: the default)
+SCALE_RULES = ("novelty", "gated")   # how s is chosen per candidate: "novelty" (the default) the lowest RMS on the
+#                                      SCALE_FOLDS rows; "gated" (issue 29's eighth round, a setting): that, or where the
+#                                      candidate so scaled fails a gate, the largest s under which it passes every gate
 SHRINK_SCALES = (np.inf, 2.0, 1.0, 0.5, 0.25)   # per-sample shrinkage g(ρ) = exp(−(ρ − 1)/s) beyond ρ = d/d0 = 1
                                                 # (inf: none); s chosen per candidate on the novelty folds
 DISAGREEMENTS = (None, "abs", "signed")   # the disagreement gate (issue 29's sixth round): None = off (the default)
@@ -904,6 +907,8 @@ class DriftSelector:
     prediction − OLS clipped to :func:`disagreement_interval` of the chosen blend's differences from OLS on every
     validation row, ``fold_delta_`` {channel: (m,) μm}; ``disagreement_`` {channel: (lo, hi) or None}; the selection
     itself is unchanged),
+    ``scale_rule`` (``SCALE_RULES``: "novelty", the default, s of lowest RMS on the ``scale_folds`` rows; "gated": that,
+    or where the candidate so scaled fails a gate, the largest s under which it passes every gate),
     ``horizon_min_train`` (None, the default: the horizon folds' validation ends from ``cv_start``; a share: no
     horizon fold trains on less of the fitting part, :func:`horizon_folds`),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
@@ -927,7 +932,8 @@ class DriftSelector:
                  selection: str = SELECTION, hedge_weight: float = HEDGE_WEIGHT, band_rule: str = BAND_RULE,
                  confident_worst_fold: float = CONFIDENT_WORST_FOLD, input_range: bool = INPUT_RANGE,
                  scale_folds: str = SCALE_FOLDS[0], disagreement: str | None = DISAGREEMENTS[0],
-                 disagreement_quantile: float = DISAGREEMENT_QUANTILE, horizon_min_train: float | None = HORIZON_MIN_TRAIN):
+                 disagreement_quantile: float = DISAGREEMENT_QUANTILE, horizon_min_train: float | None = HORIZON_MIN_TRAIN,
+                 scale_rule: str = SCALE_RULES[0]):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
@@ -953,6 +959,7 @@ class DriftSelector:
         self.disagreement = disagreement
         self.disagreement_quantile = disagreement_quantile
         self.horizon_min_train = horizon_min_train
+        self.scale_rule = scale_rule
 
     def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
         """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes
@@ -990,6 +997,8 @@ class DriftSelector:
             raise ValueError(f"Expected scale_folds in {SCALE_FOLDS}, got {self.scale_folds!r}")
         if self.disagreement not in DISAGREEMENTS:
             raise ValueError(f"Expected disagreement in {DISAGREEMENTS}, got {self.disagreement!r}")
+        if self.scale_rule not in SCALE_RULES:
+            raise ValueError(f"Expected scale_rule in {SCALE_RULES}, got {self.scale_rule!r}")
         if self.horizon_min_train is not None and not 0 < self.horizon_min_train < 1:
             raise ValueError(f"Expected 0 < horizon_min_train < 1 (or None), got {self.horizon_min_train}")
         if not 0 < self.disagreement_quantile <= 1:
@@ -1045,7 +1054,8 @@ class DriftSelector:
                 raise ValueError(f"{log.path}: the OLS baseline could not be fitted on the cross-validation folds")
             r0, h0, n0 = resid[(ch, *base)], hresid[(ch, *base)], nresid[(ch, *base)]
             scores, gate = {}, {}
-            for k in full:
+            r_ols = None
+            for k in sorted(full, key=lambda k: k != base):        # OLS first: its ranking RMS gates the others
                 rho_r = cand_rho(folds, fr[(ch, *k)])
                 rho_h = cand_rho(hfolds, fh[(ch, *k)])
                 rho_n = cand_rho(nfolds, fn[(ch, *k)])
@@ -1060,10 +1070,22 @@ class DriftSelector:
                         sc = min(self.shrink_scales, key=lambda s: (round(_rms(np.concatenate(
                             _blend_residuals(w, sres, s0, srho, s))), 12), -s))
                     key = (k[0], k[1], w)
-                    scores[key], gate[key] = blend_statistics(
-                        w, sc, (resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)]), (r0, h0, n0),
-                        (rho_r, rho_h, rho_n), self.gate_se, self.ranking_fold_loss)
-            r_ols = scores[(*base, 1.0)]["ranking"]
+                    cand = (resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)])
+                    scores[key], gate[key] = blend_statistics(w, sc, cand, (r0, h0, n0), (rho_r, rho_h, rho_n),
+                                                              self.gate_se, self.ranking_fold_loss)
+                    if k == base:
+                        r_ols = scores[key]["ranking"]
+                    elif self.scale_rule == "gated" and not self.eligible(scores[key], gate[key], w, r_ols,
+                                                                          bool(nfolds)):
+                        # the largest s (the least shrinkage) under which the candidate passes every gate
+                        for s_try in sorted((x for x in self.shrink_scales if x != sc), reverse=True):
+                            st, g = blend_statistics(w, s_try, cand, (r0, h0, n0), (rho_r, rho_h, rho_n),
+                                                     self.gate_se, self.ranking_fold_loss)
+                            if self.eligible(st, g, w, r_ols, bool(nfolds)):
+                                scores[key], gate[key] = st, g
+                                break
+            order = [(k[0], k[1], w) for k in full for w in ((1.0,) if k == base else self.shrink_weights)]
+            scores, gate = {k: scores[k] for k in order}, {k: gate[k] for k in order}   # the candidates' own order
             ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, bool(nfolds))]
             # the largest score (ties: the larger mean gain); "worst_fold": the best worst fold
             best = max(ok, key=lambda k: (fold_gain_score(scores[k], self.selection), scores[k]["gain"])) \

@@ -483,7 +483,7 @@ def run_drift(log_path, out_dir, selector=None, time_unit=None, units: str = "ch
                             "shrink_weights": list(sel.shrink_weights), "selection": sel.selection,
                             "hedge_weight": sel.hedge_weight, "feature_distance": sel.feature_distance,
                             "ranking_fold_loss": sel.ranking_fold_loss, "band_rule": sel.band_rule,
-                            "horizon_min_train": sel.horizon_min_train}}
+                            "horizon_min_train": sel.horizon_min_train, "scale_rule": sel.scale_rule}}
     sub = getattr(sel, "subset_modeller_", None)
     if sub is not None:
         summary["sensor_selection"] = sub.report_selection()
