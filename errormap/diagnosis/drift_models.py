@@ -1053,12 +1053,12 @@ class DriftSelector:
             if base not in full:
                 raise ValueError(f"{log.path}: the OLS baseline could not be fitted on the cross-validation folds")
             r0, h0, n0 = resid[(ch, *base)], hresid[(ch, *base)], nresid[(ch, *base)]
-            scores, gate = {}, {}
-            r_ols = None
-            for k in sorted(full, key=lambda k: k != base):        # OLS first: its ranking RMS gates the others
+            scores, gate, rhos = {}, {}, {}
+            for k in full:
                 rho_r = cand_rho(folds, fr[(ch, *k)])
                 rho_h = cand_rho(hfolds, fh[(ch, *k)])
                 rho_n = cand_rho(nfolds, fn[(ch, *k)])
+                rhos[k] = (rho_r, rho_h, rho_n)
                 for w in ((1.0,) if k == base else self.shrink_weights):
                     # g's scale: the one of lowest RMS on the novelty folds (ties: the least shrinkage)
                     # ("horizon_novelty": on the horizon and novelty folds' rows together)
@@ -1070,22 +1070,22 @@ class DriftSelector:
                         sc = min(self.shrink_scales, key=lambda s: (round(_rms(np.concatenate(
                             _blend_residuals(w, sres, s0, srho, s))), 12), -s))
                     key = (k[0], k[1], w)
-                    cand = (resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)])
-                    scores[key], gate[key] = blend_statistics(w, sc, cand, (r0, h0, n0), (rho_r, rho_h, rho_n),
-                                                              self.gate_se, self.ranking_fold_loss)
-                    if k == base:
-                        r_ols = scores[key]["ranking"]
-                    elif self.scale_rule == "gated" and not self.eligible(scores[key], gate[key], w, r_ols,
-                                                                          bool(nfolds)):
-                        # the largest s (the least shrinkage) under which the candidate passes every gate
-                        for s_try in sorted((x for x in self.shrink_scales if x != sc), reverse=True):
-                            st, g = blend_statistics(w, s_try, cand, (r0, h0, n0), (rho_r, rho_h, rho_n),
-                                                     self.gate_se, self.ranking_fold_loss)
-                            if self.eligible(st, g, w, r_ols, bool(nfolds)):
-                                scores[key], gate[key] = st, g
-                                break
-            order = [(k[0], k[1], w) for k in full for w in ((1.0,) if k == base else self.shrink_weights)]
-            scores, gate = {k: scores[k] for k in order}, {k: gate[k] for k in order}   # the candidates' own order
+                    scores[key], gate[key] = blend_statistics(
+                        w, sc, (resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)]), (r0, h0, n0),
+                        rhos[k], self.gate_se, self.ranking_fold_loss)
+            r_ols = scores[(*base, 1.0)]["ranking"]
+            if self.scale_rule == "gated":
+                # a candidate that fails a gate at its scale: the largest s (the least shrinkage) under which it passes
+                for key in scores:
+                    k, w = key[:2], key[2]
+                    if k == base or self.eligible(scores[key], gate[key], w, r_ols, bool(nfolds)):
+                        continue
+                    for s_try in sorted((x for x in self.shrink_scales if x != scores[key]["scale"]), reverse=True):
+                        st, g = blend_statistics(w, s_try, (resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)]),
+                                                 (r0, h0, n0), rhos[k], self.gate_se, self.ranking_fold_loss)
+                        if self.eligible(st, g, w, r_ols, bool(nfolds)):
+                            scores[key], gate[key] = st, g
+                            break
             ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, bool(nfolds))]
             # the largest score (ties: the larger mean gain); "worst_fold": the best worst fold
             best = max(ok, key=lambda k: (fold_gain_score(scores[k], self.selection), scores[k]["gain"])) \
