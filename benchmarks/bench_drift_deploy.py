@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from errormap.diagnosis.drift import DriftLog, load_drift_log  # noqa: E402
-from errormap.diagnosis.drift_models import DriftSelector  # noqa: E402
+from errormap.diagnosis.drift_models import DriftSelector, candidate_name  # noqa: E402
 from errormap.io import atomic_write  # noqa: E402
 
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "thermal-log" / "log_first60.csv"
@@ -65,11 +65,6 @@ def failed_gates(sel: DriftSelector, stats: dict, ranking_ols: float) -> list:
     if stats["worst_fold"] > sel.max_fold_loss:
         out.append(f"a fold {stats['worst_fold']:.2f}× OLS (> {sel.max_fold_loss:g})")
     return out
-
-
-def _name(k):
-    f, hy, w = k
-    return f"{f}{'[' + hy + ']' if hy else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
 
 
 def main(argv=None):
@@ -112,14 +107,16 @@ def main(argv=None):
         k = (f, hy, sel.shrink_[ch])
         st, o = c[k], c[("ols", "", 1.0)]
         sc = sel.scale_[ch]
-        L.append(f"| {ch} | {_name(k)} | {'∞' if sc in (None, np.inf) else f'{sc:g}'} | {st['ranking']:.2f} / "
+        s_txt = "∞" if sc in (None, np.inf) else f"{sc:g}"
+        L.append(f"| {ch} | {candidate_name(*k)} | {s_txt} | {st['ranking']:.2f} / "
                  f"{o['ranking']:.2f} | {st['horizon']:.2f} / {o['horizon']:.2f} | {st['novelty']:.2f} / "
                  f"{o['novelty']:.2f} | {st['worst_fold']:.2f} | {len(sel.eligible_[ch])} |")
         if f == "ols":
             best = max((kk for kk in c if kk[0] != "ols"), key=lambda kk: c[kk]["gain"])
             b = c[best]
             ratios = "; ".join(", ".join(f"{x:.2f}" for x in fold) for fold in b["fold_ratios"])
-            misses.append(f"- {ch}: OLS returned. The candidate of largest mean log-gain over OLS, {_name(best)} "
+            misses.append(f"- {ch}: OLS returned. The candidate of largest mean log-gain over OLS, "
+                          f"{candidate_name(*best)} "
                           f"(ranking {b['ranking']:.2f} / {o['ranking']:.2f}, horizon {b['horizon']:.2f} / "
                           f"{o['horizon']:.2f}, novelty {b['novelty']:.2f} / {o['novelty']:.2f} μm; fold ratios to "
                           f"OLS, ranking; horizon; novelty: {ratios}), fails: "

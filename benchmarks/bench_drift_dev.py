@@ -36,7 +36,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from errormap.diagnosis.drift import load_drift_log  # noqa: E402
-from errormap.diagnosis.drift_models import SHRINK_WEIGHTS, SHRINK_WEIGHTS_COARSE, DriftSelector  # noqa: E402
+from errormap.diagnosis.drift_models import (SHRINK_WEIGHTS, SHRINK_WEIGHTS_COARSE, DriftSelector,  # noqa: E402
+                                             candidate_name)
 from errormap.diagnosis.drift_sim import SIMULATORS  # noqa: E402
 from errormap.io import atomic_write, write_csv, write_json  # noqa: E402
 
@@ -478,6 +479,38 @@ HORIZON_HEAD = ["# Issue 29's seventh round: horizon folds that train on at leas
                 "fit 0–36 % → 36–60 %, 1 = fit 0–48 % → 48–60 % (looked at before the rule was written: reported, "
                 "not a clean judgement)."]
 
+# the development logs a rule is decided on (simulated kinds with seeds; the real log's fitting parts are added where
+# the shared log is present) and the benchmark's simulated logs it is judged on after (issue 29's rounds)
+DEV_LOGS = [(k, s) for k in ("lumped", "rod") for s in range(100, 105)] + \
+           [(k, s) for k in ("lumped-ns", "rod-ns") for s in range(100, 103)]
+JUDGED_SIMS = ("rod-j", "lumped-j", "rod-jns", "lumped-jns")
+# the rounds of whole selections per variant (``--<name>-round FILE [--<name>-judge]``): variants, heading of the
+# rendered page (None: the input-range round's), default page, the simulated kinds judged, and the option helps
+WHOLE_SELECTION_ROUNDS = {
+    "range": (RANGE_VARIANTS, None, "drift_dev_range_results.md", ("rod-j", "lumped-j"),
+              "issue 29's fifth round: run RANGE_VARIANTS on the development logs and the real fitting parts",
+              "variants B and C on the benchmark's seeds 0–9 (regime change) and the real pseudo-futures"),
+    "horizon": (HORIZON_VARIANTS, HORIZON_HEAD, "drift_dev_horizon_results.md", JUDGED_SIMS,
+                "issue 29's seventh round: HORIZON_VARIANTS (A, H = horizon_min_train 0.5) on the development logs "
+                "and the real fitting parts",
+                "H on the benchmark's seeds 0–9 (both families, with and without the regime change) and the real "
+                "pseudo-futures"),
+    "scale": (SCALE_VARIANTS, SCALE_HEAD, "drift_dev_scale_results.md", JUDGED_SIMS,
+              "issue 29's eighth round: SCALE_VARIANTS (A, S = scale_rule gated) on the development logs and the real "
+              "fitting parts",
+              "S on the benchmark's seeds 0–9 (both families, with and without the regime change) and the real "
+              "pseudo-futures")}
+
+
+def round_logs(real_present: bool, judge: bool, judged_sims=JUDGED_SIMS) -> list:
+    """[(kind, seed)] of a round: the development logs and the real fitting parts, or (``judge``) the real
+    pseudo-futures and the benchmark's seeds 0–9 of ``judged_sims``; the real ones only where the shared log is."""
+    if judge:
+        return ([("real-pf", i) for i in range(len(RANGE_PSEUDO_FUTURES))] if real_present else []) + \
+            [(k, s) for k in judged_sims for s in range(10)]
+    return DEV_LOGS + ([("real", i) for i in range(len(RANGE_NESTED))] if real_present else [])
+
+
 
 def range_case(kind, seed, variant, real_log=None, variants=None):
     """One log under one variant of ``variants`` (default ``RANGE_VARIANTS``): rows {kind, seed, variant, channel,
@@ -550,10 +583,6 @@ def render_range(rows, out, variants=None, head=None):
 GATE_VARIANTS = {"A": None, "G1": ("abs", 1.0), "G2": ("abs", 0.99), "G3": ("signed", 0.99)}
 
 
-def _cand_name(f, hy, w):
-    return f"{f}{'[' + hy + ']' if hy else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
-
-
 def gated_model(sel, mode, quantile):
     """The selector's model with the disagreement gate (``mode``, ``quantile``) set on every channel that is not OLS,
     as ``DriftSelector(disagreement=mode, disagreement_quantile=quantile)`` returns it."""
@@ -594,7 +623,7 @@ def gate_case(kind, seed, real_log=None):
             d = log.disp_um[ch][hold]
             c = m.channels[ch]
             rows.append({"kind": kind, "seed": seed, "variant": v, "channel": ch,
-                         "model": _cand_name(*sel.chosen_[ch], sel.shrink_[ch]),
+                         "model": candidate_name(*sel.chosen_[ch], sel.shrink_[ch]),
                          "volcomp": _rms(d - pred[ch][hold]), "ols": _rms(d - base[ch][hold]),
                          "lo": None if c.disagreement_um is None else c.disagreement_um[0],
                          "hi": None if c.disagreement_um is None else c.disagreement_um[1],
@@ -687,29 +716,12 @@ def main(argv=None):
                     help="with --real: keep only the first UPTO of the log (a fitting part; its rest is never read)")
     ap.add_argument("--real", type=float, default=None,
                     help="dump the candidates of the real log fitted on this fraction (to --candidates FILE)")
-    ap.add_argument("--range-round", default=None,
-                    help="issue 29's fifth round: run RANGE_VARIANTS on the development logs and the real fitting parts, "
-                         "one JSON line per finished log to FILE (resumed), then render --range-out")
-    ap.add_argument("--range-judge", action="store_true",
-                    help="with --range-round: after the decision, variants B and C on the benchmark's seeds 0–9 "
-                         "(regime change) and the real pseudo-futures (A from drift_regime_results.json)")
-    ap.add_argument("--range-out", default=str(Path(__file__).with_name("drift_dev_range_results.md")))
-    ap.add_argument("--horizon-round", default=None,
-                    help="issue 29's seventh round: HORIZON_VARIANTS (A, H = horizon_min_train 0.5) on the development "
-                         "logs and the real fitting parts, one JSON line per finished log to FILE (resumed), then "
-                         "render --horizon-out")
-    ap.add_argument("--horizon-judge", action="store_true",
-                    help="with --horizon-round: after the decision, H on the benchmark's seeds 0–9 (both families, with "
-                         "and without the regime change) and the real pseudo-futures (A from drift_regime_results.json)")
-    ap.add_argument("--horizon-out", default=str(Path(__file__).with_name("drift_dev_horizon_results.md")))
-    ap.add_argument("--scale-round", default=None,
-                    help="issue 29's eighth round: SCALE_VARIANTS (A, S = scale_rule gated) on the development logs and "
-                         "the real fitting parts, one JSON line per finished log to FILE (resumed), then render "
-                         "--scale-out")
-    ap.add_argument("--scale-judge", action="store_true",
-                    help="with --scale-round: after the decision, S on the benchmark's seeds 0–9 (both families, with "
-                         "and without the regime change) and the real pseudo-futures (A from drift_regime_results.json)")
-    ap.add_argument("--scale-out", default=str(Path(__file__).with_name("drift_dev_scale_results.md")))
+    for name, (_, _, page, _, what, judged) in WHOLE_SELECTION_ROUNDS.items():
+        ap.add_argument(f"--{name}-round", default=None,
+                        help=f"{what}, one JSON line per finished log to FILE (resumed), then render --{name}-out")
+        ap.add_argument(f"--{name}-judge", action="store_true",
+                        help=f"with --{name}-round: after the decision, {judged} (A from drift_regime_results.json)")
+        ap.add_argument(f"--{name}-out", default=str(Path(__file__).with_name(page)))
     ap.add_argument("--gate-round", default=None,
                     help="issue 29's sixth round: the disagreement gate's variants (GATE_VARIANTS) on the development "
                          "logs and the real fitting parts, one JSON line per finished log to FILE (resumed), then "
@@ -728,13 +740,7 @@ def main(argv=None):
                     rows += r
                     done.add((r[0]["kind"], r[0]["seed"]))
         real = load_drift_log(REAL) if REAL.exists() else None
-        todo = [(k, s) for k in ("lumped", "rod") for s in range(100, 105)] + \
-               [(k, s) for k in ("lumped-ns", "rod-ns") for s in range(100, 103)] + \
-               ([("real", i) for i in range(len(RANGE_NESTED))] if real is not None else [])
-        if a.gate_judge:
-            todo = ([("real-pf", i) for i in range(len(RANGE_PSEUDO_FUTURES))] if real is not None else []) + \
-                [(k, s) for k in ("rod-j", "lumped-j", "rod-jns", "lumped-jns") for s in range(10)]
-        for k, s in todo:
+        for k, s in round_logs(real is not None, a.gate_judge):
             if (k, s) in done:
                 continue
             r = gate_case(k, s, real)
@@ -745,14 +751,11 @@ def main(argv=None):
                                           if x["variant"] in ("A", "G1")), file=sys.stderr, flush=True)
         print("\n".join(render_gate(rows, a.gate_out)))
         return
-    if a.range_round or a.horizon_round or a.scale_round:
-        if a.range_round:
-            path, judge, out, variants, head = a.range_round, a.range_judge, a.range_out, RANGE_VARIANTS, None
-        elif a.horizon_round:
-            path, judge, out, variants, head = (a.horizon_round, a.horizon_judge, a.horizon_out, HORIZON_VARIANTS,
-                                                HORIZON_HEAD)
-        else:
-            path, judge, out, variants, head = a.scale_round, a.scale_judge, a.scale_out, SCALE_VARIANTS, SCALE_HEAD
+    chosen = [n for n in WHOLE_SELECTION_ROUNDS if getattr(a, f"{n}_round")]
+    if chosen:
+        name = chosen[0]
+        variants, head, _, judged_sims, _, _ = WHOLE_SELECTION_ROUNDS[name]
+        path, judge, out = getattr(a, f"{name}_round"), getattr(a, f"{name}_judge"), getattr(a, f"{name}_out")
         done = set()
         rows = []
         if Path(path).exists():
@@ -762,23 +765,18 @@ def main(argv=None):
                     rows += r
                     done.add((r[0]["kind"], r[0]["seed"], r[0]["variant"]))
         real = load_drift_log(REAL) if REAL.exists() else None
-        todo = [(k, s) for k in ("lumped", "rod") for s in range(100, 105)] + \
-               [(k, s) for k in ("lumped-ns", "rod-ns") for s in range(100, 103)] + \
-               ([("real", i) for i in range(len(RANGE_NESTED))] if real is not None else [])
+        todo = round_logs(real is not None, judge, judged_sims)
         if judge:
             reg = json.loads(Path(__file__).with_name("drift_regime_results.json").read_text())
-            kinds = ("rod-j", "lumped-j") if a.range_round else ("rod-j", "lumped-j", "rod-jns", "lumped-jns")
             a_rows = [[{"kind": f"{r['family']}-j" + ("" if r.get("shifted", True) else "ns"), "seed": r["seed"], "variant": "A",
                         "channel": r["channel"], "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"],
                         "scale": r["scale"], "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
-                      for r in reg["sims"] if r.get("shifted", True) or not a.range_round] + \
+                      for r in reg["sims"] if r.get("shifted", True) or any(k.endswith("ns") for k in judged_sims)] + \
                      [[{"kind": "real-pf", "seed": RANGE_PSEUDO_FUTURES.index(r["split"]), "variant": "A",
                         "channel": r["channel"], "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"],
                         "scale": r["scale"], "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
                       for r in reg["real"]]
             rows += [r for x in a_rows for r in x]
-            todo = ([("real-pf", i) for i in range(len(RANGE_PSEUDO_FUTURES))] if real is not None else []) + \
-                [(k, s) for k in kinds for s in range(10)]
             done |= {(r[0]["kind"], r[0]["seed"], "A") for r in a_rows}
         for k, s in todo:
             for v in variants:

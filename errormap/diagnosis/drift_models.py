@@ -732,6 +732,11 @@ def _merge(feats, intercept, coef):
     return out_f, float(intercept), np.array(out_c)
 
 
+def candidate_name(family: str, hyper: str, w: float) -> str:
+    """The name a candidate is reported by: ``family[hyper]``, with ``~ols(w=…)`` when it is blended toward OLS."""
+    return f"{family}{'[' + hyper + ']' if hyper else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
+
+
 def blend_with_ols(cand, ols, w: float):
     """(features, intercept, coef) of the blend ``w``·cand + (1 − ``w``)·ols of two linear models on causal features
     (each a (features, intercept, coef) triple): again one such model, the coefficients of a feature both use summed.
@@ -1092,8 +1097,7 @@ class DriftSelector:
                 if ok else (*base, 1.0)
 
             def name(k):
-                f, hy, w = k
-                return f"{f}{'[' + hy + ']' if hy else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
+                return candidate_name(*k)
             self.cv_[ch] = {name(k): s["ranking"] for k, s in scores.items()}
             self.cv_horizon_[ch] = {name(k): s["horizon"] for k, s in scores.items()}
             self.cv_novelty_[ch] = {name(k): s["novelty"] for k, s in scores.items()}
@@ -1206,7 +1210,7 @@ class DriftSelector:
             b = d - base[ch][hold]
             f, h = self.chosen_[ch]
             w = self.shrink_[ch]
-            name = f"{f}{'[' + h + ']' if h else ''}" + ("" if w == 1.0 else f"~ols(w={w:g})")
+            name = candidate_name(f, h, w)
             band = self.model_.channels[ch].band95_um
             grow = np.ones(len(log.time_s)) if rhos[ch] is None else np.maximum(1.0, rhos[ch])
             alt = {r: qg[0] * grow ** qg[1] for r, qg in self.band_alt_[ch].items()}
