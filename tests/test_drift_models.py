@@ -381,8 +381,9 @@ def test_gated_scale_only_adds_eligible_candidates_each_passing_at_the_largest_p
             added += 1
             assert g.eligible(st, st["gate"], k[2], r_ols)
             for s_big in (x for x in a.shrink_scales if x > st["scale"]):    # no larger scale passes
-                one = at_scale.setdefault(s_big, DriftSelector(fit_fraction=0.6, families=fams,
-                                                              shrink_scales=(s_big,)).fit(log)).candidates_[ch][k]
+                if s_big not in at_scale:       # one selection per scale, every candidate scored at it
+                    at_scale[s_big] = DriftSelector(fit_fraction=0.6, families=fams, shrink_scales=(s_big,)).fit(log)
+                one = at_scale[s_big].candidates_[ch][k]
                 assert not g.eligible(one, one["gate"], k[2], r_ols)
     # the log (rod seed 4, 10 h) was chosen, among rod / lumped seeds 0–5, as one where candidates are rescued and a
     # channel's choice changes (elong and growth: OLS → thermal_nn)
