@@ -102,24 +102,31 @@ def parallel_axes(alpha_rad: float, tol_rad: float = 1e-6) -> bool:
     return min(r, np.pi - r) < tol_rad
 
 
-def dh_ets(rows, joint_types, signs=None, slots: bool = True, beta: bool = True) -> list[ET]:
+def dh_ets(rows, joint_types, signs=None, slots: bool = True, beta: bool = True, beta_rad=None) -> list[ET]:
     """Standard DH rows ``(a_mm, alpha_rad, d_mm, theta_rad)`` → ETs Rz(θ+q) Tz(d) Tx(a) Rx(α) [Ry(β)].
 
     Joint i (0-based) is revolute (about z, θ offset) or prismatic (along z, d offset). Slots
     ``link{i+1}.dtheta_rad/dd_mm/da_mm/dalpha_rad`` and ``link{i+1}.beta_rad`` where α ≡ 0 (mod π)
-    and ``beta``.
+    and ``beta``. ``beta_rad`` (n_links,) optional nominal β (Hayati: a nearly parallel next axis, e.g.
+    read from a URDF); a nonzero β is refused on a link whose axes are not parallel (the common normal is
+    defined there), and kept as a fixed Ry(β) where the slot is off.
     """
     out = []
     signs = [1.0] * len(rows) if signs is None else signs
-    for i, ((a, al, d, th), jt, sg) in enumerate(zip(rows, joint_types, signs)):
+    betas = [0.0] * len(rows) if beta_rad is None else list(beta_rad)
+    for i, ((a, al, d, th), jt, sg, b) in enumerate(zip(rows, joint_types, signs, betas)):
         s = (lambda n, i=i: f"link{i + 1}.{n}") if slots else (lambda n: None)
         rev = jt == "revolute"
         out.append(et("rz", th, joint=i if rev else None, sign=sg, slot=s("dtheta_rad")))
         out.append(et("tz", d, joint=None if rev else i, sign=sg, slot=s("dd_mm")))
         out.append(et("tx", a, slot=s("da_mm")))
         out.append(et("rx", al, slot=s("dalpha_rad")))
+        if b != 0.0 and not parallel_axes(al):
+            raise ValueError(f"link {i + 1}: a nominal beta {b:g} rad on a link whose axes are not parallel")
         if beta and slots and parallel_axes(al):
-            out.append(et("ry", 0.0, slot=s("beta_rad")))
+            out.append(et("ry", b, slot=s("beta_rad")))
+        elif b != 0.0:
+            out.append(et("ry", b))
     return out
 
 

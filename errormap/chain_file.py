@@ -6,7 +6,7 @@ Schema (``docs/schemas.md``, version 1)::
     kind = "serial"
     name = "ur5"
     schema = 1
-    convention = "dh"          # "dh" | "mdh" | "et"
+    convention = "dh"          # "dh" | "mdh" | "et" | "urdf"
 
     [[link]]                   # convention dh / mdh: one per joint, in order
     joint = "q1"               # joint name (CSV column q1_deg)
@@ -19,6 +19,12 @@ Schema (``docs/schemas.md``, version 1)::
     type = "tz"                # tx ty tz (value mm) / rx ry rz (value deg)
     value = 89.159             # a fixed transform, or ...
     joint = "q1"               # ... a joint (with limits, direction; optional error = "name": a zero offset slot)
+
+    [urdf]                     # convention urdf: the chain between two links of a URDF (errormap.urdf)
+    file = "ur5.urdf"          # relative to this machine file
+    base_link = "base_link_inertia"
+    tip_link = "tool0"
+    joints = ["q1", "q2", "q3", "q4", "q5", "q6"]   # optional CSV stems of the moving joints (default URDF names)
 
     [base]                     # optional nominal base frame (default identity)
     xyz_mm = [0, 0, 0]
@@ -198,7 +204,7 @@ def _rotation(b: dict, path) -> np.ndarray:
 
 def parse_serial(doc: dict, path, sha: str = "") -> Chain:
     """Validate a parsed ``kind = "serial"`` machine file and compile its chain."""
-    check_known_keys(doc, ("machine", "link", "et", "base", "tool", "errors"), "", path)
+    check_known_keys(doc, ("machine", "link", "et", "urdf", "base", "tool", "errors"), "", path)
     m = check_table(doc, "machine", path)
     check_known_keys(m, ("kind", "name", "schema", "convention", "description"), "machine", path)
     name = m.get("name", "serial")
@@ -209,11 +215,14 @@ def parse_serial(doc: dict, path, sha: str = "") -> Chain:
         raise MachineFileError(f"{path}: key 'machine.schema': this volcomp reads serial schema "
                                f"{SERIAL_SCHEMA_VERSION}, got {short_repr(ver)}")
     conv = m.get("convention")
-    if conv not in ("dh", "mdh", "et"):
-        raise MachineFileError(f"{path}: key 'machine.convention': expected one of ['dh', 'mdh', 'et'], got {short_repr(conv)}")
-    if conv == "et" and "link" in doc or conv != "et" and "et" in doc:
-        raise MachineFileError(f"{path}: key 'machine.convention': {conv!r} does not go with "
-                               f"{'[[link]]' if conv == 'et' else '[[et]]'}")
+    if conv not in ("dh", "mdh", "et", "urdf"):
+        raise MachineFileError(f"{path}: key 'machine.convention': expected one of ['dh', 'mdh', 'et', 'urdf'], got "
+                               f"{short_repr(conv)}")
+    body_table = {"dh": "link", "mdh": "link", "et": "et", "urdf": "urdf"}
+    for other in ("link", "et", "urdf"):
+        if other in doc and other != body_table[conv]:
+            raise MachineFileError(f"{path}: key 'machine.convention': {conv!r} does not go with "
+                                   f"{'[urdf]' if other == 'urdf' else f'[[{other}]]'}")
     e = doc.get("errors", {})
     if not isinstance(e, dict):
         raise MachineFileError(f"{path}: 'errors': expected a table")
@@ -237,6 +246,11 @@ def parse_serial(doc: dict, path, sha: str = "") -> Chain:
     if "xyz_mm" not in t:
         raise MachineFileError(f"{path}: missing key 'tool.xyz_mm'")
     tool = check_array(t["xyz_mm"], (3,), "tool.xyz_mm", path)
+    if conv == "urdf":   # lengths in metres by the URDF's own definition: no unit guessing
+        from .urdf import urdf_table_chain
+        world_T = np.eye(4)
+        world_T[:3, :3], world_T[:3, 3] = R, base_xyz
+        return urdf_table_chain(doc, path, flags, world_T, tool, name, sha)
     if conv == "et":
         body, joints = _et_list(doc.get("et"), path)
         lengths = [(f"et[{i}].value", "translation", e.value) for i, e in enumerate(body)

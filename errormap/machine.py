@@ -220,6 +220,10 @@ def load_machine(path=None, expect_kind: str | None = None):
     if not Path(path).is_file():
         raise MachineFileError(f"{path}: no such machine file")
     raw = Path(path).read_bytes()
+    from .urdf import is_urdf, load_urdf_machine
+    if is_urdf(raw):   # recognised by content: XML (a URDF's <robot> root), never TOML
+        check_machine_kind(path, "serial", expect_kind)
+        return load_urdf_machine(raw, path, sha256_bytes(raw))
     try:
         doc = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
