@@ -120,14 +120,54 @@ def check_pose_set(chain, poses) -> None:
                          "measure poses spread over every joint's range")
 
 
-def _lm(chain, q, xyz, x0, free, w, max_iter=LM_MAX_ITER):
-    """Levenberg–Marquardt on the slots ``free``; ``w`` (n,) weights (1/σ). Returns (x, iterations, converged)."""
-    x = x0.copy()
+ORIENTATION_LEVER_MM = 150.0
+"""The default weight of a measured orientation beside a measured position: an orientation standard deviation of
+σ_mm / this (rad) where the pose file states no ``sigma_rad`` — 1 mrad counts like 0.15 mm. A 6-DoF laser tracker
+states ~0.01° (1.7e-4 rad) on the probe's orientation beside ~0.025 mm on its position at a cell's distance: their
+ratio is ~150 mm (and it is about the lever of a tool on a flange, where a tilt becomes a displacement)."""
+
+
+def _rot_data(poses):
+    """(measured tool-frame rotations (n, 3, 3), weights (n,) in 1/rad) of 6-DoF poses, or None (position only)."""
+    if getattr(poses, "rot", None) is None:
+        return None
+    w = 1.0 / poses.sigma_rad if poses.sigma_rad is not None else ORIENTATION_LEVER_MM * _weights(poses)
+    return poses.rot, w
+
+
+def orientation_rows(chain, q, x, free, rot):
+    """The orientation rows of a 6-DoF fit: weighted residuals (3n,) — the rotation vector (world axes, rad) taking
+    the predicted tool frame to the measured one, ``rotvec(R_meas · R_predᵀ)`` — and, where ``free`` is given, their
+    Jacobian rows (3n, n_free) (the slots' tool-frame rotation columns); ``rot`` from :func:`_rot_data`."""
+    from scipy.spatial.transform import Rotation
+    R, w = rot
+    F = chain.frames(q, x)
+    r = (Rotation.from_matrix(R @ np.swapaxes(F[:, -1, :3, :3], 1, 2)).as_rotvec() * w[:, None]).ravel()
+    if free is None:
+        return r, None
+    J = chain.error_jacobian(q, x, frames=F, orientation=True)[:, 3:, free] * w[:, None, None]
+    return r, J.reshape(-1, int(np.sum(free)))
+
+
+def _residual(chain, q, xyz, x, w, rot):
     r = ((xyz - chain.tool_point(q, x)) * w[:, None]).ravel()
+    return r if rot is None else np.concatenate([r, orientation_rows(chain, q, x, None, rot)[0]])
+
+
+def _jacobian(chain, q, x, free, w, rot):
+    J = (chain.error_jacobian(q, x)[:, :, free] * w[:, None, None]).reshape(-1, free.sum())
+    return J if rot is None else np.vstack([J, orientation_rows(chain, q, x, free, rot)[1]])
+
+
+def _lm(chain, q, xyz, x0, free, w, max_iter=LM_MAX_ITER, rot=None):
+    """Levenberg–Marquardt on the slots ``free``; ``w`` (n,) weights (1/σ); ``rot`` measured orientations and their
+    weights (:func:`_rot_data`) or None. Returns (x, iterations, converged)."""
+    x = x0.copy()
+    r = _residual(chain, q, xyz, x, w, rot)
     cost = r @ r
     lam = LAMBDA0
     for it in range(1, max_iter + 1):
-        J = (chain.error_jacobian(q, x)[:, :, free] * w[:, None, None]).reshape(-1, free.sum())
+        J = _jacobian(chain, q, x, free, w, rot)
         A = J.T @ J
         g = J.T @ r
         dA = np.diag(A).copy()
@@ -136,7 +176,7 @@ def _lm(chain, q, xyz, x0, free, w, max_iter=LM_MAX_ITER):
             step = np.linalg.solve(A + lam * np.diag(np.maximum(dA, 1e-30)), g)
             xn = x.copy()
             xn[free] += step
-            rn = ((xyz - chain.tool_point(q, xn)) * w[:, None]).ravel()
+            rn = _residual(chain, q, xyz, xn, w, rot)
             cn = rn @ rn
             if cn < cost:
                 improved = True
@@ -227,10 +267,10 @@ def _weights(poses):
 
 
 def _result(chain, poses, x, free, combos, sv, it, conv, method) -> GeometricResult:
-    w = _weights(poses)
+    w, rot = _weights(poses), _rot_data(poses)
     r = (poses.xyz_mm - chain.tool_point(poses.q, x))
-    rw = (r * w[:, None]).ravel()
-    J = (chain.error_jacobian(poses.q, x)[:, :, free] * w[:, None, None]).reshape(-1, free.sum())
+    rw = _residual(chain, poses.q, poses.xyz_mm, x, w, rot)
+    J = _jacobian(chain, poses.q, x, free, w, rot)
     dof = max(rw.size - int(free.sum()), 1)
     s2 = float(rw @ rw / dof) if poses.sigma_mm is None else 1.0
     cov = np.zeros((chain.n_params, chain.n_params))
@@ -345,7 +385,7 @@ def fit_plain_lsq(chain, poses) -> GeometricResult:
 def fit_base_tool(chain, poses) -> GeometricResult:
     """Nominal chain with a fitted base frame and tool point (LM on the ``base.*`` and ``tool.*`` slots)."""
     free = np.array([n.startswith(("base.", "tool.")) for n in chain.param_names])
-    x, it, conv = _lm(chain, poses.q, poses.xyz_mm, np.zeros(chain.n_params), free, _weights(poses))
+    x, it, conv = _lm(chain, poses.q, poses.xyz_mm, np.zeros(chain.n_params), free, _weights(poses), rot=_rot_data(poses))
     return _result(chain, poses, x, free, [], np.array([]), it, conv, "nominal + base/tool")
 
 
@@ -502,14 +542,14 @@ class ExtendedChain:
             dq[:, j, :] += B[:, self._table_idx[self._table_joint == j], :].sum(1)
         return J + np.einsum("nij,njk->nik", J, dq)
 
-    def error_jacobian(self, q, errors=None, frames=None):
-        """∂(tool point)/∂(every slot), shape (n, 3, n_params)."""
+    def error_jacobian(self, q, errors=None, frames=None, orientation: bool = False):
+        """∂(tool point [, tool-frame rotation vector])/∂(every slot), shape (n, 3 or 6, n_params)."""
         F = self.frames(q, errors) if frames is None else frames
         geo = self._split(errors)[0]
-        Jg = self.chain.error_jacobian(q, geo, frames=F)
+        Jg = self.chain.error_jacobian(q, geo, frames=F, orientation=orientation)
         if not self.terms:
             return Jg
-        Jq = self.chain.joint_jacobian(q, geo, frames=F)            # per joint unit (deg)
+        Jq = self.chain.joint_jacobian(q, geo, frames=F, orientation=orientation)   # per joint unit (deg)
         B = np.degrees(self._basis(q))                              # deg per slot unit
         cols = Jq[:, :, self._term_joint] * B[:, None, :]
         return np.concatenate([Jg, cols], axis=2)
@@ -546,7 +586,7 @@ def fit_model(chain, poses, model: str = "dh", max_iter: int = LM_MAX_ITER) -> G
     knots held at zero where :func:`table_held` says)."""
     c = extended_chain(chain, model)
     free, combos, sv = identifiable_slots(c, poses.q, exclude=table_held(c, poses.q))
-    x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter)
+    x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter, _rot_data(poses))
     return _result(c, poses, x, free, combos, sv, it, conv, "volcomp")
 
 
@@ -557,7 +597,7 @@ def fit_slots(chain, poses, free, model: str = "dh", max_iter: int = LM_MAX_ITER
     free = np.asarray(free, bool)
     if free.shape != (c.n_params,):
         raise ValueError(f"free must have shape ({c.n_params},), got {free.shape}")
-    x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter)
+    x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter, _rot_data(poses))
     return _result(c, poses, x, free, [], np.array([]), it, conv, "volcomp")
 
 

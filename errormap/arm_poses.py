@@ -4,6 +4,9 @@ Schema (``docs/arms.md``): one row per pose, the chain's joint columns ``q1_deg 
 for prismatic joints; names from the machine file) and the measured tool point ``x_mm, y_mm, z_mm``
 in the chain's base frame (or the tracker's: calibration estimates the base frame); optional
 ``sigma_mm`` (per-row measurement standard deviation per component), ``temp_c``, ``time_s``.
+A 6-DoF tracker's tool-frame ORIENTATION (the chain's last frame, in the same frame as ``x_mm…``) is
+optional: a unit quaternion ``qw, qx, qy, qz`` or a rotation vector ``rx_rad, ry_rad, rz_rad`` (not
+both), with an optional ``sigma_rad`` (per-row standard deviation per rotation component).
 
 Recognised by content, not by name: a file with the schema's columns, or the laser-tracker grid
 layout (``joint_1 … joint_N``, targets ``x_t, y_t, z_t`` and ``x_dif, y_dif, z_dif`` = measured −
@@ -22,6 +25,10 @@ from .io import InputError, read_table, write_csv
 XYZ = ("x_mm", "y_mm", "z_mm")
 GRID_TARGET = ("x_t", "y_t", "z_t")
 GRID_DIF = ("x_dif", "y_dif", "z_dif")
+QUAT = ("qw", "qx", "qy", "qz")
+ROTVEC = ("rx_rad", "ry_rad", "rz_rad")
+QUAT_NORM_TOL = 1e-3             # a quaternion written with 4+ digits has |‖q‖ − 1| below this; beyond: no unit quaternion
+ROTVEC_MAX_RAD = 2 * np.pi       # a rotation vector longer than a full turn is degrees, not radians
 METRE_REACH_FRACTION = 1 / 100  # tool points all within 1/100 of the arm's reach (mm) are metres
 RADIAN_SPAN = 0.5                # all revolute columns within ±2π and one spanning ≥ 0.5: radians
 MIN_POSES = 3
@@ -30,7 +37,9 @@ MIN_POSES = 3
 @dataclass
 class ArmPoses:
     """Measured poses: ``q`` (n, nq) joint values in the joints' units, ``xyz_mm`` (n, 3),
-    ``sigma_mm`` (n,) or None, ``temp_c``/``time_s`` (n,) or None; ``rows`` file line per pose."""
+    ``sigma_mm`` (n,) or None, ``temp_c``/``time_s`` (n,) or None; ``rows`` file line per pose;
+    ``rot`` (n, 3, 3) or None: the measured tool-frame orientation (tool axes in the measurement frame),
+    ``sigma_rad`` (n,) or None its standard deviation per rotation component."""
 
     q: np.ndarray
     xyz_mm: np.ndarray
@@ -40,6 +49,8 @@ class ArmPoses:
     rows: np.ndarray
     source: str
     layout: str
+    rot: np.ndarray | None = None
+    sigma_rad: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.q)
@@ -48,7 +59,7 @@ class ArmPoses:
         idx = np.asarray(idx)
         pick = (lambda a: None if a is None else a[idx])
         return ArmPoses(self.q[idx], self.xyz_mm[idx], pick(self.sigma_mm), pick(self.temp_c), pick(self.time_s),
-                        self.rows[idx], self.source, self.layout)
+                        self.rows[idx], self.source, self.layout, pick(self.rot), pick(self.sigma_rad))
 
 
 def chain_reach_mm(chain) -> float:
@@ -130,7 +141,52 @@ def read_arm_poses(path, chain) -> ArmPoses:
         k = int(np.argmax(opt["sigma_mm"] <= 0))
         raise InputError(f"{path}: row {rows[k]}, column 'sigma_mm': expected a positive standard deviation, "
                          f"got {opt['sigma_mm'][k]:g}")
-    return ArmPoses(q, xyz, opt["sigma_mm"], opt["temp_c"], opt["time_s"], rows, str(path), layout)
+    rot, sigma_rad = read_orientation(t, path, rows)
+    return ArmPoses(q, xyz, opt["sigma_mm"], opt["temp_c"], opt["time_s"], rows, str(path), layout, rot, sigma_rad)
+
+
+def read_orientation(t, path, rows):
+    """(rot (n, 3, 3) or None, sigma_rad (n,) or None) from a table's quaternion or rotation-vector columns."""
+    from scipy.spatial.transform import Rotation
+    have = {k: [c for c in cols if c in t] for k, cols in (("quaternion", QUAT), ("rotation vector", ROTVEC))}
+    for k, cols in (("quaternion", QUAT), ("rotation vector", ROTVEC)):
+        if have[k] and len(have[k]) < len(cols):
+            raise InputError(f"{path}: column(s) {[c for c in cols if c not in t]} missing: the {k} columns are "
+                             f"{list(cols)}, all or none")
+    if have["quaternion"] and have["rotation vector"]:
+        raise InputError(f"{path}: column '{ROTVEC[0]}': both quaternion {list(QUAT)} and rotation-vector "
+                         f"{list(ROTVEC)} columns; give the orientation once")
+    if "sigma_rad" in t and not (have["quaternion"] or have["rotation vector"]):
+        raise InputError(f"{path}: column 'sigma_rad' without orientation columns {list(QUAT)} or {list(ROTVEC)}")
+    if have["quaternion"]:
+        wxyz = np.stack([t.float(c) for c in QUAT], 1)
+        nrm = np.linalg.norm(wxyz, axis=1)
+        bad = np.abs(nrm - 1) > QUAT_NORM_TOL
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise InputError(f"{path}: row {rows[k]}, column 'qw': quaternion norm {nrm[k]:.6g}, expected a unit "
+                             f"quaternion (qw, qx, qy, qz; |‖q‖ − 1| ≤ {QUAT_NORM_TOL:g})")
+        rot = Rotation.from_quat(wxyz[:, [1, 2, 3, 0]] / nrm[:, None]).as_matrix()
+    elif have["rotation vector"]:
+        rv = np.stack([t.float(c) for c in ROTVEC], 1)
+        ang = np.linalg.norm(rv, axis=1)
+        if (ang > ROTVEC_MAX_RAD).any():
+            k = int(np.argmax(ang > ROTVEC_MAX_RAD))
+            j = int(np.argmax(np.abs(rv[k])))
+            raise InputError(f"{path}: row {rows[k]}, column '{ROTVEC[j]}': a rotation of {ang[k]:.4g} rad, more "
+                             "than a full turn: degrees rather than radians?")
+        rot = Rotation.from_rotvec(rv).as_matrix()
+    else:
+        return None, None
+    if "sigma_rad" in t and "sigma_mm" not in t:
+        raise InputError(f"{path}: column 'sigma_rad' without 'sigma_mm': the orientation's accuracy is weighed against "
+                         "the position's, state both (or neither: σ_rad = σ_mm / ORIENTATION_LEVER_MM)")
+    sig = t.float("sigma_rad") if "sigma_rad" in t else None
+    if sig is not None and np.any(sig <= 0):
+        k = int(np.argmax(sig <= 0))
+        raise InputError(f"{path}: row {rows[k]}, column 'sigma_rad': expected a positive standard deviation, "
+                         f"got {sig[k]:g}")
+    return rot, sig
 
 
 def write_arm_poses(path, chain, poses: ArmPoses, comments=()) -> None:
@@ -140,6 +196,12 @@ def write_arm_poses(path, chain, poses: ArmPoses, comments=()) -> None:
     for c in ("sigma_mm", "temp_c", "time_s"):
         if getattr(poses, c) is not None:
             cols[c] = getattr(poses, c)
+    if poses.rot is not None:
+        from scipy.spatial.transform import Rotation
+        xyzw = Rotation.from_matrix(poses.rot).as_quat()
+        cols.update({c: xyzw[:, i] for c, i in zip(QUAT, (3, 0, 1, 2))})
+        if poses.sigma_rad is not None:
+            cols["sigma_rad"] = poses.sigma_rad
     write_csv(path, cols, header_comments=comments, float_fmt="%.10g")
 
 

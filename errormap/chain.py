@@ -301,14 +301,16 @@ class Chain:
         ang = np.where(self.kind_r[None, :, None], ax, 0.0)
         return np.moveaxis(lin, 1, 2), np.moveaxis(ang, 1, 2)
 
-    def error_jacobian(self, q, errors=None, frames=None) -> np.ndarray:
-        """∂(tool point)/∂(error parameters), shape (n, 3, n_params) (mm per mm or per rad; with
-        coefficients, mm per unit of the slot: a slot in several ETs sums their columns)."""
+    def error_jacobian(self, q, errors=None, frames=None, orientation: bool = False) -> np.ndarray:
+        """∂(tool point [, rotation vector of the tool frame, world axes])/∂(error parameters), shape
+        (n, 3 or 6, n_params) (mm resp. rad per mm or per rad; with coefficients, per unit of the slot: a
+        slot in several ETs sums their columns)."""
         F = self.frames(q, errors) if frames is None else frames
-        lin, _ = self._columns(F)
+        lin, ang = self._columns(F)
+        cols = np.concatenate([lin, ang], axis=1) if orientation else lin
         if self.plain_slots:
-            return lin[:, :, self.slot >= 0]
-        return lin @ self.slot_matrix()
+            return cols[:, :, self.slot >= 0]
+        return cols @ self.slot_matrix()
 
     def joint_jacobian(self, q, errors=None, orientation: bool = False, frames=None) -> np.ndarray:
         """∂(tool point [, rotation vector])/∂(joint values in their units), shape (n, 3 or 6, nq)."""
