@@ -42,9 +42,10 @@ def test_machine_file_examples_in_the_docs_load(tmp_path):
     text = (ROOT / "docs" / "schemas.md").read_text(encoding="utf-8")
     blocks = re.findall(r"```toml\n(.*?)```", text, flags=re.S)
     kinds = []
+    (tmp_path / "ur5.urdf").write_bytes((ROOT / "tests" / "data" / "urdf" / "ur5.urdf").read_bytes())  # the urdf example's
     for i, b in enumerate(blocks):
         p = tmp_path / f"m{i}.toml"
         p.write_text(b, encoding="utf-8")
         kinds.append(load_machine(p).kind)
-    assert kinds == ["grinder", "hexapod", "tripod", "serial", "machine-tool"]
+    assert kinds == ["grinder", "hexapod", "tripod", "serial", "serial", "machine-tool"]
     assert load_machine(tmp_path / "m0.toml").sha256 != ""
