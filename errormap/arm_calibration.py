@@ -72,11 +72,17 @@ def _scaled(J2d):
     return np.where(zero, 0.0, J2d / s), s
 
 
-def identifiable_slots(chain, q, errors=None, exclude=None) -> tuple[np.ndarray, list[dict], np.ndarray]:
+def identifiable_slots(chain, q, errors=None, exclude=None,
+                       orientation: bool = False) -> tuple[np.ndarray, list[dict], np.ndarray]:
     """(free mask (n_params,), null combinations, scaled singular values) from the Jacobian at ``q``; ``exclude``
-    (n_params,) bool: slots held at nominal whatever the data (their columns count as zero)."""
+    (n_params,) bool: slots held at nominal whatever the data (their columns count as zero); ``orientation``: 6-DoF
+    poses, the tool frame's rotation rows (times :data:`ORIENTATION_LEVER_MM`) count too."""
     from scipy.linalg import qr
-    J = chain.error_jacobian(q, errors).reshape(-1, chain.n_params)
+    if orientation:
+        J6 = chain.error_jacobian(q, errors, orientation=True)
+        J = np.concatenate([J6[:, :3], J6[:, 3:] * ORIENTATION_LEVER_MM], axis=1).reshape(-1, chain.n_params)
+    else:
+        J = chain.error_jacobian(q, errors).reshape(-1, chain.n_params)
     if exclude is not None:
         J = np.where(np.asarray(exclude, bool)[None, :], 0.0, J)
     Js, _ = _scaled(J)
@@ -585,7 +591,8 @@ def fit_model(chain, poses, model: str = "dh", max_iter: int = LM_MAX_ITER) -> G
     """Volcomp's LM on the identifiable slots of the slot set ``model`` (:data:`MODELS`; a joint-error table's
     knots held at zero where :func:`table_held` says)."""
     c = extended_chain(chain, model)
-    free, combos, sv = identifiable_slots(c, poses.q, exclude=table_held(c, poses.q))
+    free, combos, sv = identifiable_slots(c, poses.q, exclude=table_held(c, poses.q),
+                                          orientation=getattr(poses, "rot", None) is not None)
     x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter, _rot_data(poses))
     return _result(c, poses, x, free, combos, sv, it, conv, "volcomp")
 
