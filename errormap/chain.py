@@ -107,13 +107,13 @@ def dh_ets(rows, joint_types, signs=None, slots: bool = True, beta: bool = True,
 
     Joint i (0-based) is revolute (about z, θ offset) or prismatic (along z, d offset). Slots
     ``link{i+1}.dtheta_rad/dd_mm/da_mm/dalpha_rad`` and ``link{i+1}.beta_rad`` where α ≡ 0 (mod π)
-    and ``beta``. ``beta_rad`` (n_links,) optional nominal β (Hayati: a nearly parallel next axis, e.g.
-    read from a URDF); a nonzero β is refused on a link whose axes are not parallel (the common normal is
-    defined there), and kept as a fixed Ry(β) where the slot is off.
+    and ``beta``. ``beta_rad`` (n_links,) optional: per link None (the rule above) or the nominal β of a
+    link in Hayati's form whatever its α (a nearly parallel next axis, e.g. read from a URDF): it gets the
+    Ry(β) transform, with the slot where ``beta``.
     """
     out = []
     signs = [1.0] * len(rows) if signs is None else signs
-    betas = [0.0] * len(rows) if beta_rad is None else list(beta_rad)
+    betas = [None] * len(rows) if beta_rad is None else list(beta_rad)
     for i, ((a, al, d, th), jt, sg, b) in enumerate(zip(rows, joint_types, signs, betas)):
         s = (lambda n, i=i: f"link{i + 1}.{n}") if slots else (lambda n: None)
         rev = jt == "revolute"
@@ -121,11 +121,10 @@ def dh_ets(rows, joint_types, signs=None, slots: bool = True, beta: bool = True,
         out.append(et("tz", d, joint=None if rev else i, sign=sg, slot=s("dd_mm")))
         out.append(et("tx", a, slot=s("da_mm")))
         out.append(et("rx", al, slot=s("dalpha_rad")))
-        if b != 0.0 and not parallel_axes(al):
-            raise ValueError(f"link {i + 1}: a nominal beta {b:g} rad on a link whose axes are not parallel")
-        if beta and slots and parallel_axes(al):
-            out.append(et("ry", b, slot=s("beta_rad")))
-        elif b != 0.0:
+        hayati = parallel_axes(al) if b is None else True
+        if beta and slots and hayati:
+            out.append(et("ry", b or 0.0, slot=s("beta_rad")))
+        elif b:
             out.append(et("ry", b))
     return out
 

@@ -10,9 +10,9 @@ link's frame, and DH frame k is put on axis k by the common normal to axis k+1 (
 * frame 0: z along axis 1 (its URDF direction, so every joint direction is +1), origin at the foot of
   the base link's origin on that axis, x the base link's x made normal to z; the base link → frame 0
   transform is the nominal base frame (``base.*`` slots);
-* skew consecutive axes: the common normal (x chosen so that |θ| ≤ 90°); parallel axes (within
-  :data:`PARALLEL_TOL_RAD`): d = 0 and x toward the next axis, a small misalignment as the nominal
-  Hayati β of that link (exact, and the same ``link*.beta_rad`` slot);
+* skew consecutive axes: the common normal (x chosen so that |θ| ≤ 90°); (nearly) parallel axes (within
+  :data:`NEARLY_PARALLEL_RAD`): d = 0 and x toward the next axis, α and a nominal Hayati β turning z onto
+  the next axis (exact, and the same ``link*.beta_rad`` slot a DH file gives a parallel link);
 * the last frame: z along the last axis, its origin at the foot of the tip link's origin (d, a, θ),
   α = 0; the tip link's remaining rotation is a fixed Rz Ry Rx, then the tool point (``tool.*``).
 
@@ -34,7 +34,10 @@ from .chain import Chain, Joint, base_ets, dh_ets, et, tool_ets
 from .machine_checks import MachineFileError
 
 M_TO_MM = 1000.0
-PARALLEL_TOL_RAD = 1e-6    # consecutive axes closer than this to parallel take the Hayati form (= chain.parallel_axes)
+NEARLY_PARALLEL_RAD = 1e-2
+"""Consecutive axes closer than this to parallel take Hayati's form (d = 0, a nominal β and its slot): their common
+normal would lie at least 100 × their offset away (a calibrated URDF's 1e-3 rad tilt: 1,000 ×), a DH table there is
+ill-conditioned to calibrate and loses digits (measured 3.6e-9 mm of forward kinematics at a 1e-4 rad tilt)."""
 ON_AXIS_TOL_MM = 1e-9      # a point nearer an axis than this lies on it (θ = 0, a = 0)
 AXIS_NORM_TOL = 1e-6       # |‖axis‖ − 1| above this: a non-unit axis (URDF axes are unit vectors)
 TINY_RAD = 1e-14           # a fixed tip rotation smaller than this (round-off of rpy sums) is dropped
@@ -192,20 +195,20 @@ def _link(F, p, u) -> tuple[tuple, float]:
     R = F[:3, :3]
     p, u = R.T @ (p - F[:3, 3]), R.T @ u
     s = np.hypot(u[0], u[1])
-    if s < np.sin(PARALLEL_TOL_RAD):          # (nearly) parallel: Hayati, d = 0, x toward the next axis
+    if s < np.sin(NEARLY_PARALLEL_RAD):       # (nearly) parallel: Hayati, d = 0, x toward the next axis
         th, a = _toward(p - (p[2] / u[2]) * u)
         c, sn = np.cos(th), np.sin(th)
         ur = np.array([c * u[0] + sn * u[1], -sn * u[0] + c * u[1], u[2]])
         return (a, float(np.arctan2(-ur[1] + 0.0, ur[2])), 0.0, th), float(np.arcsin(np.clip(ur[0], -1, 1)))
     b = u[2]                                   # skew: the common normal
-    t1 = (b * (-u @ p) + p[2]) / (1 - b * b)
-    t2 = ((-u @ p) + b * p[2]) / (1 - b * b)
+    t1 = (b * (-u @ p) + p[2]) / (s * s)           # s² = 1 − b², without its cancellation near parallel
+    t2 = ((-u @ p) + b * p[2]) / (s * s)
     n = np.cross([0.0, 0.0, 1.0], u) / s
     if n[0] < 0 or (n[0] == 0 and n[1] < 0):
         n = -n
     a = float((p + t2 * u - np.array([0.0, 0.0, t1])) @ n)
     al = float(np.arctan2(-u @ np.cross([0.0, 0.0, 1.0], n), u[2]))
-    return (a, al, float(t1), float(np.arctan2(n[1], n[0]))), 0.0
+    return (a, al, float(t1), float(np.arctan2(n[1], n[0]))), None
 
 
 def _dh_T(row, beta) -> np.ndarray:
@@ -221,7 +224,8 @@ def _dh_T(row, beta) -> np.ndarray:
 
 
 def dh_from_axes(pts, dirs, tip_T):
-    """Standard DH rows (m, 4) ``(a_mm, α_rad, d_mm, θ_rad)``, nominal β (m,), base link → frame 0 (4, 4) and
+    """Standard DH rows (m, 4) ``(a_mm, α_rad, d_mm, θ_rad)``, per link its nominal Hayati β or None (skew axes),
+    base link → frame 0 (4, 4) and
     frame m → tip link rotation (3, 3) from the axis lines ``pts``/``dirs`` (m, 3) and the tip frame (4, 4)."""
     p0 = pts[0] - (pts[0] @ dirs[0]) * dirs[0]              # foot of the base origin on axis 1
     F = F0 = _frame(dirs[0], p0, np.array([1.0, 0.0, 0.0]))
@@ -232,11 +236,11 @@ def dh_from_axes(pts, dirs, tip_T):
         else:                                                # last: origin at the tip origin's foot, α = 0
             t = F[:3, :3].T @ (tip_T[:3, 3] - F[:3, 3])
             th, a = _toward(t)
-            row, beta = (a, 0.0, float(t[2]), th), 0.0
+            row, beta = (a, 0.0, float(t[2]), th), None
         rows.append(row)
         betas.append(beta)
-        F = F @ _dh_T(row, beta)
-    return np.array(rows), np.array(betas), F0, F[:3, :3].T @ tip_T[:3, :3]
+        F = F @ _dh_T(row, beta or 0.0)
+    return np.array(rows), betas, F0, F[:3, :3].T @ tip_T[:3, :3]
 
 
 def _limits(j) -> tuple[float, float]:

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from errormap.arm_calibration import fit_model
 from errormap.arm_simulate import draw_truth, measure, random_joints
 from errormap.machine import MachineFileError, load_machine
+from errormap.urdf import NEARLY_PARALLEL_RAD
 
 DATA = Path(__file__).parent / "data" / "urdf"
 FK_TOL_MM = 1e-9
@@ -80,7 +81,7 @@ ODD = """<?xml version="1.0"?>
 """
 
 
-def _urdf_fk(q):
+def _urdf_fk(q, j3_pitch=0.0):
     """The ODD robot's tip frame straight from its URDF numbers (origin · joint motion per joint), mm."""
     def T(xyz, rpy):
         M = np.eye(4)
@@ -88,7 +89,7 @@ def _urdf_fk(q):
         M[:3, 3] = np.asarray(xyz) * 1000.0
         return M
     steps = [((0.1, -0.2, 0.3), (0.1, 0.2, -0.3), None), ((0.01, 0.02, 0.15), (0, 0, 0.4), ("r", (0, 1, 0))),
-             ((0.3, 0.05, 0), (0.3, 0, 0), ("r", (-1, 0, 0))), ((0.25, 0, 0.02), (0.3, 0, 0), ("r", (-1, 0, 0))),
+             ((0.3, 0.05, 0), (0.3, 0, 0), ("r", (-1, 0, 0))), ((0.25, 0, 0.02), (0.3, j3_pitch, 0), ("r", (-1, 0, 0))),
              ((0, 0.1, 0), (0, 0.5, 0), ("p", (0.6, 0, 0.8))), ((0.05, 0, 0.05), (1, 0, 0), None),
              ((0.02, 0.03, 0.1), (0.2, -0.4, 1.1), ("r", (0, 0, 1)))]
     out = []
@@ -107,16 +108,23 @@ def _urdf_fk(q):
     return np.array(out)
 
 
-def test_an_odd_urdf_reproduces_its_own_kinematics(tmp_path):
+@pytest.mark.parametrize("j3_pitch", [0.0, 3e-7, 1e-3, 0.05])
+def test_an_odd_urdf_reproduces_its_own_kinematics(tmp_path, j3_pitch):
+    """j2 ∥ j3 exactly, tilted by 3e-7 and 1e-3 rad (nearly parallel: a nominal Hayati β) and by 0.05 rad (skew: the
+    common normal, ~0.4 m out)."""
     f = tmp_path / "odd.robot"                      # any name: recognised by content
-    f.write_text(ODD)
+    f.write_text(ODD.replace('rpy="0.3 0 0"/><axis xyz="-1 0 0"/></joint>',
+                             f'rpy="0.3 {j3_pitch!r} 0"/><axis xyz="-1 0 0"/></joint>'))
     c = load_machine(f)
     assert [j.column for j in c.joints] == ["j1_deg", "j2_deg", "j3_deg", "slide_mm", "j5_deg"]
     assert c.joints[3].lo == pytest.approx(-100.0) and c.joints[2].hi == 360.0
-    assert "link2.beta_rad" in c.param_names      # j2 ∥ j3: the Hayati slot, as a DH file gets it
+    # j2 ∥ j3: the Hayati slot, as a DH file gets it (the nominal β is the tilt); skew axes have none
+    assert ("link2.beta_rad" in c.param_names) == (j3_pitch < NEARLY_PARALLEL_RAD)
+    beta = [e.value for e in c.ets if e.slot == "link2.beta_rad"]
+    assert beta == [] or abs(abs(beta[0]) - j3_pitch) < 1e-12
     rng = np.random.default_rng(11)
     q = rng.uniform(c.joint_lo, np.minimum(c.joint_hi, 170), (N_POSES, 5))
-    ref = _urdf_fk(q)
+    ref = _urdf_fk(q, j3_pitch)
     F = c.fk(q)
     assert np.abs(F[:, :3, 3] - ref[:, :3, 3]).max() <= FK_TOL_MM
     assert np.abs(F[:, :3, :3] - ref[:, :3, :3]).max() <= ROT_TOL
