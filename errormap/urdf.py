@@ -133,7 +133,7 @@ def chain_path(robot, lines, path, base_link=None, tip_link=None) -> list:
     return out[::-1]
 
 
-def _check_joint(j, where, path) -> None:
+def _check_joint(j, where) -> None:
     if j.type not in MOVING + ("fixed",):
         raise URDFChainError(f"{where}: joint {j.name!r} of type {j.type!r}: a serial chain takes revolute, "
                              "continuous, prismatic and fixed joints only")
@@ -157,7 +157,7 @@ def axes_at_zero(joints, path, lines):
     T = np.eye(4)
     pts, dirs, moving = [], [], []
     for j in joints:
-        _check_joint(j, f"{path}: line {lines.get(('joint', j.name))}", path)
+        _check_joint(j, f"{path}: line {lines.get(('joint', j.name))}")
         T = T @ _origin(j)
         if j.type != "fixed":
             ax = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), float)
