@@ -19,7 +19,7 @@ link's frame, and DH frame k is put on axis k by the common normal to axis k+1 (
 Forward kinematics equal the URDF's to round-off (tested to 1e-9 mm). Units: URDF lengths are
 metres (converted to mm), angles radians (revolute limits converted to deg). Refused, naming the
 element and its line: a floating or planar joint on the path, a mimic joint on the path, an axis of
-zero or non-unit length, a revolute/prismatic joint without limits, a base link that is not an
+zero or non-unit length, joint origins adding up to over 100 m (a URDF written in mm), a revolute/prismatic joint without limits, a base link that is not an
 ancestor of the tip, an unknown link, and a file that is no ``<robot>`` XML. A ``continuous`` joint
 gets the limits [-360, 360] deg.
 """
@@ -42,6 +42,7 @@ ON_AXIS_TOL_MM = 1e-9      # a point nearer an axis than this lies on it (θ = 0
 AXIS_NORM_TOL = 1e-6       # |‖axis‖ − 1| above this: a non-unit axis (URDF axes are unit vectors)
 TINY_RAD = 1e-14           # a fixed tip rotation smaller than this (round-off of rpy sums) is dropped
 CONTINUOUS_LIMITS_DEG = (-360.0, 360.0)
+MM_AS_M_REACH_MM = 1e5     # joint origins adding up to over 100 m: a URDF written in mm (URDF lengths are metres)
 MOVING = ("revolute", "continuous", "prismatic")
 
 
@@ -156,6 +157,12 @@ def axes_at_zero(joints, path, lines):
     unit directions (m, 3); the tip link's frame (4, 4); the moving joints."""
     T = np.eye(4)
     pts, dirs, moving = [], [], []
+    reach = [np.linalg.norm(_origin(j)[:3, 3]) for j in joints]
+    if sum(reach) > MM_AS_M_REACH_MM:
+        j = joints[int(np.argmax(reach))]
+        raise URDFChainError(f"{path}: line {lines.get(('joint', j.name))}: joint {j.name!r}: <origin xyz> "
+                             f"{list(j.origin.xyz)} — the chain's origins add up to {sum(reach) / M_TO_MM:.4g} m: "
+                             "millimetres rather than metres? (URDF lengths are metres)")
     for j in joints:
         _check_joint(j, f"{path}: line {lines.get(('joint', j.name))}")
         T = T @ _origin(j)

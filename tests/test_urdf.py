@@ -2,6 +2,7 @@
 numbers reproduce the built-in tables' kinematics and calibration; an odd URDF (axes along y and -x, a
 prismatic joint, fixed joints between) reproduces its own forward kinematics; what a chain cannot
 represent is refused naming the element and line; ``--machine robot.urdf`` is recognised by content."""
+import re
 from pathlib import Path
 
 import numpy as np
@@ -152,6 +153,16 @@ def _refused(tmp_path, text, *words):
 def test_what_a_chain_cannot_represent_is_refused_with_its_line(tmp_path, old, new, words):
     assert old in ODD
     _refused(tmp_path, ODD.replace(old, new, 1), *words)
+
+
+def test_a_urdf_in_millimetres_is_refused(tmp_path):
+    text = re.sub(r'<origin xyz="([^"]*)"', lambda m: '<origin xyz="%s"' % " ".join(
+        repr(float(v) * 1000) for v in m.group(1).split()), (DATA / "ur5.urdf").read_text())   # every length in mm
+    f = tmp_path / "m.toml"
+    (tmp_path / "ur5.urdf").write_text(text)
+    f.write_text((DATA / "ur5-urdf.toml").read_text())
+    with pytest.raises(MachineFileError, match=r"ur5.urdf: line 34: joint 'elbow_joint'.*1098 m: millimetres rather"):
+        load_machine(f)
 
 
 def test_a_non_robot_xml_and_an_unreachable_base_are_refused(tmp_path):
