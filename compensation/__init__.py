@@ -4,7 +4,7 @@ May import ``errormap`` and ``training``. The public names below (``compensation
 docs/api.md) load lazily on first use, so ``import compensation`` imports nothing heavy:
 
 * :func:`compensate_points` — compensated axis commands for points in memory (solver and guards);
-  :class:`PointCompensation` its result;
+  :class:`PointCompensation` its result; :func:`compensate_joints` for a calibrated arm;
 * :func:`compensate_program` — tool-path files (G-code, axis CSV) of a machine-tool chain, written as
   ``volcomp compensate`` writes them; :class:`ChainSettings` how;
 * :func:`save_model` / :func:`load_model` — a model to files every command reads, and back as a field.
@@ -13,6 +13,7 @@ docs/api.md) load lazily on first use, so ``import compensation`` imports nothin
 _LAZY = {
     "compensate_points": "compensation.compensate",
     "compensate_program": "compensation.compensate",
+    "compensate_joints": "compensation.compensate",
     "PointCompensation": "compensation.compensate",
     "save_model": "compensation.compensate",
     "load_model": "compensation.compensate",

@@ -2,6 +2,7 @@
 
 * :func:`compensate_points` — the axis commands that put the tool point where the nominal machine puts it
   at ``axes`` (the ``compensate`` command's solver and guards, on arrays);
+* :func:`compensate_joints` — the same for a calibrated serial arm's joint commands;
 * :func:`compensate_program` — the ``compensate`` command on a machine-tool chain, called with settings
   (:class:`compensation.app.workflows.mt_compensate.ChainSettings`) instead of a command line;
 * :func:`save_model` / :func:`load_model` — an identified or closed-loop model to files that every command
@@ -74,6 +75,30 @@ def compensate_points(field, machine, axes, method: str = "exact", seed: int = 0
                              {g: np.asarray(v) for g, v in report.violations.items()}, frozenset(report.allowed), res)
 
 
+def compensate_joints(calibration, q, targets_mm=None):
+    """Joint commands (n, nq) that put a calibrated arm's tool point on ``targets_mm`` (n, 3) (None: the
+    nominal arm's tool points at the programmed joints ``q`` (n, nq), the program's intent), by Newton on the
+    calibrated chain from ``q`` keeping the tool's orientation (``volcomp compensate --machine ur5``'s solver,
+    without a learned stage). ``calibration``: a fitted :class:`errormap.ArmCalibration`. Returns the
+    :class:`compensation.arm_compensation.ArmSolution` (``q``, ``residual_mm`` the MODEL residual,
+    ``converged``)."""
+    from errormap.estimators import ArmCalibration
+    from .arm_compensation import solve_joints
+    if not isinstance(calibration, ArmCalibration):
+        raise TypeError(f"compensate_joints: expected a fitted ArmCalibration, got {type(calibration).__name__}")
+    calibration._check_fitted("result_")
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    chain = calibration.chain
+    if q.shape[1] != chain.n_joints:
+        raise ValueError(f"Expected q of shape (n, {chain.n_joints}) in columns {list(chain.joint_columns)}, "
+                         f"got {q.shape}")
+    target = chain.tool_point(q) if targets_mm is None else np.atleast_2d(np.asarray(targets_mm, dtype=float))
+    if target.shape != (q.shape[0], 3):
+        raise ValueError(f"Expected targets_mm of shape ({q.shape[0]}, 3), got {target.shape}")
+    geo = calibration.result_
+    return solve_joints(geo.chain, geo.params, None, target, q)
+
+
 def compensate_program(files, machine, model, out_dir, **settings) -> dict:
     """Compensate tool-path ``files`` (G-code or axis CSV, by content) of a machine-tool chain with ``model``
     (a model file, folder or MLflow reference: :func:`save_model` writes one) into ``out_dir``, as
@@ -126,4 +151,4 @@ def load_model(spec, machine, tracking_uri: str | None = None):
     return load_field(spec, machine, tracking_uri)
 
 
-__all__ = ["PointCompensation", "compensate_points", "compensate_program", "load_model", "save_model"]
+__all__ = ["PointCompensation", "compensate_joints", "compensate_points", "compensate_program", "load_model", "save_model"]
