@@ -172,27 +172,6 @@ def rotary_refusals(res, report) -> int:
     return int(len(idx))
 
 
-def run_chain_compensate(machine, args, allow) -> int:
-    """The ``compensate`` command on a machine-tool chain: its options refused or turned into
-    :class:`ChainSettings`, then :func:`compensate_chain_files`; returns the exit status."""
-    from ..options import conditions_from_args
-    from ...batch import CHUNK_POINTS
-    unsupported = {"--cluster": getattr(args, "cluster", None), "--workers": getattr(args, "workers", None),
-                   "--max-segment-mm": None if str(args.max_segment_mm).strip().lower() == "auto" else args.max_segment_mm,
-                   "--chunk-points": None if getattr(args, "chunk_points", CHUNK_POINTS) == CHUNK_POINTS else args.chunk_points}
-    given = [k for k, v in unsupported.items() if v is not None]
-    if given:  # refused, never silently ignored
-        raise UsageError(f"{', '.join(given)}: not available on the machine-tool chain {machine.name!r} (one process; "
-                         "moves split from the field's curvature)")
-    conditions = {k: v for k, v in conditions_from_args(args).items() if v is not None}
-    s = ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
-                      rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
-                      units=args.units, truth=args.truth, seed=args.seed, show=args.show,
-                      rotary_limit_deg=getattr(args, "max_rotary_correction_deg", None), conditions=conditions,
-                      tracking_uri=getattr(args, "tracking_uri", None))
-    return compensate_chain_files(args.files, machine, s)
-
-
 def check_chain_settings(machine, s: ChainSettings) -> None:
     """Refuse (UsageError, naming the option) a method or rotary limit the chain cannot take."""
     from ...solvers import CHAIN_METHODS
