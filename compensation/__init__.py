@@ -1,4 +1,34 @@
 """compensation: from an error field to corrected commands, evaluation, reports and the CLI.
 
-May import ``errormap`` and ``training``.
+May import ``errormap`` and ``training``. The public names below (``compensation.__all__``;
+docs/api.md) load lazily on first use, so ``import compensation`` imports nothing heavy:
+
+* :func:`compensate_points` — compensated axis commands for points in memory (solver and guards);
+  :class:`PointCompensation` its result; :func:`compensate_joints` for a calibrated arm;
+* :func:`compensate_program` — tool-path files (G-code, axis CSV) of a machine-tool chain, written as
+  ``volcomp compensate`` writes them; :class:`ChainSettings` how;
+* :func:`save_model` / :func:`load_model` — a model to files every command reads, and back as a field.
 """
+
+_LAZY = {
+    "compensate_points": "compensation.compensate",
+    "compensate_program": "compensation.compensate",
+    "compensate_joints": "compensation.compensate",
+    "PointCompensation": "compensation.compensate",
+    "save_model": "compensation.compensate",
+    "load_model": "compensation.compensate",
+    "ChainSettings": "compensation.app.workflows.mt_compensate",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'compensation' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

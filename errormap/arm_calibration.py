@@ -1,6 +1,6 @@
 """Geometric calibration of a serial chain from measured tool points.
 
-:class:`ArmCalibrator` identifies the chain's error slots (link parameters, base frame, tool point)
+:class:`errormap.estimators.ArmCalibration` identifies the chain's error slots (link parameters, base frame, tool point)
 by Levenberg–Marquardt on the chain's analytic error Jacobian. Identifiability is decided before the
 loop from the column-scaled Jacobian at the nominal chain: a QR factorisation with column pivoting
 keeps the largest independent set of slots; every other slot is *fixed* at its nominal value (0) and
@@ -283,38 +283,6 @@ def _result(chain, poses, x, free, combos, sv, it, conv, method) -> GeometricRes
     cov[np.ix_(free, free)] = s2 * np.linalg.pinv(J.T @ J)
     return GeometricResult(chain, x, free, cov, np.sqrt(np.maximum(np.diag(cov), 0.0)), float(np.sqrt(np.mean(r ** 2))),
                            float(np.sqrt(np.mean(np.sum(r ** 2, 1)))), sv, combos, it, conv, method)
-
-
-class ArmCalibrator:
-    """Geometric calibration of a serial chain (scikit-learn style: settings here, :meth:`fit` returns self).
-
-    ``max_iter``: LM iterations (1–10,000). ``models``: candidate slot sets (:data:`MODELS`); with
-    more than one, each is cross-validated (``k_folds`` (2–20) random folds inside the fit poses,
-    ``seed``) and the lowest CV mean error wins (:func:`choose_model`). After :meth:`fit`,
-    ``result_`` is a :class:`GeometricResult` (its ``cv_table`` the CV figures).
-    """
-
-    def __init__(self, chain, max_iter: int = LM_MAX_ITER, models=("dh",), k_folds: int = CV_FOLDS, seed=0):
-        if not 1 <= int(max_iter) <= 10_000:
-            raise ValueError(f"max_iter must be in [1, 10000], got {max_iter}")
-        bad = [m for m in models if m not in MODELS]
-        if bad or not len(models):
-            raise ValueError(f"models must be from {MODELS}, got {list(models)}")
-        if not 2 <= int(k_folds) <= 20:
-            raise ValueError(f"k_folds must be in [2, 20], got {k_folds}")
-        self.chain = chain
-        self.max_iter = int(max_iter)
-        self.models, self.k_folds, self.seed = tuple(models), int(k_folds), seed
-
-    def fit(self, poses) -> "ArmCalibrator":
-        table = []
-        model = self.models[0]
-        if len(self.models) > 1:
-            table = cv_models(self.chain, poses, self.models, self.k_folds, self.seed, plain=False)
-            model = choose_model(table)
-        self.result_ = fit_model(self.chain, poses, model, self.max_iter)
-        self.result_.cv_table = table
-        return self
 
 
 PLAIN_RCOND = 3e-4

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from errormap.arm_calibration import ArmCalibrator, ExtendedChain, fit_model, fit_slots
+from errormap.arm_calibration import ExtendedChain, fit_model, fit_slots
+from errormap.estimators import ArmCalibration
 from errormap.arm_poses import ArmPoses, convert_tracker_grid, read_arm_poses, write_arm_poses
 from errormap.arm_simulate import draw_truth, measure, random_joints
 from errormap.io import read_table
@@ -140,9 +141,9 @@ def test_geometric_stage_recovers_link_errors_within_bands(ur5):
     inside = []
     for seed in range(N_SEEDS):
         t, p = _sim(ur5, 200, seed, sag=False)
-        r = ArmCalibrator(ur5).fit(p).result_
+        r = ArmCalibration(ur5).fit(p).result_
         clean = ArmPoses(p.q, ur5.tool_point(p.q, t.errors), None, None, None, p.rows, "truth", "schema")
-        eq = ArmCalibrator(ur5).fit(clean).result_
+        eq = ArmCalibration(ur5).fit(clean).result_
         assert (eq.free == r.free).all()
         inside.extend(np.abs(r.params - eq.params)[r.free] <= Z95 * r.std[r.free])
     assert np.mean(inside) >= BAND_COVERAGE_MIN

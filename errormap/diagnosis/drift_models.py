@@ -61,6 +61,7 @@ import numpy as np
 from scipy import signal
 from scipy.optimize import nnls
 
+from ..estimators import Estimator
 from ..io import InputError
 from .drift import DriftLog, DriftModeller
 
@@ -873,7 +874,7 @@ def horizon_gate(rms_ols, rms_cand, k_se: float = GATE_SE) -> tuple[bool, float,
     return bool(d.mean() > k_se * se), float(d.mean()), se
 
 
-class DriftSelector:
+class DriftSelector(Estimator):
     """Per channel, a family (and hyper-parameter) chosen on the fitting part only, refitted on all of it.
 
     Two sets of forward-chaining folds on the fitting part:
@@ -1186,6 +1187,11 @@ class DriftSelector:
                                                     band_gamma=self.band_ols_[ch][1]) for ch in chans}, meta)
         self.cache_ = cache
         return self
+
+    def predict(self, log: DriftLog) -> dict:
+        """The chosen model's drift {channel: (n,)} μm at every row of ``log`` (causal: row i uses rows ≤ i)."""
+        self._check_fitted("model_")
+        return self.model_.predict(log)
 
     def family_best(self, ch) -> dict:
         """Best CV RMS of each family for channel ``ch`` (over its hyper-parameters): {family: (candidate, RMS)}."""

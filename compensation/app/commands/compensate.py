@@ -129,6 +129,27 @@ def parse_max_segment(text):
     return v
 
 
+def chain_settings(machine, args, allow):
+    """The options of ``compensate`` on a machine-tool chain as its workflow's
+    :class:`~compensation.app.workflows.mt_compensate.ChainSettings`; the options the chain path does
+    not take are refused (never silently ignored)."""
+    from ...batch import CHUNK_POINTS
+    from ..workflows.mt_compensate import ChainSettings
+    unsupported = {"--cluster": getattr(args, "cluster", None), "--workers": getattr(args, "workers", None),
+                   "--max-segment-mm": None if str(args.max_segment_mm).strip().lower() == "auto" else args.max_segment_mm,
+                   "--chunk-points": None if getattr(args, "chunk_points", CHUNK_POINTS) == CHUNK_POINTS else args.chunk_points}
+    given = [k for k, v in unsupported.items() if v is not None]
+    if given:
+        raise UsageError(f"{', '.join(given)}: not available on the machine-tool chain {machine.name!r} (one process; "
+                         "moves split from the field's curvature)")
+    conditions = {k: v for k, v in conditions_from_args(args).items() if v is not None}
+    return ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
+                         rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
+                         units=args.units, truth=args.truth, seed=args.seed, show=args.show,
+                         rotary_limit_deg=getattr(args, "max_rotary_correction_deg", None), conditions=conditions,
+                         tracking_uri=getattr(args, "tracking_uri", None))
+
+
 def run(args) -> int:
     machine = load_machine(args.machine)  # read once; its kind (content) picks the path
     if getattr(args, "max_rotary_correction_deg", None) is not None and machine.kind != "machine-tool":
@@ -140,8 +161,8 @@ def run(args) -> int:
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
     if machine.kind == "machine-tool":  # a chain file (mill-xyz, five-axis-ac ...): its own axes and G-code words
-        from ..workflows.mt_compensate import run_chain_compensate
-        return run_chain_compensate(machine, args, parse_allow(args.allow))
+        from ..workflows.mt_compensate import compensate_chain_files
+        return compensate_chain_files(args.files, machine, chain_settings(machine, args, parse_allow(args.allow)))
     if args.truth is not None:
         raise UsageError("--truth: the true residual of a compensated program is reported on machine-tool chains; "
                          "for the grinder use `volcomp report --truth`")

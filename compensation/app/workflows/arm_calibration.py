@@ -3,7 +3,7 @@
 The poses are split into fit and held-out poses (``--check`` file, else a hold-out fraction); on the
 fit poses: the nominal chain, the plain baselines (nominal + fitted base/tool; plain least-squares
 calibration; a plain GP on the plain calibration's residual), volcomp's geometric stage
-(:class:`errormap.arm_calibration.ArmCalibrator`) and the learned residual stage
+(:class:`errormap.estimators.ArmCalibration`) and the learned residual stage
 (:class:`training.arm_residual.ArmResidualRegressor`). Every figure is the *measured residual*
 (measured − model) on the held-out poses; every DECISION is made by k-fold CV inside the fit poses
 (the held-out poses only report): the geometric slot set (``dh``, ``dh+compliance``,

@@ -54,6 +54,14 @@ class ChainPath:
 
 @dataclass
 class ChainSettings:
+    """How :func:`compensate_chain_files` compensates (the ``compensate`` options on a chain): ``method``
+    (:data:`compensation.solvers.CHAIN_METHODS`), ``model`` (a model file, folder or MLflow reference),
+    ``out_dir``; ``force`` (replace earlier outputs), ``allow`` (guards overridden), ``rapids``,
+    ``block_delete``, ``arc_tolerance_um``, ``units`` (``"check"`` or ``"as-written"``), ``truth`` (a truth
+    file: the TRUE residual too), ``seed`` (seeded methods), ``show`` (offending points listed per refused
+    file), ``rotary_limit_deg`` (a solved rotary axis' largest correction, None: the ball's bound),
+    ``conditions`` ({name: value} for the model's condition terms), ``tracking_uri`` (MLflow)."""
+
     method: str
     model: str
     out_dir: Path
@@ -64,7 +72,11 @@ class ChainSettings:
     arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM
     units: str = UNITS_CHECK
     truth: str | None = None
-    outcomes: list = field(default_factory=list)
+    seed: int = 0
+    show: int = 20
+    rotary_limit_deg: float | None = None
+    conditions: dict = field(default_factory=dict)
+    tracking_uri: str | None = None
 
 
 def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
@@ -160,45 +172,40 @@ def rotary_refusals(res, report) -> int:
     return int(len(idx))
 
 
-def run_chain_compensate(machine, args, allow) -> int:
-    """The ``compensate`` command on a machine-tool chain; returns the exit status."""
-    from ...solvers import CHAIN_METHODS, solve, solver_spec
-    if args.method not in CHAIN_METHODS:
-        raise UsageError(f"--method {args.method}: on the machine-tool chain {machine.name!r} the methods are "
+def check_chain_settings(machine, s: ChainSettings) -> None:
+    """Refuse (UsageError, naming the option) a method or rotary limit the chain cannot take."""
+    from ...solvers import CHAIN_METHODS
+    if s.method not in CHAIN_METHODS:
+        raise UsageError(f"--method {s.method}: on the machine-tool chain {machine.name!r} the methods are "
                          f"{', '.join(CHAIN_METHODS)}")
-    from ..options import conditions_from_args
-    from ...batch import CHUNK_POINTS
-    unsupported = {"--cluster": getattr(args, "cluster", None), "--workers": getattr(args, "workers", None),
-                   "--max-segment-mm": None if str(args.max_segment_mm).strip().lower() == "auto" else args.max_segment_mm,
-                   "--chunk-points": None if getattr(args, "chunk_points", CHUNK_POINTS) == CHUNK_POINTS else args.chunk_points}
-    given = [k for k, v in unsupported.items() if v is not None]
-    if given:  # refused, never silently ignored
-        raise UsageError(f"{', '.join(given)}: not available on the machine-tool chain {machine.name!r} (one process; "
-                         "moves split from the field's curvature)")
-    conditions = {k: v for k, v in conditions_from_args(args).items() if v is not None}
     try:  # every chain method moves the three axes read from the chain (a lathe's X, Z, C; a mill's X, Y, Z)
         solved_and_kept(machine)
     except ValueError as exc:
-        raise UsageError(f"--machine {machine.name} --method {args.method}: {exc}; compensate is not available "
+        raise UsageError(f"--machine {machine.name} --method {s.method}: {exc}; compensate is not available "
                          f"on this machine") from None
-    rotary_limit = getattr(args, "max_rotary_correction_deg", None)
-    if rotary_limit is not None:
+    if s.rotary_limit_deg is not None:
         sol, _ = solved_and_kept(machine)
         if all(machine.axes[j].kind == "linear" for j in sol):
             raise UsageError(f"--max-rotary-correction-deg: the solver moves no rotary axis on {machine.name!r} "
                              f"(it moves {', '.join(machine.axis_columns[j] for j in sol)}; the rotary axes are kept "
                              "as programmed); leave it out")
-    s = ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
-                      rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
-                      units=args.units, truth=args.truth)
-    plan = plan_outputs(args.files, s.out_dir)
+
+
+def compensate_chain_files(files, machine, s: ChainSettings) -> int:
+    """Compensate the tool-path ``files`` (G-code or axis CSV, told apart by content) of the machine-tool
+    chain ``machine`` as ``s`` says; every input read and checked first, the accepted files written as one
+    set with ``compensate_summary.json`` last. Returns the exit status (0, or 3: a file refused by a guard)."""
+    from ...solvers import solve, solver_spec
+    check_chain_settings(machine, s)
+    allow, conditions, rotary_limit = s.allow, s.conditions, s.rotary_limit_deg
+    plan = plan_outputs(files, s.out_dir)
     old_outputs = check_out_dir(s.out_dir, s.force)
     src = require_kind(resolve_model(s.model), ("elements", "chain-model", "chain-network", "mlflow"),
                        f"on the machine-tool chain {machine.name!r} compensate takes")
     print(f"compensate: model {src.description}", file=sys.stderr)
     if src.kind == "mlflow":  # a chain network recorded in MLflow (train --tracking-uri)
         from ...fields import load_field
-        field_ = load_field(s.model, machine, getattr(args, "tracking_uri", None), source=src)
+        field_ = load_field(s.model, machine, s.tracking_uri, source=src)
     elif src.kind == "chain-model":   # elements + terms (+ the learned residual when the loop kept it)
         from ...mt_hybrid import load_chain_model
         field_ = load_chain_model(src.path, machine)
@@ -211,7 +218,7 @@ def run_chain_compensate(machine, args, allow) -> int:
     outcomes = []
     for (p, dst), tp in zip(plan, paths):
         targets, _ = nominal_and_jacobian(machine, tp.axes)
-        seeded = {"seed": args.seed} if solver_spec(s.method).seeded else {}
+        seeded = {"seed": s.seed} if solver_spec(s.method).seeded else {}
         limit = {"rotary_limit_deg": rotary_limit} if rotary_limit is not None else {}
         res = solve(s.method, field_, targets, machine, target_axes=tp.axes, progress=False, **seeded, **limit)
         report = guards.check(res, machine, field_, allow=allow, target_axes=tp.axes)
@@ -298,7 +305,7 @@ def run_chain_compensate(machine, args, allow) -> int:
     summary = write_json(s.out_dir / SUMMARY_NAME, {
         "conditions": dict(getattr(field_, "conditions", {}) or {}),
         "method": s.method, "model": s.model, "model_source": src.to_dict(), "units": s.units,
-        **({"seed": args.seed} if solver_spec(s.method).seeded else {}),
+        **({"seed": s.seed} if solver_spec(s.method).seeded else {}),
         "machine": machine.path, "machine_name": machine.name, "allow": list(allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)"
                     + ("; true: truth tool point at the compensated axes - p_d (um)" if truth is not None else ""),
@@ -309,9 +316,9 @@ def run_chain_compensate(machine, args, allow) -> int:
         for p, _, _, entry, _, listed, kept in refused:
             print(f"volcomp compensate: {p}: refused by guard(s) {', '.join(entry['refused_guards'])}; "
                   f"{len(listed) + len(kept)} offending point(s):", file=sys.stderr)
-            for line, reason in kept[:args.show]:
+            for line, reason in kept[:s.show]:
                 print(f"  line {line}: {reason}", file=sys.stderr)
-            for i, line, reason in listed[:args.show]:
+            for i, line, reason in listed[:s.show]:
                 print(f"  point {i} (line {line}): {reason}", file=sys.stderr)
         print("volcomp compensate: refused files were not written; override explicitly with --allow GUARDS "
               "(or bare --allow for all)", file=sys.stderr)

@@ -1,0 +1,249 @@
+"""The public estimators, one contract (scikit-learn's): the constructor stores settings only, ``fit``
+validates them and the data, solves, and returns ``self``; what it learned ends in ``_``; ``fit`` reads
+no file (read measurements first with :func:`errormap.read_sweeps` and its siblings). Each estimator
+calls the existing numerical code; none has a numerical path of its own.
+
+* :class:`Identification` — error elements from tracker sweeps (a machine-tool chain:
+  :class:`errormap.mt_identify.ChainIdentification`; the grinder file: the paper's
+  :class:`errormap.identification.TrackerIdentification`).
+* :class:`ClosedLoop` — the closed loop on check measurements of a machine-tool chain
+  (:func:`errormap.diagnosis.mt_loop.closed_loop_chain`: element update, effect search, kept stage).
+* :class:`ArmCalibration` — geometric calibration of a serial arm from tracker poses
+  (:func:`errormap.arm_calibration.fit_model`, :func:`~errormap.arm_calibration.cv_models`).
+* :class:`errormap.diagnosis.drift_models.DriftSelector` — the drift model (already of this contract;
+  it shares :class:`Estimator`).
+
+Using a learned attribute or ``predict`` before ``fit`` raises :class:`NotFittedError`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import inspect
+
+import numpy as np
+
+
+class NotFittedError(ValueError, AttributeError):
+    """An estimator used before :meth:`fit` (a ValueError and an AttributeError, as scikit-learn's)."""
+
+
+class Estimator:
+    """Settings access for every public estimator: ``get_params`` / ``set_params`` read and write the
+    constructor's arguments by name; ``_check_fitted`` refuses use before ``fit``."""
+
+    @classmethod
+    def _param_names(cls) -> list:
+        sig = inspect.signature(cls.__init__)
+        return [p.name for p in sig.parameters.values() if p.name != "self" and p.kind != p.VAR_KEYWORD]
+
+    def get_params(self, deep: bool = False) -> dict:
+        """``{setting: value}`` as given to the constructor (``deep`` accepted for scikit-learn tools)."""
+        return {k: getattr(self, k) for k in self._param_names()}
+
+    def set_params(self, **params):
+        """Change settings by name (unknown names refused); returns self. Learned attributes are left as
+        they are until the next ``fit``."""
+        known = self._param_names()
+        bad = sorted(set(params) - set(known))
+        if bad:
+            raise ValueError(f"{type(self).__name__}: unknown setting(s) {bad}; settings are {known}")
+        for k, v in params.items():
+            setattr(self, k, v)
+        return self
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={_short(v)}" for k, v in self.get_params().items())
+        return f"{type(self).__name__}({args})"
+
+    def _check_fitted(self, attr: str) -> None:
+        if not hasattr(self, attr):
+            raise NotFittedError(f"This {type(self).__name__} is not fitted yet: call fit(...) before using "
+                                 f"{attr.rstrip('_') or attr}")
+
+
+def _short(v) -> str:
+    name = getattr(v, "name", None)
+    return repr(name) if isinstance(name, str) and not isinstance(v, (str, int, float)) else repr(v)
+
+
+def _is_chain(machine) -> bool:
+    from .mt_chain import MachineTool
+    return isinstance(machine, MachineTool)
+
+
+def _require_type(value, types, what: str, hint: str) -> None:
+    if not isinstance(value, types):
+        raise TypeError(f"{what}: expected {' or '.join(t.__name__ for t in types)}, got {type(value).__name__}; "
+                        f"{hint}")
+
+
+class Identification(Estimator):
+    """Error elements of a machine tool from laser-tracker sweeps of one set-up.
+
+    Settings: ``machine`` (a machine-tool chain or the grinder file, :func:`errormap.load_machine`);
+    ``max_iter`` / ``tol`` of the re-linearised solve (None: the method's own default, 30 / 1e-7 on a
+    chain, 20 / 1e-9 on the grinder file); ``min_separation_mm`` (balls closer coincide);
+    ``distance_tol_mm`` (allowed difference of measured and nominal ball distances). Gauge: first
+    station (elements zero at each axis' first station).
+
+    ``fit(sweeps)``: ``sweeps`` a :class:`errormap.sweeps.Sweeps` (:func:`errormap.read_sweeps`,
+    :func:`errormap.simulate_sweeps`). Learned: ``elements_`` (the element set), ``result_`` (the
+    method's result object: residuals, conditioning, warnings), ``covariance_`` (chain: ``(slot names,
+    stations (N,), Σ (N, N))`` μm² / μrad²; grinder file: None), ``field_`` (the error field of the
+    elements: ``predict(axes (n, k)) -> (n, 3)`` μm).
+    """
+
+    def __init__(self, machine, max_iter: int | None = None, tol: float | None = None,
+                 min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0):
+        self.machine = machine
+        self.max_iter = max_iter
+        self.tol = tol
+        self.min_separation_mm = min_separation_mm
+        self.distance_tol_mm = distance_tol_mm
+
+    def _method(self):
+        from .identification import TrackerIdentification
+        from .machine import Grinder
+        from .mt_identify import ChainIdentification
+        from .mt_chain import MachineTool
+        _require_type(self.machine, (MachineTool, Grinder), "Identification(machine=...)",
+                      "identification takes a machine-tool chain or the grinder file (an arm: ArmCalibration)")
+        given = {k: v for k, v in (("max_iter", self.max_iter), ("tol", self.tol)) if v is not None}
+        cls = ChainIdentification if _is_chain(self.machine) else TrackerIdentification
+        extra = {} if _is_chain(self.machine) else {"gauge": "first-station"}
+        return cls(min_separation_mm=self.min_separation_mm, distance_tol_mm=self.distance_tol_mm, **given, **extra)
+
+    def fit(self, sweeps) -> "Identification":
+        from .sweeps import Sweeps
+        method = self._method()
+        _require_type(sweeps, (Sweeps,), "Identification.fit(sweeps)", "read the file first (errormap.read_sweeps)")
+        method.fit(sweeps, self.machine)
+        res = method.result_
+        self.result_ = res
+        self.elements_ = method.elements_
+        self.covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov.copy()) if hasattr(res, "cov") \
+            else None
+        self.field_ = _elements_field(self.machine, self.elements_)
+        return self
+
+    def predict(self, axes) -> np.ndarray:
+        """The identified elements' error (n, 3) μm at ``axes`` (n, k) in the machine's axis columns."""
+        self._check_fitted("field_")
+        return self.field_.predict(axes)
+
+
+def _elements_field(machine, elements):
+    if _is_chain(machine):
+        from .mt_field import ChainField
+        return ChainField(machine, elements)
+    from .htm import HTMField
+    return HTMField(machine, elements)
+
+
+class ClosedLoop(Estimator):
+    """The closed loop of a machine-tool chain on check measurements (docs/machine_tool_loop.md).
+
+    Settings: ``machine`` (a machine-tool chain); ``fit_fraction`` (the first share of the checks, by
+    ``seq``, fits; the rest is held out); ``noise_um`` (known noise σ per coordinate, None: estimated);
+    ``effects`` / ``max_effects`` (the effect search); ``smoothing`` (``"gcv"`` or a weight).
+
+    ``fit(checks, elements, covariance=None)``: ``checks`` an :class:`errormap.diagnosis.mt_loop.MTChecks`
+    (:func:`errormap.read_checks`, :func:`errormap.simulate_checks`), ``elements`` the identified element
+    set, ``covariance`` its ``(slot names, stations, Σ)`` (``Identification.covariance_``; None: no element
+    update). Learned: ``summary_`` (stages with held-out and fitting statistics, the kept stage and why,
+    effects accepted/rejected, noise floor), ``kept_stage_``, ``held_out_rms_um_``, ``elements_`` and
+    ``terms_`` (the kept model), ``field_`` (its error field; terms that need conditions take them by
+    ``field_.with_conditions``). The learned-residual stage of ``volcomp diagnose`` is not part of it.
+    """
+
+    def __init__(self, machine, fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
+                 max_effects: int = 4, smoothing="gcv"):
+        self.machine = machine
+        self.fit_fraction = fit_fraction
+        self.noise_um = noise_um
+        self.effects = effects
+        self.max_effects = max_effects
+        self.smoothing = smoothing
+
+    def fit(self, checks, elements, covariance=None) -> "ClosedLoop":
+        from .diagnosis.mt_loop import MTChecks, closed_loop_chain
+        from .diagnosis.mt_model import ChainModelField
+        from .mt_chain import MachineTool
+        from .mt_elements import ChainElementSet
+        _require_type(self.machine, (MachineTool,), "ClosedLoop(machine=...)",
+                      "the closed loop here is the machine-tool chain's (the grinder file: volcomp diagnose)")
+        _require_type(checks, (MTChecks,), "ClosedLoop.fit(checks)", "read the file first (errormap.read_checks)")
+        _require_type(elements, (ChainElementSet,), "ClosedLoop.fit(elements)", "an identified element set "
+                      "(Identification.elements_ or ChainElementSet.load)")
+        summary = closed_loop_chain(self.machine, elements, checks, cov=covariance, fit_fraction=self.fit_fraction,
+                                    noise_um=self.noise_um, effects=self.effects, max_effects=self.max_effects,
+                                    smoothing=self.smoothing)
+        models = summary.pop("_models")
+        terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
+        self.summary_ = summary
+        self.kept_stage_ = summary["kept_stage"]
+        self.held_out_rms_um_ = float(summary["held_out_rms_um"])
+        self.elements_ = models["elements"]
+        self.terms_ = list(terms)
+        self.field_ = ChainModelField(self.machine, self.elements_, self.terms_)
+        return self
+
+    def predict(self, axes, **conditions) -> np.ndarray:
+        """The kept model's error (n, 3) μm at ``axes`` (n, k); ``conditions`` (``temp_c=``, ``dir_x=`` …,
+        scalars or (n,)) for the terms that need them."""
+        self._check_fitted("field_")
+        f = self.field_.with_conditions(conditions) if conditions else self.field_
+        return f.predict(axes)
+
+
+class ArmCalibration(Estimator):
+    """Geometric calibration of a serial arm (docs/arms.md).
+
+    Settings: ``chain`` (the arm, :func:`errormap.load_machine` of ``ur5``, ``wam`` or a file);
+    ``max_iter`` (1–10,000 Levenberg–Marquardt iterations); ``models`` (candidate slot sets from
+    :data:`errormap.arm_calibration.MODELS`; with more than one, each is cross-validated on ``k_folds``
+    (2–20) folds of the fit poses, ``seed``, and the lowest CV mean error wins).
+
+    ``fit(poses)``: an :class:`errormap.arm_poses.ArmPoses` (:func:`errormap.read_poses`). Learned:
+    ``result_`` (:class:`errormap.arm_calibration.GeometricResult`: ``params``, ``cov``, ``sigma_mm`` …),
+    ``model_`` (the chosen slot set), ``cv_table_`` (the CV figures, empty with one model).
+    """
+
+    def __init__(self, chain, max_iter: int = 100, models=("dh",), k_folds: int = 5, seed=0):
+        self.chain = chain
+        self.max_iter = max_iter
+        self.models = models
+        self.k_folds = k_folds
+        self.seed = seed
+
+    def fit(self, poses) -> "ArmCalibration":
+        from .arm_calibration import MODELS, choose_model, cv_models, fit_model
+        from .arm_poses import ArmPoses
+        from .chain import Chain
+        _require_type(self.chain, (Chain,), "ArmCalibration(chain=...)", "a serial arm (load_machine('ur5'))")
+        _require_type(poses, (ArmPoses,), "ArmCalibration.fit(poses)", "read the file first (errormap.read_poses)")
+        if not 1 <= int(self.max_iter) <= 10_000:
+            raise ValueError(f"max_iter must be in [1, 10000], got {self.max_iter}")
+        models = tuple(self.models)
+        bad = [m for m in models if m not in MODELS]
+        if bad or not models:
+            raise ValueError(f"models must be from {MODELS}, got {list(models)}")
+        if not 2 <= int(self.k_folds) <= 20:
+            raise ValueError(f"k_folds must be in [2, 20], got {self.k_folds}")
+        table, model = [], models[0]
+        if len(models) > 1:
+            table = cv_models(self.chain, poses, models, int(self.k_folds), self.seed, plain=False)
+            model = choose_model(table)
+        res = fit_model(self.chain, poses, model, int(self.max_iter))
+        self.result_ = dataclasses.replace(res, cv_table=table)
+        self.model_ = model
+        self.cv_table_ = table
+        return self
+
+    def predict(self, q) -> np.ndarray:
+        """The calibrated arm's tool point (n, 3) mm at joint values ``q`` (n, nq)."""
+        self._check_fitted("result_")
+        return self.result_.predict(q)
+
+
+__all__ = ["ArmCalibration", "ClosedLoop", "Estimator", "Identification", "NotFittedError"]

@@ -1,0 +1,90 @@
+"""Measurements for the public API: read a file, or simulate one from a truth, into the objects the
+estimators fit (:mod:`errormap.estimators`). Every reader validates the whole file first and names
+file, row and column in its errors (the same readers as the commands); which reader runs follows the
+loaded machine (a machine-tool chain, the grinder file, a serial arm), never the file's name.
+
+Shapes: sweeps grouped per axis and station (:class:`errormap.sweeps.Sweeps`); checks ``axes`` (n, k),
+``measured_um`` (n, 3); poses ``q`` (n, nq) joint values, ``xyz_mm`` (n, 3).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def _is_chain(machine) -> bool:
+    from .mt_chain import MachineTool
+    return isinstance(machine, MachineTool)
+
+
+def _require_chain(machine, what: str) -> None:
+    if not _is_chain(machine):
+        raise TypeError(f"{what}: expected a machine-tool chain (load_machine('mill-xyz'), a kind = \"machine-tool\" "
+                        f"file), got {type(machine).__name__}")
+
+
+def read_sweeps(paths, machine):
+    """Tracker sweeps of one set-up (:class:`errormap.sweeps.Sweeps`): a machine-tool chain's one sweep
+    file (its axis words from the machine), or the grinder file's sweep file(s)."""
+    if _is_chain(machine):
+        from .mt_sweeps import read_mt_sweeps
+        files = [paths] if isinstance(paths, (str, Path)) else list(paths)
+        if len(files) != 1:
+            raise ValueError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
+                             f"{len(files)}")
+        return read_mt_sweeps(files[0], machine)
+    from .sweeps import read_sweeps as read_grinder_sweeps
+    return read_grinder_sweeps(paths)
+
+
+def read_checks(path, machine, units: str = "check"):
+    """Check measurements of a machine-tool chain (:class:`errormap.diagnosis.mt_loop.MTChecks`, in ``seq``
+    order). ``units="as-written"`` skips the likely-unit-mistake tests."""
+    from .diagnosis.mt_loop import load_mt_checks
+    _require_chain(machine, "read_checks")
+    return load_mt_checks(path, machine, units=units)
+
+
+def read_poses(path, chain):
+    """Tracker poses of a serial arm (:class:`errormap.arm_poses.ArmPoses`: the pose schema or a tracker grid,
+    told apart by content)."""
+    from .arm_poses import read_arm_poses
+    return read_arm_poses(path, chain)
+
+
+def read_drift_log(path, **options):
+    """A drift log (:class:`errormap.diagnosis.drift.DriftLog`); ``options`` as
+    :func:`errormap.diagnosis.drift.load_drift_log` (``causal``, ``time_unit``, ``units`` …)."""
+    from .diagnosis.drift import load_drift_log
+    return load_drift_log(path, **options)
+
+
+def simulate_truth(machine, seed: int, family: str = "default"):
+    """A hidden truth of a machine-tool chain (:class:`errormap.mt_simulate.MTTruth`): seeded random
+    element functions (``family`` ``"default"`` or ``"independent"``), no effects."""
+    from .mt_simulate import make_mt_truth
+    _require_chain(machine, "simulate_truth")
+    return make_mt_truth(machine, seed, family=family)
+
+
+def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, n_stations: int | None = None):
+    """Simulated tracker sweeps of ``truth`` (every axis with error slots at ``n_stations`` stations over its
+    stroke, None: the command's default, the others parked at their lower stroke ends, an unknown seeded
+    tracker pose, N(0, ``noise_um``²) per coordinate) as a :class:`errormap.sweeps.Sweeps` — what
+    ``volcomp sweeps --machine`` writes, read back."""
+    from .mt_sweeps import DEFAULT_STATIONS, simulate_mt_sweeps, swept_words
+    from .sweeps import sweeps_from_columns
+    cols = simulate_mt_sweeps(truth, noise_um=noise_um, seed=seed,
+                              n_stations=DEFAULT_STATIONS if n_stations is None else n_stations)
+    return sweeps_from_columns(cols, source="<simulated sweeps>", axes=swept_words(truth.machine))
+
+
+def simulate_checks(truth, n: int = 400, noise_um: float = 1.0, seed: int = 0):
+    """``n`` simulated check measurements of ``truth`` (:class:`errormap.diagnosis.mt_loop.MTChecks`):
+    what ``volcomp simulate --machine`` writes to ``checks.csv``, read back."""
+    from .diagnosis.mt_loop import MTChecks
+    cols = truth.check_measurements(n=n, noise_um=noise_um, seed=seed)
+    return MTChecks.from_columns(truth.machine, cols, path="<simulated checks>")
+
+
+__all__ = ["read_checks", "read_drift_log", "read_poses", "read_sweeps", "simulate_checks", "simulate_sweeps",
+           "simulate_truth"]
