@@ -192,8 +192,12 @@ ALLOWED_G = {
     "G94": ("feed", "feed per minute"),
     "G95": ("feed", "feed per revolution"),
     "G40": ("cutter", "cutter compensation off"),
+    "G43": ("length", "tool length offset H (the tool table's length, --tool-table): machine Z = program Z + length"),
     "G49": ("length", "tool length offset off"),
-    "G54": ("coords", "the first work system: its axes are taken as the machine file's axes"),
+    "G10": ("nonmodal", "L2 Pn: sets work offset n; L1 Pn Z.. R..: sets tool n (read as data, in program order)"),
+    **{c: ("coords", "selects a work system: machine axes = program axes + its offset (--work-offsets)")
+       for c in ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3")},
+    "G54.1": ("coords", "selects the extended work system P (--work-offsets)"),
     "G61": ("path", "exact path"),
     "G61.1": ("path", "exact stop"),
     "G64": ("path", "blending (P, Q tolerances allowed)"),
@@ -210,19 +214,16 @@ REFUSED_G = {
     "G5": "cubic spline", "G5.1": "quadratic spline", "G5.2": "NURBS block", "G5.3": "NURBS block end",
     "G7": "lathe diameter mode (X would mean a diameter)", "G7.1": "cylindrical interpolation",
     "G107": "cylindrical interpolation",
-    "G10": "sets offsets/tool tables", "G12": "circular pocket", "G13": "circular pocket",
+"G12": "circular pocket", "G13": "circular pocket",
     "G16": "polar coordinates", "G17.1": "UV plane", "G18.1": "WU plane", "G19.1": "VW plane",
     "G28.1": "sets the reference position", "G30.1": "sets the reference position",
     "G31": "skip (probing)", "G33": "spindle-synchronised motion", "G33.1": "rigid tapping",
     "G38.2": "probing", "G38.3": "probing", "G38.4": "probing", "G38.5": "probing",
     "G41": "cutter radius compensation", "G41.1": "cutter radius compensation",
     "G42": "cutter radius compensation", "G42.1": "cutter radius compensation",
-    "G43": "tool length offset", "G43.1": "tool length offset", "G43.2": "tool length offset",
+    "G43.1": "tool length offset", "G43.2": "tool length offset",
     "G50": "scaling off / lathe coordinate setting (dialect-dependent)", "G50.1": "mirror off",
     "G51": "scaling", "G51.1": "mirror", "G52": "local coordinate shift", "G53": "machine coordinates",
-    "G54.1": "extra work system", "G55": "another work system", "G56": "another work system",
-    "G57": "another work system", "G58": "another work system", "G59": "another work system",
-    "G59.1": "another work system", "G59.2": "another work system", "G59.3": "another work system",
     "G60": "unidirectional approach", "G65": "macro call (its letters are arguments, not axes)",
     "G66": "modal macro call", "G66.1": "modal macro call", "G68": "coordinate rotation",
     "G68.2": "tilted work plane", "G70": "lathe cycle", "G71": "lathe cycle", "G72": "lathe cycle",
@@ -239,12 +240,13 @@ LETTER_RULES = {
     "G": "see ALLOWED_G", **{a: "an axis word of the machine (linear mm/inch, rotary deg); refused where the "
                                 "machine has no such axis" for a in AXIS_LETTERS},
     **{c: f"arc centre {a} offset (G2/G3 only, in a plane with {a})" for c, a in CENTRE_AXIS.items()},
-    "R": "arc radius (G2/G3 only)", "P": "G4 dwell, G64 tolerance, or P1 on an arc",
+    "R": "arc radius (G2/G3 only; G10 L1 tool radius)",
+    "P": "G4 dwell, G64 tolerance, P1 on an arc, G54.1 system, G10 number",
+    "H": "tool length offset number (G43 only)", "L": "G10 data type (G10 only)",
     "Q": "G64 tolerance", "O": "program number on a line of its own",
 }
 REFUSED_LETTERS = {
-    "E": "extruder / unknown axis", "H": "tool length offset number", "D": "cutter radius offset number",
-    "L": "loop count / G10 data",
+    "E": "extruder / unknown axis", "D": "cutter radius offset number",
 }
 
 
@@ -306,6 +308,11 @@ class GProgram:
     axis_words: AxisWords | None = None
     """The machine's axis words the program was read with (the moves' columns, in order); the
     readers always set it."""
+    events: tuple = ()
+    """The program's controller-state words in line order: ``(line (0-based), column, kind, value,
+    text)`` with kind ``system`` (value ``G54`` … ``G54.1P3``), ``tool`` (``G43 Hn``: n; ``G49``:
+    None), ``g10-work`` (``(system, {word: mm/deg})``), ``g10-tool`` (``(n, (length_mm, radius_mm))``);
+    resolved against the offset and tool tables by :func:`compensation.nc_state.program_frames`."""
 
 
 def split_lines(text: str) -> list:
@@ -452,7 +459,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
             moves.append(move)
     if not any(m.compensate for m in moves):
         raise _no_motion(path, ax)
-    return GProgram(path, lines, classes, moves, rapids, block_delete, axis_words=ax)
+    return GProgram(path, lines, classes, moves, rapids, block_delete, axis_words=ax, events=tuple(st.events))
 
 
 def _bulk_words(ax: AxisWords) -> bool:
@@ -473,6 +480,9 @@ class _State:
         self.inch = False
         self.plane = "G17"         # the RS274 power-on default
         self.pos = np.full(k, np.nan)
+        self.system = None         # the work system selected (None: none yet)
+        self.tool = None           # the tool length offset H number (None: G49 / none)
+        self.events = []           # GProgram.events
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -560,13 +570,18 @@ def _apply_modal(st: _State, groups: dict):
 
 def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
     """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64."""
-    for letter, allowed_with in (("P", ("G4", "G64")), ("Q", ("G64",))):
+    for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G10")), ("Q", ("G64",)), ("H", ("G43",)),
+                                 ("L", ("G10",))):
         if letter in by:
             ok = any(c in allowed_with for c, _ in gs) or (letter == "P" and st.mode in ("G2", "G3")
                                                              and (axis_words or arc_words) and by["P"].value == 1)
             if not ok:
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside "
                                                     f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else ""))
+    if "G43" in (c for c, _ in gs) and "H" not in by:
+        w = next(w for c, w in gs if c == "G43")
+        raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): write 'G43 Hn' with the tool "
+                                   "table's number n")
 
 
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
@@ -583,12 +598,16 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         return "pass", None
     axis_words = {a: by[a] for a in ax.words if a in by}
     arc_words = {a: by[a] for a in ("I", "J", "K", "R") if a in by}
-    changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal"))
+    changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal", "coords",
+                                        "length"))
     if bd and block_delete is None and (axis_words or arc_words or changes):
         raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
                                            "say whether the controller skips it: --block-delete on|off")
     motion_word = _apply_modal(st, groups)
     _check_p_q(st, by, gs, axis_words, arc_words)
+    if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
+        return _g10(idx, st, groups, by, axis_words, ax), None
+    _work_state(idx, st, groups, by, ax)
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
         return _reference_return(st, groups, axis_words, arc_words, ax)
     if "nonmodal" in groups and axis_words:
@@ -601,6 +620,93 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words")
         return ("state" if changes else "pass"), None
     return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+
+
+def _forget(st: _State, ax: AxisWords, words) -> None:
+    """The program position along ``words`` is unknown after its frame changed (the next move there
+    must give it absolutely; incremental moves are refused until then)."""
+    st.pos = st.pos.copy()  # the previous move's end is this array: it must keep its values
+    for j, a in enumerate(ax.words):
+        if a in words:
+            st.pos[j] = np.nan
+
+
+def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
+    """A work-system selection (``G54`` … ``G59.3``, ``G54.1 Pn``) or a tool length offset (``G43 Hn``,
+    ``G49``): recorded as an event (:attr:`GProgram.events`); where the frame changes, the position
+    along the axes it moves becomes unknown."""
+    from .nc_state import EXTENDED_MAX, system_name
+    if "coords" in groups:
+        code, w = groups["coords"]
+        p = None
+        if code == "G54.1":
+            pw = by.get("P")
+            if pw is None or pw.value != int(pw.value) or not 1 <= pw.value <= EXTENDED_MAX:
+                raise _Refuse(w.start + 1, f"'G54.1' needs P1..P{EXTENDED_MAX} (the extended work system)")
+            p = int(pw.value)
+        name = system_name(code, p)
+        st.events.append((idx, w.start + 1, "system", name, name if p is None else f"G54.1 P{p}"))
+        if name != st.system:
+            _forget(st, ax, ax.words)
+            st.system = name
+    if "length" in groups:
+        code, w = groups["length"]
+        value = None
+        if code == "G43":
+            h = by["H"]
+            if h.value != int(h.value) or h.value < 0:
+                raise _Refuse(h.start + 1, f"'H{h.text}': expected a tool number")
+            value = int(h.value)
+        st.events.append((idx, w.start + 1, "tool", value, code if value is None else f"G43 H{value}"))
+        if value != st.tool:
+            _forget(st, ax, ("Z",))
+            st.tool = value
+
+
+G10_REFUSED = ("dialect-dependent: Fanuc L10-L13 set tool offset memories and L20 the extended systems G54.1 Pn; "
+               "LinuxCNC L10, L11, L20 set them from the current position; give the values in --tool-table / "
+               "--work-offsets")
+
+
+def _g10(idx, st: _State, groups, by, axis_words, ax: AxisWords) -> str:
+    """``G10 L2 Pn`` (work offset n = 1..9: G54..G59.3) and ``G10 L1 Pn Z.. [R..]`` (tool n's length and
+    radius) as events, in the line's units; other L numbers are refused (:data:`G10_REFUSED`)."""
+    from .nc_state import SYSTEMS
+    code, w = groups["nonmodal"]
+    if "motion" in groups:
+        raise _Refuse(w.start + 1, "'G10' with a motion code on the same line")
+    lw, pw = by.get("L"), by.get("P")
+    if lw is None or pw is None or pw.value != int(pw.value) or pw.value < 0:
+        raise _Refuse(w.start + 1, "'G10' needs L and a whole-number P")
+    scale = MM_PER_INCH if st.inch else 1.0
+    vals = {a: v.value * (1.0 if a in ax.rotary else scale) for a, v in axis_words.items()}
+    p = int(pw.value)
+    extra = [by[c] for c in ("I", "J", "K", "Q") if c in by]
+    if extra:
+        raise _Refuse(extra[0].start + 1, f"'{extra[0].letter}{extra[0].text}' with G10 (not read)")
+    if lw.value == 2:
+        if "R" in by:
+            raise _Refuse(by["R"].start + 1, "'R' with G10 L2: a rotated work system is not supported")
+        if not 1 <= p <= len(SYSTEMS):
+            raise _Refuse(pw.start + 1, f"'P{pw.text}' with G10 L2: expected P1..P{len(SYSTEMS)} (G54..G59.3; P0 is "
+                                        "the active system on LinuxCNC but the external offset on Fanuc)")
+        name = SYSTEMS[p - 1]
+        st.events.append((idx, w.start + 1, "g10-work", (name, vals), f"G10 L2 P{p}"))
+        if name == st.system:
+            _forget(st, ax, tuple(vals))
+        return "state"
+    if lw.value == 1:
+        if "Z" not in vals:
+            raise _Refuse(w.start + 1, "'G10 L1' without Z (the tool length; Fanuc's L1 R form is dialect-dependent)")
+        bad = [a for a in vals if a != "Z" and vals[a] != 0.0]
+        if bad:
+            raise _Refuse(axis_words[bad[0]].start + 1, f"'G10 L1' with a tool offset along {bad[0]}: not supported")
+        radius = by["R"].value * scale if "R" in by else float("nan")
+        st.events.append((idx, w.start + 1, "g10-tool", (p, (vals["Z"], radius)), f"G10 L1 P{p}"))
+        if p == st.tool:
+            _forget(st, ax, ("Z",))
+        return "state"
+    raise _Refuse(lw.start + 1, f"'G10 L{lw.text}': {G10_REFUSED}")
 
 
 def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
@@ -1176,7 +1282,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
     if not table.compensate.any():
         raise _no_motion(path, ax)
     return GProgram(path, lines, classes, _LazyMoves(table, lines, ax.words), rapids, block_delete, table=table,
-                    data=data, axis_words=ax)
+                    data=data, axis_words=ax, events=tuple(st.events))
 
 
 class _Groups(Sequence):
