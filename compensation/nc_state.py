@@ -325,10 +325,9 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
         if kind == "system":
             if value not in table:
                 if offsets is None:
-                    raise InputError(f"{where}: selects the work offset {value}, but no work-offset table was given: "
-                                     "give --work-offsets FILE (LinuxCNC .var or CSV system,x_mm,y_mm,z_mm), a G10 L2 "
-                                     "line in the program, or --work-offsets machine if the program is written in "
-                                     "machine coordinates")
+                    raise InputError(f"{where}: selects the work offset {value}, but no offset table was given: give "
+                                     "--work-offsets FILE (.var or CSV), G10 L2 in the program, or --work-offsets "
+                                     "machine (a program in machine coordinates)")
                 raise InputError(f"{where}: the work offset {value} is not in {offsets.source} (nor set by a G10 L2 "
                                  "line before it): give it in --work-offsets")
             system = value
@@ -337,8 +336,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
             if value is not None and value not in tooltab:
                 src = f"the tool table {tools.source}" if tools else "no tool table was given"
                 raise InputError(f"{where}: tool length offset H{value}: tool {value} is not known ({src}): give it in "
-                                 f"--tool-table FILE (LinuxCNC .tbl or CSV tool,length_mm,radius_mm) or a G10 L1 "
-                                 f"P{value} Z.. line before it")
+                                 f"--tool-table FILE (.tbl or CSV) or G10 L1 P{value} Z.. before it")
             if value is not None and "Z" not in words:
                 raise InputError(f"{where}: a tool length offset acts on Z; the machine has no Z axis")
             tool = value
