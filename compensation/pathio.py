@@ -571,10 +571,10 @@ def grinder_frames(prog, work_offsets=None) -> None:
     if work_offsets is not None and not work_offsets.machine_coordinates:
         raise ValueError("Expected work_offsets None or 'machine' on the grinder")
     for line, col, kind, value, text in prog.events:
-        if kind.startswith("g10") or (kind == "tool" and value is not None):
+        if kind.startswith("g10") or (kind in ("tool", "cutter") and value is not None):
             raise InputError(f"{prog.path}: line {line + 1}, column {col}: '{text}': the grinder applies no work offset "
-                             "or tool length (machine-tool chains do: --machine mill-xyz ... with --work-offsets / "
-                             "--tool-table); remove it or post the program in machine coordinates")
+                             "tool length or cutter radius (machine-tool chains do: --machine mill-xyz ... with "
+                             "--work-offsets / --tool-table); remove it or post the program in machine coordinates")
     program_frames(prog, work_offsets, None)  # a work-system selection without 'machine' is refused
 
 
