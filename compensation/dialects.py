@@ -23,13 +23,15 @@ M61-M68, M70-M73 state, M100-M199 user); Fanuc Series 0i/30i operator's manuals 
 ``O``/``:``, ``G05.1 Q1`` AI contour control); Haas mill operator's manual (M-code chapter: M10/M11
 4th-axis brake, M12/M13 5th-axis brake, M16 tool change, M19 orient, M31/M33 chip auger, M41/M42
 gear, M83/M84 air jet, M88/M89 through-spindle coolant; G187 smoothness); Siemens Sinumerik 840D
-ISO dialect manual (Fanuc-compatible ISO mode); Mach3 Mill G/M code list (M47 repeats the program);
-grbl v1.1 command reference (M0 M1 M2 M30 M3-M5 M7-M9 M56).
+ISO dialect manual (Fanuc-compatible ISO mode, G291); Mach3 Mill G/M code list (M47 repeats the
+program); grbl v1.1 command reference (M0 M1 M2 M30 M3-M5 M7-M9 M56; no block delete; grbl writes no
+word of its own, so it is named, never recognised). LinuxCNC's M62-M68 (outputs, inputs) take P/E/Q
+words the reader does not read: refused.
 """
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 DIALECT_NAMES = ("fanuc", "haas", "linuxcnc", "siemens-iso", "mach3", "grbl")
 COMMON_M = frozenset({0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30})
@@ -41,37 +43,37 @@ RS274 = "rs274"
 @dataclass(frozen=True)
 class Dialect:
     """One controller's rules: ``m_codes`` harmless M codes {code: meaning}; ``program_number``
-    letters (``"O"``, ``":"``); ``lookahead`` G codes that set a smoothing mode (not a path);
+    letters (``"O"``, ``":"``); ``modes`` G codes that set a controller mode and move nothing
+    (look-ahead / smoothing, the ISO-dialect switch) {code: meaning};
     ``g80_with_motion`` G80 and a motion code on one line; ``block_delete`` the ``/`` switch exists."""
 
     name: str
     m_codes: dict
     program_number: tuple = ("O",)
-    lookahead: tuple = ()
+    modes: dict = field(default_factory=dict)
     g80_with_motion: bool = False
     block_delete: bool = True
 
 
+LOOKAHEAD = "look-ahead / AI contour control (Q1 on, Q0 off; Q2 smooth interpolation refused)"
 _COMMON = {0: "program stop", 1: "optional stop", 2: "program end", 3: "spindle cw", 4: "spindle ccw",
            5: "spindle stop", 6: "tool change", 7: "mist coolant", 8: "flood coolant", 9: "coolant off",
            30: "program end and rewind"}
 DIALECTS = {
     "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
                                      50: "feed override control", 51: "spindle override control",
-                                     52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause",
-                                     62: "digital output (with motion)", 63: "digital output (with motion)",
-                                     64: "digital output", 65: "digital output", 67: "analog output (with motion)",
-                                     68: "analog output"}),
+                                     52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"}),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off"},
-                     program_number=("O", ":"), lookahead=("G5.1",), g80_with_motion=True),
+                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD}, g80_with_motion=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
                              35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
-                    lookahead=("G5.1", "G187"), g80_with_motion=True),
+                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)"}, g80_with_motion=True),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
-                           program_number=("O", ":"), lookahead=("G5.1",), g80_with_motion=True),
+                           program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode"},
+                           g80_with_motion=True),
     "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True),
     "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False),
 }
@@ -86,7 +88,6 @@ MARKERS = {  # content that only one dialect writes: (pattern, what it is)
     "haas": ((r"(?i)\bG187\b", "G187 smoothness"), (r"(?i)\bG154\s*P", "G154 P work offset"),
              (r"(?i)\bM31\b", "M31 chip auger")),
     "siemens-iso": ((r"(?i)\bG291\b", "G291 ISO mode"),),
-    "grbl": ((r"(?m)^\s*\$[A-Za-z0-9]", "'$' settings line"),),
 }
 DETECT_BYTES = 1 << 20
 """Detection reads the first MiB (a program declares its dialect near the top, and a marker further on
@@ -104,7 +105,7 @@ def dialect(name: str | None) -> Dialect:
 
 def detect_dialect(text: str) -> tuple:
     """``(name, evidence)`` from a program's content: the dialect whose markers (:data:`MARKERS`) it
-    holds — haas wins over fanuc where both match (Haas is Fanuc-compatible and adds its own); no
+    holds — haas and siemens-iso win over fanuc where both match (Fanuc-compatible, adding their own); no
     marker: ``(RS274, "")``; markers of two other dialects: ``ValueError`` naming them (give
     ``--dialect``)."""
     head = text[:DETECT_BYTES]
@@ -113,7 +114,7 @@ def detect_dialect(text: str) -> tuple:
         for pat, what in pats:
             if re.search(pat, head):
                 found.setdefault(name, what)
-    if "haas" in found:
+    if "haas" in found or "siemens-iso" in found:  # Fanuc-compatible controllers that add their own words
         found.pop("fanuc", None)
     if not found:
         return RS274, ""

@@ -533,7 +533,7 @@ def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=
 
 def _checked_words(words, ax: AxisWords, dia=None):
     """Check every word against the allow-lists (``dia``: the :class:`compensation.dialects.Dialect`'s
-    M codes and look-ahead codes; None: the generic one) and the machine's axis words:
+    M codes and mode codes; None: the generic one) and the machine's axis words:
     ``(by letter, [(G code, word)], [M words])``."""
     from .dialects import GENERIC, other_dialects_with_m
     dia = GENERIC if dia is None else dia
@@ -544,7 +544,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             code = w.code
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
-            if code in dia.lookahead:
+            if code in dia.modes:
                 gs.append((code, w))
                 continue
             if code in REFUSED_G:
@@ -591,7 +591,7 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = ALLOWED_G[code][0] if code in ALLOWED_G else "lookahead"
+        grp = ALLOWED_G[code][0] if code in ALLOWED_G else "dialect mode"
         if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
                 code, groups[grp][0]):
             if code != "G80":
@@ -666,7 +666,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     axis_words = {a: by[a] for a in ax.words if a in by}
     arc_words = {a: by[a] for a in ("I", "J", "K", "R") if a in by}
     changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal", "coords",
-                                        "length", "cutter", "lookahead"))
+                                        "length", "cutter", "dialect mode"))
     if bd and block_delete is None and (axis_words or arc_words or changes):
         raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
                                            "say whether the controller skips it: --block-delete on|off")
@@ -675,8 +675,8 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
         return _g10(idx, st, groups, by, axis_words, ax), None
     _work_state(idx, st, groups, by, ax)
-    if "lookahead" in groups:
-        return _lookahead(idx, st, groups, by, axis_words, arc_words), None
+    if "dialect mode" in groups:
+        return _dialect_mode(idx, st, groups, by, axis_words, arc_words), None
     if "nonmodal" in groups and groups["nonmodal"][0] == "G53":
         return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
@@ -741,10 +741,11 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
             st.tool = value
 
 
-def _lookahead(idx, st: _State, groups, by, axis_words, arc_words) -> str:
-    """A dialect's look-ahead / smoothing mode (Fanuc ``G05.1 Q1``/``Q0``, Haas ``G187``): state, the path
-    is the programmed one. ``G05.1 Q2`` (smooth interpolation: another path) and axis words are refused."""
-    code, w = groups["lookahead"]
+def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
+    """A dialect's mode code (Fanuc ``G05.1 Q1``/``Q0`` look-ahead, Haas ``G187``, Siemens ``G291``): state,
+    the path is the programmed one. ``G05.1 Q2`` (smooth interpolation: another path) and axis words are
+    refused."""
+    code, w = groups["dialect mode"]
     q = by.get("Q")
     if code == "G5.1" and (q is None or q.value not in (0.0, 1.0)):
         raise _Refuse(w.start + 1, f"'{code}' needs Q1 (look-ahead on) or Q0 (off); Q2 smooth interpolation "
@@ -752,7 +753,7 @@ def _lookahead(idx, st: _State, groups, by, axis_words, arc_words) -> str:
     if axis_words or arc_words or "motion" in groups:
         first = next(iter({**axis_words, **arc_words}.values()), w)
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}' with {code} (a mode, not a move)")
-    st.events.append((idx, w.start + 1, "lookahead", code, code))
+    st.events.append((idx, w.start + 1, "mode", code, code))
     return "state"
 
 

@@ -29,7 +29,8 @@ MAX_SEGMENTS_PER_MOVE = 100_000
 """A move split or linearised into more pieces than this is refused (a tolerance far too tight)."""
 
 
-def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None) -> GProgram:
+def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
+                        dialect: str | None = None) -> GProgram:
     """Read a G-code file for the machine-tool chain ``machine``: :func:`compensation.gcode.parse_program`
     with its axis words, the rotary words of the axes the exact solver keeps kept as programmed, a
     solved rotary axis (a lathe's C) written like a linear one (module docstring). Moves'
@@ -41,7 +42,8 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     except ValueError:  # not solvable (compensate refuses it): every rotary word kept, as read
         solved = set()
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
-    return parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words)  # block-wise where it can
+    return parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
+                         dialect=dialect)  # block-wise where it can
 
 
 def arc_chords(move, tol_mm: float) -> int:

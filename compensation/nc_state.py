@@ -274,6 +274,13 @@ class ProgramFrames:
     offset: np.ndarray
     tool_mm: np.ndarray
     notes: dict = field(default_factory=dict)
+    radius_mm: np.ndarray | None = None
+    """(m,) the cutter radius while G41/G42 is active (NaN: off)."""
+
+    def radius(self, lines0) -> np.ndarray:
+        """The active cutter radius compensation's radius (n,) mm at 0-based lines (NaN: off)."""
+        s = np.maximum(np.searchsorted(self.first_line, np.asarray(lines0, dtype=np.int64), side="right") - 1, 0)
+        return self.radius_mm[s]
 
     def at(self, lines0) -> tuple:
         """``(offset (n, k), tool_mm (n,))`` for 0-based source lines (n,)."""
@@ -302,6 +309,8 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     path, words = program.path, program.axis_words.words
     table = {k: dict(v) for k, v in (offsets.systems if offsets else {}).items()}
     tooltab = {k: v[0] for k, v in (tools.tools if tools else {}).items()}
+    radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
+    cutter = None
     events = list(getattr(program, "events", ()) or ())
     selects = any(e[2] in ("system", "g10-work") for e in events)  # relies on a work offset
     # before any selection the controller runs its power-on G54: unknown (NaN) unless the tables give it;
@@ -320,6 +329,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
 
     offs.append(current())
     tls.append(np.nan)
+    rads = [np.nan]
     for line, col, kind, value, text in events:
         where = f"{path}: line {line + 1}, column {col}: '{text}'"
         if kind == "system":
@@ -347,9 +357,17 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
             table.setdefault(name, {}).update(vals)
         elif kind == "g10-tool":
             tooltab[value[0]] = value[1][0]
+            if np.isfinite(value[1][1]):
+                radii[value[0]] = value[1][1]
+        elif kind == "cutter":
+            if value is not None and not np.isfinite(radii.get(value, np.nan)):
+                raise InputError(f"{where}: cutter radius compensation D{value}: the radius of tool {value} is not "
+                                 "known: give it in --tool-table (radius_mm, or D of a .tbl) or G10 L1 P.. R..")
+            cutter = value
         first.append(line)
         offs.append(current())
         tls.append(tooltab[tool] if tool is not None else np.nan)
+        rads.append(radii[cutter] if cutter is not None else np.nan)
     notes = {"work_offsets": (offsets.source if offsets else
                               ("program G10 lines" if selects else "none: the program selects no work system; its "
                                "axes are read as machine coordinates")),
@@ -359,8 +377,10 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     if system is not None or selects:
         notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(table.get(s, {}), words)]
                                    for s in sorted(used_systems)}
+    notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
+    notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
     return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
-                         np.array(tls, dtype=float), notes)
+                         np.array(tls, dtype=float), notes, np.array(rads, dtype=float))
 
 
 # ---------------------------------------------------------------------------- the chain at a tool length

@@ -543,20 +543,22 @@ _COLUMN_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
               arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM, max_segment_mm=None, field=None,
-              units: str = UNITS_CHECK, units_option: str | None = None, work_offsets=None) -> ToolPathFile:
+              units: str = UNITS_CHECK, units_option: str | None = None, work_offsets=None,
+              dialect: str | None = None) -> ToolPathFile:
     """Read a tool-path file for ``machine``: a CSV path or G-code, told apart by content
     (:func:`is_csv`), never by the file's suffix.
 
     G-code options: ``rapids``, ``block_delete`` (:func:`compensation.gcode.parse_program`),
     ``arc_tolerance_um``, ``max_segment_mm``, ``field`` (:func:`plan_gcode`), ``work_offsets``
-    (:func:`grinder_frames`). CSV: ``units``, ``units_option`` (:func:`errormap.units.check_units`).
+    (:func:`grinder_frames`), ``dialect`` (:func:`compensation.gcode.parse_program`). CSV: ``units``, ``units_option`` (:func:`errormap.units.check_units`).
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if is_csv(path):
         return _read_csv(path, machine, units, units_option)
-    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=AxisWords.of(machine))
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=AxisWords.of(machine),
+                         dialect=dialect)
     grinder_frames(prog, work_offsets)
     job = plan_gcode(prog, machine, arc_tolerance_um, max_segment_mm, field)
     return gcode_toolpath(job, machine, path)

@@ -52,6 +52,7 @@ from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options,
 from ..workflows.compensate import CompensateSettings, compensate_files
 from ... import guards
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
+from ...dialects import DIALECT_NAMES
 from ...nc_state import MACHINE, read_work_offsets
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM
 from ...solvers import METHODS
@@ -99,6 +100,10 @@ def register(sub):
                    help="machine-tool chains whose solver moves a rotary axis (lathe-xzc's C): refuse a point whose "
                         "compensated rotary command differs from the programmed one by more than DEG (default: only "
                         "the ball's bound asin(ball/r), r the target's distance from the axis)")
+    p.add_argument("--dialect", default="auto", choices=("auto", *DIALECT_NAMES),
+                   help="the controller the G-code is written for: its harmless M codes, program numbers, look-ahead "
+                        "and block-delete rules (compensation/dialects.py); auto (default): recognised from the "
+                        "program's content (shown in the summary), else the words every controller shares")
     p.add_argument("--work-offsets", default=None, metavar="FILE|machine",
                    help="the controller's work offsets (G54..G59.3, G54.1 Pn): a LinuxCNC parameter file (.var) or a CSV "
                         "system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg] (by content); 'machine': the program is written in "
@@ -167,7 +172,8 @@ def run(args) -> int:
         tracking_uri=args.tracking_uri, seed=args.seed, allow=allow, rapids=args.rapids,
         block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
         max_segment_mm=max_segment, conditions=conditions_from_args(args), chunk_points=args.chunk_points,
-        units=args.units, work_offsets=read_work_offsets(MACHINE) if args.work_offsets == MACHINE else None)  # the shared unit check of CSV paths and conditions (errormap/units.py)
+        units=args.units, work_offsets=read_work_offsets(MACHINE) if args.work_offsets == MACHINE else None,
+        dialect=args.dialect)  # the shared unit check of CSV paths and conditions (errormap/units.py)
     check_cluster_args(args)
     check_machine_kind(machine.path, machine.kind, "grinder")
     try:

@@ -67,6 +67,7 @@ class CompensateSettings:
     chunk_points: int = CHUNK_POINTS
     units: str = "check"   # errormap/units.py: "as-written" skips the likely-unit-mistake tests (recorded)
     work_offsets: object = None  # compensation.nc_state.WorkOffsets: only MACHINE on the grinder (or None)
+    dialect: str | None = None   # compensation.dialects: a name, "auto" or None
 
 
 @dataclass
@@ -220,6 +221,7 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, co
                       "field_curvature_um_per_mm2": job.curvature_um_per_mm2})
         if s.work_offsets is not None:
             entry["work_offsets"] = s.work_offsets.source
+        entry["dialect"], entry["dialect_evidence"] = job.program.dialect, job.program.dialect_evidence
     outcome = FileOutcome(src, dst, entry, None, viol, kept_violations=len(kept))
     if blocking or kept_blocking:
         entry["refused"] = True
@@ -260,7 +262,8 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
     notice_cold_kernels(*kernel_modules(s.method))  # one line before numba's first compilation after install
     # parse and validate every input first: a bad file fails the batch before any work or output
     read_opts = {"rapids": s.rapids, "block_delete": s.block_delete, "arc_tolerance_um": s.arc_tolerance_um,
-                 "units": s.units, "units_option": "--units", "work_offsets": s.work_offsets}
+                 "units": s.units, "units_option": "--units", "work_offsets": s.work_offsets,
+                 "dialect": s.dialect}
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     source = resolve_model(s.model)  # by content (format key), printed and recorded in the summary
     print(f"compensate: model {source.description}", file=sys.stderr)

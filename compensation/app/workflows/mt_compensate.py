@@ -70,6 +70,7 @@ class ChainSettings:
     units: str = UNITS_CHECK
     truth: str | None = None
     outcomes: list = field(default_factory=list)
+    dialect: str | None = None   # compensation.dialects: a name, "auto" or None
     work_offsets: object = None  # compensation.nc_state.WorkOffsets (None: not given)
     tool_table: object = None    # compensation.nc_state.ToolTable (None: not given)
 
@@ -88,7 +89,7 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
         check_units(path, rows, machine=machine, axes=axes, axes_columns=cols, coverage="path", units=s.units,
                     option="--units")
         return ChainPath(path, "csv-axes", axes, rows, t)
-    prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete)
+    prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect)
     frames = program_frames(prog, s.work_offsets, s.tool_table)
     t = prog.table
     comp = t.line[t.compensate] if t is not None else np.array([m.index for m in prog.moves if m.compensate], int)
@@ -175,6 +176,39 @@ def solve_by_tool(method, field_, truth, machine, tp: ChainPath, **options):
     return res, cat(lambda p: p[2], (3,)), true, base
 
 
+CUTTER_STEP_MM = 0.5
+"""Step of the central differences of the field's gradient (its elements vary over tens of mm)."""
+
+
+def cutter_radius_bound_um(field_, machine, tp: ChainPath):
+    """Under cutter radius compensation (G41/G42 D) the controller cuts up to the tool radius r away from
+    the compensated point, where the error differs by at most |dE/dp|·r: that bound (μm, the largest over
+    the points under G41/G42; the spectral norm of the field's gradient along the linear axes, central
+    differences of :data:`CUTTER_STEP_MM`, at the tool each point runs with). None: no G41/G42 in the program."""
+    job = tp.source
+    if job.frames is None or job.frames.radius_mm is None:
+        return None
+    r = job.frames.radius(job.lines - 1)
+    on = np.flatnonzero(np.isfinite(r))
+    if not on.size:
+        return None
+    lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
+    tool = tp.tool_mm[on]
+    keys = np.where(np.isfinite(tool), tool, -np.inf)
+    out = 0.0
+    for key in np.unique(keys):
+        idx = on[keys == key]
+        f = field_ if not np.isfinite(key) else field_with_tool(field_, machine_with_tool(machine, float(key)))
+        q = tp.axes[idx]
+        G = np.empty((len(idx), 3, len(lin)))
+        for c, j in enumerate(lin):
+            d = np.zeros(q.shape[1])
+            d[j] = CUTTER_STEP_MM
+            G[:, :, c] = (f.predict(q + d) - f.predict(q - d)) / (2 * CUTTER_STEP_MM)
+        out = max(out, float((np.linalg.norm(G, ord=2, axis=(1, 2)) * r[idx]).max()))
+    return out
+
+
 def _stats(r) -> dict:
     nrm = np.linalg.norm(r, axis=1)
     return {"max_um": float(nrm.max()), "rms_um": float(np.sqrt(np.mean(nrm ** 2))), "mean_um": float(nrm.mean())}
@@ -258,7 +292,7 @@ def run_chain_compensate(machine, args, allow) -> int:
     from ...nc_state import read_tool_table, read_work_offsets
     s = ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
                       rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
-                      units=args.units, truth=args.truth,
+                      units=args.units, truth=args.truth, dialect=getattr(args, "dialect", None),
                       work_offsets=read_work_offsets(args.work_offsets) if args.work_offsets is not None else None,
                       tool_table=read_tool_table(args.tool_table) if getattr(args, "tool_table", None) else None)
     plan = plan_outputs(args.files, s.out_dir)
@@ -318,7 +352,11 @@ def run_chain_compensate(machine, args, allow) -> int:
             job = tp.source
             entry.update({"lines": len(job.program.lines), "moves_compensated": len(job.vertices),
                           "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids,
-                          "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes})
+                          "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
+                          "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
+            bound = cutter_radius_bound_um(field_, machine, tp)
+            if bound is not None:
+                entry["cutter_radius_bound_um"] = bound
         blocking = report.blocking
         refused = bool(blocking) or (bool(kept) and "stroke" not in report.allowed)
         text = None
@@ -351,6 +389,16 @@ def run_chain_compensate(machine, args, allow) -> int:
               f"{entry['max_correction_um']:.1f} um{tail}, guard violations {sum(viol.values())} {status}")
         if entry.get("note"):
             print(f"  {entry['note']}")
+        if tp.kind == "gcode":
+            print(f"  dialect {entry['dialect']}" + (f" ({entry['dialect_evidence']})" if entry["dialect_evidence"] else "")
+                  + f"; work offsets: {entry['work_offsets']}" + (f"; tools {entry['tools_used']}" if entry["tools_used"]
+                                                                   else ""))
+            if entry["g53_lines"]:
+                print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
+                      "through unchanged, not compensated")
+            if "cutter_radius_bound_um" in entry:
+                print(f"  G41/G42 cutter radius compensation: the path is compensated as programmed; the error it "
+                      f"leaves is at most {entry['cutter_radius_bound_um']:.3g} um (field gradient x tool radius)")
         if rotary_refused:
             print(f"  rotary continuity: {rotary_refused} point(s) refused (their rotary correction exceeds "
                   f"asin(ball/r){' or the limit' if rotary_limit is not None else ''}; programmed axes kept)")
