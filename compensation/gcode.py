@@ -24,6 +24,12 @@ the word (``prog.nc: line 7, column 4: 'G65' ...``). The full tables of what is 
 why each refused code is refused are :data:`ALLOWED_G`, :data:`REFUSED_G`,
 :data:`ALLOWED_M` and :data:`LETTER_RULES` (docs/toolpaths.md prints them).
 
+Work systems (``G54`` … ``G59.3``, ``G54.1 P``), tool length offsets (``G43 H`` / ``G49``), cutter
+radius compensation (``G41``/``G42 D`` / ``G40``) and the program's own tables (``G10 L2`` / ``L1``) are
+read as events (:attr:`GProgram.events`), resolved against the controller's tables by
+:func:`compensation.nc_state.program_frames`; the moves stay in program coordinates. A controller
+dialect (:mod:`compensation.dialects`) widens the M codes and mode codes accepted.
+
 Numbers are read as RS274 reads them: spaces and tabs inside a number are ignored (``X1 0``
 is X10), an optional sign and decimal point, no exponent (``X1e2`` is refused), no
 parameters or expressions (``#1``, ``[1+2]``).
