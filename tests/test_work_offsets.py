@@ -181,3 +181,22 @@ def test_the_tables_matter(mill, truth_file):
     ignored, used = ignored_vs_used_um(DATA / "g55_tool_linuxcnc.ngc", mill, truth_els,
                                        read_work_offsets(DATA / "offsets.var"), read_tool_table(DATA / "tools.tbl"))
     assert used < TOL_POINT_UM < IGNORED_MIN_UM < ignored
+
+
+def test_the_grinder_reads_a_g54_program_only_as_machine_coordinates(tmp_path, grinder, capsys):
+    """The grinder applies no offset table: a G54 program is refused without --work-offsets machine; with it,
+    compensated, recorded in the summary and as the output's first comment; a table file is refused."""
+    from errormap.simulator import random_truth
+    el = random_truth(grinder, 7).elements.save(tmp_path / "elements.json")
+    prog = Path(__file__).resolve().parent / "data" / "gcode_corpus" / "c01_linuxcnc_basic.ngc"
+    base = ["compensate", str(prog), "--model", str(el), "--method", "exact"]
+    assert main([*base, "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err  # one line, cut in the middle where long
+    assert f"{prog}: line 4, column 29: 'G54': sel" in err and "or --work-offsets machine" in err
+    assert main([*base, "--out", str(tmp_path / "b"), "--work-offsets", str(DATA / "offsets.csv")]) == 2
+    assert "the grinder takes --work-offsets machine only" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "c"), "--work-offsets", MACHINE]) == 0
+    out = (tmp_path / "c" / prog.name).read_text(encoding="latin-1").splitlines()
+    assert out[:2] == ["%", "(volcomp: work offsets taken as machine zero [--work-offsets machine])"]
+    e = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
+    assert e["work_offsets"] == MACHINE and e["dialect"] == "rs274"
