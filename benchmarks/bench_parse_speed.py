@@ -1,4 +1,4 @@
-"""Reader speed on a 1,000,001-line plain program (``G1 X Y Z`` on ``mill-xyz``): best of 3
+"""Reader speed on a 1,000,001-line plain program (``G1 X Y Z`` on ``mill-xyz``): best of 7
 ``parse_program`` (the block-wise path). BENCHMARKS.md, "Programs as shops write them".
 
     PYTHONPATH=. python benchmarks/bench_parse_speed.py [label]
@@ -14,6 +14,7 @@ from compensation.gcode import AxisWords, parse_program
 from errormap.machine import load_machine
 
 N_LINES = 1_000_000
+REPEATS = 7
 
 
 def main() -> int:
@@ -25,11 +26,11 @@ def main() -> int:
         p.write_text("%\nO1 (SPEED)\nG21 G90 G17\nG0 X300 Y200 Z-200\n" + body + "\nM30\n%\n")
     aw = AxisWords.of(load_machine("mill-xyz"))
     best = float("inf")
-    for _ in range(3):
+    for _ in range(REPEATS):
         t = time.perf_counter()
         prog = parse_program(p, axis_words=aw)
         best = min(best, time.perf_counter() - t)
-    print(f"{sys.argv[1] if len(sys.argv) > 1 else ''} parse best of 3: {best:.3f} s, {len(prog.moves)} moves")
+    print(f"{sys.argv[1] if len(sys.argv) > 1 else ''} parse best of {REPEATS}: {best:.3f} s, {len(prog.moves)} moves")
     return 0
 
 
