@@ -333,6 +333,8 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     for line, col, kind, value, text in events:
         where = f"{path}: line {line + 1}, column {col}: '{text}'"
         if kind == "system":
+            if value not in table and offsets is not None and offsets.machine_coordinates:
+                table[value] = {}  # machine coordinates: every system's offset is zero, extended ones too
             if value not in table:
                 if offsets is None:
                     raise InputError(f"{where}: selects the work offset {value}, but no offset table was given: give "

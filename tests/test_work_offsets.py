@@ -200,3 +200,13 @@ def test_the_grinder_reads_a_g54_program_only_as_machine_coordinates(tmp_path, g
     assert out[:2] == ["%", "(volcomp: work offsets taken as machine zero [--work-offsets machine])"]
     e = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
     assert e["work_offsets"] == MACHINE and e["dialect"] == "rs274"
+
+
+def test_machine_coordinates_zero_every_system(tmp_path, truth_file):
+    """--work-offsets machine: every work system, extended ones too, is machine zero (recorded)."""
+    out = tmp_path / "o"
+    assert _compensate(DATA / "g54_1_extended.nc", out, truth_file, "--work-offsets", MACHINE, "--tool-table",
+                       str(DATA / "tools.csv")) == 0
+    e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
+    assert e["work_offsets"] == MACHINE and e["offsets_mm_deg"] == {"G54.1P3": [0.0, 0.0, 0.0]}
+    assert e["tools_used"] == {"3": 0.0}

@@ -293,7 +293,8 @@ def run_chain_compensate(machine, args, allow) -> int:
     s = ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
                       rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
                       units=args.units, truth=args.truth, dialect=getattr(args, "dialect", None),
-                      work_offsets=read_work_offsets(args.work_offsets) if args.work_offsets is not None else None,
+                      work_offsets=(read_work_offsets(args.work_offsets) if getattr(args, "work_offsets", None) is not None
+                                    else None),
                       tool_table=read_tool_table(args.tool_table) if getattr(args, "tool_table", None) else None)
     plan = plan_outputs(args.files, s.out_dir)
     old_outputs = check_out_dir(s.out_dir, s.force)
