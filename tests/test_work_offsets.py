@@ -132,6 +132,7 @@ CASES = [  # program, tables given, the tables' contents for the independent che
     ("g55_tool_linuxcnc.ngc", ("offsets.var", "tools.tbl"), {"G55": (200, 100, -150)}, {1: 150.0}),
     ("g10_in_program_fanuc.nc", (None, "tools.csv"), {}, {}),
     ("g54_1_extended.nc", ("offsets.csv", "tools.csv"), {"G54.1P3": (300.5, 120.25, -80)}, {3: 0.0}),
+    ("two_tools.ngc", ("offsets.csv", "tools.tbl"), {"G55": (200, 100, -150)}, {1: 150.0, 2: 100.0}),
 ]
 
 
