@@ -24,6 +24,12 @@ the word (``prog.nc: line 7, column 4: 'G65' ...``). The full tables of what is 
 why each refused code is refused are :data:`ALLOWED_G`, :data:`REFUSED_G`,
 :data:`ALLOWED_M` and :data:`LETTER_RULES` (docs/toolpaths.md prints them).
 
+Work systems (``G54`` … ``G59.3``, ``G54.1 P``), tool length offsets (``G43 H`` / ``G49``), cutter
+radius compensation (``G41``/``G42 D`` / ``G40``) and the program's own tables (``G10 L2`` / ``L1``) are
+read as events (:attr:`GProgram.events`), resolved against the controller's tables by
+:func:`compensation.nc_state.program_frames`; the moves stay in program coordinates. A controller
+dialect (:mod:`compensation.dialects`) widens the M codes and mode codes accepted.
+
 Numbers are read as RS274 reads them: spaces and tabs inside a number are ignored (``X1 0``
 is X10), an optional sign and decimal point, no exponent (``X1e2`` is refused), no
 parameters or expressions (``#1``, ``[1+2]``).
@@ -61,6 +67,7 @@ import numpy as np
 from errormap.io import InputError
 
 from . import gcode_kernels as gscan
+from .gcode_state import _dialect_mode, _forget, _g10, _machine_coordinates, _Refuse, _work_state
 
 MM_PER_INCH = 25.4
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
@@ -192,8 +199,17 @@ ALLOWED_G = {
     "G94": ("feed", "feed per minute"),
     "G95": ("feed", "feed per revolution"),
     "G40": ("cutter", "cutter compensation off"),
+    "G41": ("cutter", "cutter radius compensation left, D: the path is compensated as programmed; the bound on "
+                      "the error left (field gradient x tool radius, --tool-table) is reported"),
+    "G42": ("cutter", "cutter radius compensation right, D: as G41"),
+    "G53": ("nonmodal", "machine coordinates for this line (G0/G1): passed through unchanged, not compensated; "
+                        "the axes it moves are unknown in program coordinates afterwards"),
+    "G43": ("length", "tool length offset H (the tool table's length, --tool-table): machine Z = program Z + length"),
     "G49": ("length", "tool length offset off"),
-    "G54": ("coords", "the first work system: its axes are taken as the machine file's axes"),
+    "G10": ("nonmodal", "L2 Pn: sets work offset n; L1 Pn Z.. R..: sets tool n (read as data, in program order)"),
+    **{c: ("coords", "selects a work system: machine axes = program axes + its offset (--work-offsets)")
+       for c in ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3")},
+    "G54.1": ("coords", "selects the extended work system P (--work-offsets)"),
     "G61": ("path", "exact path"),
     "G61.1": ("path", "exact stop"),
     "G64": ("path", "blending (P, Q tolerances allowed)"),
@@ -210,19 +226,15 @@ REFUSED_G = {
     "G5": "cubic spline", "G5.1": "quadratic spline", "G5.2": "NURBS block", "G5.3": "NURBS block end",
     "G7": "lathe diameter mode (X would mean a diameter)", "G7.1": "cylindrical interpolation",
     "G107": "cylindrical interpolation",
-    "G10": "sets offsets/tool tables", "G12": "circular pocket", "G13": "circular pocket",
+"G12": "circular pocket", "G13": "circular pocket",
     "G16": "polar coordinates", "G17.1": "UV plane", "G18.1": "WU plane", "G19.1": "VW plane",
     "G28.1": "sets the reference position", "G30.1": "sets the reference position",
     "G31": "skip (probing)", "G33": "spindle-synchronised motion", "G33.1": "rigid tapping",
     "G38.2": "probing", "G38.3": "probing", "G38.4": "probing", "G38.5": "probing",
-    "G41": "cutter radius compensation", "G41.1": "cutter radius compensation",
-    "G42": "cutter radius compensation", "G42.1": "cutter radius compensation",
-    "G43": "tool length offset", "G43.1": "tool length offset", "G43.2": "tool length offset",
+    "G41.1": "dynamic cutter radius compensation", "G42.1": "dynamic cutter radius compensation",
+    "G43.1": "tool length offset", "G43.2": "tool length offset",
     "G50": "scaling off / lathe coordinate setting (dialect-dependent)", "G50.1": "mirror off",
-    "G51": "scaling", "G51.1": "mirror", "G52": "local coordinate shift", "G53": "machine coordinates",
-    "G54.1": "extra work system", "G55": "another work system", "G56": "another work system",
-    "G57": "another work system", "G58": "another work system", "G59": "another work system",
-    "G59.1": "another work system", "G59.2": "another work system", "G59.3": "another work system",
+    "G51": "scaling", "G51.1": "mirror", "G52": "local coordinate shift",
     "G60": "unidirectional approach", "G65": "macro call (its letters are arguments, not axes)",
     "G66": "modal macro call", "G66.1": "modal macro call", "G68": "coordinate rotation",
     "G68.2": "tilted work plane", "G70": "lathe cycle", "G71": "lathe cycle", "G72": "lathe cycle",
@@ -239,12 +251,14 @@ LETTER_RULES = {
     "G": "see ALLOWED_G", **{a: "an axis word of the machine (linear mm/inch, rotary deg); refused where the "
                                 "machine has no such axis" for a in AXIS_LETTERS},
     **{c: f"arc centre {a} offset (G2/G3 only, in a plane with {a})" for c, a in CENTRE_AXIS.items()},
-    "R": "arc radius (G2/G3 only)", "P": "G4 dwell, G64 tolerance, or P1 on an arc",
+    "R": "arc radius (G2/G3 only; G10 L1 tool radius)",
+    "P": "G4 dwell, G64 tolerance, P1 on an arc, G54.1 system, G10 number",
+    "H": "tool length offset number (G43 only)", "L": "G10 data type (G10 only)",
+    "D": "cutter radius offset number (G41/G42 only)",
     "Q": "G64 tolerance", "O": "program number on a line of its own",
 }
 REFUSED_LETTERS = {
-    "E": "extruder / unknown axis", "H": "tool length offset number", "D": "cutter radius offset number",
-    "L": "loop count / G10 data",
+    "E": "extruder / unknown axis",
 }
 
 
@@ -306,6 +320,14 @@ class GProgram:
     axis_words: AxisWords | None = None
     """The machine's axis words the program was read with (the moves' columns, in order); the
     readers always set it."""
+    events: tuple = ()
+    """The program's controller-state words in line order: ``(line (0-based), column, kind, value,
+    text)`` with kind ``system`` (value ``G54`` … ``G54.1P3``), ``tool`` (``G43 Hn``: n; ``G49``:
+    None), ``g10-work`` (``(system, {word: mm/deg})``), ``g10-tool`` (``(n, (length_mm, radius_mm))``);
+    resolved against the offset and tool tables by :func:`compensation.nc_state.program_frames`."""
+    dialect: str = "rs274"
+    """The controller dialect the program was read in (:mod:`compensation.dialects`)."""
+    dialect_evidence: str = ""
 
 
 def split_lines(text: str) -> list:
@@ -315,11 +337,6 @@ def split_lines(text: str) -> list:
     if parts[-1]:
         lines.append(parts[-1])
     return lines
-
-
-class _Refuse(Exception):
-    def __init__(self, col: int, msg: str):
-        self.col, self.msg = col, msg
 
 
 _NUMBER = re.compile(r"[ \t]*([+-]?[ \t]*(?:\d(?:[\d \t]*\d)?(?:[ \t]*\.(?:[\d \t]*\d)?)?|\.(?:[\d \t]*\d)?))")
@@ -412,7 +429,7 @@ def _err(path, lineno, col, msg):
 
 
 def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
-                  fast: bool = True, axis_words: AxisWords | None = None) -> GProgram:
+                  fast: bool = True, axis_words: AxisWords | None = None, dialect: str | None = None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
     ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
@@ -426,6 +443,9 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     ``rapids``: ``"keep"`` (G0 lines written as they are) or ``"compensate"``.
     ``block_delete``: ``None`` refuses a ``/`` line that moves or changes modal state;
     ``"on"`` skips ``/`` lines (the controller's switch is on); ``"off"`` runs them.
+    ``dialect``: a controller of :data:`compensation.dialects.DIALECT_NAMES`, ``"auto"`` (recognised
+    from the content, :func:`compensation.dialects.detect_dialect`) or None (the words every dialect
+    shares); the program's ``dialect`` records which (and ``dialect_evidence`` why).
     """
     path = Path(path)
     if rapids not in RAPIDS_CHOICES:
@@ -436,10 +456,37 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
         raise InputError(f"{path}: no such file")
     ax = default_axis_words() if axis_words is None else axis_words
     data = path.read_bytes()
+    dia, evidence = _dialect_of(path, data, dialect)
     if fast and _bulk_words(ax):
-        return _parse_blockwise(path, rapids, block_delete, data, ax)
+        prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia)
+    else:
+        prog = _parse_lines(path, rapids, block_delete, data, ax, dia)
+    prog.dialect, prog.dialect_evidence = dia.name, evidence
+    return prog
+
+
+def _dialect_of(path, data: bytes, dialect) -> tuple:
+    """``(Dialect, evidence)`` for :func:`parse_program`'s ``dialect``."""
+    from .dialects import RS274, detect_dialect
+    from .dialects import dialect as by_name
+    if dialect == "auto":
+        try:
+            name, evidence = detect_dialect(data[:1 << 20].decode("latin-1"))
+        except ValueError as exc:
+            raise InputError(f"{path}: {exc}") from None
+        return by_name(name), (f"recognised from its content: {evidence}" if evidence else
+                               f"no dialect word found: {RS274}")
+    try:
+        return by_name(dialect), ("named" if dialect is not None else "")
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia) -> GProgram:
+    """The per-line reader (the reference)."""
     lines = split_lines(data.decode("latin-1"))
     st = _State(len(ax.words))
+    st.dialect = dia
     classes, moves = [], []
     for idx, line in enumerate(lines):
         body = line.rstrip("\r\n")
@@ -452,7 +499,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
             moves.append(move)
     if not any(m.compensate for m in moves):
         raise _no_motion(path, ax)
-    return GProgram(path, lines, classes, moves, rapids, block_delete, axis_words=ax)
+    return GProgram(path, lines, classes, moves, rapids, block_delete, axis_words=ax, events=tuple(st.events))
 
 
 def _bulk_words(ax: AxisWords) -> bool:
@@ -473,6 +520,10 @@ class _State:
         self.inch = False
         self.plane = "G17"         # the RS274 power-on default
         self.pos = np.full(k, np.nan)
+        self.system = None         # the work system selected (None: none yet)
+        self.tool = None           # the tool length offset H number (None: G49 / none)
+        self.events = []           # GProgram.events
+        self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -482,9 +533,12 @@ def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=
     return _classify(body, -1, state, rapids, block_delete, default_axis_words() if axis_words is None else axis_words)
 
 
-def _checked_words(words, ax: AxisWords):
-    """Check every word against the allow-lists and the machine's axis words:
+def _checked_words(words, ax: AxisWords, dia=None):
+    """Check every word against the allow-lists (``dia``: the :class:`compensation.dialects.Dialect`'s
+    M codes and mode codes; None: the generic one) and the machine's axis words:
     ``(by letter, [(G code, word)], [M words])``."""
+    from .dialects import GENERIC, other_dialects_with_m
+    dia = GENERIC if dia is None else dia
     by = {}
     gs, ms = [], []
     for w in words:
@@ -492,6 +546,9 @@ def _checked_words(words, ax: AxisWords):
             code = w.code
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
+            if code in dia.modes:
+                gs.append((code, w))
+                continue
             if code in REFUSED_G:
                 raise _Refuse(w.start + 1, f"'{code}' ({REFUSED_G[code]}) is not supported")
             if code not in ALLOWED_G:
@@ -499,8 +556,9 @@ def _checked_words(words, ax: AxisWords):
             gs.append((code, w))
             continue
         if w.letter == "M":
-            if w.value != int(w.value) or int(w.value) not in ALLOWED_M:
-                raise _Refuse(w.start + 1, f"'M{w.text}': M code not on the allow-list (may move or call a program)")
+            if w.value != int(w.value) or int(w.value) not in dia.m_codes:
+                raise _Refuse(w.start + 1, f"'M{w.text}': M code not on the {dia.name} allow-list (may move or call a "
+                                           f"program){other_dialects_with_m(w.value, dia.name)}")
             ms.append(w)
             continue
         if w.letter in ax.words:
@@ -530,11 +588,17 @@ def _plain_tool_number(w: Word) -> bool:
     return digits.isdigit() and len(digits) <= MAX_TOOL_DIGITS
 
 
-def _modal_groups(gs) -> dict:
-    """``{modal group: (G code, word)}``; two codes of one group on a line are refused."""
+def _modal_groups(gs, dia=None) -> dict:
+    """``{modal group: (G code, word)}``; two codes of one group on a line are refused (but ``G80`` with
+    a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = ALLOWED_G[code][0]
+        grp = ALLOWED_G[code][0] if code in ALLOWED_G else "dialect mode"
+        if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
+                code, groups[grp][0]):
+            if code != "G80":
+                groups[grp] = (code, w)
+            continue
         if grp in groups:
             raise _Refuse(w.start + 1, f"'{code}' and '{groups[grp][0]}' on one line (same modal group)")
         groups[grp] = (code, w)
@@ -560,35 +624,63 @@ def _apply_modal(st: _State, groups: dict):
 
 def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
     """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64."""
-    for letter, allowed_with in (("P", ("G4", "G64")), ("Q", ("G64",))):
+    for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
+                                 ("L", ("G10",))):
         if letter in by:
             ok = any(c in allowed_with for c, _ in gs) or (letter == "P" and st.mode in ("G2", "G3")
                                                              and (axis_words or arc_words) and by["P"].value == 1)
             if not ok:
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside "
                                                     f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else ""))
+    for letter, code in (("D", ("G41", "G42")),):
+        if letter in by and not any(c in code for c, _ in gs):
+            raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
+    for c, w in gs:
+        if c in ("G41", "G42") and "D" not in by:
+            raise _Refuse(w.start + 1, f"'{c}' without D (the current tool's radius): write '{c} Dn' with the tool "
+                                       "table's number n")
+    if "G43" in (c for c, _ in gs) and "H" not in by:
+        w = next(w for c, w in gs if c == "G43")
+        raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): write 'G43 Hn' with the tool "
+                                   "table's number n")
+
+
+_COLON_NUMBER = re.compile(r"[ \t]*:[ \t]*\d+[ \t]*(?:\([^)]*\)[ \t]*)?")
 
 
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
+    dia = st.dialect
+    if dia is not None and ":" in dia.program_number and _COLON_NUMBER.fullmatch(body):
+        return "pass", None  # ':1234' program number (ISO code)
     bd, words, pct = tokenize(body)
     if pct:
         return "pass", None
+    if bd and dia is not None and not dia.block_delete:
+        raise _Refuse(body.index("/") + 1, f"block delete '/': {dia.name} has no block-delete switch")
     if bd and block_delete == "on":
         return "skipped", None
-    by, gs, ms = _checked_words(words, ax)
-    groups = _modal_groups(gs)
+    by, gs, ms = _checked_words(words, ax, dia)
+    groups = _modal_groups(gs, dia)
     if "O" in by:
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
             raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
         return "pass", None
     axis_words = {a: by[a] for a in ax.words if a in by}
     arc_words = {a: by[a] for a in ("I", "J", "K", "R") if a in by}
-    changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal"))
+    changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal", "coords",
+                                        "length", "cutter", "dialect mode"))
     if bd and block_delete is None and (axis_words or arc_words or changes):
         raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
                                            "say whether the controller skips it: --block-delete on|off")
     motion_word = _apply_modal(st, groups)
     _check_p_q(st, by, gs, axis_words, arc_words)
+    if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
+        return _g10(idx, st, groups, by, axis_words, ax), None
+    _work_state(idx, st, groups, by, ax)
+    if "dialect mode" in groups:
+        return _dialect_mode(idx, st, groups, by, axis_words, arc_words), None
+    if "nonmodal" in groups and groups["nonmodal"][0] == "G53":
+        return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
         return _reference_return(st, groups, axis_words, arc_words, ax)
     if "nonmodal" in groups and axis_words:
@@ -1074,7 +1166,7 @@ class _Lines(Sequence):
             yield text[s:e]
 
 
-def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords) -> GProgram:
+def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords, dia=None) -> GProgram:
     buf = np.frombuffer(data, np.uint8)
     starts, ends = gscan.line_bounds(buf)
     lines = _Lines(data.decode("latin-1"), starts, np.append(starts[1:], buf.size))
@@ -1106,6 +1198,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
     given = np.isfinite(vals)
 
     st = _State(len(ax.words))
+    st.dialect = dia
     classes = ["pass"] * n
     moved = []  # ordinals (k0, k1) of the bulk moves read
     pieces, objects = [], []
@@ -1176,7 +1269,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
     if not table.compensate.any():
         raise _no_motion(path, ax)
     return GProgram(path, lines, classes, _LazyMoves(table, lines, ax.words), rapids, block_delete, table=table,
-                    data=data, axis_words=ax)
+                    data=data, axis_words=ax, events=tuple(st.events))
 
 
 class _Groups(Sequence):

@@ -29,7 +29,8 @@ MAX_SEGMENTS_PER_MOVE = 100_000
 """A move split or linearised into more pieces than this is refused (a tolerance far too tight)."""
 
 
-def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None) -> GProgram:
+def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
+                        dialect: str | None = None) -> GProgram:
     """Read a G-code file for the machine-tool chain ``machine``: :func:`compensation.gcode.parse_program`
     with its axis words, the rotary words of the axes the exact solver keeps kept as programmed, a
     solved rotary axis (a lathe's C) written like a linear one (module docstring). Moves'
@@ -41,7 +42,8 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     except ValueError:  # not solvable (compensate refuses it): every rotary word kept, as read
         solved = set()
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
-    return parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words)  # block-wise where it can
+    return parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
+                         dialect=dialect)  # block-wise where it can
 
 
 def arc_chords(move, tol_mm: float) -> int:
@@ -55,12 +57,13 @@ CURVATURE_STEP = 0.25
 """Second difference step, as a share of the move."""
 
 
-def field_pieces(moves, field, tol_um: float) -> np.ndarray:
+def field_pieces(moves, field, tol_um: float, shift=None) -> np.ndarray:
     """Pieces per move so that the straight interpolation between compensated vertices stays within
     ``tol_um`` of the field along it: a piece of a move whose field has second derivative ``c``
     (μm per unit of the move's parameter squared) deviates by ``c/(8 n²)``, so ``n = ⌈√(c/(8 tol))⌉``;
     ``c`` is the largest second difference of the field along the move at
-    :data:`CURVATURE_FRACTIONS` (step :data:`CURVATURE_STEP` of the move). Shape (m,) int ≥ 1."""
+    :data:`CURVATURE_FRACTIONS` (step :data:`CURVATURE_STEP` of the move); ``shift`` (m, k): machine minus
+    program axes per move (work offset, tool length; None: zero). Shape (m,) int ≥ 1."""
     if not moves:
         return np.zeros(0, dtype=int)
     h = CURVATURE_STEP
@@ -69,6 +72,8 @@ def field_pieces(moves, field, tol_um: float) -> np.ndarray:
         for f in CURVATURE_FRACTIONS:
             pts.append(move_points(m, np.array([f - h, f, f + h])))
     q = np.concatenate(pts)
+    if shift is not None:
+        q = q + np.repeat(np.asarray(shift, dtype=float), 3 * len(CURVATURE_FRACTIONS), axis=0)
     E = np.asarray(field.predict(q)).reshape(len(moves), len(CURVATURE_FRACTIONS), 3, 3)
     c = np.abs(E[:, :, 0] - 2 * E[:, :, 1] + E[:, :, 2]).max(axis=(1, 2)) / h ** 2
     return np.maximum(1, np.ceil(np.sqrt(c / (8.0 * tol_um)))).astype(int)
@@ -87,19 +92,44 @@ class ChainGCodeJob:
     arc_tolerance_um: float
     kept_lines: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     kept_axes: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    frames: object = None
+    """:class:`compensation.nc_state.ProgramFrames` the vertices were placed with (None: machine coordinates)."""
+
+    @property
+    def shift(self) -> np.ndarray:
+        """Machine minus program axes per vertex (n, k): the work offset and the tool length on Z."""
+        if self.frames is None:
+            return np.zeros_like(self.axes)
+        return self.frames.shift(self.lines - 1, self.program.axis_words.words)
+
+    @property
+    def tool_mm(self) -> np.ndarray:
+        """The active tool length per vertex (n,), NaN: the machine file's own tool."""
+        if self.frames is None:
+            return np.full(len(self.axes), np.nan)
+        return self.frames.at(self.lines - 1)[1]
+
+    @property
+    def kept_machine_axes(self) -> np.ndarray:
+        """The kept rapids' ends in machine axes (m, k)."""
+        if self.frames is None or not len(self.kept_lines):
+            return self.kept_axes
+        return self.kept_axes + self.frames.shift(self.kept_lines - 1, self.program.axis_words.words)
 
 
-def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None) -> ChainGCodeJob:
-    """Vertices of every compensated move: arcs in chords within ``arc_tolerance_um`` (axis space),
-    and with ``field_`` every move split so the compensation between vertices stays within it too
-    (:func:`field_pieces`)."""
+def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, frames=None) -> ChainGCodeJob:
+    """Vertices of every compensated move (program coordinates): arcs in chords within
+    ``arc_tolerance_um`` (axis space), and with ``field_`` every move split so the compensation between
+    vertices stays within it too (:func:`field_pieces`, the field taken where ``frames`` — a
+    :class:`compensation.nc_state.ProgramFrames` — puts the move in the machine)."""
     comp = [m for m in program.moves if m.compensate]
     tol_mm = arc_tolerance_um * 1e-3
     n_arc = np.array([arc_chords(m, tol_mm) if m.arc is not None else 1 for m in comp], dtype=int)
     with_start = [m for m in comp if np.all(np.isfinite(m.start))]
     n_fld = np.ones(len(comp), dtype=int)
     if field_ is not None and with_start:
-        pieces = field_pieces(with_start, field_, arc_tolerance_um)
+        shift = frames.shift([m.index for m in with_start], program.axis_words.words) if frames is not None else None
+        pieces = field_pieces(with_start, field_, arc_tolerance_um, shift)
         pos = {id(m): p for m, p in zip(with_start, pieces)}
         n_fld = np.array([pos.get(id(m), 1) for m in comp], dtype=int)
     counts = np.maximum(n_arc, n_fld)
@@ -119,7 +149,7 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None) ->
     kept = [m for m in program.moves if not m.compensate]
     return ChainGCodeJob(program, verts, axes, lines, arc_tolerance_um,
                          np.array([m.index + 1 for m in kept], dtype=int),
-                         np.array([m.end for m in kept]).reshape(len(kept), len(program.axis_words.words)))
+                         np.array([m.end for m in kept]).reshape(len(kept), len(program.axis_words.words)), frames)
 
 
 # ---------------------------------------------------------------------------- writing

@@ -543,22 +543,41 @@ _COLUMN_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
               arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM, max_segment_mm=None, field=None,
-              units: str = UNITS_CHECK, units_option: str | None = None) -> ToolPathFile:
+              units: str = UNITS_CHECK, units_option: str | None = None, work_offsets=None,
+              dialect: str | None = None) -> ToolPathFile:
     """Read a tool-path file for ``machine``: a CSV path or G-code, told apart by content
     (:func:`is_csv`), never by the file's suffix.
 
     G-code options: ``rapids``, ``block_delete`` (:func:`compensation.gcode.parse_program`),
-    ``arc_tolerance_um``, ``max_segment_mm``, ``field`` (:func:`plan_gcode`). CSV: ``units``,
-    ``units_option`` (:func:`errormap.units.check_units`).
+    ``arc_tolerance_um``, ``max_segment_mm``, ``field`` (:func:`plan_gcode`), ``work_offsets``
+    (:func:`grinder_frames`), ``dialect`` (:func:`compensation.gcode.parse_program`). CSV: ``units``, ``units_option`` (:func:`errormap.units.check_units`).
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if is_csv(path):
         return _read_csv(path, machine, units, units_option)
-    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=AxisWords.of(machine))
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=AxisWords.of(machine),
+                         dialect=dialect)
+    grinder_frames(prog, work_offsets)
     job = plan_gcode(prog, machine, arc_tolerance_um, max_segment_mm, field)
     return gcode_toolpath(job, machine, path)
+
+
+def grinder_frames(prog, work_offsets=None) -> None:
+    """The grinder's path applies no work offset and no tool length: a program that selects a work
+    system is read only with ``work_offsets`` :data:`compensation.nc_state.MACHINE` (its axes are
+    machine axes, every offset zero); one that selects a tool length offset or sets tables (``G10``)
+    is refused naming the word and line (machine-tool chains apply them, :mod:`compensation.nc_state`)."""
+    from .nc_state import program_frames
+    if work_offsets is not None and not work_offsets.machine_coordinates:
+        raise ValueError("Expected work_offsets None or 'machine' on the grinder")
+    for line, col, kind, value, text in prog.events:
+        if kind.startswith("g10") or (kind in ("tool", "cutter") and value is not None):
+            raise InputError(f"{prog.path}: line {line + 1}, column {col}: '{text}': the grinder applies no work offset "
+                             "tool length or cutter radius (machine-tool chains do: --machine mill-xyz ... with "
+                             "--work-offsets / --tool-table); remove it or post the program in machine coordinates")
+    program_frames(prog, work_offsets, None)  # a work-system selection without 'machine' is refused
 
 
 def replan(toolpath: ToolPathFile, machine, **options) -> ToolPathFile:

@@ -12,6 +12,7 @@ import pytest
 
 import compensation.gcode as g
 from compensation import pathio
+from compensation.nc_state import MACHINE, read_work_offsets
 from errormap.htm import HTMField
 from errormap.io import InputError
 from errormap.simulator import random_truth
@@ -180,7 +181,7 @@ def test_generated_programs_read_and_write_the_same(tmp_path, grinder, field, se
 
 
 REFUSED_LINES = ["G1 Y1.", "X1e2", "G65 P9000 A1 X2", "G1 U1.", "X#1", "G2 X1 Z1", "G17 G2 X1 Z1 R5",
-                 "/G1 X100.", "G59", "G1 X100. X101.", "M98 P100", "G4 X1", "G28 X0"]
+                 "/G1 X100.", "G54.1", "G43 Z1", "G1 X100. X101.", "M98 P100", "G4 X1", "G28 X0"]
 
 
 @pytest.mark.parametrize("bad", REFUSED_LINES)
@@ -311,7 +312,7 @@ def test_replan_reuses_points_bit_for_bit(tmp_path, grinder, field, seg):
     the one a fresh plan gives, bit for bit."""
     path = tmp_path / "gen.nc"
     path.write_bytes(_program(2, LINES_PER_PROGRAM, incremental=False).encode("latin-1"))
-    tp0 = pathio.read_path(path, grinder)
+    tp0 = pathio.read_path(path, grinder, work_offsets=read_work_offsets(MACHINE))  # G54 read as machine zero
     tp = pathio.replan(tp0, grinder, max_segment_mm=seg, field=field)
     ref = pathio.gcode_toolpath(pathio.plan_gcode(tp0.source.program, grinder, 0.5, seg, field), grinder, path)
     for a, b in ((tp.axes, ref.axes), (tp.targets_mm, ref.targets_mm), (tp.lines, ref.lines)):

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from compensation.app.cli import main
 from compensation.gcode import tokenize
+from compensation.nc_state import read_work_offsets
 from compensation.pathio import read_path, render_gcode, replan
 from compensation.solvers import solve
 from errormap.htm import HTMField
@@ -53,6 +54,8 @@ def read_options(exp: dict) -> dict:
         opts["block_delete"] = exp["block-delete"]
     if "rapids" in exp:
         opts["rapids"] = exp["rapids"]
+    if "work-offsets" in exp:
+        opts["work_offsets"] = read_work_offsets(exp["work-offsets"])
     return opts
 
 

@@ -188,7 +188,7 @@ def test_compensate_mill_program_exact_true_residual(tmp_path, mill_models):
     truth, est = mill_models
     out = tmp_path / "out"
     assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method", "exact",
-                 "--out", str(out), "--truth", str(truth)]) == 0
+                 "--out", str(out), "--truth", str(truth), "--work-offsets", "machine"]) == 0  # its G54 = machine axes
     src = MILL_PROGRAM.read_bytes().decode("latin-1").splitlines(keepends=True)
     dst = (out / MILL_PROGRAM.name).read_bytes().decode("latin-1").splitlines(keepends=True)
     from compensation.mt_gcode import parse_chain_program
@@ -198,7 +198,8 @@ def test_compensate_mill_program_exact_true_residual(tmp_path, mill_models):
     assert len(fixed) >= 25
     assert _subsequence(fixed, dst)  # every non-motion line (and kept rapid) byte-identical, in order
     added = [ln for ln in dst if ln not in fixed]
-    assert all(ln.lstrip().startswith(("N", "X", "Y", "Z")) for ln in added)
+    assert added[0] == "(volcomp: work offsets taken as machine zero [--work-offsets machine])\n"  # recorded
+    assert all(ln.lstrip().startswith(("N", "X", "Y", "Z")) for ln in added[1:])
     import re
     words = re.sub(r"\([^)]*\)", "", "".join(added))
     assert not re.search(r"[IJR][-+.\d]|G[23]\b", words)  # arcs became G1 chords
@@ -208,12 +209,13 @@ def test_compensate_mill_program_exact_true_residual(tmp_path, mill_models):
     assert e["true"]["max_um"] < TRUE_RESIDUAL_MAX_UM
     assert e["true_uncompensated"]["max_um"] > UNCOMPENSATED_MIN_UM
     assert e["kept_axes"] == [] and e["compensated_axes"] == ["x_mm", "y_mm", "z_mm"]
+    assert e["work_offsets"] == "machine" and e["work_systems_used"] == ["G54"]
 
 
 @pytest.mark.parametrize("line, what", [
     ("G1 X10. B5.", "has no B axis"),
     ("G2 X10. Y10. I5. K0.", "'K' on a G17 arc"),
-    ("G43 H1 Z-10.", "tool length offset"),
+    ("G43 H1 G1 Z-10.", "tool length offset H1: tool 1 is not known (no tool table was given)"),
     ("G1 X1e2", "exponent"),
 ])
 def test_chain_gcode_refusals(tmp_path, mill_models, capsys, line, what):

@@ -113,7 +113,8 @@ def test_compensate_and_predict_conditions_are_refused_in_one_line(tmp_path, cap
     el = f.elements.save(tmp_path / "updated_elements.json")
     p = save_chain_model(tmp_path / "model.json", mt, el, f.terms, "updated_plus_effects")
     out = tmp_path / "c"
-    base = ["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(p), "--method", "exact"]
+    base = ["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(p), "--method", "exact",
+            "--work-offsets", "machine"]  # the program's G54 is the machine's axes
     assert main([*base, "--out", str(out)]) == 2
     err = [ln for ln in capsys.readouterr().err.strip().splitlines() if not ln.startswith("compensate: model ")]
     assert len(err) == 1 and "--temp-c" in err[0] and "--dir-z" in err[0]   # one line, no traceback
@@ -194,7 +195,7 @@ def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
                     ("updated_elements_only", d / "diag" / "updated_elements.json")):
         out = d / f"c_{name}"
         assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(m), "--method", "exact",
-                     "--out", str(out), "--truth", str(d / "sim" / "truth.json")]) == 0
+                     "--out", str(out), "--truth", str(d / "sim" / "truth.json"), "--work-offsets", "machine"]) == 0
         true[name] = json.loads((out / "compensate_summary.json").read_text())["files"][0]
     loop = true["loop"]["true"]
     assert loop["rms_um"] < TOL_TRUE_RMS_UM and loop["max_um"] < TOL_TRUE_MAX_UM

@@ -93,7 +93,7 @@ def test_a_gantry_mill_written_in_a_file_goes_through_the_whole_path(tmp_path, c
     prog.write_text(PROGRAM, encoding="utf-8")
     capsys.readouterr()
     assert main(["compensate", str(prog), "--machine", str(mf), "--model", str(tmp_path / "d" / "model.json"),
-                 "--method", "exact", "--truth", str(tmp_path / "sim" / "truth.json"),
+                 "--method", "exact", "--truth", str(tmp_path / "sim" / "truth.json"), "--work-offsets", "machine",
                  "--out", str(tmp_path / "c")]) == 0
     f = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
     assert f["failures"] == 0 and f["model_max_um"] <= 1e-6

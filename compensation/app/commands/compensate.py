@@ -52,6 +52,8 @@ from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options,
 from ..workflows.compensate import CompensateSettings, compensate_files
 from ... import guards
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
+from ...dialects import DIALECT_NAMES
+from ...nc_state import MACHINE, read_tool_table, read_work_offsets
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM
 from ...solvers import METHODS
 
@@ -98,6 +100,18 @@ def register(sub):
                    help="machine-tool chains whose solver moves a rotary axis (lathe-xzc's C): refuse a point whose "
                         "compensated rotary command differs from the programmed one by more than DEG (default: only "
                         "the ball's bound asin(ball/r), r the target's distance from the axis)")
+    p.add_argument("--dialect", default="auto", choices=("auto", *DIALECT_NAMES),
+                   help="the controller the G-code is written for: its harmless M codes, program numbers, look-ahead "
+                        "and block-delete rules (compensation/dialects.py); auto (default): recognised from the "
+                        "program's content (shown in the summary), else the words every controller shares")
+    p.add_argument("--work-offsets", default=None, metavar="FILE|machine",
+                   help="the controller's work offsets (G54..G59.3, G54.1 Pn): a LinuxCNC parameter file (.var) or a CSV "
+                        "system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg] (by content); 'machine': the program is written in "
+                        "machine coordinates (recorded in the summary and the output). A program that selects a work "
+                        "system is refused without it")
+    p.add_argument("--tool-table", default=None, metavar="FILE",
+                   help="machine-tool chains: the tool lengths of G43 Hn: a LinuxCNC tool table (.tbl) or a CSV "
+                        "tool,length_mm[,radius_mm] (by content); the tool length is the Abbe arm of the angular errors")
     add_condition_options(p)
     add_units_option(p, "CSV tool-path columns")
     add_cluster_options(p)
@@ -147,7 +161,10 @@ def chain_settings(machine, args, allow):
                          rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
                          units=args.units, truth=args.truth, seed=args.seed, show=args.show,
                          rotary_limit_deg=getattr(args, "max_rotary_correction_deg", None), conditions=conditions,
-                         tracking_uri=getattr(args, "tracking_uri", None))
+                         tracking_uri=getattr(args, "tracking_uri", None), dialect=getattr(args, "dialect", None),
+                         work_offsets=(read_work_offsets(args.work_offsets)
+                                       if getattr(args, "work_offsets", None) is not None else None),
+                         tool_table=read_tool_table(args.tool_table) if getattr(args, "tool_table", None) else None)
 
 
 def run(args) -> int:
@@ -155,6 +172,9 @@ def run(args) -> int:
     if getattr(args, "max_rotary_correction_deg", None) is not None and machine.kind != "machine-tool":
         raise UsageError(f"--max-rotary-correction-deg: only on machine-tool chains whose solver moves a rotary axis "
                          f"(e.g. lathe-xzc); {machine.name!r} is a {machine.kind} machine")
+    if machine.kind == "serial" and (args.work_offsets is not None or args.tool_table is not None):
+        raise UsageError("--work-offsets, --tool-table: G-code programs of machine tools only (a serial arm's program "
+                         "is joint angles)")
     if machine.kind == "serial":
         from ..workflows.arm_compensate import run_arm_compensate
         return run_arm_compensate(machine, args)
@@ -166,6 +186,9 @@ def run(args) -> int:
     if args.truth is not None:
         raise UsageError("--truth: the true residual of a compensated program is reported on machine-tool chains; "
                          "for the grinder use `volcomp report --truth`")
+    if args.tool_table is not None or (args.work_offsets not in (None, MACHINE)):
+        raise UsageError("--work-offsets FILE, --tool-table: machine-tool chains apply them (--machine mill-xyz ...); "
+                         "the grinder takes --work-offsets machine only (a program in machine coordinates)")
     max_segment = parse_max_segment(args.max_segment_mm)
     allow = parse_allow(args.allow)
     settings = CompensateSettings(
@@ -173,7 +196,8 @@ def run(args) -> int:
         tracking_uri=args.tracking_uri, seed=args.seed, allow=allow, rapids=args.rapids,
         block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
         max_segment_mm=max_segment, conditions=conditions_from_args(args), chunk_points=args.chunk_points,
-        units=args.units)  # the shared unit check of CSV paths and conditions (errormap/units.py)
+        units=args.units, work_offsets=read_work_offsets(MACHINE) if args.work_offsets == MACHINE else None,
+        dialect=args.dialect)  # the shared unit check of CSV paths and conditions (errormap/units.py)
     check_cluster_args(args)
     check_machine_kind(machine.path, machine.kind, "grinder")
     try:

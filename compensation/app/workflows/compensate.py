@@ -66,6 +66,8 @@ class CompensateSettings:
     conditions: dict = field(default_factory=dict)
     chunk_points: int = CHUNK_POINTS
     units: str = "check"   # errormap/units.py: "as-written" skips the likely-unit-mistake tests (recorded)
+    work_offsets: object = None  # compensation.nc_state.WorkOffsets: only MACHINE on the grinder (or None)
+    dialect: str | None = None   # compensation.dialects: a name, "auto" or None
 
 
 @dataclass
@@ -180,6 +182,9 @@ def solve_paths(paths, field_, machine, s: CompensateSettings, conds, executor=N
     return out
 
 
+WORK_OFFSETS_MACHINE_NOTE = "volcomp: work offsets taken as machine zero (--work-offsets machine)"
+
+
 def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, cond=None) -> FileOutcome:
     """Guard and render one parsed tool path ``tp`` read from ``src``, solved as ``res``, to be
     written to ``dst`` (in memory; nothing is written). ``cond``: per-point conditions
@@ -214,6 +219,9 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, co
                       "rapids": s.rapids, "block_delete": s.block_delete,
                       "arc_tolerance_um": job.arc_tolerance_um, "max_segment_mm": job.max_segment_mm,
                       "field_curvature_um_per_mm2": job.curvature_um_per_mm2})
+        if s.work_offsets is not None:
+            entry["work_offsets"] = s.work_offsets.source
+        entry["dialect"], entry["dialect_evidence"] = job.program.dialect, job.program.dialect_evidence
     outcome = FileOutcome(src, dst, entry, None, viol, kept_violations=len(kept))
     if blocking or kept_blocking:
         entry["refused"] = True
@@ -226,7 +234,9 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, co
         if entry["overridden"]:
             comments.insert(0, override_note(s, entry))
         elif tp.kind == "gcode":
-            comments = []  # a clean G-code output gets no added lines
+            comments = []  # a clean G-code output gets no added lines ...
+        if tp.kind == "gcode" and s.work_offsets is not None:  # ... but the one the user said about its frame
+            comments.insert(0, WORK_OFFSETS_MACHINE_NOTE)
         outcome.text = render_compensated(tp, res.axes, res.commands_mm, comments=comments)
     return outcome
 
@@ -252,7 +262,8 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
     notice_cold_kernels(*kernel_modules(s.method))  # one line before numba's first compilation after install
     # parse and validate every input first: a bad file fails the batch before any work or output
     read_opts = {"rapids": s.rapids, "block_delete": s.block_delete, "arc_tolerance_um": s.arc_tolerance_um,
-                 "units": s.units, "units_option": "--units"}
+                 "units": s.units, "units_option": "--units", "work_offsets": s.work_offsets,
+                 "dialect": s.dialect}
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     source = resolve_model(s.model)  # by content (format key), printed and recorded in the summary
     print(f"compensate: model {source.description}", file=sys.stderr)

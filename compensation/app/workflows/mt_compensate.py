@@ -32,24 +32,29 @@ from ... import guards
 from ...fields import load_chain_field, require_kind, resolve_model
 from ...gcode import DEFAULT_RAPIDS
 from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
+from ...nc_state import MACHINE, field_with_tool, machine_with_tool, program_frames
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, is_csv
 from ...solvers.chain_exact import nominal_and_jacobian, solved_and_kept
-from .compensate import SUMMARY_NAME, check_out_dir, plan_outputs
+from .compensate import SUMMARY_NAME, WORK_OFFSETS_MACHINE_NOTE, check_out_dir, plan_outputs
 
 DECIMALS = {"mm": 6, "deg": 6}  # 1 nm; 1e-6 deg
 
 
 @dataclass
 class ChainPath:
-    """One input: ``kind`` ``"gcode"`` or ``"csv-axes"``, ``axes`` (n, k) nominal axes of every
-    point (vertex), ``lines`` (n,) source line (G-code) or row (CSV), ``source`` the parsed job or
-    table."""
+    """One input: ``kind`` ``"gcode"`` or ``"csv-axes"``, ``axes`` (n, k) nominal MACHINE axes of
+    every point (vertex; a program's points placed by its work offsets and tool lengths), ``lines``
+    (n,) source line (G-code) or row (CSV), ``source`` the parsed job or table."""
 
     path: Path
     kind: str
     axes: np.ndarray
     lines: np.ndarray
     source: object
+    shift: np.ndarray | None = None
+    """Machine minus program axes per point (n, k): work offset and tool length (None: zero)."""
+    tool_mm: np.ndarray | None = None
+    """The active tool length per point (n,) mm; NaN (or None): the machine file's own tool."""
 
 
 @dataclass
@@ -77,6 +82,9 @@ class ChainSettings:
     rotary_limit_deg: float | None = None
     conditions: dict = field(default_factory=dict)
     tracking_uri: str | None = None
+    dialect: str | None = None   # compensation.dialects: a name, "auto" or None
+    work_offsets: object = None  # compensation.nc_state.WorkOffsets (None: not given)
+    tool_table: object = None    # compensation.nc_state.ToolTable (None: not given)
 
 
 def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
@@ -93,11 +101,21 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
         check_units(path, rows, machine=machine, axes=axes, axes_columns=cols, coverage="path", units=s.units,
                     option="--units")
         return ChainPath(path, "csv-axes", axes, rows, t)
-    prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete)
-    job = plan_chain_gcode(prog, s.arc_tolerance_um, field_)
-    check_units(path, job.lines, machine=machine, axes=job.axes, axes_columns=machine.axis_columns, coverage="path",
+    prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect)
+    frames = program_frames(prog, s.work_offsets, s.tool_table)
+    t = prog.table
+    comp = t.line[t.compensate] if t is not None else np.array([m.index for m in prog.moves if m.compensate], int)
+    unknown = ~np.isfinite(frames.at(comp)[0]).all(axis=1)
+    if unknown.any():
+        raise InputError(f"{path}: line {int(comp[np.argmax(unknown)]) + 1}: a move in the controller's power-on work "
+                         f"system G54, which {s.work_offsets.source if s.work_offsets else 'no table'} does not give: "
+                         "give G54 in --work-offsets (or select a work system before the first move)")
+    job = plan_chain_gcode(prog, s.arc_tolerance_um, field_, frames)
+    shift = job.shift
+    axes = job.axes + shift
+    check_units(path, job.lines, machine=machine, axes=axes, axes_columns=machine.axis_columns, coverage="path",
                 units=s.units, option="--units")
-    return ChainPath(path, "gcode", job.axes, job.lines, job)
+    return ChainPath(path, "gcode", axes, job.lines, job, shift, job.tool_mm)
 
 
 def _render(tp: ChainPath, axes, machine, comments) -> str:
@@ -118,6 +136,89 @@ def true_residual_um(truth_field, machine, axes, targets_mm) -> np.ndarray:
     minus the targets."""
     p, _ = nominal_and_jacobian(machine, axes)
     return (p - targets_mm) * 1e3 + truth_field.predict(axes)
+
+
+def solve_by_tool(method, field_, truth, machine, tp: ChainPath, **options):
+    """Solve every point of ``tp`` on the chain with its active tool length (one solve per tool:
+    :func:`compensation.nc_state.machine_with_tool`, the field and the truth at that tool point):
+    ``(SolveResult over all points in order, targets (n, 3) mm, TRUE residual (n, 3) μm or None, TRUE
+    residual of the program as written or None)``."""
+    from ...solvers import solve
+    from ...solvers.base import SolveResult
+    n = len(tp.axes)
+    tool = np.full(n, np.nan) if tp.tool_mm is None else np.asarray(tp.tool_mm, float)
+    keys = np.where(np.isfinite(tool), tool, -np.inf)
+    parts = []
+    for key in np.unique(keys):
+        idx = np.flatnonzero(keys == key)
+        mt, f, tr = machine, field_, truth
+        if np.isfinite(key):
+            try:
+                mt = machine_with_tool(machine, float(key))
+                f = field_with_tool(field_, mt)
+                tr = field_with_tool(truth, mt) if truth is not None else None
+            except (ValueError, TypeError) as exc:
+                raise UsageError(f"--tool-table: tool length {key:g} mm: {exc}") from None
+        ax = tp.axes[idx]
+        targets, _ = nominal_and_jacobian(mt, ax)
+        res = solve(method, f, targets, mt, target_axes=ax, progress=False, **options)
+        true = true_residual_um(tr, mt, res.axes, targets) if tr is not None else None
+        base = true_residual_um(tr, mt, ax, targets) if tr is not None else None
+        parts.append((idx, res, targets, true, base))
+    if len(parts) == 1:
+        return parts[0][1:]
+
+    def cat(get, width):
+        out = np.empty((n,) + width, dtype=get(parts[0]).dtype)
+        for p in parts:
+            out[p[0]] = get(p)
+        return out
+
+    first = parts[0][1]
+    info = dict(first.info)
+    if any("rotary_refused" in p[1].info for p in parts):
+        info["rotary_refused"] = [int(p[0][i]) for p in parts for i in p[1].info.get("rotary_refused", ())]
+        info["rotary_reasons"] = [r for p in parts for r in p[1].info.get("rotary_reasons", ())]
+    res = SolveResult(first.method, cat(lambda p: p[1].targets_mm, (3,)), cat(lambda p: p[1].commands_mm, (3,)),
+                      cat(lambda p: p[1].axes, (tp.axes.shape[1],)), cat(lambda p: p[1].residual_um, (3,)),
+                      cat(lambda p: p[1].correction_um, ()), cat(lambda p: p[1].success, ()),
+                      sum(p[1].nfev for p in parts), sum(p[1].seconds for p in parts), first.message, info)
+    true = cat(lambda p: p[3], (3,)) if truth is not None else None
+    base = cat(lambda p: p[4], (3,)) if truth is not None else None
+    return res, cat(lambda p: p[2], (3,)), true, base
+
+
+CUTTER_STEP_MM = 0.5
+"""Step of the central differences of the field's gradient (its elements vary over tens of mm)."""
+
+
+def cutter_radius_bound_um(field_, machine, tp: ChainPath):
+    """Under cutter radius compensation (G41/G42 D) the controller cuts up to the tool radius r away from
+    the compensated point, where the error differs by at most |dE/dp|·r: that bound (μm, the largest over
+    the points under G41/G42; the spectral norm of the field's gradient along the linear axes, central
+    differences of :data:`CUTTER_STEP_MM`, at the tool each point runs with). None: no G41/G42 in the program."""
+    job = tp.source
+    if job.frames is None or job.frames.radius_mm is None:
+        return None
+    r = job.frames.radius(job.lines - 1)
+    on = np.flatnonzero(np.isfinite(r))
+    if not on.size:
+        return None
+    lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
+    tool = tp.tool_mm[on]
+    keys = np.where(np.isfinite(tool), tool, -np.inf)
+    out = 0.0
+    for key in np.unique(keys):
+        idx = on[keys == key]
+        f = field_ if not np.isfinite(key) else field_with_tool(field_, machine_with_tool(machine, float(key)))
+        q = tp.axes[idx]
+        G = np.empty((len(idx), 3, len(lin)))
+        for c, j in enumerate(lin):
+            d = np.zeros(q.shape[1])
+            d[j] = CUTTER_STEP_MM
+            G[:, :, c] = (f.predict(q + d) - f.predict(q - d)) / (2 * CUTTER_STEP_MM)
+        out = max(out, float((np.linalg.norm(G, ord=2, axis=(1, 2)) * r[idx]).max()))
+    return out
 
 
 def _stats(r) -> dict:
@@ -195,7 +296,7 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
     """Compensate the tool-path ``files`` (G-code or axis CSV, told apart by content) of the machine-tool
     chain ``machine`` as ``s`` says; every input read and checked first, the accepted files written as one
     set with ``compensate_summary.json`` last. Returns the exit status (0, or 3: a file refused by a guard)."""
-    from ...solvers import solve, solver_spec
+    from ...solvers import solver_spec
     check_chain_settings(machine, s)
     allow, conditions, rotary_limit = s.allow, s.conditions, s.rotary_limit_deg
     plan = plan_outputs(files, s.out_dir)
@@ -217,17 +318,17 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
     paths = [read_chain_path(p, machine, s, field_) for p, _ in plan]
     outcomes = []
     for (p, dst), tp in zip(plan, paths):
-        targets, _ = nominal_and_jacobian(machine, tp.axes)
         seeded = {"seed": s.seed} if solver_spec(s.method).seeded else {}
         limit = {"rotary_limit_deg": rotary_limit} if rotary_limit is not None else {}
-        res = solve(s.method, field_, targets, machine, target_axes=tp.axes, progress=False, **seeded, **limit)
+        res, targets, true_r, true_base = solve_by_tool(s.method, field_, truth, machine, tp, **seeded, **limit)
         report = guards.check(res, machine, field_, allow=allow, target_axes=tp.axes)
         rotary_refused = rotary_refusals(res, report)
         kept = []
         if tp.kind == "gcode" and len(tp.source.kept_lines):
             job = tp.source
             mid = 0.5 * (machine.stroke_lo + machine.stroke_hi)
-            ka = np.where(np.isfinite(job.kept_axes), job.kept_axes, mid)
+            km = job.kept_machine_axes
+            ka = np.where(np.isfinite(km), km, mid)
             idx, reasons = guards.stroke_violations(ka, machine)
             kept = [(int(job.kept_lines[i]), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
         norm = np.linalg.norm(res.residual_um, axis=1)
@@ -247,15 +348,19 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
             entry["rotary_refused"] = rotary_refused
             entry["rotary_limit_deg"] = res.info.get("rotary_limit_deg")
         if truth is not None:
-            entry["true"] = _stats(true_residual_um(truth, machine, res.axes, targets))
-            entry["true_uncompensated"] = _stats(true_residual_um(truth, machine, tp.axes, targets))
+            entry["true"] = _stats(true_r)
+            entry["true_uncompensated"] = _stats(true_base)
             entry["truth"] = str(s.truth)
             entry["truth_conditions"] = "reference: 20 C, positive approach on every axis"
         if tp.kind == "gcode":
             job = tp.source
             entry.update({"lines": len(job.program.lines), "moves_compensated": len(job.vertices),
                           "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids,
-                          "arc_tolerance_um": s.arc_tolerance_um})
+                          "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
+                          "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
+            bound = cutter_radius_bound_um(field_, machine, tp)
+            if bound is not None:
+                entry["cutter_radius_bound_um"] = bound
         blocking = report.blocking
         refused = bool(blocking) or (bool(kept) and "stroke" not in report.allowed)
         text = None
@@ -275,7 +380,9 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
             elif tp.kind != "gcode":
                 comments = [f"compensated by volcomp: method={s.method} model={s.model} machine={machine.name}",
                             f"model residual max {entry['model_max_um']:.4g} um"]
-            text = _render(tp, res.axes, machine, comments)
+            if tp.kind == "gcode" and s.work_offsets is not None and s.work_offsets.source == MACHINE:
+                comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
+            text = _render(tp, res.axes - tp.shift if tp.shift is not None else res.axes, machine, comments)
         outcomes.append((p, dst, tp, entry, text, listed, kept if refused else []))
         status = "REFUSED (not written)" if refused else f"-> {dst}"
         tail = ""
@@ -286,6 +393,16 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
               f"{entry['max_correction_um']:.1f} um{tail}, guard violations {sum(viol.values())} {status}")
         if entry.get("note"):
             print(f"  {entry['note']}")
+        if tp.kind == "gcode":
+            print(f"  dialect {entry['dialect']}" + (f" ({entry['dialect_evidence']})" if entry["dialect_evidence"] else "")
+                  + f"; work offsets: {entry['work_offsets']}" + (f"; tools {entry['tools_used']}" if entry["tools_used"]
+                                                                   else ""))
+            if entry["g53_lines"]:
+                print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
+                      "through unchanged, not compensated")
+            if "cutter_radius_bound_um" in entry:
+                print(f"  G41/G42 cutter radius compensation: the path is compensated as programmed; the error it "
+                      f"leaves is at most {entry['cutter_radius_bound_um']:.3g} um (field gradient x tool radius)")
         if rotary_refused:
             print(f"  rotary continuity: {rotary_refused} point(s) refused (their rotary correction exceeds "
                   f"asin(ball/r){' or the limit' if rotary_limit is not None else ''}; programmed axes kept)")

@@ -1,5 +1,5 @@
 %
-O1000 (expect: compensate)
+O1000 (expect: compensate work-offsets=machine)
 (FANUC-LIKE, N NUMBERS, R ARCS)
 N10 G21 G90 G18 G40 G49 G80
 N20 G54

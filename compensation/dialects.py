@@ -1,0 +1,134 @@
+"""Controller dialects of G-code, as data: what each controller's manual says about the words that
+differ between them (one table, :data:`DIALECTS`), and the dialect of a program recognised from its
+content (:func:`detect_dialect`; never from the file's name).
+
+What differs (and what the reader does with it, :mod:`compensation.gcode`):
+
+* **program numbers**: ``O1234`` on every controller; ``:1234`` (the ISO-code program-number address)
+  on Fanuc and Siemens ISO mode;
+* **harmless M codes**: the codes that move no axis and call no program (stops, spindle, coolant,
+  tool change, overrides, clamps, chip conveyors); the common ones on every dialect
+  (:data:`COMMON_M`), the others only on their controller (Haas ``M31`` chip auger …). Program
+  calls (``M98``/``M99``/``M97``), loops (Mach3 ``M47``) and user M codes stay refused;
+* **look-ahead**: Fanuc ``G05.1 Q1`` (AI contour control) / ``Q0`` and Haas ``G187`` set a
+  smoothing mode, not a path: read as state; on LinuxCNC ``G5.1`` is a quadratic spline (refused);
+* **G80 with a motion code on one line** (``G80 G0 X..``): Fanuc, Haas, Siemens ISO and Mach3 cancel
+  the cycle and take the motion code; LinuxCNC refuses two group-1 codes on one line (so does the
+  reader, without a dialect);
+* **block delete** ``/``: every dialect but grbl (which has no block-delete switch) skips the line
+  when the switch is on (``--block-delete``).
+
+Sources: LinuxCNC G- and M-code reference (linuxcnc.org/docs, "M-Codes": M0-M9, M19, M48-M53, M60,
+M61-M68, M70-M73 state, M100-M199 user); Fanuc Series 0i/30i operator's manuals (program number
+``O``/``:``, ``G05.1 Q1`` AI contour control); Haas mill operator's manual (M-code chapter: M10/M11
+4th-axis brake, M12/M13 5th-axis brake, M16 tool change, M19 orient, M31/M33 chip auger, M41/M42
+gear, M83/M84 air jet, M88/M89 through-spindle coolant; G187 smoothness); Siemens Sinumerik 840D
+ISO dialect manual (Fanuc-compatible ISO mode, G291); Mach3 Mill G/M code list (M47 repeats the
+program); grbl v1.1 command reference (M0 M1 M2 M30 M3-M5 M7-M9 M56; no block delete; grbl writes no
+word of its own, so it is named, never recognised). LinuxCNC's M62-M68 (outputs, inputs) take P/E/Q
+words the reader does not read: refused.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+DIALECT_NAMES = ("fanuc", "haas", "linuxcnc", "siemens-iso", "mach3", "grbl")
+COMMON_M = frozenset({0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30})
+"""Program stop/end, spindle, tool change, coolant: the same meaning on every dialect read here."""
+RS274 = "rs274"
+"""No dialect named or recognised: the words common to all (the reader's allow-lists)."""
+
+
+@dataclass(frozen=True)
+class Dialect:
+    """One controller's rules: ``m_codes`` harmless M codes {code: meaning}; ``program_number``
+    letters (``"O"``, ``":"``); ``modes`` G codes that set a controller mode and move nothing
+    (look-ahead / smoothing, the ISO-dialect switch) {code: meaning};
+    ``g80_with_motion`` G80 and a motion code on one line; ``block_delete`` the ``/`` switch exists."""
+
+    name: str
+    m_codes: dict
+    program_number: tuple = ("O",)
+    modes: dict = field(default_factory=dict)
+    g80_with_motion: bool = False
+    block_delete: bool = True
+
+
+LOOKAHEAD = "look-ahead / AI contour control (Q1 on, Q0 off; Q2 smooth interpolation refused)"
+_COMMON = {0: "program stop", 1: "optional stop", 2: "program end", 3: "spindle cw", 4: "spindle ccw",
+           5: "spindle stop", 6: "tool change", 7: "mist coolant", 8: "flood coolant", 9: "coolant off",
+           30: "program end and rewind"}
+DIALECTS = {
+    "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
+                                     50: "feed override control", 51: "spindle override control",
+                                     52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"}),
+    "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off"},
+                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD}, g80_with_motion=True),
+    "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
+                             13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
+                             31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
+                             35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
+                             84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
+                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)"}, g80_with_motion=True),
+    "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
+                           program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode"},
+                           g80_with_motion=True),
+    "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True),
+    "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False),
+}
+GENERIC = Dialect(RS274, {**_COMMON, 48: "overrides on", 49: "overrides off", 50: "feed override control",
+                          51: "spindle override control", 52: "adaptive feed", 53: "feed stop control",
+                          60: "pallet change pause"})
+"""The reader without a dialect (what every controller read here agrees on)."""
+
+MARKERS = {  # content that only one dialect writes: (pattern, what it is)
+    "linuxcnc": ((r"(?im)^\s*/?\s*(?:n\d+\s*)?o\s*<", "o<name> subroutine"), (r"#<", "#<name> parameter")),
+    "fanuc": ((r"(?im)^\s*:\s*\d", "':' program number"), (r"(?i)G0?5\.1\s*Q", "G05.1 Q look-ahead")),
+    "haas": ((r"(?i)\bG187\b", "G187 smoothness"), (r"(?i)\bG154\s*P", "G154 P work offset"),
+             (r"(?i)\bM31\b", "M31 chip auger")),
+    "siemens-iso": ((r"(?i)\bG291\b", "G291 ISO mode"),),
+}
+DETECT_BYTES = 1 << 20
+"""Detection reads the first MiB (a program declares its dialect near the top, and a marker further on
+is still refused by the reader with the option to name)."""
+
+
+def dialect(name: str | None) -> Dialect:
+    """The :class:`Dialect` called ``name``; None or :data:`RS274`: :data:`GENERIC`."""
+    if name is None or name == RS274:
+        return GENERIC
+    if name not in DIALECTS:
+        raise ValueError(f"Expected a dialect from {list(DIALECT_NAMES)}, got {name!r}")
+    return DIALECTS[name]
+
+
+def detect_dialect(text: str) -> tuple:
+    """``(name, evidence)`` from a program's content: the dialect whose markers (:data:`MARKERS`) it
+    holds — haas and siemens-iso win over fanuc where both match (Fanuc-compatible, adding their own); no
+    marker: ``(RS274, "")``; markers of two other dialects: ``ValueError`` naming them (give
+    ``--dialect``)."""
+    head = text[:DETECT_BYTES]
+    found = {}
+    for name, pats in MARKERS.items():
+        for pat, what in pats:
+            if re.search(pat, head):
+                found.setdefault(name, what)
+    if "haas" in found or "siemens-iso" in found:  # Fanuc-compatible controllers that add their own words
+        found.pop("fanuc", None)
+    if not found:
+        return RS274, ""
+    if len(found) > 1:
+        raise ValueError("the program holds words of several dialects (" +
+                         ", ".join(f"{n}: {w}" for n, w in found.items()) + "): name it with --dialect")
+    name, what = next(iter(found.items()))
+    return name, what
+
+
+def other_dialects_with_m(code: float, current: str) -> str:
+    """``"; haas: chip auger forward (name it with --dialect)"``: the dialects that know an M code the
+    current one refuses (empty when none)."""
+    if code != int(code):
+        return ""
+    known = [f"{n}: {d.m_codes[int(code)]}" for n, d in DIALECTS.items() if n != current and int(code) in d.m_codes]
+    return f"; {', '.join(known)} (name the controller with --dialect)" if known else ""

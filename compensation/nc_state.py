@@ -1,0 +1,425 @@
+"""Controller state a program runs with: work offsets and tool lengths (read from the shop's files).
+
+The error map lives in machine coordinates; a program is written in part coordinates. The controller
+places the program's points in the machine by the active **work offset** (``G54``–``G59``,
+``G59.1``–``G59.3``, ``G54.1 Pn``) and the active **tool length** (``G43 Hn``; ``G49`` cancels):
+
+    machine axis = program axis + work offset (every axis word, linear mm, rotary deg)
+    machine Z    = ... + tool length (while ``G43 Hn`` is active, LinuxCNC / Fanuc rule)
+
+and the tool tip is then the machine file's tool point with its gauge length (the ``[geometry]``
+constant ``tool_length``) set to the tool table's length (:func:`errormap.mt_chain.with_tool_length`):
+the nominal tip does not depend on the tool, but the angular errors act on its Abbe arm.
+
+Tables, each recognised by content (never by the file's name):
+
+* work offsets (:func:`read_work_offsets`): a LinuxCNC parameter file (``.var``: lines ``NUMBER VALUE``;
+  system ``P`` = 1..9 (G54..G59.3) at parameters ``5221 + 20·(P−1)`` … ``+8`` for ``X Y Z A B C U V W``),
+  or a CSV ``system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg]`` (``system``: ``G54`` … ``G59.3``, ``G54.1P3``);
+  ``machine`` (:data:`MACHINE`): the program is in machine coordinates, every offset zero;
+* tool tables (:func:`read_tool_table`): a LinuxCNC tool table (``.tbl``: ``T1 P1 Z+150.0 D10.0 ;comment``)
+  or a CSV ``tool,length_mm[,radius_mm]``;
+* the program's own ``G10 L2 Pn`` (work offset) and ``G10 L1 Pn Z.. [R..]`` (tool) lines, in program order.
+
+Every bad row is refused naming the file, the row and the column. A program that selects a work
+system or a tool length it was not given is refused naming the word, the line and the option that
+supplies it (:func:`program_frames`). A program that selects no work system at all is read in machine
+coordinates, as written (the summary says so).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from errormap.io import InputError, decode_text
+
+MACHINE = "machine"
+"""``--work-offsets machine``: the program is written in machine coordinates (every offset zero)."""
+OFFSET_WORDS = ("X", "Y", "Z", "A", "B", "C", "U", "V", "W")
+"""LinuxCNC's order of a work system's nine parameters."""
+SYSTEMS = ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3")
+"""The work systems by their number P = 1..9 (``G10 L2 Pn``, LinuxCNC parameters)."""
+VAR_FIRST = 5221
+VAR_STEP = 20
+"""LinuxCNC: system P's X offset is parameter 5221 + 20·(P − 1), then Y Z A B C U V W, R (rotation) at +9."""
+VAR_G92 = (5211, 5219)
+"""LinuxCNC's G92 offsets (parameters 5211–5219): a non-zero one shifts every system; refused."""
+EXTENDED_MAX = 300
+"""``G54.1 Pn``: n from 1 to this (Fanuc: 48 or 300, by option)."""
+CSV_OFFSET_COLUMNS = {"x_mm": "X", "y_mm": "Y", "z_mm": "Z", "a_deg": "A", "b_deg": "B", "c_deg": "C"}
+_SYSTEM = re.compile(r"(G5[4-9](?:\.[123])?)(?:[ \t]*P[ \t]*(\d+))?", re.IGNORECASE)
+
+
+def system_name(code: str, p: int | None = None) -> str:
+    """``G54`` … ``G59.3``, or ``G54.1P3`` for an extended system."""
+    return f"{code}P{p}" if code == "G54.1" else code
+
+
+@dataclass(frozen=True)
+class WorkOffsets:
+    """Work offsets: ``systems`` ``{name: {axis word: value}}`` (mm, deg; absent words are zero);
+    ``source`` the file (or :data:`MACHINE`)."""
+
+    systems: dict
+    source: str
+
+    @property
+    def machine_coordinates(self) -> bool:
+        return self.source == MACHINE
+
+
+@dataclass(frozen=True)
+class ToolTable:
+    """Tools ``{number: (length_mm, radius_mm)}`` (radius NaN where not given); ``source`` the file."""
+
+    tools: dict
+    source: str
+
+
+def _refuse(path, row, col, msg):
+    return InputError(f"{path}: row {row}, column {col}: {msg}")
+
+
+def _number(text: str, path, row, col, what) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not np.isfinite(v):
+        raise _refuse(path, row, col, f"{what}: expected a number, got {text!r}")
+    return v
+
+
+def _content_lines(path) -> list:
+    """``(row, text)`` of the non-blank lines of a text file (1-based rows)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such file")
+    text = decode_text(p.read_bytes(), p)
+    return [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip()]
+
+
+def _csv_rows(path, lines):
+    """Header cells and the data rows ``(row, cells)`` of a CSV (``#`` lines are comments)."""
+    body = [(r, ln) for r, ln in lines if not ln.lstrip().startswith("#")]
+    if not body:
+        raise InputError(f"{path}: no header row")
+    head_row, head = body[0]
+    header = [c.strip().lower() for c in next(csv.reader(io.StringIO(head)))]
+    rows = [(r, [c.strip() for c in next(csv.reader(io.StringIO(ln)))]) for r, ln in body[1:]]
+    for r, cells in rows:
+        if len(cells) != len(header):
+            raise _refuse(path, r, min(len(cells), len(header)) + 1,
+                          f"expected {len(header)} cells (header row {head_row}), got {len(cells)}")
+    return header, rows
+
+
+def read_work_offsets(path) -> WorkOffsets:
+    """A work-offset table by content: ``machine`` (:data:`MACHINE`), a LinuxCNC parameter file or
+    a CSV (module docstring)."""
+    if str(path) == MACHINE:
+        return WorkOffsets({name: {} for name in SYSTEMS}, MACHINE)
+    lines = _content_lines(path)
+    first = next((ln for _, ln in lines if not ln.lstrip().startswith("#")), "")
+    if re.fullmatch(r"[ \t]*\d+[ \t]+\S+[ \t]*", first):
+        return _read_var(path, lines)
+    if "," in first and "system" in [c.strip().lower() for c in first.split(",")]:
+        return _read_offset_csv(path, lines)
+    raise InputError(f"{path}: row 1: not a work-offset table (expected a LinuxCNC parameter file, lines "
+                     "'NUMBER VALUE', or a CSV with the header system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg])")
+
+
+def _read_var(path, lines) -> WorkOffsets:
+    params = {}
+    for r, ln in lines:
+        parts = ln.split()
+        if len(parts) != 2 or not parts[0].isdigit():
+            raise _refuse(path, r, 1, f"expected 'NUMBER VALUE' (a LinuxCNC parameter line), got {ln.strip()[:40]!r}")
+        params[int(parts[0])] = (_number(parts[1], path, r, len(ln) - len(ln.lstrip()) + len(parts[0]) + 2,
+                                         f"parameter {parts[0]}"), r)
+    for n in range(VAR_G92[0], VAR_G92[1] + 1):
+        if n in params and params[n][0] != 0.0:
+            raise _refuse(path, params[n][1], 1, f"parameter {n} (a G92 offset) is {params[n][0]:g}: a G92 shift of "
+                                                 "every work system is not supported; clear it (G92.1)")
+    systems = {}
+    for p, name in enumerate(SYSTEMS, start=1):
+        base = VAR_FIRST + VAR_STEP * (p - 1)
+        if not all(base + j in params for j in range(3)):
+            continue
+        rot = params.get(base + 9, (0.0, 0))
+        if rot[0] != 0.0:
+            raise _refuse(path, rot[1], 1, f"parameter {base + 9} ({name} XY rotation) is {rot[0]:g}: rotated work "
+                                           "systems are not supported")
+        systems[name] = {w: params[base + j][0] for j, w in enumerate(OFFSET_WORDS) if base + j in params}
+    if not systems:
+        raise InputError(f"{path}: no work system in the parameter file (G54 is parameters {VAR_FIRST}-{VAR_FIRST + 2})")
+    return WorkOffsets(systems, str(path))
+
+
+def _read_offset_csv(path, lines) -> WorkOffsets:
+    header, rows = _csv_rows(path, lines)
+    unknown = [c for c in header if c != "system" and c not in CSV_OFFSET_COLUMNS]
+    if unknown:
+        raise _refuse(path, 1, header.index(unknown[0]) + 1, f"unknown column {unknown[0]!r} (expected system, "
+                                                             f"{', '.join(CSV_OFFSET_COLUMNS)})")
+    for need in ("x_mm", "y_mm", "z_mm"):
+        if need not in header:
+            raise InputError(f"{path}: missing column {need!r} (header system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg])")
+    systems = {}
+    js = header.index("system")
+    for r, cells in rows:
+        m = _SYSTEM.fullmatch(cells[js])
+        code = m.group(1).upper() if m else None
+        p = int(m.group(2)) if m and m.group(2) else None
+        if m is None or (code == "G54.1") != (p is not None) or (p is not None and not 1 <= p <= EXTENDED_MAX):
+            raise _refuse(path, r, js + 1, f"system: expected G54..G59, G59.1..G59.3 or G54.1Pn (n 1..{EXTENDED_MAX}), "
+                                           f"got {cells[js]!r}")
+        name = system_name(code, p)
+        if name in systems:
+            raise _refuse(path, r, js + 1, f"system {name} given twice")
+        systems[name] = {CSV_OFFSET_COLUMNS[c]: _number(cells[j], path, r, j + 1, c)
+                         for j, c in enumerate(header) if c != "system"}
+    if not systems:
+        raise InputError(f"{path}: no data rows")
+    return WorkOffsets(systems, str(path))
+
+
+def read_tool_table(path) -> ToolTable:
+    """A tool table by content: a LinuxCNC tool table or a CSV ``tool,length_mm[,radius_mm]``."""
+    lines = _content_lines(path)
+    first = next((ln for _, ln in lines if not ln.lstrip().startswith(("#", ";"))), "")
+    if re.match(r"[ \t]*[Tt][ \t]*\d", first):
+        return _read_tbl(path, lines)
+    if "," in first and "tool" in [c.strip().lower() for c in first.split(",")]:
+        return _read_tool_csv(path, lines)
+    raise InputError(f"{path}: row 1: not a tool table (expected LinuxCNC's 'T1 P1 Z+150.0 D10.0 ;comment' lines "
+                     "or a CSV with the header tool,length_mm[,radius_mm])")
+
+
+TBL_IGNORED = {"P": "pocket", "I": "front angle", "J": "back angle", "Q": "orientation"}
+"""LinuxCNC tool-table words that place no tool point (read and ignored)."""
+
+
+def _read_tbl(path, lines) -> ToolTable:
+    tools = {}
+    for r, ln in lines:
+        body = ln.split(";")[0]
+        if not body.strip():
+            continue
+        words = {}
+        for m in re.finditer(r"\S+", body):
+            tok = m.group()
+            letter, num = tok[0].upper(), tok[1:]
+            col = m.start() + 1
+            if letter not in "TPXYZABCUVWDIJQ" or letter in words:
+                raise _refuse(path, r, col, f"unexpected word {tok!r} (LinuxCNC tool table: T P X..W D I J Q)")
+            words[letter] = (_number(num, path, r, col, f"{letter} word"), col)
+        if "T" not in words:
+            raise _refuse(path, r, 1, "a tool line without T")
+        t, tcol = words["T"]
+        if t != int(t) or t < 0:
+            raise _refuse(path, r, tcol, f"T{t:g}: expected a tool number")
+        for letter, (v, col) in words.items():
+            if letter in "XYABCUVW" and v != 0.0:
+                raise _refuse(path, r, col, f"{letter}{v:g}: a tool offset along {letter} is not supported (only "
+                                            "the length Z and the diameter D)")
+        if int(t) in tools:
+            raise _refuse(path, r, tcol, f"tool {int(t)} given twice")
+        d = words.get("D", (float("nan"), 0))[0]
+        tools[int(t)] = (words.get("Z", (0.0, 0))[0], d / 2.0)
+    return ToolTable(tools, str(path))
+
+
+def _read_tool_csv(path, lines) -> ToolTable:
+    header, rows = _csv_rows(path, lines)
+    allowed = ("tool", "length_mm", "radius_mm")
+    unknown = [c for c in header if c not in allowed]
+    if unknown:
+        raise _refuse(path, 1, header.index(unknown[0]) + 1, f"unknown column {unknown[0]!r} (expected "
+                                                             f"{', '.join(allowed)})")
+    if "length_mm" not in header:
+        raise InputError(f"{path}: missing column 'length_mm' (header tool,length_mm[,radius_mm])")
+    tools = {}
+    jt, jl = header.index("tool"), header.index("length_mm")
+    jr = header.index("radius_mm") if "radius_mm" in header else None
+    for r, cells in rows:
+        t = cells[jt]
+        if not t.isdigit():
+            raise _refuse(path, r, jt + 1, f"tool: expected a tool number, got {t!r}")
+        if int(t) in tools:
+            raise _refuse(path, r, jt + 1, f"tool {int(t)} given twice")
+        radius = _number(cells[jr], path, r, jr + 1, "radius_mm") if jr is not None else float("nan")
+        if radius < 0:
+            raise _refuse(path, r, jr + 1, f"radius_mm: expected ≥ 0, got {radius:g}")
+        tools[int(t)] = (_number(cells[jl], path, r, jl + 1, "length_mm"), radius)
+    if not tools:
+        raise InputError(f"{path}: no data rows")
+    return ToolTable(tools, str(path))
+
+
+# ---------------------------------------------------------------------------- a program's frames
+@dataclass
+class ProgramFrames:
+    """Where a program's lines run in the machine. Segments in line order: ``first_line`` (m,) the
+    0-based line from which segment s holds, ``offset`` (m, k) mm / deg per axis word (the reader's
+    order), ``tool_mm`` (m,) the active tool length (NaN: none, the machine file's own tool);
+    ``notes``: what the summary records."""
+
+    first_line: np.ndarray
+    offset: np.ndarray
+    tool_mm: np.ndarray
+    notes: dict = field(default_factory=dict)
+    radius_mm: np.ndarray | None = None
+    """(m,) the cutter radius while G41/G42 is active (NaN: off)."""
+
+    def radius(self, lines0) -> np.ndarray:
+        """The active cutter radius compensation's radius (n,) mm at 0-based lines (NaN: off)."""
+        s = np.maximum(np.searchsorted(self.first_line, np.asarray(lines0, dtype=np.int64), side="right") - 1, 0)
+        return self.radius_mm[s]
+
+    def at(self, lines0) -> tuple:
+        """``(offset (n, k), tool_mm (n,))`` for 0-based source lines (n,)."""
+        s = np.searchsorted(self.first_line, np.asarray(lines0, dtype=np.int64), side="right") - 1
+        s = np.maximum(s, 0)
+        return self.offset[s], self.tool_mm[s]
+
+    def shift(self, lines0, words) -> np.ndarray:
+        """Machine axes minus program axes (n, k) at those lines: the offset plus the tool length on Z."""
+        off, tool = self.at(lines0)
+        out = off.copy()
+        if "Z" in words:
+            out[:, list(words).index("Z")] += np.where(np.isfinite(tool), tool, 0.0)
+        return out
+
+
+def _offset_vector(values: dict, words) -> np.ndarray:
+    return np.array([float(values.get(w, 0.0)) for w in words])
+
+
+def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None) -> ProgramFrames:
+    """The frames of a parsed program (:attr:`compensation.gcode.GProgram.events`, in line order)
+    with the tables given (None: not given). Refuses (InputError: file, line, column, word, the
+    option that supplies it) a work system or a tool not in the tables nor set by the program's own
+    ``G10`` lines before it."""
+    path, words = program.path, program.axis_words.words
+    table = {k: dict(v) for k, v in (offsets.systems if offsets else {}).items()}
+    tooltab = {k: v[0] for k, v in (tools.tools if tools else {}).items()}
+    radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
+    cutter = None
+    events = list(getattr(program, "events", ()) or ())
+    selects = any(e[2] in ("system", "g10-work") for e in events)  # relies on a work offset
+    # before any selection the controller runs its power-on G54: unknown (NaN) unless the tables give it;
+    # a program that selects no work system and was given no table is read in machine coordinates
+    system = "G54" if (selects or offsets is not None) else None
+    tool = None
+    first, offs, tls = [0], [], []
+    used_systems, used_tools = set(), set()
+
+    def current():
+        if system is None:
+            return np.zeros(len(words))
+        if system not in table:
+            return np.full(len(words), np.nan)
+        return _offset_vector(table[system], words)
+
+    offs.append(current())
+    tls.append(np.nan)
+    rads = [np.nan]
+    for line, col, kind, value, text in events:
+        where = f"{path}: line {line + 1}, column {col}: '{text}'"
+        if kind == "system":
+            if value not in table and offsets is not None and offsets.machine_coordinates:
+                table[value] = {}  # machine coordinates: every system's offset is zero, extended ones too
+            if value not in table:
+                if offsets is None:
+                    raise InputError(f"{where}: selects the work offset {value}, but no offset table was given: give "
+                                     "--work-offsets FILE (.var or CSV), G10 L2 in the program, or --work-offsets "
+                                     "machine (a program in machine coordinates)")
+                raise InputError(f"{where}: the work offset {value} is not in {offsets.source} (nor set by a G10 L2 "
+                                 "line before it): give it in --work-offsets")
+            system = value
+            used_systems.add(value)
+        elif kind == "tool":
+            if value is not None and value not in tooltab:
+                src = f"the tool table {tools.source}" if tools else "no tool table was given"
+                raise InputError(f"{where}: tool length offset H{value}: tool {value} is not known ({src}): give it in "
+                                 f"--tool-table FILE (.tbl or CSV) or G10 L1 P{value} Z.. before it")
+            if value is not None and "Z" not in words:
+                raise InputError(f"{where}: a tool length offset acts on Z; the machine has no Z axis")
+            tool = value
+            if value is not None:
+                used_tools.add(value)
+        elif kind == "g10-work":
+            name, vals = value
+            table.setdefault(name, {}).update(vals)
+        elif kind == "g10-tool":
+            tooltab[value[0]] = value[1][0]
+            if np.isfinite(value[1][1]):
+                radii[value[0]] = value[1][1]
+        elif kind == "cutter":
+            if value is not None and not np.isfinite(radii.get(value, np.nan)):
+                raise InputError(f"{where}: cutter radius compensation D{value}: the radius of tool {value} is not "
+                                 "known: give it in --tool-table (radius_mm, or D of a .tbl) or G10 L1 P.. R..")
+            cutter = value
+        first.append(line)
+        offs.append(current())
+        tls.append(tooltab[tool] if tool is not None else np.nan)
+        rads.append(radii[cutter] if cutter is not None else np.nan)
+    notes = {"work_offsets": (offsets.source if offsets else
+                              ("program G10 lines" if selects else "none: the program selects no work system; its "
+                               "axes are read as machine coordinates")),
+             "work_systems_used": sorted(used_systems),
+             "tool_table": tools.source if tools else None,
+             "tools_used": {int(t): float(tooltab[t]) for t in sorted(used_tools)}}
+    if system is not None or selects:
+        notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(table.get(s, {}), words)]
+                                   for s in sorted(used_systems)}
+    notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
+    notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
+    return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
+                         np.array(tls, dtype=float), notes, np.array(rads, dtype=float))
+
+
+# ---------------------------------------------------------------------------- the chain at a tool length
+TOOL_LENGTH_KEY = "tool_length"
+"""The ``[geometry]`` constant a machine-tool file's tool chain ends with (``tz = "-tool_length"``): the
+gauge length of its tool, spindle nose to tool point; a tool table's length replaces it."""
+
+
+def machine_with_tool(machine, length_mm: float):
+    """The machine-tool chain ``machine`` with its tool's gauge length set to ``length_mm`` (its file read
+    again with ``[geometry] tool_length`` replaced; the same file, checked by its sha256). A machine whose
+    file declares no ``tool_length`` raises ``ValueError``."""
+    import hashlib
+    import tomllib
+
+    from errormap.mt_chain import parse_machine_tool
+    if TOOL_LENGTH_KEY not in getattr(machine, "geometry", {}):
+        raise ValueError(f"the machine {machine.name!r} declares no [geometry] {TOOL_LENGTH_KEY} (the gauge length its "
+                         "tool chain ends with): a tool length offset cannot be applied to it")
+    raw = Path(machine.path).read_bytes()
+    if machine.sha256 and hashlib.sha256(raw).hexdigest() != machine.sha256:
+        raise ValueError(f"{machine.path}: the machine file changed since it was loaded")
+    doc = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
+    doc["geometry"][TOOL_LENGTH_KEY] = float(length_mm)
+    return parse_machine_tool(doc, machine.path, machine.sha256)
+
+
+def field_with_tool(field_, machine_at_tool):
+    """The error field ``field_`` evaluated on ``machine_at_tool`` (:func:`machine_with_tool`): the same
+    elements (and effects) at the other tool point. Fields that are element sets
+    (:class:`errormap.mt_field.ChainField`) or simulated truths; any other raises ``TypeError``."""
+    import dataclasses
+
+    from errormap.mt_field import ChainField
+    if isinstance(field_, ChainField):
+        return ChainField(machine_at_tool, field_.elements, field_.chunk)
+    truth = getattr(field_, "truth", None)
+    if truth is not None and hasattr(truth, "effects"):
+        return type(field_)(dataclasses.replace(truth, machine=machine_at_tool))
+    raise TypeError(f"a {type(field_).__name__} cannot be evaluated at another tool length (an element set can)")

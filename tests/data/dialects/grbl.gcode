@@ -1,0 +1,15 @@
+(grbl 1.1: G55 offsets held by the controller, M56 parking override)
+G21 G90 G17 G94
+G55
+M3 S12000
+G0 X10 Y10
+G0 Z-60
+G1 Z-80 F300
+G1 X60 Y10
+G1 X60 Y50
+G2 X40 Y70 I-20 J0
+G1 X10 Y70
+G1 X10 Y10
+G0 Z-60
+M5
+M30
