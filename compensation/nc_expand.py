@@ -46,14 +46,12 @@ from dataclasses import dataclass
 
 from errormap.io import InputError
 
+from .nc_flow import (CONTROLLER_PARAMETERS, EQ_TOLERANCE_LINUXCNC, G65_ARGS, MAX_CALL_DEPTH,  # noqa: F401
+                      _Frame, _Return, assign, call_statement, evaluate, o_statement)
+
 MAX_EXECUTED_LINES = 2_000_000
 """Executed source lines (every pass of a loop counts): more is refused as an endless loop."""
-MAX_CALL_DEPTH = 32
-"""Nested calls (subprograms, macros, subroutines): more is refused as runaway recursion
-(Fanuc allows 10 levels of M98 and 4 of G65 (5 with G66), LinuxCNC tens)."""
 DIALECTS = ("fanuc", "haas", "linuxcnc", "mach3", "siemens-iso", "grbl")
-EQ_TOLERANCE_LINUXCNC = 1e-4
-"""LinuxCNC's ``EQ``/``NE`` compare within this (its interpreter's TOLERANCE_EQUAL); Fanuc compares exactly."""
 
 _MARK_BYTES = (b"#", b"[", b"<")
 _MARK_WORDS = (b"m98", b"m97", b"m99", b"g65", b"goto", b"while", b"if", b"sub", b"call", b"repeat")
@@ -72,18 +70,6 @@ _LCNC_KEYS = {"sub", "endsub", "call", "return", "if", "elseif", "else", "endif"
 FUNCS = ("ABS", "ACOS", "ASIN", "ATAN", "COS", "EXP", "FIX", "FUP", "ROUND", "LN", "SIN", "SQRT", "TAN", "EXISTS")
 _PREC = {"**": 4, "*": 3, "/": 3, "MOD": 3, "+": 2, "-": 2, "EQ": 1, "NE": 1, "GT": 1, "GE": 1, "LT": 1, "LE": 1,
          "AND": 0, "OR": 0, "XOR": 0}
-G65_ARGS = {"A": 1, "B": 2, "C": 3, "I": 4, "J": 5, "K": 6, "D": 7, "E": 8, "F": 9, "H": 11, "M": 13, "Q": 17,
-            "R": 18, "S": 19, "T": 20, "U": 21, "V": 22, "W": 23, "X": 24, "Y": 25, "Z": 26}
-"""Fanuc G65 argument specification I: address -> local variable."""
-CONTROLLER_PARAMETERS = (
-    (5061, 5069, "probe result (G38/G31 skip position)"), (5161, 5169, "G28 reference position"),
-    (5181, 5189, "G30 reference position"), (5201, 5399, "work offset / coordinate system"),
-    (5400, 5409, "current tool and its offsets"), (5420, 5428, "current position"),
-    (5001, 5060, "current position"), (5070, 5160, "position / servo data"),
-    (4001, 4400, "modal information (#4120: current tool)"), (3000, 3999, "controller clock, alarm or parts count"),
-    (2000, 2999, "tool offset memory"), (1000, 1999, "interface signals"), (7000, 99999, "extended offsets"),
-)
-"""Numbered parameters that hold controller state (ranges of the Fanuc and LinuxCNC tables), named in refusals."""
 
 
 class _Refuse(Exception):
@@ -339,13 +325,13 @@ def _parse_line(body: str):
     if key == "WHILE":
         cond, k = p.value(j)
         do, k2 = p.alpha(p.ws(k))
-        if not do.startswith("DO"):
+        if do != "DO":
             raise _Refuse(k + 1, "WHILE [..] is followed by DOm")
-        ident, k3 = _loop_id(p, k2 - len(do) + 2, do)
+        ident, k3 = _loop_id(p, k2, do)
         _rest_empty(p, k3)
         return ("while", label, cond, ident, i + 1)
-    if key.startswith("END") and key in ("END", "END1", "END2", "END3") or (key == "END"):
-        ident, k = _loop_id(p, j - len(key) + 3, key)
+    if key == "END":
+        ident, k = _loop_id(p, j, key)
         _rest_empty(p, k)
         return ("endm", label, ident)
     return _parse_words(p, body, code, i, label)
@@ -355,7 +341,7 @@ def _loop_id(p: _Parser, j: int, word: str):
     j = p.ws(j)
     v, k = p.number(j)
     if v is None or v != int(v) or not 1 <= v <= 3:
-        raise _Refuse(j + 1, f"{word[:2] if word.startswith('DO') else 'END'} needs a loop number 1, 2 or 3")
+        raise _Refuse(j + 1, f"{word} needs a loop number 1, 2 or 3")
     return int(v), k
 
 
@@ -466,18 +452,6 @@ def _call_of(words: list, p: _Parser):
 
 
 # ---------------------------------------------------------------------------- running
-class _Frame:
-    def __init__(self, unit, named=None, local=None):
-        self.unit = unit
-        self.local = {} if local is None else local
-        self.named = {} if named is None else named
-        self.repeats = {}
-
-
-class _Return(Exception):
-    pass
-
-
 def _detect(stmts) -> str | None:
     for s in stmts:
         if s[0] == "o" or (s[0] == "words" and any(t[0][0] == "name" for t in s[3])):
@@ -541,7 +515,7 @@ class _Machine:
         m = _N_LABEL.match(self.lines[i])
         return int(m.group(1)) if m else None
 
-    def _find(self, i, name, keys, stop_at=None):
+    def _find(self, i, name, keys):
         for j in range(i + 1, len(self.stmts)):
             s = self.stmts[j]
             if s[0] == "o" and s[2] == name and s[3] in keys:
@@ -680,17 +654,14 @@ class _Machine:
         raise self._err(pc, None, f"END{s[2]} without its WHILE .. DO{s[2]}")
 
     def _do_o(self, pc, s, fr):
-        from .nc_flow import o_statement
         return o_statement(self, pc, s, fr)
 
     # -- calls
     def _call(self, pc, call, words, vals, fr):
-        from .nc_flow import call_statement
         return call_statement(self, pc, call, words, vals, fr)
 
     # -- values
     def _eval(self, node, pc, fr, in_word=False):
-        from .nc_flow import evaluate
         return evaluate(self, node, pc, fr, in_word)
 
     def _truth(self, node, pc, fr) -> bool:
@@ -703,7 +674,6 @@ class _Machine:
         return int(round(v))
 
     def _set(self, target, v, pc, fr, col):
-        from .nc_flow import assign
         assign(self, target, v, pc, fr, col)
 
 

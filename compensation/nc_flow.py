@@ -8,7 +8,38 @@ from __future__ import annotations
 
 import math
 
-from .nc_expand import CONTROLLER_PARAMETERS, EQ_TOLERANCE_LINUXCNC, G65_ARGS, MAX_CALL_DEPTH, _Frame, _Return
+MAX_CALL_DEPTH = 32
+"""Nested calls (subprograms, macros, subroutines): more is refused as runaway recursion
+(Fanuc allows 10 levels of M98 and 4 of G65 (5 with G66), LinuxCNC tens)."""
+EQ_TOLERANCE_LINUXCNC = 1e-4
+"""LinuxCNC's ``EQ``/``NE`` compare within this (its interpreter's TOLERANCE_EQUAL); Fanuc compares exactly."""
+G65_ARGS = {"A": 1, "B": 2, "C": 3, "I": 4, "J": 5, "K": 6, "D": 7, "E": 8, "F": 9, "H": 11, "M": 13, "Q": 17,
+            "R": 18, "S": 19, "T": 20, "U": 21, "V": 22, "W": 23, "X": 24, "Y": 25, "Z": 26}
+"""Fanuc G65 argument specification I: address -> local variable."""
+CONTROLLER_PARAMETERS = (
+    (5061, 5069, "probe result (G38/G31 skip position)"), (5161, 5169, "G28 reference position"),
+    (5181, 5189, "G30 reference position"), (5201, 5399, "work offset / coordinate system"),
+    (5400, 5409, "current tool and its offsets"), (5420, 5428, "current position"),
+    (5001, 5060, "current position"), (5070, 5160, "position / servo data"),
+    (4001, 4400, "modal information (#4120: current tool)"), (3000, 3999, "controller clock, alarm or parts count"),
+    (2000, 2999, "tool offset memory"), (1000, 1999, "interface signals"), (7000, 99999, "extended offsets"),
+)
+"""Numbered parameters that hold controller state (ranges of the Fanuc and LinuxCNC tables), named in refusals."""
+
+
+class _Frame:
+    """One level of a running program: its unit, its local parameters (a subprogram shares its caller's)."""
+
+    def __init__(self, unit, named=None, local=None):
+        self.unit = unit
+        self.local = {} if local is None else local
+        self.named = {} if named is None else named
+        self.repeats = {}
+
+
+class _Return(Exception):
+    """A subprogram returns (M99, endsub, return)."""
+
 
 LOCAL_LAST = {"linuxcnc": 30, "fanuc": 33, None: 30}
 """Highest local numbered parameter (LinuxCNC #1-#30 per subroutine call, Fanuc #1-#33 per macro call)."""

@@ -50,6 +50,12 @@ class ChainPath:
     axes: np.ndarray
     lines: np.ndarray
     source: object
+    columns: tuple = ()
+    """G-code: the machine axes (indices) the program's words are, in order (all of them, or a lathe's
+    X and Z where the program never commands the spindle's C)."""
+    turning: np.ndarray | None = None
+    """G-code on a machine with a ``[spindle]``: (n,) points cut while the spindle turns (X, Z only;
+    :mod:`compensation.turning`)."""
 
 
 @dataclass
@@ -81,11 +87,30 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
         check_units(path, rows, machine=machine, axes=axes, axes_columns=cols, coverage="path", units=s.units,
                     option="--units")
         return ChainPath(path, "csv-axes", axes, rows, t)
-    prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete)
-    job = plan_chain_gcode(prog, s.arc_tolerance_um, field_)
-    check_units(path, job.lines, machine=machine, axes=job.axes, axes_columns=machine.axis_columns, coverage="path",
+    turning = None
+    if getattr(machine, "spindle", None) is not None:  # a lathe: turning mode where the spindle turns
+        from ...turning import ColumnsField, parse_lathe_program
+        prog, turning = parse_lathe_program(path, machine, s.rapids, s.block_delete)
+    else:
+        prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete)
+    k = len(machine.axes)
+    columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
+    partial = len(columns) < k
+    job = plan_chain_gcode(prog, s.arc_tolerance_um,
+                           ColumnsField(field_, columns, k) if partial and field_ is not None else field_)
+    axes = job.axes
+    if partial:  # the spindle's C never commanded: a placeholder 0 (turning points are solved over the turn)
+        axes = np.zeros((len(job.axes), k))
+        axes[:, columns] = job.axes
+        kept_axes = np.full((len(job.kept_axes), k), np.nan)
+        kept_axes[:, columns] = job.kept_axes
+        job.kept_axes = kept_axes
+    if turning is not None:
+        comp = np.array([t for m, t in zip(prog.moves, turning) if m.compensate], dtype=bool)
+        turning = np.repeat(comp, [len(v) for v in job.vertices])
+    check_units(path, job.lines, machine=machine, axes=axes, axes_columns=machine.axis_columns, coverage="path",
                 units=s.units, option="--units")
-    return ChainPath(path, "gcode", job.axes, job.lines, job)
+    return ChainPath(path, "gcode", axes, job.lines, job, columns, turning)
 
 
 def _render(tp: ChainPath, axes, machine, comments) -> str:
@@ -95,6 +120,7 @@ def _render(tp: ChainPath, axes, machine, comments) -> str:
         return _render_csv(tp.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(machine.axis_columns)}, comments)
     job = tp.source
     verts, s = [], 0
+    axes = axes[:, list(tp.columns)]
     for v in job.vertices:
         verts.append(axes[s:s + len(v)])
         s += len(v)
@@ -213,7 +239,15 @@ def run_chain_compensate(machine, args, allow) -> int:
         targets, _ = nominal_and_jacobian(machine, tp.axes)
         seeded = {"seed": args.seed} if solver_spec(s.method).seeded else {}
         limit = {"rotary_limit_deg": rotary_limit} if rotary_limit is not None else {}
-        res = solve(s.method, field_, targets, machine, target_axes=tp.axes, progress=False, **seeded, **limit)
+        turning = tp.turning if tp.turning is not None and tp.turning.any() else None
+        if turning is None:
+            res = solve(s.method, field_, targets, machine, target_axes=tp.axes, progress=False, **seeded, **limit)
+        else:
+            from ...solvers.base import BALL_RADIUS_UM
+            from ...turning import solve_with_turning
+            res = solve_with_turning(lambda t, a: solve(s.method, field_, t, machine, target_axes=a, progress=False,
+                                                        **seeded, **limit),
+                                     field_, machine, targets, tp.axes, turning, BALL_RADIUS_UM)
         report = guards.check(res, machine, field_, allow=allow, target_axes=tp.axes)
         rotary_refused = rotary_refusals(res, report)
         kept = []
@@ -240,8 +274,21 @@ def run_chain_compensate(machine, args, allow) -> int:
             entry["rotary_refused"] = rotary_refused
             entry["rotary_limit_deg"] = res.info.get("rotary_limit_deg")
         if truth is not None:
-            entry["true"] = _stats(true_residual_um(truth, machine, res.axes, targets))
-            entry["true_uncompensated"] = _stats(true_residual_um(truth, machine, tp.axes, targets))
+            after = true_residual_um(truth, machine, res.axes, targets)
+            before = true_residual_um(truth, machine, tp.axes, targets)
+            if turning is not None:
+                from ...turning import surface_residual_um
+                t = np.flatnonzero(turning)
+                (a2, spread), (b2, _) = (surface_residual_um(truth, machine, ax[t], tp.axes[t])
+                                         for ax in (res.axes, tp.axes))
+                after[t] = np.stack([a2[:, 0], np.zeros(len(t)), a2[:, 1]], axis=1)
+                before[t] = np.stack([b2[:, 0], np.zeros(len(t)), b2[:, 1]], axis=1)
+                entry["turning"] = {"points": int(len(t)), "residual": "turning points: radial and axial deviation "
+                                    "from the programmed surface of revolution, mean over one spindle turn (um)",
+                                    "true": _stats(after[t]), "true_uncompensated": _stats(before[t]),
+                                    "true_roundness_max_um": float(spread.max())}
+            entry["true"] = _stats(after)
+            entry["true_uncompensated"] = _stats(before)
             entry["truth"] = str(s.truth)
             entry["truth_conditions"] = "reference: 20 C, positive approach on every axis"
         if tp.kind == "gcode":
