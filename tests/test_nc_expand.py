@@ -139,3 +139,11 @@ def test_dialect_rules_where_the_controllers_differ():
     prog = "O1\nM98 P20010\nM30\nO10\nG1 X1\nM99\nO20010\nG1 X2\nM99\n"
     assert expand_program(prog, "p.nc", dialect="fanuc").text.count("G1 X1") == 2
     assert expand_program(prog, "p.nc", dialect="haas").text.count("G1 X2") == 1
+
+
+def test_haas_m97_local_subprogram_and_g65_arguments():
+    text = ("O1\nG21 G90\nG0 X0 Y0 Z5\nM97 P100 L2\nG65 P9 X7. Y[2*3]\nM30\nN100 G91 G1 X5.\nG90\nM99\n"
+            "O9\nG1 X#24 Y#25 Z[#24 - #25]\nM99\n")
+    e = expand_program(text, "p.nc")
+    assert e.text == "O1\nG21 G90\nG0 X0 Y0 Z5\nN100 G91 G1 X5.\nG90\nN100 G91 G1 X5.\nG90\nG1 X7 Y6 Z1\nM30\n"
+    assert [o[2] for o in e.origin] == [(), (), (), (4,), (4,), (4,), (4,), (5,), ()]
