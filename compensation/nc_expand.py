@@ -122,6 +122,16 @@ class Expanded:
         return InputError(f"{self.where(int(m.group(1)), col)}: {msg[m.end():]}")
 
 
+def source_line(program, line: int):
+    """A reader's 1-based ``line`` as a report names it: the line itself for a program read as it is; for
+    an expanded one (``program.expanded``) its source line, the expanded line and the call sites, as text."""
+    exp = getattr(program, "expanded", None)
+    if exp is None or not 1 <= line <= len(exp.origin):
+        return line
+    src, _, calls = exp.origin[line - 1]
+    return f"{src} (expanded line {line}" + "".join(f", called from line {c}" for c in reversed(calls)) + ")"
+
+
 def needs_expansion(data: bytes) -> bool:
     """Whether a program's bytes hold any mark of parameters, subprograms or control flow."""
     if any(b in data for b in _MARK_BYTES):

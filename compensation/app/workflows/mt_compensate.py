@@ -127,6 +127,14 @@ def _render(tp: ChainPath, axes, machine, comments) -> str:
     return render_chain_program(job.program, verts, header=comments)
 
 
+def _line(tp: ChainPath, line):
+    """A point's line as the report names it (the source line of an expanded program)."""
+    if tp.kind != "gcode":
+        return int(line)
+    from ...nc_expand import source_line
+    return source_line(tp.source.program, int(line))
+
+
 def true_residual_um(truth_field, machine, axes, targets_mm) -> np.ndarray:
     """TRUE residual (μm), (n, 3): the truth machine's tool point at ``axes`` (nominal + its error)
     minus the targets."""
@@ -256,7 +264,7 @@ def run_chain_compensate(machine, args, allow) -> int:
             mid = 0.5 * (machine.stroke_lo + machine.stroke_hi)
             ka = np.where(np.isfinite(job.kept_axes), job.kept_axes, mid)
             idx, reasons = guards.stroke_violations(ka, machine)
-            kept = [(int(job.kept_lines[i]), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
+            kept = [(_line(tp, job.kept_lines[i]), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
         norm = np.linalg.norm(res.residual_um, axis=1)
         viol = {g: int(len(v)) for g, v in report.violations.items()}
         viol["stroke"] += len(kept)
@@ -302,7 +310,7 @@ def run_chain_compensate(machine, args, allow) -> int:
         if refused:
             entry["refused"] = True
             bad = np.unique(np.concatenate(list(blocking.values()))) if blocking else np.zeros(0, int)
-            listed = [(int(i), int(tp.lines[i]), "; ".join(r for r in report.point_reasons(int(i))
+            listed = [(int(i), _line(tp, tp.lines[i]), "; ".join(r for r in report.point_reasons(int(i))
                                                           if r.split(":")[0] in blocking)) for i in bad]
             entry["refused_guards"] = sorted(blocking) or ["stroke"]
         else:
