@@ -223,7 +223,9 @@ ALLOWED_G = {
     "G99": ("return", "canned-cycle return level (no cycle is accepted)"),
 }
 REFUSED_G = {
-    "G5": "cubic spline", "G5.1": "quadratic spline", "G5.2": "NURBS block", "G5.3": "NURBS block end",
+    **{g: f"{what}: not interpretable exactly (no option reads it; post the path as G1/G2/G3)" for g, what in (
+        ("G5", "cubic spline"), ("G5.1", "quadratic spline"), ("G5.2", "NURBS block"), ("G5.3", "NURBS block end"),
+        ("G6.2", "NURBS block"))},
     "G7": "lathe diameter mode (X would mean a diameter)", "G7.1": "cylindrical interpolation",
     "G107": "cylindrical interpolation",
 "G12": "circular pocket", "G13": "circular pocket",
@@ -328,6 +330,13 @@ class GProgram:
     dialect: str = "rs274"
     """The controller dialect the program was read in (:mod:`compensation.dialects`)."""
     dialect_evidence: str = ""
+    expanded: object = field(default=None, repr=False)
+    """:class:`compensation.nc_expand.Expanded` where the program's subprograms, macros or
+    parameters were expanded (``lines`` are then the flat program's); None otherwise."""
+
+    def notes(self) -> tuple:
+        """Header lines every written program carries: what was expanded."""
+        return () if self.expanded is None else (self.expanded.note(),)
 
 
 def split_lines(text: str) -> list:
@@ -457,6 +466,23 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     ax = default_axis_words() if axis_words is None else axis_words
     data = path.read_bytes()
     dia, evidence = _dialect_of(path, data, dialect)
+    try:  # the allow-list refuses every mark of a subprogram, macro or parameter: a program without
+        return _parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence)  # any is read at full speed
+    except InputError as plain_refusal:
+        from . import nc_expand
+        expanded = nc_expand.expand_if_needed(data, path, dialect if dialect in nc_expand.DIALECTS else None)
+        if expanded is None:
+            raise plain_refusal from None
+    try:
+        prog = _parse_data(path, expanded.text.encode("latin-1"), rapids, block_delete, fast, ax, dia, evidence)
+    except InputError as exc:
+        raise expanded.relocate(exc) from None
+    prog.expanded = expanded
+    return prog
+
+
+def _parse_data(path: Path, data: bytes, rapids, block_delete, fast: bool, ax: AxisWords, dia,
+                evidence: str) -> GProgram:
     if fast and _bulk_words(ax):
         prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia)
     else:
@@ -907,7 +933,7 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
         k += 1
         groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax)
     out = [ln for g in groups for ln in g]
-    return _with_header(out, header), groups
+    return _with_header(out, program.notes() + tuple(header)), groups
 
 
 def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords):
@@ -1414,6 +1440,6 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         at += 1
     if at < n and re.match(r"[ \t]*[Oo][ \t]*\d", text[off[at]:off[at + 1]]):
         at += 1
-    head = "".join(f"({_comment_safe(h)})\n" for h in header)
+    head = "".join(f"({_comment_safe(h)})\n" for h in program.notes() + tuple(header))
     full_text = text[:off[at]] + head + text[off[at]:] if head else text
     return full_text, _Groups(lines, text, off, mode == 1, changed)

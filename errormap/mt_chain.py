@@ -29,6 +29,8 @@ Jacobian (n, 3, k) μm per mm or per deg. Schema: ``docs/machines.md`` and ``doc
 """
 from __future__ import annotations
 
+import re
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -216,6 +218,9 @@ class MachineTool:
     sha256: str = ""
     kind: str = "machine-tool"
     description: str = ""
+    spindle: dict | None = None
+    """``[spindle]`` of the file (a lathe's work spindle): ``axis`` (its rotary axis word),
+    ``turning_on`` / ``turning_off`` (the M codes that start turning and end it); None without one."""
 
     # -- names and sizes ----------------------------------------------------------------------
     @property
@@ -762,7 +767,7 @@ def _has_marker(items, word) -> bool:
 
 def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     """Validate a parsed ``kind = "machine-tool"`` file and compile its chain (``docs/machines.md``)."""
-    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets"), "", path)
+    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle"), "", path)
     m = check_table(doc, "machine", path)
     check_known_keys(m, ("kind", "name", "schema", "description"), "machine", path)
     name = m.get("name", "machine-tool")
@@ -813,7 +818,30 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     body_index = {**{w: ("work", k) for w, k in work_body.items()}, **{w: ("tool", k) for w, k in tool_body.items()}}
     return MachineTool(name=name, axes=mt_axes, slots=slot_list, chain=chain, work_ets=tuple(work_n),
                        tool_ets=tuple(tool_n), targets=targets, geometry=geometry, body_index=body_index,
-                       path=str(path), sha256=sha, description=str(m.get("description", "")))
+                       path=str(path), sha256=sha, description=str(m.get("description", "")),
+                       spindle=_spindle(doc.get("spindle"), path, mt_axes))
+
+
+def _spindle(t, path, axes):
+    """``[spindle]``: ``axis`` a rotary axis word of the machine; ``turning_on`` / ``turning_off`` lists
+    of M codes (``"M3"``); the codes are the machine's, so they live in its file."""
+    if t is None:
+        return None
+    if not isinstance(t, dict):
+        raise MachineFileError(f"{path}: 'spindle': expected a table")
+    check_known_keys(t, ("axis", "turning_on", "turning_off"), "spindle", path)
+    rotary = [a.word for a in axes if a.kind != "linear"]
+    if t.get("axis") not in rotary:
+        raise MachineFileError(f"{path}: key 'spindle.axis': expected a rotary axis of the machine {rotary}, "
+                               f"got {short_repr(t.get('axis'))}")
+    out = {"axis": t["axis"]}
+    for k in ("turning_on", "turning_off"):
+        v = t.get(k)
+        if not (isinstance(v, list) and v and all(isinstance(c, str) and re.fullmatch(r"M\d+", c) for c in v)):
+            raise MachineFileError(f"{path}: key 'spindle.{k}': expected a list of M codes like [\"M3\"], "
+                                   f"got {short_repr(v)}")
+        out[k] = tuple(int(c[1:]) for c in v)
+    return out
 
 
 def _targets(t, path, axes):

@@ -147,7 +147,7 @@ def test_cli_batch_over_the_corpus(tmp_path, grinder, capsys):
     out2 = tmp_path / "out2"
     bad = str(CORPUS / "r01_macro_call.nc")
     assert main(["compensate", *plain, bad, "--model", str(el), "--method", "exact", "--out", str(out2)]) == 2
-    assert "r01_macro_call.nc: line 3, column 1: 'G65'" in capsys.readouterr().err
+    assert "r01_macro_call.nc: line 3, column 5: G65 P9000" in capsys.readouterr().err
     assert not out2.exists()
 
 

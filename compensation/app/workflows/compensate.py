@@ -39,6 +39,7 @@ from ...diagnosed_model import (ConditionedField, load_path_field, path_conditio
                                 solve_with_conditions)
 from ...fields import resolve_model
 from ...gcode import DEFAULT_RAPIDS
+from ...nc_expand import source_line
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
 from ...solvers import solver_spec
 from ...solvers.threads import small_batch_threads
@@ -152,7 +153,7 @@ def kept_stroke_violations(tp, machine) -> list:
         return []
     ax = np.where(np.isfinite(job.kept_axes), job.kept_axes, 0.5 * (machine.stroke_lo + machine.stroke_hi))
     idx, reasons = guards.stroke_violations(ax, machine)
-    return [(int(job.kept_lines[i]), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
+    return [(source_line(job.program, int(job.kept_lines[i])), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
 
 
 def override_note(s: CompensateSettings, entry) -> str:
@@ -196,7 +197,9 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, co
         report = guards.check(res, machine, guard_field, allow=s.allow, target_axes=tp.axes)
     except TypeError as exc:  # a field that cannot say where it is calibrated
         raise UsageError(f"{s.model}: {exc}") from None
-    viol = [(int(i), int(tp.lines[i]), "; ".join(report.point_reasons(int(i)))) for i in report.indices]
+    program = getattr(tp.source, "program", None) if tp.kind == "gcode" else None
+    viol = [(int(i), source_line(program, int(tp.lines[i])), "; ".join(report.point_reasons(int(i))))
+            for i in report.indices]
     blocking = set(np.concatenate(list(report.blocking.values())).tolist()) if report.blocking else set()
     kept = kept_stroke_violations(tp, machine)
     kept_blocking = bool(kept) and "stroke" not in report.allowed

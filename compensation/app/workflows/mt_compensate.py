@@ -55,6 +55,14 @@ class ChainPath:
     """Machine minus program axes per point (n, k): work offset and tool length (None: zero)."""
     tool_mm: np.ndarray | None = None
     """The active tool length per point (n,) mm; NaN (or None): the machine file's own tool."""
+    columns: tuple = ()
+    """G-code: the machine axes (indices) the program's words are, in order (all of them, or a lathe's
+    X and Z where the program never commands the spindle's C)."""
+    turning: np.ndarray | None = None
+    """G-code on a machine with a ``[spindle]``: (n,) points cut while the spindle turns (X, Z only;
+    :mod:`compensation.turning`)."""
+    kept_machine: np.ndarray | None = None
+    """G-code: the kept (not compensated) points' nominal machine axes (m, k); NaN where unknown."""
 
 
 @dataclass
@@ -101,7 +109,12 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
         check_units(path, rows, machine=machine, axes=axes, axes_columns=cols, coverage="path", units=s.units,
                     option="--units")
         return ChainPath(path, "csv-axes", axes, rows, t)
-    prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect)
+    turning = None
+    if getattr(machine, "spindle", None) is not None:  # a lathe: turning mode where the spindle turns
+        from ...turning import ColumnsField, parse_lathe_program
+        prog, turning = parse_lathe_program(path, machine, s.rapids, s.block_delete, dialect=s.dialect)
+    else:
+        prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect)
     frames = program_frames(prog, s.work_offsets, s.tool_table)
     t = prog.table
     comp = t.line[t.compensate] if t is not None else np.array([m.index for m in prog.moves if m.compensate], int)
@@ -110,12 +123,31 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
         raise InputError(f"{path}: line {int(comp[np.argmax(unknown)]) + 1}: a move in the controller's power-on work "
                          f"system G54, which {s.work_offsets.source if s.work_offsets else 'no table'} does not give: "
                          "give G54 in --work-offsets (or select a work system before the first move)")
-    job = plan_chain_gcode(prog, s.arc_tolerance_um, field_, frames)
-    shift = job.shift
-    axes = job.axes + shift
+    k = len(machine.axes)
+    columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
+    partial = len(columns) < k
+    job = plan_chain_gcode(prog, s.arc_tolerance_um,
+                           ColumnsField(field_, columns, k) if partial and field_ is not None else field_, frames)
+    tool_mm = job.tool_mm
+    if turning is not None and turning.any() and np.isfinite(tool_mm).any():
+        raise UsageError(f"{path}: G43 tool lengths while the spindle turns: turning mode compensates X and Z with "
+                         "the machine file's tool; leave --tool-table out for this program")
+
+    def full(a, fill):  # the program's columns placed in the machine's k columns
+        out = np.full((len(a), k), fill, dtype=float)
+        out[:, columns] = a
+        return out
+
+    shift = full(job.shift, 0.0)
+    axes = full(job.axes, 0.0) + shift  # the spindle's C never commanded: a placeholder 0 (solved over the turn)
+    kept_machine = full(job.kept_machine_axes, np.nan)
+    if turning is not None:
+        comp = np.array([t for m, t in zip(prog.moves, turning) if m.compensate], dtype=bool)
+        turning = np.repeat(comp, [len(v) for v in job.vertices])
     check_units(path, job.lines, machine=machine, axes=axes, axes_columns=machine.axis_columns, coverage="path",
                 units=s.units, option="--units")
-    return ChainPath(path, "gcode", axes, job.lines, job, shift, job.tool_mm)
+    return ChainPath(path, "gcode", axes, job.lines, job, shift=shift, tool_mm=tool_mm, columns=columns,
+                     turning=turning, kept_machine=kept_machine)
 
 
 def _render(tp: ChainPath, axes, machine, comments) -> str:
@@ -125,10 +157,19 @@ def _render(tp: ChainPath, axes, machine, comments) -> str:
         return _render_csv(tp.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(machine.axis_columns)}, comments)
     job = tp.source
     verts, s = [], 0
+    axes = axes[:, list(tp.columns)]
     for v in job.vertices:
         verts.append(axes[s:s + len(v)])
         s += len(v)
     return render_chain_program(job.program, verts, header=comments)
+
+
+def _line(tp: ChainPath, line):
+    """A point's line as the report names it (the source line of an expanded program)."""
+    if tp.kind != "gcode":
+        return int(line)
+    from ...nc_expand import source_line
+    return source_line(tp.source.program, int(line))
 
 
 def true_residual_um(truth_field, machine, axes, targets_mm) -> np.ndarray:
@@ -320,17 +361,28 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
     for (p, dst), tp in zip(plan, paths):
         seeded = {"seed": s.seed} if solver_spec(s.method).seeded else {}
         limit = {"rotary_limit_deg": rotary_limit} if rotary_limit is not None else {}
-        res, targets, true_r, true_base = solve_by_tool(s.method, field_, truth, machine, tp, **seeded, **limit)
+        turning = tp.turning if tp.turning is not None and tp.turning.any() else None
+        if turning is None:
+            res, targets, true_r, true_base = solve_by_tool(s.method, field_, truth, machine, tp, **seeded, **limit)
+        else:
+            from ...solvers import solve
+            from ...solvers.base import BALL_RADIUS_UM
+            from ...turning import solve_with_turning
+            targets, _ = nominal_and_jacobian(machine, tp.axes)
+            true_r = true_base = None  # the TRUE residual of turning points is taken over the turn below
+            res = solve_with_turning(lambda t, a: solve(s.method, field_, t, machine, target_axes=a, progress=False,
+                                                        **seeded, **limit),
+                                     field_, machine, targets, tp.axes, turning, BALL_RADIUS_UM)
         report = guards.check(res, machine, field_, allow=allow, target_axes=tp.axes)
         rotary_refused = rotary_refusals(res, report)
         kept = []
         if tp.kind == "gcode" and len(tp.source.kept_lines):
             job = tp.source
             mid = 0.5 * (machine.stroke_lo + machine.stroke_hi)
-            km = job.kept_machine_axes
+            km = tp.kept_machine
             ka = np.where(np.isfinite(km), km, mid)
             idx, reasons = guards.stroke_violations(ka, machine)
-            kept = [(int(job.kept_lines[i]), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
+            kept = [(_line(tp, job.kept_lines[i]), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
         norm = np.linalg.norm(res.residual_um, axis=1)
         viol = {g: int(len(v)) for g, v in report.violations.items()}
         viol["stroke"] += len(kept)
@@ -348,8 +400,22 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
             entry["rotary_refused"] = rotary_refused
             entry["rotary_limit_deg"] = res.info.get("rotary_limit_deg")
         if truth is not None:
-            entry["true"] = _stats(true_r)
-            entry["true_uncompensated"] = _stats(true_base)
+            after, before = true_r, true_base
+            if turning is not None:
+                after = true_residual_um(truth, machine, res.axes, targets)
+                before = true_residual_um(truth, machine, tp.axes, targets)
+                from ...turning import surface_residual_um
+                t = np.flatnonzero(turning)
+                (a2, spread), (b2, _) = (surface_residual_um(truth, machine, ax[t], tp.axes[t])
+                                         for ax in (res.axes, tp.axes))
+                after[t] = np.stack([a2[:, 0], np.zeros(len(t)), a2[:, 1]], axis=1)
+                before[t] = np.stack([b2[:, 0], np.zeros(len(t)), b2[:, 1]], axis=1)
+                entry["turning"] = {"points": int(len(t)), "residual": "turning points: radial and axial deviation "
+                                    "from the programmed surface of revolution, mean over one spindle turn (um)",
+                                    "true": _stats(after[t]), "true_uncompensated": _stats(before[t]),
+                                    "true_roundness_max_um": float(spread.max())}
+            entry["true"] = _stats(after)
+            entry["true_uncompensated"] = _stats(before)
             entry["truth"] = str(s.truth)
             entry["truth_conditions"] = "reference: 20 C, positive approach on every axis"
         if tp.kind == "gcode":
@@ -367,7 +433,7 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
         if refused:
             entry["refused"] = True
             bad = np.unique(np.concatenate(list(blocking.values()))) if blocking else np.zeros(0, int)
-            listed = [(int(i), int(tp.lines[i]), "; ".join(r for r in report.point_reasons(int(i))
+            listed = [(int(i), _line(tp, tp.lines[i]), "; ".join(r for r in report.point_reasons(int(i))
                                                           if r.split(":")[0] in blocking)) for i in bad]
             entry["refused_guards"] = sorted(blocking) or ["stroke"]
         else:

@@ -1,0 +1,699 @@
+"""Subprograms, macros and parameters expanded into the flat program the G-code reader reads.
+
+:func:`expand_program` runs a program's control language the way the controller does and writes
+out every line it executes, in order, so that each call of a subprogram becomes the moves it makes
+*where it is called* (a work offset or an incremental start set by the caller moves them), and each
+of those moves is compensated where it is cut:
+
+* **Fanuc / Haas** (Custom Macro B): ``O`` program blocks in the same file, ``M98 P… L…`` calls
+  (``M99`` returns; ``M98 Pccccnnnn``, the repeat count in front of a four-digit program number,
+  on ``dialect="fanuc"``), ``M97 P… L…`` (Haas: a local subprogram starting at block ``N…``),
+  ``G65 P… L…`` macro calls with arguments (``A``→``#1``, ``B``→``#2`` … ``Z``→``#26``, argument
+  specification I), ``#i = expression``, ``IF [..] GOTO n``, ``IF [..] THEN #i = ..``,
+  ``GOTO n``, ``WHILE [..] DOm`` / ``ENDm``.
+* **LinuxCNC** (O-codes): ``o<name> sub / endsub / call [a] [b] … / return``, numbered ``o100``
+  forms, ``if / elseif / else / endif``, ``while / endwhile``, ``do / while``, ``repeat /
+  endrepeat``, ``break``, ``continue``, numbered ``#1``, named ``#<local>`` and ``#<_global>``
+  parameters, ``EXISTS[#<name>]``, a subroutine's returned value in ``#<_value>``.
+
+Expressions: ``[ ]`` brackets, ``+ - * / MOD **``, ``EQ NE GT GE LT LE``, ``AND OR XOR``, the
+functions ``ABS ACOS ASIN ATAN[y]/[x] COS EXP FIX FUP ROUND LN SIN SQRT TAN`` (angles in degrees),
+with the controllers' precedence (``**`` > ``* / MOD`` > ``+ -`` > comparisons > logic). Where the
+two controllers differ the dialect decides (``FIX``/``FUP`` of a negative number, ``MOD``, the range
+of ``ATAN``, ``EQ``'s tolerance, which parameters are local, which may be set); a difference that
+the program's content cannot settle is refused.
+
+A value is used only where the program determines it: reading a parameter the program has not set
+(a probe result ``#5061``, the current tool ``#4120`` or ``#<_current_tool>``, a position ``#5420``,
+a work offset, a persistent common variable) is refused **by name**, with line and column, and so is
+setting a controller parameter (a work offset, an alarm ``#3000``). Execution is bounded
+(:data:`MAX_EXECUTED_LINES`, :data:`MAX_CALL_DEPTH`): an endless loop or recursion is refused, not
+followed. The reader (:func:`compensation.gcode.parse_program`) expands only a program its allow-list
+refuses and that holds a mark of these constructs (:func:`needs_expansion`); every other program is
+read as it is, at the same speed.
+
+The flat program holds the executed lines: a line without parameters is copied byte for byte, a
+line with parameters has their values written in place (``X[#1+2]`` → ``X12.5``) and its parameter
+settings removed; pure control lines (calls, returns, assignments, loop and branch lines, the
+program-number lines of subprograms) are not written. :attr:`Expanded.origin` maps every output
+line back to its source line and the chain of call sites, so that every refusal names the source.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+from errormap.io import InputError
+
+from .nc_flow import (CONTROLLER_PARAMETERS, EQ_TOLERANCE_LINUXCNC, G65_ARGS, MAX_CALL_DEPTH,  # noqa: F401
+                      _Frame, _Return, assign, call_statement, evaluate, o_statement)
+
+MAX_EXECUTED_LINES = 2_000_000
+"""Executed source lines (every pass of a loop counts): more is refused as an endless loop."""
+DIALECTS = ("fanuc", "haas", "linuxcnc", "mach3", "siemens-iso", "grbl")
+
+_MARK_BYTES = (b"#", b"[", b"<")
+_MARK_WORDS = (b"m98", b"m97", b"m99", b"g65", b"goto", b"while", b"if", b"sub", b"call", b"repeat")
+"""A program holding none of these (any case) has nothing to expand (the words of every construct
+contain one: ``o100 do`` closes with ``while``, ``END1`` pairs with ``WHILE``, ``endsub`` holds ``sub``)."""
+_LINE_MARKS = re.compile(r"#|\[|o\s*<|m\s*0*9\s*[789](?![\d.])|g\s*0*65(?![\d.])"
+                         r"|(?<![a-z])(?:goto|while|if|then|end\s*\d|do\s*\d)(?![a-z])"
+                         r"|^\s*/?\s*(?:n\s*\d+\s*)?o\s*\d+\s*[a-z]", re.I)
+_END_CODES = re.compile(r"(?<![a-z])m\s*0*(?:2|30)(?![\d.])", re.I)
+_O_STMT = re.compile(r"\s*o\s*(<[^>]*>|\d+)\s*([a-z]+)?", re.I)
+_PROG = re.compile(r"\s*(?:[oO]|:)\s*(\d+)\s*$")
+_N_LABEL = re.compile(r"\s*[nN]\s*(\d+)")
+_NUM = re.compile(r"[ \t]*((?:\d[\d \t]*)?\.?[\d \t]*)")
+_LCNC_KEYS = {"sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
+              "do", "repeat", "endrepeat", "break", "continue"}
+FUNCS = ("ABS", "ACOS", "ASIN", "ATAN", "COS", "EXP", "FIX", "FUP", "ROUND", "LN", "SIN", "SQRT", "TAN", "EXISTS")
+_PREC = {"**": 4, "*": 3, "/": 3, "MOD": 3, "+": 2, "-": 2, "EQ": 1, "NE": 1, "GT": 1, "GE": 1, "LT": 1, "LE": 1,
+         "AND": 0, "OR": 0, "XOR": 0}
+
+
+class _Refuse(Exception):
+    def __init__(self, col: int, msg: str):
+        self.col, self.msg = col, msg
+
+
+class _Stop(Exception):
+    """The program ended (M2 / M30 / the closing '%')."""
+
+
+@dataclass(frozen=True)
+class Expanded:
+    """A program with its subprograms and macros expanded.
+
+    ``text``: the flat program (the executed lines, endings kept). ``origin[i]``: for output line
+    ``i`` a tuple ``(source_line, verbatim, calls)``: the 1-based source line, whether the output
+    line is that line byte for byte, and the 1-based lines of the call sites it was reached
+    through (outermost first). ``dialect``: the dialect whose rules were used."""
+
+    text: str
+    origin: tuple
+    dialect: str
+    path: str
+
+    def where(self, out_line: int, col: int | None = None) -> str:
+        """``'prog.nc: line 12, column 3 (called from line 4)'`` for 1-based output line ``out_line``."""
+        src, verbatim, calls = self.origin[out_line - 1]
+        at = f"{self.path}: line {src}"
+        if col is not None:
+            at += f", column {col}" if verbatim else f" (expanded as {self.line(out_line)!r}), column {col} of that"
+        return at + "".join(f" (called from line {c})" for c in reversed(calls))
+
+    def note(self) -> str:
+        """The header line of a written program: it is the flat (expanded) one."""
+        calls = sum(1 for o in self.origin if o[2])
+        return (f"volcomp: subprograms, macros and parameters expanded by {self.dialect} rules; this is the flat "
+                f"program of {len(self.origin)} executed lines, {calls} of them inside calls")
+
+    def line(self, out_line: int) -> str:
+        return self.text.split("\n")[out_line - 1].rstrip("\r")
+
+    def relocate(self, exc: InputError) -> InputError:
+        """A reader's refusal ``'PATH: line N[, column C]: ...'`` on the flat text, re-addressed to the source."""
+        msg = str(exc)
+        m = re.match(re.escape(self.path) + r": line (\d+)(?:, column (\d+))?: ", msg)
+        if m is None or not 1 <= int(m.group(1)) <= len(self.origin):
+            return exc
+        col = int(m.group(2)) if m.group(2) else None
+        return InputError(f"{self.where(int(m.group(1)), col)}: {msg[m.end():]}")
+
+
+def source_line(program, line: int):
+    """A reader's 1-based ``line`` as a report names it: the line itself for a program read as it is; for
+    an expanded one (``program.expanded``) its source line, the expanded line and the call sites, as text."""
+    exp = getattr(program, "expanded", None)
+    if exp is None or not 1 <= line <= len(exp.origin):
+        return line
+    src, _, calls = exp.origin[line - 1]
+    return f"{src} (expanded line {line}" + "".join(f", called from line {c}" for c in reversed(calls)) + ")"
+
+
+def needs_expansion(data: bytes) -> bool:
+    """Whether a program's bytes hold any mark of parameters, subprograms or control flow."""
+    if any(b in data for b in _MARK_BYTES):
+        return True
+    low = data.lower()
+    return any(w in low for w in _MARK_WORDS)
+
+
+def expand_if_needed(data: bytes, path, dialect: str | None = None) -> Expanded | None:
+    """:func:`expand_program` of a program's bytes where they hold any mark (:func:`needs_expansion`)
+    and the expansion changes the text; None otherwise (the program is read as it is)."""
+    if not needs_expansion(data):
+        return None
+    text = data.decode("latin-1")
+    exp = expand_program(text, path, dialect)
+    return None if exp.text == text else exp
+
+
+def expand_program(text: str, path, dialect: str | None = None) -> Expanded:
+    """Expand ``text`` (a whole program, Latin-1 decoded) read from ``path`` (named in refusals).
+
+    ``dialect``: one of :data:`DIALECTS` or None (told from content: LinuxCNC O-codes or named
+    parameters make it ``linuxcnc``, Fanuc calls or macro statements ``fanuc``)."""
+    if dialect is not None and dialect not in DIALECTS:
+        raise ValueError(f"Expected dialect in {list(DIALECTS)} or None, got {dialect!r}")
+    return _Machine(text, str(path), dialect).run()
+
+
+# ---------------------------------------------------------------------------- parsing one line
+def _code_of(body: str) -> str:
+    """``body`` with comments blanked (same length, so columns stay)."""
+    out, i, n = [], 0, len(body)
+    while i < n:
+        c = body[i]
+        if c == "(":
+            j = body.find(")", i + 1)
+            if j < 0:
+                raise _Refuse(i + 1, "unclosed '(' comment")
+            out.append(" " * (j + 1 - i))
+            i = j + 1
+        elif c == ";":
+            out.append(" " * (n - i))
+            break
+        else:
+            out.append(c)
+            i += 1
+    return "".join(out)
+
+
+class _Parser:
+    """Recursive-descent reader of the values and expressions of one line (``s`` without comments)."""
+
+    def __init__(self, s: str):
+        self.s, self.n = s, len(s)
+
+    def ws(self, i: int) -> int:
+        while i < self.n and self.s[i] in " \t\r":
+            i += 1
+        return i
+
+    def alpha(self, i: int):
+        j = i
+        while j < self.n and self.s[j].isascii() and self.s[j].isalpha():
+            j += 1
+        return self.s[i:j].upper(), j
+
+    def number(self, i: int):
+        m = _NUM.match(self.s, i)
+        text = m.group(1).replace(" ", "").replace("\t", "")
+        if not any(c.isdigit() for c in text):
+            return None, i
+        end = m.end(1)
+        while end > i and self.s[end - 1] in " \t":
+            end -= 1
+        return float(text), end
+
+    def value(self, i: int):
+        """One value: number, parameter, ``[expression]``, signed value or function. ``(node, end)``."""
+        i = self.ws(i)
+        if i >= self.n:
+            raise _Refuse(i + 1, "a value is missing")
+        c = self.s[i]
+        if c == "[":
+            node, j = self.binary(i + 1)
+            j = self.ws(j)
+            if j >= self.n or self.s[j] != "]":
+                raise _Refuse(i + 1, "'[' without its ']'")
+            return node, j + 1
+        if c == "#":
+            return self.param(i)
+        if c in "+-":
+            node, j = self.value(i + 1)
+            return (("neg", node) if c == "-" else node), j
+        if c.isdigit() or c == ".":
+            v, j = self.number(i)
+            if v is None:
+                raise _Refuse(i + 1, f"unexpected {c!r}")
+            if j < self.n and self.s[j] in "eE":
+                raise _Refuse(i + 1, "exponent notation is not RS274")
+            return ("num", v), j
+        if c.isascii() and c.isalpha():
+            name, j = self.alpha(i)
+            if name not in FUNCS:
+                raise _Refuse(i + 1, f"{name!r} is not a function of the expression language "
+                                     f"({' '.join(FUNCS)})")
+            j = self.ws(j)
+            if j >= self.n or self.s[j] != "[":
+                raise _Refuse(i + 1, f"{name} needs its argument in '[ ]'")
+            if name == "EXISTS":
+                arg, k = self.value(j)
+                if arg[0] != "name":
+                    raise _Refuse(i + 1, "EXISTS takes a named parameter #<...>")
+                return ("exists", arg[1]), k
+            arg, k = self.value(j)
+            if name == "ATAN":
+                k = self.ws(k)
+                if k >= self.n or self.s[k] != "/":
+                    raise _Refuse(i + 1, "ATAN is written ATAN[y]/[x]")
+                k2 = self.ws(k + 1)
+                if k2 >= self.n or self.s[k2] != "[":
+                    raise _Refuse(k + 2, "ATAN is written ATAN[y]/[x]")
+                arg2, k = self.value(k2)
+                return ("atan", arg, arg2, i + 1), k
+            return ("fn", name, arg, i + 1), k
+        raise _Refuse(i + 1, f"unexpected character {c!r} in a value")
+
+    def param(self, i: int):
+        """``#n``, ``##n``, ``#[expr]``, ``#<name>`` at ``i`` (the '#')."""
+        j = self.ws(i + 1)
+        if j < self.n and self.s[j] == "<":
+            k = self.s.find(">", j)
+            if k < 0:
+                raise _Refuse(i + 1, "'#<' without its '>'")
+            name = re.sub(r"\s+", "", self.s[j + 1:k]).lower()
+            if not name:
+                raise _Refuse(i + 1, "empty parameter name '#<>'")
+            return ("name", name, i + 1), k + 1
+        if j < self.n and (self.s[j].isdigit() or self.s[j] == "."):
+            v, k = self.number(j)
+            return ("par", ("num", v), i + 1), k
+        inner, k = self.value(j)
+        return ("par", inner, i + 1), k
+
+    def operator(self, i: int):
+        i = self.ws(i)
+        if i >= self.n:
+            return None, i
+        if self.s.startswith("**", i):
+            return "**", i + 2
+        if self.s[i] in "*/+-":
+            return self.s[i], i + 1
+        name, j = self.alpha(i)
+        return (name, j) if name in _PREC else (None, i)
+
+    def binary(self, i: int, level: int = 0):
+        """Expression of operators of precedence ≥ ``level`` (left-associative)."""
+        left, i = self.value(i)
+        while True:
+            at = self.ws(i)
+            op, j = self.operator(i)
+            if op is None or _PREC[op] < level:
+                return left, i
+            right, i = self.binary(j, _PREC[op] + 1)
+            left = ("bin", op, left, right, at + 1)
+
+
+def _parse_line(body: str):
+    """One source line into a statement tuple (its first item the kind); see :class:`_Machine`."""
+    code = _code_of(body)
+    m = _PROG.match(code)
+    if m:
+        return ("prog", int(m.group(1)))
+    if not _LINE_MARKS.search(code):
+        return ("plain", bool(_END_CODES.search(code)))
+    p = _Parser(code)
+    i = p.ws(0)
+    if i < p.n and code[i] == "/":
+        raise _Refuse(i + 1, "block delete ('/') on a line with parameters or control flow: whether it "
+                             "runs depends on the controller's switch")
+    n = _N_LABEL.match(code, i)
+    label = int(n.group(1)) if n else None
+    i = n.end() if n else i
+    o = _O_STMT.match(code, i)
+    if o and o.group(2) and o.group(2).lower() in _LCNC_KEYS:
+        return _parse_o(p, o, label)
+    key, j = p.alpha(p.ws(i))
+    if key == "IF":
+        cond, k = p.value(j)
+        then, k2 = p.alpha(p.ws(k))
+        if then == "GOTO":
+            target, k3 = p.value(k2)
+            _rest_empty(p, k3)
+            return ("ifgoto", label, cond, target, i + 1)
+        if then == "THEN":
+            return ("then", label, cond, _assignments(p, k2))
+        raise _Refuse(k + 1, "IF [..] is followed by GOTO n or THEN #i = ...")
+    if key == "GOTO":
+        target, k = p.value(j)
+        _rest_empty(p, k)
+        return ("goto", label, target, i + 1)
+    if key == "WHILE":
+        cond, k = p.value(j)
+        do, k2 = p.alpha(p.ws(k))
+        if do != "DO":
+            raise _Refuse(k + 1, "WHILE [..] is followed by DOm")
+        ident, k3 = _loop_id(p, k2, do)
+        _rest_empty(p, k3)
+        return ("while", label, cond, ident, i + 1)
+    if key == "END":
+        ident, k = _loop_id(p, j, key)
+        _rest_empty(p, k)
+        return ("endm", label, ident)
+    return _parse_words(p, body, code, i, label)
+
+
+def _loop_id(p: _Parser, j: int, word: str):
+    j = p.ws(j)
+    v, k = p.number(j)
+    if v is None or v != int(v) or not 1 <= v <= 3:
+        raise _Refuse(j + 1, f"{word} needs a loop number 1, 2 or 3")
+    return int(v), k
+
+
+def _rest_empty(p: _Parser, k: int):
+    k = p.ws(k)
+    if k < p.n:
+        raise _Refuse(k + 1, f"unexpected {p.s[k:k + 12].strip()!r} after the statement")
+
+
+def _assignments(p: _Parser, i: int) -> list:
+    out = []
+    i = p.ws(i)
+    while i < p.n:
+        if p.s[i] != "#":
+            raise _Refuse(i + 1, "expected a parameter setting '#i = ...'")
+        target, j = p.param(i)
+        j = p.ws(j)
+        if j >= p.n or p.s[j] != "=":
+            raise _Refuse(i + 1, "a parameter on its own is not a statement ('#i = ...')")
+        rhs, k = p.binary(j + 1)
+        out.append((target, rhs, i, k))
+        i = p.ws(k)
+    return out
+
+
+def _parse_o(p: _Parser, o, label):
+    name = re.sub(r"\s+", "", o.group(1)).lower()
+    kw = o.group(2).lower()
+    k = o.end()
+    args = []
+    if kw == "call":
+        k = p.ws(k)
+        while k < p.n and p.s[k] == "[":
+            a, k = p.value(k)
+            args.append(a)
+            k = p.ws(k)
+    elif kw in ("if", "elseif", "while", "repeat") or (kw in ("return", "endsub") and p.ws(k) < p.n):
+        a, k = p.value(k)
+        args.append(a)
+    _rest_empty(p, k)
+    return ("o", label, name, kw, tuple(args), o.start() + 1)
+
+
+def _parse_words(p: _Parser, body: str, code: str, i: int, label):
+    """Words and parameter settings: ``("words", label, items, assigns, call, ends)``."""
+    words, assigns = [], []
+    while True:
+        i = p.ws(i)
+        if i >= p.n:
+            break
+        c = code[i]
+        if c == "#":
+            target, j = p.param(i)
+            j = p.ws(j)
+            if j >= p.n or code[j] != "=":
+                raise _Refuse(i + 1, "a parameter outside a word ('#i' alone); write it as a word's value or set it")
+            rhs, k = p.binary(j + 1)
+            assigns.append((target, rhs, i, k))
+            i = k
+        elif c.isascii() and c.isalpha():
+            letter = c.upper()
+            j = p.ws(i + 1)
+            plain, k = p.number(j) if j < p.n and (code[j].isdigit() or code[j] in ".+-") else (None, j)
+            if j < p.n and code[j] in "+-" and plain is None:
+                sign = code[j]
+                v, k = p.number(p.ws(j + 1))
+                plain = None if v is None else (v if sign == "+" else -v)
+            if plain is not None and not (k < p.n and code[k] in "eE#[") :
+                words.append((letter, i, k, None, float(plain)))
+            else:
+                node, k = p.value(j)
+                words.append((letter, i, k, node, None))
+            i = k
+        else:
+            raise _Refuse(i + 1, f"unexpected character {c!r}")
+    return ("words", label, tuple(words), tuple(assigns), _call_of(words, p), bool(_END_CODES.search(code)))
+
+
+def _call_of(words: list, p: _Parser):
+    """``(kind, {letter: word})`` for a line with M98 / M97 / M99 / G65, else None."""
+    kinds = [("M98" if w[4] == 98 else "M97" if w[4] == 97 else "M99") for w in words
+             if w[0] == "M" and w[4] in (97, 98, 99)]
+    kinds += ["G65" for w in words if w[0] == "G" and w[4] == 65]
+    kinds += [f"{w[0]}#" for w in words if w[0] in "GM" and w[3] is not None]
+    if not kinds:
+        return None
+    k = kinds[0]
+    if k.endswith("#"):
+        raise _Refuse(next(w for w in words if w[3] is not None)[1] + 1,
+                      f"a {k[0]} code from a parameter: which code runs is decided at run time")
+    if len(kinds) > 1:
+        raise _Refuse(words[0][1] + 1, f"{' and '.join(kinds)} on one line")
+    by = {}
+    for w in words:
+        if w[0] in by and w[0] not in "N":
+            raise _Refuse(w[1] + 1, f"'{w[0]}' twice on a {k} line")
+        by[w[0]] = w
+    allowed = {"M98": "NMPL", "M97": "NMPL", "M99": "NM"}.get(k)
+    if allowed is not None:
+        extra = [w for w in words if w[0] not in allowed]
+        if extra:
+            raise _Refuse(extra[0][1] + 1, f"'{extra[0][0]}' on the {k} line: the reader expands the call "
+                                           "on a line of its own (put the other words on their own line)")
+    elif any(w[0] in "GMNO" and w is not by.get("G") for w in words if w[0] != "N"):
+        w = next(w for w in words if w[0] in "GMO" and w is not by.get("G"))
+        raise _Refuse(w[1] + 1, f"'{w[0]}' on the G65 line (its letters are the macro's arguments)")
+    return k, by
+
+
+# ---------------------------------------------------------------------------- running
+def _detect(stmts) -> str | None:
+    for s in stmts:
+        if s[0] == "o" or (s[0] == "words" and any(t[0][0] == "name" for t in s[3])):
+            return "linuxcnc"
+    for s in stmts:
+        if s[0] in ("ifgoto", "then", "goto", "while", "endm", "prog") or (s[0] == "words" and s[4] is not None):
+            return "fanuc"
+    return None
+
+
+class _Machine:
+    """The controller's interpreter of the control language (module docstring), run once."""
+
+    def __init__(self, text: str, path: str, dialect):
+        self.path, self.text = path, text
+        self.lines = text.split("\n")
+        self.endings = ["\n"] * (len(self.lines) - 1) + [""]
+        if self.lines and self.lines[-1] == "":
+            self.lines.pop()
+            self.endings.pop()
+        self.stmts = []
+        for i, ln in enumerate(self.lines):
+            try:
+                self.stmts.append(_parse_line(ln.rstrip("\r")))
+            except _Refuse as r:
+                raise InputError(f"{path}: line {i + 1}, column {r.col}: {r.msg}") from None
+        given = dialect
+        dialect = {"haas": "fanuc", "siemens-iso": "fanuc", "mach3": "linuxcnc"}.get(dialect, dialect)
+        self.given = given
+        self.dialect = dialect or _detect(self.stmts)
+        self.glob, self.gnamed = {}, {}
+        self.out, self.origin = [], []
+        self.executed = 0
+        self.calls = ()
+        self._index()
+
+    # -- structure
+    def _index(self):
+        self.subs, self.progs, self.labels = {}, {}, {}
+        first_code = next((i for i, ln in enumerate(self.lines) if ln.strip() and ln.strip() != "%"), 0)
+        prog_lines = [i for i, s in enumerate(self.stmts) if s[0] == "prog"]
+        for k, i in enumerate(prog_lines):
+            end = prog_lines[k + 1] if k + 1 < len(prog_lines) else len(self.lines)
+            self.progs.setdefault(self.stmts[i][1], (i + 1, end))
+        if prog_lines and prog_lines[0] == first_code:
+            self.main = (0, prog_lines[1] if len(prog_lines) > 1 else len(self.lines))
+        else:
+            self.main = (0, prog_lines[0] if prog_lines else len(self.lines))
+        for i, s in enumerate(self.stmts):
+            if s[0] == "o" and s[3] == "sub":
+                end = self._find(i, s[2], ("endsub",))
+                if end is None:
+                    raise self._err(i, s[5], f"o{s[2]} sub without its o{s[2]} endsub")
+                self.subs[s[2]] = (i + 1, end + 1)
+        for i, s in enumerate(self.stmts):
+            lab = s[1] if s[0] not in ("plain", "prog") else self._plain_label(i)
+            if lab is not None:
+                self.labels.setdefault(lab, []).append(i)
+
+    def _plain_label(self, i):
+        m = _N_LABEL.match(self.lines[i])
+        return int(m.group(1)) if m else None
+
+    def _find(self, i, name, keys):
+        for j in range(i + 1, len(self.stmts)):
+            s = self.stmts[j]
+            if s[0] == "o" and s[2] == name and s[3] in keys:
+                return j
+        return None
+
+    def _err(self, i, col, msg) -> InputError:
+        at = f"{self.path}: line {i + 1}" + (f", column {col}" if col else "")
+        return InputError(at + "".join(f" (called from line {c + 1})" for c in reversed(self.calls)) + f": {msg}")
+
+    # -- output
+    def _emit(self, i, text=None):
+        if text is None:
+            self.out.append(self.lines[i] + self.endings[i])
+            self.origin.append((i + 1, True, tuple(c + 1 for c in self.calls)))
+        else:
+            self.out.append(text + ("\r" if self.lines[i].endswith("\r") else "") + self.endings[i])
+            self.origin.append((i + 1, False, tuple(c + 1 for c in self.calls)))
+
+    def run(self) -> Expanded:
+        try:
+            self._unit(self.main, _Frame("main"), main=True)
+        except _Stop:
+            pass
+        except _Return:
+            pass
+        last = max((i for i, ln in enumerate(self.lines) if ln.strip()), default=None)
+        if last is not None and self.lines[last].strip() == "%" and (not self.origin or self.origin[-1][0] != last + 1):
+            self._emit(last)
+        return Expanded("".join(self.out), tuple(self.origin), self.dialect or "unknown", self.path)
+
+    def _tick(self, i):
+        self.executed += 1
+        if self.executed > MAX_EXECUTED_LINES:
+            raise self._err(i, None, f"more than {MAX_EXECUTED_LINES:,} lines executed (MAX_EXECUTED_LINES): an "
+                                     "endless loop or one the reader does not expand")
+
+    def _unit(self, span, fr: _Frame, main=False):
+        pc, end = span
+        fr.unit_span = span
+        seen_percent = False
+        while pc < end:
+            self._tick(pc)
+            s = self.stmts[pc]
+            kind = s[0]
+            if kind == "plain":
+                if main and self.lines[pc].strip() == "%":
+                    if seen_percent or self.origin:
+                        self._emit(pc)
+                        raise _Stop
+                    seen_percent = True
+                self._emit(pc)
+                if s[1]:
+                    raise _Stop
+                pc += 1
+            else:
+                pc = getattr(self, "_do_" + kind)(pc, s, fr)
+        return None
+
+    # -- statements
+    def _do_prog(self, pc, s, fr):
+        self._emit(pc)
+        return pc + 1
+
+    def _do_words(self, pc, s, fr):
+        _, label, words, assigns, call, ends = s
+        vals = {id(w): self._eval(w[3], pc, fr, in_word=True) for w in words if w[3] is not None}
+        new = [(t, self._eval(rhs, pc, fr), a) for t, rhs, a, _ in assigns]
+        for t, v, a in new:
+            self._set(t, v, pc, fr, a + 1)
+        if call is not None:
+            return self._call(pc, call, words, vals, fr)
+        if words:
+            body = self.lines[pc].rstrip("\r")
+            cuts = [(a, b, "") for _, _, a, b in assigns]
+            cuts += [(w[1] + 1, w[2], _fmt(vals[id(w)], pc, w[1] + 1, self)) for w in words if w[3] is not None]
+            if cuts:
+                out, at = [], 0
+                for a, b, rep in sorted(cuts):
+                    out.append(body[at:a])
+                    out.append(rep)
+                    at = b
+                out.append(body[at:])
+                self._emit(pc, "".join(out))
+            else:
+                self._emit(pc)
+        if ends:
+            raise _Stop
+        return pc + 1
+
+    def _do_then(self, pc, s, fr):
+        if self._truth(s[2], pc, fr):
+            new = [(t, self._eval(rhs, pc, fr), a) for t, rhs, a, _ in s[3]]
+            for t, v, a in new:
+                self._set(t, v, pc, fr, a + 1)
+        return pc + 1
+
+    def _do_goto(self, pc, s, fr, target=None):
+        n = self._int(s[2] if target is None else target, pc, fr, "GOTO's block number")
+        lo, hi = fr.unit_span
+        hits = [j for j in self.labels.get(n, []) if lo <= j < hi]
+        if not hits:
+            raise self._err(pc, s[-1], f"GOTO {n}: no block N{n} in this program")
+        if len(hits) > 1:
+            raise self._err(pc, s[-1], f"GOTO {n}: N{n} appears {len(hits)} times in this program (ambiguous)")
+        return hits[0]
+
+    def _do_ifgoto(self, pc, s, fr):
+        if self._truth(s[2], pc, fr):
+            return self._do_goto(pc, s, fr, target=s[3])
+        return pc + 1
+
+    def _do_while(self, pc, s, fr):
+        end = self._match_end(pc, s[3])
+        if self._truth(s[2], pc, fr):
+            return pc + 1
+        return end + 1
+
+    def _match_end(self, pc, ident):
+        depth = 0
+        for j in range(pc + 1, len(self.stmts)):
+            t = self.stmts[j]
+            if t[0] == "while" and t[3] == ident:
+                depth += 1
+            elif t[0] == "endm" and t[2] == ident:
+                if depth == 0:
+                    return j
+                depth -= 1
+        raise self._err(pc, s_col(self.stmts[pc]), f"WHILE .. DO{ident} without its END{ident}")
+
+    def _do_endm(self, pc, s, fr):
+        for j in range(pc - 1, -1, -1):
+            t = self.stmts[j]
+            if t[0] == "while" and t[3] == s[2] and self._match_end(j, s[2]) == pc:
+                return j
+        raise self._err(pc, None, f"END{s[2]} without its WHILE .. DO{s[2]}")
+
+    def _do_o(self, pc, s, fr):
+        return o_statement(self, pc, s, fr)
+
+    # -- calls
+    def _call(self, pc, call, words, vals, fr):
+        return call_statement(self, pc, call, words, vals, fr)
+
+    # -- values
+    def _eval(self, node, pc, fr, in_word=False):
+        return evaluate(self, node, pc, fr, in_word)
+
+    def _truth(self, node, pc, fr) -> bool:
+        return self._eval(node, pc, fr) != 0.0
+
+    def _int(self, node, pc, fr, what) -> int:
+        v = self._eval(node, pc, fr)
+        if v != round(v):
+            raise self._err(pc, None, f"{what} {v:g} is not a whole number")
+        return int(round(v))
+
+    def _set(self, target, v, pc, fr, col):
+        assign(self, target, v, pc, fr, col)
+
+
+def s_col(s):
+    return s[-1] if isinstance(s[-1], int) else None
+
+
+def _fmt(v: float, pc: int, col: int, m: _Machine) -> str:
+    """A value written as an RS274 number (fixed point, 10 decimals at most, no exponent)."""
+    if not math.isfinite(v) or abs(v) >= 1e9:
+        raise m._err(pc, col, f"the value {v!r} cannot be written as a G-code number")
+    t = f"{v:.10f}".rstrip("0").rstrip(".")
+    return "0" if t in ("", "-0") else t

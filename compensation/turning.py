@@ -1,0 +1,208 @@
+"""Turning mode on a lathe: while the spindle turns, C is the spindle, not a positioning axis.
+
+A lathe's machine file names its work spindle and the M codes that start and end turning
+(``[spindle]``: ``axis = "C"``, ``turning_on = ["M3", "M4"]``, ``turning_off = ["M5"]``; docs/machines.md).
+While the spindle turns the tool cuts a **surface of revolution**: what a move must hit is the
+programmed radius ``r`` (distance from the spindle axis) and axial position ``z`` of the tool tip in the
+workpiece frame, whatever the spindle's angle. So a turning move is compensated with the two linear axes
+(X and Z) and C is left untouched (never written):
+
+    g(X, Z) = mean over one turn of [ r(X, Z, c) − r_d ,  z(X, Z, c) − z_d ]  = 0   (μm)
+
+with the tool tip ``fwd(q) + 1e-3·E(q)`` at :data:`TURN_SAMPLES` spindle angles ``c`` evenly over the turn,
+solved by Newton (finite-difference 2×2 Jacobian, step :data:`FD_STEP_MM`). The part of the error that
+changes with the spindle angle (its spread over the turn: out-of-roundness) is not correctable by X and Z
+and is reported (``roundness_um``). Where the spindle does not turn (C-axis mode) C is an axis: solved with
+X and Z as on every three-axis machine.
+
+A program with no C word at all is read with the X and Z words only (every move compensated this way; C
+is never commanded). One with C words is read with C: a C word on a line where the spindle turns is
+refused, and C must be known before the first move (a positioning C before turning starts).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from errormap.io import InputError
+
+from .gcode import AxisWords, GProgram, parse_program, tokenize
+
+TURN_SAMPLES = 24
+"""Spindle angles (every 15°) at which the error is averaged over one turn: the chain's errors are smooth
+in C (splines over a few stations and low harmonics), so 24 samples average their first harmonics exactly
+(a harmonic of order < 24 averages to zero on 24 evenly spaced samples)."""
+FD_STEP_MM = 1e-3
+"""Finite-difference step for the 2×2 Jacobian of ``g`` (the error changes by ~1e-5 μm over it)."""
+TOL_UM = 1e-4
+"""A turning point converges when ``|g| ≤`` this (the exact chain solver's tolerance)."""
+MAX_ITER = 30
+AXIS_INVARIANCE_MM = 1e-9
+"""The spindle must turn about the workpiece frame's z axis: the nominal r and z of a point may change by
+at most this over the turn (checked; otherwise turning mode is refused for that machine file)."""
+
+
+def spindle_turning(lines, spindle: dict) -> np.ndarray:
+    """Per line (bool, shape (n,)): the spindle turns after the line's M codes (a ``turning_on`` code starts
+    it, a ``turning_off`` code or ``M2``/``M30`` ends it; M codes act before the line's motion, RS274 order)."""
+    on, off = set(spindle["turning_on"]), set(spindle["turning_off"]) | {2, 30}
+    out = np.zeros(len(lines), dtype=bool)
+    state = False
+    for i, line in enumerate(lines):
+        if "M" in line or "m" in line:
+            for w in tokenize(line.rstrip("\r\n"))[1]:
+                if w.letter == "M" and w.value == int(w.value):
+                    code = int(w.value)
+                    state = True if code in on else False if code in off else state
+        out[i] = state
+    return out
+
+
+def parse_lathe_program(path, machine, rapids, block_delete, dialect=None) -> tuple[GProgram, np.ndarray]:
+    """A program for a machine with a ``[spindle]``: ``(program, turning)`` with ``turning`` (n_moves,) per
+    move of ``program.moves`` (module docstring)."""
+    c = machine.spindle["axis"]
+    full = AxisWords.of(machine)
+    xz = AxisWords(machine.name, tuple(w for w in full.words if w != c), tuple(r for r in full.rotary if r != c))
+    try:
+        prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect)
+        return prog, np.ones(len(prog.moves), dtype=bool)
+    except InputError:
+        pass  # it has C words (or another refusal, which the full reading names)
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=full, dialect=dialect)
+    flags = spindle_turning(prog.lines, machine.spindle)
+    turning = np.array([flags[m.index] for m in prog.moves], dtype=bool)
+    if not turning.any():
+        return prog, turning
+    for m in prog.moves:
+        if flags[m.index] and c in m.words:
+            w = m.words[c]
+            exc = InputError(f"{path}: line {m.index + 1}, column {w.start + 1}: '{c}{w.text}' while the spindle "
+                             f"turns (turning mode): {c} is the spindle, not an axis; stop it (one of "
+                             f"{', '.join(f'M{k}' for k in machine.spindle['turning_off'])}) before positioning {c}")
+            raise exc if prog.expanded is None else prog.expanded.relocate(exc)
+    kept = dataclasses.replace(full, kept=(c,))  # C written only where C-axis mode moves it
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect)
+    return prog, np.array([flags[m.index] for m in prog.moves], dtype=bool)
+
+
+class ColumnsField:
+    """A chain field read at a program's columns (X, Z), the spindle's angle set to 0: for planning moves."""
+
+    def __init__(self, field, columns, k):
+        self.field, self.columns, self.k = field, np.asarray(columns), k
+
+    def full(self, q):
+        out = np.zeros((len(q), self.k))
+        out[:, self.columns] = q
+        return out
+
+    def predict(self, q):
+        return self.field.predict(self.full(np.asarray(q, dtype=float)))
+
+
+# ---------------------------------------------------------------------------- the solver
+def _indices(machine):
+    c = machine.axis_words.index(machine.spindle["axis"])
+    lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
+    return c, lin
+
+
+def _over_turn(machine, q):
+    n = len(q)
+    c, _ = _indices(machine)
+    Q = np.repeat(q, TURN_SAMPLES, axis=0)
+    Q[:, c] = np.tile(np.arange(TURN_SAMPLES) * (360.0 / TURN_SAMPLES), n)
+    return Q
+
+
+def surface_residual_um(field, machine, axes, axes_d, compiled=None):
+    """``(mean (n, 2), spread (n,))``: the tool tip's deviation (radial, axial; μm) from the surface of
+    revolution of the programmed axes ``axes_d`` (n, k) when the machine (nominal + ``field``) is driven to
+    ``axes`` (n, k), averaged over one turn of the spindle; ``spread`` the largest departure from that mean
+    over the turn (what X and Z cannot correct)."""
+    from .solvers.chain_exact import nominal_and_jacobian
+    n = len(axes)
+    P0, _ = nominal_and_jacobian(machine, _over_turn(machine, axes_d), compiled)
+    P0 = P0.reshape(n, TURN_SAMPLES, 3)
+    r0, z0 = np.hypot(P0[..., 0], P0[..., 1]), P0[..., 2]
+    if n and max(np.ptp(r0, axis=1).max(), np.ptp(z0, axis=1).max()) > AXIS_INVARIANCE_MM:
+        raise ValueError(f"machine {machine.name!r}: its spindle does not turn about the workpiece frame's z axis; "
+                         "turning mode needs that")
+    Q = _over_turn(machine, axes)
+    P, _ = nominal_and_jacobian(machine, Q, compiled)
+    P = (P + 1e-3 * np.asarray(field.predict(Q))).reshape(n, TURN_SAMPLES, 3)
+    d = np.stack([np.hypot(P[..., 0], P[..., 1]) - r0[:, :1], P[..., 2] - z0[:, :1]], axis=-1) * 1e3
+    mean = d.mean(axis=1)
+    spread = np.linalg.norm(d - mean[:, None, :], axis=2).max(axis=1) if n else np.zeros(0)
+    return mean, spread
+
+
+def solve_turning(field, machine, axes_d, ball_um: float, tol_um: float = TOL_UM, max_iter: int = MAX_ITER):
+    """X and Z of every turning point ``axes_d`` (n, k) so that ``g = 0`` (module docstring); C untouched.
+    Returns ``(axes (n, k), residual (n, 3) μm as (radial, 0, axial), converged (n,), spread (n,), iterations)``."""
+    from errormap.mt_kernel import NominalChain
+    compiled = NominalChain(machine)
+    _, lin = _indices(machine)
+    q = np.array(axes_d, dtype=float)
+    n = len(q)
+    g, spread = surface_residual_um(field, machine, q, axes_d, compiled)
+    active = np.linalg.norm(g, axis=1) > tol_um
+    it = 0
+    while active.any() and it < max_iter:
+        it += 1
+        idx = np.flatnonzero(active)
+        J = np.empty((len(idx), 2, 2))
+        for col, j in enumerate(lin):
+            qh = q[idx].copy()
+            qh[:, j] += FD_STEP_MM
+            J[:, :, col] = (surface_residual_um(field, machine, qh, axes_d[idx], compiled)[0] - g[idx]) / FD_STEP_MM
+        ok = np.abs(np.linalg.det(J)) > 1e-12
+        step = np.zeros((len(idx), 2))
+        step[ok] = np.linalg.solve(J[ok], -g[idx][ok][..., None])[..., 0]
+        q[idx[:, None], np.array(lin)[None, :]] += step
+        g[idx], spread[idx] = surface_residual_um(field, machine, q[idx], axes_d[idx], compiled)
+        active[idx] = (np.linalg.norm(g[idx], axis=1) > tol_um) & ok
+    moved = np.linalg.norm(q[:, lin] - axes_d[:, lin], axis=1) * 1e3
+    converged = (np.linalg.norm(g, axis=1) <= tol_um) & (moved <= ball_um)
+    residual = np.stack([g[:, 0], np.zeros(n), g[:, 1]], axis=1)
+    return q, residual, converged, spread, it
+
+
+def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, ball_um):
+    """One :class:`~compensation.solvers.base.SolveResult` over all points: ``turning`` (n,) points by
+    :func:`solve_turning`, the others by ``solve_rest(targets, axes_d)`` (the chosen chain method)."""
+    import time
+    from .solvers._common import make_result
+    t0 = time.perf_counter()
+    rest = np.flatnonzero(~turning)
+    turn = np.flatnonzero(turning)
+    n, k = axes_d.shape
+    axes, commands = axes_d.astype(float).copy(), targets.astype(float).copy()
+    residual, converged = np.zeros((n, 3)), np.zeros(n, dtype=bool)
+    info, nfev, method = {}, 0, "exact"
+    if len(rest):
+        r = solve_rest(targets[rest], axes_d[rest])
+        axes[rest], commands[rest], residual[rest], converged[rest] = r.axes, r.commands_mm, r.residual_um, r.success
+        info, nfev, method = dict(r.info), r.nfev, r.method
+        for key in ("rotary_refused", "outside_ball"):
+            if key in info:
+                info[key] = rest[np.asarray(info[key], dtype=np.intp)]
+        info.pop("iterations", None)
+    if len(turn):
+        from .solvers.chain_exact import nominal_and_jacobian
+        q, res, conv, spread, _ = solve_turning(field, machine, axes_d[turn], ball_um)
+        axes[turn], residual[turn], converged[turn] = q, res, conv
+        commands[turn] = nominal_and_jacobian(machine, q)[0]
+        nfev += len(turn) * TURN_SAMPLES
+        names = machine.axis_columns
+        c, lin = _indices(machine)
+        info.setdefault("compensated_axes", [names[j] for j in lin])
+        info.setdefault("kept_axes", [names[c]])
+        info["turning_points"] = int(len(turn))
+        info["turning_roundness_max_um"] = float(spread.max())
+        info["note"] = ((info["note"] + "; ") if info.get("note") else "") + (
+            f"turning mode: {len(turn)} point(s) compensated with {', '.join(names[j] for j in lin)} against the "
+            f"surface of revolution, {names[c]} untouched (the spindle)")
+    return make_result(method, targets, commands, axes, residual, converged, nfev, t0, ball_um, info=info)

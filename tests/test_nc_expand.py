@@ -1,0 +1,162 @@
+"""Subprograms, macros and parameters (compensation/nc_expand.py): expanded where the program determines
+them, refused by name, line and column where it does not.
+
+The programs in tests/data/nc_macros/ are written for these tests from the controllers' manuals (LinuxCNC
+O-codes and parameters; Fanuc Custom Macro B, M98/M99, G65), each with its expected flat program worked
+out by hand (``*.expected.*``): the expansion must equal it line for line, and the reader must find the
+same programmed points in both."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+from compensation import nc_expand
+from compensation.gcode import AxisWords, parse_program, render_program
+from compensation.nc_expand import expand_if_needed, expand_program
+from errormap.io import InputError
+from errormap.machine import load_machine
+
+DATA = Path(__file__).parent / "data" / "nc_macros"
+MILL = AxisWords.of(load_machine("mill-xyz"))
+ACCEPTED = [("linuxcnc_osub.ngc", "linuxcnc_osub.expected.ngc", "linuxcnc"),
+            ("fanuc_macro_b.nc", "fanuc_macro_b.expected.nc", "fanuc")]
+
+
+def _ends(prog):
+    return np.array([m.end for m in prog.moves])
+
+
+@pytest.mark.parametrize("src,expected,dialect", ACCEPTED)
+def test_accepted_programs_expand_to_the_hand_worked_flat_program(src, expected, dialect):
+    text = (DATA / src).read_text(encoding="latin-1")
+    e = expand_program(text, DATA / src)
+    assert e.dialect == dialect
+    assert e.text == (DATA / expected).read_text(encoding="latin-1")
+    # every output line maps to a source line: verbatim ones are that line byte for byte
+    src_lines = text.split("\n")
+    for out, (ln, verbatim, _) in zip(e.text.split("\n"), e.origin):
+        assert (out == src_lines[ln - 1]) == verbatim
+    # the reader finds the same programmed points in the expanded program as in the hand-worked one
+    prog, flat = parse_program(DATA / src, axis_words=MILL), parse_program(DATA / expected, axis_words=MILL)
+    assert prog.expanded is not None and flat.expanded is None
+    assert len(prog.moves) == len(flat.moves) and np.array_equal(_ends(prog), _ends(flat), equal_nan=True)
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_written_program_is_the_expanded_one_with_a_note(fast):
+    prog = parse_program(DATA / "fanuc_macro_b.nc", axis_words=MILL, fast=fast)
+    comp = [m for m in prog.moves if m.compensate]
+    text, _ = render_program(prog, [m.end[None, :] for m in comp])
+    lines = text.splitlines(keepends=True)
+    assert lines[2].startswith("(volcomp: subprograms, macros and parameters expanded by fanuc rules")
+    flat = (DATA / "fanuc_macro_b.expected.nc").read_text(encoding="latin-1").splitlines(keepends=True)
+    del lines[2]
+    moved = {m.index for m in comp}
+    assert [ln for i, ln in enumerate(lines) if i not in moved] == [ln for i, ln in enumerate(flat) if i not in moved]
+
+
+def test_a_program_without_marks_is_not_touched():
+    data = (Path(__file__).parent / "data" / "mill_pocket.nc").read_bytes()
+    assert not nc_expand.needs_expansion(data)
+    assert expand_if_needed(data, "p.nc") is None
+    # a mark in a comment only: expanded to the same text, so read as it is
+    assert expand_if_needed(b"G21 G90 (see #5 and IF)\nG0 X1 Y2 Z3\nM30\n", "p.nc") is None
+
+
+REFUSED = [
+    # (program, the refusal must contain)
+    ("G21 G90\nG0 X0 Y0 Z5\nG1 X#5061 Y0\nM30\n", "line 3, column 5: #5061 (probe result"),
+    ("G21\n#1 = #4120\nG0 X#1 Y0 Z0\nM30\n", "line 2, column 6: #4120 (modal information (#4120: current tool)"),
+    ("G21\nG0 X0 Y0 Z0\nG1 X[#5420 + 1] Y0\n", "line 3, column 6: #5420 (current position)"),
+    ("G21\no1 if [#<_current_tool> EQ 3]\nG0 X1 Y0 Z0\no1 endif\n",
+     "line 2, column 8: #<_current_tool> is the controller's run-time state"),
+    ("G21\nG0 X#<_x> Y0 Z0\n", "line 2, column 5: #<_x> is the controller's run-time state"),
+    ("G21\nG0 X#<depth> Y0 Z0\n", "line 2, column 5: #<depth> is not set by the program"),
+    ("G21\n#500 = #500 + 1\nG0 X#500 Y0 Z0\n", "line 2, column 8: #500 is controller state"),
+    ("G21\n#5221 = 10\nG0 X0 Y0 Z0\n", "line 2, column 1: #5221 = ...: #5221 (work offset"),
+    ("G21\n#3000 = 1 (TOOL BROKEN)\n", "line 2, column 1: #3000 = ...: the program raises an alarm"),
+    ("G21\nG0 X[1/0] Y0 Z0\n", "line 2, column 7: / by zero"),
+    ("G21\nG0 X[SQRT[-1]] Y0 Z0\n", "line 2, column 6: SQRT of a negative number"),
+    ("O1\nG0 X0 Y0 Z0\nM98 P2000\nM30\n", "line 3, column 5: M98 P2000: program O2000 is not in this file"),
+    ("O1\nG0 X0 Y0 Z0\nM98 P20010\nM30\nO10\nG1 X1\nM99\n", "line 3, column 5: M98 P20010: on Fanuc the digits"),
+    ("O1\nG0 X0 Y0 Z0\nM99\n", "line 3, column 1: M99 in the main program"),
+    ("G21\no<probe> call [1]\nM2\n", "line 2, column 1: o<probe> call: the subroutine is not defined in this file"),
+    ("G21\n/#1 = 2\n", "line 2, column 1: block delete"),
+    ("G21\n#1 = [1 + 2\n", "line 2, column 6: '[' without its ']'"),
+    ("G21\n#1 = FOO[2]\n", "line 2, column 6: 'FOO' is not a function"),
+    ("G21\n#1 = -2.5\nG0 X[FIX[#1]] Y0 Z0\n", "line 3, column 6: FIX of a negative number rounds one way"),
+    ("O1\n#1 = 2.5\nG0 X[ROUND[#1]] Y0 Z0\nM30\n", "line 3, column 6: ROUND inside an address"),
+    ("G21\no1 sub\nG1 X1\nM2\n", "line 2, column 1: o1 sub without its o1 endsub"),
+    ("O1\nWHILE [1 EQ 1] DO1\nG1 X1\nM30\n", "line 2, column 1: WHILE .. DO1 without its END1"),
+    ("O1\nGOTO 7\nM30\n", "line 2, column 1: GOTO 7: no block N7"),
+]
+
+
+@pytest.mark.parametrize("text,fragment", REFUSED)
+def test_refusals_name_the_name_line_and_column(tmp_path, text, fragment):
+    p = tmp_path / "prog.nc"
+    p.write_text(text)
+    with pytest.raises(InputError) as exc:
+        parse_program(p, axis_words=MILL)
+    assert str(exc.value).startswith(f"{p}: line ") and fragment in str(exc.value), str(exc.value)
+
+
+def test_a_refusal_inside_a_subprogram_names_the_source_line_and_the_call(tmp_path):
+    p = tmp_path / "prog.nc"
+    p.write_text("O1\nG21 G90\nG0 X0 Y0 Z0\nM98 P2 L2\nM30\nO2\nG91 G1 X5. H1\nM99\n")
+    with pytest.raises(InputError, match=r"prog.nc: line 7, column 12 \(called from line 4\): 'H1'"):
+        parse_program(p, axis_words=MILL)
+    q = tmp_path / "q.nc"  # a line with values written in place: the column is the expanded line's
+    q.write_text("#1 = 2\nG0 X#1 Y0 Z0 G43\n")
+    with pytest.raises(InputError, match=r"q.nc: line 2 \(expanded as 'G0 X2 Y0 Z0 G43'\), column 13 of that"):
+        parse_program(q, axis_words=MILL)
+
+
+def test_endless_loops_and_recursion_are_refused_not_followed(tmp_path, monkeypatch):
+    monkeypatch.setattr(nc_expand, "MAX_EXECUTED_LINES", 10_000)  # the bound, made small for a fast test
+    with pytest.raises(InputError, match=r"p.ngc: line [234]: more than 10,000 lines executed"):
+        expand_program("G21\no1 while [1]\nG1 X1\no1 endwhile\n", "p.ngc")
+    with pytest.raises(InputError, match="p.nc: line [34]: more than 10,000 lines executed"):
+        expand_program("O1\n#1 = 0\nN5 G1 X#1\nGOTO 5\n", "p.nc")
+    with pytest.raises(InputError, match=rf"calls nested more than {nc_expand.MAX_CALL_DEPTH} deep"):
+        expand_program("o<r> sub\nG1 X1\no<r> call\no<r> endsub\no<r> call\nM2\n", "p.ngc")
+
+
+def test_call_site_moves_each_call_where_it_cuts():
+    """Incremental subprogram moves land where each call starts them (every call expanded, not shared)."""
+    text = "O1\nG21 G90\nG0 X0 Y0 Z0\nM98 P7 L3\nG0 X100\nM98 P7\nM30\nO7\nG91 G1 X10.\nG90\nM99\n"
+    e = expand_program(text, "p.nc")
+    assert e.text.count("G91 G1 X10.\n") == 4
+    assert [o[2] for o in e.origin if o[0] == 9] == [(4,), (4,), (4,), (6,)]
+
+
+def test_dialect_rules_where_the_controllers_differ():
+    # FIX / FUP of a negative number, MOD, ATAN's range: LinuxCNC vs Fanuc
+    lc = expand_program("o1 if [1]\no1 endif\nG1 X[FIX[-2.5]] Y[-7 MOD 3] Z[ATAN[-1]/[-1]]\n", "p.ngc")
+    assert lc.text.splitlines()[0] == "G1 X-3 Y2 Z-135"
+    fa = expand_program("O1\nG1 X[FIX[-2.5]] Y[-7 MOD 3] Z[ATAN[-1]/[-1]]\nM30\n", "p.nc")
+    assert fa.text.splitlines()[1] == "G1 X-2 Y-1 Z225"
+    # M98 P with more than four digits: the repeat count in front on Fanuc, a program number on Haas
+    prog = "O1\nM98 P20010\nM30\nO10\nG1 X1\nM99\nO20010\nG1 X2\nM99\n"
+    assert expand_program(prog, "p.nc", dialect="fanuc").text.count("G1 X1") == 2
+    assert expand_program(prog, "p.nc", dialect="haas").text.count("G1 X2") == 1
+
+
+def test_haas_m97_local_subprogram_and_g65_arguments():
+    text = ("O1\nG21 G90\nG0 X0 Y0 Z5\nM97 P100 L2\nG65 P9 X7. Y[2*3]\nM30\nN100 G91 G1 X5.\nG90\nM99\n"
+            "O9\nG1 X#24 Y#25 Z[#24 - #25]\nM99\n")
+    e = expand_program(text, "p.nc")
+    assert e.text == "O1\nG21 G90\nG0 X0 Y0 Z5\nN100 G91 G1 X5.\nG90\nN100 G91 G1 X5.\nG90\nG1 X7 Y6 Z1\nM30\n"
+    assert [o[2] for o in e.origin] == [(), (), (), (4,), (4,), (4,), (4,), (5,), ()]
+
+
+def test_a_guard_refusal_inside_a_call_names_the_source_line(tmp_path, capsys):
+    from compensation.app.cli import main
+    from test_mt_compensate import chain_elements
+    el = chain_elements(load_machine("mill-xyz"), 5).save(tmp_path / "el.json")
+    p = tmp_path / "sub.nc"  # the second call's incremental move leaves the X stroke [0, 600]
+    p.write_text("O1\nG21 G90 G17\nG0 X100. Y100. Z-300.\nM98 P2 L2\nM30\nO2\nG91 G1 X300. F100.\nG90\nM99\n")
+    assert main(["compensate", str(p), "--machine", "mill-xyz", "--model", str(el), "--method", "exact",
+                 "--out", str(tmp_path / "o")]) == 3
+    err = capsys.readouterr().err
+    assert "(line 7 (expanded line 6, called from line 4)): stroke: x_mm" in err
+    assert "expanded line 4," not in err  # the first call stays inside the strokes
