@@ -90,7 +90,7 @@ def test_fanuc_extras_are_reported(tmp_path, mill, truth_file, capsys):
     ("N6 M31\n", None, 4, "'M31': M code not on the rs274 allow-list (may move or call a program); haas: chip auger"),
     ("N6 M31\n", "fanuc", 4, "not on the fanuc allow-list"),
     (":1234\n", None, 1, "unexpected character ':'"),
-    ("N5 G05.1 Q1\n", None, 4, "'G5.1' (quadratic spline) is not supported"),
+    ("N5 G05.1 Q1\n", None, 4, "'G5.1' (quadratic spline: not interpretable exactly"),
     ("N5 G05.1 Q2 X0 Y0 Z0\n", "fanuc", 4, "Q2 smooth interpolation changes the path"),
     ("N5 G80 G0 X1\n", "linuxcnc", 8, "'G0' and 'G80' on one line"),
     ("/N5 M1\n", "grbl", 1, "grbl has no block-delete switch"),
