@@ -16,6 +16,7 @@ import math
 import os
 import re
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
@@ -62,19 +63,60 @@ def _umask() -> int:
     return mask
 
 
+_SPECIAL_KINDS = ((stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"), (stat.S_ISFIFO, "FIFO (named pipe)"),
+                  (stat.S_ISSOCK, "socket"))
+
+
+def check_output_target(path, kind: str = "file") -> None:
+    """Refuse to write an output onto ``path`` unless it is absent or a ``kind`` (``"file"``: a
+    regular file, ``"dir"``: a folder), a symbolic link followed: a device (``/dev/null``,
+    ``/dev/full``), a FIFO or a socket would be replaced by a regular file by the rename of
+    :func:`atomic_write` (as root, ``/dev/null`` itself), or block the writer. One
+    :class:`InputError` naming the path and what it is.
+    """
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return  # absent (or a dangling link, which the rename replaces): written as a new file
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be examined as an output ({exc.strerror or type(exc).__name__})") from None
+    link = " (through a symbolic link)" if path.is_symlink() else ""
+    for test, what in _SPECIAL_KINDS:
+        if test(mode):
+            raise InputError(f"{path}: is a {what}{link}; volcomp writes outputs only as regular files and folders "
+                             f"(give a file or folder path)")
+    if kind == "file" and stat.S_ISDIR(mode):
+        raise InputError(f"{path}: is a folder{link}; expected a file name")
+    if kind == "dir" and not stat.S_ISDIR(mode):
+        raise InputError(f"{path}: is a file{link}; expected a folder")
+
+
 @contextlib.contextmanager
 def atomic_write(path, mode: str = "w", **kwargs) -> Iterator[io.IOBase]:
-    """Open a temporary file beside ``path``; rename it onto ``path`` only on success."""
+    """Open a temporary file beside ``path``; rename it onto ``path`` only on success.
+
+    Every output of volcomp is written here: ``path`` must be absent or a regular file
+    (:func:`check_output_target`, checked before the temporary file is made and again before the
+    rename); an OS error while writing (a full disk) names ``path``, not the temporary file.
+    """
     path = Path(path)
+    check_output_target(path, "file")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, mode, **kwargs) as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual mode
-        os.replace(tmp, path)
+        try:
+            with os.fdopen(fd, mode, **kwargs) as fh:
+                yield fh
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual mode
+            check_output_target(path, "file")
+            os.replace(tmp, path)
+        except OSError as exc:
+            if exc.filename not in (None, tmp, str(tmp)):
+                raise
+            raise OSError(exc.errno, f"{exc.strerror or type(exc).__name__} (while writing it)", str(path)) from exc
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
@@ -112,6 +154,7 @@ def atomic_dir(path) -> Iterator[Path]:
     no partial set under its name.
     """
     path = Path(path)
+    check_output_target(path, "dir")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:

@@ -235,16 +235,21 @@ def _run(argv, name) -> int:
     try:
         from compensation.app.validate import check_args
         check_args(args.command, args, _subparser(parser, args.command))
-        return int(args.func(args) or 0)
+        from compensation.app.outputs import out_folder_of, owned_folder
+        folder = out_folder_of(args.command, args)
+        if folder is None:
+            return int(args.func(args) or 0)
+        with owned_folder(folder, args.command):  # one run per folder; Ctrl-C removes what it added
+            return int(args.func(args) or 0)
     except (InputError, MachineFileError, UsageError) as exc:
         print(one_line(f"volcomp {args.command}: error: {exc}"), file=sys.stderr)
         return 2
     except OSError as exc:
         # a file system refusal while writing or reading (permission, disk full, a path that
         # vanished): the user's environment, not a defect of the command
-        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
-        why = exc.strerror or type(exc).__name__
-        print(one_line(f"volcomp {args.command}: error:{where}: {why}"), file=sys.stderr)
+        where = f" {exc.filename}:" if getattr(exc, "filename", None) else ""
+        why = exc.strerror or str(exc) or type(exc).__name__
+        print(one_line(f"volcomp {args.command}: error:{where} {why}"), file=sys.stderr)
         return 2
 
 

@@ -360,6 +360,7 @@ def check_output_path(flag: str, value, kind: str) -> None:
     if "\0" in text:
         raise UsageError(f"{flag}: a path cannot contain a NUL character")
     p = Path(text)
+    _check_not_special(flag, p)
     if kind == "dir":
         if p.exists() and not p.is_dir():
             raise UsageError(f"{flag} {text}: is a file; expected a folder (the command writes several files into it)")
@@ -373,6 +374,16 @@ def check_output_path(flag: str, value, kind: str) -> None:
     if folder is None or not folder.is_dir():
         raise UsageError(f"{flag} {text}: {folder} is a file, not a folder; it cannot hold the output")
     _probe_writable(flag, text, folder)
+
+
+def _check_not_special(flag: str, p) -> None:
+    """Refuse an output path that is a device, FIFO or socket (or a link to one): see
+    :func:`errormap.io.check_output_target`, which every writer runs again."""
+    from errormap.io import InputError, check_output_target
+    try:
+        check_output_target(p, "any")
+    except InputError as exc:
+        raise UsageError(f"{flag} {exc}") from None
 
 
 def _nearest_existing(p):
