@@ -116,7 +116,9 @@ def main(argv=None) -> int:
     arguments, input or output paths (one line, exit 2; :mod:`compensation.app.validate`
     checks every option before any work), Ctrl-C at any moment, also while the numerical
     libraries are still being imported (one line, exit 130; outputs are written through
-    temporary files, which an interrupted writer removes, so nothing half-written stays)."""
+    temporary files, which an interrupted writer removes, and a command that writes a folder
+    runs inside :func:`compensation.app.outputs.owned_folder`, which holds the folder's lock and
+    removes on Ctrl-C what the run added, so nothing half-written stays)."""
     command, as_program = None, argv is None
     pending = {"interrupt": False}  # set by the SIGINT handler until main() takes the interrupt
     try:
