@@ -7,6 +7,7 @@ the row (1-based, the header is row 1) and the column.
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import csv
 import hashlib
@@ -337,7 +338,9 @@ def read_table(path) -> Table:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    text = decode_text(path.read_bytes(), path)
+    raw = _read_bounded(path)
+    text = decode_text(raw, path)
+    del raw
     if "\x00" in text:
         row = text.count("\n", 0, text.index("\x00")) + 1
         raise InputError(f"{path}: row {row}: contains a NUL byte; expected a text (CSV) file")
@@ -361,9 +364,10 @@ def read_table(path) -> Table:
         i, pos = i + 1, end + 1
     # lines are split at \n: a quoted cell cannot span lines, and csv's field-size limit
     # must not turn a long line into a traceback
-    header = [h.strip() for h in _csv_row(line, path, i + 1)]
+    header = _read_header(path, line, i + 1)
     _check_separator(path, i + 1, header, text[end + 1:end + 1 + 4096] if end >= 0 else "")
-    dup = sorted({h for h in header if header.count(h) > 1})
+    _check_cells(path, header, text.count("\n", end + 1) + 1 if end >= 0 else 0)
+    dup = sorted(h for h, k in collections.Counter(header).items() if k > 1)
     if dup:
         raise InputError(f"{path}: row {i + 1}: duplicated column name(s) {dup}")
     body = "" if end < 0 else text[end + 1:]
@@ -375,6 +379,57 @@ def read_table(path) -> Table:
             return Table(path, header, None, i + 2, comments, numeric=numeric, lines=body)
     rows, row_lines = _parse_rows(path, body.split("\n") if end >= 0 else [], header, i + 2)
     return Table(path, header, rows, i + 2, comments, row_lines=row_lines)
+
+
+# --- bounded work: a table is sized from its bytes, header and line count before it is parsed ---
+MAX_TABLE_COLUMNS = 1000
+"""Columns a table may have. volcomp's widest schema (an arm's pose file with its conditions) has
+under 30: a header of thousands of names is not one of its files (a 2M-column file kept ``predict``
+busy for over 15 minutes)."""
+MAX_TABLE_ROWS = 5_000_000
+"""Data lines a table may have: the largest feature-point set volcomp writes (``--grid 170``,
+4.9e6 points, validate.MAX_GRID_POINTS). ``predict`` peaks at about
+:data:`TABLE_BYTES_PER_ROW` per row (10M rows took 702 s and 5.6 GB), so the limit bounds it
+at about 2.8 GB and 6 minutes."""
+TABLE_BYTES_PER_ROW = 560
+"""Peak memory per row of a command that reads a table and writes one (``predict``, measured)."""
+MAX_TABLE_CELLS = 40_000_000
+"""Cells (rows x columns) a table may have: the per-row reader holds each cell as a string
+(about 60 B), so this bounds it at about 2.4 GB (the feature-point set at its limit has 29e6)."""
+MAX_TABLE_BYTES = 2 * 2**30
+"""Bytes of a table file, checked before it is read: 40e6 cells of up to ~50 characters."""
+
+
+def _read_bounded(path: Path) -> bytes:
+    """The file's bytes, refused unread past :data:`MAX_TABLE_BYTES` and, by its line count,
+    past :data:`MAX_TABLE_ROWS` (before any parsing)."""
+    size = path.stat().st_size
+    if size > MAX_TABLE_BYTES:
+        raise InputError(f"{path}: {size / 2**30:.3g} GiB exceeds the limit of {MAX_TABLE_BYTES / 2**30:g} GiB per "
+                         "table file; split it")
+    raw = path.read_bytes()
+    lines = raw.count(b"\n") + raw.count(b"\r") - raw.count(b"\r\n")
+    if lines > MAX_TABLE_ROWS + 1000:  # room for the header and comment lines
+        raise InputError(f"{path}: about {lines:,} rows exceed the limit of {MAX_TABLE_ROWS:,} rows per table (about "
+                         f"{lines * TABLE_BYTES_PER_ROW / 1e9:.3g} GB of memory for predict at {TABLE_BYTES_PER_ROW} B "
+                         "per row); split the file")
+    return raw
+
+
+def _read_header(path: Path, line: str, row: int) -> list[str]:
+    """The header row's names, refused past :data:`MAX_TABLE_COLUMNS` before the row is parsed."""
+    n = line.count(",") + 1
+    if n > MAX_TABLE_COLUMNS:
+        head = ", ".join(c.strip() for c in line[:120].split(",")[:4])
+        raise InputError(f"{path}: row {row}: the header has about {n:,} columns ({head}, ...), over the limit of "
+                         f"{MAX_TABLE_COLUMNS:,}; volcomp's tables have a few named columns (docs/schemas.md)")
+    return [h.strip() for h in _csv_row(line, path, row)]
+
+
+def _check_cells(path: Path, header: list[str], lines: int) -> None:
+    if lines * len(header) > MAX_TABLE_CELLS:
+        raise InputError(f"{path}: {lines:,} rows x {len(header)} columns = {lines * len(header):,} cells exceed the "
+                         f"limit of {MAX_TABLE_CELLS:,} per table; split the file or drop columns")
 
 
 _OTHER_SEPARATORS = ((";", "semicolon"), ("\t", "tab"))
@@ -422,7 +477,8 @@ def _parse_rows(path, body: list[str], header: list[str], first_row: int) -> tup
         if not r or all(not c.strip() for c in r):
             continue
         if len(r) != len(header):
-            hint = ("; decimal commas? (write 1.5, not 1,5)" if len(r) > len(header) and _DECIMAL_COMMA.search(line)
+            hint = ("; decimal commas? (write 1.5, not 1,5)" if len(header) < len(r) <= 2 * len(header)
+                    and _DECIMAL_COMMA.search(line)
                     else "")
             raise InputError(
                 f"{path}: row {first_row + k}: expected {len(header)} cells (columns {header}), got {len(r)}{hint}"
