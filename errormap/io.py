@@ -19,6 +19,8 @@ import re
 import shutil
 import stat
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
@@ -56,6 +58,20 @@ def decode_text(raw: bytes, path) -> str:
         col = len(raw[line_start:pos].decode("utf-8", errors="replace")) + 1
         raise InputError(f"{path}: row {row}, character {col}: byte 0x{raw[pos]:02x} is not UTF-8 (is the file in "
                          "Latin-1 / Windows-1252?); save it as UTF-8") from None
+
+
+NPY_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error)
+"""What ``np.load`` and reading an ``.npz`` member raise for a damaged file (truncated, not a zip,
+a bad CRC): every reader catches these and names the file (:class:`InputError`)."""
+
+
+def load_array(path, what: str = "array file"):
+    """``np.load(path)`` of an ``.npy`` (no pickles), fully read; a damaged file is one
+    :class:`InputError` naming it."""
+    try:
+        return np.asarray(np.load(path, allow_pickle=False))
+    except NPY_ERRORS as exc:
+        raise InputError(f"{path}: not a readable {what} ({exc}); write it again") from None
 
 
 def _umask() -> int:
