@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError
+from errormap.io import InputError, check_not_wide
 
 from . import gcode_kernels as gscan
 
@@ -308,6 +308,36 @@ class GProgram:
     readers always set it."""
 
 
+_CSV_CELL = re.compile(r"^\s*\"?[A-Za-z_][A-Za-z0-9_ ()./%-]*\"?\s*$")
+
+
+def check_program_bytes(path, data: bytes) -> None:
+    """Refuse, before any line is parsed, what is not a G-code program in the bytes a controller
+    reads: UTF-16/32 text (:func:`errormap.io.check_not_wide`), CR-only line endings (the whole
+    program would be one line: "repeated 'X' word"), and a CSV table (a header of names and
+    comma-separated rows: no G-code word holds a comma), each one :class:`InputError` naming the file."""
+    check_not_wide(data, path)
+    head = data[:SNIFF_BYTES]
+    if b"\n" not in head and head.count(b"\r") >= 2:
+        raise InputError(f"{path}: CR-only line endings (old Mac style): the file reads as one line; convert it to "
+                         "LF or CRLF line endings")
+    text = head.decode("latin-1").replace("\r", "")
+    lines = [(k + 1, ln) for k, ln in enumerate(text.split("\n"))
+             if ln.strip() and not ln.lstrip().startswith(("#", "(", ";", "%"))][:3]
+    if len(lines) >= 2 and "," in lines[0][1]:
+        row, first = lines[0]
+        cells = first.split(",")
+        if all(_CSV_CELL.match(c) for c in cells) and all(ln.count(",") == len(cells) - 1 for _, ln in lines[1:]):
+            raise InputError(f"{path}: line {row} is a CSV header ({', '.join(c.strip() for c in cells[:4])}"
+                             f"{', ...' if len(cells) > 4 else ''}), not G-code: a tool-path CSV needs the machine's "
+                             "axis columns (the grinder's x_mm, z_mm, a_deg) or the target columns px_mm, py_mm, "
+                             "pz_mm (docs/toolpaths.md)")
+
+
+SNIFF_BYTES = 1 << 16
+"""Bytes of a program's start looked at by :func:`check_program_bytes`."""
+
+
 def split_lines(text: str) -> list:
     """Lines with their ``\\n`` endings kept; only ``\\n`` ends a line (a ``\\r`` stays with it)."""
     parts = text.split("\n")
@@ -436,6 +466,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
         raise InputError(f"{path}: no such file")
     ax = default_axis_words() if axis_words is None else axis_words
     data = path.read_bytes()
+    check_program_bytes(path, data)
     if fast and _bulk_words(ax):
         return _parse_blockwise(path, rapids, block_delete, data, ax)
     lines = split_lines(data.decode("latin-1"))

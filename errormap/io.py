@@ -41,12 +41,35 @@ def _short(s: str, n: int = 40) -> str:
     return repr(s) if len(s) <= n else repr(s[:n]) + f"... ({len(s)} characters)"
 
 
+def wide_encoding(raw: bytes) -> str | None:
+    """``"UTF-16"`` or ``"UTF-32"`` when ``raw`` is text in one of them (its byte-order mark, or, without
+    one, a NUL byte in every second byte of its start, as ASCII text saved as UTF-16 has),
+    else None. Such a file is not UTF-8, Latin-1 or any other byte encoding volcomp reads."""
+    if raw.startswith((b"\xff\xfe\x00\x00", b"\x00\x00\xfe\xff")):
+        return "UTF-32"
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return "UTF-16"
+    head = raw[:4096]
+    even, odd = head[0::2], head[1::2]
+    if len(head) >= 8 and (even.count(0) >= 0.9 * len(even) or odd.count(0) >= 0.9 * len(odd)):
+        return "UTF-16"
+    return None
+
+
+def check_not_wide(raw: bytes, path) -> None:
+    """Refuse UTF-16/UTF-32 text (:func:`wide_encoding`) naming the file and the encoding."""
+    enc = wide_encoding(raw)
+    if enc is not None:
+        raise InputError(f"{path}: {enc} text detected (a Windows \"Unicode\" save); re-save it as UTF-8")
+
+
 def decode_text(raw: bytes, path) -> str:
     """UTF-8 text of a file's bytes; a leading UTF-8 BOM (Excel's "CSV UTF-8") is dropped.
 
     A byte that is not UTF-8 raises :class:`InputError` naming the row (line) and the
     character position, e.g. ``ü`` saved in Latin-1 / Windows-1252.
     """
+    check_not_wide(raw, path)
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
     try:
