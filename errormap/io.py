@@ -103,6 +103,10 @@ def _umask() -> int:
     return mask
 
 
+OUTPUT_LOCK_NAME = ".volcomp.lock"
+"""The lock file a run holds in its output folder (compensation/app/outputs.py): never an output,
+so a folder replaced whole or checked for foreign files does not count it."""
+
 _SPECIAL_KINDS = ((stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"), (stat.S_ISFIFO, "FIFO (named pipe)"),
                   (stat.S_ISSOCK, "socket"))
 
@@ -154,7 +158,7 @@ def atomic_write(path, mode: str = "w", **kwargs) -> Iterator[io.IOBase]:
             check_output_target(path, "file")
             os.replace(tmp, path)
         except OSError as exc:
-            if exc.filename not in (None, tmp, str(tmp)):
+            if exc.errno is None or exc.filename not in (None, tmp, str(tmp)):
                 raise
             raise OSError(exc.errno, f"{exc.strerror or type(exc).__name__} (while writing it)", str(path)) from exc
     except BaseException:

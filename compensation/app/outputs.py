@@ -28,10 +28,10 @@ import sys
 import time
 from pathlib import Path
 
+from errormap.io import OUTPUT_LOCK_NAME as LOCK_NAME  # the lock file's name, shared with the writers
+
 from .validate import UsageError
 
-LOCK_NAME = ".volcomp.lock"
-"""The lock file of a run in its output folder (hidden; never an output)."""
 CLEANUP_TRIES = 100
 """A Ctrl-C is re-sent every 0.25 s until the command has stopped (cli.REARM_S): the cleanup
 starts again from where it was when one lands in it; it removes what is left each time."""
