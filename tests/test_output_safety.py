@@ -171,3 +171,42 @@ def test_owned_folder_releases_the_lock_and_removes_a_folder_left_empty(tmp_path
     with owned_folder(tmp_path / "c", "simulate") as d:
         (d / "x.txt").write_text("x")
     assert [p.name for p in (tmp_path / "c").iterdir()] == ["x.txt"]
+
+
+def test_a_run_refused_by_a_lock_never_removes_the_other_runs_folder(tmp_path, monkeypatch):
+    """Two runs into a folder that did not exist: both see it absent, the first takes the lock; the
+    refused second must not remove the folder it thought it had created (it holds the first's files)."""
+    from compensation.app import outputs
+    target = tmp_path / "new" / "out"
+
+    def raced(self):
+        (self.folder / LOCK_NAME).write_text("{}")       # the first run's lock and output, meanwhile
+        (self.folder / "first.csv").write_text("x\n")
+        raise UsageError("in use")
+    monkeypatch.setattr(outputs.FolderLock, "acquire", raced)
+    with pytest.raises(UsageError):
+        with owned_folder(target, "diagnose"):
+            pass
+    assert sorted(p.name for p in target.iterdir()) == [LOCK_NAME, "first.csv"]
+
+
+def test_an_error_caused_by_ctrl_c_cleans_like_ctrl_c(tmp_path):
+    """A Ctrl-C that surfaces as another error (an import's 'initialization failed' with the
+    KeyboardInterrupt as its cause) removes what the run added, as a KeyboardInterrupt does."""
+    d = tmp_path / "o"
+    d.mkdir()
+    (d / "old.txt").write_text("old")
+    with pytest.raises(ImportError):
+        with owned_folder(d, "simulate") as out:
+            (out / "new").mkdir()
+            (out / "new" / "half.csv").write_text("x")
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as exc:
+                raise ImportError("initialization failed") from exc
+    assert sorted(p.name for p in d.iterdir()) == ["old.txt"]
+    with pytest.raises(ValueError):  # an ordinary error keeps what was written (the command's own message says why)
+        with owned_folder(d, "simulate") as out:
+            (out / "kept.txt").write_text("x")
+            raise ValueError("refused")
+    assert sorted(p.name for p in d.iterdir()) == ["kept.txt", "old.txt"]

@@ -126,7 +126,7 @@ def main(argv=None) -> int:
             _install_interrupt_handler(pending)
         argv = sys.argv[1:] if argv is None else list(argv)
         command = _command_in(argv)
-        return _run(argv, command)
+        return _run(argv, command, pending)
     except KeyboardInterrupt:
         return _interrupted(command, as_program, pending)
     except Exception as exc:
@@ -226,7 +226,7 @@ def _exit_now(status: int) -> None:
     os._exit(status)
 
 
-def _run(argv, name) -> int:
+def _run(argv, name, pending: dict | None = None) -> int:
     parser = build_parser([name] if name else [])
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -241,7 +241,8 @@ def _run(argv, name) -> int:
         folder = out_folder_of(args.command, args)
         if folder is None:
             return int(args.func(args) or 0)
-        with owned_folder(folder, args.command):  # one run per folder; Ctrl-C removes what it added
+        with owned_folder(folder, args.command,  # one run per folder; Ctrl-C removes what it added
+                          interrupted=lambda: bool(pending and pending["interrupt"])):
             return int(args.func(args) or 0)
     except (InputError, MachineFileError, UsageError) as exc:
         print(one_line(f"volcomp {args.command}: error: {exc}"), file=sys.stderr)

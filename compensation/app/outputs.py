@@ -133,12 +133,31 @@ def _remove_new(folder: Path, before: set) -> None:
                 p.unlink()
 
 
+def _remove_created(folder: Path, created: Path, whole: bool) -> None:
+    """Remove ``folder`` (with what is in it when ``whole``, else only if empty) and the empty
+    folders above it up to ``created``, the topmost one this run made. Never a folder above it
+    that holds anything: another run may have made it meanwhile."""
+    if whole:
+        shutil.rmtree(folder, ignore_errors=True)
+    p = folder
+    while True:
+        try:
+            p.rmdir()
+        except FileNotFoundError:
+            pass
+        except OSError:  # not empty: someone else's
+            return
+        if p == created or p.parent == p:
+            return
+        p = p.parent
+
+
 def _cleanup(folder: Path, before: set | None, created: Path | None, lock: FolderLock) -> None:
     for _ in range(CLEANUP_TRIES):
         try:
             if created is not None:
                 lock.held = False
-                shutil.rmtree(created, ignore_errors=True)
+                _remove_created(folder, created, whole=True)
             else:
                 _remove_new(folder, before)
             return
@@ -146,10 +165,25 @@ def _cleanup(folder: Path, before: set | None, created: Path | None, lock: Folde
             continue
 
 
+def _is_interrupt(exc: BaseException, interrupted) -> bool:
+    """A Ctrl-C: a KeyboardInterrupt, an error it caused (its cause or context), or any error while
+    ``interrupted()`` says one is pending (cli.main's handler)."""
+    seen = set()
+    e = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return bool(interrupted and interrupted())
+
+
 @contextlib.contextmanager
-def owned_folder(folder, command: str):
+def owned_folder(folder, command: str, interrupted=None):
     """Own ``folder`` for one run of ``command``: create it if absent, hold its lock, and on
-    Ctrl-C remove what the run added (module docstring). Yields the folder's :class:`Path`."""
+    Ctrl-C remove what the run added (module docstring). ``interrupted``: a callable that says
+    whether a Ctrl-C is pending (an error raised then is its consequence). Yields the folder's
+    :class:`Path`."""
     from errormap.io import InputError, check_output_target
     folder = Path(folder)
     try:
@@ -168,23 +202,18 @@ def owned_folder(folder, command: str):
         before = _snapshot(folder) if created is None else None
     except BaseException:
         if created is not None:
-            shutil.rmtree(created, ignore_errors=True)
+            _remove_created(folder, created, whole=False)  # another run's folder now: only if empty
         raise
     try:
         yield folder
-    except KeyboardInterrupt:
-        _cleanup(folder, before, created, lock)
+    except BaseException as exc:
+        if _is_interrupt(exc, interrupted):
+            _cleanup(folder, before, created, lock)
         raise
     finally:
         lock.release()
-        if created is not None and _empty(folder):  # a refused run leaves no folder behind
-            shutil.rmtree(created, ignore_errors=True)
-
-
-def _empty(folder: Path) -> bool:
-    with contextlib.suppress(OSError):
-        return not any(True for _ in folder.iterdir())
-    return False
+        if created is not None:  # a refused run leaves no folder behind
+            _remove_created(folder, created, whole=False)
 
 
 def out_folder_of(command: str, args):
