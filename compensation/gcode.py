@@ -336,6 +336,10 @@ def check_program_bytes(path, data: bytes) -> None:
 
 SNIFF_BYTES = 1 << 16
 """Bytes of a program's start looked at by :func:`check_program_bytes`."""
+MAX_PROGRAM_BYTES = 2**30
+"""Bytes of a G-code file, checked before it is read: a compensated line is about 30 bytes, so
+1 GiB is over 30 million lines, three times the vertices a file may have
+(:data:`compensation.pathio.MAX_PATH_POINTS`); the parser holds about 1.2 kB a line."""
 
 
 def split_lines(text: str) -> list:
@@ -465,6 +469,10 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     ax = default_axis_words() if axis_words is None else axis_words
+    size = path.stat().st_size
+    if size > MAX_PROGRAM_BYTES:
+        raise InputError(f"{path}: {size / 2**30:.3g} GiB exceeds the limit of {MAX_PROGRAM_BYTES / 2**30:g} GiB per "
+                         "program (more lines than the 10,000,000 vertices a file may have); split the program")
     data = path.read_bytes()
     check_program_bytes(path, data)
     if fast and _bulk_words(ax):

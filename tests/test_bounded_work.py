@@ -68,3 +68,13 @@ def test_a_table_at_the_limits_is_read(tmp_path, monkeypatch):
     f = tmp_path / "t.csv"
     f.write_text("x_mm,z_mm,a_deg\n" + "10,20,30\n" * 2000)
     assert len(eio.read_table(f)) == 2000
+
+
+def test_a_program_over_the_byte_limit_is_refused_unread(tmp_path, grinder, monkeypatch):
+    from compensation import gcode
+    from compensation.pathio import read_path
+    monkeypatch.setattr(gcode, "MAX_PROGRAM_BYTES", 1000)
+    src = tmp_path / "big.nc"
+    src.write_text("G21 G90 G18\n" + "G1 X100. Z0.3 A0 F100\n" * 100)
+    with pytest.raises(eio.InputError, match=r"big.nc: .* GiB exceeds the limit of .* per program"):
+        read_path(src, grinder)
