@@ -64,7 +64,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError
+from errormap.io import InputError, check_not_wide
 
 from . import gcode_kernels as gscan
 from .gcode_state import _dialect_mode, _forget, _g10, _machine_coordinates, _Refuse, _work_state
@@ -339,6 +339,40 @@ class GProgram:
         return () if self.expanded is None else (self.expanded.note(),)
 
 
+_CSV_CELL = re.compile(r"^\s*\"?[A-Za-z_][A-Za-z0-9_ ()./%-]*\"?\s*$")
+
+
+def check_program_bytes(path, data: bytes) -> None:
+    """Refuse, before any line is parsed, what is not a G-code program in the bytes a controller
+    reads: UTF-16/32 text (:func:`errormap.io.check_not_wide`), CR-only line endings (the whole
+    program would be one line: "repeated 'X' word"), and a CSV table (a header of names and
+    comma-separated rows: no G-code word holds a comma), each one :class:`InputError` naming the file."""
+    check_not_wide(data, path)
+    head = data[:SNIFF_BYTES]
+    if b"\n" not in head and head.count(b"\r") >= 2:
+        raise InputError(f"{path}: CR-only line endings (old Mac style): the file reads as one line; convert it to "
+                         "LF or CRLF line endings")
+    text = head.decode("latin-1").replace("\r", "")
+    lines = [(k + 1, ln) for k, ln in enumerate(text.split("\n"))
+             if ln.strip() and not ln.lstrip().startswith(("#", "(", ";", "%"))][:3]
+    if len(lines) >= 2 and "," in lines[0][1]:
+        row, first = lines[0]
+        cells = first.split(",")
+        if all(_CSV_CELL.match(c) for c in cells) and all(ln.count(",") == len(cells) - 1 for _, ln in lines[1:]):
+            raise InputError(f"{path}: line {row} is a CSV header ({', '.join(c.strip() for c in cells[:4])}"
+                             f"{', ...' if len(cells) > 4 else ''}), not G-code: a tool-path CSV needs the machine's "
+                             "axis columns (the grinder's x_mm, z_mm, a_deg) or the target columns px_mm, py_mm, "
+                             "pz_mm (docs/toolpaths.md)")
+
+
+SNIFF_BYTES = 1 << 16
+"""Bytes of a program's start looked at by :func:`check_program_bytes`."""
+MAX_PROGRAM_BYTES = 2**30
+"""Bytes of a G-code file, checked before it is read: a compensated line is about 30 bytes, so
+1 GiB is over 30 million lines, three times the vertices a file may have
+(:data:`compensation.pathio.MAX_PATH_POINTS`); the parser holds about 1.2 kB a line."""
+
+
 def split_lines(text: str) -> list:
     """Lines with their ``\\n`` endings kept; only ``\\n`` ends a line (a ``\\r`` stays with it)."""
     parts = text.split("\n")
@@ -464,7 +498,12 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     ax = default_axis_words() if axis_words is None else axis_words
+    size = path.stat().st_size
+    if size > MAX_PROGRAM_BYTES:
+        raise InputError(f"{path}: {size / 2**30:.3g} GiB exceeds the limit of {MAX_PROGRAM_BYTES / 2**30:g} GiB per "
+                         "program (more lines than the 10,000,000 vertices a file may have); split the program")
     data = path.read_bytes()
+    check_program_bytes(path, data)
     dia, evidence = _dialect_of(path, data, dialect)
     try:  # the allow-list refuses every mark of a subprogram, macro or parameter: a program without
         return _parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence)  # any is read at full speed

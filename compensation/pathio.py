@@ -75,10 +75,22 @@ DEFAULT_ARC_TOLERANCE_UM = 0.5
 """Chord tolerance of linearised arcs and split moves (μm): half of it bounds the chord
 sagitta of the nominal arc, the other half the chord error of the compensation along a
 move (the ``auto`` segment length)."""
+ARC_TOLERANCE_RANGE_UM = (0.001, 5.0)
+"""Accepted chord tolerances (μm; ``compensate --arc-tolerance-um``). Below 1 nm the program
+cannot state the difference (it is written with :data:`DECIMALS_MM` = 6 decimals, 1 nm) and an
+arc's chords multiply for nothing (their count grows as ``1/sqrt(tolerance)``). Above 5 μm the
+geometric half of the tolerance (2.5 μm of sagitta) is as large as what compensation leaves
+(1-3 μm true RMS in BENCHMARKS.md), so the flattening would undo the compensation: 1e9 μm
+wrote a G2 arc as one G1 chord."""
+SEGMENT_RANGE_MM = (0.01, 100.0)
+"""Accepted ``--max-segment-mm`` lengths: the range the ``auto`` rule chooses from
+(:data:`SEGMENT_LIMITS_MM`). Below 0.01 mm a metre of path is 1e5 vertices per metre, finer than
+any field varies (calibration grids of millimetres); above 100 mm the bound binds no move of a
+machine's working volume that 'none' (no splitting, said explicitly) would not leave alone."""
 AUTO_SAMPLE_MM = 0.25      # spacing of the field samples that estimate its curvature along a move
 AUTO_MAX_SAMPLES = 64      # samples per move at most (long moves: coarser spacing)
 AUTO_SHORT_WINDOW_MM = 1.0  # of a run of moves shorter than AUTO_SAMPLE_MM, one sampled per this much path
-SEGMENT_LIMITS_MM = (0.01, 100.0)  # the auto segment length is clipped into this range
+SEGMENT_LIMITS_MM = SEGMENT_RANGE_MM  # the auto segment length is clipped into this range
 MAX_VERTICES_PER_MOVE = 1_000_000
 """A move cut into more vertices is refused before any is placed: at the smallest ``auto``
 segment (0.01 mm) that is a 10 m move, far beyond any stroke, so only a unit typo or an

@@ -60,6 +60,27 @@ def default_stations(machine: Grinder, n: int = 21) -> dict:
 MAX_ELEMENT_VALUE = 1e6
 
 
+def check_profile(name: str, values, stations, column: str) -> np.ndarray:
+    """Element ``name``'s values (one per station of axis ``column``, ``stations`` shape (m,)) as
+    float64 (m,); a wrong count or a value that is not a finite number (NaN, null, inf) raises
+    ValueError naming the element, the value's position and its station."""
+    try:
+        v = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"element {name!r}: expected {stations.size} numbers (one per {column} station), got "
+                         f"{str(values)[:60]}") from None
+    if v.shape != stations.shape:
+        raise ValueError(f"element {name!r}: expected {stations.size} values (one per {column} station), got shape "
+                         f"{v.shape}")
+    bad = np.flatnonzero(~np.isfinite(v))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"element {name!r}: value {i + 1} of {v.size} ({column} station {stations[i]:g}) is {v[i]} "
+                         f"(a NaN, null or infinity in the file){f'; {bad.size} such values' if bad.size > 1 else ''};"
+                         " expected finite numbers")
+    return v
+
+
 @dataclass
 class ElementSet:
     """Values of the 23 error elements.
@@ -94,10 +115,7 @@ class ElementSet:
             raise ValueError(f"Expected only the 23 element names, got unknown {unknown}")
         fun = {}
         for k in FUNCTION_ELEMENTS:
-            v = np.asarray(self.functions[k], dtype=float)
-            st = self.stations[AXIS_OF[k]]
-            if v.shape != st.shape or not np.all(np.isfinite(v)):
-                raise ValueError(f"Expected {st.size} finite values for {k}, got shape {v.shape}")
+            v = check_profile(k, self.functions[k], self.stations[AXIS_OF[k]], AXIS_OF[k])
             if np.abs(v).max() > MAX_ELEMENT_VALUE:
                 raise ValueError(f"Expected {k} within ±{MAX_ELEMENT_VALUE:g} (μm or μrad), got {np.abs(v).max():g}")
             fun[k] = v

@@ -7,6 +7,7 @@ the row (1-based, the header is row 1) and the column.
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import csv
 import hashlib
@@ -16,7 +17,10 @@ import math
 import os
 import re
 import shutil
+import stat
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
@@ -37,12 +41,35 @@ def _short(s: str, n: int = 40) -> str:
     return repr(s) if len(s) <= n else repr(s[:n]) + f"... ({len(s)} characters)"
 
 
+def wide_encoding(raw: bytes) -> str | None:
+    """``"UTF-16"`` or ``"UTF-32"`` when ``raw`` is text in one of them (its byte-order mark, or, without
+    one, a NUL byte in every second byte of its start, as ASCII text saved as UTF-16 has),
+    else None. Such a file is not UTF-8, Latin-1 or any other byte encoding volcomp reads."""
+    if raw.startswith((b"\xff\xfe\x00\x00", b"\x00\x00\xfe\xff")):
+        return "UTF-32"
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return "UTF-16"
+    head = raw[:4096]
+    even, odd = head[0::2], head[1::2]
+    if len(head) >= 8 and (even.count(0) >= 0.9 * len(even) or odd.count(0) >= 0.9 * len(odd)):
+        return "UTF-16"
+    return None
+
+
+def check_not_wide(raw: bytes, path) -> None:
+    """Refuse UTF-16/UTF-32 text (:func:`wide_encoding`) naming the file and the encoding."""
+    enc = wide_encoding(raw)
+    if enc is not None:
+        raise InputError(f"{path}: {enc} text detected (a Windows \"Unicode\" save); re-save it as UTF-8")
+
+
 def decode_text(raw: bytes, path) -> str:
     """UTF-8 text of a file's bytes; a leading UTF-8 BOM (Excel's "CSV UTF-8") is dropped.
 
     A byte that is not UTF-8 raises :class:`InputError` naming the row (line) and the
     character position, e.g. ``ü`` saved in Latin-1 / Windows-1252.
     """
+    check_not_wide(raw, path)
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
     try:
@@ -56,25 +83,84 @@ def decode_text(raw: bytes, path) -> str:
                          "Latin-1 / Windows-1252?); save it as UTF-8") from None
 
 
+NPY_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error)
+"""What ``np.load`` and reading an ``.npz`` member raise for a damaged file (truncated, not a zip,
+a bad CRC): every reader catches these and names the file (:class:`InputError`)."""
+
+
+def load_array(path, what: str = "array file"):
+    """``np.load(path)`` of an ``.npy`` (no pickles), fully read; a damaged file is one
+    :class:`InputError` naming it."""
+    try:
+        return np.asarray(np.load(path, allow_pickle=False))
+    except NPY_ERRORS as exc:
+        raise InputError(f"{path}: not a readable {what} ({exc}); write it again") from None
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
 
 
+OUTPUT_LOCK_NAME = ".volcomp.lock"
+"""The lock file a run holds in its output folder (compensation/app/outputs.py): never an output,
+so a folder replaced whole or checked for foreign files does not count it."""
+
+_SPECIAL_KINDS = ((stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"), (stat.S_ISFIFO, "FIFO (named pipe)"),
+                  (stat.S_ISSOCK, "socket"))
+
+
+def check_output_target(path, kind: str = "file") -> None:
+    """Refuse to write an output onto ``path`` unless it is absent or a ``kind`` (``"file"``: a
+    regular file, ``"dir"``: a folder), a symbolic link followed: a device (``/dev/null``,
+    ``/dev/full``), a FIFO or a socket would be replaced by a regular file by the rename of
+    :func:`atomic_write` (as root, ``/dev/null`` itself), or block the writer. One
+    :class:`InputError` naming the path and what it is.
+    """
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return  # absent (or a dangling link, which the rename replaces): written as a new file
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be examined as an output ({exc.strerror or type(exc).__name__})") from None
+    link = " (through a symbolic link)" if path.is_symlink() else ""
+    for test, what in _SPECIAL_KINDS:
+        if test(mode):
+            raise InputError(f"{path}: is a {what}{link}; volcomp writes outputs only as regular files and folders "
+                             f"(give a file or folder path)")
+    if kind == "file" and stat.S_ISDIR(mode):
+        raise InputError(f"{path}: is a folder{link}; expected a file name")
+    if kind == "dir" and not stat.S_ISDIR(mode):
+        raise InputError(f"{path}: is a file{link}; expected a folder")
+
+
 @contextlib.contextmanager
 def atomic_write(path, mode: str = "w", **kwargs) -> Iterator[io.IOBase]:
-    """Open a temporary file beside ``path``; rename it onto ``path`` only on success."""
+    """Open a temporary file beside ``path``; rename it onto ``path`` only on success.
+
+    Every output of volcomp is written here: ``path`` must be absent or a regular file
+    (:func:`check_output_target`, checked before the temporary file is made and again before the
+    rename); an OS error while writing (a full disk) names ``path``, not the temporary file.
+    """
     path = Path(path)
+    check_output_target(path, "file")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, mode, **kwargs) as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual mode
-        os.replace(tmp, path)
+        try:
+            with os.fdopen(fd, mode, **kwargs) as fh:
+                yield fh
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the usual mode
+            check_output_target(path, "file")
+            os.replace(tmp, path)
+        except OSError as exc:
+            if exc.errno is None or exc.filename not in (None, tmp, str(tmp)):
+                raise
+            raise OSError(exc.errno, f"{exc.strerror or type(exc).__name__} (while writing it)", str(path)) from exc
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
@@ -112,6 +198,7 @@ def atomic_dir(path) -> Iterator[Path]:
     no partial set under its name.
     """
     path = Path(path)
+    check_output_target(path, "dir")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:
@@ -294,7 +381,9 @@ def read_table(path) -> Table:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    text = decode_text(path.read_bytes(), path)
+    raw = _read_bounded(path)
+    text = decode_text(raw, path)
+    del raw
     if "\x00" in text:
         row = text.count("\n", 0, text.index("\x00")) + 1
         raise InputError(f"{path}: row {row}: contains a NUL byte; expected a text (CSV) file")
@@ -318,9 +407,10 @@ def read_table(path) -> Table:
         i, pos = i + 1, end + 1
     # lines are split at \n: a quoted cell cannot span lines, and csv's field-size limit
     # must not turn a long line into a traceback
-    header = [h.strip() for h in _csv_row(line, path, i + 1)]
+    header = _read_header(path, line, i + 1)
     _check_separator(path, i + 1, header, text[end + 1:end + 1 + 4096] if end >= 0 else "")
-    dup = sorted({h for h in header if header.count(h) > 1})
+    _check_cells(path, header, text.count("\n", end + 1) + 1 if end >= 0 else 0)
+    dup = sorted(h for h, k in collections.Counter(header).items() if k > 1)
     if dup:
         raise InputError(f"{path}: row {i + 1}: duplicated column name(s) {dup}")
     body = "" if end < 0 else text[end + 1:]
@@ -332,6 +422,57 @@ def read_table(path) -> Table:
             return Table(path, header, None, i + 2, comments, numeric=numeric, lines=body)
     rows, row_lines = _parse_rows(path, body.split("\n") if end >= 0 else [], header, i + 2)
     return Table(path, header, rows, i + 2, comments, row_lines=row_lines)
+
+
+# --- bounded work: a table is sized from its bytes, header and line count before it is parsed ---
+MAX_TABLE_COLUMNS = 1000
+"""Columns a table may have. volcomp's widest schema (an arm's pose file with its conditions) has
+under 30: a header of thousands of names is not one of its files (a 2M-column file kept ``predict``
+busy for over 15 minutes)."""
+MAX_TABLE_ROWS = 5_000_000
+"""Data lines a table may have: the largest feature-point set volcomp writes (``--grid 170``,
+4.9e6 points, validate.MAX_GRID_POINTS). ``predict`` peaks at about
+:data:`TABLE_BYTES_PER_ROW` per row (10M rows took 702 s and 5.6 GB), so the limit bounds it
+at about 2.8 GB and 6 minutes."""
+TABLE_BYTES_PER_ROW = 560
+"""Peak memory per row of a command that reads a table and writes one (``predict``, measured)."""
+MAX_TABLE_CELLS = 40_000_000
+"""Cells (rows x columns) a table may have: the per-row reader holds each cell as a string
+(about 60 B), so this bounds it at about 2.4 GB (the feature-point set at its limit has 29e6)."""
+MAX_TABLE_BYTES = 2 * 2**30
+"""Bytes of a table file, checked before it is read: 40e6 cells of up to ~50 characters."""
+
+
+def _read_bounded(path: Path) -> bytes:
+    """The file's bytes, refused unread past :data:`MAX_TABLE_BYTES` and, by its line count,
+    past :data:`MAX_TABLE_ROWS` (before any parsing)."""
+    size = path.stat().st_size
+    if size > MAX_TABLE_BYTES:
+        raise InputError(f"{path}: {size / 2**30:.3g} GiB exceeds the limit of {MAX_TABLE_BYTES / 2**30:g} GiB per "
+                         "table file; split it")
+    raw = path.read_bytes()
+    lines = raw.count(b"\n") + raw.count(b"\r") - raw.count(b"\r\n")
+    if lines > MAX_TABLE_ROWS + 1000:  # room for the header and comment lines
+        raise InputError(f"{path}: about {lines:,} rows exceed the limit of {MAX_TABLE_ROWS:,} rows per table (about "
+                         f"{lines * TABLE_BYTES_PER_ROW / 1e9:.3g} GB of memory for predict at {TABLE_BYTES_PER_ROW} B "
+                         "per row); split the file")
+    return raw
+
+
+def _read_header(path: Path, line: str, row: int) -> list[str]:
+    """The header row's names, refused past :data:`MAX_TABLE_COLUMNS` before the row is parsed."""
+    n = line.count(",") + 1
+    if n > MAX_TABLE_COLUMNS:
+        head = ", ".join(c.strip() for c in line[:120].split(",")[:4])
+        raise InputError(f"{path}: row {row}: the header has about {n:,} columns ({head}, ...), over the limit of "
+                         f"{MAX_TABLE_COLUMNS:,}; volcomp's tables have a few named columns (docs/schemas.md)")
+    return [h.strip() for h in _csv_row(line, path, row)]
+
+
+def _check_cells(path: Path, header: list[str], lines: int) -> None:
+    if lines * len(header) > MAX_TABLE_CELLS:
+        raise InputError(f"{path}: {lines:,} rows x {len(header)} columns = {lines * len(header):,} cells exceed the "
+                         f"limit of {MAX_TABLE_CELLS:,} per table; split the file or drop columns")
 
 
 _OTHER_SEPARATORS = ((";", "semicolon"), ("\t", "tab"))
@@ -379,7 +520,8 @@ def _parse_rows(path, body: list[str], header: list[str], first_row: int) -> tup
         if not r or all(not c.strip() for c in r):
             continue
         if len(r) != len(header):
-            hint = ("; decimal commas? (write 1.5, not 1,5)" if len(r) > len(header) and _DECIMAL_COMMA.search(line)
+            hint = ("; decimal commas? (write 1.5, not 1,5)" if len(header) < len(r) <= 2 * len(header)
+                    and _DECIMAL_COMMA.search(line)
                     else "")
             raise InputError(
                 f"{path}: row {first_row + k}: expected {len(header)} cells (columns {header}), got {len(r)}{hint}"

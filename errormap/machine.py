@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .field import is_rotary_column
-from .io import sha256_bytes
+from .io import InputError, check_not_wide, sha256_bytes
 # MachineFileError is raised here and imported from here by callers (one class, defined with the checks)
 from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
 
@@ -224,6 +224,10 @@ def load_machine(path=None, expect_kind: str | None = None):
     if is_urdf(raw):   # recognised by content: XML (a URDF's <robot> root), never TOML
         check_machine_kind(path, "serial", expect_kind)
         return load_urdf_machine(raw, path, sha256_bytes(raw))
+    try:
+        check_not_wide(raw, path)
+    except InputError as exc:
+        raise MachineFileError(str(exc)) from None
     try:
         doc = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

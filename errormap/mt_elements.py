@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
+from .elements import check_profile
 from .io import InputError, atomic_write, decode_text
 from .mt_chain import FULL_TURN_DEG, MachineTool
 
@@ -75,9 +76,7 @@ class ChainElementSet:
         fun = {}
         for k in fn:
             ax = col[slot[k].axis]
-            v = np.asarray(self.functions[k], dtype=float)
-            if v.shape != self.stations[ax.column].shape or not np.all(np.isfinite(v)):
-                raise ValueError(f"Expected {self.stations[ax.column].size} finite values for {k}, got shape {v.shape}")
+            v = check_profile(k, self.functions[k], self.stations[ax.column], ax.column)
             if np.abs(v).max() > MAX_ELEMENT_VALUE:
                 raise ValueError(f"Expected {k} within ±{MAX_ELEMENT_VALUE:g} (μm or μrad), got {np.abs(v).max():g}")
             if ax.full_turn:

@@ -44,7 +44,7 @@ import scipy.linalg
 from scipy.spatial.transform import Rotation
 
 from .identification import _check_length_unit, check_ball_distances, layout_problem, rigid_fit
-from .io import InputError, atomic_write
+from .io import NPY_ERRORS, InputError, atomic_write
 from .mt_chain import AXIS_WORDS, MachineTool
 from .mt_elements import ChainElementSet
 from .mt_sweeps import body_chain, park_axes, swept_words
@@ -116,8 +116,9 @@ def load_covariance(path) -> tuple[list, np.ndarray, np.ndarray]:
         if str(d["format"]) != COV_FORMAT:
             raise InputError(f"{path}: key 'format': expected {COV_FORMAT!r}, got {str(d['format'])!r}")
         return [str(s) for s in d["slot"]], d["station"].astype(int), d["cov"].astype(float)
-    except (OSError, ValueError, KeyError) as exc:
-        raise InputError(f"{path}: not a chain covariance file ({exc})") from None
+    except NPY_ERRORS as exc:
+        raise InputError(f"{path}: not a readable chain covariance file ({exc}); a truncated or damaged copy? "
+                         "Run `volcomp identify` again to write it") from None
 
 
 def _squareness_toward(machine: MachineTool, name: str) -> int:

@@ -26,6 +26,7 @@ import numpy as np
 
 from .chain import ET, Chain, Joint
 from .io import read_table
+from .machine_checks import MachineFileError
 from .mt_chain import MachineTool
 from .sweeps import (OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SWEEP_FORMAT, Sweeps, columns_from_table,
                      random_tracker_pose, sweeps_from_columns, write_sweeps)
@@ -120,7 +121,9 @@ def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, 
     m = truth.machine
     missing = [w for w in swept_words(m) if w not in m.targets]
     if missing:
-        raise ValueError(f"{m.path or m.name}: no [targets] for axis {missing[0]}: a sweep needs three balls per body")
+        raise MachineFileError(f"{m.path or m.name}: no [targets] for axis {', '.join(missing)}: a sweep needs three "
+                               f"target balls per moving body (add [targets] {missing[0]} = [[x, y, z], ...] to the "
+                               "machine file)")
     rng = np.random.default_rng(seed)
     R_mt, t_mt = random_tracker_pose(rng) if tracker_pose is None else (np.asarray(tracker_pose[0], float),
                                                                          np.asarray(tracker_pose[1], float))

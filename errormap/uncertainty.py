@@ -44,7 +44,7 @@ from scipy.interpolate import make_interp_spline
 
 from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, ElementSet
 from .htm import error_jacobian
-from .io import InputError, atomic_write, companion_path
+from .io import NPY_ERRORS, InputError, atomic_write, companion_path
 from .machine import Grinder
 
 LAMBDA_GRID = np.logspace(-4, 8, 49)
@@ -199,8 +199,9 @@ class ElementCovariance:
             lay = list(zip(d["layout_element"].tolist(), d["layout_station"].tolist()))
             info = json.loads(str(d["info"]))
             extra = d["prior_extra"] if "prior_extra" in d.files else None
-        except (ValueError, KeyError, OSError) as exc:
-            raise InputError(f"{path}: not a volcomp covariance file: {exc}") from None
+        except NPY_ERRORS as exc:
+            raise InputError(f"{path}: not a readable volcomp covariance file ({exc}); a truncated or damaged copy? "
+                             "Run `volcomp identify` again to write it") from None
         if lay != theta_layout(elements) or cov.shape != (len(lay), len(lay)):
             raise InputError(f"{path}: its parameter layout does not match the element set's stations")
         own = theta_from_elements(elements)

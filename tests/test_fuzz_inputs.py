@@ -83,6 +83,7 @@ def sim(tmp_path_factory):
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         assert main(["simulate", "--seed", "3", "--out", str(out / "sim"), "--checks", "30"]) == 0
         assert main(["sweeps", "--seed", "3", "--out", str(out / "sweeps.csv")]) == 0
+        assert main(["identify", str(out / "sweeps.csv"), "--out", str(out / "ident" / "E.json")]) == 0
     return out
 
 
@@ -263,3 +264,199 @@ def test_issue_cases_are_one_line_exit_2(sim, tmp_path):
     (tmp_path / "h.toml").write_text(re.sub(r"tool_tip_mm = .*", "tool_tip_mm = [[0, 0], 1]", hexapod))
     with pytest.raises(MachineFileError, match="home.tool_tip_mm"):
         load_machine(tmp_path / "h.toml")
+
+
+# --- every command's file kinds and bounded options, through main: right output or one line -------
+# Each example draws one input file of the command's kind (a valid file with one mutation, among
+# them the hostile kinds: UTF-16, CR-only endings, a CSV given as a program, NaN, huge numbers) and
+# the command's bounded options (in and out of range). Outcomes: exit 0 whose output is checked
+# against the library computed on the same input ("silent wrong" otherwise), or exit 2 with ONE
+# line naming the input file or the option; anything else (a traceback, exit 1) fails.
+TALLY: dict = {}
+"""Per command: inputs tried, exits 0 with the output checked, exits 2 with one line, tracebacks, silent wrong."""
+
+
+def _count(command: str, what: str) -> None:
+    c = TALLY.setdefault(command, dict.fromkeys(("inputs", "exit_0_checked", "exit_2_one_line", "tracebacks",
+                                                 "silent_wrong"), 0))
+    c[what] += 1
+# an exact compensation lands on its target under the model within the solver's tolerance plus the
+# 6-decimal rounding of the written program (as tests/test_compensate_cli.py)
+TOL_LANDING_MM = 1e-6 + 2e-6
+# predict writes 9 significant digits: relative 1e-8 with an absolute floor for values near zero
+TOL_PREDICT_REL, TOL_PREDICT_ABS_UM = 1e-8, 1e-9
+CLI_FUZZ = settings(max_examples=40, deadline=None, derandomize=True, database=None,
+                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+PROGRAM = ("%\n(flute, op 1)\nG21 G90 G18\nG0 X100. Z0.3 A0\nG1 X105. Z1.3 A10. F100\n"
+           "G2 X110. Z6.3 A10. I0 K5.\nG1 X112.5 Z8.0 A20.\nM30\n%\n")
+PROGRAM_WORD_JUNK = ["", "(note, 2)", "F200", "G21", "G90", "X", "X-", "X1e5", "X110000", "Z.", "A1..2", "G91", "G17", "G20", "G4 P1", "M98 P100",
+                     "N10 G1 X1 X2", "(unclosed", "G1 X100. Z0.3 A0 I5", "#1=5", "G1 X[1+2]", "\x00", "ü", ";"]
+
+
+@st.composite
+def hostile_bytes(draw, text: str, table: bool) -> bytes:
+    """``text`` with one mutation: a table's (:func:`mangled`) or a program's, or one of the kinds a
+    careless save makes of any file (UTF-16, CR-only endings, NUL bytes, a foreign CSV)."""
+    kind = draw(st.sampled_from(["own", "none", "own", "own", "utf16", "cr", "nul", "csv", "empty"]))
+    if kind == "none":
+        return text.encode()
+    if kind == "own" and table:
+        return draw(mangled(text))
+    if kind == "own":
+        lines = text.split("\n")
+        k = draw(st.integers(0, len(lines) - 1))
+        junk = draw(st.one_of(st.sampled_from(PROGRAM_WORD_JUNK), st.text(max_size=16)))
+        how = draw(st.sampled_from(["replace", "insert", "append"]))
+        lines[k:k + 1] = {"replace": [junk], "insert": [junk, lines[k]], "append": [lines[k] + " " + junk]}[how]
+        return "\n".join(lines).encode("latin-1", errors="replace")
+    if kind == "utf16":
+        return text.encode(draw(st.sampled_from(["utf-16", "utf-16-le", "utf-16-be"])))
+    if kind == "cr":
+        return text.replace("\n", "\r").encode()
+    if kind == "nul":
+        raw = text.encode()
+        k = draw(st.integers(0, len(raw)))
+        return raw[:k] + b"\x00" * draw(st.integers(1, 8)) + raw[k:]
+    if kind == "csv":
+        return b"X,Z,A\n100,0.3,0\n110,0.5,30\n"
+    return b""
+
+
+def _tally_outcome(argv, rc, err, names) -> bool:
+    """Count one run; True when it exited 0 (the caller then checks the output)."""
+    _count(argv[0], "inputs")
+    if "Traceback" in err or rc not in (0, 2):
+        _count(argv[0], "tracebacks")
+        raise AssertionError((argv, rc, err))
+    if rc == 0:
+        return True
+    lines = [ln for ln in err.splitlines() if ": error: " in ln]
+    assert len(lines) == 1 and len(lines[0]) <= MAX_ERROR_CHARS + 40, (argv, err)
+    assert any(n in lines[0] for n in names), (argv, names, lines[0])
+    _count(argv[0], "exit_2_one_line")
+    return False
+
+
+def _check_output(command: str, ok: bool, what) -> None:
+    """An exit 0's output, checked: counted, and a wrong one fails."""
+    _count(command, "exit_0_checked" if ok else "silent_wrong")
+    assert ok, what
+
+
+@pytest.fixture(scope="module")
+def tally():
+    yield TALLY
+    print(f"\nCLI fuzz tally: {TALLY}")
+
+
+@CLI_FUZZ
+@given(data=st.data())
+def test_fuzz_main_predict_checks_its_output(sim, machine, tally, data):
+    """predict on hostile point files: exit 0 writes exactly the element set's prediction of the
+    rows it read (compared with the library on the same file), or one line naming the file."""
+    from errormap.elements import ElementSet
+    from errormap.htm import HTMField
+    from errormap.io import read_table
+    el = sim / "sim" / "truth_elements.json"
+    raw = data.draw(hostile_bytes("x_mm,z_mm,a_deg\n" + "\n".join(f"{10 * i},{3 * i},{20 * i}" for i in range(12)) + "\n",
+                                  table=True))
+    with tempfile.TemporaryDirectory() as d:
+        p, o = Path(d) / "p.csv", Path(d) / "o.csv"
+        p.write_bytes(raw)
+        argv = ["predict", "--model", str(el), str(p), "--out", str(o)]
+        rc, err = run_main(argv)
+        if _tally_outcome(argv, rc, err, [str(p)]):
+            t_in, t_out = read_table(p), read_table(o)
+            axes = np.stack([t_in.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
+            want = HTMField(machine, ElementSet.load(el)).predict(axes)
+            got = np.stack([t_out.float(c) for c in ("dx_um", "dy_um", "dz_um")], axis=1)
+            _check_output("predict", got.shape == want.shape and np.allclose(got, want, rtol=TOL_PREDICT_REL,
+                                                                  atol=TOL_PREDICT_ABS_UM), (argv, got, want))
+
+
+@pytest.mark.slow  # 40 compensations with their read-back: about 8 CPU s
+@CLI_FUZZ
+@given(data=st.data(), arc=st.sampled_from(["0.5", "5", "0.001", "0.5", "1e9", "5.01", "nan"]),
+       seg=st.sampled_from(["none", "auto", "0.5", "100", "none", "1e-6", "fast"]))
+def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, seg):
+    """compensate on hostile programs and its bounded options: exit 0 writes a program that lands
+    on the input's targets under the model (read back and checked), or one line naming the file or
+    the option."""
+    from compensation.pathio import read_path
+    from errormap.elements import ElementSet
+    from errormap.htm import HTMField
+    from errormap.kinematics import forward
+    el = sim / "sim" / "truth_elements.json"
+    raw = data.draw(hostile_bytes(PROGRAM, table=False))
+    with tempfile.TemporaryDirectory() as d:
+        p, out = Path(d) / "part.nc", Path(d) / "out"
+        p.write_bytes(raw)
+        argv = ["compensate", str(p), "--model", str(el), "--method", "exact", "--out", str(out),
+                "--arc-tolerance-um", arc, "--max-segment-mm", seg]
+        rc, err = run_main(argv)
+        if _tally_outcome(argv, rc, err, [str(p), "--arc-tolerance-um", "--max-segment-mm"]):
+            field = HTMField(machine, ElementSet.load(el))
+            seg_mm = {"auto": "auto", "none": None}.get(seg) if seg in ("auto", "none") else float(seg)
+            src = read_path(p, machine, arc_tolerance_um=float(arc), max_segment_mm=seg_mm, field=field)
+            res = read_path(out / p.name, machine, max_segment_mm=None)
+            lands = forward(machine, res.axes) + 1e-3 * field.predict(res.axes)
+            _check_output("compensate", len(res) == len(src) and np.abs(lands - src.targets_mm).max() < TOL_LANDING_MM,
+                          (argv, len(res), len(src)))
+
+
+@pytest.mark.slow  # 6.5 CPU s measured
+@CLI_FUZZ
+@given(data=st.data())
+def test_fuzz_main_other_file_kinds(sim, machine, tally, data):
+    """The other file kinds through their commands: an element set (featurepoints), a covariance
+    companion (predict --band), a chain machine file (sweeps --machine) — exit 0 with the output
+    checked, or one line naming the file."""
+    from errormap.elements import ElementSet
+    from errormap.htm import HTMField
+    from errormap.io import read_table
+    kind = data.draw(st.sampled_from(["elements", "covariance", "chain_machine"]))
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        if kind == "elements":
+            src = d / "el.json"
+            src.write_bytes(data.draw(hostile_bytes((sim / "sim" / "truth_elements.json").read_text(), table=True)))
+            argv = ["featurepoints", "--elements", str(src), "--grid", "2", "--out", str(d / "fp.csv")]
+            rc, err = run_main(argv)
+            if _tally_outcome(argv, rc, err, [str(src)]):
+                t = read_table(d / "fp.csv")
+                axes = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
+                got = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], axis=1)
+                want = HTMField(machine, ElementSet.load(src)).predict(axes)
+                _check_output("featurepoints", len(t) == 8 and np.allclose(got, want, rtol=TOL_PREDICT_REL,
+                                                                           atol=TOL_PREDICT_ABS_UM), argv)
+        elif kind == "covariance":
+            for name in ("E.json", "E.cov.npz"):
+                (d / name).write_bytes((sim / "ident" / name).read_bytes())
+            cov = d / "E.cov.npz"
+            raw = cov.read_bytes()
+            cut = data.draw(st.integers(0, len(raw)))
+            how = data.draw(st.sampled_from(["cut", "flip", "keep"]))
+            if how == "cut":
+                raw = raw[:cut]
+            elif how == "flip" and raw:
+                b = bytearray(raw)
+                b[min(cut, len(b) - 1)] ^= 0xFF
+                raw = bytes(b)
+            cov.write_bytes(raw)
+            (d / "p.csv").write_text("x_mm,z_mm,a_deg\n10,20,30\n50,30,200\n")
+            argv = ["predict", str(d / "p.csv"), "--model", str(d / "E.json"), "--band", "95", "--out", str(d / "o.csv")]
+            rc, err = run_main(argv)
+            if _tally_outcome(argv, rc, err, [str(cov), str(d / "E.json")]):
+                t = read_table(d / "o.csv")
+                bands = [c for c in t.names if "band" in c]
+                _check_output("predict", len(t) == 2 and len(bands) == 3 and all(
+                    np.all(np.isfinite(t.float(c)) & (t.float(c) >= 0)) for c in bands), (argv, t.names))
+        else:
+            src = d / "mill.toml"
+            src.write_bytes(data.draw(hostile_bytes(builtin_machine_path("mill-xyz").read_text(), table=False)))
+            argv = ["sweeps", "--machine", str(src), "--seed", "1", "--out", str(d / "sw.csv")]
+            rc, err = run_main(argv)
+            if _tally_outcome(argv, rc, err, [str(src)]):
+                from errormap.mt_sweeps import read_mt_sweeps
+                sw = read_mt_sweeps(d / "sw.csv", load_machine(src))
+                _check_output("sweeps", len(read_table(d / "sw.csv")) > 0 and sw is not None, argv)

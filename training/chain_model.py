@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
-from errormap.io import InputError, sha256_file
+from errormap.io import InputError, load_array, sha256_file
 
 from .model import MODEL_FILES, PAPER_HIDDEN, MLPField
 
@@ -248,7 +248,7 @@ class ChainMLPField(MLPField):
         if m.in_lo_.shape != (m.n_axes,) or m.in_hi_.shape != (m.n_axes,) or m.out_mean_.shape != (3,):
             raise InputError(f"{d / 'scalers.json'}: keys 'in_lo'/'in_hi': expected {m.n_axes} values "
                              f"({', '.join(m.axis_columns)}) and 'out_mean_um' 3")
-        theta = np.load(d / "weights.npy", allow_pickle=False)
+        theta = load_array(d / "weights.npy", "weights file")
         if theta.shape != (m.n_params,):
             raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
         m.theta_ = torch.from_numpy(theta.astype(np.float64))

@@ -57,7 +57,7 @@ import torch
 from torch.func import jvp
 
 from errormap.field import (FLOAT32, JACOBIAN, OFFSET_FITNESS, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, CalibratedVolume)
-from errormap.io import InputError, atomic_dir, atomic_write, sha256_file, write_json
+from errormap.io import OUTPUT_LOCK_NAME, InputError, atomic_dir, atomic_write, load_array, sha256_file, write_json
 from errormap.threads import limit_threads
 from errormap.transforms import check_points
 
@@ -584,7 +584,7 @@ class MLPField:
         d = Path(directory)
         extra = self._extra_file_names()
         if d.is_dir():
-            foreign = sorted(p.name for p in d.iterdir() if p.name not in ("config.json",) + MODEL_FILES + extra)
+            foreign = sorted(p.name for p in d.iterdir() if p.name not in ("config.json", OUTPUT_LOCK_NAME) + MODEL_FILES + extra)
             if foreign:
                 raise InputError(f"{d}: a saved model replaces this folder whole, and it holds other files "
                                  f"({', '.join(foreign[:5])}); give a folder of its own")
@@ -631,7 +631,7 @@ class MLPField:
         m.a0_deg_ = float(sc["a0_deg"])
         m.out_mean_ = np.asarray(sc["out_mean_um"], dtype=float)
         m.out_scale_ = float(sc["out_scale_um"])
-        theta = np.load(d / "weights.npy", allow_pickle=False)
+        theta = load_array(d / "weights.npy", "weights file")
         if theta.shape != (m.n_params,):
             raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
         m.theta_ = torch.from_numpy(theta.astype(np.float64))

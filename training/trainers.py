@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from errormap.io import InputError, sha256_file
+from errormap.io import OUTPUT_LOCK_NAME, InputError, sha256_file
 from errormap.progress import Progress
 from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
@@ -265,7 +265,7 @@ def check_run_folder(out_dir) -> None:
     if d.exists() and not d.is_dir():
         raise InputError(f"{d}: expected a folder for the training run, got a file")
     if d.is_dir():
-        foreign = sorted(p.name for p in d.iterdir() if p.name not in RUN_FOLDER_FILES)
+        foreign = sorted(p.name for p in d.iterdir() if p.name not in RUN_FOLDER_FILES + (OUTPUT_LOCK_NAME,))
         if foreign:
             raise InputError(f"{d}: the training run replaces this folder whole, and it holds files a run did not "
                              f"write ({', '.join(foreign[:5])}{', ...' if len(foreign) > 5 else ''}); give a new or "

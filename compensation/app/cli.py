@@ -116,7 +116,9 @@ def main(argv=None) -> int:
     arguments, input or output paths (one line, exit 2; :mod:`compensation.app.validate`
     checks every option before any work), Ctrl-C at any moment, also while the numerical
     libraries are still being imported (one line, exit 130; outputs are written through
-    temporary files, which an interrupted writer removes, so nothing half-written stays)."""
+    temporary files, which an interrupted writer removes, and a command that writes a folder
+    runs inside :func:`compensation.app.outputs.owned_folder`, which holds the folder's lock and
+    removes on Ctrl-C what the run added, so nothing half-written stays)."""
     command, as_program = None, argv is None
     pending = {"interrupt": False}  # set by the SIGINT handler until main() takes the interrupt
     try:
@@ -124,7 +126,7 @@ def main(argv=None) -> int:
             _install_interrupt_handler(pending)
         argv = sys.argv[1:] if argv is None else list(argv)
         command = _command_in(argv)
-        return _run(argv, command)
+        return _run(argv, command, pending)
     except KeyboardInterrupt:
         return _interrupted(command, as_program, pending)
     except Exception as exc:
@@ -224,7 +226,7 @@ def _exit_now(status: int) -> None:
     os._exit(status)
 
 
-def _run(argv, name) -> int:
+def _run(argv, name, pending: dict | None = None) -> int:
     parser = build_parser([name] if name else [])
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -235,16 +237,22 @@ def _run(argv, name) -> int:
     try:
         from compensation.app.validate import check_args
         check_args(args.command, args, _subparser(parser, args.command))
-        return int(args.func(args) or 0)
+        from compensation.app.outputs import out_folder_of, owned_folder
+        folder = out_folder_of(args.command, args)
+        if folder is None:
+            return int(args.func(args) or 0)
+        with owned_folder(folder, args.command,  # one run per folder; Ctrl-C removes what it added
+                          interrupted=lambda: bool(pending and pending["interrupt"])):
+            return int(args.func(args) or 0)
     except (InputError, MachineFileError, UsageError) as exc:
         print(one_line(f"volcomp {args.command}: error: {exc}"), file=sys.stderr)
         return 2
     except OSError as exc:
         # a file system refusal while writing or reading (permission, disk full, a path that
         # vanished): the user's environment, not a defect of the command
-        where = f" {exc.filename}" if getattr(exc, "filename", None) else ""
-        why = exc.strerror or type(exc).__name__
-        print(one_line(f"volcomp {args.command}: error:{where}: {why}"), file=sys.stderr)
+        where = f" {exc.filename}:" if getattr(exc, "filename", None) else ""
+        why = exc.strerror or str(exc) or type(exc).__name__
+        print(one_line(f"volcomp {args.command}: error:{where} {why}"), file=sys.stderr)
         return 2
 
 

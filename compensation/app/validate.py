@@ -142,6 +142,35 @@ class Number:
         return f"a finite number{u}"
 
 
+class Ranged:
+    """A :class:`Number` whose bounds are a library constant ``module.NAME`` (a ``(lo, hi)`` pair,
+    resolved when checked: nothing is imported before main's Ctrl-C handling)."""
+
+    def __init__(self, module: str, name: str, unit: str = ""):
+        self.module, self.name, self.unit = module, name, unit
+
+    def number(self) -> Number:
+        import importlib
+        lo, hi = getattr(importlib.import_module(self.module), self.name)
+        return Number(lo, hi, unit=self.unit)
+
+    def check(self, flag: str, v) -> None:
+        self.number().check(flag, v)
+
+
+class SegmentLength(Ranged):
+    """``compensate --max-segment-mm``: ``auto``, ``none`` or a length in the range."""
+
+    def check(self, flag: str, v) -> None:
+        if str(v).strip().lower() in ("auto", "none"):
+            return
+        rule = self.number()
+        try:
+            rule.check(flag, v)
+        except UsageError:
+            raise UsageError(f"{flag}: expected 'auto', 'none' or {rule.describe()}, got {v!r}") from None
+
+
 class OutPath:
     """An output path: ``kind`` ``"dir"`` (a folder the command creates or fills), ``"file"``
     (a file it writes whole) or ``"prefix"`` (files named PREFIX_*: the prefix's folder)."""
@@ -253,7 +282,8 @@ RULES: dict[str, dict] = {
     "train": {"out": OUT_DIR, "hidden": Widths(), "max_time": positive("s"), "mse_goal": non_negative(), "max_iter": ITER,
               "threads": Count(1, MAX_WORKERS, "threads"),
               "physics_stations": Count(4, 61, "stations per axis of the fitted element set")},
-    "compensate": {"out": OUT_DIR, "show": Count(1), "arc_tolerance_um": positive("um"), "temp_c": FINITE,
+    "compensate": {"out": OUT_DIR, "show": Count(1), "arc_tolerance_um": Ranged("compensation.pathio", "ARC_TOLERANCE_RANGE_UM", "um"),
+                   "max_segment_mm": SegmentLength("compensation.pathio", "SEGMENT_RANGE_MM", "mm"), "temp_c": FINITE,
                    "time_s": FINITE, "max_rotary_correction_deg": Number(0.0, 180.0, open_lo=True, unit="deg")},
     "report": {"out": OUT_DIR, **METHODS, **FLUTE},
     "demo": {"out": OUT_DIR, "hidden": Widths(), "trainer": Trainer(), "train_iter": ITER, "train_s": positive("s"),
@@ -360,6 +390,7 @@ def check_output_path(flag: str, value, kind: str) -> None:
     if "\0" in text:
         raise UsageError(f"{flag}: a path cannot contain a NUL character")
     p = Path(text)
+    _check_not_special(flag, p)
     if kind == "dir":
         if p.exists() and not p.is_dir():
             raise UsageError(f"{flag} {text}: is a file; expected a folder (the command writes several files into it)")
@@ -373,6 +404,16 @@ def check_output_path(flag: str, value, kind: str) -> None:
     if folder is None or not folder.is_dir():
         raise UsageError(f"{flag} {text}: {folder} is a file, not a folder; it cannot hold the output")
     _probe_writable(flag, text, folder)
+
+
+def _check_not_special(flag: str, p) -> None:
+    """Refuse an output path that is a device, FIFO or socket (or a link to one): see
+    :func:`errormap.io.check_output_target`, which every writer runs again."""
+    from errormap.io import InputError, check_output_target
+    try:
+        check_output_target(p, "any")
+    except InputError as exc:
+        raise UsageError(f"{flag} {exc}") from None
 
 
 def _nearest_existing(p):

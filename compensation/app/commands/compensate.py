@@ -54,7 +54,7 @@ from ... import guards
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ...dialects import DIALECT_NAMES
 from ...nc_state import MACHINE, read_tool_table, read_work_offsets
-from ...pathio import DEFAULT_ARC_TOLERANCE_UM
+from ...pathio import ARC_TOLERANCE_RANGE_UM, DEFAULT_ARC_TOLERANCE_UM, SEGMENT_RANGE_MM
 from ...solvers import METHODS
 
 EXIT_REFUSED = 3
@@ -90,11 +90,16 @@ def register(sub):
     p.add_argument("--block-delete", choices=BLOCK_DELETE_CHOICES, default=None,
                    help="the controller's block-delete switch: on = '/' lines are skipped, off = they run "
                         "(default: refuse a '/' line that moves or changes modal state)")
+    lo, hi = ARC_TOLERANCE_RANGE_UM
     p.add_argument("--arc-tolerance-um", type=float, default=DEFAULT_ARC_TOLERANCE_UM,
                    help="chord tolerance of linearised arcs and split moves, um "
-                        f"(default {DEFAULT_ARC_TOLERANCE_UM:g})")
+                        f"(default {DEFAULT_ARC_TOLERANCE_UM:g}; in [{lo:g}, {hi:g}]: below 1 nm the 6-decimal program "
+                        "cannot state it, above 5 um the chords' sagitta is as large as the error compensation leaves)")
+    lo, hi = SEGMENT_RANGE_MM
     p.add_argument("--max-segment-mm", default="auto",
-                   help="split G1 moves and arcs into segments no longer than this (WCS mm); 'auto' "
+                   help="split G1 moves and arcs into segments no longer than this (WCS mm, in "
+                        f"[{lo:g}, {hi:g}]: the range 'auto' chooses from; finer is finer than any field varies, "
+                        "longer bounds no move 'none' would not leave alone); 'auto' "
                         "(default): from the field's curvature along the file's moves; 'none': no splitting")
     p.add_argument("--max-rotary-correction-deg", type=float, default=None, metavar="DEG",
                    help="machine-tool chains whose solver moves a rotary axis (lathe-xzc's C): refuse a point whose "
@@ -130,17 +135,12 @@ def parse_allow(text) -> tuple:
 
 
 def parse_max_segment(text):
-    """``--max-segment-mm`` value -> ``"auto"``, None (``none``) or a positive float (mm)."""
+    """``--max-segment-mm`` value -> ``"auto"``, None (``none``) or a length in mm (its range is
+    checked before the run: :class:`compensation.app.validate.SegmentLength`)."""
     t = str(text).strip().lower()
     if t in ("auto", "none"):
         return None if t == "none" else "auto"
-    try:
-        v = float(t)
-    except ValueError:
-        v = float("nan")
-    if not (np.isfinite(v) and v > 0):
-        raise UsageError(f"--max-segment-mm: expected a positive length in mm, 'auto' or 'none', got {text!r}")
-    return v
+    return float(t)
 
 
 def chain_settings(machine, args, allow):

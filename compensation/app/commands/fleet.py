@@ -6,6 +6,7 @@ from pathlib import Path
 
 from errormap.io import write_json
 
+from ..outputs import is_lock
 from ..validate import UsageError, one_line
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args
 
@@ -53,7 +54,7 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not args.force:
+    if out.is_dir() and any(not is_lock(p) for p in out.iterdir()) and not args.force:
         raise UsageError(f"--out {out} already holds files; choose an empty folder or pass --force")
     print(f"fleet: checking the inputs of {len(machines)} machine(s) ...", file=sys.stderr)
     validate_inputs(machines)

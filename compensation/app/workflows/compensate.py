@@ -31,6 +31,7 @@ from errormap.io import InputError, write_json
 from errormap.jit import notice_cold_kernels
 from errormap.progress import Progress
 
+from compensation.app.outputs import is_lock
 from compensation.app.validate import UsageError
 
 from ... import guards
@@ -130,7 +131,7 @@ def check_out_dir(out_dir: Path, force: bool) -> list:
     """Refuse a DIR holding files unless ``force``; return the previous run's outputs (to remove)."""
     if out_dir.exists() and not out_dir.is_dir():
         raise UsageError(f"--out {out_dir} is not a folder")
-    held = sorted(p.name for p in out_dir.iterdir()) if out_dir.is_dir() else []
+    held = sorted(p.name for p in out_dir.iterdir() if not is_lock(p)) if out_dir.is_dir() else []
     if held and not force:
         raise UsageError(f"--out {out_dir} already holds {len(held)} file(s) ({', '.join(held[:3])}"
                          f"{', ...' if len(held) > 3 else ''}); choose an empty folder or pass --force "

@@ -1,0 +1,231 @@
+"""One run owns an output folder: a lock while it works, and nothing left behind by Ctrl-C.
+
+Every command that writes a folder (``--out DIR``: the ``OUT_DIR`` rules of
+:mod:`compensation.app.validate`) runs inside :func:`owned_folder`, entered by
+:func:`compensation.app.cli.main` after the options are checked and before the command's work:
+
+* **Lock.** ``DIR/.volcomp.lock`` is created with ``O_EXCL`` and holds the owner's pid, host,
+  command and start time (JSON). A second run into the same folder finds it and is refused
+  (one line, exit 2) naming the holder. A lock whose pid is dead on this host (a run killed
+  with SIGKILL, a power cut) is stale: it is taken over, and the run says so on stderr. A lock
+  from another host (a shared file system) is never taken over: its message says to remove it
+  once that run is known to be gone. The lock is removed when the run ends, however it ends.
+* **Ctrl-C.** Files are written whole (:func:`errormap.io.atomic_write`), but a command that
+  writes several (a benchmark's ``chains/MACHINE/CONDITION/`` folders, a diagnosis's model and
+  report) can be interrupted between two of them. On ``KeyboardInterrupt`` every file and
+  folder that was not in ``DIR`` when the run started is removed, and ``DIR`` itself (with the
+  folders above it) when the run created it: what stays is what was there before. A file
+  that was there before and was already replaced by this run stays replaced (whole).
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import socket
+import sys
+import time
+from pathlib import Path
+
+from errormap.io import OUTPUT_LOCK_NAME as LOCK_NAME  # the lock file's name, shared with the writers
+
+from .validate import UsageError
+
+CLEANUP_TRIES = 100
+"""A Ctrl-C is re-sent every 0.25 s until the command has stopped (cli.REARM_S): the cleanup
+starts again from where it was when one lands in it; it removes what is left each time."""
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+class FolderLock:
+    """``DIR/.volcomp.lock`` held by this process (:meth:`acquire`, :meth:`release`)."""
+
+    def __init__(self, folder, command: str):
+        self.folder = Path(folder)
+        self.path = self.folder / LOCK_NAME
+        self.command = command
+        self.held = False
+        self._ino = None
+
+    def _record(self) -> dict:
+        return {"pid": os.getpid(), "host": socket.gethostname(), "command": self.command,
+                "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+
+    def acquire(self) -> "FolderLock":
+        """Create the lock or refuse naming its holder; a stale one (dead pid, this host) is taken over."""
+        for _ in range(2):
+            try:
+                fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            except FileExistsError:
+                self._take_over_if_stale()
+                continue
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                json.dump(self._record(), fh)
+            self._ino = os.stat(self.path).st_ino
+            self.held = True
+            return self
+        raise UsageError(f"--out {self.folder}: another run took the lock {self.path} while a stale one was removed; "
+                         "try again")
+
+    def _take_over_if_stale(self) -> None:
+        try:
+            holder = json.loads(self.path.read_text(encoding="utf-8"))
+            pid, host = int(holder["pid"]), str(holder["host"])
+            who = (f"volcomp {holder.get('command', '?')} (pid {pid} on {host}, started "
+                   f"{holder.get('started_utc', '?')})")
+        except FileNotFoundError:
+            return  # released meanwhile: try again
+        except (OSError, ValueError, KeyError, TypeError):
+            raise UsageError(f"--out {self.folder}: is locked by {self.path}, which cannot be read (a run may be "
+                             "starting); if no volcomp run writes this folder, remove that file") from None
+        if host != socket.gethostname():
+            raise UsageError(f"--out {self.folder}: in use by {who}; wait for it to finish or give another --out "
+                             f"(if that run is gone, remove {self.path})")
+        if _pid_alive(pid):
+            raise UsageError(f"--out {self.folder}: in use by {who}; wait for it to finish or give another --out")
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(self.path)
+        print(f"volcomp {self.command}: taking over the stale lock of {who}, which no longer runs, in {self.folder}",
+              file=sys.stderr)
+
+    def release(self) -> None:
+        """Remove the lock if it is still this run's (a folder replaced whole took it with the old folder)."""
+        if not self.held:
+            return
+        self.held = False
+        with contextlib.suppress(OSError):
+            if os.stat(self.path).st_ino == self._ino:
+                os.unlink(self.path)
+
+
+def _snapshot(folder: Path) -> set:
+    """Every path under ``folder`` (relative strings), links not followed."""
+    seen = set()
+    for root, dirs, files in os.walk(folder):
+        rel = os.path.relpath(root, folder)
+        for n in dirs + files:
+            seen.add(os.path.normpath(os.path.join(rel, n)))
+    return seen
+
+
+def _remove_new(folder: Path, before: set) -> None:
+    """Remove what is under ``folder`` and not in ``before`` (shallowest first: a new folder goes whole)."""
+    if not folder.is_dir():
+        return
+    for rel in sorted(_snapshot(folder) - before, key=lambda r: r.count(os.sep)):
+        p = folder / rel
+        if rel == LOCK_NAME:
+            continue
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+                p.unlink()
+
+
+def _remove_created(folder: Path, created: Path, whole: bool) -> None:
+    """Remove ``folder`` (with what is in it when ``whole``, else only if empty) and the empty
+    folders above it up to ``created``, the topmost one this run made. Never a folder above it
+    that holds anything: another run may have made it meanwhile."""
+    if whole:
+        shutil.rmtree(folder, ignore_errors=True)
+    p = folder
+    while True:
+        try:
+            p.rmdir()
+        except FileNotFoundError:
+            pass
+        except OSError:  # not empty: someone else's
+            return
+        if p == created or p.parent == p:
+            return
+        p = p.parent
+
+
+def _cleanup(folder: Path, before: set | None, created: Path | None, lock: FolderLock) -> None:
+    for _ in range(CLEANUP_TRIES):
+        try:
+            if created is not None:
+                lock.held = False
+                _remove_created(folder, created, whole=True)
+            else:
+                _remove_new(folder, before)
+            return
+        except KeyboardInterrupt:
+            continue
+
+
+def _is_interrupt(exc: BaseException, interrupted) -> bool:
+    """A Ctrl-C: a KeyboardInterrupt, an error it caused (its cause or context), or any error while
+    ``interrupted()`` says one is pending (cli.main's handler)."""
+    seen = set()
+    e = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return bool(interrupted and interrupted())
+
+
+@contextlib.contextmanager
+def owned_folder(folder, command: str, interrupted=None):
+    """Own ``folder`` for one run of ``command``: create it if absent, hold its lock, and on
+    Ctrl-C remove what the run added (module docstring). ``interrupted``: a callable that says
+    whether a Ctrl-C is pending (an error raised then is its consequence). Yields the folder's
+    :class:`Path`."""
+    from errormap.io import InputError, check_output_target
+    folder = Path(folder)
+    try:
+        check_output_target(folder, "dir")
+    except InputError as exc:
+        raise UsageError(f"--out {exc}") from None
+    created = None
+    if not folder.exists():
+        created = folder
+        while not created.parent.exists():
+            created = created.parent
+        folder.mkdir(parents=True, exist_ok=True)
+    lock = FolderLock(folder, command)
+    try:
+        lock.acquire()
+        before = _snapshot(folder) if created is None else None
+    except BaseException:
+        if created is not None:
+            _remove_created(folder, created, whole=False)  # another run's folder now: only if empty
+        raise
+    try:
+        yield folder
+    except BaseException as exc:
+        if _is_interrupt(exc, interrupted):
+            _cleanup(folder, before, created, lock)
+        raise
+    finally:
+        lock.release()
+        if created is not None:  # a refused run leaves no folder behind
+            _remove_created(folder, created, whole=False)
+
+
+def out_folder_of(command: str, args):
+    """The ``--out`` folder a command's arguments name (None: the command writes no folder)."""
+    from .validate import OutPath, rule_for
+    rule = rule_for(command, "out")
+    value = getattr(args, "out", None)
+    if isinstance(rule, OutPath) and rule.kind == "dir" and value is not None:
+        return value
+    return None
+
+
+def is_lock(path) -> bool:
+    """Whether ``path`` is a run's lock file (never listed as an output)."""
+    return Path(path).name == LOCK_NAME
