@@ -77,6 +77,10 @@ def band_label(c: dict) -> str:
     return txt
 
 
+EXIT_FAILED_VERDICT = 1
+"""A diagnosis that ran but whose verdict failed (its model loses to a plain baseline, or the noise it estimates
+is far above the stated one): the files are written, with the verdict in them, and the status is 1 (as
+``calibrate``'s ``success: false``)."""
 BAND_CLAIM_COVERAGE = 0.9   # below this held-out coverage the band is flagged as not holding its 95 %
 
 
@@ -117,7 +121,7 @@ def run(args) -> int:
                 print(line)
             for p in paths:
                 print(f"wrote {p}")
-            return 0
+            return EXIT_FAILED_VERDICT if summary["verdict"]["status"] == "failed" else 0
         check_machine_kind(machine.path, machine.kind, "grinder")
         if args.noise_um is not None:
             raise UsageError("--noise-um is for a machine-tool chain's checks (the grinder's loop estimates it)")
