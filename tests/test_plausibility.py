@@ -198,3 +198,41 @@ def test_the_reported_cases_through_identify(tmp_path, capsys):
                  "--no-learned", "--out", str(tmp_path / "o_noisy")]) == 1
     doc = json.loads((tmp_path / "o_noisy" / "diagnosis.json").read_text())
     assert doc["verdict"]["status"] == "failed" and "the stated σ" in doc["verdict"]["reasons"][0]
+
+
+def test_drift_verdict_fails_a_channel_that_loses_to_ols_beyond_the_selections_bound():
+    from compensation.app.workflows.diagnosis import drift_verdict
+    from errormap.diagnosis.drift_models import MAX_FOLD_LOSS
+    ch = {"ch1": {"model": "ridge", "rms_after_um": 0.795, "rms_ols_um": 0.789},   # the blend toward OLS: a tie
+          "ch2": {"model": "greybox", "rms_after_um": 0.561, "rms_ols_um": 1.47}}
+    assert drift_verdict(ch) == {"status": "passed", "reasons": []}
+    lost = dict(ch, ch4={"model": "ols_stable", "rms_after_um": 0.846, "rms_ols_um": 0.707})
+    v = drift_verdict(lost)
+    assert v["status"] == "failed" and len(v["reasons"]) == 1 and v["reasons"][0].startswith("ch4: the model")
+    assert 0.846 / 0.707 > MAX_FOLD_LOSS > 0.795 / 0.789
+
+
+A_SCALE_UM = 20.0
+"""dx growing linearly with A, 20 μm per 180° (a rotary scale error over the turns the checks span): a plain
+linear fit of the residual in the axes takes it out, the grinder's elements (periodic in A) cannot."""
+
+
+@pytest.mark.slow   # two grinder closed loops: 20–80 s on the shared machine
+def test_grinder_closed_loop_verdict_fails_when_the_plain_baseline_wins():
+    from errormap.diagnosis.checks import CheckData
+    from errormap.diagnosis.loop import closed_loop
+    from errormap.simulator import random_truth
+    from errormap.uncertainty import ElementCovariance, theta_from_elements, theta_layout
+    g = load_machine(None)
+    t = random_truth(g, SEED)
+    cov = ElementCovariance(theta_from_elements(t.elements), 0.25 * np.eye(len(theta_layout(t.elements))),
+                            t.elements, {})
+    cols = t.check_measurements(150, NOISE_UM, SEED + 1)
+    good = closed_loop(g, cov, CheckData.from_columns(cols)).summary
+    assert diagnosis_verdict(good)["status"] == "passed"
+    assert good["baselines_vs_kept"]["baseline_ols_linear"]["held_out_rms_um"] > good["rms_final_um"]
+    bad = dict(cols, dx_um=cols["dx_um"] + A_SCALE_UM * np.asarray(cols["a_deg"]) / 180.0)
+    s = closed_loop(g, cov, CheckData.from_columns(bad)).summary
+    v = diagnosis_verdict(s)
+    assert v["status"] == "failed" and "loses to the plain baseline baseline_ols_linear" in v["reasons"][0]
+    assert s["baselines_vs_kept"]["baseline_ols_linear"]["paired_z_over_kept"] > 2

@@ -751,9 +751,8 @@ def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None, 
 
 
 def _paired_z(r_before, r_after) -> float:
-    gain = np.sum(r_before**2, axis=1) - np.sum(r_after**2, axis=1)
-    sd = gain.std(ddof=1)
-    return float(gain.mean() / (sd / np.sqrt(gain.size))) if sd > 0 else 0.0
+    from .plausibility import paired_z
+    return paired_z(r_before, r_after)
 
 
 def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
@@ -892,9 +891,8 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
         stages["updated"]["smoothing_weight"] = upd.smoothing
         models["updated"], resid_of["updated"] = upd.elements_, r1
         sigma = upd.sigma_um
-    X = np.hstack([np.ones((n, 1)), checks.axes])            # the plainest: the residual linear in the axes
-    B = np.linalg.lstsq(X[fit_idx], r0[fit_idx], rcond=None)[0]
-    baseline_resid["baseline_ols_linear"] = r0 - X @ B
+    from .plausibility import ols_linear_baseline   # the plainest: the residual linear in the axes
+    baseline_resid["baseline_ols_linear"] = ols_linear_baseline(checks.axes, r0, fit_idx)
     stages["baseline_ols_linear"] = stats(baseline_resid["baseline_ols_linear"])
     last = "updated" if "updated" in models else "identified"
     accepted, rejected, dropped = [], [], []

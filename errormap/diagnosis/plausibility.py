@@ -140,9 +140,26 @@ paired per point, by more than 2 standard errors (the loop's own rule for "bette
 learned residual (whose per-point residual is not kept) loses when its held-out RMS is above the baseline's."""
 
 
+def paired_z(r_kept, r_other) -> float:
+    """How much better ``r_other`` (m, 3) is than ``r_kept`` (m, 3) on the same points: the mean per-point drop of the
+    squared residual norm over its standard error (0 when the drop does not vary)."""
+    gain = np.sum(np.asarray(r_kept) ** 2, axis=1) - np.sum(np.asarray(r_other) ** 2, axis=1)
+    sd = gain.std(ddof=1)
+    return float(gain.mean() / (sd / np.sqrt(gain.size))) if sd > 0 else 0.0
+
+
+def ols_linear_baseline(axes, residual_um, fit_idx) -> np.ndarray:
+    """The plainest baseline: ``residual_um`` (n, 3) fitted by least squares on the fitting checks ``fit_idx`` as a
+    linear function of the axis columns ``axes`` (n, k) plus a constant; → what it leaves at every check (n, 3)."""
+    X = np.hstack([np.ones((len(axes), 1)), np.asarray(axes, float)])
+    B = np.linalg.lstsq(X[fit_idx], np.asarray(residual_um)[fit_idx], rcond=None)[0]
+    return residual_um - X @ B
+
+
 def diagnosis_verdict(summary: dict) -> dict:
-    """``{"status": "passed" | "failed", "reasons": [...]}`` of a chain diagnosis summary
-    (:func:`errormap.diagnosis.mt_loop.closed_loop_chain`, after the learned stage): failed when the noise
+    """``{"status": "passed" | "failed", "reasons": [...]}`` of a closed-loop summary (a chain's
+    :func:`errormap.diagnosis.mt_loop.closed_loop_chain` or the grinder's :func:`errormap.diagnosis.loop.closed_loop`,
+    after the learned stage; its held-out RMS ``held_out_rms_um`` or ``rms_final_um``): failed when the noise
     estimated from the checks is far above the stated one (:data:`NOISE_EXCESS`) or the kept model loses to a
     plain baseline on the held-out checks (:data:`BASELINE_Z`)."""
     reasons = []
@@ -151,7 +168,8 @@ def diagnosis_verdict(summary: dict) -> dict:
         reasons.append(f"the check noise estimated with the update (σ = {est:.3g} μm) is {est / stated:.3g}× the "
                        f"stated σ = {stated:.3g} μm (more than {NOISE_EXCESS:g}×): the checks or the model cannot be "
                        "right; not at the floor")
-    kept, held = summary["kept_stage"], summary["held_out_rms_um"]
+    kept = summary["kept_stage"]
+    held = summary["held_out_rms_um"] if "held_out_rms_um" in summary else summary["rms_final_um"]
     for name, b in (summary.get("baselines_vs_kept") or {}).items():
         lost = (b["held_out_rms_um"] < held if kept == "learned_residual"
                 else b["paired_z_over_kept"] > BASELINE_Z)

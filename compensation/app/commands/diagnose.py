@@ -101,6 +101,8 @@ def run(args) -> int:
         for ch, c in summary["channels"].items():
             print(f"{ch}: {c['model']}: held-out RMS {c['rms_before_um']:.3g} -> {c['rms_after_um']:.3g} μm "
                   f"(OLS baseline {c['rms_ols_um']:.3g} μm), {band_label(c)}")
+        v = summary["verdict"]
+        print("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
     else:
         if args.model is None:
             raise UsageError("CHECKS needs --model (element-set file or run id)")
@@ -152,6 +154,10 @@ def run(args) -> int:
             print("no effect found")
         print(f"held-out RMS {summary['rms_before_um']:.3g} -> {summary['rms_after_um']:.3g} μm, "
               f"max {summary['max_before_um']:.3g} -> {summary['max_after_um']:.3g} μm")
+        v = summary.get("verdict")
+        if v is not None:   # the closed loop's verdict (errormap.diagnosis.plausibility.diagnosis_verdict)
+            print("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
     for p in paths:
         print(f"wrote {p}")
-    return 0
+    failed = (summary.get("verdict") or {}).get("status") == "failed"
+    return EXIT_FAILED_VERDICT if failed else 0
