@@ -143,6 +143,7 @@ def test_a_kept_model_that_loses_to_the_plain_baseline_is_a_failed_verdict(mill_
     doc = json.loads((d / "o_off" / "diagnosis.json").read_text())
     assert doc["verdict"]["status"] == "failed"
     assert json.loads((d / "o_off" / "model.json").read_text())["verdict"]["status"] == "failed"
+    assert "FAILED: the kept model" in (d / "o_off" / "report.html").read_text()   # the page says so too
     b = doc["baselines_vs_kept"]["baseline_ols_linear"]
     assert b["held_out_rms_um"] < doc["held_out_rms_um"] and b["paired_z_over_kept"] > 2
 

@@ -852,9 +852,9 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
 
     from .plausibility import check_deviations
     stated = noise_um if noise_um is not None else checks.stated_noise_um
-    check_deviations(checks.path, checks.measured_um, ChainField(machine, elements).predict(checks.axes),
-                     rows=checks.rows, noise_um=stated, units=units)
-    r0 = resid(elements)
+    pred0 = ChainField(machine, elements).predict(checks.axes)
+    check_deviations(checks.path, checks.measured_um, pred0, rows=checks.rows, noise_um=stated, units=units)
+    r0 = checks.measured_um - pred0
     stages = {"identified": stats(r0)}
     models = {"identified": elements}
     resid_of = {"identified": r0}
