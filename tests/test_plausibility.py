@@ -237,3 +237,19 @@ def test_grinder_closed_loop_verdict_fails_when_the_plain_baseline_wins():
     v = diagnosis_verdict(s)
     assert v["status"] == "failed" and "loses to the plain baseline baseline_ols_linear" in v["reasons"][0]
     assert s["baselines_vs_kept"]["baseline_ols_linear"]["paired_z_over_kept"] > 2
+
+
+@pytest.mark.parametrize("name", ["mill-xyz", "five-axis-ac", "lathe-xzc"])
+def test_sweeps_with_two_ball_columns_exchanged_are_refused_before_identification(name):
+    """A tracker pose cannot mirror: sweeps whose x_mm/y_mm are exchanged fit the machine only as a mirror image
+    (they used to reach the Gauss–Newton fit and end in a traceback on the mill). The correct sweeps pass."""
+    from errormap.mt_identify import ChainIdentification
+    from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.sweeps import sweeps_from_columns
+    m = load_machine(name)
+    cols = simulate_mt_sweeps(make_mt_truth(m, SEED, family="independent"), noise_um=2.0, seed=SEED)
+    ok = sweeps_from_columns(cols, axes=swept_words(m))
+    ChainIdentification()._check_handedness(ok, m, swept_words(m), "ok.csv")   # no refusal
+    bad = sweeps_from_columns(dict(cols, x_mm=cols["y_mm"], y_mm=cols["x_mm"]), axes=swept_words(m))
+    with pytest.raises(InputError, match="mirror image of the machine"):
+        ChainIdentification().fit(bad, m)

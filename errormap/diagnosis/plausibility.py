@@ -178,3 +178,37 @@ def diagnosis_verdict(summary: dict) -> dict:
                            f"({b['held_out_rms_um']:.3g} μm" + ("" if kept == "learned_residual" else
                                                                f", paired z = {b['paired_z_over_kept']:.2f}") + ")")
     return {"status": "failed" if reasons else "passed", "reasons": reasons}
+
+
+# -- tracker sweeps: mirrored ball coordinates ------------------------------------------------------------
+BALL_COLUMNS = ("x_mm", "y_mm", "z_mm")
+MIRROR_FIT_RATIO = 0.25
+"""Ball coordinates are refused as mirrored (two of x_mm, y_mm, z_mm exchanged) when the best mirror-image fit
+of the nominal ball positions leaves less than this fraction of the best rigid fit's squared residual. A
+tracker pose is a rotation and a translation: it cannot mirror. On correct sweeps the rigid fit leaves the
+machine's errors and the noise (μm) and the mirror fit metres of misfit (a 3-D spread of balls); with two
+columns exchanged it is the other way round. Balls that lie in a plane fit both equally (ratio ~1): nothing is
+decided then."""
+
+
+def _rigid_rss(P, Q, proper: bool) -> float:
+    """Least-squares residual (sum of squares) of Q (n, 3) ≈ R P + t with det R = +1 (``proper``) or −1."""
+    p, q = P - P.mean(0), Q - Q.mean(0)
+    U, _, Vt = np.linalg.svd(p.T @ q)
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) * (1.0 if proper else -1.0)
+    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return float(np.sum((q - p @ R.T) ** 2))
+
+
+def mirrored_ball_columns(nominal_mm, measured_mm, columns=BALL_COLUMNS) -> str | None:
+    """A message when the measured ball centres (n, 3) fit the nominal ones (n, 3) far better as a mirror image
+    (:data:`MIRROR_FIT_RATIO`), or None. Which two columns were exchanged (or which one negated) cannot be told:
+    with the tracker pose unknown every mirror is every other one times a rotation."""
+    P, Q = np.asarray(nominal_mm, float), np.asarray(measured_mm, float)
+    proper, mirror = _rigid_rss(P, Q, True), _rigid_rss(P, Q, False)
+    if not mirror < MIRROR_FIT_RATIO * proper:
+        return None
+    n = len(P)
+    return (f"columns {', '.join(repr(c) for c in columns)}: the ball coordinates are a mirror image of the machine "
+            f"(a tracker pose leaves RMS {np.sqrt(proper / n):.3g} mm, a mirror {np.sqrt(mirror / n) * 1e3:.3g} μm): "
+            "two columns exchanged, or one negated?")
