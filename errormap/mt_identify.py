@@ -195,7 +195,27 @@ class ChainIdentification:
             if sw.temp_c is not None and np.ptp(sw.temp_c) > 1.0:
                 warnings.append(f"axis {w}: temperature varied by {np.ptp(sw.temp_c):.2g} degC during the sweep; "
                                 "thermal drift is identified as geometry")
+        self._check_handedness(sweeps, machine, words, src)
         return warnings
+
+    @staticmethod
+    def _check_handedness(sweeps: Sweeps, machine: MachineTool, words, src) -> None:
+        """Refuse ball coordinates that are a mirror image of the machine (two columns exchanged): the nominal
+        ball centres of every sweep (the other axes parked, no errors) against the measured ones
+        (:func:`errormap.diagnosis.plausibility.mirrored_ball_columns`)."""
+        from .diagnosis.plausibility import mirrored_ball_columns
+        col = {a.word: j for j, a in enumerate(machine.axes)}
+        nominal, measured = [], []
+        for w in words:
+            sw = sweeps[w]
+            axes = np.tile(park_axes(machine), (len(sw.command), 1))
+            axes[:, col[w]] = sw.command
+            values = np.zeros((len(axes), len(machine.slot_names)))
+            nominal.append(body_chain(machine, w).balls(axes, values, machine.targets[w]).reshape(-1, 3))
+            measured.append(np.asarray(sw.balls_mm, float).reshape(-1, 3))
+        m = mirrored_ball_columns(np.concatenate(nominal), np.concatenate(measured))
+        if m is not None:
+            raise InputError(f"{src}: {m}")
 
     # -- parameters -------------------------------------------------------------------------
     def _layout(self, sweeps, machine):

@@ -389,3 +389,18 @@ def test_real_ur5_grid_blocked_sector_through_the_cli(tmp_path, ur5):
     e = np.linalg.norm(np.stack([t.float(c) for c in ("ex_mm", "ey_mm", "ez_mm")], 1), axis=1)
     assert len(e) == held.sum()
     assert e.mean() == pytest.approx(st[doc["kept_stage"]]["mean_mm"], abs=SAME_FIGURE_MM)
+
+
+def test_compensate_on_an_arm_refuses_truth_rather_than_ignoring_it(tmp_path, capsys, ur5):
+    """--truth reports the TRUE residual on machine-tool chains only: on an arm it is refused (exit 2, one line),
+    before any model is read or anything written."""
+    from compensation.app.cli import main
+    prog = tmp_path / "prog.csv"
+    prog.write_text(",".join(ur5.joint_columns) + "\n0,-90,90,0,90,0\n")
+    for name in ("truth.json", "model.json"):
+        (tmp_path / name).write_text("{}")
+    assert main(["compensate", str(prog), "--machine", "ur5", "--model", str(tmp_path / "model.json"),
+                 "--truth", str(tmp_path / "truth.json"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--truth is not used on a serial arm (ur5)" in err[0]
+    assert not (tmp_path / "out").exists()

@@ -81,6 +81,29 @@ def test_per_point_ga_runs_on_a_subset_and_says_so(grinder, truth, flute, monkey
     assert subset_index(10, 20).tolist() == list(range(10))
 
 
+def test_a_method_run_on_a_subset_gets_its_own_residual_file_without_nan_padding(grinder, truth, flute, monkeypatch,
+                                                                                 tmp_path):
+    """residuals.csv holds the methods that ran on every point; the per-point GA on 25 of 180 points is written
+    to residuals_ga.csv with those 25 rows only (it used to pad 155 rows of residuals.csv with NaN)."""
+    from errormap.io import read_table
+
+    def stand_in(method, field, targets, machine, options):
+        return solve("traditional", field, targets, machine,
+                     **{k: v for k, v in options.items() if k == "target_axes"})
+    monkeypatch.setattr(compare_mod, "_solve", stand_in)
+    cmp = compare_methods(HTMField(grinder, truth.elements), flute.targets_mm, grinder, methods=("ga", "exact"),
+                          truth=truth, ga_points=25)
+    paths = write_report(cmp, tmp_path / "rep")
+    full, sub = read_table(paths["residuals"]), read_table(paths["residuals_ga"])
+    assert len(full) == len(flute) and not any(c.startswith("ga_") for c in full.names)
+    assert "exact_true_um" in full.names and "residuals_ga.csv" in " ".join(full.comments)
+    assert sub.names == ["point", "x_mm", "z_mm", "a_deg", "ga_model_um", "ga_true_um"] and len(sub) == 25
+    np.testing.assert_array_equal(sub.float("point"), cmp.runs["ga"].index)
+    assert "ran on 25 of the 180 points" in " ".join(sub.comments)
+    for t in (full, sub):
+        assert all(np.isfinite(t.float(c)).all() for c in t.names)
+
+
 def test_report_html_is_self_contained_and_names_its_residuals(tmp_path, grinder, truth, flute):
     field = HTMField(grinder, truth.elements)
     cmp = compare_methods(field, flute.targets_mm, grinder, methods=("traditional", "exact"), truth=truth)

@@ -12,7 +12,8 @@ file line, header = row 1 — and the column):
 * units that do not fit: a measured error beyond ``MAX_ERROR_UM`` (a value in metres or nm, or
   a position typed into an error column), a temperature outside 0 … 45 °C (°F or kelvin; the
   shared check of :mod:`errormap.units`), and — once the model is known, see :func:`measured_residual` — a measured
-  column ~1000× smaller than the model predicts (mm or m written as μm);
+  column ~1000× smaller than the model predicts (mm or m written as μm) or deviation columns that fit another
+  axis order far better (headers exchanged; :mod:`.plausibility`);
 * duplicated rows (every cell equal to an earlier row) and duplicated ``seq`` values;
 * a check point outside the X or Z stroke of the machine (A is periodic; any finite A passes).
 """
@@ -24,6 +25,7 @@ import numpy as np
 
 from ..io import InputError, read_table
 from ..units import TEMP_HARD_RANGE_C, UNITS_CHECK, check_units
+from .plausibility import check_deviations
 
 AXES_COLUMNS = ("x_mm", "z_mm", "a_deg")
 ERROR_COLUMNS = ("dx_um", "dy_um", "dz_um")
@@ -34,10 +36,6 @@ MAX_ERROR_UM = 5000.0
 """Largest plausible measured error component (μm): 5 mm. The grinder's errors are < 250 μm."""
 TEMP_RANGE_C = TEMP_HARD_RANGE_C  # refused even with --units as-written; 0 … 45 °C without it (errormap/units.py)
 STROKE_TOL_MM = 1e-6
-UNIT_RATIO = 50.0
-"""A measured column whose RMS is this many times smaller than the model's prediction (which
-is at least ``UNIT_MIN_PRED_UM``) is taken for a unit mistake (mm or m written as μm)."""
-UNIT_MIN_PRED_UM = 5.0
 
 
 @dataclass
@@ -148,18 +146,12 @@ def load_checks(path, machine, units: str = UNITS_CHECK, units_option: str | Non
 def measured_residual(checks: CheckData, field_) -> tuple[np.ndarray, np.ndarray]:
     """The measured residual (measurement − model prediction) and the prediction, both (n, 3) μm.
 
-    Raises :class:`InputError` naming a column (and the row of its largest value) when a
-    measured column is ~1000× smaller than the model's prediction (mm or m written as μm).
+    Raises :class:`InputError` naming the file, a row and the columns when the deviations fit another unit
+    (mm or m written as μm) or another axis order (headers exchanged) far better than as written
+    (:func:`errormap.diagnosis.plausibility.check_deviations`).
     """
     pred = np.asarray(field_.predict(checks.axes), dtype=float)
     if pred.shape != checks.measured_um.shape or not np.all(np.isfinite(pred)):
         raise ValueError(f"Expected a finite model prediction of shape {checks.measured_um.shape}, got {pred.shape}")
-    rms_pred = np.sqrt(np.mean(pred**2, axis=0))
-    rms_meas = np.sqrt(np.mean(checks.measured_um**2, axis=0))
-    for j, c in enumerate(ERROR_COLUMNS):
-        if rms_pred[j] >= UNIT_MIN_PRED_UM and rms_meas[j] * UNIT_RATIO < rms_pred[j]:
-            k = int(np.argmax(np.abs(checks.measured_um[:, j])))
-            raise _fail(checks.path, checks.rows[k], c,
-                        f"units do not fit: measured RMS {rms_meas[j]:.3g} μm but the model predicts RMS "
-                        f"{rms_pred[j]:.3g} μm (residual ≈ −prediction); is the column in mm or m rather than μm?")
+    check_deviations(checks.path, checks.measured_um, pred, rows=checks.rows, option=None)
     return checks.measured_um - pred, pred

@@ -32,6 +32,7 @@ from .corrected import CorrectedField
 from .effects import Context, reference
 from .pipeline import Diagnosis, DiagnosisSettings, diagnose
 from .joint import joint_refit, joint_screen, stand_ins
+from .plausibility import ols_linear_baseline, paired_z
 from .update import ModelUpdate, update_elements
 
 
@@ -151,6 +152,12 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
     accepted = bool(terms_k)
     model = CorrectedField(machine, field_k, terms_k)
     stk = residual_stats(r_k[hold_idx], ERROR_COLUMNS)
+    r_ols = ols_linear_baseline(checks.axes, r0, fit_idx)   # the plain baseline the kept model must not lose to
+    baselines = {"baseline_ols_linear": {
+        "held_out_rms_um": residual_stats(r_ols[hold_idx])["rms_um"],
+        "fitting_rms_um": residual_stats(r_ols[fit_idx])["rms_um"],
+        "paired_z_over_kept": paired_z(r_k[hold_idx], r_ols[hold_idx]),
+        "note": "OLS of the identified model's residual, linear in x, z, a (+ constant), fitted on the fitting checks"}}
     summary = dict(d.summary)
     summary.update({
         "stages": stages,
@@ -161,6 +168,7 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
         "effects_rejected": rejected,
         "rms_identified_um": st0["rms_um"], "rms_updated_um": st1["rms_um"],
         "rms_final_um": stk["rms_um"], "max_final_um": stk["max_um"],
+        "baselines_vs_kept": baselines,
     })
     if kept and kept_stage != "updated_plus_effects":
         summary["effects_dropped_by_fallback"] = [e for _, e in kept]

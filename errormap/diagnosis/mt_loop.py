@@ -127,6 +127,8 @@ class MTChecks:
     seq: np.ndarray | None = None
     rows: np.ndarray | None = None
     path: str = "<checks>"
+    stated_noise_um: float | None = None
+    """The instrument's noise σ per coordinate (μm) the file states (a ``# noise_um: σ`` header line), or None."""
 
     def __post_init__(self):
         n = len(self.axes)
@@ -203,7 +205,25 @@ def load_mt_checks(path, machine: MachineTool, units: str = "check") -> MTChecks
         if u.size != seq.size:
             dup = np.setdiff1d(np.arange(seq.size), first)[0]
             raise InputError(f"{path}: row {rows[dup]}, column 'seq': duplicated value {seq[dup]}")
-    return MTChecks(axes, meas, cond, seq, rows, str(path))
+    return MTChecks(axes, meas, cond, seq, rows, str(path), stated_noise(path, t.comments))
+
+
+def stated_noise(path, comments) -> float | None:
+    """The noise σ (μm, > 0) a check file states in a ``# noise_um: σ`` header line, or None (none stated, or 0: a
+    noise-free simulation states nothing a noise can be judged against); InputError naming the file when the
+    line is there but its value is not a finite number ≥ 0."""
+    for c in comments:
+        key, sep, value = c.partition(":")
+        if sep and key.strip() == "noise_um":
+            try:
+                v = float(value)
+            except ValueError:
+                v = float("nan")
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"{path}: header line 'noise_um': expected the instrument's noise σ in μm "
+                                 f"(a number ≥ 0), got {value.strip()!r}")
+            return v if v > 0 else None
+    return None
 
 
 # -- the update ---------------------------------------------------------------------------------
@@ -731,9 +751,8 @@ def _fit_shape(machine, kind, words, checks, fit_idx, r_fit, Je, response=None, 
 
 
 def _paired_z(r_before, r_after) -> float:
-    gain = np.sum(r_before**2, axis=1) - np.sum(r_after**2, axis=1)
-    sd = gain.std(ddof=1)
-    return float(gain.mean() / (sd / np.sqrt(gain.size))) if sd > 0 else 0.0
+    from .plausibility import paired_z
+    return paired_z(r_before, r_after)
 
 
 def effect_search(machine: MachineTool, checks: MTChecks, residual, fit_idx, hold_idx, max_effects: int = 4,
@@ -808,10 +827,13 @@ def sweep_shift(machine: MachineTool, elements: ChainElementSet, term: EffectTer
 # -- the loop -----------------------------------------------------------------------------------
 def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: MTChecks, cov=None,
                       fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
-                      max_effects: int = 4, smoothing="gcv") -> dict:
+                      max_effects: int = 4, smoothing="gcv", units: str = "check") -> dict:
     """Run the stages (module doc) and return the summary dict (``stages`` with held-out/fitting
     statistics, ``kept_stage``, ``noise_floor_um``, ``effects``) and, under ``"_models"``, the element
-    sets of the stages (not JSON)."""
+    sets of the stages (not JSON). Before any estimate, the deviations are checked against the identified
+    model's prediction and the stated noise (``noise_um``, else the file's): another unit or another axis
+    order is refused (:func:`errormap.diagnosis.plausibility.check_deviations`; ``units="as-written"`` skips
+    the unit gate)."""
     if not 0 < fit_fraction < 1:
         raise ValueError(f"Expected 0 < fit_fraction < 1, got {fit_fraction}")
     check_smoothing(smoothing)
@@ -828,11 +850,16 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     def stats(r):
         return {"held_out": residual_stats(r[hold_idx], ERROR_COLUMNS), "fitting": residual_stats(r[fit_idx], ERROR_COLUMNS)}
 
-    r0 = resid(elements)
+    from .plausibility import check_deviations
+    stated = noise_um if noise_um is not None else checks.stated_noise_um
+    pred0 = ChainField(machine, elements).predict(checks.axes)
+    check_deviations(checks.path, checks.measured_um, pred0, rows=checks.rows, noise_um=stated, units=units)
+    r0 = checks.measured_um - pred0
     stages = {"identified": stats(r0)}
     models = {"identified": elements}
     resid_of = {"identified": r0}
     sigma, prior = None, None
+    baseline_resid = {}   # the plain baselines' residuals (n, 3): the kept model must not lose to them
     if cov is not None:
         slot_names, stations, C = cov
         upd = update_elements(elements, slot_names, stations, C, checks.axes[fit_idx], r0[fit_idx], smoothing=smoothing,
@@ -845,6 +872,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
         try:
             ols_el, ols_gcv = ols_update(elements, slot_names, stations, checks.axes[fit_idx], r0[fit_idx], return_gcv=True)
             stages["baseline_ols_update"] = stats(resid(ols_el))
+            baseline_resid["baseline_ols_update"] = resid(ols_el)
             stages["baseline_ols_update"]["gcv"] = ols_gcv
         except ValueError as exc:  # the unregularised fit left the machine's range: reported, not used
             stages["baseline_ols_update"] = {"failed": str(exc)}
@@ -863,9 +891,9 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
         stages["updated"]["smoothing_weight"] = upd.smoothing
         models["updated"], resid_of["updated"] = upd.elements_, r1
         sigma = upd.sigma_um
-    X = np.hstack([np.ones((n, 1)), checks.axes])            # the plainest: the residual linear in the axes
-    B = np.linalg.lstsq(X[fit_idx], r0[fit_idx], rcond=None)[0]
-    stages["baseline_ols_linear"] = stats(r0 - X @ B)
+    from .plausibility import ols_linear_baseline   # the plainest: the residual linear in the axes
+    baseline_resid["baseline_ols_linear"] = ols_linear_baseline(checks.axes, r0, fit_idx)
+    stages["baseline_ols_linear"] = stats(baseline_resid["baseline_ols_linear"])
     last = "updated" if "updated" in models else "identified"
     accepted, rejected, dropped = [], [], []
     absorbed, response = [], None
@@ -979,6 +1007,9 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             return u.elements_, out, resid(u.elements_) - np.einsum("nic,c->ni", E, u.extra_coef)
     kept_name = {"plus_effects": "updated_plus_effects" if last == "updated" else "identified_plus_effects"}.get(kept, kept)
     held = stages[kept_name]["held_out"]["rms_um"]
+    baselines = {k: {"held_out_rms_um": stages[k]["held_out"]["rms_um"],
+                     "paired_z_over_kept": _paired_z(resid_of[kept][hold_idx], r[hold_idx])}
+                 for k, r in baseline_resid.items()}
     return {"machine": machine.name, "n_checks": n, "n_fit": n_fit, "n_held_out": n - n_fit,
             "split": f"blocked by seq: first {fit_fraction:g} fit, the rest held out",
             "stages": stages, "kept_stage": kept_name, "kept_why": why, "update_prior": prior,
@@ -986,6 +1017,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             "effects_dropped_in_joint_fit": dropped,
             "noise_sigma_um": sig, "noise_sigma_source": "given" if noise_um is not None else
             ("estimated by the update" if sigma is not None else None),
+            "noise_sigma_estimated_um": sigma, "noise_sigma_stated_um": stated, "baselines_vs_kept": baselines,
             "noise_floor_um": floor, "held_out_rms_um": held,
             "held_out_over_floor": None if floor is None else float(held / floor),
             "_models": {"elements": models.get("updated_plus_effects" if kept == "plus_effects" else kept,

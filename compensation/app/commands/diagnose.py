@@ -77,6 +77,10 @@ def band_label(c: dict) -> str:
     return txt
 
 
+EXIT_FAILED_VERDICT = 1
+"""A diagnosis that ran but whose verdict failed (its model loses to a plain baseline, or the noise it estimates
+is far above the stated one): the files are written, with the verdict in them, and the status is 1 (as
+``calibrate``'s ``success: false``)."""
 BAND_CLAIM_COVERAGE = 0.9   # below this held-out coverage the band is flagged as not holding its 95 %
 
 
@@ -97,6 +101,8 @@ def run(args) -> int:
         for ch, c in summary["channels"].items():
             print(f"{ch}: {c['model']}: held-out RMS {c['rms_before_um']:.3g} -> {c['rms_after_um']:.3g} μm "
                   f"(OLS baseline {c['rms_ols_um']:.3g} μm), {band_label(c)}")
+        v = summary["verdict"]
+        print("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
     else:
         if args.model is None:
             raise UsageError("CHECKS needs --model (element-set file or run id)")
@@ -117,7 +123,7 @@ def run(args) -> int:
                 print(line)
             for p in paths:
                 print(f"wrote {p}")
-            return 0
+            return EXIT_FAILED_VERDICT if summary["verdict"]["status"] == "failed" else 0
         check_machine_kind(machine.path, machine.kind, "grinder")
         if args.noise_um is not None:
             raise UsageError("--noise-um is for a machine-tool chain's checks (the grinder's loop estimates it)")
@@ -148,6 +154,10 @@ def run(args) -> int:
             print("no effect found")
         print(f"held-out RMS {summary['rms_before_um']:.3g} -> {summary['rms_after_um']:.3g} μm, "
               f"max {summary['max_before_um']:.3g} -> {summary['max_after_um']:.3g} μm")
+        v = summary.get("verdict")
+        if v is not None:   # the closed loop's verdict (errormap.diagnosis.plausibility.diagnosis_verdict)
+            print("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
     for p in paths:
         print(f"wrote {p}")
-    return 0
+    failed = (summary.get("verdict") or {}).get("status") == "failed"
+    return EXIT_FAILED_VERDICT if failed else 0

@@ -114,6 +114,6 @@ def run(args) -> int:
                "points": path_info["points"], "seed": args.seed}
     paths = write_report(cmp, Path(args.out), context=context)
     print_table(cmp)
-    for k in ("html", "metrics", "residuals"):
-        print(f"wrote {k}: {paths[k]}")
+    for k, path in paths.items():   # html, metrics, residuals (+ residuals_<method> of a method run on a subset)
+        print(f"wrote {k}: {path}")
     return 0

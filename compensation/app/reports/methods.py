@@ -11,7 +11,9 @@
   ``model_max_sq_um2``, ``model_mean_sq_um2``, ``true_max_um`` … (when a truth exists),
   ``seconds``, ``points``, ``nfev``, ``failures``, ``max_correction_um``, ``subset``;
   ``uncompensated`` (the same for the nominal commands); ``residuals`` (the definitions).
-* ``residuals.csv`` — per point: the nominal axes and each method's ``|r|`` (model/true).
+* ``residuals.csv`` — per point: the nominal axes and each method's ``|r|`` (model/true), for the methods
+  that ran on every point; a method run on a subset (the per-point ``ga`` in a time budget) has its own
+  ``residuals_<method>.csv`` with only the rows it ran on (``point``: the row's number in ``residuals.csv``).
 """
 from __future__ import annotations
 
@@ -126,25 +128,36 @@ def write_report(cmp: Comparison, out_dir, title: str = "volcomp compensation re
                  extra_metrics: dict | None = None, kind: str = "report") -> dict:
     """Write report.html, metrics.json and residuals.csv into ``out_dir`` (each atomically).
 
-    Returns ``{"html": path, "metrics": path, "residuals": path}``.
+    Returns ``{"html": path, "metrics": path, "residuals": path}`` and ``"residuals_<method>"`` for each method
+    run on a subset of the points.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     n = len(cmp.targets_mm)
-    cols = {"point": np.arange(n), "x_mm": cmp.nominal_axes[:, 0], "z_mm": cmp.nominal_axes[:, 1],
-            "a_deg": cmp.nominal_axes[:, 2],
-            "uncompensated_model_um": np.linalg.norm(cmp.baseline_model_um, axis=1)}
+
+    def point_columns(idx):
+        return {"point": np.arange(n)[idx], "x_mm": cmp.nominal_axes[idx, 0], "z_mm": cmp.nominal_axes[idx, 1],
+                "a_deg": cmp.nominal_axes[idx, 2]}
+    cols = dict(point_columns(np.arange(n)), uncompensated_model_um=np.linalg.norm(cmp.baseline_model_um, axis=1))
     if cmp.baseline_true_um is not None:
         cols["uncompensated_true_um"] = np.linalg.norm(cmp.baseline_true_um, axis=1)
+    subsets = {}   # methods run on some points only: their own file, those rows only (never NaN padding)
     for k, r in cmp.runs.items():
+        idx = np.asarray(r.index)
+        full = len(idx) == n and np.array_equal(idx, np.arange(n))
+        dest = cols if full else subsets.setdefault(k, point_columns(idx))
         for which, arr in (("model", r.result.residual_um), ("true", r.true_residual_um)):
-            if arr is None:
-                continue
-            col = np.full(n, np.nan)
-            col[r.index] = np.linalg.norm(np.asarray(arr), axis=1)
-            cols[f"{k}_{which}_um"] = col
-    paths = {"residuals": write_csv(out / "residuals.csv", cols, header_comments=[
-        "format: volcomp-residuals/1", "columns *_model_um: |model residual|, *_true_um: |true residual| (μm)"])}
+            if arr is not None:
+                dest[f"{k}_{which}_um"] = np.linalg.norm(np.asarray(arr), axis=1)
+    head = ["format: volcomp-residuals/1", "columns *_model_um: |model residual|, *_true_um: |true residual| (μm)"]
+    paths = {"residuals": write_csv(out / "residuals.csv", cols, header_comments=head + (
+        ["methods run on a subset of the points have their own files: "
+         + ", ".join(f"residuals_{k}.csv" for k in subsets)]
+        if subsets else []))}
+    for k, c in subsets.items():
+        paths[f"residuals_{k}"] = write_csv(out / f"residuals_{k}.csv", c, header_comments=head + [
+            f"method {k} ran on {len(c['point'])} of the {n} points (its budget): these rows only; 'point' is the "
+            "row's point number in residuals.csv"])
     metrics = cmp.metrics()
     if context:
         metrics["context"] = context

@@ -143,6 +143,13 @@ def _constants_table(machine, updated, identified) -> Table:
     return Table(["slot", "ISO 230", "unit", "identified", "updated", "change"], rows, left=3)
 
 
+def _verdict(v) -> str:
+    """The run's verdict in words (``diagnosis.json`` ``verdict``; none in a run written before verdicts)."""
+    if v is None:
+        return "not recorded"
+    return "passed" if v["status"] == "passed" else "FAILED: " + "; ".join(v["reasons"])
+
+
 def chain_diagnosis_page(run_dir, machine) -> str:
     """The page of the diagnose run in ``run_dir`` (module doc) on ``machine``; InputError naming the file and
     key when the folder is not such a run."""
@@ -170,6 +177,7 @@ def chain_diagnosis_page(run_dir, machine) -> str:
         "held-out MEASURED RMS of the kept stage (μm)": doc["held_out_rms_um"],
         "noise floor (μm)": floor, "held-out / floor": ratio,
         "check noise σ (μm)": f"{doc.get('noise_sigma_um')} ({doc.get('noise_sigma_source', '?')})",
+        "verdict": _verdict(doc.get("verdict")),
         "model handed on": str(run_dir / "model.json")})
     return render_page("mt_diagnose.html", title=f"Closed loop on {machine.name}: diagnosis of the checks",
                        summary=summary, stages=_stage_table(doc), stage_figure=_stage_figure(doc), effects=acc,

@@ -46,6 +46,10 @@ def read_program(path, chain, t=None):
 
 
 def run_arm_compensate(chain, args) -> int:
+    if getattr(args, "truth", None) is not None:   # never ignored silently
+        raise UsageError(f"--truth is not used on a serial arm ({chain.name}): the true residual of a compensated "
+                         "program is reported on machine-tool chains only; leave it out (the MODEL residual is "
+                         "written beside the joints)")
     if args.method not in (None, "exact"):
         raise UsageError(f"--method {args.method}: a serial chain is compensated by Newton on its calibrated chain "
                          "(--method exact or none)")

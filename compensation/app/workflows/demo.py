@@ -3,8 +3,11 @@
 simulate a truth grinder (``DIR/sim``) → its 11×11×11 feature points → train the BP network
 (Levenberg–Marquardt, tracked in MLflow) → compensate the variable-helix flute path with every
 method (:mod:`compensation.app.workflows.compare`) → ``DIR/report.html``, ``DIR/metrics.json``,
-``DIR/residuals.csv`` (MODEL and TRUE residual) and ``DIR/demo.json``. The report files are
-also logged to the training's MLflow run.
+``DIR/residuals.csv`` (MODEL and TRUE residual of the methods that ran on every point; a method run on a
+subset, the per-point ``ga``, has its own ``DIR/residuals_<method>.csv`` with only its rows) and
+``DIR/demo.json``; the flute as an NC program ``DIR/flute.nc`` and its compensated form
+``DIR/compensated/flute.nc`` (``volcomp compensate --method exact`` with the trained model). The report files
+are also logged to the training's MLflow run.
 
 The demo's budget, stated on its page and in ``metrics.json`` (``budget``): LM stops when the
 error on the off-grid selection points has not improved for ``select_patience`` iterations
@@ -24,7 +27,7 @@ from pathlib import Path
 from errormap.featurepoints import FeaturePoints
 from errormap import mt_kernel as htm_kernels  # the HTM model's kernels: the grinder's chain file, compiled
 from errormap.htm import HTMField
-from errormap.io import write_json
+from errormap.io import atomic_write, write_json
 from errormap.jit import notice_cold_kernels
 
 
@@ -130,7 +133,7 @@ def log_to_mlflow(run_id, tracking_uri, paths: dict, metrics: dict, log=None) ->
         for key in ("model_max_um", "model_mean_sq_um2", "true_max_um", "true_mean_um", "seconds"):
             if m.get(key) is not None:
                 client.log_metric(run_id, f"report.{method}.{key}", float(m[key]))
-    for k in ("html", "metrics", "residuals"):
+    for k in ("html", "metrics", *sorted(k for k in paths if k.startswith("residuals"))):
         client.log_artifact(run_id, str(paths[k]), artifact_path="report")
     print(f"logged the report to MLflow run {run_id}", file=log)
 
@@ -151,6 +154,44 @@ def budget_lines(s: DemoSettings, train_info: dict, train_s: float, ga_solved: i
     if ga_solved is not None:
         ga += f": {ga_solved} of {n_points} points solved"
     return {"training": train, "per-point ga": ga}
+
+
+PROGRAM_NAME = "flute.nc"
+"""The demo's own NC program (the flute's nominal axis commands, G-code), written beside the report; its
+compensated form is ``compensated/flute.nc`` (``volcomp compensate --method exact`` with the demo's model)."""
+PROGRAM_DECIMALS = 6
+"""Decimals of the nominal program's words: 1 nm in X/Z, 1e-6° in A, far below what compensation changes."""
+PROGRAM_FEED = 500.0
+"""Feed of the flute's G1 moves (mm/min); compensation keeps it as written."""
+
+
+def write_flute_program(path, axes, fl) -> Path:
+    """The flute's nominal axis commands ``axes`` (n, 3: x_mm, z_mm, a_deg) as a G-code program (absolute mm,
+    G18: the grinder's X/Z plane), written whole; returns its path."""
+    d = PROGRAM_DECIMALS
+    words = [f"X{x:.{d}f} Z{z:.{d}f} A{a:.{d}f}" for x, z, a in axes]
+    lines = ["%", f"(volcomp demo: variable-helix flute, {fl.settings.turns:g} turns, {len(axes)} points, nominal)",
+             "G21 G90 G18 G94", f"G0 {words[0]}", f"G1 {words[1]} F{PROGRAM_FEED:g}", *words[2:], "M30", "%"]
+    path = Path(path)
+    with atomic_write(path) as f:
+        f.write("\n".join(lines) + "\n")
+    return path
+
+
+def compensate_program(s: DemoSettings, machine, axes, model_spec: str, log=None) -> dict:
+    """The demo's program through ``volcomp compensate --method exact`` with its model: ``DIR/flute.nc`` →
+    ``DIR/compensated/flute.nc`` and ``DIR/compensated/compensate_summary.json``; returns ``{"program",
+    "compensated", "summary"}`` paths (``compensated`` None when the guards refused it: said on ``log``)."""
+    from .compensate import CompensateSettings, compensate_files
+    prog = write_flute_program(Path(s.out) / PROGRAM_NAME, axes, s.flute)
+    job = compensate_files([prog], machine, CompensateSettings(method="exact", model=model_spec,
+                                                               out_dir=Path(s.out) / "compensated", force=True,
+                                                               tracking_uri=s.tracking_uri, seed=s.seed))
+    o = job.outcomes[0]
+    if o.refused:
+        print(f"warning: the compensated program was refused by guard(s) {', '.join(o.guards)}; see "
+              f"{job.summary_path}", file=sys.stderr if log is None else log)
+    return {"program": prog, "compensated": None if o.refused else o.dst, "summary": job.summary_path}
 
 
 def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
@@ -184,7 +225,8 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
               "truth elements as its error field instead of a trained network", file=log)
         field = HTMField(machine, truth.elements)
         train_info = {"run_id": None, "metrics": {}, "model": f"HTM model of {sim_dir / 'truth_elements.json'} "
-                                                              "(training unavailable)"}
+                                                              "(training unavailable)",
+                      "spec": str(sim_dir / "truth_elements.json")}
     train_s = time.perf_counter() - t0
     print(f"trained in {train_s:.1f} s; model {train_info['model']}", file=log)
 
@@ -207,6 +249,17 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
                "seed": s.seed}
     extra = {"training": {"run_id": train_info["run_id"], "seconds": train_s, "metrics": train_info["metrics"]},
              "budget": budget}
+    spec = train_info.get("spec") or (f"runs:/{train_info['run_id']}" if train_info["run_id"] else None)
+    program = {}
+    if spec is None:
+        print("warning: the trained network was not tracked, so no compensated program is written "
+              "(volcomp compensate reads the model from its MLflow run)", file=log)
+    else:
+        print(f"compensating the flute program {Path(s.out) / PROGRAM_NAME} (exact) ...", file=log)
+        with clock.stage("program"):
+            program = compensate_program(s, machine, nominal, spec, log=log)
+        if program["compensated"] is not None:
+            print(f"compensated program: {program['compensated']}", file=out)
     with clock.stage("report"):
         paths = write_report(cmp, s.out, title="volcomp demo: flute-path compensation", context=context,
                              extra_metrics=extra, kind="demo")
@@ -219,5 +272,7 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
     write_json(Path(s.out) / "demo.json", {"seconds": time.perf_counter() - t_start, "out": str(s.out),
                                            "stages": clock.stages, "budget": budget,
                                            "sim": str(sim_dir), **{k: str(v) for k, v in paths.items()},
+                                           **{f"program_{k}": None if v is None else str(v)
+                                              for k, v in program.items()},
                                            "run_id": train_info["run_id"], "tracking_uri": s.tracking_uri})
     return paths

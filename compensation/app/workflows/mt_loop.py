@@ -277,7 +277,9 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     checks = load_mt_checks(checks_path, machine, units=units)
     try:
         summary = closed_loop_chain(machine, el, checks, cov=cov if update else None, fit_fraction=fit_fraction,
-                                    noise_um=noise_um, effects=effects, max_effects=max_effects)
+                                    noise_um=noise_um, effects=effects, max_effects=max_effects, units=units)
+    except InputError:   # names the file itself
+        raise
     except ValueError as exc:
         raise InputError(f"{checks_path}: {exc}") from None
     models = summary.pop("_models")
@@ -328,6 +330,9 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
                                                 "(not backfitted with the learned part): a model.json with these in "
                                                 "place of 'elements' and 'terms' and without 'learned_residual' is the "
                                                 "loop alone")}
+    from errormap.diagnosis.plausibility import diagnosis_verdict
+    summary["verdict"] = diagnosis_verdict(summary)   # failed: the command exits 1 (volcomp diagnose)
+    extra = dict(extra or {}, verdict=summary["verdict"])
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     el_path = models["elements"].save(out / "updated_elements.json")   # each file written whole (temporary file, rename)
@@ -343,7 +348,7 @@ def diagnosis_lines(summary) -> list:
     """The lines ``volcomp diagnose --machine`` prints: per stage its held-out MEASURED RMS, the effects
     named, the terms the element update absorbed (``effects_absorbed``: printed only when there are any
     and the update ran; without an update nothing absorbed them, and ``diagnosis.json`` still lists
-    them), the kept stage and the noise floor."""
+    them), the kept stage, the noise floor and the verdict (:func:`errormap.diagnosis.plausibility.diagnosis_verdict`)."""
     st = summary["stages"]
     lines = []
     for k, v in st.items():
@@ -365,4 +370,6 @@ def diagnosis_lines(summary) -> list:
     if summary["noise_floor_um"] is not None:
         lines.append(f"noise floor {summary['noise_floor_um']:.3g} um (sigma {summary['noise_sigma_um']:.3g} um, "
                      f"{summary['noise_sigma_source']}); held-out / floor = {summary['held_out_over_floor']:.3g}")
+    v = summary.get("verdict") or {"status": "passed", "reasons": []}
+    lines.append("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
     return lines
