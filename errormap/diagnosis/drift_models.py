@@ -926,6 +926,11 @@ class DriftSelector:
     (passes, mean log gain, its se)}}, ``chosen_`` {channel: candidate}, ``baseline_`` (the OLS
     :class:`DriftModel`), ``subset_modeller_``, ``candidates_`` {channel: {(family, hyper, w0): every
     validation statistic of the candidate}}.
+
+    ``deploy`` (False): also refit each channel's chosen candidate — the same family, hyper-parameter, weight, distance
+    scale and band — on EVERY row of the log, ``deployed_`` (:class:`DriftModel`; its meta ``fit_rows`` all rows,
+    ``validated_on_rows`` the fitting part); ``deployed_`` is None without it. The selection, ``model_`` and every
+    validation figure are the same with or without it (they read the fitting part only).
     """
 
     def __init__(self, fit_fraction: float = 0.6, n_folds: int = 4, cv_start: float = 0.5, families=None,
@@ -938,7 +943,7 @@ class DriftSelector:
                  confident_worst_fold: float = CONFIDENT_WORST_FOLD, input_range: bool = INPUT_RANGE,
                  scale_folds: str = SCALE_FOLDS[0], disagreement: str | None = DISAGREEMENTS[0],
                  disagreement_quantile: float = DISAGREEMENT_QUANTILE, horizon_min_train: float | None = HORIZON_MIN_TRAIN,
-                 scale_rule: str = SCALE_RULES[0]):
+                 scale_rule: str = SCALE_RULES[0], deploy: bool = False):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
@@ -965,6 +970,7 @@ class DriftSelector:
         self.disagreement_quantile = disagreement_quantile
         self.horizon_min_train = horizon_min_train
         self.scale_rule = scale_rule
+        self.deploy = deploy
 
     def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
         """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes
@@ -1128,6 +1134,23 @@ class DriftSelector:
                     for x, y in zip(_blend_residuals(best[2], cr, yr, qr, scores[best]["scale"]), yr)])
             self.disagreement_[ch] = None if self.disagreement is None or best[0] == "ols" else \
                 disagreement_interval(self.fold_delta_[ch], self.disagreement, self.disagreement_quantile)
+        self.model_, self.baseline_ = self._final_models(log, fams, chans, fit, cache, U, nfolds, folds, hfolds, h)
+        self.deployed_ = None
+        if self.deploy:
+            sub = getattr(self, "subset_modeller_", None)   # the validated fit's sensor selection stays the one reported
+            # the chosen candidates (family, hyper-parameter, weight, scale, band) refitted on every row
+            rows = np.arange(len(log.time_s))
+            self.deployed_, _ = self._final_models(log, fams, chans, rows, cache, input_matrix(log, rows, cache),
+                                                   nfolds, folds, hfolds, h)
+            self.deployed_.meta["validated_on_rows"] = int(len(fit))
+            if sub is not None:
+                self.subset_modeller_ = sub
+        self.cache_ = cache
+        return self
+
+    def _final_models(self, log, fams, chans, fit, cache, U, nfolds, folds, hfolds, h):
+        """The chosen candidates of every channel (``chosen_``, ``shrink_``, ``scale_``, ``band_``) and the OLS
+        baseline fitted on the rows ``fit`` (the fitting part, or with ``deploy`` every row): (model, baseline)."""
         final = {}
         for fam in fams:
             need = [ch for ch in chans if self.chosen_[ch][0] == fam.name or fam.name == "ols"]
@@ -1181,11 +1204,8 @@ class DriftSelector:
                                     base=final["ols"][ch][""] if np.isfinite(sc) or self.disagreement_[ch] else None,
                                     shrink_scale=float(sc), novelty=nv, band_gamma=self.band_[ch][1],
                                     disagreement_um=self.disagreement_[ch])
-        self.model_ = DriftModel(chosen, meta)
-        self.baseline_ = DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch][0],
+        return DriftModel(chosen, meta), DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch][0],
                                                     band_gamma=self.band_ols_[ch][1]) for ch in chans}, meta)
-        self.cache_ = cache
-        return self
 
     def family_best(self, ch) -> dict:
         """Best CV RMS of each family for channel ``ch`` (over its hyper-parameters): {family: (candidate, RMS)}."""
