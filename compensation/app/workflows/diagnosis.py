@@ -503,7 +503,6 @@ def run_drift(log_path, out_dir, selector=None, time_unit=None, units: str = "ch
                             "shrink_weights": list(sel.shrink_weights), "selection": sel.selection,
                             "hedge_weight": sel.hedge_weight, "feature_distance": sel.feature_distance,
                             "ranking_fold_loss": sel.ranking_fold_loss, "band_rule": sel.band_rule,
-                            "horizon_min_train": sel.horizon_min_train, "scale_rule": sel.scale_rule,
                             "deploy": sel.deploy}}
     if sel.deployed_ is not None:
         summary["deployed"] = deployed_record(sel, len(log.time_s))
