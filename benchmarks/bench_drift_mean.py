@@ -119,9 +119,16 @@ def main(argv=None):
     ap.add_argument("--seeds", default="0-4", help="simulated seeds LO-HI of both families (the benchmark's: 0-9)")
     ap.add_argument("--partial", default=None, help="one JSON line per finished log (resumed)")
     ap.add_argument("--out", default=str(Path(__file__).with_name("drift_mean_results.md")))
+    ap.add_argument("--no-real", action="store_true", help="simulated logs only")
+    ap.add_argument("--render", nargs="*", default=None, metavar="PARTIAL",
+                    help="only render these partial files (one JSON line per log) to --out")
     a = ap.parse_args(argv)
+    if a.render is not None:
+        rows = [r for f in a.render for line in Path(f).read_text().splitlines() if line.strip() for r in json.loads(line)]
+        print("\n".join(render(rows, a.out)))
+        return
     lo, hi = (int(x) for x in a.seeds.split("-"))
-    todo = ([("real", ff) for ff in REAL_SPLITS] if REAL.exists() else []) + \
+    todo = ([("real", ff) for ff in REAL_SPLITS] if REAL.exists() and not a.no_real else []) + \
         [(fam, s) for s in range(lo, hi + 1) for fam in ("lumped", "rod")]
     if not REAL.exists():
         print(f"the real log is absent ({REAL}): simulated logs only", file=sys.stderr)
