@@ -105,10 +105,11 @@ def render(rows, out):
                  f"{sum(r['mean'] < r['ols'] for r in rr)} | {np.exp(np.mean(np.log(qb))):.3f} → "
                  f"{np.exp(np.mean(np.log(qa))):.3f} | {cpu:.0f} |")
     tr = [r for r in rows if "true" in r["after"]]
+    changed = [r for r in tr if r["before"]["model"] != r["after"]["model"]]
     if tr:
-        L += ["", "Simulated logs, TRUE residual (noise-free displacement − prediction), after / before: " +
-              ", ".join(f"{r['log']} {r['channel']} {r['after']['true'] / r['before']['true']:.3f}"
-                        for r in tr if r["before"]["model"] != r["after"]["model"]) + " (only the changed cases)."]
+        L += ["", "Simulated logs, TRUE residual (noise-free displacement − prediction), after / before, changed cases: " +
+              (", ".join(f"{r['log']} {r['channel']} {r['after']['true'] / r['before']['true']:.3f}" for r in changed)
+               or "none") + "."]
     with atomic_write(out, "w", encoding="utf-8") as fh:
         fh.write("\n".join(L) + "\n")
     return L
