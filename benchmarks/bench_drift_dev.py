@@ -13,14 +13,9 @@ the pseudo-future INSIDE the benchmark's fitting part, on which a rule may be de
 --no-shift-rules … --nested-candidates … --real-candidates … [--judge-candidates …]`` →
 benchmarks/drift_dev_results.md (the rule variants and the band rules compared offline on the same candidates;
 with ``--with-families`` on the dumps, also the default rule with and without each measured non-default family); ``--variants feature,raw`` runs whole selections per variant
-(``--partial FILE`` appends every finished log as a JSON line). ``--gate-round FILE [--gate-judge]`` (issue 29's sixth
-round): one default selection per log, the disagreement gate's variants (``GATE_VARIANTS``) applied to its model →
-benchmarks/drift_dev_gate_results.md (development logs and the real fitting parts; with ``--gate-judge`` also the
-benchmark's seeds 0–9 with and without the regime change and the real pseudo-futures, judged after the decision).
-``--horizon-round FILE [--horizon-judge]`` (issue 29's seventh round): whole selections under ``HORIZON_VARIANTS``
-(A; H = horizon folds that train on at least half of the fitting part) on the same logs →
-benchmarks/drift_dev_horizon_results.md (judged: A from drift_regime_results.json, H on the benchmark's seeds with and
-without the regime change and the real pseudo-futures).
+(``--partial FILE`` appends every finished log as a JSON line). ``--<name>-round FILE [--<name>-judge]``: whole
+selections per variant of a round of ``WHOLE_SELECTION_ROUNDS`` on the development logs and the real fitting parts (with
+``--<name>-judge``: the real pseudo-futures and the benchmark's seeds 0–9).
 """
 from __future__ import annotations
 
@@ -457,49 +452,18 @@ def render(rows, out):
     return L
 
 
-# issue 29's fifth round: the input-range distance (docs/drift_model.md), whole selections per variant
-RANGE_VARIANTS = {"A": {}, "B": {"input_range": True}, "C": {"input_range": True, "scale_folds": "horizon_novelty"}}
 RANGE_NESTED = ((0.6, 0.6), (0.8, 0.8))   # (keep the first U of the real log's shared part, fit on F of it): inside
 #                                           the benchmark's fitting parts (0–21.6 % → 21.6–36 %, 0–38.4 % → 38.4–48 %)
 RANGE_PSEUDO_FUTURES = (0.6, 0.8)          # bench_drift_regime's real splits: 0–36 % → 36–60 %, 0–48 % → 48–60 %
-# issue 29's seventh round (docs/drift_model.md): horizon folds that train on at least half of the fitting part
-HORIZON_VARIANTS = {"A": {}, "H": {"horizon_min_train": 0.5}}
-# issue 29's eighth round (docs/drift_model.md): the distance scale chosen to pass the gates
-SCALE_VARIANTS = {"A": {}, "S": {"scale_rule": "gated"}}
-SCALE_HEAD = ["# Issue 29's eighth round: the distance scale chosen to pass the gates", "",
-              "`python benchmarks/bench_drift_dev.py --scale-round FILE [--scale-judge]` (whole selections; held-out "
-              "MEASURED RMS ratio to OLS). A: the default; S: `scale_rule=\"gated\"`. Real log: 0 = fit 0–21.6 % → "
-              "judge 21.6–36 %, 1 = fit 0–38.4 % → judge 38.4–48 % (of the full log); pseudo-futures 0 = fit 0–36 % → "
-              "36–60 %, 1 = fit 0–48 % → 48–60 % (their candidates were looked at before the rule was written: "
-              "reported, not a clean judgement)."]
-HORIZON_HEAD = ["# Issue 29's seventh round: horizon folds that train on at least half of the fitting part", "",
-                "`python benchmarks/bench_drift_dev.py --horizon-round FILE [--horizon-judge]` (whole selections; "
-                "held-out MEASURED RMS ratio to OLS). A: the default; H: `horizon_min_train=0.5`. Real log: 0 = fit "
-                "0–21.6 % → judge 21.6–36 %, 1 = fit 0–38.4 % → judge 38.4–48 % (of the full log); pseudo-futures 0 = "
-                "fit 0–36 % → 36–60 %, 1 = fit 0–48 % → 48–60 % (looked at before the rule was written: reported, "
-                "not a clean judgement)."]
-
 # the development logs a rule is decided on (simulated kinds with seeds; the real log's fitting parts are added where
 # the shared log is present) and the benchmark's simulated logs it is judged on after (issue 29's rounds)
 DEV_LOGS = [(k, s) for k in ("lumped", "rod") for s in range(100, 105)] + \
            [(k, s) for k in ("lumped-ns", "rod-ns") for s in range(100, 103)]
 JUDGED_SIMS = ("rod-j", "lumped-j", "rod-jns", "lumped-jns")
-# the rounds of whole selections per variant (``--<name>-round FILE [--<name>-judge]``): variants, heading of the
-# rendered page (None: the input-range round's), default page, the simulated kinds judged, and the option helps
-WHOLE_SELECTION_ROUNDS = {
-    "range": (RANGE_VARIANTS, None, "drift_dev_range_results.md", ("rod-j", "lumped-j"),
-              "issue 29's fifth round: run RANGE_VARIANTS on the development logs and the real fitting parts",
-              "variants B and C on the benchmark's seeds 0–9 (regime change) and the real pseudo-futures"),
-    "horizon": (HORIZON_VARIANTS, HORIZON_HEAD, "drift_dev_horizon_results.md", JUDGED_SIMS,
-                "issue 29's seventh round: HORIZON_VARIANTS (A, H = horizon_min_train 0.5) on the development logs "
-                "and the real fitting parts",
-                "H on the benchmark's seeds 0–9 (both families, with and without the regime change) and the real "
-                "pseudo-futures"),
-    "scale": (SCALE_VARIANTS, SCALE_HEAD, "drift_dev_scale_results.md", JUDGED_SIMS,
-              "issue 29's eighth round: SCALE_VARIANTS (A, S = scale_rule gated) on the development logs and the real "
-              "fitting parts",
-              "S on the benchmark's seeds 0–9 (both families, with and without the regime change) and the real "
-              "pseudo-futures")}
+# the rounds of whole selections per variant (``--<name>-round FILE [--<name>-judge]``): {name: (variants (name →
+# DriftSelector keyword arguments, the first the reference), heading of the rendered page, default page, the simulated
+# kinds judged, the option helps)}
+WHOLE_SELECTION_ROUNDS = {}
 
 
 def round_logs(real_present: bool, judge: bool, judged_sims=JUDGED_SIMS) -> list:
@@ -512,8 +476,8 @@ def round_logs(real_present: bool, judge: bool, judged_sims=JUDGED_SIMS) -> list
 
 
 
-def range_case(kind, seed, variant, real_log=None, variants=None):
-    """One log under one variant of ``variants`` (default ``RANGE_VARIANTS``): rows {kind, seed, variant, channel,
+def range_case(kind, seed, variant, real_log, variants):
+    """One log under one variant of ``variants``: rows {kind, seed, variant, channel,
     model, volcomp, ols, scale, rho, coverage, cpu_s}. ``kind``: "lumped" / "rod" (regime change), "lumped-ns" /
     "rod-ns" (none), "-j" / "-jns" the benchmark's seeds with / without it (judged), "real" (``seed`` = the index
     into ``RANGE_NESTED``; ``real_log`` the loaded shared log)."""
@@ -527,7 +491,7 @@ def range_case(kind, seed, variant, real_log=None, variants=None):
         fam = kind.split("-")[0]       # "-j": the benchmark's seeds 0–9 (judged), with the regime change
         log = simulated_log(fam, seed, shift=not kind.endswith("ns"))   # "-ns", "-jns": none
         ff = SIM_SPLIT
-    rep, cpu = selected_report(log, ff, (variants or RANGE_VARIANTS)[variant])
+    rep, cpu = selected_report(log, ff, variants[variant])
     return [{"kind": kind, "seed": seed, "variant": variant, "channel": ch, "model": r["model"],
              "volcomp": r["rms_after_um"], "ols": r["rms_ols_um"], "scale": r["distance_scale"],
              "rho": r["heldout_rho_median"], "coverage": r["band_coverage_heldout"], "cpu_s": cpu}
@@ -541,18 +505,13 @@ ROUND_SETS = {"dev, regime change (seeds 100–104)": ("lumped", "rod"), "dev, n
               "JUDGED: real pseudo-futures 36–60 %, 48–60 % (A: drift_regime_results.json)": ("real-pf",)}
 
 
-def render_range(rows, out, variants=None, head=None):
-    """Markdown of a round of whole selections per variant (default the input-range round: ``RANGE_VARIANTS`` and
-    its heading; ``head``: the first lines): per data set and variant, cases above 1.05× OLS, worst, below OLS (ratio
+def render_range(rows, out, variants, head):
+    """Markdown of a round of whole selections per variant (``head``: the first lines): per data set and variant, cases above 1.05× OLS, worst, below OLS (ratio
     < 0.9995), above OLS (> 1.0005), geometric-mean ratio; then every case whose ratio changed against A."""
-    variants = variants or RANGE_VARIANTS
     by = {}
     for r in rows:
         by.setdefault(r["variant"], {})[(r["kind"], r["seed"], r["channel"])] = r
-    L = (head or ["# Issue 29's fifth round: the input-range distance on the development data", "",
-         "`python benchmarks/bench_drift_dev.py --range-round FILE` (whole selections; held-out MEASURED RMS ratio "
-         "to OLS). A: the default; B: `input_range=True`; C: B + `scale_folds=\"horizon_novelty\"`. "
-         "Real log: 0 = fit 0–21.6 % → judge 21.6–36 %, 1 = fit 0–38.4 % → judge 38.4–48 % (of the full log)."]) + ["",
+    L = head+ ["",
          "| data | variant | cases | > 1.05× OLS | worst | below OLS | above OLS | geometric mean | CPU s |",
          "|---|---|---|---|---|---|---|---|---|"]
     for name, kinds in ROUND_SETS.items():
@@ -572,114 +531,6 @@ def render_range(rows, out, variants=None, head=None):
             if a and (a["model"] != r["model"] or abs(a["volcomp"] - r["volcomp"]) > 1e-9 * max(1.0, a["volcomp"])):
                 L.append(f"- {v}: {k[0]} {k[1]} {k[2]}: {a['model']} {a['volcomp'] / a['ols']:.3f}× (s = {a['scale']}) → "
                          f"{r['model']} {r['volcomp'] / r['ols']:.3f}× (s = {r['scale']})")
-    with atomic_write(out, "w", encoding="utf-8") as fh:
-        fh.write("\n".join(L) + "\n")
-    return L
-
-
-# issue 29's sixth round: the disagreement gate (docs/drift_model.md), one selection per log, every variant applied to
-# the returned model (the gate does not change the selection: DriftSelector(disagreement=…) returns the same model
-# with the interval set, tested in tests/test_drift_gate.py)
-GATE_VARIANTS = {"A": None, "G1": ("abs", 1.0), "G2": ("abs", 0.99), "G3": ("signed", 0.99)}
-
-
-def gated_model(sel, mode, quantile):
-    """The selector's model with the disagreement gate (``mode``, ``quantile``) set on every channel that is not OLS,
-    as ``DriftSelector(disagreement=mode, disagreement_quantile=quantile)`` returns it."""
-    import dataclasses
-    from errormap.diagnosis.drift_models import DriftModel, disagreement_interval
-    chans = {}
-    for ch, c in sel.model_.channels.items():
-        if sel.chosen_[ch][0] == "ols" or mode is None:
-            chans[ch] = c
-            continue
-        b = sel.baseline_.channels[ch]
-        chans[ch] = dataclasses.replace(c, base=c.base if c.base is not None else (b.features, b.intercept_um, b.coef),
-                                        disagreement_um=disagreement_interval(sel.fold_delta_[ch], mode, quantile))
-    return DriftModel(chans, sel.model_.meta)
-
-
-def gate_case(kind, seed, real_log=None):
-    """One log (kinds as :func:`range_case`), one default selection, every ``GATE_VARIANTS`` entry: rows {kind, seed,
-    variant, channel, model, volcomp, ols, lo, hi, clipped (share of held-out rows where the gate moved the
-    prediction), fold_max (max |Δ| on the folds), heldout_max (max |model − OLS| held out), cpu_s}."""
-    if kind in ("real", "real-pf"):
-        upto, ff = RANGE_NESTED[seed] if kind == "real" else (1.0, RANGE_PSEUDO_FUTURES[seed])
-        log = head_of(real_log, upto) if upto < 1 else real_log
-    else:
-        log = simulated_log(kind.split("-")[0], seed, shift=not kind.endswith("ns"))   # "-ns", "-jns": none
-        ff = SIM_SPLIT
-    t0 = time.process_time()
-    sel = DriftSelector(fit_fraction=ff).fit(log)
-    cpu = time.process_time() - t0
-    _, hold = sel.split(log)
-    base = sel.baseline_.predict(log, sel.cache_)
-    plain = sel.model_.predict(log, sel.cache_)
-    rows = []
-    for v, spec in GATE_VARIANTS.items():
-        m = gated_model(sel, *(spec or (None, None)))
-        pred = m.predict(log, sel.cache_)
-        for ch in sel.model_.channels:
-            d = log.disp_um[ch][hold]
-            c = m.channels[ch]
-            rows.append({"kind": kind, "seed": seed, "variant": v, "channel": ch,
-                         "model": candidate_name(*sel.chosen_[ch], sel.shrink_[ch]),
-                         "volcomp": _rms(d - pred[ch][hold]), "ols": _rms(d - base[ch][hold]),
-                         "lo": None if c.disagreement_um is None else c.disagreement_um[0],
-                         "hi": None if c.disagreement_um is None else c.disagreement_um[1],
-                         "clipped": float(np.mean(np.abs(pred[ch][hold] - plain[ch][hold]) > 1e-9)),
-                         "fold_max": float(np.abs(sel.fold_delta_[ch]).max()) if sel.fold_delta_[ch].size else 0.0,
-                         "heldout_max": float(np.abs(plain[ch][hold] - base[ch][hold]).max()), "cpu_s": cpu})
-    return rows
-
-
-GATE_SETS = {"dev, regime change (seeds 100–104)": ("lumped", "rod"), "dev, none (seeds 100–102)": ("lumped-ns", "rod-ns"),
-             "real, inside the fitting parts": ("real",),
-             "JUDGED: benchmark seeds 0–9, regime change": ("lumped-j", "rod-j"),
-             "JUDGED: benchmark seeds 0–9, no regime change": ("lumped-jns", "rod-jns"),
-             "JUDGED: real pseudo-futures 36–60 %, 48–60 %": ("real-pf",)}
-
-
-def gate_summary(rows):
-    """{set: {variant: (cases, > 1.05×, worst, below (< 0.9995), above (> 1.0005), geometric mean)}}."""
-    out = {}
-    for name, kinds in GATE_SETS.items():
-        for v in GATE_VARIANTS:
-            q = np.array([r["volcomp"] / r["ols"] for r in rows if r["variant"] == v and r["kind"] in kinds])
-            if q.size:
-                out.setdefault(name, {})[v] = (int(q.size), int((q > TOLERATED_LOSS).sum()), float(q.max()),
-                                               int((q < 0.9995).sum()), int((q > 1.0005).sum()),
-                                               float(np.exp(np.mean(np.log(q)))))
-    return out
-
-
-def render_gate(rows, out):
-    """Markdown of the disagreement-gate round: per data set and variant the counts; then every case that changed."""
-    L = ["# Issue 29's sixth round: the disagreement gate", "",
-         "`python benchmarks/bench_drift_dev.py --gate-round FILE [--gate-judge]` (one default selection per log, the "
-         "gate's variants applied to the returned model; held-out MEASURED RMS ratio to OLS). A: no gate (the "
-         "default); G1: |model − OLS| ≤ the folds' max |Δ|; G2: ≤ their 99th percentile; G3: Δ within its 0.5–99.5 % "
-         "quantiles. Real log: 0 = fit 0–21.6 % → judge 21.6–36 %, 1 = fit 0–38.4 % → judge 38.4–48 % (of the full "
-         "log); pseudo-futures 0 = fit 0–36 % → 36–60 %, 1 = fit 0–48 % → 48–60 %.", "",
-         "| data | variant | cases | > 1.05× OLS | worst | below OLS | above OLS | geometric mean |",
-         "|---|---|---|---|---|---|---|---|"]
-    for name, per in gate_summary(rows).items():
-        for v, (n, big, worst, below, above, gm) in per.items():
-            L.append(f"| {name} | {v} | {n} | {big} | {worst:.3f} | {below} | {above} | {gm:.3f} |")
-    by = {}
-    for r in rows:
-        by.setdefault(r["variant"], {})[(r["kind"], r["seed"], r["channel"])] = r
-    L += ["", "Cases the gate changed (kind, seed, channel, model: A → variant; the interval [lo, hi] μm; share of "
-              "held-out rows clipped; max |model − OLS| on the folds / held out):", ""]
-    for k, a in sorted(by.get("A", {}).items(), key=lambda kv: str(kv[0])):
-        ch = []
-        for v in list(GATE_VARIANTS)[1:]:
-            r = by.get(v, {}).get(k)
-            if r and abs(r["volcomp"] - a["volcomp"]) > 1e-9 * max(1.0, a["volcomp"]):
-                ch.append(f"{v} {r['volcomp'] / r['ols']:.3f}× ([{r['lo']:.3g}, {r['hi']:.3g}], {r['clipped']:.0%})")
-        if ch:
-            L.append(f"- {k[0]} {k[1]} {k[2]} {a['model']}: A {a['volcomp'] / a['ols']:.3f}× (folds {a['fold_max']:.3g}"
-                     f" / held out {a['heldout_max']:.3g} μm) → " + "; ".join(ch))
     with atomic_write(out, "w", encoding="utf-8") as fh:
         fh.write("\n".join(L) + "\n")
     return L
@@ -722,35 +573,7 @@ def main(argv=None):
         ap.add_argument(f"--{name}-judge", action="store_true",
                         help=f"with --{name}-round: after the decision, {judged} (A from drift_regime_results.json)")
         ap.add_argument(f"--{name}-out", default=str(Path(__file__).with_name(page)))
-    ap.add_argument("--gate-round", default=None,
-                    help="issue 29's sixth round: the disagreement gate's variants (GATE_VARIANTS) on the development "
-                         "logs and the real fitting parts, one JSON line per finished log to FILE (resumed), then "
-                         "render --gate-out")
-    ap.add_argument("--gate-judge", action="store_true",
-                    help="with --gate-round: after the decision, the benchmark's seeds 0–9 (both families, with and "
-                         "without the regime change) and the real pseudo-futures")
-    ap.add_argument("--gate-out", default=str(Path(__file__).with_name("drift_dev_gate_results.md")))
     a = ap.parse_args(argv)
-    if a.gate_round:
-        rows, done = [], set()
-        if Path(a.gate_round).exists():
-            for line in Path(a.gate_round).read_text().splitlines():
-                if line.strip():
-                    r = json.loads(line)
-                    rows += r
-                    done.add((r[0]["kind"], r[0]["seed"]))
-        real = load_drift_log(REAL) if REAL.exists() else None
-        for k, s in round_logs(real is not None, a.gate_judge):
-            if (k, s) in done:
-                continue
-            r = gate_case(k, s, real)
-            rows += r
-            with open(a.gate_round, "a", encoding="utf-8") as fh:
-                fh.write(json.dumps(r) + "\n")
-            print(f"{k} {s}: " + ", ".join(f"{x['variant']} {x['channel']} {x['volcomp'] / x['ols']:.3f}" for x in r
-                                          if x["variant"] in ("A", "G1")), file=sys.stderr, flush=True)
-        print("\n".join(render_gate(rows, a.gate_out)))
-        return
     chosen = [n for n in WHOLE_SELECTION_ROUNDS if getattr(a, f"{n}_round")]
     if chosen:
         name = chosen[0]
@@ -766,18 +589,6 @@ def main(argv=None):
                     done.add((r[0]["kind"], r[0]["seed"], r[0]["variant"]))
         real = load_drift_log(REAL) if REAL.exists() else None
         todo = round_logs(real is not None, judge, judged_sims)
-        if judge:
-            reg = json.loads(Path(__file__).with_name("drift_regime_results.json").read_text())
-            a_rows = [[{"kind": f"{r['family']}-j" + ("" if r.get("shifted", True) else "ns"), "seed": r["seed"], "variant": "A",
-                        "channel": r["channel"], "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"],
-                        "scale": r["scale"], "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
-                      for r in reg["sims"] if r.get("shifted", True) or any(k.endswith("ns") for k in judged_sims)] + \
-                     [[{"kind": "real-pf", "seed": RANGE_PSEUDO_FUTURES.index(r["split"]), "variant": "A",
-                        "channel": r["channel"], "model": r["model"], "volcomp": r["volcomp"], "ols": r["ols"],
-                        "scale": r["scale"], "rho": r["rho"], "coverage": r["coverage"], "cpu_s": r["cpu_s"]}]
-                      for r in reg["real"]]
-            rows += [r for x in a_rows for r in x]
-            done |= {(r[0]["kind"], r[0]["seed"], "A") for r in a_rows}
         for k, s in todo:
             for v in variants:
                 if (k, s, v) in done:

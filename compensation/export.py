@@ -672,9 +672,6 @@ DRIFT_PSEUDO_CODE = (
     "  band95_um * max(1, rho) ** band_gamma. Where a channel lists feature_distance, rho is the larger of that and the same",
     "  distance over the filter outputs f_r of its listed rows (its own filtered inputs: a slow state can leave its",
     "  range while every raw input stays inside). A controller that does not run the rule runs the gains as written.",
-    "disagreement gate (export.json controller.disagreement_gate, where a channel has one): after the distance rule,",
-    "  pred = base + min(max(pred - base, lo_um), hi_um), base = sum over rows r of base_gain_<ch>_r * f_r: the",
-    "  prediction may differ from the baseline by no more than the model did on the validation folds.",
 )
 
 
@@ -708,31 +705,13 @@ def drift_distance_rule(model, coef: DriftCoefficients) -> dict | None:
                                            "mean": np.asarray(nv["mean"], float).tolist(),
                                            "whiten": np.asarray(nv["whiten"], float).tolist(),
                                            "range_distance": float(nv["range_distance"])}
-    extra = {}
-    if nov.get("input_range"):      # DriftSelector(input_range=True): the per-input range term of rho travels too
-        extra["input_range"] = dict(nov["input_range"], rule="rho = max(rho, 1 + max_i max(u_i - hi_i, lo_i - u_i, 0) "
-                                                              "/ sd_i) on a tick where some input is outside [lo, hi]")
-    return extra | {"inputs": list(nov["inputs"]), "mean": list(nov["mean"]), "whiten": nov["whiten"],
+    return {"inputs": list(nov["inputs"]), "mean": list(nov["mean"]), "whiten": nov["whiten"],
             "range_distance": float(nov["range_distance"]),
             "rule": "rho = norm((u - mean) @ whiten) / range_distance on the latest raw inputs; g = 1 for rho <= 1, "
                     "exp(-(rho - 1) / scale) beyond; pred = base + g * (gains . f - base), base = base_gains . f "
                     "(same rows as the coefficient file); band = band95_um * max(1, rho) ** band_gamma; where a channel has "
                     "feature_distance: rho = max(rho, norm((f[rows] - mean) @ whiten) / range_distance) over the filter "
                     "outputs f of those coefficient rows",
-            "channels": out}
-
-
-def drift_disagreement_rule(model, coef: DriftCoefficients) -> dict | None:
-    """The disagreement gate in the coefficient file's rows: {"rule", "channels": {ch: {"lo_um", "hi_um",
-    "base_gains" (m,)}}}, or None when no channel has one (``ChannelFit.disagreement_um``)."""
-    chans = {ch: c for ch, c in model.channels.items() if c.base is not None and c.disagreement_um is not None}
-    if not chans:
-        return None
-    keys = [f.key for f in model.features]
-    out = {ch: {"lo_um": float(c.disagreement_um[0]), "hi_um": float(c.disagreement_um[1]),
-                "base_gains": _base_gains(c, keys)} for ch, c in chans.items()}
-    return {"rule": "pred = base + min(max(p - base, lo_um), hi_um); p: the prediction after distance_shrink where the "
-                    "channel has it, else gains . f; base = base_gains . f (same rows as the coefficient file)",
             "channels": out}
 
 

@@ -102,31 +102,6 @@ def test_horizon_folds_validate_over_the_deployment_horizon(fit_fraction):
         assert abs(len(va) - h * len(tr)) <= ROUNDING_ROWS * (1 + h)
 
 
-@pytest.mark.parametrize("fit_fraction,first_end", [(0.6, 0.5 * (1 + 2 / 3)), (0.8, 0.5 * 1.25), (0.5, 0.9)])
-def test_horizon_folds_with_min_train_never_train_on_less(fit_fraction, first_end):
-    """horizon_min_train (issue 29's seventh round): the first validation end moves to
-    min(max(start, min_train·(1 + h)), HORIZON_LAST_START), so every fold trains on at least half of the fitting
-    part where the horizon allows (f = 0.6, 0.8), and from 0.9 of it where it does not (f = 0.5: h = 1)."""
-    n_fit = 1200
-    h = (1 - fit_fraction) / fit_fraction
-    folds = horizon_folds(n_fit, h, 4, 0.5, min_train=0.5)
-    assert len(folds) == 4
-    assert folds[-1][1][-1] == n_fit - 1
-    assert folds[0][1][-1] + 1 == round(first_end * n_fit)
-    if 0.5 * (1 + h) <= 0.9:
-        assert all(len(tr) >= 0.5 * n_fit - ROUNDING_ROWS for tr, _ in folds)
-    for tr, va in folds:
-        assert tr[0] == 0 and tr[-1] + 1 == va[0]
-        assert abs(len(va) - h * len(tr)) <= ROUNDING_ROWS * (1 + h)
-    # None keeps the folds of the default exactly
-    assert all(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
-               for a, b in zip(horizon_folds(n_fit, h, 4, 0.5, None), horizon_folds(n_fit, h, 4, 0.5)))
-    with pytest.raises(ValueError, match="min_train"):
-        horizon_folds(n_fit, h, 4, 0.5, min_train=1.0)
-    with pytest.raises(ValueError, match="horizon_min_train"):
-        DriftSelector(horizon_min_train=0.0).fit(None)
-
-
 def test_horizon_gate_is_a_one_standard_error_rule():
     ols = [1.0, 1.0, 1.0, 1.0]
     # a steady 10 % gain on every fold: no scatter, passes
@@ -360,37 +335,19 @@ def test_drift_predict_refuses_log_shorter_than_the_longest_lag_and_missing_inpu
     assert not (tmp_path / "p.csv").exists()
 
 
-def test_gated_scale_only_adds_eligible_candidates_each_passing_at_the_largest_passing_scale():
-    """scale_rule="gated" (issue 29's eighth round): a candidate eligible at its novelty-chosen scale keeps it and its
-    statistics; one that fails there takes the LARGEST scale of shrink_scales under which it passes every gate (so it
-    is eligible, and no larger scale would pass); the eligible set only grows."""
-    from errormap.diagnosis.drift_models import OLSFamily, ThermalNNFamily, TransferFamily
-    cols = simulate_rod_log(4, hours=10, dt_s=60, n_dropouts=0, shift_at=0.6)
-    cols.pop("_truth")
-    log = _frame(cols)
-    fams = [OLSFamily(), ThermalNNFamily(), TransferFamily()]
-    a = DriftSelector(fit_fraction=0.6, families=fams).fit(log)
-    g = DriftSelector(fit_fraction=0.6, families=fams, scale_rule="gated").fit(log)
-    added, at_scale = 0, {}
-    for ch in a.chosen_:
-        assert set(a.eligible_[ch]) <= set(g.eligible_[ch])
-        r_ols = g.candidates_[ch][("ols", "", 1.0)]["ranking"]
-        for k, st in g.candidates_[ch].items():
-            st0 = a.candidates_[ch][k]
-            ok0 = a.eligible(st0, st0["gate"], k[2], r_ols)
-            if k[0] == "ols" or ok0 or st["scale"] == st0["scale"]:
-                assert st["scale"] == st0["scale"] and st["ranking"] == st0["ranking"]
-                continue
-            added += 1
-            assert g.eligible(st, st["gate"], k[2], r_ols)
-            for s_big in (x for x in a.shrink_scales if x > st["scale"]):    # no larger scale passes
-                if s_big not in at_scale:       # one selection per scale, every candidate scored at it
-                    at_scale[s_big] = DriftSelector(fit_fraction=0.6, families=fams, shrink_scales=(s_big,)).fit(log)
-                one = at_scale[s_big].candidates_[ch][k]
-                assert not g.eligible(one, one["gate"], k[2], r_ols)
-    # the log (rod seed 4, 10 h) was chosen, among rod / lumped seeds 0–5, as one where candidates are rescued and a
-    # channel's choice changes (elong and growth: OLS → thermal_nn)
-    assert added >= 1
-    assert g.chosen_["elong"][0] != "ols" and a.chosen_["elong"][0] == "ols"
-    with pytest.raises(ValueError, match="scale_rule"):
-        DriftSelector(scale_rule="largest").fit(log)
+def test_a_model_file_with_a_withdrawn_prediction_rule_is_refused(tmp_path):
+    """A drift_model.json carrying the disagreement gate or the per-input range term of ρ (prediction rules no longer
+    applied) is refused naming the key, not read as a model without it (that would predict something else)."""
+    from errormap.io import InputError
+    model = DriftModel({"ch1": ChannelFit("ols", "", [Feature("temp_s1_c")], 1.0, np.array([2.0]))},
+                       {"novelty": {"inputs": ["temp_s1_c"], "mean": [0.0], "whiten": [[1.0]], "range_distance": 1.0}})
+    obj = model.to_json()
+    DriftModel.from_json(obj)                        # as written: read
+    gated = json.loads(json.dumps(obj))
+    gated["channels"]["ch1"]["disagreement_gate"] = {"lo_um": -1.0, "hi_um": 1.0}
+    with pytest.raises(InputError, match=r"channels\.ch1\.disagreement_gate"):
+        DriftModel.from_json(gated, "m.json")
+    ranged = json.loads(json.dumps(obj))
+    ranged["fitted_on"]["novelty"]["input_range"] = {"lo": [0.0], "hi": [1.0], "sd": [1.0]}
+    with pytest.raises(InputError, match=r"fitted_on\.novelty\.input_range"):
+        DriftModel.from_json(ranged, "m.json")

@@ -40,9 +40,6 @@ the shrinkage blends two current models (a stale baseline would undo, beyond ρ 
 The saved updated model keeps the fit data's reference (the measurements are not in it): a later ``--update``
 run re-grows it from its own log.
 
-**The disagreement gate in updated predictions** (``ChannelFit.disagreement_um``, issue 29's sixth round): the
-updated prediction's difference from the updated baseline is clipped to the saved interval [lo, hi], after the
-distance rule. The interval is not updated: it is what the validation folds showed.
 """
 from __future__ import annotations
 
@@ -52,8 +49,8 @@ import numpy as np
 
 from ..io import InputError
 
-from .drift_models import (COV_FLOOR, ChannelFit, DriftModel, disagreement_clip, distance_weight, feature_matrix,
-                           input_values, mahalanobis, range_rho)
+from .drift_models import (COV_FLOOR, ChannelFit, DriftModel, distance_weight, feature_matrix, input_values,
+                           mahalanobis)
 
 MIN_WARM_ROWS = 10
 FLOOR_C = 1.0           # a temperature feature's scale is at least 1 °C (gains in μm per °C or per larger excursion)
@@ -254,27 +251,18 @@ class DriftUpdater:
                 refs.append((RunningReference(c.novelty["mean"], c.novelty["whiten"], n_fit),
                              feature_matrix(log, c.novelty["features"], cache), float(c.novelty["range_distance"])))
             rho = self._rho(refs, rows, n) if refs else None
-            if rho is not None and U is not None and nov.get("input_range"):
-                # the per-input range term (DriftSelector(input_range=True)): from the fitting data's ranges only
-                rho = np.maximum(rho, range_rho(nov["input_range"], U))
             band = c.band95_um if np.isfinite(c.band95_um) and c.band95_um > 0 else max(float(np.std(y[rows])), 1.0)
             lin, a_new, coef, steps = self._kalman(F, c.intercept_um, c.coef, c.features, t, y, rows, band)
             out = lin
             base_new = c.base
             shrink = rho is not None and c.base is not None and np.isfinite(c.shrink_scale)
-            if shrink or (c.base is not None and c.disagreement_um is not None):
-                # the baseline is updated from the same measurements by the same filter: the shrinkage (and the
-                # disagreement gate) blend two current models (a stale baseline would undo what the update learned
-                # in the new regime)
+            if shrink:
+                # the baseline is updated from the same measurements by the same filter: the shrinkage blends two
+                # current models (a stale baseline would undo what the update learned in the new regime)
                 bf, ba, bc = c.base
                 blin, ba_new, bc_new, _ = self._kalman(feature_matrix(log, bf, cache), ba, np.asarray(bc, float), bf,
                                                        t, y, rows, band)
-                if shrink:
-                    out = blin + distance_weight(rho, c.shrink_scale) * (lin - blin)
-                if c.disagreement_um is not None:
-                    # the gate on the updated pair: the updated model may differ from the updated baseline by no
-                    # more than the saved model did from its baseline on the validation folds
-                    out = disagreement_clip(out, blin, *c.disagreement_um)
+                out = blin + distance_weight(rho, c.shrink_scale) * (lin - blin)
                 base_new = (list(bf), ba_new, bc_new)
             pred[ch] = out
             hist[ch] = [(int(r), float(y[r] - out[r]), float(y[r] - saved[ch][r])) for r in rows]
@@ -282,7 +270,7 @@ class DriftUpdater:
             band_out[ch] = band95 * (np.ones(n) if rho is None else np.maximum(1.0, rho) ** c.band_gamma)
             self.steps_[ch] = steps
             chans[ch] = ChannelFit(c.family, c.hyper, list(c.features), a_new, coef, c.band95_um,
-                                   base_new, c.shrink_scale, c.novelty, c.band_gamma, c.disagreement_um)
+                                   base_new, c.shrink_scale, c.novelty, c.band_gamma)
         meta = dict(model.meta)
         meta["online_update"] = {"method": "Kalman filter on the parameters (random walk)",
                                  "drift_per_h": self.drift_per_h, "prior_um": self.prior_um,

@@ -33,6 +33,10 @@ def register(sub):
                         "JSON; store: --tracking-uri, else $MLFLOW_TRACKING_URI, else runs/mlflow.db)")
     p.add_argument("--featurepoints", default=None, help="feature points of a learned model (for the retrain)")
     p.add_argument("--fit-fraction", type=float, default=0.6, help="first part (by seq / time) used for fitting")
+    p.add_argument("--deploy", action="store_true",
+                   help="--drift: validate on the --fit-fraction split, then refit the chosen model on every row of "
+                        "the log; drift_model.json and drift_compensation.csv are the refitted model, diagnosis.json "
+                        "keeps the split's validation figures and records the refit (rows, candidates, settings)")
     p.add_argument("--time-unit", choices=["s", "min", "h"], default=None,
                    help="--drift: the unit of the log's time_s column when it is not seconds (default: seconds, "
                         "checked from the step and the span; a log that looks like minutes or hours is refused); "
@@ -91,7 +95,7 @@ def run(args) -> int:
         raise UsageError("give either CHECKS (with --model) or --drift LOG")
     if args.drift is not None:
         print(f"modelling drift log {args.drift} ...", file=sys.stderr)
-        sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha})
+        sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha}, deploy=args.deploy)
         summary, paths = run_drift(args.drift, args.out, sel, time_unit=args.time_unit, units=args.units)
         print(f"time unit of time_s: {summary['time_unit']}")
         for c, why in summary["inputs_dropped"].items():
@@ -100,7 +104,8 @@ def run(args) -> int:
             print(f"filled missing samples of {c} (interpolated): rows {', '.join(f'{a}-{b}' for a, b in rows)}")
         for ch, c in summary["channels"].items():
             print(f"{ch}: {c['model']}: held-out RMS {c['rms_before_um']:.3g} -> {c['rms_after_um']:.3g} μm "
-                  f"(OLS baseline {c['rms_ols_um']:.3g} μm), {band_label(c)}")
+                  f"(OLS baseline {c['rms_ols_um']:.3g} μm, the fitting part's mean {c['rms_mean_um']:.3g} μm), "
+                  f"{band_label(c)}")
         v = summary["verdict"]
         print("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
     else:

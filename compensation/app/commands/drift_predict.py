@@ -92,13 +92,6 @@ def run(args) -> int:
                                              if shr else ""))
             head.append("<ch>_lo_um / <ch>_hi_um grow as max(1, rho), rho = input_distance / the fitting data's range "
                         "distance" + (f"; {', '.join(shr)}: prediction shrunk toward OLS beyond rho = 1" if shr else ""))
-    gated = [ch for ch, c in model.channels.items() if c.base is not None and c.disagreement_um is not None]
-    if gated:
-        print(f"disagreement gate: {', '.join(gated)} may differ from their OLS baseline by no more than on the "
-              "validation folds (" + ", ".join(f"{ch} [{model.channels[ch].disagreement_um[0]:.3g}, "
-                                               f"{model.channels[ch].disagreement_um[1]:.3g}] um" for ch in gated) + ")")
-        head.append(f"{', '.join(gated)}: prediction - OLS baseline clipped to the validation folds' interval "
-                    "(drift_model.json disagreement_gate)")
     if args.update:
         missing = [ch for ch in model.channels if ch not in log.disp_um]
         if len(missing) == len(model.channels):

@@ -179,8 +179,7 @@ def format_drift_check(check: dict) -> list[str]:
                              f"controller {q['controller']['max_um']:7.3g} / {q['controller']['rms_um']:7.3g}")
                 if q.get("volcomp_distance_rule") and q["volcomp_distance_rule"] != q["volcomp"]:
                     v = q["volcomp_distance_rule"]
-                    lines.append(f"      {'':8s} volcomp with the per-sample rules (export.json controller.distance_shrink / "
-                                 f"disagreement_gate) "
+                    lines.append(f"      {'':8s} volcomp with the per-sample rule (export.json controller.distance_shrink) "
                                  f"{v['max_um']:7.3g} / {v['rms_um']:7.3g}")
     return lines
 

@@ -242,7 +242,7 @@ def export_drift(s: DriftSettings, on_check=None, log=None) -> dict:
                                                                         f"exceeds the tolerance {s.tolerance_um:g} um"},
                 "check_log": log_desc, "check": res["check"],
                 "residuals": {"model": "controller(coefficients) - DriftModel.predict (the fixed gains, without "
-                                       "controller.distance_shrink or controller.disagreement_gate) at each log time (um)",
+                                       "controller.distance_shrink) at each log time (um)",
                               "measured": "log displacement - prediction (um); before = the displacement itself",
                               "true": "noise-free simulated displacement - prediction (um)" if clean is not None
                                       else "no simulated log (--log given)"},
@@ -253,8 +253,7 @@ def export_drift(s: DriftSettings, on_check=None, log=None) -> dict:
                                          "--save-model NEW.json` re-fits offsets and gains from on-machine "
                                          "measurements (Kalman filter on the parameters), then re-export NEW.json: "
                                          "only the gain_<ch> columns change",
-                               "distance_shrink": ex.drift_distance_rule(model, coef),
-                               "disagreement_gate": ex.drift_disagreement_rule(model, coef)},
+                               "distance_shrink": ex.drift_distance_rule(model, coef)},
                 "files": {ex.DRIFT_FILE: res["file"].stat().st_size},
                 "table_values": coef.n_values()}
         ex.write_manifest(tmp, info)

@@ -472,6 +472,23 @@ def drift_verdict(channels: dict) -> dict:
     return {"status": "failed" if reasons else "passed", "reasons": reasons}
 
 
+def deployed_record(sel, n_rows: int) -> dict:
+    """The provenance of the drift model a fitted ``DriftSelector(deploy=True)`` refitted on every row
+    (``deployed_``): the rows it was fitted on, the rows its selection was validated on, and per channel the
+    candidate with its settings."""
+    from errormap.diagnosis.drift_models import candidate_name
+    model = sel.deployed_
+    return {"rows_used": int(model.meta["fit_rows"]), "rows_in_log": int(n_rows),
+            "validated_on_rows": int(model.meta["validated_on_rows"]),
+            "fit_until_s": model.meta["fit_until_s"],
+            "channels": {ch: {"candidate": candidate_name(*sel.chosen_[ch], sel.shrink_[ch]),
+                              "family": c.family, "hyper": c.hyper, "shrink_weight": sel.shrink_[ch],
+                              "distance_scale": c.shrink_scale if np.isfinite(c.shrink_scale) else None,
+                              "band95_um": c.band95_um, "band_gamma": c.band_gamma,
+                              "intercept_um": c.intercept_um, "n_features": len(c.features)}
+                         for ch, c in model.channels.items()}}
+
+
 def run_drift(log_path, out_dir, selector=None, time_unit=None, units: str = "check"):
     """Diagnose a drift log: model families chosen by rolling-origin CV, before/after with the OLS
     baseline beside. Writes diagnosis.json, report.html, drift_model.json (``volcomp.drift_model``)
@@ -481,8 +498,11 @@ def run_drift(log_path, out_dir, selector=None, time_unit=None, units: str = "ch
     log = load_drift_log(log_path, time_unit=time_unit, units=units)
     sel = (selector or DriftSelector()).fit(log)
     from errormap.io import sha256_file
-    sel.model_.meta.update({"log_time_unit": log.notes["time_unit"], "log_temperature_units": log.notes["units"], "log_path": str(Path(log_path).resolve()),
-                            "log_sha256": sha256_file(log_path)})   # the fitting log: export's default check log
+    shipped = sel.model_ if sel.deployed_ is None else sel.deployed_
+    for m in (sel.model_, shipped):
+        m.meta.update({"log_time_unit": log.notes["time_unit"], "log_temperature_units": log.notes["units"],
+                       "log_path": str(Path(log_path).resolve()),
+                       "log_sha256": sha256_file(log_path)})   # the fitting log: export's default check log
     channels = sel.report(log)
     fit, hold = sel.split(log)
     summary = {"log": str(log_path), "units": log.notes["units"],
@@ -499,15 +519,17 @@ def run_drift(log_path, out_dir, selector=None, time_unit=None, units: str = "ch
                             "shrink_weights": list(sel.shrink_weights), "selection": sel.selection,
                             "hedge_weight": sel.hedge_weight, "feature_distance": sel.feature_distance,
                             "ranking_fold_loss": sel.ranking_fold_loss, "band_rule": sel.band_rule,
-                            "horizon_min_train": sel.horizon_min_train, "scale_rule": sel.scale_rule}}
+                            "deploy": sel.deploy}}
+    if sel.deployed_ is not None:
+        summary["deployed"] = deployed_record(sel, len(log.time_s))
     sub = getattr(sel, "subset_modeller_", None)
     if sub is not None:
         summary["sensor_selection"] = sub.report_selection()
     summary["verdict"] = drift_verdict(channels)
     page = drift_report(log, sel, channels, log_path)
-    comp = compensation_columns(log, sel.model_, sel.cache_)
+    comp = compensation_columns(log, shipped, sel.cache_)
     paths = _write(out_dir, summary, page)
     out = Path(out_dir)
-    model_path = sel.model_.save(out / "drift_model.json")
+    model_path = shipped.save(out / "drift_model.json")
     csv_path = write_csv(out / "drift_compensation.csv", comp, header_comments=COMPENSATION_COMMENTS)
     return summary, (*paths, model_path, csv_path)
