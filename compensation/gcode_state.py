@@ -11,6 +11,8 @@ import numpy as np
 
 from .nc_state import EXTENDED_MAX, SYSTEMS, system_name
 
+MM_PER_INCH = 25.4
+
 
 class _Refuse(Exception):
     """A line the reader refuses: ``col`` (1-based) and the message (the reader adds file and line)."""
@@ -104,7 +106,6 @@ G10_REFUSED = ("dialect-dependent: Fanuc L10-L13 set tool offset memories and L2
 def _g10(idx, st: _State, groups, by, axis_words, ax: AxisWords) -> str:
     """``G10 L2 Pn`` (work offset n = 1..9: G54..G59.3) and ``G10 L1 Pn Z.. [R..]`` (tool n's length and
     radius) as events, in the line's units; other L numbers are refused (:data:`G10_REFUSED`)."""
-    from .gcode import MM_PER_INCH
     code, w = groups["nonmodal"]
     if "motion" in groups:
         raise _Refuse(w.start + 1, "'G10' with a motion code on the same line")
