@@ -59,3 +59,46 @@ def test_fewer_than_six_poses_refused(ur5, sessions):
     _, geo, _, new = sessions
     with pytest.raises(InputError, match="at least 6"):
         register_frame(geo.chain, geo.params, new.subset(np.arange(5)))
+
+
+@pytest.mark.slow
+def test_register_through_the_cli_then_predict(tmp_path, ur5, sessions):
+    """calibrate → register on 20 of the new session's poses → predict with the session's model: the predicted tool
+    points of the held-out session poses within HELDOUT_FACTOR of the calibration's own held-out error."""
+    import json
+    import subprocess
+    import sys
+
+    from errormap.arm_poses import write_arm_poses
+    from errormap.io import read_table
+    t2, _, chk, new = sessions
+    t = draw_truth(ur5, 11, compliance_rad_per_mm=np.zeros(ur5.n_joints))
+    cal = measure(ur5, t, random_joints(UR5_LO, UR5_HI, 200, [11, 0]), NOISE_MM, [11, 1])
+    write_arm_poses(tmp_path / "cal.csv", ur5, cal)
+    write_arm_poses(tmp_path / "chk.csv", ur5, chk)
+    write_arm_poses(tmp_path / "new.csv", ur5, new)
+
+    def cli(*a):
+        return subprocess.run([sys.executable, "-m", "compensation.app.cli", *map(str, a)], capture_output=True,
+                              text=True)
+    r = cli("calibrate", tmp_path / "cal.csv", "--check", tmp_path / "chk.csv", "--machine", "ur5", "--no-learned",
+            "--folds", "2", "--out", tmp_path / "c")
+    assert r.returncode == 0, r.stderr
+    own = json.loads((tmp_path / "c" / "calibration.json").read_text())
+    own_mean = {s["name"]: s for s in own["stages"]}[own["kept_stage"]]["mean_mm"]
+    r = cli("register", tmp_path / "new.csv", "--machine", "ur5", "--model", tmp_path / "c" / "calibration.json",
+            "--fit-poses", 20, "--out", tmp_path / "s")
+    assert r.returncode == 0, r.stderr
+    reg = json.loads((tmp_path / "s" / "calibration.json").read_text())["registration"]
+    assert reg["n_fit_poses"] == 20 and reg["heldout_registered"]["n"] == 100
+    assert reg["heldout_registered"]["mean_mm"] <= HELDOUT_FACTOR * own_mean < reg["heldout_as_calibrated"]["mean_mm"]
+    prog = tmp_path / "prog.csv"
+    rest = new.subset(np.arange(20, len(new)))
+    prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in row) for row in rest.q))
+    r = cli("predict", prog, "--machine", "ur5", "--model", tmp_path / "s" / "calibration.json", "--out",
+            tmp_path / "p.csv")
+    assert r.returncode == 0, r.stderr
+    p = read_table(tmp_path / "p.csv")
+    xyz = np.stack([p.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
+    e = np.linalg.norm(xyz - rest.xyz_mm, axis=1).mean()
+    assert e == pytest.approx(reg["heldout_registered"]["mean_mm"], rel=1e-6)   # predict reads the registered frame

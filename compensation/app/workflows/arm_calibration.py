@@ -37,6 +37,14 @@ READ_FORMATS = (MODEL_FORMAT, "volcomp-arm-calibration/2")
 STACKED = "stacked"
 """Stage name of the blend of volcomp's pipeline and the plain GP (:class:`training.arm_residual.StackedResidual`)."""
 Z95 = 1.959963984540054
+FRAMES = {"poses, stages, predictions": "the measuring instrument's (tracker's) frame of the calibration poses",
+          "base.*": "instrument (world) → robot base transform (tx ty tz rz ry rx); `volcomp register` refits it for a "
+                    "new session",
+          "link*.*": "deviations of the link parameters from the machine file's table (mm, rad)",
+          "tool.*": "tool point in the last link's frame (mm)",
+          "compliance.*, harmonic.*, table.*": "joint-angle slots (rad per unit of their input)",
+          "learned": "residual (mm) in the instrument frame of the calibration poses, a function of the joints"}
+"""Which frame every block of ``calibration.json`` is in (its key ``frames``)."""
 DECIDE_MAX_POSES = 500
 """Every decision of :func:`calibrate_arm` (CVs, learned stages, band) runs on at most this many fit poses (a seeded
 subset, :func:`decision_subset`); the geometric fits use all. Its cost grows with the GPs' n³ and the CV's refits;
@@ -351,6 +359,7 @@ def model_document(chain, core, s, n_fit, n_check) -> dict:
     doc["pipeline_cv"] = core.get("cv_pipelines")
     doc["coverage95_heldout"] = core["coverage95_heldout"]
     doc["decision_poses"] = core.get("decision_poses", n_fit)
+    doc["frames"] = FRAMES
     doc["band_calibration"] = core.get("band_calibration")
     return doc
 
