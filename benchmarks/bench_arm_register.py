@@ -4,7 +4,11 @@ tilted 4 mrad. Mean measured residual (position norm, mm) on B's poses not used 
 6 / 20 / 50 of them, for volcomp's geometric stage and the plain least-squares calibration re-registered the same way;
 and the calibration's own held-out error on A. Truths never reach the estimator.
 
-    python benchmarks/bench_arm_register.py [--seeds 3]
+    python benchmarks/bench_arm_register.py [--seeds 3] [--real ../shared/data/serial-arms]
+
+``--real DIR``: the real UR5 and WAM tracker grids: the first 60 % of each grid (file order) calibrate; the rest is a
+"new session" — its measured points moved by the same rigid transform as the simulated tracker move (real poses and
+noise, a known frame change) — registered on its first 6 / 20 / 50 poses and judged on the others.
 """
 from __future__ import annotations
 
@@ -44,10 +48,39 @@ def run(seed: int, chain) -> dict:
     return out
 
 
+def run_real(path, machine) -> dict:
+    from errormap.arm_poses import read_arm_poses
+    from errormap.arm_register import _rot
+    chain = load_machine(machine)
+    data = read_arm_poses(path, chain)
+    n = int(0.6 * len(data))
+    cal, new = data.subset(np.arange(n)), data.subset(np.arange(n, len(data)))
+    R = _rot(2, MOVE["base.rz_rad"]) @ _rot(1, MOVE["base.ry_rad"]) @ _rot(0, MOVE["base.rx_rad"])
+    new.xyz_mm = new.xyz_mm @ R.T + np.array([MOVE["base.x_mm"], MOVE["base.y_mm"], MOVE["base.z_mm"]])
+    out = {}
+    for name, geo in (("volcomp geometric+compliance", fit_model(chain, cal, "dh+compliance")),
+                      ("plain geometric LSQ", fit_plain_lsq(chain, cal))):
+        row = {}
+        for k in (6, 20, 50):
+            reg = register_frame(geo.chain, geo.params, new.subset(np.arange(k)))
+            rest = new.subset(np.arange(k, len(new)))
+            row[k] = np.linalg.norm(rest.xyz_mm - geo.chain.tool_point(rest.q, reg.params), axis=1).mean()
+        out[name] = row
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--real", default=None)
     a = ap.parse_args()
+    if a.real:
+        print("| arm | model | after 6 | after 20 | after 50 |")
+        print("|---|---|---:|---:|---:|")
+        for f, m in (("ur5_grid.csv", "ur5"), ("wam_grid.csv", "wam")):
+            for name, r in run_real(f"{a.real}/{f}", m).items():
+                print(f"| {m} | {name} | {r[6]:.4f} | {r[20]:.4f} | {r[50]:.4f} |")
+        return
     chain = load_machine("ur5")
     print("| seed | model | own session held-out | after 6 | after 20 | after 50 |")
     print("|---|---|---:|---:|---:|---:|")
