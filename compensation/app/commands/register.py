@@ -34,6 +34,10 @@ def run(args) -> int:
     for s in r["slots"]:
         print(f"register: {s['name']} = {s['value']:.6g} ± {s['std']:.2g}")
     print(f"register: fit RMS {r['fit_rms_mm']:.4f} mm on {r['n_fit_poses']} poses")
+    best = r["poses_that_pin_it_best"]
+    print(f"register: {len(best['q'])} poses that would pin the frame best (in calibration.json, "
+          f"registration.poses_that_pin_it_best); with them the standard errors would be "
+          + ", ".join(f"{s['name']} {v:.2g}" for s, v in zip(r["slots"], best["std_with_them"])))
     for k in ("heldout_registered", "heldout_as_calibrated"):
         if r[k] is not None:
             print(f"register: {k.replace('_', ' ')}: mean {r[k]['mean_mm']:.4f} mm, RMS {r[k]['rms_mm']:.4f} mm "
