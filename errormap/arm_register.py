@@ -33,7 +33,7 @@ class Registration:
     """``params`` (n_params,) the calibrated slots with the registered frame; ``slots`` the fitted slot names,
     ``value`` / ``std`` (k,) their values and standard errors; ``cov`` (k, k); ``fit_rms_mm`` the 3-D RMS residual
     on the registration poses; ``suggest_q`` (m, nq) joint vectors that would pin the frame best, ``suggest_std``
-    (k,) the standard errors with them added."""
+    (k,) the standard errors with them added; ``learned_rotation`` (3, 3)."""
 
     params: np.ndarray
     slots: list
@@ -45,12 +45,14 @@ class Registration:
     converged: bool
     suggest_q: np.ndarray
     suggest_std: np.ndarray
+    learned_rotation: np.ndarray
+    """(3, 3) turning a learned residual from the calibration's instrument frame into this session's."""
 
     def to_dict(self, joint_columns) -> dict:
         return {"slots": [{"name": n, "value": float(v), "std": float(s)}
                           for n, v, s in zip(self.slots, self.value, self.std)],
                 "covariance": self.cov.tolist(), "fit_rms_mm": self.fit_rms_mm, "iterations": self.iterations,
-                "converged": self.converged,
+                "converged": self.converged, "learned_rotation": self.learned_rotation.tolist(),
                 "poses_that_pin_it_best": {"joints": list(joint_columns), "q": self.suggest_q.tolist(),
                                            "std_with_them": self.suggest_std.tolist()}}
 
@@ -70,6 +72,13 @@ def _base_ets(chain):
     if [e.slot for e in ets] != list(BASE_SLOTS):
         raise InputError(f"machine {chain.name!r}: no base frame slots {BASE_SLOTS} in this order: cannot re-register")
     return ets, np.array([list(chain.param_names).index(s) for s in BASE_SLOTS])
+
+
+def base_rotation(chain, params) -> np.ndarray:
+    """The base frame's rotation (3, 3) at the slot values ``params``."""
+    ets, idx = _base_ets(chain)
+    a = [e.value + e.coef * params[k] for e, k in zip(ets, idx)][3:]
+    return _rot(2, a[0]) @ _rot(1, a[1]) @ _rot(0, a[2])
 
 
 def initial_base(chain, params, q, target_mm) -> np.ndarray:
@@ -95,15 +104,22 @@ def register_frame(chain, params, poses, learner=None, tool: bool = False, seed=
     """Fit the base frame (and the tool point with ``tool``) of the calibrated chain ``chain`` (its slots
     ``params`` (n_params,), a learned residual ``learner`` or None, both kept) to the measured ``poses``
     (at least :data:`MIN_POSES`). The learned residual is subtracted from the measurements first (it is a
-    function of the joints, in the base frame's orientation at calibration)."""
+    function of the joints learned in the calibration's instrument frame: it is turned with the base frame, by
+    ``learned_rotation`` = R_base,new · R_base,calibrationᵀ, one refit after the first estimate of it)."""
     if len(poses) < MIN_POSES:
         raise InputError(f"{poses.source}: {len(poses)} poses: a registration takes at least {MIN_POSES}")
     names = list(BASE_SLOTS) + (list(TOOL_SLOTS) if tool else [])
     free = np.isin(np.array(chain.param_names), names)
-    y = poses.xyz_mm - (0.0 if learner is None else learner.predict(poses.q))
     w = np.ones(len(poses)) if poses.sigma_mm is None else 1.0 / poses.sigma_mm
-    x0 = initial_base(chain, np.asarray(params, float), poses.q, y)
-    x, it, conv = _lm(chain, poses.q, y, x0, free, w)
+    params = np.asarray(params, float)
+    R_cal = base_rotation(chain, params)
+    res = None if learner is None else learner.predict(poses.q)
+    R_learned = np.eye(3)
+    for _ in range(1 if learner is None else 2):
+        y = poses.xyz_mm - (0.0 if res is None else res @ R_learned.T)
+        x0 = initial_base(chain, params, poses.q, y)
+        x, it, conv = _lm(chain, poses.q, y, x0, free, w)
+        R_learned = base_rotation(chain, x) @ R_cal.T
     r = y - chain.tool_point(poses.q, x)
     J = chain.error_jacobian(poses.q, x)[:, :, free] * w[:, None, None]
     A = np.einsum("nik,nil->kl", J, J)
@@ -114,7 +130,7 @@ def register_frame(chain, params, poses, learner=None, tool: bool = False, seed=
     order = [list(np.array(chain.param_names)[free]).index(n) for n in names]
     cov = cov[np.ix_(order, order)]
     return Registration(x, names, x[free][order], np.sqrt(np.diag(cov)), cov,
-                        float(np.sqrt(np.mean(np.sum(r ** 2, 1)))), it, conv, sq, sstd[order])
+                        float(np.sqrt(np.mean(np.sum(r ** 2, 1)))), it, conv, sq, sstd[order], R_learned)
 
 
 def suggest_poses(chain, params, free, A, s2, seed, m: int = SUGGEST_POSES):

@@ -102,3 +102,66 @@ def test_register_through_the_cli_then_predict(tmp_path, ur5, sessions):
     xyz = np.stack([p.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
     e = np.linalg.norm(xyz - rest.xyz_mm, axis=1).mean()
     assert e == pytest.approx(reg["heldout_registered"]["mean_mm"], rel=1e-6)   # predict reads the registered frame
+
+
+class _LinearResidual:
+    """A stand-in learned stage: the residual ``c`` (3,) mm times (joint 2 / 100 deg), a function of the joints that no
+    base translation absorbs."""
+
+    def __init__(self, c):
+        self.c = np.asarray(c, float)
+
+    def predict(self, q, return_std=False):
+        m = np.asarray(q)[:, 1:2] / 100.0 * self.c
+        return (m, np.full_like(m, 0.01)) if return_std else m
+
+    def predict_and_jacobian(self, q):
+        J = np.zeros((len(q), 3, np.shape(q)[1]))
+        J[:, :, 1] = self.c / 100.0
+        return self.predict(q), J
+
+
+LEARNED_TURN_ATOL_MM = 0.01   # a learned residual of <= 0.75 mm turned with a frame known to ~1e-5 rad: 1e-5 mm; the
+# fit's noise at 20 poses (0.02 mm per component) bounds what is left in the held-out mean well below this
+
+
+def test_learned_residual_turns_with_the_registered_base(ur5, sessions):
+    """A learned residual (here 0.5 mm per 100° of joint 2, learned in the calibration's frame) is turned with the
+    base into the new session's frame: the registered model then meets the session as the geometric one does, where
+    the residual left unturned would not."""
+    from training.arm_residual import RotatedResidual
+    from errormap.arm_register import base_rotation
+    t2, geo, _, new = sessions
+    c = np.array([0.3, -0.4, 0.0])
+    R_delta = base_rotation(ur5, t2.errors) @ base_rotation(ur5, geo.params).T
+    moved = new.subset(np.arange(len(new)))
+    moved.xyz_mm = new.xyz_mm + _LinearResidual(c).predict(new.q) @ R_delta.T
+    reg = register_frame(geo.chain, geo.params, moved.subset(np.arange(20)), learner=_LinearResidual(c))
+    rest = moved.subset(np.arange(20, len(moved)))
+    lr = RotatedResidual(_LinearResidual(c), reg.learned_rotation)
+    with_turn = np.linalg.norm(rest.xyz_mm - ur5.tool_point(rest.q, reg.params) - lr.predict(rest.q), axis=1).mean()
+    plain = register_frame(geo.chain, geo.params, new.subset(np.arange(20)))
+    ref = np.linalg.norm(new.xyz_mm[20:] - ur5.tool_point(new.q[20:], plain.params), axis=1).mean()
+    assert abs(with_turn - ref) <= LEARNED_TURN_ATOL_MM
+    unturned = np.linalg.norm(rest.xyz_mm - ur5.tool_point(rest.q, reg.params) - _LinearResidual(c).predict(rest.q),
+                              axis=1).mean()
+    assert unturned > ref + 10 * LEARNED_TURN_ATOL_MM
+    np.testing.assert_allclose(reg.learned_rotation @ reg.learned_rotation.T, np.eye(3), atol=1e-12)
+    m, J = lr.predict_and_jacobian(rest.q[:3])
+    np.testing.assert_allclose(m, lr.predict(rest.q[:3]))
+    assert J.shape == (3, 3, 6)
+
+
+def test_a_registered_files_rotation_is_checked_and_applied():
+    from compensation.app.workflows.arm_calibration import registered_learner
+    from training.arm_residual import RotatedResidual
+    lr = _LinearResidual([0.3, -0.4, 0.0])
+    assert registered_learner(lr, {}, "c.json") is lr                    # a calibration as written: as learned
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    got = registered_learner(lr, {"registration": {"learned_rotation": R.tolist()}}, "c.json")
+    assert isinstance(got, RotatedResidual)
+    q = np.full((2, 6), 50.0)
+    np.testing.assert_allclose(got.predict(q), lr.predict(q) @ R.T)
+    for bad in ([[1.0, 0.0], [0.0, 1.0]], (2 * R).tolist(), None):
+        with pytest.raises(InputError, match="registration.learned_rotation"):
+            registered_learner(lr, {"registration": {"learned_rotation": bad}}, "c.json")

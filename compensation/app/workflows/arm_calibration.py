@@ -376,6 +376,23 @@ def band_scale_of(d: dict, path) -> float:
     return float(c)
 
 
+ROTATION_ATOL = 1e-9
+"""A registered file's ``learned_rotation`` must be orthonormal to this (it is written from an exact rotation)."""
+
+
+def registered_learner(learner, d: dict, path):
+    """The learner of a ``calibration.json`` written by ``volcomp register``, turned into the session's frame
+    (:class:`training.arm_residual.RotatedResidual` by ``registration.learned_rotation``); as read otherwise."""
+    reg = d.get("registration")
+    if not isinstance(reg, dict):
+        return learner
+    from training.arm_residual import RotatedResidual
+    R = np.asarray(reg.get("learned_rotation", np.nan), float)
+    if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=ROTATION_ATOL, rtol=0):
+        raise InputError(f"{path}: key 'registration.learned_rotation': expected a 3 × 3 rotation matrix")
+    return RotatedResidual(learner, R)
+
+
 def load_arm_model(chain, path, band_scale: bool = False):
     """(GeometricResult, learner or None) of a ``calibration.json`` written for ``chain``; with ``band_scale`` also
     the kept stage's band factor (:func:`band_scale_of`)."""
@@ -410,6 +427,7 @@ def load_arm_model(chain, path, band_scale: bool = False):
             learner = ArmResidualRegressor.from_dict(chain, d["learned"])
         except (ValueError, KeyError) as exc:
             raise InputError(f"{path}: key 'learned': {exc}") from None
+        learner = registered_learner(learner, d, path)
     return (geo, learner, band_scale_of(d, path)) if band_scale else (geo, learner)
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from errormap.arm_poses import read_arm_poses
 from errormap.arm_register import MIN_POSES, register_frame
 from errormap.io import InputError, write_json
+from training.arm_residual import RotatedResidual
 
 from compensation.app.validate import UsageError
 
@@ -44,18 +45,23 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
     fit, rest = data.subset(np.arange(n_fit)), data.subset(np.arange(n_fit, len(data)))
     reg = register_frame(geo.chain, geo.params, fit, learner, tool=tool, seed=seed)
     new = dataclasses.replace(geo, params=reg.params)
-    learned = (lambda q: 0.0) if learner is None else learner.predict
+    turned = isinstance(learner, RotatedResidual)       # a session's model registered again
+    R_total = reg.learned_rotation @ (learner.R if turned else np.eye(3))
+    new_learner = None if learner is None else RotatedResidual(learner.learner if turned else learner, R_total)
     e_after = e_before = None
     if len(rest):
-        e_after = errors_mm(rest, new.predict(rest.q) + learned(rest.q))
-        e_before = errors_mm(rest, geo.predict(rest.q) + learned(rest.q))
+        e_after = errors_mm(rest, new.predict(rest.q) + (0.0 if learner is None else new_learner.predict(rest.q)))
+        e_before = errors_mm(rest, geo.predict(rest.q) + (0.0 if learner is None else learner.predict(rest.q)))
     out_doc = dict(doc)
     out_doc["geometric"] = {**new.to_dict(), "cv_table": doc["geometric"].get("cv_table", [])}
+    reg_doc = {**reg.to_dict(chain.joint_columns), "learned_rotation": R_total.tolist()}
     out_doc["registration"] = {
         "poses_file": str(poses), "n_fit_poses": n_fit, "n_heldout_poses": len(rest), "fitted": "base" + "+tool" * tool,
         "frames": {"base.*": "tracker (world) → robot base of this session", "tool.*": "tool point in the flange frame",
-                   "link*, compliance.*, harmonic.*, table.*, learned": "kept from the calibration"},
-        **reg.to_dict(chain.joint_columns),
+                   "link*, compliance.*, harmonic.*, table.*, learned": "kept from the calibration",
+                   "learned_rotation": "turns the learned residual from the calibration's instrument frame into "
+                                       "this session's"},
+        **reg_doc,
         "heldout_registered": _row(e_after), "heldout_as_calibrated": _row(e_before),
         "residual_kind": "measured residual (measured − model) on the session's poses after the first n_fit_poses, "
                          "position norm, mm"}
