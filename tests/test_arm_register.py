@@ -165,3 +165,25 @@ def test_a_registered_files_rotation_is_checked_and_applied():
     for bad in ([[1.0, 0.0], [0.0, 1.0]], (2 * R).tolist(), None):
         with pytest.raises(InputError, match="registration.learned_rotation"):
             registered_learner(lr, {"registration": {"learned_rotation": bad}}, "c.json")
+
+
+TOOL_MOVE_MM = np.array([0.0, 0.5, 2.0])
+"""A new tool point (a re-seated reflector: 2 mm along the tool axis, 0.5 mm aside)."""
+
+
+def test_tool_point_registered_with_tool(ur5, sessions):
+    """With ``tool=True`` a moved tool point is fitted with the frame; without it the session is not met."""
+    t2, geo, chk, _ = sessions
+    e = t2.errors.copy()
+    for k, n in enumerate(("tool.x_mm", "tool.y_mm", "tool.z_mm")):
+        e[ur5.param_names.index(n)] += TOOL_MOVE_MM[k]
+    s = measure(ur5, ArmTruth(e, t2.compliance_rad_per_mm), random_joints(UR5_LO, UR5_HI, 120, [11, 6]), NOISE_MM,
+                [11, 7])
+    own = np.linalg.norm(chk.xyz_mm - geo.predict(chk.q), axis=1).mean()
+    rest = s.subset(np.arange(50, len(s)))
+    err = {}
+    for tool in (False, True):
+        reg = register_frame(geo.chain, geo.params, s.subset(np.arange(50)), tool=tool)
+        err[tool] = np.linalg.norm(rest.xyz_mm - ur5.tool_point(rest.q, reg.params), axis=1).mean()
+    assert err[True] <= HELDOUT_FACTOR * own < err[False]
+    assert reg.slots[-3:] == ["tool.x_mm", "tool.y_mm", "tool.z_mm"]
