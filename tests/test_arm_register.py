@@ -187,3 +187,12 @@ def test_tool_point_registered_with_tool(ur5, sessions):
         err[tool] = np.linalg.norm(rest.xyz_mm - ur5.tool_point(rest.q, reg.params), axis=1).mean()
     assert err[True] <= HELDOUT_FACTOR * own < err[False]
     assert reg.slots[-3:] == ["tool.x_mm", "tool.y_mm", "tool.z_mm"]
+
+
+def test_register_refuses_too_few_fit_poses_before_reading(tmp_path):
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-m", "compensation.app.cli", "register", str(tmp_path / "s.csv"), "--machine",
+                        "ur5", "--model", str(tmp_path / "m.json"), "--out", str(tmp_path / "o"), "--fit-poses", "3"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "--fit-poses must be >= 6" in r.stderr
