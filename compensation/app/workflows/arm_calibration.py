@@ -128,14 +128,13 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     on blocked inner CVs of the fit poses (:func:`kept_band_calibration`; False: the band as its stage's rule gives it,
     ``band_calibration`` None). ``decide_max`` (default :data:`DECIDE_MAX_POSES`): with more fit poses than this,
     every CV, the learned stages and the band calibration run on a seeded subset of this many
-    (:func:`decision_subset`); the geometric stages and the plain baselines are fitted on every fit pose. Returns the document's core: ``stages``, ``baselines``, ``kept_stage``,
-    the models, ``decision_poses``."""
+    (:func:`decision_subset`); the geometric stages and the plain baselines are fitted on every fit pose. Returns the
+    document's core: ``stages``, ``baselines``, ``kept_stage``, the models, ``decision_poses``."""
     from errormap.arm_calibration import MODELS, choose_model, cv_models, fit_model
     from training.arm_residual import KERNEL_FAMILIES, ArmResidualRegressor
-    from training.residual import FAMILY_NAMES
+    from training.residual import FAMILY_NAMES, MAX_TRAIN_POINTS
     learner_families = KERNEL_FAMILIES if learner_families is None else tuple(learner_families)
     s_geo, s_learn, s_plain, s_dec = np.random.SeedSequence(seed).spawn(4)
-    from training.residual import MAX_TRAIN_POINTS
     decide_max = DECIDE_MAX_POSES if decide_max is None else int(decide_max)
     if not 2 * k_folds <= decide_max <= MAX_TRAIN_POINTS:     # before any work: the GPs train on at most this many
         raise ValueError(f"decide_max must be in [{2 * k_folds}, {MAX_TRAIN_POINTS}], got {decide_max}")
@@ -171,6 +170,8 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     cvk = "blocked " if groups is not None else ""
     why = (f"{kept} had the lowest {k_folds}-fold {cvk}CV mean error inside the fit poses "
            f"({cvd[model]:.4f} mm; " + ", ".join(f"{k} {v:.4f}" for k, v in cvd.items() if k != model) + ")")
+    if dec_idx is not None:
+        why += f" (every CV on a seeded {len(dfit)} of the {len(fit)} fit poses)"
     if cvd["plain"] < cvd[model]:
         geo_kept = plain
         plain.cv_table = cv
