@@ -91,8 +91,11 @@ def identifiable_slots(chain, q, errors=None, exclude=None,
     rank = int(np.sum(d > RANK_RTOL * d[0]))
     free = np.zeros(chain.n_params, bool)
     free[piv[:rank]] = True
-    sv = np.linalg.svd(Js, compute_uv=False)
-    _, _, Vt = np.linalg.svd(Js, full_matrices=True)
+    # Js = Q R Pᵀ: the singular values and right singular vectors of Js are those of R Pᵀ (min(3n, p), p), so the
+    # (3n)² factor of a full SVD is never formed (memory O(n p)); Vt (p, p) holds the null space
+    C = np.empty_like(R)
+    C[:, piv] = R
+    _, sv, Vt = np.linalg.svd(C, full_matrices=True)
     combos = []
     for v in Vt[rank:]:
         v = v / np.abs(v).max()

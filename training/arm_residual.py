@@ -186,6 +186,29 @@ class ArmResidualRegressor:
         return self._fitted()
 
 
+class RotatedResidual:
+    """A fitted learner whose residual is turned into another instrument frame: ``R`` (3, 3) the rotation from the
+    frame it was learned in to the new one (a re-registered base, :mod:`errormap.arm_register`); the residual is a
+    vector, so its prediction and Jacobian turn with the frame, and each component's band std is that of independent
+    components turned (sqrt(R² · s²)). Everything else is the wrapped learner's."""
+
+    def __init__(self, learner, R):
+        self.learner, self.R = learner, np.asarray(R, float)
+
+    def __getattr__(self, name):
+        return getattr(self.__dict__["learner"], name)
+
+    def predict(self, q, return_std: bool = False):
+        if not return_std:
+            return self.learner.predict(q) @ self.R.T
+        m, s = self.learner.predict(q, return_std=True)
+        return m @ self.R.T, np.sqrt((s ** 2) @ (self.R ** 2).T)
+
+    def predict_and_jacobian(self, q):
+        m, J = self.learner.predict_and_jacobian(q)
+        return m @ self.R.T, np.einsum("ij,njk->nik", self.R, J)
+
+
 HYPER = ("fold", "fit")
 """Where a learner's GP hyper-parameters come from in :func:`cv_pipelines`: ``"fold"`` re-estimated (maximum
 marginal likelihood) on each inner fold's fit part, nothing of the held-out fold seen; ``"fit"`` kept from all

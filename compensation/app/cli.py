@@ -30,6 +30,7 @@ COMMAND_HELP = {
     "sweeps": "simulate laser-tracker axis sweeps of a truth machine tool (sweep CSV)",
     "diagnose": "measured residual -> effects the model lacks, before/after report; or a drift log",
     "calibrate": "identify a parallel machine's (hexapod/tripod) or a serial arm's kinematic parameters from measured poses",
+    "register": "re-register a calibrated arm's base frame (and tool point) in a new measurement session from a few poses",
     "interpolate": "hexapod/tripod leg-command program for a tool path",
     "benchmark": "learned vs parametric path on the same machines and measurements: report.html + benchmark.json",
     "drift-predict": "apply a saved drift model to a new log (causal compensation series)",

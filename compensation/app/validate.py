@@ -295,6 +295,7 @@ RULES: dict[str, dict] = {
                  "noise_um": positive("um"), "retrain_iter": ITER, "retrain_time_s": positive("s")},
     "calibrate": {"out": OUT_DIR, "holdout": FRACTION, "noise_um": positive("um"), "lever_mm": positive("mm"),
                   "folds": Count(2, 20, "CV folds of the learned stage")},
+    "register": {"out": OUT_DIR, "fit_poses": Count(6, None, "poses a registration takes")},
     "interpolate": {"out": OUT_FILE, "report": OUT_FILE, "sensitivity_plot": OUT_FILE,
                     "feed_mm_min": positive("mm/min"), "period_ms": positive("ms")},
     "benchmark": {"out": OUT_DIR, "train_iter": ITER, "train_s": positive("s"),

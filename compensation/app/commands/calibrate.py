@@ -33,24 +33,45 @@ def register(subparsers):
     g = p.add_mutually_exclusive_group()
     g.add_argument("--check", help="separate pose CSV for the held-out residual")
     g.add_argument("--holdout", type=float, default=0.2, help="fraction of POSES held out (default 0.2)")
-    p.add_argument("--noise-um", type=float, default=None, help="measurement noise per component (um); estimated if omitted")
-    p.add_argument("--no-scales", action="store_true", help="keep the leg scales at the machine file's values "
-                   "(default: identify them)")
-    p.add_argument("--scales", action="store_true", help=argparse_suppress())
-    p.add_argument("--no-loop", action="store_true", help="skip the loop on leg residuals")
-    p.add_argument("--no-learned", action="store_true", help="serial chains: skip the learned residual stage")
-    p.add_argument("--folds", type=int, default=5, help="serial chains: CV folds of every decision inside the fit poses: slot set, learned stage (default 5)")
-    p.add_argument("--no-register", action="store_true", help="the instrument frame is the machine frame")
-    p.add_argument("--lever-mm", type=float, default=None, help="weight of orientation residuals (mm per rad; "
-                   "default: estimated from the data, position noise / orientation noise)")
     p.add_argument("--seed", type=int, default=0, help="seed of the hold-out split")
-    p.add_argument("--lambda-rule", choices=PKMCalibrator.RULES, default="gcv",
-                   help="choice of the Tikhonov lambda: GCV (default), Morozov's discrepancy principle (delta from "
-                        "--noise-um or estimated by GCV), or the L-curve corner")
-    p.add_argument("--compare-rules", action="store_true",
-                   help="also fit with the other lambda rules and report their held-out residuals "
-                        "(always done when --noise-um is omitted)")
+    pkm = p.add_argument_group("hexapod / tripod only (refused for a serial arm)")
+    pkm.add_argument("--noise-um", type=float, default=None, help="measurement noise per component (um); estimated if omitted")
+    pkm.add_argument("--no-scales", action="store_true", help="keep the leg scales at the machine file's values "
+                     "(default: identify them)")
+    pkm.add_argument("--scales", action="store_true", help=argparse_suppress())
+    pkm.add_argument("--no-loop", action="store_true", help="skip the loop on leg residuals")
+    pkm.add_argument("--no-register", action="store_true", help="the instrument frame is the machine frame")
+    pkm.add_argument("--lever-mm", type=float, default=None, help="weight of orientation residuals (mm per rad; "
+                     "default: estimated from the data, position noise / orientation noise)")
+    pkm.add_argument("--lambda-rule", choices=PKMCalibrator.RULES, default=None,
+                     help="choice of the Tikhonov lambda: GCV (default), Morozov's discrepancy principle (delta from "
+                          "--noise-um or estimated by GCV), or the L-curve corner")
+    pkm.add_argument("--compare-rules", action="store_true",
+                     help="also fit with the other lambda rules and report their held-out residuals "
+                          "(always done when --noise-um is omitted)")
+    arm = p.add_argument_group("serial arm only (refused for a hexapod / tripod)")
+    arm.add_argument("--no-learned", action="store_true", help="skip the learned residual stage")
+    arm.add_argument("--folds", type=int, default=None, help="CV folds of every decision inside the fit poses: slot "
+                     "set, learned stage (default 5)")
     p.set_defaults(func=run)
+
+
+PKM_ONLY = {"noise_um": "--noise-um", "no_scales": "--no-scales", "scales": "--scales", "no_loop": "--no-loop",
+            "no_register": "--no-register", "lever_mm": "--lever-mm", "lambda_rule": "--lambda-rule",
+            "compare_rules": "--compare-rules"}
+"""Options of the parallel-machine calibration (attribute → option)."""
+ARM_ONLY = {"no_learned": "--no-learned", "folds": "--folds"}
+"""Options of the serial-arm calibration (attribute → option)."""
+
+
+def refuse_options(args, options: dict, what: str) -> None:
+    """UsageError naming every option of ``options`` given on the command line (not at its default of None /
+    False): it does not apply to ``what`` and would otherwise be silently ignored."""
+    given = [opt for attr, opt in options.items() if getattr(args, attr, None) not in (None, False)]
+    if given:
+        raise UsageError(f"{', '.join(given)}: {'does' if len(given) == 1 else 'do'} not apply to {what} "
+                         f"(see calibrate --help: the options are grouped by machine kind); leave "
+                         f"{'it' if len(given) == 1 else 'them'} out")
 
 
 def argparse_suppress():
@@ -61,16 +82,18 @@ def argparse_suppress():
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None) if args.machine else load_machine(expect_kind="hexapod")
     if machine.kind == "serial":
+        refuse_options(args, PKM_ONLY, "a serial arm")
         return run_serial(machine, args)
     if machine.kind not in ("hexapod", "tripod"):
         raise UsageError(f"{machine.path}: calibrate needs a hexapod, tripod or serial machine file, got kind "
                          f"{machine.kind!r}")
+    refuse_options(args, ARM_ONLY, f"a {machine.kind}")
     if args.scales and args.no_scales:
         raise UsageError("--scales and --no-scales contradict each other (scales are identified by default)")
     settings = CalibrationSettings(
         poses=args.poses, check=args.check, holdout=args.holdout, noise_um=args.noise_um, scales=not args.no_scales,
         register=not args.no_register, loop=not args.no_loop, lever_mm=args.lever_mm, seed=args.seed,
-        lambda_rule=args.lambda_rule, compare_rules=args.compare_rules)
+        lambda_rule=args.lambda_rule or "gcv", compare_rules=args.compare_rules)
     out = Path(args.out)
     cal = run_calibration(machine, settings, out)
     doc, (b_rms, b_max), (a_rms, _), (p_rms, _) = cal.doc, cal.before_um, cal.volcomp_um, cal.baseline_um
@@ -89,7 +112,7 @@ def run_serial(chain, args) -> int:
     """The arm branch: geometric + learned stages, plain baselines beside them (docs/arms.md)."""
     from ..workflows.arm_calibration import ArmCalibrationSettings, run_arm_calibration
     s = ArmCalibrationSettings(poses=args.poses, check=args.check, holdout=args.holdout, seed=args.seed,
-                               learned=not args.no_learned, k_folds=args.folds)
+                               learned=not args.no_learned, k_folds=5 if args.folds is None else args.folds)
     out = Path(args.out)
     doc = run_arm_calibration(chain, s, out)
     for r in doc["stages"] + doc["baselines"]:

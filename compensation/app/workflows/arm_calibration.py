@@ -17,6 +17,7 @@ Writes ``calibration.json`` and ``report.html`` (:mod:`compensation.app.reports.
 from __future__ import annotations
 
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,18 @@ READ_FORMATS = (MODEL_FORMAT, "volcomp-arm-calibration/2")
 STACKED = "stacked"
 """Stage name of the blend of volcomp's pipeline and the plain GP (:class:`training.arm_residual.StackedResidual`)."""
 Z95 = 1.959963984540054
+FRAMES = {"poses, stages, predictions": "the measuring instrument's (tracker's) frame of the calibration poses",
+          "base.*": "instrument (world) → robot base transform (tx ty tz rz ry rx); `volcomp register` refits it for a "
+                    "new session",
+          "link*.*": "deviations of the link parameters from the machine file's table (mm, rad)",
+          "tool.*": "tool point in the last link's frame (mm)",
+          "compliance.*, harmonic.*, table.*": "joint-angle slots (rad per unit of their input)",
+          "learned": "residual (mm) in the instrument frame of the calibration poses, a function of the joints"}
+"""Which frame every block of ``calibration.json`` is in (its key ``frames``)."""
+DECIDE_MAX_POSES = 500
+"""Every decision of :func:`calibrate_arm` (CVs, learned stages, band) runs on at most this many fit poses (a seeded
+subset, :func:`decision_subset`); the geometric fits use all. Its cost grows with the GPs' n³ and the CV's refits;
+BENCHMARKS.md ("Arm calibration at scale") measures the held-out error with and without the subset."""
 KEPT_WITH_LEARNER = ("learned", "plain GP on plain LSQ residual")
 """Kept stages that carry a learned residual (``calibration.json`` key ``learned``)."""
 
@@ -96,28 +109,53 @@ def choose_pipeline(pipeline_cv: dict, volcomp: str, rule: str = "lowest") -> st
     return best if gain.mean() > se else PLAIN_GP
 
 
+def decision_subset(n: int, max_poses: int | None, seed) -> np.ndarray | None:
+    """Indices (sorted, (m,) with m = ``max_poses``) of the fit poses every DECISION is made on when there are more
+    than ``max_poses`` of them (drawn without replacement from ``seed``), else None (all of them)."""
+    if max_poses is None or n <= max_poses:
+        return None
+    return np.sort(np.random.default_rng(seed).choice(n, int(max_poses), replace=False))
+
+
 def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, groups=None,
-                  pipeline_rule: str = "lowest", learner_families=None, band_blocked: bool = True) -> dict:
+                  pipeline_rule: str = "lowest", learner_families=None, band_blocked: bool = True,
+                  decide_max: int | None = None) -> dict:
     """Every stage and baseline on ``fit``, judged on ``check``. Every decision (the geometric slot
     set, plain LSQ instead, the learned stage kept and its GP kernel) is made by k-fold CV INSIDE ``fit``
     (blocked by ``groups`` (n_fit,) labels where given: whole blocks per fold); ``check`` only reports.
     ``learner_families``: the GP families the learned stage cross-validates (default
     :data:`training.arm_residual.KERNEL_FAMILIES`). ``band_blocked``: scale the kept stage's band so that it holds 95 %
     on blocked inner CVs of the fit poses (:func:`kept_band_calibration`; False: the band as its stage's rule gives it,
-    ``band_calibration`` None). Returns the document's core: ``stages``, ``baselines``, ``kept_stage``, the models."""
+    ``band_calibration`` None). ``decide_max`` (default :data:`DECIDE_MAX_POSES`): with more fit poses than this,
+    every CV, the learned stages and the band calibration run on a seeded subset of this many
+    (:func:`decision_subset`); the geometric stages and the plain baselines are fitted on every fit pose. Returns the
+    document's core: ``stages``, ``baselines``, ``kept_stage``, the models, ``decision_poses``."""
     from errormap.arm_calibration import MODELS, choose_model, cv_models, fit_model
     from training.arm_residual import KERNEL_FAMILIES, ArmResidualRegressor
-    from training.residual import FAMILY_NAMES
+    from training.residual import FAMILY_NAMES, MAX_TRAIN_POINTS
     learner_families = KERNEL_FAMILIES if learner_families is None else tuple(learner_families)
-    say = (lambda m: print(f"calibrate: {m}", file=log or sys.stderr))
-    s_geo, s_learn, s_plain = np.random.SeedSequence(seed).spawn(3)
+    s_geo, s_learn, s_plain, s_dec = np.random.SeedSequence(seed).spawn(4)
+    decide_max = DECIDE_MAX_POSES if decide_max is None else int(decide_max)
+    if not 2 * k_folds <= decide_max <= MAX_TRAIN_POINTS:     # before any work: the GPs train on at most this many
+        raise ValueError(f"decide_max must be in [{2 * k_folds}, {MAX_TRAIN_POINTS}], got {decide_max}")
+    t0 = time.perf_counter()
+    say = (lambda m: print(f"calibrate: [{time.perf_counter() - t0:6.1f} s] {m}", file=log or sys.stderr, flush=True))
+    dec_idx = decision_subset(len(fit), decide_max, s_dec)
+    dfit, dgroups = fit, groups
+    if dec_idx is not None:
+        dfit, dgroups = fit.subset(dec_idx), None if groups is None else np.asarray(groups)[dec_idx]
+        say(f"{len(fit)} fit poses: every decision (CV, learned stages, band) on a seeded subset of {len(dfit)}, "
+            f"the geometric fits on all {len(fit)}")
     nominal = errors_mm(check, chain.tool_point(check.q))
     base_tool = fit_base_tool(chain, fit)
     plain = fit_plain_lsq(chain, fit)
+    say(f"plain baselines fitted; CV of the geometric slot sets {', '.join(MODELS)} and plain LSQ "
+        f"({k_folds} folds, {len(dfit)} poses)")
     fold_fits = {}
-    cv = cv_models(chain, fit, MODELS, k_folds, s_geo, plain=True, groups=groups, fold_fits=fold_fits)
+    cv = cv_models(chain, dfit, MODELS, k_folds, s_geo, plain=True, groups=dgroups, fold_fits=fold_fits)
     cvd = {r["model"]: r["cv_mean_mm"] for r in cv}
     model = choose_model([r for r in cv if r["model"] != "plain"])
+    say("geometric CV done; fitting every slot set on the fit poses")
     fits = {m: fit_model(chain, fit, m) for m in MODELS}
     for m in MODELS:
         fits[m].cv_table = cv
@@ -132,6 +170,8 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     cvk = "blocked " if groups is not None else ""
     why = (f"{kept} had the lowest {k_folds}-fold {cvk}CV mean error inside the fit poses "
            f"({cvd[model]:.4f} mm; " + ", ".join(f"{k} {v:.4f}" for k, v in cvd.items() if k != model) + ")")
+    if dec_idx is not None:
+        why += f" (every CV on a seeded {len(dfit)} of the {len(fit)} fit poses)"
     if cvd["plain"] < cvd[model]:
         geo_kept = plain
         plain.cv_table = cv
@@ -155,14 +195,15 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     band_geo = np.sqrt(geo_kept.band_std_mm(check.q) ** 2 + geo_kept.sigma_mm ** 2)
     coverage_check = float(np.mean(np.abs(r_geo) <= Z95 * band_geo))
     if learned:
+        say(f"learned stages: GP families cross-validated ({k_folds} folds) on {len(dfit)} poses' residuals")
         plain_gp = ArmResidualRegressor(chain, inputs="sincos", k_folds=k_folds, n_restarts=n_restarts, margin_se=0.0,
-                                        seed=s_plain).fit(fit.q, fit.xyz_mm - plain.predict(fit.q), groups)
+                                        seed=s_plain).fit(dfit.q, dfit.xyz_mm - plain.predict(dfit.q), dgroups)
         e_pgp = errors_mm(check, plain.predict(check.q) + plain_gp.predict(check.q))
         baselines.append(stage_row("plain GP on plain LSQ residual", e_pgp,
                                    "Gaussian process on joint sin/cos, fitted to the plain calibration's residual"))
         learner = ArmResidualRegressor(chain, inputs="physics", k_folds=k_folds, n_restarts=n_restarts,
                                        seed=s_learn, families=learner_families).fit(
-            fit.q, fit.xyz_mm - geo_kept.predict(fit.q), groups)
+            dfit.q, dfit.xyz_mm - geo_kept.predict(dfit.q), dgroups)
         m, sd = learner.predict(check.q, return_std=True)
         r = r_geo - m
         e_l = np.linalg.norm(r, axis=1)
@@ -190,20 +231,21 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         from training.arm_residual import STACK_BAND_RULE, StackedResidual, cv_pipelines, stack_cv, stack_weight
         pipes = {kept: ("plain" if geo_kept is plain else model, kept_learner),
                  "plain geometric LSQ": ("plain", None), "plain GP on plain LSQ residual": ("plain", plain_gp)}
-        pipeline_cv = cv_pipelines(chain, fit, pipes, k_folds, s_geo, groups, fold_fits)
+        say("CV of whole pipelines")
+        pipeline_cv = cv_pipelines(chain, dfit, pipes, k_folds, s_geo, dgroups, fold_fits)
         pipe_volcomp = kept
         # the stacked candidate: volcomp's choice and the plain GP blended, the weight fitted to their out-of-fold
         # predictions on these folds; its CV figure with each fold's weight chosen on the other folds (stack_cv)
         pa, pb = pipeline_cv[kept], pipeline_cv[PLAIN_GP]
-        w_stack = stack_weight(fit.xyz_mm, pa["pred_mm"], pb["pred_mm"])[0]
-        pipeline_cv[STACKED] = stack_cv(fit.xyz_mm, pa["pred_mm"], pb["pred_mm"], fold_fits[FOLD_LABELS],
+        w_stack = stack_weight(dfit.xyz_mm, pa["pred_mm"], pb["pred_mm"])[0]
+        pipeline_cv[STACKED] = stack_cv(dfit.xyz_mm, pa["pred_mm"], pb["pred_mm"], fold_fits[FOLD_LABELS],
                                         pa["std_mm"], pb["std_mm"])
         stacked = StackedResidual(w_stack, (geo_kept, kept_learner), (plain, plain_gp), names=(kept, PLAIN_GP))
         st_cv = pipeline_cv[STACKED]
         stacked_summary = {
             "weight": w_stack, "pipelines": [kept, PLAIN_GP], "fold_weights": st_cv["fold_weights"],
             "cv_mean_mm": st_cv["cv_mean_mm"], "band_rule": STACK_BAND_RULE,
-            "coverage95_cv": float(np.mean(np.abs(fit.xyz_mm - st_cv["pred_mm"]) <= Z95 * st_cv["std_mm"]))}
+            "coverage95_cv": float(np.mean(np.abs(dfit.xyz_mm - st_cv["pred_mm"]) <= Z95 * st_cv["std_mm"]))}
         e_st = errors_mm(check, stacked.point(check.q))
         stages.append(stage_row(STACKED, e_st, f"{w_stack:.2f}·({kept}) + {1 - w_stack:.2f}·({PLAIN_GP}), the weight "
                                                f"fitted to their {k_folds}-fold out-of-fold predictions inside the fit "
@@ -238,9 +280,13 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     else:
         why += "; learned stage not run"
         pipes = {kept: ("plain" if geo_kept is plain else model, None)}
+        if band_blocked:   # its interleaved CV (the geometric CV's fold fits, reused) caps the band factor below
+            from training.arm_residual import cv_pipelines
+            pipeline_cv = cv_pipelines(chain, dfit, pipes, k_folds, s_geo, dgroups, fold_fits)
     band_cal = None
     if band_blocked:
-        band_cal = kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline_cv, geo_kept,
+        say("band calibration on blocked inner CVs")
+        band_cal = kept_band_calibration(chain, dfit, check, kept, pipes, pipe_volcomp, pipeline_cv, geo_kept,
                                          kept_learner, k_folds, s_geo)
         coverage_check = band_cal["coverage95_heldout_after"]
         cap = band_cal["cap_interleaved"]
@@ -260,7 +306,8 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
             "stacked": stacked, "stacked_summary": stacked_summary,
             "cv_pipelines": None if pipeline_cv is None else
             [{"pipeline": k, "cv_mean_mm": v["cv_mean_mm"], "cv_rms_mm": v["cv_rms_mm"]} for k, v in pipeline_cv.items()],
-            "coverage95_heldout": coverage_check, "band_calibration": band_cal}
+            "coverage95_heldout": coverage_check, "band_calibration": band_cal,
+            "decision_poses": len(dfit)}
 
 
 def kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline_cv, geo_kept, kept_learner, k_folds,
@@ -312,6 +359,8 @@ def model_document(chain, core, s, n_fit, n_check) -> dict:
     doc["geometric_cv"] = core["cv_geometric"]
     doc["pipeline_cv"] = core.get("cv_pipelines")
     doc["coverage95_heldout"] = core["coverage95_heldout"]
+    doc["decision_poses"] = core.get("decision_poses", n_fit)
+    doc["frames"] = FRAMES
     doc["band_calibration"] = core.get("band_calibration")
     return doc
 
@@ -326,6 +375,23 @@ def band_scale_of(d: dict, path) -> float:
     if isinstance(c, bool) or not isinstance(c, (int, float)) or not np.isfinite(c) or c < 1.0:
         raise InputError(f"{path}: key 'band_calibration.factor': expected a finite factor ≥ 1, got {c!r}")
     return float(c)
+
+
+ROTATION_ATOL = 1e-9
+"""A registered file's ``learned_rotation`` must be orthonormal to this (it is written from an exact rotation)."""
+
+
+def registered_learner(learner, d: dict, path):
+    """The learner of a ``calibration.json`` written by ``volcomp register``, turned into the session's frame
+    (:class:`training.arm_residual.RotatedResidual` by ``registration.learned_rotation``); as read otherwise."""
+    reg = d.get("registration")
+    if not isinstance(reg, dict):
+        return learner
+    from training.arm_residual import RotatedResidual
+    R = np.asarray(reg.get("learned_rotation", np.nan), float)
+    if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=ROTATION_ATOL, rtol=0):
+        raise InputError(f"{path}: key 'registration.learned_rotation': expected a 3 × 3 rotation matrix")
+    return RotatedResidual(learner, R)
 
 
 def load_arm_model(chain, path, band_scale: bool = False):
@@ -362,6 +428,7 @@ def load_arm_model(chain, path, band_scale: bool = False):
             learner = ArmResidualRegressor.from_dict(chain, d["learned"])
         except (ValueError, KeyError) as exc:
             raise InputError(f"{path}: key 'learned': {exc}") from None
+        learner = registered_learner(learner, d, path)
     return (geo, learner, band_scale_of(d, path)) if band_scale else (geo, learner)
 
 

@@ -1,0 +1,46 @@
+"""``volcomp register POSES --machine ur5 --model DIR/calibration.json --out DIR2``: re-register a calibrated arm's
+base frame (and with ``--tool`` its tool point) in a new measurement session, keeping every link parameter and
+learned stage (:mod:`compensation.app.workflows.arm_register`; docs/arms.md)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from errormap.machine import load_machine
+
+from compensation.app.validate import UsageError
+
+
+def register(subparsers):
+    p = subparsers.add_parser("register", help="re-register a calibrated arm's base frame (and tool point) in a new "
+                                               "measurement session from a few poses")
+    p.add_argument("poses", help="the session's measured poses (arm pose CSV, as calibrate reads)")
+    p.add_argument("--machine", required=True, help="the serial machine (file or built-in name, e.g. ur5)")
+    p.add_argument("--model", required=True, help="calibration.json of the arm (volcomp calibrate)")
+    p.add_argument("--out", required=True, help="output folder: the session's calibration.json")
+    p.add_argument("--tool", action="store_true", help="also fit the tool point (default: the base frame only)")
+    p.add_argument("--fit-poses", type=int, default=None, help="register on the first N poses (at least 6) and "
+                   "report the held-out error on the rest (default: all poses register)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the candidate poses the frame's suggestions come from")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    chain = load_machine(args.machine, expect_kind=None)
+    if chain.kind != "serial":
+        raise UsageError(f"{chain.path}: register needs a serial machine, got kind {chain.kind!r}")
+    from ..workflows.arm_register import run_arm_register
+    r = run_arm_register(chain, args.poses, args.model, args.out, tool=args.tool, fit_poses=args.fit_poses,
+                         seed=args.seed)
+    for s in r["slots"]:
+        print(f"register: {s['name']} = {s['value']:.6g} ± {s['std']:.2g}")
+    print(f"register: fit RMS {r['fit_rms_mm']:.4f} mm on {r['n_fit_poses']} poses")
+    best = r["poses_that_pin_it_best"]
+    print(f"register: {len(best['q'])} poses that would pin the frame best (in calibration.json, "
+          f"registration.poses_that_pin_it_best); with them the standard errors would be "
+          + ", ".join(f"{s['name']} {v:.2g}" for s, v in zip(r["slots"], best["std_with_them"])))
+    for k in ("heldout_registered", "heldout_as_calibrated"):
+        if r[k] is not None:
+            print(f"register: {k.replace('_', ' ')}: mean {r[k]['mean_mm']:.4f} mm, RMS {r[k]['rms_mm']:.4f} mm "
+                  f"on {r[k]['n']} poses")
+    print(f"register: wrote {Path(args.out) / 'calibration.json'}")
+    return 0

@@ -1,0 +1,154 @@
+"""Re-registering a calibrated arm in a new measurement session: only the tracker (world) → base frame (and, when
+asked, the tool point) is fitted on a few poses; every link parameter, joint slot and learned stage is kept.
+
+A tracker set up anew sees the arm in a new frame; the arm itself has not changed. :func:`register_frame` fits the
+six ``base.*`` slots (and the three ``tool.*`` slots with ``tool=True``) of a calibrated chain to the new poses,
+started from a closed-form rigid fit (Kabsch) of the calibrated model's points to the measured ones, refined by
+Levenberg–Marquardt on the exact base transform. It reports the frame's standard errors and the joint vectors inside
+the limits that would pin it best (greedy A-optimal choice: each added pose lowers the summed variance of the fitted
+slots most). Lengths mm, angles rad; ``q`` (n, nq) in the joints' units.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .arm_calibration import _lm
+from .identification import rigid_fit
+from .io import InputError
+
+BASE_SLOTS = ("base.x_mm", "base.y_mm", "base.z_mm", "base.rz_rad", "base.ry_rad", "base.rx_rad")
+"""The base frame's slots, in the order of its elementary transforms (tx ty tz rz ry rx, :func:`errormap.chain.base_ets`)."""
+TOOL_SLOTS = ("tool.x_mm", "tool.y_mm", "tool.z_mm")
+MIN_POSES = 6
+"""Fewest poses a registration takes: 18 coordinates for at most 9 slots, twice what the frame needs."""
+SUGGEST_POSES = 6
+SUGGEST_CANDIDATES = 2000
+"""Joint vectors drawn (seeded) inside the limits, among which the poses that would pin the frame best are chosen."""
+
+
+@dataclass
+class Registration:
+    """``params`` (n_params,) the calibrated slots with the registered frame; ``slots`` the fitted slot names,
+    ``value`` / ``std`` (k,) their values and standard errors; ``cov`` (k, k); ``fit_rms_mm`` the 3-D RMS residual
+    on the registration poses; ``suggest_q`` (m, nq) joint vectors that would pin the frame best, ``suggest_std``
+    (k,) the standard errors with them added; ``learned_rotation`` (3, 3)."""
+
+    params: np.ndarray
+    slots: list
+    value: np.ndarray
+    std: np.ndarray
+    cov: np.ndarray
+    fit_rms_mm: float
+    iterations: int
+    converged: bool
+    suggest_q: np.ndarray
+    suggest_std: np.ndarray
+    learned_rotation: np.ndarray
+    """(3, 3) turning a learned residual from the calibration's instrument frame into this session's."""
+
+    def to_dict(self, joint_columns) -> dict:
+        return {"slots": [{"name": n, "value": float(v), "std": float(s)}
+                          for n, v, s in zip(self.slots, self.value, self.std)],
+                "covariance": self.cov.tolist(), "fit_rms_mm": self.fit_rms_mm, "iterations": self.iterations,
+                "converged": self.converged, "learned_rotation": self.learned_rotation.tolist(),
+                "poses_that_pin_it_best": {"joints": list(joint_columns), "q": self.suggest_q.tolist(),
+                                           "std_with_them": self.suggest_std.tolist()}}
+
+
+def _rot(axis: int, a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.eye(3)
+    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+    return R
+
+
+def _base_ets(chain):
+    """The base frame's elementary transforms (in :data:`BASE_SLOTS` order) and its slots' indices; InputError if
+    the chain has no base slots in that order."""
+    ets = [e for e in chain.ets if e.slot in BASE_SLOTS]
+    if [e.slot for e in ets] != list(BASE_SLOTS):
+        raise InputError(f"machine {chain.name!r}: no base frame slots {BASE_SLOTS} in this order: cannot re-register")
+    return ets, np.array([list(chain.param_names).index(s) for s in BASE_SLOTS])
+
+
+def base_rotation(chain, params) -> np.ndarray:
+    """The base frame's rotation (3, 3) at the slot values ``params``."""
+    ets, idx = _base_ets(chain)
+    a = [e.value + e.coef * params[k] for e, k in zip(ets, idx)][3:]
+    return _rot(2, a[0]) @ _rot(1, a[1]) @ _rot(0, a[2])
+
+
+def initial_base(chain, params, q, target_mm) -> np.ndarray:
+    """``params`` with the base slots from a rigid fit (Kabsch) of the model's tool points to ``target_mm`` (n, 3)."""
+    ets, idx = _base_ets(chain)
+    total = np.array([e.value + e.coef * params[k] for e, k in zip(ets, idx)])
+    T_old = np.eye(4)
+    T_old[:3, 3] = total[:3]
+    T_old[:3, :3] = _rot(2, total[3]) @ _rot(1, total[4]) @ _rot(0, total[5])
+    R, t = rigid_fit(chain.tool_point(q, params)[None], np.asarray(target_mm, float)[None])
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R[0], t[0]
+    T_new = T @ T_old
+    Rn = T_new[:3, :3]
+    new = np.concatenate([T_new[:3, 3], [np.arctan2(Rn[1, 0], Rn[0, 0]), -np.arcsin(np.clip(Rn[2, 0], -1, 1)),
+                                         np.arctan2(Rn[2, 1], Rn[2, 2])]])
+    out = np.array(params, float).copy()
+    out[idx] = (new - np.array([e.value for e in ets])) / np.array([e.coef for e in ets])
+    return out
+
+
+def register_frame(chain, params, poses, learner=None, tool: bool = False, seed=0) -> Registration:
+    """Fit the base frame (and the tool point with ``tool``) of the calibrated chain ``chain`` (its slots
+    ``params`` (n_params,), a learned residual ``learner`` or None, both kept) to the measured ``poses``
+    (at least :data:`MIN_POSES`). The learned residual is subtracted from the measurements first (it is a
+    function of the joints learned in the calibration's instrument frame: it is turned with the base frame, by
+    ``learned_rotation`` = R_base,new · R_base,calibrationᵀ, one refit after the first estimate of it)."""
+    if len(poses) < MIN_POSES:
+        raise InputError(f"{poses.source}: {len(poses)} poses: a registration takes at least {MIN_POSES}")
+    names = list(BASE_SLOTS) + (list(TOOL_SLOTS) if tool else [])
+    free = np.isin(np.array(chain.param_names), names)
+    w = np.ones(len(poses)) if poses.sigma_mm is None else 1.0 / poses.sigma_mm
+    params = np.asarray(params, float)
+    R_cal = base_rotation(chain, params)
+    res = None if learner is None else learner.predict(poses.q)
+    R_learned = np.eye(3)
+    for _ in range(1 if learner is None else 2):
+        y = poses.xyz_mm - (0.0 if res is None else res @ R_learned.T)
+        x0 = initial_base(chain, params, poses.q, y)
+        x, it, conv = _lm(chain, poses.q, y, x0, free, w)
+        R_learned = base_rotation(chain, x) @ R_cal.T
+    r = y - chain.tool_point(poses.q, x)
+    J = chain.error_jacobian(poses.q, x)[:, :, free] * w[:, None, None]
+    A = np.einsum("nik,nil->kl", J, J)
+    k = int(free.sum())
+    s2 = float(np.sum((r * w[:, None]) ** 2) / max(3 * len(poses) - k, 1)) if poses.sigma_mm is None else 1.0
+    cov = s2 * np.linalg.pinv(A)
+    sq, sstd = suggest_poses(chain, x, free, A, s2, seed)
+    order = [list(np.array(chain.param_names)[free]).index(n) for n in names]
+    cov = cov[np.ix_(order, order)]
+    return Registration(x, names, x[free][order], np.sqrt(np.diag(cov)), cov,
+                        float(np.sqrt(np.mean(np.sum(r ** 2, 1)))), it, conv, sq, sstd[order], R_learned)
+
+
+def suggest_poses(chain, params, free, A, s2, seed, m: int = SUGGEST_POSES):
+    """(q (m, nq), the slots' standard errors (k,) with them added): greedy A-optimal choice among
+    :data:`SUGGEST_CANDIDATES` seeded joint vectors inside the limits, ``A`` (k, k) the information already there."""
+    from .arm_simulate import random_joints
+    qc = random_joints(chain.joint_lo, chain.joint_hi, SUGGEST_CANDIDATES, seed)
+    Jc = chain.error_jacobian(qc, params)[:, :, free]            # (c, 3, k)
+    A = A.copy()
+    pick = []
+    for _ in range(m):
+        Ainv = np.linalg.pinv(A)
+        # trace of (A + JᵢᵀJᵢ)⁻¹ by the Woodbury identity, per candidate
+        B = np.einsum("nik,kl->nil", Jc, Ainv)                    # (c, 3, k)
+        S = np.eye(3)[None] + np.einsum("nik,njk->nij", B, Jc)
+        red = np.einsum("nij,nji->n", np.linalg.solve(S, B), np.swapaxes(B, 1, 2))
+        red[pick] = -np.inf
+        i = int(np.argmax(red))
+        pick.append(i)
+        A = A + Jc[i].T @ Jc[i]
+    return qc[pick], np.sqrt(s2 * np.diag(np.linalg.pinv(A)))
