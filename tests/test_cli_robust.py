@@ -159,6 +159,7 @@ DIR_OUT = {
     "benchmark": ["benchmark"],
     "fleet": ["fleet", "{toml}"],
     "export": ["export", "{json}", "--format", "grid"],
+    "register": ["register", "{csv}", "--model", "{json}", "--machine", "{toml}"],
 }
 FILE_OUT = {
     "featurepoints": ["featurepoints", "--elements", "{json}"],
