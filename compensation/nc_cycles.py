@@ -160,7 +160,7 @@ def _codes(words) -> list:
 def _line(body, st: _St, mode, dialect, lineno, holes, out_at):
     """Output lines for one input line (None: the line itself), updating ``st``."""
     try:
-        _, words, _ = tokenize(body)
+        bd, words, _ = tokenize(body)
     except _Refuse:
         return None  # the reader refuses it, naming the column
     by = {w.letter: w for w in words}
@@ -168,8 +168,14 @@ def _line(body, st: _St, mode, dialect, lineno, holes, out_at):
     cyc = [c for c in gs if c in CYCLE_CODES]
     motion = [c for c in gs if c in ("G0", "G1", "G2", "G3", "G80")]
     if cyc or (st.mode is not None and not motion and any(a in by for a in "XYZ")):
+        if bd:
+            raise _Refuse(body.index("/") + 1, "'/' (block delete) on a canned-cycle line: whether the hole is "
+                                               "drilled depends on the controller's switch; remove the '/'")
         return _cycle_line(body, words, by, gs, cyc, st, mode, dialect, lineno, holes, out_at)
     _track(words, by, gs, motion, st)
+    if bd and any(a in by for a in "XYZ"):  # run or skipped by the operator's switch
+        st.pos[[j for j, a in enumerate("XYZ") if a in by]] = np.nan
+        st.why_unknown = "a '/' (block delete) line"
     return None
 
 

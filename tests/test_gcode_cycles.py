@@ -153,3 +153,18 @@ def test_without_a_chain_the_reader_still_refuses_cycles(tmp_path):
     p.write_text("G0 X0 Z5\nG81 X1 Z-3 R1 F100\nG80\n")
     with pytest.raises(InputError, match=r"line 2, column 1: 'G81' \(canned cycle"):
         parse_program(p)
+
+
+def test_a_cycle_in_a_subroutine_is_a_hole_per_call(tmp_path, truth_file):
+    prog = DATA / "hole_sub_linuxcnc.ngc"
+    out = tmp_path / "o"
+    assert _compensate(prog, out, truth_file, "--truth", str(truth_file)) == 0
+    cyc = json.loads((out / "compensate_summary.json").read_text())["files"][0]["cycles"]
+    assert cyc["holes"] == 2 and list(cyc["tilt_um"]) == ["4"] and cyc["true_bottom"]["max_um"] < TOL_POINT_UM
+    written = [_cycle_words(ln) for ln in (out / prog.name).read_text().splitlines() if "G81" in ln]
+    assert [round(w["X"]) for w in written] == [10, 30] and all(set(w) == set("XYZR") for w in written)
+
+
+def test_a_block_delete_cycle_line_is_refused():
+    with pytest.raises(InputError, match=r"p.nc: line 3, column 1: '/' \(block delete\) on a canned-cycle line"):
+        expand_cycles("G0 X0 Y0 Z5\nG81 X1 Z-3 R1\n/X2\n", "p.nc", "keep")
