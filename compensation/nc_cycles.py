@@ -14,13 +14,16 @@ Semantics (LinuxCNC 2.9 ``rs274ngc`` ``convert_cycle_xy`` and the Fanuc 0i/Haas 
   ``L``/``K`` (repeats) belongs to its line only; ``F`` is the modal feed.
 * ``G90``: ``X Y`` the hole, ``R`` and ``Z`` absolute; repeats drill the same hole again.
   ``G91``: ``X Y`` increments from the current position (each repeat steps by them), ``R`` the
-  distance from the Z at the line's start to the R plane, ``Z`` the distance from the R plane to the
+  distance from the initial level to the R plane, ``Z`` the distance from the R plane to the
   bottom (both controllers).
+* The *initial level* is the Z when the cycle mode began (the series' first cycle line; Fanuc, and
+  LinuxCNC 2.9's ``cycle_il``); under ``G91`` ``R`` is measured from it.
 * Per hole: rapid ``X Y`` at the current level, rapid ``Z`` to ``R``, the body, and the return to
-  the *clear level*: ``G98`` the Z at the line's start, ``G99`` the R plane. A Z below R at the
-  start (LinuxCNC first rapids up to R; Fanuc does not) and a ``G98`` hole after a ``G99`` hole of
-  one series (LinuxCNC returns to R, Fanuc to the series' initial level) differ between the
-  controllers: refused.
+  the *clear level*: ``G98`` the initial level, ``G99`` the R plane. What the controllers (or their
+  versions) do differently is refused: an initial level below R (LinuxCNC first rapids up to R;
+  Fanuc does not), a ``G98`` hole after a ``G99`` hole of one series (older LinuxCNC returns to the
+  Z at the line's start), a change of cycle without its ``Z R`` (``Q``/``P``) words (LinuxCNC needs
+  them, Fanuc keeps the earlier ones); a bottom above R is an error on both.
 * Bodies: ``G81`` feed to Z, rapid out; ``G82`` feed, dwell ``P``, rapid out; ``G83`` peck: for
   each depth ``R − nQ`` above Z, feed to it, rapid to R, rapid to 0.010 in (0.254 mm) above it; then
   feed to Z and rapid out; ``G73`` chip break: as G83 but retracting only by that 0.254 mm; ``G85``
@@ -123,6 +126,7 @@ class _St:
         self.sticky = {}
         self.feed = None
         self.series_g99 = False
+        self.initial = math.nan  # the series' initial level (the Z when the cycle mode began)
         self.why_unknown = "the program start"
 
 
@@ -196,6 +200,7 @@ def _track(words, by, gs, motion, st: _St):
         st.mode = None
         st.sticky = {}
         st.series_g99 = False
+        st.initial = math.nan
     if "F" in by:
         st.feed = by["F"].text
     if any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs):
@@ -225,7 +230,14 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
         st.plane = "G17"
     if st.plane != "G17":
         raise _Refuse(col, f"canned cycle in the {st.plane} plane: only G17 (XY) cycles are read")
-    if cyc:
+    if st.mode is None:
+        st.initial = st.pos[2]
+    if cyc and cyc[0] != st.mode:
+        need = "ZR" + {"G73": "Q", "G83": "Q", "G82": "P", "G86": "P", "G89": "P"}.get(cyc[0], "")
+        missing = [a for a in need if a not in by]
+        if st.mode is not None and missing:
+            raise _Refuse(col, f"{cyc[0]} after {st.mode} without {' '.join(missing)}: LinuxCNC needs them when the "
+                               "cycle changes, Fanuc keeps the earlier ones; write them on this line")
         st.mode = cyc[0]
     code = st.mode
     if "F" in by:
@@ -253,6 +265,8 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
                                "earlier line of the cycle")
     if code in ("G73", "G83") and "Q" not in st.sticky:
         raise _Refuse(col, f"{code} without Q (the peck depth)")
+    if code in ("G82", "G86", "G89") and "P" not in st.sticky:
+        raise _Refuse(col, f"{code} without P (the dwell at the bottom)")
     if code in ("G73", "G83") and st.sticky["Q"].value <= 0:
         raise _Refuse(st.sticky["Q"].start + 1, f"{code} Q must be > 0")
     reps = 1
@@ -262,7 +276,7 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
             if v != round(v) or v < 1:
                 raise _Refuse(by[a].start + 1, f"{a}{by[a].text}: repeats must be a whole number ≥ 1")
             reps = int(v)
-    old_z = st.pos[2]
+    old_z = st.initial
     if not math.isfinite(old_z):
         raise _Refuse(col, f"{code}: the Z before the cycle (its initial level) is not known after {st.why_unknown}; "
                            "program a Z move before the cycle")
@@ -270,12 +284,15 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
         raise _Refuse(col, f"{code} under G91: the X Y before the cycle are not known after {st.why_unknown}")
     r = st.sticky["R"].value + (old_z if st.inc else 0.0)
     bottom = st.sticky["Z"].value + (r if st.inc else 0.0)
+    if bottom > r:
+        raise _Refuse(col, f"{code}: the hole bottom Z {bottom:g} is above R {r:g}")
     if old_z < r:
         raise _Refuse(col, f"{code}: the Z at the cycle's start ({old_z:g}) is below R ({r:g}): LinuxCNC first rapids "
                            "up to R, Fanuc does not; program a Z move to or above R before the cycle")
     if st.ret == "G98" and st.series_g99:
-        raise _Refuse(col, f"{code} G98 after a G99 hole of the same series: LinuxCNC returns to the R plane, Fanuc "
-                           "to the series' initial level; program G98 or G99 for the whole series")
+        raise _Refuse(col, f"{code} G98 after a G99 hole of the same series: Fanuc and LinuxCNC 2.9 return to the "
+                           "series' initial level, older LinuxCNC to the R plane; program G98 or G99 for the whole "
+                           "series")
     st.series_g99 = st.series_g99 or st.ret == "G99"
     clear = old_z if st.ret == "G98" else r
     dec = DECIMALS["inch" if st.inch else "mm"]

@@ -74,6 +74,14 @@ def test_expanded_moves_equal_the_hand_expanded_list():
                                             "G1 Z-70.000000 F200.", "G4 P0.5", "G0 Z-42.000000"]
 
 
+def test_incremental_r_is_measured_from_the_series_initial_level():
+    exp = expand_cycles("G0 X0 Y0 Z10\nG91 G99 G81 X5 R-5 Z-3 F100\nX5\n", "p", "expand")
+    lines = exp.text.splitlines()  # initial level 10 on both lines (not the R plane the first hole left at)
+    hole = ["G0 Z5.000000", "G1 Z2.000000 F100", "G0 Z5.000000", "G91"]
+    assert lines[slice(*exp.spans[1])] == ["G90 G0 X5.000000 Y0.000000"] + hole
+    assert lines[slice(*exp.spans[2])] == ["G90 G0 X10.000000 Y0.000000"] + hole
+
+
 def _cycle_words(line):
     return {a: float(v) for a, v in re.findall(r"([XYZR])(-?[\d.]+)", re.sub(r"\(.*?\)", "", line))}
 
@@ -138,6 +146,9 @@ REFUSED = [  # program lines, mode, dialect, (line, column), words of the reason
     ("G0 X0 Y0 Z5\nG99 G81 X1 Z-3 R1\nG98 X2\n", "keep", None, (3, 1), "G98 after a G99"),
     ("G0 X0 Y0 Z5\nG18\nG81 X1 Z-3 R1\n", "keep", None, (3, 1), "only G17"),
     ("G0 X0 Y0 Z5\nG81 X1 Z-3 R1 G43 H1\n", "keep", None, (2, 15), "'G43' on a canned-cycle line"),
+    ("G0 X0 Y0 Z5\nG81 X1 Z-3 R1 F9\nG82 X2 P1\n", "keep", None, (3, 1), "G82 after G81 without Z R"),
+    ("G0 X0 Y0 Z5\nG82 X1 Z-3 R1 F9\n", "keep", None, (2, 1), "without P"),
+    ("G0 X0 Y0 Z5\nG81 X1 Z3 R1 F9\n", "keep", None, (2, 1), "above R"),
 ]
 
 
