@@ -65,7 +65,7 @@ PECK_DIALECTS = ("linuxcnc",)
 """Dialects whose G73/G83 peck retract is known (LinuxCNC 2.9: G83_RAPID_DELTA)."""
 RAPID_DELTA_IN = 0.010
 """LinuxCNC 2.9 G83_RAPID_DELTA (inch; ×25.4 under G21): G83 re-entry clearance and G73 chip-break retract."""
-OTHER_G = ("G90", "G91", "G98", "G99", "G17", "G80")
+OTHER_G = ("G90", "G91", "G98", "G99", "G17")
 INVALIDATE_G = ("G28", "G30", "G53", "G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3",
                 "G43", "G49", "G10", "G92")
 """Codes after which the current position in program coordinates is not known to this pass."""
