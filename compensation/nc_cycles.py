@@ -211,7 +211,42 @@ def _track(words, by, gs, motion, st: _St):
 
 
 def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes, out_at):
+    """Output lines of a cycle line (module docstring): its holes' moves, in ``G90``."""
     col = (next((w for w in words if w.code in cyc), words[0]).start + 1) if words else 1
+    _check_words(words, cyc, col)
+    code = _enter(st, gs, by, cyc, col)
+    _check_mode(code, st, mode, dialect, col)
+    extra = " ".join([f"{w.letter}{w.text}" for w in words if w.letter == "N"] + ["G90"]
+                     + [f"{w.letter}{w.text}" for w in words if w.letter in "MS"])
+    if not any(a in by for a in "XYZ"):
+        return [extra.replace("G90", "G91" if st.inc else "G90")]
+    r, bottom, clear = _levels(code, st, col)
+    dec = DECIMALS["inch" if st.inch else "mm"]
+    out = []
+    x, y = st.pos[0], st.pos[1]
+    for _ in range(_repeats(by) if (st.inc or mode == "expand") else 1):
+        x = x + by["X"].value if st.inc and "X" in by else (by["X"].value if "X" in by else x)
+        y = y + by["Y"].value if st.inc and "Y" in by else (by["Y"].value if "Y" in by else y)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise _Refuse(col, f"{code}: the hole's X/Y is not known (no X/Y word and none before the cycle)")
+        hole = Hole(lineno, code, (x, y, bottom), r, st.inch)
+        xy = f"X{fmt(x, dec)} Y{fmt(y, dec)}"
+        if mode == "keep":
+            hole.out_r = out_at + len(out) + 1
+            out.append(f"{extra} G1 {xy} Z{fmt(r, dec)}" + (f" F{st.feed}" if st.feed else ""))
+            hole.out_bottom = out_at + len(out) + 1
+            out += [f"G1 Z{fmt(bottom, dec)}", f"G0 Z{fmt(clear, dec)}"]
+        else:
+            out += _expanded_hole(code, xy, r, bottom, clear, dec, st, extra)
+            extra = "G90"
+        holes.append(hole)
+    st.pos[:] = (x, y, clear)
+    if st.inc:
+        out.append("G91")
+    return out
+
+
+def _check_words(words, cyc, col):
     if len(cyc) > 1:
         raise _Refuse(col, f"two canned cycles ({', '.join(cyc)}) on one line")
     for w in words:
@@ -221,13 +256,17 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
             raise _Refuse(w.start + 1, f"'{w.letter}' word on a canned-cycle line is not read")
         if w.letter == "M" and w.code not in ("M3", "M4", "M5", "M7", "M8", "M9"):
             raise _Refuse(w.start + 1, f"'{w.code}' on a canned-cycle line is not read (put it on a line of its own)")
+
+
+def _enter(st: _St, gs, by, cyc, col) -> str:
+    """The line's modes and sticky words into ``st``; returns the cycle in force."""
     for c in gs:
         if c in ("G90", "G91"):
             st.inc = c == "G91"
         elif c in ("G98", "G99"):
             st.ret = c
-    if "G17" in gs:
-        st.plane = "G17"
+        elif c == "G17":
+            st.plane = c
     if st.plane != "G17":
         raise _Refuse(col, f"canned cycle in the {st.plane} plane: only G17 (XY) cycles are read")
     if st.mode is None:
@@ -239,12 +278,15 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
             raise _Refuse(col, f"{cyc[0]} after {st.mode} without {' '.join(missing)}: LinuxCNC needs them when the "
                                "cycle changes, Fanuc keeps the earlier ones; write them on this line")
         st.mode = cyc[0]
-    code = st.mode
     if "F" in by:
         st.feed = by["F"].text
     for a in "ZRQP":
         if a in by:
             st.sticky[a] = by[a]
+    return st.mode
+
+
+def _check_mode(code, st: _St, mode, dialect, col):
     if mode == "keep" and st.inc:
         raise _Refuse(col, f"{code} under G91: a kept cycle is written in absolute numbers only (each compensated "
                            "incremental hole would move every later one); use --expand-cycles")
@@ -255,10 +297,21 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
         raise _Refuse(col, f"{code} pecks by a retract the controller keeps in a parameter (Fanuc #5114/#5115): "
                            "expanded only with --dialect linuxcnc (LinuxCNC 2.9's 0.254 mm); or leave "
                            "--expand-cycles out to keep the cycle")
-    extra = " ".join([f"{w.letter}{w.text}" for w in words if w.letter == "N"] + ["G90"]
-                     + [f"{w.letter}{w.text}" for w in words if w.letter in "MS"])
-    if not any(a in by for a in "XYZ"):
-        return [extra.replace("G90", "G91" if st.inc else "G90")]
+
+
+def _repeats(by) -> int:
+    reps = 1
+    for a in "LK":
+        if a in by:
+            v = by[a].value
+            if v != round(v) or v < 1:
+                raise _Refuse(by[a].start + 1, f"{a}{by[a].text}: repeats must be a whole number ≥ 1")
+            reps = int(v)
+    return reps
+
+
+def _levels(code, st: _St, col) -> tuple:
+    """``(R plane, bottom, clear level)`` absolute, in the program's units, of the cycle in force."""
     for a in "ZR":
         if a not in st.sticky:
             raise _Refuse(col, f"{code} without {a} (the {'hole bottom' if a == 'Z' else 'R plane'}) on this or an "
@@ -269,13 +322,6 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
         raise _Refuse(col, f"{code} without P (the dwell at the bottom)")
     if code in ("G73", "G83") and st.sticky["Q"].value <= 0:
         raise _Refuse(st.sticky["Q"].start + 1, f"{code} Q must be > 0")
-    reps = 1
-    for a in "LK":
-        if a in by:
-            v = by[a].value
-            if v != round(v) or v < 1:
-                raise _Refuse(by[a].start + 1, f"{a}{by[a].text}: repeats must be a whole number ≥ 1")
-            reps = int(v)
     old_z = st.initial
     if not math.isfinite(old_z):
         raise _Refuse(col, f"{code}: the Z before the cycle (its initial level) is not known after {st.why_unknown}; "
@@ -294,31 +340,7 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
                            "series' initial level, older LinuxCNC to the R plane; program G98 or G99 for the whole "
                            "series")
     st.series_g99 = st.series_g99 or st.ret == "G99"
-    clear = old_z if st.ret == "G98" else r
-    dec = DECIMALS["inch" if st.inch else "mm"]
-    out = []
-    x, y = st.pos[0], st.pos[1]
-    for _ in range(reps if (st.inc or mode == "expand") else 1):
-        x = x + by["X"].value if st.inc and "X" in by else (by["X"].value if "X" in by else x)
-        y = y + by["Y"].value if st.inc and "Y" in by else (by["Y"].value if "Y" in by else y)
-        if not (math.isfinite(x) and math.isfinite(y)):
-            raise _Refuse(col, f"{code}: the hole's X/Y is not known (no X/Y word and none before the cycle)")
-        hole = Hole(lineno, code, (x, y, bottom), r, st.inch)
-        xy = f"X{fmt(x, dec)} Y{fmt(y, dec)}"
-        if mode == "keep":
-            lead = extra
-            hole.out_r = out_at + len(out) + 1
-            out.append(f"{lead} G1 {xy} Z{fmt(r, dec)}" + (f" F{st.feed}" if st.feed else ""))
-            hole.out_bottom = out_at + len(out) + 1
-            out += [f"G1 Z{fmt(bottom, dec)}", f"G0 Z{fmt(clear, dec)}"]
-        else:
-            out += _expanded_hole(code, xy, r, bottom, clear, dec, st, extra)
-            extra = "G90"
-        holes.append(hole)
-    st.pos[:] = (x, y, clear)
-    if st.inc:
-        out.append("G91")
-    return out
+    return r, bottom, old_z if st.ret == "G98" else r
 
 
 def _expanded_hole(code, xy, r, bottom, clear, dec, st: _St, lead) -> list:

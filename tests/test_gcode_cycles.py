@@ -179,3 +179,10 @@ def test_a_cycle_in_a_subroutine_is_a_hole_per_call(tmp_path, truth_file):
 def test_a_block_delete_cycle_line_is_refused():
     with pytest.raises(InputError, match=r"p.nc: line 3, column 1: '/' \(block delete\) on a canned-cycle line"):
         expand_cycles("G0 X0 Y0 Z5\nG81 X1 Z-3 R1\n/X2\n", "p.nc", "keep")
+
+
+def test_tapping_is_kept_as_a_cycle_its_hole_compensated_like_any():
+    exp = expand_cycles("G0 X0 Y0 Z5\nG84 X1 Y2 Z-3 R1 F9\nG80\n", "p", "keep")
+    assert [(h.code, h.xyz, h.r) for h in exp.holes] == [("G84", (1.0, 2.0, -3.0), 1.0)]
+    assert exp.text.splitlines()[slice(*exp.spans[1])] == [  # the R point, the bottom, the retract (not written)
+        "G90 G1 X1.000000 Y2.000000 Z1.000000 F9", "G1 Z-3.000000", "G0 Z5.000000"]
