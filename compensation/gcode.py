@@ -218,8 +218,8 @@ ALLOWED_G = {
     "G69": ("rotation", "coordinate rotation off"),
     "G96": ("spindle", "constant surface speed (spindle only)"),
     "G97": ("spindle", "constant spindle speed"),
-    "G98": ("return", "canned-cycle return level (no cycle is accepted)"),
-    "G99": ("return", "canned-cycle return level (no cycle is accepted)"),
+    "G98": ("return", "canned-cycle return level: the Z before the cycle (cycles: machine-tool chains only)"),
+    "G99": ("return", "canned-cycle return level: the R plane (cycles: machine-tool chains only)"),
 }
 REFUSED_G = {
     **{g: f"{what}: not interpretable exactly (no option reads it; post the path as G1/G2/G3)" for g, what in (
@@ -239,8 +239,10 @@ REFUSED_G = {
     "G60": "unidirectional approach", "G65": "macro call (its letters are arguments, not axes)",
     "G66": "modal macro call", "G66.1": "modal macro call", "G68": "coordinate rotation",
     "G68.2": "tilted work plane", "G70": "lathe cycle", "G71": "lathe cycle", "G72": "lathe cycle",
-    "G73": "canned cycle", "G74": "canned cycle", "G75": "canned cycle", "G76": "threading cycle",
-    **{f"G{k}": "canned cycle" for k in range(81, 90)},
+    "G73": "canned cycle (drilling cycles are read by compensate on chains with X Y Z: --machine mill-xyz)",
+    "G74": "canned cycle (as G73)",
+    "G75": "canned cycle", "G76": "threading or fine-boring cycle (dialect-dependent)",
+    **{f"G{k}": "canned cycle (as G73)" for k in range(81, 90)}, "G87": "back boring cycle", "G88": "boring cycle",
     "G92": "coordinate offset", "G92.1": "coordinate offset", "G92.2": "coordinate offset",
     "G92.3": "coordinate offset", "G93": "inverse-time feed (a split move would change its time)",
 }
@@ -471,7 +473,8 @@ def _err(path, lineno, col, msg):
 
 
 def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
-                  fast: bool = True, axis_words: AxisWords | None = None, dialect: str | None = None) -> GProgram:
+                  fast: bool = True, axis_words: AxisWords | None = None, dialect: str | None = None,
+                  cycles=None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
     ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
@@ -488,6 +491,9 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     ``dialect``: a controller of :data:`compensation.dialects.DIALECT_NAMES`, ``"auto"`` (recognised
     from the content, :func:`compensation.dialects.detect_dialect`) or None (the words every dialect
     shares); the program's ``dialect`` records which (and ``dialect_evidence`` why).
+    ``cycles``: None refuses drilling canned cycles; a pass ``(text, path, dialect name, expanded or
+    None) -> Expanded or None`` that makes them plain moves (the machine-tool chains give
+    :func:`compensation.nc_cycles.cycle_pass`) reads them.
     """
     path = Path(path)
     if rapids not in RAPIDS_CHOICES:
@@ -509,6 +515,12 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     except InputError as plain_refusal:
         from . import nc_expand
         expanded = nc_expand.expand_if_needed(data, path, dialect if dialect in nc_expand.DIALECTS else None)
+        if cycles is not None:
+            text = expanded.text if expanded is not None else data.decode("latin-1")
+            try:
+                expanded = cycles(text, path, dia.name, expanded) or expanded
+            except InputError as exc:
+                raise (expanded.relocate(exc) if expanded is not None else exc) from None
         if expanded is None:
             raise plain_refusal from None
     try:

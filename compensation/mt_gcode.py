@@ -18,23 +18,26 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
 from errormap.io import InputError
 
 from .gcode import DEFAULT_RAPIDS, AxisWords, GProgram, arc_segments, move_points, parse_program, render_program
+from .nc_cycles import cycle_pass
 
 MAX_SEGMENTS_PER_MOVE = 100_000
 """A move split or linearised into more pieces than this is refused (a tolerance far too tight)."""
 
 
 def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
-                        dialect: str | None = None) -> GProgram:
+                        dialect: str | None = None, cycles: str | None = None) -> GProgram:
     """Read a G-code file for the machine-tool chain ``machine``: :func:`compensation.gcode.parse_program`
     with its axis words, the rotary words of the axes the exact solver keeps kept as programmed, a
     solved rotary axis (a lathe's C) written like a linear one (module docstring). Moves'
-    ``start``/``end`` are in ``machine.axis_columns`` order."""
+    ``start``/``end`` are in ``machine.axis_columns`` order. ``cycles``: drilling canned cycles refused
+    (None), kept or expanded (:mod:`compensation.nc_cycles`)."""
     words = AxisWords.of(machine, keep_rotary=True)
     from .solvers.chain_exact import solved_and_kept
     try:
@@ -43,7 +46,7 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
         solved = set()
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
     return parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
-                         dialect=dialect)  # block-wise where it can
+                         dialect=dialect, cycles=None if cycles is None else partial(cycle_pass, mode=cycles))
 
 
 def arc_chords(move, tol_mm: float) -> int:
@@ -155,5 +158,9 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
 # ---------------------------------------------------------------------------- writing
 def render_chain_program(program: GProgram, vertices: list, header=()) -> str:
     """The program with each compensated move's (compensated) vertices ``vertices[i]`` (m_i, k);
-    every other line byte for byte (:func:`compensation.gcode.render_program`)."""
+    every other line byte for byte (:func:`compensation.gcode.render_program`); kept canned cycles
+    written back as cycles (:func:`compensation.nc_cycles.render_kept`)."""
+    if getattr(program.expanded, "mode", None) == "keep":
+        from .nc_cycles import render_kept
+        return render_kept(program, vertices, header=header)
     return render_program(program, vertices, header=header)[0]

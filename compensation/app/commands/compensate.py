@@ -117,6 +117,10 @@ def register(sub):
     p.add_argument("--tool-table", default=None, metavar="FILE",
                    help="machine-tool chains: the tool lengths of G43 Hn: a LinuxCNC tool table (.tbl) or a CSV "
                         "tool,length_mm[,radius_mm] (by content); the tool length is the Abbe arm of the angular errors")
+    p.add_argument("--expand-cycles", action="store_true",
+                   help="machine-tool chains: write drilling canned cycles (G73 G81-G89) as the controller's explicit "
+                        "G0/G1/G4 moves, compensated point by point (default: kept as cycles, each hole's X Y Z and R "
+                        "compensated at its bottom and R plane and the tilt left along the hole reported)")
     add_condition_options(p)
     add_units_option(p, "CSV tool-path columns")
     add_cluster_options(p)
@@ -164,7 +168,8 @@ def chain_settings(machine, args, allow):
                          tracking_uri=getattr(args, "tracking_uri", None), dialect=getattr(args, "dialect", None),
                          work_offsets=(read_work_offsets(args.work_offsets)
                                        if getattr(args, "work_offsets", None) is not None else None),
-                         tool_table=read_tool_table(args.tool_table) if getattr(args, "tool_table", None) else None)
+                         tool_table=read_tool_table(args.tool_table) if getattr(args, "tool_table", None) else None,
+                         cycles="expand" if getattr(args, "expand_cycles", False) else "keep")
 
 
 def run(args) -> int:
@@ -180,6 +185,9 @@ def run(args) -> int:
         return run_arm_compensate(machine, args)
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
+    if getattr(args, "expand_cycles", False) and machine.kind != "machine-tool":
+        raise UsageError(f"--expand-cycles: canned cycles are read on machine-tool chains (--machine mill-xyz ...); "
+                         f"{machine.name!r} is a {machine.kind} machine")
     if machine.kind == "machine-tool":  # a chain file (mill-xyz, five-axis-ac ...): its own axes and G-code words
         from ..workflows.mt_compensate import compensate_chain_files
         return compensate_chain_files(args.files, machine, chain_settings(machine, args, parse_allow(args.allow)))

@@ -93,6 +93,7 @@ class ChainSettings:
     dialect: str | None = None   # compensation.dialects: a name, "auto" or None
     work_offsets: object = None  # compensation.nc_state.WorkOffsets (None: not given)
     tool_table: object = None    # compensation.nc_state.ToolTable (None: not given)
+    cycles: str = "keep"         # canned cycles: "keep" (holes compensated) or "expand" (compensation.nc_cycles)
 
 
 def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
@@ -114,7 +115,8 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
         from ...turning import ColumnsField, parse_lathe_program
         prog, turning = parse_lathe_program(path, machine, s.rapids, s.block_delete, dialect=s.dialect)
     else:
-        prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect)
+        prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect,
+                                   cycles=s.cycles)
     frames = program_frames(prog, s.work_offsets, s.tool_table)
     t = prog.table
     comp = t.line[t.compensate] if t is not None else np.array([m.index for m in prog.moves if m.compensate], int)
@@ -259,6 +261,37 @@ def cutter_radius_bound_um(field_, machine, tp: ChainPath):
             d[j] = CUTTER_STEP_MM
             G[:, :, c] = (f.predict(q + d) - f.predict(q - d)) / (2 * CUTTER_STEP_MM)
         out = max(out, float((np.linalg.norm(G, ord=2, axis=(1, 2)) * r[idx]).max()))
+    return out
+
+
+def cycle_report(tp: ChainPath, res, true_r, true_base):
+    """The summary's ``cycles`` entry of a program with canned cycles (None: none): holes, and for kept
+    cycles the tilt per cycle line (|XY correction at R − at the bottom|, μm, the largest of its holes)
+    and, with a truth, the TRUE residual at the hole bottoms before/after."""
+    job = tp.source
+    exp = job.program.expanded
+    if getattr(exp, "holes", None) is None:
+        return None
+    out = {"mode": exp.mode, "holes": len(exp.holes)}
+    if exp.mode != "keep" or not exp.holes:
+        return out
+    last = {int(ln): i for i, ln in enumerate(job.lines)}  # the last vertex of each output line
+    nominal = {ln: tp.axes[i][list(tp.columns)] for ln, i in last.items()}
+    comp = {ln: res.axes[i][list(tp.columns)] for ln, i in last.items()}
+    per = {}
+    j = [job.program.axis_words.words.index(a) for a in "XY"]
+    for h in exp.holes:
+        d_r, d_b = (comp[ln][j] - nominal[ln][j] for ln in (h.out_r, h.out_bottom))
+        t = float(np.linalg.norm(d_r - d_b) * 1e3)
+        key = int(exp.origin[h.out_bottom - 1][0])
+        per[key] = max(per.get(key, 0.0), t)
+    worst = max(per, key=per.get)
+    out.update({"tilt_um": {str(k): v for k, v in per.items()}, "tilt_max_um": per[worst], "tilt_max_line": worst,
+                "tilt": "|XY correction at the R point - at the hole bottom| (um): the error left along the hole"})
+    if true_r is not None:
+        b = np.array([last[h.out_bottom] for h in exp.holes])
+        out["true_bottom"] = _stats(true_r[b])
+        out["true_bottom_uncompensated"] = _stats(true_base[b])
     return out
 
 
@@ -424,6 +457,9 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
                           "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids,
                           "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
                           "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
+            cyc = cycle_report(tp, res, true_r, true_base)
+            if cyc is not None:
+                entry["cycles"] = cyc
             bound = cutter_radius_bound_um(field_, machine, tp)
             if bound is not None:
                 entry["cutter_radius_bound_um"] = bound
@@ -466,6 +502,11 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
             if entry["g53_lines"]:
                 print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
                       "through unchanged, not compensated")
+            if "cycles" in entry:
+                c = entry["cycles"]
+                print(f"  canned cycles {c['mode']}: {c['holes']} hole(s)" + (
+                    f", tilt left along the hole max {c['tilt_max_um']:.3g} um (line {c['tilt_max_line']})"
+                    if c["mode"] == "keep" else ""))
             if "cutter_radius_bound_um" in entry:
                 print(f"  G41/G42 cutter radius compensation: the path is compensated as programmed; the error it "
                       f"leaves is at most {entry['cutter_radius_bound_um']:.3g} um (field gradient x tool radius)")

@@ -1,0 +1,428 @@
+"""Drilling canned cycles (``G73 G81 G82 G83 G85 G86 G89``, ``G74``/``G84`` kept only) on a machine-tool chain.
+
+The reader refuses the cycles (:data:`compensation.gcode.REFUSED_G`); a chain program read with
+``cycles="keep"`` or ``"expand"`` (``compensate --machine ...``, ``--expand-cycles``) is first turned
+by :func:`expand_cycles` into a program of plain moves, whose :attr:`CycleExpansion.origin` maps
+every line back to its source line (refusals name the source).
+
+Semantics (LinuxCNC 2.9 ``rs274ngc`` ``convert_cycle_xy`` and the Fanuc 0i/Haas manuals; XY plane, ``G17``):
+
+* A cycle line is one with a cycle G code, or, while a cycle is the motion mode (until ``G80`` or
+  another motion code), a line with an ``X``, ``Y`` or ``Z`` word (a *modal repeat*: one more
+  hole). A line with none of them drills nothing (Fanuc: positioning words are needed).
+* ``Z`` (hole bottom), ``R`` (R plane), ``Q`` (peck), ``P`` (dwell) are sticky until ``G80``;
+  ``L``/``K`` (repeats) belongs to its line only; ``F`` is the modal feed.
+* ``G90``: ``X Y`` the hole, ``R`` and ``Z`` absolute; repeats drill the same hole again.
+  ``G91``: ``X Y`` increments from the current position (each repeat steps by them), ``R`` the
+  distance from the initial level to the R plane, ``Z`` the distance from the R plane to the
+  bottom (both controllers).
+* The *initial level* is the Z when the cycle mode began (the series' first cycle line; Fanuc, and
+  LinuxCNC 2.9's ``cycle_il``); under ``G91`` ``R`` is measured from it.
+* Per hole: rapid ``X Y`` at the current level, rapid ``Z`` to ``R``, the body, and the return to
+  the *clear level*: ``G98`` the initial level, ``G99`` the R plane. What the controllers (or their
+  versions) do differently is refused: an initial level below R (LinuxCNC first rapids up to R;
+  Fanuc does not), a ``G98`` hole after a ``G99`` hole of one series (older LinuxCNC returns to the
+  Z at the line's start), a change of cycle without its ``Z R`` (``Q``/``P``) words (LinuxCNC needs
+  them, Fanuc keeps the earlier ones); a bottom above R is an error on both.
+* Bodies: ``G81`` feed to Z, rapid out; ``G82`` feed, dwell ``P``, rapid out; ``G83`` peck: for
+  each depth ``R − nQ`` above Z, feed to it, rapid to R, rapid to 0.010 in (0.254 mm) above it; then
+  feed to Z and rapid out; ``G73`` chip break: as G83 but retracting only by that 0.254 mm; ``G85``
+  feed to Z, feed to R, rapid to the clear level if above R; ``G89`` feed, dwell, feed out to the
+  clear level; ``G86`` (spindle stop at the bottom) and the tapping cycles ``G74``/``G84`` (spindle
+  reversal synchronised with Z) have no plain-move form. The peck constants are LinuxCNC 2.9's;
+  Fanuc's are controller parameters (#5114/#5115): ``G73``/``G83`` are expanded only with
+  ``--dialect linuxcnc``.
+* The dwell ``P`` is written as ``G4 P`` with the same number: the cycle's and G4's P have the same
+  unit on each controller (LinuxCNC seconds, Fanuc milliseconds).
+
+``"keep"`` (the default): each hole becomes, for the solver, a move to its R point ``(X, Y, R)``,
+a move to its bottom ``(X, Y, Z)`` and the retract; the written program has the cycle line back with
+the compensated ``X Y Z`` of the bottom and the compensated Z of the R point as ``R``
+(:func:`render_kept`); the XY corrections at R and at the bottom differ by the *tilt* the cycle
+cannot follow (the hole is drilled straight from the compensated XY), reported per line. Kept
+cycles are read in ``G90`` only (a compensated incremental hole changes every later one; use
+``--expand-cycles``). ``"expand"``: each hole becomes the controller's moves above, compensated
+point by point.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from errormap.io import InputError
+
+from .gcode import DECIMALS, fmt, tokenize
+from .gcode_state import MM_PER_INCH, _Refuse
+from .nc_expand import Expanded
+
+CYCLE_CODES = ("G73", "G74", "G81", "G82", "G83", "G84", "G85", "G86", "G89")
+NOT_EXPANDABLE = {"G74": "left-hand tapping (spindle reversal synchronised with Z)",
+                  "G84": "tapping (spindle reversal synchronised with Z)",
+                  "G86": "boring with the spindle stopped at the bottom"}
+PECK_DIALECTS = ("linuxcnc",)
+"""Dialects whose G73/G83 peck retract is known (LinuxCNC 2.9: G83_RAPID_DELTA)."""
+RAPID_DELTA_IN = 0.010
+"""LinuxCNC 2.9 G83_RAPID_DELTA (inch; ×25.4 under G21): G83 re-entry clearance and G73 chip-break retract."""
+OTHER_G = ("G90", "G91", "G98", "G99", "G17")
+INVALIDATE_G = ("G28", "G30", "G53", "G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3",
+                "G43", "G49", "G10", "G92")
+"""Codes after which the current position in program coordinates is not known to this pass."""
+
+
+@dataclass
+class Hole:
+    """One drilled hole: ``line`` its 1-based line in the cycle pass's input, ``code`` the cycle,
+    ``xyz``/``r`` program units (absolute), ``inch``, ``out_r``/``out_bottom`` 1-based output lines of the
+    R and bottom moves (kept cycles)."""
+
+    line: int
+    code: str
+    xyz: tuple
+    r: float
+    inch: bool
+    out_r: int = 0
+    out_bottom: int = 0
+
+
+@dataclass(frozen=True)
+class CycleExpansion(Expanded):
+    """:class:`compensation.nc_expand.Expanded` of the cycle pass: ``mode`` ``keep``/``expand``, ``holes``,
+    ``spans[i]`` the output lines ``(a, b)`` (0-based, b exclusive) of input line i, ``source`` the input
+    lines, ``inner`` the subprogram expansion run before it (None)."""
+
+    mode: str = "keep"
+    holes: list = field(default_factory=list)
+    spans: list = field(default_factory=list)
+    source: list = field(default_factory=list)
+    inner: object = None
+
+    def note(self) -> str:
+        what = ("canned cycles kept, each hole's X Y Z and R compensated at its bottom and R point"
+                if self.mode == "keep" else "canned cycles written as the controller's moves")
+        head = self.inner.note() + "; " if self.inner is not None else "volcomp: "
+        return head + f"{what} ({len(self.holes)} holes)"
+
+
+def cycle_pass(text: str, path, dialect, inner, mode: str):
+    """The reader's hook (:func:`compensation.gcode.parse_program` ``cycles``): :func:`expand_cycles` of a
+    program holding a cycle code (after ``inner``, the subprogram expansion, if any); None otherwise."""
+    return expand_cycles(text, path, mode, dialect, inner) if has_cycles(text) else None
+
+
+def has_cycles(text: str) -> bool:
+    import re
+    return re.search(r"[gG]\s*0*(7\s*[34]|8\s*[1-69])(?![\d.])", text) is not None
+
+
+class _St:
+    def __init__(self):
+        self.inc = self.inch = False
+        self.plane = "G17"
+        self.mode = None
+        self.pos = np.full(3, np.nan)
+        self.ret = "G98"
+        self.sticky = {}
+        self.feed = None
+        self.series_g99 = False
+        self.initial = math.nan  # the series' initial level (the Z when the cycle mode began)
+        self.why_unknown = "the program start"
+
+
+def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None) -> CycleExpansion:
+    """The program ``text`` with its cycles made plain moves (module docstring); ``mode`` ``keep``/``expand``."""
+    if mode not in ("keep", "expand"):
+        raise ValueError(f"Expected mode keep or expand, got {mode!r}")
+    lines = text.splitlines(keepends=True)
+    st, out, origin, spans, holes = _St(), [], [], [], []
+    for i, line in enumerate(lines):
+        body = line.rstrip("\r\n")
+        end = line[len(body):]
+        a = len(out)
+        try:
+            new = _line(body, st, mode, dialect, i + 1, holes, a)
+        except _Refuse as r:
+            raise InputError(f"{path}: line {i + 1}, column {r.col}: {r.msg}") from None
+        if new is None:
+            out.append(line)
+            origin.append((i + 1, True, ()))
+        else:
+            out += [t + (end or "\n") for t in new]
+            origin += [(i + 1, False, ())] * len(new)
+        spans.append((a, len(out)))
+    if inner is not None:
+        origin = [(inner.origin[s - 1][0], v and inner.origin[s - 1][1], inner.origin[s - 1][2]) for s, v, _ in origin]
+    return CycleExpansion("".join(out), tuple(origin), dialect or "rs274", str(path), mode, holes, spans,
+                          [ln.rstrip("\r\n") for ln in lines], inner)
+
+
+def _codes(words) -> list:
+    return [w for w in words if w.letter == "G"]
+
+
+def _line(body, st: _St, mode, dialect, lineno, holes, out_at):
+    """Output lines for one input line (None: the line itself), updating ``st``."""
+    try:
+        bd, words, _ = tokenize(body)
+    except _Refuse:
+        return None  # the reader refuses it, naming the column
+    by = {w.letter: w for w in words}
+    gs = [w.code for w in _codes(words)]
+    cyc = [c for c in gs if c in CYCLE_CODES]
+    motion = [c for c in gs if c in ("G0", "G1", "G2", "G3", "G80")]
+    if cyc or (st.mode is not None and not motion and any(a in by for a in "XYZ")):
+        if bd:
+            raise _Refuse(body.index("/") + 1, "'/' (block delete) on a canned-cycle line: whether the hole is "
+                                               "drilled depends on the controller's switch; remove the '/'")
+        return _cycle_line(body, words, by, gs, cyc, st, mode, dialect, lineno, holes, out_at)
+    _track(words, by, gs, motion, st)
+    if bd and any(a in by for a in "XYZ"):  # run or skipped by the operator's switch
+        st.pos[[j for j, a in enumerate("XYZ") if a in by]] = np.nan
+        st.why_unknown = "a '/' (block delete) line"
+    return None
+
+
+def _track(words, by, gs, motion, st: _St):
+    for c in gs:
+        if c in ("G90", "G91"):
+            st.inc = c == "G91"
+        elif c in ("G20", "G21"):
+            st.inch = c == "G20"
+        elif c in ("G17", "G18", "G19"):
+            st.plane = c
+        elif c in ("G98", "G99"):
+            st.ret = c
+        elif c in INVALIDATE_G:
+            st.pos[:] = np.nan
+            st.why_unknown = c
+    if motion:
+        st.mode = None
+        st.sticky = {}
+        st.series_g99 = False
+        st.initial = math.nan
+    if "F" in by:
+        st.feed = by["F"].text
+    if any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs):
+        return  # the words are a via point, machine coordinates or data: the position stays unknown
+    for j, a in enumerate("XYZ"):  # after G43/G49 or a work system only absolute words are known again
+        if a in by and (not st.inc or math.isfinite(st.pos[j])):
+            st.pos[j] = st.pos[j] + by[a].value if st.inc else by[a].value
+
+
+def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes, out_at):
+    """Output lines of a cycle line (module docstring): its holes' moves, in ``G90``."""
+    col = (next((w for w in words if w.code in cyc), words[0]).start + 1) if words else 1
+    _check_words(words, cyc, col)
+    code = _enter(st, gs, by, cyc, col)
+    _check_mode(code, st, mode, dialect, col)
+    extra = " ".join([f"{w.letter}{w.text}" for w in words if w.letter == "N"] + ["G90"]
+                     + [f"{w.letter}{w.text}" for w in words if w.letter in "MS"])
+    if not any(a in by for a in "XYZ"):
+        return [extra.replace("G90", "G91" if st.inc else "G90")]
+    r, bottom, clear = _levels(code, st, col)
+    dec = DECIMALS["inch" if st.inch else "mm"]
+    out = []
+    x, y = st.pos[0], st.pos[1]
+    for _ in range(_repeats(by) if (st.inc or mode == "expand") else 1):
+        x = x + by["X"].value if st.inc and "X" in by else (by["X"].value if "X" in by else x)
+        y = y + by["Y"].value if st.inc and "Y" in by else (by["Y"].value if "Y" in by else y)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise _Refuse(col, f"{code}: the hole's X/Y is not known (no X/Y word and none before the cycle)")
+        hole = Hole(lineno, code, (x, y, bottom), r, st.inch)
+        xy = f"X{fmt(x, dec)} Y{fmt(y, dec)}"
+        if mode == "keep":
+            hole.out_r = out_at + len(out) + 1
+            out.append(f"{extra} G1 {xy} Z{fmt(r, dec)}" + (f" F{st.feed}" if st.feed else ""))
+            hole.out_bottom = out_at + len(out) + 1
+            out += [f"G1 Z{fmt(bottom, dec)}", f"G0 Z{fmt(clear, dec)}"]
+        else:
+            out += _expanded_hole(code, xy, r, bottom, clear, dec, st, extra)
+            extra = "G90"
+        holes.append(hole)
+    st.pos[:] = (x, y, clear)
+    if st.inc:
+        out.append("G91")
+    return out
+
+
+def _check_words(words, cyc, col):
+    if len(cyc) > 1:
+        raise _Refuse(col, f"two canned cycles ({', '.join(cyc)}) on one line")
+    for w in words:
+        if w.letter == "G" and w.code not in CYCLE_CODES + OTHER_G:
+            raise _Refuse(w.start + 1, f"'{w.code}' on a canned-cycle line is not read (put it on a line of its own)")
+        if w.letter not in "GXYZRQPFLKNMS":
+            raise _Refuse(w.start + 1, f"'{w.letter}' word on a canned-cycle line is not read")
+        if w.letter == "M" and w.code not in ("M3", "M4", "M5", "M7", "M8", "M9"):
+            raise _Refuse(w.start + 1, f"'{w.code}' on a canned-cycle line is not read (put it on a line of its own)")
+
+
+def _enter(st: _St, gs, by, cyc, col) -> str:
+    """The line's modes and sticky words into ``st``; returns the cycle in force."""
+    for c in gs:
+        if c in ("G90", "G91"):
+            st.inc = c == "G91"
+        elif c in ("G98", "G99"):
+            st.ret = c
+        elif c == "G17":
+            st.plane = c
+    if st.plane != "G17":
+        raise _Refuse(col, f"canned cycle in the {st.plane} plane: only G17 (XY) cycles are read")
+    if st.mode is None:
+        st.initial = st.pos[2]
+    if cyc and cyc[0] != st.mode:
+        need = "ZR" + {"G73": "Q", "G83": "Q", "G82": "P", "G86": "P", "G89": "P"}.get(cyc[0], "")
+        missing = [a for a in need if a not in by]
+        if st.mode is not None and missing:
+            raise _Refuse(col, f"{cyc[0]} after {st.mode} without {' '.join(missing)}: LinuxCNC needs them when the "
+                               "cycle changes, Fanuc keeps the earlier ones; write them on this line")
+        st.mode = cyc[0]
+    if "F" in by:
+        st.feed = by["F"].text
+    for a in "ZRQP":
+        if a in by:
+            st.sticky[a] = by[a]
+    return st.mode
+
+
+def _check_mode(code, st: _St, mode, dialect, col):
+    if mode == "keep" and st.inc:
+        raise _Refuse(col, f"{code} under G91: a kept cycle is written in absolute numbers only (each compensated "
+                           "incremental hole would move every later one); use --expand-cycles")
+    if mode == "expand" and code in NOT_EXPANDABLE:
+        raise _Refuse(col, f"{code} ({NOT_EXPANDABLE[code]}) has no form in plain moves: leave --expand-cycles "
+                           "out to keep the cycle (its hole compensated at the bottom and R plane)")
+    if mode == "expand" and code in ("G73", "G83") and dialect not in PECK_DIALECTS:
+        raise _Refuse(col, f"{code} pecks by a retract the controller keeps in a parameter (Fanuc #5114/#5115): "
+                           "expanded only with --dialect linuxcnc (LinuxCNC 2.9's 0.254 mm); or leave "
+                           "--expand-cycles out to keep the cycle")
+
+
+def _repeats(by) -> int:
+    reps = 1
+    for a in "LK":
+        if a in by:
+            v = by[a].value
+            if v != round(v) or v < 1:
+                raise _Refuse(by[a].start + 1, f"{a}{by[a].text}: repeats must be a whole number ≥ 1")
+            reps = int(v)
+    return reps
+
+
+def _levels(code, st: _St, col) -> tuple:
+    """``(R plane, bottom, clear level)`` absolute, in the program's units, of the cycle in force."""
+    for a in "ZR":
+        if a not in st.sticky:
+            raise _Refuse(col, f"{code} without {a} (the {'hole bottom' if a == 'Z' else 'R plane'}) on this or an "
+                               "earlier line of the cycle")
+    if code in ("G73", "G83") and "Q" not in st.sticky:
+        raise _Refuse(col, f"{code} without Q (the peck depth)")
+    if code in ("G82", "G86", "G89") and "P" not in st.sticky:
+        raise _Refuse(col, f"{code} without P (the dwell at the bottom)")
+    if code in ("G73", "G83") and st.sticky["Q"].value <= 0:
+        raise _Refuse(st.sticky["Q"].start + 1, f"{code} Q must be > 0")
+    old_z = st.initial
+    if not math.isfinite(old_z):
+        raise _Refuse(col, f"{code}: the Z before the cycle (its initial level) is not known after {st.why_unknown}; "
+                           "program a Z move before the cycle")
+    if st.inc and not np.isfinite(st.pos[:2]).all():
+        raise _Refuse(col, f"{code} under G91: the X Y before the cycle are not known after {st.why_unknown}")
+    r = st.sticky["R"].value + (old_z if st.inc else 0.0)
+    bottom = st.sticky["Z"].value + (r if st.inc else 0.0)
+    if bottom > r:
+        raise _Refuse(col, f"{code}: the hole bottom Z {bottom:g} is above R {r:g}")
+    if old_z < r:
+        raise _Refuse(col, f"{code}: the Z at the cycle's start ({old_z:g}) is below R ({r:g}): LinuxCNC first rapids "
+                           "up to R, Fanuc does not; program a Z move to or above R before the cycle")
+    if st.ret == "G98" and st.series_g99:
+        raise _Refuse(col, f"{code} G98 after a G99 hole of the same series: Fanuc and LinuxCNC 2.9 return to the "
+                           "series' initial level, older LinuxCNC to the R plane; program G98 or G99 for the whole "
+                           "series")
+    st.series_g99 = st.series_g99 or st.ret == "G99"
+    return r, bottom, old_z if st.ret == "G98" else r
+
+
+def _expanded_hole(code, xy, r, bottom, clear, dec, st: _St, lead) -> list:
+    """The controller's moves of one hole (module docstring), absolute, in the program's units."""
+    z = lambda v: f"Z{fmt(v, dec)}"  # noqa: E731
+    feed = f" F{st.feed}" if st.feed else ""
+    out = [f"{lead} G0 {xy}", f"G0 {z(r)}"]
+    dwell = [f"G4 P{st.sticky['P'].text}"] if "P" in st.sticky else []
+    if code in ("G73", "G83"):
+        q = st.sticky["Q"].value
+        delta = RAPID_DELTA_IN * (1.0 if st.inch else MM_PER_INCH)
+        d = r - q
+        while d > bottom:
+            out.append(f"G1 {z(d)}{feed}")
+            feed = ""
+            if code == "G83":
+                out.append(f"G0 {z(r)}")
+            out.append(f"G0 {z(d + delta)}")
+            d -= q
+    out.append(f"G1 {z(bottom)}{feed}")
+    if code in ("G82", "G89"):
+        out += dwell
+    if code == "G85":
+        out.append(f"G1 {z(r)}")
+        if clear > r:
+            out.append(f"G0 {z(clear)}")
+    elif code == "G89":
+        out.append(f"G1 {z(clear)}")
+    else:
+        out.append(f"G0 {z(clear)}")
+    return out
+
+
+# ---------------------------------------------------------------------------- kept cycles written back
+def hole_vertices(program, vertices) -> dict:
+    """``{output line (1-based): last vertex (k,)}`` of every compensated move of ``program``."""
+    comp = [m for m in program.moves if m.compensate]
+    return {m.index + 1: np.asarray(v, float).reshape(-1, len(program.axis_words.words))[-1]
+            for m, v in zip(comp, vertices)}
+
+
+def render_kept(program, vertices, header=()) -> str:
+    """The program with kept cycles: every non-cycle line as :func:`compensation.gcode.render_program`
+    writes it, every cycle line as read with the compensated ``X Y Z R`` of its hole (program units)."""
+    from .gcode import _with_header, render_program
+    exp = program.expanded
+    _, groups = render_program(program, vertices)
+    ends = hole_vertices(program, vertices)
+    words = program.axis_words.words
+    jx, jy, jz = (words.index(a) for a in "XYZ")
+    by_line = {}
+    for h in exp.holes:
+        by_line[h.line] = h  # repeats (G90) drill one hole: the last is it
+    out = []
+    for i, (a, b) in enumerate(exp.spans):
+        h = by_line.get(i + 1)
+        if h is None and b - a == 1 and exp.origin[a][1]:
+            out += groups[a]
+            continue
+        end = program.lines[a][len(program.lines[a].rstrip("\r\n")):] if b > a else "\n"
+        if h is None:  # a cycle line that drills nothing (sets the cycle's words)
+            out.append(exp.source[i] + (end or "\n"))
+            continue
+        scale = MM_PER_INCH if h.inch else 1.0
+        bot, rp = ends[h.out_bottom], ends[h.out_r]
+        dec = DECIMALS["inch" if h.inch else "mm"]
+        vals = {"X": bot[jx], "Y": bot[jy], "Z": bot[jz], "R": rp[jz]}
+        out.append(_substitute(exp.source[i], {k: fmt(v / scale, dec) for k, v in vals.items()}) + (end or "\n"))
+    if out and not program.lines[-1].endswith("\n") and out[-1].endswith("\n"):
+        out[-1] = out[-1].rstrip("\r\n")
+    return _with_header(out, program.notes() + tuple(header))
+
+
+def _substitute(body: str, values: dict) -> str:
+    """``body`` with the numbers of its ``values`` words replaced, missing ones appended after the last word."""
+    _, words, _ = tokenize(body)
+    s, last, done = body, 0, set()
+    for w in sorted(words, key=lambda w: -w.start):
+        if w.letter in values and w.letter not in done:
+            s = s[:w.start] + w.letter + values[w.letter] + s[w.num_end:]
+            done.add(w.letter)
+    _, words2, _ = tokenize(s)
+    last = max((w.num_end for w in words2), default=len(s))
+    add = "".join(f" {k}{v}" for k, v in values.items() if k not in done)
+    return s[:last] + add + s[last:]

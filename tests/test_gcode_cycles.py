@@ -1,0 +1,188 @@
+"""Drilling canned cycles on a machine-tool chain (compensation/nc_cycles.py): the controller's moves
+written out exactly as hand-expanded from the LinuxCNC manual; kept cycles compensated so that the TRUE
+machine reaches every hole bottom (checked independently from the written numbers), with the tilt left
+along the hole reported and seen at the R point; every other line byte-identical; what the controllers
+do differently or what has no plain-move form refused by line and column with the option that reads it."""
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from compensation.app.cli import main
+from compensation.gcode import AxisWords, parse_program
+from compensation.nc_cycles import expand_cycles
+from errormap.io import InputError
+from errormap.machine import load_machine
+from errormap.mt_elements import ChainElementSet
+from errormap.mt_field import ChainField
+from program_checks import TOL_POINT_UM, true_point_errors_um
+
+DATA = Path(__file__).resolve().parent / "data" / "cycles"
+OFFSETS = Path(__file__).resolve().parent / "data" / "controller" / "offsets.csv"
+G55_MM = np.array([200.0, 100.0, -150.0])
+"""The G55 row of offsets.csv (the test programs' part zero), read here independently of the reader."""
+ELEMENT_SCALE_UM = 10.0
+"""Truth elements of ±10 μm / μrad (1 σ), as tests/test_work_offsets.py."""
+TOL_TILT_UM = 0.01
+"""The TRUE error at a kept cycle's written R point is the tilt (the XY correction it lacks) up to the
+field's change over that correction: gradient (< 1e-3 μm/μm here) x tilt (< 30 μm) < 0.03 μm; observed < 1e-3."""
+
+
+@pytest.fixture(scope="module")
+def mill():
+    return load_machine("mill-xyz")
+
+
+@pytest.fixture()
+def truth_file(tmp_path, mill):
+    return ChainElementSet.random(mill, 101, ELEMENT_SCALE_UM, 11).save(tmp_path / "truth.json")
+
+
+def _compensate(prog, out, model, *extra):
+    return main(["compensate", str(prog), "--machine", "mill-xyz", "--model", str(model), "--method", "exact",
+                 "--out", str(out), "--work-offsets", str(OFFSETS), *extra])
+
+
+def _z(v):
+    return f"Z{v:.6f}"
+
+
+def test_expanded_moves_equal_the_hand_expanded_list():
+    exp = expand_cycles((DATA / "drill_incremental.ngc").read_text(), "p", "expand")
+    a, b = exp.spans[5]  # line 6: G91 G99 G81 X10. Y0. Z-20. R-15. L3 F200. from Z-20: R -35, bottom -55
+    def hole(x):
+        return [f"G90 G0 X{x:.6f} Y10.000000", "G0 Z-35.000000", "G1 Z-55.000000 F200.", "G0 Z-35.000000"]
+    assert [ln.rstrip("\n") for ln in exp.text.splitlines()[a:b]] == hole(20) + hole(30) + hole(40) + ["G91"]
+    exp = expand_cycles((DATA / "drill_linuxcnc.ngc").read_text(), "p", "expand", dialect="linuxcnc")
+    lines = exp.text.splitlines()
+    g83 = ["G90 G0 X80.000000 Y20.000000", "G0 Z-40.000000"]  # R-40 Q6 Z-75, G98: back to Z-20
+    for k, d in enumerate((-46, -52, -58, -64, -70)):
+        g83 += [f"G1 {_z(d)}" + (" F150." if k == 0 else ""), "G0 Z-40.000000", f"G0 {_z(d + 0.254)}"]
+    g83 += ["G1 Z-75.000000", "G0 Z-20.000000"]
+    assert lines[slice(*exp.spans[14])] == [g83[0].replace("G90", "N30 G90")] + g83[1:]
+    g73 = ["G90 G0 X100.000000 Y20.000000", "G0 Z-41.000000"]  # R-41 Q4 Z-62: chip breaks of 0.254 mm
+    for k, d in enumerate((-45, -49, -53, -57, -61)):
+        g73 += [f"G1 {_z(d)}" + (" F150." if k == 0 else ""), f"G0 {_z(d + 0.254)}"]
+    assert lines[slice(*exp.spans[15])] == g73 + ["G1 Z-62.000000", "G0 Z-20.000000"]
+    assert lines[slice(*exp.spans[16])] == ["G90 G0 X120.000000 Y30.000000", "G0 Z-40.000000",  # G85: feed out to R
+                                            "G1 Z-66.000000 F100.", "G1 Z-40.000000", "G0 Z-20.000000"]
+    assert lines[slice(*exp.spans[17])] == ["G90 G0 X140.000000 Y30.000000", "G0 Z-40.000000",  # G89: dwell, feed out
+                                            "G1 Z-68.000000 F100.", "G4 P1.", "G1 Z-20.000000"]
+    assert lines[slice(*exp.spans[11])] == ["N20 G90 G0 X60.000000 Y40.000000", "G0 Z-42.000000",  # G99 G82
+                                            "G1 Z-70.000000 F200.", "G4 P0.5", "G0 Z-42.000000"]
+
+
+def test_incremental_r_is_measured_from_the_series_initial_level():
+    exp = expand_cycles("G0 X0 Y0 Z10\nG91 G99 G81 X5 R-5 Z-3 F100\nX5\n", "p", "expand")
+    lines = exp.text.splitlines()  # initial level 10 on both lines (not the R plane the first hole left at)
+    hole = ["G0 Z5.000000", "G1 Z2.000000 F100", "G0 Z5.000000", "G91"]
+    assert lines[slice(*exp.spans[1])] == ["G90 G0 X5.000000 Y0.000000"] + hole
+    assert lines[slice(*exp.spans[2])] == ["G90 G0 X10.000000 Y0.000000"] + hole
+
+
+def _cycle_words(line):
+    return {a: float(v) for a, v in re.findall(r"([XYZR])(-?[\d.]+)", re.sub(r"\(.*?\)", "", line))}
+
+
+def test_kept_cycles_reach_every_hole_bottom_on_the_true_machine(tmp_path, mill, truth_file):
+    prog = DATA / "drill_linuxcnc.ngc"
+    out = tmp_path / "o"
+    assert _compensate(prog, out, truth_file, "--truth", str(truth_file)) == 0
+    e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
+    cyc = e["cycles"]
+    assert cyc["mode"] == "keep" and cyc["holes"] == 8 and cyc["true_bottom"]["max_um"] < TOL_POINT_UM
+    src = prog.read_text().splitlines()
+    dst = [ln for ln in (out / prog.name).read_text().splitlines() if not ln.startswith("(volcomp:")]
+    assert len(dst) == len(src)
+    truth = ChainField(mill, ChainElementSet.load(truth_file, mill))
+    state, errs = {}, []
+    for i, (s, d) in enumerate(zip(src, dst)):
+        if not re.search(r"G8[1-9]|G73|^[XY]", re.sub(r"\(.*?\)", "", s)):
+            assert d == s  # every non-cycle line byte-identical
+            continue
+        state.update(_cycle_words(s))  # the programmed hole (Z, R sticky)
+        w = _cycle_words(d)  # the written hole, run as the shop would (+ G55)
+        assert set(w) == set("XYZR")
+        run_b = np.array([w["X"], w["Y"], w["Z"]]) + G55_MM
+        run_r = np.array([w["X"], w["Y"], w["R"]]) + G55_MM
+        tgt_b = np.array([state["X"], state["Y"], state["Z"]]) + G55_MM
+        tgt_r = np.array([state["X"], state["Y"], state["R"]]) + G55_MM
+        tip = lambda q: mill.nominal(q[None])[0] * 1e3 + truth.predict(q[None])[0]  # noqa: E731
+        errs.append(np.linalg.norm(tip(run_b) - mill.nominal(tgt_b[None])[0] * 1e3))
+        at_r = np.linalg.norm(tip(run_r) - mill.nominal(tgt_r[None])[0] * 1e3)
+        assert abs(at_r - cyc["tilt_um"][str(i + 1)]) < TOL_TILT_UM
+    assert len(errs) == 8 and max(errs) < TOL_POINT_UM
+    assert cyc["true_bottom_uncompensated"]["max_um"] > 10 * TOL_POINT_UM  # the check has teeth
+
+
+def test_expanded_cycles_are_compensated_point_by_point(tmp_path, mill, truth_file):
+    prog = DATA / "drill_linuxcnc.ngc"
+    out = tmp_path / "o"
+    assert _compensate(prog, out, truth_file, "--truth", str(truth_file), "--expand-cycles",
+                       "--dialect", "linuxcnc") == 0
+    e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
+    assert e["cycles"] == {"mode": "expand", "holes": 8} and e["true"]["max_um"] < TOL_POINT_UM
+    flat = tmp_path / "flat.ngc"  # the hand-checked expansion, then the written program without its header
+    flat.write_text(expand_cycles(prog.read_text(), "p", "expand", dialect="linuxcnc").text)
+    written = tmp_path / "written.ngc"
+    written.write_text("".join(ln for ln in (out / prog.name).read_text().splitlines(keepends=True)
+                               if not ln.startswith("(volcomp:")))
+    errs = true_point_errors_um(flat, written, mill, ChainElementSet.load(truth_file, mill),
+                                {"G55": G55_MM}, {})
+    n_moves = sum(1 for m in parse_program(flat, axis_words=AxisWords.of(mill)).moves if m.compensate)
+    # feeds: G81 3 holes x 1, G82 1, G83 5 pecks + 1, G73 5 + 1, G85 in and out 2, G89 2
+    assert len(errs) == n_moves == 20 and errs.max() < TOL_POINT_UM
+
+
+REFUSED = [  # program lines, mode, dialect, (line, column), words of the reason
+    ("G0 X0 Y0 Z5\nG91 G81 X1 Z-2 R-1\n", "keep", None, (2, 5), "use --expand-cycles"),
+    ("G0 X0 Y0 Z5\nG83 X1 Z-9 R1 Q2\n", "expand", None, (2, 1), "--dialect linuxcnc"),
+    ("G0 X0 Y0 Z5\nG84 X1 Z-9 R1\n", "expand", "linuxcnc", (2, 1), "leave --expand-cycles out"),
+    ("G0 X0 Y0 Z5\nG81 X1 R1\n", "keep", None, (2, 1), "without Z"),
+    ("G0 X0 Y0 Z5\nG28\nG81 X1 Z-1 R1\n", "keep", None, (3, 1), "not known after G28"),
+    ("G0 X0 Y0 Z0\nG81 X1 Z-3 R1\n", "keep", None, (2, 1), "below R"),
+    ("G0 X0 Y0 Z5\nG99 G81 X1 Z-3 R1\nG98 X2\n", "keep", None, (3, 1), "G98 after a G99"),
+    ("G0 X0 Y0 Z5\nG18\nG81 X1 Z-3 R1\n", "keep", None, (3, 1), "only G17"),
+    ("G0 X0 Y0 Z5\nG81 X1 Z-3 R1 G43 H1\n", "keep", None, (2, 15), "'G43' on a canned-cycle line"),
+    ("G0 X0 Y0 Z5\nG81 X1 Z-3 R1 F9\nG82 X2 P1\n", "keep", None, (3, 1), "G82 after G81 without Z R"),
+    ("G0 X0 Y0 Z5\nG82 X1 Z-3 R1 F9\n", "keep", None, (2, 1), "without P"),
+    ("G0 X0 Y0 Z5\nG81 X1 Z3 R1 F9\n", "keep", None, (2, 1), "above R"),
+]
+
+
+@pytest.mark.parametrize("text, mode, dialect, where, why", REFUSED, ids=[r[4] for r in REFUSED])
+def test_what_is_not_exact_is_refused_by_line_and_column(text, mode, dialect, where, why):
+    with pytest.raises(InputError) as exc:
+        expand_cycles(text, "p.nc", mode, dialect=dialect)
+    assert f"p.nc: line {where[0]}, column {where[1]}: " in str(exc.value) and why in str(exc.value)
+
+
+def test_without_a_chain_the_reader_still_refuses_cycles(tmp_path):
+    p = tmp_path / "p.nc"
+    p.write_text("G0 X0 Z5\nG81 X1 Z-3 R1 F100\nG80\n")
+    with pytest.raises(InputError, match=r"line 2, column 1: 'G81' \(canned cycle"):
+        parse_program(p)
+
+
+def test_a_cycle_in_a_subroutine_is_a_hole_per_call(tmp_path, truth_file):
+    prog = DATA / "hole_sub_linuxcnc.ngc"
+    out = tmp_path / "o"
+    assert _compensate(prog, out, truth_file, "--truth", str(truth_file)) == 0
+    cyc = json.loads((out / "compensate_summary.json").read_text())["files"][0]["cycles"]
+    assert cyc["holes"] == 2 and list(cyc["tilt_um"]) == ["4"] and cyc["true_bottom"]["max_um"] < TOL_POINT_UM
+    written = [_cycle_words(ln) for ln in (out / prog.name).read_text().splitlines() if "G81" in ln]
+    assert [round(w["X"]) for w in written] == [10, 30] and all(set(w) == set("XYZR") for w in written)
+
+
+def test_a_block_delete_cycle_line_is_refused():
+    with pytest.raises(InputError, match=r"p.nc: line 3, column 1: '/' \(block delete\) on a canned-cycle line"):
+        expand_cycles("G0 X0 Y0 Z5\nG81 X1 Z-3 R1\n/X2\n", "p.nc", "keep")
+
+
+def test_tapping_is_kept_as_a_cycle_its_hole_compensated_like_any():
+    exp = expand_cycles("G0 X0 Y0 Z5\nG84 X1 Y2 Z-3 R1 F9\nG80\n", "p", "keep")
+    assert [(h.code, h.xyz, h.r) for h in exp.holes] == [("G84", (1.0, 2.0, -3.0), 1.0)]
+    assert exp.text.splitlines()[slice(*exp.spans[1])] == [  # the R point, the bottom, the retract (not written)
+        "G90 G1 X1.000000 Y2.000000 Z1.000000 F9", "G1 Z-3.000000", "G0 Z5.000000"]
