@@ -173,3 +173,47 @@ def load_chain_field(path, machine, kind: str = "elements"):
     from errormap.mt_elements import ChainElementSet
     from errormap.mt_field import ChainField
     return ChainField(machine, ChainElementSet.load(path, machine))
+
+
+# --- the diagnosis's verdict ---------------------------------------------------------------------
+FAILED_VERDICT = "failed-verdict"
+"""The ``--allow`` name that uses a model whose diagnosis verdict failed (compensate, predict, export)."""
+DIAGNOSIS_NAME = "diagnosis.json"   # written beside the model by volcomp diagnose
+
+
+def verdict_of(path) -> dict | None:
+    """The diagnosis verdict that governs the model file ``path``: its own key ``verdict`` (a diagnosed
+    model.json), else that of the ``diagnosis.json`` written beside it by the same diagnose run (its
+    ``updated_elements.json``, a drift model). ``{"status", "reasons", "file"}``; None: no verdict."""
+    from errormap.io import read_json
+    path = Path(path)
+    if path.is_dir():   # a trained model folder: no diagnosis verdict
+        return None
+    for f in (path, path.parent / DIAGNOSIS_NAME):
+        if not f.is_file():
+            continue
+        doc = read_json(f, "a model or its diagnosis")
+        v = doc.get("verdict") if isinstance(doc, dict) else None
+        if isinstance(v, dict) and v.get("status") in ("passed", "failed"):
+            return {"status": v["status"], "reasons": [str(r) for r in v.get("reasons") or []], "file": str(f),
+                    "model": str(path)}
+    return None
+
+
+def check_verdict(path, allowed: bool) -> dict | None:
+    """Refuse (InputError, exit 2) the model file ``path`` when its diagnosis verdict failed, naming the
+    file and the verdict's reasons, unless ``allowed`` (``--allow failed-verdict``): then a warning on
+    stderr, and the returned record (``overridden_by`` set) is what the command writes into its output.
+    Returns the verdict record (None: the model carries none)."""
+    v = verdict_of(path) if path is not None else None
+    if v is None or v["status"] != "failed":
+        return v
+    why = "; ".join(v["reasons"]) or "no reasons recorded"
+    if not allowed:
+        of = "" if v["file"] == v["model"] else f" of {Path(v['model']).name}"
+        raise InputError(f"{v['file']}: the diagnosis verdict{of} failed, so the model is not used (--allow "
+                         f"{FAILED_VERDICT} uses it, recorded in the output): {why}")
+    import sys
+    print(f"warning: {v['file']}: the diagnosis verdict of {v['model']} is failed ({why}); used as --allow {FAILED_VERDICT} asks "
+          "(recorded in the output)", file=sys.stderr)
+    return dict(v, overridden_by=f"--allow {FAILED_VERDICT}")

@@ -63,6 +63,39 @@ def check_not_wide(raw: bytes, path) -> None:
         raise InputError(f"{path}: {enc} text detected (a Windows \"Unicode\" save); re-save it as UTF-8")
 
 
+MAX_DOCUMENT_BYTES = 64 * 2**20
+"""Bytes of a JSON or TOML input (element sets, model files, machine files, diagnoses), checked
+before it is read: the largest volcomp writes are a diagnosed model with its learned residual and a
+drift model (~100 kB), an element set is ~20 kB and a machine file ~5 kB, so 64 MiB is over 600
+times the largest real one, and reading it whole (with the parser's objects, ~10x its size) stays
+under 1 GB. A larger file is not one of these documents."""
+
+
+def read_document_bytes(path, what: str = "document") -> bytes:
+    """The bytes of the JSON/TOML file ``path``, refused unread (InputError, one line naming the file)
+    past :data:`MAX_DOCUMENT_BYTES`; ``what``: what the file was expected to be."""
+    path = Path(path)
+    size = path.stat().st_size
+    if size > MAX_DOCUMENT_BYTES:
+        raise InputError(f"{path}: {size:,} bytes exceeds the limit of {MAX_DOCUMENT_BYTES >> 20} MiB for {what} "
+                         "(the largest volcomp writes is ~100 kB); not read")
+    return path.read_bytes()
+
+
+def read_json(path, what: str = "a JSON document"):
+    """The JSON document in ``path``: size-bounded (:func:`read_document_bytes`), UTF-8
+    (:func:`decode_text`); not JSON (or nested past Python's recursion limit) → InputError naming
+    the file, line and column."""
+    path = Path(path)
+    text = decode_text(read_document_bytes(path, what), path)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: row {exc.lineno}: column {exc.colno}: not JSON ({exc.msg}); expected {what}") from None
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply to be {what}") from None
+
+
 def decode_text(raw: bytes, path) -> str:
     """UTF-8 text of a file's bytes; a leading UTF-8 BOM (Excel's "CSV UTF-8") is dropped.
 

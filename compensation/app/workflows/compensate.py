@@ -38,7 +38,7 @@ from ... import guards
 from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, solve_batch
 from ...diagnosed_model import (ConditionedField, load_path_field, path_conditions, replanned_conditions,
                                 solve_with_conditions)
-from ...fields import resolve_model
+from ...fields import FAILED_VERDICT, check_verdict, resolve_model
 from ...gcode import DEFAULT_RAPIDS
 from ...nc_expand import source_line
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
@@ -270,6 +270,7 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
                  "dialect": s.dialect}
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     source = resolve_model(s.model)  # by content (format key), printed and recorded in the summary
+    verdict = check_verdict(source.path, FAILED_VERDICT in s.allow)  # a failed diagnosis: refused unless allowed
     print(f"compensate: model {source.description}", file=sys.stderr)
     field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
     # a diagnosed model whose terms need conditions: per point from the path's columns, else the options
@@ -307,7 +308,8 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
         if not o.refused:
             o.entry["output"] = str(o.dst)
     summary_path = write_json(out_dir / SUMMARY_NAME, {
-        "method": s.method, "model": s.model, "model_source": source.to_dict(), "units": s.units,
+        "method": s.method, "model": s.model, "model_source": source.to_dict(), "model_verdict": verdict,
+        "units": s.units,
         "machine": machine.path, "allow": list(s.allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "seed": s.seed, "chunk_points": s.chunk_points,
         "solved_on": executor.describe() if executor is not None else LocalExecutor().describe(),
