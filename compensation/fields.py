@@ -19,7 +19,7 @@ from pathlib import Path
 
 from errormap.elements import ElementSet
 from errormap.htm import HTMField
-from errormap.io import InputError, decode_text
+from errormap.io import InputError, read_document_text
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
 DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
@@ -28,9 +28,6 @@ NETWORK_FORMAT = "volcomp-mlpfield/1"      # config.json of a trained model fold
 CHAIN_NETWORK_FORMAT = "volcomp-chain-mlpfield/1"  # the same over a machine-tool chain (training/chain_model.py)
 DRIFT_SCHEMA = "volcomp.drift_model"       # the drift model's key 'schema' (errormap/diagnosis/drift_models.py)
 _RUN_ID = re.compile(r"^[0-9a-f]{32}$")    # an MLflow run id (training/tracking.py RUN_ID_RE)
-MAX_MODEL_FILE_BYTES = 64 << 20
-"""Largest model JSON read to find its kind (an element set is ~20 kB, a drift model ~100 kB):
-a larger file is not a model file and is refused before it is read whole."""
 
 KIND_NAMES = {"elements": f"element set ({ELEMENTS_FORMAT})",
               "diagnosed": f"diagnosed model ({DIAGNOSED_FORMAT})",
@@ -64,11 +61,8 @@ class ModelSource:
 def _json_format(path: Path) -> str | None:
     """The kind of the JSON model file ``path`` from its ``format`` / ``schema`` key (InputError when
     the file is not JSON or names no model format volcomp reads)."""
-    if path.stat().st_size > MAX_MODEL_FILE_BYTES:
-        raise InputError(f"{path}: {path.stat().st_size} bytes is larger than any model file "
-                         f"({MAX_MODEL_FILE_BYTES >> 20} MiB); expected {_EXPECTED}")
     try:
-        d = json.loads(decode_text(path.read_bytes(), path))
+        d = json.loads(read_document_text(path, "a model file"))
     except (json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"{path}: not a model file (not JSON: {exc}); expected {_EXPECTED}") from None
     if not isinstance(d, dict):

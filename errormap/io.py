@@ -71,15 +71,24 @@ times the largest real one, and reading it whole (with the parser's objects, ~10
 under 1 GB. A larger file is not one of these documents."""
 
 
-def read_document_bytes(path, what: str = "document") -> bytes:
-    """The bytes of the JSON/TOML file ``path``, refused unread (InputError, one line naming the file)
-    past :data:`MAX_DOCUMENT_BYTES`; ``what``: what the file was expected to be."""
-    path = Path(path)
-    size = path.stat().st_size
+def check_document_size(path, what: str = "a document") -> None:
+    """Refuse (InputError, one line naming the file) the JSON/TOML/NPZ input ``path`` past
+    :data:`MAX_DOCUMENT_BYTES`, before it is read; ``what``: what the file was expected to be."""
+    size = os.stat(path).st_size
     if size > MAX_DOCUMENT_BYTES:
         raise InputError(f"{path}: {size:,} bytes exceeds the limit of {MAX_DOCUMENT_BYTES >> 20} MiB for {what} "
                          "(the largest volcomp writes is ~100 kB); not read")
-    return path.read_bytes()
+
+
+def read_document_bytes(path, what: str = "a document") -> bytes:
+    """The bytes of the JSON/TOML file ``path``, sized first (:func:`check_document_size`)."""
+    check_document_size(path, what)
+    return Path(path).read_bytes()
+
+
+def read_document_text(path, what: str = "a document") -> str:
+    """The UTF-8 text (:func:`decode_text`) of the JSON/TOML file ``path``, sized first."""
+    return decode_text(read_document_bytes(path, what), path)
 
 
 def read_json(path, what: str = "a JSON document"):
@@ -87,7 +96,7 @@ def read_json(path, what: str = "a JSON document"):
     (:func:`decode_text`); not JSON (or nested past Python's recursion limit) → InputError naming
     the file, line and column."""
     path = Path(path)
-    text = decode_text(read_document_bytes(path, what), path)
+    text = read_document_text(path, what)
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:

@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from errormap.io import InputError, read_table, write_csv
+from errormap.io import InputError, read_document_text, read_table, write_csv
 from errormap.field import machine_axes
 from errormap.machine import check_machine_kind, load_machine
 from errormap.units import check_units
@@ -111,7 +111,7 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
     field = load_diagnosed_model(src.path, machine)
     n_out = _check_volume(args, t, axes, field, machine)
     cond = _point_conditions(t, field.needs, args.units, "diagnosed model")
-    doc = json.loads(src.path.read_text(encoding="utf-8"))
+    doc = json.loads(read_document_text(src.path, "a diagnosed model"))
     el_path = src.path.parent / doc["elements"]
     cov = None
     if covariance_path(el_path).is_file():
@@ -223,7 +223,7 @@ def run(args) -> int:
     from ...hybrid import HybridField
     if isinstance(field, HybridField):   # a chain loop's model.json with its kept learned residual
         import json
-        doc = json.loads(src.path.read_text(encoding="utf-8"))
+        doc = json.loads(read_document_text(src.path, "a diagnosed model"))
         meta += [f"stage: {doc.get('kept_stage')} on {doc.get('base_stage')}"] + _learned_part(cols, field.learned, axes)
     if n_out:   # the override recorded in the output itself, on every machine
         meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
