@@ -66,9 +66,11 @@ def check_not_wide(raw: bytes, path) -> None:
 MAX_DOCUMENT_BYTES = 64 * 2**20
 """Bytes of a JSON or TOML input (element sets, model files, machine files, diagnoses), checked
 before it is read: the largest volcomp writes are a diagnosed model with its learned residual and a
-drift model (~100 kB), an element set is ~20 kB and a machine file ~5 kB, so 64 MiB is over 600
-times the largest real one, and reading it whole (with the parser's objects, ~10x its size) stays
-under 1 GB. A larger file is not one of these documents."""
+drift model (of the order of 100 kB: a learned residual keeps its few hundred fitting checks), an
+element set is ~10 kB (mill-xyz), a chain diagnosis.json ~16 kB and a machine file a few kB, so 64 MiB is over 600
+times the largest real one, and reading one at the bound stays near 1 s and a third of a GB (measured:
+a 55 MiB JSON of float rows parses in 1.1 s at 285 MB peak, about 5x its size; BENCHMARKS.md). A
+larger file is not one of these documents."""
 
 
 def check_document_size(path, what: str = "a document") -> None:
