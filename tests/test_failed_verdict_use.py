@@ -142,3 +142,30 @@ def test_an_unreadable_diagnosis_beside_the_model_is_refused_naming_it(tmp_path)
     (tmp_path / "diagnosis.json").write_text('{"verdict": ')
     with pytest.raises(InputError, match=r"diagnosis\.json: row 1: column 13: not JSON"):
         check_verdict(tmp_path / "e.json", allowed=False)
+
+
+def test_a_real_failed_diagnosis_stops_predict_and_compensate(tmp_path):
+    """End to end: checks with a 20 μm setup offset on dx (20x the noise, what the plain OLS baseline
+    removes and the loop does not) diagnosed with --no-learned → verdict failed, exit 1; its model.json
+    given to predict and compensate is refused (exit 2), naming model.json and the baseline it loses to."""
+    from errormap.io import write_csv
+    from errormap.machine import load_machine
+    from errormap.mt_simulate import make_mt_truth
+    noise_um, offset_um = 1.0, 20.0
+    t = make_mt_truth(load_machine("mill-xyz"), 3, family="independent")
+    t.elements.save(tmp_path / "elements.json")
+    ck = t.check_measurements(200, noise_um=noise_um, seed=4)
+    checks = write_csv(tmp_path / "checks.csv", {**ck, "dx_um": ck["dx_um"] + offset_um},
+                       header_comments=[f"noise_um: {noise_um}"])
+    rc, _, err = run_cli(["diagnose", checks, "--machine", "mill-xyz", "--model", tmp_path / "elements.json",
+                          "--no-learned", "--out", tmp_path / "d"])
+    assert rc == 1, err
+    model = tmp_path / "d" / "model.json"
+    (tmp_path / "pts.csv").write_text("x_mm,y_mm,z_mm\n10,20,-30\n")
+    rc, _, err = run_cli(["predict", "--machine", "mill-xyz", "--model", model, tmp_path / "pts.csv",
+                          "--out", tmp_path / "p.csv"])
+    refused(rc, err, str(model), "loses to the plain baseline")
+    rc, _, err = run_cli(["compensate", tmp_path / "pts.csv", "--machine", "mill-xyz", "--model", model,
+                          "--method", "exact", "--out", tmp_path / "c"])
+    refused(rc, err, str(model), "loses to the plain baseline")
+    assert not (tmp_path / "p.csv").exists() and not (tmp_path / "c").exists()
