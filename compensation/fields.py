@@ -211,3 +211,13 @@ def check_verdict(path, allowed: bool) -> dict | None:
     print(f"warning: {v['file']}: the diagnosis verdict of {v['model']} is failed ({why}); used as --allow {FAILED_VERDICT} asks "
           "(recorded in the output)", file=sys.stderr)
     return dict(v, overridden_by=f"--allow {FAILED_VERDICT}")
+
+
+def verdict_notes(verdict) -> list[str]:
+    """The comment line a compensated program carries when its model's failed verdict was overridden
+    (``check_verdict``'s record; [] otherwise), ASCII: a G-code program is written in Latin-1."""
+    if not verdict or not verdict.get("overridden_by"):
+        return []
+    text = (f"volcomp compensate: MODEL DIAGNOSIS VERDICT FAILED ({verdict['file']}), used with --allow "
+            f"{FAILED_VERDICT}; reasons in the summary")
+    return [text.encode("ascii", "replace").decode("ascii")]

@@ -92,6 +92,7 @@ def test_compensate_refuses_then_records_the_override_in_the_summary(diagnosed, 
     assert summary["model_verdict"]["status"] == "failed"
     assert summary["model_verdict"]["overridden_by"] == f"--allow {FAILED_VERDICT}"
     assert summary["allow"] == [FAILED_VERDICT]
+    assert "MODEL DIAGNOSIS VERDICT FAILED" in (tmp_path / "c" / "pts.csv").read_text()   # the program says so
 
 
 def test_a_bare_allow_does_not_override_the_verdict(diagnosed, tmp_path):
@@ -126,6 +127,12 @@ def test_a_chain_model_json_with_its_own_failed_verdict_is_refused(chain_model, 
                           "--out", tmp_path / "p.csv", "--allow", FAILED_VERDICT])
     assert rc == 0, err
     assert f"# allowed: {FAILED_VERDICT}" in (tmp_path / "p.csv").read_text()
+    rc, _, err = run_cli(["compensate", d / "pts.csv", "--machine", "mill-xyz", "--model", model,
+                          "--method", "exact", "--out", tmp_path / "c", "--allow", FAILED_VERDICT])
+    assert rc == 0, err
+    assert "MODEL DIAGNOSIS VERDICT FAILED" in (tmp_path / "c" / "pts.csv").read_text()
+    summary = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())
+    assert summary["model_verdict"]["overridden_by"] == f"--allow {FAILED_VERDICT}"
 
 
 def test_a_passed_verdict_or_none_is_used_without_a_word(tmp_path, capsys):

@@ -29,7 +29,7 @@ from errormap.units import UNITS_CHECK, check_units
 from compensation.app.validate import UsageError
 
 from ... import guards
-from ...fields import FAILED_VERDICT, check_verdict, load_chain_field, require_kind, resolve_model
+from ...fields import FAILED_VERDICT, check_verdict, load_chain_field, require_kind, resolve_model, verdict_notes
 from ...gcode import DEFAULT_RAPIDS
 from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool, program_frames
@@ -449,6 +449,7 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
                             f"model residual max {entry['model_max_um']:.4g} um"]
             if tp.kind == "gcode" and s.work_offsets is not None and s.work_offsets.source == MACHINE:
                 comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
+            comments = verdict_notes(verdict) + comments   # a failed verdict used on request: said in the program
             text = _render(tp, res.axes - tp.shift if tp.shift is not None else res.axes, machine, comments)
         outcomes.append((p, dst, tp, entry, text, listed, kept if refused else []))
         status = "REFUSED (not written)" if refused else f"-> {dst}"
