@@ -28,7 +28,7 @@ from errormap.diagnosis.effects import Candidate, EffectTerm
 from errormap.effect_kinds import diagnosed_kind
 from errormap.elements import ElementSet
 from errormap.htm import HTMField
-from errormap.io import InputError
+from errormap.io import InputError, read_document_text
 from errormap.units import UNITS_CHECK, check_units, temperature_mistake
 
 from .fields import DIAGNOSED_FORMAT as FORMAT
@@ -51,7 +51,7 @@ def is_diagnosed_model(spec) -> bool:
 def load_diagnosed_model(path, machine) -> CorrectedField:
     """The updated elements plus the accepted terms, as a :class:`CorrectedField`."""
     path = Path(path)
-    d = json.loads(path.read_text(encoding="utf-8"))
+    d = json.loads(read_document_text(path, "a diagnosed model"))
     return diagnosed_field(d, machine, lambda name: ElementSet.load(path.parent / name), path)
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from errormap.elements import ElementSet
-from errormap.io import InputError
+from errormap.io import InputError, read_document_text
 from errormap.simulator import EFFECT_NAMES, TruthGrinder
 from errormap.stats import residual_stats
 
@@ -47,7 +47,7 @@ def load_truth(spec, machine) -> TruthGrinder:
         info_path = p / "truth.json"
         if info_path.is_file():
             try:
-                info = json.loads(info_path.read_text(encoding="utf-8"))
+                info = json.loads(read_document_text(info_path, "a simulation's truth.json"))
             except json.JSONDecodeError as exc:
                 raise InputError(f"{info_path}: not valid JSON: {exc}") from None
             effects = info.get("effects") or {}

@@ -62,7 +62,7 @@ from errormap.effect_kinds import diagnosed_kind
 from errormap.elements import ElementSet
 from errormap.field import CalibratedVolume
 from errormap.htm import IDX, spatial_error_exact
-from errormap.io import InputError, read_table, write_csv, write_json
+from errormap.io import InputError, read_document_text, read_table, write_csv, write_json
 from errormap.stats import residual_stats
 from errormap.iso230 import ISO_MEANING, ISO_NAMES, from_iso, reference_points_mm, to_iso
 from errormap.kinematics import forward
@@ -600,7 +600,7 @@ def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
     if not path.is_file():
         raise InputError(f"{path}: no such diagnosis file")
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
+        d = json.loads(read_document_text(path, "a diagnosis"))
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: not valid JSON: {exc}") from None
     fmt = d.get("format") if isinstance(d, dict) else None

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from errormap.elements import ElementSet
 from errormap.htm import HTMField
-from errormap.io import InputError, decode_text
+from errormap.io import InputError, read_document_text
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
 DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
@@ -28,9 +28,6 @@ NETWORK_FORMAT = "volcomp-mlpfield/1"      # config.json of a trained model fold
 CHAIN_NETWORK_FORMAT = "volcomp-chain-mlpfield/1"  # the same over a machine-tool chain (training/chain_model.py)
 DRIFT_SCHEMA = "volcomp.drift_model"       # the drift model's key 'schema' (errormap/diagnosis/drift_models.py)
 _RUN_ID = re.compile(r"^[0-9a-f]{32}$")    # an MLflow run id (training/tracking.py RUN_ID_RE)
-MAX_MODEL_FILE_BYTES = 64 << 20
-"""Largest model JSON read to find its kind (an element set is ~20 kB, a drift model ~100 kB):
-a larger file is not a model file and is refused before it is read whole."""
 
 KIND_NAMES = {"elements": f"element set ({ELEMENTS_FORMAT})",
               "diagnosed": f"diagnosed model ({DIAGNOSED_FORMAT})",
@@ -64,11 +61,8 @@ class ModelSource:
 def _json_format(path: Path) -> str | None:
     """The kind of the JSON model file ``path`` from its ``format`` / ``schema`` key (InputError when
     the file is not JSON or names no model format volcomp reads)."""
-    if path.stat().st_size > MAX_MODEL_FILE_BYTES:
-        raise InputError(f"{path}: {path.stat().st_size} bytes is larger than any model file "
-                         f"({MAX_MODEL_FILE_BYTES >> 20} MiB); expected {_EXPECTED}")
     try:
-        d = json.loads(decode_text(path.read_bytes(), path))
+        d = json.loads(read_document_text(path, "a model file"))
     except (json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"{path}: not a model file (not JSON: {exc}); expected {_EXPECTED}") from None
     if not isinstance(d, dict):
@@ -173,3 +167,57 @@ def load_chain_field(path, machine, kind: str = "elements"):
     from errormap.mt_elements import ChainElementSet
     from errormap.mt_field import ChainField
     return ChainField(machine, ChainElementSet.load(path, machine))
+
+
+# --- the diagnosis's verdict ---------------------------------------------------------------------
+FAILED_VERDICT = "failed-verdict"
+"""The ``--allow`` name that uses a model whose diagnosis verdict failed (compensate, predict, export)."""
+DIAGNOSIS_NAME = "diagnosis.json"   # written beside the model by volcomp diagnose
+
+
+def verdict_of(path) -> dict | None:
+    """The diagnosis verdict that governs the model file ``path``: its own key ``verdict`` (a diagnosed
+    model.json), else that of the ``diagnosis.json`` written beside it by the same diagnose run (its
+    ``updated_elements.json``, a drift model). ``{"status", "reasons", "file"}``; None: no verdict."""
+    from errormap.io import read_json
+    path = Path(path)
+    if path.is_dir():   # a trained model folder: no diagnosis verdict
+        return None
+    for f in (path, path.parent / DIAGNOSIS_NAME):
+        if not f.is_file():
+            continue
+        doc = read_json(f, "a model or its diagnosis")
+        v = doc.get("verdict") if isinstance(doc, dict) else None
+        if isinstance(v, dict) and v.get("status") in ("passed", "failed"):
+            return {"status": v["status"], "reasons": [str(r) for r in v.get("reasons") or []], "file": str(f),
+                    "model": str(path)}
+    return None
+
+
+def check_verdict(path, allowed: bool) -> dict | None:
+    """Refuse (InputError, exit 2) the model file ``path`` when its diagnosis verdict failed, naming the
+    file and the verdict's reasons, unless ``allowed`` (``--allow failed-verdict``): then a warning on
+    stderr, and the returned record (``overridden_by`` set) is what the command writes into its output.
+    Returns the verdict record (None: the model carries none)."""
+    v = verdict_of(path) if path is not None else None
+    if v is None or v["status"] != "failed":
+        return v
+    why = "; ".join(v["reasons"]) or "no reasons recorded"
+    if not allowed:
+        of = "" if v["file"] == v["model"] else f" of {Path(v['model']).name}"
+        raise InputError(f"{v['file']}: the diagnosis verdict{of} failed, so the model is not used (--allow "
+                         f"{FAILED_VERDICT} uses it, recorded in the output): {why}")
+    import sys
+    print(f"warning: {v['file']}: the diagnosis verdict of {v['model']} is failed ({why}); used as --allow {FAILED_VERDICT} asks "
+          "(recorded in the output)", file=sys.stderr)
+    return dict(v, overridden_by=f"--allow {FAILED_VERDICT}")
+
+
+def verdict_notes(verdict) -> list[str]:
+    """The comment line a compensated program carries when its model's failed verdict was overridden
+    (``check_verdict``'s record; [] otherwise), ASCII: a G-code program is written in Latin-1."""
+    if not verdict or not verdict.get("overridden_by"):
+        return []
+    text = (f"volcomp compensate: MODEL DIAGNOSIS VERDICT FAILED ({verdict['file']}), used with --allow "
+            f"{FAILED_VERDICT}; reasons in the summary")
+    return [text.encode("ascii", "replace").decode("ascii")]

@@ -18,7 +18,7 @@ import json
 from pathlib import Path
 
 from errormap.diagnosis.mt_model import LEARNED_KEY, ChainModelField, load_chain_model_file
-from errormap.io import InputError, decode_text
+from errormap.io import InputError, read_document_text
 
 from .hybrid import HybridField, LearnedResidual
 
@@ -60,7 +60,7 @@ def load_chain_model(path, machine):
     holds a kept learned residual; InputError naming the file and key otherwise."""
     path = Path(path)
     base = load_chain_model_file(path, machine, learned="ignore")
-    d = json.loads(decode_text(path.read_bytes(), path))
+    d = json.loads(read_document_text(path, "a diagnosed chain model"))
     doc = d.get(LEARNED_KEY)
     if doc is None:
         return base

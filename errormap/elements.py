@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from .io import InputError, atomic_write, decode_text
+from .io import InputError, atomic_write, read_document_text
 from .machine import Grinder
 
 X_ELEMENTS = ("dx_x", "dy_x", "dz_x", "ex_x", "ey_x", "ez_x")
@@ -213,7 +213,7 @@ class ElementSet:
         if not path.is_file():
             raise InputError(f"{path}: no such element-set file")
         try:
-            d = json.loads(decode_text(path.read_bytes(), path))
+            d = json.loads(read_document_text(path, "an element set"))
         except (json.JSONDecodeError, RecursionError) as exc:
             raise InputError(f"{path}: not valid JSON: {exc}") from None
         if not isinstance(d, dict) or d.get("format") != "volcomp-elements/1":

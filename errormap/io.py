@@ -63,6 +63,50 @@ def check_not_wide(raw: bytes, path) -> None:
         raise InputError(f"{path}: {enc} text detected (a Windows \"Unicode\" save); re-save it as UTF-8")
 
 
+MAX_DOCUMENT_BYTES = 64 * 2**20
+"""Bytes of a JSON or TOML input (element sets, model files, machine files, diagnoses), checked
+before it is read: the largest volcomp writes are a diagnosed model with its learned residual and a
+drift model (of the order of 100 kB: a learned residual keeps its few hundred fitting checks), an
+element set is ~10 kB (mill-xyz), a chain diagnosis.json ~16 kB and a machine file a few kB, so 64 MiB is over 600
+times the largest real one, and reading one at the bound stays near 1 s and a third of a GB (measured:
+a 55 MiB JSON of float rows parses in 1.1 s at 285 MB peak, about 5x its size; BENCHMARKS.md). A
+larger file is not one of these documents."""
+
+
+def check_document_size(path, what: str = "a document") -> None:
+    """Refuse (InputError, one line naming the file) the JSON/TOML/NPZ input ``path`` past
+    :data:`MAX_DOCUMENT_BYTES`, before it is read; ``what``: what the file was expected to be."""
+    size = os.stat(path).st_size
+    if size > MAX_DOCUMENT_BYTES:
+        raise InputError(f"{path}: {size:,} bytes exceeds the limit of {MAX_DOCUMENT_BYTES >> 20} MiB for {what} "
+                         "(the largest volcomp writes is ~100 kB); not read")
+
+
+def read_document_bytes(path, what: str = "a document") -> bytes:
+    """The bytes of the JSON/TOML file ``path``, sized first (:func:`check_document_size`)."""
+    check_document_size(path, what)
+    return Path(path).read_bytes()
+
+
+def read_document_text(path, what: str = "a document") -> str:
+    """The UTF-8 text (:func:`decode_text`) of the JSON/TOML file ``path``, sized first."""
+    return decode_text(read_document_bytes(path, what), path)
+
+
+def read_json(path, what: str = "a JSON document"):
+    """The JSON document in ``path``: size-bounded (:func:`read_document_bytes`), UTF-8
+    (:func:`decode_text`); not JSON (or nested past Python's recursion limit) → InputError naming
+    the file, line and column."""
+    path = Path(path)
+    text = read_document_text(path, what)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: row {exc.lineno}: column {exc.colno}: not JSON ({exc.msg}); expected {what}") from None
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply to be {what}") from None
+
+
 def decode_text(raw: bytes, path) -> str:
     """UTF-8 text of a file's bytes; a leading UTF-8 BOM (Excel's "CSV UTF-8") is dropped.
 

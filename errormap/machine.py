@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .field import is_rotary_column
-from .io import InputError, check_not_wide, sha256_bytes
+from .io import InputError, check_not_wide, read_document_bytes, sha256_bytes
 # MachineFileError is raised here and imported from here by callers (one class, defined with the checks)
 from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
 
@@ -219,7 +219,10 @@ def load_machine(path=None, expect_kind: str | None = None):
         path = builtin_machines().get(path.name, path)
     if not Path(path).is_file():
         raise MachineFileError(f"{path}: no such machine file")
-    raw = Path(path).read_bytes()
+    try:
+        raw = read_document_bytes(path, "a machine file")   # sized before it is read (MAX_DOCUMENT_BYTES)
+    except InputError as exc:
+        raise MachineFileError(str(exc)) from None
     from .urdf import is_urdf, load_urdf_machine
     if is_urdf(raw):   # recognised by content: XML (a URDF's <robot> root), never TOML
         check_machine_kind(path, "serial", expect_kind)

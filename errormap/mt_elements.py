@@ -23,7 +23,7 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 
 from .elements import check_profile
-from .io import InputError, atomic_write, decode_text
+from .io import InputError, atomic_write, read_document_text
 from .mt_chain import FULL_TURN_DEG, MachineTool
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
@@ -212,7 +212,7 @@ class ChainElementSet:
         if not path.is_file():
             raise InputError(f"{path}: no such element-set file")
         try:
-            d = json.loads(decode_text(path.read_bytes(), path))
+            d = json.loads(read_document_text(path, "a chain element set"))
         except (json.JSONDecodeError, RecursionError) as exc:
             raise InputError(f"{path}: not valid JSON: {exc}") from None
         if not isinstance(d, dict) or d.get("format") != ELEMENTS_FORMAT:

@@ -44,7 +44,7 @@ from scipy.interpolate import make_interp_spline
 
 from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, ElementSet
 from .htm import error_jacobian
-from .io import NPY_ERRORS, InputError, atomic_write, companion_path
+from .io import NPY_ERRORS, InputError, atomic_write, check_document_size, companion_path
 from .machine import Grinder
 
 LAMBDA_GRID = np.logspace(-4, 8, 49)
@@ -193,6 +193,7 @@ class ElementCovariance:
         path = Path(path)
         if not path.is_file():
             raise InputError(f"{path}: no such covariance file (written by `volcomp identify` beside the elements)")
+        check_document_size(path, "an element covariance")   # ~15 MB at most for the 61-station chains
         try:
             d = np.load(path, allow_pickle=False)
             theta, cov = d["theta"], d["cov"]

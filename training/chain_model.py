@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
-from errormap.io import InputError, load_array, sha256_file
+from errormap.io import InputError, load_array, read_document_text, sha256_file
 
 from .model import MODEL_FILES, PAPER_HIDDEN, MLPField
 
@@ -223,8 +223,8 @@ class ChainMLPField(MLPField):
             if not (d / name).is_file():
                 raise InputError(f"{d}: not a saved chain network (missing {name})")
         try:
-            cfg = json.loads((d / "config.json").read_text(encoding="utf-8"))
-            sc = json.loads((d / "scalers.json").read_text(encoding="utf-8"))
+            cfg = json.loads(read_document_text(d / "config.json", "a trained model's config"))
+            sc = json.loads(read_document_text(d / "scalers.json", "a trained model's scalers"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{d}: config.json or scalers.json is not valid JSON: {exc}") from None
         if not isinstance(cfg, dict) or cfg.get("format") != CHAIN_FORMAT:

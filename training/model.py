@@ -57,7 +57,7 @@ import torch
 from torch.func import jvp
 
 from errormap.field import (FLOAT32, JACOBIAN, OFFSET_FITNESS, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, CalibratedVolume)
-from errormap.io import OUTPUT_LOCK_NAME, InputError, atomic_dir, atomic_write, load_array, sha256_file, write_json
+from errormap.io import OUTPUT_LOCK_NAME, InputError, read_document_text, atomic_dir, atomic_write, load_array, sha256_file, write_json
 from errormap.threads import limit_threads
 from errormap.transforms import check_points
 
@@ -607,7 +607,7 @@ class MLPField:
             if not (d / name).is_file():
                 raise InputError(f"{d}: not a saved MLPField (missing {name})")
         try:
-            cfg = json.loads((d / "config.json").read_text(encoding="utf-8"))
+            cfg = json.loads(read_document_text(d / "config.json", "a trained model's config"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{d / 'config.json'}: not valid JSON: {exc}") from None
         if not isinstance(cfg, dict) or cfg.get("format") != FORMAT:
@@ -625,7 +625,7 @@ class MLPField:
                 raise InputError(f"{d / name}: does not belong to this model (SHA-256 differs from the one "
                                  f"config.json records); the folder holds a partial or mixed set")
         m = cls(cfg["hidden"], cfg["activation"], cfg["a_encoding"])
-        sc = json.loads((d / "scalers.json").read_text(encoding="utf-8"))
+        sc = json.loads(read_document_text(d / "scalers.json", "a trained model's scalers"))
         m.in_lo_ = np.asarray(sc["in_lo"], dtype=float)
         m.in_hi_ = np.asarray(sc["in_hi"], dtype=float)
         m.a0_deg_ = float(sc["a0_deg"])

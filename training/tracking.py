@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from errormap.io import InputError
+from errormap.io import InputError, read_document_text
 
 RUN_ID_RE = re.compile(r"^[0-9a-f]{32}$")
 MODEL_ARTIFACT = "model"
@@ -190,7 +190,7 @@ def load_learned_residual_doc(run_id: str, tracking_uri: str | None = None) -> d
         except Exception as exc:
             raise InputError(f"{run_id}: no learned residual in MLflow store {uri_store}: "
                              f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
-        return json.loads(p.read_text(encoding="utf-8"))
+        return json.loads(read_document_text(p, "a JSON record"))
 
 
 def register_model(run_id: str, name: str, tracking_uri: str | None = None) -> str:

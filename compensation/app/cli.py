@@ -119,7 +119,8 @@ def main(argv=None) -> int:
     libraries are still being imported (one line, exit 130; outputs are written through
     temporary files, which an interrupted writer removes, and a command that writes a folder
     runs inside :func:`compensation.app.outputs.owned_folder`, which holds the folder's lock and
-    removes on Ctrl-C what the run added, so nothing half-written stays)."""
+    removes on Ctrl-C what the run added, so nothing half-written stays; a command whose --out is one
+    file runs inside :func:`compensation.app.outputs.owned_file`, its lock ``FILE.volcomp.lock``)."""
     command, as_program = None, argv is None
     pending = {"interrupt": False}  # set by the SIGINT handler until main() takes the interrupt
     try:
@@ -238,12 +239,9 @@ def _run(argv, name, pending: dict | None = None) -> int:
     try:
         from compensation.app.validate import check_args
         check_args(args.command, args, _subparser(parser, args.command))
-        from compensation.app.outputs import out_folder_of, owned_folder
-        folder = out_folder_of(args.command, args)
-        if folder is None:
-            return int(args.func(args) or 0)
-        with owned_folder(folder, args.command,  # one run per folder; Ctrl-C removes what it added
-                          interrupted=lambda: bool(pending and pending["interrupt"])):
+        from compensation.app.outputs import out_target_of, owned_output
+        with owned_output(out_target_of(args.command, args), args.command,  # one run per --out folder or file;
+                          interrupted=lambda: bool(pending and pending["interrupt"])):  # Ctrl-C removes what it added
             return int(args.func(args) or 0)
     except (InputError, MachineFileError, UsageError) as exc:
         print(one_line(f"volcomp {args.command}: error: {exc}"), file=sys.stderr)

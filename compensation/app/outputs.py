@@ -1,8 +1,12 @@
-"""One run owns an output folder: a lock while it works, and nothing left behind by Ctrl-C.
+"""One run owns an output folder or file: a lock while it works, and nothing left behind by Ctrl-C.
 
 Every command that writes a folder (``--out DIR``: the ``OUT_DIR`` rules of
-:mod:`compensation.app.validate`) runs inside :func:`owned_folder`, entered by
-:func:`compensation.app.cli.main` after the options are checked and before the command's work:
+:mod:`compensation.app.validate`) runs inside :func:`owned_folder`, and every command whose
+``--out`` is one file (``OUT_FILE``: ``predict --out f.csv``, ``featurepoints``, ``sweeps``,
+``identify``, ``interpolate``, ``drift-predict``) inside :func:`owned_file`; both are entered by
+:func:`owned_output` in :func:`compensation.app.cli.main` after the options are checked and
+before the command's work. A file's lock lies beside it, ``f.csv.volcomp.lock``, with the same
+rules as a folder's (below); on Ctrl-C a file that was not there when the run started is removed.
 
 * **Lock.** ``DIR/.volcomp.lock`` is created with ``O_EXCL`` and holds the owner's pid, host,
   command and start time (JSON). A second run into the same folder finds it and is refused
@@ -47,12 +51,19 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-class FolderLock:
-    """``DIR/.volcomp.lock`` held by this process (:meth:`acquire`, :meth:`release`)."""
+def file_lock_path(path) -> Path:
+    """The lock of the single-file output ``path``: ``f.csv`` -> ``f.csv.volcomp.lock`` beside it."""
+    path = Path(path)
+    return path.with_name(path.name + LOCK_NAME)
 
-    def __init__(self, folder, command: str):
+
+class FolderLock:
+    """The lock of one output held by this process (:meth:`acquire`, :meth:`release`): ``DIR/.volcomp.lock``
+    of a folder, or ``lock_path`` (:func:`file_lock_path` of a file). ``folder``: the output it guards."""
+
+    def __init__(self, folder, command: str, lock_path=None):
         self.folder = Path(folder)
-        self.path = self.folder / LOCK_NAME
+        self.path = Path(lock_path) if lock_path is not None else self.folder / LOCK_NAME
         self.command = command
         self.held = False
         self._ino = None
@@ -87,7 +98,7 @@ class FolderLock:
             return  # released meanwhile: try again
         except (OSError, ValueError, KeyError, TypeError):
             raise UsageError(f"--out {self.folder}: is locked by {self.path}, which cannot be read (a run may be "
-                             "starting); if no volcomp run writes this folder, remove that file") from None
+                             "starting); if no volcomp run writes it, remove that file") from None
         if host != socket.gethostname():
             raise UsageError(f"--out {self.folder}: in use by {who}; wait for it to finish or give another --out "
                              f"(if that run is gone, remove {self.path})")
@@ -216,16 +227,65 @@ def owned_folder(folder, command: str, interrupted=None):
             _remove_created(folder, created, whole=False)
 
 
-def out_folder_of(command: str, args):
-    """The ``--out`` folder a command's arguments name (None: the command writes no folder)."""
+@contextlib.contextmanager
+def owned_file(path, command: str, interrupted=None):
+    """Own the single-file output ``path`` for one run of ``command``: its lock
+    (:func:`file_lock_path`, the folder lock's rules) while the run works, the folders above it
+    created if absent (and removed again if left empty), and on Ctrl-C the file removed when it was
+    not there before the run. Yields the file's :class:`Path`."""
+    from errormap.io import InputError, check_output_target
+    path = Path(path)
+    try:
+        check_output_target(path, "file")
+    except InputError as exc:
+        raise UsageError(f"--out {exc}") from None
+    parent, created = path.parent, None
+    if not parent.exists():
+        created = parent
+        while not created.parent.exists():
+            created = created.parent
+        parent.mkdir(parents=True, exist_ok=True)
+    lock = FolderLock(path, command, lock_path=file_lock_path(path))
+    try:
+        lock.acquire()
+        existed = os.path.lexists(path)
+    except BaseException:
+        if created is not None:
+            _remove_created(parent, created, whole=False)
+        raise
+    try:
+        yield path
+    except BaseException as exc:
+        if _is_interrupt(exc, interrupted) and not existed:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        raise
+    finally:
+        lock.release()
+        if created is not None:   # a refused run leaves no folder behind
+            _remove_created(parent, created, whole=False)
+
+
+def out_target_of(command: str, args):
+    """``(path, kind)`` of the ``--out`` a command's arguments name: kind ``"dir"`` (a folder) or
+    ``"file"`` (one file); None: the command has no such ``--out``."""
     from .validate import OutPath, rule_for
     rule = rule_for(command, "out")
     value = getattr(args, "out", None)
-    if isinstance(rule, OutPath) and rule.kind == "dir" and value is not None:
-        return value
+    if isinstance(rule, OutPath) and rule.kind in ("dir", "file") and value is not None:
+        return value, rule.kind
     return None
+
+
+def owned_output(target, command: str, interrupted=None):
+    """The context that owns ``target`` (``(path, kind)`` of :func:`out_target_of`) for one run:
+    :func:`owned_folder` or :func:`owned_file`; a no-op for None."""
+    if target is None:
+        return contextlib.nullcontext()
+    path, kind = target
+    return (owned_folder if kind == "dir" else owned_file)(path, command, interrupted=interrupted)
 
 
 def is_lock(path) -> bool:
     """Whether ``path`` is a run's lock file (never listed as an output)."""
-    return Path(path).name == LOCK_NAME
+    return Path(path).name.endswith(LOCK_NAME)

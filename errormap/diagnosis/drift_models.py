@@ -62,7 +62,7 @@ from scipy import signal
 from scipy.optimize import nnls
 
 from ..estimators import Estimator
-from ..io import InputError
+from ..io import InputError, read_document_text
 from .drift import DriftLog, DriftModeller
 
 SCHEMA = "volcomp.drift_model"
@@ -682,8 +682,7 @@ class DriftModel:
     @classmethod
     def load(cls, path) -> "DriftModel":
         try:
-            with open(path, encoding="utf-8") as fh:
-                obj = json.load(fh)
+            obj = json.loads(read_document_text(path, "a drift model"))
         except FileNotFoundError:
             raise InputError(f"{path}: no such file") from None
         except json.JSONDecodeError as exc:

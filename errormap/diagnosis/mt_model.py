@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..field import JACOBIAN, PREDICT_AND_JACOBIAN
-from ..io import InputError, decode_text, write_json
+from ..io import InputError, read_document_text, write_json
 from ..mt_chain import MachineTool
 from ..mt_elements import ChainElementSet
 from ..mt_field import ChainField
@@ -173,7 +173,7 @@ def load_chain_model_file(path, machine: MachineTool, learned: str = "refuse") -
         raise ValueError(f"Expected learned one of {LEARNED_MODES}, got {learned!r}")
     path = Path(path)
     try:
-        d = json.loads(decode_text(path.read_bytes(), path))
+        d = json.loads(read_document_text(path, "a diagnosed chain model"))
     except (OSError, json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"{path}: not a chain model file ({exc})") from None
     if not isinstance(d, dict) or d.get("format") != CHAIN_MODEL_FORMAT:

@@ -58,7 +58,7 @@ from scipy.linalg import svd
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
-from ..io import InputError, read_table
+from ..io import InputError, read_document_text, read_table
 from ..threads import limit_threads
 from .hexapod import (KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics, quat_to_rotation,
                       skew, workspace_poses)
@@ -807,7 +807,7 @@ def load_calibrated_machine(path, machine: PKM) -> PKM:
     if not p.is_file():
         raise InputError(f"{p}: no such calibration file")
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = json.loads(read_document_text(p, "a calibration file"))
     except ValueError as exc:
         raise InputError(f"{p}: not a PKM calibration file (not JSON: {exc})") from None
     fmt = doc.get("format") if isinstance(doc, dict) else None

@@ -51,6 +51,7 @@ from ..options import add_condition_options, add_units_option, conditions_from_a
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args, open_executor
 from ..workflows.compensate import CompensateSettings, compensate_files
 from ... import guards
+from ...fields import FAILED_VERDICT
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ...dialects import DIALECT_NAMES
 from ...nc_state import MACHINE, read_tool_table, read_work_offsets
@@ -80,7 +81,9 @@ def register(sub):
     p.add_argument("--seed", type=int, default=0, help="seed of the stochastic solvers (ga, batched-ga)")
     p.add_argument("--allow", nargs="?", const="all", default=None, metavar="GUARDS",
                    help="write commands even where these guards object (comma-separated from "
-                        f"{', '.join(guards.GUARDS)}; bare --allow: all of them); violations are still reported")
+                        f"{', '.join(guards.GUARDS)}; bare --allow: all of them); violations are still reported; "
+                        f"{FAILED_VERDICT}: use a model whose diagnosis verdict failed (named explicitly, never by a "
+                        "bare --allow; recorded in the summary)")
     p.add_argument("--truth", default=None, metavar="ELEMENTS",
                    help="machine-tool chains: a truth element set of the same chain (simulated machine, given by a "
                         "tester or benchmark, never used by the solver): the TRUE residual is reported beside the model's")
@@ -132,10 +135,12 @@ def parse_allow(text) -> tuple:
     if text is None:
         return ()
     names = tuple(t.strip() for t in str(text).split(",") if t.strip())
-    bad = [n for n in names if n not in guards.GUARDS + ("all",)]
+    bad = [n for n in names if n not in guards.GUARDS + ("all", FAILED_VERDICT)]
     if bad or not names:
-        raise UsageError(f"--allow: expected guard names from {list(guards.GUARDS)} or 'all', got {text!r}")
-    return ("all",) if "all" in names else names
+        raise UsageError(f"--allow: expected guard names from {list(guards.GUARDS)} or 'all' (and "
+                         f"{FAILED_VERDICT!r}), got {text!r}")
+    verdict = (FAILED_VERDICT,) if FAILED_VERDICT in names else ()
+    return ("all",) + verdict if "all" in names else names
 
 
 def parse_max_segment(text):

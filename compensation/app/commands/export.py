@@ -25,6 +25,7 @@ from compensation.app.validate import UsageError
 
 from ..workflows.controller_tables import DriftSettings, TableSettings, export_drift, export_table
 from ... import export as ex
+from ...fields import FAILED_VERDICT
 
 DEFAULT_TOLERANCE_UM = 1.0
 
@@ -71,6 +72,9 @@ def register(sub):
     p.add_argument("--force", action="store_true",
                    help="write even when the tolerance is not met (recorded in export.json)")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
+    p.add_argument("--allow", action="append", default=[], choices=(FAILED_VERDICT,),
+                   help=f"{FAILED_VERDICT}: export a model (or --diagnosis) whose diagnosis verdict failed (refused by "
+                        "default); the override is recorded in export.json")
     p.set_defaults(func=run)
 
 
@@ -103,7 +107,21 @@ def format_check(check: dict, has_truth: bool) -> list[str]:
     return lines
 
 
+def model_verdict(args) -> dict | None:
+    """The diagnosis verdict of MODEL and of ``--diagnosis``: a failed one is refused (exit 2) naming the
+    file and its reasons unless ``--allow failed-verdict``; the record written into export.json."""
+    from ...fields import check_verdict, resolve_model
+    allowed = FAILED_VERDICT in (getattr(args, "allow", None) or [])
+    verdict = check_verdict(resolve_model(args.model).path, allowed)
+    if getattr(args, "diagnosis", None):
+        d = check_verdict(Path(args.diagnosis), allowed)
+        if d is not None and (verdict is None or d["status"] == "failed"):
+            verdict = d
+    return verdict
+
+
 def run(args) -> int:
+    args.model_verdict = model_verdict(args)   # before any work: a failed diagnosis is refused unless allowed
     drift_only = {"--sample-period-s": args.sample_period_s, "--log": args.log, "--sim": args.sim,
                   "--sim-seed": args.sim_seed}
     if args.fmt == "drift":
@@ -123,7 +141,8 @@ def run(args) -> int:
     settings = TableSettings(
         model=args.model, fmt=args.fmt, out=args.out, tolerance_um=args.tolerance_um, check_points=args.check_points,
         seed=args.seed, truth=args.truth, diagnosis=args.diagnosis, points=args.points,
-        region=parse_region(args.region), force=args.force, tracking_uri=args.tracking_uri)
+        region=parse_region(args.region), force=args.force, tracking_uri=args.tracking_uri,
+        model_verdict=args.model_verdict)
     info = export_table(settings, machine, on_check=_print_check)
     _print_written(Path(args.out), list(info["files"]), info, args.tolerance_um)
     return 0
@@ -160,7 +179,7 @@ def run_drift(args) -> int:
         raise UsageError(f"--sample-period-s: expected a period in (0, {ex.DRIFT_MAX_PERIOD_S:g}] s, got {dt}")
     settings = DriftSettings(model=args.model, out=args.out, tolerance_um=args.tolerance_um,
                              sample_period_s=args.sample_period_s, log=args.log, sim=args.sim, sim_seed=args.sim_seed,
-                             force=args.force)
+                             force=args.force, model_verdict=args.model_verdict)
     info = export_drift(settings, on_check=_print_drift_check)
     _print_written(Path(args.out), [ex.DRIFT_FILE], info, args.tolerance_um)
     return 0
@@ -240,7 +259,8 @@ def run_chain_export(args, machine) -> int:
     else:
         files = mt_export.write_chain_tables(tables, el, out, src.description)
     write_json(out / "export.json", {"format": args.fmt, "machine": machine.name, "machine_file": machine.path,
-                                     "model": src.to_dict(), what.replace(" ", "_"): n_rows,
+                                     "model": src.to_dict(), "model_verdict": args.model_verdict,
+                                     what.replace(" ", "_"): n_rows,
                                      "tolerance_um": args.tolerance_um,
                                      "tolerance_met": bool(met), "forced": bool(args.force and not met),
                                      "check": check, "files": [p.name for p in files],
@@ -340,6 +360,7 @@ def run_chain_linuxcnc(args, machine) -> int:
     reversal = {j: float(np.max(np.abs(tables.forward[j] - tables.reverse[j]))) * 1e3 for j in tables.nominal}
     write_json(out / "export.json", {
         "format": "linuxcnc", "machine": machine.name, "machine_file": machine.path, "model": src.to_dict(),
+        "model_verdict": args.model_verdict,
         "points_per_joint": args.points, "joints": {j: machine.axis_columns[k] for j, k in tables.joints.items()},
         "max_forward_minus_reverse_um": reversal, "left_out": left, "tolerance_um": args.tolerance_um,
         "tolerance_met": bool(met), "forced": bool(args.force and not met), "check": check,

@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from errormap.io import InputError, read_table, write_csv
+from errormap.io import InputError, read_document_text, read_table, write_csv
 from errormap.field import machine_axes
 from errormap.machine import check_machine_kind, load_machine
 from errormap.units import check_units
@@ -13,7 +13,7 @@ from errormap.units import check_units
 from compensation.app.validate import UsageError
 
 from ..options import add_units_option
-from ...fields import KIND_NAMES, load_field, resolve_model
+from ...fields import FAILED_VERDICT, KIND_NAMES, check_verdict, load_field, resolve_model
 
 
 def register(sub):
@@ -28,11 +28,12 @@ def register(sub):
                    "x_mm, y_mm, z_mm; an arm: its joint columns q1_deg ..., output the calibrated tool point and "
                    "dx_mm, dy_mm, dz_mm against the nominal chain)")
     p.add_argument("--out", required=True, help="output CSV (input columns + dx_um, dy_um, dz_um)")
-    p.add_argument("--allow", action="append", default=[], choices=("extrapolate", "volume"),
+    p.add_argument("--allow", action="append", default=[], choices=("extrapolate", "volume", FAILED_VERDICT),
                    help="extrapolate (or volume, compensate's name for the same guard): predict also at points "
                         "outside the model's calibrated volume (refused by default: a model says nothing reliable "
-                        "there; a diagnosed model with a learned residual: outside the checks' box); the override "
-                        "is recorded in the output's header")
+                        "there; a diagnosed model with a learned residual: outside the checks' box); "
+                        f"{FAILED_VERDICT}: use a model whose diagnosis verdict failed (refused by default); the "
+                        "override is recorded in the output's header")
     p.add_argument("--band", choices=("1sigma", "95"), default=None,
                    help="also write the half-width of a per-component band (1-σ or 95 %%) from the element set's "
                         "covariance (NAME.cov.npz beside it, written by `volcomp identify`); a diagnosed model.json "
@@ -58,6 +59,12 @@ def _check_volume(args, table, axes, field, machine) -> int:
     hint = "; positions in μm rather than mm?" if far.any() else ""
     raise InputError(f"{table.path}: row {table.row_number(i)}: {reasons[0]} ({len(bad)} of {len(axes)} points "
                      f"outside the calibrated volume{hint}); pass --allow extrapolate to predict there anyway")
+
+
+def _verdict_line(verdict: dict) -> str:
+    """The header line that records a failed diagnosis verdict used on request (``--allow failed-verdict``)."""
+    return (f"allowed: {FAILED_VERDICT} ({verdict['file']}: verdict failed: "
+            f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})")
 
 
 def _band_columns(sd, band) -> dict:
@@ -104,7 +111,7 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
     field = load_diagnosed_model(src.path, machine)
     n_out = _check_volume(args, t, axes, field, machine)
     cond = _point_conditions(t, field.needs, args.units, "diagnosed model")
-    doc = json.loads(src.path.read_text(encoding="utf-8"))
+    doc = json.loads(read_document_text(src.path, "a diagnosed model"))
     el_path = src.path.parent / doc["elements"]
     cov = None
     if covariance_path(el_path).is_file():
@@ -188,9 +195,11 @@ def run(args) -> int:
     check_units(t.path, [t.row_number(k) for k in range(len(t))], machine=machine, axes=axes, axes_columns=names,
                 coverage="path", units=args.units, option="--units")
     src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
+    verdict = check_verdict(src.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
+    allowed = [_verdict_line(verdict)] if verdict and verdict.get("overridden_by") else []
     if src.kind == "diagnosed" and machine.kind != "machine-tool":  # the grinder's closed loop (and hybrid) model
         cols, meta = _predict_diagnosed(args, t, axes, machine, src, names)
-        path = write_csv(args.out, cols, header_comments=meta + [f"model: {src.description}",
+        path = write_csv(args.out, cols, header_comments=meta + allowed + [f"model: {src.description}",
                                                                  f"model_kind: {src.kind}", f"units: {args.units}"])
         print(f"wrote {len(axes)} predictions to {path}")
         return 0
@@ -214,7 +223,7 @@ def run(args) -> int:
     from ...hybrid import HybridField
     if isinstance(field, HybridField):   # a chain loop's model.json with its kept learned residual
         import json
-        doc = json.loads(src.path.read_text(encoding="utf-8"))
+        doc = json.loads(read_document_text(src.path, "a diagnosed model"))
         meta += [f"stage: {doc.get('kept_stage')} on {doc.get('base_stage')}"] + _learned_part(cols, field.learned, axes)
     if n_out:   # the override recorded in the output itself, on every machine
         meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
@@ -230,7 +239,7 @@ def run(args) -> int:
         cov = ElementCovariance.load(covariance_path(src.path), ElementSet.load(src.path))
         sd = np.sqrt(np.diagonal(cov.prediction_cov(machine, axes), axis1=1, axis2=2))
         cols.update(_band_columns(sd, args.band))
-    path = write_csv(args.out, cols, header_comments=meta + [f"model: {src.description}", f"model_kind: {src.kind}",
+    path = write_csv(args.out, cols, header_comments=meta + allowed + [f"model: {src.description}", f"model_kind: {src.kind}",
                                                      f"units: {args.units}"])
     print(f"wrote {len(axes)} predictions to {path}")
     return 0

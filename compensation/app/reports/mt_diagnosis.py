@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError, decode_text
+from errormap.io import InputError, read_document_text
 
 from .diagnosis import _learned
 from .figures import pyplot
@@ -33,7 +33,7 @@ STAGE_NOTE = {"identified": "the sweeps' element set", "updated": "Gaussian upda
 
 def read_json(path: Path, what: str) -> dict:
     try:
-        d = json.loads(decode_text(path.read_bytes(), path))
+        d = json.loads(read_document_text(path, "a diagnosis"))
     except OSError:
         raise InputError(f"{path}: no such file (a {what})") from None
     except (json.JSONDecodeError, RecursionError) as exc:

@@ -26,7 +26,7 @@ import numpy as np
 from errormap.arm_calibration import (GeometricResult, check_pose_set, fit_base_tool,
                                       fit_plain_lsq)
 from errormap.arm_poses import read_arm_poses
-from errormap.io import InputError, write_json
+from errormap.io import InputError, read_document_text, write_json
 
 from ..reports.arm_calibration import write_report
 from .calibration import holdout_split
@@ -399,7 +399,7 @@ def load_arm_model(chain, path, band_scale: bool = False):
     the kept stage's band factor (:func:`band_scale_of`)."""
     import json
     try:
-        d = json.loads(Path(path).read_text(encoding="utf-8"))
+        d = json.loads(read_document_text(path, "an arm calibration"))
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a readable calibration.json ({exc})") from None
     if not isinstance(d, dict) or d.get("format") not in READ_FORMATS:

@@ -15,7 +15,7 @@ import numpy as np
 
 from errormap.arm_poses import read_arm_poses
 from errormap.arm_register import MIN_POSES, register_frame
-from errormap.io import InputError, write_json
+from errormap.io import InputError, read_document_text, write_json
 from training.arm_residual import RotatedResidual
 
 from compensation.app.validate import UsageError
@@ -33,7 +33,7 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
     """Register the calibration ``model`` on the poses file ``poses``; write ``out/calibration.json``; returns its
     ``registration`` dict."""
     geo, learner = load_arm_model(chain, model)          # refuses what is not an arm calibration of this chain
-    doc = json.loads(Path(model).read_text(encoding="utf-8"))
+    doc = json.loads(read_document_text(model, "an arm calibration"))
     if doc.get("kept_stage") == STACKED:
         raise InputError(f"{model}: key 'kept_stage': a stacked stage (two pipelines) is not re-registered; "
                          "calibrate with a single kept pipeline")

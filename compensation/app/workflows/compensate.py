@@ -38,7 +38,7 @@ from ... import guards
 from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, solve_batch
 from ...diagnosed_model import (ConditionedField, load_path_field, path_conditions, replanned_conditions,
                                 solve_with_conditions)
-from ...fields import resolve_model
+from ...fields import FAILED_VERDICT, check_verdict, resolve_model, verdict_notes
 from ...gcode import DEFAULT_RAPIDS
 from ...nc_expand import source_line
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
@@ -187,10 +187,11 @@ def solve_paths(paths, field_, machine, s: CompensateSettings, conds, executor=N
 WORK_OFFSETS_MACHINE_NOTE = "volcomp: work offsets taken as machine zero (--work-offsets machine)"
 
 
-def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, cond=None) -> FileOutcome:
+def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, cond=None, notes=()) -> FileOutcome:
     """Guard and render one parsed tool path ``tp`` read from ``src``, solved as ``res``, to be
     written to ``dst`` (in memory; nothing is written). ``cond``: per-point conditions
-    {name: (n,)} of a diagnosed model whose terms need them (:func:`path_conditions`), else None."""
+    {name: (n,)} of a diagnosed model whose terms need them (:func:`path_conditions`), else None;
+    ``notes``: comment lines every written program carries (a failed verdict used on request)."""
     res.axes = np.array(res.axes, dtype=float)
     res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
     guard_field = field_.corrected.base if cond is not None else field_  # where it is calibrated: the axes-only part
@@ -241,6 +242,7 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, co
             comments = []  # a clean G-code output gets no added lines ...
         if tp.kind == "gcode" and s.work_offsets is not None:  # ... but the one the user said about its frame
             comments.insert(0, WORK_OFFSETS_MACHINE_NOTE)
+        comments[:0] = list(notes)
         outcome.text = render_compensated(tp, res.axes, res.commands_mm, comments=comments)
     return outcome
 
@@ -270,6 +272,7 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
                  "dialect": s.dialect}
     paths = [read_path(src, machine, **read_opts) for src, _ in plan]
     source = resolve_model(s.model)  # by content (format key), printed and recorded in the summary
+    verdict = check_verdict(source.path, FAILED_VERDICT in s.allow)  # a failed diagnosis: refused unless allowed
     print(f"compensate: model {source.description}", file=sys.stderr)
     field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
     # a diagnosed model whose terms need conditions: per point from the path's columns, else the options
@@ -290,7 +293,7 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
     results = solve_paths(paths, field_, machine, s, conds, executor=executor, progress=advance)
     outcomes = []
     for (src, dst), tp, cond, res in zip(plan, paths, conds, results):
-        o = compensate_one(tp, src, dst, field_, machine, s, res, cond)
+        o = compensate_one(tp, src, dst, field_, machine, s, res, cond, notes=verdict_notes(verdict))
         outcomes.append(o)
         if on_file is not None:
             on_file(o)
@@ -307,7 +310,8 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
         if not o.refused:
             o.entry["output"] = str(o.dst)
     summary_path = write_json(out_dir / SUMMARY_NAME, {
-        "method": s.method, "model": s.model, "model_source": source.to_dict(), "units": s.units,
+        "method": s.method, "model": s.model, "model_source": source.to_dict(), "model_verdict": verdict,
+        "units": s.units,
         "machine": machine.path, "allow": list(s.allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "seed": s.seed, "chunk_points": s.chunk_points,
         "solved_on": executor.describe() if executor is not None else LocalExecutor().describe(),

@@ -45,6 +45,7 @@ class TableSettings:
     region: dict | None = None
     force: bool = False
     tracking_uri: str | None = None
+    model_verdict: dict | None = None   # the model's diagnosis verdict (compensation.fields.check_verdict), recorded
 
 
 @dataclass
@@ -61,6 +62,7 @@ class DriftSettings:
     sim: str | None = None
     sim_seed: int | None = None
     force: bool = False
+    model_verdict: dict | None = None   # the model's diagnosis verdict (compensation.fields.check_verdict), recorded
 
 
 def load_model(s: TableSettings, machine):
@@ -116,7 +118,7 @@ def export_table(s: TableSettings, machine, on_check=None, log=None) -> dict:
         raise UsageError(f"tolerance not met: the {s.fmt} table leaves a model residual up to {worst:.4g} um > "
                          f"--tolerance-um {s.tolerance_um:g}; nothing written (--force writes anyway, recorded "
                          "in export.json)")
-    info = {"format": "volcomp-export/1", "table_format": s.fmt, "model": model_desc,
+    info = {"format": "volcomp-export/1", "table_format": s.fmt, "model": model_desc, "model_verdict": s.model_verdict,
             "machine": {"name": machine.name, "file": machine.path, "sha256": machine.sha256},
             "tolerance_um": s.tolerance_um, "tolerance_met": bool(met), "worst_model_residual_um": worst,
             "override": None if met else {"forced": True, "reason": f"worst model residual {worst:.6g} um exceeds "
@@ -235,6 +237,7 @@ def export_drift(s: DriftSettings, on_check=None, log=None) -> dict:
                              "(--force writes anyway, recorded in export.json)")
         coef = res["coefficients"]
         info = {"format": "volcomp-export/1", "table_format": "drift", "model": model_desc,
+                "model_verdict": s.model_verdict,
                 "sample_period_s": dt, "sample_period_given": s.sample_period_s is not None,
                 "check_log_median_step_s": step, "tolerance_um": s.tolerance_um, "tolerance_met": met,
                 "worst_model_residual_um": worst,

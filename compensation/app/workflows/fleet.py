@@ -32,7 +32,7 @@ import time
 import tomllib
 from pathlib import Path
 
-from errormap.io import InputError, write_json
+from errormap.io import InputError, read_document_bytes, write_json
 
 FORMAT = "volcomp-fleet/1"
 SUMMARY_NAME = "fleet_summary.json"
@@ -53,7 +53,7 @@ def read_fleet(path) -> list[dict]:
     if not path.is_file():
         raise InputError(f"{path}: no such fleet file")
     try:
-        doc = tomllib.loads(path.read_bytes().decode("utf-8"))
+        doc = tomllib.loads(read_document_bytes(path, "a fleet file").decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: byte {exc.start}: not UTF-8") from None
     except tomllib.TOMLDecodeError as exc:

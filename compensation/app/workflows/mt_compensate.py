@@ -29,7 +29,7 @@ from errormap.units import UNITS_CHECK, check_units
 from compensation.app.validate import UsageError
 
 from ... import guards
-from ...fields import load_chain_field, require_kind, resolve_model
+from ...fields import FAILED_VERDICT, check_verdict, load_chain_field, require_kind, resolve_model, verdict_notes
 from ...gcode import DEFAULT_RAPIDS
 from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool, program_frames
@@ -377,6 +377,7 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
     old_outputs = check_out_dir(s.out_dir, s.force)
     src = require_kind(resolve_model(s.model), ("elements", "chain-model", "chain-network", "mlflow"),
                        f"on the machine-tool chain {machine.name!r} compensate takes")
+    verdict = check_verdict(src.path, FAILED_VERDICT in allow)  # a failed diagnosis: refused unless allowed
     print(f"compensate: model {src.description}", file=sys.stderr)
     if src.kind == "mlflow":  # a chain network recorded in MLflow (train --tracking-uri)
         from ...fields import load_field
@@ -484,6 +485,7 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
                             f"model residual max {entry['model_max_um']:.4g} um"]
             if tp.kind == "gcode" and s.work_offsets is not None and s.work_offsets.source == MACHINE:
                 comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
+            comments = verdict_notes(verdict) + comments   # a failed verdict used on request: said in the program
             text = _render(tp, res.axes - tp.shift if tp.shift is not None else res.axes, machine, comments)
         outcomes.append((p, dst, tp, entry, text, listed, kept if refused else []))
         status = "REFUSED (not written)" if refused else f"-> {dst}"
@@ -528,7 +530,8 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
                 entry["output"] = str(dst)
     summary = write_json(s.out_dir / SUMMARY_NAME, {
         "conditions": dict(getattr(field_, "conditions", {}) or {}),
-        "method": s.method, "model": s.model, "model_source": src.to_dict(), "units": s.units,
+        "method": s.method, "model": s.model, "model_source": src.to_dict(), "model_verdict": verdict,
+        "units": s.units,
         **({"seed": s.seed} if solver_spec(s.method).seeded else {}),
         "machine": machine.path, "machine_name": machine.name, "allow": list(allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)"

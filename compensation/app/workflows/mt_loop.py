@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError, companion_path, decode_text, write_csv, write_json
+from errormap.io import InputError, companion_path, read_document_text, write_csv, write_json
 from errormap.seeds import spawn_seeds
 from compensation.app.validate import UsageError
 
@@ -28,7 +28,7 @@ def load_chain_truth(path, machine):
     from errormap.mt_field import ChainField
     p = Path(path)
     try:
-        d = json.loads(decode_text(p.read_bytes(), p))
+        d = json.loads(read_document_text(p, "a model or element set"))
     except (OSError, json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"{p}: not a truth file ({exc})") from None
     fmt = d.get("format") if isinstance(d, dict) else None
@@ -154,7 +154,7 @@ def load_chain_model(path, machine):
     if not p.is_file():
         raise InputError(f"{p}: no such model file (a machine-tool chain takes an element-set file)")
     try:
-        fmt = json.loads(decode_text(p.read_bytes(), p)).get("format")
+        fmt = json.loads(read_document_text(p, "a model or element set")).get("format")
     except (json.JSONDecodeError, AttributeError, RecursionError):
         fmt = None
     if fmt != ELEMENTS_FORMAT:

@@ -21,7 +21,7 @@ import numpy as np
 
 from errormap.arm_poses import write_arm_poses
 from errormap.arm_simulate import ArmTruth, draw_truth, measure, random_joints
-from errormap.io import InputError, write_csv, write_json
+from errormap.io import InputError, read_document_text, write_csv, write_json
 from errormap.seeds import spawn_seeds
 
 ARM_EFFECTS = ("sag", "backlash")
@@ -103,7 +103,7 @@ def well_conditioned_joints(chain, lo, hi, n: int, seed) -> np.ndarray:
 def load_serial_truth(path, chain) -> ArmTruth:
     """The :class:`ArmTruth` of a ``truth.json`` written by :func:`simulate_serial` (the judge's side)."""
     try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+        doc = json.loads(read_document_text(path, "a JSON input"))
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a readable JSON truth file ({exc})") from None
     if doc.get("kind") != "serial" or doc.get("machine") != chain.name:
