@@ -337,9 +337,8 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
                 table[value] = {}  # machine coordinates: every system's offset is zero, extended ones too
             if value not in table:
                 if offsets is None:
-                    raise InputError(f"{where}: selects the work offset {value}, but no offset table was given: give "
-                                     "--work-offsets FILE (.var or CSV), G10 L2 in the program, or --work-offsets "
-                                     "machine (a program in machine coordinates)")
+                    raise InputError(f"{where}: selects the work offset {value}; no table given: --work-offsets FILE "
+                                     "(.var/CSV), G10 L2, or --work-offsets machine (machine coordinates)")
                 raise InputError(f"{where}: the work offset {value} is not in {offsets.source} (nor set by a G10 L2 "
                                  "line before it): give it in --work-offsets")
             system = value
