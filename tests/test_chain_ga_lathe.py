@@ -105,7 +105,7 @@ def test_compensate_lathe_program_with_the_ga(tmp_path, capsys):
     prog = tmp_path / "l.nc"
     prog.write_text(LATHE_PROGRAM)
     assert main(["compensate", str(prog), "--machine", LATHE, "--model", str(el), "--method", "batched-ga",
-                 "--truth", str(el), "--out", str(tmp_path / "o")]) == 0
+                 "--truth", str(el), "--out", str(tmp_path / "o"), "--work-offsets", "machine"]) == 0
     entry = json.loads((tmp_path / "o" / "compensate_summary.json").read_text())["files"][0]
     assert entry["failures"] == 0 and entry["model_max_um"] <= GA_TOL_UM and entry["true"]["max_um"] <= GA_TOL_UM
     assert entry["compensated_axes"] == ["x_mm", "z_mm", "c_deg"] and entry["rotary_refused"] == 0

@@ -107,7 +107,7 @@ def test_lathe_users_path_simulate_sweeps_identify_compensate(tmp_path, capsys):
     prog.write_text(LATHE_PROGRAM)
     capsys.readouterr()
     assert main(["compensate", str(prog), "--machine", LATHE, "--model", str(d / "E.json"), "--method", "exact",
-                 "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o")]) == 0
+                 "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o"), "--work-offsets", "machine"]) == 0
     cap = capsys.readouterr()
     said = cap.out + cap.err
     assert "TRUE residual max" in said and "c_deg solved" in said
@@ -132,6 +132,7 @@ def test_lathe_users_path_simulate_sweeps_identify_compensate(tmp_path, capsys):
     assert c.min() > -C_CORRECTION_MAX_DEG and c.max() < 270.0 + C_CORRECTION_MAX_DEG
     # the oracle: the truth's own elements as the model — the path itself is exact
     assert main(["compensate", str(prog), "--machine", LATHE, "--model", str(d / "sim" / "truth_elements.json"),
-                 "--method", "exact", "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o2")]) == 0
+                 "--method", "exact", "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o2"),
+                 "--work-offsets", "machine"]) == 0
     oracle = json.loads((d / "o2" / "compensate_summary.json").read_text())["files"][0]
     assert oracle["true"]["max_um"] < ORACLE_TRUE_UM
