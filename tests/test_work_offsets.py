@@ -266,3 +266,17 @@ def test_a_program_placing_itself_with_g10_needs_no_table(tmp_path, truth_file):
     out = tmp_path / "o"
     assert _compensate(DATA / "g10_in_program_fanuc.nc", out, truth_file) == 0
     assert json.loads((out / "compensate_summary.json").read_text())["files"][0]["work_offsets"] == "program G10 lines"
+
+
+def test_report_reads_a_gcode_path_only_with_its_frame(tmp_path, grinder, capsys):
+    """volcomp report --path: the same rule as compensate (refused at the first move without
+    --work-offsets machine; with it the report records it in metrics.json)."""
+    from errormap.simulator import random_truth
+    el = random_truth(grinder, 7).elements.save(tmp_path / "elements.json")
+    prog = tmp_path / "part.nc"
+    prog.write_text(GRINDER_NO_SYSTEM, encoding="ascii")
+    base = ["report", "--model", str(el), "--path", str(prog), "--methods", "traditional"]
+    assert main([*base, "--out", str(tmp_path / "a")]) == 2
+    assert f"{prog}: line 3: the first move" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "b"), "--work-offsets", MACHINE]) == 0
+    assert json.loads((tmp_path / "b" / "metrics.json").read_text())["work_offsets"] == MACHINE

@@ -119,6 +119,8 @@ def run(args) -> int:
     context = {"machine": f"{machine.name} ({machine.path})", "model (error field)": args.model,
                "truth": args.truth or "none (model residual only)", "path": path_info["path"],
                "points": path_info["points"], "seed": args.seed}
+    if "work_offsets" in path_info:
+        context["work offsets"] = f"{path_info['work_offsets']} (--work-offsets machine: in machine coordinates)"
     paths = write_report(cmp, Path(args.out), context=context)
     print_table(cmp)
     for k, path in paths.items():   # html, metrics, residuals (+ residuals_<method> of a method run on a subset)
