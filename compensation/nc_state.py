@@ -394,7 +394,7 @@ def refuse_unknown_frames(program, frames: ProgramFrames, offsets: WorkOffsets |
     if not unknown.any():
         return
     where = f"{program.path}: line {int(lines[np.argmax(unknown)]) + 1}"
-    if offsets is None:
+    if offsets is None:  # (program_frames refused any other system no G10 L2 set: this is the first move)
         give = "--work-offsets FILE, or --work-offsets machine" if tables else "--work-offsets machine"
         raise InputError(f"{where}: the first move, with no work offset table (a controller runs G54 at power-on, "
                          f"not machine zero): give {give} if the program is written in machine coordinates")

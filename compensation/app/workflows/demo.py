@@ -7,7 +7,8 @@ method (:mod:`compensation.app.workflows.compare`) → ``DIR/report.html``, ``DI
 subset, the per-point ``ga``, has its own ``DIR/residuals_<method>.csv`` with only its rows) and
 ``DIR/demo.json``; the flute as an NC program ``DIR/flute.nc`` and its compensated form
 ``DIR/compensated/flute.nc`` (``volcomp compensate --method exact --work-offsets machine`` with the
-trained model: the flute is written in machine coordinates). The report files are also logged to the training's MLflow run.
+trained model: the flute is written in machine coordinates). The report files are also logged to the
+training's MLflow run.
 
 The demo's budget, stated on its page and in ``metrics.json`` (``budget``): LM stops when the
 error on the off-grid selection points has not improved for ``select_patience`` iterations
