@@ -47,7 +47,8 @@ digests = {}
 for name, src, opts, machine in jobs:
     out = out_dir / name
     model = out_dir / "msim" / "truth_elements.json" if machine else el
-    rc = main(["compensate", src, *models[machine], "--model", str(model), "--method", "exact", "--out", str(out), *opts])
+    rc = main(["compensate", src, *models[machine], "--model", str(model), "--method", "exact", "--out", str(out),
+               "--work-offsets", "machine", *opts])  # every program here is in machine coordinates
     files = sorted(p for p in out.iterdir() if p.name != "compensate_summary.json") if out.exists() else []
     digests[name] = [rc, {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}]
 print("RESULT " + json.dumps(digests))
@@ -92,7 +93,8 @@ def _corpus_jobs() -> list:
         opts = []
         for w in words[1:]:
             k, v = w.split("=", 1)
-            opts += [f"--{k}", v] if k != "max-segment" else ["--max-segment-mm", v]
+            if k != "work-offsets":  # every job is given --work-offsets machine (_COMPENSATE)
+                opts += [f"--{k}", v] if k != "max-segment" else ["--max-segment-mm", v]
         jobs.append([p.name, str(p), opts, ""])
     return jobs
 

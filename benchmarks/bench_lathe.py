@@ -39,7 +39,8 @@ def user_path(machine: str, seed: int, d: Path) -> dict:
         assert main(["identify", str(d / "sw.csv"), "--machine", machine, "--out", str(d / "E.json")]) == 0
         (d / "p.nc").write_text(PROGRAM)
         assert main(["compensate", str(d / "p.nc"), "--machine", machine, "--model", str(d / "E.json"), "--method",
-                     "exact", "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o")]) == 0
+                     "exact", "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o"),
+                     "--work-offsets", "machine"]) == 0  # PROGRAM is in machine coordinates
     e = json.loads((d / "o" / "compensate_summary.json").read_text())["files"][0]
     return {"true_max": e["true"]["max_um"], "true_rms": e["true"]["rms_um"],
             "unc_max": e["true_uncompensated"]["max_um"], "unc_rms": e["true_uncompensated"]["rms_um"],

@@ -68,7 +68,7 @@ def turning():
         prog.write_text(TURNING)
         for name, model in (("model (truth + 0.3 um noise)", ep), ("oracle (the truth)", tp)):
             assert main(["compensate", str(prog), "--machine", "lathe-xzc", "--model", str(model), "--method", "exact",
-                         "--truth", str(tp), "--out", str(d / name[:5])]) == 0
+                         "--truth", str(tp), "--out", str(d / name[:5]), "--work-offsets", "machine"]) == 0
             e = json.loads((d / name[:5] / "compensate_summary.json").read_text())["files"][0]["turning"]
             print(f"turning, {name}: {e['points']} points, TRUE before max {e['true_uncompensated']['max_um']:.3f} "
                   f"rms {e['true_uncompensated']['rms_um']:.3f} um -> after max {e['true']['max_um']:.4g} rms "

@@ -115,7 +115,12 @@ def stage_run(prog, model, out_dir) -> dict:
 
     now = time.perf_counter()
     machine = load_machine(None, expect_kind="grinder")
-    tp = read_path(prog, machine, rapids="keep", block_delete=None, arc_tolerance_um=0.5)
+    try:  # the generated programs are in machine coordinates (said so where the checkout takes it)
+        from compensation.nc_state import MACHINE, read_work_offsets
+        frame = {"work_offsets": read_work_offsets(MACHINE)}
+    except ImportError:  # a checkout from before work offsets (--baseline-root)
+        frame = {}
+    tp = read_path(prog, machine, rapids="keep", block_delete=None, arc_tolerance_um=0.5, **frame)
     now = lap("read+parse+plan", now)
     field = load_path_field(model, machine, None, argparse.Namespace())
     now = lap("field load", now)
@@ -159,6 +164,8 @@ def _cli_run(prog, model, out_dir, root):
     cli = "compensation.app.cli" if (Path(root) / "compensation" / "app" / "cli.py").is_file() else "compensation.cli"
     cmd = [sys.executable, "-m", cli, "compensate", str(prog), "--model", str(model),
            "--method", "exact", "--out", str(out_dir), "--force"]
+    if (Path(root) / "compensation" / "nc_state.py").is_file():  # a revision that takes the program's frame
+        cmd += ["--work-offsets", "machine"]  # the generated programs are in machine coordinates
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     _, status, ru = os.wait4(p.pid, 0)

@@ -109,6 +109,7 @@ def along_moves_um(truth, tp, command_axes, samples: int) -> np.ndarray:
 
 def run_seed(seed: int, samples: int) -> list:
     from compensation.pathio import read_path, replan
+    from compensation.nc_state import MACHINE, read_work_offsets
     from compensation.solvers import solve
     from errormap.machine import load_machine
     from errormap.simulator import random_truth
@@ -118,7 +119,7 @@ def run_seed(seed: int, samples: int) -> list:
         truth = random_truth(machine, seed, effects=effects)
         field = TruthField(truth)
         for name, path in _programs(machine).items():
-            base = read_path(path, machine)
+            base = read_path(path, machine, work_offsets=read_work_offsets(MACHINE))  # machine coordinates
             r0 = along_moves_um(truth, base, base.axes, samples)
             rows.append({"seed": seed, "truth": shape, "path": name, "split": "uncompensated",
                          "vertices": len(base), "max_um": float(r0.max()), "mean_um": float(r0.mean()),

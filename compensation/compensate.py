@@ -99,20 +99,31 @@ def compensate_joints(calibration, q, targets_mm=None):
     return solve_joints(geo.chain, geo.params, None, target, q)
 
 
-def compensate_program(files, machine, model, out_dir, **settings) -> dict:
+def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_table=None, **settings) -> dict:
     """Compensate tool-path ``files`` (G-code or axis CSV, by content) of a machine-tool chain with ``model``
     (a model file, folder or MLflow reference: :func:`save_model` writes one) into ``out_dir``, as
-    ``volcomp compensate --machine`` does; ``settings``: the other fields of
-    :class:`compensation.app.workflows.mt_compensate.ChainSettings` (``method="exact"``, ``allow``,
-    ``force``, ``truth`` …). Returns the written ``compensate_summary.json`` as a dict (``files``: per
-    input its residuals, guard counts, output or ``refused``)."""
+    ``volcomp compensate --machine`` does. ``work_offsets``: the controller's work offsets, as
+    ``--work-offsets`` (a ``.var`` / CSV file, ``"machine"`` for a program written in machine
+    coordinates, or a :class:`compensation.nc_state.WorkOffsets`); None (default): a G-code program is
+    refused like the CLI refuses it (a controller never runs it at an assumed machine zero).
+    ``tool_table``: as ``--tool-table`` (a file or a :class:`compensation.nc_state.ToolTable`).
+    ``settings``: the other fields of :class:`compensation.app.workflows.mt_compensate.ChainSettings`
+    (``method="exact"``, ``allow``, ``force``, ``truth`` …). Returns the written
+    ``compensate_summary.json`` as a dict (``files``: per input its residuals, guard counts, output or
+    ``refused``)."""
     import json
 
     from .app.workflows.compensate import SUMMARY_NAME
     from .app.workflows.mt_compensate import ChainSettings, compensate_chain_files
+    from .nc_state import ToolTable, WorkOffsets, read_tool_table, read_work_offsets
     _require_chain(machine, "compensate_program")
     files = [files] if isinstance(files, (str, Path)) else list(files)
-    s = ChainSettings(**{"method": "exact", **settings, "model": str(model), "out_dir": Path(out_dir)})
+    if work_offsets is not None and not isinstance(work_offsets, WorkOffsets):
+        work_offsets = read_work_offsets(work_offsets)
+    if tool_table is not None and not isinstance(tool_table, ToolTable):
+        tool_table = read_tool_table(tool_table)
+    s = ChainSettings(**{"method": "exact", **settings, "model": str(model), "out_dir": Path(out_dir),
+                         "work_offsets": work_offsets, "tool_table": tool_table})
     compensate_chain_files(files, machine, s)
     return json.loads((Path(out_dir) / SUMMARY_NAME).read_text(encoding="utf-8"))
 

@@ -312,17 +312,14 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
     cutter = None
     events = list(getattr(program, "events", ()) or ())
-    selects = any(e[2] in ("system", "g10-work") for e in events)  # relies on a work offset
-    # before any selection the controller runs its power-on G54: unknown (NaN) unless the tables give it;
-    # a program that selects no work system and was given no table is read in machine coordinates
-    system = "G54" if (selects or offsets is not None) else None
+    # before any selection the controller runs its power-on G54: unknown (NaN) unless the tables give it
+    # (never machine zero: --work-offsets machine says so explicitly; refuse_unknown_frames refuses the rest)
+    system = "G54"
     tool = None
     first, offs, tls = [0], [], []
     used_systems, used_tools = set(), set()
 
     def current():
-        if system is None:
-            return np.zeros(len(words))
         if system not in table:
             return np.full(len(words), np.nan)
         return _offset_vector(table[system], words)
@@ -369,19 +366,39 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
         offs.append(current())
         tls.append(tooltab[tool] if tool is not None else np.nan)
         rads.append(radii[cutter] if cutter is not None else np.nan)
-    notes = {"work_offsets": (offsets.source if offsets else
-                              ("program G10 lines" if selects else "none: the program selects no work system; its "
-                               "axes are read as machine coordinates")),
+    notes = {"work_offsets": offsets.source if offsets else "program G10 lines",
              "work_systems_used": sorted(used_systems),
              "tool_table": tools.source if tools else None,
              "tools_used": {int(t): float(tooltab[t]) for t in sorted(used_tools)}}
-    if system is not None or selects:
-        notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(table.get(s, {}), words)]
-                                   for s in sorted(used_systems)}
+    notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(table.get(s, {}), words)]
+                               for s in sorted(used_systems)}
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
     notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
     return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float))
+
+
+def refuse_unknown_frames(program, frames: ProgramFrames, offsets: WorkOffsets | None, tables: bool = True) -> None:
+    """Refuse (InputError: file, line, the option that supplies it) a program whose moves run in a work
+    system whose offset is not known. Without a table (``offsets`` None) every move counts: a
+    controller runs a program in its active work system (G54 at power-on), never at machine zero, so
+    only the program's own ``G10 L2`` lines can place it; with a table, the compensated moves.
+    ``tables``: the machine takes an offset table (False: only ``--work-offsets machine``, the grinder)."""
+    t = program.table
+    if t is not None:
+        lines = t.line if offsets is None else t.line[t.compensate]
+    else:
+        lines = np.array([m.index for m in program.moves if offsets is None or m.compensate], dtype=np.int64)
+    unknown = ~np.isfinite(frames.at(lines)[0]).all(axis=1)
+    if not unknown.any():
+        return
+    where = f"{program.path}: line {int(lines[np.argmax(unknown)]) + 1}"
+    if offsets is None:  # (program_frames refused any other system no G10 L2 set: this is the first move)
+        give = "--work-offsets FILE, or --work-offsets machine" if tables else "--work-offsets machine"
+        raise InputError(f"{where}: the first move, with no work offset table (a controller runs G54 at power-on, "
+                         f"not machine zero): give {give} if the program is written in machine coordinates")
+    raise InputError(f"{where}: a move in the controller's power-on work system G54, which {offsets.source} does not "
+                     "give: give G54 in --work-offsets (or select a work system before the first move)")
 
 
 # ---------------------------------------------------------------------------- the chain at a tool length

@@ -577,11 +577,12 @@ def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
 
 
 def grinder_frames(prog, work_offsets=None) -> None:
-    """The grinder's path applies no work offset and no tool length: a program that selects a work
-    system is read only with ``work_offsets`` :data:`compensation.nc_state.MACHINE` (its axes are
-    machine axes, every offset zero); one that selects a tool length offset or sets tables (``G10``)
+    """The grinder's path applies no work offset and no tool length: a program is read only with
+    ``work_offsets`` :data:`compensation.nc_state.MACHINE` (its axes are machine axes, every offset
+    zero; without it the first move is refused: a controller never runs a program at an assumed
+    machine zero); one that selects a tool length offset or sets tables (``G10``)
     is refused naming the word and line (machine-tool chains apply them, :mod:`compensation.nc_state`)."""
-    from .nc_state import program_frames
+    from .nc_state import program_frames, refuse_unknown_frames
     if work_offsets is not None and not work_offsets.machine_coordinates:
         raise ValueError("Expected work_offsets None or 'machine' on the grinder")
     for line, col, kind, value, text in prog.events:
@@ -589,7 +590,8 @@ def grinder_frames(prog, work_offsets=None) -> None:
             raise InputError(f"{prog.path}: line {line + 1}, column {col}: '{text}': the grinder applies no work offset "
                              "tool length or cutter radius (machine-tool chains do: --machine mill-xyz ... with "
                              "--work-offsets / --tool-table); remove it or post the program in machine coordinates")
-    program_frames(prog, work_offsets, None)  # a work-system selection without 'machine' is refused
+    # without 'machine' a work-system selection, and then any move, is refused (no assumed zero)
+    refuse_unknown_frames(prog, program_frames(prog, work_offsets, None), work_offsets, tables=False)
 
 
 def replan(toolpath: ToolPathFile, machine, **options) -> ToolPathFile:

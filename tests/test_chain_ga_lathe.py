@@ -105,12 +105,15 @@ def test_compensate_lathe_program_with_the_ga(tmp_path, capsys):
     prog = tmp_path / "l.nc"
     prog.write_text(LATHE_PROGRAM)
     assert main(["compensate", str(prog), "--machine", LATHE, "--model", str(el), "--method", "batched-ga",
-                 "--truth", str(el), "--out", str(tmp_path / "o")]) == 0
+                 "--truth", str(el), "--out", str(tmp_path / "o"), "--work-offsets", "machine"]) == 0
     entry = json.loads((tmp_path / "o" / "compensate_summary.json").read_text())["files"][0]
     assert entry["failures"] == 0 and entry["model_max_um"] <= GA_TOL_UM and entry["true"]["max_um"] <= GA_TOL_UM
     assert entry["compensated_axes"] == ["x_mm", "z_mm", "c_deg"] and entry["rotary_refused"] == 0
     src = LATHE_PROGRAM.splitlines(keepends=True)
     out = (tmp_path / "o" / "l.nc").read_text().splitlines(keepends=True)
+    note = "(volcomp: work offsets taken as machine zero [--work-offsets machine])\n"  # the frame given
+    assert out.count(note) == 1
+    out.remove(note)
     kept_src = [ln for i, ln in enumerate(src, 1) if i not in COMPENSATED_SOURCE_LINES]
     it = iter(out)
     assert all(any(o == ln for o in it) for ln in kept_src)

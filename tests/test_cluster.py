@@ -72,7 +72,7 @@ def batch(tmp_path_factory, grinder):
     ax[:, 1] = np.clip(ax[:, 1], EDGE_MM[1], grinder.stroke_hi[1] - EDGE_MM[1])
     files.append(write_csv(d / "in" / "big.csv", dict(zip(("x_mm", "z_mm", "a_deg"), ax.T))))
     base = ["compensate", *map(str, files), "--model", str(el), "--method", "exact",
-            "--chunk-points", str(CHUNK_POINTS)]
+            "--chunk-points", str(CHUNK_POINTS), "--work-offsets", "machine"]  # the .nc files: machine coordinates
     assert main(base + ["--out", str(d / "local"), "--workers", "1"]) == 0
     return SimpleNamespace(d=d, files=files, base=base, local=d / "local")
 

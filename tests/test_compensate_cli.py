@@ -5,10 +5,17 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
+from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, write_axes_gcode, write_targets_csv
 from compensation.toolpath import flute_path
 from errormap.htm import HTMField
 from errormap.simulator import random_truth
+
+MCS = read_work_offsets(MACHINE)
+"""The G-code programs here are written in machine coordinates (the grinder's axes): read with
+--work-offsets machine (a program is never read at an assumed zero)."""
+MCS_NOTE = "(volcomp: work offsets taken as machine zero [--work-offsets machine])"
+"""The first line every compensated G-code output here starts with: the frame the user gave."""
 
 TOL_MM = 2e-6            # written with 6 decimals
 TOL_MODEL_RESIDUAL_UM = 1e-3
@@ -30,7 +37,8 @@ def test_batch_writes_each_file_and_summary(setup, grinder, capsys):
     d, el, nc, csv, field = setup
     before = (nc.read_bytes(), csv.read_bytes())
     out = d / "out"
-    rc = main(["compensate", str(nc), str(csv), "--model", str(el), "--method", "exact", "--out", str(out),
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(nc), str(csv), "--model", str(el), "--method", "exact", "--out", str(out),
                "--max-segment-mm", "none"])
     assert rc == 0
     printed = capsys.readouterr().out
@@ -40,7 +48,7 @@ def test_batch_writes_each_file_and_summary(setup, grinder, capsys):
     assert [e["points"] for e in summary["files"]] == [40, 40]
     assert all(e["model_max_um"] < TOL_MODEL_RESIDUAL_UM for e in summary["files"])
     # the written commands land on the targets under the model: E(axes) cancels the correction
-    src, res = read_path(nc, grinder), read_path(out / "flute.nc", grinder)
+    src, res = read_path(nc, grinder, work_offsets=MCS), read_path(out / "flute.nc", grinder, work_offsets=MCS)
     from errormap.kinematics import forward
     reached = forward(grinder, res.axes) + 1e-3 * field.predict(res.axes)
     assert np.abs(reached - src.targets_mm).max() < 1e-3 * TOL_MODEL_RESIDUAL_UM + TOL_MM
@@ -51,7 +59,8 @@ def test_batch_writes_each_file_and_summary(setup, grinder, capsys):
 
 def test_refuses_to_overwrite_inputs(setup, capsys):
     d, el, nc, csv, _ = setup
-    rc = main(["compensate", str(nc), "--model", str(el), "--method", "traditional", "--out", str(nc.parent)])
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(nc), "--model", str(el), "--method", "traditional", "--out", str(nc.parent)])
     assert rc == 2
     assert "overwrite" in capsys.readouterr().err
 
@@ -62,7 +71,8 @@ def test_bad_file_names_line_and_writes_nothing(setup, capsys):
     bad.parent.mkdir(exist_ok=True)
     bad.write_text("G21 G90\nG1 X10 Z1 A0\nG1 X#3\n")
     out = d / "out_bad"
-    rc = main(["compensate", str(nc), str(bad), "--model", str(el), "--method", "traditional", "--out", str(out)])
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(nc), str(bad), "--model", str(el), "--method", "traditional", "--out", str(out)])
     assert rc == 2
     err = capsys.readouterr().err
     assert "bad.nc: line 3" in err
@@ -81,15 +91,18 @@ def test_guard_refusal_reaches_the_cli_and_allow_overrides(setup, capsys):
     d, el, _, _, _ = setup
     src = _edge_file(d)
     out = d / "out_edge"
-    rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out)])
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(src), "--model", str(el), "--method", "traditional", "--out", str(out)])
     assert rc != 0
     err = capsys.readouterr().err
     assert "refused" in err and "stroke" in err and "(line 3)" in err and "(line 5)" in err
     assert "(line 4)" not in err
     assert not (out / "edge.nc").exists()
-    rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--allow"])
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--allow"])
     assert rc == 2 and "--force" in capsys.readouterr().err  # DIR holds the previous run's summary
-    rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--allow",
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--allow",
                "--force"])
     assert rc == 0
     assert (out / "edge.nc").exists()
@@ -101,7 +114,8 @@ def test_allow_names_guards(setup, capsys):
     d, el, _, _, _ = setup
     src = _edge_file(d)
     out = d / "out_edge2"
-    base = ["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--force"]
+    base = ["compensate", "--work-offsets", "machine",
+            str(src), "--model", str(el), "--method", "traditional", "--out", str(out), "--force"]
     assert main(base + ["--allow", "ball"]) == 3          # the stroke guard still refuses
     assert "stroke" in capsys.readouterr().err
     assert main(base + ["--allow", "stroke,volume"]) == 0
@@ -122,7 +136,8 @@ def test_interrupted_batch_leaves_whole_files_only(setup, grinder, monkeypatch, 
 
     monkeypatch.setattr(cmd, "solve", interrupt_second)
     out = d / "out_int"
-    rc = main(["compensate", str(nc), str(csv), "--model", str(el), "--method", "traditional", "--out", str(out)])
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(nc), str(csv), "--model", str(el), "--method", "traditional", "--out", str(out)])
     assert rc == 130 and "interrupted" in capsys.readouterr().err
     # every input is solved before the first output is written: nothing at all in DIR
     assert not out.exists() or not any(out.iterdir())
@@ -134,7 +149,8 @@ def test_traditional_passes_the_guards_on_its_targets(setup, capsys):
     src.parent.mkdir(exist_ok=True)
     src.write_text("G21 G90\nG1 X10 Z1 A0 F100\nG1 Z-0.1 A10\nG1 Z1 A20\nM30\n")  # Z = -0.1: outside the stroke
     out = d / "out_z"
-    rc = main(["compensate", str(src), "--model", str(el), "--method", "traditional", "--out", str(out),
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(src), "--model", str(el), "--method", "traditional", "--out", str(out),
                "--max-segment-mm", "none"])
     err = capsys.readouterr().err
     assert rc == 3 and "point 1 (line 3)" in err and "target z_mm = -0.1 outside stroke" in err
@@ -147,10 +163,11 @@ def test_override_is_written_into_the_files(setup, capsys):
     csv = d / "edge" / "edge.csv"
     csv.write_text("x_mm,z_mm,a_deg\n10,1,0\n-0.5,1,10\n")
     out = d / "out_override"
-    assert main(["compensate", str(src), str(csv), "--model", str(el), "--method", "exact", "--out", str(out),
+    assert main(["compensate", "--work-offsets", "machine",
+                 str(src), str(csv), "--model", str(el), "--method", "exact", "--out", str(out),
                  "--allow", "stroke,volume"]) == 0
-    head = (out / "edge.nc").read_text().splitlines()[0]
-    assert head.startswith("(volcomp compensate: GUARDS OVERRIDDEN [--allow stroke,volume]")
+    note, head = (out / "edge.nc").read_text().splitlines()[:2]
+    assert note == MCS_NOTE and head.startswith("(volcomp compensate: GUARDS OVERRIDDEN [--allow stroke,volume]")
     assert "stroke 2" in head
     csv_lines = (out / "edge.csv").read_text().splitlines()
     assert any(ln.startswith("# volcomp compensate: GUARDS OVERRIDDEN (--allow stroke,volume)") for ln in csv_lines)
@@ -164,7 +181,8 @@ def test_rerun_leaves_no_stale_output(setup, capsys):
     ok = d / "edge" / "ok.nc"
     ok.write_text("G21 G90\nG1 X10 Z1 A0 F100\nG1 X20 A10\nM30\n")
     out = d / "out_stale"
-    base = ["compensate", str(src), str(ok), "--model", str(el), "--method", "traditional", "--out", str(out)]
+    base = ["compensate", "--work-offsets", "machine",
+            str(src), str(ok), "--model", str(el), "--method", "traditional", "--out", str(out)]
     assert main(base + ["--allow"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["compensate_summary.json", "edge.nc", "ok.nc"]
     assert main(base) == 2 and "--force" in capsys.readouterr().err  # DIR holds files: refused without --force
@@ -174,7 +192,8 @@ def test_rerun_leaves_no_stale_output(setup, capsys):
     assert [e["output"] for e in summary["files"]] == [None, str(out / "ok.nc")]
     assert summary["removed_stale"] == [str(out / "edge.nc")]
     # a third run with only ok.nc: nothing of the earlier runs but its own output remains
-    assert main(["compensate", str(ok), "--model", str(el), "--method", "traditional", "--out", str(out),
+    assert main(["compensate", "--work-offsets", "machine",
+                 str(ok), "--model", str(el), "--method", "traditional", "--out", str(out),
                  "--force"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["compensate_summary.json", "ok.nc"]
 
@@ -185,16 +204,18 @@ def test_rapids_and_block_delete_options(setup, grinder, capsys):
     src.parent.mkdir(exist_ok=True)  # under xdist this test may run before the one that made it
     src.write_text("G21 G90\nG0 X10 Z30 A0\nG1 Z1 F100\nG1 X20 A10\n/G1 X25\nG0 Z30\nM30\n")
     out = d / "out_rapids"
-    base = ["compensate", str(src), "--model", str(el), "--method", "exact", "--max-segment-mm", "none", "--force"]
+    base = ["compensate", "--work-offsets", "machine",
+            str(src), "--model", str(el), "--method", "exact", "--max-segment-mm", "none", "--force"]
     assert main(base + ["--out", str(out)]) == 2
     assert "line 5, column 1: block delete" in capsys.readouterr().err
     assert main(base + ["--out", str(out), "--block-delete", "on"]) == 0
-    lines = (out / "rapid.nc").read_text().splitlines()
-    assert lines[1] == "G0 X10 Z30 A0" and lines[5] == "G0 Z30" and lines[4] == "/G1 X25"  # kept as written
+    note, *lines = (out / "rapid.nc").read_text().splitlines()
+    assert note == MCS_NOTE and lines[1] == "G0 X10 Z30 A0" and lines[5] == "G0 Z30" and lines[4] == "/G1 X25"  # kept as written
     assert main(base + ["--out", str(out), "--block-delete", "off", "--rapids", "compensate"]) == 0
-    lines = (out / "rapid.nc").read_text().splitlines()
-    assert lines[1].startswith("G0 X") and lines[1] != "G0 X10 Z30 A0" and lines[4].startswith("/G1 X")
-    assert len(read_path(out / "rapid.nc", grinder, rapids="compensate", block_delete="off")) == 5
+    note, *lines = (out / "rapid.nc").read_text().splitlines()
+    assert note == MCS_NOTE and lines[1].startswith("G0 X") and lines[1] != "G0 X10 Z30 A0" and lines[4].startswith("/G1 X")
+    assert len(read_path(out / "rapid.nc", grinder, rapids="compensate", block_delete="off",
+                         work_offsets=MCS)) == 5
 
 
 def test_kept_rapid_outside_the_strokes_is_refused(setup, capsys):
@@ -202,7 +223,8 @@ def test_kept_rapid_outside_the_strokes_is_refused(setup, capsys):
     src = d / "edge" / "rapid_out.nc"
     src.parent.mkdir(exist_ok=True)  # under xdist this test may run before the one that made it
     src.write_text("G21 G90\nG0 X10 Z70 A0\nG1 Z1 F100\nG1 X20 A10\nM30\n")
-    rc = main(["compensate", str(src), "--model", str(el), "--method", "exact", "--out", str(d / "out_ro")])
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(src), "--model", str(el), "--method", "exact", "--out", str(d / "out_ro")])
     assert rc == 3 and "line 2: stroke: kept rapid z_mm = 70" in capsys.readouterr().err
 
 
@@ -210,7 +232,7 @@ def test_output_set_is_all_or_nothing(setup, grinder, tmp_path):
     """An error while the set is being written leaves no output and no temporary file."""
     import compensation.pathio as pathio
     d, el, nc, csv, _ = setup
-    a, b = pathio.read_path(nc, grinder), pathio.read_path(csv, grinder)
+    a, b = pathio.read_path(nc, grinder, work_offsets=MCS), pathio.read_path(csv, grinder, work_offsets=MCS)
     out = tmp_path / "set"
     items = [(a, out / "flute.nc", "G1 X1 Z1 A1\n"), (b, out / "flute.csv", 12345)]  # the second cannot be encoded
     with pytest.raises(AttributeError):
@@ -228,9 +250,11 @@ def test_allow_ball_overrides_a_correction_beyond_the_ball(setup, monkeypatch, c
     src.parent.mkdir(exist_ok=True)
     src.write_text("G21 G90\nG1 X10 Z1 A0 F100\nG1 X20 A10\nM30\n")
     monkeypatch.setattr(fields, "load_field", lambda spec, machine, uri: ConstantField(machine, [0.0, 300.0, 200.0]))
-    base = ["compensate", str(src), "--model", str(el), "--method", "exact", "--max-segment-mm", "none"]
+    base = ["compensate", "--work-offsets", "machine",
+            str(src), "--model", str(el), "--method", "exact", "--max-segment-mm", "none"]
     assert main(base + ["--out", str(d / "out_ball1")]) == 3
     err = capsys.readouterr().err
     assert "refused by guard(s) ball" in err and "convergence" not in err
     assert main(base + ["--out", str(d / "out_ball2"), "--allow", "ball"]) == 0
-    assert (d / "out_ball2" / "ball.nc").read_text().startswith("(volcomp compensate: GUARDS OVERRIDDEN [--allow ball]")
+    note, head = (d / "out_ball2" / "ball.nc").read_text().splitlines()[:2]
+    assert note == MCS_NOTE and head.startswith("(volcomp compensate: GUARDS OVERRIDDEN [--allow ball]")

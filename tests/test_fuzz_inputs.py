@@ -382,6 +382,7 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
     """compensate on hostile programs and its bounded options: exit 0 writes a program that lands
     on the input's targets under the model (read back and checked), or one line naming the file or
     the option."""
+    from compensation.nc_state import MACHINE, read_work_offsets
     from compensation.pathio import read_path
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
@@ -392,13 +393,14 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
         p, out = Path(d) / "part.nc", Path(d) / "out"
         p.write_bytes(raw)
         argv = ["compensate", str(p), "--model", str(el), "--method", "exact", "--out", str(out),
-                "--arc-tolerance-um", arc, "--max-segment-mm", seg]
+                "--arc-tolerance-um", arc, "--max-segment-mm", seg, "--work-offsets", "machine"]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p), "--arc-tolerance-um", "--max-segment-mm"]):
             field = HTMField(machine, ElementSet.load(el))
             seg_mm = {"auto": "auto", "none": None}.get(seg) if seg in ("auto", "none") else float(seg)
-            src = read_path(p, machine, arc_tolerance_um=float(arc), max_segment_mm=seg_mm, field=field)
-            res = read_path(out / p.name, machine, max_segment_mm=None)
+            mcs = read_work_offsets(MACHINE)  # PROGRAM is in machine coordinates
+            src = read_path(p, machine, arc_tolerance_um=float(arc), max_segment_mm=seg_mm, field=field, work_offsets=mcs)
+            res = read_path(out / p.name, machine, max_segment_mm=None, work_offsets=mcs)
             lands = forward(machine, res.axes) + 1e-3 * field.predict(res.axes)
             _check_output("compensate", len(res) == len(src) and np.abs(lands - src.targets_mm).max() < TOL_LANDING_MM,
                           (argv, len(res), len(src)))

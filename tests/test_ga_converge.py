@@ -98,7 +98,8 @@ def test_compensate_records_the_retry_in_its_summary(tmp_path, grinder, capsys):
     from compensation.pathio import write_axes_gcode
     el = random_truth(grinder, 3).elements.save(tmp_path / "elements.json")
     src = write_axes_gcode(tmp_path / "flute.nc", flute_path(turns=1, points_per_turn=20).axes(grinder))
-    rc = main(["compensate", str(src), "--model", str(el), "--method", "batched-ga", "--out", str(tmp_path / "o"),
+    rc = main(["compensate", "--work-offsets", "machine",
+               str(src), "--model", str(el), "--method", "batched-ga", "--out", str(tmp_path / "o"),
                "--max-segment-mm", "none"])
     assert rc == 0
     entry = json.loads((tmp_path / "o" / "compensate_summary.json").read_text())["files"][0]

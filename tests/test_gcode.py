@@ -7,9 +7,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from compensation.gcode import MM_PER_INCH, move_points, parse_program
+from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, render_gcode, write_compensated
 from errormap.io import InputError
 from errormap.machine import load_machine
+
+MCS = read_work_offsets(MACHINE)
+"""The G-code programs here are written in machine coordinates (the grinder's axes): read with
+--work-offsets machine (a program is never read at an assumed zero)."""
 
 TOL_MM = 1e-6        # the writer's 6 decimals (mm)
 TOL_INCH_MM = 2.6e-6  # 7 decimals in inch: 0.5e-7 in = 1.3 nm; two roundings
@@ -44,28 +49,29 @@ def _write(tmp_path, data, name="prog.nc"):
 
 
 def test_motion_is_parsed_modally(tmp_path, machine):
-    tp = read_path(_write(tmp_path, PROGRAM), machine, rapids="compensate", block_delete="off")
+    tp = read_path(_write(tmp_path, PROGRAM), machine, rapids="compensate", block_delete="off", work_offsets=MCS)
     assert tp.lines.tolist() == [4, 5, 8, 9, 10]
     expected = [[90, 5, 0], [90, 0.3, 0], [90.5, 0.3, 10.5], [91, 0.3, -3], [91.25, 0.35, 0.5]]
     assert np.allclose(tp.axes, expected)
     # rapids kept (the default): the G0 line is not a compensated point
-    assert read_path(_write(tmp_path, PROGRAM), machine, block_delete="off").lines.tolist() == [5, 8, 9, 10]
+    kept = read_path(_write(tmp_path, PROGRAM), machine, block_delete="off", work_offsets=MCS)
+    assert kept.lines.tolist() == [5, 8, 9, 10]
 
 
 def test_block_delete_is_an_explicit_choice(tmp_path, machine):
     src = _write(tmp_path, PROGRAM)
     with pytest.raises(InputError, match=r"prog\.nc: line 10, column 1: block delete"):
-        read_path(src, machine)
-    on = read_path(src, machine, block_delete="on")  # the controller skips line 10
+        read_path(src, machine, work_offsets=MCS)
+    on = read_path(src, machine, block_delete="on", work_offsets=MCS)  # the controller skips line 10
     assert on.lines.tolist() == [5, 8, 9]
     # a '/' line that neither moves nor changes modal state passes under the default
-    ok = read_path(_write(tmp_path, b"G21 G90 G1 X1 Z2 A3\n/M8 (coolant)\n", "bd.nc"), machine)
+    ok = read_path(_write(tmp_path, b"G21 G90 G1 X1 Z2 A3\n/M8 (coolant)\n", "bd.nc"), machine, work_offsets=MCS)
     assert len(ok) == 1
 
 
 def test_round_trip_keeps_every_other_line_byte_for_byte(tmp_path, machine):
     src = _write(tmp_path, PROGRAM)
-    tp = read_path(src, machine, block_delete="off")
+    tp = read_path(src, machine, block_delete="off", work_offsets=MCS)
     new_axes = tp.axes + np.array([0.0123, -0.0045, 0.0678])
     out = write_compensated(tp, tmp_path / "out" / "prog.nc", new_axes, tp.targets_mm)
     assert src.read_bytes() == PROGRAM  # input untouched
@@ -78,13 +84,13 @@ def test_round_trip_keeps_every_other_line_byte_for_byte(tmp_path, machine):
     assert b[4] == b"N30 G1 Z0.295500 X90.012300 A0.067800 F100"
     assert b[7] == b"N40 X90.512300 A10.567800 Z0.295500 (cut)"
     assert b[9].startswith(b"/N55 G1 X")
-    back = read_path(out, machine, block_delete="off")
+    back = read_path(out, machine, block_delete="off", work_offsets=MCS)
     assert np.abs(back.axes - new_axes).max() < TOL_MM
 
 
 def test_refuses_to_overwrite_the_input(tmp_path, machine):
     src = _write(tmp_path, PROGRAM)
-    tp = read_path(src, machine, block_delete="on")
+    tp = read_path(src, machine, block_delete="on", work_offsets=MCS)
     with pytest.raises(InputError, match="overwrite"):
         write_compensated(tp, src, tp.axes, tp.targets_mm)
     assert src.read_bytes() == PROGRAM
@@ -114,16 +120,16 @@ def test_refuses_to_overwrite_the_input(tmp_path, machine):
 ])
 def test_bad_lines_are_named(tmp_path, machine, body, line, col, what):
     with pytest.raises(InputError, match=rf"prog\.nc: line {line}, column {col}: .*{what}"):
-        read_path(_write(tmp_path, body), machine)
+        read_path(_write(tmp_path, body), machine, work_offsets=MCS)
 
 
 def test_no_motion_is_refused(tmp_path, machine):
     with pytest.raises(InputError, match="no G0/G1/G2/G3 motion"):
-        read_path(_write(tmp_path, b"%\nM30\n%\n"), machine)
+        read_path(_write(tmp_path, b"%\nM30\n%\n"), machine, work_offsets=MCS)
 
 
 def test_numbers_are_read_as_rs274(tmp_path, machine):
-    tp = read_path(_write(tmp_path, b"G21 G90 G1 X1 0 Z 2. 5 A-1 2.5\n"), machine)
+    tp = read_path(_write(tmp_path, b"G21 G90 G1 X1 0 Z 2. 5 A-1 2.5\n"), machine, work_offsets=MCS)
     assert tp.axes.tolist() == [[10.0, 2.5, -12.5]]
     txt, groups = render_gcode(tp.source, tp.axes)
     assert groups[0] == ["G21 G90 G1 X10.000000 Z2.500000 A-12.500000\n"]
@@ -131,7 +137,7 @@ def test_numbers_are_read_as_rs274(tmp_path, machine):
 
 def _arc_program(tmp_path, lines, name="arc.nc"):
     return read_path(_write(tmp_path, "G21 G90 G18 G1 X10 Z5 A0 F100\n" + lines, name), machine=load_machine(),
-                     arc_tolerance_um=0.5)
+                     arc_tolerance_um=0.5, work_offsets=MCS)
 
 
 @pytest.mark.parametrize("arc, centre_xz, ccw", [
@@ -163,14 +169,14 @@ def test_full_circle_and_helical_a(tmp_path):
 
 def test_incremental_and_inch_are_written_back_in_their_own_mode(tmp_path, machine):
     src = _write(tmp_path, "G20 G90 G1 X4 Z0.1 A0 F10\nG91 X0.5 A10\nZ0.01\nG90 G21 X120 (mm again)\n")
-    tp = read_path(src, machine)
+    tp = read_path(src, machine, work_offsets=MCS)
     assert np.allclose(tp.axes, [[4 * MM_PER_INCH, 0.1 * MM_PER_INCH, 0], [4.5 * MM_PER_INCH, 0.1 * MM_PER_INCH, 10],
                                  [4.5 * MM_PER_INCH, 0.11 * MM_PER_INCH, 10], [120, 0.11 * MM_PER_INCH, 10]])
     comp = tp.axes + np.array([0.0011, -0.0007, 0.003])
     text, groups = render_gcode(tp.source, comp)
     assert groups[1][0].startswith("G91 X0.5000000 A10.000000 Z0.0000000")  # equal offsets: same increments
     assert groups[3][0].startswith("G90 G21 X120.001100 ")
-    back = read_path(_write(tmp_path, text, "back.nc"), machine)
+    back = read_path(_write(tmp_path, text, "back.nc"), machine, work_offsets=MCS)
     assert np.abs(back.axes[:, :2] - comp[:, :2]).max() < TOL_INCH_MM
     assert np.abs(back.axes[:, 2] - comp[:, 2]).max() < TOL_DEG
 
@@ -178,11 +184,11 @@ def test_incremental_and_inch_are_written_back_in_their_own_mode(tmp_path, machi
 def test_incremental_rounding_does_not_accumulate(tmp_path, machine):
     n = 3000
     body = "G21 G90 G1 X10 Z1 A0 F100\nG91\n" + "X0.001 A0.1\n" * n
-    tp = read_path(_write(tmp_path, body), machine)
+    tp = read_path(_write(tmp_path, body), machine, work_offsets=MCS)
     rng = np.random.default_rng(3)
     comp = tp.axes + rng.uniform(-3e-4, 3e-4, tp.axes.shape)  # offsets that do not round evenly
     text, _ = render_gcode(tp.source, comp)
-    back = read_path(_write(tmp_path, text, "back.nc"), machine)
+    back = read_path(_write(tmp_path, text, "back.nc"), machine, work_offsets=MCS)
     # each point within one rounding of its own value: no drift over 3,000 increments
     assert np.abs(back.axes[:, :2] - comp[:, :2]).max() <= 0.5e-6 + 1e-12
     assert np.abs(back.axes[:, 2] - comp[:, 2]).max() <= 0.5e-6 + 1e-12
@@ -190,7 +196,7 @@ def test_incremental_rounding_does_not_accumulate(tmp_path, machine):
 
 def test_long_moves_are_split_and_rejoin_the_line(tmp_path, machine):
     src = _write(tmp_path, "G21 G90 G1 X10 Z1 A0 F100\nN20 G1 X30 (long)\n")
-    tp = read_path(src, machine, max_segment_mm=2.0)
+    tp = read_path(src, machine, max_segment_mm=2.0, work_offsets=MCS)
     assert len(tp) == 1 + 10 and np.allclose(tp.axes[1:, 0], np.linspace(12, 30, 10))
     text, groups = render_gcode(tp.source, tp.axes)
     assert groups[1][0] == "N20 G1 X12.000000 Z1.000000 A0.000000 (long)\n"
@@ -206,7 +212,7 @@ def test_fuzzed_gcode_parses_or_raises_input_error(tmp_path, machine, text, pref
     data = ("G1 X1 Z2 A3\n" if prefix else "") + text
     p = _write(tmp_path, data.encode("latin-1"), "fuzz.nc")
     try:
-        tp = read_path(p, machine)
+        tp = read_path(p, machine, work_offsets=MCS)
     except InputError as exc:
         assert "fuzz.nc" in str(exc)
         return
@@ -223,7 +229,7 @@ def test_fuzzed_gcode_parses_or_raises_input_error(tmp_path, machine, text, pref
 def test_arbitrary_bytes_parse_or_raise_input_error(tmp_path, machine, data):
     p = _write(tmp_path, b"G21 G90 G1 X1 Z2 A3\n" + data, "bytes.nc")
     try:
-        tp = read_path(p, machine)
+        tp = read_path(p, machine, work_offsets=MCS)
     except InputError as exc:
         assert "bytes.nc" in str(exc)
         return
@@ -247,6 +253,6 @@ def test_every_line_has_one_class(tmp_path):
 
 
 def test_header_goes_after_tape_start_and_program_number(tmp_path, machine):
-    tp = read_path(_write(tmp_path, b"%\nO1000 (NAME)\nG21 G90 G1 X1 Z2 A3\nM30\n%\n"), machine)
+    tp = read_path(_write(tmp_path, b"%\nO1000 (NAME)\nG21 G90 G1 X1 Z2 A3\nM30\n%\n"), machine, work_offsets=MCS)
     text, groups = render_gcode(tp.source, tp.axes, header=["note (x)"])
     assert text.splitlines()[:4] == ["%", "O1000 (NAME)", "(note [x])", "G21 G90 G1 X1.000000 Z2.000000 A3.000000"]

@@ -9,11 +9,16 @@ distance to the nominal arc in the WCS.
 import numpy as np
 import pytest
 
+from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, replan
 from compensation.solvers import solve
 from errormap.htm import HTMField
 from errormap.kinematics import forward
 from errormap.simulator import random_truth
+
+MCS = read_work_offsets(MACHINE)
+"""The G-code programs here are written in machine coordinates (the grinder's axes): read with
+--work-offsets machine (a program is never read at an assumed zero)."""
 
 ARC_TOL_UM = 0.5           # the default --arc-tolerance-um, the promise under test
 ROUNDING_UM = 0.002        # the writer's 6 decimals (0.5 nm per axis) and the solver's 1e-4 μm
@@ -41,7 +46,7 @@ def test_compensated_arc_within_chord_tolerance_along_the_chords(tmp_path, grind
     src = tmp_path / "arc.nc"
     # a half circle (G3, counter-clockwise), centre (x0, z0 + r), from (x0, z0) to (x0, z0 + 2r)
     src.write_text(f"G21 G90 G18\nG1 X{x0} Z{z0} A{a} F100\nG3 X{x0} Z{z0 + 2 * radius_mm} K{radius_mm}\nM30\n")
-    tp = read_path(src, grinder, arc_tolerance_um=ARC_TOL_UM)
+    tp = read_path(src, grinder, arc_tolerance_um=ARC_TOL_UM, work_offsets=MCS)
     if segments == "auto":
         tp = replan(tp, grinder, max_segment_mm="auto", field=truth)
     res = solve("exact", truth, tp.targets_mm, grinder, target_axes=tp.axes)

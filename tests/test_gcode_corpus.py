@@ -3,8 +3,10 @@ line-by-line diff that touches only what it should, or refused naming line, colu
 
 Each program says what is expected in its first ``expect:`` comment:
 ``expect: compensate [block-delete=on|off] [rapids=compensate] [max-segment=MM]`` or
-``expect: refuse line=N col=C word=W``. Programs ``c*`` are compensated, ``r*`` refused;
-they are written in several dialect styles (LinuxCNC, grbl, Fanuc-like, Fusion-post-like).
+``expect: refuse line=N col=C word=W [work-offsets=none]``. Programs ``c*`` are compensated, ``r*``
+refused; they are written in several dialect styles (LinuxCNC, grbl, Fanuc-like, Fusion-post-like),
+in machine coordinates (the grinder's axes): each is read with ``--work-offsets machine`` unless it
+says ``work-offsets=none`` (no table: a program is never read at an assumed zero).
 """
 import re
 from pathlib import Path
@@ -16,7 +18,7 @@ from hypothesis import strategies as st
 
 from compensation.app.cli import main
 from compensation.gcode import tokenize
-from compensation.nc_state import read_work_offsets
+from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, render_gcode, replan
 from compensation.solvers import solve
 from errormap.htm import HTMField
@@ -54,8 +56,9 @@ def read_options(exp: dict) -> dict:
         opts["block_delete"] = exp["block-delete"]
     if "rapids" in exp:
         opts["rapids"] = exp["rapids"]
-    if "work-offsets" in exp:
-        opts["work_offsets"] = read_work_offsets(exp["work-offsets"])
+    offsets = exp.get("work-offsets", MACHINE)  # the corpus is in machine coordinates (module docstring)
+    if offsets != "none":
+        opts["work_offsets"] = read_work_offsets(offsets)
     return opts
 
 
@@ -141,12 +144,14 @@ def test_cli_batch_over_the_corpus(tmp_path, grinder, capsys):
     plain = [str(p) for p in PROGRAMS if p.name.startswith("c") and "expect: compensate)" in p.read_text("latin-1")]
     assert len(plain) >= 10
     out = tmp_path / "out"
-    assert main(["compensate", *plain, "--model", str(el), "--method", "exact", "--out", str(out)]) == 0
+    assert main(["compensate", *plain, "--model", str(el), "--method", "exact", "--out", str(out),
+                 "--work-offsets", MACHINE]) == 0
     assert sorted(p.name for p in out.iterdir()) == sorted([Path(p).name for p in plain] + ["compensate_summary.json"])
     # one refused program in the batch: exit 2 naming it, nothing written
     out2 = tmp_path / "out2"
     bad = str(CORPUS / "r01_macro_call.nc")
-    assert main(["compensate", *plain, bad, "--model", str(el), "--method", "exact", "--out", str(out2)]) == 2
+    assert main(["compensate", *plain, bad, "--model", str(el), "--method", "exact", "--out", str(out2),
+                 "--work-offsets", MACHINE]) == 2
     assert "r01_macro_call.nc: line 3, column 5: G65 P9000" in capsys.readouterr().err
     assert not out2.exists()
 
@@ -200,7 +205,7 @@ def programs(draw):
 def test_random_programs_keep_every_other_line_and_read_back(tmp_path, grinder, text, seed, rapids):
     p = tmp_path / "rand.nc"
     p.write_bytes(text.encode("latin-1"))
-    tp = read_path(p, grinder, rapids=rapids, max_segment_mm=0.3)
+    tp = read_path(p, grinder, rapids=rapids, max_segment_mm=0.3, work_offsets=read_work_offsets(MACHINE))
     rng = np.random.default_rng(seed)
     comp = tp.axes + rng.uniform(-2e-4, 2e-4, tp.axes.shape) * np.array([1.0, 1.0, 10.0])
     out, groups = render_gcode(tp.source, comp)
@@ -210,7 +215,7 @@ def test_random_programs_keep_every_other_line_and_read_back(tmp_path, grinder, 
             assert groups[i] == [line]
     q = tmp_path / "back.nc"
     q.write_bytes(out.encode("latin-1"))
-    back = read_path(q, grinder, rapids=rapids)
+    back = read_path(q, grinder, rapids=rapids, work_offsets=read_work_offsets(MACHINE))
     assert back.axes.shape == comp.shape
     assert np.abs(back.axes[:, :2] - comp[:, :2]).max() <= TOL_REREAD_MM
     assert np.abs(back.axes[:, 2] - comp[:, 2]).max() <= TOL_REREAD_DEG + 1e-12

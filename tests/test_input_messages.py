@@ -99,7 +99,8 @@ def model(tmp_path, grinder):
 
 
 def _compensate(tmp_path, model, src):
-    return run_cli(["compensate", src, "--model", model, "--method", "traditional", "--out", tmp_path / "o"])
+    return run_cli(["compensate", "--work-offsets", "machine",
+                    src, "--model", model, "--method", "traditional", "--out", tmp_path / "o"])
 
 
 def test_cr_only_line_endings(tmp_path, model):

@@ -137,7 +137,8 @@ def test_tool_paths_are_told_csv_or_gcode_by_content(machine, tmp_path, capsys):
     csv_nc.write_text("x_mm,z_mm,a_deg,feed\n10,5,0,100\n20,6,45,100\n")
     gcode_csv = tmp_path / "in" / "prog.csv"                   # G-code named like a CSV
     gcode_csv.write_text("G21 G90\nG1 X10 Z5 A0 F100\nG1 X20 Z6 A45\nM30\n")
-    assert main(["compensate", str(csv_nc), str(gcode_csv), "--model", str(el), "--method", "exact",
+    assert main(["compensate", "--work-offsets", "machine",
+                 str(csv_nc), str(gcode_csv), "--model", str(el), "--method", "exact",
                  "--out", str(tmp_path / "out")]) == 0
     s = json.loads((tmp_path / "out" / "compensate_summary.json").read_text())
     assert [f["format"] for f in s["files"]] == ["csv-axes", "gcode"]
@@ -168,7 +169,8 @@ def test_compensate_temp_c_option_in_fahrenheit_is_refused(machine, tmp_path, ca
                                             "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}]}))
     src = tmp_path / "p.nc"
     src.write_text("G21 G90\nG1 X10 Z5 A0 F100\nG1 X20 Z6 A45\nM30\n")
-    assert main(["compensate", str(src), "--model", str(model), "--method", "exact", "--temp-c", "68",
+    assert main(["compensate", "--work-offsets", "machine",
+                 str(src), "--model", str(model), "--method", "exact", "--temp-c", "68",
                  "--out", str(tmp_path / "o")]) == 2
     assert "--temp-c: units do not fit: 68 °C" in _one_line(capsys)
 
@@ -206,7 +208,8 @@ def test_tool_path_csv_unit_mistakes_are_refused(machine, tmp_path, capsys, case
         path = write_csv(tmp_path / "p.csv", {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": a,
                                                "temp_c": np.full(30, 68.0)})
     el = ElementSet.zeros(machine).save(tmp_path / "zero.json")
-    assert main(["compensate", str(path), "--model", str(el), "--method", "exact", "--out", str(tmp_path / "o")]) == 2
+    assert main(["compensate", "--work-offsets", "machine",
+                 str(path), "--model", str(el), "--method", "exact", "--out", str(tmp_path / "o")]) == 2
     line = _one_line(capsys)
     col, why = {"axes-metres": ("x_mm", "metres"), "axes-radians": ("a_deg", "radians"),
                 "targets-metres": ("p[xyz]_mm", "metres"), "temp-fahrenheit": ("temp_c", "°F")}[case]
@@ -218,7 +221,8 @@ def test_a_path_in_mm_near_zero_passes_with_units_as_written(machine, tmp_path, 
     """The override exists for a real path the plausibility test would take for metres; it is recorded."""
     path = _points(tmp_path, "p.csv", [0.05, 0.1, 0.15], [0.02, 0.03, 0.04], [0, 1, 2])
     el = ElementSet.zeros(machine).save(tmp_path / "zero.json")
-    base = ["compensate", str(path), "--model", str(el), "--method", "exact", "--max-segment-mm", "none"]
+    base = ["compensate", "--work-offsets", "machine",
+            str(path), "--model", str(el), "--method", "exact", "--max-segment-mm", "none"]
     assert main(base + ["--out", str(tmp_path / "o1")]) == 2
     assert "metres rather than mm" in _one_line(capsys)
     assert main(base + ["--out", str(tmp_path / "o2"), "--units", "as-written"]) == 0
@@ -329,7 +333,7 @@ def test_every_csv_example_in_the_schemas_parses(machine, tmp_path, capsys):
             if "temp_c" in t.names:
                 continue  # the conditions example: only for a diagnosed model (tests/test_closed_loop.py)
             paths += 1
-            assert main(["compensate", str(p), "--model", str(el), "--method", "exact",
+            assert main(["compensate", "--work-offsets", "machine", str(p), "--model", str(el), "--method", "exact",
                          "--out", str(tmp_path / f"out{i}")]) == 0, capsys.readouterr().err
     assert paths == 2
 

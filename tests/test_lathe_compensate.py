@@ -107,7 +107,7 @@ def test_lathe_users_path_simulate_sweeps_identify_compensate(tmp_path, capsys):
     prog.write_text(LATHE_PROGRAM)
     capsys.readouterr()
     assert main(["compensate", str(prog), "--machine", LATHE, "--model", str(d / "E.json"), "--method", "exact",
-                 "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o")]) == 0
+                 "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o"), "--work-offsets", "machine"]) == 0
     cap = capsys.readouterr()
     said = cap.out + cap.err
     assert "TRUE residual max" in said and "c_deg solved" in said
@@ -120,6 +120,9 @@ def test_lathe_users_path_simulate_sweeps_identify_compensate(tmp_path, capsys):
     # every non-motion line byte for byte, in order; every compensated line writes X, Z and C
     src = LATHE_PROGRAM.splitlines(keepends=True)
     out = (d / "o" / "lathe.nc").read_text().splitlines(keepends=True)
+    note = "(volcomp: work offsets taken as machine zero [--work-offsets machine])\n"  # the frame given
+    assert out.count(note) == 1
+    out.remove(note)
     kept_src = [ln for i, ln in enumerate(src, 1) if i not in COMPENSATED_SOURCE_LINES]
     it = iter(out)
     assert all(any(o == ln for o in it) for ln in kept_src)  # a subsequence of the output
@@ -132,6 +135,7 @@ def test_lathe_users_path_simulate_sweeps_identify_compensate(tmp_path, capsys):
     assert c.min() > -C_CORRECTION_MAX_DEG and c.max() < 270.0 + C_CORRECTION_MAX_DEG
     # the oracle: the truth's own elements as the model — the path itself is exact
     assert main(["compensate", str(prog), "--machine", LATHE, "--model", str(d / "sim" / "truth_elements.json"),
-                 "--method", "exact", "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o2")]) == 0
+                 "--method", "exact", "--truth", str(d / "sim" / "truth.json"), "--out", str(d / "o2"),
+                 "--work-offsets", "machine"]) == 0
     oracle = json.loads((d / "o2" / "compensate_summary.json").read_text())["files"][0]
     assert oracle["true"]["max_um"] < ORACLE_TRUE_UM

@@ -240,7 +240,7 @@ def test_compensate_five_axis_keeps_rotary_words(tmp_path, capsys):
     prog.write_text("(5-AXIS TEST)\nG21 G90 G17\nT3 M6\nG0 X0. Y0. Z-200. A0. C0.\n"
                     "G1 X50. Y20. Z-250. A-30. C45. F500.\nG1 X60. C90.\nG1 Y30. A-30. C90.\nG2 X80. Y30. I10. J0.\nM30\n")
     assert main(["compensate", str(prog), "--machine", "five-axis-ac", "--model", str(est), "--method", "exact",
-                 "--out", str(tmp_path / "o")]) == 0
+                 "--out", str(tmp_path / "o"), "--work-offsets", "machine"]) == 0  # in machine coordinates
     assert "rotary axes a_deg, c_deg (tool orientation) are kept as commanded" in capsys.readouterr().out
     doc = json.loads((tmp_path / "o" / "compensate_summary.json").read_text())
     assert doc["files"][0]["kept_axes"] == ["a_deg", "c_deg"]

@@ -157,7 +157,7 @@ def test_train_on_mill_then_predict_and_compensate(smooth_mill, tmp_path, capsys
     for method, bound in (("exact", TOL_MODEL_RESIDUAL_EXACT_UM), ("batched-ga", GA_TOL_UM)):
         out = tmp_path / method
         assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(run), "--method", method,
-                     "--out", str(out), "--truth", str(truth)]) == 0
+                     "--out", str(out), "--truth", str(truth), "--work-offsets", "machine"]) == 0  # G54 = machine
         e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
         assert e["failures"] == 0 and e["model_max_um"] <= bound
         assert e["true"]["max_um"] < TRUE_RESIDUAL_MAX_UM < e["true_uncompensated"]["max_um"] / 4

@@ -69,7 +69,7 @@ def test_chain_network_is_tracked_and_used_from_mlflow(smooth_mill, tmp_path, ca
     assert np.all(np.abs(got - want) <= CSV_REL * np.abs(want))
     # compensate from the run (exact: model residual to round-off)
     assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", rid, "--tracking-uri", uri,
-                 "--method", "exact", "--out", str(tmp_path / "c")]) == 0
+                 "--method", "exact", "--out", str(tmp_path / "c"), "--work-offsets", "machine"]) == 0  # G54 = machine
     e = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
     assert e["failures"] == 0 and e["model_max_um"] <= TOL_MODEL_RESIDUAL_EXACT_UM
     capsys.readouterr()

@@ -155,7 +155,8 @@ def test_a_guard_refusal_inside_a_call_names_the_source_line(tmp_path, capsys):
     el = chain_elements(load_machine("mill-xyz"), 5).save(tmp_path / "el.json")
     p = tmp_path / "sub.nc"  # the second call's incremental move leaves the X stroke [0, 600]
     p.write_text("O1\nG21 G90 G17\nG0 X100. Y100. Z-300.\nM98 P2 L2\nM30\nO2\nG91 G1 X300. F100.\nG90\nM99\n")
-    assert main(["compensate", str(p), "--machine", "mill-xyz", "--model", str(el), "--method", "exact",
+    assert main(["compensate", "--work-offsets", "machine",
+                 str(p), "--machine", "mill-xyz", "--model", str(el), "--method", "exact",
                  "--out", str(tmp_path / "o")]) == 3
     err = capsys.readouterr().err
     assert "(line 7 (expanded line 6, called from line 4)): stroke: x_mm" in err

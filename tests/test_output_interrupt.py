@@ -73,7 +73,8 @@ def test_second_compensate_into_the_same_out_is_refused(tmp_path, sim, grinder):
     from compensation.toolpath import flute_path
     nc = write_axes_gcode(tmp_path / "in" / "flute.nc", flute_path(turns=40, points_per_turn=2000).axes(grinder))
     out = tmp_path / "c"
-    argv = ["compensate", str(nc), "--model", str(sim / "truth_elements.json"), "--method", "exact", "--out", str(out)]
+    argv = ["compensate", str(nc), "--model", str(sim / "truth_elements.json"), "--method", "exact", "--out", str(out),
+            "--work-offsets", "machine"]
     first = _start(argv, tmp_path)
     _wait_for(out / LOCK_NAME, first)
     rc, _, err = run_cli(argv[:-1] + [str(out), "--force"])

@@ -2,10 +2,15 @@
 import numpy as np
 import pytest
 
+from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import align_turns, read_path, write_axes_gcode, write_compensated, write_targets_csv
 from compensation.toolpath import flute_path
 from errormap.io import InputError
 from errormap.kinematics import forward
+
+MCS = read_work_offsets(MACHINE)
+"""The G-code programs here are written in machine coordinates (the grinder's axes): read with
+--work-offsets machine (a program is never read at an assumed zero)."""
 
 TOL_MM = 1e-6
 
@@ -13,25 +18,25 @@ TOL_MM = 1e-6
 def test_axes_csv_targets_are_forward(tmp_path, grinder):
     p = tmp_path / "axes.csv"
     p.write_text("# job: test\nx_mm,z_mm,a_deg,feed\n10,1,0,100\n20,2,370,100\n")
-    tp = read_path(p, grinder)
+    tp = read_path(p, grinder, work_offsets=MCS)
     assert tp.kind == "csv-axes" and tp.lines.tolist() == [3, 4]
     assert np.allclose(tp.targets_mm, forward(grinder, tp.axes))
     out = write_compensated(tp, tmp_path / "out" / "axes.csv", tp.axes + 0.001, tp.targets_mm, comments=["method: x"])
     text = out.read_text().splitlines()
     assert text[0] == "# job: test" and text[1] == "# method: x" and text[2] == "x_mm,z_mm,a_deg,feed"
     assert text[3].endswith(",100")
-    back = read_path(out, grinder)
+    back = read_path(out, grinder, work_offsets=MCS)
     assert np.abs(back.axes - (tp.axes + 0.001)).max() < TOL_MM
 
 
 def test_targets_csv_round_trip_and_unwrap(tmp_path, grinder):
     f = flute_path(turns=2, points_per_turn=30)
     p = write_targets_csv(tmp_path / "flute.csv", f.targets_mm)
-    tp = read_path(p, grinder)
+    tp = read_path(p, grinder, work_offsets=MCS)
     assert tp.kind == "csv-targets"
     assert np.abs(tp.axes[:, 2] - f.theta_deg).max() < 1e-6  # A unwrapped along the path
     out = write_compensated(tp, tmp_path / "o" / "flute.csv", tp.axes, tp.targets_mm + 1e-4)
-    assert np.abs(read_path(out, grinder).targets_mm - (f.targets_mm + 1e-4)).max() < TOL_MM
+    assert np.abs(read_path(out, grinder, work_offsets=MCS).targets_mm - (f.targets_mm + 1e-4)).max() < TOL_MM
 
 
 @pytest.mark.parametrize("text, match", [
@@ -45,13 +50,13 @@ def test_bad_csv_names_row_and_column(tmp_path, grinder, text, match):
     p = tmp_path / "bad.csv"
     p.write_text(text)
     with pytest.raises(InputError, match=match) as exc:
-        read_path(p, grinder)
+        read_path(p, grinder, work_offsets=MCS)
     assert "bad.csv" in str(exc.value)
 
 
 def test_plain_gcode_writer_reads_back(tmp_path, grinder):
     ax = flute_path(turns=1, points_per_turn=20).axes(grinder)
-    tp = read_path(write_axes_gcode(tmp_path / "f.nc", ax, header=["flute"]), grinder)
+    tp = read_path(write_axes_gcode(tmp_path / "f.nc", ax, header=["flute"]), grinder, work_offsets=MCS)
     assert np.abs(tp.axes - ax).max() < TOL_MM
 
 

@@ -45,7 +45,8 @@ def test_ctrl_c_during_batched_ga_exits_130_promptly(tmp_path, grinder, chunks):
     src = write_axes_gcode(tmp_path / "flute.nc", flute_path().axes(grinder))
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "compensation.app.cli", "compensate", str(src), "--model", str(el),
-           "--method", "batched-ga", "--out", str(out), "--max-segment-mm", "none", "--workers", "2"]
+           "--method", "batched-ga", "--out", str(out), "--max-segment-mm", "none", "--workers", "2",
+           "--work-offsets", "machine"]
     if chunks.startswith("two"):
         cmd += ["--chunk-points", "1400"]
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))

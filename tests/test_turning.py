@@ -84,7 +84,8 @@ def _compensate(tmp_path, text, model, truth, name):
     prog = tmp_path / f"{name}.nc"
     prog.write_text(text)
     out = tmp_path / f"o_{name}"
-    assert main(["compensate", str(prog), "--machine", LATHE, "--model", str(model), "--method", "exact",
+    assert main(["compensate", "--work-offsets", "machine",
+                 str(prog), "--machine", LATHE, "--model", str(model), "--method", "exact",
                  "--truth", str(truth), "--out", str(out)]) == 0
     entry = json.loads((out / "compensate_summary.json").read_text())["files"][0]
     return entry, (out / prog.name).read_text().splitlines(keepends=True)
@@ -122,7 +123,8 @@ def test_a_c_word_while_the_spindle_turns_is_refused(tmp_path, lathe_models, cap
     truth, _ = lathe_models
     prog = tmp_path / "bad.nc"
     prog.write_text("G18 G90 G21\nG0 X80. Z350. C0.\nS800 M4\nG1 X60. Z320. C45. F0.2\nM30\n")
-    assert main(["compensate", str(prog), "--machine", LATHE, "--model", str(truth), "--method", "exact",
+    assert main(["compensate", "--work-offsets", "machine",
+                 str(prog), "--machine", LATHE, "--model", str(truth), "--method", "exact",
                  "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert f"{prog}: line 4, column 15: 'C45.' while the spindle turns" in err and "M5" in err

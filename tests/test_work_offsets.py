@@ -1,6 +1,7 @@
 """Programs with work offsets and tool lengths (compensation/nc_state.py): the tables read by content,
-bad rows refused by file, row and column; a program that selects a work system with no table refused
-(no assumed zero); accepted programs compensated where the part is cut, checked independently: every
+bad rows refused by file, row and column; a program with no table (whether or not it selects a work
+system) refused unless --work-offsets machine says it is in machine coordinates (no assumed zero);
+accepted programs compensated where the part is cut, checked independently: every
 non-motion line byte-identical, every programmed point reproduced by the TRUE machine (its tool at the
 table's length, the program placed by the offset) within 1 μm."""
 import json
@@ -211,3 +212,71 @@ def test_machine_coordinates_zero_every_system(tmp_path, truth_file):
     e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
     assert e["work_offsets"] == MACHINE and e["offsets_mm_deg"] == {"G54.1P3": [0.0, 0.0, 0.0]}
     assert e["tools_used"] == {"3": 0.0}
+
+
+MILL_NO_SYSTEM = "%\n(NO WORK SYSTEM WORD)\nG21 G90 G17\nG0 X5. Y5. Z-30.\nG1 Z-60. F250.\nG1 X80. Y30.\nM30\n%\n"
+"""A mill program that selects no work system (no G54 word): a controller runs it in G54."""
+GRINDER_NO_SYSTEM = "%\nG21 G90 G18 G40 G49 G80 G94\nG0 X90 Z5 A0\nG1 Z0.3 F120\nX90.2 A30\nX90.4 A60\nM30\n%\n"
+"""A grinder program (the axes of tests/data/gcode_corpus/c01_linuxcnc_basic.ngc) with no G54 word."""
+
+
+@pytest.mark.parametrize("machine_name, text, first_move, tables", [
+    ("mill-xyz", MILL_NO_SYSTEM, 4, True),
+    (None, GRINDER_NO_SYSTEM, 3, False),
+])
+def test_a_program_with_no_work_system_word_is_not_read_at_machine_zero(tmp_path, truth_file, grinder, capsys,
+                                                                        machine_name, text, first_move, tables):
+    """No G54 word and no table: refused at the first move naming the options (no assumed zero, on the
+    grinder as on the chains); with --work-offsets machine: compensated, and the summary and the
+    output's first comment record it."""
+    from errormap.simulator import random_truth
+    prog = tmp_path / "part.nc"
+    prog.write_text(text, encoding="ascii")
+    model = truth_file if machine_name else random_truth(grinder, 7).elements.save(tmp_path / "elements.json")
+    base = ["compensate", str(prog), "--model", str(model), "--method", "exact"]
+    base += ["--machine", machine_name] if machine_name else []
+    assert main([*base, "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"{prog}: line {first_move}: the first move, with no work offset table" in err
+    assert "--work-offsets machine if the program is written in machine coordinates" in err
+    assert ("--work-offsets FILE" in err) == tables
+    assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
+    assert main([*base, "--out", str(tmp_path / "b"), "--work-offsets", MACHINE]) == 0
+    out = (tmp_path / "b" / prog.name).read_text(encoding="ascii").splitlines()
+    assert out[:2] == ["%", "(volcomp: work offsets taken as machine zero [--work-offsets machine])"]
+    assert out[2] == text.splitlines()[1] and out[-2:] == ["M30", "%"]  # non-motion lines kept as written
+    e = json.loads((tmp_path / "b" / "compensate_summary.json").read_text())["files"][0]
+    assert e["work_offsets"] == MACHINE
+
+
+def test_the_api_refuses_a_program_without_offsets_like_the_cli(tmp_path, mill, truth_file):
+    """compensate_program: work_offsets None (default) refuses as the CLI does; "machine" compensates
+    and records it."""
+    from compensation.compensate import compensate_program
+    prog = tmp_path / "part.nc"
+    prog.write_text(MILL_NO_SYSTEM, encoding="ascii")
+    with pytest.raises(InputError, match=r"line 4: the first move, with no work offset table"):
+        compensate_program(prog, mill, truth_file, tmp_path / "a")
+    summary = compensate_program(prog, mill, truth_file, tmp_path / "b", work_offsets=MACHINE)
+    assert summary["files"][0]["work_offsets"] == MACHINE and summary["files"][0]["output"]
+
+
+def test_a_program_placing_itself_with_g10_needs_no_table(tmp_path, truth_file):
+    """The program's own G10 L2 lines give its offset: accepted without a table (recorded so)."""
+    out = tmp_path / "o"
+    assert _compensate(DATA / "g10_in_program_fanuc.nc", out, truth_file) == 0
+    assert json.loads((out / "compensate_summary.json").read_text())["files"][0]["work_offsets"] == "program G10 lines"
+
+
+def test_report_reads_a_gcode_path_only_with_its_frame(tmp_path, grinder, capsys):
+    """volcomp report --path: the same rule as compensate (refused at the first move without
+    --work-offsets machine; with it the report records it in metrics.json)."""
+    from errormap.simulator import random_truth
+    el = random_truth(grinder, 7).elements.save(tmp_path / "elements.json")
+    prog = tmp_path / "part.nc"
+    prog.write_text(GRINDER_NO_SYSTEM, encoding="ascii")
+    base = ["report", "--model", str(el), "--path", str(prog), "--methods", "traditional"]
+    assert main([*base, "--out", str(tmp_path / "a")]) == 2
+    assert f"{prog}: line 3: the first move" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "b"), "--work-offsets", MACHINE]) == 0
+    assert json.loads((tmp_path / "b" / "metrics.json").read_text())["work_offsets"] == MACHINE

@@ -115,8 +115,9 @@ def register(sub):
     p.add_argument("--work-offsets", default=None, metavar="FILE|machine",
                    help="the controller's work offsets (G54..G59.3, G54.1 Pn): a LinuxCNC parameter file (.var) or a CSV "
                         "system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg] (by content); 'machine': the program is written in "
-                        "machine coordinates (recorded in the summary and the output). A program that selects a work "
-                        "system is refused without it")
+                        "machine coordinates (recorded in the summary and the output). Every G-code program is refused "
+                        "without it (a controller runs a program in its active work system, G54 at power-on, never at "
+                        "an assumed machine zero); CSV axis paths are machine axes and need none")
     p.add_argument("--tool-table", default=None, metavar="FILE",
                    help="machine-tool chains: the tool lengths of G43 Hn: a LinuxCNC tool table (.tbl) or a CSV "
                         "tool,length_mm[,radius_mm] (by content); the tool length is the Abbe arm of the angular errors")

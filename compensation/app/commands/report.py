@@ -17,6 +17,7 @@ from compensation.app.validate import UsageError
 
 from ...evaluate import load_truth
 from ...fields import load_field, resolve_model
+from ...nc_state import MACHINE, read_work_offsets
 from ...pathio import read_path
 from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
 from ..reports.methods import print_table, write_report
@@ -44,6 +45,9 @@ def register(sub):
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (required unless RUN is given)")
     add_units_option(p, "CSV tool-path columns")
+    p.add_argument("--work-offsets", default=None, choices=("machine",),
+                   help="'machine': the --path G-code program is written in machine coordinates (recorded in the "
+                        "report); a G-code program is refused without it (never an assumed machine zero)")
     add_method_arguments(p)
     add_flute_arguments(p)
     p.set_defaults(func=run)
@@ -98,9 +102,12 @@ def run(args) -> int:
             raise UsageError(str(exc)) from None
         path_info = {"path": "flute", "flute": fl.settings.to_dict(), "points": len(fl)}
     else:
-        tp = read_path(args.path, machine, units=args.units, units_option="--units")
+        offsets = read_work_offsets(MACHINE) if getattr(args, "work_offsets", None) == MACHINE else None
+        tp = read_path(args.path, machine, units=args.units, units_option="--units", work_offsets=offsets)
         targets, nominal = tp.targets_mm, tp.axes
         path_info = {"path": str(args.path), "format": tp.kind, "points": len(tp), "units": args.units}
+        if tp.kind == "gcode":
+            path_info["work_offsets"] = offsets.source
     truth = load_truth(args.truth, machine) if args.truth else None
     source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
     print(f"report: model {source.description}", file=sys.stderr)
@@ -112,6 +119,8 @@ def run(args) -> int:
     context = {"machine": f"{machine.name} ({machine.path})", "model (error field)": args.model,
                "truth": args.truth or "none (model residual only)", "path": path_info["path"],
                "points": path_info["points"], "seed": args.seed}
+    if "work_offsets" in path_info:
+        context["work offsets"] = f"{path_info['work_offsets']} (--work-offsets machine: in machine coordinates)"
     paths = write_report(cmp, Path(args.out), context=context)
     print_table(cmp)
     for k, path in paths.items():   # html, metrics, residuals (+ residuals_<method> of a method run on a subset)

@@ -6,8 +6,9 @@ method (:mod:`compensation.app.workflows.compare`) → ``DIR/report.html``, ``DI
 ``DIR/residuals.csv`` (MODEL and TRUE residual of the methods that ran on every point; a method run on a
 subset, the per-point ``ga``, has its own ``DIR/residuals_<method>.csv`` with only its rows) and
 ``DIR/demo.json``; the flute as an NC program ``DIR/flute.nc`` and its compensated form
-``DIR/compensated/flute.nc`` (``volcomp compensate --method exact`` with the trained model). The report files
-are also logged to the training's MLflow run.
+``DIR/compensated/flute.nc`` (``volcomp compensate --method exact --work-offsets machine`` with the
+trained model: the flute is written in machine coordinates). The report files are also logged to the
+training's MLflow run.
 
 The demo's budget, stated on its page and in ``metrics.json`` (``budget``): LM stops when the
 error on the off-grid selection points has not improved for ``select_patience`` iterations
@@ -158,7 +159,8 @@ def budget_lines(s: DemoSettings, train_info: dict, train_s: float, ga_solved: i
 
 PROGRAM_NAME = "flute.nc"
 """The demo's own NC program (the flute's nominal axis commands, G-code), written beside the report; its
-compensated form is ``compensated/flute.nc`` (``volcomp compensate --method exact`` with the demo's model)."""
+compensated form is ``compensated/flute.nc`` (``volcomp compensate --method exact --work-offsets machine``
+with the demo's model)."""
 PROGRAM_DECIMALS = 6
 """Decimals of the nominal program's words: 1 nm in X/Z, 1e-6° in A, far below what compensation changes."""
 PROGRAM_FEED = 500.0
@@ -182,11 +184,17 @@ def compensate_program(s: DemoSettings, machine, axes, model_spec: str, log=None
     """The demo's program through ``volcomp compensate --method exact`` with its model: ``DIR/flute.nc`` →
     ``DIR/compensated/flute.nc`` and ``DIR/compensated/compensate_summary.json``; returns ``{"program",
     "compensated", "summary"}`` paths (``compensated`` None when the guards refused it: said on ``log``)."""
+    from ...nc_state import MACHINE, read_work_offsets
     from .compensate import CompensateSettings, compensate_files
     prog = write_flute_program(Path(s.out) / PROGRAM_NAME, axes, s.flute)
+    # the flute program is written in machine coordinates (its axes are the grinder's): said explicitly
+    # (--work-offsets machine), as every program's frame must be; the summary and the output record it
+    print("compensate: the flute program is in machine coordinates (--work-offsets machine)",
+          file=sys.stderr if log is None else log)
     job = compensate_files([prog], machine, CompensateSettings(method="exact", model=model_spec,
                                                                out_dir=Path(s.out) / "compensated", force=True,
-                                                               tracking_uri=s.tracking_uri, seed=s.seed))
+                                                               tracking_uri=s.tracking_uri, seed=s.seed,
+                                                               work_offsets=read_work_offsets(MACHINE)))
     o = job.outcomes[0]
     if o.refused:
         print(f"warning: the compensated program was refused by guard(s) {', '.join(o.guards)}; see "

@@ -32,7 +32,7 @@ from ... import guards
 from ...fields import FAILED_VERDICT, check_verdict, load_chain_field, require_kind, resolve_model, verdict_notes
 from ...gcode import DEFAULT_RAPIDS
 from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
-from ...nc_state import MACHINE, field_with_tool, machine_with_tool, program_frames
+from ...nc_state import MACHINE, field_with_tool, machine_with_tool, program_frames, refuse_unknown_frames
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, is_csv
 from ...solvers.chain_exact import nominal_and_jacobian, solved_and_kept
 from .compensate import SUMMARY_NAME, WORK_OFFSETS_MACHINE_NOTE, check_out_dir, plan_outputs
@@ -118,13 +118,7 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
         prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect,
                                    cycles=s.cycles)
     frames = program_frames(prog, s.work_offsets, s.tool_table)
-    t = prog.table
-    comp = t.line[t.compensate] if t is not None else np.array([m.index for m in prog.moves if m.compensate], int)
-    unknown = ~np.isfinite(frames.at(comp)[0]).all(axis=1)
-    if unknown.any():
-        raise InputError(f"{path}: line {int(comp[np.argmax(unknown)]) + 1}: a move in the controller's power-on work "
-                         f"system G54, which {s.work_offsets.source if s.work_offsets else 'no table'} does not give: "
-                         "give G54 in --work-offsets (or select a work system before the first move)")
+    refuse_unknown_frames(prog, frames, s.work_offsets)
     k = len(machine.axes)
     columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
     partial = len(columns) < k
