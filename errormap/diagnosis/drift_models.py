@@ -283,16 +283,6 @@ class OLSFamily(_Family):
         return {ch: {"": (feats, *fit_ols(X, log.disp_um[ch][rows]))} for ch in channels}
 
 
-class MeanFamily(_Family):
-    """The constant offset: the training rows' mean displacement per channel, no input at all — the plainest
-    baseline. A drift that the inputs explain worse than its own level (sensors that mislead beyond the fit range)
-    is compensated by this; it is scored, blended and gated like every other candidate."""
-    name = "mean"
-
-    def fit(self, log, channels, rows, cache):
-        return {ch: {"": ([], float(np.mean(log.disp_um[ch][rows])), np.zeros(0))} for ch in channels}
-
-
 class RidgeBankFamily(_Family):
     name = "ridge_bank"
 
@@ -446,8 +436,8 @@ def default_families(subset_kw=None):
     38 channel cases) it was the choice in 2 of the 4 cases worse than OLS by more than 5 % (1.33×,
     1.15×); without it those became 1.01× and 0.81×, no case got worse, and the other two (1.06×,
     1.23×, grey-box choices) stayed as they were. It stays available."""
-    return [OLSFamily(), MeanFamily(), SubsetLagFamily(**(subset_kw or {})), TransferFamily(),
-            RidgeTowardOLSFamily(), ThermalNNFamily(), GreyBoxFamily(), StableOLSFamily()]
+    return [OLSFamily(), SubsetLagFamily(**(subset_kw or {})), TransferFamily(), RidgeTowardOLSFamily(),
+            ThermalNNFamily(), GreyBoxFamily(), StableOLSFamily()]
 
 
 def measured_families():
@@ -736,9 +726,6 @@ def blend_with_ols(cand, ols, w: float):
                   np.concatenate([w * np.asarray(b), (1 - w) * np.asarray(bo)]))
 
 
-PLAIN = ("mean", "", 1.0)   # the plainest candidate: the fitting part's mean, unblended
-
-
 def _rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
@@ -879,10 +866,7 @@ class DriftSelector(Estimator):
     and (c), and (e) no fold (horizon, novelty, and with ``ranking_fold_loss`` ranking) worse than OLS by
     more than ``max_fold_loss``; the eligible one of largest mean log-gain over OLS (over the three sets)
     is returned (``selection="mean_gain"``; ``"worst_fold"``: the one whose worst fold, the largest RMS
-    ratio to OLS over all three sets, is smallest), else the OLS baseline itself. A model that loses to OLS in any of its
-    validations is never returned; nor one that loses to the plain mean (family ``mean``, :class:`MeanFamily`, unblended)
-    where that mean is itself eligible: then the baseline is the better of the two, ``floor_`` {channel: (family, hyper,
-    w) of the baseline in force}, and a candidate's ranking, horizon and novelty RMS must each be ≤ the mean's. Learned
+    ratio to OLS over all three sets, is smallest), else the OLS baseline itself. A model that loses to OLS in any of its validations is never returned. Learned
     too: ``scale_`` {channel: s of the chosen}, ``worst_fold_`` {channel: {candidate: worst RMS ratio to
     OLS over the horizon and novelty folds}}.
 
@@ -1010,7 +994,7 @@ class DriftSelector(Estimator):
         self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
         self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
         self.scale_, self.worst_fold_, self.fold_ratios_, self.fold_rho_, self.candidates_ = {}, {}, {}, {}, {}
-        self.band_alt_, self.score_, self.floor_ = {}, {}, {}
+        self.band_alt_, self.score_ = {}, {}
         for ch in chans:
             base = ("ols", "")
             full = {k[1:]: v for k, v in resid.items() if k[0] == ch and len(v) == len(folds)
@@ -1037,11 +1021,6 @@ class DriftSelector(Estimator):
                         rhos[k], self.gate_se, self.ranking_fold_loss)
             r_ols = scores[(*base, 1.0)]["ranking"]
             ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, bool(nfolds))]
-            self.floor_[ch] = ok_floor = PLAIN if PLAIN in ok else (*base, 1.0)
-            if ok_floor == PLAIN:
-                # the plain mean beat OLS in every validation: it is the baseline no candidate may lose to, on the
-                # ranking, horizon or novelty folds
-                ok = [k for k in ok if all(scores[k][v] <= scores[PLAIN][v] for v in ("ranking", "horizon", "novelty"))]
             # the largest score (ties: the larger mean gain); "worst_fold": the best worst fold
             best = max(ok, key=lambda k: (fold_gain_score(scores[k], self.selection), scores[k]["gain"])) \
                 if ok else (*base, 1.0)
@@ -1150,7 +1129,7 @@ class DriftSelector(Estimator):
 
     def report(self, log: DriftLog) -> dict:
         """Per channel: chosen candidate, CV scores per family, held-out before / volcomp / OLS, band coverage."""
-        fit, hold = self.split(log)
+        _, hold = self.split(log)
         pred = self.model_.predict(log, self.cache_)
         base = self.baseline_.predict(log, self.cache_)
         bands = self.model_.band_um(log, self.cache_)
@@ -1173,8 +1152,6 @@ class DriftSelector(Estimator):
             out[ch] = {"model": name, "family": f, "shrink_weight": w,
                        "cv_rms_um": {k: v[1] for k, v in self.family_best(ch).items()},
                        "cv_rms_ols_um": self.cv_[ch]["ols"],
-                       "cv_rms_mean_um": self.cv_[ch].get("mean"),
-                       "baseline_in_force": candidate_name(*self.floor_[ch]),
                        "cv_ranking_rms_um": self.cv_[ch][name],
                        "cv_horizon_rms_um": self.cv_horizon_[ch][name],
                        "cv_horizon_rms_ols_um": self.cv_horizon_[ch]["ols"],
@@ -1186,7 +1163,6 @@ class DriftSelector(Estimator):
                        "worst_fold_ratio": self.worst_fold_[ch][name],
                        "selection_score": self.score_[ch][name],
                        "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
-                       "rms_mean_um": rms(d - np.mean(log.disp_um[ch][fit])),
                        "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
                        "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
                        "heldout_rho_median": None if rhos[ch] is None else float(np.median(rhos[ch][hold])),
