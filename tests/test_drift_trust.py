@@ -106,7 +106,12 @@ def test_export_without_log_checks_on_the_fitting_log_or_asks_for_log(tmp_path, 
     assert main(["diagnose", "--drift", str(tmp_path / "log.csv"), "--out", str(tmp_path / "d")]) == 1
     assert json.loads((tmp_path / "d" / "diagnosis.json").read_text())["verdict"]["status"] == "failed"
     model = tmp_path / "d" / "drift_model.json"
-    assert main(["export", str(model), "--format", "drift", "--out", str(tmp_path / "o"), "--force"]) == 0
+    # a model whose verdict failed is exported only when that is said (and recorded); the rest checks the log
+    capsys.readouterr()
+    assert main(["export", str(model), "--format", "drift", "--out", str(tmp_path / "o"), "--force"]) == 2
+    assert "verdict" in capsys.readouterr().err
+    allow = ["--allow", "failed-verdict"]
+    assert main(["export", str(model), "--format", "drift", "--out", str(tmp_path / "o"), "--force", *allow]) == 0
     info = json.loads((tmp_path / "o" / "export.json").read_text())
     assert str((tmp_path / "log.csv").resolve()) in info["check_log"]
     assert info["check"]["ch1"]["measured"] is not None
@@ -115,12 +120,12 @@ def test_export_without_log_checks_on_the_fitting_log_or_asks_for_log(tmp_path, 
     cols["ch1_um"] = cols["ch1_um"] + 1.0
     write_csv(tmp_path / "log.csv", cols)
     capsys.readouterr()
-    assert main(["export", str(model), "--format", "drift", "--out", str(tmp_path / "o2")]) == 2
+    assert main(["export", str(model), "--format", "drift", "--out", str(tmp_path / "o2"), *allow]) == 2
     err = [e for e in capsys.readouterr().err.splitlines() if "error" in e]
     assert len(err) == 1 and "--log" in err[0] and "changed" in err[0], err
     assert not (tmp_path / "o2").exists()
     (tmp_path / "log.csv").unlink()
-    assert main(["export", str(model), "--format", "drift", "--out", str(tmp_path / "o2")]) == 2
+    assert main(["export", str(model), "--format", "drift", "--out", str(tmp_path / "o2"), *allow]) == 2
     err = [e for e in capsys.readouterr().err.splitlines() if "error" in e]
     assert len(err) == 1 and "--log" in err[0] and "not found" in err[0], err
 
