@@ -242,7 +242,8 @@ def test_compensate_gcode_with_a_diagnosed_model_follows_the_replanned_vertices(
                                                 "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}])
     src = tmp_path / "long.nc"
     src.write_text("G21 G90\nG1 X10 Z5 A0 F100\nG1 X150 Z40 A90\nG1 X30 Z10 A180\nM30\n")  # two moves of >100 mm
-    base = ["compensate", str(src), "--model", str(model), "--method", "exact", "--temp-c", "23.5"]
+    base = ["compensate", str(src), "--model", str(model), "--method", "exact", "--temp-c", "23.5",
+            "--work-offsets", "machine"]  # the program is written in machine coordinates
     assert main(base + ["--out", str(tmp_path / "c"), "--max-segment-mm", "10"]) == 0
     summ = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
     assert summ["points"] > 3 * summ["moves_compensated"]  # the replan added vertices along the long moves
