@@ -27,6 +27,20 @@ MOVE = {"base.x_mm": 812.0, "base.y_mm": -305.0, "base.z_mm": 47.0, "base.rz_rad
         "base.rx_rad": -0.003}
 
 
+REGISTER_POSES = (6, 20, 50)
+
+
+def registered_errors_mm(geo, new) -> dict:
+    """{n: mean measured residual (mm) on ``new``'s poses after the first n} with the frame of ``geo``
+    registered on ``new``'s first n poses, for n in :data:`REGISTER_POSES`."""
+    row = {}
+    for n in REGISTER_POSES:
+        reg = register_frame(geo.chain, geo.params, new.subset(np.arange(n)))
+        rest = new.subset(np.arange(n, len(new)))
+        row[n] = np.linalg.norm(rest.xyz_mm - geo.chain.tool_point(rest.q, reg.params), axis=1).mean()
+    return row
+
+
 def run(seed: int, chain) -> dict:
     t = draw_truth(chain, seed)
     cal = measure(chain, t, random_joints(LO, HI, 200, [seed, 0]), 0.02, [seed, 1])
@@ -39,12 +53,7 @@ def run(seed: int, chain) -> dict:
     for name, geo in (("volcomp geometric+compliance", fit_model(chain, cal, "dh+compliance")),
                       ("plain geometric LSQ", fit_plain_lsq(chain, cal))):
         own = np.linalg.norm(chk.xyz_mm - geo.predict(chk.q), axis=1).mean()
-        row = {"own": own}
-        for n in (6, 20, 50):
-            reg = register_frame(geo.chain, geo.params, new.subset(np.arange(n)))
-            rest = new.subset(np.arange(n, len(new)))
-            row[n] = np.linalg.norm(rest.xyz_mm - geo.chain.tool_point(rest.q, reg.params), axis=1).mean()
-        out[name] = row
+        out[name] = {"own": own, **registered_errors_mm(geo, new)}
     return out
 
 
@@ -60,12 +69,7 @@ def run_real(path, machine) -> dict:
     out = {}
     for name, geo in (("volcomp geometric+compliance", fit_model(chain, cal, "dh+compliance")),
                       ("plain geometric LSQ", fit_plain_lsq(chain, cal))):
-        row = {}
-        for k in (6, 20, 50):
-            reg = register_frame(geo.chain, geo.params, new.subset(np.arange(k)))
-            rest = new.subset(np.arange(k, len(new)))
-            row[k] = np.linalg.norm(rest.xyz_mm - geo.chain.tool_point(rest.q, reg.params), axis=1).mean()
-        out[name] = row
+        out[name] = registered_errors_mm(geo, new)
     return out
 
 

@@ -31,8 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from errormap.diagnosis.drift import load_drift_log  # noqa: E402
-from errormap.diagnosis.drift_models import (SHRINK_WEIGHTS, SHRINK_WEIGHTS_COARSE, DriftSelector,  # noqa: E402
-                                             candidate_name)
+from errormap.diagnosis.drift_models import SHRINK_WEIGHTS, SHRINK_WEIGHTS_COARSE, DriftSelector  # noqa: E402
 from errormap.diagnosis.drift_sim import SIMULATORS  # noqa: E402
 from errormap.io import atomic_write, write_csv, write_json  # noqa: E402
 

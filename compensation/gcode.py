@@ -67,7 +67,7 @@ import numpy as np
 from errormap.io import InputError, check_not_wide
 
 from . import gcode_kernels as gscan
-from .gcode_state import MM_PER_INCH, _dialect_mode, _forget, _g10, _machine_coordinates, _Refuse, _work_state
+from .gcode_state import MM_PER_INCH, _dialect_mode, _g10, _machine_coordinates, _Refuse, _work_state
 
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 """Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""

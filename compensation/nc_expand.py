@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 from errormap.io import InputError
 
-from .nc_flow import (CONTROLLER_PARAMETERS, EQ_TOLERANCE_LINUXCNC, G65_ARGS, MAX_CALL_DEPTH,  # noqa: F401
+from .nc_flow import (MAX_CALL_DEPTH,  # noqa: F401  (re-exported: the documented call-depth bound)
                       _Frame, _Return, assign, call_statement, evaluate, o_statement)
 
 MAX_EXECUTED_LINES = 2_000_000

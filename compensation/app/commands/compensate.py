@@ -41,8 +41,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from errormap.machine import check_machine_kind, load_machine
 
 from compensation.app.validate import UsageError, one_line
