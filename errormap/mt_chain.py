@@ -859,26 +859,6 @@ def _targets(t, path, axes):
     return out
 
 
-def chain_from_grinder(machine) -> MachineTool:
-    """The chain of a ``kind = "grinder"`` machine file (:class:`errormap.machine.Grinder`): the
-    built-in ``grinder-chain.toml`` with that file's ``[geometry]``, strokes and targets, so any
-    grinder file (not only the default's numbers) has its chain. Name, path and sha256 are the
-    grinder file's."""
-    import tomllib
-    from importlib import resources
-    from pathlib import Path
-    p = Path(str(resources.files("errormap") / "machines" / "grinder-chain.toml"))
-    doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    doc["machine"]["name"] = machine.name
-    doc["geometry"] = {k: float(getattr(machine, k)) for k in doc["geometry"]}
-    for side in ("work", "tool"):
-        for d in doc[side]:
-            if "joint" in d:
-                d["stroke"] = list(machine.strokes[f"{d['axis'].lower()}_{'deg' if d['joint'] == 'rotary' else 'mm'}"])
-    doc["targets"] = {k: np.asarray(v, dtype=float).tolist() for k, v in machine.targets.items()}
-    return parse_machine_tool(doc, machine.path or p, machine.sha256)
-
-
 def rotary_on_turn(a_deg, a_lo: float, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:
     """A rotary axis' values (n,) deg put on a turn (:meth:`MachineTool.inverse_closed`): with
     ``unwrap`` a path, unwrapped along it (multi-turn paths continue past 360°) and the first point
@@ -927,13 +907,15 @@ def machine_tool_of(machine) -> MachineTool:
 
 
 def grinder_chain(machine) -> MachineTool:
-    """:func:`chain_from_grinder`, compiled once per grinder file's content (cached by its name,
-    path, sha256, geometry, strokes and targets): the one source of the grinder's kinematics that
-    :mod:`errormap.kinematics`, :mod:`errormap.htm` and :mod:`errormap.sweeps` evaluate."""
+    """:func:`errormap.grinder_file.grinder_to_chain`, compiled once per grinder file's content
+    (cached by its name, path, sha256, geometry, strokes and targets): the one source of the
+    grinder's kinematics that :mod:`errormap.kinematics`, :mod:`errormap.htm` and
+    :mod:`errormap.sweeps` evaluate."""
+    from . import grinder_file
     key = _grinder_key(machine)
     mt = _GRINDER_CHAINS.get(key)
     if mt is None:
         if len(_GRINDER_CHAINS) >= GRINDER_CHAIN_CACHE:
             _GRINDER_CHAINS.pop(next(iter(_GRINDER_CHAINS)))
-        mt = _GRINDER_CHAINS[key] = chain_from_grinder(machine)
+        mt = _GRINDER_CHAINS[key] = grinder_file.grinder_to_chain(machine)
     return mt

@@ -119,8 +119,13 @@ class ChainElementSet:
 
     @classmethod
     def from_element_set(cls, machine: MachineTool, elements) -> "ChainElementSet":
-        """A grinder :class:`errormap.elements.ElementSet` as the element set of its chain file."""
-        return cls(machine, dict(elements.stations), dict(elements.functions), dict(elements.constants),
+        """A grinder :class:`errormap.elements.ElementSet` as the element set of a grinder's chain
+        (:func:`errormap.grinder_file.grinder_to_chain`): names and columns renamed through
+        :data:`errormap.grinder_file.ELEMENT_SLOTS` / ``COLUMN_OF``; another machine is refused."""
+        from .grinder_file import COLUMN_OF, SLOT_OF, check_grinder_chain, rename
+        check_grinder_chain(machine, machine.path)
+        return cls(machine, rename(elements.stations, COLUMN_OF, "stations"),
+                   rename(elements.functions, SLOT_OF, "functions"), rename(elements.constants, SLOT_OF, "constants"),
                    elements.machine_name, elements.machine_sha256)
 
     def copy(self) -> "ChainElementSet":
@@ -139,10 +144,11 @@ class ChainElementSet:
     def to_element_set(self):
         """The grinder's :class:`errormap.elements.ElementSet` of the same values (a grinder chain
         file's element set; refused for another machine's slots)."""
-        from .elements import ELEMENT_NAMES, ElementSet
-        if self.machine.slot_names != ELEMENT_NAMES:
-            raise ValueError(f"{self.machine.name!r} does not have the grinder's 23 elements")
-        return ElementSet(dict(self.stations), dict(self.functions), dict(self.constants),
+        from .elements import ElementSet
+        from .grinder_file import COLUMN_OF, ELEMENT_OF, check_grinder_chain, rename
+        check_grinder_chain(self.machine, self.machine.name)
+        return ElementSet(rename(self.stations, {c: g for g, c in COLUMN_OF.items()}, "stations"),
+                          rename(self.functions, ELEMENT_OF, "functions"), rename(self.constants, ELEMENT_OF, "constants"),
                           self.machine_name, self.machine_sha256)
 
     # -- evaluation ---------------------------------------------------------------------------

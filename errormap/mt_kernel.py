@@ -566,7 +566,7 @@ class NominalChain:
     (k,) ``linear``/``rotary`` and ``full_turn`` (k,) bool per axis, ``columns`` the axis columns.
 
     ``machine``: a :class:`errormap.mt_chain.MachineTool`, or any machine file that
-    :func:`errormap.mt_chain.chain_from_grinder` turns into one (the grinder)."""
+    :func:`errormap.grinder_file.grinder_to_chain` turns into one (the grinder)."""
 
     def __init__(self, machine):
         from .machine import Grinder

@@ -240,28 +240,23 @@ sit 25-80 mm from the axis and A turns by up to 342°): the reversed chain reall
 
 
 def _chain_with_a_reversed(machine):
-    """The grinder's chain file (as :func:`errormap.mt_chain.chain_from_grinder` reads it) with the
-    rotary joint's ``direction = -1``: A turns about -x."""
-    import tomllib
-    from importlib import resources
-    from pathlib import Path
-
+    """The grinder file's chain document (:func:`errormap.grinder_file.grinder_chain_document`) with
+    the rotary joint's ``direction = -1``: A turns about -x."""
     from errormap import mt_chain
-    p = Path(str(resources.files("errormap") / "machines" / "grinder-chain.toml"))
-    doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    doc["machine"]["name"] = machine.name
+    from errormap.grinder_file import grinder_chain_document
+    doc = grinder_chain_document(machine)
     for side in ("work", "tool"):
         for d in doc[side]:
             if d.get("joint") == "rotary":
                 d["direction"] = -1
-    return mt_chain.parse_machine_tool(doc, p, machine.sha256)
+    return mt_chain.parse_machine_tool(doc, machine.path, machine.sha256)
 
 
 def test_rotary_direction_comes_from_the_chain(machine, points, monkeypatch):
     """The A-body step turns A as the chain file says (issue 26): on a grinder whose chain turns A
     about -x, sweeps simulated through that chain are identified to the noise-free tolerance in
     every gauge (with RotX(a) written into the method they would not be)."""
-    from errormap import mt_chain
+    from errormap import grinder_file, mt_chain
     from errormap.identification import rotary_line
     assert (rotary_line(machine).word, rotary_line(machine).along, rotary_line(machine).direction) == ("A", 0, 1.0)
     assert [s[0] for s in rotary_line(machine).slots] == ["dy_oa", "dz_oa", "ey_oa", "ez_oa"]
@@ -269,7 +264,7 @@ def test_rotary_direction_comes_from_the_chain(machine, points, monkeypatch):
     plain = simulate_sweeps(plain_truth, noise_um=0.0, seed=1)
     rev = dataclasses.replace(machine, sha256=machine.sha256 + "-a-reversed")
     monkeypatch.setattr(mt_chain, "_GRINDER_CHAINS", {})
-    monkeypatch.setattr(mt_chain, "chain_from_grinder", _chain_with_a_reversed)
+    monkeypatch.setattr(grinder_file, "grinder_to_chain", _chain_with_a_reversed)
     assert rotary_line(rev).direction == -1.0
     truth = random_truth(rev, 3)
     sweeps = simulate_sweeps(truth, noise_um=0.0, seed=1)
