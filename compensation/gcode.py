@@ -67,7 +67,8 @@ import numpy as np
 from errormap.io import InputError, check_not_wide
 
 from . import gcode_kernels as gscan
-from .gcode_state import MM_PER_INCH, _dialect_mode, _g10, _machine_coordinates, _Refuse, _work_state
+from .gcode_state import (MM_PER_INCH, _dialect_mode, _g10, _machine_coordinates, _Refuse, _work_state, io_line,
+                          siemens_native)
 
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 """Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""
@@ -241,8 +242,11 @@ REFUSED_G = {
     "G68.2": "tilted work plane", "G70": "lathe cycle", "G71": "lathe cycle", "G72": "lathe cycle",
     "G73": "canned cycle (drilling cycles are read by compensate on chains with X Y Z: --machine mill-xyz)",
     "G74": "canned cycle (as G73)",
-    "G75": "canned cycle", "G76": "threading or fine-boring cycle (dialect-dependent)",
-    **{f"G{k}": "canned cycle (as G73)" for k in range(81, 90)}, "G87": "back boring cycle", "G88": "boring cycle",
+    "G75": "canned cycle", "G76": "lathe threading (spindle-synchronised passes: not interpretable exactly) or mill "
+                                  "fine boring (kept on chains with X Y Z with --dialect fanuc/haas/siemens-iso)",
+    **{f"G{k}": "canned cycle (as G73)" for k in range(81, 90)},
+    "G87": "back boring cycle (kept on chains with X Y Z with --dialect fanuc/siemens-iso)",
+    "G88": "boring cycle with a manual retract (kept on chains with X Y Z with --dialect fanuc/siemens-iso)",
     "G92": "coordinate offset", "G92.1": "coordinate offset", "G92.2": "coordinate offset",
     "G92.3": "coordinate offset", "G93": "inverse-time feed (a split move would change its time)",
 }
@@ -622,7 +626,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             code = w.code
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
-            if code in dia.modes:
+            if code in dia.modes or code in dia.work_systems:
                 gs.append((code, w))
                 continue
             if code in REFUSED_G:
@@ -669,7 +673,8 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = ALLOWED_G[code][0] if code in ALLOWED_G else "dialect mode"
+        grp = ALLOWED_G[code][0] if code in ALLOWED_G else (
+            "coords" if dia is not None and code in dia.work_systems else "dialect mode")
         if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
                 code, groups[grp][0]):
             if code != "G80":
@@ -700,7 +705,7 @@ def _apply_modal(st: _State, groups: dict):
 
 def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
     """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64."""
-    for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
+    for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
                                  ("L", ("G10",))):
         if letter in by:
             ok = any(c in allowed_with for c, _ in gs) or (letter == "P" and st.mode in ("G2", "G3")
@@ -728,9 +733,16 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     dia = st.dialect
     if dia is not None and ":" in dia.program_number and _COLON_NUMBER.fullmatch(body):
         return "pass", None  # ':1234' program number (ISO code)
+    native = siemens_native(body, dia is not None and dia.name == "siemens-iso")
+    if native is not None:
+        from .dialects import SIEMENS_NATIVE
+        raise _Refuse(native[0], f"'{native[1]}': {SIEMENS_NATIVE}")
     bd, words, pct = tokenize(body)
     if pct:
         return "pass", None
+    io = io_line(words, dia)
+    if io is not None:
+        return io, None
     if bd and dia is not None and not dia.block_delete:
         raise _Refuse(body.index("/") + 1, f"block delete '/': {dia.name} has no block-delete switch")
     if bd and block_delete == "on":

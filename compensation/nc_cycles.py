@@ -1,4 +1,5 @@
-"""Drilling canned cycles (``G73 G81 G82 G83 G85 G86 G89``, ``G74``/``G84`` kept only) on a machine-tool chain.
+"""Drilling canned cycles (``G73 G81 G82 G83 G85 G86 G89``; ``G74 G84``, and by dialect ``G76 G87 G88``, kept
+only) on a machine-tool chain.
 
 The reader refuses the cycles (:data:`compensation.gcode.REFUSED_G`); a chain program read with
 ``cycles="keep"`` or ``"expand"`` (``compensate --machine ...``, ``--expand-cycles``) is first turned
@@ -32,6 +33,14 @@ Semantics (LinuxCNC 2.9 ``rs274ngc`` ``convert_cycle_xy`` and the Fanuc 0i/Haas 
   reversal synchronised with Z) have no plain-move form. The peck constants are LinuxCNC 2.9's;
   Fanuc's are controller parameters (#5114/#5115): ``G73``/``G83`` are expanded only with
   ``--dialect linuxcnc``.
+* By dialect (:data:`DIALECT_CYCLES`): on Fanuc (and Siemens ISO mode) and Haas ``G76`` is fine boring
+  (feed to Z, dwell ``P``, spindle orient, shift ``Q`` off the wall, rapid out); on Fanuc ``G87`` is back
+  boring (orient, shift, rapid down to ``R`` *below* ``Z``, shift back, feed *up* to ``Z``, return to the
+  initial level: ``G98`` only) and ``G88`` boring with a dwell, a spindle stop and a manual retract. They
+  are kept (each hole's bottom — for ``G87`` its top ``Z`` — and ``R`` compensated), never expanded (the
+  orient, the shift and the manual retract have no plain-move form). On LinuxCNC ``G76`` is multi-pass
+  lathe threading (spindle-synchronised passes): refused; without ``--dialect`` the three are refused
+  as dialect-dependent.
 * The dwell ``P`` is written as ``G4 P`` with the same number: the cycle's and G4's P have the same
   unit on each controller (LinuxCNC seconds, Fanuc milliseconds).
 
@@ -57,17 +66,23 @@ from .gcode import DECIMALS, fmt, tokenize
 from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_expand import Expanded
 
-CYCLE_CODES = ("G73", "G74", "G81", "G82", "G83", "G84", "G85", "G86", "G89")
+CYCLE_CODES = ("G73", "G74", "G76", "G81", "G82", "G83", "G84", "G85", "G86", "G87", "G88", "G89")
 NOT_EXPANDABLE = {"G74": "left-hand tapping (spindle reversal synchronised with Z)",
                   "G84": "tapping (spindle reversal synchronised with Z)",
-                  "G86": "boring with the spindle stopped at the bottom"}
+                  "G86": "boring with the spindle stopped at the bottom",
+                  "G76": "fine boring (spindle oriented and the tool shifted by Q at the bottom)",
+                  "G87": "back boring (spindle oriented, the tool shifted by Q to pass the bore)",
+                  "G88": "boring with a manual retract"}
+DIALECT_CYCLES = {"G76": ("fanuc", "haas", "siemens-iso"), "G87": ("fanuc", "siemens-iso"),
+                  "G88": ("fanuc", "siemens-iso")}
+"""Cycles read only on these dialects (their manuals' mill form; module docstring)."""
 PECK_DIALECTS = ("linuxcnc",)
 """Dialects whose G73/G83 peck retract is known (LinuxCNC 2.9: G83_RAPID_DELTA)."""
 RAPID_DELTA_IN = 0.010
 """LinuxCNC 2.9 G83_RAPID_DELTA (inch; ×25.4 under G21): G83 re-entry clearance and G73 chip-break retract."""
 OTHER_G = ("G90", "G91", "G98", "G99", "G17")
 INVALIDATE_G = ("G28", "G30", "G53", "G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3",
-                "G43", "G49", "G10", "G92")
+                "G43", "G49", "G10", "G92", "G154", *(f"G{c}" for c in range(110, 130)))
 """Codes after which the current position in program coordinates is not known to this pass."""
 
 
@@ -113,7 +128,7 @@ def cycle_pass(text: str, path, dialect, inner, mode: str):
 
 def has_cycles(text: str) -> bool:
     import re
-    return re.search(r"[gG]\s*0*(7\s*[34]|8\s*[1-69])(?![\d.])", text) is not None
+    return re.search(r"[gG]\s*0*(7\s*[346]|8\s*[1-9])(?![\d.])", text) is not None
 
 
 class _St:
@@ -287,6 +302,12 @@ def _enter(st: _St, gs, by, cyc, col) -> str:
 
 
 def _check_mode(code, st: _St, mode, dialect, col):
+    if code in DIALECT_CYCLES and dialect not in DIALECT_CYCLES[code]:
+        what = ("multi-pass lathe threading (spindle-synchronised passes), not interpretable as compensated moves"
+                if code == "G76" and dialect == "linuxcnc" else
+                f"dialect-dependent; read as {NOT_EXPANDABLE[code]} on {'/'.join(DIALECT_CYCLES[code])} "
+                "(name the controller with --dialect)")
+        raise _Refuse(col, f"{code} on {dialect or 'rs274'}: {what}")
     if mode == "keep" and st.inc:
         raise _Refuse(col, f"{code} under G91: a kept cycle is written in absolute numbers only (each compensated "
                            "incremental hole would move every later one); use --expand-cycles")
@@ -330,6 +351,8 @@ def _levels(code, st: _St, col) -> tuple:
         raise _Refuse(col, f"{code} under G91: the X Y before the cycle are not known after {st.why_unknown}")
     r = st.sticky["R"].value + (old_z if st.inc else 0.0)
     bottom = st.sticky["Z"].value + (r if st.inc else 0.0)
+    if code == "G87":
+        return _back_boring_levels(st, r, bottom, old_z, col)
     if bottom > r:
         raise _Refuse(col, f"{code}: the hole bottom Z {bottom:g} is above R {r:g}")
     if old_z < r:
@@ -341,6 +364,18 @@ def _levels(code, st: _St, col) -> tuple:
                            "series")
     st.series_g99 = st.series_g99 or st.ret == "G99"
     return r, bottom, old_z if st.ret == "G98" else r
+
+
+def _back_boring_levels(st: _St, r, top, old_z, col) -> tuple:
+    """G87 (Fanuc back boring): R is the hole's bottom, below the bored Z; the return is to the initial level."""
+    if top < r:
+        raise _Refuse(col, f"G87: Z {top:g} is below R {r:g} (back boring feeds up from R to Z)")
+    if st.ret == "G99":
+        raise _Refuse(col, "G87 with G99: back boring returns to the initial level only (Fanuc: G98)")
+    if old_z < top:
+        raise _Refuse(col, f"G87: the Z at the cycle's start ({old_z:g}) is below Z ({top:g}); program a Z move above "
+                           "the part before the cycle")
+    return r, top, old_z
 
 
 def _expanded_hole(code, xy, r, bottom, clear, dec, st: _St, lead) -> list:

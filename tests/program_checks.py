@@ -23,13 +23,14 @@ def _frame(lines, offsets: dict, tools: dict):
     off, tool, out = np.full(3, np.nan), None, []
     table, tooltab = {k: np.asarray(v, float) for k, v in offsets.items()}, dict(tools)
     for ln in lines:
+        ln = re.sub(r"\(.*?\)", "", ln)  # comments name codes too
         m = re.search(r"G10 L2 P(\d) X([-\d.]+) Y([-\d.]+) Z([-\d.]+)", ln)
         if m:
             table[("G54", "G55", "G56")[int(m.group(1)) - 1]] = np.array([float(m.group(k)) for k in (2, 3, 4)])
         m = re.search(r"G10 L1 P(\d) Z([-\d.]+)", ln)
         if m:
             tooltab[int(m.group(1))] = float(m.group(2))
-        m = re.search(r"(G54\.1 P\d|G59\.[123]|G5[4-9])(?![.\d])", ln)
+        m = re.search(r"(G154 P\d+|G1[12]\d|G54\.1 P\d|G59\.[123]|G5[4-9])(?![.\d])", ln)
         if m and "G10" not in ln:
             off = table[m.group(1).replace(" ", "")]
         m = re.search(r"G43\b[^H]*H0*(\d+)", ln)
