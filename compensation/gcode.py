@@ -67,8 +67,8 @@ import numpy as np
 from errormap.io import InputError, check_not_wide
 
 from . import gcode_kernels as gscan
-from .gcode_state import (MM_PER_INCH, _dialect_mode, _g10, _machine_coordinates, _Refuse, _work_state, io_line,
-                          siemens_native)
+from .gcode_state import (MM_PER_INCH, _dialect_mode, _g10, _machine_coordinates, _Refuse, _tool_change,
+                          _work_state, io_line, siemens_native)
 
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 """Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""
@@ -604,6 +604,8 @@ class _State:
         self.tool = None           # the tool length offset H number (None: G49 / none)
         self.events = []           # GProgram.events
         self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
+        self.selected = None       # the last T word (the tool prepared)
+        self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -681,7 +683,9 @@ def _modal_groups(gs, dia=None) -> dict:
                 groups[grp] = (code, w)
             continue
         if grp in groups:
-            raise _Refuse(w.start + 1, f"'{code}' and '{groups[grp][0]}' on one line (same modal group)")
+            why = ("; Fanuc, Haas, Siemens ISO and Mach3 cancel the cycle and take the motion code: name the controller "
+                   "with --dialect" if grp == "motion" and "G80" in (code, groups[grp][0]) else "")
+            raise _Refuse(w.start + 1, f"'{code}' and '{groups[grp][0]}' on one line (same modal group){why}")
         groups[grp] = (code, w)
     return groups
 
@@ -716,16 +720,20 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
     for letter, code in (("D", ("G41", "G42")),):
         if letter in by and not any(c in code for c, _ in gs):
             raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
+    loaded = st.dialect is not None and st.dialect.name in LOADED_TOOL_DIALECTS  # resolved by _work_state
     for c, w in gs:
-        if c in ("G41", "G42") and "D" not in by:
+        if c in ("G41", "G42") and "D" not in by and not loaded:
             raise _Refuse(w.start + 1, f"'{c}' without D (the current tool's radius): write '{c} Dn' with the tool "
                                        "table's number n")
-    if "G43" in (c for c, _ in gs) and "H" not in by:
+    if "G43" in (c for c, _ in gs) and "H" not in by and not loaded:
         w = next(w for c, w in gs if c == "G43")
         raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): write 'G43 Hn' with the tool "
                                    "table's number n")
 
 
+LOADED_TOOL_DIALECTS = ("linuxcnc",)
+"""Dialects whose ``G43`` without ``H`` and ``G41``/``G42`` without ``D`` use the tool in the spindle (LinuxCNC
+G-code reference: "G43 ... if H is not given, the current tool's"; "G41 ... D omitted: the current tool")."""
 _COLON_NUMBER = re.compile(r"[ \t]*:[ \t]*\d+[ \t]*(?:\([^)]*\)[ \t]*)?")
 
 
@@ -748,6 +756,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if bd and block_delete == "on":
         return "skipped", None
     by, gs, ms = _checked_words(words, ax, dia)
+    _tool_change(st, by, ms)
     groups = _modal_groups(gs, dia)
     if "O" in by:
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
@@ -778,14 +787,18 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if not axis_words:
         if arc_words:
             w = next(iter(arc_words.values()))
-            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words")
+            if st.mode not in ("G2", "G3") or "R" in arc_words:
+                raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words (only a centre-format G2/G3 "
+                                           "full circle may omit them)")
+            return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)  # a full circle
         return ("state" if changes else "pass"), None
     return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
 
 
 def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
-    """The move of a line with axis words in the active motion mode; advances ``st.pos``."""
-    first = min(axis_words.values(), key=lambda w: w.start)
+    """The move of a line with axis words in the active motion mode (or a centre-format full circle, whose
+    end is its start: RS274NGC, LinuxCNC and Fanuc); advances ``st.pos``."""
+    first = min((axis_words or arc_words).values(), key=lambda w: w.start)
     if st.mode is None:
         raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is active")
     if arc_words and st.mode not in ("G2", "G3"):
@@ -1085,7 +1098,7 @@ def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
     given = [(j, words[a]) for j, a in enumerate(ax.words) if a in words]
     edits = [(w.num_start, w.num_end, vals[j]) for j, w in given
              if not (kept and w.letter in kept and float(vals[j]) == w.value)]  # (start, end, text)
-    last_end = max(w.num_end for _, w in given)
+    last_end = max(w.num_end for w in (dict(given).values() if given else words.values()))  # a full circle: its I J K
     if len(given) < len(ax.words):
         missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(ax.words)
                           if a not in words and (not kept or _needed(j, vals, ctrl_before, m, ax)))
@@ -1095,7 +1108,7 @@ def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
         if m.motion_word is not None:
             edits.append((m.motion_word.start, m.motion_word.num_end, "G1"))
         else:
-            first = min(m.words[a].start for a in ax.words if a in m.words)
+            first = min(w.start for w in m.words.values())
             edits.append((first, first, "G1 "))
         for a in ("I", "J", "K", "R", "P"):
             if a in m.words:

@@ -58,20 +58,38 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         d = by.get("D")
         if d is not None and (d.value != int(d.value) or d.value < 0):
             raise _Refuse(d.start + 1, f"'D{d.text}': expected a tool number")
-        value = int(d.value) if d is not None else None
-        st.events.append((idx, w.start + 1, "cutter", value, code if value is None else f"{code} D{value}"))
+        value = int(d.value) if d is not None else (None if code == "G40" else _loaded(st, code, w))
+        text = code if value is None else (f"{code} D{value}" if d is not None else f"{code} (tool {value} loaded)")
+        st.events.append((idx, w.start + 1, "cutter", value, text))
     if "length" in groups:
         code, w = groups["length"]
         value = None
         if code == "G43":
-            h = by["H"]
-            if h.value != int(h.value) or h.value < 0:
+            h = by.get("H")
+            if h is not None and (h.value != int(h.value) or h.value < 0):
                 raise _Refuse(h.start + 1, f"'H{h.text}': expected a tool number")
-            value = int(h.value)
-        st.events.append((idx, w.start + 1, "tool", value, code if value is None else f"G43 H{value}"))
+            value = int(h.value) if h is not None else _loaded(st, code, w)
+        text = code if value is None else (f"G43 H{value}" if "H" in by else f"G43 (tool {value} loaded)")
+        st.events.append((idx, w.start + 1, "tool", value, text))
         if value != st.tool:
             _forget(st, ax, ("Z",))
             st.tool = value
+
+
+def _tool_change(st: _State, by, ms) -> None:
+    """``Tn`` prepares tool n, ``M6`` loads the prepared one (the tool LinuxCNC's bare ``G43``/``G41`` use)."""
+    if "T" in by and by["T"].value == int(by["T"].value):
+        st.selected = int(by["T"].value)
+    if any(m.value == 6 for m in ms):
+        st.loaded = st.selected
+
+
+def _loaded(st: _State, code, w) -> int:
+    """The tool in the spindle for a bare ``G43``/``G41``/``G42`` (LinuxCNC): the one the program loaded."""
+    if st.loaded is None:
+        raise _Refuse(w.start + 1, f"'{code}' without {'H' if code == 'G43' else 'D'} uses the tool in the spindle, which "
+                                   "the program has not loaded (Tn M6) before it: write the number, or load the tool")
+    return st.loaded
 
 
 def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:

@@ -236,6 +236,9 @@ check has teeth."""
     # hand-worked: G55 after L20 at (10, 10) = (210, 110, -150); tool 2 by L10 Z5 at Z-20 with tool 1 = 125 mm
     ("linuxcnc_l20_io.ngc", "linuxcnc", OFFSETS, {"G55": (210, 110, -150)}, {1: 150.0, 2: 125.0},
      ({"G55": (200, 100, -150)}, {1: 150.0, 2: 125.0})),
+    # bare G43 after T2 M6 / T1 M6: tools 2 (100 mm) and 1 (150 mm); full circles
+    ("linuxcnc_bare_g43_circle.ngc", "linuxcnc", OFFSETS, {"G55": (200, 100, -150)}, {1: 150.0, 2: 100.0},
+     ({"G55": (200, 100, -150)}, {1: 100.0, 2: 150.0})),
 ])
 def test_programs_with_the_new_words_are_compensated_where_the_part_is_cut(tmp_path, truth_file, name, dialect,
                                                                           offsets_file, offsets, tools, wrong):
@@ -252,3 +255,38 @@ def test_programs_with_the_new_words_are_compensated_where_the_part_is_cut(tmp_p
     errs_wrong = true_point_errors_um(DATA / name, out / name, mill, ChainElementSet.load(truth_file, mill), *wrong,
                                       dialect=dialect)
     assert errs_wrong.max() > WRONG_MIN_UM
+
+
+# ---------------------------------------------------------------------------- bare G43 / G41, full circles
+def test_linuxcnc_bare_g43_and_g41_use_the_tool_loaded_by_m6(tmp_path, ax):
+    """LinuxCNC: 'G43' without H and 'G41' without D use the tool in the spindle, the one the last 'Tn M6'
+    loaded (tools.csv: tool 2 100 mm r3, tool 1 150 mm r5)."""
+    text = "G55\nT2 M6\nG43\nG0 X0 Y0 Z0\nG1 X1 F9\nT1\nM6\nG43\nG41\nG1 X5 Z0\nM2\n"
+    p = tmp_path / "p.nc"
+    p.write_text(text)
+    prog = parse_program(p, axis_words=ax, dialect="linuxcnc")
+    fr = program_frames(prog, read_work_offsets(OFFSETS), read_tool_table(TOOLS))
+    _, tool = fr.at([4, 9])
+    assert list(tool) == [100.0, 150.0] and fr.radius([9])[0] == 5.0
+    err = _refused(tmp_path, ax, "G55\nG43\nG0 X0 Y0 Z0\nG1 X1 F9\nM2\n", "linuxcnc")
+    assert "line 2, column 1: 'G43' without H uses the tool in the spindle, which the program has not loaded" in err
+    err = _refused(tmp_path, ax, "G55\nT2 M6\nG43\nG0 X0 Y0 Z0\nG1 X1 F9\nM2\n", "fanuc")
+    assert "line 3, column 1: 'G43' without H (the current tool's length)" in err
+
+
+def test_a_centre_format_arc_without_axis_words_is_a_full_circle(tmp_path, ax):
+    """RS274NGC / LinuxCNC / Fanuc: G2/G3 with I J and no axis words ends where it starts: a full circle."""
+    prog, moves, _, _ = _frames(tmp_path, ax, "G55\nG0 X50 Y50 Z0\nG3 I-20 F9\nG2 I10\nI10\nM2\n", "linuxcnc")
+    arcs = [m for m in moves if m.kind == "arc"]
+    assert len(arcs) == 3 and all(np.array_equal(m.start, m.end) for m in arcs)
+    assert (arcs[0].arc["uc"], arcs[0].arc["vc"], arcs[0].arc["sweep"]) == (30.0, 50.0, 2 * np.pi)
+    assert arcs[1].arc["sweep"] == -2 * np.pi and arcs[2].arc["uc"] == 60.0
+    err = _refused(tmp_path, ax, "G55\nG0 X50 Y50 Z0\nG3 R20 F9\nM2\n")
+    assert "line 3, column 4: 'R20' without axis words (only a centre-format G2/G3 full circle" in err
+
+
+def test_g80_with_a_motion_code_names_the_dialects_that_run_it(tmp_path, ax):
+    err = _refused(tmp_path, ax, "G55\nG0 G80 G90 X0 Y0 Z0\nG1 X1 F9\nM30\n")
+    assert "line 2, column 4: 'G80' and 'G0' on one line (same modal group); Fanuc, Haas" in err
+    assert "name the controller with --dialect" in err
+    _frames(tmp_path, ax, "G55\nG0 G80 G90 X0 Y0 Z0\nG1 X1 F9\nM30\n", "fanuc")  # read on Fanuc
