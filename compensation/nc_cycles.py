@@ -143,6 +143,7 @@ class _St:
         self.series_g99 = False
         self.initial = math.nan  # the series' initial level (the Z when the cycle mode began)
         self.why_unknown = "the program start"
+        self.kept_line = 0  # the last kept cycle line while the controller's Z differs from the programmed one
 
 
 def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None) -> CycleExpansion:
@@ -192,10 +193,25 @@ def _line(body, st: _St, mode, dialect, lineno, holes, out_at):
                                                "drilled depends on the controller's switch; remove the '/'")
         return _cycle_line(body, words, by, gs, cyc, st, mode, dialect, lineno, holes, out_at)
     _track(words, by, gs, motion, st)
+    _after_kept(words, by, gs, st, mode)
     if bd and any(a in by for a in "XYZ"):  # run or skipped by the operator's switch
         st.pos[[j for j, a in enumerate("XYZ") if a in by]] = np.nan
         st.why_unknown = "a '/' (block delete) line"
     return None
+
+
+def _after_kept(words, by, gs, st: _St, mode) -> None:
+    """After a kept cycle the controller's Z is the written (compensated) R or initial level, not the
+    programmed one the reader continues from: an incremental move is refused until an absolute Z."""
+    if not st.kept_line or not any(a in by for a in "XYZ") or any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs):
+        return
+    if st.inc:
+        w = next(by[a] for a in "XYZ" if a in by)
+        raise _Refuse(w.start + 1, f"an incremental move after the kept canned cycle of line {st.kept_line}: the "
+                                   "controller is then at the cycle's compensated clear level, not the programmed one; "
+                                   "program an absolute Z (G90) first, or use --expand-cycles")
+    if "Z" in by:
+        st.kept_line = 0
 
 
 def _track(words, by, gs, motion, st: _St):
@@ -256,6 +272,8 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
             extra = "G90"
         holes.append(hole)
     st.pos[:] = (x, y, clear)
+    if mode == "keep":
+        st.kept_line = lineno
     if st.inc:
         out.append("G91")
     return out

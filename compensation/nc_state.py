@@ -325,107 +325,130 @@ def _offset_vector(values: dict, words) -> np.ndarray:
     return np.array([float(values.get(w, 0.0)) for w in words])
 
 
+class _Controller:
+    """The controller's tables and active frame while :func:`program_frames` walks a program's events."""
+
+    def __init__(self, path, words, offsets: WorkOffsets | None, tools: ToolTable | None):
+        self.words, self.offsets, self.tools = words, offsets, tools
+        self.table = {k: dict(v) for k, v in (offsets.systems if offsets else {}).items()}
+        self.tooltab = {k: v[0] for k, v in (tools.tools if tools else {}).items()}
+        self.radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
+        self.parts = {}  # Fanuc/Haas G10 L10-L13: {(tool, "length"/"radius"): {"geometry"/"wear": mm}}
+        # before any selection the controller runs its power-on G54: unknown (NaN) unless the tables give it
+        # (never machine zero: --work-offsets machine says so explicitly; refuse_unknown_frames refuses the rest)
+        self.system, self.tool, self.cutter = "G54", None, None
+        self.used_systems, self.used_tools = set(), set()
+
+    def offset(self) -> np.ndarray:
+        if self.system not in self.table:
+            return np.full(len(self.words), np.nan)
+        return _offset_vector(self.table[self.system], self.words)
+
+    def frame(self) -> tuple:
+        """(offset (k,), tool length mm or NaN, cutter radius mm or NaN) now."""
+        return (self.offset(), self.tooltab[self.tool] if self.tool is not None else np.nan,
+                self.radii[self.cutter] if self.cutter is not None else np.nan)
+
+    def select_system(self, value, where) -> None:
+        offsets, table = self.offsets, self.table
+        if value not in table and offsets is not None and offsets.machine_coordinates:
+            table[value] = {}  # machine coordinates: every system's offset is zero, extended ones too
+        if value not in table:
+            if offsets is None:
+                raise InputError(f"{where}: selects the work offset {value}; no table given: --work-offsets FILE "
+                                 "(.var/CSV), G10 L2, or --work-offsets machine (machine coordinates)")
+            raise InputError(f"{where}: the work offset {value} is not in {offsets.source} (nor set by a G10 L2 "
+                             "line before it): give it in --work-offsets")
+        unset = [w for w in self.words if not np.isfinite(table[value].get(w, 0.0))]
+        if unset:
+            raise InputError(f"{where}: the work offset {value} was set by G10 along some axes only; its "
+                             f"{' '.join(unset)} are the controller's: give {value} in --work-offsets (or every "
+                             "axis on the G10 line)")
+        self.system = value
+        self.used_systems.add(value)
+
+    def select_tool(self, value, where) -> None:
+        if value is not None and value not in self.tooltab:
+            raise InputError(f"{where}: tool length offset H{value}: " + _unknown_tool(value, self.tools, self.parts))
+        if value is not None and "Z" not in self.words:
+            raise InputError(f"{where}: a tool length offset acts on Z; the machine has no Z axis")
+        self.tool = value
+        if value is not None:
+            self.used_tools.add(value)
+
+    def select_cutter(self, value, where) -> None:
+        if value is not None and not np.isfinite(self.radii.get(value, np.nan)):
+            raise InputError(f"{where}: cutter radius compensation D{value}: the radius of tool {value} is not "
+                             "known: give it in --tool-table (radius_mm, or D of a .tbl) or G10 L1 P.. R.."
+                             + _part_note(value, "radius", self.parts))
+        self.cutter = value
+
+    def g10(self, kind, value, where) -> None:
+        """A ``G10`` line's data (:mod:`compensation.gcode_state`) into the tables."""
+        words = self.words
+        if kind == "g10-work":
+            _set_offset(self.table, value[0], value[1], words, self.offsets)
+        elif kind == "g10-here":
+            _set_offset(self.table, value[0], _offset_here(value, self.offset(), words, where, self.system), words,
+                        self.offsets)
+        elif kind == "g10-tool":
+            self.tooltab[value[0]] = value[1][0]
+            if np.isfinite(value[1][1]):
+                self.radii[value[0]] = value[1][1]
+        elif kind == "g10-tool-here":
+            now = self.tooltab.get(self.tool, 0.0) if self.tool is not None else 0.0
+            self.tooltab[value[0]] = _tool_here(value, self.offset(), self.table, now, words, where, self.system)
+            self.parts.pop((value[0], "length"), None)
+            if np.isfinite(value[4]):
+                self.radii[value[0]] = value[4]
+        elif kind == "g10-tool-part":
+            n, what, part, mm = value
+            have = self.parts.setdefault((n, what), {})
+            have[part] = mm
+            dest = self.tooltab if what == "length" else self.radii
+            if len(have) == 2:
+                dest[n] = have["geometry"] + have["wear"]
+            else:
+                dest.pop(n, None)
+
+    def check_active(self, where) -> None:
+        """The active tool and cutter radius are still known after a G10 line changed the tables."""
+        if self.tool is not None and self.tool not in self.tooltab:
+            raise InputError(f"{where}: the length of the active tool {self.tool} (G43 H{self.tool}) is no longer "
+                             "known: " + _unknown_tool(self.tool, self.tools, self.parts))
+        if self.cutter is not None and not np.isfinite(self.radii.get(self.cutter, np.nan)):
+            raise InputError(f"{where}: the radius of the active cutter compensation D{self.cutter} is no longer "
+                             "known" + _part_note(self.cutter, "radius", self.parts))
+
+
 def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None) -> ProgramFrames:
     """The frames of a parsed program (:attr:`compensation.gcode.GProgram.events`, in line order)
     with the tables given (None: not given). Refuses (InputError: file, line, column, word, the
     option that supplies it) a work system or a tool not in the tables nor set by the program's own
     ``G10`` lines before it."""
     path, words = program.path, program.axis_words.words
-    table = {k: dict(v) for k, v in (offsets.systems if offsets else {}).items()}
-    tooltab = {k: v[0] for k, v in (tools.tools if tools else {}).items()}
-    radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
-    cutter = None
     events = list(getattr(program, "events", ()) or ())
-    # before any selection the controller runs its power-on G54: unknown (NaN) unless the tables give it
-    # (never machine zero: --work-offsets machine says so explicitly; refuse_unknown_frames refuses the rest)
-    system = "G54"
-    tool = None
-    first, offs, tls = [0], [], []
-    used_systems, used_tools = set(), set()
-
-    parts = {}  # Fanuc/Haas G10 L10-L13: {(tool, "length"/"radius"): {"geometry"/"wear": mm}}
-
-    def current():
-        if system not in table:
-            return np.full(len(words), np.nan)
-        return _offset_vector(table[system], words)
-
-    offs.append(current())
-    tls.append(np.nan)
-    rads = [np.nan]
+    c = _Controller(path, words, offsets, tools)
+    first, frames = [0], [c.frame()]
+    select = {"system": c.select_system, "tool": c.select_tool, "cutter": c.select_cutter}
     for line, col, kind, value, text in events:
         where = f"{path}: line {line + 1}, column {col}: '{text}'"
-        if kind == "system":
-            if value not in table and offsets is not None and offsets.machine_coordinates:
-                table[value] = {}  # machine coordinates: every system's offset is zero, extended ones too
-            if value not in table:
-                if offsets is None:
-                    raise InputError(f"{where}: selects the work offset {value}; no table given: --work-offsets FILE "
-                                     "(.var/CSV), G10 L2, or --work-offsets machine (machine coordinates)")
-                raise InputError(f"{where}: the work offset {value} is not in {offsets.source} (nor set by a G10 L2 "
-                                 "line before it): give it in --work-offsets")
-            unset = [w for w in words if not np.isfinite(table[value].get(w, 0.0))]
-            if unset:
-                raise InputError(f"{where}: the work offset {value} was set by G10 along some axes only; its "
-                                 f"{' '.join(unset)} are the controller's: give {value} in --work-offsets (or every "
-                                 "axis on the G10 line)")
-            system = value
-            used_systems.add(value)
-        elif kind == "tool":
-            if value is not None and value not in tooltab:
-                raise InputError(f"{where}: tool length offset H{value}: " + _unknown_tool(value, tools, parts))
-            if value is not None and "Z" not in words:
-                raise InputError(f"{where}: a tool length offset acts on Z; the machine has no Z axis")
-            tool = value
-            if value is not None:
-                used_tools.add(value)
-        elif kind == "g10-work":
-            _set_offset(table, value[0], value[1], words, offsets)
-        elif kind == "g10-here":
-            _set_offset(table, value[0], _offset_here(value, current(), words, where, system), words, offsets)
-        elif kind == "g10-tool":
-            tooltab[value[0]] = value[1][0]
-            if np.isfinite(value[1][1]):
-                radii[value[0]] = value[1][1]
-        elif kind == "g10-tool-here":
-            tooltab[value[0]] = _tool_here(value, current(), table, tooltab.get(tool, 0.0) if tool is not None else 0.0,
-                                           words, where, system)
-            parts.pop((value[0], "length"), None)
-            if np.isfinite(value[4]):
-                radii[value[0]] = value[4]
-        elif kind == "g10-tool-part":
-            n, what, part, mm = value
-            have = parts.setdefault((n, what), {})
-            have[part] = mm
-            dest = tooltab if what == "length" else radii
-            if len(have) == 2:
-                dest[n] = have["geometry"] + have["wear"]
-            else:
-                dest.pop(n, None)
-        elif kind == "cutter":
-            if value is not None and not np.isfinite(radii.get(value, np.nan)):
-                raise InputError(f"{where}: cutter radius compensation D{value}: the radius of tool {value} is not "
-                                 "known: give it in --tool-table (radius_mm, or D of a .tbl) or G10 L1 P.. R.."
-                                 + _part_note(value, "radius", parts))
-            cutter = value
-        if tool is not None and tool not in tooltab:
-            raise InputError(f"{where}: the length of the active tool {tool} (G43 H{tool}) is no longer known: "
-                             + _unknown_tool(tool, tools, parts))
-        if cutter is not None and not np.isfinite(radii.get(cutter, np.nan)):
-            raise InputError(f"{where}: the radius of the active cutter compensation D{cutter} is no longer known"
-                             + _part_note(cutter, "radius", parts))
+        if kind in select:
+            select[kind](value, where)
+        elif kind.startswith("g10-"):
+            c.g10(kind, value, where)
+            c.check_active(where)
         first.append(line)
-        offs.append(current())
-        tls.append(tooltab[tool] if tool is not None else np.nan)
-        rads.append(radii[cutter] if cutter is not None else np.nan)
+        frames.append(c.frame())
     notes = {"work_offsets": offsets.source if offsets else "program G10 lines",
-             "work_systems_used": sorted(used_systems),
+             "work_systems_used": sorted(c.used_systems),
              "tool_table": tools.source if tools else None,
-             "tools_used": {int(t): float(tooltab[t]) for t in sorted(used_tools)}}
-    notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(table.get(s, {}), words)]
-                               for s in sorted(used_systems)}
+             "tools_used": {int(t): float(c.tooltab[t]) for t in sorted(c.used_tools)}}
+    notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(c.table.get(s, {}), words)]
+                               for s in sorted(c.used_systems)}
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
     notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
+    offs, tls, rads = zip(*frames)
     return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float))
 

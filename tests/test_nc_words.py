@@ -290,3 +290,15 @@ def test_g80_with_a_motion_code_names_the_dialects_that_run_it(tmp_path, ax):
     assert "line 2, column 4: 'G80' and 'G0' on one line (same modal group); Fanuc, Haas" in err
     assert "name the controller with --dialect" in err
     _frames(tmp_path, ax, "G55\nG0 G80 G90 X0 Y0 Z0\nG1 X1 F9\nM30\n", "fanuc")  # read on Fanuc
+
+
+def test_an_incremental_move_after_a_kept_cycle_needs_an_absolute_z_first():
+    """After a kept G99 hole the controller is at the written (compensated) R, a few μm from the programmed R
+    the reader continues from: an incremental move would carry that difference silently. Refused until an
+    absolute Z; expanded cycles (whose retract is written as programmed) are not affected."""
+    text = "G0 X0 Y0 Z10\nG99 G81 X5 Y5 Z-5 R2 F100\nG80\nG91 G1 X5\nG90 G1 Z5\nG91 G1 X5\n"
+    with pytest.raises(InputError) as exc:
+        expand_cycles(text, "p.nc", "keep")
+    assert "p.nc: line 4, column 8: an incremental move after the kept canned cycle of line 2" in str(exc.value)
+    expand_cycles(text, "p.nc", "expand")
+    expand_cycles(text.replace("G91 G1 X5\nG90 G1 Z5\n", "G90 G1 Z5\n"), "p.nc", "keep")  # absolute Z first: read
