@@ -14,6 +14,10 @@ controller's dialect, with the tables a shop has: a work-offset CSV giving every
 tool table of tools 1-99 (100 mm long, radius 5 mm). Outcomes: accepted, refused (the product's message,
 grouped by its reason), crashed (an exception other than the refusals), and a sha256 mismatch (the file
 is not the one counted). ``--root`` counts another checkout (main, for the before figure).
+``--compensate``: every accepted program is then compensated (``volcomp compensate --method exact``) on a
+seeded simulated truth (element set of the machine, ±10 μm / μrad 1 σ, seed 101) used as the model and as
+``--truth``: the TRUE residual at its points before and after (the product's own frames: this shows the
+accepted programs run end to end, not that their frames are right — the tests check those independently).
 """
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ HERE = Path(__file__).resolve().parent
 MANIFEST = HERE / "program_corpus" / "MANIFEST.csv"
 TOOL_LENGTH_MM = 100.0
 TOOL_RADIUS_MM = 5.0
-PART_ZERO_MM = {"mill-xyz": (200.0, 300.0, -300.0), "lathe-xzc": (0.0, 0.0, 0.0)}
+PART_ZERO_MM = {"mill-xyz": (300.0, 200.0, -300.0), "lathe-xzc": (0.0, 0.0, 0.0)}
 """Where the tables put every work system: a part zero inside the machine's strokes (mill: the middle of X
 and Y, 100 mm above the bottom of Z's stroke; lathe: the spindle axis)."""
 
@@ -68,7 +72,33 @@ def reason_of(message: str, name: str) -> str:
     return msg[:110]
 
 
-def count(root: Path, corpus: Path) -> dict:
+def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path) -> None:
+    """``--compensate``: TRUE max before/after of each accepted program (module docstring)."""
+    from compensation.app.cli import main
+    from errormap.machine import load_machine
+    from errormap.mt_elements import ChainElementSet
+    rows = {r["file"]: r for r in csv.DictReader(MANIFEST.open(encoding="utf-8"))}
+    truths = {}
+    for r in out["results"]:
+        if r["outcome"] != "accepted":
+            continue
+        m = rows[r["file"]]
+        if m["machine"] not in truths:
+            mt = load_machine(m["machine"])
+            truths[m["machine"]] = ChainElementSet.random(mt, 101, 10.0, 11).save(tmp / f"truth-{m['machine']}.json")
+        dest = tmp / ("out-" + r["file"])
+        rc = main(["compensate", str(corpus / r["file"]), "--machine", m["machine"], "--model",
+                   str(truths[m["machine"]]), "--truth", str(truths[m["machine"]]), "--method", "exact", "--out",
+                   str(dest), "--dialect", m["dialect"], "--work-offsets", str(tmp / f"offsets-{m['machine']}.csv"),
+                   "--tool-table", str(tmp / "tools.csv")])
+        summary = dest / "compensate_summary.json"
+        e = json.loads(summary.read_text())["files"][0] if rc == 0 and summary.is_file() else {}
+        r["compensated"] = {"exit": rc, "true_max_um": e.get("true", {}).get("max_um"),
+                            "uncompensated_max_um": e.get("true_uncompensated", {}).get("max_um"),
+                            "points": e.get("points")}
+
+
+def count(root: Path, corpus: Path, compensate: bool = False) -> dict:
     sys.path.insert(0, str(root))
     from compensation.app.validate import UsageError
     from compensation.app.workflows.mt_compensate import ChainSettings, read_chain_path
@@ -79,6 +109,7 @@ def count(root: Path, corpus: Path) -> dict:
     machines = {m: load_machine(m) for m in {r["machine"] for r in rows}}
     results = []
     with tempfile.TemporaryDirectory() as tmp:
+        out = {"root": str(root)}
         tables = _tables(Path(tmp), read_work_offsets, read_tool_table, InputError)
         for r in rows:
             p = corpus / r["file"]
@@ -94,8 +125,10 @@ def count(root: Path, corpus: Path) -> dict:
                 results.append((r, "refused", reason_of(str(exc), p.name)))
             except Exception as exc:  # noqa: BLE001 - a crash is what this counts
                 results.append((r, "crashed", f"{type(exc).__name__}: {exc}"[:110]))
-    return {"root": str(root), "results": [{"file": r["file"], "kind": r["kind"], "outcome": o, "reason": why}
-                                           for r, o, why in results]}
+        out["results"] = [{"file": r["file"], "kind": r["kind"], "outcome": o, "reason": why} for r, o, why in results]
+        if compensate:
+            compensate_accepted(root, corpus, out, Path(tmp))
+    return out
 
 
 def report(out: dict) -> str:
@@ -114,6 +147,9 @@ def report(out: dict) -> str:
     for why, files in sorted(reasons.items(), key=lambda kv: (-len(kv[1]), kv[0])):
         lines.append(f"  {len(files)} x {why}  [{', '.join(files)}]")
     lines.append("  accepted: " + ", ".join(r["file"] for r in res if r["outcome"] == "accepted"))
+    for r in res:
+        if "compensated" in r:
+            lines.append(f"  compensated {r['file']}: {r['compensated']}")
     return "\n".join(lines)
 
 
@@ -122,8 +158,9 @@ if __name__ == "__main__":
     ap.add_argument("--corpus", required=True, help="folder holding the manifest's files")
     ap.add_argument("--root", default=str(HERE.parent), help="the checkout to count (default: this one)")
     ap.add_argument("--json", help="write the per-program outcomes here")
+    ap.add_argument("--compensate", action="store_true", help="compensate every accepted program on a simulated truth")
     a = ap.parse_args()
-    result = count(Path(a.root).resolve(), Path(a.corpus))
+    result = count(Path(a.root).resolve(), Path(a.corpus), a.compensate)
     print(report(result))
     if a.json:
         Path(a.json).write_text(json.dumps(result, indent=1))
