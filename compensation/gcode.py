@@ -976,7 +976,7 @@ def fmt(v: float, decimals: int) -> str:
     return s
 
 
-def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, list]:
+def render_program(program: GProgram, vertices: list, header=(), track: dict | None = None) -> tuple[str, list]:
     """Write the program with each compensated move's vertices.
 
     ``vertices[k]``: shape (m_k, k_axes) absolute axes (mm, deg; the reader's axis order) for
@@ -990,7 +990,8 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
     and each extra vertex is an added line of the axis words (``X.. Z.. A..``) after it. ``header`` lines become
     ``(...)`` comments after a leading ``%`` line and a program-number line, if any. Numbers are
     written in the line's own units and distance mode; incremental numbers are differences of
-    what was actually written, so rounding never accumulates.
+    what was actually written, so rounding never accumulates. ``track`` (a dict): filled with
+    ``{line index: (k,) position of the controller running the output after that move}``.
     """
     comp = [m for m in program.moves if m.compensate]
     if len(vertices) != len(comp):
@@ -1003,10 +1004,12 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
     for m in program.moves:
         if not m.compensate:
             ctrl = _kept_position(m, ctrl, ax)
-            continue
-        q = np.asarray(vertices[k], dtype=float).reshape(-1, k_axes)
-        k += 1
-        groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax)
+        else:
+            q = np.asarray(vertices[k], dtype=float).reshape(-1, k_axes)
+            k += 1
+            groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax)
+        if track is not None:
+            track[m.index] = ctrl
     out = [ln for g in groups for ln in g]
     return _with_header(out, program.notes() + tuple(header)), groups
 

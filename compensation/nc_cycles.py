@@ -48,13 +48,17 @@ Semantics (LinuxCNC 2.9 ``rs274ngc`` ``convert_cycle_xy`` and the Fanuc 0i/Haas 
 a move to its bottom ``(X, Y, Z)`` and the retract; the written program has the cycle line back with
 the compensated ``X Y Z`` of the bottom and the compensated Z of the R point as ``R``
 (:func:`render_kept`); the XY corrections at R and at the bottom differ by the *tilt* the cycle
-cannot follow (the hole is drilled straight from the compensated XY), reported per line. Kept
-cycles are read in ``G90`` only (a compensated incremental hole changes every later one; use
-``--expand-cycles``). ``"expand"``: each hole becomes the controller's moves above, compensated
-point by point.
+cannot follow (the hole is drilled straight from the compensated XY), reported per line. Under
+``G91`` the kept line is written in increments from where the controller running the output really is
+(``X Y`` from its position before the hole, ``R`` from the series' initial level as written, ``Z`` from
+the written R plane; :func:`render_kept`); ``L``/``K`` repeats under ``G91`` are refused (one line, equal
+steps). After a kept cycle the controller stands at the written (compensated) clear level, not the
+programmed one: an incremental move is refused until an absolute ``Z``. ``"expand"``: each hole
+becomes the controller's moves above, compensated point by point.
 """
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 
@@ -90,7 +94,8 @@ INVALIDATE_G = ("G28", "G30", "G53", "G54", "G55", "G56", "G57", "G58", "G59", "
 class Hole:
     """One drilled hole: ``line`` its 1-based line in the cycle pass's input, ``code`` the cycle,
     ``xyz``/``r`` program units (absolute), ``inch``, ``out_r``/``out_bottom`` 1-based output lines of the
-    R and bottom moves (kept cycles)."""
+    R and bottom moves (kept cycles), ``inc`` drilled under ``G91``, ``series`` the cycle series (a cycle mode
+    from its start to ``G80`` or another motion code) it belongs to."""
 
     line: int
     code: str
@@ -99,6 +104,8 @@ class Hole:
     inch: bool
     out_r: int = 0
     out_bottom: int = 0
+    inc: bool = False
+    series: int = 0
 
 
 @dataclass(frozen=True)
@@ -144,6 +151,7 @@ class _St:
         self.initial = math.nan  # the series' initial level (the Z when the cycle mode began)
         self.why_unknown = "the program start"
         self.kept_line = 0  # the last kept cycle line while the controller's Z differs from the programmed one
+        self.series = 0
 
 
 def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None) -> CycleExpansion:
@@ -193,14 +201,14 @@ def _line(body, st: _St, mode, dialect, lineno, holes, out_at):
                                                "drilled depends on the controller's switch; remove the '/'")
         return _cycle_line(body, words, by, gs, cyc, st, mode, dialect, lineno, holes, out_at)
     _track(words, by, gs, motion, st)
-    _after_kept(words, by, gs, st, mode)
+    _after_kept(by, gs, st)
     if bd and any(a in by for a in "XYZ"):  # run or skipped by the operator's switch
         st.pos[[j for j, a in enumerate("XYZ") if a in by]] = np.nan
         st.why_unknown = "a '/' (block delete) line"
     return None
 
 
-def _after_kept(words, by, gs, st: _St, mode) -> None:
+def _after_kept(by, gs, st: _St) -> None:
     """After a kept cycle the controller's Z is the written (compensated) R or initial level, not the
     programmed one the reader continues from: an incremental move is refused until an absolute Z."""
     if not st.kept_line or not any(a in by for a in "XYZ") or any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs):
@@ -252,6 +260,11 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
     if not any(a in by for a in "XYZ"):
         return [extra.replace("G90", "G91" if st.inc else "G90")]
     r, bottom, clear = _levels(code, st, col)
+    if mode == "keep" and st.inc and _repeats(by) > 1:
+        w = by["L"] if "L" in by else by["K"]
+        raise _Refuse(w.start + 1, f"{w.letter}{w.text} under G91 on a kept cycle: one line drills its holes at equal "
+                                   "steps, the compensated holes are not equally spaced; write one line per hole or "
+                                   "use --expand-cycles")
     dec = DECIMALS["inch" if st.inch else "mm"]
     out = []
     x, y = st.pos[0], st.pos[1]
@@ -260,7 +273,7 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
         y = y + by["Y"].value if st.inc and "Y" in by else (by["Y"].value if "Y" in by else y)
         if not (math.isfinite(x) and math.isfinite(y)):
             raise _Refuse(col, f"{code}: the hole's X/Y is not known (no X/Y word and none before the cycle)")
-        hole = Hole(lineno, code, (x, y, bottom), r, st.inch)
+        hole = Hole(lineno, code, (x, y, bottom), r, st.inch, inc=st.inc, series=st.series)
         xy = f"X{fmt(x, dec)} Y{fmt(y, dec)}"
         if mode == "keep":
             hole.out_r = out_at + len(out) + 1
@@ -304,6 +317,7 @@ def _enter(st: _St, gs, by, cyc, col) -> str:
         raise _Refuse(col, f"canned cycle in the {st.plane} plane: only G17 (XY) cycles are read")
     if st.mode is None:
         st.initial = st.pos[2]
+        st.series += 1
     if cyc and cyc[0] != st.mode:
         need = "ZR" + {"G73": "Q", "G83": "Q", "G82": "P", "G86": "P", "G89": "P"}.get(cyc[0], "")
         missing = [a for a in need if a not in by]
@@ -326,9 +340,6 @@ def _check_mode(code, st: _St, mode, dialect, col):
                 f"dialect-dependent; read as {NOT_EXPANDABLE[code]} on {'/'.join(DIALECT_CYCLES[code])} "
                 "(name the controller with --dialect)")
         raise _Refuse(col, f"{code} on {dialect or 'rs274'}: {what}")
-    if mode == "keep" and st.inc:
-        raise _Refuse(col, f"{code} under G91: a kept cycle is written in absolute numbers only (each compensated "
-                           "incremental hole would move every later one); use --expand-cycles")
     if mode == "expand" and code in NOT_EXPANDABLE:
         raise _Refuse(col, f"{code} ({NOT_EXPANDABLE[code]}) has no form in plain moves: leave --expand-cycles "
                            "out to keep the cycle (its hole compensated at the bottom and R plane)")
@@ -440,10 +451,18 @@ def render_kept(program, vertices, header=()) -> str:
     writes it, every cycle line as read with the compensated ``X Y Z R`` of its hole (program units)."""
     from .gcode import _with_header, render_program
     exp = program.expanded
-    _, groups = render_program(program, vertices)
+    track = {}
+    _, groups = render_program(program, vertices, track=track)
     ends = hole_vertices(program, vertices)
     words = program.axis_words.words
     jx, jy, jz = (words.index(a) for a in "XYZ")
+    moved = sorted(track)
+    before = {}  # hole line: the controller's position before it (output units: mm / deg)
+    initial = {}  # series: the controller's Z when it began (its initial level)
+    for h in exp.holes:
+        k = bisect.bisect_left(moved, h.out_r - 1) - 1
+        before[h.line] = track[moved[k]] if k >= 0 else np.full(len(words), np.nan)
+        initial.setdefault(h.series, before[h.line][jz])
     by_line = {}
     for h in exp.holes:
         by_line[h.line] = h  # repeats (G90) drill one hole: the last is it
@@ -460,11 +479,28 @@ def render_kept(program, vertices, header=()) -> str:
         scale = MM_PER_INCH if h.inch else 1.0
         bot, rp = ends[h.out_bottom], ends[h.out_r]
         dec = DECIMALS["inch" if h.inch else "mm"]
-        vals = {"X": bot[jx], "Y": bot[jy], "Z": bot[jz], "R": rp[jz]}
-        out.append(_substitute(exp.source[i], {k: fmt(v / scale, dec) for k, v in vals.items()}) + (end or "\n"))
+        if h.inc:
+            text = _incremental_words(bot[[jx, jy, jz]], rp[jz], before[h.line][[jx, jy]], initial[h.series], scale,
+                                      dec, exp.where(h.out_r))
+        else:
+            vals = {"X": bot[jx], "Y": bot[jy], "Z": bot[jz], "R": rp[jz]}
+            text = {k: fmt(v / scale, dec) for k, v in vals.items()}
+        out.append(_substitute(exp.source[i], text) + (end or "\n"))
     if out and not program.lines[-1].endswith("\n") and out[-1].endswith("\n"):
         out[-1] = out[-1].rstrip("\r\n")
     return _with_header(out, program.notes() + tuple(header))
+
+
+def _incremental_words(bottom, r_z, ctrl_xy, initial_z, scale, dec, where) -> dict:
+    """A kept ``G91`` hole's words (program units, text): ``X Y`` from the controller's position before it,
+    ``R`` from the series' initial level, ``Z`` from the R plane the written ``R`` gives (so rounding does not
+    accumulate); all positions as the controller running the output has them (mm)."""
+    if not (np.isfinite(ctrl_xy).all() and np.isfinite(initial_z)):
+        raise InputError(f"{where}: a kept G91 cycle after a position the written program does not fix (G28, G53, "
+                         "a work system): program an absolute X Y Z before it, or use --expand-cycles")
+    rw = fmt((r_z - initial_z) / scale, dec)
+    return {"X": fmt((bottom[0] - ctrl_xy[0]) / scale, dec), "Y": fmt((bottom[1] - ctrl_xy[1]) / scale, dec),
+            "Z": fmt((bottom[2] - (initial_z + float(rw) * scale)) / scale, dec), "R": rw}
 
 
 def _substitute(body: str, values: dict) -> str:
