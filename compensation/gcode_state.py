@@ -162,9 +162,8 @@ def _g10(idx, st: _State, groups, by, axis_words, ax: AxisWords) -> str:
             raise _Refuse(w.start + 1, "'G10 L1' without Z (the tool length; Fanuc's L1 R form is dialect-dependent)")
         _only_z(vals, axis_words, "G10 L1")
         radius = by["R"].value * scale if "R" in by else float("nan")
+        _not_active(st, p, w, text)
         st.events.append((idx, w.start + 1, "g10-tool", (p, (vals["Z"], radius)), text))
-        if p == st.tool:
-            _forget(st, ax, ("Z",))
         return "state"
     rule = G10_TOOL.get(dia, {}).get(int(lnum)) if lnum == int(lnum) else None
     if rule is None:
@@ -172,6 +171,15 @@ def _g10(idx, st: _State, groups, by, axis_words, ax: AxisWords) -> str:
                                     "current position; Fanuc/Haas L10-L13 set offset memories: name the controller "
                                     "with --dialect), or give the values in --tool-table / --work-offsets")
     return _g10_tool(idx, st, by, w, p, rule, vals, axis_words, ax, scale, text)
+
+
+def _not_active(st: _State, p, w, text) -> None:
+    """A G10 that changes the length of the tool whose offset is active: when the controller applies the new
+    length (at once, or at the next ``G43``/``H``) depends on the controller and its parameters: refused."""
+    if p == st.tool:
+        raise _Refuse(w.start + 1, f"'{text}' changes tool {p}, whose length offset is active (G43 H{p}): whether the "
+                                   "controller applies the new length at once or at the next G43 depends on the "
+                                   f"controller; cancel it first (G49) or set the tool before selecting it")
 
 
 def _only_z(vals, axis_words, what):
@@ -225,6 +233,8 @@ def _g10_work(idx, st: _State, by, w, pw, p, lnum, dia, vals, axis_words, ax: Ax
 def _g10_tool(idx, st: _State, by, w, p, rule, vals, axis_words, ax: AxisWords, scale, text) -> str:
     """``G10 L10``-``L13`` (:data:`G10_TOOL`)."""
     kind, part = rule
+    if kind != "diameter":
+        _not_active(st, p, w, text)
     if kind == "here":
         if "Z" not in vals:
             raise _Refuse(w.start + 1, f"'{text}' without Z (the tool length is set so that the current Z reads it)")
@@ -244,10 +254,6 @@ def _g10_tool(idx, st: _State, by, w, p, rule, vals, axis_words, ax: AxisWords, 
         value = by["R"].value * scale * (0.5 if kind == "diameter" else 1.0)
         st.events.append((idx, w.start + 1, "g10-tool-part", (p, "length" if kind == "length" else "radius", part,
                                                               value), text))
-        if kind == "diameter":
-            return "state"
-    if p == st.tool:
-        _forget(st, ax, ("Z",))
     return "state"
 
 

@@ -302,3 +302,14 @@ def test_an_incremental_move_after_a_kept_cycle_needs_an_absolute_z_first():
     assert "p.nc: line 4, column 8: an incremental move after the kept canned cycle of line 2" in str(exc.value)
     expand_cycles(text, "p.nc", "expand")
     expand_cycles(text.replace("G91 G1 X5\nG90 G1 Z5\n", "G90 G1 Z5\n"), "p.nc", "keep")  # absolute Z first: read
+
+
+@pytest.mark.parametrize("line, dialect", [("G10 L1 P1 Z120", None), ("G10 L10 P1 Z5", "linuxcnc"),
+                                           ("G10 L11 P1 R0.01", "haas")])
+def test_a_g10_changing_the_active_tool_length_is_refused(tmp_path, ax, line, dialect):
+    """When a controller applies a changed length of the active tool (at once, or at the next G43) is
+    controller-dependent: refused; set the tool before selecting it, or cancel it (G49) first."""
+    err = _refused(tmp_path, ax, f"G55 G43 H1\nG0 X0 Y0 Z0\n{line}\nG1 X1 F9\nM2\n", dialect)
+    assert "p.nc: line 3, column 1: " in err and "changes tool 1, whose length offset is active (G43 H1)" in err, err
+    _frames(tmp_path, ax, f"G55 G49\nG0 X0 Y0 Z0\n{line}\nG1 X1 F9\nM2\n" if dialect != "haas" else
+            f"G55 G49\nG0 X0 Y0 Z0\n{line}\nG10 L10 P1 R100\nG43 H1\nG1 X1 Z0 F9\nM2\n", dialect)
