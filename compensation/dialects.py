@@ -66,6 +66,10 @@ class Dialect:
     on the line)}."""
     io_codes: dict = field(default_factory=dict)
     """Output / input M codes passed through on a line of their own {code: meaning}."""
+    arc_radius_tol: tuple | None = None
+    """``(mm under G21, mm under G20, relative)``: a centre-format arc whose start and end radii differ by
+    more than the absolute tolerance of its units or by more than the relative one is an error; None: the
+    reader's own 2 μm (:data:`compensation.gcode.ARC_RADIUS_TOL_MM`)."""
 
 
 LOOKAHEAD = "look-ahead / AI contour control (Q1 on, Q0 off; Q2 smooth interpolation refused)"
@@ -82,11 +86,16 @@ HAAS_EXTENDED_MAX = 99
 SIEMENS_NATIVE = ("Siemens native mode (G290: CALL/PCALL/MCALL and L subprogram calls, R parameters) is not the ISO "
                   "dialect: the siemens-iso dialect reads ISO-mode (G291) programs, whose calls are M98 P; post the "
                   "program in ISO mode")
+LINUXCNC_ARC_TOL = (2 * 0.01 * 2 ** 0.5, 2 * 0.001 * 2 ** 0.5 * 25.4, 0.001)
+"""LinuxCNC's defaults (``interp_internal.hh`` CENTER_ARC_RADIUS_TOLERANCE_MM / _INCH, SPIRAL_RELATIVE_TOLERANCE;
+``interp_arc.cc`` arc_data_ijk: an error when the absolute *or* the relative difference is exceeded): end
+points or centre rounded to 0.01 mm / 0.001 inch pass; the arc is then run as a spiral whose radius changes
+linearly with the angle, as the reader reads it."""
 DIALECTS = {
     "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
                                      50: "feed override control", 51: "spindle override control",
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
-                        io_codes=IO_CODES),
+                        io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD}, g80_with_motion=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",

@@ -74,7 +74,9 @@ DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 """Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""
 ARC_RADIUS_TOL_MM = 0.002
 """Start and end radius of an I/K arc may differ by this much (CAM output rounds centres);
-more is refused as an ill-defined arc (LinuxCNC refuses such arcs too)."""
+more is refused as an ill-defined arc. A dialect may say what its controller accepts
+(:attr:`compensation.dialects.Dialect.arc_radius_tol`: LinuxCNC's own defaults); the arc is read as a
+spiral whose radius changes linearly with the angle, as those controllers run it."""
 MAX_TOOL_DIGITS = 2
 """A ``T`` word of more digits is refused: on lathe controls (Fanuc's T-code form ``Tttoo``)
 the digits after the tool number select a geometry/wear offset, which shifts the axes as
@@ -881,11 +883,14 @@ def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
         raise _Refuse(first.start + 1, f"{st.mode} arc before the start position is known")
     ju, jv = ax.words.index(u_ax), ax.words.index(v_ax)
     u0, v0, u1, v1 = move.start[ju], move.start[jv], move.end[ju], move.end[jv]
+    tol = getattr(st.dialect, "arc_radius_tol", None)
+    tols = {} if tol is None else {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2]}
     return {"ju": ju, "jv": jv, **plane_arc(u0, v0, u1, v1, st.mode, arc_words, (u_c, v_c), st.arc_abs, scale,
-                                             first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}")}
+                                             first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}", **tols)}
 
 
-def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both) -> dict:
+def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both,
+              abs_tol_mm: float = ARC_RADIUS_TOL_MM, rel_tol: float | None = None) -> dict:
     """Centre, radii and sweep of a G2/G3 (``mode``) arc from (u0, v0) to (u1, v1) mm in its plane's
     (u, v) coordinates; ``centre_words`` the words giving the centre's u and v offsets (G18: K, I; G17:
     I, J), or ``R``; ``pair`` / ``both`` how the refusals name them. Returns ``uc vc r0 r1 theta0 sweep``."""
@@ -919,9 +924,10 @@ def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, fir
     r1 = math.hypot(u1 - uc, v1 - vc)
     if r0 < 1e-9:
         raise _Refuse(first.start + 1, "arc of zero radius")
-    if abs(r1 - r0) > ARC_RADIUS_TOL_MM:
+    if abs(r1 - r0) > abs_tol_mm or (rel_tol is not None and abs(r1 - r0) > rel_tol * max(r0, r1)):
+        limit = f"{abs_tol_mm * 1e3:.4g} μm" + (f" or {rel_tol:.2%} of the radius" if rel_tol is not None else "")
         raise _Refuse(first.start + 1, f"arc start and end radii differ by {abs(r1 - r0) * 1e3:.3f} μm "
-                                       f"(more than {ARC_RADIUS_TOL_MM * 1e3:g} μm)")
+                                       f"(more than {limit})")
     t0 = math.atan2(v0 - vc, u0 - uc)
     t1 = math.atan2(v1 - vc, u1 - uc)
     full = math.hypot(u1 - u0, v1 - v0) < 1e-9

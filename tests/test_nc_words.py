@@ -313,3 +313,21 @@ def test_a_g10_changing_the_active_tool_length_is_refused(tmp_path, ax, line, di
     assert "p.nc: line 3, column 1: " in err and "changes tool 1, whose length offset is active (G43 H1)" in err, err
     _frames(tmp_path, ax, f"G55 G49\nG0 X0 Y0 Z0\n{line}\nG1 X1 F9\nM2\n" if dialect != "haas" else
             f"G55 G49\nG0 X0 Y0 Z0\n{line}\nG10 L10 P1 R100\nG43 H1\nG1 X1 Z0 F9\nM2\n", dialect)
+
+
+@pytest.mark.parametrize("arc, dialect, refused", [
+    ("G2 X20 Y0 I10.004 J0", "linuxcnc", None),  # 8 μm on r 10 mm: within 28.3 μm and 0.1 % (LinuxCNC accepts)
+    ("G2 X20 Y0 I10.004 J0", None, "more than 2 μm"),  # the reader's own 2 μm without the controller
+    ("G2 X20 Y0 I10.03 J0", "linuxcnc", "more than 28.28 μm or 0.10% of the radius"),  # 60 μm: absolute exceeded
+    ("G2 X2 Y0 I1.004 J0", "linuxcnc", "or 0.10% of the radius"),  # 8 μm on r 1 mm: relative exceeded
+])
+def test_linuxcnc_reads_centre_arcs_with_its_own_radius_tolerance(tmp_path, ax, arc, dialect, refused):
+    """LinuxCNC (interp_arc.cc arc_data_ijk): an error when the radii differ by more than 2·0.01·√2 mm (G21)
+    or more than 0.1 % of the radius; otherwise run as a spiral (radius linear in the angle), as read here."""
+    text = f"G21 G55\nG0 X0 Y0 Z0\nG1 X0 F9\n{arc}\nM2\n"
+    if refused is None:
+        _, moves, _, _ = _frames(tmp_path, ax, text, dialect)
+        a = moves[-1].arc
+        assert abs((a["r1"] - a["r0"]) - (-0.008)) < TOL_MM * 1e3 and np.isclose(a["uc"], 10.004)
+    else:
+        assert f"p.nc: line 4, column 4: 'X" in (err := _refused(tmp_path, ax, text, dialect)) and refused in err, err
