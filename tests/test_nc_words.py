@@ -3,9 +3,11 @@ each read exactly by its controller's manual or refused by line and column with 
 (LinuxCNC/grbl: a work offset set from the current position; Fanuc: ``G54.1 Pn``; Haas: ``G154 Pn``), ``G10
 L10/L11`` (LinuxCNC: a tool length from the current Z; Fanuc/Haas: geometry and wear), Haas ``L12/L13``
 (diameter), Haas ``G154 P1..P99`` / ``G110..G129`` (from the program or an offsets file), LinuxCNC
-``M62..M68`` (passed through), Siemens native-mode calls (refused), ``G76/G87/G88`` by dialect. The expected
-frames are worked by hand from the manuals' definitions in each test (machine = program + offset + tool
-length on Z); two programs are compensated end to end and checked by the TRUE machine (tests/program_checks.py)."""
+``M62..M68`` (passed through), Siemens native-mode calls (refused), ``G76/G87/G88`` by dialect, LinuxCNC's
+bare ``G43``/``G41`` (the tool ``M6`` loaded), centre-format full circles without axis words, LinuxCNC's own arc
+radius tolerance. The expected frames are worked by hand from the manuals' definitions in each test (machine =
+program + offset + tool length on Z); three programs are compensated end to end and checked by the TRUE machine
+(tests/program_checks.py)."""
 import json
 from pathlib import Path
 
