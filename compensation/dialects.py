@@ -25,8 +25,16 @@ M61-M68, M70-M73 state, M100-M199 user); Fanuc Series 0i/30i operator's manuals 
 gear, M83/M84 air jet, M88/M89 through-spindle coolant; G187 smoothness); Siemens Sinumerik 840D
 ISO dialect manual (Fanuc-compatible ISO mode, G291); Mach3 Mill G/M code list (M47 repeats the
 program); grbl v1.1 command reference (M0 M1 M2 M30 M3-M5 M7-M9 M56; no block delete; grbl writes no
-word of its own, so it is named, never recognised). LinuxCNC's M62-M68 (outputs, inputs) take P/E/Q
-words the reader does not read: refused.
+word of its own, so it is named, never recognised).
+
+* **outputs and inputs** (LinuxCNC ``M62``–``M68``, :data:`IO_CODES`): set a digital or analog output
+  or wait on an input; they move nothing and are passed through on a line of their own, their
+  ``P E L Q`` words checked as LinuxCNC's interpreter checks them (:func:`compensation.gcode_state.io_line`);
+* **Haas additional work offsets**: ``G154 P1``–``P99`` (and ``G110``–``G129``, the same offsets as
+  ``G154 P1``–``P20``) select a work system like ``G54.1 Pn`` (:data:`HAAS_SYSTEMS`);
+* **Siemens native mode** (``G290``; ``CALL``, ``L`` subprogram calls, ``R`` parameters): a Sinumerik
+  in ISO mode reads ``M98 P`` calls; a native-mode line in a program is refused naming the mode
+  (:data:`SIEMENS_NATIVE`).
 """
 from __future__ import annotations
 
@@ -53,16 +61,41 @@ class Dialect:
     modes: dict = field(default_factory=dict)
     g80_with_motion: bool = False
     block_delete: bool = True
+    work_systems: dict = field(default_factory=dict)
+    """Work-system codes of the dialect beyond ``G54``–``G59.3``/``G54.1``: {code: fixed P or None (P
+    on the line)}."""
+    io_codes: dict = field(default_factory=dict)
+    """Output / input M codes passed through on a line of their own {code: meaning}."""
+    arc_radius_tol: tuple | None = None
+    """``(mm under G21, mm under G20, relative)``: a centre-format arc whose start and end radii differ by
+    more than the absolute tolerance of its units or by more than the relative one is an error; None: the
+    reader's own 2 μm (:data:`compensation.gcode.ARC_RADIUS_TOL_MM`)."""
 
 
 LOOKAHEAD = "look-ahead / AI contour control (Q1 on, Q0 off; Q2 smooth interpolation refused)"
 _COMMON = {0: "program stop", 1: "optional stop", 2: "program end", 3: "spindle cw", 4: "spindle ccw",
            5: "spindle stop", 6: "tool change", 7: "mist coolant", 8: "flood coolant", 9: "coolant off",
            30: "program end and rewind"}
+IO_CODES = {62: "digital output on, with the next move", 63: "digital output off, with the next move",
+            64: "digital output on, now", 65: "digital output off, now", 66: "wait on an input",
+            67: "analog output, with the next move", 68: "analog output, now"}
+"""LinuxCNC's output and input M codes (G-code reference, "M62-M65", "M66", "M67", "M68")."""
+HAAS_SYSTEMS = {"G154": None, **{f"G{109 + n}": n for n in range(1, 21)}}
+"""Haas mill manual, "G154 Select Work Coordinates P1-P99": G110-G129 are the same offsets as G154 P1-P20."""
+HAAS_EXTENDED_MAX = 99
+SIEMENS_NATIVE = ("Siemens native mode (G290: CALL/PCALL/MCALL and L subprogram calls, R parameters) is not the ISO "
+                  "dialect: the siemens-iso dialect reads ISO-mode (G291) programs, whose calls are M98 P; post the "
+                  "program in ISO mode")
+LINUXCNC_ARC_TOL = (2 * 0.01 * 2 ** 0.5, 2 * 0.001 * 2 ** 0.5 * 25.4, 0.001)
+"""LinuxCNC's defaults (``interp_internal.hh`` CENTER_ARC_RADIUS_TOLERANCE_MM / _INCH, SPIRAL_RELATIVE_TOLERANCE;
+``interp_arc.cc`` arc_data_ijk: an error when the absolute *or* the relative difference is exceeded): end
+points or centre rounded to 0.01 mm / 0.001 inch pass; the arc is then run as a spiral whose radius changes
+linearly with the angle, as the reader reads it."""
 DIALECTS = {
     "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
                                      50: "feed override control", 51: "spindle override control",
-                                     52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"}),
+                                     52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
+                        io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD}, g80_with_motion=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
@@ -70,7 +103,8 @@ DIALECTS = {
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
                              35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
-                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)"}, g80_with_motion=True),
+                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)"}, g80_with_motion=True,
+                    work_systems=HAAS_SYSTEMS),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
                            program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode"},
                            g80_with_motion=True),

@@ -67,13 +67,16 @@ import numpy as np
 from errormap.io import InputError, check_not_wide
 
 from . import gcode_kernels as gscan
-from .gcode_state import MM_PER_INCH, _dialect_mode, _g10, _machine_coordinates, _Refuse, _work_state
+from .gcode_state import (MM_PER_INCH, _dialect_mode, _g10, _machine_coordinates, _Refuse, _tool_change,
+                          _work_state, io_line, siemens_native)
 
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 """Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""
 ARC_RADIUS_TOL_MM = 0.002
 """Start and end radius of an I/K arc may differ by this much (CAM output rounds centres);
-more is refused as an ill-defined arc (LinuxCNC refuses such arcs too)."""
+more is refused as an ill-defined arc. A dialect may say what its controller accepts
+(:attr:`compensation.dialects.Dialect.arc_radius_tol`: LinuxCNC's own defaults); the arc is read as a
+spiral whose radius changes linearly with the angle, as those controllers run it."""
 MAX_TOOL_DIGITS = 2
 """A ``T`` word of more digits is refused: on lathe controls (Fanuc's T-code form ``Tttoo``)
 the digits after the tool number select a geometry/wear offset, which shifts the axes as
@@ -241,8 +244,11 @@ REFUSED_G = {
     "G68.2": "tilted work plane", "G70": "lathe cycle", "G71": "lathe cycle", "G72": "lathe cycle",
     "G73": "canned cycle (drilling cycles are read by compensate on chains with X Y Z: --machine mill-xyz)",
     "G74": "canned cycle (as G73)",
-    "G75": "canned cycle", "G76": "threading or fine-boring cycle (dialect-dependent)",
-    **{f"G{k}": "canned cycle (as G73)" for k in range(81, 90)}, "G87": "back boring cycle", "G88": "boring cycle",
+    "G75": "canned cycle", "G76": "lathe threading (spindle-synchronised passes: not interpretable exactly) or mill "
+                                  "fine boring (kept on chains with X Y Z with --dialect fanuc/haas/siemens-iso)",
+    **{f"G{k}": "canned cycle (as G73)" for k in range(81, 90)},
+    "G87": "back boring cycle (kept on chains with X Y Z with --dialect fanuc/siemens-iso)",
+    "G88": "boring cycle with a manual retract (kept on chains with X Y Z with --dialect fanuc/siemens-iso)",
     "G92": "coordinate offset", "G92.1": "coordinate offset", "G92.2": "coordinate offset",
     "G92.3": "coordinate offset", "G93": "inverse-time feed (a split move would change its time)",
 }
@@ -600,6 +606,8 @@ class _State:
         self.tool = None           # the tool length offset H number (None: G49 / none)
         self.events = []           # GProgram.events
         self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
+        self.selected = None       # the last T word (the tool prepared)
+        self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -622,7 +630,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             code = w.code
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
-            if code in dia.modes:
+            if code in dia.modes or code in dia.work_systems:
                 gs.append((code, w))
                 continue
             if code in REFUSED_G:
@@ -669,14 +677,17 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = ALLOWED_G[code][0] if code in ALLOWED_G else "dialect mode"
+        grp = ALLOWED_G[code][0] if code in ALLOWED_G else (
+            "coords" if dia is not None and code in dia.work_systems else "dialect mode")
         if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
                 code, groups[grp][0]):
             if code != "G80":
                 groups[grp] = (code, w)
             continue
         if grp in groups:
-            raise _Refuse(w.start + 1, f"'{code}' and '{groups[grp][0]}' on one line (same modal group)")
+            why = ("; Fanuc, Haas, Siemens ISO and Mach3 cancel the cycle and take the motion code: name the controller "
+                   "with --dialect" if grp == "motion" and "G80" in (code, groups[grp][0]) else "")
+            raise _Refuse(w.start + 1, f"'{code}' and '{groups[grp][0]}' on one line (same modal group){why}")
         groups[grp] = (code, w)
     return groups
 
@@ -700,7 +711,7 @@ def _apply_modal(st: _State, groups: dict):
 
 def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
     """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64."""
-    for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
+    for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
                                  ("L", ("G10",))):
         if letter in by:
             ok = any(c in allowed_with for c, _ in gs) or (letter == "P" and st.mode in ("G2", "G3")
@@ -711,16 +722,20 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
     for letter, code in (("D", ("G41", "G42")),):
         if letter in by and not any(c in code for c, _ in gs):
             raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
+    loaded = st.dialect is not None and st.dialect.name in LOADED_TOOL_DIALECTS  # resolved by _work_state
     for c, w in gs:
-        if c in ("G41", "G42") and "D" not in by:
+        if c in ("G41", "G42") and "D" not in by and not loaded:
             raise _Refuse(w.start + 1, f"'{c}' without D (the current tool's radius): write '{c} Dn' with the tool "
                                        "table's number n")
-    if "G43" in (c for c, _ in gs) and "H" not in by:
+    if "G43" in (c for c, _ in gs) and "H" not in by and not loaded:
         w = next(w for c, w in gs if c == "G43")
         raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): write 'G43 Hn' with the tool "
                                    "table's number n")
 
 
+LOADED_TOOL_DIALECTS = ("linuxcnc",)
+"""Dialects whose ``G43`` without ``H`` and ``G41``/``G42`` without ``D`` use the tool in the spindle (LinuxCNC
+G-code reference: "G43 ... if H is not given, the current tool's"; "G41 ... D omitted: the current tool")."""
 _COLON_NUMBER = re.compile(r"[ \t]*:[ \t]*\d+[ \t]*(?:\([^)]*\)[ \t]*)?")
 
 
@@ -728,14 +743,22 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     dia = st.dialect
     if dia is not None and ":" in dia.program_number and _COLON_NUMBER.fullmatch(body):
         return "pass", None  # ':1234' program number (ISO code)
+    native = siemens_native(body, dia is not None and dia.name == "siemens-iso")
+    if native is not None:
+        from .dialects import SIEMENS_NATIVE
+        raise _Refuse(native[0], f"'{native[1]}': {SIEMENS_NATIVE}")
     bd, words, pct = tokenize(body)
     if pct:
         return "pass", None
+    io = io_line(words, dia)
+    if io is not None:
+        return io, None
     if bd and dia is not None and not dia.block_delete:
         raise _Refuse(body.index("/") + 1, f"block delete '/': {dia.name} has no block-delete switch")
     if bd and block_delete == "on":
         return "skipped", None
     by, gs, ms = _checked_words(words, ax, dia)
+    _tool_change(st, by, ms)
     groups = _modal_groups(gs, dia)
     if "O" in by:
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
@@ -766,14 +789,18 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if not axis_words:
         if arc_words:
             w = next(iter(arc_words.values()))
-            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words")
+            if st.mode not in ("G2", "G3") or "R" in arc_words:
+                raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words (only a centre-format G2/G3 "
+                                           "full circle may omit them)")
+            return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)  # a full circle
         return ("state" if changes else "pass"), None
     return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
 
 
 def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
-    """The move of a line with axis words in the active motion mode; advances ``st.pos``."""
-    first = min(axis_words.values(), key=lambda w: w.start)
+    """The move of a line with axis words in the active motion mode (or a centre-format full circle, whose
+    end is its start: RS274NGC, LinuxCNC and Fanuc); advances ``st.pos``."""
+    first = min((axis_words or arc_words).values(), key=lambda w: w.start)
     if st.mode is None:
         raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is active")
     if arc_words and st.mode not in ("G2", "G3"):
@@ -856,11 +883,14 @@ def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
         raise _Refuse(first.start + 1, f"{st.mode} arc before the start position is known")
     ju, jv = ax.words.index(u_ax), ax.words.index(v_ax)
     u0, v0, u1, v1 = move.start[ju], move.start[jv], move.end[ju], move.end[jv]
+    tol = getattr(st.dialect, "arc_radius_tol", None)
+    tols = {} if tol is None else {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2]}
     return {"ju": ju, "jv": jv, **plane_arc(u0, v0, u1, v1, st.mode, arc_words, (u_c, v_c), st.arc_abs, scale,
-                                             first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}")}
+                                             first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}", **tols)}
 
 
-def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both) -> dict:
+def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both,
+              abs_tol_mm: float = ARC_RADIUS_TOL_MM, rel_tol: float | None = None) -> dict:
     """Centre, radii and sweep of a G2/G3 (``mode``) arc from (u0, v0) to (u1, v1) mm in its plane's
     (u, v) coordinates; ``centre_words`` the words giving the centre's u and v offsets (G18: K, I; G17:
     I, J), or ``R``; ``pair`` / ``both`` how the refusals name them. Returns ``uc vc r0 r1 theta0 sweep``."""
@@ -894,9 +924,10 @@ def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, fir
     r1 = math.hypot(u1 - uc, v1 - vc)
     if r0 < 1e-9:
         raise _Refuse(first.start + 1, "arc of zero radius")
-    if abs(r1 - r0) > ARC_RADIUS_TOL_MM:
+    if abs(r1 - r0) > abs_tol_mm or (rel_tol is not None and abs(r1 - r0) > rel_tol * max(r0, r1)):
+        limit = f"{abs_tol_mm * 1e3:.4g} μm" + (f" or {rel_tol:.2%} of the radius" if rel_tol is not None else "")
         raise _Refuse(first.start + 1, f"arc start and end radii differ by {abs(r1 - r0) * 1e3:.3f} μm "
-                                       f"(more than {ARC_RADIUS_TOL_MM * 1e3:g} μm)")
+                                       f"(more than {limit})")
     t0 = math.atan2(v0 - vc, u0 - uc)
     t1 = math.atan2(v1 - vc, u1 - uc)
     full = math.hypot(u1 - u0, v1 - v0) < 1e-9
@@ -951,7 +982,7 @@ def fmt(v: float, decimals: int) -> str:
     return s
 
 
-def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, list]:
+def render_program(program: GProgram, vertices: list, header=(), track: dict | None = None) -> tuple[str, list]:
     """Write the program with each compensated move's vertices.
 
     ``vertices[k]``: shape (m_k, k_axes) absolute axes (mm, deg; the reader's axis order) for
@@ -965,7 +996,8 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
     and each extra vertex is an added line of the axis words (``X.. Z.. A..``) after it. ``header`` lines become
     ``(...)`` comments after a leading ``%`` line and a program-number line, if any. Numbers are
     written in the line's own units and distance mode; incremental numbers are differences of
-    what was actually written, so rounding never accumulates.
+    what was actually written, so rounding never accumulates. ``track`` (a dict): filled with
+    ``{line index: (k,) position of the controller running the output after that move}``.
     """
     comp = [m for m in program.moves if m.compensate]
     if len(vertices) != len(comp):
@@ -978,10 +1010,12 @@ def render_program(program: GProgram, vertices: list, header=()) -> tuple[str, l
     for m in program.moves:
         if not m.compensate:
             ctrl = _kept_position(m, ctrl, ax)
-            continue
-        q = np.asarray(vertices[k], dtype=float).reshape(-1, k_axes)
-        k += 1
-        groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax)
+        else:
+            q = np.asarray(vertices[k], dtype=float).reshape(-1, k_axes)
+            k += 1
+            groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax)
+        if track is not None:
+            track[m.index] = ctrl
     out = [ln for g in groups for ln in g]
     return _with_header(out, program.notes() + tuple(header)), groups
 
@@ -1073,7 +1107,7 @@ def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
     given = [(j, words[a]) for j, a in enumerate(ax.words) if a in words]
     edits = [(w.num_start, w.num_end, vals[j]) for j, w in given
              if not (kept and w.letter in kept and float(vals[j]) == w.value)]  # (start, end, text)
-    last_end = max(w.num_end for _, w in given)
+    last_end = max(w.num_end for w in (dict(given).values() if given else words.values()))  # a full circle: its I J K
     if len(given) < len(ax.words):
         missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(ax.words)
                           if a not in words and (not kept or _needed(j, vals, ctrl_before, m, ax)))
@@ -1083,7 +1117,7 @@ def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
         if m.motion_word is not None:
             edits.append((m.motion_word.start, m.motion_word.num_end, "G1"))
         else:
-            first = min(m.words[a].start for a in ax.words if a in m.words)
+            first = min(w.start for w in m.words.values())
             edits.append((first, first, "G1 "))
         for a in ("I", "J", "K", "R", "P"):
             if a in m.words:

@@ -1,15 +1,19 @@
 """The controller-state words of the G-code reader (:mod:`compensation.gcode`), line by line: work-system
-selections (``G54`` … ``G59.3``, ``G54.1 Pn``), tool length offsets (``G43 Hn`` / ``G49``), cutter radius
-compensation (``G41``/``G42 Dn`` / ``G40``), the program's own tables (``G10 L2`` / ``L1``), moves in machine
-coordinates (``G53``) and a dialect's mode codes (:mod:`compensation.dialects`). Each is recorded as an
+selections (``G54`` … ``G59.3``, ``G54.1 Pn``, Haas ``G154 Pn``), tool length offsets (``G43 Hn`` / ``G49``; on
+LinuxCNC a bare ``G43`` is the tool the program's ``Tn M6`` loaded), cutter radius compensation (``G41``/``G42
+Dn`` / ``G40``), the program's own tables (``G10 L1 L2 L10–L13 L20`` by dialect), moves in machine coordinates
+(``G53``), a dialect's mode codes (:mod:`compensation.dialects`), LinuxCNC's output/input M codes
+(:func:`io_line`) and Siemens native-mode lines (:func:`siemens_native`, refused). Each is recorded as an
 event (:attr:`compensation.gcode.GProgram.events`) that :func:`compensation.nc_state.program_frames`
 resolves against the controller's tables; where a frame changes, the program position along the axes it
 moves becomes unknown (the next move there must give it absolutely)."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
-from .nc_state import EXTENDED_MAX, SYSTEMS, system_name
+from .nc_state import EXTENDED_MAX, HAAS_MAX, SYSTEMS, system_name
 
 MM_PER_INCH = 25.4
 
@@ -37,13 +41,17 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
     if "coords" in groups:
         code, w = groups["coords"]
         p = None
-        if code == "G54.1":
+        if code in ("G54.1", "G154"):
+            top = EXTENDED_MAX if code == "G54.1" else HAAS_MAX
             pw = by.get("P")
-            if pw is None or pw.value != int(pw.value) or not 1 <= pw.value <= EXTENDED_MAX:
-                raise _Refuse(w.start + 1, f"'G54.1' needs P1..P{EXTENDED_MAX} (the extended work system)")
+            if pw is None or pw.value != int(pw.value) or not 1 <= pw.value <= top:
+                raise _Refuse(w.start + 1, f"'{code}' needs P1..P{top} (the {'extended' if code == 'G54.1' else 'additional'} "
+                                           "work system)")
             p = int(pw.value)
+        elif "P" in by and by["P"].start > w.start and code.startswith("G1"):
+            raise _Refuse(by["P"].start + 1, f"'P{by['P'].text}' with {code} (G110..G129 are G154 P1..P20 already)")
         name = system_name(code, p)
-        st.events.append((idx, w.start + 1, "system", name, name if p is None else f"G54.1 P{p}"))
+        st.events.append((idx, w.start + 1, "system", name, name if p is None else f"{code} P{p}"))
         if name != st.system:
             _forget(st, ax, ax.words)
             st.system = name
@@ -52,20 +60,38 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         d = by.get("D")
         if d is not None and (d.value != int(d.value) or d.value < 0):
             raise _Refuse(d.start + 1, f"'D{d.text}': expected a tool number")
-        value = int(d.value) if d is not None else None
-        st.events.append((idx, w.start + 1, "cutter", value, code if value is None else f"{code} D{value}"))
+        value = int(d.value) if d is not None else (None if code == "G40" else _loaded(st, code, w))
+        text = code if value is None else (f"{code} D{value}" if d is not None else f"{code} (tool {value} loaded)")
+        st.events.append((idx, w.start + 1, "cutter", value, text))
     if "length" in groups:
         code, w = groups["length"]
         value = None
         if code == "G43":
-            h = by["H"]
-            if h.value != int(h.value) or h.value < 0:
+            h = by.get("H")
+            if h is not None and (h.value != int(h.value) or h.value < 0):
                 raise _Refuse(h.start + 1, f"'H{h.text}': expected a tool number")
-            value = int(h.value)
-        st.events.append((idx, w.start + 1, "tool", value, code if value is None else f"G43 H{value}"))
+            value = int(h.value) if h is not None else _loaded(st, code, w)
+        text = code if value is None else (f"G43 H{value}" if "H" in by else f"G43 (tool {value} loaded)")
+        st.events.append((idx, w.start + 1, "tool", value, text))
         if value != st.tool:
             _forget(st, ax, ("Z",))
             st.tool = value
+
+
+def _tool_change(st: _State, by, ms) -> None:
+    """``Tn`` prepares tool n, ``M6`` loads the prepared one (the tool LinuxCNC's bare ``G43``/``G41`` use)."""
+    if "T" in by and by["T"].value == int(by["T"].value):
+        st.selected = int(by["T"].value)
+    if any(m.value == 6 for m in ms):
+        st.loaded = st.selected
+
+
+def _loaded(st: _State, code, w) -> int:
+    """The tool in the spindle for a bare ``G43``/``G41``/``G42`` (LinuxCNC): the one the program loaded."""
+    if st.loaded is None:
+        raise _Refuse(w.start + 1, f"'{code}' without {'H' if code == 'G43' else 'D'} uses the tool in the spindle, which "
+                                   "the program has not loaded (Tn M6) before it: write the number, or load the tool")
+    return st.loaded
 
 
 def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
@@ -98,46 +124,191 @@ def _machine_coordinates(idx, st: _State, groups, axis_words, arc_words, ax: Axi
     return "state"
 
 
-G10_REFUSED = ("dialect-dependent: Fanuc L10-L13 set tool offset memories and L20 the extended systems G54.1 Pn; "
-               "LinuxCNC L10, L11, L20 set them from the current position; give the values in --tool-table / "
-               "--work-offsets")
+G10_L20 = {"linuxcnc": "here", "grbl": "here", "fanuc": "G54.1", "siemens-iso": "G54.1", "haas": "G154"}
+"""What ``G10 L20 Pn`` sets, by dialect: ``here`` work offset n (P0: the active one) so that the current
+position reads the values (LinuxCNC, grbl); the extended system ``G54.1 Pn`` (Fanuc; Siemens ISO mode) or
+``G154 Pn`` (Haas) to the values."""
+G10_TOOL = {"linuxcnc": {10: ("here", None), 11: ("here", "G59.3")},
+            "fanuc": {10: ("length", "geometry"), 11: ("length", "wear")},
+            "haas": {10: ("length", "geometry"), 11: ("length", "wear"), 12: ("diameter", "geometry"),
+                     13: ("diameter", "wear")}}
+"""``G10 L10``-``L13`` by dialect: LinuxCNC L10/L11 set tool n's length so that the current Z reads the value
+(in the active work system / in G59.3); Fanuc (tool offset memory B/C) and Haas set the H (length) and, on
+Haas, the D (diameter) geometry and wear, whose sum is the offset."""
 
 
 def _g10(idx, st: _State, groups, by, axis_words, ax: AxisWords) -> str:
-    """``G10 L2 Pn`` (work offset n = 1..9: G54..G59.3) and ``G10 L1 Pn Z.. [R..]`` (tool n's length and
-    radius) as events, in the line's units; other L numbers are refused (:data:`G10_REFUSED`)."""
+    """``G10 L1/L2/L10-L13/L20`` as events, in the line's units, by the dialect's rules
+    (:mod:`compensation.nc_state`); an L number the dialect does not define, or any ``G10`` under ``G91``
+    (Fanuc adds the values to the stored ones), is refused."""
     code, w = groups["nonmodal"]
     if "motion" in groups:
         raise _Refuse(w.start + 1, "'G10' with a motion code on the same line")
     lw, pw = by.get("L"), by.get("P")
     if lw is None or pw is None or pw.value != int(pw.value) or pw.value < 0:
         raise _Refuse(w.start + 1, "'G10' needs L and a whole-number P")
+    if st.incremental:
+        raise _Refuse(w.start + 1, "'G10' under G91: Fanuc adds the values to the stored offset, LinuxCNC sets them; "
+                                   "write G90 before the G10 line")
     scale = MM_PER_INCH if st.inch else 1.0
     vals = {a: v.value * (1.0 if a in ax.rotary else scale) for a, v in axis_words.items()}
-    p = int(pw.value)
+    p, lnum, dia = int(pw.value), lw.value, (st.dialect.name if st.dialect is not None else "rs274")
     extra = [by[c] for c in ("I", "J", "K", "Q") if c in by]
     if extra:
         raise _Refuse(extra[0].start + 1, f"'{extra[0].letter}{extra[0].text}' with G10 (not read)")
-    if lw.value == 2:
-        if "R" in by:
-            raise _Refuse(by["R"].start + 1, "'R' with G10 L2: a rotated work system is not supported")
-        if not 1 <= p <= len(SYSTEMS):
-            raise _Refuse(pw.start + 1, f"'P{pw.text}' with G10 L2: expected P1..P{len(SYSTEMS)} (G54..G59.3; P0 is "
-                                        "the active system on LinuxCNC but the external offset on Fanuc)")
-        name = SYSTEMS[p - 1]
-        st.events.append((idx, w.start + 1, "g10-work", (name, vals), f"G10 L2 P{p}"))
-        if name == st.system:
-            _forget(st, ax, tuple(vals))
-        return "state"
-    if lw.value == 1:
+    text = f"G10 L{lw.text.strip()} P{p}"
+    if lnum in (2, 20):
+        return _g10_work(idx, st, by, w, pw, p, lnum, dia, vals, axis_words, ax, text)
+    if lnum == 1:
         if "Z" not in vals:
             raise _Refuse(w.start + 1, "'G10 L1' without Z (the tool length; Fanuc's L1 R form is dialect-dependent)")
-        bad = [a for a in vals if a != "Z" and vals[a] != 0.0]
-        if bad:
-            raise _Refuse(axis_words[bad[0]].start + 1, f"'G10 L1' with a tool offset along {bad[0]}: not supported")
+        _only_z(vals, axis_words, "G10 L1")
         radius = by["R"].value * scale if "R" in by else float("nan")
-        st.events.append((idx, w.start + 1, "g10-tool", (p, (vals["Z"], radius)), f"G10 L1 P{p}"))
-        if p == st.tool:
-            _forget(st, ax, ("Z",))
+        _not_active(st, p, w, text)
+        st.events.append((idx, w.start + 1, "g10-tool", (p, (vals["Z"], radius)), text))
         return "state"
-    raise _Refuse(lw.start + 1, f"'G10 L{lw.text}': {G10_REFUSED}")
+    rule = G10_TOOL.get(dia, {}).get(int(lnum)) if lnum == int(lnum) else None
+    if rule is None:
+        raise _Refuse(lw.start + 1, f"'G10 L{lw.text}': not defined on {dia} (LinuxCNC L10/L11 set a tool from the "
+                                    "current position; Fanuc/Haas L10-L13 set offset memories: name the controller "
+                                    "with --dialect), or give the values in --tool-table / --work-offsets")
+    return _g10_tool(idx, st, by, w, p, rule, vals, axis_words, ax, scale, text)
+
+
+def _not_active(st: _State, p, w, text) -> None:
+    """A G10 that changes the length of the tool whose offset is active: when the controller applies the new
+    length (at once, or at the next ``G43``/``H``) depends on the controller and its parameters: refused."""
+    if p == st.tool:
+        raise _Refuse(w.start + 1, f"'{text}' changes tool {p}, whose length offset is active (G43 H{p}): whether the "
+                                   "controller applies the new length at once or at the next G43 depends on the "
+                                   f"controller; cancel it first (G49) or set the tool before selecting it")
+
+
+def _only_z(vals, axis_words, what):
+    bad = [a for a in vals if a != "Z" and vals[a] != 0.0]
+    if bad:
+        raise _Refuse(axis_words[bad[0]].start + 1, f"'{what}' with a tool offset along {bad[0]}: not supported")
+
+
+def _g10_work(idx, st: _State, by, w, pw, p, lnum, dia, vals, axis_words, ax: AxisWords, text) -> str:
+    """``G10 L2`` (LinuxCNC P0: the active system) and ``G10 L20`` by dialect (:data:`G10_L20`)."""
+    if "R" in by:
+        raise _Refuse(by["R"].start + 1, f"'R' with G10 L{int(lnum)}: a rotated work system is not supported")
+    how = "table" if lnum == 2 else G10_L20.get(dia)
+    if how is None:
+        raise _Refuse(w.start + 1, f"'{text}': dialect-dependent (LinuxCNC, grbl: work offset P set from the current "
+                                   "position; Fanuc: G54.1 P; Haas: G154 P): name the controller with --dialect")
+    active = st.system or "G54"  # the power-on system before any selection
+    if how in ("G54.1", "G154"):
+        top = EXTENDED_MAX if how == "G54.1" else HAAS_MAX
+        if not 1 <= p <= top:
+            raise _Refuse(pw.start + 1, f"'P{pw.text}' with G10 L20 on {dia}: expected P1..P{top} ({how} P1..P{top})")
+        name = system_name(how, p)
+    elif p == 0 and dia in ("linuxcnc", "grbl"):
+        name = active
+    elif 1 <= p <= len(SYSTEMS):
+        name = SYSTEMS[p - 1]
+    else:
+        raise _Refuse(pw.start + 1, f"'P{pw.text}' with G10 L{int(lnum)}: expected P1..P{len(SYSTEMS)} (G54..G59.3; P0 is "
+                                    "the active system on LinuxCNC and grbl (--dialect) but the external offset on Fanuc)")
+    if how == "here":
+        pos = {}
+        for j, a in enumerate(ax.words):
+            if a in vals:
+                if not np.isfinite(st.pos[j]):
+                    raise _Refuse(axis_words[a].start + 1, f"'{text}' sets {a} from the current position, which is not "
+                                                           "known here (program an absolute move along it before)")
+                pos[a] = float(st.pos[j])
+        st.events.append((idx, w.start + 1, "g10-here", (name, vals, pos, active), text))
+        if name == active:  # the current position now reads the values
+            st.pos = st.pos.copy()
+            for j, a in enumerate(ax.words):
+                if a in vals:
+                    st.pos[j] = vals[a]
+        return "state"
+    st.events.append((idx, w.start + 1, "g10-work", (name, vals), text))
+    if name == active:
+        _forget(st, ax, tuple(vals))
+    return "state"
+
+
+def _g10_tool(idx, st: _State, by, w, p, rule, vals, axis_words, ax: AxisWords, scale, text) -> str:
+    """``G10 L10``-``L13`` (:data:`G10_TOOL`)."""
+    kind, part = rule
+    if kind != "diameter":
+        _not_active(st, p, w, text)
+    if kind == "here":
+        if "Z" not in vals:
+            raise _Refuse(w.start + 1, f"'{text}' without Z (the tool length is set so that the current Z reads it)")
+        _only_z(vals, axis_words, text)
+        jz = ax.words.index("Z")
+        if not np.isfinite(st.pos[jz]):
+            raise _Refuse(axis_words["Z"].start + 1, f"'{text}' sets the tool from the current Z, which is not known "
+                                                     "here (program an absolute Z move before)")
+        radius = by["R"].value * scale if "R" in by else float("nan")
+        st.events.append((idx, w.start + 1, "g10-tool-here", (p, vals["Z"], float(st.pos[jz]), part, radius), text))
+    else:
+        if axis_words:
+            a = next(iter(axis_words.values()))
+            raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {text} (the value is R)")
+        if "R" not in by:
+            raise _Refuse(w.start + 1, f"'{text}' without R (the offset value)")
+        value = by["R"].value * scale * (0.5 if kind == "diameter" else 1.0)
+        st.events.append((idx, w.start + 1, "g10-tool-part", (p, "length" if kind == "length" else "radius", part,
+                                                              value), text))
+    return "state"
+
+
+# ---------------------------------------------------------------------------- outputs, inputs, native Siemens
+def io_line(words, dia):
+    """``"pass"`` for a LinuxCNC output/input line (``M62``-``M68`` with their words, nothing else; the
+    dialect's :attr:`compensation.dialects.Dialect.io_codes`), checked as LinuxCNC's interpreter does;
+    None for any other line."""
+    codes = getattr(dia, "io_codes", None) or {}
+    io = [x for x in words if x.letter == "M" and x.value == int(x.value) and int(x.value) in codes]
+    if not io:
+        return None
+    m = io[0]
+    code = int(m.value)
+    by = {}
+    for x in words:
+        if x is m or x.letter == "N":
+            continue
+        if x.letter not in "PELQ" or x.letter in by:
+            raise _Refuse(x.start + 1, f"'{x.letter}{x.text}' on an M{code} line ({codes[code]}): put it on a line of "
+                                       "its own")
+        by[x.letter] = x
+    need = {62: "P", 63: "P", 64: "P", 65: "P", 67: "EQ", 68: "EQ"}.get(code, "")
+    allowed = {66: "PELQ"}.get(code, need)
+    for x in by.values():
+        if x.letter not in allowed:
+            raise _Refuse(x.start + 1, f"'{x.letter}{x.text}' with M{code} (it takes {' '.join(allowed)})")
+    for letter in need:
+        if letter not in by:
+            raise _Refuse(m.start + 1, f"'M{code}' without {letter}")
+    for letter in "PE":
+        if letter in by and (by[letter].value != int(by[letter].value) or by[letter].value < 0):
+            raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}': expected a channel number")
+    if code == 66:
+        if ("P" in by) == ("E" in by):
+            raise _Refuse(m.start + 1, "'M66' needs P (a digital input) or E (an analog input), one of them")
+        mode = by["L"].value if "L" in by else 0.0
+        if mode not in (0.0, 1.0, 2.0, 3.0, 4.0):
+            raise _Refuse(by["L"].start + 1, f"'L{by['L'].text}' with M66: expected L0..L4")
+        if mode != 0.0 and ("Q" not in by or by["Q"].value <= 0):
+            raise _Refuse(m.start + 1, "'M66' waiting (L1..L4) needs a timeout Q > 0 seconds")
+    return "pass"
+
+
+_SIEMENS_CALL = re.compile(r"[ \t]*(?:N\d+[ \t]*)?(?:(?:CALL|PCALL|MCALL)\b|G0*290(?![\d.]))", re.IGNORECASE)
+_SIEMENS_L = re.compile(r"[ \t]*(?:N\d+[ \t]*)?L\d+[ \t]*(?:P\d+[ \t]*)?(?:;.*)?$", re.IGNORECASE)
+
+
+def siemens_native(body: str, siemens: bool):
+    """``(column, word)`` of a Siemens native-mode call or mode switch at the start of a line (``CALL "..."``,
+    ``G290``; on ``siemens`` also a bare ``L100`` / ``L100 P2`` subprogram call), or None."""
+    m = _SIEMENS_CALL.match(body) or (_SIEMENS_L.match(body) if siemens else None)
+    if m is None:
+        return None
+    word = re.match(r"[ \t]*(?:N\d+[ \t]*)?", body)
+    return word.end() + 1, re.match(r"[A-Za-z]+\d*", body[word.end():]).group()

@@ -1,4 +1,5 @@
-"""Drilling canned cycles (``G73 G81 G82 G83 G85 G86 G89``, ``G74``/``G84`` kept only) on a machine-tool chain.
+"""Drilling canned cycles (``G73 G81 G82 G83 G85 G86 G89``; ``G74 G84``, and by dialect ``G76 G87 G88``, kept
+only) on a machine-tool chain.
 
 The reader refuses the cycles (:data:`compensation.gcode.REFUSED_G`); a chain program read with
 ``cycles="keep"`` or ``"expand"`` (``compensate --machine ...``, ``--expand-cycles``) is first turned
@@ -32,6 +33,14 @@ Semantics (LinuxCNC 2.9 ``rs274ngc`` ``convert_cycle_xy`` and the Fanuc 0i/Haas 
   reversal synchronised with Z) have no plain-move form. The peck constants are LinuxCNC 2.9's;
   Fanuc's are controller parameters (#5114/#5115): ``G73``/``G83`` are expanded only with
   ``--dialect linuxcnc``.
+* By dialect (:data:`DIALECT_CYCLES`): on Fanuc (and Siemens ISO mode) and Haas ``G76`` is fine boring
+  (feed to Z, dwell ``P``, spindle orient, shift ``Q`` off the wall, rapid out); on Fanuc ``G87`` is back
+  boring (orient, shift, rapid down to ``R`` *below* ``Z``, shift back, feed *up* to ``Z``, return to the
+  initial level: ``G98`` only) and ``G88`` boring with a dwell, a spindle stop and a manual retract. They
+  are kept (each hole's bottom — for ``G87`` its top ``Z`` — and ``R`` compensated), never expanded (the
+  orient, the shift and the manual retract have no plain-move form). On LinuxCNC ``G76`` is multi-pass
+  lathe threading (spindle-synchronised passes): refused; without ``--dialect`` the three are refused
+  as dialect-dependent.
 * The dwell ``P`` is written as ``G4 P`` with the same number: the cycle's and G4's P have the same
   unit on each controller (LinuxCNC seconds, Fanuc milliseconds).
 
@@ -39,13 +48,17 @@ Semantics (LinuxCNC 2.9 ``rs274ngc`` ``convert_cycle_xy`` and the Fanuc 0i/Haas 
 a move to its bottom ``(X, Y, Z)`` and the retract; the written program has the cycle line back with
 the compensated ``X Y Z`` of the bottom and the compensated Z of the R point as ``R``
 (:func:`render_kept`); the XY corrections at R and at the bottom differ by the *tilt* the cycle
-cannot follow (the hole is drilled straight from the compensated XY), reported per line. Kept
-cycles are read in ``G90`` only (a compensated incremental hole changes every later one; use
-``--expand-cycles``). ``"expand"``: each hole becomes the controller's moves above, compensated
-point by point.
+cannot follow (the hole is drilled straight from the compensated XY), reported per line. Under
+``G91`` the kept line is written in increments from where the controller running the output really is
+(``X Y`` from its position before the hole, ``R`` from the series' initial level as written, ``Z`` from
+the written R plane; :func:`render_kept`); ``L``/``K`` repeats under ``G91`` are refused (one line, equal
+steps). After a kept cycle the controller stands at the written (compensated) clear level, not the
+programmed one: an incremental move is refused until an absolute ``Z``. ``"expand"``: each hole
+becomes the controller's moves above, compensated point by point.
 """
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 
@@ -57,17 +70,23 @@ from .gcode import DECIMALS, fmt, tokenize
 from .gcode_state import MM_PER_INCH, _Refuse
 from .nc_expand import Expanded
 
-CYCLE_CODES = ("G73", "G74", "G81", "G82", "G83", "G84", "G85", "G86", "G89")
+CYCLE_CODES = ("G73", "G74", "G76", "G81", "G82", "G83", "G84", "G85", "G86", "G87", "G88", "G89")
 NOT_EXPANDABLE = {"G74": "left-hand tapping (spindle reversal synchronised with Z)",
                   "G84": "tapping (spindle reversal synchronised with Z)",
-                  "G86": "boring with the spindle stopped at the bottom"}
+                  "G86": "boring with the spindle stopped at the bottom",
+                  "G76": "fine boring (spindle oriented and the tool shifted by Q at the bottom)",
+                  "G87": "back boring (spindle oriented, the tool shifted by Q to pass the bore)",
+                  "G88": "boring with a manual retract"}
+DIALECT_CYCLES = {"G76": ("fanuc", "haas", "siemens-iso"), "G87": ("fanuc", "siemens-iso"),
+                  "G88": ("fanuc", "siemens-iso")}
+"""Cycles read only on these dialects (their manuals' mill form; module docstring)."""
 PECK_DIALECTS = ("linuxcnc",)
 """Dialects whose G73/G83 peck retract is known (LinuxCNC 2.9: G83_RAPID_DELTA)."""
 RAPID_DELTA_IN = 0.010
 """LinuxCNC 2.9 G83_RAPID_DELTA (inch; ×25.4 under G21): G83 re-entry clearance and G73 chip-break retract."""
 OTHER_G = ("G90", "G91", "G98", "G99", "G17")
 INVALIDATE_G = ("G28", "G30", "G53", "G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3",
-                "G43", "G49", "G10", "G92")
+                "G43", "G49", "G10", "G92", "G154", *(f"G{c}" for c in range(110, 130)))
 """Codes after which the current position in program coordinates is not known to this pass."""
 
 
@@ -75,7 +94,8 @@ INVALIDATE_G = ("G28", "G30", "G53", "G54", "G55", "G56", "G57", "G58", "G59", "
 class Hole:
     """One drilled hole: ``line`` its 1-based line in the cycle pass's input, ``code`` the cycle,
     ``xyz``/``r`` program units (absolute), ``inch``, ``out_r``/``out_bottom`` 1-based output lines of the
-    R and bottom moves (kept cycles)."""
+    R and bottom moves (kept cycles), ``inc`` drilled under ``G91``, ``series`` the cycle series (a cycle mode
+    from its start to ``G80`` or another motion code) it belongs to."""
 
     line: int
     code: str
@@ -84,6 +104,8 @@ class Hole:
     inch: bool
     out_r: int = 0
     out_bottom: int = 0
+    inc: bool = False
+    series: int = 0
 
 
 @dataclass(frozen=True)
@@ -113,7 +135,7 @@ def cycle_pass(text: str, path, dialect, inner, mode: str):
 
 def has_cycles(text: str) -> bool:
     import re
-    return re.search(r"[gG]\s*0*(7\s*[34]|8\s*[1-69])(?![\d.])", text) is not None
+    return re.search(r"[gG]\s*0*(7\s*[346]|8\s*[1-9])(?![\d.])", text) is not None
 
 
 class _St:
@@ -128,6 +150,8 @@ class _St:
         self.series_g99 = False
         self.initial = math.nan  # the series' initial level (the Z when the cycle mode began)
         self.why_unknown = "the program start"
+        self.kept_line = 0  # the last kept cycle line while the controller's Z differs from the programmed one
+        self.series = 0
 
 
 def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None) -> CycleExpansion:
@@ -177,10 +201,25 @@ def _line(body, st: _St, mode, dialect, lineno, holes, out_at):
                                                "drilled depends on the controller's switch; remove the '/'")
         return _cycle_line(body, words, by, gs, cyc, st, mode, dialect, lineno, holes, out_at)
     _track(words, by, gs, motion, st)
+    _after_kept(by, gs, st)
     if bd and any(a in by for a in "XYZ"):  # run or skipped by the operator's switch
         st.pos[[j for j, a in enumerate("XYZ") if a in by]] = np.nan
         st.why_unknown = "a '/' (block delete) line"
     return None
+
+
+def _after_kept(by, gs, st: _St) -> None:
+    """After a kept cycle the controller's Z is the written (compensated) R or initial level, not the
+    programmed one the reader continues from: an incremental move is refused until an absolute Z."""
+    if not st.kept_line or not any(a in by for a in "XYZ") or any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs):
+        return
+    if st.inc:
+        w = next(by[a] for a in "XYZ" if a in by)
+        raise _Refuse(w.start + 1, f"an incremental move after the kept canned cycle of line {st.kept_line}: the "
+                                   "controller is then at the cycle's compensated clear level, not the programmed one; "
+                                   "program an absolute Z (G90) first, or use --expand-cycles")
+    if "Z" in by:
+        st.kept_line = 0
 
 
 def _track(words, by, gs, motion, st: _St):
@@ -221,6 +260,11 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
     if not any(a in by for a in "XYZ"):
         return [extra.replace("G90", "G91" if st.inc else "G90")]
     r, bottom, clear = _levels(code, st, col)
+    if mode == "keep" and st.inc and _repeats(by) > 1:
+        w = by["L"] if "L" in by else by["K"]
+        raise _Refuse(w.start + 1, f"{w.letter}{w.text} under G91 on a kept cycle: one line drills its holes at equal "
+                                   "steps, the compensated holes are not equally spaced; write one line per hole or "
+                                   "use --expand-cycles")
     dec = DECIMALS["inch" if st.inch else "mm"]
     out = []
     x, y = st.pos[0], st.pos[1]
@@ -229,7 +273,7 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
         y = y + by["Y"].value if st.inc and "Y" in by else (by["Y"].value if "Y" in by else y)
         if not (math.isfinite(x) and math.isfinite(y)):
             raise _Refuse(col, f"{code}: the hole's X/Y is not known (no X/Y word and none before the cycle)")
-        hole = Hole(lineno, code, (x, y, bottom), r, st.inch)
+        hole = Hole(lineno, code, (x, y, bottom), r, st.inch, inc=st.inc, series=st.series)
         xy = f"X{fmt(x, dec)} Y{fmt(y, dec)}"
         if mode == "keep":
             hole.out_r = out_at + len(out) + 1
@@ -241,6 +285,8 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
             extra = "G90"
         holes.append(hole)
     st.pos[:] = (x, y, clear)
+    if mode == "keep":
+        st.kept_line = lineno
     if st.inc:
         out.append("G91")
     return out
@@ -271,6 +317,7 @@ def _enter(st: _St, gs, by, cyc, col) -> str:
         raise _Refuse(col, f"canned cycle in the {st.plane} plane: only G17 (XY) cycles are read")
     if st.mode is None:
         st.initial = st.pos[2]
+        st.series += 1
     if cyc and cyc[0] != st.mode:
         need = "ZR" + {"G73": "Q", "G83": "Q", "G82": "P", "G86": "P", "G89": "P"}.get(cyc[0], "")
         missing = [a for a in need if a not in by]
@@ -287,9 +334,12 @@ def _enter(st: _St, gs, by, cyc, col) -> str:
 
 
 def _check_mode(code, st: _St, mode, dialect, col):
-    if mode == "keep" and st.inc:
-        raise _Refuse(col, f"{code} under G91: a kept cycle is written in absolute numbers only (each compensated "
-                           "incremental hole would move every later one); use --expand-cycles")
+    if code in DIALECT_CYCLES and dialect not in DIALECT_CYCLES[code]:
+        what = ("multi-pass lathe threading (spindle-synchronised passes), not interpretable as compensated moves"
+                if code == "G76" and dialect == "linuxcnc" else
+                f"dialect-dependent; read as {NOT_EXPANDABLE[code]} on {'/'.join(DIALECT_CYCLES[code])} "
+                "(name the controller with --dialect)")
+        raise _Refuse(col, f"{code} on {dialect or 'rs274'}: {what}")
     if mode == "expand" and code in NOT_EXPANDABLE:
         raise _Refuse(col, f"{code} ({NOT_EXPANDABLE[code]}) has no form in plain moves: leave --expand-cycles "
                            "out to keep the cycle (its hole compensated at the bottom and R plane)")
@@ -330,6 +380,8 @@ def _levels(code, st: _St, col) -> tuple:
         raise _Refuse(col, f"{code} under G91: the X Y before the cycle are not known after {st.why_unknown}")
     r = st.sticky["R"].value + (old_z if st.inc else 0.0)
     bottom = st.sticky["Z"].value + (r if st.inc else 0.0)
+    if code == "G87":
+        return _back_boring_levels(st, r, bottom, old_z, col)
     if bottom > r:
         raise _Refuse(col, f"{code}: the hole bottom Z {bottom:g} is above R {r:g}")
     if old_z < r:
@@ -341,6 +393,18 @@ def _levels(code, st: _St, col) -> tuple:
                            "series")
     st.series_g99 = st.series_g99 or st.ret == "G99"
     return r, bottom, old_z if st.ret == "G98" else r
+
+
+def _back_boring_levels(st: _St, r, top, old_z, col) -> tuple:
+    """G87 (Fanuc back boring): R is the hole's bottom, below the bored Z; the return is to the initial level."""
+    if top < r:
+        raise _Refuse(col, f"G87: Z {top:g} is below R {r:g} (back boring feeds up from R to Z)")
+    if st.ret == "G99":
+        raise _Refuse(col, "G87 with G99: back boring returns to the initial level only (Fanuc: G98)")
+    if old_z < top:
+        raise _Refuse(col, f"G87: the Z at the cycle's start ({old_z:g}) is below Z ({top:g}); program a Z move above "
+                           "the part before the cycle")
+    return r, top, old_z
 
 
 def _expanded_hole(code, xy, r, bottom, clear, dec, st: _St, lead) -> list:
@@ -387,10 +451,18 @@ def render_kept(program, vertices, header=()) -> str:
     writes it, every cycle line as read with the compensated ``X Y Z R`` of its hole (program units)."""
     from .gcode import _with_header, render_program
     exp = program.expanded
-    _, groups = render_program(program, vertices)
+    track = {}
+    _, groups = render_program(program, vertices, track=track)
     ends = hole_vertices(program, vertices)
     words = program.axis_words.words
     jx, jy, jz = (words.index(a) for a in "XYZ")
+    moved = sorted(track)
+    before = {}  # hole line: the controller's position before it (output units: mm / deg)
+    initial = {}  # series: the controller's Z when it began (its initial level)
+    for h in exp.holes:
+        k = bisect.bisect_left(moved, h.out_r - 1) - 1
+        before[h.line] = track[moved[k]] if k >= 0 else np.full(len(words), np.nan)
+        initial.setdefault(h.series, before[h.line][jz])
     by_line = {}
     for h in exp.holes:
         by_line[h.line] = h  # repeats (G90) drill one hole: the last is it
@@ -407,11 +479,28 @@ def render_kept(program, vertices, header=()) -> str:
         scale = MM_PER_INCH if h.inch else 1.0
         bot, rp = ends[h.out_bottom], ends[h.out_r]
         dec = DECIMALS["inch" if h.inch else "mm"]
-        vals = {"X": bot[jx], "Y": bot[jy], "Z": bot[jz], "R": rp[jz]}
-        out.append(_substitute(exp.source[i], {k: fmt(v / scale, dec) for k, v in vals.items()}) + (end or "\n"))
+        if h.inc:
+            text = _incremental_words(bot[[jx, jy, jz]], rp[jz], before[h.line][[jx, jy]], initial[h.series], scale,
+                                      dec, exp.where(h.out_r))
+        else:
+            vals = {"X": bot[jx], "Y": bot[jy], "Z": bot[jz], "R": rp[jz]}
+            text = {k: fmt(v / scale, dec) for k, v in vals.items()}
+        out.append(_substitute(exp.source[i], text) + (end or "\n"))
     if out and not program.lines[-1].endswith("\n") and out[-1].endswith("\n"):
         out[-1] = out[-1].rstrip("\r\n")
     return _with_header(out, program.notes() + tuple(header))
+
+
+def _incremental_words(bottom, r_z, ctrl_xy, initial_z, scale, dec, where) -> dict:
+    """A kept ``G91`` hole's words (program units, text): ``X Y`` from the controller's position before it,
+    ``R`` from the series' initial level, ``Z`` from the R plane the written ``R`` gives (so rounding does not
+    accumulate); all positions as the controller running the output has them (mm)."""
+    if not (np.isfinite(ctrl_xy).all() and np.isfinite(initial_z)):
+        raise InputError(f"{where}: a kept G91 cycle after a position the written program does not fix (G28, G53, "
+                         "a work system): program an absolute X Y Z before it, or use --expand-cycles")
+    rw = fmt((r_z - initial_z) / scale, dec)
+    return {"X": fmt((bottom[0] - ctrl_xy[0]) / scale, dec), "Y": fmt((bottom[1] - ctrl_xy[1]) / scale, dec),
+            "Z": fmt((bottom[2] - (initial_z + float(rw) * scale)) / scale, dec), "R": rw}
 
 
 def _substitute(body: str, values: dict) -> str:

@@ -15,11 +15,17 @@ Tables, each recognised by content (never by the file's name):
 
 * work offsets (:func:`read_work_offsets`): a LinuxCNC parameter file (``.var``: lines ``NUMBER VALUE``;
   system ``P`` = 1..9 (G54..G59.3) at parameters ``5221 + 20·(P−1)`` … ``+8`` for ``X Y Z A B C U V W``),
-  or a CSV ``system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg]`` (``system``: ``G54`` … ``G59.3``, ``G54.1P3``);
+  or a CSV ``system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg]`` (``system``: ``G54`` … ``G59.3``, ``G54.1P3``,
+  Haas ``G154P12`` (``G110``–``G129``: ``G154P1``–``P20``));
   ``machine`` (:data:`MACHINE`): the program is in machine coordinates, every offset zero;
 * tool tables (:func:`read_tool_table`): a LinuxCNC tool table (``.tbl``: ``T1 P1 Z+150.0 D10.0 ;comment``)
   or a CSV ``tool,length_mm[,radius_mm]``;
-* the program's own ``G10 L2 Pn`` (work offset) and ``G10 L1 Pn Z.. [R..]`` (tool) lines, in program order.
+* the program's own ``G10`` lines, in program order (:mod:`compensation.gcode_state`): ``L2 Pn`` (work
+  offset n), ``L1 Pn Z.. [R..]`` (tool n), and by dialect ``L20`` (LinuxCNC, grbl: work offset n set so
+  that the current position reads the values; Fanuc: the extended system ``G54.1 Pn``; Haas: ``G154 Pn``),
+  ``L10``/``L11`` (LinuxCNC: tool n's length set so that the current Z reads the value, in the active
+  system or in ``G59.3``; Fanuc, Haas: the length's geometry and wear, whose sum is the length — both
+  are needed), ``L12``/``L13`` (Haas: the diameter's geometry and wear).
 
 Every bad row is refused naming the file, the row and the column. A program that selects a work
 system or a tool length it was not given is refused naming the word, the line and the option that
@@ -51,13 +57,34 @@ VAR_G92 = (5211, 5219)
 """LinuxCNC's G92 offsets (parameters 5211–5219): a non-zero one shifts every system; refused."""
 EXTENDED_MAX = 300
 """``G54.1 Pn``: n from 1 to this (Fanuc: 48 or 300, by option)."""
+HAAS_MAX = 99
+"""Haas ``G154 Pn``: n from 1 to 99; ``G110``–``G129`` are ``G154 P1``–``P20``."""
 CSV_OFFSET_COLUMNS = {"x_mm": "X", "y_mm": "Y", "z_mm": "Z", "a_deg": "A", "b_deg": "B", "c_deg": "C"}
-_SYSTEM = re.compile(r"(G5[4-9](?:\.[123])?)(?:[ \t]*P[ \t]*(\d+))?", re.IGNORECASE)
+_SYSTEM = re.compile(r"(G5[4-9](?:\.[123])?|G154|G1[12]\d)(?:[ \t]*P[ \t]*(\d+))?", re.IGNORECASE)
 
 
 def system_name(code: str, p: int | None = None) -> str:
-    """``G54`` … ``G59.3``, or ``G54.1P3`` for an extended system."""
-    return f"{code}P{p}" if code == "G54.1" else code
+    """``G54`` … ``G59.3``, ``G54.1P3`` for an extended system, ``G154P12`` for a Haas one (``G110`` …
+    ``G129``: ``G154P1`` … ``P20``)."""
+    if code in ("G54.1", "G154"):
+        return f"{code}P{p}"
+    if re.fullmatch(r"G1[12]\d", code):
+        return f"G154P{int(code[1:]) - 109}"
+    return code
+
+
+def parse_system(text: str):
+    """A table's system cell (``G55``, ``G54.1P3``, ``G154 P12``, ``G112``) as its name, or None."""
+    m = _SYSTEM.fullmatch(text.strip())
+    if m is None:
+        return None
+    code, p = m.group(1).upper(), (int(m.group(2)) if m.group(2) else None)
+    if code in ("G54.1", "G154"):
+        top = EXTENDED_MAX if code == "G54.1" else HAAS_MAX
+        return system_name(code, p) if p is not None and 1 <= p <= top else None
+    if p is not None or (code.startswith("G1") and not 110 <= int(code[1:]) <= 129):
+        return None
+    return system_name(code)
 
 
 @dataclass(frozen=True)
@@ -173,13 +200,10 @@ def _read_offset_csv(path, lines) -> WorkOffsets:
     systems = {}
     js = header.index("system")
     for r, cells in rows:
-        m = _SYSTEM.fullmatch(cells[js])
-        code = m.group(1).upper() if m else None
-        p = int(m.group(2)) if m and m.group(2) else None
-        if m is None or (code == "G54.1") != (p is not None) or (p is not None and not 1 <= p <= EXTENDED_MAX):
-            raise _refuse(path, r, js + 1, f"system: expected G54..G59, G59.1..G59.3 or G54.1Pn (n 1..{EXTENDED_MAX}), "
-                                           f"got {cells[js]!r}")
-        name = system_name(code, p)
+        name = parse_system(cells[js])
+        if name is None:
+            raise _refuse(path, r, js + 1, f"system: expected G54..G59, G59.1..G59.3, G54.1Pn (n 1..{EXTENDED_MAX}) or "
+                                           f"G154Pn (n 1..{HAAS_MAX}; G110..G129), got {cells[js]!r}")
         if name in systems:
             raise _refuse(path, r, js + 1, f"system {name} given twice")
         systems[name] = {CSV_OFFSET_COLUMNS[c]: _number(cells[j], path, r, j + 1, c)
@@ -301,81 +325,184 @@ def _offset_vector(values: dict, words) -> np.ndarray:
     return np.array([float(values.get(w, 0.0)) for w in words])
 
 
+class _Controller:
+    """The controller's tables and active frame while :func:`program_frames` walks a program's events."""
+
+    def __init__(self, path, words, offsets: WorkOffsets | None, tools: ToolTable | None):
+        self.words, self.offsets, self.tools = words, offsets, tools
+        self.table = {k: dict(v) for k, v in (offsets.systems if offsets else {}).items()}
+        self.tooltab = {k: v[0] for k, v in (tools.tools if tools else {}).items()}
+        self.radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
+        self.parts = {}  # Fanuc/Haas G10 L10-L13: {(tool, "length"/"radius"): {"geometry"/"wear": mm}}
+        # before any selection the controller runs its power-on G54: unknown (NaN) unless the tables give it
+        # (never machine zero: --work-offsets machine says so explicitly; refuse_unknown_frames refuses the rest)
+        self.system, self.tool, self.cutter = "G54", None, None
+        self.used_systems, self.used_tools = set(), set()
+
+    def offset(self) -> np.ndarray:
+        if self.system not in self.table:
+            return np.full(len(self.words), np.nan)
+        return _offset_vector(self.table[self.system], self.words)
+
+    def frame(self) -> tuple:
+        """(offset (k,), tool length mm or NaN, cutter radius mm or NaN) now."""
+        return (self.offset(), self.tooltab[self.tool] if self.tool is not None else np.nan,
+                self.radii[self.cutter] if self.cutter is not None else np.nan)
+
+    def select_system(self, value, where) -> None:
+        offsets, table = self.offsets, self.table
+        if value not in table and offsets is not None and offsets.machine_coordinates:
+            table[value] = {}  # machine coordinates: every system's offset is zero, extended ones too
+        if value not in table:
+            if offsets is None:
+                raise InputError(f"{where}: selects the work offset {value}; no table given: --work-offsets FILE "
+                                 "(.var/CSV), G10 L2, or --work-offsets machine (machine coordinates)")
+            raise InputError(f"{where}: the work offset {value} is not in {offsets.source} (nor set by a G10 L2 "
+                             "line before it): give it in --work-offsets")
+        unset = [w for w in self.words if not np.isfinite(table[value].get(w, 0.0))]
+        if unset:
+            raise InputError(f"{where}: the work offset {value} was set by G10 along some axes only; its "
+                             f"{' '.join(unset)} are the controller's: give {value} in --work-offsets (or every "
+                             "axis on the G10 line)")
+        self.system = value
+        self.used_systems.add(value)
+
+    def select_tool(self, value, where) -> None:
+        if value is not None and value not in self.tooltab:
+            raise InputError(f"{where}: tool length offset H{value}: " + _unknown_tool(value, self.tools, self.parts))
+        if value is not None and "Z" not in self.words:
+            raise InputError(f"{where}: a tool length offset acts on Z; the machine has no Z axis")
+        self.tool = value
+        if value is not None:
+            self.used_tools.add(value)
+
+    def select_cutter(self, value, where) -> None:
+        if value is not None and not np.isfinite(self.radii.get(value, np.nan)):
+            raise InputError(f"{where}: cutter radius compensation D{value}: the radius of tool {value} is not "
+                             "known: give it in --tool-table (radius_mm, or D of a .tbl) or G10 L1 P.. R.."
+                             + _part_note(value, "radius", self.parts))
+        self.cutter = value
+
+    def g10(self, kind, value, where) -> None:
+        """A ``G10`` line's data (:mod:`compensation.gcode_state`) into the tables."""
+        words = self.words
+        if kind == "g10-work":
+            _set_offset(self.table, value[0], value[1], words, self.offsets)
+        elif kind == "g10-here":
+            _set_offset(self.table, value[0], _offset_here(value, self.offset(), words, where, self.system), words,
+                        self.offsets)
+        elif kind == "g10-tool":
+            self.tooltab[value[0]] = value[1][0]
+            if np.isfinite(value[1][1]):
+                self.radii[value[0]] = value[1][1]
+        elif kind == "g10-tool-here":
+            now = self.tooltab.get(self.tool, 0.0) if self.tool is not None else 0.0
+            self.tooltab[value[0]] = _tool_here(value, self.offset(), self.table, now, words, where, self.system)
+            self.parts.pop((value[0], "length"), None)
+            if np.isfinite(value[4]):
+                self.radii[value[0]] = value[4]
+        elif kind == "g10-tool-part":
+            n, what, part, mm = value
+            have = self.parts.setdefault((n, what), {})
+            have[part] = mm
+            dest = self.tooltab if what == "length" else self.radii
+            if len(have) == 2:
+                dest[n] = have["geometry"] + have["wear"]
+            else:
+                dest.pop(n, None)
+
+    def check_active(self, where) -> None:
+        """The active tool and cutter radius are still known after a G10 line changed the tables."""
+        if self.tool is not None and self.tool not in self.tooltab:
+            raise InputError(f"{where}: the length of the active tool {self.tool} (G43 H{self.tool}) is no longer "
+                             "known: " + _unknown_tool(self.tool, self.tools, self.parts))
+        if self.cutter is not None and not np.isfinite(self.radii.get(self.cutter, np.nan)):
+            raise InputError(f"{where}: the radius of the active cutter compensation D{self.cutter} is no longer "
+                             "known" + _part_note(self.cutter, "radius", self.parts))
+
+
 def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None) -> ProgramFrames:
     """The frames of a parsed program (:attr:`compensation.gcode.GProgram.events`, in line order)
     with the tables given (None: not given). Refuses (InputError: file, line, column, word, the
     option that supplies it) a work system or a tool not in the tables nor set by the program's own
     ``G10`` lines before it."""
     path, words = program.path, program.axis_words.words
-    table = {k: dict(v) for k, v in (offsets.systems if offsets else {}).items()}
-    tooltab = {k: v[0] for k, v in (tools.tools if tools else {}).items()}
-    radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
-    cutter = None
     events = list(getattr(program, "events", ()) or ())
-    # before any selection the controller runs its power-on G54: unknown (NaN) unless the tables give it
-    # (never machine zero: --work-offsets machine says so explicitly; refuse_unknown_frames refuses the rest)
-    system = "G54"
-    tool = None
-    first, offs, tls = [0], [], []
-    used_systems, used_tools = set(), set()
-
-    def current():
-        if system not in table:
-            return np.full(len(words), np.nan)
-        return _offset_vector(table[system], words)
-
-    offs.append(current())
-    tls.append(np.nan)
-    rads = [np.nan]
+    c = _Controller(path, words, offsets, tools)
+    first, frames = [0], [c.frame()]
+    select = {"system": c.select_system, "tool": c.select_tool, "cutter": c.select_cutter}
     for line, col, kind, value, text in events:
         where = f"{path}: line {line + 1}, column {col}: '{text}'"
-        if kind == "system":
-            if value not in table and offsets is not None and offsets.machine_coordinates:
-                table[value] = {}  # machine coordinates: every system's offset is zero, extended ones too
-            if value not in table:
-                if offsets is None:
-                    raise InputError(f"{where}: selects the work offset {value}; no table given: --work-offsets FILE "
-                                     "(.var/CSV), G10 L2, or --work-offsets machine (machine coordinates)")
-                raise InputError(f"{where}: the work offset {value} is not in {offsets.source} (nor set by a G10 L2 "
-                                 "line before it): give it in --work-offsets")
-            system = value
-            used_systems.add(value)
-        elif kind == "tool":
-            if value is not None and value not in tooltab:
-                src = f"the tool table {tools.source}" if tools else "no tool table was given"
-                raise InputError(f"{where}: tool length offset H{value}: tool {value} is not known ({src}): give it in "
-                                 f"--tool-table FILE (.tbl or CSV) or G10 L1 P{value} Z.. before it")
-            if value is not None and "Z" not in words:
-                raise InputError(f"{where}: a tool length offset acts on Z; the machine has no Z axis")
-            tool = value
-            if value is not None:
-                used_tools.add(value)
-        elif kind == "g10-work":
-            name, vals = value
-            table.setdefault(name, {}).update(vals)
-        elif kind == "g10-tool":
-            tooltab[value[0]] = value[1][0]
-            if np.isfinite(value[1][1]):
-                radii[value[0]] = value[1][1]
-        elif kind == "cutter":
-            if value is not None and not np.isfinite(radii.get(value, np.nan)):
-                raise InputError(f"{where}: cutter radius compensation D{value}: the radius of tool {value} is not "
-                                 "known: give it in --tool-table (radius_mm, or D of a .tbl) or G10 L1 P.. R..")
-            cutter = value
+        if kind in select:
+            select[kind](value, where)
+        elif kind.startswith("g10-"):
+            c.g10(kind, value, where)
+            c.check_active(where)
         first.append(line)
-        offs.append(current())
-        tls.append(tooltab[tool] if tool is not None else np.nan)
-        rads.append(radii[cutter] if cutter is not None else np.nan)
+        frames.append(c.frame())
     notes = {"work_offsets": offsets.source if offsets else "program G10 lines",
-             "work_systems_used": sorted(used_systems),
+             "work_systems_used": sorted(c.used_systems),
              "tool_table": tools.source if tools else None,
-             "tools_used": {int(t): float(tooltab[t]) for t in sorted(used_tools)}}
-    notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(table.get(s, {}), words)]
-                               for s in sorted(used_systems)}
+             "tools_used": {int(t): float(c.tooltab[t]) for t in sorted(c.used_tools)}}
+    notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(c.table.get(s, {}), words)]
+                               for s in sorted(c.used_systems)}
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
     notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
+    offs, tls, rads = zip(*frames)
     return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float))
+
+
+def _set_offset(table, name, vals, words, offsets) -> None:
+    """Work system ``name``'s words ``vals`` set by a G10 line; a system not yet known gets the others
+    unknown (NaN: the controller's stored values), or zero with ``--work-offsets machine``."""
+    if name not in table:
+        zero = offsets is not None and offsets.machine_coordinates
+        table[name] = {} if zero else {w: np.nan for w in words}
+    table[name].update(vals)
+
+
+def _offset_here(value, active_off, words, where, system) -> dict:
+    """LinuxCNC/grbl ``G10 L20``: the offset that makes the current position read the values. The
+    machine position is program + active offset (+ the tool length, the same before and after)."""
+    name, vals, pos, active = value
+    out = {}
+    for a, v in vals.items():
+        off = active_off[list(words).index(a)]
+        if not np.isfinite(off):
+            raise InputError(f"{where}: sets {name} from the current position in the active work system {system}, "
+                             f"whose {a} offset is not known: give {system} in --work-offsets")
+        out[a] = pos[a] + off - v
+    return out
+
+
+def _tool_here(value, active_off, table, tool_now_mm, words, where, system) -> float:
+    """LinuxCNC ``G10 L10`` (``ref`` None: in the active system) / ``L11`` (in ``G59.3``): the length that
+    makes the current Z read the value. Machine Z = program Z + offset Z + tool length."""
+    n, z_value, z_pos, ref, _ = value
+    jz = list(words).index("Z")
+    off = active_off[jz]
+    ref_off = off if ref is None else (_offset_vector(table[ref], words)[jz] if ref in table else np.nan)
+    for o, s in ((off, system), (ref_off, ref or system)):
+        if not np.isfinite(o):
+            raise InputError(f"{where}: sets tool {n} from the current Z, which needs the Z offset of {s}: give {s} "
+                             "in --work-offsets")
+    return float(z_pos + off + tool_now_mm - ref_off - z_value)
+
+
+def _part_note(n, what, parts) -> str:
+    have = parts.get((n, what), {})
+    if not have:
+        return ""
+    missing = ({"geometry", "wear"} - set(have)).pop()
+    return (f"; the program sets its {what} {next(iter(have))} only (G10 L1x) and the {missing} is in the "
+            f"controller's table: set the {missing} in the program too")
+
+
+def _unknown_tool(n, tools, parts) -> str:
+    src = f"the tool table {tools.source}" if tools else "no tool table was given"
+    return (f"tool {n} is not known ({src}): give it in --tool-table FILE (.tbl or CSV) or G10 L1 P{n} Z.. before it"
+            + _part_note(n, "length", parts))
 
 
 def refuse_unknown_frames(program, frames: ProgramFrames, offsets: WorkOffsets | None, tables: bool = True) -> None:

@@ -20,21 +20,27 @@ as the model the exact solver leaves ≤ 1e-6 μm and the written numbers round 
 def _frame(lines, offsets: dict, tools: dict):
     """Per source line, independently of the reader: (offset (3,), tool length or None) from the words the
     test programs use (G10 L2 / L1, G54.., G43 H, G49), in order."""
-    off, tool, out = np.full(3, np.nan), None, []
+    off, tool, out, loaded = np.full(3, np.nan), None, [], None
     table, tooltab = {k: np.asarray(v, float) for k, v in offsets.items()}, dict(tools)
     for ln in lines:
+        ln = re.sub(r"\(.*?\)", "", ln)  # comments name codes too
         m = re.search(r"G10 L2 P(\d) X([-\d.]+) Y([-\d.]+) Z([-\d.]+)", ln)
         if m:
             table[("G54", "G55", "G56")[int(m.group(1)) - 1]] = np.array([float(m.group(k)) for k in (2, 3, 4)])
         m = re.search(r"G10 L1 P(\d) Z([-\d.]+)", ln)
         if m:
             tooltab[int(m.group(1))] = float(m.group(2))
-        m = re.search(r"(G54\.1 P\d|G59\.[123]|G5[4-9])(?![.\d])", ln)
+        m = re.search(r"(G154 P\d+|G1[12]\d|G54\.1 P\d|G59\.[123]|G5[4-9])(?![.\d])", ln)
         if m and "G10" not in ln:
             off = table[m.group(1).replace(" ", "")]
+        m = re.search(r"T0*(\d+) M0?6\b", ln)  # LinuxCNC: a bare G43 uses the tool loaded by M6
+        if m:
+            loaded = int(m.group(1))
         m = re.search(r"G43\b[^H]*H0*(\d+)", ln)
         if m:
             tool = tooltab[int(m.group(1))]
+        elif re.search(r"G43(?![.\d])", ln):
+            tool = tooltab[loaded]
         if "G49" in ln:
             tool = None
         out.append((off, tool))

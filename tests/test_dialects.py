@@ -94,7 +94,7 @@ def test_fanuc_extras_are_reported(tmp_path, mill, truth_file, capsys):
     ("N5 G05.1 Q2 X0 Y0 Z0\n", "fanuc", 4, "Q2 smooth interpolation changes the path"),
     ("N5 G80 G0 X1\n", "linuxcnc", 8, "'G0' and 'G80' on one line"),
     ("/N5 M1\n", "grbl", 1, "grbl has no block-delete switch"),
-    ("M62 P1\n", "linuxcnc", 1, "'M62': M code not on the linuxcnc allow-list"),
+    ("M62 P1\n", "fanuc", 1, "'M62': M code not on the fanuc allow-list"),
 ])
 def test_words_of_another_dialect_are_refused(tmp_path, mill, text, dialect, col, what):
     p = tmp_path / "p.nc"

@@ -137,7 +137,6 @@ def test_expanded_cycles_are_compensated_point_by_point(tmp_path, mill, truth_fi
 
 
 REFUSED = [  # program lines, mode, dialect, (line, column), words of the reason
-    ("G0 X0 Y0 Z5\nG91 G81 X1 Z-2 R-1\n", "keep", None, (2, 5), "use --expand-cycles"),
     ("G0 X0 Y0 Z5\nG83 X1 Z-9 R1 Q2\n", "expand", None, (2, 1), "--dialect linuxcnc"),
     ("G0 X0 Y0 Z5\nG84 X1 Z-9 R1\n", "expand", "linuxcnc", (2, 1), "leave --expand-cycles out"),
     ("G0 X0 Y0 Z5\nG81 X1 R1\n", "keep", None, (2, 1), "without Z"),
@@ -186,3 +185,38 @@ def test_tapping_is_kept_as_a_cycle_its_hole_compensated_like_any():
     assert [(h.code, h.xyz, h.r) for h in exp.holes] == [("G84", (1.0, 2.0, -3.0), 1.0)]
     assert exp.text.splitlines()[slice(*exp.spans[1])] == [  # the R point, the bottom, the retract (not written)
         "G90 G1 X1.000000 Y2.000000 Z1.000000 F9", "G1 Z-3.000000", "G0 Z5.000000"]
+
+
+def test_kept_incremental_cycles_reach_every_hole_bottom_on_the_true_machine(tmp_path, mill, truth_file):
+    """G91 kept cycles (LinuxCNC / Fanuc: X Y increments from the current position, R from the series' initial
+    level, Z from R): the written increments, run from where the controller really is, reach every
+    compensated hole bottom. The check interprets the written program with those rules itself."""
+    prog = DATA / "drill_g91_kept.ngc"
+    out = tmp_path / "o"
+    assert _compensate(prog, out, truth_file, "--truth", str(truth_file)) == 0
+    src = prog.read_text().splitlines()
+    dst = [ln for ln in (out / prog.name).read_text().splitlines() if not ln.startswith("(volcomp:")]
+    assert len(dst) == len(src)
+    truth = ChainField(mill, ChainElementSet.load(truth_file, mill))
+    tip = lambda q: mill.nominal(q[None])[0] * 1e3 + truth.predict(q[None])[0]  # noqa: E731
+    # programmed holes, worked by hand: start (10, 10), initial level Z-20; G99 series: R -35, bottom -55
+    # at (20, 15), (30, 15), (30, 25); the G82 line changes the cycle in the same series: R -30, Z -55 at (15, 30)
+    targets = [(20, 15, -55), (30, 15, -55), (30, 25, -55), (15, 30, -55)]
+    ctrl, z0, errs = np.array([10.0, 10.0]), -20.0, []
+    for s, d in zip(src, dst):
+        if not re.search(r"G8[12]|^[XY]", s):
+            assert d == s
+            continue
+        w = _cycle_words(d)
+        ctrl = ctrl + [w["X"], w["Y"]]
+        bottom = z0 + w["R"] + w["Z"]
+        q = np.array([*ctrl, bottom]) + G55_MM
+        errs.append(np.linalg.norm(tip(q) - mill.nominal((np.array(targets[len(errs)]) + G55_MM)[None])[0] * 1e3))
+    assert len(errs) == 4 and max(errs) < TOL_POINT_UM
+    cyc = json.loads((out / "compensate_summary.json").read_text())["files"][0]["cycles"]
+    assert cyc["holes"] == 4 and cyc["true_bottom_uncompensated"]["max_um"] > 10 * TOL_POINT_UM  # teeth
+
+
+def test_kept_incremental_repeats_are_refused():
+    with pytest.raises(InputError, match=r"p.nc: line 2, column 23: L3 under G91 on a kept cycle"):
+        expand_cycles("G0 X0 Y0 Z5\nG91 G81 X1 Z-2 R-1 F9 L3\n", "p.nc", "keep")
