@@ -454,17 +454,117 @@ def orientation_residual_urad(truth, machine, axes, nominal_axes, tool_mm) -> np
     return out
 
 
-def report(pre: TcpProgram, points_on: np.ndarray, before_urad=None, after_urad=None) -> dict:
-    """The summary's ``tcp`` entry."""
-    out = {"words": sorted(set(pre.words)), "points": int(points_on.sum()),
-           "inverse_time_lines": int(pre.inverse_time.sum()),
+ORIENT_ROTARY_LIMIT_DEG = 0.05
+"""Largest rotary correction the orientation solve may make (deg): the rotary axes' own errors are tens of
+μrad (0.002°); a larger correction means the orientation error lies along a direction the rotary axes cannot
+turn the tool (near ``A = 0`` the C axis turns the tool about itself) and the point keeps its programmed
+rotary axes (position-only, counted in the summary)."""
+ORIENT_TOL_URAD = 0.01
+"""The orientation solve's convergence on the MODEL's tool axis (μrad)."""
+ORIENT_POS_TOL_UM = 1e-4
+"""... and on the MODEL's tool tip (μm)."""
+ORIENT_STEPS = {"linear": 1e-3, "rotary": 1e-4}
+"""Central-difference steps of the orientation solve's Jacobian (mm, deg): the model varies over tens of mm /
+degrees, so their h² error is far below the tolerances."""
+ORIENT_MAX_ITER = 8
+
+
+def _pose_residual(field_, machine, q, targets, directions) -> np.ndarray:
+    """MODEL tool tip minus target (μm) and MODEL tool axis minus the programmed one (μrad), (n, 6)."""
+    p = machine.nominal(q) + 1e-3 * field_.predict(q)
+    n = tool_axis(machine, q, field_.elements.values(q))
+    return np.concatenate([(p - targets) * 1e3, (n - directions) * 1e6], axis=1)
+
+
+def solve_orientation(field_, machine, axes0, targets, directions) -> tuple:
+    """Tool tip AND tool axis compensated with all five axes (Gauss-Newton over the MODEL, an element set at
+    the tool's length: ``field_`` a :class:`errormap.mt_field.ChainField` on ``machine``), from the
+    position-only solution ``axes0`` (n, k); ``targets`` (n, 3) mm the programmed tips, ``directions`` (n, 3)
+    the programmed tool axes (nominal, at the programmed axes). Returns ``(axes (n, k), solved (n,) bool)``:
+    a point that does not converge or needs a rotary correction over :data:`ORIENT_ROTARY_LIMIT_DEG` keeps
+    ``axes0`` (solved False)."""
+    rot = np.array([a.kind != "linear" for a in machine.axes])
+    h = np.where(rot, ORIENT_STEPS["rotary"], ORIENT_STEPS["linear"])
+    q = np.array(axes0, dtype=float)
+    k = q.shape[1]
+    for _ in range(ORIENT_MAX_ITER):
+        r = _pose_residual(field_, machine, q, targets, directions)
+        J = np.empty(r.shape + (k,))
+        for j in range(k):
+            d = np.zeros(k)
+            d[j] = h[j]
+            J[:, :, j] = (_pose_residual(field_, machine, q + d, targets, directions)
+                          - _pose_residual(field_, machine, q - d, targets, directions)) / (2 * h[j])
+        JtJ = np.einsum("nij,nik->njk", J, J)
+        g = np.einsum("nij,ni->nj", J, r)
+        scale = np.sqrt(np.einsum("njj->nj", JtJ)) + 1e-300
+        A = JtJ / scale[:, :, None] / scale[:, None, :] + 1e-12 * np.eye(k)
+        dq = -np.linalg.solve(A, (g / scale)[:, :, None])[:, :, 0] / scale
+        q += dq
+        if np.abs(dq).max() < 1e-12:
+            break
+    r = _pose_residual(field_, machine, q, targets, directions)
+    ok = ((np.linalg.norm(r[:, :3], axis=1) <= ORIENT_POS_TOL_UM) & (np.linalg.norm(r[:, 3:], axis=1) <= ORIENT_TOL_URAD)
+          & (np.abs(q[:, rot] - axes0[:, rot]).max(axis=1) <= ORIENT_ROTARY_LIMIT_DEG))
+    q[~ok] = axes0[~ok]
+    return q, ok
+
+
+def compensate_orientation(field_, machine, tp_axes, tool_mm, res, targets):
+    """:func:`solve_orientation` over every point of a solved file at its tool length (NaN: the machine file's
+    tool): ``(SolveResult with the new axes, commands and MODEL position residual, solved (n,) bool)``.
+    ``field_`` must be an element set (``TypeError`` otherwise: only an element set gives the tool's
+    orientation)."""
+    import dataclasses
+
+    from errormap.mt_field import ChainField
+
+    from .nc_state import field_with_tool, machine_with_tool
+    if not isinstance(field_, ChainField):
+        raise TypeError(f"the model is a {type(field_).__name__}: the tool's orientation error needs an element set")
+    axes = np.array(res.axes, dtype=float)
+    solved = np.zeros(len(axes), bool)
+    commands = np.array(res.commands_mm, dtype=float)
+    resid = np.array(res.residual_um, dtype=float)
+    keys = np.where(np.isfinite(tool_mm), tool_mm, -np.inf)
+    for key in np.unique(keys):
+        idx = np.flatnonzero(keys == key)
+        mt = machine if not np.isfinite(key) else machine_with_tool(machine, float(key))
+        f = field_ if not np.isfinite(key) else field_with_tool(field_, mt)
+        q, ok = solve_orientation(f, mt, axes[idx], targets[idx], tool_axis(mt, tp_axes[idx]))
+        axes[idx], solved[idx] = q, ok
+        commands[idx] = mt.nominal(q)
+        resid[idx] = (commands[idx] - targets[idx]) * 1e3 + f.predict(q)
+    out = dataclasses.replace(res, axes=axes, commands_mm=commands, residual_um=resid,
+                              correction_um=np.linalg.norm((commands - targets) * 1e3, axis=1),
+                              info={**res.info, "orientation_solved": solved,
+                                    "compensated_axes": list(machine.axis_columns), "kept_axes": [],
+                                    "note": ("tool tip and tool orientation compensated with every axis "
+                                             f"({', '.join(machine.axis_columns)}); {int((~solved).sum())} point(s) "
+                                             "whose orientation error the rotary axes cannot turn out within "
+                                             f"{ORIENT_ROTARY_LIMIT_DEG:g} deg keep the programmed rotary axes "
+                                             "(position only)")})
+    return out, solved
+
+
+def report(pre: TcpProgram, points_on: np.ndarray, before_urad=None, after_urad=None, solved=None) -> dict:
+    """The summary's ``tcp`` entry (``pre`` None: a joint-mode program compensated with its orientation:
+    ``points_on`` every point)."""
+    out = {"words": sorted(set(pre.words)) if pre else [], "points": int(points_on.sum()),
+           "inverse_time_lines": int(pre.inverse_time.sum()) if pre else 0,
            "form": "TCP points written in TCP form: tool tip X Y Z in the workpiece frame (compensated), rotary "
-                   "words as programmed"}
+                   "words as programmed (or as corrected with --compensate-orientation)"}
+    def st(v):
+        return {"max_urad": float(v.max()), "rms_urad": float(np.sqrt(np.mean(v ** 2)))}
     if before_urad is not None:
-        def st(v):
-            return {"max_urad": float(v.max()), "rms_urad": float(np.sqrt(np.mean(v ** 2)))}
-        out["orientation"] = "angle between the truth's tool axis and the programmed one (urad); the rotary axes " \
-                             "are kept, so compensation leaves it as it was"
+        out["orientation"] = ("angle between the truth's tool axis and the programmed one (urad); without "
+                              "--compensate-orientation the rotary axes are kept and leave it as it was")
         out["true_orientation"] = st(after_urad)
         out["true_orientation_uncompensated"] = st(before_urad)
+    if solved is not None:
+        out["orientation_solved_points"] = int(solved.sum())
+        out["orientation_kept_points"] = int((~solved).sum())
+        if before_urad is not None and solved.any():
+            out["true_orientation_solved"] = st(after_urad[solved])
+            out["true_orientation_solved_uncompensated"] = st(before_urad[solved])
     return out

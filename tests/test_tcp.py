@@ -272,3 +272,40 @@ def test_machine_file_tcp_switch_is_read_and_checked(tmp_path):
     doc["tcp"] = {"switch_on": ["M428"], "switch_off": ["M429"]}
     with pytest.raises(MachineFileError, match="no rotary axis"):
         parse_machine_tool(doc, "mill.toml")
+
+
+ORIENT_TRUE_URAD = 0.1
+"""With the truth as the model, a point whose orientation is solved keeps only the written rotary digits'
+error (1e-6 deg = 0.017 μrad per axis): 0.1 μrad."""
+NEAR_VERTICAL_DEG = 3.0
+"""Where the orientation is not solved: the tool near the C axis (A ≈ 0), where turning C turns the tool about
+itself; a ±35 μrad error then needs C to turn by 35e-6 / sin A, over the 0.05° bound below |A| ≈ 2.3°."""
+
+
+def test_orientation_compensated_by_the_rotary_axes(models):
+    rc, entry, prog, out = run(models, FANUC, "fanuc", "fanuc.nc", out="o5", extra=("--compensate-orientation",))
+    assert rc == 0
+    o = entry["tcp"]
+    assert o["orientation_solved_points"] > 0
+    assert o["true_orientation_solved"]["max_urad"] <= ORIENT_TRUE_URAD
+    assert o["true_orientation_solved_uncompensated"]["max_urad"] > 100 * ORIENT_TRUE_URAD
+    assert entry["true"]["max_um"] <= TRUE_EXACT_UM
+    assert check_tcp_output(models, prog, out).max() <= TRUE_EXACT_UM  # corrected rotary words, tips still exact
+    # independently: the written tips and rotary words, through the nominal inverse on the truth, put the tool
+    # on the programmed axis (the rotary words the position-only run writes: the program's, interpolated)
+    _, _, _, plain = run(models, FANUC, "fanuc", "fanuc.nc", out="o6")
+    mt, truth, _, _ = models
+    from compensation.nc_state import machine_with_tool
+    from compensation.tcp import tool_axis
+    m = machine_with_tool(mt, LENGTH_MM)
+    prog_rot = np.array([p for _, on, p in tcp_lines(plain.read_text()) if on])[:, 3:]
+    dst = np.array([p for _, on, p in tcp_lines(out.read_text()) if on])
+    q, ok = m.inverse(dst[:, :3] + np.array(OFFSET), np.column_stack([np.full((len(dst), 3), -200.0), dst[:, 3:]]))
+    assert ok.all()
+    actual = tool_axis(m, q, ChainElementSet.load(truth, mt).values(q))
+    wanted = tool_axis(m, np.column_stack([q[:, :3], prog_rot]))
+    angle_urad = np.linalg.norm(np.cross(actual, wanted), axis=1) * 1e6
+    solved = np.abs(dst[:, 3:] - prog_rot).max(axis=1) > 0
+    assert solved.sum() == o["orientation_solved_points"]
+    assert angle_urad[solved].max() <= ORIENT_TRUE_URAD
+    assert np.all(np.abs(prog_rot[~solved, 0]) <= NEAR_VERTICAL_DEG)  # kept only near the vertical tool

@@ -94,6 +94,7 @@ class ChainSettings:
     work_offsets: object = None  # compensation.nc_state.WorkOffsets (None: not given)
     tool_table: object = None    # compensation.nc_state.ToolTable (None: not given)
     cycles: str = "keep"         # canned cycles: "keep" (holes compensated) or "expand" (compensation.nc_cycles)
+    orientation: bool = False    # the tool's orientation compensated too, by the rotary axes (compensation.tcp)
 
 
 def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
@@ -274,18 +275,40 @@ def cutter_radius_bound_um(field_, machine, tp: ChainPath):
     return out
 
 
+def orientation_pass(field_, truth, machine, tp: ChainPath, res, targets, true_r):
+    """``--compensate-orientation``: tool tip and tool axis compensated with every axis
+    (:func:`compensation.tcp.compensate_orientation`); the TRUE position residual recomputed at the new axes."""
+    from ...tcp import compensate_orientation
+    tool = np.full(len(tp.axes), np.nan) if tp.tool_mm is None else np.asarray(tp.tool_mm, float)
+    try:
+        res, _ = compensate_orientation(field_, machine, tp.axes, tool, res, targets)
+    except TypeError as exc:
+        raise UsageError(f"--compensate-orientation: {exc}") from None
+    if truth is None:
+        return res, true_r
+    out = np.empty_like(true_r)
+    keys = np.where(np.isfinite(tool), tool, -np.inf)
+    for key in np.unique(keys):
+        idx = np.flatnonzero(keys == key)
+        mt = machine if not np.isfinite(key) else machine_with_tool(machine, float(key))
+        tr = truth if not np.isfinite(key) else field_with_tool(truth, mt)
+        out[idx] = true_residual_um(tr, mt, res.axes[idx], targets[idx])
+    return res, out
+
+
 def tcp_entry(tp: ChainPath, res, machine, truth) -> dict:
     """The summary's ``tcp`` entry of a program with tool-centre-point or G93 words (:func:`compensation.tcp.report`):
     with a truth element set, the TRUE orientation residual of the TCP points before/after (μrad)."""
     from ...tcp import orientation_residual_urad, report
     tcp = tp.source.program.tcp
-    on = tcp.active(tp.lines - 1)
+    on = tcp.active(tp.lines - 1) if tcp is not None else np.ones(len(tp.lines), bool)
     before = after = None
     if truth is not None and on.any():
         tool = tp.tool_mm[on]
         after = orientation_residual_urad(truth, machine, res.axes[on], tp.axes[on], tool)
         before = orientation_residual_urad(truth, machine, tp.axes[on], tp.axes[on], tool)
-    return report(tcp, on, before, after)
+    solved = res.info.get("orientation_solved")
+    return report(tcp, on, before, after, None if solved is None else np.asarray(solved)[on])
 
 
 def cycle_report(tp: ChainPath, res, true_r, true_base):
@@ -422,6 +445,8 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
         turning = tp.turning if tp.turning is not None and tp.turning.any() else None
         if turning is None:
             res, targets, true_r, true_base = solve_by_tool(s.method, field_, truth, machine, tp, **seeded, **limit)
+            if s.orientation:
+                res, true_r = orientation_pass(field_, truth, machine, tp, res, targets, true_r)
         else:
             from ...solvers import solve
             from ...solvers.base import BALL_RADIUS_UM
@@ -482,7 +507,7 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
                           "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids,
                           "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
                           "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
-            if job.program.tcp is not None:
+            if job.program.tcp is not None or s.orientation:
                 entry["tcp"] = tcp_entry(tp, res, machine, truth)
             cyc = cycle_report(tp, res, true_r, true_base)
             if cyc is not None:
