@@ -507,7 +507,7 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
                           "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids,
                           "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
                           "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
-            if job.program.tcp is not None or s.orientation:
+            if job.program.tcp is not None or s.orientation or (truth is not None and res.info.get("kept_axes")):
                 entry["tcp"] = tcp_entry(tp, res, machine, truth)
             cyc = cycle_report(tp, res, true_r, true_base)
             if cyc is not None:
