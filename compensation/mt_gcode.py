@@ -48,20 +48,23 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
     from .gcode import _dialect_of
     from .tcp import attach, tcp_prepass
-    data, pre = None, None
+    data, pre, name, evidence = None, None, None, ""
     if Path(path).is_file():  # tool-centre-point and G93 words (compensation.tcp)
         raw = Path(path).read_bytes()
         try:
-            name = _dialect_of(path, raw, dialect)[0].name
+            dia, evidence = _dialect_of(path, raw, dialect)
+            name = dia.name
         except InputError:
             name = None  # the reader refuses it with its own words
         if name is not None:
             data, pre = tcp_prepass(path, raw, name, machine)
+    named = name if pre is not None and name != "rs274" else dialect  # the pre-pass blanked what recognised it
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
-                         dialect=dialect, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
+                         dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
                          data=data if pre is not None else None)
     if pre is not None:
         attach(prog, pre)
+        prog.dialect_evidence = evidence
     return prog
 
 

@@ -51,6 +51,8 @@ TCP_M = {128: ("heidenhain-iso", "on"), 129: ("heidenhain-iso", "off")}
 SIEMENS_LINE = re.compile(r"[ \t]*(?:N\d+[ \t]*)?(TRAORI(?:[ \t]*\([ \t]*1?[ \t]*\))?|TRAFOOF)[ \t]*(?:;.*)?\r?",
                           re.IGNORECASE)
 SIEMENS_OTHER = re.compile(r"[ \t]*(?:N\d+[ \t]*)?TRAORI\b", re.IGNORECASE)
+TRIGGER = rb"(?i)G[ \t]*0*(?:43[ \t]*\.[ \t]*[45]|234|93)(?![0-9.])|M[ \t]*0*12[89](?![0-9.])|TRA(?:ORI|FOOF)"
+"""Bytes that may hold a word of this module; a program without any is read without the pre-pass."""
 INVERSE_TIME_DECIMALS = 6
 """Decimals of a rewritten inverse-time F (1e-6 per minute: a block's time is kept to < 1e-6 relative)."""
 INVERSE_TOL_MM = 1e-10
@@ -121,6 +123,10 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
     tool length), or ``(data, None)`` where the program has none. Refuses (InputError, file, line,
     column) what has no exact meaning."""
     from .gcode import _Refuse, split_lines, tokenize
+    codes = "|".join(f"M0*{c}" for c in sorted(set((machine.tcp or {}).get("switch_on", ()))
+                                                 | set((machine.tcp or {}).get("switch_off", ()))))
+    if dialect_name != "heidenhain-iso" and re.search(TRIGGER + (rb"|" + codes.encode() if codes else b""), data) is None:
+        return data, None  # the common case: no word of this module (the reader keeps its bulk speed)
     text = data.decode("latin-1")
     lines = split_lines(text)
     switch_on = set((machine.tcp or {}).get("switch_on", ()))

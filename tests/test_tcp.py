@@ -309,3 +309,27 @@ def test_orientation_compensated_by_the_rotary_axes(models):
     assert solved.sum() == o["orientation_solved_points"]
     assert angle_urad[solved].max() <= ORIENT_TRUE_URAD
     assert np.all(np.abs(prog_rot[~solved, 0]) <= NEAR_VERTICAL_DEG)  # kept only near the vertical tool
+
+
+@pytest.mark.parametrize("text,want", [(SIEMENS, "siemens-iso"), (HEIDENHAIN, "heidenhain-iso")])
+def test_dialect_recognised_from_tcp_content(models, text, want):
+    rc, entry, _, _ = run(models, text, "auto", "auto.nc")
+    assert rc == 0 and entry["dialect"] == want and entry["tcp"]["points"] > 0
+
+
+def test_g43_4_without_a_dialect_names_the_option(models, capsys):
+    mt, truth, _, d = models
+    prog = d / "auto.nc"
+    prog.write_text(FANUC)
+    assert main(["compensate", str(prog), "--machine", "five-axis-ac", "--model", str(truth), "--method", "exact",
+                 "--out", str(d / "auto"), "--work-offsets", str(d / "wo.csv"), "--tool-table", str(d / "tt.csv"),
+                 "--force"]) == 2
+    assert "line 6, column 1: 'G43.4' (tool-centre-point control) is a word of fanuc, siemens-iso; the program is " \
+           "read as rs274: name the controller with --dialect fanuc" in capsys.readouterr().err
+
+
+def test_prepass_leaves_programs_without_its_words_alone():
+    from compensation.tcp import tcp_prepass
+    mt = load_machine("five-axis-ac")
+    data = b"G21 G90\nG94 G1 X1 Y2 Z3 A0 C0 F100 (G43 H1)\nM30\n"
+    assert tcp_prepass("p.nc", data, "fanuc", mt) == (data, None)
