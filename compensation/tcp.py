@@ -327,11 +327,35 @@ def attach(prog, pre: TcpProgram) -> None:
     if prog.expanded is not None:
         raise InputError(f"{prog.path}: tool-centre-point or G93 words in a program whose subprograms, macros or "
                          "canned cycles were expanded: not supported (post the 5-axis path flat)")
+    check_mode_changes(prog, pre)
     prog.lines = pre.lines
     prog.data = None
     if pre.tool_events:
         prog.events = tuple(sorted(tuple(prog.events) + tuple(pre.tool_events), key=lambda e: (e[0], e[1])))
     prog.tcp = pre
+
+
+def check_mode_changes(prog, pre: TcpProgram) -> None:
+    """The first move after TCP switched on or off starts where the other mode left the machine, which the
+    program's coordinates do not say: it must give every axis absolutely and be a kept rapid (``G0`` under
+    ``--rapids keep``: run as written); otherwise refused (file, line, column)."""
+    words = prog.axis_words.words
+    prev = None
+    for m in prog.moves:
+        state = bool(pre.on[m.index])
+        if prev is not None and state != prev:
+            first = min((w for a, w in m.words.items() if a in words), key=lambda w: w.start)
+            where = f"the first move after tool-centre-point control switched {'on' if state else 'off'}"
+            missing = [a for a in words if a not in m.words]
+            if missing or m.incremental:
+                raise _refuse(prog.path, m.index, first.start + 1,
+                              f"{where} gives {'no ' + ', '.join(missing) if missing else 'incremental words'}: "
+                              "its position in the new mode is not the program's; give every axis absolutely")
+            if m.compensate:
+                raise _refuse(prog.path, m.index, first.start + 1,
+                              f"{where} is compensated but starts where the other mode left the machine (its path "
+                              "is not the program's): position with G0 first (kept under --rapids keep)")
+        prev = state
 
 
 def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm) -> np.ndarray:

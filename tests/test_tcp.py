@@ -226,6 +226,10 @@ def test_g93_block_times_kept(models):
     (SIEMENS.replace("T1 D1 M6", "T1 M6"), "siemens-iso", "line 4, column 1: 'TRAORI' with no tool length"),
     (LINUXCNC.replace("X20 Y10 Z2 A-20 C30 F30", "X20 Y10 Z2 A-20 C30"), "linuxcnc", "line 9, column 1: G1 under G93"),
     (FANUC.replace("G54\n", "G54\nG68.2 X0 Y0 Z0 I0 J30 K0\n"), "fanuc", "line 6, column 1: 'G68.2' (tilted work plane)"),
+    (LINUXCNC.replace("M428\nG0 X0 Y0 Z50 A0 C0", "G0 X0 Y0 Z-300 A0 C0\nM428\nG0 X0 Y0 Z50"), "linuxcnc",
+     "line 8, column 4: the first move after tool-centre-point control switched on gives no A, C"),
+    (LINUXCNC.replace("G49\n", "G49\nG1 X0 Y0 Z0 A0 C0 F100\n"), "linuxcnc", "line 14, column 4: the first move "
+     "after tool-centre-point control switched off is compensated"),
 ])
 def test_tcp_refusals_name_line_and_column(models, capsys, text, dialect, what):
     mt, truth, est, d = models
