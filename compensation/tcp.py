@@ -338,7 +338,8 @@ def attach(prog, pre: TcpProgram) -> None:
 def check_mode_changes(prog, pre: TcpProgram) -> None:
     """The first move after TCP switched on or off starts where the other mode left the machine, which the
     program's coordinates do not say: it must give every axis absolutely and be a kept rapid (``G0`` under
-    ``--rapids keep``: run as written); otherwise refused (file, line, column)."""
+    ``--rapids keep``: run as written); otherwise refused (file, line, column). So must the first move after a
+    Heidenhain / Siemens tool call give Z absolutely (the tip's height changes with the tool's length)."""
     words = prog.axis_words.words
     prev = None
     for m in prog.moves:
@@ -356,6 +357,13 @@ def check_mode_changes(prog, pre: TcpProgram) -> None:
                               f"{where} is compensated but starts where the other mode left the machine (its path "
                               "is not the program's): position with G0 first (kept under --rapids keep)")
         prev = state
+    calls = sorted(e[0] for e in pre.tool_events)
+    for line in calls:  # a tool call changes where the program's Z is: the next move gives Z absolutely
+        m = next((m for m in prog.moves if m.index > line), None)
+        if m is not None and ("Z" not in m.words or m.incremental) and "Z" in words:
+            w = min((w for a, w in m.words.items() if a in words), key=lambda w: w.start)
+            raise _refuse(prog.path, m.index, w.start + 1, f"the first move after the tool call on line {line + 1} "
+                          "gives no absolute Z: the tip's height under the new tool length is not the program's")
 
 
 def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm) -> np.ndarray:

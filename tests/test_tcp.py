@@ -230,6 +230,8 @@ def test_g93_block_times_kept(models):
      "line 8, column 4: the first move after tool-centre-point control switched on gives no A, C"),
     (LINUXCNC.replace("G49\n", "G49\nG1 X0 Y0 Z0 A0 C0 F100\n"), "linuxcnc", "line 14, column 4: the first move "
      "after tool-centre-point control switched off is compensated"),
+    (SIEMENS.replace("T1 D1 M6\nG54\n", "G54\nG0 X0 Y0 Z-100 A0 C0\nT1 D1 M6\nG0 X5\n"), "siemens-iso",
+     "line 5, column 4: the first move after the tool call on line 4 gives no absolute Z"),
 ])
 def test_tcp_refusals_name_line_and_column(models, capsys, text, dialect, what):
     mt, truth, est, d = models
