@@ -192,8 +192,26 @@ def test_fanuc_tcp_true_residual_with_an_imperfect_model(models):
     assert abs(o["true_orientation"]["max_urad"] - o["true_orientation_uncompensated"]["max_urad"]) < 1.0
 
 
-def test_g93_block_times_kept(models):
-    rc, entry, prog, out = run(models, LINUXCNC, "linuxcnc", "lcnc.ngc")
+FANUC_ARC = """%
+O1002
+G21 G90 G17
+T1 M6
+G54
+G43.4 H1 G0 X20. Y0. Z5. A-30. C0.
+G93 G1 Z2. F100.
+G3 X0. Y20. I-20. J0. C45. F50.
+G1 X-10. Y10. A-40. F25.
+G94
+G49
+M30
+%
+"""
+
+
+@pytest.mark.parametrize("text,dialect,name", [(LINUXCNC, "linuxcnc", "lcnc.ngc"), (FANUC_ARC, "fanuc", "arc.nc")])
+def test_g93_block_times_kept(models, text, dialect, name):
+    rc, entry, prog, out = run(models, text, dialect, name)
+    assert entry["true"]["max_um"] <= TRUE_EXACT_UM
     assert rc == 0 and entry["tcp"]["inverse_time_lines"] > 0
     from compensation.gcode import split_lines, tokenize
 
