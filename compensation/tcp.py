@@ -129,8 +129,6 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
         return data, None  # the common case: no word of this module (the reader keeps its bulk speed)
     text = data.decode("latin-1")
     lines = split_lines(text)
-    switch_on = set((machine.tcp or {}).get("switch_on", ()))
-    switch_off = set((machine.tcp or {}).get("switch_off", ()))
     rotary = [a for a in machine.axes if a.kind != "linear"]
     n = len(lines)
     on = np.zeros(n, bool)
@@ -171,65 +169,8 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
             out.append(line)  # the reader refuses it with its own words
             _mark(i, state, on, g93, switch)
             continue
-        new = body
-        codes = {}
-        for w in toks:
-            if w.letter in "GM":
-                codes[w.code] = w
-        for code, w in codes.items():
-            if code in ("G90", "G91"):
-                state["incremental"] = code == "G91"
-            if code in TCP_G:
-                found = True
-                _need_dialect(path, i, w.start + 1, code, TCP_G[code], dialect_name)
-                h = next((t for t in toks if t.letter == "H"), None)
-                if h is None and not (code == "G234" and state["tool"] is not None):
-                    raise _refuse(path, i, w.start + 1, f"'{code}' without H (the tool length): write '{code} Hn' "
-                                  "with the tool table's number n (--tool-table)")
-                if code == "G43.5" and any(t.letter in "IJK" for t in toks):
-                    raise _refuse(path, i, w.start + 1, "'G43.5' with a tool-direction vector I J K: the rotary "
-                                  "positions are the controller's choice (two solutions); post rotary words (G43.4)")
-                _switch_on(path, i, w.start + 1, code, rotary, machine, state)
-                words.append(code)
-                if h is not None:
-                    state["tool"] = int(h.value)
-                new = _blank(new, w.start, w.num_end, "G43" if h is not None else "")
-            elif code == "G43":
-                state["tool"] = int(next(t for t in toks if t.letter == "H").value) if any(
-                    t.letter == "H" for t in toks) else state["tool"]
-                if state["tcp"] is not None and state["tcp"][2] in TCP_G:
-                    state["tcp"] = None
-            elif code == "G49":
-                state["tool"] = None
-                if state["tcp"] is not None and state["tcp"][2] in TCP_G:
-                    state["tcp"] = None
-            elif code in ("G93", "G94", "G95"):
-                if code == "G93":
-                    found = True
-                    new = _blank(new, w.start, w.num_end)
-                state["g93"] = code == "G93"
-            elif w.letter == "M" and w.value == int(w.value):
-                mv = int(w.value)
-                if mv in switch_on or mv in switch_off:
-                    found = True
-                    if mv in switch_on:
-                        _switch_on(path, i, w.start + 1, code, rotary, machine, state)
-                        words.append(code)
-                    else:
-                        state["tcp"] = None
-                    new = _blank(new, w.start, w.num_end)
-                elif mv in TCP_M:
-                    found = True
-                    _need_dialect(path, i, w.start + 1, code, (TCP_M[mv][0],), dialect_name)
-                    if TCP_M[mv][1] == "on":
-                        if state["t"] is None:
-                            raise _refuse(path, i, w.start + 1, "'M128' with no tool length: call the tool with "
-                                          "T n before it (the length comes from --tool-table)")
-                        _switch_on(path, i, w.start + 1, code, rotary, machine, state)
-                        words.append(code)
-                    else:
-                        state["tcp"] = None
-                    new = _blank(new, w.start, w.num_end)
+        new, hit, codes = _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words)
+        found |= hit
         new = _tool_calls(path, i, toks, new, dialect_name, state, tool_events)
         if state["g93"]:
             _check_inverse_time(path, i, toks, codes, state)
@@ -253,6 +194,74 @@ def _heidenhain_block(body: str) -> str:
         return " " * g + ("G21" if m.group(2) == "1" else "G20") + " " * (len(body) - g - 3)
     e = HEIDENHAIN_END.search(body.split(";")[0].split("(")[0])
     return body if e is None else _blank(body, e.start(), e.start() + 1)
+
+
+def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words):
+    """The TCP / G93 / tool-length words of one tokenised line: the state updated, the line returned with its
+    TCP and G93 words blanked, whether it held one, and its G and M words by code (``(body, found, codes)``)."""
+    found = False
+    switch_on = set((machine.tcp or {}).get("switch_on", ()))
+    switch_off = set((machine.tcp or {}).get("switch_off", ()))
+    new = body
+    codes = {}
+    for w in toks:
+        if w.letter in "GM":
+            codes[w.code] = w
+    for code, w in codes.items():
+        if code in ("G90", "G91"):
+            state["incremental"] = code == "G91"
+        if code in TCP_G:
+            found = True
+            _need_dialect(path, i, w.start + 1, code, TCP_G[code], dialect_name)
+            h = next((t for t in toks if t.letter == "H"), None)
+            if h is None and not (code == "G234" and state["tool"] is not None):
+                raise _refuse(path, i, w.start + 1, f"'{code}' without H (the tool length): write '{code} Hn' "
+                              "with the tool table's number n (--tool-table)")
+            if code == "G43.5" and any(t.letter in "IJK" for t in toks):
+                raise _refuse(path, i, w.start + 1, "'G43.5' with a tool-direction vector I J K: the rotary "
+                              "positions are the controller's choice (two solutions); post rotary words (G43.4)")
+            _switch_on(path, i, w.start + 1, code, rotary, machine, state)
+            words.append(code)
+            if h is not None:
+                state["tool"] = int(h.value)
+            new = _blank(new, w.start, w.num_end, "G43" if h is not None else "")
+        elif code == "G43":
+            state["tool"] = int(next(t for t in toks if t.letter == "H").value) if any(
+                t.letter == "H" for t in toks) else state["tool"]
+            if state["tcp"] is not None and state["tcp"][2] in TCP_G:
+                state["tcp"] = None
+        elif code == "G49":
+            state["tool"] = None
+            if state["tcp"] is not None and state["tcp"][2] in TCP_G:
+                state["tcp"] = None
+        elif code in ("G93", "G94", "G95"):
+            if code == "G93":
+                found = True
+                new = _blank(new, w.start, w.num_end)
+            state["g93"] = code == "G93"
+        elif w.letter == "M" and w.value == int(w.value):
+            mv = int(w.value)
+            if mv in switch_on or mv in switch_off:
+                found = True
+                if mv in switch_on:
+                    _switch_on(path, i, w.start + 1, code, rotary, machine, state)
+                    words.append(code)
+                else:
+                    state["tcp"] = None
+                new = _blank(new, w.start, w.num_end)
+            elif mv in TCP_M:
+                found = True
+                _need_dialect(path, i, w.start + 1, code, (TCP_M[mv][0],), dialect_name)
+                if TCP_M[mv][1] == "on":
+                    if state["t"] is None:
+                        raise _refuse(path, i, w.start + 1, "'M128' with no tool length: call the tool with "
+                                      "T n before it (the length comes from --tool-table)")
+                    _switch_on(path, i, w.start + 1, code, rotary, machine, state)
+                    words.append(code)
+                else:
+                    state["tcp"] = None
+                new = _blank(new, w.start, w.num_end)
+    return new, found, codes
 
 
 def _mark(i, state, on, g93, switch):
