@@ -357,3 +357,13 @@ def test_prepass_leaves_programs_without_its_words_alone():
     mt = load_machine("five-axis-ac")
     data = b"G21 G90\nG94 G1 X1 Y2 Z3 A0 C0 F100 (G43 H1)\nM30\n"
     assert tcp_prepass("p.nc", data, "fanuc", mt) == (data, None)
+
+
+def test_orientation_refused_where_no_rotary_axis_is_kept(tmp_path, capsys):
+    mt = load_machine("mill-xyz")
+    el = ChainElementSet.random(mt, 3, 5.0, 11).save(tmp_path / "el.json")
+    prog = tmp_path / "p.nc"
+    prog.write_text("G21 G90\nG1 X0 Y0 Z-10 F100\nG1 X10\nM30\n")
+    assert main(["compensate", str(prog), "--machine", "mill-xyz", "--model", str(el), "--method", "exact", "--out",
+                 str(tmp_path / "o"), "--work-offsets", "machine", "--compensate-orientation"]) == 2
+    assert "--compensate-orientation: the solver keeps no rotary axis on 'mill-xyz'" in capsys.readouterr().err

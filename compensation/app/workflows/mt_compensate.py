@@ -279,6 +279,10 @@ def orientation_pass(field_, truth, machine, tp: ChainPath, res, targets, true_r
     """``--compensate-orientation``: tool tip and tool axis compensated with every axis
     (:func:`compensation.tcp.compensate_orientation`); the TRUE position residual recomputed at the new axes."""
     from ...tcp import compensate_orientation
+    if not res.info.get("kept_axes"):
+        raise UsageError(f"--compensate-orientation: the solver keeps no rotary axis on {machine.name!r} (it moves "
+                         f"{', '.join(res.info.get('compensated_axes', []))}): there is no tool orientation to "
+                         "compensate; leave it out")
     tool = np.full(len(tp.axes), np.nan) if tp.tool_mm is None else np.asarray(tp.tool_mm, float)
     try:
         res, _ = compensate_orientation(field_, machine, tp.axes, tool, res, targets)
