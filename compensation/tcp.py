@@ -485,8 +485,11 @@ def tool_axis(machine, axes, values=None) -> np.ndarray:
 def orientation_residual_urad(truth, machine, axes, nominal_axes, tool_mm) -> np.ndarray | None:
     """TRUE orientation residual (n,) μrad: the angle between the truth machine's tool axis at ``axes`` and the
     nominal tool axis at ``nominal_axes`` (the programmed orientation), at each point's tool length. None
-    where the truth is not an element set (its orientation is not known)."""
+    where the truth is not an element set nor a simulated truth without effects (its orientation is not known)."""
     elements = getattr(truth, "elements", None)
+    sim = getattr(truth, "truth", None)  # simulate --machine's truth.json at the reference conditions
+    if elements is None and sim is not None and not getattr(sim, "effects", None):
+        elements = sim.elements
     if elements is None:
         return None
     out = np.empty(len(axes))
