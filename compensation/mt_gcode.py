@@ -46,10 +46,10 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     except ValueError:  # not solvable (compensate refuses it): every rotary word kept, as read
         solved = set()
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
-    from .gcode import _dialect_of
+    from .gcode import MAX_PROGRAM_BYTES, _dialect_of
     from .tcp import attach, tcp_prepass
     data, pre, name, evidence = None, None, None, ""
-    if Path(path).is_file():  # tool-centre-point and G93 words (compensation.tcp)
+    if Path(path).is_file() and Path(path).stat().st_size <= MAX_PROGRAM_BYTES:  # TCP and G93 words (compensation.tcp)
         raw = Path(path).read_bytes()
         try:
             dia, evidence = _dialect_of(path, raw, dialect)
@@ -61,7 +61,7 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     named = name if pre is not None and name != "rs274" else dialect  # the pre-pass blanked what recognised it
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
                          dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
-                         data=data if pre is not None else None)
+                         data=data)  # read once: the pre-pass's bytes (the file's own where it found nothing)
     if pre is not None:
         attach(prog, pre)
         prog.dialect_evidence = evidence
