@@ -41,7 +41,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
-DIALECT_NAMES = ("fanuc", "haas", "linuxcnc", "siemens-iso", "mach3", "grbl")
+DIALECT_NAMES = ("fanuc", "haas", "linuxcnc", "siemens-iso", "mach3", "grbl", "heidenhain-iso")
 COMMON_M = frozenset({0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30})
 """Program stop/end, spindle, tool change, coolant: the same meaning on every dialect read here."""
 RS274 = "rs274"
@@ -110,6 +110,9 @@ DIALECTS = {
                            g80_with_motion=True),
     "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True),
     "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False),
+    # Heidenhain TNC DIN/ISO programs: '%NAME G71 *' framing and the '*' block end are read by the
+    # tool-centre-point pre-pass (compensation.tcp), as are M128/M129 (TCPM) and the 'T n' tool call
+    "heidenhain-iso": Dialect("heidenhain-iso", dict(_COMMON)),
 }
 GENERIC = Dialect(RS274, {**_COMMON, 48: "overrides on", 49: "overrides off", 50: "feed override control",
                           51: "spindle override control", 52: "adaptive feed", 53: "feed stop control",
@@ -121,7 +124,8 @@ MARKERS = {  # content that only one dialect writes: (pattern, what it is)
     "fanuc": ((r"(?im)^\s*:\s*\d", "':' program number"), (r"(?i)G0?5\.1\s*Q", "G05.1 Q look-ahead")),
     "haas": ((r"(?i)\bG187\b", "G187 smoothness"), (r"(?i)\bG154\s*P", "G154 P work offset"),
              (r"(?i)\bM31\b", "M31 chip auger")),
-    "siemens-iso": ((r"(?i)\bG291\b", "G291 ISO mode"),),
+    "siemens-iso": ((r"(?i)\bG291\b", "G291 ISO mode"), (r"(?im)^\s*(?:n\d+\s*)?TRAORI\b", "TRAORI transformation")),
+    "heidenhain-iso": ((r"(?im)^\s*%\s*\w+\s+G7[01]\s*\*", "'%NAME G71 *' program framing"),),
 }
 DETECT_BYTES = 1 << 20
 """Detection reads the first MiB (a program declares its dialect near the top, and a marker further on

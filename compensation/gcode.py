@@ -341,6 +341,10 @@ class GProgram:
     """:class:`compensation.nc_expand.Expanded` where the program's subprograms, macros or
     parameters were expanded (``lines`` are then the flat program's); None otherwise."""
 
+    tcp: object = field(default=None, repr=False)
+    """:class:`compensation.tcp.TcpProgram` where the program holds tool-centre-point or G93 words (chain
+    readers); None otherwise."""
+
     def notes(self) -> tuple:
         """Header lines every written program carries: what was expanded."""
         return () if self.expanded is None else (self.expanded.note(),)
@@ -480,7 +484,7 @@ def _err(path, lineno, col, msg):
 
 def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
                   fast: bool = True, axis_words: AxisWords | None = None, dialect: str | None = None,
-                  cycles=None) -> GProgram:
+                  cycles=None, data: bytes | None = None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
     ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
@@ -499,7 +503,8 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     shares); the program's ``dialect`` records which (and ``dialect_evidence`` why).
     ``cycles``: None refuses drilling canned cycles; a pass ``(text, path, dialect name, expanded or
     None) -> Expanded or None`` that makes them plain moves (the machine-tool chains give
-    :func:`compensation.nc_cycles.cycle_pass`) reads them.
+    :func:`compensation.nc_cycles.cycle_pass`) reads them. ``data``: the file's bytes as a pre-pass left
+    them (:func:`compensation.tcp.tcp_prepass`; None: read from ``path``).
     """
     path = Path(path)
     if rapids not in RAPIDS_CHOICES:
@@ -513,7 +518,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     if size > MAX_PROGRAM_BYTES:
         raise InputError(f"{path}: {size / 2**30:.3g} GiB exceeds the limit of {MAX_PROGRAM_BYTES / 2**30:g} GiB per "
                          "program (more lines than the 10,000,000 vertices a file may have); split the program")
-    data = path.read_bytes()
+    data = path.read_bytes() if data is None else data
     check_program_bytes(path, data)
     dia, evidence = _dialect_of(path, data, dialect)
     try:  # the allow-list refuses every mark of a subprogram, macro or parameter: a program without

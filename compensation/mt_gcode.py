@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 
@@ -45,8 +46,26 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     except ValueError:  # not solvable (compensate refuses it): every rotary word kept, as read
         solved = set()
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
-    return parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
-                         dialect=dialect, cycles=None if cycles is None else partial(cycle_pass, mode=cycles))
+    from .gcode import MAX_PROGRAM_BYTES, _dialect_of
+    from .tcp import attach, tcp_prepass
+    data, pre, name, evidence = None, None, None, ""
+    if Path(path).is_file() and Path(path).stat().st_size <= MAX_PROGRAM_BYTES:  # TCP and G93 words (compensation.tcp)
+        raw = Path(path).read_bytes()
+        try:
+            dia, evidence = _dialect_of(path, raw, dialect)
+            name = dia.name
+        except InputError:
+            name = None  # the reader refuses it with its own words
+        if name is not None:
+            data, pre = tcp_prepass(path, raw, name, machine)
+    named = name if pre is not None and name != "rs274" else dialect  # the pre-pass blanked what recognised it
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
+                         dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
+                         data=data)  # read once: the pre-pass's bytes (the file's own where it found nothing)
+    if pre is not None:
+        attach(prog, pre)
+        prog.dialect_evidence = evidence
+    return prog
 
 
 def arc_chords(move, tol_mm: float) -> int:
@@ -60,13 +79,14 @@ CURVATURE_STEP = 0.25
 """Second difference step, as a share of the move."""
 
 
-def field_pieces(moves, field, tol_um: float, shift=None) -> np.ndarray:
+def field_pieces(moves, field, tol_um: float, shift=None, place=None) -> np.ndarray:
     """Pieces per move so that the straight interpolation between compensated vertices stays within
     ``tol_um`` of the field along it: a piece of a move whose field has second derivative ``c``
     (μm per unit of the move's parameter squared) deviates by ``c/(8 n²)``, so ``n = ⌈√(c/(8 tol))⌉``;
     ``c`` is the largest second difference of the field along the move at
     :data:`CURVATURE_FRACTIONS` (step :data:`CURVATURE_STEP` of the move); ``shift`` (m, k): machine minus
-    program axes per move (work offset, tool length; None: zero). Shape (m,) int ≥ 1."""
+    program axes per move (work offset, tool length; None: zero); ``place``: ``(0-based lines (n,), program
+    axes (n, k)) -> machine axes (n, k)`` instead of the shift (a program in TCP mode). Shape (m,) int ≥ 1."""
     if not moves:
         return np.zeros(0, dtype=int)
     h = CURVATURE_STEP
@@ -75,7 +95,9 @@ def field_pieces(moves, field, tol_um: float, shift=None) -> np.ndarray:
         for f in CURVATURE_FRACTIONS:
             pts.append(move_points(m, np.array([f - h, f, f + h])))
     q = np.concatenate(pts)
-    if shift is not None:
+    if place is not None:
+        q = place(np.repeat([m.index for m in moves], 3 * len(CURVATURE_FRACTIONS)), q)
+    elif shift is not None:
         q = q + np.repeat(np.asarray(shift, dtype=float), 3 * len(CURVATURE_FRACTIONS), axis=0)
     E = np.asarray(field.predict(q)).reshape(len(moves), len(CURVATURE_FRACTIONS), 3, 3)
     c = np.abs(E[:, :, 0] - 2 * E[:, :, 1] + E[:, :, 2]).max(axis=(1, 2)) / h ** 2
@@ -120,11 +142,13 @@ class ChainGCodeJob:
         return self.kept_axes + self.frames.shift(self.kept_lines - 1, self.program.axis_words.words)
 
 
-def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, frames=None) -> ChainGCodeJob:
+def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, frames=None,
+                     machine=None) -> ChainGCodeJob:
     """Vertices of every compensated move (program coordinates): arcs in chords within
     ``arc_tolerance_um`` (axis space), and with ``field_`` every move split so the compensation between
     vertices stays within it too (:func:`field_pieces`, the field taken where ``frames`` — a
-    :class:`compensation.nc_state.ProgramFrames` — puts the move in the machine)."""
+    :class:`compensation.nc_state.ProgramFrames` — puts the move in the machine; a program in TCP mode
+    through ``machine``'s nominal inverse, :mod:`compensation.tcp`)."""
     comp = [m for m in program.moves if m.compensate]
     tol_mm = arc_tolerance_um * 1e-3
     n_arc = np.array([arc_chords(m, tol_mm) if m.arc is not None else 1 for m in comp], dtype=int)
@@ -132,7 +156,10 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
     n_fld = np.ones(len(comp), dtype=int)
     if field_ is not None and with_start:
         shift = frames.shift([m.index for m in with_start], program.axis_words.words) if frames is not None else None
-        pieces = field_pieces(with_start, field_, arc_tolerance_um, shift)
+        place = None
+        if program.tcp is not None and frames is not None and machine is not None:
+            place = partial(program.tcp.place, machine, program, frames)
+        pieces = field_pieces(with_start, field_, arc_tolerance_um, shift, place)
         pos = {id(m): p for m, p in zip(with_start, pieces)}
         n_fld = np.array([pos.get(id(m), 1) for m in comp], dtype=int)
     counts = np.maximum(n_arc, n_fld)
@@ -160,6 +187,9 @@ def render_chain_program(program: GProgram, vertices: list, header=()) -> str:
     """The program with each compensated move's (compensated) vertices ``vertices[i]`` (m_i, k);
     every other line byte for byte (:func:`compensation.gcode.render_program`); kept canned cycles
     written back as cycles (:func:`compensation.nc_cycles.render_kept`)."""
+    if program.tcp is not None:
+        from .tcp import render_tcp
+        return render_tcp(program, vertices, header=header)
     if getattr(program.expanded, "mode", None) == "keep":
         from .nc_cycles import render_kept
         return render_kept(program, vertices, header=header)

@@ -221,6 +221,10 @@ class MachineTool:
     spindle: dict | None = None
     """``[spindle]`` of the file (a lathe's work spindle): ``axis`` (its rotary axis word),
     ``turning_on`` / ``turning_off`` (the M codes that start turning and end it); None without one."""
+    tcp: dict | None = None
+    """``[tcp]`` of the file: ``switch_on`` / ``switch_off`` (tuples of M code numbers) that switch the
+    controller's tool-centre-point kinematics on and off (LinuxCNC's switchable kinematics, remapped M
+    codes); None without one (:mod:`compensation.tcp`)."""
 
     # -- names and sizes ----------------------------------------------------------------------
     @property
@@ -767,7 +771,7 @@ def _has_marker(items, word) -> bool:
 
 def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     """Validate a parsed ``kind = "machine-tool"`` file and compile its chain (``docs/machines.md``)."""
-    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle"), "", path)
+    check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle", "tcp"), "", path)
     m = check_table(doc, "machine", path)
     check_known_keys(m, ("kind", "name", "schema", "description"), "machine", path)
     name = m.get("name", "machine-tool")
@@ -819,7 +823,30 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     return MachineTool(name=name, axes=mt_axes, slots=slot_list, chain=chain, work_ets=tuple(work_n),
                        tool_ets=tuple(tool_n), targets=targets, geometry=geometry, body_index=body_index,
                        path=str(path), sha256=sha, description=str(m.get("description", "")),
-                       spindle=_spindle(doc.get("spindle"), path, mt_axes))
+                       spindle=_spindle(doc.get("spindle"), path, mt_axes), tcp=_tcp(doc.get("tcp"), path, mt_axes))
+
+
+def _tcp(t, path, axes):
+    """``[tcp]``: ``switch_on`` / ``switch_off`` lists of M codes (``"M428"``) that switch the controller's
+    tool-centre-point kinematics on and off; the codes are the machine's configuration, so they live in its
+    file. A machine without a rotary axis has no TCP mode."""
+    if t is None:
+        return None
+    if not isinstance(t, dict):
+        raise MachineFileError(f"{path}: 'tcp': expected a table")
+    check_known_keys(t, ("switch_on", "switch_off"), "tcp", path)
+    if not any(a.kind != "linear" for a in axes):
+        raise MachineFileError(f"{path}: 'tcp': the machine has no rotary axis (tool-centre-point kinematics need one)")
+    out = {}
+    for k in ("switch_on", "switch_off"):
+        v = t.get(k)
+        if not (isinstance(v, list) and v and all(isinstance(c, str) and re.fullmatch(r"M\d+", c) for c in v)):
+            raise MachineFileError(f"{path}: key 'tcp.{k}': expected a list of M codes like [\"M428\"], "
+                                   f"got {short_repr(v)}")
+        out[k] = tuple(int(c[1:]) for c in v)
+    if set(out["switch_on"]) & set(out["switch_off"]):
+        raise MachineFileError(f"{path}: 'tcp': an M code both switches TCP on and off")
+    return out
 
 
 def _spindle(t, path, axes):

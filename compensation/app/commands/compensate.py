@@ -106,6 +106,10 @@ def register(sub):
                    help="machine-tool chains whose solver moves a rotary axis (lathe-xzc's C): refuse a point whose "
                         "compensated rotary command differs from the programmed one by more than DEG (default: only "
                         "the ball's bound asin(ball/r), r the target's distance from the axis)")
+    p.add_argument("--compensate-orientation", action="store_true",
+                   help="five-axis machine-tool chains with an element-set model: compensate the tool's orientation "
+                        "too, with the rotary axes (written back as corrected rotary words; a point whose "
+                        "orientation error the rotary axes cannot turn out keeps them, counted in the summary)")
     p.add_argument("--dialect", default="auto", choices=("auto", *DIALECT_NAMES),
                    help="the controller the G-code is written for: its harmless M codes, program numbers, look-ahead "
                         "and block-delete rules (compensation/dialects.py); auto (default): recognised from the "
@@ -173,7 +177,8 @@ def chain_settings(machine, args, allow):
                          work_offsets=(read_work_offsets(args.work_offsets)
                                        if getattr(args, "work_offsets", None) is not None else None),
                          tool_table=read_tool_table(args.tool_table) if getattr(args, "tool_table", None) else None,
-                         cycles="expand" if getattr(args, "expand_cycles", False) else "keep")
+                         cycles="expand" if getattr(args, "expand_cycles", False) else "keep",
+                         orientation=bool(getattr(args, "compensate_orientation", False)))
 
 
 def run(args) -> int:

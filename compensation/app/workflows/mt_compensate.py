@@ -94,6 +94,7 @@ class ChainSettings:
     work_offsets: object = None  # compensation.nc_state.WorkOffsets (None: not given)
     tool_table: object = None    # compensation.nc_state.ToolTable (None: not given)
     cycles: str = "keep"         # canned cycles: "keep" (holes compensated) or "expand" (compensation.nc_cycles)
+    orientation: bool = False    # the tool's orientation compensated too, by the rotary axes (compensation.tcp)
 
 
 def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
@@ -123,7 +124,8 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
     columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
     partial = len(columns) < k
     job = plan_chain_gcode(prog, s.arc_tolerance_um,
-                           ColumnsField(field_, columns, k) if partial and field_ is not None else field_, frames)
+                           ColumnsField(field_, columns, k) if partial and field_ is not None else field_, frames,
+                           machine=machine)
     tool_mm = job.tool_mm
     if turning is not None and turning.any() and np.isfinite(tool_mm).any():
         raise UsageError(f"{path}: G43 tool lengths while the spindle turns: turning mode compensates X and Z with "
@@ -137,6 +139,11 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
     shift = full(job.shift, 0.0)
     axes = full(job.axes, 0.0) + shift  # the spindle's C never commanded: a placeholder 0 (solved over the turn)
     kept_machine = full(job.kept_machine_axes, np.nan)
+    if prog.tcp is not None:  # tool-centre-point lines: the tip through the chain's nominal inverse
+        axes = prog.tcp.place(machine, prog, frames, job.lines - 1, job.axes)
+        known = np.isfinite(job.kept_axes).all(axis=1) if len(job.kept_lines) else np.zeros(0, bool)
+        if known.any():
+            kept_machine[known] = prog.tcp.place(machine, prog, frames, job.kept_lines[known] - 1, job.kept_axes[known])
     if turning is not None:
         comp = np.array([t for m, t in zip(prog.moves, turning) if m.compensate], dtype=bool)
         turning = np.repeat(comp, [len(v) for v in job.vertices])
@@ -158,6 +165,16 @@ def _render(tp: ChainPath, axes, machine, comments) -> str:
         verts.append(axes[s:s + len(v)])
         s += len(v)
     return render_chain_program(job.program, verts, header=comments)
+
+
+def _program_axes(tp: ChainPath, axes, machine) -> np.ndarray:
+    """The program axes to write for the compensated machine ``axes`` (n, k): minus the work offset and tool
+    length shift; in TCP form on tool-centre-point lines (:mod:`compensation.tcp`)."""
+    out = axes - tp.shift if tp.shift is not None else axes
+    tcp = tp.source.program.tcp if tp.kind == "gcode" else None
+    if tcp is None:
+        return out
+    return tcp.program_axes(machine, tp.source.program, tp.source.frames, tp.lines - 1, axes, out)
 
 
 def _line(tp: ChainPath, line):
@@ -256,6 +273,46 @@ def cutter_radius_bound_um(field_, machine, tp: ChainPath):
             G[:, :, c] = (f.predict(q + d) - f.predict(q - d)) / (2 * CUTTER_STEP_MM)
         out = max(out, float((np.linalg.norm(G, ord=2, axis=(1, 2)) * r[idx]).max()))
     return out
+
+
+def orientation_pass(field_, truth, machine, tp: ChainPath, res, targets, true_r):
+    """``--compensate-orientation``: tool tip and tool axis compensated with every axis
+    (:func:`compensation.tcp.compensate_orientation`); the TRUE position residual recomputed at the new axes."""
+    from ...tcp import compensate_orientation
+    if not res.info.get("kept_axes"):
+        raise UsageError(f"--compensate-orientation: the solver keeps no rotary axis on {machine.name!r} (it moves "
+                         f"{', '.join(res.info.get('compensated_axes', []))}): there is no tool orientation to "
+                         "compensate; leave it out")
+    tool = np.full(len(tp.axes), np.nan) if tp.tool_mm is None else np.asarray(tp.tool_mm, float)
+    try:
+        res, _ = compensate_orientation(field_, machine, tp.axes, tool, res, targets)
+    except TypeError as exc:
+        raise UsageError(f"--compensate-orientation: {exc}") from None
+    if truth is None:
+        return res, true_r
+    out = np.empty_like(true_r)
+    keys = np.where(np.isfinite(tool), tool, -np.inf)
+    for key in np.unique(keys):
+        idx = np.flatnonzero(keys == key)
+        mt = machine if not np.isfinite(key) else machine_with_tool(machine, float(key))
+        tr = truth if not np.isfinite(key) else field_with_tool(truth, mt)
+        out[idx] = true_residual_um(tr, mt, res.axes[idx], targets[idx])
+    return res, out
+
+
+def tcp_entry(tp: ChainPath, res, machine, truth) -> dict:
+    """The summary's ``tcp`` entry of a program with tool-centre-point or G93 words (:func:`compensation.tcp.report`):
+    with a truth element set, the TRUE orientation residual of the TCP points before/after (μrad)."""
+    from ...tcp import orientation_residual_urad, report
+    tcp = tp.source.program.tcp
+    on = tcp.active(tp.lines - 1) if tcp is not None else np.ones(len(tp.lines), bool)
+    before = after = None
+    if truth is not None and on.any():
+        tool = tp.tool_mm[on]
+        after = orientation_residual_urad(truth, machine, res.axes[on], tp.axes[on], tool)
+        before = orientation_residual_urad(truth, machine, tp.axes[on], tp.axes[on], tool)
+    solved = res.info.get("orientation_solved")
+    return report(tcp, on, before, after, None if solved is None else np.asarray(solved)[on])
 
 
 def cycle_report(tp: ChainPath, res, true_r, true_base):
@@ -392,6 +449,8 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
         turning = tp.turning if tp.turning is not None and tp.turning.any() else None
         if turning is None:
             res, targets, true_r, true_base = solve_by_tool(s.method, field_, truth, machine, tp, **seeded, **limit)
+            if s.orientation:
+                res, true_r = orientation_pass(field_, truth, machine, tp, res, targets, true_r)
         else:
             from ...solvers import solve
             from ...solvers.base import BALL_RADIUS_UM
@@ -452,6 +511,8 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
                           "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids,
                           "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
                           "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
+            if job.program.tcp is not None or s.orientation or (truth is not None and res.info.get("kept_axes")):
+                entry["tcp"] = tcp_entry(tp, res, machine, truth)
             cyc = cycle_report(tp, res, true_r, true_base)
             if cyc is not None:
                 entry["cycles"] = cyc
@@ -480,7 +541,7 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
             if tp.kind == "gcode" and s.work_offsets is not None and s.work_offsets.source == MACHINE:
                 comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
             comments = verdict_notes(verdict) + comments   # a failed verdict used on request: said in the program
-            text = _render(tp, res.axes - tp.shift if tp.shift is not None else res.axes, machine, comments)
+            text = _render(tp, _program_axes(tp, res.axes, machine), machine, comments)
         outcomes.append((p, dst, tp, entry, text, listed, kept if refused else []))
         status = "REFUSED (not written)" if refused else f"-> {dst}"
         tail = ""

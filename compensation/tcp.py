@@ -1,0 +1,620 @@
+"""5-axis programs in tool-centre-point (TCP) mode, and inverse-time feed (``G93``), on machine-tool chains.
+
+In TCP mode a program's ``X Y Z`` are the **tool tip in the workpiece frame** — the frame that turns with
+the rotary table — and its rotary words the axes' positions; the controller runs the nominal inverse
+kinematics of its machine to find the linear axes. The words that switch it, by controller (each from its
+manual; a word is read only in its dialect, ``--dialect``):
+
+=====================  ==========================================  =====================================
+dialect                on                                          off
+=====================  ==========================================  =====================================
+fanuc, siemens-iso     ``G43.4 Hn`` (type 1), ``G43.5 Hn``         ``G49`` (or a plain ``G43``)
+haas                   ``G234`` with ``Hn`` or an active ``G43 Hn``  ``G49`` (or a plain ``G43``)
+heidenhain-iso         ``M128`` (the tool of the last ``T`` call)  ``M129``
+siemens-iso            ``TRAORI`` / ``TRAORI(1)`` on a line alone  ``TRAFOOF``
+                       (the tool ``T`` with its edge ``D1``)
+any (the machine's)    the machine file's ``[tcp] switch_on``      ``[tcp] switch_off``
+                       (LinuxCNC switchable kinematics ``M428``,   (``M429``)
+                       tool length: the active ``G43 Hn``)
+=====================  ==========================================  =====================================
+
+Fanuc's ``G43.5`` with a tool-direction vector ``I J K`` leaves the rotary positions to the controller
+(two solutions): refused; so are a TCP word on a machine without a rotary axis, TCP without a tool length,
+a rotary work offset under TCP, and ``TRAORI`` with parameters. Heidenhain's ``T`` call and Siemens' ``D1``
+activate the tool's length (the reader records them as a tool length offset, like ``G43 Hn``).
+
+How a TCP point is compensated: its tip ``p = program X Y Z + work offset`` (mm, workpiece frame) and its
+rotary axes as programmed are placed in the machine by the chain's nominal inverse at the tool's length
+(:func:`tcp_axes`; :meth:`errormap.mt_chain.MachineTool.inverse` with the rotary axes kept); the exact
+chain solver compensates there like any other point; the compensated axes are written back in TCP form —
+the nominal tip they reach, minus the work offset, with the rotary words as programmed (:func:`tip_words`):
+the controller's inverse of that tip is the compensated axes. The controller's TCP kinematics are taken to
+be the machine file's nominal chain.
+
+``G93`` (inverse time, every ``G1/G2/G3`` carries ``F`` = 1 / minutes of the block) is accepted on chains:
+a block split into ``m`` pieces at equal steps of its parameter gets ``F·m`` on every piece, so the block
+takes the programmed time (:func:`inverse_time_lines`); a feed move under ``G93`` without ``F`` is refused.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from errormap.io import InputError
+
+TCP_G = {"G43.4": ("fanuc", "siemens-iso"), "G43.5": ("fanuc", "siemens-iso"), "G234": ("haas",)}
+"""TCP-on G codes and the dialects that read them (off: ``G49`` or a plain ``G43``)."""
+TCP_M = {128: ("heidenhain-iso", "on"), 129: ("heidenhain-iso", "off")}
+"""Heidenhain's TCPM M codes (ISO programs)."""
+SIEMENS_LINE = re.compile(r"[ \t]*(?:N\d+[ \t]*)?(TRAORI(?:[ \t]*\([ \t]*1?[ \t]*\))?|TRAFOOF)[ \t]*(?:;.*)?\r?",
+                          re.IGNORECASE)
+SIEMENS_OTHER = re.compile(r"[ \t]*(?:N\d+[ \t]*)?TRAORI\b", re.IGNORECASE)
+TRIGGER = rb"(?i)G[ \t]*0*(?:43[ \t]*\.[ \t]*[45]|234|93)(?![0-9.])|M[ \t]*0*12[89](?![0-9.])|TRA(?:ORI|FOOF)"
+"""Bytes that may hold a word of this module; a program without any is read without the pre-pass."""
+INVERSE_TIME_DECIMALS = 6
+"""Decimals of a rewritten inverse-time F (1e-6 per minute: a block's time is kept to < 1e-6 relative)."""
+INVERSE_TOL_MM = 1e-10
+"""The nominal inverse's tip tolerance (it is affine in the linear axes on an XYZ + rotary chain)."""
+
+
+@dataclass
+class TcpProgram:
+    """What the TCP pre-pass found in a program. ``on`` (L,) bool per source line: TCP active for a move
+    there; ``inverse_time`` (L,) bool: G93 active; ``switch`` (L,) the (line, column, word) that switched
+    TCP on for each line (None off); ``words`` the TCP words seen; ``tool_events`` the tool calls recorded
+    for the reader (Heidenhain ``T``, Siemens ``D1``); ``lines`` the original lines (written back)."""
+
+    on: np.ndarray
+    inverse_time: np.ndarray
+    switch: list
+    words: list
+    tool_events: list
+    lines: list
+    _machines: dict = field(default_factory=dict, repr=False)
+
+    def active(self, lines0) -> np.ndarray:
+        return self.on[np.asarray(lines0, dtype=np.int64)]
+
+    def machine_at(self, machine, length_mm: float):
+        """The machine with its tool at ``length_mm`` (built once per length)."""
+        from .nc_state import machine_with_tool
+        key = float(length_mm)
+        if key not in self._machines:
+            self._machines[key] = machine_with_tool(machine, key)
+        return self._machines[key]
+
+    def place(self, machine, program, frames, lines0, q_prog) -> np.ndarray:
+        """Machine axes (n, k) of program axes ``q_prog`` (n, k) on 0-based ``lines0`` (n,): TCP lines by
+        :func:`tcp_axes`, the others by the work offset and tool length shift."""
+        lines0 = np.asarray(lines0, dtype=np.int64)
+        words = program.axis_words.words
+        out = np.asarray(q_prog, dtype=float) + frames.shift(lines0, words)
+        on = self.active(lines0)
+        if on.any():
+            off, tool = frames.at(lines0[on])
+            out[on] = tcp_axes(self, machine, program, lines0[on], np.asarray(q_prog, float)[on], off, tool)
+        return out
+
+    def program_axes(self, machine, program, frames, lines0, axes, fallback) -> np.ndarray:
+        """Program axes (n, k) to write for machine ``axes`` (n, k) on ``lines0``: TCP lines in TCP form
+        (:func:`tip_words`), the others ``fallback`` (n, k)."""
+        out = np.array(fallback, dtype=float)
+        on = self.active(lines0)
+        if on.any():
+            off, tool = frames.at(np.asarray(lines0)[on])
+            out[on] = tip_words(self, machine, axes[on], off, tool)
+        return out
+
+
+def _refuse(path, line0, col, msg):
+    return InputError(f"{path}: line {line0 + 1}, column {col}: {msg}")
+
+
+def _blank(body: str, start: int, end: int, keep: str = "") -> str:
+    """``body`` with ``[start, end)`` replaced by ``keep`` padded with spaces (columns unchanged)."""
+    return body[:start] + keep.ljust(end - start) + body[end:]
+
+
+def tcp_prepass(path, data: bytes, dialect_name: str, machine):
+    """Find TCP and G93 words in a program (module docstring): ``(bytes for the reader, TcpProgram)`` with
+    each TCP / G93 word blanked in place (columns kept; the plain ``G43`` of a ``G43.4 Hn`` kept for the
+    tool length), or ``(data, None)`` where the program has none. Refuses (InputError, file, line,
+    column) what has no exact meaning."""
+    from .gcode import _Refuse, split_lines, tokenize
+    codes = "|".join(f"M0*{c}" for c in sorted(set((machine.tcp or {}).get("switch_on", ()))
+                                                 | set((machine.tcp or {}).get("switch_off", ()))))
+    if dialect_name != "heidenhain-iso" and re.search(TRIGGER + (rb"|" + codes.encode() if codes else b""), data) is None:
+        return data, None  # the common case: no word of this module (the reader keeps its bulk speed)
+    text = data.decode("latin-1")
+    lines = split_lines(text)
+    rotary = [a for a in machine.axes if a.kind != "linear"]
+    n = len(lines)
+    on = np.zeros(n, bool)
+    g93 = np.zeros(n, bool)
+    switch = [None] * n
+    words, tool_events, out = [], [], []
+    state = {"tcp": None, "g93": False, "tool": None, "t": None, "edge": False, "incremental": False}
+    found = False
+    for i, line in enumerate(lines):
+        body = line.rstrip("\r\n")
+        ending = line[len(body):]
+        if dialect_name == "heidenhain-iso":
+            framed = _heidenhain_block(body)
+            found |= framed != body
+            body = framed
+        m = SIEMENS_LINE.fullmatch(body)
+        if m is None and SIEMENS_OTHER.match(body):
+            raise _refuse(path, i, body.upper().index("TRAORI") + 1, "'TRAORI' with parameters (orientation offsets, "
+                          "another transformation number): not interpretable exactly; write TRAORI or TRAORI(1)")
+        if m is not None:
+            word = m.group(1).upper()
+            found = True
+            _need_dialect(path, i, m.start(1) + 1, word, ("siemens-iso",), dialect_name)
+            if word.startswith("TRAORI"):
+                _switch_on(path, i, m.start(1) + 1, "TRAORI", rotary, machine, state)
+                if state["t"] is None or not state["edge"]:
+                    raise _refuse(path, i, m.start(1) + 1, "'TRAORI' with no tool length: call the tool with T n "
+                                  "and its edge D1 before it (the length comes from --tool-table)")
+                words.append("TRAORI")
+            else:
+                state["tcp"] = None
+            out.append(_blank(body, m.start(1), m.end(1)) + ending)
+            _mark(i, state, on, g93, switch)
+            continue
+        try:
+            _, toks, _ = tokenize(body)
+        except _Refuse:
+            out.append(line)  # the reader refuses it with its own words
+            _mark(i, state, on, g93, switch)
+            continue
+        new, hit, codes = _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words)
+        found |= hit
+        new = _tool_calls(path, i, toks, new, dialect_name, state, tool_events)
+        if state["g93"]:
+            _check_inverse_time(path, i, toks, codes, state)
+        out.append(new + ending)
+        _mark(i, state, on, g93, switch)
+    if not found:
+        return data, None
+    return "".join(out).encode("latin-1"), TcpProgram(on, g93, switch, words, tool_events, lines)
+
+
+HEIDENHAIN_FRAME = re.compile(r"([ \t]*(?:N\d+[ \t]*)?)%[ \t]*\w+[ \t]+G7([01])[ \t]*\*[ \t]*\r?")
+HEIDENHAIN_END = re.compile(r"\*[ \t]*\r?$")
+
+
+def _heidenhain_block(body: str) -> str:
+    """A Heidenhain DIN/ISO block as the reader reads it: the ``%NAME G71 *`` / ``%NAME G70 *`` framing lines
+    as ``G21`` / ``G20`` (mm / inch), the ``*`` block end blanked (columns kept)."""
+    m = HEIDENHAIN_FRAME.fullmatch(body)
+    if m is not None:
+        g = m.group(0).index("G7", len(m.group(1)))
+        return " " * g + ("G21" if m.group(2) == "1" else "G20") + " " * (len(body) - g - 3)
+    e = HEIDENHAIN_END.search(body.split(";")[0].split("(")[0])
+    return body if e is None else _blank(body, e.start(), e.start() + 1)
+
+
+def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words):
+    """The TCP / G93 / tool-length words of one tokenised line: the state updated, the line returned with its
+    TCP and G93 words blanked, whether it held one, and its G and M words by code (``(body, found, codes)``)."""
+    found = False
+    switch_on = set((machine.tcp or {}).get("switch_on", ()))
+    switch_off = set((machine.tcp or {}).get("switch_off", ()))
+    new = body
+    codes = {}
+    for w in toks:
+        if w.letter in "GM":
+            codes[w.code] = w
+    for code, w in codes.items():
+        if code in ("G90", "G91"):
+            state["incremental"] = code == "G91"
+        if code in TCP_G:
+            found = True
+            _need_dialect(path, i, w.start + 1, code, TCP_G[code], dialect_name)
+            h = next((t for t in toks if t.letter == "H"), None)
+            if h is None and not (code == "G234" and state["tool"] is not None):
+                raise _refuse(path, i, w.start + 1, f"'{code}' without H (the tool length): write '{code} Hn' "
+                              "with the tool table's number n (--tool-table)")
+            if code == "G43.5" and any(t.letter in "IJK" for t in toks):
+                raise _refuse(path, i, w.start + 1, "'G43.5' with a tool-direction vector I J K: the rotary "
+                              "positions are the controller's choice (two solutions); post rotary words (G43.4)")
+            _switch_on(path, i, w.start + 1, code, rotary, machine, state)
+            words.append(code)
+            if h is not None:
+                state["tool"] = int(h.value)
+            new = _blank(new, w.start, w.num_end, "G43" if h is not None else "")
+        elif code == "G43":
+            state["tool"] = int(next(t for t in toks if t.letter == "H").value) if any(
+                t.letter == "H" for t in toks) else state["tool"]
+            if state["tcp"] is not None and state["tcp"][2] in TCP_G:
+                state["tcp"] = None
+        elif code == "G49":
+            state["tool"] = None
+            if state["tcp"] is not None and state["tcp"][2] in TCP_G:
+                state["tcp"] = None
+        elif code in ("G93", "G94", "G95"):
+            if code == "G93":
+                found = True
+                new = _blank(new, w.start, w.num_end)
+            state["g93"] = code == "G93"
+        elif w.letter == "M" and w.value == int(w.value):
+            mv = int(w.value)
+            if mv in switch_on or mv in switch_off:
+                found = True
+                if mv in switch_on:
+                    _switch_on(path, i, w.start + 1, code, rotary, machine, state)
+                    words.append(code)
+                else:
+                    state["tcp"] = None
+                new = _blank(new, w.start, w.num_end)
+            elif mv in TCP_M:
+                found = True
+                _need_dialect(path, i, w.start + 1, code, (TCP_M[mv][0],), dialect_name)
+                if TCP_M[mv][1] == "on":
+                    if state["t"] is None:
+                        raise _refuse(path, i, w.start + 1, "'M128' with no tool length: call the tool with "
+                                      "T n before it (the length comes from --tool-table)")
+                    _switch_on(path, i, w.start + 1, code, rotary, machine, state)
+                    words.append(code)
+                else:
+                    state["tcp"] = None
+                new = _blank(new, w.start, w.num_end)
+    return new, found, codes
+
+
+def _mark(i, state, on, g93, switch):
+    on[i] = state["tcp"] is not None
+    g93[i] = state["g93"]
+    switch[i] = state["tcp"]
+
+
+def _need_dialect(path, i, col, word, dialects, dialect_name):
+    if dialect_name not in dialects:
+        raise _refuse(path, i, col, f"'{word}' (tool-centre-point control) is a word of {', '.join(dialects)}; the "
+                      f"program is read as {dialect_name}: name the controller with --dialect "
+                      f"{dialects[0]}")
+
+
+def _switch_on(path, i, col, word, rotary, machine, state):
+    if not rotary:
+        raise _refuse(path, i, col, f"'{word}': tool-centre-point control on the machine {machine.name!r}, which has "
+                      "no rotary axis (TCP needs a rotary chain; use a 5-axis machine file)")
+    state["tcp"] = (i, col, word)
+
+
+def _tool_calls(path, i, toks, body, dialect_name, state, tool_events):
+    """Heidenhain's ``T n`` call and Siemens' ``D1`` edge activate the tool's length: recorded as tool
+    events (line, column, "tool", n, text) for the reader; Siemens' ``D`` word blanked (the reader takes D
+    only with G41/G42)."""
+    t = next((w for w in toks if w.letter == "T"), None)
+    if dialect_name == "heidenhain-iso" and t is not None:
+        if state["tcp"] is not None:
+            raise _refuse(path, i, t.start + 1, f"'T{t.text}' tool call while M128 is active: reset M128 (M129) "
+                          "before a tool call (Heidenhain)")
+        state["t"] = int(t.value)
+        tool_events.append((i, t.start + 1, "tool", int(t.value), f"T{int(t.value)}"))
+    if dialect_name == "siemens-iso":
+        if t is not None:
+            state["t"], state["edge"] = int(t.value), False
+        d = next((w for w in toks if w.letter == "D"), None)
+        if d is not None and not any(w.letter == "G" and w.code in ("G41", "G42") for w in toks):
+            if state["tcp"] is not None:
+                raise _refuse(path, i, d.start + 1, f"'D{d.text}' while TRAORI is active: not supported")
+            if d.value not in (0.0, 1.0):
+                raise _refuse(path, i, d.start + 1, f"'D{d.text}': a cutting edge other than D1 (its length is not "
+                              "in the tool table); write D1")
+            if d.value == 1.0 and state["t"] is None:
+                raise _refuse(path, i, d.start + 1, "'D1' before any T: the tool's length is not known")
+            state["edge"] = d.value == 1.0
+            value = state["t"] if state["edge"] else None
+            tool_events.append((i, d.start + 1, "tool", value, f"T{value} D1" if value is not None else "D0"))
+            body = _blank(body, d.start, d.num_end)
+    if tool_events and tool_events[-1][0] == i and state["incremental"]:
+        raise _refuse(path, i, tool_events[-1][1], f"'{tool_events[-1][4]}' tool call under G91: the tip's position "
+                      "after a tool call is not determined by the program; program it with G90 (absolute)")
+    return body
+
+
+def _check_inverse_time(path, i, toks, codes, state):
+    """Under G93 every feed move carries F (its time); a G0 needs none."""
+    from .gcode import AXIS_LETTERS
+    motion = [c for c in codes if c in ("G0", "G1", "G2", "G3")]
+    if motion:
+        state["motion"] = motion[-1]
+    has_axes = any(t.letter in AXIS_LETTERS for t in toks)
+    if has_axes and state.get("motion") in ("G1", "G2", "G3") and not any(t.letter == "F" for t in toks):
+        first = next(t for t in toks if t.letter in AXIS_LETTERS)
+        raise _refuse(path, i, first.start + 1, f"{state['motion']} under G93 (inverse time) without F: every feed "
+                      "move needs its time (F = 1/minutes) on its line")
+
+
+def attach(prog, pre: TcpProgram) -> None:
+    """After the reader: the program's original lines back (its TCP / G93 words written as they were), the
+    tool calls among its events, and the pre-pass kept on the program (``prog.tcp``)."""
+    if prog.expanded is not None:
+        raise InputError(f"{prog.path}: tool-centre-point or G93 words in a program whose subprograms, macros or "
+                         "canned cycles were expanded: not supported (post the 5-axis path flat)")
+    check_mode_changes(prog, pre)
+    prog.lines = pre.lines
+    prog.data = None
+    if pre.tool_events:
+        prog.events = tuple(sorted(tuple(prog.events) + tuple(pre.tool_events), key=lambda e: (e[0], e[1])))
+    prog.tcp = pre
+
+
+def check_mode_changes(prog, pre: TcpProgram) -> None:
+    """The first move after TCP switched on or off starts where the other mode left the machine, which the
+    program's coordinates do not say: it must give every axis absolutely and be a kept rapid (``G0`` under
+    ``--rapids keep``: run as written); otherwise refused (file, line, column). So must the first move after a
+    Heidenhain / Siemens tool call give Z absolutely (the tip's height changes with the tool's length)."""
+    words = prog.axis_words.words
+    prev = None
+    for m in prog.moves:
+        state = bool(pre.on[m.index])
+        if prev is not None and state != prev:
+            first = min((w for a, w in m.words.items() if a in words), key=lambda w: w.start)
+            where = f"the first move after tool-centre-point control switched {'on' if state else 'off'}"
+            missing = [a for a in words if a not in m.words]
+            if missing or m.incremental:
+                raise _refuse(prog.path, m.index, first.start + 1,
+                              f"{where} gives {'no ' + ', '.join(missing) if missing else 'incremental words'}: "
+                              "its position in the new mode is not the program's; give every axis absolutely")
+            if m.compensate:
+                raise _refuse(prog.path, m.index, first.start + 1,
+                              f"{where} is compensated but starts where the other mode left the machine (its path "
+                              "is not the program's): position with G0 first (kept under --rapids keep)")
+        prev = state
+    calls = sorted(e[0] for e in pre.tool_events)
+    for line in calls:  # a tool call changes where the program's Z is: the next move gives Z absolutely
+        m = next((m for m in prog.moves if m.index > line), None)
+        if m is not None and ("Z" not in m.words or m.incremental) and "Z" in words:
+            w = min((w for a, w in m.words.items() if a in words), key=lambda w: w.start)
+            raise _refuse(prog.path, m.index, w.start + 1, f"the first move after the tool call on line {line + 1} "
+                          "gives no absolute Z: the tip's height under the new tool length is not the program's")
+
+
+def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm) -> np.ndarray:
+    """Machine axes (n, k) of TCP points: tip ``q_prog[:, linear] + offset`` (workpiece frame, mm), rotary
+    axes as programmed, the linear axes by the chain's nominal inverse at the tool length ``tool_mm`` (n,).
+    Refused (InputError naming the line and the switching word): no tool length, a rotary work offset, a
+    tip the linear axes cannot reach."""
+    lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
+    rot = [j for j, a in enumerate(machine.axes) if a.kind != "linear"]
+    lines0 = np.asarray(lines0, dtype=np.int64)
+    out = np.array(q_prog, dtype=float)
+
+    def where(k):
+        sw = pre.switch[int(lines0[k])]
+        return f"{program.path}: line {int(lines0[k]) + 1}: under '{sw[2]}' (line {sw[0] + 1}, column {sw[1]})"
+
+    bad = np.flatnonzero(~np.isfinite(tool_mm))
+    if bad.size:
+        raise InputError(f"{where(bad[0])}: tool-centre-point control with no tool length active: give 'G43 Hn' "
+                         "(or the dialect's tool call) and the tool in --tool-table")
+    rbad = np.flatnonzero(np.any(np.abs(offset[:, rot]) > 0.0, axis=1)) if rot else np.zeros(0, int)
+    if rbad.size:
+        raise InputError(f"{where(rbad[0])}: a work offset on a rotary axis under tool-centre-point control (the "
+                         "workpiece frame would turn by a controller-specific convention): give rotary offsets 0")
+    out[:, lin] += offset[:, lin]
+    words = tuple(machine.axes[j].word for j in lin)
+    mid = 0.5 * (machine.stroke_lo + machine.stroke_hi)
+    for length in np.unique(tool_mm):
+        idx = np.flatnonzero(tool_mm == length)
+        mt = pre.machine_at(machine, float(length))
+        start = out[idx].copy()
+        start[:, lin] = mid[lin]
+        q, ok = mt.inverse(out[idx][:, lin], start, free=words, tol_mm=INVERSE_TOL_MM)
+        if not ok.all():
+            k = idx[np.argmin(ok)]
+            raise InputError(f"{where(k)}: the tool tip is not reachable by the linear axes at these rotary positions")
+        out[idx] = q
+    return out
+
+
+def tip_words(pre: TcpProgram, machine, axes, offset, tool_mm) -> np.ndarray:
+    """The TCP-form program axes (n, k) of machine ``axes`` (n, k): the nominal tool tip at the tool length
+    ``tool_mm`` (n,) minus the work offset, the rotary axes as they are."""
+    lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
+    out = np.array(axes, dtype=float)
+    for length in np.unique(tool_mm):
+        idx = np.flatnonzero(tool_mm == length)
+        out[np.ix_(idx, lin)] = pre.machine_at(machine, float(length)).nominal(axes[idx]) - offset[np.ix_(idx, lin)]
+    return out
+
+
+# ---------------------------------------------------------------------------- inverse time
+_F_WORD = re.compile(r"F[ \t]*([+-]?(?:\d+(?:\.\d*)?|\.\d+))", re.IGNORECASE)
+
+
+def inverse_time_lines(program, groups) -> list:
+    """Output line groups with every split G93 feed move's F multiplied by its piece count (and written on
+    every piece): ``groups[i]`` the output lines of source line ``i`` (:func:`compensation.gcode.render_program`)."""
+    from .gcode import tokenize
+    pre = program.tcp
+    out = list(groups)
+    for m in program.moves:
+        if not (m.compensate and pre.inverse_time[m.index]) or m.kind == "rapid":
+            continue
+        g = out[m.index]
+        if len(g) == 1:
+            continue
+        _, toks, _ = tokenize(program.lines[m.index].rstrip("\r\n"))
+        f = next(t for t in toks if t.letter == "F")
+        value = f"{f.value * len(g):.{INVERSE_TIME_DECIMALS}f}".rstrip("0").rstrip(".")
+        first = g[0]
+        hit = _F_WORD.search(first, f.start)
+        new = [first[:hit.start(1)] + value + first[hit.end(1):]]
+        for ln in g[1:]:
+            body = ln.rstrip("\r\n")
+            new.append(f"{body} F{value}{ln[len(body):]}")
+        out[m.index] = new
+    return out
+
+
+def render_tcp(program, vertices, header=()) -> str:
+    """:func:`compensation.gcode.render_program` of a program the pre-pass read: the G93 feeds of split moves
+    rewritten (:func:`inverse_time_lines`); in a Heidenhain program every added block ends with ``*`` and the
+    header lines are ``;`` comments after its ``%NAME G71 *`` line."""
+    from .gcode import _comment_safe, _with_header, render_program
+    _, groups = render_program(program, vertices)
+    if program.tcp.inverse_time.any():
+        groups = inverse_time_lines(program, groups)
+    if program.dialect != "heidenhain-iso":
+        return _with_header([ln for g in groups for ln in g], program.notes() + tuple(header))
+    out = []
+    for g in groups:
+        out.append(g[0])
+        for ln in g[1:]:
+            body = ln.rstrip("\r\n")
+            out.append(f"{body} *{ln[len(body):]}")
+    head = [f"; {_comment_safe(h)}\n" for h in program.notes() + tuple(header)]
+    return "".join(out[:1] + head + out[1:])
+
+
+# ---------------------------------------------------------------------------- orientation
+def tool_axis(machine, axes, values=None) -> np.ndarray:
+    """The tool axis (unit, spindle direction) in the workpiece frame, (n, 3), of ``machine`` at ``axes``
+    (n, k) with slot ``values`` (n, P) μm/μrad (None: nominal)."""
+    Rw, _ = machine.side_frames("work", axes, values)
+    Rt, _ = machine.side_frames("tool", axes, values)
+    return np.einsum("nji,nj->ni", Rw, Rt[:, :, 2])
+
+
+def orientation_residual_urad(truth, machine, axes, nominal_axes, tool_mm) -> np.ndarray | None:
+    """TRUE orientation residual (n,) μrad: the angle between the truth machine's tool axis at ``axes`` and the
+    nominal tool axis at ``nominal_axes`` (the programmed orientation), at each point's tool length. None
+    where the truth is not an element set nor a simulated truth without effects (its orientation is not known)."""
+    elements = getattr(truth, "elements", None)
+    sim = getattr(truth, "truth", None)  # simulate --machine's truth.json at the reference conditions
+    if elements is None and sim is not None and not getattr(sim, "effects", None):
+        elements = sim.elements
+    if elements is None:
+        return None
+    out = np.empty(len(axes))
+    keys = np.where(np.isfinite(tool_mm), tool_mm, -np.inf)
+    for key in np.unique(keys):
+        idx = np.flatnonzero(keys == key)
+        from .nc_state import machine_with_tool
+        mt = machine if not np.isfinite(key) else machine_with_tool(machine, float(key))
+        a = tool_axis(mt, axes[idx], elements.values(axes[idx]))
+        b = tool_axis(mt, nominal_axes[idx])
+        out[idx] = np.arcsin(np.clip(np.linalg.norm(np.cross(a, b), axis=1), 0.0, 1.0)) * 1e6
+    return out
+
+
+ORIENT_ROTARY_LIMIT_DEG = 0.05
+"""Largest rotary correction the orientation solve may make (deg): the rotary axes' own errors are tens of
+μrad (0.002°); a larger correction means the orientation error lies along a direction the rotary axes cannot
+turn the tool (near ``A = 0`` the C axis turns the tool about itself) and the point keeps its programmed
+rotary axes (position-only, counted in the summary)."""
+ORIENT_TOL_URAD = 0.01
+"""The orientation solve's convergence on the MODEL's tool axis (μrad)."""
+ORIENT_POS_TOL_UM = 1e-4
+"""... and on the MODEL's tool tip (μm)."""
+ORIENT_STEPS = {"linear": 1e-3, "rotary": 1e-4}
+"""Central-difference steps of the orientation solve's Jacobian (mm, deg): the model varies over tens of mm /
+degrees, so their h² error is far below the tolerances."""
+ORIENT_MAX_ITER = 8
+
+
+def _pose_residual(field_, machine, q, targets, directions) -> np.ndarray:
+    """MODEL tool tip minus target (μm) and MODEL tool axis minus the programmed one (μrad), (n, 6)."""
+    p = machine.nominal(q) + 1e-3 * field_.predict(q)
+    n = tool_axis(machine, q, field_.elements.values(q))
+    return np.concatenate([(p - targets) * 1e3, (n - directions) * 1e6], axis=1)
+
+
+def solve_orientation(field_, machine, axes0, targets, directions) -> tuple:
+    """Tool tip AND tool axis compensated with all five axes (Gauss-Newton over the MODEL, an element set at
+    the tool's length: ``field_`` a :class:`errormap.mt_field.ChainField` on ``machine``), from the
+    position-only solution ``axes0`` (n, k); ``targets`` (n, 3) mm the programmed tips, ``directions`` (n, 3)
+    the programmed tool axes (nominal, at the programmed axes). Returns ``(axes (n, k), solved (n,) bool)``:
+    a point that does not converge or needs a rotary correction over :data:`ORIENT_ROTARY_LIMIT_DEG` keeps
+    ``axes0`` (solved False)."""
+    rot = np.array([a.kind != "linear" for a in machine.axes])
+    h = np.where(rot, ORIENT_STEPS["rotary"], ORIENT_STEPS["linear"])
+    q = np.array(axes0, dtype=float)
+    k = q.shape[1]
+    for _ in range(ORIENT_MAX_ITER):
+        r = _pose_residual(field_, machine, q, targets, directions)
+        J = np.empty(r.shape + (k,))
+        for j in range(k):
+            d = np.zeros(k)
+            d[j] = h[j]
+            J[:, :, j] = (_pose_residual(field_, machine, q + d, targets, directions)
+                          - _pose_residual(field_, machine, q - d, targets, directions)) / (2 * h[j])
+        JtJ = np.einsum("nij,nik->njk", J, J)
+        g = np.einsum("nij,ni->nj", J, r)
+        scale = np.sqrt(np.einsum("njj->nj", JtJ)) + 1e-300
+        A = JtJ / scale[:, :, None] / scale[:, None, :] + 1e-12 * np.eye(k)
+        dq = -np.linalg.solve(A, (g / scale)[:, :, None])[:, :, 0] / scale
+        q += dq
+        if np.abs(dq).max() < 1e-12:
+            break
+    r = _pose_residual(field_, machine, q, targets, directions)
+    ok = ((np.linalg.norm(r[:, :3], axis=1) <= ORIENT_POS_TOL_UM) & (np.linalg.norm(r[:, 3:], axis=1) <= ORIENT_TOL_URAD)
+          & (np.abs(q[:, rot] - axes0[:, rot]).max(axis=1) <= ORIENT_ROTARY_LIMIT_DEG))
+    q[~ok] = axes0[~ok]
+    return q, ok
+
+
+def compensate_orientation(field_, machine, tp_axes, tool_mm, res, targets):
+    """:func:`solve_orientation` over every point of a solved file at its tool length (NaN: the machine file's
+    tool): ``(SolveResult with the new axes, commands and MODEL position residual, solved (n,) bool)``.
+    ``field_`` must be an element set (``TypeError`` otherwise: only an element set gives the tool's
+    orientation)."""
+    import dataclasses
+
+    from errormap.mt_field import ChainField
+
+    from .nc_state import field_with_tool, machine_with_tool
+    if not isinstance(field_, ChainField):
+        raise TypeError(f"the model is a {type(field_).__name__}: the tool's orientation error needs an element set")
+    axes = np.array(res.axes, dtype=float)
+    solved = np.zeros(len(axes), bool)
+    commands = np.array(res.commands_mm, dtype=float)
+    resid = np.array(res.residual_um, dtype=float)
+    keys = np.where(np.isfinite(tool_mm), tool_mm, -np.inf)
+    for key in np.unique(keys):
+        idx = np.flatnonzero(keys == key)
+        mt = machine if not np.isfinite(key) else machine_with_tool(machine, float(key))
+        f = field_ if not np.isfinite(key) else field_with_tool(field_, mt)
+        q, ok = solve_orientation(f, mt, axes[idx], targets[idx], tool_axis(mt, tp_axes[idx]))
+        axes[idx], solved[idx] = q, ok
+        commands[idx] = mt.nominal(q)
+        resid[idx] = (commands[idx] - targets[idx]) * 1e3 + f.predict(q)
+    out = dataclasses.replace(res, axes=axes, commands_mm=commands, residual_um=resid,
+                              correction_um=np.linalg.norm((commands - targets) * 1e3, axis=1),
+                              info={**res.info, "orientation_solved": solved,
+                                    "compensated_axes": list(machine.axis_columns), "kept_axes": [],
+                                    "note": ("tool tip and tool orientation compensated with every axis "
+                                             f"({', '.join(machine.axis_columns)}); {int((~solved).sum())} point(s) "
+                                             "whose orientation error the rotary axes cannot turn out within "
+                                             f"{ORIENT_ROTARY_LIMIT_DEG:g} deg keep the programmed rotary axes "
+                                             "(position only)")})
+    return out, solved
+
+
+def report(pre: TcpProgram, points_on: np.ndarray, before_urad=None, after_urad=None, solved=None) -> dict:
+    """The summary's ``tcp`` entry (``pre`` None: a joint-mode program compensated with its orientation:
+    ``points_on`` every point)."""
+    out = {"words": sorted(set(pre.words)) if pre else [], "points": int(points_on.sum()),
+           "inverse_time_lines": int(pre.inverse_time.sum()) if pre else 0,
+           "form": "TCP points written in TCP form: tool tip X Y Z in the workpiece frame (compensated), rotary "
+                   "words as programmed (or as corrected with --compensate-orientation)"}
+    def st(v):
+        return {"max_urad": float(v.max()), "rms_urad": float(np.sqrt(np.mean(v ** 2)))}
+    if before_urad is not None:
+        out["orientation"] = ("angle between the truth's tool axis and the programmed one (urad); without "
+                              "--compensate-orientation the rotary axes are kept and leave it as it was")
+        out["true_orientation"] = st(after_urad)
+        out["true_orientation_uncompensated"] = st(before_urad)
+    if solved is not None:
+        out["orientation_solved_points"] = int(solved.sum())
+        out["orientation_kept_points"] = int((~solved).sum())
+        if before_urad is not None and solved.any():
+            out["true_orientation_solved"] = st(after_urad[solved])
+            out["true_orientation_solved_uncompensated"] = st(before_urad[solved])
+    return out
