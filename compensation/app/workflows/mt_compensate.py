@@ -125,6 +125,7 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
     k = len(machine.axes)
     columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
     partial = len(columns) < k
+
     def nominal(a):  # the tool point of program-column axes (m, len(columns)): a lathe's C never commanded is 0
         q = np.zeros((len(a), k))
         q[:, columns] = a
