@@ -7,13 +7,16 @@ by content), then the model (an element set of the chain, recognised by content)
 solver (:mod:`compensation.solvers.chain_exact`: the tool-tip position with the linear axes, rotary
 axes kept, said in the summary), the guards (ball, strokes, calibrated volume, convergence;
 ``--allow`` overrides and the override is written into the file and the summary), and the
-accepted files written as one set with ``compensate_summary.json`` last.
+accepted files written as one set with ``compensate_summary.json`` last. The points are solved through
+the grinder's chunk plan and executors (:mod:`compensation.batch`, Ray:
+:mod:`compensation.app.workflows.cluster`; one unit per file and tool length), and moves are split as
+``max_segment_mm`` says (:func:`compensation.mt_gcode.plan_chain_gcode`).
 
 Residuals: the MODEL residual of every file (the solver's own field); with ``truth`` (a truth
 element set of the same chain, given by a tester or a benchmark, never to the solver) also the
 TRUE residual — the tool point the truth machine reaches when driven with the compensated axes,
 minus the target — beside the uncompensated machine's true error (the baseline: the program run
-as written).
+as written), at the vertices and along the linear moves (:func:`true_path_residual_um`).
 """
 from __future__ import annotations
 
