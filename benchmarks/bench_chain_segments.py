@@ -30,7 +30,8 @@ from errormap.mt_elements import ChainElementSet
 
 ROOT = Path(__file__).resolve().parents[1]
 POCKET = ROOT / "tests" / "data" / "mill_pocket.nc"
-LONG = "(ONE LONG MOVE)\nG21 G90 G17\nG0 X100. Y200. Z-300.\nG1 Z-320. F300.\nG1 X500. Y220. Z-330. F1500.\nG0 Z-300.\nM30\n"
+LONG = ("(ONE LONG MOVE)\nG21 G90 G17\nG0 X100. Y200. Z-300.\nG1 Z-320. F300.\nG1 X500. Y220. Z-330. F1500.\n"
+        "G0 Z-300.\nM30\n")
 NOISE_UM = 0.3
 SETTINGS = ("auto", None, 10.0, 2.0, 1.0)
 

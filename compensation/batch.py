@@ -34,7 +34,7 @@ import numpy as np
 
 from errormap.threads import limit_threads
 
-from .solvers import GA_METHODS, SolveResult, solve, solve_function, solver_spec  # GA_METHODS: re-exported for the workflows
+from .solvers import GA_METHODS, SolveResult, solve, solve_function, solver_spec  # GA_METHODS: for the workflows
 from .solvers._converge import merge_stats
 
 CHUNK_POINTS = 65_536

@@ -12,12 +12,14 @@ import pytest
 from compensation.app.cli import main
 from errormap.machine import load_machine
 from errormap.mt_elements import ChainElementSet
+from tests.test_lathe_compensate import LATHE_PROGRAM
+from tests.test_turning import MIXED
 
 DATA = Path(__file__).resolve().parent / "data"
 MILL_PROGRAM = DATA / "mill_pocket.nc"
 
 ELEMENT_SCALE_UM = 10.0
-"""Element values of ±10 μm / μrad (1 σ): a real machine tool's geometric errors (as tests/test_mt_compensate.py)."""
+"""Element values of ±10 μm / μrad (1 σ): a real machine tool's geometric errors (tests/test_mt_compensate.py's)."""
 SMALL_CHUNK = 7
 """Points per chunk in the identity runs: every file cut into many chunks, the last one short."""
 
@@ -54,18 +56,20 @@ def compensate(prog, machine, model, out, *extra, truth=None):
     return json.loads((out / "compensate_summary.json").read_text())
 
 
-@pytest.mark.parametrize("machine, program, seed", [("mill-xyz", None, 101), ("five-axis-ac", FIVE_AXIS_PROGRAM, 7)])
+@pytest.mark.parametrize("machine, program, seed", [
+    ("mill-xyz", None, 101), ("five-axis-ac", FIVE_AXIS_PROGRAM, 7),
+    ("lathe-xzc", LATHE_PROGRAM, 51), ("lathe-xzc", MIXED, 51)])  # C-axis mode; turning + C-axis points
 def test_chunk_points_and_workers_give_the_default_bytes(tmp_path, machine, program, seed, capsys):
     _, model = chain_files(tmp_path, machine, seed)
     prog = MILL_PROGRAM
     if program is not None:
-        prog = tmp_path / "five.nc"
+        prog = tmp_path / "prog.nc"
         prog.write_text(program)
-    default = compensate(prog, machine, model, tmp_path / "default")
+    default = compensate(prog, machine, model, tmp_path / "default", truth=model)  # (the truth: turning points counted)
     chunked = compensate(prog, machine, model, tmp_path / "chunked", "--chunk-points", str(SMALL_CHUNK),
-                         "--workers", "2")
+                         "--workers", "2", truth=model)
     assert (tmp_path / "default" / prog.name).read_bytes() == (tmp_path / "chunked" / prog.name).read_bytes()
-    n = default["files"][0]["points"]
+    n = default["files"][0]["points"] - default["files"][0].get("turning", {}).get("points", 0)  # by the method
     assert default["files"][0]["chunks"] == 1 and chunked["files"][0]["chunks"] == -(-n // SMALL_CHUNK)
     assert chunked["chunk_points"] == SMALL_CHUNK and chunked["solved_on"] == "this process, 2 thread(s)"
 

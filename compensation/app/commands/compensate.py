@@ -220,7 +220,8 @@ def run(args) -> int:
         units=args.units, work_offsets=read_work_offsets(MACHINE) if args.work_offsets == MACHINE else None,
         dialect=args.dialect)  # the shared unit check of CSV paths and conditions (errormap/units.py)
     check_machine_kind(machine.path, machine.kind, "grinder")
-    job = on_executor(args, lambda ex: compensate_files(args.files, machine, settings, on_file=_print_file, executor=ex))
+    job = on_executor(args, lambda ex: compensate_files(args.files, machine, settings, on_file=_print_file,
+                                                        executor=ex))
     if isinstance(job, int):
         return job
     print(f"wrote summary: {job.summary_path}")
