@@ -99,7 +99,8 @@ def compensate_joints(calibration, q, targets_mm=None):
     return solve_joints(geo.chain, geo.params, None, target, q)
 
 
-def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_table=None, **settings) -> dict:
+def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_table=None, executor=None,
+                       **settings) -> dict:
     """Compensate tool-path ``files`` (G-code or axis CSV, by content) of a machine-tool chain with ``model``
     (a model file, folder or MLflow reference: :func:`save_model` writes one) into ``out_dir``, as
     ``volcomp compensate --machine`` does. ``work_offsets``: the controller's work offsets, as
@@ -108,7 +109,9 @@ def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_t
     refused like the CLI refuses it (a controller never runs it at an assumed machine zero).
     ``tool_table``: as ``--tool-table`` (a file or a :class:`compensation.nc_state.ToolTable`).
     ``settings``: the other fields of :class:`compensation.app.workflows.mt_compensate.ChainSettings`
-    (``method="exact"``, ``allow``, ``force``, ``truth`` …). Returns the written
+    (``method="exact"``, ``allow``, ``force``, ``truth``, ``chunk_points``, ``max_segment_mm`` …).
+    ``executor``: where the chunks are solved (:class:`compensation.batch.LocalExecutor` (default), or
+    :class:`compensation.app.workflows.cluster.RayExecutor` entered as a context manager). Returns the written
     ``compensate_summary.json`` as a dict (``files``: per input its residuals, guard counts, output or
     ``refused``)."""
     import json
@@ -124,7 +127,7 @@ def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_t
         tool_table = read_tool_table(tool_table)
     s = ChainSettings(**{"method": "exact", **settings, "model": str(model), "out_dir": Path(out_dir),
                          "work_offsets": work_offsets, "tool_table": tool_table})
-    compensate_chain_files(files, machine, s)
+    compensate_chain_files(files, machine, s, executor=executor)
     return json.loads((Path(out_dir) / SUMMARY_NAME).read_text(encoding="utf-8"))
 
 

@@ -104,6 +104,29 @@ def field_pieces(moves, field, tol_um: float, shift=None, place=None) -> np.ndar
     return np.maximum(1, np.ceil(np.sqrt(c / (8.0 * tol_um)))).astype(int)
 
 
+LENGTH_SAMPLES = 16
+"""Intervals of the tool-point polyline that measures a move's length (:func:`length_pieces`)."""
+
+
+def length_pieces(moves, nominal, max_segment_mm: float, shift=None, place=None) -> np.ndarray:
+    """Pieces per move so that none is longer than ``max_segment_mm`` of tool-point path:
+    ``⌈L / max_segment_mm⌉``, ``L`` the length of the polyline through :data:`LENGTH_SAMPLES` + 1
+    points of the move (a rotary move's tool point sweeps an arc), placed by ``nominal(axes (m, k))
+    -> (m, 3) mm`` (the machine's tool point) after ``shift`` (m, k) per move, or ``place`` as in
+    :func:`field_pieces` (a program in TCP mode). Shape (m,) int ≥ 1."""
+    if not moves:
+        return np.zeros(0, dtype=int)
+    t = np.linspace(0.0, 1.0, LENGTH_SAMPLES + 1)
+    q = np.concatenate([move_points(m, t) for m in moves])
+    if place is not None:
+        q = place(np.repeat([m.index for m in moves], len(t)), q)
+    elif shift is not None:
+        q = q + np.repeat(np.asarray(shift, dtype=float), len(t), axis=0)
+    p = np.asarray(nominal(q), dtype=float).reshape(len(moves), len(t), 3)
+    length = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
+    return np.maximum(1, np.ceil(length / float(max_segment_mm) - 1e-9)).astype(int)
+
+
 @dataclass
 class ChainGCodeJob:
     """A parsed program with the vertices of every compensated move: ``vertices[i]`` (m_i, k)
@@ -142,24 +165,33 @@ class ChainGCodeJob:
         return self.kept_axes + self.frames.shift(self.kept_lines - 1, self.program.axis_words.words)
 
 
-def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, frames=None,
-                     machine=None) -> ChainGCodeJob:
+def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, frames=None, max_segment_mm="auto",
+                     nominal=None, machine=None) -> ChainGCodeJob:
     """Vertices of every compensated move (program coordinates): arcs in chords within
-    ``arc_tolerance_um`` (axis space), and with ``field_`` every move split so the compensation between
-    vertices stays within it too (:func:`field_pieces`, the field taken where ``frames`` — a
-    :class:`compensation.nc_state.ProgramFrames` — puts the move in the machine; a program in TCP mode
-    through ``machine``'s nominal inverse, :mod:`compensation.tcp`)."""
+    ``arc_tolerance_um`` (axis space), and every move split as ``max_segment_mm`` says: ``"auto"``
+    (with ``field_``) so the compensation between vertices stays within the tolerance too
+    (:func:`field_pieces`, the field taken where ``frames`` — a
+    :class:`compensation.nc_state.ProgramFrames` — puts the move in the machine); a length in mm: no
+    piece longer than that along the tool point's path (:func:`length_pieces` with ``nominal``, the
+    machine's tool point of (m, k) program-column axes); None: no splitting. A program in TCP mode is
+    placed through ``machine``'s nominal inverse (:mod:`compensation.tcp`)."""
     comp = [m for m in program.moves if m.compensate]
     tol_mm = arc_tolerance_um * 1e-3
     n_arc = np.array([arc_chords(m, tol_mm) if m.arc is not None else 1 for m in comp], dtype=int)
     with_start = [m for m in comp if np.all(np.isfinite(m.start))]
     n_fld = np.ones(len(comp), dtype=int)
-    if field_ is not None and with_start:
+    if isinstance(max_segment_mm, str) and max_segment_mm != "auto":
+        raise ValueError(f"Expected max_segment_mm 'auto', None or a length in mm, got {max_segment_mm!r}")
+    by_length = max_segment_mm is not None and not isinstance(max_segment_mm, str)
+    if by_length and not (np.isfinite(max_segment_mm) and max_segment_mm > 0 and nominal is not None):
+        raise ValueError(f"Expected a positive max_segment_mm with the machine's nominal, got {max_segment_mm!r}")
+    if with_start and (by_length or (max_segment_mm == "auto" and field_ is not None)):
         shift = frames.shift([m.index for m in with_start], program.axis_words.words) if frames is not None else None
         place = None
         if program.tcp is not None and frames is not None and machine is not None:
             place = partial(program.tcp.place, machine, program, frames)
-        pieces = field_pieces(with_start, field_, arc_tolerance_um, shift, place)
+        pieces = (length_pieces(with_start, nominal, max_segment_mm, shift, place) if by_length
+                  else field_pieces(with_start, field_, arc_tolerance_um, shift, place))
         pos = {id(m): p for m, p in zip(with_start, pieces)}
         n_fld = np.array([pos.get(id(m), 1) for m in comp], dtype=int)
     counts = np.maximum(n_arc, n_fld)

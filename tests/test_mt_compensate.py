@@ -262,9 +262,6 @@ def test_compensate_chain_refuses_other_methods(tmp_path, mill_models, capsys):
     assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method",
                  "traditional", "--out", str(tmp_path / "o")]) == 2
     assert "the methods are ga, batched-ga, exact" in capsys.readouterr().err
-    assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method", "exact",
-                 "--max-segment-mm", "5", "--out", str(tmp_path / "o")]) == 2
-    assert "--max-segment-mm: not available on the machine-tool chain" in capsys.readouterr().err
 
 
 EXPORT_TOLERANCE_UM = 1.0

@@ -106,10 +106,15 @@ def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
     :func:`compensation.solvers.chain_ga.solve_batched_ga_chain`; the tool tip with the chain's three
     linear axes, rotary axes kept, or with exact every axis of a three-axis machine such as a lathe's
     X, Z, C); a method without one is refused (ValueError)."""
-    if getattr(machine, "kind", None) == "machine-tool":
-        return solver_spec(method).chain_function()(field, targets_mm, machine, **options)
-    return get_solver(method)(field, targets_mm, machine, **options)
+    return solve_function(method, machine)(field, targets_mm, machine, **options)
+
+
+def solve_function(method: str, machine):
+    """The function :func:`solve` runs for ``method`` on ``machine`` (the solver's ``chain`` entry on a
+    machine-tool chain); ValueError for an unknown method or one the chain lacks."""
+    spec = solver_spec(method)
+    return spec.chain_function() if getattr(machine, "kind", None) == "machine-tool" else spec.function()
 
 
 __all__ = ["BALL_RADIUS_UM", "CHAIN_METHODS", "GA_METHODS", "METHODS", "SOLVERS", "SolveResult", "Solver", "get_solver", "solve",
-           "solver_spec"]
+           "solve_function", "solver_spec"]

@@ -96,10 +96,10 @@ def converge(field, machine, targets_mm, axes_d, best_um, tol_um: float, ball_um
 def merge_stats(parts) -> dict:
     """Sum of :func:`converge` stats over chunks (``retry_rounds`` and the worst residuals: the
     largest of any chunk)."""
-    out = {"retried": 0, "retry_rounds": 0, "polished": 0, "unconverged": 0, "retry_seconds": 0.0,
-           "worst_before_um": 0.0, "worst_after_um": 0.0}
-    for s in parts:
-        for k in out:
-            most = k in ("retry_rounds", "worst_before_um", "worst_after_um")
-            out[k] = max(out[k], s[k]) if most else out[k] + s[k]
+    keys = ("retried", "retry_rounds", "polished", "unconverged", "retry_seconds", "worst_before_um", "worst_after_um")
+    out = {}
+    for k in (k for k in keys if any(k in s for s in parts)):  # the keys the solver counts (a chain GA: four)
+        most = k in ("retry_rounds", "worst_before_um", "worst_after_um")
+        vals = [s[k] for s in parts if k in s]
+        out[k] = max(vals) if most else sum(vals)
     return out

@@ -33,8 +33,11 @@ The residual reported per file is the MODEL residual (the solver's own field).
 
 A machine-tool chain (``--machine mill-xyz``, ``five-axis-ac`` ...) takes its own axis words and
 CSV columns, ``--method exact`` (Newton on the chain: the tool-tip position with the linear axes,
-rotary axes kept) and, with ``--truth ELEMENTS``, reports the TRUE residual as well
-(:mod:`compensation.app.workflows.mt_compensate`).
+rotary axes kept) and, with ``--truth ELEMENTS``, reports the TRUE residual as well, at the
+vertices and along the moves as the controller interpolates them
+(:mod:`compensation.app.workflows.mt_compensate`). ``--cluster``, ``--workers``,
+``--chunk-points`` and ``--max-segment-mm`` work there as on the grinder: the same chunk plan
+(:mod:`compensation.batch`) and executors.
 """
 from __future__ import annotations
 
@@ -157,17 +160,8 @@ def parse_max_segment(text):
 
 def chain_settings(machine, args, allow):
     """The options of ``compensate`` on a machine-tool chain as its workflow's
-    :class:`~compensation.app.workflows.mt_compensate.ChainSettings`; the options the chain path does
-    not take are refused (never silently ignored)."""
-    from ...batch import CHUNK_POINTS
+    :class:`~compensation.app.workflows.mt_compensate.ChainSettings`."""
     from ..workflows.mt_compensate import ChainSettings
-    unsupported = {"--cluster": getattr(args, "cluster", None), "--workers": getattr(args, "workers", None),
-                   "--max-segment-mm": None if str(args.max_segment_mm).strip().lower() == "auto" else args.max_segment_mm,
-                   "--chunk-points": None if getattr(args, "chunk_points", CHUNK_POINTS) == CHUNK_POINTS else args.chunk_points}
-    given = [k for k, v in unsupported.items() if v is not None]
-    if given:
-        raise UsageError(f"{', '.join(given)}: not available on the machine-tool chain {machine.name!r} (one process; "
-                         "moves split from the field's curvature)")
     conditions = {k: v for k, v in conditions_from_args(args).items() if v is not None}
     return ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
                          rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
@@ -178,7 +172,21 @@ def chain_settings(machine, args, allow):
                                        if getattr(args, "work_offsets", None) is not None else None),
                          tool_table=read_tool_table(args.tool_table) if getattr(args, "tool_table", None) else None,
                          cycles="expand" if getattr(args, "expand_cycles", False) else "keep",
-                         orientation=bool(getattr(args, "compensate_orientation", False)))
+                         orientation=bool(getattr(args, "compensate_orientation", False)),
+                         chunk_points=args.chunk_points, max_segment_mm=parse_max_segment(args.max_segment_mm))
+
+
+def on_executor(args, work):
+    """``work(executor)`` on the executor ``--cluster``/``--workers`` name (this process's threads, or
+    Ray); a cluster that cannot finish: one line and :data:`EXIT_CLUSTER` (nothing was written)."""
+    check_cluster_args(args)
+    try:
+        with open_executor(args) as executor:
+            return work(executor)
+    except ClusterError as exc:
+        print(file=sys.stderr)  # end a progress line
+        print(one_line(f"volcomp compensate: error: {exc}; nothing was written"), file=sys.stderr)
+        return EXIT_CLUSTER
 
 
 def run(args) -> int:
@@ -199,7 +207,8 @@ def run(args) -> int:
                          f"{machine.name!r} is a {machine.kind} machine")
     if machine.kind == "machine-tool":  # a chain file (mill-xyz, five-axis-ac ...): its own axes and G-code words
         from ..workflows.mt_compensate import compensate_chain_files
-        return compensate_chain_files(args.files, machine, chain_settings(machine, args, parse_allow(args.allow)))
+        settings = chain_settings(machine, args, parse_allow(args.allow))
+        return on_executor(args, lambda ex: compensate_chain_files(args.files, machine, settings, executor=ex))
     if args.truth is not None:
         raise UsageError("--truth: the true residual of a compensated program is reported on machine-tool chains; "
                          "for the grinder use `volcomp report --truth`")
@@ -215,15 +224,11 @@ def run(args) -> int:
         max_segment_mm=max_segment, conditions=conditions_from_args(args), chunk_points=args.chunk_points,
         units=args.units, work_offsets=read_work_offsets(MACHINE) if args.work_offsets == MACHINE else None,
         dialect=args.dialect)  # the shared unit check of CSV paths and conditions (errormap/units.py)
-    check_cluster_args(args)
     check_machine_kind(machine.path, machine.kind, "grinder")
-    try:
-        with open_executor(args) as executor:
-            job = compensate_files(args.files, machine, settings, on_file=_print_file, executor=executor)
-    except ClusterError as exc:
-        print(file=sys.stderr)  # end a progress line
-        print(one_line(f"volcomp compensate: error: {exc}; nothing was written"), file=sys.stderr)
-        return EXIT_CLUSTER
+    job = on_executor(args, lambda ex: compensate_files(args.files, machine, settings, on_file=_print_file,
+                                                        executor=ex))
+    if isinstance(job, int):
+        return job
     print(f"wrote summary: {job.summary_path}")
     if job.refused:
         for o in job.refused:

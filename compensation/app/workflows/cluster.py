@@ -3,10 +3,11 @@
 Ray is imported here only, and lazily (``pip install 'volcomp[cluster]'``): nothing in the
 library imports it, and ``volcomp --help`` does not load it.
 
-**Batch compensation** (:class:`RayExecutor`, used by ``volcomp compensate --cluster ray``):
-the chunks of :mod:`compensation.batch` (fixed boundaries, per-chunk seeds) are solved by
-Ray actors, one per worker CPU. Each actor receives the field once (the loaded field and
-machine, serialised into the actor's creation and deserialised in its constructor) and runs
+**Batch compensation** (:class:`RayExecutor`, used by ``volcomp compensate --cluster ray`` on
+every machine with a G-code or CSV tool path): the chunks of :mod:`compensation.batch` (fixed
+boundaries, per-chunk seeds) are solved by Ray actors, one per worker CPU. Each actor receives the
+batch's contexts once (the loaded fields and machines, serialised into the actor's creation and
+deserialised in its constructor) and runs
 torch on one thread; the driver hands out chunks as actors finish, keeps every result in memory, and
 the command then guards, renders and writes atomically on the driver — so a batch leaves
 whole files or none, and its bytes equal the in-process run's. An actor that dies is
@@ -82,10 +83,11 @@ def _parse_fault(text):
 
 
 class ChunkSolver:
-    """A Ray actor's body: the field loaded once, chunks solved on one torch thread."""
+    """A Ray actor's body: the batch's (field, machine) contexts loaded once, chunks solved on one
+    torch thread."""
 
     def __init__(self, payload, fault=None):
-        self.field, self.machine = payload
+        self.contexts = payload
         self.fault = fault
         torch = sys.modules.get("torch")
         if torch is not None:  # else limit_threads(1) sets it when a solver loads torch
@@ -100,7 +102,7 @@ class ChunkSolver:
                 time.sleep(FAULT_AFTER_S)
                 os._exit(17)
         with limit_threads(1):
-            return i, solve_chunk(method, self.field, self.machine, task, options)
+            return i, solve_chunk(method, self.contexts, task, options)
 
     def pid(self):
         return os.getpid()
@@ -188,13 +190,14 @@ class RayExecutor:
                                          max_task_retries=self.max_retries)(ChunkSolver)
         return self._actor_cls
 
-    def run(self, method, field_, machine, tasks, options=None, progress=None) -> list:
-        """Results of ``tasks`` (:class:`compensation.batch.ChunkTask`) in task order."""
+    def run(self, method, contexts, tasks, options=None, progress=None) -> list:
+        """Results of ``tasks`` (:class:`compensation.batch.ChunkTask`) in task order, each solved with
+        its context of ``contexts`` ((field, machine) pairs)."""
         import ray
         from ray.exceptions import RayError, RayTaskError
         if not tasks:
             return []
-        actors = self._actors(field_, machine, len(tasks))
+        actors = self._actors(tuple(contexts), len(tasks))
         results = [None] * len(tasks)
         queue = deque(range(len(tasks)))
         refs = {}
@@ -235,18 +238,18 @@ class RayExecutor:
             raise
         return results
 
-    def _actors(self, field_, machine, n_tasks):
-        """The actors holding this field (made on first use, kept for the session's next batch)."""
+    def _actors(self, contexts, n_tasks):
+        """The actors holding these contexts (made on first use, kept for the session's next batch)."""
         fault = _parse_fault(os.environ.get(FAULT_ENV))
         n = min(self.cpus(), n_tasks)
-        key = (id(field_), id(machine), fault)
+        key = (tuple((id(f), id(m)) for f, m in contexts), fault)
         if self._pool is not None and self._pool[0] == key and len(self._pool[1]) >= n:
             return self._pool[1]
         self._drop_actors()
-        # the field and machine go by value into each actor's creation (a few kB to a few MB): each
+        # the fields and machines go by value into each actor's creation (a few kB to a few MB): each
         # actor deserialises them once, and a restarted actor gets them again from its creation spec
-        actors = [self._actor().remote((field_, machine), fault) for _ in range(n)]
-        self._pool = (key, actors, (field_, machine))  # the objects held: their ids stay theirs
+        actors = [self._actor().remote(contexts, fault) for _ in range(n)]
+        self._pool = (key, actors, contexts)  # the objects held: their ids stay theirs
         return actors
 
     def _drop_actors(self):

@@ -247,6 +247,18 @@ def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, co
     return outcome
 
 
+def progress_callback(points: int, method: str):
+    """``advance(k)``: a progress bar over ``points`` that worker threads may advance by ``k`` points."""
+    bar = Progress(points, f"compensate ({method}, points)", every_s=1.0)
+    lock = threading.Lock()
+
+    def advance(k):
+        with lock:
+            bar.update(k)
+
+    return advance
+
+
 def kernel_modules(method: str) -> list:
     """The modules whose numba kernels a ``compensate`` run with ``method`` compiles on first use:
     the G-code planner's and the solver's own (the batched GA's generation step, the exact
@@ -283,13 +295,7 @@ def compensate_files(files, machine, s: CompensateSettings, on_file=None, execut
     paths = [replan(tp, machine, max_segment_mm=s.max_segment_mm, field=plan_field) for tp in paths]
     conds = [replanned_conditions(c, tp) for c, tp in zip(conds, paths)]
     # solve everything first (nothing is written before all results are back)
-    bar = Progress(sum(len(tp) for tp in paths), f"compensate ({s.method}, points)", every_s=1.0)
-    lock = threading.Lock()
-
-    def advance(k):
-        with lock:
-            bar.update(k)
-
+    advance = progress_callback(sum(len(tp) for tp in paths), s.method)
     results = solve_paths(paths, field_, machine, s, conds, executor=executor, progress=advance)
     outcomes = []
     for (src, dst), tp, cond, res in zip(plan, paths, conds, results):

@@ -7,13 +7,16 @@ by content), then the model (an element set of the chain, recognised by content)
 solver (:mod:`compensation.solvers.chain_exact`: the tool-tip position with the linear axes, rotary
 axes kept, said in the summary), the guards (ball, strokes, calibrated volume, convergence;
 ``--allow`` overrides and the override is written into the file and the summary), and the
-accepted files written as one set with ``compensate_summary.json`` last.
+accepted files written as one set with ``compensate_summary.json`` last. The points are solved through
+the grinder's chunk plan and executors (:mod:`compensation.batch`, Ray:
+:mod:`compensation.app.workflows.cluster`; one unit per file and tool length), and moves are split as
+``max_segment_mm`` says (:func:`compensation.mt_gcode.plan_chain_gcode`).
 
 Residuals: the MODEL residual of every file (the solver's own field); with ``truth`` (a truth
 element set of the same chain, given by a tester or a benchmark, never to the solver) also the
 TRUE residual — the tool point the truth machine reaches when driven with the compensated axes,
 minus the target — beside the uncompensated machine's true error (the baseline: the program run
-as written).
+as written), at the vertices and along the linear moves (:func:`true_path_residual_um`).
 """
 from __future__ import annotations
 
@@ -35,7 +38,8 @@ from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_prog
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool, program_frames, refuse_unknown_frames
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, is_csv
 from ...solvers.chain_exact import nominal_and_jacobian, solved_and_kept
-from .compensate import SUMMARY_NAME, WORK_OFFSETS_MACHINE_NOTE, check_out_dir, plan_outputs
+from ...batch import CHUNK_POINTS, LocalExecutor
+from .compensate import SUMMARY_NAME, WORK_OFFSETS_MACHINE_NOTE, check_out_dir, plan_outputs, progress_callback
 
 DECIMALS = {"mm": 6, "deg": 6}  # 1 nm; 1e-6 deg
 
@@ -95,6 +99,8 @@ class ChainSettings:
     tool_table: object = None    # compensation.nc_state.ToolTable (None: not given)
     cycles: str = "keep"         # canned cycles: "keep" (holes compensated) or "expand" (compensation.nc_cycles)
     orientation: bool = False    # the tool's orientation compensated too, by the rotary axes (compensation.tcp)
+    chunk_points: int = CHUNK_POINTS  # points per chunk of the batch (compensation.batch)
+    max_segment_mm: object = "auto"   # "auto" (the field's curvature), None (no splitting) or a length in mm
 
 
 def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
@@ -123,9 +129,15 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
     k = len(machine.axes)
     columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
     partial = len(columns) < k
+
+    def nominal(a):  # the tool point of program-column axes (m, len(columns)): a lathe's C never commanded is 0
+        q = np.zeros((len(a), k))
+        q[:, columns] = a
+        return nominal_and_jacobian(machine, q)[0]
+
     job = plan_chain_gcode(prog, s.arc_tolerance_um,
                            ColumnsField(field_, columns, k) if partial and field_ is not None else field_, frames,
-                           machine=machine)
+                           max_segment_mm=s.max_segment_mm, nominal=nominal, machine=machine)
     tool_mm = job.tool_mm
     if turning is not None and turning.any() and np.isfinite(tool_mm).any():
         raise UsageError(f"{path}: G43 tool lengths while the spindle turns: turning mode compensates X and Z with "
@@ -192,54 +204,136 @@ def true_residual_um(truth_field, machine, axes, targets_mm) -> np.ndarray:
     return (p - targets_mm) * 1e3 + truth_field.predict(axes)
 
 
-def solve_by_tool(method, field_, truth, machine, tp: ChainPath, **options):
-    """Solve every point of ``tp`` on the chain with its active tool length (one solve per tool:
-    :func:`compensation.nc_state.machine_with_tool`, the field and the truth at that tool point):
-    ``(SolveResult over all points in order, targets (n, 3) mm, TRUE residual (n, 3) μm or None, TRUE
-    residual of the program as written or None)``."""
-    from ...solvers import solve
-    from ...solvers.base import SolveResult
-    n = len(tp.axes)
-    tool = np.full(n, np.nan) if tp.tool_mm is None else np.asarray(tp.tool_mm, float)
+def tool_context(contexts: dict, key: float, field_, truth, machine) -> int:
+    """The index in ``contexts`` ({tool key: (index, field, machine, truth)}) of the chain with the tool
+    length ``key`` mm (-inf: the machine file's own tool, index 0), added on first use
+    (:func:`compensation.nc_state.machine_with_tool`: the field and the truth at that tool point)."""
+    if key not in contexts:
+        try:
+            mt = machine_with_tool(machine, float(key))
+            f = field_with_tool(field_, mt)
+            tr = field_with_tool(truth, mt) if truth is not None else None
+        except (ValueError, TypeError) as exc:
+            raise UsageError(f"--tool-table: tool length {key:g} mm: {exc}") from None
+        contexts[key] = (len(contexts), f, mt, tr)
+    return contexts[key][0]
+
+
+def chain_batch(paths, field_, truth, machine):
+    """The points of ``paths`` as the batch units of :func:`compensation.batch.solve_batch`: one unit per
+    file and tool length (``targets_mm`` (m, 3) the nominal tool points at that tool, ``axes`` (m, k),
+    ``context`` the tool's chain), turning points left out (solved over the turn, not by the method).
+    Returns ``(units, owners, contexts)``: ``owners[u] = (file, point indices)``, ``contexts`` as in
+    :func:`tool_context`."""
+    from types import SimpleNamespace
+    contexts = {-np.inf: (0, field_, machine, truth)}
+    units, owners = [], []
+    for f, tp in enumerate(paths):
+        n = len(tp.axes)
+        tool = np.full(n, np.nan) if tp.tool_mm is None else np.asarray(tp.tool_mm, float)
+        keys = np.where(np.isfinite(tool), tool, -np.inf)
+        solved = np.ones(n, bool) if tp.turning is None else ~np.asarray(tp.turning, bool)
+        for key in np.unique(keys[solved]):
+            idx = np.flatnonzero((keys == key) & solved)
+            j = tool_context(contexts, float(key), field_, truth, machine)
+            mt = next(c[2] for c in contexts.values() if c[0] == j)
+            units.append(SimpleNamespace(targets_mm=nominal_and_jacobian(mt, tp.axes[idx])[0], axes=tp.axes[idx],
+                                         context=j, path=str(tp.path)))
+            owners.append((f, idx))
+    return units, owners, contexts
+
+
+def solve_chain_paths(paths, field_, truth, machine, s: ChainSettings, executor=None, progress=None) -> list:
+    """Solve every point of ``paths`` with ``s.method``: the points of all files, one unit per file and
+    tool length (:func:`chain_batch`), through the chunk plan of :mod:`compensation.batch` (fixed chunks
+    and seeds: threads or Ray give the same bytes) on ``executor``; a lathe's turning points over the
+    turn (:func:`compensation.turning.solve_with_turning`). Per path ``(SolveResult, targets (n, 3) mm,
+    TRUE residual (n, 3) μm, TRUE residual of the program as written)`` (the last two None without a
+    truth, or for a program with turning points: taken over the turn by the caller)."""
+    from ...batch import gather_results, solve_batch
+    units, owners, contexts = chain_batch(paths, field_, truth, machine)
+    ctx = sorted(contexts.values(), key=lambda c: c[0])
+    options = {"rotary_limit_deg": s.rotary_limit_deg} if s.rotary_limit_deg is not None else {}
+    results = solve_batch(s.method, field_, machine, units, seed=s.seed, options=options,
+                          chunk_points=s.chunk_points, executor=executor, progress=progress,
+                          contexts=[(c[1], c[2]) for c in ctx[1:]]) if units else []
+    out = []
+    for f, tp in enumerate(paths):
+        mine = [(u, owners[k][1], results[k]) for k, u in enumerate(units) if owners[k][0] == f]
+        chunks = sum(r.info["chunks"] for _, _, r in mine)
+        turning = tp.turning if tp.turning is not None and tp.turning.any() else None
+        if turning is None:
+            res = gather_results([r for _, _, r in mine], [idx for _, idx, _ in mine])
+            targets = res.targets_mm
+            true_r = base = None
+            if truth is not None:
+                true_r, base = np.empty((len(targets), 3)), np.empty((len(targets), 3))
+                for u, idx, r in mine:
+                    _, _, mt, tr = ctx[u.context]
+                    true_r[idx] = true_residual_um(tr, mt, r.axes, u.targets_mm)
+                    base[idx] = true_residual_um(tr, mt, u.axes, u.targets_mm)
+        else:
+            from ...solvers.base import BALL_RADIUS_UM
+            from ...turning import solve_with_turning
+            rest = np.flatnonzero(~turning)
+            rest_res = gather_results([r for _, _, r in mine], [np.searchsorted(rest, idx) for _, idx, _ in mine]) \
+                if mine else None
+            targets, _ = nominal_and_jacobian(machine, tp.axes)
+            res = solve_with_turning(lambda t, a: rest_res, field_, machine, targets, tp.axes, turning, BALL_RADIUS_UM)
+            true_r = base = None  # the TRUE residual of turning points is taken over the turn by the caller
+        res.info["chunks"] = chunks
+        out.append((res, targets, true_r, base))
+    return out
+
+
+PATH_SAMPLES = 8
+"""Points per straight segment at which the TRUE residual along the moves is taken (fractions 1/8 … 8/8)."""
+JOIN_MM = 1e-9
+"""A move starts at the previous vertex when its start is within this of it (the same point)."""
+
+
+def straight_segments(tp: ChainPath) -> np.ndarray:
+    """(n,) bool: point i is reached from point i-1 by a straight G1 segment in axis space (a vertex of a
+    split linear move, or the first vertex of a linear move that starts at the vertex before it)."""
+    job = tp.source
+    cols = list(tp.columns)
+    out = np.zeros(len(tp.axes), bool)
+    i = 0
+    for m, v in zip([m for m in job.program.moves if m.compensate], job.vertices):
+        if m.kind == "linear":
+            if i > 0 and np.all(np.isfinite(m.start)):
+                out[i] = np.abs(m.start + tp.shift[i, cols] - tp.axes[i - 1, cols]).max() <= JOIN_MM
+            out[i + 1:i + len(v)] = True
+        i += len(v)
+    return out
+
+
+def true_path_residual_um(tp: ChainPath, comp_axes, truth, machine):
+    """The TRUE residual along the program's linear moves as the controller interpolates them (axis
+    space, straight between written vertices), at :data:`PATH_SAMPLES` points of every
+    :func:`straight_segments` segment: ``(after, before)`` (m, 3) μm — the truth's tool point driven along
+    the compensated segment minus the nominal tool point of the programmed segment at the same fraction,
+    and the same for the program as written (the truth's error along it). None where there is no segment."""
+    seg = np.flatnonzero(straight_segments(tp))
+    tool = np.full(len(tp.axes), np.nan) if tp.tool_mm is None else np.asarray(tp.tool_mm, float)
     keys = np.where(np.isfinite(tool), tool, -np.inf)
-    parts = []
-    for key in np.unique(keys):
-        idx = np.flatnonzero(keys == key)
-        mt, f, tr = machine, field_, truth
+    seg = seg[keys[seg] == keys[seg - 1]]
+    if not seg.size:
+        return None
+    t = (np.arange(PATH_SAMPLES) + 1.0) / PATH_SAMPLES
+    after, before = [], []
+    for key in np.unique(keys[seg]):
+        i = seg[keys[seg] == key]
+        mt, tr = machine, truth
         if np.isfinite(key):
-            try:
-                mt = machine_with_tool(machine, float(key))
-                f = field_with_tool(field_, mt)
-                tr = field_with_tool(truth, mt) if truth is not None else None
-            except (ValueError, TypeError) as exc:
-                raise UsageError(f"--tool-table: tool length {key:g} mm: {exc}") from None
-        ax = tp.axes[idx]
-        targets, _ = nominal_and_jacobian(mt, ax)
-        res = solve(method, f, targets, mt, target_axes=ax, progress=False, **options)
-        true = true_residual_um(tr, mt, res.axes, targets) if tr is not None else None
-        base = true_residual_um(tr, mt, ax, targets) if tr is not None else None
-        parts.append((idx, res, targets, true, base))
-    if len(parts) == 1:
-        return parts[0][1:]
-
-    def cat(get, width):
-        out = np.empty((n,) + width, dtype=get(parts[0]).dtype)
-        for p in parts:
-            out[p[0]] = get(p)
-        return out
-
-    first = parts[0][1]
-    info = dict(first.info)
-    if any("rotary_refused" in p[1].info for p in parts):
-        info["rotary_refused"] = [int(p[0][i]) for p in parts for i in p[1].info.get("rotary_refused", ())]
-        info["rotary_reasons"] = [r for p in parts for r in p[1].info.get("rotary_reasons", ())]
-    res = SolveResult(first.method, cat(lambda p: p[1].targets_mm, (3,)), cat(lambda p: p[1].commands_mm, (3,)),
-                      cat(lambda p: p[1].axes, (tp.axes.shape[1],)), cat(lambda p: p[1].residual_um, (3,)),
-                      cat(lambda p: p[1].correction_um, ()), cat(lambda p: p[1].success, ()),
-                      sum(p[1].nfev for p in parts), sum(p[1].seconds for p in parts), first.message, info)
-    true = cat(lambda p: p[3], (3,)) if truth is not None else None
-    base = cat(lambda p: p[4], (3,)) if truth is not None else None
-    return res, cat(lambda p: p[2], (3,)), true, base
+            mt = machine_with_tool(machine, float(key))
+            tr = field_with_tool(truth, mt)
+        a0, a1, c0, c1 = tp.axes[i - 1], tp.axes[i], comp_axes[i - 1], comp_axes[i]
+        qn = (a0[:, None] + t[None, :, None] * (a1 - a0)[:, None]).reshape(-1, a0.shape[1])
+        qc = (c0[:, None] + t[None, :, None] * (c1 - c0)[:, None]).reshape(-1, a0.shape[1])
+        after.append((nominal_and_jacobian(mt, qc)[0] - nominal_and_jacobian(mt, qn)[0]) * 1e3 + tr.predict(qc))
+        before.append(tr.predict(qn))
+    return np.concatenate(after), np.concatenate(before)
 
 
 CUTTER_STEP_MM = 0.5
@@ -417,10 +511,13 @@ def check_chain_settings(machine, s: ChainSettings) -> None:
                              "as programmed); leave it out")
 
 
-def compensate_chain_files(files, machine, s: ChainSettings) -> int:
+def compensate_chain_files(files, machine, s: ChainSettings, executor=None) -> int:
     """Compensate the tool-path ``files`` (G-code or axis CSV, told apart by content) of the machine-tool
-    chain ``machine`` as ``s`` says; every input read and checked first, the accepted files written as one
-    set with ``compensate_summary.json`` last. Returns the exit status (0, or 3: a file refused by a guard)."""
+    chain ``machine`` as ``s`` says; every input read and checked first, every point solved
+    (:func:`solve_chain_paths`, on ``executor``: :class:`compensation.batch.LocalExecutor` by default, or
+    Ray), the accepted files written as one set with ``compensate_summary.json`` last. Returns the exit
+    status (0, or 3: a file refused by a guard); a
+    :class:`~compensation.app.workflows.cluster.ClusterError` leaves nothing written."""
     from ...solvers import solver_spec
     check_chain_settings(machine, s)
     allow, conditions, rotary_limit = s.allow, s.conditions, s.rotary_limit_deg
@@ -442,24 +539,13 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
     from .mt_loop import load_chain_truth
     truth = load_chain_truth(s.truth, machine) if s.truth else None
     paths = [read_chain_path(p, machine, s, field_) for p, _ in plan]
+    advance = progress_callback(sum(len(tp.axes) for tp in paths), s.method)
+    solved = solve_chain_paths(paths, field_, truth, machine, s, executor=executor, progress=advance)
     outcomes = []
-    for (p, dst), tp in zip(plan, paths):
-        seeded = {"seed": s.seed} if solver_spec(s.method).seeded else {}
-        limit = {"rotary_limit_deg": rotary_limit} if rotary_limit is not None else {}
+    for (p, dst), tp, (res, targets, true_r, true_base) in zip(plan, paths, solved):
         turning = tp.turning if tp.turning is not None and tp.turning.any() else None
-        if turning is None:
-            res, targets, true_r, true_base = solve_by_tool(s.method, field_, truth, machine, tp, **seeded, **limit)
-            if s.orientation:
-                res, true_r = orientation_pass(field_, truth, machine, tp, res, targets, true_r)
-        else:
-            from ...solvers import solve
-            from ...solvers.base import BALL_RADIUS_UM
-            from ...turning import solve_with_turning
-            targets, _ = nominal_and_jacobian(machine, tp.axes)
-            true_r = true_base = None  # the TRUE residual of turning points is taken over the turn below
-            res = solve_with_turning(lambda t, a: solve(s.method, field_, t, machine, target_axes=a, progress=False,
-                                                        **seeded, **limit),
-                                     field_, machine, targets, tp.axes, turning, BALL_RADIUS_UM)
+        if turning is None and s.orientation:
+            res, true_r = orientation_pass(field_, truth, machine, tp, res, targets, true_r)
         report = guards.check(res, machine, field_, allow=allow, target_axes=tp.axes)
         rotary_refused = rotary_refusals(res, report)
         kept = []
@@ -480,7 +566,7 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
                  "allowed_guards": sorted(report.allowed),
                  "overridden": {g: n for g, n in viol.items() if n and g in report.allowed},
                  "compensated_axes": res.info["compensated_axes"], "kept_axes": res.info["kept_axes"],
-                 "seconds": float(res.seconds)}
+                 "seconds": float(res.seconds), "chunks": res.info["chunks"]}
         if res.info.get("note"):
             entry["note"] = res.info["note"]
         if "rotary_refused" in res.info:
@@ -503,6 +589,12 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
                                     "true_roundness_max_um": float(spread.max())}
             entry["true"] = _stats(after)
             entry["true_uncompensated"] = _stats(before)
+            along = true_path_residual_um(tp, res.axes, truth, machine) \
+                if tp.kind == "gcode" and turning is None else None
+            if along is not None:
+                entry["true_path"], entry["true_path_uncompensated"] = _stats(along[0]), _stats(along[1])
+                entry["true_path_residual"] = (f"along the linear moves as the controller interpolates them, "
+                                               f"{PATH_SAMPLES} points per written segment (um)")
             entry["truth"] = str(s.truth)
             entry["truth_conditions"] = "reference: 20 C, positive approach on every axis"
         if tp.kind == "gcode":
@@ -548,6 +640,9 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
         if truth is not None:
             tail = (f", TRUE residual max {entry['true']['max_um']:.4g} um rms {entry['true']['rms_um']:.4g} um "
                     f"(uncompensated {entry['true_uncompensated']['max_um']:.4g} um max)")
+            if "true_path" in entry:
+                tail += (f", along the moves max {entry['true_path']['max_um']:.4g} um (uncompensated "
+                         f"{entry['true_path_uncompensated']['max_um']:.4g} um)")
         print(f"{p}: {entry['points']} points, model residual max {entry['model_max_um']:.4g} um, max correction "
               f"{entry['max_correction_um']:.1f} um{tail}, guard violations {sum(viol.values())} {status}")
         if entry.get("note"):
@@ -591,6 +686,8 @@ def compensate_chain_files(files, machine, s: ChainSettings) -> int:
         "machine": machine.path, "machine_name": machine.name, "allow": list(allow),
         "residual": "model: p_r + E(axes(p_r)) - p_d (um)"
                     + ("; true: truth tool point at the compensated axes - p_d (um)" if truth is not None else ""),
+        "chunk_points": s.chunk_points, "max_segment_mm": s.max_segment_mm,
+        "solved_on": (executor or LocalExecutor()).describe(),
         "files": [o[3] for o in outcomes], "removed_stale": removed})
     print(f"wrote summary: {summary}")
     refused = [o for o in outcomes if o[4] is None]
