@@ -1,7 +1,7 @@
 """The physical part of the residual-on-physics surrogate: an element set fitted to feature points.
 
 ``volcomp train --physics first-order`` trains the network on what a cheap physical model leaves:
-the 23-element HTM model whose elements are fitted, by ONE linear least-squares solve, to the
+on the grinder the 23-element HTM model whose elements are fitted, by ONE linear least-squares solve, to the
 same feature points the network sees (never to the element set the points were computed from):
 
     E(x, z, a) ≈ J(x, z, a) · v(x, z, a)       (first-order error transfer, errormap.htm.error_jacobian)
@@ -17,6 +17,12 @@ terms the linear fit cannot carry plus whatever the element model does not repre
 What this part knows of the machine: its kinematic chain (the machine file) and the feature
 points; the stations are the feature-point grid's own nodes by default (``n_stations = None``:
 the number of distinct values per axis, at most :data:`MAX_STATIONS`).
+
+A machine-tool chain (``kind = "machine-tool"``, :mod:`errormap.mt_chain`) goes through the same
+solve (:func:`solve_station_values`) with its own slots and error-transfer matrix
+(:func:`fit_chain_physics_elements`): its element set is evaluated with the exact chain
+(:class:`errormap.mt_field.ChainField`). :class:`PhysicsPart` is the physical part of both fields
+(:class:`training.model.PhysicsMLPField`, :class:`training.chain_model.ChainPhysicsMLPField`).
 """
 from __future__ import annotations
 
