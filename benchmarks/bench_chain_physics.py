@@ -80,7 +80,7 @@ def markdown(rows, args) -> str:
         alone = f"{r['physics_val_max_um']:.3f}" + (" (kept)" if r["physics_alone_kept"] else "") \
             if r["physics"] != "none" else "—"
         out.append(f"| {r['machine']} | {r['grid']} ({r['n_points']} pts) | {r['seed']} | {r['physics']} | "
-                   f"{r['grid_max_um']:.4f} | {r['val_max_um']:.3f} | {r['val_rms_um']:.3f} | {alone} | {r['cpu_s']:.1f} |")
+                   f"{r['grid_max_um']:.3g} | {r['val_max_um']:.3f} | {r['val_rms_um']:.3f} | {alone} | {r['cpu_s']:.1f} |")
     return "\n".join(out) + "\n"
 
 
