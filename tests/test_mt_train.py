@@ -125,12 +125,16 @@ def smooth_mill(tmp_path):
     return truth, fp
 
 
-def test_train_chain_refuses_grinder_options(smooth_mill, tmp_path, capsys):
+def test_train_chain_refuses_what_the_machine_cannot_use(smooth_mill, tmp_path, capsys):
+    """--a-encoding on a chain without a rotary axis short of a full turn, and --physics-stations without
+    --physics first-order: refused with the reason, nothing written."""
     _, fp = smooth_mill
     assert main(["train", str(fp), "--out", str(tmp_path / "r"), "--a-encoding", "periodic"]) == 2
-    assert "--a-encoding: not available on a machine-tool chain" in capsys.readouterr().err
-    assert main(["train", str(fp), "--out", str(tmp_path / "r"), "--physics", "first-order"]) == 2
-    assert "--physics: not available on a machine-tool chain" in capsys.readouterr().err
+    assert "--a-encoding: the machine-tool chain 'mill-xyz' has no rotary axis short of a full turn" \
+        in capsys.readouterr().err
+    assert main(["train", str(fp), "--out", str(tmp_path / "r"), "--physics-stations", "5"]) == 2
+    assert "physics_stations only with physics 'first-order'" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
 
 
 @pytest.mark.slow

@@ -36,7 +36,8 @@ import torch
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
 from errormap.io import InputError, load_array, read_document_text, sha256_file
 
-from .model import MODEL_FILES, PAPER_HIDDEN, MLPField
+from .model import A_ENCODINGS, MODEL_FILES, PAPER_HIDDEN, MLPField
+from .physics import PHYSICS_FILES, PhysicsPart
 
 CHAIN_FORMAT = "volcomp-chain-mlpfield/1"
 
@@ -66,9 +67,14 @@ class ChainMLPField(MLPField):
             raise ValueError(f"Expected periodic axes in degrees, got {self.axis_columns} / {self.periodic}")
 
     @classmethod
-    def for_machine(cls, machine, **settings) -> "ChainMLPField":
-        """The untrained field over ``machine``'s axes (a :class:`errormap.mt_chain.MachineTool`)."""
-        return cls(machine.axis_columns, [a.kind == "rotary" and a.full_turn for a in machine.axes],
+    def for_machine(cls, machine, a_encoding: str = "raw", **settings) -> "ChainMLPField":
+        """The untrained field over ``machine``'s axes (a :class:`errormap.mt_chain.MachineTool`):
+        a full-turn rotary axis as (cos, sin) always; a rotary axis short of a full turn as one
+        scaled input (``a_encoding="raw"``) or as (cos, sin) too (``"periodic"``)."""
+        if a_encoding not in A_ENCODINGS:
+            raise ValueError(f"Expected a_encoding in {A_ENCODINGS}, got {a_encoding!r}")
+        return cls(machine.axis_columns,
+                   [a.kind == "rotary" and (a.full_turn or a_encoding == "periodic") for a in machine.axes],
                    machine.name, machine.sha256 or "", **settings)
 
     @property
@@ -230,8 +236,14 @@ class ChainMLPField(MLPField):
         if not isinstance(cfg, dict) or cfg.get("format") != CHAIN_FORMAT:
             got = cfg.get("format") if isinstance(cfg, dict) else cfg
             raise InputError(f"{d / 'config.json'}: key 'format': expected {CHAIN_FORMAT!r}, got {got!r}")
+        if cfg.get("physics") and cls is ChainMLPField:  # a network on what a fitted physical part leaves
+            return ChainPhysicsMLPField.load(d)
+        extra = cls._extra_file_names()
+        for name in extra:
+            if not (d / name).is_file():
+                raise InputError(f"{d}: not a saved {cls.__name__} (missing {name})")
         for name, sha in (cfg.get("files_sha256") or {}).items():
-            if name in MODEL_FILES and sha256_file(d / name) != sha:
+            if name in MODEL_FILES + extra and sha256_file(d / name) != sha:
                 raise InputError(f"{d / name}: does not belong to this model (SHA-256 differs from the one "
                                  f"config.json records); the folder holds a partial or mixed set")
         try:
@@ -252,7 +264,38 @@ class ChainMLPField(MLPField):
         if theta.shape != (m.n_params,):
             raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
         m.theta_ = torch.from_numpy(theta.astype(np.float64))
+        m._read_extra_files(d)
         return m
+
+
+class ChainPhysicsMLPField(PhysicsPart, ChainMLPField):
+    """A chain network on the residual of the chain's own fitted element set:
+    ``E = ChainField(machine, elements)(axes) + network(axes)`` (:class:`training.physics.PhysicsPart`;
+    the element set by :func:`training.physics.fit_chain_physics_elements` on the same feature
+    points). Same capabilities, inputs and files as :class:`ChainMLPField`, plus
+    ``physics_elements.json`` and ``physics_machine.toml`` (the machine file's bytes; refused on load
+    when its SHA-256 is not the one the network records)."""
+
+    kind = "chain-mlp+physics"
+
+    def _physics_field(self, machine, elements):
+        from errormap.mt_field import ChainField
+        return ChainField(machine, elements)
+
+    def _physics_axes(self, axes) -> np.ndarray:
+        return self._check(axes)
+
+    def _read_physics(self, folder: Path):
+        from errormap.machine import load_machine
+        from errormap.mt_elements import ChainElementSet
+        machine = load_machine(folder / PHYSICS_FILES[1])
+        if getattr(machine, "kind", None) != "machine-tool" or tuple(machine.axis_columns) != self.axis_columns:
+            raise InputError(f"{folder / PHYSICS_FILES[1]}: not the machine-tool chain over "
+                             f"{', '.join(self.axis_columns)} the network takes")
+        if self.machine_sha256 and machine.sha256 != self.machine_sha256:
+            raise InputError(f"{folder / PHYSICS_FILES[1]}: SHA-256 differs from the machine_sha256 config.json "
+                             "records; the folder holds a partial or mixed set")
+        return machine, ChainElementSet.load(folder / PHYSICS_FILES[0], machine)
 
 
 def check_machine(model: ChainMLPField, machine, where) -> ChainMLPField:
@@ -312,12 +355,30 @@ def ols_baseline(model: ChainMLPField, train_axes, train_errors_um, eval_axes) -
     return design(np.asarray(eval_axes, float)) @ coef
 
 
+def _chain_model_and_target(machine, axes, errors_um, s):
+    """The untrained network (scalers fitted) and what it learns: the feature points' errors
+    (``physics="none"``), or what the chain's element set fitted to the same points leaves
+    (``"first-order"``: :class:`ChainPhysicsMLPField`, :func:`training.physics.fit_physics_elements`)."""
+    settings = dict(a_encoding=s.a_encoding, hidden=s.hidden, activation=s.activation)
+    if s.physics == "none":
+        model, target = ChainMLPField.for_machine(machine, **settings), errors_um
+    else:
+        from .physics import fit_physics_elements
+        model = ChainPhysicsMLPField.for_machine(machine, **settings)
+        model.set_physics(machine, fit_physics_elements(machine, axes, errors_um, s.physics_stations))
+        target = errors_um - model.physics_predict(axes)
+    return model.fit_scalers(axes, target), target
+
+
 def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, out_dir=None,
                     quiet: bool = False) -> ChainFitResult:
     """Train a :class:`ChainMLPField` on a chain's feature points (axes (n, k), errors (n, 3) μm).
 
-    ``settings``: :class:`training.trainers.TrainSettings` (``a_encoding`` is not used: a full-turn
-    rotary axis is always cos/sin). ``validation``: ``(axes (m, k), errors (m, 3) μm)``; when None,
+    ``settings``: :class:`training.trainers.TrainSettings`: ``a_encoding`` says how a rotary axis
+    short of a full turn enters (a full-turn one is always cos/sin, :meth:`ChainMLPField.for_machine`);
+    ``physics="first-order"``: the network learns what the chain's own element set, fitted to the
+    same feature points (``physics_stations`` per axis), leaves (:class:`ChainPhysicsMLPField`;
+    ``physics_*`` metrics: that part alone). ``validation``: ``(axes (m, k), errors (m, 3) μm)``; when None,
     ``n_validation`` random points of the element set the feature points name (SeedSequence(seed)
     child 0); the LM's iterate selection (``select_best``) uses ``n_select`` more from child 1.
     ``out_dir``: write ``model/`` and ``metrics.json`` there as a set. Not tracked in MLflow.
@@ -329,7 +390,7 @@ def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, o
     from errormap.seeds import spawn_seeds
 
     from .trainers import (SELECTION_STREAM, VALIDATION_STREAM, TrainSettings, _BestOnSelection, _train,
-                           check_run_folder, data_hash, fit_metrics)
+                           check_run_folder, data_hash, fit_metrics, keep_physics_alone, physics_metrics)
     s = settings or TrainSettings()
     if out_dir is not None:
         check_run_folder(out_dir)
@@ -353,16 +414,21 @@ def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, o
     else:
         raise InputError("no validation data: the feature points name no readable elements_file; pass validation "
                          f"points (--validation FILE with {', '.join(machine.axis_columns)}, dx_um, dy_um, dz_um)")
-    model = ChainMLPField.for_machine(machine, hidden=s.hidden, activation=s.activation).fit_scalers(axes, errors)
+    t0 = time.process_time()
+    model, target = _chain_model_and_target(machine, axes, errors, s)
     selector = None
     if s.select_best and s.trainer == "lm" and ref is not None:
         sel_axes = random_chain_axes(machine, s.n_select, streams[SELECTION_STREAM])
-        selector = _BestOnSelection(model, sel_axes, ref.predict(sel_axes), s.select_every, s.select_patience)
-    t0 = time.process_time()
-    hist = _train(model, axes, errors, s, selector, quiet)
+        sel_target = ref.predict(sel_axes) - (model.physics_predict(sel_axes) if s.physics != "none" else 0.0)
+        selector = _BestOnSelection(model, sel_axes, sel_target, s.select_every, s.select_patience)
+    hist = _train(model, axes, target, s, selector, quiet)
+    physics_kept_alone = s.physics != "none" and keep_physics_alone(model, selector, sel_target if selector else None)
     cpu = time.process_time() - t0
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
+    if s.physics != "none":
+        metrics.update(physics_metrics(model, axes, errors, val_axes, val_errors))
+        metrics["physics_alone_kept"] = physics_kept_alone
     base = fit_metrics("val", ols_baseline(model, axes, errors, val_axes), val_errors)
     metrics.update({"baseline_ols_val_max_um": base["val_max_um"], "baseline_ols_val_rms_um": base["val_rms_um"]})
     metrics["beats_baseline"] = bool(metrics["val_rms_um"] < base["val_rms_um"])
@@ -376,7 +442,10 @@ def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, o
               "seed": s.seed, "n_train": len(axes), "n_val": len(val_axes), "validation_source": val_source,
               "data_sha256": data_hash(axes, errors), "machine": machine.name, "machine_sha256": machine.sha256 or "",
               "elements_sha256": meta.get("elements_sha256", ""), "stop_reason": hist.stop_reason,
-              "output_scale_um": model.out_scale_, "init": s.init, "select_best": selector is not None}
+              "output_scale_um": model.out_scale_, "init": s.init, "select_best": selector is not None,
+              "a_encoding": s.a_encoding, "physics": s.physics}
+    if s.physics != "none":
+        params["physics_stations"] = model.physics_stations
     if not metrics["beats_baseline"]:
         raise InputError(f"{featurepoints.source or 'feature points'}: the trained network's validation RMS "
                          f"{metrics['val_rms_um']:.4g} μm is not below the plain OLS baseline's "

@@ -61,6 +61,8 @@ from errormap.io import OUTPUT_LOCK_NAME, InputError, read_document_text, atomic
 from errormap.threads import limit_threads
 from errormap.transforms import check_points
 
+from .physics import PHYSICS_FILES, PhysicsPart
+
 FORMAT = "volcomp-mlpfield/1"
 MODEL_FILES = ("scalers.json", "weights.npy")  # config.json records their SHA-256
 PAPER_HIDDEN = (10, 15, 25, 15, 10)
@@ -650,56 +652,32 @@ class MLPField:
         pass
 
 
-PHYSICS_FILES = ("physics_elements.json", "physics_machine.toml")
-
-
-class PhysicsMLPField(MLPField):
+class PhysicsMLPField(PhysicsPart, MLPField):
     """The network on the residual of a fitted physical part: ``E = HTM(elements)(axes) + network(axes)``.
 
     ``physics_`` is an :class:`~errormap.elements.ElementSet` fitted to the same feature points
     the network is trained on (:func:`training.physics.fit_physics_elements`), evaluated with the
-    exact HTM model of ``physics_machine_``; the network (every setting of :class:`MLPField`) learns
-    the feature points minus that part. Value and Jacobian are the sums of the two parts' closed
-    forms. Capabilities: ``jacobian`` and ``predict_and_jacobian`` only (the float32 and fused
-    GA paths are the network's alone; solvers use the float64 value and Jacobian here).
-    Saved as the network's files plus ``physics_elements.json`` and ``physics_machine.toml``.
+    exact HTM model of ``physics_machine_`` (:class:`training.physics.PhysicsPart`); the network
+    (every setting of :class:`MLPField`) learns the feature points minus that part. Capabilities:
+    ``jacobian`` and ``predict_and_jacobian`` only (the float32 and fused GA paths are the
+    network's alone; solvers use the float64 value and Jacobian here). Saved as the network's files
+    plus ``physics_elements.json`` and ``physics_machine.toml``.
     """
 
     kind = "mlp+physics"
     capabilities = frozenset({JACOBIAN, PREDICT_AND_JACOBIAN})
 
-    def set_physics(self, machine, elements) -> "PhysicsMLPField":
-        """Attach the physical part (a :class:`~errormap.machine.Grinder` and an element set); returns self."""
+    def _physics_field(self, machine, elements):
         from errormap.htm import HTMField
-        self.physics_machine_ = machine
-        self.physics_ = elements
-        self._htm = HTMField(machine, elements)
-        return self
+        return HTMField(machine, elements)
 
-    def _physics(self):
-        if "_htm" not in self.__dict__:
-            raise RuntimeError("PhysicsMLPField has no physical part: call set_physics or load")
-        return self._htm
+    def _physics_axes(self, axes) -> np.ndarray:
+        return _check_axes(axes)
 
-    def physics_predict(self, axes) -> np.ndarray:
-        """The physical part alone (μm), shape (n, 3)."""
-        return self._physics().predict(_check_axes(axes))
-
-    def network_predict(self, axes, dtype=np.float64) -> np.ndarray:
-        """The network alone (μm), shape (n, 3): what it learned on top of the physical part."""
-        return MLPField.predict(self, axes, dtype)
-
-    def predict(self, axes, dtype=np.float64) -> np.ndarray:
-        axes = _check_axes(axes)
-        return MLPField.predict(self, axes, dtype) + self._physics().predict(axes)
-
-    __call__ = predict
-
-    def predict_and_jacobian(self, axes, dtype=np.float64):
-        axes = _check_axes(axes)
-        e, J = MLPField.predict_and_jacobian(self, axes, dtype)
-        pe, pJ = self._physics().predict_and_jacobian(axes)
-        return e + pe, J + pJ
+    def _read_physics(self, folder: Path):
+        from errormap.elements import ElementSet
+        from errormap.machine import load_machine
+        return load_machine(folder / PHYSICS_FILES[1], expect_kind="grinder"), ElementSet.load(folder / PHYSICS_FILES[0])
 
     def predict_columns(self, xa):
         """Columns (3, m) in, (3, m) out, float64 (not a declared capability: the sum is not fused)."""
@@ -709,23 +687,3 @@ class PhysicsMLPField(MLPField):
 
     def offset_fitness(self, machine, targets_mm):
         raise TypeError("PhysicsMLPField declares no offset_fitness (the fused GA pipeline is the network's alone)")
-
-    def config(self) -> dict:
-        return {**super().config(), "physics": "first-order",
-                "physics_stations": int(self.physics_.stations["x_mm"].size) if "physics_" in self.__dict__ else None}
-
-    @staticmethod
-    def _extra_file_names() -> tuple:
-        return PHYSICS_FILES
-
-    def _write_extra_files(self, folder: Path) -> None:
-        self._physics()
-        self.physics_.save(folder / PHYSICS_FILES[0])
-        with atomic_write(folder / PHYSICS_FILES[1], "wb") as fh:
-            fh.write(Path(self.physics_machine_.path).read_bytes())
-
-    def _read_extra_files(self, folder: Path) -> None:
-        from errormap.elements import ElementSet
-        from errormap.machine import load_machine
-        self.set_physics(load_machine(folder / PHYSICS_FILES[1], expect_kind="grinder"),
-                         ElementSet.load(folder / PHYSICS_FILES[0]))

@@ -238,6 +238,24 @@ def zero_network(model) -> None:
     model.out_mean_ = np.zeros(3)
 
 
+def keep_physics_alone(model, selector, sel_residual_um) -> bool:
+    """A physics-first ``model`` whose network makes the selection points worse than its physical
+    part alone (``sel_residual_um``: what the physical part leaves there, (k, 3) μm) has its network
+    zeroed (:func:`zero_network`): never return worse than that plain baseline. True when zeroed."""
+    if selector is None or selector.best_max_um <= float(np.abs(sel_residual_um).max()):
+        return False
+    zero_network(model)
+    return True
+
+
+def physics_metrics(model, axes, errors_um, val_axes, val_errors_um) -> dict:
+    """The physical part of a physics-first ``model`` alone, on the training and validation points
+    (``physics_train_*``, ``physics_val_*``, μm): what the network added beside it."""
+    m = fit_metrics("physics_train", model.physics_predict(axes), errors_um)
+    m.update(fit_metrics("physics_val", model.physics_predict(val_axes), val_errors_um))
+    return m
+
+
 def machine_from_meta(meta: dict):
     """The grinder the feature points were made on (their ``machine_file``, else the built-in one)."""
     from errormap.machine import builtin_machine_path, load_machine
@@ -379,6 +397,9 @@ class TrainSettings:
                 int(self.physics_stations) == self.physics_stations and MIN_STATIONS <= self.physics_stations <= MAX_STATIONS):
             raise ValueError(f"Expected physics_stations in [{MIN_STATIONS}, {MAX_STATIONS}] (an integer) or None, "
                              f"got {self.physics_stations}")
+        if self.physics_stations is not None and self.physics == "none":
+            raise ValueError("Expected physics_stations only with physics 'first-order' (--physics first-order): "
+                             "with physics 'none' there is no element set to place stations on")
         if self.trainer not in TRAINERS:
             raise ValueError(f"Expected trainer in {TRAINERS}, got {self.trainer!r}")
         if self.init not in INITS:
@@ -482,16 +503,11 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, validatio
             sel_errors = sel_errors - model.physics_predict(sel_axes)
         selector = _BestOnSelection(model, sel_axes, sel_errors, s.select_every, s.select_patience)
     hist = _train(model, axes, target, s, selector, quiet)
-    physics_kept_alone = False
-    if s.physics != "none" and selector is not None and selector.best_max_um > float(np.abs(sel_errors).max()):
-        # the plain baseline, the physical part alone, is better on the selection points: never return worse
-        zero_network(model)
-        physics_kept_alone = True
+    physics_kept_alone = s.physics != "none" and keep_physics_alone(model, selector, sel_errors if selector else None)
     metrics = fit_metrics("train", model.predict(axes), errors)
     metrics.update(fit_metrics("val", model.predict(val_axes), val_errors))
-    if s.physics != "none":  # the physical part alone, beside: what the network added
-        metrics.update(fit_metrics("physics_train", model.physics_predict(axes), errors))
-        metrics.update(fit_metrics("physics_val", model.physics_predict(val_axes), val_errors))
+    if s.physics != "none":
+        metrics.update(physics_metrics(model, axes, errors, val_axes, val_errors))
     metrics.update({"final_mse_scaled": hist.loss[-1] if hist.loss else float("nan"),
                     "iterations": hist.iterations, "train_seconds": hist.seconds})
     if selector is not None:
@@ -551,7 +567,7 @@ def _fit_params(model, s: TrainSettings, meta: dict, hist, axes, errors, n_val: 
         "select_best": bool(selected), "physics": s.physics,
     }
     if s.physics != "none":
-        params["physics_stations"] = int(model.physics_.stations["x_mm"].size)
+        params["physics_stations"] = model.physics_stations
     if selected and s.select_patience:
         params["select_patience"] = s.select_patience
     if s.trainer == "lm":

@@ -35,8 +35,9 @@ def register(sub):
                    help=f"demo setting: at most {QUICK_MAX_ITER} iterations (unless --max-iter is given)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--a-encoding", choices=("raw", "periodic"), default=None,
-                   help="A as one scaled input (the paper's, the default) or as (cos a, sin a); the grinder's only "
-                        "(on a machine-tool chain every full-turn rotary axis is (cos, sin))")
+                   help="A as one scaled input (the paper's, the default) or as (cos a, sin a); on a machine-tool "
+                        "chain: every rotary axis short of a full turn (a full-turn one is always (cos, sin); refused "
+                        "on a chain without such an axis)")
     p.add_argument("--hidden", default="10,15,25,15,10", help="hidden layer widths, comma-separated")
     p.add_argument("--activation", choices=("sigmoid", "tanh", "softplus"), default="sigmoid")
     p.add_argument("--mse-goal", type=float, default=2.5e-10, help="MSE goal on the scaled outputs")
@@ -55,7 +56,8 @@ def register(sub):
     p.add_argument("--physics", choices=("none", "first-order"), default="none",
                    help="none: the network learns the feature points (the paper's); first-order: the network learns "
                         "what an element set fitted to the SAME feature points leaves (one linear least-squares "
-                        "solve, stations at the grid's nodes; the field is that HTM model plus the network)")
+                        "solve, stations at the grid's nodes; the field is that HTM model plus the network); on a "
+                        "machine-tool chain the element set is the chain's own (its machine file's slots)")
     p.add_argument("--physics-stations", type=int, default=None,
                    help="--physics first-order: stations per axis of the fitted element set (default: the "
                         "feature-point grid's points per axis)")
@@ -156,19 +158,18 @@ def _chain_machine(fp):
 
 
 def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
-    """``train`` on a machine-tool chain's feature points: :func:`training.chain_model.fit_chain_field`."""
-    given = [o for o, v in (("--a-encoding", args.a_encoding),
-                            ("--physics", None if args.physics == "none" else args.physics),
-                            ("--physics-stations", args.physics_stations)) if v is not None]
-    if given:  # refused, never silently ignored
-        raise UsageError(f"{', '.join(given)}: not available on a machine-tool chain's feature points (full-turn rotary "
-                         "axes are always (cos, sin); the physical part of --physics is the grinder's element model)")
+    """``train`` on a machine-tool chain's feature points: :func:`training.chain_model.fit_chain_field`
+    (``--physics first-order``: the network on what the chain's own fitted element set leaves)."""
     machine = _chain_machine(fp)
     fp.check_units(machine)
+    partial = [a.column for a in machine.axes if a.kind == "rotary" and not a.full_turn]
+    if args.a_encoding is not None and not partial:  # refused, never silently ignored
+        raise UsageError(f"--a-encoding: the machine-tool chain {machine.name!r} has no rotary axis short of a full "
+                         "turn to encode (a full-turn rotary axis is always (cos, sin), a linear axis one scaled input)")
     from training.chain_model import ChainMLPField, fit_chain_field
     if args.trainer == "lm":
         from ..validate import MAX_LM_BYTES
-        p = ChainMLPField.for_machine(machine, hidden=hidden).n_params
+        p = ChainMLPField.for_machine(machine, settings.a_encoding, hidden=hidden).n_params
         need = 8 * (3 * len(fp.axes) * p + p * p)
         if need > MAX_LM_BYTES:
             raise UsageError(f"--trainer lm: {len(fp.axes):,} feature points x {p:,} network parameters need "
@@ -184,6 +185,11 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     print(f"stopped after {res.history.iterations} iterations, {res.seconds:.1f} s "
           f"({m['train_cpu_seconds']:.1f} CPU s): {res.history.stop_reason}")
     print(f"{'fit error (μm)':<16}{'max':>10}{'rms':>10}{'max dx':>10}{'max dy':>10}{'max dz':>10}")
+    if args.physics != "none":
+        print(f"physical part alone (the chain's element set fitted to the feature points, "
+              f"{res.params['physics_stations']} stations per axis): train max {m['physics_train_max_um']:.4f} μm, "
+              f"val max {m['physics_val_max_um']:.4f} μm" + (" (kept alone: the network did not improve it)"
+                                                             if m["physics_alone_kept"] else ""))
     for p in ("train", "val"):
         print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
             f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um", f"{p}_max_dz_um")))
