@@ -309,11 +309,15 @@ class MTTruth:
         """Reference temperature, positive approach on every axis."""
         return {"temp_c": np.full(n, REF_TEMP_C), **{f"dir_{a.word.lower()}": np.ones(n) for a in self.machine.axes}}
 
-    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed=0, dt_s: float = 15.0) -> dict:
-        """Simulated check measurements (module doc): a dict of columns, each shape (n,)."""
+    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed=0, dt_s: float = 15.0,
+                           noise_seed=None) -> dict:
+        """Simulated check measurements (module doc): a dict of columns, each shape (n,). ``noise_seed``: None
+        (default) the noise stream of ``seed``; a seed: only the noise redrawn, the layout unchanged."""
         m = self.machine
         k = len(m.axes)
         r_pts, r_env, r_noise = spawn_rngs(seed, 3)
+        if noise_seed is not None:
+            r_noise = np.random.default_rng(noise_seed)
         lo, hi = m.stroke_lo, m.stroke_hi
         t = np.arange(n) * dt_s
         if self.family == "independent":

@@ -33,8 +33,8 @@ def register(sub):
     p.add_argument("--checks", type=int, default=None,
                    help="number of check measurements (default 400; a serial arm: 100 held-out poses)")
     p.add_argument("--seed-check-noise", type=int, default=None,
-                   help="the grinder only: redraw only the check measurements' noise from this seed (the same machine, "
-                        "points and conditions); default: the noise of --seed's own stream")
+                   help="redraw only the check measurements' noise from this seed (the same machine, points or poses "
+                        "and conditions; every family); default: the noise of --seed's own stream")
     p.add_argument("--poses", type=int, default=None,
                    help="a serial arm only: number of fitting poses (default 200)")
     p.set_defaults(func=run)
@@ -42,15 +42,14 @@ def register(sub):
 
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
-    if args.seed_check_noise is not None and machine.kind != "grinder":
-        raise UsageError("--seed-check-noise: the grinder only")
     if machine.kind == "serial":
         from ..workflows.simulate_serial import DEFAULT_ARM_NOISE_UM, simulate_serial
         noise = DEFAULT_ARM_NOISE_UM if args.noise_um is None else args.noise_um
         print(f"simulating truth arm {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
         info = simulate_serial(machine, args.seed, args.out, effects=args.effect, noise_um=noise,
                                poses=200 if args.poses is None else args.poses,
-                               checks=100 if args.checks is None else args.checks)
+                               checks=100 if args.checks is None else args.checks,
+                               check_noise_seed=args.seed_check_noise)
         print(f"tool point error of the truth at the fitting poses: {info['uncompensated_rms_mm']:.3f} mm RMS")
         for k, v in info["files"].items():
             print(f"wrote {k}: {v}")
@@ -67,7 +66,7 @@ def run(args) -> int:
         parse_effects(machine, args.effect)
         print(f"simulating truth {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
         info = simulate_chain(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
-                              checks=args.checks, family=args.family)
+                              checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
         print(f"max spatial error {info['max_spatial_error_um']:.1f} μm over the volume (reference temperature, "
               "positive approach)")
         for k, v in info["files"].items():
@@ -80,8 +79,7 @@ def run(args) -> int:
         raise UsageError(f"--effect: unknown effect {bad[0]!r} for the grinder (expected one of {', '.join(EFFECT_CHOICES)})")
     print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
     info = simulate_truth(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
-                          checks=args.checks, family=getattr(args, "family", "default"),
-                          check_noise_seed=getattr(args, "seed_check_noise", None))
+                          checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
     for line in summary_lines(info, args.out):
         print(line)
     return 0

@@ -81,21 +81,27 @@ def make_truth(machine, seed: int, effects=(), family: str = "default"):
 
 
 def simulate_chain(machine, seed: int, out, effects=(), noise_um: float = 1.0, checks: int = 400,
-                   family: str = "default") -> dict:
-    """Write ``out/truth_elements.json`` (hidden truth), ``checks.csv`` and ``truth.json``."""
+                   family: str = "default", check_noise_seed=None) -> dict:
+    """Write ``out/truth_elements.json`` (hidden truth), ``checks.csv`` and ``truth.json``.
+    ``check_noise_seed``: None (default) the checks' noise from the seed's own stream; an int redraws only
+    the checks' noise (same machine, points and conditions), as on the grinder."""
     from errormap.mt_simulate import volume_grid
+    from .simulate import check_noise_comments, check_noise_record
     out = Path(out)
     truth = make_truth(machine, seed, effects, family)
     el_path = truth.elements.save(out / "truth_elements.json")
-    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=spawn_seeds(seed, 1)[0])
+    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=spawn_seeds(seed, 1)[0],
+                                        noise_seed=check_noise_seed)
     ck_path = write_csv(out / "checks.csv", measured, header_comments=[
         "format: volcomp-checks/1", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}",
-        f"noise_um: {noise_um}", f"effects: {','.join(truth.effects) or 'none'}"])
+        f"noise_um: {noise_um}", f"effects: {','.join(truth.effects) or 'none'}"]
+        + check_noise_comments(check_noise_seed))
     grid = volume_grid(machine)
     e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
     info = {"format": TRUTH_FORMAT, "seed": seed, "machine": machine.name, "machine_file": machine.path,
             "machine_sha256": machine.sha256, "family": family,
-            "effects": truth.effects, "noise_um": noise_um, "max_spatial_error_um": float(e.max()),
+            "effects": truth.effects, "noise_um": noise_um, **check_noise_record(check_noise_seed),
+            "max_spatial_error_um": float(e.max()),
             "elements": el_path.name,
             "files": {"elements": str(el_path), "checks": str(ck_path)}}
     write_json(out / "truth.json", info)
