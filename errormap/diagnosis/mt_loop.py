@@ -1010,7 +1010,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     baselines = {k: {"held_out_rms_um": stages[k]["held_out"]["rms_um"],
                      "paired_z_over_kept": _paired_z(resid_of[kept][hold_idx], r[hold_idx])}
                  for k, r in baseline_resid.items()}
-    return {"machine": machine.name, "n_checks": n, "n_fit": n_fit, "n_held_out": n - n_fit,
+    return {"machine": machine.name, "machine_sha256": machine.sha256, "n_checks": n, "n_fit": n_fit, "n_held_out": n - n_fit,
             "split": f"blocked by seq: first {fit_fraction:g} fit, the rest held out",
             "stages": stages, "kept_stage": kept_name, "kept_why": why, "update_prior": prior,
             "effects": [t.to_dict() for t in accepted], "effects_rejected": rejected, "effects_absorbed": absorbed,
