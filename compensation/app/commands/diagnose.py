@@ -23,8 +23,9 @@ def register(sub):
                                                      "A machine-tool chain (mill-xyz, ...) runs the generic loop "
                                                      "(errormap/diagnosis/mt_loop.py)")
     p.add_argument("--noise-um", type=float, default=None,
-                   help="machine-tool chain: the checks' known noise σ per axis (μm) for the noise floor √3·σ; "
-                        "default: estimated by the update")
+                   help="the checks' known noise σ per axis (μm): the noise floor √3·σ and the σ the verdict "
+                        "compares the update's estimate with; default: the σ the checks file states (a machine-tool "
+                        "chain) and the floor from the update's estimate")
     p.add_argument("--model", default=None, help="element-set file (JSON) or MLflow run id of a learned field")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--tracking-uri", default=None)
@@ -129,9 +130,8 @@ def run(args) -> int:
                 print(f"wrote {p}")
             return EXIT_FAILED_VERDICT if summary["verdict"]["status"] == "failed" else 0
         check_machine_kind(machine.path, machine.kind, "grinder")
-        if args.noise_um is not None:
-            raise UsageError("--noise-um is for a machine-tool chain's checks (the grinder's loop estimates it)")
-        settings = DiagnosisSettings(fit_fraction=args.fit_fraction, alpha=args.alpha, max_effects=args.max_effects)
+        settings = DiagnosisSettings(fit_fraction=args.fit_fraction, alpha=args.alpha, max_effects=args.max_effects,
+                                     noise_um=args.noise_um)
         retrain = _retrain_settings(args)
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
         summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,
