@@ -39,7 +39,8 @@ def register(sub):
                    help="interpolating splines through the noisy stations (the paper's method, no smoothing); "
                         "the covariance is still written")
     p.add_argument("--noise-um", type=float, default=None,
-                   help="known tracker noise σ per coordinate (μm); default: estimated from the ball residuals")
+                   help="known tracker noise σ per coordinate (μm) the covariance is scaled with (every machine tool); "
+                        "default: estimated from the ball residuals")
     p.add_argument("--bootstrap", type=int, default=100, help="bootstrap draws for the covariance (default 100)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     p.set_defaults(func=run)
@@ -49,10 +50,11 @@ def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
     if machine.kind == "machine-tool":
         from ..workflows.mt_loop import identify_chain_files, refuse_options
-        refuse_options(args, {"plot": None, "truth": None, "raw": False, "noise_um": None, "gauge": "station-mean",
+        refuse_options(args, {"plot": None, "truth": None, "raw": False, "gauge": "station-mean",
                               "bootstrap": 100}, "identify on a machine-tool chain (Gauss-Newton, first-station gauge)")
         print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
-        res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report)
+        res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
+                                                              noise_um=args.noise_um)
         for line in res.summary_lines():
             print(line)
         print(f"wrote elements: {el_path}")

@@ -131,15 +131,16 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
     return path, len(cols["axis"]), what
 
 
-def identify_chain_files(machine, sweep_files, out, report=None) -> tuple:
-    """Identify from one sweep file; write the element set, ``OUT.cov.npz`` and the report."""
+def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None) -> tuple:
+    """Identify from one sweep file; write the element set, ``OUT.cov.npz`` and the report. ``noise_um``: the
+    known tracker σ the covariance is scaled with (None: the residuals' estimate)."""
     from errormap.mt_identify import ChainIdentification
     from errormap.mt_sweeps import read_mt_sweeps
     if len(sweep_files) != 1:
         raise UsageError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
                          f"{len(sweep_files)}")
     sweeps = read_mt_sweeps(sweep_files[0], machine)
-    res = ChainIdentification().fit(sweeps, machine).result_
+    res = ChainIdentification(noise_um=noise_um).fit(sweeps, machine).result_
     cov_path = res.save_covariance(companion_path(out, ".cov.npz"))
     report = Path(report) if report else companion_path(out, ".report.json")
     info = res.to_dict()
