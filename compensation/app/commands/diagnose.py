@@ -115,7 +115,7 @@ def run(args) -> int:
         if machine.kind == "machine-tool":
             from compensation.app.workflows.mt_loop import diagnose_chain, diagnosis_lines, refuse_options
             refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "track": False,
-                                  "retrain_iter": DEFAULT_MAX_ITER, "retrain_time_s": None},
+                                  "retrain_iter": DEFAULT_MAX_ITER, "retrain_time_s": None, "seed": 0},
                            "diagnose on a machine-tool chain (element-set models; effects gated on held-out z)")
             print(f"diagnosing {args.checks} against {args.model} on {machine.name} ...", file=sys.stderr)
             summary, paths = diagnose_chain(args.checks, machine, args.model, args.out, fit_fraction=args.fit_fraction,

@@ -51,7 +51,8 @@ def run(args) -> int:
     if machine.kind == "machine-tool":
         from ..workflows.mt_loop import identify_chain_files, refuse_options
         refuse_options(args, {"plot": None, "truth": None, "raw": False, "gauge": "station-mean",
-                              "bootstrap": 100}, "identify on a machine-tool chain (Gauss-Newton, first-station gauge)")
+                              "bootstrap": 100, "seed": 0},
+                       "identify on a machine-tool chain (Gauss-Newton, first-station gauge, analytic covariance)")
         print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
         res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
                                                               noise_um=args.noise_um)

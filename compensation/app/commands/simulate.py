@@ -44,6 +44,9 @@ def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
     if machine.kind == "serial":
         from ..workflows.simulate_serial import DEFAULT_ARM_NOISE_UM, simulate_serial
+        if args.family != "default":   # never ignored silently
+            raise UsageError(f"--family {args.family}: a serial arm's truth has one family (errormap/arm_simulate.py: "
+                             "link, base and tool errors, sag, backlash); leave it out")
         noise = DEFAULT_ARM_NOISE_UM if args.noise_um is None else args.noise_um
         print(f"simulating truth arm {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
         info = simulate_serial(machine, args.seed, args.out, effects=args.effect, noise_um=noise,
