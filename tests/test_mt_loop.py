@@ -299,3 +299,21 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
     assert rep["noise_um"] == 2.5 and rep["covariance_sigma_um"] == 2.5
     with pytest.raises(ValueError, match="noise"):
         ChainIdentification(noise_um=0.0).fit(sw, mill)
+
+
+@pytest.mark.slow  # two Gauss-Newton identifications of the mill: over 5 CPU s
+def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
+    """``identify --plot PREFIX --truth ELEMENTS`` on a chain (as on the grinder): one figure per swept axis, the
+    truth overlaid in the identified gauge (the identification of its noise-free sweeps: the same tool points)."""
+    from compensation.app.workflows.mt_loop import chain_truth_in_gauge
+    t = make_mt_truth(mill, 0)
+    write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
+    truth_file = t.elements.save(tmp_path / "truth.json")
+    assert _main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--out", str(tmp_path / "E.json"),
+                  "--plot", str(tmp_path / "el"), "--truth", str(truth_file)]) == 0
+    for w in swept_words(mill):
+        assert (tmp_path / f"el_{w}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    g = volume_grid(mill, 300)
+    gauged = chain_truth_in_gauge(mill, truth_file)
+    np.testing.assert_allclose(ChainField(mill, gauged).predict(g), ChainField(mill, t.elements).predict(g),
+                               rtol=0, atol=NOISE_FREE_UM)

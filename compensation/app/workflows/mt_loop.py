@@ -152,6 +152,21 @@ def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None) 
     return res, el_path, cov_path, report
 
 
+def chain_truth_in_gauge(machine, truth_file):
+    """A truth element set (``truth_elements.json`` of ``simulate --machine``) as the identification expresses
+    its estimate: in the first-station gauge with its squareness split, found the exact way (the identification
+    of the truth's noise-free sweeps; tool points to 1e-6 μm, ``tests/test_mt_loop.py``), so that a plot
+    overlays like with like (as the grinder's :func:`compensation.app.workflows.identification.truth_in_gauge`)."""
+    from errormap.mt_elements import ChainElementSet
+    from errormap.mt_identify import ChainIdentification
+    from errormap.mt_simulate import MTTruth
+    from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.sweeps import sweeps_from_columns
+    truth = MTTruth(machine, ChainElementSet.load(truth_file, machine), {})
+    sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=0.0, seed=0), axes=swept_words(machine))
+    return ChainIdentification().fit(sw, machine).elements_
+
+
 def load_chain_model(path, machine):
     """An element set of ``machine`` (format key ``volcomp-elements/1``) and its covariance beside it
     (``NAME.cov.npz``) when present."""
