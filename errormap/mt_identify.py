@@ -99,6 +99,7 @@ class ChainIdentificationResult:
 
     def to_dict(self) -> dict:
         return {"format": "volcomp-chain-identification/1", "gauge": "first-station",
+                "smoothing": "none: interpolating splines through the stations (identify --raw's form)",
                 "machine_in_tracker": {"R": self.machine_in_tracker[0].tolist(), "t_mm": self.machine_in_tracker[1].tolist()},
                 "residual_rms_um": {k: v.tolist() for k, v in self.residual_rms_um.items()},
                 "sigma_um": self.sigma_um, "noise_um": self.noise_um,

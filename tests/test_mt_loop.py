@@ -276,6 +276,8 @@ def test_chain_sweep_reader_shares_the_grinder_readers_row_checks(tmp_path, mill
 
 COV_REL_TOL = 1e-12
 """The same Gauss-Newton solution and Jacobian scaled by (σ_given / σ̂)²: equal to float rounding."""
+FILE_DIGITS = 1e-9
+"""An element set written to JSON and read back: its values to the file's digits (μm / μrad)."""
 
 
 @pytest.mark.slow  # three Gauss-Newton identifications of the mill: over 5 CPU s
@@ -285,7 +287,7 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
     import json
     t = make_mt_truth(mill, 0)
     write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
-    sw = sweeps_from_columns(simulate_mt_sweeps(t, noise_um=1.0, seed=0), axes=swept_words(mill))
+    sw = read_mt_sweeps(tmp_path / "sw.csv", mill)   # what the command reads
     est = ChainIdentification().fit(sw, mill).result_
     given = ChainIdentification(noise_um=2.5).fit(sw, mill).result_
     for s, v in est.elements_.functions.items():
@@ -293,10 +295,13 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
     assert given.elements_.constants == est.elements_.constants
     np.testing.assert_allclose(given.cov, est.cov * (2.5 / est.sigma_um) ** 2, rtol=COV_REL_TOL, atol=0)
     assert given.sigma_um == est.sigma_um and given.noise_um == 2.5 and est.noise_um is None
-    assert _main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--noise-um", "2.5",
+    assert _main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--noise-um", "2.5", "--raw",
                   "--out", str(tmp_path / "E.json")]) == 0
     rep = json.loads((tmp_path / "E.report.json").read_text())
-    assert rep["noise_um"] == 2.5 and rep["covariance_sigma_um"] == 2.5
+    assert rep["noise_um"] == 2.5 and rep["covariance_sigma_um"] == 2.5 and rep["smoothing"].startswith("none")
+    written = ChainElementSet.load(tmp_path / "E.json", mill)   # --raw: the chain's one (interpolating) form
+    for s, v in est.elements_.functions.items():
+        np.testing.assert_allclose(written.functions[s], v, rtol=0, atol=FILE_DIGITS)
     with pytest.raises(ValueError, match="noise"):
         ChainIdentification(noise_um=0.0).fit(sw, mill)
 

@@ -39,7 +39,7 @@ def register(sub):
                         "gauge before smoothing; see docs/identification.md")
     p.add_argument("--raw", action="store_true",
                    help="interpolating splines through the noisy stations (the paper's method, no smoothing); "
-                        "the covariance is still written")
+                        "the covariance is still written. A machine-tool chain's element set is always this form")
     p.add_argument("--noise-um", type=float, default=None,
                    help="known tracker noise σ per coordinate (μm) the covariance is scaled with (every machine tool); "
                         "default: estimated from the ball residuals")
@@ -54,7 +54,8 @@ def run(args) -> int:
         raise UsageError("--truth is overlaid on the plots: give --plot PREFIX too")
     if machine.kind == "machine-tool":
         from ..workflows.mt_loop import identify_chain_files, refuse_options
-        refuse_options(args, {"raw": False, "gauge": "station-mean", "bootstrap": 100, "seed": 0},
+        # --raw is the chain's one form (interpolating splines through the stations): accepted, nothing to change
+        refuse_options(args, {"gauge": "station-mean", "bootstrap": 100, "seed": 0},
                        "identify on a machine-tool chain (Gauss-Newton, first-station gauge, analytic covariance)")
         print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
         res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
