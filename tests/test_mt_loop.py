@@ -322,3 +322,38 @@ def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
     gauged = chain_truth_in_gauge(mill, truth_file)
     np.testing.assert_allclose(ChainField(mill, gauged).predict(g), ChainField(mill, t.elements).predict(g),
                                rtol=0, atol=NOISE_FREE_UM)
+
+
+SAME_FORMULA_UM = 1e-12
+"""The chain's truth-only effect and the grinder simulator's are the same formula on the same element: equal to
+float rounding."""
+
+
+@pytest.mark.parametrize("grinder_name, chain_effect, element", [("bump", "bump:X*Z", "dy_x"),
+                                                                 ("xz_saddle", "xz_saddle:X*Z", "dy_z")])
+def test_truth_only_effects_on_a_chain_are_the_grinders(grinder_name, chain_effect, element):
+    """``simulate --effect bump:V*W`` / ``xz_saddle:V*W`` on a chain: on the grinder's own chain file the added
+    element values equal the grinder simulator's ``bump`` / ``xz_saddle``, on that element and no other."""
+    from errormap.simulator import TruthGrinder
+    g, gc = load_machine(None), load_machine("grinder-chain")
+    axes = np.random.default_rng(5).uniform(g.stroke_lo, g.stroke_hi, (400, 3))
+    el = random_truth(g, 0).elements
+    d_g = TruthGrinder(g, el, {grinder_name: {}}).element_values(axes) - TruthGrinder(g, el, {}).element_values(axes)
+    cel = ChainElementSet.zeros(gc)
+    d_c = MTTruth(gc, cel, {chain_effect: {}}).element_values(axes) - MTTruth(gc, cel, {}).element_values(axes)
+    from errormap.elements import ELEMENT_NAMES
+    k = list(gc.slot_names).index(element)
+    assert np.abs(d_c[:, k]).max() > 1.0                         # the effect is there (μm)
+    np.testing.assert_allclose(d_c[:, k], d_g[:, ELEMENT_NAMES.index(element)], rtol=0, atol=SAME_FORMULA_UM)
+    assert np.count_nonzero(np.abs(d_c).max(axis=0)) == 1        # on that element only
+
+
+def test_truth_only_effects_through_the_cli(tmp_path):
+    """A mill's checks and sweeps with ``bump:X*Y`` (the straightness of X in Z): simulated, recorded in truth.json."""
+    assert _main(["simulate", "--machine", "mill-xyz", "--seed", "0", "--checks", "20", "--effect", "bump:X*Y",
+                  "--out", str(tmp_path / "sim")]) == 0
+    doc = json.loads((tmp_path / "sim" / "truth.json").read_text())
+    assert doc["effects"] == {"bump:X*Y": {"amplitude_um": 8.0, "p_frac": 0.6, "q_frac": 0.4, "width_frac": 0.18}}
+    assert _main(["sweeps", "--machine", "mill-xyz", "--seed", "0", "--effect", "xz_saddle:X*Z",
+                  "--out", str(tmp_path / "sw.csv")]) == 0
+    assert _main(["simulate", "--machine", "mill-xyz", "--effect", "bump:X", "--out", str(tmp_path / "bad")]) == 2
