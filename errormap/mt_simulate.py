@@ -48,6 +48,8 @@ bump            ``d{third}_v += A·exp(−½((u−p)/w)² − ½((v'−q)/w)²)`
                 (``u`` along V, ``v'`` along W)                            w = 0.18
 xz_saddle       ``d{third}_w += A·s·exp(½−½s²)·(1−t²)·exp(−½t²)``,         A = 8 μm, p = q = 0.5,
                 ``s = (u−p)/w`` along V, ``t = (v'−q)/w`` along W          w = 0.15
+squareness      the V–W squareness ``s_vw += k·sin(π·u)``                    k = 100 μrad
+squareness_xz   ``s_vw += k·sin(π·u)·sin(π·v')``                            k = 100 μrad
 ==============  ======================================================  ===========================
 
 Check measurements: columns ``<axis columns>, dx_um, dy_um, dz_um, time_s, temp_c, dir_<w>…,
@@ -97,7 +99,7 @@ EFFECT_KINDS = tuple(k.name for k in _REGISTRY if k.name in CHAIN_SIMULATED)
 EFFECT_ALIASES = {a: k.name for k in _REGISTRY if k.name in EFFECT_KINDS for a in k.aliases}
 """The registry's aliases of those kinds (``pitch`` → ``periodic``, ``worm`` → ``harmonic``,
 ``backlash`` → ``reversal``)."""
-CHAIN_TRUTH_ONLY = ("bump", "xz_saddle")
+CHAIN_TRUTH_ONLY = ("bump", "squareness", "squareness_xz", "xz_saddle")
 """The registry's truth-only kinds this simulator draws on a chain (module doc): no diagnosis kind represents
 them, so they are not :data:`EFFECT_KINDS` (the kinds a chain model's terms may have)."""
 SIMULATED_KINDS = EFFECT_KINDS + CHAIN_TRUTH_ONLY
@@ -105,6 +107,8 @@ SIMULATED_KINDS = EFFECT_KINDS + CHAIN_TRUTH_ONLY
 EFFECT_DEFAULTS = {
     "bump": {"amplitude_um": 8.0, "p_frac": 0.6, "q_frac": 0.4, "width_frac": 0.18},
     "xz_saddle": {"amplitude_um": 8.0, "p_frac": 0.5, "q_frac": 0.5, "width_frac": 0.15},
+    "squareness": {"k_urad": 100.0},
+    "squareness_xz": {"k_urad": 100.0},
     "thermal": {"k_um_per_mm_c": 0.0115},
     "reversal": {"backlash_um": 8.0},
     "periodic": {"amplitude_um": 4.0, "period_mm": 10.0, "phase_rad": 0.7},
@@ -223,10 +227,10 @@ def parse_effect(machine: MachineTool, text: str) -> tuple[str, tuple]:
     if not words:
         pair = (lin[0], lin[-1]) if len(lin) >= 2 else ()
         words = {"thermal": lin[:1], "periodic": lin[:1], "reversal": lin[-1:], "harmonic": rot[:1],
-                 "interaction": pair, "bump": pair, "xz_saddle": pair}[kind]
+                 "interaction": pair, **{k: pair for k in CHAIN_TRUTH_ONLY}}[kind]
         words = tuple(words)
     want = {"thermal": (lin, 1), "periodic": (lin, 1), "reversal": (lin + rot, 1), "harmonic": (rot, 1),
-            "interaction": (lin, 2), "bump": (lin, 2), "xz_saddle": (lin, 2)}[kind]
+            "interaction": (lin, 2), **{k: (lin, 2) for k in CHAIN_TRUTH_ONLY}}[kind]
     if len(words) != want[1] or any(w not in want[0] for w in words) or len(set(words)) != len(words):
         raise ValueError(f"effect {text!r}: {kind} acts on {want[1]} {'distinct ' if want[1] > 1 else ''}"
                          f"axis word(s) of {want[0] or 'none on this machine'} (e.g. {kind}:"
@@ -330,6 +334,9 @@ class MTTruth:
     def _truth_only(kind, p, ax, ax2, u, w) -> tuple:
         """``(element name, values (n,))`` of a truth-only kind on linear axes ``ax``, ``ax2`` at the stroke
         fractions ``u``, ``w`` (module doc)."""
+        if kind in ("squareness", "squareness_xz"):
+            f = np.sin(np.pi * u) * (np.sin(np.pi * w) if kind == "squareness_xz" else 1.0)
+            return f"s_{''.join(sorted((ax.word.lower(), ax2.word.lower())))}", p["k_urad"] * f
         third = {0, 1, 2} - {ax.along, ax2.along}
         if len(third) != 1:
             raise ValueError(f"effect {kind}:{ax.word}*{ax2.word}: the two axes move along the same direction")

@@ -329,8 +329,9 @@ SAME_FORMULA_UM = 1e-12
 float rounding."""
 
 
-@pytest.mark.parametrize("grinder_name, chain_effect, element", [("bump", "bump:X*Z", "dy_x"),
-                                                                 ("xz_saddle", "xz_saddle:X*Z", "dy_z")])
+@pytest.mark.parametrize("grinder_name, chain_effect, element", [
+    ("bump", "bump:X*Z", "dy_x"), ("xz_saddle", "xz_saddle:X*Z", "dy_z"), ("squareness", "squareness:X*Z", "s_xz"),
+    ("squareness_xz", "squareness_xz:X*Z", "s_xz")])
 def test_truth_only_effects_on_a_chain_are_the_grinders(grinder_name, chain_effect, element):
     """``simulate --effect bump:V*W`` / ``xz_saddle:V*W`` on a chain: on the grinder's own chain file the added
     element values equal the grinder simulator's ``bump`` / ``xz_saddle``, on that element and no other."""
@@ -343,7 +344,7 @@ def test_truth_only_effects_on_a_chain_are_the_grinders(grinder_name, chain_effe
     d_c = MTTruth(gc, cel, {chain_effect: {}}).element_values(axes) - MTTruth(gc, cel, {}).element_values(axes)
     from errormap.elements import ELEMENT_NAMES
     k = list(gc.slot_names).index(element)
-    assert np.abs(d_c[:, k]).max() > 1.0                         # the effect is there (μm)
+    assert np.abs(d_c[:, k]).max() > 1.0                         # the effect is there (μm or μrad)
     np.testing.assert_allclose(d_c[:, k], d_g[:, ELEMENT_NAMES.index(element)], rtol=0, atol=SAME_FORMULA_UM)
     assert np.count_nonzero(np.abs(d_c).max(axis=0)) == 1        # on that element only
 
@@ -356,4 +357,6 @@ def test_truth_only_effects_through_the_cli(tmp_path):
     assert doc["effects"] == {"bump:X*Y": {"amplitude_um": 8.0, "p_frac": 0.6, "q_frac": 0.4, "width_frac": 0.18}}
     assert _main(["sweeps", "--machine", "mill-xyz", "--seed", "0", "--effect", "xz_saddle:X*Z",
                   "--out", str(tmp_path / "sw.csv")]) == 0
+    assert _main(["simulate", "--machine", "mill-xyz", "--seed", "0", "--checks", "20", "--effect", "squareness_xz:Y*Z",
+                  "--out", str(tmp_path / "sq")]) == 0
     assert _main(["simulate", "--machine", "mill-xyz", "--effect", "bump:X", "--out", str(tmp_path / "bad")]) == 2
