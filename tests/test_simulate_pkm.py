@@ -52,3 +52,42 @@ def test_check_noise_redraw_and_refusals(machine, columns, tmp_path):
     for bad in (["--family", "independent"], ["--effect", "sag"]):
         assert main(["simulate", "--machine", machine, *bad, "--out", str(tmp_path / "bad")]) == 2
         assert not (tmp_path / "bad").exists()
+
+
+ROUND_TRIP_UM = 1e-3
+"""predict commands each pose with the nominal inverse kinematics: at the check poses' nominal tips that is the
+checks' own drive commands again (inverse after forward kinematics, Newton to 1e-9 mm), so the calibrated
+landing equals calibrate's model to far below this."""
+
+
+@pytest.mark.slow  # a hexapod calibration: over 5 CPU s
+def test_predict_on_a_hexapod_lands_where_the_calibration_says(tmp_path):
+    """``predict --machine hexapod --model calibration.json``: at the check poses' commanded tips the predicted
+    landing, in the instrument frame of the calibration, leaves against the measured checks exactly calibrate's
+    held-out RMS."""
+    from scipy.spatial.transform import Rotation
+    from errormap.io import write_csv
+    from errormap.machine import load_machine
+    from errormap.pkm.calibration import read_poses
+    from errormap.pkm.hexapod import forward_kinematics, rotation_to_angles
+    m = load_machine("hexapod")
+    assert main(["simulate", "--machine", "hexapod", "--seed", "0", "--poses", "60", "--checks", "40",
+                 "--out", str(tmp_path / "sim")]) == 0
+    assert main(["calibrate", str(tmp_path / "sim" / "poses.csv"), "--machine", "hexapod", "--no-loop", "--check",
+                 str(tmp_path / "sim" / "checks.csv"), "--out", str(tmp_path / "cal")]) == 0
+    cal = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    chk = read_poses(tmp_path / "sim" / "checks.csv", m)
+    nom = forward_kinematics(m, m.drive_to_legs(chk.q))            # the commanded poses
+    a = rotation_to_angles(nom.platform2base)
+    write_csv(tmp_path / "pts.csv", {"x_mm": nom.x[:, 0], "y_mm": nom.x[:, 1], "z_mm": nom.x[:, 2],
+                                     "rx_deg": a[:, 0], "ry_deg": a[:, 1], "rz_deg": a[:, 2]})
+    assert main(["predict", str(tmp_path / "pts.csv"), "--machine", "hexapod", "--model", str(tmp_path / "cal"),
+                 "--out", str(tmp_path / "pred.csv")]) == 0
+    t = read_table(tmp_path / "pred.csv")
+    landed = nom.x + np.stack([t.float(c) for c in ("dx_mm", "dy_mm", "dz_mm")], axis=1)
+    R = Rotation.from_quat(cal["frame"]["rotation_qx_qy_qz_qw"]).as_matrix()
+    inst = landed @ R.T + np.asarray(cal["frame"]["translation_mm"])
+    rms_um = 1e3 * np.sqrt(np.mean(np.sum((chk.tip_mm - inst) ** 2, axis=1)))
+    assert abs(rms_um - cal["rms_after_um"]) <= ROUND_TRIP_UM
+    assert main(["predict", str(tmp_path / "pts.csv"), "--machine", "hexapod", "--model", str(tmp_path / "cal"),
+                 "--band", "95", "--out", str(tmp_path / "p2.csv")]) == 2
