@@ -87,6 +87,7 @@ REFUSED = [   # gaps of the table (not yet / other path) on the command line, an
     (["diagnose", "c.csv", "--model", "E.json", "--machine", "mill-xyz", "--seed", "3"], "--seed"),
     (["diagnose", "c.csv", "--model", "E.json", "--machine", "mill-xyz", "--alpha", "0.05"], "--alpha"),
     (["diagnose", "c.csv", "--model", "E.json", "--machine", "mill-xyz", "--track"], "--track"),
+    (["diagnose", "--drift", "log.csv", "--machine", "mill-xyz"], "--machine"),
 ]
 MAX_MESSAGE_CHARS = 300
 

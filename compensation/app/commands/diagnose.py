@@ -95,6 +95,11 @@ def run(args) -> int:
     if (args.checks is None) == (args.drift is None):
         raise UsageError("give either CHECKS (with --model) or --drift LOG")
     if args.drift is not None:
+        given = [o for o, v in (("--machine", args.machine), ("--model", args.model), ("--noise-um", args.noise_um))
+                 if v is not None]
+        if given:   # never ignored silently: a drift log is channels over time, no machine or model is involved
+            raise UsageError(f"{', '.join(given)}: not used by --drift (a drift log's channels need no machine "
+                             "or model); leave it out")
         print(f"modelling drift log {args.drift} ...", file=sys.stderr)
         sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha}, deploy=args.deploy)
         summary, paths = run_drift(args.drift, args.out, sel, time_unit=args.time_unit, units=args.units)
