@@ -22,8 +22,8 @@ ANGLES = ("rx_deg", "ry_deg", "rz_deg")
 def run_pkm_predict(machine, args) -> int:
     from errormap.pkm.calibration import load_calibrated_machine
     from errormap.pkm.hexapod import KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics
-    given = [o for o, v in (("--band", args.band), ("--allow", args.allow), ("--tracking-uri", args.tracking_uri))
-             if v]
+    given = [o for o, v in (("--band", args.band), ("--allow", args.allow), ("--tracking-uri", args.tracking_uri),
+                            ("--units", args.units != "check")) if v]
     if given:   # never ignored silently
         raise UsageError(f"{', '.join(given)}: not on a parallel machine yet (its calibration.json holds no "
                          "prediction band; poses outside the leg ranges are refused); leave it out")
