@@ -262,12 +262,17 @@ def _range(elements, a) -> tuple:
     return (float(s[0]), float(s[-1])) if s is not None else tuple(a.stroke)
 
 
-def model_at(field_, machine, dirs) -> object:
+def model_at(field_, machine, dirs, constant: bool = False) -> object:
     """``field_`` with the conditions its terms need: the approach directions ``dirs`` (n, k) ±1 and the
-    reference temperature :data:`TABLE_TEMP_C`."""
+    reference temperature :data:`TABLE_TEMP_C`; ``constant``: ``dirs`` is one row (1, k) given as constants
+    (the field then takes any number of points)."""
     needs = tuple(getattr(field_, "needs", ()))
     if not needs:
         return field_
+    if constant:
+        cond = {f"dir_{a.word.lower()}": float(dirs[0, j]) for j, a in enumerate(machine.axes)}
+        cond["temp_c"] = TABLE_TEMP_C
+        return field_.with_conditions({c: cond[c] for c in needs})
     cond = {f"dir_{a.word.lower()}": dirs[:, j] for j, a in enumerate(machine.axes)}
     cond["temp_c"] = np.full(len(dirs), TABLE_TEMP_C)
     return field_.with_conditions({c: cond[c] for c in needs})
@@ -275,12 +280,26 @@ def model_at(field_, machine, dirs) -> object:
 
 def exact_corrections(field_, machine, axes, dirs):
     """The exact chain solver's axis correction (n, k) at nominal ``axes`` approached in ``dirs``, and its
-    success mask (n,)."""
+    success mask (n,). The points are solved in groups of equal approach directions on the axes the field's
+    terms need, each group with its conditions as constants (the solver evaluates the field on subsets of
+    the points it is given: per-point condition arrays would not follow them); a field without conditions
+    is one group, solved as given."""
     from .solvers import solve
     from .solvers.chain_exact import nominal_and_jacobian
-    targets, _ = nominal_and_jacobian(machine, axes)
-    r = solve("exact", model_at(field_, machine, dirs), targets, machine, target_axes=axes, progress=False)
-    return r.axes - axes, np.asarray(r.success, bool)
+    needs = set(getattr(field_, "needs", ()))
+    cols = [j for j, a in enumerate(machine.axes) if f"dir_{a.word.lower()}" in needs]
+    keys, group = np.unique(np.asarray(dirs, float)[:, cols], axis=0, return_inverse=True)
+    group = np.asarray(group).ravel()
+    c, ok = np.empty_like(np.asarray(axes, float)), np.empty(len(axes), bool)
+    for g in range(len(keys)):
+        idx = np.flatnonzero(group == g) if len(keys) > 1 else slice(None)
+        q = axes[idx]
+        d = np.asarray(dirs, float)[idx][:1]   # one row: the group's directions, as constants
+        targets, _ = nominal_and_jacobian(machine, q)
+        fld = model_at(field_, machine, d, constant=True)
+        r = solve("exact", fld, targets, machine, target_axes=q, progress=False)
+        c[idx], ok[idx] = r.axes - q, np.asarray(r.success, bool)
+    return c, ok
 
 
 def weighted_node_means(nom, c, ok, w, empty_message: str) -> np.ndarray:
@@ -302,7 +321,7 @@ unweighted mean of the linear joints; kept for the benchmark's comparison)."""
 
 
 def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAMPLES, seed=0,
-                       rotary_weight: str = "r2") -> ChainJointTables:
+                       rotary_weight: str = "r2", region: dict | None = None) -> ChainJointTables:
     """One table per joint the exact chain solver moves (:func:`compensation.solvers.chain_exact.solved_and_kept`:
     a mill's X, Y, Z; a lathe's X, Z and C; rotary joints it keeps get none): at ``n_points`` nominal positions
     over its calibrated range, the exact correction of that joint averaged over ``samples`` seeded positions of
@@ -314,7 +333,12 @@ def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAM
     from the axis, from the chain's axis Jacobian): the node value is the least-squares angle over the samples'
     tool-point displacements ``r·Δθ`` (a plain mean would be ruled by the samples near the axis, where a small
     sideways error needs a large turn). A full-turn joint's table covers one turn of its calibrated range, the
-    last line equal to the first."""
+    last line equal to the first.
+
+    ``region``: ``{column: (lo, hi)}`` (a part's working region, as the grinder's ``--region``): the other axes'
+    samples are drawn inside it instead of over the whole calibrated range; each joint's own nodes still span
+    its calibrated range. A range outside the calibrated one is a ValueError naming it (the model says nothing
+    reliable there)."""
     from .solvers.chain_exact import nominal_and_jacobian, rotary_radius_mm, solved_and_kept
     if rotary_weight not in ROTARY_WEIGHTS:
         raise ValueError(f"Expected rotary_weight in {ROTARY_WEIGHTS}, got {rotary_weight!r}")
@@ -323,6 +347,7 @@ def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAM
     rng = np.random.default_rng(seed)
     lo = np.array([_range(elements, a)[0] for a in m.axes])
     hi = np.array([_range(elements, a)[1] for a in m.axes])
+    box_lo, box_hi = region_box(m, lo, hi, region)
     needs = set(getattr(field_, "needs", ()))
     nominal, fwd, rev, joints, units, turns = {}, {}, {}, {}, {}, {}
     for k in sol:
@@ -331,7 +356,7 @@ def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAM
         j = a.word.lower()
         rotary = a.kind != "linear"
         nom = np.linspace(lo[k], hi[k], n_points)
-        q = np.repeat(rng.uniform(lo, hi, (samples, len(m.axes)))[None], n_points, axis=0)
+        q = np.repeat(rng.uniform(box_lo, box_hi, (samples, len(m.axes)))[None], n_points, axis=0)
         q[:, :, k] = nom[:, None]
         q = q.reshape(-1, len(m.axes))
         d = np.repeat(rng.choice([-1.0, 1.0], (samples, len(m.axes)))[None], n_points, axis=0).reshape(-1, len(m.axes))
@@ -353,6 +378,23 @@ def chain_joint_tables(field_, elements, n_points: int, samples: int = JOINT_SAM
         if rotary and a.full_turn and hi[k] - lo[k] >= 360.0 - 1e-9:
             turns[j] = float(lo[k])
     return ChainJointTables(nominal, fwd, rev, joints, units, turns)
+
+
+def region_box(machine, lo, hi, region: dict | None) -> tuple:
+    """The sampling box ``(lo, hi)`` (k,) of :func:`chain_joint_tables`: the calibrated ``lo``, ``hi`` with the
+    ranges of ``region`` (``{column: (lo, hi)}``) in place of their axes'; ValueError for an unknown column or a
+    range outside the calibrated one."""
+    box_lo, box_hi = np.array(lo, float), np.array(hi, float)
+    cols = list(machine.axis_columns)
+    tol = 1e-9 * max(1.0, float(np.max(np.abs(np.r_[box_lo, box_hi]))))
+    for c, (a, b) in (region or {}).items():
+        if c not in cols:
+            raise ValueError(f"region: no axis column {c!r} on machine {machine.name!r} (columns: {', '.join(cols)})")
+        k = cols.index(c)
+        if not (box_lo[k] - tol <= a <= b <= box_hi[k] + tol):
+            raise ValueError(f"region {c} {a:g}:{b:g} leaves the calibrated range {box_lo[k]:g}:{box_hi[k]:g}")
+        box_lo[k], box_hi[k] = a, b
+    return box_lo, box_hi
 
 
 def check_chain_joint_tables(tables: ChainJointTables, field_, machine, axes, dirs, truth=None) -> dict:
@@ -380,3 +422,30 @@ def check_chain_joint_tables(tables: ChainJointTables, field_, machine, axes, di
         out["baseline_none"]["true"] = _stats(tr(axes))
         out["baseline_exact"]["true"] = _stats(reached(q_x, tr))
     return out
+
+
+def reversal_terms_from_diagnosis(path, machine) -> tuple[list, list]:
+    """The terms of a chain loop's ``diagnosis.json`` (``volcomp diagnose --machine``: its ``effects``) that a
+    per-joint table carries as its forward/reverse difference (the registry's ``export``, as the grinder's
+    :func:`compensation.export.backlash_from_diagnosis`), and labels of the other effects, left out. An
+    InputError names the file and key for another machine's diagnosis or anything unreadable."""
+    import json
+    from pathlib import Path
+    from errormap.diagnosis.mt_model import read_terms
+    from errormap.effect_kinds import effect_kind
+    from errormap.io import InputError, read_document_text
+    from .export import BACKLASH_EXPORT
+    path = Path(path)
+    try:
+        d = json.loads(read_document_text(path, "a diagnosis"))
+    except (OSError, json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"{path}: not a readable diagnosis file ({exc})") from None
+    if not isinstance(d, dict) or d.get("machine") != machine.name or d.get("machine_sha256") not in (None, machine.sha256):
+        got = d.get("machine") if isinstance(d, dict) else None
+        raise InputError(f"{path}: key 'machine': expected the diagnosis of `volcomp diagnose --machine {machine.name}`, "
+                         f"got {got!r}")
+    terms = read_terms(d.get("effects"), machine, path, "effects")
+    keep = [t for t in terms if effect_kind(t.kind).export == BACKLASH_EXPORT]
+    left = [f"{t.kind}({'*'.join(t.axes)}) on {t.element}" for t in terms
+            if effect_kind(t.kind).export != BACKLASH_EXPORT]
+    return keep, left

@@ -265,8 +265,8 @@ def check_machine_kind(path, kind: str, expect_kind: str | None) -> None:
 # what a machine of each kind is for, said when a command meant for another kind is given one
 KIND_HINTS = {
     "serial": "a serial arm: use volcomp simulate, calibrate, compensate, predict or benchmark",
-    "hexapod": "a parallel machine: use volcomp calibrate or interpolate",
-    "tripod": "a parallel machine: use volcomp calibrate or interpolate",
+    "hexapod": "a parallel machine: use volcomp simulate, calibrate, predict, interpolate or benchmark",
+    "tripod": "a parallel machine: use volcomp simulate, calibrate, predict, interpolate or benchmark",
 }
 
 

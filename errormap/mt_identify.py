@@ -80,12 +80,16 @@ class ChainIdentificationResult:
     cov: np.ndarray
     unobservable: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
+    noise_um: float | None = None
+    """The known tracker σ the covariance was scaled with (``ChainIdentification(noise_um=...)``); None: σ̂."""
 
     def summary_lines(self) -> list[str]:
         lines = [f"axis {w}: {len(r)} stations, ball residual RMS max {r.max():.3g} um"
                  for w, r in self.residual_rms_um.items()]
         lines.append(f"Gauss-Newton: {self.iterations} iterations, sigma {self.sigma_um:.3g} um per coordinate, "
                      f"scaled condition {self.condition:.3g}")
+        if self.noise_um is not None:
+            lines.append(f"covariance scaled with the given tracker noise {self.noise_um:.3g} um (not the estimate)")
         c = self.elements_.constants
         if c:
             lines.append("constants: " + ", ".join(f"{k} {v:.4g}" for k, v in c.items()))
@@ -95,9 +99,12 @@ class ChainIdentificationResult:
 
     def to_dict(self) -> dict:
         return {"format": "volcomp-chain-identification/1", "gauge": "first-station",
+                "smoothing": "none: interpolating splines through the stations (identify --raw's form)",
                 "machine_in_tracker": {"R": self.machine_in_tracker[0].tolist(), "t_mm": self.machine_in_tracker[1].tolist()},
                 "residual_rms_um": {k: v.tolist() for k, v in self.residual_rms_um.items()},
-                "sigma_um": self.sigma_um, "iterations": self.iterations, "condition": self.condition,
+                "sigma_um": self.sigma_um, "noise_um": self.noise_um,
+                "covariance_sigma_um": self.sigma_um if self.noise_um is None else self.noise_um,
+                "iterations": self.iterations, "condition": self.condition,
                 "unobservable": self.unobservable, "warnings": self.warnings,
                 "constants": self.elements_.constants}
 
@@ -148,15 +155,18 @@ class ChainIdentification:
 
     Settings: ``max_iter`` / ``tol`` (largest update, μm or μrad) of the Gauss–Newton loop;
     ``min_separation_mm``: balls closer than this coincide; ``distance_tol_mm``: allowed
-    difference between measured and nominal ball distances (mixed units, wrong mounts).
+    difference between measured and nominal ball distances (mixed units, wrong mounts); ``noise_um``: the
+    known tracker σ per coordinate (μm) the covariance is scaled with (as the grinder's ``identify
+    --noise-um``), None: the residuals' σ̂.
     """
 
     def __init__(self, max_iter: int = 30, tol: float = 1e-7, min_separation_mm: float = 1.0,
-                 distance_tol_mm: float = 2.0):
+                 distance_tol_mm: float = 2.0, noise_um: float | None = None):
         self.max_iter = max_iter
         self.tol = tol
         self.min_separation_mm = min_separation_mm
         self.distance_tol_mm = distance_tol_mm
+        self.noise_um = noise_um
 
     # -- validation ------------------------------------------------------------------------
     def _check(self, sweeps: Sweeps, machine: MachineTool) -> list:
@@ -266,6 +276,8 @@ class ChainIdentification:
     # -- the method -------------------------------------------------------------------------
     def fit(self, sweeps: Sweeps, machine: MachineTool) -> "ChainIdentification":
         """Identify every error slot of ``machine`` from ``sweeps`` (:class:`errormap.sweeps.Sweeps`)."""
+        if self.noise_um is not None and not (np.isfinite(self.noise_um) and self.noise_um > 0):
+            raise ValueError(f"Expected a positive, finite tracker noise σ in μm, got {self.noise_um}")
         warnings = self._check(sweeps, machine)
         words = swept_words(machine)
         names, stations, free, block, const0 = self._layout(sweeps, machine)
@@ -340,9 +352,10 @@ class ChainIdentification:
         sv = np.linalg.svd(Jf / scale, compute_uv=False)
         dof = max(r.size - int(keep.sum()), 1)
         sigma = float(np.sqrt(r @ r / dof))
+        s_cov = sigma if self.noise_um is None else float(self.noise_um)
         Jinv = np.linalg.pinv(Jf / scale)
         cov_f = np.zeros((nf, nf))
-        cov_f[np.ix_(keep, keep)] = sigma**2 * (Jinv @ Jinv.T) / np.outer(scale, scale)
+        cov_f[np.ix_(keep, keep)] = s_cov**2 * (Jinv @ Jinv.T) / np.outer(scale, scale)
         cov = A[6:] @ cov_f @ A[6:].T
         # element set
         st, fun = {}, {}
@@ -364,7 +377,8 @@ class ChainIdentification:
             o += 3 * m
         self.elements_ = elements
         self.result_ = ChainIdentificationResult(elements, (RG, tG), res, sigma, it, float(sv[0] / sv[-1]),
-                                                 names[6:], stations[6:], cov, unobservable, warnings)
+                                                 names[6:], stations[6:], cov, unobservable, warnings,
+                                                 None if self.noise_um is None else float(self.noise_um))
         return self
 
     @staticmethod

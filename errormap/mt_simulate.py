@@ -39,6 +39,19 @@ harmonic        rotary axis W: ``e{along}_w += A·sin(N·w + φ)``             A
 interaction     linear axes V*W: ``d{along}_v += k·(v−lo)(w−lo)/(Δv·Δw)``   k = 6 μm (±4–9 μm)
 ==============  ======================================================  ===========================
 
+Out-of-catalogue (truth-only) kinds, the grinder's forms on any pair of linear axes ``V*W``, ``third`` the
+direction neither moves along (the grinder's ``bump`` and ``xz_saddle`` are ``bump:X*Z``, ``xz_saddle:X*Z``
+on its chain, the same element values); ``u``, ``v`` the positions as fractions of the strokes:
+
+==============  ======================================================  ===========================
+bump            ``d{third}_v += A·exp(−½((u−p)/w)² − ½((v'−q)/w)²)``        A = 8 μm, p = 0.6, q = 0.4,
+                (``u`` along V, ``v'`` along W)                            w = 0.18
+xz_saddle       ``d{third}_w += A·s·exp(½−½s²)·(1−t²)·exp(−½t²)``,         A = 8 μm, p = q = 0.5,
+                ``s = (u−p)/w`` along V, ``t = (v'−q)/w`` along W          w = 0.15
+squareness      the V–W squareness ``s_vw += k·sin(π·u)``                    k = 100 μrad
+squareness_xz   ``s_vw += k·sin(π·u)·sin(π·v')``                            k = 100 μrad
+==============  ======================================================  ===========================
+
 Check measurements: columns ``<axis columns>, dx_um, dy_um, dz_um, time_s, temp_c, dir_<w>…,
 seq`` (``docs/schemas.md``); uniform random points (default) or a scrambled Sobol layout
 (independent) over the strokes, the warm-up of the grinder's families, a random approach
@@ -86,7 +99,16 @@ EFFECT_KINDS = tuple(k.name for k in _REGISTRY if k.name in CHAIN_SIMULATED)
 EFFECT_ALIASES = {a: k.name for k in _REGISTRY if k.name in EFFECT_KINDS for a in k.aliases}
 """The registry's aliases of those kinds (``pitch`` → ``periodic``, ``worm`` → ``harmonic``,
 ``backlash`` → ``reversal``)."""
+CHAIN_TRUTH_ONLY = ("bump", "squareness", "squareness_xz", "xz_saddle")
+"""The registry's truth-only kinds this simulator draws on a chain (module doc): no diagnosis kind represents
+them, so they are not :data:`EFFECT_KINDS` (the kinds a chain model's terms may have)."""
+SIMULATED_KINDS = EFFECT_KINDS + CHAIN_TRUTH_ONLY
+"""Every kind ``simulate --effect`` takes on a chain."""
 EFFECT_DEFAULTS = {
+    "bump": {"amplitude_um": 8.0, "p_frac": 0.6, "q_frac": 0.4, "width_frac": 0.18},
+    "xz_saddle": {"amplitude_um": 8.0, "p_frac": 0.5, "q_frac": 0.5, "width_frac": 0.15},
+    "squareness": {"k_urad": 100.0},
+    "squareness_xz": {"k_urad": 100.0},
     "thermal": {"k_um_per_mm_c": 0.0115},
     "reversal": {"backlash_um": 8.0},
     "periodic": {"amplitude_um": 4.0, "period_mm": 10.0, "phase_rad": 0.7},
@@ -195,19 +217,20 @@ def parse_effect(machine: MachineTool, text: str) -> tuple[str, tuple]:
         kind = effect_kind(name.strip()).name          # the registry: canonical name or alias
     except ValueError:
         kind = None
-    if kind not in EFFECT_KINDS:
+    if kind not in SIMULATED_KINDS:
         what = "unknown effect kind" if kind is None else "effect kind not simulated on a machine-tool chain:"
-        raise ValueError(f"{what} {name!r} (known: {', '.join(EFFECT_KINDS)}; aliases "
+        raise ValueError(f"{what} {name!r} (known: {', '.join(SIMULATED_KINDS)}; aliases "
                          f"{', '.join(f'{a}={k}' for a, k in EFFECT_ALIASES.items())})")
     lin = [a.word for a in machine.axes if a.kind == "linear"]
     rot = [a.word for a in machine.axes if a.kind == "rotary"]
     words = tuple(w.strip().upper() for w in axes.replace("*", ",").split(",") if w.strip()) if axes else ()
     if not words:
+        pair = (lin[0], lin[-1]) if len(lin) >= 2 else ()
         words = {"thermal": lin[:1], "periodic": lin[:1], "reversal": lin[-1:], "harmonic": rot[:1],
-                 "interaction": (lin[0], lin[-1]) if len(lin) >= 2 else ()}[kind]
+                 "interaction": pair, **{k: pair for k in CHAIN_TRUTH_ONLY}}[kind]
         words = tuple(words)
     want = {"thermal": (lin, 1), "periodic": (lin, 1), "reversal": (lin + rot, 1), "harmonic": (rot, 1),
-            "interaction": (lin, 2)}[kind]
+            "interaction": (lin, 2), **{k: (lin, 2) for k in CHAIN_TRUTH_ONLY}}[kind]
     if len(words) != want[1] or any(w not in want[0] for w in words) or len(set(words)) != len(words):
         raise ValueError(f"effect {text!r}: {kind} acts on {want[1]} {'distinct ' if want[1] > 1 else ''}"
                          f"axis word(s) of {want[0] or 'none on this machine'} (e.g. {kind}:"
@@ -296,9 +319,33 @@ class MTTruth:
                 j2, ax2 = self._ax(words[1])
                 span = (ax.stroke[1] - ax.stroke[0]) * (ax2.stroke[1] - ax2.stroke[0])
                 v[:, idx[slot]] += p["corner_um"] * rel * (axes[:, j2] - ax2.stroke[0]) / span
+            elif kind in CHAIN_TRUTH_ONLY:
+                j2, ax2 = self._ax(words[1])
+                name, val = self._truth_only(kind, p, ax, ax2, rel / (ax.stroke[1] - ax.stroke[0]),
+                                             (axes[:, j2] - ax2.stroke[0]) / (ax2.stroke[1] - ax2.stroke[0]))
+                if name not in idx:
+                    raise ValueError(f"effect {key}: the machine has no element {name} to carry it")
+                v[:, idx[name]] += val
             else:  # never a default
                 raise ValueError(f"effect {key}: kind {kind!r} is not simulated on a machine-tool chain")
         return v
+
+    @staticmethod
+    def _truth_only(kind, p, ax, ax2, u, w) -> tuple:
+        """``(element name, values (n,))`` of a truth-only kind on linear axes ``ax``, ``ax2`` at the stroke
+        fractions ``u``, ``w`` (module doc)."""
+        if kind in ("squareness", "squareness_xz"):
+            f = np.sin(np.pi * u) * (np.sin(np.pi * w) if kind == "squareness_xz" else 1.0)
+            return f"s_{''.join(sorted((ax.word.lower(), ax2.word.lower())))}", p["k_urad"] * f
+        third = {0, 1, 2} - {ax.along, ax2.along}
+        if len(third) != 1:
+            raise ValueError(f"effect {kind}:{ax.word}*{ax2.word}: the two axes move along the same direction")
+        c = "xyz"[third.pop()]
+        if kind == "bump":
+            g = np.exp(-0.5 * ((u - p["p_frac"]) / p["width_frac"]) ** 2 - 0.5 * ((w - p["q_frac"]) / p["width_frac"]) ** 2)
+            return f"d{c}_{ax.word.lower()}", p["amplitude_um"] * g
+        s, t = (u - p["p_frac"]) / p["width_frac"], (w - p["q_frac"]) / p["width_frac"]
+        return f"d{c}_{ax2.word.lower()}", p["amplitude_um"] * s * np.exp(0.5 - 0.5 * s * s) * (1.0 - t * t) * np.exp(-0.5 * t * t)
 
     def spatial_error(self, axes, **conditions) -> np.ndarray:
         """True spatial error (μm) of the tool point in the workpiece frame, (n, k) -> (n, 3)."""
@@ -309,11 +356,15 @@ class MTTruth:
         """Reference temperature, positive approach on every axis."""
         return {"temp_c": np.full(n, REF_TEMP_C), **{f"dir_{a.word.lower()}": np.ones(n) for a in self.machine.axes}}
 
-    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed=0, dt_s: float = 15.0) -> dict:
-        """Simulated check measurements (module doc): a dict of columns, each shape (n,)."""
+    def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed=0, dt_s: float = 15.0,
+                           noise_seed=None) -> dict:
+        """Simulated check measurements (module doc): a dict of columns, each shape (n,). ``noise_seed``: None
+        (default) the noise stream of ``seed``; a seed: only the noise redrawn, the layout unchanged."""
         m = self.machine
         k = len(m.axes)
         r_pts, r_env, r_noise = spawn_rngs(seed, 3)
+        if noise_seed is not None:
+            r_noise = np.random.default_rng(noise_seed)
         lo, hi = m.stroke_lo, m.stroke_hi
         t = np.arange(n) * dt_s
         if self.family == "independent":
@@ -356,4 +407,5 @@ def make_mt_truth(machine: MachineTool, seed: int, effects=(), family: str = "de
 
 
 __all__ = ["MTTruth", "make_mt_truth", "random_chain_elements", "volume_grid", "parse_effect", "EFFECT_KINDS",
+           "SIMULATED_KINDS", "CHAIN_TRUTH_ONLY",
            "FAMILIES", "COMPONENTS"]

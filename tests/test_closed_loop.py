@@ -389,3 +389,32 @@ def test_refit_stage_reproduces_the_loop_and_takes_an_offset_off_its_target(grin
     assert np.max(np.abs(m1.predict(P) - HTMField(grinder, direct.elements_).predict(P))) <= REFIT_STAGE_REPRODUCE_UM
     with pytest.raises(ValueError, match="offset of shape"):
         refit_stage(grinder, sm.covariance_, checks, loop, offset_um=off[:10], idx=fit_idx)
+
+
+STATED_TOO_LOW_UM = 0.3
+"""A stated σ far below the checks' real 1 μm: the update's estimate (≈ 1 μm) is > NOISE_EXCESS (2) × it."""
+
+
+@pytest.mark.slow  # two closed loops: 9 CPU s
+def test_given_noise_sets_the_floor_and_the_verdict_compares_the_estimate_with_it(grinder, indep):
+    """``diagnose --noise-um`` on the grinder, as on a chain (one helper, ``noise_record``): the floor is √3·σ of
+    the given σ, the held-out RMS is reported over it, and a stated σ far below the update's estimate fails the
+    verdict."""
+    from compensation.app.workflows.diagnosis import closed_loop_model
+    from errormap.diagnosis.pipeline import DiagnosisSettings
+    from errormap.diagnosis.plausibility import NOISE_EXCESS
+    truth, sm = indep
+    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, 1.0, seed=11))
+    s = closed_loop_model(grinder, sm.covariance_, checks, DiagnosisSettings(noise_um=1.0), learn=False,
+                          refit_all=False).summary
+    assert s["noise_sigma_source"] == "given" and s["noise_sigma_stated_um"] == 1.0
+    assert s["noise_floor_um"] == pytest.approx(np.sqrt(3.0), rel=1e-12)
+    assert s["held_out_over_floor"] == pytest.approx(s["rms_final_um"] / np.sqrt(3.0), rel=1e-12)
+    assert abs(s["noise_sigma_estimated_um"] - 1.0) <= NOISE_REL_TOL
+    assert s["verdict"]["status"] == "passed"
+    low = closed_loop_model(grinder, sm.covariance_, checks, DiagnosisSettings(noise_um=STATED_TOO_LOW_UM),
+                            learn=False, refit_all=False).summary
+    assert low["noise_sigma_estimated_um"] > NOISE_EXCESS * STATED_TOO_LOW_UM
+    assert low["verdict"]["status"] == "failed" and "stated σ" in low["verdict"]["reasons"][0]
+    with pytest.raises(ValueError, match="noise"):
+        DiagnosisSettings(noise_um=-1.0).validate(N_CHECKS)

@@ -272,3 +272,91 @@ def test_chain_sweep_reader_shares_the_grinder_readers_row_checks(tmp_path, mill
     write_csv(tmp_path / "unit.csv", unit)
     with pytest.raises(InputError, match=r"unit\.csv: row \d+, column 'command_unit'.*expected 'mm'"):
         read_mt_sweeps(tmp_path / "unit.csv", mill)
+
+
+COV_REL_TOL = 1e-12
+"""The same Gauss-Newton solution and Jacobian scaled by (σ_given / σ̂)²: equal to float rounding."""
+FILE_DIGITS = 1e-9
+"""An element set written to JSON and read back: its values to the file's digits (μm / μrad)."""
+
+
+@pytest.mark.slow  # three Gauss-Newton identifications of the mill: over 5 CPU s
+def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mill):
+    """``identify --noise-um`` on a chain (as on the grinder): the known tracker σ scales the covariance; the
+    elements are the same as without it."""
+    import json
+    t = make_mt_truth(mill, 0)
+    write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
+    sw = read_mt_sweeps(tmp_path / "sw.csv", mill)   # what the command reads
+    est = ChainIdentification().fit(sw, mill).result_
+    given = ChainIdentification(noise_um=2.5).fit(sw, mill).result_
+    for s, v in est.elements_.functions.items():
+        np.testing.assert_array_equal(given.elements_.functions[s], v)
+    assert given.elements_.constants == est.elements_.constants
+    np.testing.assert_allclose(given.cov, est.cov * (2.5 / est.sigma_um) ** 2, rtol=COV_REL_TOL, atol=0)
+    assert given.sigma_um == est.sigma_um and given.noise_um == 2.5 and est.noise_um is None
+    assert _main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--noise-um", "2.5", "--raw",
+                  "--out", str(tmp_path / "E.json")]) == 0
+    rep = json.loads((tmp_path / "E.report.json").read_text())
+    assert rep["noise_um"] == 2.5 and rep["covariance_sigma_um"] == 2.5 and rep["smoothing"].startswith("none")
+    written = ChainElementSet.load(tmp_path / "E.json", mill)   # --raw: the chain's one (interpolating) form
+    for s, v in est.elements_.functions.items():
+        np.testing.assert_allclose(written.functions[s], v, rtol=0, atol=FILE_DIGITS)
+    with pytest.raises(ValueError, match="noise"):
+        ChainIdentification(noise_um=0.0).fit(sw, mill)
+
+
+@pytest.mark.slow  # two Gauss-Newton identifications of the mill: over 5 CPU s
+def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
+    """``identify --plot PREFIX --truth ELEMENTS`` on a chain (as on the grinder): one figure per swept axis, the
+    truth overlaid in the identified gauge (the identification of its noise-free sweeps: the same tool points)."""
+    from compensation.app.workflows.mt_loop import chain_truth_in_gauge
+    t = make_mt_truth(mill, 0)
+    write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
+    truth_file = t.elements.save(tmp_path / "truth.json")
+    assert _main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--out", str(tmp_path / "E.json"),
+                  "--plot", str(tmp_path / "el"), "--truth", str(truth_file)]) == 0
+    for w in swept_words(mill):
+        assert (tmp_path / f"el_{w}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    g = volume_grid(mill, 300)
+    gauged = chain_truth_in_gauge(mill, truth_file)
+    np.testing.assert_allclose(ChainField(mill, gauged).predict(g), ChainField(mill, t.elements).predict(g),
+                               rtol=0, atol=NOISE_FREE_UM)
+
+
+SAME_FORMULA_UM = 1e-12
+"""The chain's truth-only effect and the grinder simulator's are the same formula on the same element: equal to
+float rounding."""
+
+
+@pytest.mark.parametrize("grinder_name, chain_effect, element", [
+    ("bump", "bump:X*Z", "dy_x"), ("xz_saddle", "xz_saddle:X*Z", "dy_z"), ("squareness", "squareness:X*Z", "s_xz"),
+    ("squareness_xz", "squareness_xz:X*Z", "s_xz")])
+def test_truth_only_effects_on_a_chain_are_the_grinders(grinder_name, chain_effect, element):
+    """``simulate --effect bump:V*W`` / ``xz_saddle:V*W`` on a chain: on the grinder's own chain file the added
+    element values equal the grinder simulator's ``bump`` / ``xz_saddle``, on that element and no other."""
+    from errormap.simulator import TruthGrinder
+    g, gc = load_machine(None), load_machine("grinder-chain")
+    axes = np.random.default_rng(5).uniform(g.stroke_lo, g.stroke_hi, (400, 3))
+    el = random_truth(g, 0).elements
+    d_g = TruthGrinder(g, el, {grinder_name: {}}).element_values(axes) - TruthGrinder(g, el, {}).element_values(axes)
+    cel = ChainElementSet.zeros(gc)
+    d_c = MTTruth(gc, cel, {chain_effect: {}}).element_values(axes) - MTTruth(gc, cel, {}).element_values(axes)
+    from errormap.elements import ELEMENT_NAMES
+    k = list(gc.slot_names).index(element)
+    assert np.abs(d_c[:, k]).max() > 1.0                         # the effect is there (μm or μrad)
+    np.testing.assert_allclose(d_c[:, k], d_g[:, ELEMENT_NAMES.index(element)], rtol=0, atol=SAME_FORMULA_UM)
+    assert np.count_nonzero(np.abs(d_c).max(axis=0)) == 1        # on that element only
+
+
+def test_truth_only_effects_through_the_cli(tmp_path):
+    """A mill's checks and sweeps with ``bump:X*Y`` (the straightness of X in Z): simulated, recorded in truth.json."""
+    assert _main(["simulate", "--machine", "mill-xyz", "--seed", "0", "--checks", "20", "--effect", "bump:X*Y",
+                  "--out", str(tmp_path / "sim")]) == 0
+    doc = json.loads((tmp_path / "sim" / "truth.json").read_text())
+    assert doc["effects"] == {"bump:X*Y": {"amplitude_um": 8.0, "p_frac": 0.6, "q_frac": 0.4, "width_frac": 0.18}}
+    assert _main(["sweeps", "--machine", "mill-xyz", "--seed", "0", "--effect", "xz_saddle:X*Z",
+                  "--out", str(tmp_path / "sw.csv")]) == 0
+    assert _main(["simulate", "--machine", "mill-xyz", "--seed", "0", "--checks", "20", "--effect", "squareness_xz:Y*Z",
+                  "--out", str(tmp_path / "sq")]) == 0
+    assert _main(["simulate", "--machine", "mill-xyz", "--effect", "bump:X", "--out", str(tmp_path / "bad")]) == 2

@@ -19,7 +19,7 @@ from compensation.app.validate import MAX_ERROR_CHARS, UsageError, one_line  # n
 # ``a-b`` lives in ``compensation/app/commands/a_b.py``; tests/test_cli_foundation.py checks that
 # each module registers exactly this help
 COMMAND_HELP = {
-    "simulate": "simulate a truth machine and its measurements (a machine tool: elements, feature points, checks; a serial arm: tracker poses)",
+    "simulate": "simulate a truth machine and its measurements (a machine tool: elements, feature points, checks; a serial arm or a hexapod/tripod: measured poses)",
     "featurepoints": "feature points (a grid over the machine's axes) from an element set",
     "predict": "evaluate an error field at axis points (CSV with the machine's axis columns, e.g. x_mm, z_mm, a_deg)",
     "train": "train the error-field network (LM by default) on feature points, tracked in MLflow",

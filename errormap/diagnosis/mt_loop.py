@@ -850,7 +850,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     def stats(r):
         return {"held_out": residual_stats(r[hold_idx], ERROR_COLUMNS), "fitting": residual_stats(r[fit_idx], ERROR_COLUMNS)}
 
-    from .plausibility import check_deviations
+    from .plausibility import check_deviations, noise_record
     stated = noise_um if noise_um is not None else checks.stated_noise_um
     pred0 = ChainField(machine, elements).predict(checks.axes)
     check_deviations(checks.path, checks.measured_um, pred0, rows=checks.rows, noise_um=stated, units=units)
@@ -971,7 +971,6 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             if z > FALLBACK_Z:
                 kept, why = plain, f"fell back to {plain}: better on the held-out checks by paired z = {z:.2f}"
     sig = noise_um if noise_um is not None else sigma
-    floor = None if sig is None else float(np.sqrt(3.0) * sig)
     refit = None
     if kept in ("updated", "plus_effects") and last == "updated":
         ols_kept = prior is not None and prior["kept"] != "update with the smoothness prior"
@@ -1010,16 +1009,13 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     baselines = {k: {"held_out_rms_um": stages[k]["held_out"]["rms_um"],
                      "paired_z_over_kept": _paired_z(resid_of[kept][hold_idx], r[hold_idx])}
                  for k, r in baseline_resid.items()}
-    return {"machine": machine.name, "n_checks": n, "n_fit": n_fit, "n_held_out": n - n_fit,
+    return {"machine": machine.name, "machine_sha256": machine.sha256, "n_checks": n, "n_fit": n_fit, "n_held_out": n - n_fit,
             "split": f"blocked by seq: first {fit_fraction:g} fit, the rest held out",
             "stages": stages, "kept_stage": kept_name, "kept_why": why, "update_prior": prior,
             "effects": [t.to_dict() for t in accepted], "effects_rejected": rejected, "effects_absorbed": absorbed,
             "effects_dropped_in_joint_fit": dropped,
-            "noise_sigma_um": sig, "noise_sigma_source": "given" if noise_um is not None else
-            ("estimated by the update" if sigma is not None else None),
-            "noise_sigma_estimated_um": sigma, "noise_sigma_stated_um": stated, "baselines_vs_kept": baselines,
-            "noise_floor_um": floor, "held_out_rms_um": held,
-            "held_out_over_floor": None if floor is None else float(held / floor),
+            "noise_sigma_um": sig, "baselines_vs_kept": baselines, "held_out_rms_um": held,
+            **noise_record(noise_um, sigma, held, stated),
             "_models": {"elements": models.get("updated_plus_effects" if kept == "plus_effects" else kept,
                                                models.get("updated", elements)), "terms": accepted,
                         "refit": refit}}

@@ -188,20 +188,31 @@ def load_chain_model_file(path, machine: MachineTool, learned: str = "refuse") -
     if not isinstance(d.get("elements"), str):
         raise InputError(f"{path}: key 'elements': expected the element set's file name, got {d.get('elements')!r}")
     el = ChainElementSet.load(path.parent / d["elements"], machine)
+    return ChainModelField(machine, el, read_terms(d.get("terms", []), machine, path, "terms"))
+
+
+def read_terms(items, machine: MachineTool, path, key: str) -> list:
+    """The :class:`EffectTerm` of each dict in ``items`` (``EffectTerm.to_dict``'s form: ``model.json``'s
+    ``terms``, ``diagnosis.json``'s ``effects`` of the chain loop); an InputError names ``path`` and
+    ``key[i]`` for anything that is not one of this machine's terms."""
     words = {a.word for a in machine.axes}
+    if not isinstance(items, list):
+        raise InputError(f"{path}: key '{key}': expected a list of effect terms")
     terms = []
-    for i, t in enumerate(d.get("terms", [])):
+    for i, t in enumerate(items):
         try:
             kind, axes = t["kind"], tuple(str(t["axis"]).split("*"))
             if kind not in KINDS:
                 raise ValueError(f"unknown effect kind {kind!r} (known: {', '.join(KINDS)})")
             if not set(axes) <= words or len(axes) != (2 if kind == "interaction" else 1):
                 raise ValueError(f"axis {t['axis']!r} does not fit the kind on machine {machine.name!r}")
+            if str(t["element"]) not in machine.slot_names:
+                raise ValueError(f"element {t['element']!r} is not one of machine {machine.name!r}'s")
             coef = np.asarray(t["coefficients"], float)
             if coef.ndim != 1 or not np.all(np.isfinite(coef)):
                 raise ValueError("coefficients must be a list of finite numbers")
             terms.append(EffectTerm(kind, axes, str(t["element"]), dict(t.get("shape") or {}), coef,
                                     float(t.get("held_out_gain_z", 0.0))))
         except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{path}: key 'terms[{i}]': {exc}") from None
-    return ChainModelField(machine, el, terms)
+            raise InputError(f"{path}: key '{key}[{i}]': {exc}") from None
+    return terms

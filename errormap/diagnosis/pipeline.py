@@ -40,10 +40,15 @@ class DiagnosisSettings:
     period_min_mm: float = 1.0
     max_order: int = 120
     ref_temp_c: float = 20.0
+    noise_um: float | None = None
+    """The checks' known noise σ per axis (μm): the held-out noise floor √3·σ and the σ the verdict compares the
+    update's estimate with (:func:`errormap.diagnosis.plausibility.noise_record`); None: estimated by the update."""
 
     def validate(self, n: int) -> None:
         if not 0 < self.fit_fraction < 1:
             raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
+        if self.noise_um is not None and not (np.isfinite(self.noise_um) and self.noise_um > 0):
+            raise ValueError(f"Expected a positive, finite noise σ in μm, got {self.noise_um}")
         n_fit = int(round(self.fit_fraction * n))
         if n_fit < 20 or n - n_fit < 10:
             raise ValueError(f"Expected at least 20 fitting and 10 held-out checks, got {n_fit} and {n - n_fit} "

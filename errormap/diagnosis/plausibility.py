@@ -156,6 +156,24 @@ def ols_linear_baseline(axes, residual_um, fit_idx) -> np.ndarray:
     return residual_um - X @ B
 
 
+NOISE_FLOOR_FACTOR = float(np.sqrt(3.0))
+"""The held-out noise floor is ``√3·σ``: the vector norm of isotropic noise σ per axis."""
+
+
+def noise_record(given_um, estimated_um, held_out_rms_um: float, stated_um=None) -> dict:
+    """The noise keys of a closed loop's summary, the same on every machine: the floor ``√3·σ`` with σ given
+    (``--noise-um``) or else estimated by the model update (``estimated_um``; None: no update ran), the held-out
+    RMS over it, and the stated σ the verdict compares the estimate with (``stated_um``: the file's, else the
+    given one)."""
+    sig = given_um if given_um is not None else estimated_um
+    floor = None if sig is None else NOISE_FLOOR_FACTOR * float(sig)
+    return {"noise_sigma_source": "given" if given_um is not None else
+            ("estimated by the update" if estimated_um is not None else None),
+            "noise_sigma_estimated_um": estimated_um,
+            "noise_sigma_stated_um": stated_um if stated_um is not None else given_um,
+            "noise_floor_um": floor, "held_out_over_floor": None if floor is None else float(held_out_rms_um / floor)}
+
+
 def diagnosis_verdict(summary: dict) -> dict:
     """``{"status": "passed" | "failed", "reasons": [...]}`` of a closed-loop summary (a chain's
     :func:`errormap.diagnosis.mt_loop.closed_loop_chain` or the grinder's :func:`errormap.diagnosis.loop.closed_loop`,

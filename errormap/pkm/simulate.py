@@ -98,11 +98,11 @@ class SimulatedPoses:
     true_tip_mm: np.ndarray
     noise_um: float
 
-    def write_csv(self, path):
-        """Write the measurement table (PKM pose-measurement schema) atomically."""
+    def write_csv(self, path, comments=()):
+        """Write the measurement table (PKM pose-measurement schema) atomically; ``comments``: more header lines."""
         return write_csv(path, self.columns, header_comments=[
             f"simulated {self.truth.machine.kind} poses: noise_um: {self.noise_um}",
-            "orientation: fixed-axis X-Y-Z angles (deg) or quaternion qx qy qz qw"])
+            "orientation: fixed-axis X-Y-Z angles (deg) or quaternion qx qy qz qw", *comments])
 
 
 def _remove_rigid(delta: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -182,7 +182,8 @@ def simulate_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error
                    truth: Truth | None = None, frame: str | tuple = "random", orientation: str = "quat",
                    drive_units: bool = True, lever_mm: float | None = None, scales: bool = True,
                    half_width_mm=(150.0, 150.0, 100.0), max_tilt_deg: float = 15.0,
-                   errors: MachineErrors = MachineErrors(), cluster_radius_mm: float = 100.0) -> SimulatedPoses:
+                   errors: MachineErrors = MachineErrors(), cluster_radius_mm: float = 100.0,
+                   noise_seed=None) -> SimulatedPoses:
     """Simulate a calibration campaign on a truth machine.
 
     ``n_poses`` random workspace poses are commanded with the nominal inverse kinematics; the truth
@@ -194,6 +195,8 @@ def simulate_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error
     the older small-error model scaled to that RMS tool-tip error.
     ``orientation``: ``"quat"`` (qx qy qz qw), ``"angles"`` (fixed-axis X-Y-Z deg) or ``"none"``.
     Commands are written as drive units ``q1..`` when ``drive_units`` else as ``l1_mm..``.
+    ``noise_seed``: None (default) the noise from the same stream as the poses, after them; a seed redraws only
+    the noise (the same truth and poses).
     """
     if n_poses < 1 or noise_um < 0:
         raise ValueError("n_poses must be >= 1 and noise_um >= 0")
@@ -215,7 +218,8 @@ def simulate_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error
                             guess_platform2base=Rs, check_limits=False)
     noise = noise_um * 1e-3
     Rf, tf = truth.frame_rotation, truth.frame_translation_mm
-    meas_tip = fk.x @ Rf.T + tf + rng.normal(0, noise, (n_poses, 3))
+    r_noise = rng if noise_seed is None else np.random.default_rng(noise_seed)
+    meas_tip = fk.x @ Rf.T + tf + r_noise.normal(0, noise, (n_poses, 3))
     k = machine.n_legs
     cols = {}
     if drive_units:
@@ -225,7 +229,7 @@ def simulate_poses(machine: PKM, n_poses: int, noise_um: float, seed, pose_error
     cols.update({"x_mm": meas_tip[:, 0], "y_mm": meas_tip[:, 1], "z_mm": meas_tip[:, 2]})
     meas_R = None
     if machine.kind == "hexapod" and orientation != "none":
-        rv_noise = rng.normal(0, noise / lever_mm, (n_poses, 3))
+        rv_noise = r_noise.normal(0, noise / lever_mm, (n_poses, 3))
         meas_R = Rotation.from_rotvec(rv_noise).as_matrix() @ np.einsum("ij,njk->nik", Rf, fk.platform2base)
         if orientation == "quat":
             qq = Rotation.from_matrix(meas_R).as_quat()

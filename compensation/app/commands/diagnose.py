@@ -23,8 +23,9 @@ def register(sub):
                                                      "A machine-tool chain (mill-xyz, ...) runs the generic loop "
                                                      "(errormap/diagnosis/mt_loop.py)")
     p.add_argument("--noise-um", type=float, default=None,
-                   help="machine-tool chain: the checks' known noise σ per axis (μm) for the noise floor √3·σ; "
-                        "default: estimated by the update")
+                   help="the checks' known noise σ per axis (μm): the noise floor √3·σ and the σ the verdict "
+                        "compares the update's estimate with; default: the σ the checks file states (a machine-tool "
+                        "chain) and the floor from the update's estimate")
     p.add_argument("--model", default=None, help="element-set file (JSON) or MLflow run id of a learned field")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--tracking-uri", default=None)
@@ -94,6 +95,11 @@ def run(args) -> int:
     if (args.checks is None) == (args.drift is None):
         raise UsageError("give either CHECKS (with --model) or --drift LOG")
     if args.drift is not None:
+        given = [o for o, v in (("--machine", args.machine), ("--model", args.model), ("--noise-um", args.noise_um))
+                 if v is not None]
+        if given:   # never ignored silently: a drift log is channels over time, no machine or model is involved
+            raise UsageError(f"{', '.join(given)}: not used by --drift (a drift log's channels need no machine "
+                             "or model); leave it out")
         print(f"modelling drift log {args.drift} ...", file=sys.stderr)
         sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha}, deploy=args.deploy)
         summary, paths = run_drift(args.drift, args.out, sel, time_unit=args.time_unit, units=args.units)
@@ -114,7 +120,7 @@ def run(args) -> int:
         if machine.kind == "machine-tool":
             from compensation.app.workflows.mt_loop import diagnose_chain, diagnosis_lines, refuse_options
             refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "track": False,
-                                  "retrain_iter": DEFAULT_MAX_ITER, "retrain_time_s": None},
+                                  "retrain_iter": DEFAULT_MAX_ITER, "retrain_time_s": None, "seed": 0},
                            "diagnose on a machine-tool chain (element-set models; effects gated on held-out z)")
             print(f"diagnosing {args.checks} against {args.model} on {machine.name} ...", file=sys.stderr)
             summary, paths = diagnose_chain(args.checks, machine, args.model, args.out, fit_fraction=args.fit_fraction,
@@ -129,9 +135,8 @@ def run(args) -> int:
                 print(f"wrote {p}")
             return EXIT_FAILED_VERDICT if summary["verdict"]["status"] == "failed" else 0
         check_machine_kind(machine.path, machine.kind, "grinder")
-        if args.noise_um is not None:
-            raise UsageError("--noise-um is for a machine-tool chain's checks (the grinder's loop estimates it)")
-        settings = DiagnosisSettings(fit_fraction=args.fit_fraction, alpha=args.alpha, max_effects=args.max_effects)
+        settings = DiagnosisSettings(fit_fraction=args.fit_fraction, alpha=args.alpha, max_effects=args.max_effects,
+                                     noise_um=args.noise_um)
         retrain = _retrain_settings(args)
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
         summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,

@@ -78,17 +78,35 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def parse_region(text):
-    """``"X0:X1,Z0:Z1"`` -> ``{"x_mm": (x0, x1), "z_mm": (z0, z1)}``; UsageError on anything else."""
+def region_strokes(machine) -> dict:
+    """``{column: (lo, hi)}`` of the machine's linear axes in its axis order: the axes ``--region`` restricts
+    (rotary axes are averaged over their whole range on every machine)."""
+    axes = getattr(machine, "axes", None)
+    if axes is None:   # the grinder's own file: X and Z are its linear axes
+        return {k: tuple(machine.strokes[k]) for k in ("x_mm", "z_mm")}
+    return {a.column: tuple(a.stroke) for a in axes if a.kind == "linear"}
+
+
+def parse_region(text, machine):
+    """``"LO:HI,..."``, one range per linear axis of ``machine`` in its order (the grinder ``X0:X1,Z0:Z1``, a
+    mill ``X0:X1,Y0:Y1,Z0:Z1``) -> ``{column: (lo, hi)}``; UsageError on anything else or a range leaving a
+    stroke. None -> None."""
     if text is None:
         return None
+    strokes = region_strokes(machine)
+    words = [c.split("_")[0].upper() for c in strokes]
     try:
         parts = [tuple(float(v) for v in p.split(":")) for p in text.split(",")]
-        if len(parts) != 2 or any(len(p) != 2 or not p[0] <= p[1] or not np.all(np.isfinite(p)) for p in parts):
+        if len(parts) != len(strokes) or any(len(p) != 2 or not p[0] <= p[1] or not np.all(np.isfinite(p))
+                                             for p in parts):
             raise ValueError
     except ValueError:
-        raise UsageError(f"--region: expected X0:X1,Z0:Z1 (mm, lo <= hi), got {text!r}") from None
-    return {"x_mm": parts[0], "z_mm": parts[1]}
+        raise UsageError(f"--region: expected {','.join(f'{w}0:{w}1' for w in words)} (mm, lo <= hi, one range per "
+                         f"linear axis of {machine.name}), got {text!r}") from None
+    for w, (c, (lo, hi)), (a, b) in zip(words, strokes.items(), parts):
+        if a < lo or b > hi:
+            raise UsageError(f"--region: {w} {a:g}:{b:g} leaves the stroke {lo:g}:{hi:g} of {machine.name}")
+    return dict(zip(strokes, parts))
 
 
 def format_check(check: dict, has_truth: bool) -> list[str]:
@@ -130,18 +148,18 @@ def run(args) -> int:
     if given:
         raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to --format drift only")
     machine = load_machine(args.machine)
-    if machine.kind == "machine-tool":  # a chain file: ISO tables per axis of its own axes
-        return run_chain_export(args, machine)
-    check_machine_kind(machine.path, machine.kind, "grinder")
     if args.fmt != "linuxcnc" and (args.diagnosis or args.region):
         raise UsageError("--diagnosis and --region apply to --format linuxcnc only (the other formats carry no "
                          "reversal and are not averaged)")
+    if machine.kind == "machine-tool":  # a chain file: ISO tables per axis of its own axes
+        return run_chain_export(args, machine)
+    check_machine_kind(machine.path, machine.kind, "grinder")
     if not 2 <= args.points <= ex.LINUXCNC_MAX_POINTS:
         raise UsageError(f"--points: expected 2..{ex.LINUXCNC_MAX_POINTS}, got {args.points}")
     settings = TableSettings(
         model=args.model, fmt=args.fmt, out=args.out, tolerance_um=args.tolerance_um, check_points=args.check_points,
         seed=args.seed, truth=args.truth, diagnosis=args.diagnosis, points=args.points,
-        region=parse_region(args.region), force=args.force, tracking_uri=args.tracking_uri,
+        region=parse_region(args.region, machine), force=args.force, tracking_uri=args.tracking_uri,
         model_verdict=args.model_verdict)
     info = export_table(settings, machine, on_check=_print_check)
     _print_written(Path(args.out), list(info["files"]), info, args.tolerance_um)
@@ -223,9 +241,6 @@ def run_chain_export(args, machine) -> int:
             mt_export.linear_only(machine)
         except ValueError as exc:
             raise UsageError(f"--format grid: {exc}") from None
-    bad = [k for k, v in {"--diagnosis": args.diagnosis, "--region": args.region}.items() if v is not None]
-    if bad:
-        raise UsageError(f"{', '.join(bad)}: apply to the grinder's --format linuxcnc only")
     src = require_kind(resolve_model(args.model), ("elements",), f"on the machine-tool chain {machine.name!r} export "
                                                                  "takes")
     el = ChainElementSet.load(src.path, machine)
@@ -297,11 +312,7 @@ def run_chain_linuxcnc(args, machine) -> int:
     from ...fields import load_chain_field, require_kind, resolve_model
     from ... import mt_export
     from ...solvers.chain_exact import solved_and_kept
-    bad = [k for k, v in {"--diagnosis": args.diagnosis, "--region": args.region}.items() if v is not None]
-    if bad:
-        raise UsageError(f"{', '.join(bad)}: the grinder's; on the machine-tool chain {machine.name!r} the reversal "
-                         "comes from a chain model.json (volcomp diagnose --machine) and every joint is averaged "
-                         "over the calibrated volume")
+    region = parse_region(args.region, machine)
     if not 2 <= args.points <= ex.LINUXCNC_MAX_POINTS:
         raise UsageError(f"--points: expected 2..{ex.LINUXCNC_MAX_POINTS}, got {args.points}")
     try:
@@ -311,14 +322,23 @@ def run_chain_linuxcnc(args, machine) -> int:
     src = require_kind(resolve_model(args.model), ("elements", "chain-model"),
                        f"on the machine-tool chain {machine.name!r} --format linuxcnc takes")
     if src.kind == "chain-model":
+        if args.diagnosis:
+            raise UsageError("--diagnosis: MODEL is a chain model.json, which carries its diagnosed terms already; "
+                             "give it alone, or its element set with --diagnosis")
         from errormap.diagnosis.mt_model import load_chain_model_file
         field_ = load_chain_model_file(src.path, machine)
         el = field_.elements
     else:
         field_ = load_chain_field(src.path, machine, src.kind)
         el = field_.elements
+    left = []
+    if args.diagnosis:   # its reversal terms on the element set, as the grinder's backlash from diagnosis.json
+        from errormap.diagnosis.mt_model import ChainModelField
+        terms, left = mt_export.reversal_terms_from_diagnosis(args.diagnosis, machine)
+        field_ = ChainModelField(machine, el, terms)
+        left = [f"effect {e} in {args.diagnosis}: not carried by a per-joint table" for e in left]
     print(f"export: model {src.description}", file=sys.stderr)
-    left = [f"rotary joint {machine.axes[k].word}: no file (LinuxCNC takes one pitch table per joint; volcomp "
+    left += [f"rotary joint {machine.axes[k].word}: no file (LinuxCNC takes one pitch table per joint; volcomp "
             f"compensates the tool tip with the linear joints and keeps rotary joints as programmed, so what the "
             f"rotary axis' own errors do is left in the residual below)" for k in rot]
     terms = [f"{t.kind}:{'*'.join(t.axes)}" for t in getattr(field_, "terms", ())]
@@ -327,7 +347,10 @@ def run_chain_linuxcnc(args, machine) -> int:
     for line in left:
         print(f"note: {line}")
     s_tab, s_pts, s_dir = spawn_seeds(args.seed, 3)
-    tables = mt_export.chain_joint_tables(field_, el, args.points, seed=s_tab)
+    try:
+        tables = mt_export.chain_joint_tables(field_, el, args.points, seed=s_tab, region=region)
+    except ValueError as exc:
+        raise UsageError(f"--region: {exc}" if region else f"--format linuxcnc: {exc}") from None
     pts = mt_export.check_points(el, args.check_points, s_pts)
     dirs = np.random.default_rng(s_dir).choice([-1.0, 1.0], pts.shape)
     truth = _chain_truth(args.truth, machine) if args.truth else None
@@ -361,7 +384,8 @@ def run_chain_linuxcnc(args, machine) -> int:
     write_json(out / "export.json", {
         "format": "linuxcnc", "machine": machine.name, "machine_file": machine.path, "model": src.to_dict(),
         "model_verdict": args.model_verdict,
-        "points_per_joint": args.points, "joints": {j: machine.axis_columns[k] for j, k in tables.joints.items()},
+        "points_per_joint": args.points, "region": region or "calibrated volume",
+        **({"diagnosis": str(args.diagnosis)} if args.diagnosis else {}), "joints": {j: machine.axis_columns[k] for j, k in tables.joints.items()},
         "max_forward_minus_reverse_um": reversal, "left_out": left, "tolerance_um": args.tolerance_um,
         "tolerance_met": bool(met), "forced": bool(args.force and not met), "check": check,
         "files": [p.name for p in files],

@@ -7,6 +7,7 @@ from errormap.elements import ElementSet
 from errormap.identification import GAUGES
 from errormap.machine import check_machine_kind, load_machine
 from errormap.sweeps import read_sweeps
+from compensation.app.validate import UsageError
 
 
 from ..reports.identification import iso_summary_lines, plot_elements
@@ -27,7 +28,8 @@ def register(sub):
     p.add_argument("--report", default=None,
                    help="identification report (JSON: conditioning, residuals per station); default OUT.report.json")
     p.add_argument("--plot", default=None, metavar="PREFIX",
-                   help="write one figure per axis: PREFIX_X.png, PREFIX_Z.png, PREFIX_A.png")
+                   help="write one figure per axis: PREFIX_X.png, PREFIX_Z.png, PREFIX_A.png (a chain: PREFIX_<W>.png "
+                        "per swept axis)")
     p.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element set to overlay on the plots")
     p.add_argument("--gauge", choices=GAUGES, default="station-mean",
                    help="machine-frame gauge (default station-mean: the frame at the X carriage's mean pose over "
@@ -37,9 +39,10 @@ def register(sub):
                         "gauge before smoothing; see docs/identification.md")
     p.add_argument("--raw", action="store_true",
                    help="interpolating splines through the noisy stations (the paper's method, no smoothing); "
-                        "the covariance is still written")
+                        "the covariance is still written. A machine-tool chain's element set is always this form")
     p.add_argument("--noise-um", type=float, default=None,
-                   help="known tracker noise σ per coordinate (μm); default: estimated from the ball residuals")
+                   help="known tracker noise σ per coordinate (μm) the covariance is scaled with (every machine tool); "
+                        "default: estimated from the ball residuals")
     p.add_argument("--bootstrap", type=int, default=100, help="bootstrap draws for the covariance (default 100)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     p.set_defaults(func=run)
@@ -47,17 +50,27 @@ def register(sub):
 
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+    if args.truth and not args.plot:   # never read and ignored
+        raise UsageError("--truth is overlaid on the plots: give --plot PREFIX too")
     if machine.kind == "machine-tool":
         from ..workflows.mt_loop import identify_chain_files, refuse_options
-        refuse_options(args, {"plot": None, "truth": None, "raw": False, "noise_um": None, "gauge": "station-mean",
-                              "bootstrap": 100}, "identify on a machine-tool chain (Gauss-Newton, first-station gauge)")
+        # --raw is the chain's one form (interpolating splines through the stations): accepted, nothing to change
+        refuse_options(args, {"gauge": "station-mean", "bootstrap": 100, "seed": 0},
+                       "identify on a machine-tool chain (Gauss-Newton, first-station gauge, analytic covariance)")
         print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
-        res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report)
+        res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
+                                                              noise_um=args.noise_um)
         for line in res.summary_lines():
             print(line)
         print(f"wrote elements: {el_path}")
         print(f"wrote covariance: {cov_path}")
         print(f"wrote report: {report}")
+        if args.plot:
+            from ..reports.identification import plot_chain_elements
+            from ..workflows.mt_loop import chain_truth_in_gauge
+            truth = chain_truth_in_gauge(machine, args.truth) if args.truth else None
+            for p in plot_chain_elements(res.elements_, args.plot, truth):
+                print(f"wrote plot: {p}")
         return 0
     check_machine_kind(machine.path, machine.kind, "grinder")
     truth = ElementSet.load(args.truth) if args.truth else None

@@ -186,6 +186,9 @@ def run(args) -> int:
     if machine.kind == "serial":   # an arm: its calibration.json at joint configurations
         from ..workflows.arm_predict import run_arm_predict
         return run_arm_predict(machine, args)
+    if machine.kind in ("hexapod", "tripod"):   # a parallel machine: its calibration.json at commanded poses
+        from ..workflows.pkm_predict import run_pkm_predict
+        return run_pkm_predict(machine, args)
     if machine.kind != "machine-tool":
         check_machine_kind(machine.path, machine.kind, "grinder")
     names = machine_axes(machine)   # the grinder's x_mm, z_mm, a_deg or the chain's own columns

@@ -13,10 +13,11 @@ from ..workflows.simulate import simulate_truth, summary_lines
 
 def register(sub):
     p = sub.add_parser("simulate", help="simulate a truth machine and its measurements (a machine tool: elements, feature points, "
-                                        "checks; a serial arm: tracker poses)",
+                                        "checks; a serial arm or a hexapod/tripod: measured poses)",
                        description="A machine tool: write DIR/truth_elements.json, DIR/featurepoints.csv, DIR/checks.csv "
                                    "and DIR/truth.json. A serial arm (--machine ur5|ur10|wam|FILE): write DIR/poses.csv, "
-                                   "DIR/checks.csv, DIR/program.csv and DIR/truth.json (docs/arms.md).")
+                                   "DIR/checks.csv, DIR/program.csv and DIR/truth.json (docs/arms.md). A hexapod or "
+                                   "tripod: DIR/poses.csv, DIR/checks.csv and DIR/truth.json (docs/pkm.md).")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name (mill-xyz, five-axis-ac, ...); "
                                                      "default: the built-in grinder")
     p.add_argument("--seed", type=int, default=0)
@@ -26,38 +27,56 @@ def register(sub):
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--effect", action="append", default=[],
                    help="add an undeclared effect (repeatable): grinder " + EFFECT_HELP + "; a machine-tool "
-                        "chain KIND[:AXES] with KIND thermal, reversal, periodic (pitch), harmonic (worm), interaction, "
-                        "e.g. periodic:Y, harmonic:C, interaction:X*Z; a serial arm: sag, backlash")
+                        "chain KIND[:AXES] with KIND thermal, reversal, periodic (pitch), harmonic (worm), interaction, or the "
+                        "truth-only bump, xz_saddle, squareness, squareness_xz on two linear axes, e.g. periodic:Y, harmonic:C, "
+                        "bump:X*Y; a serial arm: sag, backlash")
     p.add_argument("--noise-um", type=float, default=None,
-                   help="measurement noise σ per axis (μm); default 1 for machine tools, 20 for a serial arm's tracker")
+                   help="measurement noise σ per axis (μm); default 1 for machine tools, 20 for a serial arm's tracker, "
+                        "5 for a parallel machine's instrument")
     p.add_argument("--checks", type=int, default=None,
                    help="number of check measurements (default 400; a serial arm: 100 held-out poses)")
     p.add_argument("--seed-check-noise", type=int, default=None,
-                   help="the grinder only: redraw only the check measurements' noise from this seed (the same machine, "
-                        "points and conditions); default: the noise of --seed's own stream")
+                   help="redraw only the check measurements' noise from this seed (the same machine, points or poses "
+                        "and conditions; every family); default: the noise of --seed's own stream")
     p.add_argument("--poses", type=int, default=None,
-                   help="a serial arm only: number of fitting poses (default 200)")
+                   help="a serial arm or a hexapod/tripod: number of fitting poses (default 200; a parallel machine 100)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
-    if args.seed_check_noise is not None and machine.kind != "grinder":
-        raise UsageError("--seed-check-noise: the grinder only")
     if machine.kind == "serial":
         from ..workflows.simulate_serial import DEFAULT_ARM_NOISE_UM, simulate_serial
+        if args.family != "default":   # never ignored silently
+            raise UsageError(f"--family {args.family}: a serial arm's truth has one family (errormap/arm_simulate.py: "
+                             "link, base and tool errors, sag, backlash); leave it out")
         noise = DEFAULT_ARM_NOISE_UM if args.noise_um is None else args.noise_um
         print(f"simulating truth arm {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
         info = simulate_serial(machine, args.seed, args.out, effects=args.effect, noise_um=noise,
                                poses=200 if args.poses is None else args.poses,
-                               checks=100 if args.checks is None else args.checks)
+                               checks=100 if args.checks is None else args.checks,
+                               check_noise_seed=args.seed_check_noise)
         print(f"tool point error of the truth at the fitting poses: {info['uncompensated_rms_mm']:.3f} mm RMS")
         for k, v in info["files"].items():
             print(f"wrote {k}: {v}")
         print(f"wrote truth: {Path(args.out) / 'truth.json'} (the judge's; never an input of calibrate)")
         return 0
+    if machine.kind in ("hexapod", "tripod"):
+        from ..workflows.simulate_pkm import DEFAULT_PKM_NOISE_UM, DEFAULT_PKM_POSES, simulate_pkm
+        if args.family != "default" or args.effect:   # never ignored silently
+            raise UsageError(f"{'--family' if args.family != 'default' else '--effect'}: a parallel machine's truth "
+                             "has one family and no effects here (leg scales, zero lengths, joints); leave it out")
+        print(f"simulating truth {machine.kind} {machine.name} seed={args.seed} ...", file=sys.stderr)
+        info = simulate_pkm(machine, args.seed, args.out,
+                            noise_um=DEFAULT_PKM_NOISE_UM if args.noise_um is None else args.noise_um,
+                            poses=DEFAULT_PKM_POSES if args.poses is None else args.poses,
+                            checks=100 if args.checks is None else args.checks, check_noise_seed=args.seed_check_noise)
+        for k, v in info["files"].items():
+            print(f"wrote {k}: {v}")
+        print(f"wrote truth: {Path(args.out) / 'truth.json'} (the judge's; never an input of calibrate)")
+        return 0
     if args.poses is not None:
-        raise UsageError("--poses: only a serial arm is simulated by poses (machine tools: --checks)")
+        raise UsageError("--poses: only arms and parallel machines are simulated by poses (machine tools: --checks)")
     if args.noise_um is None:
         args.noise_um = 1.0
     if args.checks is None:
@@ -67,7 +86,7 @@ def run(args) -> int:
         parse_effects(machine, args.effect)
         print(f"simulating truth {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
         info = simulate_chain(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
-                              checks=args.checks, family=args.family)
+                              checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
         print(f"max spatial error {info['max_spatial_error_um']:.1f} μm over the volume (reference temperature, "
               "positive approach)")
         for k, v in info["files"].items():
@@ -80,8 +99,7 @@ def run(args) -> int:
         raise UsageError(f"--effect: unknown effect {bad[0]!r} for the grinder (expected one of {', '.join(EFFECT_CHOICES)})")
     print(f"simulating truth grinder seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
     info = simulate_truth(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
-                          checks=args.checks, family=getattr(args, "family", "default"),
-                          check_noise_seed=getattr(args, "seed_check_noise", None))
+                          checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
     for line in summary_lines(info, args.out):
         print(line)
     return 0

@@ -168,6 +168,8 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
         field_ = load_field(str(model_spec), machine, tracking_uri, source=src)
     d = diagnose(machine, field_, checks, settings)
     summary = dict(d.summary)
+    from errormap.diagnosis.plausibility import noise_record   # no update: a floor only from a given σ
+    summary.update(noise_record(settings.noise_um, None, summary["rms_after_um"]))
     summary.update({"format": CHECKS_DIAGNOSIS_FORMAT, "checks": str(checks_path), "model": str(model_spec),
                     "machine": machine.name, "model_source": src.to_dict() if src is not None else {"kind": "field given by the caller"},
                     "model_update": False, "units": units})
@@ -391,7 +393,8 @@ def closed_loop_model(machine, cov, checks, settings: DiagnosisSettings | None =
         loop_alone = (ship_cov, summary["effects"])
         model_fit, ship_cov = backfit_base["fit"]
         summary["effects"] = _with_terms_of(summary["effects"], model_fit.terms, None)
-    from errormap.diagnosis.plausibility import diagnosis_verdict
+    from errormap.diagnosis.plausibility import diagnosis_verdict, noise_record
+    summary.update(noise_record(settings.noise_um, loop.update.sigma_um, summary["rms_final_um"]))
     summary["verdict"] = diagnosis_verdict(summary)   # failed: volcomp diagnose exits 1
     model = {"format": "volcomp-diagnosed-model/1", "elements": UPDATED_ELEMENTS, "stage": summary["kept_stage"],
              "terms": summary["effects"], "needs": sorted({c for e in summary["effects"] for c in e.get("needs", [])}),

@@ -81,21 +81,27 @@ def make_truth(machine, seed: int, effects=(), family: str = "default"):
 
 
 def simulate_chain(machine, seed: int, out, effects=(), noise_um: float = 1.0, checks: int = 400,
-                   family: str = "default") -> dict:
-    """Write ``out/truth_elements.json`` (hidden truth), ``checks.csv`` and ``truth.json``."""
+                   family: str = "default", check_noise_seed=None) -> dict:
+    """Write ``out/truth_elements.json`` (hidden truth), ``checks.csv`` and ``truth.json``.
+    ``check_noise_seed``: None (default) the checks' noise from the seed's own stream; an int redraws only
+    the checks' noise (same machine, points and conditions), as on the grinder."""
     from errormap.mt_simulate import volume_grid
+    from .simulate import check_noise_comments, check_noise_record
     out = Path(out)
     truth = make_truth(machine, seed, effects, family)
     el_path = truth.elements.save(out / "truth_elements.json")
-    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=spawn_seeds(seed, 1)[0])
+    measured = truth.check_measurements(n=checks, noise_um=noise_um, seed=spawn_seeds(seed, 1)[0],
+                                        noise_seed=check_noise_seed)
     ck_path = write_csv(out / "checks.csv", measured, header_comments=[
         "format: volcomp-checks/1", f"machine: {machine.name}", f"machine_sha256: {machine.sha256}",
-        f"noise_um: {noise_um}", f"effects: {','.join(truth.effects) or 'none'}"])
+        f"noise_um: {noise_um}", f"effects: {','.join(truth.effects) or 'none'}"]
+        + check_noise_comments(check_noise_seed))
     grid = volume_grid(machine)
     e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
     info = {"format": TRUTH_FORMAT, "seed": seed, "machine": machine.name, "machine_file": machine.path,
             "machine_sha256": machine.sha256, "family": family,
-            "effects": truth.effects, "noise_um": noise_um, "max_spatial_error_um": float(e.max()),
+            "effects": truth.effects, "noise_um": noise_um, **check_noise_record(check_noise_seed),
+            "max_spatial_error_um": float(e.max()),
             "elements": el_path.name,
             "files": {"elements": str(el_path), "checks": str(ck_path)}}
     write_json(out / "truth.json", info)
@@ -125,15 +131,16 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
     return path, len(cols["axis"]), what
 
 
-def identify_chain_files(machine, sweep_files, out, report=None) -> tuple:
-    """Identify from one sweep file; write the element set, ``OUT.cov.npz`` and the report."""
+def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None) -> tuple:
+    """Identify from one sweep file; write the element set, ``OUT.cov.npz`` and the report. ``noise_um``: the
+    known tracker σ the covariance is scaled with (None: the residuals' estimate)."""
     from errormap.mt_identify import ChainIdentification
     from errormap.mt_sweeps import read_mt_sweeps
     if len(sweep_files) != 1:
         raise UsageError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
                          f"{len(sweep_files)}")
     sweeps = read_mt_sweeps(sweep_files[0], machine)
-    res = ChainIdentification().fit(sweeps, machine).result_
+    res = ChainIdentification(noise_um=noise_um).fit(sweeps, machine).result_
     cov_path = res.save_covariance(companion_path(out, ".cov.npz"))
     report = Path(report) if report else companion_path(out, ".report.json")
     info = res.to_dict()
@@ -143,6 +150,21 @@ def identify_chain_files(machine, sweep_files, out, report=None) -> tuple:
     write_json(report, info)
     el_path = res.elements_.save(out)
     return res, el_path, cov_path, report
+
+
+def chain_truth_in_gauge(machine, truth_file):
+    """A truth element set (``truth_elements.json`` of ``simulate --machine``) as the identification expresses
+    its estimate: in the first-station gauge with its squareness split, found the exact way (the identification
+    of the truth's noise-free sweeps; tool points to 1e-6 μm, ``tests/test_mt_loop.py``), so that a plot
+    overlays like with like (as the grinder's :func:`compensation.app.workflows.identification.truth_in_gauge`)."""
+    from errormap.mt_elements import ChainElementSet
+    from errormap.mt_identify import ChainIdentification
+    from errormap.mt_simulate import MTTruth
+    from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.sweeps import sweeps_from_columns
+    truth = MTTruth(machine, ChainElementSet.load(truth_file, machine), {})
+    sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=0.0, seed=0), axes=swept_words(machine))
+    return ChainIdentification().fit(sw, machine).elements_
 
 
 def load_chain_model(path, machine):

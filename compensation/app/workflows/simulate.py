@@ -33,17 +33,27 @@ def simulate_truth(machine, seed: int, out, effects=(), noise_um: float = 1.0, c
                                         noise_seed=check_noise_seed)
     ck_path = write_csv(out / "checks.csv", measured, header_comments=[
         "format: volcomp-checks/1", f"machine: {machine.name}", f"noise_um: {noise_um}",
-        f"effects: {','.join(effects) or 'none'}"]
-        + ([] if check_noise_seed is None else [f"check_noise_seed: {check_noise_seed}"]))
+        f"effects: {','.join(effects) or 'none'}"] + check_noise_comments(check_noise_seed))
     grid = volume_grid(machine)
     e = np.linalg.norm(truth.spatial_error(grid, **truth.default_conditions(len(grid))), axis=1)
     info = {"seed": seed, "machine": machine.name, "machine_file": machine.path,
             "family": family, "effects": {k: EFFECT_DEFAULTS[k] | truth.effects[k] for k in truth.effects},
-            "noise_um": noise_um, **({} if check_noise_seed is None else {"check_noise_seed": check_noise_seed}),
+            "noise_um": noise_um, **check_noise_record(check_noise_seed),
             "max_spatial_error_um": float(e.max()),
             "files": {"elements": str(el_path), "featurepoints": str(fp_path), "checks": str(ck_path)}}
     write_json(out / "truth.json", info)
     return info
+
+
+def check_noise_comments(check_noise_seed) -> list:
+    """The checks file's header line recording ``simulate --seed-check-noise`` (none without it); every
+    family writes it the same way."""
+    return [] if check_noise_seed is None else [f"check_noise_seed: {check_noise_seed}"]
+
+
+def check_noise_record(check_noise_seed) -> dict:
+    """``truth.json``'s record of ``simulate --seed-check-noise`` (empty without it), every family alike."""
+    return {} if check_noise_seed is None else {"check_noise_seed": check_noise_seed}
 
 
 def summary_lines(info: dict, out) -> list:

@@ -47,11 +47,16 @@ def check_arm_effects(effects) -> list[str]:
 
 
 def simulate_serial(chain, seed: int, out, effects=(), noise_um: float = DEFAULT_ARM_NOISE_UM, poses: int = 200,
-                    checks: int = 100) -> dict:
+                    checks: int = 100, check_noise_seed=None) -> dict:
     """Write ``poses.csv``, ``checks.csv``, ``program.csv`` and ``truth.json`` under ``out`` for the
-    seeded truth arm; returns the ``truth.json`` document."""
+    seeded truth arm; returns the ``truth.json`` document. ``check_noise_seed``: None (default) the check
+    poses' tracker noise from the seed's own stream; an int redraws only that noise (the same arm, fitting
+    poses and check joints)."""
+    from .simulate import check_noise_comments, check_noise_record
     effects = check_arm_effects(effects)
     s_truth, s_fit_q, s_fit_n, s_chk_q, s_chk_n, s_prog = spawn_seeds(seed, 6)
+    if check_noise_seed is not None:
+        s_chk_n = check_noise_seed
     nq = chain.n_joints
     truth = draw_truth(chain, s_truth,
                        compliance_rad_per_mm=np.full(nq, SAG_RAD_PER_MM if "sag" in effects else 0.0),
@@ -64,7 +69,7 @@ def simulate_serial(chain, seed: int, out, effects=(), noise_um: float = DEFAULT
     head = [f"machine: {chain.name}", f"simulated seed={seed}", f"noise_um: {noise_um:g}",
             f"effects: {','.join(effects) or 'none'}"]
     write_arm_poses(out / "poses.csv", chain, fit, comments=head)
-    write_arm_poses(out / "checks.csv", chain, chk, comments=head)
+    write_arm_poses(out / "checks.csv", chain, chk, comments=head + check_noise_comments(check_noise_seed))
     margin = np.array([PROGRAM_MARGIN_DEG if j.type == "revolute" else 0.0 for j in chain.joints])
     qp = well_conditioned_joints(chain, lo + margin, hi - margin, PROGRAM_POINTS, s_prog)
     write_csv(out / "program.csv", {c: qp[:, i] for i, c in enumerate(chain.joint_columns)},
@@ -72,6 +77,7 @@ def simulate_serial(chain, seed: int, out, effects=(), noise_um: float = DEFAULT
               float_fmt="%.10g")
     reach = np.linalg.norm(truth.tool_point(chain, fit.q) - chain.tool_point(fit.q), axis=1)
     info = {"seed": seed, "machine": chain.name, "kind": "serial", "effects": effects, "noise_um": noise_um,
+            **check_noise_record(check_noise_seed),
             "errors": dict(zip(chain.param_names, map(float, truth.errors))),
             "compliance_rad_per_mm": truth.compliance_rad_per_mm.tolist(),
             "backlash_rad": None if truth.backlash_rad is None else truth.backlash_rad.tolist(),

@@ -1,0 +1,54 @@
+"""LinuxCNC per-joint tables of a machine-tool chain averaged over a working region (``export --region``)
+against the tables averaged over the whole calibrated volume: the worst and RMS MODEL residual the tables
+leave at points inside the region.
+
+What: ``mt_export.chain_joint_tables`` with and without ``region``, checked by
+``mt_export.check_chain_joint_tables`` (the model machine reached with the tables' commands minus the target).
+Data: seeded default-family truths of ``mill-xyz`` (``make_truth(mill-xyz, seed)``: angular errors couple the
+axes), 64 lines per joint, 16 samples per node (seed 0), a region 2 % of each stroke wide starting at 40 %,
+300 check points in it (seed 3), approach +. Residual kind: MODEL (the truth's own elements are the model).
+
+Run: ``python benchmarks/bench_chain_region.py [--seeds 0 1 2 3 4]``
+"""
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+
+def measure(seed: int) -> dict:
+    from compensation import mt_export
+    from compensation.app.workflows.mt_loop import make_truth
+    from errormap.machine import load_machine
+    from errormap.mt_field import ChainField
+    m = load_machine("mill-xyz")
+    el = make_truth(m, seed).elements
+    fld = ChainField(m, el)
+    lo, hi = m.stroke_lo, m.stroke_hi
+    box = {c: (a + 0.4 * (b - a), a + 0.42 * (b - a)) for c, a, b in zip(m.axis_columns, lo, hi)}
+    pts = np.random.default_rng(3).uniform([b[0] for b in box.values()], [b[1] for b in box.values()], (300, 3))
+    dirs = np.ones_like(pts)
+    out = {}
+    for name, region in (("whole volume", None), ("region", box)):
+        t = mt_export.chain_joint_tables(fld, el, 64, samples=16, seed=0, region=region)
+        c = mt_export.check_chain_joint_tables(t, fld, m, pts, dirs)
+        out[name] = c["model"]
+    out["none"] = c["baseline_none"]["model"]
+    return out
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    a = ap.parse_args(argv)
+    print("| seed | no compensation max (μm) | tables over the volume: max / mean (μm) | tables over the region: max / mean (μm) |")
+    print("|---|---|---|---|")
+    for s in a.seeds:
+        r = measure(s)
+        print(f"| {s} | {r['none']['max_um']:.1f} | {r['whole volume']['max_um']:.2f} / {r['whole volume']['mean_um']:.2f} "
+              f"| {r['region']['max_um']:.2f} / {r['region']['mean_um']:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
