@@ -194,6 +194,9 @@ def run(args) -> int:
     if getattr(args, "max_rotary_correction_deg", None) is not None and machine.kind != "machine-tool":
         raise UsageError(f"--max-rotary-correction-deg: only on machine-tool chains whose solver moves a rotary axis "
                          f"(e.g. lathe-xzc); {machine.name!r} is a {machine.kind} machine")
+    if getattr(args, "compensate_orientation", False) and machine.kind != "machine-tool":
+        raise UsageError(f"--compensate-orientation: the tool axis is turned by a chain's rotary axes (five-axis-ac in "
+                         f"TCP mode); {machine.name!r} is a {machine.kind} machine")
     if machine.kind == "serial" and (args.work_offsets is not None or args.tool_table is not None):
         raise UsageError("--work-offsets, --tool-table: G-code programs of machine tools only (a serial arm's program "
                          "is joint angles)")
