@@ -35,7 +35,8 @@ from __future__ import annotations
 import numpy as np
 
 from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, is_rotary_column, machine_axes
-from errormap.mt_chain import WorkRotation, machine_tool_of
+from errormap.grinder_file import machine_tool_of
+from errormap.mt_chain import WorkRotation
 from errormap.progress import Progress
 from errormap.stats import residual_stats
 from errormap.transforms import check_points

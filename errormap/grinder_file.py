@@ -17,6 +17,8 @@ axis columns x_mm, z_mm, a_deg, so element-set files and CSV files of the grinde
 """
 from __future__ import annotations
 
+import numpy as np
+
 from .machine import (GRINDER_GEOMETRY_KEYS, GRINDER_STROKE_KEYS, GRINDER_TARGET_KEYS, Grinder, MachineFileError,
                       parse_grinder)
 from .mt_chain import MachineTool, parse_machine_tool
@@ -104,3 +106,35 @@ def adapter_line(machine: Grinder) -> str:
     """The one line a command says when it reads a grinder file as its chain."""
     return (f'{machine.path or "the built-in grinder"}: kind = "grinder" read as its machine-tool chain '
             "(axes X, Z, A; the same 23 element names and columns x_mm, z_mm, a_deg)")
+
+
+def _grinder_key(machine) -> tuple:
+    """Everything of a grinder file that its chain depends on, as a hashable key."""
+    geo = tuple(float(getattr(machine, k)) for k in ("l1", "l2", "l3", "l4", "R", "l5", "l6", "l7", "l8", "theta1_deg"))
+    strokes = tuple(sorted((k, tuple(map(float, v))) for k, v in machine.strokes.items()))
+    targets = tuple(sorted((k, np.asarray(v, dtype=float).tobytes()) for k, v in machine.targets.items()))
+    return (machine.name, machine.path, machine.sha256, geo, strokes, targets)
+
+
+_GRINDER_CHAINS: dict = {}
+GRINDER_CHAIN_CACHE = 32  # distinct grinder files kept compiled (a session uses one or two)
+
+
+def machine_tool_of(machine) -> MachineTool:
+    """``machine`` as a machine-tool chain: a :class:`MachineTool` itself, a grinder file's machine its
+    chain (:func:`grinder_chain`)."""
+    return machine if isinstance(machine, MachineTool) else grinder_chain(machine)
+
+
+def grinder_chain(machine) -> MachineTool:
+    """:func:`grinder_to_chain`, compiled once per grinder file's content
+    (cached by its name, path, sha256, geometry, strokes and targets): the one source of the
+    grinder's kinematics that :mod:`errormap.kinematics`, :mod:`errormap.htm` and
+    :mod:`errormap.sweeps` evaluate."""
+    key = _grinder_key(machine)
+    mt = _GRINDER_CHAINS.get(key)
+    if mt is None:
+        if len(_GRINDER_CHAINS) >= GRINDER_CHAIN_CACHE:
+            _GRINDER_CHAINS.pop(next(iter(_GRINDER_CHAINS)))
+        mt = _GRINDER_CHAINS[key] = grinder_to_chain(machine)
+    return mt

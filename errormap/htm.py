@@ -21,7 +21,7 @@ The first-order (small-error) form is linear in the elements: ``e ≈ J(axes) ·
 
 One source for the kinematics (issue 26): these chains are not written out here. They are the
 built-in chain file ``errormap/machines/grinder-chain.toml`` with the grinder file's geometry,
-strokes and targets (:func:`errormap.mt_chain.grinder_chain`, compiled once per file), evaluated
+strokes and targets (:func:`errormap.grinder_file.grinder_chain`, compiled once per file), evaluated
 by the generic compiled kernels of :mod:`errormap.mt_kernel`: the field and its axis Jacobian
 (:class:`~errormap.mt_kernel.CompiledChain`), the exact error for element values per point and
 the error-transfer Jacobian (:class:`~errormap.mt_kernel.CompiledNominal`), and the numpy
@@ -43,8 +43,8 @@ IDX = {k: i for i, k in enumerate(ELEMENT_NAMES)}
 
 
 def _chain(machine: Grinder):
-    """The grinder file's chain (:func:`errormap.mt_chain.grinder_chain`, cached)."""
-    from .mt_chain import grinder_chain
+    """The grinder file's chain (:func:`errormap.grinder_file.grinder_chain`, cached)."""
+    from .grinder_file import grinder_chain
     return grinder_chain(machine)
 
 

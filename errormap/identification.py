@@ -275,10 +275,10 @@ class RotaryLine:
 
 
 def rotary_line(machine: Grinder) -> RotaryLine:
-    """The rotary joint of the machine's chain file (:func:`errormap.mt_chain.grinder_chain`): the one
+    """The rotary joint of the machine's chain file (:func:`errormap.grinder_file.grinder_chain`): the one
     rotary axis, its direction, and the constant slots of the work chain between the carriage before
     it and the joint (the A-axis line on the grinder: δy, δz, εy, εz across A, which turns about x)."""
-    from .mt_chain import grinder_chain
+    from .grinder_file import grinder_chain
     mt = grinder_chain(machine)
     rotary = [a for a in mt.axes if a.kind == "rotary"]
     if len(rotary) != 1:

@@ -97,7 +97,7 @@ def _body_frames(machine: Grinder, axes) -> dict:
     """Nominal frames ``(R (n, 3, 3), t (n, 3) mm)`` machine <- the X, Z and A bodies at ``axes``
     (n, 3): the grinder's chain file (:meth:`errormap.mt_chain.MachineTool.body_frames`, one
     source for the kinematics)."""
-    from .mt_chain import grinder_chain
+    from .grinder_file import grinder_chain
     mt = grinder_chain(machine)
     return {b: mt.body_frames(b, axes) for b in ("X", "Z", "A")}
 

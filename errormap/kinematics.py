@@ -6,7 +6,7 @@ Tool point in the WCS: ``p = T_work⁻¹ · T_tool · [0 0 0 1]ᵀ``, nominally
 ``p = (-(l5 + l7 + x), ρ·sin a, ρ·cos a)`` with ``ρ = l1 + l4 - R - l6 - l8 + z``.
 
 One source for the kinematics (issue 26): the chains are the grinder's chain file
-(:func:`errormap.mt_chain.grinder_chain`, the built-in ``grinder-chain.toml`` with the grinder
+(:func:`errormap.grinder_file.grinder_chain`, the built-in ``grinder-chain.toml`` with the grinder
 file's geometry), compiled once per file. ``forward`` is the chain's compiled nominal forward
 kinematics (:class:`errormap.mt_kernel.CompiledNominal`); ``inverse`` is the chain engine's closed
 form for its structure (:meth:`errormap.mt_chain.MachineTool.closed_form_inverse`: one rotary axis
@@ -22,7 +22,7 @@ from .transforms import check_points
 
 
 def _chain(machine: Grinder):
-    from .mt_chain import grinder_chain
+    from .grinder_file import grinder_chain
     return grinder_chain(machine)
 
 

@@ -501,9 +501,9 @@ _GRINDER_NOMINAL: dict = {}
 
 
 def grinder_nominal(machine) -> CompiledNominal:
-    """:class:`CompiledNominal` of a grinder file's chain (:func:`errormap.mt_chain.grinder_chain`),
+    """:class:`CompiledNominal` of a grinder file's chain (:func:`errormap.grinder_file.grinder_chain`),
     packed once per file content (same key and bound as that cache)."""
-    from .mt_chain import GRINDER_CHAIN_CACHE, _grinder_key, grinder_chain
+    from .grinder_file import GRINDER_CHAIN_CACHE, _grinder_key, grinder_chain
     key = _grinder_key(machine)
     c = _GRINDER_NOMINAL.get(key)
     if c is None:

@@ -4,7 +4,7 @@ What is measured (the grinder paper, section 2.1): three target balls, not colli
 fixed on a moving body; the axis stops at every 1/20 of its stroke (21 stations; A every
 18°) and the tracker measures the three ball centres in its own frame.
 
-Body frames (the grinder's chain file, :func:`errormap.mt_chain.grinder_chain`, in the machine
+Body frames (the grinder's chain file, :func:`errormap.grinder_file.grinder_chain`, in the machine
 frame MCS)::
 
     X carriage  T_X(x)    = Trans(l5,0,l6)·Trans(x,0,0)·E_x(x)
@@ -51,7 +51,7 @@ MAX_STATION = 100_000  # station numbers count positions along one stroke; more 
 
 
 def _chain(machine: Grinder):
-    from .mt_chain import grinder_chain
+    from .grinder_file import grinder_chain
     return grinder_chain(machine)
 
 

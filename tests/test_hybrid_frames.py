@@ -9,7 +9,8 @@ from compensation.hybrid import (LEARNED_FRAMES, LearnedResidual, _fit_inputs, f
                                  learned_stage, split_frame_key, to_frame)
 from errormap.htm import ELEMENT_NAMES, error_jacobian
 from errormap.machine import load_machine
-from errormap.mt_chain import WorkRotation, machine_tool_of
+from errormap.grinder_file import machine_tool_of
+from errormap.mt_chain import WorkRotation
 from errormap.simulator import random_axes
 from training.residual import ResidualRegressor
 

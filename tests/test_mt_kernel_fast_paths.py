@@ -10,7 +10,7 @@ from numba import njit
 
 from errormap.kinematics import forward, inverse
 from errormap.machine import load_machine
-from errormap.mt_chain import grinder_chain
+from errormap.grinder_file import grinder_chain
 from errormap.mt_elements import ChainElementSet
 from errormap.mt_field import predict_and_jacobian_numpy, predict_numpy
 from errormap.mt_kernel import SMALL_ANGLE_RAD, CompiledChain, _cos_sin, closed_form_solver
