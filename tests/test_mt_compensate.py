@@ -257,11 +257,12 @@ def test_compensate_five_axis_keeps_rotary_words(tmp_path, capsys):
     assert "T3 M6\n" in text and "(5-AXIS TEST)\n" in text
 
 
-def test_compensate_chain_refuses_other_methods(tmp_path, mill_models, capsys):
+def test_compensate_chain_refuses_orientation_without_a_kept_rotary_axis(tmp_path, mill_models, capsys):
     _, est = mill_models
-    assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method",
-                 "traditional", "--out", str(tmp_path / "o")]) == 2
-    assert "the methods are ga, batched-ga, exact" in capsys.readouterr().err
+    assert main(["compensate", str(MILL_PROGRAM), "--machine", "mill-xyz", "--model", str(est), "--method", "exact",
+                 "--work-offsets", "machine", "--compensate-orientation", "--out", str(tmp_path / "o")]) == 2
+    assert "--compensate-orientation: the solver keeps no rotary axis" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").glob("*.nc"))
 
 
 EXPORT_TOLERANCE_UM = 1.0

@@ -69,7 +69,7 @@ class Solver:
 
 SOLVERS = {s.name: s for s in (
     Solver("traditional", "traditional", "subtract the field's error at the nominal axes once (no iteration)",
-           uses=frozenset({"predict_columns"}), progress=False),
+           uses=frozenset({"predict_columns"}), progress=False, chain="chain_traditional:solve_traditional_chain"),
     Solver("ga", "ga", "the paper's genetic algorithm, one point at a time",
            uses=frozenset({"float32", "predict_columns"}), seeded=True, chain="chain_ga:solve_ga_chain"),
     Solver("batched-ga", "batched_ga", "the same GA evolved for a block of points at once (numba breeding kernels)",
@@ -101,7 +101,8 @@ def get_solver(method: str):
 
 def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
     """Run solver ``method`` on WCS targets, shape (n, 3) mm. On a machine-tool chain
-    (``machine.kind == "machine-tool"``) the solver's ``chain`` entry runs (``exact``:
+    (``machine.kind == "machine-tool"``) the solver's ``chain`` entry runs (``traditional``:
+    :func:`compensation.solvers.chain_traditional.solve_traditional_chain`, ``exact``:
     :func:`compensation.solvers.chain_exact.solve_exact_chain`, ``batched-ga``:
     :func:`compensation.solvers.chain_ga.solve_batched_ga_chain`; the tool tip with the chain's three
     linear axes, rotary axes kept, or with exact every axis of a three-axis machine such as a lathe's
