@@ -90,15 +90,18 @@ def _independent_columns(Js, first, rtol: float = RANK_RTOL) -> np.ndarray:
     from scipy.linalg import qr
     tol = rtol * max(float(np.linalg.norm(Js, axis=0).max(initial=0.0)), 1e-300)
     free = np.zeros(Js.shape[1], bool)
+    head, rest = np.flatnonzero(first), np.flatnonzero(~np.asarray(first, bool))
     Q = np.zeros((Js.shape[0], 0))
-    for block in (np.flatnonzero(first), np.flatnonzero(~np.asarray(first, bool))):
-        if not len(block):
-            continue
-        B = Js[:, block] - Q @ (Q.T @ Js[:, block])
-        Qb, R, piv = qr(B, mode="economic", pivoting=True)
+    if len(head):                        # the frame block (at most 9 columns): its orthonormal basis is kept
+        Qb, R, piv = qr(Js[:, head], mode="economic", pivoting=True)
         r = int(np.sum(np.abs(np.diag(R)) > tol))
-        free[block[piv[:r]]] = True
-        Q = np.hstack([Q, Qb[:, :r]])
+        free[head[piv[:r]]] = True
+        Q = Qb[:, :r]
+    if len(rest):                        # the link block, factored in place (no second (3n, p) array)
+        B = np.asfortranarray(Js[:, rest] - Q @ (Q.T @ Js[:, rest]))
+        _, R, piv = qr(B, mode="raw", pivoting=True, overwrite_a=True)
+        r = int(np.sum(np.abs(np.diag(R)) > tol))
+        free[rest[piv[:r]]] = True
     return free
 
 

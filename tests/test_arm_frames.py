@@ -57,6 +57,7 @@ def far(ur5):
     return tf, q, measure(ur5, tf, q, NOISE_MM, [5, 1])
 
 
+@pytest.mark.slow
 def test_link_slots_do_not_depend_on_where_the_tracker_stands(ur5, far):
     """The same measured points moved rigidly by 1.8 m / 0.53 rad give the same link slots and the same model in the
     robot's base frame; link 1's offsets along and about its axis are the ones held (the base carries them)."""
