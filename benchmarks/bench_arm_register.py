@@ -59,7 +59,7 @@ def run(seed: int, chain) -> dict:
 
 def run_real(path, machine) -> dict:
     from errormap.arm_poses import read_arm_poses
-    from errormap.arm_register import _rot
+    from errormap.arm_frames import rot as _rot
     chain = load_machine(machine)
     data = read_arm_poses(path, chain)
     n = int(0.6 * len(data))

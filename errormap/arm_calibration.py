@@ -20,9 +20,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .arm_frames import placed_start
 from .io import InputError
 
-RANK_RTOL = 1e-7          # |R_kk| / |R_00| of the scaled QR below this: the slot depends on the others
+RANK_RTOL = 1e-7          # |R_kk| / |R_00| of the scaled QR below this: the slot depends on the others EXACTLY
+IDENTIFY_RTOL = 3e-4
+"""The fits' cut (:func:`fit_model`): a slot whose unit-norm column keeps less than this fraction of its length once
+the columns chosen before it are removed (the pivoted QR's |R_kk|) is held at nominal: the data cannot tell it from
+the others at the arm's scale. The plain fit's cutoff (:data:`PLAIN_RCOND`, the gap measured on both real grids). At
+:data:`RANK_RTOL` (exact dependencies only) the UR5 grid's fit freed link 5's a and d offsets beside the nearly
+parallel shoulder/elbow axes and returned 4.5 to 11.6 mm and 39 to 102 mrad with standard errors of the same size
+(8.5 mm, 73 mrad): no physical link parameters. At this cut the largest identified UR5 link deviation is 0.67 mm /
+11.6 mrad and the held-out error is unchanged or lower (BENCHMARKS.md, "Arm frames kept apart"). The pose-set check
+(:func:`check_pose_set`) still counts exact dependencies only."""
 COMBINATION_SHOW = 0.1    # a slot enters a named null combination with |weight| above this
 LM_MAX_ITER = 100
 LM_XTOL = 1e-10           # stop when a step lowers the residual sum of squares by less than this (relative)
@@ -72,12 +82,39 @@ def _scaled(J2d):
     return np.where(zero, 0.0, J2d / s), s
 
 
-def identifiable_slots(chain, q, errors=None, exclude=None,
-                       orientation: bool = False) -> tuple[np.ndarray, list[dict], np.ndarray]:
-    """(free mask (n_params,), null combinations, scaled singular values) from the Jacobian at ``q``; ``exclude``
-    (n_params,) bool: slots held at nominal whatever the data (their columns count as zero); ``orientation``: 6-DoF
-    poses, the tool frame's rotation rows (times :data:`ORIENTATION_LEVER_MM`) count too."""
+def _independent_columns(Js, first, rtol: float = RANK_RTOL) -> np.ndarray:
+    """The largest independent set of the columns of ``Js`` (m, p) (unit-norm or zero), the columns ``first`` (p,)
+    bool taken before the others: a pivoted QR of the ``first`` block, then one of the other columns with their
+    components along the chosen ones removed. A column whose remaining norm is below ``rtol`` (relative to the
+    largest column) depends on the chosen ones. Returns a mask (p,)."""
     from scipy.linalg import qr
+    tol = rtol * max(float(np.linalg.norm(Js, axis=0).max(initial=0.0)), 1e-300)
+    free = np.zeros(Js.shape[1], bool)
+    head, rest = np.flatnonzero(first), np.flatnonzero(~np.asarray(first, bool))
+    Q = np.zeros((Js.shape[0], 0))
+    if len(head):                        # the frame block (at most 9 columns): its orthonormal basis is kept
+        Qb, R, piv = qr(Js[:, head], mode="economic", pivoting=True)
+        r = int(np.sum(np.abs(np.diag(R)) > tol))
+        free[head[piv[:r]]] = True
+        Q = Qb[:, :r]
+    if len(rest):                        # the link block, factored in place (no second (3n, p) array)
+        B = np.asfortranarray(Js[:, rest] - Q @ (Q.T @ Js[:, rest]))
+        _, R, piv = qr(B, mode="raw", pivoting=True, overwrite_a=True)
+        r = int(np.sum(np.abs(np.diag(R)) > tol))
+        free[rest[piv[:r]]] = True
+    return free
+
+
+def identifiable_slots(chain, q, errors=None, exclude=None, orientation: bool = False,
+                       rtol: float = RANK_RTOL) -> tuple[np.ndarray, list[dict], np.ndarray]:
+    """(free mask (n_params,), null combinations, scaled singular values) from the Jacobian at ``q``; ``rtol``: the
+    dependency cut (:data:`RANK_RTOL` exact, :data:`IDENTIFY_RTOL` the fits'); ``exclude``
+    (n_params,) bool: slots held at nominal whatever the data (their columns count as zero); ``orientation``: 6-DoF
+    poses, the tool frame's rotation rows (times :data:`ORIENTATION_LEVER_MM`) count too. The frame slots
+    (:data:`errormap.arm_frames.FRAME_SLOT_PREFIXES`: base and tool) are taken first, so a link slot that moves the
+    tool point like a frame slot (link 1's offsets against the base) is the one held at nominal: the link
+    parameters stay deviations of the machine's table wherever the instrument stands."""
+    from .arm_frames import FRAME_SLOT_PREFIXES
     if orientation:
         J6 = chain.error_jacobian(q, errors, orientation=True)
         J = np.concatenate([J6[:, :3], J6[:, 3:] * ORIENTATION_LEVER_MM], axis=1).reshape(-1, chain.n_params)
@@ -86,15 +123,11 @@ def identifiable_slots(chain, q, errors=None, exclude=None,
     if exclude is not None:
         J = np.where(np.asarray(exclude, bool)[None, :], 0.0, J)
     Js, _ = _scaled(J)
-    _, R, piv = qr(Js, mode="economic", pivoting=True)
-    d = np.abs(np.diag(R))
-    rank = int(np.sum(d > RANK_RTOL * d[0]))
-    free = np.zeros(chain.n_params, bool)
-    free[piv[:rank]] = True
-    # Js = Q R Pᵀ: the singular values and right singular vectors of Js are those of R Pᵀ (min(3n, p), p), so the
-    # (3n)² factor of a full SVD is never formed (memory O(n p)); Vt (p, p) holds the null space
-    C = np.empty_like(R)
-    C[:, piv] = R
+    free = _independent_columns(Js, np.array([n.startswith(FRAME_SLOT_PREFIXES) for n in chain.param_names]), rtol)
+    rank = int(free.sum())
+    # the singular values and right singular vectors of Js are those of its triangular factor (min(3n, p), p), so
+    # the (3n)² factor of a full SVD is never formed (memory O(n p)); Vt (p, p) holds the null space
+    C = np.linalg.qr(Js, mode="r")
     _, sv, Vt = np.linalg.svd(C, full_matrices=True)
     combos = []
     for v in Vt[rank:]:
@@ -355,14 +388,16 @@ def fit_plain_lsq(chain, poses) -> GeometricResult:
     and no motion along what they do not (which an unguarded LM runs away along, its prediction then moving with
     round-off)."""
     free = np.array(["beta" not in n for n in chain.param_names])
-    x, it, conv = _min_norm_lsq(chain, poses.q, poses.xyz_mm, np.zeros(chain.n_params), free, _weights(poses))
+    x, it, conv = _min_norm_lsq(chain, poses.q, poses.xyz_mm, placed_start(chain, poses.q, poses.xyz_mm), free,
+                                _weights(poses))
     return _result(chain, poses, x, free, [], np.array([]), it, conv, "plain least squares")
 
 
 def fit_base_tool(chain, poses) -> GeometricResult:
     """Nominal chain with a fitted base frame and tool point (LM on the ``base.*`` and ``tool.*`` slots)."""
     free = np.array([n.startswith(("base.", "tool.")) for n in chain.param_names])
-    x, it, conv = _lm(chain, poses.q, poses.xyz_mm, np.zeros(chain.n_params), free, _weights(poses), rot=_rot_data(poses))
+    x, it, conv = _lm(chain, poses.q, poses.xyz_mm, placed_start(chain, poses.q, poses.xyz_mm), free, _weights(poses),
+                      rot=_rot_data(poses))
     return _result(chain, poses, x, free, [], np.array([]), it, conv, "nominal + base/tool")
 
 
@@ -563,8 +598,9 @@ def fit_model(chain, poses, model: str = "dh", max_iter: int = LM_MAX_ITER) -> G
     knots held at zero where :func:`table_held` says)."""
     c = extended_chain(chain, model)
     free, combos, sv = identifiable_slots(c, poses.q, exclude=table_held(c, poses.q),
-                                          orientation=getattr(poses, "rot", None) is not None)
-    x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter, _rot_data(poses))
+                                          orientation=getattr(poses, "rot", None) is not None, rtol=IDENTIFY_RTOL)
+    x, it, conv = _lm(c, poses.q, poses.xyz_mm, placed_start(c, poses.q, poses.xyz_mm), free, _weights(poses),
+                      max_iter, _rot_data(poses))
     return _result(c, poses, x, free, combos, sv, it, conv, "volcomp")
 
 
@@ -575,7 +611,8 @@ def fit_slots(chain, poses, free, model: str = "dh", max_iter: int = LM_MAX_ITER
     free = np.asarray(free, bool)
     if free.shape != (c.n_params,):
         raise ValueError(f"free must have shape ({c.n_params},), got {free.shape}")
-    x, it, conv = _lm(c, poses.q, poses.xyz_mm, np.zeros(c.n_params), free, _weights(poses), max_iter, _rot_data(poses))
+    x, it, conv = _lm(c, poses.q, poses.xyz_mm, placed_start(c, poses.q, poses.xyz_mm), free, _weights(poses),
+                      max_iter, _rot_data(poses))
     return _result(c, poses, x, free, [], np.array([]), it, conv, "volcomp")
 
 

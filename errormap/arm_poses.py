@@ -62,6 +62,15 @@ class ArmPoses:
                         self.rows[idx], self.source, self.layout, pick(self.rot), pick(self.sigma_rad))
 
 
+def temperature_summary(poses) -> dict | None:
+    """The logged temperature of ``poses`` (their ``temp_c`` column): ``{"mean", "min", "max", "n"}`` in °C, or None
+    for a file without it."""
+    t = poses.temp_c
+    if t is None:
+        return None
+    return {"mean": float(np.mean(t)), "min": float(np.min(t)), "max": float(np.max(t)), "n": int(len(t))}
+
+
 def chain_reach_mm(chain) -> float:
     """Sum of the chain's constant translations (mm): an upper bound of its reach."""
     return float(sum(abs(e.value) for e in chain.ets if e.kind == "t"))

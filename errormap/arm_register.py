@@ -15,12 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .arm_calibration import _lm
-from .identification import rigid_fit
+from .arm_frames import BASE_SLOTS, TOOL_SLOTS, base_rotation, initial_base
 from .io import InputError
 
-BASE_SLOTS = ("base.x_mm", "base.y_mm", "base.z_mm", "base.rz_rad", "base.ry_rad", "base.rx_rad")
-"""The base frame's slots, in the order of its elementary transforms (tx ty tz rz ry rx, :func:`errormap.chain.base_ets`)."""
-TOOL_SLOTS = ("tool.x_mm", "tool.y_mm", "tool.z_mm")
+__all__ = ["BASE_SLOTS", "TOOL_SLOTS", "Registration", "register_frame", "suggest_poses"]
+
 MIN_POSES = 6
 """Fewest poses a registration takes: 18 coordinates for at most 9 slots, twice what the frame needs."""
 SUGGEST_POSES = 6
@@ -55,49 +54,6 @@ class Registration:
                 "converged": self.converged, "learned_rotation": self.learned_rotation.tolist(),
                 "poses_that_pin_it_best": {"joints": list(joint_columns), "q": self.suggest_q.tolist(),
                                            "std_with_them": self.suggest_std.tolist()}}
-
-
-def _rot(axis: int, a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    R = np.eye(3)
-    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
-    return R
-
-
-def _base_ets(chain):
-    """The base frame's elementary transforms (in :data:`BASE_SLOTS` order) and its slots' indices; InputError if
-    the chain has no base slots in that order."""
-    ets = [e for e in chain.ets if e.slot in BASE_SLOTS]
-    if [e.slot for e in ets] != list(BASE_SLOTS):
-        raise InputError(f"machine {chain.name!r}: no base frame slots {BASE_SLOTS} in this order: cannot re-register")
-    return ets, np.array([list(chain.param_names).index(s) for s in BASE_SLOTS])
-
-
-def base_rotation(chain, params) -> np.ndarray:
-    """The base frame's rotation (3, 3) at the slot values ``params``."""
-    ets, idx = _base_ets(chain)
-    a = [e.value + e.coef * params[k] for e, k in zip(ets, idx)][3:]
-    return _rot(2, a[0]) @ _rot(1, a[1]) @ _rot(0, a[2])
-
-
-def initial_base(chain, params, q, target_mm) -> np.ndarray:
-    """``params`` with the base slots from a rigid fit (Kabsch) of the model's tool points to ``target_mm`` (n, 3)."""
-    ets, idx = _base_ets(chain)
-    total = np.array([e.value + e.coef * params[k] for e, k in zip(ets, idx)])
-    T_old = np.eye(4)
-    T_old[:3, 3] = total[:3]
-    T_old[:3, :3] = _rot(2, total[3]) @ _rot(1, total[4]) @ _rot(0, total[5])
-    R, t = rigid_fit(chain.tool_point(q, params)[None], np.asarray(target_mm, float)[None])
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R[0], t[0]
-    T_new = T @ T_old
-    Rn = T_new[:3, :3]
-    new = np.concatenate([T_new[:3, 3], [np.arctan2(Rn[1, 0], Rn[0, 0]), -np.arcsin(np.clip(Rn[2, 0], -1, 1)),
-                                         np.arctan2(Rn[2, 1], Rn[2, 2])]])
-    out = np.array(params, float).copy()
-    out[idx] = (new - np.array([e.value for e in ets])) / np.array([e.coef for e in ets])
-    return out
 
 
 def register_frame(chain, params, poses, learner=None, tool: bool = False, seed=0) -> Registration:

@@ -41,6 +41,23 @@ class ArmTruth:
         """True tool point at commanded joints ``q``, mm, (n, 3)."""
         return chain.tool_point(q + self.joint_sag_deg(chain, q), self.errors)
 
+    def base_frame_point(self, chain, q) -> np.ndarray:
+        """True tool point at ``q`` (n, 3) in the robot's TRUE base frame as calibration defines it: the frame after
+        the base block once it has absorbed link 1's offsets about and along its axis (``link1.dtheta_rad``,
+        ``link1.dd_mm``: the slots :func:`errormap.arm_calibration.identifiable_slots` holds at nominal, their effect
+        being the base's). Standard-DH chains whose first joint is revolute (``Rz(θ + q) Tz(d) …`` after the base)."""
+        from .arm_frames import base_transform, rot
+        names = list(chain.param_names)
+        k = [names.index(n) if n in names else None for n in ("link1.dtheta_rad", "link1.dd_mm")]
+        if chain.convention != "dh" or chain.joints[0].type != "revolute" or None in k:
+            raise ValueError(f"machine {chain.name!r}: the true base frame is defined here for standard-DH chains with "
+                             "a revolute first joint only")
+        G = np.eye(4)
+        G[:3, :3] = rot(2, self.errors[k[0]])
+        G[2, 3] = self.errors[k[1]]
+        T = base_transform(chain, self.errors) @ G
+        return (self.tool_point(chain, q) - T[:3, 3]) @ T[:3, :3]
+
 
 def gravity_moment_mm(chain, q, errors=None) -> np.ndarray:
     """Per joint, the gravity moment of unit masses at the downstream joint origins and the tool point, (n, nq)."""

@@ -36,8 +36,11 @@ SOFT_COMPLIANCE_RAD_PER_MM = 3e-7
 # the learner handed on through calibration.json predicts as the fitted one up to round-off (measured 9e-16 mm)
 ROUNDTRIP_ATOL_MM = 1e-12
 # the judge's reference fit (noise-free, sag-free tool points of the truth, on the estimate's identified slots)
-# must reproduce them: measured 2e-13 mm RMS (LM to round-off); 1e-6 mm fails on a slot set that cannot
-REF_FIT_RMS_MAX_MM = 1e-6
+# must reproduce them up to what the slots the fit holds cost: with exact dependencies only held it was 2e-13 mm RMS
+# (LM to round-off); the fits also hold the slots the data cannot tell apart at the arm's scale (IDENTIFY_RTOL), whose
+# true values then leave at most 3.4e-4 mm RMS over the 20 seeds (measured) — 1/60 of the tracker noise. 1e-3 mm
+# (1/20 of the noise) fails on a slot set that cannot reproduce the truth's link errors at the noise's scale
+REF_FIT_RMS_MAX_MM = 1e-3
 # compliance recovery: the identified compliance of the two shoulder/elbow joints (q2, q3: the large gravity
 # moments) within this relative error of the truth (3e-5 rad/m) on 400 poses at 0.02 mm noise. Measured on seed 0
 # (200 poses): 0.90x and 1.07x; the slot's own std there is ~12 % (q2) / 28 % (q3) of the value at 200 poses,
@@ -178,7 +181,7 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     # never lose to the plain pipelines in the inner validation: the kept stage's pipeline CV is the lowest
     pcv = {r["pipeline"]: r["cv_mean_mm"] for r in doc["pipeline_cv"]}
     assert pcv[doc["kept_stage"]] <= min(pcv["plain geometric LSQ"], pcv["plain GP on plain LSQ residual"])
-    # compensation: targets = nominal tool points of a joint program; TRUE residual of the commands
+    # compensation: targets = nominal tool points of a joint program (base frame); TRUE residual of the commands
     qp = random_joints(UR5_LO + 5, UR5_HI - 5, 50, [7, 9])
     prog = tmp_path / "prog.csv"
     prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in row) for row in qp))
@@ -187,8 +190,9 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     assert r.returncode == 0, r.stdout + r.stderr
     out = read_table(tmp_path / "comp" / "prog.csv")
     qn = np.stack([out.float(c) for c in ur5.joint_columns], 1)
-    true_err = np.linalg.norm(t.tool_point(ur5, qn) - ur5.tool_point(qp), axis=1)
-    before = np.linalg.norm(t.tool_point(ur5, qp) - ur5.tool_point(qp), axis=1)
+    # the program and its targets are in the robot's base frame: the truth there (its base with link 1's offsets)
+    true_err = np.linalg.norm(t.base_frame_point(ur5, qn) - ur5.tool_point(qp), axis=1)
+    before = np.linalg.norm(t.base_frame_point(ur5, qp) - ur5.tool_point(qp), axis=1)
     assert np.sqrt(np.mean(true_err ** 2)) <= FLOOR_FACTOR * NOISE_FLOOR_MM < np.sqrt(np.mean(before ** 2))
 
 
@@ -216,7 +220,7 @@ def test_compliance_slots_recover_sag_and_restore_link_bands(ur5):
             # the truth's identifiable equivalent IN THE ESTIMATE'S PARAMETERISATION (its identified link slots; the
             # pivoted QR of the extended slot set may fix another member of a dependent group than the DH-only one)
             ref = fit_slots(ur5, clean, r.free[:ng])
-            assert ref.fit_rms_mm <= REF_FIT_RMS_MAX_MM      # that set reproduces the truth's link errors exactly
+            assert ref.fit_rms_mm <= REF_FIT_RMS_MAX_MM      # that set reproduces the truth's link errors
             inside[m].extend((np.abs(r.params[:ng] - ref.params) <= Z95 * r.std[:ng])[r.free[:ng]])
     assert np.mean(inside["dh+compliance"]) >= BAND_COVERAGE_MIN > np.mean(inside["dh"])
 

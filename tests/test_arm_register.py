@@ -99,8 +99,11 @@ def test_register_through_the_cli_then_predict(tmp_path, ur5, sessions):
             tmp_path / "p.csv")
     assert r.returncode == 0, r.stderr
     p = read_table(tmp_path / "p.csv")
-    xyz = np.stack([p.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
-    e = np.linalg.norm(xyz - rest.xyz_mm, axis=1).mean()
+    xyz = np.stack([p.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)         # the robot's base frame
+    from compensation.app.workflows.arm_calibration import load_arm_model
+    from errormap.arm_frames import from_base_frame
+    geo, _ = load_arm_model(ur5, tmp_path / "s" / "calibration.json")
+    e = np.linalg.norm(from_base_frame(ur5, geo.params, xyz) - rest.xyz_mm, axis=1).mean()
     assert e == pytest.approx(reg["heldout_registered"]["mean_mm"], rel=1e-6)   # predict reads the registered frame
 
 
@@ -130,7 +133,7 @@ def test_learned_residual_turns_with_the_registered_base(ur5, sessions):
     base into the new session's frame: the registered model then meets the session as the geometric one does, where
     the residual left unturned would not."""
     from training.arm_residual import RotatedResidual
-    from errormap.arm_register import base_rotation
+    from errormap.arm_frames import base_rotation
     t2, geo, _, new = sessions
     c = np.array([0.3, -0.4, 0.0])
     R_delta = base_rotation(ur5, t2.errors) @ base_rotation(ur5, geo.params).T

@@ -156,7 +156,7 @@ def test_stack_cv_chooses_each_folds_weight_without_it():
         assert np.allclose(r["std_mm"][lab == f], w + 2 * (1 - w), rtol=0, atol=ROUNDTRIP_ATOL_MM)
 
 
-def _doc(ur5, st, fmt="volcomp-arm-calibration/3"):
+def _doc(ur5, st, fmt="volcomp-arm-calibration/4"):
     return {"format": fmt, "machine": {"name": ur5.name, "joints": ur5.joint_columns}, "kept_stage": STACKED,
             "stacked": st.to_dict(), "geometric": st.geometric.to_dict(), "learned": None}
 
@@ -211,8 +211,9 @@ def test_predict_applies_the_files_band_factor_and_refuses_a_bad_one(ur5, geo_pa
 
 
 def test_old_files_load_and_their_geometric_band_is_refused(ur5, geo_pair, tmp_path, capsys):
-    """A /2 file (before the stacked stage and the saved covariance) still loads and predicts; a band that would need
-    the covariance it lacks is refused in one line."""
+    """A /2 file (before the stacked stage and the saved covariance) still loads; predict refuses it in one line (its
+    base slots need not be the robot's base frame); a file without the covariance predicts, and a band that would
+    need the covariance it lacks is refused in one line."""
     fit, a, _ = geo_pair
     g = a[0].to_dict()
     del g["covariance_identified"]
@@ -224,6 +225,11 @@ def test_old_files_load_and_their_geometric_band_is_refused(ur5, geo_pair, tmp_p
     assert np.array_equal(geo.predict(fit.q), a[0].predict(fit.q))
     prog = tmp_path / "prog.csv"
     prog.write_text(",".join(ur5.joint_columns) + "\n" + "\n".join(",".join(f"{v:.10g}" for v in r) for r in fit.q[:5]))
+    assert main(["predict", "--machine", "ur5", "--model", str(p), str(prog), "--out", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "'volcomp-arm-calibration/2'" in err and "calibrate again" in err
+    d = json.loads(p.read_text())
+    p.write_text(json.dumps({**d, "format": "volcomp-arm-calibration/4"}))
     assert main(["predict", "--machine", "ur5", "--model", str(p), str(prog), "--out", str(tmp_path / "o.csv")]) == 0
     capsys.readouterr()
     assert main(["predict", "--machine", "ur5", "--model", str(p), str(prog), "--out", str(tmp_path / "o.csv"),
@@ -286,12 +292,16 @@ def test_the_command_keeps_the_stack_by_its_rule_and_hands_it_on(ur5, tmp_path, 
     q_in = np.stack([pred.float(c) for c in ur5.joint_columns], 1)
     p = np.stack([pred.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
     band = np.stack([pred.float(c) for c in ("dx_band95_mm", "dy_band95_mm", "dz_band95_mm")], 1)
-    assert np.abs(p - st.point(q_in)).max() <= CSV_ATOL_MM
+    from errormap.arm_frames import base_rotation, from_base_frame, to_base_frame   # predict writes the robot's base frame
+    assert np.abs(p - to_base_frame(ur5, st.geometric.params, st.point(q_in))).max() <= CSV_ATOL_MM
     c = doc["band_calibration"]["factor"]        # the blocked band rule's factor (≥ 1), applied by predict
     assert c >= 1.0 and set(doc["band_calibration"]["blockings"]) == {"order", "sector"}
-    assert np.allclose(band, 1.959963984540054 * c * st.predict(q_in, return_std=True)[1], rtol=1e-9, atol=0)
+    R = base_rotation(ur5, st.geometric.params)     # the band's components turned into the base frame
+    sd = np.sqrt((st.predict(q_in, return_std=True)[1] ** 2) @ (R ** 2))
+    assert np.allclose(band, 1.959963984540054 * c * sd, rtol=1e-9, atol=0)
     assert main(["compensate", str(prog), "--machine", "ur5", "--model", str(tmp_path / "cal" / "calibration.json"),
                  "--out", str(tmp_path / "comp")]) == 0
     comp = read_table(tmp_path / "comp" / "prog.csv")
     qn = np.stack([comp.float(c) for c in ur5.joint_columns], 1)
-    assert np.abs(st.point(qn) - ur5.tool_point(q_in)).max() <= NEWTON_MODEL_RES_MM + CSV_ATOL_MM
+    target = from_base_frame(ur5, st.geometric.params, ur5.tool_point(q_in))   # base-frame targets, instrument frame
+    assert np.abs(st.point(qn) - target).max() <= NEWTON_MODEL_RES_MM + CSV_ATOL_MM

@@ -461,7 +461,7 @@ def combine_band_factors(factors, cap=None) -> tuple[float, float]:
 
 
 def blocked_band_scale(chain, poses, pipes: dict, blockings: dict, k_folds: int, seed, stacked=None,
-                       cap=None) -> dict:
+                       cap=None, beside=None) -> dict:
     """The band factor of the kept stage from BLOCKED inner CVs (:data:`BAND_RULE_BLOCKED`).
 
     ``pipes``: the kept stage's pipeline(s), name → ``(model, learner)`` as :func:`cv_pipelines` takes them (one, or
@@ -473,11 +473,15 @@ def blocked_band_scale(chain, poses, pipes: dict, blockings: dict, k_folds: int,
     ``cap``: None, or the factor at which the band would hold :data:`BAND_COVERAGE_MAX_INTERLEAVED` on the interleaved
     CV; then c = max(1, min(c_blocked, cap)). Returns ``{"factor": c, "factor_blocked", "cap_interleaved", "rule",
     "blockings": {name: {"n_blocks", "factor", "coverage95_before", "coverage95_after", "cv_mean_mm"}}}`` — before:
-    the stage's band as it was (its interleaved-CV calibration), after: times c."""
+    the stage's band as it was (its interleaved-CV calibration), after: times c. ``beside``: further pipelines
+    (name → ``(model, learner)``) cross-validated on the same blocks (a geometric stage shared with the kept one is
+    fitted once per block); their mean errors are ``beside_cv_mean_mm`` per blocking."""
     out = {}
     y = poses.xyz_mm
+    beside = dict(beside or {})
     for name, lab in blockings.items():
-        cv = cv_pipelines(chain, poses, pipes, k_folds, seed, groups=lab, fold_fits={})
+        cv = cv_pipelines(chain, poses, {**pipes, **beside}, k_folds, seed, groups=lab, fold_fits={})
+        extra = {k: cv.pop(k)["cv_mean_mm"] for k in beside}
         if stacked is not None:
             from errormap.arm_calibration import cv_labels
             a, b = cv[stacked[0]], cv[stacked[1]]
@@ -488,6 +492,8 @@ def blocked_band_scale(chain, poses, pipes: dict, blockings: dict, k_folds: int,
         out[name] = {"n_blocks": int(min(k_folds, len(np.unique(lab)))),
                      "factor": band_factor(y, r["pred_mm"], r["std_mm"]), "cv_mean_mm": r["cv_mean_mm"],
                      "_z": band_z(y, r["pred_mm"], r["std_mm"])}
+        if beside:
+            out[name]["beside_cv_mean_mm"] = extra
     c_blocked, c = combine_band_factors([v["factor"] for v in out.values()], cap)
     for v in out.values():
         v["coverage95_before"], v["coverage95_after"] = coverage_before_after(v.pop("_z"), c)

@@ -42,5 +42,11 @@ def run(args) -> int:
         if r[k] is not None:
             print(f"register: {k.replace('_', ' ')}: mean {r[k]['mean_mm']:.4f} mm, RMS {r[k]['rms_mm']:.4f} mm "
                   f"on {r[k]['n']} poses")
+    if r.get("learned_carried") is False:
+        print(f"register: the learned stage is not carried to this session: {r['learned_why']}")
+    if r.get("temperature_change_c") is not None:
+        print(f"register: logged temperature {r['temperature_c']['mean']:.2f} °C, "
+              f"{r['temperature_change_c']:+.2f} °C from the calibration's (the link lengths are the calibration's: "
+              "a change in temperature shows in the held-out error, not in the frame)")
     print(f"register: wrote {Path(args.out) / 'calibration.json'}")
     return 0

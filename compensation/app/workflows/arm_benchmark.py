@@ -6,7 +6,8 @@ and a well-conditioned joint program), calibrated exactly as ``volcomp calibrate
 (:func:`compensation.app.workflows.arm_calibration.calibrate_arm`: every decision by CV inside the fitting
 poses), and the joint program is compensated as ``volcomp compensate`` does (Newton on the calibrated chain,
 tool orientation kept). The hidden truth then drives the compensated joints; the TRUE residual is the truth's
-tool point minus the program's target (the nominal tool point at the programmed joints). Three rows per
+tool point minus the program's target (the nominal tool point at the programmed joints), both in the robot's base
+frame. Three rows per
 condition, all from the same measurements:
 
 - ``plain LSQ``: the plain baseline (scipy least squares on every DH slot + base + tool), compensated;
@@ -33,12 +34,15 @@ def condition_name(effects) -> str:
 
 
 def _landing_um(chain, truth, geo, learner, q_prog, target):
-    """(TRUE landing error per program point (n,) μm, compensate seconds per point, converged (n,) bool)."""
+    """(TRUE landing error per program point (n,) μm, compensate seconds per point, converged (n,) bool): the
+    base-frame ``target`` turned into the calibration's instrument frame as ``compensate`` does, the truth at the
+    compensated joints judged in the robot's base frame (:meth:`errormap.arm_simulate.ArmTruth.base_frame_point`)."""
     from compensation.arm_compensation import solve_joints
+    from errormap.arm_frames import from_base_frame
     t0 = time.process_time()
-    sol = solve_joints(geo.chain, geo.params, learner, target, q_prog)
+    sol = solve_joints(geo.chain, geo.params, learner, from_base_frame(chain, geo.params, target), q_prog)
     dt = (time.process_time() - t0) / len(q_prog)
-    return 1000.0 * np.linalg.norm(truth.tool_point(chain, sol.q) - target, axis=1), dt, sol.converged
+    return 1000.0 * np.linalg.norm(truth.base_frame_point(chain, sol.q) - target, axis=1), dt, sol.converged
 
 
 def run_arm(machine, s, log, out_dir, row, note) -> None:
@@ -47,7 +51,7 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
     from errormap.arm_poses import read_arm_poses
 
     from .arm_calibration import calibrate_arm, errors_mm
-    from .arm_compensate import read_program
+    from .arm_compensate import nominal_base_points, read_program
     from .simulate_serial import load_serial_truth, simulate_serial
     base = Path(out_dir) / "arms" / machine.name
     floor_um = float(np.sqrt(3) * s.arm_noise_um)
@@ -63,8 +67,8 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
             truth = load_serial_truth(d / "truth.json", machine)
             fit, check = read_arm_poses(d / "poses.csv", machine), read_arm_poses(d / "checks.csv", machine)
             q_prog, _ = read_program(d / "program.csv", machine)     # joints only: the targets are the nominal
-            target = machine.tool_point(q_prog)                        # tool points, as `compensate` takes them
-            unc = 1000.0 * np.linalg.norm(truth.tool_point(machine, q_prog) - target, axis=1)
+            target = nominal_base_points(machine, q_prog)              # tool points, as `compensate` takes them
+            unc = 1000.0 * np.linalg.norm(truth.base_frame_point(machine, q_prog) - target, axis=1)
             t0 = time.process_time()
             core = calibrate_arm(machine, fit, check, learned=s.arm_learned, k_folds=s.arm_k_folds, seed=s.seed,
                                  log=io.StringIO())

@@ -25,22 +25,28 @@ import numpy as np
 
 from errormap.arm_calibration import (GeometricResult, check_pose_set, fit_base_tool,
                                       fit_plain_lsq)
-from errormap.arm_poses import read_arm_poses
+from errormap.arm_poses import read_arm_poses, temperature_summary
 from errormap.io import InputError, read_document_text, write_json
 
 from ..reports.arm_calibration import write_report
 from .calibration import holdout_split
 
-MODEL_FORMAT = "volcomp-arm-calibration/3"
-READ_FORMATS = (MODEL_FORMAT, "volcomp-arm-calibration/2")
-"""Formats :func:`load_arm_model` reads (/2: before the stacked stage; its stages are all readable as /3's)."""
+MODEL_FORMAT = "volcomp-arm-calibration/4"
+READ_FORMATS = (MODEL_FORMAT, "volcomp-arm-calibration/3", "volcomp-arm-calibration/2")
+"""Formats :func:`load_arm_model` reads (/2: before the stacked stage; /3: before the base frame was kept apart from
+the link parameters; their stages are all readable as /4's)."""
+BASE_FRAME_FORMATS = (MODEL_FORMAT,)
+"""Formats whose base slots are the instrument → robot base transform: the only ones a joint program is compensated
+or predicted with in the robot's base frame (before /4 a link slot could carry the instrument's placement)."""
 STACKED = "stacked"
 """Stage name of the blend of volcomp's pipeline and the plain GP (:class:`training.arm_residual.StackedResidual`)."""
 Z95 = 1.959963984540054
-FRAMES = {"poses, stages, predictions": "the measuring instrument's (tracker's) frame of the calibration poses",
+FRAMES = {"poses, stages": "the measuring instrument's (tracker's) frame of the calibration poses",
+          "compensate targets, predict x_mm and dx_mm": "the robot's base frame (after the base.* transform)",
           "base.*": "instrument (world) → robot base transform (tx ty tz rz ry rx); `volcomp register` refits it for a "
                     "new session",
-          "link*.*": "deviations of the link parameters from the machine file's table (mm, rad)",
+          "link*.*": "deviations of the link parameters from the machine file's table (mm, rad); a link slot the base "
+                     "or tool slots account for (link 1's offsets along and about its axis) is held at 0",
           "tool.*": "tool point in the last link's frame (mm)",
           "compliance.*, harmonic.*, table.*": "joint-angle slots (rad per unit of their input)",
           "learned": "residual (mm) in the instrument frame of the calibration poses, a function of the joints"}
@@ -307,7 +313,7 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
             "cv_pipelines": None if pipeline_cv is None else
             [{"pipeline": k, "cv_mean_mm": v["cv_mean_mm"], "cv_rms_mm": v["cv_rms_mm"]} for k, v in pipeline_cv.items()],
             "coverage95_heldout": coverage_check, "band_calibration": band_cal,
-            "decision_poses": len(dfit)}
+            "decision_poses": len(dfit), "temperature_c": temperature_summary(fit)}
 
 
 def kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline_cv, geo_kept, kept_learner, k_folds,
@@ -318,13 +324,18 @@ def kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline
     from errormap.arm_calibration import content_blocks
     from training.arm_residual import (BAND_COVERAGE_MAX_INTERLEAVED, band_factor, band_z, blocked_band_scale,
                                        coverage_before_after, pipeline_std_mm)
+    beside = {BESIDE_PLAIN: ("plain", None)}
     if kept == STACKED:
         run, stacked = {pipe_volcomp: pipes[pipe_volcomp], PLAIN_GP: pipes[PLAIN_GP]}, (pipe_volcomp, PLAIN_GP)
     else:
         run, stacked = {kept: pipes[kept]}, None
+        model, learner = pipes[kept]
+        if learner is not None and learner.chosen_ != "none":
+            beside[BESIDE_GEOMETRIC] = (model, None)
     icv = pipeline_cv.get(kept) if pipeline_cv is not None else None
     cap = None if icv is None else band_factor(fit.xyz_mm, icv["pred_mm"], icv["std_mm"], BAND_COVERAGE_MAX_INTERLEAVED)
-    cal = blocked_band_scale(chain, fit, run, content_blocks(fit, k_folds), k_folds, seed, stacked=stacked, cap=cap)
+    cal = blocked_band_scale(chain, fit, run, content_blocks(fit, k_folds), k_folds, seed, stacked=stacked, cap=cap,
+                             beside=beside)
     c = cal["factor"]
     p = geo_kept.predict(check.q) + (0.0 if kept_learner is None else kept_learner.predict(check.q))
     cal["coverage95_heldout_before"], cal["coverage95_heldout_after"] = coverage_before_after(
@@ -333,6 +344,35 @@ def kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline
         cal["coverage95_cv_before"], cal["coverage95_cv_after"] = coverage_before_after(
             band_z(fit.xyz_mm, icv["pred_mm"], icv["std_mm"]), c)
     return cal
+
+
+BESIDE_PLAIN = "plain geometric LSQ (same blocks)"
+BESIDE_GEOMETRIC = "its geometric stage alone (same blocks)"
+"""Pipelines cross-validated beside the kept stage on the blocked inner CVs (:func:`kept_band_calibration`)."""
+TRANSFER_BLOCKING = "order"
+"""The blocking that stands for another session (:func:`errormap.arm_calibration.content_blocks`: runs of consecutive
+poses — a later stretch of the acquisition, measured after the others): a learned stage is carried to other
+sessions (``volcomp register``) only if it beats its geometric stage alone there."""
+
+
+def across_blocks(band_cal, kept: str, has_learner: bool) -> dict | None:
+    """The kept stage beside the plain calibration (and, for a kept learned stage, beside its geometric stage alone) on
+    the BLOCKED inner CVs, and whether the learned stage is carried to other sessions (``learned_carried``: None
+    without a learned stage)."""
+    if band_cal is None:
+        return None
+    rows = {k: {kept: v["cv_mean_mm"], **v.get("beside_cv_mean_mm", {})} for k, v in band_cal["blockings"].items()}
+    out = {"blockings": rows, "residual_kind": "measured residual on the held-out blocks of the fit poses, mean mm",
+           "learned_carried": None, "why": "no learned stage kept"}
+    if has_learner and kept != STACKED:
+        r = rows[TRANSFER_BLOCKING]
+        out["learned_carried"] = bool(r[kept] < r[BESIDE_GEOMETRIC])
+        out["why"] = (f"on the blocked CV by acquisition order (a later stretch held out, standing for another "
+                      f"session) the learned stage {'beat' if out['learned_carried'] else 'did not beat'} its "
+                      f"geometric stage alone ({r[kept]:.4f} vs {r[BESIDE_GEOMETRIC]:.4f} mm mean): "
+                      + ("carried to other sessions by register" if out["learned_carried"] else
+                         "it helps inside this session only and register does not carry it"))
+    return out
 
 
 def model_document(chain, core, s, n_fit, n_check) -> dict:
@@ -361,6 +401,9 @@ def model_document(chain, core, s, n_fit, n_check) -> dict:
     doc["coverage95_heldout"] = core["coverage95_heldout"]
     doc["decision_poses"] = core.get("decision_poses", n_fit)
     doc["frames"] = FRAMES
+    doc["across_blocks"] = across_blocks(core.get("band_calibration"), core["kept_stage"],
+                                         core.get("kept_learner") is not None)
+    doc["temperature_c"] = core.get("temperature_c")
     doc["band_calibration"] = core.get("band_calibration")
     return doc
 
@@ -394,9 +437,10 @@ def registered_learner(learner, d: dict, path):
     return RotatedResidual(learner, R)
 
 
-def load_arm_model(chain, path, band_scale: bool = False):
+def load_arm_model(chain, path, band_scale: bool = False, base_frame: bool = False):
     """(GeometricResult, learner or None) of a ``calibration.json`` written for ``chain``; with ``band_scale`` also
-    the kept stage's band factor (:func:`band_scale_of`)."""
+    the kept stage's band factor (:func:`band_scale_of`). ``base_frame``: the caller works in the robot's base frame
+    (:mod:`errormap.arm_frames`): a file of a format before the base frame was kept apart is refused."""
     import json
     try:
         d = json.loads(read_document_text(path, "an arm calibration"))
@@ -404,6 +448,10 @@ def load_arm_model(chain, path, band_scale: bool = False):
         raise InputError(f"{path}: not a readable calibration.json ({exc})") from None
     if not isinstance(d, dict) or d.get("format") not in READ_FORMATS:
         raise InputError(f"{path}: key 'format': expected {MODEL_FORMAT!r} (an arm calibration.json)")
+    if base_frame and d["format"] not in BASE_FRAME_FORMATS:
+        raise InputError(f"{path}: key 'format': {d['format']!r} was written before the robot's base frame was kept "
+                         "apart from the link parameters (a link slot may carry the tracker's placement), so points "
+                         f"in the base frame cannot be told; calibrate again ({MODEL_FORMAT!r})")
     m = d.get("machine")
     if not isinstance(m, dict) or m.get("name") != chain.name or m.get("joints") != chain.joint_columns:
         raise InputError(f"{path}: key 'machine': calibrated for "

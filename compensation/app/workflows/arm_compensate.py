@@ -1,9 +1,11 @@
 """``volcomp compensate PROGRAM.csv --machine ur5 --model DIR/calibration.json --out DIR``: arm joint commands.
 
 Each input is a measured-pose-style CSV of the arm: the joint columns (``q1_deg …``: the joint program,
-also Newton's starting point) and optionally target tool points ``x_mm, y_mm, z_mm``; without them the
-targets are the nominal chain's tool points at the programmed joints (the program's intent). The
-output ``DIR/<same name>`` holds the compensated joint columns, the targets and the MODEL residual
+also Newton's starting point) and optionally target tool points ``x_mm, y_mm, z_mm`` in the ROBOT'S BASE FRAME;
+without them the targets are the nominal chain's tool points at the programmed joints (the program's intent), in
+that frame too. The calibration's base transform (instrument → robot base, :mod:`errormap.arm_frames`) turns them
+into the frame the model was fitted in, so no tracker target is needed. The
+output ``DIR/<same name>`` holds the compensated joint columns, the targets (base frame) and the MODEL residual
 (``model_residual_mm``: target − calibrated model at the compensated joints); a point that did not
 converge or leaves the joint limits fails the file (exit 3, nothing written for it).
 """
@@ -13,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from errormap.arm_frames import from_base_frame, to_base_frame
 from errormap.arm_poses import check_joint_values
 from errormap.io import read_table, write_csv
 
@@ -34,6 +37,11 @@ def joint_values(path, t, chain, columns=None) -> np.ndarray:
     return q
 
 
+def nominal_base_points(chain, q) -> np.ndarray:
+    """The nominal chain's tool points (n, 3) at the joints ``q`` (n, nq), in the robot's base frame."""
+    return to_base_frame(chain, None, chain.tool_point(q))
+
+
 def read_program(path, chain, t=None):
     """(q (n, nq), targets (n, 3) or None) of a joint-program / target CSV (``t``: its table, already read)."""
     t = read_table(path) if t is None else t
@@ -53,7 +61,7 @@ def run_arm_compensate(chain, args) -> int:
     if args.method not in (None, "exact"):
         raise UsageError(f"--method {args.method}: a serial chain is compensated by Newton on its calibrated chain "
                          "(--method exact or none)")
-    geo, learner = load_arm_model(chain, args.model)
+    geo, learner = load_arm_model(chain, args.model, base_frame=True)
     out = Path(args.out)
     srcs = [Path(f) for f in args.files]
     for s in srcs:
@@ -63,8 +71,8 @@ def run_arm_compensate(chain, args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     status = 0
     for src, q, xyz in jobs:
-        target = chain.tool_point(q) if xyz is None else xyz
-        sol = solve_joints(geo.chain, geo.params, learner, target, q)
+        target = nominal_base_points(chain, q) if xyz is None else xyz       # robot base frame
+        sol = solve_joints(geo.chain, geo.params, learner, from_base_frame(chain, geo.params, target), q)
         if not sol.converged.all():
             k = int(np.flatnonzero(~sol.converged)[0])
             print(f"volcomp compensate: {src}: refused (not written): {int((~sol.converged).sum())} point(s) did not "
@@ -76,7 +84,8 @@ def run_arm_compensate(chain, args) -> int:
                      "model_residual_mm": sol.residual_mm})
         write_csv(out / src.name, cols, header_comments=(
             f"compensated for machine {chain.name} with {args.model}",
-            "residual: MODEL residual (target - calibrated model at the compensated joints)",
+            "x_mm..z_mm: targets in the robot's base frame; residual: MODEL residual (target - calibrated model at the "
+            "compensated joints)",
             f"tool orientation kept: {sol.orientation_kept}"), float_fmt="%.10g")
         print(f"{src}: {len(q)} points, model residual max {sol.residual_mm.max():.3g} mm, max joint change "
               f"{np.abs(sol.q - q).max():.4g} deg -> {out / src.name}")

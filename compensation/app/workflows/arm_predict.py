@@ -5,10 +5,11 @@ Input: a CSV with the chain's joint columns (``q1_deg …``; other columns are i
 file in the laser-tracker grid layout (``joint_1 …`` in degrees, ``x_t…``, ``x_dif…``; recognised by its
 columns), checked for radians and the joint limits like every arm file. For a tracker-grid file the
 output also holds the MEASURED residual per pose, ``ex_mm, ey_mm, ez_mm`` = measured − calibrated tool
-point (the calibration's frame is the tracker's when it was fitted on such a file), and its mean / RMS /
+point in the calibration's (or its registration's) instrument frame, and its mean / RMS /
 max are printed: a check of the calibration on poses it did not see. Output: the joint columns, the calibrated model's
-tool point ``x_mm, y_mm, z_mm`` (kept stage: geometric slots [+ joint slots] [+ the learned residual])
-and its error against the nominal chain, ``dx_mm, dy_mm, dz_mm`` — what the arm does where the program
+tool point ``x_mm, y_mm, z_mm`` in the ROBOT'S BASE FRAME (kept stage: geometric slots [+ joint slots] [+ the learned
+residual], turned out of the instrument's frame by the calibration's base transform, :mod:`errormap.arm_frames`)
+and its error against the nominal chain in that frame, ``dx_mm, dy_mm, dz_mm`` — what the arm does where the program
 meant the nominal point (the negative of what ``compensate`` corrects). With ``--band 95`` (or ``1sigma``) also
 ``dx_band95_mm, dy_band95_mm, dz_band95_mm``: the half-width per component of the band of a new measurement about
 the kept stage (:data:`BAND_RULES`; its 95 % coverage is checked by CV and on the held-out poses in
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from errormap.arm_frames import base_rotation, to_base_frame
 from errormap.arm_poses import tracker_grid_columns, tracker_grid_points
 from errormap.io import read_table, write_csv
 
@@ -25,7 +27,7 @@ from compensation.app.validate import UsageError
 
 from ...arm_compensation import model_point
 from .arm_calibration import load_arm_model
-from .arm_compensate import joint_values, read_program
+from .arm_compensate import joint_values, nominal_base_points, read_program
 
 
 Z95 = 1.959963984540054
@@ -56,27 +58,30 @@ def run_arm_predict(chain, args) -> int:
     if getattr(args, "allow", None):
         raise UsageError("--allow: an arm's joint values are checked against the machine's joint limits; nothing "
                          "to allow")
-    geo, learner, band_c = load_arm_model(chain, args.model, band_scale=True)
+    geo, learner, band_c = load_arm_model(chain, args.model, band_scale=True, base_frame=True)
     q, measured = read_points(args.points, chain)
     band = getattr(args, "band", None)
     if band and (learner is None or learner.chosen_ == "none") and not geo.full_covariance:
         raise UsageError(f"--band: {args.model} holds the geometric stage's standard errors but not its covariance "
                          "(written before the covariance was saved); calibrate again for a band")
-    p = model_point(geo.chain, geo.params, learner, q)
-    d = p - chain.tool_point(q)
+    p = model_point(geo.chain, geo.params, learner, q)          # instrument frame
+    R_base = base_rotation(chain, geo.params)
+    pb = to_base_frame(chain, geo.params, p)
+    d = pb - nominal_base_points(chain, q)
     cols = {c: q[:, i] for i, c in enumerate(chain.joint_columns)}
-    cols.update({c: p[:, i] for i, c in enumerate(("x_mm", "y_mm", "z_mm"))})
+    cols.update({c: pb[:, i] for i, c in enumerate(("x_mm", "y_mm", "z_mm"))})
     cols.update({c: d[:, i] for i, c in enumerate(("dx_mm", "dy_mm", "dz_mm"))})
     meta = [f"machine: {chain.name}", f"model: {args.model}",
-            "x_mm..z_mm: calibrated tool point; dx_mm..dz_mm: calibrated minus nominal"]
+            "x_mm..z_mm: calibrated tool point, dx_mm..dz_mm: calibrated minus nominal, both in the robot's base frame"]
     if measured is not None:
         e = measured - p
         cols.update({c: e[:, i] for i, c in enumerate(("ex_mm", "ey_mm", "ez_mm"))})
-        meta.append("ex_mm..ez_mm: MEASURED residual, measured (tracker-grid target + difference) minus calibrated")
+        meta.append("ex_mm..ez_mm: MEASURED residual, measured (tracker-grid target + difference) minus calibrated, in "
+                    "the calibration's instrument frame")
     if band:
         from training.arm_residual import pipeline_std_mm
         k, tag = (1.0, "1sigma") if band == "1sigma" else (Z95, "95")
-        sd = band_c * pipeline_std_mm(geo, learner, q)
+        sd = band_c * np.sqrt((pipeline_std_mm(geo, learner, q) ** 2) @ (R_base ** 2))   # turned into the base frame
         cols.update({f"{c}_band{tag}_mm": k * sd[:, j] for j, c in enumerate(("dx", "dy", "dz"))})
         meta.append(f"band: {'1-sigma' if band == '1sigma' else '95 %'} half-width per component of a new measurement "
                     f"about the kept stage ({BAND_RULES[stage_kind(learner)]}), times {band_c:.4g}: the blocked band "

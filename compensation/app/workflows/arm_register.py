@@ -13,19 +13,28 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.arm_poses import read_arm_poses
+from errormap.arm_poses import read_arm_poses, temperature_summary
 from errormap.arm_register import MIN_POSES, register_frame
 from errormap.io import InputError, read_document_text, write_json
 from training.arm_residual import RotatedResidual
 
 from compensation.app.validate import UsageError
 
-from .arm_calibration import STACKED, errors_mm, load_arm_model
+from .arm_calibration import STACKED, errors_mm, load_arm_model, stage_name
 
 
 def _row(e) -> dict | None:
     return None if e is None else {"mean_mm": float(e.mean()), "rms_mm": float(np.sqrt(np.mean(e ** 2))),
                                    "max_mm": float(e.max()), "n": int(len(e))}
+
+
+def _temperature_change(doc, data) -> float | None:
+    """The session's mean logged temperature minus the calibration's (°C), where both files carry ``temp_c``."""
+    cal = doc.get("temperature_c")
+    now = temperature_summary(data)
+    if not isinstance(cal, dict) or now is None or not isinstance(cal.get("mean"), (int, float)):
+        return None
+    return now["mean"] - float(cal["mean"])
 
 
 def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: int | None = None, seed: int = 0,
@@ -37,6 +46,11 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
     if doc.get("kept_stage") == STACKED:
         raise InputError(f"{model}: key 'kept_stage': a stacked stage (two pipelines) is not re-registered; "
                          "calibrate with a single kept pipeline")
+    across = doc.get("across_blocks") if isinstance(doc.get("across_blocks"), dict) else {}
+    had_learner = learner is not None
+    dropped = had_learner and across.get("learned_carried") is False
+    if dropped:                          # helps inside the calibration's session only: not carried to this one
+        learner = None
     data = read_arm_poses(poses, chain)
     n_fit = len(data) if fit_poses is None else int(fit_poses)
     if not MIN_POSES <= n_fit <= len(data):
@@ -54,6 +68,10 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
         e_before = errors_mm(rest, geo.predict(rest.q) + (0.0 if learner is None else learner.predict(rest.q)))
     out_doc = dict(doc)
     out_doc["geometric"] = {**new.to_dict(), "cv_table": doc["geometric"].get("cv_table", [])}
+    if dropped:
+        out_doc["kept_stage"] = ("plain geometric LSQ" if geo.method == "plain least squares"
+                                 else stage_name(geo.model))
+        out_doc["learned"] = None
     reg_doc = {**reg.to_dict(chain.joint_columns), "learned_rotation": R_total.tolist()}
     out_doc["registration"] = {
         "poses_file": str(poses), "n_fit_poses": n_fit, "n_heldout_poses": len(rest), "fitted": "base" + "+tool" * tool,
@@ -63,6 +81,9 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
                                        "this session's"},
         **reg_doc,
         "heldout_registered": _row(e_after), "heldout_as_calibrated": _row(e_before),
+        "learned_carried": not dropped if had_learner else None,
+        "learned_why": across.get("why"),
+        "temperature_c": temperature_summary(data), "temperature_change_c": _temperature_change(doc, data),
         "residual_kind": "measured residual (measured − model) on the session's poses after the first n_fit_poses, "
                          "position norm, mm"}
     out = Path(out)
