@@ -294,6 +294,18 @@ def noise_from_residuals(result) -> float:
     return float(np.sqrt(np.mean(rms**2) / 2.0))
 
 
+def bootstrap_draws(draw, n_boot: int, seed: int, n_params: int) -> np.ndarray:
+    """The bootstrap loop of every machine family's identification: ``draw(s)`` identifies again from one
+    resampled measurement set seeded by the integer ``s`` and returns its parameter vector (n_params,);
+    draw ``b`` is seeded by the ``b``-th child of ``SeedSequence(seed)``. Returns (n_boot, n_params)."""
+    if n_boot < 0:
+        raise ValueError(f"Expected n_boot >= 0, got {n_boot}")
+    Y = np.empty((n_boot, n_params))
+    for b, ss in enumerate(np.random.SeedSequence(seed).spawn(n_boot)):
+        Y[b] = draw(int(ss.generate_state(1)[0]))
+    return Y
+
+
 @dataclass
 class SmoothIdentificationResult:
     """``raw``: the interpolating identification; ``elements_``: the smoothed elements;
@@ -348,12 +360,12 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     y = theta_from_elements(el)
     P = y.size
     boot_truth = TruthGrinder(machine, el, {})
-    seeds = np.random.SeedSequence(seed).spawn(n_boot)
-    Y = np.empty((n_boot, P))
-    for b, ss in enumerate(seeds):
-        cols = simulate_sweeps(boot_truth, noise_um=sigma, seed=int(ss.generate_state(1)[0]),
-                               tracker_pose=raw.machine_in_tracker, stations=el.stations)
-        Y[b] = theta_from_elements(TrackerIdentification(**settings).fit(cols, machine).elements_)
+
+    def draw(s: int) -> np.ndarray:
+        cols = simulate_sweeps(boot_truth, noise_um=sigma, seed=s, tracker_pose=raw.machine_in_tracker,
+                               stations=el.stations)
+        return theta_from_elements(TrackerIdentification(**settings).fit(cols, machine).elements_)
+    Y = bootstrap_draws(draw, n_boot, seed, P)
     S = np.cov(Y.T) if n_boot > 1 else np.zeros((P, P))
     H = np.eye(P)
     smoothing = {}
