@@ -450,10 +450,56 @@ def bootstrap_covariance(sweeps: Sweeps, machine: MachineTool, result: ChainIden
                    covariance_info={"method": "residual-bootstrap", "n_boot": n_boot, "seed": seed})
 
 
+def smooth_chain(result: ChainIdentificationResult, machine: MachineTool) -> ChainIdentificationResult:
+    """``result`` with every function slot's station values smoothed by the grinder's UBRE smoother
+    (:func:`errormap.uncertainty.smooth_blocks`, weighted by ``result.cov``: Gauss–Newton's or the bootstrap's;
+    a full-turn axis periodic over its distinct stations), the constants as identified, and the covariance
+    ``H Σ Hᵀ`` plus the smoother's estimated squared bias per slot on the diagonal. The interpolating set is
+    what :meth:`ChainIdentification.fit` gives; this is opt-in (``covariance_info['smoothing']`` says how)."""
+    from .uncertainty import smooth_blocks
+    el = result.elements_
+    slots, st = np.array(result.param_slot), result.param_station
+    y = parameter_vector(el, result.param_slot, st)
+    blocks, full = {}, {}
+    for s in machine.slots:
+        if not s.is_function:
+            continue
+        ax = next(a for a in machine.axes if a.word == s.axis)
+        idx = np.flatnonzero((slots == s.name) & (st >= 0))
+        full[s.name] = idx = idx[np.argsort(st[idx])]
+        blocks[s.name] = (idx[:-1], True) if ax.full_turn else (idx, False)
+    H, smoothing, bias_var, _ = smooth_blocks(y, result.cov, blocks)
+    for s, (idx, periodic) in blocks.items():   # a full turn's last station is its first pose
+        if periodic:
+            H[full[s][-1]] = H[full[s][0]]
+            bias_var[full[s][-1]] = bias_var[full[s][0]]
+    theta = H @ y
+    fun = {s: theta[idx] for s, idx in full.items()}
+    elements = ChainElementSet(machine, el.stations, fun, el.constants, el.machine_name, el.machine_sha256)
+    info = {**result.covariance_info, "smoothing": smoothing}
+    return replace(result, elements_=elements, cov=H @ result.cov @ H.T + np.diag(bias_var), covariance_info=info)
+
+
+def station_error_rms(machine: MachineTool, elements: ChainElementSet, truth: ChainElementSet) -> float:
+    """RMS of (``elements`` − ``truth``) over every function slot at ``elements``' stations (the truth's own
+    values there, the other axes parked; μm and μrad mixed): how far an identification is from a known truth."""
+    col = {a.word: j for j, a in enumerate(machine.axes)}
+    sidx = {s: j for j, s in enumerate(machine.slot_names)}
+    err = []
+    for s in machine.slots:
+        if s.is_function:
+            st = elements.stations[next(a for a in machine.axes if a.word == s.axis).column]
+            q = np.tile(park_axes(machine), (st.size, 1))
+            q[:, col[s.axis]] = st
+            err.append(elements.functions[s.name] - truth.values(q)[:, sidx[s.name]])
+    return float(np.sqrt(np.mean(np.concatenate(err) ** 2)))
+
+
 def identify_chain(sweeps, machine: MachineTool, **settings) -> ChainIdentificationResult:
     """Identify every slot of ``machine`` from ``sweeps`` (:class:`ChainIdentification` settings)."""
     return ChainIdentification(**settings).fit(sweeps, machine).result_
 
 
 __all__ = ["ChainIdentification", "ChainIdentificationResult", "bootstrap_covariance", "identify_chain",
-           "load_covariance", "parameter_vector", "resampled_sweeps", "root_axis", "AXIS_WORDS"]
+           "load_covariance", "parameter_vector", "resampled_sweeps", "root_axis", "smooth_chain",
+           "station_error_rms", "AXIS_WORDS"]
