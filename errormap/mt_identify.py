@@ -36,7 +36,7 @@ the conditioning. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +60,8 @@ TURN_TOL_DEG = 1e-6
 RANK_TOL = 1e-9
 """A pivoted-QR diagonal below this fraction of the largest (column-scaled Jacobian) is an unobservable direction."""
 COV_FORMAT = "volcomp-chain-covariance/1"
+LEVERAGE_FLOOR = 1e-6
+"""A ball coordinate the fit reproduces exactly (leverage within this of 1) has no residual to draw from."""
 
 
 @dataclass
@@ -82,6 +84,12 @@ class ChainIdentificationResult:
     warnings: list = field(default_factory=list)
     noise_um: float | None = None
     """The known tracker σ the covariance was scaled with (``ChainIdentification(noise_um=...)``); None: σ̂."""
+    ball_residual_um: dict = field(default_factory=dict)
+    """Per swept axis, measured − fitted ball positions (m, 3, 3) μm [station, target, xyz], tracker frame."""
+    leverage: dict = field(default_factory=dict)
+    """Per swept axis, the hat matrix' diagonal (m, 3, 3) of every ball coordinate (its share of the fit)."""
+    covariance_info: dict = field(default_factory=lambda: {"method": "gauss-newton"})
+    """How ``cov`` was obtained: ``gauss-newton`` (σ̂²·(JᵀJ)⁻¹) or ``residual-bootstrap`` (with n_boot, seed)."""
 
     def summary_lines(self) -> list[str]:
         lines = [f"axis {w}: {len(r)} stations, ball residual RMS max {r.max():.3g} um"
@@ -95,6 +103,9 @@ class ChainIdentificationResult:
             lines.append("constants: " + ", ".join(f"{k} {v:.4g}" for k, v in c.items()))
         if self.unobservable:
             lines.append(f"unobservable (held at zero): {', '.join(self.unobservable)}")
+        if self.covariance_info["method"] != "gauss-newton":
+            lines.append(f"covariance: residual bootstrap, {self.covariance_info['n_boot']} draws, "
+                         f"seed {self.covariance_info['seed']}")
         return lines + [f"warning: {w}" for w in self.warnings]
 
     def to_dict(self) -> dict:
@@ -106,7 +117,7 @@ class ChainIdentificationResult:
                 "covariance_sigma_um": self.sigma_um if self.noise_um is None else self.noise_um,
                 "iterations": self.iterations, "condition": self.condition,
                 "unobservable": self.unobservable, "warnings": self.warnings,
-                "constants": self.elements_.constants}
+                "constants": self.elements_.constants, "covariance": dict(self.covariance_info)}
 
     def save_covariance(self, path) -> Path:
         """``.npz``: ``format``, ``slot``, ``station``, ``cov`` (atomic)."""
@@ -354,6 +365,7 @@ class ChainIdentification:
         sigma = float(np.sqrt(r @ r / dof))
         s_cov = sigma if self.noise_um is None else float(self.noise_um)
         Jinv = np.linalg.pinv(Jf / scale)
+        lev = np.sum(np.linalg.qr(Jf / scale)[0] ** 2, axis=1).reshape(-1, 3)
         cov_f = np.zeros((nf, nf))
         cov_f[np.ix_(keep, keep)] = s_cov**2 * (Jinv @ Jinv.T) / np.outer(scale, scale)
         cov = A[6:] @ cov_f @ A[6:].T
@@ -370,15 +382,18 @@ class ChainIdentification:
         const = {s: float(theta[const0 + k]) for k, s in enumerate(machine.constant_slots)}
         elements = ChainElementSet(machine, st, fun, const, machine.name, machine.sha256)
         rr = r.reshape(-1, 3)
-        res, o = {}, 0
+        res, balls_res, leverage, o = {}, {}, {}, 0
         for w in words:
             m = setup[w][2].shape[0]
-            res[w] = np.sqrt(np.mean(rr[o:o + 3 * m].reshape(m, 3, 3) ** 2, axis=(1, 2)) * 3)
+            balls_res[w] = rr[o:o + 3 * m].reshape(m, 3, 3)
+            leverage[w] = lev[o:o + 3 * m].reshape(m, 3, 3)
+            res[w] = np.sqrt(np.mean(balls_res[w] ** 2, axis=(1, 2)) * 3)
             o += 3 * m
         self.elements_ = elements
         self.result_ = ChainIdentificationResult(elements, (RG, tG), res, sigma, it, float(sv[0] / sv[-1]),
                                                  names[6:], stations[6:], cov, unobservable, warnings,
-                                                 None if self.noise_um is None else float(self.noise_um))
+                                                 noise_um=None if self.noise_um is None else float(self.noise_um),
+                                                 ball_residual_um=balls_res, leverage=leverage)
         return self
 
     @staticmethod
@@ -404,10 +419,101 @@ class ChainIdentification:
         return np.concatenate(rs), np.concatenate(Js)
 
 
+def parameter_vector(elements: ChainElementSet, slots, stations) -> np.ndarray:
+    """The element set's values (N,) in the covariance's parameter order ``slots``/``stations`` (station −1: a
+    constant)."""
+    return np.array([elements.constants[s] if i < 0 else elements.functions[s][i] for s, i in zip(slots, stations)])
+
+
+def resampled_sweeps(sweeps: Sweeps, result: ChainIdentificationResult, rng) -> Sweeps:
+    """One residual-bootstrap draw: the fitted ball positions plus residuals drawn with replacement from every
+    ball coordinate of all sweeps. The residuals are first leverage-corrected, ``rᵢ/√(1 − hᵢᵢ)``, and centred
+    (Davison & Hinkley's modified residuals): a sweep fit spends about two thirds of its coordinates on the
+    parameters, and what is left is the noise across the directions the fit cannot see (a ball's residual is
+    mostly along its axis' travel), so raw residual vectors drawn as they are gave a third of the Gauss–Newton
+    variance (measured on mill-xyz at 2 μm); the modified residuals restore noise of variance ≈ σ̂² in every
+    coordinate."""
+    r = np.concatenate([v.reshape(-1) for v in result.ball_residual_um.values()])
+    h = np.concatenate([v.reshape(-1) for v in result.leverage.values()])
+    pool = r / np.sqrt(np.clip(1.0 - h, LEVERAGE_FLOOR, None))
+    pool = pool[h < 1.0 - LEVERAGE_FLOOR] - pool[h < 1.0 - LEVERAGE_FLOOR].mean()
+    axes = {}
+    for w, v in result.ball_residual_um.items():
+        sw = sweeps[w]
+        draw = pool[rng.integers(0, len(pool), size=v.shape)]
+        axes[w] = replace(sw, balls_mm=sw.balls_mm - v * UM + draw * UM, by_direction={})
+    return replace(sweeps, axes={**sweeps.axes, **axes})
+
+
+def bootstrap_covariance(sweeps: Sweeps, machine: MachineTool, result: ChainIdentificationResult, n_boot: int,
+                         seed: int = 0, **settings) -> ChainIdentificationResult:
+    """``result`` with ``cov`` replaced by the residual bootstrap's (``n_boot`` ≥ 2 draws of
+    :func:`resampled_sweeps`, each identified again with ``settings``; the sample covariance of the parameter
+    vectors), through the bootstrap loop every family shares (:func:`errormap.uncertainty.bootstrap_draws`).
+    Unlike σ̂²·(JᵀJ)⁻¹ it keeps the nonlinear method's spread and does not assume Gaussian tracker noise."""
+    from .uncertainty import bootstrap_draws
+    if n_boot < 2:
+        raise ValueError(f"Expected n_boot >= 2 (a covariance needs two draws), got {n_boot}")
+
+    def draw(s: int) -> np.ndarray:
+        sw = resampled_sweeps(sweeps, result, np.random.default_rng(s))
+        el = ChainIdentification(**settings).fit(sw, machine).elements_
+        return parameter_vector(el, result.param_slot, result.param_station)
+    Y = bootstrap_draws(draw, n_boot, seed, len(result.param_slot))
+    return replace(result, cov=np.cov(Y.T),
+                   covariance_info={"method": "residual-bootstrap", "n_boot": n_boot, "seed": seed})
+
+
+def smooth_chain(result: ChainIdentificationResult, machine: MachineTool) -> ChainIdentificationResult:
+    """``result`` with every function slot's station values smoothed by the grinder's UBRE smoother
+    (:func:`errormap.uncertainty.smooth_blocks`, weighted by ``result.cov``: Gauss–Newton's or the bootstrap's;
+    a full-turn axis periodic over its distinct stations), the constants as identified, and the covariance
+    ``H Σ Hᵀ`` plus the smoother's estimated squared bias per slot on the diagonal. The interpolating set is
+    what :meth:`ChainIdentification.fit` gives; this is opt-in (``covariance_info['smoothing']`` says how)."""
+    from .uncertainty import smooth_blocks
+    el = result.elements_
+    slots, st = np.array(result.param_slot), result.param_station
+    y = parameter_vector(el, result.param_slot, st)
+    blocks, full = {}, {}
+    for s in machine.slots:
+        if not s.is_function:
+            continue
+        ax = next(a for a in machine.axes if a.word == s.axis)
+        idx = np.flatnonzero((slots == s.name) & (st >= 0))
+        full[s.name] = idx = idx[np.argsort(st[idx])]
+        blocks[s.name] = (idx[:-1], True) if ax.full_turn else (idx, False)
+    H, smoothing, bias_var, _ = smooth_blocks(y, result.cov, blocks)
+    for s, (idx, periodic) in blocks.items():   # a full turn's last station is its first pose
+        if periodic:
+            H[full[s][-1]] = H[full[s][0]]
+            bias_var[full[s][-1]] = bias_var[full[s][0]]
+    theta = H @ y
+    fun = {s: theta[idx] for s, idx in full.items()}
+    elements = ChainElementSet(machine, el.stations, fun, el.constants, el.machine_name, el.machine_sha256)
+    info = {**result.covariance_info, "smoothing": smoothing}
+    return replace(result, elements_=elements, cov=H @ result.cov @ H.T + np.diag(bias_var), covariance_info=info)
+
+
+def station_error_rms(machine: MachineTool, elements: ChainElementSet, truth: ChainElementSet) -> float:
+    """RMS of (``elements`` − ``truth``) over every function slot at ``elements``' stations (the truth's own
+    values there, the other axes parked; μm and μrad mixed): how far an identification is from a known truth."""
+    col = {a.word: j for j, a in enumerate(machine.axes)}
+    sidx = {s: j for j, s in enumerate(machine.slot_names)}
+    err = []
+    for s in machine.slots:
+        if s.is_function:
+            st = elements.stations[next(a for a in machine.axes if a.word == s.axis).column]
+            q = np.tile(park_axes(machine), (st.size, 1))
+            q[:, col[s.axis]] = st
+            err.append(elements.functions[s.name] - truth.values(q)[:, sidx[s.name]])
+    return float(np.sqrt(np.mean(np.concatenate(err) ** 2)))
+
+
 def identify_chain(sweeps, machine: MachineTool, **settings) -> ChainIdentificationResult:
     """Identify every slot of ``machine`` from ``sweeps`` (:class:`ChainIdentification` settings)."""
     return ChainIdentification(**settings).fit(sweeps, machine).result_
 
 
-__all__ = ["ChainIdentification", "ChainIdentificationResult", "identify_chain", "load_covariance", "root_axis",
-           "AXIS_WORDS"]
+__all__ = ["ChainIdentification", "ChainIdentificationResult", "bootstrap_covariance", "identify_chain",
+           "load_covariance", "parameter_vector", "resampled_sweeps", "root_axis", "smooth_chain",
+           "station_error_rms", "AXIS_WORDS"]

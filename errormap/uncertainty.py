@@ -294,6 +294,44 @@ def noise_from_residuals(result) -> float:
     return float(np.sqrt(np.mean(rms**2) / 2.0))
 
 
+def smooth_blocks(y, S, blocks: dict) -> tuple:
+    """The UBRE smoother of every machine family's station values (module doc, steps 3–4): per block
+    ``name -> (indices (m,) into y in station order, periodic)`` the Whittaker smoother :func:`_smoother` with
+    the block of the covariance ``S`` (P, P) of ``y`` (P,). Returns ``(H (P, P), {name: {lambda, edf}},
+    bias_var (P,), prior_extra (P,))``: the smoothed vector is ``H y``; the smoother's squared bias is not in
+    ``H S Hᵀ``, so per block the mean square of what it removed, less what noise alone explains
+    (E|(I−H)y|² = |(I−H)f|² + tr((I−H)Σ(I−H)ᵀ)), is ``bias_var`` (to add on the diagonal), and ``prior_extra``
+    the rest of the whole mean-square change (:attr:`ElementCovariance.prior_extra`)."""
+    P = y.size
+    H = np.eye(P)
+    smoothing = {}
+    for k, (idx, periodic) in blocks.items():
+        Hk, lam, edf = _smoother(y[idx], S[np.ix_(idx, idx)], periodic=periodic)
+        H[np.ix_(idx, idx)] = Hk
+        smoothing[k] = {"lambda": lam, "edf": edf}
+    change2 = (y - H @ y) ** 2
+    bias_var, prior_extra = np.zeros(P), np.zeros(P)
+    IH = np.eye(P) - H
+    for k, (idx, _) in blocks.items():
+        B = IH[np.ix_(idx, idx)]
+        noise = np.trace(B @ S[np.ix_(idx, idx)] @ B.T) / idx.size
+        bias_var[idx] = max(0.0, change2[idx].mean() - noise)
+        prior_extra[idx] = change2[idx].mean() - bias_var[idx]  # total: the whole mean-square change
+    return H, smoothing, bias_var, prior_extra
+
+
+def bootstrap_draws(draw, n_boot: int, seed: int, n_params: int) -> np.ndarray:
+    """The bootstrap loop of every machine family's identification: ``draw(s)`` identifies again from one
+    resampled measurement set seeded by the integer ``s`` and returns its parameter vector (n_params,);
+    draw ``b`` is seeded by the ``b``-th child of ``SeedSequence(seed)``. Returns (n_boot, n_params)."""
+    if n_boot < 0:
+        raise ValueError(f"Expected n_boot >= 0, got {n_boot}")
+    Y = np.empty((n_boot, n_params))
+    for b, ss in enumerate(np.random.SeedSequence(seed).spawn(n_boot)):
+        Y[b] = draw(int(ss.generate_state(1)[0]))
+    return Y
+
+
 @dataclass
 class SmoothIdentificationResult:
     """``raw``: the interpolating identification; ``elements_``: the smoothed elements;
@@ -348,37 +386,19 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     y = theta_from_elements(el)
     P = y.size
     boot_truth = TruthGrinder(machine, el, {})
-    seeds = np.random.SeedSequence(seed).spawn(n_boot)
-    Y = np.empty((n_boot, P))
-    for b, ss in enumerate(seeds):
-        cols = simulate_sweeps(boot_truth, noise_um=sigma, seed=int(ss.generate_state(1)[0]),
-                               tracker_pose=raw.machine_in_tracker, stations=el.stations)
-        Y[b] = theta_from_elements(TrackerIdentification(**settings).fit(cols, machine).elements_)
+
+    def draw(s: int) -> np.ndarray:
+        cols = simulate_sweeps(boot_truth, noise_um=sigma, seed=s, tracker_pose=raw.machine_in_tracker,
+                               stations=el.stations)
+        return theta_from_elements(TrackerIdentification(**settings).fit(cols, machine).elements_)
+    Y = bootstrap_draws(draw, n_boot, seed, P)
     S = np.cov(Y.T) if n_boot > 1 else np.zeros((P, P))
-    H = np.eye(P)
-    smoothing = {}
     blocks = theta_blocks(el)
-    for k in FUNCTION_ELEMENTS:
-        idx = blocks[k]
-        if smooth:
-            Hk, lam, edf = _smoother(y[idx], S[np.ix_(idx, idx)], periodic=k in A_ELEMENTS)
-            H[np.ix_(idx, idx)] = Hk
-            smoothing[k] = {"lambda": lam, "edf": edf}
+    H, smoothing, bias_var, prior_extra = smooth_blocks(
+        y, S, {k: (blocks[k], k in A_ELEMENTS) for k in FUNCTION_ELEMENTS} if smooth else {})
     theta = H @ y
     Ys = Y @ H.T
     C = np.cov(Ys.T) if n_boot > 1 else np.zeros((P, P))
-    # the smoother's bias is not in the bootstrap spread: per element, the mean square of what the
-    # smoother removed, less what noise alone explains (E|(I−H)y|² = |(I−H)f|² + tr((I−H)Σ(I−H)ᵀ)),
-    # is added to its stations' variance
-    change2 = (y - theta) ** 2
-    bias_var, prior_extra = np.zeros(P), np.zeros(P)
-    IH = np.eye(P) - H
-    for k in FUNCTION_ELEMENTS:
-        idx = blocks[k]
-        B = IH[np.ix_(idx, idx)]
-        noise = np.trace(B @ S[np.ix_(idx, idx)] @ B.T) / idx.size
-        bias_var[idx] = max(0.0, change2[idx].mean() - noise)
-        prior_extra[idx] = change2[idx].mean() - bias_var[idx]  # total: the whole mean-square change
     C = C + np.diag(bias_var)
     elements = elements_from_theta(theta, el)
     info = {"method": "parametric bootstrap of the identification, smoother applied to each draw, "

@@ -11,6 +11,7 @@ from compensation.app.validate import UsageError
 
 
 from ..reports.identification import iso_summary_lines, plot_elements
+from ..validate import UsageError
 from ..workflows.identification import identify_elements, truth_in_gauge
 
 
@@ -43,9 +44,24 @@ def register(sub):
     p.add_argument("--noise-um", type=float, default=None,
                    help="known tracker noise σ per coordinate (μm) the covariance is scaled with (every machine tool); "
                         "default: estimated from the ball residuals")
-    p.add_argument("--bootstrap", type=int, default=100, help="bootstrap draws for the covariance (default 100)")
+    p.add_argument("--bootstrap", type=int, default=None,
+                   help="bootstrap draws for the covariance (default 100; a machine-tool chain: none, its covariance "
+                        "is Gauss-Newton's unless N >= 2 residual-bootstrap draws are asked for)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     p.set_defaults(func=run)
+
+
+GRINDER_BOOT_DRAWS = 100
+"""The grinder's bootstrap draws when --bootstrap is not given (its smoothing needs the covariance)."""
+
+
+def _chain_bootstrap(args) -> dict:
+    """``n_boot``/``seed`` of a chain's residual bootstrap from --bootstrap/--seed (a seed without draws refused)."""
+    if args.bootstrap is None:
+        if args.seed != 0:
+            raise UsageError("--seed seeds the bootstrap of a machine-tool chain; give --bootstrap N with it")
+        return {}
+    return {"n_boot": args.bootstrap, "seed": args.seed}
 
 
 def run(args) -> int:
@@ -55,11 +71,15 @@ def run(args) -> int:
     if machine.kind == "machine-tool":
         from ..workflows.mt_loop import identify_chain_files, refuse_options
         # --raw is the chain's one form (interpolating splines through the stations): accepted, nothing to change
-        refuse_options(args, {"gauge": "station-mean", "bootstrap": 100, "seed": 0},
-                       "identify on a machine-tool chain (Gauss-Newton, first-station gauge, analytic covariance)")
+        refuse_options(args, {"gauge": "station-mean"},
+                       "identify on a machine-tool chain (Gauss-Newton, first-station gauge)")
+        boot = _chain_bootstrap(args)
+        if boot and args.noise_um is not None:
+            raise UsageError("--noise-um scales Gauss-Newton's covariance, --bootstrap estimates it from the "
+                             "residuals: give one of them on a machine-tool chain")
         print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
         res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
-                                                              noise_um=args.noise_um)
+                                                              noise_um=args.noise_um, **boot)
         for line in res.summary_lines():
             print(line)
         print(f"wrote elements: {el_path}")
@@ -77,7 +97,7 @@ def run(args) -> int:
     sweeps = read_sweeps(args.sweeps)
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
     ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,
-                              n_boot=args.bootstrap, seed=args.seed, smooth=not args.raw, gauge=args.gauge,
+                              n_boot=GRINDER_BOOT_DRAWS if args.bootstrap is None else args.bootstrap, seed=args.seed, smooth=not args.raw, gauge=args.gauge,
                               sweeps=sweeps)
     elements = ident.result.elements_
     for line in ident.summary_lines():

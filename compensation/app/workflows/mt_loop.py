@@ -131,16 +131,20 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
     return path, len(cols["axis"]), what
 
 
-def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None) -> tuple:
-    """Identify from one sweep file; write the element set, ``OUT.cov.npz`` and the report. ``noise_um``: the
-    known tracker σ the covariance is scaled with (None: the residuals' estimate)."""
-    from errormap.mt_identify import ChainIdentification
+def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, n_boot: int | None = None,
+                         seed: int = 0) -> tuple:
+    """Identify from one sweep file; write the element set, ``OUT.cov.npz`` (Gauss–Newton's σ̂²·(JᵀJ)⁻¹, σ̂ the
+    known tracker σ ``noise_um`` when given, or with ``n_boot`` the residual bootstrap's,
+    :func:`errormap.mt_identify.bootstrap_covariance`) and the report."""
+    from errormap.mt_identify import ChainIdentification, bootstrap_covariance
     from errormap.mt_sweeps import read_mt_sweeps
     if len(sweep_files) != 1:
         raise UsageError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
                          f"{len(sweep_files)}")
     sweeps = read_mt_sweeps(sweep_files[0], machine)
     res = ChainIdentification(noise_um=noise_um).fit(sweeps, machine).result_
+    if n_boot is not None:
+        res = bootstrap_covariance(sweeps, machine, res, n_boot, seed)
     cov_path = res.save_covariance(companion_path(out, ".cov.npz"))
     report = Path(report) if report else companion_path(out, ".report.json")
     info = res.to_dict()
