@@ -256,14 +256,14 @@ def test_rotary_direction_comes_from_the_chain(machine, points, monkeypatch):
     """The A-body step turns A as the chain file says (issue 26): on a grinder whose chain turns A
     about -x, sweeps simulated through that chain are identified to the noise-free tolerance in
     every gauge (with RotX(a) written into the method they would not be)."""
-    from errormap import grinder_file, mt_chain
+    from errormap import grinder_file
     from errormap.identification import rotary_line
     assert (rotary_line(machine).word, rotary_line(machine).along, rotary_line(machine).direction) == ("A", 0, 1.0)
     assert [s[0] for s in rotary_line(machine).slots] == ["dy_oa", "dz_oa", "ey_oa", "ez_oa"]
     plain_truth = random_truth(machine, 3)
     plain = simulate_sweeps(plain_truth, noise_um=0.0, seed=1)
     rev = dataclasses.replace(machine, sha256=machine.sha256 + "-a-reversed")
-    monkeypatch.setattr(mt_chain, "_GRINDER_CHAINS", {})
+    monkeypatch.setattr(grinder_file, "_GRINDER_CHAINS", {})
     monkeypatch.setattr(grinder_file, "grinder_to_chain", _chain_with_a_reversed)
     assert rotary_line(rev).direction == -1.0
     truth = random_truth(rev, 3)
