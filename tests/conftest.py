@@ -49,10 +49,51 @@ def pytest_terminal_summary(terminalreporter):
                                     + "; ".join(f"{n} {c:.1f} s" for c, n in sorted(over, reverse=True)[:10]))
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Slow-tier tests that share a module-scoped fixture of their own file run on one worker: each such
+    test gets ``xdist_group(<file>)`` unless it names its group itself (a run shared across files,
+    tests/shared_runs.py). Under ``--dist loadgroup`` (.ci/run's slow tier) the fixture — a fitted model,
+    a simulated machine, a Ray instance, a browser — is then built once, not once per worker; without
+    xdist the mark does nothing. (tryfirst: before xdist reads the marks.)"""
+    for item in items:
+        if item.get_closest_marker("slow") is None or item.get_closest_marker("xdist_group") is not None:
+            continue
+        module_id = item.nodeid.split("::")[0]
+        info = getattr(item, "_fixtureinfo", None)
+        defs = [d for ds in (info.name2fixturedefs.values() if info else ()) for d in ds]
+        if any(d.scope == "module" and d.baseid == module_id for d in defs):
+            item.add_marker(pytest.mark.xdist_group(module_id))
+
+
 @pytest.fixture(scope="session")
 def grinder():
     from errormap.machine import load_machine
     return load_machine()
+
+
+@pytest.fixture(scope="session")
+def bump_user_path(tmp_path_factory):
+    """The grinder's user's path on a bump, diagnosed with --track (tests/shared_runs.py): run once
+    for the tests marked ``SHARED_GROUP["bump_user_path"]``."""
+    import shared_runs
+    return shared_runs.bump_user_path(tmp_path_factory.mktemp("bump-user-path"))
+
+
+@pytest.fixture(scope="session")
+def mill_reversal(tmp_path_factory):
+    """mill-xyz with reversal:Z simulated and diagnosed (tests/shared_runs.py): run once for the tests
+    marked ``SHARED_GROUP["mill_reversal"]``."""
+    import shared_runs
+    return shared_runs.mill_reversal(tmp_path_factory.mktemp("mill-reversal"))
+
+
+@pytest.fixture(scope="session")
+def tiny_demo(tmp_path_factory):
+    """``volcomp demo`` with tiny settings (tests/shared_runs.py): run once for the tests marked
+    ``SHARED_GROUP["tiny_demo"]``."""
+    import shared_runs
+    return shared_runs.tiny_demo(tmp_path_factory.mktemp("tiny-demo"))
 
 
 @pytest.fixture
