@@ -49,21 +49,32 @@ def pytest_terminal_summary(terminalreporter):
                                     + "; ".join(f"{n} {c:.1f} s" for c, n in sorted(over, reverse=True)[:10]))
 
 
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config, items):
-    """Slow-tier tests that share a module-scoped fixture of their own file run on one worker: each such
-    test gets ``xdist_group(<file>)`` unless it names its group itself (a run shared across files,
-    tests/shared_runs.py). Under ``--dist loadgroup`` (.ci/run's slow tier) the fixture — a fitted model,
-    a simulated machine, a Ray instance, a browser — is then built once, not once per worker; without
-    xdist the mark does nothing. (tryfirst: before xdist reads the marks.)"""
-    for item in items:
-        if item.get_closest_marker("slow") is None or item.get_closest_marker("xdist_group") is not None:
-            continue
-        module_id = item.nodeid.split("::")[0]
-        info = getattr(item, "_fixtureinfo", None)
-        defs = [d for ds in (info.name2fixturedefs.values() if info else ()) for d in ds]
-        if any(d.scope == "module" and d.baseid == module_id for d in defs):
-            item.add_marker(pytest.mark.xdist_group(module_id))
+SAME_WORKER = {
+    "tests/test_demo.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_report_pages.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_mt_report.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_diagnose_chain_output.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_hybrid.py": "bump user path",
+    "tests/test_tracking_learned_residual.py": "bump user path",
+}
+"""Test files whose tests read one session-shared run (tests/shared_runs.py): one unit of work under
+``--dist loadscope``, so the run happens once, on one worker."""
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadscope`` (.ci/run's slow tier): every test file is one unit of work for one worker, so a
+    module-scoped fixture (a fitted model, a simulated machine, a Ray instance, a browser) is built once, not
+    once per worker; the files of ``SAME_WORKER`` are one unit together. (xdist's ``loadgroup`` marks do not
+    take with pytest 9: xdist renames ``item._nodeid``, which pytest 9 no longer reads.)"""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedRunScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return SAME_WORKER.get(module, module)
+    return SharedRunScheduling(config, log)
 
 
 @pytest.fixture(scope="session")
@@ -75,7 +86,7 @@ def grinder():
 @pytest.fixture(scope="session")
 def bump_user_path(tmp_path_factory):
     """The grinder's user's path on a bump, diagnosed with --track (tests/shared_runs.py): run once
-    for the tests marked ``SHARED_GROUP["bump_user_path"]``."""
+    for the tests that read it (``SAME_WORKER``)."""
     import shared_runs
     return shared_runs.bump_user_path(tmp_path_factory.mktemp("bump-user-path"))
 
@@ -83,7 +94,7 @@ def bump_user_path(tmp_path_factory):
 @pytest.fixture(scope="session")
 def mill_reversal(tmp_path_factory):
     """mill-xyz with reversal:Z simulated and diagnosed (tests/shared_runs.py): run once for the tests
-    marked ``SHARED_GROUP["mill_reversal"]``."""
+    that read it (``SAME_WORKER``)."""
     import shared_runs
     return shared_runs.mill_reversal(tmp_path_factory.mktemp("mill-reversal"))
 
@@ -91,7 +102,7 @@ def mill_reversal(tmp_path_factory):
 @pytest.fixture(scope="session")
 def tiny_demo(tmp_path_factory):
     """``volcomp demo`` with tiny settings (tests/shared_runs.py): run once for the tests marked
-    ``SHARED_GROUP["tiny_demo"]``."""
+    read it (``SAME_WORKER``)."""
     import shared_runs
     return shared_runs.tiny_demo(tmp_path_factory.mktemp("tiny-demo"))
 

@@ -2,10 +2,10 @@
 
 Each function runs one user's path through the CLI into ``root`` and returns what the tests read:
 the folder, what the commands printed, and (for the closed loop) the in-memory result. The session
-fixtures in ``tests/conftest.py`` call them; the tests that share one run carry the same
-``@pytest.mark.xdist_group`` name (``SHARED_GROUP``), so that ``.ci/run``'s ``--dist loadgroup``
-gives them to one worker and the run happens once there. A test that writes into a shared folder
-copies it first (:func:`private_copy`): the shared one stays as the run left it.
+fixtures in ``tests/conftest.py`` call them; the files whose tests share one run are one unit of
+``.ci/run``'s ``--dist loadscope`` (``SAME_WORKER`` in tests/conftest.py), so the run happens once
+there. A test that writes into a shared folder copies it first (:func:`private_copy`): the shared one
+stays as the run left it.
 """
 from __future__ import annotations
 
@@ -16,13 +16,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-
-BUMP_USER_PATH = "bump_user_path"
-MILL_REVERSAL = "mill_reversal"
-TINY_DEMO = "tiny_demo"
-SHARED_GROUP = {name: pytest.mark.xdist_group(name) for name in (BUMP_USER_PATH, MILL_REVERSAL, TINY_DEMO)}
-"""The xdist group of the tests that read each shared run."""
-
 
 @dataclass
 class SharedRun:

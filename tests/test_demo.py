@@ -4,7 +4,6 @@ import json
 import numpy as np
 import pytest
 
-from shared_runs import SHARED_GROUP, TINY_DEMO
 
 EXACT_MODEL_UM = 1e-3
 """The exact solver's model residual on the compensated program (measured 1.7e-8 μm; 1e-3 μm is its tolerance
@@ -13,7 +12,6 @@ REQUIRED = {"model_max_um", "model_mean_sq_um2", "true_max_um", "seconds", "poin
 
 
 @pytest.mark.slow
-@SHARED_GROUP[TINY_DEMO]
 def test_demo_tiny_end_to_end(tiny_demo):
     """The tiny demo run (tests/shared_runs.py, shared with the demo page's rendering check)."""
     out = tiny_demo.root / "demo"

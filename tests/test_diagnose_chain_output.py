@@ -8,7 +8,6 @@ import json
 import pytest
 
 from compensation.app.workflows.mt_loop import diagnosis_lines
-from shared_runs import MILL_REVERSAL, SHARED_GROUP
 
 _STAGE = {"held_out": {"rms_um": 2.0}, "fitting": {"rms_um": 1.9}}
 _ABSORBED = [{"kind": "interaction", "axis": "X*Z", "element": "ey_x", "note": "interaction X*Z on ey_x: represented"}]
@@ -29,7 +28,6 @@ def test_absorbed_terms_are_printed_only_when_an_update_absorbed_some():
 
 
 @pytest.mark.slow
-@SHARED_GROUP[MILL_REVERSAL]
 def test_chain_diagnose_writes_its_report_page(mill_reversal):
     """simulate mill-xyz (reversal:Z, 200 checks) → diagnose: the shared run (tests/shared_runs.py) and what
     diagnose printed."""

@@ -13,7 +13,7 @@ from errormap.kinematics import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
 from training.residual import GP_KERNELS
-from shared_runs import BUMP_USER_PATH, SHARED_GROUP, private_copy
+from shared_runs import private_copy
 
 SEED = 0
 NOISE_UM = 1.0
@@ -166,7 +166,6 @@ def _user_path(tmp_path, seed: int, effect: str, checks: int = 800) -> dict:
 
 
 @pytest.mark.slow
-@SHARED_GROUP[BUMP_USER_PATH]
 def test_user_path_learns_an_out_of_catalogue_bump_and_compensates_with_it(bump_user_path, tmp_path):
     """sweeps → simulate (bump) → identify → diagnose (the shared run, tests/shared_runs.py): the learned
     stage is kept and beats the loop on the held-out checks; compensate --model DIR/model.json solves the
@@ -692,7 +691,6 @@ ANY_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0,
 
 
 @pytest.mark.slow
-@SHARED_GROUP[BUMP_USER_PATH]
 def test_run_closed_loop_writes_what_the_in_memory_core_decides(bump_user_path, tmp_path):
     """`volcomp diagnose`'s closed loop is closed_loop_model (in memory) plus writing: diagnosis.json, model.json
     and the element sets are its result byte for byte (with the MLflow run id of the tracked learned residual

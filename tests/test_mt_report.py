@@ -10,7 +10,7 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.app.reports.toolkit import num
-from shared_runs import MILL_REVERSAL, SHARED_GROUP, private_copy
+from shared_runs import private_copy
 
 @pytest.fixture
 def chain_run(mill_reversal, tmp_path):
@@ -26,7 +26,6 @@ def _text(page):
 
 
 @pytest.mark.slow
-@SHARED_GROUP[MILL_REVERSAL]
 def test_the_page_shows_the_runs_stages_effects_and_elements(chain_run, capsys):
     run = chain_run / "diag"
     assert main(["report", str(run)]) == 0
@@ -47,7 +46,6 @@ def test_the_page_shows_the_runs_stages_effects_and_elements(chain_run, capsys):
 
 
 @pytest.mark.slow
-@SHARED_GROUP[MILL_REVERSAL]
 def test_out_writes_the_page_elsewhere_and_checks_the_machine(chain_run, tmp_path, capsys):
     run = chain_run / "diag"
     assert main(["report", str(run), "--out", str(tmp_path / "o")]) == 0

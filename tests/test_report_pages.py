@@ -18,7 +18,7 @@ import pytest
 from chromium_cdp import CHROMIUM, Browser
 from compensation.app.cli import main
 from errormap.io import write_csv
-from shared_runs import MILL_REVERSAL, SHARED_GROUP, TINY_DEMO, private_copy
+from shared_runs import private_copy
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="headless Chromium not installed (apt-get install chromium)")
 
@@ -126,7 +126,7 @@ FAST = {"report": _report, "diagnose": _diagnose, "drift": _drift, "interpolate"
 """Page kinds written in the default run (small inputs; ~40 s on a 2-core machine under load)."""
 SLOW = {"calibrate": _calibrate, "calibrate-arm": _calibrate_arm, "demo": _demo, "diagnose-chain": _diagnose_chain}
 """Page kinds whose writers are end-to-end runs (calibration, training): marked slow, still run in CI."""
-SHARED = {"demo": TINY_DEMO, "diagnose-chain": MILL_REVERSAL}
+SHARED = {"demo", "diagnose-chain"}
 """Page kinds written from a run other test files assert on too (a session fixture, tests/shared_runs.py)."""
 
 
@@ -174,7 +174,7 @@ def test_page_renders_without_errors_and_every_image_loads(kind, pages, browser)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", [pytest.param(k, marks=SHARED_GROUP[SHARED[k]]) if k in SHARED else k for k in SLOW])
+@pytest.mark.parametrize("kind", SLOW)
 def test_slow_page_renders_without_errors_and_every_image_loads(kind, pages, browser):
     _assert_renders(pages(kind), kind, browser)
 

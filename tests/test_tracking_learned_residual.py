@@ -7,7 +7,6 @@ import pytest
 from compensation.hybrid import LEARNED_FAMILIES, LearnedResidual, learned_stage
 from errormap.machine import load_machine
 from errormap.simulator import random_axes
-from shared_runs import BUMP_USER_PATH, SHARED_GROUP
 
 SEED = 0
 N_CHECKS, N_FIT = 300, 180
@@ -75,7 +74,6 @@ def test_missing_run_is_one_clear_error(tmp_path):
 
 
 @pytest.mark.slow
-@SHARED_GROUP[BUMP_USER_PATH]
 def test_diagnose_track_logs_the_kept_stage(bump_user_path):
     """sweeps → simulate (bump) → identify → diagnose --track (the shared run, tests/shared_runs.py): the
     kept learned residual is a run whose JSON is the one model.json holds."""
