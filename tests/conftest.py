@@ -49,10 +49,62 @@ def pytest_terminal_summary(terminalreporter):
                                     + "; ".join(f"{n} {c:.1f} s" for c, n in sorted(over, reverse=True)[:10]))
 
 
+SAME_WORKER = {
+    "tests/test_demo.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_report_pages.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_mt_report.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_diagnose_chain_output.py": "tiny demo, mill-xyz reversal:Z diagnosis",
+    "tests/test_hybrid.py": "bump user path",
+    "tests/test_tracking_learned_residual.py": "bump user path",
+}
+"""Test files whose tests read one session-shared run (tests/shared_runs.py): one unit of work under
+``--dist loadscope``, so the run happens once, on one worker."""
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadscope`` (.ci/run's slow tier): every test file is one unit of work for one worker, so a
+    module-scoped fixture (a fitted model, a simulated machine, a Ray instance, a browser) is built once, not
+    once per worker; the files of ``SAME_WORKER`` are one unit together. (xdist's ``loadgroup`` marks do not
+    take with pytest 9: xdist renames ``item._nodeid``, which pytest 9 no longer reads.)"""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedRunScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return SAME_WORKER.get(module, module)
+    return SharedRunScheduling(config, log)
+
+
 @pytest.fixture(scope="session")
 def grinder():
     from errormap.machine import load_machine
     return load_machine()
+
+
+@pytest.fixture(scope="session")
+def bump_user_path(tmp_path_factory):
+    """The grinder's user's path on a bump, diagnosed with --track (tests/shared_runs.py): run once
+    for the tests that read it (``SAME_WORKER``)."""
+    import shared_runs
+    return shared_runs.bump_user_path(tmp_path_factory.mktemp("bump-user-path"))
+
+
+@pytest.fixture(scope="session")
+def mill_reversal(tmp_path_factory):
+    """mill-xyz with reversal:Z simulated and diagnosed (tests/shared_runs.py): run once for the tests
+    that read it (``SAME_WORKER``)."""
+    import shared_runs
+    return shared_runs.mill_reversal(tmp_path_factory.mktemp("mill-reversal"))
+
+
+@pytest.fixture(scope="session")
+def tiny_demo(tmp_path_factory):
+    """``volcomp demo`` with tiny settings (tests/shared_runs.py): run once for the tests marked
+    read it (``SAME_WORKER``)."""
+    import shared_runs
+    return shared_runs.tiny_demo(tmp_path_factory.mktemp("tiny-demo"))
 
 
 @pytest.fixture

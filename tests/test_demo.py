@@ -4,7 +4,6 @@ import json
 import numpy as np
 import pytest
 
-from compensation.app.cli import main
 
 EXACT_MODEL_UM = 1e-3
 """The exact solver's model residual on the compensated program (measured 1.7e-8 μm; 1e-3 μm is its tolerance
@@ -13,13 +12,10 @@ REQUIRED = {"model_max_um", "model_mean_sq_um2", "true_max_um", "seconds", "poin
 
 
 @pytest.mark.slow
-def test_demo_tiny_end_to_end(tmp_path, capsys):
-    out = tmp_path / "demo"
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    rc = main(["demo", "--out", str(out), "--tracking-uri", uri, "--turns", "1", "--points-per-turn", "24",
-               "--train-s", "8", "--hidden", "8,8", "--ga-points", "3", "--seed", "1"])
-    assert rc == 0
-    printed = capsys.readouterr()
+def test_demo_tiny_end_to_end(tiny_demo):
+    """The tiny demo run (tests/shared_runs.py, shared with the demo page's rendering check)."""
+    out = tiny_demo.root / "demo"
+    printed = tiny_demo
     assert "report.html" in printed.out and "per-point GA on 3 of 24" in printed.err
     for name in ("report.html", "metrics.json", "residuals.csv", "residuals_ga.csv", "demo.json",
                  "sim/truth_elements.json", "sim/featurepoints.csv", "flute.nc", "compensated/flute.nc",

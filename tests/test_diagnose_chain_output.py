@@ -7,11 +7,7 @@ import json
 
 import pytest
 
-from compensation.app.cli import main
 from compensation.app.workflows.mt_loop import diagnosis_lines
-
-N_CHECKS = 200
-"""As tests/test_mt_report.py: enough checks for reversal:Z (8 μm) to pass the held-out gate."""
 
 _STAGE = {"held_out": {"rms_um": 2.0}, "fitting": {"rms_um": 1.9}}
 _ABSORBED = [{"kind": "interaction", "axis": "X*Z", "element": "ey_x", "note": "interaction X*Z on ey_x: represented"}]
@@ -32,16 +28,12 @@ def test_absorbed_terms_are_printed_only_when_an_update_absorbed_some():
 
 
 @pytest.mark.slow
-def test_chain_diagnose_writes_its_report_page(tmp_path, capsys):
+def test_chain_diagnose_writes_its_report_page(mill_reversal):
+    """simulate mill-xyz (reversal:Z, 200 checks) → diagnose: the shared run (tests/shared_runs.py) and what
+    diagnose printed."""
     from compensation.app.reports.mt_diagnosis import chain_diagnosis_page
     from errormap.machine import load_machine
-    assert main(["simulate", "--machine", "mill-xyz", "--seed", "2", "--effect", "reversal:Z", "--checks",
-                 str(N_CHECKS), "--out", str(tmp_path / "sim")]) == 0
-    capsys.readouterr()
-    run = tmp_path / "diag"
-    assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--machine", "mill-xyz", "--model",
-                 str(tmp_path / "sim" / "truth_elements.json"), "--noise-um", "1", "--out", str(run)]) == 0
-    out = capsys.readouterr().out
+    run, out = mill_reversal.root / "diag", mill_reversal.out
     assert f"wrote {run / 'report.html'}" in out
     assert sorted(p.name for p in run.iterdir()) == ["diagnosis.json", "model.json", "report.html",
                                                      "updated_elements.json"]   # no temporary file left

@@ -80,11 +80,24 @@ def test_greybox_offers_one_model_per_time_constant():
     assert sorted(res["ch3"]) == sorted(f"tau={t:g}" for t in fam.taus)
 
 
+@pytest.fixture(scope="module")
+def selected():
+    """(family, seed) -> (log, selection fitted on its first 60 %), each computed once in this module (the
+    rod seed-0 case is also the shrinkage test's)."""
+    done = {}
+
+    def get(family, seed):
+        if (family, seed) not in done:
+            log, _ = _shifted(family, seed)
+            done[family, seed] = log, DriftSelector(fit_fraction=0.6).fit(log)
+        return done[family, seed]
+    return get
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("family, seed", [("lumped", 0), ("rod", 0), ("lumped", 1), ("rod", 1)])
-def test_future_outside_the_fit_range_never_much_worse_than_ols(family, seed):
-    log, truth = _shifted(family, seed)
-    sel = DriftSelector(fit_fraction=0.6).fit(log)
+def test_future_outside_the_fit_range_never_much_worse_than_ols(family, seed, selected):
+    log, sel = selected(family, seed)
     rep = sel.report(log)
     _, hold = sel.split(log)
     U_hold = np.stack([log.temps_c[s][hold] for s in log.temps_c] + [log.speed_rpm[hold]], axis=1)
@@ -104,9 +117,8 @@ def test_future_outside_the_fit_range_never_much_worse_than_ols(family, seed):
 
 
 @pytest.mark.slow
-def test_a_shrunk_choice_is_the_blend_of_candidate_and_ols():
-    log, _ = _shifted("rod", 0)
-    sel = DriftSelector(fit_fraction=0.6).fit(log)
+def test_a_shrunk_choice_is_the_blend_of_candidate_and_ols(selected):
+    log, sel = selected("rod", 0)
     fit, _ = sel.split(log)
     from errormap.diagnosis.drift_models import default_families
     fams = {f.name: f for f in default_families()}

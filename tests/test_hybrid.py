@@ -13,6 +13,7 @@ from errormap.kinematics import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
 from training.residual import GP_KERNELS
+from shared_runs import private_copy
 
 SEED = 0
 NOISE_UM = 1.0
@@ -165,12 +166,14 @@ def _user_path(tmp_path, seed: int, effect: str, checks: int = 800) -> dict:
 
 
 @pytest.mark.slow
-def test_user_path_learns_an_out_of_catalogue_bump_and_compensates_with_it(tmp_path):
-    """sweeps → simulate (bump) → identify → diagnose: the learned stage is kept and beats the
-    loop on the held-out checks; compensate --model DIR/model.json solves the hybrid (exact)."""
+def test_user_path_learns_an_out_of_catalogue_bump_and_compensates_with_it(bump_user_path, tmp_path):
+    """sweeps → simulate (bump) → identify → diagnose (the shared run, tests/shared_runs.py): the learned
+    stage is kept and beats the loop on the held-out checks; compensate --model DIR/model.json solves the
+    hybrid (exact)."""
     from compensation.app.cli import main
     from errormap.io import read_table, write_csv
-    s = _user_path(tmp_path, 1, "bump")
+    d = bump_user_path.root / "d"
+    s = json.loads((d / "diagnosis.json").read_text())
     assert s["kept_stage"] == "learned_residual" and s["learned_residual"]["kept"]
     st = s["stages"]
     assert st["learned_residual"]["held_out"]["rms_um"] < st[s["base_stage"]]["held_out"]["rms_um"]
@@ -178,13 +181,13 @@ def test_user_path_learns_an_out_of_catalogue_bump_and_compensates_with_it(tmp_p
     cover = s["learned_residual"]["held_out_band95_cover_total"]   # the hybrid's total band ⊕ noise
     assert BAND95_COVER_LO <= cover <= BAND95_COVER_HI
     assert "band95_total_um" in s["learned_residual"]["map"]
-    model = json.loads((tmp_path / "d" / "model.json").read_text())
+    model = json.loads((d / "model.json").read_text())
     assert model["format"] == "volcomp-diagnosed-model/1" and model["stage"] == "learned_residual"
     P = random_axes(load_machine(), 100, np.random.default_rng(0))
     lo, hi = np.array(model["learned_residual"]["box_lo"]), np.array(model["learned_residual"]["box_hi"])
     P[:, :2] = lo + (P[:, :2] - P[:, :2].min(0)) / np.ptp(P[:, :2], axis=0) * (hi - lo) * 0.99 + 0.005 * (hi - lo)
     write_csv(tmp_path / "pts.csv", dict(zip(("x_mm", "z_mm", "a_deg"), P.T)), float_fmt="%.12g")
-    assert main(["compensate", str(tmp_path / "pts.csv"), "--model", str(tmp_path / "d" / "model.json"),
+    assert main(["compensate", str(tmp_path / "pts.csv"), "--model", str(d / "model.json"),
                  "--method", "exact", "--out", str(tmp_path / "c"), "--temp-c", "20", "--time-s", "0",
                  "--dir-x", "1", "--dir-z", "1", "--dir-a", "1"]) == 0
     summ = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
@@ -687,28 +690,24 @@ ANY_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0,
 """Conditions at which the diagnosed fields are compared (any values; those of the benchmark's flute path)."""
 
 
-@pytest.mark.slow  # the user's path (sweeps → simulate → identify → diagnose at 400 checks): minutes of CPU
-def test_run_closed_loop_writes_what_the_in_memory_core_decides(tmp_path, monkeypatch):
+@pytest.mark.slow
+def test_run_closed_loop_writes_what_the_in_memory_core_decides(bump_user_path, tmp_path):
     """`volcomp diagnose`'s closed loop is closed_loop_model (in memory) plus writing: diagnosis.json, model.json
-    and the element sets are its result byte for byte, and its kept and loop-alone fields are those `volcomp
-    compensate` builds from model.json and from model.json with loop_alone in place of elements and terms and
-    without the learned part."""
-    from compensation.app.workflows import diagnosis
+    and the element sets are its result byte for byte (with the MLflow run id of the tracked learned residual
+    added, as --track adds it), and its kept and loop-alone fields are those `volcomp compensate` builds from
+    model.json and from model.json with loop_alone in place of elements and terms and without the learned part.
+    The shared run (tests/shared_runs.py) recorded closed_loop_model's result as diagnose ran."""
     from compensation.diagnosed_model import loop_alone_model
     from errormap.io import write_json
-    seen, core = [], diagnosis.closed_loop_model
-
-    def recording(*a, **k):
-        seen.append(core(*a, **k))
-        return seen[-1]
-    monkeypatch.setattr(diagnosis, "closed_loop_model", recording)
-    _user_path(tmp_path, 1, "bump", checks=400)
-    (res,) = seen
-    d, mine = tmp_path / "d", tmp_path / "mine"
+    res = bump_user_path.extra["core"]
+    d, mine = private_copy(bump_user_path.root / "d", tmp_path / "d"), tmp_path / "mine"
     assert res.learned is not None and res.loop_alone is not None   # the branch that writes every file
     mine.mkdir()
-    write_json(mine / "diagnosis.json", dict(res.summary, updated_elements_file=str(d / "updated_elements.json")))
-    write_json(mine / "model.json", res.model)
+    shared_d = bump_user_path.root / "d"
+    rid = json.loads((d / "model.json").read_text())["mlflow_run_id"]
+    write_json(mine / "diagnosis.json", dict(res.summary, updated_elements_file=str(shared_d / "updated_elements.json"),
+                                             learned_residual=dict(res.summary["learned_residual"], mlflow_run_id=rid)))
+    write_json(mine / "model.json", dict(res.model, mlflow_run_id=rid))
     res.ship_cov.elements.save(mine / "updated_elements.json")
     res.loop_alone[0].elements.save(mine / "loop_elements.json")
     for name in ("diagnosis.json", "model.json", "updated_elements.json", "loop_elements.json"):

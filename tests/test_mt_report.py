@@ -10,20 +10,15 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.app.reports.toolkit import num
+from shared_runs import private_copy
 
-N_CHECKS = 200
-"""Enough checks for the 8 μm backlash of reversal:Z to pass the held-out gate (z ≈ 15 at 400, 1 μm noise)."""
-
-
-@pytest.fixture(scope="module")
-def chain_run(tmp_path_factory):
-    """simulate mill-xyz with reversal:Z → diagnose against the truth's element set (no covariance: no update)."""
-    d = tmp_path_factory.mktemp("mtrep")
-    assert main(["simulate", "--machine", "mill-xyz", "--seed", "2", "--effect", "reversal:Z", "--checks",
-                 str(N_CHECKS), "--out", str(d / "sim")]) == 0
-    assert main(["diagnose", str(d / "sim" / "checks.csv"), "--machine", "mill-xyz", "--model",
-                 str(d / "sim" / "truth_elements.json"), "--noise-um", "1", "--out", str(d / "diag")]) == 0
-    return d
+@pytest.fixture
+def chain_run(mill_reversal, tmp_path):
+    """simulate mill-xyz with reversal:Z (200 checks: enough for its 8 μm backlash to pass the held-out gate,
+    z ≈ 15 at 400, 1 μm noise) → diagnose against the truth's element set (no covariance: no update): the
+    shared run (tests/shared_runs.py), copied, since ``volcomp report RUN`` writes into RUN."""
+    private_copy(mill_reversal.root / "diag", tmp_path / "run" / "diag")
+    return tmp_path / "run"
 
 
 def _text(page):

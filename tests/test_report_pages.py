@@ -18,6 +18,7 @@ import pytest
 from chromium_cdp import CHROMIUM, Browser
 from compensation.app.cli import main
 from errormap.io import write_csv
+from shared_runs import private_copy
 
 pytestmark = pytest.mark.skipif(not CHROMIUM.exists(), reason="headless Chromium not installed (apt-get install chromium)")
 
@@ -107,21 +108,15 @@ def _calibrate_arm(root, grinder):
     return root / "arm-cal" / "report.html"
 
 
-def _demo(root, grinder):
-    """The real demo, tiny (as tests/test_demo.py): simulate → train → compensate → report."""
-    out = root / "demo"
-    assert main(["demo", "--out", str(out), "--tracking-uri", f"sqlite:///{root / 'mlflow.db'}", "--turns", "1",
-                 "--points-per-turn", "24", "--train-s", "8", "--hidden", "8,8", "--ga-points", "3", "--seed", "1"]) == 0
-    return out / "report.html"
+def _demo(root, grinder, request):
+    """The real demo, tiny: the run tests/test_demo.py asserts on (tests/shared_runs.py)."""
+    return request.getfixturevalue("tiny_demo").root / "demo" / "report.html"
 
 
-def _diagnose_chain(root, grinder):
-    """A machine-tool chain's diagnose run (mill-xyz, reversal:Z, against the truth's elements) → volcomp report RUN."""
-    sim, run = root / "mt-sim", root / "mt-diag"
-    assert main(["simulate", "--machine", "mill-xyz", "--seed", "2", "--effect", "reversal:Z", "--checks", "200",
-                 "--out", str(sim)]) == 0
-    assert main(["diagnose", str(sim / "checks.csv"), "--machine", "mill-xyz", "--model",
-                 str(sim / "truth_elements.json"), "--noise-um", "1", "--out", str(run)]) == 0
+def _diagnose_chain(root, grinder, request):
+    """A machine-tool chain's diagnose run (mill-xyz, reversal:Z, against the truth's elements; the run
+    tests/test_mt_report.py asserts on, tests/shared_runs.py) → volcomp report RUN on a copy of it."""
+    run = private_copy(request.getfixturevalue("mill_reversal").root / "diag", root / "mt-diag")
     assert main(["report", str(run)]) == 0
     return run / "report.html"
 
@@ -131,17 +126,20 @@ FAST = {"report": _report, "diagnose": _diagnose, "drift": _drift, "interpolate"
 """Page kinds written in the default run (small inputs; ~40 s on a 2-core machine under load)."""
 SLOW = {"calibrate": _calibrate, "calibrate-arm": _calibrate_arm, "demo": _demo, "diagnose-chain": _diagnose_chain}
 """Page kinds whose writers are end-to-end runs (calibration, training): marked slow, still run in CI."""
+SHARED = {"demo", "diagnose-chain"}
+"""Page kinds written from a run other test files assert on too (a session fixture, tests/shared_runs.py)."""
 
 
 @pytest.fixture(scope="module")
-def pages(tmp_path_factory, grinder):
+def pages(tmp_path_factory, grinder, request):
     """kind -> path of one page of that kind, written lazily by the code that writes it for the user."""
     root = tmp_path_factory.mktemp("pages")
     written = {}
 
     def get(kind):
         if kind not in written:
-            written[kind] = {**FAST, **SLOW}[kind](root, grinder)
+            write = {**FAST, **SLOW}[kind]
+            written[kind] = write(root, grinder, request) if kind in SHARED else write(root, grinder)
         return written[kind]
     return get
 

@@ -18,8 +18,8 @@ JAC_TOL_REL = 1e-6
 """Closed-form Jacobian vs central differences (h = 1e-5): the difference is O(h²)·f''' ≈ 1e-9
 relative, plus rounding ε/h ≈ 1e-11; 1e-6 relative to the largest entry is far from both."""
 
-DECLINE_MIN = 19
-"""Pure noise must be declined ("none") in at least 19 of 20 seeds (the issue's figure)."""
+# Pure noise declined ("none") in at least 19 of 20 seeds (the issue's figure): a sweep over seeds, in
+# benchmarks/bench_statistical.py (residual_declines_noise; its first seeds run in tests/test_bench_statistical.py).
 
 FAR_ABS_TOL = 1e-6
 """At ≥ 50 standardised units from every training point the zero-mean GP's kernel is at most
@@ -94,18 +94,6 @@ def test_json_round_trip_predicts_identically(fitted):
     assert back.chosen_ == "gp" and back.cv_table_ == doc["cv_table"]
     with pytest.raises(ValueError, match="format"):
         ResidualRegressor.from_dict({"format": "something-else"})
-
-
-@pytest.mark.slow
-def test_declines_pure_noise():
-    declined = 0
-    for seed in range(20):
-        X, Y = _data(100 + seed, n=120, signal=False)
-        r = ResidualRegressor(seed=seed).fit(X, Y)
-        declined += r.chosen_ == "none"
-        if r.chosen_ == "none":
-            assert np.all(r.predict(X) == 0.0)
-    assert declined >= DECLINE_MIN
 
 
 def test_blocked_groups_hold_out_whole_blocks():

@@ -74,24 +74,16 @@ def test_missing_run_is_one_clear_error(tmp_path):
 
 
 @pytest.mark.slow
-def test_diagnose_track_logs_the_kept_stage(tmp_path, capsys):
-    """sweeps → simulate (bump) → identify → diagnose --track: the kept learned residual is a run
-    whose JSON is the one model.json holds."""
-    from compensation.app.cli import main
+def test_diagnose_track_logs_the_kept_stage(bump_user_path):
+    """sweeps → simulate (bump) → identify → diagnose --track (the shared run, tests/shared_runs.py): the
+    kept learned residual is a run whose JSON is the one model.json holds."""
     from training.tracking import load_learned_residual_doc
-    uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
-    q = ["--seed", "1", "--effect", "bump"]
-    assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", "7", "--out", str(tmp_path / "sw.csv")]) == 0
-    assert main(["simulate", *q, "--checks", "800", "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
-    assert main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "el.json"), "--bootstrap", "40"]) == 0
-    capsys.readouterr()
-    assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--model", str(tmp_path / "el.json"),
-                 "--out", str(tmp_path / "d"), "--track", "--tracking-uri", uri]) == 0
-    s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
-    model = json.loads((tmp_path / "d" / "model.json").read_text())
+    d, uri = bump_user_path.root / "d", bump_user_path.extra["uri"]
+    s = json.loads((d / "diagnosis.json").read_text())
+    model = json.loads((d / "model.json").read_text())
     assert s["kept_stage"] == "learned_residual"
     rid = s["learned_residual"]["mlflow_run_id"]
-    assert model["mlflow_run_id"] == rid and f"learned residual logged as MLflow run {rid}" in capsys.readouterr().out
+    assert model["mlflow_run_id"] == rid and f"learned residual logged as MLflow run {rid}" in bump_user_path.out
     assert load_learned_residual_doc(rid, tracking_uri=uri) == json.loads(json.dumps(model["learned_residual"]))
     # the family chosen by validation, named; the shipped stage estimated on all 800 checks after the
     # choice, the held-out figures the validated ones (issue 28: refit after selection)
