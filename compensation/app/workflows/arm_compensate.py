@@ -19,6 +19,7 @@ from errormap.io import read_table, write_csv
 from compensation.app.validate import UsageError
 
 from ...arm_compensation import solve_joints
+from ...fields import FAILED_VERDICT, check_verdict
 from .arm_calibration import load_arm_model
 
 EXIT_REFUSED = 3
@@ -45,6 +46,28 @@ def read_program(path, chain, t=None):
     return q, xyz
 
 
+def parse_arm_allow(text) -> tuple:
+    """``--allow`` on a serial arm: only ``failed-verdict`` (use a calibration whose verdict failed); the machine-tool
+    guards (ball, stroke, volume, convergence) have no counterpart here (a point that does not converge or leaves
+    the joint limits always fails its file), so naming one, or a bare ``--allow``, is refused, never ignored."""
+    if text is None:
+        return ()
+    names = tuple(t.strip() for t in str(text).split(",") if t.strip())
+    other = [n for n in names if n != FAILED_VERDICT]
+    if other or not names:
+        raise UsageError(f"--allow {text}: a serial arm takes only --allow {FAILED_VERDICT}; its unconverged or "
+                         "out-of-limit points are never written")
+    return names
+
+
+def overridden_verdict(verdict) -> list[str]:
+    """The header line of a program compensated with a calibration whose verdict failed (``--allow failed-verdict``)."""
+    if not verdict or not verdict.get("overridden_by"):
+        return []
+    return [f"MODEL VERDICT FAILED ({verdict['file']}), used with --allow {FAILED_VERDICT}: "
+            + ("; ".join(verdict["reasons"]) or "no reasons recorded")]
+
+
 def run_arm_compensate(chain, args) -> int:
     if getattr(args, "truth", None) is not None:   # never ignored silently
         raise UsageError(f"--truth is not used on a serial arm ({chain.name}): the true residual of a compensated "
@@ -53,7 +76,9 @@ def run_arm_compensate(chain, args) -> int:
     if args.method not in (None, "exact"):
         raise UsageError(f"--method {args.method}: a serial chain is compensated by Newton on its calibrated chain "
                          "(--method exact or none)")
+    allow = parse_arm_allow(args.allow)
     geo, learner = load_arm_model(chain, args.model)
+    verdict = check_verdict(args.model, FAILED_VERDICT in allow)   # a failed calibration: refused unless allowed
     out = Path(args.out)
     srcs = [Path(f) for f in args.files]
     for s in srcs:
@@ -75,7 +100,7 @@ def run_arm_compensate(chain, args) -> int:
         cols.update({"x_mm": target[:, 0], "y_mm": target[:, 1], "z_mm": target[:, 2],
                      "model_residual_mm": sol.residual_mm})
         write_csv(out / src.name, cols, header_comments=(
-            f"compensated for machine {chain.name} with {args.model}",
+            *overridden_verdict(verdict), f"compensated for machine {chain.name} with {args.model}",
             "residual: MODEL residual (target - calibrated model at the compensated joints)",
             f"tool orientation kept: {sol.orientation_kept}"), float_fmt="%.10g")
         print(f"{src}: {len(q)} points, model residual max {sol.residual_mm.max():.3g} mm, max joint change "
