@@ -128,6 +128,24 @@ def check_deviations(path, measured_um, predicted_um, *, rows=None, noise_um: fl
         raise InputError(f"{path}: {where(m[0])}{m[1]}")
 
 
+def stated_noise(path, comments) -> float | None:
+    """The noise σ (μm, > 0) a check file states in a ``# noise_um: σ`` header line, or None (none stated, or 0: a
+    noise-free simulation states nothing a noise can be judged against); InputError naming the file when the
+    line is there but its value is not a finite number ≥ 0."""
+    for c in comments:
+        key, sep, value = c.partition(":")
+        if sep and key.strip() == "noise_um":
+            try:
+                v = float(value)
+            except ValueError:
+                v = float("nan")
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"{path}: header line 'noise_um': expected the instrument's noise σ in μm "
+                                 f"(a number ≥ 0), got {value.strip()!r}")
+            return v if v > 0 else None
+    return None
+
+
 # -- the verdict of a diagnosis ------------------------------------------------------------------------------
 NOISE_EXCESS = 2.0
 """A noise σ estimated from the checks (with the model update) above this many times the instrument's stated σ
@@ -165,7 +183,8 @@ def diagnosis_verdict(summary: dict) -> dict:
     reasons = []
     stated, est = summary.get("noise_sigma_stated_um"), summary.get("noise_sigma_estimated_um")
     if stated and est is not None and est > NOISE_EXCESS * stated:
-        reasons.append(f"the check noise estimated with the update (σ = {est:.3g} μm) is {est / stated:.3g}× the "
+        how = summary.get("noise_sigma_estimated_how", "the check noise estimated with the update")
+        reasons.append(f"{how} (σ = {est:.3g} μm) is {est / stated:.3g}× the "
                        f"stated σ = {stated:.3g} μm (more than {NOISE_EXCESS:g}×): the checks or the model cannot be "
                        "right; not at the floor")
     kept = summary["kept_stage"]

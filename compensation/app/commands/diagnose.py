@@ -23,8 +23,9 @@ def register(sub):
                                                      "A machine-tool chain (mill-xyz, ...) runs the generic loop "
                                                      "(errormap/diagnosis/mt_loop.py)")
     p.add_argument("--noise-um", type=float, default=None,
-                   help="machine-tool chain: the checks' known noise σ per axis (μm) for the noise floor √3·σ; "
-                        "default: estimated by the update")
+                   help="the checks' stated noise σ per axis (μm; default: the file's '# noise_um: σ' line): a "
+                        "noise estimated from the checks above 2σ fails the verdict; machine-tool chain: also the "
+                        "noise floor √3·σ (default: estimated by the update)")
     p.add_argument("--model", default=None, help="element-set file (JSON) or MLflow run id of a learned field")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--tracking-uri", default=None)
@@ -129,14 +130,13 @@ def run(args) -> int:
                 print(f"wrote {p}")
             return EXIT_FAILED_VERDICT if summary["verdict"]["status"] == "failed" else 0
         check_machine_kind(machine.path, machine.kind, "grinder")
-        if args.noise_um is not None:
-            raise UsageError("--noise-um is for a machine-tool chain's checks (the grinder's loop estimates it)")
         settings = DiagnosisSettings(fit_fraction=args.fit_fraction, alpha=args.alpha, max_effects=args.max_effects)
         retrain = _retrain_settings(args)
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
         summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,
                                     args.featurepoints, retrain, update=not args.no_update, units=args.units,
-                                    units_option="--units", learn=not args.no_learned, track=args.track)
+                                    units_option="--units", learn=not args.no_learned, track=args.track,
+                                    noise_um=args.noise_um)
         if "stages" in summary:
             st = summary["stages"]
             print("held-out RMS: identified {:.3g} -> updated {:.3g} -> updated + effects {:.3g} um".format(
