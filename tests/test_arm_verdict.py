@@ -151,3 +151,16 @@ def test_compensate_on_an_arm_refuses_guard_allows(models, allow):
     rc, out, err = run_cli(argv)
     lines = err.strip().splitlines()
     assert rc == 2 and len(lines) == 1 and "a serial arm takes only --allow failed-verdict" in lines[0], err
+
+
+def test_predict_on_an_arm_refuses_a_failed_model_unless_allowed(models):
+    d, prog = models
+    argv = ["predict", "--machine", "ur5", "--model", d / "failed.json", prog, "--out", d / "p.csv"]
+    rc, out, err = run_cli(argv)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and "--allow failed-verdict" in lines[0] and not (d / "p.csv").exists(), err
+    rc, out, err = run_cli(argv + ["--allow", "failed-verdict"])
+    assert rc == 0, err
+    assert "# allowed: failed-verdict" in (d / "p.csv").read_text()
+    rc, out, err = run_cli(argv + ["--allow", "extrapolate"])
+    assert rc == 2 and "only --allow failed-verdict applies" in err
