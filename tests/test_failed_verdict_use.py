@@ -208,7 +208,8 @@ def drift_failed(tmp_path_factory):
     from errormap.diagnosis.drift_models import ChannelFit, DriftModel, Feature
     from errormap.io import write_csv
     d = tmp_path_factory.mktemp("drift")
-    DriftModel({"ch1": ChannelFit("ols", "", [Feature("temp_s1_c")], 1.0, np.array([2.0]))}).save(d / "drift_model.json")
+    model = DriftModel({"ch1": ChannelFit("ols", "", [Feature("temp_s1_c")], 1.0, np.array([2.0]))})
+    model.save(d / "drift_model.json")
     (d / "diagnosis.json").write_text(json.dumps({"verdict": _verdict("failed")}))
     t = np.arange(0.0, 7200.0, 60.0)
     write_csv(d / "log.csv", {"time_s": t, "temp_s1_c": 20.0 + 2.0 * np.sin(t / 3600.0)})
