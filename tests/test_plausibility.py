@@ -302,3 +302,9 @@ def test_grinder_diagnose_reads_the_stated_noise_and_exits_1_when_contradicted(t
     assert "verdict: FAILED" in capsys.readouterr().out
     assert main(argv + ["--out", str(tmp_path / "b"), "--noise-um", str(NOISE_UM)]) == 0
     assert json.loads((tmp_path / "b" / "diagnosis.json").read_text())["verdict"]["status"] == "passed"
+
+
+def test_noise_um_with_a_drift_log_is_refused_not_ignored(tmp_path, capsys):
+    (tmp_path / "log.csv").write_text("time_s,temp_s1_c,ch1_um\n0,20,0\n")
+    assert main(["diagnose", "--drift", str(tmp_path / "log.csv"), "--noise-um", "1", "--out", str(tmp_path / "d")]) == 2
+    assert "--noise-um" in _one_line(capsys) and not (tmp_path / "d").exists()

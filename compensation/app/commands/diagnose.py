@@ -95,6 +95,9 @@ def run(args) -> int:
     if (args.checks is None) == (args.drift is None):
         raise UsageError("give either CHECKS (with --model) or --drift LOG")
     if args.drift is not None:
+        if args.noise_um is not None:   # never ignored silently
+            raise UsageError("--noise-um states the check instrument's noise; a drift log's channels have none to "
+                             "state (leave it out with --drift)")
         print(f"modelling drift log {args.drift} ...", file=sys.stderr)
         sel = DriftSelector(fit_fraction=args.fit_fraction, subset_kw={"alpha": args.alpha}, deploy=args.deploy)
         summary, paths = run_drift(args.drift, args.out, sel, time_unit=args.time_unit, units=args.units)
