@@ -92,8 +92,6 @@ def run(args) -> int:
         raise UsageError(f"{', '.join(missing)}: required to compare methods on a path (or give RUN, a diagnose "
                          "--machine folder)")
     methods = parse_methods(args.methods)
-    source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
-    verdict = check_verdict(source.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
     machine = load_machine(args.machine, expect_kind="grinder")
     if args.flute:
         try:
@@ -114,6 +112,8 @@ def run(args) -> int:
         if tp.kind == "gcode":
             path_info["work_offsets"] = offsets.source
     truth = load_truth(args.truth, machine) if args.truth else None
+    source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
+    verdict = check_verdict(source.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
     print(f"report: model {source.description}", file=sys.stderr)
     field = load_field(args.model, machine, args.tracking_uri, source=source)
     cmp = compare_methods(field, targets, machine, methods=methods, truth=truth, ga_points=args.ga_points,
