@@ -464,6 +464,9 @@ def read_table(path) -> Table:
         numeric = _parse_numeric_fast(body, header)
         if numeric is not None:
             return Table(path, header, None, i + 2, comments, numeric=numeric, lines=body)
+    n_lines = body.count("\n") + 1 if end >= 0 else 0
+    check_table_memory(path, TABLE_READ_BYTES_PER_CELL * n_lines * len(header) + 2 * len(body),
+                       "cell by cell (it is not plainly numeric: a quote, a word or an empty cell)")
     rows, row_lines = _parse_rows(path, body.split("\n") if end >= 0 else [], header, i + 2)
     return Table(path, header, rows, i + 2, comments, row_lines=row_lines)
 
@@ -487,20 +490,85 @@ MAX_TABLE_BYTES = 2 * 2**30
 """Bytes of a table file, checked before it is read: 40e6 cells of up to ~50 characters."""
 
 
+TABLE_READ_BYTES_PER_BYTE = 6.0
+"""Peak memory of reading a plainly numeric table (the pyarrow path) per byte of the file: its bytes, the decoded
+text, the body handed to pyarrow, the parsed columns. Measured: 5e6 rows x 3 columns, 158 MB, 929 MiB peak
+resident (of which ~100 MiB the interpreter and its libraries) — 5.5 per byte (BENCHMARKS.md, "Huge tables")."""
+TABLE_READ_BYTES_PER_CELL = 170
+"""Peak memory of reading a table cell by cell (a quote, a word or an empty cell anywhere: the per-row reader) per
+cell. Measured: the same 5e6 x 3 table with one quoted cell, 2,378 MiB peak resident — 152 B per cell."""
+TABLE_MEMORY_FRACTION = 0.5
+"""A table is read only when its estimated peak memory is at most this fraction of the memory the system has
+available (``MemAvailable``) when it is opened: the rest is for what the command does with it."""
+_COUNT_CHUNK = 8 * 2**20
+
+
+def available_memory_bytes() -> int | None:
+    """The memory available now, bytes: the system's (Linux ``/proc/meminfo`` MemAvailable, else the free physical
+    pages), and no more than a cgroup v2 memory limit leaves (``memory.max`` − ``memory.current``: a container is
+    killed at its limit, whatever the host has); None when none of them can be read (no bound applied)."""
+    avail = None
+    try:
+        with open("/proc/meminfo", "rb") as fh:
+            for line in fh:
+                if line.startswith(b"MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    if avail is None:
+        try:
+            avail = int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+        except (ValueError, OSError, AttributeError):
+            pass
+    try:
+        cap = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if cap != "max":
+            left = int(cap) - int(Path("/sys/fs/cgroup/memory.current").read_text())
+            avail = left if avail is None else min(avail, left)
+    except (OSError, ValueError):
+        pass
+    return avail
+
+
+def check_table_memory(path, need_bytes: float, how: str) -> None:
+    """Refuse (InputError naming the file, the estimate and the bound) a table whose reading ``how`` would need
+    ``need_bytes`` at its peak, over :data:`TABLE_MEMORY_FRACTION` of the available memory."""
+    avail = available_memory_bytes()
+    if avail is None or need_bytes <= TABLE_MEMORY_FRACTION * avail:
+        return
+    raise InputError(f"{path}: {path.stat().st_size / 1e6:,.0f} MB would need about {need_bytes / 1e9:.3g} GB to "
+                     f"read {how}, over the bound of {TABLE_MEMORY_FRACTION:g} x the {avail / 1e9:.3g} GB available; "
+                     "split the file")
+
+
+def _count_lines(path: Path) -> int:
+    """Line breaks of the file (``\\n``, ``\\r\\n`` or a lone ``\\r``), counted in chunks: never held whole."""
+    n, prev_cr = 0, False
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_COUNT_CHUNK):
+            n += chunk.count(b"\n") + chunk.count(b"\r") - chunk.count(b"\r\n")
+            if prev_cr and chunk.startswith(b"\n"):
+                n -= 1       # a \r\n split across two chunks: one break, counted twice
+            prev_cr = chunk.endswith(b"\r")
+    return n
+
+
 def _read_bounded(path: Path) -> bytes:
-    """The file's bytes, refused unread past :data:`MAX_TABLE_BYTES` and, by its line count,
-    past :data:`MAX_TABLE_ROWS` (before any parsing)."""
+    """The file's bytes, refused unread past :data:`MAX_TABLE_BYTES`, by its line count (counted in chunks) past
+    :data:`MAX_TABLE_ROWS`, and past the memory bound (:func:`check_table_memory`, the pyarrow path's estimate
+    :data:`TABLE_READ_BYTES_PER_BYTE`) — all before it is read whole or parsed."""
     size = path.stat().st_size
     if size > MAX_TABLE_BYTES:
         raise InputError(f"{path}: {size / 2**30:.3g} GiB exceeds the limit of {MAX_TABLE_BYTES / 2**30:g} GiB per "
                          "table file; split it")
-    raw = path.read_bytes()
-    lines = raw.count(b"\n") + raw.count(b"\r") - raw.count(b"\r\n")
+    lines = _count_lines(path)
     if lines > MAX_TABLE_ROWS + 1000:  # room for the header and comment lines
         raise InputError(f"{path}: about {lines:,} rows exceed the limit of {MAX_TABLE_ROWS:,} rows per table (about "
                          f"{lines * TABLE_BYTES_PER_ROW / 1e9:.3g} GB of memory for predict at {TABLE_BYTES_PER_ROW} B "
                          "per row); split the file")
-    return raw
+    check_table_memory(path, TABLE_READ_BYTES_PER_BYTE * size, "as numbers")
+    return path.read_bytes()
 
 
 def _read_header(path: Path, line: str, row: int) -> list[str]:

@@ -238,6 +238,25 @@ def test_summary_counts_the_hybrid_against_the_loop_on_the_same_checks():
                              "hybrid RMS ratio 1.50 on the compensated volume")
 
 
+def test_a_row_whose_model_verdict_failed_is_marked_and_never_counted():
+    """A row whose model's verdict failed (key model_verdict) is shown with its reasons but counts in no win, no
+    summary line and no headline: here the learned rows would otherwise win stations=21 (1.0 < 2.0 μm)."""
+    from compensation.app.reports.benchmark import markdown_table
+    doc = _doc()
+    bad = next(r for r in doc["rows"] if r["path"] == "learned" and r["condition"] == "stations=21")
+    bad.update(true_rms_um=1.0, model_verdict={"status": "failed", "reasons": ["loses to the plain baseline"]})
+    v = verdicts(doc)
+    assert len(v) == 1 and "stations=6" in v[0]          # stations=21 has no counted learned row: no winner named
+    (line,) = summary_lines(doc)
+    assert line.startswith("grinder: parametric lower true RMS in 1 of 1 conditions, learned in 0")
+    page = render_html(doc)
+    assert "not counted: its model&#39;s verdict FAILED: loses to the plain baseline" in page
+    assert "model verdict" in page
+    assert "verdict failed, not counted: 1.00 / 10.0" in markdown_table(doc)
+    bad["model_verdict"] = {"status": "passed", "reasons": []}      # passed: counted as before
+    assert "<b>learned</b>" in verdicts(doc)[1]
+
+
 def test_report_is_self_contained_and_says_what_is_missing():
     page = render_html(_doc())
     assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")

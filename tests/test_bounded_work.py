@@ -78,3 +78,45 @@ def test_a_program_over_the_byte_limit_is_refused_unread(tmp_path, grinder, monk
     src.write_text("G21 G90 G18\n" + "G1 X100. Z0.3 A0 F100\n" * 100)
     with pytest.raises(eio.InputError, match=r"big.nc: .* GiB exceeds the limit of .* per program"):
         read_path(src, grinder)
+
+
+def test_a_table_over_the_memory_bound_is_refused_unread(tmp_path, monkeypatch):
+    """The available memory lowered to 1 kB: the table is refused by its size and the bound, before its bytes are
+    read (no Path.read_bytes) or parsed."""
+    from pathlib import Path
+    f = tmp_path / "t.csv"
+    f.write_text("x_mm,z_mm,a_deg\n" + "10,20,30\n" * 100)
+    monkeypatch.setattr(eio, "available_memory_bytes", lambda: 1000)
+    read = []
+    monkeypatch.setattr(Path, "read_bytes", lambda self: read.append(self))
+    with pytest.raises(eio.InputError) as e:
+        eio.read_table(f)
+    msg = str(e.value)
+    assert msg.startswith(f"{f}: 0 MB would need about ") and "to read as numbers" in msg
+    assert f"over the bound of {eio.TABLE_MEMORY_FRACTION:g} x the 1e-06 GB available" in msg and len(msg) < 300
+    assert not read
+
+
+def test_a_table_read_cell_by_cell_is_bounded_by_its_own_estimate(tmp_path, monkeypatch):
+    """A quoted cell sends the table to the per-row reader (~10x the memory of the numeric path per byte here): the
+    bound is checked again with that estimate, and a table the numeric path could read is refused there, saying why."""
+    n = 2000
+    f = tmp_path / "q.csv"
+    f.write_text('x_mm,z_mm,a_deg\n"10",20,30\n' + "10,20,30\n" * (n - 1))
+    size = f.stat().st_size
+    # the bound at 20 B per file byte: the numeric path's estimate is 6, cell by cell 3 x 170 B per 9-byte row + 2
+    avail = size * 20 / eio.TABLE_MEMORY_FRACTION
+    monkeypatch.setattr(eio, "available_memory_bytes", lambda: avail)
+    with pytest.raises(eio.InputError, match=r"q\.csv: .* to read cell by cell \(it is not plainly numeric"):
+        eio.read_table(f)
+    f.write_text("x_mm,z_mm,a_deg\n" + "10,20,30\n" * n)   # the same table, plainly numeric: read
+    assert len(eio.read_table(f)) == n
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, 4, 7, 1 << 20])
+def test_lines_are_counted_in_chunks_as_in_one_piece(tmp_path, monkeypatch, chunk):
+    raw = b"a\r\nbb\r\nc\rd\n\r\ne\r"
+    f = tmp_path / "t.csv"
+    f.write_bytes(raw)
+    monkeypatch.setattr(eio, "_COUNT_CHUNK", chunk)
+    assert eio._count_lines(f) == raw.count(b"\n") + raw.count(b"\r") - raw.count(b"\r\n") == 6

@@ -176,3 +176,53 @@ def test_a_real_failed_diagnosis_stops_predict_and_compensate(tmp_path):
                           "--method", "exact", "--out", tmp_path / "c"])
     refused(rc, err, str(model), "loses to the plain baseline")
     assert not (tmp_path / "p.csv").exists() and not (tmp_path / "c").exists()
+
+
+def _report_argv(d, el, out):
+    return ["report", "--model", el, "--path", d / "pts.csv", "--methods", "exact", "--out", out]
+
+
+def test_report_refuses_a_failed_verdict_before_any_work(diagnosed, tmp_path):
+    d, el = diagnosed
+    rc, _, err = run_cli(_report_argv(d, el, tmp_path / "r"))
+    refused(rc, err, str(d / "diagnosis.json"), REASON, f"--allow {FAILED_VERDICT}")
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.slow   # the exact solver's first compile
+def test_report_with_the_override_records_it_in_metrics_and_page(diagnosed, tmp_path):
+    d, el = diagnosed
+    argv = _report_argv(d, el, tmp_path / "r")
+    rc, _, err = run_cli(argv + ["--allow", FAILED_VERDICT])
+    assert rc == 0, err
+    metrics = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    found = json.dumps(metrics)
+    assert '"overridden_by": "--allow failed-verdict"' in found and REASON in found
+    assert "model verdict" in (tmp_path / "r" / "report.html").read_text()
+
+
+@pytest.fixture(scope="module")
+def drift_failed(tmp_path_factory):
+    """A drift_model.json (one OLS channel on one temperature) with a failed diagnosis.json beside it, and a log."""
+    import numpy as np
+    from errormap.diagnosis.drift_models import ChannelFit, DriftModel, Feature
+    from errormap.io import write_csv
+    d = tmp_path_factory.mktemp("drift")
+    model = DriftModel({"ch1": ChannelFit("ols", "", [Feature("temp_s1_c")], 1.0, np.array([2.0]))})
+    model.save(d / "drift_model.json")
+    (d / "diagnosis.json").write_text(json.dumps({"verdict": _verdict("failed")}))
+    t = np.arange(0.0, 7200.0, 60.0)
+    write_csv(d / "log.csv", {"time_s": t, "temp_s1_c": 20.0 + 2.0 * np.sin(t / 3600.0)})
+    return d
+
+
+def test_drift_predict_refuses_then_records_the_override_in_the_header(drift_failed, tmp_path):
+    d = drift_failed
+    argv = ["drift-predict", d / "drift_model.json", d / "log.csv", "--out", tmp_path / "p.csv"]
+    rc, _, err = run_cli(argv)
+    refused(rc, err, str(d / "diagnosis.json"), REASON, f"--allow {FAILED_VERDICT}")
+    assert not (tmp_path / "p.csv").exists()
+    rc, _, err = run_cli(argv + ["--allow", FAILED_VERDICT])
+    assert rc == 0, err
+    head = [ln for ln in (tmp_path / "p.csv").read_text().splitlines() if ln.startswith("#")]
+    assert any(ln.startswith(f"# allowed: {FAILED_VERDICT}") and REASON in ln for ln in head), head

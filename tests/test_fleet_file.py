@@ -87,3 +87,29 @@ def test_a_fleet_runs_in_process_without_ray(tmp_path, grinder, capsys):
     run = MlflowClient(tracking_uri=uri).get_run(m["run_id"])
     assert run.data.metrics["diagnose_heldout_rms_updated_um"] == diag["stages"]["updated"]["held_out"]["rms_um"]
     assert (tmp_path / "out" / "only" / "machine_summary.json").is_file()
+
+
+def _machine(name, verdict):
+    from compensation.app.workflows.fleet import machine_status
+    return {"name": name, "status": machine_status(verdict), "verdict": verdict, "run_id": "r",
+            "train": {"train_max_um": 1.0},
+            "diagnosis": {"diagnose_heldout_rms_identified_um": 9.0, "diagnose_heldout_rms_final_um": 2.0}}
+
+
+def test_a_failed_verdict_is_marked_and_never_counted_as_a_pass(capsys):
+    """A machine whose diagnosis verdict failed ran (its files are written) but is not a pass: its status says so,
+    its line is marked with the reasons, the counts keep it apart, and the fleet exits 1 (4 when a machine failed)."""
+    from compensation.app.commands.fleet import print_results
+    from compensation.app.workflows.fleet import fleet_counts
+    ok = _machine("a", {"status": "passed", "reasons": []})
+    bad = _machine("b", {"status": "failed", "reasons": ["the kept model loses to the plain baseline"]})
+    assert (ok["status"], bad["status"]) == ("ok", "verdict-failed")
+    assert fleet_counts([ok, bad]) == {"passed": ["a"], "verdict_failed": ["b"], "failed": []}
+    assert print_results([ok, bad]) == 1
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("a: run r") and out[1].startswith("b: VERDICT FAILED: run r")
+    assert "loses to the plain baseline" in out[1] and out[-1] == "fleet: 1 passed, 1 verdict failed, 0 failed"
+    assert print_results([ok]) == 0
+    lost = {"name": "c", "status": "failed", "error": "ValueError: x"}
+    assert print_results([ok, bad, lost]) == 4
+    assert "fleet: 1 passed, 1 verdict failed, 1 failed" in capsys.readouterr().out

@@ -253,3 +253,58 @@ def test_sweeps_with_two_ball_columns_exchanged_are_refused_before_identificatio
     bad = sweeps_from_columns(dict(cols, x_mm=cols["y_mm"], y_mm=cols["x_mm"]), axes=swept_words(m))
     with pytest.raises(InputError, match="mirror image of the machine"):
         ChainIdentification().fit(bad, m)
+
+
+GRINDER_SIGMA_TOL = 0.2
+"""|σ̂ / σ − 1| of the grinder loop's noise estimate (the kept model's held-out residual per coordinate, 60 held-out
+checks × 3 coordinates) on correct simulated checks: its SE is about 1/√(2·180) ≈ 5 %, and what the model misses
+adds a few % on top; 0.2 is 4 SE. (The fitting residual is biased low by 20 % here: seed 3, 0.80.)"""
+UNDERSTATED = 4.0
+"""A stated σ this many times below the simulated noise: σ̂ / stated ≈ 4, far above NOISE_EXCESS = 2."""
+
+
+def test_grinder_loop_judges_its_noise_estimate_against_the_stated_noise():
+    from errormap.diagnosis.checks import CheckData
+    from errormap.diagnosis.loop import closed_loop
+    from errormap.diagnosis.plausibility import NOISE_EXCESS
+    from errormap.simulator import random_truth
+    from errormap.uncertainty import ElementCovariance, theta_from_elements, theta_layout
+    g = load_machine(None)
+    t = random_truth(g, SEED)
+    cov = ElementCovariance(theta_from_elements(t.elements), 0.25 * np.eye(len(theta_layout(t.elements))),
+                            t.elements, {})
+    checks = CheckData.from_columns(t.check_measurements(150, NOISE_UM, SEED + 1))
+    checks.stated_noise_um = NOISE_UM
+    s = closed_loop(g, cov, checks).summary
+    assert abs(s["noise_sigma_estimated_um"] / NOISE_UM - 1) < GRINDER_SIGMA_TOL
+    assert s["noise_sigma_stated_um"] == NOISE_UM and diagnosis_verdict(s)["status"] == "passed"
+    checks.stated_noise_um = NOISE_UM / UNDERSTATED
+    s = closed_loop(g, cov, checks).summary
+    v = diagnosis_verdict(s)
+    assert v["status"] == "failed" and len(v["reasons"]) == 1
+    assert s["noise_sigma_estimated_um"] > NOISE_EXCESS * s["noise_sigma_stated_um"]
+    assert f"stated σ = {NOISE_UM / UNDERSTATED:.3g} μm" in v["reasons"][0]
+
+
+def test_grinder_diagnose_reads_the_stated_noise_and_exits_1_when_contradicted(tmp_path, capsys):
+    """Without a covariance (effects on the model as it is) the verdict still judges the noise: the file's
+    '# noise_um:' line, or --noise-um over it."""
+    from errormap.simulator import random_truth
+    g = load_machine(None)
+    truth = random_truth(g, SEED)
+    truth.elements.save(tmp_path / "model.json")
+    cols = truth.check_measurements(60, NOISE_UM, SEED)
+    write_csv(tmp_path / "c.csv", cols, header_comments=[f"noise_um: {NOISE_UM / UNDERSTATED}"])
+    argv = ["diagnose", str(tmp_path / "c.csv"), "--model", str(tmp_path / "model.json")]
+    assert main(argv + ["--out", str(tmp_path / "a")]) == 1
+    v = json.loads((tmp_path / "a" / "diagnosis.json").read_text())["verdict"]
+    assert v["status"] == "failed" and "stated σ" in v["reasons"][0]
+    assert "verdict: FAILED" in capsys.readouterr().out
+    assert main(argv + ["--out", str(tmp_path / "b"), "--noise-um", str(NOISE_UM)]) == 0
+    assert json.loads((tmp_path / "b" / "diagnosis.json").read_text())["verdict"]["status"] == "passed"
+
+
+def test_noise_um_with_a_drift_log_is_refused_not_ignored(tmp_path, capsys):
+    (tmp_path / "log.csv").write_text("time_s,temp_s1_c,ch1_um\n0,20,0\n")
+    assert main(["diagnose", "--drift", str(tmp_path / "log.csv"), "--noise-um", "1", "--out", str(tmp_path / "d")]) == 2
+    assert "--noise-um" in _one_line(capsys) and not (tmp_path / "d").exists()

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..io import InputError, read_table
 from ..units import TEMP_HARD_RANGE_C, UNITS_CHECK, check_units
-from .plausibility import check_deviations
+from .plausibility import check_deviations, stated_noise
 
 AXES_COLUMNS = ("x_mm", "z_mm", "a_deg")
 ERROR_COLUMNS = ("dx_um", "dy_um", "dz_um")
@@ -54,6 +54,9 @@ class CheckData:
     seq: np.ndarray | None = None
     rows: np.ndarray | None = None
     path: str = "<checks>"
+    stated_noise_um: float | None = None
+    """The instrument's noise σ per coordinate (μm) the file states (``# noise_um: σ``) or the user gives
+    (``diagnose --noise-um``); None: not stated. The verdict judges the loop's noise estimate against it."""
 
     def __post_init__(self):
         self.axes = np.asarray(self.axes, dtype=float)
@@ -78,7 +81,7 @@ class CheckData:
 
     def subset(self, idx) -> "CheckData":
         return CheckData(self.axes[idx], self.measured_um[idx], {k: v[idx] for k, v in self.conditions.items()},
-                         self.seq[idx], self.rows[idx], self.path)
+                         self.seq[idx], self.rows[idx], self.path, self.stated_noise_um)
 
     @classmethod
     def from_columns(cls, cols: dict, path: str = "<checks>") -> "CheckData":
@@ -140,7 +143,7 @@ def load_checks(path, machine, units: str = UNITS_CHECK, units_option: str | Non
             if s in first:
                 raise _fail(path, rows[k], "seq", f"duplicated value {s} (also in row {rows[first[s]]})")
             first[s] = k
-    return CheckData(axes, meas, cond, seq, rows, str(path))
+    return CheckData(axes, meas, cond, seq, rows, str(path), stated_noise(path, t.comments))
 
 
 def measured_residual(checks: CheckData, field_) -> tuple[np.ndarray, np.ndarray]:
@@ -153,5 +156,6 @@ def measured_residual(checks: CheckData, field_) -> tuple[np.ndarray, np.ndarray
     pred = np.asarray(field_.predict(checks.axes), dtype=float)
     if pred.shape != checks.measured_um.shape or not np.all(np.isfinite(pred)):
         raise ValueError(f"Expected a finite model prediction of shape {checks.measured_um.shape}, got {pred.shape}")
-    check_deviations(checks.path, checks.measured_um, pred, rows=checks.rows, option=None)
+    check_deviations(checks.path, checks.measured_um, pred, rows=checks.rows, noise_um=checks.stated_noise_um,
+                     option=None)
     return checks.measured_um - pred, pred

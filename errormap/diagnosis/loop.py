@@ -169,6 +169,12 @@ def closed_loop(machine, covariance, checks: CheckData, settings: DiagnosisSetti
         "rms_identified_um": st0["rms_um"], "rms_updated_um": st1["rms_um"],
         "rms_final_um": stk["rms_um"], "max_final_um": stk["max_um"],
         "baselines_vs_kept": baselines,
+        # the kept stage's held-out residual per coordinate (noise plus what the model misses: never below the
+        # noise, where the fitting residual is 20 % low, test_plausibility) against the instrument's stated σ:
+        # the verdict fails one far above it (plausibility.NOISE_EXCESS)
+        "noise_sigma_estimated_um": float(np.sqrt(np.mean(r_k[hold_idx] ** 2))),
+        "noise_sigma_estimated_how": "the kept model's held-out residual per coordinate",
+        "noise_sigma_stated_um": checks.stated_noise_um,
     })
     if kept and kept_stage != "updated_plus_effects":
         summary["effects_dropped_by_fallback"] = [e for _, e in kept]

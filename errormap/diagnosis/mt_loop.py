@@ -53,6 +53,7 @@ from ..mt_chain import MachineTool
 from ..mt_elements import ChainElementSet
 from ..stats import residual_stats
 from ..units import temperature_mistake
+from .plausibility import stated_noise
 
 ERROR_COLUMNS = ("dx_um", "dy_um", "dz_um")
 MAX_ERROR_UM = 5000.0
@@ -206,24 +207,6 @@ def load_mt_checks(path, machine: MachineTool, units: str = "check") -> MTChecks
             dup = np.setdiff1d(np.arange(seq.size), first)[0]
             raise InputError(f"{path}: row {rows[dup]}, column 'seq': duplicated value {seq[dup]}")
     return MTChecks(axes, meas, cond, seq, rows, str(path), stated_noise(path, t.comments))
-
-
-def stated_noise(path, comments) -> float | None:
-    """The noise σ (μm, > 0) a check file states in a ``# noise_um: σ`` header line, or None (none stated, or 0: a
-    noise-free simulation states nothing a noise can be judged against); InputError naming the file when the
-    line is there but its value is not a finite number ≥ 0."""
-    for c in comments:
-        key, sep, value = c.partition(":")
-        if sep and key.strip() == "noise_um":
-            try:
-                v = float(value)
-            except ValueError:
-                v = float("nan")
-            if not (np.isfinite(v) and v >= 0):
-                raise InputError(f"{path}: header line 'noise_um': expected the instrument's noise σ in μm "
-                                 f"(a number ≥ 0), got {value.strip()!r}")
-            return v if v > 0 else None
-    return None
 
 
 # -- the update ---------------------------------------------------------------------------------

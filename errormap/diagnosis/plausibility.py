@@ -128,6 +128,24 @@ def check_deviations(path, measured_um, predicted_um, *, rows=None, noise_um: fl
         raise InputError(f"{path}: {where(m[0])}{m[1]}")
 
 
+def stated_noise(path, comments) -> float | None:
+    """The noise σ (μm, > 0) a check file states in a ``# noise_um: σ`` header line, or None (none stated, or 0: a
+    noise-free simulation states nothing a noise can be judged against); InputError naming the file when the
+    line is there but its value is not a finite number ≥ 0."""
+    for c in comments:
+        key, sep, value = c.partition(":")
+        if sep and key.strip() == "noise_um":
+            try:
+                v = float(value)
+            except ValueError:
+                v = float("nan")
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"{path}: header line 'noise_um': expected the instrument's noise σ in μm "
+                                 f"(a number ≥ 0), got {value.strip()!r}")
+            return v if v > 0 else None
+    return None
+
+
 # -- the verdict of a diagnosis ------------------------------------------------------------------------------
 NOISE_EXCESS = 2.0
 """A noise σ estimated from the checks (with the model update) above this many times the instrument's stated σ
@@ -183,7 +201,8 @@ def diagnosis_verdict(summary: dict) -> dict:
     reasons = []
     stated, est = summary.get("noise_sigma_stated_um"), summary.get("noise_sigma_estimated_um")
     if stated and est is not None and est > NOISE_EXCESS * stated:
-        reasons.append(f"the check noise estimated with the update (σ = {est:.3g} μm) is {est / stated:.3g}× the "
+        how = summary.get("noise_sigma_estimated_how", "the check noise estimated with the update")
+        reasons.append(f"{how} (σ = {est:.3g} μm) is {est / stated:.3g}× the "
                        f"stated σ = {stated:.3g} μm (more than {NOISE_EXCESS:g}×): the checks or the model cannot be "
                        "right; not at the floor")
     kept = summary["kept_stage"]
@@ -230,3 +249,36 @@ def mirrored_ball_columns(nominal_mm, measured_mm, columns=BALL_COLUMNS) -> str 
     return (f"columns {', '.join(repr(c) for c in columns)}: the ball coordinates are a mirror image of the machine "
             f"(a tracker pose leaves RMS {np.sqrt(proper / n):.3g} mm, a mirror {np.sqrt(mirror / n) * 1e3:.3g} μm): "
             "two columns exchanged, or one negated?")
+
+
+# -- the verdict of an arm calibration ----------------------------------------------------------------------
+ARM_NOISE_EXCESS = NOISE_EXCESS
+"""An arm's kept model whose held-out residual, per coordinate and in units of the stated tracker σ (RMS of
+r/σ), is above this fails the verdict: noise alone gives 1 (±5 % at 2 SE with 100 held-out poses), so 2× is
+model error or data that contradict the stated noise, as for the machine tools' :data:`NOISE_EXCESS`."""
+
+
+def arm_verdict(kept: str, r_kept_mm, r_plain_mm, sigma_mm=None) -> dict:
+    """``{"status", "reasons", "held_out"}`` of an arm calibration, judged on its held-out poses: failed when the kept
+    model (``kept``, residual vectors ``r_kept_mm`` (m, 3), measured − model) loses to the plain least-squares
+    calibration (``r_plain_mm`` (m, 3)) by more than :data:`BASELINE_Z` paired standard errors, or leaves a residual
+    above :data:`ARM_NOISE_EXCESS` times the stated tracker σ per coordinate (``sigma_mm``: scalar or (m,) per pose,
+    None: not stated, not judged)."""
+    rk, rp = np.asarray(r_kept_mm, float), np.asarray(r_plain_mm, float)
+    rms_k, rms_p = float(np.sqrt(np.mean(np.sum(rk ** 2, 1)))), float(np.sqrt(np.mean(np.sum(rp ** 2, 1))))
+    z = paired_z(rk, rp)
+    held = {"poses": int(len(rk)), "kept_rms_mm": rms_k, "plain_lsq_rms_mm": rms_p, "paired_z_plain_over_kept": z,
+            "residual": "measured residual (measured − model) on the held-out poses, 3-D norm RMS"}
+    reasons = []
+    if z > BASELINE_Z:
+        reasons.append(f"the kept model ({kept}, held-out RMS {rms_k:.4g} mm) loses to the plain least-squares "
+                       f"calibration ({rms_p:.4g} mm, paired z = {z:.2f})")
+    if sigma_mm is not None:
+        sig = np.broadcast_to(np.asarray(sigma_mm, float).reshape(-1, 1), rk.shape)
+        ratio = float(np.sqrt(np.mean((rk / sig) ** 2)))
+        held.update(noise_ratio=ratio, sigma_stated_mm=float(np.sqrt(np.mean(sig ** 2))))
+        if ratio > ARM_NOISE_EXCESS:
+            reasons.append(f"the held-out residual per coordinate is {ratio:.3g}× the stated tracker σ "
+                           f"({held['sigma_stated_mm']:.3g} mm; more than {ARM_NOISE_EXCESS:g}×): the stated noise "
+                           "or the model cannot be right")
+    return {"status": "failed" if reasons else "passed", "reasons": reasons, "held_out": held}

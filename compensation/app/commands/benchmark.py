@@ -69,12 +69,16 @@ def run(args) -> int:
     else:
         machines = [load_machine(None, expect_kind=k) for k in ("grinder", "hexapod", "tripod")]
     doc = run_benchmark(machines, args.out, s, tracking_uri=args.tracking_uri, track=not args.no_track)
+    from ..reports.benchmark import verdict_failed
     avail = [r for r in doc["rows"] if r["available"]]
-    print(f"{len(avail)} of {len(doc['rows'])} rows measured in {doc['seconds']:.0f} s", file=sys.stderr)
+    failed = [r for r in avail if verdict_failed(r)]
+    print(f"{len(avail)} of {len(doc['rows'])} rows measured in {doc['seconds']:.0f} s"
+          + (f"; {len(failed)} of them with a failed model verdict (not counted)" if failed else ""), file=sys.stderr)
     print(f"{'machine':8s} {'path':10s} {'true RMS um':>11s} {'max um':>9s}  condition")
     for r in doc["rows"]:
         if r["available"]:
-            print(f"{_name(r):8s} {r['path']:10s} {r['true_rms_um']:11.3f} {r['true_max_um']:9.3f}  {r['condition']}")
+            print(f"{_name(r):8s} {r['path']:10s} {r['true_rms_um']:11.3f} {r['true_max_um']:9.3f}  {r['condition']}"
+                  + ("  [verdict FAILED: not counted]" if verdict_failed(r) else ""))
         else:
             print(f"{_name(r):8s} {r['path']:10s} {'n/a':>11s} {'':9s}  {r['condition']}: {r['not_available']}")
     for k in doc.get("skipped", []):

@@ -34,8 +34,10 @@ def register(subparsers):
     g.add_argument("--check", help="separate pose CSV for the held-out residual")
     g.add_argument("--holdout", type=float, default=0.2, help="fraction of POSES held out (default 0.2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the hold-out split")
+    p.add_argument("--noise-um", type=float, default=None, help="measurement noise per component (um); hexapod / "
+                   "tripod: estimated if omitted; serial arm: the tracker's stated σ the verdict judges the held-out "
+                   "residual against (default: the poses' sigma_mm column, else not judged)")
     pkm = p.add_argument_group("hexapod / tripod only (refused for a serial arm)")
-    pkm.add_argument("--noise-um", type=float, default=None, help="measurement noise per component (um); estimated if omitted")
     pkm.add_argument("--no-scales", action="store_true", help="keep the leg scales at the machine file's values "
                      "(default: identify them)")
     pkm.add_argument("--scales", action="store_true", help=argparse_suppress())
@@ -56,7 +58,7 @@ def register(subparsers):
     p.set_defaults(func=run)
 
 
-PKM_ONLY = {"noise_um": "--noise-um", "no_scales": "--no-scales", "scales": "--scales", "no_loop": "--no-loop",
+PKM_ONLY = {"no_scales": "--no-scales", "scales": "--scales", "no_loop": "--no-loop",
             "no_register": "--no-register", "lever_mm": "--lever-mm", "lambda_rule": "--lambda-rule",
             "compare_rules": "--compare-rules"}
 """Options of the parallel-machine calibration (attribute → option)."""
@@ -112,12 +114,15 @@ def run_serial(chain, args) -> int:
     """The arm branch: geometric + learned stages, plain baselines beside them (docs/arms.md)."""
     from ..workflows.arm_calibration import ArmCalibrationSettings, run_arm_calibration
     s = ArmCalibrationSettings(poses=args.poses, check=args.check, holdout=args.holdout, seed=args.seed,
-                               learned=not args.no_learned, k_folds=5 if args.folds is None else args.folds)
+                               learned=not args.no_learned, k_folds=5 if args.folds is None else args.folds,
+                               noise_um=args.noise_um)
     out = Path(args.out)
     doc = run_arm_calibration(chain, s, out)
     for r in doc["stages"] + doc["baselines"]:
         print(f"calibrate: held-out {r['name']}: mean {r['mean_mm']:.4f} mm, RMS {r['rms_mm']:.4f} mm, "
               f"max {r['max_mm']:.4f} mm")
     print(f"calibrate: kept stage: {doc['kept_stage']} ({doc['kept_why']})")
+    v = doc["verdict"]
+    print("calibrate: verdict: passed" if v["status"] == "passed" else "calibrate: verdict: FAILED: " + "; ".join(v["reasons"]))
     print(f"calibrate: wrote {out / 'calibration.json'} and {out / 'report.html'}")
-    return 0
+    return 1 if v["status"] == "failed" else 0

@@ -23,9 +23,9 @@ def register(sub):
                                                      "A machine-tool chain (mill-xyz, ...) runs the generic loop "
                                                      "(errormap/diagnosis/mt_loop.py)")
     p.add_argument("--noise-um", type=float, default=None,
-                   help="the checks' known noise σ per axis (μm): the noise floor √3·σ and the σ the verdict "
-                        "compares the update's estimate with; default: the σ the checks file states (a machine-tool "
-                        "chain) and the floor from the update's estimate")
+                   help="the checks' stated noise σ per axis (μm; default: the file's '# noise_um: σ' line): a "
+                        "noise estimated from the checks above 2σ fails the verdict; also the held-out noise floor "
+                        "√3·σ (default: the σ the model update estimates)")
     p.add_argument("--model", default=None, help="element-set file (JSON) or MLflow run id of a learned field")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--tracking-uri", default=None)
@@ -141,7 +141,8 @@ def run(args) -> int:
         print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
         summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,
                                     args.featurepoints, retrain, update=not args.no_update, units=args.units,
-                                    units_option="--units", learn=not args.no_learned, track=args.track)
+                                    units_option="--units", learn=not args.no_learned, track=args.track,
+                                    noise_um=args.noise_um)
         if "stages" in summary:
             st = summary["stages"]
             print("held-out RMS: identified {:.3g} -> updated {:.3g} -> updated + effects {:.3g} um".format(

@@ -34,6 +34,10 @@ def register(sub):
                         "(default 0.01)")
     p.add_argument("--noise-um", type=float, default=None,
                    help="--update: σ of one measurement in μm (default: half the model's band)")
+    from ...fields import FAILED_VERDICT
+    p.add_argument("--allow", action="append", default=[], choices=(FAILED_VERDICT,),
+                   help=f"{FAILED_VERDICT}: apply a model whose diagnosis verdict failed (refused by default); "
+                        "recorded in the output's header (and in --save-model's file)")
     p.set_defaults(func=run)
 
 
@@ -43,6 +47,17 @@ def _check_args(args):
                                 "--noise-um": args.noise_um}.items() if v is not None]
         if given:
             raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} with --update only")
+
+
+def save_updated(model, path, verdict):
+    """Write the updated drift model; one updated from a model whose verdict failed keeps that verdict (key
+    ``verdict``: it is refused downstream as its source was, unless ``--allow failed-verdict``)."""
+    from errormap.io import write_json
+    doc = model.to_json()
+    if verdict and verdict["status"] == "failed":
+        doc["verdict"] = {"status": "failed", "reasons": [*verdict["reasons"], f"updated online from {verdict['model']}, "
+                                                                             "whose verdict failed"]}
+    return write_json(path, doc)
 
 
 def run(args) -> int:
@@ -55,7 +70,9 @@ def run(args) -> int:
     from errormap.diagnosis.drift_update import DRIFT_PER_H, DriftUpdater
     from errormap.io import InputError, write_csv
 
+    from ...fields import FAILED_VERDICT, check_verdict
     _check_args(args)
+    verdict = check_verdict(args.model, FAILED_VERDICT in args.allow)   # a failed diagnosis: refused unless allowed
     model = DriftModel.load(args.model)
     log = load_drift_log(args.log, causal=True, require_displacement=False, time_unit=args.time_unit,
                          sparse_displacement=args.update, units=args.units)
@@ -70,6 +87,9 @@ def run(args) -> int:
               file=sys.stderr)
     head = [f"model: {args.model}", f"log: {args.log}", f"log time unit: {log.notes['time_unit']}",
             f"log temperature units: {log.notes['units']}"]
+    if verdict and verdict.get("overridden_by"):
+        head.append(f"allowed: {FAILED_VERDICT} ({verdict['file']}: verdict failed: "
+                    f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})")
     cols = compensation_columns(log, model)       # raises naming any input the model needs and the log lacks
     d = input_novelty(model, log)
     if d is not None:
@@ -119,7 +139,7 @@ def run(args) -> int:
                  f"noise_um {args.noise_um if args.noise_um else 'half the band'}; <ch>_pred_um uses measurements "
                  "strictly before each row; <ch>_fixed_pred_um is the saved model"]
         if args.save_model:
-            print(f"wrote {res.model.save(args.save_model)}")
+            print(f"wrote {save_updated(res.model, args.save_model, verdict)}")
     else:
         for ch in model.channels:
             if ch in log.disp_um:

@@ -19,7 +19,7 @@ def register(sub):
         description="For each [[machine]] of FLEET (TOML, docs/schemas.md): identify the elements from its sweeps, "
                     "train the network on their feature points (an MLflow run), diagnose its checks (measured "
                     "residual). Writes DIR/<name>/ per machine and DIR/fleet_summary.json. Exit status 4 when a "
-                    "machine failed.")
+                    "machine failed, else 1 when a machine's diagnosis verdict failed (marked, never a pass).")
     p.add_argument("fleet", metavar="FLEET", help="fleet file (TOML, format volcomp-fleet/1)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (one sub-folder per machine)")
     p.add_argument("--force", action="store_true", help="write into a DIR that already holds files")
@@ -40,7 +40,8 @@ def run(args) -> int:
     from training.tracking import default_tracking_uri
 
     from ..workflows.cluster import RayExecutor
-    from ..workflows.fleet import SUMMARY_NAME, check_tracking_uri, read_fleet, run_fleet, validate_inputs
+    from ..workflows.fleet import (SUMMARY_NAME, check_tracking_uri, fleet_counts, read_fleet, run_fleet,
+                                   validate_inputs)
     check_cluster_args(args)
     try:
         hidden = [int(h) for h in args.hidden.split(",")]
@@ -71,19 +72,34 @@ def run(args) -> int:
     except ClusterError as exc:
         print(one_line(f"volcomp fleet: error: {exc}"), file=sys.stderr)
         return EXIT_CLUSTER
+    counts = fleet_counts(results)
     summary_path = write_json(out / SUMMARY_NAME, {
         "fleet": str(args.fleet), "tracking_uri": uri, "ran_on": where,
         "settings": {k: v for k, v in settings.items() if k not in ("tracking_uri", "fleet")},
         "residual": "diagnosis: measured (check measurement − model prediction) on held-out checks",
-        "machines": results})
-    failed = [r for r in results if r.get("status") != "ok"]
-    for r in results:
-        if r.get("status") == "ok":
-            d = r["diagnosis"]
-            print(f"{r['name']}: run {r['run_id']}, train max {r['train'].get('train_max_um', float('nan')):.3g} um; "
-                  f"held-out measured RMS identified {d['diagnose_heldout_rms_identified_um']:.3g} -> final "
-                  f"{d['diagnose_heldout_rms_final_um']:.3g} um")
-    for r in failed:
-        print(one_line(f"volcomp fleet: {r['name']}: failed: {r.get('error')}"), file=sys.stderr)
+        "counts": counts, "machines": results})
+    status = print_results(results)
     print(f"wrote summary: {summary_path}")
-    return EXIT_CLUSTER if failed else 0
+    return status
+
+
+def print_results(results) -> int:
+    """One line per machine (a failed verdict marked as such, never as a pass) and the exit status: 4 when a
+    machine failed, else 1 when a verdict failed, else 0."""
+    from .diagnose import EXIT_FAILED_VERDICT
+    from ..workflows.fleet import STATUS_FAILED, STATUS_OK, STATUS_VERDICT_FAILED, fleet_counts
+    for r in results:
+        if r.get("status") in (STATUS_OK, STATUS_VERDICT_FAILED):
+            d = r["diagnosis"]
+            mark = "" if r["status"] == STATUS_OK else "VERDICT FAILED: "
+            print(one_line(f"{r['name']}: {mark}run {r['run_id']}, train max "
+                           f"{r['train'].get('train_max_um', float('nan')):.3g} um; held-out measured RMS identified "
+                           f"{d['diagnose_heldout_rms_identified_um']:.3g} -> final "
+                           f"{d['diagnose_heldout_rms_final_um']:.3g} um"
+                           + (f" ({'; '.join(r['verdict']['reasons'])})" if mark else "")))
+    for r in results:
+        if r.get("status") not in (STATUS_OK, STATUS_VERDICT_FAILED):
+            print(one_line(f"volcomp fleet: {r['name']}: {STATUS_FAILED}: {r.get('error')}"), file=sys.stderr)
+    c = fleet_counts(results)
+    print(f"fleet: {len(c['passed'])} passed, {len(c['verdict_failed'])} verdict failed, {len(c['failed'])} failed")
+    return EXIT_CLUSTER if c["failed"] else EXIT_FAILED_VERDICT if c["verdict_failed"] else 0

@@ -16,7 +16,7 @@ from errormap.machine import load_machine
 from compensation.app.validate import UsageError
 
 from ...evaluate import load_truth
-from ...fields import load_field, resolve_model
+from ...fields import FAILED_VERDICT, check_verdict, load_field, resolve_model
 from ...nc_state import MACHINE, read_work_offsets
 from ...pathio import read_path
 from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
@@ -48,6 +48,9 @@ def register(sub):
     p.add_argument("--work-offsets", default=None, choices=("machine",),
                    help="'machine': the --path G-code program is written in machine coordinates (recorded in the "
                         "report); a G-code program is refused without it (never an assumed machine zero)")
+    p.add_argument("--allow", action="append", default=[], choices=(FAILED_VERDICT,),
+                   help=f"{FAILED_VERDICT}: compare methods with a model whose diagnosis verdict failed (refused by "
+                        "default); recorded in metrics.json and on the page")
     add_method_arguments(p)
     add_flute_arguments(p)
     p.set_defaults(func=run)
@@ -58,7 +61,7 @@ def run_chain_diagnosis(args) -> int:
     from errormap.io import InputError
     from ..reports.mt_diagnosis import read_json, write_chain_diagnosis_page
     bad = [f for f, v in (("--model", args.model), ("--path", args.path), ("--flute", args.flute),
-                          ("--truth", args.truth)) if v]
+                          ("--truth", args.truth), ("--allow", args.allow)) if v]
     if bad:
         raise UsageError(f"{', '.join(bad)}: with RUN (a diagnose run folder) the page shows that run; the method "
                          "comparison takes --model and --path/--flute without RUN")
@@ -110,15 +113,19 @@ def run(args) -> int:
             path_info["work_offsets"] = offsets.source
     truth = load_truth(args.truth, machine) if args.truth else None
     source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
+    verdict = check_verdict(source.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
     print(f"report: model {source.description}", file=sys.stderr)
     field = load_field(args.model, machine, args.tracking_uri, source=source)
     cmp = compare_methods(field, targets, machine, methods=methods, truth=truth, ga_points=args.ga_points,
                           ga_budget_s=args.ga_budget_s, seed=args.seed, nominal_axes=nominal)
     cmp.info.update({"machine": machine.name, "machine_file": machine.path, "model": args.model,
-                     "model_source": source.to_dict(), "truth": args.truth, **path_info})
+                     "model_source": source.to_dict(), "model_verdict": verdict, "truth": args.truth, **path_info})
     context = {"machine": f"{machine.name} ({machine.path})", "model (error field)": args.model,
                "truth": args.truth or "none (model residual only)", "path": path_info["path"],
                "points": path_info["points"], "seed": args.seed}
+    if verdict and verdict.get("overridden_by"):
+        context["model verdict"] = (f"FAILED ({verdict['file']}), used with --allow {FAILED_VERDICT}: "
+                                    + ("; ".join(verdict["reasons"]) or "no reasons recorded"))
     if "work_offsets" in path_info:
         context["work offsets"] = f"{path_info['work_offsets']} (--work-offsets machine: in machine coordinates)"
     paths = write_report(cmp, Path(args.out), context=context)

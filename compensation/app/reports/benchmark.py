@@ -29,6 +29,12 @@ def _stop(s: dict, prefix: str) -> str:
     return f"for {it} iterations" + (f" (at most {secs:g} s)" if secs is not None else "")
 
 
+def verdict_failed(r) -> bool:
+    """Whether a row's model (its diagnosis or calibration verdict, key ``model_verdict``) failed: such a row is
+    shown, marked, and never counted (no win, no headline, no plot): :func:`_rows` with ``available=True`` skips it."""
+    return (r.get("model_verdict") or {}).get("status") == "failed"
+
+
 def _rows(doc, kind=None, group=None, path=None, available=True):
     out = []
     for r in doc["rows"]:
@@ -39,6 +45,8 @@ def _rows(doc, kind=None, group=None, path=None, available=True):
         if path and r["path"] != path:
             continue
         if available is not None and bool(r.get("available")) != available:
+            continue
+        if available and verdict_failed(r):
             continue
         out.append(r)
     return out
@@ -244,10 +252,18 @@ def _hybrid_counts(pairs, key) -> str:
             f"parametric / hybrid RMS ratio {num(np.median(p[:, 0] / np.maximum(p[:, 1], 1e-12)))}")
 
 
+def _verdict_text(r) -> str | None:
+    v = r.get("model_verdict")
+    return None if not v else "passed" if v.get("status") != "failed" else "FAILED: " + "; ".join(v.get("reasons", []))
+
+
 def _table(rows, cols) -> Table:
-    """``cols``: (key, header) pairs; one row per dict in ``rows``, its class the row's path."""
-    return Table([c[1] for c in cols], [[r.get(key) for key, _ in cols] for r in rows],
-                 row_classes=[r["path"] for r in rows], left=2)
+    """``cols``: (key, header) pairs; one row per dict in ``rows``, its class the row's path; a column "model
+    verdict" where a row carries one (a failed one says so and why)."""
+    if any(r.get("model_verdict") for r in rows):
+        cols = [*cols, ("_verdict", "model verdict")]
+    return Table([c[1] for c in cols], [[_verdict_text(r) if key == "_verdict" else r.get(key) for key, _ in cols]
+                                        for r in rows], row_classes=[r["path"] for r in rows], left=2)
 
 
 GRINDER_COLS = [("condition", "condition"), ("path", "path"), ("true_rms_um", "true RMS (μm)"),
@@ -302,6 +318,8 @@ def render_html(doc: dict) -> str:
     not_available = [f"{r['machine_kind']} / {r['path']} / {r['condition']}: not available: {r.get('not_available')}"
                      for r in _rows(doc, available=False)]
     not_available += [f"{k['machine']}: not available: {k['why']}" for k in doc.get("skipped", [])]
+    not_available += [f"{r['machine_kind']} / {r['path']} / {r['condition']}: not counted: its model's verdict "
+                      f"{_verdict_text(r)}" for r in doc["rows"] if r.get("available") and verdict_failed(r)]
     grinder = None
     g = _rows(doc, "grinder", available=None)
     if g:
@@ -359,7 +377,8 @@ def markdown_table(doc: dict) -> str:
             return "n/a" if r is None else f"n/a: {r.get('not_available')}"
         va, vb = r.get(a), r.get(b)
         f = (lambda v: num(None if v is None else v * scale))
-        return f"{f(va)} / {f(vb)}" if b else f(va)
+        mark = "verdict failed, not counted: " if verdict_failed(r) else ""
+        return mark + (f"{f(va)} / {f(vb)}" if b else f(va))
 
     for (kind, cond), d in by.items():
         p, l = d.get("parametric"), d.get("learned")

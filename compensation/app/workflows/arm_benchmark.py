@@ -50,7 +50,7 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
     row marked not available, never skipped."""
     from errormap.arm_poses import read_arm_poses
 
-    from .arm_calibration import calibrate_arm, errors_mm
+    from .arm_calibration import calibrate_arm, errors_mm, held_out_verdict
     from .arm_compensate import nominal_base_points, read_program
     from .simulate_serial import load_serial_truth, simulate_serial
     base = Path(out_dir) / "arms" / machine.name
@@ -80,6 +80,8 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
             continue
         unc_stats = {"uncompensated_rms_um": float(np.sqrt(np.mean(unc ** 2))), "uncompensated_max_um": float(unc.max())}
         kept = core["kept_stage"]
+        # the verdict `calibrate` writes (the simulated tracker's σ stated): a failed one marks the hybrid row
+        verdict = held_out_verdict(core, check, s.arm_noise_um / 1000.0)
         paths = (("plain LSQ", core["plain_model"], None, "plain geometric LSQ"),
                  ("parametric", core["volcomp_geometric_model"], None, core["geometric_stage"]),
                  ("hybrid", core["geometric_model"], core["kept_learner"], kept))
@@ -87,7 +89,8 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
             e, dt, ok = _landing_um(machine, truth, geo, learner, q_prog, target)
             pred = geo.predict(check.q) + (0 if learner is None else learner.predict(check.q))
             held = errors_mm(check, pred)
-            extra = {"learned_kept": learner is not None, "kept_stage": kept} if path == "hybrid" else {}
+            extra = ({"learned_kept": learner is not None, "kept_stage": kept, "model_verdict": verdict}
+                     if path == "hybrid" else {})
             if not ok.all():
                 log.add(row(machine.name, "serial", path, cname, available=False, stage=stage,
                             not_available=f"{int((~ok).sum())} of {len(ok)} program points did not converge or left "

@@ -71,6 +71,9 @@ class ArmCalibrationSettings:
     learned: bool = True
     k_folds: int = 5
     n_restarts: int = 1
+    noise_um: float | None = None
+    """The tracker's stated noise σ per coordinate (μm) the verdict judges the held-out residual against (None: the
+    poses' ``sigma_mm`` column where they have one, else not judged)."""
 
 
 def errors_mm(poses, pred) -> np.ndarray:
@@ -480,6 +483,22 @@ def load_arm_model(chain, path, band_scale: bool = False, base_frame: bool = Fal
     return (geo, learner, band_scale_of(d, path)) if band_scale else (geo, learner)
 
 
+def held_out_verdict(core, check, sigma_mm=None) -> dict:
+    """The verdict of a calibration (:func:`errormap.diagnosis.plausibility.arm_verdict`) on the held-out poses
+    ``check``: the kept stage's and the plain LSQ calibration's residual vectors there, ``sigma_mm`` the stated
+    tracker σ (scalar or per pose; None: not judged)."""
+    from errormap.diagnosis.plausibility import arm_verdict
+    geo, learner = core["geometric_model"], core["kept_learner"]
+    pred = geo.predict(check.q) + (0.0 if learner is None else learner.predict(check.q))
+    return arm_verdict(core["kept_stage"], check.xyz_mm - pred, check.xyz_mm - core["plain_model"].predict(check.q),
+                       sigma_mm)
+
+
+def stated_sigma_mm(s: ArmCalibrationSettings, check):
+    """The stated tracker σ (mm) the verdict uses: ``--noise-um``, else the held-out poses' ``sigma_mm``, else None."""
+    return s.noise_um / 1000.0 if s.noise_um is not None else check.sigma_mm
+
+
 def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict:
     """Calibrate ``chain`` from ``s.poses``; write ``out/calibration.json`` and ``out/report.html``."""
     log = sys.stderr if log is None else log
@@ -491,6 +510,7 @@ def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict
     core = calibrate_arm(chain, fit, check, learned=s.learned, k_folds=s.k_folds, n_restarts=s.n_restarts,
                          seed=s.seed, log=log)
     doc = model_document(chain, core, s, len(fit), len(check))
+    doc["verdict"] = held_out_verdict(core, check, stated_sigma_mm(s, check))   # failed: calibrate exits 1
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "calibration.json", doc)

@@ -22,6 +22,7 @@ from errormap.io import read_table, write_csv
 from compensation.app.validate import UsageError
 
 from ...arm_compensation import solve_joints
+from ...fields import FAILED_VERDICT, check_verdict
 from .arm_calibration import load_arm_model
 
 EXIT_REFUSED = 3
@@ -53,6 +54,42 @@ def read_program(path, chain, t=None):
     return q, xyz
 
 
+def parse_arm_allow(text) -> tuple:
+    """``--allow`` on a serial arm: only ``failed-verdict`` (use a calibration whose verdict failed); the machine-tool
+    guards (ball, stroke, volume, convergence) have no counterpart here (a point that does not converge or leaves
+    the joint limits always fails its file), so naming one, or a bare ``--allow``, is refused, never ignored."""
+    if text is None:
+        return ()
+    names = tuple(t.strip() for t in str(text).split(",") if t.strip())
+    other = [n for n in names if n != FAILED_VERDICT]
+    if other or not names:
+        raise UsageError(f"--allow {text}: a serial arm takes only --allow {FAILED_VERDICT}; its unconverged or "
+                         "out-of-limit points are never written")
+    return names
+
+
+def overridden_verdict(verdict) -> list[str]:
+    """The header line of a program compensated with a calibration whose verdict failed (``--allow failed-verdict``)."""
+    if not verdict or not verdict.get("overridden_by"):
+        return []
+    return [f"MODEL VERDICT FAILED ({verdict['file']}), used with --allow {FAILED_VERDICT}: "
+            + ("; ".join(verdict["reasons"]) or "no reasons recorded")]
+
+
+def refuse_scale_out(chain, args) -> None:
+    """An arm's program is solved point by point in this process (Newton on the calibrated chain, no moves to
+    split): ``--cluster``, ``--workers``, ``--chunk-points``, ``--max-segment-mm`` are refused, never ignored."""
+    from ...batch import CHUNK_POINTS
+    given = [o for o, v in (("--cluster", getattr(args, "cluster", None)), ("--workers", getattr(args, "workers", None)),
+                            ("--chunk-points", None if getattr(args, "chunk_points", CHUNK_POINTS) == CHUNK_POINTS
+                             else args.chunk_points),
+                            ("--max-segment-mm", None if str(getattr(args, "max_segment_mm", "auto")).lower() == "auto"
+                             else args.max_segment_mm)) if v is not None]
+    if given:
+        raise UsageError(f"{', '.join(given)}: a serial arm's joint program is solved point by point in one process "
+                         f"({chain.name}); leave it out")
+
+
 def run_arm_compensate(chain, args) -> int:
     if getattr(args, "truth", None) is not None:   # never ignored silently
         raise UsageError(f"--truth is not used on a serial arm ({chain.name}): the true residual of a compensated "
@@ -61,12 +98,19 @@ def run_arm_compensate(chain, args) -> int:
     if args.method not in (None, "exact"):
         raise UsageError(f"--method {args.method}: a serial chain is compensated by Newton on its calibrated chain "
                          "(--method exact or none)")
+    refuse_scale_out(chain, args)
+    allow = parse_arm_allow(args.allow)
     geo, learner = load_arm_model(chain, args.model, base_frame=True)
+    verdict = check_verdict(args.model, FAILED_VERDICT in allow)   # a failed calibration: refused unless allowed
     out = Path(args.out)
     srcs = [Path(f) for f in args.files]
     for s in srcs:
         if (out / s.name).resolve() == s.resolve():
             raise UsageError(f"{s}: the output would overwrite the input; choose another --out")
+    existing = [str(out / s.name) for s in srcs if (out / s.name).exists()]
+    if existing and not getattr(args, "force", False):   # never clobbered silently
+        raise UsageError(f"{existing[0]} exists{f' (and {len(existing) - 1} more)' if len(existing) > 1 else ''}; "
+                         "give --force to replace or choose another --out")
     jobs = [(s, *read_program(s, chain)) for s in srcs]
     out.mkdir(parents=True, exist_ok=True)
     status = 0
@@ -83,7 +127,7 @@ def run_arm_compensate(chain, args) -> int:
         cols.update({"x_mm": target[:, 0], "y_mm": target[:, 1], "z_mm": target[:, 2],
                      "model_residual_mm": sol.residual_mm})
         write_csv(out / src.name, cols, header_comments=(
-            f"compensated for machine {chain.name} with {args.model}",
+            *overridden_verdict(verdict), f"compensated for machine {chain.name} with {args.model}",
             "x_mm..z_mm: targets in the robot's base frame; residual: MODEL residual (target - calibrated model at the "
             "compensated joints)",
             f"tool orientation kept: {sol.orientation_kept}"), float_fmt="%.10g")

@@ -55,10 +55,13 @@ def read_points(path, chain):
 
 
 def run_arm_predict(chain, args) -> int:
-    if getattr(args, "allow", None):
-        raise UsageError("--allow: an arm's joint values are checked against the machine's joint limits; nothing "
-                         "to allow")
+    from ...fields import FAILED_VERDICT, check_verdict
+    other = [a for a in getattr(args, "allow", None) or [] if a != FAILED_VERDICT]
+    if other:
+        raise UsageError(f"--allow {other[0]}: an arm's joint values are checked against the machine's joint limits; "
+                         f"only --allow {FAILED_VERDICT} applies")
     geo, learner, band_c = load_arm_model(chain, args.model, band_scale=True, base_frame=True)
+    verdict = check_verdict(args.model, FAILED_VERDICT in (args.allow or []))   # a failed calibration: refused
     q, measured = read_points(args.points, chain)
     band = getattr(args, "band", None)
     if band and (learner is None or learner.chosen_ == "none") and not geo.full_covariance:
@@ -73,6 +76,9 @@ def run_arm_predict(chain, args) -> int:
     cols.update({c: d[:, i] for i, c in enumerate(("dx_mm", "dy_mm", "dz_mm"))})
     meta = [f"machine: {chain.name}", f"model: {args.model}",
             "x_mm..z_mm: calibrated tool point, dx_mm..dz_mm: calibrated minus nominal, both in the robot's base frame"]
+    if verdict and verdict.get("overridden_by"):
+        meta.insert(0, f"allowed: {FAILED_VERDICT} ({verdict['file']}: verdict failed: "
+                       f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})")
     if measured is not None:
         e = measured - p
         cols.update({c: e[:, i] for i, c in enumerate(("ex_mm", "ey_mm", "ez_mm"))})

@@ -602,7 +602,8 @@ class GrinderBench:
                            stage=doc["stage"], n_checks=len(checks),
                            checks_rms_before_um=summary["stages"]["identified"]["held_out"]["rms_um"],
                            checks_rms_after_um=summary["stages"][doc["stage"]]["held_out"]["rms_um"],
-                           check_noise_um=s.check_noise_um, **(learned if path == "hybrid" else {}),
+                           check_noise_um=s.check_noise_um, model_verdict=summary.get("verdict"),
+                           **(learned if path == "hybrid" else {}),
                            **{**common, "n_measurements": common["n_measurements"] + len(checks)})
                 self.log.add(_with_volume(row, self._volume(truth, field_)))
                 done.append(path)

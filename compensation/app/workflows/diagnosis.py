@@ -132,8 +132,11 @@ def _write(out_dir, summary, page):
 def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
                tracking_uri=None, featurepoints=None, retrain=None, fit_field=None,
                field_=None, update: bool = True, units: str = "check",
-               units_option: str | None = None, learn: bool = True, track: bool = False):
+               units_option: str | None = None, learn: bool = True, track: bool = False,
+               noise_um: float | None = None):
     """Diagnose ``checks_path`` against ``model_spec``; returns (summary, paths).
+    ``noise_um``: the instrument's noise σ per coordinate (μm; default: the file's ``# noise_um:`` line): a noise
+    estimate far above it fails the verdict (:func:`errormap.diagnosis.plausibility.diagnosis_verdict`).
     ``track``: a kept learned residual is also logged as an MLflow run (``tracking_uri``).
 
     ``field_`` overrides loading ``model_spec`` (tests, benchmarks). With a learned model
@@ -153,13 +156,16 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
             print(f"diagnose: model {src.description}, covariance {cov}: closed loop (update, then effects)",
                   file=sys.stderr)
             return run_closed_loop(checks_path, machine, model_spec, out_dir, settings, source=src, units=units,
-                                   units_option=units_option, learn=learn, track=track, tracking_uri=tracking_uri)
+                                   units_option=units_option, learn=learn, track=track, tracking_uri=tracking_uri,
+                                   noise_um=noise_um)
         why = ("--no-update" if cov is not None and cov.is_file() else
                f"no covariance {cov} beside it (written by `volcomp identify`)" if cov is not None else
                "a learned field")
         print(f"diagnose: model {src.description}; no model update ({why}): effects on the model as it is",
               file=sys.stderr)
     checks = load_checks(checks_path, machine, units=units, units_option=units_option)
+    if noise_um is not None:
+        checks.stated_noise_um = float(noise_um)
     settings = settings or DiagnosisSettings()
     settings.validate(len(checks))
     learned = src is not None and src.kind in ("network", "mlflow")
@@ -172,7 +178,13 @@ def run_checks(checks_path, machine, model_spec, out_dir, settings: DiagnosisSet
     summary.update(noise_record(settings.noise_um, None, summary["rms_after_um"]))
     summary.update({"format": CHECKS_DIAGNOSIS_FORMAT, "checks": str(checks_path), "model": str(model_spec),
                     "machine": machine.name, "model_source": src.to_dict() if src is not None else {"kind": "field given by the caller"},
-                    "model_update": False, "units": units})
+                    "model_update": False, "units": units, "kept_stage": "effects",
+                    "rms_final_um": summary["rms_after_um"],
+                    "noise_sigma_estimated_um": float(np.sqrt(np.mean(d.residual_after_um[d.hold_idx] ** 2))),
+                    "noise_sigma_estimated_how": "the model's held-out residual per coordinate (after the effects)",
+                    "noise_sigma_stated_um": checks.stated_noise_um})
+    from errormap.diagnosis.plausibility import diagnosis_verdict
+    summary["verdict"] = diagnosis_verdict(summary)   # no update, no baseline: the noise against the stated one
     if d.selector.terms_ and fp is not None and (learned or fit_field is not None):
         axis_only = [t for t in d.selector.terms_ if not t.needs]
         alias = grid_aliasing(fp, d.corrected) if axis_only and len(axis_only) == len(d.selector.terms_) else None
@@ -394,7 +406,9 @@ def closed_loop_model(machine, cov, checks, settings: DiagnosisSettings | None =
         model_fit, ship_cov = backfit_base["fit"]
         summary["effects"] = _with_terms_of(summary["effects"], model_fit.terms, None)
     from errormap.diagnosis.plausibility import diagnosis_verdict, noise_record
-    summary.update(noise_record(settings.noise_um, loop.update.sigma_um, summary["rms_final_um"]))
+    floor = noise_record(settings.noise_um, loop.update.sigma_um, summary["rms_final_um"])
+    # the floor from the given σ or the update's; the verdict's estimate and stated σ are the loop's (held-out residual)
+    summary.update({k: floor[k] for k in ("noise_sigma_source", "noise_floor_um", "held_out_over_floor")})
     summary["verdict"] = diagnosis_verdict(summary)   # failed: volcomp diagnose exits 1
     model = {"format": "volcomp-diagnosed-model/1", "elements": UPDATED_ELEMENTS, "stage": summary["kept_stage"],
              "terms": summary["effects"], "needs": sorted({c for e in summary["effects"] for c in e.get("needs", [])}),
@@ -418,7 +432,8 @@ def closed_loop_model(machine, cov, checks, settings: DiagnosisSettings | None =
 
 def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: DiagnosisSettings | None = None,
                     source=None, units: str = "check", units_option: str | None = None, learn: bool = True,
-                    track: bool = False, tracking_uri=None, refit_all: bool = True, refit_mode: str = "hyper"):
+                    track: bool = False, tracking_uri=None, refit_all: bool = True, refit_mode: str = "hyper",
+                    noise_um: float | None = None):
     """The closed loop on an identified element set with its covariance; returns (summary, paths).
     ``source``: the recognised model (:class:`compensation.fields.ModelSource`), else resolved here.
     Loads the files, runs :func:`closed_loop_model` (``learn``, ``refit_all``, ``refit_mode`` are its
@@ -429,6 +444,8 @@ def run_closed_loop(checks_path, machine, model_spec, out_dir, settings: Diagnos
     from errormap.elements import ElementSet
     from errormap.uncertainty import ElementCovariance, covariance_path
     checks = load_checks(checks_path, machine, units=units, units_option=units_option)
+    if noise_um is not None:   # the user's word over the file's
+        checks.stated_noise_um = float(noise_um)
     (settings or DiagnosisSettings()).validate(len(checks))
     src = require_kind(source or resolve_model(model_spec), ("elements",), "the closed loop updates")
     el = ElementSet.load(src.path)

@@ -137,10 +137,29 @@ def _log_to_run(uri: str, run_id: str, metrics: dict, files, tags: dict) -> None
         client.log_artifact(run_id, str(f), artifact_path="diagnosis")
 
 
+STATUS_OK, STATUS_VERDICT_FAILED, STATUS_FAILED = "ok", "verdict-failed", "failed"
+"""A machine's ``status`` in the fleet summary: it ran and its diagnosis verdict passed; it ran and the verdict
+failed (its files are written, with the verdict in them; never counted as a pass); it did not run (``error``)."""
+
+
+def machine_status(verdict: dict) -> str:
+    """``status`` of a machine that ran, from its diagnosis verdict (:data:`STATUS_OK` only when it passed)."""
+    return STATUS_VERDICT_FAILED if verdict.get("status") == "failed" else STATUS_OK
+
+
+def fleet_counts(results) -> dict:
+    """``{"passed": [names], "verdict_failed": [names], "failed": [names]}`` of the machines' summaries."""
+    by = {STATUS_OK: "passed", STATUS_VERDICT_FAILED: "verdict_failed"}
+    out = {"passed": [], "verdict_failed": [], "failed": []}
+    for r in results:
+        out[by.get(r.get("status"), "failed")].append(r.get("name"))
+    return out
+
+
 def run_machine(m: dict, out_dir: str, settings: dict) -> dict:
     """Identify → train → diagnose one machine into ``out_dir/<name>``; returns its summary
-    (``status`` ``"ok"`` or ``"failed"`` with a one-line ``error``; a failed machine's folder
-    is removed). ``settings``: ``tracking_uri``, ``train_iter``, ``hidden``, ``bootstrap``,
+    (``status`` ``"ok"``, ``"verdict-failed"`` (:func:`machine_status`) or ``"failed"`` with a one-line
+    ``error``; a failed machine's folder is removed). ``settings``: ``tracking_uri``, ``train_iter``, ``hidden``, ``bootstrap``,
     ``seed``, ``grid``, ``threads`` (torch threads, 1 on a cluster), ``fleet``."""
     from ..validate import one_line
     t0 = time.perf_counter()
@@ -206,8 +225,11 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
     if res.run_id:
         _log_to_run(s["tracking_uri"], res.run_id, metrics,
                     [p for p in paths if Path(p).suffix in (".json", ".html")],
-                    {"diagnosis_effects": ",".join(f"{e['kind']}:{e['axis']}" for e in summary["effects"]) or "none"})
-    return {"name": name, "status": "ok", "machine_file": machine.path, "run_id": res.run_id,
+                    {"diagnosis_effects": ",".join(f"{e['kind']}:{e['axis']}" for e in summary["effects"]) or "none",
+                     "diagnosis_verdict": (summary.get("verdict") or {}).get("status", "passed")})
+    verdict = summary.get("verdict") or {"status": "passed", "reasons": []}
+    return {"name": name, "status": machine_status(verdict), "verdict": verdict, "machine_file": machine.path,
+            "run_id": res.run_id,
             "tracking_uri": s["tracking_uri"], "train_iterations": int(res.history.iterations),
             "train": {k: float(res.metrics[k]) for k in ("train_max_um", "train_rms_um", "val_max_um", "val_rms_um")
                       if k in res.metrics},

@@ -278,7 +278,7 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
                     "held_out_ols_linear_um": st["baseline_ols_linear"]["held_out"]["rms_um"],
                     "held_out_ols_update_um": st["baseline_ols_update"].get("held_out", {}).get("rms_um"),
                     "noise_floor_um": floor, "held_out_over_floor": summary["held_out_rms_um"] / floor,
-                    "n_measurements": n_sweep + s.n_checks}
+                    "n_measurements": n_sweep + s.n_checks, "model_verdict": summary.get("verdict")}
             fields.append(("after closed loop", lm, id_s + diag_s, loop))
         except Exception as exc:  # the other conditions still run; the failure is a row, never faked numbers
             log.add(row(machine.name, machine.kind, "parametric", cname, available=False,
