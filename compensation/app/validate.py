@@ -442,3 +442,9 @@ def _probe_writable(flag: str, text: str, folder) -> None:
         os.unlink(probe)
     except OSError:  # pragma: no cover - a file we just made
         pass
+
+
+EXIT_FAILED_VERDICT = 1
+"""A diagnosis that ran but whose verdict failed (its model loses to a plain baseline, or the noise it estimates
+is far above the stated one): the files are written, with the verdict in them, and the status is 1 (as
+``calibrate``'s ``success: false``)."""

@@ -7,7 +7,7 @@ import sys
 from errormap.diagnosis.pipeline import DiagnosisSettings
 from errormap.machine import check_machine_kind, load_machine
 from training import DEFAULT_MAX_ITER
-from compensation.app.validate import UsageError
+from compensation.app.validate import EXIT_FAILED_VERDICT, UsageError
 
 from ..options import add_units_option
 
@@ -82,10 +82,6 @@ def band_label(c: dict) -> str:
     return txt
 
 
-EXIT_FAILED_VERDICT = 1
-"""A diagnosis that ran but whose verdict failed (its model loses to a plain baseline, or the noise it estimates
-is far above the stated one): the files are written, with the verdict in them, and the status is 1 (as
-``calibrate``'s ``success: false``)."""
 BAND_CLAIM_COVERAGE = 0.9   # below this held-out coverage the band is flagged as not holding its 95 %
 
 

@@ -86,7 +86,7 @@ def run(args) -> int:
 def print_results(results) -> int:
     """One line per machine (a failed verdict marked as such, never as a pass) and the exit status: 4 when a
     machine failed, else 1 when a verdict failed, else 0."""
-    from .diagnose import EXIT_FAILED_VERDICT
+    from ..validate import EXIT_FAILED_VERDICT
     from ..workflows.fleet import STATUS_FAILED, STATUS_OK, STATUS_VERDICT_FAILED, fleet_counts
     for r in results:
         if r.get("status") in (STATUS_OK, STATUS_VERDICT_FAILED):
