@@ -837,13 +837,7 @@ def _tcp(t, path, axes):
     check_known_keys(t, ("switch_on", "switch_off"), "tcp", path)
     if not any(a.kind != "linear" for a in axes):
         raise MachineFileError(f"{path}: 'tcp': the machine has no rotary axis (tool-centre-point kinematics need one)")
-    out = {}
-    for k in ("switch_on", "switch_off"):
-        v = t.get(k)
-        if not (isinstance(v, list) and v and all(isinstance(c, str) and re.fullmatch(r"M\d+", c) for c in v)):
-            raise MachineFileError(f"{path}: key 'tcp.{k}': expected a list of M codes like [\"M428\"], "
-                                   f"got {short_repr(v)}")
-        out[k] = tuple(int(c[1:]) for c in v)
+    out = {k: _m_codes(t.get(k), f"tcp.{k}", "M428", path) for k in ("switch_on", "switch_off")}
     if set(out["switch_on"]) & set(out["switch_off"]):
         raise MachineFileError(f"{path}: 'tcp': an M code both switches TCP on and off")
     return out
@@ -861,14 +855,16 @@ def _spindle(t, path, axes):
     if t.get("axis") not in rotary:
         raise MachineFileError(f"{path}: key 'spindle.axis': expected a rotary axis of the machine {rotary}, "
                                f"got {short_repr(t.get('axis'))}")
-    out = {"axis": t["axis"]}
-    for k in ("turning_on", "turning_off"):
-        v = t.get(k)
-        if not (isinstance(v, list) and v and all(isinstance(c, str) and re.fullmatch(r"M\d+", c) for c in v)):
-            raise MachineFileError(f"{path}: key 'spindle.{k}': expected a list of M codes like [\"M3\"], "
-                                   f"got {short_repr(v)}")
-        out[k] = tuple(int(c[1:]) for c in v)
-    return out
+    codes = {k: _m_codes(t.get(k), f"spindle.{k}", "M3", path) for k in ("turning_on", "turning_off")}
+    return {"axis": t["axis"], **codes}
+
+
+def _m_codes(v, key: str, example: str, path) -> tuple:
+    """A machine file's list of M codes (``["M3", "M4"]``) as their numbers; anything else names ``key``."""
+    if not (isinstance(v, list) and v and all(isinstance(c, str) and re.fullmatch(r"M\d+", c) for c in v)):
+        raise MachineFileError(f"{path}: key '{key}': expected a list of M codes like [\"{example}\"], "
+                               f"got {short_repr(v)}")
+    return tuple(int(c[1:]) for c in v)
 
 
 def _targets(t, path, axes):
