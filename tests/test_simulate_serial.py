@@ -100,19 +100,19 @@ def test_users_path_simulate_calibrate_compensate_lands_within_the_noise(tmp_pat
     prog, comp = read_table(d / "program.csv"), read_table(d / "comp" / "program.csv")
     q0 = np.stack([prog.float(c) for c in ur5.joint_columns], 1)
     q1 = np.stack([comp.float(c) for c in ur5.joint_columns], 1)
-    target = ur5.tool_point(q0)
-    after = np.linalg.norm(truth.tool_point(ur5, q1) - target, axis=1)
-    before = np.linalg.norm(truth.tool_point(ur5, q0) - target, axis=1)
+    target = ur5.tool_point(q0)   # the joint program's targets: nominal tool points in the robot's base frame
+    after = np.linalg.norm(truth.base_frame_point(ur5, q1) - target, axis=1)
+    before = np.linalg.norm(truth.base_frame_point(ur5, q0) - target, axis=1)
     assert np.sqrt(np.mean(after ** 2)) <= FLOOR_FACTOR * NOISE_FLOOR_MM < np.sqrt(np.mean(before ** 2))
     def true_R(q):
         return ur5.frames(q + truth.joint_sag_deg(ur5, q), truth.errors)[:, -1, :3, :3]
     D = true_R(q1) @ np.swapaxes(true_R(q0), 1, 2)
     turned = np.arccos(np.clip((np.trace(D, axis1=1, axis2=2) - 1) / 2, -1, 1))
     assert np.median(turned) <= ORIENTATION_MEDIAN_RAD and turned.max() <= ORIENTATION_MAX_RAD
-    # predict: the calibrated tool-point error at the program's joints against the truth's (judge's side)
+    # predict: the calibrated tool-point error at the program's joints against the truth's, both in the robot's base frame
     assert main(["predict", "--machine", "ur5", "--model", str(d / "cal" / "calibration.json"), str(d / "program.csv"),
                  "--out", str(d / "pred.csv")]) == 0
     pred = read_table(d / "pred.csv")
     dp = np.stack([pred.float(c) for c in ("dx_mm", "dy_mm", "dz_mm")], 1)
-    miss = np.linalg.norm(dp - (truth.tool_point(ur5, q0) - target), axis=1)
+    miss = np.linalg.norm(dp - (truth.base_frame_point(ur5, q0) - target), axis=1)
     assert np.sqrt(np.mean(miss ** 2)) <= FLOOR_FACTOR * NOISE_FLOOR_MM

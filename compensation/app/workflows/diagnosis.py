@@ -409,6 +409,8 @@ def closed_loop_model(machine, cov, checks, settings: DiagnosisSettings | None =
     floor = noise_record(settings.noise_um, loop.update.sigma_um, summary["rms_final_um"])
     # the floor from the given σ or the update's; the verdict's estimate and stated σ are the loop's (held-out residual)
     summary.update({k: floor[k] for k in ("noise_sigma_source", "noise_floor_um", "held_out_over_floor")})
+    if summary.get("noise_sigma_stated_um") is None and settings.noise_um is not None:
+        summary["noise_sigma_stated_um"] = float(settings.noise_um)   # --noise-um given to the loop itself
     summary["verdict"] = diagnosis_verdict(summary)   # failed: volcomp diagnose exits 1
     model = {"format": "volcomp-diagnosed-model/1", "elements": UPDATED_ELEMENTS, "stage": summary["kept_stage"],
              "terms": summary["effects"], "needs": sorted({c for e in summary["effects"] for c in e.get("needs", [])}),
