@@ -34,9 +34,9 @@ import numpy as np
 import torch
 
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
-from errormap.io import InputError, load_array, read_document_text, sha256_file
+from errormap.io import InputError, load_array, read_document_text
 
-from .model import A_ENCODINGS, MODEL_FILES, PAPER_HIDDEN, MLPField
+from .model import A_ENCODINGS, MODEL_FILES, PAPER_HIDDEN, MLPField, check_model_files, check_model_format
 from .physics import PHYSICS_FILES, PhysicsPart
 
 CHAIN_FORMAT = "volcomp-chain-mlpfield/1"
@@ -233,19 +233,10 @@ class ChainMLPField(MLPField):
             sc = json.loads(read_document_text(d / "scalers.json", "a trained model's scalers"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{d}: config.json or scalers.json is not valid JSON: {exc}") from None
-        if not isinstance(cfg, dict) or cfg.get("format") != CHAIN_FORMAT:
-            got = cfg.get("format") if isinstance(cfg, dict) else cfg
-            raise InputError(f"{d / 'config.json'}: key 'format': expected {CHAIN_FORMAT!r}, got {got!r}")
+        check_model_format(d, cfg, CHAIN_FORMAT)
         if cfg.get("physics") and cls is ChainMLPField:  # a network on what a fitted physical part leaves
             return ChainPhysicsMLPField.load(d)
-        extra = cls._extra_file_names()
-        for name in extra:
-            if not (d / name).is_file():
-                raise InputError(f"{d}: not a saved {cls.__name__} (missing {name})")
-        for name, sha in (cfg.get("files_sha256") or {}).items():
-            if name in MODEL_FILES + extra and sha256_file(d / name) != sha:
-                raise InputError(f"{d / name}: does not belong to this model (SHA-256 differs from the one "
-                                 f"config.json records); the folder holds a partial or mixed set")
+        check_model_files(cls, d, cfg)
         try:
             m = cls(cfg["inputs"], cfg["periodic"], cfg.get("machine", ""), cfg.get("machine_sha256", ""),
                     cfg["hidden"], cfg["activation"])

@@ -82,6 +82,27 @@ def _check_axes(axes) -> np.ndarray:
     return check_points(axes, "axes (x_mm, z_mm, a_deg)")
 
 
+def check_model_format(d: Path, cfg, fmt: str) -> None:
+    """``config.json`` of the saved model folder ``d`` is a dict whose ``format`` is ``fmt`` (InputError otherwise)."""
+    if not isinstance(cfg, dict) or cfg.get("format") != fmt:
+        got = cfg.get("format") if isinstance(cfg, dict) else cfg
+        raise InputError(f"{d / 'config.json'}: key 'format': expected {fmt!r}, got {got!r}")
+
+
+def check_model_files(cls, d: Path, cfg: dict) -> None:
+    """The saved model folder ``d`` holds ``cls``'s extra files, and every file ``config.json`` records has the
+    SHA-256 recorded there (InputError otherwise). Folders saved before the set was recorded carry no
+    ``files_sha256`` (MLflow runs kept from then)."""
+    extra = cls._extra_file_names()
+    for name in extra:
+        if not (d / name).is_file():
+            raise InputError(f"{d}: not a saved {cls.__name__} (missing {name})")
+    for name, sha in (cfg.get("files_sha256") or {}).items():
+        if name in MODEL_FILES + extra and sha256_file(d / name) != sha:
+            raise InputError(f"{d / name}: does not belong to this model (SHA-256 differs from the one "
+                             f"config.json records); the folder holds a partial or mixed set")
+
+
 class MLPField:
     """A multilayer perceptron error field with built-in scaling.
 
@@ -612,20 +633,10 @@ class MLPField:
             cfg = json.loads(read_document_text(d / "config.json", "a trained model's config"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{d / 'config.json'}: not valid JSON: {exc}") from None
-        if not isinstance(cfg, dict) or cfg.get("format") != FORMAT:
-            got = cfg.get("format") if isinstance(cfg, dict) else cfg
-            raise InputError(f"{d / 'config.json'}: key 'format': expected {FORMAT!r}, got {got!r}")
+        check_model_format(d, cfg, FORMAT)
         if cfg.get("physics") and cls is MLPField:  # a network on what a fitted physical part leaves
             return PhysicsMLPField.load(d)
-        extra = cls._extra_file_names()
-        for name in extra:
-            if not (d / name).is_file():
-                raise InputError(f"{d}: not a saved {cls.__name__} (missing {name})")
-        # folders saved before the set was recorded carry no files_sha256 (MLflow runs kept from then)
-        for name, sha in (cfg.get("files_sha256") or {}).items():
-            if name in MODEL_FILES + extra and sha256_file(d / name) != sha:
-                raise InputError(f"{d / name}: does not belong to this model (SHA-256 differs from the one "
-                                 f"config.json records); the folder holds a partial or mixed set")
+        check_model_files(cls, d, cfg)
         m = cls(cfg["hidden"], cfg["activation"], cfg["a_encoding"])
         sc = json.loads(read_document_text(d / "scalers.json", "a trained model's scalers"))
         m.in_lo_ = np.asarray(sc["in_lo"], dtype=float)
