@@ -41,7 +41,7 @@ def example(n_stations: int | None = None) -> dict:
     truth = ChainField(m, simulate_truth(m, seed=1).elements)
     targets, _ = nominal_and_jacobian(m, axes)
     before = np.linalg.norm(true_residual_um(truth, m, axes, targets), axis=1)
-    after = np.linalg.norm(true_residual_um(truth, m, res.axes, targets), axis=1)
+    after = np.linalg.norm(true_residual_um(truth, m, res.commands, targets), axis=1)
     return {"before": before, "after": after, "model": np.linalg.norm(res.residual_um, axis=1), "cpu_s": cpu,
             "ratio": float(np.sqrt(np.mean(after ** 2) / np.mean(before ** 2)))}
 

@@ -4,9 +4,10 @@ May import ``errormap`` and ``training``. The public names below (``compensation
 docs/api.md) load lazily on first use, so ``import compensation`` imports nothing heavy:
 
 * :func:`compensate_points` — compensated axis commands for points in memory (solver and guards);
-  :class:`PointCompensation` its result; :func:`compensate_joints` for a calibrated arm;
+  :func:`compensate_joints` for a calibrated arm;
 * :func:`compensate_program` — tool-path files (G-code, axis CSV) of a machine-tool chain, written as
   ``volcomp compensate`` writes them; :class:`ChainSettings` how;
+* :class:`Compensation` — the one result of both (commands, residuals, notes, refused, overrides);
 * :func:`save_model` / :func:`load_model` — a model to files every command reads, and back as a field.
 """
 
@@ -14,7 +15,7 @@ _LAZY = {
     "compensate_points": "compensation.compensate",
     "compensate_program": "compensation.compensate",
     "compensate_joints": "compensation.compensate",
-    "PointCompensation": "compensation.compensate",
+    "Compensation": "compensation.compensate",
     "save_model": "compensation.compensate",
     "load_model": "compensation.compensate",
     "ChainSettings": "compensation.app.workflows.mt_compensate",

@@ -13,51 +13,64 @@ residuals μm.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 
-def _require_chain(machine, what: str) -> None:
-    from errormap.mt_chain import MachineTool
-    if not isinstance(machine, MachineTool):
-        raise TypeError(f"{what}: expected a machine-tool chain (load_machine('mill-xyz'), 'grinder-chain', a "
-                        f"kind = \"machine-tool\" file), got {type(machine).__name__}")
+def _chain(machine, what: str):
+    """A machine-tool chain, or the grinder file as its chain (the same axis columns and element names)."""
+    from errormap.estimators import machine_tool
+    return machine_tool(machine, what)
 
 
 @dataclass
-class PointCompensation:
-    """The result of :func:`compensate_points`: ``axes`` (n, k) compensated commands, ``correction_um`` (n,)
-    the tool-point move, ``residual_um`` (n, 3) the MODEL residual (the field's predicted position error left
-    at the compensated commands), ``success`` (n,) converged inside the ball, ``violations`` {guard: indices
-    of the points that violate it}, ``allowed`` (the guards overridden), ``solve`` (the solver's own
-    :class:`compensation.solvers.base.SolveResult`)."""
+class Compensation:
+    """The one result of :func:`compensate_points` and :func:`compensate_program` (scipy.optimize's one
+    result object).
 
-    axes: np.ndarray
-    correction_um: np.ndarray
-    residual_um: np.ndarray
-    success: np.ndarray
-    violations: dict
-    allowed: frozenset
-    solve: object
+    * ``commands`` — points: the compensated axis commands (n, k) in ``machine.axis_columns`` (mm, deg);
+      a program: ``{input file: written output file}`` (refused files are not written and not listed);
+    * ``residual_um`` — points: the MODEL residual (n, 3) μm (the field's predicted position error left at
+      the commands); a program: ``{input file: {"model_max_um", "model_mean_um"[, "true_…"]}}`` as the
+      summary states them (TRUE figures only with a ``truth`` setting);
+    * ``notes`` — one line each: the solver's notes, overridden guards, what the run read;
+    * ``refused`` — ``{guard or input file: one-line reason}``; empty when every output is accepted;
+    * ``overrides`` — the guard names overridden (``allow``), sorted;
+    * ``correction_um`` (n,) the tool-point move, ``success`` (n,) converged inside the ball, ``violations``
+      {guard: point indices}, ``solve`` (:class:`compensation.solvers.base.SolveResult`) — points only;
+    * ``summary`` — a program: the written ``compensate_summary.json`` as a dict.
+    """
+
+    commands: object
+    residual_um: object
+    notes: list = field(default_factory=list)
+    refused: dict = field(default_factory=dict)
+    overrides: tuple = ()
+    correction_um: np.ndarray | None = None
+    success: np.ndarray | None = None
+    violations: dict = field(default_factory=dict)
+    solve: object = None
+    summary: dict | None = None
 
     @property
     def accepted(self) -> bool:
-        """No guard violated that was not overridden (what ``compensate`` writes)."""
-        return not any(len(v) for g, v in self.violations.items() if g not in self.allowed)
+        """Nothing refused: every guard passed or was overridden (what ``compensate`` writes)."""
+        return not self.refused
 
 
 def compensate_points(field, machine, axes, method: str = "exact", seed: int = 0, allow=(),
-                      rotary_limit_deg: float | None = None) -> PointCompensation:
-    """Compensate the points a program commands at ``axes`` (n, k) on a machine-tool chain with the error
-    ``field`` (``Identification.field_``, ``load_model``): targets are the nominal tool points there, the
-    solver ``method`` (:data:`compensation.solvers.CHAIN_METHODS`; ``seed`` for the seeded ones) finds the
-    commands, and every guard runs (``allow``: guard names overridden, as ``--allow``)."""
+                      rotary_limit_deg: float | None = None) -> Compensation:
+    """Compensate the points a program commands at ``axes`` (n, k) on a machine-tool chain (or the grinder
+    file, as its chain) with the error ``field`` (``Identification.field_``, ``load_model``): targets are the
+    nominal tool points there, the solver ``method`` (:data:`compensation.solvers.CHAIN_METHODS`; ``seed``
+    for the seeded ones) finds the commands, and every guard runs (``allow``: guard names overridden, as
+    ``--allow``). Returns a :class:`Compensation`."""
     from . import guards
     from .solvers import CHAIN_METHODS, solve, solver_spec
     from .solvers.chain_exact import check_rotary_limit, nominal_and_jacobian
-    _require_chain(machine, "compensate_points")
+    machine = _chain(machine, "compensate_points(machine=...)")
     if method not in CHAIN_METHODS:
         raise ValueError(f"Expected method in {list(CHAIN_METHODS)}, got {method!r}")
     axes = np.atleast_2d(np.asarray(axes, dtype=float))
@@ -71,8 +84,13 @@ def compensate_points(field, machine, axes, method: str = "exact", seed: int = 0
         options["rotary_limit_deg"] = rotary_limit_deg
     res = solve(method, field, targets, machine, target_axes=axes, progress=False, **options)
     report = guards.check(res, machine, field, allow=allow, target_axes=axes)
-    return PointCompensation(res.axes, res.correction_um, res.residual_um, res.success,
-                             {g: np.asarray(v) for g, v in report.violations.items()}, frozenset(report.allowed), res)
+    violations = {g: np.asarray(v) for g, v in report.violations.items()}
+    refused = {g: f"{len(v)} of {len(axes)} point(s) violate the {g} guard (first: {report.reasons[g][0]}); "
+                  f"allow={g!r} overrides it" for g, v in violations.items() if len(v) and g not in report.allowed}
+    notes = [f"{g}: {len(v)} point(s) overridden (allow)" for g, v in violations.items()
+             if len(v) and g in report.allowed] + ([res.info["note"]] if res.info.get("note") else [])
+    return Compensation(res.axes, res.residual_um, notes, refused, tuple(sorted(report.allowed)), res.correction_um,
+                        res.success, violations, res)
 
 
 def compensate_joints(calibration, q, targets_mm=None):
@@ -100,26 +118,26 @@ def compensate_joints(calibration, q, targets_mm=None):
 
 
 def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_table=None, executor=None,
-                       **settings) -> dict:
-    """Compensate tool-path ``files`` (G-code or axis CSV, by content) of a machine-tool chain with ``model``
-    (a model file, folder or MLflow reference: :func:`save_model` writes one) into ``out_dir``, as
-    ``volcomp compensate --machine`` does. ``work_offsets``: the controller's work offsets, as
-    ``--work-offsets`` (a ``.var`` / CSV file, ``"machine"`` for a program written in machine
+                       **settings) -> Compensation:
+    """Compensate tool-path ``files`` (G-code or axis CSV, by content) of a machine-tool chain (or the grinder
+    file, as its chain) with ``model`` (a model file, folder or MLflow reference: :func:`save_model` writes
+    one) into ``out_dir``, as ``volcomp compensate --machine`` does. ``work_offsets``: the controller's work
+    offsets, as ``--work-offsets`` (a ``.var`` / CSV file, ``"machine"`` for a program written in machine
     coordinates, or a :class:`compensation.nc_state.WorkOffsets`); None (default): a G-code program is
     refused like the CLI refuses it (a controller never runs it at an assumed machine zero).
     ``tool_table``: as ``--tool-table`` (a file or a :class:`compensation.nc_state.ToolTable`).
     ``settings``: the other fields of :class:`compensation.app.workflows.mt_compensate.ChainSettings`
     (``method="exact"``, ``allow``, ``force``, ``truth``, ``chunk_points``, ``max_segment_mm`` …).
     ``executor``: where the chunks are solved (:class:`compensation.batch.LocalExecutor` (default), or
-    :class:`compensation.app.workflows.cluster.RayExecutor` entered as a context manager). Returns the written
-    ``compensate_summary.json`` as a dict (``files``: per input its residuals, guard counts, output or
-    ``refused``)."""
+    :class:`compensation.app.workflows.cluster.RayExecutor` entered as a context manager). Returns a
+    :class:`Compensation` (``commands`` {input: output file}, per-file residual figures, refused files
+    with their guards; ``summary`` the written ``compensate_summary.json``)."""
     import json
 
     from .app.workflows.compensate import SUMMARY_NAME
     from .app.workflows.mt_compensate import ChainSettings, compensate_chain_files
     from .nc_state import ToolTable, WorkOffsets, read_tool_table, read_work_offsets
-    _require_chain(machine, "compensate_program")
+    machine = _chain(machine, "compensate_program(machine=...)")
     files = [files] if isinstance(files, (str, Path)) else list(files)
     if work_offsets is not None and not isinstance(work_offsets, WorkOffsets):
         work_offsets = read_work_offsets(work_offsets)
@@ -128,7 +146,20 @@ def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_t
     s = ChainSettings(**{"method": "exact", **settings, "model": str(model), "out_dir": Path(out_dir),
                          "work_offsets": work_offsets, "tool_table": tool_table})
     compensate_chain_files(files, machine, s, executor=executor)
-    return json.loads((Path(out_dir) / SUMMARY_NAME).read_text(encoding="utf-8"))
+    return _program_result(json.loads((Path(out_dir) / SUMMARY_NAME).read_text(encoding="utf-8")))
+
+
+def _program_result(summary: dict) -> Compensation:
+    """The :class:`Compensation` of a written ``compensate_summary.json``."""
+    entries = summary["files"]
+    commands = {Path(e["input"]): Path(e["output"]) for e in entries if not e.get("refused")}
+    residual = {Path(e["input"]): {k: v for k, v in e.items() if k.startswith(("model_", "true_"))} for e in entries}
+    refused = {Path(e["input"]): f"{e['input']}: refused by guard(s) {', '.join(e.get('refused_guards', []))} "
+                                 "(not written); allow=(GUARD, ...) overrides" for e in entries if e.get("refused")}
+    notes = [f"{e['input']}: {e['note']}" for e in entries if e.get("note")]
+    notes += [f"{e['input']}: overridden " + ", ".join(f"{g} {n}" for g, n in e["overridden"].items())
+              for e in entries if e.get("overridden")]
+    return Compensation(commands, residual, notes, refused, tuple(sorted(summary.get("allow", ()))), summary=summary)
 
 
 def save_model(path, model) -> Path:
@@ -138,31 +169,42 @@ def save_model(path, model) -> Path:
       covariance beside it, ``NAME.cov.npz``, as ``volcomp identify`` writes);
     * a fitted ``ClosedLoop``: its kept elements at ``NAME.elements.json`` and ``path`` the chain model
       (``model.json`` format: elements + effect terms, as ``volcomp diagnose`` writes without a learned
-      residual)."""
-    from errormap.estimators import ClosedLoop, Identification
+      residual);
+    * a fitted ``DriftSelector`` or a ``DriftModel``: the drift model (``drift_model.json`` format; read it
+      back with ``DriftModel.load``)."""
+    from errormap.diagnosis.drift_models import DriftSelector
+    from errormap.estimators import ClosedLoop, Identification, machine_tool
     from errormap.io import companion_path
     path = Path(path)
     if isinstance(model, ClosedLoop):
         from errormap.diagnosis.mt_model import save_chain_model
         model._check_fitted("field_")
         el = model.elements_.save(companion_path(path, ".elements.json"))
-        return save_chain_model(path, model.machine, el, model.terms_, model.kept_stage_)
+        return save_chain_model(path, machine_tool(model.machine, "save_model"), el, model.terms_, model.kept_stage_)
     if isinstance(model, Identification):
         model._check_fitted("elements_")
-        if model.covariance_ is not None:
-            model.result_.save_covariance(companion_path(path, ".cov.npz"))
+        model.result_.save_covariance(companion_path(path, ".cov.npz"))
         model = model.elements_
+    if isinstance(model, DriftSelector):
+        model._check_fitted("model_")
+        model = model.model_
     if not hasattr(model, "save"):
-        raise TypeError(f"save_model: expected an element set or a fitted Identification / ClosedLoop, got "
-                        f"{type(model).__name__}")
+        raise TypeError(f"save_model: expected an element set, a drift model or a fitted Identification / "
+                        f"ClosedLoop / DriftSelector, got {type(model).__name__}")
     return model.save(path)
 
 
 def load_model(spec, machine, tracking_uri: str | None = None):
     """An error field (``predict(axes) -> (n, 3)`` μm) from a model file, folder or MLflow reference for
-    ``machine`` (:func:`compensation.fields.load_field`: recognised by content, refused naming the file)."""
-    from .fields import load_field
-    return load_field(spec, machine, tracking_uri)
+    ``machine`` (:func:`compensation.fields.load_field`: recognised by content, refused naming the file). On
+    the grinder file an element set or a chain model is read on its chain (as the estimators fit it); the
+    grinder's trained networks on the grinder file itself."""
+    from errormap.machine import Grinder
+    from .fields import load_field, resolve_model
+    src = resolve_model(spec)
+    if isinstance(machine, Grinder) and src.kind in ("elements", "chain-model"):
+        machine = _chain(machine, "load_model(machine=...)")
+    return load_field(spec, machine, tracking_uri, source=src)
 
 
-__all__ = ["PointCompensation", "compensate_joints", "compensate_points", "compensate_program", "load_model", "save_model"]
+__all__ = ["Compensation", "compensate_joints", "compensate_points", "compensate_program", "load_model", "save_model"]

@@ -8,11 +8,11 @@ The public names below (``errormap.__all__``; docs/api.md) load lazily on first 
 ``import errormap`` imports nothing heavy and has no side effects:
 
 * machines — :func:`load_machine` (a built-in name such as ``"mill-xyz"`` or ``"ur5"``, or a file),
-  :func:`builtin_machines`;
+  :func:`builtin_machines`; the grinder file is identified, looped and compensated as its chain;
 * measurements — :func:`read_sweeps`, :func:`read_checks`, :func:`read_poses`, :func:`read_drift_log`,
   and simulated ones: :func:`simulate_truth`, :func:`simulate_sweeps`, :func:`simulate_checks`;
 * estimators (scikit-learn contract) — :class:`Identification`, :class:`ClosedLoop`,
-  :class:`ArmCalibration`, :class:`DriftSelector`; :class:`NotFittedError`;
+  :class:`ArmCalibration`, :class:`DriftSelector` (its fitted :class:`DriftModel`); :class:`NotFittedError`;
 * error fields — :class:`ChainField` (an element set of a chain), :class:`ChainModelField` (elements plus
   effect terms), :class:`ChainElementSet`;
 * errors — :class:`InputError` (a file that cannot be read exactly), :class:`MachineFileError`.
@@ -37,6 +37,7 @@ _LAZY = {
     "ArmCalibration": "errormap.estimators",
     "NotFittedError": "errormap.estimators",
     "DriftSelector": "errormap.diagnosis.drift_models",
+    "DriftModel": "errormap.diagnosis.drift_models",
     "ChainField": "errormap.mt_field",
     "ChainModelField": "errormap.diagnosis.mt_model",
     "ChainElementSet": "errormap.mt_elements",

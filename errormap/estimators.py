@@ -3,15 +3,14 @@ validates them and the data, solves, and returns ``self``; what it learned ends 
 no file (read measurements first with :func:`errormap.read_sweeps` and its siblings). Each estimator
 calls the existing numerical code; none has a numerical path of its own.
 
-* :class:`Identification` — error elements from tracker sweeps (a machine-tool chain:
-  :class:`errormap.mt_identify.ChainIdentification`; the grinder file: the paper's
-  :class:`errormap.identification.TrackerIdentification`).
+* :class:`Identification` — error elements from tracker sweeps of a machine-tool chain
+  (:class:`errormap.mt_identify.ChainIdentification`; the grinder file is identified as its chain).
 * :class:`ClosedLoop` — the closed loop on check measurements of a machine-tool chain
   (:func:`errormap.diagnosis.mt_loop.closed_loop_chain`: element update, effect search, kept stage).
 * :class:`ArmCalibration` — geometric calibration of a serial arm from tracker poses
   (:func:`errormap.arm_calibration.fit_model`, :func:`~errormap.arm_calibration.cv_models`).
-* :class:`errormap.diagnosis.drift_models.DriftSelector` — the drift model (already of this contract;
-  it shares :class:`Estimator`).
+* :class:`errormap.diagnosis.drift_models.DriftSelector` — the drift estimator (it shares
+  :class:`Estimator`); its fitted :class:`~errormap.diagnosis.drift_models.DriftModel` is ``model_``.
 
 Using a learned attribute or ``predict`` before ``fit`` raises :class:`NotFittedError`.
 """
@@ -66,9 +65,17 @@ def _short(v) -> str:
     return repr(name) if isinstance(name, str) and not isinstance(v, (str, int, float)) else repr(v)
 
 
-def _is_chain(machine) -> bool:
+def machine_tool(machine, what: str):
+    """``machine`` as the machine-tool chain every machine-tool estimator runs on: a chain itself, the
+    grinder file its chain (:func:`errormap.grinder_file.machine_tool_of`: the same element names and
+    columns); anything else refused naming ``what``."""
+    from .grinder_file import machine_tool_of
+    from .machine import Grinder
     from .mt_chain import MachineTool
-    return isinstance(machine, MachineTool)
+    _require_type(machine, (MachineTool, Grinder), what,
+                  "a machine-tool chain or the grinder file (load_machine('mill-xyz'), load_machine()); an arm: "
+                  "ArmCalibration")
+    return machine_tool_of(machine)
 
 
 def _require_type(value, types, what: str, hint: str) -> None:
@@ -78,52 +85,45 @@ def _require_type(value, types, what: str, hint: str) -> None:
 
 
 class Identification(Estimator):
-    """Error elements of a machine tool from laser-tracker sweeps of one set-up.
+    """Error elements of a machine tool from laser-tracker sweeps of one set-up (docs/mt_commands.md).
 
-    Settings: ``machine`` (a machine-tool chain or the grinder file, :func:`errormap.load_machine`);
-    ``max_iter`` / ``tol`` of the re-linearised solve (None: the method's own default, 30 / 1e-7 on a
-    chain, 20 / 1e-9 on the grinder file); ``min_separation_mm`` (balls closer coincide);
-    ``distance_tol_mm`` (allowed difference of measured and nominal ball distances). Gauge: first
-    station (elements zero at each axis' first station).
+    Settings: ``machine`` (a machine-tool chain, or the grinder file, identified as its chain:
+    :func:`errormap.load_machine`); ``max_iter`` / ``tol`` of the Gauss–Newton solve (None: 30 / 1e-7
+    μm or μrad); ``min_separation_mm`` (balls closer coincide); ``distance_tol_mm`` (allowed difference of
+    measured and nominal ball distances); ``noise_um`` (the known tracker σ per coordinate the covariance
+    is scaled with, None: the residuals' σ̂). Gauge: first station (elements zero at each axis' first
+    station).
 
     ``fit(sweeps)``: ``sweeps`` a :class:`errormap.sweeps.Sweeps` (:func:`errormap.read_sweeps`,
-    :func:`errormap.simulate_sweeps`). Learned: ``elements_`` (the element set), ``result_`` (the
-    method's result object: residuals, conditioning, warnings), ``covariance_`` (chain: ``(slot names,
-    stations (N,), Σ (N, N))`` μm² / μrad²; grinder file: None), ``field_`` (the error field of the
-    elements: ``predict(axes (n, k)) -> (n, 3)`` μm).
+    :func:`errormap.simulate_sweeps`). Learned: ``elements_`` (the chain's element set), ``result_``
+    (:class:`errormap.mt_identify.ChainIdentificationResult`: residuals, conditioning, warnings),
+    ``covariance_`` (``(slot names, stations (N,), Σ (N, N))`` μm² / μrad²), ``field_`` (the elements' error
+    field: ``predict(axes (n, k)) -> (n, 3)`` μm).
     """
 
     def __init__(self, machine, max_iter: int | None = None, tol: float | None = None,
-                 min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0):
+                 min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0, noise_um: float | None = None):
         self.machine = machine
         self.max_iter = max_iter
         self.tol = tol
         self.min_separation_mm = min_separation_mm
         self.distance_tol_mm = distance_tol_mm
-
-    def _method(self):
-        from .identification import TrackerIdentification
-        from .machine import Grinder
-        from .mt_identify import ChainIdentification
-        from .mt_chain import MachineTool
-        _require_type(self.machine, (MachineTool, Grinder), "Identification(machine=...)",
-                      "identification takes a machine-tool chain or the grinder file (an arm: ArmCalibration)")
-        given = {k: v for k, v in (("max_iter", self.max_iter), ("tol", self.tol)) if v is not None}
-        cls = ChainIdentification if _is_chain(self.machine) else TrackerIdentification
-        extra = {} if _is_chain(self.machine) else {"gauge": "first-station"}
-        return cls(min_separation_mm=self.min_separation_mm, distance_tol_mm=self.distance_tol_mm, **given, **extra)
+        self.noise_um = noise_um
 
     def fit(self, sweeps) -> "Identification":
+        from .mt_field import ChainField
+        from .mt_identify import ChainIdentification
         from .sweeps import Sweeps
-        method = self._method()
+        mt = machine_tool(self.machine, "Identification(machine=...)")
         _require_type(sweeps, (Sweeps,), "Identification.fit(sweeps)", "read the file first (errormap.read_sweeps)")
-        method.fit(sweeps, self.machine)
+        given = {k: v for k, v in (("max_iter", self.max_iter), ("tol", self.tol)) if v is not None}
+        method = ChainIdentification(min_separation_mm=self.min_separation_mm, distance_tol_mm=self.distance_tol_mm,
+                                     noise_um=self.noise_um, **given).fit(sweeps, mt)
         res = method.result_
         self.result_ = res
         self.elements_ = method.elements_
-        self.covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov.copy()) if hasattr(res, "cov") \
-            else None
-        self.field_ = _elements_field(self.machine, self.elements_)
+        self.covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov.copy())
+        self.field_ = ChainField(mt, self.elements_)
         return self
 
     def predict(self, axes) -> np.ndarray:
@@ -132,18 +132,10 @@ class Identification(Estimator):
         return self.field_.predict(axes)
 
 
-def _elements_field(machine, elements):
-    if _is_chain(machine):
-        from .mt_field import ChainField
-        return ChainField(machine, elements)
-    from .htm import HTMField
-    return HTMField(machine, elements)
-
-
 class ClosedLoop(Estimator):
     """The closed loop of a machine-tool chain on check measurements (docs/machine_tool_loop.md).
 
-    Settings: ``machine`` (a machine-tool chain); ``fit_fraction`` (the first share of the checks, by
+    Settings: ``machine`` (a machine-tool chain, or the grinder file as its chain); ``fit_fraction`` (the first share of the checks, by
     ``seq``, fits; the rest is held out); ``noise_um`` (known noise σ per coordinate, None: estimated);
     ``effects`` / ``max_effects`` (the effect search); ``smoothing`` (``"gcv"`` or a weight).
 
@@ -168,14 +160,12 @@ class ClosedLoop(Estimator):
     def fit(self, checks, elements, covariance=None) -> "ClosedLoop":
         from .diagnosis.mt_loop import MTChecks, closed_loop_chain
         from .diagnosis.mt_model import ChainModelField
-        from .mt_chain import MachineTool
         from .mt_elements import ChainElementSet
-        _require_type(self.machine, (MachineTool,), "ClosedLoop(machine=...)",
-                      "the closed loop here is the machine-tool chain's (the grinder file: volcomp diagnose)")
+        mt = machine_tool(self.machine, "ClosedLoop(machine=...)")
         _require_type(checks, (MTChecks,), "ClosedLoop.fit(checks)", "read the file first (errormap.read_checks)")
         _require_type(elements, (ChainElementSet,), "ClosedLoop.fit(elements)", "an identified element set "
                       "(Identification.elements_ or ChainElementSet.load)")
-        summary = closed_loop_chain(self.machine, elements, checks, cov=covariance, fit_fraction=self.fit_fraction,
+        summary = closed_loop_chain(mt, elements, checks, cov=covariance, fit_fraction=self.fit_fraction,
                                     noise_um=self.noise_um, effects=self.effects, max_effects=self.max_effects,
                                     smoothing=self.smoothing)
         models = summary.pop("_models")
@@ -185,7 +175,7 @@ class ClosedLoop(Estimator):
         self.held_out_rms_um_ = float(summary["held_out_rms_um"])
         self.elements_ = models["elements"]
         self.terms_ = list(terms)
-        self.field_ = ChainModelField(self.machine, self.elements_, self.terms_)
+        self.field_ = ChainModelField(mt, self.elements_, self.terms_)
         return self
 
     def predict(self, axes, **conditions) -> np.ndarray:
@@ -246,4 +236,4 @@ class ArmCalibration(Estimator):
         return self.result_.predict(q)
 
 
-__all__ = ["ArmCalibration", "ClosedLoop", "Estimator", "Identification", "NotFittedError"]
+__all__ = ["ArmCalibration", "ClosedLoop", "Estimator", "Identification", "NotFittedError", "machine_tool"]

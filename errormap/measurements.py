@@ -16,10 +16,10 @@ def _is_chain(machine) -> bool:
     return isinstance(machine, MachineTool)
 
 
-def _require_chain(machine, what: str) -> None:
-    if not _is_chain(machine):
-        raise TypeError(f"{what}: expected a machine-tool chain (load_machine('mill-xyz'), a kind = \"machine-tool\" "
-                        f"file), got {type(machine).__name__}")
+def _chain(machine, what: str):
+    """A machine-tool chain, or the grinder file as its chain (:func:`errormap.estimators.machine_tool`)."""
+    from .estimators import machine_tool
+    return machine_tool(machine, what)
 
 
 def read_sweeps(paths, machine):
@@ -37,11 +37,11 @@ def read_sweeps(paths, machine):
 
 
 def read_checks(path, machine, units: str = "check"):
-    """Check measurements of a machine-tool chain (:class:`errormap.diagnosis.mt_loop.MTChecks`, in ``seq``
-    order). ``units="as-written"`` skips the likely-unit-mistake tests."""
+    """Check measurements of a machine-tool chain or the grinder file
+    (:class:`errormap.diagnosis.mt_loop.MTChecks`, in ``seq`` order: ``axes`` (n, k) mm/deg, ``measured_um``
+    (n, 3)). ``units="as-written"`` skips the likely-unit-mistake tests."""
     from .diagnosis.mt_loop import load_mt_checks
-    _require_chain(machine, "read_checks")
-    return load_mt_checks(path, machine, units=units)
+    return load_mt_checks(path, _chain(machine, "read_checks(machine=...)"), units=units)
 
 
 def read_poses(path, chain):
@@ -59,11 +59,11 @@ def read_drift_log(path, **options):
 
 
 def simulate_truth(machine, seed: int, family: str = "default"):
-    """A hidden truth of a machine-tool chain (:class:`errormap.mt_simulate.MTTruth`): seeded random
-    element functions (``family`` ``"default"`` or ``"independent"``), no effects."""
+    """A hidden truth of a machine-tool chain or the grinder file's chain
+    (:class:`errormap.mt_simulate.MTTruth`): seeded random element functions (``family`` ``"default"`` or
+    ``"independent"``), no effects. For testing: an estimator is never given it."""
     from .mt_simulate import make_mt_truth
-    _require_chain(machine, "simulate_truth")
-    return make_mt_truth(machine, seed, family=family)
+    return make_mt_truth(_chain(machine, "simulate_truth(machine=...)"), seed, family=family)
 
 
 def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, n_stations: int | None = None):

@@ -34,7 +34,8 @@ def mill_program(tmp_path_factory):
 
 def test_compensate_program_is_the_command(mill_program):
     m, model, axes, d = mill_program
-    summary = compensate_program(d / "path.csv", m, model, d / "api")
+    result = compensate_program(d / "path.csv", m, model, d / "api")
+    summary = result.summary
     assert main(["compensate", str(d / "path.csv"), "--machine", "mill-xyz", "--method", "exact",
                  "--model", str(model), "--out", str(d / "cli")]) == 0
     assert (d / "api" / "path.csv").read_bytes() == (d / "cli" / "path.csv").read_bytes()
@@ -43,6 +44,25 @@ def test_compensate_program_is_the_command(mill_program):
         assert summary[k] == cli[k]
     (e,) = summary["files"]
     assert e["points"] == len(axes) and e["failures"] == 0 and not e.get("refused")
+    assert result.accepted and not result.refused and result.overrides == ()
+    assert result.commands == {d / "path.csv": d / "api" / "path.csv"}
+    assert result.residual_um[d / "path.csv"]["model_max_um"] == e["model_max_um"]
+
+
+def test_a_refused_guard_is_named_in_the_result(mill_program):
+    """A point outside the strokes (and so the calibrated volume): compensate_points refuses it by the stroke
+    and volume guards, each in one line naming its override; allowing one leaves the other refused, allowing
+    both accepts, and the overrides are recorded."""
+    m, model, axes, d = mill_program
+    out = axes.copy()
+    out[0, 0] = m.strokes["x_mm"][1] + 5.0    # 5 mm past the X stroke
+    res = compensate_points(load_model(model, m), m, out)
+    assert not res.accepted and "stroke" in res.refused and 0 in res.violations["stroke"]
+    assert "\n" not in res.refused["stroke"] and len(res.refused["stroke"]) < 300 and "allow='stroke'" in res.refused["stroke"]
+    half = compensate_points(load_model(model, m), m, out, allow=("stroke",))
+    assert set(half.refused) == {"volume"} and half.overrides == ("stroke",)
+    ok = compensate_points(load_model(model, m), m, out, allow=("stroke", "volume"))
+    assert ok.accepted and ok.overrides == ("stroke", "volume") and any(n.startswith("stroke") for n in ok.notes)
 
 
 def test_compensate_points_gives_the_program_commands(mill_program):
@@ -54,7 +74,7 @@ def test_compensate_points_gives_the_program_commands(mill_program):
     from errormap.io import read_table
     t = read_table(d / "api" / "path.csv")
     written = np.stack([t.float(c) for c in m.axis_columns], axis=1)
-    np.testing.assert_allclose(written, res.axes, rtol=0, atol=CSV_DECIMALS_TOL_MM)
+    np.testing.assert_allclose(written, res.commands, rtol=0, atol=CSV_DECIMALS_TOL_MM)
 
 
 def test_compensate_program_refuses_settings_the_chain_cannot_take(mill_program):

@@ -257,7 +257,7 @@ def test_the_api_refuses_a_program_without_offsets_like_the_cli(tmp_path, mill, 
     prog.write_text(MILL_NO_SYSTEM, encoding="ascii")
     with pytest.raises(InputError, match=r"line 4: the first move, with no work offset table"):
         compensate_program(prog, mill, truth_file, tmp_path / "a")
-    summary = compensate_program(prog, mill, truth_file, tmp_path / "b", work_offsets=MACHINE)
+    summary = compensate_program(prog, mill, truth_file, tmp_path / "b", work_offsets=MACHINE).summary
     assert summary["files"][0]["work_offsets"] == MACHINE and summary["files"][0]["output"]
 
 

@@ -1,9 +1,9 @@
 """One contract for every public estimator (scikit-learn's): ``fit`` returns self, the settings are the
 same after it (``get_params`` before == after), learned attributes (ending in ``_``) are set, a refit on
-the same data learns the same values, and use before ``fit`` raises a clear NotFittedError.
+the same data learns the same values, and use before ``fit`` raises a clear NotFittedError (one line).
 
-Small simulated data, fixed seeds: a mill's sweeps and checks, the grinder file's sweeps, a UR5's poses, a
-short drift log."""
+Small simulated data, fixed seeds: a mill's sweeps and checks, the grinder file's sweeps (identified as its
+chain), a UR5's poses, a short drift log."""
 from __future__ import annotations
 
 import copy
@@ -18,6 +18,8 @@ from errormap import (ArmCalibration, ClosedLoop, DriftSelector, Identification,
 
 REFIT_TOL = 0.0
 """A refit on the same data runs the same arithmetic in the same order: learned arrays equal bit for bit."""
+MESSAGE_MAX_CHARS = 300
+"""A refusal is one line under 300 characters (the project's rule for every message)."""
 
 
 @functools.lru_cache(maxsize=None)
@@ -44,7 +46,7 @@ def _identification_grinder():
     g = load_machine()
     sweeps = sweeps_from_columns(grinder_sweeps(random_truth(g, seed=3), noise_um=1.0, seed=4))
     axes = np.array([[10.0, 20.0, 30.0], [40.0, 60.0, 200.0]])
-    return Identification(g), (sweeps,), (axes,), ("elements_",)
+    return Identification(g), (sweeps,), (axes,), ("elements_", "covariance_", "field_")
 
 
 def _closed_loop():
@@ -113,13 +115,17 @@ measured 8–10 s and 7.4 s; the other cases 0.6–3.5 s."""
 def test_estimator_contract(case):
     est, data, use, expected = CASES[case]()
     before = est.get_params()
+    shown = {k: repr(v) for k, v in before.items()}             # a setting changed in place shows in its repr
     assert type(est)(**before).get_params() == before          # the constructor stores settings as given
-    with pytest.raises(NotFittedError, match="not fitted yet"):
+    with pytest.raises(NotFittedError, match="not fitted yet") as info:
         est.predict(*use)
+    message = str(info.value)
+    assert "\n" not in message and len(message) < MESSAGE_MAX_CHARS, message
     assert not _learned(est)
     assert est.fit(*data) is est
     after = est.get_params()
     assert after.keys() == before.keys() and all(after[k] is before[k] for k in before)
+    assert {k: repr(v) for k, v in after.items()} == shown
     learned = copy.deepcopy(_learned(est))       # a fit that reused its containers would compare them with themselves
     assert set(expected) <= set(learned)
     first = est.predict(*use)
