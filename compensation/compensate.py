@@ -6,7 +6,8 @@
 * :func:`compensate_program` — the ``compensate`` command on a machine-tool chain, called with settings
   (:class:`compensation.app.workflows.mt_compensate.ChainSettings`) instead of a command line;
 * :func:`save_model` / :func:`load_model` — an identified or closed-loop model to files that every command
-  reads, and any model file (or MLflow reference) back as an error field.
+  reads, and any model file (or MLflow reference) back as an error field;
+* :class:`Compensation` — the one result object of the three compensating calls.
 
 Shapes: ``axes`` (n, k) in the machine's axis columns (``machine.axis_columns``: mm, deg); errors and
 residuals μm.
@@ -27,19 +28,20 @@ def _chain(machine, what: str):
 
 @dataclass
 class Compensation:
-    """The one result of :func:`compensate_points` and :func:`compensate_program` (scipy.optimize's one
-    result object).
+    """The one result of :func:`compensate_points`, :func:`compensate_program` and :func:`compensate_joints`
+    (scipy.optimize's one result object).
 
     * ``commands`` — points: the compensated axis commands (n, k) in ``machine.axis_columns`` (mm, deg);
-      a program: ``{input file: written output file}`` (refused files are not written and not listed);
+      an arm: joint commands (n, nq); a program: ``{input file: written output file}`` (refused files are
+      not written and not listed);
     * ``residual_um`` — points: the MODEL residual (n, 3) μm (the field's predicted position error left at
-      the commands); a program: ``{input file: {"model_max_um", "model_mean_um"[, "true_…"]}}`` as the
+      the commands); an arm: its norm (n,) μm; a program: ``{input file: {"model_max_um", "model_mean_um"[, "true_…"]}}`` as the
       summary states them (TRUE figures only with a ``truth`` setting);
     * ``notes`` — one line each: the solver's notes, overridden guards, what the run read;
     * ``refused`` — ``{guard or input file: one-line reason}``; empty when every output is accepted;
     * ``overrides`` — the guard names overridden (``allow``), sorted;
     * ``correction_um`` (n,) the tool-point move, ``success`` (n,) converged inside the ball, ``violations``
-      {guard: point indices}, ``solve`` (:class:`compensation.solvers.base.SolveResult`) — points only;
+      {guard: point indices}, ``solve`` (the solver's own result) — points and arms;
     * ``summary`` — a program: the written ``compensate_summary.json`` as a dict.
     """
 
@@ -97,9 +99,10 @@ def compensate_joints(calibration, q, targets_mm=None):
     """Joint commands (n, nq) that put a calibrated arm's tool point on ``targets_mm`` (n, 3) (None: the
     nominal arm's tool points at the programmed joints ``q`` (n, nq), the program's intent), by Newton on the
     calibrated chain from ``q`` keeping the tool's orientation (``volcomp compensate --machine ur5``'s solver,
-    without a learned stage). ``calibration``: a fitted :class:`errormap.ArmCalibration`. Returns the
-    :class:`compensation.arm_compensation.ArmSolution` (``q``, ``residual_mm`` the MODEL residual,
-    ``converged``)."""
+    without a learned stage). ``calibration``: a fitted :class:`errormap.ArmCalibration`. Returns a
+    :class:`Compensation`: ``commands`` (n, nq) joints, ``residual_um`` (n,) the MODEL residual
+    |target − calibrated tool point|, ``success`` (n,) converged, ``refused`` {"convergence": …} when a point
+    did not converge, ``solve`` the :class:`compensation.arm_compensation.ArmSolution`."""
     from errormap.estimators import ArmCalibration
     from .arm_compensation import solve_joints
     if not isinstance(calibration, ArmCalibration):
@@ -114,7 +117,13 @@ def compensate_joints(calibration, q, targets_mm=None):
     if target.shape != (q.shape[0], 3):
         raise ValueError(f"Expected targets_mm of shape ({q.shape[0]}, 3), got {target.shape}")
     geo = calibration.result_
-    return solve_joints(geo.chain, geo.params, None, target, q)
+    sol = solve_joints(geo.chain, geo.params, None, target, q)
+    bad = np.flatnonzero(~sol.converged)
+    refused = {"convergence": f"{len(bad)} of {len(q)} point(s) did not converge (first: row {bad[0]}, MODEL "
+                              f"residual {sol.residual_mm[bad[0]]:.3g} mm); targets out of the arm's reach?"} \
+        if len(bad) else {}
+    notes = ["tool orientation kept"] if sol.orientation_kept else []
+    return Compensation(sol.q, sol.residual_mm * 1e3, notes, refused, (), success=sol.converged, solve=sol)
 
 
 def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_table=None, executor=None,
