@@ -35,8 +35,8 @@ class Compensation:
       an arm: joint commands (n, nq); a program: ``{input file: written output file}`` (refused files are
       not written and not listed);
     * ``residual_um`` — points: the MODEL residual (n, 3) μm (the field's predicted position error left at
-      the commands); an arm: its norm (n,) μm; a program: ``{input file: {"model_max_um", "model_mean_um"[, "true_…"]}}`` as the
-      summary states them (TRUE figures only with a ``truth`` setting);
+      the commands); an arm: its norm (n,) μm; a program: ``{input file: {"model_max_um",
+      "model_mean_um"[, "true_…"]}}`` as the summary states them (TRUE figures only with a ``truth`` setting);
     * ``notes`` — one line each: the solver's notes, overridden guards, what the run read;
     * ``refused`` — ``{guard or input file: one-line reason}``; empty when every output is accepted;
     * ``overrides`` — the guard names overridden (``allow``), sorted;
@@ -60,6 +60,15 @@ class Compensation:
     def accepted(self) -> bool:
         """Nothing refused: every guard passed or was overridden (what ``compensate`` writes)."""
         return not self.refused
+
+
+REASON_CHARS = 160
+"""A guard's reason is clipped to this in a refusal line, which stays one line under 300 characters."""
+
+
+def _clip(text: str) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= REASON_CHARS else text[:REASON_CHARS - 1] + "…"
 
 
 def compensate_points(field, machine, axes, method: str = "exact", seed: int = 0, allow=(),
@@ -87,7 +96,7 @@ def compensate_points(field, machine, axes, method: str = "exact", seed: int = 0
     res = solve(method, field, targets, machine, target_axes=axes, progress=False, **options)
     report = guards.check(res, machine, field, allow=allow, target_axes=axes)
     violations = {g: np.asarray(v) for g, v in report.violations.items()}
-    refused = {g: f"{len(v)} of {len(axes)} point(s) violate the {g} guard (first: {report.reasons[g][0]}); "
+    refused = {g: f"{len(v)} of {len(axes)} point(s) violate the {g} guard (first: {_clip(report.reasons[g][0])}); "
                   f"allow={g!r} overrides it" for g, v in violations.items() if len(v) and g not in report.allowed}
     notes = [f"{g}: {len(v)} point(s) overridden (allow)" for g, v in violations.items()
              if len(v) and g in report.allowed] + ([res.info["note"]] if res.info.get("note") else [])

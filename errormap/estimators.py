@@ -135,8 +135,8 @@ class Identification(Estimator):
 class ClosedLoop(Estimator):
     """The closed loop of a machine-tool chain on check measurements (docs/machine_tool_loop.md).
 
-    Settings: ``machine`` (a machine-tool chain, or the grinder file as its chain); ``fit_fraction`` (the first share of the checks, by
-    ``seq``, fits; the rest is held out); ``noise_um`` (known noise σ per coordinate, None: estimated);
+    Settings: ``machine`` (a machine-tool chain, or the grinder file as its chain); ``fit_fraction`` (the
+    first share of the checks, by ``seq``, fits; the rest is held out); ``noise_um`` (known noise σ per coordinate, None: estimated);
     ``effects`` / ``max_effects`` (the effect search); ``smoothing`` (``"gcv"`` or a weight).
 
     ``fit(checks, elements, covariance=None)``: ``checks`` an :class:`errormap.diagnosis.mt_loop.MTChecks`

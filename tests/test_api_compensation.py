@@ -16,6 +16,8 @@ from errormap import (ChainElementSet, ClosedLoop, Identification, load_machine,
 CSV_DECIMALS_TOL_MM = 0.5e-6 + 1e-9
 """The axis CSV is written to 6 decimals (1 nm): the file's command differs from the solver's by at most half
 a unit in the last place (plus the round-off of the comparison)."""
+MESSAGE_MAX_CHARS = 300
+"""A refusal is one line under 300 characters (the project's rule for every message)."""
 ROUND_TRIP_TOL_UM = 0.0
 """Element sets are written with every float's shortest exact repr: the loaded model predicts the same bits."""
 
@@ -58,7 +60,8 @@ def test_a_refused_guard_is_named_in_the_result(mill_program):
     out[0, 0] = m.strokes["x_mm"][1] + 5.0    # 5 mm past the X stroke
     res = compensate_points(load_model(model, m), m, out)
     assert not res.accepted and "stroke" in res.refused and 0 in res.violations["stroke"]
-    assert "\n" not in res.refused["stroke"] and len(res.refused["stroke"]) < 300 and "allow='stroke'" in res.refused["stroke"]
+    why = res.refused["stroke"]
+    assert "\n" not in why and len(why) < MESSAGE_MAX_CHARS and "allow='stroke'" in why
     half = compensate_points(load_model(model, m), m, out, allow=("stroke",))
     assert set(half.refused) == {"volume"} and half.overrides == ("stroke",)
     ok = compensate_points(load_model(model, m), m, out, allow=("stroke", "volume"))
