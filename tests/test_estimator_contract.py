@@ -75,6 +75,17 @@ def _drift():
 
 CASES = {"identification": _identification, "identification-grinder-file": _identification_grinder,
          "closed-loop": _closed_loop, "arm-calibration": _arm_calibration, "drift": _drift}
+COVERED = {Identification, ClosedLoop, ArmCalibration, DriftSelector}
+"""The estimators the cases above construct (checked against every exported class with a ``fit``)."""
+
+
+def test_every_exported_estimator_has_a_case():
+    """Every class errormap or compensation exports with a ``fit`` is checked here (training exports a field and
+    a ``fit_field`` function, no estimator class; resolving them loads torch)."""
+    import compensation
+    exported = {getattr(pkg, n) for pkg in (errormap, compensation) for n in pkg.__all__}
+    estimators = {c for c in exported if isinstance(c, type) and callable(getattr(c, "fit", None))}
+    assert estimators == COVERED, sorted(c.__name__ for c in estimators ^ COVERED)
 
 
 def _learned(est) -> dict:
