@@ -74,7 +74,7 @@ def machine_tool(machine, what: str):
     from .mt_chain import MachineTool
     _require_type(machine, (MachineTool, Grinder), what,
                   "a machine-tool chain or the grinder file (load_machine('mill-xyz'), load_machine()); an arm: "
-                  "ArmCalibration")
+                  "ArmCalibration, compensate_joints")
     return machine_tool_of(machine)
 
 
