@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import sys
 
-from errormap.machine import load_machine
+from errormap.machine import builtin_machine_path, load_machine
+
+from ..families import family_of_kind
 
 
 def register(sub):
@@ -48,7 +50,11 @@ def register(sub):
 
 def _name(row) -> str:
     """The kind for the built-in kinds, the machine's name for a chain file (several chains share a kind)."""
-    return row["machine"] if row["machine_kind"] == "machine-tool" else row["machine_kind"]
+    return row["machine"] if family_of_kind(row["machine_kind"]).facts.chain else row["machine_kind"]
+
+
+DEFAULT_MACHINES = ("grinder", "hexapod", "tripod")
+"""The built-in machines benchmarked without ``--machine``."""
 
 
 def run(args) -> int:
@@ -67,7 +73,7 @@ def run(args) -> int:
     if args.machine:
         machines = [load_machine(p) for p in args.machine]
     else:
-        machines = [load_machine(None, expect_kind=k) for k in ("grinder", "hexapod", "tripod")]
+        machines = [load_machine(builtin_machine_path(name)) for name in DEFAULT_MACHINES]
     doc = run_benchmark(machines, args.out, s, tracking_uri=args.tracking_uri, track=not args.no_track)
     from ..reports.benchmark import verdict_failed
     avail = [r for r in doc["rows"] if r["available"]]

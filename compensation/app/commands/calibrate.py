@@ -14,11 +14,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from errormap.machine import load_machine
+from errormap.machine import builtin_machine_path, load_machine
 from errormap.pkm.calibration import PKMCalibrator
 
 from compensation.app.validate import UsageError
 
+from ..families import family_of
 from ..workflows.calibration import CalibrationSettings, run_calibration
 
 
@@ -58,38 +59,25 @@ def register(subparsers):
     p.set_defaults(func=run)
 
 
-PKM_ONLY = {"no_scales": "--no-scales", "scales": "--scales", "no_loop": "--no-loop",
-            "no_register": "--no-register", "lever_mm": "--lever-mm", "lambda_rule": "--lambda-rule",
-            "compare_rules": "--compare-rules"}
-"""Options of the parallel-machine calibration (attribute → option)."""
-ARM_ONLY = {"no_learned": "--no-learned", "folds": "--folds"}
-"""Options of the serial-arm calibration (attribute → option)."""
-
-
-def refuse_options(args, options: dict, what: str) -> None:
-    """UsageError naming every option of ``options`` given on the command line (not at its default of None /
-    False): it does not apply to ``what`` and would otherwise be silently ignored."""
-    given = [opt for attr, opt in options.items() if getattr(args, attr, None) not in (None, False)]
-    if given:
-        raise UsageError(f"{', '.join(given)}: {'does' if len(given) == 1 else 'do'} not apply to {what} "
-                         f"(see calibrate --help: the options are grouped by machine kind); leave "
-                         f"{'it' if len(given) == 1 else 'them'} out")
-
-
 def argparse_suppress():
     import argparse
     return argparse.SUPPRESS
 
 
+DEFAULT_MACHINE = "hexapod"
+"""The built-in machine calibrated without ``--machine``."""
+
+
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind=None) if args.machine else load_machine(expect_kind="hexapod")
-    if machine.kind == "serial":
-        refuse_options(args, PKM_ONLY, "a serial arm")
-        return run_serial(machine, args)
-    if machine.kind not in ("hexapod", "tripod"):
-        raise UsageError(f"{machine.path}: calibrate needs a hexapod, tripod or serial machine file, got kind "
-                         f"{machine.kind!r}")
-    refuse_options(args, ARM_ONLY, f"a {machine.kind}")
+    machine = load_machine(args.machine or builtin_machine_path(DEFAULT_MACHINE))
+    family = family_of(machine)
+    family.refuse_unsupported("calibrate", args)   # the other family's options: refused by name
+    return RUNNERS[family.target("calibrate")](machine, args)
+
+
+def run_parallel(machine, args) -> int:
+    """The parallel branch: leg lengths, joints, scales (Tikhonov), the loop on leg residuals, the plain
+    baseline beside them."""
     if args.scales and args.no_scales:
         raise UsageError("--scales and --no-scales contradict each other (scales are identified by default)")
     settings = CalibrationSettings(
@@ -126,3 +114,7 @@ def run_serial(chain, args) -> int:
     print("calibrate: verdict: passed" if v["status"] == "passed" else "calibrate: verdict: FAILED: " + "; ".join(v["reasons"]))
     print(f"calibrate: wrote {out / 'calibration.json'} and {out / 'report.html'}")
     return 1 if v["status"] == "failed" else 0
+
+
+RUNNERS = {"arm": run_serial, "parallel": run_parallel}
+"""The runner of each target of ``calibrate`` (:meth:`compensation.app.families.Family.target`)."""

@@ -7,7 +7,9 @@ from errormap.elements import ElementSet
 from errormap.featurepoints import make_feature_points
 from errormap.htm import HTMField
 from errormap.io import sha256_file
-from errormap.machine import check_machine_kind, load_machine
+from errormap.machine import load_machine
+
+from ..families import family_of
 
 
 def register(sub):
@@ -22,22 +24,32 @@ def register(sub):
 
 def run(args) -> int:
     machine = load_machine(args.machine)
-    if machine.kind == "machine-tool":  # a chain: its element set, the grid over its own axes
-        from compensation.app.validate import UsageError
-        from compensation.app.validate import MAX_GRID_POINTS
-        k = len(machine.axes)
-        if args.grid ** k > MAX_GRID_POINTS:
-            raise UsageError(f"--grid {args.grid}: {args.grid}^{k} = {args.grid ** k} points over the {k} axes of "
-                             f"{machine.name!r} exceeds {MAX_GRID_POINTS}; the largest that fits is "
-                             f"{int(MAX_GRID_POINTS ** (1 / k) + 1e-9)}")
-        from compensation.fields import load_chain_field
-        field = load_chain_field(args.elements, machine)
-    else:
-        check_machine_kind(machine.path, machine.kind, "grinder")
-        field = HTMField(machine, ElementSet.load(args.elements))  # by content: its format key, whatever the name
+    field = FIELDS[family_of(machine).target("featurepoints")](machine, args)
     print(f"featurepoints: element set (volcomp-elements/1): {args.elements}", file=sys.stderr)
     fp = make_feature_points(machine, field, n=args.grid,
                              meta={"elements_file": args.elements, "elements_sha256": sha256_file(args.elements)})
     path = fp.save(args.out)
     print(f"wrote {len(fp.axes)} feature points to {path}")
     return 0
+
+
+def _chain_field(machine, args):
+    """A chain: its element set; the grid over its own axes, sized before any work."""
+    from compensation.app.validate import UsageError
+    from compensation.app.validate import MAX_GRID_POINTS
+    k = len(machine.axes)
+    if args.grid ** k > MAX_GRID_POINTS:
+        raise UsageError(f"--grid {args.grid}: {args.grid}^{k} = {args.grid ** k} points over the {k} axes of "
+                         f"{machine.name!r} exceeds {MAX_GRID_POINTS}; the largest that fits is "
+                         f"{int(MAX_GRID_POINTS ** (1 / k) + 1e-9)}")
+    from compensation.fields import load_chain_field
+    return load_chain_field(args.elements, machine)
+
+
+def _grinder_field(machine, args):
+    """The grinder: its HTM field of the element set (by content: its format key, whatever the name)."""
+    return HTMField(machine, ElementSet.load(args.elements))
+
+
+FIELDS = {"grinder": _grinder_field, "chain": _chain_field}
+"""The error field of each target of ``featurepoints`` (:meth:`compensation.app.families.Family.target`)."""

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from errormap.io import InputError
-from errormap.machine import load_machine
+from errormap.machine import builtin_machine_path, load_machine
 from errormap.pkm.calibration import load_calibrated_machine
 from errormap.pkm.hexapod import KinematicsError
 
@@ -20,6 +20,7 @@ from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_pr
 
 from compensation.app.validate import UsageError
 
+from ..families import family_of
 from ..reports.tripod_sensitivity import plot_tripod_sensitivity
 
 
@@ -40,10 +41,15 @@ def register(subparsers):
     p.set_defaults(func=run)
 
 
+DEFAULT_MACHINE = "hexapod"
+"""The built-in machine interpolated without ``--machine``."""
+
+
 def run(args) -> int:
-    machine = load_machine(args.machine) if args.machine else load_machine(expect_kind="hexapod")
-    if machine.kind not in ("hexapod", "tripod"):
-        raise UsageError(f"{machine.path}: interpolate needs a hexapod or tripod machine file, got {machine.kind!r}")
+    machine = load_machine(args.machine or builtin_machine_path(DEFAULT_MACHINE))
+    family = family_of(machine)
+    family.target("interpolate")   # a parallel machine's leg commands: refused on other families, naming their path
+    family.refuse_unsupported("interpolate", args)
     if args.path is None and args.sensitivity_plot is None:
         raise UsageError("interpolate: give a PATH (with --out) or --sensitivity-plot FILE")
     if args.path is not None and args.out is None:
@@ -51,8 +57,6 @@ def run(args) -> int:
     if args.report is not None and args.path is None:
         raise UsageError("interpolate: --report needs a PATH")
     if args.sensitivity_plot is not None:
-        if machine.kind != "tripod":
-            raise UsageError(f"{machine.path}: --sensitivity-plot needs a tripod machine file, got {machine.kind!r}")
         st = plot_tripod_sensitivity(machine, Path(args.sensitivity_plot))
         print(f"interpolate: wrote {st['path']} (K {st['K_lambda'].min():.3g}..{st['K_lambda'].max():.3g} over "
               f"lambda {st['lambdas'][0]:.3g}..{st['lambdas'][-1]:.3g})")

@@ -7,11 +7,12 @@ import numpy as np
 
 from errormap.io import InputError, read_document_text, read_table, write_csv
 from errormap.field import machine_axes
-from errormap.machine import check_machine_kind, load_machine
+from errormap.machine import load_machine
 from errormap.units import check_units
 
 from compensation.app.validate import UsageError
 
+from ..families import family_of
 from ..options import add_units_option
 from ...fields import FAILED_VERDICT, KIND_NAMES, check_verdict, load_field, resolve_model
 
@@ -183,14 +184,26 @@ def _chain_band(args, machine, axes, band_src) -> dict:
 
 def run(args) -> int:
     machine = load_machine(args.machine)
-    if machine.kind == "serial":   # an arm: its calibration.json at joint configurations
-        from ..workflows.arm_predict import run_arm_predict
-        return run_arm_predict(machine, args)
-    if machine.kind in ("hexapod", "tripod"):   # a parallel machine: its calibration.json at commanded poses
-        from ..workflows.pkm_predict import run_pkm_predict
-        return run_pkm_predict(machine, args)
-    if machine.kind != "machine-tool":
-        check_machine_kind(machine.path, machine.kind, "grinder")
+    family = family_of(machine)
+    family.refuse_unsupported("predict", args)
+    return RUNNERS[family.target("predict")](machine, args)
+
+
+def _run_arm(machine, args) -> int:
+    """An arm: its calibration.json at joint configurations."""
+    from ..workflows.arm_predict import run_arm_predict
+    return run_arm_predict(machine, args)
+
+
+def _run_parallel(machine, args) -> int:
+    """A parallel machine: its calibration.json at commanded poses."""
+    from ..workflows.pkm_predict import run_pkm_predict
+    return run_pkm_predict(machine, args)
+
+
+def _run_machine_tool(machine, args) -> int:
+    """The grinder or a machine-tool chain: any error field at its axis columns."""
+    chain = family_of(machine).facts.chain
     names = machine_axes(machine)   # the grinder's x_mm, z_mm, a_deg or the chain's own columns
     t = read_table(args.points)
     t.require(*names)
@@ -200,13 +213,13 @@ def run(args) -> int:
     src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
     verdict = check_verdict(src.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
     allowed = [_verdict_line(verdict)] if verdict and verdict.get("overridden_by") else []
-    if src.kind == "diagnosed" and machine.kind != "machine-tool":  # the grinder's closed loop (and hybrid) model
+    if src.kind == "diagnosed" and not chain:  # the grinder's closed loop (and hybrid) model
         cols, meta = _predict_diagnosed(args, t, axes, machine, src, names)
         path = write_csv(args.out, cols, header_comments=meta + allowed + [f"model: {src.description}",
                                                                  f"model_kind: {src.kind}", f"units: {args.units}"])
         print(f"wrote {len(axes)} predictions to {path}")
         return 0
-    band_src = _chain_covariance(args, src, machine) if args.band and machine.kind == "machine-tool" else None
+    band_src = _chain_covariance(args, src, machine) if args.band and chain else None
     field = load_field(args.model, machine, args.tracking_uri, source=src)
     cond = None
     if src.kind == "chain-model" and field.needs:  # a chain model's effect terms: conditions per point, from columns
@@ -222,7 +235,7 @@ def run(args) -> int:
                             .predict(axes[i:i + PREDICT_BATCH]) for i in range(0, len(axes), PREDICT_BATCH)])
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
-    meta = [f"machine: {machine.name}"] if machine.kind == "machine-tool" else []
+    meta = [f"machine: {machine.name}"] if chain else []
     from ...hybrid import HybridField
     if isinstance(field, HybridField):   # a chain loop's model.json with its kept learned residual
         import json
@@ -231,7 +244,7 @@ def run(args) -> int:
     if n_out:   # the override recorded in the output itself, on every machine
         meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
                     f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
-    if args.band and machine.kind == "machine-tool":
+    if args.band and chain:
         cols.update(_chain_band(args, machine, axes, band_src))
     elif args.band:
         from errormap.elements import ElementSet
@@ -246,3 +259,7 @@ def run(args) -> int:
                                                      f"units: {args.units}"])
     print(f"wrote {len(axes)} predictions to {path}")
     return 0
+
+
+RUNNERS = {"grinder": _run_machine_tool, "chain": _run_machine_tool, "arm": _run_arm, "parallel": _run_parallel}
+"""The runner of each target of ``predict`` (:meth:`compensation.app.families.Family.target`)."""

@@ -19,6 +19,7 @@ from ...evaluate import load_truth
 from ...fields import FAILED_VERDICT, check_verdict, load_field, resolve_model
 from ...nc_state import MACHINE, read_work_offsets
 from ...pathio import read_path
+from ..families import family_of
 from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
 from ..reports.methods import print_table, write_report
 from ..workflows.compare import compare_methods
@@ -75,7 +76,7 @@ def run_chain_diagnosis(args) -> int:
         raise InputError(f"{run_dir / 'model.json'}: key 'format': expected 'volcomp-chain-model/1', got "
                          f"{head.get('format')!r} ({what})")
     machine = load_machine(args.machine if args.machine else str(head.get("machine")))
-    if machine.kind != "machine-tool":
+    if not family_of(machine).runs("report run"):
         raise UsageError(f"--machine {machine.name}: the run is a machine-tool chain's; name that chain's file")
     out = Path(args.out) / "report.html" if args.out else None
     path = write_chain_diagnosis_page(run_dir, machine, out)
@@ -92,7 +93,8 @@ def run(args) -> int:
         raise UsageError(f"{', '.join(missing)}: required to compare methods on a path (or give RUN, a diagnose "
                          "--machine folder)")
     methods = parse_methods(args.methods)
-    machine = load_machine(args.machine, expect_kind="grinder")
+    machine = load_machine(args.machine)   # None: the built-in default machine
+    family_of(machine).target("report")   # the comparison runs the grinder's solvers: other families refused
     if args.flute:
         try:
             fl = flute_from_args(args)

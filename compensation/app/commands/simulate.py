@@ -4,9 +4,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from errormap.machine import check_machine_kind, load_machine
+from errormap.machine import load_machine
 from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP
 from compensation.app.validate import UsageError
+
+from ..families import family_of
 
 from ..workflows.simulate import simulate_truth, summary_lines
 
@@ -44,56 +46,65 @@ def register(sub):
 
 
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
-    if machine.kind == "serial":
-        from ..workflows.simulate_serial import DEFAULT_ARM_NOISE_UM, simulate_serial
-        if args.family != "default":   # never ignored silently
-            raise UsageError(f"--family {args.family}: a serial arm's truth has one family (errormap/arm_simulate.py: "
-                             "link, base and tool errors, sag, backlash); leave it out")
-        noise = DEFAULT_ARM_NOISE_UM if args.noise_um is None else args.noise_um
-        print(f"simulating truth arm {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
-        info = simulate_serial(machine, args.seed, args.out, effects=args.effect, noise_um=noise,
-                               poses=200 if args.poses is None else args.poses,
-                               checks=100 if args.checks is None else args.checks,
-                               check_noise_seed=args.seed_check_noise)
-        print(f"tool point error of the truth at the fitting poses: {info['uncompensated_rms_mm']:.3f} mm RMS")
-        for k, v in info["files"].items():
-            print(f"wrote {k}: {v}")
-        print(f"wrote truth: {Path(args.out) / 'truth.json'} (the judge's; never an input of calibrate)")
-        return 0
-    if machine.kind in ("hexapod", "tripod"):
-        from ..workflows.simulate_pkm import DEFAULT_PKM_NOISE_UM, DEFAULT_PKM_POSES, simulate_pkm
-        if args.family != "default" or args.effect:   # never ignored silently
-            raise UsageError(f"{'--family' if args.family != 'default' else '--effect'}: a parallel machine's truth "
-                             "has one family and no effects here (leg scales, zero lengths, joints); leave it out")
-        print(f"simulating truth {machine.kind} {machine.name} seed={args.seed} ...", file=sys.stderr)
-        info = simulate_pkm(machine, args.seed, args.out,
-                            noise_um=DEFAULT_PKM_NOISE_UM if args.noise_um is None else args.noise_um,
-                            poses=DEFAULT_PKM_POSES if args.poses is None else args.poses,
-                            checks=100 if args.checks is None else args.checks, check_noise_seed=args.seed_check_noise)
-        for k, v in info["files"].items():
-            print(f"wrote {k}: {v}")
-        print(f"wrote truth: {Path(args.out) / 'truth.json'} (the judge's; never an input of calibrate)")
-        return 0
-    if args.poses is not None:
-        raise UsageError("--poses: only arms and parallel machines are simulated by poses (machine tools: --checks)")
+    machine = load_machine(args.machine)   # None: the built-in default machine
+    family = family_of(machine)
+    family.refuse_unsupported("simulate", args)
+    return RUNNERS[family.target("simulate")](machine, args)
+
+
+def _run_arm(machine, args) -> int:
+    from ..workflows.simulate_serial import DEFAULT_ARM_NOISE_UM, simulate_serial
+    noise = DEFAULT_ARM_NOISE_UM if args.noise_um is None else args.noise_um
+    print(f"simulating truth arm {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
+    info = simulate_serial(machine, args.seed, args.out, effects=args.effect, noise_um=noise,
+                           poses=200 if args.poses is None else args.poses,
+                           checks=100 if args.checks is None else args.checks,
+                           check_noise_seed=args.seed_check_noise)
+    print(f"tool point error of the truth at the fitting poses: {info['uncompensated_rms_mm']:.3f} mm RMS")
+    for k, v in info["files"].items():
+        print(f"wrote {k}: {v}")
+    print(f"wrote truth: {Path(args.out) / 'truth.json'} (the judge's; never an input of calibrate)")
+    return 0
+
+
+def _run_parallel(machine, args) -> int:
+    from ..workflows.simulate_pkm import DEFAULT_PKM_NOISE_UM, DEFAULT_PKM_POSES, simulate_pkm
+    print(f"simulating truth {machine.kind} {machine.name} seed={args.seed} ...", file=sys.stderr)
+    info = simulate_pkm(machine, args.seed, args.out,
+                        noise_um=DEFAULT_PKM_NOISE_UM if args.noise_um is None else args.noise_um,
+                        poses=DEFAULT_PKM_POSES if args.poses is None else args.poses,
+                        checks=100 if args.checks is None else args.checks, check_noise_seed=args.seed_check_noise)
+    for k, v in info["files"].items():
+        print(f"wrote {k}: {v}")
+    print(f"wrote truth: {Path(args.out) / 'truth.json'} (the judge's; never an input of calibrate)")
+    return 0
+
+
+def _machine_tool_defaults(args) -> None:
+    """A machine tool's measurement noise (1 μm) and check count (400) where not given."""
     if args.noise_um is None:
         args.noise_um = 1.0
     if args.checks is None:
         args.checks = 400
-    if machine.kind == "machine-tool":
-        from ..workflows.mt_loop import parse_effects, simulate_chain
-        parse_effects(machine, args.effect)
-        print(f"simulating truth {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
-        info = simulate_chain(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
-                              checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
-        print(f"max spatial error {info['max_spatial_error_um']:.1f} μm over the volume (reference temperature, "
-              "positive approach)")
-        for k, v in info["files"].items():
-            print(f"wrote {k}: {v}")
-        print(f"wrote truth: {Path(args.out) / 'truth.json'}")
-        return 0
-    check_machine_kind(machine.path, machine.kind, "grinder")
+
+
+def _run_chain(machine, args) -> int:
+    from ..workflows.mt_loop import parse_effects, simulate_chain
+    _machine_tool_defaults(args)
+    parse_effects(machine, args.effect)
+    print(f"simulating truth {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)
+    info = simulate_chain(machine, args.seed, args.out, effects=args.effect, noise_um=args.noise_um,
+                          checks=args.checks, family=args.family, check_noise_seed=args.seed_check_noise)
+    print(f"max spatial error {info['max_spatial_error_um']:.1f} μm over the volume (reference temperature, "
+          "positive approach)")
+    for k, v in info["files"].items():
+        print(f"wrote {k}: {v}")
+    print(f"wrote truth: {Path(args.out) / 'truth.json'}")
+    return 0
+
+
+def _run_grinder(machine, args) -> int:
+    _machine_tool_defaults(args)
     bad = [e for e in args.effect if e not in EFFECT_CHOICES]
     if bad:
         raise UsageError(f"--effect: unknown effect {bad[0]!r} for the grinder (expected one of {', '.join(EFFECT_CHOICES)})")
@@ -103,3 +114,7 @@ def run(args) -> int:
     for line in summary_lines(info, args.out):
         print(line)
     return 0
+
+
+RUNNERS = {"grinder": _run_grinder, "chain": _run_chain, "arm": _run_arm, "parallel": _run_parallel}
+"""The runner of each target of ``simulate`` (:meth:`compensation.app.families.Family.target`)."""

@@ -4,11 +4,13 @@ from __future__ import annotations
 import sys
 
 from errormap.elements import ElementSet
-from errormap.machine import check_machine_kind, load_machine
+from errormap.machine import load_machine
 from errormap.seeds import spawn_seeds
 from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP, TruthGrinder
 from errormap.sweeps import simulate_sweeps, write_sweeps
 from compensation.app.validate import UsageError
+
+from ..families import family_of
 
 
 def register(sub):
@@ -58,19 +60,25 @@ def noise_seed(args) -> tuple[int, str]:
 
 def run(args) -> int:
     machine = load_machine(args.machine)  # None: the built-in default machine
+    target = family_of(machine).target("sweeps")   # machine tools: other families are refused, naming their path
     args.seed_noise, noise_from = noise_seed(args)
     print(f"noise seed {args.seed_noise} ({noise_from})")
-    if machine.kind == "machine-tool":
-        from ..workflows.mt_loop import parse_effects, sweeps_chain
-        parse_effects(machine, args.effect)
-        print(f"simulating tracker sweeps of {machine.name} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
-              file=sys.stderr)
-        path, n, what = sweeps_chain(machine, args.out, seed=args.seed, truth_file=args.truth, effects=args.effect,
-                                     family=args.family, noise_um=args.noise_um, seed_noise=args.seed_noise,
-                                     bidirectional=args.bidirectional, warmup_c=args.warmup_c, setup=args.setup)
-        print(f"wrote {n} ball measurements of {what} to {path}")
-        return 0
-    check_machine_kind(machine.path, machine.kind, "grinder")
+    return RUNNERS[target](machine, args)
+
+
+def _run_chain(machine, args) -> int:
+    from ..workflows.mt_loop import parse_effects, sweeps_chain
+    parse_effects(machine, args.effect)
+    print(f"simulating tracker sweeps of {machine.name} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
+          file=sys.stderr)
+    path, n, what = sweeps_chain(machine, args.out, seed=args.seed, truth_file=args.truth, effects=args.effect,
+                                 family=args.family, noise_um=args.noise_um, seed_noise=args.seed_noise,
+                                 bidirectional=args.bidirectional, warmup_c=args.warmup_c, setup=args.setup)
+    print(f"wrote {n} ball measurements of {what} to {path}")
+    return 0
+
+
+def _run_grinder(machine, args) -> int:
     bad = [e for e in args.effect if e not in EFFECT_CHOICES]
     if bad:
         raise UsageError(f"--effect: unknown effect {bad[0]!r} for the grinder (expected one of {', '.join(EFFECT_CHOICES)})")
@@ -94,3 +102,7 @@ def run(args) -> int:
         "the A sweep is taken with X and Z at their first stations"])
     print(f"wrote {len(cols['axis'])} ball measurements to {path}")
     return 0
+
+
+RUNNERS = {"grinder": _run_grinder, "chain": _run_chain}
+"""The runner of each target of ``sweeps`` (:meth:`compensation.app.families.Family.target`)."""

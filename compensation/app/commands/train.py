@@ -8,12 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
+from errormap.field import is_rotary_column
 from errormap.io import InputError, read_table
 # Training stops on iterations (or the MSE goal) by default, so that the same command and seed
 # give the same model on any machine; a wall-clock budget is an explicit option. (The package
 # module ``training`` is light: these constants do not load torch.)
 from training import DEFAULT_MAX_ITER, QUICK_MAX_ITER
 from compensation.app.validate import UsageError
+
+from ..families import family_of
 
 
 
@@ -100,9 +103,7 @@ def run(args) -> int:
     if args.trainer == "lm":
         from ..validate import check_lm_size
         check_lm_size(len(fp.axes), hidden, args.a_encoding or "raw")
-    from errormap.machine import load_machine
-    mf = fp.meta.get("machine_file")
-    fp.check_units(load_machine(mf if mf and Path(mf).is_file() else None, expect_kind="grinder"))
+    fp.check_units(_grinder_machine(fp))
     validation = _read_validation(args.validation) if args.validation else None
 
     from training.trainers import fit_field
@@ -133,6 +134,20 @@ def run(args) -> int:
     return 0
 
 
+def _grinder_machine(fp):
+    """The grinder the feature points (without ``axis_columns``) were made on: the recorded machine file, else the
+    built-in grinder; a chain's file there is refused (a chain's feature points name their axis columns)."""
+    from errormap.machine import load_machine
+    mf = fp.meta.get("machine_file")
+    machine = load_machine(mf if mf and Path(mf).is_file() else None)
+    family = family_of(machine)
+    family.target("train")   # feature points of a machine tool only
+    if family.facts.chain:
+        raise InputError(f"{fp.source or 'feature points'}: header key 'axis_columns': missing, but the machine "
+                         f"{machine.name!r} is a machine-tool chain (volcomp featurepoints --machine writes them)")
+    return machine
+
+
 def _chain_machine(fp):
     """The machine-tool chain the feature points were made on: the recorded machine file, else the
     built-in machine of the recorded name; its SHA-256 must be the recorded one."""
@@ -144,7 +159,7 @@ def _chain_machine(fp):
         raise InputError(f"{src}: header key 'machine': the chain's feature points name no machine (nor a readable "
                          "machine_file)")
     machine = load_machine(mf if mf and Path(mf).is_file() else name)
-    if machine.kind != "machine-tool":
+    if not family_of(machine).facts.chain:
         raise InputError(f"{src}: header key 'axis_columns': given, but the machine {machine.name!r} is not a "
                          "machine-tool chain")
     sha = fp.meta.get("machine_sha256")
@@ -162,7 +177,7 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     (``--physics first-order``: the network on what the chain's own fitted element set leaves)."""
     machine = _chain_machine(fp)
     fp.check_units(machine)
-    partial = [a.column for a in machine.axes if a.kind == "rotary" and not a.full_turn]
+    partial = [a.column for a in machine.axes if is_rotary_column(a.column) and not a.full_turn]
     if args.a_encoding is not None and not partial:  # refused, never silently ignored
         raise UsageError(f"--a-encoding: the machine-tool chain {machine.name!r} has no rotary axis short of a full "
                          "turn to encode (a full-turn rotary axis is always (cos, sin), a linear axis one scaled input)")

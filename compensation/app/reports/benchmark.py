@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from markupsafe import Markup
 
+from ..families import ARM, CHAIN, GRINDER, PARALLEL
 from .figures import pyplot
 from .toolkit import Figure, Table, figure, num, render_page, um
 
@@ -35,10 +36,12 @@ def verdict_failed(r) -> bool:
     return (r.get("model_verdict") or {}).get("status") == "failed"
 
 
-def _rows(doc, kind=None, group=None, path=None, available=True):
+def _rows(doc, kinds=None, group=None, path=None, available=True):
+    """The rows of ``doc`` of machines of ``kinds`` (a family's, :mod:`compensation.app.families`; None: all),
+    ``group`` and ``path``; ``available``: True the rows that ran (and passed their verdict), None all."""
     out = []
     for r in doc["rows"]:
-        if kind and r["machine_kind"] != kind:
+        if kinds is not None and r["machine_kind"] not in kinds:
             continue
         if group and r.get("group") != group:
             continue
@@ -52,10 +55,10 @@ def _rows(doc, kind=None, group=None, path=None, available=True):
     return out
 
 
-def _line_plot(doc, kind, select, xkey, xlabel, title, alt) -> Figure | None:
-    """True RMS and max against ``xkey`` for the rows of ``kind`` that ``select(row)`` keeps."""
+def _line_plot(doc, kinds, select, xkey, xlabel, title, alt) -> Figure | None:
+    """True RMS and max against ``xkey`` for the rows of ``kinds`` that ``select(row)`` keeps."""
     plt = _plt()
-    rows = [r for r in _rows(doc, kind) if select(r)]
+    rows = [r for r in _rows(doc, kinds) if select(r)]
     if not rows:
         return None
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
@@ -77,7 +80,7 @@ def _line_plot(doc, kind, select, xkey, xlabel, title, alt) -> Figure | None:
 
 def _effects_plot(doc) -> Figure | None:
     plt = _plt()
-    rows = _rows(doc, "grinder", "effect")
+    rows = _rows(doc, GRINDER.kinds, "effect")
     effects = list(dict.fromkeys(r["effect"] for r in rows))
     if not effects:
         return None
@@ -149,7 +152,7 @@ def verdicts(doc) -> list[str]:
 def _ooc_pairs(doc) -> dict:
     """``{condition name: {"parametric": row, "hybrid": row}}`` of the out-of-catalogue group after the loop."""
     by = {}
-    for r in _rows(doc, "grinder", group="out-of-catalogue"):
+    for r in _rows(doc, GRINDER.kinds, group="out-of-catalogue"):
         if r.get("closed_loop") and r["path"] in ("parametric", "hybrid"):
             by.setdefault(r["condition"].replace(" (after closed loop)", ""), {})[r["path"]] = r
     return {k: v for k, v in by.items() if len(v) == 2}
@@ -321,37 +324,37 @@ def render_html(doc: dict) -> str:
     not_available += [f"{r['machine_kind']} / {r['path']} / {r['condition']}: not counted: its model's verdict "
                       f"{_verdict_text(r)}" for r in doc["rows"] if r.get("available") and verdict_failed(r)]
     grinder = None
-    g = _rows(doc, "grinder", available=None)
+    g = _rows(doc, GRINDER.kinds, available=None)
     if g:
         plain = ("density", "noise")
         sweeps = (("density", lambda r: r.get("group") in plain and r.get("noise_um") == s["base_noise_um"],
                    "stations", "stations per axis", f"against sweep density (noise {s['base_noise_um']:g} μm)"),
                   ("noise", lambda r: r.get("group") in plain and r.get("stations") == s["base_stations"],
                    "noise_um", "tracker noise σ (μm)", f"against tracker noise ({s['base_stations']} stations)"))
-        figures = [_line_plot(doc, "grinder", sel, xkey, xl, "Grinder: true residual on the flute " + t, f"grinder {grp}")
+        figures = [_line_plot(doc, GRINDER.kinds, sel, xkey, xl, "Grinder: true residual on the flute " + t, f"grinder {grp}")
                    for grp, sel, xkey, xl, t in sweeps] + [_effects_plot(doc)]
         grinder = {"path_conditions": ", ".join(f"{k} = {v:g}" for k, v in doc["path_conditions"].items()),
                    "table": _table(g, GRINDER_COLS), "figures": [f for f in figures if f is not None],
                    "solvers": _solver_table([r for r in g if r.get("available")])}
     chains = []
-    for name in dict.fromkeys(r["machine"] for r in _rows(doc, "machine-tool", available=None)):
-        c = [r for r in _rows(doc, "machine-tool", available=None) if r["machine"] == name]
+    for name in dict.fromkeys(r["machine"] for r in _rows(doc, CHAIN.kinds, available=None)):
+        c = [r for r in _rows(doc, CHAIN.kinds, available=None) if r["machine"] == name]
         chains.append((name, {"table": _table(c, CHAIN_COLS), "test_path": c[0].get("test_path"),
                               "solvers": _solver_table([r for r in c if r.get("available")])}))
     arms = []
-    for name in dict.fromkeys(r["machine"] for r in _rows(doc, "serial", available=None)):
-        a = [r for r in _rows(doc, "serial", available=None) if r["machine"] == name]
+    for name in dict.fromkeys(r["machine"] for r in _rows(doc, ARM.kinds, available=None)):
+        a = [r for r in _rows(doc, ARM.kinds, available=None) if r["machine"] == name]
         arms.append((name, {"table": _table(a, ARM_COLS), "test_path": a[0].get("test_path") or "a joint program"}))
     pkm = []
-    for kind in ("hexapod", "tripod"):
-        h = _rows(doc, kind, available=None)
+    for kind in PARALLEL.kinds:
+        h = _rows(doc, (kind,), available=None)
         if not h:
             continue
         sweeps = (("poses", lambda r: r.get("noise_um") == s["pkm_base_noise_um"], "n_poses", "measured poses",
                    f"against the number of poses (noise {s['pkm_base_noise_um']:g} μm)"),
                   ("noise", lambda r: r.get("n_poses") == s["pkm_base_poses"], "noise_um", "noise σ (μm)",
                    f"against measurement noise ({s['pkm_base_poses']} poses)"))
-        figures = [_line_plot(doc, kind, sel, xkey, xl, f"{kind.capitalize()}: true residual on the test paths {t}",
+        figures = [_line_plot(doc, (kind,), sel, xkey, xl, f"{kind.capitalize()}: true residual on the test paths {t}",
                               f"{kind} {grp}") for grp, sel, xkey, xl, t in sweeps]
         pkm.append((kind, {"table": _table(h, PKM_COLS), "per_path": _per_path_table([r for r in h if r.get("available")]),
                            "figures": [f for f in figures if f is not None]}))

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from errormap.pkm.machine_file import PKM
 
+from ..families import family_of
 from .figures import pyplot
 
 
@@ -22,7 +23,7 @@ def plot_tripod_sensitivity(machine: PKM, out_png, **study_kw) -> dict:
     from errormap.io import atomic_write
     from errormap.pkm.tripod import sensitivity_study
 
-    if machine.kind != "tripod":
+    if not family_of(machine).facts.sensitivity_study:
         raise ValueError(f"{machine.path}: the sensitivity plot is for a tripod machine file, got kind {machine.kind!r}")
     st = sensitivity_study(machine, **study_kw)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))

@@ -22,6 +22,8 @@ from errormap.pkm.pipeline import rms_um, validated_calibration
 
 from compensation.app.validate import UsageError
 
+from ..families import family_of
+
 from ..reports.calibration import write_html, write_plots
 
 
@@ -148,7 +150,7 @@ def run_calibration(machine, s: CalibrationSettings, out, log=None) -> Calibrati
     log = sys.stderr if log is None else log
     data = read_poses(s.poses, machine)
     k = machine.n_legs
-    d = 6 if (machine.kind == "hexapod" and data.rotation is not None) else 3
+    d = 6 if (family_of(machine).facts.platform_orientation and data.rotation is not None) else 3
     check_pose_set(data.source, machine, data.q, (8 if s.scales else 7) * k + 6 * s.register, d)
     fit, check = split_poses(machine, s, data)
     print(f"calibrate: {len(fit)} fit poses, {len(check)} held-out poses, machine {machine.name}", file=log)

@@ -110,8 +110,10 @@ def validate_inputs(machines) -> None:
     from errormap.diagnosis.checks import load_checks
     from errormap.machine import load_machine
     from errormap.sweeps import read_sweeps
+    from ..families import family_of
     for m in machines:
-        machine = load_machine(m["machine"], expect_kind="grinder")
+        machine = load_machine(m["machine"])
+        family_of(machine).target("fleet")   # the fleet's pipeline is the grinder's: other machines refused
         read_sweeps([str(s) for s in m["sweeps"]])
         load_checks(m["checks"], machine)
 
@@ -192,7 +194,7 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
 
     from .diagnosis import run_closed_loop
 
-    machine = load_machine(m["machine"], expect_kind="grinder")
+    machine = load_machine(m["machine"])   # checked by the fleet's up-front read
     name = m["name"]
     with limit_threads(s.get("threads")):
         # 1. identify

@@ -16,17 +16,14 @@ import numpy as np
 from errormap.io import InputError, read_table, write_csv
 from compensation.app.validate import UsageError
 
+from ..families import family_of
+
 ANGLES = ("rx_deg", "ry_deg", "rz_deg")
 
 
 def run_pkm_predict(machine, args) -> int:
     from errormap.pkm.calibration import load_calibrated_machine
     from errormap.pkm.hexapod import KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics
-    given = [o for o, v in (("--band", args.band), ("--allow", args.allow), ("--tracking-uri", args.tracking_uri),
-                            ("--units", args.units != "check")) if v]
-    if given:   # never ignored silently
-        raise UsageError(f"{', '.join(given)}: not on a parallel machine yet (its calibration.json holds no "
-                         "prediction band; poses outside the leg ranges are refused); leave it out")
     calibrated = load_calibrated_machine(args.model, machine)
     if calibrated.extra.get("leg_terms"):
         raise UsageError(f"{args.model}: key 'leg_terms': the loop's leg terms are applied to commands "
@@ -36,9 +33,10 @@ def run_pkm_predict(machine, args) -> int:
     t.require("x_mm", "y_mm", "z_mm")
     tips = np.stack([t.float(c) for c in ("x_mm", "y_mm", "z_mm")], axis=1)
     has = [c for c in ANGLES if c in t.names]
-    if has and (machine.kind != "hexapod" or len(has) != 3):
+    oriented = family_of(machine).facts.platform_orientation
+    if has and (not oriented or len(has) != 3):
         raise InputError(f"{t.path}: columns {', '.join(has)}: a hexapod's platform angles are the three "
-                         f"{', '.join(ANGLES)}" + ("" if machine.kind == "hexapod" else "; a tripod takes positions only"))
+                         f"{', '.join(ANGLES)}" + ("" if oriented else f"; a {machine.kind} takes positions only"))
     R = angles_to_rotation(np.stack([t.float(c) for c in ANGLES], axis=1)) if has else np.tile(np.eye(3), (len(tips), 1, 1))
     try:
         legs = inverse_kinematics(machine, tips, R, check_limits=True)   # the nominal commands

@@ -18,6 +18,8 @@ import numpy as np
 from errormap.io import write_json
 from errormap.seeds import spawn_seeds
 
+from ..families import family_of
+
 DEFAULT_PKM_NOISE_UM = 5.0
 """The instrument's noise σ per position component: the benchmark's base condition (``pkm_base_noise_um``)."""
 DEFAULT_PKM_POSES = 100
@@ -31,7 +33,7 @@ def simulate_pkm(machine, seed: int, out, noise_um: float = DEFAULT_PKM_NOISE_UM
     noise from the seed's own stream; an int redraws only that noise (the same truth and check poses)."""
     from errormap.pkm.simulate import simulate_hexapod_poses, simulate_tripod_poses
     from .simulate import check_noise_comments, check_noise_record
-    sim = simulate_hexapod_poses if machine.kind == "hexapod" else simulate_tripod_poses
+    sim = simulate_hexapod_poses if family_of(machine).facts.platform_orientation else simulate_tripod_poses
     s_fit, s_chk = spawn_seeds(seed, 2)
     out = Path(out)
     fit = sim(machine, poses, noise_um, s_fit)

@@ -76,7 +76,7 @@ def simulate_serial(chain, seed: int, out, effects=(), noise_um: float = DEFAULT
               header_comments=[f"machine: {chain.name}", "joint program: targets are the nominal tool points"],
               float_fmt="%.10g")
     reach = np.linalg.norm(truth.tool_point(chain, fit.q) - chain.tool_point(fit.q), axis=1)
-    info = {"seed": seed, "machine": chain.name, "kind": "serial", "effects": effects, "noise_um": noise_um,
+    info = {"seed": seed, "machine": chain.name, "kind": chain.kind, "effects": effects, "noise_um": noise_um,
             **check_noise_record(check_noise_seed),
             "errors": dict(zip(chain.param_names, map(float, truth.errors))),
             "compliance_rad_per_mm": truth.compliance_rad_per_mm.tolist(),
@@ -112,7 +112,7 @@ def load_serial_truth(path, chain) -> ArmTruth:
         doc = json.loads(read_document_text(path, "a JSON input"))
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a readable JSON truth file ({exc})") from None
-    if doc.get("kind") != "serial" or doc.get("machine") != chain.name:
+    if doc.get("kind") != chain.kind or doc.get("machine") != chain.name:
         raise InputError(f"{path}: not a simulated truth of the serial machine {chain.name!r}")
     missing = [n for n in chain.param_names if n not in doc["errors"]]
     if missing:

@@ -1,0 +1,244 @@
+"""The machine-family registry: the one place in the application that knows machine kinds.
+
+A loaded machine's family (:func:`family_of`) answers what the commands used to ask by comparing
+``machine.kind`` with strings: which workflow runs a command for it (:meth:`Family.target`), the
+facts a command branches on (:class:`Facts`: tracker sweeps, G-code words, measured poses, the
+element chain, a platform orientation ...) and which options it refuses, with the reason, in the
+words of ``docs/features.md`` (:meth:`Family.refuse_unsupported`). ``tests/test_family_registry.py``
+checks the declared gaps against that table's cells.
+
+Three families: **machine tool** (the built-in grinder and the machine-tool chains; the grinder is a
+chain whose hand-written model still runs its own workflows, so the family has two members, the
+table's two machine-tool columns), **serial arm** and **parallel** (hexapod, tripod). A new kind is
+one entry of :data:`FAMILIES` (and its parser in :func:`errormap.machine.machine_kinds`).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from .validate import UsageError
+
+YES, PHYSICS, OTHER_PATH, NOT_YET = "yes", "physics", "other path", "not yet"
+GAP_WORDS = (PHYSICS, OTHER_PATH, NOT_YET)
+"""A gap's first word, as the cells of docs/features.md spell it (there followed by a colon)."""
+
+
+@dataclass(frozen=True)
+class Facts:
+    """What a machine kind is, as far as a command asks: ``tracker_sweeps`` (identified from per-axis
+    laser-tracker sweeps and feature points over its axis columns), ``gcode`` (its programs are G-code in
+    its axis words), ``chain`` (its model is the element chain of its own axes, :mod:`errormap.mt_chain`),
+    ``poses`` (calibrated from measured poses), ``platform_orientation`` (a pose has a platform
+    orientation, ``rx_deg, ry_deg, rz_deg``: a hexapod), ``sensitivity_study`` (the tripod's
+    error-sensitivity study, ``interpolate --sensitivity-plot``)."""
+
+    tracker_sweeps: bool = False
+    gcode: bool = False
+    chain: bool = False
+    poses: bool = False
+    platform_orientation: bool = False
+    sensitivity_study: bool = False
+
+
+@dataclass(frozen=True)
+class Opt:
+    """One option of a refusal: its ``flag``, the ``word`` of its gap in docs/features.md, the value that means
+    "not given" besides None / False / empty (``default``), whether the message shows the value
+    (``show_value``) and the attribute of the parsed arguments (``dest``, from the flag by default)."""
+
+    flag: str
+    word: str
+    default: object = None
+    show_value: bool = False
+    dest: str = ""
+
+    def given(self, args):
+        """The option as the message names it (``--flag`` or ``--flag VALUE``), or None when not given."""
+        v = getattr(args, self.dest or self.flag.lstrip("-").replace("-", "_"), None)
+        if v is None or v is False or (isinstance(v, (list, tuple)) and not v) or v == self.default:
+            return None
+        return f"{self.flag} {v}" if self.show_value else self.flag
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """Options of ``command`` a family refuses (exit status 2, one line, nothing written). ``message`` is
+    formatted with ``given`` (the given options, comma-separated), ``does``/``it`` (singular or plural),
+    ``kind``, ``name`` and ``path`` of the machine; ``kinds``: only these kinds of the family refuse them."""
+
+    command: str
+    options: tuple
+    message: str
+    kinds: tuple = ()
+
+
+@dataclass(frozen=True)
+class Gap:
+    """A command a family does not run: the gap's ``word`` and ``reason`` (its docs/features.md cell)."""
+
+    word: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class Family:
+    """One family member (a column of docs/features.md): ``name`` of the family, ``column`` of the table,
+    ``kinds`` ``{kind: Facts}``, ``targets`` ``{command: target}`` (the workflow that runs the command for it;
+    a command looks its runner up by this name), ``gaps`` ``{command: Gap}`` (commands it does not run),
+    ``refusals`` (options it refuses). :func:`family_of` binds it to one machine (``kind``, ``path``,
+    ``machine_name``)."""
+
+    name: str
+    column: str
+    kinds: dict
+    targets: dict
+    gaps: dict = field(default_factory=dict)
+    refusals: tuple = ()
+    kind: str = ""
+    path: str = ""
+    machine_name: str = ""
+
+    @property
+    def facts(self) -> Facts:
+        """The facts of the bound machine's kind."""
+        return self.kinds[self.kind]
+
+    def runs(self, command: str) -> bool:
+        return command in self.targets
+
+    def target(self, command: str) -> str:
+        """The workflow that runs ``command`` for this family; :class:`UsageError` naming the gap (and the
+        way this family does the job, where there is one) when it does not run it."""
+        if command not in self.targets:
+            g = self.gaps[command]
+            raise UsageError(f"{self.path}: volcomp {command} does not run on a {self.name} "
+                             f"({self.kind} {self.machine_name!r}): {g.word}: {g.reason}")
+        return self.targets[command]
+
+    def refusals_of(self, command: str) -> list:
+        return [r for r in self.refusals if r.command == command and (not r.kinds or self.kind in r.kinds)]
+
+    def refuse_unsupported(self, command: str, args) -> None:
+        """Raise :class:`UsageError` for the first refusal of ``command`` whose options ``args`` gives (never an
+        option silently ignored); the message is the registry's, with the given options named."""
+        for r in self.refusals_of(command):
+            given = [g for g in (o.given(args) for o in r.options) if g]
+            if given:
+                one = len(given) == 1
+                raise UsageError(r.message.format(given=", ".join(given), does="does" if one else "do",
+                                                  it="it" if one else "them", kind=self.kind,
+                                                  name=self.machine_name, path=self.path))
+
+    def support(self, command: str, option: str) -> tuple:
+        """``(word, reason)`` of ``option`` of ``command`` on this family (any of its kinds): a refused option's
+        gap, the command's gap where the family does not run it, else ``("yes", "")``."""
+        command = COMMAND_MODES.get((command, option), command)
+        for r in self.refusals:
+            for o in r.options:
+                if r.command == command and o.flag == option:
+                    return o.word, r.message
+        if command not in self.targets:
+            return self.gaps[command].word, self.gaps[command].reason
+        return YES, ""
+
+
+COMMAND_MODES = {("report", "run"): "report run"}
+"""Options that make a command another job (``report RUN`` writes a chain run's page, not a comparison): the
+registry's name of that job."""
+
+
+def _same_target(*commands: str, target: str) -> dict:
+    return {c: target for c in commands}
+
+
+_FLEET = Gap(NOT_YET, "a fleet file's machines are grinder files")
+_DEMO = Gap(NOT_YET, "the demo's part is the grinder's flute")
+_PARALLEL_TRUTH = ("{given}: a parallel machine's truth has one family and no effects here (leg scales, zero lengths, "
+                   "joints); leave it out")
+_CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: the options are grouped by machine "
+                    "kind); leave {it} out")
+
+GRINDER = Family(
+    name="machine tool", column="Grinder",
+    kinds={"grinder": Facts(tracker_sweeps=True, gcode=True)},
+    targets=_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "report", "fleet", "demo",
+                         target="grinder"),
+    gaps={"calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
+          "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
+          "interpolate": Gap(OTHER_PATH, "compensate (axis programs)"),
+          "report run": Gap(OTHER_PATH, "diagnose writes the run's report.html itself")},
+    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),),
+                      "{given}: only arms and parallel machines are simulated by poses (machine tools: --checks)"),))
+
+CHAIN = Family(
+    name="machine tool", column="Machine-tool chains",
+    kinds={"machine-tool": Facts(tracker_sweeps=True, gcode=True, chain=True)},
+    targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", target="chain"),
+             "report run": "chain"},
+    gaps={"fleet": _FLEET, "demo": _DEMO,
+          "calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
+          "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify"),
+          "interpolate": Gap(OTHER_PATH, "compensate"),
+          "report": Gap(NOT_YET, "the comparison runs the grinder's solvers (the chain's exact, GA and batched GA "
+                                 "run in compensate --machine)")},
+    refusals=GRINDER.refusals)
+
+ARM = Family(
+    name="serial arm", column="Serial arm",
+    kinds={"serial": Facts(poses=True)},
+    targets=_same_target("simulate", "calibrate", "register", "predict", target="arm"),
+    gaps={"fleet": _FLEET, "demo": _DEMO,
+          "sweeps": Gap(OTHER_PATH, "poses spread over every joint (simulate --poses, then calibrate)"),
+          "featurepoints": Gap(OTHER_PATH, "the arm's learned stage is fitted on the measured poses inside calibrate"),
+          "train": Gap(OTHER_PATH, "the arm's learned stage (a Gaussian process chosen by CV) inside calibrate"),
+          "interpolate": Gap(OTHER_PATH, "compensate (joint programs)"),
+          "report": Gap(NOT_YET, "one method (Newton): compensate --machine"),
+          "report run": Gap(OTHER_PATH, "calibrate writes report.html")},
+    refusals=(
+        Refusal("simulate", (Opt("--family", NOT_YET, default="default", show_value=True),),
+                "{given}: a serial arm's truth has one family (errormap/arm_simulate.py: link, base and tool errors, "
+                "sag, backlash); leave it out"),
+        Refusal("calibrate", tuple(Opt(f, NOT_YET) for f in ("--no-scales", "--scales", "--no-loop", "--no-register",
+                                                             "--lever-mm", "--lambda-rule", "--compare-rules")),
+                _CALIBRATE_OTHER.replace("{what}", "a serial arm"))))
+
+PARALLEL = Family(
+    name="parallel machine", column="Parallel (hexapod, tripod)",
+    kinds={"hexapod": Facts(poses=True, platform_orientation=True), "tripod": Facts(poses=True, sensitivity_study=True)},
+    targets=_same_target("simulate", "calibrate", "interpolate", "predict", target="parallel"),
+    gaps={"fleet": _FLEET, "demo": _DEMO,
+          "sweeps": Gap(OTHER_PATH, "poses (calibrate: leg lengths, joint positions, scales)"),
+          "featurepoints": Gap(NOT_YET, "no learned field of a parallel machine"),
+          "train": Gap(NOT_YET, "no learned field of a parallel machine"),
+          "register": Gap(OTHER_PATH, "calibrate registers the instrument frame"),
+          "report": Gap(NOT_YET, "no comparison of leg-command methods"),
+          "report run": Gap(OTHER_PATH, "calibrate writes report.html")},
+    refusals=(
+        Refusal("simulate", (Opt("--family", NOT_YET, default="default"), Opt("--effect", NOT_YET)), _PARALLEL_TRUTH),
+        Refusal("calibrate", (Opt("--no-learned", NOT_YET), Opt("--folds", NOT_YET)),
+                _CALIBRATE_OTHER.replace("{what}", "a {kind}")),
+        Refusal("predict", (Opt("--band", NOT_YET), Opt("--allow", PHYSICS), Opt("--tracking-uri", NOT_YET),
+                            Opt("--units", NOT_YET, default="check")),
+                "{given}: not on a parallel machine yet (its calibration.json holds no prediction band; poses outside "
+                "the leg ranges are refused); leave it out"),
+        Refusal("interpolate", (Opt("--sensitivity-plot", NOT_YET),),
+                "{path}: --sensitivity-plot needs a tripod machine file, got {kind!r}", kinds=("hexapod",))))
+
+FAMILIES = (GRINDER, CHAIN, ARM, PARALLEL)
+"""Every family member, in the order of the columns of docs/features.md."""
+
+
+def family_of_kind(kind: str) -> Family:
+    """The family of the machine kind ``kind`` (a recorded one, e.g. a benchmark row's), bound to it;
+    ``ValueError`` for a kind no family holds (every parser's kind has one: tests/test_family_registry.py)."""
+    for f in FAMILIES:
+        if kind in f.kinds:
+            return dataclasses.replace(f, kind=kind)
+    raise ValueError(f"machine kind {kind!r} belongs to no family (compensation/app/families.py)")
+
+
+def family_of(machine) -> Family:
+    """The family of a loaded machine, bound to it (its kind, file and name)."""
+    return dataclasses.replace(family_of_kind(machine.kind), path=str(getattr(machine, "path", "")),
+                               machine_name=getattr(machine, "name", ""))
