@@ -77,9 +77,12 @@ class TcpProgram:
     def active(self, lines0) -> np.ndarray:
         return self.on[np.asarray(lines0, dtype=np.int64)]
 
-    def machine_at(self, machine, length_mm: float):
-        """The machine with its tool at ``length_mm`` (built once per length)."""
+    def machine_at(self, machine, length_mm):
+        """The machine with its tool at ``length_mm`` (built once per length); None or NaN: the machine file's
+        own tool (``machine`` itself)."""
         from .nc_state import machine_with_tool
+        if length_mm is None or not np.isfinite(length_mm):
+            return machine
         key = float(length_mm)
         if key not in self._machines:
             self._machines[key] = machine_with_tool(machine, key)
@@ -389,8 +392,8 @@ def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm)
         sw = pre.switch[int(lines0[k])]
         return f"{program.path}: line {int(lines0[k]) + 1}: under '{sw[2]}' (line {sw[0] + 1}, column {sw[1]})"
 
-    bad = np.flatnonzero(~np.isfinite(tool_mm))
-    if bad.size:
+    bad = [k for k in np.flatnonzero(~np.isfinite(tool_mm)) if not machine_tool_under_g49(pre, machine, lines0[k])]
+    if bad:
         raise InputError(f"{where(bad[0])}: tool-centre-point control with no tool length active: give 'G43 Hn' "
                          "(or the dialect's tool call) and the tool in --tool-table")
     rbad = np.flatnonzero(np.any(np.abs(offset[:, rot]) > 0.0, axis=1)) if rot else np.zeros(0, int)
@@ -400,9 +403,8 @@ def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm)
     out[:, lin] += offset[:, lin]
     words = tuple(machine.axes[j].word for j in lin)
     mid = 0.5 * (machine.stroke_lo + machine.stroke_hi)
-    for length in np.unique(tool_mm):
-        idx = np.flatnonzero(tool_mm == length)
-        mt = pre.machine_at(machine, float(length))
+    for length, idx in by_length(tool_mm):
+        mt = pre.machine_at(machine, length)
         start = out[idx].copy()
         start[:, lin] = mid[lin]
         q, ok = mt.inverse(out[idx][:, lin], start, free=words, tol_mm=INVERSE_TOL_MM)
@@ -413,14 +415,34 @@ def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm)
     return out
 
 
+def machine_tool_under_g49(pre: TcpProgram, machine, line0) -> bool:
+    """Whether a TCP line with no tool length offset active runs at the machine file's own tool point: its
+    switch is one of the file's ``[tcp] switch_on`` codes and the file says ``tool_length_under_g49 =
+    "machine"`` (LinuxCNC's switchable kinematics read a zero tool offset under ``G49``)."""
+    sw = pre.switch[int(line0)]
+    tcp = machine.tcp or {}
+    return (sw is not None and tcp.get("tool_length_under_g49") == "machine" and sw[2][:1] == "M"
+            and float(sw[2][1:]) in tcp.get("switch_on", ()))
+
+
+def by_length(tool_mm):
+    """``(length_mm or None, indices)`` per distinct tool length of ``tool_mm`` (n,); None: NaN (no tool length
+    offset active: the machine file's own tool)."""
+    t = np.asarray(tool_mm, dtype=float)
+    for length in np.unique(t[np.isfinite(t)]):
+        yield float(length), np.flatnonzero(t == length)
+    nan = np.flatnonzero(~np.isfinite(t))
+    if nan.size:
+        yield None, nan
+
+
 def tip_words(pre: TcpProgram, machine, axes, offset, tool_mm) -> np.ndarray:
     """The TCP-form program axes (n, k) of machine ``axes`` (n, k): the nominal tool tip at the tool length
     ``tool_mm`` (n,) minus the work offset, the rotary axes as they are."""
     lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
     out = np.array(axes, dtype=float)
-    for length in np.unique(tool_mm):
-        idx = np.flatnonzero(tool_mm == length)
-        out[np.ix_(idx, lin)] = pre.machine_at(machine, float(length)).nominal(axes[idx]) - offset[np.ix_(idx, lin)]
+    for length, idx in by_length(tool_mm):
+        out[np.ix_(idx, lin)] = pre.machine_at(machine, length).nominal(axes[idx]) - offset[np.ix_(idx, lin)]
     return out
 
 
