@@ -237,7 +237,6 @@ def test_g93_block_times_kept(models, text, dialect, name):
     (FANUC, "linuxcnc", "line 6, column 1: 'G43.4' (tool-centre-point control) is a word of fanuc"),
     (FANUC.replace("G1 X20. Y10. Z2. A-20. C30.", "G43.5 H1 I0 J0 K1"), "fanuc", "line 8, column 1: 'G43.5' with a "
      "tool-direction vector"),
-    (LINUXCNC.replace("G43 H1\n", ""), "linuxcnc", "no tool length active"),
     (HEIDENHAIN.replace("N10 T1 G17 S4000 *", "N10 G17 S4000 *"), "heidenhain-iso", "line 4, column 5: 'M128' with no "
      "tool length"),
     (SIEMENS.replace("TRAORI", "TRAORI(1,0,0,1)"), "siemens-iso", "line 4, column 1: 'TRAORI' with parameters"),
@@ -288,7 +287,7 @@ def test_rotary_work_offset_under_tcp_refused(models, capsys):
 
 def test_machine_file_tcp_switch_is_read_and_checked(tmp_path):
     mt = load_machine("five-axis-ac")
-    assert mt.tcp == {"switch_on": (428,), "switch_off": (429,)}
+    assert mt.tcp == {"switch_on": (428,), "switch_off": (429,), "tool_length_under_g49": "machine"}
     from errormap.machine_checks import MachineFileError
     from errormap.mt_chain import parse_machine_tool
     import tomllib
