@@ -15,7 +15,9 @@ siemens-iso            ``TRAORI`` / ``TRAORI(1)`` on a line alone  ``TRAFOOF``
                        (the tool ``T`` with its edge ``D1``)
 any (the machine's)    the machine file's ``[tcp] switch_on``      ``[tcp] switch_off``
                        (LinuxCNC switchable kinematics ``M428``,   (``M429``)
-                       tool length: the active ``G43 Hn``)
+                       tool length: the active ``G43 Hn``, or
+                       under ``G49`` the file's own tool point
+                       where ``[tcp] tool_length_under_g49``)
 =====================  ==========================================  =====================================
 
 Fanuc's ``G43.5`` with a tool-direction vector ``I J K`` leaves the rotary positions to the controller
