@@ -63,7 +63,7 @@ _LINE_MARKS = re.compile(r"#|\[|o\s*<|m\s*0*9\s*[789](?![\d.])|g\s*0*65(?![\d.])
                          r"|^\s*/?\s*(?:n\s*\d+\s*)?o\s*\d+\s*[a-z]", re.I)
 _M7X_BYTES = re.compile(rb"m[ \t]*0*7[0-3](?![\d.])")
 _END_CODES = re.compile(r"(?<![a-z])m\s*0*(?:2|30)(?![\d.])", re.I)
-_O_STMT = re.compile(r"\s*o\s*(<[^>]*>|\d+)\s*([a-z]+)?", re.I)
+_O_STMT = re.compile(r"\s*o\s*(<[^>]*>|\d+|\[(?:[^\[\]]|\[[^\[\]]*\])*\])\s*([a-z]+)?", re.I)
 _PROG = re.compile(r"\s*(?:[oO]|:)\s*(\d+)\s*$")
 _N_LABEL = re.compile(r"\s*[nN]\s*(\d+)")
 _NUM = re.compile(r"[ \t]*((?:\d[\d \t]*)?\.?[\d \t]*)")
@@ -320,6 +320,9 @@ def _parse_line(body: str):
     o = _O_STMT.match(code, i)
     if o and o.group(2) and o.group(2).lower() in _LCNC_KEYS:
         return _parse_o(p, o, label)
+    if o and o.group(2) and (len(o.group(2)) > 1 or o.group(1)[0] in "<["):
+        raise _Refuse(o.start(2) + 1, f"'o{o.group(1)} {o.group(2)}': '{o.group(2)}' is not an O-word keyword "
+                                      f"({', '.join(sorted(_LCNC_KEYS))})")
     key, j = p.alpha(p.ws(i))
     if key == "IF":
         cond, k = p.value(j)
@@ -384,6 +387,10 @@ def _parse_o(p: _Parser, o, label):
     name = re.sub(r"\s+", "", o.group(1)).lower()
     kw = o.group(2).lower()
     k = o.end()
+    if name.startswith("["):  # an indirect O-number (LinuxCNC: o[#101+2] call), evaluated when called
+        if kw != "call":
+            raise _Refuse(o.start(1) + 1, f"'o{o.group(1)} {kw}': a computed O-number is read only with call")
+        name = ("indirect", p.value(o.start(1))[0])
     args = []
     if kw == "call":
         k = p.ws(k)
