@@ -52,6 +52,9 @@ TCP_M = {128: ("heidenhain-iso", "on"), 129: ("heidenhain-iso", "off")}
 """Heidenhain's TCPM M codes (ISO programs)."""
 SIEMENS_LINE = re.compile(r"[ \t]*(?:N\d+[ \t]*)?(TRAORI(?:[ \t]*\([ \t]*1?[ \t]*\))?|TRAFOOF)[ \t]*(?:;.*)?\r?",
                           re.IGNORECASE)
+SIEMENS_VECTOR = re.compile(r"(?<![A-Za-z0-9_])([ABC][2-7]|LEAD|TILT|THETA|PHI|PSI)[ \t]*=", re.IGNORECASE)
+"""Siemens orientation programming (A3= B3= C3= direction vectors, A2= angles, A4–A7 surface normals, LEAD/TILT):
+refused by name under the TCP pre-pass."""
 SIEMENS_OTHER = re.compile(r"[ \t]*(?:N\d+[ \t]*)?TRAORI\b", re.IGNORECASE)
 TRIGGER = rb"(?i)G[ \t]*0*(?:43[ \t]*\.[ \t]*[45]|234|93)(?![0-9.])|M[ \t]*0*12[89](?![0-9.])|TRA(?:ORI|FOOF)"
 """Bytes that may hold a word of this module; a program without any is read without the pre-pass."""
@@ -168,6 +171,11 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
             out.append(_blank(body, m.start(1), m.end(1)) + ending)
             _mark(i, state, on, g93, switch)
             continue
+        vec = SIEMENS_VECTOR.search(body.split(";")[0])
+        if vec is not None:
+            raise _refuse(path, i, vec.start(1) + 1, f"'{vec.group(1)}=' (Siemens tool orientation: a direction vector "
+                          "or angle under TRAORI): the rotary positions are the controller's choice (two solutions); "
+                          "post rotary words (A, C) instead")
         try:
             _, toks, _ = tokenize(body)
         except _Refuse:

@@ -241,6 +241,8 @@ def test_g93_block_times_kept(models, text, dialect, name):
      "tool length"),
     (SIEMENS.replace("TRAORI", "TRAORI(1,0,0,1)"), "siemens-iso", "line 4, column 1: 'TRAORI' with parameters"),
     (SIEMENS.replace("T1 D1 M6", "T1 M6"), "siemens-iso", "line 4, column 1: 'TRAORI' with no tool length"),
+    (SIEMENS.replace("G1 X20 Y10 Z2 A-20 C30", "G1 X20 Y10 Z2 A3=0 B3=-0.5 C3=0.866"), "siemens-iso",
+     "line 7, column 15: 'A3=' (Siemens tool orientation"),
     (LINUXCNC.replace("X20 Y10 Z2 A-20 C30 F30", "X20 Y10 Z2 A-20 C30"), "linuxcnc", "line 9, column 1: G1 under G93"),
     (FANUC.replace("G54\n", "G54\nG68.2 X0 Y0 Z0 I0 J30 K0\n"), "fanuc", "line 6, column 1: 'G68.2' (tilted work plane)"),
     (LINUXCNC.replace("M428\nG0 X0 Y0 Z50 A0 C0", "G0 X0 Y0 Z-300 A0 C0\nM428\nG0 X0 Y0 Z50"), "linuxcnc",
