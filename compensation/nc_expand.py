@@ -506,7 +506,7 @@ class _Machine:
         self.out, self.origin = [], []
         self.executed = 0
         self.calls = ()
-        self.modal = ModalTracker()
+        self.modal = ModalTracker() if _M7X_BYTES.search(text.lower().encode("latin-1")) else None
         self._index()
 
     # -- structure
@@ -549,10 +549,11 @@ class _Machine:
 
     # -- output
     def _emit(self, i, text=None):
-        line = self.lines[i] if text is None else text
-        new = self.modal.line(self, i, line)  # M70-M73 acted on and blanked (compensation.nc_modal)
-        if new != line:
-            text = new
+        if self.modal is not None:  # M70-M73 acted on and blanked (compensation.nc_modal)
+            line = self.lines[i] if text is None else text
+            new = self.modal.line(self, i, line)
+            if new != line:
+                text = new
         if text is None:
             self.out.append(self.lines[i] + self.endings[i])
             self.origin.append((i + 1, True, tuple(c + 1 for c in self.calls)))

@@ -238,7 +238,8 @@ def _enter(m, pc, span, frame, times=1):
                 m._unit(span, frame)
             except _Return:
                 pass
-            m.modal.leave(m, pc)  # an M73 state restored on return (compensation.nc_modal)
+            if m.modal is not None:
+                m.modal.leave(m, pc)  # an M73 state restored on return (compensation.nc_modal)
     finally:
         m.calls = m.calls[:-1]
 
