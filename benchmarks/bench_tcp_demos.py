@@ -21,6 +21,7 @@ import argparse
 import csv
 import hashlib
 import json
+import re
 import sys
 import tempfile
 from pathlib import Path
@@ -31,12 +32,56 @@ sys.path.insert(0, str(HERE))
 
 from bench_tcp import NOISE, inverse_time_minutes, noisy  # noqa: E402
 
+import numpy as np  # noqa: E402
+
 from compensation.app.cli import main  # noqa: E402
+from errormap.mt_field import ChainField  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
 from errormap.mt_elements import ChainElementSet  # noqa: E402
 
 MANIFEST = HERE / "program_corpus" / "TCP_DEMOS.csv"
 MACHINE = "five-axis-ac"
+
+
+def tcp_points(text):
+    """Independent of the product: ``(points (n, 5) X Y Z A C, feed (n,) bool)`` of every TCP line of a LinuxCNC
+    program (between M428 and M429; modal axis words carried; ``;`` and ``( )`` comments dropped; a point is a
+    feed point when G1/G2/G3 is the active motion)."""
+    pos = dict.fromkeys("XYZAC", np.nan)
+    on, feed, pts, flags = False, False, [], []
+    for line in text.splitlines():
+        body = re.sub(r"\(.*?\)", "", line.split(";")[0]).upper()
+        if re.search(r"M0*428(?![\d.])", body):
+            on = True
+        if re.search(r"M0*429(?![\d.])", body):
+            on = False
+        g = re.findall(r"G0*([0123])(?![\d.])", body)
+        if g:
+            feed = g[-1] != "0"
+        words = dict(re.findall(r"([XYZAC])\s*([+-]?[\d.]+)", body))
+        if words and on:
+            pos.update({k: float(v) for k, v in words.items()})
+            pts.append([pos[a] for a in "XYZAC"])
+            flags.append(feed)
+    return np.array(pts), np.array(flags)
+
+
+def programmed_points_reached_um(src_text, out_text, truth_path, offset_z):
+    """Every programmed TCP feed point of the source: the distance (μm) to the nearest TRUE tip among the written
+    feed points, each driven as a TCP controller drives it (the nominal inverse at the machine file's own tool —
+    no G43 in the demos — of the written tip + work offset at the written A C, then the truth's tool point there).
+    The issue's check: every programmed point reproduced to <= 1 μm by the true machine after compensation."""
+    mt = load_machine(MACHINE)
+    off = np.array([0.0, 0.0, float(offset_z)])
+    src, sf = tcp_points(src_text)
+    out, of = tcp_points(out_text)
+    src, out = src[sf & np.isfinite(src).all(axis=1)], out[of & np.isfinite(out).all(axis=1)]
+    start = np.column_stack([np.full((len(out), 3), 0.0), out[:, 3:]])
+    q, ok = mt.inverse(out[:, :3] + off, start, free=("X", "Y", "Z"), tol_mm=1e-10)
+    assert ok.all()
+    tips = mt.nominal(q) + 1e-3 * ChainField(mt, ChainElementSet.load(truth_path, mt)).predict(q) - off
+    d = np.array([np.min(np.linalg.norm(tips - p, axis=1)) for p in src[:, :3]]) * 1e3
+    return float(d.max()), len(src)
 
 
 def _row(name, mname, orient, rc, e, src_text, out_text):
@@ -80,6 +125,9 @@ def run(corpus: Path) -> list:
                     rc = main(argv + (["--compensate-orientation"] if orient else []))
                     e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
                     row = _row(m["file"], mname, orient, rc, e, p.read_text(), (out / p.name).read_text())
+                    if mname == "truth":
+                        row["programmed_points_max_um"], row["programmed_points"] = programmed_points_reached_um(
+                            p.read_text(), (out / p.name).read_text(), tp, m["work_offset_z_mm"])
                     rows.append(row)
                     print(json.dumps(row), flush=True)
     return rows
