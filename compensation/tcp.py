@@ -78,6 +78,9 @@ class TcpProgram:
     tool_events: list
     lines: list
     _machines: dict = field(default_factory=dict, repr=False)
+    machine_tool_points: int = 0
+    """TCP points placed at the machine file's own tool point (``G49`` under a ``[tcp]`` switch whose file says
+    ``tool_length_under_g49 = "machine"``), recorded by :func:`tcp_axes` for the summary."""
 
     def active(self, lines0) -> np.ndarray:
         return self.on[np.asarray(lines0, dtype=np.int64)]
@@ -402,7 +405,9 @@ def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm)
         sw = pre.switch[int(lines0[k])]
         return f"{program.path}: line {int(lines0[k]) + 1}: under '{sw[2]}' (line {sw[0] + 1}, column {sw[1]})"
 
-    bad = [k for k in np.flatnonzero(~np.isfinite(tool_mm)) if not machine_tool_under_g49(pre, machine, lines0[k])]
+    unset = np.flatnonzero(~np.isfinite(tool_mm))
+    bad = [k for k in unset if not machine_tool_under_g49(pre, machine, lines0[k])]
+    pre.machine_tool_points = max(pre.machine_tool_points, len(unset) - len(bad))
     if bad:
         raise InputError(f"{where(bad[0])}: tool-centre-point control with no tool length active: give 'G43 Hn' "
                          "(or the dialect's tool call) and the tool in --tool-table")
@@ -636,6 +641,11 @@ def report(pre: TcpProgram, points_on: np.ndarray, before_urad=None, after_urad=
            "inverse_time_lines": int(pre.inverse_time.sum()) if pre else 0,
            "form": "TCP points written in TCP form: tool tip X Y Z in the workpiece frame (compensated), rotary "
                    "words as programmed (or as corrected with --compensate-orientation)"}
+    if pre is not None and pre.machine_tool_points:
+        out["tool"] = (f"{pre.machine_tool_points} TCP point(s) with no G43 active run at the machine file's own tool "
+                       "point (its [tcp] tool_length_under_g49 = \"machine\": the control's kinematics use a zero "
+                       "tool offset)")
+
     def st(v):
         return {"max_urad": float(v.max()), "rms_urad": float(np.sqrt(np.mean(v ** 2)))}
     if before_urad is not None:

@@ -110,6 +110,8 @@ def test_m428_without_g43_runs_at_the_machine_files_tool_point(setup):
     rc, entry, out = _run(setup, "pos")
     assert rc == 0, entry
     assert entry["tcp"]["points"] > 0 and entry["tcp"]["inverse_time_lines"] > 0
+    assert entry["tcp"]["tool"].startswith(f"{entry['tcp']['points']} TCP point(s) with no G43 active run at the "
+                                           "machine file's own tool point")  # the summary says so
     assert entry["true"]["max_um"] <= TRUE_EXACT_UM < entry["true_uncompensated"]["max_um"]
     src, dst = DEMO, out.read_text()
     moves = {i for i, _, _ in tcp_lines(src)}
