@@ -20,8 +20,9 @@ flat program then does what the controller does, and the reader reads it like an
 Refused (naming line and column): an ``M70``–``M73`` sharing its line with other words (the order the
 controller applies them in decides the result), ``M72`` with nothing saved at its call level, a restore of a
 group the program had not set before the save (the controller's start-up value, which the program does not
-say), and a restore that would change cutter compensation or a dynamic tool length (``G43.1``/``G43.2``:
-their entry moves and values are not modal words).
+say), a restore that would change cutter compensation or a dynamic tool length (``G43.1``/``G43.2``:
+their entry moves and values are not modal words), and a restore across a tool change while a tool length
+offset is active.
 """
 from __future__ import annotations
 
@@ -111,11 +112,15 @@ class ModalTracker:
                     self.now[g] = code + extra
             elif letter in "FS":
                 self.now[letter] = f"{letter}{txt}"
+            elif letter == "T":
+                self.now["_selected"] = txt
             elif letter == "M" and v == int(v):
                 n = int(v)
                 if n in _M_GROUPS:
                     extra = "".join(f" {c}{by[c][1]}" for c in _WITH_WORDS.get(f"M{n}", "") if c in by)
                     self.now[_M_GROUPS[n]] = f"M{n}{extra}"
+                elif n == 6:
+                    self.now["_loaded"] = self.now.get("_selected")
                 elif n in (7, 8):
                     self.now["mist" if n == 7 else "flood"] = f"M{n}"
                 elif n == 9:
@@ -146,6 +151,11 @@ class ModalTracker:
     def restore(self, m, i: int, saved: dict, col) -> None:
         """Write the lines that put every differing group back to ``saved`` (module docstring)."""
         lines = []
+        g43 = any((v or "").startswith("G43") for v in (saved.get("tool_length"), self.now.get("tool_length")))
+        if g43 and saved.get("_loaded") != self.now.get("_loaded"):
+            raise m._err(i, col, "restoring the modal state (M72/M73) after a tool change with a tool length offset "
+                                 "active: which length the controller restores is not the program's to say; not "
+                                 "expanded")
         for g in ORDER:
             was, now = saved.get(g), self.now.get(g)
             if was == now:

@@ -87,6 +87,8 @@ def test_m73_restores_at_endsub_and_at_return(tmp_path):
      "would set the distance back to the controller's start-up value"),
     ("G21 G90 G40\nG0 X0 Y0 Z0\nM70\nG41 D1\nG1 X1 F100\nM72\nG1 X2\nM2\n", "line 6, column 1: restoring the modal "
      "state (M72/M73) would change the cutter from 'G41 D1' to 'G40'"),
+    ("G21 G90\nT1 M6\nG43 H1\nG0 X0 Y0 Z0\nM70\nT2 M6\nG43 H2\nM72\nG1 X1 F100\nM2\n", "line 8, column 1: "
+     "restoring the modal state (M72/M73) after a tool change"),
 ])
 def test_what_the_program_does_not_determine_is_refused(tmp_path, text, fragment):
     p = tmp_path / "bad.ngc"
