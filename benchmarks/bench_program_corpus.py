@@ -35,9 +35,10 @@ HERE = Path(__file__).resolve().parent
 MANIFEST = HERE / "program_corpus" / "MANIFEST.csv"
 TOOL_LENGTH_MM = 100.0
 TOOL_RADIUS_MM = 5.0
-PART_ZERO_MM = {"mill-xyz": (300.0, 200.0, -300.0), "lathe-xzc": (0.0, 0.0, 0.0)}
+PART_ZERO_MM = {"mill-xyz": (300.0, 200.0, -300.0), "lathe-xzc": (0.0, 0.0, 0.0), "five-axis-ac": (0.0, 0.0, 40.0)}
 """Where the tables put every work system: a part zero inside the machine's strokes (mill: the middle of X
-and Y, 100 mm above the bottom of Z's stroke; lathe: the spindle axis)."""
+and Y, 100 mm above the bottom of Z's stroke; lathe: the spindle axis; five-axis: on the C axis, 40 mm above
+the C table top)."""
 
 
 def _tables(tmp: Path, read_work_offsets, read_tool_table, InputError):

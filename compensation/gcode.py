@@ -453,6 +453,9 @@ def tokenize(body: str):
             i = j + 1
         elif c == ";":
             break
+        elif c in "@^":
+            raise _Refuse(i + 1, f"'{c}': a LinuxCNC polar coordinate ({'distance' if c == '@' else 'angle'} from the XY "
+                                 "zero) is not read: write the point as X Y")
         elif c.isalpha() and c.isascii():
             u = c.upper()
             j = i + 1

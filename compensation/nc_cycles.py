@@ -51,8 +51,9 @@ the compensated ``X Y Z`` of the bottom and the compensated Z of the R point as 
 cannot follow (the hole is drilled straight from the compensated XY), reported per line. Under
 ``G91`` the kept line is written in increments from where the controller running the output really is
 (``X Y`` from its position before the hole, ``R`` from the series' initial level as written, ``Z`` from
-the written R plane; :func:`render_kept`); ``L``/``K`` repeats under ``G91`` are refused (one line, equal
-steps). After a kept cycle the controller stands at the written (compensated) clear level, not the
+the written R plane; :func:`render_kept`); ``L``/``K`` repeats under ``G91`` drill a hole each, written as
+the line (without its repeat word) followed by one modal-repeat line per further hole (the compensated holes are
+not equally spaced). After a kept cycle the controller stands at the written (compensated) clear level, not the
 programmed one: an incremental move is refused until an absolute ``Z``. ``"expand"``: each hole
 becomes the controller's moves above, compensated point by point.
 """
@@ -260,11 +261,6 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
     if not any(a in by for a in "XYZ"):
         return [extra.replace("G90", "G91" if st.inc else "G90")]
     r, bottom, clear = _levels(code, st, col)
-    if mode == "keep" and st.inc and _repeats(by) > 1:
-        w = by["L"] if "L" in by else by["K"]
-        raise _Refuse(w.start + 1, f"{w.letter}{w.text} under G91 on a kept cycle: one line drills its holes at equal "
-                                   "steps, the compensated holes are not equally spaced; write one line per hole or "
-                                   "use --expand-cycles")
     dec = DECIMALS["inch" if st.inch else "mm"]
     out = []
     x, y = st.pos[0], st.pos[1]
@@ -457,35 +453,40 @@ def render_kept(program, vertices, header=()) -> str:
     words = program.axis_words.words
     jx, jy, jz = (words.index(a) for a in "XYZ")
     moved = sorted(track)
-    before = {}  # hole line: the controller's position before it (output units: mm / deg)
+    before = {}  # hole (id): the controller's position before it (output units: mm / deg)
     initial = {}  # series: the controller's Z when it began (its initial level)
     for h in exp.holes:
         k = bisect.bisect_left(moved, h.out_r - 1) - 1
-        before[h.line] = track[moved[k]] if k >= 0 else np.full(len(words), np.nan)
-        initial.setdefault(h.series, before[h.line][jz])
+        before[id(h)] = track[moved[k]] if k >= 0 else np.full(len(words), np.nan)
+        initial.setdefault(h.series, before[id(h)][jz])
     by_line = {}
-    for h in exp.holes:
-        by_line[h.line] = h  # repeats (G90) drill one hole: the last is it
+    for h in exp.holes:  # G91 repeats drill a hole each (one line per hole written); G90 repeats one: the last
+        by_line[h.line] = by_line.get(h.line, []) + [h] if h.inc else [h]
     out = []
     for i, (a, b) in enumerate(exp.spans):
-        h = by_line.get(i + 1)
-        if h is None and b - a == 1 and exp.origin[a][1]:
+        hs = by_line.get(i + 1)
+        if hs is None and b - a == 1 and exp.origin[a][1]:
             out += groups[a]
             continue
         end = program.lines[a][len(program.lines[a].rstrip("\r\n")):] if b > a else "\n"
-        if h is None:  # a cycle line that drills nothing (sets the cycle's words)
+        if hs is None:  # a cycle line that drills nothing (sets the cycle's words)
             out.append(exp.source[i] + (end or "\n"))
             continue
-        scale = MM_PER_INCH if h.inch else 1.0
-        bot, rp = ends[h.out_bottom], ends[h.out_r]
-        dec = DECIMALS["inch" if h.inch else "mm"]
-        if h.inc:
-            text = _incremental_words(bot[[jx, jy, jz]], rp[jz], before[h.line][[jx, jy]], initial[h.series], scale,
-                                      dec, exp.where(h.out_r))
-        else:
-            vals = {"X": bot[jx], "Y": bot[jy], "Z": bot[jz], "R": rp[jz]}
-            text = {k: fmt(v / scale, dec) for k, v in vals.items()}
-        out.append(_substitute(exp.source[i], text) + (end or "\n"))
+        for n, h in enumerate(hs):
+            scale = MM_PER_INCH if h.inch else 1.0
+            bot, rp = ends[h.out_bottom], ends[h.out_r]
+            dec = DECIMALS["inch" if h.inch else "mm"]
+            if h.inc:
+                text = _incremental_words(bot[[jx, jy, jz]], rp[jz], before[id(h)][[jx, jy]], initial[h.series], scale,
+                                          dec, exp.where(h.out_r))
+            else:
+                vals = {"X": bot[jx], "Y": bot[jy], "Z": bot[jz], "R": rp[jz]}
+                text = {k: fmt(v / scale, dec) for k, v in vals.items()}
+            if n == 0:  # the line itself (its L/K repeats written out as the lines after it)
+                out.append(_substitute(_drop(exp.source[i], "LK") if len(hs) > 1 else exp.source[i], text)
+                           + (end or "\n"))
+            else:  # a modal repeat of the cycle: one more hole
+                out.append(" ".join(f"{k}{v}" for k, v in text.items()) + (end or "\n"))
     if out and not program.lines[-1].endswith("\n") and out[-1].endswith("\n"):
         out[-1] = out[-1].rstrip("\r\n")
     return _with_header(out, program.notes() + tuple(header))
@@ -501,6 +502,14 @@ def _incremental_words(bottom, r_z, ctrl_xy, initial_z, scale, dec, where) -> di
     rw = fmt((r_z - initial_z) / scale, dec)
     return {"X": fmt((bottom[0] - ctrl_xy[0]) / scale, dec), "Y": fmt((bottom[1] - ctrl_xy[1]) / scale, dec),
             "Z": fmt((bottom[2] - (initial_z + float(rw) * scale)) / scale, dec), "R": rw}
+
+
+def _drop(body: str, letters: str) -> str:
+    """``body`` without its words of ``letters`` (a cycle line's ``L``/``K`` repeats)."""
+    _, words, _ = tokenize(body)
+    for w in sorted((w for w in words if w.letter in letters), key=lambda w: -w.start):
+        body = body[:w.start].rstrip(" \t") + body[w.num_end:]
+    return body
 
 
 def _substitute(body: str, values: dict) -> str:

@@ -46,6 +46,7 @@ from dataclasses import dataclass
 
 from errormap.io import InputError
 
+from .nc_modal import ModalTracker
 from .nc_flow import (MAX_CALL_DEPTH,  # noqa: F401  (re-exported: the documented call-depth bound)
                       _Frame, _Return, assign, call_statement, evaluate, o_statement)
 
@@ -60,8 +61,9 @@ contain one: ``o100 do`` closes with ``while``, ``END1`` pairs with ``WHILE``, `
 _LINE_MARKS = re.compile(r"#|\[|o\s*<|m\s*0*9\s*[789](?![\d.])|g\s*0*65(?![\d.])"
                          r"|(?<![a-z])(?:goto|while|if|then|end\s*\d|do\s*\d)(?![a-z])"
                          r"|^\s*/?\s*(?:n\s*\d+\s*)?o\s*\d+\s*[a-z]", re.I)
+_M7X_BYTES = re.compile(rb"m[ \t]*0*7[0-3](?![\d.])")
 _END_CODES = re.compile(r"(?<![a-z])m\s*0*(?:2|30)(?![\d.])", re.I)
-_O_STMT = re.compile(r"\s*o\s*(<[^>]*>|\d+)\s*([a-z]+)?", re.I)
+_O_STMT = re.compile(r"\s*o\s*(<[^>]*>|\d+|\[(?:[^\[\]]|\[[^\[\]]*\])*\])\s*([a-z]+)?", re.I)
 _PROG = re.compile(r"\s*(?:[oO]|:)\s*(\d+)\s*$")
 _N_LABEL = re.compile(r"\s*[nN]\s*(\d+)")
 _NUM = re.compile(r"[ \t]*((?:\d[\d \t]*)?\.?[\d \t]*)")
@@ -133,11 +135,12 @@ def source_line(program, line: int):
 
 
 def needs_expansion(data: bytes) -> bool:
-    """Whether a program's bytes hold any mark of parameters, subprograms or control flow."""
+    """Whether a program's bytes hold any mark of parameters, subprograms or control flow (or LinuxCNC's modal
+    state save / restore ``M70``–``M73``, :mod:`compensation.nc_modal`)."""
     if any(b in data for b in _MARK_BYTES):
         return True
     low = data.lower()
-    return any(w in low for w in _MARK_WORDS)
+    return any(w in low for w in _MARK_WORDS) or _M7X_BYTES.search(low) is not None
 
 
 def expand_if_needed(data: bytes, path, dialect: str | None = None) -> Expanded | None:
@@ -317,6 +320,9 @@ def _parse_line(body: str):
     o = _O_STMT.match(code, i)
     if o and o.group(2) and o.group(2).lower() in _LCNC_KEYS:
         return _parse_o(p, o, label)
+    if o and o.group(2) and (len(o.group(2)) > 1 or o.group(1)[0] in "<["):
+        raise _Refuse(o.start(2) + 1, f"'o{o.group(1)} {o.group(2)}': '{o.group(2)}' is not an O-word keyword "
+                                      f"({', '.join(sorted(_LCNC_KEYS))})")
     key, j = p.alpha(p.ws(i))
     if key == "IF":
         cond, k = p.value(j)
@@ -381,6 +387,10 @@ def _parse_o(p: _Parser, o, label):
     name = re.sub(r"\s+", "", o.group(1)).lower()
     kw = o.group(2).lower()
     k = o.end()
+    if name.startswith("["):  # an indirect O-number (LinuxCNC: o[#101+2] call), evaluated when called
+        if kw != "call":
+            raise _Refuse(o.start(1) + 1, f"'o{o.group(1)} {kw}': a computed O-number is read only with call")
+        name = ("indirect", p.value(o.start(1))[0])
     args = []
     if kw == "call":
         k = p.ws(k)
@@ -496,6 +506,7 @@ class _Machine:
         self.out, self.origin = [], []
         self.executed = 0
         self.calls = ()
+        self.modal = ModalTracker() if _M7X_BYTES.search(text.lower().encode("latin-1")) else None
         self._index()
 
     # -- structure
@@ -538,6 +549,11 @@ class _Machine:
 
     # -- output
     def _emit(self, i, text=None):
+        if self.modal is not None:  # M70-M73 acted on and blanked (compensation.nc_modal)
+            line = self.lines[i] if text is None else text
+            new = self.modal.line(self, i, line)
+            if new != line:
+                text = new
         if text is None:
             self.out.append(self.lines[i] + self.endings[i])
             self.origin.append((i + 1, True, tuple(c + 1 for c in self.calls)))

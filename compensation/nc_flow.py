@@ -238,6 +238,8 @@ def _enter(m, pc, span, frame, times=1):
                 m._unit(span, frame)
             except _Return:
                 pass
+            if m.modal is not None:
+                m.modal.leave(m, pc)  # an M73 state restored on return (compensation.nc_modal)
     finally:
         m.calls = m.calls[:-1]
 
@@ -311,6 +313,11 @@ def o_statement(m, pc, s, fr):
         m.gnamed["_value_returned"] = 1.0 if args else 0.0
         raise _Return
     if kw == "call":
+        if isinstance(name, tuple):  # o[expression] call: the subroutine numbered by its value
+            v = evaluate(m, name[1], pc, fr)
+            if v != int(v) or v < 0:
+                raise m._err(pc, col, f"o[...] call: the O-number {v:g} is not a whole number ≥ 0")
+            name = str(int(v))
         if name not in m.subs:
             raise m._err(pc, col, f"o{name} call: the subroutine is not defined in this file (LinuxCNC would look "
                                   "for it in its SUBROUTINE_PATH): put its o sub ... endsub in the program")

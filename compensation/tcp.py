@@ -15,7 +15,9 @@ siemens-iso            ``TRAORI`` / ``TRAORI(1)`` on a line alone  ``TRAFOOF``
                        (the tool ``T`` with its edge ``D1``)
 any (the machine's)    the machine file's ``[tcp] switch_on``      ``[tcp] switch_off``
                        (LinuxCNC switchable kinematics ``M428``,   (``M429``)
-                       tool length: the active ``G43 Hn``)
+                       tool length: the active ``G43 Hn``, or
+                       under ``G49`` the file's own tool point
+                       where ``[tcp] tool_length_under_g49``)
 =====================  ==========================================  =====================================
 
 Fanuc's ``G43.5`` with a tool-direction vector ``I J K`` leaves the rotary positions to the controller
@@ -50,6 +52,9 @@ TCP_M = {128: ("heidenhain-iso", "on"), 129: ("heidenhain-iso", "off")}
 """Heidenhain's TCPM M codes (ISO programs)."""
 SIEMENS_LINE = re.compile(r"[ \t]*(?:N\d+[ \t]*)?(TRAORI(?:[ \t]*\([ \t]*1?[ \t]*\))?|TRAFOOF)[ \t]*(?:;.*)?\r?",
                           re.IGNORECASE)
+SIEMENS_VECTOR = re.compile(r"(?<![A-Za-z0-9_])([ABC][2-7]|LEAD|TILT|THETA|PHI|PSI)[ \t]*=", re.IGNORECASE)
+"""Siemens orientation programming (A3= B3= C3= direction vectors, A2= angles, A4–A7 surface normals, LEAD/TILT):
+refused by name under the TCP pre-pass."""
 SIEMENS_OTHER = re.compile(r"[ \t]*(?:N\d+[ \t]*)?TRAORI\b", re.IGNORECASE)
 TRIGGER = rb"(?i)G[ \t]*0*(?:43[ \t]*\.[ \t]*[45]|234|93)(?![0-9.])|M[ \t]*0*12[89](?![0-9.])|TRA(?:ORI|FOOF)"
 """Bytes that may hold a word of this module; a program without any is read without the pre-pass."""
@@ -73,13 +78,19 @@ class TcpProgram:
     tool_events: list
     lines: list
     _machines: dict = field(default_factory=dict, repr=False)
+    machine_tool_points: int = 0
+    """TCP points placed at the machine file's own tool point (``G49`` under a ``[tcp]`` switch whose file says
+    ``tool_length_under_g49 = "machine"``), recorded by :func:`tcp_axes` for the summary."""
 
     def active(self, lines0) -> np.ndarray:
         return self.on[np.asarray(lines0, dtype=np.int64)]
 
-    def machine_at(self, machine, length_mm: float):
-        """The machine with its tool at ``length_mm`` (built once per length)."""
+    def machine_at(self, machine, length_mm):
+        """The machine with its tool at ``length_mm`` (built once per length); None or NaN: the machine file's
+        own tool (``machine`` itself)."""
         from .nc_state import machine_with_tool
+        if length_mm is None or not np.isfinite(length_mm):
+            return machine
         key = float(length_mm)
         if key not in self._machines:
             self._machines[key] = machine_with_tool(machine, key)
@@ -163,6 +174,11 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
             out.append(_blank(body, m.start(1), m.end(1)) + ending)
             _mark(i, state, on, g93, switch)
             continue
+        vec = SIEMENS_VECTOR.search(body.split(";")[0])
+        if vec is not None:
+            raise _refuse(path, i, vec.start(1) + 1, f"'{vec.group(1)}=' (Siemens tool orientation: a direction vector "
+                          "or angle under TRAORI): the rotary positions are the controller's choice (two solutions); "
+                          "post rotary words (A, C) instead")
         try:
             _, toks, _ = tokenize(body)
         except _Refuse:
@@ -389,8 +405,10 @@ def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm)
         sw = pre.switch[int(lines0[k])]
         return f"{program.path}: line {int(lines0[k]) + 1}: under '{sw[2]}' (line {sw[0] + 1}, column {sw[1]})"
 
-    bad = np.flatnonzero(~np.isfinite(tool_mm))
-    if bad.size:
+    unset = np.flatnonzero(~np.isfinite(tool_mm))
+    bad = [k for k in unset if not machine_tool_under_g49(pre, machine, lines0[k])]
+    pre.machine_tool_points = max(pre.machine_tool_points, len(unset) - len(bad))
+    if bad:
         raise InputError(f"{where(bad[0])}: tool-centre-point control with no tool length active: give 'G43 Hn' "
                          "(or the dialect's tool call) and the tool in --tool-table")
     rbad = np.flatnonzero(np.any(np.abs(offset[:, rot]) > 0.0, axis=1)) if rot else np.zeros(0, int)
@@ -400,9 +418,8 @@ def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm)
     out[:, lin] += offset[:, lin]
     words = tuple(machine.axes[j].word for j in lin)
     mid = 0.5 * (machine.stroke_lo + machine.stroke_hi)
-    for length in np.unique(tool_mm):
-        idx = np.flatnonzero(tool_mm == length)
-        mt = pre.machine_at(machine, float(length))
+    for length, idx in by_length(tool_mm):
+        mt = pre.machine_at(machine, length)
         start = out[idx].copy()
         start[:, lin] = mid[lin]
         q, ok = mt.inverse(out[idx][:, lin], start, free=words, tol_mm=INVERSE_TOL_MM)
@@ -413,14 +430,34 @@ def tcp_axes(pre: TcpProgram, machine, program, lines0, q_prog, offset, tool_mm)
     return out
 
 
+def machine_tool_under_g49(pre: TcpProgram, machine, line0) -> bool:
+    """Whether a TCP line with no tool length offset active runs at the machine file's own tool point: its
+    switch is one of the file's ``[tcp] switch_on`` codes and the file says ``tool_length_under_g49 =
+    "machine"`` (LinuxCNC's switchable kinematics read a zero tool offset under ``G49``)."""
+    sw = pre.switch[int(line0)]
+    tcp = machine.tcp or {}
+    return (sw is not None and tcp.get("tool_length_under_g49") == "machine" and sw[2][:1] == "M"
+            and float(sw[2][1:]) in tcp.get("switch_on", ()))
+
+
+def by_length(tool_mm):
+    """``(length_mm or None, indices)`` per distinct tool length of ``tool_mm`` (n,); None: NaN (no tool length
+    offset active: the machine file's own tool)."""
+    t = np.asarray(tool_mm, dtype=float)
+    for length in np.unique(t[np.isfinite(t)]):
+        yield float(length), np.flatnonzero(t == length)
+    nan = np.flatnonzero(~np.isfinite(t))
+    if nan.size:
+        yield None, nan
+
+
 def tip_words(pre: TcpProgram, machine, axes, offset, tool_mm) -> np.ndarray:
     """The TCP-form program axes (n, k) of machine ``axes`` (n, k): the nominal tool tip at the tool length
     ``tool_mm`` (n,) minus the work offset, the rotary axes as they are."""
     lin = [j for j, a in enumerate(machine.axes) if a.kind == "linear"]
     out = np.array(axes, dtype=float)
-    for length in np.unique(tool_mm):
-        idx = np.flatnonzero(tool_mm == length)
-        out[np.ix_(idx, lin)] = pre.machine_at(machine, float(length)).nominal(axes[idx]) - offset[np.ix_(idx, lin)]
+    for length, idx in by_length(tool_mm):
+        out[np.ix_(idx, lin)] = pre.machine_at(machine, length).nominal(axes[idx]) - offset[np.ix_(idx, lin)]
     return out
 
 
@@ -604,6 +641,11 @@ def report(pre: TcpProgram, points_on: np.ndarray, before_urad=None, after_urad=
            "inverse_time_lines": int(pre.inverse_time.sum()) if pre else 0,
            "form": "TCP points written in TCP form: tool tip X Y Z in the workpiece frame (compensated), rotary "
                    "words as programmed (or as corrected with --compensate-orientation)"}
+    if pre is not None and pre.machine_tool_points:
+        out["tool"] = (f"{pre.machine_tool_points} TCP point(s) with no G43 active run at the machine file's own tool "
+                       "point (its [tcp] tool_length_under_g49 = \"machine\": the control's kinematics use a zero "
+                       "tool offset)")
+
     def st(v):
         return {"max_urad": float(v.max()), "rms_urad": float(np.sqrt(np.mean(v ** 2)))}
     if before_urad is not None:

@@ -829,17 +829,25 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
 def _tcp(t, path, axes):
     """``[tcp]``: ``switch_on`` / ``switch_off`` lists of M codes (``"M428"``) that switch the controller's
     tool-centre-point kinematics on and off; the codes are the machine's configuration, so they live in its
-    file. A machine without a rotary axis has no TCP mode."""
+    file. ``tool_length_under_g49 = "machine"`` (optional): with no tool length offset active (``G49``) the
+    kinematics' tool offset is zero, so their controlled point is the point the axes are referenced to: the
+    file's own tool point (its ``[geometry] tool_length``); without the key TCP with ``G49`` is refused.
+    A machine without a rotary axis has no TCP mode."""
     if t is None:
         return None
     if not isinstance(t, dict):
         raise MachineFileError(f"{path}: 'tcp': expected a table")
-    check_known_keys(t, ("switch_on", "switch_off"), "tcp", path)
+    check_known_keys(t, ("switch_on", "switch_off", "tool_length_under_g49"), "tcp", path)
     if not any(a.kind != "linear" for a in axes):
         raise MachineFileError(f"{path}: 'tcp': the machine has no rotary axis (tool-centre-point kinematics need one)")
     out = {k: _m_codes(t.get(k), f"tcp.{k}", "M428", path) for k in ("switch_on", "switch_off")}
     if set(out["switch_on"]) & set(out["switch_off"]):
         raise MachineFileError(f"{path}: 'tcp': an M code both switches TCP on and off")
+    if "tool_length_under_g49" in t:
+        if t["tool_length_under_g49"] != "machine":
+            raise MachineFileError(f"{path}: key 'tcp.tool_length_under_g49': expected \"machine\" (the file's own tool "
+                                   f"point), got {short_repr(t['tool_length_under_g49'])}")
+        out["tool_length_under_g49"] = "machine"
     return out
 
 

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from compensation.gcode import MM_PER_INCH, move_points, parse_program
+from compensation.gcode import MM_PER_INCH, AxisWords, move_points, parse_program
 from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, render_gcode, write_compensated
 from errormap.io import InputError
@@ -110,7 +110,7 @@ def test_refuses_to_overwrite_the_input(tmp_path, machine):
     (b"G1 X1e2 Z2 A3\n", 1, 4, "exponent"),
     (b"G1 X1 Z2 A3\nG1 U1.0\n", 2, 4, "'U1.0'"),
     (b"G65 P9000 A1 X2 Z3\n", 1, 5, "G65 P9000: program O9000 is not in this file"),
-    (b"G1 X1 Z2 A3\nG1 X2 @5\n", 2, 7, "unexpected character '@'"),
+    (b"G1 X1 Z2 A3\nG1 X2 @5\n", 2, 7, "'@': a LinuxCNC polar coordinate"),
     (b"G21\nG91 G1 X1 Z1 A1\n", 2, 8, "incremental 'X1' before X is known"),
     (b"G1 X1 Z2 A3\nG4 X1.5\n", 2, 4, "dwell"),
     (b"G1 X1 Z2 A3 P2\n", 1, 13, "'P2' outside G4/G64"),
@@ -256,3 +256,12 @@ def test_header_goes_after_tape_start_and_program_number(tmp_path, machine):
     tp = read_path(_write(tmp_path, b"%\nO1000 (NAME)\nG21 G90 G1 X1 Z2 A3\nM30\n%\n"), machine, work_offsets=MCS)
     text, groups = render_gcode(tp.source, tp.axes, header=["note (x)"])
     assert text.splitlines()[:4] == ["%", "O1000 (NAME)", "(note [x])", "G21 G90 G1 X1.000000 Z2.000000 A3.000000"]
+
+
+def test_linuxcnc_polar_words_are_refused_by_name(tmp_path):
+    """LinuxCNC's polar coordinates (``@`` distance, ``^`` angle) are not read: refused naming the word."""
+    p = tmp_path / "polar.ngc"
+    p.write_text("G20 G17 G90\nG0 X1.5 Y0 Z0\nG91 G81 R.1 Z-.5 ^60 L6 F10\nM2\n")
+    with pytest.raises(InputError) as e:
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="linuxcnc")
+    assert "polar.ngc: line 3, column 18: '^': a LinuxCNC polar coordinate (angle" in str(e.value)

@@ -217,6 +217,42 @@ def test_kept_incremental_cycles_reach_every_hole_bottom_on_the_true_machine(tmp
     assert cyc["holes"] == 4 and cyc["true_bottom_uncompensated"]["max_um"] > 10 * TOL_POINT_UM  # teeth
 
 
-def test_kept_incremental_repeats_are_refused():
-    with pytest.raises(InputError, match=r"p.nc: line 2, column 23: L3 under G91 on a kept cycle"):
-        expand_cycles("G0 X0 Y0 Z5\nG91 G81 X1 Z-2 R-1 F9 L3\n", "p.nc", "keep")
+KEPT_G91_REPEATS = """(G91 G81 with L3: three holes at equal steps, LinuxCNC manual "G81 ... L")
+G21 G90 G17 G55
+T1 M6
+G0 X10 Y10 Z-20
+G91 G99 G81 X10 Y5 Z-20 R-15 L3 F200
+G80 G90
+G0 Z20
+M2
+"""
+
+
+def test_kept_incremental_repeats_are_written_one_line_per_hole(tmp_path, mill, truth_file):
+    """L3 under G91 (LinuxCNC / Fanuc: each repeat steps by X Y from the last hole; R from the initial level, Z from
+    R): kept, the line is written without L and two modal-repeat lines follow, each hole with its own compensated
+    increments. The check runs the written lines with those rules itself and finds every hole bottom reached on
+    the truth."""
+    prog = tmp_path / "rep.ngc"
+    prog.write_text(KEPT_G91_REPEATS)
+    out = tmp_path / "o"
+    assert _compensate(prog, out, truth_file, "--truth", str(truth_file), "--dialect", "linuxcnc") == 0
+    dst = [ln for ln in (out / prog.name).read_text().splitlines() if not ln.startswith("(volcomp:")]
+    src = KEPT_G91_REPEATS.splitlines()
+    k = src.index("G91 G99 G81 X10 Y5 Z-20 R-15 L3 F200")
+    assert dst[:k] == src[:k] and dst[k + 3:] == src[k + 1:]  # every other line byte-identical
+    assert "L" not in re.sub(r"\(.*?\)", "", dst[k]) and dst[k].startswith("G91 G99 G81 ")
+    assert all(re.fullmatch(r"X-?[\d.]+ Y-?[\d.]+ Z-?[\d.]+ R-?[\d.]+", d) for d in dst[k + 1:k + 3])
+    truth = ChainField(mill, ChainElementSet.load(truth_file, mill))
+    tip = lambda q: mill.nominal(q[None])[0] * 1e3 + truth.predict(q[None])[0]  # noqa: E731
+    # by hand: start (10, 10), initial level Z-20; holes at (20, 15), (30, 20), (40, 25): R -35, bottom -55
+    targets = [(20, 15, -55), (30, 20, -55), (40, 25, -55)]
+    ctrl, z0, errs = np.array([10.0, 10.0]), -20.0, []
+    for d in dst[k:k + 3]:
+        w = _cycle_words(d)
+        ctrl = ctrl + [w["X"], w["Y"]]
+        q = np.array([*ctrl, z0 + w["R"] + w["Z"]]) + G55_MM
+        errs.append(np.linalg.norm(tip(q) - mill.nominal((np.array(targets[len(errs)]) + G55_MM)[None])[0] * 1e3))
+    assert max(errs) < TOL_POINT_UM
+    cyc = json.loads((out / "compensate_summary.json").read_text())["files"][0]["cycles"]
+    assert cyc["holes"] == 3 and cyc["true_bottom_uncompensated"]["max_um"] > 10 * TOL_POINT_UM  # teeth

@@ -161,3 +161,27 @@ def test_a_guard_refusal_inside_a_call_names_the_source_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "(line 7 (expanded line 6, called from line 4)): stroke: x_mm" in err
     assert "expanded line 4," not in err  # the first call stays inside the strokes
+
+
+def test_linuxcnc_indirect_o_number_call(tmp_path):
+    """LinuxCNC's manual (O-codes, "Computing values in O-words"): ``o[expr] call`` calls the subroutine numbered by
+    the expression's value; written here: o[100+#1] with #1 = 20 calls o120, whose G1 moves to its arguments."""
+    text = ("#1 = 20\no120 sub\nG1 X#1 Y#2 Z0 F100\no120 endsub\nG0 X0 Y0 Z0\no[100+#1] call [3] [4]\n"
+            "o[100+#1] call [5] [6]\nM2\n")
+    p = tmp_path / "ind.ngc"
+    p.write_text(text)
+    prog = parse_program(p, axis_words=MILL, dialect="linuxcnc")
+    assert np.array_equal(_ends(prog), np.array([[0, 0, 0], [3, 4, 0], [5, 6, 0]], float))
+
+
+@pytest.mark.parametrize("line,fragment", [
+    ("o<sub> callsub", "line 2, column 8: 'o<sub> callsub': 'callsub' is not an O-word keyword"),
+    ("o[100] if [1]", "line 2, column 2: 'o[100] if': a computed O-number is read only with call"),
+    ("o[2.5] call", "line 2, column 1: o[...] call: the O-number 2.5 is not a whole number"),
+])
+def test_o_word_keyword_and_indirect_number_refusals(tmp_path, line, fragment):
+    p = tmp_path / "bad.ngc"
+    p.write_text(f"G0 X0 Y0 Z0\n{line}\nM2\n")
+    with pytest.raises(InputError) as e:
+        parse_program(p, axis_words=MILL, dialect="linuxcnc")
+    assert fragment in str(e.value), str(e.value)

@@ -237,11 +237,12 @@ def test_g93_block_times_kept(models, text, dialect, name):
     (FANUC, "linuxcnc", "line 6, column 1: 'G43.4' (tool-centre-point control) is a word of fanuc"),
     (FANUC.replace("G1 X20. Y10. Z2. A-20. C30.", "G43.5 H1 I0 J0 K1"), "fanuc", "line 8, column 1: 'G43.5' with a "
      "tool-direction vector"),
-    (LINUXCNC.replace("G43 H1\n", ""), "linuxcnc", "no tool length active"),
     (HEIDENHAIN.replace("N10 T1 G17 S4000 *", "N10 G17 S4000 *"), "heidenhain-iso", "line 4, column 5: 'M128' with no "
      "tool length"),
     (SIEMENS.replace("TRAORI", "TRAORI(1,0,0,1)"), "siemens-iso", "line 4, column 1: 'TRAORI' with parameters"),
     (SIEMENS.replace("T1 D1 M6", "T1 M6"), "siemens-iso", "line 4, column 1: 'TRAORI' with no tool length"),
+    (SIEMENS.replace("G1 X20 Y10 Z2 A-20 C30", "G1 X20 Y10 Z2 A3=0 B3=-0.5 C3=0.866"), "siemens-iso",
+     "line 7, column 15: 'A3=' (Siemens tool orientation"),
     (LINUXCNC.replace("X20 Y10 Z2 A-20 C30 F30", "X20 Y10 Z2 A-20 C30"), "linuxcnc", "line 9, column 1: G1 under G93"),
     (FANUC.replace("G54\n", "G54\nG68.2 X0 Y0 Z0 I0 J30 K0\n"), "fanuc", "line 6, column 1: 'G68.2' (tilted work plane)"),
     (LINUXCNC.replace("M428\nG0 X0 Y0 Z50 A0 C0", "G0 X0 Y0 Z-300 A0 C0\nM428\nG0 X0 Y0 Z50"), "linuxcnc",
@@ -288,7 +289,7 @@ def test_rotary_work_offset_under_tcp_refused(models, capsys):
 
 def test_machine_file_tcp_switch_is_read_and_checked(tmp_path):
     mt = load_machine("five-axis-ac")
-    assert mt.tcp == {"switch_on": (428,), "switch_off": (429,)}
+    assert mt.tcp == {"switch_on": (428,), "switch_off": (429,), "tool_length_under_g49": "machine"}
     from errormap.machine_checks import MachineFileError
     from errormap.mt_chain import parse_machine_tool
     import tomllib

@@ -156,6 +156,7 @@ def read_chain_path(path, machine, s: ChainSettings, field_=None) -> ChainPath:
         known = np.isfinite(job.kept_axes).all(axis=1) if len(job.kept_lines) else np.zeros(0, bool)
         if known.any():
             kept_machine[known] = prog.tcp.place(machine, prog, frames, job.kept_lines[known] - 1, job.kept_axes[known])
+        kept_machine[prog.tcp.active(job.kept_lines - 1) & ~known] = np.nan  # a TCP rapid from an unknown pose: unknown
     if turning is not None:
         comp = np.array([t for m, t in zip(prog.moves, turning) if m.compensate], dtype=bool)
         turning = np.repeat(comp, [len(v) for v in job.vertices])
