@@ -35,6 +35,7 @@ def test_help_groups_the_options_by_machine_kind():
     assert all(h.index(o) > arm for o in ("--no-learned", "--folds"))
 
 
+@pytest.mark.slow
 def test_help_after_machine_shows_only_what_applies_to_its_kind():
     arm = cli("calibrate", "--machine", "ur5", "--help")
     assert arm.returncode == 0 and "--folds" in arm.stdout and "--no-learned" in arm.stdout

@@ -127,3 +127,18 @@ def test_real_grid_with_a_known_frame_change_never_worse_than_plain(arm):
         assert_not_worse_than_plain(heldout(cands, new, n), c["kept"])
         if n == 6:
             assert c["kept"] == "plain"
+
+
+def test_the_candidates_of_a_stacked_stage_are_its_pipelines(models):
+    """A stacked stage blends two pipelines with their own base frames: register weighs each pipeline (and each
+    geometric stage alone, and the plain calibration) instead of the blend."""
+    from compensation.app.workflows.arm_register import PLAIN, candidates_of
+    from training.arm_residual import StackedResidual
+    plain, geo, _ = models
+    lr = _SessionOnlyResidual([0.1, 0.0, 0.0])
+    lr.chosen_ = "gp"
+    st = StackedResidual(0.7, (geo, lr), (plain, lr), names=("learned", "plain GP on plain LSQ residual"))
+    names = [(n, l is not None) for n, _, l in candidates_of(geo, st, plain, "stacked")]
+    assert names == [(PLAIN, False), ("geometric+compliance", False), ("learned", True),
+                     ("plain GP on plain LSQ residual", True)]
+    assert [n for n, _, _ in candidates_of(plain, None, plain, PLAIN)] == [PLAIN]

@@ -20,7 +20,7 @@ from training.arm_residual import RotatedResidual
 
 from compensation.app.validate import UsageError
 
-from .arm_calibration import STACKED, errors_mm, load_arm_model, stage_name
+from .arm_calibration import errors_mm, load_arm_model, stage_name
 
 
 def _row(e) -> dict | None:
@@ -54,29 +54,31 @@ def plain_of(chain, doc, model):
         raise InputError(f"{model}: key 'plain_geometric': {exc}") from None
 
 
-def candidates_of(doc, geo, learner, plain) -> list:
-    """(name, chain, params, learner) of the models register weighs, plainest first: the plain calibration, the
-    kept geometric stage alone (where it is not the plain one), the kept stage with its learned residual (where one
-    is carried)."""
-    out = [(PLAIN, plain.chain, plain.params, None)]
-    geo_name = PLAIN if geo.method == "plain least squares" else stage_name(geo.model)
-    if geo_name != PLAIN:
-        out.append((geo_name, geo.chain, geo.params, None))
-    if learner is not None:
-        out.append((doc["kept_stage"], geo.chain, geo.params, learner))
-    return out
+def candidates_of(geo, learner, plain, kept_stage) -> list:
+    """(name, GeometricResult, learner or None) of the models register weighs, plainest first: the plain calibration;
+    the kept geometric stage alone (where it is not the plain one); the kept stage with its learned residual (where
+    one is carried). A stacked stage (a blend of two pipelines with their own base frames) is not registered as a
+    blend: each of its pipelines is a candidate."""
+    from training.arm_residual import StackedResidual
+    pipes = ([(n, g, l) for n, (g, l) in zip(learner.names, learner.pipelines)] if isinstance(learner, StackedResidual)
+             else [(kept_stage, geo, learner)])
+    out = {PLAIN: (PLAIN, plain, None)}
+    for _, g, _ in pipes:
+        n = PLAIN if g.method == "plain least squares" else stage_name(g.model)
+        out.setdefault(n, (n, g, None))
+    for n, g, l in pipes:
+        if l is not None:
+            out.setdefault(n, (n, g, l))
+    return list(out.values())
 
 
 def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: int | None = None, seed: int = 0,
                      log=None) -> dict:
     """Register the calibration ``model`` on the poses file ``poses``; write ``out/calibration.json``; returns its
     ``registration`` dict. The model kept for the session is weighed against the plain calibration inside the
-    registration poses (:func:`errormap.arm_register.choose_candidate`)."""
+    registration poses (:func:`errormap.arm_register.choose_candidate`, :func:`candidates_of`)."""
     geo, learner = load_arm_model(chain, model)          # refuses what is not an arm calibration of this chain
     doc = json.loads(read_document_text(model, "an arm calibration"))
-    if doc.get("kept_stage") == STACKED:
-        raise InputError(f"{model}: key 'kept_stage': a stacked stage (two pipelines) is not re-registered; "
-                         "calibrate with a single kept pipeline")
     plain = plain_of(chain, doc, model)
     across = doc.get("across_blocks") if isinstance(doc.get("across_blocks"), dict) else {}
     had_learner = learner is not None
@@ -89,31 +91,24 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
         raise UsageError(f"--fit-poses: {n_fit} of {len(data)} poses in {poses}; a registration takes "
                          f"{MIN_POSES} to all of them")
     fit, rest = data.subset(np.arange(n_fit)), data.subset(np.arange(n_fit, len(data)))
-    cands = candidates_of(doc, geo, learner, plain)
-    choice = choose_candidate(cands, fit, tool=tool)
-    regs = {}
-    for name, ch, params, lrn in cands:
-        regs[name] = register_frame(ch, params, fit, lrn, tool=tool, seed=seed)
+    cands = candidates_of(geo, learner, plain, doc["kept_stage"])
+    choice = choose_candidate([(n, g.chain, g.params, l) for n, g, l in cands], fit, tool=tool)
+    regs = {n: register_frame(g.chain, g.params, fit, l, tool=tool, seed=seed) for n, g, l in cands}
     kept = choice["kept"]
-    k_chain, _, _, k_learner = next(c for c in cands if c[0] == kept)
+    _, k_geo, k_learner = next(c for c in cands if c[0] == kept)
     reg = regs[kept]
     turned = isinstance(k_learner, RotatedResidual)       # a session's model registered again
     R_total = reg.learned_rotation @ (k_learner.R if turned else np.eye(3))
-    heldout = {}
-    if len(rest):
-        for name, ch, _, lrn in cands:
-            heldout[name] = _row(errors_mm(rest, registered_point(ch, regs[name].params, lrn,
-                                                                  regs[name].learned_rotation, rest.q)))
+    heldout = {n: _row(errors_mm(rest, registered_point(g.chain, regs[n].params, l, regs[n].learned_rotation, rest.q)))
+               for n, g, l in cands} if len(rest) else {}
     e_before = None if not len(rest) else errors_mm(
         rest, geo.predict(rest.q) + (0.0 if learner is None else learner.predict(rest.q)))
-    out_doc = dict(doc)
-    kept_geo = plain if kept == PLAIN else geo
-    new = dataclasses.replace(kept_geo, params=reg.params)
+    out_doc = {k: v for k, v in doc.items() if k != "stacked"}
+    new = dataclasses.replace(k_geo, params=reg.params)
     out_doc["geometric"] = {**new.to_dict(), "cv_table": doc["geometric"].get("cv_table", [])}
     out_doc["plain_geometric"] = dataclasses.replace(plain, params=regs[PLAIN].params).to_dict()
-    if k_learner is None and (had_learner or kept == PLAIN):
-        out_doc["kept_stage"] = PLAIN if kept == PLAIN else stage_name(geo.model)
-        out_doc["learned"] = None
+    out_doc["kept_stage"] = kept
+    out_doc["learned"] = None if k_learner is None else (k_learner.learner if turned else k_learner).to_dict()
     reg_doc = {**reg.to_dict(chain.joint_columns), "learned_rotation": R_total.tolist()}
     out_doc["registration"] = {
         "poses_file": str(poses), "n_fit_poses": n_fit, "n_heldout_poses": len(rest), "fitted": "base" + "+tool" * tool,
