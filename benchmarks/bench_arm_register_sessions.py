@@ -98,11 +98,36 @@ def print_real_rows(arm, a, s, c, row):
           + f" | **{shipped}** | {kept} |", flush=True)
 
 
+def role(name: str) -> str:
+    if name in ("plain geometric LSQ", "plain GP on plain LSQ residual", "learned"):
+        return {"learned": "geometric + learned stage"}.get(name, name)
+    return "volcomp geometric stage alone"
+
+
+def summary(rows, key="meas"):
+    """Blocked CV over sessions: per stage, its mean over every (calibration, session) pair where it is a candidate,
+    beside plain's and register's on the same pairs, and on how many pairs it beat plain."""
+    print(f"\n| stage ({key}) | pairs | its mean after 6 / 20 / 50 | plain on the same pairs | register ships | "
+          "pairs it beat plain (6 / 20 / 50) |")
+    print("|---|---:|---|---|---|---|")
+    roles = sorted({role(k) for r in rows for k in r[REGISTER_POSES[-1]][key]})
+    for ro in roles:
+        sel = [(r, next(k for k in r[REGISTER_POSES[-1]][key] if role(k) == ro)) for r in rows
+               if any(role(k) == ro for k in r[REGISTER_POSES[-1]][key])]
+        m = [np.mean([r[n][key][k] for r, k in sel]) for n in REGISTER_POSES]
+        p = [np.mean([r[n][key]["plain geometric LSQ"] for r, _ in sel]) for n in REGISTER_POSES]
+        sh = [np.mean([r[n][key][r[n]["kept"]] for r, _ in sel]) for n in REGISTER_POSES]
+        w = [sum(r[n][key][k] < r[n][key]["plain geometric LSQ"] for r, k in sel) for n in REGISTER_POSES]
+        print(f"| {ro} | {len(sel)} | " + " / ".join(f"{x:.4f}" for x in m) + " | " + " / ".join(f"{x:.4f}" for x in p)
+              + " | " + " / ".join(f"{x:.4f}" for x in sh) + " | " + " / ".join(map(str, w)) + " |", flush=True)
+
+
 def run_real(folder, rotate: bool):
     print("| arm | calibrated on | session | kept stage (own held-out, plain) | plain after 6 / 20 / 50 | "
           "candidates after 6 / 20 / 50 | register ships | kept by register |")
     print("|---|---|---|---|---|---|---|---|")
     for f, m, k in (("ur5_grid.csv", "ur5", 4), ("wam_grid.csv", "wam", 3)):
+        rows = []
         chain = load_machine(m)
         data = read_arm_poses(f"{folder}/{f}", chain)
         cut = np.array_split(np.arange(len(data)), k)
@@ -115,9 +140,13 @@ def run_real(folder, rotate: bool):
                     if s != a:
                         sd = Path(td) / f"s{s}"
                         sd.mkdir()
-                        print_real_rows(m, "ABCD"[a], "ABCD"[s], c, register_row(chain, c["json"], sess[s], sd))
+                        rows.append(register_row(chain, c["json"], sess[s], sd))
+                        print_real_rows(m, "ABCD"[a], "ABCD"[s], c, rows[-1])
                 print(f"<!-- {m} calibrated on {'ABCD'[a]}: learned carried {c['carried']}, "
                       f"{time.process_time() - t0:.0f} CPU s -->", flush=True)
+        print(f"\n{m}:")
+        summary(rows)
+        print()
 
 
 SESSIONS = {"B": (21.9, MOVES[1]), "C": (18.1, MOVES[2]), "D": (22.0, MOVES[3])}
@@ -131,7 +160,7 @@ def session_effect_mm(q, amp_mm) -> np.ndarray:
     return amp_mm * np.stack([np.sin(2 * r[:, 0]), np.cos(r[:, 1] + r[:, 2]), np.sin(r[:, 3] + r[:, 4])], 1)
 
 
-def run_sim(seed, amp_mm):
+def run_sim(seed, amp_mm, rows):
     import sys
     sys.path.insert(0, str(Path(__file__).parent))
     from bench_arm_sessions import NOISE_MM, T_CAL_C, thermal_truth
@@ -154,6 +183,7 @@ def run_sim(seed, amp_mm):
             sd = Path(td) / s
             sd.mkdir()
             row = register_row(chain, c["json"], new, sd, tr.tool_point(chain, q))
+            rows.append(row)
             tp = " / ".join(format(row[n]["true_plain"], ".4f") for n in REGISTER_POSES)
             tk = " / ".join(format(row[n]["true_kept"], ".4f") for n in REGISTER_POSES)
             kept = " / ".join(row[n]["kept"] for n in REGISTER_POSES)
@@ -176,8 +206,10 @@ def main():
     print("| seed | session | calibration kept (learned carried) | plain TRUE after 6 / 20 / 50 | register TRUE after "
           "6 / 20 / 50 | kept by register | MEASURED: plain; candidates after 6 / 20 / 50 |")
     print("|---|---|---|---|---|---|---|")
+    rows = []
     for s in range(a.seeds):
-        run_sim(s, a.effect_mm)
+        run_sim(s, a.effect_mm, rows)
+    summary(rows)
 
 
 if __name__ == "__main__":
