@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from errormap.arm_poses import read_arm_poses, temperature_summary
-from errormap.arm_register import MIN_POSES, choose_candidate, register_frame, registered_point
+from errormap.arm_register import MIN_POSES, choose_candidate, fit_frame, register_frame, registered_point
 from errormap.io import InputError, read_document_text, write_json
 from training.arm_residual import RotatedResidual
 
@@ -93,20 +93,20 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
     fit, rest = data.subset(np.arange(n_fit)), data.subset(np.arange(n_fit, len(data)))
     cands = candidates_of(geo, learner, plain, doc["kept_stage"])
     choice = choose_candidate([(n, g.chain, g.params, l) for n, g, l in cands], fit, tool=tool)
-    regs = {n: register_frame(g.chain, g.params, fit, l, tool=tool, seed=seed) for n, g, l in cands}
+    regs = {n: fit_frame(g.chain, g.params, fit, l, tool=tool) for n, g, l in cands}     # (slots, …, rotation, …)
     kept = choice["kept"]
     _, k_geo, k_learner = next(c for c in cands if c[0] == kept)
-    reg = regs[kept]
+    reg = register_frame(k_geo.chain, k_geo.params, fit, k_learner, tool=tool, seed=seed)   # with its uncertainty
     turned = isinstance(k_learner, RotatedResidual)       # a session's model registered again
     R_total = reg.learned_rotation @ (k_learner.R if turned else np.eye(3))
-    heldout = {n: _row(errors_mm(rest, registered_point(g.chain, regs[n].params, l, regs[n].learned_rotation, rest.q)))
+    heldout = {n: _row(errors_mm(rest, registered_point(g.chain, regs[n][0], l, regs[n][3], rest.q)))
                for n, g, l in cands} if len(rest) else {}
     e_before = None if not len(rest) else errors_mm(
         rest, geo.predict(rest.q) + (0.0 if learner is None else learner.predict(rest.q)))
     out_doc = {k: v for k, v in doc.items() if k != "stacked"}
     new = dataclasses.replace(k_geo, params=reg.params)
     out_doc["geometric"] = {**new.to_dict(), "cv_table": doc["geometric"].get("cv_table", [])}
-    out_doc["plain_geometric"] = dataclasses.replace(plain, params=regs[PLAIN].params).to_dict()
+    out_doc["plain_geometric"] = dataclasses.replace(plain, params=regs[PLAIN][0]).to_dict()
     out_doc["kept_stage"] = kept
     out_doc["learned"] = None if k_learner is None else (k_learner.learner if turned else k_learner).to_dict()
     reg_doc = {**reg.to_dict(chain.joint_columns), "learned_rotation": R_total.tolist()}
