@@ -18,7 +18,8 @@ from .arm_calibration import _lm
 from .arm_frames import BASE_SLOTS, TOOL_SLOTS, base_rotation, initial_base
 from .io import InputError
 
-__all__ = ["BASE_SLOTS", "TOOL_SLOTS", "Registration", "register_frame", "suggest_poses"]
+__all__ = ["BASE_SLOTS", "TOOL_SLOTS", "Registration", "choose_candidate", "fit_frame", "register_frame",
+           "registered_point", "suggest_poses"]
 
 MIN_POSES = 6
 """Fewest poses a registration takes: 18 coordinates for at most 9 slots, twice what the frame needs."""
@@ -56,14 +57,9 @@ class Registration:
                                            "std_with_them": self.suggest_std.tolist()}}
 
 
-def register_frame(chain, params, poses, learner=None, tool: bool = False, seed=0) -> Registration:
-    """Fit the base frame (and the tool point with ``tool``) of the calibrated chain ``chain`` (its slots
-    ``params`` (n_params,), a learned residual ``learner`` or None, both kept) to the measured ``poses``
-    (at least :data:`MIN_POSES`). The learned residual is subtracted from the measurements first (it is a
-    function of the joints learned in the calibration's instrument frame: it is turned with the base frame, by
-    ``learned_rotation`` = R_base,new · R_base,calibrationᵀ, one refit after the first estimate of it)."""
-    if len(poses) < MIN_POSES:
-        raise InputError(f"{poses.source}: {len(poses)} poses: a registration takes at least {MIN_POSES}")
+def fit_frame(chain, params, poses, learner=None, tool: bool = False):
+    """The frame fit of :func:`register_frame` alone: (slots (n_params,), iterations, converged, learned_rotation
+    (3, 3), the measurements less the turned learned residual (n, 3) mm, the fitted slots' mask (n_params,))."""
     names = list(BASE_SLOTS) + (list(TOOL_SLOTS) if tool else [])
     free = np.isin(np.array(chain.param_names), names)
     w = np.ones(len(poses)) if poses.sigma_mm is None else 1.0 / poses.sigma_mm
@@ -76,6 +72,20 @@ def register_frame(chain, params, poses, learner=None, tool: bool = False, seed=
         x0 = initial_base(chain, params, poses.q, y)
         x, it, conv = _lm(chain, poses.q, y, x0, free, w)
         R_learned = base_rotation(chain, x) @ R_cal.T
+    return x, it, conv, R_learned, y, free
+
+
+def register_frame(chain, params, poses, learner=None, tool: bool = False, seed=0) -> Registration:
+    """Fit the base frame (and the tool point with ``tool``) of the calibrated chain ``chain`` (its slots
+    ``params`` (n_params,), a learned residual ``learner`` or None, both kept) to the measured ``poses``
+    (at least :data:`MIN_POSES`). The learned residual is subtracted from the measurements first (it is a
+    function of the joints learned in the calibration's instrument frame: it is turned with the base frame, by
+    ``learned_rotation`` = R_base,new · R_base,calibrationᵀ, one refit after the first estimate of it)."""
+    if len(poses) < MIN_POSES:
+        raise InputError(f"{poses.source}: {len(poses)} poses: a registration takes at least {MIN_POSES}")
+    names = list(BASE_SLOTS) + (list(TOOL_SLOTS) if tool else [])
+    x, it, conv, R_learned, y, free = fit_frame(chain, params, poses, learner, tool)
+    w = np.ones(len(poses)) if poses.sigma_mm is None else 1.0 / poses.sigma_mm
     r = y - chain.tool_point(poses.q, x)
     J = chain.error_jacobian(poses.q, x)[:, :, free] * w[:, None, None]
     A = np.einsum("nik,nil->kl", J, J)
@@ -87,6 +97,66 @@ def register_frame(chain, params, poses, learner=None, tool: bool = False, seed=
     cov = cov[np.ix_(order, order)]
     return Registration(x, names, x[free][order], np.sqrt(np.diag(cov)), cov,
                         float(np.sqrt(np.mean(np.sum(r ** 2, 1)))), it, conv, sq, sstd[order], R_learned)
+
+
+def registered_point(chain, params, learner, R_learned, q) -> np.ndarray:
+    """Tool points (n, 3) mm in the session's instrument frame of a registered model: the chain at ``params`` plus the
+    learned residual (or None) turned by ``R_learned`` (3, 3)."""
+    p = chain.tool_point(q, params)
+    return p if learner is None else p + learner.predict(q) @ R_learned.T
+
+
+DECIDE_MIN_POSES = MIN_POSES + 1
+"""Fewest registration poses on which the candidates are weighed against each other: each leave-out fold must still
+register on :data:`MIN_POSES`. With fewer, the plainest candidate (the plain calibration) is kept."""
+DECIDE_FOLDS = 10
+"""Folds of the CV inside the registration poses (leave-one-out up to this many poses; interleaved by file order)."""
+
+
+def choose_candidate(candidates, poses, tool: bool = False) -> dict:
+    """Which registered model to keep, decided inside the new session's registration ``poses`` alone.
+
+    ``candidates``: list of (name, chain, params (n_params,), learner or None), plainest FIRST (the plain calibration
+    the product must not lose to). Each is registered on every fold's other poses and judged on the fold's poses
+    (:data:`DECIDE_FOLDS`-fold CV, measured residual, position norm); starting from the plainest, a richer candidate
+    replaces the one kept only if its paired per-pose gain over it exceeds one standard error of that gain (a gain
+    inside its own noise is not a gain). With fewer than :data:`DECIDE_MIN_POSES` poses nothing is weighed: the
+    plainest is kept. Returns ``{"kept", "why", "n_folds", "cv": [{"name", "cv_mean_mm", "gain_mm", "gain_se_mm"}]}``
+    (gain against the plainest)."""
+    n = len(poses)
+    plain = candidates[0][0]
+    if n < DECIDE_MIN_POSES:
+        return {"kept": plain, "n_folds": 0, "cv": [],
+                "why": f"{n} registration poses: too few to weigh the models (a leave-out CV needs at least "
+                       f"{DECIDE_MIN_POSES}); the plain calibration is kept as the fallback"}
+    k = min(n, DECIDE_FOLDS)
+    fold = np.arange(n) % k
+    err = {}
+    for name, chain, params, learner in candidates:
+        e = np.empty(n)
+        for f in range(k):
+            tr, te = poses.subset(np.flatnonzero(fold != f)), poses.subset(np.flatnonzero(fold == f))
+            x, _, _, R, _, _ = fit_frame(chain, params, tr, learner, tool)
+            e[fold == f] = np.linalg.norm(te.xyz_mm - registered_point(chain, x, learner, R, te.q), axis=1)
+        err[name] = e
+
+    def gain(a, b):                      # paired gain of b over a, its standard error
+        g = err[a] - err[b]
+        return float(g.mean()), float(g.std(ddof=1) / np.sqrt(n))
+    kept = plain
+    for name, *_ in candidates[1:]:
+        g, se = gain(kept, name)
+        if g > se:
+            kept = name
+    rows = [{"name": c[0], "cv_mean_mm": float(err[c[0]].mean()), "gain_mm": gain(plain, c[0])[0],
+             "gain_se_mm": gain(plain, c[0])[1]} for c in candidates]
+    text = ", ".join(f"{r['name']} {r['cv_mean_mm']:.4f}" for r in rows)
+    why = (f"{k}-fold CV inside the {n} registration poses (each fold's frame registered on the other poses; mean "
+           f"measured residual {text} mm): " + (f"'{kept}' kept, its gain over the plainer candidate beyond one "
+                                                "standard error" if kept != plain else
+                                                "no richer model gained more than one standard error over the plain "
+                                                "calibration: the plain calibration is kept"))
+    return {"kept": kept, "why": why, "n_folds": k, "cv": rows}
 
 
 def suggest_poses(chain, params, free, A, s2, seed, m: int = SUGGEST_POSES):

@@ -155,6 +155,10 @@ def test_simulated_arm_cli_learned_stage_and_compensation(tmp_path, ur5):
     # never lose to the plain pipelines in the inner validation: the kept stage's pipeline CV is the lowest
     pcv = {r["pipeline"]: r["cv_mean_mm"] for r in doc["pipeline_cv"]}
     assert pcv[doc["kept_stage"]] <= min(pcv["plain geometric LSQ"], pcv["plain GP on plain LSQ residual"])
+    # which frame every block is in; the plain calibration register falls back to is kept beside the model
+    assert {"base.*", "link*.*", "tool.*", "learned", "plain_geometric", "registration"} <= set(doc["frames"])
+    assert [p["name"] for p in doc["plain_geometric"]["parameters"]] == list(ur5.param_names)
+    assert doc["plain_geometric"]["method"] == "plain least squares"
     # compensation: targets = nominal tool points of a joint program (base frame); TRUE residual of the commands
     qp = random_joints(UR5_LO + 5, UR5_HI - 5, 50, [7, 9])
     prog = tmp_path / "prog.csv"

@@ -171,10 +171,16 @@ def test_register_records_the_sessions_temperature(ur5, far, tmp_path):
     from compensation.app.workflows.arm_register import run_arm_register
     from errormap.arm_poses import write_arm_poses
     _, _, p = far
+    from errormap.arm_calibration import fit_plain_lsq
+    from errormap.io import InputError
     doc = {**_doc(ur5, fit_model(ur5, p, "dh")), "temperature_c": {"mean": 20.0, "min": 19.9, "max": 20.1, "n": 150}}
     (tmp_path / "cal.json").write_text(json.dumps(doc))
     s = ArmPoses(p.q[:30], p.xyz_mm[:30], None, np.linspace(21.8, 22.2, 30), None, p.rows[:30], "s", "schema")
     write_arm_poses(tmp_path / "s.csv", ur5, s)
+    with pytest.raises(InputError, match="'plain_geometric': missing.*calibrate again"):   # nothing to weigh it against
+        run_arm_register(ur5, tmp_path / "s.csv", tmp_path / "cal.json", tmp_path / "o", fit_poses=20)
+    doc["plain_geometric"] = fit_plain_lsq(ur5, p).to_dict()
+    (tmp_path / "cal.json").write_text(json.dumps(doc))
     reg = run_arm_register(ur5, tmp_path / "s.csv", tmp_path / "cal.json", tmp_path / "o", fit_poses=20)
     assert reg["temperature_c"]["mean"] == pytest.approx(22.0, abs=1e-9)
     assert reg["temperature_change_c"] == pytest.approx(2.0, abs=1e-9)

@@ -33,3 +33,12 @@ def test_help_groups_the_options_by_machine_kind():
     assert all(pkm < h.index(o) < arm for o in ("--no-register", "--lambda-rule", "--lever-mm"))
     assert h.index("--noise-um") < pkm   # both kinds: the PKM's noise, the arm's stated tracker σ (its verdict)
     assert all(h.index(o) > arm for o in ("--no-learned", "--folds"))
+
+
+@pytest.mark.slow
+def test_help_after_machine_shows_only_what_applies_to_its_kind():
+    arm = cli("calibrate", "--machine", "ur5", "--help")
+    assert arm.returncode == 0 and "--folds" in arm.stdout and "--no-learned" in arm.stdout
+    assert not any(o in arm.stdout for o in ("--no-register", "--lambda-rule", "--lever-mm", "--no-scales", "hexapod / tripod only"))
+    pkm = cli("calibrate", "--machine", "hexapod", "--help")
+    assert pkm.returncode == 0 and "--lambda-rule" in pkm.stdout and "--folds" not in pkm.stdout

@@ -91,6 +91,8 @@ def test_register_through_the_cli_then_predict(tmp_path, ur5, sessions):
     assert r.returncode == 0, r.stderr
     reg = json.loads((tmp_path / "s" / "calibration.json").read_text())["registration"]
     assert reg["n_fit_poses"] == 20 and reg["heldout_registered"]["n"] == 100
+    assert reg["heldout_registered"] == reg["heldout_by_candidate"][reg["kept"]]   # the model shipped, beside plain
+    assert "plain geometric LSQ" in reg["heldout_by_candidate"] and reg["kept_why"]
     assert reg["heldout_registered"]["mean_mm"] <= HELDOUT_FACTOR * own_mean < reg["heldout_as_calibrated"]["mean_mm"]
     prog = tmp_path / "prog.csv"
     rest = new.subset(np.arange(20, len(new)))

@@ -12,9 +12,10 @@ Writes ``DIR/calibration.json``, ``DIR/report.html`` (PNG plots embedded) and th
 """
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
-from errormap.machine import builtin_machine_path, load_machine
+from errormap.machine import MachineFileError, builtin_machine_path, load_machine
 from errormap.pkm.calibration import PKMCalibrator
 
 from compensation.app.validate import UsageError
@@ -24,7 +25,10 @@ from ..workflows.calibration import CalibrationSettings, run_calibration
 
 
 def register(subparsers):
-    p = subparsers.add_parser("calibrate", help="identify a parallel machine's (hexapod/tripod) or a serial arm's kinematic parameters from measured poses")
+    p = subparsers.add_parser("calibrate", add_help=False, help="identify a parallel machine's (hexapod/tripod) or a "
+                              "serial arm's kinematic parameters from measured poses")
+    p.add_argument("-h", "--help", action=KindHelp, help="show this help and exit (after --machine M: only the "
+                   "options that apply to M's kind)")
     # a serial chain (``kind = "serial"``, e.g. --machine ur5) goes to the arm calibration
     # (compensation/app/workflows/arm_calibration.py; docs/arms.md)
     p.add_argument("poses", help="pose-measurement CSV (legs l1_mm.. or q1.., x_mm y_mm z_mm [+ rx_deg.. | qx qy qz qw])")
@@ -39,6 +43,7 @@ def register(subparsers):
                    "tripod: estimated if omitted; serial arm: the tracker's stated σ the verdict judges the held-out "
                    "residual against (default: the poses' sigma_mm column, else not judged)")
     pkm = p.add_argument_group("hexapod / tripod only (refused for a serial arm)")
+    pkm.kinds = ("hexapod", "tripod")
     pkm.add_argument("--no-scales", action="store_true", help="keep the leg scales at the machine file's values "
                      "(default: identify them)")
     pkm.add_argument("--scales", action="store_true", help=argparse_suppress())
@@ -53,10 +58,33 @@ def register(subparsers):
                      help="also fit with the other lambda rules and report their held-out residuals "
                           "(always done when --noise-um is omitted)")
     arm = p.add_argument_group("serial arm only (refused for a hexapod / tripod)")
+    arm.kinds = ("serial",)
     arm.add_argument("--no-learned", action="store_true", help="skip the learned residual stage")
     arm.add_argument("--folds", type=int, default=None, help="CV folds of every decision inside the fit poses: slot "
                      "set, learned stage (default 5)")
     p.set_defaults(func=run)
+
+
+class KindHelp(argparse.Action):
+    """``-h``/``--help``: with ``--machine M`` given before it, the option groups that do not apply to M's kind (their
+    ``kinds``) are left out of the help; without it (or with an unreadable M) every group is shown."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        kind = None
+        if getattr(namespace, "machine", None):
+            try:
+                kind = load_machine(namespace.machine, expect_kind=None).kind
+            except (MachineFileError, OSError, ValueError):
+                kind = None
+        for g in parser._action_groups:
+            if kind is not None and kind not in getattr(g, "kinds", (kind,)):
+                for a in g._group_actions:
+                    a.help = argparse.SUPPRESS
+        parser.print_help()
+        parser.exit()
 
 
 def argparse_suppress():

@@ -1,6 +1,7 @@
 """``volcomp register POSES --machine ur5 --model DIR/calibration.json --out DIR2``: re-register a calibrated arm's
 base frame (and with ``--tool`` its tool point) in a new measurement session, keeping every link parameter and
-learned stage (:mod:`compensation.app.workflows.arm_register`; docs/arms.md)."""
+learned stage, and keeps for the session whichever of the plain calibration, the geometric stage alone and the kept
+stage did best in a CV inside the registration poses (:mod:`compensation.app.workflows.arm_register`; docs/arms.md)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -37,11 +38,15 @@ def run(args) -> int:
     print(f"register: {len(best['q'])} poses that would pin the frame best (in calibration.json, "
           f"registration.poses_that_pin_it_best); with them the standard errors would be "
           + ", ".join(f"{s['name']} {v:.2g}" for s, v in zip(r["slots"], best["std_with_them"])))
-    for k in ("heldout_registered", "heldout_as_calibrated"):
-        if r[k] is not None:
-            print(f"register: {k.replace('_', ' ')}: mean {r[k]['mean_mm']:.4f} mm, RMS {r[k]['rms_mm']:.4f} mm "
-                  f"on {r[k]['n']} poses")
-    if r.get("learned_carried") is False:
+    print(f"register: kept {r['kept']}" + (" (the plain fallback)" if r["kept_is_plain_fallback"] else "")
+          + f": {r['kept_why']}")
+    for name, row in (r["heldout_by_candidate"] or {}).items():
+        print(f"register: held out, {name} registered: mean {row['mean_mm']:.4f} mm, RMS {row['rms_mm']:.4f} mm "
+              f"on {row['n']} poses" + (" (kept)" if name == r["kept"] else ""))
+    if r["heldout_as_calibrated"] is not None:
+        h = r["heldout_as_calibrated"]
+        print(f"register: held out, as calibrated (not registered): mean {h['mean_mm']:.4f} mm on {h['n']} poses")
+    if r.get("learned_carried") is False and r["learned_why"]:
         print(f"register: the learned stage is not carried to this session: {r['learned_why']}")
     if r.get("temperature_change_c") is not None:
         print(f"register: logged temperature {r['temperature_c']['mean']:.2f} °C, "

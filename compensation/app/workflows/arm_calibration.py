@@ -49,7 +49,11 @@ FRAMES = {"poses, stages": "the measuring instrument's (tracker's) frame of the 
                      "or tool slots account for (link 1's offsets along and about its axis) is held at 0",
           "tool.*": "tool point in the last link's frame (mm)",
           "compliance.*, harmonic.*, table.*": "joint-angle slots (rad per unit of their input)",
-          "learned": "residual (mm) in the instrument frame of the calibration poses, a function of the joints"}
+          "learned": "residual (mm) in the instrument frame of the calibration poses, a function of the joints",
+          "plain_geometric": "the plain least-squares calibration (same frames as geometric: base.* instrument → robot "
+                             "base, link*.* deviations, tool.* last link's frame); `volcomp register` falls back to it",
+          "registration": "written by `volcomp register`: the session's frame, held-out figures in that session's "
+                          "instrument frame"}
 """Which frame every block of ``calibration.json`` is in (its key ``frames``)."""
 DECIDE_MAX_POSES = 500
 """Every decision of :func:`calibrate_arm` (CVs, learned stages, band) runs on at most this many fit poses (a seeded
@@ -388,7 +392,7 @@ def model_document(chain, core, s, n_fit, n_check) -> dict:
            "holdout": None if s.check else {"fraction": s.holdout, "seed": s.seed, "split": "random"},
            "stages": core["stages"], "baselines": core["baselines"], "kept_stage": core["kept_stage"],
            "kept_why": core["kept_why"], "notes": core["notes"],
-           "geometric": geo.to_dict(), "learned": None}
+           "geometric": geo.to_dict(), "learned": None, "plain_geometric": core["plain_model"].to_dict()}
     if learner is not None:
         kl = core.get("kept_learner")
         doc["learned"] = kl.to_dict() if kl is not None else None

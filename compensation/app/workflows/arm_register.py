@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from errormap.arm_poses import read_arm_poses, temperature_summary
-from errormap.arm_register import MIN_POSES, register_frame
+from errormap.arm_register import MIN_POSES, choose_candidate, fit_frame, register_frame, registered_point
 from errormap.io import InputError, read_document_text, write_json
 from training.arm_residual import RotatedResidual
 
 from compensation.app.validate import UsageError
 
-from .arm_calibration import STACKED, errors_mm, load_arm_model, stage_name
+from .arm_calibration import errors_mm, load_arm_model, stage_name
 
 
 def _row(e) -> dict | None:
@@ -37,15 +37,49 @@ def _temperature_change(doc, data) -> float | None:
     return now["mean"] - float(cal["mean"])
 
 
+PLAIN = "plain geometric LSQ"
+"""Name of the plain calibration (``calibration.json`` key ``plain_geometric``) among the candidates register weighs."""
+
+
+def plain_of(chain, doc, model):
+    """The plain least-squares calibration kept beside the model (key ``plain_geometric``); InputError without it."""
+    from errormap.arm_calibration import GeometricResult
+    d = doc.get("plain_geometric")
+    if not isinstance(d, dict):
+        raise InputError(f"{model}: key 'plain_geometric': missing (written before register weighed the model "
+                         "against the plain calibration); calibrate again")
+    try:
+        return GeometricResult.from_dict(chain, d)
+    except (KeyError, TypeError, ValueError, InputError) as exc:
+        raise InputError(f"{model}: key 'plain_geometric': {exc}") from None
+
+
+def candidates_of(geo, learner, plain, kept_stage) -> list:
+    """(name, GeometricResult, learner or None) of the models register weighs, plainest first: the plain calibration;
+    the kept geometric stage alone (where it is not the plain one); the kept stage with its learned residual (where
+    one is carried). A stacked stage (a blend of two pipelines with their own base frames) is not registered as a
+    blend: each of its pipelines is a candidate."""
+    from training.arm_residual import StackedResidual
+    pipes = ([(n, g, l) for n, (g, l) in zip(learner.names, learner.pipelines)] if isinstance(learner, StackedResidual)
+             else [(kept_stage, geo, learner)])
+    out = {PLAIN: (PLAIN, plain, None)}
+    for _, g, _ in pipes:
+        n = PLAIN if g.method == "plain least squares" else stage_name(g.model)
+        out.setdefault(n, (n, g, None))
+    for n, g, l in pipes:
+        if l is not None:
+            out.setdefault(n, (n, g, l))
+    return list(out.values())
+
+
 def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: int | None = None, seed: int = 0,
                      log=None) -> dict:
     """Register the calibration ``model`` on the poses file ``poses``; write ``out/calibration.json``; returns its
-    ``registration`` dict."""
+    ``registration`` dict. The model kept for the session is weighed against the plain calibration inside the
+    registration poses (:func:`errormap.arm_register.choose_candidate`, :func:`candidates_of`)."""
     geo, learner = load_arm_model(chain, model)          # refuses what is not an arm calibration of this chain
     doc = json.loads(read_document_text(model, "an arm calibration"))
-    if doc.get("kept_stage") == STACKED:
-        raise InputError(f"{model}: key 'kept_stage': a stacked stage (two pipelines) is not re-registered; "
-                         "calibrate with a single kept pipeline")
+    plain = plain_of(chain, doc, model)
     across = doc.get("across_blocks") if isinstance(doc.get("across_blocks"), dict) else {}
     had_learner = learner is not None
     dropped = had_learner and across.get("learned_carried") is False
@@ -57,32 +91,38 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
         raise UsageError(f"--fit-poses: {n_fit} of {len(data)} poses in {poses}; a registration takes "
                          f"{MIN_POSES} to all of them")
     fit, rest = data.subset(np.arange(n_fit)), data.subset(np.arange(n_fit, len(data)))
-    reg = register_frame(geo.chain, geo.params, fit, learner, tool=tool, seed=seed)
-    new = dataclasses.replace(geo, params=reg.params)
-    turned = isinstance(learner, RotatedResidual)       # a session's model registered again
-    R_total = reg.learned_rotation @ (learner.R if turned else np.eye(3))
-    new_learner = None if learner is None else RotatedResidual(learner.learner if turned else learner, R_total)
-    e_after = e_before = None
-    if len(rest):
-        e_after = errors_mm(rest, new.predict(rest.q) + (0.0 if learner is None else new_learner.predict(rest.q)))
-        e_before = errors_mm(rest, geo.predict(rest.q) + (0.0 if learner is None else learner.predict(rest.q)))
-    out_doc = dict(doc)
+    cands = candidates_of(geo, learner, plain, doc["kept_stage"])
+    choice = choose_candidate([(n, g.chain, g.params, l) for n, g, l in cands], fit, tool=tool)
+    regs = {n: fit_frame(g.chain, g.params, fit, l, tool=tool) for n, g, l in cands}     # (slots, …, rotation, …)
+    kept = choice["kept"]
+    _, k_geo, k_learner = next(c for c in cands if c[0] == kept)
+    reg = register_frame(k_geo.chain, k_geo.params, fit, k_learner, tool=tool, seed=seed)   # with its uncertainty
+    turned = isinstance(k_learner, RotatedResidual)       # a session's model registered again
+    R_total = reg.learned_rotation @ (k_learner.R if turned else np.eye(3))
+    heldout = {n: _row(errors_mm(rest, registered_point(g.chain, regs[n][0], l, regs[n][3], rest.q)))
+               for n, g, l in cands} if len(rest) else {}
+    e_before = None if not len(rest) else errors_mm(
+        rest, geo.predict(rest.q) + (0.0 if learner is None else learner.predict(rest.q)))
+    out_doc = {k: v for k, v in doc.items() if k != "stacked"}
+    new = dataclasses.replace(k_geo, params=reg.params)
     out_doc["geometric"] = {**new.to_dict(), "cv_table": doc["geometric"].get("cv_table", [])}
-    if dropped:
-        out_doc["kept_stage"] = ("plain geometric LSQ" if geo.method == "plain least squares"
-                                 else stage_name(geo.model))
-        out_doc["learned"] = None
+    out_doc["plain_geometric"] = dataclasses.replace(plain, params=regs[PLAIN][0]).to_dict()
+    out_doc["kept_stage"] = kept
+    out_doc["learned"] = None if k_learner is None else (k_learner.learner if turned else k_learner).to_dict()
     reg_doc = {**reg.to_dict(chain.joint_columns), "learned_rotation": R_total.tolist()}
     out_doc["registration"] = {
         "poses_file": str(poses), "n_fit_poses": n_fit, "n_heldout_poses": len(rest), "fitted": "base" + "+tool" * tool,
+        "kept": kept, "kept_is_plain_fallback": kept == PLAIN, "kept_why": choice["why"], "decision_cv": choice["cv"],
         "frames": {"base.*": "tracker (world) → robot base of this session", "tool.*": "tool point in the flange frame",
                    "link*, compliance.*, harmonic.*, table.*, learned": "kept from the calibration",
+                   "plain_geometric": "the plain calibration, its base frame registered on the same poses",
                    "learned_rotation": "turns the learned residual from the calibration's instrument frame into "
                                        "this session's"},
         **reg_doc,
-        "heldout_registered": _row(e_after), "heldout_as_calibrated": _row(e_before),
-        "learned_carried": not dropped if had_learner else None,
-        "learned_why": across.get("why"),
+        "heldout_registered": heldout.get(kept), "heldout_by_candidate": heldout or None,
+        "heldout_as_calibrated": _row(e_before),
+        "learned_carried": (not dropped and k_learner is not None) if had_learner else None,
+        "learned_why": across.get("why") if dropped else (choice["why"] if had_learner else None),
         "temperature_c": temperature_summary(data), "temperature_change_c": _temperature_change(doc, data),
         "residual_kind": "measured residual (measured − model) on the session's poses after the first n_fit_poses, "
                          "position norm, mm"}
