@@ -37,7 +37,7 @@ from .linuxcnc import (JOINT_SAMPLES, ROTARY_WEIGHTS, JointTables, joint_tables_
                        region_box, write_joint_tables)
 from .model import TABLE_TEMP_C, ModelError, exact_corrections, nominal_mm
 from .sources import (BACKLASH_EXPORT, CHECKS_DIAGNOSIS_FORMAT, backlash_from_diagnosis, load_model, load_truth,
-                      reversal_from_diagnosis, reversal_terms_from_diagnosis)
+                      reversal_from_diagnosis, reversal_terms_from_diagnosis, truth_tool_points)
 
 __all__ = ["ALL_FORMATS", "BACKLASH_EXPORT", "CHECKS_DIAGNOSIS_FORMAT", "DRIFT_CONST", "DRIFT_FILE", "DRIFT_FORMAT",
            "DRIFT_MAX_PERIOD_S", "DRIFT_TICK_EPS_S", "DriftCoefficients", "FORMATS", "GRID_FORMAT", "ISO_FORMAT",
@@ -49,6 +49,6 @@ __all__ = ["ALL_FORMATS", "BACKLASH_EXPORT", "CHECKS_DIAGNOSIS_FORMAT", "DRIFT_C
            "interpolation_error_um", "iso_tables_from_model", "joint_tables_from_model", "load_model", "load_truth",
            "motion_dirs", "point_set", "volume_points", "node_means", "nominal_mm", "read_back", "read_drift_coefficients", "read_grid",
            "read_iso_tables", "read_joint_tables", "region_box", "reversal_from_diagnosis",
-           "reversal_terms_from_diagnosis", "staged_folder", "table_bytes", "weighted_node_means",
+           "reversal_terms_from_diagnosis", "truth_tool_points", "staged_folder", "table_bytes", "weighted_node_means",
            "worst_drift_model_um", "worst_model_um", "write_drift_coefficients", "write_grid", "write_iso_tables",
            "write_joint_tables", "write_manifest"]

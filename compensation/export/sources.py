@@ -37,8 +37,12 @@ def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
     if fmt == "iso-tables":
         raise ValueError(f"--format iso-tables needs an element set: ISO component tables are the elements' "
                          f"components, and {src.description} is not one")
+    if src.kind == "chain-model":   # elements + diagnosed terms; a kept learned residual is refused by name
+        from errormap.diagnosis.mt_model import load_chain_model_file
+        fld = load_chain_model_file(src.path, machine)
+        return ModelError(machine, fld.elements, field=fld), f"{spec} (diagnosed chain model: {src.description})", src
     fld = load_field(spec, machine, tracking_uri, source=src)
-    el = getattr(fld, "elements", None) if src.kind == "chain-model" else None
+    el = None
     return ModelError(machine, el, field=fld), f"{spec} (learned field: {src.description})", src
 
 
@@ -69,13 +73,7 @@ def load_truth(path, machine):
     temperature and the given approach directions."""
     if reads_grinder_files(machine):
         from ..evaluate import load_truth as load_grinder_truth
-        t = load_grinder_truth(path, machine)
-        words = [a.word.lower() for a in machine_tool_of(machine).axes]
-
-        def tool(q, dirs):
-            cond = {"temp_c": np.full(len(q), TABLE_TEMP_C), **{f"dir_{w}": dirs[:, j] for j, w in enumerate(words)}}
-            return t.tool_point(q, **cond)
-        return tool
+        return truth_tool_points(load_grinder_truth(path, machine), machine)
     from ..app.workflows.mt_loop import load_chain_truth
     t = load_chain_truth(path, machine)
 
@@ -86,6 +84,18 @@ def load_truth(path, machine):
         else:
             e = t.predict(q)
         return nominal_mm(machine, q) + 1e-3 * np.asarray(e)
+    return tool
+
+
+def truth_tool_points(truth, machine):
+    """``tool(axes (n, k), dirs (n, k)) -> (n, 3)`` mm of a simulated truth machine with ``tool_point(axes,
+    temp_c=, dir_<w>=)`` (a grinder file's :class:`errormap.simulator.TruthGrinder`), at the tables' reference
+    temperature and the given approach directions."""
+    words = [a.word.lower() for a in machine_tool_of(machine).axes]
+
+    def tool(q, dirs):
+        cond = {"temp_c": np.full(len(q), TABLE_TEMP_C), **{f"dir_{w}": dirs[:, j] for j, w in enumerate(words)}}
+        return truth.tool_point(q, **cond)
     return tool
 
 
