@@ -35,8 +35,8 @@ from .grid import GRID_FORMAT, VolumetricGrid, curvature_counts, grid_from_model
 from .iso_tables import ISO_FORMAT, IsoTables, iso_tables_from_model, read_iso_tables, write_iso_tables
 from .linuxcnc import (JOINT_SAMPLES, ROTARY_WEIGHTS, JointTables, joint_tables_from_model, read_joint_tables,
                        region_box, write_joint_tables)
-from .model import TABLE_TEMP_C, ModelError, exact_corrections, nominal_mm
-from .sources import (BACKLASH_EXPORT, CHECKS_DIAGNOSIS_FORMAT, backlash_from_diagnosis, load_model, load_truth,
+from .model import TABLE_TEMP_C, ModelError, exact_corrections, nominal_mm, reads_grinder_files
+from .sources import (BACKLASH_EXPORT, CHECKS_DIAGNOSIS_FORMAT, backlash_from_diagnosis, chain_truth_tool_points, load_model,
                       reversal_from_diagnosis, reversal_terms_from_diagnosis, truth_tool_points)
 
 __all__ = ["ALL_FORMATS", "BACKLASH_EXPORT", "CHECKS_DIAGNOSIS_FORMAT", "DRIFT_CONST", "DRIFT_FILE", "DRIFT_FORMAT",
@@ -46,9 +46,9 @@ __all__ = ["ALL_FORMATS", "BACKLASH_EXPORT", "CHECKS_DIAGNOSIS_FORMAT", "DRIFT_C
            "build_table", "check_drift_export", "check_export", "check_sets", "controller_commands",
            "controller_drift", "controller_drift_at", "curvature_counts", "drift_coefficients",
            "drift_distance_rule", "exact_corrections", "export_drift_coefficients", "grid_from_model",
-           "interpolation_error_um", "iso_tables_from_model", "joint_tables_from_model", "load_model", "load_truth",
+           "interpolation_error_um", "iso_tables_from_model", "joint_tables_from_model", "load_model", "chain_truth_tool_points",
            "motion_dirs", "point_set", "volume_points", "node_means", "nominal_mm", "read_back", "read_drift_coefficients", "read_grid",
-           "read_iso_tables", "read_joint_tables", "region_box", "reversal_from_diagnosis",
+           "read_iso_tables", "read_joint_tables", "reads_grinder_files", "region_box", "reversal_from_diagnosis",
            "reversal_terms_from_diagnosis", "truth_tool_points", "staged_folder", "table_bytes", "weighted_node_means",
            "worst_drift_model_um", "worst_model_um", "write_drift_coefficients", "write_grid", "write_iso_tables",
            "write_joint_tables", "write_manifest"]

@@ -9,8 +9,10 @@ error motion of the axis' moving body relative to its nominal pose, in the **fix
 translations μm along +X/+Y/+Z, angles μrad right-handed about +X/+Y/+Z, translations at the body's
 reference point (the origin of its frame in the chain, :meth:`errormap.mt_chain.MachineTool.body_frames`).
 The chain applies each axis' errors in the frame the body moves in; the tables turn them into the MCS with
-that frame's nominal rotation (the other axes at their reference pose, 0 clipped into the stroke), so a
-controller's kinematic compensation reads them without the chain's conventions.
+that frame's nominal rotation with the axis at the row's position and the other axes at their reference pose
+(0 clipped into the stroke: a body carried by another rotary axis, a five-axis table's C on its A, is
+tabulated with that axis at 0, as ISO 230 measures it), so a controller's kinematic compensation reads them
+without the chain's conventions; it turns them back the same way.
 
 Controller (the check): every component linearly between rows (a full-turn rotary axis over one turn,
 periodic; other axes clamped), the elements rebuilt from them, the exact chain's spatial error, and the
@@ -96,7 +98,9 @@ class IsoTables:
             x = fold(axes[:, j], pos[0]) if a.full_turn else axes[:, j]
             iso = np.stack([np.interp(x, pos, val[:, c]) for c in range(6)], axis=1)
             cols = _slot_columns(mt, a.word)
-            comp = from_mcs(mt, a.word, axes, iso)
+            pose = reference_axes(mt, len(axes))   # the table's frame: this axis moved, the others at reference
+            pose[:, j] = axes[:, j]
+            comp = from_mcs(mt, a.word, pose, iso)
             out[:, cols[cols >= 0]] = comp[:, cols >= 0]
         for p, s in enumerate(mt.slots):
             if s.name in mt.constant_slots:

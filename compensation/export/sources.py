@@ -33,7 +33,8 @@ def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
     src = require_kind(src, kinds, f"--format {fmt} tabulates")
     if src.kind == "elements":
         el = load_elements(src.path, machine)
-        return ModelError(machine, el, field=None if reads_grinder_files(machine) else chain_field(machine, el)), f"{src.path} (element set, sha256 {sha256_file(src.path)})", src
+        fld = None if reads_grinder_files(machine) else chain_field(machine, el)
+        return ModelError(machine, el, field=fld), f"{src.path} (element set, sha256 {sha256_file(src.path)})", src
     if fmt == "iso-tables":
         raise ValueError(f"--format iso-tables needs an element set: ISO component tables are the elements' "
                          f"components, and {src.description} is not one")
@@ -67,22 +68,16 @@ def load_elements(path, machine):
     return ChainElementSet.load(path, machine)
 
 
-def load_truth(path, machine):
-    """``truth(axes (n, k), dirs (n, k)) -> (n, 3)`` mm: where the simulated truth machine ``path`` (a
-    ``volcomp simulate`` folder or truth file, or a truth element set) puts the tool, at the tables' reference
-    temperature and the given approach directions."""
-    if reads_grinder_files(machine):
-        from ..evaluate import load_truth as load_grinder_truth
-        return truth_tool_points(load_grinder_truth(path, machine), machine)
-    from ..app.workflows.mt_loop import load_chain_truth
-    t = load_chain_truth(path, machine)
-
+def chain_truth_tool_points(truth, machine):
+    """``tool(axes (n, k), dirs (n, k)) -> (n, 3)`` mm of a chain's truth (``simulate --machine``'s truth at the
+    reference conditions with its simulated machine as ``truth.truth``, or any field): where it puts the tool at
+    the tables' reference temperature and the given approach directions."""
     def tool(q, dirs):
-        if hasattr(t, "truth"):
+        if hasattr(truth, "truth"):
             cond = {f"dir_{a.word.lower()}": dirs[:, j] for j, a in enumerate(machine.axes)}
-            e = t.truth.spatial_error(q, temp_c=np.full(len(q), TABLE_TEMP_C), **cond)
+            e = truth.truth.spatial_error(q, temp_c=np.full(len(q), TABLE_TEMP_C), **cond)
         else:
-            e = t.predict(q)
+            e = truth.predict(q)
         return nominal_mm(machine, q) + 1e-3 * np.asarray(e)
     return tool
 

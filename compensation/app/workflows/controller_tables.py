@@ -80,6 +80,16 @@ def load_model(s: TableSettings, machine):
     return model, desc, left
 
 
+def load_truth(path, machine):
+    """``tool(axes, dirs) -> (n, 3)`` mm of ``--truth`` (a grinder file's simulate folder or element set; a chain's
+    ``truth.json`` of ``simulate --machine`` or truth element set)."""
+    if ex.reads_grinder_files(machine):
+        from ...evaluate import load_truth as load_grinder_truth
+        return ex.truth_tool_points(load_grinder_truth(path, machine), machine)
+    from .mt_loop import load_chain_truth
+    return ex.chain_truth_tool_points(load_chain_truth(path, machine), machine)
+
+
 def notes_of(model, table, left_out) -> tuple[list[str], list[str]]:
     """``(left out, other notes)``: what the table does not carry, and how it carries a rotary joint, one line
     each (printed as notes; the first recorded in export.json)."""
@@ -106,7 +116,7 @@ def export_table(s: TableSettings, machine, on_check=None, log=None, on_note=Non
     log = sys.stderr if log is None else log
     say = lambda msg: print(msg, file=log)  # noqa: E731
     model, model_desc, left_out = load_model(s, machine)
-    truth = ex.load_truth(s.truth, machine) if s.truth else None
+    truth = load_truth(s.truth, machine) if s.truth else None
     sets = ex.check_sets(machine, s.check_points, s.seed)
     say("sizing the table and re-simulating the controller on the " + " and the ".join(sets) + " ...")
     table_seed = spawn_seeds(s.seed, 1)[0] if s.fmt == "linuxcnc" else s.seed
