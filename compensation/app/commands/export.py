@@ -46,7 +46,8 @@ def register(sub):
     p.add_argument("--format", required=True, choices=ex.ALL_FORMATS, dest="fmt", help="table format")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
-                   "grinder; a machine-tool chain (mill-xyz ...): --format iso-tables, grid or linuxcnc over its own axes")
+                   "grinder; any machine tool (mill-xyz, five-axis-ac, lathe-xzc, a chain file): every format over its "
+                   "own axes")
     p.add_argument("--tolerance-um", type=float, default=DEFAULT_TOLERANCE_UM,
                    help=f"largest model residual the table may leave (um; default {DEFAULT_TOLERANCE_UM:g}); "
                         "sizes the iso-tables rows and the grid spacing")
@@ -57,8 +58,9 @@ def register(sub):
     p.add_argument("--points", type=int, default=ex.LINUXCNC_MAX_POINTS,
                    help=f"linuxcnc: lines per joint file (2..{ex.LINUXCNC_MAX_POINTS}; default {ex.LINUXCNC_MAX_POINTS})")
     p.add_argument("--region", default=None, metavar="X0:X1,Z0:Z1",
-                   help="linuxcnc: axis region (mm) over which each joint's correction is averaged "
-                        "(default: the whole strokes), e.g. the part's working region")
+                   help="linuxcnc: one LO:HI range (mm) per linear axis of the machine (the grinder X0:X1,Z0:Z1, a mill "
+                        "X0:X1,Y0:Y1,Z0:Z1) over which each joint's correction is averaged (default: the calibrated "
+                        "volume), e.g. the part's working region")
     p.add_argument("--check-points", type=int, default=2000,
                    help="random points over the volume for the check (default 2000), besides the flute")
     p.add_argument("--seed", type=int, default=0, help="seed of the check points and the per-joint sampling")
