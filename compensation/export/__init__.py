@@ -24,7 +24,8 @@ The model and truth: :mod:`.model`, :mod:`.sources`; the check and the sizing: :
 write: :mod:`.common`. The command: :mod:`compensation.app.commands.export`.
 """
 from .check import (build_checked_table, build_table, check_export, check_sets, controller_commands,
-                    interpolation_error_um, motion_dirs, point_set, read_back, volume_points, worst_model_um, write_table)
+                    interpolation_error_um, motion_dirs, point_set, read_back, solved_commands, table_difference_um,
+                    volume_points, worst_model_um, write_table)
 from .common import (ALL_FORMATS, FORMATS, LINUXCNC_MAX_POINTS, TableField, node_means, staged_folder, table_bytes,
                      weighted_node_means, write_manifest)
 from .drift import (DRIFT_CONST, DRIFT_FILE, DRIFT_FORMAT, DRIFT_MAX_PERIOD_S, DRIFT_TICK_EPS_S, DriftCoefficients,
@@ -47,7 +48,7 @@ __all__ = ["ALL_FORMATS", "BACKLASH_EXPORT", "CHECKS_DIAGNOSIS_FORMAT", "DRIFT_C
            "controller_drift", "controller_drift_at", "curvature_counts", "drift_coefficients",
            "drift_distance_rule", "exact_corrections", "export_drift_coefficients", "grid_from_model",
            "interpolation_error_um", "iso_tables_from_model", "joint_tables_from_model", "load_model", "chain_truth_tool_points",
-           "motion_dirs", "point_set", "volume_points", "node_means", "nominal_mm", "read_back", "read_drift_coefficients", "read_grid",
+           "motion_dirs", "solved_commands", "table_difference_um", "point_set", "volume_points", "node_means", "nominal_mm", "read_back", "read_drift_coefficients", "read_grid",
            "read_iso_tables", "read_joint_tables", "reads_grinder_files", "region_box", "reversal_from_diagnosis",
            "reversal_terms_from_diagnosis", "truth_tool_points", "staged_folder", "table_bytes", "weighted_node_means",
            "worst_drift_model_um", "worst_model_um", "write_drift_coefficients", "write_grid", "write_iso_tables",

@@ -10,14 +10,16 @@ tolerance (rows, node counts) and tightens the sizing until the check itself mee
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from errormap.stats import residual_stats
 
 from .common import FORMATS, LINUXCNC_MAX_POINTS, DifferencedField
-from .grid import MAX_GRID_NODES, REFINE_FACTOR, REFINE_STEPS, curvature_counts, grid_from_model, read_grid, write_grid
-from .iso_tables import MAX_ISO_ROWS, iso_tables_from_model, read_iso_tables, write_iso_tables
-from .linuxcnc import JOINT_SAMPLES, joint_tables_from_model, read_joint_tables, write_joint_tables
+from .grid import MAX_GRID_NODES, VolumetricGrid, REFINE_FACTOR, REFINE_STEPS, curvature_counts, grid_from_model, read_grid, write_grid
+from .iso_tables import MAX_ISO_ROWS, IsoTables, iso_tables_from_model, read_iso_tables, write_iso_tables
+from .linuxcnc import JOINT_SAMPLES, JointTables, joint_tables_from_model, read_joint_tables, write_joint_tables
 from .model import ModelError, exact_corrections, nominal_mm
 
 TIGHTEN = 0.8
@@ -93,15 +95,22 @@ def volume_points(elements, n: int, seed) -> np.ndarray:
     return np.random.default_rng(seed).uniform(lo, hi, (n, len(m.axes)))
 
 
-def controller_commands(table, machine, targets, axes, dirs) -> np.ndarray:
-    """Axis commands (n, k) the controller sends with the table."""
-    if table.kind == "linuxcnc":
-        return table.command(axes, dirs)
+def solved_commands(table, machine, targets, axes) -> np.ndarray:
+    """Axis commands (n, k) of a volumetric controller: the exact solve on the table's field (a chain's solver
+    gets it with a differenced Jacobian)."""
     from ..solvers import solve
     from .model import reads_grinder_files
     fld = table.field(machine)
     fld = fld if reads_grinder_files(machine) else DifferencedField(fld.predict)
     return solve("exact", fld, targets, machine, target_axes=axes, progress=False).axes
+
+
+def controller_commands(table, machine, targets, axes, dirs) -> np.ndarray:
+    """Axis commands (n, k) the controller sends with the table: per-joint tables command each joint from its
+    own table; the volumetric formats solve for the target (:func:`solved_commands`)."""
+    if isinstance(table, JointTables):
+        return table.command(axes, dirs)
+    return solved_commands(table, machine, targets, axes)
 
 
 def check_export(table, model: ModelError, machine, sets: dict, truth=None, cache: dict | None = None) -> dict:
@@ -228,25 +237,38 @@ def build_checked_table(fmt: str, model: ModelError, machine, tolerance_um: floa
     for k in range(MAX_TIGHTEN + 1):
         table, sizing = build_table(fmt, model, machine, target, sets, **options)
         check = check_export(table, model, machine, sets, truth, cache)
-        if fmt == "linuxcnc" or worst_model_um(check) <= tolerance_um or k == MAX_TIGHTEN:
+        if isinstance(table, JointTables) or worst_model_um(check) <= tolerance_um or k == MAX_TIGHTEN:
             sizing["target_um"] = target
             return table, sizing, check
         target *= TIGHTEN
 
 
+WRITERS = {IsoTables: lambda t, folder, machine, desc: write_iso_tables(t, folder, machine, desc),
+           VolumetricGrid: lambda t, folder, machine, desc: [write_grid(t, folder, machine, desc)],
+           JointTables: lambda t, folder, machine, desc: write_joint_tables(t, folder)}
+READERS = {IsoTables: lambda t, folder, machine: read_iso_tables(folder, machine),
+           VolumetricGrid: lambda t, folder, machine: read_grid(Path(folder) / "grid.csv", machine),
+           JointTables: lambda t, folder, machine: read_joint_tables(folder, t)}
+"""Each table type's writer and reader (the files of :mod:`.iso_tables`, :mod:`.grid`, :mod:`.linuxcnc`)."""
+
+
 def write_table(table, folder, machine, model_desc: str) -> list:
-    if table.kind == "iso-tables":
-        return write_iso_tables(table, folder, machine, model_desc)
-    if table.kind == "grid":
-        return [write_grid(table, folder, machine, model_desc)]
-    return write_joint_tables(table, folder)
+    return WRITERS[type(table)](table, folder, machine, model_desc)
 
 
 def read_back(table, folder, machine):
     """The table ``table`` as read back from ``folder``."""
-    from pathlib import Path
-    if table.kind == "iso-tables":
-        return read_iso_tables(folder, machine)
-    if table.kind == "grid":
-        return read_grid(Path(folder) / "grid.csv", machine)
-    return read_joint_tables(folder, table)
+    return READERS[type(table)](table, folder, machine)
+
+
+def table_difference_um(table, back, machine, sets) -> float:
+    """Largest difference (μm, or μm-equivalent of the joint commands: μm and millidegrees) between two tables
+    as the controller uses them, at the check axes."""
+    worst = 0.0
+    for targets, axes, dirs in sets.values():
+        if isinstance(table, JointTables):
+            d = (table.command(axes, dirs) - back.command(axes, dirs)) * 1e3
+        else:
+            d = table.field(machine)(axes) - back.field(machine)(axes)
+        worst = max(worst, float(np.abs(d).max()))
+    return worst

@@ -53,7 +53,8 @@ def table_axes(mt) -> list:
 
 def _slot_columns(mt, word):
     """``(slot indices (6,) or -1, ...)`` of axis ``word``'s components in :func:`iso_columns` order."""
-    by_iso = {s.iso: p for p, s in enumerate(mt.slots) if s.axis == word and s.kind == "component"}
+    own = set(mt.slots_of(word))
+    by_iso = {s.iso: p for p, s in enumerate(mt.slots) if s.name in own}
     return np.array([by_iso.get(n, -1) for n in iso_columns(word)])
 
 

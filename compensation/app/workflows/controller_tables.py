@@ -94,7 +94,7 @@ def notes_of(model, table, left_out) -> tuple[list[str], list[str]]:
     """``(left out, other notes)``: what the table does not carry, and how it carries a rotary joint, one line
     each (printed as notes; the first recorded in export.json)."""
     left = [f"effect {e}: not carried by a per-joint table" for e in left_out]
-    if table.kind != "linuxcnc":
+    if not isinstance(table, ex.JointTables):
         return left, []
     left += [f"rotary joint {a.word}: no file (LinuxCNC takes one pitch table per joint; the exact solver keeps this "
              "joint as programmed, so what its own errors do is left in the residual below)"
@@ -143,7 +143,7 @@ def export_table(s: TableSettings, machine, on_check=None, log=None, on_note=Non
     with ex.staged_folder(s.out) as tmp:
         files = ex.write_table(table, tmp, machine, model_desc)
         back = ex.read_back(table, tmp, machine)
-        diff = read_back_difference(table, back, machine, sets)
+        diff = ex.table_difference_um(table, back, machine, sets)
         if diff > READ_BACK_TOL_UM:
             raise RuntimeError(f"read-back check failed: the written {s.fmt} table differs from the built one by "
                                f"{diff:.3g} um")
@@ -182,19 +182,6 @@ def manifest(s: TableSettings, machine, model, model_desc, table, sizing, check,
                             "turns": "a joint in joint_turns_from_deg has a one-turn table; the controller folds its "
                                      "position into it (wrapped rotary joint)"}
     return info
-
-
-def read_back_difference(table, back, machine, sets) -> float:
-    """Largest difference (μm, or μm-equivalent of the joint commands: μm and millidegrees) between the built
-    and the read-back table, as the controller uses them, at the check axes."""
-    worst = 0.0
-    for targets, axes, dirs in sets.values():
-        if table.kind == "linuxcnc":
-            d = (table.command(axes, dirs) - back.command(axes, dirs)) * 1e3
-        else:
-            d = table.field(machine)(axes) - back.field(machine)(axes)
-        worst = max(worst, float(np.abs(d).max()))
-    return worst
 
 
 def fitting_log_of(model, model_path) -> str:
