@@ -27,6 +27,7 @@ import numpy as np
 
 from errormap.grinder_file import machine_tool_of
 from errormap.io import InputError, read_table, write_csv
+from errormap.iso230 import axis_from_mcs, axis_to_mcs
 from errormap.mt_kernel import CompiledNominal
 
 from .common import fold, meta_format
@@ -63,22 +64,6 @@ def reference_axes(mt, n: int = 1) -> np.ndarray:
     return np.tile(np.clip(0.0, mt.stroke_lo, mt.stroke_hi), (n, 1))
 
 
-def to_mcs(mt, word, axes, comp) -> np.ndarray:
-    """Components (n, 6) of axis ``word`` in its body frame -> ISO (MCS) at ``axes`` (n, k)."""
-    R, _ = mt.body_frames(word, axes)
-    d = np.einsum("nij,nj->ni", R, comp[:, :3])
-    e = np.einsum("nij,nj->ni", R, comp[:, 3:])
-    return np.concatenate([d + 1e-3 * np.cross(e, np.zeros_like(e)), e], axis=1)
-
-
-def from_mcs(mt, word, axes, iso) -> np.ndarray:
-    """The inverse of :func:`to_mcs`: ISO components (n, 6) -> the body frame's (n, 6)."""
-    R, _ = mt.body_frames(word, axes)
-    e = iso[:, 3:]
-    d = iso[:, :3] - 1e-3 * np.cross(e, np.zeros_like(e))
-    return np.concatenate([np.einsum("nji,nj->ni", R, d), np.einsum("nji,nj->ni", R, e)], axis=1)
-
-
 @dataclass
 class IsoTables:
     """Per-axis ISO component tables: ``positions[W]`` (m,), ``values[W]`` (m, 6) in :func:`iso_columns` order;
@@ -101,7 +86,7 @@ class IsoTables:
             cols = _slot_columns(mt, a.word)
             pose = reference_axes(mt, len(axes))   # the table's frame: this axis moved, the others at reference
             pose[:, j] = axes[:, j]
-            comp = from_mcs(mt, a.word, pose, iso)
+            comp = axis_from_mcs(mt, a.word, pose, iso)
             out[:, cols[cols >= 0]] = comp[:, cols >= 0]
         for p, s in enumerate(mt.slots):
             if s.name in mt.constant_slots:
@@ -129,7 +114,7 @@ def iso_tables_from_model(elements, machine, n_rows: int) -> IsoTables:
         v = elements.values(axes)
         cols = _slot_columns(mt, a.word)
         comp = np.where(cols >= 0, v[:, np.maximum(cols, 0)], 0.0)
-        pos[a.word], val[a.word] = t, to_mcs(mt, a.word, axes, comp)
+        pos[a.word], val[a.word] = t, axis_to_mcs(mt, a.word, axes, comp)
     v0 = elements.values(reference_axes(mt))[0]
     loc = {s.iso: float(v0[p]) for p, s in enumerate(mt.slots) if s.name in mt.constant_slots}
     return IsoTables(pos, val, loc)
