@@ -8,13 +8,11 @@ a grinder file's element sets, simulated truths and ``diagnosis.json`` have thei
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field as dc_field
 
 import numpy as np
 
 from errormap.grinder_file import machine_tool_of
-from errormap.io import InputError, sha256_file
 from errormap.mt_kernel import CompiledNominal, NominalChain
 
 from .common import TableField, fold
