@@ -209,3 +209,34 @@ def test_iso_tables_rebuild_the_model_at_their_rows_on_every_machine_tool(name):
     q = np.column_stack([rng.choice(t.positions[a.word], 200) if a.word in t.positions else rng.uniform(*a.stroke, 200)
                          for a in m.axes])
     np.testing.assert_allclose(t.field(m)(q), model(q), atol=EXACT_UM)
+
+
+NET_GRID_TOL_UM = 5.0
+"""The grid's tolerance in the network test: a coarse one keeps the grid small (the check is the same at any)."""
+
+
+@pytest.mark.slow
+def test_a_trained_chain_network_is_exported_like_an_element_set(tmp_path):
+    """A chain network (a seeded random one: the export does not care how it was trained) on the lathe: the grid
+    over X, Z and C (C periodic) meets the tolerance at the re-simulated controller and reads back; the per-joint
+    tables are written for X, Z and C."""
+    import torch
+    from errormap.machine import load_machine
+    from training.chain_model import ChainMLPField
+    m = load_machine("lathe-xzc")
+    f = ChainMLPField.for_machine(m, hidden=(6, 5), activation="tanh")
+    rng = np.random.default_rng(3)
+    ax = rng.uniform(m.stroke_lo, m.stroke_hi, (200, len(m.axes)))
+    f.fit_scalers(ax, rng.normal(0.0, 20.0, (200, 3)))
+    f.theta_ = torch.randn(f.n_params, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    net = f.save(tmp_path / "net")
+    common = ["--machine", "lathe-xzc", "--check-points", "100"]
+    assert main(["export", str(net), "--format", "grid", "--tolerance-um", str(NET_GRID_TOL_UM), *common,
+                 "--out", str(tmp_path / "g")]) == 0
+    info = json.loads((tmp_path / "g" / "export.json").read_text())
+    assert info["tolerance_met"] and info["worst_model_residual_um"] <= NET_GRID_TOL_UM
+    assert info["read_back_difference_um"] <= 1e-5
+    assert main(["export", str(net), "--format", "linuxcnc", "--points", "8", "--force", *common,
+                 "--out", str(tmp_path / "l")]) == 0
+    assert sorted(p.name for p in (tmp_path / "l").glob("*.comp")) == ["joint_c.comp", "joint_x.comp", "joint_z.comp"]
+    assert main(["export", str(net), "--format", "iso-tables", *common, "--out", str(tmp_path / "i")]) == 2
