@@ -2,8 +2,8 @@
 against the tables averaged over the whole calibrated volume: the worst and RMS MODEL residual the tables
 leave at points inside the region.
 
-What: ``mt_export.chain_joint_tables`` with and without ``region``, checked by
-``mt_export.check_chain_joint_tables`` (the model machine reached with the tables' commands minus the target).
+What: ``compensation.export.joint_tables_from_model`` with and without ``region``, checked by
+``compensation.export.check_export`` (the model machine reached with the tables' commands minus the target).
 Data: seeded default-family truths of ``mill-xyz`` (``make_truth(mill-xyz, seed)``: angular errors couple the
 axes), 64 lines per joint, 16 samples per node (seed 0), a region 2 % of each stroke wide starting at 40 %,
 300 check points in it (seed 3), approach +. Residual kind: MODEL (the truth's own elements are the model).
@@ -18,7 +18,7 @@ import numpy as np
 
 
 def measure(seed: int) -> dict:
-    from compensation import mt_export
+    from compensation import export as ex
     from compensation.app.workflows.mt_loop import make_truth
     from errormap.machine import load_machine
     from errormap.mt_field import ChainField
@@ -31,8 +31,9 @@ def measure(seed: int) -> dict:
     dirs = np.ones_like(pts)
     out = {}
     for name, region in (("whole volume", None), ("region", box)):
-        t = mt_export.chain_joint_tables(fld, el, 64, samples=16, seed=0, region=region)
-        c = mt_export.check_chain_joint_tables(t, fld, m, pts, dirs)
+        model = ex.ModelError(m, el, field=fld)
+        t = ex.joint_tables_from_model(model, m, 64, samples=16, seed=0, region=region)
+        c = ex.check_export(t, model, m, {"p": ex.point_set(m, pts, dirs)})["p"]
         out[name] = c["model"]
     out["none"] = c["baseline_none"]["model"]
     return out

@@ -11,7 +11,7 @@ import argparse
 
 import numpy as np
 
-from compensation.mt_export import check_points
+from compensation.export import volume_points as check_points
 from errormap.machine import load_machine
 from errormap.mt_identify import ChainIdentification, smooth_chain, station_error_rms
 from errormap.mt_simulate import make_mt_truth

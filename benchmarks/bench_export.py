@@ -53,12 +53,13 @@ def run_seed(seed: int, tolerances, n_volume: int) -> dict:
     el = identify(simulate_sweeps(truth, noise_um=2.0, seed=seed), m).elements_
     model = ex.ModelError(m, el)
     sets = ex.check_sets(m, n_volume, seed)
+    tool = ex.truth_tool_points(truth, m)
     cache = {}
     rows = []
 
     def one(kind, label, mdl, cch, tol=1.0, **options):
         t0 = time.perf_counter()
-        table, sizing, chk = ex.build_checked_table(kind, mdl, m, tol, sets, truth, cch, **options)
+        table, sizing, chk = ex.build_checked_table(kind, mdl, m, tol, sets, tool, cch, **options)
         with tempfile.TemporaryDirectory() as tmp:
             files = ex.write_table(table, tmp, m, "bench")
             size = ex.table_bytes(files)
@@ -81,7 +82,7 @@ def run_seed(seed: int, tolerances, n_volume: int) -> dict:
         except Exception as exc:  # the refusal itself is a result worth reporting
             back, diag_note = {}, f"diagnosis not usable by a per-joint table: {exc}"
     if back:
-        one("linuxcnc", "flute region + diagnosed backlash", ex.ModelError(m, el, back), {},
+        one("linuxcnc", "flute region + diagnosed backlash", ex.ModelError(m, el, reversal={j.upper(): b for j, b in back.items()}), {},
             region=FLUTE_REGION, seed=seed)
     # terms the diagnosis found that depend on the axes only (interaction x*z, periodic, harmonic):
     # a grid can hold the corrected model, per-axis ISO component tables cannot

@@ -79,9 +79,9 @@ def _stats_row(q):
 
 
 def part_b(seed):
-    from compensation import mt_export
+    from compensation import export as ex
     from compensation.app.cli import main
-    from compensation.app.commands.export import _chain_truth
+    from compensation.app.workflows.controller_tables import load_truth
     from errormap.machine import load_machine
     from errormap.mt_elements import ChainElementSet
     from errormap.mt_field import ChainField
@@ -94,18 +94,17 @@ def part_b(seed):
         assert main(["sweeps", *base, "--out", str(d / "sw.csv")]) == 0
         assert main(["identify", str(d / "sw.csv"), "--machine", LATHE, "--out", str(d / "E.json")]) == 0
         el = ChainElementSet.load(d / "E.json", mt)
-        truth = _chain_truth(str(d / "sim" / "truth.json"), mt)
-    fld = ChainField(mt, el)
-    s_tab, s_pts, s_dir = spawn_seeds(seed, 3)  # as `export --format linuxcnc --seed SEED`
-    pts = mt_export.check_points(el, 2000, s_pts)
-    dirs = np.random.default_rng(s_dir).choice([-1.0, 1.0], pts.shape)
+        truth = load_truth(str(d / "sim" / "truth.json"), mt)
+    model = ex.ModelError(mt, el, field=ChainField(mt, el))
+    s_tab = spawn_seeds(seed, 1)[0]  # as `export --format linuxcnc --seed SEED`
+    sets = {"volume": ex.check_sets(mt, 2000, seed)["volume"]}
     out = {}
     for w in ("r2", "plain"):
-        tables = mt_export.chain_joint_tables(fld, el, 256, seed=s_tab, rotary_weight=w)
-        out[w] = mt_export.check_chain_joint_tables(tables, fld, mt, pts, dirs, truth)
+        tables = ex.joint_tables_from_model(model, mt, 256, seed=s_tab, rotary_weight=w)
+        out[w] = ex.check_export(tables, model, mt, sets, truth)["volume"]
         if w == "r2":
             tables.joints.pop("c")
-            out["no_c"] = mt_export.check_chain_joint_tables(tables, fld, mt, pts, dirs, truth)
+            out["no_c"] = ex.check_export(tables, model, mt, sets, truth)["volume"]
     ck = out["r2"]
     row = (f"| {seed} | {_stats_row(ck['true'])} | {_stats_row(out['plain']['true'])} | "
            f"{_stats_row(out['no_c']['true'])} | {_stats_row(ck['baseline_none']['true'])} | "

@@ -238,7 +238,7 @@ def mt_band_coverage(n_seeds: int, work: Path | None = None) -> dict:
     component, pooled over seeds 0..n−1; the naive ±1.96 σ̂ band beside it."""
     import tempfile
     from compensation.app.cli import main
-    from compensation.mt_export import check_points
+    from compensation.export import volume_points as check_points
     from errormap.io import read_table, write_csv
     from errormap.machine import load_machine
     from errormap.mt_elements import ChainElementSet

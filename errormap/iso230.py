@@ -109,12 +109,6 @@ def reference_points_mm(machine: Grinder, axes) -> dict:
     return {b: t for b, (_, t) in _body_frames(machine, axes).items()}
 
 
-def _frames(machine: Grinder, axes) -> dict:
-    """Rotation from each body's project frame to the MCS, shape (n, 3, 3) (the chain's nominal
-    body frames: X the identity, Z ``RotZ(θ1)``, A ``RotX(a)``)."""
-    return {b: R for b, (R, _) in _body_frames(machine, axes).items()}
-
-
 _TRIPLES = {"X": (X_ELEMENTS[:3], X_ELEMENTS[3:]), "Z": (Z_ELEMENTS[:3], Z_ELEMENTS[3:]),
             "A": (A_ELEMENTS[:3], A_ELEMENTS[3:])}
 
@@ -141,6 +135,29 @@ def _offsets(reference_offsets_mm, n):
     return out
 
 
+def axis_to_mcs(mt, word: str, axes, comp, offset_mm=None) -> np.ndarray:
+    """One axis' six components (n, 6) (δx δy δz μm, εx εy εz μrad) in the frame its chain applies them in ->
+    ISO 230-1 in the MCS at ``axes`` (n, k) of the chain ``mt`` (:class:`errormap.mt_chain.MachineTool`): turned
+    by the body's nominal rotation, the translations moved to the reference point offset by ``offset_mm``
+    (n, 3) (None: the body's own), ``δ + 1e-3·ε × r``. The same transform for every machine tool."""
+    R, _ = mt.body_frames(word, axes)
+    comp = np.asarray(comp, dtype=float)
+    r = np.zeros((comp.shape[0], 3)) if offset_mm is None else offset_mm
+    d = np.einsum("nij,nj->ni", R, comp[:, :3])
+    e = np.einsum("nij,nj->ni", R, comp[:, 3:])
+    return np.concatenate([d + 1e-3 * np.cross(e, r), e], axis=1)
+
+
+def axis_from_mcs(mt, word: str, axes, iso, offset_mm=None) -> np.ndarray:
+    """The inverse of :func:`axis_to_mcs`: ISO components (n, 6) -> the chain frame's (n, 6)."""
+    R, _ = mt.body_frames(word, axes)
+    iso = np.asarray(iso, dtype=float)
+    r = np.zeros((iso.shape[0], 3)) if offset_mm is None else offset_mm
+    e = iso[:, 3:]
+    d = iso[:, :3] - 1e-3 * np.cross(e, r)
+    return np.concatenate([np.einsum("nji,nj->ni", R, d), np.einsum("nji,nj->ni", R, e)], axis=1)
+
+
 def to_iso(values, axes, machine: Grinder, reference_offsets_mm: dict | None = None) -> np.ndarray:
     """Project element values -> ISO 230-1 values, shape (n, 23) -> (n, 23) in ISO_NAMES order.
 
@@ -150,31 +167,23 @@ def to_iso(values, axes, machine: Grinder, reference_offsets_mm: dict | None = N
     (:func:`reference_points_mm`); its translational components become ``δ + 1e-3·ε × r``.
     The A-axis location errors are not moved (they are constants of the axis line).
     """
-    v, axes = _check(values, axes)
-    out = v.copy()
-    R = _frames(machine, axes)
-    r = _offsets(reference_offsets_mm, axes.shape[0])
-    for b, (dn, en) in _TRIPLES.items():
-        di, ei = [_IDX[k] for k in dn], [_IDX[k] for k in en]
-        d = np.einsum("nij,nj->ni", R[b], v[:, di])
-        e = np.einsum("nij,nj->ni", R[b], v[:, ei])
-        out[:, di] = d + 1e-3 * np.cross(e, r[b])
-        out[:, ei] = e
-    return out
+    return _convert(values, axes, machine, reference_offsets_mm, axis_to_mcs)
 
 
 def from_iso(iso_values, axes, machine: Grinder, reference_offsets_mm: dict | None = None) -> np.ndarray:
     """ISO 230-1 values (ISO_NAMES order) -> project element values; the inverse of :func:`to_iso`."""
-    v, axes = _check(iso_values, axes)
+    return _convert(iso_values, axes, machine, reference_offsets_mm, axis_from_mcs)
+
+
+def _convert(values, axes, machine, reference_offsets_mm, per_axis) -> np.ndarray:
+    from .grinder_file import grinder_chain
+    v, axes = _check(values, axes)
     out = v.copy()
-    R = _frames(machine, axes)
+    mt = grinder_chain(machine)
     r = _offsets(reference_offsets_mm, axes.shape[0])
     for b, (dn, en) in _TRIPLES.items():
-        di, ei = [_IDX[k] for k in dn], [_IDX[k] for k in en]
-        e = v[:, ei]
-        d = v[:, di] - 1e-3 * np.cross(e, r[b])
-        out[:, di] = np.einsum("nji,nj->ni", R[b], d)
-        out[:, ei] = np.einsum("nji,nj->ni", R[b], e)
+        cols = [_IDX[k] for k in dn + en]
+        out[:, cols] = per_axis(mt, b, axes, v[:, cols], r[b])
     return out
 
 

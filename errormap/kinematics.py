@@ -22,8 +22,9 @@ from .transforms import check_points
 
 
 def _chain(machine: Grinder):
-    from .grinder_file import grinder_chain
-    return grinder_chain(machine)
+    """The machine's chain (a grinder file's compiled once, a chain itself)."""
+    from .grinder_file import machine_tool_of
+    return machine_tool_of(machine)
 
 
 def _axes_at_z(z) -> np.ndarray:

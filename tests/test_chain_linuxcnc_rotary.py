@@ -7,13 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from compensation import mt_export
+from compensation import export as ex
 from compensation.app.cli import main
 from errormap.machine import load_machine
 from errormap.mt_elements import ChainElementSet
 from errormap.mt_field import ChainField
 
-from test_mt_linuxcnc import check_and_write_tables
+from test_mt_linuxcnc import check_and_write_tables, joint_tables
 
 LATHE = "lathe-xzc"
 ANGULAR_ONLY_TOL_UM = 0.01
@@ -40,10 +40,10 @@ def test_weighted_node_means():
     c = np.array([[1.0, 3.0], [5.0, 5.0], [7.0, 9.0]])
     ok = np.array([[True, True], [False, False], [True, False]])
     w = np.array([[1.0, 3.0], [1.0, 1.0], [2.0, 5.0]])
-    m = mt_export.weighted_node_means(nom, c, ok, w, "none")
+    m = ex.weighted_node_means(nom, c, ok, w, "none")
     assert np.abs(m - np.array([2.5, 4.75, 7.0])).max() < WEIGHTED_MEAN_TOL  # node 1: its neighbours' interpolation
     with pytest.raises(ValueError, match="none"):
-        mt_export.weighted_node_means(nom, c, np.zeros_like(ok), w, "none")
+        ex.weighted_node_means(nom, c, np.zeros_like(ok), w, "none")
 
 
 def test_c_table_compensates_a_spindle_with_angular_error_only(tmp_path):
@@ -52,14 +52,14 @@ def test_c_table_compensates_a_spindle_with_angular_error_only(tmp_path):
     m = load_machine(LATHE)
     el = angular_only(m)
     fld = ChainField(m, el)
-    tables = mt_export.chain_joint_tables(fld, el, 256, samples=4, seed=0)
+    tables = joint_tables(fld, el, m, 256, samples=4, seed=0)
     assert sorted(tables.nominal) == ["c", "x", "z"] and tables.units == {"x": "mm", "z": "mm", "c": "deg"}
     assert tables.turns == {"c": 0.0} and tables.forward["c"][-1] - 360.0 == tables.forward["c"][0]
     corr_deg = tables.nominal["c"] - tables.forward["c"]
     ez_deg = np.degrees(1e-6 * el.functions["ez_c"])
     assert 0.5 < np.abs(corr_deg).max() / np.abs(ez_deg).max() < 2.0  # the size of the angular error, in degrees
     assert max(np.abs(tables.nominal[j] - tables.forward[j]).max() for j in "xz") < 1e-9  # nothing on X, Z
-    pts = mt_export.check_points(el, 500, 1)
+    pts = ex.volume_points(el, 500, 1)
     pts[:, 2] += np.random.default_rng(3).integers(-1, 2, len(pts)) * 360.0  # C on other turns: folded
     files, back = check_and_write_tables(tables, fld, m, pts, ANGULAR_ONLY_TOL_UM, tmp_path, "c")
     assert [p.name for p in files] == ["joint_x.comp", "joint_z.comp", "joint_c.comp"]
@@ -86,7 +86,7 @@ def test_lathe_users_path_with_an_effect_on_c(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["export.json", "joint_c.comp", "joint_x.comp", "joint_z.comp"]
     info = json.loads((out / "export.json").read_text())
     assert info["joint_units"] == {"x": "mm", "z": "mm", "c": "deg"} and info["left_out"] == []
-    ck = info["check"]
+    ck = info["check"]["volume"]
     assert ck["true"]["max_um"] < ck["baseline_none"]["true"]["max_um"]
     assert ck["true"]["mean_um"] < ck["baseline_none"]["true"]["mean_um"]
     # the same tables without C's: more MODEL error left (C's table carries the spindle's angular error)
@@ -94,12 +94,11 @@ def test_lathe_users_path_with_an_effect_on_c(tmp_path, capsys):
     el = ChainElementSet.load(d / "E.json", m)
     fld = ChainField(m, el)
     from errormap.seeds import spawn_seeds
-    s_tab, s_pts, s_dir = spawn_seeds(0, 3)
-    tables = mt_export.chain_joint_tables(fld, el, 256, seed=s_tab)
-    pts = mt_export.check_points(el, 2000, s_pts)
-    dirs = np.random.default_rng(s_dir).choice([-1.0, 1.0], pts.shape)
-    with_c = mt_export.check_chain_joint_tables(tables, fld, m, pts, dirs)
+    model = ex.ModelError(m, el, field=fld)
+    tables = ex.joint_tables_from_model(model, m, 256, seed=spawn_seeds(0, 1)[0])
+    sets = {"volume": ex.check_sets(m, 2000, 0)["volume"]}
+    with_c = ex.check_export(tables, model, m, sets)["volume"]
     assert abs(with_c["model"]["max_um"] - ck["model"]["max_um"]) < 1e-9  # the CLI's check, reproduced
     tables.joints.pop("c")
-    without_c = mt_export.check_chain_joint_tables(tables, fld, m, pts, dirs)
+    without_c = ex.check_export(tables, model, m, sets)["volume"]
     assert with_c["model"]["mean_um"] < without_c["model"]["mean_um"]

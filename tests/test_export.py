@@ -62,7 +62,7 @@ def test_iso_tables_exact_for_linear_profiles(grinder, small_sets):
     el.functions["ey_z"] = 1.5 * (z - z[0])
     el.constants.update({"dy_oa": 3.0, "ez_oa": -20.0, "s_xz": 40.0})
     model = ex.ModelError(grinder, el)
-    t = ex.iso_tables_from_model(el, grinder, {"X": 5, "Z": 5, "A": 5})
+    t = ex.iso_tables_from_model(el, grinder, 5)
     axes = small_sets["volume"][1]
     np.testing.assert_allclose(t.field(grinder)(axes), model(axes), atol=EXACT_UM)
 
@@ -72,7 +72,7 @@ def test_grid_exact_for_a_field_linear_in_x_and_z(grinder):
         def predict(self, q):
             return np.column_stack([0.3 * q[:, 0] - 2 * q[:, 1], q[:, 1] + 1.0, -0.05 * q[:, 0]])
     model = ex.ModelError(grinder, field=Lin())
-    g = ex.grid_from_model(model, grinder, (3, 4, 5))
+    g = ex.grid_from_model(model, (3, 4, 5))
     q = np.random.default_rng(1).uniform([0, 0, -720], [200, 60, 720], (500, 3))
     np.testing.assert_allclose(g(q), Lin().predict(q), atol=1e-9)
 
@@ -86,8 +86,8 @@ def test_round_trip_meets_the_stated_tolerance(grinder, small_sets, tmp_path, fm
     table, sizing = ex.build_table(fmt, model, grinder, TOL_UM, small_sets)
     assert sizing["interpolation_error_um"] <= TOL_UM
     ex.write_table(table, tmp_path, grinder, "test")
-    back = ex.read_back(fmt, tmp_path)
-    check = ex.check_export(back, model, grinder, small_sets, truth)
+    back = ex.read_back(table, tmp_path, grinder)
+    check = ex.check_export(back, model, grinder, small_sets, ex.truth_tool_points(truth, grinder))
     for name, r in check.items():
         assert r["model"]["max_um"] <= TOL_UM, name
         assert r["model"]["max_um"] * 100 < r["baseline_none"]["model"]["max_um"], name
@@ -105,15 +105,16 @@ def test_linuxcnc_diagnosed_backlash_removes_the_reversal(grinder, small_sets, t
     back, left = ex.backlash_from_diagnosis(diag)
     assert back == {"z": BACKLASH_UM} and left == ["thermal(x) on dx_x"]
     plain = ex.ModelError(grinder, el)
-    with_rev = ex.ModelError(grinder, el, back)
+    with_rev = ex.ModelError(grinder, el, reversal={j.upper(): b for j, b in back.items()})
     t0, _ = ex.build_table("linuxcnc", plain, grinder, TOL_UM, small_sets, n_points=201)
     t1, _ = ex.build_table("linuxcnc", with_rev, grinder, TOL_UM, small_sets, n_points=201)
     ex.write_table(t1, tmp_path / "lc", grinder, "test")
     rows = np.loadtxt(tmp_path / "lc" / "joint_z.comp")
     np.testing.assert_allclose(rows[:, 1] - rows[:, 2], BACKLASH_UM * 1e-3, atol=FILE_MM)
-    t1 = ex.read_back("linuxcnc", tmp_path / "lc")
-    c0 = ex.check_export(t0, plain, grinder, small_sets, truth)
-    c1 = ex.check_export(t1, with_rev, grinder, small_sets, truth)
+    t1 = ex.read_back(t1, tmp_path / "lc", grinder)
+    tool = ex.truth_tool_points(truth, grinder)
+    c0 = ex.check_export(t0, plain, grinder, small_sets, tool)
+    c1 = ex.check_export(t1, with_rev, grinder, small_sets, tool)
     # random approach directions over the volume: without the reversal the truth's ±4 μm remains
     assert c0["volume"]["true"]["max_um"] == pytest.approx(BACKLASH_UM / 2, abs=REMOVED_UM)
     assert c1["volume"]["true"]["max_um"] < REMOVED_UM
@@ -143,13 +144,13 @@ def test_cli_grid_writes_and_records(grinder, tmp_path):
     info = json.loads((out / "export.json").read_text())
     assert info["tolerance_met"] and info["override"] is None
     assert info["worst_model_residual_um"] <= 2.0
-    g = ex.read_grid(out / "grid.csv")
+    g = ex.read_grid(out / "grid.csv", grinder)
     assert list(g.values.shape[:3]) == info["sizing"]["counts"]
 
 
 def test_bad_files_name_the_place(grinder, tmp_path):
     model = ex.ModelError(grinder, random_truth(grinder, 2).elements)
-    g = ex.grid_from_model(model, grinder, (3, 3, 5))
+    g = ex.grid_from_model(model, (3, 3, 5))
     p = ex.write_grid(g, tmp_path, grinder, "test")
     lines = p.read_text().splitlines()
     k = next(i for i, s in enumerate(lines) if not s.startswith("#")) + 3
@@ -158,16 +159,16 @@ def test_bad_files_name_the_place(grinder, tmp_path):
     lines[k] = ",".join(cells)
     p.write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError, match=rf"row {k + 1}, column 'z_mm'"):
-        ex.read_grid(p)
+        ex.read_grid(p, grinder)
     t = ex.joint_tables_from_model(ex.ModelError(grinder, linear_elements(grinder)), grinder, 8, samples=2)
     ex.write_joint_tables(t, tmp_path)
     c = tmp_path / "joint_a.comp"
     c.write_text(c.read_text().replace("\n", " 1\n", 1))
     with pytest.raises(InputError, match="joint_a.comp: line 1: expected 3 numbers"):
-        ex.read_joint_tables(tmp_path)
+        ex.read_joint_tables(tmp_path, t)
     c.write_text("\n".join(f"{i} {i} {i}" for i in range(257)) + "\n")
     with pytest.raises(InputError, match="expected 2 to 256 lines"):
-        ex.read_joint_tables(tmp_path)
+        ex.read_joint_tables(tmp_path, t)
     d = tmp_path / "d.json"
     d.write_text(json.dumps({"effects": [{"kind": "reversal", "axis": "z", "element": "dx",
                                           "parameters": {"backlash_um": {"value": 3}}}]}))
@@ -176,10 +177,10 @@ def test_bad_files_name_the_place(grinder, tmp_path):
 
 
 def test_iso_table_header_states_reference_and_sign(grinder, tmp_path):
-    t = ex.iso_tables_from_model(random_truth(grinder, 2).elements, grinder, {"X": 5, "Z": 5, "A": 5})
+    t = ex.iso_tables_from_model(random_truth(grinder, 2).elements, grinder, 5)
     ex.write_iso_tables(t, tmp_path, grinder, "test")
     head = (tmp_path / "iso_X.csv").read_text().splitlines()[:8]
-    assert any(h.startswith("# reference point: the X carriage origin") for h in head)
+    assert any(h.startswith("# reference point: the origin of the X body's frame") for h in head)
     assert any("the tool moves relative to the workpiece by minus this" in h for h in head)
     assert "x_mm,EXX_um,EYX_um,EZX_um,EAX_urad,EBX_urad,ECX_urad" in (tmp_path / "iso_X.csv").read_text()
 
@@ -191,3 +192,51 @@ def test_cli_refuses_a_model_of_another_machine(grinder, tmp_path, capsys):
     assert main(["export", str(p), "--format", "iso-tables", "--out", str(tmp_path / "o")]) == 2
     assert "key 'machine_sha256'" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("name", ["mill-xyz", "five-axis-ac", "lathe-xzc"])
+def test_iso_tables_rebuild_the_model_at_their_rows_on_every_machine_tool(name):
+    """The turn into the machine frame and back is one transform per axis (the axis at its row, the others at
+    the reference pose): at the rows' positions, where linear interpolation is exact, the controller's rebuilt
+    error equals the model's, on a mill, on a five-axis machine whose C table rides on A, and on a lathe."""
+    from errormap.machine import load_machine
+    from errormap.mt_elements import ChainElementSet
+    m = load_machine(name)
+    el = ChainElementSet.random(m, 3)
+    model = ex.ModelError(m, el)
+    t = ex.iso_tables_from_model(el, m, 11)
+    rng = np.random.default_rng(4)
+    q = np.column_stack([rng.choice(t.positions[a.word], 200) if a.word in t.positions else rng.uniform(*a.stroke, 200)
+                         for a in m.axes])
+    np.testing.assert_allclose(t.field(m)(q), model(q), atol=EXACT_UM)
+
+
+NET_GRID_TOL_UM = 5.0
+"""The grid's tolerance in the network test: a coarse one keeps the grid small (the check is the same at any)."""
+
+
+@pytest.mark.slow
+def test_a_trained_chain_network_is_exported_like_an_element_set(tmp_path):
+    """A chain network (a seeded random one: the export does not care how it was trained) on the lathe: the grid
+    over X, Z and C (C periodic) meets the tolerance at the re-simulated controller and reads back; the per-joint
+    tables are written for X, Z and C."""
+    import torch
+    from errormap.machine import load_machine
+    from training.chain_model import ChainMLPField
+    m = load_machine("lathe-xzc")
+    f = ChainMLPField.for_machine(m, hidden=(6, 5), activation="tanh")
+    rng = np.random.default_rng(3)
+    ax = rng.uniform(m.stroke_lo, m.stroke_hi, (200, len(m.axes)))
+    f.fit_scalers(ax, rng.normal(0.0, 20.0, (200, 3)))
+    f.theta_ = torch.randn(f.n_params, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    net = f.save(tmp_path / "net")
+    common = ["--machine", "lathe-xzc", "--check-points", "100"]
+    assert main(["export", str(net), "--format", "grid", "--tolerance-um", str(NET_GRID_TOL_UM), *common,
+                 "--out", str(tmp_path / "g")]) == 0
+    info = json.loads((tmp_path / "g" / "export.json").read_text())
+    assert info["tolerance_met"] and info["worst_model_residual_um"] <= NET_GRID_TOL_UM
+    assert info["read_back_difference_um"] <= 1e-5
+    assert main(["export", str(net), "--format", "linuxcnc", "--points", "8", "--force", *common,
+                 "--out", str(tmp_path / "l")]) == 0
+    assert sorted(p.name for p in (tmp_path / "l").glob("*.comp")) == ["joint_c.comp", "joint_x.comp", "joint_z.comp"]
+    assert main(["export", str(net), "--format", "iso-tables", *common, "--out", str(tmp_path / "i")]) == 2

@@ -276,11 +276,12 @@ def test_export_iso_tables_over_the_mill(tmp_path, mill_models, capsys):
     assert main(["export", str(est), "--format", "iso-tables", "--machine", "mill-xyz", "--out", str(out),
                  "--truth", str(truth), "--check-points", "500"]) == 0
     doc = json.loads((out / "export.json").read_text())
-    assert doc["tolerance_met"] and doc["check"]["model"]["max_um"] <= EXPORT_TOLERANCE_UM
-    assert doc["check"]["baseline_none"]["model"]["max_um"] > 10 * EXPORT_TOLERANCE_UM
+    assert doc["tolerance_met"] and doc["worst_model_residual_um"] <= EXPORT_TOLERANCE_UM
+    assert doc["check"]["volume"]["baseline_none"]["model"]["max_um"] > 10 * EXPORT_TOLERANCE_UM
     from errormap.io import read_table
     el = ChainElementSet.load(est, mt)
-    for a in mt.axes:  # one table per axis, columns the derived ISO names, values the model's at the rows
+    for a in mt.axes:  # one table per axis, columns the ISO names, values the model's at the rows (the mill's
+        # bodies move without turning: the ISO tables' machine frame is the frame the chain applies them in)
         t = read_table(out / f"iso_{a.word}.csv")
         iso = [s.iso + "_" + s.unit for s in mt.slots if s.name in mt.slots_of(a.word)]
         assert t.names == [a.column] + iso
@@ -288,12 +289,13 @@ def test_export_iso_tables_over_the_mill(tmp_path, mill_models, capsys):
         want = np.asarray(el.axis_spline(a.word)(pos))
         got = np.stack([t.float(c) for c in iso], axis=1)
         assert np.abs(got - want).max() < TOL_CSV_REL * np.abs(want).max()
-    c = read_table(out / "iso_constants.csv")
-    assert list(c.raw("iso")) == ["EC0Y", "EB0Z", "EA0Z"]
+    c = read_table(out / "iso_location.csv")
+    assert list(c.raw("name")) == ["EC0Y", "EB0Z", "EA0Z"]
+    assert np.abs(c.float("value") - np.array([el.constants[k] for k in ("s_xy", "s_xz", "s_yz")])).max() < 1e-9
     # per-joint pitch tables cannot carry what couples the axes: at the default 1 um they are refused, nothing written
     assert main(["export", str(est), "--format", "linuxcnc", "--machine", "mill-xyz", "--check-points", "200",
                  "--out", str(tmp_path / "e2")]) == 2
-    assert "--tolerance-um 1: the per-joint tables leave" in capsys.readouterr().err
+    assert "tolerance not met: the linuxcnc table leaves" in capsys.readouterr().err
     assert not (tmp_path / "e2").exists()
 
 
@@ -309,12 +311,12 @@ def test_export_grid_over_the_mill_linear_axes(tmp_path, mill_models, capsys):
     assert main(["export", str(est), "--format", "grid", "--machine", "mill-xyz", "--out", str(out),
                  "--truth", str(truth), "--check-points", "500", "--tolerance-um", str(GRID_TOLERANCE_UM)]) == 0
     doc = json.loads((out / "export.json").read_text())
-    assert doc["tolerance_met"] and doc["check"]["model"]["max_um"] <= GRID_TOLERANCE_UM
-    assert doc["check"]["baseline_none"]["model"]["max_um"] > 5 * GRID_TOLERANCE_UM
+    assert doc["tolerance_met"] and doc["worst_model_residual_um"] <= GRID_TOLERANCE_UM
+    assert doc["check"]["volume"]["baseline_none"]["model"]["max_um"] > 5 * GRID_TOLERANCE_UM
     from errormap.io import read_table
     t = read_table(out / "grid.csv")
-    n = doc["grid_ticks_per_axis"]
-    assert len(t) == n ** 3 and t.names == list(mt.axis_columns) + ["dx_um", "dy_um", "dz_um"]
+    n = doc["sizing"]["counts"]
+    assert len(t) == np.prod(n) and t.names == list(mt.axis_columns) + ["dx_um", "dy_um", "dz_um"]
     rows = np.arange(0, len(t), 997)
     q = np.stack([t.float(c)[rows] for c in mt.axis_columns], axis=1)
     got = np.stack([t.float(c)[rows] for c in ("dx_um", "dy_um", "dz_um")], axis=1)
@@ -323,7 +325,7 @@ def test_export_grid_over_the_mill_linear_axes(tmp_path, mill_models, capsys):
     five = load_machine("five-axis-ac")
     el5 = chain_elements(five, 5).save(tmp_path / "el5.json")
     assert main(["export", str(el5), "--format", "grid", "--machine", "five-axis-ac", "--out", str(tmp_path / "g5")]) == 2
-    assert "cannot hold errors that depend on the rotary axes a_deg, c_deg" in capsys.readouterr().err
+    assert "nodes for the tolerance, more than" in capsys.readouterr().err   # a 5-axis grid at 1 um
 
 
 def test_compensate_chain_csv_and_guards(tmp_path, capsys):

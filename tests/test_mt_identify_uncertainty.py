@@ -74,7 +74,7 @@ def test_bootstrap_covariance_agrees_with_gauss_newton_and_feeds_the_band(tmp_pa
     assert 1 / MEDIAN_RATIO_TOL <= np.median(ratio) <= MEDIAN_RATIO_TOL
     assert np.mean((ratio >= 1 / FACTOR) & (ratio <= FACTOR)) >= SHARE_WITHIN
     # predict --band reads the bootstrap's file: a band per point, same predictions as the plain model's
-    from compensation.mt_export import check_points
+    from compensation.export import volume_points as check_points
     from errormap.mt_elements import ChainElementSet
     q = check_points(ChainElementSet.load(tmp_path / "B.json", m), 30, 2)
     write_csv(tmp_path / "p.csv", {a.column: q[:, j] for j, a in enumerate(m.axes)})
@@ -99,7 +99,7 @@ tool points 0.54–0.87. 0.9 asks for a clear gain on every seed, above the wors
 def test_smoothing_lowers_the_true_error_of_the_chain(tmp_path):
     """The grinder's UBRE smoother on the chain's station values (:func:`errormap.mt_identify.smooth_chain`)
     against the hidden truth: the elements and the tool point come closer to it than the interpolating set."""
-    from compensation.mt_export import check_points
+    from compensation.export import volume_points as check_points
     from errormap.mt_identify import ChainIdentification, smooth_chain, station_error_rms
     from errormap.mt_sweeps import swept_words
     from errormap.sweeps import sweeps_from_columns

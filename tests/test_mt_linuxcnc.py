@@ -1,5 +1,5 @@
 """``volcomp export --format linuxcnc`` on machine-tool chains: one pitch table per linear joint, checked
-before writing; the table writer is the grinder's."""
+before writing (the one export of every machine tool)."""
 from __future__ import annotations
 
 import json
@@ -37,15 +37,27 @@ def positioning_only(machine, seed=0) -> ChainElementSet:
     return el
 
 
+def joint_check(tables, fld, machine, pts, dirs) -> dict:
+    """The export's check of per-joint ``tables`` against the field ``fld`` at axes ``pts`` approached in ``dirs``."""
+    from compensation import export as ex
+    model = ex.ModelError(machine, field=fld)
+    return ex.check_export(tables, model, machine, {"p": ex.point_set(machine, pts, dirs)})["p"]
+
+
+def joint_tables(fld, el, machine, n, **kw):
+    """The export's per-joint tables of the element set ``el`` with its field ``fld``."""
+    from compensation import export as ex
+    return ex.joint_tables_from_model(ex.ModelError(machine, el, field=fld), machine, n, **kw)
+
+
 def check_and_write_tables(tables, fld, machine, pts, tol_um, out_dir, joint):
     """Joint tables judged before writing, as ``export`` does: at the check points ``pts`` (n, k) with seeded
     random approach directions the tables leave at most ``tol_um`` μm of the MODEL (the field ``fld``) and no
     compensation more than 100 × that; then written to ``out_dir``. Returns (written paths, the table of
     ``joint`` read back (lines, 3))."""
     from compensation import export as ex
-    from compensation import mt_export
     dirs = np.random.default_rng(2).choice([-1.0, 1.0], pts.shape)
-    check = mt_export.check_chain_joint_tables(tables, fld, machine, pts, dirs)
+    check = joint_check(tables, fld, machine, pts, dirs)
     assert check["model"]["max_um"] <= tol_um
     assert check["baseline_none"]["model"]["max_um"] > 100 * tol_um
     files = ex.write_joint_tables(tables, out_dir)
@@ -54,14 +66,14 @@ def check_and_write_tables(tables, fld, machine, pts, tol_um, out_dir, joint):
 
 def test_pitch_tables_compensate_a_machine_with_positioning_errors_only(tmp_path):
     """Independent check of sign and joint direction: positioning errors alone are fully carried by the tables."""
-    from compensation import mt_export
+    from compensation import export as ex
     m = load_machine("mill-xyz")
     el = positioning_only(m)
     fld = ChainField(m, el)
-    tables = mt_export.chain_joint_tables(fld, el, 256, samples=4, seed=0)
+    tables = joint_tables(fld, el, m, 256, samples=4, seed=0)
     assert sorted(tables.nominal) == ["x", "y", "z"]
     assert all(np.array_equal(tables.forward[j], tables.reverse[j]) for j in tables.nominal)  # no reversal term
-    pts = mt_export.check_points(el, 500, 1)
+    pts = ex.volume_points(el, 500, 1)
     files, back = check_and_write_tables(tables, fld, m, pts, PITCH_ONLY_TOL_UM, tmp_path, "y")
     assert [p.name for p in files] == ["joint_x.comp", "joint_y.comp", "joint_z.comp"]
     assert back.shape == (256, 3)
@@ -79,7 +91,7 @@ def test_cli_five_axis_writes_the_linear_joints_and_says_what_it_does_with_the_r
     notes = [ln for ln in text.splitlines() if ln.startswith("note: rotary joint")]
     assert [n.split()[3] for n in notes] == ["A:", "C:"]
     info = json.loads((out / "export.json").read_text())
-    assert info["tolerance_met"] and info["check"]["model"]["max_um"] <= PITCH_ONLY_TOL_UM
+    assert info["tolerance_met"] and info["worst_model_residual_um"] <= PITCH_ONLY_TOL_UM
     assert info["joints"] == {"x": "x_mm", "y": "y_mm", "z": "z_mm"} and len(info["left_out"]) == 2
 
 
@@ -116,7 +128,7 @@ def test_reversal_of_the_loops_model_becomes_forward_minus_reverse(tmp_path, cap
     info = json.loads((d / "lx" / "export.json").read_text())
     rev = info["max_forward_minus_reverse_um"]
     assert abs(rev["z"] - truth_b) <= BACKLASH_TOL_UM and rev["x"] == rev["y"] == 0.0
-    c = info["check"]
+    c = info["check"]["volume"]
     assert c["true"]["max_um"] < c["baseline_none"]["true"]["max_um"]
     assert c["model"]["mean_um"] < c["baseline_none"]["model"]["mean_um"]
     z = np.loadtxt(d / "lx" / "joint_z.comp")
@@ -140,23 +152,23 @@ def coupled_elements(machine):
 def test_region_averages_over_the_working_region(tmp_path):
     """``--region`` on a chain (as on the grinder): the other axes sampled in the region; inside it the tables
     leave less than the whole-volume tables."""
-    from compensation import mt_export
+    from compensation import export as ex
     m = load_machine("mill-xyz")
     el = coupled_elements(m)
     fld = ChainField(m, el)
     lo, hi = m.stroke_lo, m.stroke_hi
     box = {c: (a + 0.4 * (b - a), a + 0.42 * (b - a)) for c, a, b in zip(m.axis_columns, lo, hi)}
-    whole = mt_export.chain_joint_tables(fld, el, 64, samples=16, seed=0)
-    local = mt_export.chain_joint_tables(fld, el, 64, samples=16, seed=0, region=box)
-    same = mt_export.chain_joint_tables(fld, el, 64, samples=16, seed=0, region=None)
+    whole = joint_tables(fld, el, m, 64, samples=16, seed=0)
+    local = joint_tables(fld, el, m, 64, samples=16, seed=0, region=box)
+    same = joint_tables(fld, el, m, 64, samples=16, seed=0, region=None)
     assert all(np.array_equal(whole.forward[j], same.forward[j]) for j in whole.nominal)   # no region: as before
     pts = np.random.default_rng(3).uniform([b[0] for b in box.values()], [b[1] for b in box.values()], (300, 3))
     dirs = np.ones_like(pts)
-    r_whole = mt_export.check_chain_joint_tables(whole, fld, m, pts, dirs)["model"]["max_um"]
-    r_local = mt_export.check_chain_joint_tables(local, fld, m, pts, dirs)["model"]["max_um"]
+    r_whole = joint_check(whole, fld, m, pts, dirs)["model"]["max_um"]
+    r_local = joint_check(local, fld, m, pts, dirs)["model"]["max_um"]
     assert r_local <= REGION_GAIN * r_whole
     with pytest.raises(ValueError, match="calibrated range"):
-        mt_export.chain_joint_tables(fld, el, 8, samples=2, region={"x_mm": (lo[0] - 1.0, hi[0])})
+        joint_tables(fld, el, m, 8, samples=2, region={"x_mm": (lo[0] - 1.0, hi[0])})
     out = tmp_path / "lx"
     region = ",".join(f"{a:g}:{b:g}" for a, b in box.values())
     assert main(["export", str(el.save(tmp_path / "E.json")), "--format", "linuxcnc", "--machine", "mill-xyz",

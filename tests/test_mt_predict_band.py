@@ -49,7 +49,7 @@ def _save_cov(path, slots, stations, C):
 
 
 def _points_csv(path, machine, el, n, seed):
-    from compensation.mt_export import check_points
+    from compensation.export import volume_points as check_points
     q = check_points(el, n, seed)
     write_csv(path, {a.column: q[:, j] for j, a in enumerate(machine.axes)})
     return q

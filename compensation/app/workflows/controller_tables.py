@@ -14,9 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.elements import ElementSet
-from errormap.io import InputError, sha256_file
-from errormap.iso230 import ISO_NAME
+from errormap.io import sha256_file
 
 from compensation.app.validate import UsageError
 
@@ -31,7 +29,7 @@ value, three values per command), so the table read back must agree to 1e-5."""
 @dataclass
 class TableSettings:
     """One table export. ``fmt``: an :data:`compensation.export.ALL_FORMATS` name other than
-    ``drift``; ``region``: ``{"x_mm": (lo, hi), "z_mm": (lo, hi)}`` or None (linuxcnc)."""
+    ``drift``; ``region``: ``{column: (lo, hi)}`` of linear axes or None (linuxcnc)."""
 
     model: str
     fmt: str
@@ -66,50 +64,71 @@ class DriftSettings:
 
 
 def load_model(s: TableSettings, machine):
-    """``(ModelError, description)`` of the element set or learned field ``s.model``."""
-    from ...fields import load_field, require_kind, resolve_model
-    src = require_kind(resolve_model(s.model), ("elements", "network", "mlflow"), f"--format {s.fmt} tabulates")
-    print(f"export: model {src.description}", file=sys.stderr)
-    if src.kind == "elements":
-        p = src.path
-        el = ElementSet.load(p)
-        if el.machine_sha256 and el.machine_sha256 != machine.sha256:
-            raise InputError(f"{p}: key 'machine_sha256': the model was made for machine file sha256 "
-                             f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
-                             f"({machine.path}); pass the model's --machine")
-        return ex.ModelError(machine, el), f"{p} (element set, sha256 {sha256_file(p)})"
-    if s.fmt == "iso-tables":
-        raise UsageError("--format iso-tables needs an element set: ISO component tables are the 23 "
-                         "elements' components")
-    return (ex.ModelError(machine, field=load_field(s.model, machine, s.tracking_uri, source=src)),
-            f"{s.model} (learned field: {src.description})")
-
-
-def export_table(s: TableSettings, machine, on_check=None, log=None) -> dict:
-    """Build, check and write one table into ``s.out``; returns the ``export.json`` document
-    (``files``: name → size). ``on_check(check, has_truth)`` is called with the check before the
-    tolerance decides; progress goes to ``log`` (stderr)."""
-    log = sys.stderr if log is None else log
-    model, model_desc = load_model(s, machine)
-    left_out = []
-    if s.diagnosis:
-        back, left_out = ex.backlash_from_diagnosis(s.diagnosis)
-        if model.elements is None:
-            raise UsageError("--diagnosis needs an element-set model (the reversal is added to an element)")
-        model.backlash = back
-    truth = None
-    if s.truth:
-        from ...evaluate import load_truth
-        truth = load_truth(s.truth, machine)
-    sets = ex.check_sets(machine, s.check_points, s.seed)
-    say = lambda msg: print(msg, file=log)  # noqa: E731
-    say("sizing the table and re-simulating the controller on the flute and the volume ...")
+    """``(ModelError, description, left_out)``: the model ``s.model`` with the reversal terms of ``s.diagnosis``
+    (and the labels of the diagnosed effects a table cannot carry)."""
     try:
-        table, sizing, check = ex.build_checked_table(s.fmt, model, machine, s.tolerance_um, sets, truth,
-                                                      {}, n_points=s.points, region=s.region, seed=s.seed,
-                                                      log=say)
+        model, desc, src = ex.load_model(s.model, s.fmt, machine, s.tracking_uri)
+        left = []
+        if s.diagnosis:
+            if src.kind == "chain-model":
+                raise ValueError("--diagnosis: MODEL is a chain model.json, which carries its diagnosed terms already; "
+                                 "give it alone, or its element set with --diagnosis")
+            model, left = ex.reversal_from_diagnosis(s.diagnosis, model)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    print(f"export: model {src.description}", file=sys.stderr)
+    return model, desc, left
+
+
+def load_truth(path, machine):
+    """``tool(axes, dirs) -> (n, 3)`` mm of ``--truth`` (a grinder file's simulate folder or element set; a chain's
+    ``truth.json`` of ``simulate --machine`` or truth element set)."""
+    if ex.reads_grinder_files(machine):
+        from ...evaluate import load_truth as load_grinder_truth
+        return ex.truth_tool_points(load_grinder_truth(path, machine), machine)
+    from .mt_loop import load_chain_truth
+    return ex.chain_truth_tool_points(load_chain_truth(path, machine), machine)
+
+
+def notes_of(model, table, left_out) -> tuple[list[str], list[str]]:
+    """``(left out, other notes)``: what the table does not carry, and how it carries a rotary joint, one line
+    each (printed as notes; the first recorded in export.json)."""
+    left = [f"effect {e}: not carried by a per-joint table" for e in left_out]
+    if not isinstance(table, ex.JointTables):
+        return left, []
+    left += [f"rotary joint {a.word}: no file (LinuxCNC takes one pitch table per joint; the exact solver keeps this "
+             "joint as programmed, so what its own errors do is left in the residual below)"
+             for a in model.mt.axes if a.word.lower() not in table.joints]
+    if "temp_c" in model.needs:
+        left.append(f"thermal terms: no temperature input in a pitch table; tabulated at {ex.TABLE_TEMP_C:g} C")
+    notes = [f"rotary joint {j.upper()}: table in degrees, its correction averaged over the other axes weighted by r^2 "
+             "(r the tool point's distance from its axis: the least-squares angle)"
+             + (f"; one turn from {table.turns[j]:g} deg, read with the position folded into it" if j in table.turns
+                else "") for j, u in table.units.items() if u != "mm"]
+    return left, notes
+
+
+def export_table(s: TableSettings, machine, on_check=None, log=None, on_note=None) -> dict:
+    """Build, check and write one table into ``s.out``; returns the ``export.json`` document
+    (``files``: name → size). ``on_check(check, has_truth)`` is called with the check before the
+    tolerance decides, ``on_note(line)`` with each note (default: ``log``); progress goes to ``log`` (stderr)."""
+    from errormap.seeds import spawn_seeds
+    log = sys.stderr if log is None else log
+    say = lambda msg: print(msg, file=log)  # noqa: E731
+    model, model_desc, left_out = load_model(s, machine)
+    truth = load_truth(s.truth, machine) if s.truth else None
+    sets = ex.check_sets(machine, s.check_points, s.seed)
+    say("sizing the table and re-simulating the controller on the " + " and the ".join(sets) + " ...")
+    table_seed = spawn_seeds(s.seed, 1)[0] if s.fmt == "linuxcnc" else s.seed
+    try:
+        table, sizing, check = ex.build_checked_table(s.fmt, model, machine, s.tolerance_um, sets, truth,
+                                                      {}, n_points=s.points, region=s.region, seed=table_seed,
+                                                      log=say)
+    except ValueError as exc:
+        raise UsageError(f"--region: {exc}" if s.region and "region" in str(exc) else str(exc)) from None
+    left, notes = notes_of(model, table, left_out)
+    for line in left + notes:
+        (on_note or say)(f"note: {line}")
     if on_check is not None:
         on_check(check, truth is not None)
     worst = ex.worst_model_um(check)
@@ -118,29 +137,13 @@ def export_table(s: TableSettings, machine, on_check=None, log=None) -> dict:
         raise UsageError(f"tolerance not met: the {s.fmt} table leaves a model residual up to {worst:.4g} um > "
                          f"--tolerance-um {s.tolerance_um:g}; nothing written (--force writes anyway, recorded "
                          "in export.json)")
-    info = {"format": "volcomp-export/1", "table_format": s.fmt, "model": model_desc, "model_verdict": s.model_verdict,
-            "machine": {"name": machine.name, "file": machine.path, "sha256": machine.sha256},
-            "tolerance_um": s.tolerance_um, "tolerance_met": bool(met), "worst_model_residual_um": worst,
-            "override": None if met else {"forced": True, "reason": f"worst model residual {worst:.6g} um exceeds "
-                                                                    f"the tolerance {s.tolerance_um:g} um"},
-            "sizing": sizing, "check": check,
-            "check_points": {"flute": "default flute path (compensation.toolpath.flute_path)",
-                             "volume": f"{s.check_points} uniform random axis points, seed {s.seed}"},
-            "residuals": {"model": "fwd(q_c) + E_model(q_c) - p_d (um), q_c = the controller's command with the table",
-                          "true": "truth.tool_point(q_c) - p_d (um)" if truth is not None else "no --truth given"},
-            "truth": s.truth, "iso230_names": dict(ISO_NAME)}
+    info = manifest(s, machine, model, model_desc, table, sizing, check, worst, met, sets, truth is not None)
     if s.fmt == "linuxcnc":
-        info["backlash_joint_units"] = dict(table.backlash)
-        info["diagnosis"] = s.diagnosis
-        info["diagnosed_effects_not_exported"] = left_out
-        info["linuxcnc"] = {"columns": "nominal forward reverse (mm for x, z; deg for a)",
-                            "meaning": "forward/reverse: actual joint position when commanded to nominal moving +/-; "
-                                       "the controller commands nominal + (nominal - actual)",
-                            "a": "one turn; the controller folds A into it (wrapped rotary joint)"}
+        info["left_out"] = left
     with ex.staged_folder(s.out) as tmp:
         files = ex.write_table(table, tmp, machine, model_desc)
-        back = ex.read_back(s.fmt, tmp)
-        diff = read_back_difference(table, back, machine, sets)
+        back = ex.read_back(table, tmp, machine)
+        diff = ex.table_difference_um(table, back, machine, sets)
         if diff > READ_BACK_TOL_UM:
             raise RuntimeError(f"read-back check failed: the written {s.fmt} table differs from the built one by "
                                f"{diff:.3g} um")
@@ -151,17 +154,34 @@ def export_table(s: TableSettings, machine, on_check=None, log=None) -> dict:
     return info
 
 
-def read_back_difference(table, back, machine, sets) -> float:
-    """Largest difference (μm, or μm-equivalent of the joint commands) between the built and the
-    read-back table, as the controller uses them, at the check axes."""
-    worst = 0.0
-    for targets, axes, dirs in sets.values():
-        if table.kind == "linuxcnc":
-            d = (table.command(axes, dirs) - back.command(axes, dirs)) * np.array([1e3, 1e3, 1e3])
-        else:
-            d = table.field(machine)(axes) - back.field(machine)(axes)
-        worst = max(worst, float(np.abs(d).max()))
-    return worst
+def manifest(s: TableSettings, machine, model, model_desc, table, sizing, check, worst, met, sets, has_truth) -> dict:
+    """The ``export.json`` document of a table export (before its files are written)."""
+    mt = model.mt
+    info = {"format": "volcomp-export/1", "table_format": s.fmt, "model": model_desc, "model_verdict": s.model_verdict,
+            "machine": {"name": machine.name, "file": machine.path, "sha256": machine.sha256},
+            "tolerance_um": s.tolerance_um, "tolerance_met": bool(met), "worst_model_residual_um": worst,
+            "override": None if met else {"forced": True, "reason": f"worst model residual {worst:.6g} um exceeds "
+                                                                    f"the tolerance {s.tolerance_um:g} um"},
+            "sizing": sizing, "check": check,
+            "check_points": {**({"flute": "default flute path (compensation.toolpath.flute_path)"} if "flute" in sets
+                                else {}),
+                             "volume": f"{s.check_points} uniform random axis points, seed {s.seed}"},
+            "residuals": {"model": "fwd(q_c) + E_model(q_c) - p_d (um), q_c = the controller's command with the table",
+                          "true": "truth.tool_point(q_c) - p_d (um)" if has_truth else "no --truth given"},
+            "truth": s.truth, "iso230_names": dict(zip(mt.slot_names, mt.iso_names))}
+    if s.fmt == "linuxcnc":
+        info["diagnosis"] = s.diagnosis
+        info["joints"] = {j: mt.axis_columns[k] for j, k in table.joints.items()}
+        info["region"] = s.region or "calibrated volume"
+        info["max_forward_minus_reverse_um"] = {j: 1e3 * v for j, v in table.max_reversal().items()}
+        info["joint_units"] = dict(table.units)
+        info["joint_turns_from_deg"] = dict(table.turns)
+        info["linuxcnc"] = {"columns": "nominal forward reverse (the joint's unit: mm; deg for a rotary joint)",
+                            "meaning": "forward/reverse: actual joint position when commanded to nominal moving +/-; "
+                                       "the controller commands nominal + (nominal - actual), linear between lines",
+                            "turns": "a joint in joint_turns_from_deg has a one-turn table; the controller folds its "
+                                     "position into it (wrapped rotary joint)"}
+    return info
 
 
 def fitting_log_of(model, model_path) -> str:

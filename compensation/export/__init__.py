@@ -1,0 +1,55 @@
+"""Controller compensation tables from an error model, each checked against the model before writing.
+
+One export for every machine tool (a ``kind = "grinder"`` file is read as its chain): three table formats of
+a volumetric error model (:data:`FORMATS`) and a drift model's coefficients (``drift``), each with a writer,
+a reader and a *controller simulation* — how a controller uses the table — so that the check reports,
+before anything is written, the error the table leaves.
+
+``iso-tables`` (:mod:`.iso_tables`)
+    Per-axis ISO 230-1 component tables (``iso_<W>.csv``) and the location errors (``iso_location.csv``),
+    in the fixed machine frame; the controller interpolates every component linearly between rows and
+    rebuilds the elements. Rows are chosen to meet the tolerance.
+``grid`` (:mod:`.grid`)
+    A regular grid over every axis (a full-turn rotary axis over one turn, periodic) of the volumetric
+    error — ``grid.csv``; the controller interpolates multilinearly. The spacing is chosen to meet the
+    tolerance.
+``linuxcnc`` (:mod:`.linuxcnc`)
+    One pitch table per joint the exact solver moves (``joint_<w>.comp``: nominal forward reverse),
+    the model's correction projected onto that joint (averaged over the other axes inside ``region``),
+    forward/reverse from the model's reversal terms (a diagnosed backlash).
+``drift`` (:mod:`.drift`)
+    A thermal-drift model's discrete-time coefficients at a fixed sample period.
+
+The model and truth: :mod:`.model`, :mod:`.sources`; the check and the sizing: :mod:`.check`; the staged
+write: :mod:`.common`. The command: :mod:`compensation.app.commands.export`.
+"""
+from .check import (build_checked_table, build_table, check_export, check_sets, controller_commands,
+                    interpolation_error_um, motion_dirs, point_set, read_back, solved_commands, table_difference_um,
+                    volume_points, worst_model_um, write_table)
+from .common import (ALL_FORMATS, FORMATS, LINUXCNC_MAX_POINTS, TableField, node_means, staged_folder, table_bytes,
+                     weighted_node_means, write_manifest)
+from .drift import (DRIFT_CONST, DRIFT_FILE, DRIFT_FORMAT, DRIFT_MAX_PERIOD_S, DRIFT_TICK_EPS_S, DriftCoefficients,
+                    check_drift_export, controller_drift, controller_drift_at, drift_coefficients,
+                    drift_distance_rule, export_drift_coefficients, read_drift_coefficients, worst_drift_model_um,
+                    write_drift_coefficients)
+from .grid import GRID_FORMAT, VolumetricGrid, curvature_counts, grid_from_model, read_grid, write_grid
+from .iso_tables import ISO_FORMAT, IsoTables, iso_tables_from_model, read_iso_tables, write_iso_tables
+from .linuxcnc import (JOINT_SAMPLES, ROTARY_WEIGHTS, JointTables, joint_tables_from_model, read_joint_tables,
+                       region_box, write_joint_tables)
+from .model import TABLE_TEMP_C, ModelError, exact_corrections, nominal_mm, reads_grinder_files
+from .sources import (BACKLASH_EXPORT, CHECKS_DIAGNOSIS_FORMAT, backlash_from_diagnosis, chain_truth_tool_points, load_model,
+                      reversal_from_diagnosis, reversal_terms_from_diagnosis, truth_tool_points)
+
+__all__ = ["ALL_FORMATS", "BACKLASH_EXPORT", "CHECKS_DIAGNOSIS_FORMAT", "DRIFT_CONST", "DRIFT_FILE", "DRIFT_FORMAT",
+           "DRIFT_MAX_PERIOD_S", "DRIFT_TICK_EPS_S", "DriftCoefficients", "FORMATS", "GRID_FORMAT", "ISO_FORMAT",
+           "IsoTables", "JOINT_SAMPLES", "JointTables", "LINUXCNC_MAX_POINTS", "ModelError", "ROTARY_WEIGHTS",
+           "TABLE_TEMP_C", "TableField", "VolumetricGrid", "backlash_from_diagnosis", "build_checked_table",
+           "build_table", "check_drift_export", "check_export", "check_sets", "controller_commands",
+           "controller_drift", "controller_drift_at", "curvature_counts", "drift_coefficients",
+           "drift_distance_rule", "exact_corrections", "export_drift_coefficients", "grid_from_model",
+           "interpolation_error_um", "iso_tables_from_model", "joint_tables_from_model", "load_model", "chain_truth_tool_points",
+           "motion_dirs", "solved_commands", "table_difference_um", "point_set", "volume_points", "node_means", "nominal_mm", "read_back", "read_drift_coefficients", "read_grid",
+           "read_iso_tables", "read_joint_tables", "reads_grinder_files", "region_box", "reversal_from_diagnosis",
+           "reversal_terms_from_diagnosis", "truth_tool_points", "staged_folder", "table_bytes", "weighted_node_means",
+           "worst_drift_model_um", "worst_model_um", "write_drift_coefficients", "write_grid", "write_iso_tables",
+           "write_joint_tables", "write_manifest"]

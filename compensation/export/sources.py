@@ -1,0 +1,180 @@
+"""Reading what ``volcomp export`` tabulates: the model, the truth it is checked against, and the reversal
+terms of a ``diagnosis.json``, for any machine tool. A ``kind = "grinder"`` file's model, truth and
+diagnosis files keep their own formats (read here); a chain's are read by the chain's readers."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from errormap.effect_kinds import diagnosed_kind, effect_kind
+from errormap.grinder_file import machine_tool_of
+from errormap.io import InputError, read_document_text, sha256_file
+
+from .model import ModelError, nominal_mm, reads_grinder_files, TABLE_TEMP_C
+
+BACKLASH_EXPORT = "linuxcnc-backlash"
+"""The registry's ``export`` of a kind a per-joint table carries (:mod:`errormap.effect_kinds`)."""
+CHECKS_DIAGNOSIS_FORMAT = "volcomp-checks-diagnosis/1"
+"""The ``format`` key of ``diagnosis.json`` written by ``volcomp diagnose CHECKS`` on a grinder file (the drift
+diagnosis has its own content and no ``effects``)."""
+GRINDER_JOINT_ELEMENT = {"x": "dx_x", "z": "dz_z", "a": "ex_a"}
+"""A grinder file's joints and the element that is each one's own positioning error."""
+
+
+def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
+    """``(ModelError, description, source)`` of the model ``spec`` for ``--format fmt`` on ``machine``: an
+    element set; a trained network (grid, linuxcnc); a diagnosed chain ``model.json`` (its terms as a field
+    with conditions). InputError / ValueError in one line otherwise."""
+    from ..fields import load_field, require_kind, resolve_model
+    src = resolve_model(spec)
+    kinds = ("elements", "network", "mlflow", "chain-model", "chain-network")
+    src = require_kind(src, kinds, f"--format {fmt} tabulates")
+    if src.kind == "elements":
+        el = load_elements(src.path, machine)
+        fld = None if reads_grinder_files(machine) else chain_field(machine, el)
+        return ModelError(machine, el, field=fld), f"{src.path} (element set, sha256 {sha256_file(src.path)})", src
+    if fmt == "iso-tables":
+        raise ValueError(f"--format iso-tables needs an element set: ISO component tables are the elements' "
+                         f"components, and {src.description} is not one")
+    if src.kind == "chain-model":   # elements + diagnosed terms; a kept learned residual is refused by name
+        from errormap.diagnosis.mt_model import load_chain_model_file
+        fld = load_chain_model_file(src.path, machine)
+        return ModelError(machine, fld.elements, field=fld), f"{spec} (diagnosed chain model: {src.description})", src
+    fld = load_field(spec, machine, tracking_uri, source=src)
+    el = None
+    return ModelError(machine, el, field=fld), f"{spec} (learned field: {src.description})", src
+
+
+def chain_field(machine, elements):
+    """The chain's own field of an element set (exact, with its analytic Jacobian)."""
+    from errormap.mt_field import ChainField
+    return ChainField(machine, elements)
+
+
+def load_elements(path, machine):
+    """The element set ``path`` of ``machine`` (its own format on a grinder file, refused when made for another
+    machine file; a chain's :class:`errormap.mt_elements.ChainElementSet`)."""
+    if reads_grinder_files(machine):
+        from errormap.elements import ElementSet
+        el = ElementSet.load(path)
+        if el.machine_sha256 and el.machine_sha256 != machine.sha256:
+            raise InputError(f"{path}: key 'machine_sha256': the model was made for machine file sha256 "
+                             f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
+                             f"({machine.path}); pass the model's --machine")
+        return el
+    from errormap.mt_elements import ChainElementSet
+    return ChainElementSet.load(path, machine)
+
+
+def chain_truth_tool_points(truth, machine):
+    """``tool(axes (n, k), dirs (n, k)) -> (n, 3)`` mm of a chain's truth (``simulate --machine``'s truth at the
+    reference conditions with its simulated machine as ``truth.truth``, or any field): where it puts the tool at
+    the tables' reference temperature and the given approach directions."""
+    def tool(q, dirs):
+        if hasattr(truth, "truth"):
+            cond = {f"dir_{a.word.lower()}": dirs[:, j] for j, a in enumerate(machine.axes)}
+            e = truth.truth.spatial_error(q, temp_c=np.full(len(q), TABLE_TEMP_C), **cond)
+        else:
+            e = truth.predict(q)
+        return nominal_mm(machine, q) + 1e-3 * np.asarray(e)
+    return tool
+
+
+def truth_tool_points(truth, machine):
+    """``tool(axes (n, k), dirs (n, k)) -> (n, 3)`` mm of a simulated truth machine with ``tool_point(axes,
+    temp_c=, dir_<w>=)`` (a grinder file's :class:`errormap.simulator.TruthGrinder`), at the tables' reference
+    temperature and the given approach directions."""
+    words = [a.word.lower() for a in machine_tool_of(machine).axes]
+
+    def tool(q, dirs):
+        cond = {"temp_c": np.full(len(q), TABLE_TEMP_C), **{f"dir_{w}": dirs[:, j] for j, w in enumerate(words)}}
+        return truth.tool_point(q, **cond)
+    return tool
+
+
+def reversal_from_diagnosis(path, model: ModelError) -> tuple:
+    """``(model with the diagnosis' reversal terms, [labels of the effects a per-joint table cannot carry])``
+    from ``diagnosis.json`` ``path`` of ``model``'s machine (a grinder file's: reversal terms on a joint's own
+    element; a chain's: the registry's exportable terms)."""
+    machine = model.machine
+    if model.elements is None or getattr(model.field, "elements", model.elements) is not model.elements:
+        raise ValueError("--diagnosis needs an element-set model (the reversal is added to its elements)")
+    if reads_grinder_files(machine):
+        back, left = backlash_from_diagnosis(path)
+        return ModelError(machine, model.elements, reversal={j.upper(): b for j, b in back.items()}), left
+    from errormap.diagnosis.mt_model import ChainModelField
+    terms, left = reversal_terms_from_diagnosis(path, machine)
+    return ModelError(machine, model.elements, field=ChainModelField(machine, model.elements, terms)), left
+
+
+def _diagnosis_doc(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such diagnosis file")
+    try:
+        return json.loads(read_document_text(path, "a diagnosis"))
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"{path}: not valid JSON: {exc}") from None
+
+
+def backlash_from_diagnosis(path) -> tuple[dict, list[str]]:
+    """Joint backlash (in its element's unit, μm or μrad) from a grinder file's ``diagnosis.json`` reversal
+    terms, and the effects NOT exported: ``({joint: backlash}, [labels])``. A reversal term on a joint's own
+    positioning element (``dx_x``, ``dz_z``, ``ex_a``) is a joint backlash; one on any other element cannot be
+    carried by a per-joint table and is refused."""
+    d = _diagnosis_doc(path)
+    fmt = d.get("format") if isinstance(d, dict) else None
+    if fmt is not None and fmt != CHECKS_DIAGNOSIS_FORMAT:  # by content; files from before the key: by 'effects'
+        raise InputError(f"{path}: key 'format': {str(fmt)!r}; expected {CHECKS_DIAGNOSIS_FORMAT!r} (the "
+                         "diagnosis.json of `volcomp diagnose CHECKS`)")
+    effects = d.get("effects") if isinstance(d, dict) else None
+    if not isinstance(effects, list):
+        raise InputError(f"{path}: key 'effects': expected a list of diagnosed effects")
+    back, left = {}, []
+    for i, e in enumerate(effects):
+        if not isinstance(e, dict) or "kind" not in e:
+            raise InputError(f"{path}: key 'effects[{i}]': expected an object with 'kind'")
+        try:
+            spec = diagnosed_kind(e["kind"])  # the registry: an unknown kind is refused, never skipped
+        except ValueError as exc:
+            raise InputError(f"{path}: key 'effects[{i}].kind': {exc}") from None
+        if spec.export != BACKLASH_EXPORT:
+            left.append(f"{e.get('kind')}({e.get('axis')}) on {e.get('element')}")
+            continue
+        j, el = e.get("axis"), e.get("element")
+        if j not in GRINDER_JOINT_ELEMENT or el != GRINDER_JOINT_ELEMENT[j]:
+            raise InputError(f"{path}: key 'effects[{i}].element': a per-joint table carries a reversal on the "
+                             f"joint's own element ({GRINDER_JOINT_ELEMENT}), got reversal({j}) on {el!r}")
+        p = (e.get("parameters") or {})
+        key = next((k for k in p if k.startswith("backlash_")), None)
+        try:
+            b = float(p[key]["value"])
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"{path}: key 'effects[{i}].parameters': expected backlash_<unit>.value") from None
+        if j in back:
+            raise InputError(f"{path}: key 'effects[{i}]': a second reversal term on joint {j}")
+        back[j] = b
+    return back, left
+
+
+def reversal_terms_from_diagnosis(path, machine) -> tuple[list, list]:
+    """The terms of a chain loop's ``diagnosis.json`` (``volcomp diagnose --machine``: its ``effects``) that a
+    per-joint table carries as its forward/reverse difference (the registry's ``export``), and labels of the
+    other effects, left out. An InputError names the file and key for another machine's diagnosis."""
+    from errormap.diagnosis.mt_model import read_terms
+    path = Path(path)
+    try:
+        d = json.loads(read_document_text(path, "a diagnosis"))
+    except (OSError, json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"{path}: not a readable diagnosis file ({exc})") from None
+    if not isinstance(d, dict) or d.get("machine") != machine.name or d.get("machine_sha256") not in (None, machine.sha256):
+        got = d.get("machine") if isinstance(d, dict) else None
+        raise InputError(f"{path}: key 'machine': expected the diagnosis of `volcomp diagnose --machine {machine.name}`, "
+                         f"got {got!r}")
+    terms = read_terms(d.get("effects"), machine, path, "effects")
+    keep = [t for t in terms if effect_kind(t.kind).export == BACKLASH_EXPORT]
+    left = [f"{t.kind}({'*'.join(t.axes)}) on {t.element}" for t in terms
+            if effect_kind(t.kind).export != BACKLASH_EXPORT]
+    return keep, left
