@@ -1,0 +1,359 @@
+"""The drift model chosen on held-out time: :class:`DriftSelector` (docs/drift_model.md states the rule)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..estimators import Estimator
+from .drift import DriftLog
+from .drift_candidates import default_families
+from .drift_features import _inputs, feature_matrix, feature_novelty, input_matrix, mahalanobis, relative_distance, whitener
+from .drift_features import RANGE_QUANTILE
+from .drift_model_file import ChannelFit, DriftModel
+from .drift_validation import (BAND_RULE, BAND_RULES, CONFIDENT_WORST_FOLD, FEATURE_DISTANCE, GATE_SE, HEDGE_WEIGHT,
+                               LCB_LEVEL, MAX_FOLD_LOSS, MIN_GAIN, RANKING_FOLD_LOSS, SELECTION, SELECTIONS,
+                               SHRINK_SCALES, SHRINK_WEIGHTS, _blend_residuals, _rms, band_of, blend_statistics,
+                               blend_with_ols, candidate_name, cv_residuals, fold_gain_score, horizon_folds,
+                               novelty_folds, rolling_origin_folds)
+
+class DriftSelector(Estimator):
+    """Per channel, a family (and hyper-parameter) chosen on the fitting part only, refitted on all of it.
+
+    Two sets of forward-chaining folds on the fitting part:
+
+    * **ranking folds** (``n_folds`` blocks after the first ``cv_start`` of the fitting part,
+      :func:`rolling_origin_folds`): every candidate is scored by its RMS over all their validation rows;
+    * **horizon folds** (``n_horizon_folds``, :func:`horizon_folds`): validation blocks as long, relative
+      to their training part, as the deployment's held-out part is to the fitting part (``horizon``,
+      default (1 − fit_fraction)/fit_fraction).
+
+    * **novelty folds** (``n_novelty_folds`` of ``n_novelty_blocks`` blocks,
+      :func:`novelty_folds`): the blocks of the fitting part whose
+      inputs are farthest (Mahalanobis) from the rest, held out.
+
+    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights`` w0; above
+    ``hedge_weight`` only where the worst fold's RMS ratio to OLS is ≤ ``confident_worst_fold``, a hedge that
+    is off by default), predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the larger of the distance
+    of the sample's raw inputs and of the candidate's own features from the training data, each over that
+    data's ``RANGE_QUANTILE`` distance, g = :func:`distance_weight` with the
+    scale of ``shrink_scales`` of lowest RMS on the novelty folds. A candidate is eligible when it
+    (a) scores below OLS on the ranking folds and passes :func:`horizon_gate` against OLS (b) on the
+    horizon folds and (c) on the novelty folds, (d) with a mean log-gain ≥ ``min_gain`` on each of (b)
+    and (c), and (e) no fold (horizon, novelty, and with ``ranking_fold_loss`` ranking) worse than OLS by
+    more than ``max_fold_loss``; the eligible one of largest mean log-gain over OLS (over the three sets)
+    is returned (``selection="mean_gain"``; ``"worst_fold"``: the one whose worst fold, the largest RMS
+    ratio to OLS over all three sets, is smallest), else the OLS baseline itself. A model that loses to OLS in any of its validations is never returned. Learned
+    too: ``scale_`` {channel: s of the chosen}, ``worst_fold_`` {channel: {candidate: worst RMS ratio to
+    OLS over the horizon and novelty folds}}.
+
+    Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
+    ``feature_distance`` (ρ also on the candidate's own features), ``ranking_fold_loss``, ``selection``,
+    ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
+    ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
+    :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
+    {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number ``selection`` ranks
+    the eligible by (:func:`fold_gain_score`)}}, ``eligible_`` {channel: [candidates passing every gate]},
+    ``shrink_`` {channel: w}, ``novelty_`` (n_novelty_blocks,) median distance of each block.
+    Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}} (ranking folds),
+    ``cv_horizon_`` {channel: {candidate: RMS μm}} (horizon folds), ``gate_`` {channel: {candidate:
+    (passes, mean log gain, its se)}}, ``chosen_`` {channel: candidate}, ``baseline_`` (the OLS
+    :class:`DriftModel`), ``subset_modeller_``, ``candidates_`` {channel: {(family, hyper, w0): every
+    validation statistic of the candidate}}.
+
+    ``deploy`` (False): also refit each channel's chosen candidate — the same family, hyper-parameter, weight, distance
+    scale and band — on EVERY row of the log, ``deployed_`` (:class:`DriftModel`; its meta ``fit_rows`` all rows,
+    ``validated_on_rows`` the fitting part); ``deployed_`` is None without it. The selection, ``model_`` and every
+    validation figure are the same with or without it (they read the fitting part only).
+    """
+
+    def __init__(self, fit_fraction: float = 0.6, n_folds: int = 4, cv_start: float = 0.5, families=None,
+                 subset_kw: dict | None = None, horizon: float | None = None, n_horizon_folds: int = 4,
+                 gate_se: float = GATE_SE, n_novelty_folds: int = 3, n_novelty_blocks: int = 8,
+                 shrink_weights=SHRINK_WEIGHTS, shrink_scales=SHRINK_SCALES, max_fold_loss: float = MAX_FOLD_LOSS,
+                 min_gain: float = MIN_GAIN, feature_distance: bool = FEATURE_DISTANCE,
+                 ranking_fold_loss: bool = RANKING_FOLD_LOSS,
+                 selection: str = SELECTION, hedge_weight: float = HEDGE_WEIGHT, band_rule: str = BAND_RULE,
+                 confident_worst_fold: float = CONFIDENT_WORST_FOLD, deploy: bool = False):
+        self.fit_fraction = fit_fraction
+        self.n_folds = n_folds
+        self.cv_start = cv_start
+        self.families = families
+        self.subset_kw = subset_kw
+        self.horizon = horizon
+        self.n_horizon_folds = n_horizon_folds
+        self.gate_se = gate_se
+        self.n_novelty_folds = n_novelty_folds
+        self.n_novelty_blocks = n_novelty_blocks
+        self.shrink_weights = shrink_weights
+        self.shrink_scales = shrink_scales
+        self.max_fold_loss = max_fold_loss
+        self.min_gain = min_gain
+        self.feature_distance = feature_distance
+        self.ranking_fold_loss = ranking_fold_loss
+        self.selection = selection
+        self.hedge_weight = hedge_weight
+        self.band_rule = band_rule
+        self.confident_worst_fold = confident_worst_fold
+        self.deploy = deploy
+
+    def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
+        """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes
+        every gate of the rule in force against OLS, whose ranking-fold RMS is ``ranking_ols``: below it on the
+        ranking folds, > ``gate_se`` SE and a mean log-gain ≥ ``min_gain`` on the horizon and (``novelty``) the
+        novelty folds, no fold above ``max_fold_loss``× OLS, the hedge, and the selection's own floor."""
+        (ok_h, gain_h, _), (ok_n, gain_n, _) = gate
+        return bool(stats["ranking"] < ranking_ols and ok_h and ok_n and stats["worst_fold"] <= self.max_fold_loss
+                    and (w <= self.hedge_weight or stats["worst_all"] <= self.confident_worst_fold)
+                    and gain_h >= self.min_gain and (not novelty or gain_n >= self.min_gain)
+                    # "lcb": the lower confidence bound must itself be above OLS; "trimmed_fold": the gain without
+                    # its best fold must still be worth its risk
+                    and (self.selection != "lcb" or fold_gain_score(stats, "lcb") > 0)
+                    and (self.selection != "trimmed_fold" or fold_gain_score(stats, "trimmed_fold") >= self.min_gain))
+
+    def split(self, log):
+        n = len(log.time_s)
+        n_fit = int(round(self.fit_fraction * n))
+        return np.arange(n_fit), np.arange(n_fit, n)
+
+    def fit(self, log: DriftLog) -> "DriftSelector":
+        if not 0 < self.fit_fraction < 1:
+            raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
+        if not self.shrink_scales or not all(sc > 0 for sc in self.shrink_scales):
+            raise ValueError(f"Expected shrink_scales > 0 (inf: no per-sample shrinkage), got {self.shrink_scales}")
+        if not self.max_fold_loss >= 1.0:
+            raise ValueError(f"Expected max_fold_loss >= 1, got {self.max_fold_loss}")
+        if np.isnan(self.min_gain):
+            raise ValueError("Expected a number for min_gain, got nan")
+        if self.band_rule not in BAND_RULES:
+            raise ValueError(f"Expected band_rule in {BAND_RULES}, got {self.band_rule!r}")
+        if self.selection not in SELECTIONS:
+            raise ValueError(f"Expected selection in {SELECTIONS}, got {self.selection!r}")
+        if not self.shrink_weights or not all(0 < w <= 1 for w in self.shrink_weights):
+            raise ValueError(f"Expected shrink_weights in (0, 1], got {self.shrink_weights}")
+        if not 0 < self.hedge_weight <= 1 or not 0 < self.confident_worst_fold <= 1:
+            raise ValueError(f"Expected hedge_weight and confident_worst_fold in (0, 1], got {self.hedge_weight}, "
+                             f"{self.confident_worst_fold}")
+        fams = self.families or default_families(self.subset_kw)
+        fit, _ = self.split(log)
+        chans = list(log.disp_um)
+        cache = {}
+        folds = rolling_origin_folds(len(fit), self.n_folds, self.cv_start)
+        h = (1 - self.fit_fraction) / self.fit_fraction if self.horizon is None else self.horizon
+        hfolds = horizon_folds(len(fit), h, self.n_horizon_folds, self.cv_start)
+        U = input_matrix(log, fit, cache)
+        nfolds, self.novelty_ = novelty_folds(U, self.n_novelty_blocks, self.n_novelty_folds) \
+            if self.n_novelty_folds else ([], np.zeros(0))
+        self.fold_errors_ = []
+        fr, fh, fn = {}, {}, {}
+        resid = cv_residuals(log, fams, chans, folds, cache, self.fold_errors_, fr)
+        hresid = cv_residuals(log, fams, chans, hfolds, cache, self.fold_errors_, fh)
+        nresid = cv_residuals(log, fams, chans, nfolds, cache, self.fold_errors_, fn)
+        # ρ of every validation row from its fold's training rows (the per-sample shrinkage and the band grow with it):
+        # the raw inputs' ρ, and per candidate the larger of it and the ρ of the candidate's OWN features (its filtered
+        # inputs / states, its selected sensors): a model extrapolates in what it computes from, not only in the raw inputs
+        raw_rho = {id(fs): [relative_distance(U[tr], U[va]) for tr, va in fs]
+                   for fs in (folds, hfolds, nfolds)}
+        frho_cache = {}
+
+        def cand_rho(fs, featlists):
+            out = []
+            for i, ((tr, va), feats) in enumerate(zip(fs, featlists)):
+                r = raw_rho[id(fs)][i]
+                if self.feature_distance and feats:
+                    key = (id(fs), i, tuple(f.key for f in feats))
+                    if key not in frho_cache:
+                        F = feature_matrix(log, feats, cache)
+                        frho_cache[key] = np.maximum(r, relative_distance(F[tr], F[va]))
+                    r = frho_cache[key]
+                out.append(r)
+            return out
+        self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
+        self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
+        self.scale_, self.worst_fold_, self.fold_ratios_, self.fold_rho_, self.candidates_ = {}, {}, {}, {}, {}
+        self.band_alt_, self.score_ = {}, {}
+        for ch in chans:
+            base = ("ols", "")
+            full = {k[1:]: v for k, v in resid.items() if k[0] == ch and len(v) == len(folds)
+                    and len(hresid.get(k, [])) == len(hfolds) and len(nresid.get(k, [])) == len(nfolds)}
+            if base not in full:
+                raise ValueError(f"{log.path}: the OLS baseline could not be fitted on the cross-validation folds")
+            r0, h0, n0 = resid[(ch, *base)], hresid[(ch, *base)], nresid[(ch, *base)]
+            scores, gate, rhos = {}, {}, {}
+            for k in full:
+                rho_r = cand_rho(folds, fr[(ch, *k)])
+                rho_h = cand_rho(hfolds, fh[(ch, *k)])
+                rho_n = cand_rho(nfolds, fn[(ch, *k)])
+                rhos[k] = (rho_r, rho_h, rho_n)
+                for w in ((1.0,) if k == base else self.shrink_weights):
+                    # g's scale: the one of lowest RMS on the novelty folds (ties: the least shrinkage)
+                    sc = np.inf
+                    if nfolds and k != base:
+                        sres, s0, srho = nresid[(ch, *k)], n0, rho_n
+                        sc = min(self.shrink_scales, key=lambda s: (round(_rms(np.concatenate(
+                            _blend_residuals(w, sres, s0, srho, s))), 12), -s))
+                    key = (k[0], k[1], w)
+                    scores[key], gate[key] = blend_statistics(
+                        w, sc, (resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)]), (r0, h0, n0),
+                        rhos[k], self.gate_se, self.ranking_fold_loss)
+            r_ols = scores[(*base, 1.0)]["ranking"]
+            ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, bool(nfolds))]
+            # the largest score (ties: the larger mean gain); "worst_fold": the best worst fold
+            best = max(ok, key=lambda k: (fold_gain_score(scores[k], self.selection), scores[k]["gain"])) \
+                if ok else (*base, 1.0)
+
+            def name(k):
+                return candidate_name(*k)
+            self.cv_[ch] = {name(k): s["ranking"] for k, s in scores.items()}
+            self.cv_horizon_[ch] = {name(k): s["horizon"] for k, s in scores.items()}
+            self.cv_novelty_[ch] = {name(k): s["novelty"] for k, s in scores.items()}
+            self.gate_[ch] = {name(k): (g[0][0] and g[1][0], g[0][1], g[0][2], g[1][1], g[1][2])
+                              for k, g in gate.items()}
+            self.gain_[ch] = {name(k): float(s["gain"]) for k, s in scores.items()}
+            self.score_[ch] = {name(k): fold_gain_score(s, self.selection) for k, s in scores.items()}
+            self.worst_fold_[ch] = {name(k): float(s["worst_fold"]) for k, s in scores.items()}
+            self.fold_ratios_[ch] = {name(k): s["fold_ratios"] for k, s in scores.items()}
+            self.fold_rho_[ch] = {name(k): s["fold_rho"] for k, s in scores.items()}
+            self.candidates_[ch] = {k: dict(s, gate=gate[k]) for k, s in scores.items()}
+            self.eligible_[ch] = sorted(name(k) for k in ok)
+            self.chosen_[ch] = best[:2]
+            self.shrink_[ch] = best[2]
+            self.scale_[ch] = scores[best]["scale"]
+            self.band_[ch] = band_of(scores[best], self.band_rule)
+            self.band_alt_[ch] = {r: band_of(scores[best], r) for r in BAND_RULES if r != self.band_rule}
+            self.band_ols_[ch] = band_of(scores[(*base, 1.0)], self.band_rule)
+        self.model_, self.baseline_ = self._final_models(log, fams, chans, fit, cache, U, nfolds, folds, hfolds, h)
+        self.deployed_ = None
+        if self.deploy:
+            sub = getattr(self, "subset_modeller_", None)   # the validated fit's sensor selection stays the one reported
+            # the chosen candidates (family, hyper-parameter, weight, scale, band) refitted on every row
+            rows = np.arange(len(log.time_s))
+            self.deployed_, _ = self._final_models(log, fams, chans, rows, cache, input_matrix(log, rows, cache),
+                                                   nfolds, folds, hfolds, h)
+            self.deployed_.meta["validated_on_rows"] = int(len(fit))
+            if sub is not None:
+                self.subset_modeller_ = sub
+        self.cache_ = cache
+        return self
+
+    def _final_models(self, log, fams, chans, fit, cache, U, nfolds, folds, hfolds, h):
+        """The chosen candidates of every channel (``chosen_``, ``shrink_``, ``scale_``, ``band_``) and the OLS
+        baseline fitted on the rows ``fit`` (the fitting part, or with ``deploy`` every row): (model, baseline)."""
+        final = {}
+        for fam in fams:
+            need = [ch for ch in chans if self.chosen_[ch][0] == fam.name or fam.name == "ols"]
+            if need:
+                final[fam.name] = fam.fit(log, need, fit, cache)
+                if fam.name == "subset_lag":
+                    self.subset_modeller_ = fam.last_modeller_
+        mu, W = whitener(U)
+        dval = [mahalanobis(U[va], *whitener(U[tr])) for tr, va in nfolds]
+        temps, speed = _inputs(log, fit)
+        meta = {"log": str(log.path), "fit_rows": int(len(fit)), "fit_until_s": float(log.time_s[fit[-1]]),
+                "selection": f"rolling-origin CV on the fitting part: the candidate (a family blended with OLS, "
+                             f"weight {', '.join(f'{w:g}' for w in self.shrink_weights)}; above "
+                             f"{self.hedge_weight:g} only where every fold's RMS is ≤ {self.confident_worst_fold:g}× "
+                             f"OLS's) "
+                             + {"worst_fold": "whose worst fold (RMS ratio to OLS) is smallest",
+                                "mean_gain": "of largest mean log-gain over OLS",
+                                "lcb": f"of largest one-sided {LCB_LEVEL:.0%} lower confidence bound on its horizon "
+                                       "and novelty fold log-gains (Student's t), itself above 0",
+                                "median_fold": "of largest median horizon/novelty fold log-gain",
+                                "trimmed_fold": "of largest mean horizon/novelty fold log-gain without its best fold "
+                                                f"(itself at least {self.min_gain:.3g})",
+                                "rho_weighted": "of largest horizon/novelty fold log-gain weighted by the folds' "
+                                                "median distance"}[self.selection]
+                             + f" among those below OLS on {len(folds)} ranking "
+                             f"folds that beat OLS by > {self.gate_se:g} SE on {len(hfolds)} horizon folds (horizon "
+                             f"{h:.3g}) and on {len(nfolds)} novelty folds (the most novel blocks of the fitting "
+                             f"part, held out), with no fold worse than OLS by more than {self.max_fold_loss:g}×; "
+                             "else OLS",
+                "novelty": {"inputs": temps + (["speed_rpm"] if speed else []), "mean": mu.tolist(),
+                            "whiten": W.tolist(),
+                            "validated_distance": float(np.quantile(np.concatenate(dval), 0.9)) if dval else None,
+                            "fit_distance_q99": float(np.quantile(mahalanobis(U, mu, W), 0.99)),
+                            "range_distance": float(np.quantile(mahalanobis(U, mu, W), RANGE_QUANTILE))}}
+        chosen = {}
+        for ch in chans:
+            f, hy = self.chosen_[ch]
+            feats, a, b = final[f][ch][hy]
+            w = self.shrink_[ch]
+            feats, a, b = blend_with_ols((feats, a, b), final["ols"][ch][""], w)
+            sc = self.scale_[ch]
+            own = final[f][ch][hy][0]
+            nv = feature_novelty(own, feature_matrix(log, own, cache)[fit]) \
+                if self.feature_distance and f != "ols" and own else None
+            chosen[ch] = ChannelFit(f, hy if w == 1.0 else f"{hy}{';' if hy else ''}shrink_to_ols_w={w:g}", feats, a,
+                                    np.asarray(b), self.band_[ch][0],
+                                    base=final["ols"][ch][""] if np.isfinite(sc) else None,
+                                    shrink_scale=float(sc), novelty=nv, band_gamma=self.band_[ch][1])
+        return DriftModel(chosen, meta), DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch][0],
+                                                    band_gamma=self.band_ols_[ch][1]) for ch in chans}, meta)
+
+    def predict(self, log: DriftLog) -> dict:
+        """The chosen model's drift {channel: (n,)} μm at every row of ``log`` (causal: row i uses rows ≤ i)."""
+        self._check_fitted("model_")
+        return self.model_.predict(log)
+
+    def family_best(self, ch) -> dict:
+        """Best CV RMS of each family for channel ``ch`` (over its hyper-parameters): {family: (candidate, RMS)}."""
+        out = {}
+        for k, v in self.cv_[ch].items():
+            f = k.split("[")[0].split("~")[0]
+            if f not in out or v < out[f][1]:
+                out[f] = (k, v)
+        return out
+
+    def report(self, log: DriftLog) -> dict:
+        """Per channel: chosen candidate, CV scores per family, held-out before / volcomp / OLS, band coverage."""
+        _, hold = self.split(log)
+        pred = self.model_.predict(log, self.cache_)
+        base = self.baseline_.predict(log, self.cache_)
+        bands = self.model_.band_um(log, self.cache_)
+        rhos = self.model_.channel_rho(log, self.cache_)
+        out = {}
+        for ch in self.model_.channels:
+            d = log.disp_um[ch][hold]
+            a = d - pred[ch][hold]
+            b = d - base[ch][hold]
+            f, h = self.chosen_[ch]
+            w = self.shrink_[ch]
+            name = candidate_name(f, h, w)
+            band = self.model_.channels[ch].band95_um
+            grow = np.ones(len(log.time_s)) if rhos[ch] is None else np.maximum(1.0, rhos[ch])
+            alt = {r: qg[0] * grow ** qg[1] for r, qg in self.band_alt_[ch].items()}
+            alt_rule = next(iter(alt))
+
+            def rms(v):
+                return float(np.sqrt(np.mean(v**2)))
+            out[ch] = {"model": name, "family": f, "shrink_weight": w,
+                       "cv_rms_um": {k: v[1] for k, v in self.family_best(ch).items()},
+                       "cv_rms_ols_um": self.cv_[ch]["ols"],
+                       "cv_ranking_rms_um": self.cv_[ch][name],
+                       "cv_horizon_rms_um": self.cv_horizon_[ch][name],
+                       "cv_horizon_rms_ols_um": self.cv_horizon_[ch]["ols"],
+                       "cv_novelty_rms_um": self.cv_novelty_[ch][name],
+                       "cv_novelty_rms_ols_um": self.cv_novelty_[ch]["ols"],
+                       "best_ranked": min(self.cv_[ch], key=self.cv_[ch].get),
+                       "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
+                                                 if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
+                       "worst_fold_ratio": self.worst_fold_[ch][name],
+                       "selection_score": self.score_[ch][name],
+                       "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
+                       "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
+                       "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
+                       "heldout_rho_median": None if rhos[ch] is None else float(np.median(rhos[ch][hold])),
+                       "band95_um": band, "band_coverage_heldout": float(np.mean(np.abs(a) <= bands[ch][hold])),
+                       "band_halfwidth_heldout_median_um": float(np.median(bands[ch][hold])),
+                       "band_gamma": self.model_.channels[ch].band_gamma,
+                       "band_rule": self.band_rule, "band_alt_rule": alt_rule,
+                       "band_alt95_um": self.band_alt_[ch][alt_rule][0],
+                       "band_alt_coverage_heldout": float(np.mean(np.abs(a) <= alt[alt_rule][hold])),
+                       "band_alt_halfwidth_heldout_median_um": float(np.median(alt[alt_rule][hold])),
+                       # every band rule on the same held-out part: {rule: {q_um, gamma, coverage, halfwidth_median_um}}
+                       "bands_heldout": {self.band_rule: {
+                           "q_um": band, "gamma": self.model_.channels[ch].band_gamma,
+                           "coverage": float(np.mean(np.abs(a) <= bands[ch][hold])),
+                           "halfwidth_median_um": float(np.median(bands[ch][hold]))}} | {
+                           r: {"q_um": self.band_alt_[ch][r][0], "gamma": self.band_alt_[ch][r][1],
+                               "coverage": float(np.mean(np.abs(a) <= v[hold])),
+                               "halfwidth_median_um": float(np.median(v[hold]))} for r, v in alt.items()}}
+        return out
