@@ -6,14 +6,14 @@ import numpy as np
 from ..estimators import Estimator
 from .drift import DriftLog
 from .drift_candidates import default_families
-from .drift_features import _inputs, feature_matrix, feature_novelty, input_matrix, mahalanobis, relative_distance, whitener
-from .drift_features import RANGE_QUANTILE
+from .drift_features import (RANGE_QUANTILE, _inputs, feature_matrix, feature_novelty, input_matrix, mahalanobis,
+                             relative_distance, whitener)
 from .drift_model_file import ChannelFit, DriftModel
-from .drift_validation import (BAND_RULE, BAND_RULES, CONFIDENT_WORST_FOLD, FEATURE_DISTANCE, GATE_SE, HEDGE_WEIGHT,
-                               LCB_LEVEL, MAX_FOLD_LOSS, MIN_GAIN, RANKING_FOLD_LOSS, SELECTION, SELECTIONS,
-                               SHRINK_SCALES, SHRINK_WEIGHTS, _blend_residuals, _rms, band_of, blend_statistics,
-                               blend_with_ols, candidate_name, cv_residuals, fold_gain_score, horizon_folds,
+from .drift_validation import (BAND_RULE, BAND_RULES, FEATURE_DISTANCE, GATE_SE, MAX_FOLD_LOSS, MIN_GAIN,
+                               RANKING_FOLD_LOSS, SHRINK_SCALES, SHRINK_WEIGHTS, _blend_residuals, _rms, band_of,
+                               blend_statistics, blend_with_ols, candidate_name, cv_residuals, horizon_folds,
                                novelty_folds, rolling_origin_folds)
+
 
 class DriftSelector(Estimator):
     """Per channel, a family (and hyper-parameter) chosen on the fitting part only, refitted on all of it.
@@ -30,9 +30,7 @@ class DriftSelector(Estimator):
       :func:`novelty_folds`): the blocks of the fitting part whose
       inputs are farthest (Mahalanobis) from the rest, held out.
 
-    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights`` w0; above
-    ``hedge_weight`` only where the worst fold's RMS ratio to OLS is ≤ ``confident_worst_fold``, a hedge that
-    is off by default), predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the larger of the distance
+    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights`` w0), predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the larger of the distance
     of the sample's raw inputs and of the candidate's own features from the training data, each over that
     data's ``RANGE_QUANTILE`` distance, g = :func:`distance_weight` with the
     scale of ``shrink_scales`` of lowest RMS on the novelty folds. A candidate is eligible when it
@@ -40,18 +38,16 @@ class DriftSelector(Estimator):
     horizon folds and (c) on the novelty folds, (d) with a mean log-gain ≥ ``min_gain`` on each of (b)
     and (c), and (e) no fold (horizon, novelty, and with ``ranking_fold_loss`` ranking) worse than OLS by
     more than ``max_fold_loss``; the eligible one of largest mean log-gain over OLS (over the three sets)
-    is returned (``selection="mean_gain"``; ``"worst_fold"``: the one whose worst fold, the largest RMS
-    ratio to OLS over all three sets, is smallest), else the OLS baseline itself. A model that loses to OLS in any of its validations is never returned. Learned
+    is returned, else the OLS baseline itself (docs/decisions/006: the other orders measured). A model that loses to OLS in any of its validations is never returned. Learned
     too: ``scale_`` {channel: s of the chosen}, ``worst_fold_`` {channel: {candidate: worst RMS ratio to
     OLS over the horizon and novelty folds}}.
 
     Settings: ``fit_fraction``, ``n_folds``, ``cv_start``, ``horizon``, ``n_horizon_folds``, ``gate_se``,
-    ``feature_distance`` (ρ also on the candidate's own features), ``ranking_fold_loss``, ``selection``,
-    ``hedge_weight``, ``confident_worst_fold``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
+    ``feature_distance`` (ρ also on the candidate's own features), ``ranking_fold_loss``, ``band_rule`` (``BAND_RULE``; the other rule's scale: ``band_alt_``),
     ``n_novelty_folds`` (0: none), ``n_novelty_blocks``, ``shrink_weights``, ``families`` (default
     :func:`default_families`). Also learned: ``cv_novelty_`` {channel: {candidate: RMS μm}}, ``gain_``
-    {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number ``selection`` ranks
-    the eligible by (:func:`fold_gain_score`)}}, ``eligible_`` {channel: [candidates passing every gate]},
+    {channel: {candidate: mean log-gain over OLS}}, ``score_`` {channel: {candidate: the number the eligible are ranked
+    by, their mean log-gain}}, ``eligible_`` {channel: [candidates passing every gate]},
     ``shrink_`` {channel: w}, ``novelty_`` (n_novelty_blocks,) median distance of each block.
     Learned: ``model_`` (:class:`DriftModel`), ``cv_`` {channel: {candidate: RMS μm}} (ranking folds),
     ``cv_horizon_`` {channel: {candidate: RMS μm}} (horizon folds), ``gate_`` {channel: {candidate:
@@ -70,9 +66,7 @@ class DriftSelector(Estimator):
                  gate_se: float = GATE_SE, n_novelty_folds: int = 3, n_novelty_blocks: int = 8,
                  shrink_weights=SHRINK_WEIGHTS, shrink_scales=SHRINK_SCALES, max_fold_loss: float = MAX_FOLD_LOSS,
                  min_gain: float = MIN_GAIN, feature_distance: bool = FEATURE_DISTANCE,
-                 ranking_fold_loss: bool = RANKING_FOLD_LOSS,
-                 selection: str = SELECTION, hedge_weight: float = HEDGE_WEIGHT, band_rule: str = BAND_RULE,
-                 confident_worst_fold: float = CONFIDENT_WORST_FOLD, deploy: bool = False):
+                 ranking_fold_loss: bool = RANKING_FOLD_LOSS, band_rule: str = BAND_RULE, deploy: bool = False):
         self.fit_fraction = fit_fraction
         self.n_folds = n_folds
         self.cv_start = cv_start
@@ -89,32 +83,24 @@ class DriftSelector(Estimator):
         self.min_gain = min_gain
         self.feature_distance = feature_distance
         self.ranking_fold_loss = ranking_fold_loss
-        self.selection = selection
-        self.hedge_weight = hedge_weight
         self.band_rule = band_rule
-        self.confident_worst_fold = confident_worst_fold
         self.deploy = deploy
 
     def eligible(self, stats: dict, gate: tuple, w: float, ranking_ols: float, novelty: bool = True) -> bool:
         """Whether a candidate blended at weight ``w`` (its :func:`blend_statistics` ``stats`` and ``gate``) passes
-        every gate of the rule in force against OLS, whose ranking-fold RMS is ``ranking_ols``: below it on the
-        ranking folds, > ``gate_se`` SE and a mean log-gain ≥ ``min_gain`` on the horizon and (``novelty``) the
-        novelty folds, no fold above ``max_fold_loss``× OLS, the hedge, and the selection's own floor."""
+        every gate of the rule against OLS, whose ranking-fold RMS is ``ranking_ols``: below it on the ranking
+        folds, > ``gate_se`` SE and a mean log-gain ≥ ``min_gain`` on the horizon and (``novelty``) the novelty
+        folds, and no fold above ``max_fold_loss``× OLS."""
         (ok_h, gain_h, _), (ok_n, gain_n, _) = gate
         return bool(stats["ranking"] < ranking_ols and ok_h and ok_n and stats["worst_fold"] <= self.max_fold_loss
-                    and (w <= self.hedge_weight or stats["worst_all"] <= self.confident_worst_fold)
-                    and gain_h >= self.min_gain and (not novelty or gain_n >= self.min_gain)
-                    # "lcb": the lower confidence bound must itself be above OLS; "trimmed_fold": the gain without
-                    # its best fold must still be worth its risk
-                    and (self.selection != "lcb" or fold_gain_score(stats, "lcb") > 0)
-                    and (self.selection != "trimmed_fold" or fold_gain_score(stats, "trimmed_fold") >= self.min_gain))
+                    and gain_h >= self.min_gain and (not novelty or gain_n >= self.min_gain))
 
     def split(self, log):
         n = len(log.time_s)
         n_fit = int(round(self.fit_fraction * n))
         return np.arange(n_fit), np.arange(n_fit, n)
 
-    def fit(self, log: DriftLog) -> "DriftSelector":
+    def _check_settings(self) -> None:
         if not 0 < self.fit_fraction < 1:
             raise ValueError(f"Expected 0 < fit_fraction < 1, got {self.fit_fraction}")
         if not self.shrink_scales or not all(sc > 0 for sc in self.shrink_scales):
@@ -125,116 +111,131 @@ class DriftSelector(Estimator):
             raise ValueError("Expected a number for min_gain, got nan")
         if self.band_rule not in BAND_RULES:
             raise ValueError(f"Expected band_rule in {BAND_RULES}, got {self.band_rule!r}")
-        if self.selection not in SELECTIONS:
-            raise ValueError(f"Expected selection in {SELECTIONS}, got {self.selection!r}")
         if not self.shrink_weights or not all(0 < w <= 1 for w in self.shrink_weights):
             raise ValueError(f"Expected shrink_weights in (0, 1], got {self.shrink_weights}")
-        if not 0 < self.hedge_weight <= 1 or not 0 < self.confident_worst_fold <= 1:
-            raise ValueError(f"Expected hedge_weight and confident_worst_fold in (0, 1], got {self.hedge_weight}, "
-                             f"{self.confident_worst_fold}")
+
+    def fit(self, log: DriftLog) -> "DriftSelector":
+        self._check_settings()
         fams = self.families or default_families(self.subset_kw)
         fit, _ = self.split(log)
         chans = list(log.disp_um)
         cache = {}
+        sets = self._fold_sets(log, fit, cache)
+        folds, hfolds, nfolds, h, U = sets
+        self.fold_errors_ = []
+        feats = ({}, {}, {})
+        resid = tuple(cv_residuals(log, fams, chans, fs, cache, self.fold_errors_, fd)
+                      for fs, fd in zip((folds, hfolds, nfolds), feats))
+        rho = _FoldRho(self, log, cache, U, (folds, hfolds, nfolds))
+        for name in ("cv_", "cv_horizon_", "cv_novelty_", "gate_", "chosen_", "band_", "band_ols_", "shrink_", "gain_",
+                     "eligible_", "scale_", "worst_fold_", "fold_ratios_", "fold_rho_", "candidates_", "band_alt_",
+                     "score_"):
+            setattr(self, name, {})
+        for ch in chans:
+            scores, gate = self._score_channel(log, ch, resid, feats, rho, bool(nfolds))
+            self._record_channel(ch, scores, gate, bool(nfolds))
+        self.model_, self.baseline_ = self._final_models(log, fams, chans, fit, cache, U, sets)
+        self.deployed_ = None
+        if self.deploy:
+            self._deploy(log, fams, chans, fit, cache, sets)
+        self.cache_ = cache
+        return self
+
+    def _fold_sets(self, log, fit, cache):
+        """(ranking folds, horizon folds, novelty folds, horizon, the fitting part's raw inputs U (n_fit, k));
+        sets ``novelty_``."""
         folds = rolling_origin_folds(len(fit), self.n_folds, self.cv_start)
         h = (1 - self.fit_fraction) / self.fit_fraction if self.horizon is None else self.horizon
         hfolds = horizon_folds(len(fit), h, self.n_horizon_folds, self.cv_start)
         U = input_matrix(log, fit, cache)
         nfolds, self.novelty_ = novelty_folds(U, self.n_novelty_blocks, self.n_novelty_folds) \
             if self.n_novelty_folds else ([], np.zeros(0))
-        self.fold_errors_ = []
-        fr, fh, fn = {}, {}, {}
-        resid = cv_residuals(log, fams, chans, folds, cache, self.fold_errors_, fr)
-        hresid = cv_residuals(log, fams, chans, hfolds, cache, self.fold_errors_, fh)
-        nresid = cv_residuals(log, fams, chans, nfolds, cache, self.fold_errors_, fn)
-        # ρ of every validation row from its fold's training rows (the per-sample shrinkage and the band grow with it):
-        # the raw inputs' ρ, and per candidate the larger of it and the ρ of the candidate's OWN features (its filtered
-        # inputs / states, its selected sensors): a model extrapolates in what it computes from, not only in the raw inputs
-        raw_rho = {id(fs): [relative_distance(U[tr], U[va]) for tr, va in fs]
-                   for fs in (folds, hfolds, nfolds)}
-        frho_cache = {}
+        return folds, hfolds, nfolds, h, U
 
-        def cand_rho(fs, featlists):
-            out = []
-            for i, ((tr, va), feats) in enumerate(zip(fs, featlists)):
-                r = raw_rho[id(fs)][i]
-                if self.feature_distance and feats:
-                    key = (id(fs), i, tuple(f.key for f in feats))
-                    if key not in frho_cache:
-                        F = feature_matrix(log, feats, cache)
-                        frho_cache[key] = np.maximum(r, relative_distance(F[tr], F[va]))
-                    r = frho_cache[key]
-                out.append(r)
-            return out
-        self.cv_, self.cv_horizon_, self.cv_novelty_, self.gate_, self.chosen_ = {}, {}, {}, {}, {}
-        self.band_, self.band_ols_, self.shrink_, self.gain_, self.eligible_ = {}, {}, {}, {}, {}
-        self.scale_, self.worst_fold_, self.fold_ratios_, self.fold_rho_, self.candidates_ = {}, {}, {}, {}, {}
-        self.band_alt_, self.score_ = {}, {}
-        for ch in chans:
-            base = ("ols", "")
-            full = {k[1:]: v for k, v in resid.items() if k[0] == ch and len(v) == len(folds)
-                    and len(hresid.get(k, [])) == len(hfolds) and len(nresid.get(k, [])) == len(nfolds)}
-            if base not in full:
-                raise ValueError(f"{log.path}: the OLS baseline could not be fitted on the cross-validation folds")
-            r0, h0, n0 = resid[(ch, *base)], hresid[(ch, *base)], nresid[(ch, *base)]
-            scores, gate, rhos = {}, {}, {}
-            for k in full:
-                rho_r = cand_rho(folds, fr[(ch, *k)])
-                rho_h = cand_rho(hfolds, fh[(ch, *k)])
-                rho_n = cand_rho(nfolds, fn[(ch, *k)])
-                rhos[k] = (rho_r, rho_h, rho_n)
-                for w in ((1.0,) if k == base else self.shrink_weights):
-                    # g's scale: the one of lowest RMS on the novelty folds (ties: the least shrinkage)
-                    sc = np.inf
-                    if nfolds and k != base:
-                        sres, s0, srho = nresid[(ch, *k)], n0, rho_n
-                        sc = min(self.shrink_scales, key=lambda s: (round(_rms(np.concatenate(
-                            _blend_residuals(w, sres, s0, srho, s))), 12), -s))
-                    key = (k[0], k[1], w)
-                    scores[key], gate[key] = blend_statistics(
-                        w, sc, (resid[(ch, *k)], hresid[(ch, *k)], nresid[(ch, *k)]), (r0, h0, n0),
-                        rhos[k], self.gate_se, self.ranking_fold_loss)
-            r_ols = scores[(*base, 1.0)]["ranking"]
-            ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, bool(nfolds))]
-            # the largest score (ties: the larger mean gain); "worst_fold": the best worst fold
-            best = max(ok, key=lambda k: (fold_gain_score(scores[k], self.selection), scores[k]["gain"])) \
-                if ok else (*base, 1.0)
+    def _score_channel(self, log, ch, resid, feats, rho, novelty: bool):
+        """Every candidate of channel ``ch`` at every blend weight: ({(family, hyper, w): stats}, {…: gate}).
+        ``resid``/``feats``: (ranking, horizon, novelty) :func:`cv_residuals` results and candidate features."""
+        base = ("ols", "")
+        n_sets = [len(f) for f in rho.fold_sets]
+        full = [k[1:] for k, v in resid[0].items() if k[0] == ch
+                and all(len(r.get(k, [])) == n for r, n in zip(resid, n_sets))]
+        if base not in full:
+            raise ValueError(f"{log.path}: the OLS baseline could not be fitted on the cross-validation folds")
+        ols = tuple(r.get((ch, *base), []) for r in resid)
+        scores, gate = {}, {}
+        for k in full:
+            rhos = tuple(rho.of(i, fd.get((ch, *k), [])) for i, fd in enumerate(feats))
+            cand = tuple(r.get((ch, *k), []) for r in resid)
+            for w in ((1.0,) if k == base else self.shrink_weights):
+                sc = self._scale(w, cand[2], ols[2], rhos[2]) if novelty and k != base else np.inf
+                key = (k[0], k[1], w)
+                scores[key], gate[key] = blend_statistics(w, sc, cand, ols, rhos, self.gate_se,
+                                                          self.ranking_fold_loss)
+        return scores, gate
 
-            def name(k):
-                return candidate_name(*k)
-            self.cv_[ch] = {name(k): s["ranking"] for k, s in scores.items()}
-            self.cv_horizon_[ch] = {name(k): s["horizon"] for k, s in scores.items()}
-            self.cv_novelty_[ch] = {name(k): s["novelty"] for k, s in scores.items()}
-            self.gate_[ch] = {name(k): (g[0][0] and g[1][0], g[0][1], g[0][2], g[1][1], g[1][2])
-                              for k, g in gate.items()}
-            self.gain_[ch] = {name(k): float(s["gain"]) for k, s in scores.items()}
-            self.score_[ch] = {name(k): fold_gain_score(s, self.selection) for k, s in scores.items()}
-            self.worst_fold_[ch] = {name(k): float(s["worst_fold"]) for k, s in scores.items()}
-            self.fold_ratios_[ch] = {name(k): s["fold_ratios"] for k, s in scores.items()}
-            self.fold_rho_[ch] = {name(k): s["fold_rho"] for k, s in scores.items()}
-            self.candidates_[ch] = {k: dict(s, gate=gate[k]) for k, s in scores.items()}
-            self.eligible_[ch] = sorted(name(k) for k in ok)
-            self.chosen_[ch] = best[:2]
-            self.shrink_[ch] = best[2]
-            self.scale_[ch] = scores[best]["scale"]
-            self.band_[ch] = band_of(scores[best], self.band_rule)
-            self.band_alt_[ch] = {r: band_of(scores[best], r) for r in BAND_RULES if r != self.band_rule}
-            self.band_ols_[ch] = band_of(scores[(*base, 1.0)], self.band_rule)
-        self.model_, self.baseline_ = self._final_models(log, fams, chans, fit, cache, U, nfolds, folds, hfolds, h)
-        self.deployed_ = None
-        if self.deploy:
-            sub = getattr(self, "subset_modeller_", None)   # the validated fit's sensor selection stays the one reported
-            # the chosen candidates (family, hyper-parameter, weight, scale, band) refitted on every row
-            rows = np.arange(len(log.time_s))
-            self.deployed_, _ = self._final_models(log, fams, chans, rows, cache, input_matrix(log, rows, cache),
-                                                   nfolds, folds, hfolds, h)
-            self.deployed_.meta["validated_on_rows"] = int(len(fit))
-            if sub is not None:
-                self.subset_modeller_ = sub
-        self.cache_ = cache
-        return self
+    def _scale(self, w, res_n, ols_n, rho_n) -> float:
+        """g's scale: the one of ``shrink_scales`` of lowest RMS on the novelty folds (ties: the least shrinkage)."""
+        return min(self.shrink_scales, key=lambda s: (round(_rms(np.concatenate(
+            _blend_residuals(w, res_n, ols_n, rho_n, s))), 12), -s))
 
-    def _final_models(self, log, fams, chans, fit, cache, U, nfolds, folds, hfolds, h):
+    def _record_channel(self, ch, scores: dict, gate: dict, novelty: bool) -> None:
+        """Choose channel ``ch``'s candidate among ``scores`` and record every learned figure of it."""
+        base = ("ols", "", 1.0)
+        r_ols = scores[base]["ranking"]
+        ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, novelty)]
+        best = max(ok, key=lambda k: scores[k]["gain"]) if ok else base
+        names = {k: candidate_name(*k) for k in scores}
+        self.cv_[ch] = {names[k]: s["ranking"] for k, s in scores.items()}
+        self.cv_horizon_[ch] = {names[k]: s["horizon"] for k, s in scores.items()}
+        self.cv_novelty_[ch] = {names[k]: s["novelty"] for k, s in scores.items()}
+        self.gate_[ch] = {names[k]: (g[0][0] and g[1][0], g[0][1], g[0][2], g[1][1], g[1][2]) for k, g in gate.items()}
+        self.gain_[ch] = {names[k]: float(s["gain"]) for k, s in scores.items()}
+        self.score_[ch] = dict(self.gain_[ch])
+        self.worst_fold_[ch] = {names[k]: float(s["worst_fold"]) for k, s in scores.items()}
+        self.fold_ratios_[ch] = {names[k]: s["fold_ratios"] for k, s in scores.items()}
+        self.fold_rho_[ch] = {names[k]: s["fold_rho"] for k, s in scores.items()}
+        self.candidates_[ch] = {k: dict(s, gate=gate[k]) for k, s in scores.items()}
+        self.eligible_[ch] = sorted(names[k] for k in ok)
+        self.chosen_[ch] = best[:2]
+        self.shrink_[ch] = best[2]
+        self.scale_[ch] = scores[best]["scale"]
+        self.band_[ch] = band_of(scores[best], self.band_rule)
+        self.band_alt_[ch] = {r: band_of(scores[best], r) for r in BAND_RULES if r != self.band_rule}
+        self.band_ols_[ch] = band_of(scores[base], self.band_rule)
+
+    def _deploy(self, log, fams, chans, fit, cache, sets) -> None:
+        """``deployed_``: the chosen candidates (family, hyper-parameter, weight, scale, band) refitted on every row."""
+        sub = getattr(self, "subset_modeller_", None)   # the validated fit's sensor selection stays the one reported
+        rows = np.arange(len(log.time_s))
+        self.deployed_, _ = self._final_models(log, fams, chans, rows, cache, input_matrix(log, rows, cache), sets)
+        self.deployed_.meta["validated_on_rows"] = int(len(fit))
+        if sub is not None:
+            self.subset_modeller_ = sub
+
+    def _selection_text(self, sets) -> str:
+        folds, hfolds, nfolds, h, _ = sets
+        return (f"rolling-origin CV on the fitting part: the candidate (a family blended with OLS, weight "
+                f"{', '.join(f'{w:g}' for w in self.shrink_weights)}) of largest mean log-gain over OLS among those "
+                f"below OLS on {len(folds)} ranking folds that beat OLS by > {self.gate_se:g} SE on {len(hfolds)} "
+                f"horizon folds (horizon {h:.3g}) and on {len(nfolds)} novelty folds (the most novel blocks of the "
+                f"fitting part, held out), with no fold worse than OLS by more than {self.max_fold_loss:g}×; else OLS")
+
+    def _meta(self, log, fit, U, sets) -> dict:
+        """The model file's ``fitted_on``: the rows, the selection in words and the inputs' distance reference."""
+        nfolds = sets[2]
+        mu, W = whitener(U)
+        dval = [mahalanobis(U[va], *whitener(U[tr])) for tr, va in nfolds]
+        temps, speed = _inputs(log, fit)
+        d_fit = mahalanobis(U, mu, W)
+        return {"log": str(log.path), "fit_rows": int(len(fit)), "fit_until_s": float(log.time_s[fit[-1]]),
+                "selection": self._selection_text(sets),
+                "novelty": {"inputs": temps + (["speed_rpm"] if speed else []), "mean": mu.tolist(),
+                            "whiten": W.tolist(),
+                            "validated_distance": float(np.quantile(np.concatenate(dval), 0.9)) if dval else None,
+                            "fit_distance_q99": float(np.quantile(d_fit, 0.99)),
+                            "range_distance": float(np.quantile(d_fit, RANGE_QUANTILE))}}
+
+    def _final_models(self, log, fams, chans, fit, cache, U, sets):
         """The chosen candidates of every channel (``chosen_``, ``shrink_``, ``scale_``, ``band_``) and the OLS
         baseline fitted on the rows ``fit`` (the fitting part, or with ``deploy`` every row): (model, baseline)."""
         final = {}
@@ -244,49 +245,24 @@ class DriftSelector(Estimator):
                 final[fam.name] = fam.fit(log, need, fit, cache)
                 if fam.name == "subset_lag":
                     self.subset_modeller_ = fam.last_modeller_
-        mu, W = whitener(U)
-        dval = [mahalanobis(U[va], *whitener(U[tr])) for tr, va in nfolds]
-        temps, speed = _inputs(log, fit)
-        meta = {"log": str(log.path), "fit_rows": int(len(fit)), "fit_until_s": float(log.time_s[fit[-1]]),
-                "selection": f"rolling-origin CV on the fitting part: the candidate (a family blended with OLS, "
-                             f"weight {', '.join(f'{w:g}' for w in self.shrink_weights)}; above "
-                             f"{self.hedge_weight:g} only where every fold's RMS is ≤ {self.confident_worst_fold:g}× "
-                             f"OLS's) "
-                             + {"worst_fold": "whose worst fold (RMS ratio to OLS) is smallest",
-                                "mean_gain": "of largest mean log-gain over OLS",
-                                "lcb": f"of largest one-sided {LCB_LEVEL:.0%} lower confidence bound on its horizon "
-                                       "and novelty fold log-gains (Student's t), itself above 0",
-                                "median_fold": "of largest median horizon/novelty fold log-gain",
-                                "trimmed_fold": "of largest mean horizon/novelty fold log-gain without its best fold "
-                                                f"(itself at least {self.min_gain:.3g})",
-                                "rho_weighted": "of largest horizon/novelty fold log-gain weighted by the folds' "
-                                                "median distance"}[self.selection]
-                             + f" among those below OLS on {len(folds)} ranking "
-                             f"folds that beat OLS by > {self.gate_se:g} SE on {len(hfolds)} horizon folds (horizon "
-                             f"{h:.3g}) and on {len(nfolds)} novelty folds (the most novel blocks of the fitting "
-                             f"part, held out), with no fold worse than OLS by more than {self.max_fold_loss:g}×; "
-                             "else OLS",
-                "novelty": {"inputs": temps + (["speed_rpm"] if speed else []), "mean": mu.tolist(),
-                            "whiten": W.tolist(),
-                            "validated_distance": float(np.quantile(np.concatenate(dval), 0.9)) if dval else None,
-                            "fit_distance_q99": float(np.quantile(mahalanobis(U, mu, W), 0.99)),
-                            "range_distance": float(np.quantile(mahalanobis(U, mu, W), RANGE_QUANTILE))}}
-        chosen = {}
-        for ch in chans:
-            f, hy = self.chosen_[ch]
-            feats, a, b = final[f][ch][hy]
-            w = self.shrink_[ch]
-            feats, a, b = blend_with_ols((feats, a, b), final["ols"][ch][""], w)
-            sc = self.scale_[ch]
-            own = final[f][ch][hy][0]
-            nv = feature_novelty(own, feature_matrix(log, own, cache)[fit]) \
-                if self.feature_distance and f != "ols" and own else None
-            chosen[ch] = ChannelFit(f, hy if w == 1.0 else f"{hy}{';' if hy else ''}shrink_to_ols_w={w:g}", feats, a,
-                                    np.asarray(b), self.band_[ch][0],
-                                    base=final["ols"][ch][""] if np.isfinite(sc) else None,
-                                    shrink_scale=float(sc), novelty=nv, band_gamma=self.band_[ch][1])
-        return DriftModel(chosen, meta), DriftModel({ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch][0],
-                                                    band_gamma=self.band_ols_[ch][1]) for ch in chans}, meta)
+        meta = self._meta(log, fit, U, sets)
+        chosen = {ch: self._channel_fit(log, ch, final, fit, cache) for ch in chans}
+        base = {ch: ChannelFit("ols", "", *final["ols"][ch][""], self.band_ols_[ch][0],
+                               band_gamma=self.band_ols_[ch][1]) for ch in chans}
+        return DriftModel(chosen, meta), DriftModel(base, meta)
+
+    def _channel_fit(self, log, ch, final, fit, cache) -> ChannelFit:
+        """Channel ``ch``'s chosen candidate, blended toward OLS, from the families' fits ``final``."""
+        f, hy = self.chosen_[ch]
+        w = self.shrink_[ch]
+        own = final[f][ch][hy][0]
+        feats, a, b = blend_with_ols(final[f][ch][hy], final["ols"][ch][""], w)
+        sc = self.scale_[ch]
+        nv = feature_novelty(own, feature_matrix(log, own, cache)[fit]) \
+            if self.feature_distance and f != "ols" and own else None
+        return ChannelFit(f, hy if w == 1.0 else f"{hy}{';' if hy else ''}shrink_to_ols_w={w:g}", feats, a,
+                          np.asarray(b), self.band_[ch][0], base=final["ols"][ch][""] if np.isfinite(sc) else None,
+                          shrink_scale=float(sc), novelty=nv, band_gamma=self.band_[ch][1])
 
     def predict(self, log: DriftLog) -> dict:
         """The chosen model's drift {channel: (n,)} μm at every row of ``log`` (causal: row i uses rows ≤ i)."""
@@ -313,47 +289,75 @@ class DriftSelector(Estimator):
         for ch in self.model_.channels:
             d = log.disp_um[ch][hold]
             a = d - pred[ch][hold]
-            b = d - base[ch][hold]
-            f, h = self.chosen_[ch]
-            w = self.shrink_[ch]
-            name = candidate_name(f, h, w)
-            band = self.model_.channels[ch].band95_um
-            grow = np.ones(len(log.time_s)) if rhos[ch] is None else np.maximum(1.0, rhos[ch])
-            alt = {r: qg[0] * grow ** qg[1] for r, qg in self.band_alt_[ch].items()}
-            alt_rule = next(iter(alt))
+            name = candidate_name(*self.chosen_[ch], self.shrink_[ch])
+            out[ch] = self._validation_report(ch, name) | {
+                "rms_before_um": _rms(d), "rms_after_um": _rms(a), "rms_ols_um": _rms(d - base[ch][hold]),
+                "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
+                "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
+                "heldout_rho_median": None if rhos[ch] is None else float(np.median(rhos[ch][hold]))} | \
+                self._band_report(ch, a, hold, bands[ch], rhos[ch])
+        return out
 
-            def rms(v):
-                return float(np.sqrt(np.mean(v**2)))
-            out[ch] = {"model": name, "family": f, "shrink_weight": w,
-                       "cv_rms_um": {k: v[1] for k, v in self.family_best(ch).items()},
-                       "cv_rms_ols_um": self.cv_[ch]["ols"],
-                       "cv_ranking_rms_um": self.cv_[ch][name],
-                       "cv_horizon_rms_um": self.cv_horizon_[ch][name],
-                       "cv_horizon_rms_ols_um": self.cv_horizon_[ch]["ols"],
-                       "cv_novelty_rms_um": self.cv_novelty_[ch][name],
-                       "cv_novelty_rms_ols_um": self.cv_novelty_[ch]["ols"],
-                       "best_ranked": min(self.cv_[ch], key=self.cv_[ch].get),
-                       "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
-                                                 if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
-                       "worst_fold_ratio": self.worst_fold_[ch][name],
-                       "selection_score": self.score_[ch][name],
-                       "rms_before_um": rms(d), "rms_after_um": rms(a), "rms_ols_um": rms(b),
-                       "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
-                       "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
-                       "heldout_rho_median": None if rhos[ch] is None else float(np.median(rhos[ch][hold])),
-                       "band95_um": band, "band_coverage_heldout": float(np.mean(np.abs(a) <= bands[ch][hold])),
-                       "band_halfwidth_heldout_median_um": float(np.median(bands[ch][hold])),
-                       "band_gamma": self.model_.channels[ch].band_gamma,
-                       "band_rule": self.band_rule, "band_alt_rule": alt_rule,
-                       "band_alt95_um": self.band_alt_[ch][alt_rule][0],
-                       "band_alt_coverage_heldout": float(np.mean(np.abs(a) <= alt[alt_rule][hold])),
-                       "band_alt_halfwidth_heldout_median_um": float(np.median(alt[alt_rule][hold])),
-                       # every band rule on the same held-out part: {rule: {q_um, gamma, coverage, halfwidth_median_um}}
-                       "bands_heldout": {self.band_rule: {
-                           "q_um": band, "gamma": self.model_.channels[ch].band_gamma,
-                           "coverage": float(np.mean(np.abs(a) <= bands[ch][hold])),
-                           "halfwidth_median_um": float(np.median(bands[ch][hold]))}} | {
-                           r: {"q_um": self.band_alt_[ch][r][0], "gamma": self.band_alt_[ch][r][1],
-                               "coverage": float(np.mean(np.abs(a) <= v[hold])),
-                               "halfwidth_median_um": float(np.median(v[hold]))} for r, v in alt.items()}}
+    def _validation_report(self, ch, name) -> dict:
+        """Channel ``ch``'s chosen candidate ``name`` and its figures on the folds of the fitting part."""
+        return {"model": name, "family": self.chosen_[ch][0], "shrink_weight": self.shrink_[ch],
+                "cv_rms_um": {k: v[1] for k, v in self.family_best(ch).items()},
+                "cv_rms_ols_um": self.cv_[ch]["ols"],
+                "cv_ranking_rms_um": self.cv_[ch][name],
+                "cv_horizon_rms_um": self.cv_horizon_[ch][name],
+                "cv_horizon_rms_ols_um": self.cv_horizon_[ch]["ols"],
+                "cv_novelty_rms_um": self.cv_novelty_[ch][name],
+                "cv_novelty_rms_ols_um": self.cv_novelty_[ch]["ols"],
+                "best_ranked": min(self.cv_[ch], key=self.cv_[ch].get),
+                "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
+                                          if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
+                "worst_fold_ratio": self.worst_fold_[ch][name],
+                "selection_score": self.score_[ch][name]}
+
+    def _band_report(self, ch, resid, hold, band, rho) -> dict:
+        """The band of channel ``ch`` on the held-out rows ``hold`` (``resid`` (len(hold),) μm, ``band`` (n,) μm of
+        the model's rule, ``rho`` (n,) or None), and every other band rule's on the same rows."""
+        q = self.model_.channels[ch].band95_um
+        gamma = self.model_.channels[ch].band_gamma
+        grow = np.ones(len(band)) if rho is None else np.maximum(1.0, rho)
+        alt = {r: qg[0] * grow ** qg[1] for r, qg in self.band_alt_[ch].items()}
+        alt_rule = next(iter(alt))
+        cover = {r: float(np.mean(np.abs(resid) <= v[hold])) for r, v in alt.items()}
+        half = {r: float(np.median(v[hold])) for r, v in alt.items()}
+        mine = {"q_um": q, "gamma": gamma, "coverage": float(np.mean(np.abs(resid) <= band[hold])),
+                "halfwidth_median_um": float(np.median(band[hold]))}
+        return {"band95_um": q, "band_coverage_heldout": mine["coverage"],
+                "band_halfwidth_heldout_median_um": mine["halfwidth_median_um"], "band_gamma": gamma,
+                "band_rule": self.band_rule, "band_alt_rule": alt_rule,
+                "band_alt95_um": self.band_alt_[ch][alt_rule][0],
+                "band_alt_coverage_heldout": cover[alt_rule],
+                "band_alt_halfwidth_heldout_median_um": half[alt_rule],
+                # every band rule on the same held-out part: {rule: {q_um, gamma, coverage, halfwidth_median_um}}
+                "bands_heldout": {self.band_rule: mine} | {
+                    r: {"q_um": self.band_alt_[ch][r][0], "gamma": self.band_alt_[ch][r][1], "coverage": cover[r],
+                        "halfwidth_median_um": half[r]} for r in alt}}
+
+
+class _FoldRho:
+    """ρ of every validation row from its fold's training rows (the per-sample shrinkage and the band grow with it):
+    the raw inputs' ρ, and with ``feature_distance`` the larger of it and the ρ of the candidate's OWN features (its
+    filtered inputs / states, its selected sensors): a model extrapolates in what it computes from."""
+
+    def __init__(self, sel, log, cache, U, fold_sets):
+        self.sel, self.log, self.cache, self.fold_sets = sel, log, cache, fold_sets
+        self.raw = [[relative_distance(U[tr], U[va]) for tr, va in fs] for fs in fold_sets]
+        self.memo = {}
+
+    def of(self, which: int, featlists) -> list:
+        """Per fold of set ``which`` (0 ranking, 1 horizon, 2 novelty), ρ (n_i,) of a candidate with ``featlists``."""
+        out = []
+        for i, ((tr, va), feats) in enumerate(zip(self.fold_sets[which], featlists)):
+            r = self.raw[which][i]
+            if self.sel.feature_distance and feats:
+                key = (which, i, tuple(f.key for f in feats))
+                if key not in self.memo:
+                    F = feature_matrix(self.log, feats, self.cache)
+                    self.memo[key] = np.maximum(r, relative_distance(F[tr], F[va]))
+                r = self.memo[key]
+            out.append(r)
         return out

@@ -17,23 +17,7 @@ BAND_RULE = "fold_residual"   # band95_um = the split-conformal BAND_QUANTILE of
 #   cover BAND_QUANTILE of the fold rows exactly, but measured to cover 1–90 % of the real log's pseudo-futures
 #   (the future's errors outgrow the folds'); both are computed and reported (``band_alt_``), one is the model's
 SHRINK_WEIGHTS = (1.0, 0.875, 0.75, 0.625, 0.5, 0.375, 0.25, 0.125)   # candidate weight w in a blend
-#   w·candidate + (1 − w)·OLS (w = 0: OLS itself, the fallback). Steps of 1/8 since issue 29's fourth round, decided
-#   by a rule written before the figures (docs/drift_model.md) on development seeds 100–104 and inside the real log's
-#   fitting parts against the earlier grid SHRINK_WEIGHTS_COARSE: 5 → 4 cases above 1.05× OLS of 45 (worst 3.05× →
-#   2.12×), geometric-mean ratio 0.818 → 0.796, no regime change 1 → 1 (1.55× → 1.18×); real fitting parts 0 above /
-#   6 below either way, but one case's gain smaller (ch1 at 38.4 %: 0.37× → 0.72× OLS)
-SHRINK_WEIGHTS_COARSE = (1.0, 0.75, 0.5, 0.25)   # the grid before issue 29's fourth round (a setting)
-HEDGE_WEIGHT = 1.0   # a weight above HEDGE_WEIGHT only where every fold's RMS ratio to OLS is ≤ CONFIDENT_WORST_FOLD;
-CONFIDENT_WORST_FOLD = 0.5   # 1.0: no hedge (the default). The hedge (0.5: at most half a candidate unless it beat
-#   OLS by 2× on every fold: the blend's error is at most the mean of the two) with SELECTION = "worst_fold" was
-#   decided on development seeds 100–104 (both simulators, regime change; 45 channel cases;
-#   benchmarks/drift_dev_results.md): 4 → 1 case above 1.05× (worst 3.05× → 1.051×), 32 → 35 below OLS. It is NOT
-#   the default: on the real machine-tool log (fit 0–48 %, judged on 48–60 %) it turned ch1 from 0.41× OLS
-#   (thermal_nn at full weight, worst fold 0.94×) into 1.15× (transfer~ols(w=0.5): the eligible worst folds were
-#   0.87–0.98×, too close to rank by, and the transfer model extrapolated furthest) and ch2 from 0.35× into 0.67×
-SELECTION = "mean_gain"   # among the eligible, the candidate of largest mean log-gain over OLS; "worst_fold": the one
-#   whose WORST validation fold (ranking, horizon, novelty: RMS ratio to OLS) is best (development seeds as above:
-#   4 → 2 cases above 1.05× alone, 1 with the hedge; not the default for the real log's sake, see HEDGE_WEIGHT)
+#   w·candidate + (1 − w)·OLS (w = 0: OLS itself, the fallback); steps of 1/8 (docs/decisions/005, 006)
 FEATURE_DISTANCE = False   # ρ also on each candidate's own features (filtered inputs, states, selected sensors), the
 #   larger of the two: a setting, not the default. On the benchmark's simulated logs (13 of 20 run) it fixed the case
 #   it was made for (lumped seed 1 ch2, greybox τ = 3 h: 1.83× → 0.76× OLS; the default now gets 0.76× there too, by
@@ -194,9 +178,10 @@ def horizon_gate(rms_ols, rms_cand, k_se: float = GATE_SE) -> tuple[bool, float,
     se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
     return bool(d.mean() > k_se * se), float(d.mean()), se
 
+
+
 BAND_GAMMAS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)   # exponents γ tried for the ρ-power band q·max(1, ρ)^γ
 BAND_SUBSET_SE = 1.0   # a subset's coverage counts as reaching the level within one binomial standard error of it
-LCB_LEVEL = 0.95   # one-sided level of the lower confidence bound on the fold log-gains ("lcb" selection)
 
 
 BAND_RULES = ("fold_residual", "rho_scaled", "rho_power", "fold_flat")
@@ -236,43 +221,6 @@ def rho_power_band(abs_resid, rho, level: float = BAND_QUANTILE, gammas=BAND_GAM
                for m in (out, far)):
             return q, float(g)
     return q, float(gammas[-1])
-
-
-def fold_gain_score(stats: dict, selection: str) -> float:
-    """The number by which an eligible candidate is ranked (larger is better) under ``selection``, from its
-    validation statistics (``DriftSelector.candidates_`` values: ``gain``, ``fold_ratios`` = (ranking,
-    horizon, novelty) RMS ratios to OLS per fold, ``fold_rho_each`` = the folds' median ρ).
-
-    d_i = −ln(ratio_i) on the horizon and novelty folds (K of them). ``mean_gain``: the mean log-gain over the
-    ranking, horizon and novelty sets; ``worst_fold``: −ln of the worst ratio over every fold; ``lcb``: the
-    one-sided ``LCB_LEVEL`` lower confidence bound mean(d) − t·sd(d)/√K (t of Student's law, K − 1 degrees);
-    ``median_fold``: the median d; ``rho_weighted``: the mean of d weighted by each fold's median ρ (folds
-    farther out count more, as the deployment's future is farther out than most folds); ``trimmed_fold``: the
-    mean d without the largest one (a gain one lucky fold carries does not count; the selector also requires it
-    ≥ ``min_gain``)."""
-    if selection == "mean_gain":
-        return float(stats["gain"])
-    fr = stats["fold_ratios"]
-    if selection == "worst_fold":
-        return -float(np.log(max(max(x) for x in fr)))
-    d = -np.log(np.asarray(list(fr[1]) + list(fr[2]), float))
-    if selection == "median_fold":
-        return float(np.median(d))
-    if selection == "rho_weighted":
-        w = np.maximum(np.asarray(list(stats["fold_rho_each"][1]) + list(stats["fold_rho_each"][2]), float), 1e-12)
-        return float(np.sum(w * d) / np.sum(w))
-    if selection == "trimmed_fold":
-        return float(np.sort(d)[:-1].mean()) if len(d) > 1 else float(d.mean()) if len(d) else 0.0
-    if selection == "lcb":
-        from scipy.stats import t as student_t
-        k = len(d)
-        if k < 2:
-            return float(d.mean()) if k else 0.0
-        return float(d.mean() - student_t.ppf(LCB_LEVEL, k - 1) * d.std(ddof=1) / np.sqrt(k))
-    raise ValueError(f"Expected selection in {SELECTIONS}, got {selection!r}")
-
-
-SELECTIONS = ("mean_gain", "worst_fold", "lcb", "median_fold", "rho_weighted", "trimmed_fold")
 
 
 def conformal_quantile(scores, level: float) -> float:
