@@ -194,32 +194,7 @@ class DriftModel:
         chans = {}
         for ch, c in need(obj, "channels", "").items():
             try:
-                terms = c["terms"]
-                fl = [feats[t["feature"]] for t in terms]
-                base, scale = None, float("inf")
-                if c.get("distance_shrink") is not None:
-                    ds = c["distance_shrink"]
-                    scale = float(ds["scale"])
-                    if not scale > 0:
-                        raise ValueError(f"distance_shrink.scale must be > 0, got {scale}")
-                    base = ([feats[t["feature"]] for t in ds["base"]["terms"]], float(ds["base"]["intercept_um"]),
-                            np.array([float(t["coef"]) for t in ds["base"]["terms"]]))
-                nv = None
-                if c.get("feature_distance") is not None:
-                    fd = c["feature_distance"]
-                    nf = [feats[i] for i in fd["features"]]
-                    Wf = np.array(fd["whiten"], float).reshape(len(nf), -1)
-                    mf = np.array(fd["mean"], float)
-                    d0 = float(fd["range_distance"])
-                    if mf.shape != (len(nf),) or not d0 > 0:
-                        raise ValueError("feature_distance: expected one mean per feature and range_distance > 0")
-                    nv = {"features": nf, "mean": mf, "whiten": Wf, "range_distance": d0}
-                gamma = float(c.get("band_gamma", 1.0))     # files before the ρ-power band: γ = 1
-                if not 0 <= gamma <= 10:
-                    raise ValueError(f"band_gamma must be in [0, 10], got {gamma}")
-                chans[ch] = ChannelFit(c.get("family", ""), c.get("hyper", ""), fl, float(c["intercept_um"]),
-                                       np.array([float(t["coef"]) for t in terms]), float(c.get("band95_um") or "nan"),
-                                       base, scale, nv, gamma)
+                chans[ch] = _channel_from_json(c, feats)
             except (KeyError, TypeError, ValueError) as exc:
                 raise InputError(f"{path}: key 'channels.{ch}': expected intercept_um and terms "
                                  f"[{{feature, coef}}] naming listed features ({exc!r})") from None
@@ -238,6 +213,37 @@ class DriftModel:
         except json.JSONDecodeError as exc:
             raise InputError(f"{path}: line {exc.lineno}, column {exc.colno}: not JSON ({exc.msg})") from None
         return cls.from_json(obj, path)
+
+
+def _channel_from_json(c: dict, feats: dict) -> ChannelFit:
+    """One channel of the controller form, its features looked up in ``feats`` {id: Feature}; raises KeyError,
+    TypeError or ValueError on what it cannot read (the caller names the file and the key)."""
+    terms = c["terms"]
+    fl = [feats[t["feature"]] for t in terms]
+    base, scale = None, float("inf")
+    if c.get("distance_shrink") is not None:
+        ds = c["distance_shrink"]
+        scale = float(ds["scale"])
+        if not scale > 0:
+            raise ValueError(f"distance_shrink.scale must be > 0, got {scale}")
+        base = ([feats[t["feature"]] for t in ds["base"]["terms"]], float(ds["base"]["intercept_um"]),
+                np.array([float(t["coef"]) for t in ds["base"]["terms"]]))
+    nv = None
+    if c.get("feature_distance") is not None:
+        fd = c["feature_distance"]
+        nf = [feats[i] for i in fd["features"]]
+        Wf = np.array(fd["whiten"], float).reshape(len(nf), -1)
+        mf = np.array(fd["mean"], float)
+        d0 = float(fd["range_distance"])
+        if mf.shape != (len(nf),) or not d0 > 0:
+            raise ValueError("feature_distance: expected one mean per feature and range_distance > 0")
+        nv = {"features": nf, "mean": mf, "whiten": Wf, "range_distance": d0}
+    gamma = float(c.get("band_gamma", 1.0))     # files before the ρ-power band: γ = 1
+    if not 0 <= gamma <= 10:
+        raise ValueError(f"band_gamma must be in [0, 10], got {gamma}")
+    return ChannelFit(c.get("family", ""), c.get("hyper", ""), fl, float(c["intercept_um"]),
+                      np.array([float(t["coef"]) for t in terms]), float(c.get("band95_um") or "nan"),
+                      base, scale, nv, gamma)
 
 
 def _refuse_withdrawn(obj: dict, path) -> None:

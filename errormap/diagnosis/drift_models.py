@@ -30,12 +30,12 @@ from .drift_constrained import (  # noqa: F401
     StableLagOLSFamily, StableOLSFamily, ThermalNNFamily, _forward_bic, _mode_inputs, _mode_maps, _oriented_nnls,
     _stable_selection)
 from .drift_candidates import (  # noqa: F401
-    OLSFamily, PLSBankFamily, PLSTowardOLSFamily, PLS_MAX_COMPONENTS, RIDGE_LAMBDAS, RIDGE_OLS_LAMBDAS,
-    RidgeBankFamily, RidgeTowardOLSFamily, SUBSET_SEARCH_STEP_S, SubsetLagFamily, TAU_GRID_S, TRANSFER_LAMBDA,
-    TransferFamily, _ols_in_bank, default_families, measured_families)
+    ConstantFamily, OLSFamily, PLSBankFamily, PLSTowardOLSFamily, PLS_MAX_COMPONENTS, RIDGE_LAMBDAS,
+    RIDGE_OLS_LAMBDAS, RidgeBankFamily, RidgeTowardOLSFamily, SUBSET_SEARCH_STEP_S, SubsetLagFamily, TAU_GRID_S,
+    TRANSFER_LAMBDA, TransferFamily, _ols_in_bank, default_families, measured_families)
 from .drift_model_file import (  # noqa: F401
-    ChannelFit, DriftModel, OTHER_FORMATS, SCHEMA, SCHEMA_VERSION, _kind_of, _refuse_withdrawn, input_novelty,
-    input_rho)
+    ChannelFit, DriftModel, OTHER_FORMATS, SCHEMA, SCHEMA_VERSION, _channel_from_json, _kind_of, _refuse_withdrawn,
+    input_novelty, input_rho)
 from .drift_validation import (  # noqa: F401
     BAND_GAMMAS, BAND_QUANTILE, BAND_RULE, BAND_RULES, BAND_SUBSET_SE, FEATURE_DISTANCE, GATE_SE, MAX_FOLD_LOSS,
     MIN_GAIN, RANKING_FOLD_LOSS, SHRINK_SCALES, SHRINK_WEIGHTS, _blend_residuals, _merge, _rms, band_of,

@@ -181,9 +181,7 @@ class DriftSelector(Estimator):
     def _record_channel(self, ch, scores: dict, gate: dict, novelty: bool) -> None:
         """Choose channel ``ch``'s candidate among ``scores`` and record every learned figure of it."""
         base = ("ols", "", 1.0)
-        r_ols = scores[base]["ranking"]
-        ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, novelty)]
-        best = max(ok, key=lambda k: scores[k]["gain"]) if ok else base
+        ok, best = self._choose(scores, gate, novelty)
         names = {k: candidate_name(*k) for k in scores}
         self.cv_[ch] = {names[k]: s["ranking"] for k, s in scores.items()}
         self.cv_horizon_[ch] = {names[k]: s["horizon"] for k, s in scores.items()}
@@ -203,6 +201,21 @@ class DriftSelector(Estimator):
         self.band_alt_[ch] = {r: band_of(scores[best], r) for r in BAND_RULES if r != self.band_rule}
         self.band_ols_[ch] = band_of(scores[base], self.band_rule)
 
+    def _choose(self, scores: dict, gate: dict, novelty: bool) -> tuple[list, tuple]:
+        """(the eligible candidates, the chosen one) among ``scores``. Eligible: every gate against OLS
+        (:meth:`eligible`) and, where the constant offset is a candidate, a mean log-gain over OLS above the
+        constant's (never a model that loses to the plainest baseline in validation). The eligible one of largest
+        mean log-gain; else the better plain baseline by the same score: the constant where its mean log-gain over
+        OLS is above 0, else OLS."""
+        base, const = ("ols", "", 1.0), ("constant", "", 1.0)
+        r_ols = scores[base]["ranking"]
+        floor = scores[const]["gain"] if const in scores else -np.inf
+        ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, novelty)
+              and (k == const or scores[k]["gain"] > floor)]
+        if ok:
+            return ok, max(ok, key=lambda k: scores[k]["gain"])
+        return ok, const if floor > 0 else base
+
     def _deploy(self, log, fams, chans, fit, cache, sets) -> None:
         """``deployed_``: the chosen candidates (family, hyper-parameter, weight, scale, band) refitted on every row."""
         sub = getattr(self, "subset_modeller_", None)   # the validated fit's sensor selection stays the one reported
@@ -218,7 +231,10 @@ class DriftSelector(Estimator):
                 f"{', '.join(f'{w:g}' for w in self.shrink_weights)}) of largest mean log-gain over OLS among those "
                 f"below OLS on {len(folds)} ranking folds that beat OLS by > {self.gate_se:g} SE on {len(hfolds)} "
                 f"horizon folds (horizon {h:.3g}) and on {len(nfolds)} novelty folds (the most novel blocks of the "
-                f"fitting part, held out), with no fold worse than OLS by more than {self.max_fold_loss:g}×; else OLS")
+                f"fitting part, held out), with no fold worse than OLS by more than {self.max_fold_loss:g}×"
+                + ("" if not any("constant" in v for v in self.cv_.values()) else " and a mean log-gain above the constant offset's (the fit "
+                   "part's mean); else the constant where its mean log-gain over OLS is above 0")
+                + "; else OLS")
 
     def _meta(self, log, fit, U, sets) -> dict:
         """The model file's ``fitted_on``: the rows, the selection in words and the inputs' distance reference."""
@@ -280,7 +296,7 @@ class DriftSelector(Estimator):
 
     def report(self, log: DriftLog) -> dict:
         """Per channel: chosen candidate, CV scores per family, held-out before / volcomp / OLS, band coverage."""
-        _, hold = self.split(log)
+        fit, hold = self.split(log)
         pred = self.model_.predict(log, self.cache_)
         base = self.baseline_.predict(log, self.cache_)
         bands = self.model_.band_um(log, self.cache_)
@@ -292,6 +308,7 @@ class DriftSelector(Estimator):
             name = candidate_name(*self.chosen_[ch], self.shrink_[ch])
             out[ch] = self._validation_report(ch, name) | {
                 "rms_before_um": _rms(d), "rms_after_um": _rms(a), "rms_ols_um": _rms(d - base[ch][hold]),
+                "rms_constant_um": _rms(d - np.mean(log.disp_um[ch][fit])),
                 "max_before_um": float(np.abs(d).max()), "max_after_um": float(np.abs(a).max()),
                 "distance_scale": self.scale_[ch] if np.isfinite(self.scale_[ch]) else None,
                 "heldout_rho_median": None if rhos[ch] is None else float(np.median(rhos[ch][hold]))} | \
@@ -312,7 +329,10 @@ class DriftSelector(Estimator):
                 "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
                                           if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
                 "worst_fold_ratio": self.worst_fold_[ch][name],
-                "selection_score": self.score_[ch][name]}
+                "selection_score": self.score_[ch][name]} | ({
+                    "cv_rms_constant_um": self.cv_[ch]["constant"], "cv_horizon_rms_constant_um":
+                    self.cv_horizon_[ch]["constant"], "cv_novelty_rms_constant_um": self.cv_novelty_[ch]["constant"],
+                    "selection_score_constant": self.score_[ch]["constant"]} if "constant" in self.cv_[ch] else {})
 
     def _band_report(self, ch, resid, hold, band, rho) -> dict:
         """The band of channel ``ch`` on the held-out rows ``hold`` (``resid`` (len(hold),) μm, ``band`` (n,) μm of
