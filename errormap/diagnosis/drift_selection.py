@@ -15,6 +15,9 @@ from .drift_validation import (BAND_RULE, BAND_RULES, FEATURE_DISTANCE, GATE_SE,
                                novelty_folds, rolling_origin_folds)
 
 
+PLAIN_BASELINES = (("ols", ""), ("constant", ""))   # judged as they are: never blended, never shrunk by distance
+
+
 class DriftSelector(Estimator):
     """Per channel, a family (and hyper-parameter) chosen on the fitting part only, refitted on all of it.
 
@@ -30,7 +33,8 @@ class DriftSelector(Estimator):
       :func:`novelty_folds`): the blocks of the fitting part whose
       inputs are farthest (Mahalanobis) from the rest, held out.
 
-    Candidates are every family × hyper-parameter and each shrunk toward OLS (``shrink_weights`` w0), predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the larger of the distance
+    Candidates are OLS and the constant offset as they are (``PLAIN_BASELINES``), and every other family ×
+    hyper-parameter, each shrunk toward OLS (``shrink_weights`` w0), predicting per sample OLS + w0·g(ρ)·(candidate − OLS): ρ = the larger of the distance
     of the sample's raw inputs and of the candidate's own features from the training data, each over that
     data's ``RANGE_QUANTILE`` distance, g = :func:`distance_weight` with the
     scale of ``shrink_scales`` of lowest RMS on the novelty folds. A candidate is eligible when it
@@ -166,8 +170,9 @@ class DriftSelector(Estimator):
         for k in full:
             rhos = tuple(rho.of(i, fd.get((ch, *k), [])) for i, fd in enumerate(feats))
             cand = tuple(r.get((ch, *k), []) for r in resid)
-            for w in ((1.0,) if k == base else self.shrink_weights):
-                sc = self._scale(w, cand[2], ols[2], rhos[2]) if novelty and k != base else np.inf
+            plain = k in PLAIN_BASELINES     # OLS and the constant: as they are (no blend, no distance shrinkage)
+            for w in ((1.0,) if plain else self.shrink_weights):
+                sc = self._scale(w, cand[2], ols[2], rhos[2]) if novelty and not plain else np.inf
                 key = (k[0], k[1], w)
                 scores[key], gate[key] = blend_statistics(w, sc, cand, ols, rhos, self.gate_se,
                                                           self.ranking_fold_loss)
