@@ -42,7 +42,8 @@ class DriftSelector(Estimator):
     horizon folds and (c) on the novelty folds, (d) with a mean log-gain ≥ ``min_gain`` on each of (b)
     and (c), and (e) no fold (horizon, novelty, and with ``ranking_fold_loss`` ranking) worse than OLS by
     more than ``max_fold_loss``; the eligible one of largest mean log-gain over OLS (over the three sets)
-    is returned, else the OLS baseline itself (docs/decisions/006: the other orders measured). A model that loses to OLS in any of its validations is never returned. Learned
+    is returned (docs/decisions/006: the other orders measured), if it also scores above the constant offset;
+    else the better plain baseline (:meth:`_choose`: the plainest-baseline rule). A model that loses to OLS in any of its validations is never returned. Learned
     too: ``scale_`` {channel: s of the chosen}, ``worst_fold_`` {channel: {candidate: worst RMS ratio to
     OLS over the horizon and novelty folds}}.
 
