@@ -31,7 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from errormap.diagnosis.drift import load_drift_log  # noqa: E402
-from errormap.diagnosis.drift_models import SHRINK_WEIGHTS, SHRINK_WEIGHTS_COARSE, DriftSelector  # noqa: E402
+from errormap.diagnosis.drift_models import SHRINK_WEIGHTS, DriftSelector  # noqa: E402
 from errormap.diagnosis.drift_sim import SIMULATORS  # noqa: E402
 from errormap.io import atomic_write, write_csv, write_json  # noqa: E402
 
@@ -149,9 +149,43 @@ def head_of(log, fraction):
                                path=f"{log.path}[:{fraction:g}]")
 
 
+SHRINK_WEIGHTS_COARSE = (1.0, 0.75, 0.5, 0.25)   # the blend grid before steps of 1/8 (docs/decisions/006)
+LCB_LEVEL = 0.95   # one-sided level of the lower confidence bound on the fold log-gains ("lcb" order)
+
+
+def fold_gain_score(stats: dict, order: str) -> float:
+    """The number by which an eligible candidate is ranked (larger is better) under ``order``, from its validation
+    statistics (``DriftSelector.candidates_`` values: ``gain``, ``fold_ratios`` = (ranking, horizon, novelty) RMS
+    ratios to OLS per fold, ``fold_rho_each`` = the folds' median ρ). The library ranks by ``mean_gain`` only; the
+    other orders were measured here and refused (docs/decisions/005, 006). d_i = −ln(ratio_i) on the horizon and
+    novelty folds: ``worst_fold`` −ln of the worst ratio over every fold; ``lcb`` mean(d) − t·sd(d)/√K;
+    ``median_fold`` median d; ``rho_weighted`` mean d weighted by each fold's median ρ; ``trimmed_fold`` mean d
+    without the largest."""
+    if order == "mean_gain":
+        return float(stats["gain"])
+    fr = stats["fold_ratios"]
+    if order == "worst_fold":
+        return -float(np.log(max(max(x) for x in fr)))
+    d = -np.log(np.asarray(list(fr[1]) + list(fr[2]), float))
+    if order == "median_fold":
+        return float(np.median(d))
+    if order == "rho_weighted":
+        w = np.maximum(np.asarray(list(stats["fold_rho_each"][1]) + list(stats["fold_rho_each"][2]), float), 1e-12)
+        return float(np.sum(w * d) / np.sum(w))
+    if order == "trimmed_fold":
+        return float(np.sort(d)[:-1].mean()) if len(d) > 1 else float(d.mean()) if len(d) else 0.0
+    if order == "lcb":
+        from scipy.stats import t as student_t
+        k = len(d)
+        if k < 2:
+            return float(d.mean()) if k else 0.0
+        return float(d.mean() - student_t.ppf(LCB_LEVEL, k - 1) * d.std(ddof=1) / np.sqrt(k))
+    raise ValueError(f"unknown order {order!r}")
+
+
 LN_MIN_GAIN = float(np.log(1.05))
 # rule variants compared offline on the same candidates (``--rules``): (weights allowed, per-fold loss bound,
-# order among the eligible (drift_models.SELECTIONS)[, worst-fold ratio under which w above w_max is allowed])
+# order among the eligible (fold_gain_score)[, worst-fold ratio under which w above w_max is allowed])
 RULES = {"mean gain (the default)": (1.0, 1.05, "mean_gain"),
          "worst fold, w ≤ 0.5 unless every fold ≤ 0.5× OLS": (0.5, 1.05, "worst_fold", 0.5),
          "worst fold, w ≤ 1": (1.0, 1.05, "worst_fold"),
@@ -166,7 +200,6 @@ RULES = {"mean gain (the default)": (1.0, 1.05, "mean_gain"),
 def apply_rule(cands, w_max, loss, order, confident=0.0, k_se=1.0):
     """(held-out ratio to OLS, candidate name, the candidate's row) of what a rule returns among ``cands`` (one
     channel of one log); the gates are DriftSelector's."""
-    from errormap.diagnosis.drift_models import fold_gain_score
     ols = next(c for c in cands if c["cand"] == "ols")
 
     def eligible(c):
@@ -408,8 +441,7 @@ def render_rules(sets, out, grid_folder=None):
 
 
 def _default_selection():
-    from errormap.diagnosis.drift_models import SELECTION
-    return SELECTION
+    return "mean_gain"    # the library's only order (docs/decisions/006)
 
 
 def _split_name(title, frac):

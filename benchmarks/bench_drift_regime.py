@@ -38,8 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from errormap.diagnosis.drift import load_drift_log  # noqa: E402
-from errormap.diagnosis.drift_models import (BAND_GAMMAS, BAND_RULE, BAND_RULES, LCB_LEVEL,  # noqa: E402
-                                             SELECTION, SHRINK_WEIGHTS, DriftSelector)
+from errormap.diagnosis.drift_models import BAND_GAMMAS, BAND_RULE, BAND_RULES, SHRINK_WEIGHTS, DriftSelector  # noqa: E402
 from errormap.diagnosis.drift_sim import SHIFT_AMBIENT_C, SHIFT_SPEED, SIMULATORS  # noqa: E402
 from errormap.io import atomic_write, write_csv, write_json  # noqa: E402
 
@@ -175,15 +174,7 @@ def band_summary(rows):
 
 def rule_text():
     """The selection and band rules in force (from drift_models' constants), in words."""
-    order = {"mean_gain": "the eligible one of largest mean log-gain over OLS",
-             "worst_fold": "the eligible one whose worst fold (RMS ratio to OLS) is smallest",
-             "lcb": f"the eligible one of largest lower confidence bound on its fold log-gains (one-sided "
-                    f"{LCB_LEVEL:.0%}, Student's t over the horizon and novelty folds: mean − t·SE), which must "
-                    "itself be above 0",
-             "median_fold": "the eligible one of largest median fold log-gain (horizon and novelty folds)",
-             "rho_weighted": "the eligible one of largest fold log-gain weighted by each fold's median ρ",
-             "trimmed_fold": "the eligible one of largest mean fold log-gain without its best fold (horizon and "
-                             "novelty folds), which must itself be at least 5 %"}[SELECTION]
+    order = "the eligible one of largest mean log-gain over OLS"
     band = {"fold_residual": "the split-conformal 95 % quantile of |validation residual| on the horizon and novelty "
                              "folds, times max(1, ρ) at each sample",
             "rho_scaled": "the split-conformal 95 % quantile of |residual| / max(1, ρ_fold) on the horizon and "

@@ -9,7 +9,7 @@ import pytest
 from compensation import export as ex
 from compensation.app.cli import main
 from errormap.diagnosis.drift import DriftLog
-from errormap.diagnosis.drift_models import (MAX_FOLD_LOSS, SHRINK_WEIGHTS, SHRINK_WEIGHTS_COARSE, ChannelFit,
+from errormap.diagnosis.drift_models import (MAX_FOLD_LOSS, SHRINK_WEIGHTS, ChannelFit,
                                              DriftModel, DriftSelector, GreyBoxFamily, OLSFamily, blend_statistics,
                                              blend_with_ols, feature_matrix)
 from errormap.diagnosis.drift_sim import simulate_lumped_log
@@ -131,7 +131,7 @@ def test_per_fold_bound_picks_the_small_weight_the_default_grid_lacks():
     sel = DriftSelector()
     r_ols = float(np.sqrt(np.mean(np.square(np.concatenate(ols[0])))))
     ok = {}
-    assert min(SHRINK_WEIGHTS) == 0.125 < min(SHRINK_WEIGHTS_COARSE)     # the default grid has the small weight
+    assert min(SHRINK_WEIGHTS) == 0.125     # the default grid has the small weight
     for w in SHRINK_WEIGHTS:
         stats, gate = blend_statistics(w, np.inf, cand, ols, rhos)
         ok[w] = sel.eligible(stats, gate, w, r_ols)
@@ -143,4 +143,3 @@ def test_per_fold_bound_picks_the_small_weight_the_default_grid_lacks():
         if w == 0.25:
             assert stats["worst_fold"] > MAX_FOLD_LOSS
     assert [w for w, e in ok.items() if e] == [0.125]
-    assert not any(ok[w] for w in SHRINK_WEIGHTS_COARSE)    # the grid before issue 29's fourth round keeps OLS here

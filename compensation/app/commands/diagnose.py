@@ -106,7 +106,8 @@ def run(args) -> int:
             print(f"filled missing samples of {c} (interpolated): rows {', '.join(f'{a}-{b}' for a, b in rows)}")
         for ch, c in summary["channels"].items():
             print(f"{ch}: {c['model']}: held-out RMS {c['rms_before_um']:.3g} -> {c['rms_after_um']:.3g} μm "
-                  f"(OLS baseline {c['rms_ols_um']:.3g} μm), {band_label(c)}")
+                  f"(OLS baseline {c['rms_ols_um']:.3g} μm, constant offset {c['rms_constant_um']:.3g} μm), "
+                  f"{band_label(c)}")
         v = summary["verdict"]
         print("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
     else:

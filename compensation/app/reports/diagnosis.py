@@ -311,9 +311,11 @@ def drift_report(log, sel, channels, log_path) -> str:
                  for c, r in notes.get("filled", {}).items()]
     fams = sorted({f for c in channels.values() for f in c["cv_rms_um"]})
     rows = [[ch, c["model"], *[c["cv_rms_um"].get(f) for f in fams], c["rms_before_um"], c["rms_after_um"],
-             c["rms_ols_um"], c["band95_um"], c["band_coverage_heldout"]] for ch, c in channels.items()]
+             c["rms_ols_um"], c.get("rms_constant_um"), c["band95_um"], c["band_coverage_heldout"]]
+            for ch, c in channels.items()]
     table = Table(["channel", "chosen", *[f"CV {f} (μm)" for f in fams], "held-out RMS before (μm)",
                    "held-out RMS after, volcomp (μm)", "held-out RMS after, OLS baseline (μm)",
+                   "held-out RMS after, constant offset (μm)",
                    "band ± (μm) inside the fit range (× max(1, ρ) beyond): 95 % of horizon + novelty validation residuals", "band coverage CHECKED on the held-out part"], rows, left=2)
     sensors = None
     sub = getattr(sel, "subset_modeller_", None)

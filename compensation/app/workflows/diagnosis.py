@@ -538,8 +538,7 @@ def run_drift(log_path, out_dir, selector=None, time_unit=None, units: str = "ch
                "settings": {"fit_fraction": sel.fit_fraction, "n_folds": sel.n_folds, "cv_start": sel.cv_start,
                             "n_horizon_folds": sel.n_horizon_folds, "gate_se": sel.gate_se,
                             "n_novelty_folds": sel.n_novelty_folds, "n_novelty_blocks": sel.n_novelty_blocks,
-                            "shrink_weights": list(sel.shrink_weights), "selection": sel.selection,
-                            "hedge_weight": sel.hedge_weight, "feature_distance": sel.feature_distance,
+                            "shrink_weights": list(sel.shrink_weights), "feature_distance": sel.feature_distance,
                             "ranking_fold_loss": sel.ranking_fold_loss, "band_rule": sel.band_rule,
                             "deploy": sel.deploy}}
     if sel.deployed_ is not None:
