@@ -3,9 +3,9 @@ validates them and the data, solves, and returns ``self``; what it learned ends 
 no file (read measurements first with :func:`errormap.read_sweeps` and its siblings). Each estimator
 calls the existing numerical code; none has a numerical path of its own.
 
-* :class:`Identification` — error elements from tracker sweeps (a machine-tool chain:
-  :class:`errormap.mt_identify.ChainIdentification`; the grinder file: the paper's
-  :class:`errormap.identification.TrackerIdentification`).
+* :class:`Identification` — error elements from tracker sweeps
+  (:class:`errormap.identification.ChainIdentification`; a grinder file through its chain, its elements
+  returned as the grinder's element set).
 * :class:`ClosedLoop` — the closed loop on check measurements of a machine-tool chain
   (:func:`errormap.diagnosis.mt_loop.closed_loop_chain`: element update, effect search, kept stage).
 * :class:`ArmCalibration` — geometric calibration of a serial arm from tracker poses
@@ -102,25 +102,24 @@ class Identification(Estimator):
         self.distance_tol_mm = distance_tol_mm
 
     def _method(self):
-        from .identification import TrackerIdentification
+        from .identification import ChainIdentification
         from .machine import Grinder
-        from .mt_identify import ChainIdentification
         from .mt_chain import MachineTool
         _require_type(self.machine, (MachineTool, Grinder), "Identification(machine=...)",
                       "identification takes a machine-tool chain or the grinder file (an arm: ArmCalibration)")
         given = {k: v for k, v in (("max_iter", self.max_iter), ("tol", self.tol)) if v is not None}
-        cls = ChainIdentification if _is_chain(self.machine) else TrackerIdentification
-        extra = {} if _is_chain(self.machine) else {"gauge": "first-station"}
-        return cls(min_separation_mm=self.min_separation_mm, distance_tol_mm=self.distance_tol_mm, **given, **extra)
+        return ChainIdentification(min_separation_mm=self.min_separation_mm, distance_tol_mm=self.distance_tol_mm,
+                                   **given)
 
     def fit(self, sweeps) -> "Identification":
+        from .grinder_file import machine_tool_of
         from .sweeps import Sweeps
         method = self._method()
         _require_type(sweeps, (Sweeps,), "Identification.fit(sweeps)", "read the file first (errormap.read_sweeps)")
-        method.fit(sweeps, self.machine)
+        method.fit(sweeps, machine_tool_of(self.machine))
         res = method.result_
         self.result_ = res
-        self.elements_ = method.elements_
+        self.elements_ = method.elements_ if _is_chain(self.machine) else method.elements_.to_element_set()
         self.covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov.copy()) if hasattr(res, "cov") \
             else None
         self.field_ = _elements_field(self.machine, self.elements_)

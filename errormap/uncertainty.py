@@ -281,19 +281,6 @@ def prediction_sd(machine: Grinder, elements: ElementSet, cov, axes) -> np.ndarr
     return np.sqrt(np.clip(np.einsum("nip,pq,niq->ni", A, cov, A, optimize=True), 0, None))
 
 
-def noise_from_residuals(result) -> float:
-    """Ball-coordinate noise σ (μm) from an :class:`~errormap.identification.IdentificationResult`.
-
-    Each station's balls are fitted to the first station's balls (the body's template), so
-    a residual carries the noise of both measurements: its covariance is ``2σ²(I − P)``
-    with 3 residual degrees of freedom of 9. The RMS is over the three balls' residual norms,
-    so ``σ² = mean over the stations after the first of RMS² / 2`` (the first station is the
-    template itself and has none).
-    """
-    rms = np.concatenate([r.residual_rms_um[1:] for r in result.axes.values()])
-    return float(np.sqrt(np.mean(rms**2) / 2.0))
-
-
 def smooth_blocks(y, S, blocks: dict) -> tuple:
     """The UBRE smoother of every machine family's station values (module doc, steps 3–4): per block
     ``name -> (indices (m,) into y in station order, periodic)`` the Whittaker smoother :func:`_smoother` with
@@ -344,7 +331,7 @@ class SmoothIdentificationResult:
     noise_um: float
     smoothing: dict
     raw_cov: np.ndarray | None = None
-    """(P, P) bootstrap covariance of the raw (interpolating) station values, before smoothing
+    """(P, P) covariance of the raw (interpolating) station values, before smoothing
     (kept in memory, not written: :func:`nullspace_noise_cov` uses it)."""
 
     def summary_lines(self) -> list[str]:
@@ -353,7 +340,7 @@ class SmoothIdentificationResult:
         worst = max(FUNCTION_ELEMENTS, key=lambda k: float(np.max(se[k])))
         return [f"noise {self.noise_um:.3g} um per ball coordinate "
                 f"({'from the ball residuals' if self.covariance_.info.get('noise_estimated') else 'given'}); "
-                f"bootstrap {self.covariance_.info['n_boot']} draws",
+                f"covariance: {self.covariance_.info['method']}",
                 f"smoothing (effective degrees of freedom per element): {edf}",
                 f"largest station standard error: {worst} {np.max(se[worst]):.3g}"]
 
@@ -364,46 +351,49 @@ class SmoothIdentificationResult:
                 "covariance": dict(self.covariance_.info)}
 
 
-def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_boot: int = 100, seed: int = 0,
-                    smooth: bool = True, **settings) -> SmoothIdentificationResult:
-    """Identification with penalised smoothing and bootstrap covariance (see module doc).
+def _grinder_theta_index(result) -> np.ndarray:
+    """Indices (P,) into a grinder chain identification's parameter vector (``param_slot``/``param_station``)
+    of the grinder's θ (:func:`theta_layout`; the element and slot names are the same, the A axis' last
+    station, the first pose again, not in θ)."""
+    where = {(s, int(i)): j for j, (s, i) in enumerate(zip(result.param_slot, result.param_station))}
+    return np.array([where[key] for key in theta_layout(result.elements_.to_element_set())])
 
-    ``sweeps``: as :func:`errormap.identification.identify`; ``noise_um``: known tracker σ
-    per coordinate (default: estimated from the ball residuals); ``n_boot``: bootstrap draws;
-    ``seed``: seeds the bootstrap; ``smooth=False`` keeps the interpolating station values
-    (the covariance is then that of the raw values). ``settings`` go to the identification;
-    its ``gauge`` defaults to ``"station-mean"`` here (see module doc, step 3).
-    """
-    from .identification import TrackerIdentification
-    from .simulator import TruthGrinder
-    from .sweeps import simulate_sweeps
 
-    settings = {"gauge": "station-mean", **settings}
-    est = TrackerIdentification(**settings)
-    raw = est.fit(sweeps, machine).result_
-    el = raw.elements_
-    sigma = noise_from_residuals(raw) if noise_um is None else float(noise_um)
-    y = theta_from_elements(el)
-    P = y.size
-    boot_truth = TruthGrinder(machine, el, {})
-
-    def draw(s: int) -> np.ndarray:
-        cols = simulate_sweeps(boot_truth, noise_um=sigma, seed=s, tracker_pose=raw.machine_in_tracker,
-                               stations=el.stations)
-        return theta_from_elements(TrackerIdentification(**settings).fit(cols, machine).elements_)
-    Y = bootstrap_draws(draw, n_boot, seed, P)
-    S = np.cov(Y.T) if n_boot > 1 else np.zeros((P, P))
-    blocks = theta_blocks(el)
-    H, smoothing, bias_var, prior_extra = smooth_blocks(
-        y, S, {k: (blocks[k], k in A_ELEMENTS) for k in FUNCTION_ELEMENTS} if smooth else {})
-    theta = H @ y
-    Ys = Y @ H.T
-    C = np.cov(Ys.T) if n_boot > 1 else np.zeros((P, P))
-    C = C + np.diag(bias_var)
-    elements = elements_from_theta(theta, el)
-    info = {"method": "parametric bootstrap of the identification, smoother applied to each draw, "
-                      "plus the smoother's estimated squared bias per element on the diagonal",
+def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_boot: int | None = None, seed: int = 0,
+                    smooth: bool = True, gauge: str = "station-mean", **settings) -> SmoothIdentificationResult:
+    """The grinder's identification, through the one identification of every machine tool: the grinder
+    file's chain (:func:`errormap.grinder_file.grinder_chain`) identified by
+    :class:`errormap.identification.ChainIdentification` in ``gauge``, its covariance Gauss–Newton's
+    (σ̂ from the ball residuals, or the known ``noise_um``) or, with ``n_boot`` ≥ 2, the residual bootstrap's
+    (:func:`errormap.identification.bootstrap_covariance`, seeded by ``seed``), smoothed by the UBRE smoother
+    (:func:`errormap.identification.smooth_chain`) unless ``smooth=False``. The result carries the grinder's
+    :class:`ElementSet` and :class:`ElementCovariance` (θ layout, files as before); ``raw`` is the chain
+    identification (its ``elements_`` the interpolating grinder set). ``sweeps``: :class:`errormap.sweeps.Sweeps`
+    or a dict of sweep columns."""
+    from dataclasses import replace
+    from .grinder_file import grinder_chain
+    from .identification import ChainIdentification, bootstrap_covariance, smooth_chain
+    from .sweeps import Sweeps, sweeps_from_columns
+    if not isinstance(sweeps, Sweeps):
+        sweeps = sweeps_from_columns(sweeps)
+    mt = grinder_chain(machine)
+    settings = {"gauge": gauge, "noise_um": noise_um, **settings}
+    raw = ChainIdentification(**settings).fit(sweeps, mt).result_
+    if n_boot is not None:
+        raw = bootstrap_covariance(sweeps, mt, raw, n_boot, seed, **settings)
+    res = smooth_chain(raw, mt) if smooth else raw
+    idx = _grinder_theta_index(raw)
+    elements = res.elements_.to_element_set()
+    C = res.cov[np.ix_(idx, idx)]
+    extra = None if res.prior_extra is None else res.prior_extra[idx]
+    sigma = raw.sigma_um if noise_um is None else float(noise_um)
+    info = {"method": (f"residual bootstrap of the identification, {n_boot} draws" if n_boot is not None else
+                       "Gauss-Newton covariance of the identification") +
+                      (", smoothed (H C H^T plus the smoother's estimated squared bias per element)" if smooth else ""),
             "n_boot": n_boot, "seed": seed, "noise_um": sigma, "noise_estimated": noise_um is None,
-            "smoothed": bool(smooth)}
-    return SmoothIdentificationResult(raw, elements, ElementCovariance(theta, C, elements, info, prior_extra), sigma,
-                                      smoothing, S)
+            "smoothed": bool(smooth), "gauge": gauge}
+    smoothing = res.covariance_info.get("smoothing", {})
+    raw_out = replace(raw, elements_=raw.elements_.to_element_set())
+    return SmoothIdentificationResult(raw_out, elements, ElementCovariance(theta_from_elements(elements), C, elements,
+                                                                           info, extra),
+                                      sigma, smoothing, raw.cov[np.ix_(idx, idx)])

@@ -12,7 +12,7 @@ from errormap.htm import HTMField
 from errormap.machine import load_machine
 from errormap.mt_elements import ChainElementSet
 from errormap.mt_field import ChainField
-from errormap.mt_identify import ChainIdentification, root_axis
+from errormap.identification import ChainIdentification, root_axis
 from errormap.mt_simulate import FAMILIES, TARGET_MAX_RANGE_UM, MTTruth, make_mt_truth, volume_grid
 from errormap.mt_sweeps import read_mt_sweeps, simulate_mt_sweeps, swept_words
 from errormap.simulator import random_truth
