@@ -97,6 +97,38 @@ def layout_problem(points_mm, min_separation_mm: float = 1.0):
     return None
 
 
+def _layout_suspects(balls_mm, min_separation_mm: float) -> np.ndarray:
+    """Indices of the stations (balls (m, 3, 3)) that :func:`layout_problem` may refuse, in order:
+    the same tests at every station at once, with a 1 % margin so that rounding cannot hide one."""
+    b = np.asarray(balls_mm, dtype=float)
+    dist = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
+    height = np.linalg.norm(np.cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0]), axis=1) / dist.max(axis=1)
+    return np.flatnonzero((dist.min(axis=1) < 1.01 * min_separation_mm) | ~(height >= 0.99 * min_separation_mm))
+
+
+def check_motion(sw, ax, travel_tol_mm: float = 1.0, angle_tol_deg: float = 0.5) -> None:
+    """Refuse a sweep whose measured motion from its first station does not match the commands (mixed units:
+    inches, radians), naming axis and station: the rigid motion of the three balls (Kabsch) turns by the
+    commanded angle of a rotary axis, and a linear axis' ball centroid travels the commanded distance."""
+    b = np.asarray(sw.balls_mm, dtype=float)
+    d_cmd = sw.command - sw.command[0]
+    if ax.kind == "rotary":
+        R, _ = rigid_fit(b[0], b)
+        got = np.rad2deg(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+        want = np.abs((d_cmd + 180.0) % 360.0 - 180.0)
+        bad = np.abs(got - want) > angle_tol_deg
+        what = "rotation {:.4g} deg from the first station, commanded {:.4g} deg"
+    else:
+        got = np.linalg.norm(b.mean(axis=1) - b[0].mean(axis=0), axis=1)
+        want = np.abs(d_cmd)
+        bad = np.abs(got - want) > travel_tol_mm
+        what = "travel {:.4g} mm from the first station, commanded {:.4g} mm"
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(f"{sw.source}: axis {sw.axis}, station {sw.stations[i]}: measured "
+                         f"{what.format(got[i], want[i])} (mixed units?)")
+
+
 def _check_length_unit(sw, ax: str, mounts) -> None:
     """Refuse (InputError naming the file, the axis and the columns) sweeps whose ball distances are
     a unit factor off the nominal mounts' (metres, centimetres, inches, μm written as mm): the median
@@ -157,12 +189,15 @@ class ChainIdentificationResult:
     covariance_info: dict = field(default_factory=lambda: {"method": "gauss-newton"})
     """How ``cov`` was obtained: ``gauss-newton`` (σ̂²·(JᵀJ)⁻¹) or ``residual-bootstrap`` (with n_boot, seed)."""
     gauge: str = "first-station"
+    reversal_um: dict = field(default_factory=dict)
+    """Per axis swept both ways, the RMS ball-position difference (m,) μm between the + and − runs per station."""
     prior_extra: np.ndarray | None = None
     """(N,) the smoother's whole mean-square change per parameter (:func:`smooth_chain`; a prior's extra variance
     when the set seeds an update, :attr:`errormap.uncertainty.ElementCovariance.prior_extra`); None: not smoothed."""
 
     def summary_lines(self) -> list[str]:
-        lines = [f"axis {w}: {len(r)} stations, ball residual RMS max {r.max():.3g} um"
+        lines = [f"axis {w}: {len(r)} stations, ball residual RMS max {r.max():.3g} um" +
+                 (f", reversal (+/- runs) max {self.reversal_um[w].max():.3g} um" if w in self.reversal_um else "")
                  for w, r in self.residual_rms_um.items()]
         lines.append(f"Gauss-Newton: {self.iterations} iterations, sigma {self.sigma_um:.3g} um per coordinate, "
                      f"scaled condition {self.condition:.3g}")
@@ -349,6 +384,10 @@ class ChainIdentification:
                 raise InputError(f"{machine.path or machine.name}: key 'targets.{w}': degenerate target layout: {why}")
             sw = sweeps[w]
             _check_length_unit(sw, w, mounts)
+            for i in _layout_suspects(sw.balls_mm, self.min_separation_mm):  # vectorised screen, then the message
+                why = layout_problem(sw.balls_mm[i], self.min_separation_mm)
+                if why:
+                    raise InputError(f"{sw.source}: axis {w}, station {sw.stations[i]}: degenerate target layout: {why}")
             check_ball_distances(sw, w, mounts, self.distance_tol_mm)
             lo, hi = ax.stroke
             if abs(sw.command[0] - lo) > PARK_TOL * max(1.0, abs(lo)):
@@ -358,6 +397,7 @@ class ChainIdentification:
             if ax.full_turn and abs(sw.command[-1] - sw.command[0] - 360.0) > TURN_TOL_DEG:
                 raise InputError(f"{sw.source}: axis {w}: stations of a full-turn axis must span one turn (360 deg), "
                                  f"got {sw.command[0]:g}..{sw.command[-1]:g} deg (mixed units?)")
+            check_motion(sw, ax)
             if not ax.full_turn and sw.command[-1] < hi - PARK_TOL * max(1.0, abs(hi)):
                 warnings.append(f"axis {w}: stations cover {sw.command[0]:g}..{sw.command[-1]:g} of the stroke "
                                 f"{lo:g}..{hi:g}; elements are extrapolated beyond")
@@ -543,10 +583,14 @@ class ChainIdentification:
             res[w] = np.sqrt(np.mean(balls_res[w] ** 2, axis=(1, 2)) * 3)
             o += 3 * m
         self.elements_ = elements
+        reversal = {w: np.sqrt(np.mean(np.sum((sweeps[w].by_direction[1] - sweeps[w].by_direction[-1]) ** 2,
+                                              axis=2), axis=1)) / UM
+                    for w in words if len(sweeps[w].by_direction) == 2}
         self.result_ = ChainIdentificationResult(elements, (RG, tG), res, sigma, it, float(sv[0] / sv[-1]),
                                                  names[6:], stations[6:], cov, unobservable, warnings,
                                                  noise_um=None if self.noise_um is None else float(self.noise_um),
-                                                 ball_residual_um=balls_res, leverage=leverage, gauge=self.gauge)
+                                                 ball_residual_um=balls_res, leverage=leverage, gauge=self.gauge,
+                                                 reversal_um=reversal)
         return self
 
     @staticmethod
@@ -602,9 +646,9 @@ def bootstrap_covariance(sweeps: Sweeps, machine: MachineTool, result: ChainIden
                          seed: int = 0, **settings) -> ChainIdentificationResult:
     """``result`` with ``cov`` replaced by the residual bootstrap's (``n_boot`` ≥ 2 draws of
     :func:`resampled_sweeps`, each identified again with ``settings``; the sample covariance of the parameter
-    vectors), through the bootstrap loop every family shares (:func:`errormap.uncertainty.bootstrap_draws`).
+    vectors), through the bootstrap loop every family shares (:func:`errormap.smoothing.bootstrap_draws`).
     Unlike σ̂²·(JᵀJ)⁻¹ it keeps the nonlinear method's spread and does not assume Gaussian tracker noise."""
-    from .uncertainty import bootstrap_draws
+    from .smoothing import bootstrap_draws
     if n_boot < 2:
         raise ValueError(f"Expected n_boot >= 2 (a covariance needs two draws), got {n_boot}")
 
@@ -619,11 +663,11 @@ def bootstrap_covariance(sweeps: Sweeps, machine: MachineTool, result: ChainIden
 
 def smooth_chain(result: ChainIdentificationResult, machine: MachineTool) -> ChainIdentificationResult:
     """``result`` with every function slot's station values smoothed by the grinder's UBRE smoother
-    (:func:`errormap.uncertainty.smooth_blocks`, weighted by ``result.cov``: Gauss–Newton's or the bootstrap's;
+    (:func:`errormap.smoothing.smooth_blocks`, weighted by ``result.cov``: Gauss–Newton's or the bootstrap's;
     a full-turn axis periodic over its distinct stations), the constants as identified, and the covariance
     ``H Σ Hᵀ`` plus the smoother's estimated squared bias per slot on the diagonal. The interpolating set is
     what :meth:`ChainIdentification.fit` gives; this is opt-in (``covariance_info['smoothing']`` says how)."""
-    from .uncertainty import smooth_blocks
+    from .smoothing import smooth_blocks
     el = result.elements_
     slots, st = np.array(result.param_slot), result.param_station
     y = parameter_vector(el, result.param_slot, st)
