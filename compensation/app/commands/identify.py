@@ -83,9 +83,9 @@ def run(args) -> int:
         return 0
     check_machine_kind(machine.path, machine.kind, "grinder")
     from errormap.grinder_file import adapter_line
-    print(adapter_line(machine), file=sys.stderr)
     truth = ElementSet.load(args.truth) if args.truth else None
     sweeps = read_sweeps(args.sweeps)
+    print(adapter_line(machine), file=sys.stderr)   # the inputs read: refusals above stay one line
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
     ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,
                               smooth=not args.raw, gauge=args.gauge, sweeps=sweeps, **boot)
