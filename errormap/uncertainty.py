@@ -1,32 +1,12 @@
-"""Identification that does not amplify noise, and its uncertainty.
+"""The grinder file's identification with its uncertainty, in the grinder's element-set and covariance files.
 
-The tracker identification (:mod:`errormap.identification`) gives each element's value at
-every station exactly from that station's balls, so the tracker noise goes into every
-station value, and an interpolating spline through them passes it on. Here:
-
-1. **Noise level** σ (μm per ball coordinate) from the stations' ball residuals (each 9×6
-   station system leaves 3 degrees of freedom): ``σ² = mean over stations of the ball
-   residual RMS²``; or given (``noise_um``).
-2. **Covariance of the station values by parametric bootstrap**: ``n_boot`` sweeps are
-   simulated from the identified elements at the estimated tracker pose, with noise σ, and
-   identified again; the spread of the station values is their sampling covariance through
-   the whole (nonlinear) method — frames, gauge, squareness, A line included.
-3. **Penalised least squares per element** (a Whittaker/P-spline smoother on the station
-   values, second differences, periodic for A): ``f = (W + λ DᵀD)⁻¹ W y`` with ``W`` the
-   inverse of the bootstrap variance at each station, λ chosen by the unbiased risk
-   estimate with that known covariance (Mallows' C_p / UBRE):
-   ``|y − Hy|²_W − tr(W(I−H)Σ(I−H)ᵀ) + tr(W H Σ Hᵀ)``. The element set keeps its format:
-   the smoothed station values, interpolated by the same cubic spline. The identification's gauge
-   is ``"station-mean"`` here by default (:mod:`errormap.identification`: the machine frame at
-   the X carriage's mean pose over its stations, the A line at its mean over the turn): in the
-   first-station gauge one X station's and one A station's tracker noise sit in every element's
-   constant and linear trend, which a second-difference smoother never touches
-   (``benchmarks/sweeps_gauge_results.md``).
-4. **Covariance of the result**: the smoother applied to every bootstrap draw, the sample
-   covariance of those (rank ≤ n_boot − 1; it keeps the strong δ–ε lever-arm correlations
-   through which tool-point errors cancel), plus, per element, an estimate of the smoother's squared
-   bias on the diagonal (not in the bootstrap spread): the mean square of what the smoother
-   removed less what the noise alone explains, ``|(I−H)y|²/m − tr((I−H)Σ(I−H)ᵀ)/m``, at least 0.
+:func:`smooth_identify` runs the one identification of every machine tool
+(:class:`errormap.identification.ChainIdentification` on the grinder file's chain, in the ``station-mean`` gauge
+by default), its covariance Gauss–Newton's σ̂²·(JᵀJ)⁻¹ through the gauge (or a residual bootstrap), the
+station values smoothed by the UBRE smoother (:func:`errormap.smoothing.smooth_blocks` through
+:func:`errormap.identification.smooth_chain`), and re-expresses the result as the grinder's
+:class:`~errormap.elements.ElementSet` and :class:`ElementCovariance` (the covariance of the smoothed values
+``H Σ Hᵀ`` plus the smoother's estimated squared bias per element on the diagonal).
 
 The parameter vector θ (:class:`ElementCovariance`): the 18 functions' values at their
 stations (X and Z: all stations; A: all but the last, which equals the first), then the
