@@ -332,8 +332,8 @@ def gauge_rows(gauge: str, machine: MachineTool, sweeps: Sweeps, block: dict, n:
         other = next((axes[w] for w in words if w != root and axes[w].kind == "linear"
                       and axes[w].along != ra.along), None)
         if other is None:
-            raise ValueError(f"{machine.name!r}: the reference-line gauge needs a second linear axis across "
-                             f"{root}; use station-mean or first-station")
+            raise InputError(f"{machine.path or machine.name}: the reference-line gauge needs a second linear axis "
+                             f"across {root}; use gauge station-mean or first-station (--gauge)")
         for c in range(3):
             s = f"d{'xyz'[c]}_{root.lower()}"
             if s in sl:

@@ -52,6 +52,8 @@ def _bootstrap(args) -> dict:
         if args.seed != 0:
             raise UsageError("--seed seeds the bootstrap; give --bootstrap N with it")
         return {}
+    if args.bootstrap < 2:
+        raise UsageError(f"--bootstrap {args.bootstrap}: a covariance needs N >= 2 draws")
     if args.noise_um is not None:
         raise UsageError("--noise-um scales Gauss-Newton's covariance, --bootstrap estimates it from the "
                          "residuals: give one of them")
