@@ -298,13 +298,36 @@ def _rotary_rows(w, ax, sl, cmd_deg, at, n) -> list:
     return rows
 
 
+def _reference_rows(machine: MachineTool, root: str, words) -> list:
+    """How the reference-line gauge fixes the frame's rotation, ``[(axis, slot, "slope" | "first")]``: a frame
+    rotation about frame axis k tilts a linear axis that moves on the base (the first axis of its chain) along
+    ``a`` towards ``c`` (k = 3 − a − c); per k the linear trend of one such straightness is set to zero, the root
+    axis' first, skipping a straightness a squareness carries; a k no free straightness sees keeps the root axis'
+    rotation about k zero at its first station (as the first-station gauge)."""
+    axes = {a.word: a for a in machine.axes}
+    tied = {f"d{'xyz'[_squareness_toward(machine, t.name)]}_{t.axis.lower()}" for t in machine.slots
+            if t.kind == "squareness"}
+    on_base = [w for w in words if axes[w].kind == "linear" and len(body_chain(machine, w).joint_cols) == 1]
+    picked = {}
+    for w in sorted(on_base, key=lambda w: w != root):
+        a = axes[w].along
+        for c in range(3):
+            s = f"d{'xyz'[c]}_{w.lower()}"
+            if c != a and s not in tied and s in machine.slots_of(w) and 3 - a - c not in picked:
+                picked[3 - a - c] = (w, s, "slope")
+    for k in range(3):
+        if k not in picked and f"e{'xyz'[k]}_{root.lower()}" in machine.slots_of(root):
+            picked[k] = (root, f"e{'xyz'[k]}_{root.lower()}", "first")
+    return [picked[k] for k in sorted(picked)]
+
+
 def gauge_rows(gauge: str, machine: MachineTool, sweeps: Sweeps, block: dict, n: int) -> np.ndarray:
     """Linear conditions ``C θ = 0`` (k, n) of a gauge beyond what :meth:`ChainIdentification._layout` holds at
     zero (module doc): ``station-mean`` the root axis' six component errors sum to zero over its stations and a
     rotary axis' line is its mean over the turn (:func:`_rotary_rows`); ``reference-line`` the root axis'
-    translations zero at its first station, its straightness without linear trend, and the next linear
-    axis' straightness across both axes without linear trend (the frame on the fitted root line and the plane of
-    the two axes, the paper's reference frame); ``first-station`` none."""
+    translations zero at its first station and three straightness slots without linear trend
+    (:func:`_reference_rows`: the root axis' own first, so the frame lies on its fitted line, the paper's
+    reference frame); ``first-station`` none."""
     rows = []
     if gauge == "first-station":
         return np.zeros((0, n))
@@ -328,26 +351,20 @@ def gauge_rows(gauge: str, machine: MachineTool, sweeps: Sweeps, block: dict, n:
                 slw, cw, atw = index(w)
                 rows += _rotary_rows(w, ax, slw, cw, atw, n)
     else:
-        ra = axes[root]
-        other = next((axes[w] for w in words if w != root and axes[w].kind == "linear"
-                      and axes[w].along != ra.along), None)
-        if other is None:
-            raise InputError(f"{machine.path or machine.name}: the reference-line gauge needs a second linear axis "
-                             f"across {root}; use gauge station-mean or first-station (--gauge)")
         for c in range(3):
             s = f"d{'xyz'[c]}_{root.lower()}"
             if s in sl:
                 row = np.zeros(n)
                 row[at(0, s)] = 1.0
                 rows.append(row)
-        slopes = [(root, c) for c in range(3) if c != ra.along] + [(other.word, 3 - ra.along - other.along)]
-        for w, c in slopes:
+        for w, s, how in _reference_rows(machine, root, words):
             slw, cw, atw = index(w)
-            s = f"d{'xyz'[c]}_{w.lower()}"
-            if s in slw:
-                row = np.zeros(n)
+            row = np.zeros(n)
+            if how == "slope":
                 row[[atw(i, s) for i in range(cw.size)]] = cw - cw.mean()
-                rows.append(row)
+            else:
+                row[atw(0, s)] = 1.0
+            rows.append(row)
     return np.array(rows).reshape(-1, n)
 
 
