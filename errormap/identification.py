@@ -226,7 +226,7 @@ class ChainIdentificationResult:
 
     def to_dict(self) -> dict:
         sm = self.covariance_info.get("smoothing")
-        return {"format": "volcomp-chain-identification/1", "gauge": self.gauge,
+        return {"format": "volcomp-identification/2", "gauge": self.gauge,
                 "smoothing": sm if sm else "none: interpolating splines through the stations (identify --raw's form)",
                 "machine_in_tracker": {"R": self.machine_in_tracker[0].tolist(), "t_mm": self.machine_in_tracker[1].tolist()},
                 "residual_rms_um": {k: v.tolist() for k, v in self.residual_rms_um.items()},
