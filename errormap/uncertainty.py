@@ -247,7 +247,7 @@ class SmoothIdentificationResult:
 
     def summary_lines(self) -> list[str]:
         se = self.covariance_.station_se()
-        edf = ", ".join(f"{k} {v['edf']:.3g}" for k, v in self.smoothing.items())
+        edf = ", ".join(f"{k} {v['edf']:.3g}" for k, v in self.smoothing.items()) or "none (interpolating)"
         worst = max(FUNCTION_ELEMENTS, key=lambda k: float(np.max(se[k])))
         return [f"noise {self.noise_um:.3g} um per ball coordinate "
                 f"({'from the ball residuals' if self.covariance_.info.get('noise_estimated') else 'given'}); "
