@@ -1,5 +1,5 @@
 """TRUE error of a machine-tool chain's identification, interpolating vs smoothed by the grinder's UBRE smoother
-(:func:`errormap.mt_identify.smooth_chain`): per machine and truth seed, simulated sweeps at 2 μm (noise seed
+(:func:`errormap.identification.smooth_chain`): per machine and truth seed, simulated sweeps at 2 μm (noise seed
 100 + seed), the RMS of (identified − hidden truth) over every function slot's station values (μm and μrad
 mixed) and over 2,000 tool points (μm).
 
@@ -13,7 +13,7 @@ import numpy as np
 
 from compensation.export import volume_points as check_points
 from errormap.machine import load_machine
-from errormap.mt_identify import ChainIdentification, smooth_chain, station_error_rms
+from errormap.identification import ChainIdentification, smooth_chain, station_error_rms
 from errormap.mt_simulate import make_mt_truth
 from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
 from errormap.sweeps import sweeps_from_columns

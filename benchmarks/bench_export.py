@@ -37,7 +37,7 @@ from errormap.diagnosis.checks import CheckData  # noqa: E402
 from errormap.diagnosis.corrected import CorrectedField  # noqa: E402
 from errormap.diagnosis.pipeline import diagnose  # noqa: E402
 from errormap.htm import HTMField  # noqa: E402
-from errormap.identification import identify  # noqa: E402
+from errormap.uncertainty import smooth_identify  # noqa: E402
 from errormap.io import atomic_write, write_json  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
 from errormap.simulator import random_truth  # noqa: E402
@@ -45,6 +45,11 @@ from errormap.sweeps import simulate_sweeps  # noqa: E402
 
 FLUTE_REGION = {"x_mm": (90.0, 116.0), "z_mm": (0.3, 0.3)}
 """The default flute's axis box (x 90..115.3 mm, z = 0.3 mm): the per-joint fitting region."""
+
+
+def identify(sweeps, machine, gauge="first-station"):
+    """The interpolating identification (the one method, on the grinder's chain) in ``gauge``."""
+    return smooth_identify(sweeps, machine, smooth=False, gauge=gauge).raw
 
 
 def run_seed(seed: int, tolerances, n_volume: int) -> dict:

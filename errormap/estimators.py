@@ -4,7 +4,7 @@ no file (read measurements first with :func:`errormap.read_sweeps` and its sibli
 calls the existing numerical code; none has a numerical path of its own.
 
 * :class:`Identification` — error elements from tracker sweeps of a machine-tool chain
-  (:class:`errormap.mt_identify.ChainIdentification`; the grinder file is identified as its chain).
+  (:class:`errormap.identification.ChainIdentification`; the grinder file is identified as its chain).
 * :class:`ClosedLoop` — the closed loop on check measurements of a machine-tool chain
   (:func:`errormap.diagnosis.mt_loop.closed_loop_chain`: element update, effect search, kept stage).
 * :class:`ArmCalibration` — geometric calibration of a serial arm from tracker poses
@@ -96,7 +96,7 @@ class Identification(Estimator):
 
     ``fit(sweeps)``: ``sweeps`` a :class:`errormap.sweeps.Sweeps` (:func:`errormap.read_sweeps`,
     :func:`errormap.simulate_sweeps`). Learned: ``elements_`` (the chain's element set), ``result_``
-    (:class:`errormap.mt_identify.ChainIdentificationResult`: residuals, conditioning, warnings),
+    (:class:`errormap.identification.ChainIdentificationResult`: residuals, conditioning, warnings),
     ``covariance_`` (``(slot names, stations (N,), Σ (N, N))`` μm² / μrad²), ``field_`` (the elements' error
     field: ``predict(axes (n, k)) -> (n, 3)`` μm).
     """
@@ -112,7 +112,7 @@ class Identification(Estimator):
 
     def fit(self, sweeps) -> "Identification":
         from .mt_field import ChainField
-        from .mt_identify import ChainIdentification
+        from .identification import ChainIdentification
         from .sweeps import Sweeps
         mt = machine_tool(self.machine, "Identification(machine=...)")
         _require_type(sweeps, (Sweeps,), "Identification.fit(sweeps)", "read the file first (errormap.read_sweeps)")

@@ -1,72 +1,81 @@
-"""Identification of the grinder's 23 error elements from laser-tracker sweeps.
+"""Identification of every machine tool's error slots from laser-tracker sweeps: the one method.
 
-The method is the grinder paper's (section 2.1), made exact and gauge-consistent; the
-full derivation, what is observable and what is a gauge choice: ``docs/identification.md``.
+A chain file, and a ``kind = "grinder"`` file through its chain (:func:`errormap.grinder_file.grinder_chain`;
+:func:`errormap.uncertainty.smooth_identify` returns the grinder's element-set and covariance files): one
+Gauss–Newton least squares on ALL ball positions of all sweeps of one tracker set-up, with the exact chain
+(:mod:`errormap.mt_sweeps` body chains), re-linearised at every step to the exact rigid motion until the
+update is below ``tol``. The sweeps are checked first, naming axis and station: targets, coincident or
+collinear balls, ball distances and measured travel / rotation against the nominal mounts and the commands
+(mixed units), parking, the turn of a full-turn axis, mirrored columns.
 
-1. **Checks first** (cheap, before any fitting): all three axes present, every station
-   with its three targets, A stations spanning one turn, no coincident or collinear
-   balls (machine-file mounts and every measured station), ball distances matching the
-   nominal mounts, measured travel / rotation matching the commands (these catch mixed
-   units), each naming the axis and station.
-2. **Reference frame per axis**: X and Z: a least-squares line (SVD) through the
-   triangles' centroids is the reference x direction (oriented with increasing command);
-   A: a least-squares plane + circle per ball, the mean of the three axes is the
-   reference x. The reference y passes through ball 1's initial position, perpendicular
-   to x; the moving frame starts equal to the reference frame.
-3. **Six errors per station**: the three ball displacements give 9 equations in the
-   body's 3 translations + 3 small rotations (rank 6 when the balls are not collinear);
-   solved by least squares (SVD) and re-linearised about the current estimate until the
-   update is below ``tol`` (so the result is the exact rigid motion, not first order).
-   The conditioning of each station's 9×6 system (δ in μm, ε in μrad) and the residual
-   are reported.
-4. **Assembly in one machine frame**: each station's rigid motion maps the body's
-   initial pose (from the nominal mounts, SVD) to its pose at the station; all bodies are
-   then expressed in one estimated machine frame ``machine_in_tracker`` and the element
-   transforms are peeled off the chains of :mod:`errormap.htm` exactly:
-   ``E_x = N_x⁻¹·G⁻¹·T_X``, ``E_z = N_z(s)⁻¹·G⁻¹·T_Z``, ``E_oa·Rot(a)·E_a = (T_X(x0)·Trans(l7,0,l8))⁻¹·G⁻¹·T_A``,
-   ``Rot(a)`` the rotary joint of the machine's chain file (its axis and direction, :func:`rotary_line`;
-   RotX(a) on the grinder), ``E_oa`` its location slots (the chain's ETs between the carriage and the
-   joint: δ and ε across the rotary axis).
-   Squareness ``s_xz = asin(u_X·u_Z)`` from the fitted X and Z lines (the paper); the
-   A-axis line ``E_oa`` from the rotary body's initial state (the paper), the rest of the
-   initial state (its axial and roll parts, zero on a machine the model describes) stays
-   in ``E_a``. Each element is then a cubic B-spline through its stations
-   (:class:`errormap.elements.ElementSet`).
+Unknowns: the tracker pose ``machine_in_tracker`` (6), every component error of every swept
+axis at each of its stations (6 per station), the constants (location errors of rotary axes,
+squareness). During the sweep of axis W the other axes stand at their first stations (the
+lower stroke ends; :func:`errormap.mt_sweeps.park_axes`), so their values there enter.
 
-Gauges (``gauge=``): ``"first-station"`` (the estimator's default) puts the machine frame on the X
-carriage at its first station, so every axis-motion element is zero at its first station,
-as :class:`~errormap.elements.ElementSet` documents; ``"reference-line"`` puts it on the
-fitted X line (x) and the X-Z plane (z), the paper's reference frame, so the X
-straightness has no linear trend. Both give the same tool-point error: a rigid change of
-the machine frame moves constants and linear trends between elements, and the tool point
-in the WCS is invariant under a rotation seen by both chains. The squareness is not
-observable apart from a linear trend of the Z straightness along the MCS x direction:
-:func:`move_squareness` moves it exactly. ``"station-mean"`` (the default of the smoothed
-identification, :func:`errormap.uncertainty.smooth_identify`) starts from the first-station
-result and moves, exactly, the machine frame to the mean pose of the X carriage over all its
-stations (:func:`frame_to_station_mean`) and the A-axis line to its mean over the turn
-(:func:`a_line_to_turn_mean`): both are then averages of 21 (20) stations instead of one
-station's tracker noise, which a smoother cannot remove (it is a constant or a linear trend).
+Gauge (what the sweeps cannot tell apart), ``gauge`` one of :data:`GAUGES`, linear conditions on the
+station values (:func:`gauge_rows`; the fit runs in their null space):
+
+* ``first-station`` (the estimator's default): the machine frame is the body of the **root axis** (the first
+  linear axis of the work chain, else of the tool chain; :func:`root_axis`) at its first station: its six
+  component errors are zero there; a rotary axis' **location errors** are its line at the first station:
+  the four component errors across the axis (two offsets, two tilts) are zero there, the axial offset and
+  the roll stay in the component errors;
+* ``station-mean`` (``volcomp identify``'s default): the root axis' six component errors sum to zero over
+  its stations (the frame at its mean pose) and a rotary axis' line is its mean over the turn (the part of
+  the across errors that turns with the axis sums to zero over the distinct stations): no one station's
+  tracker noise is left in constants and linear trends, where a second-difference smoother cannot reach;
+* ``reference-line``: the root axis' translations zero at its first station, its straightness without
+  linear trend, and the next linear axis' straightness across both axes without linear trend (the paper's
+  frame on the fitted root line);
+* in every gauge a **squareness** is confounded with a linear trend of its axis' straightness: the
+  straightness towards the squareness' ``toward`` axis is tied equal at the axis' first and
+  last stations (the squareness carries the trend); a **full-turn** rotary axis' last station is its first
+  pose: one value for both.
+
+Whatever is still unobservable after this (a machine file whose targets or chain leave a
+direction free) is found by pivoted QR of the column-scaled Jacobian and named in the
+warnings; those parameters are held at zero. The tool point in the workpiece frame does not
+depend on the gauge (a rigid change of the machine frame is seen by both chains; a squareness
+moved into a straightness trend is the same motion).
+
+Results: a :class:`~errormap.mt_elements.ChainElementSet` (stations = the sweep commands,
+interpolating splines through them; :func:`smooth_chain` smooths them), the covariance of the element parameters
+(σ̂²·(JᵀJ)⁻¹ mapped through the gauge, σ̂ from the ball residuals), the ball residual per axis,
+the conditioning. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over
+``param_slot``/``param_station`` (station −1: a constant), μm² / μrad².
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
+import scipy.linalg
 from scipy.spatial.transform import Rotation
 
-from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, ElementSet, X_ELEMENTS, Z_ELEMENTS
-from .htm import UM, URAD
-from .io import InputError
-from .machine import Grinder
-from .sweeps import (SWEEP_AXES, Sweeps, a_line_offset, compose, error_transform, invert, read_sweeps,
-                     sweeps_from_columns, x_carriage_nominal, z_carriage_nominal)
-from .transforms import apply, rot_x, rot_y, rot_z, skew
+from .io import NPY_ERRORS, InputError, atomic_write
+from .mt_chain import AXIS_WORDS, MachineTool
+from .mt_elements import ChainElementSet
+from .mt_sweeps import body_chain, park_axes, swept_words
+from .sweeps import Sweeps
+from .transforms import apply, skew
 
+UM = 1e-3     # mm per μm
+URAD = 1e-6   # rad per μrad
+PARK_TOL = 1e-6
+"""A sweep's first command must equal the parked position (lower stroke end) to this (mm or deg, relative to
+max(1, |lo|)): the other sweeps were taken with this axis there."""
+TURN_TOL_DEG = 1e-6
+RANK_TOL = 1e-9
+"""A pivoted-QR diagonal below this fraction of the largest (column-scaled Jacobian) is an unobservable direction."""
+COV_FORMAT = "volcomp-chain-covariance/1"
 GAUGES = ("first-station", "reference-line", "station-mean")
+LEVERAGE_FLOOR = 1e-6
+"""A ball coordinate the fit reproduces exactly (leverage within this of 1) has no residual to draw from."""
 
 
-# -- geometric fits ----------------------------------------------------------------------------
+# -- geometric checks (every machine) ----------------------------------------------------------
 def rigid_fit(src, dst):
     """Least-squares rigid transform (SVD, Kabsch) with ``R·src + t ≈ dst``.
 
@@ -84,44 +93,6 @@ def rigid_fit(src, dst):
     return R, cd - apply(R, cs)
 
 
-def fit_line(points):
-    """Least-squares line through points (m, 3): ``(point (3,), unit direction (3,))`` (SVD)."""
-    p = np.asarray(points, dtype=float)
-    c = p.mean(axis=0)
-    _, _, Vt = np.linalg.svd(p - c)
-    return c, Vt[0]
-
-
-def fit_plane(points):
-    """Least-squares plane through points (m, 3): ``(centroid (3,), unit normal (3,))`` (SVD)."""
-    p = np.asarray(points, dtype=float)
-    c = p.mean(axis=0)
-    _, _, Vt = np.linalg.svd(p - c)
-    return c, Vt[2]
-
-
-def fit_circle(points):
-    """Least-squares circle through points (m, 3) in 3-D: plane fit (SVD), then the
-    algebraic circle fit in the plane (``numpy.linalg.lstsq``).
-
-    Returns ``(centre (3,), unit normal (3,), radius, rms residual)`` (mm); the normal is
-    oriented so that the points run counter-clockwise about it.
-    """
-    p = np.asarray(points, dtype=float)
-    c, n = fit_plane(p)
-    _, _, Vt = np.linalg.svd(p - c)
-    e1, e2 = Vt[0], Vt[1]
-    u, v = (p - c) @ e1, (p - c) @ e2
-    A = np.stack([2 * u, 2 * v, np.ones_like(u)], axis=1)
-    (a, b, k), *_ = np.linalg.lstsq(A, u**2 + v**2, rcond=None)
-    r = np.sqrt(k + a**2 + b**2)
-    centre = c + a * e1 + b * e2
-    ang = np.unwrap(np.arctan2(v - b, u - a))
-    normal = np.cross(e1, e2) * (1.0 if ang[-1] >= ang[0] else -1.0)
-    dist = np.hypot(u - a, v - b) - r
-    return centre, normal, float(r), float(np.sqrt(np.mean(dist**2 + ((p - c) @ n) ** 2)))
-
-
 def layout_problem(points_mm, min_separation_mm: float = 1.0):
     """``None`` if three ball centres (3, 3) form a usable triangle, else why not (a string)."""
     p = np.asarray(points_mm, dtype=float)
@@ -135,6 +106,38 @@ def layout_problem(points_mm, min_separation_mm: float = 1.0):
         return (f"targets are collinear (triangle height {height:.3g} mm); the rotation about their line "
                 "cannot be observed")
     return None
+
+
+def _layout_suspects(balls_mm, min_separation_mm: float) -> np.ndarray:
+    """Indices of the stations (balls (m, 3, 3)) that :func:`layout_problem` may refuse, in order:
+    the same tests at every station at once, with a 1 % margin so that rounding cannot hide one."""
+    b = np.asarray(balls_mm, dtype=float)
+    dist = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
+    height = np.linalg.norm(np.cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0]), axis=1) / dist.max(axis=1)
+    return np.flatnonzero((dist.min(axis=1) < 1.01 * min_separation_mm) | ~(height >= 0.99 * min_separation_mm))
+
+
+def check_motion(sw, ax, travel_tol_mm: float = 1.0, angle_tol_deg: float = 0.5) -> None:
+    """Refuse a sweep whose measured motion from its first station does not match the commands (mixed units:
+    inches, radians), naming axis and station: the rigid motion of the three balls (Kabsch) turns by the
+    commanded angle of a rotary axis, and a linear axis' ball centroid travels the commanded distance."""
+    b = np.asarray(sw.balls_mm, dtype=float)
+    d_cmd = sw.command - sw.command[0]
+    if ax.kind == "rotary":
+        R, _ = rigid_fit(b[0], b)
+        got = np.rad2deg(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+        want = np.abs((d_cmd + 180.0) % 360.0 - 180.0)
+        bad = np.abs(got - want) > angle_tol_deg
+        what = "rotation {:.4g} deg from the first station, commanded {:.4g} deg"
+    else:
+        got = np.linalg.norm(b.mean(axis=1) - b[0].mean(axis=0), axis=1)
+        want = np.abs(d_cmd)
+        bad = np.abs(got - want) > travel_tol_mm
+        what = "travel {:.4g} mm from the first station, commanded {:.4g} mm"
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(f"{sw.source}: axis {sw.axis}, station {sw.stations[i]}: measured "
+                         f"{what.format(got[i], want[i])} (mixed units?)")
 
 
 def _check_length_unit(sw, ax: str, mounts) -> None:
@@ -154,254 +157,6 @@ def _check_length_unit(sw, ax: str, mounts) -> None:
                          f"mm){guess}")
 
 
-def _layout_suspects(balls_mm, min_separation_mm: float) -> np.ndarray:
-    """Indices of the stations (balls (m, 3, 3)) that :func:`layout_problem` may refuse, in order:
-    the same tests at every station at once, with a 1 % margin so that rounding cannot hide one."""
-    b = np.asarray(balls_mm, dtype=float)
-    dist = np.stack([np.linalg.norm(b[:, i] - b[:, j], axis=1) for i, j in ((0, 1), (0, 2), (1, 2))], axis=1)
-    height = np.linalg.norm(np.cross(b[:, 1] - b[:, 0], b[:, 2] - b[:, 0]), axis=1) / dist.max(axis=1)
-    return np.flatnonzero((dist.min(axis=1) < 1.01 * min_separation_mm) | ~(height >= 0.99 * min_separation_mm))
-
-
-def station_jacobian(q_mm, Rn=None) -> np.ndarray:
-    """The paper's 9×6 system: ∂(ball positions, μm)/∂(δ μm, ε μrad) for balls q (n, 3, 3).
-
-    ``Rn`` (n, 3, 3): the nominal rotation applied after the error (A axis); default identity.
-    Returns shape (n, 9, 6).
-    """
-    q = np.asarray(q_mm, dtype=float)
-    n = q.shape[0]
-    Rn = np.broadcast_to(np.eye(3), (n, 3, 3)) if Rn is None else Rn
-    J = np.empty((n, 3, 3, 6))
-    J[..., :3] = Rn[:, None]
-    J[..., 3:] = -(Rn[:, None] @ skew(q)) * (URAD / UM)
-    return J.reshape(n, 9, 6)
-
-
-def _euler_urad(R) -> np.ndarray:
-    """ε (n, 3) μrad with ``R = RotX(εx)·RotY(εy)·RotZ(εz)`` (intrinsic XYZ)."""
-    return Rotation.from_matrix(R).as_euler("XYZ") / URAD
-
-
-def move_squareness(elements: ElementSet, s_xz_urad: float, machine: Grinder) -> ElementSet:
-    """An equivalent element set with squareness ``s_xz_urad``: the difference moves exactly
-    into the Z straightness/positioning (``d_z += RotZ(-θ1)·z·(u(s_old) - u(s_new))``,
-    ``u(s) = (sin s, 0, cos s)``), which leaves every Z-carriage pose, hence the tool point,
-    unchanged. This is the one combination the sweeps cannot separate. The Z body's nominal
-    frames with either squareness come from the grinder's chain (:func:`z_carriage_nominal`):
-    ``d_z += R⁻¹·(t(s_old) - t(s_new))``."""
-    out = elements.copy()
-    z = out.stations["z_mm"]
-    R, t_old = z_carriage_nominal(machine, z, elements.constants["s_xz"])
-    _, t_new = z_carriage_nominal(machine, z, s_xz_urad)
-    delta_um = np.einsum("nji,nj->ni", R, t_old - t_new) / UM
-    for j, k in enumerate(("dx_z", "dy_z", "dz_z")):
-        out.functions[k] = out.functions[k] + delta_um[:, j]
-    out.constants["s_xz"] = float(s_xz_urad)
-    out._splines = {}
-    return out
-
-
-def _element_transforms(elements: ElementSet, names) -> tuple:
-    """``Trans(δ)·Rot(ε)`` of one body's six elements at its stations -> (R (m,3,3), t (m,3) mm)."""
-    f = elements.functions
-    return error_transform(np.stack([f[k] for k in names[:3]], axis=1), np.stack([f[k] for k in names[3:]], axis=1))
-
-
-def _element_values(E) -> np.ndarray:
-    """The six element values (δ μm, ε μrad) of rigid transforms E = (R (m,3,3), t (m,3) mm), shape (m, 6)."""
-    return np.hstack([E[1] / UM, _euler_urad(E[0])])
-
-
-def _put_elements(out: ElementSet, names, E, closed: bool = False) -> None:
-    vals = _element_values(E)
-    for j, k in enumerate(names):
-        v = vals[:, j].copy()
-        if closed:
-            v[-1] = v[0]
-        out.functions[k] = v
-    out._splines = {}
-
-
-def frame_to_station_mean(elements: ElementSet, machine: Grinder) -> tuple:
-    """The same machine in the gauge whose frame is the X carriage's mean pose over its stations:
-    ``(elements, Γ)``, Γ = (R (3,3), t (3,) mm) the new machine frame in the old one.
-
-    With ``M(x) = N_X(x)·E_x(x)·N_X(x)⁻¹`` the carriage's error motion in the MCS, the frame
-    change Γ is the mean rotation of ``M`` and the translation that makes the mean of the new
-    ``E_x`` translations zero; ``E_x ← N_X⁻¹·Γ⁻¹·N_X·E_x`` and ``E_z ← N_Z⁻¹·Γ⁻¹·N_Z·E_z``
-    exactly. The A chain hangs on the X carriage at its first station and is unchanged; every
-    tool point in the WCS is unchanged (a rigid change seen by both chains)."""
-    cx, cz = elements.stations["x_mm"], elements.stations["z_mm"]
-    NX = x_carriage_nominal(machine, cx)
-    M = compose(compose(NX, _element_transforms(elements, X_ELEMENTS)), invert(NX))
-    GR = Rotation.from_matrix(M[0]).mean().as_matrix()
-    Gt = (apply(M[0], NX[1]) + M[1] - apply(GR, NX[1])).mean(axis=0)
-    Gi = invert((GR[None], Gt[None]))
-    out = elements.copy()
-    _put_elements(out, X_ELEMENTS, compose(compose(compose(invert(NX), Gi), NX), _element_transforms(elements, X_ELEMENTS)))
-    NZ = z_carriage_nominal(machine, cz, elements.constants["s_xz"])
-    _put_elements(out, Z_ELEMENTS, compose(compose(compose(invert(NZ), Gi), NZ), _element_transforms(elements, Z_ELEMENTS)))
-    return out, (GR, Gt)
-
-
-@dataclass(frozen=True)
-class RotaryLine:
-    """The rotary joint of a machine's chain file as the identification needs it.
-
-    ``word`` its axis word; ``along`` the joint frame's axis it turns about (0 x, 1 y, 2 z);
-    ``direction`` ±1; ``slots`` the location slots between the carriage and the joint, in chain
-    order: ``(name, kind, axis)`` with kind ``"t"`` (δ, μm) or ``"r"`` (ε, μrad) along ``axis``."""
-
-    word: str
-    along: int
-    direction: float
-    slots: tuple
-
-    def turn(self, angle_deg) -> np.ndarray:
-        """The joint's rotation at ``angle_deg`` (n,) -> (n, 3, 3)."""
-        return (rot_x, rot_y, rot_z)[self.along](np.deg2rad(self.direction * np.asarray(angle_deg, dtype=float)))
-
-    def transform(self, values: dict) -> tuple:
-        """``Trans(δ)·Rot(ε)`` of the line slots' ``values`` ({name: μm or μrad}) -> (R (1,3,3), t (1,3) mm)."""
-        d, e = np.zeros((1, 3)), np.zeros((1, 3))
-        for name, kind, axis in self.slots:
-            (d if kind == "t" else e)[0, axis] = values[name]
-        return error_transform(d, e)
-
-    def values(self, d_um, e_urad) -> dict:
-        """The line slots' values read from a displacement (3,) μm and rotation (3,) μrad."""
-        return {name: float((d_um if kind == "t" else e_urad)[axis]) for name, kind, axis in self.slots}
-
-
-def rotary_line(machine: Grinder) -> RotaryLine:
-    """The rotary joint of the machine's chain file (:func:`errormap.grinder_file.grinder_chain`): the one
-    rotary axis, its direction, and the constant slots of the work chain between the carriage before
-    it and the joint (the A-axis line on the grinder: δy, δz, εy, εz across A, which turns about x)."""
-    from .grinder_file import grinder_chain
-    mt = grinder_chain(machine)
-    rotary = [a for a in mt.axes if a.kind == "rotary"]
-    if len(rotary) != 1:
-        raise ValueError(f"expected one rotary axis in {machine.name!r}, got {[a.word for a in rotary]}")
-    ax = rotary[0]
-    ets = mt.work_ets if ax.side == "work" else mt.tool_ets
-    col = mt.axis_words.index(ax.word)
-    at = next(m for m, e in enumerate(ets) if e.joint == col)
-    before = next((m for m in range(at - 1, -1, -1) if ets[m].joint is not None), -1)
-    const = set(CONSTANT_ELEMENTS)
-    slots = tuple((e.slot, e.kind, e.axis) for e in ets[before + 1:at] if e.slot in const)
-    return RotaryLine(ax.word, ax.along, float(ax.direction), slots)
-
-
-def _a_line(constants, line: RotaryLine) -> tuple:
-    return line.transform(constants)
-
-
-def a_line_to_turn_mean(elements: ElementSet, machine: Grinder, n_iter: int = 4) -> ElementSet:
-    """The same machine with the rotary axis' line at its mean over the turn: the rotary chain
-    ``W(a) = E_oa·Rot(a)·E_a(a)`` (``Rot`` the chain file's joint, :func:`rotary_line`) at the A
-    stations is split again, the line chosen so that the part of ``E_a`` that turns with the axis
-    (its δ and ε across the axis, the line's slots, rotated back by a) averages to zero over the
-    turn's distinct stations (a fixed-point iteration on the exact split; the turning part is what a
-    change of the line adds). ``W``, hence every tool point, is unchanged."""
-    rl = rotary_line(machine)
-    ca = elements.stations["a_deg"]
-    W = compose(compose(_a_line(elements.constants, rl), (rl.turn(ca), np.zeros((ca.size, 3)))),
-                _element_transforms(elements, A_ELEMENTS))
-    back = rl.turn(ca)[:-1]
-    c = elements.constants
-    names = [s[0] for s in rl.slots]
-    rows = [(0 if kind == "t" else 1, axis) for _, kind, axis in rl.slots]  # rows δ, ε of `turning`
-    p = np.array([c[k] for k in names], dtype=float)
-    unrot = (rl.turn(-ca), np.zeros((ca.size, 3)))
-    for _ in range(n_iter + 1):
-        line = dict(zip(names, p.tolist()))
-        E_a = compose(unrot, compose(invert(_a_line(line, rl)), W))
-        turning = apply(back[:, None], _element_values(E_a)[:-1].reshape(-1, 2, 3)).mean(axis=0)  # rows δ, ε
-        p = p + np.array([turning[r, a] for r, a in rows])
-    out = elements.copy()
-    _put_elements(out, A_ELEMENTS, E_a, closed=True)
-    out.constants.update(line)
-    return out
-
-
-# -- results --------------------------------------------------------------------------------
-@dataclass
-class AxisReport:
-    """Per-axis diagnostics; arrays have one entry per station.
-
-    ``conditioning``: condition number of the station's 9×6 system (δ μm, ε μrad);
-    ``residual_rms_um`` / ``residual_max_um``: ball residuals after the solve;
-    ``errors_in_reference``: (m, 6) the paper's six errors (δ μm, ε μrad) in the axis'
-    reference frame, relative to the initial station; ``reversal_um``: RMS ball-position
-    difference between the + and - runs where both exist; ``fit``: the reference fit.
-    """
-
-    axis: str
-    command: np.ndarray
-    conditioning: np.ndarray
-    residual_rms_um: np.ndarray
-    residual_max_um: np.ndarray
-    errors_in_reference: np.ndarray
-    reference_in_tracker: tuple
-    iterations: int
-    fit: dict
-    reversal_um: np.ndarray | None = None
-
-    def to_dict(self) -> dict:
-        return {"axis": self.axis, "command": self.command, "conditioning": self.conditioning,
-                "residual_rms_um": self.residual_rms_um, "residual_max_um": self.residual_max_um,
-                "errors_in_reference": {"columns": ["dx_um", "dy_um", "dz_um", "ex_urad", "ey_urad", "ez_urad"],
-                                        "values": self.errors_in_reference},
-                "reference_in_tracker": {"R": self.reference_in_tracker[0], "t_mm": self.reference_in_tracker[1]},
-                "iterations": self.iterations, "fit": self.fit,
-                "reversal_um": self.reversal_um}
-
-
-@dataclass
-class IdentificationResult:
-    """What :func:`identify` found: ``elements_`` (the element set), per-axis reports,
-    the estimated ``machine_in_tracker`` pose, the gauge, and warnings."""
-
-    elements_: ElementSet
-    axes: dict
-    machine_in_tracker: tuple
-    gauge: str
-    warnings: list = field(default_factory=list)
-
-    @property
-    def conditioning(self) -> dict:
-        """Axis -> condition number of each station's 9×6 system, shape (m,)."""
-        return {k: v.conditioning for k, v in self.axes.items()}
-
-    @property
-    def residuals_um(self) -> dict:
-        """Axis -> RMS ball residual of each station (μm), shape (m,)."""
-        return {k: v.residual_rms_um for k, v in self.axes.items()}
-
-    def summary_lines(self) -> list[str]:
-        lines = []
-        for ax, r in self.axes.items():
-            w = int(np.argmax(r.conditioning))
-            lines.append(f"axis {ax}: {r.command.size} stations, 9x6 conditioning {r.conditioning.min():.3g}.."
-                         f"{r.conditioning.max():.3g} (worst station {w}), ball residual RMS max "
-                         f"{r.residual_rms_um.max():.3g} um, {r.iterations} iterations")
-            if r.reversal_um is not None:
-                lines.append(f"axis {ax}: bidirectional, runs averaged; +/- difference up to "
-                             f"{r.reversal_um.max():.3g} um RMS (not representable by the 23 elements)")
-        c = self.elements_.constants
-        lines.append("s_xz {:.4g} urad; A line dy_oa {:.4g} um, dz_oa {:.4g} um, ey_oa {:.4g} urad, "
-                     "ez_oa {:.4g} urad (gauge: {})".format(c["s_xz"], c["dy_oa"], c["dz_oa"], c["ey_oa"],
-                                                             c["ez_oa"], self.gauge))
-        return lines + [f"warning: {w}" for w in self.warnings]
-
-    def to_dict(self) -> dict:
-        return {"format": "volcomp-identification/1", "gauge": self.gauge,
-                "machine_in_tracker": {"R": self.machine_in_tracker[0], "t_mm": self.machine_in_tracker[1]},
-                "constants": self.elements_.constants, "warnings": self.warnings,
-                "axes": {k: v.to_dict() for k, v in self.axes.items()}}
-
-
 def check_ball_distances(sw, axis_word: str, mounts_mm, tol_mm: float) -> None:
     """Refuse a sweep whose measured ball-to-ball distances differ from the nominal mounts' by more
     than ``tol_mm`` at any station (mixed units, or a wrong [targets] entry), naming axis and station.
@@ -418,222 +173,574 @@ def check_ball_distances(sw, axis_word: str, mounts_mm, tol_mm: float) -> None:
                          f"{np.round(nominal, 3).tolist()} mm (mixed units, or a wrong [targets] entry?)")
 
 
-# -- the estimator --------------------------------------------------------------------------
-class TrackerIdentification:
-    """The paper's tracker identification as an estimator: ``fit(sweeps, machine)`` returns
-    self with ``elements_`` and ``result_`` (an :class:`IdentificationResult`).
+@dataclass
+class ChainIdentificationResult:
+    """``elements_``, ``machine_in_tracker`` (R (3,3), t (3,) mm), per-axis ball residual RMS
+    (μm, per station), ``sigma_um`` (σ̂ per coordinate), ``iterations``, ``condition`` (of the
+    column-scaled Jacobian), ``unobservable`` (names held at zero), ``warnings``, and the
+    covariance ``cov`` over ``param_slot``/``param_station``."""
 
-    Settings: ``gauge`` (see module doc); ``max_iter`` / ``tol`` of the re-linearised
-    9×6 solve (update size, μm and μrad); ``max_condition``: a station whose 9×6 system is
-    worse is refused; ``min_separation_mm``: balls closer than this coincide, a triangle
-    lower than this is collinear; ``distance_tol_mm``: allowed difference between measured
-    and nominal ball distances; ``travel_tol_mm`` / ``angle_tol_deg``: allowed difference
-    between measured and commanded travel (mixed units show here).
+    elements_: ChainElementSet
+    machine_in_tracker: tuple
+    residual_rms_um: dict
+    sigma_um: float
+    iterations: int
+    condition: float
+    param_slot: list
+    param_station: np.ndarray
+    cov: np.ndarray
+    unobservable: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    noise_um: float | None = None
+    """The known tracker σ the covariance was scaled with (``ChainIdentification(noise_um=...)``); None: σ̂."""
+    ball_residual_um: dict = field(default_factory=dict)
+    """Per swept axis, measured − fitted ball positions (m, 3, 3) μm [station, target, xyz], tracker frame."""
+    leverage: dict = field(default_factory=dict)
+    """Per swept axis, the hat matrix' diagonal (m, 3, 3) of every ball coordinate (its share of the fit)."""
+    covariance_info: dict = field(default_factory=lambda: {"method": "gauss-newton"})
+    """How ``cov`` was obtained: ``gauss-newton`` (σ̂²·(JᵀJ)⁻¹) or ``residual-bootstrap`` (with n_boot, seed)."""
+    gauge: str = "first-station"
+    reversal_um: dict = field(default_factory=dict)
+    """Per axis swept both ways, the RMS ball-position difference (m,) μm between the + and − runs per station."""
+    prior_extra: np.ndarray | None = None
+    """(N,) the smoother's whole mean-square change per parameter (:func:`smooth_chain`; a prior's extra variance
+    when the set seeds an update, :attr:`errormap.uncertainty.ElementCovariance.prior_extra`); None: not smoothed."""
+
+    def summary_lines(self) -> list[str]:
+        lines = [f"axis {w}: {len(r)} stations, ball residual RMS max {r.max():.3g} um" +
+                 (f", reversal (+/- runs) max {self.reversal_um[w].max():.3g} um" if w in self.reversal_um else "")
+                 for w, r in self.residual_rms_um.items()]
+        lines.append(f"Gauss-Newton: {self.iterations} iterations, sigma {self.sigma_um:.3g} um per coordinate, "
+                     f"scaled condition {self.condition:.3g}")
+        if self.noise_um is not None:
+            lines.append(f"covariance scaled with the given tracker noise {self.noise_um:.3g} um (not the estimate)")
+        c = self.elements_.constants
+        if c:
+            lines.append("constants: " + ", ".join(f"{k} {v:.4g}" for k, v in c.items()))
+        if self.unobservable:
+            lines.append(f"unobservable (held at zero): {', '.join(self.unobservable)}")
+        if self.covariance_info["method"] != "gauss-newton":
+            lines.append(f"covariance: residual bootstrap, {self.covariance_info['n_boot']} draws, "
+                         f"seed {self.covariance_info['seed']}")
+        return lines + [f"warning: {w}" for w in self.warnings]
+
+    def to_dict(self) -> dict:
+        sm = self.covariance_info.get("smoothing")
+        return {"format": "volcomp-identification/2", "gauge": self.gauge,
+                "smoothing": sm if sm else "none: interpolating splines through the stations (identify --raw's form)",
+                "machine_in_tracker": {"R": self.machine_in_tracker[0].tolist(), "t_mm": self.machine_in_tracker[1].tolist()},
+                "residual_rms_um": {k: v.tolist() for k, v in self.residual_rms_um.items()},
+                "sigma_um": self.sigma_um, "noise_um": self.noise_um,
+                "covariance_sigma_um": self.sigma_um if self.noise_um is None else self.noise_um,
+                "iterations": self.iterations, "condition": self.condition,
+                "unobservable": self.unobservable, "warnings": self.warnings,
+                "constants": self.elements_.constants, "covariance": dict(self.covariance_info)}
+
+    def save_covariance(self, path) -> Path:
+        """``.npz``: ``format``, ``slot``, ``station``, ``cov`` (atomic)."""
+        with atomic_write(path, "wb") as fh:
+            np.savez(fh, format=np.array(COV_FORMAT), slot=np.array(self.param_slot), station=self.param_station,
+                     cov=self.cov)
+        return Path(path)
+
+
+def load_covariance(path) -> tuple[list, np.ndarray, np.ndarray]:
+    """``(slot names, stations, cov)`` of a file :meth:`ChainIdentificationResult.save_covariance` wrote."""
+    try:
+        d = np.load(path, allow_pickle=False)
+        if str(d["format"]) != COV_FORMAT:
+            raise InputError(f"{path}: key 'format': expected {COV_FORMAT!r}, got {str(d['format'])!r}")
+        return [str(s) for s in d["slot"]], d["station"].astype(int), d["cov"].astype(float)
+    except NPY_ERRORS as exc:
+        raise InputError(f"{path}: not a readable chain covariance file ({exc}); a truncated or damaged copy? "
+                         "Run `volcomp identify` again to write it") from None
+
+
+def _squareness_toward(machine: MachineTool, name: str) -> int:
+    """Frame axis (0, 1, 2) a squareness slot tilts its axis towards (from its ETs)."""
+    s = next(s for s in machine.slots if s.name == name)
+    ax = next(a for a in machine.axes if a.word == s.axis)
+    e = next(e for e in (*machine.work_ets, *machine.tool_ets) if e.slot == name)
+    return 3 - e.axis - ax.along
+
+
+def root_axis(machine: MachineTool) -> str:
+    """The axis whose body at its first station is the machine frame (module doc): the first linear
+    axis of the work chain, else of the tool chain (a rotary axis' line is placed relative to the
+    linear axes, as ISO 230-7 does), else the first axis of the work chain."""
+    kind = {a.word: a.kind for a in machine.axes}
+    for want in ("linear", None):
+        for side in ("work", "tool"):
+            cand = [(k, w) for w, (s, k) in machine.body_index.items() if s == side and want in (None, kind[w])]
+            if cand:
+                return min(cand)[1]
+    raise ValueError(f"{machine.name!r}: no axis with component errors")
+
+
+def _rotary_rows(w, ax, sl, cmd_deg, at, n) -> list:
+    """The station-mean conditions of a rotary axis' line: the part of its component errors across the axis
+    that turns with it (δ and ε across, rotated back by the angle) sums to zero over the distinct stations."""
+    from .transforms import rot_x, rot_y, rot_z
+    distinct = cmd_deg.size - 1 if ax.full_turn else cmd_deg.size
+    R = (rot_x, rot_y, rot_z)[ax.along](np.deg2rad(ax.direction * np.asarray(cmd_deg, float)))
+    across = [c for c in range(3) if c != ax.along]
+    rows = []
+    for kind in "de":
+        names = [f"{kind}{'xyz'[c]}_{w.lower()}" for c in across]
+        if not all(k in sl for k in names):
+            continue
+        for r in across:
+            row = np.zeros(n)
+            for i in range(distinct):
+                for c, k in zip(across, names):
+                    row[at(i, k)] += R[i][r, c]
+            rows.append(row)
+    return rows
+
+
+def _reference_rows(machine: MachineTool, root: str, words) -> list:
+    """How the reference-line gauge fixes the frame's rotation, ``[(axis, slot, "slope" | "first")]``: a frame
+    rotation about frame axis k tilts a linear axis that moves on the base (the first axis of its chain) along
+    ``a`` towards ``c`` (k = 3 − a − c); per k the linear trend of one such straightness is set to zero, the root
+    axis' first, skipping a straightness a squareness carries; a k no free straightness sees keeps the root axis'
+    rotation about k zero at its first station (as the first-station gauge)."""
+    axes = {a.word: a for a in machine.axes}
+    tied = {f"d{'xyz'[_squareness_toward(machine, t.name)]}_{t.axis.lower()}" for t in machine.slots
+            if t.kind == "squareness"}
+    on_base = [w for w in words if axes[w].kind == "linear" and len(body_chain(machine, w).joint_cols) == 1]
+    picked = {}
+    for w in sorted(on_base, key=lambda w: w != root):
+        a = axes[w].along
+        for c in range(3):
+            s = f"d{'xyz'[c]}_{w.lower()}"
+            if c != a and s not in tied and s in machine.slots_of(w) and 3 - a - c not in picked:
+                picked[3 - a - c] = (w, s, "slope")
+    for k in range(3):
+        if k not in picked and f"e{'xyz'[k]}_{root.lower()}" in machine.slots_of(root):
+            picked[k] = (root, f"e{'xyz'[k]}_{root.lower()}", "first")
+    return [picked[k] for k in sorted(picked)]
+
+
+def gauge_rows(gauge: str, machine: MachineTool, sweeps: Sweeps, block: dict, n: int) -> np.ndarray:
+    """Linear conditions ``C θ = 0`` (k, n) of a gauge beyond what :meth:`ChainIdentification._layout` holds at
+    zero (module doc): ``station-mean`` the root axis' six component errors sum to zero over its stations and a
+    rotary axis' line is its mean over the turn (:func:`_rotary_rows`); ``reference-line`` the root axis'
+    translations zero at its first station and three straightness slots without linear trend
+    (:func:`_reference_rows`: the root axis' own first, so the frame lies on its fitted line, the paper's
+    reference frame); ``first-station`` none."""
+    rows = []
+    if gauge == "first-station":
+        return np.zeros((0, n))
+    root = root_axis(machine)
+    words = swept_words(machine)
+    axes = {a.word: a for a in machine.axes}
+
+    def index(w):
+        sl = machine.slots_of(w)
+        return sl, sweeps[w].command, lambda i, s: block[w] + i * len(sl) + sl.index(s)
+
+    sl, cmd, at = index(root)
+    if gauge == "station-mean":
+        for s in sl:
+            row = np.zeros(n)
+            row[[at(i, s) for i in range(cmd.size)]] = 1.0
+            rows.append(row)
+        for w in words:
+            ax = axes[w]
+            if ax.kind == "rotary" and any(t.kind == "location" and t.axis == w for t in machine.slots):
+                slw, cw, atw = index(w)
+                rows += _rotary_rows(w, ax, slw, cw, atw, n)
+    else:
+        for c in range(3):
+            s = f"d{'xyz'[c]}_{root.lower()}"
+            if s in sl:
+                row = np.zeros(n)
+                row[at(0, s)] = 1.0
+                rows.append(row)
+        for w, s, how in _reference_rows(machine, root, words):
+            slw, cw, atw = index(w)
+            row = np.zeros(n)
+            if how == "slope":
+                row[[atw(i, s) for i in range(cw.size)]] = cw - cw.mean()
+            else:
+                row[atw(0, s)] = 1.0
+            rows.append(row)
+    return np.array(rows).reshape(-1, n)
+
+
+class ChainIdentification:
+    """Gauss–Newton identification of a machine-tool chain (module doc). ``fit(sweeps, machine)``
+    returns self with ``elements_`` and ``result_``.
+
+    Settings: ``max_iter`` / ``tol`` (largest update, μm or μrad) of the Gauss–Newton loop;
+    ``min_separation_mm``: balls closer than this coincide; ``distance_tol_mm``: allowed
+    difference between measured and nominal ball distances (mixed units, wrong mounts); ``noise_um``: the
+    known tracker σ per coordinate (μm) the covariance is scaled with (as the grinder's ``identify
+    --noise-um``), None: the residuals' σ̂; ``gauge``: one of :data:`GAUGES` (module doc).
     """
 
-    def __init__(self, gauge: str = "first-station", max_iter: int = 20, tol: float = 1e-9,
-                 max_condition: float = 1e6, min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0,
-                 travel_tol_mm: float = 1.0, angle_tol_deg: float = 0.5):
+    def __init__(self, max_iter: int = 30, tol: float = 1e-7, min_separation_mm: float = 1.0,
+                 distance_tol_mm: float = 2.0, noise_um: float | None = None, gauge: str = "first-station"):
         self.gauge = gauge
         self.max_iter = max_iter
         self.tol = tol
-        self.max_condition = max_condition
         self.min_separation_mm = min_separation_mm
         self.distance_tol_mm = distance_tol_mm
-        self.travel_tol_mm = travel_tol_mm
-        self.angle_tol_deg = angle_tol_deg
+        self.noise_um = noise_um
 
-    # validation ------------------------------------------------------------------------
-    def _check(self, sweeps: Sweeps, machine: Grinder) -> list[str]:
+    # -- validation ------------------------------------------------------------------------
+    def _check(self, sweeps: Sweeps, machine: MachineTool) -> list:
         if self.gauge not in GAUGES:
             raise ValueError(f"Expected gauge in {GAUGES}, got {self.gauge!r}")
+        if not 1 <= self.max_iter <= 1000 or not self.tol > 0:
+            raise ValueError(f"Expected 1 <= max_iter <= 1000 and tol > 0, got {self.max_iter}, {self.tol}")
         src = ", ".join(sweeps.sources) or "sweeps"
-        missing = [a for a in SWEEP_AXES if a not in sweeps]
+        words = swept_words(machine)
+        missing = [w for w in words if w not in sweeps]
         if missing:
-            raise InputError(f"{src}: axis/axes {missing} missing; X, Z and A are all needed from one tracker "
-                             "set-up (squareness and the A-axis line relate the bodies through it)")
+            raise InputError(f"{src}: axis/axes {missing} missing; every axis with error slots ({list(words)}) is "
+                             "needed from one tracker set-up (the bodies are related through it)")
         warnings = []
-        rotary = rotary_line(machine).word
-        for ax in SWEEP_AXES:
-            mounts = machine.targets[ax]
+        for w in words:
+            ax = next(a for a in machine.axes if a.word == w)
+            if w not in machine.targets or machine.targets[w].shape[0] != 3:
+                raise InputError(f"{machine.path or machine.name}: key 'targets.{w}': three target balls are needed "
+                                 f"on the body of axis {w}")
+            mounts = machine.targets[w]
             why = layout_problem(mounts, self.min_separation_mm)
             if why:
-                raise InputError(f"{machine.path or 'machine'}: key 'targets.{ax}': degenerate target layout for "
-                                 f"axis {ax}: {why}")
-            sw = sweeps[ax]
-            _check_length_unit(sw, ax, mounts)  # metres, inches, μm for mm: named before the layout tests
+                raise InputError(f"{machine.path or machine.name}: key 'targets.{w}': degenerate target layout: {why}")
+            sw = sweeps[w]
+            _check_length_unit(sw, w, mounts)
             for i in _layout_suspects(sw.balls_mm, self.min_separation_mm):  # vectorised screen, then the message
                 why = layout_problem(sw.balls_mm[i], self.min_separation_mm)
                 if why:
-                    raise InputError(f"{sw.source}: axis {ax}, station {sw.stations[i]}: degenerate target layout: {why}")
-            check_ball_distances(sw, ax, mounts, self.distance_tol_mm)
-            lo, hi = machine.strokes[{"X": "x_mm", "Z": "z_mm", "A": "a_deg"}[ax]]
-            if ax == rotary:
-                span = sw.command[-1] - sw.command[0]
-                if abs(span - 360.0) > 1e-6:
-                    raise InputError(f"{sw.source}: axis A: stations must span one turn (360 deg), got "
-                                     f"{sw.command[0]:g}..{sw.command[-1]:g} deg (mixed units?)")
-            elif sw.command[0] > lo + 1e-9 or sw.command[-1] < hi - 1e-9:
-                warnings.append(f"axis {ax}: stations cover {sw.command[0]:g}..{sw.command[-1]:g} of the stroke "
-                                f"{lo:g}..{hi:g}; elements are extrapolated outside")
-            for name, arr, unit in (("temp_c", sw.temp_c, "degC"),):
-                if arr is not None and np.ptp(arr) > 1.0:
-                    warnings.append(f"axis {ax}: temperature varied by {np.ptp(arr):.2g} {unit} during the sweep; "
-                                    "thermal drift is identified as geometry")
+                    raise InputError(f"{sw.source}: axis {w}, station {sw.stations[i]}: degenerate target layout: {why}")
+            check_ball_distances(sw, w, mounts, self.distance_tol_mm)
+            lo, hi = ax.stroke
+            if abs(sw.command[0] - lo) > PARK_TOL * max(1.0, abs(lo)):
+                raise InputError(f"{sw.source}: axis {w}, station {sw.stations[0]}: the first station must be at the "
+                                 f"lower stroke end {lo:g} {ax.unit} (where the other sweeps park axis {w}), got "
+                                 f"{sw.command[0]:g}")
+            if ax.full_turn and abs(sw.command[-1] - sw.command[0] - 360.0) > TURN_TOL_DEG:
+                raise InputError(f"{sw.source}: axis {w}: stations of a full-turn axis must span one turn (360 deg), "
+                                 f"got {sw.command[0]:g}..{sw.command[-1]:g} deg (mixed units?)")
+            check_motion(sw, ax)
+            if not ax.full_turn and sw.command[-1] < hi - PARK_TOL * max(1.0, abs(hi)):
+                warnings.append(f"axis {w}: stations cover {sw.command[0]:g}..{sw.command[-1]:g} of the stroke "
+                                f"{lo:g}..{hi:g}; elements are extrapolated beyond")
+            if sw.temp_c is not None and np.ptp(sw.temp_c) > 1.0:
+                warnings.append(f"axis {w}: temperature varied by {np.ptp(sw.temp_c):.2g} degC during the sweep; "
+                                "thermal drift is identified as geometry")
+        self._check_handedness(sweeps, machine, words, src)
         return warnings
 
-    # per-axis solve -----------------------------------------------------------------------
-    def _reference(self, sw, rl: RotaryLine) -> tuple:
-        """Reference frame (tracker <- reference) and fit details for one axis (``rl``: the rotary one)."""
-        b = sw.balls_mm
-        ball1 = b[0, 0]
-        if sw.axis == rl.word:
-            circles = [fit_circle(b[:, k]) for k in range(3)]
-            normals = np.array([c[1] for c in circles])
-            x_dir = normals.mean(axis=0)
-            x_dir /= np.linalg.norm(x_dir)
-            point = np.mean([c[0] for c in circles], axis=0)
-            fit = {"circle_centres_mm": [c[0] for c in circles], "circle_normals": normals,
-                   "circle_radii_mm": [c[2] for c in circles], "circle_rms_mm": [c[3] for c in circles]}
-            for k, c in enumerate(circles):
-                if c[2] < self.min_separation_mm:
-                    raise InputError(f"{sw.source}: axis A, target {k + 1}: the ball lies on the rotation axis "
-                                     f"(circle radius {c[2]:.3g} mm); its circle cannot be fitted")
-        else:
-            point, x_dir = fit_line(b.mean(axis=1))
-            if (b[-1].mean(axis=0) - b[0].mean(axis=0)) @ x_dir < 0:
-                x_dir = -x_dir
-            fit = {"line_point_mm": point, "line_direction": x_dir,
-                   "line_rms_mm": float(np.sqrt(np.mean(np.sum(((b.mean(axis=1) - point)
-                                                                - np.outer((b.mean(axis=1) - point) @ x_dir, x_dir))**2, axis=1))))}
-        foot = point + ((ball1 - point) @ x_dir) * x_dir
-        y_dir = ball1 - foot
-        if np.linalg.norm(y_dir) < 1e-9:  # ball 1 on the reference line: any perpendicular
-            y_dir = np.cross(x_dir, np.eye(3)[np.argmin(np.abs(x_dir))])
-        y_dir /= np.linalg.norm(y_dir)
-        R = np.stack([x_dir, y_dir, np.cross(x_dir, y_dir)], axis=1)
-        return (R, foot), fit
+    @staticmethod
+    def _check_handedness(sweeps: Sweeps, machine: MachineTool, words, src) -> None:
+        """Refuse ball coordinates that are a mirror image of the machine (two columns exchanged): the nominal
+        ball centres of every sweep (the other axes parked, no errors) against the measured ones
+        (:func:`errormap.diagnosis.plausibility.mirrored_ball_columns`)."""
+        from .diagnosis.plausibility import mirrored_ball_columns
+        col = {a.word: j for j, a in enumerate(machine.axes)}
+        nominal, measured = [], []
+        for w in words:
+            sw = sweeps[w]
+            axes = np.tile(park_axes(machine), (len(sw.command), 1))
+            axes[:, col[w]] = sw.command
+            values = np.zeros((len(axes), len(machine.slot_names)))
+            nominal.append(body_chain(machine, w).balls(axes, values, machine.targets[w]).reshape(-1, 3))
+            measured.append(np.asarray(sw.balls_mm, float).reshape(-1, 3))
+        m = mirrored_ball_columns(np.concatenate(nominal), np.concatenate(measured))
+        if m is not None:
+            raise InputError(f"{src}: {m}")
 
-    def _solve_axis(self, sw, ref, rl: RotaryLine):
-        """Re-linearised least squares of the 9×6 system at every station (vectorised); ``rl`` the
-        machine's rotary joint (the nominal motion of its sweep)."""
-        R_ref, t_ref = ref
-        P = np.einsum("ji,mkj->mki", R_ref, sw.balls_mm - t_ref)  # reference coordinates (m, 3, 3)
-        m = P.shape[0]
-        d_cmd = sw.command - sw.command[0]
-        if sw.axis == rl.word:
-            Rn, tn = rl.turn(d_cmd), np.zeros((m, 3))
-        else:
-            Rn, tn = np.broadcast_to(np.eye(3), (m, 3, 3)).copy(), d_cmd[:, None] * np.eye(3)[0]
-        R = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
-        t = np.zeros((m, 3))
-        P0 = P[0]
-        for it in range(1, self.max_iter + 1):
-            q = np.einsum("mij,kj->mki", R, P0) + t[:, None]
-            r_um = ((P - (np.einsum("mij,mkj->mki", Rn, q) + tn[:, None])) / UM).reshape(m, 9)
-            J = station_jacobian(q, Rn)
-            U, S, Vt = np.linalg.svd(J, full_matrices=False)
-            cond = S[:, 0] / S[:, -1]
-            if np.any(cond > self.max_condition) or np.any(S[:, -1] == 0):
-                i = int(np.argmax(np.where(S[:, -1] == 0, np.inf, cond)))
-                raise InputError(f"{sw.source}: axis {sw.axis}, station {sw.stations[i]}: the 9x6 system is "
-                                 f"singular or ill-conditioned (condition {cond[i]:.3g}); targets collinear?")
-            x = np.einsum("mji,mj->mi", Vt, np.einsum("mji,mj->mi", U, r_um) / S)
-            dR = Rotation.from_rotvec(x[:, 3:] * URAD).as_matrix()
-            R = dR @ R
-            t = apply(dR, t) + x[:, :3] * UM
-            if np.abs(x).max() < self.tol:
-                break
-        q = np.einsum("mij,kj->mki", R, P0) + t[:, None]
-        res = np.linalg.norm(P - (np.einsum("mij,mkj->mki", Rn, q) + tn[:, None]), axis=2) / UM
-        err = np.hstack([t / UM, _euler_urad(R)])
-        # full motion from the initial station, in tracker coordinates
-        D = compose((Rn, tn), (R, t))
-        D_tr = compose(compose((R_ref[None], t_ref[None]), D), invert((R_ref[None], t_ref[None])))
-        # the measured rotation/travel must match the command (mixed units show here)
-        if sw.axis == rl.word:
-            ang = np.rad2deg(np.linalg.norm(Rotation.from_matrix(D[0]).as_rotvec(), axis=1))
-            want = np.abs((d_cmd + 180.0) % 360.0 - 180.0)
-            bad = np.abs(ang - want) > self.angle_tol_deg
-            if bad.any():
-                i = int(np.argmax(bad))
-                raise InputError(f"{sw.source}: axis A, station {sw.stations[i]}: measured rotation {ang[i]:.4g} deg "
-                                 f"from the first station, commanded {d_cmd[i]:.4g} deg (mixed units?)")
-        else:
-            travel = P.mean(axis=1)[:, 0] - P0.mean(axis=0)[0]  # centroid along the reference line
-            bad = np.abs(travel - d_cmd) > self.travel_tol_mm
-            if bad.any():
-                i = int(np.argmax(bad))
-                raise InputError(f"{sw.source}: axis {sw.axis}, station {sw.stations[i]}: measured travel "
-                                 f"{travel[i]:.4g} mm from the first station, commanded {d_cmd[i]:.4g} mm "
-                                 "(mixed units?)")
-        return D_tr, cond, np.sqrt(np.mean(res**2, axis=1)), res.max(axis=1), err, it
+    # -- parameters -------------------------------------------------------------------------
+    def _layout(self, sweeps, machine):
+        """Full parameter list θ: G (6), per swept axis (station, component) values, constants; the map
+        ``A`` (n_θ, n_free) of the free parameters to θ (held at zero, tied, and the gauge's conditions,
+        :func:`gauge_rows`)."""
+        words = swept_words(machine)
+        names, stations = ["G.rx", "G.ry", "G.rz", "G.tx", "G.ty", "G.tz"], [-1] * 6
+        block = {}
+        for w in words:
+            m = sweeps[w].command.size
+            sl = machine.slots_of(w)
+            block[w] = len(names)
+            for i in range(m):
+                for s in sl:
+                    names.append(s)
+                    stations.append(i)
+        const0 = len(names)
+        for s in machine.constant_slots:
+            names.append(s)
+            stations.append(-1)
+        n = len(names)
+        free = np.arange(n)
+        root = root_axis(machine)
+        for w in words:
+            ax = next(a for a in machine.axes if a.word == w)
+            sl = machine.slots_of(w)
+            m = sweeps[w].command.size
+            at = lambda i, s: block[w] + i * len(sl) + sl.index(s)  # noqa: E731
+            for s in sl:
+                comp = s.split("_")[0]
+                across = comp[1] != "xyz"[ax.along]
+                has_loc = any(t.kind == "location" and t.axis == w for t in machine.slots)
+                if (w == root and self.gauge == "first-station") or (
+                        ax.kind == "rotary" and has_loc and across and self.gauge != "station-mean"):
+                    free[at(0, s)] = -1
+                if ax.full_turn:
+                    free[at(m - 1, s)] = free[at(0, s)]
+            for t in machine.slots:
+                if t.kind == "squareness" and t.axis == w:
+                    s = f"d{'xyz'[_squareness_toward(machine, t.name)]}_{w.lower()}"
+                    if s in sl:
+                        free[at(m - 1, s)] = free[at(0, s)]
+        # renumber the free parameters 0..nf-1
+        uniq = sorted(set(free[free >= 0].tolist()))
+        ren = {u: k for k, u in enumerate(uniq)}
+        free = np.array([ren[f] if f >= 0 else -1 for f in free])
+        A = np.zeros((n, int(free.max()) + 1))
+        A[np.flatnonzero(free >= 0), free[free >= 0]] = 1.0
+        C = gauge_rows(self.gauge, machine, sweeps, block, n)
+        if C.shape[0]:   # the gauge's linear conditions: θ = A·N·x, N a basis of the null space of C·A
+            A = A @ scipy.linalg.null_space(C @ A)
+        return names, np.array(stations), A, block, const0
 
-    # the method ---------------------------------------------------------------------------
-    def fit(self, sweeps, machine: Grinder) -> "TrackerIdentification":
-        """Identify the 23 elements; ``sweeps``: :class:`Sweeps`, a dict of sweep columns, or
-        sweep file path(s) of one set-up."""
-        if not isinstance(sweeps, Sweeps):
-            sweeps = sweeps_from_columns(sweeps) if isinstance(sweeps, dict) else read_sweeps(sweeps)
+    # -- the method -------------------------------------------------------------------------
+    def fit(self, sweeps: Sweeps, machine: MachineTool) -> "ChainIdentification":
+        """Identify every error slot of ``machine`` from ``sweeps`` (:class:`errormap.sweeps.Sweeps`)."""
+        if self.noise_um is not None and not (np.isfinite(self.noise_um) and self.noise_um > 0):
+            raise ValueError(f"Expected a positive, finite tracker noise σ in μm, got {self.noise_um}")
         warnings = self._check(sweeps, machine)
-        rl = rotary_line(machine)
-        poses, reports, lines = {}, {}, {}
-        for ax in SWEEP_AXES:
-            sw = sweeps[ax]
-            ref, fit = self._reference(sw, rl)
-            D_tr, cond, rms, rmax, err, it = self._solve_axis(sw, ref, rl)
-            T0 = rigid_fit(machine.targets[ax], sw.balls_mm[:1])
-            poses[ax] = compose(D_tr, T0)
-            reversal = None
-            if len(sw.by_direction) == 2:
-                reversal = np.sqrt(np.mean(np.sum((sw.by_direction[1] - sw.by_direction[-1]) ** 2, axis=2), axis=1)) / UM
-            reports[ax] = AxisReport(ax, sw.command.copy(), cond, rms, rmax, err, ref, it, fit, reversal)
-            if ax != rl.word:
-                lines[ax] = fit["line_direction"]
-        cx, cz, ca = sweeps["X"].command, sweeps["Z"].command, sweeps[rl.word].command
-        NX = x_carriage_nominal(machine, cx)
-        TX = poses["X"]
-        u_x, u_z = lines["X"], lines["Z"]
-        if self.gauge in ("first-station", "station-mean"):
-            G = compose((TX[0][:1], TX[1][:1]), invert((NX[0][:1], NX[1][:1])))
-        else:
-            z_dir = u_z - (u_z @ u_x) * u_x
-            z_dir /= np.linalg.norm(z_dir)
-            RG = np.stack([u_x, np.cross(z_dir, u_x), z_dir], axis=1)[None]
-            G = (RG, TX[1][:1] - apply(RG, NX[1][:1]))
-        Gi = invert(G)
-        s_urad = float(np.arcsin(np.clip(u_x @ u_z, -1.0, 1.0)) / URAD)
-        E_x = compose(invert(NX), compose(Gi, TX))
-        E_z = compose(invert(z_carriage_nominal(machine, cz, s_urad)), compose(Gi, poses["Z"]))
-        pre = compose(compose((NX[0][:1], NX[1][:1]), (E_x[0][:1], E_x[1][:1])), a_line_offset(machine, 1))
-        W_R, W_t = compose(invert(pre), compose(Gi, poses[rl.word]))
-        # first and last A stations are the same physical pose: average them
-        W_R[0] = W_R[-1] = Rotation.from_matrix(W_R[[0, -1]]).mean().as_matrix()
-        W_t[0] = W_t[-1] = W_t[[0, -1]].mean(axis=0)
-        M0 = compose((W_R[:1], W_t[:1]), (rl.turn(-ca[:1]), np.zeros((1, 3))))
-        line = rl.values(M0[1][0] / UM, _euler_urad(M0[0])[0])  # the initial state across the axis
-        E_oa = rl.transform(line)
-        E_a = compose((rl.turn(-ca), np.zeros((ca.size, 3))), compose(invert(E_oa), (W_R, W_t)))
-        functions = {}
-        for names, E in ((X_ELEMENTS, E_x), (Z_ELEMENTS, E_z), (A_ELEMENTS, E_a)):
-            vals = _element_values(E)
-            for j, k in enumerate(names):
-                functions[k] = vals[:, j]
-        for k in A_ELEMENTS:
-            functions[k][-1] = functions[k][0]
-        constants = {**line, "s_xz": s_urad}
-        assert set(constants) == set(CONSTANT_ELEMENTS)
-        elements = ElementSet({"x_mm": cx, "z_mm": cz, "a_deg": ca}, functions, constants, machine.name,
-                              machine.sha256)
-        if self.gauge == "station-mean":
-            elements, Gam = frame_to_station_mean(elements, machine)
-            elements = a_line_to_turn_mean(elements, machine)
-            G = compose(G, (Gam[0][None], Gam[1][None]))
+        words = swept_words(machine)
+        names, stations, A, block, const0 = self._layout(sweeps, machine)
+        n_theta, nf = A.shape
+        P = len(machine.slots)
+        sidx = {s: j for j, s in enumerate(machine.slot_names)}
+        park = park_axes(machine)
+        col = {a.word: j for j, a in enumerate(machine.axes)}
+        bodies = {w: body_chain(machine, w) for w in words}
+        # per sweep: poses, the θ index of every slot value per pose (n_w, P) (−1: none)
+        setup = {}
+        for w in words:
+            sw = sweeps[w]
+            m = sw.command.size
+            pts = np.tile(park, (m, 1))
+            pts[:, col[w]] = sw.command
+            tidx = np.full((m, P), -1)
+            for u in words:
+                sl = machine.slots_of(u)
+                for s in sl:
+                    if u == w:
+                        tidx[:, sidx[s]] = block[u] + np.arange(m) * len(sl) + sl.index(s)
+                    else:
+                        tidx[:, sidx[s]] = block[u] + sl.index(s)
+            for k, s in enumerate(machine.constant_slots):
+                tidx[:, sidx[s]] = const0 + k
+            setup[w] = (pts, tidx, sw.balls_mm)
+        theta = np.zeros(n_theta)
+
+        def slot_values(tidx):
+            return np.where(tidx >= 0, theta[np.maximum(tidx, 0)], 0.0)
+
+        # initial tracker pose: Kabsch of the nominal balls on the measured ones
+        nom = np.concatenate([bodies[w].balls(setup[w][0], np.zeros((len(setup[w][0]), P)), machine.targets[w])
+                              .reshape(-1, 3) for w in words])
+        meas = np.concatenate([setup[w][2].reshape(-1, 3) for w in words])
+        RG, tG = rigid_fit(nom[None], meas[None])
+        RG, tG = RG[0], tG[0]
+        unobservable, it = [], 0
+        keep = np.ones(nf, dtype=bool)
+        for it in range(1, self.max_iter + 1):
+            r, J = self._system(words, setup, bodies, machine, slot_values, RG, tG, n_theta)
+            Jf = J @ A
+            scale = np.linalg.norm(Jf, axis=0)
+            scale[scale == 0] = 1.0
+            Js = Jf / scale
+            if it == 1:  # the gauge left nothing free? pivoted QR names what is not
+                _, Rq, piv = scipy.linalg.qr(Js, mode="economic", pivoting=True)
+                d = np.abs(np.diag(Rq))
+                dead = piv[d < RANK_TOL * d[0]]
+                if dead.size:
+                    keep[dead] = False
+                    for f in dead:
+                        j = int(np.argmax(np.abs(A[:, f])))
+                        unobservable.append(names[j] + (f"@station{stations[j]}" if stations[j] >= 0 else ""))
+                    warnings.append(f"{len(dead)} parameter(s) unobservable from these sweeps, held at zero: "
+                                    f"{', '.join(unobservable[:8])}{' …' if len(unobservable) > 8 else ''}")
+            x = np.zeros(nf)
+            x[keep] = np.linalg.lstsq(Js[:, keep], r, rcond=None)[0] / scale[keep]
+            dth = A @ x
+            tG = tG + RG @ (dth[3:6] * UM)      # b_tracker = R_G·(Exp(ω)·b + τ) + t_G, linearised at ω = τ = 0
+            RG = RG @ Rotation.from_rotvec(dth[:3] * URAD).as_matrix()
+            theta[6:] += dth[6:]
+            if np.abs(dth).max() < self.tol:
+                break
+        r, J = self._system(words, setup, bodies, machine, slot_values, RG, tG, n_theta)
+        Jf = (J @ A)[:, keep]
+        scale = np.linalg.norm(Jf, axis=0)
+        scale[scale == 0] = 1.0
+        sv = np.linalg.svd(Jf / scale, compute_uv=False)
+        dof = max(r.size - int(keep.sum()), 1)
+        sigma = float(np.sqrt(r @ r / dof))
+        s_cov = sigma if self.noise_um is None else float(self.noise_um)
+        Jinv = np.linalg.pinv(Jf / scale)
+        lev = np.sum(np.linalg.qr(Jf / scale)[0] ** 2, axis=1).reshape(-1, 3)
+        cov_f = np.zeros((nf, nf))
+        cov_f[np.ix_(keep, keep)] = s_cov**2 * (Jinv @ Jinv.T) / np.outer(scale, scale)
+        cov = A[6:] @ cov_f @ A[6:].T
+        # element set
+        st, fun = {}, {}
+        for w in words:
+            ax = next(a for a in machine.axes if a.word == w)
+            sl = machine.slots_of(w)
+            m = sweeps[w].command.size
+            vals = theta[block[w]:block[w] + m * len(sl)].reshape(m, len(sl))
+            st[ax.column] = sweeps[w].command.copy()
+            for j, s in enumerate(sl):
+                fun[s] = vals[:, j].copy()
+        const = {s: float(theta[const0 + k]) for k, s in enumerate(machine.constant_slots)}
+        elements = ChainElementSet(machine, st, fun, const, machine.name, machine.sha256)
+        rr = r.reshape(-1, 3)
+        res, balls_res, leverage, o = {}, {}, {}, 0
+        for w in words:
+            m = setup[w][2].shape[0]
+            balls_res[w] = rr[o:o + 3 * m].reshape(m, 3, 3)
+            leverage[w] = lev[o:o + 3 * m].reshape(m, 3, 3)
+            res[w] = np.sqrt(np.mean(balls_res[w] ** 2, axis=(1, 2)) * 3)
+            o += 3 * m
         self.elements_ = elements
-        self.result_ = IdentificationResult(elements, reports, (G[0][0], G[1][0]), self.gauge, warnings)
+        reversal = {w: np.sqrt(np.mean(np.sum((sweeps[w].by_direction[1] - sweeps[w].by_direction[-1]) ** 2,
+                                              axis=2), axis=1)) / UM
+                    for w in words if len(sweeps[w].by_direction) == 2}
+        self.result_ = ChainIdentificationResult(elements, (RG, tG), res, sigma, it, float(sv[0] / sv[-1]),
+                                                 names[6:], stations[6:], cov, unobservable, warnings,
+                                                 noise_um=None if self.noise_um is None else float(self.noise_um),
+                                                 ball_residual_um=balls_res, leverage=leverage, gauge=self.gauge,
+                                                 reversal_um=reversal)
         return self
 
+    @staticmethod
+    def _system(words, setup, bodies, machine, slot_values, RG, tG, n_theta):
+        """Residual (μm, measured − predicted, flattened) and its Jacobian (rows, n_theta) in μm per
+        μm/μrad (G: rotation μrad, translation μm in the machine frame)."""
+        rs, Js = [], []
+        for w in words:
+            pts, tidx, meas = setup[w]
+            v = slot_values(tidx)
+            b, Jb = bodies[w].balls_and_jacobian(pts, v, machine.targets[w])   # (m,3,3), (m,3,3,P) mm per unit
+            pred = b @ RG.T + tG
+            rs.append(((meas - pred) / UM).reshape(-1))
+            m = b.shape[0]
+            J = np.zeros((m, 3, 3, n_theta))
+            Jt = np.einsum("ij,nkjp->nkip", RG, Jb) / UM                          # μm per unit
+            Jv = J.transpose(0, 3, 1, 2)                                             # view (m, n_theta, 3, 3)
+            for p in np.flatnonzero((tidx >= 0).all(axis=0)):
+                np.add.at(Jv, (np.arange(m), tidx[:, p]), Jt[..., p])
+            J[..., 0:3] = -np.einsum("ij,nkjl->nkil", RG, skew(b)) * (URAD / UM)
+            J[..., 3:6] = RG
+            Js.append(J.reshape(-1, n_theta))
+        return np.concatenate(rs), np.concatenate(Js)
 
-def identify(sweeps, machine: Grinder, **settings) -> IdentificationResult:
-    """Identify the 23 elements from sweeps (see :class:`TrackerIdentification` for settings)."""
-    return TrackerIdentification(**settings).fit(sweeps, machine).result_
+
+def parameter_vector(elements: ChainElementSet, slots, stations) -> np.ndarray:
+    """The element set's values (N,) in the covariance's parameter order ``slots``/``stations`` (station −1: a
+    constant)."""
+    return np.array([elements.constants[s] if i < 0 else elements.functions[s][i] for s, i in zip(slots, stations)])
+
+
+def resampled_sweeps(sweeps: Sweeps, result: ChainIdentificationResult, rng) -> Sweeps:
+    """One residual-bootstrap draw: the fitted ball positions plus residuals drawn with replacement from every
+    ball coordinate of all sweeps. The residuals are first leverage-corrected, ``rᵢ/√(1 − hᵢᵢ)``, and centred
+    (Davison & Hinkley's modified residuals): a sweep fit spends about two thirds of its coordinates on the
+    parameters, and what is left is the noise across the directions the fit cannot see (a ball's residual is
+    mostly along its axis' travel), so raw residual vectors drawn as they are gave a third of the Gauss–Newton
+    variance (measured on mill-xyz at 2 μm); the modified residuals restore noise of variance ≈ σ̂² in every
+    coordinate."""
+    r = np.concatenate([v.reshape(-1) for v in result.ball_residual_um.values()])
+    h = np.concatenate([v.reshape(-1) for v in result.leverage.values()])
+    pool = r / np.sqrt(np.clip(1.0 - h, LEVERAGE_FLOOR, None))
+    pool = pool[h < 1.0 - LEVERAGE_FLOOR] - pool[h < 1.0 - LEVERAGE_FLOOR].mean()
+    axes = {}
+    for w, v in result.ball_residual_um.items():
+        sw = sweeps[w]
+        draw = pool[rng.integers(0, len(pool), size=v.shape)]
+        axes[w] = replace(sw, balls_mm=sw.balls_mm - v * UM + draw * UM, by_direction={})
+    return replace(sweeps, axes={**sweeps.axes, **axes})
+
+
+def bootstrap_covariance(sweeps: Sweeps, machine: MachineTool, result: ChainIdentificationResult, n_boot: int,
+                         seed: int = 0, **settings) -> ChainIdentificationResult:
+    """``result`` with ``cov`` replaced by the residual bootstrap's (``n_boot`` ≥ 2 draws of
+    :func:`resampled_sweeps`, each identified again with ``settings``; the sample covariance of the parameter
+    vectors), through the bootstrap loop every family shares (:func:`errormap.smoothing.bootstrap_draws`).
+    Unlike σ̂²·(JᵀJ)⁻¹ it keeps the nonlinear method's spread and does not assume Gaussian tracker noise."""
+    from .smoothing import bootstrap_draws
+    if n_boot < 2:
+        raise ValueError(f"Expected n_boot >= 2 (a covariance needs two draws), got {n_boot}")
+
+    def draw(s: int) -> np.ndarray:
+        sw = resampled_sweeps(sweeps, result, np.random.default_rng(s))
+        el = ChainIdentification(**settings).fit(sw, machine).elements_
+        return parameter_vector(el, result.param_slot, result.param_station)
+    Y = bootstrap_draws(draw, n_boot, seed, len(result.param_slot))
+    return replace(result, cov=np.cov(Y.T),
+                   covariance_info={"method": "residual-bootstrap", "n_boot": n_boot, "seed": seed})
+
+
+def smooth_chain(result: ChainIdentificationResult, machine: MachineTool) -> ChainIdentificationResult:
+    """``result`` with every function slot's station values smoothed by the grinder's UBRE smoother
+    (:func:`errormap.smoothing.smooth_blocks`, weighted by ``result.cov``: Gauss–Newton's or the bootstrap's;
+    a full-turn axis periodic over its distinct stations), the constants as identified, and the covariance
+    ``H Σ Hᵀ`` plus the smoother's estimated squared bias per slot on the diagonal. The interpolating set is
+    what :meth:`ChainIdentification.fit` gives; this is opt-in (``covariance_info['smoothing']`` says how)."""
+    from .smoothing import smooth_blocks
+    el = result.elements_
+    slots, st = np.array(result.param_slot), result.param_station
+    y = parameter_vector(el, result.param_slot, st)
+    blocks, full = {}, {}
+    for s in machine.slots:
+        if not s.is_function:
+            continue
+        ax = next(a for a in machine.axes if a.word == s.axis)
+        idx = np.flatnonzero((slots == s.name) & (st >= 0))
+        full[s.name] = idx = idx[np.argsort(st[idx])]
+        blocks[s.name] = (idx[:-1], True) if ax.full_turn else (idx, False)
+    H, smoothing, bias_var, extra = smooth_blocks(y, result.cov, blocks)
+    for s, (idx, periodic) in blocks.items():   # a full turn's last station is its first pose
+        if periodic:
+            H[full[s][-1]] = H[full[s][0]]
+            bias_var[full[s][-1]] = bias_var[full[s][0]]
+            extra[full[s][-1]] = extra[full[s][0]]
+    theta = H @ y
+    fun = {s: theta[idx] for s, idx in full.items()}
+    elements = ChainElementSet(machine, el.stations, fun, el.constants, el.machine_name, el.machine_sha256)
+    info = {**result.covariance_info, "smoothing": smoothing}
+    return replace(result, elements_=elements, cov=H @ result.cov @ H.T + np.diag(bias_var), covariance_info=info,
+                   prior_extra=extra)
+
+
+def station_error_rms(machine: MachineTool, elements: ChainElementSet, truth: ChainElementSet) -> float:
+    """RMS of (``elements`` − ``truth``) over every function slot at ``elements``' stations (the truth's own
+    values there, the other axes parked; μm and μrad mixed): how far an identification is from a known truth."""
+    col = {a.word: j for j, a in enumerate(machine.axes)}
+    sidx = {s: j for j, s in enumerate(machine.slot_names)}
+    err = []
+    for s in machine.slots:
+        if s.is_function:
+            st = elements.stations[next(a for a in machine.axes if a.word == s.axis).column]
+            q = np.tile(park_axes(machine), (st.size, 1))
+            q[:, col[s.axis]] = st
+            err.append(elements.functions[s.name] - truth.values(q)[:, sidx[s.name]])
+    return float(np.sqrt(np.mean(np.concatenate(err) ** 2)))
+
+
+def identify_chain(sweeps, machine: MachineTool, **settings) -> ChainIdentificationResult:
+    """Identify every slot of ``machine`` from ``sweeps`` (:class:`ChainIdentification` settings)."""
+    return ChainIdentification(**settings).fit(sweeps, machine).result_
+
+
+__all__ = ["ChainIdentification", "ChainIdentificationResult", "bootstrap_covariance", "identify_chain",
+           "load_covariance", "parameter_vector", "resampled_sweeps", "root_axis", "smooth_chain",
+           "station_error_rms", "AXIS_WORDS"]

@@ -2,7 +2,7 @@
 
 For a machine file (its chain, its sweep targets) and a seeded truth (:mod:`errormap.mt_simulate`):
 
-1. the sweeps are simulated without noise and identified (:class:`errormap.mt_identify.ChainIdentification`):
+1. the sweeps are simulated without noise and identified (:class:`errormap.identification.ChainIdentification`):
    that element set is the truth **in the identification's gauge** (the squareness carried by its own
    slot, the rotary axis' line at its first station, …); its field equals the truth's to round-off
    (``noise_free_max_um``) when the design identifies every slot the tool point sees;
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .mt_chain import MachineTool
-from .mt_identify import ChainIdentification
+from .identification import ChainIdentification
 from .mt_simulate import make_mt_truth, volume_grid
 from .mt_sweeps import simulate_mt_sweeps, swept_words
 from .seeds import spawn_rngs

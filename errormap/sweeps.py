@@ -35,11 +35,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .elements import ELEMENT_NAMES, default_stations
-from .htm import IDX, UM
+from .elements import default_stations
+from .htm import UM
 from .io import InputError, read_table, write_csv
 from .machine import Grinder
-from .transforms import compose, error_transform, invert  # noqa: F401 (re-exported for the identification)
 
 SWEEP_AXES = ("X", "Z", "A")
 AXIS_STROKE_KEY = {"X": "x_mm", "Z": "z_mm", "A": "a_deg"}
@@ -53,39 +52,6 @@ MAX_STATION = 100_000  # station numbers count positions along one stroke; more 
 def _chain(machine: Grinder):
     from .grinder_file import grinder_chain
     return grinder_chain(machine)
-
-
-def _axes_col(col: int, values) -> np.ndarray:
-    """Axes (n, 3) zero but column ``col`` = ``values`` (n,)."""
-    v = np.atleast_1d(np.asarray(values, dtype=float))
-    ax = np.zeros((v.shape[0], 3))
-    ax[:, col] = v
-    return ax
-
-
-def x_carriage_nominal(machine: Grinder, x_mm):
-    """``Trans(l5,0,l6)·Trans(x,0,0)`` for x shape (n,) -> (R, t): the X body's nominal frame
-    of the grinder's chain file."""
-    return _chain(machine).body_frames("X", _axes_col(0, x_mm))
-
-
-def z_carriage_nominal(machine: Grinder, z_mm, s_xz_urad=0.0):
-    """``RotZ(θ1)·Trans(l2,0,l1)·Trans(RotZ(-θ1)·z·(sin s, 0, cos s))`` -> (R, t), z shape (n,):
-    the Z body's frame of the grinder's chain file with the squareness ``s_xz`` only."""
-    ax = _axes_col(1, z_mm)
-    v = np.zeros((ax.shape[0], len(ELEMENT_NAMES)))
-    v[:, IDX["s_xz"]] = np.broadcast_to(np.asarray(s_xz_urad, dtype=float), ax.shape[:1])
-    return _chain(machine).body_frames("Z", ax, v)
-
-
-def a_line_offset(machine: Grinder, n: int):
-    """``Trans(l7,0,l8)`` repeated n times -> (R, t): the nominal ETs of the work chain from the
-    X body to the A joint."""
-    mt = _chain(machine)
-    side, start = mt.body_index["X"]
-    a_col = mt.axis_words.index("A")
-    stop = next(m for m, e in enumerate(mt.work_ets) if e.joint == a_col)
-    return mt.side_frames(side, np.zeros((n, 3)), start=start, upto=stop)
 
 
 def body_frames(machine: Grinder, body: str, axes, values):

@@ -1,32 +1,12 @@
-"""Identification that does not amplify noise, and its uncertainty.
+"""The grinder file's identification with its uncertainty, in the grinder's element-set and covariance files.
 
-The tracker identification (:mod:`errormap.identification`) gives each element's value at
-every station exactly from that station's balls, so the tracker noise goes into every
-station value, and an interpolating spline through them passes it on. Here:
-
-1. **Noise level** σ (μm per ball coordinate) from the stations' ball residuals (each 9×6
-   station system leaves 3 degrees of freedom): ``σ² = mean over stations of the ball
-   residual RMS²``; or given (``noise_um``).
-2. **Covariance of the station values by parametric bootstrap**: ``n_boot`` sweeps are
-   simulated from the identified elements at the estimated tracker pose, with noise σ, and
-   identified again; the spread of the station values is their sampling covariance through
-   the whole (nonlinear) method — frames, gauge, squareness, A line included.
-3. **Penalised least squares per element** (a Whittaker/P-spline smoother on the station
-   values, second differences, periodic for A): ``f = (W + λ DᵀD)⁻¹ W y`` with ``W`` the
-   inverse of the bootstrap variance at each station, λ chosen by the unbiased risk
-   estimate with that known covariance (Mallows' C_p / UBRE):
-   ``|y − Hy|²_W − tr(W(I−H)Σ(I−H)ᵀ) + tr(W H Σ Hᵀ)``. The element set keeps its format:
-   the smoothed station values, interpolated by the same cubic spline. The identification's gauge
-   is ``"station-mean"`` here by default (:mod:`errormap.identification`: the machine frame at
-   the X carriage's mean pose over its stations, the A line at its mean over the turn): in the
-   first-station gauge one X station's and one A station's tracker noise sit in every element's
-   constant and linear trend, which a second-difference smoother never touches
-   (``benchmarks/sweeps_gauge_results.md``).
-4. **Covariance of the result**: the smoother applied to every bootstrap draw, the sample
-   covariance of those (rank ≤ n_boot − 1; it keeps the strong δ–ε lever-arm correlations
-   through which tool-point errors cancel), plus, per element, an estimate of the smoother's squared
-   bias on the diagonal (not in the bootstrap spread): the mean square of what the smoother
-   removed less what the noise alone explains, ``|(I−H)y|²/m − tr((I−H)Σ(I−H)ᵀ)/m``, at least 0.
+:func:`smooth_identify` runs the one identification of every machine tool
+(:class:`errormap.identification.ChainIdentification` on the grinder file's chain, in the ``station-mean`` gauge
+by default), its covariance Gauss–Newton's σ̂²·(JᵀJ)⁻¹ through the gauge (or a residual bootstrap), the
+station values smoothed by the UBRE smoother (:func:`errormap.smoothing.smooth_blocks` through
+:func:`errormap.identification.smooth_chain`), and re-expresses the result as the grinder's
+:class:`~errormap.elements.ElementSet` and :class:`ElementCovariance` (the covariance of the smoothed values
+``H Σ Hᵀ`` plus the smoother's estimated squared bias per element on the diagonal).
 
 The parameter vector θ (:class:`ElementCovariance`): the 18 functions' values at their
 stations (X and Z: all stations; A: all but the last, which equals the first), then the
@@ -46,18 +26,9 @@ from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS,
 from .htm import error_jacobian
 from .io import NPY_ERRORS, InputError, atomic_write, check_document_size, companion_path
 from .machine import Grinder
+from .smoothing import LAMBDA_GRID, _second_differences, _smoother, bootstrap_draws, smooth_blocks  # noqa: F401
 
-LAMBDA_GRID = np.logspace(-4, 8, 49)
-"""Smoothing parameters searched (dimensionless: the penalty is on second differences of the
-station values, the data term weighted by their inverse variance)."""
 Z95 = 1.959963984540054
-
-
-def _second_differences(m: int, periodic: bool) -> np.ndarray:
-    if periodic:
-        D = -2.0 * np.eye(m) + np.roll(np.eye(m), 1, axis=1) + np.roll(np.eye(m), -1, axis=1)
-        return D
-    return np.diff(np.eye(m), 2, axis=0)
 
 
 COMPANION_THETA_TOL = 1e-9
@@ -221,28 +192,6 @@ def covariance_path(elements_path) -> Path:
     return companion_path(elements_path, ".cov.npz")
 
 
-def _smoother(y, Sigma, periodic: bool):
-    """UBRE-optimal Whittaker smoother for station values y (m,) with covariance Sigma (m, m):
-    returns (H (m, m), λ, effective degrees of freedom)."""
-    m = y.size
-    var = np.diag(Sigma).copy()
-    if var.max() <= 0:
-        return np.eye(m), 0.0, float(m)
-    var = np.maximum(var, 1e-3 * var.max())  # gauge stations (exactly zero) get a finite weight
-    W = np.diag(1.0 / var)
-    D = _second_differences(m, periodic)
-    DtD = D.T @ D
-    I = np.eye(m)
-    best = None
-    for lam in LAMBDA_GRID:
-        H = np.linalg.solve(W + lam * DtD, W)
-        res = y - H @ y
-        risk = res @ W @ res - np.trace(W @ (I - H) @ Sigma @ (I - H).T) + np.trace(W @ H @ Sigma @ H.T)
-        if best is None or risk < best[0] - 1e-12 * abs(best[0]):
-            best = (risk, lam, H)
-    return best[2], float(best[1]), float(np.trace(best[2]))
-
-
 def nullspace_smoother(Sigma, periodic: bool) -> np.ndarray:
     """The λ → ∞ limit of :func:`_smoother` with the same weights: the weighted least-squares
     projection of the station values onto the second-difference penalty's null space
@@ -281,57 +230,6 @@ def prediction_sd(machine: Grinder, elements: ElementSet, cov, axes) -> np.ndarr
     return np.sqrt(np.clip(np.einsum("nip,pq,niq->ni", A, cov, A, optimize=True), 0, None))
 
 
-def noise_from_residuals(result) -> float:
-    """Ball-coordinate noise σ (μm) from an :class:`~errormap.identification.IdentificationResult`.
-
-    Each station's balls are fitted to the first station's balls (the body's template), so
-    a residual carries the noise of both measurements: its covariance is ``2σ²(I − P)``
-    with 3 residual degrees of freedom of 9. The RMS is over the three balls' residual norms,
-    so ``σ² = mean over the stations after the first of RMS² / 2`` (the first station is the
-    template itself and has none).
-    """
-    rms = np.concatenate([r.residual_rms_um[1:] for r in result.axes.values()])
-    return float(np.sqrt(np.mean(rms**2) / 2.0))
-
-
-def smooth_blocks(y, S, blocks: dict) -> tuple:
-    """The UBRE smoother of every machine family's station values (module doc, steps 3–4): per block
-    ``name -> (indices (m,) into y in station order, periodic)`` the Whittaker smoother :func:`_smoother` with
-    the block of the covariance ``S`` (P, P) of ``y`` (P,). Returns ``(H (P, P), {name: {lambda, edf}},
-    bias_var (P,), prior_extra (P,))``: the smoothed vector is ``H y``; the smoother's squared bias is not in
-    ``H S Hᵀ``, so per block the mean square of what it removed, less what noise alone explains
-    (E|(I−H)y|² = |(I−H)f|² + tr((I−H)Σ(I−H)ᵀ)), is ``bias_var`` (to add on the diagonal), and ``prior_extra``
-    the rest of the whole mean-square change (:attr:`ElementCovariance.prior_extra`)."""
-    P = y.size
-    H = np.eye(P)
-    smoothing = {}
-    for k, (idx, periodic) in blocks.items():
-        Hk, lam, edf = _smoother(y[idx], S[np.ix_(idx, idx)], periodic=periodic)
-        H[np.ix_(idx, idx)] = Hk
-        smoothing[k] = {"lambda": lam, "edf": edf}
-    change2 = (y - H @ y) ** 2
-    bias_var, prior_extra = np.zeros(P), np.zeros(P)
-    IH = np.eye(P) - H
-    for k, (idx, _) in blocks.items():
-        B = IH[np.ix_(idx, idx)]
-        noise = np.trace(B @ S[np.ix_(idx, idx)] @ B.T) / idx.size
-        bias_var[idx] = max(0.0, change2[idx].mean() - noise)
-        prior_extra[idx] = change2[idx].mean() - bias_var[idx]  # total: the whole mean-square change
-    return H, smoothing, bias_var, prior_extra
-
-
-def bootstrap_draws(draw, n_boot: int, seed: int, n_params: int) -> np.ndarray:
-    """The bootstrap loop of every machine family's identification: ``draw(s)`` identifies again from one
-    resampled measurement set seeded by the integer ``s`` and returns its parameter vector (n_params,);
-    draw ``b`` is seeded by the ``b``-th child of ``SeedSequence(seed)``. Returns (n_boot, n_params)."""
-    if n_boot < 0:
-        raise ValueError(f"Expected n_boot >= 0, got {n_boot}")
-    Y = np.empty((n_boot, n_params))
-    for b, ss in enumerate(np.random.SeedSequence(seed).spawn(n_boot)):
-        Y[b] = draw(int(ss.generate_state(1)[0]))
-    return Y
-
-
 @dataclass
 class SmoothIdentificationResult:
     """``raw``: the interpolating identification; ``elements_``: the smoothed elements;
@@ -344,16 +242,16 @@ class SmoothIdentificationResult:
     noise_um: float
     smoothing: dict
     raw_cov: np.ndarray | None = None
-    """(P, P) bootstrap covariance of the raw (interpolating) station values, before smoothing
+    """(P, P) covariance of the raw (interpolating) station values, before smoothing
     (kept in memory, not written: :func:`nullspace_noise_cov` uses it)."""
 
     def summary_lines(self) -> list[str]:
         se = self.covariance_.station_se()
-        edf = ", ".join(f"{k} {v['edf']:.3g}" for k, v in self.smoothing.items())
+        edf = ", ".join(f"{k} {v['edf']:.3g}" for k, v in self.smoothing.items()) or "none (interpolating)"
         worst = max(FUNCTION_ELEMENTS, key=lambda k: float(np.max(se[k])))
         return [f"noise {self.noise_um:.3g} um per ball coordinate "
                 f"({'from the ball residuals' if self.covariance_.info.get('noise_estimated') else 'given'}); "
-                f"bootstrap {self.covariance_.info['n_boot']} draws",
+                f"covariance: {self.covariance_.info['method']}",
                 f"smoothing (effective degrees of freedom per element): {edf}",
                 f"largest station standard error: {worst} {np.max(se[worst]):.3g}"]
 
@@ -364,46 +262,49 @@ class SmoothIdentificationResult:
                 "covariance": dict(self.covariance_.info)}
 
 
-def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_boot: int = 100, seed: int = 0,
-                    smooth: bool = True, **settings) -> SmoothIdentificationResult:
-    """Identification with penalised smoothing and bootstrap covariance (see module doc).
+def _grinder_theta_index(result) -> np.ndarray:
+    """Indices (P,) into a grinder chain identification's parameter vector (``param_slot``/``param_station``)
+    of the grinder's θ (:func:`theta_layout`; the element and slot names are the same, the A axis' last
+    station, the first pose again, not in θ)."""
+    where = {(s, int(i)): j for j, (s, i) in enumerate(zip(result.param_slot, result.param_station))}
+    return np.array([where[key] for key in theta_layout(result.elements_.to_element_set())])
 
-    ``sweeps``: as :func:`errormap.identification.identify`; ``noise_um``: known tracker σ
-    per coordinate (default: estimated from the ball residuals); ``n_boot``: bootstrap draws;
-    ``seed``: seeds the bootstrap; ``smooth=False`` keeps the interpolating station values
-    (the covariance is then that of the raw values). ``settings`` go to the identification;
-    its ``gauge`` defaults to ``"station-mean"`` here (see module doc, step 3).
-    """
-    from .identification import TrackerIdentification
-    from .simulator import TruthGrinder
-    from .sweeps import simulate_sweeps
 
-    settings = {"gauge": "station-mean", **settings}
-    est = TrackerIdentification(**settings)
-    raw = est.fit(sweeps, machine).result_
-    el = raw.elements_
-    sigma = noise_from_residuals(raw) if noise_um is None else float(noise_um)
-    y = theta_from_elements(el)
-    P = y.size
-    boot_truth = TruthGrinder(machine, el, {})
-
-    def draw(s: int) -> np.ndarray:
-        cols = simulate_sweeps(boot_truth, noise_um=sigma, seed=s, tracker_pose=raw.machine_in_tracker,
-                               stations=el.stations)
-        return theta_from_elements(TrackerIdentification(**settings).fit(cols, machine).elements_)
-    Y = bootstrap_draws(draw, n_boot, seed, P)
-    S = np.cov(Y.T) if n_boot > 1 else np.zeros((P, P))
-    blocks = theta_blocks(el)
-    H, smoothing, bias_var, prior_extra = smooth_blocks(
-        y, S, {k: (blocks[k], k in A_ELEMENTS) for k in FUNCTION_ELEMENTS} if smooth else {})
-    theta = H @ y
-    Ys = Y @ H.T
-    C = np.cov(Ys.T) if n_boot > 1 else np.zeros((P, P))
-    C = C + np.diag(bias_var)
-    elements = elements_from_theta(theta, el)
-    info = {"method": "parametric bootstrap of the identification, smoother applied to each draw, "
-                      "plus the smoother's estimated squared bias per element on the diagonal",
+def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_boot: int | None = None, seed: int = 0,
+                    smooth: bool = True, gauge: str = "station-mean", **settings) -> SmoothIdentificationResult:
+    """The grinder's identification, through the one identification of every machine tool: the grinder
+    file's chain (:func:`errormap.grinder_file.grinder_chain`) identified by
+    :class:`errormap.identification.ChainIdentification` in ``gauge``, its covariance Gauss–Newton's
+    (σ̂ from the ball residuals, or the known ``noise_um``) or, with ``n_boot`` ≥ 2, the residual bootstrap's
+    (:func:`errormap.identification.bootstrap_covariance`, seeded by ``seed``), smoothed by the UBRE smoother
+    (:func:`errormap.identification.smooth_chain`) unless ``smooth=False``. The result carries the grinder's
+    :class:`ElementSet` and :class:`ElementCovariance` (θ layout, files as before); ``raw`` is the chain
+    identification (its ``elements_`` the interpolating grinder set). ``sweeps``: :class:`errormap.sweeps.Sweeps`
+    or a dict of sweep columns."""
+    from dataclasses import replace
+    from .grinder_file import grinder_chain
+    from .identification import ChainIdentification, bootstrap_covariance, smooth_chain
+    from .sweeps import Sweeps, sweeps_from_columns
+    if not isinstance(sweeps, Sweeps):
+        sweeps = sweeps_from_columns(sweeps)
+    mt = grinder_chain(machine)
+    settings = {"gauge": gauge, "noise_um": noise_um, **settings}
+    raw = ChainIdentification(**settings).fit(sweeps, mt).result_
+    if n_boot is not None:
+        raw = bootstrap_covariance(sweeps, mt, raw, n_boot, seed, **settings)
+    res = smooth_chain(raw, mt) if smooth else raw
+    idx = _grinder_theta_index(raw)
+    elements = res.elements_.to_element_set()
+    C = res.cov[np.ix_(idx, idx)]
+    extra = None if res.prior_extra is None else res.prior_extra[idx]
+    sigma = raw.sigma_um if noise_um is None else float(noise_um)
+    info = {"method": (f"residual bootstrap of the identification, {n_boot} draws" if n_boot is not None else
+                       "Gauss-Newton covariance of the identification") +
+                      (", smoothed (H C H^T plus the smoother's estimated squared bias per element)" if smooth else ""),
             "n_boot": n_boot, "seed": seed, "noise_um": sigma, "noise_estimated": noise_um is None,
-            "smoothed": bool(smooth)}
-    return SmoothIdentificationResult(raw, elements, ElementCovariance(theta, C, elements, info, prior_extra), sigma,
-                                      smoothing, S)
+            "smoothed": bool(smooth), "gauge": gauge}
+    smoothing = res.covariance_info.get("smoothing", {})
+    raw_out = replace(raw, elements_=raw.elements_.to_element_set())
+    return SmoothIdentificationResult(raw_out, elements, ElementCovariance(theta_from_elements(elements), C, elements,
+                                                                           info, extra),
+                                      sigma, smoothing, raw.cov[np.ix_(idx, idx)])

@@ -576,8 +576,8 @@ def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_p
               float_fmt="%.17g")
     cols = truth.check_measurements(n=c.n_checks, noise_um=s.check_noise_um, seed=_streams(s.seed)["checks"])
     write_csv(tmp_path / "checks.csv", cols, header_comments=["format: volcomp-checks/1"], float_fmt="%.17g")
-    assert main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "el.json"),
-                 "--bootstrap", str(s.identify_bootstrap)]) == 0
+    boot = [] if s.identify_bootstrap is None else ["--bootstrap", str(s.identify_bootstrap)]
+    assert main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "el.json"), *boot]) == 0
     d = tmp_path / "d"
     assert main(["diagnose", str(tmp_path / "checks.csv"), "--model", str(tmp_path / "el.json"), "--out", str(d)]) == 0
     summary = json.loads((d / "diagnosis.json").read_text())

@@ -20,7 +20,6 @@ from errormap.uncertainty import (ElementCovariance, covariance_path, elements_f
 
 SEED = 0
 TRACKER_NOISE_UM = 2.0
-N_BOOT = 40            # small bootstrap so that the tests run in seconds; the CLI default is 100
 NOISE_REL_TOL = 0.15   # σ̂ from ~180 residual dof has a relative SE of ~5 %: 3 SE
 SMOOTH_GAIN = 0.75     # smoothed / interpolating prediction RMS on this seed (measured 0.55; the benchmark has the spread)
 LINEAR_REL_TOL = 1e-3  # first-order update vs exact HTM for a μm-sized change (second order ~ ε ≈ 1e-4)
@@ -31,7 +30,7 @@ N_CHECKS = 600
 @pytest.fixture(scope="module")
 def indep(grinder):
     truth = make_truth(grinder, SEED, family="independent")
-    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder, n_boot=N_BOOT)
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=SEED + 50), grinder)
     return truth, sm
 
 
@@ -118,7 +117,7 @@ def test_checks_that_do_not_cover_an_axis_are_named(grinder, indep):
 @pytest.mark.slow
 def test_reversal_is_named_after_the_update(grinder):
     truth = make_truth(grinder, 1, family="independent", effects=["reversal"])
-    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder, n_boot=N_BOOT)
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
     checks = CheckData.from_columns(truth.check_measurements(800, 1.0, seed=13))
     loop = closed_loop(grinder, sm.covariance_, checks)
     e = loop.summary["effects"]
@@ -130,7 +129,7 @@ def test_predict_band_cli(tmp_path, capsys):
     sw = tmp_path / "sw.csv"
     assert main(["sweeps", "--seed", "2", "--family", "independent", "--out", str(sw)]) == 0
     el = tmp_path / "el.json"
-    assert main(["identify", str(sw), "--out", str(el), "--bootstrap", "10"]) == 0
+    assert main(["identify", str(sw), "--out", str(el)]) == 0
     assert covariance_path(el).is_file()
     ElementCovariance.load(covariance_path(el), ElementSet.load(el))
     pts = tmp_path / "p.csv"
@@ -257,7 +256,7 @@ def test_effects_the_update_imitates_are_named_by_the_joint_screen(grinder, effe
     elements times lever arms) are taken up by the update alone; tested jointly with it they
     are named, with the elements that imitated them, and the final model is kept."""
     truth = make_truth(grinder, 0, family="independent", effects=[effect])
-    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder, n_boot=N_BOOT)
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
     checks = CheckData.from_columns(truth.check_measurements(800, 1.0, seed=14))
     loop = closed_loop(grinder, sm.covariance_, checks)
     s = loop.summary
@@ -291,7 +290,7 @@ def test_diagnose_cli_names_elements_the_checks_do_not_cover(tmp_path):
     assert main(["sweeps", "--family", "independent", "--seed", "0", "--seed-noise", "500", "--out", str(sw)]) == 0
     assert main(["simulate", "--family", "independent", "--seed", "0", "--checks", "400", "--out",
                  str(tmp_path / "sim")]) == 0
-    assert main(["identify", str(sw), "--out", str(el), "--bootstrap", "20"]) == 0
+    assert main(["identify", str(sw), "--out", str(el)]) == 0
     t = read_table(tmp_path / "sim" / "checks.csv")
     keep = t.float("x_mm") < 80.0
     write_csv(tmp_path / "part.csv", {c: t.float(c)[keep] for c in t.names})
@@ -325,7 +324,7 @@ def test_joint_refit_refines_a_period_with_its_band(grinder):
     from errormap.sweeps import simulate_sweeps
     from errormap.uncertainty import smooth_identify
     truth = random_truth(grinder, 4)
-    sm = smooth_identify(simulate_sweeps(truth, noise_um=2.0, seed=54), grinder, n_boot=40)
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=2.0, seed=54), grinder)
     checks = CheckData.from_columns(truth.check_measurements(480, 1.0, seed=5))
     ctx = Context.build(grinder, checks.axes, checks.conditions, reference(grinder, checks.conditions))
     r_id = checks.measured_um - HTMField(grinder, sm.elements_).predict(checks.axes)

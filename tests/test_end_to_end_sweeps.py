@@ -73,7 +73,7 @@ def test_identify_then_diagnose_closes_the_loop(tmp_path, family):
     assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", "60", "--out", str(sw)]) == 0
     assert main(["simulate", *q, "--checks", "800", "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
     el = tmp_path / "el.json"
-    assert main(["identify", str(sw), "--out", str(el), "--bootstrap", "40"]) == 0
+    assert main(["identify", str(sw), "--out", str(el)]) == 0
     assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--model", str(el), "--out", str(tmp_path / "d")]) == 0
     s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     st = s["stages"]

@@ -82,7 +82,6 @@ REFUSED = [   # gaps of the table (not yet / other path) on the command line, an
     (["simulate", "--machine", "ur5", "--family", "independent"], "--family"),
     (["simulate", "--machine", "mill-xyz", "--poses", "10"], "--poses"),
     (["identify", "sw.csv", "--machine", "mill-xyz", "--seed", "3"], "--seed"),
-    (["identify", "sw.csv", "--machine", "mill-xyz", "--gauge", "first-station"], "--gauge"),
     (["identify", "sw.csv", "--machine", "mill-xyz", "--bootstrap", "20", "--noise-um", "1"], "--bootstrap"),
     (["diagnose", "c.csv", "--model", "E.json", "--machine", "mill-xyz", "--seed", "3"], "--seed"),
     (["diagnose", "c.csv", "--model", "E.json", "--machine", "mill-xyz", "--alpha", "0.05"], "--alpha"),

@@ -20,11 +20,11 @@ def test_sweeps_then_identify(tmp_path, capsys):
     assert main(["identify", str(sw), "--out", str(out), "--plot", str(tmp_path / "fig"),
                  "--truth", str(truth_path)]) == 0
     text = capsys.readouterr().out
-    assert "9x6 conditioning" in text and f"wrote elements: {out}" in text
+    assert "Gauss-Newton:" in text and f"wrote elements: {out}" in text
     for ax in "XZA":
         assert (tmp_path / f"fig_{ax}.png").stat().st_size > 10_000
     report = json.loads((tmp_path / "el.report.json").read_text())
-    assert len(report["axes"]["A"]["conditioning"]) == 21
+    assert len(report["residual_rms_um"]["A"]) == 21 and report["gauge"] == "station-mean"
     m = load_machine()
     pts = random_axes(m, 2000, np.random.default_rng(1))
     d = HTMField(m, ElementSet.load(out)).predict(pts) - HTMField(m, ElementSet.load(truth_path)).predict(pts)
@@ -41,5 +41,6 @@ def test_degenerate_layout_is_one_clean_line(tmp_path, capsys):
     capsys.readouterr()
     assert main(["identify", str(sw), "--machine", str(bad), "--out", str(tmp_path / "e.json")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and "targets.X" in err[-1] and "collinear" in err[-1]
+    assert len(err) == 3 and 'kind = "grinder" read as its machine-tool chain' in err[0]
+    assert "targets.X" in err[-1] and "collinear" in err[-1]
     assert not (tmp_path / "e.json").exists()

@@ -1,8 +1,8 @@
 """``volcomp identify --bootstrap N --seed S`` on machine-tool chains: the residual bootstrap of the sweep
-identification (:func:`errormap.mt_identify.bootstrap_covariance`, through the bootstrap loop the grinder's
-identification uses, :func:`errormap.uncertainty.bootstrap_draws`) writes the chain's covariance file, and
+identification (:func:`errormap.identification.bootstrap_covariance`, through the bootstrap loop the grinder's
+identification uses, :func:`errormap.smoothing.bootstrap_draws`) writes the chain's covariance file, and
 ``predict --band`` reads it; the grinder's UBRE smoother on the chain's station values
-(:func:`errormap.mt_identify.smooth_chain`) brings the elements closer to the hidden truth."""
+(:func:`errormap.identification.smooth_chain`) brings the elements closer to the hidden truth."""
 from __future__ import annotations
 
 import json
@@ -13,7 +13,7 @@ import pytest
 from compensation.app.cli import main
 from errormap.io import read_table, write_csv
 from errormap.machine import load_machine
-from errormap.mt_identify import load_covariance
+from errormap.identification import load_covariance
 from errormap.mt_simulate import make_mt_truth
 from errormap.mt_sweeps import simulate_mt_sweeps
 from errormap.sweeps import write_sweeps
@@ -54,11 +54,13 @@ def test_seed_without_draws_and_too_few_draws_are_refused(tmp_path, capsys):
 @pytest.mark.slow
 def test_bootstrap_covariance_agrees_with_gauss_newton_and_feeds_the_band(tmp_path, capsys):
     """mill-xyz, simulated sweeps at 2 μm (seeded): identify once plain (Gauss-Newton covariance) and once with
-    --bootstrap 24 --seed 0 (≈ 25 identifications: slow); same elements, covariances of the same size."""
+    --bootstrap 24 --seed 0 (≈ 25 identifications: slow); same elements, covariances of the same size. The
+    interpolating set in the first-station gauge (--raw --gauge first-station): the covariances themselves."""
     m = _sweeps(tmp_path)
     sw = str(tmp_path / "sw.csv")
-    assert main(["identify", sw, "--machine", "mill-xyz", "--out", str(tmp_path / "G.json")]) == 0
-    assert main(["identify", sw, "--machine", "mill-xyz", "--bootstrap", str(N_BOOT), "--seed", "0",
+    raw = ["--raw", "--gauge", "first-station"]
+    assert main(["identify", sw, "--machine", "mill-xyz", *raw, "--out", str(tmp_path / "G.json")]) == 0
+    assert main(["identify", sw, "--machine", "mill-xyz", *raw, "--bootstrap", str(N_BOOT), "--seed", "0",
                  "--out", str(tmp_path / "B.json")]) == 0
     assert "residual bootstrap, 24 draws" in capsys.readouterr().out
     assert json.loads((tmp_path / "B.report.json").read_text())["covariance"] == {
@@ -97,10 +99,10 @@ tool points 0.54–0.87. 0.9 asks for a clear gain on every seed, above the wors
 
 
 def test_smoothing_lowers_the_true_error_of_the_chain(tmp_path):
-    """The grinder's UBRE smoother on the chain's station values (:func:`errormap.mt_identify.smooth_chain`)
+    """The grinder's UBRE smoother on the chain's station values (:func:`errormap.identification.smooth_chain`)
     against the hidden truth: the elements and the tool point come closer to it than the interpolating set."""
     from compensation.export import volume_points as check_points
-    from errormap.mt_identify import ChainIdentification, smooth_chain, station_error_rms
+    from errormap.identification import ChainIdentification, smooth_chain, station_error_rms
     from errormap.mt_sweeps import swept_words
     from errormap.sweeps import sweeps_from_columns
     m = load_machine("mill-xyz")

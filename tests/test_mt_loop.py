@@ -7,17 +7,17 @@ import numpy as np
 import pytest
 
 from errormap.diagnosis.mt_loop import MTChecks, closed_loop_chain, parameter_matrix
-from errormap.identification import TrackerIdentification
 from errormap.htm import HTMField
 from errormap.machine import load_machine
 from errormap.mt_elements import ChainElementSet
 from errormap.mt_field import ChainField
-from errormap.mt_identify import ChainIdentification, root_axis
+from errormap.identification import ChainIdentification, root_axis
 from errormap.mt_simulate import FAMILIES, TARGET_MAX_RANGE_UM, MTTruth, make_mt_truth, volume_grid
 from errormap.mt_sweeps import read_mt_sweeps, simulate_mt_sweeps, swept_words
 from errormap.simulator import random_truth
 from errormap.simulator import volume_grid as grinder_grid
 from errormap.sweeps import simulate_sweeps, sweeps_from_columns, write_sweeps
+from errormap.uncertainty import smooth_identify
 
 EXACT_MM = 1e-9
 """Two implementations of the same rigid-body chain agree to round-off on ~1 m coordinates (double precision
@@ -130,7 +130,7 @@ def test_generic_identification_agrees_with_grinder(noise):
     g, gc = load_machine(None), load_machine("grinder-chain")
     tg = random_truth(g, 1)
     cols = simulate_sweeps(tg, noise_um=noise, seed=3)
-    eg = TrackerIdentification(gauge="first-station").fit(sweeps_from_columns(cols), g).elements_
+    eg = smooth_identify(cols, g, smooth=False, gauge="first-station").raw.elements_
     ec = ChainIdentification().fit(sweeps_from_columns(cols, axes=swept_words(gc)), gc).elements_
     grid = grinder_grid(g, (9, 5, 13))
     d = np.linalg.norm(HTMField(g, eg).predict(grid) - ChainField(gc, ec).predict(grid), axis=1)
@@ -231,9 +231,6 @@ def test_cli_closed_loop_on_the_mill(tmp_path, capsys, mill):
 
 def test_cli_refuses_options_the_chain_path_does_not_use(tmp_path, capsys, mill):
     t = make_mt_truth(mill, 0)
-    write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
-    _one_line_exit2(capsys, ["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--gauge", "reference-line",
-                             "--out", str(tmp_path / "E.json")], "--gauge")
     from errormap.io import write_csv
     write_csv(tmp_path / "checks.csv", t.check_measurements(20, seed=1))
     t.elements.save(tmp_path / "mill.json")
@@ -296,10 +293,10 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
     np.testing.assert_allclose(given.cov, est.cov * (2.5 / est.sigma_um) ** 2, rtol=COV_REL_TOL, atol=0)
     assert given.sigma_um == est.sigma_um and given.noise_um == 2.5 and est.noise_um is None
     assert _main(["identify", str(tmp_path / "sw.csv"), "--machine", "mill-xyz", "--noise-um", "2.5", "--raw",
-                  "--out", str(tmp_path / "E.json")]) == 0
+                  "--gauge", "first-station", "--out", str(tmp_path / "E.json")]) == 0
     rep = json.loads((tmp_path / "E.report.json").read_text())
     assert rep["noise_um"] == 2.5 and rep["covariance_sigma_um"] == 2.5 and rep["smoothing"].startswith("none")
-    written = ChainElementSet.load(tmp_path / "E.json", mill)   # --raw: the chain's one (interpolating) form
+    written = ChainElementSet.load(tmp_path / "E.json", mill)   # --raw: the interpolating form
     for s, v in est.elements_.functions.items():
         np.testing.assert_allclose(written.functions[s], v, rtol=0, atol=FILE_DIGITS)
     with pytest.raises(ValueError, match="noise"):

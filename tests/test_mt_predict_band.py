@@ -7,7 +7,7 @@ import numpy as np
 from compensation.app.cli import main
 from errormap.io import read_table, write_csv
 from errormap.machine import load_machine
-from errormap.mt_identify import COV_FORMAT
+from errormap.identification import COV_FORMAT
 from errormap.mt_simulate import make_mt_truth
 
 FD_STEP = 1e-3

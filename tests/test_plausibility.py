@@ -243,7 +243,7 @@ def test_grinder_closed_loop_verdict_fails_when_the_plain_baseline_wins():
 def test_sweeps_with_two_ball_columns_exchanged_are_refused_before_identification(name):
     """A tracker pose cannot mirror: sweeps whose x_mm/y_mm are exchanged fit the machine only as a mirror image
     (they used to reach the Gauss–Newton fit and end in a traceback on the mill). The correct sweeps pass."""
-    from errormap.mt_identify import ChainIdentification
+    from errormap.identification import ChainIdentification
     from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     m = load_machine(name)

@@ -6,9 +6,8 @@ from errormap.htm import tool_point_actual
 from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
-from errormap.sweeps import (body_frames, compose, invert, read_sweeps, simulate_sweeps, sweeps_from_columns,
-                             write_sweeps)
-from errormap.transforms import apply
+from errormap.sweeps import body_frames, read_sweeps, simulate_sweeps, sweeps_from_columns, write_sweeps
+from errormap.transforms import apply, compose, invert
 
 CHAIN_TOL_MM = 1e-9        # same chains: agreement to float rounding at ~1 m
 ROUNDTRIP_TOL_MM = 1e-8    # 12 significant digits at up to ~3.5 m

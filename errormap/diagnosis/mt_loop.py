@@ -98,7 +98,7 @@ and 0.1–10⁴, a factor 1.78 apart (on the 5-axis machine GCV picks 3–200; t
 factor 2 of its minimum)."""
 SPAN_RANK_TOL = 1e-9
 """A pivoted-QR diagonal of the column-scaled slot Jacobian below this fraction of the largest is a
-direction the slots do not span (as the identification's :data:`errormap.mt_identify.RANK_TOL`)."""
+direction the slots do not span (as the identification's :data:`errormap.identification.RANK_TOL`)."""
 REPRESENTED_TOL = 1e-2
 """An effect term whose columns leave less than this fraction of their norm outside the span of the
 element slots (over the checks) is represented by the slots. The span is the first-order one at the

@@ -30,7 +30,8 @@ def register(sub):
                    help=f"LM iterations per machine (default {DEFAULT_TRAIN_ITER})")
     p.add_argument("--hidden", default="10,15,25,15,10", help="hidden layer widths, comma-separated")
     p.add_argument("--grid", type=int, default=11, help="feature points per axis (default 11)")
-    p.add_argument("--bootstrap", type=int, default=100, help="bootstrap draws of the identification (default 100)")
+    p.add_argument("--bootstrap", type=int, default=None,
+                   help="N >= 2 residual-bootstrap draws for the identification's covariance (default: Gauss-Newton's)")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and of the training")
     add_cluster_options(p, chunks=False)
     p.set_defaults(func=run)

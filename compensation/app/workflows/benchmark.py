@@ -100,9 +100,9 @@ class BenchmarkSettings:
     # check counts of the out-of-catalogue conditions (each effect and none at every count: the learned
     # stage's estimation error against the number of checks; `volcomp benchmark --checks N`, repeatable)
     ooc_checks: tuple = (800, 150, 1600)
-    # the out-of-catalogue conditions' loop runs the user's path: `volcomp identify` (smoothing, covariance from
-    # this many bootstrap draws: its default) → `volcomp diagnose` on the element set (workflows/diagnosis.py)
-    identify_bootstrap: int = 100
+    # the out-of-catalogue conditions' loop runs the user's path: `volcomp identify` (smoothing, covariance
+    # Gauss-Newton's, or from this many residual-bootstrap draws) → `volcomp diagnose` (workflows/diagnosis.py)
+    identify_bootstrap: int | None = None
     n_checks: int = 400
     check_noise_um: float = 1.0
     train_iter: int = 150                  # LM iterations per learned grinder condition (~30 s on 2 cores)
@@ -365,18 +365,18 @@ def condition_sweeps(s: BenchmarkSettings, truth, c: GrinderCondition) -> dict:
 def identify_from_sweeps(machine, s: BenchmarkSettings, truth, c: GrinderCondition):
     """Simulated tracker sweeps of ``truth`` under condition ``c`` → the 23 identified elements.
     Returns ``(elements, identification seconds, number of ball-centre measurements)``."""
-    from errormap.identification import identify
+    from errormap.uncertainty import smooth_identify
     sw = condition_sweeps(s, truth, c)
     t0 = time.perf_counter()
-    res = identify(sw, machine)
+    res = smooth_identify(sw, machine, smooth=False, gauge="first-station").raw
     return res.elements_, time.perf_counter() - t0, len(sw["axis"])
 
 
 def identify_with_covariance(machine, s: BenchmarkSettings, truth, c: GrinderCondition):
     """The same sweeps identified as ``volcomp identify`` does with its defaults
     (:func:`compensation.app.workflows.identification.identify_elements` → :func:`errormap.uncertainty.smooth_identify`:
-    penalised smoothing, station-mean gauge, tracker noise estimated from the ball residuals,
-    ``s.identify_bootstrap`` bootstrap draws of seed 0). Returns ``(ElementCovariance, seconds)``: the element
+    penalised smoothing, station-mean gauge, tracker noise estimated from the ball residuals, the covariance
+    Gauss-Newton's or ``s.identify_bootstrap`` residual-bootstrap draws of seed 0). Returns ``(ElementCovariance, seconds)``: the element
     set and its covariance, what ``volcomp diagnose`` finds beside the element-set file."""
     from errormap.uncertainty import smooth_identify
     sw = condition_sweeps(s, truth, c)

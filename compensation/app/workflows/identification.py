@@ -1,7 +1,8 @@
-"""Identifying the 23 error elements from tracker sweeps (``volcomp identify``), with uncertainty.
+"""Identifying a grinder file's 23 error elements from tracker sweeps (``volcomp identify``), with uncertainty.
 
-:func:`identify_elements` runs :func:`errormap.uncertainty.smooth_identify` and writes the element
-set, its covariance (``E.cov.npz``) and the identification report (JSON).
+:func:`identify_elements` runs :func:`errormap.uncertainty.smooth_identify` (the one identification of every
+machine tool, on the grinder file's chain) and writes the grinder's element set, its covariance
+(``E.cov.npz``) and the identification report (JSON).
 """
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ class Identification:
         return self.smooth.raw.summary_lines() + self.smooth.summary_lines()
 
 
-def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_boot: int = 100, seed: int = 0,
+def identify_elements(machine, sweep_files, out, report=None, noise_um=None, n_boot: int | None = None, seed: int = 0,
                       smooth: bool = True, gauge: str = "station-mean", sweeps=None) -> Identification:
     """Identify from ``sweep_files`` and write ``out`` (element set), its covariance and ``report``
     (default ``OUT.report.json``). ``sweeps``: the files already read (else read here)."""
@@ -61,17 +62,17 @@ def truth_in_gauge(truth, elements, machine, gauge: str):
     overlay compares like with like.
 
     A truth set is written in its own frame (the simulator's: every axis-motion element zero at its
-    first station); the identified one in the gauge of the identification (station-mean by
-    default: the frame on the X carriage's mean pose, the A line at its mean over the turn), and
-    the two differ by a rigid frame change that moves constants and linear trends between
-    elements while leaving every tool point the same. The exact way to the identified frame is
-    the identification itself: noise-free sweeps of the truth at ``elements``' stations,
-    identified with ``gauge``, then the squareness moved to the identified value (the one split
-    the sweeps cannot observe). Returns an :class:`errormap.elements.ElementSet`."""
-    from errormap.identification import identify, move_squareness
+    first station); the identified one in the gauge of the identification, and the two differ by a
+    rigid frame change that moves constants and linear trends between elements while leaving every
+    tool point the same. The exact way to the identified frame is the identification itself:
+    noise-free sweeps of the truth at ``elements``' stations identified with ``gauge``
+    (:class:`errormap.identification.ChainIdentification` on the grinder's chain, whose squareness
+    split is the same condition for both). Returns an :class:`errormap.elements.ElementSet`."""
+    from errormap.grinder_file import grinder_chain
+    from errormap.identification import ChainIdentification
     from errormap.simulator import TruthGrinder
     from errormap.sweeps import simulate_sweeps, sweeps_from_columns
     cols = simulate_sweeps(TruthGrinder(machine, truth, {}), noise_um=0.0, seed=0,
                            stations={k: np.asarray(v) for k, v in elements.stations.items()})
-    same = identify(sweeps_from_columns(cols, "<noise-free sweeps of the truth>"), machine, gauge=gauge).elements_
-    return move_squareness(same, elements.constants["s_xz"], machine)
+    sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>")
+    return ChainIdentification(gauge=gauge).fit(sw, grinder_chain(machine)).elements_.to_element_set()

@@ -2,7 +2,7 @@
 ``sweeps``, ``identify`` and ``diagnose`` when ``--machine`` names one (``mill-xyz``,
 ``five-axis-ac``, a path). The grinder's commands are unchanged (its built-in file stays the
 default); these are the generic forms (``errormap/mt_simulate.py``, ``mt_sweeps.py``,
-``mt_identify.py``, ``diagnosis/mt_loop.py``)."""
+``identification.py``, ``diagnosis/mt_loop.py``)."""
 from __future__ import annotations
 
 import json
@@ -132,19 +132,22 @@ def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="d
 
 
 def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, n_boot: int | None = None,
-                         seed: int = 0) -> tuple:
-    """Identify from one sweep file; write the element set, ``OUT.cov.npz`` (Gauss–Newton's σ̂²·(JᵀJ)⁻¹, σ̂ the
-    known tracker σ ``noise_um`` when given, or with ``n_boot`` the residual bootstrap's,
-    :func:`errormap.mt_identify.bootstrap_covariance`) and the report."""
-    from errormap.mt_identify import ChainIdentification, bootstrap_covariance
+                         seed: int = 0, gauge: str = "station-mean", smooth: bool = True) -> tuple:
+    """Identify from one sweep file in ``gauge``; write the element set (smoothed by
+    :func:`errormap.identification.smooth_chain` unless ``smooth=False``), ``OUT.cov.npz`` (Gauss–Newton's
+    σ̂²·(JᵀJ)⁻¹, σ̂ the known tracker σ ``noise_um`` when given, or with ``n_boot`` the residual bootstrap's,
+    :func:`errormap.identification.bootstrap_covariance`; through the smoother when smoothed) and the report."""
+    from errormap.identification import ChainIdentification, bootstrap_covariance, smooth_chain
     from errormap.mt_sweeps import read_mt_sweeps
     if len(sweep_files) != 1:
         raise UsageError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
                          f"{len(sweep_files)}")
     sweeps = read_mt_sweeps(sweep_files[0], machine)
-    res = ChainIdentification(noise_um=noise_um).fit(sweeps, machine).result_
+    res = ChainIdentification(noise_um=noise_um, gauge=gauge).fit(sweeps, machine).result_
     if n_boot is not None:
-        res = bootstrap_covariance(sweeps, machine, res, n_boot, seed)
+        res = bootstrap_covariance(sweeps, machine, res, n_boot, seed, gauge=gauge)
+    if smooth:
+        res = smooth_chain(res, machine)
     cov_path = res.save_covariance(companion_path(out, ".cov.npz"))
     report = Path(report) if report else companion_path(out, ".report.json")
     info = res.to_dict()
@@ -156,26 +159,26 @@ def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, 
     return res, el_path, cov_path, report
 
 
-def chain_truth_in_gauge(machine, truth_file):
+def chain_truth_in_gauge(machine, truth_file, gauge: str = "station-mean"):
     """A truth element set (``truth_elements.json`` of ``simulate --machine``) as the identification expresses
-    its estimate: in the first-station gauge with its squareness split, found the exact way (the identification
-    of the truth's noise-free sweeps; tool points to 1e-6 μm, ``tests/test_mt_loop.py``), so that a plot
-    overlays like with like (as the grinder's :func:`compensation.app.workflows.identification.truth_in_gauge`)."""
+    its estimate: in ``gauge`` with its squareness split, found the exact way (the identification of the
+    truth's noise-free sweeps; tool points to 1e-6 μm, ``tests/test_mt_loop.py``), so that a plot overlays like
+    with like (as the grinder's :func:`compensation.app.workflows.identification.truth_in_gauge`)."""
+    from errormap.identification import ChainIdentification
     from errormap.mt_elements import ChainElementSet
-    from errormap.mt_identify import ChainIdentification
     from errormap.mt_simulate import MTTruth
     from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     truth = MTTruth(machine, ChainElementSet.load(truth_file, machine), {})
     sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=0.0, seed=0), axes=swept_words(machine))
-    return ChainIdentification().fit(sw, machine).elements_
+    return ChainIdentification(gauge=gauge).fit(sw, machine).elements_
 
 
 def load_chain_model(path, machine):
     """An element set of ``machine`` (format key ``volcomp-elements/1``) and its covariance beside it
     (``NAME.cov.npz``) when present."""
     from errormap.mt_elements import ELEMENTS_FORMAT, ChainElementSet
-    from errormap.mt_identify import load_covariance
+    from errormap.identification import load_covariance
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: no such model file (a machine-tool chain takes an element-set file)")
