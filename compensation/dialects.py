@@ -69,7 +69,8 @@ class Dialect:
     arc_radius_tol: tuple | None = None
     """``(mm under G21, mm under G20, relative)``: a centre-format arc whose start and end radii differ by
     more than the absolute tolerance of its units or by more than the relative one is an error; None: the
-    reader's own 2 μm (:data:`compensation.gcode.ARC_RADIUS_TOL_MM`)."""
+    reader's own 2 μm under G21 (:data:`compensation.gcode.ARC_RADIUS_TOL_MM`), 7.18 μm under G20
+    (:data:`compensation.gcode.ARC_RADIUS_TOL_INCH_MM`)."""
 
 
 LOOKAHEAD = "look-ahead / AI contour control (Q1 on, Q0 off; Q2 smooth interpolation refused)"

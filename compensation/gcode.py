@@ -77,6 +77,10 @@ ARC_RADIUS_TOL_MM = 0.002
 more is refused as an ill-defined arc. A dialect may say what its controller accepts
 (:attr:`compensation.dialects.Dialect.arc_radius_tol`: LinuxCNC's own defaults); the arc is read as a
 spiral whose radius changes linearly with the angle, as those controllers run it."""
+ARC_RADIUS_TOL_INCH_MM = 2 * 0.0001 * MM_PER_INCH * 2 ** 0.5
+"""The same under G20 (7.18 μm): CAM posts write inch words to 0.0001 inch (2.54 μm), so the centre and the
+end point each rounded by half of that already make the radii differ by more than 2 μm; the bound is
+LinuxCNC's formula (:data:`compensation.dialects.LINUXCNC_ARC_TOL`) at that resolution."""
 MAX_TOOL_DIGITS = 2
 """A ``T`` word of more digits is refused: on lathe controls (Fanuc's T-code form ``Tttoo``)
 the digits after the tool number select a geometry/wear offset, which shifts the axes as
@@ -892,7 +896,8 @@ def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
     ju, jv = ax.words.index(u_ax), ax.words.index(v_ax)
     u0, v0, u1, v1 = move.start[ju], move.start[jv], move.end[ju], move.end[jv]
     tol = getattr(st.dialect, "arc_radius_tol", None)
-    tols = {} if tol is None else {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2]}
+    tols = ({"abs_tol_mm": ARC_RADIUS_TOL_INCH_MM} if st.inch else {}) if tol is None else \
+        {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2]}
     return {"ju": ju, "jv": jv, **plane_arc(u0, v0, u1, v1, st.mode, arc_words, (u_c, v_c), st.arc_abs, scale,
                                              first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}", **tols)}
 

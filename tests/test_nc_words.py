@@ -333,3 +333,20 @@ def test_linuxcnc_reads_centre_arcs_with_its_own_radius_tolerance(tmp_path, ax, 
         assert abs((a["r1"] - a["r0"]) - (-0.008)) < TOL_MM * 1e3 and np.isclose(a["uc"], 10.004)
     else:
         assert f"p.nc: line 4, column 4: 'X" in (err := _refused(tmp_path, ax, text, dialect)) and refused in err, err
+
+
+@pytest.mark.parametrize("arc, refused", [
+    ("G3 X1.6875 I0.0688 J0", None),  # centre 1.61875 written to 0.0001 in: the radii differ by 0.0001 in (2.54 μm)
+    ("G3 X1.6875 I0.0691 J0", "differ by 17.780 μm (more than 7.184 μm)"),  # 0.0007 in: more than rounding explains
+])
+def test_inch_arcs_rounded_to_four_decimals_are_read(tmp_path, ax, arc, refused):
+    """A 4-decimal inch program (as CAM posts write G20 output; Fanuc manual, "Circular interpolation"): a
+    centre rounded to 0.0001 inch makes the radii differ by up to that much; under G20 the reader accepts
+    2·0.0001·√2 inch (7.18 μm) and reads the arc as the spiral the controller runs; more is refused."""
+    text = f"G20 G55\nG0 X1.55 Y0 Z0\nG1 X1.55 F9.\n{arc}\nM30\n"
+    if refused is None:
+        _, moves, _, _ = _frames(tmp_path, ax, text, "fanuc")
+        a = moves[-1].arc
+        assert abs((a["r1"] - a["r0"]) - (-0.0001 * 25.4)) < TOL_MM * 1e3 and np.isclose(a["uc"], 1.6188 * 25.4)
+    else:
+        assert "p.nc: line 4, column 4: 'X1.6875'" in (err := _refused(tmp_path, ax, text, "fanuc")) and refused in err, err
