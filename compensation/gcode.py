@@ -188,7 +188,8 @@ ALLOWED_G = {
     "G1": ("motion", "linear move; compensated, split where long"),
     "G2": ("motion", "clockwise arc in a plane of the machine's linear axes; linearised and compensated"),
     "G3": ("motion", "counter-clockwise arc in a plane of the machine's linear axes; linearised and compensated"),
-    "G80": ("motion", "cancel motion mode (no axis words allowed after it)"),
+    "G80": ("motion", "cancel motion mode (no axis words allowed after it; on Fanuc, Haas and Siemens ISO "
+                      "the G0-G3 mode stays, as their G80 is group 09)"),
     "G4": ("nonmodal", "dwell with P; refused with axis words (Fanuc G4 X is a dwell time)"),
     "G28": ("nonmodal", "return to the reference: bare, or with zero incremental words ('G28 G91 Z0'); "
                         "the axes it moves are unknown afterwards"),
@@ -717,7 +718,10 @@ def _apply_modal(st: _State, groups: dict):
     motion_word = None
     if "motion" in groups:
         code, motion_word = groups["motion"]
-        st.mode = None if code == "G80" else code
+        if code != "G80":
+            st.mode = code
+        elif not getattr(st.dialect, "g80_keeps_motion", False):
+            st.mode = None  # RS274NGC: G80 ends the motion mode; Fanuc group 09: G0-G3 stays (nc_cycles restores it)
     return motion_word
 
 
