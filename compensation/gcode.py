@@ -616,7 +616,8 @@ class _State:
         self.plane = "G17"         # the RS274 power-on default
         self.pos = np.full(k, np.nan)
         self.system = None         # the work system selected (None: none yet)
-        self.tool = None           # the tool length offset H number (None: G49 / none)
+        self.tool = None           # the tool length offset H number (None: G49 / none / H0)
+        self.g43 = False           # G43 in force (an H word alone changes it on Fanuc-family dialects)
         self.events = []           # GProgram.events
         self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
         self.selected = None       # the last T word (the tool prepared)
@@ -730,7 +731,8 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
     for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
                                  ("L", ("G10",))):
         if letter in by:
-            ok = any(c in allowed_with for c, _ in gs) or (letter == "P" and st.mode in ("G2", "G3")
+            ok = any(c in allowed_with for c, _ in gs) or (letter == "H" and getattr(st.dialect, "h_offset_alone", False)) or (
+                letter == "P" and st.mode in ("G2", "G3")
                                                              and (axis_words or arc_words) and by["P"].value == 1)
             if not ok:
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside "

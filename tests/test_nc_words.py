@@ -350,3 +350,15 @@ def test_inch_arcs_rounded_to_four_decimals_are_read(tmp_path, ax, arc, refused)
         assert abs((a["r1"] - a["r0"]) - (-0.0001 * 25.4)) < TOL_MM * 1e3 and np.isclose(a["uc"], 1.6188 * 25.4)
     else:
         assert "p.nc: line 4, column 4: 'X1.6875'" in (err := _refused(tmp_path, ax, text, "fanuc")) and refused in err, err
+
+
+def test_fanuc_h_word_alone_changes_the_length_offset_and_h0_is_zero(tmp_path, ax):
+    """Fanuc 0i manual, tool length compensation: in G43 mode a new H number replaces the offset (not added);
+    H00's offset is always 0; in G49 mode an H word is only held; a changed offset needs Z written again. Tools 1 (150 mm) and 2 (100 mm) of the table.
+    Without a dialect an H outside G43 stays refused."""
+    text = ("G21 G55\nG53 G0 Z0 H0\nG0 X0 Y0 Z0\nG1 X1. F100.\nG43 H1 Z10.\nG1 X10.\nH2\nG1 X20. Z10.\n"
+            "G53 G0 Z0 H0\nG1 Z50.\nM30\n")
+    _, moves, _, tool = _frames(tmp_path, ax, text, "fanuc")  # the feed moves (rapids are kept as written)
+    assert [tuple(m.end) for m in moves] == [(1, 0, 0), (1, 0, 10), (10, 0, 10), (20, 0, 10), (20, 0, 50)]
+    assert np.allclose(tool, [np.nan, 150.0, 150.0, 100.0, np.nan], atol=TOL_MM, equal_nan=True)  # NaN: no offset
+    assert "p.nc: line 2, column 11: 'H0' outside G43" in (err := _refused(tmp_path, ax, text)), err
