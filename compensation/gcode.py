@@ -618,6 +618,7 @@ class _State:
         self.system = None         # the work system selected (None: none yet)
         self.tool = None           # the tool length offset H number (None: G49 / none / H0)
         self.g43 = False           # G43 in force (an H word alone changes it on Fanuc-family dialects)
+        self.after_g80 = False     # the motion mode was ended by G80 (the refusal names the dialects that keep it)
         self.events = []           # GProgram.events
         self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
         self.selected = None       # the last T word (the tool prepared)
@@ -719,6 +720,7 @@ def _apply_modal(st: _State, groups: dict):
     motion_word = None
     if "motion" in groups:
         code, motion_word = groups["motion"]
+        st.after_g80 = code == "G80" and st.mode is not None
         if code != "G80":
             st.mode = code
         elif not getattr(st.dialect, "g80_keeps_motion", False):
@@ -736,7 +738,8 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
                                                              and (axis_words or arc_words) and by["P"].value == 1)
             if not ok:
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside "
-                                                    f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else ""))
+                                                    f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else "")
+                              + (H_HINT if letter == "H" else ""))
     for letter, code in (("D", ("G41", "G42")),):
         if letter in by and not any(c in code for c, _ in gs):
             raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
@@ -751,6 +754,9 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
                                    "table's number n")
 
 
+G80_HINT = " after G80 (Fanuc, Haas, Siemens ISO keep the G0-G3 of before a cycle: name the controller with --dialect)"
+H_HINT = ("; Fanuc, Haas, Siemens ISO: an H alone changes the length offset in G43 mode (H0: zero): name the "
+          "controller with --dialect")
 LOADED_TOOL_DIALECTS = ("linuxcnc",)
 """Dialects whose ``G43`` without ``H`` and ``G41``/``G42`` without ``D`` use the tool in the spindle (LinuxCNC
 G-code reference: "G43 ... if H is not given, the current tool's"; "G41 ... D omitted: the current tool")."""
@@ -820,7 +826,8 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     end is its start: RS274NGC, LinuxCNC and Fanuc); advances ``st.pos``."""
     first = min((axis_words or arc_words).values(), key=lambda w: w.start)
     if st.mode is None:
-        raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is active")
+        raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is active"
+                      + (G80_HINT if st.after_g80 else ""))
     if arc_words and st.mode not in ("G2", "G3"):
         w = next(iter(arc_words.values()))
         raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a {st.mode} line (arc words need G2/G3)")

@@ -311,3 +311,14 @@ def test_a_fanuc_post_drill_and_tap_program_reaches_its_holes(tmp_path, truth_fi
     for line in (ln for ln in src if not re.search(r"G8[14]|^N(70|160) X2.5|G0[13] X", ln)):
         at = dst.index(line, at) + 1
     assert "N80 Z1." in dst and "N170 Z1." in dst  # the G00 retracts after G80: rapids, kept as written
+
+
+def test_without_a_dialect_a_bare_axis_word_after_g80_names_the_option(tmp_path):
+    """RS274NGC (and the reader without a dialect word in the program): G80 ends the motion mode; the refusal
+    names the dialects whose G80 keeps it and the option."""
+    p = tmp_path / "p.nc"
+    p.write_text(G80_PROGRAM.format(before=""))
+    with pytest.raises(InputError, match=r"p.nc: line 10, column 5: axis word 'Z50.' but no motion mode .* after G80 "
+                                         r"\(Fanuc, Haas, Siemens ISO keep .* --dialect\)"):
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")),
+                      cycles=lambda text, path, dia, inner: expand_cycles(text, path, "keep", dia, inner))

@@ -361,4 +361,4 @@ def test_fanuc_h_word_alone_changes_the_length_offset_and_h0_is_zero(tmp_path, a
     _, moves, _, tool = _frames(tmp_path, ax, text, "fanuc")  # the feed moves (rapids are kept as written)
     assert [tuple(m.end) for m in moves] == [(1, 0, 0), (1, 0, 10), (10, 0, 10), (20, 0, 10), (20, 0, 50)]
     assert np.allclose(tool, [np.nan, 150.0, 150.0, 100.0, np.nan], atol=TOL_MM, equal_nan=True)  # NaN: no offset
-    assert "p.nc: line 2, column 11: 'H0' outside G43" in (err := _refused(tmp_path, ax, text)), err
+    assert "p.nc: line 2, column 11: 'H0' outside G43" in (err := _refused(tmp_path, ax, text)) and "--dialect" in err, err
