@@ -69,6 +69,7 @@ from errormap.io import InputError, check_not_wide
 from . import gcode_kernels as gscan
 from .gcode_state import (MM_PER_INCH, _dialect_mode, _g10, _machine_coordinates, _Refuse, _tool_change,
                           _work_state, io_line, siemens_native)
+from .nc_expand import SLASH_COMMENT
 
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 """Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""
@@ -439,6 +440,8 @@ def tokenize(body: str):
     while i < n and body[i] in " \t":
         i += 1
     block_delete = i < n and body[i] == "/"
+    if body.startswith("//", i):
+        raise _Refuse(i + 1, SLASH_COMMENT)
     if block_delete:
         i += 1
     if body[i:].strip().startswith("%"):
