@@ -736,13 +736,11 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
     for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
                                  ("L", ("G10",))):
         if letter in by:
-            ok = any(c in allowed_with for c, _ in gs) or (letter == "H" and getattr(st.dialect, "h_offset_alone", False)) or (
-                letter == "P" and st.mode in ("G2", "G3")
-                                                             and (axis_words or arc_words) and by["P"].value == 1)
-            if not ok:
-                raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside "
-                                                    f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else "")
-                              + (H_HINT if letter == "H" else ""))
+            h_alone = letter == "H" and getattr(st.dialect, "h_offset_alone", False)  # Fanuc: H alone in G43 mode
+            arc_p1 = letter == "P" and st.mode in ("G2", "G3") and bool(axis_words or arc_words) and by["P"].value == 1
+            if not (h_alone or arc_p1 or any(c in allowed_with for c, _ in gs)):
+                raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
+                              + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
     for letter, code in (("D", ("G41", "G42")),):
         if letter in by and not any(c in code for c, _ in gs):
             raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
@@ -829,8 +827,8 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     end is its start: RS274NGC, LinuxCNC and Fanuc); advances ``st.pos``."""
     first = min((axis_words or arc_words).values(), key=lambda w: w.start)
     if st.mode is None:
-        raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is active"
-                      + (G80_HINT if st.after_g80 else ""))
+        raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is "
+                                       "active" + (G80_HINT if st.after_g80 else ""))
     if arc_words and st.mode not in ("G2", "G3"):
         w = next(iter(arc_words.values()))
         raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a {st.mode} line (arc words need G2/G3)")

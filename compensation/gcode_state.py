@@ -73,7 +73,7 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
                 raise _Refuse(h.start + 1, f"'H{h.text}': expected a tool number")
             value = int(h.value) if h is not None else _loaded(st, code, w)
             value = None if fanuc_h and value == 0 else value  # H00: always a zero length
-        text = "G49" if code == "G49" else (f"G43 H{int(by['H'].value)}" if "H" in by else f"G43 (tool {value} loaded)")
+        text = code if code != "G43" else (f"G43 H{int(by['H'].value)}" if "H" in by else f"G43 (tool {value} loaded)")
         st.events.append((idx, w.start + 1, "tool", value, text))
         st.g43 = code == "G43"
         if value != st.tool:
