@@ -15,6 +15,9 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
 * **G80 with a motion code on one line** (``G80 G0 X..``): Fanuc, Haas, Siemens ISO and Mach3 cancel
   the cycle and take the motion code; LinuxCNC refuses two group-1 codes on one line (so does the
   reader, without a dialect);
+* **G80 and the motion mode**: on Fanuc, Haas and Siemens ISO the cycles and ``G80`` are group 09, so the
+  G0-G3 mode in force before a cycle is in force after its ``G80`` (CAM posts write ``G80`` then a bare
+  ``Z`` retract); on LinuxCNC, Mach3 and grbl ``G80`` ends the motion mode (RS274NGC group 1);
 * **block delete** ``/``: every dialect but grbl (which has no block-delete switch) skips the line
   when the switch is on (``--block-delete``).
 
@@ -66,10 +69,20 @@ class Dialect:
     on the line)}."""
     io_codes: dict = field(default_factory=dict)
     """Output / input M codes passed through on a line of their own {code: meaning}."""
+    g80_keeps_motion: bool = False
+    """The canned cycles and ``G80`` are a modal group of their own (Fanuc, Haas, Siemens ISO: group 09): the
+    group-01 motion mode (G0-G3) in force before a cycle is in force again after ``G80``, and a ``G80``
+    outside a cycle leaves it alone; otherwise (LinuxCNC, Mach3, grbl: RS274NGC group 1) ``G80`` ends the
+    motion mode and axis words need a new G0/G1 (:mod:`compensation.nc_cycles`)."""
+    h_offset_alone: bool = False
+    """An ``H`` word without ``G43`` changes the length offset where ``G43`` is in force and is held otherwise,
+    and ``H0`` (``H00``) is a zero length (Fanuc 0i, Haas, Siemens ISO: "tool length compensation": the offset
+    number may be changed in G43 mode; H00's value is always 0). Otherwise ``H`` only with ``G43``."""
     arc_radius_tol: tuple | None = None
     """``(mm under G21, mm under G20, relative)``: a centre-format arc whose start and end radii differ by
     more than the absolute tolerance of its units or by more than the relative one is an error; None: the
-    reader's own 2 μm (:data:`compensation.gcode.ARC_RADIUS_TOL_MM`)."""
+    reader's own 2 μm under G21 (:data:`compensation.gcode.ARC_RADIUS_TOL_MM`), 7.18 μm under G20
+    (:data:`compensation.gcode.ARC_RADIUS_TOL_INCH_MM`)."""
 
 
 LOOKAHEAD = "look-ahead / AI contour control (Q1 on, Q0 off; Q2 smooth interpolation refused)"
@@ -96,18 +109,20 @@ DIALECTS = {
                                      50: "feed override control", 51: "spindle override control",
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
                         io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL),
-    "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off"},
-                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD}, g80_with_motion=True),
+    "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
+                               48: "overrides on", 49: "overrides off"},
+                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD}, g80_with_motion=True,
+                     g80_keeps_motion=True, h_offset_alone=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
                              35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
                     modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)"}, g80_with_motion=True,
-                    work_systems=HAAS_SYSTEMS),
+                    g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
                            program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode"},
-                           g80_with_motion=True),
+                           g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True),
     "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True),
     "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False),
     # Heidenhain TNC DIN/ISO programs: '%NAME G71 *' framing and the '*' block end are read by the

@@ -69,6 +69,7 @@ from errormap.io import InputError, check_not_wide
 from . import gcode_kernels as gscan
 from .gcode_state import (MM_PER_INCH, _dialect_mode, _g10, _machine_coordinates, _Refuse, _tool_change,
                           _work_state, io_line, siemens_native)
+from .nc_expand import SLASH_COMMENT
 
 DECIMALS = {"mm": 6, "inch": 7, "deg": 6}
 """Decimals written: 1 nm in mm, 2.5 nm in inch, 1e-6 deg (1 nm at 57 mm from the A axis)."""
@@ -77,6 +78,10 @@ ARC_RADIUS_TOL_MM = 0.002
 more is refused as an ill-defined arc. A dialect may say what its controller accepts
 (:attr:`compensation.dialects.Dialect.arc_radius_tol`: LinuxCNC's own defaults); the arc is read as a
 spiral whose radius changes linearly with the angle, as those controllers run it."""
+ARC_RADIUS_TOL_INCH_MM = 2 * 0.0001 * MM_PER_INCH * 2 ** 0.5
+"""The same under G20 (7.18 μm): CAM posts write inch words to 0.0001 inch (2.54 μm), so the centre and the
+end point each rounded by half of that already make the radii differ by more than 2 μm; the bound is
+LinuxCNC's formula (:data:`compensation.dialects.LINUXCNC_ARC_TOL`) at that resolution."""
 MAX_TOOL_DIGITS = 2
 """A ``T`` word of more digits is refused: on lathe controls (Fanuc's T-code form ``Tttoo``)
 the digits after the tool number select a geometry/wear offset, which shifts the axes as
@@ -184,7 +189,8 @@ ALLOWED_G = {
     "G1": ("motion", "linear move; compensated, split where long"),
     "G2": ("motion", "clockwise arc in a plane of the machine's linear axes; linearised and compensated"),
     "G3": ("motion", "counter-clockwise arc in a plane of the machine's linear axes; linearised and compensated"),
-    "G80": ("motion", "cancel motion mode (no axis words allowed after it)"),
+    "G80": ("motion", "cancel motion mode (no axis words allowed after it; on Fanuc, Haas and Siemens ISO "
+                      "the G0-G3 mode stays, as their G80 is group 09)"),
     "G4": ("nonmodal", "dwell with P; refused with axis words (Fanuc G4 X is a dwell time)"),
     "G28": ("nonmodal", "return to the reference: bare, or with zero incremental words ('G28 G91 Z0'); "
                         "the axes it moves are unknown afterwards"),
@@ -434,6 +440,8 @@ def tokenize(body: str):
     while i < n and body[i] in " \t":
         i += 1
     block_delete = i < n and body[i] == "/"
+    if body.startswith("//", i):
+        raise _Refuse(i + 1, SLASH_COMMENT)
     if block_delete:
         i += 1
     if body[i:].strip().startswith("%"):
@@ -611,7 +619,9 @@ class _State:
         self.plane = "G17"         # the RS274 power-on default
         self.pos = np.full(k, np.nan)
         self.system = None         # the work system selected (None: none yet)
-        self.tool = None           # the tool length offset H number (None: G49 / none)
+        self.tool = None           # the tool length offset H number (None: G49 / none / H0)
+        self.g43 = False           # G43 in force (an H word alone changes it on Fanuc-family dialects)
+        self.after_g80 = False     # the motion mode was ended by G80 (the refusal names the dialects that keep it)
         self.events = []           # GProgram.events
         self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
         self.selected = None       # the last T word (the tool prepared)
@@ -713,7 +723,11 @@ def _apply_modal(st: _State, groups: dict):
     motion_word = None
     if "motion" in groups:
         code, motion_word = groups["motion"]
-        st.mode = None if code == "G80" else code
+        st.after_g80 = code == "G80" and st.mode is not None
+        if code != "G80":
+            st.mode = code
+        elif not getattr(st.dialect, "g80_keeps_motion", False):
+            st.mode = None  # RS274NGC: G80 ends the motion mode; Fanuc group 09: G0-G3 stays (nc_cycles restores it)
     return motion_word
 
 
@@ -722,11 +736,11 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
     for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
                                  ("L", ("G10",))):
         if letter in by:
-            ok = any(c in allowed_with for c, _ in gs) or (letter == "P" and st.mode in ("G2", "G3")
-                                                             and (axis_words or arc_words) and by["P"].value == 1)
-            if not ok:
-                raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside "
-                                                    f"{'/'.join(allowed_with)}" + (" (or P1 on an arc)" if letter == "P" else ""))
+            h_alone = letter == "H" and getattr(st.dialect, "h_offset_alone", False)  # Fanuc: H alone in G43 mode
+            arc_p1 = letter == "P" and st.mode in ("G2", "G3") and bool(axis_words or arc_words) and by["P"].value == 1
+            if not (h_alone or arc_p1 or any(c in allowed_with for c, _ in gs)):
+                raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
+                              + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
     for letter, code in (("D", ("G41", "G42")),):
         if letter in by and not any(c in code for c, _ in gs):
             raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
@@ -741,6 +755,9 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
                                    "table's number n")
 
 
+G80_HINT = " after G80 (Fanuc, Haas, Siemens ISO keep the G0-G3 of before a cycle: name the controller with --dialect)"
+H_HINT = ("; Fanuc, Haas, Siemens ISO: an H alone changes the length offset in G43 mode (H0: zero): name the "
+          "controller with --dialect")
 LOADED_TOOL_DIALECTS = ("linuxcnc",)
 """Dialects whose ``G43`` without ``H`` and ``G41``/``G42`` without ``D`` use the tool in the spindle (LinuxCNC
 G-code reference: "G43 ... if H is not given, the current tool's"; "G41 ... D omitted: the current tool")."""
@@ -810,7 +827,8 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     end is its start: RS274NGC, LinuxCNC and Fanuc); advances ``st.pos``."""
     first = min((axis_words or arc_words).values(), key=lambda w: w.start)
     if st.mode is None:
-        raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is active")
+        raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is "
+                                       "active" + (G80_HINT if st.after_g80 else ""))
     if arc_words and st.mode not in ("G2", "G3"):
         w = next(iter(arc_words.values()))
         raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a {st.mode} line (arc words need G2/G3)")
@@ -892,7 +910,8 @@ def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
     ju, jv = ax.words.index(u_ax), ax.words.index(v_ax)
     u0, v0, u1, v1 = move.start[ju], move.start[jv], move.end[ju], move.end[jv]
     tol = getattr(st.dialect, "arc_radius_tol", None)
-    tols = {} if tol is None else {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2]}
+    tols = ({"abs_tol_mm": ARC_RADIUS_TOL_INCH_MM} if st.inch else {}) if tol is None else \
+        {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2]}
     return {"ju": ju, "jv": jv, **plane_arc(u0, v0, u1, v1, st.mode, arc_words, (u_c, v_c), st.arc_abs, scale,
                                              first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}", **tols)}
 

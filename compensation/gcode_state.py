@@ -63,16 +63,19 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         value = int(d.value) if d is not None else (None if code == "G40" else _loaded(st, code, w))
         text = code if value is None else (f"{code} D{value}" if d is not None else f"{code} (tool {value} loaded)")
         st.events.append((idx, w.start + 1, "cutter", value, text))
-    if "length" in groups:
-        code, w = groups["length"]
+    fanuc_h = getattr(st.dialect, "h_offset_alone", False)
+    if "length" in groups or (fanuc_h and "H" in by and st.g43):
+        code, w = groups["length"] if "length" in groups else ("G43", by["H"])
         value = None
         if code == "G43":
             h = by.get("H")
             if h is not None and (h.value != int(h.value) or h.value < 0):
                 raise _Refuse(h.start + 1, f"'H{h.text}': expected a tool number")
             value = int(h.value) if h is not None else _loaded(st, code, w)
-        text = code if value is None else (f"G43 H{value}" if "H" in by else f"G43 (tool {value} loaded)")
+            value = None if fanuc_h and value == 0 else value  # H00: always a zero length
+        text = code if code != "G43" else (f"G43 H{int(by['H'].value)}" if "H" in by else f"G43 (tool {value} loaded)")
         st.events.append((idx, w.start + 1, "tool", value, text))
+        st.g43 = code == "G43"
         if value != st.tool:
             _forget(st, ax, ("Z",))
             st.tool = value

@@ -153,6 +153,7 @@ class _St:
         self.why_unknown = "the program start"
         self.kept_line = 0  # the last kept cycle line while the controller's Z differs from the programmed one
         self.series = 0
+        self.g01 = None  # the G0-G3 mode written before the cycle (in force again after G80 where it is group 09)
 
 
 def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None) -> CycleExpansion:
@@ -201,12 +202,25 @@ def _line(body, st: _St, mode, dialect, lineno, holes, out_at):
             raise _Refuse(body.index("/") + 1, "'/' (block delete) on a canned-cycle line: whether the hole is "
                                                "drilled depends on the controller's switch; remove the '/'")
         return _cycle_line(body, words, by, gs, cyc, st, mode, dialect, lineno, holes, out_at)
+    _g80_motion(motion, st)
     _track(words, by, gs, motion, st)
     _after_kept(by, gs, st)
     if bd and any(a in by for a in "XYZ"):  # run or skipped by the operator's switch
         st.pos[[j for j, a in enumerate("XYZ") if a in by]] = np.nan
         st.why_unknown = "a '/' (block delete) line"
     return None
+
+
+def _keeps_motion(dialect) -> bool:
+    from .dialects import DIALECTS
+    return dialect in DIALECTS and DIALECTS[dialect].g80_keeps_motion
+
+
+def _g80_motion(motion, st: _St) -> None:
+    """The G0-G3 mode last written: where G80 is group 09 (:attr:`compensation.dialects.Dialect.g80_keeps_motion`)
+    it moves the axes through and after a cycle (a cycle needs a known Z, so one was written before it)."""
+    if any(c in ("G0", "G1", "G2", "G3") for c in motion):
+        st.g01 = next(c for c in reversed(motion) if c != "G80")
 
 
 def _after_kept(by, gs, st: _St) -> None:
@@ -281,6 +295,8 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
             extra = "G90"
         holes.append(hole)
     st.pos[:] = (x, y, clear)
+    if st.g01 is not None and _keeps_motion(dialect) and out[-1].split(" ")[0] != st.g01:
+        out.append(st.g01)  # the controller's group-01 mode through and after the cycle (G80 is group 09)
     if mode == "keep":
         st.kept_line = lineno
     if st.inc:

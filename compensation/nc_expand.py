@@ -53,6 +53,8 @@ from .nc_flow import (MAX_CALL_DEPTH,  # noqa: F401  (re-exported: the documente
 MAX_EXECUTED_LINES = 2_000_000
 """Executed source lines (every pass of a loop counts): more is refused as an endless loop."""
 DIALECTS = ("fanuc", "haas", "linuxcnc", "mach3", "siemens-iso", "grbl")
+SLASH_COMMENT = ("'//' is not a comment in G-code (a C-style comment line of some controllers' programs): write the "
+                 "comment in ( ) or after ';'")
 
 _MARK_BYTES = (b"#", b"[", b"<")
 _MARK_WORDS = (b"m98", b"m97", b"m99", b"g65", b"goto", b"while", b"if", b"sub", b"call", b"repeat")
@@ -311,6 +313,8 @@ def _parse_line(body: str):
         return ("plain", bool(_END_CODES.search(code)))
     p = _Parser(code)
     i = p.ws(0)
+    if code.startswith("//", i):
+        raise _Refuse(i + 1, SLASH_COMMENT)
     if i < p.n and code[i] == "/":
         raise _Refuse(i + 1, "block delete ('/') on a line with parameters or control flow: whether it "
                              "runs depends on the controller's switch")

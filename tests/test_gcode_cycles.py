@@ -256,3 +256,69 @@ def test_kept_incremental_repeats_are_written_one_line_per_hole(tmp_path, mill, 
     assert max(errs) < TOL_POINT_UM
     cyc = json.loads((out / "compensate_summary.json").read_text())["files"][0]["cycles"]
     assert cyc["holes"] == 3 and cyc["true_bottom_uncompensated"]["max_um"] > 10 * TOL_POINT_UM  # teeth
+
+
+G80_PROGRAM = """%
+O0100 (G80 KEEPS THE MOTION MODE)
+N10 G90 G17 G21 G54
+N20 T1 M06
+N30 G00 X10. Y10.
+N40 G43 Z50. H01
+{before}N50 G99 G81 X10. Y10. Z-5. R2. F100.
+N60 X20.
+N70 G80
+N80 Z50.
+N90 X0. Y0.
+N100 M30
+%
+"""
+
+
+@pytest.mark.parametrize("before, kind", [("", "rapid"), ("N45 G01 Z10. F200.\n", "linear")])
+def test_fanuc_g80_leaves_the_motion_mode_written_before_the_cycle(tmp_path, before, kind):
+    """Fanuc 0i (and Haas, Siemens ISO) manuals: the drilling cycles and G80 are G-code group 09, G00-G03 group
+    01; G80 cancels the cycle and leaves group 01 as it was, so the bare 'Z50.' after G80 moves in the mode
+    written before the cycle (G00, or G01 where the program fed down first), as CAM posts rely on."""
+    p = tmp_path / "p.nc"
+    p.write_text(G80_PROGRAM.format(before=before))
+    prog = parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="fanuc",
+                         cycles=lambda text, path, dia, inner: expand_cycles(text, path, "keep", dia, inner))
+    after = prog.moves[-2:]  # N80, N90: the moves after G80
+    assert [m.kind for m in after] == [kind, kind] and [m.motion_word for m in after] == [None, None]
+    assert np.allclose([m.end[2] for m in after], [50.0, 50.0]) and np.allclose(after[-1].end[:2], [0.0, 0.0])
+    with pytest.raises(InputError, match=rf"p.nc: line {11 if before else 10}, column 5: axis word 'Z50.' but no "
+                                         r"motion mode"):  # LinuxCNC: G80 is group 1 and ends the motion mode
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="linuxcnc",
+                      cycles=lambda text, path, dia, inner: expand_cycles(text, path, "keep", dia, inner))
+
+
+def test_a_fanuc_post_drill_and_tap_program_reaches_its_holes(tmp_path, truth_file):
+    """A program in the form Fanuc posts write (written here from the Fanuc 0i manual): inch, G81 and a rigid tap
+    (M29 S then G84), each ended by G80 and a bare 'Z1.' retract in the G00 of before the cycle, and a 4-decimal
+    inch arc whose radii differ by the last digit. Compensated on mill-xyz (G55, tools 3 and 4 of the table);
+    every hole bottom within TOL_POINT_UM on the TRUE machine, every line but the holes byte-identical."""
+    prog = DATA / "fanuc_post_drill_tap.nc"
+    tools = tmp_path / "tools.csv"
+    tools.write_text("tool,length_mm,radius_mm\n3,120,3.175\n4,110,3.175\n")
+    out = tmp_path / "o"
+    assert _compensate(prog, out, truth_file, "--truth", str(truth_file), "--dialect", "fanuc",
+                       "--tool-table", str(tools)) == 0
+    cyc = json.loads((out / "compensate_summary.json").read_text())["files"][0]["cycles"]
+    assert cyc["holes"] == 4 and cyc["true_bottom"]["max_um"] < TOL_POINT_UM
+    src = prog.read_text().splitlines()
+    dst = [ln for ln in (out / prog.name).read_text().splitlines() if not ln.startswith("(volcomp:")]
+    at = 0  # every line but the holes and the feed moves (split where long) written as it was, in order
+    for line in (ln for ln in src if not re.search(r"G8[14]|^N(70|160) X2.5|G0[13] X", ln)):
+        at = dst.index(line, at) + 1
+    assert "N80 Z1." in dst and "N170 Z1." in dst  # the G00 retracts after G80: rapids, kept as written
+
+
+def test_without_a_dialect_a_bare_axis_word_after_g80_names_the_option(tmp_path):
+    """RS274NGC (and the reader without a dialect word in the program): G80 ends the motion mode; the refusal
+    names the dialects whose G80 keeps it and the option."""
+    p = tmp_path / "p.nc"
+    p.write_text(G80_PROGRAM.format(before=""))
+    with pytest.raises(InputError, match=r"p.nc: line 10, column 5: axis word 'Z50.' but no motion mode .* after G80 "
+                                         r"\(Fanuc, Haas, Siemens ISO keep .* --dialect\)"):
+        parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")),
+                      cycles=lambda text, path, dia, inner: expand_cycles(text, path, "keep", dia, inner))

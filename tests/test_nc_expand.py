@@ -81,6 +81,7 @@ REFUSED = [
     ("O1\nG0 X0 Y0 Z0\nM99\n", "line 3, column 1: M99 in the main program"),
     ("G21\no<probe> call [1]\nM2\n", "line 2, column 1: o<probe> call: the subroutine is not defined in this file"),
     ("G21\n/#1 = 2\n", "line 2, column 1: block delete"),
+    ("%\n//O0001 SLOT (SHOP NOTE)\nG70\nG0 X1\n", "line 2, column 1: '//' is not a comment in G-code"),
     ("G21\n#1 = [1 + 2\n", "line 2, column 6: '[' without its ']'"),
     ("G21\n#1 = FOO[2]\n", "line 2, column 6: 'FOO' is not a function"),
     ("G21\n#1 = -2.5\nG0 X[FIX[#1]] Y0 Z0\n", "line 3, column 6: FIX of a negative number rounds one way"),

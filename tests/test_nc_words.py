@@ -333,3 +333,32 @@ def test_linuxcnc_reads_centre_arcs_with_its_own_radius_tolerance(tmp_path, ax, 
         assert abs((a["r1"] - a["r0"]) - (-0.008)) < TOL_MM * 1e3 and np.isclose(a["uc"], 10.004)
     else:
         assert f"p.nc: line 4, column 4: 'X" in (err := _refused(tmp_path, ax, text, dialect)) and refused in err, err
+
+
+@pytest.mark.parametrize("arc, refused", [
+    ("G3 X1.6875 I0.0688 J0", None),  # centre 1.61875 written to 0.0001 in: the radii differ by 0.0001 in (2.54 μm)
+    ("G3 X1.6875 I0.0691 J0", "differ by 17.780 μm (more than 7.184 μm)"),  # 0.0007 in: more than rounding explains
+])
+def test_inch_arcs_rounded_to_four_decimals_are_read(tmp_path, ax, arc, refused):
+    """A 4-decimal inch program (as CAM posts write G20 output; Fanuc manual, "Circular interpolation"): a
+    centre rounded to 0.0001 inch makes the radii differ by up to that much; under G20 the reader accepts
+    2·0.0001·√2 inch (7.18 μm) and reads the arc as the spiral the controller runs; more is refused."""
+    text = f"G20 G55\nG0 X1.55 Y0 Z0\nG1 X1.55 F9.\n{arc}\nM30\n"
+    if refused is None:
+        _, moves, _, _ = _frames(tmp_path, ax, text, "fanuc")
+        a = moves[-1].arc
+        assert abs((a["r1"] - a["r0"]) - (-0.0001 * 25.4)) < TOL_MM * 1e3 and np.isclose(a["uc"], 1.6188 * 25.4)
+    else:
+        assert "p.nc: line 4, column 4: 'X1.6875'" in (err := _refused(tmp_path, ax, text, "fanuc")) and refused in err, err
+
+
+def test_fanuc_h_word_alone_changes_the_length_offset_and_h0_is_zero(tmp_path, ax):
+    """Fanuc 0i manual, tool length compensation: in G43 mode a new H number replaces the offset (not added);
+    H00's offset is always 0; in G49 mode an H word is only held; a changed offset needs Z written again. Tools 1 (150 mm) and 2 (100 mm) of the table.
+    Without a dialect an H outside G43 stays refused."""
+    text = ("G21 G55\nG53 G0 Z0 H0\nG0 X0 Y0 Z0\nG1 X1. F100.\nG43 H1 Z10.\nG1 X10.\nH2\nG1 X20. Z10.\n"
+            "G53 G0 Z0 H0\nG1 Z50.\nM30\n")
+    _, moves, _, tool = _frames(tmp_path, ax, text, "fanuc")  # the feed moves (rapids are kept as written)
+    assert [tuple(m.end) for m in moves] == [(1, 0, 0), (1, 0, 10), (10, 0, 10), (20, 0, 10), (20, 0, 50)]
+    assert np.allclose(tool, [np.nan, 150.0, 150.0, 100.0, np.nan], atol=TOL_MM, equal_nan=True)  # NaN: no offset
+    assert "p.nc: line 2, column 11: 'H0' outside G43" in (err := _refused(tmp_path, ax, text)) and "--dialect" in err, err
