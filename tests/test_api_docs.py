@@ -39,7 +39,7 @@ def test_api_example_runs_as_written():
     result, machine, axes, model = ns["result"], ns["machine"], ns["axes"], ns["model"]
     assert result.success.all() and result.accepted
     assert np.linalg.norm(result.residual_um, axis=1).max() <= MODEL_TOL_UM
-    from compensation.app.workflows.mt_compensate import true_residual_um
+    from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap import simulate_truth
     from errormap.mt_field import ChainField

@@ -158,13 +158,14 @@ def ignored_vs_used_um(prog, mill, truth_els, offsets, tools):
     """TRUE residual max (μm) at every vertex of ``prog`` run with its real work offset and tool, compensated
     (a) with the tables ignored (the program's axes taken as machine axes, the file's 120 mm tool: what
     the reader did before) and (b) with them used. The model is the truth (nothing else differs)."""
-    from compensation.app.workflows.mt_compensate import ChainSettings, read_chain_path, solve_chain_paths
+    from compensation.app.workflows.compensate import CompensateSettings, solve_paths
+    from compensation.app.workflows.compensate_paths import read_tool_path
     from compensation.solvers import solve
     from compensation.solvers.chain_exact import nominal_and_jacobian
-    s = ChainSettings("exact", "", Path("."), work_offsets=offsets, tool_table=tools)
+    s = CompensateSettings("exact", "", Path("."), work_offsets=offsets, tool_table=tools)
     field_ = ChainField(mill, truth_els)
-    tp = read_chain_path(prog, mill, s, field_)
-    res, _, true_used, _ = solve_chain_paths([tp], field_, field_, mill, s)[0]
+    tp = read_tool_path(prog, mill, s, field_)
+    res, _, true_used, _ = solve_paths([tp], field_, field_, mill, s)[0]
     prog_axes = tp.axes - tp.shift
     t0, _ = nominal_and_jacobian(mill, prog_axes)
     old = solve("exact", field_, t0, mill, target_axes=prog_axes, progress=False)  # tables ignored

@@ -54,7 +54,7 @@ import time
 
 import numpy as np
 
-from errormap.field import PREDICT_AND_JACOBIAN, check_field
+from errormap.field import FLOAT32, JACOBIAN, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, check_field
 from errormap.mt_kernel import NominalChain
 from errormap.progress import Progress
 from errormap.transforms import check_points
@@ -196,8 +196,6 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     """
     t0 = time.perf_counter()
     check_field(field, machine.axis_columns)
-    if PREDICT_AND_JACOBIAN not in field.capabilities:
-        raise TypeError(f"{type(field).__name__} declares no predict_and_jacobian; the exact chain solver needs it")
     compiled = NominalChain(machine)
     sol, kept = solved_and_kept(machine, compiled)
     targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
@@ -255,27 +253,61 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
 
 
 class _ChainFieldEval:
-    """A chain field for the exact solver's Newton core (:func:`compensation.solvers.exact.newton`):
-    its compiled ``predict`` (trial points) and ``predict_and_jacobian`` (start, refreshes)."""
+    """A field for the exact solver's Newton core (:func:`compensation.solvers.exact.newton`), evaluated as
+    every solver evaluates a field: full-turn axes folded into the calibrated turn of their stroke, its
+    float32 path for the start where it declares one (only the first step's direction depends on it), its
+    ``predict_columns`` for values where declared, its own Jacobian where declared, else forward differences
+    (:mod:`compensation.solvers._common`). Shapes: axes (m, k), values (m, 3) μm, Jacobians (m, 3, k)."""
 
-    def __init__(self, field):
+    def __init__(self, field, machine):
         self.field = field
+        self.full = [(j, float(machine.axes[j].stroke[0])) for j, a in enumerate(machine.axes) if a.full_turn]
+        self.own = PREDICT_AND_JACOBIAN in field.capabilities and JACOBIAN in field.capabilities
+
+    def fold(self, q):
+        if not self.full:
+            return q
+        q = np.array(q, dtype=float, copy=True)
+        for j, lo in self.full:
+            q[:, j] = lo + np.mod(q[:, j] - lo, 360.0)
+        return q
 
     def start(self, q):
-        E, JE = self.field.predict_and_jacobian(q)
-        return E, JE, 2 * len(q)
+        if not self.own:
+            E = self.value(q)
+            J, fe = self.jacobian(q, E)
+            return E, J, len(q) + fe
+        kw = {"dtype": np.float32} if FLOAT32 in self.field.capabilities else {}
+        E, JE = self.field.predict_and_jacobian(self.fold(q), **kw)
+        return np.asarray(E, dtype=float), np.asarray(JE, dtype=float), 2 * len(q)
 
     def value(self, q):
-        return self.field.predict(q)
+        a = self.fold(q)
+        if PREDICT_COLUMNS in self.field.capabilities:
+            return np.ascontiguousarray(self.field.predict_columns(np.ascontiguousarray(a.T)).T, dtype=float)
+        return np.asarray(self.field.predict(a), dtype=float)
 
     def jacobian(self, q, e0):
-        return self.field.predict_and_jacobian(q)[1], 2 * len(q)
+        if self.own:
+            return np.asarray(self.field.jacobian(self.fold(q)), dtype=float), len(q)
+        k = q.shape[1]
+        J = np.empty((len(q), 3, k))
+        for j in range(k):
+            d = np.zeros(k)
+            d[j] = FD_STEP
+            J[:, :, j] = (self.value(q + d) - e0) / FD_STEP
+        return J, k * len(q)
+
+
+FD_STEP = 1e-3
+"""Forward-difference step of a field without its own Jacobian, per axis (mm or deg)."""
 
 
 def _newton(field, compiled, targets, axes_d, sol, xtol_um, max_iter):
     """The exact solver's Newton core on the solved axes ``sol`` (3,) of one chunk (the others kept
     at ``axes_d``; a solved full-turn axis put on the turn of ``axes_d``); returns
     ``(q (m, k), p_r (m, 3) mm, E (m, 3) μm at q, iterations (m,), field evaluations)``."""
-    q, E, iters, _, nfev = newton(_ChainFieldEval(field), compiled, sol, targets, axes_d, xtol_um, max_iter)
+    q, E, iters, _, nfev = newton(_ChainFieldEval(field, compiled.machine_tool), compiled, sol, targets, axes_d,
+                                  xtol_um, max_iter)
     keep_turn(compiled, q, axes_d)
     return q, compiled.forward(q), E, iters, nfev
