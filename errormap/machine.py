@@ -61,12 +61,6 @@ class Grinder:
     sha256: str = ""
     kind: str = field(default="grinder")
 
-    def as_machine_tool(self):
-        """This file's machine-tool chain (:func:`errormap.grinder_file.grinder_chain`: the same 23 element
-        names and axis columns x_mm, z_mm, a_deg); what every machine-tool command runs on."""
-        from .grinder_file import grinder_chain
-        return grinder_chain(self)
-
     @property
     def rho0_mm(self) -> float:
         """Radius of the tool point about the A axis at z = 0: ``l1 + l4 - R - l6 - l8``."""

@@ -226,10 +226,6 @@ class MachineTool:
     controller's tool-centre-point kinematics on and off (LinuxCNC's switchable kinematics, remapped M
     codes); None without one (:mod:`compensation.tcp`)."""
 
-    def as_machine_tool(self) -> "MachineTool":
-        """The machine-tool chain a command runs on: this one (a grinder file answers with its chain)."""
-        return self
-
     # -- names and sizes ----------------------------------------------------------------------
     @property
     def axis_words(self) -> tuple:

@@ -44,6 +44,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from errormap.grinder_file import is_machine_tool
 from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError, one_line
@@ -195,7 +196,7 @@ def run(args) -> int:
                              "program is joint angles)")
         from ..workflows.arm_compensate import run_arm_compensate
         return run_arm_compensate(machine, args)
-    if not hasattr(machine, "as_machine_tool"):  # a parallel machine: no tool-path compensation
+    if not is_machine_tool(machine):  # a parallel machine: no tool-path compensation
         raise UsageError(f"--machine {machine.name}: compensate takes machine tools (a chain file or a grinder "
                          f"file) and serial arms; {machine.name!r} is a {machine.kind} machine")
     if args.method is None:
