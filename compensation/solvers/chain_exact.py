@@ -117,8 +117,11 @@ def chain_inverse(machine, targets_mm, compiled=None) -> np.ndarray:
 def target_axes_of(machine, targets, target_axes, compiled) -> np.ndarray:
     """The programmed axes of each target, shape (n, k): ``target_axes`` as given (checked: finite, one
     row per target, one column per axis of the machine) or the nominal inverse of the targets."""
-    if target_axes is None:
-        return chain_inverse(machine, targets, compiled)
+    if target_axes is None:  # the closed-form inverse where the chain has one (rotary axis unwrapped along the path)
+        try:
+            return machine.inverse_closed(targets, unwrap=True)
+        except ValueError:
+            return chain_inverse(machine, targets, compiled)
     k = len(machine.axes)
     axes_d = np.array(target_axes, dtype=float)
     if axes_d.shape != (len(targets), k) or not np.all(np.isfinite(axes_d)):
