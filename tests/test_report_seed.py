@@ -17,8 +17,6 @@ from errormap.simulator import random_axes, random_truth
 SEED = 5
 
 
-@pytest.mark.xfail(strict=True, reason="report (compare_methods) still solves the grinder with its own solvers, "
-                   "compensate with the chain's (the grinder's chain): one path once solve() routes the grinder to its chain")
 @pytest.mark.parametrize("method,points", [("batched-ga", 40), ("ga", 2)])  # the per-point GA: ~1 s a point
 def test_report_and_compensate_give_the_same_ga_commands(tmp_path, method, points):
     m = load_machine()

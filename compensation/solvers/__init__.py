@@ -107,14 +107,18 @@ def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
     :func:`compensation.solvers.chain_ga.solve_batched_ga_chain`; the tool tip with the chain's three
     linear axes, rotary axes kept, or with exact every axis of a three-axis machine such as a lathe's
     X, Z, C); a method without one is refused (ValueError)."""
+    from errormap.grinder_file import is_machine_tool, machine_tool_of
+    if is_machine_tool(machine):  # a grinder file is solved on its chain
+        machine = machine_tool_of(machine)
     return solve_function(method, machine)(field, targets_mm, machine, **options)
 
 
 def solve_function(method: str, machine):
     """The function :func:`solve` runs for ``method`` on ``machine`` (the solver's ``chain`` entry on a
     machine-tool chain); ValueError for an unknown method or one the chain lacks."""
+    from errormap.grinder_file import is_machine_tool
     spec = solver_spec(method)
-    return spec.chain_function() if getattr(machine, "kind", None) == "machine-tool" else spec.function()
+    return spec.chain_function() if is_machine_tool(machine) else spec.function()
 
 
 __all__ = ["BALL_RADIUS_UM", "CHAIN_METHODS", "GA_METHODS", "METHODS", "SOLVERS", "SolveResult", "Solver", "get_solver", "solve",
