@@ -61,7 +61,7 @@ from errormap.transforms import check_points
 
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
 from .base import BALL_RADIUS_UM
-from .exact import keep_turn, newton, solve3, solved_axes
+from .exact import ROUNDOFF_ULPS, check_roundoff_ulps, keep_turn, newton, solve3, solved_axes
 
 KEPT_NOTE = ("tool-tip position compensated with the linear axes {lin}; the rotary axes {rot} (tool orientation) "
              "are kept as commanded")
@@ -186,13 +186,17 @@ def rotary_guard(compiled, machine, axes_d, q, sol, ball_um, rotary_limit_deg):
 
 def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: float = BALL_RADIUS_UM,
                       tol_um: float = 1e-4, xtol_um: float = 1e-9, max_iter: int = 50, chunk: int = 250_000,
-                      rotary_limit_deg=None, progress: bool = True):
+                      rotary_limit_deg=None, progress: bool = True, roundoff_ulps: float = ROUNDOFF_ULPS):
     """Exact compensation of WCS targets (n, 3) mm on a machine-tool chain (module docstring).
 
     ``target_axes`` (n, k): the program's axes of each target (required when the machine has
     rotary axes: they are kept). ``field``: an error field over ``machine.axis_columns`` that
     declares ``predict_and_jacobian`` (:class:`errormap.mt_field.ChainField`). ``rotary_limit_deg``:
-    a limit on a solved rotary axis' correction below the ball's bound (module docstring). Returns a
+    a limit on a solved rotary axis' correction below the ball's bound (module docstring).
+    ``roundoff_ulps`` (0 … 1e6, default :data:`~compensation.solvers.exact.ROUNDOFF_ULPS`): iteration also
+    stops where ``|F|`` is within this many ulps of the target's largest coordinate; a smaller value iterates
+    on to ``xtol_um`` or stagnation (to compare two solvers below their round-off); it does not change
+    ``success`` (``tol_um``). Works in chunks of ``chunk`` points to bound peak memory. Returns a
     :class:`~compensation.solvers.base.SolveResult` with ``axes`` (n, k); ``info``: iterations per
     point, ``compensated_axes``, ``kept_axes``, ``note``, ``outside_ball``, ``rotary_refused``
     (indices), ``rotary_reasons`` (one text per refused index).
@@ -208,18 +212,20 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
     check_rotary_limit(rotary_limit_deg)
+    roundoff_ulps = check_roundoff_ulps(roundoff_ulps)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
     q = axes_d.copy()
     commands = np.empty_like(targets)
     E = np.empty((n, 3))
     iters = np.zeros(n, dtype=np.int32)
+    n_jac = np.zeros(n, dtype=np.int32)
     nfev = 0
     bar = Progress(n, "exact (chain)", enabled=progress)
     for s in range(0, n, chunk):
         sl = slice(s, min(n, s + chunk))
-        q[sl], commands[sl], E[sl], iters[sl], fe = _newton(field, compiled, targets[sl], axes_d[sl], sol,
-                                                            xtol_um, max_iter)
+        q[sl], commands[sl], E[sl], iters[sl], n_jac[sl], fe = _newton(field, compiled, targets[sl], axes_d[sl], sol,
+                                                                       xtol_um, max_iter, roundoff_ulps)
         nfev += fe
         bar.update(sl.stop - sl.start)
     d_um = (commands - targets) * UM_PER_MM
@@ -241,7 +247,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     res = (commands - targets) * UM_PER_MM + E
     converged = (np.linalg.norm(res, axis=1) <= tol_um) & ~outside & ~refused
     names = machine.axis_columns
-    info = {"iterations": iters, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside),
+    info = {"iterations": iters, "jacobians": n_jac, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside),
             "compensated_axes": [names[j] for j in sol], "kept_axes": [names[j] for j in kept]}
     if any(compiled.kinds[j] != "linear" for j in sol):
         info["rotary_refused"] = np.flatnonzero(refused)
@@ -306,11 +312,11 @@ FD_STEP = 1e-3
 """Forward-difference step of a field without its own Jacobian, per axis (mm or deg)."""
 
 
-def _newton(field, compiled, targets, axes_d, sol, xtol_um, max_iter):
+def _newton(field, compiled, targets, axes_d, sol, xtol_um, max_iter, roundoff_ulps: float = ROUNDOFF_ULPS):
     """The exact solver's Newton core on the solved axes ``sol`` (3,) of one chunk (the others kept
     at ``axes_d``; a solved full-turn axis put on the turn of ``axes_d``); returns
-    ``(q (m, k), p_r (m, 3) mm, E (m, 3) μm at q, iterations (m,), field evaluations)``."""
-    q, E, iters, _, nfev = newton(_ChainFieldEval(field, compiled.machine_tool), compiled, sol, targets, axes_d,
-                                  xtol_um, max_iter)
+    ``(q (m, k), p_r (m, 3) mm, E (m, 3) μm at q, iterations (m,), Jacobians (m,), field evaluations)``."""
+    q, E, iters, n_jac, nfev = newton(_ChainFieldEval(field, compiled.machine_tool), compiled, sol, targets, axes_d,
+                                      xtol_um, max_iter, roundoff_ulps=roundoff_ulps)
     keep_turn(compiled, q, axes_d)
-    return q, compiled.forward(q), E, iters, nfev
+    return q, compiled.forward(q), E, iters, n_jac, nfev
