@@ -312,11 +312,13 @@ FD_STEP = 1e-3
 """Forward-difference step of a field without its own Jacobian, per axis (mm or deg)."""
 
 
-def _newton(field, compiled, targets, axes_d, sol, xtol_um, max_iter, roundoff_ulps: float = ROUNDOFF_ULPS):
+def _newton(field, compiled, targets, axes_d, sol, xtol_um, max_iter, roundoff_ulps: float = ROUNDOFF_ULPS, q0=None):
     """The exact solver's Newton core on the solved axes ``sol`` (3,) of one chunk (the others kept
-    at ``axes_d``; a solved full-turn axis put on the turn of ``axes_d``); returns
+    at ``axes_d``; a solved full-turn axis put on the turn of ``axes_d``), started from ``q0`` (m, k) (default
+    ``axes_d``: a GA's polish starts from its best); returns
     ``(q (m, k), p_r (m, 3) mm, E (m, 3) μm at q, iterations (m,), Jacobians (m,), field evaluations)``."""
-    q, E, iters, n_jac, nfev = newton(_ChainFieldEval(field, compiled.machine_tool), compiled, sol, targets, axes_d,
+    start = axes_d if q0 is None else q0
+    q, E, iters, n_jac, nfev = newton(_ChainFieldEval(field, compiled.machine_tool), compiled, sol, targets, start,
                                       xtol_um, max_iter, roundoff_ulps=roundoff_ulps)
     keep_turn(compiled, q, axes_d)
     return q, compiled.forward(q), E, iters, n_jac, nfev

@@ -210,7 +210,8 @@ def _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_
         stats["retry_rounds"] = max(stats["retry_rounds"], r + 1)
     if polish and bad.size:
         sub = idx[bad]
-        q, commands, _, _, _, fe = _newton(field, compiled, targets[sub], axes_d[sub], moved, 1e-9, 50)
+        q, commands, _, _, _, fe = _newton(field, compiled, targets[sub], axes_d[sub], moved, 1e-9, 50,
+                                           q0=fit.axes(sub, b[bad]))  # from the GA's best
         nfev += fe
         new = fit.genes_of(sub, q, commands, targets[sub], ball_um)
         nr = np.linalg.norm(fit.residual_um(sub, new), axis=1)

@@ -197,12 +197,11 @@ def kernel_modules(method: str) -> list:
 
 def load_model_field(machine, s: CompensateSettings):
     """``(source, verdict, field)`` of ``s.model`` for the machine tool ``machine`` (as loaded: a grinder file's
-    models are read as it writes them): recognised by content and said on stderr; a failed diagnosis verdict
+    models are read as it writes them): recognised by content (the caller says which on stderr); a failed diagnosis verdict
     refused unless allowed; a diagnosed model.json a :class:`ConditionedField` (conditions per path), a
     chain's model its constant conditions (:func:`field_conditions`)."""
     src = resolve_model(s.model)
     verdict = check_verdict(src.path, FAILED_VERDICT in s.allow)
-    print(f"compensate: model {src.description}", file=sys.stderr)
     field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
     if not isinstance(field_, ConditionedField):
         field_ = field_conditions(field_, {k: v for k, v in s.conditions.items() if v is not None}, machine)
@@ -384,6 +383,7 @@ def compensate_files(files, machine, s: CompensateSettings, executor=None, on_fi
         from .mt_loop import load_chain_truth
         truth = load_chain_truth(s.truth, mt)
     paths = [read_tool_path(p, mt, s, axes_field(field_)) for p, _ in plan]
+    print(f"compensate: model {src.description}", file=sys.stderr)  # every input read: a bad one is the one line
     needs = field_.needs if isinstance(field_, ConditionedField) else ()
     conds = [path_conditions(tp, needs, field_.conditions, s.units, "--units") for tp in paths] if needs else None
     advance = progress_callback(sum(len(tp.axes) for tp in paths), s.method)

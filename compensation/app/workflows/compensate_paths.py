@@ -20,8 +20,8 @@ from errormap.units import check_units
 from compensation.app.validate import UsageError
 
 from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
-from ...nc_state import program_frames, refuse_unknown_frames
-from ...pathio import DECIMALS_MM, TARGET_COLUMNS, _render_csv, is_csv
+from ...nc_state import MACHINE, program_frames, refuse_unknown_frames
+from ...pathio import DECIMALS_MM, TARGET_COLUMNS, _render_csv, check_move_extent, is_csv
 from ...solvers.chain_exact import chain_inverse, nominal_and_jacobian
 
 DECIMALS = {"mm": 6, "deg": 6}  # 1 nm; 1e-6 deg
@@ -70,8 +70,8 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
             raise InputError(f"{path}: no data rows")
         axes = np.stack([t.float(c) for c in cols], axis=1)
         rows = t.row_number(0) + np.arange(len(t), dtype=int)
-        check_units(path, rows, machine=machine, axes=axes, axes_columns=cols, coverage="path", units=s.units,
-                    option="--units")
+        check_units(path, rows, machine=machine, axes=axes, axes_columns=cols, coverage="path", temps=csv_temps(t),
+                    units=s.units, option="--units")
         return ToolPath(path, "csv-axes", axes, rows, t)
     turning = None
     if getattr(machine, "spindle", None) is not None:  # a lathe: turning mode where the spindle turns
@@ -84,6 +84,9 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     refuse_unknown_frames(prog, frames, s.work_offsets)
     k = len(machine.axes)
     columns = tuple(machine.axis_words.index(w) for w in prog.axis_words.words)
+    if columns == tuple(range(k)):  # a likely unit typo (a move longer than the strokes allow), before planning
+        check_move_extent(prog, machine, [j for j, a in enumerate(machine.axes) if a.kind == "linear"],
+                          ends=s.work_offsets is not None and s.work_offsets.source == MACHINE)
     partial = len(columns) < k
 
     def nominal(a):  # the tool point of program-column axes (m, len(columns)): a lathe's C never commanded is 0
@@ -166,8 +169,8 @@ def read_targets_csv(path, table, machine, s) -> ToolPath:
         raise InputError(f"{path}: no data rows")
     targets = np.stack([table.float(c) for c in TARGET_COLUMNS], axis=1)
     rows = table.row_number(0) + np.arange(len(table), dtype=int)
-    check_units(path, rows, machine=machine, targets=targets, target_columns=TARGET_COLUMNS, units=s.units,
-                option="--units")
+    check_units(path, rows, machine=machine, targets=targets, target_columns=TARGET_COLUMNS, temps=csv_temps(table),
+                units=s.units, option="--units")
     try:
         axes = machine.inverse_closed(targets, unwrap=True)
     except ValueError:
@@ -177,3 +180,8 @@ def read_targets_csv(path, table, machine, s) -> ToolPath:
             raise InputError(f"{path}: columns {list(TARGET_COLUMNS)}: the machine {machine.name!r} has no nominal "
                              f"inverse for WCS targets; give the axis columns {list(machine.axis_columns)}") from None
     return ToolPath(path, "csv-targets", axes, rows, table)
+
+
+def csv_temps(table):
+    """``{"temp_c": (n,)}`` of a CSV path's temperature column (the shared unit check: °F, kelvin), else None."""
+    return {"temp_c": table.float("temp_c")} if "temp_c" in table else None
