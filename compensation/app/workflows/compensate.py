@@ -280,8 +280,9 @@ def batch_units(paths, field_, truth, machine):
             idx = np.flatnonzero((keys == key) & solved)
             j = tool_context(contexts, float(key), field_, truth, machine)
             mt = next(c[2] for c in contexts.values() if c[0] == j)
-            units.append(SimpleNamespace(targets_mm=nominal_and_jacobian(mt, tp.axes[idx])[0], axes=tp.axes[idx],
-                                         context=j, path=str(tp.path)))
+            targets = tp.targets_mm[idx] if tp.targets_mm is not None and j == 0 else \
+                nominal_and_jacobian(mt, tp.axes[idx])[0]
+            units.append(SimpleNamespace(targets_mm=targets, axes=tp.axes[idx], context=j, path=str(tp.path)))
             owners.append((f, idx))
     return units, owners, contexts
 
@@ -297,7 +298,7 @@ def solve_paths(paths, field_, truth, machine, s: CompensateSettings, conds=None
         out = []
         opts = {"seed": s.seed} if s.method in GA_METHODS else {}
         for tp, cond in zip(paths, conds):
-            targets = nominal_and_jacobian(machine, tp.axes)[0]
+            targets = tp.targets_mm if tp.targets_mm is not None else nominal_and_jacobian(machine, tp.axes)[0]
             with small_batch_threads(s.method, len(tp)):
                 res = solve_with_conditions(s.method, field_, targets, machine, cond, target_axes=tp.axes, **opts)
             res.info = dict(res.info or {}, chunks=1)
@@ -426,14 +427,14 @@ def compensate_one(p, dst, tp: ToolPath, res, targets, true_r, true_base, field_
         o.kept = kept
         entry["refused_guards"] = sorted(blocking) or ["stroke"]
         return o
-    comments = []
+    comments = [f"compensated by volcomp: method={s.method} model={s.model}",
+                f"model residual max {entry['model_max_um']:.4g} um"]
     if entry["overridden"]:
         counts = ", ".join(f"{g} {n}" for g, n in entry["overridden"].items())
-        comments = [f"volcomp compensate: GUARDS OVERRIDDEN (--allow {','.join(entry['allowed_guards'])}): "
-                    f"{counts} point(s) violate; method={s.method} model={s.model}"]
-    elif tp.kind != "gcode":
-        comments = [f"compensated by volcomp: method={s.method} model={s.model}",
-                    f"model residual max {entry['model_max_um']:.4g} um"]
+        comments.insert(0, f"volcomp compensate: GUARDS OVERRIDDEN (--allow {','.join(entry['allowed_guards'])}): "
+                           f"{counts} point(s) violate; method={s.method} model={s.model}")
+    elif tp.kind == "gcode":
+        comments = []  # a clean G-code output gets no added lines (but the frame the user gave, below)
     if tp.kind == "gcode" and s.work_offsets is not None and s.work_offsets.source == MACHINE:
         comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
     comments = verdict_notes(verdict) + comments   # a failed verdict used on request: said in the program

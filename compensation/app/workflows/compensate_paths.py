@@ -50,6 +50,8 @@ class ToolPath:
     :mod:`compensation.turning`)."""
     kept_machine: np.ndarray | None = None
     """G-code: the kept (not compensated) points' nominal machine axes (m, k); NaN where unknown."""
+    targets_mm: np.ndarray | None = None
+    """A WCS-target CSV: its targets (n, 3) mm as written (None: the nominal tool points of ``axes``)."""
 
     def __len__(self) -> int:
         return len(self.axes)
@@ -172,16 +174,29 @@ def read_targets_csv(path, table, machine, s) -> ToolPath:
     check_units(path, rows, machine=machine, targets=targets, target_columns=TARGET_COLUMNS, temps=csv_temps(table),
                 units=s.units, option="--units")
     try:
-        axes = machine.inverse_closed(targets, unwrap=True)
+        axes = closed_inverse_path(machine, targets)
     except ValueError:
         try:
             axes = chain_inverse(machine, targets)
         except ValueError:
             raise InputError(f"{path}: columns {list(TARGET_COLUMNS)}: the machine {machine.name!r} has no nominal "
                              f"inverse for WCS targets; give the axis columns {list(machine.axis_columns)}") from None
-    return ToolPath(path, "csv-targets", axes, rows, table)
+    return ToolPath(path, "csv-targets", axes, rows, table, targets_mm=targets)
 
 
 def csv_temps(table):
     """``{"temp_c": (n,)}`` of a CSV path's temperature column (the shared unit check: °F, kelvin), else None."""
     return {"temp_c": table.float("temp_c")} if "temp_c" in table else None
+
+
+def closed_inverse_path(machine, targets) -> np.ndarray:
+    """Axes (n, 3) of WCS points (n, 3) mm along a path by the chain's compiled closed-form inverse, its rotary
+    axis unwrapped along the path from the stroke's first turn (as :func:`errormap.kinematics.inverse`);
+    ValueError where the chain has no closed form."""
+    from errormap.mt_chain import rotary_on_turn
+    from errormap.mt_kernel import closed_form_solver
+    solve = closed_form_solver(machine)
+    q = solve(np.ascontiguousarray(targets, dtype=float))
+    r = solve.k.rotary
+    q[:, r] = rotary_on_turn(q[:, r], solve.k.rotary_lo, unwrap=True)
+    return q
