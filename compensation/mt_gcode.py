@@ -59,11 +59,14 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
         if name is not None:
             data, pre = tcp_prepass(path, raw, name, machine)
     named = name if pre is not None and name != "rs274" else dialect  # the pre-pass blanked what recognised it
+    if dialect == "auto" and name is not None:
+        named = name  # recognised once, above (its evidence kept below)
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
                          dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
                          data=data)  # read once: the pre-pass's bytes (the file's own where it found nothing)
     if pre is not None:
         attach(prog, pre)
+    if pre is not None or (dialect == "auto" and name is not None):
         prog.dialect_evidence = evidence
     return prog
 
