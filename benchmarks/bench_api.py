@@ -37,7 +37,7 @@ def example(n_stations: int | None = None) -> dict:
     t0 = time.process_time()
     exec(compile(code, "docs/api.md", "exec"), ns)
     cpu = time.process_time() - t0
-    from compensation.app.workflows.mt_compensate import true_residual_um
+    from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap import ChainField, simulate_truth
     m, axes, res = ns["machine"], ns["axes"], ns["result"]

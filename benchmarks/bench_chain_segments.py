@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.app.workflows.mt_compensate import ChainSettings, compensate_chain_files
+from compensation.app.workflows.compensate import CompensateSettings, compensate_files
 from compensation.nc_state import MACHINE, read_work_offsets
 from errormap.machine import load_machine
 from errormap.mt_elements import ChainElementSet
@@ -46,10 +46,10 @@ def models(mt, d: Path):
 
 
 def run(prog, mt, model, truth, seg, out: Path) -> dict:
-    s = ChainSettings("exact", str(model), out, truth=str(truth), max_segment_mm=seg,
+    s = CompensateSettings("exact", str(model), out, truth=str(truth), max_segment_mm=seg,
                       work_offsets=read_work_offsets(MACHINE))
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        assert compensate_chain_files([prog], mt, s) == 0
+        assert not compensate_files([prog], mt, s).refused
     return json.loads((out / "compensate_summary.json").read_text())["files"][0]
 
 

@@ -6,11 +6,11 @@ e.g. ``git archive`` of main before this work unpacked under /tmp), one after th
 warms up (kernels compiled / loaded), then times ``--repeats`` runs (CPU = ``time.process_time``,
 median). The outputs of the two checkouts are compared element by element:
 
-* ``exact``: :func:`compensation.solvers.exact.solve_exact` on ``--exact-points`` targets at seeded random
+* ``exact``: ``solve("exact", …)`` (the grinder on its chain) on ``--exact-points`` targets at seeded random
   axes inside the grinder's strokes, the HTM field of ``random_truth(grinder, seed)``;
 * ``exact-chain``: :func:`compensation.solvers.chain_exact.solve_exact_chain` on ``mill-xyz`` and
   ``five-axis-ac`` (seeded smooth element sets, ±20 μm / μrad; rotary axes kept);
-* ``batched-ga fused``: :func:`compensation.solvers.batched_ga.solve_batched_ga` with the learned
+* ``batched-ga fused``: ``solve("batched-ga", …)`` (the grinder on its chain; the fused fitness is no longer used) with the learned
   field's fused float32 fitness (``training.ga_fitness``; the paper's network fitted to the HTM
   field by ``--train-iters`` LM iterations, trained once, loaded by both), one worker, on
   ``--fused-points`` points spread evenly along the flute path (all 2,800 by default);
@@ -114,7 +114,8 @@ def child(case, args, out_npz) -> dict:
         f = HTMField(g, random_truth(g, seed).elements)
         ax = rng.uniform(g.stroke_lo, g.stroke_hi, (args.exact_points, 3))[:args.tight_points]
         tg = forward(g, ax)
-        has_setting = "roundoff_ulps" in inspect.signature(exact_module.solve_exact).parameters
+        from compensation.solvers import solver_spec
+        has_setting = "roundoff_ulps" in solver_spec("exact").options()
         default_ulps = exact_module.ROUNDOFF_ULPS
 
         def solve(k, tight):
@@ -124,7 +125,8 @@ def child(case, args, out_npz) -> dict:
                 kw["roundoff_ulps"] = ulps
             else:
                 exact_module.ROUNDOFF_ULPS = ulps  # main's code has no setting: its constant, this process only
-            return exact_module.solve_exact(f, tg[:k], g, target_axes=ax[:k], progress=False, **kw)
+            from compensation.solvers import solve as solve_method
+            return solve_method("exact", f, tg[:k], g, target_axes=ax[:k], progress=False, **kw)
 
         solve(200, False), solve(200, True)  # warm-up
         cpu, cpu_default = [], []
@@ -140,7 +142,10 @@ def child(case, args, out_npz) -> dict:
                  nfev=r.nfev, default_nfev=r0.nfev)
         return {"cpu": cpu, "cpu_default": cpu_default, "has_setting": has_setting}
     elif case == "exact":
-        from compensation.solvers.exact import solve_exact
+        from functools import partial
+
+        from compensation.solvers import solve as solve_method
+        solve_exact = partial(solve_method, "exact")  # the grinder on its chain
         from errormap.htm import HTMField
         from errormap.kinematics import forward
         from errormap.simulator import random_truth
@@ -161,7 +166,10 @@ def child(case, args, out_npz) -> dict:
         def run(k=None):
             return solve_exact_chain(f, tg[:k], mt, target_axes=ax[:k], progress=False)
     elif case.startswith("batched-ga"):
-        from compensation.solvers.batched_ga import solve_batched_ga
+        from functools import partial
+
+        from compensation.solvers import solve as solve_method
+        solve_batched_ga = partial(solve_method, "batched-ga")  # the grinder on its chain
         if case.endswith("fused"):
             from training.model import MLPField
             f, fused = MLPField.load(args.model), True
@@ -173,8 +181,7 @@ def child(case, args, out_npz) -> dict:
             tg, ax = _flute(g, args.ga_points)
 
         def run(k=None):
-            return solve_batched_ga(f, tg[:k], g, target_axes=ax[:k], seed=seed, workers=1, fused=fused,
-                                    progress=False)
+            return solve_batched_ga(f, tg[:k], g, target_axes=ax[:k], seed=seed, progress=False)
     else:
         from compensation.gcode_kernels import linear_path_lengths_mm
         s = rng.uniform(g.stroke_lo, g.stroke_hi, (args.moves, 3))

@@ -166,7 +166,7 @@ def _condition_options(model: dict) -> list:
 
 
 def _compensate(main, machine, d, model_path, label, truth_ref, P, method="exact", n=None):
-    from compensation.app.workflows.mt_compensate import true_residual_um
+    from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap.io import read_table, write_csv
     n = len(P) if n is None else n

@@ -3,7 +3,7 @@
 In one process, one after the other (same load, so the ratios compare): ``--points`` targets at
 seeded random axes inside the strokes of
 
-* the grinder (``grinder.toml``): :func:`compensation.solvers.exact.solve_exact` with the HTM field of
+* the grinder (``grinder.toml``): ``solve("exact", …)`` (on its chain) with the HTM field of
   ``random_truth(grinder, seed)`` (what ``compensate --method exact`` runs on the grinder);
 * ``mill-xyz`` and ``five-axis-ac``: :func:`compensation.solvers.chain_exact.solve_exact_chain` with the
   :class:`errormap.mt_field.ChainField` of a seeded smooth element set (±20 μm / μrad at 11 stations
@@ -38,7 +38,10 @@ def chain_elements(mt, seed, scale=ELEMENT_SCALE_UM, n_stations=11):
 def cases(seed):
     """(label, solve(n) -> SolveResult, field, axes(n)) per machine."""
     from compensation.solvers.chain_exact import nominal_and_jacobian, solve_exact_chain
-    from compensation.solvers.exact import solve_exact
+    from functools import partial
+
+    from compensation.solvers import solve as solve_method
+    solve_exact = partial(solve_method, "exact")  # the grinder on its chain
     from errormap.htm import HTMField
     from errormap.kinematics import forward
     from errormap.machine import load_machine

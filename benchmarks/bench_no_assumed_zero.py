@@ -20,7 +20,8 @@ HERE = Path(__file__).resolve().parents[1]
 
 def count(root: Path) -> dict:
     sys.path.insert(0, str(root))
-    from compensation.app.workflows.mt_compensate import ChainSettings, read_chain_path
+    from compensation.app.workflows.compensate import CompensateSettings
+    from compensation.app.workflows.compensate_paths import read_tool_path
     from compensation.pathio import read_path
     from errormap.io import InputError
     from errormap.machine import load_machine
@@ -43,7 +44,7 @@ def count(root: Path) -> dict:
                         opts = {"block_delete": "on"}
                     read_path(p, grinder, work_offsets=frame, **opts)
                 else:
-                    read_chain_path(p, mill, ChainSettings("exact", "", Path("."), work_offsets=frame))
+                    read_tool_path(p, mill, CompensateSettings("exact", "", Path("."), work_offsets=frame))
                 read += 1
             except InputError:
                 refused += 1

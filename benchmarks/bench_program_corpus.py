@@ -7,7 +7,7 @@ and the controller it was written for; fetch them into a folder (file names as i
 
     python benchmarks/bench_program_corpus.py --corpus DIR [--root CHECKOUT] [--json OUT]
 
-Each program is read as ``volcomp compensate`` reads it before solving (``read_chain_path``: parse,
+Each program is read as ``volcomp compensate`` reads it before solving (``read_tool_path``: parse,
 subprogram/macro expansion, canned cycles kept, frames from the tables, plan) on its machine with its
 controller's dialect, with the tables a shop has: a work-offset CSV giving every work system
 (``G54``-``G59.3``, ``G54.1 P1``-``P48``, and ``G154 P1``-``P99`` where the revision reads them) and a
@@ -102,7 +102,8 @@ def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path) -> None:
 def count(root: Path, corpus: Path, compensate: bool = False) -> dict:
     sys.path.insert(0, str(root))
     from compensation.app.validate import UsageError
-    from compensation.app.workflows.mt_compensate import ChainSettings, read_chain_path
+    from compensation.app.workflows.compensate import CompensateSettings
+    from compensation.app.workflows.compensate_paths import read_tool_path
     from compensation.nc_state import read_tool_table, read_work_offsets
     from errormap.io import InputError
     from errormap.machine import load_machine
@@ -118,9 +119,9 @@ def count(root: Path, corpus: Path, compensate: bool = False) -> dict:
                 results.append((r, "missing or changed", ""))
                 continue
             offsets, tools = tables[r["machine"]]
-            s = ChainSettings("exact", "", Path(tmp), dialect=r["dialect"], work_offsets=offsets, tool_table=tools)
+            s = CompensateSettings("exact", "", Path(tmp), dialect=r["dialect"], work_offsets=offsets, tool_table=tools)
             try:
-                read_chain_path(p, machines[r["machine"]], s)
+                read_tool_path(p, machines[r["machine"]], s)
                 results.append((r, "accepted", ""))
             except (InputError, UsageError) as exc:
                 results.append((r, "refused", reason_of(str(exc), p.name)))

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.app.workflows.mt_compensate import ChainSettings, read_chain_path, solve_chain_paths
+from compensation.app.workflows.compensate import CompensateSettings, solve_paths
+from compensation.app.workflows.compensate_paths import read_tool_path
 from compensation.nc_state import machine_with_tool, read_tool_table, read_work_offsets
 from compensation.solvers import solve
 from compensation.solvers.chain_exact import nominal_and_jacobian
@@ -51,10 +52,10 @@ def stats(e):
 
 
 def run(prog, mt, truth, est, tools):
-    s = ChainSettings("exact", "", Path("."), work_offsets=read_work_offsets(OFFSETS), tool_table=tools)
+    s = CompensateSettings("exact", "", Path("."), work_offsets=read_work_offsets(OFFSETS), tool_table=tools)
     f_est, f_true = ChainField(mt, est), ChainField(mt, truth)
-    tp = read_chain_path(prog, mt, s, f_est)
-    _, _, used, before = solve_chain_paths([tp], f_est, f_true, mt, s)[0]
+    tp = read_tool_path(prog, mt, s, f_est)
+    _, _, used, before = solve_paths([tp], f_est, f_true, mt, s)[0]
     prog_axes = tp.axes - tp.shift
     t0, _ = nominal_and_jacobian(mt, prog_axes)
     old = solve("exact", f_est, t0, mt, target_axes=prog_axes, progress=False)

@@ -6,7 +6,7 @@ docs/api.md) load lazily on first use, so ``import compensation`` imports nothin
 * :func:`compensate_points` — compensated axis commands for points in memory (solver and guards);
   :func:`compensate_joints` for a calibrated arm;
 * :func:`compensate_program` — tool-path files (G-code, axis CSV) of a machine-tool chain, written as
-  ``volcomp compensate`` writes them; :class:`ChainSettings` how;
+  ``volcomp compensate`` writes them; :class:`CompensateSettings` how;
 * :class:`Compensation` — the one result of both (commands, residuals, notes, refused, overrides);
 * :func:`save_model` / :func:`load_model` — a model to files every command reads, and back as a field.
 """
@@ -18,7 +18,7 @@ _LAZY = {
     "Compensation": "compensation.compensate",
     "save_model": "compensation.compensate",
     "load_model": "compensation.compensate",
-    "ChainSettings": "compensation.app.workflows.mt_compensate",
+    "CompensateSettings": "compensation.app.workflows.compensate",
 }
 
 __all__ = sorted(_LAZY)

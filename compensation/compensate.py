@@ -4,7 +4,7 @@
   at ``axes`` (the ``compensate`` command's solver and guards, on arrays);
 * :func:`compensate_joints` — the same for a calibrated serial arm's joint commands;
 * :func:`compensate_program` — the ``compensate`` command on a machine-tool chain, called with settings
-  (:class:`compensation.app.workflows.mt_compensate.ChainSettings`) instead of a command line;
+  (:class:`compensation.app.workflows.compensate.CompensateSettings`) instead of a command line;
 * :func:`save_model` / :func:`load_model` — an identified or closed-loop model to files that every command
   reads, and any model file (or MLflow reference) back as an error field;
 * :class:`Compensation` — the one result object of the three compensating calls.
@@ -144,7 +144,7 @@ def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_t
     coordinates, or a :class:`compensation.nc_state.WorkOffsets`); None (default): a G-code program is
     refused like the CLI refuses it (a controller never runs it at an assumed machine zero).
     ``tool_table``: as ``--tool-table`` (a file or a :class:`compensation.nc_state.ToolTable`).
-    ``settings``: the other fields of :class:`compensation.app.workflows.mt_compensate.ChainSettings`
+    ``settings``: the other fields of :class:`compensation.app.workflows.compensate.CompensateSettings`
     (``method="exact"``, ``allow``, ``force``, ``truth``, ``chunk_points``, ``max_segment_mm`` …).
     ``executor``: where the chunks are solved (:class:`compensation.batch.LocalExecutor` (default), or
     :class:`compensation.app.workflows.cluster.RayExecutor` entered as a context manager). Returns a
@@ -152,8 +152,7 @@ def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_t
     with their guards; ``summary`` the written ``compensate_summary.json``)."""
     import json
 
-    from .app.workflows.compensate import SUMMARY_NAME
-    from .app.workflows.mt_compensate import ChainSettings, compensate_chain_files
+    from .app.workflows.compensate import SUMMARY_NAME, CompensateSettings, compensate_files
     from .nc_state import ToolTable, WorkOffsets, read_tool_table, read_work_offsets
     machine = _chain(machine, "compensate_program(machine=...)")
     files = [files] if isinstance(files, (str, Path)) else list(files)
@@ -161,9 +160,9 @@ def compensate_program(files, machine, model, out_dir, work_offsets=None, tool_t
         work_offsets = read_work_offsets(work_offsets)
     if tool_table is not None and not isinstance(tool_table, ToolTable):
         tool_table = read_tool_table(tool_table)
-    s = ChainSettings(**{"method": "exact", **settings, "model": str(model), "out_dir": Path(out_dir),
+    s = CompensateSettings(**{"method": "exact", **settings, "model": str(model), "out_dir": Path(out_dir),
                          "work_offsets": work_offsets, "tool_table": tool_table})
-    compensate_chain_files(files, machine, s, executor=executor)
+    compensate_files(files, machine, s, executor=executor)
     return _program_result(json.loads((Path(out_dir) / SUMMARY_NAME).read_text(encoding="utf-8")))
 
 

@@ -59,11 +59,14 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
         if name is not None:
             data, pre = tcp_prepass(path, raw, name, machine)
     named = name if pre is not None and name != "rs274" else dialect  # the pre-pass blanked what recognised it
+    if dialect == "auto" and name is not None:
+        named = name  # recognised once, above (its evidence kept below)
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
                          dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
                          data=data)  # read once: the pre-pass's bytes (the file's own where it found nothing)
     if pre is not None:
         attach(prog, pre)
+    if pre is not None or (dialect == "auto" and name is not None):
         prog.dialect_evidence = evidence
     return prog
 
@@ -174,7 +177,12 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
     :class:`compensation.nc_state.ProgramFrames` — puts the move in the machine); a length in mm: no
     piece longer than that along the tool point's path (:func:`length_pieces` with ``nominal``, the
     machine's tool point of (m, k) program-column axes); None: no splitting. A program in TCP mode is
-    placed through ``machine``'s nominal inverse (:mod:`compensation.tcp`)."""
+    placed through ``machine``'s nominal inverse (:mod:`compensation.tcp`). A program read in bulk
+    (:class:`compensation.gcode.MoveTable`) is planned column-wise (:func:`plan_table`): the same vertices."""
+    if isinstance(max_segment_mm, str) and max_segment_mm != "auto":
+        raise ValueError(f"Expected max_segment_mm 'auto', None or a length in mm, got {max_segment_mm!r}")
+    if program.table is not None and program.tcp is None and program.expanded is None:
+        return plan_table(program, arc_tolerance_um, field_, frames, max_segment_mm, nominal)
     comp = [m for m in program.moves if m.compensate]
     tol_mm = arc_tolerance_um * 1e-3
     n_arc = np.array([arc_chords(m, tol_mm) if m.arc is not None else 1 for m in comp], dtype=int)
@@ -214,6 +222,80 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
                          np.array([m.end for m in kept]).reshape(len(kept), len(program.axis_words.words)), frames)
 
 
+def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=None, max_segment_mm="auto",
+               nominal=None) -> ChainGCodeJob:
+    """:func:`plan_chain_gcode` of a program read in bulk, column-wise over its move table (linear moves as
+    arrays; arcs, few, through their move objects): the same pieces per move, the same vertices."""
+    t = program.table
+    rows = np.flatnonzero(t.compensate)
+    k = len(program.axis_words.words)
+    start, end = t.start[rows], t.end[rows]
+    arc = t.kind[rows] == 2
+    moves = {int(i): t.objects[t.obj[rows[i]]] for i in np.flatnonzero(arc)}
+    tol_mm = arc_tolerance_um * 1e-3
+    counts = np.ones(len(rows), dtype=int)
+    for i, m in moves.items():
+        counts[i] = arc_chords(m, tol_mm)
+    known = np.isfinite(start).all(axis=1)
+    by_length = max_segment_mm is not None and not isinstance(max_segment_mm, str)
+    if by_length and not (np.isfinite(max_segment_mm) and max_segment_mm > 0 and nominal is not None):
+        raise ValueError(f"Expected a positive max_segment_mm with the machine's nominal, got {max_segment_mm!r}")
+    if known.any() and (by_length or (max_segment_mm == "auto" and field_ is not None)):
+        idx = np.flatnonzero(known)
+        shift = frames.shift(t.line[rows[idx]], program.axis_words.words) if frames is not None else None
+        if by_length:
+            f = np.linspace(0.0, 1.0, LENGTH_SAMPLES + 1)
+        else:
+            f = np.array([c + d * CURVATURE_STEP for c in CURVATURE_FRACTIONS for d in (-1.0, 0.0, 1.0)])
+        q = _table_points(start[idx], end[idx], f, {j: moves[i] for j, i in enumerate(idx) if i in moves})
+        if shift is not None:
+            q = q + np.repeat(np.asarray(shift, dtype=float), len(f), axis=0)
+        if by_length:
+            p = np.asarray(nominal(q), dtype=float).reshape(len(idx), len(f), 3)
+            length = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
+            pieces = np.maximum(1, np.ceil(length / float(max_segment_mm) - 1e-9)).astype(int)
+        else:
+            E = np.asarray(field_.predict(q)).reshape(len(idx), len(CURVATURE_FRACTIONS), 3, 3)
+            c = np.abs(E[:, :, 0] - 2 * E[:, :, 1] + E[:, :, 2]).max(axis=(1, 2)) / CURVATURE_STEP ** 2
+            pieces = np.maximum(1, np.ceil(np.sqrt(c / (8.0 * arc_tolerance_um)))).astype(int)
+        counts[idx] = np.maximum(counts[idx], pieces)
+    big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
+    if big.size:
+        raise InputError(f"{program.path}: line {t.line[rows[big[0]]] + 1}: the move needs {counts[big[0]]} pieces for "
+                         f"{arc_tolerance_um:g} μm (more than {MAX_SEGMENTS_PER_MOVE}); raise --arc-tolerance-um")
+    counts[~known] = 1  # a move whose start is unknown: its end alone
+    axes = _table_vertices(start, end, counts, known, moves)
+    lines = np.repeat(t.line[rows] + 1, counts)
+    verts = np.split(axes, np.cumsum(counts)[:-1]) if len(rows) else []
+    kept = np.flatnonzero(~t.compensate)
+    return ChainGCodeJob(program, verts, axes, lines, arc_tolerance_um, (t.line[kept] + 1).astype(int),
+                         t.end[kept].reshape(len(kept), k), frames)
+
+
+def _table_points(start, end, f, arcs) -> np.ndarray:
+    """Points (m·len(f), k) at parameters ``f`` of m moves (linear between ``start`` and ``end``; the moves of
+    ``arcs`` {row: GMove} along their arc)."""
+    q = (start[:, None, :] + f[None, :, None] * (end - start)[:, None, :]).reshape(-1, start.shape[1])
+    for j, m in arcs.items():
+        q[j * len(f):(j + 1) * len(f)] = move_points(m, f)
+    return q
+
+
+def _table_vertices(start, end, counts, known, arcs) -> np.ndarray:
+    """Every move's vertices at ``(1..c)/c`` of it, in order (n, k): :func:`compensation.gcode.move_points`
+    column-wise (a move whose start is unknown: its end)."""
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    owner = np.repeat(np.arange(len(counts)), counts)
+    u = (np.arange(int(counts.sum())) - first[owner] + 1.0) / counts[owner]
+    axes = start[owner] + u[:, None] * (end - start)[owner]
+    whole = (u == 1.0) & (counts[owner] == 1)  # one piece: the end itself (move_points: every parameter 1)
+    axes[whole | ~known[owner]] = end[owner][whole | ~known[owner]]
+    for i, m in arcs.items():
+        c = int(counts[i])
+        axes[first[i]:first[i] + c] = move_points(m, np.arange(1, c + 1) / c)
+    return axes
+
+
 # ---------------------------------------------------------------------------- writing
 def render_chain_program(program: GProgram, vertices: list, header=()) -> str:
     """The program with each compensated move's (compensated) vertices ``vertices[i]`` (m_i, k);
@@ -225,4 +307,11 @@ def render_chain_program(program: GProgram, vertices: list, header=()) -> str:
     if getattr(program.expanded, "mode", None) == "keep":
         from .nc_cycles import render_kept
         return render_kept(program, vertices, header=header)
+    t = program.table
+    if t is not None and not t.incremental.any() and program.expanded is None and len(program.axis_words.words) == 3 \
+            and not program.axis_words.kept:  # a program read in bulk: written in bulk, the same text
+        from .gcode import render_table
+        counts = [len(v) for v in vertices]
+        axes = np.concatenate(vertices) if vertices else np.zeros((0, 3))
+        return render_table(program, axes, counts, header=header)[0]
     return render_program(program, vertices, header=header)[0]

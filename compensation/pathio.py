@@ -295,60 +295,63 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
                     np.array(kept, dtype=float).reshape(-1, 3), np.array(kept_lines, dtype=int), kappa)
 
 
-def stroke_diagonal_mm(machine) -> float:
-    """Length of the diagonal of the machine's X/Z strokes (mm): no move between two points
-    inside the strokes is longer."""
-    span = machine.stroke_hi[:2] - machine.stroke_lo[:2]
-    return float(np.hypot(span[0], span[1]))
+def stroke_diagonal_mm(machine, cols=(0, 1)) -> float:
+    """Length of the diagonal of the machine's strokes of the axes ``cols`` (mm; the grinder's X and Z by
+    default): no move between two points inside the strokes is longer."""
+    cols = list(cols)
+    return float(np.linalg.norm(machine.stroke_hi[cols] - machine.stroke_lo[cols]))
 
 
 def _move_extent_mm(start, end, arcs) -> np.ndarray:
-    """Largest X/Z distance (mm) between two points of each move, (n,): the chord of a linear
-    move (from the stroke box when its start is unknown), and for an arc (``arcs``: {row:
-    geometry}) also ``2r·sin(min(|sweep|, π)/2)`` (its widest chord)."""
-    ext = np.hypot(end[:, 0] - start[:, 0], end[:, 1] - start[:, 1])
-    unknown = ~np.isfinite(ext)
-    if unknown.any():  # the first move: how far its end lies outside the strokes, at least
-        ext[unknown] = 0.0
+    """Largest distance (mm) between two points of each move over the columns of ``start``/``end`` (n, c),
+    (n,): the chord of a linear move (0 where its start is unknown: the end's distance outside the strokes
+    is checked instead), and for an arc (``arcs``: {row: geometry}) also ``2r·sin(min(|sweep|, π)/2)`` (its
+    widest chord)."""
+    ext = np.linalg.norm(end - start, axis=1)
+    ext[~np.isfinite(ext)] = 0.0
     for k, g in arcs.items():
         r = max(g["r0"], g["r1"])
         ext[k] = max(ext[k], 2.0 * r * np.sin(min(abs(g["sweep"]), np.pi) / 2.0))
     return ext
 
 
-def check_move_extent(program: GProgram, machine) -> None:
-    """Refuse a move longer (in X/Z) than the machine's stroke diagonal, or one ending farther
-    than the diagonal outside the strokes: a likely unit typo (a number without its decimal
-    point, μm or inch for mm), caught before any vertex is placed. One :class:`InputError`
-    naming the file, line, column and word, the line's units and the stroke diagonal."""
-    diag = stroke_diagonal_mm(machine)
-    lo, hi = machine.stroke_lo[:2], machine.stroke_hi[:2]
+def check_move_extent(program: GProgram, machine, cols=(0, 1), ends: bool = True) -> None:
+    """Refuse a move longer (over the linear axes ``cols``: the grinder's X and Z by default) than the
+    machine's stroke diagonal of those axes, or one ending farther than the diagonal outside the strokes: a
+    likely unit typo (a number without its decimal point, μm or inch for mm), caught before any vertex is
+    placed. One :class:`InputError` naming the file, line, column and word, the line's units and the
+    stroke diagonal. ``ends=False``: the moves' lengths only (a program placed by work offsets: its
+    coordinates are not the machine's)."""
+    cols = list(cols)
+    diag = stroke_diagonal_mm(machine, cols)
+    lo, hi = machine.stroke_lo[cols], machine.stroke_hi[cols]
     t = program.table
     if t is not None:
-        start, end = t.start, t.end
+        start, end = t.start[:, cols], t.end[:, cols]
         arcs = {k: t.objects[t.obj[k]].arc for k in np.flatnonzero(t.kind == 2).tolist()}
     else:
         moves = program.moves
-        start = np.array([m.start for m in moves], dtype=float).reshape(-1, 3)
-        end = np.array([m.end for m in moves], dtype=float).reshape(-1, 3)
+        start = np.array([m.start for m in moves], dtype=float).reshape(len(moves), -1)[:, cols]
+        end = np.array([m.end for m in moves], dtype=float).reshape(len(moves), -1)[:, cols]
         arcs = {k: m.arc for k, m in enumerate(moves) if m.arc is not None}
     ext = _move_extent_mm(start, end, arcs)
-    e = end[:, :2]
-    outside = np.hypot(np.clip(lo - e, 0.0, None), np.clip(e - hi, 0.0, None)).max(axis=1, initial=0.0) \
-        if e.size else np.zeros(0)
+    outside = (np.clip(lo - end, 0.0, None) + np.clip(end - hi, 0.0, None)).max(axis=1, initial=0.0) \
+        if end.size and ends else np.zeros(len(ext))
     outside = np.where(np.isfinite(outside), outside, 0.0)
     bad = np.flatnonzero((ext > diag) | (outside > diag))
     if not bad.size:
         return
     k = int(bad[0])
     m = program.moves[k]
-    words = [m.words[a] for a in ("X", "Z", "I", "K", "R") if a in m.words] or list(m.words.values())
+    names = [program.axis_words.words[j] for j in cols] if program.axis_words is not None else ["X", "Z"]
+    words = [m.words[a] for a in (*names, "I", "J", "K", "R") if a in m.words] or list(m.words.values())
     w = max(words, key=lambda w: abs(w.value))  # a move has axis words
     unit = "inch (G20)" if m.units == "inch" else "mm (G21 or no unit code)"
+    axes = "/".join(names)
     what = (f"a move of {ext[k]:.6g} mm" if ext[k] > diag else
-            f"an end {outside[k]:.6g} mm outside the X/Z strokes")
+            f"an end {outside[k]:.6g} mm outside the {axes} strokes")
     raise InputError(f"{program.path}: line {m.index + 1}, column {w.start + 1}: '{w.letter}{w.text}': {what}, "
-                     f"more than the machine's X/Z stroke diagonal {diag:.6g} mm; likely a unit typo (the line "
+                     f"more than the machine's {axes} stroke diagonal {diag:.6g} mm; likely a unit typo (the line "
                      f"is read in {unit}): a number without its decimal point, or μm or inch where mm was meant")
 
 

@@ -38,14 +38,14 @@ def case(name):
     m = load_machine(name)
     field_seed = int(rng_field.integers(2**31))
     if name == "grinder":
-        from compensation.solvers.exact import solve_exact
+        from compensation.solvers import solve
         from errormap.htm import HTMField
         from errormap.kinematics import forward
         from errormap.simulator import random_truth
         field = HTMField(m, random_truth(m, field_seed).elements)
         axes = rng_axes.uniform(m.stroke_lo, m.stroke_hi, (n, 3))
         targets = forward(m, axes)
-        return (lambda: solve_exact(field, targets, m, target_axes=axes, progress=False)), targets, axes
+        return (lambda: solve("exact", field, targets, m, target_axes=axes, progress=False)), targets, axes
     from compensation.solvers.chain_exact import solve_exact_chain
     from errormap.mt_field import ChainField
     field = ChainField(m, chain_elements(m, field_seed))

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation import ChainSettings, compensate_points, compensate_program, load_model, save_model
+from compensation import CompensateSettings, compensate_points, compensate_program, load_model, save_model
 from compensation.app.cli import main
 from errormap import (ChainElementSet, ClosedLoop, Identification, load_machine, simulate_checks, simulate_sweeps,
                       simulate_truth)
@@ -87,7 +87,7 @@ def test_compensate_program_refuses_settings_the_chain_cannot_take(mill_program)
         compensate_program(d / "path.csv", m, model, d / "rot", rotary_limit_deg=10.0)
     with pytest.raises(TypeError):
         compensate_program(d / "path.csv", m, model, d / "bad", no_such_setting=1)
-    assert ChainSettings(method="exact", model=str(model), out_dir=d).seed == 0
+    assert CompensateSettings(method="exact", model=str(model), out_dir=d).seed == 0
 
 
 def test_save_and_load_fitted_estimators(tmp_path):

@@ -56,7 +56,7 @@ def test_api_example_runs_as_written(tmp_path, monkeypatch):
     bars = [p.get_height() for p in plt.gca().patches]
     np.testing.assert_array_equal(bars, result.correction_um)
     plt.close("all")
-    from compensation.app.workflows.mt_compensate import true_residual_um
+    from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap import ChainField, simulate_truth
     truth = ChainField(machine, simulate_truth(machine, seed=1).elements)   # the example's truth (seed 1)

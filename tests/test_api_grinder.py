@@ -26,7 +26,7 @@ MODEL_TOL_UM = 1e-4
 
 @pytest.mark.slow   # 9 CPU s cold: the grinder chain's kernels and the paper's identification compile on first use
 def test_grinder_file_identified_and_compensated_as_its_chain(tmp_path):
-    from compensation.app.workflows.mt_compensate import true_residual_um
+    from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap.grinder_file import machine_tool_of
     from errormap.htm import HTMField

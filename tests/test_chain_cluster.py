@@ -1,4 +1,5 @@
-"""``compensate --cluster ray --workers 2`` on machine-tool chains (``mill-xyz``, ``five-axis-ac``, a
+"""``compensate --cluster ray --workers 2`` on machine tools (the built-in grinder on its chain, ``mill-xyz``,
+``five-axis-ac``, a
 two-tool mill program: two batch contexts on every actor, and a ``lathe-xzc`` program whose turning
 points stay on the driver) writes the bytes of the one-process run: the
 chain path solves through the grinder's chunk plan and executors (compensation/batch.py,
@@ -48,3 +49,23 @@ def test_ray_two_workers_write_the_one_process_bytes(ray_session, tmp_path, mach
     assert on_ray["solved_on"].startswith("Ray") and on_ray["files"][0]["chunks"] > 1
     for key in ("true", "true_uncompensated", "true_path"):  # the TRUE residuals: the same numbers
         assert one["files"][0].get(key) == on_ray["files"][0].get(key)
+
+
+@pytest.mark.parametrize("method", ["exact", "batched-ga"])
+def test_ray_two_workers_write_the_one_process_bytes_on_the_grinder(ray_session, tmp_path, method):  # noqa: F811
+    """The built-in grinder compensates on its chain through the same chunk plan: Ray's bytes are the one
+    process's (the seeded GA too: the chunks and their seeds are the same with the same --chunk-points)."""
+    from compensation.pathio import write_axes_gcode
+    from compensation.toolpath import flute_path
+    from errormap.machine import load_machine
+    from errormap.simulator import random_truth
+    g = load_machine()
+    el = random_truth(g, 7).elements.save(tmp_path / "el.json")
+    prog = write_axes_gcode(tmp_path / "flute.nc", flute_path(turns=2, points_per_turn=100).axes(g))
+    base = ["compensate", str(prog), "--model", str(el), "--method", method, "--work-offsets", "machine",
+            "--chunk-points", str(CHUNK)]
+    assert main(base + ["--out", str(tmp_path / "one")]) == 0
+    assert main(base + ["--out", str(tmp_path / "ray"), "--cluster", "ray", "--workers", "2"]) == 0
+    assert (tmp_path / "one" / prog.name).read_bytes() == (tmp_path / "ray" / prog.name).read_bytes()
+    on_ray = json.loads((tmp_path / "ray" / "compensate_summary.json").read_text())
+    assert on_ray["solved_on"].startswith("Ray") and on_ray["files"][0]["chunks"] > 1

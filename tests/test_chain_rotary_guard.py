@@ -142,8 +142,14 @@ def test_rotary_limit_option_refused_where_nothing_turns(tmp_path, capsys):
     assert main(["compensate", str(path), "--machine", LATHE, "--model", str(el), "--method", "exact",
                  "--max-rotary-correction-deg", "0", "--out", str(tmp_path / "o")]) == 2
     assert "--max-rotary-correction-deg: expected a number in (0, 180] deg" in capsys.readouterr().err
-    # the grinder (the default machine) and the arms: refused, never silently ignored
-    assert main(["compensate", str(path), "--model", str(el), "--method", "exact", "--max-rotary-correction-deg", "5",
-                 "--out", str(tmp_path / "o")]) == 2
-    err = capsys.readouterr().err
-    assert "--max-rotary-correction-deg: only on machine-tool chains" in err and len(err.strip().splitlines()) == 1
+    # the grinder (the default machine) compensates on its chain, where the exact solver moves A: the bound applies
+    from errormap.simulator import random_truth
+    g = load_machine()
+    gel = random_truth(g, 7).elements.save(tmp_path / "grinder_el.json")
+    gpath = tmp_path / "g.csv"
+    np.savetxt(gpath, np.array([[90.0, 5.0, 10.0], [91.0, 5.0, 20.0]]), delimiter=",", header="x_mm,z_mm,a_deg",
+               comments="", fmt="%.6f")
+    assert main(["compensate", str(gpath), "--model", str(gel), "--method", "exact", "--max-rotary-correction-deg",
+                 "5", "--out", str(tmp_path / "g")]) == 0
+    entry = json.loads((tmp_path / "g" / "compensate_summary.json").read_text())["files"][0]
+    assert entry["rotary_limit_deg"] == 5.0

@@ -1,10 +1,11 @@
-"""The exact solver's ``roundoff_ulps`` setting (compensation/solvers/exact.py): the default stop is
+"""The exact solver's ``roundoff_ulps`` setting (compensation/solvers/exact.py, on the grinder's chain): the default stop is
 unchanged, a tighter stop drives the MODEL residual below the default's round-off band, and bad
 values are refused before any work."""
 import numpy as np
 import pytest
 
-from compensation.solvers.exact import ROUNDOFF_ULPS, solve_exact
+from compensation.solvers import solve
+from compensation.solvers.exact import ROUNDOFF_ULPS
 from errormap.htm import HTMField
 from errormap.kinematics import forward
 from errormap.machine import load_machine
@@ -32,16 +33,16 @@ def problem():
 
 def test_default_is_the_documented_stop(problem):
     m, f, tg, ax = problem
-    a = solve_exact(f, tg, m, target_axes=ax, progress=False)
-    b = solve_exact(f, tg, m, target_axes=ax, progress=False, roundoff_ulps=ROUNDOFF_ULPS)
+    a = solve("exact", f, tg, m, target_axes=ax, progress=False)
+    b = solve("exact", f, tg, m, target_axes=ax, progress=False, roundoff_ulps=ROUNDOFF_ULPS)
     np.testing.assert_array_equal(a.commands_mm, b.commands_mm)
     assert np.linalg.norm(a.residual_um[a.success], axis=1).max() <= DEFAULT_BAND_UM
 
 
 def test_tight_stop_converges_below_the_default_band(problem):
     m, f, tg, ax = problem
-    d = solve_exact(f, tg, m, target_axes=ax, progress=False)
-    t = solve_exact(f, tg, m, target_axes=ax, progress=False, roundoff_ulps=TIGHT_ULPS, xtol_um=TIGHT_XTOL_UM)
+    d = solve("exact", f, tg, m, target_axes=ax, progress=False)
+    t = solve("exact", f, tg, m, target_axes=ax, progress=False, roundoff_ulps=TIGHT_ULPS, xtol_um=TIGHT_XTOL_UM)
     np.testing.assert_array_equal(t.success, d.success)  # success is tol_um's, not the stop's
     assert np.linalg.norm(t.residual_um[t.success], axis=1).max() <= TIGHT_RESIDUAL_UM
     # the tight stop moves the commands by no more than the default's band
@@ -52,4 +53,4 @@ def test_tight_stop_converges_below_the_default_band(problem):
 def test_bad_roundoff_ulps_refused(problem, bad):
     m, f, tg, ax = problem
     with pytest.raises(ValueError, match="roundoff_ulps"):
-        solve_exact(f, tg[:3], m, target_axes=ax[:3], progress=False, roundoff_ulps=bad)
+        solve("exact", f, tg[:3], m, target_axes=ax[:3], progress=False, roundoff_ulps=bad)

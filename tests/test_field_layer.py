@@ -18,8 +18,9 @@ def test_solvers_and_guards_import_neither_torch_nor_training():
     import subprocess
     import sys
     assert not offenders(_field_layer_files(), ("torch", "training"))
-    code = ("import sys, compensation.guards, compensation.solvers.traditional, compensation.solvers.exact, "
-            "compensation.solvers.ga, compensation.solvers.batched_ga; "
+    code = ("import sys, compensation.guards, compensation.solvers.chain_traditional, compensation.solvers.chain_exact, "
+            "compensation.solvers.chain_ga, compensation.solvers.exact, compensation.solvers.ga, "
+            "compensation.solvers.batched_ga; "
             "print([m for m in ('torch', 'training') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout + out.stderr

@@ -200,7 +200,7 @@ def _user_path(tmp, seed, bump):
 
 @pytest.mark.slow
 def test_chain_loop_keeps_the_learned_stage_on_a_bump_and_compensates_with_it(tmp_path):
-    from compensation.app.workflows.mt_compensate import true_residual_um
+    from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian
     m, d, truth = _user_path(tmp_path, SEED, bump=True)
     s = json.loads((d / "diagnosis.json").read_text())

@@ -41,17 +41,17 @@ def test_the_cli_choices_are_the_registry():
 
 
 def test_each_entry_matches_its_function():
-    """Name → module → ``solve_<module>``; the flags the batch runner passes options by agree with
+    """Name → ``module:function``; the flags the batch runner passes options by agree with
     the function's keywords; the capabilities it names exist; its kernel modules import."""
     assert GA_METHODS == tuple(n for n, s in SOLVERS.items() if s.seeded) == ("ga", "batched-ga")
     for name, spec in SOLVERS.items():
         assert spec.name == name
         fn = spec.function()
-        assert fn.__name__ == f"solve_{spec.module}" and get_solver(name) is fn
+        assert fn.__name__ == spec.entry.split(":")[1] and get_solver(name) is fn
         opts = spec.options()
         assert spec.seeded == ("seed" in opts)
         assert spec.progress == ("progress" in opts)
-        assert spec.blockwise == ("workers" in opts)
+        assert spec.blockwise == (spec.seeded and "chunk" in opts)
         assert spec.uses <= CAPABILITIES, spec.uses - CAPABILITIES
         for mod in spec.kernels:
             importlib.import_module(mod)

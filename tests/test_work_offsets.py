@@ -158,13 +158,14 @@ def ignored_vs_used_um(prog, mill, truth_els, offsets, tools):
     """TRUE residual max (μm) at every vertex of ``prog`` run with its real work offset and tool, compensated
     (a) with the tables ignored (the program's axes taken as machine axes, the file's 120 mm tool: what
     the reader did before) and (b) with them used. The model is the truth (nothing else differs)."""
-    from compensation.app.workflows.mt_compensate import ChainSettings, read_chain_path, solve_chain_paths
+    from compensation.app.workflows.compensate import CompensateSettings, solve_paths
+    from compensation.app.workflows.compensate_paths import read_tool_path
     from compensation.solvers import solve
     from compensation.solvers.chain_exact import nominal_and_jacobian
-    s = ChainSettings("exact", "", Path("."), work_offsets=offsets, tool_table=tools)
+    s = CompensateSettings("exact", "", Path("."), work_offsets=offsets, tool_table=tools)
     field_ = ChainField(mill, truth_els)
-    tp = read_chain_path(prog, mill, s, field_)
-    res, _, true_used, _ = solve_chain_paths([tp], field_, field_, mill, s)[0]
+    tp = read_tool_path(prog, mill, s, field_)
+    res, _, true_used, _ = solve_paths([tp], field_, field_, mill, s)[0]
     prog_axes = tp.axes - tp.shift
     t0, _ = nominal_and_jacobian(mill, prog_axes)
     old = solve("exact", field_, t0, mill, target_axes=prog_axes, progress=False)  # tables ignored
@@ -185,9 +186,10 @@ def test_the_tables_matter(mill, truth_file):
     assert used < TOL_POINT_UM < IGNORED_MIN_UM < ignored
 
 
-def test_the_grinder_reads_a_g54_program_only_as_machine_coordinates(tmp_path, grinder, capsys):
-    """The grinder applies no offset table: a G54 program is refused without --work-offsets machine; with it,
-    compensated, recorded in the summary and as the output's first comment; a table file is refused."""
+def test_the_grinder_reads_a_g54_program_with_its_offsets(tmp_path, grinder, capsys):
+    """The grinder (on its chain) reads a G54 program as every machine tool does: refused without
+    --work-offsets; with a table, placed by it; with --work-offsets machine, compensated, recorded in the summary
+    and as the output's first comment."""
     from errormap.simulator import random_truth
     el = random_truth(grinder, 7).elements.save(tmp_path / "elements.json")
     prog = Path(__file__).resolve().parent / "data" / "gcode_corpus" / "c01_linuxcnc_basic.ngc"
@@ -195,8 +197,10 @@ def test_the_grinder_reads_a_g54_program_only_as_machine_coordinates(tmp_path, g
     assert main([*base, "--out", str(tmp_path / "a")]) == 2
     err = capsys.readouterr().err  # one line, cut in the middle where long
     assert f"{prog}: line 4, column 29: 'G54': sel" in err and "or --work-offsets machine" in err
-    assert main([*base, "--out", str(tmp_path / "b"), "--work-offsets", str(DATA / "offsets.csv")]) == 2
-    assert "the grinder takes --work-offsets machine only" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "b"), "--work-offsets", str(DATA / "offsets.csv")]) == 0
+    e = json.loads((tmp_path / "b" / "compensate_summary.json").read_text())["files"][0]
+    assert e["work_offsets"] == str(DATA / "offsets.csv")
+    capsys.readouterr()
     assert main([*base, "--out", str(tmp_path / "c"), "--work-offsets", MACHINE]) == 0
     out = (tmp_path / "c" / prog.name).read_text(encoding="latin-1").splitlines()
     assert out[:2] == ["%", "(volcomp: work offsets taken as machine zero [--work-offsets machine])"]
@@ -222,7 +226,7 @@ GRINDER_NO_SYSTEM = "%\nG21 G90 G18 G40 G49 G80 G94\nG0 X90 Z5 A0\nG1 Z0.3 F120\
 
 @pytest.mark.parametrize("machine_name, text, first_move, tables", [
     ("mill-xyz", MILL_NO_SYSTEM, 4, True),
-    (None, GRINDER_NO_SYSTEM, 3, False),
+    (None, GRINDER_NO_SYSTEM, 3, True),
 ])
 def test_a_program_with_no_work_system_word_is_not_read_at_machine_zero(tmp_path, truth_file, grinder, capsys,
                                                                         machine_name, text, first_move, tables):

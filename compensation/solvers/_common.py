@@ -1,4 +1,4 @@
-"""Helpers shared by the solvers: input validation, field evaluation, Jacobians, A continuity.
+"""Helpers shared by the solvers: results, the ball, A folding and continuity, field evaluation in chunks.
 
 Conventions (all solvers):
 
@@ -11,10 +11,10 @@ Conventions (all solvers):
   folded into the calibrated turn ``[a_lo, a_lo + 360)`` of the A stroke when that stroke
   spans a full turn (errors are periodic in A, docs/kinematics.md), so multi-turn commands never
   reach a field outside its training range.
-* A continuity: the axis command of ``p_r`` takes the A turn of its own target, i.e.
-  ``a_r = a_d + wrap180(a_r - a_d)``, where the targets' A is unwrapped along the path
-  (``kinematics.inverse(unwrap=True)``) or given by the caller (``target_axes``). A path
-  whose targets are continuous therefore gets continuous compensated A, never a 360° jump.
+* A continuity: the axis command of ``p_r`` takes the turn of its own target's rotary axis, i.e.
+  ``a_r = a_d + wrap180(a_r - a_d)``, where the targets' axes are unwrapped along the path
+  (the chain's closed-form inverse, ``unwrap=True``) or given by the caller (``target_axes``). A
+  path whose targets are continuous therefore gets continuous compensated A, never a 360° jump.
 * The model residual is ``(p_r - p_d)·1e3 + E(axes(p_r))`` μm (residual 1 of docs/kinematics.md).
 """
 from __future__ import annotations
@@ -24,14 +24,11 @@ import time
 
 import numpy as np
 
-from errormap.field import FLOAT32, JACOBIAN, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, check_field
-from errormap.kinematics import inverse
-from errormap.machine import Grinder
+from errormap.field import FLOAT32, PREDICT_COLUMNS
 from errormap.mt_kernel import NominalChain
 from errormap.threads import limit_threads
-from errormap.transforms import check_points
 
-from .base import BALL_RADIUS_UM, SolveResult
+from .base import SolveResult
 
 UM_PER_MM = 1e3
 MM_PER_UM = 1e-3
@@ -43,8 +40,6 @@ here. Its layers are narrow (at most 25 wide), so intra-op threads gain little, 
 cores they spin. Measured on the shared 2-core machine at load ~15, 200,000 points in chunks
 of 65,536: 7.9 μs a point wall (0.94 μs CPU) on one thread, 59 μs wall (10.7 μs CPU) on two.
 One thread also makes the result independent of the machine's thread count."""
-FD_STEPS = np.array([1e-3, 1e-3, 1e-3])
-"""Central-difference steps in axis space (mm, mm, deg) for fields without ``jacobian``."""
 
 
 def full_turn_a(machine) -> bool:
@@ -65,27 +60,6 @@ def fold_a(axes, machine) -> np.ndarray:
 def wrap180(angle_deg) -> np.ndarray:
     """Angles folded into ``[-180, 180)``."""
     return np.mod(np.asarray(angle_deg, dtype=float) + 180.0, 360.0) - 180.0
-
-
-def check_inputs(field, targets_mm, machine, target_axes=None, a_start_deg=None, ball_um=BALL_RADIUS_UM):
-    """Validate solver input before any expensive work.
-
-    Returns ``(targets (n, 3) mm, target_axes (n, 3))``; the targets' A is unwrapped along
-    the path (or taken from ``target_axes``, which must be the nominal axes of the targets).
-    """
-    check_field(field)
-    if not isinstance(machine, Grinder):
-        raise TypeError(f"Expected a grinder machine (errormap.machine.Grinder), got {type(machine).__name__}")
-    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
-    if not (np.isfinite(ball_um) and ball_um > 0):
-        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
-    if target_axes is None:
-        axes_d = inverse(machine, targets, unwrap=True, a_start_deg=a_start_deg)
-    else:
-        axes_d = check_points(target_axes, "target axes (x_mm, z_mm, a_deg)")
-        if axes_d.shape != targets.shape:
-            raise ValueError(f"Expected target_axes of shape {targets.shape}, got {axes_d.shape}")
-    return targets, axes_d
 
 
 @contextlib.contextmanager
@@ -130,66 +104,6 @@ def _field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool =
     return out
 
 
-def field_jacobian_um(field, axes, machine, e0_um=None, chunk: int = FIELD_CHUNK) -> tuple[np.ndarray, int]:
-    """``dE/d(axes)`` μm per (mm, mm, deg), shape (n, 3, 3) (rows: error components).
-
-    Uses ``field.jacobian(axes)`` when the field declares ``jacobian``. Otherwise finite differences in
-    axis space with steps :data:`FD_STEPS`: forward differences from ``e0_um = E(axes)``
-    when given (3 evaluations per point), else central differences (6 per point).
-    Returns ``(J, evaluations)``.
-    """
-    axes = np.asarray(axes, dtype=float)
-    n = axes.shape[0]
-    J = np.empty((n, 3, 3))
-    if JACOBIAN in field.capabilities:
-        a = fold_a(axes, machine)
-        for s in range(0, n, chunk):
-            J[s:s + chunk] = np.asarray(field.jacobian(a[s:s + chunk]), dtype=float).reshape(-1, 3, 3)
-        return J, n
-    signs = (1.0,) if e0_um is not None else (1.0, -1.0)
-    m_shift = 3 * len(signs)
-    step = max(1, chunk // m_shift)
-    for s in range(0, n, step):
-        a = axes[s:s + step]
-        m = a.shape[0]
-        shifted = np.repeat(a[None], m_shift, axis=0)  # (k, m, 3): +x[, -x], +z[, -z], +a[, -a]
-        for k in range(3):
-            for j, sg in enumerate(signs):
-                shifted[len(signs) * k + j, :, k] += sg * FD_STEPS[k]
-        e = field_error_um(field, shifted.reshape(-1, 3), machine, chunk=chunk).reshape(m_shift, m, 3)
-        if e0_um is None:
-            cols = [(e[2 * k] - e[2 * k + 1]) / (2 * FD_STEPS[k]) for k in range(3)]
-        else:
-            cols = [(e[k] - e0_um[s:s + step]) / FD_STEPS[k] for k in range(3)]
-        J[s:s + step] = np.stack(cols, axis=2)
-    return J, m_shift * n
-
-
-def field_error_and_jacobian_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool = False):
-    """``(E (n, 3) μm, dE/d(axes) (n, 3, 3), evaluations)`` at axes (n, 3), A folded.
-
-    One pass through ``field.predict_and_jacobian`` when the field declares it (counted as two
-    evaluations per point, a value and a Jacobian), else :func:`field_error_um` then
-    :func:`field_jacobian_um` (forward differences from it). ``fast=True`` runs a field with a
-    declared float32 path in float32 (e.g. a Newton start, where only the step direction matters).
-    """
-    n = np.asarray(axes).shape[0]
-    caps = field.capabilities
-    if PREDICT_AND_JACOBIAN not in caps:
-        E = field_error_um(field, axes, machine, chunk=chunk)
-        J, fe = field_jacobian_um(field, axes, machine, e0_um=E, chunk=chunk)
-        return E, J, n + fe
-    kw = {"dtype": np.float32} if fast and FLOAT32 in caps else {}
-    a = fold_a(axes, machine)
-    E, J = np.empty((n, 3)), np.empty((n, 3, 3))
-    with field_threads(field):
-        for s in range(0, n, chunk):
-            e, j = field.predict_and_jacobian(a[s:s + chunk], **kw)
-            E[s:s + chunk] = np.asarray(e, dtype=float).reshape(-1, 3)
-            J[s:s + chunk] = np.asarray(j, dtype=float).reshape(-1, 3, 3)
-    return E, J, 2 * n
-
-
 def forward_and_jacobian(machine, axes, jac: bool = True):
     """Nominal tool point ``p`` (n, 3) mm and ``dp/d(axes)`` (n, 3, k) mm per mm / per deg of the
     machine's chain (:class:`errormap.mt_kernel.NominalChain`: for the grinder its chain file, the
@@ -202,22 +116,10 @@ def forward_jacobian(machine, axes) -> np.ndarray:
     return forward_and_jacobian(machine, axes)[1]
 
 
-def command_axes(machine, commands_mm, axes_d) -> np.ndarray:
-    """Axis commands of WCS commands, A on the turn of each target's A; (n, 3) -> (n, 3)."""
-    q = inverse(machine, commands_mm, unwrap=False)
-    q[:, 2] = axes_d[:, 2] + wrap180(q[:, 2] - axes_d[:, 2])
-    return q
-
-
 def project_to_ball(d_um, radius_um) -> np.ndarray:
     """Offsets (..., 3) μm radially projected onto the ball ``|d| ≤ radius_um`` (inside: unchanged)."""
     nrm = np.linalg.norm(d_um, axis=-1, keepdims=True)
     return d_um * np.minimum(1.0, radius_um / np.maximum(nrm, 1e-300))
-
-
-def residual_um(field, machine, commands_mm, axes, targets_mm) -> np.ndarray:
-    """Model residual ``(p_r - p_d)·1e3 + E(axes)`` μm, shape (n, 3)."""
-    return (commands_mm - targets_mm) * UM_PER_MM + field_error_um(field, axes, machine)
 
 
 def make_result(method, targets, commands, axes, residual, converged, nfev, t0, ball_um, message="", info=None):
@@ -232,14 +134,3 @@ def make_result(method, targets, commands, axes, residual, converged, nfev, t0, 
     return SolveResult(method=method, targets_mm=targets, commands_mm=commands, axes=axes,
                        residual_um=residual, correction_um=correction, success=success,
                        nfev=int(nfev), seconds=time.perf_counter() - t0, message=msg, info=info)
-
-
-def ga_result(method, field, machine, targets, offsets_um, axes_d, nfev, t0, ball_um, tol_um, seed, **info):
-    """The result of a GA solver from its best offsets ``p_r - p_d`` (μm), shape (n, 3):
-    commands, their axes, the float64 model residual, and ``converged`` = |residual| ≤ ``tol_um``."""
-    commands = targets + MM_PER_UM * offsets_um
-    axes = command_axes(machine, commands, axes_d)
-    res = residual_um(field, machine, commands, axes, targets)
-    converged = np.linalg.norm(res, axis=1) <= tol_um
-    return make_result(method, targets, commands, axes, res, converged, nfev, t0, ball_um,
-                       info={"tol_um": tol_um, "seed": seed if isinstance(seed, (int, np.integer)) else None, **info})

@@ -1,7 +1,8 @@
-"""The paper's GA with PyGAD's operators, evolving every point's population at once.
+"""The paper's GA with PyGAD's operators, evolving every point's population at once: the engine of the
+``batched-ga`` solver (:func:`compensation.solvers.chain_ga.solve_batched_ga_chain`).
 
-Same problem, parameters and fitness as :mod:`compensation.solvers.ga`; the populations are
-one float32 array of shape (n_points, 40, 3) (offsets d in μm) and one generation is one
+The paper's parameters (:mod:`compensation.solvers.ga`); the populations are
+one float32 array of shape (n_points, 40, 3) (genes in μm) and one generation is one
 compiled pass over all points (:func:`._ga_kernels.breed`: selection, crossover, mutation,
 ball repair, fitness inheritance) plus one field evaluation over all new offspring of all
 points.
@@ -26,21 +27,12 @@ Operators, as PyGAD 3.9 runs them with the ``ga`` solver's configuration (one ge
    ``(2u/p - 1)·s`` (given u < p, u/p is uniform on [0, 1)).
 5. **Ball repair**: offspring projected radially onto the 250 μm ball (the ``ga`` solver's
    ``on_mutation``).
-6. **Fitness** ``-|d + E(IK(p_d + 1e-3·d))|²``; an offspring identical to one of its
+6. **Fitness** minus the squared model residual of the genes; an offspring identical to one of its
    parents (not crossed, not mutated) inherits the parent's fitness, as PyGAD's fitness
    cache does, so ``nfev`` counts the same kind of evaluations.
 
-Fitness evaluation, two paths with the same value:
-
-* **fused** (fields declaring the ``offset_fitness`` capability, i.e. the learned MLP field):
-  the field supplies the whole fitness as one compiled kernel
-  (:class:`errormap.field.OffsetFitness`; for the network, nominal inverse kinematics and the
-  network as one float32 torch pipeline, :mod:`training.ga_fitness`). float32 is ample here:
-  the offsets resolve 1.5e-5 μm at 250 μm, and the field's float32 error is ~1e-4 μm
-  (``tests/test_model_inference.py``) against the GA's ~0.01 μm resolution; the returned
-  commands and residuals are recomputed in float64 (:func:`._common.ga_result`).
-* **generic** (any field, e.g. the HTM field): float64 numpy through
-  :func:`errormap.kinematics.inverse` and :func:`._common.field_error_um`.
+Fitness: the caller's (``fitness(points (k,) int64, genes (3, k) float32) -> (k,) float32``;
+:func:`compensation.solvers.chain_ga.chain_fitness`), evaluated in blocks of :data:`FITNESS_BLOCK`.
 
 Differences from PyGAD: the random streams differ (one numpy Generator per chunk of
 points, its raw 32-bit words feeding the compiled step, instead of one RandomState/Random
@@ -53,113 +45,14 @@ offspring's own two (≈ 2 % more evaluations late in a run, docs/solvers.md).
 from __future__ import annotations
 
 import threading
-import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from errormap.field import OFFSET_FITNESS
-from errormap.kinematics import inverse
 from errormap.progress import Progress
-from errormap.threads import limit_threads
 
-from .base import BALL_RADIUS_UM, SolveResult
-from ._common import MM_PER_UM, check_inputs, field_error_um, ga_result, project_to_ball
-from ._converge import RETRY_ROUNDS, converge, merge_stats
+from ._common import project_to_ball
 from ._ga_kernels import breed, scatter
-from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
-
-
-def solve_batched_ga(field, targets_mm, machine, *, target_axes=None, a_start_deg=None,
-                     ball_um: float = BALL_RADIUS_UM, seed: int | np.random.Generator = 0,
-                     population: int = PAPER_GA["population"], generations: int = PAPER_GA["generations"],
-                     selection_probability: float = PAPER_GA["selection_probability"],
-                     crossover_probability: float = PAPER_GA["crossover_probability"],
-                     mutation_probability: float = PAPER_GA["mutation_probability"],
-                     mutation_step_um: float = PAPER_GA["mutation_step_um"], tol_um: float = DEFAULT_TOL_UM,
-                     chunk: int = 8192, workers: int | None = None, fused: bool | None = None,
-                     progress: bool = True, retries: int = RETRY_ROUNDS, polish: bool = True,
-                     stop: threading.Event | None = None) -> SolveResult:
-    """Batched GA over WCS targets, shape (n, 3) mm.
-
-    The points are split into equal chunks of at most ``chunk`` points, their number a
-    multiple of ``workers``; each chunk evolves on its own (its own child Generator of
-    ``seed``), ``workers`` chunks at a time in threads (each library on one thread per chunk
-    meanwhile: :func:`errormap.threads.limit_threads`). ``workers``:
-    None uses the fused kernel's own thread count (the cores it would use), 1 otherwise (a
-    generic field's evaluation holds the GIL). The result depends on ``seed``, ``chunk`` and
-    ``workers``, not on timing. ``fused``: None (default) uses the fused float32 fitness when
-    the field declares ``offset_fitness``; False forces the generic path. ``success``:
-    |model residual| ≤ ``tol_um`` and inside the ball.
-
-    Points above ``tol_um`` after ``generations`` are retried (``retries`` GA re-runs from a
-    fresh population around their best) and then, with ``polish``, Newton-polished
-    (:mod:`._converge`); ``info["retry"]`` says how many and at what cost. Interruption: the
-    generation loop polls ``stop`` (a :class:`threading.Event`, e.g. set by an executor on
-    Ctrl-C) and the fitness runs in blocks of :data:`FITNESS_BLOCK` offspring, so a
-    KeyboardInterrupt (main thread) or ``stop`` acts within one block's time; on
-    KeyboardInterrupt in the main thread the chunk threads are stopped the same way.
-    """
-    t0 = time.perf_counter()
-    targets, axes_d = check_inputs(field, targets_mm, machine, target_axes, a_start_deg, ball_um)
-    n_parents = check_ga_options(population, generations, selection_probability, crossover_probability,
-                                 mutation_probability, mutation_step_um, tol_um)
-    if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
-        raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
-    if workers is not None and not (isinstance(workers, (int, np.integer)) and workers >= 1):
-        raise ValueError(f"Expected workers ≥ 1, got {workers!r}")
-    if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
-        raise ValueError(f"Expected retries in 0..10, got {retries!r}")
-    stop = threading.Event() if stop is None else stop
-    has_kernel = OFFSET_FITNESS in field.capabilities
-    use_fused = has_kernel if fused is None else bool(fused)
-    if use_fused and not has_kernel:
-        raise ValueError(f"Expected a field declaring the {OFFSET_FITNESS!r} capability for fused=True, "
-                         f"got {type(field).__name__}")
-    n = len(targets)
-    # threads pay off where the work releases the GIL (the fused kernel and the compiled
-    # step); a generic field's numpy/Python evaluation would only contend for it
-    if workers is None:
-        workers = field.offset_fitness(machine, targets[:0]).threads if use_fused else 1
-    k = -(-n // chunk)
-    k = max(1, -(-k // workers) * workers) if n >= workers else 1
-    bounds = np.linspace(0, n, k + 1).round().astype(int)
-    rngs = np.random.default_rng(seed).spawn(k)
-    best = np.empty((n, 3))
-    bar = _LockedProgress(n * generations, "batched-ga (point-generations)", enabled=progress)
-    ga = _BatchGA(ball_um, population, n_parents, crossover_probability, mutation_probability, mutation_step_um)
-    # every chunk's fitness is built here, before any thread starts
-    fitness = [field.offset_fitness(machine, targets[bounds[i]:bounds[i + 1]]) if use_fused
-               else _GenericFitness(field, machine, targets[bounds[i]:bounds[i + 1]]) for i in range(k)]
-
-    def one(i):
-        lo, hi = bounds[i], bounds[i + 1]
-        b, fe = ga.run(fitness[i], hi - lo, rngs[i], generations, bar, stop=stop)
-
-        def rerun(sub, radius_um):  # the chunk's own stream, so the result depends on the seed only
-            init = b[sub][:, None, :] + radius_um[:, None, None] * uniform_in_ball(rngs[i], (sub.size, population), 1.0)
-            init[:, 0] = b[sub]  # the best so far survives (elitism)
-            init = project_to_ball(init, ball_um).astype(np.float32)
-            return ga.run(lambda pts, dT: fitness[i](sub[pts], dT), sub.size, rngs[i], generations, None,
-                          init=init, stop=stop)
-
-        best[lo:hi], fe2, st = converge(field, machine, targets[lo:hi], axes_d[lo:hi], b, tol_um, ball_um, rerun,
-                                        retries, polish)
-        return fe + fe2, st
-
-    if workers == 1 or k == 1:
-        done = [one(i) for i in range(k)]
-    else:
-        with limit_threads(1), ThreadPoolExecutor(workers) as pool:
-            try:
-                done = list(pool.map(one, range(k)))
-            except BaseException:
-                stop.set()  # before the pool waits: its threads stop at their next generation or block
-                raise
-    nfev = sum(fe for fe, _ in done)
-    return ga_result("batched-ga", field, machine, targets, best, axes_d, nfev, t0, ball_um, tol_um, seed,
-                     parents=n_parents, fused=use_fused, chunks=k, workers=workers,
-                     retry=merge_stats([st for _, st in done]))
+from .ga import uniform_in_ball
 
 
 FITNESS_BLOCK = 65_536
@@ -191,21 +84,6 @@ class _LockedProgress(Progress):
     def update(self, k: int = 1, extra: str = "") -> None:
         with self._lock:
             super().update(k, extra)
-
-
-class _GenericFitness:
-    """``-|d + E(IK(p_d + 1e-3 d))|²`` through the field's ``predict`` (float64 numpy), any field."""
-
-    def __init__(self, field, machine, targets):
-        self.field, self.machine, self.targets = field, machine, targets
-
-    def __call__(self, pts: np.ndarray, dT: np.ndarray) -> np.ndarray:
-        """Fitness of offsets ``dT`` (3, k) μm (columns) of points ``pts`` (k,); returns (k,) float32."""
-        d = dT.T.astype(float)
-        q = inverse(self.machine, self.targets[pts] + MM_PER_UM * d, unwrap=False)
-        r = d + field_error_um(self.field, q, self.machine, fast=True)
-        f = -np.einsum("ij,ij->i", r, r).astype(np.float32)
-        return np.where(np.isnan(f), -np.inf, f).astype(np.float32)
 
 
 class _BatchGA:

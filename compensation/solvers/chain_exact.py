@@ -54,14 +54,14 @@ import time
 
 import numpy as np
 
-from errormap.field import PREDICT_AND_JACOBIAN, check_field
+from errormap.field import FLOAT32, JACOBIAN, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, check_field
 from errormap.mt_kernel import NominalChain
 from errormap.progress import Progress
 from errormap.transforms import check_points
 
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
 from .base import BALL_RADIUS_UM
-from .exact import keep_turn, newton, solve3, solved_axes
+from .exact import ROUNDOFF_ULPS, check_roundoff_ulps, keep_turn, newton, solve3, solved_axes
 
 KEPT_NOTE = ("tool-tip position compensated with the linear axes {lin}; the rotary axes {rot} (tool orientation) "
              "are kept as commanded")
@@ -117,8 +117,11 @@ def chain_inverse(machine, targets_mm, compiled=None) -> np.ndarray:
 def target_axes_of(machine, targets, target_axes, compiled) -> np.ndarray:
     """The programmed axes of each target, shape (n, k): ``target_axes`` as given (checked: finite, one
     row per target, one column per axis of the machine) or the nominal inverse of the targets."""
-    if target_axes is None:
-        return chain_inverse(machine, targets, compiled)
+    if target_axes is None:  # the closed-form inverse where the chain has one (rotary axis unwrapped along the path)
+        try:
+            return machine.inverse_closed(targets, unwrap=True)
+        except ValueError:
+            return chain_inverse(machine, targets, compiled)
     k = len(machine.axes)
     axes_d = np.array(target_axes, dtype=float)
     if axes_d.shape != (len(targets), k) or not np.all(np.isfinite(axes_d)):
@@ -183,21 +186,23 @@ def rotary_guard(compiled, machine, axes_d, q, sol, ball_um, rotary_limit_deg):
 
 def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: float = BALL_RADIUS_UM,
                       tol_um: float = 1e-4, xtol_um: float = 1e-9, max_iter: int = 50, chunk: int = 250_000,
-                      rotary_limit_deg=None, progress: bool = True):
+                      rotary_limit_deg=None, progress: bool = True, roundoff_ulps: float = ROUNDOFF_ULPS):
     """Exact compensation of WCS targets (n, 3) mm on a machine-tool chain (module docstring).
 
     ``target_axes`` (n, k): the program's axes of each target (required when the machine has
     rotary axes: they are kept). ``field``: an error field over ``machine.axis_columns`` that
     declares ``predict_and_jacobian`` (:class:`errormap.mt_field.ChainField`). ``rotary_limit_deg``:
-    a limit on a solved rotary axis' correction below the ball's bound (module docstring). Returns a
+    a limit on a solved rotary axis' correction below the ball's bound (module docstring).
+    ``roundoff_ulps`` (0 … 1e6, default :data:`~compensation.solvers.exact.ROUNDOFF_ULPS`): iteration also
+    stops where ``|F|`` is within this many ulps of the target's largest coordinate; a smaller value iterates
+    on to ``xtol_um`` or stagnation (to compare two solvers below their round-off); it does not change
+    ``success`` (``tol_um``). Works in chunks of ``chunk`` points to bound peak memory. Returns a
     :class:`~compensation.solvers.base.SolveResult` with ``axes`` (n, k); ``info``: iterations per
     point, ``compensated_axes``, ``kept_axes``, ``note``, ``outside_ball``, ``rotary_refused``
     (indices), ``rotary_reasons`` (one text per refused index).
     """
     t0 = time.perf_counter()
     check_field(field, machine.axis_columns)
-    if PREDICT_AND_JACOBIAN not in field.capabilities:
-        raise TypeError(f"{type(field).__name__} declares no predict_and_jacobian; the exact chain solver needs it")
     compiled = NominalChain(machine)
     sol, kept = solved_and_kept(machine, compiled)
     targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
@@ -207,18 +212,20 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
     check_rotary_limit(rotary_limit_deg)
+    roundoff_ulps = check_roundoff_ulps(roundoff_ulps)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
     q = axes_d.copy()
     commands = np.empty_like(targets)
     E = np.empty((n, 3))
     iters = np.zeros(n, dtype=np.int32)
+    n_jac = np.zeros(n, dtype=np.int32)
     nfev = 0
     bar = Progress(n, "exact (chain)", enabled=progress)
     for s in range(0, n, chunk):
         sl = slice(s, min(n, s + chunk))
-        q[sl], commands[sl], E[sl], iters[sl], fe = _newton(field, compiled, targets[sl], axes_d[sl], sol,
-                                                            xtol_um, max_iter)
+        q[sl], commands[sl], E[sl], iters[sl], n_jac[sl], fe = _newton(field, compiled, targets[sl], axes_d[sl], sol,
+                                                                       xtol_um, max_iter, roundoff_ulps)
         nfev += fe
         bar.update(sl.stop - sl.start)
     d_um = (commands - targets) * UM_PER_MM
@@ -240,7 +247,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     res = (commands - targets) * UM_PER_MM + E
     converged = (np.linalg.norm(res, axis=1) <= tol_um) & ~outside & ~refused
     names = machine.axis_columns
-    info = {"iterations": iters, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside),
+    info = {"iterations": iters, "jacobians": n_jac, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside),
             "compensated_axes": [names[j] for j in sol], "kept_axes": [names[j] for j in kept]}
     if any(compiled.kinds[j] != "linear" for j in sol):
         info["rotary_refused"] = np.flatnonzero(refused)
@@ -255,27 +262,63 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
 
 
 class _ChainFieldEval:
-    """A chain field for the exact solver's Newton core (:func:`compensation.solvers.exact.newton`):
-    its compiled ``predict`` (trial points) and ``predict_and_jacobian`` (start, refreshes)."""
+    """A field for the exact solver's Newton core (:func:`compensation.solvers.exact.newton`), evaluated as
+    every solver evaluates a field: full-turn axes folded into the calibrated turn of their stroke, its
+    float32 path for the start where it declares one (only the first step's direction depends on it), its
+    ``predict_columns`` for values where declared, its own Jacobian where declared, else forward differences
+    (:mod:`compensation.solvers._common`). Shapes: axes (m, k), values (m, 3) μm, Jacobians (m, 3, k)."""
 
-    def __init__(self, field):
+    def __init__(self, field, machine):
         self.field = field
+        self.full = [(j, float(machine.axes[j].stroke[0])) for j, a in enumerate(machine.axes) if a.full_turn]
+        self.own = PREDICT_AND_JACOBIAN in field.capabilities and JACOBIAN in field.capabilities
+
+    def fold(self, q):
+        if not self.full:
+            return q
+        q = np.array(q, dtype=float, copy=True)
+        for j, lo in self.full:
+            q[:, j] = lo + np.mod(q[:, j] - lo, 360.0)
+        return q
 
     def start(self, q):
-        E, JE = self.field.predict_and_jacobian(q)
-        return E, JE, 2 * len(q)
+        if not self.own:
+            E = self.value(q)
+            J, fe = self.jacobian(q, E)
+            return E, J, len(q) + fe
+        kw = {"dtype": np.float32} if FLOAT32 in self.field.capabilities else {}
+        E, JE = self.field.predict_and_jacobian(self.fold(q), **kw)
+        return np.asarray(E, dtype=float), np.asarray(JE, dtype=float), 2 * len(q)
 
     def value(self, q):
-        return self.field.predict(q)
+        a = self.fold(q)
+        if PREDICT_COLUMNS in self.field.capabilities:
+            return np.ascontiguousarray(self.field.predict_columns(np.ascontiguousarray(a.T)).T, dtype=float)
+        return np.asarray(self.field.predict(a), dtype=float)
 
     def jacobian(self, q, e0):
-        return self.field.predict_and_jacobian(q)[1], 2 * len(q)
+        if self.own:
+            return np.asarray(self.field.jacobian(self.fold(q)), dtype=float), len(q)
+        k = q.shape[1]
+        J = np.empty((len(q), 3, k))
+        for j in range(k):
+            d = np.zeros(k)
+            d[j] = FD_STEP
+            J[:, :, j] = (self.value(q + d) - e0) / FD_STEP
+        return J, k * len(q)
 
 
-def _newton(field, compiled, targets, axes_d, sol, xtol_um, max_iter):
+FD_STEP = 1e-3
+"""Forward-difference step of a field without its own Jacobian, per axis (mm or deg)."""
+
+
+def _newton(field, compiled, targets, axes_d, sol, xtol_um, max_iter, roundoff_ulps: float = ROUNDOFF_ULPS, q0=None):
     """The exact solver's Newton core on the solved axes ``sol`` (3,) of one chunk (the others kept
-    at ``axes_d``; a solved full-turn axis put on the turn of ``axes_d``); returns
-    ``(q (m, k), p_r (m, 3) mm, E (m, 3) μm at q, iterations (m,), field evaluations)``."""
-    q, E, iters, _, nfev = newton(_ChainFieldEval(field), compiled, sol, targets, axes_d, xtol_um, max_iter)
+    at ``axes_d``; a solved full-turn axis put on the turn of ``axes_d``), started from ``q0`` (m, k) (default
+    ``axes_d``: a GA's polish starts from its best); returns
+    ``(q (m, k), p_r (m, 3) mm, E (m, 3) μm at q, iterations (m,), Jacobians (m,), field evaluations)``."""
+    start = axes_d if q0 is None else q0
+    q, E, iters, n_jac, nfev = newton(_ChainFieldEval(field, compiled.machine_tool), compiled, sol, targets, start,
+                                      xtol_um, max_iter, roundoff_ulps=roundoff_ulps)
     keep_turn(compiled, q, axes_d)
-    return q, compiled.forward(q), E, iters, nfev
+    return q, compiled.forward(q), E, iters, n_jac, nfev

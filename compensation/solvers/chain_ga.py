@@ -191,7 +191,8 @@ def _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_
                       rerun, stats):
     """Retries (``rerun(sub_local, init (s, P, 3)) -> (genes (s, 3), evaluations)``) and the Newton polish
     of the points of ``idx`` (m,) whose best genes ``b`` (m, 3) leave a model residual above ``tol_um``;
-    ``b`` updated in place; returns the field evaluations."""
+    ``b`` updated in place; returns the field evaluations (the seconds spent: ``stats["retry_seconds"]``)."""
+    t0 = time.perf_counter()
     nfev = 0
     res = np.linalg.norm(fit.residual_um(idx, b), axis=1)
     bad = np.flatnonzero(~(res <= tol_um))
@@ -209,7 +210,8 @@ def _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_
         stats["retry_rounds"] = max(stats["retry_rounds"], r + 1)
     if polish and bad.size:
         sub = idx[bad]
-        q, commands, _, _, fe = _newton(field, compiled, targets[sub], axes_d[sub], moved, 1e-9, 50)
+        q, commands, _, _, _, fe = _newton(field, compiled, targets[sub], axes_d[sub], moved, 1e-9, 50,
+                                           q0=fit.axes(sub, b[bad]))  # from the GA's best
         nfev += fe
         new = fit.genes_of(sub, q, commands, targets[sub], ball_um)
         nr = np.linalg.norm(fit.residual_um(sub, new), axis=1)
@@ -218,6 +220,7 @@ def _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_
         stats["polished"] += int(bad.size)
         bad = bad[~(res[bad] <= tol_um)]
     stats["unconverged"] += int(bad.size)
+    stats["retry_seconds"] += time.perf_counter() - t0
     return nfev
 
 
@@ -284,7 +287,7 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
     bar = _LockedProgress(n * generations, "batched-ga chain (point-generations)", enabled=progress)
     best = np.empty((n, 3))
     nfev = 0
-    stats = {"retried": 0, "retry_rounds": 0, "polished": 0, "unconverged": 0}
+    stats = {"retried": 0, "retry_rounds": 0, "polished": 0, "unconverged": 0, "retry_seconds": 0.0}
     for i in range(n_chunks):
         lo, hi = bounds[i], bounds[i + 1]
         if hi <= lo:
@@ -377,7 +380,7 @@ def solve_ga_chain(field, targets_mm, machine, *, target_axes=None, ball_um: flo
             out[j] = run_one(i, project_to_ball(init, ball_um))
         return out, 0
 
-    stats = {"retried": 0, "retry_rounds": 0, "polished": 0, "unconverged": 0}
+    stats = {"retried": 0, "retry_rounds": 0, "polished": 0, "unconverged": 0, "retry_seconds": 0.0}
     nfev = _retry_and_polish(fit, field, compiled, targets, axes_d, moved, np.arange(n), best, tol_um, ball_um,
                              retries, polish, rerun, stats)
     info = {"tol_um": tol_um, "seed": seed if isinstance(seed, (int, np.integer)) else None, "parents": n_parents,

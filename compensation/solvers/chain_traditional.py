@@ -32,11 +32,35 @@ from errormap.field import check_field
 from errormap.mt_kernel import NominalChain
 from errormap.transforms import check_points
 
-from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
+from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball, wrap180
 from .base import BALL_RADIUS_UM
 from .chain_exact import (KEPT_NOTE, SOLVED_NOTE, check_rotary_limit, nominal_and_jacobian, rotary_guard,
                           solved_and_kept, target_axes_of)
 from .exact import keep_turn, solve3
+
+
+def closed_inverse(machine, axes_d):
+    """``inverse(points (n, 3) mm) -> axes (n, 3)``: the chain's closed-form nominal inverse, each point's
+    rotary axis on the turn of its target's (``axes_d`` (n, 3)); None where the chain has none."""
+    from errormap.mt_kernel import closed_form_solver
+    try:
+        solve = closed_form_solver(machine)
+    except ValueError:
+        return None
+    r = solve.k.rotary
+
+    def inverse(points_mm):
+        q = solve(np.ascontiguousarray(points_mm, dtype=float), fold=True)
+        q[:, r] = axes_d[:, r] + wrap180(q[:, r] - axes_d[:, r])
+        return q
+    return inverse
+
+
+def field_values(field, machine, axes) -> np.ndarray:
+    """``E(axes)`` (n, 3) μm, full-turn axes folded into their calibrated turn, as the exact solver evaluates
+    a field (:class:`~compensation.solvers.chain_exact._ChainFieldEval`)."""
+    from .chain_exact import _ChainFieldEval
+    return _ChainFieldEval(field, machine).value(np.asarray(axes, dtype=float))
 
 
 def solve_traditional_chain(field, targets_mm, machine, *, target_axes=None, ball_um: float = BALL_RADIUS_UM,
@@ -59,25 +83,32 @@ def solve_traditional_chain(field, targets_mm, machine, *, target_axes=None, bal
         raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
     check_rotary_limit(rotary_limit_deg)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
-    P0, J0 = nominal_and_jacobian(machine, axes_d, compiled)
-    E_d = field.predict(axes_d)
-    q = axes_d.copy()
-    q[:, sol] += solve3(J0[:, :, sol], targets - P0 - MM_PER_UM * E_d)
-    keep_turn(compiled, q, axes_d)
-    commands = compiled.forward(q)
-    d_um = (commands - targets) * UM_PER_MM
-    outside = ~(np.linalg.norm(d_um, axis=1) <= ball_um)
-    if outside.any():  # the ball as a hard limit, as the exact solver's: projected onto its surface
-        commands[outside] = targets[outside] + MM_PER_UM * project_to_ball(d_um[outside], ball_um)
-        qo = axes_d[outside].copy()
-        qo[:, sol] += solve3(J0[outside][:, :, sol], commands[outside] - P0[outside])
-        q[outside] = qo
-        commands[outside] = compiled.forward(qo)
+    E_d = field_values(field, machine, axes_d)
+    inverse = closed_inverse(machine, axes_d)
+    if inverse is not None:  # the command p_d - 1e-3·E(q_d) itself, its axes by the closed form
+        d_um = project_to_ball(-E_d, ball_um)
+        outside = ~(np.linalg.norm(E_d, axis=1) <= ball_um)
+        commands = targets + MM_PER_UM * d_um
+        q = inverse(commands)
+    else:
+        P0, J0 = nominal_and_jacobian(machine, axes_d, compiled)
+        q = axes_d.copy()
+        q[:, sol] += solve3(J0[:, :, sol], targets - P0 - MM_PER_UM * E_d)
+        keep_turn(compiled, q, axes_d)
+        commands = compiled.forward(q)
+        d_um = (commands - targets) * UM_PER_MM
+        outside = ~(np.linalg.norm(d_um, axis=1) <= ball_um)
+        if outside.any():  # the ball as a hard limit, as the exact solver's: projected onto its surface
+            commands[outside] = targets[outside] + MM_PER_UM * project_to_ball(d_um[outside], ball_um)
+            qo = axes_d[outside].copy()
+            qo[:, sol] += solve3(J0[outside][:, :, sol], commands[outside] - P0[outside])
+            q[outside] = qo
+            commands[outside] = compiled.forward(qo)
     refused, reasons = rotary_guard(compiled, machine, axes_d, q, sol, ball_um, rotary_limit_deg)
     if refused.any():  # never silently swung: the programmed axes are kept, the point is unsolved
         q[refused] = axes_d[refused]
         commands[refused] = compiled.forward(axes_d[refused])
-    res = (commands - targets) * UM_PER_MM + field.predict(q)
+    res = (commands - targets) * UM_PER_MM + field_values(field, machine, q)
     names = machine.axis_columns
     info = {"outside_ball": np.flatnonzero(outside), "compensated_axes": [names[j] for j in sol],
             "kept_axes": [names[j] for j in kept]}

@@ -1,6 +1,8 @@
-"""Exact compensation: Newton's method with a backtracking line search, in axis space.
+"""The Newton core of exact compensation: Newton's method with a backtracking line search, in axis space.
 
-Solve for the axis command ``q`` (x_mm, z_mm, a_deg) of each target ``p_d``::
+The solver itself is :func:`compensation.solvers.chain_exact.solve_exact_chain` (every machine tool on its
+chain, the grinder included). It solves for the axis command ``q`` (for the grinder x_mm, z_mm, a_deg) of
+each target ``p_d``::
 
     F(q) = fwd(q) + 1e-3·E(q) - p_d = 0          (mm)
     J(q) = dfwd/dq + 1e-3·dE/dq                   (mm per mm, mm, deg)
@@ -36,10 +38,9 @@ Robustness:
   round-off) or until stagnation.
 
 Which axes move is read from the chain (:func:`solved_axes`): a machine with three linear axes
-is solved on them and keeps its rotary axes as commanded (the chain solver,
-:mod:`compensation.solvers.chain_exact`); a three-axis machine with a rotary axis (the X-Z-A
-grinder) is solved on all three, its full-turn axis kept on the target's turn. One Newton core
-(:func:`newton`) serves both; each entry point supplies its field's evaluation.
+is solved on them and keeps its rotary axes as commanded; a three-axis machine with a rotary axis
+(the X-Z-A grinder, a lathe's X-Z-C) is solved on all three, its full-turn axis kept on the target's
+turn. The field's evaluation is the caller's (``ev`` of :func:`newton`).
 
 Speed (issue 20): the per-point arithmetic of an iteration (residual, kinematic Jacobian,
 Cramer step, Armijo test, Broyden update) runs in compiled kernels over the chain's op arrays
@@ -48,17 +49,12 @@ any field works, and a field's own compiled kernel (the HTM field's) releases th
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 from numba import njit
 
 from errormap.mt_kernel import NominalChain, nominal_columns, nominal_point
-from errormap.progress import Progress
 
-from .base import BALL_RADIUS_UM, SolveResult
-from ._common import (MM_PER_UM, UM_PER_MM, check_inputs, command_axes, field_error_and_jacobian_um, field_error_um,
-                      field_jacobian_um, make_result, project_to_ball, wrap180)
+from ._common import MM_PER_UM, wrap180
 
 MAX_STEP_MM = 1.0
 MAX_STEP_DEG = 90.0
@@ -74,7 +70,7 @@ there (as at ``xtol_um``), about 4.5e-8 μm for a 200 mm coordinate. F is the di
 points whose full step failed at the end sat 22-680 ulps of |p_d| above zero (1e-9-7e-9 μm),
 where 20 halvings, a fresh Jacobian and a retry only spent field evaluations (measured: half
 of the ~10 evaluations per point of a 100,000-point solve). A tighter stop is a setting
-(``solve_exact(roundoff_ulps=…)``): 16 ulps with ``xtol_um=1e-10`` costs 3 % more CPU (5.9 % more
+(``solve("exact", …, roundoff_ulps=…)``): 16 ulps with ``xtol_um=1e-10`` costs 3 % more CPU (5.9 % more
 field evaluations) on 100,000 grinder points and brings two exact solvers to agree within 7.9e-10
 μm (``benchmarks/grinder_chain_results.md``); the default stays, as the agreement below 1e-7 μm
 buys no accuracy a machine can show."""
@@ -130,75 +126,6 @@ def solve3(J, b) -> np.ndarray:
     return x
 
 
-def solve_exact(field, targets_mm, machine, *, target_axes=None, a_start_deg=None,
-                ball_um: float = BALL_RADIUS_UM, tol_um: float = 1e-4, xtol_um: float = 1e-9,
-                max_iter: int = 50, chunk: int = 250_000, progress: bool = True,
-                roundoff_ulps: float = ROUNDOFF_ULPS) -> SolveResult:
-    """Exact compensation of WCS targets, shape (n, 3) mm (see the module docstring).
-
-    Works in chunks of ``chunk`` points to bound peak memory. ``info`` holds the iteration
-    count per point (``iterations``) and Jacobian evaluations (``jacobians``).
-    ``roundoff_ulps`` (0 … 1e6, default :data:`ROUNDOFF_ULPS`): iteration also stops where
-    ``|F|`` is within this many ulps of the target's largest coordinate; a smaller value iterates
-    on to ``xtol_um`` or stagnation (to compare two solvers below their round-off,
-    ``benchmarks/bench_grinder_chain.py``); it does not change ``success`` (``tol_um``).
-    """
-    t0 = time.perf_counter()
-    targets, axes_d = check_inputs(field, targets_mm, machine, target_axes, a_start_deg, ball_um)
-    if not (tol_um > 0 and xtol_um > 0 and max_iter >= 1 and chunk >= 1):
-        raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
-                         f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
-    check_roundoff_ulps(roundoff_ulps)
-    chain = NominalChain(machine)
-    sol = solved_axes(chain)
-    ev = _MachineFieldEval(field, machine)
-    n = len(targets)
-    q = axes_d.copy()
-    E = np.empty((n, 3))
-    iters = np.zeros(n, dtype=np.int32)
-    n_jac = np.zeros(n, dtype=np.int32)
-    nfev = 0
-    bar = Progress(n, "exact", enabled=progress)
-    for s in range(0, n, chunk):
-        sl = slice(s, min(n, s + chunk))
-        q[sl], E[sl], it, nj, fe = newton(ev, chain, sol, targets[sl], axes_d[sl], xtol_um, max_iter,
-                                          roundoff_ulps=roundoff_ulps)
-        iters[sl], n_jac[sl] = it, nj
-        nfev += fe
-        bar.update(sl.stop - sl.start)
-    keep_turn(chain, q, axes_d)
-    commands = chain.forward(q)
-    # the ball as a hard limit: roots outside it are projected onto its surface
-    d_um = (commands - targets) * UM_PER_MM
-    outside = np.linalg.norm(d_um, axis=1) > ball_um
-    if outside.any():
-        commands[outside] = targets[outside] + MM_PER_UM * project_to_ball(d_um[outside], ball_um)
-        q[outside] = command_axes(machine, commands[outside], axes_d[outside])
-        E[outside] = field_error_um(field, q[outside], machine)
-        nfev += int(outside.sum())
-    # E is the field at the final iterate (A moved by whole turns at most: E is periodic)
-    res = (commands - targets) * UM_PER_MM + E
-    converged = (np.linalg.norm(res, axis=1) <= tol_um) & ~outside
-    return make_result("exact", targets, commands, q, res, converged, nfev, t0, ball_um,
-                       info={"iterations": iters, "jacobians": n_jac, "tol_um": tol_um,
-                             "outside_ball": np.flatnonzero(outside)})
-
-
-def newton_offsets(field, machine, targets_mm, offsets_um, axes_d, ball_um: float = BALL_RADIUS_UM,
-                   xtol_um: float = 1e-9, max_iter: int = 50) -> tuple[np.ndarray, int]:
-    """Newton polish of offsets ``d = (p_r − p_d)·1e3`` (m, 3) μm: the exact solver's iteration
-    started from the commands ``p_d + 1e-3·d`` (e.g. a GA's best) instead of the targets.
-    Returns the polished offsets (m, 3) μm, projected onto the ball ``ball_um``, and the field
-    evaluations. ``axes_d`` (m, 3): the targets' axes (A's turn)."""
-    targets = np.ascontiguousarray(targets_mm, dtype=float)
-    q0 = command_axes(machine, targets + MM_PER_UM * np.asarray(offsets_um, dtype=float), axes_d)
-    chain = NominalChain(machine)
-    q, _, _, _, nfev = newton(_MachineFieldEval(field, machine), chain, solved_axes(chain), targets, q0,
-                              xtol_um, max_iter)
-    keep_turn(chain, q, axes_d)
-    return project_to_ball((chain.forward(q) - targets) * UM_PER_MM, ball_um), nfev
-
-
 # ---------------------------------------------------------------------------- the generic Newton core
 
 def solved_axes(chain: NominalChain) -> np.ndarray:
@@ -227,26 +154,6 @@ def keep_turn(chain: NominalChain, q, axes_d) -> None:
     ``q = q_d + wrap180(q - q_d)``, so a path whose targets are continuous gets continuous axes."""
     for j in np.flatnonzero(chain.full_turn):
         q[:, j] = axes_d[:, j] + wrap180(q[:, j] - axes_d[:, j])
-
-
-class _MachineFieldEval:
-    """The field of a grinder-kind machine for :func:`newton` through :mod:`._common` (A folded into
-    the calibrated turn, chunks, float32 start where the field declares it, finite differences for
-    a field without a Jacobian). Shapes: axes (m, k), values (m, 3) μm, Jacobians (m, 3, k)."""
-
-    def __init__(self, field, machine):
-        self.field, self.machine = field, machine
-
-    def start(self, q):
-        """Value and Jacobian at the start, one pass, in float32 where the field has it (only the
-        first step's direction depends on them: every later value is float64)."""
-        return field_error_and_jacobian_um(self.field, q, self.machine, fast=True)
-
-    def value(self, q):
-        return field_error_um(self.field, q, self.machine)
-
-    def jacobian(self, q, e0):
-        return field_jacobian_um(self.field, q, self.machine, e0_um=e0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -31,31 +31,32 @@ guards explicitly: the file is written, the override is recorded in the file its
 (a header comment in G-code, a ``#`` line in CSV) and in the summary.
 The residual reported per file is the MODEL residual (the solver's own field).
 
-A machine-tool chain (``--machine mill-xyz``, ``five-axis-ac`` ...) takes its own axis words and
-CSV columns, ``--method exact`` (Newton on the chain: the tool-tip position with the linear axes,
-rotary axes kept) and, with ``--truth ELEMENTS``, reports the TRUE residual as well, at the
-vertices and along the moves as the controller interpolates them
-(:mod:`compensation.app.workflows.mt_compensate`). ``--cluster``, ``--workers``,
-``--chunk-points`` and ``--max-segment-mm`` work there as on the grinder: the same chunk plan
-(:mod:`compensation.batch`) and executors.
+Every machine tool goes this one way (the built-in grinder and any ``kind = "grinder"`` file as
+its chain, ``mill-xyz``, ``five-axis-ac``, ``lathe-xzc`` ...): its own axis words and CSV columns,
+every ``--method`` on the chain (exact: Newton on the chain, the tool-tip position with three axes),
+every model kind, ``--cluster``/``--workers``/``--chunk-points``/``--max-segment-mm`` through one chunk
+plan (:mod:`compensation.batch`), and with ``--truth ELEMENTS`` the TRUE residual as well, at the
+vertices and along the moves as the controller interpolates them. A serial arm compensates joint
+programs (:mod:`compensation.app.workflows.arm_compensate`).
 """
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-from errormap.machine import check_machine_kind, load_machine
+from errormap.grinder_file import is_machine_tool
+from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError, one_line
 
 from ..options import add_condition_options, add_units_option, conditions_from_args
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args, open_executor
-from ..workflows.compensate import CompensateSettings, compensate_files
+from ..workflows.compensate import CompensateSettings, compensate_files, print_refusals
 from ... import guards
 from ...fields import FAILED_VERDICT
 from ...gcode import BLOCK_DELETE_CHOICES, DEFAULT_RAPIDS, RAPIDS_CHOICES
 from ...dialects import DIALECT_NAMES
-from ...nc_state import MACHINE, read_tool_table, read_work_offsets
+from ...nc_state import read_tool_table, read_work_offsets
 from ...pathio import ARC_TOLERANCE_RANGE_UM, DEFAULT_ARC_TOLERANCE_UM, SEGMENT_RANGE_MM
 from ...solvers import METHODS
 
@@ -158,22 +159,20 @@ def parse_max_segment(text):
     return float(t)
 
 
-def chain_settings(machine, args, allow):
-    """The options of ``compensate`` on a machine-tool chain as its workflow's
-    :class:`~compensation.app.workflows.mt_compensate.ChainSettings`."""
-    from ..workflows.mt_compensate import ChainSettings
-    conditions = {k: v for k, v in conditions_from_args(args).items() if v is not None}
-    return ChainSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force, allow=allow,
-                         rapids=args.rapids, block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
-                         units=args.units, truth=args.truth, seed=args.seed, show=args.show,
-                         rotary_limit_deg=getattr(args, "max_rotary_correction_deg", None), conditions=conditions,
-                         tracking_uri=getattr(args, "tracking_uri", None), dialect=getattr(args, "dialect", None),
-                         work_offsets=(read_work_offsets(args.work_offsets)
-                                       if getattr(args, "work_offsets", None) is not None else None),
-                         tool_table=read_tool_table(args.tool_table) if getattr(args, "tool_table", None) else None,
-                         cycles="expand" if getattr(args, "expand_cycles", False) else "keep",
-                         orientation=bool(getattr(args, "compensate_orientation", False)),
-                         chunk_points=args.chunk_points, max_segment_mm=parse_max_segment(args.max_segment_mm))
+def settings_of(args) -> "CompensateSettings":
+    """The options of ``compensate`` as its workflow's :class:`~compensation.app.workflows.compensate.CompensateSettings`."""
+    return CompensateSettings(method=args.method, model=args.model, out_dir=Path(args.out), force=args.force,
+                              allow=parse_allow(args.allow), rapids=args.rapids, block_delete=args.block_delete,
+                              arc_tolerance_um=args.arc_tolerance_um, units=args.units, truth=args.truth,
+                              seed=args.seed, show=args.show, rotary_limit_deg=args.max_rotary_correction_deg,
+                              conditions=conditions_from_args(args), tracking_uri=args.tracking_uri,
+                              dialect=args.dialect,
+                              work_offsets=read_work_offsets(args.work_offsets) if args.work_offsets is not None
+                              else None,
+                              tool_table=read_tool_table(args.tool_table) if args.tool_table else None,
+                              cycles="expand" if args.expand_cycles else "keep",
+                              orientation=bool(args.compensate_orientation), chunk_points=args.chunk_points,
+                              max_segment_mm=parse_max_segment(args.max_segment_mm))
 
 
 def on_executor(args, work):
@@ -190,78 +189,24 @@ def on_executor(args, work):
 
 
 def run(args) -> int:
-    machine = load_machine(args.machine)  # read once; its kind (content) picks the path
-    if getattr(args, "max_rotary_correction_deg", None) is not None and machine.kind != "machine-tool":
-        raise UsageError(f"--max-rotary-correction-deg: only on machine-tool chains whose solver moves a rotary axis "
-                         f"(e.g. lathe-xzc); {machine.name!r} is a {machine.kind} machine")
-    if getattr(args, "compensate_orientation", False) and machine.kind != "machine-tool":
-        raise UsageError(f"--compensate-orientation: the tool axis is turned by a chain's rotary axes (five-axis-ac in "
-                         f"TCP mode); {machine.name!r} is a {machine.kind} machine")
-    if machine.kind == "serial" and (args.work_offsets is not None or args.tool_table is not None):
-        raise UsageError("--work-offsets, --tool-table: G-code programs of machine tools only (a serial arm's program "
-                         "is joint angles)")
+    machine = load_machine(args.machine)  # read once; what it is (content) picks the path
     if machine.kind == "serial":
+        if args.work_offsets is not None or args.tool_table is not None:
+            raise UsageError("--work-offsets, --tool-table: G-code programs of machine tools only (a serial arm's "
+                             "program is joint angles)")
         from ..workflows.arm_compensate import run_arm_compensate
         return run_arm_compensate(machine, args)
+    if not is_machine_tool(machine):  # a parallel machine: no tool-path compensation
+        raise UsageError(f"--machine {machine.name}: compensate takes machine tools (a chain file or a grinder "
+                         f"file) and serial arms; {machine.name!r} is a {machine.kind} machine")
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
-    if getattr(args, "expand_cycles", False) and machine.kind != "machine-tool":
-        raise UsageError(f"--expand-cycles: canned cycles are read on machine-tool chains (--machine mill-xyz ...); "
-                         f"{machine.name!r} is a {machine.kind} machine")
-    if machine.kind == "machine-tool":  # a chain file (mill-xyz, five-axis-ac ...): its own axes and G-code words
-        from ..workflows.mt_compensate import compensate_chain_files
-        settings = chain_settings(machine, args, parse_allow(args.allow))
-        return on_executor(args, lambda ex: compensate_chain_files(args.files, machine, settings, executor=ex))
-    if args.truth is not None:
-        raise UsageError("--truth: the true residual of a compensated program is reported on machine-tool chains; "
-                         "for the grinder use `volcomp report --truth`")
-    if args.tool_table is not None or (args.work_offsets not in (None, MACHINE)):
-        raise UsageError("--work-offsets FILE, --tool-table: machine-tool chains apply them (--machine mill-xyz ...); "
-                         "the grinder takes --work-offsets machine only (a program in machine coordinates)")
-    max_segment = parse_max_segment(args.max_segment_mm)
-    allow = parse_allow(args.allow)
-    settings = CompensateSettings(
-        method=args.method, model=args.model, out_dir=Path(args.out), force=args.force,
-        tracking_uri=args.tracking_uri, seed=args.seed, allow=allow, rapids=args.rapids,
-        block_delete=args.block_delete, arc_tolerance_um=args.arc_tolerance_um,
-        max_segment_mm=max_segment, conditions=conditions_from_args(args), chunk_points=args.chunk_points,
-        units=args.units, work_offsets=read_work_offsets(MACHINE) if args.work_offsets == MACHINE else None,
-        dialect=args.dialect)  # the shared unit check of CSV paths and conditions (errormap/units.py)
-    check_machine_kind(machine.path, machine.kind, "grinder")
-    job = on_executor(args, lambda ex: compensate_files(args.files, machine, settings, on_file=_print_file,
-                                                        executor=ex))
-    if isinstance(job, int):
-        return job
-    print(f"wrote summary: {job.summary_path}")
-    if job.refused:
-        for o in job.refused:
-            print(f"volcomp compensate: {o.src}: refused by guard(s) {', '.join(o.guards)}; "
-                  f"{len(o.blocking) + len(o.kept)} offending point(s):", file=sys.stderr)
-            for line, reason in o.kept[:args.show]:
-                print(f"  line {line}: {reason}", file=sys.stderr)
-            for i, line, reason in o.blocking[:args.show]:
-                print(f"  point {i} (line {line}): {reason}", file=sys.stderr)
-            if len(o.blocking) > args.show:
-                print(f"  ... and {len(o.blocking) - args.show} more", file=sys.stderr)
-        print("volcomp compensate: refused files were not written; override explicitly with --allow GUARDS "
-              "(or bare --allow for all)", file=sys.stderr)
+    settings = settings_of(args)
+    run_ = on_executor(args, lambda ex: compensate_files(args.files, machine, settings, executor=ex))
+    if isinstance(run_, int):
+        return run_
+    print(f"wrote summary: {run_.summary_path}")
+    if run_.refused:
+        print_refusals(run_, args.show)
         return EXIT_REFUSED
     return 0
-
-
-def _print_file(o) -> None:
-    """One line per file as it is solved (and a warning when guards were overridden)."""
-    e = o.entry
-    status = "REFUSED (not written)" if o.refused else f"-> {o.dst}"
-    n_viol = len(o.violations) + o.kept_violations
-    print(f"{o.src}: {e['points']} points, model residual max {e['model_max_um']:.4g} um "
-          f"mean {e['model_mean_um']:.4g} um, max correction {e['max_correction_um']:.1f} um, "
-          f"failures {e['failures']}, guard violations {n_viol} {status}")
-    retry = e.get("ga_retry")
-    if retry and retry["retried"]:
-        print(f"  {retry['retried']} point(s) above the GA tolerance after its generations: retried "
-              f"({retry['retry_rounds']} round(s)), {retry['polished']} Newton-polished, {retry['unconverged']} "
-              f"still unconverged; {retry['retry_seconds']:.2f} s")
-    if e["overridden"] and not o.refused:
-        print(f"  warning: guards overridden ({', '.join(f'{g} {n}' for g, n in e['overridden'].items())} "
-              f"point(s)); recorded in the output file's header and the summary")

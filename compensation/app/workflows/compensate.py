@@ -1,98 +1,123 @@
-"""Compensating tool-path files (``volcomp compensate``): plan, solve, guard, render, write.
+"""Compensating tool-path files (``volcomp compensate``) on any machine tool: plan, solve, guard, write.
 
-Order of work, so that the output folder only ever holds whole files of one run:
+Every machine tool is its chain (:func:`errormap.grinder_file.machine_tool_of`: a ``kind = "grinder"`` file
+is read as its chain, the same element names and columns x_mm, z_mm, a_deg), and one order of work serves them all,
+so that the output folder only ever holds whole files of one run:
 
-1. every input is parsed and validated (a bad one fails the batch, naming file, line, column
-   and word) before the field is loaded or anything is written;
-2. a folder that already holds files is refused unless ``force``; with ``force`` the files a
-   previous run listed in its ``compensate_summary.json`` and any file at the output path of
-   an input this run refuses are removed;
-3. every file is solved — in chunks with a seed each (:mod:`compensation.batch`), in local
-   threads or on Ray (:mod:`compensation.app.workflows.cluster`), the same bytes either way —
-   then guarded and rendered in memory (:func:`compensate_one`); a cluster that cannot finish
-   fails the batch before any write;
-4. the accepted files are written as one set (each in full to a temporary file, then all
-   renamed into place); ``compensate_summary.json`` last.
+1. every input is read and checked (:func:`compensation.app.workflows.compensate_paths.read_tool_path`:
+   G-code with the machine's axis words, a CSV of its axis columns or of WCS targets; a bad one fails the
+   batch, naming file, line, column and word) before anything is written; a folder that already holds
+   files is refused unless ``force`` (which removes the files a previous run listed in its
+   ``compensate_summary.json`` and any file at the output path of an input this run refuses);
+2. the model (recognised by content: an element set, a trained network, a diagnosed model whose terms
+   take conditions per point from the path's columns or the options, a chain's model.json, MLflow);
+3. every point is solved with the method (:mod:`compensation.solvers`) through the chunk plan of
+   :mod:`compensation.batch` (fixed chunks and seeds: local threads or Ray,
+   :mod:`compensation.app.workflows.cluster`, give the same bytes; one unit per file and tool length),
+   moves split as ``max_segment_mm`` says; a cluster that cannot finish fails the batch before any write;
+4. the guards (:mod:`compensation.guards`: ball, strokes, calibrated volume, convergence; ``allow``
+   overrides, and the override is written into the file and the summary); the accepted files written
+   as one set (each in full to a temporary file, then all renamed), ``compensate_summary.json`` last.
 
-Guards: :mod:`compensation.guards`; a refused file is not written. The residual reported per
-file is the MODEL residual (the solver's own field).
+Residuals: the MODEL residual of every file (the solver's own field); with ``truth`` (a truth element set
+of the same chain, given by a tester or a benchmark, never to the solver) also the TRUE residual
+(:mod:`compensation.app.workflows.compensate_report`).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
-from errormap.io import InputError, write_json
+from errormap.grinder_file import machine_tool_of
+from errormap.io import atomic_write, write_json
 from errormap.jit import notice_cold_kernels
 from errormap.progress import Progress
+from errormap.units import UNITS_CHECK
 
 from compensation.app.outputs import is_lock
 from compensation.app.validate import UsageError
 
 from ... import guards
-from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, solve_batch
-from ...diagnosed_model import (ConditionedField, load_path_field, path_conditions, replanned_conditions,
-                                solve_with_conditions)
+from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, gather_results, solve_batch
+from ...diagnosed_model import ConditionedField, load_path_field, path_conditions, solve_with_conditions
 from ...fields import FAILED_VERDICT, check_verdict, resolve_model, verdict_notes
 from ...gcode import DEFAULT_RAPIDS
-from ...nc_expand import source_line
-from ...pathio import DEFAULT_ARC_TOLERANCE_UM, align_turns, read_path, render_compensated, replan, write_outputs
-from ...solvers import solver_spec
+from ...nc_state import MACHINE, field_with_tool, machine_with_tool
+from ...pathio import DEFAULT_ARC_TOLERANCE_UM
+from ...solvers import CHAIN_METHODS, solver_spec
+from ...solvers.chain_exact import nominal_and_jacobian, solved_and_kept
 from ...solvers.threads import small_batch_threads
+from .compensate_paths import ToolPath, read_tool_path, render, source_line_of
+from .compensate_report import (PATH_SAMPLES, cutter_radius_bound_um, cycle_report, orientation_pass, rotary_refusals,
+                                stats, tcp_entry, true_path_residual_um, true_residual_um)
 
 SUMMARY_NAME = "compensate_summary.json"
+WORK_OFFSETS_MACHINE_NOTE = "volcomp: work offsets taken as machine zero (--work-offsets machine)"
 
 
 @dataclass
 class CompensateSettings:
-    """One compensation job. ``allow``: guard names overridden (``("all",)``: every guard);
-    ``max_segment_mm``: ``"auto"``, None (no splitting) or a length in mm; ``conditions``: the
-    constant conditions a diagnosed model's terms need (``temp_c``, ``time_s``, ``dir_x`` ...)."""
+    """How :func:`compensate_files` compensates (the ``compensate`` options): ``method``
+    (:data:`compensation.solvers.CHAIN_METHODS`), ``model`` (a model file, folder or MLflow reference),
+    ``out_dir``; ``force`` (replace earlier outputs), ``allow`` (guards overridden; ``("all",)``: every
+    guard), ``rapids``, ``block_delete``, ``arc_tolerance_um``, ``units`` (``"check"`` or ``"as-written"``),
+    ``truth`` (a truth file: the TRUE residual too), ``seed`` (seeded methods), ``show`` (offending points
+    listed per refused file), ``rotary_limit_deg`` (a solved rotary axis' largest correction, None: the
+    ball's bound), ``conditions`` ({name: value} for the model's condition terms; a diagnosed model takes a
+    path's columns first), ``tracking_uri`` (MLflow)."""
 
     method: str
     model: str
     out_dir: Path
     force: bool = False
-    tracking_uri: str | None = None
-    seed: int = 0
     allow: tuple = ()
     rapids: str = DEFAULT_RAPIDS
     block_delete: str | None = None
     arc_tolerance_um: float = DEFAULT_ARC_TOLERANCE_UM
-    max_segment_mm: object = "auto"
+    units: str = UNITS_CHECK
+    truth: str | None = None
+    seed: int = 0
+    show: int = 20
+    rotary_limit_deg: float | None = None
     conditions: dict = field(default_factory=dict)
-    chunk_points: int = CHUNK_POINTS
-    units: str = "check"   # errormap/units.py: "as-written" skips the likely-unit-mistake tests (recorded)
-    work_offsets: object = None  # compensation.nc_state.WorkOffsets: only MACHINE on the grinder (or None)
+    tracking_uri: str | None = None
     dialect: str | None = None   # compensation.dialects: a name, "auto" or None
+    work_offsets: object = None  # compensation.nc_state.WorkOffsets (None: not given)
+    tool_table: object = None    # compensation.nc_state.ToolTable (None: not given)
+    cycles: str = "keep"         # canned cycles: "keep" (holes compensated) or "expand" (compensation.nc_cycles)
+    orientation: bool = False    # the tool's orientation compensated too, by the rotary axes (compensation.tcp)
+    chunk_points: int = CHUNK_POINTS  # points per chunk of the batch (compensation.batch)
+    max_segment_mm: object = "auto"   # "auto" (the field's curvature), None (no splitting) or a length in mm
 
 
 @dataclass
 class FileOutcome:
-    """One input's result. ``entry``: its ``compensate_summary.json`` record; ``text``: the
-    rendered output (None: refused); ``violations``: (point, line, reasons) of every guard
-    violation; ``kept_violations``: how many rapids kept as written leave the strokes;
-    ``blocking``: (point, line, reasons) of the violations that refuse the file; ``guards``:
-    the refusing guards' names; ``kept``: (line, reason) of refusing kept rapids."""
+    """One input's result: ``entry`` its ``compensate_summary.json`` record; ``text`` the rendered output
+    (None: refused); ``listed`` (point, line, reasons) of the violations that refuse it; ``kept`` (line,
+    reason) of refusing kept rapids."""
 
     src: Path
     dst: Path
+    tp: ToolPath
     entry: dict
     text: str | None
-    violations: list
-    kept_violations: int = 0
-    blocking: list = field(default_factory=list)
-    guards: list = field(default_factory=list)
+    listed: list = field(default_factory=list)
     kept: list = field(default_factory=list)
 
     @property
     def refused(self) -> bool:
         return self.text is None
+
+    @property
+    def guards(self) -> list:
+        return self.entry.get("refused_guards", [])
 
 
 @dataclass
@@ -110,6 +135,7 @@ class CompensateRun:
 
 def plan_outputs(files, out_dir: Path) -> list:
     """Output path per input; refuses duplicates and outputs that would overwrite an input."""
+    from errormap.io import InputError
     inputs = [Path(f) for f in files]
     for p in inputs:
         if not p.is_file():
@@ -147,106 +173,6 @@ def check_out_dir(out_dir: Path, force: bool) -> list:
     return old
 
 
-def kept_stroke_violations(tp, machine) -> list:
-    """(line, reason) of rapids kept as written whose nominal end is outside the strokes."""
-    job = tp.source if tp.kind == "gcode" else None
-    if job is None or not len(job.kept_axes):
-        return []
-    ax = np.where(np.isfinite(job.kept_axes), job.kept_axes, 0.5 * (machine.stroke_lo + machine.stroke_hi))
-    idx, reasons = guards.stroke_violations(ax, machine)
-    return [(source_line(job.program, int(job.kept_lines[i])), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
-
-
-def override_note(s: CompensateSettings, entry) -> str:
-    """The line an output carries when guards were overridden."""
-    counts = ", ".join(f"{g} {n}" for g, n in entry["guard_violations"].items() if n)
-    return (f"volcomp compensate: GUARDS OVERRIDDEN (--allow {','.join(entry['allowed_guards'])}): "
-            f"{counts} point(s) violate; method={s.method} model={s.model}")
-
-
-def solve_paths(paths, field_, machine, s: CompensateSettings, conds, executor=None, progress=None) -> list:
-    """One :class:`SolveResult` per parsed path. Without conditions every path is solved through
-    the chunk plan of :mod:`compensation.batch` (fixed chunks and seeds: a Ray run and a local one
-    give the same bytes) on ``executor``; a diagnosed model's per-point conditions are solved file
-    by file in this process (:func:`solve_with_conditions`)."""
-    if not any(c is not None for c in conds):
-        return solve_batch(s.method, field_, machine, paths, seed=s.seed, chunk_points=s.chunk_points,
-                           executor=executor, progress=progress)
-    opts = {"seed": s.seed} if s.method in GA_METHODS else {}
-    out = []
-    for tp, cond in zip(paths, conds):
-        with small_batch_threads(s.method, len(tp)):
-            res = solve_with_conditions(s.method, field_, tp.targets_mm, machine, cond, target_axes=tp.axes, **opts)
-        res.info = dict(res.info or {}, chunks=1)
-        out.append(res)
-        if progress is not None:
-            progress(len(tp))
-    return out
-
-
-WORK_OFFSETS_MACHINE_NOTE = "volcomp: work offsets taken as machine zero (--work-offsets machine)"
-
-
-def compensate_one(tp, src, dst, field_, machine, s: CompensateSettings, res, cond=None, notes=()) -> FileOutcome:
-    """Guard and render one parsed tool path ``tp`` read from ``src``, solved as ``res``, to be
-    written to ``dst`` (in memory; nothing is written). ``cond``: per-point conditions
-    {name: (n,)} of a diagnosed model whose terms need them (:func:`path_conditions`), else None;
-    ``notes``: comment lines every written program carries (a failed verdict used on request)."""
-    res.axes = np.array(res.axes, dtype=float)
-    res.axes[:, 2] = align_turns(res.axes[:, 2], tp.axes[:, 2])
-    guard_field = field_.corrected.base if cond is not None else field_  # where it is calibrated: the axes-only part
-    try:
-        report = guards.check(res, machine, guard_field, allow=s.allow, target_axes=tp.axes)
-    except TypeError as exc:  # a field that cannot say where it is calibrated
-        raise UsageError(f"{s.model}: {exc}") from None
-    program = getattr(tp.source, "program", None) if tp.kind == "gcode" else None
-    viol = [(int(i), source_line(program, int(tp.lines[i])), "; ".join(report.point_reasons(int(i))))
-            for i in report.indices]
-    blocking = set(np.concatenate(list(report.blocking.values())).tolist()) if report.blocking else set()
-    kept = kept_stroke_violations(tp, machine)
-    kept_blocking = bool(kept) and "stroke" not in report.allowed
-    norm = np.linalg.norm(res.residual_um, axis=1)
-    violations = {g: int(len(v)) for g, v in report.violations.items()}
-    violations["stroke"] += len(kept)
-    entry = {"input": str(src), "output": None, "format": tp.kind, "points": len(tp),
-             "residual": "model", "model_max_um": float(norm.max()), "model_mean_um": float(norm.mean()),
-             "max_correction_um": float(np.max(res.correction_um)),
-             "failures": int(np.count_nonzero(~np.asarray(res.success, bool))),
-             "guard_violations": violations, "allowed_guards": sorted(report.allowed),
-             "overridden": {g: n for g, n in violations.items() if n and g in report.allowed},
-             "seconds": float(res.seconds), "chunks": (res.info or {}).get("chunks", 1)}
-    if "retry" in (res.info or {}):  # GA points retried / Newton-polished after the paper's generations
-        entry["ga_retry"] = dict(res.info["retry"])
-    if tp.kind == "gcode":
-        job = tp.source
-        entry.update({"lines": len(job.program.lines),
-                      "moves_compensated": len(job.params), "moves_kept": int(len(job.kept_lines)),
-                      "rapids": s.rapids, "block_delete": s.block_delete,
-                      "arc_tolerance_um": job.arc_tolerance_um, "max_segment_mm": job.max_segment_mm,
-                      "field_curvature_um_per_mm2": job.curvature_um_per_mm2})
-        if s.work_offsets is not None:
-            entry["work_offsets"] = s.work_offsets.source
-        entry["dialect"], entry["dialect_evidence"] = job.program.dialect, job.program.dialect_evidence
-    outcome = FileOutcome(src, dst, entry, None, viol, kept_violations=len(kept))
-    if blocking or kept_blocking:
-        entry["refused"] = True
-        outcome.blocking = [v for v in viol if v[0] in blocking]
-        outcome.guards = sorted(report.blocking) or ["stroke"]
-        outcome.kept = kept if kept_blocking else []
-    else:
-        comments = [f"compensated by volcomp: method={s.method} model={s.model}",
-                    f"model residual max {entry['model_max_um']:.4g} um"]
-        if entry["overridden"]:
-            comments.insert(0, override_note(s, entry))
-        elif tp.kind == "gcode":
-            comments = []  # a clean G-code output gets no added lines ...
-        if tp.kind == "gcode" and s.work_offsets is not None:  # ... but the one the user said about its frame
-            comments.insert(0, WORK_OFFSETS_MACHINE_NOTE)
-        comments[:0] = list(notes)
-        outcome.text = render_compensated(tp, res.axes, res.commands_mm, comments=comments)
-    return outcome
-
-
 def progress_callback(points: int, method: str):
     """``advance(k)``: a progress bar over ``points`` that worker threads may advance by ``k`` points."""
     bar = Progress(points, f"compensate ({method}, points)", every_s=1.0)
@@ -260,67 +186,432 @@ def progress_callback(points: int, method: str):
 
 
 def kernel_modules(method: str) -> list:
-    """The modules whose numba kernels a ``compensate`` run with ``method`` compiles on first use:
-    the G-code planner's and the solver's own (the batched GA's generation step, the exact
-    solver's Newton kernels)."""
+    """The modules whose numba kernels a ``compensate`` run with ``method`` compiles on first use: the
+    G-code planner's and the solver's own."""
     import importlib
     names = ["compensation.gcode_kernels", *solver_spec(method).kernels]
     return [importlib.import_module(n) for n in names]
 
 
-def compensate_files(files, machine, s: CompensateSettings, on_file=None, executor=None) -> CompensateRun:
-    """Compensate ``files`` into ``s.out_dir`` in the order of work above; ``on_file(outcome)``
-    is called after each file is guarded and rendered (before anything is written).
-    ``executor``: where the chunks are solved (:class:`compensation.batch.LocalExecutor` by
-    default; a Ray executor from :mod:`compensation.app.workflows.cluster`); a
-    :class:`~compensation.app.workflows.cluster.ClusterError` it raises leaves nothing written."""
-    out_dir = Path(s.out_dir)
-    plan = plan_outputs(files, out_dir)
-    old_outputs = check_out_dir(out_dir, s.force)
-    notice_cold_kernels(*kernel_modules(s.method))  # one line before numba's first compilation after install
-    # parse and validate every input first: a bad file fails the batch before any work or output
-    read_opts = {"rapids": s.rapids, "block_delete": s.block_delete, "arc_tolerance_um": s.arc_tolerance_um,
-                 "units": s.units, "units_option": "--units", "work_offsets": s.work_offsets,
-                 "dialect": s.dialect}
-    paths = [read_path(src, machine, **read_opts) for src, _ in plan]
-    source = resolve_model(s.model)  # by content (format key), printed and recorded in the summary
-    verdict = check_verdict(source.path, FAILED_VERDICT in s.allow)  # a failed diagnosis: refused unless allowed
-    print(f"compensate: model {source.description}", file=sys.stderr)
+# ----------------------------------------------------------------------------- the model
+
+def load_model_field(machine, s: CompensateSettings):
+    """``(source, verdict, field)`` of ``s.model`` for the machine tool ``machine`` (as loaded: a grinder file's
+    models are read as it writes them): recognised by content (the caller says which on stderr); a failed diagnosis verdict
+    refused unless allowed; a diagnosed model.json a :class:`ConditionedField` (conditions per path), a
+    chain's model its constant conditions (:func:`field_conditions`)."""
+    src = resolve_model(s.model)
+    verdict = check_verdict(src.path, FAILED_VERDICT in s.allow)
     field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
-    # a diagnosed model whose terms need conditions: per point from the path's columns, else the options
-    # (taken and checked once, before any work: a missing condition or a bad cell fails the batch here)
+    if not isinstance(field_, ConditionedField):
+        field_ = field_conditions(field_, {k: v for k, v in s.conditions.items() if v is not None}, machine)
+    return src, verdict, field_
+
+
+def field_conditions(field_, conditions: dict, machine):
+    """``field_`` with the constant ``conditions`` its effect terms need (``--temp-c``, ``--dir-x`` …, one
+    value for the whole program); a condition given that the model does not use, or one it needs that was
+    not given, is refused in one line (UsageError)."""
+    needs = tuple(getattr(field_, "needs", ()))
+    extra = [c for c in conditions if c not in needs]
+    if extra:
+        raise UsageError(f"{', '.join('--' + c.replace('_', '-') for c in extra)}: the model has no effect term that "
+                         f"uses it on the machine tool {machine.name!r}; leave it out")
+    from ...diagnosed_model import CONDITIONS
+    missing = [c for c in needs if c not in conditions]
+    if missing:
+        opts = [c for c in missing if c in CONDITIONS]
+        none = [c for c in missing if c not in CONDITIONS]
+        if none:
+            raise UsageError(f"the model's effect terms need the condition(s) {none}, which compensate on a chain "
+                             "cannot take yet (no option; the program has no condition columns)")
+        raise UsageError(f"the model's effect terms need the condition(s) {opts}: give them for the whole program "
+                         f"({', '.join('--' + c.replace('_', '-') for c in opts)})")
+    if not needs:
+        return field_
+    if "temp_c" in conditions:
+        from errormap.units import temperature_mistake
+        m = temperature_mistake([float(conditions["temp_c"])], UNITS_CHECK)
+        if m is not None:
+            raise UsageError(f"--temp-c: units do not fit: {m[1]}")
+    for c in needs:
+        if c.startswith("dir_") and float(conditions[c]) not in (-1.0, 1.0):
+            raise UsageError(f"--{c.replace('_', '-')}: expected +1 or -1, got {conditions[c]}")
+    return field_.with_conditions({c: float(conditions[c]) for c in needs})
+
+
+def axes_field(field_):
+    """The part of ``field_`` over the axes alone (a diagnosed model's elements without its condition terms):
+    what plans a program's segments and says where the model is calibrated."""
+    return field_.corrected.base if isinstance(field_, ConditionedField) else field_
+
+
+# ----------------------------------------------------------------------------- solving
+
+def tool_context(contexts: dict, key: float, field_, truth, machine) -> int:
+    """The index in ``contexts`` ({tool key: (index, field, machine, truth)}) of the chain with the tool
+    length ``key`` mm (-inf: the machine file's own tool, index 0), added on first use
+    (:func:`compensation.nc_state.machine_with_tool`: the field and the truth at that tool point)."""
+    if key not in contexts:
+        try:
+            mt = machine_with_tool(machine, float(key))
+            f = field_with_tool(field_, mt)
+            tr = field_with_tool(truth, mt) if truth is not None else None
+        except (ValueError, TypeError) as exc:
+            raise UsageError(f"--tool-table: tool length {key:g} mm: {exc}") from None
+        contexts[key] = (len(contexts), f, mt, tr)
+    return contexts[key][0]
+
+
+def batch_units(paths, field_, truth, machine):
+    """The points of ``paths`` as the batch units of :func:`compensation.batch.solve_batch`: one unit per
+    file and tool length (``targets_mm`` (m, 3) the nominal tool points at that tool, ``axes`` (m, k),
+    ``context`` the tool's chain), turning points left out (solved over the turn, not by the method).
+    Returns ``(units, owners, contexts)``: ``owners[u] = (file, point indices)``, ``contexts`` as in
+    :func:`tool_context`."""
+    contexts = {-np.inf: (0, field_, machine, truth)}
+    units, owners = [], []
+    for f, tp in enumerate(paths):
+        n = len(tp.axes)
+        tool = np.full(n, np.nan) if tp.tool_mm is None else np.asarray(tp.tool_mm, float)
+        keys = np.where(np.isfinite(tool), tool, -np.inf)
+        solved = np.ones(n, bool) if tp.turning is None else ~np.asarray(tp.turning, bool)
+        for key in np.unique(keys[solved]):
+            idx = np.flatnonzero((keys == key) & solved)
+            j = tool_context(contexts, float(key), field_, truth, machine)
+            mt = next(c[2] for c in contexts.values() if c[0] == j)
+            targets = tp.targets_mm[idx] if tp.targets_mm is not None and j == 0 else \
+                nominal_and_jacobian(mt, tp.axes[idx])[0]
+            units.append(SimpleNamespace(targets_mm=targets, axes=tp.axes[idx], context=j, path=str(tp.path)))
+            owners.append((f, idx))
+    return units, owners, contexts
+
+
+def solve_paths(paths, field_, truth, machine, s: CompensateSettings, conds=None, executor=None,
+                progress=None) -> list:
+    """Solve every point of ``paths`` with ``s.method``. Per path ``(SolveResult, targets (n, 3) mm, TRUE
+    residual (n, 3) μm, TRUE residual of the program as written)`` (the last two None without a truth, or
+    for a program with turning points: taken over the turn by the caller). ``conds``: per path the
+    per-point conditions {name: (n,)} of a diagnosed model (:func:`solve_with_conditions`, file by file in
+    this process), else None: every point through :func:`solve_units`."""
+    if conds is not None and any(c is not None for c in conds):
+        out = []
+        opts = {"seed": s.seed} if s.method in GA_METHODS else {}
+        for tp, cond in zip(paths, conds):
+            targets = tp.targets_mm if tp.targets_mm is not None else nominal_and_jacobian(machine, tp.axes)[0]
+            with small_batch_threads(s.method, len(tp)):
+                res = solve_with_conditions(s.method, field_, targets, machine, cond, target_axes=tp.axes, **opts)
+            res.info = dict(res.info or {}, chunks=1)
+            out.append((res, targets, None, None))
+            if progress is not None:
+                progress(len(tp))
+        return out
+    return solve_units(paths, field_, truth, machine, s, executor, progress)
+
+
+def solve_units(paths, field_, truth, machine, s: CompensateSettings, executor=None, progress=None) -> list:
+    """:func:`solve_paths` without per-point conditions: the points of all files, one unit per file and tool
+    length (:func:`batch_units`), through the chunk plan of :mod:`compensation.batch` on ``executor``; a
+    lathe's turning points over the turn (:func:`compensation.turning.solve_with_turning`)."""
+    units, owners, contexts = batch_units(paths, field_, truth, machine)
+    ctx = sorted(contexts.values(), key=lambda c: c[0])
+    options = {"rotary_limit_deg": s.rotary_limit_deg} if s.rotary_limit_deg is not None else {}
+    results = solve_batch(s.method, field_, machine, units, seed=s.seed, options=options,
+                          chunk_points=s.chunk_points, executor=executor, progress=progress,
+                          contexts=[(c[1], c[2]) for c in ctx[1:]]) if units else []
+    out = []
+    for f, tp in enumerate(paths):
+        mine = [(u, owners[k][1], results[k]) for k, u in enumerate(units) if owners[k][0] == f]
+        chunks = sum(r.info["chunks"] for _, _, r in mine)
+        turning = tp.turning if tp.turning is not None and tp.turning.any() else None
+        true_r = base = None
+        if turning is None:
+            res = gather_results([r for _, _, r in mine], [idx for _, idx, _ in mine])
+            targets = res.targets_mm
+            if truth is not None:
+                true_r, base = np.empty((len(targets), 3)), np.empty((len(targets), 3))
+                for u, idx, r in mine:
+                    _, _, mt, tr = ctx[u.context]
+                    true_r[idx] = true_residual_um(tr, mt, r.axes, u.targets_mm)
+                    base[idx] = true_residual_um(tr, mt, u.axes, u.targets_mm)
+        else:
+            from ...solvers.base import BALL_RADIUS_UM
+            from ...turning import solve_with_turning
+            rest = np.flatnonzero(~turning)
+            rest_res = gather_results([r for _, _, r in mine], [np.searchsorted(rest, idx) for _, idx, _ in mine]) \
+                if mine else None
+            targets, _ = nominal_and_jacobian(machine, tp.axes)
+            res = solve_with_turning(lambda t, a: rest_res, field_, machine, targets, tp.axes, turning, BALL_RADIUS_UM)
+        res.info["chunks"] = chunks
+        out.append((res, targets, true_r, base))
+    return out
+
+
+def check_settings(machine, s: CompensateSettings) -> None:
+    """Refuse (UsageError, naming the option) a method or rotary limit the machine cannot take."""
+    if s.method not in CHAIN_METHODS:
+        raise UsageError(f"--method {s.method}: on the machine tool {machine.name!r} the methods are "
+                         f"{', '.join(CHAIN_METHODS)}")
+    try:  # every method moves the three axes read from the chain (a lathe's X, Z, C; a mill's X, Y, Z)
+        solved_and_kept(machine)
+    except ValueError as exc:
+        raise UsageError(f"--machine {machine.name} --method {s.method}: {exc}; compensate is not available "
+                         f"on this machine") from None
+    if s.rotary_limit_deg is not None:
+        sol, _ = solved_and_kept(machine)
+        if all(machine.axes[j].kind == "linear" for j in sol):
+            raise UsageError(f"--max-rotary-correction-deg: the solver moves no rotary axis on {machine.name!r} "
+                             f"(it moves {', '.join(machine.axis_columns[j] for j in sol)}; the rotary axes are kept "
+                             "as programmed); leave it out")
+
+
+# ----------------------------------------------------------------------------- the order of work
+
+def compensate_files(files, machine, s: CompensateSettings, executor=None, on_file=None) -> CompensateRun:
+    """Compensate the tool-path ``files`` of the machine tool ``machine`` (as loaded: a chain file or a
+    grinder file, compensated on its chain) as ``s`` says, in the order of work above; ``on_file(outcome)``
+    after each file is guarded and rendered (nothing written yet). ``executor``:
+    :class:`compensation.batch.LocalExecutor` by default, or Ray; a
+    :class:`~compensation.app.workflows.cluster.ClusterError` it raises leaves nothing written."""
+    mt = machine_tool_of(machine)
+    check_settings(mt, s)
+    plan = plan_outputs(files, Path(s.out_dir))
+    old_outputs = check_out_dir(Path(s.out_dir), s.force)
+    notice_cold_kernels(*kernel_modules(s.method))  # one line before numba's first compilation after install
+    src, verdict, field_ = load_model_field(machine, s)
+    truth = None
+    if s.truth:
+        from .mt_loop import load_chain_truth
+        truth = load_chain_truth(s.truth, mt)
+    paths = [read_tool_path(p, mt, s, axes_field(field_)) for p, _ in plan]
+    print(f"compensate: model {src.description}", file=sys.stderr)  # every input read: a bad one is the one line
     needs = field_.needs if isinstance(field_, ConditionedField) else ()
-    conds = [path_conditions(tp, needs, field_.conditions, s.units, "--units") if needs else None for tp in paths]
-    plan_field = field_.corrected.base if needs else field_  # axes-only part
-    paths = [replan(tp, machine, max_segment_mm=s.max_segment_mm, field=plan_field) for tp in paths]
-    conds = [replanned_conditions(c, tp) for c, tp in zip(conds, paths)]
-    # solve everything first (nothing is written before all results are back)
-    advance = progress_callback(sum(len(tp) for tp in paths), s.method)
-    results = solve_paths(paths, field_, machine, s, conds, executor=executor, progress=advance)
+    conds = [path_conditions(tp, needs, field_.conditions, s.units, "--units") for tp in paths] if needs else None
+    advance = progress_callback(sum(len(tp.axes) for tp in paths), s.method)
+    solved = solve_paths(paths, field_, truth, mt, s, conds, executor=executor, progress=advance)
     outcomes = []
-    for (src, dst), tp, cond, res in zip(plan, paths, conds, results):
-        o = compensate_one(tp, src, dst, field_, machine, s, res, cond, notes=verdict_notes(verdict))
+    for (p, dst), tp, (res, targets, true_r, true_base) in zip(plan, paths, solved):
+        o = compensate_one(p, dst, tp, res, targets, true_r, true_base, field_, truth, mt, s, verdict)
         outcomes.append(o)
-        if on_file is not None:
-            on_file(o)
-    # write: remove what a previous run left, then the accepted files, the summary last
+        (on_file or print_file)(o)
+    return write_run(outcomes, old_outputs, src, verdict, field_, truth, machine, s, executor)
+
+
+def compensate_one(p, dst, tp: ToolPath, res, targets, true_r, true_base, field_, truth, machine,
+                   s: CompensateSettings, verdict) -> FileOutcome:
+    """Guard and render one solved file (in memory; nothing is written): its summary entry and text."""
+    turning = tp.turning if tp.turning is not None and tp.turning.any() else None
+    if turning is None and s.orientation:
+        res, true_r = orientation_pass(field_, truth, machine, tp, res, targets, true_r)
+    report = guards_report(res, machine, field_, s, tp)
+    rotary_refused = rotary_refusals(res, report)
+    kept = kept_rapids(tp, machine)
+    entry = file_entry(p, tp, res, report, kept, machine, s)
+    if "retry" in (res.info or {}):  # GA points retried / Newton-polished after the paper's generations
+        entry["ga_retry"] = dict(res.info["retry"])
+    if "rotary_refused" in res.info:
+        entry["rotary_refused"] = rotary_refused
+        entry["rotary_limit_deg"] = res.info.get("rotary_limit_deg")
+    if truth is not None:
+        truth_entry(entry, tp, res, targets, true_r, true_base, truth, machine, turning, s)
+    if tp.kind == "gcode":
+        gcode_entry(entry, tp, res, true_r, true_base, field_, truth, machine, s)
+    blocking = report.blocking
+    refused = bool(blocking) or (bool(kept) and "stroke" not in report.allowed)
+    o = FileOutcome(p, dst, tp, entry, None)
+    if refused:
+        entry["refused"] = True
+        bad = np.unique(np.concatenate(list(blocking.values()))) if blocking else np.zeros(0, int)
+        o.listed = [(int(i), source_line_of(tp, tp.lines[i]), "; ".join(r for r in report.point_reasons(int(i))
+                                                                      if r.split(":")[0] in blocking)) for i in bad]
+        o.kept = kept
+        entry["refused_guards"] = sorted(blocking) or ["stroke"]
+        return o
+    comments = [f"compensated by volcomp: method={s.method} model={s.model}",
+                f"model residual max {entry['model_max_um']:.4g} um"]
+    if entry["overridden"]:
+        counts = ", ".join(f"{g} {n}" for g, n in entry["overridden"].items())
+        comments.insert(0, f"volcomp compensate: GUARDS OVERRIDDEN (--allow {','.join(entry['allowed_guards'])}): "
+                           f"{counts} point(s) violate; method={s.method} model={s.model}")
+    elif tp.kind == "gcode":
+        comments = []  # a clean G-code output gets no added lines (but the frame the user gave, below)
+    if tp.kind == "gcode" and s.work_offsets is not None and s.work_offsets.source == MACHINE:
+        comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
+    comments = verdict_notes(verdict) + comments   # a failed verdict used on request: said in the program
+    o.text = render(tp, res.axes, res.commands_mm, machine, comments)
+    return o
+
+
+def guards_report(res, machine, field_, s: CompensateSettings, tp: ToolPath):
+    """:func:`compensation.guards.check` of one file's result (the calibrated volume of the axes-only part)."""
+    try:
+        return guards.check(res, machine, axes_field(field_), allow=s.allow, target_axes=tp.axes)
+    except TypeError as exc:  # a field that cannot say where it is calibrated
+        raise UsageError(f"{s.model}: {exc}") from None
+
+
+def kept_rapids(tp: ToolPath, machine) -> list:
+    """(line, reason) of the rapids kept as written whose nominal end is outside the strokes."""
+    if tp.kind != "gcode" or not len(tp.source.kept_lines):
+        return []
+    ka = np.where(np.isfinite(tp.kept_machine), tp.kept_machine, 0.5 * (machine.stroke_lo + machine.stroke_hi))
+    idx, reasons = guards.stroke_violations(ka, machine)
+    return [(source_line_of(tp, tp.source.kept_lines[i]), f"stroke: kept rapid {r}") for i, r in zip(idx, reasons)]
+
+
+def file_entry(p, tp: ToolPath, res, report, kept, machine, s: CompensateSettings) -> dict:
+    """The summary record of one file: points, model residual, correction, guards, axes moved."""
+    norm = np.linalg.norm(res.residual_um, axis=1)
+    viol = {g: int(len(v)) for g, v in report.violations.items()}
+    viol["stroke"] += len(kept)
+    entry = {"input": str(p), "output": None, "format": tp.kind, "points": len(tp.axes), "machine": machine.name,
+             "residual": "model", "model_max_um": float(norm.max()), "model_mean_um": float(norm.mean()),
+             "max_correction_um": float(res.correction_um.max()),
+             "failures": int(np.count_nonzero(~np.asarray(res.success, bool))), "guard_violations": viol,
+             "allowed_guards": sorted(report.allowed),
+             "overridden": {g: n for g, n in viol.items() if n and g in report.allowed},
+             "compensated_axes": res.info.get("compensated_axes"), "kept_axes": res.info.get("kept_axes"),
+             "seconds": float(res.seconds), "chunks": res.info.get("chunks", 1)}
+    if res.info.get("note"):
+        entry["note"] = res.info["note"]
+    if res.info.get("conditions"):
+        entry["conditions"] = res.info["conditions"]
+    return entry
+
+
+def truth_entry(entry, tp: ToolPath, res, targets, true_r, true_base, truth, machine, turning, s) -> None:
+    """The TRUE residual of one file (with ``--truth``) into its summary ``entry``."""
+    after, before = true_r, true_base
+    if turning is not None:
+        after = true_residual_um(truth, machine, res.axes, targets)
+        before = true_residual_um(truth, machine, tp.axes, targets)
+        from ...turning import surface_residual_um
+        t = np.flatnonzero(turning)
+        (a2, spread), (b2, _) = (surface_residual_um(truth, machine, ax[t], tp.axes[t]) for ax in (res.axes, tp.axes))
+        after[t] = np.stack([a2[:, 0], np.zeros(len(t)), a2[:, 1]], axis=1)
+        before[t] = np.stack([b2[:, 0], np.zeros(len(t)), b2[:, 1]], axis=1)
+        entry["turning"] = {"points": int(len(t)), "residual": "turning points: radial and axial deviation "
+                            "from the programmed surface of revolution, mean over one spindle turn (um)",
+                            "true": stats(after[t]), "true_uncompensated": stats(before[t]),
+                            "true_roundness_max_um": float(spread.max())}
+    entry["true"] = stats(after)
+    entry["true_uncompensated"] = stats(before)
+    along = true_path_residual_um(tp, res.axes, truth, machine) if tp.kind == "gcode" and turning is None else None
+    if along is not None:
+        entry["true_path"], entry["true_path_uncompensated"] = stats(along[0]), stats(along[1])
+        entry["true_path_residual"] = (f"along the linear moves as the controller interpolates them, "
+                                       f"{PATH_SAMPLES} points per written segment (um)")
+    entry["truth"] = str(s.truth)
+    entry["truth_conditions"] = "reference: 20 C, positive approach on every axis"
+
+
+def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, machine, s) -> None:
+    """What a G-code file's summary ``entry`` says beyond the points: lines, moves, frames, dialect, TCP,
+    cycles, the cutter radius bound."""
+    job = tp.source
+    entry.update({"lines": len(job.program.lines), "moves_compensated": len(job.vertices),
+                  "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids, "block_delete": s.block_delete,
+                  "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
+                  "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
+    if job.program.tcp is not None or s.orientation or (truth is not None and res.info.get("kept_axes")):
+        entry["tcp"] = tcp_entry(tp, res, machine, truth)
+    cyc = cycle_report(tp, res, true_r, true_base)
+    if cyc is not None:
+        entry["cycles"] = cyc
+    bound = cutter_radius_bound_um(axes_field(field_), machine, tp)
+    if bound is not None:
+        entry["cutter_radius_bound_um"] = bound
+
+
+def write_run(outcomes, old_outputs, src, verdict, field_, truth, machine, s: CompensateSettings,
+              executor) -> CompensateRun:
+    """Remove what a previous run left, write the accepted files as one set, the summary last."""
     written = {o.dst.name for o in outcomes if not o.refused}
-    stale = set(old_outputs) | {o.dst for o in outcomes if o.refused}
     removed = []
-    for p in sorted(stale):
+    for p in sorted(set(old_outputs) | {o.dst for o in outcomes if o.refused}):
         if p.is_file() and p.name not in written:
             p.unlink()
             removed.append(str(p))
-    write_outputs([(tp, o.dst, o.text) for o, tp in zip(outcomes, paths) if not o.refused])
-    for o in outcomes:
-        if not o.refused:
-            o.entry["output"] = str(o.dst)
-    summary_path = write_json(out_dir / SUMMARY_NAME, {
-        "method": s.method, "model": s.model, "model_source": source.to_dict(), "model_verdict": verdict,
-        "units": s.units,
-        "machine": machine.path, "allow": list(s.allow),
-        "residual": "model: p_r + E(axes(p_r)) - p_d (um)", "seed": s.seed, "chunk_points": s.chunk_points,
-        "solved_on": executor.describe() if executor is not None else LocalExecutor().describe(),
-        "files": [o.entry for o in outcomes],
-        "removed_stale": removed})
-    return CompensateRun(outcomes, summary_path, removed)
+    with contextlib.ExitStack() as stack:  # all files in full to temporary files, then renamed together
+        for o in outcomes:
+            if not o.refused:
+                fh = stack.enter_context(atomic_write(o.dst, "wb"))
+                fh.write(o.text.encode("latin-1" if o.tp.kind == "gcode" else "utf-8"))
+                o.entry["output"] = str(o.dst)
+    conditions = getattr(field_, "conditions", {}) or {}
+    summary = write_json(Path(s.out_dir) / SUMMARY_NAME, {
+        "conditions": {k: v for k, v in dict(conditions).items() if v is not None},
+        "method": s.method, "model": s.model, "model_source": src.to_dict(), "model_verdict": verdict,
+        "units": s.units, **({"seed": s.seed} if solver_spec(s.method).seeded else {}),
+        "machine": machine.path, "machine_name": machine.name, "allow": list(s.allow),
+        "residual": "model: p_r + E(axes(p_r)) - p_d (um)"
+                    + ("; true: truth tool point at the compensated axes - p_d (um)" if truth is not None else ""),
+        "chunk_points": s.chunk_points, "max_segment_mm": s.max_segment_mm,
+        "solved_on": (executor or LocalExecutor()).describe(),
+        "files": [o.entry for o in outcomes], "removed_stale": removed})
+    return CompensateRun(outcomes, summary, removed)
+
+
+def print_file(o: FileOutcome) -> None:
+    """The lines ``compensate`` prints for one file as it is solved."""
+    entry = o.entry
+    status = "REFUSED (not written)" if o.refused else f"-> {o.dst}"
+    tail = ""
+    if "true" in entry:
+        tail = (f", TRUE residual max {entry['true']['max_um']:.4g} um rms {entry['true']['rms_um']:.4g} um "
+                f"(uncompensated {entry['true_uncompensated']['max_um']:.4g} um max)")
+        if "true_path" in entry:
+            tail += (f", along the moves max {entry['true_path']['max_um']:.4g} um (uncompensated "
+                     f"{entry['true_path_uncompensated']['max_um']:.4g} um)")
+    print(f"{o.src}: {entry['points']} points, model residual max {entry['model_max_um']:.4g} um mean "
+          f"{entry['model_mean_um']:.4g} um, max correction {entry['max_correction_um']:.1f} um{tail}, failures "
+          f"{entry['failures']}, guard violations {sum(entry['guard_violations'].values())} {status}")
+    if entry.get("note"):
+        print(f"  {entry['note']}")
+    retry = entry.get("ga_retry")
+    if retry and retry["retried"]:
+        print(f"  {retry['retried']} point(s) above the GA tolerance after its generations: retried "
+              f"({retry['retry_rounds']} round(s)), {retry['polished']} Newton-polished, {retry['unconverged']} "
+              f"still unconverged; {retry['retry_seconds']:.2f} s")
+    if o.tp.kind == "gcode":
+        print_gcode_notes(entry)
+    if entry.get("rotary_refused"):
+        print(f"  rotary continuity: {entry['rotary_refused']} point(s) refused (their rotary correction exceeds "
+              f"asin(ball/r){' or the limit' if entry.get('rotary_limit_deg') is not None else ''}; programmed "
+              "axes kept)")
+    if entry["overridden"] and not o.refused:
+        print(f"  warning: guards overridden ({', '.join(f'{g} {n}' for g, n in entry['overridden'].items())} "
+              f"point(s)); recorded in the output file's header and the summary")
+
+
+def print_gcode_notes(entry) -> None:
+    """A G-code file's lines: dialect, work offsets, tools, G53 lines, canned cycles, cutter radius."""
+    print(f"  dialect {entry['dialect']}" + (f" ({entry['dialect_evidence']})" if entry["dialect_evidence"] else "")
+          + f"; work offsets: {entry['work_offsets']}" + (f"; tools {entry['tools_used']}" if entry["tools_used"]
+                                                           else ""))
+    if entry["g53_lines"]:
+        print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
+              "through unchanged, not compensated")
+    if "cycles" in entry:
+        c = entry["cycles"]
+        print(f"  canned cycles {c['mode']}: {c['holes']} hole(s)" + (
+            f", tilt left along the hole max {c['tilt_max_um']:.3g} um (line {c['tilt_max_line']})"
+            if c["mode"] == "keep" else ""))
+    if "cutter_radius_bound_um" in entry:
+        print(f"  G41/G42 cutter radius compensation: the path is compensated as programmed; the error it "
+              f"leaves is at most {entry['cutter_radius_bound_um']:.3g} um (field gradient x tool radius)")
+
+
+def print_refusals(run: CompensateRun, show: int) -> None:
+    """The refused files and their offending points (first ``show``), on stderr."""
+    for o in run.refused:
+        print(f"volcomp compensate: {o.src}: refused by guard(s) {', '.join(o.guards)}; "
+              f"{len(o.listed) + len(o.kept)} offending point(s):", file=sys.stderr)
+        for line, reason in o.kept[:show]:
+            print(f"  line {line}: {reason}", file=sys.stderr)
+        for i, line, reason in o.listed[:show]:
+            print(f"  point {i} (line {line}): {reason}", file=sys.stderr)
+        if len(o.listed) > show:
+            print(f"  ... and {len(o.listed) - show} more", file=sys.stderr)
+    print("volcomp compensate: refused files were not written; override explicitly with --allow GUARDS "
+          "(or bare --allow for all)", file=sys.stderr)

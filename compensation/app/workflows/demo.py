@@ -194,7 +194,8 @@ def compensate_program(s: DemoSettings, machine, axes, model_spec: str, log=None
     job = compensate_files([prog], machine, CompensateSettings(method="exact", model=model_spec,
                                                                out_dir=Path(s.out) / "compensated", force=True,
                                                                tracking_uri=s.tracking_uri, seed=s.seed,
-                                                               work_offsets=read_work_offsets(MACHINE)))
+                                                               work_offsets=read_work_offsets(MACHINE)),
+                           on_file=lambda o: None)
     o = job.outcomes[0]
     if o.refused:
         print(f"warning: the compensated program was refused by guard(s) {', '.join(o.guards)}; see "

@@ -197,7 +197,7 @@ def compensate_chain_true(machine, truth, field_, path: ChainPath) -> dict:
     conditions, the solver's time per point, worst model residual and failures."""
     from ...solvers import solve
     from ...solvers.chain_exact import nominal_and_jacobian
-    from .mt_compensate import true_residual_um
+    from .compensate_report import true_residual_um
     targets, _ = nominal_and_jacobian(machine, path.axes)
     r = solve("exact", field_, targets, machine, target_axes=path.axes, progress=False)
     st = residual_stats(true_residual_um(_TruthAt(truth, path.cond), machine, r.axes, targets))
@@ -209,7 +209,7 @@ def compensate_chain_true(machine, truth, field_, path: ChainPath) -> dict:
 def uncompensated_chain_true(machine, truth, path: ChainPath) -> dict:
     """TRUE residual of the program run as written (the truth's own error along the path)."""
     from ...solvers.chain_exact import nominal_and_jacobian
-    from .mt_compensate import true_residual_um
+    from .compensate_report import true_residual_um
     targets, _ = nominal_and_jacobian(machine, path.axes)
     st = residual_stats(true_residual_um(_TruthAt(truth, path.cond), machine, path.axes, targets))
     return {"true_rms_um": st["rms_um"], "true_max_um": st["max_um"]}
