@@ -38,10 +38,14 @@ def _temperature_change(doc, data) -> float | None:
 
 
 def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: int | None = None, seed: int = 0,
-                     log=None) -> dict:
+                     log=None, allow_failed_verdict: bool = False) -> dict:
     """Register the calibration ``model`` on the poses file ``poses``; write ``out/calibration.json``; returns its
-    ``registration`` dict."""
+    ``registration`` dict. A calibration whose verdict failed is refused (InputError naming it and the reasons)
+    unless ``allow_failed_verdict`` (``--allow failed-verdict``): then ``registration.allowed`` records it, and the
+    calibration's own failed verdict stays in the output (every later use refuses it again unless allowed)."""
+    from ...fields import FAILED_VERDICT, check_verdict
     geo, learner = load_arm_model(chain, model)          # refuses what is not an arm calibration of this chain
+    verdict = check_verdict(model, allow_failed_verdict)
     doc = json.loads(read_document_text(model, "an arm calibration"))
     if doc.get("kept_stage") == STACKED:
         raise InputError(f"{model}: key 'kept_stage': a stacked stage (two pipelines) is not re-registered; "
@@ -81,6 +85,9 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
                                        "this session's"},
         **reg_doc,
         "heldout_registered": _row(e_after), "heldout_as_calibrated": _row(e_before),
+        "allowed": (f"{FAILED_VERDICT} ({verdict['file']}: verdict failed: "
+                    f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})"
+                    if verdict and verdict.get("overridden_by") else None),
         "learned_carried": not dropped if had_learner else None,
         "learned_why": across.get("why"),
         "temperature_c": temperature_summary(data), "temperature_change_c": _temperature_change(doc, data),
