@@ -3,7 +3,8 @@
 Every command that writes a folder (``--out DIR``: the ``OUT_DIR`` rules of
 :mod:`compensation.app.validate`) runs inside :func:`owned_folder`, and every command whose
 ``--out`` is one file (``OUT_FILE``: ``predict --out f.csv``, ``featurepoints``, ``sweeps``,
-``identify``, ``interpolate``, ``drift-predict``) inside :func:`owned_file`; both are entered by
+``identify``, ``interpolate``, ``drift-predict``) inside :func:`owned_file` — as are the other
+one-file outputs (``identify --report``, ``interpolate --report`` / ``--sensitivity-plot``); all are entered by
 :func:`owned_output` in :func:`compensation.app.cli.main` after the options are checked and
 before the command's work. A file's lock lies beside it, ``f.csv.volcomp.lock``, with the same
 rules as a folder's (below); on Ctrl-C a file that was not there when the run started is removed.
@@ -266,24 +267,31 @@ def owned_file(path, command: str, interrupted=None):
             _remove_created(parent, created, whole=False)
 
 
-def out_target_of(command: str, args):
-    """``(path, kind)`` of the ``--out`` a command's arguments name: kind ``"dir"`` (a folder) or
-    ``"file"`` (one file); None: the command has no such ``--out``."""
+def out_targets_of(command: str, args) -> list:
+    """``[(path, kind), ...]`` of every output a command's arguments name that is a folder (kind ``"dir"``) or one
+    file (``"file"``): its ``--out`` and the other file outputs with an output rule (``identify --report``,
+    ``interpolate --report`` / ``--sensitivity-plot``), each path once; [] when it names none. A file prefix
+    (``identify --plot``) is not owned: its files are written whole, one by one."""
     from .validate import OutPath, rule_for
-    rule = rule_for(command, "out")
-    value = getattr(args, "out", None)
-    if isinstance(rule, OutPath) and rule.kind in ("dir", "file") and value is not None:
-        return value, rule.kind
-    return None
+    out, seen = [], set()
+    for dest, value in sorted(vars(args).items()):
+        rule = rule_for(command, dest)
+        if isinstance(rule, OutPath) and rule.kind in ("dir", "file") and value is not None:
+            key = os.path.abspath(str(value))
+            if key not in seen:
+                seen.add(key)
+                out.append((value, rule.kind))
+    return out
 
 
-def owned_output(target, command: str, interrupted=None):
-    """The context that owns ``target`` (``(path, kind)`` of :func:`out_target_of`) for one run:
-    :func:`owned_folder` or :func:`owned_file`; a no-op for None."""
-    if target is None:
-        return contextlib.nullcontext()
-    path, kind = target
-    return (owned_folder if kind == "dir" else owned_file)(path, command, interrupted=interrupted)
+@contextlib.contextmanager
+def owned_output(targets, command: str, interrupted=None):
+    """Own every output of ``targets`` (:func:`out_targets_of`) for one run: :func:`owned_folder` or
+    :func:`owned_file` each, entered in order (a refused one releases those already held)."""
+    with contextlib.ExitStack() as stack:
+        for path, kind in targets:
+            stack.enter_context((owned_folder if kind == "dir" else owned_file)(path, command, interrupted=interrupted))
+        yield
 
 
 def is_lock(path) -> bool:
