@@ -175,7 +175,7 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
     ``units``: ``"check"`` refuses a log whose coolest sensor's median is above
     :data:`FAHRENHEIT_COOLEST_MEDIAN_C` (°F); ``"as-written"``: the user states °C (recorded in ``notes["units"]``).
     """
-    t = read_table(path)
+    t = read_table(path, "thermal log")
     t.require("time_s")
     temps = [n for n in t.names if TEMP_RE.match(n)]
     disps = [n for n in t.names if DISP_RE.match(n)]

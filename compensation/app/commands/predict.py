@@ -192,7 +192,7 @@ def run(args) -> int:
     if machine.kind != "machine-tool":
         check_machine_kind(machine.path, machine.kind, "grinder")
     names = machine_axes(machine)   # the grinder's x_mm, z_mm, a_deg or the chain's own columns
-    t = read_table(args.points)
+    t = read_table(args.points, "points")
     t.require(*names)
     axes = np.stack([t.float(c) for c in names], axis=1)
     check_units(t.path, [t.row_number(k) for k in range(len(t))], machine=machine, axes=axes, axes_columns=names,
