@@ -42,9 +42,9 @@ BOUNDS = {
     "checks": InputBound("check measurements", "diagnose", 20_000, 20_000, 70.2, 4.31e9, power=2.0),
     "poses": InputBound("measured poses", "calibrate / register", 20_000, 5_000, 77.6, 0.582e9),
     "sweeps": InputBound("sweep rows", "identify", 10_000, 1_809, 12.7, 0.511e9),
-    "chain sweeps": InputBound("sweep rows", "identify --machine (a machine-tool chain)", 2_000, 1_810, 164.0,
-                               1.25e9, power=2.0),
-    "thermal log": InputBound("log samples", "diagnose --drift / drift-predict", 100_000, 11_040, 16.2, 0.334e9),
+    "chain sweeps": InputBound("sweep rows", "identify --machine (a machine-tool chain)", 2_000, 1_810, 282.2,
+                               2.0e9, power=2.0),
+    "thermal log": InputBound("log samples", "diagnose --drift / drift-predict", 300_000, 110_400, 196.4, 0.823e9),
     "waypoints": InputBound("waypoints", "interpolate", 1_000_000, 10_000_000, 702.0, 5.6e9),
 }
 """Kind → bound, each from a measured run of the command reading it (BENCHMARKS.md "Bounded inputs per command"),
@@ -59,8 +59,8 @@ s and 4.3 GB (1,200: 8.3 s, 0.48 GB), growing as n². ``poses``: ``calibrate`` d
 fits the geometric stages on all: 5,000 poses took 78 s and 0.58 GB (1,200: 74 s, 0.39 GB). ``sweeps``: the
 grinder's identification (per station, then B-splines and a 100-draw bootstrap): 1,809 rows (201 stations per axis)
 took 12.7 s and 0.51 GB (189 rows: 2.4 s, 0.10 GB). ``chain sweeps``: Gauss-Newton over every station's slots at
-once (the Jacobian grows as rows x stations): 1,810 rows were still running at 164 CPU s and 1.25 GB (190 rows:
-1.4 s, 0.11 GB). ``thermal log``: 11,040 samples (46 h at 15 s) took 16 s and 0.33 GB.
+once (the Jacobian grows as rows x stations): 1,810 rows (mill-xyz, 201 stations per axis) took 282 CPU s and
+2.0 GB (190 rows: 1.4 s, 0.11 GB). ``thermal log``: 110,400 samples (460 h at 15 s) took 196 s and 0.82 GB (11,040: 16 s, 0.33 GB).
 """
 
 
