@@ -85,7 +85,8 @@ def test_a_second_run_into_a_held_output_is_refused_naming_the_holder(command, t
         rc, err = _run(argv)
         lines = err.strip().splitlines()
         assert rc == 2 and len(lines) == 1 and len(lines[0]) <= MAX_ERROR_CHARS, (argv, err)
-        assert f"in use by volcomp holder-run (pid {os.getpid()}" in lines[0] and str(path) in lines[0], lines[0]
+        flag = next(a for a, b in zip(argv, argv[1:]) if b == str(path))
+        assert f"{flag} {path}: in use by volcomp holder-run (pid {os.getpid()}" in lines[0], lines[0]
         assert lock.is_file()
         lock.unlink()
 
