@@ -1,7 +1,8 @@
 """The commands tests/test_fuzz_inputs.py does not reach, fuzzed through ``main`` the same way: ``identify`` (a
-grinder's and a chain's sweeps), ``simulate`` (a machine file), ``register`` (an arm's session poses) and
-``diagnose`` (a chain's checks). Each example draws one hostile input (tests/test_fuzz_inputs.hostile_bytes: a cell
-mangled, bytes inserted, UTF-16, CR-only endings, NUL bytes, a foreign CSV, an empty file, the file cut short).
+grinder's and a chain's sweeps), ``simulate`` (a machine file), ``register`` (an arm's session poses),
+``diagnose`` (a chain's checks) and ``drift-predict`` (a thermal log). Each example draws one hostile input
+(tests/test_fuzz_inputs.hostile_bytes: a cell mangled, bytes inserted, UTF-16, CR-only endings, NUL bytes, a
+foreign CSV, an empty file, the file cut short).
 Outcomes: exit 0 whose output is checked against the library computed on the same input (a mismatch is counted
 "silent wrong" and fails), or exit 2 with ONE line naming the input (``diagnose``: also exit 1 when the written
 verdict failed); a traceback or any other status fails. The counts go to test_fuzz_inputs.TALLY (printed at the
@@ -198,3 +199,43 @@ def test_fuzz_diagnose_chain_checks(files, data):
             n = len(load_mt_checks(p, mill).axes)
             _check_output("diagnose", doc["verdict"]["status"] == ("failed" if failed else "passed")
                           and doc["n_fit"] + doc["n_held_out"] == n, argv)
+
+
+@pytest.fixture(scope="module")
+def drift_model(tmp_path_factory):
+    """A drift model (diagnose --drift on a simulated 2-hour lumped log, seed 0) and that log."""
+    from errormap.diagnosis.drift_sim import simulate_lumped_log
+    from errormap.io import write_csv
+    d = tmp_path_factory.mktemp("drift")
+    cols = simulate_lumped_log(seed=0, hours=2.0)
+    n = len(cols["time_s"])
+    log = write_csv(d / "log.csv", {k: v for k, v in cols.items() if np.ndim(v) == 1 and len(v) == n})
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        assert main(["diagnose", "--drift", str(log), "--out", str(d / "dr")]) in (0, 1)
+    return d / "dr" / "drift_model.json", log
+
+
+@pytest.mark.slow   # the drift model's fit: about 7 CPU s once
+@fuzz(10)
+@given(data=st.data())
+def test_fuzz_drift_predict_log(drift_model, data):
+    """drift-predict on a mangled log: exit 0 writes the model's compensation columns the library computes from the
+    same file (read as the command reads it), or one line naming the file."""
+    from compensation.app.workflows.diagnosis import compensation_columns
+    from errormap.diagnosis.drift import load_drift_log
+    from errormap.diagnosis.drift_models import DriftModel
+    model_path, log = drift_model
+    raw = data.draw(hostile_bytes(log.read_text(), table=True))
+    with tempfile.TemporaryDirectory() as d:
+        p, o = Path(d) / "log.csv", Path(d) / "o.csv"
+        p.write_bytes(raw)
+        argv = ["drift-predict", str(model_path), str(p), "--allow", "failed-verdict", "--out", str(o)]
+        rc, err = run_main(argv)
+        if _tally_outcome(argv, rc, err, [str(p)]):
+            want = compensation_columns(load_drift_log(p, causal=True, require_displacement=False),
+                                        DriftModel.load(model_path))
+            t = read_table(o)
+            _check_output("drift-predict", all(np.allclose(t.float(k, allow_nan=True), v, rtol=TOL_PREDICT_REL,
+                                                           atol=TOL_PREDICT_ABS_UM, equal_nan=True)
+                                               for k, v in want.items() if k in t)
+                          and any(k in t for k in want), argv)
