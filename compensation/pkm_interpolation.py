@@ -161,7 +161,7 @@ def read_waypoints(path, step_mm: float) -> PosePath:
     rz_deg``; optional ``move`` (``L`` linear, default, or ``C`` circular from the previous waypoint
     about ``cx_mm, cy_mm, cz_mm``, the shorter arc). Orientation is slerped along each move.
     """
-    t = read_table(path)
+    t = read_table(path, "waypoints")
     t.require("px_mm", "py_mm", "pz_mm")
     P = np.stack([t.float(c) for c in ("px_mm", "py_mm", "pz_mm")], 1)
     if len(P) < 2:

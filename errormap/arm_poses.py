@@ -118,7 +118,7 @@ def tracker_grid_points(t) -> np.ndarray:
 
 def read_arm_poses(path, chain) -> ArmPoses:
     """Read and check a measured-pose file of ``chain`` (schema or tracker-grid layout)."""
-    t = read_table(path)
+    t = read_table(path, "poses")
     grid_cols = tracker_grid_columns(t, chain, path)
     if all(c in t for c in chain.joint_columns + list(XYZ)):
         layout, qcols = "schema", chain.joint_columns

@@ -98,7 +98,7 @@ class FeaturePoints:
 
     @classmethod
     def load(cls, path) -> "FeaturePoints":
-        t = read_table(path)
+        t = read_table(path, "featurepoints")
         meta = t.meta()
         # a machine-tool chain's feature points name their axis columns in the header (axis_columns: ...)
         names = tuple(c.strip() for c in meta["axis_columns"].split(",")) if "axis_columns" in meta else COLUMNS[:3]

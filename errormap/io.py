@@ -415,17 +415,18 @@ class Table:
         return out
 
 
-def read_table(path) -> Table:
+def read_table(path, kind: str | None = None) -> Table:
     """Read a CSV with a header row (leading ``#`` comment lines allowed).
 
     Raises :class:`InputError` naming the file (and row) for a missing file, an
     empty file, a duplicated column name or a row with the wrong number of cells.
-    Extra columns are kept.
+    Extra columns are kept. ``kind``: what the table holds (a key of
+    :data:`errormap.input_bounds.BOUNDS`): its rows are bounded before it is read.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    raw = _read_bounded(path)
+    raw = _read_bounded(path, kind)
     text = decode_text(raw, path)
     del raw
     if "\x00" in text:
@@ -554,10 +555,11 @@ def _count_lines(path: Path) -> int:
     return n
 
 
-def _read_bounded(path: Path) -> bytes:
+def _read_bounded(path: Path, kind: str | None = None) -> bytes:
     """The file's bytes, refused unread past :data:`MAX_TABLE_BYTES`, by its line count (counted in chunks) past
-    :data:`MAX_TABLE_ROWS`, and past the memory bound (:func:`check_table_memory`, the pyarrow path's estimate
-    :data:`TABLE_READ_BYTES_PER_BYTE`) — all before it is read whole or parsed."""
+    :data:`MAX_TABLE_ROWS` or its ``kind``'s bound (:func:`errormap.input_bounds.refusal`), and past the memory
+    bound (:func:`check_table_memory`, the pyarrow path's estimate :data:`TABLE_READ_BYTES_PER_BYTE`) — all before
+    it is read whole or parsed."""
     size = path.stat().st_size
     if size > MAX_TABLE_BYTES:
         raise InputError(f"{path}: {size / 2**30:.3g} GiB exceeds the limit of {MAX_TABLE_BYTES / 2**30:g} GiB per "
@@ -567,7 +569,17 @@ def _read_bounded(path: Path) -> bytes:
         raise InputError(f"{path}: about {lines:,} rows exceed the limit of {MAX_TABLE_ROWS:,} rows per table (about "
                          f"{lines * TABLE_BYTES_PER_ROW / 1e9:.3g} GB of memory for predict at {TABLE_BYTES_PER_ROW} B "
                          "per row); split the file")
+    if kind is not None:
+        from .input_bounds import refusal
+        why = refusal(path, kind, max(lines - 1, 0))   # the header line is no data row
+        if why:
+            raise InputError(why)
     check_table_memory(path, TABLE_READ_BYTES_PER_BYTE * size, "as numbers")
+    return _read_all(path)
+
+
+def _read_all(path: Path) -> bytes:
+    """The whole file (after every bound passed)."""
     return path.read_bytes()
 
 

@@ -336,7 +336,7 @@ def read_sweeps(paths) -> Sweeps:
     paths = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
     if not paths:
         raise InputError("no sweep files given")
-    tables = [read_table(p) for p in paths]
+    tables = [read_table(p, "sweeps") for p in paths]
     setups = [t.meta().get("setup", "") for t in tables]
     if len(paths) > 1 and (len(set(setups)) != 1 or not setups[0]):
         raise InputError(f"{', '.join(map(str, paths))}: several sweep files must all name the same tracker "

@@ -189,3 +189,30 @@ def test_compensate_on_an_arm_never_clobbers_without_force(models):
     assert (d / "f" / "prog.csv").read_text() == "mine\n"      # untouched
     assert run_cli([*argv, "--force"])[0] == 0
     assert (d / "f" / "prog.csv").read_bytes() == first
+
+
+def test_register_refuses_a_failed_calibration_unless_allowed_and_records_it(models):
+    """register re-registers a calibration like compensate/predict use it: a failed verdict is refused in one line
+    naming the file and --allow failed-verdict; with it the output records the override and keeps the failed
+    verdict (a later predict refuses it again unless allowed)."""
+    d, _ = models
+    ur5 = load_machine("ur5")
+    t = draw_truth(ur5, 7)
+    write_arm_poses(d / "session.csv", ur5, measure(ur5, t, random_joints(UR5_LO, UR5_HI, 12, [7, 11]), NOISE_MM,
+                                                    [7, 12]))
+    rc, out, err = run_cli(["register", d / "session.csv", "--machine", "ur5", "--model", d / "failed.json",
+                            "--out", d / "r1"])
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and len(lines[0]) <= MAX_ERROR_CHARS + 40, err
+    assert str(d / "failed.json") in lines[0] and "--allow failed-verdict" in lines[0]
+    assert not (d / "r1").exists()
+    rc, out, err = run_cli(["register", d / "session.csv", "--machine", "ur5", "--model", d / "failed.json",
+                            "--out", d / "r2", "--allow", "failed-verdict"])
+    assert rc == 0, err
+    doc = json.loads((d / "r2" / "calibration.json").read_text())
+    assert doc["registration"]["allowed"].startswith("failed-verdict (") and "stated tracker" in doc["registration"]["allowed"]
+    assert doc["verdict"]["status"] == "failed" and "register: failed-verdict" in out
+    rc, out, err = run_cli(["register", d / "session.csv", "--machine", "ur5", "--model", d / "passed.json",
+                            "--out", d / "r3"])
+    assert rc == 0, err
+    assert json.loads((d / "r3" / "calibration.json").read_text())["registration"]["allowed"] is None

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import tempfile
 from pathlib import Path
 
@@ -285,7 +286,7 @@ def _count(command: str, what: str) -> None:
 TOL_LANDING_MM = 1e-6 + 2e-6
 # predict writes 9 significant digits: relative 1e-8 with an absolute floor for values near zero
 TOL_PREDICT_REL, TOL_PREDICT_ABS_UM = 1e-8, 1e-9
-CLI_FUZZ = settings(max_examples=40, deadline=None, derandomize=True, database=None,
+CLI_FUZZ = settings(max_examples=int(os.environ.get("VOLCOMP_FUZZ_EXAMPLES", "0")) or 40, deadline=None, derandomize=True, database=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 PROGRAM = ("%\n(flute, op 1)\nG21 G90 G18\nG0 X100. Z0.3 A0\nG1 X105. Z1.3 A10. F100\n"
            "G2 X110. Z6.3 A10. I0 K5.\nG1 X112.5 Z8.0 A20.\nM30\n%\n")
@@ -347,6 +348,8 @@ def _check_output(command: str, ok: bool, what) -> None:
 def tally():
     yield TALLY
     print(f"\nCLI fuzz tally: {TALLY}")
+    if os.environ.get("VOLCOMP_FUZZ_TALLY"):    # VOLCOMP_FUZZ_TALLY=FILE: the counts as JSON (tests/test_fuzz_commands.py)
+        Path(os.environ["VOLCOMP_FUZZ_TALLY"]).write_text(json.dumps(TALLY, indent=1))
 
 
 @CLI_FUZZ

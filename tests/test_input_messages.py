@@ -147,3 +147,23 @@ def test_gcode_with_commas_in_comments_is_still_gcode(tmp_path, model):
     src.write_text("(part 7, op 2, flute)\n" + PROGRAM)
     rc, _, err = _compensate(tmp_path, model, src)
     assert rc == 0, err
+
+
+def test_a_spindle_speed_no_spindle_reaches_is_refused_naming_row_and_column(tmp_path):
+    """Found by the CLI fuzz (tests/test_fuzz_commands.py): a speed cell of 6.3e9 rpm was read, and drift-predict
+    wrote a drift of -1e12 μm from it. A speed outside drift.SPEED_RANGE_RPM is now refused by the log's reader."""
+    import numpy as np
+
+    from errormap.diagnosis.drift import SPEED_RANGE_RPM, load_drift_log
+    from errormap.diagnosis.drift_sim import simulate_lumped_log
+    from errormap.io import InputError, write_csv
+    cols = simulate_lumped_log(seed=0, hours=2.0)
+    n = len(cols["time_s"])
+    cols = {k: np.array(v, float) for k, v in cols.items() if np.ndim(v) == 1 and len(v) == n}
+    write_csv(tmp_path / "ok.csv", cols)
+    assert load_drift_log(tmp_path / "ok.csv", causal=True, require_displacement=False).speed_rpm is not None
+    cols["speed_rpm"][3] = 6275724086.0
+    write_csv(tmp_path / "log.csv", cols)
+    with pytest.raises(InputError, match=r"row 5, column 'speed_rpm': 6\.27572e\+09 rpm is outside the plausible"):
+        load_drift_log(tmp_path / "log.csv", causal=True, require_displacement=False)
+    assert SPEED_RANGE_RPM[1] >= 12000.0    # the simulated spindle's top speed passes

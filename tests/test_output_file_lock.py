@@ -109,7 +109,7 @@ def test_ctrl_c_removes_a_file_the_run_added_and_keeps_one_that_was_there(tmp_pa
     old.write_text("old\n")
     for target in (new, old):
         with pytest.raises(KeyboardInterrupt):
-            with owned_output((target, "file"), "predict"):
+            with owned_output([(target, "file")], "predict"):
                 target.write_text("written whole\n")
                 raise KeyboardInterrupt
         assert not file_lock_path(target).exists()

@@ -132,20 +132,45 @@ def test_grinder_checks_with_swapped_headers_are_refused(tmp_path):
     assert summary["n_checks"] == 60
 
 
-def test_a_kept_model_that_loses_to_the_plain_baseline_is_a_failed_verdict(mill_case, capsys):
-    """A 20 μm setup offset on dx, no update (no covariance): the loop keeps the model with an effect term
-    (14 μm held-out), the plain OLS baseline removes the offset (1.6 μm): FAILED, exit 1, written in the files."""
+@pytest.fixture(scope="module")
+def offset_run(mill_case):
+    """A 20 μm setup offset on dx, no update (no covariance), diagnosed: ``(folder, exit status, printed)``."""
+    import contextlib
+    import io
     d, ck = mill_case
     off = _write(d, "offset.csv", {**ck, "dx_um": ck["dx_um"] + OFFSET_UM})
-    assert _diagnose(d, off, out="o_off") == 1
-    out = capsys.readouterr().out
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        rc = _diagnose(d, off, out="o_off")
+    return d / "o_off", rc, out.getvalue()
+
+
+def test_a_kept_model_that_loses_to_the_plain_baseline_is_a_failed_verdict(offset_run):
+    """The loop keeps the model with an effect term (14 μm held-out), the plain OLS baseline removes the offset
+    (1.6 μm): FAILED, exit 1, written in the files."""
+    run, rc, out = offset_run
+    assert rc == 1
     assert "verdict: FAILED: the kept model" in out and "loses to the plain baseline baseline_ols_linear" in out
-    doc = json.loads((d / "o_off" / "diagnosis.json").read_text())
+    doc = json.loads((run / "diagnosis.json").read_text())
     assert doc["verdict"]["status"] == "failed"
-    assert json.loads((d / "o_off" / "model.json").read_text())["verdict"]["status"] == "failed"
-    assert "FAILED: the kept model" in (d / "o_off" / "report.html").read_text()   # the page says so too
+    assert json.loads((run / "model.json").read_text())["verdict"]["status"] == "failed"
+    assert "FAILED: the kept model" in (run / "report.html").read_text()   # the page says so too
     b = doc["baselines_vs_kept"]["baseline_ols_linear"]
     assert b["held_out_rms_um"] < doc["held_out_rms_um"] and b["paired_z_over_kept"] > 2
+
+
+def test_report_run_shows_a_failed_verdict_in_its_banner(offset_run, tmp_path, capsys):
+    """report RUN on the failed run shows it (not refuses it): the page's banner and a printed line give the
+    reasons and say which commands refuse the model."""
+    run, _, _ = offset_run
+    assert main(["report", str(run), "--out", str(tmp_path / "page")]) == 0
+    printed = capsys.readouterr().out
+    reason = json.loads((run / "diagnosis.json").read_text())["verdict"]["reasons"][0]
+    assert f"report: verdict FAILED ({run / 'diagnosis.json'}): " in printed and reason in printed
+    page = (tmp_path / "page" / "report.html").read_text()
+    start = page.index('class="banner"')
+    banner = page[start:page.index("</div>", start)]
+    assert 'id="verdict-failed"' in banner and "<b>FAILED</b>" in banner and "--allow failed-verdict" in banner
 
 
 def test_correct_checks_pass_the_verdict(mill_case, capsys):

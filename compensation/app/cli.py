@@ -239,8 +239,8 @@ def _run(argv, name, pending: dict | None = None) -> int:
     try:
         from compensation.app.validate import check_args
         check_args(args.command, args, _subparser(parser, args.command))
-        from compensation.app.outputs import out_target_of, owned_output
-        with owned_output(out_target_of(args.command, args), args.command,  # one run per --out folder or file;
+        from compensation.app.outputs import out_targets_of, owned_output
+        with owned_output(out_targets_of(args.command, args), args.command,  # one run per --out folder or file;
                           interrupted=lambda: bool(pending and pending["interrupt"])):  # Ctrl-C removes what it added
             return int(args.func(args) or 0)
     except (InputError, MachineFileError, UsageError) as exc:

@@ -3,7 +3,8 @@
 Every command that writes a folder (``--out DIR``: the ``OUT_DIR`` rules of
 :mod:`compensation.app.validate`) runs inside :func:`owned_folder`, and every command whose
 ``--out`` is one file (``OUT_FILE``: ``predict --out f.csv``, ``featurepoints``, ``sweeps``,
-``identify``, ``interpolate``, ``drift-predict``) inside :func:`owned_file`; both are entered by
+``identify``, ``interpolate``, ``drift-predict``) inside :func:`owned_file` — as are the other
+one-file outputs (``identify --report``, ``interpolate --report`` / ``--sensitivity-plot``); all are entered by
 :func:`owned_output` in :func:`compensation.app.cli.main` after the options are checked and
 before the command's work. A file's lock lies beside it, ``f.csv.volcomp.lock``, with the same
 rules as a folder's (below); on Ctrl-C a file that was not there when the run started is removed.
@@ -61,8 +62,9 @@ class FolderLock:
     """The lock of one output held by this process (:meth:`acquire`, :meth:`release`): ``DIR/.volcomp.lock``
     of a folder, or ``lock_path`` (:func:`file_lock_path` of a file). ``folder``: the output it guards."""
 
-    def __init__(self, folder, command: str, lock_path=None):
+    def __init__(self, folder, command: str, lock_path=None, flag: str = "--out"):
         self.folder = Path(folder)
+        self.flag = flag
         self.path = Path(lock_path) if lock_path is not None else self.folder / LOCK_NAME
         self.command = command
         self.held = False
@@ -85,7 +87,7 @@ class FolderLock:
             self._ino = os.stat(self.path).st_ino
             self.held = True
             return self
-        raise UsageError(f"--out {self.folder}: another run took the lock {self.path} while a stale one was removed; "
+        raise UsageError(f"{self.flag} {self.folder}: another run took the lock {self.path} while a stale one was removed; "
                          "try again")
 
     def _take_over_if_stale(self) -> None:
@@ -97,13 +99,13 @@ class FolderLock:
         except FileNotFoundError:
             return  # released meanwhile: try again
         except (OSError, ValueError, KeyError, TypeError):
-            raise UsageError(f"--out {self.folder}: is locked by {self.path}, which cannot be read (a run may be "
+            raise UsageError(f"{self.flag} {self.folder}: is locked by {self.path}, which cannot be read (a run may be "
                              "starting); if no volcomp run writes it, remove that file") from None
         if host != socket.gethostname():
-            raise UsageError(f"--out {self.folder}: in use by {who}; wait for it to finish or give another --out "
+            raise UsageError(f"{self.flag} {self.folder}: in use by {who}; wait for it to finish or give another {self.flag} "
                              f"(if that run is gone, remove {self.path})")
         if _pid_alive(pid):
-            raise UsageError(f"--out {self.folder}: in use by {who}; wait for it to finish or give another --out")
+            raise UsageError(f"{self.flag} {self.folder}: in use by {who}; wait for it to finish or give another {self.flag}")
         with contextlib.suppress(FileNotFoundError):
             os.unlink(self.path)
         print(f"volcomp {self.command}: taking over the stale lock of {who}, which no longer runs, in {self.folder}",
@@ -228,7 +230,7 @@ def owned_folder(folder, command: str, interrupted=None):
 
 
 @contextlib.contextmanager
-def owned_file(path, command: str, interrupted=None):
+def owned_file(path, command: str, interrupted=None, flag: str = "--out"):
     """Own the single-file output ``path`` for one run of ``command``: its lock
     (:func:`file_lock_path`, the folder lock's rules) while the run works, the folders above it
     created if absent (and removed again if left empty), and on Ctrl-C the file removed when it was
@@ -238,14 +240,14 @@ def owned_file(path, command: str, interrupted=None):
     try:
         check_output_target(path, "file")
     except InputError as exc:
-        raise UsageError(f"--out {exc}") from None
+        raise UsageError(f"{flag} {exc}") from None
     parent, created = path.parent, None
     if not parent.exists():
         created = parent
         while not created.parent.exists():
             created = created.parent
         parent.mkdir(parents=True, exist_ok=True)
-    lock = FolderLock(path, command, lock_path=file_lock_path(path))
+    lock = FolderLock(path, command, lock_path=file_lock_path(path), flag=flag)
     try:
         lock.acquire()
         existed = os.path.lexists(path)
@@ -266,24 +268,34 @@ def owned_file(path, command: str, interrupted=None):
             _remove_created(parent, created, whole=False)
 
 
-def out_target_of(command: str, args):
-    """``(path, kind)`` of the ``--out`` a command's arguments name: kind ``"dir"`` (a folder) or
-    ``"file"`` (one file); None: the command has no such ``--out``."""
-    from .validate import OutPath, rule_for
-    rule = rule_for(command, "out")
-    value = getattr(args, "out", None)
-    if isinstance(rule, OutPath) and rule.kind in ("dir", "file") and value is not None:
-        return value, rule.kind
-    return None
+def out_targets_of(command: str, args) -> list:
+    """``[(path, kind, flag), ...]`` of every output a command's arguments name that is a folder (kind ``"dir"``) or one
+    file (``"file"``): its ``--out`` and the other file outputs with an output rule (``identify --report``,
+    ``interpolate --report`` / ``--sensitivity-plot``), each path once; [] when it names none. A file prefix
+    (``identify --plot``) is not owned: its files are written whole, one by one."""
+    from .validate import OutPath, flag_of, rule_for
+    out, seen = [], set()
+    for dest, value in sorted(vars(args).items()):
+        rule = rule_for(command, dest)
+        if isinstance(rule, OutPath) and rule.kind in ("dir", "file") and value is not None:
+            key = os.path.abspath(str(value))
+            if key not in seen:
+                seen.add(key)
+                out.append((value, rule.kind, flag_of(dest)))
+    return out
 
 
-def owned_output(target, command: str, interrupted=None):
-    """The context that owns ``target`` (``(path, kind)`` of :func:`out_target_of`) for one run:
-    :func:`owned_folder` or :func:`owned_file`; a no-op for None."""
-    if target is None:
-        return contextlib.nullcontext()
-    path, kind = target
-    return (owned_folder if kind == "dir" else owned_file)(path, command, interrupted=interrupted)
+@contextlib.contextmanager
+def owned_output(targets, command: str, interrupted=None):
+    """Own every output of ``targets`` (:func:`out_targets_of`; ``(path, kind)`` pairs name ``--out``) for one run: :func:`owned_folder` or
+    :func:`owned_file` each, entered in order (a refused one releases those already held)."""
+    with contextlib.ExitStack() as stack:
+        for path, kind, *flag in targets:   # flag: the option naming it (default --out)
+            if kind == "dir":
+                stack.enter_context(owned_folder(path, command, interrupted=interrupted))
+            else:
+                stack.enter_context(owned_file(path, command, interrupted=interrupted, flag=flag[0] if flag else "--out"))
+        yield
 
 
 def is_lock(path) -> bool:

@@ -100,7 +100,7 @@ def load_checks(path, machine, units: str = UNITS_CHECK, units_option: str | Non
     """Read and validate a check-measurement CSV against ``machine``'s strokes (see module doc).
     ``units``, ``units_option``: :func:`errormap.units.check_units` (``"as-written"`` skips the
     likely-unit-mistake tests; the option that says so is named in the messages)."""
-    t = read_table(path)
+    t = read_table(path, "checks")
     t.require(*REQUIRED_COLUMNS)
     if len(t) < 10:
         raise InputError(f"{path}: expected at least 10 check measurements, got {len(t)}")

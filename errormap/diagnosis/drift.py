@@ -57,6 +57,7 @@ DISP_RE = re.compile(r"^(.+)_um$")
 MAX_DISP_UM = 1000.0      # a thermal drift beyond 1 mm is not plausible: nanometres written as μm?
 MIN_DISP_PTP_UM = 0.05    # a channel moving < 0.05 μm over a whole log carries nothing: millimetres?
 TEMP_RANGE_C = (-40.0, 150.0)
+SPEED_RANGE_RPM = (-200_000.0, 200_000.0)  # beyond the fastest machine-tool spindles (air-bearing, ~1.5e5 rpm): a typo
 # A log whose COOLEST sensor sits above this (its median) is in °F, not °C: a machine tool's log
 # carries sensors near the shop's air (the real 46 h log's coolest sensor: median 22 °C, its warmest
 # reading 41.9 °C), while the same log in °F puts every sensor above 68 °F. 45 °C = 113 °F.
@@ -175,7 +176,7 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
     ``units``: ``"check"`` refuses a log whose coolest sensor's median is above
     :data:`FAHRENHEIT_COOLEST_MEDIAN_C` (°F); ``"as-written"``: the user states °C (recorded in ``notes["units"]``).
     """
-    t = read_table(path)
+    t = read_table(path, "thermal log")
     t.require("time_s")
     temps = [n for n in t.names if TEMP_RE.match(n)]
     disps = [n for n in t.names if DISP_RE.match(n)]
@@ -251,8 +252,12 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
         du[c[:-3]] = v
     speed = None
     if "speed_rpm" in t:
-        speed, filled, why = repair_input(t, "speed_rpm", _missing_or_number(t, "speed_rpm"), time, causal,
-                                           stuck=False)
+        raw_speed = _missing_or_number(t, "speed_rpm")
+        bad = np.flatnonzero(~((raw_speed >= SPEED_RANGE_RPM[0]) & (raw_speed <= SPEED_RANGE_RPM[1])) & ~np.isnan(raw_speed))
+        if bad.size:
+            raise InputError(f"{path}: row {t.row_number(bad[0])}, column 'speed_rpm': {raw_speed[bad[0]]:g} rpm is "
+                             f"outside the plausible {SPEED_RANGE_RPM} rpm of a spindle (a typing mistake?)")
+        speed, filled, why = repair_input(t, "speed_rpm", raw_speed, time, causal, stuck=False)
         if why:
             notes["dropped"]["speed_rpm"] = why
         elif filled:

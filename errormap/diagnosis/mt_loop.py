@@ -157,7 +157,7 @@ def condition_columns(machine: MachineTool) -> tuple:
 
 def load_mt_checks(path, machine: MachineTool, units: str = "check") -> MTChecks:
     """Read and validate a machine tool's check CSV (module doc); errors name file, row, column."""
-    t = read_table(path)
+    t = read_table(path, "checks")
     t.require(*machine.axis_columns, *ERROR_COLUMNS)
     if len(t) < MIN_CHECKS:
         raise InputError(f"{path}: expected at least {MIN_CHECKS} check measurements, got {len(t)}")

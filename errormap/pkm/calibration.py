@@ -106,7 +106,7 @@ def read_poses(path, machine: PKM) -> PoseData:
     ``rx_deg, ry_deg, rz_deg`` (fixed-axis X-Y-Z) or ``qx, qy, qz, qw``, or neither (position only).
     Errors name the file, row and column.
     """
-    t = read_table(path)
+    t = read_table(path, "poses")
     k = machine.n_legs
     lcols, qcols = [f"l{i + 1}_mm" for i in range(k)], [f"q{i + 1}" for i in range(k)]
     if all(c in t for c in qcols):

@@ -205,7 +205,7 @@ def _run_machine_tool(machine, args) -> int:
     """The grinder or a machine-tool chain: any error field at its axis columns."""
     chain = family_of(machine).facts.chain
     names = machine_axes(machine)   # the grinder's x_mm, z_mm, a_deg or the chain's own columns
-    t = read_table(args.points)
+    t = read_table(args.points, "points")
     t.require(*names)
     axes = np.stack([t.float(c) for c in names], axis=1)
     check_units(t.path, [t.row_number(k) for k in range(len(t))], machine=machine, axes=axes, axes_columns=names,

@@ -10,6 +10,8 @@ from errormap.machine import load_machine
 
 from ..families import family_of
 
+from ...fields import FAILED_VERDICT
+
 
 def register(subparsers):
     p = subparsers.add_parser("register", help="re-register a calibrated arm's base frame (and tool point) in a new "
@@ -22,6 +24,9 @@ def register(subparsers):
     p.add_argument("--fit-poses", type=int, default=None, help="register on the first N poses (at least 6) and "
                    "report the held-out error on the rest (default: all poses register)")
     p.add_argument("--seed", type=int, default=0, help="seed of the candidate poses the frame's suggestions come from")
+    p.add_argument("--allow", action="append", default=[], choices=(FAILED_VERDICT,),
+                   help=f"{FAILED_VERDICT}: re-register a calibration whose verdict failed (refused by default); "
+                        "recorded in the output's registration.allowed")
     p.set_defaults(func=run)
 
 
@@ -30,7 +35,7 @@ def run(args) -> int:
     family_of(chain).target("register")   # an arm's base frame: refused on other families, naming their path
     from ..workflows.arm_register import run_arm_register
     r = run_arm_register(chain, args.poses, args.model, args.out, tool=args.tool, fit_poses=args.fit_poses,
-                         seed=args.seed)
+                         seed=args.seed, allow_failed_verdict=FAILED_VERDICT in args.allow)
     for s in r["slots"]:
         print(f"register: {s['name']} = {s['value']:.6g} ± {s['std']:.2g}")
     print(f"register: fit RMS {r['fit_rms_mm']:.4f} mm on {r['n_fit_poses']} poses")
@@ -52,5 +57,7 @@ def run(args) -> int:
         print(f"register: logged temperature {r['temperature_c']['mean']:.2f} °C, "
               f"{r['temperature_change_c']:+.2f} °C from the calibration's (the link lengths are the calibration's: "
               "a change in temperature shows in the held-out error, not in the frame)")
+    if r.get("allowed"):
+        print(f"register: {r['allowed']}")
     print(f"register: wrote {Path(args.out) / 'calibration.json'}")
     return 0

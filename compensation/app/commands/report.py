@@ -81,6 +81,10 @@ def run_chain_diagnosis(args) -> int:
     out = Path(args.out) / "report.html" if args.out else None
     path = write_chain_diagnosis_page(run_dir, machine, out)
     print(f"wrote html: {path}")
+    from ..reports.mt_diagnosis import verdict_failure
+    failed = verdict_failure(read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine"))
+    if failed:   # shown, not refused: the page is how the user sees why
+        print(f"report: verdict FAILED ({run_dir / 'diagnosis.json'}): {failed}")
     return 0
 
 

@@ -68,7 +68,7 @@ def register(sub):
 
 
 def _read_validation(path, axis_columns=("x_mm", "z_mm", "a_deg")):
-    t = read_table(path)
+    t = read_table(path, "featurepoints")
     cols = tuple(axis_columns) + ("dx_um", "dy_um", "dz_um")
     t.require(*cols)
     d = np.stack([t.float(c) for c in cols], axis=1)

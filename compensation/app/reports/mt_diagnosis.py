@@ -183,7 +183,17 @@ def chain_diagnosis_page(run_dir, machine) -> str:
                        summary=summary, stages=_stage_table(doc), stage_figure=_stage_figure(doc), effects=acc,
                        rejected=rej, element_figures=_element_figures(machine, updated, identified),
                        constants=_constants_table(machine, updated, identified), kept=doc["kept_stage"],
-                       ratio=ratio, floor=floor, learned=_learned(doc))
+                       ratio=ratio, floor=floor, learned=_learned(doc), verdict_failed=verdict_failure(doc))
+
+
+def verdict_failure(doc) -> str | None:
+    """The reasons of a run whose verdict failed (``diagnosis.json`` ``verdict``), joined; None when it passed or
+    records none. The page puts them in its banner and ``report RUN`` prints them: a failed run is shown, not
+    refused (the page is how its user sees why)."""
+    v = doc.get("verdict")
+    if not isinstance(v, dict) or v.get("status") != "failed":
+        return None
+    return "; ".join(str(r) for r in v.get("reasons") or []) or "no reasons recorded"
 
 
 def write_chain_diagnosis_page(run_dir, machine, out=None) -> Path:

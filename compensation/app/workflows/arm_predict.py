@@ -47,7 +47,7 @@ def read_points(path, chain):
     """(q (n, nq) joint values, measured tool points (n, 3) mm or None) of ``predict``'s input: a joint program
     (:func:`read_program`; its ``x_mm…`` are targets, not measurements, and are ignored here) or a tracker-grid
     measured-pose file (its joints ``joint_k`` and its measured points)."""
-    t = read_table(path)
+    t = read_table(path, "points")
     grid = None if all(c in t for c in chain.joint_columns) else tracker_grid_columns(t, chain, path)
     if grid is None:
         return read_program(path, chain, t)[0], None

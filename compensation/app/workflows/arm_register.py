@@ -73,11 +73,16 @@ def candidates_of(geo, learner, plain, kept_stage) -> list:
 
 
 def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: int | None = None, seed: int = 0,
-                     log=None) -> dict:
+                     log=None, allow_failed_verdict: bool = False) -> dict:
     """Register the calibration ``model`` on the poses file ``poses``; write ``out/calibration.json``; returns its
     ``registration`` dict. The model kept for the session is weighed against the plain calibration inside the
-    registration poses (:func:`errormap.arm_register.choose_candidate`, :func:`candidates_of`)."""
+    registration poses (:func:`errormap.arm_register.choose_candidate`, :func:`candidates_of`). A calibration whose
+    verdict failed is refused (InputError naming it and the reasons) unless ``allow_failed_verdict``
+    (``--allow failed-verdict``): then ``registration.allowed`` records it, and the calibration's own failed verdict
+    stays in the output (every later use refuses it again unless allowed)."""
+    from ...fields import FAILED_VERDICT, check_verdict
     geo, learner = load_arm_model(chain, model)          # refuses what is not an arm calibration of this chain
+    verdict = check_verdict(model, allow_failed_verdict)
     doc = json.loads(read_document_text(model, "an arm calibration"))
     plain = plain_of(chain, doc, model)
     across = doc.get("across_blocks") if isinstance(doc.get("across_blocks"), dict) else {}
@@ -123,6 +128,9 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
         "heldout_as_calibrated": _row(e_before),
         "learned_carried": (not dropped and k_learner is not None) if had_learner else None,
         "learned_why": across.get("why") if dropped else (choice["why"] if had_learner else None),
+        "allowed": (f"{FAILED_VERDICT} ({verdict['file']}: verdict failed: "
+                    f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})"
+                    if verdict and verdict.get("overridden_by") else None),
         "temperature_c": temperature_summary(data), "temperature_change_c": _temperature_change(doc, data),
         "residual_kind": "measured residual (measured − model) on the session's poses after the first n_fit_poses, "
                          "position norm, mm"}

@@ -29,7 +29,7 @@ def run_pkm_predict(machine, args) -> int:
         raise UsageError(f"{args.model}: key 'leg_terms': the loop's leg terms are applied to commands "
                          "(interpolate --calibration), not yet predicted at poses; predict takes a calibration "
                          "without them (calibrate --no-loop)")
-    t = read_table(args.points)
+    t = read_table(args.points, "points")
     t.require("x_mm", "y_mm", "z_mm")
     tips = np.stack([t.float(c) for c in ("x_mm", "y_mm", "z_mm")], axis=1)
     has = [c for c in ANGLES if c in t.names]

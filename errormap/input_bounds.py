@@ -1,0 +1,75 @@
+"""How many rows of each kind of user table a command takes, checked before the table is read.
+
+Every reader of a user table names its kind (:func:`errormap.io.read_table` ``kind=``); the table's lines are
+counted in chunks (never held whole) and, past its kind's :attr:`InputBound.max_rows`, it is refused unread in one
+line naming the file, its rows, the bound and what the command would need: CPU time and peak memory extrapolated
+from a measured run of that command (:attr:`InputBound.ref_rows` rows took :attr:`InputBound.ref_cpu_s` and
+:attr:`InputBound.ref_bytes`, scaled as rows to the power :attr:`InputBound.power`). JSON and TOML documents
+(element sets, models, machine files) are bounded by their bytes (:data:`errormap.io.MAX_DOCUMENT_BYTES`), G-code
+programs by their bytes and moves (:mod:`compensation.pathio`), and every table also by the limits of
+:mod:`errormap.io` (bytes, columns, cells, the memory available now). docs/schemas.md lists the bounds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class InputBound:
+    """The bound of one kind of table. ``what``: its rows in words; ``commands``: who reads it; ``max_rows``: data
+    rows taken. The estimate: a measured run of ``ref_rows`` rows took ``ref_cpu_s`` CPU seconds and ``ref_bytes``
+    peak resident memory; ``power``: how both grow with the rows (1 linear, 2 a dense n × n or rows × stations
+    matrix), extrapolated from that run (BENCHMARKS.md "Bounded inputs per command")."""
+
+    what: str
+    commands: str
+    max_rows: int
+    ref_rows: int
+    ref_cpu_s: float
+    ref_bytes: float
+    power: float = 1.0
+
+    def estimate(self, rows: int) -> str:
+        k = (rows / self.ref_rows) ** self.power
+        s = self.ref_cpu_s * k
+        t = f"{s:,.0f} s" if s < 600 else f"{s / 3600:,.2g} h"
+        return f"about {t} CPU and {self.ref_bytes * k / 1e9:,.3g} GB"
+
+
+BOUNDS = {
+    "points": InputBound("points", "predict", 5_000_000, 10_000_000, 702.0, 5.6e9),
+    "featurepoints": InputBound("feature points", "train", 5_000_000, 10_000_000, 702.0, 5.6e9),
+    "checks": InputBound("check measurements", "diagnose", 20_000, 20_000, 70.2, 4.31e9, power=2.0),
+    "poses": InputBound("measured poses", "calibrate / register", 20_000, 5_000, 77.6, 0.582e9),
+    "sweeps": InputBound("sweep rows", "identify", 10_000, 1_809, 12.7, 0.511e9),
+    "chain sweeps": InputBound("sweep rows", "identify --machine (a machine-tool chain)", 2_000, 1_810, 282.2,
+                               2.0e9, power=2.0),
+    "thermal log": InputBound("log samples", "diagnose --drift / drift-predict", 300_000, 110_400, 196.4, 0.823e9),
+    "waypoints": InputBound("waypoints", "interpolate", 1_000_000, 10_000_000, 702.0, 5.6e9),
+}
+"""Kind → bound, each from a measured run of the command reading it (BENCHMARKS.md "Bounded inputs per command"),
+chosen so that the command stays within minutes of CPU and a few GB at its bound:
+
+``points``: ``predict`` on 10M rows took 702 s and 5.6 GB; the bound is the largest feature-point set volcomp
+writes (``featurepoints --grid`` at validate.MAX_GRID_POINTS), about 2.8 GB. ``featurepoints`` (``train``) and
+``waypoints`` (``interpolate``, whose own work is bounded by ``--feed-mm-min`` x ``--period-ms``) are read the same
+way and bounded by what volcomp writes (the grid limit; one path's points, validate.MAX_PATH_POINTS).
+``checks``: ``diagnose`` holds dense check x check matrices (its learned residual): 20,000 grinder checks took 70 CPU
+s and 4.3 GB (1,200: 8.3 s, 0.48 GB), growing as n². ``poses``: ``calibrate`` decides on a subset of 500 poses and
+fits the geometric stages on all: 5,000 poses took 78 s and 0.58 GB (1,200: 74 s, 0.39 GB). ``sweeps``: the
+grinder's identification (per station, then B-splines and a 100-draw bootstrap): 1,809 rows (201 stations per axis)
+took 12.7 s and 0.51 GB (189 rows: 2.4 s, 0.10 GB). ``chain sweeps``: Gauss-Newton over every station's slots at
+once (the Jacobian grows as rows x stations): 1,810 rows (mill-xyz, 201 stations per axis) took 282 CPU s and
+2.0 GB (190 rows: 1.4 s, 0.11 GB). ``thermal log``: 110,400 samples (460 h at 15 s) took 196 s and 0.82 GB (11,040: 16 s, 0.33 GB).
+"""
+
+
+def refusal(path, kind: str, rows: int) -> str | None:
+    """The one-line refusal of the table ``path`` of ``kind`` (a key of :data:`BOUNDS`) with about ``rows`` data
+    rows, naming the file, the rows, the bound and the estimate; None within the bound (:func:`errormap.io.read_table`
+    raises it as its InputError)."""
+    b = BOUNDS[kind]
+    if rows <= b.max_rows:
+        return None
+    return (f"{path}: about {rows:,} rows of {b.what} exceed the limit of {b.max_rows:,} for {b.commands} "
+            f"({b.estimate(rows)}); not read: split or subsample it")
