@@ -76,8 +76,8 @@ def models(tmp_path_factory):
     r = check.xyz_mm - geo.predict(check.q)
     for name, sigma in (("passed", None), ("failed", NOISE_MM / UNDERSTATED / 10)):
         doc = {"format": MODEL_FORMAT, "machine": {"name": ur5.name, "joints": ur5.joint_columns},
-               "kept_stage": "plain geometric LSQ", "geometric": geo.to_dict(), "learned": None,
-               "verdict": arm_verdict("plain geometric LSQ", r, r, sigma)}
+               "kept_stage": "plain geometric LSQ", "geometric": geo.to_dict(), "plain_geometric": geo.to_dict(),
+               "learned": None, "verdict": arm_verdict("plain geometric LSQ", r, r, sigma)}
         assert doc["verdict"]["status"] == name
         (d / f"{name}.json").write_text(json.dumps(doc))
     prog = d / "prog.csv"

@@ -230,5 +230,5 @@ def test_grinder_command_refuses_a_valid_chain_file_by_kind(tmp_path, capsys):
     rc = main(["demo", "--machine", "mill-xyz", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1
-    assert "machine.kind" in err and "'machine-tool'" in err
+    assert "mill-xyz.toml" in err and "(machine-tool 'mill-xyz')" in err and "not yet:" in err
     assert not (tmp_path / "o").exists()

@@ -3,7 +3,7 @@ imports it): composition, inversion and the error transform against 4×4 homogen
 independently here."""
 import numpy as np
 
-from errormap import sweeps, transforms as tf
+from errormap import transforms as tf
 
 SEED = 7
 N = 50
@@ -37,9 +37,6 @@ def _rz(a):
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
 
 
-def test_sweeps_uses_the_one_algebra():
-    assert sweeps.compose is tf.compose and sweeps.invert is tf.invert
-    assert sweeps.error_transform is tf.error_transform
 
 
 def test_compose_and_invert_match_homogeneous_matrices():

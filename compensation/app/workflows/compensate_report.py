@@ -37,10 +37,10 @@ def straight_segments(tp: ToolPath) -> np.ndarray:
     cols = list(tp.columns)
     out = np.zeros(len(tp.axes), bool)
     i = 0
-    for m, v in zip([m for m in job.program.moves if m.compensate], job.vertices):
-        if m.kind == "linear":
-            if i > 0 and np.all(np.isfinite(m.start)):
-                out[i] = np.abs(m.start + tp.shift[i, cols] - tp.axes[i - 1, cols]).max() <= JOIN_MM
+    for move, v in zip([m for m in job.program.moves if m.compensate], job.vertices):
+        if move.kind == "linear":
+            if i > 0 and np.all(np.isfinite(move.start)):
+                out[i] = np.abs(move.start + tp.shift[i, cols] - tp.axes[i - 1, cols]).max() <= JOIN_MM
             out[i + 1:i + len(v)] = True
         i += len(v)
     return out
