@@ -74,6 +74,7 @@ def files(tmp_path_factory):
     (d / "arm.json").write_text(json.dumps({"format": MODEL_FORMAT, "machine": {"name": ur5.name,
                                                                                 "joints": ur5.joint_columns},
                                             "kept_stage": "plain geometric LSQ", "geometric": geo.to_dict(),
+                                            "plain_geometric": geo.to_dict(),
                                             "learned": None}))
     write_arm_poses(d / "session.csv", ur5, measure(ur5, t, random_joints(lo, hi, 10, [7, 2]), 0.02, [7, 3]))
     return d

@@ -46,6 +46,7 @@ def made(tmp_path_factory):
     (d / "arm.json").write_text(json.dumps({"format": MODEL_FORMAT, "machine": {"name": ur5.name,
                                                                                 "joints": ur5.joint_columns},
                                             "kept_stage": "plain geometric LSQ", "geometric": geo.to_dict(),
+                                            "plain_geometric": geo.to_dict(),
                                             "learned": None}))
     return d
 
