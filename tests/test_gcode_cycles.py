@@ -401,3 +401,13 @@ def test_a_fusion_fanuc_post_drilling_program_runs_with_defaults(tmp_path, mill,
     assert _compensate(prog, tmp_path / "l", truth_file, "--tool-table", str(tools), "--dialect", "linuxcnc") != 0
     assert re.search(r"line 22, column 5: axis word 'Z15.' but no motion mode .* after G80 .*--dialect",
                      capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("dialect", ["linuxcnc", "mach3", "grbl"])
+def test_named_controllers_whose_g80_ends_the_motion_mode_still_refuse(tmp_path, dialect):
+    """Named, LinuxCNC, Mach3 (its G-code manual: G80 cancels the motion mode, RS274NGC group 1) and grbl keep
+    the refusal, naming the line, the word and the option."""
+    p = tmp_path / "p.nc"
+    p.write_text(G80_PROGRAM.format(before="").replace("O0100 (G80 KEEPS THE MOTION MODE)\n", "(G80)\n"))
+    with pytest.raises(InputError, match=r"p.nc: line 10, column 5: axis word 'Z50.' but no motion mode .* --dialect"):
+        _read(p, dialect)
