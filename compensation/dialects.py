@@ -17,7 +17,10 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
   reader, without a dialect);
 * **G80 and the motion mode**: on Fanuc, Haas and Siemens ISO the cycles and ``G80`` are group 09, so the
   G0-G3 mode in force before a cycle is in force after its ``G80`` (CAM posts write ``G80`` then a bare
-  ``Z`` retract); on LinuxCNC, Mach3 and grbl ``G80`` ends the motion mode (RS274NGC group 1);
+  ``Z`` retract); on LinuxCNC, Mach3 and grbl ``G80`` ends the motion mode (RS274NGC group 1) and a bare
+  axis word after it is an error. Recognised from no word (Fusion 360's Fanuc and Haas posts write none),
+  such a line is read the group-09 way (:data:`UNRECOGNISED`: the only reading under which it runs) and
+  the summary says so;
 * **block delete** ``/``: every dialect but grbl (which has no block-delete switch) skips the line
   when the switch is on (``--block-delete``).
 
@@ -42,7 +45,7 @@ word of its own, so it is named, never recognised).
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 DIALECT_NAMES = ("fanuc", "haas", "linuxcnc", "siemens-iso", "mach3", "grbl", "heidenhain-iso")
 COMMON_M = frozenset({0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30})
@@ -74,6 +77,11 @@ class Dialect:
     group-01 motion mode (G0-G3) in force before a cycle is in force again after ``G80``, and a ``G80``
     outside a cycle leaves it alone; otherwise (LinuxCNC, Mach3, grbl: RS274NGC group 1) ``G80`` ends the
     motion mode and axis words need a new G0/G1 (:mod:`compensation.nc_cycles`)."""
+    g80_unrecognised: bool = False
+    """No dialect named or recognised (``--dialect auto`` found no word of one): a bare axis word after ``G80``
+    where a G0-G3 mode was in force before it is read as the group-09 controllers read it (the G0-G3 stays), the
+    line recorded; the controllers whose ``G80`` ends the motion mode (LinuxCNC, Mach3, grbl: RS274NGC group 1)
+    refuse such a line, so this is the only reading under which the program runs at all."""
     h_offset_alone: bool = False
     """An ``H`` word without ``G43`` changes the length offset where ``G43`` is in force and is held otherwise,
     and ``H0`` (``H00``) is a zero length (Fanuc 0i, Haas, Siemens ISO: "tool length compensation": the offset
@@ -133,6 +141,12 @@ GENERIC = Dialect(RS274, {**_COMMON, 48: "overrides on", 49: "overrides off", 50
                           51: "spindle override control", 52: "adaptive feed", 53: "feed stop control",
                           60: "pallet change pause"})
 """The reader without a dialect (what every controller read here agrees on)."""
+UNRECOGNISED = replace(GENERIC, g80_unrecognised=True)
+"""The reader under ``--dialect auto`` where the content names no dialect: :data:`GENERIC`, and a bare axis
+word after ``G80`` read in the G0-G3 of before it (:attr:`Dialect.g80_unrecognised`)."""
+G09_NOTE = ("read as a group-09 controller (G80 keeps the G0-G3 of before the cycle, line {line}); --dialect names "
+            "the controller")
+"""What the summary and the written program's header say where :data:`UNRECOGNISED` read such a line."""
 
 MARKERS = {  # content that only one dialect writes: (pattern, what it is)
     "linuxcnc": ((r"(?im)^\s*/?\s*(?:n\d+\s*)?o\s*<", "o<name> subroutine"), (r"#<", "#<name> parameter")),

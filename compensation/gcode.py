@@ -350,10 +350,20 @@ class GProgram:
     tcp: object = field(default=None, repr=False)
     """:class:`compensation.tcp.TcpProgram` where the program holds tool-centre-point or G93 words (chain
     readers); None otherwise."""
+    g80_line: int = 0
+    """Recognised as no dialect (:data:`compensation.dialects.UNRECOGNISED`): the first line (1-based, of the
+    file) whose bare axis word after ``G80`` was read in the G0-G3 of before it (group 09); 0: none."""
 
     def notes(self) -> tuple:
-        """Header lines every written program carries: what was expanded."""
-        return () if self.expanded is None else (self.expanded.note(),)
+        """Header lines every written program carries: what was expanded, how ``G80`` was read."""
+        return (() if self.expanded is None else (self.expanded.note(),)) + (
+            (f"volcomp: {g80_note(self.g80_line)}",) if self.g80_line else ())
+
+
+def g80_note(line: int) -> str:
+    """What the summary and the header say where a bare axis word after ``G80`` was read the group-09 way."""
+    from .dialects import G09_NOTE
+    return G09_NOTE.format(line=line)
 
 
 _CSV_CELL = re.compile(r"^\s*\"?[A-Za-z_][A-Za-z0-9_ ()./%-]*\"?\s*$")
@@ -533,14 +543,15 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     check_program_bytes(path, data)
     dia, evidence = _dialect_of(path, data, dialect)
     try:  # the allow-list refuses every mark of a subprogram, macro or parameter: a program without
-        return _parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence)  # any is read at full speed
+        return _g80_noted(_parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence))  # at full speed
     except InputError as plain_refusal:
         from . import nc_expand
         expanded = nc_expand.expand_if_needed(data, path, dialect if dialect in nc_expand.DIALECTS else None)
         if cycles is not None:
             text = expanded.text if expanded is not None else data.decode("latin-1")
-            try:
-                expanded = cycles(text, path, dia.name, expanded) or expanded
+            try:  # unrecognised: the cycle's moves end in the G0-G3 of before it, as group 09 leaves it
+                expanded = cycles(text, path, dia.name, expanded, **(
+                    {"g80_keeps": True} if dia.g80_unrecognised else {})) or expanded
             except InputError as exc:
                 raise (expanded.relocate(exc) if expanded is not None else exc) from None
         if expanded is None:
@@ -550,6 +561,15 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     except InputError as exc:
         raise expanded.relocate(exc) from None
     prog.expanded = expanded
+    return _g80_noted(prog)
+
+
+def _g80_noted(prog: GProgram) -> GProgram:
+    """``prog`` with the line of its group-09 ``G80`` reading in the source's numbering and in its evidence."""
+    if prog.g80_line:
+        if prog.expanded is not None:
+            prog.g80_line = prog.expanded.origin[prog.g80_line - 1][0]
+        prog.dialect_evidence += f"; {g80_note(prog.g80_line)}"
     return prog
 
 
@@ -565,15 +585,15 @@ def _parse_data(path: Path, data: bytes, rapids, block_delete, fast: bool, ax: A
 
 def _dialect_of(path, data: bytes, dialect) -> tuple:
     """``(Dialect, evidence)`` for :func:`parse_program`'s ``dialect``."""
-    from .dialects import RS274, detect_dialect
+    from .dialects import RS274, UNRECOGNISED, detect_dialect
     from .dialects import dialect as by_name
     if dialect == "auto":
         try:
             name, evidence = detect_dialect(data[:1 << 20].decode("latin-1"))
         except ValueError as exc:
             raise InputError(f"{path}: {exc}") from None
-        return by_name(name), (f"recognised from its content: {evidence}" if evidence else
-                               f"no dialect word found: {RS274}")
+        return (by_name(name), f"recognised from its content: {evidence}") if evidence else (
+            UNRECOGNISED, f"no dialect word found: {RS274}")
     try:
         return by_name(dialect), ("named" if dialect is not None else "")
     except ValueError as exc:
@@ -597,7 +617,8 @@ def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia) ->
             moves.append(move)
     if not any(m.compensate for m in moves):
         raise _no_motion(path, ax)
-    return GProgram(path, lines, classes, moves, rapids, block_delete, axis_words=ax, events=tuple(st.events))
+    return GProgram(path, lines, classes, moves, rapids, block_delete, axis_words=ax, events=tuple(st.events),
+                    g80_line=st.g80_line)
 
 
 def _bulk_words(ax: AxisWords) -> bool:
@@ -622,6 +643,8 @@ class _State:
         self.tool = None           # the tool length offset H number (None: G49 / none / H0)
         self.g43 = False           # G43 in force (an H word alone changes it on Fanuc-family dialects)
         self.after_g80 = False     # the motion mode was ended by G80 (the refusal names the dialects that keep it)
+        self.before_g80 = None     # the G0-G3 that G80 ended (read again where no dialect was recognised)
+        self.g80_line = 0          # the first line read so (GProgram.g80_line)
         self.events = []           # GProgram.events
         self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
         self.selected = None       # the last T word (the tool prepared)
@@ -723,7 +746,9 @@ def _apply_modal(st: _State, groups: dict):
     motion_word = None
     if "motion" in groups:
         code, motion_word = groups["motion"]
-        st.after_g80 = code == "G80" and st.mode is not None
+        st.after_g80 = code == "G80" and (st.mode is not None or st.after_g80)
+        if code == "G80" and st.mode is not None:
+            st.before_g80 = st.mode
         if code != "G80":
             st.mode = code
         elif not getattr(st.dialect, "g80_keeps_motion", False):
@@ -826,6 +851,9 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     """The move of a line with axis words in the active motion mode (or a centre-format full circle, whose
     end is its start: RS274NGC, LinuxCNC and Fanuc); advances ``st.pos``."""
     first = min((axis_words or arc_words).values(), key=lambda w: w.start)
+    if st.mode is None and st.after_g80 and getattr(st.dialect, "g80_unrecognised", False):
+        st.mode = st.before_g80  # the only reading that runs: RS274NGC controllers refuse the line
+        st.g80_line = st.g80_line or idx + 1
     if st.mode is None:
         raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is "
                                        "active" + (G80_HINT if st.after_g80 else ""))
@@ -1406,7 +1434,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
     if not table.compensate.any():
         raise _no_motion(path, ax)
     return GProgram(path, lines, classes, _LazyMoves(table, lines, ax.words), rapids, block_delete, table=table,
-                    data=data, axis_words=ax, events=tuple(st.events))
+                    data=data, axis_words=ax, events=tuple(st.events), g80_line=st.g80_line)
 
 
 class _Groups(Sequence):

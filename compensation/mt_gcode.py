@@ -46,7 +46,7 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     except ValueError:  # not solvable (compensate refuses it): every rotary word kept, as read
         solved = set()
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
-    from .gcode import MAX_PROGRAM_BYTES, _dialect_of
+    from .gcode import MAX_PROGRAM_BYTES, _dialect_of, g80_note
     from .tcp import attach, tcp_prepass
     data, pre, name, evidence = None, None, None, ""
     if Path(path).is_file() and Path(path).stat().st_size <= MAX_PROGRAM_BYTES:  # TCP and G93 words (compensation.tcp)
@@ -59,15 +59,15 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
         if name is not None:
             data, pre = tcp_prepass(path, raw, name, machine)
     named = name if pre is not None and name != "rs274" else dialect  # the pre-pass blanked what recognised it
-    if dialect == "auto" and name is not None:
-        named = name  # recognised once, above (its evidence kept below)
+    if dialect == "auto" and name is not None and evidence.startswith("recognised"):
+        named = name  # recognised once, above (its evidence kept below); none: auto (dialects.UNRECOGNISED)
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
                          dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
                          data=data)  # read once: the pre-pass's bytes (the file's own where it found nothing)
     if pre is not None:
         attach(prog, pre)
     if pre is not None or (dialect == "auto" and name is not None):
-        prog.dialect_evidence = evidence
+        prog.dialect_evidence = evidence + (f"; {g80_note(prog.g80_line)}" if prog.g80_line else "")
     return prog
 
 

@@ -128,10 +128,10 @@ class CycleExpansion(Expanded):
         return head + f"{what} ({len(self.holes)} holes)"
 
 
-def cycle_pass(text: str, path, dialect, inner, mode: str):
+def cycle_pass(text: str, path, dialect, inner, mode: str, g80_keeps: bool = False):
     """The reader's hook (:func:`compensation.gcode.parse_program` ``cycles``): :func:`expand_cycles` of a
     program holding a cycle code (after ``inner``, the subprogram expansion, if any); None otherwise."""
-    return expand_cycles(text, path, mode, dialect, inner) if has_cycles(text) else None
+    return expand_cycles(text, path, mode, dialect, inner, g80_keeps) if has_cycles(text) else None
 
 
 def has_cycles(text: str) -> bool:
@@ -154,14 +154,19 @@ class _St:
         self.kept_line = 0  # the last kept cycle line while the controller's Z differs from the programmed one
         self.series = 0
         self.g01 = None  # the G0-G3 mode written before the cycle (in force again after G80 where it is group 09)
+        self.keeps_g01 = False  # G80 keeps it (the cycle's moves end in it)
 
 
-def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None) -> CycleExpansion:
-    """The program ``text`` with its cycles made plain moves (module docstring); ``mode`` ``keep``/``expand``."""
+def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None,
+                  g80_keeps: bool = False) -> CycleExpansion:
+    """The program ``text`` with its cycles made plain moves (module docstring); ``mode`` ``keep``/``expand``;
+    ``g80_keeps``: each cycle's moves end in the G0-G3 written before it, as on the dialects whose ``G80`` is
+    group 09 (:attr:`compensation.dialects.Dialect.g80_unrecognised`: no dialect recognised)."""
     if mode not in ("keep", "expand"):
         raise ValueError(f"Expected mode keep or expand, got {mode!r}")
     lines = text.splitlines(keepends=True)
     st, out, origin, spans, holes = _St(), [], [], [], []
+    st.keeps_g01 = g80_keeps or _keeps_motion(dialect)
     for i, line in enumerate(lines):
         body = line.rstrip("\r\n")
         end = line[len(body):]
@@ -295,7 +300,7 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
             extra = "G90"
         holes.append(hole)
     st.pos[:] = (x, y, clear)
-    if st.g01 is not None and _keeps_motion(dialect) and out[-1].split(" ")[0] != st.g01:
+    if st.g01 is not None and st.keeps_g01 and out[-1].split(" ")[0] != st.g01:
         out.append(st.g01)  # the controller's group-01 mode through and after the cycle (G80 is group 09)
     if mode == "keep":
         st.kept_line = lineno

@@ -5,6 +5,7 @@ along the hole reported and seen at the R point; every other line byte-identical
 do differently or what has no plain-move form refused by line and column with the option that reads it."""
 import json
 import re
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,8 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.gcode import AxisWords, parse_program
-from compensation.nc_cycles import expand_cycles
+from compensation.nc_cycles import cycle_pass, expand_cycles
+from compensation.nc_state import machine_with_tool
 from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.mt_elements import ChainElementSet
@@ -322,3 +324,90 @@ def test_without_a_dialect_a_bare_axis_word_after_g80_names_the_option(tmp_path)
                                          r"\(Fanuc, Haas, Siemens ISO keep .* --dialect\)"):
         parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")),
                       cycles=lambda text, path, dia, inner: expand_cycles(text, path, "keep", dia, inner))
+
+
+G09_NOTE = "read as a group-09 controller (G80 keeps the G0-G3 of before the cycle, line {}); --dialect names the controller"
+"""The words the summary and the output's header use (written out here, not imported from the library)."""
+
+
+def _read(p, dialect):
+    return parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect=dialect,
+                         cycles=partial(cycle_pass, mode="keep"))
+
+
+@pytest.mark.parametrize("before, line", [("", 10), ("N45 G01 Z10. F200.\n", 11)])
+def test_auto_with_no_dialect_word_reads_g80_as_group_09_and_says_so(tmp_path, before, line):
+    """No word of any dialect in the program: LinuxCNC, Mach3 and grbl refuse the bare 'Z50.' after G80, so the
+    group-09 reading (the G00 or G01 of before the cycle) is the only one under which it runs: under --dialect
+    auto it gives the moves --dialect fanuc gives, and the evidence and the output's header name the line."""
+    p = tmp_path / "p.nc"
+    p.write_text(G80_PROGRAM.format(before=before))
+    auto, fanuc = _read(p, "auto"), _read(p, "fanuc")
+    assert [m.kind for m in auto.moves] == [m.kind for m in fanuc.moves]
+    assert np.array_equal([m.end for m in auto.moves], [m.end for m in fanuc.moves], equal_nan=True)
+    assert auto.dialect == "rs274" and auto.g80_line == line and fanuc.g80_line == 0
+    assert auto.dialect_evidence == "no dialect word found: rs274; " + G09_NOTE.format(line)
+    assert "volcomp: " + G09_NOTE.format(line) in auto.notes() and not any("group-09" in n for n in fanuc.notes())
+
+
+def test_a_program_recognised_as_linuxcnc_still_refuses_a_bare_axis_word_after_g80(tmp_path):
+    """A LinuxCNC named parameter makes auto detection say linuxcnc, whose G80 ends the motion mode: refused."""
+    p = tmp_path / "p.ngc"
+    p.write_text("(LINUXCNC STYLE)\n#<clear> = 50.\nG90 G17 G21 G54\nG0 X10. Y10. Z#<clear>\n"
+                 "G99 G81 X10. Y10. Z-5. R2. F100.\nX20.\nG80\nZ#<clear>\nM2\n")
+    with pytest.raises(InputError, match=r"p.ngc: line 8 .*axis word 'Z50' but no motion mode .* after G80"):
+        _read(p, "auto")
+
+
+FUSION_TOOL_MM = 100.0
+"""Tool 1's length in the table given with the Fusion-style program (its G43 H01)."""
+
+
+def test_a_fusion_fanuc_post_drilling_program_runs_with_defaults(tmp_path, mill, truth_file, capsys):
+    """A program in the form Fusion 360's Fanuc post writes (written here from the Fanuc 0i manual: G81 series, G80,
+    a bare 'Z15.' retract in the G00 of before the cycle; no ':' number, no G05.1, so no dialect is recognised).
+    With the default --dialect auto it is compensated, the summary and the output's header saying how G80 was read;
+    every hole bottom, run as the shop would (written + G55 + the tool length, on the TRUE machine with that tool),
+    within TOL_POINT_UM; every other line byte-identical. With --dialect linuxcnc it is refused."""
+    prog = DATA / "fusion_fanuc_drill.nc"
+    tools = tmp_path / "tools.csv"
+    tools.write_text(f"tool,length_mm,radius_mm\n1,{FUSION_TOOL_MM},3\n")
+    out = tmp_path / "o"
+    assert _compensate(prog, out, truth_file, "--truth", str(truth_file), "--tool-table", str(tools)) == 0
+    e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
+    assert e["dialect"] == "rs274" and e["dialect_evidence"].endswith(G09_NOTE.format(22))
+    assert G09_NOTE.format(22) in capsys.readouterr().out
+    text = (out / prog.name).read_text()
+    assert "(volcomp: " + G09_NOTE.format(22).replace("(", "[").replace(")", "]") + ")" in text.splitlines()
+    src = prog.read_text().splitlines()
+    dst = [ln for ln in text.splitlines() if not ln.startswith("(volcomp:")]
+    assert len(dst) == len(src)
+    mt = machine_with_tool(mill, FUSION_TOOL_MM)
+    truth = ChainField(mt, ChainElementSet.load(truth_file, mill))
+    shift = G55_MM + [0.0, 0.0, FUSION_TOOL_MM]
+    state, errs = {}, []
+    for s, d in zip(src, dst):
+        if not re.search(r"G81|^N(70|75|80) ", s):
+            assert d == s  # every line but the holes byte-identical (N90 Z15. among them)
+            continue
+        state.update(_cycle_words(s))
+        w = _cycle_words(d)
+        q = np.array([w["X"], w["Y"], w["Z"]]) + shift
+        tip = mt.nominal(q[None])[0] + truth.predict(q[None])[0] * 1e-3
+        target = mt.nominal((np.array([state["X"], state["Y"], state["Z"]]) + shift)[None])[0]
+        errs.append(np.linalg.norm(tip - target) * 1e3)
+    assert len(errs) == 4 and max(errs) < TOL_POINT_UM
+    assert e["cycles"]["true_bottom_uncompensated"]["max_um"] > 10 * TOL_POINT_UM  # the check has teeth
+    assert _compensate(prog, tmp_path / "l", truth_file, "--tool-table", str(tools), "--dialect", "linuxcnc") != 0
+    assert re.search(r"line 22, column 5: axis word 'Z15.' but no motion mode .* after G80 .*--dialect",
+                     capsys.readouterr().err)
+
+
+@pytest.mark.parametrize("dialect", ["linuxcnc", "mach3", "grbl"])
+def test_named_controllers_whose_g80_ends_the_motion_mode_still_refuse(tmp_path, dialect):
+    """Named, LinuxCNC, Mach3 (its G-code manual: G80 cancels the motion mode, RS274NGC group 1) and grbl keep
+    the refusal, naming the line, the word and the option."""
+    p = tmp_path / "p.nc"
+    p.write_text(G80_PROGRAM.format(before="").replace("O0100 (G80 KEEPS THE MOTION MODE)\n", "(G80)\n"))
+    with pytest.raises(InputError, match=r"p.nc: line 10, column 5: axis word 'Z50.' but no motion mode .* --dialect"):
+        _read(p, dialect)

@@ -117,7 +117,8 @@ def register(sub):
     p.add_argument("--dialect", default="auto", choices=("auto", *DIALECT_NAMES),
                    help="the controller the G-code is written for: its harmless M codes, program numbers, look-ahead "
                         "and block-delete rules (compensation/dialects.py); auto (default): recognised from the "
-                        "program's content (shown in the summary), else the words every controller shares")
+                        "program's content (shown in the summary), else the words every controller shares (a bare "
+                        "axis word after G80 then moves in the G0-G3 of before it, as on Fanuc: recorded)")
     p.add_argument("--work-offsets", default=None, metavar="FILE|machine",
                    help="the controller's work offsets (G54..G59.3, G54.1 Pn): a LinuxCNC parameter file (.var) or a CSV "
                         "system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg] (by content); 'machine': the program is written in "
