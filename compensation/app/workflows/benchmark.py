@@ -928,8 +928,12 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
     """
     from ..reports.benchmark import render_html
     s = settings or BenchmarkSettings()
-    for m in machines:  # a family that does not run it: refused before any work, never skipped in silence
-        family_of(m).target("benchmark")
+    for m in machines:  # a kind no family holds, or one that does not run it: refused before any work
+        try:
+            family_of(m).target("benchmark")
+        except ValueError as exc:
+            from ..validate import UsageError
+            raise UsageError(f"benchmark: machine {m.name!r} ({getattr(m, 'path', '') or 'built in'}): {exc}") from None
     out = Path(out_dir)
     t_start = time.perf_counter()
     tracker = Tracker(tracking_uri, enabled=track, run_name="benchmark (quick)" if s.quick else "benchmark")
