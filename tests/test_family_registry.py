@@ -155,7 +155,7 @@ def test_every_refusal_of_the_registry_is_a_gap_the_table_states():
 
 
 CONVERTED = ("simulate", "sweeps", "featurepoints", "train", "predict", "calibrate", "register", "report",
-             "interpolate", "fleet", "demo", "identify", "export")
+             "interpolate", "fleet", "demo", "identify", "export", "compensate")
 
 
 def test_every_not_yet_or_physics_cell_of_a_converted_command_is_refused():

@@ -17,6 +17,9 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from ..batch import CHUNK_POINTS
+from ..gcode import DEFAULT_RAPIDS
+from ..pathio import DEFAULT_ARC_TOLERANCE_UM
 from .validate import UsageError
 
 YES, PHYSICS, OTHER_PATH, NOT_YET = "yes", "physics", "other path", "not yet"
@@ -156,6 +159,7 @@ def _same_target(*commands: str, target: str) -> dict:
 
 _FLEET = Gap(NOT_YET, "a fleet file's machines are grinder files")
 _DEMO = Gap(NOT_YET, "the demo's part is the grinder's flute")
+_BY_POSES = "{given}: only arms and parallel machines are simulated by poses (machine tools: --checks)"
 _IDENTIFY = Gap(OTHER_PATH, "calibrate (poses)")
 _PARALLEL_TRUTH = ("{given}: a parallel machine's truth has one family and no effects here (leg scales, zero lengths, "
                    "joints); leave it out")
@@ -172,8 +176,10 @@ GRINDER = Family(
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
           "interpolate": Gap(OTHER_PATH, "compensate (axis programs)"),
           "report run": Gap(OTHER_PATH, "diagnose writes the run's report.html itself")},
-    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),),
-                      "{given}: only arms and parallel machines are simulated by poses (machine tools: --checks)"),))
+    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES),
+              Refusal("compensate", (Opt("--compensate-orientation", PHYSICS),),
+                      "{given}: the grinder's one rotary axis (A) turns the workpiece and none turns the tool axis: "
+                      "there is no tool orientation to compensate; leave it out")))
 
 CHAIN = Family(
     name="machine tool", column="Machine-tool chains",
@@ -187,7 +193,7 @@ CHAIN = Family(
           "interpolate": Gap(OTHER_PATH, "compensate"),
           "report": Gap(NOT_YET, "the comparison runs the grinder's solvers (the chain's exact, GA and batched GA "
                                  "run in compensate --machine)")},
-    refusals=GRINDER.refusals)
+    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES),))
 
 ARM = Family(
     name="serial arm", column="Serial arm",
@@ -205,8 +211,22 @@ ARM = Family(
         Refusal("simulate", (Opt("--family", NOT_YET, default="default", show_value=True),),
                 "{given}: a serial arm's truth has one family (errormap/arm_simulate.py: link, base and tool errors, "
                 "sag, backlash); leave it out"),
-        Refusal("compensate", (Opt("--work-offsets", PHYSICS), Opt("--tool-table", PHYSICS)),
+        Refusal("compensate", (Opt("--work-offsets", PHYSICS), Opt("--tool-table", PHYSICS),
+                               Opt("--rapids", PHYSICS, default=DEFAULT_RAPIDS), Opt("--block-delete", PHYSICS),
+                               Opt("--arc-tolerance-um", PHYSICS, default=DEFAULT_ARC_TOLERANCE_UM),
+                               Opt("--dialect", PHYSICS, default="auto"), Opt("--expand-cycles", PHYSICS)),
                 "{given}: G-code programs of machine tools only (a serial arm's program is joint angles)"),
+        Refusal("compensate", (Opt("--truth", NOT_YET),),
+                "{given} is not used on a serial arm ({name}): the true residual of a compensated program is reported "
+                "on machine-tool chains only; leave it out (the MODEL residual is written beside the joints)"),
+        Refusal("compensate", (Opt("--cluster", NOT_YET), Opt("--address", NOT_YET), Opt("--workers", NOT_YET),
+                               Opt("--chunk-points", NOT_YET, default=CHUNK_POINTS),
+                               Opt("--max-segment-mm", NOT_YET, default="auto")),
+                "{given}: a serial arm's joint program is solved point by point in one process ({name}); "
+                "leave {it} out"),
+        Refusal("compensate", (Opt("--compensate-orientation", NOT_YET),),
+                "{given}: not yet on a serial arm (its joint solve corrects the tool point, not its orientation); "
+                "leave it out"),
         Refusal("calibrate", tuple(Opt(f, NOT_YET) for f in ("--no-scales", "--scales", "--no-loop", "--no-register",
                                                              "--lever-mm", "--lambda-rule", "--compare-rules")),
                 _CALIBRATE_OTHER.replace("{what}", "a serial arm"))))
