@@ -204,6 +204,20 @@ REFUSED = [   # (argv, words the one line names): the registry's refusals on the
     (["register", "p.csv", "--machine", "hexapod", "--model", "c.json"], ["other path:", "instrument frame"]),
     (["interpolate", "sphere", "--machine", "hexapod", "--sensitivity-plot", "k.png"], ["needs a tripod", "hexapod"]),
     (["report", "--machine", "mill-xyz", "--model", "E.json", "--flute"], ["volcomp report", "not yet:"]),
+    (["export", "E.json", "--format", "grid", "--machine", "hexapod"],
+     ["volcomp export", "parallel machine", "not yet:", "interpolate"]),
+    (["identify", "s.csv", "--machine", "ur5"], ["volcomp identify", "serial arm", "other path:", "calibrate"]),
+    (["compensate", "p.nc", "--machine", "hexapod", "--model", "c.json"],
+     ["volcomp compensate", "parallel machine", "other path:", "interpolate"]),
+    (["compensate", "p.csv", "--machine", "ur5", "--model", "c.json", "--rapids", "compensate"],
+     ["--rapids", "joint angles"]),
+    (["compensate", "p.csv", "--machine", "ur5", "--model", "c.json", "--workers", "2", "--chunk-points", "7"],
+     ["--workers, --chunk-points:", "one process"]),
+    (["compensate", "p.csv", "--machine", "ur5", "--model", "c.json", "--temp-c", "20"], ["--temp-c:", "joints"]),
+    (["compensate", "p.csv", "--machine", "ur5", "--model", "c.json", "--compensate-orientation"],
+     ["--compensate-orientation:", "not yet"]),
+    (["compensate", "p.nc", "--model", "E.json", "--method", "exact", "--compensate-orientation"],
+     ["--compensate-orientation:", "grinder", "tool axis"]),
 ]
 
 

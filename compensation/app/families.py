@@ -224,6 +224,12 @@ ARM = Family(
                                Opt("--max-segment-mm", NOT_YET, default="auto")),
                 "{given}: a serial arm's joint program is solved point by point in one process ({name}); "
                 "leave {it} out"),
+        Refusal("compensate", tuple(Opt(f, OTHER_PATH) for f in ("--temp-c", "--time-s", "--dir-x", "--dir-z",
+                                                                  "--dir-a")),
+                "{given}: a serial arm's sag and backlash are functions of its joints (computed, not given); "
+                "leave {it} out"),
+        Refusal("compensate", (Opt("--max-rotary-correction-deg", OTHER_PATH),),
+                "{given}: a serial arm's joint limits bound every joint; leave it out"),
         Refusal("compensate", (Opt("--compensate-orientation", NOT_YET),),
                 "{given}: not yet on a serial arm (its joint solve corrects the tool point, not its orientation); "
                 "leave it out"),
@@ -238,8 +244,7 @@ PARALLEL = Family(
     targets=_same_target("simulate", "calibrate", "interpolate", "predict", "benchmark", target="parallel"),
     gaps={"fleet": _FLEET, "demo": _DEMO, "identify": _IDENTIFY,
           "compensate": Gap(OTHER_PATH, "interpolate --calibration writes the compensated leg-command program"),
-          "export": Gap(NOT_YET, "no controller table of a parallel machine (its compensation is in the leg "
-                                 "commands: interpolate)"),
+          "export": Gap(NOT_YET, "no controller table (interpolate compensates the leg commands)"),
           "sweeps": Gap(OTHER_PATH, "poses (calibrate: leg lengths, joint positions, scales)"),
           "featurepoints": Gap(NOT_YET, "no learned field of a parallel machine"),
           "train": Gap(NOT_YET, "no learned field of a parallel machine"),

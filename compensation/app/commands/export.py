@@ -140,6 +140,9 @@ def model_verdict(args) -> dict | None:
 
 
 def run(args) -> int:
+    machine = None if args.fmt == "drift" else load_machine(args.machine)
+    if machine is not None:   # an arm or a parallel machine: no controller table (the registry's gap), nothing read
+        family_of(machine).target("export")
     args.model_verdict = model_verdict(args)   # before any work: a failed diagnosis is refused unless allowed
     drift_only = {"--sample-period-s": args.sample_period_s, "--log": args.log, "--sim": args.sim,
                   "--sim-seed": args.sim_seed}
@@ -148,8 +151,6 @@ def run(args) -> int:
     given = [k for k, v in drift_only.items() if v is not None]
     if given:
         raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to --format drift only")
-    machine = load_machine(args.machine)
-    family_of(machine).target("export")   # an arm or a parallel machine: no controller table (the registry's gap)
     if args.fmt != "linuxcnc" and (args.diagnosis or args.region):
         raise UsageError("--diagnosis and --region apply to --format linuxcnc only (the other formats carry no "
                          "reversal and are not averaged)")
