@@ -120,11 +120,6 @@ _GRINDER_CHAINS: dict = {}
 GRINDER_CHAIN_CACHE = 32  # distinct grinder files kept compiled (a session uses one or two)
 
 
-def is_machine_tool(machine) -> bool:
-    """Whether ``machine`` (as loaded) is a machine tool: a chain file, or a grinder file (read as its chain)."""
-    return isinstance(machine, (MachineTool, Grinder))
-
-
 def machine_tool_of(machine) -> MachineTool:
     """``machine`` as a machine-tool chain: a :class:`MachineTool` itself, a grinder file's machine its
     chain (:func:`grinder_chain`)."""

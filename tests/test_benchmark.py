@@ -183,8 +183,8 @@ def test_pose_field_fits_a_smooth_map_and_ignores_a_constant_input():
 
 def test_pose_inputs_shapes():
     R = np.broadcast_to(np.eye(3), (5, 3, 3))
-    assert pose_inputs("hexapod", np.zeros((5, 3)), R).shape == (5, 6)
-    assert pose_inputs("tripod", np.zeros((5, 3)), None).shape == (5, 3)
+    assert pose_inputs(True, np.zeros((5, 3)), R).shape == (5, 6)
+    assert pose_inputs(False, np.zeros((5, 3)), None).shape == (5, 3)
 
 
 # -- the report ------------------------------------------------------------------------------------

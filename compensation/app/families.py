@@ -17,6 +17,9 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from ..batch import CHUNK_POINTS
+from ..gcode import DEFAULT_RAPIDS
+from ..pathio import DEFAULT_ARC_TOLERANCE_UM
 from .validate import UsageError
 
 YES, PHYSICS, OTHER_PATH, NOT_YET = "yes", "physics", "other path", "not yet"
@@ -31,7 +34,8 @@ class Facts:
     its axis words), ``chain`` (its model is the element chain of its own axes, :mod:`errormap.mt_chain`),
     ``poses`` (calibrated from measured poses), ``platform_orientation`` (a pose has a platform
     orientation, ``rx_deg, ry_deg, rz_deg``: a hexapod), ``sensitivity_study`` (the tripod's
-    error-sensitivity study, ``interpolate --sensitivity-plot``)."""
+    error-sensitivity study, ``interpolate --sensitivity-plot``), ``paper_paths`` (the hexapod paper's test
+    passes, sphere and hyperboloid, are its benchmark paths and noise/pose series)."""
 
     tracker_sweeps: bool = False
     gcode: bool = False
@@ -39,6 +43,7 @@ class Facts:
     poses: bool = False
     platform_orientation: bool = False
     sensitivity_study: bool = False
+    paper_paths: bool = False
 
 
 @dataclass(frozen=True)
@@ -154,6 +159,8 @@ def _same_target(*commands: str, target: str) -> dict:
 
 _FLEET = Gap(NOT_YET, "a fleet file's machines are grinder files")
 _DEMO = Gap(NOT_YET, "the demo's part is the grinder's flute")
+_BY_POSES = "{given}: only arms and parallel machines are simulated by poses (machine tools: --checks)"
+_IDENTIFY = Gap(OTHER_PATH, "calibrate (poses)")
 _PARALLEL_TRUTH = ("{given}: a parallel machine's truth has one family and no effects here (leg scales, zero lengths, "
                    "joints); leave it out")
 _CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: the options are grouped by machine "
@@ -162,33 +169,38 @@ _CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: 
 GRINDER = Family(
     name="machine tool", column="Grinder",
     kinds={"grinder": Facts(tracker_sweeps=True, gcode=True)},
-    targets=_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "report", "fleet", "demo",
-                         target="grinder"),
+    targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "report", "fleet", "demo",
+                            "identify", "benchmark", target="grinder"),
+             **_same_target("compensate", "export", target="machine tool")},
     gaps={"calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
           "interpolate": Gap(OTHER_PATH, "compensate (axis programs)"),
           "report run": Gap(OTHER_PATH, "diagnose writes the run's report.html itself")},
-    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),),
-                      "{given}: only arms and parallel machines are simulated by poses (machine tools: --checks)"),))
+    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES),
+              Refusal("compensate", (Opt("--compensate-orientation", PHYSICS),),
+                      "{given}: the grinder's one rotary axis (A) turns the workpiece and none turns the tool axis: "
+                      "there is no tool orientation to compensate; leave it out")))
 
 CHAIN = Family(
     name="machine tool", column="Machine-tool chains",
     kinds={"machine-tool": Facts(tracker_sweeps=True, gcode=True, chain=True)},
-    targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", target="chain"),
-             "report run": "chain"},
+    targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "identify", "benchmark",
+                            target="chain"),
+             **_same_target("compensate", "export", target="machine tool"), "report run": "chain"},
     gaps={"fleet": _FLEET, "demo": _DEMO,
           "calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify"),
           "interpolate": Gap(OTHER_PATH, "compensate"),
           "report": Gap(NOT_YET, "the comparison runs the grinder's solvers (the chain's exact, GA and batched GA "
                                  "run in compensate --machine)")},
-    refusals=GRINDER.refusals)
+    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES),))
 
 ARM = Family(
     name="serial arm", column="Serial arm",
     kinds={"serial": Facts(poses=True)},
-    targets=_same_target("simulate", "calibrate", "register", "predict", target="arm"),
-    gaps={"fleet": _FLEET, "demo": _DEMO,
+    targets=_same_target("simulate", "calibrate", "register", "predict", "compensate", "benchmark", target="arm"),
+    gaps={"fleet": _FLEET, "demo": _DEMO, "identify": _IDENTIFY,
+          "export": Gap(NOT_YET, "no controller format for an arm's calibration"),
           "sweeps": Gap(OTHER_PATH, "poses spread over every joint (simulate --poses, then calibrate)"),
           "featurepoints": Gap(OTHER_PATH, "the arm's learned stage is fitted on the measured poses inside calibrate"),
           "train": Gap(OTHER_PATH, "the arm's learned stage (a Gaussian process chosen by CV) inside calibrate"),
@@ -199,15 +211,40 @@ ARM = Family(
         Refusal("simulate", (Opt("--family", NOT_YET, default="default", show_value=True),),
                 "{given}: a serial arm's truth has one family (errormap/arm_simulate.py: link, base and tool errors, "
                 "sag, backlash); leave it out"),
+        Refusal("compensate", (Opt("--work-offsets", PHYSICS), Opt("--tool-table", PHYSICS),
+                               Opt("--rapids", PHYSICS, default=DEFAULT_RAPIDS), Opt("--block-delete", PHYSICS),
+                               Opt("--arc-tolerance-um", PHYSICS, default=DEFAULT_ARC_TOLERANCE_UM),
+                               Opt("--dialect", PHYSICS, default="auto"), Opt("--expand-cycles", PHYSICS)),
+                "{given}: G-code programs of machine tools only (a serial arm's program is joint angles)"),
+        Refusal("compensate", (Opt("--truth", NOT_YET),),
+                "{given} is not used on a serial arm ({name}): the true residual of a compensated program is reported "
+                "on machine-tool chains only; leave it out (the MODEL residual is written beside the joints)"),
+        Refusal("compensate", (Opt("--cluster", NOT_YET), Opt("--address", NOT_YET), Opt("--workers", NOT_YET),
+                               Opt("--chunk-points", NOT_YET, default=CHUNK_POINTS),
+                               Opt("--max-segment-mm", NOT_YET, default="auto")),
+                "{given}: a serial arm's joint program is solved point by point in one process ({name}); "
+                "leave {it} out"),
+        Refusal("compensate", tuple(Opt(f, OTHER_PATH) for f in ("--temp-c", "--time-s", "--dir-x", "--dir-z",
+                                                                  "--dir-a")),
+                "{given}: a serial arm's sag and backlash are functions of its joints (computed, not given); "
+                "leave {it} out"),
+        Refusal("compensate", (Opt("--max-rotary-correction-deg", OTHER_PATH),),
+                "{given}: a serial arm's joint limits bound every joint; leave it out"),
+        Refusal("compensate", (Opt("--compensate-orientation", NOT_YET),),
+                "{given}: not yet on a serial arm (its joint solve corrects the tool point, not its orientation); "
+                "leave it out"),
         Refusal("calibrate", tuple(Opt(f, NOT_YET) for f in ("--no-scales", "--scales", "--no-loop", "--no-register",
                                                              "--lever-mm", "--lambda-rule", "--compare-rules")),
                 _CALIBRATE_OTHER.replace("{what}", "a serial arm"))))
 
 PARALLEL = Family(
     name="parallel machine", column="Parallel (hexapod, tripod)",
-    kinds={"hexapod": Facts(poses=True, platform_orientation=True), "tripod": Facts(poses=True, sensitivity_study=True)},
-    targets=_same_target("simulate", "calibrate", "interpolate", "predict", target="parallel"),
-    gaps={"fleet": _FLEET, "demo": _DEMO,
+    kinds={"hexapod": Facts(poses=True, platform_orientation=True, paper_paths=True),
+           "tripod": Facts(poses=True, sensitivity_study=True)},
+    targets=_same_target("simulate", "calibrate", "interpolate", "predict", "benchmark", target="parallel"),
+    gaps={"fleet": _FLEET, "demo": _DEMO, "identify": _IDENTIFY,
+          "compensate": Gap(OTHER_PATH, "interpolate --calibration writes the compensated leg-command program"),
+          "export": Gap(NOT_YET, "no controller table (interpolate compensates the leg commands)"),
           "sweeps": Gap(OTHER_PATH, "poses (calibrate: leg lengths, joint positions, scales)"),
           "featurepoints": Gap(NOT_YET, "no learned field of a parallel machine"),
           "train": Gap(NOT_YET, "no learned field of a parallel machine"),

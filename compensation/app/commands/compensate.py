@@ -44,11 +44,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from errormap.grinder_file import is_machine_tool
 from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError, one_line
 
+from ..families import family_of
 from ..options import add_condition_options, add_units_option, conditions_from_args
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args, open_executor
 from ..workflows.compensate import CompensateSettings, compensate_files, print_refusals
@@ -191,15 +191,12 @@ def on_executor(args, work):
 
 def run(args) -> int:
     machine = load_machine(args.machine)  # read once; what it is (content) picks the path
-    if machine.kind == "serial":
-        if args.work_offsets is not None or args.tool_table is not None:
-            raise UsageError("--work-offsets, --tool-table: G-code programs of machine tools only (a serial arm's "
-                             "program is joint angles)")
+    family = family_of(machine)
+    target = family.target("compensate")   # a parallel machine: the registry names interpolate
+    family.refuse_unsupported("compensate", args)
+    if target == "arm":
         from ..workflows.arm_compensate import run_arm_compensate
         return run_arm_compensate(machine, args)
-    if not is_machine_tool(machine):  # a parallel machine: no tool-path compensation
-        raise UsageError(f"--machine {machine.name}: compensate takes machine tools (a chain file or a grinder "
-                         f"file) and serial arms; {machine.name!r} is a {machine.kind} machine")
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
     settings = settings_of(args)

@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from errormap.grinder_file import machine_tool_of
-from errormap.machine import KIND_HINTS, Grinder, load_machine
-from errormap.mt_chain import MachineTool
+from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError
 
+from ..families import family_of
 from ..workflows.controller_tables import DriftSettings, TableSettings, export_drift, export_table
 from ... import export as ex
 from ...fields import FAILED_VERDICT
@@ -140,6 +140,9 @@ def model_verdict(args) -> dict | None:
 
 
 def run(args) -> int:
+    machine = None if args.fmt == "drift" else load_machine(args.machine)
+    if machine is not None:   # an arm or a parallel machine: no controller table (the registry's gap), nothing read
+        family_of(machine).target("export")
     args.model_verdict = model_verdict(args)   # before any work: a failed diagnosis is refused unless allowed
     drift_only = {"--sample-period-s": args.sample_period_s, "--log": args.log, "--sim": args.sim,
                   "--sim-seed": args.sim_seed}
@@ -148,11 +151,6 @@ def run(args) -> int:
     given = [k for k, v in drift_only.items() if v is not None]
     if given:
         raise UsageError(f"{', '.join(given)} {'applies' if len(given) == 1 else 'apply'} to --format drift only")
-    machine = load_machine(args.machine)
-    if not isinstance(machine, (Grinder, MachineTool)):   # an arm or a parallel machine: no controller table
-        hint = KIND_HINTS.get(machine.kind, "")
-        raise UsageError(f"--machine {machine.name}: --format {args.fmt} tabulates a machine tool's error over its "
-                         f"axes; {machine.name!r} is not one" + (f" ({hint})" if hint else ""))
     if args.fmt != "linuxcnc" and (args.diagnosis or args.region):
         raise UsageError("--diagnosis and --region apply to --format linuxcnc only (the other formats carry no "
                          "reversal and are not averaged)")

@@ -6,9 +6,10 @@ import sys
 
 from errormap.elements import ElementSet
 from errormap.identification import GAUGES
-from errormap.machine import check_machine_kind, load_machine
+from errormap.machine import load_machine
 from errormap.sweeps import read_sweeps
 
+from ..families import family_of
 from ..reports.identification import iso_summary_lines, plot_elements
 from ..validate import UsageError
 from ..workflows.identification import identify_elements, truth_in_gauge
@@ -61,11 +62,12 @@ def _bootstrap(args) -> dict:
 
 
 def run(args) -> int:
-    machine = load_machine(args.machine, expect_kind=None if args.machine else "grinder")
+    machine = load_machine(args.machine)   # the built-in grinder unless --machine
+    target = family_of(machine).target("identify")   # an arm or a parallel machine: calibrate (the registry's gap)
     if args.truth and not args.plot:   # never read and ignored
         raise UsageError("--truth is overlaid on the plots: give --plot PREFIX too")
     boot = _bootstrap(args)
-    if machine.kind == "machine-tool":
+    if target == "chain":
         from ..workflows.mt_loop import identify_chain_files
         print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
         res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
@@ -83,7 +85,6 @@ def run(args) -> int:
             for p in plot_chain_elements(res.elements_, args.plot, truth):
                 print(f"wrote plot: {p}")
         return 0
-    check_machine_kind(machine.path, machine.kind, "grinder")
     from errormap.grinder_file import adapter_line
     truth = ElementSet.load(args.truth) if args.truth else None
     sweeps = read_sweeps(args.sweeps)

@@ -76,29 +76,12 @@ def overridden_verdict(verdict) -> list[str]:
             + ("; ".join(verdict["reasons"]) or "no reasons recorded")]
 
 
-def refuse_scale_out(chain, args) -> None:
-    """An arm's program is solved point by point in this process (Newton on the calibrated chain, no moves to
-    split): ``--cluster``, ``--workers``, ``--chunk-points``, ``--max-segment-mm`` are refused, never ignored."""
-    from ...batch import CHUNK_POINTS
-    given = [o for o, v in (("--cluster", getattr(args, "cluster", None)), ("--workers", getattr(args, "workers", None)),
-                            ("--chunk-points", None if getattr(args, "chunk_points", CHUNK_POINTS) == CHUNK_POINTS
-                             else args.chunk_points),
-                            ("--max-segment-mm", None if str(getattr(args, "max_segment_mm", "auto")).lower() == "auto"
-                             else args.max_segment_mm)) if v is not None]
-    if given:
-        raise UsageError(f"{', '.join(given)}: a serial arm's joint program is solved point by point in one process "
-                         f"({chain.name}); leave it out")
-
-
 def run_arm_compensate(chain, args) -> int:
-    if getattr(args, "truth", None) is not None:   # never ignored silently
-        raise UsageError(f"--truth is not used on a serial arm ({chain.name}): the true residual of a compensated "
-                         "program is reported on machine-tool chains only; leave it out (the MODEL residual is "
-                         "written beside the joints)")
+    """``volcomp compensate`` on a serial arm; the options it does not take were refused by the family registry
+    (:mod:`compensation.app.families`)."""
     if args.method not in (None, "exact"):
         raise UsageError(f"--method {args.method}: a serial chain is compensated by Newton on its calibrated chain "
                          "(--method exact or none)")
-    refuse_scale_out(chain, args)
     allow = parse_arm_allow(args.allow)
     geo, learner = load_arm_model(chain, args.model, base_frame=True)
     verdict = check_verdict(args.model, FAILED_VERDICT in allow)   # a failed calibration: refused unless allowed

@@ -65,6 +65,8 @@ from errormap.io import write_json
 from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
 
+from ..families import family_of
+
 PATH_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0, "dir_a": 1.0}
 """Conditions of the flute test path: a warm machine (24 °C, 2 h after the start of the warm-up
 the check log records), X and A approached in the path's direction of motion (+), Z from above
@@ -128,7 +130,6 @@ class BenchmarkSettings:
     pkm_path_step_mm: float = 0.5
     pkm_half_width_mm: tuple = (160.0, 160.0, 220.0)
     pkm_max_tilt_deg: float = 32.0
-    tripod: bool = True
     chain_path_points: int = 100           # machine-tool chains: points per body diagonal (4 diagonals)
     # serial arms (--machine ur5 …; workflows/arm_benchmark.py): one seeded truth arm per condition (no effect,
     # then each arm effect), measured by a tracker at arm_noise_um, calibrated and compensated as the commands do
@@ -153,7 +154,7 @@ def quick_settings() -> BenchmarkSettings:
                              ga_points=20, ga_generations=100, flute_turns=1.0, flute_points_per_turn=200,
                              volume_points=50,
                              pkm_poses=(50,), pkm_noises_um=(5.0,), pkm_base_poses=50, pkm_train_iter=50,
-                             pkm_path_step_mm=4.0, tripod=True, chain_path_points=25, arm_effects=(("sag",),),
+                             pkm_path_step_mm=4.0, chain_path_points=25, arm_effects=(("sag",),),
                              arm_poses=200, arm_checks=50, arm_learned=False, quick=True)
 
 
@@ -698,15 +699,21 @@ def _from_rotvec(v) -> np.ndarray:
     return Rotation.from_rotvec(v).as_matrix()
 
 
+def _oriented(machine) -> bool:
+    """Whether a pose of ``machine`` (a parallel machine) has a platform orientation (a hexapod's)."""
+    return family_of(machine).facts.platform_orientation
+
+
 def _tool(machine, tool_length_mm):
-    if tool_length_mm is None or machine.kind != "hexapod":
+    if tool_length_mm is None or not _oriented(machine):
         return machine
     return replace(machine, tool_in_platform_mm=np.array([0.0, 0.0, -tool_length_mm]))
 
 
-def pose_inputs(kind: str, tip_mm, R) -> np.ndarray:
-    """Network inputs of commanded poses: hexapod (tip, rotation vector), tripod tip; (n, 6|3)."""
-    return np.hstack([tip_mm, _rotvec(R)]) if kind == "hexapod" else np.asarray(tip_mm, float)
+def pose_inputs(oriented: bool, tip_mm, R) -> np.ndarray:
+    """Network inputs of commanded poses: with a platform orientation (a hexapod) tip and rotation vector, else
+    (a tripod) the tip; (n, 6|3)."""
+    return np.hstack([tip_mm, _rotvec(R)]) if oriented else np.asarray(tip_mm, float)
 
 
 def measured_pose_errors(machine, data):
@@ -718,10 +725,10 @@ def measured_pose_errors(machine, data):
     from errormap.pkm.hexapod import forward_kinematics
     fk = forward_kinematics(machine, machine.drive_to_legs(data.q), check_limits=False)
     d_tip = (data.tip_mm - fk.x) * 1e3
-    if machine.kind == "hexapod":
+    if _oriented(machine):
         d_ang = _rotvec(np.einsum("nij,nkj->nik", data.rotation, fk.platform2base)) * 1e6
-        return pose_inputs("hexapod", fk.x, fk.platform2base), np.hstack([d_tip, d_ang])
-    return pose_inputs("tripod", fk.x, None), d_tip
+        return pose_inputs(True, fk.x, fk.platform2base), np.hstack([d_tip, d_ang])
+    return pose_inputs(False, fk.x, None), d_tip
 
 
 def learned_pkm_commands(field_, machine, tip_mm, R, tool_length_mm=None, iterations: int = 6):
@@ -732,7 +739,7 @@ def learned_pkm_commands(field_, machine, tip_mm, R, tool_length_mm=None, iterat
     the tip moves by ``R·(t_path - t_meas)``. Fixed point: ``R_cmd = exp(-δθ(cmd))·R_d``,
     ``tip_cmd ← tip_cmd - (reached tip - target tip)``. Returns (tip_cmd (n,3), R_cmd (n,3,3)).
     """
-    hexa = machine.kind == "hexapod"
+    hexa = _oriented(machine)
     t_meas = machine.tool_in_platform_mm
     t_path = _tool(machine, tool_length_mm).tool_in_platform_mm
     tip_d = np.asarray(tip_mm, float)
@@ -741,13 +748,13 @@ def learned_pkm_commands(field_, machine, tip_mm, R, tool_length_mm=None, iterat
     for _ in range(iterations):
         if hexa:
             tip_meas = tip_c + np.einsum("nij,j->ni", R_c, t_meas - t_path)
-            e = field_.predict(pose_inputs("hexapod", tip_meas, R_c))
+            e = field_.predict(pose_inputs(True, tip_meas, R_c))
             dtip, dth = e[:, :3] * 1e-3, e[:, 3:] * 1e-6
             R_reach = _from_rotvec(dth) @ R_c
             reach = tip_meas + dtip + np.einsum("nij,j->ni", R_reach, t_path - t_meas)
             R_c = _from_rotvec(-dth) @ R_d
         else:
-            reach = tip_c + field_.predict(pose_inputs("tripod", tip_c, None)) * 1e-3
+            reach = tip_c + field_.predict(pose_inputs(False, tip_c, None)) * 1e-3
         tip_c = tip_c - (reach - tip_d)
     return tip_c, R_c
 
@@ -757,7 +764,7 @@ def pkm_true_residual(truth, machine, tip_cmd, R_cmd, tip_target, tool_length_mm
     kinematics of the commanded poses, minus the target tip."""
     from errormap.pkm.hexapod import forward_kinematics, inverse_kinematics
     nom = _tool(machine, tool_length_mm)
-    legs = inverse_kinematics(nom, tip_cmd, R_cmd if machine.kind == "hexapod" else None)
+    legs = inverse_kinematics(nom, tip_cmd, R_cmd if _oriented(machine) else None)
     q = nom.legs_to_drive(legs)
     tt = _tool(truth.machine, tool_length_mm)
     fk = forward_kinematics(tt, tt.drive_to_legs(q), guess_tip_mm=tip_target, guess_platform2base=R_cmd,
@@ -767,7 +774,7 @@ def pkm_true_residual(truth, machine, tip_cmd, R_cmd, tip_target, tool_length_mm
 
 def _pkm_paths(machine, s: BenchmarkSettings):
     from ...pkm_interpolation import PosePath, builtin_path
-    if machine.kind == "hexapod":
+    if family_of(machine).facts.paper_paths:
         return {n: builtin_path(n, s.pkm_path_step_mm) for n in ("sphere", "hyperboloid")}
     from errormap.pkm.hexapod import workspace_poses
     tips, _ = workspace_poses(machine, 200 if not s.quick else 50, seed=_streams(s.seed)["pkm_paths"])
@@ -852,7 +859,7 @@ def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) ->
     from errormap.pkm.simulate import simulate_poses
 
     from ...pkm_interpolation import true_path_residual
-    kind = machine.kind
+    kind, oriented = machine.kind, _oriented(machine)
     paths = _pkm_paths(machine, s)
     conditions = _pkm_conditions(s) if conditions is None else conditions
     rows = []
@@ -860,9 +867,9 @@ def run_pkm(machine, s: BenchmarkSettings, tracker: Tracker, conditions=None) ->
         cname = f"poses={n_poses}, noise={noise:g}um"
         sim = simulate_poses(machine, n_poses, noise, seed=_streams(s.seed)["pkm_poses"],
                              pose_error_mm=s.pkm_pose_error_mm, frame="identity",
-                             half_width_mm=s.pkm_half_width_mm if kind == "hexapod" else (150.0, 150.0, 100.0),
-                             max_tilt_deg=s.pkm_max_tilt_deg if kind == "hexapod" else 0.0,
-                             orientation="quat" if kind == "hexapod" else "none")
+                             half_width_mm=s.pkm_half_width_mm if oriented else (150.0, 150.0, 100.0),
+                             max_tilt_deg=s.pkm_max_tilt_deg if oriented else 0.0,
+                             orientation="quat" if oriented else "none")
         common = {"group": group, "n_poses": n_poses, "noise_um": noise, "n_measurements": n_poses,
                   "test_path": " + ".join(f"{k} ({len(p)} points)" for k, p in paths.items())}
         before = {k: true_path_residual(sim.truth, None, p) for k, p in paths.items()}
@@ -886,10 +893,8 @@ def _bench_grinder(m, s, tracker, out_dir):
 
 
 def _bench_pkm(m, s, tracker, out_dir):
-    if m.kind == "tripod" and not s.tripod:
-        return [], [{"machine": m.name, "why": "tripod disabled in the settings"}]
     conds = None
-    if m.kind == "tripod":  # one condition: the tripod has no paper test path
+    if not family_of(m).facts.paper_paths:  # one condition: the tripod has no paper test path
         conds = {(s.pkm_base_poses, s.pkm_base_noise_um): "baseline"}
     return run_pkm(m, s, tracker, conds), []
 
@@ -910,12 +915,9 @@ def _bench_arm(m, s, tracker, out_dir):
     return log.rows, []
 
 
-BENCH_BY_KIND = {"grinder": _bench_grinder, "hexapod": _bench_pkm, "tripod": _bench_pkm,
-                 "machine-tool": _bench_chain, "serial": _bench_arm}
-"""Each machine kind's benchmark: ``(machine, settings, tracker, out_dir) -> (rows, skipped)``."""
-
-BENCHMARK_KINDS = tuple(BENCH_BY_KIND)
-"""The machine kinds the benchmark has a user's path for; any other is refused before any work."""
+BENCH_BY_TARGET = {"grinder": _bench_grinder, "parallel": _bench_pkm, "chain": _bench_chain, "arm": _bench_arm}
+"""Each family's benchmark (its registry target, :mod:`compensation.app.families`):
+``(machine, settings, tracker, out_dir) -> (rows, skipped)``."""
 
 
 def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, tracking_uri: str | None = None,
@@ -926,12 +928,12 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
     """
     from ..reports.benchmark import render_html
     s = settings or BenchmarkSettings()
-    unknown = [m for m in machines if m.kind not in BENCH_BY_KIND]
-    if unknown:  # refused before any work, never skipped in silence
-        from ..validate import UsageError
-        m = unknown[0]
-        raise UsageError(f"benchmark: machine {m.name!r} ({getattr(m, 'path', '') or 'built in'}) is of kind "
-                         f"{m.kind!r}; the benchmark runs {', '.join(BENCHMARK_KINDS)} machines")
+    for m in machines:  # a kind no family holds, or one that does not run it: refused before any work
+        try:
+            family_of(m).target("benchmark")
+        except ValueError as exc:
+            from ..validate import UsageError
+            raise UsageError(f"benchmark: machine {m.name!r} ({getattr(m, 'path', '') or 'built in'}): {exc}") from None
     out = Path(out_dir)
     t_start = time.perf_counter()
     tracker = Tracker(tracking_uri, enabled=track, run_name="benchmark (quick)" if s.quick else "benchmark")
@@ -977,7 +979,7 @@ def _run_machines(machines, s: BenchmarkSettings, tracker: Tracker, out_dir):
     rows, skipped = [], []
     for m in machines:
         t0 = time.perf_counter()
-        r, k = BENCH_BY_KIND[m.kind](m, s, tracker, out_dir)
+        r, k = BENCH_BY_TARGET[family_of(m).target("benchmark")](m, s, tracker, out_dir)
         rows += r
         skipped += k
         _log(f"{m.kind} done in {time.perf_counter() - t0:.0f} s")
