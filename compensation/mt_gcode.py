@@ -114,8 +114,8 @@ def curvature_parameters():
 def curvature_pieces(E, m: int, pick, tol_um: float) -> np.ndarray:
     """Pieces per move (m,) int ≥ 1 from the field ``E`` (m·u, 3) μm at the parameters of
     :func:`curvature_parameters` of m moves: ``n = ⌈√(c/(8 tol))⌉``, ``c`` the largest second difference."""
-    E = np.asarray(E).reshape(m, -1, 3)[:, pick]
-    c = np.abs(E[:, :, 0] - 2 * E[:, :, 1] + E[:, :, 2]).max(axis=(1, 2)) / CURVATURE_STEP ** 2
+    E = np.asarray(E).reshape(m, -1, 3)
+    c = np.abs(E[:, pick[:, 0]] - 2 * E[:, pick[:, 1]] + E[:, pick[:, 2]]).max(axis=(1, 2)) / CURVATURE_STEP ** 2
     return np.maximum(1, np.ceil(np.sqrt(c / (8.0 * tol_um)))).astype(int)
 
 
@@ -264,7 +264,7 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
             f = np.linspace(0.0, 1.0, LENGTH_SAMPLES + 1)
         else:
             f, pick = curvature_parameters()
-        q = _table_points(start[idx], end[idx], f, {j: moves[i] for j, i in enumerate(idx) if i in moves})
+        q = _table_points(start[idx], end[idx], f, {int(j): moves[i] for i, j in zip(moves, np.searchsorted(idx, list(moves))) if known[i]})
         if shift is not None:
             q = q + np.repeat(np.asarray(shift, dtype=float), len(f), axis=0)
         if by_length:
