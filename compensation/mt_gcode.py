@@ -272,7 +272,8 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
             length = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
             pieces = np.maximum(1, np.ceil(length / float(max_segment_mm) - 1e-9)).astype(int)
         else:
-            pieces = curvature_pieces(field_.predict(q), len(idx), pick, arc_tolerance_um)
+            pieces = curvature_pieces(_field_chained(field_, q.reshape(len(idx), len(f), -1)), len(idx), pick,
+                                      arc_tolerance_um)
         counts[idx] = np.maximum(counts[idx], pieces)
     big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
     if big.size:
@@ -284,6 +285,24 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
     kept = np.flatnonzero(~t.compensate)
     return ChainGCodeJob(program, counts, axes, lines, arc_tolerance_um, (t.line[kept] + 1).astype(int),
                          t.end[kept].reshape(len(kept), k), frames)
+
+
+def _field_chained(field_, q) -> np.ndarray:
+    """``field_.predict`` at the points ``q`` (m, u, k) of m moves (parameters 0 … 1), (m·u, 3): a move whose
+    first point is bit for bit the previous move's last (a program's moves join) takes that value instead
+    of evaluating the field there again."""
+    m, u, k = q.shape
+    if m < 2 or u < 2:
+        return np.asarray(field_.predict(q.reshape(-1, k)))
+    bits = np.ascontiguousarray(q).view(np.int64)
+    joined = np.zeros(m, bool)
+    joined[1:] = (bits[1:, 0] == bits[:-1, -1]).all(axis=1)
+    need = np.ones((m, u), bool)
+    need[joined, 0] = False
+    E = np.empty((m, u, 3))
+    E[need] = np.asarray(field_.predict(q[need]))
+    E[joined, 0] = E[np.flatnonzero(joined) - 1, -1]  # every last point is evaluated (u ≥ 2)
+    return E.reshape(m * u, 3)
 
 
 def _table_points(start, end, f, arcs) -> np.ndarray:
