@@ -13,6 +13,8 @@ the trees alternate case by case in one run. Usage::
 
     git -C /path/to/main worktree list   # any checkout of main
     python benchmarks/bench_grinder_compensate.py --main /path/to/main --out /tmp/bench_gc
+    python benchmarks/bench_grinder_compensate.py --main /path/to/main --out /tmp/bench_gc --alternate --repeats 15 \
+        --cases compensate-exact,compensate-traditional,compensate-batched-ga-net   # call by call
 """
 from __future__ import annotations
 
@@ -59,7 +61,8 @@ def make_inputs(d: Path) -> None:
 
 
 def worker(case: str, d: Path, out: Path, repeats: int) -> dict:
-    """Time ``case`` in this process (the tree on ``sys.path``): warm-up, then ``repeats`` calls."""
+    """Time ``case`` in this process (the tree on ``sys.path``): warm-up, then ``repeats`` calls
+    (``repeats`` 0: one timed call per line read from stdin, its seconds printed; the parent alternates trees)."""
     import contextlib
     import io
     import shutil
@@ -88,6 +91,13 @@ def worker(case: str, d: Path, out: Path, repeats: int) -> dict:
                 assert main(["compensate", str(prog), "--model", str(model), "--method", method, "--work-offsets",
                              "machine", "--out", str(out)]) == 0
     r = call()
+    if repeats == 0:
+        print("ready", flush=True)
+        for _ in sys.stdin:
+            t0 = time.perf_counter()
+            call()
+            print(time.perf_counter() - t0, flush=True)
+        return {}
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -109,19 +119,52 @@ def run_tree(tree: Path, case: str, d: Path, out: Path, repeats: int) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+def run_alternated(trees: dict, case: str, d: Path, out: Path, repeats: int) -> dict:
+    """``case`` in one persistent process per tree (warm-up first), the trees' calls alternating one by
+    one (their order swapped every round), so a change of machine load hits both: ``{tree: result}``."""
+    procs = {}
+    for name, tree in trees.items():
+        env = dict(os.environ, PYTHONPATH=str(tree), OMP_NUM_THREADS="1")
+        code = (f"import sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); import bench_grinder_compensate as b; "
+                f"from pathlib import Path; b.worker({case!r}, Path({str(d)!r}), Path({str(out)!r}) / {name!r}, 0)")
+        procs[name] = subprocess.Popen([sys.executable, "-c", code], env=env, cwd=str(tree), text=True,
+                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    for p in procs.values():
+        while p.stdout.readline().strip() != "ready":
+            if p.poll() is not None:
+                raise SystemExit(f"{case}: a worker failed")
+    times = {n: [] for n in trees}
+    for i in range(repeats):
+        for name in (list(trees) if i % 2 == 0 else list(trees)[::-1]):
+            procs[name].stdin.write("go\n")
+            procs[name].stdin.flush()
+            times[name].append(float(procs[name].stdout.readline()))
+    for p in procs.values():
+        p.stdin.close()
+        p.wait()
+    return {n: {"times_s": t, "median_s": float(np.median(t))} for n, t in times.items()}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--main", required=True, help="a checkout of main (its grinder solvers)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--alternate", action="store_true",
+                    help="the compensate cases call by call, main and this tree alternating (one process each)")
     args = ap.parse_args()
     out = Path(args.out)
     make_inputs(out / "inputs")
     rows = {}
     for case in args.cases.split(","):
-        m = run_tree(Path(args.main), case, out / "inputs", out / f"main-{case}", args.repeats)
-        n = run_tree(ROOT, case, out / "inputs", out / f"new-{case}", args.repeats)
+        if args.alternate and case != "exact-100k":
+            r = run_alternated({"main": Path(args.main), "new": ROOT}, case, out / "inputs", out / f"alt-{case}",
+                               args.repeats)
+            m, n = r["main"], r["new"]
+        else:
+            m = run_tree(Path(args.main), case, out / "inputs", out / f"main-{case}", args.repeats)
+            n = run_tree(ROOT, case, out / "inputs", out / f"new-{case}", args.repeats)
         rows[case] = {"main": m, "new": n, "ratio": n["median_s"] / m["median_s"]}
         if case == "exact-100k":
             a, b = np.load(out / f"main-{case}.npy"), np.load(out / f"new-{case}.npy")

@@ -92,18 +92,30 @@ def field_pieces(moves, field, tol_um: float, shift=None, place=None) -> np.ndar
     axes (n, k)) -> machine axes (n, k)`` instead of the shift (a program in TCP mode). Shape (m,) int ≥ 1."""
     if not moves:
         return np.zeros(0, dtype=int)
-    h = CURVATURE_STEP
-    pts = []
-    for m in moves:
-        for f in CURVATURE_FRACTIONS:
-            pts.append(move_points(m, np.array([f - h, f, f + h])))
-    q = np.concatenate(pts)
+    f, pick = curvature_parameters()
+    q = np.concatenate([move_points(m, f) for m in moves])
     if place is not None:
-        q = place(np.repeat([m.index for m in moves], 3 * len(CURVATURE_FRACTIONS)), q)
+        q = place(np.repeat([m.index for m in moves], len(f)), q)
     elif shift is not None:
-        q = q + np.repeat(np.asarray(shift, dtype=float), 3 * len(CURVATURE_FRACTIONS), axis=0)
-    E = np.asarray(field.predict(q)).reshape(len(moves), len(CURVATURE_FRACTIONS), 3, 3)
-    c = np.abs(E[:, :, 0] - 2 * E[:, :, 1] + E[:, :, 2]).max(axis=(1, 2)) / h ** 2
+        q = q + np.repeat(np.asarray(shift, dtype=float), len(f), axis=0)
+    return curvature_pieces(field.predict(q), len(moves), pick, tol_um)
+
+
+def curvature_parameters():
+    """``(f, pick)``: the distinct parameters (u,) of a move where :func:`field_pieces` samples the field (the
+    second differences at :data:`CURVATURE_FRACTIONS` share points: 5 of 9 with the defaults), and the index
+    (len(CURVATURE_FRACTIONS), 3) of each difference's three points into ``f``."""
+    h = CURVATURE_STEP
+    every = np.array([c + d * h for c in CURVATURE_FRACTIONS for d in (-1.0, 0.0, 1.0)])
+    f, pick = np.unique(every, return_inverse=True)
+    return f, pick.reshape(len(CURVATURE_FRACTIONS), 3)
+
+
+def curvature_pieces(E, m: int, pick, tol_um: float) -> np.ndarray:
+    """Pieces per move (m,) int ≥ 1 from the field ``E`` (m·u, 3) μm at the parameters of
+    :func:`curvature_parameters` of m moves: ``n = ⌈√(c/(8 tol))⌉``, ``c`` the largest second difference."""
+    E = np.asarray(E).reshape(m, -1, 3)
+    c = np.abs(E[:, pick[:, 0]] - 2 * E[:, pick[:, 1]] + E[:, pick[:, 2]]).max(axis=(1, 2)) / CURVATURE_STEP ** 2
     return np.maximum(1, np.ceil(np.sqrt(c / (8.0 * tol_um)))).astype(int)
 
 
@@ -132,12 +144,12 @@ def length_pieces(moves, nominal, max_segment_mm: float, shift=None, place=None)
 
 @dataclass
 class ChainGCodeJob:
-    """A parsed program with the vertices of every compensated move: ``vertices[i]`` (m_i, k)
-    nominal axes, the last row the move's end; ``axes`` (n, k) all vertices in order and ``lines``
-    (n,) the 1-based source line of each."""
+    """A parsed program with the vertices of every compensated move: ``counts`` (c,) vertices per compensated
+    move, ``axes`` (n, k) all vertices in order (nominal axes, each move's last row its end) and ``lines``
+    (n,) the 1-based source line of each; :attr:`vertices` the per-move views of ``axes``."""
 
     program: GProgram
-    vertices: list
+    counts: np.ndarray
     axes: np.ndarray
     lines: np.ndarray
     arc_tolerance_um: float
@@ -145,6 +157,11 @@ class ChainGCodeJob:
     kept_axes: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     frames: object = None
     """:class:`compensation.nc_state.ProgramFrames` the vertices were placed with (None: machine coordinates)."""
+
+    @property
+    def vertices(self) -> list:
+        """``vertices[i]`` (m_i, k): the rows of ``axes`` of the i-th compensated move."""
+        return np.split(self.axes, np.cumsum(self.counts)[:-1]) if len(self.counts) else []
 
     @property
     def shift(self) -> np.ndarray:
@@ -217,7 +234,7 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
     axes = np.concatenate(verts) if verts else np.zeros((0, len(program.axis_words.words)))
     lines = np.concatenate([np.full(len(v), m.index + 1) for m, v in zip(comp, verts)]) if verts else np.zeros(0, int)
     kept = [m for m in program.moves if not m.compensate]
-    return ChainGCodeJob(program, verts, axes, lines, arc_tolerance_um,
+    return ChainGCodeJob(program, np.array([len(v) for v in verts], dtype=int), axes, lines, arc_tolerance_um,
                          np.array([m.index + 1 for m in kept], dtype=int),
                          np.array([m.end for m in kept]).reshape(len(kept), len(program.axis_words.words)), frames)
 
@@ -246,8 +263,8 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
         if by_length:
             f = np.linspace(0.0, 1.0, LENGTH_SAMPLES + 1)
         else:
-            f = np.array([c + d * CURVATURE_STEP for c in CURVATURE_FRACTIONS for d in (-1.0, 0.0, 1.0)])
-        q = _table_points(start[idx], end[idx], f, {j: moves[i] for j, i in enumerate(idx) if i in moves})
+            f, pick = curvature_parameters()
+        q = _table_points(start[idx], end[idx], f, {int(j): moves[i] for i, j in zip(moves, np.searchsorted(idx, list(moves))) if known[i]})
         if shift is not None:
             q = q + np.repeat(np.asarray(shift, dtype=float), len(f), axis=0)
         if by_length:
@@ -255,9 +272,8 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
             length = np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
             pieces = np.maximum(1, np.ceil(length / float(max_segment_mm) - 1e-9)).astype(int)
         else:
-            E = np.asarray(field_.predict(q)).reshape(len(idx), len(CURVATURE_FRACTIONS), 3, 3)
-            c = np.abs(E[:, :, 0] - 2 * E[:, :, 1] + E[:, :, 2]).max(axis=(1, 2)) / CURVATURE_STEP ** 2
-            pieces = np.maximum(1, np.ceil(np.sqrt(c / (8.0 * arc_tolerance_um)))).astype(int)
+            pieces = curvature_pieces(_field_chained(field_, q.reshape(len(idx), len(f), -1)), len(idx), pick,
+                                      arc_tolerance_um)
         counts[idx] = np.maximum(counts[idx], pieces)
     big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
     if big.size:
@@ -266,10 +282,27 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
     counts[~known] = 1  # a move whose start is unknown: its end alone
     axes = _table_vertices(start, end, counts, known, moves)
     lines = np.repeat(t.line[rows] + 1, counts)
-    verts = np.split(axes, np.cumsum(counts)[:-1]) if len(rows) else []
     kept = np.flatnonzero(~t.compensate)
-    return ChainGCodeJob(program, verts, axes, lines, arc_tolerance_um, (t.line[kept] + 1).astype(int),
+    return ChainGCodeJob(program, counts, axes, lines, arc_tolerance_um, (t.line[kept] + 1).astype(int),
                          t.end[kept].reshape(len(kept), k), frames)
+
+
+def _field_chained(field_, q) -> np.ndarray:
+    """``field_.predict`` at the points ``q`` (m, u, k) of m moves (parameters 0 … 1), (m·u, 3): a move whose
+    first point is bit for bit the previous move's last (a program's moves join) takes that value instead
+    of evaluating the field there again."""
+    m, u, k = q.shape
+    if m < 2 or u < 2:
+        return np.asarray(field_.predict(q.reshape(-1, k)))
+    bits = np.ascontiguousarray(q).view(np.int64)
+    joined = np.zeros(m, bool)
+    joined[1:] = (bits[1:, 0] == bits[:-1, -1]).all(axis=1)
+    need = np.ones((m, u), bool)
+    need[joined, 0] = False
+    E = np.empty((m, u, 3))
+    E[need] = np.asarray(field_.predict(q[need]))
+    E[joined, 0] = E[np.flatnonzero(joined) - 1, -1]  # every last point is evaluated (u ≥ 2)
+    return E.reshape(m * u, 3)
 
 
 def _table_points(start, end, f, arcs) -> np.ndarray:
@@ -301,17 +334,24 @@ def render_chain_program(program: GProgram, vertices: list, header=()) -> str:
     """The program with each compensated move's (compensated) vertices ``vertices[i]`` (m_i, k);
     every other line byte for byte (:func:`compensation.gcode.render_program`); kept canned cycles
     written back as cycles (:func:`compensation.nc_cycles.render_kept`)."""
+    counts = np.array([len(v) for v in vertices], dtype=int)
+    axes = np.concatenate(vertices) if vertices else np.zeros((0, len(program.axis_words.words)))
+    return render_chain_axes(program, axes, counts, header=header)
+
+
+def render_chain_axes(program: GProgram, axes, counts, header=()) -> str:
+    """:func:`render_chain_program` of the vertices given as ``axes`` (n, k), ``counts`` (c,) of them per
+    compensated move: a program read in bulk written in bulk, without splitting them."""
+    t = program.table
+    if program.tcp is None and t is not None and not t.incremental.any() and program.expanded is None and len(program.axis_words.words) == 3 \
+            and not program.axis_words.kept:  # a program read in bulk: written in bulk, the same text
+        from .gcode import render_table
+        return render_table(program, np.asarray(axes), list(counts), header=header)[0]
+    vertices = np.split(np.asarray(axes), np.cumsum(counts)[:-1]) if len(counts) else []
     if program.tcp is not None:
         from .tcp import render_tcp
         return render_tcp(program, vertices, header=header)
     if getattr(program.expanded, "mode", None) == "keep":
         from .nc_cycles import render_kept
         return render_kept(program, vertices, header=header)
-    t = program.table
-    if t is not None and not t.incremental.any() and program.expanded is None and len(program.axis_words.words) == 3 \
-            and not program.axis_words.kept:  # a program read in bulk: written in bulk, the same text
-        from .gcode import render_table
-        counts = [len(v) for v in vertices]
-        axes = np.concatenate(vertices) if vertices else np.zeros((0, 3))
-        return render_table(program, axes, counts, header=header)[0]
     return render_program(program, vertices, header=header)[0]

@@ -509,7 +509,7 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
     """What a G-code file's summary ``entry`` says beyond the points: lines, moves, frames, dialect, TCP,
     cycles, the cutter radius bound."""
     job = tp.source
-    entry.update({"lines": len(job.program.lines), "moves_compensated": len(job.vertices),
+    entry.update({"lines": len(job.program.lines), "moves_compensated": len(job.counts),
                   "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids, "block_delete": s.block_delete,
                   "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
                   "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})

@@ -19,7 +19,7 @@ from errormap.units import check_units
 
 from compensation.app.validate import UsageError
 
-from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
+from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_axes
 from ...nc_state import MACHINE, program_frames, refuse_unknown_frames
 from ...pathio import DECIMALS_MM, TARGET_COLUMNS, _render_csv, check_move_extent, is_csv
 from ...solvers.chain_exact import chain_inverse, nominal_and_jacobian
@@ -120,7 +120,7 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
         kept_machine[prog.tcp.active(job.kept_lines - 1) & ~known] = np.nan  # a TCP rapid from an unknown pose: unknown
     if turning is not None:
         comp = np.array([t for m, t in zip(prog.moves, turning) if m.compensate], dtype=bool)
-        turning = np.repeat(comp, [len(v) for v in job.vertices])
+        turning = np.repeat(comp, job.counts)
     check_units(path, job.lines, machine=machine, axes=axes, axes_columns=machine.axis_columns, coverage="path",
                 units=s.units, option="--units")
     return ToolPath(path, "gcode", axes, job.lines, job, shift=shift, tool_mm=tool_mm, columns=columns,
@@ -138,12 +138,7 @@ def render(tp: ToolPath, axes, commands_mm, machine, comments) -> str:
         dec = [DECIMALS[a.unit] for a in machine.axes]
         return _render_csv(tp.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(machine.axis_columns)}, comments)
     job = tp.source
-    verts, s = [], 0
-    axes = axes[:, list(tp.columns)]
-    for v in job.vertices:
-        verts.append(axes[s:s + len(v)])
-        s += len(v)
-    return render_chain_program(job.program, verts, header=comments)
+    return render_chain_axes(job.program, axes[:, list(tp.columns)], job.counts, header=comments)
 
 
 def program_axes(tp: ToolPath, axes, machine) -> np.ndarray:

@@ -37,12 +37,12 @@ def straight_segments(tp: ToolPath) -> np.ndarray:
     cols = list(tp.columns)
     out = np.zeros(len(tp.axes), bool)
     i = 0
-    for move, v in zip([m for m in job.program.moves if m.compensate], job.vertices):
+    for move, c in zip([m for m in job.program.moves if m.compensate], job.counts):
         if move.kind == "linear":
             if i > 0 and np.all(np.isfinite(move.start)):
                 out[i] = np.abs(move.start + tp.shift[i, cols] - tp.axes[i - 1, cols]).max() <= JOIN_MM
-            out[i + 1:i + len(v)] = True
-        i += len(v)
+            out[i + 1:i + c] = True
+        i += c
     return out
 
 
