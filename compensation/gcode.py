@@ -505,8 +505,11 @@ def _err(path, lineno, col, msg):
 
 def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
                   fast: bool = True, axis_words: AxisWords | None = None, dialect: str | None = None,
-                  cycles=None, data: bytes | None = None) -> GProgram:
+                  cycles=None, data: bytes | None = None, found: tuple | None = None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
+
+    ``found``: ``(Dialect, evidence)`` already recognised from these bytes under ``dialect="auto"`` (a
+    caller that looked first, :mod:`compensation.mt_gcode`): not recognised again.
 
     ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
     (:func:`default_axis_words`, read from its file now).
@@ -541,7 +544,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
                          "program (more lines than the 10,000,000 vertices a file may have); split the program")
     data = path.read_bytes() if data is None else data
     check_program_bytes(path, data)
-    dia, evidence = _dialect_of(path, data, dialect)
+    dia, evidence = found if found is not None and dialect == "auto" else _dialect_of(path, data, dialect)
     try:  # the allow-list refuses every mark of a subprogram, macro or parameter: a program without
         return _g80_noted(_parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence))  # at full speed
     except InputError as plain_refusal:

@@ -48,7 +48,7 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     words = dataclasses.replace(words, kept=tuple(w for w in words.kept if w not in solved))
     from .gcode import MAX_PROGRAM_BYTES, _dialect_of, g80_note
     from .tcp import attach, tcp_prepass
-    data, pre, name, evidence = None, None, None, ""
+    data, pre, name, evidence, dia = None, None, None, "", None
     if Path(path).is_file() and Path(path).stat().st_size <= MAX_PROGRAM_BYTES:  # TCP and G93 words (compensation.tcp)
         raw = Path(path).read_bytes()
         try:
@@ -61,9 +61,11 @@ def parse_chain_program(path, machine, rapids: str = DEFAULT_RAPIDS, block_delet
     named = name if pre is not None and name != "rs274" else dialect  # the pre-pass blanked what recognised it
     if dialect == "auto" and name is not None and evidence.startswith("recognised"):
         named = name  # recognised once, above (its evidence kept below); none: auto (dialects.UNRECOGNISED)
+    # read once: the pre-pass's bytes (the file's own where it found nothing); nothing recognised above is not looked
+    # for again (blanking TCP words cannot add a dialect word)
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=words,
                          dialect=named, cycles=None if cycles is None else partial(cycle_pass, mode=cycles),
-                         data=data)  # read once: the pre-pass's bytes (the file's own where it found nothing)
+                         data=data, found=(dia, evidence) if named == "auto" and dia is not None else None)
     if pre is not None:
         attach(prog, pre)
     if pre is not None or (dialect == "auto" and name is not None):
