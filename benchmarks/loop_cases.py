@@ -99,7 +99,9 @@ def _flute(main, td: Path, m, truth) -> dict:
     return out
 
 
-def run_case(family: str, seed: int, effect: str, flute: bool = False) -> dict:
+def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None) -> dict:
+    """One case (module doc); ``also(td, machine, truth, probe_seed)``: a further scoring of the same files
+    (sweeps ``sw.csv``, checks ``sim/checks.csv``, identified ``el.json``), its result the row's ``also``."""
     from compensation.app.cli import main
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
@@ -128,6 +130,7 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False) -> dict:
         cov = ElementCovariance.load(covariance_path(td / "el.json"), el)
         upd = ElementSet.load(td / "diag" / "updated_elements.json")
         fl = _flute(main, td, m, truth) if flute and effect == "none" else None
+        more = also(td, m, truth, probe_ss) if also is not None else None
     P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))
     et = HTMField(m, truth.elements).predict(P)
     e_id = HTMField(m, el).predict(P) - et
@@ -148,6 +151,7 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False) -> dict:
             "held_updated_um": st["updated"]["held_out"]["rms_um"],
             "held_effects_um": st["updated_plus_effects"]["held_out"]["rms_um"],
             "held_final_um": s["rms_final_um"], "held_final_max_um": s["max_final_um"],
+            "held_final_over_floor": s.get("held_out_over_floor"),
             "kept_stage": s.get("kept_stage", "updated_plus_effects"),
             "effects": [f"{e['kind']} {e['axis']}" for e in found],
             "effects_elements": [e["element"] for e in found], "named_right": bool(named),
@@ -157,4 +161,4 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False) -> dict:
             "param_cover": (_param_cover(effect, found[0], truth) if exp is not None and top == exp else None),
             "contradicted": [c["element"] for c in s["update"]["contradicted_by_sweeps"]],
             "not_updated": [c["element"] for c in s["update"]["not_updated"]],
-            "flute": fl, "cpu_loop_s": cpu_loop, "cpu_s": time.process_time() - t_cpu}
+            "flute": fl, "also": more, "cpu_loop_s": cpu_loop, "cpu_s": time.process_time() - t_cpu}
