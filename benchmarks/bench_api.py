@@ -57,7 +57,7 @@ def grinder(n_points: int = 500) -> dict:
     from errormap.grinder_file import machine_tool_of
     from errormap.htm import HTMField
     from errormap.identification import TrackerIdentification
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
     g = load_machine()
     truth = simulate_truth(g, seed=1)
     sweeps = simulate_sweeps(truth, noise_um=1.0, seed=2, n_stations=11)

@@ -4,7 +4,7 @@
   issue 26 point 3 (errormap/htm.py of ``--baseline-root``, a copy of main before that change,
   imported beside this checkout by benchmarks/baseline.py: the old kernel is no longer in the
   package), of ``ChainField.predict`` / ``predict_and_jacobian`` on the grinder's chain file
-  ``grinder-chain`` (errormap/mt_kernel.py, generic over the compiled op arrays) and of today's
+  ``grinder-chain`` (errormap/chain_kernel.py, generic over the compiled op arrays) and of today's
   ``HTMField`` (the same generic kernel, packed once per field); same element values
   (``random_truth(seed)``), same points, in the same process one after the other; the ratio and
   the largest difference of the values (μm) and Jacobians.
@@ -29,8 +29,8 @@ from baseline import baseline_module
 from errormap.htm import HTMField
 from errormap.io import atomic_write
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 from errormap.seeds import spawn_rngs
 from errormap.simulator import random_truth
 
@@ -131,7 +131,7 @@ def main():
              f"{os.getloadavg()[0]:.1f} at the end). Grinder: the hand-written compiled kernel "
              "(`HTMField` of errormap/htm.py before issue 26 point 3, imported from a copy of main, commit "
              "0485cf2, by benchmarks/baseline.py) and the generic chain kernel (`ChainField` on `grinder-chain`, "
-             "errormap/mt_kernel.py) on the same element values (`random_truth(seed)`) and the same points "
+             "errormap/chain_kernel.py) on the same element values (`random_truth(seed)`) and the same points "
              "(uniform over the strokes, A over -3..+3 extra turns), one after the other. Value = `predict`, "
              "value + J = `predict_and_jacobian` (spatial error and its axis Jacobian in one pass). "
              "Max |ΔE| and max |ΔJ|: largest difference between the two (model residual of the "

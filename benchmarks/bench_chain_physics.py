@@ -1,7 +1,7 @@
 """Physics-first training on a machine-tool chain: ``volcomp train --physics none`` vs ``first-order``.
 
 For each machine and truth seed the user's path is run: ``volcomp simulate --machine M --seed S``'s
-truth element set (:func:`errormap.mt_simulate.make_mt_truth`, saved as ``truth_elements.json``) →
+truth element set (:func:`errormap.chain_truth.make_mt_truth`, saved as ``truth_elements.json``) →
 ``volcomp featurepoints --machine M --elements truth_elements.json --grid N`` → the fit ``volcomp
 train`` runs on those feature points (:func:`training.chain_model.fit_chain_field`: the paper's
 10-15-25-15-10 network, LM, seed 0, the iterate best on 5,000 off-grid selection points of the truth
@@ -36,7 +36,7 @@ def run_case(machine_name: str, grid: int, seed: int, physics: str, iters: int, 
     from errormap.featurepoints import FeaturePoints
     from errormap.io import InputError
     from errormap.machine import load_machine
-    from errormap.mt_simulate import make_mt_truth
+    from errormap.chain_truth import make_mt_truth
     from errormap.threads import limit_threads
     from training.chain_model import fit_chain_field
     from training.trainers import TrainSettings

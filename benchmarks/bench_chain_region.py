@@ -19,9 +19,9 @@ import numpy as np
 
 def measure(seed: int) -> dict:
     from compensation import export as ex
-    from compensation.app.workflows.mt_loop import make_truth
+    from compensation.app.workflows.measurement import make_truth
     from errormap.machine import load_machine
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
     m = load_machine("mill-xyz")
     el = make_truth(m, seed).elements
     fld = ChainField(m, el)

@@ -26,7 +26,7 @@ import numpy as np
 from compensation.app.workflows.compensate import CompensateSettings, compensate_files
 from compensation.nc_state import MACHINE, read_work_offsets
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
+from errormap.chain_elements import ChainElementSet
 
 ROOT = Path(__file__).resolve().parents[1]
 POCKET = ROOT / "tests" / "data" / "mill_pocket.nc"

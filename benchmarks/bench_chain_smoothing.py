@@ -14,8 +14,8 @@ import numpy as np
 from compensation.export import volume_points as check_points
 from errormap.machine import load_machine
 from errormap.identification import ChainIdentification, smooth_chain, station_error_rms
-from errormap.mt_simulate import make_mt_truth
-from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
+from errormap.chain_truth import make_mt_truth
+from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
 from errormap.sweeps import sweeps_from_columns
 
 MACHINES = ("mill-xyz", "five-axis-ac")

@@ -32,7 +32,7 @@ FIVE_AXIS_PROGRAM = ("(5-AXIS TEST)\nG21 G90 G17\nT3 M6\nG0 X0. Y0. Z-200. A0. C
 def run(machine_name, program, seed, scale, tmp):
     from compensation.app.cli import main
     from errormap.machine import load_machine
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     mt = load_machine(machine_name)
     truth = ChainElementSet.random(mt, seed, scale, 11).save(tmp / f"{machine_name}_truth.json")
     row = {}

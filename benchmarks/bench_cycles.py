@@ -22,7 +22,7 @@ import numpy as np
 
 from compensation.app.cli import main
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
+from errormap.chain_elements import ChainElementSet
 
 ROOT = Path(__file__).resolve().parents[1]
 PROGRAM = ROOT / "tests" / "data" / "cycles" / "drill_linuxcnc.ngc"

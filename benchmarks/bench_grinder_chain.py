@@ -66,7 +66,7 @@ def _flute(machine, n=None):
 def _chain_elements(mt, seed, scale_um=20.0, n_stations=11):
     """The seeded smooth element set of ``bench_mt_solve`` (``ChainElementSet.random``), written out
     so that main's checkout, which predates that constructor, builds the same numbers."""
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     rng = np.random.default_rng(seed)
     z = ChainElementSet.zeros(mt, n_stations)
     fun = {}
@@ -94,7 +94,7 @@ def child(case, args, out_npz) -> dict:
             ax = rng.uniform(g.stroke_lo, g.stroke_hi, (args.field_points, 3))
             ax[:, 2] = rng.uniform(-720.0, 720.0, args.field_points)
         else:
-            from errormap.mt_field import ChainField
+            from errormap.chain_field import ChainField
             mt = load_machine(name)
             f = ChainField(mt, _chain_elements(mt, seed))
             ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (args.field_points, len(mt.axes)))
@@ -157,7 +157,7 @@ def child(case, args, out_npz) -> dict:
             return solve_exact(f, tg[:k], g, target_axes=ax[:k], progress=False)
     elif case.startswith("exact-chain"):
         from compensation.solvers.chain_exact import solve_exact_chain
-        from errormap.mt_field import ChainField
+        from errormap.chain_field import ChainField
         mt = load_machine(case.split()[1])
         f = ChainField(mt, _chain_elements(mt, seed))
         ax = rng.uniform(mt.stroke_lo, mt.stroke_hi, (args.points, len(mt.axes)))

@@ -14,7 +14,7 @@
 Points: uniform over the strokes with A over several turns, truth ``random_truth(seed)``.
 Each seed is one job (``--jobs`` processes); per seed the median of ``--repeats`` runs.
 Since issue 26 point 3 the fast field is the grinder's chain file through the generic compiled
-kernel (errormap/mt_kernel.py); with ``--baseline-root DIR`` (a copy of main before that change,
+kernel (errormap/chain_kernel.py); with ``--baseline-root DIR`` (a copy of main before that change,
 imported beside this checkout by benchmarks/baseline.py) the hand-written closed-form kernel it
 replaced is timed in the same process (field and field + J) with the ratio and the largest
 differences.

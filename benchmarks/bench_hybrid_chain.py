@@ -2,8 +2,8 @@
 
 Per machine, seed and case, the user's path: the simulated machine writes its tracker sweeps (2 μm,
 seeded unknown tracker pose) and 800 check measurements (1 μm) — both through the library functions
-``volcomp sweeps`` / ``simulate --machine`` use (:func:`errormap.mt_sweeps.simulate_mt_sweeps`,
-:meth:`errormap.mt_simulate.MTTruth.check_measurements`), because the out-of-catalogue effects below are
+``volcomp sweeps`` / ``simulate --machine`` use (:func:`errormap.chain_sweeps.simulate_mt_sweeps`,
+:meth:`errormap.chain_truth.MTTruth.check_measurements`), because the out-of-catalogue effects below are
 not among ``simulate``'s ``--effect`` kinds — then ``volcomp identify --machine`` →
 ``volcomp diagnose --machine --noise-um 1`` (60/40 blocked split by seq; the learned stage on, its default
 families) → ``volcomp compensate VOLUME.csv --machine --model DIR/model.json --method exact`` on
@@ -90,7 +90,7 @@ LEARNED_KEYS = ("learned_residual", "base_stage", "learned_family", "base_terms_
 def ooc_truth(machine, seed: int, case: str):
     """The seeded truth of :data:`FAMILY` with the out-of-catalogue effect ``case`` (module doc) added to its
     element values (so the sweeps and the checks both see it)."""
-    from errormap.mt_simulate import MTTruth, make_mt_truth
+    from errormap.chain_truth import MTTruth, make_mt_truth
     base = make_mt_truth(machine, seed, family=FAMILY)
     if case == "none":
         return base
@@ -124,11 +124,11 @@ def ooc_truth(machine, seed: int, case: str):
 
 def span_outside(machine_name: str, case: str, n: int = 1500, seed: int = 0) -> float:
     """The fraction of the case's error columns outside the span of the element slots' Jacobian at nominal
-    elements over ``n`` uniform points (:class:`errormap.diagnosis.mt_loop.SlotSpan`, the loop's own
+    elements over ``n`` uniform points (:class:`errormap.diagnosis.chain_loop.SlotSpan`, the loop's own
     representability test): ~0 — the element update absorbs the effect; ≥ 0.2 — out of the catalogue."""
-    from errormap.diagnosis.mt_loop import SlotSpan
+    from errormap.diagnosis.chain_loop import SlotSpan
     from errormap.machine import load_machine
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     m = load_machine(machine_name)
     el = ChainElementSet.zeros(m)
     q = m.stroke_lo + (m.stroke_hi - m.stroke_lo) * np.random.default_rng(seed).random((n, len(m.axes)))
@@ -204,7 +204,7 @@ def run_case(machine_name: str, seed: int, case: str, ga: bool = False) -> dict:
     from compensation.app.cli import main
     from errormap.io import write_csv
     from errormap.machine import load_machine
-    from errormap.mt_sweeps import simulate_mt_sweeps, write_sweeps
+    from errormap.chain_sweeps import simulate_mt_sweeps, write_sweeps
     from errormap.seeds import spawn_seeds
     m = load_machine(machine_name)
     t_cpu = time.process_time()

@@ -48,8 +48,8 @@ def make_input(case: str, size, d: Path) -> tuple[list, Path]:
         p = write_sweeps(d / f"gsw{size}.csv", simulate_sweeps(make_truth(load_machine(None), 3), n_stations=size))
         return cli("identify", p, "--out", d / f"gE{size}.json"), p
     if case == "identify-chain":
-        from errormap.mt_simulate import make_mt_truth
-        from errormap.mt_sweeps import simulate_mt_sweeps
+        from errormap.chain_truth import make_mt_truth
+        from errormap.chain_sweeps import simulate_mt_sweeps
         from errormap.sweeps import write_sweeps
         mill = load_machine("mill-xyz")
         p = write_sweeps(d / f"msw{size}.csv", simulate_mt_sweeps(make_mt_truth(mill, 3), n_stations=size, seed=1))

@@ -50,7 +50,7 @@ def user_path(machine: str, seed: int, d: Path) -> dict:
 def grid_figure(machine_name, seeds):
     """Identified-model field error over the volume grid (4,000 points), max / RMS μm, and the z-scores."""
     from errormap.machine import load_machine
-    from errormap.mt_identifiability import identifiability
+    from errormap.identifiability import identifiability
     m = load_machine(machine_name)
     out = []
     for s in seeds:

@@ -39,8 +39,8 @@ def part_a(args):
     from compensation.solvers.chain_exact import solve_exact_chain
     from compensation.solvers.chain_ga import solve_batched_ga_chain, solve_ga_chain
     from errormap.machine import load_machine
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_field import ChainField
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
     mt = load_machine(LATHE)
     f = ChainField(mt, ChainElementSet.random(mt, args.seed, 20.0, 11))
     solvers = [("exact", solve_exact_chain, {}), ("batched-ga", solve_batched_ga_chain, {"seed": 0}),
@@ -83,8 +83,8 @@ def part_b(seed):
     from compensation.app.cli import main
     from compensation.app.workflows.controller_tables import load_truth
     from errormap.machine import load_machine
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_field import ChainField
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
     from errormap.seeds import spawn_seeds
     mt = load_machine(LATHE)
     with tempfile.TemporaryDirectory() as tmp:

@@ -4,7 +4,7 @@ grinder's chain, on the SAME files.
 Per case (truth family, seed, effect of :data:`loop_cases.EXPECTED`), :func:`loop_cases.run_case` runs the
 user's CLI path (sweeps 2 μm, 21 stations → simulate 800 checks at 1 μm → identify → diagnose, 60/40 by seq);
 then, on the same ``sim/checks.csv`` and identified ``el.json``, the chain loop
-(:func:`compensation.app.workflows.mt_loop.diagnose_chain`, parametric stages only: the grinder's learned
+(:func:`compensation.app.workflows.measurement.diagnose_chain`, parametric stages only: the grinder's learned
 stage declines on these cases) on :func:`errormap.grinder_file.machine_tool_of` of the built-in grinder.
 The chain loop reads a chain covariance file: the grinder's identified covariance re-keyed (same element
 names and stations; the smoother's ``prior_extra`` added on the diagonal with ``--prior-extra``, as the
@@ -59,9 +59,9 @@ def chain_covariance(el_path: Path, out_path: Path, prior_extra: bool) -> None:
 def refit_all_checks(el_path: Path, checks_path: Path, mt, P, truth_e) -> float:
     """TRUE RMS ‖Δe‖ (μm) at ``P`` (n, 3) of the chain loop's kept stage re-estimated on ALL checks (fit and
     held-out; the loop's own ``refit``, as the grinder's loop ships its model), against ``truth_e`` (n, 3) μm."""
-    from compensation.app.workflows.mt_loop import load_chain_model
-    from errormap.diagnosis.mt_loop import closed_loop_chain, load_mt_checks
-    from errormap.mt_field import ChainField
+    from compensation.app.workflows.measurement import load_chain_model
+    from errormap.diagnosis.chain_loop import closed_loop_chain, load_mt_checks
+    from errormap.chain_field import ChainField
     el, cov, _ = load_chain_model(el_path, mt)
     checks = load_mt_checks(checks_path, mt)
     s = closed_loop_chain(mt, el, checks, cov=cov)
@@ -78,11 +78,11 @@ def chain_loop(prior_extra: bool):
     """The ``also`` scorer of :func:`loop_cases.run_case`: the chain loop on the case's files."""
     def score(td: Path, m, truth, probe_ss) -> dict:
         import shutil
-        from compensation.app.workflows.mt_loop import diagnose_chain
+        from compensation.app.workflows.measurement import diagnose_chain
         from errormap.grinder_file import machine_tool_of
         from errormap.htm import HTMField
-        from errormap.mt_elements import ChainElementSet
-        from errormap.mt_field import ChainField
+        from errormap.chain_elements import ChainElementSet
+        from errormap.chain_field import ChainField
         from errormap.simulator import random_axes
         from loop_cases import N_PROBE
         mt = machine_tool_of(m)

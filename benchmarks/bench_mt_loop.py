@@ -68,12 +68,12 @@ REF_TEMP_C = 20.0
 
 def interaction_cases(machine) -> dict:
     """The interaction terms V*W of the machine split by whether the chain's element slots can
-    represent them over its volume (:func:`errormap.diagnosis.mt_loop.representable_terms` on
+    represent them over its volume (:func:`errormap.diagnosis.chain_loop.representable_terms` on
     nominal elements, 21 stations, :data:`SCORE_POINTS` uniform points): ``{"represented": [...],
     "not_represented": [...]}`` as ``"interaction:V*W"`` strings. Computed from the chain, never
     from the machine's name."""
-    from errormap.diagnosis.mt_loop import representable_terms
-    from errormap.mt_elements import ChainElementSet
+    from errormap.diagnosis.chain_loop import representable_terms
+    from errormap.chain_elements import ChainElementSet
     rng = np.random.default_rng(SCORE_SEED)
     g = machine.stroke_lo + (machine.stroke_hi - machine.stroke_lo) * rng.random((SCORE_POINTS // 5, len(machine.axes)))
     terms = [t for t in representable_terms(machine, ChainElementSet.zeros(machine), g, {}) if t["kind"] == "interaction"]
@@ -95,9 +95,9 @@ def effect_for(machine, seed: int) -> str:
 def run_case(machine_name: str, seed: int, effect: str | None, work: Path, checks: int = CHECKS) -> dict:
     from compensation.app.cli import main
     from errormap.machine import load_machine
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_field import ChainField
-    from errormap.mt_simulate import MTTruth
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    from errormap.chain_truth import MTTruth
     m = load_machine(machine_name)
     eff = ["--effect", effect] if effect else []
     d = work / f"{machine_name}-{seed}-{effect or 'none'}".replace(":", "_").replace("*", "x")
@@ -128,7 +128,7 @@ def run_case(machine_name: str, seed: int, effect: str | None, work: Path, check
     # the loop's model.json (updated elements + accepted terms) at the reference conditions, and the exact
     # compensation of the volume's points with it: TRUE residual (truth at the compensated axes − target)
     from compensation.solvers.chain_exact import nominal_and_jacobian, solve_exact_chain
-    from errormap.diagnosis.mt_model import load_chain_model_file
+    from errormap.diagnosis.loop_model import load_chain_model_file
     lm = load_chain_model_file(d / "diag" / "model.json", m)
     lm = lm.with_conditions({c: (REF_TEMP_C if c == "temp_c" else 1.0) for c in lm.needs})
     loop_rms = float(np.sqrt(np.mean(np.sum((lm.predict(g) - tr) ** 2, axis=1))))

@@ -6,7 +6,7 @@ seeded random axes inside the strokes of
 * the grinder (``grinder.toml``): ``solve("exact", …)`` (on its chain) with the HTM field of
   ``random_truth(grinder, seed)`` (what ``compensate --method exact`` runs on the grinder);
 * ``mill-xyz`` and ``five-axis-ac``: :func:`compensation.solvers.chain_exact.solve_exact_chain` with the
-  :class:`errormap.mt_field.ChainField` of a seeded smooth element set (±20 μm / μrad at 11 stations
+  :class:`errormap.chain_field.ChainField` of a seeded smooth element set (±20 μm / μrad at 11 stations
   per axis; the five-axis machine's rotary axes kept).
 
 Each solve is timed after a 2,000-point warm-up (compiled kernels loaded), ``--repeats`` times;
@@ -31,7 +31,7 @@ ELEMENT_SCALE_UM = 20.0
 
 
 def chain_elements(mt, seed, scale=ELEMENT_SCALE_UM, n_stations=11):
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     return ChainElementSet.random(mt, seed, scale, n_stations)
 
 
@@ -45,7 +45,7 @@ def cases(seed):
     from errormap.htm import HTMField
     from errormap.kinematics import forward
     from errormap.machine import load_machine
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
     from errormap.simulator import random_truth
     g = load_machine()
     gf = HTMField(g, random_truth(g, seed).elements)

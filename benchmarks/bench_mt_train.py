@@ -9,7 +9,7 @@ One process, one after the other (same load):
    reported: max / RMS fit error on the grid and on 10,000 random off-grid points of the same element
    set (true field), beside the plain OLS baseline (affine least squares on the axes) on the same
    points, and the training CPU seconds.
-2. **solve** — ``--points`` seeded random targets of ``mill-xyz`` with the :class:`errormap.mt_field.ChainField`
+2. **solve** — ``--points`` seeded random targets of ``mill-xyz`` with the :class:`errormap.chain_field.ChainField`
    of a ±20 μm element set at 11 stations (seed 11): ``exact`` and ``batched-ga`` (seed 0) through the
    solver registry; reported: MODEL residual (``p_r + E(q) − p_d``, recomputed with the numpy chain)
    max / RMS, points converged, CPU seconds (``time.process_time``).
@@ -34,7 +34,7 @@ HERE = Path(__file__).resolve().parent
 def train_case(grid, iters):
     from errormap.featurepoints import FeaturePoints, make_feature_points
     from errormap.machine import load_machine
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
     from errormap.seeds import spawn_seeds
     from training.chain_model import fit_chain_field, ols_baseline, random_chain_axes
     from training.trainers import TrainSettings, fit_metrics
@@ -60,7 +60,7 @@ def train_case(grid, iters):
 def solve_case(n):
     from compensation.solvers import solve
     from errormap.machine import load_machine
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
     mt = load_machine("mill-xyz")
     f = ChainField(mt, chain_elements(mt, 11))
     rng = np.random.default_rng(12)

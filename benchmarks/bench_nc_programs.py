@@ -55,7 +55,7 @@ def counts():
 def turning():
     from compensation.app.cli import main
     from errormap.machine import load_machine
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     from test_turning import ESTIMATE_NOISE_UM, TURNING, _noisy  # noqa: F401 - the test's program and noise
     mt = load_machine("lathe-xzc")
     truth = ChainElementSet.random(mt, 301, 10.0, 11)

@@ -66,11 +66,11 @@ def grinder_case(seed: int) -> dict:
 
 
 def chain_case(name: str, seed: int) -> dict:
-    from compensation.app.workflows.mt_loop import chain_band_sd
+    from compensation.app.workflows.measurement import chain_band_sd
     from compensation.export import volume_points as check_points
     from errormap.machine import load_machine
-    from errormap.mt_simulate import make_mt_truth
-    from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     from errormap.identification import ChainIdentification, smooth_chain
     m = load_machine(name)

@@ -19,10 +19,10 @@ import numpy as np
 
 from errormap.diagnosis.plausibility import deviation_axis_mistake, deviation_unit_mistake
 from errormap.machine import load_machine
-from errormap.mt_field import ChainField
+from errormap.chain_field import ChainField
 from errormap.identification import ChainIdentification
-from errormap.mt_simulate import make_mt_truth
-from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
+from errormap.chain_truth import make_mt_truth
+from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
 from errormap.sweeps import sweeps_from_columns
 
 ERR = ("dx_um", "dy_um", "dz_um")

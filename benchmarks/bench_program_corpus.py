@@ -77,7 +77,7 @@ def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path) -> None:
     """``--compensate``: TRUE max before/after of each accepted program (module docstring)."""
     from compensation.app.cli import main
     from errormap.machine import load_machine
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     rows = {r["file"]: r for r in csv.DictReader(MANIFEST.open(encoding="utf-8"))}
     truths = {}
     for r in out["results"]:

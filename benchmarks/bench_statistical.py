@@ -241,7 +241,7 @@ def mt_band_coverage(n_seeds: int, work: Path | None = None) -> dict:
     from compensation.export import volume_points as check_points
     from errormap.io import read_table, write_csv
     from errormap.machine import load_machine
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     m = load_machine("mill-xyz")
     inside = naive = total = 0
     with tempfile.TemporaryDirectory(dir=work) as tmp:

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from compensation.app.cli import main  # noqa: E402
 from compensation.gcode import split_lines, tokenize  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
-from errormap.mt_elements import ChainElementSet  # noqa: E402
+from errormap.chain_elements import ChainElementSet  # noqa: E402
 
 OFFSET = np.array([10.0, -5.0, 20.0])
 LENGTH_MM = 120.0

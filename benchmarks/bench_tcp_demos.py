@@ -35,9 +35,9 @@ from bench_tcp import NOISE, inverse_time_minutes, noisy  # noqa: E402
 import numpy as np  # noqa: E402
 
 from compensation.app.cli import main  # noqa: E402
-from errormap.mt_field import ChainField  # noqa: E402
+from errormap.chain_field import ChainField  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
-from errormap.mt_elements import ChainElementSet  # noqa: E402
+from errormap.chain_elements import ChainElementSet  # noqa: E402
 
 MANIFEST = HERE / "program_corpus" / "TCP_DEMOS.csv"
 MACHINE = "five-axis-ac"

@@ -28,8 +28,8 @@ from compensation.nc_state import machine_with_tool, read_tool_table, read_work_
 from compensation.solvers import solve
 from compensation.solvers.chain_exact import nominal_and_jacobian
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 
 ROOT = Path(__file__).resolve().parents[1]
 PROGRAM = ROOT / "tests" / "data" / "controller" / "g55_tool_linuxcnc.ngc"

@@ -194,7 +194,7 @@ def save_model(path, model) -> Path:
     from errormap.io import companion_path
     path = Path(path)
     if isinstance(model, ClosedLoop):
-        from errormap.diagnosis.mt_model import save_chain_model
+        from errormap.diagnosis.loop_model import save_chain_model
         model._check_fitted("field_")
         el = model.elements_.save(companion_path(path, ".elements.json"))
         return save_chain_model(path, machine_tool(model.machine, "save_model"), el, model.terms_, model.kept_stage_)

@@ -23,7 +23,7 @@ from errormap.io import InputError, read_document_text
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
 DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
-CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"  # model.json of diagnose on a machine-tool chain (errormap/diagnosis/mt_model.py)
+CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"  # model.json of diagnose on a machine-tool chain (errormap/diagnosis/loop_model.py)
 NETWORK_FORMAT = "volcomp-mlpfield/1"      # config.json of a trained model folder (training/model.py)
 CHAIN_NETWORK_FORMAT = "volcomp-chain-mlpfield/1"  # the same over a machine-tool chain (training/chain_model.py)
 DRIFT_SCHEMA = "volcomp.drift_model"       # the drift model's key 'schema' (errormap/diagnosis/drift_models.py)
@@ -140,7 +140,7 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
             return check_machine(load_learned(src.spec, tracking_uri=tracking_uri, loader=ChainMLPField.load),
                                  machine, src.spec)
         if src.kind == "chain-model":   # elements + terms (+ the learned residual when the loop kept it)
-            from .mt_hybrid import load_chain_model
+            from .chain_hybrid import load_chain_model
             return load_chain_model(src.path, machine)
         return load_chain_field(src.path, machine, src.kind)
     if src.kind == "chain-network":
@@ -157,15 +157,15 @@ def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSour
 
 
 def load_chain_field(path, machine, kind: str = "elements"):
-    """The :class:`errormap.mt_field.ChainField` of a machine-tool chain from an element-set file
+    """The :class:`errormap.chain_field.ChainField` of a machine-tool chain from an element-set file
     (format ``volcomp-elements/1`` with the chain's element names; InputError naming the file and
     the key otherwise); ``kind="chain-network"``: the trained network folder
     (:class:`training.chain_model.ChainMLPField`), refused unless trained on this machine."""
     if kind == "chain-network":
         from training.chain_model import ChainMLPField, check_machine
         return check_machine(ChainMLPField.load(path), machine, Path(path) / "config.json")
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_field import ChainField
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
     return ChainField(machine, ChainElementSet.load(path, machine))
 
 

@@ -509,7 +509,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
     ``found``: ``(Dialect, evidence)`` already recognised from these bytes under ``dialect="auto"`` (a
-    caller that looked first, :mod:`compensation.mt_gcode`): not recognised again.
+    caller that looked first, :mod:`compensation.chain_gcode`): not recognised again.
 
     ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
     (:func:`default_axis_words`, read from its file now).

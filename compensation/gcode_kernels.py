@@ -369,8 +369,8 @@ def _rotate(a, c, s, v0, v1, v2):  # pragma: no cover - compiled
 def _polyline_lengths(start, end, samples, prog, out):  # pragma: no cover - compiled
     """WCS length of each move's nominal tool path ``start[j] -> end[j]`` (axes, (m, k)) as the
     polyline through ``samples + 1`` equally spaced axis values, the tool point from the machine's
-    chain (``prog``: :attr:`errormap.mt_kernel.NominalChain.prog`, the ops of
-    :func:`errormap.mt_kernel._chain_point`; nominal, so every op is rigid). Per sample ``i`` the
+    chain (``prog``: :attr:`errormap.chain_kernel.NominalChain.prog`, the ops of
+    :func:`errormap.chain_kernel._chain_point`; nominal, so every op is rigid). Per sample ``i`` the
     tool point is the origin carried through the ops from the last to the first (a point, not a
     frame: no 3×3 products). Along a linear move every joint's value steps by the same amount, so:
 
@@ -508,8 +508,8 @@ def _polyline_lengths(start, end, samples, prog, out):  # pragma: no cover - com
 def linear_path_lengths_mm(machine, start, end, samples: int = 16):
     """WCS length of the nominal tool path of linear axis moves ``start`` -> ``end`` (m, k), as the
     polyline through ``samples + 1`` equally spaced parameters, the tool point from the machine's
-    chain (:class:`errormap.mt_kernel.NominalChain`, compiled from the machine's file): (m,)."""
-    from errormap.mt_kernel import NominalChain
+    chain (:class:`errormap.chain_kernel.NominalChain`, compiled from the machine's file): (m,)."""
+    from errormap.chain_kernel import NominalChain
     prog = NominalChain(machine).prog
     start = np.ascontiguousarray(start, dtype=float)
     end = np.ascontiguousarray(end, dtype=float)

@@ -36,7 +36,7 @@ import numpy as np
 
 from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, is_rotary_column, machine_axes
 from errormap.grinder_file import machine_tool_of
-from errormap.mt_chain import WorkRotation
+from errormap.machine_tool import WorkRotation
 from errormap.progress import Progress
 from errormap.stats import residual_stats
 from errormap.transforms import check_points
@@ -218,7 +218,7 @@ cross-validated no better than the axes (benchmarks/hybrid_results.md, input and
 OUTPUT_FRAMES = ("work", "machine")
 """The frames the learned part can learn the residual in. ``work``: as measured, in the workpiece frame
 (the spatial error's frame). ``machine``: turned into the machine (base) frame by the nominal rotation
-of the work frame (:class:`errormap.mt_chain.WorkRotation`, from the machine's work chain), learned
+of the work frame (:class:`errormap.machine_tool.WorkRotation`, from the machine's work chain), learned
 there, and turned back: ``r_work = R(axes)ᵀ·g(axes)``. An error of a body that does not turn with the
 work (a slide on the tool side, whose error the rotary axes under the work turn with the part: on the
 grinder ``r = (0, −cos a, sin a)·e_y(x, z)`` for a y error of the X slide) is, in the machine frame, one

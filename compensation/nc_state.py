@@ -8,7 +8,7 @@ places the program's points in the machine by the active **work offset** (``G54`
     machine Z    = ... + tool length (while ``G43 Hn`` is active, LinuxCNC / Fanuc rule)
 
 and the tool tip is then the machine file's tool point with its gauge length (the ``[geometry]``
-constant ``tool_length``) set to the tool table's length (:func:`errormap.mt_chain.with_tool_length`):
+constant ``tool_length``) set to the tool table's length (:func:`errormap.machine_tool.with_tool_length`):
 the nominal tip does not depend on the tool, but the angular errors act on its Abbe arm.
 
 Tables, each recognised by content (never by the file's name):
@@ -541,7 +541,7 @@ def machine_with_tool(machine, length_mm: float):
     import hashlib
     import tomllib
 
-    from errormap.mt_chain import parse_machine_tool
+    from errormap.machine_tool import parse_machine_tool
     if TOOL_LENGTH_KEY not in getattr(machine, "geometry", {}):
         raise ValueError(f"the machine {machine.name!r} declares no [geometry] {TOOL_LENGTH_KEY} (the gauge length its "
                          "tool chain ends with): a tool length offset cannot be applied to it")
@@ -556,10 +556,10 @@ def machine_with_tool(machine, length_mm: float):
 def field_with_tool(field_, machine_at_tool):
     """The error field ``field_`` evaluated on ``machine_at_tool`` (:func:`machine_with_tool`): the same
     elements (and effects) at the other tool point. Fields that are element sets
-    (:class:`errormap.mt_field.ChainField`) or simulated truths; any other raises ``TypeError``."""
+    (:class:`errormap.chain_field.ChainField`) or simulated truths; any other raises ``TypeError``."""
     import dataclasses
 
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
     if isinstance(field_, ChainField):
         return ChainField(machine_at_tool, field_.elements, field_.chunk)
     truth = getattr(field_, "truth", None)

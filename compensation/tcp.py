@@ -27,7 +27,7 @@ activate the tool's length (the reader records them as a tool length offset, lik
 
 How a TCP point is compensated: its tip ``p = program X Y Z + work offset`` (mm, workpiece frame) and its
 rotary axes as programmed are placed in the machine by the chain's nominal inverse at the tool's length
-(:func:`tcp_axes`; :meth:`errormap.mt_chain.MachineTool.inverse` with the rotary axes kept); the exact
+(:func:`tcp_axes`; :meth:`errormap.machine_tool.MachineTool.inverse` with the rotary axes kept); the exact
 chain solver compensates there like any other point; the compensated axes are written back in TCP form —
 the nominal tip they reach, minus the work offset, with the rotary words as programmed (:func:`tip_words`):
 the controller's inverse of that tip is the compensated axes. The controller's TCP kinematics are taken to
@@ -573,7 +573,7 @@ def _pose_residual(field_, machine, q, targets, directions) -> np.ndarray:
 
 def solve_orientation(field_, machine, axes0, targets, directions) -> tuple:
     """Tool tip AND tool axis compensated with all five axes (Gauss-Newton over the MODEL, an element set at
-    the tool's length: ``field_`` a :class:`errormap.mt_field.ChainField` on ``machine``), from the
+    the tool's length: ``field_`` a :class:`errormap.chain_field.ChainField` on ``machine``), from the
     position-only solution ``axes0`` (n, k); ``targets`` (n, 3) mm the programmed tips, ``directions`` (n, 3)
     the programmed tool axes (nominal, at the programmed axes). Returns ``(axes (n, k), solved (n,) bool)``:
     a point that does not converge or needs a rotary correction over :data:`ORIENT_ROTARY_LIMIT_DEG` keeps
@@ -612,7 +612,7 @@ def compensate_orientation(field_, machine, tp_axes, tool_mm, res, targets):
     orientation)."""
     import dataclasses
 
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
 
     from .nc_state import field_with_tool, machine_with_tool
     if not isinstance(field_, ChainField):

@@ -142,7 +142,7 @@ def surface_residual_um(field, machine, axes, axes_d, compiled=None):
 def solve_turning(field, machine, axes_d, ball_um: float, tol_um: float = TOL_UM, max_iter: int = MAX_ITER):
     """X and Z of every turning point ``axes_d`` (n, k) so that ``g = 0`` (module docstring); C untouched.
     Returns ``(axes (n, k), residual (n, 3) μm as (radial, 0, axial), converged (n,), spread (n,), iterations)``."""
-    from errormap.mt_kernel import NominalChain
+    from errormap.chain_kernel import NominalChain
     compiled = NominalChain(machine)
     _, lin = _indices(machine)
     q = np.array(axes_d, dtype=float)

@@ -38,9 +38,9 @@ _LAZY = {
     "NotFittedError": "errormap.estimators",
     "DriftSelector": "errormap.diagnosis.drift_models",
     "DriftModel": "errormap.diagnosis.drift_models",
-    "ChainField": "errormap.mt_field",
-    "ChainModelField": "errormap.diagnosis.mt_model",
-    "ChainElementSet": "errormap.mt_elements",
+    "ChainField": "errormap.chain_field",
+    "ChainModelField": "errormap.diagnosis.loop_model",
+    "ChainElementSet": "errormap.chain_elements",
 }
 
 __all__ = sorted(_LAZY)

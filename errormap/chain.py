@@ -9,7 +9,7 @@ slots Δθ, Δd, Δa, Δα per link and a Hayati β slot (a rotation about y) on
 axes are parallel; a base frame (6 slots: tx ty tz rz ry rx) and a tool point (3 slots) complete
 the chain. Element names are derived from the chain (``link2.da_mm``, ``base.rz_rad``, ``tool.z_mm``).
 
-Machine tools (:mod:`errormap.mt_chain`) use two extensions, both off for arms: an error slot may
+Machine tools (:mod:`errormap.machine_tool`) use two extensions, both off for arms: an error slot may
 enter several ETs, each with a coefficient ``coef`` (``value += coef * error``; a slot in an inverted
 part of a chain enters negated, a squareness slot tilts an axis by ``+s`` before and ``-s`` after its
 motion; the coefficient also carries the slot's unit, e.g. 1e-3 mm per μm), compiled with

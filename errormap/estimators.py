@@ -6,7 +6,7 @@ calls the existing numerical code; none has a numerical path of its own.
 * :class:`Identification` — error elements from tracker sweeps of a machine-tool chain
   (:class:`errormap.identification.ChainIdentification`; the grinder file is identified as its chain).
 * :class:`ClosedLoop` — the closed loop on check measurements of a machine-tool chain
-  (:func:`errormap.diagnosis.mt_loop.closed_loop_chain`: element update, effect search, kept stage).
+  (:func:`errormap.diagnosis.chain_loop.closed_loop_chain`: element update, effect search, kept stage).
 * :class:`ArmCalibration` — geometric calibration of a serial arm from tracker poses
   (:func:`errormap.arm_calibration.fit_model`, :func:`~errormap.arm_calibration.cv_models`).
 * :class:`errormap.diagnosis.drift_models.DriftSelector` — the drift estimator (it shares
@@ -71,7 +71,7 @@ def machine_tool(machine, what: str):
     columns); anything else refused naming ``what``."""
     from .grinder_file import machine_tool_of
     from .machine import Grinder
-    from .mt_chain import MachineTool
+    from .machine_tool import MachineTool
     _require_type(machine, (MachineTool, Grinder), what,
                   "a machine-tool chain or the grinder file (load_machine('mill-xyz'), load_machine()); an arm: "
                   "ArmCalibration, compensate_joints")
@@ -111,7 +111,7 @@ class Identification(Estimator):
         self.noise_um = noise_um
 
     def fit(self, sweeps) -> "Identification":
-        from .mt_field import ChainField
+        from .chain_field import ChainField
         from .identification import ChainIdentification
         from .sweeps import Sweeps
         mt = machine_tool(self.machine, "Identification(machine=...)")
@@ -139,7 +139,7 @@ class ClosedLoop(Estimator):
     first share of the checks, by ``seq``, fits; the rest is held out); ``noise_um`` (known noise σ per coordinate, None: estimated);
     ``effects`` / ``max_effects`` (the effect search); ``smoothing`` (``"gcv"`` or a weight).
 
-    ``fit(checks, elements, covariance=None)``: ``checks`` an :class:`errormap.diagnosis.mt_loop.MTChecks`
+    ``fit(checks, elements, covariance=None)``: ``checks`` an :class:`errormap.diagnosis.chain_loop.MTChecks`
     (:func:`errormap.read_checks`, :func:`errormap.simulate_checks`), ``elements`` the identified element
     set, ``covariance`` its ``(slot names, stations, Σ)`` (``Identification.covariance_``; None: no element
     update). Learned: ``summary_`` (stages with held-out and fitting statistics, the kept stage and why,
@@ -158,9 +158,9 @@ class ClosedLoop(Estimator):
         self.smoothing = smoothing
 
     def fit(self, checks, elements, covariance=None) -> "ClosedLoop":
-        from .diagnosis.mt_loop import MTChecks, closed_loop_chain
-        from .diagnosis.mt_model import ChainModelField
-        from .mt_elements import ChainElementSet
+        from .diagnosis.chain_loop import MTChecks, closed_loop_chain
+        from .diagnosis.loop_model import ChainModelField
+        from .chain_elements import ChainElementSet
         mt = machine_tool(self.machine, "ClosedLoop(machine=...)")
         _require_type(checks, (MTChecks,), "ClosedLoop.fit(checks)", "read the file first (errormap.read_checks)")
         _require_type(elements, (ChainElementSet,), "ClosedLoop.fit(elements)", "an identified element set "

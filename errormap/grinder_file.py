@@ -10,7 +10,7 @@ geometry names (no numbers)::
           ·Trans(l3,0,l4)·Trans(0,0,-R)
 
 :func:`grinder_to_chain` fills it with one grinder file's geometry, strokes and targets and compiles
-it (:func:`errormap.mt_chain.parse_machine_tool`); the result keeps the grinder's 23 element names
+it (:func:`errormap.machine_tool.parse_machine_tool`); the result keeps the grinder's 23 element names
 (:data:`ELEMENT_SLOTS`, checked whole: an element or slot outside the table is refused) and its
 axis columns x_mm, z_mm, a_deg, so element-set files and CSV files of the grinder read unchanged.
 :func:`adapter_line` is the one line a command prints when it reads such a file.
@@ -21,7 +21,7 @@ import numpy as np
 
 from .machine import (GRINDER_GEOMETRY_KEYS, GRINDER_STROKE_KEYS, GRINDER_TARGET_KEYS, Grinder, MachineFileError,
                       parse_grinder)
-from .mt_chain import MachineTool, parse_machine_tool
+from .machine_tool import MachineTool, parse_machine_tool
 
 ELEMENT_SLOTS = (
     # grinder element, chain slot, ISO 230-1 name of the slot

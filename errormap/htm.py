@@ -22,10 +22,10 @@ The first-order (small-error) form is linear in the elements: ``e ≈ J(axes) ·
 One source for the kinematics (issue 26): these chains are not written out here. They are the
 built-in chain file ``errormap/machines/grinder-chain.toml`` with the grinder file's geometry,
 strokes and targets (:func:`errormap.grinder_file.grinder_chain`, compiled once per file), evaluated
-by the generic compiled kernels of :mod:`errormap.mt_kernel`: the field and its axis Jacobian
-(:class:`~errormap.mt_kernel.CompiledChain`), the exact error for element values per point and
-the error-transfer Jacobian (:class:`~errormap.mt_kernel.CompiledNominal`), and the numpy
-reference chain (:meth:`errormap.mt_chain.MachineTool.tool_point`). A readable hand-written
+by the generic compiled kernels of :mod:`errormap.chain_kernel`: the field and its axis Jacobian
+(:class:`~errormap.chain_kernel.CompiledChain`), the exact error for element values per point and
+the error-transfer Jacobian (:class:`~errormap.chain_kernel.CompiledNominal`), and the numpy
+reference chain (:meth:`errormap.machine_tool.MachineTool.tool_point`). A readable hand-written
 reference of the chains above lives in the tests (``tests/test_htm_reference.py``).
 """
 from __future__ import annotations
@@ -49,8 +49,8 @@ def _chain(machine: Grinder):
 
 
 def _nominal(machine: Grinder):
-    """The chain packed for the point-by-point kernels (:func:`errormap.mt_kernel.grinder_nominal`)."""
-    from .mt_kernel import grinder_nominal
+    """The chain packed for the point-by-point kernels (:func:`errormap.chain_kernel.grinder_nominal`)."""
+    from .chain_kernel import grinder_nominal
     return grinder_nominal(machine)
 
 
@@ -66,7 +66,7 @@ def tool_point_actual(machine: Grinder, axes, values) -> np.ndarray:
 
     ``axes`` shape (n, 3) (x_mm, z_mm, a_deg); ``values`` shape (n, 23) element values
     at those axes (μm / μrad, ELEMENT_NAMES order). Returns shape (n, 3). The chain's numpy
-    reference (:meth:`errormap.mt_chain.MachineTool.tool_point`).
+    reference (:meth:`errormap.machine_tool.MachineTool.tool_point`).
     """
     axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
     return _chain(machine).tool_point(axes, _values(axes, values))
@@ -76,7 +76,7 @@ def nominal_frames(machine: Grinder, axes):
     """Nominal frames of the grinder's chain at ``axes`` (n, 3): ``{"p": nominal tool point in
     the WCS (n, 3) mm, "tool": (R, t) machine <- tool point (n, 3, 3), (n, 3), "work": (R, t)
     machine <- workpiece (A body), "X"/"Z"/"A": (R, t) machine <- each moving body}`` (the chain
-    file's frames, :meth:`errormap.mt_chain.MachineTool.side_frames` / ``body_frames``)."""
+    file's frames, :meth:`errormap.machine_tool.MachineTool.side_frames` / ``body_frames``)."""
     axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
     mt = _chain(machine)
     out = {"p": _nominal(machine).tool_points(axes), "tool": mt.side_frames("tool", axes),
@@ -90,7 +90,7 @@ def error_jacobian(machine: Grinder, axes) -> np.ndarray:
     """Error-transfer Jacobian ∂(spatial error μm)/∂(element value), shape (n, 3, 23).
 
     Columns in ELEMENT_NAMES order; translation columns are μm/μm, angle columns μm/μrad.
-    At the nominal chain, compiled (:func:`errormap.mt_kernel.error_jac_kernel`): each element's
+    At the nominal chain, compiled (:func:`errormap.chain_kernel.error_jac_kernel`): each element's
     transform moves the tool point along its axis (translation) or by ``axis × (p − origin)``
     (rotation), i.e. ``E⁻¹·q ≈ q - δ - ε×q`` pushed through the rest of the chain.
     """
@@ -110,7 +110,7 @@ def spatial_error_exact(machine: Grinder, axes, values, chunk: int = 50_000) -> 
     """Spatial error (μm) with exact transforms; ``values`` shape (n, 23) -> (n, 3).
 
     The grinder's chain compiled once and evaluated point by point
-    (:func:`errormap.mt_kernel.values_kernel`): float64 throughout, no small-angle step — the
+    (:func:`errormap.chain_kernel.values_kernel`): float64 throughout, no small-angle step — the
     same exact transforms as :func:`spatial_error_exact_chain`, equal to it to round-off
     (tested), with no (n, 3, 3) temporaries. ``chunk`` is kept for the API (the kernel
     allocates nothing per point).
@@ -131,7 +131,7 @@ class HTMField:
     error (dx_um, dy_um, dz_um), shape (n, 3). ``exact=False`` uses the first-order form.
     Calibrated volume: the range of the element set's stations per axis. The exact form
     declares ``jacobian`` and ``predict_and_jacobian`` (the chain's geometric Jacobian,
-    :func:`errormap.mt_kernel.field_jac_kernel`); the first-order form declares nothing.
+    :func:`errormap.chain_kernel.field_jac_kernel`); the first-order form declares nothing.
     Both evaluate the grinder's chain file (module docstring), packed once per field
     (:meth:`compiled`).
     """
@@ -160,7 +160,7 @@ class HTMField:
 
     def compiled(self):
         """The grinder's chain with this field's element set packed for the kernels
-        (:class:`errormap.mt_kernel.CompiledChain`): built on first use and kept while the
+        (:class:`errormap.chain_kernel.CompiledChain`): built on first use and kept while the
         machine, the element set, its per-axis splines (:meth:`ElementSet._axis_spline`, rebuilt
         when a caller resets them after editing) and its constants are the same. The element
         set's own splines are handed to the chain's element set, so the element values are the
@@ -172,8 +172,8 @@ class HTMField:
         if (cached is not None and cached[0][0] is self.machine and cached[0][1] is el
                 and all(a is b for a, b in zip(cached[0][2], splines)) and cached[0][3] == key[3]):
             return cached[1]
-        from .mt_elements import ChainElementSet
-        from .mt_kernel import CompiledChain
+        from .chain_elements import ChainElementSet
+        from .chain_kernel import CompiledChain
         mt = _chain(self.machine)
         ce = ChainElementSet.from_element_set(mt, el)
         for a in mt.axes:
@@ -186,7 +186,7 @@ class HTMField:
         """Spatial error (μm), shape (n, 3), at axes shape (n, 3).
 
         Exact: one compiled pass per point (the 18 function elements from the element set's
-        per-axis vector splines, then the chain's ops, :func:`errormap.mt_kernel.field_kernel`),
+        per-axis vector splines, then the chain's ops, :func:`errormap.chain_kernel.field_kernel`),
         no (n, 23) or (n, 3, 3) arrays; equal to the element values pushed through
         :func:`spatial_error_exact_chain` to round-off (tested). First order: the chain's
         error-transfer Jacobian times the element values, in chunks of ``chunk`` points.
@@ -206,7 +206,7 @@ class HTMField:
         """``(E (n, 3) μm, dE/d(axes) (n, 3, 3))`` in one compiled pass (exact form only).
 
         Rows of the Jacobian are the error components, columns μm per mm, μm per mm, μm per
-        deg. Geometric and exact (:func:`errormap.mt_kernel.field_jac_kernel`: each transform
+        deg. Geometric and exact (:func:`errormap.chain_kernel.field_jac_kernel`: each transform
         that depends on an axis adds its slope times its column), float64; the values equal
         :meth:`predict`'s, the Jacobian matches finite differences (tested).
         Float64 only (the field declares no ``float32``).

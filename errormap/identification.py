@@ -3,7 +3,7 @@
 A chain file, and a ``kind = "grinder"`` file through its chain (:func:`errormap.grinder_file.grinder_chain`;
 :func:`errormap.uncertainty.smooth_identify` returns the grinder's element-set and covariance files): one
 Gauss–Newton least squares on ALL ball positions of all sweeps of one tracker set-up, with the exact chain
-(:mod:`errormap.mt_sweeps` body chains), re-linearised at every step to the exact rigid motion until the
+(:mod:`errormap.chain_sweeps` body chains), re-linearised at every step to the exact rigid motion until the
 update is below ``tol``. The sweeps are checked first, naming axis and station: targets, coincident or
 collinear balls, ball distances and measured travel / rotation against the nominal mounts and the commands
 (mixed units), parking, the turn of a full-turn axis, mirrored columns.
@@ -11,7 +11,7 @@ collinear balls, ball distances and measured travel / rotation against the nomin
 Unknowns: the tracker pose ``machine_in_tracker`` (6), every component error of every swept
 axis at each of its stations (6 per station), the constants (location errors of rotary axes,
 squareness). During the sweep of axis W the other axes stand at their first stations (the
-lower stroke ends; :func:`errormap.mt_sweeps.park_axes`), so their values there enter.
+lower stroke ends; :func:`errormap.chain_sweeps.park_axes`), so their values there enter.
 
 Gauge (what the sweeps cannot tell apart), ``gauge`` one of :data:`GAUGES`, linear conditions on the
 station values (:func:`gauge_rows`; the fit runs in their null space):
@@ -39,7 +39,7 @@ warnings; those parameters are held at zero. The tool point in the workpiece fra
 depend on the gauge (a rigid change of the machine frame is seen by both chains; a squareness
 moved into a straightness trend is the same motion).
 
-Results: a :class:`~errormap.mt_elements.ChainElementSet` (stations = the sweep commands,
+Results: a :class:`~errormap.chain_elements.ChainElementSet` (stations = the sweep commands,
 interpolating splines through them; :func:`smooth_chain` smooths them), the covariance of the element parameters
 (σ̂²·(JᵀJ)⁻¹ mapped through the gauge, σ̂ from the ball residuals), the ball residual per axis,
 the conditioning. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over
@@ -55,9 +55,9 @@ import scipy.linalg
 from scipy.spatial.transform import Rotation
 
 from .io import NPY_ERRORS, InputError, atomic_write
-from .mt_chain import AXIS_WORDS, MachineTool
-from .mt_elements import ChainElementSet
-from .mt_sweeps import body_chain, park_axes, swept_words
+from .machine_tool import AXIS_WORDS, MachineTool
+from .chain_elements import ChainElementSet
+from .chain_sweeps import body_chain, park_axes, swept_words
 from .sweeps import Sweeps
 from .transforms import apply, skew
 

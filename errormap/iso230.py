@@ -95,7 +95,7 @@ def label(name: str) -> str:
 
 def _body_frames(machine: Grinder, axes) -> dict:
     """Nominal frames ``(R (n, 3, 3), t (n, 3) mm)`` machine <- the X, Z and A bodies at ``axes``
-    (n, 3): the grinder's chain file (:meth:`errormap.mt_chain.MachineTool.body_frames`, one
+    (n, 3): the grinder's chain file (:meth:`errormap.machine_tool.MachineTool.body_frames`, one
     source for the kinematics)."""
     from .grinder_file import grinder_chain
     mt = grinder_chain(machine)
@@ -137,7 +137,7 @@ def _offsets(reference_offsets_mm, n):
 
 def axis_to_mcs(mt, word: str, axes, comp, offset_mm=None) -> np.ndarray:
     """One axis' six components (n, 6) (δx δy δz μm, εx εy εz μrad) in the frame its chain applies them in ->
-    ISO 230-1 in the MCS at ``axes`` (n, k) of the chain ``mt`` (:class:`errormap.mt_chain.MachineTool`): turned
+    ISO 230-1 in the MCS at ``axes`` (n, k) of the chain ``mt`` (:class:`errormap.machine_tool.MachineTool`): turned
     by the body's nominal rotation, the translations moved to the reference point offset by ``offset_mm``
     (n, 3) (None: the body's own), ``δ + 1e-3·ε × r``. The same transform for every machine tool."""
     R, _ = mt.body_frames(word, axes)

@@ -8,10 +8,10 @@ Tool point in the WCS: ``p = T_work⁻¹ · T_tool · [0 0 0 1]ᵀ``, nominally
 One source for the kinematics (issue 26): the chains are the grinder's chain file
 (:func:`errormap.grinder_file.grinder_chain`, the built-in ``grinder-chain.toml`` with the grinder
 file's geometry), compiled once per file. ``forward`` is the chain's compiled nominal forward
-kinematics (:class:`errormap.mt_kernel.CompiledNominal`); ``inverse`` is the chain engine's closed
-form for its structure (:meth:`errormap.mt_chain.MachineTool.closed_form_inverse`: one rotary axis
+kinematics (:class:`errormap.chain_kernel.CompiledNominal`); ``inverse`` is the chain engine's closed
+form for its structure (:meth:`errormap.machine_tool.MachineTool.closed_form_inverse`: one rotary axis
 next to the workpiece, two linear axes after it), compiled
-(:func:`errormap.mt_kernel.closed_form_solver`), with the A unwrap along a path.
+(:func:`errormap.chain_kernel.closed_form_solver`), with the A unwrap along a path.
 """
 from __future__ import annotations
 
@@ -51,9 +51,9 @@ def forward(machine: Grinder, axes) -> np.ndarray:
     """Nominal tool point in the WCS (mm) for axes (x_mm, z_mm, a_deg), shape (n, 3) -> (n, 3).
 
     ``T_work⁻¹ · T_tool · origin`` through the grinder's compiled chain
-    (:meth:`errormap.mt_kernel.CompiledNominal.tool_points`).
+    (:meth:`errormap.chain_kernel.CompiledNominal.tool_points`).
     """
-    from .mt_kernel import grinder_nominal
+    from .chain_kernel import grinder_nominal
     axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
     return grinder_nominal(machine).tool_points(axes)
 
@@ -61,16 +61,16 @@ def forward(machine: Grinder, axes) -> np.ndarray:
 def inverse(machine: Grinder, points_mm, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:
     """Axes (x_mm, z_mm, a_deg) for WCS tool points, shape (n, 3) -> (n, 3).
 
-    The chain's closed form (:meth:`errormap.mt_chain.MachineTool.closed_form_inverse`), compiled
-    (:func:`errormap.mt_kernel.closed_form_solver`), with its rotary axis put on a turn as
-    :meth:`errormap.mt_chain.MachineTool.inverse_closed` does; on the grinder ``x = -(px + l5 + l7 - t_x)``, ``z = sqrt(py² + pz²) - ρ0``, ``a = atan2(py, pz)``.
+    The chain's closed form (:meth:`errormap.machine_tool.MachineTool.closed_form_inverse`), compiled
+    (:func:`errormap.chain_kernel.closed_form_solver`), with its rotary axis put on a turn as
+    :meth:`errormap.machine_tool.MachineTool.inverse_closed` does; on the grinder ``x = -(px + l5 + l7 - t_x)``, ``z = sqrt(py² + pz²) - ρ0``, ``a = atan2(py, pz)``.
     With ``unwrap`` the points are a path: A is unwrapped along it (multi-turn paths
     continue past 360°) and the first point is put in ``[a_lo, a_lo + 360)`` of the
     stroke, or nearest to ``a_start_deg`` when given. Without ``unwrap`` each point's A
     lies in ``[a_lo, a_lo + 360)``. On the A axis itself (ρ = 0) A is undefined; 0 is used.
     """
-    from .mt_chain import rotary_on_turn
-    from .mt_kernel import closed_form_solver
+    from .machine_tool import rotary_on_turn
+    from .chain_kernel import closed_form_solver
     p = check_points(points_mm, "WCS points (px_mm, py_mm, pz_mm)")
     solve = closed_form_solver(_chain(machine))
     if not unwrap:  # each point's A in [a_lo, a_lo + 360) in the same compiled pass

@@ -3,7 +3,7 @@
 One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexapod``,
 ``tripod``, ``serial``, ``machine-tool``; the one registry of kinds is :func:`machine_kinds`, each
 kind's parser and axes; schemas in ``docs/schemas.md``; serial chains in :mod:`errormap.chain_file`,
-machine-tool chains in :mod:`errormap.mt_chain`). The built-in machines are the files in
+machine-tool chains in :mod:`errormap.machine_tool`). The built-in machines are the files in
 ``errormap/machines/`` (:func:`builtin_machines`), nothing else. The built-in default grinder ships as ``errormap/machines/grinder.toml``.
 Every error names the file and the key.
 """
@@ -172,7 +172,7 @@ def machine_kinds() -> dict:
     their models (imported on first use: they need scipy, which a grinder-only run does not load).
     A new kind is one entry here (its parser and its axes)."""
     from .chain_file import parse_serial
-    from .mt_chain import parse_machine_tool
+    from .machine_tool import parse_machine_tool
     from .pkm.machine_file import parse_hexapod, parse_tripod
     return {k.kind: k for k in (
         MachineKind("grinder", parse_grinder, grinder_axes, "docs/schemas.md"),

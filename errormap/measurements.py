@@ -12,7 +12,7 @@ from pathlib import Path
 
 
 def _is_chain(machine) -> bool:
-    from .mt_chain import MachineTool
+    from .machine_tool import MachineTool
     return isinstance(machine, MachineTool)
 
 
@@ -26,7 +26,7 @@ def read_sweeps(paths, machine):
     """Tracker sweeps of one set-up (:class:`errormap.sweeps.Sweeps`): a machine-tool chain's one sweep
     file (its axis words from the machine), or the grinder file's sweep file(s)."""
     if _is_chain(machine):
-        from .mt_sweeps import read_mt_sweeps
+        from .chain_sweeps import read_mt_sweeps
         files = [paths] if isinstance(paths, (str, Path)) else list(paths)
         if len(files) != 1:
             raise ValueError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
@@ -38,9 +38,9 @@ def read_sweeps(paths, machine):
 
 def read_checks(path, machine, units: str = "check"):
     """Check measurements of a machine-tool chain or the grinder file
-    (:class:`errormap.diagnosis.mt_loop.MTChecks`, in ``seq`` order: ``axes`` (n, k) mm/deg, ``measured_um``
+    (:class:`errormap.diagnosis.chain_loop.MTChecks`, in ``seq`` order: ``axes`` (n, k) mm/deg, ``measured_um``
     (n, 3)). ``units="as-written"`` skips the likely-unit-mistake tests."""
-    from .diagnosis.mt_loop import load_mt_checks
+    from .diagnosis.chain_loop import load_mt_checks
     return load_mt_checks(path, _chain(machine, "read_checks(machine=...)"), units=units)
 
 
@@ -60,9 +60,9 @@ def read_drift_log(path, **options):
 
 def simulate_truth(machine, seed: int, family: str = "default"):
     """A hidden truth of a machine-tool chain or the grinder file's chain
-    (:class:`errormap.mt_simulate.MTTruth`): seeded random element functions (``family`` ``"default"`` or
+    (:class:`errormap.chain_truth.MTTruth`): seeded random element functions (``family`` ``"default"`` or
     ``"independent"``), no effects. For testing: an estimator is never given it."""
-    from .mt_simulate import make_mt_truth
+    from .chain_truth import make_mt_truth
     return make_mt_truth(_chain(machine, "simulate_truth(machine=...)"), seed, family=family)
 
 
@@ -71,7 +71,7 @@ def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, n_stations: int
     stroke, None: the command's default, the others parked at their lower stroke ends, an unknown seeded
     tracker pose, N(0, ``noise_um``²) per coordinate) as a :class:`errormap.sweeps.Sweeps` — what
     ``volcomp sweeps --machine`` writes, read back."""
-    from .mt_sweeps import DEFAULT_STATIONS, simulate_mt_sweeps, swept_words
+    from .chain_sweeps import DEFAULT_STATIONS, simulate_mt_sweeps, swept_words
     from .sweeps import sweeps_from_columns
     cols = simulate_mt_sweeps(truth, noise_um=noise_um, seed=seed,
                               n_stations=DEFAULT_STATIONS if n_stations is None else n_stations)
@@ -79,9 +79,9 @@ def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, n_stations: int
 
 
 def simulate_checks(truth, n: int = 400, noise_um: float = 1.0, seed: int = 0):
-    """``n`` simulated check measurements of ``truth`` (:class:`errormap.diagnosis.mt_loop.MTChecks`):
+    """``n`` simulated check measurements of ``truth`` (:class:`errormap.diagnosis.chain_loop.MTChecks`):
     what ``volcomp simulate --machine`` writes to ``checks.csv``, read back."""
-    from .diagnosis.mt_loop import MTChecks
+    from .diagnosis.chain_loop import MTChecks
     cols = truth.check_measurements(n=n, noise_um=noise_um, seed=seed)
     return MTChecks.from_columns(truth.machine, cols, path="<simulated checks>")
 

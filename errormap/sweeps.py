@@ -59,7 +59,7 @@ def body_frames(machine: Grinder, body: str, axes, values):
 
     ``body`` X|Z|A; ``axes`` shape (n, 3) (x_mm, z_mm, a_deg); ``values`` shape (n, 23)
     element values there. Returns ``(R (n,3,3), t (n,3) mm)``: MCS <- body. The chain file's
-    body frames (:meth:`errormap.mt_chain.MachineTool.body_frames`).
+    body frames (:meth:`errormap.machine_tool.MachineTool.body_frames`).
     """
     if body not in SWEEP_AXES:
         raise ValueError(f"Expected body X, Z or A, got {body!r}")

@@ -25,7 +25,7 @@ ELEMENT_SCALE_UM = 20.0  # chain element values ±20 μm / μrad (bench_mt_solve
 
 def chain_elements(mt, seed, scale=ELEMENT_SCALE_UM, n_stations=11):
     """A seeded smooth chain element set (full-turn axes periodic)."""
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     return ChainElementSet.random(mt, seed, scale, n_stations)
 
 
@@ -47,7 +47,7 @@ def case(name):
         targets = forward(m, axes)
         return (lambda: solve("exact", field, targets, m, target_axes=axes, progress=False)), targets, axes
     from compensation.solvers.chain_exact import solve_exact_chain
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
     field = ChainField(m, chain_elements(m, field_seed))
     axes = rng_axes.uniform(m.stroke_lo, m.stroke_hi, (n, len(m.axes)))
     targets = m.nominal(axes)

@@ -10,7 +10,7 @@ import numpy as np
 
 from compensation.gcode import AxisWords, parse_program
 from compensation.nc_state import machine_with_tool
-from errormap.mt_field import ChainField
+from errormap.chain_field import ChainField
 
 TOL_POINT_UM = 1.0
 """Every programmed point reproduced by the TRUE machine within 1 μm (the issue's bound): with the truth

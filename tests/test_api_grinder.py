@@ -31,7 +31,7 @@ def test_grinder_file_identified_and_compensated_as_its_chain(tmp_path):
     from errormap.grinder_file import machine_tool_of
     from errormap.htm import HTMField
     from errormap.identification import TrackerIdentification
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
     g = load_machine()                          # the built-in grinder file
     truth = simulate_truth(g, seed=1)           # hidden: only its sweeps reach the estimator
     sweeps = simulate_sweeps(truth, noise_um=1.0, seed=2, n_stations=11)

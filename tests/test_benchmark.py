@@ -422,7 +422,7 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
     """mill-xyz, no effect: simulate → sweeps → identify → diagnose → exact compensation of the body
     diagonals; the loop's model beats the identified set, which beats no compensation; the files stay."""
     from compensation.app.workflows.benchmark import RowLog, Tracker, _row, _streams
-    from compensation.app.workflows.mt_benchmark import run_chain
+    from compensation.app.workflows.chain_benchmark import run_chain
     from errormap.machine import load_machine
     m = load_machine("mill-xyz")
     s = _chain_settings()
@@ -445,7 +445,7 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
 
 def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
     from compensation.app.workflows.benchmark import RowLog, Tracker, _row, _streams
-    from compensation.app.workflows.mt_benchmark import chain_effects, run_chain
+    from compensation.app.workflows.chain_benchmark import chain_effects, run_chain
     from errormap.machine import load_machine
     src = (Path(__file__).resolve().parents[1] / "errormap" / "machines" / "lathe-xzc.toml").read_text()
     (tmp_path / "half-turn.toml").write_text(src.replace("stroke = [0.0, 360.0]", "stroke = [0.0, 180.0]"))

@@ -13,8 +13,8 @@ from compensation.solvers.chain_exact import rotary_bound_deg, rotary_radius_mm
 from compensation.solvers.chain_ga import ChainAxisFitness, chain_fitness, solve_batched_ga_chain, solve_ga_chain
 from compensation.solvers.ga import DEFAULT_TOL_UM
 from errormap.machine import load_machine
-from errormap.mt_field import ChainField
-from errormap.mt_kernel import NominalChain
+from errormap.chain_field import ChainField
+from errormap.chain_kernel import NominalChain
 
 from chain_fixtures import lathe_targets as _targets
 from test_mt_compensate import chain_elements

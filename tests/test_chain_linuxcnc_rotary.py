@@ -10,8 +10,8 @@ import pytest
 from compensation import export as ex
 from compensation.app.cli import main
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 
 from test_mt_linuxcnc import check_and_write_tables, joint_tables
 

@@ -13,9 +13,9 @@ import torch
 from errormap.featurepoints import FeaturePoints, grid_axes
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
-from errormap.mt_simulate import make_mt_truth
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
+from errormap.chain_truth import make_mt_truth
 from training.chain_model import ChainMLPField, ChainPhysicsMLPField, fit_chain_field, random_chain_axes
 from training.physics import fit_physics_elements
 from training.trainers import TrainSettings

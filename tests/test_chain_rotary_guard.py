@@ -12,8 +12,8 @@ import pytest
 from compensation.app.cli import main
 from compensation.solvers.chain_exact import rotary_bound_deg, rotary_radius_mm, solve_exact_chain
 from errormap.machine import load_machine
-from errormap.mt_field import ChainField
-from errormap.mt_kernel import NominalChain
+from errormap.chain_field import ChainField
+from errormap.chain_kernel import NominalChain
 
 from test_mt_compensate import TOL_MODEL_RESIDUAL_UM, chain_elements
 

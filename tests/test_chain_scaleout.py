@@ -11,7 +11,7 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
+from errormap.chain_elements import ChainElementSet
 from tests.test_lathe_compensate import LATHE_PROGRAM
 from tests.test_turning import MIXED
 
@@ -130,7 +130,7 @@ def test_max_segment_splits_a_long_move_and_reports_the_true_residual_along_it(t
 def test_max_segment_on_a_five_axis_move_measures_the_tool_point(tmp_path, capsys):
     """A rotary move sweeps the tool point around the rotary axes: the pieces follow its path (150 mm tool,
     the C turn of 45° alone sweeps an arc), not the linear axes' travel."""
-    from compensation.mt_gcode import length_pieces, parse_chain_program
+    from compensation.chain_gcode import length_pieces, parse_chain_program
     from compensation.solvers.chain_exact import nominal_and_jacobian
     mt, model = chain_files(tmp_path, "five-axis-ac", 7)
     prog = tmp_path / "five.nc"

@@ -14,8 +14,8 @@ from compensation.app.cli import main
 from compensation.solvers import CHAIN_METHODS, solve
 from compensation.solvers.chain_exact import nominal_and_jacobian, solved_and_kept
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 
 DATA = Path(__file__).resolve().parent / "data"
 MILL_PROGRAM = DATA / "mill_pocket.nc"

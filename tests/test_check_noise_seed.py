@@ -91,7 +91,7 @@ def test_cli_option_every_family(tmp_path, machine):
 
 def test_chain_redraw_changes_only_the_noise():
     """A chain truth's checks: the difference of two draws is exactly the two noise streams' (the error is the same)."""
-    from compensation.app.workflows.mt_loop import make_truth as chain_truth
+    from compensation.app.workflows.measurement import make_truth as chain_truth
     from errormap.seeds import spawn_rngs
     truth = chain_truth(load_machine("mill-xyz"), 2, effects=["reversal:X"])
     a = truth.check_measurements(N, SIGMA, seed=7)

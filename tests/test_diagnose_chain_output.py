@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from compensation.app.workflows.mt_loop import diagnosis_lines
+from compensation.app.workflows.measurement import diagnosis_lines
 
 _STAGE = {"held_out": {"rms_um": 2.0}, "fitting": {"rms_um": 1.9}}
 _ABSORBED = [{"kind": "interaction", "axis": "X*Z", "element": "ey_x", "note": "interaction X*Z on ey_x: represented"}]
@@ -31,7 +31,7 @@ def test_absorbed_terms_are_printed_only_when_an_update_absorbed_some():
 def test_chain_diagnose_writes_its_report_page(mill_reversal):
     """simulate mill-xyz (reversal:Z, 200 checks) → diagnose: the shared run (tests/shared_runs.py) and what
     diagnose printed."""
-    from compensation.app.reports.mt_diagnosis import chain_diagnosis_page
+    from compensation.app.reports.chain_diagnosis import chain_diagnosis_page
     from errormap.machine import load_machine
     run, out = mill_reversal.root / "diag", mill_reversal.out
     assert f"wrote {run / 'report.html'}" in out

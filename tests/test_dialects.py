@@ -14,8 +14,8 @@ from compensation.gcode import AxisWords, parse_program
 from compensation.nc_state import machine_with_tool
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 from program_checks import TOL_POINT_UM, true_point_errors_um
 
 DATA = Path(__file__).resolve().parent / "data"

@@ -113,7 +113,7 @@ def _same(a, b, where: str) -> None:
     elif isinstance(a, (str, int, bool, type(None), np.generic)):
         assert a == b, where
     else:   # nothing is left uncompared by accident
-        assert callable(a) or (type(a).__module__ == "errormap.mt_chain"), f"{where}: {type(a)}"
+        assert callable(a) or (type(a).__module__ == "errormap.machine_tool"), f"{where}: {type(a)}"
 
 
 SLOW_CASES = {"closed-loop", "identification"}

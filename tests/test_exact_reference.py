@@ -13,7 +13,7 @@ import pytest
 from compensation.gcode_kernels import linear_path_lengths_mm
 from compensation.solvers.exact import solved_axes
 from errormap.machine import load_machine
-from errormap.mt_kernel import NominalChain
+from errormap.chain_kernel import NominalChain
 from exact_reference import CASES, case
 
 REFERENCE = Path(__file__).resolve().parent / "data" / "exact_reference.npz"

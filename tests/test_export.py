@@ -200,7 +200,7 @@ def test_iso_tables_rebuild_the_model_at_their_rows_on_every_machine_tool(name):
     the reference pose): at the rows' positions, where linear interpolation is exact, the controller's rebuilt
     error equals the model's, on a mill, on a five-axis machine whose C table rides on A, and on a lathe."""
     from errormap.machine import load_machine
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     m = load_machine(name)
     el = ChainElementSet.random(m, 3)
     model = ex.ModelError(m, el)

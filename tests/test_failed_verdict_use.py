@@ -52,9 +52,9 @@ def diagnosed(tmp_path_factory):
 @pytest.fixture(scope="module")
 def chain_model(tmp_path_factory):
     """A mill's diagnosed model.json that carries its own failed verdict (no diagnosis.json beside)."""
-    from errormap.diagnosis.mt_model import save_chain_model
+    from errormap.diagnosis.loop_model import save_chain_model
     from errormap.machine import load_machine
-    from errormap.mt_simulate import make_mt_truth
+    from errormap.chain_truth import make_mt_truth
     mill = load_machine("mill-xyz")
     d = tmp_path_factory.mktemp("chain")
     el = make_mt_truth(mill, 3, family="independent").elements.save(d / "updated_elements.json")
@@ -157,7 +157,7 @@ def test_a_real_failed_diagnosis_stops_predict_and_compensate(tmp_path):
     given to predict and compensate is refused (exit 2), naming model.json and the baseline it loses to."""
     from errormap.io import write_csv
     from errormap.machine import load_machine
-    from errormap.mt_simulate import make_mt_truth
+    from errormap.chain_truth import make_mt_truth
     noise_um, offset_um = 1.0, 20.0
     t = make_mt_truth(load_machine("mill-xyz"), 3, family="independent")
     t.elements.save(tmp_path / "elements.json")

@@ -110,9 +110,9 @@ def test_fuzz_identify_grinder(files, data):
 @given(data=st.data())
 def test_fuzz_identify_chain(files, data):
     """identify --machine mill-xyz: exit 0 writes the element set the library identifies from the same file."""
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     from errormap.mt_identify import ChainIdentification
-    from errormap.mt_sweeps import read_mt_sweeps
+    from errormap.chain_sweeps import read_mt_sweeps
     mill = load_machine("mill-xyz")
     raw = data.draw(hostile_bytes((files / "m_sweeps.csv").read_text(), table=True))
     with tempfile.TemporaryDirectory() as d:
@@ -181,7 +181,7 @@ def test_fuzz_register_poses(files, data):
 def test_fuzz_diagnose_chain_checks(files, data):
     """diagnose --machine mill-xyz on mangled checks: exit 0 with a passed verdict, exit 1 with a failed one
     (written in diagnosis.json), each with the check count the library reads from the same file; or one line."""
-    from errormap.diagnosis.mt_loop import load_mt_checks
+    from errormap.diagnosis.chain_loop import load_mt_checks
     mill = load_machine("mill-xyz")
     raw = data.draw(hostile_bytes(_head(files / "m" / "checks.csv", 60), table=True))
     with tempfile.TemporaryDirectory() as d:

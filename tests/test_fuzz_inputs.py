@@ -462,6 +462,6 @@ def test_fuzz_main_other_file_kinds(sim, machine, tally, data):
             argv = ["sweeps", "--machine", str(src), "--seed", "1", "--out", str(d / "sw.csv")]
             rc, err = run_main(argv)
             if _tally_outcome(argv, rc, err, [str(src)]):
-                from errormap.mt_sweeps import read_mt_sweeps
+                from errormap.chain_sweeps import read_mt_sweeps
                 sw = read_mt_sweeps(d / "sw.csv", load_machine(src))
                 _check_output("sweeps", len(read_table(d / "sw.csv")) > 0 and sw is not None, argv)

@@ -12,7 +12,7 @@ import pytest
 import compensation.gcode as gcode
 from compensation.gcode import (AxisWords, default_axis_words, move_points, parse_program, render_program,
                                render_table)
-from compensation.mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
+from compensation.chain_gcode import parse_chain_program, plan_chain_gcode, render_chain_program
 from errormap.io import InputError
 from errormap.machine import load_machine
 

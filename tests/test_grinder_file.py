@@ -12,8 +12,8 @@ from errormap.elements import ELEMENT_NAMES, ElementSet
 from errormap.grinder_file import ELEMENT_SLOTS, adapter_line, grinder_chain_document, grinder_to_chain
 from errormap.htm import HTMField
 from errormap.machine import GRINDER_STROKE_KEYS, MachineFileError, load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 from tests.test_htm_reference import (random_axes, random_elements, reference_error_jacobian,
                                       reference_field_and_jacobian, reference_tool_point)
 

@@ -10,11 +10,11 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.hybrid import learned_stage
-from compensation.mt_hybrid import ChainHybridField, load_chain_model
-from errormap.diagnosis.mt_model import ChainModelField, load_chain_model_file, save_chain_model
+from compensation.chain_hybrid import ChainHybridField, load_chain_model
+from errormap.diagnosis.loop_model import ChainModelField, load_chain_model_file, save_chain_model
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
+from errormap.chain_elements import ChainElementSet
 
 SEED = 0
 MACHINE = "mill-xyz"
@@ -45,7 +45,7 @@ def _bump(machine, axes):
 def _bump_truth(machine, seed, bump: bool):
     """The seeded independent-family truth, with the bump added to the first linear axis's positioning
     element (an out-of-catalogue effect: each element is a profile of one axis)."""
-    from errormap.mt_simulate import MTTruth, make_mt_truth
+    from errormap.chain_truth import MTTruth, make_mt_truth
     base = make_mt_truth(machine, seed, family="independent")
     if not bump:
         return base
@@ -184,7 +184,7 @@ def test_report_map_is_named_by_the_machine_axes():
 # -- slow: the user's path on a mill ----------------------------------------------------------------------
 def _user_path(tmp, seed, bump):
     """sweeps + 800 checks of the truth → identify → diagnose --machine; returns (machine, run dir, truth)."""
-    from errormap.mt_sweeps import simulate_mt_sweeps, write_sweeps
+    from errormap.chain_sweeps import simulate_mt_sweeps, write_sweeps
     from errormap.seeds import spawn_seeds
     m = load_machine(MACHINE)
     truth = _bump_truth(m, seed, bump)
@@ -265,7 +265,7 @@ RMS, above the 1 μm check noise) left in the residual, which a stand-in thermal
 def _warming_checks(m, n, seed):
     """n checks of the mill in time order, the machine warming as the simulator's (20 + 4·(1 − e^(−t/2400 s)),
     15 s apart), and the chain's two thermal terms' unit columns (X on dx_x, Y on dy_y) at them."""
-    from errormap.diagnosis.mt_loop import MTChecks, effect_columns
+    from errormap.diagnosis.chain_loop import MTChecks, effect_columns
     rng = np.random.default_rng(seed)
     axes = m.stroke_lo + (m.stroke_hi - m.stroke_lo) * rng.random((n, len(m.axes)))
     temp = 20.0 + 4.0 * (1.0 - np.exp(-np.arange(n) * 15.0 / 2400.0))
@@ -274,7 +274,7 @@ def _warming_checks(m, n, seed):
 
 
 def _thermal_term(word, coef):
-    from errormap.diagnosis.mt_loop import EffectTerm
+    from errormap.diagnosis.chain_loop import EffectTerm
     return EffectTerm("thermal", (word,), f"d{word.lower()}_{word.lower()}", {}, np.array([float(coef)]))
 
 
@@ -283,8 +283,8 @@ def test_chain_learned_stage_hands_each_condition_term_to_the_rule_and_keeps_the
     residual without them minus the one with them), and the hybrid keeps every term but the replaced ones
     (here the second condition term: a static term and the first condition term stay)."""
     import compensation.hybrid as hybrid
-    from compensation.app.workflows.mt_loop import chain_learned_stage
-    from errormap.diagnosis.mt_loop import EffectTerm
+    from compensation.app.workflows.measurement import chain_learned_stage
+    from errormap.diagnosis.chain_loop import EffectTerm
     m = load_machine(MACHINE)
     n = 60
     axes, temp, (cx, cy), MTChecks = _warming_checks(m, n, SEED)
@@ -320,7 +320,7 @@ def test_chain_real_thermal_term_stays_beside_a_replaced_stand_in():
     (measured 0.52 ± 0.04, 12 se from 1: the joint rule replaced both, the real one too); per term the real one
     stays (1.02 ± 0.06: z > TERM_KEEP_Z, within TERM_CONSISTENT_Z of 1) and the stand-in is replaced
     (0.01 ± 0.06), so the shipped hybrid keeps the real term."""
-    from compensation.app.workflows.mt_loop import chain_learned_stage
+    from compensation.app.workflows.measurement import chain_learned_stage
     from compensation.hybrid import TERM_CONSISTENT_Z, TERM_KEEP_Z
     m = load_machine(MACHINE)
     n, n_fit = 800, 480
@@ -359,7 +359,7 @@ def test_report_section_states_the_rule_that_replaced_the_condition_terms():
           "kept": True, "why": "kept: z 5", "inputs": ["x_mm", "y_mm", "z_mm"], "cv": "blocked", "held_out_gain_z": 5.0,
           "held_out_band95_cover": 0.95, "cv_table": {}, "condition_terms_vs_static": {"rule": rule}}
     s = {"learned_residual": lr, "effects_replaced_by_learned": [{"kind": "thermal", "axis": "Y"}]}
-    for page in ("mt_diagnose.html", "diagnose.html"):
+    for page in ("chain_diagnose.html", "diagnose.html"):
         assert '{% include "_learned.html" %}' in environment().loader.get_source(environment(), page)[0]
     html = environment().get_template("_learned.html").render(learned=_learned(s))
     text = " ".join(html.split())

@@ -10,7 +10,7 @@ from compensation.hybrid import (LEARNED_FRAMES, LearnedResidual, _fit_inputs, f
 from errormap.htm import ELEMENT_NAMES, error_jacobian
 from errormap.machine import load_machine
 from errormap.grinder_file import machine_tool_of
-from errormap.mt_chain import WorkRotation
+from errormap.machine_tool import WorkRotation
 from errormap.simulator import random_axes
 from training.residual import ResidualRegressor
 

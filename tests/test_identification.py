@@ -241,14 +241,14 @@ sit 25-80 mm from the axis and A turns by up to 342°): the reversed chain reall
 def _chain_with_a_reversed(machine):
     """The grinder file's chain document (:func:`errormap.grinder_file.grinder_chain_document`) with
     the rotary joint's ``direction = -1``: A turns about -x."""
-    from errormap import mt_chain
+    from errormap import machine_tool
     from errormap.grinder_file import grinder_chain_document
     doc = grinder_chain_document(machine)
     for side in ("work", "tool"):
         for d in doc[side]:
             if d.get("joint") == "rotary":
                 d["direction"] = -1
-    return mt_chain.parse_machine_tool(doc, machine.path, machine.sha256)
+    return machine_tool.parse_machine_tool(doc, machine.path, machine.sha256)
 
 
 def test_rotary_direction_comes_from_the_chain(machine, points, monkeypatch):
@@ -284,8 +284,8 @@ def test_chain_gauges_agree_and_the_default_measures_better():
     axis' errors sum to zero; with 2 μm noise the default (station-mean, smoothed) is closer to the hidden truth
     than the interpolating first-station set."""
     from errormap.identification import smooth_chain
-    from errormap.mt_simulate import make_mt_truth
-    from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.chain_truth import make_mt_truth
+    from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     m = load_machine("mill-xyz")
     truth = make_mt_truth(m, 0)

@@ -80,7 +80,7 @@ def test_nan_in_an_element_set_names_element_and_station(tmp_path, grinder, poin
 
 def test_nan_in_a_chain_element_set(tmp_path):
     from errormap.machine import load_machine
-    from errormap.mt_simulate import make_mt_truth
+    from errormap.chain_truth import make_mt_truth
     el = make_mt_truth(load_machine("mill-xyz"), 3).elements.save(tmp_path / "el.json")
     d = json.loads(el.read_text())
     name = next(iter(d["functions"]))

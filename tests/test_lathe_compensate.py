@@ -13,7 +13,7 @@ import pytest
 from compensation.app.cli import main
 from compensation.solvers.chain_exact import solve_exact_chain, solved_and_kept
 from errormap.machine import load_machine
-from errormap.mt_field import ChainField
+from errormap.chain_field import ChainField
 
 from test_mt_compensate import TOL_MODEL_RESIDUAL_UM, chain_elements, solve_and_check
 

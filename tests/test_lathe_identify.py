@@ -1,15 +1,15 @@
 """Issue 26, the lathe's identification: why it was weak (a study of the sweep design,
-:mod:`errormap.mt_identifiability`) and the benchmark's judging path on a turning centre
-(:func:`compensation.app.workflows.mt_benchmark.turning_path`)."""
+:mod:`errormap.identifiability`) and the benchmark's judging path on a turning centre
+(:func:`compensation.app.workflows.chain_benchmark.turning_path`)."""
 from pathlib import Path
 
 import numpy as np
 import pytest
-from compensation.app.workflows.mt_benchmark import (TURNING_C_POSITIONS, TURNING_CLEARANCE_MM, judging_path,
+from compensation.app.workflows.chain_benchmark import (TURNING_C_POSITIONS, TURNING_CLEARANCE_MM, judging_path,
                                                      turning_path)
 from compensation.solvers.chain_exact import nominal_and_jacobian
 from errormap.machine import load_machine
-from errormap.mt_identifiability import identifiability
+from errormap.identifiability import identifiability
 
 LATHE = "lathe-xzc"
 NOISE_FREE_UM = 1e-6
@@ -96,7 +96,7 @@ LATHE_HELD_OUT_OVER_FLOOR = 1.5
 @pytest.mark.slow
 def test_benchmark_rows_on_the_lathe_are_the_users_path(tmp_path):
     from compensation.app.workflows.benchmark import RowLog, Tracker, _row, _streams, quick_settings
-    from compensation.app.workflows.mt_benchmark import run_chain
+    from compensation.app.workflows.chain_benchmark import run_chain
     s = quick_settings()
     s.effects, s.volume_points, s.chain_path_points = (), 0, 10
     log = RowLog(Tracker(None, enabled=False))

@@ -10,8 +10,8 @@ from errormap.elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNC
 from errormap.field import check_field
 from errormap.htm import HTMField, error_jacobian, spatial_error_exact
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField, predict_and_jacobian_numpy
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField, predict_and_jacobian_numpy
 
 TOL_EQUIV_UM = 1e-9
 """Two exact evaluations of the same transforms in different operation order: tool points of

@@ -11,8 +11,8 @@ import pytest
 from compensation.app.cli import main
 from compensation.solvers.chain_exact import nominal_and_jacobian, solve_exact_chain
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -32,7 +32,7 @@ ELEMENT_SCALE_UM = 20.0
 
 def chain_elements(mt, seed, scale=ELEMENT_SCALE_UM, n_stations=11):
     """A seeded smooth element set of ``mt`` (values at 11 stations per axis, a cubic spline)."""
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     return ChainElementSet.random(mt, seed, scale, n_stations)
 
 
@@ -191,7 +191,7 @@ def test_compensate_mill_program_exact_true_residual(tmp_path, mill_models):
                  "--out", str(out), "--truth", str(truth), "--work-offsets", "machine"]) == 0  # its G54 = machine axes
     src = MILL_PROGRAM.read_bytes().decode("latin-1").splitlines(keepends=True)
     dst = (out / MILL_PROGRAM.name).read_bytes().decode("latin-1").splitlines(keepends=True)
-    from compensation.mt_gcode import parse_chain_program
+    from compensation.chain_gcode import parse_chain_program
     prog = parse_chain_program(MILL_PROGRAM, load_machine("mill-xyz"))
     moved = {m.index for m in prog.moves if m.compensate}
     fixed = [ln for i, ln in enumerate(src) if i not in moved]
@@ -245,7 +245,7 @@ def test_compensate_five_axis_keeps_rotary_words(tmp_path, capsys):
     doc = json.loads((tmp_path / "o" / "compensate_summary.json").read_text())
     assert doc["files"][0]["kept_axes"] == ["a_deg", "c_deg"]
     text = (tmp_path / "o" / "five.nc").read_text()
-    from compensation.mt_gcode import parse_chain_program, plan_chain_gcode
+    from compensation.chain_gcode import parse_chain_program, plan_chain_gcode
     written = plan_chain_gcode(parse_chain_program(tmp_path / "o" / "five.nc", mt), 1e9).axes  # one vertex a line
     from compensation.pathio import DEFAULT_ARC_TOLERANCE_UM
     planned = plan_chain_gcode(parse_chain_program(prog, mt), DEFAULT_ARC_TOLERANCE_UM,
@@ -373,7 +373,7 @@ def test_compensate_refuses_a_chain_it_cannot_solve(tmp_path, capsys):
     est = chain_elements(mt, 401).save(tmp_path / "el.json")
     prog = tmp_path / "p.nc"
     prog.write_text("G18 G90\nG1 X10. Z200. B0. C0. F100.\nM30\n")
-    from compensation.mt_gcode import parse_chain_program
+    from compensation.chain_gcode import parse_chain_program
     from errormap.io import InputError
     bad = tmp_path / "arc.nc"
     bad.write_text("G17 G90\nG1 X10. Z-20. C0. F100.\nG2 X20. I5.\n")  # G17 alone is a state line

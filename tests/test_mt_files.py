@@ -10,8 +10,8 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 
 ISO_SCALES = (100.0, 10.0)
 """Location errors of ±100 and ±10 μm / μrad: the exact model minus the first-order formula is a

@@ -14,8 +14,8 @@ from compensation.app.cli import main
 from errormap.io import read_table, write_csv
 from errormap.machine import load_machine
 from errormap.identification import load_covariance
-from errormap.mt_simulate import make_mt_truth
-from errormap.mt_sweeps import simulate_mt_sweeps
+from errormap.chain_truth import make_mt_truth
+from errormap.chain_sweeps import simulate_mt_sweeps
 from errormap.sweeps import write_sweeps
 
 N_BOOT = 24
@@ -77,7 +77,7 @@ def test_bootstrap_covariance_agrees_with_gauss_newton_and_feeds_the_band(tmp_pa
     assert np.mean((ratio >= 1 / FACTOR) & (ratio <= FACTOR)) >= SHARE_WITHIN
     # predict --band reads the bootstrap's file: a band per point, same predictions as the plain model's
     from compensation.export import volume_points as check_points
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     q = check_points(ChainElementSet.load(tmp_path / "B.json", m), 30, 2)
     write_csv(tmp_path / "p.csv", {a.column: q[:, j] for j, a in enumerate(m.axes)})
     bands = {}
@@ -103,7 +103,7 @@ def test_smoothing_lowers_the_true_error_of_the_chain(tmp_path):
     against the hidden truth: the elements and the tool point come closer to it than the interpolating set."""
     from compensation.export import volume_points as check_points
     from errormap.identification import ChainIdentification, smooth_chain, station_error_rms
-    from errormap.mt_sweeps import swept_words
+    from errormap.chain_sweeps import swept_words
     from errormap.sweeps import sweeps_from_columns
     m = load_machine("mill-xyz")
     for seed in SMOOTH_SEEDS:

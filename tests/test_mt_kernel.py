@@ -1,13 +1,13 @@
-"""The compiled chain kernel (errormap/mt_kernel.py) against the numpy reference (errormap/mt_field.py),
+"""The compiled chain kernel (errormap/chain_kernel.py) against the numpy reference (errormap/chain_field.py),
 as tests/test_htm_fast.py checks the grinder's kernels: every built-in machine-tool chain, random
 element values (not the simulator's), points beyond the strokes and several turns of full-turn axes."""
 import numpy as np
 import pytest
 
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField, predict_and_jacobian_numpy, predict_numpy
-from errormap.mt_kernel import CompiledChain, error_jacobian
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField, predict_and_jacobian_numpy, predict_numpy
+from errormap.chain_kernel import CompiledChain, error_jacobian
 
 from chain_fixtures import axes_beyond_strokes
 

@@ -1,7 +1,7 @@
-"""The compiled kernels' fast paths against the forms they replace (errormap/mt_kernel.py): the
+"""The compiled kernels' fast paths against the forms they replace (errormap/chain_kernel.py): the
 small-angle cosine and sine against the library's, the spline interval search on unevenly spaced
 stations against the numpy reference field, and the compiled closed-form inverse against the chain's
-numpy closed form (errormap/mt_chain.py ``closed_form_inverse``)."""
+numpy closed form (errormap/machine_tool.py ``closed_form_inverse``)."""
 import dataclasses
 
 import numpy as np
@@ -11,9 +11,9 @@ from numba import njit
 from errormap.kinematics import forward, inverse
 from errormap.machine import load_machine
 from errormap.grinder_file import grinder_chain
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import predict_and_jacobian_numpy, predict_numpy
-from errormap.mt_kernel import SMALL_ANGLE_RAD, CompiledChain, _cos_sin, closed_form_solver
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import predict_and_jacobian_numpy, predict_numpy
+from errormap.chain_kernel import SMALL_ANGLE_RAD, CompiledChain, _cos_sin, closed_form_solver
 
 from chain_fixtures import axes_beyond_strokes
 

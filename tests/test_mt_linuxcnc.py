@@ -9,8 +9,8 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 
 PITCH_ONLY_TOL_UM = 0.01
 """A machine whose only errors are the linear joints' own positioning errors is compensated exactly by
@@ -145,7 +145,7 @@ SOLVER_TOL_UM = 1e-6
 
 def coupled_elements(machine):
     """A seeded truth's element set (angular errors: a joint's correction depends on the other axes)."""
-    from compensation.app.workflows.mt_loop import make_truth
+    from compensation.app.workflows.measurement import make_truth
     return make_truth(machine, 0).elements
 
 
@@ -181,8 +181,8 @@ def test_diagnosis_reversal_is_the_models_term(tmp_path, capsys):
     """``--diagnosis`` on a chain (as on the grinder): the chain loop's diagnosis.json reversal terms on the element
     set give the same tables, byte for byte, as the loop's model.json with those terms; other effects are listed
     as left out; the Z table's forward - reverse is the backlash."""
-    from errormap.diagnosis.mt_loop import EffectTerm
-    from errormap.diagnosis.mt_model import save_chain_model
+    from errormap.diagnosis.chain_loop import EffectTerm
+    from errormap.diagnosis.loop_model import save_chain_model
     from errormap.io import write_json
     m = load_machine("mill-xyz")
     el_path = positioning_only(m).save(tmp_path / "E.json")

@@ -6,14 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from errormap.diagnosis.mt_loop import MTChecks, closed_loop_chain, parameter_matrix
+from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, parameter_matrix
 from errormap.htm import HTMField
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 from errormap.identification import ChainIdentification, root_axis
-from errormap.mt_simulate import FAMILIES, TARGET_MAX_RANGE_UM, MTTruth, make_mt_truth, volume_grid
-from errormap.mt_sweeps import read_mt_sweeps, simulate_mt_sweeps, swept_words
+from errormap.chain_truth import FAMILIES, TARGET_MAX_RANGE_UM, MTTruth, make_mt_truth, volume_grid
+from errormap.chain_sweeps import read_mt_sweeps, simulate_mt_sweeps, swept_words
 from errormap.simulator import random_truth
 from errormap.simulator import volume_grid as grinder_grid
 from errormap.sweeps import simulate_sweeps, sweeps_from_columns, write_sweeps
@@ -239,7 +239,7 @@ def test_cli_refuses_options_the_chain_path_does_not_use(tmp_path, capsys, mill)
 
 
 def test_chain_checks_refuse_radians_and_metres(tmp_path, five):
-    from errormap.diagnosis.mt_loop import load_mt_checks
+    from errormap.diagnosis.chain_loop import load_mt_checks
     from errormap.io import InputError, write_csv
     t = make_mt_truth(five, 0)
     ck = t.check_measurements(40, seed=1)
@@ -256,7 +256,7 @@ def test_chain_sweep_reader_shares_the_grinder_readers_row_checks(tmp_path, mill
     """The chain sweep file is read by the grinder's column checks (one reader): a station number
     beyond the maximum and a command unit that does not fit the axis are refused naming row and column."""
     from errormap.io import InputError, write_csv
-    from errormap.mt_sweeps import write_sweeps
+    from errormap.chain_sweeps import write_sweeps
     cols = simulate_mt_sweeps(make_mt_truth(mill, 0), noise_um=1.0, seed=0)
     write_sweeps(tmp_path / "ok.csv", cols)
     assert sorted(read_mt_sweeps(tmp_path / "ok.csv", mill).axes) == ["X", "Y", "Z"]
@@ -307,7 +307,7 @@ def test_identify_noise_um_scales_the_covariance_as_on_the_grinder(tmp_path, mil
 def test_identify_plot_and_truth_on_a_chain(tmp_path, mill):
     """``identify --plot PREFIX --truth ELEMENTS`` on a chain (as on the grinder): one figure per swept axis, the
     truth overlaid in the identified gauge (the identification of its noise-free sweeps: the same tool points)."""
-    from compensation.app.workflows.mt_loop import chain_truth_in_gauge
+    from compensation.app.workflows.measurement import chain_truth_in_gauge
     t = make_mt_truth(mill, 0)
     write_sweeps(tmp_path / "sw.csv", simulate_mt_sweeps(t, noise_um=1.0, seed=0))
     truth_file = t.elements.save(tmp_path / "truth.json")

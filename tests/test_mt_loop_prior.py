@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from errormap.diagnosis.mt_loop import (REPRESENTED_TOL, SMOOTH_GRID, ols_update, parameter_matrix, parameter_values,
+from errormap.diagnosis.chain_loop import (REPRESENTED_TOL, SMOOTH_GRID, ols_update, parameter_matrix, parameter_values,
                                         representable_terms, update_elements)
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.seeds import spawn_rngs
 
 SEED = 20261124

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from errormap.diagnosis.mt_loop import (HARMONIC_ORDERS, HELD_OUT_Z, PERIOD_GRID_MM, PERIOD_REFINE, MTChecks,
+from errormap.diagnosis.chain_loop import (HARMONIC_ORDERS, HELD_OUT_Z, PERIOD_GRID_MM, PERIOD_REFINE, MTChecks,
                                         _cho_inverse, _fit_shape, effect_columns, effect_search, joint_threshold,
                                         parameter_matrix, shape_band, update_elements, EffectTerm, full_parameters)
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
+from errormap.chain_elements import ChainElementSet
 from errormap.seeds import spawn_rngs
 
 SEED = 20261124
@@ -236,7 +236,7 @@ def test_fitting_gcv_is_the_chains_own_residual():
     M = parameter_matrix(mill, el, axes, names, stations).reshape(-1, len(names))
     resid = NOISE_UM * r_noise.standard_normal((300, 3))
     delta = 2.0 * r_th.standard_normal(len(names))
-    from errormap.diagnosis.mt_loop import apply_parameters, fitting_gcv
+    from errormap.diagnosis.chain_loop import apply_parameters, fitting_gcv
     dof = 100.0
     got = fitting_gcv(el, apply_parameters(el, names, stations, delta), axes, resid, dof)
     n = resid.size

@@ -10,12 +10,12 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.fields import resolve_model
-from errormap.diagnosis.mt_loop import EffectTerm, effect_columns
-from errormap.diagnosis.mt_model import ChainModelField, load_chain_model_file, save_chain_model
+from errormap.diagnosis.chain_loop import EffectTerm, effect_columns
+from errormap.diagnosis.loop_model import ChainModelField, load_chain_model_file, save_chain_model
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.mt_field import ChainField
-from errormap.mt_simulate import make_mt_truth
+from errormap.chain_field import ChainField
+from errormap.chain_truth import make_mt_truth
 
 DATA = Path(__file__).resolve().parent / "data"
 MILL_PROGRAM = DATA / "mill_pocket.nc"
@@ -146,9 +146,9 @@ def test_chain_effect_kinds_come_from_the_registry(name):
     """One vocabulary: the chain simulator's kinds, aliases and the axes each may act on are the
     registry's (errormap/effect_kinds.py); an unknown kind is an error, never a default."""
     from errormap import effect_kinds as ek
-    from errormap import mt_simulate as ms
-    from errormap.diagnosis import mt_model
-    assert set(ms.EFFECT_KINDS) <= set(ek.DIAGNOSED_KINDS) and mt_model.KINDS == ms.EFFECT_KINDS
+    from errormap import chain_truth as ms
+    from errormap.diagnosis import loop_model
+    assert set(ms.EFFECT_KINDS) <= set(ek.DIAGNOSED_KINDS) and loop_model.KINDS == ms.EFFECT_KINDS
     assert ms.EFFECT_ALIASES == {a: k.name for k in ek.EFFECT_KINDS if k.name in ms.EFFECT_KINDS for a in k.aliases}
     mt = load_machine(name)
     lin = tuple(a.word for a in mt.axes if a.kind == "linear")
@@ -181,7 +181,7 @@ def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
     model = json.loads((d / "diag" / "model.json").read_text())
     assert model["format"] == "volcomp-chain-model/1" and len(model["terms"]) == 1
     # the file is the model the loop judged: its held-out MEASURED residual is diagnosis.json's
-    from errormap.diagnosis.mt_loop import load_mt_checks
+    from errormap.diagnosis.chain_loop import load_mt_checks
     mt = load_machine("mill-xyz")
     ck = load_mt_checks(d / "sim" / "checks.csv", mt)
     f = load_chain_model_file(d / "diag" / "model.json", mt)

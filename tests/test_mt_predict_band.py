@@ -8,7 +8,7 @@ from compensation.app.cli import main
 from errormap.io import read_table, write_csv
 from errormap.machine import load_machine
 from errormap.identification import COV_FORMAT
-from errormap.mt_simulate import make_mt_truth
+from errormap.chain_truth import make_mt_truth
 
 FD_STEP = 1e-3
 """Central-difference step on each element parameter (μm or μrad): the tool-point error is linear in the
@@ -58,7 +58,7 @@ def _points_csv(path, machine, el, n, seed):
 def test_band_is_the_finite_difference_jacobian_through_the_covariance(tmp_path):
     """Independent of the parameter Jacobian's code: central differences of the tool-point error over every
     element parameter (nominal-free: the element set's own spatial error), Σ of random correlations."""
-    from errormap.diagnosis.mt_loop import apply_parameters
+    from errormap.diagnosis.chain_loop import apply_parameters
     m = load_machine("mill-xyz")
     el = make_mt_truth(m, 3).elements
     slots, stations = _parameters(m, el)

@@ -14,7 +14,7 @@ from compensation.solvers import CHAIN_METHODS, solve
 from compensation.solvers.ga import DEFAULT_TOL_UM
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.mt_field import ChainField
+from errormap.chain_field import ChainField
 from training.chain_model import ChainMLPField, check_machine
 from training.model import MLPField
 

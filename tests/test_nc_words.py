@@ -20,7 +20,7 @@ from compensation.nc_cycles import expand_cycles
 from compensation.nc_state import program_frames, read_tool_table, read_work_offsets
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
+from errormap.chain_elements import ChainElementSet
 from program_checks import TOL_POINT_UM, true_point_errors_um
 
 HERE = Path(__file__).resolve().parent

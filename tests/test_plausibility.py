@@ -13,8 +13,8 @@ from errormap.diagnosis.plausibility import (AXIS_FIT_RATIO, UNIT_RATIO, check_d
                                              deviation_unit_mistake, diagnosis_verdict)
 from errormap.io import InputError, write_csv
 from errormap.machine import load_machine
-from errormap.mt_field import ChainField
-from errormap.mt_simulate import make_mt_truth
+from errormap.chain_field import ChainField
+from errormap.chain_truth import make_mt_truth
 
 SEED = 3
 NOISE_UM = 1.0
@@ -269,7 +269,7 @@ def test_sweeps_with_two_ball_columns_exchanged_are_refused_before_identificatio
     """A tracker pose cannot mirror: sweeps whose x_mm/y_mm are exchanged fit the machine only as a mirror image
     (they used to reach the Gauss–Newton fit and end in a traceback on the mill). The correct sweeps pass."""
     from errormap.identification import ChainIdentification
-    from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     m = load_machine(name)
     cols = simulate_mt_sweeps(make_mt_truth(m, SEED, family="independent"), noise_um=2.0, seed=SEED)

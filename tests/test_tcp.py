@@ -10,8 +10,8 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 
 TRUE_EXACT_UM = 1.0
 """With the truth as the model, every programmed tip is reached to the written digits (1 nm, 1e-6 deg at
@@ -291,7 +291,7 @@ def test_machine_file_tcp_switch_is_read_and_checked(tmp_path):
     mt = load_machine("five-axis-ac")
     assert mt.tcp == {"switch_on": (428,), "switch_off": (429,), "tool_length_under_g49": "machine"}
     from errormap.machine_checks import MachineFileError
-    from errormap.mt_chain import parse_machine_tool
+    from errormap.machine_tool import parse_machine_tool
     import tomllib
     doc = tomllib.loads((load_machine("mill-xyz").path and open(load_machine("mill-xyz").path).read()))
     doc["tcp"] = {"switch_on": ["M428"], "switch_off": ["M429"]}

@@ -13,7 +13,7 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
+from errormap.chain_elements import ChainElementSet
 from tests.test_tcp import TIME_REL_TOL, TRUE_EXACT_UM, tcp_lines, true_tips_mm
 
 ORIENT_TRUE_URAD = 0.1
@@ -155,7 +155,7 @@ def test_m428_without_g43_refused_where_the_machine_file_does_not_say(setup, tmp
 
 def test_machine_file_key_checked(setup):
     from errormap.machine_checks import MachineFileError
-    from errormap.mt_chain import parse_machine_tool
+    from errormap.machine_tool import parse_machine_tool
     mt, _, _ = setup
     assert mt.tcp["tool_length_under_g49"] == "machine"
     doc = tomllib.loads(open(mt.path).read())

@@ -13,8 +13,8 @@ import pytest
 from compensation.app.cli import main
 from compensation.turning import TOL_UM, solve_turning, spindle_turning, surface_residual_um
 from errormap.machine import load_machine
-from errormap.mt_elements import ChainElementSet
-from errormap.mt_field import ChainField
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_field import ChainField
 
 from test_mt_compensate import chain_elements
 

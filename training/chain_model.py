@@ -68,7 +68,7 @@ class ChainMLPField(MLPField):
 
     @classmethod
     def for_machine(cls, machine, a_encoding: str = "raw", **settings) -> "ChainMLPField":
-        """The untrained field over ``machine``'s axes (a :class:`errormap.mt_chain.MachineTool`):
+        """The untrained field over ``machine``'s axes (a :class:`errormap.machine_tool.MachineTool`):
         a full-turn rotary axis as (cos, sin) always; a rotary axis short of a full turn as one
         scaled input (``a_encoding="raw"``) or as (cos, sin) too (``"periodic"``)."""
         if a_encoding not in A_ENCODINGS:
@@ -270,7 +270,7 @@ class ChainPhysicsMLPField(PhysicsPart, ChainMLPField):
     kind = "chain-mlp+physics"
 
     def _physics_field(self, machine, elements):
-        from errormap.mt_field import ChainField
+        from errormap.chain_field import ChainField
         return ChainField(machine, elements)
 
     def _physics_axes(self, axes) -> np.ndarray:
@@ -278,7 +278,7 @@ class ChainPhysicsMLPField(PhysicsPart, ChainMLPField):
 
     def _read_physics(self, folder: Path):
         from errormap.machine import load_machine
-        from errormap.mt_elements import ChainElementSet
+        from errormap.chain_elements import ChainElementSet
         machine = load_machine(folder / PHYSICS_FILES[1])
         if getattr(machine, "kind", None) != "machine-tool" or tuple(machine.axis_columns) != self.axis_columns:
             raise InputError(f"{folder / PHYSICS_FILES[1]}: not the machine-tool chain over "
@@ -324,8 +324,8 @@ def chain_reference(machine, meta: dict):
     el = meta.get("elements_file")
     if not el or not Path(el).is_file():
         return None
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_field import ChainField
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
     return ChainField(machine, ChainElementSet.load(el, machine))
 
 

@@ -24,7 +24,7 @@ import math
 import numpy as np
 import torch
 
-from errormap.mt_kernel import NominalChain
+from errormap.chain_kernel import NominalChain
 
 MM_PER_UM = 1e-3
 CLOSED_FORM_TOL_MM = 1e-9

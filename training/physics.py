@@ -18,10 +18,10 @@ What this part knows of the machine: its kinematic chain (the machine file) and 
 points; the stations are the feature-point grid's own nodes by default (``n_stations = None``:
 the number of distinct values per axis, at most :data:`MAX_STATIONS`).
 
-A machine-tool chain (``kind = "machine-tool"``, :mod:`errormap.mt_chain`) goes through the same
+A machine-tool chain (``kind = "machine-tool"``, :mod:`errormap.machine_tool`) goes through the same
 solve (:func:`solve_station_values`) with its own slots and error-transfer matrix
 (:func:`fit_chain_physics_elements`): its element set is evaluated with the exact chain
-(:class:`errormap.mt_field.ChainField`). :class:`PhysicsPart` is the physical part of both fields
+(:class:`errormap.chain_field.ChainField`). :class:`PhysicsPart` is the physical part of both fields
 (:class:`training.model.PhysicsMLPField`, :class:`training.chain_model.ChainPhysicsMLPField`).
 """
 from __future__ import annotations
@@ -100,7 +100,7 @@ def fit_physics_elements(machine, axes, errors_um, n_stations: int | None = None
 
     The grinder (:class:`errormap.machine.Grinder`): ``axes`` (n, 3) (x_mm, z_mm, a_deg), returns an
     :class:`ElementSet`; a machine-tool chain (``kind = "machine-tool"``): ``axes`` (n, k) in its
-    axis columns, returns a :class:`errormap.mt_elements.ChainElementSet`
+    axis columns, returns a :class:`errormap.chain_elements.ChainElementSet`
     (:func:`fit_chain_physics_elements`). ``errors_um`` (n, 3). One minimum-norm linear
     least-squares solve (module doc, :func:`solve_station_values`) on the machine's stroke stations.
     """
@@ -123,10 +123,10 @@ def fit_chain_physics_elements(machine, axes, errors_um, n_stations: int | None 
     """A machine-tool chain's element set (its own slots, ``n_stations`` equally spaced stations over
     each stroke with component errors, periodic on a full turn) fitted to ``errors_um`` (n, 3) at
     ``axes`` (n, k) by :func:`solve_station_values` with the chain's error-transfer matrix
-    (:func:`errormap.mt_kernel.error_jacobian`); returns a :class:`ChainElementSet`, evaluated
-    exactly by :class:`errormap.mt_field.ChainField`."""
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_kernel import error_jacobian as chain_error_jacobian
+    (:func:`errormap.chain_kernel.error_jacobian`); returns a :class:`ChainElementSet`, evaluated
+    exactly by :class:`errormap.chain_field.ChainField`."""
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_kernel import error_jacobian as chain_error_jacobian
     axes = np.asarray(axes, float)
     if axes.ndim != 2 or axes.shape[1] != len(machine.axes):
         raise ValueError(f"expected axes of shape (n, {len(machine.axes)}) ({', '.join(machine.axis_columns)}), "

@@ -31,7 +31,7 @@ GAP_WORDS = (PHYSICS, OTHER_PATH, NOT_YET)
 class Facts:
     """What a machine kind is, as far as a command asks: ``tracker_sweeps`` (identified from per-axis
     laser-tracker sweeps and feature points over its axis columns), ``gcode`` (its programs are G-code in
-    its axis words), ``chain`` (its model is the element chain of its own axes, :mod:`errormap.mt_chain`),
+    its axis words), ``chain`` (its model is the element chain of its own axes, :mod:`errormap.machine_tool`),
     ``poses`` (calibrated from measured poses), ``platform_orientation`` (a pose has a platform
     orientation, ``rx_deg, ry_deg, rz_deg``: a hexapod), ``sensitivity_study`` (the tripod's
     error-sensitivity study, ``interpolate --sensitivity-plot``), ``paper_paths`` (the hexapod paper's test

@@ -7,7 +7,7 @@ squareness errors (constants), one row each (``name, value, unit, meaning``).
 Conventions (ISO 230-1, as :mod:`errormap.iso230` states them for the grinder, here for every chain): the
 error motion of the axis' moving body relative to its nominal pose, in the **fixed machine frame (MCS)**:
 translations μm along +X/+Y/+Z, angles μrad right-handed about +X/+Y/+Z, translations at the body's
-reference point (the origin of its frame in the chain, :meth:`errormap.mt_chain.MachineTool.body_frames`).
+reference point (the origin of its frame in the chain, :meth:`errormap.machine_tool.MachineTool.body_frames`).
 The chain applies each axis' errors in the frame the body moves in; the tables turn them into the MCS with
 that frame's nominal rotation with the axis at the row's position and the other axes at their reference pose
 (0 clipped into the stroke: a body carried by another rotary axis, a five-axis table's C on its A, is
@@ -28,7 +28,7 @@ import numpy as np
 from errormap.grinder_file import machine_tool_of
 from errormap.io import InputError, read_table, write_csv
 from errormap.iso230 import axis_from_mcs, axis_to_mcs
-from errormap.mt_kernel import CompiledNominal
+from errormap.chain_kernel import CompiledNominal
 
 from .common import fold, meta_format
 

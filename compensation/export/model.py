@@ -13,7 +13,7 @@ from dataclasses import dataclass, field as dc_field
 import numpy as np
 
 from errormap.grinder_file import machine_tool_of
-from errormap.mt_kernel import CompiledNominal, NominalChain
+from errormap.chain_kernel import CompiledNominal, NominalChain
 
 from .common import TableField, fold
 

@@ -39,7 +39,7 @@ def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
         raise ValueError(f"--format iso-tables needs an element set: ISO component tables are the elements' "
                          f"components, and {src.description} is not one")
     if src.kind == "chain-model":   # elements + diagnosed terms; a kept learned residual is refused by name
-        from errormap.diagnosis.mt_model import load_chain_model_file
+        from errormap.diagnosis.loop_model import load_chain_model_file
         fld = load_chain_model_file(src.path, machine)
         return ModelError(machine, fld.elements, field=fld), f"{spec} (diagnosed chain model: {src.description})", src
     fld = load_field(spec, machine, tracking_uri, source=src)
@@ -49,13 +49,13 @@ def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
 
 def chain_field(machine, elements):
     """The chain's own field of an element set (exact, with its analytic Jacobian)."""
-    from errormap.mt_field import ChainField
+    from errormap.chain_field import ChainField
     return ChainField(machine, elements)
 
 
 def load_elements(path, machine):
     """The element set ``path`` of ``machine`` (its own format on a grinder file, refused when made for another
-    machine file; a chain's :class:`errormap.mt_elements.ChainElementSet`)."""
+    machine file; a chain's :class:`errormap.chain_elements.ChainElementSet`)."""
     if reads_grinder_files(machine):
         from errormap.elements import ElementSet
         el = ElementSet.load(path)
@@ -64,7 +64,7 @@ def load_elements(path, machine):
                              f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
                              f"({machine.path}); pass the model's --machine")
         return el
-    from errormap.mt_elements import ChainElementSet
+    from errormap.chain_elements import ChainElementSet
     return ChainElementSet.load(path, machine)
 
 
@@ -104,7 +104,7 @@ def reversal_from_diagnosis(path, model: ModelError) -> tuple:
     if reads_grinder_files(machine):
         back, left = backlash_from_diagnosis(path)
         return ModelError(machine, model.elements, reversal={j.upper(): b for j, b in back.items()}), left
-    from errormap.diagnosis.mt_model import ChainModelField
+    from errormap.diagnosis.loop_model import ChainModelField
     terms, left = reversal_terms_from_diagnosis(path, machine)
     return ModelError(machine, model.elements, field=ChainModelField(machine, model.elements, terms)), left
 
@@ -163,7 +163,7 @@ def reversal_terms_from_diagnosis(path, machine) -> tuple[list, list]:
     """The terms of a chain loop's ``diagnosis.json`` (``volcomp diagnose --machine``: its ``effects``) that a
     per-joint table carries as its forward/reverse difference (the registry's ``export``), and labels of the
     other effects, left out. An InputError names the file and key for another machine's diagnosis."""
-    from errormap.diagnosis.mt_model import read_terms
+    from errormap.diagnosis.loop_model import read_terms
     path = Path(path)
     try:
         d = json.loads(read_document_text(path, "a diagnosis"))

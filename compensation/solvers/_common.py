@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from errormap.field import FLOAT32, PREDICT_COLUMNS
-from errormap.mt_kernel import NominalChain
+from errormap.chain_kernel import NominalChain
 from errormap.threads import limit_threads
 
 from .base import SolveResult
@@ -106,7 +106,7 @@ def _field_error_um(field, axes, machine, chunk: int = FIELD_CHUNK, fast: bool =
 
 def forward_and_jacobian(machine, axes, jac: bool = True):
     """Nominal tool point ``p`` (n, 3) mm and ``dp/d(axes)`` (n, 3, k) mm per mm / per deg of the
-    machine's chain (:class:`errormap.mt_kernel.NominalChain`: for the grinder its chain file, the
+    machine's chain (:class:`errormap.chain_kernel.NominalChain`: for the grinder its chain file, the
     same one source as every chain), at ``axes`` (n, k). ``jac=False`` returns ``(p, None)``."""
     return NominalChain(machine).forward_and_jacobian(axes, jac)
 

@@ -6,7 +6,7 @@ axis command ``q`` such that the machine, driven to ``q``, puts the tool point o
     F(q) = fwd(q) + 1e-3·E(q) − p_d = 0          (mm)
     J(q) = dfwd/dq_s + 1e-3·dE/dq_s               (mm per mm or per deg; q_s the three solved axes)
 
-with ``fwd`` the machine's nominal forward kinematics (:meth:`errormap.mt_chain.MachineTool.nominal`)
+with ``fwd`` the machine's nominal forward kinematics (:meth:`errormap.machine_tool.MachineTool.nominal`)
 and ``E`` the field (``predict_and_jacobian``, μm). Then ``p_r = fwd(q)`` and the model residual
 ``(p_r − p_d)·1e3 + E(q)`` equals ``F(q)·1e3``.
 
@@ -55,7 +55,7 @@ import time
 import numpy as np
 
 from errormap.field import FLOAT32, JACOBIAN, PREDICT_AND_JACOBIAN, PREDICT_COLUMNS, check_field
-from errormap.mt_kernel import NominalChain
+from errormap.chain_kernel import NominalChain
 from errormap.progress import Progress
 from errormap.transforms import check_points
 
@@ -72,7 +72,7 @@ SOLVED_NOTE = ("tool-tip position compensated with {sol} (every axis of the mach
 def nominal_and_jacobian(machine, axes, compiled=None) -> tuple[np.ndarray, np.ndarray]:
     """Nominal tool point (n, 3) mm and ``d(tool point)/d(axes)`` (n, 3, k) of ``machine`` at
     ``axes`` (n, k), compiled (equal to :meth:`MachineTool.nominal` / ``axis_jacobian``, tested).
-    ``compiled``: the machine's :class:`errormap.mt_kernel.NominalChain` (packed here when None)."""
+    ``compiled``: the machine's :class:`errormap.chain_kernel.NominalChain` (packed here when None)."""
     if compiled is None:
         compiled = NominalChain(machine)
     return compiled.forward_and_jacobian(axes)
@@ -191,7 +191,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
 
     ``target_axes`` (n, k): the program's axes of each target (required when the machine has
     rotary axes: they are kept). ``field``: an error field over ``machine.axis_columns`` that
-    declares ``predict_and_jacobian`` (:class:`errormap.mt_field.ChainField`). ``rotary_limit_deg``:
+    declares ``predict_and_jacobian`` (:class:`errormap.chain_field.ChainField`). ``rotary_limit_deg``:
     a limit on a solved rotary axis' correction below the ball's bound (module docstring).
     ``roundoff_ulps`` (0 … 1e6, default :data:`~compensation.solvers.exact.ROUNDOFF_ULPS`): iteration also
     stops where ``|F|`` is within this many ulps of the target's largest coordinate; a smaller value iterates

@@ -33,7 +33,7 @@ and no gene can swing the rotary axis past its bound. The tool point's own 250 Î
 second term (zero inside it).
 
 ``E`` is the field's ``predict`` over ``machine.axis_columns`` (float64 numpy; any chain field:
-the element set's :class:`errormap.mt_field.ChainField` or a trained network).
+the element set's :class:`errormap.chain_field.ChainField` or a trained network).
 
 After the generations, points above ``tol_um`` are retried (GA re-runs from a fresh population
 around their best, radii as :mod:`._converge`) and then polished by the exact chain solver's
@@ -48,7 +48,7 @@ import time
 import numpy as np
 
 from errormap.field import check_field
-from errormap.mt_kernel import NominalChain
+from errormap.chain_kernel import NominalChain
 from errormap.transforms import check_points
 
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
@@ -101,7 +101,7 @@ class ChainAxisFitness:
     """``fitness(points (k,) int64, genes (3, k) float32) -> (k,) float32`` on a chain whose solved
     axes include a rotary one (module docstring): genes are the solved axes' scaled offsets.
 
-    ``compiled`` the machine's :class:`errormap.mt_kernel.NominalChain`, ``targets`` (n, 3) mm,
+    ``compiled`` the machine's :class:`errormap.chain_kernel.NominalChain`, ``targets`` (n, 3) mm,
     ``axes_d`` (n, k) programmed axes, ``sol`` (3,) solved axes, ``scale`` (n, 3) axis units per gene
     unit, ``ball_um`` the tool point's ball.
     """

@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from errormap.field import check_field
-from errormap.mt_kernel import NominalChain
+from errormap.chain_kernel import NominalChain
 from errormap.transforms import check_points
 
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball, wrap180
@@ -42,7 +42,7 @@ from .exact import keep_turn, solve3
 def closed_inverse(machine, axes_d):
     """``inverse(points (n, 3) mm) -> axes (n, 3)``: the chain's closed-form nominal inverse, each point's
     rotary axis on the turn of its target's (``axes_d`` (n, 3)); None where the chain has none."""
-    from errormap.mt_kernel import closed_form_solver
+    from errormap.chain_kernel import closed_form_solver
     try:
         solve = closed_form_solver(machine)
     except ValueError:

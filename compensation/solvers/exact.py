@@ -8,7 +8,7 @@ each target ``p_d``::
     J(q) = dfwd/dq + 1e-3·dE/dq                   (mm per mm, mm, deg)
 
 then ``p_r = fwd(q)``. ``fwd`` and ``dfwd/dq`` are the machine's chain
-(:class:`errormap.mt_kernel.NominalChain`: for the grinder its chain file, the one source of the
+(:class:`errormap.chain_kernel.NominalChain`: for the grinder its chain file, the one source of the
 kinematics; no hand-written copy here). Why axis space and not WCS: in the WCS the field ``E(IK(p))`` is
 steep near the A axis (its tangential slope grows like ``|E|/ρ``, and ρ is 0.1 mm at
 z = 0 on the default grinder), so the WCS map ``p ↦ p + E(IK(p))`` can fold and a WCS
@@ -23,7 +23,7 @@ Robustness:
   more than 1 %, even with a fresh Jacobian, stops (stagnation).
 * Steps are limited to ``max_step`` (1 mm per linear, 90° per rotary axis) before the line search.
 * Jacobian: the kinematic part ``dfwd/dq`` is geometric and exact (the chain's op columns,
-  :func:`errormap.mt_kernel.nominal_columns`) and recomputed every iteration;
+  :func:`errormap.chain_kernel.nominal_columns`) and recomputed every iteration;
   the field part ``dE/dq`` comes from ``field.jacobian(axes)`` when the field has it, else
   from forward differences in axis space, once per point, then is updated along every
   accepted step by Broyden's secant rule (no extra evaluations); it is recomputed only
@@ -52,7 +52,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from errormap.mt_kernel import NominalChain, nominal_columns, nominal_point
+from errormap.chain_kernel import NominalChain, nominal_columns, nominal_point
 
 from ._common import MM_PER_UM, wrap180
 
@@ -159,7 +159,7 @@ def keep_turn(chain: NominalChain, q, axes_d) -> None:
 @njit(cache=True, nogil=True, error_model="numpy")
 def _residual_kernel(q, E, targets, prog, F, fn):  # pragma: no cover - compiled
     """``F = fwd(q) + 1e-3·E - p_d`` (n, 3) mm and ``|F|`` (n,), in place; ``fwd`` the chain's
-    nominal tool point (:func:`errormap.mt_kernel.nominal_point`)."""
+    nominal tool point (:func:`errormap.chain_kernel.nominal_point`)."""
     m = max(prog[0].shape[0], 1)
     R = np.empty((3, 3))
     t = np.empty(3)
@@ -178,7 +178,7 @@ def _residual_kernel(q, E, targets, prog, F, fn):  # pragma: no cover - compiled
 def _step_kernel(idx, q, JE, F, prog, own, sol, max_step, step):  # pragma: no cover - compiled
     """The Newton step of the points ``idx`` on the solved axes ``sol`` (3,):
     ``(dfwd/dq + 1e-3·JE) step = -F`` with the chain's nominal axis Jacobian at ``q``
-    (:func:`errormap.mt_kernel.nominal_columns`), scaled down to ``max_step`` (per solved axis)
+    (:func:`errormap.chain_kernel.nominal_columns`), scaled down to ``max_step`` (per solved axis)
     where it exceeds it."""
     m = max(prog[0].shape[0], 1)
     R = np.empty((3, 3))

@@ -21,7 +21,7 @@ def register(sub):
     p.add_argument("--drift", default=None, metavar="LOG", help="drift log CSV (time_s, temp_<sensor>_c, <channel>_um)")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in grinder. "
                                                      "A machine-tool chain (mill-xyz, ...) runs the generic loop "
-                                                     "(errormap/diagnosis/mt_loop.py)")
+                                                     "(errormap/diagnosis/chain_loop.py)")
     p.add_argument("--noise-um", type=float, default=None,
                    help="the checks' stated noise σ per axis (μm; default: the file's '# noise_um: σ' line): a "
                         "noise estimated from the checks above 2σ fails the verdict; also the held-out noise floor "
@@ -115,7 +115,7 @@ def run(args) -> int:
             raise UsageError("CHECKS needs --model (element-set file or run id)")
         machine = load_machine(args.machine)  # None: the built-in default machine
         if machine.kind == "machine-tool":
-            from compensation.app.workflows.mt_loop import diagnose_chain, diagnosis_lines, refuse_options
+            from compensation.app.workflows.measurement import diagnose_chain, diagnosis_lines, refuse_options
             refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "track": False,
                                   "retrain_iter": DEFAULT_MAX_ITER, "retrain_time_s": None, "seed": 0},
                            "diagnose on a machine-tool chain (element-set models; effects gated on held-out z)")
@@ -124,7 +124,7 @@ def run(args) -> int:
                                             noise_um=args.noise_um, max_effects=args.max_effects,
                                             update=not args.no_update, units=args.units,
                                             learn=not args.no_learned)
-            from compensation.app.reports.mt_diagnosis import write_chain_diagnosis_page
+            from compensation.app.reports.chain_diagnosis import write_chain_diagnosis_page
             paths.append(write_chain_diagnosis_page(args.out, machine))  # the page of the run, as the grinder's
             for line in diagnosis_lines(summary):
                 print(line)

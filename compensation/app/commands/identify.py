@@ -68,7 +68,7 @@ def run(args) -> int:
         raise UsageError("--truth is overlaid on the plots: give --plot PREFIX too")
     boot = _bootstrap(args)
     if target == "chain":
-        from ..workflows.mt_loop import identify_chain_files
+        from ..workflows.measurement import identify_chain_files
         print(f"identifying {machine.name} from {', '.join(args.sweeps)} ...", file=sys.stderr)
         res, el_path, cov_path, report = identify_chain_files(machine, args.sweeps, args.out, report=args.report,
                                                               noise_um=args.noise_um, gauge=args.gauge,
@@ -80,7 +80,7 @@ def run(args) -> int:
         print(f"wrote report: {report}")
         if args.plot:
             from ..reports.identification import plot_chain_elements
-            from ..workflows.mt_loop import chain_truth_in_gauge
+            from ..workflows.measurement import chain_truth_in_gauge
             truth = chain_truth_in_gauge(machine, args.truth, args.gauge) if args.truth else None
             for p in plot_chain_elements(res.elements_, args.plot, truth):
                 print(f"wrote plot: {p}")

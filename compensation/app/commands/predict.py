@@ -162,7 +162,7 @@ def _chain_covariance(args, src, machine) -> tuple:
     """``--band`` on a machine-tool chain, checked before any work: the element set and its identification
     covariance (``E.cov.npz`` of ``identify --machine`` beside it) as ``(elements, cov, cov_path)``."""
     from errormap.uncertainty import covariance_path
-    from ..workflows.mt_loop import check_chain_covariance, load_chain_model
+    from ..workflows.measurement import check_chain_covariance, load_chain_model
     if src.kind != "elements":
         raise UsageError(f"--band needs an element set of the chain with its covariance beside it (E.cov.npz of "
                          f"volcomp identify --machine); {args.model} is a {KIND_NAMES[src.kind]}, which holds none")
@@ -176,7 +176,7 @@ def _chain_covariance(args, src, machine) -> tuple:
 
 def _chain_band(args, machine, axes, band_src) -> dict:
     """The band columns on a chain: ``J Σ Jᵀ`` per point through the chain's parameter Jacobian."""
-    from ..workflows.mt_loop import chain_band_sd
+    from ..workflows.measurement import chain_band_sd
     el, cov, cov_path = band_src
     print(f"band: covariance {cov_path} ({len(cov[0])} parameters)", file=sys.stderr)
     return _band_columns(chain_band_sd(machine, el, cov, axes, cov_path), args.band)

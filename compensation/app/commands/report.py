@@ -58,9 +58,9 @@ def register(sub):
 
 
 def run_chain_diagnosis(args) -> int:
-    """``volcomp report RUN``: the page of a chain's diagnose run (:mod:`compensation.app.reports.mt_diagnosis`)."""
+    """``volcomp report RUN``: the page of a chain's diagnose run (:mod:`compensation.app.reports.chain_diagnosis`)."""
     from errormap.io import InputError
-    from ..reports.mt_diagnosis import read_json, write_chain_diagnosis_page
+    from ..reports.chain_diagnosis import read_json, write_chain_diagnosis_page
     bad = [f for f, v in (("--model", args.model), ("--path", args.path), ("--flute", args.flute),
                           ("--truth", args.truth), ("--allow", args.allow)) if v]
     if bad:
@@ -81,7 +81,7 @@ def run_chain_diagnosis(args) -> int:
     out = Path(args.out) / "report.html" if args.out else None
     path = write_chain_diagnosis_page(run_dir, machine, out)
     print(f"wrote html: {path}")
-    from ..reports.mt_diagnosis import verdict_failure
+    from ..reports.chain_diagnosis import verdict_failure
     failed = verdict_failure(read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine"))
     if failed:   # shown, not refused: the page is how the user sees why
         print(f"report: verdict FAILED ({run_dir / 'diagnosis.json'}): {failed}")

@@ -89,7 +89,7 @@ def _machine_tool_defaults(args) -> None:
 
 
 def _run_chain(machine, args) -> int:
-    from ..workflows.mt_loop import parse_effects, simulate_chain
+    from ..workflows.measurement import parse_effects, simulate_chain
     _machine_tool_defaults(args)
     parse_effects(machine, args.effect)
     print(f"simulating truth {machine.name} seed={args.seed} effects={args.effect or 'none'} ...", file=sys.stderr)

@@ -44,7 +44,7 @@ def register(sub):
 NOISE_CHILD = 3
 """The noise seed derived from ``--seed`` is child 3 of ``SeedSequence(seed)`` (:func:`errormap.seeds.spawn_seeds`):
 children 0-2 are the simulator's points, environment and check noise of the same seed
-(errormap/mt_simulate.py, errormap/truth_families.py), so the sweeps' noise is a stream of its own."""
+(errormap/chain_truth.py, errormap/truth_families.py), so the sweeps' noise is a stream of its own."""
 
 
 def noise_seed(args) -> tuple[int, str]:
@@ -67,7 +67,7 @@ def run(args) -> int:
 
 
 def _run_chain(machine, args) -> int:
-    from ..workflows.mt_loop import parse_effects, sweeps_chain
+    from ..workflows.measurement import parse_effects, sweeps_chain
     parse_effects(machine, args.effect)
     print(f"simulating tracker sweeps of {machine.name} (noise {args.noise_um} um, seed {args.seed_noise}) ...",
           file=sys.stderr)

@@ -75,8 +75,8 @@ def plot_elements(elements: ElementSet, prefix, truth: ElementSet | None = None)
 def plot_chain_elements(elements, prefix, truth=None) -> list[Path]:
     """A machine-tool chain's :func:`plot_elements`: one figure per swept axis ``w`` (``PREFIX_<W>.png``), a panel
     per component error of that axis (ISO 230 name), the constants in the title; ``truth`` (a
-    :class:`errormap.mt_elements.ChainElementSet` in the identified gauge) dashed. Returns the paths."""
-    from errormap.mt_sweeps import swept_words
+    :class:`errormap.chain_elements.ChainElementSet` in the identified gauge) dashed. Returns the paths."""
+    from errormap.chain_sweeps import swept_words
     m = elements.machine
     iso = dict(zip(m.slot_names, m.iso_names))
     unit = {s.name: s.unit for s in m.slots}

@@ -45,7 +45,7 @@ frame), ``n_poses`` poses with noise ``noise_um``;
 per condition (no effect, each undeclared effect the chain has axes for) the user's path —
 simulate a hidden truth → sweeps → identify → diagnose → exact compensation of the four body
 diagonals with the identified set and with the loop's model — judged by the TRUE residual
-(:mod:`compensation.app.workflows.mt_benchmark`).
+(:mod:`compensation.app.workflows.chain_benchmark`).
 
 Every figure is measured in this run; a part that cannot run is reported as not available
 with the reason, never filled in.
@@ -900,8 +900,8 @@ def _bench_pkm(m, s, tracker, out_dir):
 
 
 def _bench_chain(m, s, tracker, out_dir):
-    """A chain file: the user's path per condition (workflows/mt_benchmark.py)."""
-    from .mt_benchmark import run_chain
+    """A chain file: the user's path per condition (workflows/chain_benchmark.py)."""
+    from .chain_benchmark import run_chain
     log = RowLog(tracker)
     skipped = run_chain(m, s, log, out_dir, _row, _streams(s.seed), _log)
     return log.rows, skipped

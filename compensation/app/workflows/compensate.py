@@ -381,7 +381,7 @@ def compensate_files(files, machine, s: CompensateSettings, executor=None, on_fi
     src, verdict, field_ = load_model_field(machine, s)
     truth = None
     if s.truth:
-        from .mt_loop import load_chain_truth
+        from .measurement import load_chain_truth
         truth = load_chain_truth(s.truth, mt)
     paths = [read_tool_path(p, mt, s, axes_field(field_)) for p, _ in plan]
     print(f"compensate: model {src.description}", file=sys.stderr)  # every input read: a bad one is the one line

@@ -3,7 +3,7 @@
 A file is told apart by content (:func:`compensation.pathio.is_csv`): a CSV with the machine's axis
 columns (``x_mm, y_mm, z_mm …``; the grinder's ``x_mm, z_mm, a_deg``), a CSV of WCS targets
 (``px_mm, py_mm, pz_mm``: their axes from the chain's nominal inverse, written back as the
-compensated commands ``p_r``), or G-code with the machine's axis words (:mod:`compensation.mt_gcode`,
+compensated commands ``p_r``), or G-code with the machine's axis words (:mod:`compensation.chain_gcode`,
 placed by its work offsets and tool lengths, :mod:`compensation.nc_state`). The compensated file keeps
 the input's text except the numbers it changes (6 decimals: 1 nm, 1e-6 deg).
 """
@@ -19,7 +19,7 @@ from errormap.units import check_units
 
 from compensation.app.validate import UsageError
 
-from ...mt_gcode import parse_chain_program, plan_chain_gcode, render_chain_axes
+from ...chain_gcode import parse_chain_program, plan_chain_gcode, render_chain_axes
 from ...nc_state import MACHINE, program_frames, refuse_unknown_frames
 from ...pathio import DECIMALS_MM, TARGET_COLUMNS, _render_csv, check_move_extent, is_csv
 from ...solvers.chain_exact import chain_inverse, nominal_and_jacobian
@@ -189,8 +189,8 @@ def closed_inverse_path(machine, targets) -> np.ndarray:
     """Axes (n, 3) of WCS points (n, 3) mm along a path by the chain's compiled closed-form inverse, its rotary
     axis unwrapped along the path from the stroke's first turn (as :func:`errormap.kinematics.inverse`);
     ValueError where the chain has no closed form."""
-    from errormap.mt_chain import rotary_on_turn
-    from errormap.mt_kernel import closed_form_solver
+    from errormap.machine_tool import rotary_on_turn
+    from errormap.chain_kernel import closed_form_solver
     solve = closed_form_solver(machine)
     q = solve(np.ascontiguousarray(targets, dtype=float))
     r = solve.k.rotary

@@ -86,7 +86,7 @@ def load_truth(path, machine):
     if ex.reads_grinder_files(machine):
         from ...evaluate import load_truth as load_grinder_truth
         return ex.truth_tool_points(load_grinder_truth(path, machine), machine)
-    from .mt_loop import load_chain_truth
+    from .measurement import load_chain_truth
     return ex.chain_truth_tool_points(load_chain_truth(path, machine), machine)
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from errormap.featurepoints import FeaturePoints
-from errormap import mt_kernel as htm_kernels  # the HTM model's kernels: the grinder's chain file, compiled
+from errormap import chain_kernel as htm_kernels  # the HTM model's kernels: the grinder's chain file, compiled
 from errormap.htm import HTMField
 from errormap.io import atomic_write, write_json
 from errormap.jit import notice_cold_kernels

@@ -1,7 +1,7 @@
 """The compiled (numba) field kernel of any machine-tool chain, generic over the compiled op arrays.
 
 One pass per point: the component errors from one vector-valued cubic B-spline per axis (the
-same knots and coefficients as :meth:`errormap.mt_elements.ChainElementSet.axis_spline`, the same
+same knots and coefficients as :meth:`errormap.chain_elements.ChainElementSet.axis_spline`, the same
 operations as scipy's B-spline evaluation (interval search, Cox–de Boor), at offsets in packed arrays:
 :func:`_spline_at`), then the chain's ops applied one by one to a running rotation ``R`` (3×3)
 and origin ``t`` (3,), for the actual chain (with the errors) and the nominal one. Packed once
@@ -11,8 +11,8 @@ squareness errors at their values) is folded into one constant block. The axis J
 geometric and exact (no step, no truncation): each ET that depends on an axis adds its slope
 times its column (the tool point's motion per unit of the ET's value), accumulated after the pass
 (:func:`_jacobian_columns`); the error-transfer Jacobian the same way for every slot
-(:func:`error_jacobian`). Checked against the numpy reference :mod:`errormap.mt_field` and
-:meth:`errormap.mt_chain.MachineTool.error_jacobian` in ``tests/test_mt_kernel.py``.
+(:func:`error_jacobian`). Checked against the numpy reference :mod:`errormap.chain_field` and
+:meth:`errormap.machine_tool.MachineTool.error_jacobian` in ``tests/test_mt_kernel.py``.
 
 Shapes: ``axes`` (n, k); ``out`` (n, 3) μm; ``jac`` (n, 3, k) μm per mm / per deg; error
 Jacobian (n, 3, P) μm per μm / per μrad.
@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .mt_chain import UM_MM, MachineTool, et_matrix
-from .mt_elements import ChainElementSet
+from .machine_tool import UM_MM, MachineTool, et_matrix
+from .chain_elements import ChainElementSet
 
 NCOMP = 6  # columns of a spline block (dx dy dz ex ey ez; absent components padded with zeros)
 
@@ -565,7 +565,7 @@ class NominalChain:
     (unused by a program without errors, kept for the kernels' signature), ``k`` the axes, ``kinds``
     (k,) ``linear``/``rotary`` and ``full_turn`` (k,) bool per axis, ``columns`` the axis columns.
 
-    ``machine``: a :class:`errormap.mt_chain.MachineTool`, or any machine file that
+    ``machine``: a :class:`errormap.machine_tool.MachineTool`, or any machine file that
     :func:`errormap.grinder_file.grinder_to_chain` turns into one (the grinder)."""
 
     def __init__(self, machine):
@@ -607,7 +607,7 @@ class NominalChain:
 @njit(cache=True, nogil=True, error_model="numpy")
 def closed_inverse_kernel(points, F0_inv_R, F0_t, w, normal, c, L_pinv, theta0, scale, mid, half, lin0, lin1, r,
                           fold, a_lo, out):  # pragma: no cover - compiled
-    """:meth:`errormap.mt_chain.MachineTool.closed_form_inverse` point by point: ``points`` (n, 3)
+    """:meth:`errormap.machine_tool.MachineTool.closed_form_inverse` point by point: ``points`` (n, 3)
     mm -> ``out`` (n, 3) axes, the rotary one in degrees (with ``fold`` put in ``[a_lo, a_lo +
     360)``). The same closed form as that numpy reference, with the two roots ``θ = φ ± δ`` (``cos φ
     = A/ρ``, ``sin φ = B/ρ``, ``cos δ = C/ρ``, ``sin δ ≥ 0``) turned into cosines and sines by the
@@ -659,7 +659,7 @@ def closed_inverse_kernel(points, F0_inv_R, F0_t, w, normal, c, L_pinv, theta0, 
 
 class ClosedFormInverse:
     """A chain's closed-form nominal inverse compiled (:func:`closed_inverse_kernel`) from its
-    constants ``k`` (:meth:`errormap.mt_chain.MachineTool.closed_form_constants`; built once per
+    constants ``k`` (:meth:`errormap.machine_tool.MachineTool.closed_form_constants`; built once per
     machine by :func:`closed_form_solver`): ``inv(points (n, 3)
     mm, fold=False) -> axes (n, 3)``, the rotary axis in degrees (with ``fold`` in ``[lo, lo +
     360)`` of its stroke, else not yet wrapped: within a turn of ``θ0``)."""
@@ -683,7 +683,7 @@ class ClosedFormInverse:
 
 def closed_form_solver(machine: MachineTool) -> ClosedFormInverse:
     """The chain's closed-form nominal inverse compiled (:class:`ClosedFormInverse` of
-    :meth:`errormap.mt_chain.MachineTool.closed_form_constants`), built once per machine (kept on
+    :meth:`errormap.machine_tool.MachineTool.closed_form_constants`), built once per machine (kept on
     it, as its other compiled forms). ValueError where the chain has no closed form."""
     key = "_closed_form_compiled"
     if key not in machine.__dict__:

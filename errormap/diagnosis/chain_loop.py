@@ -15,7 +15,7 @@ Stages, each judged by the MEASURED residual (measurement − prediction) on the
    the chain's error Jacobian; the check noise σ is estimated with the update (fixed point on
    the residual with its effective degrees of freedom);
 3. **updated + effects** — a forward search over the generic effect kinds on every axis the
-   kind acts on (:data:`errormap.mt_simulate.EFFECT_KINDS`: thermal growth and periodic on
+   kind acts on (:data:`errormap.chain_truth.EFFECT_KINDS`: thermal growth and periodic on
    any linear axis, reversal on any axis, harmonic on any rotary axis, interaction between any
    two linear axes), each term = the chain's error-Jacobian column of the axis' own-direction
    element times the effect's shape; fitted on the fitting checks, accepted only when it
@@ -49,8 +49,8 @@ from scipy.interpolate import make_interp_spline
 
 from ..effect_kinds import effect_kind
 from ..io import InputError, read_table
-from ..mt_chain import MachineTool
-from ..mt_elements import ChainElementSet
+from ..machine_tool import MachineTool
+from ..chain_elements import ChainElementSet
 from ..stats import residual_stats
 from ..units import temperature_mistake
 from .plausibility import stated_noise
@@ -469,7 +469,7 @@ def fitting_gcv(elements: ChainElementSet, updated: ChainElementSet, axes_fit, r
     """GCV ``n·RSS/(n − dof)²`` on the fitting checks of an updated element set, RSS of the chain's own
     residual: ``residual_fit`` (n, 3) of ``elements`` minus the change of the chain's prediction at
     ``axes_fit`` (n, k), so that a step beyond the linear range is judged by what it does."""
-    from ..mt_field import ChainField
+    from ..chain_field import ChainField
     m = elements.machine
     r = np.asarray(residual_fit, float) - (ChainField(m, updated).predict(axes_fit) - ChainField(m, elements).predict(axes_fit))
     return r.size * float(np.sum(r**2)) / (r.size - dof) ** 2 if r.size > dof else float("inf")
@@ -825,7 +825,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
     if n_fit < 5 or n - n_fit < 5:
         raise ValueError(f"Expected at least 5 fitting and 5 held-out checks, got {n_fit} and {n - n_fit}")
     fit_idx, hold_idx = np.arange(n_fit), np.arange(n_fit, n)
-    from ..mt_field import ChainField
+    from ..chain_field import ChainField
 
     def resid(el):
         return checks.measured_um - ChainField(machine, el).predict(checks.axes)

@@ -1,6 +1,6 @@
 """Why a machine-tool chain's identification is weak or strong: a simulation study of its sweep design.
 
-For a machine file (its chain, its sweep targets) and a seeded truth (:mod:`errormap.mt_simulate`):
+For a machine file (its chain, its sweep targets) and a seeded truth (:mod:`errormap.chain_truth`):
 
 1. the sweeps are simulated without noise and identified (:class:`errormap.identification.ChainIdentification`):
    that element set is the truth **in the identification's gauge** (the squareness carried by its own
@@ -27,10 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mt_chain import MachineTool
+from .machine_tool import MachineTool
 from .identification import ChainIdentification
-from .mt_simulate import make_mt_truth, volume_grid
-from .mt_sweeps import simulate_mt_sweeps, swept_words
+from .chain_truth import make_mt_truth, volume_grid
+from .chain_sweeps import simulate_mt_sweeps, swept_words
 from .seeds import spawn_rngs
 from .sweeps import sweeps_from_columns
 

@@ -153,8 +153,8 @@ def _verdict(v) -> str:
 def chain_diagnosis_page(run_dir, machine) -> str:
     """The page of the diagnose run in ``run_dir`` (module doc) on ``machine``; InputError naming the file and
     key when the folder is not such a run."""
-    from errormap.diagnosis.mt_model import load_chain_model_file
-    from errormap.mt_elements import ChainElementSet
+    from errormap.diagnosis.loop_model import load_chain_model_file
+    from errormap.chain_elements import ChainElementSet
     run_dir = Path(run_dir)
     doc = read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine")
     check_chain_diagnosis(doc, run_dir / "diagnosis.json")
@@ -179,7 +179,7 @@ def chain_diagnosis_page(run_dir, machine) -> str:
         "check noise σ (μm)": f"{doc.get('noise_sigma_um')} ({doc.get('noise_sigma_source', '?')})",
         "verdict": _verdict(doc.get("verdict")),
         "model handed on": str(run_dir / "model.json")})
-    return render_page("mt_diagnose.html", title=f"Closed loop on {machine.name}: diagnosis of the checks",
+    return render_page("chain_diagnose.html", title=f"Closed loop on {machine.name}: diagnosis of the checks",
                        summary=summary, stages=_stage_table(doc), stage_figure=_stage_figure(doc), effects=acc,
                        rejected=rej, element_figures=_element_figures(machine, updated, identified),
                        constants=_constants_table(machine, updated, identified), kept=doc["kept_stage"],

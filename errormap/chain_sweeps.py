@@ -27,7 +27,7 @@ import numpy as np
 from .chain import ET, Chain, Joint
 from .io import read_table
 from .machine_checks import MachineFileError
-from .mt_chain import MachineTool
+from .machine_tool import MachineTool
 from .sweeps import (OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SWEEP_FORMAT, Sweeps, columns_from_table,
                      random_tracker_pose, sweeps_from_columns, write_sweeps)
 
@@ -114,7 +114,7 @@ def sweep_stations(machine: MachineTool, n_stations: int = DEFAULT_STATIONS) -> 
 
 def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, n_stations: int = DEFAULT_STATIONS,
                        bidirectional: bool = False, dt_s: float = 20.0, warmup_c: float = 0.0) -> dict:
-    """Simulated tracker sweeps of an :class:`errormap.mt_simulate.MTTruth` (its effects included),
+    """Simulated tracker sweeps of an :class:`errormap.chain_truth.MTTruth` (its effects included),
     a dict of sweep-file columns (the grinder's :func:`errormap.sweeps.simulate_sweeps` layout)."""
     if noise_um < 0:
         raise ValueError(f"Expected noise_um >= 0, got {noise_um}")

@@ -1,7 +1,7 @@
 """Element sets of any machine-tool chain: per-axis stations, component-error functions, constants.
 
 The generic form of :class:`errormap.elements.ElementSet`: the slots come from the machine file
-(:class:`errormap.mt_chain.MachineTool`), not from constants. Component errors (μm / μrad) are
+(:class:`errormap.machine_tool.MachineTool`), not from constants. Component errors (μm / μrad) are
 functions of their own axis, stored as values at that axis' stations and interpolated by one
 vector-valued cubic B-spline per axis (``scipy.interpolate.make_interp_spline``, the same
 interpolation as the grinder's; periodic for a rotary axis whose stroke is a full turn, which
@@ -24,7 +24,7 @@ from scipy.interpolate import make_interp_spline
 
 from .elements import check_profile
 from .io import InputError, atomic_write, read_document_text
-from .mt_chain import FULL_TURN_DEG, MachineTool
+from .machine_tool import FULL_TURN_DEG, MachineTool
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
 MAX_ELEMENT_VALUE = 1e6  # μm or μrad: no element of a machine tool reaches a metre or a radian (as elements.py)
@@ -105,7 +105,7 @@ class ChainElementSet:
                n_stations: int = 11) -> "ChainElementSet":
         """A seeded element set of independent normal values (σ ``scale_um`` μm or μrad) at
         ``n_stations`` stations per axis, full-turn axes closed: a test and benchmark fixture, not a
-        truth family (those are :mod:`errormap.mt_simulate`'s)."""
+        truth family (those are :mod:`errormap.chain_truth`'s)."""
         rng = np.random.default_rng(seed)
         z = cls.zeros(machine, n_stations)
         fun = {}

@@ -1,7 +1,7 @@
 """The benchmark's rows on a machine-tool chain file (``volcomp benchmark --machine mill-xyz``).
 
 Per condition (no effect, then each of the settings' undeclared effects the machine has axes for),
-the user's path as the CLI runs it, through the same workflow functions (:mod:`.mt_loop`), the files
+the user's path as the CLI runs it, through the same workflow functions (:mod:`.measurement`), the files
 left in ``DIR/chains/MACHINE/CONDITION/``:
 
 1. a hidden truth of seed ``truth_seed`` (``simulate --machine``: truth elements + the effect);
@@ -223,11 +223,11 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
     """The rows of ``machine`` (a machine-tool chain) under the settings ``s``; ``log``: the benchmark's
     :class:`RowLog`, ``row``: its row constructor, ``streams``: its seed streams, ``note``: its logger.
     Returns the skipped conditions (``[{"machine", "why"}]``)."""
-    from errormap.diagnosis.mt_model import load_chain_model_file
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_field import ChainField
-    from errormap.mt_simulate import MTTruth
-    from .mt_loop import diagnose_chain, identify_chain_files, simulate_chain, sweeps_chain
+    from errormap.diagnosis.loop_model import load_chain_model_file
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    from errormap.chain_truth import MTTruth
+    from .measurement import diagnose_chain, identify_chain_files, simulate_chain, sweeps_chain
     skipped = []
     try:
         path = judging_path(machine, s.chain_path_points)

@@ -1,10 +1,10 @@
-"""Seeded truth machines for ANY machine-tool chain file (:class:`errormap.mt_chain.MachineTool`).
+"""Seeded truth machines for ANY machine-tool chain file (:class:`errormap.machine_tool.MachineTool`).
 
 The generic form of :mod:`errormap.simulator` (default family) and :mod:`errormap.truth_families`
 (independent family), over the machine's element slots instead of the grinder's 23 names:
 
 * **component errors** (functions of their own axis, zero at the axis' first station — the
-  gauge of :class:`errormap.mt_elements.ChainElementSet`): default family — a cubic plus one
+  gauge of :class:`errormap.chain_elements.ChainElementSet`): default family — a cubic plus one
   long-wave sinusoid on a linear axis or a rotary axis short of a full turn, harmonics 1–3 on
   a full-turn rotary axis (periodic, closed at 360°), on 21 stations; independent family —
   2–5 Gaussian bumps plus Chebyshev T1…T4 (harmonics 1…6 with amplitudes ∝ h^-1.5 on a full
@@ -68,8 +68,8 @@ from scipy.stats import qmc
 
 from .effect_kinds import EFFECT_KINDS as _REGISTRY
 from .effect_kinds import effect_kind
-from .mt_chain import COMPONENTS, MachineTool
-from .mt_elements import ChainElementSet
+from .machine_tool import COMPONENTS, MachineTool
+from .chain_elements import ChainElementSet
 from .seeds import spawn_rngs
 
 FAMILIES = ("default", "independent")

@@ -10,7 +10,7 @@ canonical order (``machine.axis_columns``), ``P`` = its slots (``machine.slot_na
 Axis Jacobian: ``dE/dq = [J_q(q, e) − J_q(q, 0) + J_e(q, e)·de/dq] / 1e-3`` with ``J_q`` the
 chain's joint Jacobian, ``J_e`` its error-parameter Jacobian and ``de/dq`` the spline slopes of
 the component errors along their own axis. :func:`predict_numpy` / :func:`predict_and_jacobian_numpy`
-are the readable references; the compiled kernel (:mod:`errormap.mt_kernel`) is
+are the readable references; the compiled kernel (:mod:`errormap.chain_kernel`) is
 tested against them; :class:`ChainField` computes through the kernel.
 """
 from __future__ import annotations
@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from .field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
-from .mt_chain import UM_MM, MachineTool
-from .mt_elements import ChainElementSet
+from .machine_tool import UM_MM, MachineTool
+from .chain_elements import ChainElementSet
 
 CHUNK = 4096  # points per numpy pass: the reference keeps (chunk, n_et + 1, 4, 4) frames
 
@@ -96,12 +96,12 @@ class ChainField:
 
     def _compiled(self):
         """The kernels' arrays, packed per call (cheap; the element set's splines are cached there)."""
-        from .mt_kernel import CompiledChain
+        from .chain_kernel import CompiledChain
         return CompiledChain(self.machine, self.elements)
 
     def predict(self, axes) -> np.ndarray:
         """Spatial error (μm), shape (n, 3), at axes (n, k): one compiled pass per point
-        (:mod:`errormap.mt_kernel`), equal to :func:`predict_numpy` to round-off (tested)."""
+        (:mod:`errormap.chain_kernel`), equal to :func:`predict_numpy` to round-off (tested)."""
         return self._compiled().predict(self._axes(axes))
 
     __call__ = predict
@@ -118,7 +118,7 @@ class ChainField:
 
     def error_jacobian(self, axes) -> np.ndarray:
         """∂E/∂(element values) at the nominal chain, shape (n, 3, P), μm per μm / per μrad
-        (compiled, :func:`errormap.mt_kernel.error_jacobian`; the numpy form is
+        (compiled, :func:`errormap.chain_kernel.error_jacobian`; the numpy form is
         :meth:`MachineTool.error_jacobian`)."""
-        from .mt_kernel import error_jacobian
+        from .chain_kernel import error_jacobian
         return error_jacobian(self.machine, self._axes(axes))

@@ -1,8 +1,8 @@
 """The measurement side on any machine-tool chain file (``kind = "machine-tool"``): ``simulate``,
 ``sweeps``, ``identify`` and ``diagnose`` when ``--machine`` names one (``mill-xyz``,
 ``five-axis-ac``, a path). The grinder's commands are unchanged (its built-in file stays the
-default); these are the generic forms (``errormap/mt_simulate.py``, ``mt_sweeps.py``,
-``identification.py``, ``diagnosis/mt_loop.py``)."""
+default); these are the generic forms (``errormap/chain_truth.py``, ``chain_sweeps.py``,
+``identification.py``, ``diagnosis/chain_loop.py``)."""
 from __future__ import annotations
 
 import json
@@ -24,8 +24,8 @@ def load_chain_truth(path, machine):
     """The truth's error field at the reference conditions (20 °C, positive approach on every axis) from
     ``truth.json`` of ``simulate --machine`` (elements + effects) or a truth element set; InputError naming
     the file and key otherwise."""
-    from errormap.mt_elements import ELEMENTS_FORMAT, ChainElementSet
-    from errormap.mt_field import ChainField
+    from errormap.chain_elements import ELEMENTS_FORMAT, ChainElementSet
+    from errormap.chain_field import ChainField
     p = Path(path)
     try:
         d = json.loads(read_document_text(p, "a model or element set"))
@@ -40,7 +40,7 @@ def load_chain_truth(path, machine):
     if d.get("machine_sha256") != machine.sha256:
         raise InputError(f"{p}: key 'machine_sha256': the truth belongs to machine {d.get('machine')!r}, "
                          f"not {machine.name!r}")
-    from errormap.mt_simulate import MTTruth
+    from errormap.chain_truth import MTTruth
     truth = MTTruth(machine, ChainElementSet.load(p.parent / str(d.get("elements")), machine), d.get("effects") or {})
     return _TruthAtReference(truth)
 
@@ -65,7 +65,7 @@ def refuse_options(args, defaults: dict, what: str) -> None:
 
 def parse_effects(machine, effects) -> list:
     """``KIND[:AXES]`` strings checked against the machine (one-line UsageError naming the known kinds)."""
-    from errormap.mt_simulate import effect_key, parse_effect
+    from errormap.chain_truth import effect_key, parse_effect
     out = []
     for e in effects:
         try:
@@ -76,7 +76,7 @@ def parse_effects(machine, effects) -> list:
 
 
 def make_truth(machine, seed: int, effects=(), family: str = "default"):
-    from errormap.mt_simulate import make_mt_truth
+    from errormap.chain_truth import make_mt_truth
     return make_mt_truth(machine, seed, effects=parse_effects(machine, effects), family=family)
 
 
@@ -85,7 +85,7 @@ def simulate_chain(machine, seed: int, out, effects=(), noise_um: float = 1.0, c
     """Write ``out/truth_elements.json`` (hidden truth), ``checks.csv`` and ``truth.json``.
     ``check_noise_seed``: None (default) the checks' noise from the seed's own stream; an int redraws only
     the checks' noise (same machine, points and conditions), as on the grinder."""
-    from errormap.mt_simulate import volume_grid
+    from errormap.chain_truth import volume_grid
     from .simulate import check_noise_comments, check_noise_record
     out = Path(out)
     truth = make_truth(machine, seed, effects, family)
@@ -111,9 +111,9 @@ def simulate_chain(machine, seed: int, out, effects=(), noise_um: float = 1.0, c
 def sweeps_chain(machine, out, seed=None, truth_file=None, effects=(), family="default", noise_um=2.0, seed_noise=0,
                  bidirectional=False, warmup_c=0.0, setup="setup-1") -> tuple:
     """Simulate and write a sweep file of a truth (seeded, or an element-set file); ``(path, rows)``."""
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_simulate import MTTruth
-    from errormap.mt_sweeps import simulate_mt_sweeps, write_sweeps
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_truth import MTTruth
+    from errormap.chain_sweeps import simulate_mt_sweeps, write_sweeps
     if truth_file is not None:
         if effects:
             raise UsageError("--effect needs --seed (a truth element file carries no effects)")
@@ -138,7 +138,7 @@ def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, 
     σ̂²·(JᵀJ)⁻¹, σ̂ the known tracker σ ``noise_um`` when given, or with ``n_boot`` the residual bootstrap's,
     :func:`errormap.identification.bootstrap_covariance`; through the smoother when smoothed) and the report."""
     from errormap.identification import ChainIdentification, bootstrap_covariance, smooth_chain
-    from errormap.mt_sweeps import read_mt_sweeps
+    from errormap.chain_sweeps import read_mt_sweeps
     if len(sweep_files) != 1:
         raise UsageError(f"a machine-tool chain is identified from one sweep file (one tracker set-up), got "
                          f"{len(sweep_files)}")
@@ -165,9 +165,9 @@ def chain_truth_in_gauge(machine, truth_file, gauge: str = "station-mean"):
     truth's noise-free sweeps; tool points to 1e-6 μm, ``tests/test_mt_loop.py``), so that a plot overlays like
     with like (as the grinder's :func:`compensation.app.workflows.identification.truth_in_gauge`)."""
     from errormap.identification import ChainIdentification
-    from errormap.mt_elements import ChainElementSet
-    from errormap.mt_simulate import MTTruth
-    from errormap.mt_sweeps import simulate_mt_sweeps, swept_words
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_truth import MTTruth
+    from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
     from errormap.sweeps import sweeps_from_columns
     truth = MTTruth(machine, ChainElementSet.load(truth_file, machine), {})
     sw = sweeps_from_columns(simulate_mt_sweeps(truth, noise_um=0.0, seed=0), axes=swept_words(machine))
@@ -177,7 +177,7 @@ def chain_truth_in_gauge(machine, truth_file, gauge: str = "station-mean"):
 def load_chain_model(path, machine):
     """An element set of ``machine`` (format key ``volcomp-elements/1``) and its covariance beside it
     (``NAME.cov.npz``) when present."""
-    from errormap.mt_elements import ELEMENTS_FORMAT, ChainElementSet
+    from errormap.chain_elements import ELEMENTS_FORMAT, ChainElementSet
     from errormap.identification import load_covariance
     p = Path(path)
     if not p.is_file():
@@ -221,9 +221,9 @@ def check_chain_covariance(machine, elements, cov, cov_path="<covariance>") -> N
 def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.ndarray:
     """Standard deviation (n, 3) μm of the element set's tool-point error at ``axes`` (n, k) from the
     identification's covariance ``cov`` = ``(slot names, stations, Σ)`` (``E.cov.npz``): the diagonal of
-    ``J Σ Jᵀ`` per point, ``J`` (3, N) the parameter Jacobian (:func:`errormap.diagnosis.mt_loop.parameter_matrix`,
+    ``J Σ Jᵀ`` per point, ``J`` (3, N) the parameter Jacobian (:func:`errormap.diagnosis.chain_loop.parameter_matrix`,
     linearised at ``elements``); the covariance checked first (:func:`check_chain_covariance`)."""
-    from errormap.diagnosis.mt_loop import parameter_matrix
+    from errormap.diagnosis.chain_loop import parameter_matrix
     check_chain_covariance(machine, elements, cov, cov_path)
     slots, stations, C = cov
     axes = np.atleast_2d(np.asarray(axes, float))
@@ -253,7 +253,7 @@ def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0
     ``terms``, or all but the condition terms the learned field replaced, their coefficients the backfitted
     ones when backfitted), ``elements`` the hybrid's elements (``elements``, or the backfitted ones)."""
     from compensation.hybrid import learned_stage
-    from errormap.diagnosis.mt_model import ChainModelField, term_needs
+    from errormap.diagnosis.loop_model import ChainModelField, term_needs
     n, n_fit = len(checks), int(summary["n_fit"])
 
     def prediction(ts):
@@ -300,8 +300,8 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     """Held-out measured residual of an element set on checks (stages, noise floor, effects), then (``learn``)
     the learned-residual stage on what the kept stage leaves (:func:`chain_learned_stage`); writes
     ``out/diagnosis.json``, ``out/updated_elements.json`` and ``out/model.json`` (with ``learned_residual``
-    when that stage is kept: :mod:`compensation.mt_hybrid`)."""
-    from errormap.diagnosis.mt_loop import closed_loop_chain, load_mt_checks
+    when that stage is kept: :mod:`compensation.chain_hybrid`)."""
+    from errormap.diagnosis.chain_loop import closed_loop_chain, load_mt_checks
     el, cov, cov_path = load_chain_model(model, machine)
     checks = load_mt_checks(checks_path, machine, units=units)
     try:
@@ -366,7 +366,7 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     out.mkdir(parents=True, exist_ok=True)
     el_path = models["elements"].save(out / "updated_elements.json")   # each file written whole (temporary file, rename)
     paths_extra = [] if loop_alone is None else [loop_alone[0].save(out / "loop_elements.json")]
-    from errormap.diagnosis.mt_model import save_chain_model
+    from errormap.diagnosis.loop_model import save_chain_model
     model_path = save_chain_model(out / "model.json", machine, el_path, terms, summary["kept_stage"], extra)
     summary["model_file"] = str(model_path)
     write_json(out / "diagnosis.json", summary)

@@ -1,11 +1,11 @@
 """The hybrid error field on a machine-tool chain: the chain loop's model plus its learned residual.
 
 ``volcomp diagnose --machine M`` runs the learned-residual stage (:func:`compensation.hybrid.learned_stage`)
-after the chain loop's effect search (``compensation/app/workflows/mt_loop.py``); when it is kept, the
+after the chain loop's effect search (``compensation/app/workflows/measurement.py``); when it is kept, the
 chain's ``model.json`` (``volcomp-chain-model/1``) carries it under ``learned_residual``
-(:data:`errormap.diagnosis.mt_model.LEARNED_KEY`) beside the elements and the effect terms.
+(:data:`errormap.diagnosis.loop_model.LEARNED_KEY`) beside the elements and the effect terms.
 
-:func:`load_chain_model` reads such a file whole: the loop's :class:`~errormap.diagnosis.mt_model.ChainModelField`
+:func:`load_chain_model` reads such a file whole: the loop's :class:`~errormap.diagnosis.loop_model.ChainModelField`
 (elements + terms), wrapped in a :class:`ChainHybridField` when a learned residual is kept.
 :class:`ChainHybridField` is a :class:`compensation.hybrid.HybridField` (value and Jacobian: the chain's
 plus the learned part's in closed form; the calibrated volume narrowed to the checks' box in the linear
@@ -17,14 +17,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from errormap.diagnosis.mt_model import LEARNED_KEY, ChainModelField, load_chain_model_file
+from errormap.diagnosis.loop_model import LEARNED_KEY, ChainModelField, load_chain_model_file
 from errormap.io import InputError, read_document_text
 
 from .hybrid import HybridField, LearnedResidual
 
 
 class ChainHybridField(HybridField):
-    """``base`` (a :class:`~errormap.diagnosis.mt_model.ChainModelField`) + ``learned``
+    """``base`` (a :class:`~errormap.diagnosis.loop_model.ChainModelField`) + ``learned``
     (:class:`~compensation.hybrid.LearnedResidual` over the machine's axis columns): the chain loop's
     hybrid model; the base's conditions pass through (:attr:`needs`, :meth:`with_conditions`)."""
 
@@ -56,7 +56,7 @@ class ChainHybridField(HybridField):
 
 def load_chain_model(path, machine):
     """The chain loop's ``model.json`` for ``machine`` as an error field: a
-    :class:`~errormap.diagnosis.mt_model.ChainModelField`, or a :class:`ChainHybridField` when the file
+    :class:`~errormap.diagnosis.loop_model.ChainModelField`, or a :class:`ChainHybridField` when the file
     holds a kept learned residual; InputError naming the file and key otherwise."""
     path = Path(path)
     base = load_chain_model_file(path, machine, learned="ignore")

@@ -2,14 +2,14 @@
 
 ``model.json`` (``format: volcomp-chain-model/1``) names the machine (name and sha256), the element
 set the loop handed on (a file beside it, ``updated_elements.json``) and the accepted effect terms
-(:class:`errormap.diagnosis.mt_loop.EffectTerm`: kind, axis words, element, shape, coefficients).
+(:class:`errormap.diagnosis.chain_loop.EffectTerm`: kind, axis words, element, shape, coefficients).
 It is written only as the loop kept it: when a plainer stage was kept, the terms list is empty.
 
 :class:`ChainModelField` is the error field of it over the machine's axes: ``E(q, c) = B(q) + t(q, c)``
-with ``B`` the :class:`errormap.mt_field.ChainField` of the elements and ``t`` the terms' spatial
+with ``B`` the :class:`errormap.chain_field.ChainField` of the elements and ``t`` the terms' spatial
 contribution — exactly the columns the loop fitted (the chain's error-Jacobian column of the term's
 element at the nominal chain times the effect's shape, times the coefficients;
-:func:`errormap.diagnosis.mt_loop.effect_columns`). Value (n, 3) μm and axis Jacobian (n, 3, k):
+:func:`errormap.diagnosis.chain_loop.effect_columns`). Value (n, 3) μm and axis Jacobian (n, 3, k):
 ``B``'s compiled Jacobian plus the terms' by central differences (:data:`TERM_STEP`).
 
 Conditions: a thermal term needs ``temp_c``, a reversal term ``dir_<w>`` (±1). They are given to
@@ -25,11 +25,11 @@ import numpy as np
 
 from ..field import JACOBIAN, PREDICT_AND_JACOBIAN
 from ..io import InputError, read_document_text, write_json
-from ..mt_chain import MachineTool
-from ..mt_elements import ChainElementSet
-from ..mt_field import ChainField
-from ..mt_simulate import EFFECT_KINDS
-from .mt_loop import EffectTerm, effect_columns
+from ..machine_tool import MachineTool
+from ..chain_elements import ChainElementSet
+from ..chain_field import ChainField
+from ..chain_truth import EFFECT_KINDS
+from .chain_loop import EffectTerm, effect_columns
 
 CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"
 TERM_STEP = {"linear": 1e-3, "rotary": 1e-3}
@@ -63,7 +63,7 @@ def save_chain_model(path, machine: MachineTool, elements_file, terms, kept_stag
     if extra:
         if LEARNED_KEY in extra:
             d["note"] += ("; + the learned residual (learned_residual: a regressor of the axes, tapered to zero "
-                          "outside the checks' box; read by compensation.mt_hybrid)")
+                          "outside the checks' box; read by compensation.chain_hybrid)")
         d.update(extra)
     return write_json(path, d)
 
@@ -73,7 +73,7 @@ LEARNED_KEY = "learned_residual"
 learned part lives in the compensation layer: :func:`load_chain_model_file` reads the elements and terms
 only and REFUSES a file that has it unless told to ignore it (``learned="ignore"``: a caller that needs the
 elements alone, the report page), so no reader silently drops the kept stage's learned part;
-``compensation.mt_hybrid.load_chain_model`` reads the whole model."""
+``compensation.chain_hybrid.load_chain_model`` reads the whole model."""
 LEARNED_MODES = ("refuse", "ignore")
 
 
