@@ -51,7 +51,7 @@ def example(n_stations: int | None = None) -> dict:
 
 def grinder(n_points: int = 500) -> dict:
     from compensation import compensate_points
-    from compensation.app.workflows.mt_compensate import true_residual_um
+    from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap import Identification, load_machine, simulate_sweeps, simulate_truth
     from errormap.grinder_file import machine_tool_of

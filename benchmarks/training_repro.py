@@ -25,7 +25,7 @@ def main() -> None:
     try:
         from compensation.app.cli import main as cli
     except ImportError:  # a checkout before the application wing
-        from compensation.cli import main as cli
+        from compensation.app.cli import main as cli
     import training.trainers as trainers
     label = sys.argv[1] if len(sys.argv) > 1 else "run"
     max_iter = int(sys.argv[2]) if len(sys.argv) > 2 else 400

@@ -405,8 +405,11 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
             src = read_path(p, machine, arc_tolerance_um=float(arc), max_segment_mm=seg_mm, field=field, work_offsets=mcs)
             res = read_path(out / p.name, machine, max_segment_mm=None, work_offsets=mcs)
             lands = forward(machine, res.axes) + 1e-3 * field.predict(res.axes)
-            _check_output("compensate", len(res) == len(src) and np.abs(lands - src.targets_mm).max() < TOL_LANDING_MM,
-                          (argv, len(res), len(src)))
+            # the writer chords arcs and splits moves by its own rule (the chain's planning, in axis space): the end
+            # of every programmed block (this reader's last point of each source line) is landed by a written point
+            last = np.r_[src.lines[1:] != src.lines[:-1], True]
+            ends = np.linalg.norm(src.targets_mm[last][:, None, :] - lands[None], axis=2).min(axis=1)
+            _check_output("compensate", ends.max() < TOL_LANDING_MM, (argv, len(res), len(src), ends.max()))
 
 
 @pytest.mark.slow  # 6.5 CPU s measured

@@ -260,8 +260,11 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
                            mutation_probability: float = PAPER_GA["mutation_probability"],
                            mutation_step_um: float = PAPER_GA["mutation_step_um"], tol_um: float = DEFAULT_TOL_UM,
                            chunk: int = 8192, retries: int = RETRY_ROUNDS, polish: bool = True,
-                           rotary_limit_deg=None, progress: bool = True):
+                           rotary_limit_deg=None, progress: bool = True, stop=None):
     """Batched GA over WCS targets (n, 3) mm on a machine-tool chain (module docstring).
+
+    ``stop``: a ``threading.Event`` polled every generation and fitness block (the local executor's Ctrl-C:
+    KeyboardInterrupt within a generation, :data:`compensation.batch.STOPPABLE`).
 
     ``target_axes`` (n, k): the program's axes of each target (required when the machine has
     rotary axes). Chunks of at most ``chunk`` points evolve one after another, each from its own
@@ -293,7 +296,7 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
         if hi <= lo:
             continue
         idx = np.arange(lo, hi)
-        b, fe = ga.run(lambda pts, dT, _o=lo: fit(pts + _o, dT), hi - lo, rngs[i], generations, bar)
+        b, fe = ga.run(lambda pts, dT, _o=lo: fit(pts + _o, dT), hi - lo, rngs[i], generations, bar, stop=stop)
         nfev += fe
 
         def rerun(bad, radius, _b=b, _idx=idx, _rng=rngs[i]):
@@ -301,7 +304,8 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
             init[:, 0] = _b[bad]
             init = project_to_ball(init, ball_um).astype(np.float32)
             sub = _idx[bad]
-            return ga.run(lambda pts, dT, _s=sub: fit(_s[pts], dT), bad.size, _rng, generations, None, init=init)
+            return ga.run(lambda pts, dT, _s=sub: fit(_s[pts], dT), bad.size, _rng, generations, None, init=init,
+                          stop=stop)
 
         nfev += _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_um, ball_um, retries,
                                   polish, rerun, stats)
