@@ -166,7 +166,7 @@ def simulate_mt_sweeps(truth, noise_um: float = 2.0, seed=0, tracker_pose=None, 
 
 def read_mt_sweeps(path, machine: MachineTool) -> Sweeps:
     """Read one sweep file of ``machine`` (axis words from the machine); errors name file, row, column."""
-    t = read_table(path, "chain sweeps")
+    t = read_table(path, "sweeps")
     words = swept_words(machine)
     rotary = tuple(a.word for a in machine.axes if a.kind == "rotary")
     cols = columns_from_table(t, axes=words, rotary=rotary,

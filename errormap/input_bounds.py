@@ -41,9 +41,7 @@ BOUNDS = {
     "featurepoints": InputBound("feature points", "train", 5_000_000, 10_000_000, 702.0, 5.6e9),
     "checks": InputBound("check measurements", "diagnose", 20_000, 20_000, 70.2, 4.31e9, power=2.0),
     "poses": InputBound("measured poses", "calibrate / register", 20_000, 5_000, 77.6, 0.582e9),
-    "sweeps": InputBound("sweep rows", "identify", 10_000, 1_809, 12.7, 0.511e9),
-    "chain sweeps": InputBound("sweep rows", "identify --machine (a machine-tool chain)", 2_000, 1_810, 282.2,
-                               2.0e9, power=2.0),
+    "sweeps": InputBound("sweep rows", "identify", 2_000, 1_810, 282.2, 2.0e9, power=2.0),
     "thermal log": InputBound("log samples", "diagnose --drift / drift-predict", 300_000, 110_400, 196.4, 0.823e9),
     "waypoints": InputBound("waypoints", "interpolate", 1_000_000, 10_000_000, 702.0, 5.6e9),
 }
@@ -56,11 +54,11 @@ writes (``featurepoints --grid`` at validate.MAX_GRID_POINTS), about 2.8 GB. ``f
 way and bounded by what volcomp writes (the grid limit; one path's points, validate.MAX_PATH_POINTS).
 ``checks``: ``diagnose`` holds dense check x check matrices (its learned residual): 20,000 grinder checks took 70 CPU
 s and 4.3 GB (1,200: 8.3 s, 0.48 GB), growing as n². ``poses``: ``calibrate`` decides on a subset of 500 poses and
-fits the geometric stages on all: 5,000 poses took 78 s and 0.58 GB (1,200: 74 s, 0.39 GB). ``sweeps``: the
-grinder's identification (per station, then B-splines and a 100-draw bootstrap): 1,809 rows (201 stations per axis)
-took 12.7 s and 0.51 GB (189 rows: 2.4 s, 0.10 GB). ``chain sweeps``: Gauss-Newton over every station's slots at
-once (the Jacobian grows as rows x stations): 1,810 rows (mill-xyz, 201 stations per axis) took 282 CPU s and
-2.0 GB (190 rows: 1.4 s, 0.11 GB). ``thermal log``: 110,400 samples (460 h at 15 s) took 196 s and 0.82 GB (11,040: 16 s, 0.33 GB).
+fits the geometric stages on all: 5,000 poses took 78 s and 0.58 GB (1,200: 74 s, 0.39 GB). ``sweeps``: the one
+identification of every machine tool (the grinder through its chain), Gauss-Newton over every station's slots at
+once (the Jacobian grows as rows x stations): 1,810 rows (mill-xyz, 201 stations per axis) took 282 CPU s and 2.0 GB
+(190 rows: 1.4 s, 0.11 GB); the grinder's 1,809 rows 227 CPU s and 2.07 GB (189 rows: 1.9 s). ``thermal log``:
+110,400 samples (460 h at 15 s) took 196 s and 0.82 GB (11,040: 16 s, 0.33 GB).
 """
 
 

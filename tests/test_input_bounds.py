@@ -66,7 +66,7 @@ CASES = [
     ("checks", ["diagnose", "{f}", "--machine", "mill-xyz", "--model", "{d}/m/truth_elements.json", "--out", "{o}/dm"]),
     ("thermal log", ["diagnose", "--drift", "{f}", "--out", "{o}/dd"]),
     ("sweeps", ["identify", "{f}", "--out", "{o}/E.json"]),
-    ("chain sweeps", ["identify", "{f}", "--machine", "mill-xyz", "--out", "{o}/E.json"]),
+    ("sweeps", ["identify", "{f}", "--machine", "mill-xyz", "--out", "{o}/E.json"]),
     ("poses", ["calibrate", "{f}", "--machine", "ur5", "--out", "{o}/c"]),
     ("poses", ["calibrate", "{f}", "--machine", "hexapod", "--out", "{o}/c"]),
     ("poses", ["register", "{f}", "--machine", "ur5", "--model", "{d}/arm.json", "--out", "{o}/r"]),
