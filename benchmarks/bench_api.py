@@ -1,6 +1,6 @@
-"""What the Python API's notebook example (docs/api.md) achieves, and what importing the packages costs.
+"""What the Python API's notebook example (docs/reference/python-api.md) achieves, and what importing the packages costs.
 
-1. The example exactly as written in docs/api.md, then judged with its hidden truth (simulate_truth seed 1,
+1. The example exactly as written in docs/reference/python-api.md, then judged with its hidden truth (simulate_truth seed 1,
    never given to the estimator): per point the uncompensated TRUE error and the TRUE residual at the
    compensated commands (the truth's tool point there minus the target), and the MODEL residual.
 2. The same with 21 stations per axis (the ``volcomp sweeps`` default) in place of the example's 11.
@@ -30,12 +30,12 @@ ROOT = Path(__file__).resolve().parents[1]
 def example(n_stations: int | None = None) -> dict:
     import matplotlib
     matplotlib.use("Agg")
-    code = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "api.md").read_text(encoding="utf-8"), re.S)[0]
+    code = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "reference" / "python-api.md").read_text(encoding="utf-8"), re.S)[0]
     if n_stations is not None:
         code = code.replace("n_stations=11", f"n_stations={n_stations}")
     ns: dict = {}
     t0 = time.process_time()
-    exec(compile(code, "docs/api.md", "exec"), ns)
+    exec(compile(code, "docs/reference/python-api.md", "exec"), ns)
     cpu = time.process_time() - t0
     from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian

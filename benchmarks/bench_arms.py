@@ -457,7 +457,7 @@ def rules_md(r):
         planned = r[kind].get("n_folds_planned", len(ks))
         part = "" if len(ks) == planned else f", PARTIAL: {len(ks)} of {planned} run"
         if "random" in kind and not all(STACK in f["rules"] for f in ks):
-            part += ("; RUN BEFORE the fold fix (docs/arms.md point 5): its pipeline CV reused fold fits of other "
+            part += ("; RUN BEFORE the fold fix (docs/explanation/serial-arms.md point 5): its pipeline CV reused fold fits of other "
                      "folds, which flattered the geometric part of every pipeline")
         L += ["", f"Pipeline rules on the {kind} outer folds ({len(ks)} folds{part}; each rule applied to the inner CV of "
               "whole pipelines only; outer pooled mean of the pipeline it kept, mm):", "",
@@ -563,7 +563,7 @@ def stacked_note(ks) -> str:
 
 
 def band_note(ks) -> str:
-    """The blocked band rule over the outer folds (docs/arms.md, "Band of the kept stage"): its factor per fold and the
+    """The blocked band rule over the outer folds (docs/explanation/serial-arms.md, "Band of the kept stage"): its factor per fold and the
     kept stage's 95 % coverage before (the stage's own band) and after (times the factor) — on the outer held-out folds
     and on the inner blocked and interleaved CVs (folds run before the rule: nothing)."""
     b = [f["band"] for f in ks if f.get("band")]
@@ -612,7 +612,7 @@ def write_md(res, args):
             covh = [f["coverage95_heldout"] for f in ks]
             # the fold-fit leak hit random inner folds only (blocked inner folds come from the groups, the same each call)
             stale = "" if kind != "random" or all("rules" in f and STACK in f["rules"] for f in ks) else (
-                " RUN BEFORE the fold fix (docs/arms.md point 5): its pipeline CV reused fold fits of other folds.")
+                " RUN BEFORE the fold fix (docs/explanation/serial-arms.md point 5): its pipeline CV reused fold fits of other folds.")
             L += ["", f"{kind}{part_note}: {len(ks)} outer folds; kept stage: {n_kept}; geometric model chosen by inner CV: {', '.join(geo)}; "
                   f"95 % band of the kept stage on the outer held-out fold: coverage {np.mean(covh):.3f} "
                   f"(per fold {', '.join(f'{c:.3f}' for c in covh)})"
@@ -623,7 +623,7 @@ def write_md(res, args):
                      " RUN BEFORE the leak fix (point 1): its pipeline CV kept the GP hyper-parameters chosen on all fit "
                      "poses and re-solved only the weights per inner fold.")
                   + ("" if all("cv_pipelines" in f for f in ks) else
-                     " RUN BEFORE the pipeline CV (point 5 of docs/arms.md): its kept stage is volcomp's choice "
+                     " RUN BEFORE the pipeline CV (point 5 of docs/explanation/serial-arms.md): its kept stage is volcomp's choice "
                      "without the plain pipelines as candidates.")]
         L += kernels_md(r) + rules_md(r) + variants_md(r)
         L.append("")

@@ -280,7 +280,7 @@ def render_families(sets):
 
 
 # blend grids compared in issue 29's fourth round (the default rule on the candidates whose weight w is in the grid;
-# the decision rule, written before the dumps were read, is in docs/drift_model.md)
+# the decision rule, written before the dumps were read, is in docs/explanation/drift.md)
 GRIDS = {"A: the grid before (1, 0.75, 0.5, 0.25)": SHRINK_WEIGHTS_COARSE,
          "B: A + 0.125": SHRINK_WEIGHTS_COARSE + (0.125,),
          "C: steps of 1/8 (the default since)": SHRINK_WEIGHTS}

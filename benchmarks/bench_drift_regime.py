@@ -185,7 +185,7 @@ def rule_text():
                          "(ρ > 1) and of the farther half of them",
             "fold_flat": "the split-conformal 95 % quantile of |validation residual| on the horizon and novelty folds, "
                          "not grown with ρ"}
-    return ("Selection rule (docs/drift_model.md): a candidate — a family, or a family shrunk toward OLS, "
+    return ("Selection rule (docs/explanation/drift.md): a candidate — a family, or a family shrunk toward OLS, "
             "predicting OLS + w0·g(ρ)·(candidate − OLS) per sample (w0 ∈ " + ", ".join(f"{w:g}" for w in SHRINK_WEIGHTS)
             + "; ρ = the distance of the "
             "sample's raw inputs from the fit data over the fit data's 99th-percentile distance; g = 1 for ρ ≤ 1, "

@@ -340,7 +340,7 @@ def write_markdown(path: Path, res: dict) -> None:
           "`fitness_batch_size=40`, small calls on one torch thread; batched-ga through `predict_columns`: the "
           "same float32 network, a few nm apart). `exact` starts Newton from a float32 value and Jacobian; every "
           "later value, and every reported residual, is float64.",
-          "* The learned field (raw A input) is seam-closed at inference (`MLPField`, docs/solvers.md): periodic "
+          "* The learned field (raw A input) is seam-closed at inference (`MLPField`, docs/explanation/solvers.md): periodic "
           "and continuous in A, so targets at A = 360°·k have roots.",
           f"* Load average (1/5/15 min) before: {res.get('load_before', '?')}; after: {res.get('load_after', '?')}. "
           "This 2-core VM's speed drifts (the same call varied by up to 1.5× within minutes while this was "

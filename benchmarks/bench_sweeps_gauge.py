@@ -3,7 +3,7 @@
 In the first-station gauge the machine frame is one X station's pose and the A-axis line one A
 station's pose, so those two stations' tracker noise sits in constants and linear trends that a
 second-difference smoother never touches. ``station-mean`` (the default of ``volcomp identify``)
-averages them over the stations (docs/identification.md). Both are run on
+averages them over the stations (docs/explanation/identification.md). Both are run on
 the same sweeps as the closed-loop benchmark's no-effect case (``volcomp sweeps`` 2 μm, 21 stations,
 noise seed from ``spawn_seeds(seed, 2)[0]``), the product's smoothing (UBRE, bootstrap 100, noise
 from the ball residuals), scored against the hidden truth geometry (TRUE residual, 5000 random

@@ -18,7 +18,7 @@ HEADER = """# BENCHMARKS
 
 Figures measured on this project's machine (2 cores, 24 GiB, no GPU) by the scripts in
 `benchmarks/`; each section names its script, its data and which residual it shows
-(model / true / measured, docs/kinematics.md). Speed figures are medians, and ratios are measured
+(model / true / measured, docs/explanation/kinematics.md). Speed figures are medians, and ratios are measured
 side by side in one run. Regenerate a section by running its script, then
 `python benchmarks/collect.py`.
 """

@@ -1,7 +1,7 @@
 """compensation: from an error field to corrected commands, evaluation, reports and the CLI.
 
 May import ``errormap`` and ``training``. The public names below (``compensation.__all__``;
-docs/api.md) load lazily on first use, so ``import compensation`` imports nothing heavy:
+docs/reference/python-api.md) load lazily on first use, so ``import compensation`` imports nothing heavy:
 
 * :func:`compensate_points` — compensated axis commands for points in memory (solver and guards);
   :func:`compensate_joints` for a calibrated arm;

@@ -1,6 +1,6 @@
 """Evaluating compensated commands: the model residual and, on a simulated machine, the true one.
 
-The three residuals of docs/kinematics.md, never mixed up:
+The three residuals of docs/explanation/kinematics.md, never mixed up:
 
 * **model residual** — ``p_r + E(axes(p_r)) − p_d`` (μm): how well a solver satisfied its
   own error field ``E``; it comes with each :class:`~compensation.solvers.SolveResult`.

@@ -22,7 +22,7 @@ Anything else that can move or reinterpret an axis is **refused** with
 :class:`~errormap.io.InputError` naming the file, the 1-based line, the 1-based column and
 the word (``prog.nc: line 7, column 4: 'G65' ...``). The full tables of what is allowed and
 why each refused code is refused are :data:`ALLOWED_G`, :data:`REFUSED_G`,
-:data:`ALLOWED_M` and :data:`LETTER_RULES` (docs/toolpaths.md prints them).
+:data:`ALLOWED_M` and :data:`LETTER_RULES` (docs/reference/tool-paths.md prints them).
 
 Work systems (``G54`` … ``G59.3``, ``G54.1 P``), tool length offsets (``G43 H`` / ``G49``), cutter
 radius compensation (``G41``/``G42 D`` / ``G40``) and the program's own tables (``G10 L2`` / ``L1``) are
@@ -389,7 +389,7 @@ def check_program_bytes(path, data: bytes) -> None:
             raise InputError(f"{path}: line {row} is a CSV header ({', '.join(c.strip() for c in cells[:4])}"
                              f"{', ...' if len(cells) > 4 else ''}), not G-code: a tool-path CSV needs the machine's "
                              "axis columns (the grinder's x_mm, z_mm, a_deg) or the target columns px_mm, py_mm, "
-                             "pz_mm (docs/toolpaths.md)")
+                             "pz_mm (docs/reference/tool-paths.md)")
 
 
 SNIFF_BYTES = 1 << 16

@@ -66,7 +66,7 @@ development seeds 100–102, every family). Decided on those development seeds b
 On the judged benchmark (benchmarks/hybrid_results.md, round 7) it does NOT hold on the X–A tilt:
 it kept the loop's stand-in thermal term of X on 6 of 20 machines without thermal growth
 (coefficients 0.28–0.39 ± 0.09–0.11, z 3.05–3.95: a small, systematic temperature-correlated part of
-that residual), where the earlier paired-CV rule replaced it; see docs/diagnosis.md. Hence the second
+that residual), where the earlier paired-CV rule replaced it; see docs/explanation/closed-loop.md. Hence the second
 condition, :data:`TERM_CONSISTENT_Z`."""
 
 TERM_CONSISTENT_Z = 3.0
@@ -80,7 +80,7 @@ the static field of the axes takes; shipped, they subtract that rest at the refe
 They are then replaced like a stand-in. 3 standard errors, two-sided, drops a real term in ~0.3 %
 of machines. Written (round 8) after the judged round-7 tilt machines that kept a term at
 γ̂ 0.28–0.39 (5.6–8 se below 1) and before any judged run of this rule; the development seeds'
-figures are in docs/diagnosis.md. The alternative, shipping the terms scaled by γ̂, was not taken:
+figures are in docs/explanation/closed-loop.md. The alternative, shipping the terms scaled by γ̂, was not taken:
 on a machine without thermal growth it still ships γ̂ times the stand-in. Applied PER TERM when
 :func:`learned_stage` is given each term's contribution (``condition_terms_um``; the grinder loop
 does): on development seeds with a real thermal growth of X beside the tilt, the loop accepted the
@@ -232,7 +232,7 @@ frames differ by a constant rotation and learn the same)."""
 LEARNED_FRAMES = ("work", "machine")
 """The output frames the learned stage cross-validates by default (:data:`OUTPUT_FRAMES`; each with
 every input set and family, on the same blocked folds). Decided on two diagnostic machines (round 11,
-docs/diagnosis.md), then judged (benchmarks/hybrid_results.md, round-11 rows): on the bump, a y error
+docs/explanation/closed-loop.md), then judged (benchmarks/hybrid_results.md, round-11 rows): on the bump, a y error
 of the X slide local in X–Z, the machine frame cross-validated lower and was chosen on 20 of 20
 machines of both truth families, TRUE error 0.08–0.18 μm lower on every one; on the A-axis tilt and
 lobe, errors of the turning axis, the work frame cross-validated lower on every machine (results equal
@@ -684,7 +684,7 @@ imitate, and the learned part must then learn the effect MINUS that projection �
 profiles' shape in it, harder to learn than the effect itself (on the grinder's X–A tilt a noise-free
 ARD GP leaves 0.42 μm RMS at its own training checks); backfitting converges to the joint estimate of both
 parts, where the sweep prior keeps the elements at what the sweeps measured and the learned part takes the
-effect whole (docs/diagnosis.md, round 12)."""
+effect whole (docs/explanation/closed-loop.md, round 12)."""
 
 
 def _cv_key(reg) -> str:

@@ -1,6 +1,6 @@
 """Tool-path files: CSV and G-code readers and writers.
 
-Formats (docs/schemas.md and docs/toolpaths.md):
+Formats (docs/reference/file-formats.md and docs/reference/tool-paths.md):
 
 * **CSV, axis commands** — columns ``x_mm, z_mm, a_deg`` (absolute mm / deg; A may run
   past 360° on multi-turn paths). The program means the nominal tool points

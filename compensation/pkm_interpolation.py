@@ -13,7 +13,7 @@ circular moves along meridians, tool along the surface normal, tool length 30 mm
 hyperboloid pass (waist radius 100 mm, rulings tilted 20 deg, centred at 980 mm, linear moves along
 the rulings with a fixed vertical tool, tool length 200 mm).
 
-``true_path_residual`` is the *true residual* (docs/kinematics.md): the tool tip the simulated truth machine
+``true_path_residual`` is the *true residual* (docs/explanation/kinematics.md): the tool tip the simulated truth machine
 reaches with the (compensated) commands, minus the target, in um.
 """
 from __future__ import annotations

@@ -16,7 +16,7 @@ grinder, whose A axis is the WCS x axis (the drill axis). Along the flute parame
   ``px(θ) = px_start ∓ ∫₀^θ r/tan β dθ`` (``-`` for a right-hand flute, the default).
 
 The target point is ``p = (px, r·sin θ, r·cos θ)``: nominally the tool point of the axis
-command ``(x, z, a) = (x(px), r - ρ0, θ)`` (docs/kinematics.md: ``ρ = ρ0 + z``, ``ρ0 = 0.1 mm`` on
+command ``(x, z, a) = (x(px), r - ρ0, θ)`` (docs/explanation/kinematics.md: ``ρ = ρ0 + z``, ``ρ0 = 0.1 mm`` on
 the default grinder). A right-hand flute advances along ``-px`` as A increases because
 ``(py, pz) = r·(sin a, cos a)`` turns from +z towards +y, i.e. negatively about +x.
 

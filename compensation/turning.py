@@ -1,7 +1,7 @@
 """Turning mode on a lathe: while the spindle turns, C is the spindle, not a positioning axis.
 
 A lathe's machine file names its work spindle and the M codes that start and end turning
-(``[spindle]``: ``axis = "C"``, ``turning_on = ["M3", "M4"]``, ``turning_off = ["M5"]``; docs/machines.md).
+(``[spindle]``: ``axis = "C"``, ``turning_on = ["M3", "M4"]``, ``turning_off = ["M5"]``; docs/how-to/machine-file.md).
 While the spindle turns the tool cuts a **surface of revolution**: what a move must hit is the
 programmed radius ``r`` (distance from the spindle axis) and axial position ``z`` of the tool tip in the
 workpiece frame, whatever the spindle's angle. So a turning move is compensated with the two linear axes

@@ -4,7 +4,7 @@ Transforms, machine models (the grinder's 23-error HTM model, machine-tool chain
 models), error elements, the truth simulator, feature points, identification and diagnosis, and the I/O
 schemas. Imports neither ``training`` nor ``compensation``.
 
-The public names below (``errormap.__all__``; docs/api.md) load lazily on first use, so
+The public names below (``errormap.__all__``; docs/reference/python-api.md) load lazily on first use, so
 ``import errormap`` imports nothing heavy and has no side effects:
 
 * machines — :func:`load_machine` (a built-in name such as ``"mill-xyz"`` or ``"ur5"``, or a file),

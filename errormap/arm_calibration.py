@@ -42,7 +42,7 @@ GENERIC_LIMIT_DEG = 170.0  # random revolute poses stay within ±this (a full tu
 
 
 TABLE_MODEL = "dh+compliance+table"
-"""A slot set (the last of :data:`MODELS`, ``docs/arms.md``): link errors +
+"""A slot set (the last of :data:`MODELS`, ``docs/explanation/serial-arms.md``): link errors +
 base + tool + joint compliance + a JOINT-ERROR TABLE per joint, Δθ_i(q_i) linear between knots every
 :data:`TABLE_STEP_DEG` (:class:`ExtendedChain` ``table``) — the non-parametric form of the first-harmonic slots (a
 gear's or encoder's cyclic error over a few degrees, which one sine per turn cannot follow)."""

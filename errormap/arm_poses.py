@@ -1,6 +1,6 @@
 """Measured-pose files of a serial chain (an arm): joint values and the measured tool point.
 
-Schema (``docs/arms.md``): one row per pose, the chain's joint columns ``q1_deg … qN_deg`` (``_mm``
+Schema (``docs/explanation/serial-arms.md``): one row per pose, the chain's joint columns ``q1_deg … qN_deg`` (``_mm``
 for prismatic joints; names from the machine file) and the measured tool point ``x_mm, y_mm, z_mm``
 in the chain's base frame (or the tracker's: calibration estimates the base frame); optional
 ``sigma_mm`` (per-row measurement standard deviation per component), ``temp_c``, ``time_s``.

@@ -1,6 +1,6 @@
 """Machine files of ``kind = "serial"``: a serial chain as a DH / modified-DH table or an ET list.
 
-Schema (``docs/schemas.md``, version 1)::
+Schema (``docs/reference/file-formats.md``, version 1)::
 
     [machine]
     kind = "serial"

@@ -9,10 +9,10 @@ unknown rigid pose ``machine_in_tracker``.
 A sweep of axis ``W`` moves ``W`` through its stations (default 21 equally spaced over its
 stroke, a full-turn rotary axis 0 … 360° with the last station the first pose again) while
 every other axis is **parked at the lower end of its stroke** — its first station, where the
-identification's gauge puts it (``docs/identification.md``). Every axis with component
+identification's gauge puts it (``docs/explanation/identification.md``). Every axis with component
 errors is swept (one tracker set-up: the bodies are related through it).
 
-Sweep file: the grinder's (``docs/schemas.md`` "Axis sweeps"), ``axis`` = the machine's axis
+Sweep file: the grinder's (``docs/reference/file-formats.md`` "Axis sweeps"), ``axis`` = the machine's axis
 words (``X Y Z A C``…), ``command`` in the axis' unit (mm or deg).
 
 Shapes: axes (n, k) in ``machine.axis_columns`` order, slot values (n, P) in

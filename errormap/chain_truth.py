@@ -53,7 +53,7 @@ squareness_xz   ``s_vw += k·sin(π·u)·sin(π·v')``                          
 ==============  ======================================================  ===========================
 
 Check measurements: columns ``<axis columns>, dx_um, dy_um, dz_um, time_s, temp_c, dir_<w>…,
-seq`` (``docs/schemas.md``); uniform random points (default) or a scrambled Sobol layout
+seq`` (``docs/reference/file-formats.md``); uniform random points (default) or a scrambled Sobol layout
 (independent) over the strokes, the warm-up of the grinder's families, a random approach
 direction per axis, isotropic Gaussian noise. Randomness from the seed only
 (:func:`errormap.seeds.spawn_rngs`).

@@ -85,7 +85,7 @@ def _require_type(value, types, what: str, hint: str) -> None:
 
 
 class Identification(Estimator):
-    """Error elements of a machine tool from laser-tracker sweeps of one set-up (docs/mt_commands.md).
+    """Error elements of a machine tool from laser-tracker sweeps of one set-up (docs/how-to/machine-file.md).
 
     Settings: ``machine`` (a machine-tool chain, or the grinder file, identified as its chain:
     :func:`errormap.load_machine`); ``max_iter`` / ``tol`` of the Gauss–Newton solve (None: 30 / 1e-7
@@ -133,7 +133,7 @@ class Identification(Estimator):
 
 
 class ClosedLoop(Estimator):
-    """The closed loop of a machine-tool chain on check measurements (docs/machine_tool_loop.md).
+    """The closed loop of a machine-tool chain on check measurements (docs/explanation/identification.md).
 
     Settings: ``machine`` (a machine-tool chain, or the grinder file as its chain); ``fit_fraction`` (the
     first share of the checks, by ``seq``, fits; the rest is held out); ``noise_um`` (known noise σ per coordinate, None: estimated);
@@ -187,7 +187,7 @@ class ClosedLoop(Estimator):
 
 
 class ArmCalibration(Estimator):
-    """Geometric calibration of a serial arm (docs/arms.md).
+    """Geometric calibration of a serial arm (docs/explanation/serial-arms.md).
 
     Settings: ``chain`` (the arm, :func:`errormap.load_machine` of ``ur5``, ``wam`` or a file);
     ``max_iter`` (1–10,000 Levenberg–Marquardt iterations); ``models`` (candidate slot sets from

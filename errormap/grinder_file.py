@@ -1,6 +1,6 @@
 """A ``kind = "grinder"`` machine file read as its machine-tool chain.
 
-The micro-drill flute grinder's file (``docs/schemas.md``: ``[geometry]`` l1…l8, R, theta1_deg;
+The micro-drill flute grinder's file (``docs/reference/file-formats.md``: ``[geometry]`` l1…l8, R, theta1_deg;
 ``[strokes]`` x_mm, z_mm, a_deg; ``[targets]`` X, Z, A) names a fixed structure: two chains from
 the machine base, written here once as a chain document whose fixed transforms are the file's
 geometry names (no numbers)::

@@ -7,7 +7,7 @@ from a measured run of that command (:attr:`InputBound.ref_rows` rows took :attr
 :attr:`InputBound.ref_bytes`, scaled as rows to the power :attr:`InputBound.power`). JSON and TOML documents
 (element sets, models, machine files) are bounded by their bytes (:data:`errormap.io.MAX_DOCUMENT_BYTES`), G-code
 programs by their bytes and moves (:mod:`compensation.pathio`), and every table also by the limits of
-:mod:`errormap.io` (bytes, columns, cells, the memory available now). docs/schemas.md lists the bounds.
+:mod:`errormap.io` (bytes, columns, cells, the memory available now). docs/reference/file-formats.md lists the bounds.
 """
 from __future__ import annotations
 

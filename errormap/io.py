@@ -589,7 +589,7 @@ def _read_header(path: Path, line: str, row: int) -> list[str]:
     if n > MAX_TABLE_COLUMNS:
         head = ", ".join(c.strip() for c in line[:120].split(",")[:4])
         raise InputError(f"{path}: row {row}: the header has about {n:,} columns ({head}, ...), over the limit of "
-                         f"{MAX_TABLE_COLUMNS:,}; volcomp's tables have a few named columns (docs/schemas.md)")
+                         f"{MAX_TABLE_COLUMNS:,}; volcomp's tables have a few named columns (docs/reference/file-formats.md)")
     return [h.strip() for h in _csv_row(line, path, row)]
 
 

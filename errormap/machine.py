@@ -2,7 +2,7 @@
 
 One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexapod``,
 ``tripod``, ``serial``, ``machine-tool``; the one registry of kinds is :func:`machine_kinds`, each
-kind's parser and axes; schemas in ``docs/schemas.md``; serial chains in :mod:`errormap.chain_file`,
+kind's parser and axes; schemas in ``docs/reference/file-formats.md``; serial chains in :mod:`errormap.chain_file`,
 machine-tool chains in :mod:`errormap.machine_tool`). The built-in machines are the files in
 ``errormap/machines/`` (:func:`builtin_machines`), nothing else. The built-in default grinder ships as ``errormap/machines/grinder.toml``.
 Every error names the file and the key.
@@ -78,7 +78,7 @@ class Grinder:
 
 
 def parse_grinder(doc: dict, path, sha: str = "") -> Grinder:
-    """Validate a parsed grinder machine file; the schema is in ``docs/schemas.md``."""
+    """Validate a parsed grinder machine file; the schema is in ``docs/reference/file-formats.md``."""
     check_known_keys(doc, ("machine", "geometry", "strokes", "targets"), "", path)
     m = check_table(doc, "machine", path)
     check_known_keys(m, ("kind", "name"), "machine", path)
@@ -175,11 +175,11 @@ def machine_kinds() -> dict:
     from .machine_tool import parse_machine_tool
     from .pkm.machine_file import parse_hexapod, parse_tripod
     return {k.kind: k for k in (
-        MachineKind("grinder", parse_grinder, grinder_axes, "docs/schemas.md"),
-        MachineKind("hexapod", parse_hexapod, pkm_axes, "docs/pkm.md"),
-        MachineKind("tripod", parse_tripod, pkm_axes, "docs/pkm.md"),
-        MachineKind("serial", parse_serial, chain_axes, "docs/arms.md"),
-        MachineKind("machine-tool", parse_machine_tool, machine_tool_axes, "docs/machines.md"),
+        MachineKind("grinder", parse_grinder, grinder_axes, "docs/reference/file-formats.md"),
+        MachineKind("hexapod", parse_hexapod, pkm_axes, "docs/explanation/parallel-kinematics.md"),
+        MachineKind("tripod", parse_tripod, pkm_axes, "docs/explanation/parallel-kinematics.md"),
+        MachineKind("serial", parse_serial, chain_axes, "docs/explanation/serial-arms.md"),
+        MachineKind("machine-tool", parse_machine_tool, machine_tool_axes, "docs/how-to/machine-file.md"),
     )}
 
 

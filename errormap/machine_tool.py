@@ -25,7 +25,7 @@ location errors, then the squareness slots (the grinder's 23 elements come out i
 ``ELEMENT_NAMES`` order). Shapes: ``axes`` (n, k) in the machine's axis order (canonical word order X Y Z U V W A B C;
 columns ``x_mm … a_deg``), slot values ``values`` (n, P) in μm / μrad in :attr:`MachineTool.slot_names`
 order, spatial error (n, 3) μm, error-parameter Jacobian (n, 3, P) μm per μm or per μrad, axis
-Jacobian (n, 3, k) μm per mm or per deg. Schema: ``docs/machines.md`` and ``docs/schemas.md``.
+Jacobian (n, 3, k) μm per mm or per deg. Schema: ``docs/how-to/machine-file.md`` and ``docs/reference/file-formats.md``.
 """
 from __future__ import annotations
 
@@ -770,7 +770,7 @@ def _has_marker(items, word) -> bool:
 
 
 def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
-    """Validate a parsed ``kind = "machine-tool"`` file and compile its chain (``docs/machines.md``)."""
+    """Validate a parsed ``kind = "machine-tool"`` file and compile its chain (``docs/how-to/machine-file.md``)."""
     check_known_keys(doc, ("machine", "geometry", "work", "tool", "targets", "spindle", "tcp"), "", path)
     m = check_table(doc, "machine", path)
     check_known_keys(m, ("kind", "name", "schema", "description"), "machine", path)

@@ -51,7 +51,7 @@ xz_saddle      a local saddle-shaped warp of Z's straightness (in Y) over a regi
                ``u = ((x − x_lo)/Δx − xc)/w``, ``v = ((z − z_lo)/Δz − zc)/w``
 =============  ===================================================================  ===============================
 
-Check measurements follow docs/schemas.md: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, time_s,
+Check measurements follow docs/reference/file-formats.md: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um, time_s,
 temp_c, dir_x, dir_z, dir_a, seq``; points uniform over the strokes, taken every
 ``dt_s`` seconds while the machine warms (``temp_c = 20 + 4·(1 - exp(-t/2400 s))``),
 each approached from a random direction per axis, with isotropic Gaussian noise.
@@ -243,7 +243,7 @@ class TruthGrinder:
 
     def check_measurements(self, n: int = 400, noise_um: float = 1.0, seed: int = 0, dt_s: float = 15.0,
                            noise_seed=None) -> dict:
-        """Simulated check measurements in the docs/schemas.md schema: a dict of columns, each shape (n,).
+        """Simulated check measurements in the docs/reference/file-formats.md schema: a dict of columns, each shape (n,).
         ``noise_seed``: None (default) draws the measurement noise from the same stream as the layout
         (points, temperatures, directions), after it; a seed draws only the noise from a stream of its own,
         the layout unchanged (a redraw of the instrument's noise on the same machine and program)."""

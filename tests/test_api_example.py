@@ -1,4 +1,4 @@
-"""The notebook example that opens docs/api.md runs exactly as written (Agg backend, in a temporary
+"""The notebook example that opens docs/reference/python-api.md runs exactly as written (Agg backend, in a temporary
 directory), and what it prints and draws holds: the guards accept, the points are compensated to the
 solver's tolerance under the identified model, the plot shows the corrections, and the compensated
 commands take most of the hidden truth's error away (the TRUE residual, judged with the truth the example
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "api.md"
+DOC = Path(__file__).resolve().parents[1] / "docs" / "reference" / "python-api.md"
 MAX_LINES = 10
 """The example's promise: at most ten lines (machine -> identify -> compensate -> plot)."""
 MODEL_TOL_UM = 1e-4
@@ -69,7 +69,7 @@ def test_api_example_runs_as_written(tmp_path, monkeypatch):
 
 
 def test_reference_names_every_exported_name():
-    """docs/api.md's reference lists every name the three packages export, and each resolves."""
+    """docs/reference/python-api.md's reference lists every name the three packages export, and each resolves."""
     import compensation
     import errormap
     import training

@@ -1,4 +1,4 @@
-"""The import rules of the house (docs/architecture.md), read from the source with ``ast``.
+"""The import rules of the house (docs/explanation/architecture.md), read from the source with ``ast``.
 
 Layers import one way, ``errormap`` ← ``training`` ← ``compensation``, and the application wing
 ``compensation/app`` sits on top: nothing outside it imports it, and its command modules do not
@@ -91,7 +91,7 @@ def test_training_does_not_import_compensation():
 
 
 FACADE = ("compensation.compensate",)
-"""The public Python API's program entry (``compensate_program``, docs/api.md): a peer of the CLI over
+"""The public Python API's program entry (``compensate_program``, docs/reference/python-api.md): a peer of the CLI over
 the same workflows, so it sits in the outer layer beside ``compensation.app``, not in the library."""
 
 

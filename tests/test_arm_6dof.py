@@ -27,7 +27,7 @@ HELD_OUT_RATIO_MAX = 0.95
 """Mean true held-out position error, 6-DoF over position-only, mean over seeds: measured 0.86 on the same slots,
 0.88 each on its own slots (seeds 0.71–0.96)."""
 SLOTS_POSITION, SLOTS_6DOF = 27, 30
-"""Identified UR5 slots on 30 random poses from positions (docs/arms.md: 27 of 36 on the real grid) and with the tool
+"""Identified UR5 slots on 30 random poses from positions (docs/explanation/serial-arms.md: 27 of 36 on the real grid) and with the tool
 frame's orientation (+ base.rz / link1.dtheta, link6.dtheta, link6.dalpha / beta, less link2/3.dd: 30)."""
 
 

@@ -1,5 +1,5 @@
 """Arm calibration at scale: the identifiability check without (3n)² matrices, and the decisions made on a seeded
-subset of a large fit set with the geometric fits on every pose (docs/arms.md, "Large pose files")."""
+subset of a large fit set with the geometric fits on every pose (docs/explanation/serial-arms.md, "Large pose files")."""
 import io
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Ray scale-out (docs/cluster.md): a local 2-CPU Ray instance started by the tests.
+"""Ray scale-out (docs/how-to/scale-out.md): a local 2-CPU Ray instance started by the tests.
 
 * ``compensate --cluster ray`` on several files and one large path writes the same bytes as the
   local run, for every method (the chunk plan is shared);

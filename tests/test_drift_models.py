@@ -137,7 +137,7 @@ def test_selection_takes_the_eligible_candidate_of_largest_score_under_the_rule(
             # per fold, on the horizon and the novelty folds: mean ln(RMS_ols / RMS_chosen) above one SE
             _, m_h, se_h, m_n, se_n = sel.gate_[ch][chosen]
             assert m_h > se_h and m_n > se_n and m_h > 0 and m_n > 0
-            # the eligible one of largest score under the selection rule in force (SELECTION: drift_model.md)
+            # the eligible one of largest score under the selection rule in force (SELECTION: docs/explanation/drift.md)
             assert sel.score_[ch][chosen] == max(sel.score_[ch][k] for k in eligible)
         else:
             assert not eligible
@@ -211,7 +211,7 @@ def test_model_json_round_trip_and_version_check(tmp_path):
     rho = np.linalg.norm((U - np.array(nov["mean"])) @ np.array(nov["whiten"]), axis=1) / nov["range_distance"]
     for ch, c in obj["channels"].items():
         manual = c["intercept_um"] + sum(t["coef"] * feats[t["feature"]] for t in c["terms"])
-        if "distance_shrink" in c:       # the per-sample rule, read from the JSON as docs/drift_model.md states it
+        if "distance_shrink" in c:       # the per-sample rule, read from the JSON as docs/explanation/drift.md states it
             ds = c["distance_shrink"]
             base = ds["base"]["intercept_um"] + sum(t["coef"] * feats[t["feature"]] for t in ds["base"]["terms"])
             g = np.where(rho <= 1, 1.0, np.exp(-(rho - 1) / ds["scale"]))

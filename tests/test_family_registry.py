@@ -1,7 +1,7 @@
 """The machine-family registry (``compensation/app/families.py``) is the one place in the application that knows
 machine kinds: no command, workflow or report tests a machine's kind outside it (read from the source with
 ``ast``), every parser's kind has one family, every command's runners cover the registry's targets, and the
-gaps the registry refuses are the gaps ``docs/features.md`` states (the same word in the same cell)."""
+gaps the registry refuses are the gaps ``docs/reference/features.md`` states (the same word in the same cell)."""
 from __future__ import annotations
 
 import ast
@@ -131,7 +131,7 @@ def test_each_command_runs_every_target_the_registry_names(module, table):
 def _cell(command: str, option: str, column: str) -> str:
     k = 2 + COLUMNS.index(column)
     cells = [c for c in _rows() if c[0].strip("`") == command and f"`{option}`" in c[1]]
-    assert len(cells) == 1, f"docs/features.md: {command} {option}: {len(cells)} rows"
+    assert len(cells) == 1, f"docs/reference/features.md: {command} {option}: {len(cells)} rows"
     return cells[0][k]
 
 

@@ -1,4 +1,4 @@
-"""``docs/features.md``, the table feature × machine family, checked against the command line: every option
+"""``docs/reference/features.md``, the table feature × machine family, checked against the command line: every option
 of every command is in one of its command's rows, every option a row names exists, and every cell says
 yes, or names its gap's kind (physics, other path, not yet) with a reason."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 
 from compensation.app.cli import build_parser
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "features.md"
+DOC = Path(__file__).resolve().parents[1] / "docs" / "reference" / "features.md"
 FAMILIES = ("Grinder", "Machine-tool chains", "Serial arm", "Parallel (hexapod, tripod)")
 WORDS = ("yes", "physics:", "other path:", "not yet:")
 MIN_REASON_CHARS = 8
@@ -50,15 +50,15 @@ def test_every_option_of_every_command_is_in_the_table_and_nothing_else():
     named: dict = {}
     for cells in _rows():
         cmd = cells[0].strip("`")
-        assert cmd in subs, f"docs/features.md names a command {cmd!r} that volcomp does not have"
+        assert cmd in subs, f"docs/reference/features.md names a command {cmd!r} that volcomp does not have"
         opts = set(re.findall(r"`([a-z][a-z_-]*|--[a-z0-9-]+)`", cells[1]))
         assert opts, f"{cmd}: a row without options"
         unknown = opts - _parser_names(subs[cmd])
-        assert not unknown, f"{cmd}: docs/features.md names {sorted(unknown)}, which the parser does not have"
+        assert not unknown, f"{cmd}: docs/reference/features.md names {sorted(unknown)}, which the parser does not have"
         named.setdefault(cmd, set()).update(opts)
     for cmd, sp in subs.items():
         missing = _parser_names(sp) - named.get(cmd, set())
-        assert not missing, f"{cmd}: {sorted(missing)} missing from docs/features.md"
+        assert not missing, f"{cmd}: {sorted(missing)} missing from docs/reference/features.md"
 
 
 @pytest.mark.parametrize("family", FAMILIES)
@@ -74,8 +74,8 @@ def test_every_cell_says_yes_or_names_its_gap_with_a_reason(family):
 
 
 def test_the_docs_index_links_the_table():
-    readme = (DOC.parents[1] / "README.md").read_text(encoding="utf-8")
-    assert "`docs/features.md`" in readme
+    readme = (DOC.parents[2] / "README.md").read_text(encoding="utf-8")
+    assert "`docs/reference/features.md`" in readme
 
 
 REFUSED = [   # gaps of the table (not yet / other path) on the command line, and the word the refusal names

@@ -1,6 +1,6 @@
 """The error field's layer, read from the source: the solvers and guards depend on the field
 protocol alone, the machine-file validators live in one module, and importing any module changes
-no global state (docs/architecture.md). The import walker is ``tests/test_architecture.py``'s.
+no global state (docs/explanation/architecture.md). The import walker is ``tests/test_architecture.py``'s.
 """
 import ast
 

@@ -1,4 +1,4 @@
-"""The fleet file (docs/schemas.md, "Fleet file"): the documented example reads, and what the
+"""The fleet file (docs/reference/file-formats.md, "Fleet file"): the documented example reads, and what the
 reader cannot interpret is refused naming the file and the key."""
 import re
 from pathlib import Path
@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _doc_example() -> str:
-    text = (ROOT / "docs" / "schemas.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs" / "reference" / "file-formats.md").read_text(encoding="utf-8")
     section = text.split("## Fleet file (TOML)", 1)[1]
     return re.search(r"```text\n(.*?)```", section, flags=re.S).group(1)
 

@@ -294,10 +294,10 @@ def test_demo_help_states_the_ga_budget_the_demo_uses(capsys):
 
 
 def _schema_csv_blocks():
-    """The plain fenced blocks (no language) of docs/schemas.md whose first non-comment line is a
+    """The plain fenced blocks (no language) of docs/reference/file-formats.md whose first non-comment line is a
     header of at least three comma-separated names."""
     blocks, cur, lang = [], None, None
-    for line in (ROOT / "docs" / "schemas.md").read_text(encoding="utf-8").splitlines():
+    for line in (ROOT / "docs" / "reference" / "file-formats.md").read_text(encoding="utf-8").splitlines():
         if line.startswith("```"):
             if cur is None:
                 cur, lang = [], line[3:].strip()

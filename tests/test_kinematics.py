@@ -12,7 +12,7 @@ TOL_MM = 1e-9
 
 
 def chain_tool_point(m, x, z, a_deg):
-    """Direct 4x4 evaluation of p = T_work⁻¹ · T_tool · origin (docs/kinematics.md)."""
+    """Direct 4x4 evaluation of p = T_work⁻¹ · T_tool · origin (docs/explanation/kinematics.md)."""
     def T(R=np.eye(3), t=(0, 0, 0)):
         M = np.eye(4); M[:3, :3] = R; M[:3, 3] = t
         return M
@@ -27,7 +27,7 @@ def test_closed_form_matches_chains(grinder, rng):
     p = forward(grinder, axes)
     for k in range(len(axes)):
         np.testing.assert_allclose(p[k], chain_tool_point(grinder, *axes[k]), atol=TOL_MM)
-    # the nominal formula of docs/kinematics.md
+    # the nominal formula of docs/explanation/kinematics.md
     rho = grinder.rho0_mm + axes[:, 1]
     a = np.deg2rad(axes[:, 2])
     np.testing.assert_allclose(p, np.c_[-(grinder.l5 + grinder.l7 + axes[:, 0]), rho * np.sin(a), rho * np.cos(a)], atol=TOL_MM)

@@ -12,7 +12,7 @@ from errormap.machine import (MachineFileError, builtin_machines, load_machine, 
 
 MACHINES_DIR = Path(__file__).resolve().parents[1] / "errormap" / "machines"
 BUILTIN_KINDS = {"grinder", "hexapod", "tripod", "serial", "machine-tool"}
-CANONICAL_AXIS_ORDER = "XYZUVWABC"  # docs/machines.md: axis columns follow the words in this order
+CANONICAL_AXIS_ORDER = "XYZUVWABC"  # docs/how-to/machine-file.md: axis columns follow the words in this order
 
 
 def _file_axes(doc: dict) -> list:

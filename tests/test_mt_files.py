@@ -196,7 +196,7 @@ def test_builtin_machine_tool_loads_by_name(name):
 
 def test_machines_page_example_loads(tmp_path):
     import re
-    text = (Path(__file__).resolve().parents[1] / "docs" / "machines.md").read_text(encoding="utf-8")
+    text = (Path(__file__).resolve().parents[1] / "docs" / "how-to" / "machine-file.md").read_text(encoding="utf-8")
     blocks = re.findall(r"```toml\n(.*?)```", text, flags=re.S)
     assert blocks
     for i, b in enumerate(blocks):

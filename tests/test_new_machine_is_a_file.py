@@ -1,5 +1,5 @@
 """A newcomer's machine is a file (issue 26): a gantry mill written here, in the test, from
-docs/machines.md alone — not one of the built-in files — goes through the user's whole measurement
+docs/how-to/machine-file.md alone — not one of the built-in files — goes through the user's whole measurement
 path with no code added: `volcomp machines`-style loading, simulate (truth hidden), tracker sweeps,
 identify, diagnose, and compensate a 3-axis program with the loop's model."""
 import json

@@ -69,6 +69,6 @@ def test_an_unknown_name_is_refused_in_one_place(grinder):
 
 
 def test_the_solver_docs_name_every_solver():
-    text = (ROOT / "docs" / "solvers.md").read_text(encoding="utf-8")
+    text = (ROOT / "docs" / "explanation" / "solvers.md").read_text(encoding="utf-8")
     for name in METHODS:
         assert f"| `{name}` |" in text, name

@@ -2,7 +2,7 @@
 
 :class:`ChainMLPField` is the grinder's :class:`training.model.MLPField` (same layers, activations,
 functional ``forward``/``param_jacobian``, trainers, output scaling, file set) with the inputs
-taken from a machine-tool chain (``kind = "machine-tool"``, ``docs/machines.md``): one input per
+taken from a machine-tool chain (``kind = "machine-tool"``, ``docs/how-to/machine-file.md``): one input per
 axis column in the machine's canonical order (``x_mm, y_mm, z_mm`` on ``mill-xyz``; ``x_mm, y_mm,
 z_mm, a_deg, c_deg`` on ``five-axis-ac``), each mapped linearly from its training range to
 ``[-1, 1]``, except a **full-turn rotary axis**, which enters as ``(cos q, sin q)`` — the grinder's

@@ -3,5 +3,5 @@
 ``cli.py`` and ``commands/`` (one module per sub-command: parse, call a workflow, print),
 ``options.py`` (option groups several commands share), ``workflows/`` (the orchestration),
 ``reports/`` (HTML reports and figures). May import ``errormap``, ``training`` and the library
-part of ``compensation``; nothing outside ``compensation/app`` imports it (docs/architecture.md).
+part of ``compensation``; nothing outside ``compensation/app`` imports it (docs/explanation/architecture.md).
 """

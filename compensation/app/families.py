@@ -4,7 +4,7 @@ A loaded machine's family (:func:`family_of`) answers what the commands used to 
 ``machine.kind`` with strings: which workflow runs a command for it (:meth:`Family.target`), the
 facts a command branches on (:class:`Facts`: tracker sweeps, G-code words, measured poses, the
 element chain, a platform orientation ...) and which options it refuses, with the reason, in the
-words of ``docs/features.md`` (:meth:`Family.refuse_unsupported`). ``tests/test_family_registry.py``
+words of ``docs/reference/features.md`` (:meth:`Family.refuse_unsupported`). ``tests/test_family_registry.py``
 checks the declared gaps against that table's cells.
 
 Three families: **machine tool** (the built-in grinder and the machine-tool chains; the grinder is a
@@ -24,7 +24,7 @@ from .validate import UsageError
 
 YES, PHYSICS, OTHER_PATH, NOT_YET = "yes", "physics", "other path", "not yet"
 GAP_WORDS = (PHYSICS, OTHER_PATH, NOT_YET)
-"""A gap's first word, as the cells of docs/features.md spell it (there followed by a colon)."""
+"""A gap's first word, as the cells of docs/reference/features.md spell it (there followed by a colon)."""
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ class Facts:
 
 @dataclass(frozen=True)
 class Opt:
-    """One option of a refusal: its ``flag``, the ``word`` of its gap in docs/features.md, the value that means
+    """One option of a refusal: its ``flag``, the ``word`` of its gap in docs/reference/features.md, the value that means
     "not given" besides None / False / empty (``default``), whether the message shows the value
     (``show_value``) and the attribute of the parsed arguments (``dest``, from the flag by default)."""
 
@@ -80,7 +80,7 @@ class Refusal:
 
 @dataclass(frozen=True)
 class Gap:
-    """A command a family does not run: the gap's ``word`` and ``reason`` (its docs/features.md cell)."""
+    """A command a family does not run: the gap's ``word`` and ``reason`` (its docs/reference/features.md cell)."""
 
     word: str
     reason: str
@@ -88,7 +88,7 @@ class Gap:
 
 @dataclass(frozen=True)
 class Family:
-    """One family member (a column of docs/features.md): ``name`` of the family, ``column`` of the table,
+    """One family member (a column of docs/reference/features.md): ``name`` of the family, ``column`` of the table,
     ``kinds`` ``{kind: Facts}``, ``targets`` ``{command: target}`` (the workflow that runs the command for it;
     a command looks its runner up by this name), ``gaps`` ``{command: Gap}`` (commands it does not run),
     ``refusals`` (options it refuses). :func:`family_of` binds it to one machine (``kind``, ``path``,
@@ -263,7 +263,7 @@ PARALLEL = Family(
                 "{path}: --sensitivity-plot needs a tripod machine file, got {kind!r}", kinds=("hexapod",))))
 
 FAMILIES = (GRINDER, CHAIN, ARM, PARALLEL)
-"""Every family member, in the order of the columns of docs/features.md."""
+"""Every family member, in the order of the columns of docs/reference/features.md."""
 
 
 def family_of_kind(kind: str) -> Family:

@@ -7,7 +7,7 @@ Each entry names its function ``"module:function"`` in ``compensation/solvers/``
 with the three axes the chain reads: a mill's linear axes, rotary axes kept; every axis of a three-axis
 machine such as the grinder's X, Z, A or a lathe's X, Z, C). The CLI's ``--method``/``--methods``
 choices, the batch runner, the method comparison, the kernel warm-up of ``compensate``, the benchmark
-and docs/solvers.md read this table; a name not in it is refused in one place, :func:`solver_spec`.
+and docs/explanation/solvers.md read this table; a name not in it is refused in one place, :func:`solver_spec`.
 
 A field is anything with ``predict(axes) -> (n, 3) μm`` over the machine's axis columns; a field may
 also offer ``jacobian`` / ``predict_and_jacobian`` (μm per mm or deg), a float32 path and

@@ -6,7 +6,7 @@ the axes of ``p_r`` (nominal inverse kinematics), lands on ``p_d``::
 
     minimise |p_r + E(axes(p_r))·1e-3 - p_d|²   subject to |p_r - p_d| ≤ 250 μm
 
-The *model residual* of a solution is ``p_r + E(axes(p_r)) - p_d`` in μm (docs/kinematics.md).
+The *model residual* of a solution is ``p_r + E(axes(p_r)) - p_d`` in μm (docs/explanation/kinematics.md).
 """
 from __future__ import annotations
 

@@ -40,7 +40,7 @@ pair per point), so single runs differ point by point while their distributions 
 same; ties in fitness are broken by index, not PyGAD's reversed stable sort (tied
 individuals are almost always identical copies, so the choice is immaterial); PyGAD's
 fitness cache also matches offspring against all 28 parents, this one against the
-offspring's own two (≈ 2 % more evaluations late in a run, docs/solvers.md).
+offspring's own two (≈ 2 % more evaluations late in a run, docs/explanation/solvers.md).
 """
 from __future__ import annotations
 

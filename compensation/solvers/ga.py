@@ -6,7 +6,7 @@ PyGAD evolves three genes per target ``p_d`` in the 250 μm ball (the offsets ``
 target, or the solved axes' scaled offsets where a rotary axis is solved); the fitness is minus the
 squared model residual (μm², PyGAD maximises), the paper's objective.
 
-The paper's parameters and how they map onto PyGAD (docs/solvers.md has the full table):
+The paper's parameters and how they map onto PyGAD (docs/explanation/solvers.md has the full table):
 
 ================================  =========================================================
 paper                             PyGAD

@@ -1,7 +1,7 @@
 """The closed loop on ANY machine-tool chain: checks → held-out measured residual, update, effects.
 
 The generic form of :mod:`errormap.diagnosis.loop` (the grinder's), over the machine's axes and
-element slots. Check measurements (``docs/schemas.md``): columns = the machine's axis columns
+element slots. Check measurements (``docs/reference/file-formats.md``): columns = the machine's axis columns
 (``x_mm, y_mm, z_mm, a_deg, c_deg`` …) and ``dx_um, dy_um, dz_um``; optional ``time_s``,
 ``temp_c``, ``dir_<w>`` (+1/−1 per axis word), ``seq``. Blocked split as the grinder's: the
 first ``fit_fraction`` of the checks by ``seq`` fit, the rest is held out (a later time).

@@ -1,4 +1,4 @@
-"""Check measurements (schema in docs/schemas.md) for diagnosis: loading, validation, the measured residual.
+"""Check measurements (schema in docs/reference/file-formats.md) for diagnosis: loading, validation, the measured residual.
 
 Columns: ``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um`` (required); ``time_s``, ``temp_c``,
 ``dir_x``, ``dir_z``, ``dir_a`` (+1/-1), ``seq`` (order taken) optional; extra columns are kept

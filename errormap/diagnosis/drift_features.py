@@ -2,7 +2,7 @@
 candidate family, and the distance ρ of inputs from fitting data.
 
 A feature is one logged input (``temp_<sensor>_c`` or ``speed_rpm``), optionally raised to a power, passed
-through a first-order lag of time constant ``tau_s`` and delayed by ``delay_s`` (docs/drift_model.md).
+through a first-order lag of time constant ``tau_s`` and delayed by ``delay_s`` (docs/explanation/drift.md).
 """
 from __future__ import annotations
 

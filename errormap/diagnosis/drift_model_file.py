@@ -1,5 +1,5 @@
 """A fitted causal drift model: its prediction, its distance rule and band, and its controller form, the file
-``volcomp.drift_model`` v1 (docs/drift_model.md)."""
+``volcomp.drift_model`` v1 (docs/explanation/drift.md)."""
 from __future__ import annotations
 
 import json

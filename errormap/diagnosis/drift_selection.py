@@ -1,4 +1,4 @@
-"""The drift model chosen on held-out time: :class:`DriftSelector` (docs/drift_model.md states the rule)."""
+"""The drift model chosen on held-out time: :class:`DriftSelector` (docs/explanation/drift.md states the rule)."""
 from __future__ import annotations
 
 import numpy as np

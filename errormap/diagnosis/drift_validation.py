@@ -24,7 +24,7 @@ FEATURE_DISTANCE = False   # ρ also on each candidate's own features (filtered 
 #   RANKING_FOLD_LOSS) but made others worse (lumped seed 0 ch3
 #   0.89× → 1.06×, seed 4 ch4 1.00× → 1.0497×; the 120 s test log lumped seed 0 ch4: ridge_ols, 1.19×): a candidate's
 #   features are farther out on the folds (small or novel training sets) than on the deployment's held-out part, so
-#   the validation credits the shrinkage more than the deployment gets it (docs/drift_model.md)
+#   the validation credits the shrinkage more than the deployment gets it (docs/explanation/drift.md)
 RANKING_FOLD_LOSS = True   # the per-fold loss bound MAX_FOLD_LOSS on the ranking folds too (the last one is the stretch
 #   nearest the future): benchmark rod seed 6 tilt, subset_lag~ols(w=0.25), had every horizon and novelty fold ≤ 1.01×
 #   OLS and its last ranking fold 1.10×; it lost 1.06× on the future

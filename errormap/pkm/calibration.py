@@ -99,7 +99,7 @@ class PoseData:
 
 
 def read_poses(path, machine: PKM) -> PoseData:
-    """Read a PKM pose-measurement CSV (schema in docs/schemas.md / docs/pkm.md).
+    """Read a PKM pose-measurement CSV (schema in docs/reference/file-formats.md / docs/explanation/parallel-kinematics.md).
 
     Legs: ``l1_mm..lk_mm`` (commanded lengths, converted to drive units with the machine file's
     nominal scale/offset) or ``q1..qk``; pose: ``x_mm, y_mm, z_mm`` plus, for the hexapod,
@@ -756,7 +756,7 @@ def calibrate(machine: PKM, data: PoseData, **settings) -> CalibrationResult:
 
 
 def calibration_to_dict(result: CalibrationResult) -> dict:
-    """The machine-readable part of ``calibration.json`` (see docs/pkm.md)."""
+    """The machine-readable part of ``calibration.json`` (see docs/explanation/parallel-kinematics.md)."""
     rot = Rotation.from_matrix(result.frame_rotation)
     m = result.machine
     return {

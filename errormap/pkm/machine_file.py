@@ -1,6 +1,6 @@
 """Machine files for the parallel kinematic machines (``kind = "hexapod"`` / ``"tripod"``).
 
-The schema is documented in ``docs/pkm.md``. Every error names the file and the key.
+The schema is documented in ``docs/explanation/parallel-kinematics.md``. Every error names the file and the key.
 
 Hexapod (6-UPS Stewart platform)::
 
@@ -177,7 +177,7 @@ def _joints(g, k, path, from_radii):
 
 
 def parse_hexapod(doc: dict, path, sha: str = "") -> PKM:
-    """Validate a parsed hexapod machine file (schema in the module docstring / docs/pkm.md)."""
+    """Validate a parsed hexapod machine file (schema in the module docstring / docs/explanation/parallel-kinematics.md)."""
     name, g, lo, hi, scale, offset, home = _parse_common(doc, path, "hexapod", 6, HEXAPOD_GEOMETRY_KEYS)
 
     def from_radii():

@@ -2,7 +2,7 @@
 
 Writes ``DIR/benchmark.json`` (one row per machine, path, condition) and ``DIR/report.html``;
 every run is tracked in MLflow under one parent run. See :mod:`compensation.app.workflows.benchmark` and
-docs/benchmark.md.
+docs/reference/benchmark.md.
 """
 from __future__ import annotations
 

@@ -30,7 +30,7 @@ def register(subparsers):
     p.add_argument("-h", "--help", action=KindHelp, help="show this help and exit (after --machine M: only the "
                    "options that apply to M's kind)")
     # a serial chain (``kind = "serial"``, e.g. --machine ur5) goes to the arm calibration
-    # (compensation/app/workflows/arm_calibration.py; docs/arms.md)
+    # (compensation/app/workflows/arm_calibration.py; docs/explanation/serial-arms.md)
     p.add_argument("poses", help="pose-measurement CSV (legs l1_mm.. or q1.., x_mm y_mm z_mm [+ rx_deg.. | qx qy qz qw])")
     p.add_argument("--machine", help="machine file or built-in name (kind hexapod, tripod or serial, e.g. ur5; "
                    "default: the built-in hexapod)")
@@ -127,7 +127,7 @@ def run_parallel(machine, args) -> int:
 
 
 def run_serial(chain, args) -> int:
-    """The arm branch: geometric + learned stages, plain baselines beside them (docs/arms.md)."""
+    """The arm branch: geometric + learned stages, plain baselines beside them (docs/explanation/serial-arms.md)."""
     from ..workflows.arm_calibration import ArmCalibrationSettings, run_arm_calibration
     s = ArmCalibrationSettings(poses=args.poses, check=args.check, holdout=args.holdout, seed=args.seed,
                                learned=not args.no_learned, k_folds=5 if args.folds is None else args.folds,

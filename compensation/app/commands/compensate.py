@@ -20,7 +20,7 @@ files of one run:
 4. the accepted files are written as one set (each in full to a temporary file, then all
    renamed into place); ``compensate_summary.json`` last.
 
-Guards (docs/kinematics.md; :mod:`compensation.guards`), the same for every method: a file whose compensated
+Guards (docs/explanation/kinematics.md; :mod:`compensation.guards`), the same for every method: a file whose compensated
 commands — or the nominal axes of their targets — leave the strokes (``stroke``) or the
 field's calibrated volume (``volume``), whose corrections leave the 250 μm ball
 (``ball``), or whose solver did not converge (``convergence``) is refused — not written —
@@ -73,7 +73,7 @@ def register(sub):
     p.add_argument("--model", required=True, help="MLflow run id, runs:/ URI, element-set file (JSON), or the "
                    "diagnosed model (DIR/model.json of volcomp diagnose: updated elements + accepted terms)")
     p.add_argument("--method", default=None, choices=METHODS, help="compensation solver (required; serial "
-                   "chains: Newton on the calibrated chain, docs/arms.md)")
+                   "chains: Newton on the calibrated chain, docs/explanation/serial-arms.md)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (files keep their names)")
     p.add_argument("--force", action="store_true",
                    help="write into a DIR that already holds files (removing the previous run's outputs)")

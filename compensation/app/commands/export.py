@@ -1,6 +1,6 @@
 """``volcomp export``: controller compensation tables from a model, each checked before it is written.
 
-Formats and the controller each is simulated for: :mod:`compensation.export` and docs/export.md.
+Formats and the controller each is simulated for: :mod:`compensation.export` and docs/how-to/export-to-controller.md.
 Before writing, the controller's use of the table is re-simulated on the flute path and on
 random points over the volume; the MODEL residual (and, with ``--truth``, the TRUE residual)
 is printed beside the no-compensation and exact-compensation baselines. When the worst model
@@ -39,7 +39,7 @@ def register(sub):
                                    "controller's use of the table is re-simulated on the flute path and on random "
                                    "points; the model residual (and with --truth the true residual) is reported. "
                                    "Refused (exit 2, nothing written) when the tolerance is not met, unless --force. "
-                                   "See docs/export.md.")
+                                   "See docs/how-to/export-to-controller.md.")
     p.add_argument("model", metavar="MODEL", help="element-set file (JSON); grid and linuxcnc also take an MLflow "
                                                   "run id / runs:/ URI of a trained network; --format drift: a "
                                                   "drift_model.json from `volcomp diagnose --drift`")

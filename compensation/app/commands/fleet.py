@@ -1,4 +1,4 @@
-"""``volcomp fleet``: identify → train → diagnose for every machine of a fleet file (docs/cluster.md)."""
+"""``volcomp fleet``: identify → train → diagnose for every machine of a fleet file (docs/how-to/scale-out.md)."""
 from __future__ import annotations
 
 import sys
@@ -16,7 +16,7 @@ DEFAULT_TRAIN_ITER = 1000  # as `volcomp train`
 def register(sub):
     p = sub.add_parser(
         "fleet", help="identify → train → diagnose every machine of a fleet file, one task per machine (Ray)",
-        description="For each [[machine]] of FLEET (TOML, docs/schemas.md): identify the elements from its sweeps, "
+        description="For each [[machine]] of FLEET (TOML, docs/reference/file-formats.md): identify the elements from its sweeps, "
                     "train the network on their feature points (an MLflow run), diagnose its checks (measured "
                     "residual). Writes DIR/<name>/ per machine and DIR/fleet_summary.json. Exit status 4 when a "
                     "machine failed, else 1 when a machine's diagnosis verdict failed (marked, never a pass).")

@@ -19,7 +19,7 @@ def register(sub):
     p = sub.add_parser("identify", help="identify the machine's error elements from laser-tracker sweeps",
                        description="Gauss-Newton on every ball of every sweep of one tracker set-up (any machine "
                                    "tool; a kind = \"grinder\" file through its chain), in a chosen gauge, the station "
-                                   "values smoothed by the UBRE smoother. See docs/identification.md.")
+                                   "values smoothed by the UBRE smoother. See docs/explanation/identification.md.")
     p.add_argument("sweeps", nargs="+", help="sweep file(s) (CSV) of one tracker set-up")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in grinder")
     p.add_argument("--out", required=True, help="output element-set file (JSON)")
@@ -34,7 +34,7 @@ def register(sub):
                         "its stations and a rotary axis' line at its mean over the turn, so that no one station's "
                         "tracker noise is left where smoothing cannot reach it; first-station: elements zero at each "
                         "axis' first station; reference-line: the frame on the fitted root-axis line, the paper's). "
-                        "Tool points are the same in every gauge before smoothing; see docs/identification.md")
+                        "Tool points are the same in every gauge before smoothing; see docs/explanation/identification.md")
     p.add_argument("--raw", action="store_true",
                    help="interpolating splines through the noisy stations (no smoothing); the covariance is still "
                         "written")

@@ -39,7 +39,7 @@ def register(sub):
                    help="also write the half-width of a per-component band (1-σ or 95 %%) from the element set's "
                         "covariance (NAME.cov.npz beside it, written by `volcomp identify`); a diagnosed model.json "
                         "writes its TOTAL band (learned residual's (+) the kept elements') always, 95 %% unless "
-                        "--band 1sigma; an arm: the kept stage's band of a new measurement, dx_band95_mm ... (docs/arms.md)")
+                        "--band 1sigma; an arm: the kept stage's band of a new measurement, dx_band95_mm ... (docs/explanation/serial-arms.md)")
     add_units_option(p, "points")
     p.set_defaults(func=run)
 

@@ -1,7 +1,7 @@
 """``volcomp register POSES --machine ur5 --model DIR/calibration.json --out DIR2``: re-register a calibrated arm's
 base frame (and with ``--tool`` its tool point) in a new measurement session, keeping every link parameter and
 learned stage, and keeps for the session whichever of the plain calibration, the geometric stage alone and the kept
-stage did best in a CV inside the registration poses (:mod:`compensation.app.workflows.arm_register`; docs/arms.md)."""
+stage did best in a CV inside the registration poses (:mod:`compensation.app.workflows.arm_register`; docs/explanation/serial-arms.md)."""
 from __future__ import annotations
 
 from pathlib import Path

@@ -18,8 +18,8 @@ def register(sub):
                                         "checks; a serial arm or a hexapod/tripod: measured poses)",
                        description="A machine tool: write DIR/truth_elements.json, DIR/featurepoints.csv, DIR/checks.csv "
                                    "and DIR/truth.json. A serial arm (--machine ur5|ur10|wam|FILE): write DIR/poses.csv, "
-                                   "DIR/checks.csv, DIR/program.csv and DIR/truth.json (docs/arms.md). A hexapod or "
-                                   "tripod: DIR/poses.csv, DIR/checks.csv and DIR/truth.json (docs/pkm.md).")
+                                   "DIR/checks.csv, DIR/program.csv and DIR/truth.json (docs/explanation/serial-arms.md). A hexapod or "
+                                   "tripod: DIR/poses.csv, DIR/checks.csv and DIR/truth.json (docs/explanation/parallel-kinematics.md).")
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name (mill-xyz, five-axis-ac, ...); "
                                                      "default: the built-in grinder")
     p.add_argument("--seed", type=int, default=0)

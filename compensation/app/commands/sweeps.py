@@ -1,4 +1,4 @@
-"""``volcomp sweeps``: simulated laser-tracker sweeps (the sweep file of docs/schemas.md) of a truth grinder."""
+"""``volcomp sweeps``: simulated laser-tracker sweeps (the sweep file of docs/reference/file-formats.md) of a truth grinder."""
 from __future__ import annotations
 
 import sys

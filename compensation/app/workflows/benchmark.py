@@ -1,7 +1,7 @@
 """Learned vs parametric, side by side, on the same machines and the same measurements (issue 8).
 
 ``run_benchmark(machines, out_dir, settings)`` runs both compensation paths on each machine
-under a set of measurement conditions, evaluates the TRUE residual (residual 2 of docs/kinematics.md: the
+under a set of measurement conditions, evaluates the TRUE residual (residual 2 of docs/explanation/kinematics.md: the
 simulated truth machine driven with the compensated commands, minus the target) along the
 test paths, records every run in MLflow under one parent run, and writes
 ``DIR/benchmark.json`` and ``DIR/report.html`` (:mod:`compensation.app.reports.benchmark`).
@@ -23,7 +23,7 @@ test paths, records every run in MLflow under one parent run, and writes
   simulator in the truth, before and after the closed loop (check measurements →
   ``errormap.diagnosis.diagnose`` → ``CorrectedField`` = base field + the found terms →
   compensate with it). The learned path after the loop is the network plus the parametric
-  terms (the 11×11×11 grid aliases pitch and worm-gear periods, see docs/benchmark.md);
+  terms (the 11×11×11 grid aliases pitch and worm-gear periods, see docs/reference/benchmark.md);
 * out-of-catalogue conditions (``ooc_effects`` × ``ooc_checks``, and the same machine without an
   effect): after the loop the parametric path runs the user's path instead — the sweeps identified as
   ``volcomp identify`` does (smoothing, element covariance), then ``volcomp diagnose``'s closed loop on
@@ -87,7 +87,7 @@ FEATURE_REUSE_TOL_UM = 1e-6
 @dataclass
 class BenchmarkSettings:
     """What the benchmark runs. Defaults: the full benchmark (about 23 CPU minutes; ~1 h wall on a loaded 2-core
-    machine, docs/benchmark.md "Run time")."""
+    machine, docs/reference/benchmark.md "Run time")."""
 
     truth_seed: int = 0
     seed: int = 0

@@ -1,6 +1,6 @@
 """The fleet: identify → train → diagnose for every machine of a fleet file, one task per machine.
 
-A fleet file (TOML, ``format = "volcomp-fleet/1"``, docs/schemas.md) lists machines, each
+A fleet file (TOML, ``format = "volcomp-fleet/1"``, docs/reference/file-formats.md) lists machines, each
 with its tracker sweeps and check measurements. Per machine (:func:`run_machine`), into
 ``DIR/<name>/``:
 

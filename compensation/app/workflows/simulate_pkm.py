@@ -5,7 +5,7 @@ scale, zero-length and joint errors of a real platform, an unknown instrument fr
 as the files a user has after measuring a real machine, so that everything after this step runs the user's
 path (``volcomp calibrate poses.csv --machine M --check checks.csv``):
 
-- ``poses.csv``: the fitting poses (pose-measurement schema, ``docs/pkm.md``);
+- ``poses.csv``: the fitting poses (pose-measurement schema, ``docs/explanation/parallel-kinematics.md``);
 - ``checks.csv``: more poses of the same truth, drawn apart from the fitting ones (``calibrate --check``);
 - ``truth.json``: the hidden truth (its parameters and the instrument frame), for the judge only.
 """

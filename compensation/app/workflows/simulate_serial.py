@@ -6,7 +6,7 @@ joint vectors inside the machine's joint limits. The files are the ones a user h
 real arm, so everything after this step runs the user's path (``volcomp calibrate`` → ``volcomp
 compensate``); the truth itself goes to ``truth.json`` for the judge only:
 
-- ``poses.csv``: the fitting poses (measured-pose schema, ``docs/arms.md``);
+- ``poses.csv``: the fitting poses (measured-pose schema, ``docs/explanation/serial-arms.md``);
 - ``checks.csv``: more measured poses, drawn apart from the fitting ones (``calibrate --check``);
 - ``program.csv``: a joint program (joint columns only; its targets are the nominal chain's tool
   points, what ``compensate`` aims at), kept ``PROGRAM_MARGIN_DEG`` inside the joint limits;
