@@ -44,7 +44,7 @@ def test_site_builds_strict_with_every_link_and_anchor_resolved(tmp_path):
             raise  # CI installs the test extra, which has them: never skipped there
         pytest.skip(f"the site's tools are not installed ({exc}): pip install -e '.[test]'")
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1", "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-q", "-d", str(tmp_path / "site")],
+    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-d", str(tmp_path / "site")],
                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-3000:]
     cli = (tmp_path / "site" / "reference" / "cli.html").read_text(encoding="utf-8")
