@@ -12,6 +12,8 @@ import argparse
 import importlib
 
 PACKAGES = ("errormap", "compensation", "training")
+GENERATED_PAGES = ("reference/cli.md", *(f"reference/api/{package}.md" for package in PACKAGES))
+"""The pages these hooks add, relative to docs/ (tests/test_docs.py counts links to them as resolved)."""
 
 
 def _cell(text) -> str:
@@ -77,9 +79,9 @@ def api_markdown(package: str) -> str:
 def on_files(files, config):
     """MkDocs event: add the generated pages to the site's files."""
     from mkdocs.structure.files import File
-    files.append(File.generated(config, "reference/cli.md", content=cli_markdown()))
-    for package in PACKAGES:
-        files.append(File.generated(config, f"reference/api/{package}.md", content=api_markdown(package)))
+    files.append(File.generated(config, GENERATED_PAGES[0], content=cli_markdown()))
+    for package, page in zip(PACKAGES, GENERATED_PAGES[1:]):
+        files.append(File.generated(config, page, content=api_markdown(package)))
     return files
 
 
