@@ -14,14 +14,14 @@ squareness). During the sweep of axis W the other axes stand at their first stat
 lower stroke ends; :func:`errormap.chain_sweeps.park_axes`), so their values there enter.
 
 Gauge (what the sweeps cannot tell apart), ``gauge`` one of :data:`GAUGES`, linear conditions on the
-station values (:func:`gauge_rows`; the fit runs in their null space):
+station values (:func:`gauge_rows`; the fit is constrained to them, :mod:`errormap.chain_normal`):
 
-* ``first-station`` (the estimator's default): the machine frame is the body of the **root axis** (the first
+* ``first-station`` (:class:`ChainIdentification`'s default): the machine frame is the body of the **root axis** (the first
   linear axis of the work chain, else of the tool chain; :func:`root_axis`) at its first station: its six
   component errors are zero there; a rotary axis' **location errors** are its line at the first station:
   the four component errors across the axis (two offsets, two tilts) are zero there, the axial offset and
   the roll stay in the component errors;
-* ``station-mean`` (``volcomp identify``'s default): the root axis' six component errors sum to zero over
+* ``station-mean`` (the default of ``volcomp identify`` and of :class:`errormap.Identification`): the root axis' six component errors sum to zero over
   its stations (the frame at its mean pose) and a rotary axis' line is its mean over the turn (the part of
   the across errors that turns with the axis sums to zero over the distinct stations): no one station's
   tracker noise is left in constants and linear trends, where a second-difference smoother cannot reach;
@@ -42,7 +42,8 @@ moved into a straightness trend is the same motion).
 Results: a :class:`~errormap.chain_elements.ChainElementSet` (stations = the sweep commands,
 interpolating splines through them; :func:`smooth_chain` smooths them), the covariance of the element parameters
 (σ̂²·(JᵀJ)⁻¹ mapped through the gauge, σ̂ from the ball residuals), the ball residual per axis,
-the conditioning. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over
+the conditioning. Solved by the block structure of the normal equations (:mod:`errormap.chain_normal`; linear in
+the stations but for the (N, N) covariance), by the dense pivoted QR above where the blocks cannot decide the rank. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over
 ``param_slot``/``param_station`` (station −1: a constant), μm² / μrad².
 """
 from __future__ import annotations
