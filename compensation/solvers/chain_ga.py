@@ -97,6 +97,45 @@ class ChainOffsetFitness:
         return np.where(np.isnan(f), -np.inf, f).astype(np.float32)
 
 
+class FusedChainFitness(ChainOffsetFitness):
+    """The genes and fitness of :class:`ChainOffsetFitness` (tool-point offsets ``d`` μm) on a chain of two linear
+    axes and a rotary one in the closed form the network's fused kernel inverts
+    (:func:`training.ga_fitness.closed_form_constants`): the generations run the field's ``offset_fitness``
+    (one float32 pipeline, IK and network, :class:`training.ga_fitness.FusedOffsetFitness`); the retries, the
+    polish and the result the same fitness in float64 (``axes``: the closed-form inverse, the rotary axis on the
+    program's turn). ``fused`` the field's kernel over all targets; ``constants`` its ``(c_x, t_y, c_h)``."""
+
+    def __init__(self, field, targets, axes_d, fused, constants):
+        super().__init__(field, axes_d, None, None, None)
+        self.targets, self.fused = targets, fused
+        self.cx, self.ty, self.ch = constants
+
+    def axes(self, pts, d_um) -> np.ndarray:
+        """Axes (m, 3) reaching ``p_d + 1e-3·d`` nominally (closed form, float64)."""
+        p = self.targets[pts] + MM_PER_UM * d_um
+        h = np.sqrt(np.maximum(p[:, 1] ** 2 + p[:, 2] ** 2 - self.ty ** 2, 0.0))
+        a = np.rad2deg(np.arctan2(p[:, 1], p[:, 2]) - np.arctan2(self.ty, h))
+        a += 360.0 * np.round((self.axes_d[pts, 2] - a) / 360.0)
+        return np.column_stack([self.cx - p[:, 0], h - self.ch, a])
+
+    def __call__(self, pts: np.ndarray, dT: np.ndarray) -> np.ndarray:
+        return self.fused(pts, dT)
+
+
+def _fused(field, machine, targets, axes_d, rotary_limit_deg):
+    """:class:`FusedChainFitness` where the field offers ``offset_fitness`` and the chain is of its closed form
+    (no rotary limit asked: the offsets move the rotary axis freely within the ball), else None."""
+    from errormap.field import OFFSET_FITNESS
+    if rotary_limit_deg is not None or OFFSET_FITNESS not in field.capabilities:
+        return None
+    from training.ga_fitness import closed_form_constants
+    try:
+        constants = closed_form_constants(machine)
+    except ValueError:
+        return None
+    return FusedChainFitness(field, targets, axes_d, field.offset_fitness(machine, targets), constants)
+
+
 class ChainAxisFitness:
     """``fitness(points (k,) int64, genes (3, k) float32) -> (k,) float32`` on a chain whose solved
     axes include a rotary one (module docstring): genes are the solved axes' scaled offsets.
@@ -158,6 +197,11 @@ def chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_lim
                 if len(rot) else None)
         return fit, lin, rot, note
     sol, kept = solved_and_kept(machine, compiled)
+    note = SOLVED_NOTE.format(sol=", ".join(names[j] for j in sol),
+                              rot=", ".join(names[j] for j in sol if compiled.kinds[j] != "linear"))
+    fused = _fused(field, machine, targets, axes_d, rotary_limit_deg) if list(sol) == [0, 1, 2] else None
+    if fused is not None:
+        return fused, sol, kept, note
     _, J = nominal_and_jacobian(machine, axes_d, compiled)
     scale = np.empty((len(targets), 3))
     for c, j in enumerate(sol):
@@ -165,10 +209,7 @@ def chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_lim
             scale[:, c] = MM_PER_UM
         else:
             scale[:, c] = rotary_bound_deg(rotary_radius_mm(J[:, :, j]), ball_um, rotary_limit_deg) / ball_um
-    fit = ChainAxisFitness(field, compiled, targets, axes_d, sol, scale, ball_um)
-    note = SOLVED_NOTE.format(sol=", ".join(names[j] for j in sol),
-                              rot=", ".join(names[j] for j in sol if compiled.kinds[j] != "linear"))
-    return fit, sol, kept, note
+    return ChainAxisFitness(field, compiled, targets, axes_d, sol, scale, ball_um), sol, kept, note
 
 
 def _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
@@ -243,7 +284,7 @@ def _chain_result(method, fit, field, compiled, machine, targets, axes_d, best, 
     info = {**info, "compensated_axes": [names[j] for j in moved], "kept_axes": [names[j] for j in kept]}
     if note:
         info["note"] = note
-    if isinstance(fit, ChainAxisFitness):
+    if isinstance(fit, (ChainAxisFitness, FusedChainFitness)):
         refused, reasons = rotary_guard(compiled, machine, axes_d, q, moved, ball_um, rotary_limit_deg)
         converged &= ~refused
         info["rotary_refused"] = np.flatnonzero(refused)
