@@ -35,6 +35,13 @@ second term (zero inside it).
 ``E`` is the field's ``predict`` over ``machine.axis_columns`` (float64 numpy; any chain field:
 the element set's :class:`errormap.chain_field.ChainField` or a trained network).
 
+**The network's fused fitness** (a field with the ``offset_fitness`` capability on a chain of two linear axes
+and a rotary one in the closed form it inverts, the grinder's; no rotary limit asked): the genes are the
+tool-point offsets ``d`` of the three-linear-axes case, ``q(d)`` the closed-form nominal inverse of
+``p_d + 1e-3·d`` (the rotary axis on the program's turn), and the generations evaluate
+``−|d + E(q(d))|²`` as one float32 pipeline (:class:`FusedChainFitness`; 2.4× faster than the float64
+axis-gene fitness on the flute, results within 0.03 μm, BENCHMARKS.md); retries, polish and result in float64.
+
 After the generations, points above ``tol_um`` are retried (GA re-runs from a fresh population
 around their best, radii as :mod:`._converge`) and then polished by the exact chain solver's
 Newton iteration (:func:`compensation.solvers.chain_exact.solve_exact_chain`'s loop); per
