@@ -41,7 +41,7 @@ BOUNDS = {
     "featurepoints": InputBound("feature points", "train", 5_000_000, 10_000_000, 702.0, 5.6e9),
     "checks": InputBound("check measurements", "diagnose", 20_000, 20_000, 70.2, 4.31e9, power=2.0),
     "poses": InputBound("measured poses", "calibrate / register", 20_000, 5_000, 77.6, 0.582e9),
-    "sweeps": InputBound("sweep rows", "identify", 2_000, 1_810, 282.2, 2.0e9, power=2.0),
+    "sweeps": InputBound("sweep rows", "identify", 5_000, 1_810, 282.2, 2.0e9, power=2.0),
     "thermal log": InputBound("log samples", "diagnose --drift / drift-predict", 300_000, 110_400, 196.4, 0.823e9),
     "waypoints": InputBound("waypoints", "interpolate", 1_000_000, 10_000_000, 702.0, 5.6e9),
 }

@@ -106,41 +106,41 @@ class ChainOffsetFitness:
 
 class FusedChainFitness(ChainOffsetFitness):
     """The genes and fitness of :class:`ChainOffsetFitness` (tool-point offsets ``d`` μm) on a chain of two linear
-    axes and a rotary one in the closed form the network's fused kernel inverts
-    (:func:`training.ga_fitness.closed_form_constants`): the generations run the field's ``offset_fitness``
-    (one float32 pipeline, IK and network, :class:`training.ga_fitness.FusedOffsetFitness`); the retries, the
-    polish and the result the same fitness in float64 (``axes``: the closed-form inverse, the rotary axis on the
-    program's turn). ``fused`` the field's kernel over all targets; ``constants`` its ``(c_x, t_y, c_h)``."""
+    axes and a rotary one whose nominal inverse the network's fused kernel runs in closed form (the field's
+    ``offset_fitness`` builds only for such a chain, the grinder's): the generations run that kernel (one float32
+    pipeline, inverse and network); the retries, the polish and the result the same fitness in float64
+    (``axes``: the chain's closed-form inverse, :func:`errormap.chain_kernel.closed_form_solver`, the rotary axis
+    on the program's turn). ``fused`` the field's kernel over all targets."""
 
-    def __init__(self, field, targets, axes_d, fused, constants):
+    def __init__(self, field, targets, axes_d, fused, solve):
         super().__init__(field, axes_d, None, None, None)
-        self.targets, self.fused = targets, fused
-        self.cx, self.ty, self.ch = constants
+        self.targets, self.fused, self.solve = targets, fused, solve
 
     def axes(self, pts, d_um) -> np.ndarray:
         """Axes (m, 3) reaching ``p_d + 1e-3·d`` nominally (closed form, float64)."""
-        p = self.targets[pts] + MM_PER_UM * d_um
-        h = np.sqrt(np.maximum(p[:, 1] ** 2 + p[:, 2] ** 2 - self.ty ** 2, 0.0))
-        a = np.rad2deg(np.arctan2(p[:, 1], p[:, 2]) - np.arctan2(self.ty, h))
-        a += 360.0 * np.round((self.axes_d[pts, 2] - a) / 360.0)
-        return np.column_stack([self.cx - p[:, 0], h - self.ch, a])
+        q = self.solve(self.targets[pts] + MM_PER_UM * d_um)
+        r = self.solve.k.rotary
+        q[:, r] += 360.0 * np.round((self.axes_d[pts, r] - q[:, r]) / 360.0)
+        return q
 
     def __call__(self, pts: np.ndarray, dT: np.ndarray) -> np.ndarray:
         return self.fused(pts, dT)
 
 
 def _fused(field, machine, targets, axes_d, rotary_limit_deg):
-    """:class:`FusedChainFitness` where the field offers ``offset_fitness`` and the chain is of its closed form
-    (no rotary limit asked: the offsets move the rotary axis freely within the ball), else None."""
+    """:class:`FusedChainFitness` where the field offers ``offset_fitness`` for this chain (its kernel refuses a
+    chain of another form) and no rotary limit is asked (the offsets move the rotary axis freely within the
+    ball), else None."""
+    from errormap.chain_kernel import closed_form_solver
     from errormap.field import OFFSET_FITNESS
     if rotary_limit_deg is not None or OFFSET_FITNESS not in field.capabilities:
         return None
-    from training.ga_fitness import closed_form_constants
     try:
-        constants = closed_form_constants(machine)
+        solve = closed_form_solver(machine)
+        fused = field.offset_fitness(machine, targets)
     except ValueError:
         return None
-    return FusedChainFitness(field, targets, axes_d, field.offset_fitness(machine, targets), constants)
+    return FusedChainFitness(field, targets, axes_d, fused, solve)
 
 
 class ChainAxisFitness:
