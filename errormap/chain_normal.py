@@ -6,8 +6,8 @@ station's nine ball coordinates (a *block*: 3 balls × xyz) see that station's o
 values of the parked axes, the values tied across stations). The normal matrix is therefore block-diagonal in
 the locals with a border of globals; the gauge's linear conditions ``C x = 0`` (k rows) join the border as
 Lagrange multipliers (KKT). Per step, every block's (L, L) local matrix ``D_b`` is inverted and the border is
-solved through its Schur complement ``S = E − Σ_b B_bᵀ D_b⁻¹ B_b`` ((g + k)², g ≈ 40): CPU and memory linear in
-the stations. The covariance over the free parameters is the KKT inverse's parameter block,
+solved through its Schur complement ``S = E − Σ_b B_bᵀ D_b⁻¹ B_b`` ((g + k)², g ≈ 40): CPU and memory linear
+in the stations. The covariance over the free parameters is the KKT inverse's parameter block,
 ``blkdiag(D⁻¹) + Z S⁻¹ Zᵀ`` (``Z = [−D⁻¹B; I]``), the only (unknowns)² array, written once.
 
 Everything is column-scaled as the dense solve was (columns of unit norm). A layout the blocks cannot decide —
@@ -17,7 +17,6 @@ the caller falls back to the dense pivoted QR that names the unobservable parame
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 from scipy.sparse.linalg import LinearOperator, eigsh
 
 LOCAL_EIG_FLOOR = 1e-10
@@ -194,7 +193,8 @@ class BlockNormal:
             v = proj(v)
             vL, vG = v[:nb * L].reshape(nb, L), v[nb * L:]
             Jv = np.einsum("bri,bi->br", self.JL, vL) + self.JG @ vG
-            return proj(np.concatenate([np.einsum("bri,br->bi", self.JL, Jv).ravel(), np.einsum("brg,br->g", self.JG, Jv)]))
+            return proj(np.concatenate([np.einsum("bri,br->bi", self.JL, Jv).ravel(),
+                                        np.einsum("brg,br->g", self.JG, Jv)]))
 
         def minv(v):
             v = v * keep

@@ -33,10 +33,11 @@ def register(sub):
     p.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element set to overlay on the plots")
     p.add_argument("--gauge", choices=GAUGES, default=d["gauge"],
                    help=f"machine-frame gauge (default {d['gauge']}; station-mean: the frame at the root axis' mean "
-                        "pose over its stations and a rotary axis' line at its mean over the turn, so that no one station's "
-                        "tracker noise is left where smoothing cannot reach it; first-station: elements zero at each "
-                        "axis' first station; reference-line: the frame on the fitted root-axis line, the paper's). "
-                        "Tool points are the same in every gauge before smoothing; see docs/identification.md")
+                        "pose over its stations and a rotary axis' line at its mean over the turn, so that no one "
+                        "station's tracker noise is left where smoothing cannot reach it; first-station: elements "
+                        "zero at each axis' first station; reference-line: the frame on the fitted root-axis line, "
+                        "the paper's). Tool points are the same in every gauge before smoothing; see "
+                        "docs/identification.md")
     p.add_argument("--raw", action="store_true", default=not d["smooth"],
                    help="interpolating splines through the noisy stations (no smoothing); the covariance is still "
                         "written")
