@@ -63,3 +63,14 @@ def test_singular_station_block_is_undecided():
     JL, JG = lay.assemble([np.tile(np.array([1.0, 2.0, 2.0]), (2, 9, 1)) * np.arange(1, 10)[None, :, None]])
     with pytest.raises(Undecided):
         chain_normal.BlockNormal(lay, JL, JG, np.zeros((0, 5)))
+
+
+def test_a_decidable_fit_never_builds_the_dense_jacobian(monkeypatch):
+    """On sweeps the blocks can decide (every built-in machine tool's), no (rows × unknowns) Jacobian is built."""
+    def refuse(*a, **k):
+        raise AssertionError("the dense Jacobian was built")
+    monkeypatch.setattr(ChainIdentification, "_dense", refuse)
+    mt = load_machine("mill-xyz")
+    sw = sweeps_from_columns(simulate_mt_sweeps(make_mt_truth(mt, 2), n_stations=7, seed=102), axes=swept_words(mt))
+    res = ChainIdentification(gauge="station-mean").fit(sw, mt).result_
+    assert res.cov.shape == (len(res.param_slot),) * 2 and not res.unobservable
