@@ -159,6 +159,8 @@ class BlockNormal:
         Z = np.zeros((f.size, ng + self.k))
         is_loc = (f >= 0) & lay.is_local[np.maximum(f, 0)]
         is_glb = (f >= 0) & ~is_loc
+        if np.unique(f[is_loc]).size != is_loc.sum():
+            raise Undecided("a station's own parameter stands for two")
         b, p = lay.block_of[f[is_loc]], lay.pos_of[f[is_loc]]
         Z[is_loc] = -self.W[b, p] / self.sL[b, p][:, None]
         g = lay.gpos[f[is_glb]]
