@@ -61,7 +61,7 @@ def grinder(n_points: int = 500) -> dict:
     g = load_machine()
     truth = simulate_truth(g, seed=1)
     sweeps = simulate_sweeps(truth, noise_um=1.0, seed=2, n_stations=11)
-    ident = Identification(g).fit(sweeps)
+    ident = Identification(g, gauge="first-station", smooth=False).fit(sweeps)   # the paper's gauge, unsmoothed
     paper = HTMField(g, TrackerIdentification(gauge="first-station").fit(sweeps, g).elements_)
     lo, hi = (np.array([g.strokes[k][i] for k in ("x_mm", "z_mm", "a_deg")]) for i in (0, 1))
     axes = lo + (0.1 + 0.8 * np.random.default_rng(5).random((n_points, 3))) * (hi - lo)

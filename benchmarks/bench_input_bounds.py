@@ -13,8 +13,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-SIZES = {"diagnose": (1_200, 20_000), "calibrate": (1_200, 5_000), "identify": (21, 201),
-         "identify-chain": (21, 201), "drift": (46.0, 460.0)}
+SIZES = {"diagnose": (1_200, 20_000), "calibrate": (1_200, 5_000), "identify": (201, 401),
+         "identify-chain": (201, 401), "drift": (46.0, 460.0)}
 """Per case: checks, poses, stations per axis, stations per axis, log hours."""
 
 

@@ -31,6 +31,13 @@ class Estimator:
     constructor's arguments by name; ``_check_fitted`` refuses use before ``fit``."""
 
     @classmethod
+    def defaults(cls) -> dict:
+        """``{setting: default}`` of the constructor's settings that have one (what a command line takes for its
+        own defaults, so that the command and the estimator cannot disagree)."""
+        sig = inspect.signature(cls.__init__)
+        return {p.name: p.default for p in sig.parameters.values() if p.default is not p.empty}
+
+    @classmethod
     def _param_names(cls) -> list:
         sig = inspect.signature(cls.__init__)
         return [p.name for p in sig.parameters.values() if p.name != "self" and p.kind != p.VAR_KEYWORD]
@@ -91,8 +98,11 @@ class Identification(Estimator):
     :func:`errormap.load_machine`); ``max_iter`` / ``tol`` of the Gauss–Newton solve (None: 30 / 1e-7
     μm or μrad); ``min_separation_mm`` (balls closer coincide); ``distance_tol_mm`` (allowed difference of
     measured and nominal ball distances); ``noise_um`` (the known tracker σ per coordinate the covariance
-    is scaled with, None: the residuals' σ̂). Gauge: first station (elements zero at each axis' first
-    station).
+    is scaled with, None: the residuals' σ̂); ``gauge`` (the machine-frame gauge,
+    :data:`errormap.identification.GAUGES`; default station-mean, as ``volcomp identify``); ``smooth`` (the
+    station values smoothed by the UBRE smoother, :func:`errormap.identification.smooth_chain`, and the
+    covariance with them; False: interpolating splines through the noisy stations, ``identify --raw``). The
+    defaults are ``volcomp identify``'s (the command takes them from :meth:`defaults`).
 
     ``fit(sweeps)``: ``sweeps`` a :class:`errormap.sweeps.Sweeps` (:func:`errormap.read_sweeps`,
     :func:`errormap.simulate_sweeps`). Learned: ``elements_`` (the chain's element set), ``result_``
@@ -102,8 +112,11 @@ class Identification(Estimator):
     """
 
     def __init__(self, machine, max_iter: int | None = None, tol: float | None = None,
-                 min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0, noise_um: float | None = None):
+                 min_separation_mm: float = 1.0, distance_tol_mm: float = 2.0, noise_um: float | None = None,
+                 gauge: str = "station-mean", smooth: bool = True):
         self.machine = machine
+        self.gauge = gauge
+        self.smooth = smooth
         self.max_iter = max_iter
         self.tol = tol
         self.min_separation_mm = min_separation_mm
@@ -112,16 +125,18 @@ class Identification(Estimator):
 
     def fit(self, sweeps) -> "Identification":
         from .chain_field import ChainField
-        from .identification import ChainIdentification
+        from .identification import ChainIdentification, smooth_chain
         from .sweeps import Sweeps
         mt = machine_tool(self.machine, "Identification(machine=...)")
+        if not isinstance(self.smooth, bool):
+            raise TypeError(f"Identification(smooth=...): expected True or False, got {self.smooth!r}")
         _require_type(sweeps, (Sweeps,), "Identification.fit(sweeps)", "read the file first (errormap.read_sweeps)")
         given = {k: v for k, v in (("max_iter", self.max_iter), ("tol", self.tol)) if v is not None}
         method = ChainIdentification(min_separation_mm=self.min_separation_mm, distance_tol_mm=self.distance_tol_mm,
-                                     noise_um=self.noise_um, **given).fit(sweeps, mt)
-        res = method.result_
+                                     noise_um=self.noise_um, gauge=self.gauge, **given).fit(sweeps, mt)
+        res = smooth_chain(method.result_, mt) if self.smooth else method.result_
         self.result_ = res
-        self.elements_ = method.elements_
+        self.elements_ = res.elements_
         self.covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov.copy())
         self.field_ = ChainField(mt, self.elements_)
         return self

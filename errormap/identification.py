@@ -14,14 +14,14 @@ squareness). During the sweep of axis W the other axes stand at their first stat
 lower stroke ends; :func:`errormap.chain_sweeps.park_axes`), so their values there enter.
 
 Gauge (what the sweeps cannot tell apart), ``gauge`` one of :data:`GAUGES`, linear conditions on the
-station values (:func:`gauge_rows`; the fit runs in their null space):
+station values (:func:`gauge_rows`; the fit is constrained to them, :mod:`errormap.chain_normal`):
 
-* ``first-station`` (the estimator's default): the machine frame is the body of the **root axis** (the first
+* ``first-station`` (:class:`ChainIdentification`'s default): the machine frame is the body of the **root axis** (the first
   linear axis of the work chain, else of the tool chain; :func:`root_axis`) at its first station: its six
   component errors are zero there; a rotary axis' **location errors** are its line at the first station:
   the four component errors across the axis (two offsets, two tilts) are zero there, the axial offset and
   the roll stay in the component errors;
-* ``station-mean`` (``volcomp identify``'s default): the root axis' six component errors sum to zero over
+* ``station-mean`` (the default of ``volcomp identify`` and of :class:`errormap.Identification`): the root axis' six component errors sum to zero over
   its stations (the frame at its mean pose) and a rotary axis' line is its mean over the turn (the part of
   the across errors that turns with the axis sums to zero over the distinct stations): no one station's
   tracker noise is left in constants and linear trends, where a second-difference smoother cannot reach;
@@ -42,7 +42,8 @@ moved into a straightness trend is the same motion).
 Results: a :class:`~errormap.chain_elements.ChainElementSet` (stations = the sweep commands,
 interpolating splines through them; :func:`smooth_chain` smooths them), the covariance of the element parameters
 (σ̂²·(JᵀJ)⁻¹ mapped through the gauge, σ̂ from the ball residuals), the ball residual per axis,
-the conditioning. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over
+the conditioning. Solved by the block structure of the normal equations (:mod:`errormap.chain_normal`; linear in
+the stations but for the (N, N) covariance), by the dense pivoted QR above where the blocks cannot decide the rank. Shapes: ball residuals (m, 3) μm per axis; covariance (N, N) over
 ``param_slot``/``param_station`` (station −1: a constant), μm² / μrad².
 """
 from __future__ import annotations
@@ -57,6 +58,7 @@ from scipy.spatial.transform import Rotation
 from .io import NPY_ERRORS, InputError, atomic_write
 from .machine_tool import AXIS_WORDS, MachineTool
 from .chain_elements import ChainElementSet
+from .chain_normal import BlockLayout, BlockNormal, Undecided
 from .chain_sweeps import body_chain, park_axes, swept_words
 from .sweeps import Sweeps
 from .transforms import apply, skew
@@ -500,12 +502,11 @@ class ChainIdentification:
         uniq = sorted(set(free[free >= 0].tolist()))
         ren = {u: k for k, u in enumerate(uniq)}
         free = np.array([ren[f] if f >= 0 else -1 for f in free])
-        A = np.zeros((n, int(free.max()) + 1))
-        A[np.flatnonzero(free >= 0), free[free >= 0]] = 1.0
         C = gauge_rows(self.gauge, machine, sweeps, block, n)
-        if C.shape[0]:   # the gauge's linear conditions: θ = A·N·x, N a basis of the null space of C·A
-            A = A @ scipy.linalg.null_space(C @ A)
-        return names, np.array(stations), A, block, const0
+        ok = free >= 0
+        Cf = np.zeros((C.shape[0], int(free.max()) + 1))   # the conditions on the free parameters, C·A₀
+        np.add.at(Cf.T, free[ok], C[:, ok].T)
+        return names, np.array(stations), free, Cf, block, const0
 
     # -- the method -------------------------------------------------------------------------
     def fit(self, sweeps: Sweeps, machine: MachineTool) -> "ChainIdentification":
@@ -514,8 +515,7 @@ class ChainIdentification:
             raise ValueError(f"Expected a positive, finite tracker noise σ in μm, got {self.noise_um}")
         warnings = self._check(sweeps, machine)
         words = swept_words(machine)
-        names, stations, A, block, const0 = self._layout(sweeps, machine)
-        n_theta, nf = A.shape
+        names, stations, free, Cf, block, const0 = self._layout(sweeps, machine)
         P = len(machine.slots)
         sidx = {s: j for j, s in enumerate(machine.slot_names)}
         park = park_axes(machine)
@@ -539,22 +539,92 @@ class ChainIdentification:
             for k, s in enumerate(machine.constant_slots):
                 tidx[:, sidx[s]] = const0 + k
             setup[w] = (pts, tidx, sw.balls_mm)
-        theta = np.zeros(n_theta)
-
-        def slot_values(tidx):
-            return np.where(tidx >= 0, theta[np.maximum(tidx, 0)], 0.0)
-
         # initial tracker pose: Kabsch of the nominal balls on the measured ones
         nom = np.concatenate([bodies[w].balls(setup[w][0], np.zeros((len(setup[w][0]), P)), machine.targets[w])
                               .reshape(-1, 3) for w in words])
         meas = np.concatenate([setup[w][2].reshape(-1, 3) for w in words])
         RG, tG = rigid_fit(nom[None], meas[None])
-        RG, tG = RG[0], tG[0]
+        args = (words, setup, bodies, machine, len(names))
+        try:
+            out = self._solve_blocked(args, free, Cf, RG[0], tG[0])
+        except Undecided:
+            out = self._solve_dense(args, free, Cf, RG[0], tG[0], names, stations, warnings)
+        theta, (RG, tG), it, r, cov, lev, condition, sigma, unobservable = out
+        # element set
+        st, fun = {}, {}
+        for w in words:
+            ax = next(a for a in machine.axes if a.word == w)
+            sl = machine.slots_of(w)
+            m = sweeps[w].command.size
+            vals = theta[block[w]:block[w] + m * len(sl)].reshape(m, len(sl))
+            st[ax.column] = sweeps[w].command.copy()
+            for j, s in enumerate(sl):
+                fun[s] = vals[:, j].copy()
+        const = {s: float(theta[const0 + k]) for k, s in enumerate(machine.constant_slots)}
+        elements = ChainElementSet(machine, st, fun, const, machine.name, machine.sha256)
+        rr, lev = r.reshape(-1, 3), lev.reshape(-1, 3)
+        res, balls_res, leverage, o = {}, {}, {}, 0
+        for w in words:
+            m = setup[w][2].shape[0]
+            balls_res[w] = rr[o:o + 3 * m].reshape(m, 3, 3)
+            leverage[w] = lev[o:o + 3 * m].reshape(m, 3, 3)
+            res[w] = np.sqrt(np.mean(balls_res[w] ** 2, axis=(1, 2)) * 3)
+            o += 3 * m
+        self.elements_ = elements
+        reversal = {w: np.sqrt(np.mean(np.sum((sweeps[w].by_direction[1] - sweeps[w].by_direction[-1]) ** 2,
+                                              axis=2), axis=1)) / UM
+                    for w in words if len(sweeps[w].by_direction) == 2}
+        self.result_ = ChainIdentificationResult(elements, (RG, tG), res, sigma, it, condition,
+                                                 names[6:], stations[6:], cov, unobservable, warnings,
+                                                 noise_um=None if self.noise_um is None else float(self.noise_um),
+                                                 ball_residual_um=balls_res, leverage=leverage, gauge=self.gauge,
+                                                 reversal_um=reversal)
+        return self
+
+    def _step(self, theta, RG, tG, dth):
+        """Apply the update ``dth`` (n_θ,): b_tracker = R_G·(Exp(ω)·b + τ) + t_G, linearised at ω = τ = 0."""
+        tG = tG + RG @ (dth[3:6] * UM)
+        RG = RG @ Rotation.from_rotvec(dth[:3] * URAD).as_matrix()
+        theta[6:] += dth[6:]
+        return RG, tG
+
+    def _solve_blocked(self, args, free, Cf, RG, tG) -> tuple:
+        """Gauss–Newton through the block normal equations (:mod:`errormap.chain_normal`); raises
+        :class:`Undecided` where the blocks cannot decide the rank. Returns (θ, (R_G, t_G), iterations, r, cov,
+        leverage, condition, σ̂, unobservable)."""
+        theta = np.zeros(args[-1])
+        fcols = [np.where(c >= 0, free[np.maximum(c, 0)], -1) for c in self._columns(args)]
+        lay = BlockLayout(fcols, int(free.max()) + 1)
+        C = scipy.linalg.orth(Cf.T).T if Cf.shape[0] else Cf
+        it = 0
+        for it in range(1, self.max_iter + 1):
+            r, vals = self._system(*args, theta, RG, tG)
+            x = BlockNormal(lay, *lay.assemble(vals), C).solve(r)
+            dth = np.where(free >= 0, x[np.maximum(free, 0)], 0.0)
+            RG, tG = self._step(theta, RG, tG, dth)
+            if np.abs(dth).max() < self.tol:
+                break
+        r, vals = self._system(*args, theta, RG, tG)
+        nrm = BlockNormal(lay, *lay.assemble(vals), C)
+        sigma = float(np.sqrt(r @ r / max(r.size - (Cf.shape[1] - C.shape[0]), 1)))
+        s_cov = sigma if self.noise_um is None else float(self.noise_um)
+        return (theta, (RG, tG), it, r, nrm.covariance(free[6:], s_cov**2), nrm.leverage(), nrm.condition(),
+                sigma, [])
+
+    def _solve_dense(self, args, free, Cf, RG, tG, names, stations, warnings) -> tuple:
+        """Gauss–Newton with the dense Jacobian and pivoted QR, which names (and holds at zero) the parameters the
+        sweeps leave unobservable (appending a warning). Same return as :meth:`_solve_blocked`."""
+        ok = free >= 0   # θ = A₀·N·x: held at zero, tied, N a basis of the null space of the gauge's conditions
+        A = np.zeros((free.size, int(free.max()) + 1))
+        A[np.flatnonzero(ok), free[ok]] = 1.0
+        A = A @ scipy.linalg.null_space(Cf) if Cf.shape[0] else A
+        theta = np.zeros(args[-1])
+        n_theta, nf = A.shape
         unobservable, it = [], 0
         keep = np.ones(nf, dtype=bool)
         for it in range(1, self.max_iter + 1):
-            r, J = self._system(words, setup, bodies, machine, slot_values, RG, tG, n_theta)
-            Jf = J @ A
+            r, vals = self._system(*args, theta, RG, tG)
+            Jf = self._dense(args, vals) @ A
             scale = np.linalg.norm(Jf, axis=0)
             scale[scale == 0] = 1.0
             Js = Jf / scale
@@ -572,76 +642,61 @@ class ChainIdentification:
             x = np.zeros(nf)
             x[keep] = np.linalg.lstsq(Js[:, keep], r, rcond=None)[0] / scale[keep]
             dth = A @ x
-            tG = tG + RG @ (dth[3:6] * UM)      # b_tracker = R_G·(Exp(ω)·b + τ) + t_G, linearised at ω = τ = 0
-            RG = RG @ Rotation.from_rotvec(dth[:3] * URAD).as_matrix()
-            theta[6:] += dth[6:]
+            RG, tG = self._step(theta, RG, tG, dth)
             if np.abs(dth).max() < self.tol:
                 break
-        r, J = self._system(words, setup, bodies, machine, slot_values, RG, tG, n_theta)
-        Jf = (J @ A)[:, keep]
+        r, vals = self._system(*args, theta, RG, tG)
+        Jf = (self._dense(args, vals) @ A)[:, keep]
         scale = np.linalg.norm(Jf, axis=0)
         scale[scale == 0] = 1.0
         sv = np.linalg.svd(Jf / scale, compute_uv=False)
-        dof = max(r.size - int(keep.sum()), 1)
-        sigma = float(np.sqrt(r @ r / dof))
+        sigma = float(np.sqrt(r @ r / max(r.size - int(keep.sum()), 1)))
         s_cov = sigma if self.noise_um is None else float(self.noise_um)
         Jinv = np.linalg.pinv(Jf / scale)
-        lev = np.sum(np.linalg.qr(Jf / scale)[0] ** 2, axis=1).reshape(-1, 3)
+        lev = np.sum(np.linalg.qr(Jf / scale)[0] ** 2, axis=1)
         cov_f = np.zeros((nf, nf))
         cov_f[np.ix_(keep, keep)] = s_cov**2 * (Jinv @ Jinv.T) / np.outer(scale, scale)
-        cov = A[6:] @ cov_f @ A[6:].T
-        # element set
-        st, fun = {}, {}
-        for w in words:
-            ax = next(a for a in machine.axes if a.word == w)
-            sl = machine.slots_of(w)
-            m = sweeps[w].command.size
-            vals = theta[block[w]:block[w] + m * len(sl)].reshape(m, len(sl))
-            st[ax.column] = sweeps[w].command.copy()
-            for j, s in enumerate(sl):
-                fun[s] = vals[:, j].copy()
-        const = {s: float(theta[const0 + k]) for k, s in enumerate(machine.constant_slots)}
-        elements = ChainElementSet(machine, st, fun, const, machine.name, machine.sha256)
-        rr = r.reshape(-1, 3)
-        res, balls_res, leverage, o = {}, {}, {}, 0
-        for w in words:
-            m = setup[w][2].shape[0]
-            balls_res[w] = rr[o:o + 3 * m].reshape(m, 3, 3)
-            leverage[w] = lev[o:o + 3 * m].reshape(m, 3, 3)
-            res[w] = np.sqrt(np.mean(balls_res[w] ** 2, axis=(1, 2)) * 3)
-            o += 3 * m
-        self.elements_ = elements
-        reversal = {w: np.sqrt(np.mean(np.sum((sweeps[w].by_direction[1] - sweeps[w].by_direction[-1]) ** 2,
-                                              axis=2), axis=1)) / UM
-                    for w in words if len(sweeps[w].by_direction) == 2}
-        self.result_ = ChainIdentificationResult(elements, (RG, tG), res, sigma, it, float(sv[0] / sv[-1]),
-                                                 names[6:], stations[6:], cov, unobservable, warnings,
-                                                 noise_um=None if self.noise_um is None else float(self.noise_um),
-                                                 ball_residual_um=balls_res, leverage=leverage, gauge=self.gauge,
-                                                 reversal_um=reversal)
-        return self
+        return (theta, (RG, tG), it, r, A[6:] @ cov_f @ A[6:].T, lev, float(sv[0] / sv[-1]), sigma,
+                unobservable)
 
     @staticmethod
-    def _system(words, setup, bodies, machine, slot_values, RG, tG, n_theta):
-        """Residual (μm, measured − predicted, flattened) and its Jacobian (rows, n_theta) in μm per
-        μm/μrad (G: rotation μrad, translation μm in the machine frame)."""
-        rs, Js = [], []
+    def _columns(args) -> list:
+        """Per sweep, the θ index (m, 6 + P) of every column of :meth:`_system`'s compact Jacobian (−1: none)."""
+        words, setup = args[0], args[1]
+        return [np.concatenate([np.tile(np.arange(6), (setup[w][1].shape[0], 1)), setup[w][1]], axis=1)
+                for w in words]
+
+    @classmethod
+    def _dense(cls, args, vals) -> np.ndarray:
+        """The dense Jacobian (rows, n_θ) of :meth:`_system`'s compact one."""
+        J = np.zeros((sum(v.shape[0] * 9 for v in vals), args[-1]))
+        o = 0
+        for v, c in zip(vals, cls._columns(args)):
+            m = v.shape[0]
+            i, q = np.nonzero(c >= 0)
+            np.add.at(J, (o + 9 * i[:, None] + np.arange(9), c[i, q][:, None]), v[i, :, q])
+            o += 9 * m
+        return J
+
+    @staticmethod
+    def _system(words, setup, bodies, machine, n_theta, theta, RG, tG):
+        """Residual (μm, measured − predicted, flattened: sweep, station, ball, xyz) and its compact Jacobian:
+        per sweep (m, 9, 6 + P) in μm per μm/μrad, columns G (rotation μrad, translation μm in the machine frame),
+        then every slot (θ index :meth:`_columns`)."""
+        rs, vals = [], []
         for w in words:
             pts, tidx, meas = setup[w]
-            v = slot_values(tidx)
+            v = np.where(tidx >= 0, theta[np.maximum(tidx, 0)], 0.0)
             b, Jb = bodies[w].balls_and_jacobian(pts, v, machine.targets[w])   # (m,3,3), (m,3,3,P) mm per unit
             pred = b @ RG.T + tG
             rs.append(((meas - pred) / UM).reshape(-1))
             m = b.shape[0]
-            J = np.zeros((m, 3, 3, n_theta))
-            Jt = np.einsum("ij,nkjp->nkip", RG, Jb) / UM                          # μm per unit
-            Jv = J.transpose(0, 3, 1, 2)                                             # view (m, n_theta, 3, 3)
-            for p in np.flatnonzero((tidx >= 0).all(axis=0)):
-                np.add.at(Jv, (np.arange(m), tidx[:, p]), Jt[..., p])
+            J = np.empty((m, 3, 3, 6 + tidx.shape[1]))
+            J[..., 6:] = np.einsum("ij,nkjp->nkip", RG, Jb) / UM                          # μm per unit
             J[..., 0:3] = -np.einsum("ij,nkjl->nkil", RG, skew(b)) * (URAD / UM)
             J[..., 3:6] = RG
-            Js.append(J.reshape(-1, n_theta))
-        return np.concatenate(rs), np.concatenate(Js)
+            vals.append(J.reshape(m, 9, -1))
+        return np.concatenate(rs), vals
 
 
 def parameter_vector(elements: ChainElementSet, slots, stations) -> np.ndarray:
@@ -695,7 +750,7 @@ def smooth_chain(result: ChainIdentificationResult, machine: MachineTool) -> Cha
     a full-turn axis periodic over its distinct stations), the constants as identified, and the covariance
     ``H Σ Hᵀ`` plus the smoother's estimated squared bias per slot on the diagonal. The interpolating set is
     what :meth:`ChainIdentification.fit` gives; this is opt-in (``covariance_info['smoothing']`` says how)."""
-    from .smoothing import smooth_blocks
+    from .smoothing import apply_blocks, smooth_blocks
     el = result.elements_
     slots, st = np.array(result.param_slot), result.param_station
     y = parameter_vector(el, result.param_slot, st)
@@ -707,17 +762,16 @@ def smooth_chain(result: ChainIdentificationResult, machine: MachineTool) -> Cha
         idx = np.flatnonzero((slots == s.name) & (st >= 0))
         full[s.name] = idx = idx[np.argsort(st[idx])]
         blocks[s.name] = (idx[:-1], True) if ax.full_turn else (idx, False)
-    H, smoothing, bias_var, extra = smooth_blocks(y, result.cov, blocks)
-    for s, (idx, periodic) in blocks.items():   # a full turn's last station is its first pose
-        if periodic:
-            H[full[s][-1]] = H[full[s][0]]
-            bias_var[full[s][-1]] = bias_var[full[s][0]]
-            extra[full[s][-1]] = extra[full[s][0]]
-    theta = H @ y
+    Hb, smoothing, bias_var, extra = smooth_blocks(y, result.cov, blocks)
+    copies = [(full[s][0], full[s][-1]) for s, (idx, periodic) in blocks.items() if periodic]
+    for src, dst in copies:   # a full turn's last station is its first pose
+        bias_var[dst], extra[dst] = bias_var[src], extra[src]
+    theta, cov = apply_blocks(Hb, blocks, y, result.cov, copies)
+    cov[np.diag_indices_from(cov)] += bias_var
     fun = {s: theta[idx] for s, idx in full.items()}
     elements = ChainElementSet(machine, el.stations, fun, el.constants, el.machine_name, el.machine_sha256)
     info = {**result.covariance_info, "smoothing": smoothing}
-    return replace(result, elements_=elements, cov=H @ result.cov @ H.T + np.diag(bias_var), covariance_info=info,
+    return replace(result, elements_=elements, cov=cov, covariance_info=info,
                    prior_extra=extra)
 
 

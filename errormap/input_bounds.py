@@ -19,7 +19,8 @@ class InputBound:
     """The bound of one kind of table. ``what``: its rows in words; ``commands``: who reads it; ``max_rows``: data
     rows taken. The estimate: a measured run of ``ref_rows`` rows took ``ref_cpu_s`` CPU seconds and ``ref_bytes``
     peak resident memory; ``power``: how both grow with the rows (1 linear, 2 a dense n × n or rows × stations
-    matrix), extrapolated from that run (BENCHMARKS.md "Bounded inputs per command")."""
+    matrix, 3 dense n × n solves), extrapolated from that run (BENCHMARKS.md "Bounded inputs per command");
+    ``power_bytes``: the memory's own growth where it differs from the CPU's (None: ``power``)."""
 
     what: str
     commands: str
@@ -28,12 +29,17 @@ class InputBound:
     ref_cpu_s: float
     ref_bytes: float
     power: float = 1.0
+    power_bytes: float | None = None
+
+    def cost(self, rows: int) -> tuple[float, float]:
+        """(CPU s, peak bytes) extrapolated to ``rows``."""
+        r = rows / self.ref_rows
+        return self.ref_cpu_s * r ** self.power, self.ref_bytes * r ** (self.power_bytes or self.power)
 
     def estimate(self, rows: int) -> str:
-        k = (rows / self.ref_rows) ** self.power
-        s = self.ref_cpu_s * k
+        s, b = self.cost(rows)
         t = f"{s:,.0f} s" if s < 600 else f"{s / 3600:,.2g} h"
-        return f"about {t} CPU and {self.ref_bytes * k / 1e9:,.3g} GB"
+        return f"about {t} CPU and {b / 1e9:,.3g} GB"
 
 
 BOUNDS = {
@@ -41,7 +47,7 @@ BOUNDS = {
     "featurepoints": InputBound("feature points", "train", 5_000_000, 10_000_000, 702.0, 5.6e9),
     "checks": InputBound("check measurements", "diagnose", 20_000, 20_000, 70.2, 4.31e9, power=2.0),
     "poses": InputBound("measured poses", "calibrate / register", 20_000, 5_000, 77.6, 0.582e9),
-    "sweeps": InputBound("sweep rows", "identify", 2_000, 1_810, 282.2, 2.0e9, power=2.0),
+    "sweeps": InputBound("sweep rows", "identify", 5_000, 3_609, 47.7, 2.05e9, power=3.0, power_bytes=2.0),
     "thermal log": InputBound("log samples", "diagnose --drift / drift-predict", 300_000, 110_400, 196.4, 0.823e9),
     "waypoints": InputBound("waypoints", "interpolate", 1_000_000, 10_000_000, 702.0, 5.6e9),
 }
@@ -55,9 +61,11 @@ way and bounded by what volcomp writes (the grid limit; one path's points, valid
 ``checks``: ``diagnose`` holds dense check x check matrices (its learned residual): 20,000 grinder checks took 70 CPU
 s and 4.3 GB (1,200: 8.3 s, 0.48 GB), growing as n². ``poses``: ``calibrate`` decides on a subset of 500 poses and
 fits the geometric stages on all: 5,000 poses took 78 s and 0.58 GB (1,200: 74 s, 0.39 GB). ``sweeps``: the one
-identification of every machine tool (the grinder through its chain), Gauss-Newton over every station's slots at
-once (the Jacobian grows as rows x stations): 1,810 rows (mill-xyz, 201 stations per axis) took 282 CPU s and 2.0 GB
-(190 rows: 1.4 s, 0.11 GB); the grinder's 1,809 rows 227 CPU s and 2.07 GB (189 rows: 1.9 s). ``thermal log``:
+identification of every machine tool (the grinder through its chain): Gauss-Newton through the block normal
+equations (linear in the stations), then the (N, N) covariance (N ≈ 2 × rows, memory as n²) and the smoother's
+per-slot station solves (CPU as n³): the grinder's 3,609 rows (401 stations per axis) took 47.7 CPU s and 2.05 GB
+(1,809 rows: 10.3 s, 0.67 GB; mill-xyz 3,609 rows: 33.7 s, 1.10 GB); the bound, 5,000 rows, is estimated at about
+2 CPU min and 3.9 GB. ``thermal log``:
 110,400 samples (460 h at 15 s) took 196 s and 0.82 GB (11,040: 16 s, 0.33 GB).
 """
 

@@ -47,27 +47,43 @@ def _smoother(y, Sigma, periodic: bool):
 def smooth_blocks(y, S, blocks: dict) -> tuple:
     """The UBRE smoother of every machine family's station values (module doc, steps 3–4): per block
     ``name -> (indices (m,) into y in station order, periodic)`` the Whittaker smoother :func:`_smoother` with
-    the block of the covariance ``S`` (P, P) of ``y`` (P,). Returns ``(H (P, P), {name: {lambda, edf}},
-    bias_var (P,), prior_extra (P,))``: the smoothed vector is ``H y``; the smoother's squared bias is not in
-    ``H S Hᵀ``, so per block the mean square of what it removed, less what noise alone explains
-    (E|(I−H)y|² = |(I−H)f|² + tr((I−H)Σ(I−H)ᵀ)), is ``bias_var`` (to add on the diagonal), and ``prior_extra``
-    the rest of the whole mean-square change (:attr:`ElementCovariance.prior_extra`)."""
+    the block of the covariance ``S`` (P, P) of ``y`` (P,). Returns ``({name: H_k (m, m)}, {name: {lambda, edf}},
+    bias_var (P,), prior_extra (P,))``: the smoothed vector is ``H y`` with ``H`` the identity but for the blocks
+    (:func:`apply_blocks`); the smoother's squared bias is not in ``H S Hᵀ``, so per block the mean square of what
+    it removed, less what noise alone explains (E|(I−H)y|² = |(I−H)f|² + tr((I−H)Σ(I−H)ᵀ)), is ``bias_var`` (to add
+    on the diagonal), and ``prior_extra`` the rest of the whole mean-square change
+    (:attr:`ElementCovariance.prior_extra`)."""
     P = y.size
-    H = np.eye(P)
-    smoothing = {}
-    for k, (idx, periodic) in blocks.items():
-        Hk, lam, edf = _smoother(y[idx], S[np.ix_(idx, idx)], periodic=periodic)
-        H[np.ix_(idx, idx)] = Hk
-        smoothing[k] = {"lambda": lam, "edf": edf}
-    change2 = (y - H @ y) ** 2
+    Hb, smoothing = {}, {}
     bias_var, prior_extra = np.zeros(P), np.zeros(P)
-    IH = np.eye(P) - H
+    for k, (idx, periodic) in blocks.items():
+        Sk = S[np.ix_(idx, idx)]
+        Hk, lam, edf = _smoother(y[idx], Sk, periodic=periodic)
+        Hb[k] = Hk
+        smoothing[k] = {"lambda": lam, "edf": edf}
+        B = np.eye(idx.size) - Hk
+        noise = np.trace(B @ Sk @ B.T) / idx.size
+        change2 = np.mean((y[idx] - Hk @ y[idx]) ** 2)
+        bias_var[idx] = max(0.0, change2 - noise)
+        prior_extra[idx] = change2 - bias_var[idx]  # total: the whole mean-square change
+    return Hb, smoothing, bias_var, prior_extra
+
+
+def apply_blocks(Hb: dict, blocks: dict, y, S, copies=()) -> tuple:
+    """``(H y, H S Hᵀ)`` for ``H`` the identity but for the blocks ``Hb`` (:func:`smooth_blocks`) on ``blocks``'
+    indices, and rows ``dst`` equal to rows ``src`` for every ``(src, dst)`` of ``copies`` (a full turn's last
+    station is its first pose); block by block, never a dense (P, P) ``H``."""
+    y, C = np.array(y, float), np.array(S, float)
     for k, (idx, _) in blocks.items():
-        B = IH[np.ix_(idx, idx)]
-        noise = np.trace(B @ S[np.ix_(idx, idx)] @ B.T) / idx.size
-        bias_var[idx] = max(0.0, change2[idx].mean() - noise)
-        prior_extra[idx] = change2[idx].mean() - bias_var[idx]  # total: the whole mean-square change
-    return H, smoothing, bias_var, prior_extra
+        y[idx] = Hb[k] @ y[idx]
+        C[idx, :] = Hb[k] @ C[idx, :]
+    for src, dst in copies:
+        y[dst], C[dst, :] = y[src], C[src, :]
+    for k, (idx, _) in blocks.items():
+        C[:, idx] = C[:, idx] @ Hb[k].T
+    for src, dst in copies:
+        C[:, dst] = C[:, src]
+    return y, C
 
 
 def bootstrap_draws(draw, n_boot: int, seed: int, n_params: int) -> np.ndarray:

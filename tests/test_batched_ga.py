@@ -189,3 +189,51 @@ def test_batched_ga_is_reproducible(machine):
     a = solve("batched-ga", field, targets, machine, **kw)
     b = solve("batched-ga", field, targets, machine, **kw)
     assert np.array_equal(a.commands_mm, b.commands_mm) and a.nfev == b.nfev
+
+
+def test_chain_ga_runs_the_fused_fitness_on_the_grinder_chain(machine):
+    """The chain GA takes the network's fused float32 fitness on a chain of its closed form (the grinder's): the
+    float64 ``axes`` put the nominal tool point on ``p_d + 1e-3·d`` (to round-off), the fused fitness equals the
+    float64 one within TOL_F32_UM, and a field without the capability (or a rotary limit) keeps the generic one."""
+    from compensation.solvers.chain_ga import ChainAxisFitness, FusedChainFitness, chain_fitness
+    from errormap.chain_kernel import NominalChain
+    from errormap.grinder_file import machine_tool_of
+    mt = machine_tool_of(machine)
+    compiled = NominalChain(mt)
+    axes = turn_axes(300, seed=4)
+    targets = forward(machine, axes)
+    field = make_model()
+    fit = chain_fitness(field, mt, compiled, targets, axes, 250.0)[0]
+    assert isinstance(fit, FusedChainFitness)
+    rng = np.random.default_rng(3)
+    pts = rng.integers(0, len(targets), 2000)
+    d = (rng.normal(size=(2000, 3)) * 80.0).astype(np.float32)
+    q = fit.axes(pts, d.astype(float))
+    assert np.abs(compiled.forward(q) - (targets[pts] + 1e-3 * d.astype(float))).max() < 1e-9   # mm: closed form
+    assert np.abs(q[:, 2] - axes[pts, 2]).max() < 90.0    # deg: on the program's turn (asin(b/r) ≤ 90° near the axis)
+    f32, f64 = fit(pts, np.ascontiguousarray(d.T)), fit.fitness64(pts, d.astype(float))
+    assert np.abs(np.sqrt(-f32) - np.sqrt(-f64)).max() <= TOL_F32_UM
+    assert isinstance(chain_fitness(field, mt, compiled, targets, axes, 250.0, rotary_limit_deg=5.0)[0],
+                      ChainAxisFitness)
+
+
+@pytest.mark.slow   # ~15 s: two batched-GA solves of 40 points (the network compiles on first use)
+def test_chain_ga_fused_results_equal_float64_within_ga_tolerance(machine):
+    """Same targets, same seed: the batched GA with the fused float32 fitness against the generic float64 chain
+    fitness (the capability hidden): both succeed, and their commands agree within the paper's GA_TOL_UM."""
+    import importlib.util
+    from pathlib import Path
+    from compensation.solvers.chain_ga import solve_batched_ga_chain
+    from errormap.grinder_file import machine_tool_of
+    spec = importlib.util.spec_from_file_location(
+        "bench_fused_fitness", Path(__file__).resolve().parents[1] / "benchmarks" / "bench_fused_fitness.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    mt = machine_tool_of(machine)
+    axes = turn_axes(40, seed=6)
+    targets = forward(machine, axes)
+    field = make_model()
+    fused = solve_batched_ga_chain(field, targets, mt, target_axes=axes, seed=0, progress=False)
+    plain = solve_batched_ga_chain(bench.Hidden(field), targets, mt, target_axes=axes, seed=0, progress=False)
+    assert fused.success.all() and plain.success.all()
+    assert np.abs(fused.commands_mm - plain.commands_mm).max() * 1e3 <= GA_TOL_UM

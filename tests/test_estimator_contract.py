@@ -169,3 +169,24 @@ def test_import_is_light():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
     assert set(errormap.__all__) <= set(dir(errormap))
+
+
+def test_identification_defaults_are_the_commands():
+    """``Identification()`` and ``volcomp identify`` share one set of defaults (the command reads the
+    estimator's): station-mean gauge, smoothed; and the default fit IS the command's method on the same sweeps."""
+    from compensation.app.cli import build_parser
+    from errormap.identification import ChainIdentification, smooth_chain
+    args = build_parser().parse_args(["identify", "sw.csv", "--out", "E.json"])
+    d = Identification.defaults()
+    assert (args.gauge, not args.raw) == (d["gauge"], d["smooth"]) == ("station-mean", True)
+    m, _, sweeps = _mill_sweeps()
+    est = _mill_identified()
+    ref = smooth_chain(ChainIdentification(gauge="station-mean").fit(sweeps, m).result_, m)
+    for s, v in ref.elements_.functions.items():
+        np.testing.assert_array_equal(est.elements_.functions[s], v)
+    np.testing.assert_array_equal(est.covariance_[2], ref.cov)
+    raw = Identification(m, gauge="first-station", smooth=False).fit(sweeps)
+    first = ChainIdentification().fit(sweeps, m).result_
+    np.testing.assert_array_equal(raw.covariance_[2], first.cov)
+    with pytest.raises(TypeError, match="smooth"):
+        Identification(m, smooth="yes").fit(sweeps)

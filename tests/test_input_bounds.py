@@ -129,3 +129,31 @@ def test_a_table_at_its_bound_is_read(tmp_path, monkeypatch):
     f.write_text("a,b\n" + "1,2\n" * (SMALL_BOUND + 1))
     with pytest.raises(eio.InputError, match=f"about {SMALL_BOUND + 1} rows"):
         eio.read_table(f, "checks")
+
+
+BOUND_CPU_S = 600.0
+"""A command at its sweep bound stays within minutes of CPU (errormap/input_bounds.py's rule for every bound)."""
+BOUND_BYTES = 8e9
+"""... and a few GB of peak memory (the diagnose bound's 4.3 GB measured; 8 GB the most any bound may estimate)."""
+
+
+def test_the_sweep_bound_is_what_its_measured_cost_allows():
+    """The sweep bound's own estimate at the bound (scaled from the measured run it names) stays within
+    BOUND_CPU_S and BOUND_BYTES, and the measured run lies at most a factor 3 below the bound (a short
+    extrapolation)."""
+    b = BOUNDS["sweeps"]
+    cpu_s, peak_bytes = b.cost(b.max_rows)
+    assert cpu_s <= BOUND_CPU_S and peak_bytes <= BOUND_BYTES
+    assert b.ref_rows <= b.max_rows <= 3 * b.ref_rows
+
+
+def test_a_sweep_file_one_row_past_the_real_bound_is_refused_at_once(tmp_path):
+    """The real bound of sweep files: one row past it is refused unread, with the estimate."""
+    b = BOUNDS["sweeps"]
+    n = b.max_rows + 1
+    f = tmp_path / "sweeps.csv"
+    f.write_text("axis,station,command,target,x_mm,y_mm,z_mm\n" + "X,0,0,1,1,2,3\n" * n)
+    rc, err, wall = _run(["identify", f, "--out", tmp_path / "E.json"])
+    assert rc == 2 and f"about {n:,} rows of sweep rows exceed the limit of {b.max_rows:,}" in err, err
+    assert b.estimate(n) in err
+    assert wall < REFUSAL_WALL_S

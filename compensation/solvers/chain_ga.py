@@ -35,6 +35,13 @@ second term (zero inside it).
 ``E`` is the field's ``predict`` over ``machine.axis_columns`` (float64 numpy; any chain field:
 the element set's :class:`errormap.chain_field.ChainField` or a trained network).
 
+**The network's fused fitness** (a field with the ``offset_fitness`` capability on a chain of two linear axes
+and a rotary one in the closed form it inverts, the grinder's; no rotary limit asked): the genes are the
+tool-point offsets ``d`` of the three-linear-axes case, ``q(d)`` the closed-form nominal inverse of
+``p_d + 1e-3·d`` (the rotary axis on the program's turn), and the generations evaluate
+``−|d + E(q(d))|²`` as one float32 pipeline (:class:`FusedChainFitness`; 2.4× faster than the float64
+axis-gene fitness on the flute, results within 0.03 μm, BENCHMARKS.md); retries, polish and result in float64.
+
 After the generations, points above ``tol_um`` are retried (GA re-runs from a fresh population
 around their best, radii as :mod:`._converge`) and then polished by the exact chain solver's
 Newton iteration (:func:`compensation.solvers.chain_exact.solve_exact_chain`'s loop); per
@@ -95,6 +102,45 @@ class ChainOffsetFitness:
         r = self.residual_um(pts, dT.T.astype(float))
         f = -np.einsum("ij,ij->i", r, r)
         return np.where(np.isnan(f), -np.inf, f).astype(np.float32)
+
+
+class FusedChainFitness(ChainOffsetFitness):
+    """The genes and fitness of :class:`ChainOffsetFitness` (tool-point offsets ``d`` μm) on a chain of two linear
+    axes and a rotary one whose nominal inverse the network's fused kernel runs in closed form (the field's
+    ``offset_fitness`` builds only for such a chain, the grinder's): the generations run that kernel (one float32
+    pipeline, inverse and network); the retries, the polish and the result the same fitness in float64
+    (``axes``: the chain's closed-form inverse, :func:`errormap.chain_kernel.closed_form_solver`, the rotary axis
+    on the program's turn). ``fused`` the field's kernel over all targets."""
+
+    def __init__(self, field, targets, axes_d, fused, solve):
+        super().__init__(field, axes_d, None, None, None)
+        self.targets, self.fused, self.solve = targets, fused, solve
+
+    def axes(self, pts, d_um) -> np.ndarray:
+        """Axes (m, 3) reaching ``p_d + 1e-3·d`` nominally (closed form, float64)."""
+        q = self.solve(self.targets[pts] + MM_PER_UM * d_um)
+        r = self.solve.k.rotary
+        q[:, r] += 360.0 * np.round((self.axes_d[pts, r] - q[:, r]) / 360.0)
+        return q
+
+    def __call__(self, pts: np.ndarray, dT: np.ndarray) -> np.ndarray:
+        return self.fused(pts, dT)
+
+
+def _fused(field, machine, targets, axes_d, rotary_limit_deg):
+    """:class:`FusedChainFitness` where the field offers ``offset_fitness`` for this chain (its kernel refuses a
+    chain of another form) and no rotary limit is asked (the offsets move the rotary axis freely within the
+    ball), else None."""
+    from errormap.chain_kernel import closed_form_solver
+    from errormap.field import OFFSET_FITNESS
+    if rotary_limit_deg is not None or OFFSET_FITNESS not in field.capabilities:
+        return None
+    try:
+        solve = closed_form_solver(machine)
+        fused = field.offset_fitness(machine, targets)
+    except ValueError:
+        return None
+    return FusedChainFitness(field, targets, axes_d, fused, solve)
 
 
 class ChainAxisFitness:
@@ -158,6 +204,11 @@ def chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_lim
                 if len(rot) else None)
         return fit, lin, rot, note
     sol, kept = solved_and_kept(machine, compiled)
+    note = SOLVED_NOTE.format(sol=", ".join(names[j] for j in sol),
+                              rot=", ".join(names[j] for j in sol if compiled.kinds[j] != "linear"))
+    fused = _fused(field, machine, targets, axes_d, rotary_limit_deg) if list(sol) == [0, 1, 2] else None
+    if fused is not None:
+        return fused, sol, kept, note
     _, J = nominal_and_jacobian(machine, axes_d, compiled)
     scale = np.empty((len(targets), 3))
     for c, j in enumerate(sol):
@@ -165,10 +216,7 @@ def chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_lim
             scale[:, c] = MM_PER_UM
         else:
             scale[:, c] = rotary_bound_deg(rotary_radius_mm(J[:, :, j]), ball_um, rotary_limit_deg) / ball_um
-    fit = ChainAxisFitness(field, compiled, targets, axes_d, sol, scale, ball_um)
-    note = SOLVED_NOTE.format(sol=", ".join(names[j] for j in sol),
-                              rot=", ".join(names[j] for j in sol if compiled.kinds[j] != "linear"))
-    return fit, sol, kept, note
+    return ChainAxisFitness(field, compiled, targets, axes_d, sol, scale, ball_um), sol, kept, note
 
 
 def _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
@@ -243,7 +291,7 @@ def _chain_result(method, fit, field, compiled, machine, targets, axes_d, best, 
     info = {**info, "compensated_axes": [names[j] for j in moved], "kept_axes": [names[j] for j in kept]}
     if note:
         info["note"] = note
-    if isinstance(fit, ChainAxisFitness):
+    if isinstance(fit, (ChainAxisFitness, FusedChainFitness)):
         refused, reasons = rotary_guard(compiled, machine, axes_d, q, moved, ball_um, rotary_limit_deg)
         converged &= ~refused
         info["rotary_refused"] = np.flatnonzero(refused)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from errormap.elements import ElementSet
+from errormap.estimators import Identification
 from errormap.identification import GAUGES
 from errormap.machine import load_machine
 from errormap.sweeps import read_sweeps
@@ -16,6 +17,7 @@ from ..workflows.identification import identify_elements, truth_in_gauge
 
 
 def register(sub):
+    d = Identification.defaults()   # the command's defaults are the estimator's (errormap.Identification)
     p = sub.add_parser("identify", help="identify the machine's error elements from laser-tracker sweeps",
                        description="Gauss-Newton on every ball of every sweep of one tracker set-up (any machine "
                                    "tool; a kind = \"grinder\" file through its chain), in a chosen gauge, the station "
@@ -29,13 +31,14 @@ def register(sub):
                    help="write one figure per axis: PREFIX_X.png, PREFIX_Z.png, PREFIX_A.png (a chain: PREFIX_<W>.png "
                         "per swept axis)")
     p.add_argument("--truth", default=None, metavar="ELEMENTS", help="truth element set to overlay on the plots")
-    p.add_argument("--gauge", choices=GAUGES, default="station-mean",
-                   help="machine-frame gauge (default station-mean: the frame at the root axis' mean pose over "
-                        "its stations and a rotary axis' line at its mean over the turn, so that no one station's "
-                        "tracker noise is left where smoothing cannot reach it; first-station: elements zero at each "
-                        "axis' first station; reference-line: the frame on the fitted root-axis line, the paper's). "
-                        "Tool points are the same in every gauge before smoothing; see docs/explanation/identification.md")
-    p.add_argument("--raw", action="store_true",
+    p.add_argument("--gauge", choices=GAUGES, default=d["gauge"],
+                   help=f"machine-frame gauge (default {d['gauge']}; station-mean: the frame at the root axis' mean "
+                        "pose over its stations and a rotary axis' line at its mean over the turn, so that no one "
+                        "station's tracker noise is left where smoothing cannot reach it; first-station: elements "
+                        "zero at each axis' first station; reference-line: the frame on the fitted root-axis line, "
+                        "the paper's). Tool points are the same in every gauge before smoothing; see "
+                        "docs/explanation/identification.md")
+    p.add_argument("--raw", action="store_true", default=not d["smooth"],
                    help="interpolating splines through the noisy stations (no smoothing); the covariance is still "
                         "written")
     p.add_argument("--noise-um", type=float, default=None,
