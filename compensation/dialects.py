@@ -12,6 +12,8 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
   calls (``M98``/``M99``/``M97``), loops (Mach3 ``M47``) and user M codes stay refused;
 * **look-ahead**: Fanuc ``G05.1 Q1`` (AI contour control) / ``Q0`` and Haas ``G187`` set a
   smoothing mode, not a path: read as state; on LinuxCNC ``G5.1`` is a quadratic spline (refused);
+* **scaling off** ``G50`` alone (Fanuc, Haas, Siemens ISO, Mach3, Tormach PathPilot: :data:`SCALING_OFF`): state, as
+  ``G51`` scaling is refused; ``G50`` with axis words (a lathe's coordinate setting) is refused;
 * **G80 with a motion code on one line** (``G80 G0 X..``): Fanuc, Haas, Siemens ISO and Mach3 cancel
   the cycle and take the motion code; LinuxCNC refuses two group-1 codes on one line (so does the
   reader, without a dialect);
@@ -94,6 +96,11 @@ class Dialect:
 
 
 LOOKAHEAD = "look-ahead / AI contour control (Q1 on, Q0 off; Q2 smooth interpolation refused)"
+SCALING_OFF = ("scaling off (G51 scaling is refused, so nothing is scaled; on a lathe G50 S clamps the spindle speed; "
+               "G50 with axis words, a lathe's coordinate setting, is refused)")
+"""``G50`` alone: Fanuc 0i-M, Haas mill, Siemens ISO mode and Mach3 "scaling cancel", Tormach PathPilot (the LinuxCNC
+of Tormach mills; Fusion 360's Tormach post writes ``G50`` in its safe-start line) "cancel scaling"; Fanuc and Haas
+lathes "spindle speed clamp" with ``S`` (moves nothing either way)."""
 _COMMON = {0: "program stop", 1: "optional stop", 2: "program end", 3: "spindle cw", 4: "spindle ccw",
            5: "spindle stop", 6: "tool change", 7: "mist coolant", 8: "flood coolant", 9: "coolant off",
            30: "program end and rewind"}
@@ -116,22 +123,23 @@ DIALECTS = {
     "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
                                      50: "feed override control", 51: "spindle override control",
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
-                        io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL),
+                        io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF}),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
-                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD}, g80_with_motion=True,
+                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF}, g80_with_motion=True,
                      g80_keeps_motion=True, h_offset_alone=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
                              35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
-                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)"}, g80_with_motion=True,
+                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)", "G50": SCALING_OFF}, g80_with_motion=True,
                     g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
-                           program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode"},
+                           program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF},
                            g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True),
-    "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True),
+    "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True,
+                     modes={"G50": SCALING_OFF}),
     "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False),
     # Heidenhain TNC DIN/ISO programs: '%NAME G71 *' framing and the '*' block end are read by the
     # tool-centre-point pre-pass (compensation.tcp), as are M128/M129 (TCPM) and the 'T n' tool call

@@ -214,7 +214,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if "nonmodal" in groups and groups["nonmodal"][0] == "G53":
         return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
-        return _reference_return(st, groups, axis_words, arc_words, ax)
+        return _reference_return(st, groups, axis_words, arc_words, ax, rapids)
     if "nonmodal" in groups and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
@@ -278,13 +278,14 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     return move
 
 
-def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords):
+def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords, rapids=DEFAULT_RAPIDS):
     """``G28``/``G30``: the machine goes to a reference position (not a program point, so
-    not compensated; the line is written as it is). Accepted bare (all axes) or with zero
-    incremental axis words (``G28 G91 Z0``: only Z, with no intermediate move); the axes
-    it moves are unknown afterwards, so the next compensated move must give them
-    absolutely. An intermediate point (non-zero or absolute words) would be an
-    uncompensated program point: refused."""
+    not compensated; the line is written as it is). Bare: all axes; with axis words: only those axes,
+    first at rapid through the intermediate point they give (RS274NGC, Fanuc, Haas: absolute under
+    ``G90``, incremental under ``G91``; ``G28 G91 Z0`` has none), a rapid like a ``G0`` line and, as
+    ``G0`` lines under ``rapids="keep"``, written unchanged; under ``"compensate"`` an intermediate point
+    (a rapid this line cannot rewrite) is refused naming ``--rapids keep``. The axes it moves are unknown
+    afterwards, so the next compensated move must give them absolutely."""
     code, w = groups["nonmodal"]
     if "motion" in groups:
         raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line")
@@ -292,10 +293,10 @@ def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords):
         a = next(iter(arc_words.values()))
         raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}")
     for a in axis_words.values():
-        if not st.incremental or a.value != 0.0:
-            raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}: an intermediate point is an uncompensated "
-                                       f"program point; only a bare {code} or zero incremental words "
-                                       f"('{code} G91 Z0') are accepted")
+        if rapids != "keep" and (not st.incremental or a.value != 0.0):
+            raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}: its intermediate point is a rapid this "
+                                       "line cannot carry compensated; --rapids keep writes rapids (and this line) "
+                                       "as programmed")
     st.pos = st.pos.copy()  # the previous move's end is this array: it must keep its values
     for j, a in enumerate(ax.words):
         if not axis_words or a in axis_words:

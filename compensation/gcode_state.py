@@ -106,7 +106,7 @@ def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
     if code == "G5.1" and (q is None or q.value not in (0.0, 1.0)):
         raise _Refuse(w.start + 1, f"'{code}' needs Q1 (look-ahead on) or Q0 (off); Q2 smooth interpolation "
                                    "changes the path and is not supported")
-    if axis_words or arc_words or "motion" in groups:
+    if axis_words or arc_words or groups.get("motion", ("G80",))[0] != "G80":  # G80 (no cycle) moves nothing
         first = next(iter({**axis_words, **arc_words}.values()), w)
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}' with {code} (a mode, not a move)")
     st.events.append((idx, w.start + 1, "mode", code, code))

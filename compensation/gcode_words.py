@@ -138,8 +138,8 @@ ALLOWED_G = {
     "G80": ("motion", "cancel motion mode (no axis words allowed after it; on Fanuc, Haas and Siemens ISO "
                       "the G0-G3 mode stays, as their G80 is group 09)"),
     "G4": ("nonmodal", "dwell with P; refused with axis words (Fanuc G4 X is a dwell time)"),
-    "G28": ("nonmodal", "return to the reference: bare, or with zero incremental words ('G28 G91 Z0'); "
-                        "the axes it moves are unknown afterwards"),
+    "G28": ("nonmodal", "return to the reference: bare, or through the intermediate point its axis words give (a "
+                        "rapid, written as programmed: --rapids keep); the axes it moves are unknown afterwards"),
     "G30": ("nonmodal", "return to the second reference: as G28"),
     "G17": ("plane", "XY plane, centre I J (arcs in it are refused on a machine without X and Y)"),
     "G18": ("plane", "XZ plane, centre I K"),

@@ -31,6 +31,8 @@ CASES = [  # file, --dialect, dialect in the summary, the offsets / tools the pr
     ("siemens_iso.nc", "auto", "siemens-iso", {"G55": G55}, {1: 150.0}),
     ("mach3.tap", "mach3", "mach3", {"G55": G55}, {1: 150.0}),
     ("grbl.gcode", "grbl", "grbl", {"G55": G55}, {}),
+    ("tormach.ngc", "linuxcnc", "linuxcnc", {"G55": G55}, {1: 150.0}),  # G50 safe start, G28 via a point
+    ("fanuc_home.nc", "fanuc", "fanuc", {"G55": G55}, {1: 150.0}),  # G28 X Y Z through a point, G50
 ]
 
 
@@ -95,6 +97,8 @@ def test_fanuc_extras_are_reported(tmp_path, mill, truth_file, capsys):
     ("N5 G80 G0 X1\n", "linuxcnc", 8, "'G0' and 'G80' on one line"),
     ("/N5 M1\n", "grbl", 1, "grbl has no block-delete switch"),
     ("M62 P1\n", "fanuc", 1, "'M62': M code not on the fanuc allow-list"),
+    ("N5 G50 X0 Y0\n", "fanuc", 8, "'X0' with G50 (a mode, not a move)"),  # a lathe's coordinate setting
+    ("N5 G50\n", "grbl", 4, "'G50' (scaling off / lathe coordinate setting (dialect-dependent)) is not supported"),
 ])
 def test_words_of_another_dialect_are_refused(tmp_path, mill, text, dialect, col, what):
     p = tmp_path / "p.nc"
