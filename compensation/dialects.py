@@ -12,6 +12,7 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
   calls (``M98``/``M99``/``M97``), loops (Mach3 ``M47``) and user M codes stay refused;
 * **look-ahead**: Fanuc ``G05.1 Q1`` (AI contour control) / ``Q0`` and Haas ``G187`` set a
   smoothing mode, not a path: read as state; on LinuxCNC ``G5.1`` is a quadratic spline (refused);
+* **mirror off, look-ahead** ``G50.1`` (its axis words name axes, nothing moves), Fanuc ``G08 P1/P0``, ``G05 P10000/P0``, Haas ``G103 P``: state (:data:`MIRROR_OFF`);
 * **scaling off** ``G50`` alone (Fanuc, Haas, Siemens ISO, Mach3, Tormach PathPilot: :data:`SCALING_OFF`): state, as
   ``G51`` scaling is refused; ``G50`` with axis words (a lathe's coordinate setting) is refused;
 * **G80 with a motion code on one line** (``G80 G0 X..``): Fanuc, Haas, Siemens ISO and Mach3 cancel
@@ -98,6 +99,13 @@ class Dialect:
 LOOKAHEAD = "look-ahead / AI contour control (Q1 on, Q0 off; Q2 smooth interpolation refused)"
 SCALING_OFF = ("scaling off (G51 scaling is refused, so nothing is scaled; on a lathe G50 S clamps the spindle speed; "
                "G50 with axis words, a lathe's coordinate setting, is refused)")
+MIRROR_OFF = "mirror image off (its axis words name the axes, nothing moves; G51.1 mirroring is refused)"
+PREVIEW = "advanced preview control (look-ahead; P1 on, P0 off)"
+HPCC = "high-precision contour control (look-ahead; P10000 on, P0 off; other P, high-speed cycle machining, refused)"
+LOOKAHEAD_BLOCKS = "limit look-ahead blocks (P0-P15)"
+"""Mode codes that move nothing (Fanuc 0i/16i/30i manuals: ``G50.1`` programmable mirror image cancel, ``G08 P1/P0``
+advanced preview control, ``G05 P10000/P0`` high-precision contour control; Haas mill manual: ``G50.1``, ``G103 P``
+block look-ahead limit; Siemens ISO dialect manual: ``G50.1``)."""
 """``G50`` alone: Fanuc 0i-M, Haas mill, Siemens ISO mode and Mach3 "scaling cancel", Tormach PathPilot (the LinuxCNC
 of Tormach mills; Fusion 360's Tormach post writes ``G50`` in its safe-start line) "cancel scaling"; Fanuc and Haas
 lathes "spindle speed clamp" with ``S`` (moves nothing either way)."""
@@ -126,17 +134,20 @@ DIALECTS = {
                         io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF}),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
-                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF}, g80_with_motion=True,
+                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
+                                                         "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True,
                      g80_keeps_motion=True, h_offset_alone=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
                              35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
-                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)", "G50": SCALING_OFF}, g80_with_motion=True,
+                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)", "G50": SCALING_OFF,
+                           "G50.1": MIRROR_OFF, "G103": LOOKAHEAD_BLOCKS}, g80_with_motion=True,
                     g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
-                           program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF},
+                           program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF,
+                                  "G50.1": MIRROR_OFF},
                            g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True),
     "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True,
                      modes={"G50": SCALING_OFF}),

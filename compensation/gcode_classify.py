@@ -101,8 +101,8 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = ALLOWED_G[code][0] if code in ALLOWED_G else (
-            "coords" if dia is not None and code in dia.work_systems else "dialect mode")
+        grp = "dialect mode" if dia is not None and code in dia.modes else ALLOWED_G[code][0] if code in ALLOWED_G else (
+            "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
                 code, groups[grp][0]):
             if code != "G80":
@@ -146,7 +146,8 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
         if letter in by:
             h_alone = letter == "H" and getattr(st.dialect, "h_offset_alone", False)  # Fanuc: H alone in G43 mode
             arc_p1 = letter == "P" and st.mode in ("G2", "G3") and bool(axis_words or arc_words) and by["P"].value == 1
-            if not (h_alone or arc_p1 or any(c in allowed_with for c, _ in gs)):
+            mode_p = letter == "P" and st.dialect is not None and any(c in st.dialect.modes for c, _ in gs)
+            if not (h_alone or arc_p1 or mode_p or any(c in allowed_with for c, _ in gs)):
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
                               + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
     for letter, code in (("D", ("G41", "G42")),):

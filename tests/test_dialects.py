@@ -33,6 +33,8 @@ CASES = [  # file, --dialect, dialect in the summary, the offsets / tools the pr
     ("grbl.gcode", "grbl", "grbl", {"G55": G55}, {}),
     ("tormach.ngc", "linuxcnc", "linuxcnc", {"G55": G55}, {1: 150.0}),  # G50 safe start, G28 via a point
     ("fanuc_home.nc", "fanuc", "fanuc", {"G55": G55}, {1: 150.0}),  # G28 X Y Z through a point, G50
+    ("fanuc_modes.nc", "fanuc", "fanuc", {"G55": G55}, {1: 150.0}),  # G50.1 X Y, G08 P1, G05 P10000
+    ("haas_modes.nc", "auto", "haas", {"G55": G55}, {1: 150.0}),  # G103 P, G50.1
 ]
 
 
@@ -99,6 +101,11 @@ def test_fanuc_extras_are_reported(tmp_path, mill, truth_file, capsys):
     ("M62 P1\n", "fanuc", 1, "'M62': M code not on the fanuc allow-list"),
     ("N5 G50 X0 Y0\n", "fanuc", 8, "'X0' with G50 (a mode, not a move)"),  # a lathe's coordinate setting
     ("N5 G50\n", "grbl", 4, "'G50' (scaling off / lathe coordinate setting (dialect-dependent)) is not supported"),
+    ("N5 G05 P1\n", "fanuc", 4, "another P is high-speed cycle machining (a stored cycle), not supported"),
+    ("N5 G08 P2\n", "fanuc", 4, "'G8' needs P1 (look-ahead on) or P0 (off)"),
+    ("N5 G103 P20\n", "haas", 4, "'G103' needs P0-P15"),
+    ("N5 G50.1 X0\n", "linuxcnc", 4, "'G50.1' (mirror off) is not supported"),
+    ("N5 G05 P10000\n", "haas", 4, "'G5' (cubic spline"),
 ])
 def test_words_of_another_dialect_are_refused(tmp_path, mill, text, dialect, col, what):
     p = tmp_path / "p.nc"
