@@ -211,6 +211,14 @@ def detect_dialect(text: str) -> tuple:
     return name, what
 
 
+def other_dialects_with_g(code: str, current: str) -> str:
+    """``"; on fanuc, haas it is scaling off: name the controller with --dialect"``: the dialects whose mode codes hold
+    a G code the current one refuses (empty when none)."""
+    known = [n for n, d in DIALECTS.items() if n != current and code in d.modes]
+    what = DIALECTS[known[0]].modes[code].split(" (")[0] if known else ""
+    return f"; on {', '.join(known)} it is {what}: name the controller with --dialect" if known else ""
+
+
 def other_dialects_with_m(code: float, current: str) -> str:
     """``"; haas: chip auger forward (name it with --dialect)"``: the dialects that know an M code the
     current one refuses (empty when none)."""

@@ -45,7 +45,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
     """Check every word against the allow-lists (``dia``: the :class:`compensation.dialects.Dialect`'s
     M codes and mode codes; None: the generic one) and the machine's axis words:
     ``(by letter, [(G code, word)], [M words])``."""
-    from .dialects import GENERIC, other_dialects_with_m
+    from .dialects import GENERIC, other_dialects_with_g, other_dialects_with_m
     dia = GENERIC if dia is None else dia
     by = {}
     gs, ms = [], []
@@ -58,9 +58,11 @@ def _checked_words(words, ax: AxisWords, dia=None):
                 gs.append((code, w))
                 continue
             if code in REFUSED_G:
-                raise _Refuse(w.start + 1, f"'{code}' ({REFUSED_G[code]}) is not supported")
+                raise _Refuse(w.start + 1, f"'{code}' ({REFUSED_G[code]}) is not supported"
+                                           f"{other_dialects_with_g(code, dia.name)}")
             if code not in ALLOWED_G:
-                raise _Refuse(w.start + 1, f"'{code}': unknown G code (not on the allow-list)")
+                raise _Refuse(w.start + 1, f"'{code}': unknown G code (not on the allow-list)"
+                                           f"{other_dialects_with_g(code, dia.name)}")
             gs.append((code, w))
             continue
         if w.letter == "M":

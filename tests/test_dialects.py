@@ -100,11 +100,13 @@ def test_fanuc_extras_are_reported(tmp_path, mill, truth_file, capsys):
     ("/N5 M1\n", "grbl", 1, "grbl has no block-delete switch"),
     ("M62 P1\n", "fanuc", 1, "'M62': M code not on the fanuc allow-list"),
     ("N5 G50 X0 Y0\n", "fanuc", 8, "'X0' with G50 (a mode, not a move)"),  # a lathe's coordinate setting
-    ("N5 G50\n", "grbl", 4, "'G50' (scaling off / lathe coordinate setting (dialect-dependent)) is not supported"),
+    ("N5 G50\n", "grbl", 4, "is not supported; on linuxcnc, fanuc, haas, siemens-iso, mach3 it is scaling off: name the "
+                           "controller with --dialect"),
     ("N5 G05 P1\n", "fanuc", 4, "another P is high-speed cycle machining (a stored cycle), not supported"),
     ("N5 G08 P2\n", "fanuc", 4, "'G8' needs P1 (look-ahead on) or P0 (off)"),
     ("N5 G103 P20\n", "haas", 4, "'G103' needs P0-P15"),
-    ("N5 G50.1 X0\n", "linuxcnc", 4, "'G50.1' (mirror off) is not supported"),
+    ("N5 G50.1 X0\n", "linuxcnc", 4, "'G50.1' (mirror off) is not supported; on fanuc, haas, siemens-iso it is mirror"),
+    ("N5 G103 P1\n", "fanuc", 4, "unknown G code (not on the allow-list); on haas it is limit look-ahead blocks"),
     ("N5 G05 P10000\n", "haas", 4, "'G5' (cubic spline"),
 ])
 def test_words_of_another_dialect_are_refused(tmp_path, mill, text, dialect, col, what):
