@@ -11,7 +11,8 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
   (:data:`COMMON_M`), the others only on their controller (Haas ``M31`` chip auger …). Program
   calls (``M98``/``M99``/``M97``), loops (Mach3 ``M47``) and user M codes stay refused;
 * **look-ahead**: Fanuc ``G05.1 Q1`` (AI contour control) / ``Q0`` and Haas ``G187`` set a
-  smoothing mode, not a path: read as state; on LinuxCNC ``G5.1`` is a quadratic spline (refused);
+  smoothing mode, not a path: read as state; on LinuxCNC ``G5.1`` is a quadratic spline and ``G5`` a cubic
+  one (:data:`SPLINES`, read exactly under ``--dialect linuxcnc``, refused without a dialect);
 * **mirror off, look-ahead** ``G50.1`` (its axis words name axes, nothing moves), Fanuc ``G08 P1/P0``, ``G05 P10000/P0``, Haas ``G103 P``: state (:data:`MIRROR_OFF`);
 * **scaling off** ``G50`` alone (Fanuc, Haas, Siemens ISO, Mach3, Tormach PathPilot: :data:`SCALING_OFF`): state, as
   ``G51`` scaling is refused; ``G50`` with axis words (a lathe's coordinate setting) is refused;
@@ -61,7 +62,8 @@ RS274 = "rs274"
 class Dialect:
     """One controller's rules: ``m_codes`` harmless M codes {code: meaning}; ``program_number``
     letters (``"O"``, ``":"``); ``modes`` G codes that set a controller mode and move nothing
-    (look-ahead / smoothing, the ISO-dialect switch) {code: meaning};
+    (look-ahead / smoothing, the ISO-dialect switch) {code: meaning}; ``splines`` motion codes of the
+    dialect's splines {code: meaning} (:mod:`compensation.gcode_spline`);
     ``g80_with_motion`` G80 and a motion code on one line; ``block_delete`` the ``/`` switch exists."""
 
     name: str
@@ -73,6 +75,7 @@ class Dialect:
     work_systems: dict = field(default_factory=dict)
     """Work-system codes of the dialect beyond ``G54``–``G59.3``/``G54.1``: {code: fixed P or None (P
     on the line)}."""
+    splines: dict = field(default_factory=dict)
     io_codes: dict = field(default_factory=dict)
     """Output / input M codes passed through on a line of their own {code: meaning}."""
     g80_keeps_motion: bool = False
@@ -127,11 +130,15 @@ LINUXCNC_ARC_TOL = (2 * 0.01 * 2 ** 0.5, 2 * 0.001 * 2 ** 0.5 * 25.4, 0.001)
 ``interp_arc.cc`` arc_data_ijk: an error when the absolute *or* the relative difference is exceeded): end
 points or centre rounded to 0.01 mm / 0.001 inch pass; the arc is then run as a spiral whose radius changes
 linearly with the angle, as the reader reads it."""
+SPLINES = {"G5": "a cubic spline (G5 X Y I J P Q)", "G5.1": "a quadratic spline (G5.1 X Y I J)"}
+"""LinuxCNC G-code reference, "G5 Cubic spline", "G5.1 Quadratic spline": motion codes, read exactly
+(:mod:`compensation.gcode_spline`)."""
 DIALECTS = {
     "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
                                      50: "feed override control", 51: "spindle override control",
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
-                        io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF}),
+                        io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF},
+                        splines=SPLINES),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
@@ -216,7 +223,10 @@ def other_dialects_with_g(code: str, current: str) -> str:
     a G code the current one refuses (empty when none)."""
     known = [n for n, d in DIALECTS.items() if n != current and code in d.modes]
     what = DIALECTS[known[0]].modes[code].split(" (")[0] if known else ""
-    return f"; on {', '.join(known)} it is {what}: name the controller with --dialect" if known else ""
+    spl = [n for n, d in DIALECTS.items() if n != current and code in d.splines]
+    out = f"; on {', '.join(known)} it is {what}" if known else ""
+    out += f"; on {', '.join(spl)} it is {DIALECTS[spl[0]].splines[code]}" if spl else ""
+    return f"{out}: name the controller with --dialect" if out else ""
 
 
 def other_dialects_with_m(code: float, current: str) -> str:

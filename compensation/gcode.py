@@ -291,6 +291,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
                            np.full(p, -1), spans[k0:k0 + p]))
             moved.append((k0, k0 + p))
             st.mode = "G0" if mode[p - 1] == 0 else "G1"
+            st.spline_pq = None
             st.pos = end[p - 1].copy()
         return k0 + p
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from .gcode_state import (_dialect_mode, _g10, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
+from .gcode_spline import spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
                           default_axis_words, DEFAULT_RAPIDS, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
                           PLANES, REFUSED_G, REFUSED_LETTERS, tokenize, Word)
@@ -32,6 +33,7 @@ class _State:
         self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
         self.selected = None       # the last T word (the tool prepared)
         self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
+        self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -54,7 +56,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             code = w.code
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
-            if code in dia.modes or code in dia.work_systems:
+            if code in dia.modes or code in dia.work_systems or code in dia.splines:
                 gs.append((code, w))
                 continue
             if code in REFUSED_G:
@@ -103,7 +105,8 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = "dialect mode" if dia is not None and code in dia.modes else ALLOWED_G[code][0] if code in ALLOWED_G else (
+        grp = "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
+            code in dia.splines) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
                 code, groups[grp][0]):
@@ -134,6 +137,8 @@ def _apply_modal(st: _State, groups: dict):
         st.after_g80 = code == "G80" and (st.mode is not None or st.after_g80)
         if code == "G80" and st.mode is not None:
             st.before_g80 = st.mode
+        if code != "G5":
+            st.spline_pq = None
         if code != "G80":
             st.mode = code
         elif not getattr(st.dialect, "g80_keeps_motion", False):
@@ -149,7 +154,8 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
             h_alone = letter == "H" and getattr(st.dialect, "h_offset_alone", False)  # Fanuc: H alone in G43 mode
             arc_p1 = letter == "P" and st.mode in ("G2", "G3") and bool(axis_words or arc_words) and by["P"].value == 1
             mode_p = letter == "P" and st.dialect is not None and any(c in st.dialect.modes for c, _ in gs)
-            if not (h_alone or arc_p1 or mode_p or any(c in allowed_with for c, _ in gs)):
+            spline = letter in "PQ" and st.dialect is not None and st.mode in st.dialect.splines  # gcode_spline checks
+            if not (h_alone or arc_p1 or mode_p or spline or any(c in allowed_with for c, _ in gs)):
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
                               + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
     for letter, code in (("D", ("G41", "G42")),):
@@ -218,6 +224,9 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
         return _reference_return(st, groups, axis_words, arc_words, ax, rapids)
+    if "nonmodal" not in groups and dia is not None and st.mode in dia.splines and (
+            axis_words or any(a in by for a in "IJKRPQ")):
+        return "move", spline_move(idx, st, by, axis_words, motion_word, ax)
     if "nonmodal" in groups and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
@@ -237,6 +246,7 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
     """The move of a line with axis words in the active motion mode (or a centre-format full circle, whose
     end is its start: RS274NGC, LinuxCNC and Fanuc); advances ``st.pos``."""
     first = min((axis_words or arc_words).values(), key=lambda w: w.start)
+    st.spline_pq = None
     if st.mode is None and st.after_g80 and getattr(st.dialect, "g80_unrecognised", False):
         st.mode = st.before_g80  # the only reading that runs: RS274NGC controllers refuse the line
         st.g80_line = st.g80_line or idx + 1
@@ -397,17 +407,23 @@ def move_points(move: GMove, t) -> np.ndarray:
             return np.repeat(move.end[None, :], t.size, axis=0)
         return move.start[None, :] + t[:, None] * (move.end - move.start)[None, :]
     g = move.arc
+    out = move.start[None, :] + t[:, None] * (move.end - move.start)[None, :]
+    if "ctrl" in g:  # a spline (compensation.gcode_spline): its X Y on the curve, other axes unchanged
+        out[:, [g["ju"], g["jv"]]] = spline_points(g, t)
+        return out
     th = g["theta0"] + t * g["sweep"]
     r = g["r0"] + t * (g["r1"] - g["r0"])
-    out = move.start[None, :] + t[:, None] * (move.end - move.start)[None, :]
     out[:, g["ju"]] = g["uc"] + r * np.cos(th)
     out[:, g["jv"]] = g["vc"] + r * np.sin(th)
     return out
 
 
 def arc_segments(move: GMove, tol_mm: float) -> int:
-    """Chords needed so the chord sagitta of an arc stays within ``tol_mm`` (≥ 1)."""
+    """Chords needed so the chord sagitta of an arc (the chords' deviation from a spline,
+    :func:`compensation.gcode_spline.spline_segments`) stays within ``tol_mm`` (≥ 1)."""
     g = move.arc
+    if "ctrl" in g:
+        return spline_segments(g, tol_mm)
     r = max(g["r0"], g["r1"])
     if tol_mm >= r:
         return max(1, int(math.ceil(abs(g["sweep"]) / math.pi)))

@@ -80,7 +80,7 @@ class MoveTable:
 
 def _piece_from_move(m: GMove, k: int) -> tuple:
     """One table row (the columns of :class:`MoveTable`, ``objects`` aside) for a per-line move."""
-    kind = {"rapid": 0, "linear": 1, "arc": 2}[m.kind]
+    kind = {"rapid": 0, "linear": 1, "arc": 2, "spline": 2}[m.kind]
     return (np.array([m.index]), np.array([kind], np.int8), m.start[None, :].astype(float),
             m.end[None, :].astype(float), np.array([m.units == "inch"]), np.array([m.incremental]),
             np.array([m.compensate]), np.asarray(m.known, bool)[None, :], np.array([k]),

@@ -178,8 +178,8 @@ ALLOWED_G = {
 }
 REFUSED_G = {
     **{g: f"{what}: not interpretable exactly (no option reads it; post the path as G1/G2/G3)" for g, what in (
-        ("G5", "cubic spline"), ("G5.1", "quadratic spline"), ("G5.2", "NURBS block"), ("G5.3", "NURBS block end"),
-        ("G6.2", "NURBS block"))},
+        ("G5.2", "NURBS block"), ("G5.3", "NURBS block end"), ("G6.2", "NURBS block"))},
+    "G5": "dialect-dependent: a spline or a machining mode", "G5.1": "dialect-dependent: a spline or look-ahead",
     "G7": "lathe diameter mode (X would mean a diameter)", "G7.1": "cylindrical interpolation",
     "G107": "cylindrical interpolation",
 "G12": "circular pocket", "G13": "circular pocket",
@@ -243,11 +243,12 @@ class Word:
 class GMove:
     """One moving line. ``start``/``end`` (k,) absolute mm / deg in the reader's axis order
     (:class:`AxisWords`; ``start`` may hold NaN for an axis not yet known); ``arc`` for G2/G3:
-    dict with centre, radii, sweep in the plane's axis columns ``ju``, ``jv``; ``words`` the
-    line's axis and ``I J K R P`` words; ``units`` ``"mm"``/``"inch"``; ``incremental`` G91."""
+    dict with centre, radii, sweep in the plane's axis columns ``ju``, ``jv`` (for a spline, kind
+    ``"spline"``: its control points ``ctrl``, :mod:`compensation.gcode_spline`); ``words`` the
+    line's axis and ``I J K R P`` (a spline's ``P Q``) words; ``units`` ``"mm"``/``"inch"``; ``incremental`` G91."""
 
     index: int
-    kind: str            # "rapid", "linear" or "arc"
+    kind: str            # "rapid", "linear", "arc" or "spline"
     start: np.ndarray
     end: np.ndarray
     units: str

@@ -151,13 +151,14 @@ def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
                           if a not in words and (not kept or _needed(j, vals, ctrl_before, m, ax)))
         if missing:
             edits.append((last_end, last_end, missing))
-    if m.kind == "arc":
+    if m.kind in ("arc", "spline"):  # written as its compensated chords: G1, without the curve's words
         if m.motion_word is not None:
             edits.append((m.motion_word.start, m.motion_word.num_end, "G1"))
         else:
-            first = min(w.start for w in m.words.values())
+            axis = [w.start for a, w in m.words.items() if a in ax.words]  # not a word the edits below remove
+            first = min(axis or [w.start for w in m.words.values()])
             edits.append((first, first, "G1 "))
-        for a in ("I", "J", "K", "R", "P"):
+        for a in ("I", "J", "K", "R", "P") + (("Q",) if m.kind == "spline" else ()):
             if a in m.words:
                 w = m.words[a]
                 s = w.start - 1 if w.start > 0 and body[w.start - 1] in " \t" else w.start

@@ -94,7 +94,8 @@ def test_fanuc_extras_are_reported(tmp_path, mill, truth_file, capsys):
     ("N6 M31\n", None, 4, "'M31': M code not on the rs274 allow-list (may move or call a program); haas: chip auger"),
     ("N6 M31\n", "fanuc", 4, "not on the fanuc allow-list"),
     (":1234\n", None, 1, "unexpected character ':'"),
-    ("N5 G05.1 Q1\n", None, 4, "'G5.1' (quadratic spline: not interpretable exactly"),
+    ("N5 G05.1 Q1\n", None, 4, "'G5.1' (dialect-dependent: a spline or look-ahead) is not supported; on fanuc, haas, "
+                               "siemens-iso it is look-ahead / AI contour control; on linuxcnc it is a quadratic spline"),
     ("N5 G05.1 Q2 X0 Y0 Z0\n", "fanuc", 4, "Q2 smooth interpolation changes the path"),
     ("N5 G80 G0 X1\n", "linuxcnc", 8, "'G0' and 'G80' on one line"),
     ("/N5 M1\n", "grbl", 1, "grbl has no block-delete switch"),
@@ -107,7 +108,9 @@ def test_fanuc_extras_are_reported(tmp_path, mill, truth_file, capsys):
     ("N5 G103 P20\n", "haas", 4, "'G103' needs P0-P15"),
     ("N5 G50.1 X0\n", "linuxcnc", 4, "'G50.1' (mirror off) is not supported; on fanuc, haas, siemens-iso it is mirror"),
     ("N5 G103 P1\n", "fanuc", 4, "unknown G code (not on the allow-list); on haas it is limit look-ahead blocks"),
-    ("N5 G05 P10000\n", "haas", 4, "'G5' (cubic spline"),
+    ("N5 G05 P10000\n", "haas", 4, "'G5' (dialect-dependent: a spline or a machining mode) is not supported; on fanuc "
+                                   "it is high-precision contour control; on linuxcnc it is a cubic spline"),
+    ("N5 G05 P10000\n", "linuxcnc", 8, "'P10000' on a G5 line without X or Y"),  # LinuxCNC: a spline
 ])
 def test_words_of_another_dialect_are_refused(tmp_path, mill, text, dialect, col, what):
     p = tmp_path / "p.nc"
