@@ -176,6 +176,9 @@ ALLOWED_G = {
     "G98": ("return", "canned-cycle return level: the Z before the cycle (cycles: machine-tool chains only)"),
     "G99": ("return", "canned-cycle return level: the R plane (cycles: machine-tool chains only)"),
 }
+UNITS_OR_CYCLE = ("lathe cycle on Fanuc, Haas, LinuxCNC; {what} input in Fanuc lathe G-code system C, Sinumerik "
+                  "native, NX generic posts: no dialect here says which; post units as G20/G21")
+"""``G70``/``G71``: two meanings by controller; neither is read (the message names both and the fix)."""
 REFUSED_G = {
     **{g: f"{what}: not interpretable exactly (no option reads it; post the path as G1/G2/G3)" for g, what in (
         ("G5.2", "NURBS block"), ("G5.3", "NURBS block end"), ("G6.2", "NURBS block"))},
@@ -193,7 +196,7 @@ REFUSED_G = {
     "G51": "scaling", "G51.1": "mirror", "G52": "local coordinate shift",
     "G60": "unidirectional approach", "G65": "macro call (its letters are arguments, not axes)",
     "G66": "modal macro call", "G66.1": "modal macro call", "G68": "coordinate rotation",
-    "G68.2": "tilted work plane", "G70": "lathe cycle", "G71": "lathe cycle", "G72": "lathe cycle",
+    "G68.2": "tilted work plane", "G70": UNITS_OR_CYCLE.format(what="inch"), "G71": UNITS_OR_CYCLE.format(what="mm"), "G72": "lathe cycle",
     "G73": "canned cycle (drilling cycles are read by compensate on chains with X Y Z: --machine mill-xyz)",
     "G74": "canned cycle (as G73)",
     "G75": "canned cycle", "G76": "lathe threading (spindle-synchronised passes: not interpretable exactly) or mill "

@@ -110,6 +110,8 @@ def test_fanuc_extras_are_reported(tmp_path, mill, truth_file, capsys):
     ("N5 G103 P1\n", "fanuc", 4, "unknown G code (not on the allow-list); on haas it is limit look-ahead blocks"),
     ("N5 G05 P10000\n", "haas", 4, "'G5' (dialect-dependent: a spline or a machining mode) is not supported; on fanuc "
                                    "it is high-precision contour control; on linuxcnc it is a cubic spline"),
+    ("N5 G71\n", None, 4, "'G71' (lathe cycle on Fanuc, Haas, LinuxCNC; mm input in Fanuc lathe G-code system C, "
+                          "Sinumerik native, NX generic posts: no dialect here says which; post units as G20/G21)"),
     ("N5 G05 P10000\n", "linuxcnc", 8, "'P10000' on a G5 line without X or Y"),  # LinuxCNC: a spline
 ])
 def test_words_of_another_dialect_are_refused(tmp_path, mill, text, dialect, col, what):
