@@ -18,6 +18,9 @@ is not the one counted). ``--root`` counts another checkout (main, for the befor
 seeded simulated truth (element set of the machine, ±10 μm / μrad 1 σ, seed 101) used as the model and as
 ``--truth``: the TRUE residual at its points before and after (the product's own frames: this shows the
 accepted programs run end to end, not that their frames are right — the tests check those independently).
+``--check`` (implies ``--compensate``): every compensated ``mill-xyz`` program is then checked independently of
+the reader's frames (:func:`independent_check`, tests/program_checks.py): a program off by more than 1 um at a
+programmed point, or with a non-motion line changed, is counted silently wrong.
 """
 from __future__ import annotations
 
@@ -30,6 +33,8 @@ import sys
 import tempfile
 from collections import Counter, defaultdict
 from pathlib import Path
+
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 MANIFEST = HERE / "program_corpus" / "MANIFEST.csv"
@@ -73,7 +78,7 @@ def reason_of(message: str, name: str) -> str:
     return msg[:110]
 
 
-def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path) -> None:
+def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: bool = False) -> None:
     """``--compensate``: TRUE max before/after of each accepted program (module docstring)."""
     from compensation.app.cli import main
     from errormap.machine import load_machine
@@ -97,9 +102,84 @@ def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path) -> None:
         r["compensated"] = {"exit": rc, "true_max_um": e.get("true", {}).get("max_um"),
                             "uncompensated_max_um": e.get("true_uncompensated", {}).get("max_um"),
                             "points": e.get("points")}
+        if check and rc == 0 and m["machine"] == "mill-xyz":
+            r["check"] = independent_check(corpus / r["file"], dest / r["file"], m["dialect"], truths["mill-xyz"])
 
 
-def count(root: Path, corpus: Path, compensate: bool = False) -> dict:
+def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str:
+    """``--check``: the written program run as the shop would, judged independently of the reader's frames:
+    frames (work offset, tool length) per line from the program's own G54-G59 / G54.1 P / G154 P / G43 H /
+    G49 words read by patterns (tests/program_checks.py ``_frame``; the controller's power-on G54 before any),
+    the same for the written program. Passes when (1) the lines that are not compensated moves are the
+    source's, byte for byte and in order, and (2) every programmed end point of a compensated move is reached,
+    in order, by the TRUE machine at the end of some written move within 1 um. ``"ok: max E um at N points"``,
+    ``"WRONG: ..."`` (silently wrong) or ``"not checkable: ..."``. A program the reader expanded (subprograms,
+    macros: a flat program is written) is judged against the reader's flat program."""
+    sys.path.insert(0, str(HERE.parent / "tests"))
+    from program_checks import TOL_POINT_UM, _frame
+    from compensation.gcode import AxisWords, parse_program
+    from compensation.nc_state import machine_with_tool
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    from errormap.machine import load_machine
+    mill = load_machine("mill-xyz")
+    zero = PART_ZERO_MM["mill-xyz"]
+    systems = ["G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3"]
+    systems += [f"G54.1P{n}" for n in range(1, 49)] + [f"G154P{n}" for n in range(1, 100)]
+    systems += [f"G{n}" for n in range(110, 130)]
+    offsets, tools = {s: zero for s in systems}, {n: TOOL_LENGTH_MM for n in range(1, 100)}
+    aw, dia = AxisWords.of(mill), None if dialect == "auto" else dialect
+    try:  # a program with canned cycles is read by compensate's cycle reader, not this plain parse
+        expanded = parse_program(src, axis_words=aw, dialect=dialect).expanded
+    except Exception as exc:  # noqa: BLE001 - reported, not hidden
+        return f"not checkable: {type(exc).__name__}: {exc}"[:110]
+    out = written.read_text(encoding="latin-1").splitlines(keepends=True)
+    while out and out[0].startswith("(volcomp:"):  # the header the writer adds (expansion, G80 reading)
+        out.pop(0)
+    bare = written.with_suffix(written.suffix + ".bare")
+    bare.write_text("".join(out), encoding="latin-1")
+    if expanded is not None:
+        src = written.with_suffix(written.suffix + ".flat")
+        src.write_text(expanded.text, encoding="latin-1")
+    try:
+        p_src, p_out = (parse_program(f, axis_words=aw, fast=False, dialect=dia) for f in (src, bare))
+        f_src, f_out = (_frame(p.lines, offsets, tools, "G54") for p in (p_src, p_out))
+    except Exception as exc:  # noqa: BLE001 - reported, not hidden
+        return f"not checkable: {type(exc).__name__}: {exc}"[:110]
+    m_src = [m for m in p_src.moves if m.compensate]
+    m_out = [m for m in p_out.moves if m.compensate]
+    keep_src = [ln for i, ln in enumerate(p_src.lines) if i not in {m.index for m in m_src}]
+    keep_out = [ln for i, ln in enumerate(p_out.lines) if i not in {m.index for m in m_out}]
+    if keep_src != keep_out:
+        bad = next((s for s, o in zip(keep_src, keep_out) if s != o), "(line count)")
+        return f"WRONG: a line that is not a compensated move changed: {bad.strip()[:50]!r}"
+    truth_els, fields = ChainElementSet.load(truth_file, mill), {}
+
+    def placed(m, frames):
+        off, tool = frames[m.index]
+        q = m.end + off + [0.0, 0.0, tool if tool is not None else 0.0]
+        if tool not in fields:
+            mt = machine_with_tool(mill, tool) if tool is not None else mill
+            fields[tool] = (mt, ChainField(mt, truth_els))
+        return q, fields[tool]
+
+    errs, j = [], 0
+    for m in m_src:
+        q, (mt, _) = placed(m, f_src)
+        target = mt.nominal(q[None])[0]
+        while j < len(m_out):
+            qo, (mto, truth) = placed(m_out[j], f_out)
+            j += 1
+            e_um = np.linalg.norm(mto.nominal(qo[None])[0] + truth.predict(qo[None])[0] * 1e-3 - target) * 1e3
+            if e_um <= TOL_POINT_UM:
+                errs.append(e_um)
+                break
+        else:
+            return f"WRONG: line {m.index + 1} ({p_src.lines[m.index].strip()[:40]!r}) reached by no written move"
+    return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
+
+
+def count(root: Path, corpus: Path, compensate: bool = False, check: bool = False) -> dict:
     sys.path.insert(0, str(root))
     from compensation.app.validate import UsageError
     from compensation.app.workflows.compensate import CompensateSettings
@@ -129,7 +209,7 @@ def count(root: Path, corpus: Path, compensate: bool = False) -> dict:
                 results.append((r, "crashed", f"{type(exc).__name__}: {exc}"[:110]))
         out["results"] = [{"file": r["file"], "kind": r["kind"], "outcome": o, "reason": why} for r, o, why in results]
         if compensate:
-            compensate_accepted(root, corpus, out, Path(tmp))
+            compensate_accepted(root, corpus, out, Path(tmp), check)
     return out
 
 
@@ -151,7 +231,8 @@ def report(out: dict) -> str:
     lines.append("  accepted: " + ", ".join(r["file"] for r in res if r["outcome"] == "accepted"))
     for r in res:
         if "compensated" in r:
-            lines.append(f"  compensated {r['file']}: {r['compensated']}")
+            lines.append(f"  compensated {r['file']}: {r['compensated']}" + (f"; check {r['check']}" if "check" in r
+                                                                              else ""))
     return "\n".join(lines)
 
 
@@ -161,8 +242,10 @@ if __name__ == "__main__":
     ap.add_argument("--root", default=str(HERE.parent), help="the checkout to count (default: this one)")
     ap.add_argument("--json", help="write the per-program outcomes here")
     ap.add_argument("--compensate", action="store_true", help="compensate every accepted program on a simulated truth")
+    ap.add_argument("--check", action="store_true", help="--compensate, then check every compensated mill program "
+                                                         "independently (tests/program_checks.py)")
     a = ap.parse_args()
-    result = count(Path(a.root).resolve(), Path(a.corpus), a.compensate)
+    result = count(Path(a.root).resolve(), Path(a.corpus), a.compensate or a.check, a.check)
     print(report(result))
     if a.json:
         Path(a.json).write_text(json.dumps(result, indent=1))

@@ -11,7 +11,11 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
   (:data:`COMMON_M`), the others only on their controller (Haas ``M31`` chip auger …). Program
   calls (``M98``/``M99``/``M97``), loops (Mach3 ``M47``) and user M codes stay refused;
 * **look-ahead**: Fanuc ``G05.1 Q1`` (AI contour control) / ``Q0`` and Haas ``G187`` set a
-  smoothing mode, not a path: read as state; on LinuxCNC ``G5.1`` is a quadratic spline (refused);
+  smoothing mode, not a path: read as state; on LinuxCNC ``G5.1`` is a quadratic spline and ``G5`` a cubic
+  one (:data:`SPLINES`, read exactly under ``--dialect linuxcnc``, refused without a dialect);
+* **mirror off, look-ahead** ``G50.1`` (its axis words name axes, nothing moves), Fanuc ``G08 P1/P0``, ``G05 P10000/P0``, Haas ``G103 P``: state (:data:`MIRROR_OFF`);
+* **scaling off** ``G50`` alone (Fanuc, Haas, Siemens ISO, Mach3, Tormach PathPilot: :data:`SCALING_OFF`): state, as
+  ``G51`` scaling is refused; ``G50`` with axis words (a lathe's coordinate setting) is refused;
 * **G80 with a motion code on one line** (``G80 G0 X..``): Fanuc, Haas, Siemens ISO and Mach3 cancel
   the cycle and take the motion code; LinuxCNC refuses two group-1 codes on one line (so does the
   reader, without a dialect);
@@ -58,7 +62,8 @@ RS274 = "rs274"
 class Dialect:
     """One controller's rules: ``m_codes`` harmless M codes {code: meaning}; ``program_number``
     letters (``"O"``, ``":"``); ``modes`` G codes that set a controller mode and move nothing
-    (look-ahead / smoothing, the ISO-dialect switch) {code: meaning};
+    (look-ahead / smoothing, the ISO-dialect switch) {code: meaning}; ``splines`` motion codes of the
+    dialect's splines {code: meaning} (:mod:`compensation.gcode_spline`);
     ``g80_with_motion`` G80 and a motion code on one line; ``block_delete`` the ``/`` switch exists."""
 
     name: str
@@ -70,6 +75,7 @@ class Dialect:
     work_systems: dict = field(default_factory=dict)
     """Work-system codes of the dialect beyond ``G54``–``G59.3``/``G54.1``: {code: fixed P or None (P
     on the line)}."""
+    splines: dict = field(default_factory=dict)
     io_codes: dict = field(default_factory=dict)
     """Output / input M codes passed through on a line of their own {code: meaning}."""
     g80_keeps_motion: bool = False
@@ -94,6 +100,18 @@ class Dialect:
 
 
 LOOKAHEAD = "look-ahead / AI contour control (Q1 on, Q0 off; Q2 smooth interpolation refused)"
+SCALING_OFF = ("scaling off (G51 scaling is refused, so nothing is scaled; on a lathe G50 S clamps the spindle speed; "
+               "G50 with axis words, a lathe's coordinate setting, is refused)")
+MIRROR_OFF = "mirror image off (its axis words name the axes, nothing moves; G51.1 mirroring is refused)"
+PREVIEW = "advanced preview control (look-ahead; P1 on, P0 off)"
+HPCC = "high-precision contour control (look-ahead; P10000 on, P0 off; other P, high-speed cycle machining, refused)"
+LOOKAHEAD_BLOCKS = "limit look-ahead blocks (P0-P15)"
+"""Mode codes that move nothing (Fanuc 0i/16i/30i manuals: ``G50.1`` programmable mirror image cancel, ``G08 P1/P0``
+advanced preview control, ``G05 P10000/P0`` high-precision contour control; Haas mill manual: ``G50.1``, ``G103 P``
+block look-ahead limit; Siemens ISO dialect manual: ``G50.1``)."""
+"""``G50`` alone: Fanuc 0i-M, Haas mill, Siemens ISO mode and Mach3 "scaling cancel", Tormach PathPilot (the LinuxCNC
+of Tormach mills; Fusion 360's Tormach post writes ``G50`` in its safe-start line) "cancel scaling"; Fanuc and Haas
+lathes "spindle speed clamp" with ``S`` (moves nothing either way)."""
 _COMMON = {0: "program stop", 1: "optional stop", 2: "program end", 3: "spindle cw", 4: "spindle ccw",
            5: "spindle stop", 6: "tool change", 7: "mist coolant", 8: "flood coolant", 9: "coolant off",
            30: "program end and rewind"}
@@ -112,26 +130,34 @@ LINUXCNC_ARC_TOL = (2 * 0.01 * 2 ** 0.5, 2 * 0.001 * 2 ** 0.5 * 25.4, 0.001)
 ``interp_arc.cc`` arc_data_ijk: an error when the absolute *or* the relative difference is exceeded): end
 points or centre rounded to 0.01 mm / 0.001 inch pass; the arc is then run as a spiral whose radius changes
 linearly with the angle, as the reader reads it."""
+SPLINES = {"G5": "a cubic spline (G5 X Y I J P Q)", "G5.1": "a quadratic spline (G5.1 X Y I J)"}
+"""LinuxCNC G-code reference, "G5 Cubic spline", "G5.1 Quadratic spline": motion codes, read exactly
+(:mod:`compensation.gcode_spline`)."""
 DIALECTS = {
     "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
                                      50: "feed override control", 51: "spindle override control",
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
-                        io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL),
+                        io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF},
+                        splines=SPLINES),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
-                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD}, g80_with_motion=True,
+                     program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
+                                                         "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True,
                      g80_keeps_motion=True, h_offset_alone=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
                              35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
-                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)"}, g80_with_motion=True,
+                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)", "G50": SCALING_OFF,
+                           "G50.1": MIRROR_OFF, "G103": LOOKAHEAD_BLOCKS}, g80_with_motion=True,
                     g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
-                           program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode"},
+                           program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF,
+                                  "G50.1": MIRROR_OFF},
                            g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True),
-    "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True),
+    "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True,
+                     modes={"G50": SCALING_OFF}),
     "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False),
     # Heidenhain TNC DIN/ISO programs: '%NAME G71 *' framing and the '*' block end are read by the
     # tool-centre-point pre-pass (compensation.tcp), as are M128/M129 (TCPM) and the 'T n' tool call
@@ -190,6 +216,17 @@ def detect_dialect(text: str) -> tuple:
                          ", ".join(f"{n}: {w}" for n, w in found.items()) + "): name it with --dialect")
     name, what = next(iter(found.items()))
     return name, what
+
+
+def other_dialects_with_g(code: str, current: str) -> str:
+    """``"; on fanuc, haas it is scaling off: name the controller with --dialect"``: the dialects whose mode codes hold
+    a G code the current one refuses (empty when none)."""
+    known = [n for n, d in DIALECTS.items() if n != current and code in d.modes]
+    what = DIALECTS[known[0]].modes[code].split(" (")[0] if known else ""
+    spl = [n for n, d in DIALECTS.items() if n != current and code in d.splines]
+    out = f"; on {', '.join(known)} it is {what}" if known else ""
+    out += f"; on {', '.join(spl)} it is {DIALECTS[spl[0]].splines[code]}" if spl else ""
+    return f"{out}: name the controller with --dialect" if out else ""
 
 
 def other_dialects_with_m(code: float, current: str) -> str:

@@ -97,6 +97,13 @@ def _loaded(st: _State, code, w) -> int:
     return st.loaded
 
 
+MODE_P = {"G8": ((0.0, 1.0), "P1 (look-ahead on) or P0 (off)"),
+          "G5": ((0.0, 10000.0), "P10000 (high-precision contour control on) or P0 (off); another P is "
+                                 "high-speed cycle machining (a stored cycle), not supported"),
+          "G103": (tuple(float(n) for n in range(16)), "P0-P15 (blocks looked ahead)")}
+"""The P a dialect's mode code needs (:mod:`compensation.dialects`): (allowed values, what the refusal says)."""
+
+
 def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
     """A dialect's mode code (Fanuc ``G05.1 Q1``/``Q0`` look-ahead, Haas ``G187``, Siemens ``G291``): state,
     the path is the programmed one. ``G05.1 Q2`` (smooth interpolation: another path) and axis words are
@@ -106,8 +113,13 @@ def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
     if code == "G5.1" and (q is None or q.value not in (0.0, 1.0)):
         raise _Refuse(w.start + 1, f"'{code}' needs Q1 (look-ahead on) or Q0 (off); Q2 smooth interpolation "
                                    "changes the path and is not supported")
-    if axis_words or arc_words or "motion" in groups:
-        first = next(iter({**axis_words, **arc_words}.values()), w)
+    p = by.get("P")
+    if code in MODE_P and (p is None or p.value not in MODE_P[code][0]):
+        raise _Refuse(w.start + 1, f"'{code}' needs {MODE_P[code][1]}")
+    if code == "G50.1":  # its axis words name the axes whose mirroring ends: nothing moves
+        axis_words = {}
+    if axis_words or arc_words or groups.get("motion", ("G80",))[0] != "G80":  # G80 (no cycle) moves nothing
+        first = next(iter({**axis_words, **arc_words}.values()), groups.get("motion", (None, w))[1])
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}' with {code} (a mode, not a move)")
     st.events.append((idx, w.start + 1, "mode", code, code))
     return "state"

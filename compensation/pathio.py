@@ -40,6 +40,7 @@ from errormap.kinematics import forward, inverse
 from errormap.units import UNITS_CHECK, check_units
 
 from .gcode_kernels import linear_path_lengths_mm
+from .gcode_spline import spline_extent_mm
 from .gcode import (AxisWords, GProgram, arc_segments, fmt as _fmt, move_points, parse_program, render_program,
                     render_table)
 
@@ -283,7 +284,7 @@ def plan_gcode(program: GProgram, machine, arc_tolerance_um: float = DEFAULT_ARC
             kept_lines.append(m.index + 1)
             continue
         k = 1
-        if m.kind == "arc":
+        if m.arc is not None:
             k = arc_segments(m, tol_geo_mm)
         if m.index in lengths:
             k = max(k, int(min(np.ceil(lengths[m.index] / max_segment_mm - 1e-9), 2.0 ** 62)))
@@ -310,6 +311,9 @@ def _move_extent_mm(start, end, arcs) -> np.ndarray:
     ext = np.linalg.norm(end - start, axis=1)
     ext[~np.isfinite(ext)] = 0.0
     for k, g in arcs.items():
+        if "ctrl" in g:  # a spline: no chord is longer than its control points' widest distance
+            ext[k] = max(ext[k], spline_extent_mm(g))
+            continue
         r = max(g["r0"], g["r1"])
         ext[k] = max(ext[k], 2.0 * r * np.sin(min(abs(g["sweep"]), np.pi) / 2.0))
     return ext

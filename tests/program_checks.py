@@ -17,13 +17,18 @@ TOL_POINT_UM = 1.0
 as the model the exact solver leaves ≤ 1e-6 μm and the written numbers round to 1 nm."""
 
 
-def _frame(lines, offsets: dict, tools: dict):
+def _frame(lines, offsets: dict, tools: dict, power_on: str | None = None):
     """Per source line, independently of the reader: (offset (3,), tool length or None) from the words the
-    test programs use (G10 L2 / L1, G54.., G43 H, G49), in order."""
+    test programs use (G10 L2 / L1, G54.., G43 H, G49), in order. ``power_on``: the work system in force
+    before the program names one (``"G54"``, every controller's power-on default; None: none, NaN), and the
+    words read in any case (LinuxCNC programs are often written in lower case)."""
     off, tool, out, loaded = np.full(3, np.nan), None, [], None
     table, tooltab = {k: np.asarray(v, float) for k, v in offsets.items()}, dict(tools)
+    if power_on is not None:
+        off = table[power_on]
     for ln in lines:
         ln = re.sub(r"\(.*?\)", "", ln)  # comments name codes too
+        ln = ln.upper() if power_on is not None else ln
         m = re.search(r"G10 L2 P(\d) X([-\d.]+) Y([-\d.]+) Z([-\d.]+)", ln)
         if m:
             table[("G54", "G55", "G56")[int(m.group(1)) - 1]] = np.array([float(m.group(k)) for k in (2, 3, 4)])
@@ -60,17 +65,18 @@ def _groups(src, dst):
     return out
 
 
-def true_point_errors_um(prog, out_file, mill, truth_els, offsets, tools, dialect=None):
+def true_point_errors_um(prog, out_file, mill, truth_els, offsets, tools, dialect=None, power_on=None):
     """|TRUE tool point − programmed point| (μm) at every programmed end point of the program's compensated
     moves, running ``out_file`` as the shop would: machine axes = written + offset (+ tool length on Z), the
-    truth machine with its tool at that length. Also checks every non-motion line byte-identical."""
+    truth machine with its tool at that length. Also checks every non-motion line byte-identical.
+    ``power_on``: :func:`_frame`'s (the corpus count, benchmarks/bench_program_corpus.py ``--check``)."""
     aw = AxisWords.of(mill)
     p_src = parse_program(prog, axis_words=aw, fast=False, dialect=dialect)
     p_out = parse_program(out_file, axis_words=aw, fast=False, dialect=dialect)
     src, dst = p_src.lines, p_out.lines
     moves_src = {m.index: m for m in p_src.moves if m.compensate}
     moves_out = {m.index: m for m in p_out.moves}
-    frame = _frame(src, offsets, tools)
+    frame = _frame(src, offsets, tools, power_on)
     errs = []
     for i, g in enumerate(_groups(src, dst)):
         if i not in moves_src:

@@ -31,6 +31,10 @@ CASES = [  # file, --dialect, dialect in the summary, the offsets / tools the pr
     ("siemens_iso.nc", "auto", "siemens-iso", {"G55": G55}, {1: 150.0}),
     ("mach3.tap", "mach3", "mach3", {"G55": G55}, {1: 150.0}),
     ("grbl.gcode", "grbl", "grbl", {"G55": G55}, {}),
+    ("tormach.ngc", "linuxcnc", "linuxcnc", {"G55": G55}, {1: 150.0}),  # G50 safe start, G28 via a point
+    ("fanuc_home.nc", "fanuc", "fanuc", {"G55": G55}, {1: 150.0}),  # G28 X Y Z through a point, G50
+    ("fanuc_modes.nc", "fanuc", "fanuc", {"G55": G55}, {1: 150.0}),  # G50.1 X Y, G08 P1, G05 P10000
+    ("haas_modes.nc", "auto", "haas", {"G55": G55}, {1: 150.0}),  # G103 P, G50.1
 ]
 
 
@@ -90,11 +94,25 @@ def test_fanuc_extras_are_reported(tmp_path, mill, truth_file, capsys):
     ("N6 M31\n", None, 4, "'M31': M code not on the rs274 allow-list (may move or call a program); haas: chip auger"),
     ("N6 M31\n", "fanuc", 4, "not on the fanuc allow-list"),
     (":1234\n", None, 1, "unexpected character ':'"),
-    ("N5 G05.1 Q1\n", None, 4, "'G5.1' (quadratic spline: not interpretable exactly"),
+    ("N5 G05.1 Q1\n", None, 4, "'G5.1' (dialect-dependent: a spline or look-ahead) is not supported; on fanuc, haas, "
+                               "siemens-iso it is look-ahead / AI contour control; on linuxcnc it is a quadratic spline"),
     ("N5 G05.1 Q2 X0 Y0 Z0\n", "fanuc", 4, "Q2 smooth interpolation changes the path"),
     ("N5 G80 G0 X1\n", "linuxcnc", 8, "'G0' and 'G80' on one line"),
     ("/N5 M1\n", "grbl", 1, "grbl has no block-delete switch"),
     ("M62 P1\n", "fanuc", 1, "'M62': M code not on the fanuc allow-list"),
+    ("N5 G50 X0 Y0\n", "fanuc", 8, "'X0' with G50 (a mode, not a move)"),  # a lathe's coordinate setting
+    ("N5 G50\n", "grbl", 4, "is not supported; on linuxcnc, fanuc, haas, siemens-iso, mach3 it is scaling off: name the "
+                           "controller with --dialect"),
+    ("N5 G05 P1\n", "fanuc", 4, "another P is high-speed cycle machining (a stored cycle), not supported"),
+    ("N5 G08 P2\n", "fanuc", 4, "'G8' needs P1 (look-ahead on) or P0 (off)"),
+    ("N5 G103 P20\n", "haas", 4, "'G103' needs P0-P15"),
+    ("N5 G50.1 X0\n", "linuxcnc", 4, "'G50.1' (mirror off) is not supported; on fanuc, haas, siemens-iso it is mirror"),
+    ("N5 G103 P1\n", "fanuc", 4, "unknown G code (not on the allow-list); on haas it is limit look-ahead blocks"),
+    ("N5 G05 P10000\n", "haas", 4, "'G5' (dialect-dependent: a spline or a machining mode) is not supported; on fanuc "
+                                   "it is high-precision contour control; on linuxcnc it is a cubic spline"),
+    ("N5 G71\n", None, 4, "'G71' (lathe cycle on Fanuc, Haas, LinuxCNC; mm input in Fanuc lathe G-code system C, "
+                          "Sinumerik native, NX generic posts: no dialect here says which; post units as G20/G21)"),
+    ("N5 G05 P10000\n", "linuxcnc", 8, "'P10000' on a G5 line without X or Y"),  # LinuxCNC: a spline
 ])
 def test_words_of_another_dialect_are_refused(tmp_path, mill, text, dialect, col, what):
     p = tmp_path / "p.nc"

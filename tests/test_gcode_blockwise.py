@@ -181,7 +181,7 @@ def test_generated_programs_read_and_write_the_same(tmp_path, grinder, field, se
 
 
 REFUSED_LINES = ["G1 Y1.", "X1e2", "G65 P9000 A1 X2", "G1 U1.", "X#1", "G2 X1 Z1", "G17 G2 X1 Z1 R5",
-                 "/G1 X100.", "G54.1", "G43 Z1", "G1 X100. X101.", "M98 P100", "G4 X1", "G28 X0"]
+                 "/G1 X100.", "G54.1", "G43 Z1", "G1 X100. X101.", "M98 P100", "G4 X1", "G28 G1 X0"]
 
 
 @pytest.mark.parametrize("bad", REFUSED_LINES)

@@ -49,6 +49,7 @@ from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, gather_results, so
 from ...diagnosed_model import ConditionedField, load_path_field, path_conditions, solve_with_conditions
 from ...fields import FAILED_VERDICT, check_verdict, resolve_model, verdict_notes
 from ...gcode import DEFAULT_RAPIDS
+from ...gcode_spline import spline_lines
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM
 from ...solvers import CHAIN_METHODS, solver_spec
@@ -513,6 +514,9 @@ def gcode_entry(entry, tp: ToolPath, res, true_r, true_base, field_, truth, mach
                   "moves_kept": int(len(job.kept_lines)), "rapids": s.rapids, "block_delete": s.block_delete,
                   "arc_tolerance_um": s.arc_tolerance_um, **job.frames.notes,
                   "dialect": job.program.dialect, "dialect_evidence": job.program.dialect_evidence})
+    splines = spline_lines(job.program)
+    if splines:
+        entry["spline_lines"] = splines
     if job.program.tcp is not None or s.orientation or (truth is not None and res.info.get("kept_axes")):
         entry["tcp"] = tcp_entry(tp, res, machine, truth)
     cyc = cycle_report(tp, res, true_r, true_base)
@@ -592,6 +596,10 @@ def print_gcode_notes(entry) -> None:
     if entry["g53_lines"]:
         print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
               "through unchanged, not compensated")
+    if "spline_lines" in entry:
+        print(f"  splines (G5/G5.1) on line(s) {', '.join(map(str, entry['spline_lines'][:10]))}: chords of the "
+              f"exact curve within {entry['arc_tolerance_um'] / 2:g} um of it (half --arc-tolerance-um), written as "
+              "compensated G1 moves")
     if "cycles" in entry:
         c = entry["cycles"]
         print(f"  canned cycles {c['mode']}: {c['holes']} hole(s)" + (

@@ -1,0 +1,434 @@
+"""The per-line classifier of the G-code reader (:mod:`compensation.gcode`): modal state (:class:`_State`),
+modal groups, the words each line may carry, moves and arc geometry (:func:`plane_arc`, :func:`move_points`)."""
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+
+from .gcode_state import (_dialect_mode, _g10, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+                          _tool_change, _work_state)
+from .gcode_spline import spline_move, spline_points, spline_segments
+from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
+                          default_axis_words, DEFAULT_RAPIDS, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
+                          PLANES, REFUSED_G, REFUSED_LETTERS, tokenize, Word)
+
+
+class _State:
+    def __init__(self, k: int = 3):
+        self.mode = None           # "G0".."G3" or None
+        self.incremental = False
+        self.arc_abs = False
+        self.inch = False
+        self.plane = "G17"         # the RS274 power-on default
+        self.pos = np.full(k, np.nan)
+        self.system = None         # the work system selected (None: none yet)
+        self.tool = None           # the tool length offset H number (None: G49 / none / H0)
+        self.g43 = False           # G43 in force (an H word alone changes it on Fanuc-family dialects)
+        self.after_g80 = False     # the motion mode was ended by G80 (the refusal names the dialects that keep it)
+        self.before_g80 = None     # the G0-G3 that G80 ended (read again where no dialect was recognised)
+        self.g80_line = 0          # the first line read so (GProgram.g80_line)
+        self.events = []           # GProgram.events
+        self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
+        self.selected = None       # the last T word (the tool prepared)
+        self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
+        self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
+
+
+def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
+                  axis_words: AxisWords | None = None):
+    """Public form of the per-line classifier: ``(class, GMove or None)``; updates ``state``
+    (``_State(len(axis_words.words))``); ``axis_words`` ``None``: :func:`default_axis_words`."""
+    return _classify(body, -1, state, rapids, block_delete, default_axis_words() if axis_words is None else axis_words)
+
+
+def _checked_words(words, ax: AxisWords, dia=None):
+    """Check every word against the allow-lists (``dia``: the :class:`compensation.dialects.Dialect`'s
+    M codes and mode codes; None: the generic one) and the machine's axis words:
+    ``(by letter, [(G code, word)], [M words])``."""
+    from .dialects import GENERIC, other_dialects_with_g, other_dialects_with_m
+    dia = GENERIC if dia is None else dia
+    by = {}
+    gs, ms = [], []
+    for w in words:
+        if w.letter == "G":
+            code = w.code
+            if round(w.value, 1) != round(w.value, 6):
+                raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
+            if code in dia.modes or code in dia.work_systems or code in dia.splines:
+                gs.append((code, w))
+                continue
+            if code in REFUSED_G:
+                raise _Refuse(w.start + 1, f"'{code}' ({REFUSED_G[code]}) is not supported"
+                                           f"{other_dialects_with_g(code, dia.name)}")
+            if code not in ALLOWED_G:
+                raise _Refuse(w.start + 1, f"'{code}': unknown G code (not on the allow-list)"
+                                           f"{other_dialects_with_g(code, dia.name)}")
+            gs.append((code, w))
+            continue
+        if w.letter == "M":
+            if w.value != int(w.value) or int(w.value) not in dia.m_codes:
+                raise _Refuse(w.start + 1, f"'M{w.text}': M code not on the {dia.name} allow-list (may move or call a "
+                                           f"program){other_dialects_with_m(w.value, dia.name)}")
+            ms.append(w)
+            continue
+        if w.letter in ax.words:
+            pass  # an axis word of the machine
+        elif w.letter in ax.lacking:
+            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {ax.lacking[w.letter]}; not supported")
+        elif w.letter in REFUSED_LETTERS:
+            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
+        elif w.letter not in LETTER_RULES:
+            raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
+        elif w.letter == "T" and not _plain_tool_number(w):
+            raise _Refuse(w.start + 1, f"'T{w.text}': a T word of more than {MAX_TOOL_DIGITS} digits (or not a "
+                                       "whole number) may select a tool offset (lathe 'TttOO': tool tt, offset "
+                                       "OO) that shifts the axes, like G43 H; not supported (write the tool "
+                                       f"number alone, at most {MAX_TOOL_DIGITS} digits)")
+        if w.letter in by:
+            raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
+        by[w.letter] = w
+    return by, gs, ms
+
+
+def _plain_tool_number(w: Word) -> bool:
+    """A ``T`` word that can only be a tool number: a whole number of at most
+    :data:`MAX_TOOL_DIGITS` digits as written (``T1``, ``T01``, ``T12``; not ``T0101``,
+    ``T101``, ``T1.5``, ``T-1``)."""
+    digits = w.text.replace(" ", "").replace("\t", "")
+    return digits.isdigit() and len(digits) <= MAX_TOOL_DIGITS
+
+
+def _modal_groups(gs, dia=None) -> dict:
+    """``{modal group: (G code, word)}``; two codes of one group on a line are refused (but ``G80`` with
+    a motion code where the dialect runs them so: the motion code is kept)."""
+    groups = {}
+    for code, w in gs:
+        grp = "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
+            code in dia.splines) else ALLOWED_G[code][0] if code in ALLOWED_G else (
+            "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
+        if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
+                code, groups[grp][0]):
+            if code != "G80":
+                groups[grp] = (code, w)
+            continue
+        if grp in groups:
+            why = ("; Fanuc, Haas, Siemens ISO and Mach3 cancel the cycle and take the motion code: name the controller "
+                   "with --dialect" if grp == "motion" and "G80" in (code, groups[grp][0]) else "")
+            raise _Refuse(w.start + 1, f"'{code}' and '{groups[grp][0]}' on one line (same modal group){why}")
+        groups[grp] = (code, w)
+    return groups
+
+
+def _apply_modal(st: _State, groups: dict):
+    """Modal state first (RS274 order of execution: units, plane, distance before motion); the motion word."""
+    if "units" in groups:
+        st.inch = groups["units"][0] == "G20"
+    if "plane" in groups:
+        st.plane = groups["plane"][0]
+    if "distance" in groups:
+        st.incremental = groups["distance"][0] == "G91"
+    if "arc_distance" in groups:
+        st.arc_abs = groups["arc_distance"][0] == "G90.1"
+    motion_word = None
+    if "motion" in groups:
+        code, motion_word = groups["motion"]
+        st.after_g80 = code == "G80" and (st.mode is not None or st.after_g80)
+        if code == "G80" and st.mode is not None:
+            st.before_g80 = st.mode
+        if code != "G5":
+            st.spline_pq = None
+        if code != "G80":
+            st.mode = code
+        elif not getattr(st.dialect, "g80_keeps_motion", False):
+            st.mode = None  # RS274NGC: G80 ends the motion mode; Fanuc group 09: G0-G3 stays (nc_cycles restores it)
+    return motion_word
+
+
+def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
+    """``P`` only with G4/G64 (or P1 on an arc), ``Q`` only with G64."""
+    for letter, allowed_with in (("P", ("G4", "G64", "G54.1", "G154", "G10", "G187")), ("Q", ("G64", "G5.1")), ("H", ("G43",)),
+                                 ("L", ("G10",))):
+        if letter in by:
+            h_alone = letter == "H" and getattr(st.dialect, "h_offset_alone", False)  # Fanuc: H alone in G43 mode
+            arc_p1 = letter == "P" and st.mode in ("G2", "G3") and bool(axis_words or arc_words) and by["P"].value == 1
+            mode_p = letter == "P" and st.dialect is not None and any(c in st.dialect.modes for c, _ in gs)
+            spline = letter in "PQ" and st.dialect is not None and st.mode in st.dialect.splines  # gcode_spline checks
+            if not (h_alone or arc_p1 or mode_p or spline or any(c in allowed_with for c, _ in gs)):
+                raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
+                              + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
+    for letter, code in (("D", ("G41", "G42")),):
+        if letter in by and not any(c in code for c, _ in gs):
+            raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
+    loaded = st.dialect is not None and st.dialect.name in LOADED_TOOL_DIALECTS  # resolved by _work_state
+    for c, w in gs:
+        if c in ("G41", "G42") and "D" not in by and not loaded:
+            raise _Refuse(w.start + 1, f"'{c}' without D (the current tool's radius): write '{c} Dn' with the tool "
+                                       "table's number n")
+    if "G43" in (c for c, _ in gs) and "H" not in by and not loaded:
+        w = next(w for c, w in gs if c == "G43")
+        raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): write 'G43 Hn' with the tool "
+                                   "table's number n")
+
+
+G80_HINT = " after G80 (Fanuc, Haas, Siemens ISO keep the G0-G3 of before a cycle: name the controller with --dialect)"
+H_HINT = ("; Fanuc, Haas, Siemens ISO: an H alone changes the length offset in G43 mode (H0: zero): name the "
+          "controller with --dialect")
+LOADED_TOOL_DIALECTS = ("linuxcnc",)
+"""Dialects whose ``G43`` without ``H`` and ``G41``/``G42`` without ``D`` use the tool in the spindle (LinuxCNC
+G-code reference: "G43 ... if H is not given, the current tool's"; "G41 ... D omitted: the current tool")."""
+_COLON_NUMBER = re.compile(r"[ \t]*:[ \t]*\d+[ \t]*(?:\([^)]*\)[ \t]*)?")
+
+
+def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
+    dia = st.dialect
+    if dia is not None and ":" in dia.program_number and _COLON_NUMBER.fullmatch(body):
+        return "pass", None  # ':1234' program number (ISO code)
+    native = siemens_native(body, dia is not None and dia.name == "siemens-iso")
+    if native is not None:
+        from .dialects import SIEMENS_NATIVE
+        raise _Refuse(native[0], f"'{native[1]}': {SIEMENS_NATIVE}")
+    bd, words, pct = tokenize(body)
+    if pct:
+        return "pass", None
+    io = io_line(words, dia)
+    if io is not None:
+        return io, None
+    if bd and dia is not None and not dia.block_delete:
+        raise _Refuse(body.index("/") + 1, f"block delete '/': {dia.name} has no block-delete switch")
+    if bd and block_delete == "on":
+        return "skipped", None
+    by, gs, ms = _checked_words(words, ax, dia)
+    _tool_change(st, by, ms)
+    groups = _modal_groups(gs, dia)
+    if "O" in by:
+        if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
+            raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
+        return "pass", None
+    axis_words = {a: by[a] for a in ax.words if a in by}
+    arc_words = {a: by[a] for a in ("I", "J", "K", "R") if a in by}
+    changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal", "coords",
+                                        "length", "cutter", "dialect mode"))
+    if bd and block_delete is None and (axis_words or arc_words or changes):
+        raise _Refuse(body.index("/") + 1, "block delete '/' on a line that moves or changes modal state; "
+                                           "say whether the controller skips it: --block-delete on|off")
+    motion_word = _apply_modal(st, groups)
+    _check_p_q(st, by, gs, axis_words, arc_words)
+    if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
+        return _g10(idx, st, groups, by, axis_words, ax), None
+    _work_state(idx, st, groups, by, ax)
+    if "dialect mode" in groups:
+        return _dialect_mode(idx, st, groups, by, axis_words, arc_words), None
+    if "nonmodal" in groups and groups["nonmodal"][0] == "G53":
+        return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
+    if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
+        return _reference_return(st, groups, axis_words, arc_words, ax, rapids)
+    if "nonmodal" not in groups and dia is not None and st.mode in dia.splines and (
+            axis_words or any(a in by for a in "IJKRPQ")):
+        return "move", spline_move(idx, st, by, axis_words, motion_word, ax)
+    if "nonmodal" in groups and axis_words:
+        w = next(iter(axis_words.values()))
+        raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
+                                   "some controls, not a move)")
+    if not axis_words:
+        if arc_words:
+            w = next(iter(arc_words.values()))
+            if st.mode not in ("G2", "G3") or "R" in arc_words:
+                raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' without axis words (only a centre-format G2/G3 "
+                                           "full circle may omit them)")
+            return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)  # a full circle
+        return ("state" if changes else "pass"), None
+    return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+
+
+def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
+    """The move of a line with axis words in the active motion mode (or a centre-format full circle, whose
+    end is its start: RS274NGC, LinuxCNC and Fanuc); advances ``st.pos``."""
+    first = min((axis_words or arc_words).values(), key=lambda w: w.start)
+    st.spline_pq = None
+    if st.mode is None and st.after_g80 and getattr(st.dialect, "g80_unrecognised", False):
+        st.mode = st.before_g80  # the only reading that runs: RS274NGC controllers refuse the line
+        st.g80_line = st.g80_line or idx + 1
+    if st.mode is None:
+        raise _Refuse(first.start + 1, f"axis word '{first.letter}{first.text}' but no motion mode (G0/G1/G2/G3) is "
+                                       "active" + (G80_HINT if st.after_g80 else ""))
+    if arc_words and st.mode not in ("G2", "G3"):
+        w = next(iter(arc_words.values()))
+        raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' on a {st.mode} line (arc words need G2/G3)")
+    scale = MM_PER_INCH if st.inch else 1.0
+    start = st.pos.copy()
+    end = st.pos.copy()
+    for j, (a, rotary) in enumerate(zip(ax.words, ax.is_rotary)):
+        if a in axis_words:
+            v = axis_words[a].value * (1.0 if rotary else scale)
+            if st.incremental:
+                if not np.isfinite(start[j]):
+                    raise _Refuse(axis_words[a].start + 1, f"incremental '{a}{axis_words[a].text}' before {a} "
+                                                           "is known (no absolute position yet)")
+                end[j] = start[j] + v
+            else:
+                end[j] = v
+    kind = {"G0": "rapid", "G1": "linear"}.get(st.mode, "arc")
+    compensate = not (kind == "rapid" and rapids == "keep")
+    words = dict(axis_words)
+    words.update(arc_words)
+    if "P" in by and kind == "arc":
+        words["P"] = by["P"]
+    known = np.isfinite(end)
+    if compensate and not known.all():
+        missing = ", ".join(a for a, k in zip(ax.words, known) if not k)
+        raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
+                                       f"known (no value yet for {missing})")
+    move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
+                 compensate, known=known)
+    if kind == "arc":
+        try:
+            move.arc = _arc_geometry(st, move, arc_words, scale, ax, first)
+        except _Refuse as r:
+            raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
+    st.pos = end
+    return move
+
+
+def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords, rapids=DEFAULT_RAPIDS):
+    """``G28``/``G30``: the machine goes to a reference position (not a program point, so
+    not compensated; the line is written as it is). Bare: all axes; with axis words: only those axes,
+    first at rapid through the intermediate point they give (RS274NGC, Fanuc, Haas: absolute under
+    ``G90``, incremental under ``G91``; ``G28 G91 Z0`` has none), a rapid like a ``G0`` line and, as
+    ``G0`` lines under ``rapids="keep"``, written unchanged; under ``"compensate"`` an intermediate point
+    (a rapid this line cannot rewrite) is refused naming ``--rapids keep``. The axes it moves are unknown
+    afterwards, so the next compensated move must give them absolutely."""
+    code, w = groups["nonmodal"]
+    if "motion" in groups:
+        raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line")
+    if arc_words:
+        a = next(iter(arc_words.values()))
+        raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}")
+    for a in axis_words.values():
+        if rapids != "keep" and (not st.incremental or a.value != 0.0):
+            raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}: its intermediate point is a rapid this "
+                                       "line cannot carry compensated; --rapids keep writes rapids (and this line) "
+                                       "as programmed")
+    st.pos = st.pos.copy()  # the previous move's end is this array: it must keep its values
+    for j, a in enumerate(ax.words):
+        if not axis_words or a in axis_words:
+            st.pos[j] = np.nan
+    return "state", None
+
+
+def _arc_geometry(st, move, arc_words, scale, ax: AxisWords, first) -> dict:
+    """Centre, radii and sweep of a G2/G3 arc in the active plane's (u, v) axis columns
+    ``ju``, ``jv`` (:func:`plane_arc`)."""
+    u_ax, v_ax, u_c, v_c = PLANES[st.plane]
+    missing = [a for a in (u_ax, v_ax) if a not in ax.words]
+    if missing:
+        where = (f"its arc planes: {', '.join(f'{p} {PLANE_NAMES[p]}' for p in ax.planes)}" if ax.planes
+                 else "it has no arc plane")
+        raise _Refuse(first.start + 1, f"{st.mode} arc in the {st.plane} plane: the machine {ax.machine!r} has no "
+                                       f"{missing[0]} axis ({where})")
+    for w in arc_words:
+        if w in CENTRE_AXIS and w not in (u_c, v_c):
+            raise _Refuse(arc_words[w].start + 1, f"'{w}' on a {st.plane} arc (its centre words are {u_c} {v_c})")
+    if not move.start_known:
+        raise _Refuse(first.start + 1, f"{st.mode} arc before the start position is known")
+    ju, jv = ax.words.index(u_ax), ax.words.index(v_ax)
+    u0, v0, u1, v1 = move.start[ju], move.start[jv], move.end[ju], move.end[jv]
+    tol = getattr(st.dialect, "arc_radius_tol", None)
+    tols = ({"abs_tol_mm": ARC_RADIUS_TOL_INCH_MM} if st.inch else {}) if tol is None else \
+        {"abs_tol_mm": tol[1] if st.inch else tol[0], "rel_tol": tol[2]}
+    return {"ju": ju, "jv": jv, **plane_arc(u0, v0, u1, v1, st.mode, arc_words, (u_c, v_c), st.arc_abs, scale,
+                                             first, pair=f"{u_c}/{v_c}", both=f"{u_c} and {v_c}", **tols)}
+
+
+def plane_arc(u0, v0, u1, v1, mode, arc_words, centre_words, arc_abs, scale, first, pair, both,
+              abs_tol_mm: float = ARC_RADIUS_TOL_MM, rel_tol: float | None = None) -> dict:
+    """Centre, radii and sweep of a G2/G3 (``mode``) arc from (u0, v0) to (u1, v1) mm in its plane's
+    (u, v) coordinates; ``centre_words`` the words giving the centre's u and v offsets (G18: K, I; G17:
+    I, J), or ``R``; ``pair`` / ``both`` how the refusals name them. Returns ``uc vc r0 r1 theta0 sweep``."""
+    u_c, v_c = centre_words
+    ccw = mode == "G3"
+    if "R" in arc_words:
+        if u_c in arc_words or v_c in arc_words:
+            raise _Refuse(arc_words["R"].start + 1, f"both R and {pair} on an arc")
+        r = arc_words["R"].value * scale
+        d = math.hypot(u1 - u0, v1 - v0)
+        if d < 1e-9 or abs(r) < 1e-9:
+            raise _Refuse(arc_words["R"].start + 1, "R-form arc with equal start and end (or zero R): undefined")
+        if d > 2 * abs(r) + ARC_RADIUS_TOL_MM:
+            raise _Refuse(arc_words["R"].start + 1, f"R {abs(r):.6g} mm is smaller than half the chord {d / 2:.6g} mm")
+        h = math.sqrt(max(r * r - d * d / 4, 0.0))
+        sgn = (1.0 if ccw else -1.0) * (1.0 if r > 0 else -1.0)
+        mu, mv = (u0 + u1) / 2, (v0 + v1) / 2
+        uc, vc = mu + sgn * h * (-(v1 - v0) / d), mv + sgn * h * ((u1 - u0) / d)
+    else:
+        if u_c not in arc_words and v_c not in arc_words:
+            raise _Refuse(first.start + 1, f"{mode} without {pair} or R")
+        cu = arc_words[u_c].value * scale if u_c in arc_words else (None if arc_abs else 0.0)
+        cv = arc_words[v_c].value * scale if v_c in arc_words else (None if arc_abs else 0.0)
+        if arc_abs:
+            if cu is None or cv is None:
+                raise _Refuse(first.start + 1, f"absolute arc centre (G90.1) needs both {both}")
+            uc, vc = cu, cv
+        else:
+            uc, vc = u0 + cu, v0 + cv
+    r0 = math.hypot(u0 - uc, v0 - vc)
+    r1 = math.hypot(u1 - uc, v1 - vc)
+    if r0 < 1e-9:
+        raise _Refuse(first.start + 1, "arc of zero radius")
+    if abs(r1 - r0) > abs_tol_mm or (rel_tol is not None and abs(r1 - r0) > rel_tol * max(r0, r1)):
+        limit = f"{abs_tol_mm * 1e3:.4g} μm" + (f" or {rel_tol:.2%} of the radius" if rel_tol is not None else "")
+        raise _Refuse(first.start + 1, f"arc start and end radii differ by {abs(r1 - r0) * 1e3:.3f} μm "
+                                       f"(more than {limit})")
+    t0 = math.atan2(v0 - vc, u0 - uc)
+    t1 = math.atan2(v1 - vc, u1 - uc)
+    full = math.hypot(u1 - u0, v1 - v0) < 1e-9
+    if ccw:
+        sweep = 2 * math.pi if full else (t1 - t0) % (2 * math.pi)
+    else:
+        sweep = -2 * math.pi if full else -((t0 - t1) % (2 * math.pi))
+    return {"uc": uc, "vc": vc, "r0": r0, "r1": r1, "theta0": t0, "sweep": sweep}
+
+
+
+# ---------------------------------------------------------------------------- geometry
+
+def move_points(move: GMove, t) -> np.ndarray:
+    """Nominal axes (mm, deg; the reader's axis order) at parameters ``t`` in [0, 1] along a
+    move, (m,) -> (m, k).
+
+    A linear move is linear in the axes (what the controller interpolates); an arc turns
+    uniformly in angle in its plane's columns with the radius linear in the parameter, the
+    other axes linear (a helix).
+    """
+    t = np.asarray(t, dtype=float)
+    if move.arc is None:
+        if t.size and np.all(t == 1.0):  # the end alone (the start may not be known)
+            return np.repeat(move.end[None, :], t.size, axis=0)
+        return move.start[None, :] + t[:, None] * (move.end - move.start)[None, :]
+    g = move.arc
+    out = move.start[None, :] + t[:, None] * (move.end - move.start)[None, :]
+    if "ctrl" in g:  # a spline (compensation.gcode_spline): its X Y on the curve, other axes unchanged
+        out[:, [g["ju"], g["jv"]]] = spline_points(g, t)
+        return out
+    th = g["theta0"] + t * g["sweep"]
+    r = g["r0"] + t * (g["r1"] - g["r0"])
+    out[:, g["ju"]] = g["uc"] + r * np.cos(th)
+    out[:, g["jv"]] = g["vc"] + r * np.sin(th)
+    return out
+
+
+def arc_segments(move: GMove, tol_mm: float) -> int:
+    """Chords needed so the chord sagitta of an arc (the chords' deviation from a spline,
+    :func:`compensation.gcode_spline.spline_segments`) stays within ``tol_mm`` (≥ 1)."""
+    g = move.arc
+    if "ctrl" in g:
+        return spline_segments(g, tol_mm)
+    r = max(g["r0"], g["r1"])
+    if tol_mm >= r:
+        return max(1, int(math.ceil(abs(g["sweep"]) / math.pi)))
+    step = 2.0 * math.acos(1.0 - tol_mm / r)
+    return max(1, int(math.ceil(abs(g["sweep"]) / step - 1e-12)))
+
+
+# ---------------------------------------------------------------------------- writing
