@@ -78,8 +78,12 @@ def run_chain_diagnosis(args) -> int:
     machine = load_machine(args.machine if args.machine else str(head.get("machine")))
     if not family_of(machine).runs("report run"):
         raise UsageError(f"--machine {machine.name}: the run is a machine-tool chain's; name that chain's file")
-    out = Path(args.out) / "report.html" if args.out else None
-    path = write_chain_diagnosis_page(run_dir, machine, out)
+    if args.out:   # --out DIR: owned by cli.main like every --out
+        path = write_chain_diagnosis_page(run_dir, machine, Path(args.out) / "report.html")
+    else:   # into RUN: under the run folder's lock (refused while a run writes there; Ctrl-C leaves nothing new)
+        from ..outputs import owned_folder
+        with owned_folder(run_dir, "report", flag="RUN"):
+            path = write_chain_diagnosis_page(run_dir, machine, None)
     print(f"wrote html: {path}")
     from ..reports.chain_diagnosis import verdict_failure
     failed = verdict_failure(read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine"))
