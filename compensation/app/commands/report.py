@@ -92,6 +92,19 @@ def run_chain_diagnosis(args) -> int:
     return 0
 
 
+def _refuse_out_of_strokes(path, machine, nominal, what: str) -> None:
+    """As for the flute: a path the machine cannot reach has no method to compare (every solve fails its guards and
+    the page would show residuals of metres): refused, naming the first data row outside an X/Z stroke."""
+    import numpy as np
+    for j, key in ((0, "x_mm"), (1, "z_mm")):
+        lo, hi = machine.strokes[key]
+        out = np.flatnonzero((nominal[:, j] < lo) | (nominal[:, j] > hi))
+        if out.size:
+            raise UsageError(f"{path}: {what} {out[0] + 1} (of {len(nominal)}; {out.size} outside): its nominal "
+                             f"{key} = {nominal[out[0], j]:.4f} is outside the stroke [{lo:g}, {hi:g}]; the methods are "
+                             "compared on points the machine reaches (a targets CSV in another frame or unit?)")
+
+
 def run(args) -> int:
     if args.run is not None:
         return run_chain_diagnosis(args)
@@ -118,6 +131,7 @@ def run(args) -> int:
         offsets = read_work_offsets(MACHINE) if getattr(args, "work_offsets", None) == MACHINE else None
         tp = read_path(args.path, machine, units=args.units, units_option="--units", work_offsets=offsets)
         targets, nominal = tp.targets_mm, tp.axes
+        _refuse_out_of_strokes(args.path, machine, nominal, "data row" if tp.kind.startswith("csv") else "point")
         path_info = {"path": str(args.path), "format": tp.kind, "points": len(tp), "units": args.units}
         if tp.kind == "gcode":
             path_info["work_offsets"] = offsets.source
