@@ -347,17 +347,17 @@ def check_args(command: str, args, parser=None) -> None:
                              "metre of path)")
     for flag, value, rule in outs:
         rule.check(flag, value)
-    _refuse_output_onto_input(args, outs, flags)
+    _refuse_output_onto_input(command, args, outs, flags)
 
 
-def _refuse_output_onto_input(args, outs, flags) -> None:
+def _refuse_output_onto_input(command: str, args, outs, flags) -> None:
     """A file output that IS one of the command's input files (the same file by any path: a link, ``./``) would
     replace that input with the result: refused naming both (``--out p.csv`` beside the input ``p.csv``)."""
     import os
     files = [(flag, v) for flag, v, rule in outs if rule.kind == "file"]
     if not files:
         return
-    out_dests = {dest for dest in vars(args) if isinstance(rule_for(args.command, dest), OutPath)}
+    out_dests = {dest for dest in vars(args) if isinstance(rule_for(command, dest), OutPath)}
     for dest, value in sorted(vars(args).items()):
         if dest in out_dests or dest in ("func", "command"):
             continue
