@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError, decode_text
+from errormap.io import InputError, decode_text, not_a_file
 
 MACHINE = "machine"
 """``--work-offsets machine``: the program is written in machine coordinates (every offset zero)."""
@@ -126,7 +126,7 @@ def _content_lines(path) -> list:
     """``(row, text)`` of the non-blank lines of a text file (1-based rows)."""
     p = Path(path)
     if not p.is_file():
-        raise InputError(f"{p}: no such file")
+        raise InputError(not_a_file(p))
     text = decode_text(p.read_bytes(), p)
     return [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip()]
 

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError, atomic_write, read_table
+from errormap.io import InputError, atomic_write, not_a_file, read_table
 from errormap.kinematics import forward, inverse
 from errormap.units import UNITS_CHECK, check_units
 
@@ -573,7 +573,7 @@ def read_path(path, machine, *, rapids: str = "keep", block_delete=None,
     """
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{path}: no such file")
+        raise InputError(not_a_file(path))
     if is_csv(path):
         return _read_csv(path, machine, units, units_option)
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=AxisWords.of(machine),

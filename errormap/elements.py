@@ -221,6 +221,11 @@ class ElementSet:
         for key in ("stations", "functions", "constants"):
             if not isinstance(d.get(key), dict):
                 raise InputError(f"{path}: missing or malformed key '{key}'")
+        missing = [k for k in ("x_mm", "z_mm", "a_deg") if k not in d["stations"]]
+        if missing:   # a machine-tool chain's element set (its own axes) given for the grinder
+            raise InputError(f"{path}: key 'stations': no {missing[0]!r} (this element set's axes are "
+                             f"{sorted(d['stations'])[:6]}, of machine {str(d.get('machine', '?'))[:60]!r}; the grinder's "
+                             "are x_mm, z_mm, a_deg): give its own --machine")
         try:
             return cls(d["stations"], d["functions"], d["constants"], d.get("machine", ""), d.get("machine_sha256", ""))
         except (ValueError, TypeError, KeyError, OverflowError) as exc:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import errno
 import csv
 import hashlib
 import io
@@ -415,6 +416,22 @@ class Table:
         return out
 
 
+def not_a_file(path) -> str:
+    """Why ``path`` cannot be read as an input file, for a refusal: ``"PATH: no such file"``, or what it is instead
+    (a folder, a device, a FIFO or socket, a symbolic-link loop, a link to nothing)."""
+    p = Path(path)
+    try:
+        mode = os.stat(p).st_mode
+    except OSError as exc:
+        if os.path.islink(p):
+            why = "a symbolic-link loop" if exc.errno == errno.ELOOP else "a symbolic link to nothing"
+            return f"{p}: is {why}; expected a file"
+        return f"{p}: no such file"
+    what = ("a folder" if stat.S_ISDIR(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
+    return f"{p}: is {what}; expected a regular file"
+
+
 def read_table(path, kind: str | None = None) -> Table:
     """Read a CSV with a header row (leading ``#`` comment lines allowed).
 
@@ -425,7 +442,7 @@ def read_table(path, kind: str | None = None) -> Table:
     """
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{path}: no such file")
+        raise InputError(not_a_file(path))
     raw = _read_bounded(path, kind)
     text = decode_text(raw, path)
     del raw

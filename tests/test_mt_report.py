@@ -69,3 +69,31 @@ def test_refusals_are_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and word in err[0], (argv, err)
     assert not (tmp_path / "other" / "report.html").exists()
+
+
+def test_report_into_run_takes_the_run_folders_lock(tmp_path, capsys):
+    """``report RUN`` without --out writes RUN/report.html under RUN's lock: while another run holds it (a diagnose
+    still writing there, this test's own live pid standing in for it) the page is refused in one line naming the
+    holder and RUN, nothing is written and the holder's lock stays."""
+    import os
+    import socket
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "model.json").write_text(json.dumps({"format": "volcomp-chain-model/1", "machine": "mill-xyz"}))
+    lock = run / ".volcomp.lock"
+    lock.write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "command": "diagnose",
+                                "started_utc": "2026-12-02T00:00:00Z"}))
+    assert main(["report", str(run)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"RUN {run}: in use by volcomp diagnose (pid {os.getpid()}" in err[0], err
+    assert sorted(p.name for p in run.iterdir()) == [".volcomp.lock", "model.json"]
+
+
+@pytest.mark.slow
+def test_report_into_run_releases_its_lock(chain_run, capsys):
+    """The page written into RUN leaves no lock behind, and a second report into RUN then runs (replaces it)."""
+    run = chain_run / "diag"
+    for _ in range(2):
+        assert main(["report", str(run)]) == 0
+        assert (run / "report.html").is_file() and not (run / ".volcomp.lock").exists()
+    capsys.readouterr()

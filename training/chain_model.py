@@ -403,8 +403,8 @@ def fit_chain_field(featurepoints, machine, settings=None, *, validation=None, o
         val_source = (f"element set {meta.get('elements_file')} ({s.n_validation} random points, "
                       f"SeedSequence({s.seed}) child {VALIDATION_STREAM})")
     else:
-        raise InputError("no validation data: the feature points name no readable elements_file; pass validation "
-                         f"points (--validation FILE with {', '.join(machine.axis_columns)}, dx_um, dy_um, dz_um)")
+        from .trainers import no_validation_message
+        raise InputError(no_validation_message(getattr(featurepoints, "source", ""), meta, machine.axis_columns))
     t0 = time.process_time()
     model, target = _chain_model_and_target(machine, axes, errors, s)
     selector = None

@@ -45,11 +45,26 @@ def _artifact_root(uri: str) -> str | None:
 
 
 def _client(tracking_uri: str | None):
+    """``(MlflowClient, uri)`` of the store; a store MLflow refuses to open (an unknown scheme, the retired
+    ``file:`` store) is an :class:`InputError` naming ``--tracking-uri`` (or ``MLFLOW_TRACKING_URI``)."""
     from mlflow.tracking import MlflowClient
     uri = tracking_uri or default_tracking_uri()
     if uri.startswith("sqlite:///"):
         Path(uri[len("sqlite:///"):]).parent.mkdir(parents=True, exist_ok=True)
-    return MlflowClient(tracking_uri=uri), uri
+    try:
+        return MlflowClient(tracking_uri=uri), uri
+    except Exception as exc:   # MlflowException, UnsupportedModelRegistryStoreURIException: the store, not a defect
+        where = "--tracking-uri" if tracking_uri else "MLFLOW_TRACKING_URI"
+        why = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:90].rstrip()
+        raise InputError(f"{where} {uri}: MLflow cannot open this store ({why}); use sqlite:///PATH/mlflow.db or a "
+                         "tracking server's http(s):// address") from None
+
+
+def check_tracking_uri(tracking_uri: str | None) -> None:
+    """Open the store named by ``tracking_uri`` before a command's work (its refusal then comes first, not
+    after a training); None: nothing to check (the default store is opened when it is used)."""
+    if tracking_uri:
+        _client(tracking_uri)
 
 
 def _experiment_id(client, uri: str, name: str) -> str:

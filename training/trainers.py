@@ -482,7 +482,8 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, validatio
     ref = reference_from_meta(meta)
     # the initial weights use the seed itself; validation and selection points its children
     streams = spawn_seeds(s.seed, 2)
-    (val_axes, val_errors), val_source = _validation_data(s, validation, ref, meta, streams[VALIDATION_STREAM])
+    (val_axes, val_errors), val_source = _validation_data(s, validation, ref, meta, streams[VALIDATION_STREAM],
+                                                          getattr(featurepoints, "source", ""))
     if s.physics == "none":
         model = MLPField(s.hidden, s.activation, s.a_encoding)
         target = errors
@@ -521,13 +522,20 @@ def fit_field(featurepoints, settings: TrainSettings | None = None, *, validatio
     return FitResult(model, metrics, run_id, hist.seconds, hist, params)
 
 
-def _validation_data(s: TrainSettings, validation, ref, meta: dict, seed):
+def no_validation_message(source, meta: dict, columns) -> str:
+    """The refusal of a fit without validation data: the feature-point file and the element set its header names."""
+    el = meta.get("elements_file")
+    why = f"the elements_file its header names, {Path(el).name}, is not beside it" if el else "its header names no elements_file"
+    return (f"{source or 'feature points'}: no validation data ({why}); pass validation points (--validation FILE "
+            f"with {', '.join(columns)}, dx_um, dy_um, dz_um)")
+
+
+def _validation_data(s: TrainSettings, validation, ref, meta: dict, seed, source=""):
     """``((axes, errors), source)``: the given validation points, or random ones of the reference model."""
     if validation is not None:
         return tuple(np.asarray(v, float) for v in validation), "given"
     if ref is None:
-        raise InputError("no validation data: the feature points name no readable elements_file; "
-                         "pass validation points (--validation FILE with x_mm,z_mm,a_deg,dx_um,dy_um,dz_um)")
+        raise InputError(no_validation_message(source, meta, ("x_mm", "z_mm", "a_deg")))
     source = (f"HTM model {meta.get('elements_file')} ({s.n_validation} random points, "
               f"SeedSequence({s.seed}) child {VALIDATION_STREAM})")
     return validation_points(ref[0], ref[1], n=s.n_validation, seed=seed), source

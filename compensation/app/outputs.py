@@ -192,24 +192,24 @@ def _is_interrupt(exc: BaseException, interrupted) -> bool:
 
 
 @contextlib.contextmanager
-def owned_folder(folder, command: str, interrupted=None):
+def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
     """Own ``folder`` for one run of ``command``: create it if absent, hold its lock, and on
     Ctrl-C remove what the run added (module docstring). ``interrupted``: a callable that says
-    whether a Ctrl-C is pending (an error raised then is its consequence). Yields the folder's
-    :class:`Path`."""
+    whether a Ctrl-C is pending (an error raised then is its consequence); ``flag``: the option or
+    argument that named the folder (in refusals). Yields the folder's :class:`Path`."""
     from errormap.io import InputError, check_output_target
     folder = Path(folder)
     try:
         check_output_target(folder, "dir")
     except InputError as exc:
-        raise UsageError(f"--out {exc}") from None
+        raise UsageError(f"{flag} {exc}") from None
     created = None
     if not folder.exists():
         created = folder
         while not created.parent.exists():
             created = created.parent
         folder.mkdir(parents=True, exist_ok=True)
-    lock = FolderLock(folder, command)
+    lock = FolderLock(folder, command, flag=flag)
     try:
         lock.acquire()
         before = _snapshot(folder) if created is None else None

@@ -334,6 +334,9 @@ def check_args(command: str, args, parser=None) -> None:
             outs.append((flag, value, rule))   # paths after the numbers: cheap checks first
             continue
         rule.check(flag, value)
+    if getattr(args, "tracking_uri", None) and not getattr(args, "no_track", False):
+        from training.tracking import check_tracking_uri   # a store MLflow cannot open: refused before the work
+        check_tracking_uri(args.tracking_uri)
     if command in ("report", "demo"):
         _check_flute(args)
     if command == "interpolate":
@@ -344,6 +347,31 @@ def check_args(command: str, args, parser=None) -> None:
                              "metre of path)")
     for flag, value, rule in outs:
         rule.check(flag, value)
+    _refuse_output_onto_input(command, args, outs, flags)
+
+
+def _refuse_output_onto_input(command: str, args, outs, flags) -> None:
+    """A file output that IS one of the command's input files (the same file by any path: a link, ``./``) would
+    replace that input with the result: refused naming both (``--out p.csv`` beside the input ``p.csv``)."""
+    import os
+    files = [(flag, v) for flag, v, rule in outs if rule.kind == "file"]
+    if not files:
+        return
+    out_dests = {dest for dest in vars(args) if isinstance(rule_for(command, dest), OutPath)}
+    for dest, value in sorted(vars(args).items()):
+        if dest in out_dests or dest in ("func", "command"):
+            continue
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if not isinstance(v, (str, os.PathLike)) or not os.path.isfile(v):
+                continue
+            for flag, out in files:
+                try:
+                    same = os.path.exists(out) and os.path.samefile(v, out)
+                except OSError:
+                    same = False
+                if same:
+                    raise UsageError(f"{flag} {out}: is the input {flags.get(dest, flag_of(dest))} {v}; writing there "
+                                     "would replace the input with the result: choose another output file")
 
 
 def _flags(parser) -> dict:

@@ -207,6 +207,8 @@ def _run_machine_tool(machine, args) -> int:
     names = machine_axes(machine)   # the grinder's x_mm, z_mm, a_deg or the chain's own columns
     t = read_table(args.points, "points")
     t.require(*names)
+    if len(t) == 0:   # a header alone: nothing to predict (an empty output would look like a result)
+        raise InputError(f"{t.path}: no data rows under the header (columns {', '.join(names)})")
     axes = np.stack([t.float(c) for c in names], axis=1)
     check_units(t.path, [t.row_number(k) for k in range(len(t))], machine=machine, axes=axes, axes_columns=names,
                 coverage="path", units=args.units, option="--units")

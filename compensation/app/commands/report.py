@@ -78,14 +78,31 @@ def run_chain_diagnosis(args) -> int:
     machine = load_machine(args.machine if args.machine else str(head.get("machine")))
     if not family_of(machine).runs("report run"):
         raise UsageError(f"--machine {machine.name}: the run is a machine-tool chain's; name that chain's file")
-    out = Path(args.out) / "report.html" if args.out else None
-    path = write_chain_diagnosis_page(run_dir, machine, out)
+    if args.out:   # --out DIR: owned by cli.main like every --out
+        path = write_chain_diagnosis_page(run_dir, machine, Path(args.out) / "report.html")
+    else:   # into RUN: under the run folder's lock (refused while a run writes there; Ctrl-C leaves nothing new)
+        from ..outputs import owned_folder
+        with owned_folder(run_dir, "report", flag="RUN"):
+            path = write_chain_diagnosis_page(run_dir, machine, None)
     print(f"wrote html: {path}")
     from ..reports.chain_diagnosis import verdict_failure
     failed = verdict_failure(read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine"))
     if failed:   # shown, not refused: the page is how the user sees why
         print(f"report: verdict FAILED ({run_dir / 'diagnosis.json'}): {failed}")
     return 0
+
+
+def _refuse_out_of_strokes(path, machine, nominal, what: str) -> None:
+    """As for the flute: a path the machine cannot reach has no method to compare (every solve fails its guards and
+    the page would show residuals of metres): refused, naming the first data row outside an X/Z stroke."""
+    import numpy as np
+    for j, key in ((0, "x_mm"), (1, "z_mm")):
+        lo, hi = machine.strokes[key]
+        out = np.flatnonzero((nominal[:, j] < lo) | (nominal[:, j] > hi))
+        if out.size:
+            raise UsageError(f"{path}: {what} {out[0] + 1} (of {len(nominal)}; {out.size} outside): its nominal "
+                             f"{key} = {nominal[out[0], j]:.4f} is outside the stroke [{lo:g}, {hi:g}]; the methods are "
+                             "compared on points the machine reaches (a targets CSV in another frame or unit?)")
 
 
 def run(args) -> int:
@@ -114,6 +131,7 @@ def run(args) -> int:
         offsets = read_work_offsets(MACHINE) if getattr(args, "work_offsets", None) == MACHINE else None
         tp = read_path(args.path, machine, units=args.units, units_option="--units", work_offsets=offsets)
         targets, nominal = tp.targets_mm, tp.axes
+        _refuse_out_of_strokes(args.path, machine, nominal, "data row" if tp.kind.startswith("csv") else "point")
         path_info = {"path": str(args.path), "format": tp.kind, "points": len(tp), "units": args.units}
         if tp.kind == "gcode":
             path_info["work_offsets"] = offsets.source

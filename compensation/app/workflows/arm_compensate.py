@@ -17,7 +17,7 @@ import numpy as np
 
 from errormap.arm_frames import from_base_frame, to_base_frame
 from errormap.arm_poses import check_joint_values
-from errormap.io import read_table, write_csv
+from errormap.io import InputError, read_table, write_csv
 
 from compensation.app.validate import UsageError
 
@@ -33,6 +33,8 @@ def joint_values(path, t, chain, columns=None) -> np.ndarray:
     from ``path``, refused as radians or outside the joint limits (:func:`check_joint_values`)."""
     columns = list(chain.joint_columns if columns is None else columns)
     t.require(*columns)
+    if len(t) == 0:   # a header alone: no joint values (an empty output would look like a result)
+        raise InputError(f"{path}: no data rows under the header (columns {', '.join(columns)})")
     q = np.stack([t.float(c) for c in columns], 1)
     check_joint_values(path, q, [t.row_number(k) for k in range(len(t))], chain, columns)
     return q

@@ -136,11 +136,11 @@ class CompensateRun:
 
 def plan_outputs(files, out_dir: Path) -> list:
     """Output path per input; refuses duplicates and outputs that would overwrite an input."""
-    from errormap.io import InputError
+    from errormap.io import InputError, not_a_file
     inputs = [Path(f) for f in files]
     for p in inputs:
         if not p.is_file():
-            raise InputError(f"{p}: no such file")
+            raise InputError(not_a_file(p))
     outs = [out_dir / p.name for p in inputs]
     seen = {}
     for p, o in zip(inputs, outs):
