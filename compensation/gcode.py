@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError
+from errormap.io import InputError, not_a_file
 
 from . import gcode_kernels as gscan
 from .gcode_classify import _classify, _State
@@ -114,7 +114,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     if block_delete not in (None,) + BLOCK_DELETE_CHOICES:
         raise ValueError(f"Expected block_delete in {list(BLOCK_DELETE_CHOICES)} or None, got {block_delete!r}")
     if not path.is_file():
-        raise InputError(f"{path}: no such file")
+        raise InputError(not_a_file(path))
     ax = default_axis_words() if axis_words is None else axis_words
     size = path.stat().st_size
     if size > MAX_PROGRAM_BYTES:

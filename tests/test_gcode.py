@@ -265,3 +265,9 @@ def test_linuxcnc_polar_words_are_refused_by_name(tmp_path):
     with pytest.raises(InputError) as e:
         parse_program(p, axis_words=AxisWords.of(load_machine("mill-xyz")), dialect="linuxcnc")
     assert "polar.ngc: line 3, column 18: '^': a LinuxCNC polar coordinate (angle" in str(e.value)
+
+
+def test_a_folder_given_as_the_program_is_named_as_a_folder(tmp_path):
+    """A folder where a program is expected is refused as what it is, not as a missing file."""
+    with pytest.raises(InputError, match="is a folder; expected a regular file"):
+        parse_program(tmp_path)
