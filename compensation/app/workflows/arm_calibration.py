@@ -53,7 +53,10 @@ FRAMES = {"poses, stages": "the measuring instrument's (tracker's) frame of the 
           "plain_geometric": "the plain least-squares calibration (same frames as geometric: base.* instrument → robot "
                              "base, link*.* deviations, tool.* last link's frame); `volcomp register` falls back to it",
           "registration": "written by `volcomp register`: the session's frame, held-out figures in that session's "
-                          "instrument frame"}
+                          "instrument frame",
+          "across_sessions": "poses with a session column: every session moved into the frame of the reference "
+                             "session (the most poses; frames[].base its registered base); held-out figures each in its "
+                             "own session's frame"}
 """Which frame every block of ``calibration.json`` is in (its key ``frames``)."""
 DECIDE_MAX_POSES = 500
 """Every decision of :func:`calibrate_arm` (CVs, learned stages, band) runs on at most this many fit poses (a seeded
@@ -507,13 +510,25 @@ def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict
     """Calibrate ``chain`` from ``s.poses``; write ``out/calibration.json`` and ``out/report.html``."""
     log = sys.stderr if log is None else log
     data = read_arm_poses(s.poses, chain)
+    moves, frames = None, None
+    if data.session is not None and len(set(data.session)) > 1:       # several sessions: one frame, the reference's
+        from errormap.arm_sessions import align_sessions
+        data, moves, frames = align_sessions(chain, data)
     check_pose_set(chain, data)
     fit, check = split(chain, s, data)
+    if moves is not None and s.check:
+        from errormap.arm_sessions import apply_alignment
+        check = apply_alignment(check, moves, "held-out poses")
     check_pose_set(chain, fit)
-    print(f"calibrate: {len(fit)} fit poses, {len(check)} held-out poses, machine {chain.name}", file=log)
+    print(f"calibrate: {len(fit)} fit poses, {len(check)} held-out poses, machine {chain.name}"
+          + (f", {len(moves)} sessions" if moves else ""), file=log)
     core = calibrate_arm(chain, fit, check, learned=s.learned, k_folds=s.k_folds, n_restarts=s.n_restarts,
                          seed=s.seed, log=log)
     doc = model_document(chain, core, s, len(fit), len(check))
+    if moves is not None:
+        from .arm_sessions import session_document
+        doc["across_sessions"] = session_document(
+            chain, fit, core, frames, s, lambda m: print(f"calibrate: {m}", file=log, flush=True))
     doc["verdict"] = held_out_verdict(core, check, stated_sigma_mm(s, check))   # failed: calibrate exits 1
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
