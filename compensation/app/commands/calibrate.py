@@ -138,6 +138,8 @@ def run_serial(chain, args) -> int:
         print(f"calibrate: held-out {r['name']}: mean {r['mean_mm']:.4f} mm, RMS {r['rms_mm']:.4f} mm, "
               f"max {r['max_mm']:.4f} mm")
     print(f"calibrate: kept stage: {doc['kept_stage']} ({doc['kept_why']})")
+    for role, why in ((doc.get("across_sessions") or {}).get("why") or {}).items():
+        print(f"calibrate: across sessions, {role}: {why}")
     v = doc["verdict"]
     print("calibrate: verdict: passed" if v["status"] == "passed" else "calibrate: verdict: FAILED: " + "; ".join(v["reasons"]))
     print(f"calibrate: wrote {out / 'calibration.json'} and {out / 'report.html'}")
