@@ -36,7 +36,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_arm_register_sessions import LO, HI, MOVES, moved, session_effect_mm  # noqa: E402
 from bench_arm_sessions import NOISE_MM, T_CAL_C, thermal_truth  # noqa: E402
 
-from compensation.app.workflows.arm_calibration import ArmCalibrationSettings, load_arm_model, run_arm_calibration
+from compensation.app.workflows.arm_calibration import ArmCalibrationSettings, load_arm_model
+from compensation.app.workflows.arm_run import run_arm_calibration
 from compensation.app.workflows.arm_register import run_arm_register
 from errormap.arm_calibration import GeometricResult
 from errormap.arm_poses import ArmPoses, read_arm_poses, write_arm_poses

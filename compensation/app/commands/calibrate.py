@@ -128,7 +128,8 @@ def run_parallel(machine, args) -> int:
 
 def run_serial(chain, args) -> int:
     """The arm branch: geometric + learned stages, plain baselines beside them (docs/arms.md)."""
-    from ..workflows.arm_calibration import ArmCalibrationSettings, run_arm_calibration
+    from ..workflows.arm_calibration import ArmCalibrationSettings
+    from ..workflows.arm_run import run_arm_calibration
     s = ArmCalibrationSettings(poses=args.poses, check=args.check, holdout=args.holdout, seed=args.seed,
                                learned=not args.no_learned, k_folds=5 if args.folds is None else args.folds,
                                noise_um=args.noise_um)
