@@ -36,10 +36,12 @@ def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict
             check = apply_alignment(check, moves, "held-out poses")
     check_pose_set(chain, fit)
     print(f"calibrate: {len(fit)} fit poses, {len(check)} held-out poses, machine {chain.name}"
-          + (f", {len(moves)} sessions" if moves else ""), file=log)
+          + (f", {len(moves)} sessions" if moves else "")
+          + (", 6-DoF: orientation rows in the fit" if fit.rot is not None else ", position only"), file=log)
     core = calibrate_arm(chain, fit, check, learned=s.learned, k_folds=s.k_folds, n_restarts=s.n_restarts,
                          seed=s.seed, log=log)
     doc = model_document(chain, core, s, len(fit), len(check))
+    doc["measured"] = "position and orientation (6-DoF)" if fit.rot is not None else "position"
     if moves is not None:
         doc["across_sessions"] = session_document(
             chain, fit, core, frames, s, lambda m: print(f"calibrate: {m}", file=log, flush=True))
