@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from compensation.app.workflows.arm_calibration import ArmCalibrationSettings, load_arm_model, run_arm_calibration
+from compensation.app.workflows.arm_calibration import ArmCalibrationSettings, load_arm_model
+from compensation.app.workflows.arm_run import run_arm_calibration
 from compensation.app.workflows.arm_register import run_arm_register
 from errormap.arm_calibration import GeometricResult
 from errormap.arm_frames import rot as _rot

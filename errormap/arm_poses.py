@@ -3,8 +3,9 @@
 Schema (``docs/explanation/serial-arms.md``): one row per pose, the chain's joint columns ``q1_deg … qN_deg`` (``_mm``
 for prismatic joints; names from the machine file) and the measured tool point ``x_mm, y_mm, z_mm``
 in the chain's base frame (or the tracker's: calibration estimates the base frame); optional
-``sigma_mm`` (per-row measurement standard deviation per component), ``temp_c``, ``time_s``.
-A 6-DoF tracker's tool-frame ORIENTATION (the chain's last frame, in the same frame as ``x_mm…``) is
+``sigma_mm`` (per-row measurement standard deviation per component), ``temp_c``, ``time_s``, and ``session``:
+a label (any text without commas) naming the measurement session of the row, where one file holds several (each
+session has its own instrument → base frame). A 6-DoF tracker's tool-frame ORIENTATION (the chain's last frame, in the same frame as ``x_mm…``) is
 optional: a unit quaternion ``qw, qx, qy, qz`` or a rotation vector ``rx_rad, ry_rad, rz_rad`` (not
 both), with an optional ``sigma_rad`` (per-row standard deviation per rotation component).
 
@@ -51,6 +52,8 @@ class ArmPoses:
     layout: str
     rot: np.ndarray | None = None
     sigma_rad: np.ndarray | None = None
+    session: np.ndarray | None = None
+    """(n,) str: the measurement session of each pose (column ``session``), or None for a one-session file."""
 
     def __len__(self) -> int:
         return len(self.q)
@@ -59,7 +62,8 @@ class ArmPoses:
         idx = np.asarray(idx)
         pick = (lambda a: None if a is None else a[idx])
         return ArmPoses(self.q[idx], self.xyz_mm[idx], pick(self.sigma_mm), pick(self.temp_c), pick(self.time_s),
-                        self.rows[idx], self.source, self.layout, pick(self.rot), pick(self.sigma_rad))
+                        self.rows[idx], self.source, self.layout, pick(self.rot), pick(self.sigma_rad),
+                        pick(self.session))
 
 
 def temperature_summary(poses) -> dict | None:
@@ -151,7 +155,21 @@ def read_arm_poses(path, chain) -> ArmPoses:
         raise InputError(f"{path}: row {rows[k]}, column 'sigma_mm': expected a positive standard deviation, "
                          f"got {opt['sigma_mm'][k]:g}")
     rot, sigma_rad = read_orientation(t, path, rows)
-    return ArmPoses(q, xyz, opt["sigma_mm"], opt["temp_c"], opt["time_s"], rows, str(path), layout, rot, sigma_rad)
+    return ArmPoses(q, xyz, opt["sigma_mm"], opt["temp_c"], opt["time_s"], rows, str(path), layout, rot, sigma_rad,
+                    read_sessions(t, path, rows))
+
+
+def read_sessions(t, path, rows) -> np.ndarray | None:
+    """The ``session`` column (n,) str (labels stripped of blanks), or None without it; InputError on an empty label."""
+    if "session" not in t:
+        return None
+    lab = np.array([v.strip() for v in t.raw("session")], dtype=object)
+    empty = lab == ""
+    if empty.any():
+        k = int(np.argmax(empty))
+        raise InputError(f"{path}: row {rows[k]}, column 'session': empty session label (name every row's session, "
+                         "or drop the column for a one-session file)")
+    return lab
 
 
 def read_orientation(t, path, rows):
@@ -205,6 +223,8 @@ def write_arm_poses(path, chain, poses: ArmPoses, comments=()) -> None:
     for c in ("sigma_mm", "temp_c", "time_s"):
         if getattr(poses, c) is not None:
             cols[c] = getattr(poses, c)
+    if poses.session is not None:
+        cols["session"] = np.asarray(poses.session, dtype=object)
     if poses.rot is not None:
         from scipy.spatial.transform import Rotation
         xyzw = Rotation.from_matrix(poses.rot).as_quat()

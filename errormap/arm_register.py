@@ -110,15 +110,28 @@ DECIDE_MIN_POSES = MIN_POSES + 1
 """Fewest registration poses on which the candidates are weighed against each other: each leave-out fold must still
 register on :data:`MIN_POSES`. With fewer, the plainest candidate (the plain calibration) is kept."""
 DECIDE_FOLDS = 10
-"""Folds of the CV inside the registration poses (leave-one-out up to this many poses; interleaved by file order)."""
+"""Folds of the CV inside the registration poses (leave-one-out up to this many poses)."""
+FOLD_KINDS = ("interleaved", "blocked")
+"""How the registration poses are dealt into folds (:func:`decision_folds`)."""
+DECIDE_FOLD_KIND = "interleaved"
+"""The fold kind register uses (BENCHMARKS.md, "Sessions in one calibration file": blocked folds measured beside)."""
 
 
-def choose_candidate(candidates, poses, tool: bool = False) -> dict:
+def decision_folds(n: int, k: int, kind: str = DECIDE_FOLD_KIND) -> np.ndarray:
+    """Fold label (n,) of each of ``n`` registration poses in file order: ``"interleaved"`` pose i in fold i mod k;
+    ``"blocked"`` k contiguous runs of (nearly) equal length."""
+    if kind not in FOLD_KINDS:
+        raise ValueError(f"fold kind must be one of {FOLD_KINDS}, got {kind!r}")
+    return np.arange(n) % k if kind == "interleaved" else np.arange(n) * k // n
+
+
+def choose_candidate(candidates, poses, tool: bool = False, fold_kind: str = DECIDE_FOLD_KIND) -> dict:
     """Which registered model to keep, decided inside the new session's registration ``poses`` alone.
 
     ``candidates``: list of (name, chain, params (n_params,), learner or None), plainest FIRST (the plain calibration
     the product must not lose to). Each is registered on every fold's other poses and judged on the fold's poses
-    (:data:`DECIDE_FOLDS`-fold CV, measured residual, position norm); starting from the plainest, a richer candidate
+    (:data:`DECIDE_FOLDS`-fold CV, folds by ``fold_kind`` (:func:`decision_folds`), measured residual, position
+    norm); starting from the plainest, a richer candidate
     replaces the one kept only if its paired per-pose gain over it exceeds one standard error of that gain (a gain
     inside its own noise is not a gain). With fewer than :data:`DECIDE_MIN_POSES` poses nothing is weighed: the
     plainest is kept. Returns ``{"kept", "why", "n_folds", "cv": [{"name", "cv_mean_mm", "gain_mm", "gain_se_mm"}]}``
@@ -130,7 +143,7 @@ def choose_candidate(candidates, poses, tool: bool = False) -> dict:
                 "why": f"{n} registration poses: too few to weigh the models (a leave-out CV needs at least "
                        f"{DECIDE_MIN_POSES}); the plain calibration is kept as the fallback"}
     k = min(n, DECIDE_FOLDS)
-    fold = np.arange(n) % k
+    fold = decision_folds(n, k, fold_kind)
     err = {}
     for name, chain, params, learner in candidates:
         e = np.empty(n)

@@ -46,7 +46,7 @@ BOUNDS = {
     "points": InputBound("points", "predict", 5_000_000, 10_000_000, 702.0, 5.6e9),
     "featurepoints": InputBound("feature points", "train", 5_000_000, 10_000_000, 702.0, 5.6e9),
     "checks": InputBound("check measurements", "diagnose", 20_000, 20_000, 70.2, 4.31e9, power=2.0),
-    "poses": InputBound("measured poses", "calibrate / register", 20_000, 5_000, 77.6, 0.582e9),
+    "poses": InputBound("measured poses", "calibrate / register", 20_000, 20_000, 123.6, 1.18e9),
     "sweeps": InputBound("sweep rows", "identify", 5_000, 3_609, 47.7, 2.05e9, power=3.0, power_bytes=2.0),
     "thermal log": InputBound("log samples", "diagnose --drift / drift-predict", 300_000, 110_400, 196.4, 0.823e9),
     "waypoints": InputBound("waypoints", "interpolate", 1_000_000, 10_000_000, 702.0, 5.6e9),
@@ -60,7 +60,7 @@ writes (``featurepoints --grid`` at validate.MAX_GRID_POINTS), about 2.8 GB. ``f
 way and bounded by what volcomp writes (the grid limit; one path's points, validate.MAX_PATH_POINTS).
 ``checks``: ``diagnose`` holds dense check x check matrices (its learned residual): 20,000 grinder checks took 70 CPU
 s and 4.3 GB (1,200: 8.3 s, 0.48 GB), growing as n². ``poses``: ``calibrate`` decides on a subset of 500 poses and
-fits the geometric stages on all: 5,000 poses took 78 s and 0.58 GB (1,200: 74 s, 0.39 GB). ``sweeps``: the one
+fits the geometric stages on all: 20,000 UR5 poses took 124 CPU s and 1.18 GB (5,000: 78 s, 0.58 GB). ``sweeps``: the one
 identification of every machine tool (the grinder through its chain): Gauss-Newton through the block normal
 equations (linear in the stations), then the (N, N) covariance (N ≈ 2 × rows, memory as n²) and the smoother's
 per-slot station solves (CPU as n³): the grinder's 3,609 rows (401 stations per axis) took 47.7 CPU s and 2.05 GB

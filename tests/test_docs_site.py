@@ -14,9 +14,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 HISTORY_WORDS = re.compile(
     r"\brounds?[\s-]+\d|\b(?:this|that|next|earlier|previous|table's|the table)\s+rounds?\b"
-    r"|\bissues?[\s-]*#?\d+|\bissue's\b|\bsessions?\b", re.I)
-"""Words of the build history: a numbered round ("round 11", "rounds 4-6", "this round"), an issue number, a
-session. "Round" as a word of the product stays: round-off, a retry round, the ROUND function of a G-code dialect."""
+    r"|\bissues?[\s-]*#?\d+|\bissue's\b|\b(?:this|that|next|earlier|previous|last)\s+sessions?\b", re.I)
+"""Words of the build history: a numbered round ("round 11", "rounds 4-6", "this round"), an issue number, "this
+session" (a working session). A measurement session of an arm (its own tracker set-up: the `session` column of a pose
+file) is a word of the product. "Round" as a word of the product stays: round-off, a retry round, the ROUND function of a G-code dialect."""
 CITED_TITLE = re.compile(r'BENCHMARKS\.md, "[^"]*"')
 """A section of BENCHMARKS.md cited by its title, verbatim (that page is not a product page)."""
 

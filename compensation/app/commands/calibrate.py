@@ -128,7 +128,8 @@ def run_parallel(machine, args) -> int:
 
 def run_serial(chain, args) -> int:
     """The arm branch: geometric + learned stages, plain baselines beside them (docs/explanation/serial-arms.md)."""
-    from ..workflows.arm_calibration import ArmCalibrationSettings, run_arm_calibration
+    from ..workflows.arm_calibration import ArmCalibrationSettings
+    from ..workflows.arm_run import run_arm_calibration
     s = ArmCalibrationSettings(poses=args.poses, check=args.check, holdout=args.holdout, seed=args.seed,
                                learned=not args.no_learned, k_folds=5 if args.folds is None else args.folds,
                                noise_um=args.noise_um)
@@ -138,6 +139,8 @@ def run_serial(chain, args) -> int:
         print(f"calibrate: held-out {r['name']}: mean {r['mean_mm']:.4f} mm, RMS {r['rms_mm']:.4f} mm, "
               f"max {r['max_mm']:.4f} mm")
     print(f"calibrate: kept stage: {doc['kept_stage']} ({doc['kept_why']})")
+    for role, why in ((doc.get("across_sessions") or {}).get("why") or {}).items():
+        print(f"calibrate: across sessions, {role}: {why}")
     v = doc["verdict"]
     print("calibrate: verdict: passed" if v["status"] == "passed" else "calibrate: verdict: FAILED: " + "; ".join(v["reasons"]))
     print(f"calibrate: wrote {out / 'calibration.json'} and {out / 'report.html'}")

@@ -53,10 +53,17 @@ def run(args) -> int:
         print(f"register: held out, as calibrated (not registered): mean {h['mean_mm']:.4f} mm on {h['n']} poses")
     if r.get("learned_carried") is False and r["learned_why"]:
         print(f"register: the learned stage is not carried to this session: {r['learned_why']}")
+    sess = r.get("across_sessions") or {}
+    for role, ok in (sess.get("carried") or {}).items():
+        if ok is False:
+            print(f"register: the {role} stage is not weighed for this session: {sess['why'][role]}")
     if r.get("temperature_change_c") is not None:
+        expanded = r["kept"].endswith(" + temperature")
         print(f"register: logged temperature {r['temperature_c']['mean']:.2f} °C, "
-              f"{r['temperature_change_c']:+.2f} °C from the calibration's (the link lengths are the calibration's: "
-              "a change in temperature shows in the held-out error, not in the frame)")
+              f"{r['temperature_change_c']:+.2f} °C from the calibration's"
+              + (" (kept: the link lengths expanded to it by the calibration's temperature term)" if expanded else
+                 " (the link lengths are the calibration's: a change in temperature shows in the held-out error, "
+                 "not in the frame)"))
     if r.get("allowed"):
         print(f"register: {r['allowed']}")
     print(f"register: wrote {Path(args.out) / 'calibration.json'}")

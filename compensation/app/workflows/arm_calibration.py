@@ -12,23 +12,21 @@ better in that CV (never return a model that loses to the plain baseline), the l
 top only if the ResidualRegressor's CV says it beats the geometric stage, and then among whole pipelines
 (volcomp's choice, the plain LSQ fit, the plain GP on its residual, and ``stacked``: volcomp's choice and
 the plain GP blended with the weight their out-of-fold predictions choose) the lowest CV mean error.
-Writes ``calibration.json`` and ``report.html`` (:mod:`compensation.app.reports.arm_calibration`).
+``calibration.json``'s document (:func:`model_document`); the run end to end, with its report:
+:mod:`compensation.app.workflows.arm_run`.
 """
 from __future__ import annotations
 
 import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from errormap.arm_calibration import (GeometricResult, check_pose_set, fit_base_tool,
-                                      fit_plain_lsq)
+from errormap.arm_calibration import GeometricResult, fit_base_tool, fit_plain_lsq
 from errormap.arm_poses import read_arm_poses, temperature_summary
-from errormap.io import InputError, read_document_text, write_json
+from errormap.io import InputError, read_document_text
 
-from ..reports.arm_calibration import write_report
 from .calibration import holdout_split
 
 MODEL_FORMAT = "volcomp-arm-calibration/4"
@@ -53,7 +51,10 @@ FRAMES = {"poses, stages": "the measuring instrument's (tracker's) frame of the 
           "plain_geometric": "the plain least-squares calibration (same frames as geometric: base.* instrument → robot "
                              "base, link*.* deviations, tool.* last link's frame); `volcomp register` falls back to it",
           "registration": "written by `volcomp register`: the session's frame, held-out figures in that session's "
-                          "instrument frame"}
+                          "instrument frame",
+          "across_sessions": "poses with a session column: every session moved into the frame of the reference "
+                             "session (the most poses; frames[].base its registered base); held-out figures each in its "
+                             "own session's frame"}
 """Which frame every block of ``calibration.json`` is in (its key ``frames``)."""
 DECIDE_MAX_POSES = 500
 """Every decision of :func:`calibrate_arm` (CVs, learned stages, band) runs on at most this many fit poses (a seeded
@@ -501,22 +502,3 @@ def held_out_verdict(core, check, sigma_mm=None) -> dict:
 def stated_sigma_mm(s: ArmCalibrationSettings, check):
     """The stated tracker σ (mm) the verdict uses: ``--noise-um``, else the held-out poses' ``sigma_mm``, else None."""
     return s.noise_um / 1000.0 if s.noise_um is not None else check.sigma_mm
-
-
-def run_arm_calibration(chain, s: ArmCalibrationSettings, out, log=None) -> dict:
-    """Calibrate ``chain`` from ``s.poses``; write ``out/calibration.json`` and ``out/report.html``."""
-    log = sys.stderr if log is None else log
-    data = read_arm_poses(s.poses, chain)
-    check_pose_set(chain, data)
-    fit, check = split(chain, s, data)
-    check_pose_set(chain, fit)
-    print(f"calibrate: {len(fit)} fit poses, {len(check)} held-out poses, machine {chain.name}", file=log)
-    core = calibrate_arm(chain, fit, check, learned=s.learned, k_folds=s.k_folds, n_restarts=s.n_restarts,
-                         seed=s.seed, log=log)
-    doc = model_document(chain, core, s, len(fit), len(check))
-    doc["verdict"] = held_out_verdict(core, check, stated_sigma_mm(s, check))   # failed: calibrate exits 1
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "calibration.json", doc)
-    write_report(doc, chain, core, check, out)
-    return doc

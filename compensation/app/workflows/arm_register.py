@@ -72,6 +72,20 @@ def candidates_of(geo, learner, plain, kept_stage) -> list:
     return list(out.values())
 
 
+def session_candidates(cands, geo, carried: dict, term, data) -> list:
+    """``cands`` (:func:`candidates_of`) as the calibration's blocked CV over sessions left them (``carried``, its
+    ``across_sessions.carried``): the geometric stage alone dropped where it did not carry; where the temperature term
+    carried and the session logs ``temp_c``, the kept geometric stage expanded to the session's mean temperature
+    (``term``: ``alpha_per_k``, ``t_ref_c``) added as the richest candidate."""
+    from errormap.arm_sessions import expanded_params
+    out = [c for c in cands if not (carried.get("geometric") is False and c[0] != PLAIN and c[2] is None)]
+    if carried.get("temperature") and isinstance(term, dict) and data.temp_c is not None:
+        ds = float(term["alpha_per_k"]) * (float(np.mean(data.temp_c)) - float(term["t_ref_c"]))
+        name = (PLAIN if geo.method == "plain least squares" else stage_name(geo.model)) + " + temperature"
+        out.append((name, dataclasses.replace(geo, params=expanded_params(geo.chain, geo.params, ds)), None))
+    return out
+
+
 def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: int | None = None, seed: int = 0,
                      log=None, allow_failed_verdict: bool = False) -> dict:
     """Register the calibration ``model`` on the poses file ``poses``; write ``out/calibration.json``; returns its
@@ -86,8 +100,11 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
     doc = json.loads(read_document_text(model, "an arm calibration"))
     plain = plain_of(chain, doc, model)
     across = doc.get("across_blocks") if isinstance(doc.get("across_blocks"), dict) else {}
+    sessions = doc.get("across_sessions") if isinstance(doc.get("across_sessions"), dict) else None
+    carried = (sessions or {}).get("carried") or {}
     had_learner = learner is not None
-    dropped = had_learner and across.get("learned_carried") is False
+    dropped = had_learner and (carried["learned"] is False if "learned" in carried else
+                               across.get("learned_carried") is False)
     if dropped:                          # helps inside the calibration's session only: not carried to this one
         learner = None
     data = read_arm_poses(poses, chain)
@@ -96,7 +113,8 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
         raise UsageError(f"--fit-poses: {n_fit} of {len(data)} poses in {poses}; a registration takes "
                          f"{MIN_POSES} to all of them")
     fit, rest = data.subset(np.arange(n_fit)), data.subset(np.arange(n_fit, len(data)))
-    cands = candidates_of(geo, learner, plain, doc["kept_stage"])
+    cands = session_candidates(candidates_of(geo, learner, plain, doc["kept_stage"]), geo, carried,
+                               (sessions or {}).get("temperature_term"), data)
     choice = choose_candidate([(n, g.chain, g.params, l) for n, g, l in cands], fit, tool=tool)
     regs = {n: fit_frame(g.chain, g.params, fit, l, tool=tool) for n, g, l in cands}     # (slots, …, rotation, …)
     kept = choice["kept"]
@@ -127,7 +145,9 @@ def run_arm_register(chain, poses, model, out, tool: bool = False, fit_poses: in
         "heldout_registered": heldout.get(kept), "heldout_by_candidate": heldout or None,
         "heldout_as_calibrated": _row(e_before),
         "learned_carried": (not dropped and k_learner is not None) if had_learner else None,
-        "learned_why": across.get("why") if dropped else (choice["why"] if had_learner else None),
+        "learned_why": ((sessions or {}).get("why", {}).get("learned") or across.get("why")) if dropped else
+                       (choice["why"] if had_learner else None),
+        "across_sessions": None if sessions is None else {"carried": carried, "why": sessions.get("why")},
         "allowed": (f"{FAILED_VERDICT} ({verdict['file']}: verdict failed: "
                     f"{'; '.join(verdict['reasons']) or 'no reasons recorded'})"
                     if verdict and verdict.get("overridden_by") else None),
