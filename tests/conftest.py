@@ -54,7 +54,7 @@ SAME_WORKER = {
     "tests/test_report_pages.py": "tiny demo, mill-xyz reversal:Z diagnosis",
     "tests/test_mt_report.py": "tiny demo, mill-xyz reversal:Z diagnosis",
     "tests/test_diagnose_chain_output.py": "tiny demo, mill-xyz reversal:Z diagnosis",
-    "tests/test_hybrid.py": "bump user path",
+    "tests/test_hybrid_user_path.py": "bump user path",
     "tests/test_tracking_learned_residual.py": "bump user path",
 }
 """Test files whose tests read one session-shared run (tests/shared_runs.py): one unit of work under
