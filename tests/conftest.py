@@ -33,8 +33,9 @@ def pytest_runtest_makereport(item, call):
     outcome = yield
     rep = outcome.get_result()
     if call.when == "call" and hasattr(item, "_cpu_start_s"):
-        rep.user_properties.append(("cpu_s", round(_cpu_s() - item._cpu_start_s, 2)))
-        rep.user_properties.append(("slow", item.get_closest_marker("slow") is not None))
+        props = [("cpu_s", round(_cpu_s() - item._cpu_start_s, 2)), ("slow", item.get_closest_marker("slow") is not None)]
+        rep.user_properties.extend(props)
+        item.user_properties.extend(props)   # the teardown report copies them: --junitxml writes them per test case
 
 
 def pytest_terminal_summary(terminalreporter):
