@@ -62,7 +62,7 @@ SAME_WORKER = {
 ``--dist loadscope``, so the run happens once, on one worker."""
 
 EACH_TEST_ITS_OWN_UNIT = {
-    "tests/test_mt_loop_terms.py",        # two independent five-axis user's paths, ~200 CPU s each
+    "tests/test_mt_loop_terms.py",        # two independent five-axis user's paths (one ~200 CPU s)
     "tests/test_hybrid_condition_terms.py",
     "tests/test_hybrid_backfit.py",
 }
@@ -74,7 +74,6 @@ UNIT_CPU_S = {
     "bump user path": 200.0,
     "tests/test_hybrid.py": 300.0,
     "tests/test_mt_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 210.0,
-    "tests/test_mt_loop_terms.py::test_cli_plain_update_beyond_the_linear_range_is_not_kept": 190.0,
     "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 105.0,
     "tests/test_cluster.py": 100.0,
 }
