@@ -58,7 +58,7 @@ coefficient is 0 ± se. Its z is then nearly, not exactly, a standard normal: th
 term's coefficient on these same checks, so the term's sign follows the part of the noise that
 varies with the condition and z is biased upward (theory for the warming checks, where ~37 % of the
 term's norm varies with the temperature beyond its static part: P(z > 1) ≈ 23 %, P(z > 2) ≈ 3.8 %,
-P(z > 3) ≈ 0.24 %; measured on the designed stand-in of tests/test_hybrid.py, development seeds
+P(z > 3) ≈ 0.24 %; measured on the designed stand-in of tests/test_hybrid_condition_terms.py, development seeds
 103–162, family gp: mean z +0.30, P(z > 1) 27 %, P(z > 2) 3.3 %, P(z > 3) 0 of 60; seed 101 gave
 z = 2.3). 3 standard errors keeps that below 1 % while a real thermal growth of the catalogue's size
 shows z ≈ 16–17 (coefficient 1.00 ± 0.06, 0.94 ± 0.06, 1.01 ± 0.06 on the designed thermal case,

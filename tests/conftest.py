@@ -33,8 +33,9 @@ def pytest_runtest_makereport(item, call):
     outcome = yield
     rep = outcome.get_result()
     if call.when == "call" and hasattr(item, "_cpu_start_s"):
-        rep.user_properties.append(("cpu_s", round(_cpu_s() - item._cpu_start_s, 2)))
-        rep.user_properties.append(("slow", item.get_closest_marker("slow") is not None))
+        props = [("cpu_s", round(_cpu_s() - item._cpu_start_s, 2)), ("slow", item.get_closest_marker("slow") is not None)]
+        rep.user_properties.extend(props)
+        item.user_properties.extend(props)   # the teardown report copies them: --junitxml writes them per test case
 
 
 def pytest_terminal_summary(terminalreporter):
@@ -54,26 +55,72 @@ SAME_WORKER = {
     "tests/test_report_pages.py": "tiny demo, mill-xyz reversal:Z diagnosis",
     "tests/test_mt_report.py": "tiny demo, mill-xyz reversal:Z diagnosis",
     "tests/test_diagnose_chain_output.py": "tiny demo, mill-xyz reversal:Z diagnosis",
-    "tests/test_hybrid.py": "bump user path",
+    "tests/test_hybrid_user_path.py": "bump user path",
     "tests/test_tracking_learned_residual.py": "bump user path",
 }
 """Test files whose tests read one session-shared run (tests/shared_runs.py): one unit of work under
 ``--dist loadscope``, so the run happens once, on one worker."""
 
+EACH_TEST_ITS_OWN_UNIT = {
+    "tests/test_mt_loop_terms.py",        # two independent five-axis user's paths (one ~200 CPU s)
+    "tests/test_hybrid_condition_terms.py",
+    "tests/test_hybrid_backfit.py",
+}
+"""Slow-tier files whose slow tests share no module fixture worth keeping on one worker (each builds its own
+data): each test is its own unit of ``--dist loadscope``, so a file of long tests does not keep one worker busy
+while the other idles."""
+
+UNIT_CPU_S = {
+    "bump user path": 200.0,
+    "tests/test_hybrid.py": 220.0,
+    "tests/test_mt_loop_terms.py::test_cli_term_the_joint_fit_does_not_support_is_dropped": 210.0,
+    "tests/test_hybrid_backfit.py::test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt": 105.0,
+    "tests/test_cluster.py": 100.0,
+}
+"""The slow tier's longest units of work (CPU s, about their wall time on a quiet core; the slowest tests
+of the last full slow-tier run plus the fixtures they build; test_hybrid.py's measured alone, one BLAS thread:
+222), handed out first: with the longest units
+last, one worker would run one of them alone at the end. Units not named follow, most tests first."""
+
+
+def _unit(nodeid: str) -> str:
+    """The ``--dist loadscope`` unit of work of a test: its file, the group of ``SAME_WORKER``, or itself
+    (``EACH_TEST_ITS_OWN_UNIT``)."""
+    module = nodeid.split("::", 1)[0]
+    return nodeid if module in EACH_TEST_ITS_OWN_UNIT else SAME_WORKER.get(module, module)
+
+
+def _unit_cpu_s(unit: str) -> float:
+    """``UNIT_CPU_S`` of a unit (a parametrized test's cases: the test's), 0 for one not named."""
+    return UNIT_CPU_S.get(unit, UNIT_CPU_S.get(unit.split("[", 1)[0], 0.0))
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under ``--dist loadscope`` the units are handed out in collection order: the longest ones first
+    (``UNIT_CPU_S``), then the others by their number of tests (xdist's own order), each unit's tests in
+    their order (a stable sort)."""
+    if config.getvalue("dist") == "loadscope":
+        units = [_unit(item.nodeid) for item in items]
+        n_tests = {u: units.count(u) for u in set(units)}
+        key = {id(item): (-_unit_cpu_s(u), -n_tests[u]) for item, u in zip(items, units)}
+        items.sort(key=lambda item: key[id(item)])
+
 
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadscope`` (.ci/run's slow tier): every test file is one unit of work for one worker, so a
     module-scoped fixture (a fitted model, a simulated machine, a Ray instance, a browser) is built once, not
-    once per worker; the files of ``SAME_WORKER`` are one unit together. (xdist's ``loadgroup`` marks do not
-    take with pytest 9: xdist renames ``item._nodeid``, which pytest 9 no longer reads.)"""
+    once per worker; the files of ``SAME_WORKER`` are one unit together, each test of ``EACH_TEST_ITS_OWN_UNIT``
+    one unit alone. The units are handed out in collection order (xdist's reordering by number of tests per
+    unit is switched off: :func:`pytest_collection_modifyitems` puts the longest first). (xdist's ``loadgroup``
+    marks do not take with pytest 9: xdist renames ``item._nodeid``, which pytest 9 no longer reads.)"""
     if config.getvalue("dist") != "loadscope":
         return None
     from xdist.scheduler import LoadScopeScheduling
+    config.option.loadscopereorder = False
 
     class SharedRunScheduling(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            module = nodeid.split("::", 1)[0]
-            return SAME_WORKER.get(module, module)
+            return _unit(nodeid)
     return SharedRunScheduling(config, log)
 
 

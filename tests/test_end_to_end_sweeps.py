@@ -67,14 +67,16 @@ HELD_OUT_TARGET_UM = 2.2  # issue 13: 1.25 × √3 × 1 μm check noise
 @pytest.mark.slow
 @pytest.mark.parametrize("family", ["independent", "default"])
 def test_identify_then_diagnose_closes_the_loop(tmp_path, family):
-    """The user's path: sweeps (2 μm) → identify → diagnose 800 checks (1 μm), no undeclared effect."""
+    """The user's path: sweeps (2 μm) → identify → diagnose 800 checks (1 μm), no undeclared effect. ``diagnose
+    --no-learned``: everything asserted is the loop's stages (the learned stage after them is most of the CPU)."""
     q = ["--family", family, "--seed", "6"]
     sw = tmp_path / "sw.csv"
     assert main(["sweeps", *q, "--noise-um", "2", "--seed-noise", "60", "--out", str(sw)]) == 0
     assert main(["simulate", *q, "--checks", "800", "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
     el = tmp_path / "el.json"
     assert main(["identify", str(sw), "--out", str(el)]) == 0
-    assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--model", str(el), "--out", str(tmp_path / "d")]) == 0
+    assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--model", str(el), "--no-learned",
+                 "--out", str(tmp_path / "d")]) == 0
     s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     st = s["stages"]
     assert st["identified"]["held_out"]["rms_um"] > 2 * HELD_OUT_TARGET_UM  # identification error dominates before

@@ -188,10 +188,11 @@ FLOOR_RATIO = 1.25
 """The loop's goal: held-out MEASURED RMS within 1.25 × the noise floor √3·σ (the issue's figure)."""
 
 
-def _diagnose_five_axis_harmonic_c(tmp_path, seed):
+def _diagnose_five_axis_harmonic_c(tmp_path, seed, learned=True):
     """The user's path through the CLI on the five-axis machine with a worm-gear harmonic on C, development
     seed ``seed``: sweeps (noise 2 μm, noise seed 1000 + seed) → simulate (800 checks, noise 1 μm) → identify →
-    diagnose; returns the diagnosis summary (``diagnosis.json``)."""
+    diagnose (``--no-learned`` unless ``learned``: the learned stage comes after the loop, and its families'
+    cross-validation on 800 checks is ~95 % of the path's CPU); returns the diagnosis summary (``diagnosis.json``)."""
     from compensation.app.cli import main
     base = ["--machine", "five-axis-ac", "--seed", str(seed), "--family", "independent", "--effect", "harmonic:C"]
     assert main(["sweeps", *base, "--noise-um", "2", "--seed-noise", str(1000 + seed),
@@ -199,7 +200,8 @@ def _diagnose_five_axis_harmonic_c(tmp_path, seed):
     assert main(["simulate", *base, "--checks", "800", "--noise-um", "1", "--out", str(tmp_path / "sim")]) == 0
     assert main(["identify", str(tmp_path / "sw.csv"), "--machine", "five-axis-ac", "--out", str(tmp_path / "E.json")]) == 0
     assert main(["diagnose", str(tmp_path / "sim" / "checks.csv"), "--machine", "five-axis-ac", "--model",
-                 str(tmp_path / "E.json"), "--noise-um", "1", "--out", str(tmp_path / "d")]) == 0
+                 str(tmp_path / "E.json"), "--noise-um", "1", *([] if learned else ["--no-learned"]),
+                 "--out", str(tmp_path / "d")]) == 0
     return json.loads((tmp_path / "d" / "diagnosis.json").read_text())
 
 
@@ -249,8 +251,9 @@ def test_cli_plain_update_beyond_the_linear_range_is_not_kept(tmp_path):
     """User's path on the five-axis machine, development seed 112 with a large worm-gear harmonic on C (104 μrad):
     the unregularised update's linearised GCV was below the prior update's, but through the chain its fitting
     residual is hundreds of μm; judged by the chain's own residual the prior update is kept, the harmonic named,
-    held-out within the goal."""
-    s = _diagnose_five_axis_harmonic_c(tmp_path, 112)
+    held-out within the goal. The loop alone (``--no-learned``): everything asserted is the loop's, and it meets
+    FLOOR_RATIO (the loop's goal) without the learned stage (which seed 107 needs: there the loop alone is at 1.38)."""
+    s = _diagnose_five_axis_harmonic_c(tmp_path, 112, learned=False)
     assert s["update_prior"]["kept"] == "update with the smoothness prior"
     assert s["update_prior"]["gcv_ols_update"] > s["update_prior"]["gcv_chain"]
     assert [(e["kind"], e["axis"]) for e in s["effects"]] == [("harmonic", "C")]
