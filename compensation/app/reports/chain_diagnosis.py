@@ -15,7 +15,7 @@ import numpy as np
 
 from errormap.io import InputError, read_document_text
 
-from .diagnosis import _learned
+from .learned import learned_summary
 from .figures import pyplot
 from .toolkit import Figure, Table, figure, kv_table, render_page, write_page
 
@@ -183,7 +183,7 @@ def chain_diagnosis_page(run_dir, machine) -> str:
                        summary=summary, stages=_stage_table(doc), stage_figure=_stage_figure(doc), effects=acc,
                        rejected=rej, element_figures=_element_figures(machine, updated, identified),
                        constants=_constants_table(machine, updated, identified), kept=doc["kept_stage"],
-                       ratio=ratio, floor=floor, learned=_learned(doc), verdict_failed=verdict_failure(doc))
+                       ratio=ratio, floor=floor, learned=learned_summary(doc), verdict_failed=verdict_failure(doc))
 
 
 def verdict_failure(doc) -> str | None:
