@@ -328,11 +328,13 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     :mod:`compensation.chain_hybrid`). ``machine``: a machine-tool chain or a grinder file (its chain).
     ``track``: a kept learned residual is also logged as an MLflow run (``tracking_uri``; its id recorded in
     diagnosis.json and model.json)."""
-    from errormap.diagnosis.chain_loop import closed_loop_chain, load_mt_checks
+    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, load_mt_checks
     from errormap.grinder_file import machine_tool_of
     machine = machine_tool_of(machine)
     el, cov, cov_path = load_chain_model(model, machine, prior=True)
-    checks = load_mt_checks(checks_path, machine, units=units)
+    checks = (checks_path if isinstance(checks_path, MTChecks)   # checks in memory (the benchmark's)
+              else load_mt_checks(checks_path, machine, units=units))
+    checks_path = checks.path if isinstance(checks_path, MTChecks) else checks_path
     try:
         summary = closed_loop_chain(machine, el, checks, cov=cov if update else None, fit_fraction=fit_fraction,
                                     noise_um=noise_um, effects=effects, max_effects=max_effects, units=units)
