@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 from ..batch import CHUNK_POINTS
 from ..gcode import DEFAULT_RAPIDS
 from ..pathio import DEFAULT_ARC_TOLERANCE_UM
-from training import DEFAULT_MAX_ITER
 from .validate import UsageError
 
 YES, PHYSICS, OTHER_PATH, NOT_YET = "yes", "physics", "other path", "not yet"
@@ -167,11 +166,7 @@ _PARALLEL_TRUTH = ("{given}: a parallel machine's truth has one family and no ef
 _DIAGNOSE_CHECK = Gap(OTHER_PATH, "calibrate --check (the loop on the held-out check poses)")
 _DIAGNOSE = (Refusal("diagnose", (Opt("--alpha", NOT_YET, default=0.01, show_value=True),),
                      "{given}: not used on a machine tool: the closed loop gates each effect on its held-out z "
-                     "(errormap/diagnosis/chain_loop.py); leave it out"),
-             Refusal("diagnose", (Opt("--featurepoints", NOT_YET), Opt("--retrain-iter", NOT_YET, default=DEFAULT_MAX_ITER),
-                                  Opt("--retrain-time-s", NOT_YET), Opt("--seed", NOT_YET, default=0)),
-                     "{given}: not yet: the closed loop takes an element set (`volcomp identify`), not a trained "
-                     "network to retrain; leave {it} out"))
+                     "(errormap/diagnosis/chain_loop.py); leave it out"),)
 _CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: the options are grouped by machine "
                     "kind); leave {it} out")
 

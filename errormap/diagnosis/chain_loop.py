@@ -66,13 +66,17 @@ does not take an effect up), then the search goes on ."""
 # -- the loop -----------------------------------------------------------------------------------
 def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: MTChecks, cov=None,
                       fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
-                      max_effects: int = 4, smoothing="gcv", units: str = "check") -> dict:
+                      max_effects: int = 4, smoothing="gcv", units: str = "check", base=None) -> dict:
     """Run the stages (module doc) and return the summary dict (``stages`` with held-out/fitting
     statistics, ``kept_stage``, ``noise_floor_um``, ``effects``) and, under ``"_models"``, the element
     sets of the stages (not JSON). Before any estimate, the deviations are checked against the identified
     model's prediction and the stated noise (``noise_um``, else the file's): another unit or another axis
     order is refused (:func:`errormap.diagnosis.plausibility.check_deviations`; ``units="as-written"`` skips
-    the unit gate)."""
+    the unit gate). ``base``: None, or a field (``predict(axes) -> (n, 3)`` μm: a trained network) that stands for
+    the identified model (``elements`` then only place the element slots' stations, e.g.
+    :meth:`ChainElementSet.zeros`); it has no covariance to update (``cov`` must be None): identified + effects."""
+    if base is not None and cov is not None:
+        raise ValueError("a base field has no element covariance to update: give cov=None with base")
     if not 0 < fit_fraction < 1:
         raise ValueError(f"Expected 0 < fit_fraction < 1, got {fit_fraction}")
     check_smoothing(smoothing)
@@ -91,7 +95,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
 
     from .plausibility import check_deviations, noise_record
     stated = noise_um if noise_um is not None else checks.stated_noise_um
-    pred0 = ChainField(machine, elements).predict(checks.axes)
+    pred0 = np.asarray((base if base is not None else ChainField(machine, elements)).predict(checks.axes), float)
     check_deviations(checks.path, checks.measured_um, pred0, rows=checks.rows, noise_um=stated, units=units)
     r0 = checks.measured_um - pred0
     stages = {"identified": stats(r0)}

@@ -1,6 +1,7 @@
 """``volcomp diagnose``: trace the measured residual to the effects the model lacks, or model a drift log."""
 from __future__ import annotations
 
+import math
 import sys
 
 from errormap.machine import load_machine
@@ -75,6 +76,18 @@ def band_label(c: dict) -> str:
 BAND_CLAIM_COVERAGE = 0.9   # below this held-out coverage the band is flagged as not holding its 95 %
 
 
+NETWORK_KINDS = ("network", "chain-network", "mlflow")
+"""Model kinds (:func:`compensation.fields.resolve_model`) the loop takes as a trained network."""
+
+
+def _retrain_settings(args):
+    """The retrain's :class:`training.TrainSettings` from the options (their ranges are checked before
+    run by compensation/app/validate.py)."""
+    from training import TrainSettings
+    return TrainSettings(max_iter=args.retrain_iter, seed=args.seed,
+                         max_time_s=math.inf if args.retrain_time_s is None else args.retrain_time_s)
+
+
 def _run_checks(args) -> int:
     """CHECKS against an element set on a machine tool (a chain file, or a grinder file through its chain):
     the closed loop (:func:`compensation.app.workflows.measurement.diagnose_chain`) and its page."""
@@ -82,8 +95,9 @@ def _run_checks(args) -> int:
     from compensation.app.families import family_of
     from compensation.app.workflows.measurement import diagnose_chain, diagnosis_lines
     from compensation.app.reports.chain_diagnosis import write_chain_diagnosis_page
+    from compensation.fields import require_kind, resolve_model
     if args.model is None:
-        raise UsageError("CHECKS needs --model (the element set of `volcomp identify`)")
+        raise UsageError("CHECKS needs --model (the element set of `volcomp identify`, or a trained network)")
     machine = load_machine(args.machine)  # None: the built-in default machine
     fam = family_of(machine)
     fam.target("diagnose")   # an arm or a parallel machine: calibrate --check (the registry's gap)
@@ -91,14 +105,39 @@ def _run_checks(args) -> int:
     mt = machine_tool_of(machine)
     if mt is not machine:   # a kind = "grinder" file: read as its chain, said in one line
         print(adapter_line(machine), file=sys.stderr)
-    print(f"diagnosing {args.checks} against {args.model} on {mt.name} ...", file=sys.stderr)
-    summary, paths = diagnose_chain(args.checks, mt, args.model, args.out, fit_fraction=args.fit_fraction,
-                                    noise_um=args.noise_um, max_effects=args.max_effects, update=not args.no_update,
-                                    units=args.units, learn=not args.no_learned, track=args.track,
-                                    tracking_uri=args.tracking_uri)
-    paths.append(write_chain_diagnosis_page(args.out, mt))  # the page of the run
+    src = resolve_model(args.model)
+    if src.kind in NETWORK_KINDS:   # a trained network: identified + effects, the retrain with --featurepoints
+        if args.track:
+            raise UsageError("--track: logs a kept learned residual; the loop on a trained network has no such stage "
+                             "(its retrain is tracked as a child run with --tracking-uri): leave it out")
+        print(f"diagnosing {args.checks} against {args.model} on {mt.name} ...", file=sys.stderr)
+        from errormap.diagnosis.chain_loop import load_mt_checks
+        from compensation.app.workflows.network_diagnosis import diagnose_network
+        summary, paths = diagnose_network(load_mt_checks(args.checks, mt, units=args.units), mt, src, args.out,
+                                          fit_fraction=args.fit_fraction, noise_um=args.noise_um,
+                                          max_effects=args.max_effects, units=args.units,
+                                          tracking_uri=args.tracking_uri, featurepoints=args.featurepoints,
+                                          retrain=_retrain_settings(args))
+    else:
+        require_kind(src, ("elements", *NETWORK_KINDS), "the closed loop takes")
+        retrain = [o for o, v, d in (("--featurepoints", args.featurepoints, None), ("--seed", args.seed, 0),
+                                     ("--retrain-iter", args.retrain_iter, DEFAULT_MAX_ITER),
+                                     ("--retrain-time-s", args.retrain_time_s, None)) if v != d]
+        if retrain:
+            raise UsageError(f"{', '.join(retrain)}: for the retrain of a trained network (--model a folder or run "
+                             f"id); {args.model} is an element set: leave {'it' if len(retrain) == 1 else 'them'} out")
+        print(f"diagnosing {args.checks} against {args.model} on {mt.name} ...", file=sys.stderr)
+        summary, paths = diagnose_chain(args.checks, mt, args.model, args.out, fit_fraction=args.fit_fraction,
+                                        noise_um=args.noise_um, max_effects=args.max_effects,
+                                        update=not args.no_update, units=args.units, learn=not args.no_learned,
+                                        track=args.track, tracking_uri=args.tracking_uri)
+        paths.append(write_chain_diagnosis_page(args.out, mt))  # the page of the run
     for line in diagnosis_lines(summary):
         print(line)
+    rt = summary.get("learned_retrain")
+    if rt:
+        print(f"learned retrain: skipped: {rt['skipped']}" if "skipped" in rt else
+              f"learned retrain: run {rt['run_id']}, held-out RMS {rt['rms_after_um']:.3g} um")
     for p in paths:
         print(f"wrote {p}")
     return EXIT_FAILED_VERDICT if summary["verdict"]["status"] == "failed" else 0
