@@ -134,6 +134,9 @@ def _run_checks(args) -> int:
         paths.append(write_chain_diagnosis_page(args.out, mt))  # the page of the run
     for line in diagnosis_lines(summary):
         print(line)
+    rid = (summary.get("learned_residual") or {}).get("mlflow_run_id")
+    if rid:
+        print(f"learned residual logged as MLflow run {rid}")
     rt = summary.get("learned_retrain")
     if rt:
         print(f"learned retrain: skipped: {rt['skipped']}" if "skipped" in rt else
