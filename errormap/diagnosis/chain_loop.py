@@ -249,6 +249,10 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             return u.elements_, out, resid(u.elements_) - np.einsum("nic,c->ni", E, u.extra_coef)
     kept_name = {"plus_effects": "updated_plus_effects" if last == "updated" else "identified_plus_effects"}.get(kept, kept)
     held = stages[kept_name]["held_out"]["rms_um"]
+    noise = noise_record(noise_um, sigma, held, stated)
+    if noise["noise_sigma_estimated_um"] is None:   # no update estimated σ: the kept model's held-out residual does
+        noise.update(noise_sigma_estimated_um=float(np.sqrt(np.mean(resid_of[kept][hold_idx] ** 2))),
+                     noise_sigma_estimated_how="the kept model's held-out residual per coordinate (no update ran)")
     baselines = {k: {"held_out_rms_um": stages[k]["held_out"]["rms_um"],
                      "paired_z_over_kept": _paired_z(resid_of[kept][hold_idx], r[hold_idx])}
                  for k, r in baseline_resid.items()}
@@ -258,7 +262,7 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             "effects": [t.to_dict() for t in accepted], "effects_rejected": rejected, "effects_absorbed": absorbed,
             "effects_dropped_in_joint_fit": dropped,
             "noise_sigma_um": sig, "baselines_vs_kept": baselines, "held_out_rms_um": held,
-            **noise_record(noise_um, sigma, held, stated),
+            **noise,
             "_models": {"elements": models.get("updated_plus_effects" if kept == "plus_effects" else kept,
                                                models.get("updated", elements)), "terms": accepted,
                         "refit": refit}}

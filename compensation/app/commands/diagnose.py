@@ -103,8 +103,6 @@ def _run_checks(args) -> int:
     fam.target("diagnose")   # an arm or a parallel machine: calibrate --check (the registry's gap)
     fam.refuse_unsupported("diagnose", args)
     mt = machine_tool_of(machine)
-    if mt is not machine:   # a kind = "grinder" file: read as its chain, said in one line
-        print(adapter_line(machine), file=sys.stderr)
     src = resolve_model(args.model)
     if src.kind in NETWORK_KINDS:   # a trained network: identified + effects, the retrain with --featurepoints
         if args.track:
@@ -132,6 +130,8 @@ def _run_checks(args) -> int:
                                         update=not args.no_update, units=args.units, learn=not args.no_learned,
                                         track=args.track, tracking_uri=args.tracking_uri)
         paths.append(write_chain_diagnosis_page(args.out, mt))  # the page of the run
+    if mt is not machine:   # a kind = "grinder" file read as its chain, said once the inputs are read (a refusal
+        print(adapter_line(machine), file=sys.stderr)   # above stays one line)
     for line in diagnosis_lines(summary):
         print(line)
     rid = (summary.get("learned_residual") or {}).get("mlflow_run_id")
