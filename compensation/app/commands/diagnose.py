@@ -132,6 +132,15 @@ def _run_checks(args) -> int:
         paths.append(write_chain_diagnosis_page(args.out, mt))  # the page of the run
     if mt is not machine:   # a kind = "grinder" file read as its chain, said once the inputs are read (a refusal
         print(adapter_line(machine), file=sys.stderr)   # above stays one line)
+    if summary.get("update"):
+        how = f"covariance {summary['covariance']}: closed loop (update, then effects)"
+    else:
+        from errormap.io import companion_path
+        cov = companion_path(args.model, ".cov.npz") if src.path is not None else None
+        why = ("--no-update" if cov is not None and cov.is_file() else
+               f"no covariance {cov} beside it, written by `volcomp identify`" if cov is not None else "a trained network")
+        how = f"no model update ({why}): effects on the model as it is"
+    print(f"diagnose: model {src.description}; {how}", file=sys.stderr)
     for line in diagnosis_lines(summary):
         print(line)
     rid = (summary.get("learned_residual") or {}).get("mlflow_run_id")

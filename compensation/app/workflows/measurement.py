@@ -343,8 +343,9 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     except ValueError as exc:
         raise InputError(f"{checks_path}: {exc}") from None
     models = summary.pop("_models")
-    summary.update({"checks": str(checks_path), "model": str(model), "covariance": str(cov_path) if cov_path else None,
-                    "update": bool(update and cov is not None)})
+    from compensation.fields import resolve_model
+    summary.update({"checks": str(checks_path), "model": str(model), "model_source": resolve_model(model).to_dict(),
+                    "covariance": str(cov_path) if cov_path else None, "update": bool(update and cov is not None)})
     terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
     refit, n = models.get("refit"), len(checks)
     refit_all = bool(refit_all and refit is not None)
