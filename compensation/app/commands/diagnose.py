@@ -136,7 +136,7 @@ def _run_checks(args) -> int:
         how = f"covariance {summary['covariance']}: closed loop (update, then effects)"
     else:
         from errormap.io import companion_path
-        cov = companion_path(args.model, ".cov.npz") if src.path is not None else None
+        cov = companion_path(args.model, ".cov.npz") if src.kind == "elements" else None
         why = ("--no-update" if cov is not None and cov.is_file() else
                f"no covariance {cov} beside it, written by `volcomp identify`" if cov is not None else "a trained network")
         how = f"no model update ({why}): effects on the model as it is"
