@@ -233,3 +233,24 @@ def test_retrain_limits_are_checked_before_any_work(tmp_path, capsys, opt, value
     out = tmp_path / "out"
     assert main(["diagnose", str(tmp_path / "none.csv"), "--model", "x", "--out", str(out), opt, value]) == 2
     assert named in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.slow   # a 20-iteration network is trained first
+def test_cli_diagnoses_a_trained_network_and_refuses_track_with_it(grinder, tmp_path, capsys):
+    """A trained network as the model (the grinder's, a folder): identified + effects on it, diagnosis.json only;
+    --track (a kept learned residual) is refused in one line, nothing written."""
+    truth = random_truth(grinder, 3, effects=["worm"])
+    el = truth.elements.save(tmp_path / "el.json")
+    write_csv(tmp_path / "checks.csv", truth.check_measurements(N_CHECKS, NOISE_UM, 3))
+    assert main(["featurepoints", "--elements", str(el), "--grid", "5", "--out", str(tmp_path / "fp.csv")]) == 0
+    assert main(["train", str(tmp_path / "fp.csv"), "--out", str(tmp_path / "net"), "--max-iter", "20",
+                 "--hidden", "6,6", "--no-select"]) == 0
+    argv = ["diagnose", str(tmp_path / "checks.csv"), "--model", str(tmp_path / "net" / "model")]
+    capsys.readouterr()
+    assert main([*argv, "--out", str(tmp_path / "t"), "--track"]) == 2
+    assert "--track" in capsys.readouterr().err and not (tmp_path / "t").exists()
+    assert main([*argv, "--out", str(tmp_path / "d")]) in (0, 1)   # 1: the verdict judges a poorly trained network
+    s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert s["update"] is False and s["model_source"]["kind"] == "network"
+    assert s["stages"]["identified"]["held_out"]["rms_um"] > 0 and "verdict" in s
+    assert sorted(p.name for p in (tmp_path / "d").iterdir()) == ["diagnosis.json"]
