@@ -66,6 +66,7 @@ from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
 
 from ..families import family_of
+from .benchmark_loop import at_conditions, chain_elements, loop_models
 
 PATH_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0, "dir_a": 1.0}
 """Conditions of the flute test path: a warm machine (24 °C, 2 h after the start of the warm-up
@@ -409,46 +410,6 @@ def uncompensated_true(points: GrinderTestPoints, truth) -> tuple[float, float]:
     return st["rms_um"], st["max_um"]
 
 
-def _chain_elements(elements, mt):
-    """A grinder :class:`~errormap.elements.ElementSet` as the element set of its chain ``mt`` (same names and
-    stations; read back as a chain file would be)."""
-    import tempfile
-    from errormap.chain_elements import ChainElementSet
-    with tempfile.TemporaryDirectory(prefix="volcomp-benchmark-") as td:
-        return ChainElementSet.load(elements.save(Path(td) / "elements.json"), mt)
-
-
-def _at_path_conditions(field_, mt):
-    """``field_`` with :data:`PATH_CONDITIONS` for the conditions its terms need (the flute's)."""
-    from .compensate import field_conditions
-    return field_conditions(field_, {c: PATH_CONDITIONS[c] for c in getattr(field_, "needs", ())}, mt)
-
-
-def loop_models(machine, model_path) -> dict:
-    """``{"parametric": (terms, stage, field), "hybrid": ...}`` of a diagnose run's ``model.json``: the loop alone
-    (without the learned part; its ``loop_alone`` elements and terms when the base was backfitted) and the kept
-    model, each at :data:`PATH_CONDITIONS`."""
-    import json
-    from errormap.chain_elements import ChainElementSet
-    from errormap.diagnosis.loop_model import ChainModelField, load_chain_model_file, read_terms
-    from errormap.grinder_file import machine_tool_of
-    from ...chain_hybrid import load_chain_model
-    mt = machine_tool_of(machine)
-    doc = json.loads(Path(model_path).read_text(encoding="utf-8"))
-    alone = doc.get("loop_alone")
-    if alone is not None:
-        base = ChainModelField(mt, ChainElementSet.load(Path(model_path).parent / alone["elements"], mt),
-                               read_terms(alone["terms"], mt, model_path, "loop_alone"))
-        alone_terms = alone["terms"]
-    else:
-        base = load_chain_model_file(model_path, mt, learned="ignore")
-        alone_terms = doc["terms"] + doc.get("base_terms_replaced", [])
-        if doc.get("base_terms_replaced"):   # the loop alone had the terms the learned part replaced
-            base = ChainModelField(mt, base.elements, read_terms(alone_terms, mt, model_path, "terms"))
-    return {"parametric": (alone_terms, doc.get("base_stage", doc["kept_stage"]), _at_path_conditions(base, mt)),
-            "hybrid": (doc["terms"], doc["kept_stage"], _at_path_conditions(load_chain_model(model_path, mt), mt))}
-
-
 class NetworkTrainer:
     """Trains the learned field on identified elements, once per distinct feature-point set and
     network setting (a condition whose identified elements equal an earlier one's reuses it)."""
@@ -627,7 +588,7 @@ class GrinderBench:
                 t0 = time.perf_counter()
                 summary, _ = diagnose_chain(checks, self.m, el_path, Path(td) / "diagnosis")
                 loop_s = time.perf_counter() - t0
-                models = loop_models(self.m, Path(td) / "diagnosis" / "model.json")
+                models = loop_models(self.m, Path(td) / "diagnosis" / "model.json", PATH_CONDITIONS)
             lr = summary.get("learned_residual") or {}
             kept_learned = summary["kept_stage"] == "learned_residual"
             learned = {"learned_kept": kept_learned, "learned_family": lr.get("family"),
@@ -671,13 +632,13 @@ class GrinderBench:
         if getattr(base, "elements", None) is None:
             raise ValueError("the closed loop searches effects on an element set; a trained network is not one")
         mt = machine_tool_of(self.m)
-        el = base.elements if isinstance(base.elements, ChainElementSet) else _chain_elements(base.elements, mt)
+        el = base.elements if isinstance(base.elements, ChainElementSet) else chain_elements(base.elements, mt)
         t0 = time.perf_counter()
         d = closed_loop_chain(mt, el, checks, cov=None)
         diag_s = time.perf_counter() - t0
         terms = d["_models"]["terms"] if d["kept_stage"].endswith("plus_effects") else []
         found = [f"{t.kind}:{'*'.join(t.axes)}:{t.element}" for t in terms]
-        corrected = _at_path_conditions(ChainModelField(mt, el, terms), mt)
+        corrected = at_conditions(ChainModelField(mt, el, terms), mt, PATH_CONDITIONS)
         sol = {"exact": self._compensate(truth, corrected, "exact")}
         vol = self._volume(truth, corrected)
         extra = {k: base_row.get(k) for k in ("identify_seconds", "train_seconds", "training_run_id",
