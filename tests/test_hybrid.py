@@ -187,9 +187,11 @@ def test_user_path_learns_an_out_of_catalogue_bump_and_compensates_with_it(bump_
     lo, hi = np.array(model["learned_residual"]["box_lo"]), np.array(model["learned_residual"]["box_hi"])
     P[:, :2] = lo + (P[:, :2] - P[:, :2].min(0)) / np.ptp(P[:, :2], axis=0) * (hi - lo) * 0.99 + 0.005 * (hi - lo)
     write_csv(tmp_path / "pts.csv", dict(zip(("x_mm", "z_mm", "a_deg"), P.T)), float_fmt="%.12g")
+    from compensation.chain_hybrid import load_chain_model
+    needs = load_chain_model(d / "model.json", load_machine()).needs   # the reference conditions of what it needs
+    conds = [x for c in needs for x in (f"--{c.replace('_', '-')}", "20" if c == "temp_c" else "1")]
     assert main(["compensate", str(tmp_path / "pts.csv"), "--model", str(d / "model.json"),
-                 "--method", "exact", "--out", str(tmp_path / "c"), "--temp-c", "20", "--time-s", "0",
-                 "--dir-x", "1", "--dir-z", "1", "--dir-a", "1"]) == 0
+                 "--method", "exact", "--out", str(tmp_path / "c"), *conds]) == 0
     summ = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())["files"][0]
     assert summ["model_max_um"] <= EXACT_MODEL_TOL_UM
     assert read_table(tmp_path / "c" / "pts.csv").float("x_mm").shape == (100,)
