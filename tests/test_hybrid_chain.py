@@ -347,7 +347,7 @@ def test_chain_real_thermal_term_stays_beside_a_replaced_stand_in():
 
 
 def test_report_section_states_the_rule_that_replaced_the_condition_terms():
-    """The learned-residual section (one template for the grinder's page and a chain's) names the replaced terms
+    """The learned-residual section (the template of every machine tool's diagnose page) names the replaced terms
     with the rule the run recorded (diagnosis.json ``condition_terms_vs_static.rule``: the γ̂ rule since round 7),
     not the blocked-CV comparison of earlier rounds."""
     from compensation.app.reports.learned import learned_summary as _learned
@@ -359,8 +359,7 @@ def test_report_section_states_the_rule_that_replaced_the_condition_terms():
           "kept": True, "why": "kept: z 5", "inputs": ["x_mm", "y_mm", "z_mm"], "cv": "blocked", "held_out_gain_z": 5.0,
           "held_out_band95_cover": 0.95, "cv_table": {}, "condition_terms_vs_static": {"rule": rule}}
     s = {"learned_residual": lr, "effects_replaced_by_learned": [{"kind": "thermal", "axis": "Y"}]}
-    for page in ("chain_diagnose.html", "diagnose.html"):
-        assert '{% include "_learned.html" %}' in environment().loader.get_source(environment(), page)[0]
+    assert '{% include "_learned.html" %}' in environment().loader.get_source(environment(), "chain_diagnose.html")[0]
     html = environment().get_template("_learned.html").render(learned=_learned(s))
     text = " ".join(html.split())
     assert "replaces the condition terms</b> thermal Y: " + rule in text
