@@ -33,9 +33,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from compensation import export as ex  # noqa: E402
-from errormap.diagnosis.checks import CheckData  # noqa: E402
-from errormap.diagnosis.corrected import CorrectedField  # noqa: E402
-from errormap.diagnosis.pipeline import diagnose  # noqa: E402
 from errormap.htm import HTMField  # noqa: E402
 from errormap.uncertainty import smooth_identify  # noqa: E402
 from errormap.io import atomic_write, write_json  # noqa: E402
@@ -77,10 +74,18 @@ def run_seed(seed: int, tolerances, n_volume: int) -> dict:
     for label, region in (("whole strokes", None), ("flute region", FLUTE_REGION)):
         one("linuxcnc", label, model, cache, region=region, seed=seed)
     # the diagnosed backlash: the user's path (check measurements -> diagnose -> diagnosis effects)
-    checks = CheckData.from_columns(truth.check_measurements(n=400, noise_um=1.0, seed=seed))
-    d = diagnose(m, HTMField(m, el), checks)
+    from errormap.chain_elements import ChainElementSet
+    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
+    from errormap.diagnosis.loop_model import ChainModelField
+    from errormap.grinder_file import machine_tool_of
+    mt = machine_tool_of(m)
+    checks = MTChecks.from_columns(mt, truth.check_measurements(n=400, noise_um=1.0, seed=seed))
     with tempfile.TemporaryDirectory() as tmp:
-        p = write_json(Path(tmp) / "diagnosis.json", {"effects": d.effects})
+        el_chain = ChainElementSet.load(el.save(Path(tmp) / "el.json"), mt)
+    d = closed_loop_chain(mt, el_chain, checks, cov=None)   # the loop on the identified model, no update
+    terms = d["_models"]["terms"] if d["kept_stage"].endswith("plus_effects") else []
+    with tempfile.TemporaryDirectory() as tmp:
+        p = write_json(Path(tmp) / "diagnosis.json", {"effects": [t.to_dict() for t in terms]})
         try:
             back, left = ex.backlash_from_diagnosis(p)
             diag_note = f"diagnosed: {back} (left out: {left})"
@@ -91,12 +96,12 @@ def run_seed(seed: int, tolerances, n_volume: int) -> dict:
             region=FLUTE_REGION, seed=seed)
     # terms the diagnosis found that depend on the axes only (interaction x*z, periodic, harmonic):
     # a grid can hold the corrected model, per-axis ISO component tables cannot
-    axis_only = [t for t in d.selector.terms_ if not t.needs]
+    axis_only = [t for t in terms if t.kind not in ("thermal", "reversal")]
     if axis_only:
-        corrected = ex.ModelError(m, field=CorrectedField(m, HTMField(m, el), axis_only))
+        corrected = ex.ModelError(m, field=ChainModelField(mt, el_chain, axis_only))
         one("grid", f"tol {tolerances[-1]:g}, model + diagnosed axis-only terms", corrected, {}, tolerances[-1])
     return {"seed": seed, "rows": rows, "diagnosis": diag_note,
-            "effects": [f"{e['kind']}({e['axis']}) on {e['element']}" for e in d.effects]}
+            "effects": [f"{t.kind}({'*'.join(t.axes)}) on {t.element}" for t in terms]}
 
 
 def fmt_pair(s):

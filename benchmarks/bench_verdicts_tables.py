@@ -3,8 +3,8 @@
 ``arm``: the arm calibration's verdict on a simulated UR5 (seed 7: link errors and joint sag; 150 fit and 100
 held-out poses, 20 μm tracker noise) with the true σ stated and with one 4x too small (``--no-learned --folds 3``),
 and, where the shared data are present, the real UR5 grid (hold-out 0.2, seed 0, ``--no-learned``, no σ stated).
-``grinder``: the grinder loop's noise estimate (held-out, and the fitting residual's) on 150 simulated checks of
-seeds 3-5 at 1 μm, and the verdict with 1 μm and 0.25 μm stated.
+``grinder``: the loop's noise estimate on the grinder's chain (the update's) on 150 simulated checks of seeds 3-5
+at 1 μm, and the verdict with 1 μm and 0.25 μm stated.
 ``table PATH``: write a 5,000,000-row point table to PATH (numpy seed 0); then measure with
 ``/usr/bin/time -v python -c "from errormap.io import read_table; read_table('PATH').float('x_mm')"``.
 
@@ -55,25 +55,29 @@ def arm() -> None:
 
 
 def grinder() -> None:
-    from errormap.diagnosis.checks import CheckData
-    from errormap.diagnosis.loop import closed_loop
+    import tempfile
+    from pathlib import Path
+    from errormap.chain_elements import ChainElementSet
+    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, full_parameters
     from errormap.diagnosis.plausibility import diagnosis_verdict
+    from errormap.grinder_file import machine_tool_of
     from errormap.machine import load_machine
     from errormap.simulator import random_truth
-    from errormap.uncertainty import ElementCovariance, theta_from_elements, theta_layout
     g = load_machine(None)
+    mt = machine_tool_of(g)
     for seed in (3, 4, 5):
         t = random_truth(g, seed)
-        cov = ElementCovariance(theta_from_elements(t.elements), 0.25 * np.eye(len(theta_layout(t.elements))),
-                                t.elements, {})
-        ck = CheckData.from_columns(t.check_measurements(150, 1.0, seed + 1))
+        with tempfile.TemporaryDirectory() as td:
+            el = ChainElementSet.load(t.elements.save(Path(td) / "el.json"), mt)
+        slots, stations = full_parameters(el)
+        ck = MTChecks.from_columns(mt, t.check_measurements(150, 1.0, seed + 1))
         out = []
         for stated in (1.0, 0.25):
             ck.stated_noise_um = stated
-            s = closed_loop(g, cov, ck).summary
+            s = closed_loop_chain(mt, el, ck, cov=(slots, stations, 0.25 * np.eye(len(slots))))
             out.append(diagnosis_verdict(s)["status"])
-        print(f"seed {seed}: held-out sigma {s['noise_sigma_estimated_um']:.3f} um, fitting-residual sigma "
-              f"{s['noise_sigma_um']:.3f} um; stated 1.0: {out[0]}, stated 0.25: {out[1]}")
+        print(f"seed {seed}: the update's sigma {s['noise_sigma_estimated_um']:.3f} um; stated 1.0: {out[0]}, "
+              f"stated 0.25: {out[1]}")
 
 
 def table(path: str) -> None:

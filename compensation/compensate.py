@@ -200,7 +200,8 @@ def save_model(path, model) -> Path:
         return save_chain_model(path, machine_tool(model.machine, "save_model"), el, model.terms_, model.kept_stage_)
     if isinstance(model, Identification):
         model._check_fitted("elements_")
-        model.result_.save_covariance(companion_path(path, ".cov.npz"))
+        from errormap.chain_covariance import save_chain_covariance
+        save_chain_covariance(model.result_, companion_path(path, ".cov.npz"))
         model = model.elements_
     if isinstance(model, DriftSelector):
         model._check_fitted("model_")

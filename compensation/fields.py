@@ -17,8 +17,6 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from errormap.elements import ElementSet
-from errormap.htm import HTMField
 from errormap.io import InputError, read_document_text
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
@@ -128,32 +126,35 @@ def require_kind(src: ModelSource, kinds, what: str) -> ModelSource:
 
 
 def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSource | None = None):
-    """An error field (``predict(axes) -> (n, 3) μm``) for ``spec``: an element set or a trained
-    network (folder or MLflow); other model kinds are refused naming what the file is."""
+    """An error field (``predict(axes) -> (n, 3)`` μm) for ``spec`` on a machine tool (a chain file, or a
+    ``kind = "grinder"`` file through its chain: :func:`errormap.grinder_file.machine_tool_of`): an element set,
+    a diagnosed chain ``model.json``, a trained network (folder or MLflow; which network is read from its own
+    ``config.json``); other model kinds are refused naming what the file is."""
+    from errormap.grinder_file import machine_tool_of
     src = source or resolve_model(spec)
-    if getattr(machine, "kind", None) == "machine-tool":  # a chain machine: its element set, over its own axes
-        require_kind(src, ("elements", "chain-model", "chain-network", "mlflow"),
-                     f"on the machine-tool chain {machine.name!r} this command evaluates")
-        if src.kind == "mlflow":  # a chain network recorded by `train --tracking-uri` on the chain's feature points
-            from training.chain_model import ChainMLPField, check_machine
-            from training.tracking import load_field as load_learned
-            return check_machine(load_learned(src.spec, tracking_uri=tracking_uri, loader=ChainMLPField.load),
-                                 machine, src.spec)
-        if src.kind == "chain-model":   # elements + terms (+ the learned residual when the loop kept it)
-            from .chain_hybrid import load_chain_model
-            return load_chain_model(src.path, machine)
-        return load_chain_field(src.path, machine, src.kind)
-    if src.kind == "chain-network":
-        raise InputError(f"{src.path}: a {KIND_NAMES[src.kind]}, trained on a machine-tool chain; name that machine "
-                         "with --machine")
-    require_kind(src, ("elements", "network", "mlflow"), "this command evaluates")
-    if src.kind == "elements":
-        return HTMField(machine, ElementSet.load(src.path))
+    require_kind(src, ("elements", "chain-model", "chain-network", "network", "mlflow"), "this command evaluates")
+    mt = machine_tool_of(machine)
+    if src.kind == "chain-model":   # elements + terms (+ the learned residual when the loop kept it)
+        from .chain_hybrid import load_chain_model
+        return load_chain_model(src.path, mt)
+    if src.kind in ("elements", "chain-network"):
+        return load_chain_field(src.path, mt, src.kind)
     try:
         from training.tracking import load_field as load_learned
     except ImportError as exc:  # pragma: no cover
         raise InputError(f"{spec}: a trained model, and the learned-field loader is unavailable ({exc})") from None
-    return load_learned(str(src.path) if src.path is not None else src.spec, tracking_uri=tracking_uri)
+    return load_learned(str(src.path) if src.path is not None else src.spec, tracking_uri=tracking_uri,
+                        loader=lambda folder: _network(folder, mt))
+
+
+def _network(folder, machine):
+    """The trained network in ``folder``, as its ``config.json`` names it: a chain network (refused unless trained
+    on ``machine``) or the grinder's network of x, z, a."""
+    folder = Path(folder)
+    if _json_format(folder / "config.json") == "chain-network":
+        return load_chain_field(folder, machine, "chain-network")
+    from training.model import MLPField
+    return MLPField.load(folder)
 
 
 def load_chain_field(path, machine, kind: str = "elements"):

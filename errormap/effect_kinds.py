@@ -22,7 +22,7 @@ Each entry says, generically (no machine's axis names):
 * ``diagnosed`` — whether the diagnosis library fits it (:mod:`errormap.diagnosis.effects`
   ``basis``); ``truth_only`` kinds are what the simulator draws and no kind of the diagnosis can
   represent (they are what the closed loop's learned residual stage is for);
-* ``report`` — the variable the report plots the term against (:mod:`compensation.app.reports.diagnosis`);
+* ``report`` — the variable the term acts through, as text;
 * ``export`` — how ``volcomp export`` writes it (``"linuxcnc-backlash"``: the per-joint
   forward/reverse difference of :func:`compensation.export.backlash_from_diagnosis`), ``None``:
   not carried by a controller table (listed as left out).
@@ -82,7 +82,7 @@ class EffectKind:
 
 
 # The order is the diagnosis's preference between kinds that explain a residual equally well
-# (errormap/diagnosis/selection.py, joint.py): do not reorder.
+# (the candidates of errormap/diagnosis/chain_effects.py are searched in this order): do not reorder.
 EFFECT_KINDS = (
     EffectKind("thermal", (), "linear", "k·(temp_c − ref_temp_c)·(pos − lo)",
                (("k_{u}_per_mm_c", "{u}/(mm·°C)"),), needs=("temp_c",),

@@ -15,7 +15,6 @@ import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import pytest
 
 @dataclass
 class SharedRun:
@@ -49,25 +48,15 @@ def private_copy(src: Path, dst: Path) -> Path:
 def bump_user_path(root: Path) -> SharedRun:
     """The grinder's user's path with an out-of-catalogue bump (seed 1): sweeps (2 μm, noise seed 7) →
     simulate (800 checks at 1 μm) → identify (40 bootstrap draws) → diagnose --track into ``root/d``
-    with an MLflow store at ``root/store``. ``extra``: ``core`` (what ``closed_loop_model`` returned,
-    in memory) and ``uri`` (the store)."""
-    from compensation.app.workflows import diagnosis
+    with an MLflow store at ``root/store``. ``extra``: ``uri`` (the store)."""
     q = ["--seed", "1", "--effect", "bump"]
     _ok(["sweeps", *q, "--noise-um", "2", "--seed-noise", "7", "--out", root / "sw.csv"])
     _ok(["simulate", *q, "--checks", "800", "--noise-um", "1", "--out", root / "sim"])
     _ok(["identify", root / "sw.csv", "--out", root / "el.json", "--bootstrap", "40"])
-    seen, core = [], diagnosis.closed_loop_model
-
-    def recording(*a, **k):
-        seen.append(core(*a, **k))
-        return seen[-1]
     uri = f"sqlite:///{root / 'store' / 'mlflow.db'}"
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(diagnosis, "closed_loop_model", recording)
-        out, err = _ok(["diagnose", root / "sim" / "checks.csv", "--model", root / "el.json", "--out", root / "d",
-                        "--track", "--tracking-uri", uri])
-    (res,) = seen
-    return SharedRun(root, out, err, {"core": res, "uri": uri})
+    out, err = _ok(["diagnose", root / "sim" / "checks.csv", "--model", root / "el.json", "--out", root / "d",
+                    "--track", "--tracking-uri", uri])
+    return SharedRun(root, out, err, {"uri": uri})
 
 
 def mill_reversal(root: Path) -> SharedRun:

@@ -71,8 +71,8 @@ def test_the_walker_resolves_relative_and_nested_imports():
     found = imports_of(text, "compensation.app.commands.demo")
     assert {"compensation.app.commands.simulate", "compensation.app.workflows.compare",
             "compensation.evaluate", "compensation.app.cli"} <= found
-    assert imports_of("from .pipeline import diagnose\n", "errormap.diagnosis", is_package=True) >= {
-        "errormap.diagnosis.pipeline"}
+    assert imports_of("from .chain_loop import closed_loop_chain\n", "errormap.diagnosis", is_package=True) >= {
+        "errormap.diagnosis.chain_loop"}
     bad = [m for m in found if m.startswith(COMMANDS + ".") and m != "compensation.app.commands.demo"]
     assert bad == ["compensation.app.commands.simulate"]
 

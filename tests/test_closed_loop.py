@@ -7,9 +7,6 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
-from errormap.diagnosis.checks import CheckData
-from errormap.diagnosis.loop import closed_loop
-from errormap.diagnosis.update import update_elements
 from errormap.elements import ElementSet
 from errormap.htm import HTMField, spatial_error_exact
 from errormap.simulator import EFFECT_DEFAULTS, random_axes, random_truth
@@ -25,6 +22,21 @@ SMOOTH_GAIN = 0.75     # smoothed / interpolating prediction RMS on this seed (m
 LINEAR_REL_TOL = 1e-3  # first-order update vs exact HTM for a μm-sized change (second order ~ ε ≈ 1e-4)
 HELD_OUT_TARGET_UM = 2.2  # issue 13: 1.25 × √3 × 1 μm check noise
 N_CHECKS = 600
+
+
+def _loop(grinder, sm, cols, tmp, **kw):
+    """The machine tools' loop (``volcomp diagnose``'s) on the grinder's chain: the smoothed identification
+    ``sm`` as the files ``volcomp identify`` writes (elements and covariance with its prior_extra), read as the
+    command reads them; ``cols`` the check columns. → (summary with ``_models``, checks)."""
+    from compensation.app.workflows.measurement import load_chain_model
+    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
+    from errormap.grinder_file import machine_tool_of
+    mt = machine_tool_of(grinder)
+    el_path = sm.elements_.save(tmp / "el.json")
+    sm.covariance_.save(covariance_path(el_path))
+    el, cov, _ = load_chain_model(el_path, mt, prior=True)
+    checks = MTChecks.from_columns(mt, cols)
+    return closed_loop_chain(mt, el, checks, cov=cov, **kw), checks
 
 
 @pytest.fixture(scope="module")
@@ -90,39 +102,24 @@ def test_prediction_cov_shape_and_station_se(grinder, indep):
     assert se["dx_x"].shape == (21,) and se["ex_a"][0] == se["ex_a"][-1] and se["s_xz"] > 0
 
 
-def test_update_brings_held_out_to_the_noise_floor_and_reports_no_effect(grinder, indep):
+def test_update_brings_held_out_to_the_noise_floor_and_reports_no_effect(grinder, indep, tmp_path):
     truth, sm = indep
-    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, 1.0, seed=11))
-    loop = closed_loop(grinder, sm.covariance_, checks)
-    st = loop.summary["stages"]
+    s, _ = _loop(grinder, sm, truth.check_measurements(N_CHECKS, 1.0, seed=11), tmp_path)
+    st = s["stages"]
     assert st["identified"]["held_out"]["rms_um"] > 2 * HELD_OUT_TARGET_UM
-    assert st["updated_plus_effects"]["held_out"]["rms_um"] < HELD_OUT_TARGET_UM
-    assert loop.summary["effects"] == []
-    assert 0.8 < loop.update.sigma_um < 1.25  # the check noise is 1 μm per component
-
-
-def test_checks_that_do_not_cover_an_axis_are_named(grinder, indep):
-    truth, sm = indep
-    c = truth.check_measurements(300, 1.0, seed=12)
-    keep = c["x_mm"] < 80.0
-    axes = np.stack([c["x_mm"], c["z_mm"], c["a_deg"]], axis=1)[keep]
-    meas = np.stack([c["dx_um"], c["dy_um"], c["dz_um"]], axis=1)[keep]
-    r = meas - HTMField(grinder, sm.elements_).predict(axes)
-    upd = update_elements(grinder, sm.covariance_, axes, r)
-    named = {u["element"]: u for u in upd.uncovered}
-    assert "dx_x" in named and "outside" in named["dx_x"]["why"]
-    assert max(named["dx_x"]["stations"]) == 20 and min(named["dx_x"]["stations"]) > 8  # x > 80 mm: stations 9..20
+    assert s["held_out_rms_um"] < HELD_OUT_TARGET_UM and s["kept_stage"].startswith("updated")
+    assert s["effects"] == []
+    assert 0.8 < s["noise_sigma_um"] < 1.25  # the check noise is 1 μm per component
 
 
 @pytest.mark.slow
-def test_reversal_is_named_after_the_update(grinder):
+def test_reversal_is_named_after_the_update(grinder, tmp_path):
     truth = make_truth(grinder, 1, family="independent", effects=["reversal"])
     sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=51), grinder)
-    checks = CheckData.from_columns(truth.check_measurements(800, 1.0, seed=13))
-    loop = closed_loop(grinder, sm.covariance_, checks)
-    e = loop.summary["effects"]
-    assert e and (e[0]["kind"], e[0]["axis"]) == ("reversal", "z")
-    assert loop.summary["stages"]["updated_plus_effects"]["held_out"]["rms_um"] < HELD_OUT_TARGET_UM
+    s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=13), tmp_path)
+    e = s["effects"]
+    assert e and (e[0]["kind"], e[0]["axis"]) == ("reversal", "Z")
+    assert s["held_out_rms_um"] < HELD_OUT_TARGET_UM
 
 
 def test_predict_band_cli(tmp_path, capsys):
@@ -250,92 +247,27 @@ def test_compensate_gcode_with_a_diagnosed_model_follows_the_replanned_vertices(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("effect, kind_axis", [("thermal", ("thermal", "x")), ("interaction", ("interaction", "x*z"))])
-def test_effects_the_update_imitates_are_named_by_the_joint_screen(grinder, effect, kind_axis):
-    """Thermal growth (a dx_x slope at the mean temperature) and an X·Z coupling (angular
-    elements times lever arms) are taken up by the update alone; tested jointly with it they
-    are named, with the elements that imitated them, and the final model is kept."""
-    truth = make_truth(grinder, 0, family="independent", effects=[effect])
+def test_an_effect_the_update_would_imitate_is_named_and_kept(grinder, tmp_path):
+    """Thermal growth (a dx_x slope at the mean temperature) is partly taken up by an update made alone; the loop
+    names it, re-fits it jointly with the update, and keeps the model with it."""
+    truth = make_truth(grinder, 0, family="independent", effects=["thermal"])
     sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
-    checks = CheckData.from_columns(truth.check_measurements(800, 1.0, seed=14))
-    loop = closed_loop(grinder, sm.covariance_, checks)
-    s = loop.summary
-    screen = s["update"]["joint_screen"]
-    assert screen and (screen[0]["kind"], screen[0]["axis"]) == kind_axis
-    assert len(screen[0]["update_alone_imitated_it_with"]) == 3 and screen[0]["confirmed"]
-    assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == kind_axis
+    s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
+    assert s["effects"] and (s["effects"][0]["kind"], s["effects"][0]["axis"]) == ("thermal", "X")
     assert s["kept_stage"] == "updated_plus_effects"
-    assert s["rms_final_um"] < HELD_OUT_TARGET_UM
-
-
-def test_fallback_keeps_the_final_model_unless_a_plainer_stage_is_better_held_out():
-    from errormap.diagnosis.loop import FALLBACK_Z, _fallback
-    rng = np.random.default_rng(7)
-    hold = np.arange(100, 300)
-    noise = rng.normal(0, 1, (300, 3))
-    opts = {"updated_plus_effects": (noise, None, None, []), "updated": (noise + 0.01, None, None, []),
-            "identified": (noise * 3, None, None, [])}
-    assert _fallback(opts, hold)[0] == "updated_plus_effects"   # a tie is no loss
-    opts["updated_plus_effects"] = (noise * 1.5, None, None, [])  # the effects made it worse held out
-    stage, why = _fallback(opts, hold)
-    assert stage == "updated" and str(FALLBACK_Z) in why
-
-
-@pytest.mark.slow  # sweeps → simulate → identify → diagnose through the CLI: 5.4 CPU s (tier rule: > 5 s)
-def test_diagnose_cli_names_elements_the_checks_do_not_cover(tmp_path):
-    """Checks only at x < 80 mm: the report names dx_x's stations beyond as staying at the
-    sweep estimate, with the reason."""
-    from errormap.io import read_table, write_csv
-    sw, el = tmp_path / "sw.csv", tmp_path / "el.json"
-    assert main(["sweeps", "--family", "independent", "--seed", "0", "--seed-noise", "500", "--out", str(sw)]) == 0
-    assert main(["simulate", "--family", "independent", "--seed", "0", "--checks", "400", "--out",
-                 str(tmp_path / "sim")]) == 0
-    assert main(["identify", str(sw), "--out", str(el)]) == 0
-    t = read_table(tmp_path / "sim" / "checks.csv")
-    keep = t.float("x_mm") < 80.0
-    write_csv(tmp_path / "part.csv", {c: t.float(c)[keep] for c in t.names})
-    assert main(["diagnose", str(tmp_path / "part.csv"), "--model", str(el), "--out", str(tmp_path / "d")]) == 0
-    s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
-    named = {u["element"]: u for u in s["update"]["not_updated"]}
-    assert "dx_x" in named and "outside" in named["dx_x"]["why"]
-    # stations every 10 mm: those beyond the checks' x < 80 mm are named, none well inside the
-    # covered range (station 0 at x = 0 may be named too when no check falls that close to it)
-    stations = set(named["dx_x"]["stations"])
-    assert set(range(10, 21)) <= stations and not stations & set(range(2, 8))
-    assert "Not updated by the checks" in (tmp_path / "d" / "report.html").read_text()
-
-
-PERIOD_Z_MAX = 4.0
-"""The refined period must lie within 4 of its own standard errors of the truth (a single
-seeded draw: 4 SE leaves room for the linearisation, and a wrong period is off by hundreds)."""
+    assert s["held_out_rms_um"] < HELD_OUT_TARGET_UM
 
 
 @pytest.mark.slow
-def test_joint_refit_refines_a_period_with_its_band(grinder):
-    """joint_refit on a pitch error started 0.2 % off its period (the search's periodogram and
-    bounded refinement hand on a period that close; over the X stroke that is a fraction of a
-    cycle, inside the Gauss–Newton step's reach): the period is pulled back and comes with a
-    finite standard error."""
-    from errormap.diagnosis.checks import CheckData
-    from errormap.diagnosis.effects import Candidate, Context, EffectTerm, design, reference
-    from errormap.diagnosis.joint import joint_refit
-    from errormap.htm import HTMField
-    from errormap.simulator import random_truth
-    from errormap.sweeps import simulate_sweeps
-    from errormap.uncertainty import smooth_identify
-    truth = random_truth(grinder, 4)
-    sm = smooth_identify(simulate_sweeps(truth, noise_um=2.0, seed=54), grinder)
-    checks = CheckData.from_columns(truth.check_measurements(480, 1.0, seed=5))
-    ctx = Context.build(grinder, checks.axes, checks.conditions, reference(grinder, checks.conditions))
-    r_id = checks.measured_um - HTMField(grinder, sm.elements_).predict(checks.axes)
-    cand = Candidate("periodic", "x", "dx_x")
-    r = r_id + (design(cand, ctx, 10.0) @ np.array([3.0, -2.0])).reshape(-1, 3)
-    start = EffectTerm(cand, np.array([3.0, -2.0]), ctx.ref, period_mm=10.02)
-    (t,), upd = joint_refit(grinder, sm.covariance_, checks.axes, r, ctx, [start])
-    p = t.parameters()["period_mm"]
-    assert np.isfinite(p["se"]) and p["se"] > 0
-    assert abs(p["value"] - 10.0) <= PERIOD_Z_MAX * p["se"], p
-    assert upd.elements_ is not None
+def test_an_effect_the_element_slots_represent_is_named_as_absorbed(grinder, tmp_path):
+    """An X·Z coupling on the grinder is angular elements times lever arms: the element slots represent it over
+    the checks, so the update takes it up; the loop names it as absorbed (not a missed effect) and the updated
+    model reaches the held-out target."""
+    truth = make_truth(grinder, 0, family="independent", effects=["interaction"])
+    sm = smooth_identify(simulate_sweeps(truth, noise_um=TRACKER_NOISE_UM, seed=500), grinder)
+    s, _ = _loop(grinder, sm, truth.check_measurements(800, 1.0, seed=14), tmp_path)
+    assert ("interaction", "X*Z") in {(e["kind"], e["axis"]) for e in s["effects_absorbed"]}
+    assert s["held_out_rms_um"] < HELD_OUT_TARGET_UM
 
 
 REFIT_TRUE_GAIN = 1.0
@@ -345,49 +277,45 @@ benchmark's 10 seeds show the typical gain)."""
 
 
 @pytest.mark.slow  # a closed loop and its refit: over the 5 CPU s tier limit
-def test_refit_on_all_checks_uses_every_check_and_leaves_the_validated_figures(grinder, indep):
-    from errormap.diagnosis.loop import refit_on_all_checks
+def test_refit_on_all_checks_uses_every_check_and_leaves_the_validated_figures(grinder, indep, tmp_path):
+    from errormap.chain_field import ChainField
     truth, sm = indep
-    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, 1.0, seed=11))
-    loop = closed_loop(grinder, sm.covariance_, checks)
-    held = json.dumps(loop.summary["stages"], sort_keys=True, default=str)
-    assert loop.kept_stage != "identified" and loop.update_target_um.shape == (N_CHECKS, 3)
-    model, cov = refit_on_all_checks(grinder, sm.covariance_, checks, loop)
-    assert json.dumps(loop.summary["stages"], sort_keys=True, default=str) == held   # the validated figures stay
-    assert cov.elements is not loop.covariance.elements and model.terms == [] == loop.model.terms
+    s, checks = _loop(grinder, sm, truth.check_measurements(N_CHECKS, 1.0, seed=11), tmp_path)
+    held = json.dumps(s["stages"], sort_keys=True, default=str)
+    m = s["_models"]
+    assert s["kept_stage"] != "identified" and m["refit"] is not None
+    el_all, terms, r_all = m["refit"]([], np.zeros((N_CHECKS, 3)), np.arange(N_CHECKS))
+    assert json.dumps(s["stages"], sort_keys=True, default=str) == held   # the validated figures stay
+    assert el_all is not m["elements"] and terms == [] == m["terms"] and r_all.shape == (N_CHECKS, 3)
     P = random_axes(grinder, 2000, np.random.default_rng(3))
     e_true = truth.spatial_error(P, **truth.default_conditions(len(P)))
-    rms = lambda f: float(np.sqrt(np.mean(np.sum((f.predict(P) - e_true) ** 2, 1))))
-    assert rms(model) <= REFIT_TRUE_GAIN * rms(loop.model)
+    rms = lambda el: float(np.sqrt(np.mean(np.sum((ChainField(el.machine, el).predict(P) - e_true) ** 2, 1))))  # noqa: E731
+    assert rms(el_all) <= REFIT_TRUE_GAIN * rms(m["elements"])
 
 
 REFIT_STAGE_REPRODUCE_UM = 1e-9
-"""refit_stage on the loop's own fitting checks without an offset runs the loop's own estimator on the
-same rows (the same update, the same σ grid): equal to the loop's kept model up to round-off of μm-sized
+"""The loop's refit on its own fitting checks without an offset runs the loop's own estimator on the same rows
+(the same update, the same smoothness weight): equal to the loop's kept model up to round-off of μm-sized
 predictions (the same floating-point operations; 1e-9 μm leaves room only for summation order)."""
 
 
-@pytest.mark.slow  # a closed loop and three refits: over the 5 CPU s tier limit
-def test_refit_stage_reproduces_the_loop_and_takes_an_offset_off_its_target(grinder, indep):
-    from errormap.diagnosis.loop import refit_stage
+@pytest.mark.slow  # a closed loop and two refits: over the 5 CPU s tier limit
+def test_refit_reproduces_the_loop_and_takes_an_offset_off_its_target(grinder, indep, tmp_path):
+    from errormap.chain_field import ChainField
     truth, sm = indep
-    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, 1.0, seed=11))
-    loop = closed_loop(grinder, sm.covariance_, checks)
+    s, checks = _loop(grinder, sm, truth.check_measurements(N_CHECKS, 1.0, seed=11), tmp_path)
+    m = s["_models"]
     fit_idx = np.arange(int(round(0.6 * N_CHECKS)))
-    model, cov = refit_stage(grinder, sm.covariance_, checks, loop, idx=fit_idx)
+    el, _, _ = m["refit"]([], np.zeros((N_CHECKS, 3)), fit_idx)
     P = random_axes(grinder, 500, np.random.default_rng(4))
-    assert np.max(np.abs(model.predict(P) - loop.model.predict(P))) <= REFIT_STAGE_REPRODUCE_UM
+    kept = ChainField(el.machine, m["elements"]).predict(P)
+    assert m["terms"] == []                                      # this seed keeps no term: a plain update
+    assert np.max(np.abs(ChainField(el.machine, el).predict(P) - kept)) <= REFIT_STAGE_REPRODUCE_UM
     # an offset (what another model part explains) is taken off the residual the kept update is made on
     off = np.zeros((N_CHECKS, 3))
     off[:, 1] = 0.5 * np.sin(checks.axes[:, 0] / 20.0)          # μm
-    m1, _ = refit_stage(grinder, sm.covariance_, checks, loop, offset_um=off, idx=fit_idx)
-    assert np.max(np.abs(m1.predict(P) - model.predict(P))) > 0.01   # it moved the update
-    assert loop.model.terms == []                                      # this seed keeps no term: a plain update
-    direct = update_elements(grinder, sm.covariance_, checks.axes[fit_idx],
-                             (loop.update_target_um - off)[fit_idx], alpha=loop.alpha)
-    assert np.max(np.abs(m1.predict(P) - HTMField(grinder, direct.elements_).predict(P))) <= REFIT_STAGE_REPRODUCE_UM
-    with pytest.raises(ValueError, match="offset of shape"):
-        refit_stage(grinder, sm.covariance_, checks, loop, offset_um=off[:10], idx=fit_idx)
+    el1, _, _ = m["refit"]([], off, fit_idx)
+    assert np.max(np.abs(ChainField(el.machine, el1).predict(P) - kept)) > 0.01   # it moved the update
 
 
 STATED_TOO_LOW_UM = 0.3
@@ -395,25 +323,20 @@ STATED_TOO_LOW_UM = 0.3
 
 
 @pytest.mark.slow  # two closed loops: 9 CPU s
-def test_given_noise_sets_the_floor_and_the_verdict_compares_the_estimate_with_it(grinder, indep):
-    """``diagnose --noise-um`` on the grinder, as on a chain (one helper, ``noise_record``): the floor is √3·σ of
-    the given σ, the held-out RMS is reported over it, and a stated σ far below the update's estimate fails the
-    verdict."""
-    from compensation.app.workflows.diagnosis import closed_loop_model
-    from errormap.diagnosis.pipeline import DiagnosisSettings
-    from errormap.diagnosis.plausibility import NOISE_EXCESS
+def test_given_noise_sets_the_floor_and_the_verdict_compares_the_estimate_with_it(grinder, indep, tmp_path):
+    """``diagnose --noise-um`` on the grinder, as on every machine tool (one helper, ``noise_record``): the floor is
+    √3·σ of the given σ, the held-out RMS is reported over it, and a stated σ far below the update's estimate fails
+    the verdict."""
+    from errormap.diagnosis.plausibility import NOISE_EXCESS, diagnosis_verdict
     truth, sm = indep
-    checks = CheckData.from_columns(truth.check_measurements(N_CHECKS, 1.0, seed=11))
-    s = closed_loop_model(grinder, sm.covariance_, checks, DiagnosisSettings(noise_um=1.0), learn=False,
-                          refit_all=False).summary
+    cols = truth.check_measurements(N_CHECKS, 1.0, seed=11)
+    s, _ = _loop(grinder, sm, cols, tmp_path, noise_um=1.0, effects=False)
     assert s["noise_sigma_source"] == "given" and s["noise_sigma_stated_um"] == 1.0
     assert s["noise_floor_um"] == pytest.approx(np.sqrt(3.0), rel=1e-12)
-    assert s["held_out_over_floor"] == pytest.approx(s["rms_final_um"] / np.sqrt(3.0), rel=1e-12)
+    assert s["held_out_over_floor"] == pytest.approx(s["held_out_rms_um"] / np.sqrt(3.0), rel=1e-12)
     assert abs(s["noise_sigma_estimated_um"] - 1.0) <= NOISE_REL_TOL
-    assert s["verdict"]["status"] == "passed"
-    low = closed_loop_model(grinder, sm.covariance_, checks, DiagnosisSettings(noise_um=STATED_TOO_LOW_UM),
-                            learn=False, refit_all=False).summary
+    assert diagnosis_verdict(s)["status"] == "passed"
+    low, _ = _loop(grinder, sm, cols, tmp_path, noise_um=STATED_TOO_LOW_UM, effects=False)
+    v = diagnosis_verdict(low)
     assert low["noise_sigma_estimated_um"] > NOISE_EXCESS * STATED_TOO_LOW_UM
-    assert low["verdict"]["status"] == "failed" and "stated σ" in low["verdict"]["reasons"][0]
-    with pytest.raises(ValueError, match="noise"):
-        DiagnosisSettings(noise_um=-1.0).validate(N_CHECKS)
+    assert v["status"] == "failed" and "stated σ" in v["reasons"][0]

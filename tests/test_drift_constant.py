@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation.app.workflows.diagnosis import run_drift
+from compensation.app.workflows.drift import run_drift
 from errormap.diagnosis.drift import DriftLog, load_drift_log
 from errormap.diagnosis.drift_models import ConstantFamily, DriftSelector, OLSFamily, default_families
 from errormap.io import write_csv

@@ -3,16 +3,13 @@ diagnosis can name is in it, the two vocabularies name the same physics, each co
 exactly its kinds, and an unknown kind is refused — in code a ValueError, in a user's file one
 line naming the file and the key (exit 2) — never drawn or exported as some other kind."""
 import json
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from compensation.app.cli import main
-from compensation.app.reports.diagnosis import EXPLAINING_VARIABLE, _explaining_variable
 from errormap import effect_kinds as ek
 from errormap.diagnosis import effects as fx
-from errormap.diagnosis.joint import JOINT_KINDS
 from errormap.elements import ElementSet
 from errormap.htm import IDX
 from errormap.simulator import EFFECT_DEFAULTS, EFFECT_NAMES, OUT_OF_CATALOGUE, TruthGrinder, random_axes
@@ -48,12 +45,11 @@ def test_simulator_draws_registered_kinds_only():
 
 
 def test_the_diagnosis_fits_exactly_the_diagnosed_kinds(grinder):
-    """Its library, the axes of each kind (generic in the registry, the grinder's words here),
-    the joint screen's kinds and a basis for every kind, from the registry."""
+    """Its library, the axes of each kind (generic in the registry, the grinder's words here)
+    and a basis for every kind, from the registry."""
     assert fx.KINDS == ek.DIAGNOSED_KINDS == ("thermal", "drift", "reversal", "periodic", "harmonic", "interaction")
     assert fx.KIND_AXES == {"thermal": ("x", "z"), "drift": ("x", "z"), "reversal": ("x", "z", "a"),
                             "periodic": ("x", "z"), "harmonic": ("a",), "interaction": ("x*z",)}
-    assert JOINT_KINDS == ("thermal", "drift", "reversal", "interaction")
     assert not set(ek.TRUTH_ONLY) & set(fx.KINDS)
     rng = np.random.default_rng(SEED)
     axes = random_axes(grinder, N_POINTS, rng)
@@ -68,12 +64,6 @@ def test_the_diagnosis_fits_exactly_the_diagnosed_kinds(grinder):
         term = fx.EffectTerm(cand, np.ones(spec.n_linear), ctx.ref, 10.0 if kind == "periodic" else None,
                              40 if kind == "harmonic" else None)
         assert set(term.parameters()) == {n.format(u=fx.unit_of(cand.element)) for n, _ in spec.parameters}
-
-
-def test_the_report_draws_exactly_the_diagnosed_kinds():
-    ek.check_covers(EXPLAINING_VARIABLE, ek.DIAGNOSED_KINDS, "report")
-    with pytest.raises(ValueError, match="report: the effect-kind registry has"):
-        ek.check_covers({k: None for k in ek.DIAGNOSED_KINDS[1:]}, ek.DIAGNOSED_KINDS, "report")
 
 
 @pytest.mark.parametrize("sim, canonical, element, params, basis_args", [
@@ -116,11 +106,14 @@ def test_unknown_kinds_raise_in_code(grinder):
         ek.simulator_name("drift")
 
 
-def test_the_report_no_longer_draws_an_unknown_kind_as_an_xz_interaction():
-    """Before the registry any kind the report did not know fell through to (x − lo)(z − lo)."""
-    term = SimpleNamespace(kind="bogus", axis="x*z")
+def test_the_loop_never_takes_an_unknown_kind_for_another(grinder):
+    """The machine tools' loop builds a term's columns by its kind: an unknown one is an error, never a default."""
+    from errormap.diagnosis.chain_effects import effect_columns
+    from errormap.grinder_file import machine_tool_of
+    mt = machine_tool_of(grinder)
+    axes = random_axes(grinder, 5, np.random.default_rng(SEED))
     with pytest.raises(ValueError, match="unknown effect kind 'bogus'"):
-        _explaining_variable(term, None)
+        effect_columns(mt, "bogus", ("X", "Z"), axes, {})
 
 
 def _one_error_line(capsys) -> str:

@@ -83,9 +83,8 @@ REFUSED = [   # gaps of the table (not yet / other path) on the command line, an
     (["simulate", "--machine", "mill-xyz", "--poses", "10"], "--poses"),
     (["identify", "sw.csv", "--machine", "mill-xyz", "--seed", "3"], "--seed"),
     (["identify", "sw.csv", "--machine", "mill-xyz", "--bootstrap", "20", "--noise-um", "1"], "--bootstrap"),
-    (["diagnose", "c.csv", "--model", "E.json", "--machine", "mill-xyz", "--seed", "3"], "--seed"),
+    (["diagnose", "c.csv", "--model", "E.json", "--alpha", "0.05"], "--alpha"),
     (["diagnose", "c.csv", "--model", "E.json", "--machine", "mill-xyz", "--alpha", "0.05"], "--alpha"),
-    (["diagnose", "c.csv", "--model", "E.json", "--machine", "mill-xyz", "--track"], "--track"),
     (["diagnose", "--drift", "log.csv", "--machine", "mill-xyz"], "--machine"),
 ]
 MAX_MESSAGE_CHARS = 300

@@ -224,7 +224,7 @@ def drift_model(tmp_path_factory):
 def test_fuzz_drift_predict_log(drift_model, data):
     """drift-predict on a mangled log: exit 0 writes the model's compensation columns the library computes from the
     same file (read as the command reads it), or one line naming the file."""
-    from compensation.app.workflows.diagnosis import compensation_columns
+    from compensation.app.workflows.drift import compensation_columns
     from errormap.diagnosis.drift import load_drift_log
     from errormap.diagnosis.drift_models import DriftModel
     model_path, log = drift_model

@@ -167,7 +167,7 @@ def test_compensate_on_a_chain_hybrid_exact_and_the_volume_guard(hybrid_dir, tmp
 
 
 def test_report_map_is_named_by_the_machine_axes():
-    from compensation.app.reports.diagnosis import learned_map_figure, map_axes
+    from compensation.app.reports.learned import learned_map_figure, map_axes
     g = np.zeros((3, 3)).tolist()
     mill = {"x_mm": [0, 1, 2], "y_mm": [0, 1, 2], "norm_um": g, "band95_um": g}
     assert map_axes(mill) == ("x_mm", "y_mm", None)
@@ -347,10 +347,10 @@ def test_chain_real_thermal_term_stays_beside_a_replaced_stand_in():
 
 
 def test_report_section_states_the_rule_that_replaced_the_condition_terms():
-    """The learned-residual section (one template for the grinder's page and a chain's) names the replaced terms
+    """The learned-residual section (the template of every machine tool's diagnose page) names the replaced terms
     with the rule the run recorded (diagnosis.json ``condition_terms_vs_static.rule``: the γ̂ rule since round 7),
     not the blocked-CV comparison of earlier rounds."""
-    from compensation.app.reports.diagnosis import _learned
+    from compensation.app.reports.learned import learned_summary as _learned
     from compensation.app.reports.toolkit import environment
     from compensation.hybrid import TERM_CONSISTENT_Z, TERM_KEEP_Z
     rule = (f"the condition terms stay only when their coefficient ... is positive by more than {TERM_KEEP_Z} standard "
@@ -359,8 +359,7 @@ def test_report_section_states_the_rule_that_replaced_the_condition_terms():
           "kept": True, "why": "kept: z 5", "inputs": ["x_mm", "y_mm", "z_mm"], "cv": "blocked", "held_out_gain_z": 5.0,
           "held_out_band95_cover": 0.95, "cv_table": {}, "condition_terms_vs_static": {"rule": rule}}
     s = {"learned_residual": lr, "effects_replaced_by_learned": [{"kind": "thermal", "axis": "Y"}]}
-    for page in ("chain_diagnose.html", "diagnose.html"):
-        assert '{% include "_learned.html" %}' in environment().loader.get_source(environment(), page)[0]
+    assert '{% include "_learned.html" %}' in environment().loader.get_source(environment(), "chain_diagnose.html")[0]
     html = environment().get_template("_learned.html").render(learned=_learned(s))
     text = " ".join(html.split())
     assert "replaces the condition terms</b> thermal Y: " + rule in text
@@ -375,7 +374,7 @@ def test_learned_map_caption_names_the_rotary_angles_it_was_evaluated_at():
     """five-axis-ac's A turns only over [-120, 30]°: the map's A positions 0, 90, 180, 270 are clipped to
     0, 30, 30, 30 (C, a full turn, keeps them); the map records that and its caption says so, instead of
     'averaged over A/C = 0, 90, 180, 270°' (what was asked, not what was evaluated)."""
-    from compensation.app.reports.diagnosis import learned_map_figure
+    from compensation.app.reports.learned import learned_map_figure
     from compensation.hybrid import learned_map, linear_columns
     m = load_machine("five-axis-ac")
     seen = []

@@ -165,7 +165,7 @@ def test_report_section_names_the_output_frame_and_tabulates_the_candidates():
     """The learned-residual section says in which frame the part was learned and, when more than one
     (input set, output frame) was cross-validated, each one's chosen family and CV RMS; a diagnosis.json
     written before the frames (no output_frame, one input set) reads as the work frame, no table."""
-    from compensation.app.reports.diagnosis import _learned
+    from compensation.app.reports.learned import learned_summary as _learned
     from compensation.app.reports.toolkit import environment
     lr = {"family": "gp", "family_name": "Gaussian process", "families_compared": ["gp"], "selection_rule": "lowest",
           "kept": True, "why": "kept: z 5", "inputs": ["x_mm", "z_mm", "cos_a", "sin_a"], "cv": "blocked",

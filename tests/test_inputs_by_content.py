@@ -112,11 +112,11 @@ def test_identify_out_without_suffix_then_diagnose_runs_the_closed_loop(machine,
         err = capsys.readouterr().err
         assert f"element set (volcomp-elements/1): {model}" in err and "closed loop" in err
         s = json.loads((out / "diagnosis.json").read_text())
-        assert s["model_update"] is True and s["model_source"]["kind"] == "elements"
+        assert s["update"] is True and s["model_source"]["kind"] == "elements"
         assert (out / "model.json").is_file()
         summaries.append(s)
     a, b = summaries
-    assert a["rms_after_um"] == b["rms_after_um"] and a["effects"] == b["effects"]
+    assert a["held_out_rms_um"] == b["held_out_rms_um"] and a["effects"] == b["effects"]
 
 
 @pytest.mark.slow
@@ -127,7 +127,7 @@ def test_diagnose_without_covariance_says_it_skips_the_update(machine, tmp_path,
     err = capsys.readouterr().err
     assert "no model update (no covariance" in err and "truth.cov.npz" in err
     s = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
-    assert s["model_update"] is False and s["model_source"]["path"] == str(el)
+    assert s["update"] is False and s["model_source"]["path"] == str(el)
 
 
 def test_tool_paths_are_told_csv_or_gcode_by_content(machine, tmp_path, capsys):

@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from errormap.diagnosis.chain_effects import _fit_shape
 from errormap.diagnosis.chain_loop import (HARMONIC_ORDERS, HELD_OUT_Z, PERIOD_GRID_MM, PERIOD_REFINE, MTChecks,
-                                        _cho_inverse, _fit_shape, effect_columns, effect_search, joint_threshold,
+                                        effect_columns, effect_search, joint_threshold,
                                         parameter_matrix, shape_band, update_elements, EffectTerm, full_parameters)
+from errormap.diagnosis.chain_update import _cho_inverse
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.seeds import spawn_rngs

@@ -4,6 +4,9 @@ loses to the plain baseline (errormap/diagnosis/plausibility.py)."""
 from __future__ import annotations
 
 import json
+import re
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,20 +119,20 @@ def test_no_false_alarm_on_correct_checks_of_three_chains():
             assert other > 10 * given > AXIS_FIT_RATIO * given, (name, seed)
 
 
-def test_grinder_checks_with_swapped_headers_are_refused(tmp_path):
-    from compensation.app.workflows.diagnosis import run_checks
-    from errormap.htm import HTMField
+def test_grinder_checks_with_swapped_headers_are_refused(tmp_path, capsys):
     from errormap.simulator import random_truth
     g = load_machine(None)
     truth = random_truth(g, SEED)
+    el = truth.elements.save(tmp_path / "el.json")
     cols = truth.check_measurements(60, NOISE_UM, SEED)
     write_csv(tmp_path / "ok.csv", cols)
     write_csv(tmp_path / "swap.csv", {**cols, "dx_um": cols["dz_um"], "dz_um": cols["dx_um"]})
-    with pytest.raises(InputError, match=r"swap\.csv: row \d+, columns 'dx_um', 'dz_um': the deviations fit another"):
-        run_checks(tmp_path / "swap.csv", g, "x", tmp_path / "out", field_=HTMField(g, truth.elements))
+    argv = ["diagnose", "--model", str(el), "--no-learned"]
+    assert main([*argv, str(tmp_path / "swap.csv"), "--out", str(tmp_path / "out")]) == 2
+    assert re.search(r"swap\.csv: row \d+, columns 'dx_um', 'dz_um': the deviations fit another", _one_line(capsys))
     assert not (tmp_path / "out").exists()
-    summary, _ = run_checks(tmp_path / "ok.csv", g, "x", tmp_path / "ok", field_=HTMField(g, truth.elements))
-    assert summary["n_checks"] == 60
+    assert main([*argv, str(tmp_path / "ok.csv"), "--out", str(tmp_path / "ok")]) == 0
+    assert json.loads((tmp_path / "ok" / "diagnosis.json").read_text())["n_checks"] == 60
 
 
 @pytest.fixture(scope="module")
@@ -227,7 +230,7 @@ def test_the_reported_cases_through_identify(tmp_path, capsys):
 
 
 def test_drift_verdict_fails_a_channel_that_loses_to_ols_beyond_the_selections_bound():
-    from compensation.app.workflows.diagnosis import drift_verdict
+    from compensation.app.workflows.drift import drift_verdict
     from errormap.diagnosis.drift_models import MAX_FOLD_LOSS
     ch = {"ch1": {"model": "ridge", "rms_after_um": 0.795, "rms_ols_um": 0.789},   # the blend toward OLS: a tie
           "ch2": {"model": "greybox", "rms_after_um": 0.561, "rms_ols_um": 1.47}}
@@ -243,24 +246,33 @@ A_SCALE_UM = 20.0
 linear fit of the residual in the axes takes it out, the grinder's elements (periodic in A) cannot."""
 
 
+def _grinder_loop(g, t, cols, stated=None):
+    """The machine tools' loop on the grinder's chain: the truth's elements as the identified model, a prior of
+    0.5 μm / μrad on every element parameter (as an identification would give), the checks ``cols``."""
+    from errormap.chain_elements import ChainElementSet
+    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, full_parameters
+    from errormap.grinder_file import machine_tool_of
+    mt = machine_tool_of(g)
+    el = ChainElementSet.load(t.elements.save(Path(tempfile.mkdtemp()) / "el.json"), mt)
+    slots, stations = full_parameters(el)
+    checks = MTChecks.from_columns(mt, cols)
+    checks.stated_noise_um = stated
+    return closed_loop_chain(mt, el, checks, cov=(slots, stations, 0.25 * np.eye(len(slots))))
+
+
 @pytest.mark.slow   # two grinder closed loops: 20–80 s on the shared machine
 def test_grinder_closed_loop_verdict_fails_when_the_plain_baseline_wins():
-    from errormap.diagnosis.checks import CheckData
-    from errormap.diagnosis.loop import closed_loop
     from errormap.simulator import random_truth
-    from errormap.uncertainty import ElementCovariance, theta_from_elements, theta_layout
     g = load_machine(None)
     t = random_truth(g, SEED)
-    cov = ElementCovariance(theta_from_elements(t.elements), 0.25 * np.eye(len(theta_layout(t.elements))),
-                            t.elements, {})
     cols = t.check_measurements(150, NOISE_UM, SEED + 1)
-    good = closed_loop(g, cov, CheckData.from_columns(cols)).summary
+    good = _grinder_loop(g, t, cols)
     assert diagnosis_verdict(good)["status"] == "passed"
-    assert good["baselines_vs_kept"]["baseline_ols_linear"]["held_out_rms_um"] > good["rms_final_um"]
+    assert good["baselines_vs_kept"]["baseline_ols_linear"]["held_out_rms_um"] > good["held_out_rms_um"]
     bad = dict(cols, dx_um=cols["dx_um"] + A_SCALE_UM * np.asarray(cols["a_deg"]) / 180.0)
-    s = closed_loop(g, cov, CheckData.from_columns(bad)).summary
+    s = _grinder_loop(g, t, bad)
     v = diagnosis_verdict(s)
-    assert v["status"] == "failed" and "loses to the plain baseline baseline_ols_linear" in v["reasons"][0]
+    assert v["status"] == "failed" and any("loses to the plain baseline baseline_ols_linear" in r for r in v["reasons"])
     assert s["baselines_vs_kept"]["baseline_ols_linear"]["paired_z_over_kept"] > 2
 
 
@@ -281,30 +293,24 @@ def test_sweeps_with_two_ball_columns_exchanged_are_refused_before_identificatio
 
 
 GRINDER_SIGMA_TOL = 0.2
-"""|σ̂ / σ − 1| of the grinder loop's noise estimate (the kept model's held-out residual per coordinate, 60 held-out
-checks × 3 coordinates) on correct simulated checks: its SE is about 1/√(2·180) ≈ 5 %, and what the model misses
-adds a few % on top; 0.2 is 4 SE. (The fitting residual is biased low by 20 % here: seed 3, 0.80.)"""
+"""|σ̂ / σ − 1| of the loop's noise estimate on the grinder's chain (the update's, on 90 fitting checks × 3
+coordinates less its degrees of freedom) on correct simulated checks: its SE is a few %, and what the model misses
+adds a few % on top; 0.2 is 4 SE."""
 UNDERSTATED = 4.0
 """A stated σ this many times below the simulated noise: σ̂ / stated ≈ 4, far above NOISE_EXCESS = 2."""
 
 
+@pytest.mark.slow   # two grinder closed loops
 def test_grinder_loop_judges_its_noise_estimate_against_the_stated_noise():
-    from errormap.diagnosis.checks import CheckData
-    from errormap.diagnosis.loop import closed_loop
     from errormap.diagnosis.plausibility import NOISE_EXCESS
     from errormap.simulator import random_truth
-    from errormap.uncertainty import ElementCovariance, theta_from_elements, theta_layout
     g = load_machine(None)
     t = random_truth(g, SEED)
-    cov = ElementCovariance(theta_from_elements(t.elements), 0.25 * np.eye(len(theta_layout(t.elements))),
-                            t.elements, {})
-    checks = CheckData.from_columns(t.check_measurements(150, NOISE_UM, SEED + 1))
-    checks.stated_noise_um = NOISE_UM
-    s = closed_loop(g, cov, checks).summary
+    cols = t.check_measurements(150, NOISE_UM, SEED + 1)
+    s = _grinder_loop(g, t, cols, stated=NOISE_UM)
     assert abs(s["noise_sigma_estimated_um"] / NOISE_UM - 1) < GRINDER_SIGMA_TOL
     assert s["noise_sigma_stated_um"] == NOISE_UM and diagnosis_verdict(s)["status"] == "passed"
-    checks.stated_noise_um = NOISE_UM / UNDERSTATED
-    s = closed_loop(g, cov, checks).summary
+    s = _grinder_loop(g, t, cols, stated=NOISE_UM / UNDERSTATED)
     v = diagnosis_verdict(s)
     assert v["status"] == "failed" and len(v["reasons"]) == 1
     assert s["noise_sigma_estimated_um"] > NOISE_EXCESS * s["noise_sigma_stated_um"]
@@ -312,15 +318,15 @@ def test_grinder_loop_judges_its_noise_estimate_against_the_stated_noise():
 
 
 def test_grinder_diagnose_reads_the_stated_noise_and_exits_1_when_contradicted(tmp_path, capsys):
-    """Without a covariance (effects on the model as it is) the verdict still judges the noise: the file's
-    '# noise_um:' line, or --noise-um over it."""
+    """Without a covariance (effects on the model as it is) the verdict still judges the noise (the kept model's
+    held-out residual per coordinate): the file's '# noise_um:' line, or --noise-um over it."""
     from errormap.simulator import random_truth
     g = load_machine(None)
     truth = random_truth(g, SEED)
     truth.elements.save(tmp_path / "model.json")
     cols = truth.check_measurements(60, NOISE_UM, SEED)
     write_csv(tmp_path / "c.csv", cols, header_comments=[f"noise_um: {NOISE_UM / UNDERSTATED}"])
-    argv = ["diagnose", str(tmp_path / "c.csv"), "--model", str(tmp_path / "model.json")]
+    argv = ["diagnose", str(tmp_path / "c.csv"), "--model", str(tmp_path / "model.json"), "--no-learned"]
     assert main(argv + ["--out", str(tmp_path / "a")]) == 1
     v = json.loads((tmp_path / "a" / "diagnosis.json").read_text())["verdict"]
     assert v["status"] == "failed" and "stated σ" in v["reasons"][0]

@@ -92,6 +92,6 @@ def test_diagnose_track_logs_the_kept_stage(bump_user_path):
     assert lr["family_name"].split(" ")[0] in ("Gaussian", "deep")
     assert lr["shipped"]["estimated_on_checks"] == 800 and lr["shipped"]["base_refit_on_all_checks"] is True
     assert s["refit_on_all_checks"]["checks"] == 800
-    assert s["rms_final_um"] == s["stages"]["learned_residual"]["held_out"]["rms_um"]
+    assert s["held_out_rms_um"] == s["stages"]["learned_residual"]["held_out"]["rms_um"]
     assert model["learned_family"]["family"] == lr["family"] and model["learned_family"]["estimated_on_checks"] == 800
     assert model["learned_family"]["name"] == lr["family_name"]

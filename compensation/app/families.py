@@ -163,6 +163,10 @@ _BY_POSES = "{given}: only arms and parallel machines are simulated by poses (ma
 _IDENTIFY = Gap(OTHER_PATH, "calibrate (poses)")
 _PARALLEL_TRUTH = ("{given}: a parallel machine's truth has one family and no effects here (leg scales, zero lengths, "
                    "joints); leave it out")
+_DIAGNOSE_CHECK = Gap(OTHER_PATH, "calibrate --check (the loop on the held-out check poses)")
+_DIAGNOSE = (Refusal("diagnose", (Opt("--alpha", NOT_YET, default=0.01, show_value=True),),
+                     "{given}: not used on a machine tool: the closed loop gates each effect on its held-out z "
+                     "(errormap/diagnosis/chain_loop.py); leave it out"),)
 _CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: the options are grouped by machine "
                     "kind); leave {it} out")
 
@@ -171,12 +175,12 @@ GRINDER = Family(
     kinds={"grinder": Facts(tracker_sweeps=True, gcode=True)},
     targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "report", "fleet", "demo",
                             "identify", "benchmark", target="grinder"),
-             **_same_target("compensate", "export", target="machine tool")},
+             **_same_target("compensate", "export", "diagnose", target="machine tool")},
     gaps={"calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
           "interpolate": Gap(OTHER_PATH, "compensate (axis programs)"),
           "report run": Gap(OTHER_PATH, "diagnose writes the run's report.html itself")},
-    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES),
+    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES), *_DIAGNOSE,
               Refusal("compensate", (Opt("--compensate-orientation", PHYSICS),),
                       "{given}: the grinder's one rotary axis (A) turns the workpiece and none turns the tool axis: "
                       "there is no tool orientation to compensate; leave it out")))
@@ -186,20 +190,20 @@ CHAIN = Family(
     kinds={"machine-tool": Facts(tracker_sweeps=True, gcode=True, chain=True)},
     targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "identify", "benchmark",
                             target="chain"),
-             **_same_target("compensate", "export", target="machine tool"), "report run": "chain"},
+             **_same_target("compensate", "export", "diagnose", target="machine tool"), "report run": "chain"},
     gaps={"fleet": _FLEET, "demo": _DEMO,
           "calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify"),
           "interpolate": Gap(OTHER_PATH, "compensate"),
           "report": Gap(NOT_YET, "the comparison runs the grinder's solvers (the chain's exact, GA and batched GA "
                                  "run in compensate --machine)")},
-    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES),))
+    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES), *_DIAGNOSE))
 
 ARM = Family(
     name="serial arm", column="Serial arm",
     kinds={"serial": Facts(poses=True)},
     targets=_same_target("simulate", "calibrate", "register", "predict", "compensate", "benchmark", target="arm"),
-    gaps={"fleet": _FLEET, "demo": _DEMO, "identify": _IDENTIFY,
+    gaps={"fleet": _FLEET, "demo": _DEMO, "identify": _IDENTIFY, "diagnose": _DIAGNOSE_CHECK,
           "export": Gap(NOT_YET, "no controller format for an arm's calibration"),
           "sweeps": Gap(OTHER_PATH, "poses spread over every joint (simulate --poses, then calibrate)"),
           "featurepoints": Gap(OTHER_PATH, "the arm's learned stage is fitted on the measured poses inside calibrate"),
@@ -242,7 +246,7 @@ PARALLEL = Family(
     kinds={"hexapod": Facts(poses=True, platform_orientation=True, paper_paths=True),
            "tripod": Facts(poses=True, sensitivity_study=True)},
     targets=_same_target("simulate", "calibrate", "interpolate", "predict", "benchmark", target="parallel"),
-    gaps={"fleet": _FLEET, "demo": _DEMO, "identify": _IDENTIFY,
+    gaps={"fleet": _FLEET, "demo": _DEMO, "identify": _IDENTIFY, "diagnose": _DIAGNOSE_CHECK,
           "compensate": Gap(OTHER_PATH, "interpolate --calibration writes the compensated leg-command program"),
           "export": Gap(NOT_YET, "no controller table (interpolate compensates the leg commands)"),
           "sweeps": Gap(OTHER_PATH, "poses (calibrate: leg lengths, joint positions, scales)"),

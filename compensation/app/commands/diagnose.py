@@ -4,8 +4,7 @@ from __future__ import annotations
 import math
 import sys
 
-from errormap.diagnosis.pipeline import DiagnosisSettings
-from errormap.machine import check_machine_kind, load_machine
+from errormap.machine import load_machine
 from training import DEFAULT_MAX_ITER
 from compensation.app.validate import EXIT_FAILED_VERDICT, UsageError
 
@@ -60,14 +59,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _retrain_settings(args):
-    """The retrain's :class:`training.TrainSettings` from the options (their ranges are checked before
-    run by compensation/app/validate.py)."""
-    from training import TrainSettings
-    return TrainSettings(max_iter=args.retrain_iter, seed=args.seed,
-                         max_time_s=math.inf if args.retrain_time_s is None else args.retrain_time_s)
-
-
 def band_label(c: dict) -> str:
     """The printed band, labelled with the coverage it was CHECKED to have on the held-out part (the band is
     the 95th percentile of validation residuals inside the fitting part; on a later part that leaves the
@@ -85,8 +76,87 @@ def band_label(c: dict) -> str:
 BAND_CLAIM_COVERAGE = 0.9   # below this held-out coverage the band is flagged as not holding its 95 %
 
 
+NETWORK_KINDS = ("network", "chain-network", "mlflow")
+"""Model kinds (:func:`compensation.fields.resolve_model`) the loop takes as a trained network."""
+
+
+def _retrain_settings(args):
+    """The retrain's :class:`training.TrainSettings` from the options (their ranges are checked before
+    run by compensation/app/validate.py)."""
+    from training import TrainSettings
+    return TrainSettings(max_iter=args.retrain_iter, seed=args.seed,
+                         max_time_s=math.inf if args.retrain_time_s is None else args.retrain_time_s)
+
+
+def _run_checks(args) -> int:
+    """CHECKS against an element set on a machine tool (a chain file, or a grinder file through its chain):
+    the closed loop (:func:`compensation.app.workflows.measurement.diagnose_chain`) and its page."""
+    from errormap.grinder_file import adapter_line, machine_tool_of
+    from compensation.app.families import family_of
+    from compensation.app.workflows.measurement import diagnose_chain, diagnosis_lines
+    from compensation.app.reports.chain_diagnosis import write_chain_diagnosis_page
+    from compensation.fields import require_kind, resolve_model
+    if args.model is None:
+        raise UsageError("CHECKS needs --model (the element set of `volcomp identify`, or a trained network)")
+    machine = load_machine(args.machine)  # None: the built-in default machine
+    fam = family_of(machine)
+    fam.target("diagnose")   # an arm or a parallel machine: calibrate --check (the registry's gap)
+    fam.refuse_unsupported("diagnose", args)
+    mt = machine_tool_of(machine)
+    src = resolve_model(args.model)
+    if src.kind in NETWORK_KINDS:   # a trained network: identified + effects, the retrain with --featurepoints
+        if args.track:
+            raise UsageError("--track: logs a kept learned residual; the loop on a trained network has no such stage "
+                             "(its retrain is tracked as a child run with --tracking-uri): leave it out")
+        print(f"diagnosing {args.checks} against {args.model} on {mt.name} ...", file=sys.stderr)
+        from errormap.diagnosis.chain_loop import load_mt_checks
+        from compensation.app.workflows.network_diagnosis import diagnose_network
+        summary, paths = diagnose_network(load_mt_checks(args.checks, mt, units=args.units), mt, src, args.out,
+                                          fit_fraction=args.fit_fraction, noise_um=args.noise_um,
+                                          max_effects=args.max_effects, units=args.units,
+                                          tracking_uri=args.tracking_uri, featurepoints=args.featurepoints,
+                                          retrain=_retrain_settings(args))
+    else:
+        require_kind(src, ("elements", *NETWORK_KINDS), "the closed loop takes")
+        retrain = [o for o, v, d in (("--featurepoints", args.featurepoints, None), ("--seed", args.seed, 0),
+                                     ("--retrain-iter", args.retrain_iter, DEFAULT_MAX_ITER),
+                                     ("--retrain-time-s", args.retrain_time_s, None)) if v != d]
+        if retrain:
+            raise UsageError(f"{', '.join(retrain)}: for the retrain of a trained network (--model a folder or run "
+                             f"id); {args.model} is an element set: leave {'it' if len(retrain) == 1 else 'them'} out")
+        print(f"diagnosing {args.checks} against {args.model} on {mt.name} ...", file=sys.stderr)
+        summary, paths = diagnose_chain(args.checks, mt, args.model, args.out, fit_fraction=args.fit_fraction,
+                                        noise_um=args.noise_um, max_effects=args.max_effects,
+                                        update=not args.no_update, units=args.units, learn=not args.no_learned,
+                                        track=args.track, tracking_uri=args.tracking_uri)
+        paths.append(write_chain_diagnosis_page(args.out, mt))  # the page of the run
+    if mt is not machine:   # a kind = "grinder" file read as its chain, said once the inputs are read (a refusal
+        print(adapter_line(machine), file=sys.stderr)   # above stays one line)
+    if summary.get("update"):
+        how = f"covariance {summary['covariance']}: closed loop (update, then effects)"
+    else:
+        from errormap.io import companion_path
+        cov = companion_path(args.model, ".cov.npz") if src.kind == "elements" else None
+        why = ("--no-update" if cov is not None and cov.is_file() else
+               f"no covariance {cov} beside it, written by `volcomp identify`" if cov is not None else "a trained network")
+        how = f"no model update ({why}): effects on the model as it is"
+    print(f"diagnose: model {src.description}; {how}", file=sys.stderr)
+    for line in diagnosis_lines(summary):
+        print(line)
+    rid = (summary.get("learned_residual") or {}).get("mlflow_run_id")
+    if rid:
+        print(f"learned residual logged as MLflow run {rid}")
+    rt = summary.get("learned_retrain")
+    if rt:
+        print(f"learned retrain: skipped: {rt['skipped']}" if "skipped" in rt else
+              f"learned retrain: run {rt['run_id']}, held-out RMS {rt['rms_after_um']:.3g} um")
+    for p in paths:
+        print(f"wrote {p}")
+    return EXIT_FAILED_VERDICT if summary["verdict"]["status"] == "failed" else 0
+
+
 def run(args) -> int:
-    from compensation.app.workflows.diagnosis import run_checks, run_drift
+    from compensation.app.workflows.drift import run_drift
     from errormap.diagnosis.drift_models import DriftSelector
     if (args.checks is None) == (args.drift is None):
         raise UsageError("give either CHECKS (with --model) or --drift LOG")
@@ -111,59 +181,7 @@ def run(args) -> int:
         v = summary["verdict"]
         print("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
     else:
-        if args.model is None:
-            raise UsageError("CHECKS needs --model (element-set file or run id)")
-        machine = load_machine(args.machine)  # None: the built-in default machine
-        if machine.kind == "machine-tool":
-            from compensation.app.workflows.measurement import diagnose_chain, diagnosis_lines, refuse_options
-            refuse_options(args, {"featurepoints": None, "tracking_uri": None, "alpha": 0.01, "track": False,
-                                  "retrain_iter": DEFAULT_MAX_ITER, "retrain_time_s": None, "seed": 0},
-                           "diagnose on a machine-tool chain (element-set models; effects gated on held-out z)")
-            print(f"diagnosing {args.checks} against {args.model} on {machine.name} ...", file=sys.stderr)
-            summary, paths = diagnose_chain(args.checks, machine, args.model, args.out, fit_fraction=args.fit_fraction,
-                                            noise_um=args.noise_um, max_effects=args.max_effects,
-                                            update=not args.no_update, units=args.units,
-                                            learn=not args.no_learned)
-            from compensation.app.reports.chain_diagnosis import write_chain_diagnosis_page
-            paths.append(write_chain_diagnosis_page(args.out, machine))  # the page of the run, as the grinder's
-            for line in diagnosis_lines(summary):
-                print(line)
-            for p in paths:
-                print(f"wrote {p}")
-            return EXIT_FAILED_VERDICT if summary["verdict"]["status"] == "failed" else 0
-        check_machine_kind(machine.path, machine.kind, "grinder")
-        settings = DiagnosisSettings(fit_fraction=args.fit_fraction, alpha=args.alpha, max_effects=args.max_effects,
-                                     noise_um=args.noise_um)
-        retrain = _retrain_settings(args)
-        print(f"diagnosing {args.checks} against {args.model} ...", file=sys.stderr)
-        summary, paths = run_checks(args.checks, machine, args.model, args.out, settings, args.tracking_uri,
-                                    args.featurepoints, retrain, update=not args.no_update, units=args.units,
-                                    units_option="--units", learn=not args.no_learned, track=args.track,
-                                    noise_um=args.noise_um)
-        if "stages" in summary:
-            st = summary["stages"]
-            print("held-out RMS: identified {:.3g} -> updated {:.3g} -> updated + effects {:.3g} um".format(
-                st["identified"]["held_out"]["rms_um"], st["updated"]["held_out"]["rms_um"],
-                st["updated_plus_effects"]["held_out"]["rms_um"]))
-            for c in summary["update"]["contradicted_by_sweeps"]:
-                print(f"update of {c['element']} contradicted by the sweeps (p = {c['p_adjusted']:.2g}): "
-                      "evidence of an effect the model lacks")
-            for c in summary["update"]["not_updated"]:
-                print(f"not updated by the checks: {c['element']}: {c['why']}")
-            for e in summary.get("effects_rejected", []):
-                print(f"rejected: {e['kind']} axis {e['axis']} ({summary.get('effects_rejected_why', '')})")
-        rid = (summary.get("learned_residual") or {}).get("mlflow_run_id")
-        if rid:
-            print(f"learned residual logged as MLflow run {rid}")
-        for i, e in enumerate(summary["effects"], 1):
-            print(f"{i}. {e['kind']} axis {e['axis']} on {e['element']}: held-out RMS -{e['rms_reduction_um']:.3g} μm")
-        if not summary["effects"]:
-            print("no effect found")
-        print(f"held-out RMS {summary['rms_before_um']:.3g} -> {summary['rms_after_um']:.3g} μm, "
-              f"max {summary['max_before_um']:.3g} -> {summary['max_after_um']:.3g} μm")
-        v = summary.get("verdict")
-        if v is not None:   # the closed loop's verdict (errormap.diagnosis.plausibility.diagnosis_verdict)
-            print("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
+        return _run_checks(args)
     for p in paths:
         print(f"wrote {p}")
     failed = (summary.get("verdict") or {}).get("status") == "failed"

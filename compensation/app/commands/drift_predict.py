@@ -63,7 +63,7 @@ def save_updated(model, path, verdict):
 def run(args) -> int:
     import numpy as np
 
-    from compensation.app.workflows.diagnosis import COMPENSATION_COMMENTS, compensation_columns
+    from compensation.app.workflows.drift import COMPENSATION_COMMENTS, compensation_columns
     from errormap.diagnosis.drift import load_drift_log
     from errormap.diagnosis.drift_models import input_novelty
     from errormap.diagnosis.drift_models import DriftModel

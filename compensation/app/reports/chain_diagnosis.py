@@ -15,7 +15,7 @@ import numpy as np
 
 from errormap.io import InputError, read_document_text
 
-from .diagnosis import _learned
+from .learned import learned_summary
 from .figures import pyplot
 from .toolkit import Figure, Table, figure, kv_table, render_page, write_page
 
@@ -47,7 +47,7 @@ def check_chain_diagnosis(doc: dict, path) -> None:
     """Refuse a ``diagnosis.json`` that is not a chain diagnose run's, naming the first missing key."""
     for k in DIAGNOSIS_KEYS:
         if k not in doc:
-            raise InputError(f"{path}: key {k!r} missing: not the diagnosis.json of volcomp diagnose --machine")
+            raise InputError(f"{path}: key {k!r} missing: not the diagnosis.json of volcomp diagnose")
     if not isinstance(doc["stages"], dict) or doc["kept_stage"] not in doc["stages"]:
         raise InputError(f"{path}: key 'kept_stage': {doc['kept_stage']!r} is not one of its stages")
 
@@ -152,11 +152,13 @@ def _verdict(v) -> str:
 
 def chain_diagnosis_page(run_dir, machine) -> str:
     """The page of the diagnose run in ``run_dir`` (module doc) on ``machine``; InputError naming the file and
-    key when the folder is not such a run."""
+    key when the folder is not such a run. ``machine``: a chain, or a grinder file (its chain)."""
     from errormap.diagnosis.loop_model import load_chain_model_file
     from errormap.chain_elements import ChainElementSet
+    from errormap.grinder_file import machine_tool_of
+    machine = machine_tool_of(machine)
     run_dir = Path(run_dir)
-    doc = read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose --machine")
+    doc = read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose")
     check_chain_diagnosis(doc, run_dir / "diagnosis.json")
     model = load_chain_model_file(run_dir / "model.json", machine, learned="ignore")   # its elements only
     updated = model.elements
@@ -183,7 +185,7 @@ def chain_diagnosis_page(run_dir, machine) -> str:
                        summary=summary, stages=_stage_table(doc), stage_figure=_stage_figure(doc), effects=acc,
                        rejected=rej, element_figures=_element_figures(machine, updated, identified),
                        constants=_constants_table(machine, updated, identified), kept=doc["kept_stage"],
-                       ratio=ratio, floor=floor, learned=_learned(doc), verdict_failed=verdict_failure(doc))
+                       ratio=ratio, floor=floor, learned=learned_summary(doc), verdict_failed=verdict_failure(doc))
 
 
 def verdict_failure(doc) -> str | None:

@@ -20,14 +20,14 @@ test paths, records every run in MLflow under one parent run, and writes
   condition :data:`PATH_CONDITIONS` (a warm machine at 24 °C, X and A approached from below as
   the path moves, Z from above because the wheel plunges to the flute-bottom radius);
 * conditions: sweep density (stations), tracker noise, and each undeclared effect of the
-  simulator in the truth, before and after the closed loop (check measurements →
-  ``errormap.diagnosis.diagnose`` → ``CorrectedField`` = base field + the found terms →
-  compensate with it). The learned path after the loop is the network plus the parametric
-  terms (the 11×11×11 grid aliases pitch and worm-gear periods, see docs/reference/benchmark.md);
+  simulator in the truth, before and after the closed loop (check measurements → the effect search
+  on the identified element set, :func:`errormap.diagnosis.chain_loop.closed_loop_chain` without its
+  element update → the elements plus the found terms → compensate with it). The learned path has no
+  element set: its row after the loop says so;
 * out-of-catalogue conditions (``ooc_effects`` × ``ooc_checks``, and the same machine without an
   effect): after the loop the parametric path runs the user's path instead — the sweeps identified as
   ``volcomp identify`` does (smoothing, element covariance), then ``volcomp diagnose``'s closed loop on
-  the checks (:func:`compensation.app.workflows.diagnosis.closed_loop_model`: element update, effects,
+  the checks (:func:`compensation.app.workflows.measurement.diagnose_chain`: element update, effects,
   the learned residual backfitted with the update, all re-estimated on all checks); its loop alone is
   the parametric row, its kept model (``model.json``) the hybrid row. Each row says which loop ran
   (``loop_method``: :data:`USER_LOOP` or :data:`EFFECTS_LOOP`).
@@ -66,6 +66,7 @@ from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
 
 from ..families import family_of
+from .benchmark_loop import at_conditions, chain_elements, loop_models
 
 PATH_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0, "dir_a": 1.0}
 """Conditions of the flute test path: a warm machine (24 °C, 2 h after the start of the warm-up
@@ -79,8 +80,8 @@ EXPERIMENT = "volcomp-benchmark"
 USER_LOOP = ("the user's path: volcomp identify (smoothing, covariance) → volcomp diagnose (element update + effects "
              "+ learned residual backfitted with the update, re-estimated on all checks)")
 """Which loop a row ran (key ``loop_method``): the out-of-catalogue conditions' parametric loop and hybrid."""
-EFFECTS_LOOP = "effect search on the base field (errormap.diagnosis.diagnose; no element update)"
-"""Which loop a row ran (key ``loop_method``): every other condition's, and the learned base's (it has no elements)."""
+EFFECTS_LOOP = "effect search on the base's element set (the closed loop without its element update)"
+"""Which loop a row ran (key ``loop_method``): every other condition's; the learned base (no elements) says it did not run."""
 FEATURE_REUSE_TOL_UM = 1e-6
 
 
@@ -103,7 +104,7 @@ class BenchmarkSettings:
     # stage's estimation error against the number of checks; `volcomp benchmark --checks N`, repeatable)
     ooc_checks: tuple = (800, 150, 1600)
     # the out-of-catalogue conditions' loop runs the user's path: `volcomp identify` (smoothing, covariance
-    # Gauss-Newton's, or from this many residual-bootstrap draws) → `volcomp diagnose` (workflows/diagnosis.py)
+    # Gauss-Newton's, or from this many residual-bootstrap draws) → `volcomp diagnose` (workflows/measurement.py)
     identify_bootstrap: int | None = None
     n_checks: int = 400
     check_noise_um: float = 1.0
@@ -547,11 +548,12 @@ class GrinderBench:
         ``bases``: on an out-of-catalogue condition the parametric base runs the user's path
         (:meth:`user_loop_rows`: the parametric loop and the hybrid), every other base the effect
         search on its field (:meth:`closed_loop_row`)."""
-        from errormap.diagnosis.checks import CheckData
+        from errormap.diagnosis.chain_loop import MTChecks
+        from errormap.grinder_file import machine_tool_of
         s = self.s
         n_checks = c.n_checks or s.n_checks
         cols = truth.check_measurements(n=n_checks, noise_um=s.check_noise_um, seed=_streams(s.seed)["checks"])
-        checks = CheckData.from_columns(cols, path=f"<simulated checks, {c.name}>")
+        checks = MTChecks.from_columns(machine_tool_of(self.m), cols, path=f"<simulated checks, {c.name}>")
         label = f"{c.name} (after closed loop)"
         for base_row, base in bases:
             if base_row["path"] == "parametric" and c.group == "out-of-catalogue":
@@ -567,42 +569,46 @@ class GrinderBench:
 
     def user_loop_rows(self, c, truth, label, checks, common) -> None:
         """The user's path on the checks: ``volcomp identify`` (:func:`identify_with_covariance`) → ``volcomp
-        diagnose`` with that element set (:func:`compensation.app.workflows.diagnosis.closed_loop_model`: the
+        diagnose`` with that element set (:func:`compensation.app.workflows.measurement.diagnose_chain`: the
         element update, the effects, the learned residual backfitted with the update and gated on the held-out
         checks, the kept stage re-estimated on all checks) → compensate, judged by the truth. Two rows: the
-        parametric loop is the loop alone (``model.json`` without its learned part:
-        :func:`compensation.diagnosed_model.loop_alone_model`), the hybrid the kept model (``model.json``);
-        both at :data:`PATH_CONDITIONS`."""
-        from ...diagnosed_model import ConditionedField, loop_alone_model
-        from .diagnosis import closed_loop_model
+        parametric loop is the loop alone (``model.json`` without its learned part, its ``loop_alone`` when the
+        base was backfitted), the hybrid the kept model (``model.json``); both at :data:`PATH_CONDITIONS`."""
+        import tempfile
+        from .measurement import diagnose_chain
         s = self.s
         _log(f"grinder: identify + diagnose (the user's path), {label}")
         done = []
         try:
             cov, id_s = identify_with_covariance(self.m, s, truth, c)
-            t0 = time.perf_counter()
-            res = closed_loop_model(self.m, cov, checks)
-            loop_s = time.perf_counter() - t0
-            summary, lr = res.summary, res.summary.get("learned_residual") or {}
-            learned = {"learned_kept": res.learned is not None, "learned_family": lr.get("family"),
+            with tempfile.TemporaryDirectory(prefix="volcomp-benchmark-") as td:
+                from errormap.uncertainty import covariance_path
+                el_path = cov.elements.save(Path(td) / "elements.json")
+                cov.save(covariance_path(el_path))
+                t0 = time.perf_counter()
+                summary, _ = diagnose_chain(checks, self.m, el_path, Path(td) / "diagnosis")
+                loop_s = time.perf_counter() - t0
+                models = loop_models(self.m, Path(td) / "diagnosis" / "model.json", PATH_CONDITIONS)
+            lr = summary.get("learned_residual") or {}
+            kept_learned = summary["kept_stage"] == "learned_residual"
+            learned = {"learned_kept": kept_learned, "learned_family": lr.get("family"),
                        "learned_why": lr.get("why"), "learned_gain_z": lr.get("held_out_gain_z"),
                        "learned_band95_cover": lr.get("held_out_band95_cover"), "learned_backfitted": "backfit" in lr}
-            models = {"parametric": (loop_alone_model(res.model), res.loop_alone_field(self.m)),
-                      "hybrid": (res.model, res.kept_field(self.m))}
-            for path, (doc, corrected) in models.items():
+            rms_after = {"parametric": summary.get("held_out_rms_base_um", summary["held_out_rms_um"]),
+                         "hybrid": summary["held_out_rms_um"]}
+            for path, (terms, stage, field_) in models.items():
                 _log(f"grinder: {path}, {label}")
-                field_ = ConditionedField(corrected, PATH_CONDITIONS)
                 sol = {"exact": self._compensate(truth, field_, "exact")}
-                if path == "hybrid" and res.learned is not None:
+                if path == "hybrid" and kept_learned:
                     sol["batched-ga"] = self._compensate(truth, field_, "batched-ga", idx=self.points.ga_idx)
                 row = _row(self.m.name, "grinder", path, label, closed_loop=True, loop_method=USER_LOOP,
                            solver="exact", fit_seconds=id_s + loop_s, identify_seconds=id_s, diagnosis_seconds=loop_s,
                            compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
                            true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
-                           solvers=sol, effects_found=[f"{e['kind']}:{e['axis']}:{e['element']}" for e in doc["terms"]],
-                           stage=doc["stage"], n_checks=len(checks),
+                           solvers=sol, effects_found=[f"{e['kind']}:{e['axis']}:{e['element']}" for e in terms],
+                           stage=stage, n_checks=len(checks),
                            checks_rms_before_um=summary["stages"]["identified"]["held_out"]["rms_um"],
-                           checks_rms_after_um=summary["stages"][doc["stage"]]["held_out"]["rms_um"],
+                           checks_rms_after_um=rms_after[path],
                            check_noise_um=s.check_noise_um, model_verdict=summary.get("verdict"),
                            **(learned if path == "hybrid" else {}),
                            **{**common, "n_measurements": common["n_measurements"] + len(checks)})
@@ -616,18 +622,24 @@ class GrinderBench:
                                       not_available=f"closed loop failed: {type(exc).__name__}: {exc}", **common))
 
     def closed_loop_row(self, truth, label, checks, base_row, base, common):
-        from errormap.diagnosis.pipeline import diagnose
-
-        from ...diagnosed_model import ConditionedField
+        """The effect search on the base's element set (the closed loop without the element update); a base without
+        elements (the learned field) is a row that says so."""
+        from errormap.chain_elements import ChainElementSet
+        from errormap.diagnosis.chain_loop import closed_loop_chain
+        from errormap.diagnosis.loop_model import ChainModelField
+        from errormap.grinder_file import machine_tool_of
         s = self.s
+        if getattr(base, "elements", None) is None:
+            raise ValueError("the closed loop searches effects on an element set; a trained network is not one")
+        mt = machine_tool_of(self.m)
+        el = base.elements if isinstance(base.elements, ChainElementSet) else chain_elements(base.elements, mt)
         t0 = time.perf_counter()
-        d = diagnose(self.m, base, checks)
+        d = closed_loop_chain(mt, el, checks, cov=None)
         diag_s = time.perf_counter() - t0
-        found = [f"{e['kind']}:{e['axis']}:{e['element']}" for e in d.effects]
-        corrected = ConditionedField(d.corrected, PATH_CONDITIONS)
+        terms = d["_models"]["terms"] if d["kept_stage"].endswith("plus_effects") else []
+        found = [f"{t.kind}:{'*'.join(t.axes)}:{t.element}" for t in terms]
+        corrected = at_conditions(ChainModelField(mt, el, terms), mt, PATH_CONDITIONS)
         sol = {"exact": self._compensate(truth, corrected, "exact")}
-        if base_row["path"] == "learned":
-            sol["batched-ga"] = self._compensate(truth, corrected, "batched-ga", idx=self.points.ga_idx)
         vol = self._volume(truth, corrected)
         extra = {k: base_row.get(k) for k in ("identify_seconds", "train_seconds", "training_run_id",
                                                "reused_training_of") if base_row.get(k) is not None}
@@ -636,7 +648,8 @@ class GrinderBench:
                    compensate_seconds_per_point=sol["exact"]["seconds_per_point"],
                    true_rms_um=sol["exact"]["true_rms_um"], true_max_um=sol["exact"]["true_max_um"],
                    solvers=sol, effects_found=found, n_checks=len(checks),
-                   checks_rms_before_um=d.summary["rms_before_um"], checks_rms_after_um=d.summary["rms_after_um"],
+                   checks_rms_before_um=d["stages"]["identified"]["held_out"]["rms_um"],
+                   checks_rms_after_um=d["held_out_rms_um"],
                    **{**common, "n_measurements": common["n_measurements"] + len(checks)}, **extra)
         self.log.add(_with_volume(row, vol))
         return d, row

@@ -188,11 +188,11 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
     from errormap.machine import load_machine
     from errormap.sweeps import read_sweeps
     from errormap.uncertainty import covariance_path, smooth_identify
-    from errormap.diagnosis.pipeline import DiagnosisSettings
     from errormap.threads import limit_threads
     from training.trainers import fit_field
 
-    from .diagnosis import run_closed_loop
+    from .measurement import diagnose_chain
+    from ..reports.chain_diagnosis import write_chain_diagnosis_page
 
     machine = load_machine(m["machine"])   # checked by the fleet's up-front read
     name = m["name"]
@@ -218,11 +218,12 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
                         out_dir=folder / "train", tags={"fleet": s["fleet"], "fleet_machine": name,
                                                         "featurepoints_file": str(fp_path)})
         # 3. diagnose: the closed loop on the identified set and its covariance (measured residual)
-        summary, paths = run_closed_loop(m["checks"], machine, el_path, folder / "diagnosis", DiagnosisSettings())
+        summary, paths = diagnose_chain(m["checks"], machine, el_path, folder / "diagnosis")
+        paths.append(write_chain_diagnosis_page(folder / "diagnosis", machine))
     st = summary["stages"]
     metrics = {"diagnose_heldout_rms_identified_um": st["identified"]["held_out"]["rms_um"],
                "diagnose_heldout_rms_updated_um": st["updated"]["held_out"]["rms_um"],
-               "diagnose_heldout_rms_final_um": st["updated_plus_effects"]["held_out"]["rms_um"],
+               "diagnose_heldout_rms_final_um": summary["held_out_rms_um"],
                "identify_noise_um": float(sm.noise_um)}
     if res.run_id:
         _log_to_run(s["tracking_uri"], res.run_id, metrics,

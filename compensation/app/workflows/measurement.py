@@ -148,7 +148,8 @@ def identify_chain_files(machine, sweep_files, out, report=None, noise_um=None, 
         res = bootstrap_covariance(sweeps, machine, res, n_boot, seed, gauge=gauge)
     if smooth:
         res = smooth_chain(res, machine)
-    cov_path = res.save_covariance(companion_path(out, ".cov.npz"))
+    from errormap.chain_covariance import save_chain_covariance
+    cov_path = save_chain_covariance(res, companion_path(out, ".cov.npz"))
     report = Path(report) if report else companion_path(out, ".report.json")
     info = res.to_dict()
     info.update({"sweeps": [str(s) for s in sweep_files], "machine": machine.name, "machine_file": machine.path,
@@ -174,14 +175,15 @@ def chain_truth_in_gauge(machine, truth_file, gauge: str = "station-mean"):
     return ChainIdentification(gauge=gauge).fit(sw, machine).elements_
 
 
-def load_chain_model(path, machine):
-    """An element set of ``machine`` (format key ``volcomp-elements/1``) and its covariance beside it
-    (``NAME.cov.npz``) when present."""
+def load_chain_model(path, machine, prior: bool = False):
+    """An element set of ``machine`` (a chain, or a ``kind = "grinder"`` file's chain; format key
+    ``volcomp-elements/1``) and its covariance beside it (``NAME.cov.npz``) when present:
+    ``(elements, (slot names, stations, Σ) or None, covariance path or None)``. ``prior``: Σ as the prior of
+    an element update, with the smoother's ``prior_extra`` on its diagonal (:func:`read_chain_covariance`)."""
     from errormap.chain_elements import ELEMENTS_FORMAT, ChainElementSet
-    from errormap.identification import load_covariance
     p = Path(path)
     if not p.is_file():
-        raise InputError(f"{p}: no such model file (a machine-tool chain takes an element-set file)")
+        raise InputError(f"{p}: no such model file (a machine tool takes an element-set file)")
     try:
         fmt = json.loads(read_document_text(p, "a model or element set")).get("format")
     except (json.JSONDecodeError, AttributeError, RecursionError):
@@ -191,7 +193,10 @@ def load_chain_model(path, machine):
                          f"got {fmt!r}")
     el = ChainElementSet.load(p, machine)
     cp = companion_path(p, ".cov.npz")
-    return el, (load_covariance(cp) if cp.is_file() else None), (cp if cp.is_file() else None)
+    if not cp.is_file():
+        return el, None, None
+    from errormap.chain_covariance import read_chain_covariance
+    return el, read_chain_covariance(cp, p, prior), cp
 
 
 BAND_BATCH = 4096
@@ -234,76 +239,102 @@ def chain_band_sd(machine, elements, cov, axes, cov_path="<covariance>") -> np.n
     return out
 
 
-def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0, families=None, refit=None):
-    """The learned-residual stage after the chain loop (:func:`compensation.hybrid.learned_stage`, the grinder's
-    stage and keep rule): fitted on what the loop's kept model (``elements`` + ``terms``, at the checks' own
-    conditions) leaves at the fitting checks, kept only if it lowers the held-out squared residual, paired per
-    point, by more than :data:`compensation.hybrid.KEEP_Z` standard errors over the loop's kept stage. When the
-    kept model has condition terms (thermal, reversal), the learned field of the axes may replace them
-    (``r_static_um``: the same model without them), each term tested on its own as on the grinder
-    (``condition_terms_um``: each condition term's contribution at the checks; the per-term γ̂ rule of
-    :data:`compensation.hybrid.TERM_CONSISTENT_Z`): a real term stays beside a replaced stand-in. The chain's
-    element update carries no posterior covariance here, so the band is the learned part's (⊕ the fitted noise
-    on the held-out checks).
+def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0, families=None, refit=None,
+                        refit_all: bool = False):
+    """The learned-residual stage after the chain loop (:func:`compensation.hybrid.learned_stage`): fitted on
+    what the loop's kept model (``elements`` + ``terms``, at the checks' own conditions) leaves at the fitting
+    checks, kept only if it lowers the held-out squared residual, paired per point, by more than
+    :data:`compensation.hybrid.KEEP_Z` standard errors over the loop's kept stage. When the kept model has
+    condition terms (thermal, reversal), the learned field of the axes may replace them (``r_static_um``: the
+    same model without them), each term tested on its own (``condition_terms_um``: each condition term's
+    contribution at the checks; the per-term γ̂ rule of :data:`compensation.hybrid.TERM_CONSISTENT_Z`): a real
+    term stays beside a replaced stand-in. The band is the learned part's (⊕ the fitted noise on the held-out
+    checks).
     ``refit``: None, or the loop's re-estimation of its kept stage (``closed_loop_chain``'s ``_models["refit"]``:
     ``(terms, offset_um, idx) -> (elements, terms, residual)``): the learned part is then backfitted with the
-    element update (:data:`compensation.hybrid.BACKFIT_ROUNDS`), and the elements and terms returned are the
-    base of the last round.
+    element update (:data:`compensation.hybrid.BACKFIT_ROUNDS`). ``refit_all`` (with ``refit``): once chosen
+    and gated, the base and the learned part are re-estimated on ALL checks before they are shipped.
     → ``(learned or None, stage, static terms, elements)``: ``static terms`` the terms the hybrid keeps (all of
     ``terms``, or all but the condition terms the learned field replaced, their coefficients the backfitted
-    ones when backfitted), ``elements`` the hybrid's elements (``elements``, or the backfitted ones)."""
+    ones when backfitted), ``elements`` the hybrid's elements (``elements``, or the backfitted base of the last
+    round: on all checks with ``refit_all``, else on the fitting checks)."""
     from compensation.hybrid import learned_stage
     from errormap.diagnosis.loop_model import ChainModelField, term_needs
     n, n_fit = len(checks), int(summary["n_fit"])
 
-    def prediction(ts):
-        f = ChainModelField(machine, elements, ts)
+    def prediction(el, ts):
+        f = ChainModelField(machine, el, ts)
         f = f.with_conditions({c: checks.conditions[c] for c in f.needs})
         return f.predict(checks.axes)
 
-    r_prev = checks.measured_um - prediction(terms)
+    r_prev = checks.measured_um - prediction(elements, terms)
     static = [t for t in terms if not term_needs(machine, t)]
     cond = [t for t in terms if term_needs(machine, t)]
     r_static, c_terms = None, None
     if cond:   # each condition term's own contribution (the terms' columns add up: ChainModelField)
-        p_static = prediction(static)
+        p_static = prediction(elements, static)
         r_static = checks.measured_um - p_static
-        c_terms = np.stack([prediction(static + [t]) - p_static for t in cond])
+        c_terms = np.stack([prediction(elements, static + [t]) - p_static for t in cond])
     last = {}
 
-    def base_update(replaced, offset_um, idx):
-        """The loop's kept stage without the condition terms ``replaced`` (indices into the condition terms, or
-        True / False: all / none) re-estimated on the checks ``idx`` with ``offset_um`` taken off → its residual
-        at every check, at the checks' own conditions."""
+    def without(replaced) -> list:
+        """``terms`` without the condition terms ``replaced`` (indices into them, or True / False: all / none)."""
         replaced = (tuple(range(len(cond))) if replaced is True else () if replaced is False else tuple(replaced))
         gone = {id(cond[k]) for k in replaced}
-        el, ts, _ = refit([t for t in terms if id(t) not in gone], offset_um, idx)
-        f = ChainModelField(machine, el, ts)
-        f = f.with_conditions({c: checks.conditions[c] for c in f.needs})
-        last["base"] = (el, ts)
-        return checks.measured_um - f.predict(checks.axes)
+        return [t for t in terms if id(t) not in gone]
+
+    def base_update(replaced, offset_um, idx):
+        """The loop's kept stage without the condition terms ``replaced`` re-estimated on the checks ``idx`` with
+        ``offset_um`` taken off → its residual at every check, at the checks' own conditions."""
+        el, ts, _ = refit(without(replaced), offset_um, idx)
+        last["all" if len(idx) == n else "fit"] = (el, ts)
+        return checks.measured_um - prediction(el, ts)
+
+    def refit_residual(replaced):
+        """The base re-estimated on all checks (without ``replaced``) → its residual at every check."""
+        el, ts, _ = refit(without(replaced), np.zeros((n, 3)), np.arange(n))
+        return checks.measured_um - prediction(el, ts)
 
     learned, stage = learned_stage(machine, r_prev, checks.axes, np.arange(n_fit), np.arange(n_fit, n), seed=seed,
                                    families=families, r_static_um=r_static, condition_terms_um=c_terms,
-                                   base_update=None if refit is None else base_update)
-    if learned is not None and "base" in last and "backfit" in stage["learned"]:   # the last round's base
-        el, ts = last["base"]
+                                   base_update=None if refit is None else base_update,
+                                   refit_residual=refit_residual if (refit is not None and refit_all) else None)
+    base = last.get("all" if refit_all else "fit")
+    if learned is not None and base is not None and "backfit" in stage["learned"]:   # the last round's base
+        el, ts = base
         return learned, stage, ts, el
     if learned is None or not stage["learned"]["replaces_condition_terms"]:
         return learned, stage, list(terms), elements
-    gone = {id(cond[k]) for k in stage["learned"]["replaced_condition_terms"]}
-    return learned, stage, [t for t in terms if id(t) not in gone], elements
+    return learned, stage, without(stage["learned"]["replaced_condition_terms"]), elements
+
+
+def _refit_record(summary, n: int, learned: bool) -> dict:
+    """diagnosis.json's ``refit_on_all_checks``: what was re-estimated on all ``n`` checks after the choice."""
+    return {"checks": int(n), "stage": summary.get("base_stage", summary["kept_stage"]),
+            "note": ("the stages, effect terms and learned family were chosen on the fitting/held-out split (the "
+                     "held-out figures above are those); the shipped elements, terms"
+                     f"{' and learned residual' if learned else ''} were then re-estimated on all {n} checks "
+                     "(model.json and updated_elements.json; diagnosis.json's effect coefficients are the loop's)")}
 
 
 def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=None, effects=True,
-                   max_effects=4, update=True, units="check", learn: bool = True) -> tuple:
+                   max_effects=4, update=True, units="check", learn: bool = True, refit_all: bool = True,
+                   track: bool = False, tracking_uri=None) -> tuple:
     """Held-out measured residual of an element set on checks (stages, noise floor, effects), then (``learn``)
-    the learned-residual stage on what the kept stage leaves (:func:`chain_learned_stage`); writes
-    ``out/diagnosis.json``, ``out/updated_elements.json`` and ``out/model.json`` (with ``learned_residual``
-    when that stage is kept: :mod:`compensation.chain_hybrid`)."""
-    from errormap.diagnosis.chain_loop import closed_loop_chain, load_mt_checks
-    el, cov, cov_path = load_chain_model(model, machine)
-    checks = load_mt_checks(checks_path, machine, units=units)
+    the learned-residual stage on what the kept stage leaves (:func:`chain_learned_stage`); ``refit_all``: once
+    chosen on the fitting/held-out split, the kept stage (elements, effect terms, learned part) is re-estimated
+    on ALL checks and shipped (the held-out figures stay the validated ones). Writes ``out/diagnosis.json``,
+    ``out/updated_elements.json`` and ``out/model.json`` (with ``learned_residual`` when that stage is kept:
+    :mod:`compensation.chain_hybrid`). ``machine``: a machine-tool chain or a grinder file (its chain).
+    ``track``: a kept learned residual is also logged as an MLflow run (``tracking_uri``; its id recorded in
+    diagnosis.json and model.json)."""
+    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, load_mt_checks
+    from errormap.grinder_file import machine_tool_of
+    machine = machine_tool_of(machine)
+    el, cov, cov_path = load_chain_model(model, machine, prior=True)
+    checks = (checks_path if isinstance(checks_path, MTChecks)   # checks in memory (the benchmark's)
+              else load_mt_checks(checks_path, machine, units=units))
+    checks_path = checks.path if isinstance(checks_path, MTChecks) else checks_path
     try:
         summary = closed_loop_chain(machine, el, checks, cov=cov if update else None, fit_fraction=fit_fraction,
                                     noise_um=noise_um, effects=effects, max_effects=max_effects, units=units)
@@ -312,53 +343,39 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     except ValueError as exc:
         raise InputError(f"{checks_path}: {exc}") from None
     models = summary.pop("_models")
-    summary.update({"checks": str(checks_path), "model": str(model), "covariance": str(cov_path) if cov_path else None,
-                    "update": bool(update and cov is not None)})
+    from compensation.fields import resolve_model
+    summary.update({"checks": str(checks_path), "model": str(model), "model_source": resolve_model(model).to_dict(),
+                    "covariance": str(cov_path) if cov_path else None, "update": bool(update and cov is not None)})
     terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
-    extra = None
+    refit, n = models.get("refit"), len(checks)
+    refit_all = bool(refit_all and refit is not None)
+    extra, learned = None, None
     loop_alone = None   # with backfitting: the loop's own elements and terms (what it ships without the learned part)
     if learn:
         loop_terms = list(terms)
         learned, stage, terms, backfit_el = chain_learned_stage(machine, checks, models["elements"], terms, summary,
-                                                                refit=models.get("refit"))
+                                                                refit=refit, refit_all=refit_all)
         if learned is not None and "backfit" in stage["learned"]:   # the backfitted base is the hybrid's
             kept_labels = {(t.kind, tuple(t.axes), t.element) for t in terms}
-            loop_alone = (models["elements"], [t for t in loop_terms if (t.kind, tuple(t.axes), t.element) in kept_labels])
+            alone_terms = [t for t in loop_terms if (t.kind, tuple(t.axes), t.element) in kept_labels]
+            loop_alone = (refit(alone_terms, np.zeros((n, 3)), np.arange(n))[:2] if refit_all
+                          else (models["elements"], alone_terms))
             models["elements"] = backfit_el
             stage["learned"]["backfit"]["shipped_base"] = (
-                "the elements and terms shipped are the base of the last backfitting round on the fitting checks "
-                "(estimated with the learned part's prediction taken off their residual); diagnosis.json's effect "
-                "coefficients are the loop's, model.json's the backfitted ones")
+                "the elements and terms shipped are the base of the last backfitting round on "
+                f"{'all' if refit_all else 'the fitting'} checks (estimated with the learned part's prediction taken "
+                "off their residual); diagnosis.json's effect coefficients are the loop's, model.json's the "
+                "backfitted ones")
         stage["base_stage"] = summary["kept_stage"]
         if "held_out" in stage:  # the stage ran (enough checks): a stage beside the others
             summary["stages"] = dict(summary["stages"], learned_residual=stage)
         summary["learned_residual"] = stage["learned"]
         if learned is not None:
-            if stage["learned"]["replaces_condition_terms"]:
-                kept_terms = {(t.kind, "*".join(t.axes), t.element) for t in terms}   # the terms the hybrid keeps
-                summary["effects_replaced_by_learned"] = [e for e in summary["effects"]
-                                                          if (e["kind"], e["axis"], e["element"]) not in kept_terms]
-                summary["effects"] = [e for e in summary["effects"] if e not in summary["effects_replaced_by_learned"]]
-            summary["base_stage"] = summary["kept_stage"]
-            summary["held_out_rms_base_um"] = summary["held_out_rms_um"]
-            summary["kept_stage"] = "learned_residual"
-            summary["kept_why"] = f"{summary['kept_why']}; then the learned residual was {stage['learned']['why']}"
-            summary["held_out_rms_um"] = stage["held_out"]["rms_um"]
-            if summary.get("noise_floor_um"):
-                summary["held_out_over_floor"] = float(summary["held_out_rms_um"] / summary["noise_floor_um"])
-            lr = stage["learned"]
-            extra = {"learned_residual": learned.to_dict(), "base_stage": summary["base_stage"],
-                     "learned_family": {"family": lr["family"], "name": lr.get("family_name", lr["family"]),
-                                        "compared": lr.get("families_compared"),
-                                        "estimated_on_checks": (lr.get("shipped") or {}).get("estimated_on_checks")}}
-            if summary.get("effects_replaced_by_learned"):
-                extra["base_terms_replaced"] = summary["effects_replaced_by_learned"]
-            if loop_alone is not None:
-                extra["loop_alone"] = {"elements": "loop_elements.json", "terms": [t.to_dict() for t in loop_alone[1]],
-                                       "note": ("the base stage's elements and terms as the loop alone estimates them "
-                                                "(not backfitted with the learned part): a model.json with these in "
-                                                "place of 'elements' and 'terms' and without 'learned_residual' is the "
-                                                "loop alone")}
+            extra = _learned_kept(summary, stage, learned, terms, loop_alone)
+    if refit_all and (learned is None or loop_alone is None):   # not backfitted: the kept stage on all checks
+        models["elements"], terms, _ = refit(terms, np.zeros((n, 3)), np.arange(n))
+    if refit_all:
+        summary["refit_on_all_checks"] = _refit_record(summary, n, learned is not None)
     from errormap.diagnosis.plausibility import diagnosis_verdict
     summary["verdict"] = diagnosis_verdict(summary)   # failed: the command exits 1 (volcomp diagnose)
     extra = dict(extra or {}, verdict=summary["verdict"])
@@ -367,10 +384,47 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     el_path = models["elements"].save(out / "updated_elements.json")   # each file written whole (temporary file, rename)
     paths_extra = [] if loop_alone is None else [loop_alone[0].save(out / "loop_elements.json")]
     from errormap.diagnosis.loop_model import save_chain_model
+    if track and learned is not None:   # the kept learned residual as an MLflow run (training.tracking)
+        from training.tracking import log_learned_residual
+        rid = log_learned_residual(summary["stages"]["learned_residual"], extra["learned_residual"], model_doc=extra,
+                                   tracking_uri=tracking_uri, tags={"checks": str(checks_path), "model": str(model)})
+        summary["learned_residual"] = dict(summary["learned_residual"], mlflow_run_id=rid)
+        extra["mlflow_run_id"] = rid
     model_path = save_chain_model(out / "model.json", machine, el_path, terms, summary["kept_stage"], extra)
     summary["model_file"] = str(model_path)
     write_json(out / "diagnosis.json", summary)
     return summary, [out / "diagnosis.json", out / "updated_elements.json", model_path] + paths_extra
+
+
+def _learned_kept(summary, stage, learned, terms, loop_alone) -> dict:
+    """``summary`` updated for a kept learned residual (the kept stage, the effects it replaced); → model.json's
+    extra keys (the learned part, its family, the replaced terms, the loop alone)."""
+    if stage["learned"]["replaces_condition_terms"]:
+        kept_terms = {(t.kind, "*".join(t.axes), t.element) for t in terms}   # the terms the hybrid keeps
+        summary["effects_replaced_by_learned"] = [e for e in summary["effects"]
+                                                  if (e["kind"], e["axis"], e["element"]) not in kept_terms]
+        summary["effects"] = [e for e in summary["effects"] if e not in summary["effects_replaced_by_learned"]]
+    summary["base_stage"] = summary["kept_stage"]
+    summary["held_out_rms_base_um"] = summary["held_out_rms_um"]
+    summary["kept_stage"] = "learned_residual"
+    summary["kept_why"] = f"{summary['kept_why']}; then the learned residual was {stage['learned']['why']}"
+    summary["held_out_rms_um"] = stage["held_out"]["rms_um"]
+    if summary.get("noise_floor_um"):
+        summary["held_out_over_floor"] = float(summary["held_out_rms_um"] / summary["noise_floor_um"])
+    lr = stage["learned"]
+    extra = {"learned_residual": learned.to_dict(), "base_stage": summary["base_stage"],
+             "learned_family": {"family": lr["family"], "name": lr.get("family_name", lr["family"]),
+                                "compared": lr.get("families_compared"),
+                                "estimated_on_checks": (lr.get("shipped") or {}).get("estimated_on_checks")}}
+    if summary.get("effects_replaced_by_learned"):
+        extra["base_terms_replaced"] = summary["effects_replaced_by_learned"]
+    if loop_alone is not None:
+        extra["loop_alone"] = {"elements": "loop_elements.json", "terms": [t.to_dict() for t in loop_alone[1]],
+                               "note": ("the base stage's elements and terms as the loop alone estimates them "
+                                        "(not backfitted with the learned part): a model.json with these in "
+                                        "place of 'elements' and 'terms' and without 'learned_residual' is the "
+                                        "loop alone")}
+    return extra
 
 
 def diagnosis_lines(summary) -> list:
