@@ -13,6 +13,7 @@ from compensation.solvers.chain_exact import nominal_and_jacobian, solve_exact_c
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
+from errormap.io import read_table
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -339,8 +340,9 @@ def test_compensate_chain_csv_and_guards(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "refused by guard(s) ball" in err and not (tmp_path / "o1" / "path.csv").exists()
     assert main(args + ["--out", str(tmp_path / "o2"), "--allow", "ball,convergence"]) == 0
-    text = (tmp_path / "o2" / "path.csv").read_text()
-    assert text.startswith("# volcomp compensate: GUARDS OVERRIDDEN (--allow ball,convergence)")
+    assert (tmp_path / "o2" / "path.csv").read_text().startswith("x_mm,y_mm,z_mm")   # plain: the note in its sidecar
+    assert read_table(tmp_path / "o2" / "path.csv").comments[0].startswith(
+        "volcomp compensate: GUARDS OVERRIDDEN (--allow ball,convergence)")
     doc = json.loads((tmp_path / "o2" / "compensate_summary.json").read_text())
     assert doc["files"][0]["overridden"]["ball"] > 0
     # a CSV within the ball: the compensated axis columns solve the model exactly

@@ -1,10 +1,10 @@
-"""``volcomp featurepoints``: the 11×11×11 feature-point dataset from an element set."""
+"""``volcomp featurepoints``: the feature-point dataset (a grid over the machine's axes) from an element set."""
 from __future__ import annotations
 
 import sys
 
 from errormap.elements import ElementSet
-from errormap.featurepoints import make_feature_points
+from errormap.featurepoints import DEFAULT_GRID, default_grid, grid_axes, make_feature_points
 from errormap.htm import HTMField
 from errormap.io import sha256_file
 from errormap.machine import load_machine
@@ -17,13 +17,17 @@ def register(sub):
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
                    "grinder; a machine-tool chain (mill-xyz ...): the grid over its own axes")
     p.add_argument("--elements", required=True, help="element-set file (JSON)")
-    p.add_argument("--grid", type=int, default=11, help="points per axis (default 11)")
+    p.add_argument("--grid", type=int, default=None,
+                   help=f"points per axis (default {DEFAULT_GRID} on up to three axes, a node at every element station "
+                        f"of the simulated truth; on more axes the largest grid of at most {DEFAULT_GRID}³ points)")
     p.add_argument("--out", required=True, help="output CSV")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     machine = load_machine(args.machine)
+    if args.grid is None:
+        args.grid = default_grid(grid_axes(machine, 1).shape[1])
     field = FIELDS[family_of(machine).target("featurepoints")](machine, args)
     print(f"featurepoints: element set (volcomp-elements/1): {args.elements}", file=sys.stderr)
     fp = make_feature_points(machine, field, n=args.grid,
