@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from errormap.elements import ElementSet
-from errormap.featurepoints import DEFAULT_GRID, default_grid, grid_axes, make_feature_points
+from errormap.featurepoints import DEFAULT_GRID, make_feature_points
 from errormap.htm import HTMField
 from errormap.io import sha256_file
 from errormap.machine import load_machine
@@ -26,8 +26,6 @@ def register(sub):
 
 def run(args) -> int:
     machine = load_machine(args.machine)
-    if args.grid is None:
-        args.grid = default_grid(grid_axes(machine, 1).shape[1])
     field = FIELDS[family_of(machine).target("featurepoints")](machine, args)
     print(f"featurepoints: element set (volcomp-elements/1): {args.elements}", file=sys.stderr)
     fp = make_feature_points(machine, field, n=args.grid,
@@ -42,7 +40,7 @@ def _chain_field(machine, args):
     from compensation.app.validate import UsageError
     from compensation.app.validate import MAX_GRID_POINTS
     k = len(machine.axes)
-    if args.grid ** k > MAX_GRID_POINTS:
+    if args.grid is not None and args.grid ** k > MAX_GRID_POINTS:   # None: errormap.featurepoints.default_grid fits
         raise UsageError(f"--grid {args.grid}: {args.grid}^{k} = {args.grid ** k} points over the {k} axes of "
                          f"{machine.name!r} exceeds {MAX_GRID_POINTS}; the largest that fits is "
                          f"{int(MAX_GRID_POINTS ** (1 / k) + 1e-9)}")
