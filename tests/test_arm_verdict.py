@@ -135,7 +135,7 @@ def test_compensate_refuses_a_failed_arm_model_unless_allowed(models):
     rc, out, err = run_cli(["compensate", prog, "--machine", "ur5", "--model", model, "--out", d / "c2",
                             "--allow", "failed-verdict"])
     assert rc == 0, err
-    head = (d / "c2" / "prog.csv").read_text().splitlines()[0]
+    head = read_table(d / "c2" / "prog.csv").comments[0]   # the first provenance line (its sidecar)
     assert "MODEL VERDICT FAILED" in head and "--allow failed-verdict" in head and "stated tracker" in head
     # a passed model needs no --allow
     rc, out, err = run_cli(["compensate", prog, "--machine", "ur5", "--model", d / "passed.json",

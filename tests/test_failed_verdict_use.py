@@ -92,7 +92,7 @@ def test_compensate_refuses_then_records_the_override_in_the_summary(diagnosed, 
     assert summary["model_verdict"]["status"] == "failed"
     assert summary["model_verdict"]["overridden_by"] == f"--allow {FAILED_VERDICT}"
     assert summary["allow"] == [FAILED_VERDICT]
-    assert "MODEL DIAGNOSIS VERDICT FAILED" in (tmp_path / "c" / "pts.csv").read_text()   # the program says so
+    assert "MODEL DIAGNOSIS VERDICT FAILED" in " ".join(read_table(tmp_path / "c" / "pts.csv").comments)  # its sidecar says so
 
 
 def test_a_bare_allow_does_not_override_the_verdict(diagnosed, tmp_path):
@@ -130,7 +130,7 @@ def test_a_chain_model_json_with_its_own_failed_verdict_is_refused(chain_model, 
     rc, _, err = run_cli(["compensate", d / "pts.csv", "--machine", "mill-xyz", "--model", model,
                           "--method", "exact", "--out", tmp_path / "c", "--allow", FAILED_VERDICT])
     assert rc == 0, err
-    assert "MODEL DIAGNOSIS VERDICT FAILED" in (tmp_path / "c" / "pts.csv").read_text()
+    assert "MODEL DIAGNOSIS VERDICT FAILED" in " ".join(read_table(tmp_path / "c" / "pts.csv").comments)
     summary = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())
     assert summary["model_verdict"]["overridden_by"] == f"--allow {FAILED_VERDICT}"
 
