@@ -7,8 +7,8 @@ Formats (docs/schemas.md and docs/toolpaths.md):
   ``forward(axes)``; those are the targets.
 * **CSV, WCS targets** — columns ``px_mm, py_mm, pz_mm``. The targets are the values;
   the nominal axes are ``inverse(targets)`` with A unwrapped along the path.
-  (A file with both sets of columns is refused as ambiguous.) Extra columns and leading
-  ``#`` comment lines are kept.
+  (A file with both sets of columns is refused as ambiguous.) Extra columns are kept; the
+  input's provenance (its sidecar or leading ``#`` lines) goes to the output's sidecar.
 * **G-code** — any file whose first line (after blank and ``#`` lines) is not a CSV header
   (:func:`is_csv`: told by content, whatever the file's name); read by
   :mod:`compensation.gcode` with an explicit allow-list (RS274 numbers, ``G0 G1 G2 G3``,

@@ -1,7 +1,7 @@
-"""Feature points: the spatial error on the 11×11×11 grid over the X, Z and A strokes.
+"""Feature points: the spatial error on a grid over the X, Z and A strokes (:data:`DEFAULT_GRID` per axis).
 
-Written as CSV (``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um``) whose leading ``#`` lines
-record where the data came from (machine name, file and SHA-256; element-set file and
+Written as a plain CSV (``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um``) whose provenance (its sidecar,
+:func:`errormap.io.sidecar_path`; leading ``#`` lines of an older file) records where the data came from (machine name, file and SHA-256; element-set file and
 SHA-256), so a trained model can always be traced back. File paths in the provenance
 (``elements_file``, ``machine_file``) are written relative to the CSV's own folder and read
 back relative to it, so the pair can be moved or used from any working folder (the built-in
