@@ -162,3 +162,18 @@ def test_every_csv_of_demo_and_benchmark_opens_in_pandas(tiny_demo, tmp_path):
     _check_every_csv(tiny_demo.root / "demo", {"residuals.csv", "sim/featurepoints.csv", "sim/checks.csv"})
     _ok("benchmark", "--machine", "mill-xyz", "--quick", "--no-track", "--out", tmp_path / "b")
     assert len(_check_every_csv(tmp_path / "b", set())) >= 1
+
+
+def test_ctrl_c_removes_the_new_csv_and_its_sidecar_and_keeps_an_old_pair(tmp_path):
+    """A one-file output owned by a run (compensation/app/outputs.py owned_file): on Ctrl-C the CSV and its sidecar
+    that were not there before are removed; a pair that was there before stays."""
+    from compensation.app.outputs import owned_file
+    out = tmp_path / "p.csv"
+    with pytest.raises(KeyboardInterrupt), owned_file(out, "predict"):
+        write_csv(out, {"x_mm": np.array([1.0])}, header_comments=["machine: grinder"])
+        raise KeyboardInterrupt
+    assert not out.exists() and not sidecar_path(out).exists()
+    write_csv(out, {"x_mm": np.array([1.0])}, header_comments=["machine: grinder"])
+    with pytest.raises(KeyboardInterrupt), owned_file(out, "predict"):
+        raise KeyboardInterrupt
+    assert out.exists() and read_table(out).meta() == {"machine": "grinder"}
