@@ -7,8 +7,8 @@ Formats (docs/reference/file-formats.md and docs/reference/tool-paths.md):
   ``forward(axes)``; those are the targets.
 * **CSV, WCS targets** — columns ``px_mm, py_mm, pz_mm``. The targets are the values;
   the nominal axes are ``inverse(targets)`` with A unwrapped along the path.
-  (A file with both sets of columns is refused as ambiguous.) Extra columns and leading
-  ``#`` comment lines are kept.
+  (A file with both sets of columns is refused as ambiguous.) Extra columns are kept; the
+  input's provenance (its sidecar or leading ``#`` lines) goes to the output's sidecar.
 * **G-code** — any file whose first line (after blank and ``#`` lines) is not a CSV header
   (:func:`is_csv`: told by content, whatever the file's name); read by
   :mod:`compensation.gcode` with an explicit allow-list (RS274 numbers, ``G0 G1 G2 G3``,
@@ -518,10 +518,10 @@ def _read_csv(path, machine, units: str = UNITS_CHECK, units_option: str | None 
     return ToolPathFile(Path(path), "csv-targets", inverse(machine, targets, unwrap=True), targets, rows, t)
 
 
-def _render_csv(table, replace: dict, comments=()) -> str:
+def _render_csv(table, replace: dict) -> str:
+    """The CSV ``table`` with the columns of ``replace`` (name -> (values, decimals)) rewritten: a plain CSV,
+    header first (its provenance goes to the sidecar: :func:`compensated_sidecar`)."""
     buf = io.StringIO(newline="")
-    for c in list(table.comments) + list(comments):
-        buf.write(f"# {c}\n")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(table.names)
     cols = {k: i for i, k in enumerate(table.names)}
@@ -647,8 +647,9 @@ def render_compensated(toolpath: ToolPathFile, axes, commands_mm, comments=()) -
     """The compensated program's text (see the module docstring for what changes).
 
     ``axes`` shape (n, 3): compensated axis commands; ``commands_mm`` shape (n, 3):
-    compensated WCS commands ``p_r``. ``comments`` become extra ``#`` lines in CSV output
-    and header ``(...)`` comment lines in G-code output (after a leading ``%`` line).
+    compensated WCS commands ``p_r``. ``comments`` become header ``(...)`` comment lines in G-code
+    output (after a leading ``%`` line); a CSV output is plain, its comments go to its sidecar
+    (:func:`compensated_sidecar`).
     """
     axes = np.asarray(axes, dtype=float)
     commands_mm = np.asarray(commands_mm, dtype=float)
@@ -660,42 +661,44 @@ def render_compensated(toolpath: ToolPathFile, axes, commands_mm, comments=()) -
         return render_gcode(toolpath.source, axes, header=comments)[0]
     if toolpath.kind == "csv-axes":
         dec = (DECIMALS_MM, DECIMALS_MM, DECIMALS_DEG)
-        return _render_csv(toolpath.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(AXIS_COLUMNS)}, comments)
-    return _render_csv(toolpath.source, {c: (commands_mm[:, j], DECIMALS_MM) for j, c in enumerate(TARGET_COLUMNS)},
-                       comments)
+        return _render_csv(toolpath.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(AXIS_COLUMNS)})
+    return _render_csv(toolpath.source, {c: (commands_mm[:, j], DECIMALS_MM) for j, c in enumerate(TARGET_COLUMNS)})
+
+
+def compensated_sidecar(table, out_path, comments=()) -> str:
+    """The provenance sidecar's text (:func:`errormap.io.sidecar_json`) of the compensated CSV ``out_path``
+    rendered from the input CSV ``table``: the input's provenance lines, then ``comments``."""
+    from errormap.io import sidecar_json
+    return sidecar_json(out_path, table.names, len(table), [*table.comments, *comments])
 
 
 def write_compensated(toolpath: ToolPathFile, out_path, axes, commands_mm, comments=()) -> Path:
     """Write the compensated program to ``out_path`` atomically; refuse to overwrite the input."""
     text = render_compensated(toolpath, axes, commands_mm, comments)
-    return write_text_output(toolpath, out_path, text)
-
-
-def write_text_output(toolpath: ToolPathFile, out_path, text: str) -> Path:
-    """Write a rendered program atomically in the input's encoding; refuse to overwrite the input."""
-    out_path = Path(out_path)
-    if out_path.exists() and out_path.resolve() == toolpath.path.resolve():
-        raise InputError(f"{out_path}: refusing to overwrite the input file")
-    with atomic_write(out_path, "wb") as fh:
-        fh.write(text.encode("latin-1" if toolpath.kind == "gcode" else "utf-8"))
-    return out_path
+    return write_outputs([(toolpath, out_path, text, comments)])[0]
 
 
 def write_outputs(items) -> list:
-    """Write several rendered programs as one set: ``items`` is a list of
-    ``(toolpath, out_path, text)``. Every file is first written in full to a temporary file
+    """Write several rendered programs as one set: ``items`` is a list of ``(toolpath, out_path, text)`` or
+    ``(toolpath, out_path, text, comments)``; a CSV program's sidecar (:func:`compensated_sidecar`, with
+    ``comments``) is written with it. Every file is first written in full to a temporary file
     beside its target; only when all are on disk are they renamed into place, one after the
     other. An error or interrupt before that leaves none of them (temporary files removed)."""
     import contextlib
-    for tp, out, _ in items:
+
+    from errormap.io import sidecar_path
+    for tp, out, *_ in items:
         out = Path(out)
         if out.exists() and out.resolve() == tp.path.resolve():
             raise InputError(f"{out}: refusing to overwrite the input file")
     with contextlib.ExitStack() as stack:
-        for tp, out, text in items:
+        for tp, out, text, *comments in items:
             fh = stack.enter_context(atomic_write(out, "wb"))
             fh.write(text.encode("latin-1" if tp.kind == "gcode" else "utf-8"))
-    return [Path(out) for _, out, _ in items]
+            if tp.kind != "gcode":
+                side = stack.enter_context(atomic_write(sidecar_path(out), "w", encoding="utf-8"))
+                side.write(compensated_sidecar(tp.source, out, comments[0] if comments else ()))
+    return [Path(item[1]) for item in items]
 
 
 def write_targets_csv(path, targets_mm, comments=()) -> Path:

@@ -1,7 +1,7 @@
-"""Feature points: the spatial error on the 11×11×11 grid over the X, Z and A strokes.
+"""Feature points: the spatial error on a grid over the X, Z and A strokes (:data:`DEFAULT_GRID` per axis).
 
-Written as CSV (``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um``) whose leading ``#`` lines
-record where the data came from (machine name, file and SHA-256; element-set file and
+Written as a plain CSV (``x_mm, z_mm, a_deg, dx_um, dy_um, dz_um``) whose provenance (its sidecar,
+:func:`errormap.io.sidecar_path`; leading ``#`` lines of an older file) records where the data came from (machine name, file and SHA-256; element-set file and
 SHA-256), so a trained model can always be traced back. File paths in the provenance
 (``elements_file``, ``machine_file``) are written relative to the CSV's own folder and read
 back relative to it, so the pair can be moved or used from any working folder (the built-in
@@ -115,8 +115,26 @@ class FeaturePoints:
                    axis_columns=names)
 
 
-def make_feature_points(machine, field, n: int = 11, meta: dict | None = None) -> FeaturePoints:
-    """Evaluate ``field.predict`` on the n×n×n grid."""
+DEFAULT_GRID = 21
+"""Feature points per axis of ``volcomp featurepoints`` / ``simulate`` / ``demo`` on a machine of up to three axes: a
+node at every element station of the simulated truth (21 per axis), where the measured best training setting
+(training.DEFAULT_PHYSICS) meets 0.0267 μm on the grid and 0.1 μm between its nodes (BENCHMARKS.md, "The surrogate
+network on feature points"; on the 11^3 grid no learner gets under 1 μm between nodes)."""
+
+
+def default_grid(n_axes: int) -> int:
+    """Points per axis when none are given: :data:`DEFAULT_GRID` on up to three axes; on more, the largest count
+    whose grid has no more points than DEFAULT_GRID³ (9,261: five axes get 6)."""
+    if n_axes <= 3:
+        return DEFAULT_GRID
+    n = int(round(DEFAULT_GRID ** (3 / n_axes)))
+    return n if n ** n_axes <= DEFAULT_GRID ** 3 else n - 1
+
+
+def make_feature_points(machine, field, n: int | None = None, meta: dict | None = None) -> FeaturePoints:
+    """Evaluate ``field.predict`` on the n×n×n grid (``n`` None: :func:`default_grid` of the machine's axes)."""
+    if n is None:
+        n = default_grid(grid_axes(machine, 1).shape[1])
     axes = grid_axes(machine, n)
     k = axes.shape[1]
     m = {"machine": machine.name, "machine_file": machine.path, "machine_sha256": machine.sha256,

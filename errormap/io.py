@@ -280,19 +280,34 @@ def write_json(path, obj) -> Path:
     return Path(path)
 
 
-def write_csv(path, columns: dict, header_comments: Sequence[str] = (), float_fmt: str = "%.9g") -> Path:
-    """Write named 1-D columns (equal length) as CSV, atomically.
+CSV_META_FORMAT = "volcomp-csv-meta/1"
+"""The format of a CSV's provenance sidecar (:func:`sidecar_path`)."""
 
-    ``header_comments`` become leading ``# ...`` lines (read back by :func:`read_table`).
+
+def sidecar_path(path) -> Path:
+    """The provenance sidecar of the CSV ``path``: ``NAME.csv`` -> ``NAME.meta.json`` beside it (any other
+    name gets ``.meta.json`` appended: ``f.txt`` -> ``f.txt.meta.json``)."""
+    path = Path(path)
+    stem = path.name[:-4] if path.name.lower().endswith(".csv") else path.name
+    return path.with_name(stem + ".meta.json")
+
+
+def write_csv(path, columns: dict, header_comments: Sequence[str] = (), float_fmt: str = "%.9g") -> Path:
+    """Write named 1-D columns (equal length) as a plain CSV (the header is its first line) and its provenance
+    sidecar (:func:`sidecar_path`), each atomically, the sidecar renamed into place just before the CSV.
+
+    ``header_comments``: the provenance lines (``key: value`` or free text); the sidecar holds them as written
+    (``lines``), their ``key: value`` pairs (``provenance``), the columns and the row count. :func:`read_table`
+    gives them back as :attr:`Table.comments`.
     """
     names = list(columns)
     arrays = [np.asarray(columns[k]) for k in names]
     n = {len(a) for a in arrays}
     if len(n) > 1:
         raise ValueError(f"Expected columns of equal length, got lengths {[len(a) for a in arrays]}")
-    with atomic_write(path, "w", encoding="utf-8", newline="") as fh:
-        for line in header_comments:
-            fh.write(f"# {line}\n")
+    rows = len(arrays[0]) if arrays else 0
+    with atomic_write(path, "w", encoding="utf-8", newline="") as fh, \
+            atomic_write(sidecar_path(path), "w", encoding="utf-8") as side:
         w = csv.writer(fh)
         w.writerow(names)
         fmt = []
@@ -301,16 +316,54 @@ def write_csv(path, columns: dict, header_comments: Sequence[str] = (), float_fm
                 fmt.append(lambda v, f=float_fmt: (f % v) if np.isfinite(v) else "nan")
             else:
                 fmt.append(str)
-        for i in range(len(arrays[0]) if arrays else 0):
+        for i in range(rows):
             w.writerow([f(a[i]) for f, a in zip(fmt, arrays)])
+        side.write(sidecar_json(path, names, rows, header_comments))
     return Path(path)
+
+
+def sidecar_json(path, names: Sequence[str], rows: int, lines: Sequence[str]) -> str:
+    """The text of the sidecar (:func:`sidecar_path`) of the CSV ``path`` with columns ``names`` and ``rows`` data
+    rows whose provenance is ``lines``: JSON with ``format``, ``csv`` (the file's name), ``columns``, ``rows``,
+    ``written_by``, ``provenance`` (the ``key: value`` pairs) and ``lines`` (as given)."""
+    from . import __version__
+    lines = [str(c) for c in lines]
+    meta = {"format": CSV_META_FORMAT, "csv": Path(path).name, "columns": list(names), "rows": int(rows),
+            "written_by": f"volcomp {__version__}", "provenance": _pairs(lines), "lines": lines}
+    return json.dumps(meta, indent=1) + "\n"
+
+
+def _pairs(lines: Sequence[str]) -> dict:
+    """``key: value`` pairs of provenance lines (a line without ``:`` is not a pair)."""
+    out = {}
+    for c in lines:
+        if ":" in c:
+            k, v = c.split(":", 1)
+            out[k.strip()] = v.strip()
+    return out
+
+
+def provenance_lines(path, header: list, comments: list) -> list:
+    """The provenance lines of the CSV ``path`` whose header is ``header``: its sidecar's (:func:`sidecar_path`)
+    when one names this file and these columns, else the leading ``#`` lines ``comments`` (a file written before
+    the sidecar, or by hand). The one place a reader of volcomp's CSVs finds their provenance."""
+    side = sidecar_path(path)
+    try:
+        meta = json.loads(side.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return comments
+    if (not isinstance(meta, dict) or meta.get("format") != CSV_META_FORMAT or meta.get("csv") != Path(path).name
+            or meta.get("columns") != header or not isinstance(meta.get("lines"), list)):
+        return comments
+    return comments + [str(c) for c in meta["lines"]]
 
 
 class Table:
     """A CSV table read by :func:`read_table`: named columns plus provenance.
 
     ``columns`` maps name -> list of raw strings; ``float(name)`` converts a column
-    with errors naming file, row and column. ``comments`` holds the leading ``#`` lines.
+    with errors naming file, row and column. ``comments`` holds the provenance lines: the leading ``#``
+    lines of a file written by hand or by an older volcomp, then its sidecar's (:func:`provenance_lines`).
     """
 
     def __init__(self, path: Path, names: list[str], rows: list[list[str]] | None, first_row: int, comments: list[str],
@@ -407,13 +460,8 @@ class Table:
         return vals.astype(np.int64)
 
     def meta(self) -> dict:
-        """``key: value`` pairs from the leading comment lines."""
-        out = {}
-        for c in self.comments:
-            if ":" in c:
-                k, v = c.split(":", 1)
-                out[k.strip()] = v.strip()
-        return out
+        """``key: value`` pairs of the provenance lines (:attr:`comments`)."""
+        return _pairs(self.comments)
 
 
 def not_a_file(path) -> str:
@@ -433,7 +481,7 @@ def not_a_file(path) -> str:
 
 
 def read_table(path, kind: str | None = None) -> Table:
-    """Read a CSV with a header row (leading ``#`` comment lines allowed).
+    """Read a CSV with a header row (leading ``#`` comment lines allowed: skipped, kept as provenance).
 
     Raises :class:`InputError` naming the file (and row) for a missing file, an
     empty file, a duplicated column name or a row with the wrong number of cells.
@@ -481,12 +529,13 @@ def read_table(path, kind: str | None = None) -> Table:
     if end >= 0 and _at_least_lines(body, FAST_MIN_ROWS) and "\n\n" not in body.rstrip("\n"):
         numeric = _parse_numeric_fast(body, header)
         if numeric is not None:
-            return Table(path, header, None, i + 2, comments, numeric=numeric, lines=body)
+            return Table(path, header, None, i + 2, provenance_lines(path, header, comments), numeric=numeric,
+                         lines=body)
     n_lines = body.count("\n") + 1 if end >= 0 else 0
     check_table_memory(path, TABLE_READ_BYTES_PER_CELL * n_lines * len(header) + 2 * len(body),
                        "cell by cell (it is not plainly numeric: a quote, a word or an empty cell)")
     rows, row_lines = _parse_rows(path, body.split("\n") if end >= 0 else [], header, i + 2)
-    return Table(path, header, rows, i + 2, comments, row_lines=row_lines)
+    return Table(path, header, rows, i + 2, provenance_lines(path, header, comments), row_lines=row_lines)
 
 
 # --- bounded work: a table is sized from its bytes, header and line count before it is parsed ---

@@ -17,7 +17,7 @@ During the X sweep Z and A are parked at their lower stroke limits, during the Z
 X and A, and during the A sweep X and Z (the A sweep is taken with the X carriage at its
 first station, which the identification relies on).
 
-Sweep file (CSV, docs/reference/file-formats.md "Axis sweeps"; leading ``#`` lines are provenance)::
+Sweep file (CSV, docs/reference/file-formats.md "Axis sweeps"; provenance in its sidecar or leading ``#`` lines)::
 
     axis,station,command,target,x_mm,y_mm,z_mm[,direction,time_s,temp_c]
 

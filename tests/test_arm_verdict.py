@@ -16,6 +16,7 @@ from errormap.arm_poses import write_arm_poses
 from errormap.arm_simulate import draw_truth, measure, random_joints
 from errormap.diagnosis.plausibility import ARM_NOISE_EXCESS, BASELINE_Z, arm_verdict
 from errormap.machine import load_machine
+from errormap.io import read_table
 
 UR5_LO = np.array([-60.0, -120.0, 30.0, -120.0, 40.0, -30.0])
 UR5_HI = np.array([60.0, -30.0, 140.0, 30.0, 150.0, 30.0])
@@ -134,7 +135,7 @@ def test_compensate_refuses_a_failed_arm_model_unless_allowed(models):
     rc, out, err = run_cli(["compensate", prog, "--machine", "ur5", "--model", model, "--out", d / "c2",
                             "--allow", "failed-verdict"])
     assert rc == 0, err
-    head = (d / "c2" / "prog.csv").read_text().splitlines()[0]
+    head = read_table(d / "c2" / "prog.csv").comments[0]   # the first provenance line (its sidecar)
     assert "MODEL VERDICT FAILED" in head and "--allow failed-verdict" in head and "stated tracker" in head
     # a passed model needs no --allow
     rc, out, err = run_cli(["compensate", prog, "--machine", "ur5", "--model", d / "passed.json",
@@ -161,7 +162,7 @@ def test_predict_on_an_arm_refuses_a_failed_model_unless_allowed(models):
     assert rc == 2 and len(lines) == 1 and "--allow failed-verdict" in lines[0] and not (d / "p.csv").exists(), err
     rc, out, err = run_cli(argv + ["--allow", "failed-verdict"])
     assert rc == 0, err
-    assert "# allowed: failed-verdict" in (d / "p.csv").read_text()
+    assert any(ln.startswith("allowed: failed-verdict") for ln in read_table(d / "p.csv").comments)  # its sidecar
     rc, out, err = run_cli(argv + ["--allow", "extrapolate"])
     assert rc == 2 and "only --allow failed-verdict applies" in err
 

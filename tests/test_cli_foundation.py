@@ -6,8 +6,8 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.elements import ElementSet
-from errormap.featurepoints import FeaturePoints
-from errormap.io import read_table
+from errormap.featurepoints import DEFAULT_GRID, FeaturePoints
+from errormap.io import read_table, sidecar_path
 
 TOL_UM = 1e-6
 
@@ -20,7 +20,7 @@ def test_simulate_featurepoints_predict(tmp_path, capsys):
     info = json.loads((out / "truth.json").read_text())
     assert 150 <= info["max_spatial_error_um"] <= 230 and "worm" in info["effects"]
     fp = FeaturePoints.load(out / "featurepoints.csv")
-    assert fp.axes.shape == (1331, 3) and fp.meta["grid"] == "11x11x11"
+    assert fp.axes.shape == (DEFAULT_GRID ** 3, 3) and fp.meta["grid"] == "x".join([str(DEFAULT_GRID)] * 3)
     assert fp.meta["elements_sha256"] and fp.meta["machine_sha256"]
     # featurepoints command from the saved element set reproduces the simulate output
     assert main(["featurepoints", "--elements", str(out / "truth_elements.json"), "--out", str(tmp_path / "fp.csv")]) == 0
@@ -100,9 +100,9 @@ def test_provenance_paths_resolve_relative_to_the_file(tmp_path, monkeypatch):
     monkeypatch.chdir(work)
     assert main(["simulate", "--seed", "2", "--out", "sim", "--checks", "20"]) == 0
     assert main(["featurepoints", "--elements", "sim/truth_elements.json", "--out", "fp/fp.csv", "--grid", "3"]) == 0
-    text = (work / "sim" / "featurepoints.csv").read_text()
-    assert "# elements_file: truth_elements.json" in text  # written relative to the CSV's folder
-    assert "# elements_file: ../sim/truth_elements.json" in (work / "fp" / "fp.csv").read_text()
+    # written relative to the CSV's folder (in its provenance sidecar)
+    assert read_table(work / "sim" / "featurepoints.csv").meta()["elements_file"] == "truth_elements.json"
+    assert read_table(work / "fp" / "fp.csv").meta()["elements_file"] == "../sim/truth_elements.json"
     other = tmp_path / "b"
     other.mkdir()
     monkeypatch.chdir(other)
@@ -126,8 +126,8 @@ def test_predict_refuses_outside_the_calibrated_volume(tmp_path, capsys):
     assert "row 3" in err and "x_mm" in err and "μm rather than mm" in err and "--allow extrapolate" in err
     assert not (tmp_path / "p.csv").exists()
     assert main(argv + ["--allow", "extrapolate"]) == 0
-    head = [ln for ln in (tmp_path / "p.csv").read_text().splitlines() if ln.startswith("#")]
-    # the override is recorded in the output itself: which points it let through and by which option
+    head = json.loads(sidecar_path(tmp_path / "p.csv").read_text())["lines"]
+    # the override is recorded with the output (its provenance sidecar): which points it let through and by which option
     assert any("allowed: volume (1 of 2 points outside the calibrated volume, --allow extrapolate)" in ln
                for ln in head), head
 

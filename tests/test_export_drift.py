@@ -9,7 +9,7 @@ from compensation.app.cli import main
 from errormap.diagnosis.drift import DriftLog
 from errormap.diagnosis.drift_models import ChannelFit, DriftModel, DriftSelector, Feature
 from errormap.diagnosis.drift_sim import simulate_lumped_log
-from errormap.io import InputError, write_csv
+from errormap.io import InputError, read_table, write_csv
 
 # a hand-computed value through exp(): float64 arithmetic, a handful of operations on values ~40 μm
 HAND_UM = 1e-9
@@ -77,8 +77,8 @@ def test_hand_value_of_a_one_filter_model(tmp_path):
     assert pred["ch1"][2] == pytest.approx(hand, abs=HAND_UM)
     assert pred["ch1"][0] == pytest.approx(41.0, abs=HAND_UM)          # at rest: 1 + 2·20
     assert one_filter_model().predict(log)["ch1"][2] == pytest.approx(hand, abs=HAND_UM)
-    head = p.read_text().splitlines()
-    assert "# format: volcomp-drift-coefficients/1" in head and "# sample_period_s: 10" in head
+    head = read_table(p).comments   # its provenance sidecar
+    assert "format: volcomp-drift-coefficients/1" in head and "sample_period_s: 10" in head
     assert any("y_r = a_r * y_r + b_r * v_r" in h for h in head)
 
 

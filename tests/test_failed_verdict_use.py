@@ -12,7 +12,7 @@ import pytest
 
 from compensation.app.cli import MAX_ERROR_CHARS, main
 from compensation.fields import FAILED_VERDICT, check_verdict
-from errormap.io import InputError
+from errormap.io import InputError, read_table, sidecar_path
 
 REASON = "the kept model (51.7 um) loses to the plain baseline baseline_ols_linear (33.0 um)"
 """A failed verdict's reason as volcomp diagnose writes it (the swapped-headers case of the probe)."""
@@ -76,8 +76,8 @@ def test_predict_with_the_override_records_it_in_the_header(diagnosed, tmp_path)
                           "--allow", FAILED_VERDICT])
     assert rc == 0, err
     assert "warning:" in err and REASON in err
-    head = [ln for ln in (tmp_path / "p.csv").read_text().splitlines() if ln.startswith("#")]
-    assert any(ln.startswith(f"# allowed: {FAILED_VERDICT}") and REASON in ln for ln in head), head
+    head = json.loads(sidecar_path(tmp_path / "p.csv").read_text())["lines"]   # the provenance sidecar
+    assert any(ln.startswith(f"allowed: {FAILED_VERDICT}") and REASON in ln for ln in head), head
 
 
 def test_compensate_refuses_then_records_the_override_in_the_summary(diagnosed, tmp_path):
@@ -92,7 +92,7 @@ def test_compensate_refuses_then_records_the_override_in_the_summary(diagnosed, 
     assert summary["model_verdict"]["status"] == "failed"
     assert summary["model_verdict"]["overridden_by"] == f"--allow {FAILED_VERDICT}"
     assert summary["allow"] == [FAILED_VERDICT]
-    assert "MODEL DIAGNOSIS VERDICT FAILED" in (tmp_path / "c" / "pts.csv").read_text()   # the program says so
+    assert "MODEL DIAGNOSIS VERDICT FAILED" in " ".join(read_table(tmp_path / "c" / "pts.csv").comments)  # its sidecar says so
 
 
 def test_a_bare_allow_does_not_override_the_verdict(diagnosed, tmp_path):
@@ -126,11 +126,11 @@ def test_a_chain_model_json_with_its_own_failed_verdict_is_refused(chain_model, 
     rc, _, err = run_cli(["predict", "--machine", "mill-xyz", "--model", model, d / "pts.csv",
                           "--out", tmp_path / "p.csv", "--allow", FAILED_VERDICT])
     assert rc == 0, err
-    assert f"# allowed: {FAILED_VERDICT}" in (tmp_path / "p.csv").read_text()
+    assert any(ln.startswith(f"allowed: {FAILED_VERDICT}") for ln in read_table(tmp_path / "p.csv").comments)
     rc, _, err = run_cli(["compensate", d / "pts.csv", "--machine", "mill-xyz", "--model", model,
                           "--method", "exact", "--out", tmp_path / "c", "--allow", FAILED_VERDICT])
     assert rc == 0, err
-    assert "MODEL DIAGNOSIS VERDICT FAILED" in (tmp_path / "c" / "pts.csv").read_text()
+    assert "MODEL DIAGNOSIS VERDICT FAILED" in " ".join(read_table(tmp_path / "c" / "pts.csv").comments)
     summary = json.loads((tmp_path / "c" / "compensate_summary.json").read_text())
     assert summary["model_verdict"]["overridden_by"] == f"--allow {FAILED_VERDICT}"
 
@@ -224,5 +224,5 @@ def test_drift_predict_refuses_then_records_the_override_in_the_header(drift_fai
     assert not (tmp_path / "p.csv").exists()
     rc, _, err = run_cli(argv + ["--allow", FAILED_VERDICT])
     assert rc == 0, err
-    head = [ln for ln in (tmp_path / "p.csv").read_text().splitlines() if ln.startswith("#")]
-    assert any(ln.startswith(f"# allowed: {FAILED_VERDICT}") and REASON in ln for ln in head), head
+    head = json.loads(sidecar_path(tmp_path / "p.csv").read_text())["lines"]   # the provenance sidecar
+    assert any(ln.startswith(f"allowed: {FAILED_VERDICT}") and REASON in ln for ln in head), head

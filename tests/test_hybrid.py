@@ -244,8 +244,7 @@ CSV's 9 significant digits (5e-9 relative) between them."""
 def _read(path):
     from errormap.io import read_table
     t = read_table(path)
-    header = [ln[1:].strip() for ln in path.read_text(encoding="utf-8").splitlines() if ln.startswith("#")]
-    return t, header
+    return t, t.comments   # the provenance lines (its sidecar)
 
 
 def _identified(tmp_path):

@@ -13,6 +13,7 @@ from compensation.solvers.chain_exact import nominal_and_jacobian, solve_exact_c
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
+from errormap.io import read_table
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -152,7 +153,6 @@ def test_predict_and_featurepoints_over_the_mill(tmp_path, mill_models, capsys):
     np.savetxt(pts, ax, delimiter=",", header="x_mm,y_mm,z_mm", comments="", fmt="%.9f")
     assert main(["predict", "--machine", "mill-xyz", "--model", str(truth), str(pts), "--out",
                  str(tmp_path / "pred.csv")]) == 0
-    from errormap.io import read_table
     t = read_table(tmp_path / "pred.csv")
     got = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], axis=1)
     q = np.stack([t.float(c) for c in mt.axis_columns], axis=1)
@@ -278,7 +278,6 @@ def test_export_iso_tables_over_the_mill(tmp_path, mill_models, capsys):
     doc = json.loads((out / "export.json").read_text())
     assert doc["tolerance_met"] and doc["worst_model_residual_um"] <= EXPORT_TOLERANCE_UM
     assert doc["check"]["volume"]["baseline_none"]["model"]["max_um"] > 10 * EXPORT_TOLERANCE_UM
-    from errormap.io import read_table
     el = ChainElementSet.load(est, mt)
     for a in mt.axes:  # one table per axis, columns the ISO names, values the model's at the rows (the mill's
         # bodies move without turning: the ISO tables' machine frame is the frame the chain applies them in)
@@ -313,7 +312,6 @@ def test_export_grid_over_the_mill_linear_axes(tmp_path, mill_models, capsys):
     doc = json.loads((out / "export.json").read_text())
     assert doc["tolerance_met"] and doc["worst_model_residual_um"] <= GRID_TOLERANCE_UM
     assert doc["check"]["volume"]["baseline_none"]["model"]["max_um"] > 5 * GRID_TOLERANCE_UM
-    from errormap.io import read_table
     t = read_table(out / "grid.csv")
     n = doc["sizing"]["counts"]
     assert len(t) == np.prod(n) and t.names == list(mt.axis_columns) + ["dx_um", "dy_um", "dz_um"]
@@ -339,15 +337,15 @@ def test_compensate_chain_csv_and_guards(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "refused by guard(s) ball" in err and not (tmp_path / "o1" / "path.csv").exists()
     assert main(args + ["--out", str(tmp_path / "o2"), "--allow", "ball,convergence"]) == 0
-    text = (tmp_path / "o2" / "path.csv").read_text()
-    assert text.startswith("# volcomp compensate: GUARDS OVERRIDDEN (--allow ball,convergence)")
+    assert (tmp_path / "o2" / "path.csv").read_text().startswith("x_mm,y_mm,z_mm")   # plain: the note in its sidecar
+    assert read_table(tmp_path / "o2" / "path.csv").comments[0].startswith(
+        "volcomp compensate: GUARDS OVERRIDDEN (--allow ball,convergence)")
     doc = json.loads((tmp_path / "o2" / "compensate_summary.json").read_text())
     assert doc["files"][0]["overridden"]["ball"] > 0
     # a CSV within the ball: the compensated axis columns solve the model exactly
     small = chain_elements(mt, 303).save(tmp_path / "small.json")
     assert main(["compensate", str(path), "--machine", "mill-xyz", "--model", str(small), "--method", "exact",
                  "--out", str(tmp_path / "o3")]) == 0
-    from errormap.io import read_table
     t = read_table(tmp_path / "o3" / "path.csv")
     q = np.stack([t.float(c) for c in mt.axis_columns], axis=1)
     f = ChainField(mt, ChainElementSet.load(small, mt))

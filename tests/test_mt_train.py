@@ -132,7 +132,7 @@ def test_train_chain_refuses_what_the_machine_cannot_use(smooth_mill, tmp_path, 
     assert main(["train", str(fp), "--out", str(tmp_path / "r"), "--a-encoding", "periodic"]) == 2
     assert "--a-encoding: the machine-tool chain 'mill-xyz' has no rotary axis short of a full turn" \
         in capsys.readouterr().err
-    assert main(["train", str(fp), "--out", str(tmp_path / "r"), "--physics-stations", "5"]) == 2
+    assert main(["train", str(fp), "--out", str(tmp_path / "r"), "--physics", "none", "--physics-stations", "5"]) == 2
     assert "physics_stations only with physics 'first-order'" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
 
@@ -142,7 +142,8 @@ def test_train_on_mill_then_predict_and_compensate(smooth_mill, tmp_path, capsys
     truth, fp = smooth_mill
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}")  # tracked, as always
     run = tmp_path / "run"
-    assert main(["train", str(fp), "--out", str(run), "--hidden", "10,10", "--max-iter", "100", "--seed", "0"]) == 0
+    assert main(["train", str(fp), "--out", str(run), "--hidden", "10,10", "--max-iter", "100", "--seed", "0",
+                 "--physics", "none"]) == 0   # the network alone (its bounds below)
     m = json.loads((run / "metrics.json").read_text())
     assert m["train_max_um"] < TRAIN_MAX_UM
     assert m["val_max_um"] < VAL_MAX_UM
@@ -155,7 +156,7 @@ def test_train_on_mill_then_predict_and_compensate(smooth_mill, tmp_path, capsys
     a = rng.uniform([0, 0, -400], [600, 400, 0], (20, 3))
     pts.write_text("x_mm,y_mm,z_mm\n" + "".join(f"{x:.17g},{y:.17g},{z:.17g}\n" for x, y, z in a))
     assert main(["predict", "--machine", "mill-xyz", "--model", str(run), str(pts), "--out", str(tmp_path / "p.csv")]) == 0
-    got = np.loadtxt(tmp_path / "p.csv", delimiter=",", comments="#", skiprows=1 + 4)[:, 3:]
+    got = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)[:, 3:]   # a plain CSV: the header, then rows
     assert np.abs(got - ChainMLPField.load(run / "model").predict(a)).max() < 1e-6 * np.abs(got).max()
     # compensate with the network: exact (model residual to round-off) and batched-ga (GA tolerance)
     for method, bound in (("exact", TOL_MODEL_RESIDUAL_EXACT_UM), ("batched-ga", GA_TOL_UM)):
@@ -172,7 +173,8 @@ def test_train_chain_refuses_a_network_that_loses_to_the_baseline(smooth_mill, t
     RMS), so the command refuses it and writes nothing."""
     _, fp = smooth_mill
     out = tmp_path / "r"
-    assert main(["train", str(fp), "--out", str(out), "--hidden", "1", "--max-iter", "1", "--no-select"]) == 2
+    assert main(["train", str(fp), "--out", str(out), "--hidden", "1", "--max-iter", "1", "--no-select",
+                 "--physics", "none"]) == 2
     err = capsys.readouterr().err
     assert "not below the plain OLS baseline" in err and len(err.strip().splitlines()[-1]) > 0
     assert not out.exists()

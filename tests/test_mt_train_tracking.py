@@ -31,7 +31,7 @@ def test_chain_network_is_tracked_by_default_like_the_grinders(smooth_mill, tmp_
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     run = tmp_path / "r"
     assert main(["train", str(fp), "--out", str(run), "--hidden", "10,10", "--max-iter", "100", "--seed", "0",
-                 "--run-name", "default-store"]) == 0
+                 "--physics", "none", "--run-name", "default-store"]) == 0
     out = capsys.readouterr().out
     m = json.loads((run / "metrics.json").read_text())
     assert m["tracking_uri"] == uri and f"--model runs:/{m['run_id']}/model --tracking-uri {uri}" in out
@@ -46,7 +46,7 @@ def test_chain_network_is_tracked_and_used_from_mlflow(smooth_mill, tmp_path, ca
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     run = tmp_path / "run"
     assert main(["train", str(fp), "--out", str(run), "--hidden", "10,10", "--max-iter", "100", "--seed", "0",
-                 "--tracking-uri", uri, "--run-name", "mill-net"]) == 0
+                 "--physics", "none", "--tracking-uri", uri, "--run-name", "mill-net"]) == 0
     doc = json.loads((run / "metrics.json").read_text())
     rid = doc["run_id"]
     r = MlflowClient(tracking_uri=uri).get_run(rid)

@@ -1,11 +1,13 @@
 """CSV tool paths (compensation.pathio)."""
+import json
+
 import numpy as np
 import pytest
 
 from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import align_turns, read_path, write_axes_gcode, write_compensated, write_targets_csv
 from compensation.toolpath import flute_path
-from errormap.io import InputError
+from errormap.io import InputError, sidecar_path
 from errormap.kinematics import forward
 
 MCS = read_work_offsets(MACHINE)
@@ -23,10 +25,13 @@ def test_axes_csv_targets_are_forward(tmp_path, grinder):
     assert np.allclose(tp.targets_mm, forward(grinder, tp.axes))
     out = write_compensated(tp, tmp_path / "out" / "axes.csv", tp.axes + 0.001, tp.targets_mm, comments=["method: x"])
     text = out.read_text().splitlines()
-    assert text[0] == "# job: test" and text[1] == "# method: x" and text[2] == "x_mm,z_mm,a_deg,feed"
-    assert text[3].endswith(",100")
+    # a plain CSV (header first); the input's '#' provenance and the added lines go to the sidecar
+    assert text[0] == "x_mm,z_mm,a_deg,feed" and text[1].endswith(",100")
+    side = json.loads(sidecar_path(out).read_text())
+    assert side["lines"] == ["job: test", "method: x"] and side["columns"] == text[0].split(",")
     back = read_path(out, grinder, work_offsets=MCS)
     assert np.abs(back.axes - (tp.axes + 0.001)).max() < TOL_MM
+    assert back.source.meta() == {"job": "test", "method": "x"}
 
 
 def test_targets_csv_round_trip_and_unwrap(tmp_path, grinder):

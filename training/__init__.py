@@ -17,6 +17,20 @@ May import ``errormap``; never ``compensation``. The public names below load laz
 # Training stops on iterations by default (the same settings give the same model on any machine):
 DEFAULT_MAX_ITER = 1000  # LM on the paper's network: ~0.2 s an iteration on 2 cores (~3-4 min)
 QUICK_MAX_ITER = 300     # the demo-sized setting
+# The defaults of `volcomp train` and `volcomp demo`: the measured best (BENCHMARKS.md, "The surrogate network on
+# feature points"): the network on what an element set fitted to the same feature points leaves, on the 21^3 grid
+# (errormap.featurepoints.DEFAULT_GRID), 40 LM iterations, the iterate best on the off-grid selection points kept.
+DEFAULT_PHYSICS = "first-order"
+PHYSICS_MAX_ITER = 40    # LM iterations with physics "first-order" (~2 CPU s an iteration on 9,261 points)
+
+
+def default_max_iter(physics: str, quick: bool = False) -> int:
+    """LM iterations when none are given: :data:`PHYSICS_MAX_ITER` on a physical part (``quick`` or not), else
+    :data:`DEFAULT_MAX_ITER` (:data:`QUICK_MAX_ITER` with ``quick``)."""
+    if physics != "none":
+        return PHYSICS_MAX_ITER
+    return QUICK_MAX_ITER if quick else DEFAULT_MAX_ITER
+
 
 _LAZY = {
     "MLPField": "training.model",

@@ -7,7 +7,8 @@ Every command that writes a folder (``--out DIR``: the ``OUT_DIR`` rules of
 one-file outputs (``identify --report``, ``interpolate --report`` / ``--sensitivity-plot``); all are entered by
 :func:`owned_output` in :func:`compensation.app.cli.main` after the options are checked and
 before the command's work. A file's lock lies beside it, ``f.csv.volcomp.lock``, with the same
-rules as a folder's (below); on Ctrl-C a file that was not there when the run started is removed.
+rules as a folder's (below); on Ctrl-C a file that was not there when the run started is removed (and so is
+a CSV's provenance sidecar, ``f.meta.json``: :func:`errormap.io.sidecar_path`).
 
 * **Lock.** ``DIR/.volcomp.lock`` is created with ``O_EXCL`` and holds the owner's pid, host,
   command and start time (JSON). A second run into the same folder finds it and is refused
@@ -235,7 +236,7 @@ def owned_file(path, command: str, interrupted=None, flag: str = "--out"):
     (:func:`file_lock_path`, the folder lock's rules) while the run works, the folders above it
     created if absent (and removed again if left empty), and on Ctrl-C the file removed when it was
     not there before the run. Yields the file's :class:`Path`."""
-    from errormap.io import InputError, check_output_target
+    from errormap.io import InputError, check_output_target, sidecar_path
     path = Path(path)
     try:
         check_output_target(path, "file")
@@ -248,9 +249,10 @@ def owned_file(path, command: str, interrupted=None, flag: str = "--out"):
             created = created.parent
         parent.mkdir(parents=True, exist_ok=True)
     lock = FolderLock(path, command, lock_path=file_lock_path(path), flag=flag)
+    files = (path, sidecar_path(path))   # a CSV's provenance sidecar goes with it
     try:
         lock.acquire()
-        existed = os.path.lexists(path)
+        existed = [os.path.lexists(p) for p in files]
     except BaseException:
         if created is not None:
             _remove_created(parent, created, whole=False)
@@ -258,9 +260,11 @@ def owned_file(path, command: str, interrupted=None, flag: str = "--out"):
     try:
         yield path
     except BaseException as exc:
-        if _is_interrupt(exc, interrupted) and not existed:
-            with contextlib.suppress(OSError):
-                path.unlink()
+        if _is_interrupt(exc, interrupted):
+            for p, was in zip(files, existed):
+                if not was:
+                    with contextlib.suppress(OSError):
+                        p.unlink()
         raise
     finally:
         lock.release()

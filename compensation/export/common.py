@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.io import InputError, write_json
+from errormap.io import InputError, sidecar_path, write_json
 
 FORMATS = ("iso-tables", "grid", "linuxcnc")
 """The table formats of a volumetric error model; ``drift`` (a drift model's coefficients) is apart."""
@@ -28,10 +28,11 @@ def fold(values, start: float) -> np.ndarray:
 
 
 def meta_format(table, want: str) -> None:
-    """InputError naming the file unless its ``# format:`` header line is ``want``."""
+    """InputError naming the file unless its provenance line ``format:`` (sidecar, or a ``#`` line) is ``want``."""
     got = table.meta().get("format")
     if got != want:
-        raise InputError(f"{table.path}: header line 'format': expected {want!r}, got {got!r}")
+        raise InputError(f"{table.path}: provenance 'format' (its sidecar {sidecar_path(table.path).name} or a "
+                         f"leading '#' line): expected {want!r}, got {got!r}")
 
 
 @dataclass

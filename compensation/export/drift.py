@@ -182,7 +182,7 @@ def read_drift_coefficients(path) -> DriftCoefficients:
     except ValueError:
         dt = float("nan")
     if not (np.isfinite(dt) and 0 < dt <= DRIFT_MAX_PERIOD_S):
-        raise InputError(f"{t.path}: header line 'sample_period_s': expected a period in (0, {DRIFT_MAX_PERIOD_S:g}] s, "
+        raise InputError(f"{t.path}: provenance line 'sample_period_s' (its sidecar): expected a period in (0, {DRIFT_MAX_PERIOD_S:g}] s, "
                          f"got {t.meta().get('sample_period_s')!r}")
     t.require("input", "scale", "power", "tau_s", "a", "b", "delay_samples", "delay_frac", "gain_unit")
     chans = [n[5:] for n in t.names if n.startswith("gain_") and n != "gain_unit"]

@@ -146,7 +146,8 @@ def read_grid(path, machine) -> VolumetricGrid:
     except ValueError:
         counts = []
     if len(counts) != k or min(counts) < 2:
-        raise InputError(f"{t.path}: header line 'counts': expected {k} integers >= 2, got {t.meta().get('counts')!r}")
+        raise InputError(f"{t.path}: provenance line 'counts' (its sidecar): expected {k} integers >= 2, "
+                         f"got {t.meta().get('counts')!r}")
     q = np.stack([t.float(c) for c in mt.axis_columns], axis=1)
     if q.shape[0] != int(np.prod(counts)):
         raise InputError(f"{t.path}: expected {int(np.prod(counts))} rows for counts {counts}, got {q.shape[0]}")

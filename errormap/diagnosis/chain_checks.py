@@ -1,4 +1,4 @@
-"""Check measurements of a machine-tool chain for the closed loop (``docs/schemas.md``): the machine's axis columns,
+"""Check measurements of a machine-tool chain for the closed loop (``docs/reference/file-formats.md``): the machine's axis columns,
 ``dx_um, dy_um, dz_um`` and the optional conditions (``time_s``, ``temp_c``, ``dir_<w>``, ``seq``), read and
 checked (:func:`load_mt_checks`)."""
 from __future__ import annotations

@@ -28,7 +28,7 @@ and the command exits with status 3 listing the offending points (first ``--show
 them, with file line and reasons). Rapids kept as written are checked against the
 strokes too. ``--allow GUARDS`` (comma-separated; bare ``--allow`` = all) overrides those
 guards explicitly: the file is written, the override is recorded in the file itself
-(a header comment in G-code, a ``#`` line in CSV) and in the summary.
+(a header comment in G-code, a line of a CSV's sidecar ``NAME.meta.json``) and in the summary.
 The residual reported per file is the MODEL residual (the solver's own field).
 
 Every machine tool goes this one way (the built-in grinder and any ``kind = "grinder"`` file as

@@ -1,7 +1,8 @@
 """``volcomp demo``: the whole pipeline on the built-in default machine (:mod:`compensation.app.workflows.demo`).
 
-simulate a truth grinder (``DIR/sim``) → its 11×11×11 feature points → train the BP network
-(Levenberg–Marquardt, tracked in MLflow) → compensate the variable-helix flute path with every
+simulate a truth grinder (``DIR/sim``) → its feature points (errormap.featurepoints.DEFAULT_GRID per axis) →
+train the BP network on what an element set fitted to them leaves (training.DEFAULT_PHYSICS; Levenberg–Marquardt,
+tracked in MLflow) → compensate the variable-helix flute path with every
 method (the per-point ``ga`` on an evenly spaced subset when the whole path would take too
 long, and the report says so) → ``DIR/report.html``, ``DIR/metrics.json``, ``DIR/residuals.csv``
 showing the MODEL residual (the trained network's own view) and the TRUE residual (the
@@ -21,7 +22,7 @@ import time
 from pathlib import Path
 
 from errormap.machine import load_machine
-from training import DEFAULT_MAX_ITER
+from training import DEFAULT_PHYSICS, default_max_iter
 
 from compensation.app.validate import UsageError
 
@@ -30,7 +31,7 @@ from ..options import add_flute_arguments, add_method_arguments, flute_from_args
 from ..workflows.demo import DEMO_GA_BUDGET_S, DemoSettings, run_demo
 from ...toolpath import check_in_strokes
 
-DEFAULT_TRAIN_ITER = DEFAULT_MAX_ITER  # as `volcomp train`: the cap; early stopping ends the demo's run sooner
+DEFAULT_TRAIN_ITER = default_max_iter(DEFAULT_PHYSICS)  # as `volcomp train`'s default (training.DEFAULT_PHYSICS)
 # LM iterations without a better max |error| on the 5,000 off-grid selection points before the demo stops
 # training (the kept iterate is the best one, as in `volcomp train`; measured in benchmarks/demo_results.md)
 DEFAULT_DEMO_TRAIN_PATIENCE = 100

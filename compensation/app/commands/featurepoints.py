@@ -1,10 +1,10 @@
-"""``volcomp featurepoints``: the 11×11×11 feature-point dataset from an element set."""
+"""``volcomp featurepoints``: the feature-point dataset (a grid over the machine's axes) from an element set."""
 from __future__ import annotations
 
 import sys
 
 from errormap.elements import ElementSet
-from errormap.featurepoints import make_feature_points
+from errormap.featurepoints import DEFAULT_GRID, make_feature_points
 from errormap.htm import HTMField
 from errormap.io import sha256_file
 from errormap.machine import load_machine
@@ -17,7 +17,9 @@ def register(sub):
     p.add_argument("--machine", default=None, help="machine file (TOML) or built-in name; default: the built-in "
                    "grinder; a machine-tool chain (mill-xyz ...): the grid over its own axes")
     p.add_argument("--elements", required=True, help="element-set file (JSON)")
-    p.add_argument("--grid", type=int, default=11, help="points per axis (default 11)")
+    p.add_argument("--grid", type=int, default=None,
+                   help=f"points per axis (default {DEFAULT_GRID} on up to three axes, a node at every element station "
+                        f"of the simulated truth; on more axes the largest grid of at most {DEFAULT_GRID}³ points)")
     p.add_argument("--out", required=True, help="output CSV")
     p.set_defaults(func=run)
 
@@ -38,7 +40,7 @@ def _chain_field(machine, args):
     from compensation.app.validate import UsageError
     from compensation.app.validate import MAX_GRID_POINTS
     k = len(machine.axes)
-    if args.grid ** k > MAX_GRID_POINTS:
+    if args.grid is not None and args.grid ** k > MAX_GRID_POINTS:   # None: errormap.featurepoints.default_grid fits
         raise UsageError(f"--grid {args.grid}: {args.grid}^{k} = {args.grid ** k} points over the {k} axes of "
                          f"{machine.name!r} exceeds {MAX_GRID_POINTS}; the largest that fits is "
                          f"{int(MAX_GRID_POINTS ** (1 / k) + 1e-9)}")

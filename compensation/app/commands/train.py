@@ -13,7 +13,7 @@ from errormap.io import InputError, read_table
 # Training stops on iterations (or the MSE goal) by default, so that the same command and seed
 # give the same model on any machine; a wall-clock budget is an explicit option. (The package
 # module ``training`` is light: these constants do not load torch.)
-from training import DEFAULT_MAX_ITER, QUICK_MAX_ITER
+from training import DEFAULT_MAX_ITER, DEFAULT_PHYSICS, PHYSICS_MAX_ITER, QUICK_MAX_ITER, default_max_iter
 from compensation.app.validate import UsageError
 
 from ..families import family_of
@@ -35,7 +35,8 @@ def register(sub):
                         "depend on the machine's load; the run records the iterations reached, and --max-iter "
                         "with that number reproduces it)")
     p.add_argument("--quick", action="store_true",
-                   help=f"demo setting: at most {QUICK_MAX_ITER} iterations (unless --max-iter is given)")
+                   help=f"demo setting: at most {QUICK_MAX_ITER} iterations with --physics none (unless --max-iter "
+                        f"is given; with a physical part the default {PHYSICS_MAX_ITER} already is)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--a-encoding", choices=("raw", "periodic"), default=None,
                    help="A as one scaled input (the paper's, the default) or as (cos a, sin a); on a machine-tool "
@@ -45,7 +46,8 @@ def register(sub):
     p.add_argument("--activation", choices=("sigmoid", "tanh", "softplus"), default="sigmoid")
     p.add_argument("--mse-goal", type=float, default=2.5e-10, help="MSE goal on the scaled outputs")
     p.add_argument("--max-iter", type=int, default=None,
-                   help=f"stop after this many LM iterations (default {DEFAULT_MAX_ITER}; with --quick {QUICK_MAX_ITER})")
+                   help=f"stop after this many LM iterations (default {PHYSICS_MAX_ITER} with --physics first-order; "
+                        f"with --physics none {DEFAULT_MAX_ITER}, with --quick {QUICK_MAX_ITER})")
     p.add_argument("--validation", default=None,
                    help="CSV x_mm,z_mm,a_deg,dx_um,dy_um,dz_um (default: 10,000 random points from the "
                         "HTM model named in the feature points' elements_file)")
@@ -56,11 +58,12 @@ def register(sub):
     p.add_argument("--no-select", dest="select_best", action="store_false",
                    help="return the last LM iterate (the paper's rule) instead of the iterate that is best on "
                         "5,000 off-grid selection points of the HTM model (default; disjoint from validation)")
-    p.add_argument("--physics", choices=("none", "first-order"), default="none",
-                   help="none: the network learns the feature points (the paper's); first-order: the network learns "
-                        "what an element set fitted to the SAME feature points leaves (one linear least-squares "
-                        "solve, stations at the grid's nodes; the field is that HTM model plus the network); on a "
-                        "machine-tool chain the element set is the chain's own (its machine file's slots)")
+    p.add_argument("--physics", choices=("none", "first-order"), default=DEFAULT_PHYSICS,
+                   help="first-order (the default, the measured best): the network learns what an element set fitted "
+                        "to the SAME feature points leaves (one linear least-squares solve, stations at the grid's "
+                        "nodes; the field is that HTM model plus the network); none: the network learns the feature "
+                        "points (the paper's); on a machine-tool chain the element set is the chain's own (its "
+                        "machine file's slots)")
     p.add_argument("--physics-stations", type=int, default=None,
                    help="--physics first-order: stations per axis of the fitted element set (default: the "
                         "feature-point grid's points per axis)")
@@ -86,7 +89,7 @@ def run(args) -> int:
     except ValueError:
         raise UsageError(f"--hidden: expected comma-separated integers, got {args.hidden!r}") from None
     max_time = args.max_time if args.max_time is not None else math.inf
-    max_iter = args.max_iter if args.max_iter is not None else (QUICK_MAX_ITER if args.quick else DEFAULT_MAX_ITER)
+    max_iter = args.max_iter if args.max_iter is not None else default_max_iter(args.physics, args.quick)
     from training.trainers import TrackSettings, TrainSettings
     try:
         settings = TrainSettings(trainer=args.trainer, max_iter=max_iter, max_time_s=max_time, seed=args.seed,

@@ -85,6 +85,9 @@ EFFECTS_LOOP = "effect search on the base's element set (the closed loop without
 FEATURE_REUSE_TOL_UM = 1e-6
 
 
+LEARNED_GRID = 11  # feature points per axis of the learned stage: the paper's network on the paper's 11³ grid (docs/reference/benchmark.md)
+
+
 @dataclass
 class BenchmarkSettings:
     """What the benchmark runs. Defaults: the full benchmark (about 23 CPU minutes; ~1 h wall on a loaded 2-core
@@ -423,7 +426,7 @@ class NetworkTrainer:
         from errormap.featurepoints import make_feature_points
         from errormap.htm import HTMField
         from training import TrackSettings, TrainSettings, fit_field, validation_points
-        fp = make_feature_points(self.m, HTMField(self.m, elements), meta={"benchmark_condition": cond_name})
+        fp = make_feature_points(self.m, HTMField(self.m, elements), n=LEARNED_GRID, meta={"benchmark_condition": cond_name})
         key = (tuple(s.hidden), s.activation, s.a_encoding, s.train_iter, s.train_s)
         for k, errs, res, secs, name in self.cache:
             if k == key and np.max(np.abs(errs - fp.errors_um)) < FEATURE_REUSE_TOL_UM:

@@ -36,7 +36,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from errormap.grinder_file import machine_tool_of
-from errormap.io import atomic_write, write_json
+from errormap.io import atomic_write, sidecar_path, write_json
 from errormap.jit import notice_cold_kernels
 from errormap.progress import Progress
 from errormap.units import UNITS_CHECK
@@ -51,7 +51,7 @@ from ...fields import FAILED_VERDICT, check_verdict, resolve_model, verdict_note
 from ...gcode import DEFAULT_RAPIDS
 from ...gcode_spline import spline_lines
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool
-from ...pathio import DEFAULT_ARC_TOLERANCE_UM
+from ...pathio import DEFAULT_ARC_TOLERANCE_UM, compensated_sidecar
 from ...solvers import CHAIN_METHODS, solver_spec
 from ...solvers.chain_exact import nominal_and_jacobian, solved_and_kept
 from ...solvers.threads import small_batch_threads
@@ -109,6 +109,7 @@ class FileOutcome:
     tp: ToolPath
     entry: dict
     text: str | None
+    meta: str | None = None   # a CSV output's provenance sidecar (compensation.pathio.compensated_sidecar)
     listed: list = field(default_factory=list)
     kept: list = field(default_factory=list)
 
@@ -440,6 +441,8 @@ def compensate_one(p, dst, tp: ToolPath, res, targets, true_r, true_base, field_
         comments = [WORK_OFFSETS_MACHINE_NOTE] + comments
     comments = verdict_notes(verdict) + comments   # a failed verdict used on request: said in the program
     o.text = render(tp, res.axes, res.commands_mm, machine, comments)
+    if tp.kind != "gcode":
+        o.meta = compensated_sidecar(tp.source, dst, comments)
     return o
 
 
@@ -533,15 +536,19 @@ def write_run(outcomes, old_outputs, src, verdict, field_, truth, machine, s: Co
     written = {o.dst.name for o in outcomes if not o.refused}
     removed = []
     for p in sorted(set(old_outputs) | {o.dst for o in outcomes if o.refused}):
-        if p.is_file() and p.name not in written:
-            p.unlink()
-            removed.append(str(p))
+        for q in (p, sidecar_path(p)):
+            if q.is_file() and p.name not in written:
+                q.unlink()
+                removed.append(str(q))
     with contextlib.ExitStack() as stack:  # all files in full to temporary files, then renamed together
         for o in outcomes:
             if not o.refused:
                 fh = stack.enter_context(atomic_write(o.dst, "wb"))
                 fh.write(o.text.encode("latin-1" if o.tp.kind == "gcode" else "utf-8"))
                 o.entry["output"] = str(o.dst)
+                if o.meta is not None:
+                    stack.enter_context(atomic_write(sidecar_path(o.dst), "w", encoding="utf-8")).write(o.meta)
+                    o.entry["provenance"] = str(sidecar_path(o.dst))
     conditions = getattr(field_, "conditions", {}) or {}
     summary = write_json(Path(s.out_dir) / SUMMARY_NAME, {
         "conditions": {k: v for k, v in dict(conditions).items() if v is not None},

@@ -129,14 +129,14 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
 
 def render(tp: ToolPath, axes, commands_mm, machine, comments) -> str:
     """The compensated file's text: the program axes of the compensated machine ``axes`` (n, k)
-    (:func:`program_axes`), or the commands ``commands_mm`` (n, 3) of a WCS-target CSV."""
+    (:func:`program_axes`), or the commands ``commands_mm`` (n, 3) of a WCS-target CSV. ``comments``: header
+    lines of a G-code program (a CSV is plain: they go to its sidecar, :func:`compensation.pathio.compensated_sidecar`)."""
     if tp.kind == "csv-targets":
-        return _render_csv(tp.source, {c: (commands_mm[:, j], DECIMALS_MM) for j, c in enumerate(TARGET_COLUMNS)},
-                           comments)
+        return _render_csv(tp.source, {c: (commands_mm[:, j], DECIMALS_MM) for j, c in enumerate(TARGET_COLUMNS)})
     axes = program_axes(tp, axes, machine)
     if tp.kind == "csv-axes":
         dec = [DECIMALS[a.unit] for a in machine.axes]
-        return _render_csv(tp.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(machine.axis_columns)}, comments)
+        return _render_csv(tp.source, {c: (axes[:, j], dec[j]) for j, c in enumerate(machine.axis_columns)})
     job = tp.source
     return render_chain_axes(job.program, axes[:, list(tp.columns)], job.counts, header=comments)
 

@@ -30,6 +30,7 @@ from errormap import chain_kernel as htm_kernels  # the HTM model's kernels: the
 from errormap.htm import HTMField
 from errormap.io import atomic_write, write_json
 from errormap.jit import notice_cold_kernels
+from training import DEFAULT_PHYSICS, PHYSICS_MAX_ITER
 
 
 from compensation.app.validate import UsageError
@@ -57,8 +58,9 @@ class DemoSettings:
     sim_seed: int = 0
     seed: int = 0
     tracking_uri: str | None = None
-    train_iter: int = 1000
+    train_iter: int = PHYSICS_MAX_ITER
     train_s: float | None = None
+    physics: str = DEFAULT_PHYSICS   # training's physical part (training.DEFAULT_PHYSICS: the measured best)
     trainer: str = "lm"
     hidden: tuple | None = None
     ga_points: int | None = None
@@ -101,7 +103,7 @@ def train_field(fp_path: Path, s: DemoSettings, log=None):
     try:
         settings = TrainSettings(trainer=s.trainer, max_iter=s.train_iter, seed=s.seed,
                                  max_time_s=s.train_s if s.train_s is not None else math.inf,
-                                 select_patience=s.select_patience,
+                                 select_patience=s.select_patience, physics=s.physics,
                                  **({"hidden": tuple(s.hidden)} if s.hidden else {}))
     except ValueError as exc:
         raise UsageError(f"training settings: {exc}") from None
