@@ -153,7 +153,7 @@ class ChainSimulator:
         ck = self.checks
         E = np.concatenate([effect_columns(self.mt, t.kind, t.axes, ck.axes, ck.conditions, t.shape or None)[0]
                             for t in terms], axis=2)
-        S = np.concatenate([sweep_shift(self.mt, self.el, t, *self.cov, ) for t in terms], axis=1)
+        S = np.concatenate([sweep_shift(self.mt, self.el, t, *self.cov) for t in terms], axis=1)
         return E, S
 
     def residual(self, E, S, coef, rng):
