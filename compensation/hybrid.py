@@ -1,6 +1,6 @@
 """The hybrid error field: the physical model plus a residual learned from the check measurements.
 
-After the closed loop (:func:`errormap.diagnosis.loop.closed_loop`) has updated the elements and
+After the closed loop (:func:`errormap.diagnosis.chain_loop.closed_loop_chain`) has updated the elements and
 accepted the effect terms it can name, the measured residual that is left at the checks is
 learned by a :class:`training.residual.ResidualRegressor` (:func:`learned_stage`):
 

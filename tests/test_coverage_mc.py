@@ -1,92 +1,93 @@
-"""Issue 13, part 5: Monte Carlo coverage of the reported 95 % bands.
+"""Monte Carlo coverage of the 95 % bands the one loop reports for effect terms.
 
-Each test repeats "simulate with a known truth → estimate → report a 95 % band" with fixed
-seeds and counts how often the band holds the truth. The issue asks for 90–98 %.
+Each repetition is "simulate with a known truth → estimate → report a 95 % band", with fixed seeds, on the
+grinder's chain (``volcomp diagnose``'s one loop, errormap/diagnosis/chain_loop.py): the element parameters'
+deviation from the sweep estimate drawn from the update's own prior, one known effect, check noise; the estimate
+is the loop's joint fit of the term with the element update and the band that fit's posterior covariance
+(:func:`benchmarks.bench_statistical.effect_sweep`). The range asked is 90–98 %.
 
-* effect parameters as the effect search reports them (:meth:`EffectSelector.joint_fit`,
-  the periods by nonlinear least squares), one known effect at a time on the check layout;
-* effect parameters of the joint screen (GLS against the model update,
-  :func:`errormap.diagnosis.joint.joint_screen`), with the elements' deviation drawn from
-  the update's own prior;
-* predictions of the smoothed identification (``J Σ Jᵀ`` band), over seeded truths of both
-  families (slow: each repetition is a whole bootstrap identification).
+The rate needs the full sweep (300 repetitions per effect: binomial SE 1.3 %), about 0.25 CPU s a repetition,
+so it is judged by ``python benchmarks/bench_statistical.py --only effect_band_coverage`` (figures in
+BENCHMARKS.md); here each effect runs its first repetitions with the sweep's own code and seeds, and what
+must hold on every repetition is asserted. The joint refit of two accepted terms and the smoothed
+identification's prediction band are sweeps of the same benchmark (tests/test_bench_statistical.py).
 
-The joint screen's, the joint refit's and the prediction band's sweeps (the slow ones) are in
-benchmarks/bench_statistical.py: tests/test_bench_statistical.py runs them on their first
-repetitions, the full sweep judges the rate.
+Gone with the grinder's own loop: the GLS joint screen (the one loop has no screen: its search is the
+held-out gated forward search) and the bands of a period or an order (the one loop reports the coefficients'
+band given the shape; the searched shape's effect on coverage is recorded by the sweep, not judged).
 """
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits  # comes with scikit-learn (a dependency)
 
-from errormap.diagnosis.checks import CheckData
-from errormap.diagnosis.effects import Candidate, Context, EffectTerm, basis, reference
-from errormap.diagnosis.selection import EffectSelector
-from errormap.simulator import random_truth
+SPEC = importlib.util.spec_from_file_location(
+    "bench_statistical", Path(__file__).resolve().parents[1] / "benchmarks" / "bench_statistical.py")
+bench = importlib.util.module_from_spec(SPEC)
+SPEC.loader.exec_module(bench)
 
-Z95 = 1.959963984540054
-COVERAGE_LO, COVERAGE_HI = 0.90, 0.98   # issue 13: "contain the truth 90–98 % of the time"
+N_FIRST = 4
+"""Repetitions per effect here (about 1 CPU s with the shape search); the rate is the benchmark's (300)."""
+
+
+SE_SCALE_RTOL = 0.05
+"""The band scales with σ̂, estimated from the residual: the same draws with a 10× larger term change σ̂ only
+through the fit (measured: equal to 4 digits, 0.0981 μm both); 5 % allows the GCV weight to move one grid step."""
 
 
 @pytest.fixture(autouse=True)
 def one_blas_thread():
-    """The repetitions' matrices are small: one BLAS thread (several spin on a shared machine:
-    measured 10× the CPU time for the GLS screen)."""
+    """The repetitions' matrices are small: one BLAS thread (several spin on a shared machine)."""
     with threadpool_limits(1, user_api="blas"):
         yield
 
 
-N_REP = 300          # binomial SE of a 95 % coverage over 300 repetitions: 1.3 %; the range is ≥ 2.3 SE from 0.95
-NOISE_UM = 1.0       # check noise per component, as in the benchmark
-N_CHECKS = 480       # the fitting part of 800 checks
-
-# (candidate, true linear coefficients, period_mm or order); magnitudes as the simulators draw them
-EFFECTS = {
-    "thermal": (Candidate("thermal", "x", "dx_x"), [0.0115], None),
-    "reversal": (Candidate("reversal", "z", "dz_z"), [8.0], None),
-    "interaction": (Candidate("interaction", "x*z", "dx_x"), [6.0], None),
-    "pitch": (Candidate("periodic", "x", "dx_x"), [3.0, -2.0], 10.0),
-    "worm": (Candidate("harmonic", "a", "ex_a"), [60.0, 80.0], 40),
-}
-
-
 @pytest.fixture(scope="module")
-def layout(grinder):
-    truth = random_truth(grinder, 0)
-    c = truth.check_measurements(N_CHECKS, 1.0, seed=3)
-    checks = CheckData.from_columns(c)
-    ctx = Context.build(grinder, checks.axes, checks.conditions, reference(grinder, checks.conditions))
-    return checks, ctx
+def sim():
+    with threadpool_limits(1, user_api="blas"):
+        return bench.ChainSimulator(bench.chain_setting())
 
 
-def _truth_params(cand, coef, per):
-    """The reported parameters' true values (names as EffectTerm.parameters gives them)."""
-    t = EffectTerm(cand, np.asarray(coef, float), {}, per if cand.kind == "periodic" else None,
-                   per if cand.kind == "harmonic" else None, np.zeros((3, 3)))
-    p = t.parameters()
-    return {k: v["value"] for k, v in p.items() if k != "order"}
+def test_the_sweep_judges_the_asked_range():
+    assert (bench.COVERAGE_LO, bench.COVERAGE_HI) == (0.90, 0.98)
+    assert bench.SWEEPS["effect_band_coverage"][1] == 300   # binomial SE of a 95 % coverage over 300: 1.3 %
 
 
-@pytest.mark.parametrize("name", list(EFFECTS))
-def test_effect_parameter_bands_cover_the_truth(layout, name):
-    _, ctx = layout
-    cand, coef, per = EFFECTS[name]
-    period = per if cand.kind == "periodic" else None
-    order = per if cand.kind == "harmonic" else None
-    signal = (ctx.column(cand.element) * (basis(cand, ctx, period, order) @ np.asarray(coef, float))[:, None])
-    truth = _truth_params(cand, coef, per)
-    rng = np.random.default_rng(np.random.SeedSequence(1300).spawn(len(EFFECTS))[list(EFFECTS).index(name)])
-    sel = EffectSelector()
-    hits = {k: 0 for k in truth}
-    for _ in range(N_REP):
-        r = signal + rng.normal(0.0, NOISE_UM, signal.shape)
-        found_per, found_order = sel._search(cand, ctx, r)  # the period/order as the search finds it
-        (term,), _, _ = EffectSelector.joint_fit(ctx, r, [(cand, found_per, found_order)])
-        for k, p in term.parameters().items():
-            if k in hits:
-                v, t = p["value"], truth[k]
-                if k == "phase_rad":
-                    v = t + np.angle(np.exp(1j * (v - t)))  # same branch as the truth
-                hits[k] += abs(v - t) <= Z95 * p["se"]
-    for k, h in hits.items():
-        assert COVERAGE_LO <= h / N_REP <= COVERAGE_HI, f"{name} {k}: coverage {h / N_REP:.3f}"
+def test_effect_terms_are_ones_the_loop_fits(sim):
+    """Each simulated term is one the loop searches on this chain (not represented by the element slots)."""
+    from errormap.diagnosis.chain_loop import representable_terms
+    rep = {(t["kind"], t["axis"]): t["represented"]
+           for t in representable_terms(sim.mt, sim.el, sim.checks.axes, sim.checks.conditions)}
+    for name, (kind, words, *_rest) in bench.EFFECT_TRUTHS.items():
+        assert not rep.get((kind, "*".join(words)), False), name
+
+
+@pytest.mark.parametrize("name", list(bench.EFFECT_TRUTHS))
+def test_first_repetitions_of_the_effect_band_sweep(sim, name):
+    r = bench.effect_sweep(name, N_FIRST, sim)
+    assert r["repetitions"] == N_FIRST
+    coef = bench.EFFECT_TRUTHS[name][4]
+    assert len(r["rates"]) == len(coef)
+    assert all(0.0 <= v <= 1.0 for v in r["rates"].values())
+    if bench.EFFECT_TRUTHS[name][3]:             # a shape: the search must find it on these first seeds
+        assert r["shape_found"] >= 0.5, f"{name}: the search found the true shape in {r['shape_found']:.2f}"
+
+
+def test_band_is_the_joint_fits_posterior(sim):
+    """The band judged is finite and positive, and the same for the same draws with a 10× larger term: in the
+    loop's linear Gaussian model a coefficient's band does not depend on the truth's size (a fit that left part
+    of the term in the residual would inflate σ̂ and the band with it)."""
+    from errormap.diagnosis.chain_loop import EffectTerm
+    kind, words, element, shape, coef = bench.EFFECT_TRUTHS["reversal"]
+    t = EffectTerm(kind, words, element, shape, np.zeros(1))
+    E, S = sim.columns([t])
+    se = []
+    for scale in (1.0, 10.0):
+        rng = np.random.default_rng(1303)
+        b, cv = sim.joint_fit([t], sim.residual(E, S, scale * np.asarray(coef), rng))
+        se.append(float(np.sqrt(cv[0, 0])))
+        assert np.isfinite(b).all() and se[-1] > 0
+    assert se[1] == pytest.approx(se[0], rel=SE_SCALE_RTOL)
+

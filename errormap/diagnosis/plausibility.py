@@ -193,8 +193,8 @@ def noise_record(given_um, estimated_um, held_out_rms_um: float, stated_um=None)
 
 
 def diagnosis_verdict(summary: dict) -> dict:
-    """``{"status": "passed" | "failed", "reasons": [...]}`` of a closed-loop summary (a chain's
-    :func:`errormap.diagnosis.chain_loop.closed_loop_chain` or the grinder's :func:`errormap.diagnosis.loop.closed_loop`,
+    """``{"status": "passed" | "failed", "reasons": [...]}`` of a closed-loop summary (the one loop,
+    :func:`errormap.diagnosis.chain_loop.closed_loop_chain`, the grinder's through its chain included,
     after the learned stage; its held-out RMS ``held_out_rms_um`` or ``rms_final_um``): failed when the noise
     estimated from the checks is far above the stated one (:data:`NOISE_EXCESS`) or the kept model loses to a
     plain baseline on the held-out checks (:data:`BASELINE_Z`)."""
