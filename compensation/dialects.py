@@ -225,7 +225,7 @@ def other_dialects_with_g(code: str, current: str) -> str:
     what = DIALECTS[known[0]].modes[code].split(" (")[0] if known else ""
     spl = [n for n, d in DIALECTS.items() if n != current and code in d.splines]
     out = f"; on {', '.join(known)} it is {what}" if known else ""
-    out += f"; on {', '.join(spl)} it is {DIALECTS[spl[0]].splines[code]}" if spl else ""
+    out += f"; on {', '.join(spl)} it is {DIALECTS[spl[0]].splines[code].split(' (')[0]}" if spl else ""
     return f"{out}: name the controller with --dialect" if out else ""
 
 

@@ -233,6 +233,12 @@ class ChainElementSet:
             bad = [k for k, u in units.items() if k in want and u != want[k]]
             if bad:
                 raise InputError(f"{path}: key 'units.{bad[0]}': expected {want[bad[0]]!r}, got {units[bad[0]]!r}")
+        need = [a.column for a in machine.axes if machine.slots_of(a.word)]
+        missing = [c for c in need if c not in d["stations"]]
+        if missing:   # another machine's element set (its own axes)
+            raise InputError(f"{path}: key 'stations': no {missing[0]!r} (this element set's axes are "
+                             f"{sorted(d['stations'])[:6]}, of machine {str(d.get('machine', '?'))[:60]!r}; this "
+                             f"machine's are {', '.join(need)}): give its own --machine")
         try:
             return cls(machine, d["stations"], d["functions"], d["constants"], d.get("machine", ""),
                        d.get("machine_sha256", ""))

@@ -10,6 +10,7 @@ from compensation.app.cli import main
 from errormap.io import read_table
 from errormap.machine import load_machine
 from errormap.truth_families import make_truth
+from provenance import text_and_provenance
 
 N, SIGMA = 50, 1.0
 LAYOUT = ("x_mm", "z_mm", "a_deg", "time_s", "temp_c", "dir_x", "dir_z", "dir_a", "seq")
@@ -55,7 +56,7 @@ def test_cli_option(tmp_path, capsys):
     np.testing.assert_array_equal(a.float("x_mm"), b.float("x_mm"))
     assert not np.array_equal(a.float("dx_um"), b.float("dx_um"))
     np.testing.assert_array_equal(b.float("dx_um"), c.float("dx_um"))     # the seed reproduces the draw
-    assert "check_noise_seed: 9" in (tmp_path / "b" / "checks.csv").read_text()
+    assert "check_noise_seed: 9" in text_and_provenance(tmp_path / "b" / "checks.csv")
     assert "check_noise_seed" not in (tmp_path / "a" / "checks.csv").read_text()
 
 
@@ -83,7 +84,7 @@ def test_cli_option_every_family(tmp_path, machine):
     assert np.all(np.abs(d) > 0)                                        # every coordinate's noise redrawn
     for k in measured:
         np.testing.assert_array_equal(b.float(k), c.float(k))           # the seed reproduces the draw
-    assert "check_noise_seed: 9" in (tmp_path / "b" / "checks.csv").read_text()
+    assert "check_noise_seed: 9" in text_and_provenance(tmp_path / "b" / "checks.csv")
     assert "check_noise_seed" not in (tmp_path / "a" / "checks.csv").read_text()
     assert json.loads((tmp_path / "b" / "truth.json").read_text())["check_noise_seed"] == 9
     assert "check_noise_seed" not in json.loads((tmp_path / "a" / "truth.json").read_text())

@@ -10,6 +10,7 @@ from compensation.app.cli import main
 from errormap.diagnosis.drift import MIN_SPAN_S, MIN_STEP_S, load_drift_log
 from errormap.diagnosis.drift_sim import simulate_lumped_log
 from errormap.io import InputError, read_table, write_csv
+from provenance import text_and_provenance
 
 # the model's prediction from the same log in seconds and from the log in minutes with --time-unit min:
 # time_s / 60 * 60 is exact to a few ulp of ~6e4 s, far below one sample's effect
@@ -73,7 +74,7 @@ def test_time_unit_override_is_converted_and_recorded(tmp_path, capsys):
     # drift-predict: the same override, recorded in the written file's header
     assert main(["drift-predict", str(tmp_path / "b" / "drift_model.json"), str(tmp_path / "min.csv"), "--out",
                  str(tmp_path / "p.csv"), "--time-unit", "min"]) == 0
-    assert "# log time unit: min" in (tmp_path / "p.csv").read_text()
+    assert "log time unit: min" in text_and_provenance(tmp_path / "p.csv")
 
 
 def test_band_is_labelled_with_its_checked_held_out_coverage():

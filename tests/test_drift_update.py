@@ -12,6 +12,7 @@ from errormap.diagnosis.drift_models import ChannelFit, DriftModel, Feature, fea
 from errormap.diagnosis.drift_sim import simulate_lumped_log
 from errormap.diagnosis.drift_update import DriftUpdater
 from errormap.io import write_csv
+from provenance import text_and_provenance
 
 NOISE_UM = 0.3
 MEASURE_EVERY = 5          # rows between on-machine measurements (5 min at 60 s)
@@ -82,7 +83,7 @@ def test_drift_predict_update_cli_reports_the_evolution_and_writes_the_model(tmp
     assert "online update" in out and "updated" in out and "saved model" in out
     saved = json.loads((tmp_path / "u.json").read_text())
     assert saved["fitted_on"]["online_update"]["measurements"]["ch1"] == int(np.isfinite(meas).sum())
-    text = (tmp_path / "p.csv").read_text()
+    text = text_and_provenance(tmp_path / "p.csv")
     assert "ch1_fixed_pred_um" in text and "online update: Kalman" in text
     assert main(["drift-predict", str(tmp_path / "m.json"), str(tmp_path / "log.csv"), "--out",
                  str(tmp_path / "q.csv"), "--save-model", str(tmp_path / "v.json")]) == 2

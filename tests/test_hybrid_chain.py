@@ -15,6 +15,7 @@ from errormap.diagnosis.loop_model import ChainModelField, load_chain_model_file
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
+from provenance import text_and_provenance
 
 SEED = 0
 MACHINE = "mill-xyz"
@@ -127,7 +128,7 @@ def test_predict_on_a_chain_hybrid_names_its_box_and_refuses_outside(hybrid_dir,
     write_csv(tmp_path / "p.csv", dict(zip(m.axis_columns, np.array([inside, inside]).T)))
     assert main(["predict", str(tmp_path / "p.csv"), "--machine", MACHINE, "--model", str(d / "model.json"),
                  "--out", str(tmp_path / "o.csv")]) == 0
-    text = (tmp_path / "o.csv").read_text()
+    text = text_and_provenance(tmp_path / "o.csv")
     assert "checks' box x_mm" in text and "y_mm" in text and "z_mm" in text and "stage: learned_residual" in text
     t = read_table(tmp_path / "o.csv")
     assert list(t.raw("learned_part")) == ["fitted", "fitted"]
@@ -141,7 +142,7 @@ def test_predict_on_a_chain_hybrid_names_its_box_and_refuses_outside(hybrid_dir,
     assert len(err) == 1 and "calibrated volume" in err[0] and not (tmp_path / "o2.csv").exists()
     assert main(["predict", str(tmp_path / "q.csv"), "--machine", MACHINE, "--model", str(d / "model.json"),
                  "--out", str(tmp_path / "o2.csv"), "--allow", "volume"]) == 0
-    assert "allowed: volume (1 of 2 points" in (tmp_path / "o2.csv").read_text()
+    assert "allowed: volume (1 of 2 points" in text_and_provenance(tmp_path / "o2.csv")
     assert list(read_table(tmp_path / "o2.csv").raw("learned_part")) == ["fitted", "unknown"]
 
 
@@ -163,7 +164,7 @@ def test_compensate_on_a_chain_hybrid_exact_and_the_volume_guard(hybrid_dir, tmp
                  "--method", "exact", "--out", str(tmp_path / "c3"), "--allow", "volume"]) == 0
     f0 = json.loads((tmp_path / "c3" / "compensate_summary.json").read_text())["files"][0]
     assert f0["overridden"].get("volume", 0) >= 1 and "volume" in f0["allowed_guards"]
-    assert "GUARDS OVERRIDDEN" in (tmp_path / "c3" / "out.csv").read_text()
+    assert "GUARDS OVERRIDDEN" in text_and_provenance(tmp_path / "c3" / "out.csv")
 
 
 def test_report_map_is_named_by_the_machine_axes():

@@ -98,7 +98,7 @@ def test_a_run_leaves_only_its_file_and_a_refused_one_no_folder(tmp_path, elemen
     out = tmp_path / "new" / "sub" / "f.csv"
     rc, _, err = run_cli(["predict", "--model", elements, points, "--out", out])
     assert rc == 0, err
-    assert sorted(p.name for p in out.parent.iterdir()) == ["f.csv"]
+    assert sorted(p.name for p in out.parent.iterdir()) == ["f.csv", "f.meta.json"]   # the CSV and its sidecar
     bad = tmp_path / "other" / "g.csv"
     rc, _, err = run_cli(["predict", "--model", tmp_path / "missing.json", points, "--out", bad])
     assert rc == 2 and not (tmp_path / "other").exists(), err

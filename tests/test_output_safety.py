@@ -108,7 +108,8 @@ def test_full_disk_names_the_file_being_written(tmp_path, elements, points, monk
     monkeypatch.setattr(eio.os, "fsync", full)
     out = tmp_path / "pred.csv"
     rc, _, err = run_cli(["predict", points, "--model", elements, "--out", out])
-    line = one_line(rc, err, str(out), "No space left on device")
+    # the sidecar (provenance, NAME.meta.json) is written first: the refusal names it, the file being written
+    line = one_line(rc, err, str(tmp_path / "pred.meta.json"), "No space left on device")
     assert "error::" not in line
     assert list(tmp_path.iterdir()) == [points]  # neither the output nor its temporary file
 

@@ -10,6 +10,7 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.io import read_table
+from provenance import text_and_provenance
 
 NOISE_UM = 5.0
 FLOOR_RATIO = 1.25
@@ -47,7 +48,7 @@ def test_check_noise_redraw_and_refusals(machine, columns, tmp_path):
     d = np.stack([a.float(k) - b.float(k) for k in ("x_mm", "y_mm", "z_mm")], axis=1)
     assert np.all(np.abs(d) > 0)                         # only the noise redrawn
     np.testing.assert_array_equal(b.float("x_mm"), c.float("x_mm"))
-    assert "check_noise_seed: 9" in (tmp_path / "b" / "checks.csv").read_text()
+    assert "check_noise_seed: 9" in text_and_provenance(tmp_path / "b" / "checks.csv")
     assert json.loads((tmp_path / "b" / "truth.json").read_text())["check_noise_seed"] == 9
     for bad in (["--family", "independent"], ["--effect", "sag"]):
         assert main(["simulate", "--machine", machine, *bad, "--out", str(tmp_path / "bad")]) == 2

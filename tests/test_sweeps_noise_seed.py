@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
+from provenance import text_and_provenance
 
 
 def _noise_seed(text: str) -> int:
@@ -19,7 +20,7 @@ def _noise_seed(text: str) -> int:
 def test_noise_seed_follows_the_seed(tmp_path, capsys, machine):
     def sweeps(name, *opts):
         assert main(["sweeps", *machine, *opts, "--out", str(tmp_path / name)]) == 0
-        return (tmp_path / name).read_bytes(), capsys.readouterr().out
+        return text_and_provenance(tmp_path / name).encode(), capsys.readouterr().out
 
     a, out_a = sweeps("a.csv", "--seed", "3")
     want = int(np.random.SeedSequence(3).spawn(4)[3].generate_state(1)[0])   # independent of the code's helper
@@ -40,4 +41,4 @@ def test_truth_file_without_noise_seed_uses_zero(tmp_path, capsys):
     el = random_truth(load_machine(), 1).elements.save(tmp_path / "el.json")
     assert main(["sweeps", "--truth", str(el), "--out", str(tmp_path / "s.csv")]) == 0
     assert "noise seed 0 (default with --truth)" in capsys.readouterr().out
-    assert _noise_seed((tmp_path / "s.csv").read_text()) == 0
+    assert _noise_seed(text_and_provenance(tmp_path / "s.csv")) == 0
