@@ -79,4 +79,4 @@ def test_chain_network_is_tracked_and_used_from_mlflow(smooth_mill, tmp_path, ca
     assert main(["predict", "--model", rid, "--tracking-uri", uri, str(gpts), "--out", str(tmp_path / "g.csv")]) == 2
     err = [ln for ln in capsys.readouterr().err.strip().splitlines()
            if not ln.startswith("Downloading artifacts")]   # MLflow's own download progress
-    assert len(err) == 1 and "key 'format'" in err[0] and not (tmp_path / "g.csv").exists()
+    assert len(err) == 1 and "key 'inputs'" in err[0] and "x_mm, y_mm, z_mm" in err[0] and not (tmp_path / "g.csv").exists()
