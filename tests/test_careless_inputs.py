@@ -88,8 +88,9 @@ def test_a_tracking_store_mlflow_cannot_open_is_refused_before_training(sim, tmp
 def test_feature_points_without_validation_name_the_file(sim, tmp_path):
     """feature points copied away from the element set their header names: the refusal names the file and the
     missing element set (it named neither)."""
-    fp = tmp_path / "fp.csv"
+    fp = tmp_path / "featurepoints.csv"
     fp.write_text((sim / "g" / "featurepoints.csv").read_text())
+    (tmp_path / "featurepoints.meta.json").write_text((sim / "g" / "featurepoints.meta.json").read_text())   # its provenance
     rc, lines = run(["train", str(fp), "--max-iter", "2", "--out", str(tmp_path / "t")])
     one_line(rc, lines, f"{fp}: no validation data", "truth_elements.json, is not beside it", "--validation")
 
