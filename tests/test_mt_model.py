@@ -181,7 +181,8 @@ def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
     assert [(e["kind"], e["axis"]) for e in diag["effects"]] == [("periodic", "Y")]
     model = json.loads((d / "diag" / "model.json").read_text())
     assert model["format"] == "volcomp-chain-model/1" and len(model["terms"]) == 1
-    # the file is the model the loop judged: its held-out MEASURED residual is diagnosis.json's
+    # the file is the model the loop judged, re-estimated on all checks (the held-out ones included) once chosen: on the
+    # held-out checks it is at least as close as the figure the loop judged it by (diagnosis.json's)
     from errormap.diagnosis.chain_loop import load_mt_checks
     mt = load_machine("mill-xyz")
     ck = load_mt_checks(d / "sim" / "checks.csv", mt)
@@ -190,7 +191,8 @@ def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
     r = ck.measured_um - f.predict(ck.axes)
     held = r[diag["n_fit"]:]
     rms = float(np.sqrt(np.mean(np.sum(held ** 2, axis=1))))
-    assert abs(rms - diag["held_out_rms_um"]) < TOL_SAME_RESIDUAL_UM
+    assert diag["refit_on_all_checks"]["checks"] == len(ck.axes)
+    assert rms < diag["held_out_rms_um"] + TOL_SAME_RESIDUAL_UM
     true = {}
     for name, m in (("loop", d / "diag" / "model.json"), ("identified", d / "E.json"),
                     ("updated_elements_only", d / "diag" / "updated_elements.json")):
