@@ -312,6 +312,11 @@ def test_quick_benchmark_end_to_end(tmp_path):
         for k in REQUIRED_ROW_KEYS:
             assert k in r
         assert r["path"] in ("learned", "parametric", "hybrid")
+        if r["path"] == "learned" and r.get("closed_loop") and not r["available"]:
+            # the one closed loop searches effects on an element set; on a trained network it is refused, and the row
+            # says so (a row of the benchmark that the grinder's own loop could fill)
+            assert "a trained network is not one" in r["not_available"]
+            continue
         assert r["available"], r.get("not_available")
         assert r["true_rms_um"] <= r["true_max_um"]
         assert r["fit_seconds"] > 0 and r["compensate_seconds_per_point"] > 0 and r["n_measurements"] > 0
@@ -582,18 +587,16 @@ def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_p
     assert main(["diagnose", str(tmp_path / "checks.csv"), "--model", str(tmp_path / "el.json"), "--out", str(d)]) == 0
     summary = json.loads((d / "diagnosis.json").read_text())
     model = json.loads((d / "model.json").read_text())
-    # the loop alone: model.json with loop_alone's elements and terms, the replaced condition terms, no learned part
-    alone = {k: v for k, v in model.items() if k not in ("learned_residual", "loop_alone", "base_terms_replaced")}
-    own = model.get("loop_alone") or {}
-    alone.update(elements=own.get("elements", model["elements"]), stage=model.get("base_stage", model["stage"]),
-                 terms=own.get("terms", model["terms"]) + model.get("base_terms_replaced", []))
-    (d / "alone.json").write_text(json.dumps(alone))
-    assert alone["stage"] in ("updated", "updated_plus_effects", "updated_alone")   # the elements were updated
-    for path, name in (("hybrid", "model.json"), ("parametric", "alone.json")):
-        f = ConditionedField(load_diagnosed_model(d / name, grinder), PATH_CONDITIONS)
+    # the loop alone (model.json's loop_alone, or model.json without its learned part) and the kept model, each read
+    # from the files `volcomp diagnose` wrote, at the benchmark's path conditions
+    from compensation.app.workflows.benchmark_loop import loop_models
+    models = loop_models(grinder, d / "model.json", PATH_CONDITIONS)
+    assert models["parametric"][1] in ("updated", "updated_plus_effects", "updated_alone")   # the elements were updated
+    for path in ("hybrid", "parametric"):
+        _, stage, f = models[path]
         cli = compensate_true(grinder, s, g.points, truth, f, "exact")
         row = rows[path]
-        assert row["stage"] == json.loads((d / name).read_text())["stage"]
+        assert row["stage"] == stage
         assert abs(row["true_rms_um"] - cli["true_rms_um"]) <= ROW_MATCH_TOL_UM, (path, row["true_rms_um"], cli)
         assert abs(row["true_max_um"] - cli["true_max_um"]) <= ROW_MATCH_TOL_UM, (path, row["true_max_um"], cli)
         held = summary["stages"][row["stage"]]["held_out"]["rms_um"]
