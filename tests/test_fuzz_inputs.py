@@ -98,9 +98,10 @@ def _head(path: Path, n_data: int) -> str:
 @FUZZ
 @given(data=st.data())
 def test_fuzz_checks_reader(sim, machine, data):
-    from errormap.diagnosis.checks import load_checks
+    from errormap.diagnosis.chain_checks import load_mt_checks
+    from errormap.grinder_file import machine_tool_of
     raw = data.draw(mangled(_head(sim / "sim" / "checks.csv", 30)))
-    reads_or_refuses(lambda p: load_checks(p, machine), raw, ".csv")
+    reads_or_refuses(lambda p: load_mt_checks(p, machine_tool_of(machine)), raw, ".csv")
 
 
 @FUZZ

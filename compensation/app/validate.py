@@ -105,7 +105,7 @@ class Each:
             self.rule.check(flag, x)
 
 
-# benchmark --checks: a check file's own minimum (errormap/diagnosis/checks.py refuses fewer than 10); the
+# benchmark --checks: a check file's own minimum (errormap/diagnosis/chain_checks.py refuses fewer than 10); the
 # learned stage declines below 84 (its 50 fitting checks at the 60/40 split): those rows say so
 MIN_BENCHMARK_CHECKS = 10
 
