@@ -53,7 +53,6 @@ def grinder(n_points: int = 500) -> dict:
     from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap import Identification, load_machine, simulate_sweeps, simulate_truth
-    from errormap.grinder_file import machine_tool_of
     from errormap.chain_field import ChainField
     g = load_machine()
     truth = simulate_truth(g, seed=1)
@@ -62,7 +61,7 @@ def grinder(n_points: int = 500) -> dict:
     lo, hi = (np.array([g.strokes[k][i] for k in ("x_mm", "z_mm", "a_deg")]) for i in (0, 1))
     axes = lo + (0.1 + 0.8 * np.random.default_rng(5).random((n_points, 3))) * (hi - lo)
     res = compensate_points(ident.field_, g, axes)
-    mt = machine_tool_of(g)
+    mt = g
     tf = ChainField(mt, truth.elements)
     targets, _ = nominal_and_jacobian(mt, axes)
     before = np.linalg.norm(true_residual_um(tf, mt, axes, targets), axis=1)

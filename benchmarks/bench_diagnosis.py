@@ -67,8 +67,7 @@ def run(machine, seed, effects):
     import tempfile
     from errormap.chain_elements import ChainElementSet
     from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
-    from errormap.grinder_file import machine_tool_of
-    mt = machine_tool_of(machine)
+    mt = machine
     truth = random_truth(machine, seed, effects=effects)
     checks = MTChecks.from_columns(mt, truth.check_measurements(400, 1.0, spawn_seeds(seed, 1)[0]))
     with tempfile.TemporaryDirectory() as td:

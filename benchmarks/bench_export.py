@@ -77,8 +77,7 @@ def run_seed(seed: int, tolerances, n_volume: int) -> dict:
     from errormap.chain_elements import ChainElementSet
     from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
     from errormap.diagnosis.loop_model import ChainModelField
-    from errormap.grinder_file import machine_tool_of
-    mt = machine_tool_of(m)
+    mt = m
     checks = MTChecks.from_columns(mt, truth.check_measurements(n=400, noise_um=1.0, seed=seed))
     with tempfile.TemporaryDirectory() as tmp:
         el_chain = ChainElementSet.load(el.save(Path(tmp) / "el.json"), mt)

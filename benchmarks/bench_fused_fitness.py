@@ -51,11 +51,10 @@ def main() -> None:
     a = p.parse_args()
     from compensation.solvers.chain_ga import solve_batched_ga_chain
     from compensation.toolpath import flute_path
-    from errormap.grinder_file import machine_tool_of
     from errormap.kinematics import forward
     from errormap.machine import load_machine
     g = load_machine(None)
-    mt = machine_tool_of(g)
+    mt = g
     field = network()
     axes = flute_path(turns=a.turns, points_per_turn=400).axes(g)
     targets = forward(g, axes)

@@ -24,11 +24,10 @@ def make_sweeps(machine_name: str, stations: int, seed: int):
     from errormap.machine import load_machine
     from errormap.sweeps import sweeps_from_columns
     if machine_name == "grinder":
-        from errormap.grinder_file import grinder_chain
         from errormap.sweeps import simulate_sweeps
         from errormap.truth_families import make_truth
         g = load_machine(None)
-        return sweeps_from_columns(simulate_sweeps(make_truth(g, seed), n_stations=stations)), grinder_chain(g)
+        return sweeps_from_columns(simulate_sweeps(make_truth(g, seed), n_stations=stations)), g
     from errormap.chain_truth import make_mt_truth
     from errormap.chain_sweeps import simulate_mt_sweeps, swept_words
     mt = load_machine(machine_name)

@@ -116,13 +116,12 @@ def chain_setting():
     import tempfile
     from compensation.app.workflows.measurement import load_chain_model
     from errormap.diagnosis.chain_loop import MTChecks
-    from errormap.grinder_file import machine_tool_of
     from errormap.machine import load_machine
     from errormap.simulator import random_truth
     from errormap.sweeps import simulate_sweeps
     from errormap.uncertainty import covariance_path, smooth_identify
     grinder = load_machine()
-    mt = machine_tool_of(grinder)
+    mt = grinder
     truth = random_truth(grinder, 4)
     sm = smooth_identify(simulate_sweeps(truth, noise_um=2.0, seed=54), grinder, n_boot=40)
     with tempfile.TemporaryDirectory() as tmp:

@@ -60,11 +60,10 @@ def grinder() -> None:
     from errormap.chain_elements import ChainElementSet
     from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, full_parameters
     from errormap.diagnosis.plausibility import diagnosis_verdict
-    from errormap.grinder_file import machine_tool_of
     from errormap.machine import load_machine
     from errormap.simulator import random_truth
     g = load_machine(None)
-    mt = machine_tool_of(g)
+    mt = g
     for seed in (3, 4, 5):
         t = random_truth(g, seed)
         with tempfile.TemporaryDirectory() as td:

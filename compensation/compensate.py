@@ -215,14 +215,10 @@ def save_model(path, model) -> Path:
 def load_model(spec, machine, tracking_uri: str | None = None):
     """An error field (``predict(axes) -> (n, 3)`` μm) from a model file, folder or MLflow reference for
     ``machine`` (:func:`compensation.fields.load_field`: recognised by content, refused naming the file). On
-    the grinder file an element set or a chain model is read on its chain (as the estimators fit it); the
-    grinder's trained networks on the grinder file itself."""
-    from errormap.machine import Grinder
+    the grinder an element set, a chain model and its trained networks are read on its chain (as the estimators
+    fit it)."""
     from .fields import load_field, resolve_model
-    src = resolve_model(spec)
-    if isinstance(machine, Grinder) and src.kind in ("elements", "chain-model"):
-        machine = _chain(machine, "load_model(machine=...)")
-    return load_field(spec, machine, tracking_uri, source=src)
+    return load_field(spec, machine, tracking_uri, source=resolve_model(spec))
 
 
 __all__ = ["Compensation", "compensate_joints", "compensate_points", "compensate_program", "load_model", "save_model"]

@@ -127,13 +127,12 @@ def require_kind(src: ModelSource, kinds, what: str) -> ModelSource:
 
 def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSource | None = None):
     """An error field (``predict(axes) -> (n, 3)`` μm) for ``spec`` on a machine tool (a chain file, or a
-    ``kind = "grinder"`` file through its chain: :func:`errormap.grinder_file.machine_tool_of`): an element set,
+    ``kind = "grinder"`` file read as its chain): an element set,
     a diagnosed chain ``model.json``, a trained network (folder or MLflow; which network is read from its own
     ``config.json``); other model kinds are refused naming what the file is."""
-    from errormap.grinder_file import machine_tool_of
     src = source or resolve_model(spec)
     require_kind(src, ("elements", "chain-model", "chain-network", "network", "mlflow"), "this command evaluates")
-    mt = machine_tool_of(machine)
+    mt = machine
     if src.kind == "chain-model":   # elements + terms (+ the learned residual when the loop kept it)
         from .chain_hybrid import load_chain_model
         return load_chain_model(src.path, mt)

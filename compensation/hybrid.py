@@ -34,8 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from errormap.grinder_file import rho0_mm
 from errormap.field import GRINDER_AXES, JACOBIAN, PREDICT_AND_JACOBIAN, is_rotary_column, machine_axes
-from errormap.grinder_file import machine_tool_of
 from errormap.machine_tool import WorkRotation
 from errormap.progress import Progress
 from errormap.stats import residual_stats
@@ -815,7 +815,7 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     ``axes`` (n, k) in the machine's axis columns (:func:`errormap.field.machine_axes`).
     ``families``: the learned families cross-validated (None: :data:`LEARNED_FAMILIES` at call time);
     ``inputs``: the input sets (:data:`INPUT_SETS`) each family is cross-validated on (None:
-    :data:`LEARNED_INPUTS` at call time; the work-frame sets need ``machine.rho0_mm``).
+    :data:`LEARNED_INPUTS` at call time; the work-frame sets need the grinder's ``rho0_mm``, :func:`errormap.grinder_file.rho0_mm`).
     ``frames``: the output frames (:data:`OUTPUT_FRAMES`) each input set is cross-validated in (None:
     :data:`LEARNED_FRAMES` at call time; ``machine`` only where the machine's work frame turns with an axis).
     ``covariance``: the previous stage's element covariance (or None): with it, the stage also
@@ -855,11 +855,11 @@ def learned_stage(machine, r_prev_um, axes, fit_idx, hold_idx, seed=0, families=
     frames = tuple(LEARNED_FRAMES if frames is None else frames)
     if not frames or any(fr not in OUTPUT_FRAMES for fr in frames):
         raise ValueError(f"Expected output frames from {list(OUTPUT_FRAMES)}, got {list(frames)}")
-    rotation = machine_tool_of(machine).work_rotation() if any(fr != "work" for fr in frames) else None
+    rotation = machine.work_rotation() if any(fr != "work" for fr in frames) else None
     if rotation is not None and not rotation.turns:   # a constant rotation: the frames learn the same
         frames, rotation = ("work",), None
     R_chk = None if rotation is None else rotation(axes)[0]
-    rho0 = getattr(machine, "rho0_mm", None) if any(i != "axes" for i in inputs) else None
+    rho0 = rho0_mm(machine) if any(i != "axes" for i in inputs) else None
     feats = {name: input_features(axes, name, rho0, columns)[0] for name in inputs}
     groups = np.repeat(np.arange(CV_BLOCKS), int(np.ceil(len(fit_idx) / CV_BLOCKS)))[:len(fit_idx)]
     fit_cands = (lambda r: _fit_inputs(feats, r, fit_idx, groups, families, seed, columns, R_chk, frames))

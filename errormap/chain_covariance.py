@@ -43,11 +43,10 @@ def read_chain_covariance(cov_path, elements_path, prior: bool = False) -> tuple
         raise InputError(f"{cov_path}: not a readable covariance file ({exc}); run `volcomp identify` again") from None
     if "format" not in files and "layout_element" in files:   # a grinder identification's file
         from .elements import ElementSet
-        from .grinder_file import SLOT_OF
         from .uncertainty import ElementCovariance, theta_layout
         gc = ElementCovariance.load(cov_path, ElementSet.load(elements_path))
         lay = theta_layout(gc.elements)
-        slots, stations, C = [SLOT_OF[k] for k, _ in lay], np.array([i for _, i in lay], int), gc.cov
+        slots, stations, C = [k for k, _ in lay], np.array([i for _, i in lay], int), gc.cov
         extra = gc.prior_extra
     else:
         slots, stations, C = load_covariance(cov_path)

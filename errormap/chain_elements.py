@@ -119,13 +119,14 @@ class ChainElementSet:
 
     @classmethod
     def from_element_set(cls, machine: MachineTool, elements) -> "ChainElementSet":
-        """A grinder :class:`errormap.elements.ElementSet` as the element set of a grinder's chain
-        (:func:`errormap.grinder_file.grinder_to_chain`): names and columns renamed through
-        :data:`errormap.grinder_file.ELEMENT_SLOTS` / ``COLUMN_OF``; another machine is refused."""
-        from .grinder_file import COLUMN_OF, SLOT_OF, check_grinder_chain, rename
+        """A grinder :class:`errormap.elements.ElementSet` as the element set of the grinder's chain (the same
+        names, :data:`errormap.grinder_file.ELEMENT_SLOTS`, and columns); another machine is refused."""
+        from .grinder_file import check_grinder_chain
         check_grinder_chain(machine, machine.path)
-        return cls(machine, rename(elements.stations, COLUMN_OF, "stations"),
-                   rename(elements.functions, SLOT_OF, "functions"), rename(elements.constants, SLOT_OF, "constants"),
+        unknown = sorted((set(elements.functions) | set(elements.constants)) - set(machine.slot_names))
+        if unknown:
+            raise ValueError(f"no slot of the grinder's chain for {unknown} (its 23 elements only)")
+        return cls(machine, dict(elements.stations), dict(elements.functions), dict(elements.constants),
                    elements.machine_name, elements.machine_sha256)
 
     def copy(self) -> "ChainElementSet":
@@ -145,10 +146,9 @@ class ChainElementSet:
         """The grinder's :class:`errormap.elements.ElementSet` of the same values (a grinder chain
         file's element set; refused for another machine's slots)."""
         from .elements import ElementSet
-        from .grinder_file import COLUMN_OF, ELEMENT_OF, check_grinder_chain, rename
+        from .grinder_file import check_grinder_chain
         check_grinder_chain(self.machine, self.machine.name)
-        return ElementSet(rename(self.stations, {c: g for g, c in COLUMN_OF.items()}, "stations"),
-                          rename(self.functions, ELEMENT_OF, "functions"), rename(self.constants, ELEMENT_OF, "constants"),
+        return ElementSet(dict(self.stations), dict(self.functions), dict(self.constants),
                           self.machine_name, self.machine_sha256)
 
     # -- evaluation ---------------------------------------------------------------------------

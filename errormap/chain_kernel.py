@@ -453,6 +453,14 @@ def values_kernel(axes, values, prog, prog_nom, out):  # pragma: no cover - comp
             out[n, i] = (t[i] - t0[i]) * 1e3
 
 
+def compiled_nominal(machine: MachineTool) -> "CompiledNominal":
+    """:class:`CompiledNominal` of ``machine``, packed once per machine object (kept on it)."""
+    c = machine.__dict__.get("_compiled_nominal")
+    if c is None:
+        c = machine.__dict__["_compiled_nominal"] = CompiledNominal(machine)
+    return c
+
+
 class CompiledNominal:
     """A machine's chain packed once for the point-by-point kernels that need no element set:
     ``tool_points(axes (n, k)) -> (n, 3)`` mm (nominal forward kinematics, compiled),
@@ -496,22 +504,6 @@ class CompiledNominal:
 
 _NO_SLOTS = np.zeros(0, dtype=np.int64)  # a nominal program's slot columns (none)
 _NO_JACOBIAN = np.empty((0, 3, 0))       # nominal_jacobian_kernel without its Jacobian
-
-_GRINDER_NOMINAL: dict = {}
-
-
-def grinder_nominal(machine) -> CompiledNominal:
-    """:class:`CompiledNominal` of a grinder file's chain (:func:`errormap.grinder_file.grinder_chain`),
-    packed once per file content (same key and bound as that cache)."""
-    from .grinder_file import GRINDER_CHAIN_CACHE, _grinder_key, grinder_chain
-    key = _grinder_key(machine)
-    c = _GRINDER_NOMINAL.get(key)
-    if c is None:
-        if len(_GRINDER_NOMINAL) >= GRINDER_CHAIN_CACHE:
-            _GRINDER_NOMINAL.pop(next(iter(_GRINDER_NOMINAL)))
-        c = _GRINDER_NOMINAL[key] = CompiledNominal(grinder_chain(machine))
-    return c
-
 
 # ---------------------------------------------------------------------------- nominal chain
 # (issue 26 point 3: the solvers' and G-code kernels' one source of nominal kinematics)
@@ -565,18 +557,13 @@ class NominalChain:
     (unused by a program without errors, kept for the kernels' signature), ``k`` the axes, ``kinds``
     (k,) ``linear``/``rotary`` and ``full_turn`` (k,) bool per axis, ``columns`` the axis columns.
 
-    ``machine``: a :class:`errormap.machine_tool.MachineTool`, or any machine file that
-    :func:`errormap.grinder_file.grinder_to_chain` turns into one (the grinder)."""
+    ``machine``: a :class:`errormap.machine_tool.MachineTool`."""
 
     def __init__(self, machine):
-        from .machine import Grinder
-        if isinstance(machine, Grinder):  # its chain file, packed once per file content
-            packed = grinder_nominal(machine)
-            mt, self.prog = packed.machine, packed.prog_nom
-        elif isinstance(machine, MachineTool):
+        if isinstance(machine, MachineTool):
             mt, self.prog = machine, nominal_program(machine.chain)
         else:
-            raise TypeError(f"Expected a machine-tool chain or a grinder machine, got {type(machine).__name__}")
+            raise TypeError(f"Expected a machine-tool chain, got {type(machine).__name__}")
         self.machine_tool = mt
         self.own = np.zeros(0, dtype=np.int64)
         self.k = len(mt.axes)

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 
 from .io import InputError, atomic_write, read_document_text
-from .machine import Grinder
+from .machine_tool import MachineTool
 
 X_ELEMENTS = ("dx_x", "dy_x", "dz_x", "ex_x", "ey_x", "ez_x")
 Z_ELEMENTS = ("dx_z", "dy_z", "dz_z", "ex_z", "ey_z", "ez_z")
@@ -50,7 +50,7 @@ def element_unit(name: str) -> str:
     return "um" if name.startswith("d") else "urad"
 
 
-def default_stations(machine: Grinder, n: int = 21) -> dict:
+def default_stations(machine: MachineTool, n: int = 21) -> dict:
     """``n`` equally spaced stations over each stroke (the paper: every 1/20; A every 18°)."""
     return {k: np.linspace(*machine.strokes[k], n) for k in ("x_mm", "z_mm", "a_deg")}
 
@@ -132,7 +132,7 @@ class ElementSet:
 
     # -- construction -------------------------------------------------------------------
     @classmethod
-    def zeros(cls, machine: Grinder, n_stations: int = 21) -> "ElementSet":
+    def zeros(cls, machine: MachineTool, n_stations: int = 21) -> "ElementSet":
         st = default_stations(machine, n_stations)
         return cls(st, {k: np.zeros(n_stations) for k in FUNCTION_ELEMENTS},
                    {k: 0.0 for k in CONSTANT_ELEMENTS}, machine.name, machine.sha256)

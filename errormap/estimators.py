@@ -74,15 +74,12 @@ def _short(v) -> str:
 
 def machine_tool(machine, what: str):
     """``machine`` as the machine-tool chain every machine-tool estimator runs on: a chain itself, the
-    grinder file its chain (:func:`errormap.grinder_file.machine_tool_of`: the same element names and
-    columns); anything else refused naming ``what``."""
-    from .grinder_file import machine_tool_of
-    from .machine import Grinder
+    grinder among them; anything else refused naming ``what``."""
     from .machine_tool import MachineTool
-    _require_type(machine, (MachineTool, Grinder), what,
+    _require_type(machine, (MachineTool,), what,
                   "a machine-tool chain or the grinder file (load_machine('mill-xyz'), load_machine()); an arm: "
                   "ArmCalibration, compensate_joints")
-    return machine_tool_of(machine)
+    return machine
 
 
 def _require_type(value, types, what: str, hint: str) -> None:

@@ -39,10 +39,9 @@ def _resolve(value: str, folder: Path) -> str:
 
 
 def grid_axes(machine, n: int = 11) -> np.ndarray:
-    """The n×n×n grid over the strokes (A from its lower stroke over 360°), shape (n³, 3); a
-    machine-tool chain: the grid over each of its k axes' strokes in ``machine.axis_columns``
-    order, shape (nᵏ, k)."""
-    names = machine.axis_columns if getattr(machine, "kind", None) == "machine-tool" else ("x_mm", "z_mm", "a_deg")
+    """The grid over each of a machine tool's k axes' strokes in ``machine.axis_columns`` order, n per axis
+    (the grinder: A from its lower stroke over 360°), shape (nᵏ, k)."""
+    names = machine.axis_columns
     g = [np.linspace(*machine.strokes[k], n) for k in names]
     return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, len(names))
 
@@ -140,7 +139,6 @@ def make_feature_points(machine, field, n: int | None = None, meta: dict | None 
     m = {"machine": machine.name, "machine_file": machine.path, "machine_sha256": machine.sha256,
          "grid": "x".join([str(n)] * k)}
     m.update(meta or {})
-    names = machine.axis_columns if getattr(machine, "kind", None) == "machine-tool" else COLUMNS[:3]
-    if getattr(machine, "kind", None) == "machine-tool":
-        m["axis_columns"] = ",".join(names)
+    names = machine.axis_columns
+    m["axis_columns"] = ",".join(names)
     return FeaturePoints(axes, field.predict(axes), m, axis_columns=tuple(names))

@@ -1,140 +1,148 @@
-"""A ``kind = "grinder"`` machine file read as its machine-tool chain.
+"""A ``kind = "grinder"`` machine file read as its machine-tool chain: the one adapter.
 
-The micro-drill flute grinder's file (``docs/reference/file-formats.md``: ``[geometry]`` l1…l8, R, theta1_deg;
-``[strokes]`` x_mm, z_mm, a_deg; ``[targets]`` X, Z, A) names a fixed structure: two chains from
-the machine base, written here once as a chain document whose fixed transforms are the file's
-geometry names (no numbers)::
+The built-in grinder is a chain file (``errormap/machines/grinder.toml``). A user's older
+``kind = "grinder"`` file (``docs/reference/file-formats.md``: ``[geometry]`` l1…l8, R, theta1_deg;
+``[strokes]`` x_mm, z_mm, a_deg; ``[targets]`` X, Z, A) names the same fixed structure, two chains from
+the machine base whose fixed transforms are the file's geometry names::
 
     work: Trans(l5,0,l6)·Trans(x,0,0)·E_x(x)·Trans(l7,0,l8)·E_oa·RotX(a)·E_a(a)
     tool: RotZ(θ1)·Trans(l2,0,l1)·RotZ(-θ1)·[Z along z, tilted towards +x by s_xz]·RotZ(θ1)·E_z(z)
           ·Trans(l3,0,l4)·Trans(0,0,-R)
 
-:func:`grinder_to_chain` fills it with one grinder file's geometry, strokes and targets and compiles
-it (:func:`errormap.machine_tool.parse_machine_tool`); the result keeps the grinder's 23 element names
-(:data:`ELEMENT_SLOTS`, checked whole: an element or slot outside the table is refused) and its
-axis columns x_mm, z_mm, a_deg, so element-set files and CSV files of the grinder read unchanged.
-:func:`adapter_line` is the one line a command prints when it reads such a file.
+:func:`parse_grinder_file` (the machine registry's parser of that kind) validates such a file, fills
+the chain document with its geometry, strokes and targets and compiles it
+(:func:`errormap.machine_tool.parse_machine_tool`); the result keeps the grinder's 23 element names
+(:data:`ELEMENT_SLOTS`, checked whole) and its axis columns x_mm, z_mm, a_deg, so element-set files and
+CSV files of the grinder read unchanged, and carries :func:`adapter_line` as ``read_as``, the one line a
+command says when it reads such a file. Nothing after loading sees anything but the chain.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from .machine import (GRINDER_GEOMETRY_KEYS, GRINDER_STROKE_KEYS, GRINDER_TARGET_KEYS, Grinder, MachineFileError,
-                      parse_grinder)
+from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
 from .machine_tool import MachineTool, parse_machine_tool
 
+GRINDER_GEOMETRY_KEYS = ("l1", "l2", "l3", "l4", "R", "l5", "l6", "l7", "l8", "theta1_deg")
+GRINDER_STROKE_KEYS = ("x_mm", "z_mm", "a_deg")
+GRINDER_TARGET_KEYS = ("X", "Z", "A")
+A_TURN_TOL_DEG = 1e-9  # strokes.a_deg must span one turn to this
+
 ELEMENT_SLOTS = (
-    # grinder element, chain slot, ISO 230-1 name of the slot
-    ("dx_x", "dx_x", "EXX"), ("dy_x", "dy_x", "EYX"), ("dz_x", "dz_x", "EZX"),
-    ("ex_x", "ex_x", "EAX"), ("ey_x", "ey_x", "EBX"), ("ez_x", "ez_x", "ECX"),
-    ("dx_z", "dx_z", "EXZ"), ("dy_z", "dy_z", "EYZ"), ("dz_z", "dz_z", "EZZ"),
-    ("ex_z", "ex_z", "EAZ"), ("ey_z", "ey_z", "EBZ"), ("ez_z", "ez_z", "ECZ"),
-    ("dx_a", "dx_a", "EXA"), ("dy_a", "dy_a", "EYA"), ("dz_a", "dz_a", "EZA"),
-    ("ex_a", "ex_a", "EAA"), ("ey_a", "ey_a", "EBA"), ("ez_a", "ez_a", "ECA"),
-    ("dy_oa", "dy_oa", "EY0A"), ("dz_oa", "dz_oa", "EZ0A"), ("ey_oa", "ey_oa", "EB0A"), ("ez_oa", "ez_oa", "EC0A"),
-    ("s_xz", "s_xz", "EB0Z"),
+    # the grinder's element (= the chain's slot) and its ISO 230-1 name
+    ("dx_x", "EXX"), ("dy_x", "EYX"), ("dz_x", "EZX"), ("ex_x", "EAX"), ("ey_x", "EBX"), ("ez_x", "ECX"),
+    ("dx_z", "EXZ"), ("dy_z", "EYZ"), ("dz_z", "EZZ"), ("ex_z", "EAZ"), ("ey_z", "EBZ"), ("ez_z", "ECZ"),
+    ("dx_a", "EXA"), ("dy_a", "EYA"), ("dz_a", "EZA"), ("ex_a", "EAA"), ("ey_a", "EBA"), ("ez_a", "ECA"),
+    ("dy_oa", "EY0A"), ("dz_oa", "EZ0A"), ("ey_oa", "EB0A"), ("ez_oa", "EC0A"), ("s_xz", "EB0Z"),
 )
-"""The grinder's 23 elements (:data:`errormap.elements.ELEMENT_NAMES` order) and the chain slot each
-one is, with the slot's ISO name: the whole mapping, both ways."""
-SLOT_OF = {g: s for g, s, _ in ELEMENT_SLOTS}
-ELEMENT_OF = {s: g for g, s, _ in ELEMENT_SLOTS}
-COLUMN_OF = {"x_mm": "x_mm", "z_mm": "z_mm", "a_deg": "a_deg"}
-"""Grinder axis column (CSV, element-set stations) -> the chain's axis column."""
-AXIS_OF_COLUMN = {"x_mm": "X", "z_mm": "Z", "a_deg": "A"}
+"""The grinder's 23 elements (:data:`errormap.elements.ELEMENT_NAMES` order), each the chain slot of the
+same name, with the slot's ISO name: the whole mapping."""
 
 
 def _joint(axis: str, kind: str, stroke, **extra) -> dict:
     return {"joint": kind, "axis": axis, "stroke": [float(stroke[0]), float(stroke[1])], **extra}
 
 
-def grinder_chain_document(machine: Grinder) -> dict:
-    """The machine-tool chain document (the parsed TOML of a ``kind = "machine-tool"`` file) of a
-    grinder file: the grinder's structure with that file's geometry, strokes and targets."""
-    st = machine.strokes
+def read_grinder(doc: dict, path) -> dict:
+    """Validate a parsed ``kind = "grinder"`` file (schema in ``docs/reference/file-formats.md``):
+    ``{"name", "geometry" {key: float}, "strokes" {column: (lo, hi)}, "targets" {word: (3, 3)}}``;
+    errors name the file and the key."""
+    check_known_keys(doc, ("machine", "geometry", "strokes", "targets"), "", path)
+    m = check_table(doc, "machine", path)
+    check_known_keys(m, ("kind", "name"), "machine", path)
+    name = m.get("name", "grinder")
+    if not isinstance(name, str):
+        raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {short_repr(name)}")
+    g = check_table(doc, "geometry", path)
+    check_known_keys(g, GRINDER_GEOMETRY_KEYS, "geometry", path)
+    geom = {k: check_number(g, k, "geometry", path) for k in GRINDER_GEOMETRY_KEYS}
+    if geom["R"] <= 0:
+        raise MachineFileError(f"{path}: key 'geometry.R': expected a positive wheel radius, got {geom['R']}")
+    s = check_table(doc, "strokes", path)
+    check_known_keys(s, GRINDER_STROKE_KEYS, "strokes", path)
+    strokes = {}
+    for k in GRINDER_STROKE_KEYS:
+        if k not in s:
+            raise MachineFileError(f"{path}: missing key 'strokes.{k}'")
+        arr = check_array(s[k], (2,), f"strokes.{k}", path)
+        if not arr[1] > arr[0]:
+            raise MachineFileError(f"{path}: key 'strokes.{k}': expected [lo, hi] with hi > lo, got {s[k]!r}")
+        strokes[k] = (float(arr[0]), float(arr[1]))
+    lo, hi = strokes["a_deg"]
+    if abs((hi - lo) - 360.0) > A_TURN_TOL_DEG:
+        hint = " (that is one turn in radians; the file is in degrees)" if abs((hi - lo) - 2 * np.pi) < 0.01 else ""
+        raise MachineFileError(f"{path}: key 'strokes.a_deg': expected one turn, [lo, lo + 360] deg (the A-axis "
+                               f"errors are periodic over a turn; commands may run past it), got {s['a_deg']!r}{hint}")
+    t = check_table(doc, "targets", path)
+    check_known_keys(t, GRINDER_TARGET_KEYS, "targets", path)
+    targets = {}
+    for k in GRINDER_TARGET_KEYS:
+        if k not in t:
+            raise MachineFileError(f"{path}: missing key 'targets.{k}'")
+        targets[k] = check_array(t[k], (3, 3), f"targets.{k}", path)
+    return {"name": name, "geometry": geom, "strokes": strokes, "targets": targets}
+
+
+def grinder_chain_document(grinder: dict) -> dict:
+    """The machine-tool chain document (the parsed TOML of a ``kind = "machine-tool"`` file) of a grinder
+    file read by :func:`read_grinder`: the grinder's structure with that file's geometry, strokes, targets."""
+    st = grinder["strokes"]
     work = [{"tx": "l5"}, {"tz": "l6"}, _joint("X", "linear", st["x_mm"]),
             {"tx": "l7"}, {"tz": "l8"}, _joint("A", "rotary", st["a_deg"])]
     squareness = [{"name": "s_xz", "toward": "x", "iso": "EB0Z"}]
     tool = [{"rz": "theta1_deg"}, {"tx": "l2"}, {"tz": "l1"}, {"rz": "-theta1_deg"},
             _joint("Z", "linear", st["z_mm"], squareness=squareness), {"rz": "theta1_deg"}, {"errors_of": "Z"},
             {"tx": "l3"}, {"tz": "l4"}, {"tz": "-R"}]
-    return {"machine": {"kind": "machine-tool", "schema": 1, "name": machine.name,
+    return {"machine": {"kind": "machine-tool", "schema": 1, "name": grinder["name"],
                         "description": 'read from a kind = "grinder" file'},
-            "geometry": {k: float(getattr(machine, k)) for k in GRINDER_GEOMETRY_KEYS},
+            "geometry": {k: float(v) for k, v in grinder["geometry"].items()},
             "work": work, "tool": tool,
-            "targets": {k: [[float(c) for c in row] for row in machine.targets[k]] for k in GRINDER_TARGET_KEYS}}
+            "targets": {k: [[float(c) for c in row] for row in v] for k, v in grinder["targets"].items()}}
 
 
-def grinder_to_chain(source, path="<grinder machine file>", sha: str = "") -> MachineTool:
-    """The machine-tool chain of a grinder file: ``source`` a :class:`errormap.machine.Grinder` or a
-    parsed ``kind = "grinder"`` TOML document (validated by :func:`errormap.machine.parse_grinder`,
-    errors naming ``path`` and the key). Name, path and sha256 are the grinder file's; the element
-    names and axis columns are checked against :data:`ELEMENT_SLOTS` / :data:`COLUMN_OF`."""
-    if isinstance(source, dict):
-        kind = source.get("machine", {}).get("kind") if isinstance(source.get("machine"), dict) else None
-        if kind != "grinder":
-            raise MachineFileError(f"{path}: key 'machine.kind': expected 'grinder' here, got {kind!r}")
-        source = parse_grinder(source, path, sha)
-    if not isinstance(source, Grinder):
-        raise TypeError(f"expected a Grinder or a parsed grinder file, got {type(source).__name__}")
-    where = source.path or path
-    mt = parse_machine_tool(grinder_chain_document(source), where, source.sha256)
-    check_grinder_chain(mt, where)
-    return mt
+def parse_grinder_file(doc: dict, path, sha: str = "") -> MachineTool:
+    """The machine-tool chain of a parsed ``kind = "grinder"`` file (the registry's parser of that kind):
+    name, path and sha256 are the grinder file's, ``read_as`` its :func:`adapter_line`; the element names
+    and axis columns are checked against :data:`ELEMENT_SLOTS` / :data:`GRINDER_STROKE_KEYS`."""
+    kind = doc.get("machine", {}).get("kind") if isinstance(doc.get("machine"), dict) else None
+    if kind != "grinder":
+        raise MachineFileError(f"{path}: key 'machine.kind': expected 'grinder' here, got {short_repr(kind)}")
+    mt = parse_machine_tool(grinder_chain_document(read_grinder(doc, path)), path, sha)
+    check_grinder_chain(mt, path)
+    return dataclasses.replace(mt, read_as=adapter_line(path))
+
+
+def is_grinder_chain(mt) -> bool:
+    """True for a machine-tool chain whose slots (with their ISO names) and axis columns are exactly the
+    grinder's (:data:`ELEMENT_SLOTS`; x_mm, z_mm, a_deg): the built-in grinder, a grinder file read by
+    :func:`parse_grinder_file`, or a chain file written with the same structure."""
+    return (isinstance(mt, MachineTool) and tuple(zip(mt.slot_names, mt.iso_names)) == ELEMENT_SLOTS
+            and mt.axis_columns == GRINDER_STROKE_KEYS)
+
+
+def rho0_mm(mt) -> float | None:
+    """The grinder's tool-point radius about its A axis at z = 0, ``l1 + l4 - R - l6 - l8`` mm, from the
+    chain's geometry; None for a machine that is not the grinder's chain."""
+    if not is_grinder_chain(mt):
+        return None
+    g = mt.geometry
+    return g["l1"] + g["l4"] - g["R"] - g["l6"] - g["l8"]
 
 
 def check_grinder_chain(mt: MachineTool, path) -> None:
     """Refuse a chain whose slots or axis columns are not exactly the grinder's (the mapping is total)."""
-    want = tuple((s, iso) for _, s, iso in ELEMENT_SLOTS)
     got = tuple(zip(mt.slot_names, mt.iso_names))
-    if got != want:
-        extra = sorted(set(got) - set(want)) or sorted(set(want) - set(got)) or "(order)"
+    if got != ELEMENT_SLOTS:
+        extra = sorted(set(got) - set(ELEMENT_SLOTS)) or sorted(set(ELEMENT_SLOTS) - set(got)) or "(order)"
         raise MachineFileError(f"{path}: the chain's error slots are not the grinder's 23 elements: {extra}")
-    if mt.axis_columns != tuple(COLUMN_OF[c] for c in GRINDER_STROKE_KEYS):
+    if mt.axis_columns != GRINDER_STROKE_KEYS:
         raise MachineFileError(f"{path}: the chain's axis columns {mt.axis_columns} are not the grinder's "
                                f"{GRINDER_STROKE_KEYS}")
 
 
-def rename(values: dict, mapping: dict, what: str) -> dict:
-    """``values`` with every key renamed through ``mapping``; a key outside it is refused."""
-    unmapped = sorted(set(values) - set(mapping))
-    if unmapped:
-        raise ValueError(f"{what}: no mapping for {unmapped} (the grinder's 23 elements and x_mm, z_mm, a_deg only)")
-    return {mapping[k]: v for k, v in values.items()}
-
-
-def adapter_line(machine: Grinder) -> str:
+def adapter_line(path) -> str:
     """The one line a command says when it reads a grinder file as its chain."""
-    return (f'{machine.path or "the built-in grinder"}: kind = "grinder" read as its machine-tool chain '
+    return (f'{path}: kind = "grinder" read as its machine-tool chain '
             "(axes X, Z, A; the same 23 element names and columns x_mm, z_mm, a_deg)")
-
-
-def _grinder_key(machine) -> tuple:
-    """Everything of a grinder file that its chain depends on, as a hashable key."""
-    geo = tuple(float(getattr(machine, k)) for k in ("l1", "l2", "l3", "l4", "R", "l5", "l6", "l7", "l8", "theta1_deg"))
-    strokes = tuple(sorted((k, tuple(map(float, v))) for k, v in machine.strokes.items()))
-    targets = tuple(sorted((k, np.asarray(v, dtype=float).tobytes()) for k, v in machine.targets.items()))
-    return (machine.name, machine.path, machine.sha256, geo, strokes, targets)
-
-
-_GRINDER_CHAINS: dict = {}
-GRINDER_CHAIN_CACHE = 32  # distinct grinder files kept compiled (a session uses one or two)
-
-
-def machine_tool_of(machine) -> MachineTool:
-    """``machine`` as a machine-tool chain: a :class:`MachineTool` itself, a grinder file's machine its
-    chain (:func:`grinder_chain`)."""
-    return machine if isinstance(machine, MachineTool) else grinder_chain(machine)
-
-
-def grinder_chain(machine) -> MachineTool:
-    """:func:`grinder_to_chain`, compiled once per grinder file's content
-    (cached by its name, path, sha256, geometry, strokes and targets): the one source of the
-    grinder's kinematics that :mod:`errormap.kinematics`, :mod:`errormap.htm` and
-    :mod:`errormap.sweeps` evaluate."""
-    key = _grinder_key(machine)
-    mt = _GRINDER_CHAINS.get(key)
-    if mt is None:
-        if len(_GRINDER_CHAINS) >= GRINDER_CHAIN_CACHE:
-            _GRINDER_CHAINS.pop(next(iter(_GRINDER_CHAINS)))
-        mt = _GRINDER_CHAINS[key] = grinder_to_chain(machine)
-    return mt

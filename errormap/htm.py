@@ -34,7 +34,7 @@ import numpy as np
 
 from .elements import ELEMENT_NAMES, ElementSet
 from .field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
-from .machine import Grinder
+from .machine_tool import MachineTool
 from .transforms import check_points
 
 UM = 1e-3   # mm per μm
@@ -42,16 +42,14 @@ URAD = 1e-6  # rad per μrad
 IDX = {k: i for i, k in enumerate(ELEMENT_NAMES)}
 
 
-def _chain(machine: Grinder):
-    """The grinder file's chain (:func:`errormap.grinder_file.grinder_chain`, cached)."""
-    from .grinder_file import grinder_chain
-    return grinder_chain(machine)
+def _chain(machine):
+    return machine
 
 
-def _nominal(machine: Grinder):
-    """The chain packed for the point-by-point kernels (:func:`errormap.chain_kernel.grinder_nominal`)."""
-    from .chain_kernel import grinder_nominal
-    return grinder_nominal(machine)
+def _nominal(machine):
+    """The chain packed for the point-by-point kernels (:func:`errormap.chain_kernel.compiled_nominal`)."""
+    from .chain_kernel import compiled_nominal
+    return compiled_nominal(machine)
 
 
 def _values(axes, values) -> np.ndarray:
@@ -61,7 +59,7 @@ def _values(axes, values) -> np.ndarray:
     return values
 
 
-def tool_point_actual(machine: Grinder, axes, values) -> np.ndarray:
+def tool_point_actual(machine: MachineTool, axes, values) -> np.ndarray:
     """Actual tool point in the WCS (mm) with exact transforms.
 
     ``axes`` shape (n, 3) (x_mm, z_mm, a_deg); ``values`` shape (n, 23) element values
@@ -72,7 +70,7 @@ def tool_point_actual(machine: Grinder, axes, values) -> np.ndarray:
     return _chain(machine).tool_point(axes, _values(axes, values))
 
 
-def nominal_frames(machine: Grinder, axes):
+def nominal_frames(machine: MachineTool, axes):
     """Nominal frames of the grinder's chain at ``axes`` (n, 3): ``{"p": nominal tool point in
     the WCS (n, 3) mm, "tool": (R, t) machine <- tool point (n, 3, 3), (n, 3), "work": (R, t)
     machine <- workpiece (A body), "X"/"Z"/"A": (R, t) machine <- each moving body}`` (the chain
@@ -86,7 +84,7 @@ def nominal_frames(machine: Grinder, axes):
     return out
 
 
-def error_jacobian(machine: Grinder, axes) -> np.ndarray:
+def error_jacobian(machine: MachineTool, axes) -> np.ndarray:
     """Error-transfer Jacobian ∂(spatial error μm)/∂(element value), shape (n, 3, 23).
 
     Columns in ELEMENT_NAMES order; translation columns are μm/μm, angle columns μm/μrad.
@@ -98,7 +96,7 @@ def error_jacobian(machine: Grinder, axes) -> np.ndarray:
     return _nominal(machine).error_jacobian(axes)
 
 
-def spatial_error_exact_chain(machine: Grinder, axes, values, chunk: int = 50_000) -> np.ndarray:
+def spatial_error_exact_chain(machine: MachineTool, axes, values, chunk: int = 50_000) -> np.ndarray:
     """The exact spatial error (μm) through the numpy matrix chain :func:`tool_point_actual`;
     shapes as :func:`spatial_error_exact`. The readable reference the compiled form is tested
     against (and the benchmark's baseline); several times slower."""
@@ -106,7 +104,7 @@ def spatial_error_exact_chain(machine: Grinder, axes, values, chunk: int = 50_00
     return _chain(machine).spatial_error(axes, _values(axes, values), chunk=min(chunk, 4096))
 
 
-def spatial_error_exact(machine: Grinder, axes, values, chunk: int = 50_000) -> np.ndarray:
+def spatial_error_exact(machine: MachineTool, axes, values, chunk: int = 50_000) -> np.ndarray:
     """Spatial error (μm) with exact transforms; ``values`` shape (n, 23) -> (n, 3).
 
     The grinder's chain compiled once and evaluated point by point
@@ -119,7 +117,7 @@ def spatial_error_exact(machine: Grinder, axes, values, chunk: int = 50_000) -> 
     return _nominal(machine).spatial_error(axes, _values(axes, values))
 
 
-def spatial_error_first_order(machine: Grinder, axes, values) -> np.ndarray:
+def spatial_error_first_order(machine: MachineTool, axes, values) -> np.ndarray:
     """Spatial error (μm) in the first-order form ``J · v``; shapes as the exact form."""
     return np.einsum("nij,nj->ni", error_jacobian(machine, axes), np.asarray(values, dtype=float))
 
@@ -138,7 +136,7 @@ class HTMField:
 
     kind = "htm"
 
-    def __init__(self, machine: Grinder, elements: ElementSet, exact: bool = True, chunk: int = 50_000):
+    def __init__(self, machine: MachineTool, elements: ElementSet, exact: bool = True, chunk: int = 50_000):
         self.machine = machine
         self.elements = elements
         self.exact = exact

@@ -53,7 +53,7 @@ from __future__ import annotations
 import numpy as np
 
 from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS
-from .machine import Grinder
+from .machine_tool import MachineTool
 from .transforms import check_points
 
 ISO_NAME = {
@@ -93,16 +93,15 @@ def label(name: str) -> str:
     return f"{name} ({ISO_NAME[name]})"
 
 
-def _body_frames(machine: Grinder, axes) -> dict:
+def _body_frames(machine: MachineTool, axes) -> dict:
     """Nominal frames ``(R (n, 3, 3), t (n, 3) mm)`` machine <- the X, Z and A bodies at ``axes``
     (n, 3): the grinder's chain file (:meth:`errormap.machine_tool.MachineTool.body_frames`, one
     source for the kinematics)."""
-    from .grinder_file import grinder_chain
-    mt = grinder_chain(machine)
+    mt = machine
     return {b: mt.body_frames(b, axes) for b in ("X", "Z", "A")}
 
 
-def reference_points_mm(machine: Grinder, axes) -> dict:
+def reference_points_mm(machine: MachineTool, axes) -> dict:
     """Nominal reference points of the X, Z and A bodies in the MCS (mm), each shape (n, 3):
     the origins of the bodies' frames in the grinder's chain (module docstring)."""
     axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
@@ -158,7 +157,7 @@ def axis_from_mcs(mt, word: str, axes, iso, offset_mm=None) -> np.ndarray:
     return np.concatenate([np.einsum("nji,nj->ni", R, d), np.einsum("nji,nj->ni", R, e)], axis=1)
 
 
-def to_iso(values, axes, machine: Grinder, reference_offsets_mm: dict | None = None) -> np.ndarray:
+def to_iso(values, axes, machine: MachineTool, reference_offsets_mm: dict | None = None) -> np.ndarray:
     """Project element values -> ISO 230-1 values, shape (n, 23) -> (n, 23) in ISO_NAMES order.
 
     ``values`` are the 23 element values at ``axes`` (shape (n, 3)), μm / μrad.
@@ -170,16 +169,15 @@ def to_iso(values, axes, machine: Grinder, reference_offsets_mm: dict | None = N
     return _convert(values, axes, machine, reference_offsets_mm, axis_to_mcs)
 
 
-def from_iso(iso_values, axes, machine: Grinder, reference_offsets_mm: dict | None = None) -> np.ndarray:
+def from_iso(iso_values, axes, machine: MachineTool, reference_offsets_mm: dict | None = None) -> np.ndarray:
     """ISO 230-1 values (ISO_NAMES order) -> project element values; the inverse of :func:`to_iso`."""
     return _convert(iso_values, axes, machine, reference_offsets_mm, axis_from_mcs)
 
 
 def _convert(values, axes, machine, reference_offsets_mm, per_axis) -> np.ndarray:
-    from .grinder_file import grinder_chain
     v, axes = _check(values, axes)
     out = v.copy()
-    mt = grinder_chain(machine)
+    mt = machine
     r = _offsets(reference_offsets_mm, axes.shape[0])
     for b, (dn, en) in _TRIPLES.items():
         cols = [_IDX[k] for k in dn + en]

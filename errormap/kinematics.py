@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .machine import Grinder
+from .machine_tool import MachineTool
 from .transforms import check_points
 
 
-def _chain(machine: Grinder):
+def _chain(machine: MachineTool):
     """The machine's chain (a grinder file's compiled once, a chain itself)."""
-    from .grinder_file import machine_tool_of
-    return machine_tool_of(machine)
+    return machine
 
 
 def _axes_at_z(z) -> np.ndarray:
@@ -35,30 +34,30 @@ def _axes_at_z(z) -> np.ndarray:
     return ax
 
 
-def tool_in_machine_nominal(machine: Grinder, z_mm) -> np.ndarray:
+def tool_in_machine_nominal(machine: MachineTool, z_mm) -> np.ndarray:
     """Nominal tool point in the MCS from the tool chain, shape (n, 3)."""
     return _chain(machine).side_frames("tool", _axes_at_z(z_mm))[1]
 
 
-def nominal_tool_at_z0(machine: Grinder) -> tuple:
+def nominal_tool_at_z0(machine: MachineTool) -> tuple:
     """The nominal tool point in the MCS at z = 0, ``RotZ(θ1)·(l2 + l3, 0, l1 + l4 - R)``, as
     three floats (:func:`tool_in_machine_nominal` at z = 0, for inner loops)."""
     t = tool_in_machine_nominal(machine, [0.0])[0]
     return (float(t[0]), float(t[1]), float(t[2]))
 
 
-def forward(machine: Grinder, axes) -> np.ndarray:
+def forward(machine: MachineTool, axes) -> np.ndarray:
     """Nominal tool point in the WCS (mm) for axes (x_mm, z_mm, a_deg), shape (n, 3) -> (n, 3).
 
     ``T_work⁻¹ · T_tool · origin`` through the grinder's compiled chain
     (:meth:`errormap.chain_kernel.CompiledNominal.tool_points`).
     """
-    from .chain_kernel import grinder_nominal
+    from .chain_kernel import compiled_nominal
     axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
-    return grinder_nominal(machine).tool_points(axes)
+    return compiled_nominal(machine).tool_points(axes)
 
 
-def inverse(machine: Grinder, points_mm, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:
+def inverse(machine: MachineTool, points_mm, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:
     """Axes (x_mm, z_mm, a_deg) for WCS tool points, shape (n, 3) -> (n, 3).
 
     The chain's closed form (:meth:`errormap.machine_tool.MachineTool.closed_form_inverse`), compiled

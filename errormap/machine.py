@@ -4,115 +4,35 @@ One file per machine; ``[machine] kind`` selects the schema (``grinder``, ``hexa
 ``tripod``, ``serial``, ``machine-tool``; the one registry of kinds is :func:`machine_kinds`, each
 kind's parser and axes; schemas in ``docs/reference/file-formats.md``; serial chains in :mod:`errormap.chain_file`,
 machine-tool chains in :mod:`errormap.machine_tool`). The built-in machines are the files in
-``errormap/machines/`` (:func:`builtin_machines`), nothing else. The built-in default grinder ships as ``errormap/machines/grinder.toml``.
+``errormap/machines/`` (:func:`builtin_machines`), nothing else. The built-in default grinder ships as ``errormap/machines/grinder.toml``, a machine-tool chain; a
+``kind = "grinder"`` file is read into the same chain (:mod:`errormap.grinder_file`).
 Every error names the file and the key.
 """
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from .field import is_rotary_column
 from .io import InputError, check_not_wide, read_document_bytes, sha256_bytes
 # MachineFileError is raised here and imported from here by callers (one class, defined with the checks)
 from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
 
-GRINDER_GEOMETRY_KEYS = ("l1", "l2", "l3", "l4", "R", "l5", "l6", "l7", "l8", "theta1_deg")
-GRINDER_STROKE_KEYS = ("x_mm", "z_mm", "a_deg")
-GRINDER_TARGET_KEYS = ("X", "Z", "A")
-A_TURN_TOL_DEG = 1e-9  # strokes.a_deg must span one turn to this
+BUILTIN_ALIASES = {"grinder-chain": "grinder"}
+"""Other names of a built-in machine file (the grinder's chain file was once a file of its own)."""
 
 
 def builtin_machine_path(kind: str = "grinder") -> Path:
-    """Path of a built-in machine file (``grinder``, ``hexapod``, ``tripod``, ``ur5``, ``ur10``, ``wam``; the
-    machine-tool chains ``grinder-chain``, ``mill-xyz``, ``five-axis-ac``, ``lathe-xzc``)."""
-    p = Path(str(resources.files("errormap") / "machines" / f"{kind}.toml"))
+    """Path of a built-in machine file (``grinder``, the default, a machine-tool chain also named
+    ``grinder-chain``; ``mill-xyz``, ``five-axis-ac``, ``lathe-xzc``; ``hexapod``, ``tripod``; ``ur5``,
+    ``ur10``, ``wam``)."""
+    p = Path(str(resources.files("errormap") / "machines" / f"{BUILTIN_ALIASES.get(kind, kind)}.toml"))
     if not p.is_file():
         raise MachineFileError(f"no built-in machine file for kind {kind!r} ({p})")
     return p
-
-
-@dataclass(frozen=True)
-class Grinder:
-    """The micro-drill flute grinder's nominal description (lengths mm, angles deg).
-
-    ``strokes`` maps ``x_mm``/``z_mm``/``a_deg`` to ``(lo, hi)``; ``targets`` maps
-    ``X``/``Z``/``A`` to the nominal target-ball centres, shape (3, 3), in the body frame.
-    """
-
-    name: str
-    l1: float
-    l2: float
-    l3: float
-    l4: float
-    R: float
-    l5: float
-    l6: float
-    l7: float
-    l8: float
-    theta1_deg: float
-    strokes: dict
-    targets: dict
-    path: str = ""
-    sha256: str = ""
-    kind: str = field(default="grinder")
-
-    @property
-    def rho0_mm(self) -> float:
-        """Radius of the tool point about the A axis at z = 0: ``l1 + l4 - R - l6 - l8``."""
-        return self.l1 + self.l4 - self.R - self.l6 - self.l8
-
-    @property
-    def stroke_lo(self) -> np.ndarray:
-        """Lower stroke limits (x_mm, z_mm, a_deg), shape (3,)."""
-        return np.array([self.strokes[k][0] for k in GRINDER_STROKE_KEYS])
-
-    @property
-    def stroke_hi(self) -> np.ndarray:
-        """Upper stroke limits (x_mm, z_mm, a_deg), shape (3,)."""
-        return np.array([self.strokes[k][1] for k in GRINDER_STROKE_KEYS])
-
-
-def parse_grinder(doc: dict, path, sha: str = "") -> Grinder:
-    """Validate a parsed grinder machine file; the schema is in ``docs/reference/file-formats.md``."""
-    check_known_keys(doc, ("machine", "geometry", "strokes", "targets"), "", path)
-    m = check_table(doc, "machine", path)
-    check_known_keys(m, ("kind", "name"), "machine", path)
-    name = m.get("name", "grinder")
-    if not isinstance(name, str):
-        raise MachineFileError(f"{path}: key 'machine.name': expected a string, got {short_repr(name)}")
-    g = check_table(doc, "geometry", path)
-    check_known_keys(g, GRINDER_GEOMETRY_KEYS, "geometry", path)
-    geom = {k: check_number(g, k, "geometry", path) for k in GRINDER_GEOMETRY_KEYS}
-    if geom["R"] <= 0:
-        raise MachineFileError(f"{path}: key 'geometry.R': expected a positive wheel radius, got {geom['R']}")
-    s = check_table(doc, "strokes", path)
-    check_known_keys(s, GRINDER_STROKE_KEYS, "strokes", path)
-    strokes = {}
-    for k in GRINDER_STROKE_KEYS:
-        if k not in s:
-            raise MachineFileError(f"{path}: missing key 'strokes.{k}'")
-        arr = check_array(s[k], (2,), f"strokes.{k}", path)
-        if not arr[1] > arr[0]:
-            raise MachineFileError(f"{path}: key 'strokes.{k}': expected [lo, hi] with hi > lo, got {s[k]!r}")
-        strokes[k] = (float(arr[0]), float(arr[1]))
-    lo, hi = strokes["a_deg"]
-    if abs((hi - lo) - 360.0) > A_TURN_TOL_DEG:
-        hint = " (that is one turn in radians; the file is in degrees)" if abs((hi - lo) - 2 * np.pi) < 0.01 else ""
-        raise MachineFileError(f"{path}: key 'strokes.a_deg': expected one turn, [lo, lo + 360] deg (the A-axis "
-                               f"errors are periodic over a turn; commands may run past it), got {s['a_deg']!r}{hint}")
-    t = check_table(doc, "targets", path)
-    check_known_keys(t, GRINDER_TARGET_KEYS, "targets", path)
-    targets = {}
-    for k in GRINDER_TARGET_KEYS:
-        if k not in t:
-            raise MachineFileError(f"{path}: missing key 'targets.{k}'")
-        targets[k] = check_array(t[k], (3, 3), f"targets.{k}", path)
-    return Grinder(name=name, strokes=strokes, targets=targets, path=str(path), sha256=sha, **geom)
 
 
 # -- the machine-kind registry --------------------------------------------------------------------
@@ -144,12 +64,6 @@ class MachineKind:
     schema_doc: str
 
 
-def grinder_axes(machine: Grinder) -> list:
-    """X, Z (mm) and A (deg) with their strokes."""
-    return [MachineAxis(k.split("_")[0].upper(), "rotary" if is_rotary_column(k) else "linear", k.split("_")[1],
-                        *machine.strokes[k]) for k in GRINDER_STROKE_KEYS]
-
-
 def chain_axes(machine) -> list:
     """The joints of a serial chain with their limits (revolute: deg, prismatic: mm)."""
     return [MachineAxis(j.name, "rotary" if j.type == "revolute" else "linear",
@@ -172,10 +86,11 @@ def machine_kinds() -> dict:
     their models (imported on first use: they need scipy, which a grinder-only run does not load).
     A new kind is one entry here (its parser and its axes)."""
     from .chain_file import parse_serial
+    from .grinder_file import parse_grinder_file
     from .machine_tool import parse_machine_tool
     from .pkm.machine_file import parse_hexapod, parse_tripod
     return {k.kind: k for k in (
-        MachineKind("grinder", parse_grinder, grinder_axes, "docs/reference/file-formats.md"),
+        MachineKind("grinder", parse_grinder_file, machine_tool_axes, "docs/reference/file-formats.md"),
         MachineKind("hexapod", parse_hexapod, pkm_axes, "docs/explanation/parallel-kinematics.md"),
         MachineKind("tripod", parse_tripod, pkm_axes, "docs/explanation/parallel-kinematics.md"),
         MachineKind("serial", parse_serial, chain_axes, "docs/explanation/serial-arms.md"),
@@ -208,15 +123,25 @@ def builtin_machines() -> dict:
     return {p.stem: p for p in sorted(folder.glob("*.toml"))}
 
 
-def load_machine(path=None, expect_kind: str | None = None):
-    """Load and validate a machine file; ``None`` gives the built-in default grinder.
+def builtin_named(name: str):
+    """The built-in machine file of ``name`` (a file's stem or an alias, :data:`BUILTIN_ALIASES`), or None."""
+    return builtin_machines().get(BUILTIN_ALIASES.get(name, name))
 
-    Returns a :class:`Grinder` (or the PKM dataclass for ``hexapod``/``tripod`` files).
-    Raises :class:`MachineFileError` naming the file and the offending key.
+
+def load_machine(path=None, expect_kind: str | None = None):
+    """Load and validate a machine file; ``None`` gives the built-in default grinder (a machine-tool chain).
+
+    Returns a :class:`errormap.machine_tool.MachineTool` for a machine tool (a ``kind = "grinder"`` file
+    read as its chain, :func:`errormap.grinder_file.parse_grinder_file`), the PKM dataclass for
+    ``hexapod``/``tripod`` files, a serial chain for arms. ``expect_kind = "grinder"``: a machine tool with
+    the grinder's structure (:func:`errormap.grinder_file.is_grinder_chain`). Raises
+    :class:`MachineFileError` naming the file and the offending key.
     """
+    if expect_kind == "grinder":
+        return _load_grinder(path)
     path = builtin_machine_path(expect_kind or "grinder") if path is None else Path(path)
     if not path.is_file() and path.suffix == "" and len(path.parts) == 1:  # a built-in machine by name (--machine ur5)
-        path = builtin_machines().get(path.name, path)
+        path = builtin_named(path.name) or path
     if not Path(path).is_file():
         raise MachineFileError(f"{path}: no such machine file")
     try:
@@ -246,7 +171,7 @@ def load_machine(path=None, expect_kind: str | None = None):
     parsers = _parsers()
     if not isinstance(kind, str) or kind not in parsers:
         raise MachineFileError(f"{path}: key 'machine.kind': expected one of {sorted(parsers)}, got {short_repr(kind)}")
-    if kind == "machine-tool":  # a chain file is checked whole first: a broken one names its key, whatever the command
+    if kind in ("machine-tool", "grinder"):  # a chain file is checked whole first: a broken one names its key, whatever the command
         machine = parsers[kind](doc, path, sha256_bytes(raw))
         check_machine_kind(path, kind, expect_kind)
         return machine
@@ -254,8 +179,20 @@ def load_machine(path=None, expect_kind: str | None = None):
     return parsers[kind](doc, path, sha256_bytes(raw))
 
 
+def _load_grinder(path):
+    """A machine tool with the grinder's structure (the built-in grinder for None); refused otherwise."""
+    from .grinder_file import is_grinder_chain
+    machine = load_machine(path, expect_kind="machine-tool" if path is not None else None)
+    if not is_grinder_chain(machine):
+        raise MachineFileError(f"{machine.path}: expected the grinder's chain here (its 23 elements and axes X, Z, A), "
+                               f"got {machine.name!r} with axes {', '.join(machine.axis_words)}")
+    return machine
+
+
 def check_machine_kind(path, kind: str, expect_kind: str | None) -> None:
     """Refuse a machine file of ``kind`` where ``expect_kind`` is needed (None: any kind)."""
+    if kind == "grinder":   # read as its chain
+        kind = "machine-tool"
     if expect_kind is not None and kind != expect_kind:
         hint = KIND_HINTS.get(kind, "")
         raise MachineFileError(f"{path}: key 'machine.kind': expected {expect_kind!r} here, got {kind!r}"
@@ -292,7 +229,7 @@ def axes_unit_mistake(axes, machine) -> tuple[int, int, str] | None:
     axes = np.asarray(axes, dtype=float)
     if len(axes) < UNIT_MIN_POINTS:
         return None
-    names = GRINDER_STROKE_KEYS
+    from .grinder_file import GRINDER_STROKE_KEYS as names
     for j in (0, 1):
         lo, hi = machine.strokes[names[j]]
         stroke = hi - lo

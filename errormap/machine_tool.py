@@ -225,6 +225,9 @@ class MachineTool:
     """``[tcp]`` of the file: ``switch_on`` / ``switch_off`` (tuples of M code numbers) that switch the
     controller's tool-centre-point kinematics on and off (LinuxCNC's switchable kinematics, remapped M
     codes); None without one (:mod:`compensation.tcp`)."""
+    read_as: str = ""
+    """The one line a command says when the file was not a chain file but was read into one (a
+    ``kind = "grinder"`` file, :func:`errormap.grinder_file.parse_grinder_file`); empty for a chain file."""
 
     # -- names and sizes ----------------------------------------------------------------------
     @property

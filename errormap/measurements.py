@@ -12,8 +12,10 @@ from pathlib import Path
 
 
 def _is_chain(machine) -> bool:
+    """A machine-tool chain other than the grinder's (whose sweep files are the grinder's format)."""
+    from .grinder_file import is_grinder_chain
     from .machine_tool import MachineTool
-    return isinstance(machine, MachineTool)
+    return isinstance(machine, MachineTool) and not is_grinder_chain(machine)
 
 
 def _chain(machine, what: str):

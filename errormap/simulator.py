@@ -66,7 +66,7 @@ from .effect_kinds import SIMULATOR_NAMES, TRUTH_ONLY, effect_kind, simulator_na
 from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
 from .htm import IDX, spatial_error_exact
 from .kinematics import forward
-from .machine import Grinder
+from .machine_tool import MachineTool
 
 # 1-σ scale of each element's random profile (μm or μrad) before overall scaling
 ELEMENT_SCALE = {
@@ -124,7 +124,7 @@ def simulator_effects(effects) -> dict:
     return out
 
 
-def random_elements(machine: Grinder, rng: np.random.Generator, n_stations: int = 21) -> ElementSet:
+def random_elements(machine: MachineTool, rng: np.random.Generator, n_stations: int = 21) -> ElementSet:
     """Smooth random profiles at ``n_stations`` stations, zero at each axis' first station.
 
     Linear axes: cubic polynomial plus one long-wave sinusoid; A: three harmonics.
@@ -148,13 +148,13 @@ def random_elements(machine: Grinder, rng: np.random.Generator, n_stations: int 
     return ElementSet(st, fun, const, machine.name, machine.sha256)
 
 
-def volume_grid(machine: Grinder, n=(21, 13, 37)) -> np.ndarray:
+def volume_grid(machine: MachineTool, n=(21, 13, 37)) -> np.ndarray:
     """A dense axis grid over the strokes (A over one turn), shape (nx·nz·na, 3)."""
     g = [np.linspace(*machine.strokes[k], m) for k, m in zip(("x_mm", "z_mm", "a_deg"), n)]
     return np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
-def random_axes(machine: Grinder, n: int, rng: np.random.Generator) -> np.ndarray:
+def random_axes(machine: MachineTool, n: int, rng: np.random.Generator) -> np.ndarray:
     """``n`` points uniform over the strokes, shape (n, 3)."""
     lo, hi = machine.stroke_lo, machine.stroke_hi
     return lo + (hi - lo) * rng.random((n, 3))
@@ -167,7 +167,7 @@ class TruthGrinder:
     ``effects`` maps effect name -> parameter dict (defaults: EFFECT_DEFAULTS).
     """
 
-    machine: Grinder
+    machine: MachineTool
     elements: ElementSet
     effects: dict = field(default_factory=dict)
     seed: int | None = None
@@ -261,7 +261,7 @@ class TruthGrinder:
                 "seq": np.arange(n)}
 
 
-def random_truth(machine: Grinder, seed: int, effects=(), n_stations: int = 21) -> TruthGrinder:
+def random_truth(machine: MachineTool, seed: int, effects=(), n_stations: int = 21) -> TruthGrinder:
     """A seeded truth grinder whose max spatial error (23 elements, norm over the volume)
     lies in [165, 215] μm; ``effects`` are names or a name -> parameters mapping."""
     rng = np.random.default_rng(seed)

@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation
 from .elements import default_stations
 from .htm import UM
 from .io import InputError, read_table, write_csv
-from .machine import Grinder
+from .machine_tool import MachineTool
 
 SWEEP_AXES = ("X", "Z", "A")
 AXIS_STROKE_KEY = {"X": "x_mm", "Z": "z_mm", "A": "a_deg"}
@@ -49,12 +49,11 @@ REF_TEMP_C = 20.0
 MAX_STATION = 100_000  # station numbers count positions along one stroke; more is a typing mistake
 
 
-def _chain(machine: Grinder):
-    from .grinder_file import grinder_chain
-    return grinder_chain(machine)
+def _chain(machine: MachineTool):
+    return machine
 
 
-def body_frames(machine: Grinder, body: str, axes, values):
+def body_frames(machine: MachineTool, body: str, axes, values):
     """Actual frame of a moving body in the MCS.
 
     ``body`` X|Z|A; ``axes`` shape (n, 3) (x_mm, z_mm, a_deg); ``values`` shape (n, 23)
@@ -81,7 +80,7 @@ def random_tracker_pose(rng: np.random.Generator):
     return R, t
 
 
-def sweep_axes(machine: Grinder, axis: str, stations_cmd, park=None) -> np.ndarray:
+def sweep_axes(machine: MachineTool, axis: str, stations_cmd, park=None) -> np.ndarray:
     """Axis points (n, 3) for a sweep of ``axis`` over ``stations_cmd``, the other axes parked
     at ``park`` (default: their lower stroke limits)."""
     lo = machine.stroke_lo if park is None else np.asarray(park, dtype=float)

@@ -29,7 +29,7 @@ from scipy.stats import qmc
 
 from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
 from .htm import spatial_error_exact
-from .machine import Grinder
+from .machine_tool import MachineTool
 from .seeds import spawn_rngs
 from .simulator import REF_TEMP_C, TruthGrinder, random_truth, simulator_effects, volume_grid
 
@@ -73,7 +73,7 @@ def _fourier(theta: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return v / max(np.abs(v).max(), 1e-12)
 
 
-def independent_elements(machine: Grinder, rng: np.random.Generator, n_stations: int = TRUTH_STATIONS) -> ElementSet:
+def independent_elements(machine: MachineTool, rng: np.random.Generator, n_stations: int = TRUTH_STATIONS) -> ElementSet:
     """Unscaled independent-family elements on ``n_stations`` stations per axis (see module doc)."""
     st = default_stations(machine, n_stations)
     u = np.linspace(0.0, 1.0, n_stations)
@@ -143,7 +143,7 @@ class IndependentTruth(TruthGrinder):
                 "seq": np.arange(n)}
 
 
-def independent_truth(machine: Grinder, seed: int, effects=()) -> IndependentTruth:
+def independent_truth(machine: MachineTool, seed: int, effects=()) -> IndependentTruth:
     """A seeded independent-family truth; ``effects`` are names (parameters drawn per seed) or
     a name -> parameters mapping (overrides the drawn ones)."""
     ss = np.random.SeedSequence([seed, 0x1D3])
@@ -157,7 +157,7 @@ def independent_truth(machine: Grinder, seed: int, effects=()) -> IndependentTru
     return IndependentTruth(machine, el, params, seed)
 
 
-def make_truth(machine: Grinder, seed: int, effects=(), family: str = "default") -> TruthGrinder:
+def make_truth(machine: MachineTool, seed: int, effects=(), family: str = "default") -> TruthGrinder:
     """A seeded truth grinder of ``family`` (``"default"``: :func:`errormap.simulator.random_truth`;
     ``"independent"``: :func:`independent_truth`)."""
     if family == "default":

@@ -25,7 +25,7 @@ from scipy.interpolate import make_interp_spline
 from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, ElementSet
 from .htm import error_jacobian
 from .io import NPY_ERRORS, InputError, atomic_write, check_document_size, companion_path
-from .machine import Grinder
+from .machine_tool import MachineTool
 from .smoothing import LAMBDA_GRID, _second_differences, _smoother, bootstrap_draws, smooth_blocks  # noqa: F401
 
 Z95 = 1.959963984540054
@@ -88,7 +88,7 @@ def interpolation_weights(elements: ElementSet, axes) -> dict:
     return out
 
 
-def theta_design(machine: Grinder, elements: ElementSet, axes) -> np.ndarray:
+def theta_design(machine: MachineTool, elements: ElementSet, axes) -> np.ndarray:
     """``∂(spatial error μm)/∂θ`` at axis points, shape (n, 3, P) (first order, exact in θ)."""
     axes = np.asarray(axes, dtype=float)
     J = error_jacobian(machine, axes)
@@ -134,7 +134,7 @@ class ElementCovariance:
             out[k] = float(sd[i + j])
         return out
 
-    def prediction_cov(self, machine: Grinder, axes, chunk: int = 20_000) -> np.ndarray:
+    def prediction_cov(self, machine: MachineTool, axes, chunk: int = 20_000) -> np.ndarray:
         """Spatial-error covariance ``J Σ Jᵀ`` at axis points, shape (n, 3, 3) (μm²)."""
         axes = np.asarray(axes, dtype=float)
         out = np.empty((axes.shape[0], 3, 3))
@@ -223,7 +223,7 @@ def nullspace_noise_cov(raw_cov, elements: ElementSet) -> np.ndarray:
     return H @ raw_cov @ H.T
 
 
-def prediction_sd(machine: Grinder, elements: ElementSet, cov, axes) -> np.ndarray:
+def prediction_sd(machine: MachineTool, elements: ElementSet, cov, axes) -> np.ndarray:
     """Per-component standard deviation (n, 3) μm of the spatial error at ``axes`` for a θ
     covariance ``cov`` (P, P) of ``elements``' layout (the diagonal of ``J Σ Jᵀ``)."""
     A = theta_design(machine, elements, np.asarray(axes, dtype=float))
@@ -270,7 +270,7 @@ def _grinder_theta_index(result) -> np.ndarray:
     return np.array([where[key] for key in theta_layout(result.elements_.to_element_set())])
 
 
-def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_boot: int | None = None, seed: int = 0,
+def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None, n_boot: int | None = None, seed: int = 0,
                     smooth: bool = True, gauge: str = "station-mean", **settings) -> SmoothIdentificationResult:
     """The grinder's identification, through the one identification of every machine tool: the grinder
     file's chain (:func:`errormap.grinder_file.grinder_chain`) identified by
@@ -282,12 +282,11 @@ def smooth_identify(sweeps, machine: Grinder, noise_um: float | None = None, n_b
     identification (its ``elements_`` the interpolating grinder set). ``sweeps``: :class:`errormap.sweeps.Sweeps`
     or a dict of sweep columns."""
     from dataclasses import replace
-    from .grinder_file import grinder_chain
     from .identification import ChainIdentification, bootstrap_covariance, smooth_chain
     from .sweeps import Sweeps, sweeps_from_columns
     if not isinstance(sweeps, Sweeps):
         sweeps = sweeps_from_columns(sweeps)
-    mt = grinder_chain(machine)
+    mt = machine
     settings = {"gauge": gauge, "noise_um": noise_um, **settings}
     raw = ChainIdentification(**settings).fit(sweeps, mt).result_
     if n_boot is not None:

@@ -74,7 +74,8 @@ def path_axes_mistake(axes, machine) -> tuple[int, int, str] | None:
     a set of points (``axes`` (n, 3): x_mm, z_mm, a_deg), or None. X/Z: every value within
     :data:`METRE_REACH` × the stroke's larger end of zero and 1000× them inside the stroke (metres);
     A: the feature points' radian test (:func:`errormap.machine.axes_unit_mistake`)."""
-    from .machine import GRINDER_STROKE_KEYS, axes_unit_mistake
+    from .grinder_file import GRINDER_STROKE_KEYS
+    from .machine import axes_unit_mistake
     axes = np.asarray(axes, dtype=float)
     if len(axes) >= 2:
         for j in (0, 1):
@@ -136,16 +137,9 @@ def chain_axes_mistake(axes, machine, coverage: str = "path") -> tuple[int, int,
 
 def wcs_box_mm(machine) -> tuple[np.ndarray, np.ndarray]:
     """The WCS bounding box (lo (3,), hi (3,)) mm of the nominal tool points over the machine's
-    strokes (a 5 × 5 × 25 grid of X, Z, A: its corners and the A turn)."""
-    if getattr(machine, "kind", None) == "machine-tool":  # a chain: 5 values per linear axis, 25 per rotary
-        g = [np.linspace(*a.stroke, 5 if a.kind == "linear" else 25) for a in machine.axes]
-        axes = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, len(g))
-        p = machine.nominal(axes)
-        return p.min(axis=0), p.max(axis=0)
-    from .kinematics import forward
-    g = [np.linspace(*machine.strokes[k], n) for k, n in (("x_mm", 5), ("z_mm", 5), ("a_deg", 25))]
-    axes = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
-    p = forward(machine, axes)
+    strokes (5 values per linear axis, 25 per rotary: its corners and the turn)."""
+    g = [np.linspace(*a.stroke, 5 if a.kind == "linear" else 25) for a in machine.axes]
+    p = machine.nominal(np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, len(g)))
     return p.min(axis=0), p.max(axis=0)
 
 
@@ -202,7 +196,8 @@ def check_units(path, rows=None, *, machine=None, axes=None, axes_columns=("x_mm
             raise _fail(path, rows, m[0], column, m[1], option)
     if units == UNITS_AS_WRITTEN:
         return
-    if axes is not None and getattr(machine, "kind", None) == "machine-tool":
+    from .grinder_file import is_grinder_chain
+    if axes is not None and getattr(machine, "kind", None) == "machine-tool" and not is_grinder_chain(machine):
         if coverage not in ("volume", "path"):
             raise ValueError(f"Expected coverage 'volume' or 'path', got {coverage!r}")
         m = chain_axes_mistake(axes, machine, coverage)

@@ -34,3 +34,26 @@ def axes_beyond_strokes(mt, rng, n, margin, turns):
         if a.full_turn:
             ax[:, j] += 360.0 * rng.integers(-turns, turns + 1, n)
     return ax
+
+
+OLD_GRINDER_FILE = __import__("pathlib").Path(__file__).parent / "data" / "machines" / "grinder_kind_grinder.toml"
+"""The built-in grinder's file in the older ``kind = "grinder"`` schema (read as its chain)."""
+
+
+def grinder_variant(geometry=None, strokes=None, targets=None, edit=None, sha_suffix: str = "-variant"):
+    """The built-in grinder with some of its ``kind = "grinder"`` file's geometry, strokes or targets changed,
+    read through the one adapter (:mod:`errormap.grinder_file`); ``edit(doc)`` may change the chain document
+    before it is compiled (e.g. a rotary joint's ``direction``). The sha256 says it is another file."""
+    import tomllib
+    from errormap.grinder_file import check_grinder_chain, grinder_chain_document, read_grinder
+    from errormap.machine_tool import parse_machine_tool
+    doc = tomllib.loads(OLD_GRINDER_FILE.read_text(encoding="utf-8"))
+    doc["geometry"].update(geometry or {})
+    doc["strokes"].update({k: list(v) for k, v in (strokes or {}).items()})
+    doc["targets"].update({k: np.asarray(v, float).tolist() for k, v in (targets or {}).items()})
+    chain = grinder_chain_document(read_grinder(doc, OLD_GRINDER_FILE))
+    if edit is not None:
+        edit(chain)
+    mt = parse_machine_tool(chain, OLD_GRINDER_FILE, "grinder" + sha_suffix)
+    check_grinder_chain(mt, OLD_GRINDER_FILE)
+    return mt

@@ -22,20 +22,19 @@ MODEL_TOL_UM = 1e-4
 def test_grinder_file_identified_and_compensated_as_its_chain(tmp_path):
     from compensation.app.workflows.compensate_report import true_residual_um
     from compensation.solvers.chain_exact import nominal_and_jacobian
-    from errormap.grinder_file import machine_tool_of
     from errormap.chain_field import ChainField
     g = load_machine()                          # the built-in grinder file
     truth = simulate_truth(g, seed=1)           # hidden: only its sweeps reach the estimator
     sweeps = simulate_sweeps(truth, noise_um=1.0, seed=2, n_stations=11)
     ident = Identification(g).fit(sweeps)
-    assert ident.elements_.machine is machine_tool_of(g) and ident.covariance_[2].shape[0] == len(ident.covariance_[1])
+    assert ident.elements_.machine is g and ident.covariance_[2].shape[0] == len(ident.covariance_[1])
     rng = np.random.default_rng(5)
     lo, hi = (np.array([g.strokes[k][i] for k in ("x_mm", "z_mm", "a_deg")]) for i in (0, 1))
     axes = lo + (0.1 + 0.8 * rng.random((20, 3))) * (hi - lo)     # inside the strokes, off the stations
 
     res = compensate_points(ident.field_, g, axes)
     assert res.accepted and np.abs(res.residual_um).max() <= MODEL_TOL_UM
-    mt = machine_tool_of(g)
+    mt = g
     true_field = ChainField(mt, truth.elements)
     targets, _ = nominal_and_jacobian(mt, axes)
     before = true_residual_um(true_field, mt, axes, targets)      # the plain baseline: no compensation

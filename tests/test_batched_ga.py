@@ -6,9 +6,10 @@ network's column path against ``predict``.
 """
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
+
+from chain_fixtures import grinder_variant
 import pytest
 import torch
 
@@ -63,7 +64,7 @@ def test_predict_columns_equals_predict(enc):
 
 @pytest.mark.parametrize("theta1_deg", [None, 7.0])  # default (t_y = 0) and a tool off the XZ plane
 def test_fused_fitness_equals_generic(machine, theta1_deg):
-    mach = machine if theta1_deg is None else dataclasses.replace(machine, theta1_deg=theta1_deg)
+    mach = machine if theta1_deg is None else grinder_variant({"theta1_deg": theta1_deg})
     field = make_model()
     rng = np.random.default_rng(2)
     targets = forward(mach, turn_axes(500, seed=3))
@@ -197,8 +198,7 @@ def test_chain_ga_runs_the_fused_fitness_on_the_grinder_chain(machine):
     float64 one within TOL_F32_UM, and a field without the capability (or a rotary limit) keeps the generic one."""
     from compensation.solvers.chain_ga import ChainAxisFitness, FusedChainFitness, chain_fitness
     from errormap.chain_kernel import NominalChain
-    from errormap.grinder_file import machine_tool_of
-    mt = machine_tool_of(machine)
+    mt = machine
     compiled = NominalChain(mt)
     axes = turn_axes(300, seed=4)
     targets = forward(machine, axes)
@@ -224,12 +224,11 @@ def test_chain_ga_fused_results_equal_float64_within_ga_tolerance(machine):
     import importlib.util
     from pathlib import Path
     from compensation.solvers.chain_ga import solve_batched_ga_chain
-    from errormap.grinder_file import machine_tool_of
     spec = importlib.util.spec_from_file_location(
         "bench_fused_fitness", Path(__file__).resolve().parents[1] / "benchmarks" / "bench_fused_fitness.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
-    mt = machine_tool_of(machine)
+    mt = machine
     axes = turn_axes(40, seed=6)
     targets = forward(machine, axes)
     field = make_model()

@@ -30,8 +30,7 @@ def _loop(grinder, sm, cols, tmp, **kw):
     command reads them; ``cols`` the check columns. → (summary with ``_models``, checks)."""
     from compensation.app.workflows.measurement import load_chain_model
     from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
-    from errormap.grinder_file import machine_tool_of
-    mt = machine_tool_of(grinder)
+    mt = grinder
     el_path = sm.elements_.save(tmp / "el.json")
     sm.covariance_.save(covariance_path(el_path))
     el, cov, _ = load_chain_model(el_path, mt, prior=True)

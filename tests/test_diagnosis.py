@@ -14,7 +14,6 @@ from compensation.app.workflows.network_diagnosis import (TermsOnBase, augmented
 from errormap.chain_elements import ChainElementSet
 from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
 from errormap.featurepoints import make_feature_points
-from errormap.grinder_file import machine_tool_of
 from errormap.htm import HTMField
 from errormap.io import write_csv
 from errormap.seeds import spawn_seeds
@@ -47,7 +46,7 @@ def chain_elements(elements, mt):
 
 def run_loop(machine, seed, effects):
     """The loop on the truth's own elements (nothing to update) and 400 checks: → summary (with ``_models``)."""
-    mt = machine_tool_of(machine)
+    mt = machine
     truth = random_truth(machine, seed, effects=effects)
     checks = MTChecks.from_columns(mt, truth.check_measurements(N_CHECKS, NOISE_UM, spawn_seeds(seed, 1)[0]))
     return closed_loop_chain(mt, chain_elements(truth.elements, mt), checks, cov=None)
@@ -106,7 +105,7 @@ def test_two_effects_at_once_are_both_found(grinder):
 
 def _terms_on(grinder, effects, base):
     s = run_loop(grinder, SEED, effects)
-    return TermsOnBase(machine_tool_of(grinder), base, s["_models"]["terms"])
+    return TermsOnBase(grinder, base, s["_models"]["terms"])
 
 
 @pytest.mark.slow

@@ -109,8 +109,7 @@ def test_unknown_kinds_raise_in_code(grinder):
 def test_the_loop_never_takes_an_unknown_kind_for_another(grinder):
     """The machine tools' loop builds a term's columns by its kind: an unknown one is an error, never a default."""
     from errormap.diagnosis.chain_effects import effect_columns
-    from errormap.grinder_file import machine_tool_of
-    mt = machine_tool_of(grinder)
+    mt = grinder
     axes = random_axes(grinder, 5, np.random.default_rng(SEED))
     with pytest.raises(ValueError, match="unknown effect kind 'bogus'"):
         effect_columns(mt, "bogus", ("X", "Z"), axes, {})

@@ -4,10 +4,11 @@ for the kinematics). References: ``tests/data/exact_reference.npz`` written by m
 out below (main's former hand-written kinematics)."""
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
+
+from chain_fixtures import grinder_variant
 import pytest
 
 from compensation.gcode_kernels import linear_path_lengths_mm
@@ -60,16 +61,16 @@ def test_solved_axes_read_from_the_chain():
 
 def grinder_constants(m):
     """Readable reference: the grinder's closed-form constants (c_x, t_y, c_h) from its geometry."""
-    th = np.deg2rad(m.theta1_deg)
-    r = m.l2 + m.l3
-    return np.array([np.cos(th) * r - m.l5 - m.l7, np.sin(th) * r, m.l1 + m.l4 - m.R - m.l6 - m.l8])
+    th = np.deg2rad(m.geometry["theta1_deg"])
+    r = m.geometry["l2"] + m.geometry["l3"]
+    return np.array([np.cos(th) * r - m.geometry["l5"] - m.geometry["l7"], np.sin(th) * r, m.geometry["l1"] + m.geometry["l4"] - m.geometry["R"] - m.geometry["l6"] - m.geometry["l8"]])
 
 
 @pytest.mark.parametrize("theta1_deg", [None, 7.0])
 def test_fused_ga_constants_come_from_the_chain(theta1_deg):
     from training.ga_fitness import closed_form_constants
     m = load_machine()
-    m = m if theta1_deg is None else dataclasses.replace(m, theta1_deg=theta1_deg, l3=-150.0)
+    m = m if theta1_deg is None else grinder_variant({"theta1_deg": theta1_deg, "l3": -150.0})
     np.testing.assert_allclose(closed_form_constants(m), grinder_constants(m), rtol=0, atol=CONSTANT_TOL_MM)
 
 
@@ -96,7 +97,7 @@ def grinder_polyline_lengths(m, start, end, samples):
 @pytest.mark.parametrize("theta1_deg", [None, 7.0])
 def test_path_lengths_from_the_chain_equal_the_closed_form(theta1_deg):
     m = load_machine()
-    m = m if theta1_deg is None else dataclasses.replace(m, theta1_deg=theta1_deg, l3=-150.0)
+    m = m if theta1_deg is None else grinder_variant({"theta1_deg": theta1_deg, "l3": -150.0})
     rng = np.random.default_rng(3)
     n = 20_000
     start = rng.uniform(m.stroke_lo, m.stroke_hi, (n, 3))

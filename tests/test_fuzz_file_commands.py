@@ -266,7 +266,6 @@ def test_fuzz_compensate_work_offsets(grinder, data):
     from compensation.app.workflows.compensate_paths import read_tool_path
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap.elements import ElementSet
-    from errormap.grinder_file import machine_tool_of
     from errormap.htm import HTMField
     from errormap.kinematics import forward
     machine = load_machine(None)
@@ -282,7 +281,7 @@ def test_fuzz_compensate_work_offsets(grinder, data):
         if _tally_outcome(argv, rc, err, [str(wo), str(prog)]):
             field = HTMField(machine, ElementSet.load(el))
             s = settings_of(build_parser(["compensate"]).parse_args(argv))   # the table read as the command reads it
-            mt = machine_tool_of(machine)   # the command reads every machine tool's program by its chain
+            mt = machine   # the command reads every machine tool's program by its chain
             src = read_tool_path(prog, mt, s, field)   # nominal machine axes, the table's offsets applied
             res = read_tool_path(out / prog.name, mt, dataclasses.replace(s, max_segment_mm=None))
             src.targets_mm = nominal_and_jacobian(mt, src.axes)[0]

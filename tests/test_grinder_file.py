@@ -1,5 +1,6 @@
-"""A ``kind = "grinder"`` file read as its machine-tool chain (errormap/grinder_file.py): the built-in
-grinder adapted equals grinder-chain.toml; a user's grinder file with other geometry, strokes and
+"""A ``kind = "grinder"`` file read as its machine-tool chain (errormap/grinder_file.py): the older
+built-in grinder file read through the adapter equals the built-in grinder (a chain file, also named
+grinder-chain); a user's grinder file with other geometry, strokes and
 targets equals the hand-written HTM chains (tests/test_htm_reference.py); a grinder element-set file
 loads into the adapted chain and predicts the same field; names and columns are the grinder's."""
 import tomllib
@@ -9,9 +10,10 @@ import numpy as np
 import pytest
 
 from errormap.elements import ELEMENT_NAMES, ElementSet
-from errormap.grinder_file import ELEMENT_SLOTS, adapter_line, grinder_chain_document, grinder_to_chain
+from errormap.grinder_file import (ELEMENT_SLOTS, GRINDER_STROKE_KEYS, adapter_line, grinder_chain_document,
+                                   parse_grinder_file, read_grinder)
 from errormap.htm import HTMField
-from errormap.machine import GRINDER_STROKE_KEYS, MachineFileError, load_machine
+from errormap.machine import MachineFileError, load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 from tests.test_htm_reference import (random_axes, random_elements, reference_error_jacobian,
@@ -27,6 +29,8 @@ TOL_EJAC = 1e-12
 """Error-transfer Jacobian, O(1) μm per μm and O(1e-3·lever mm) μm per μrad: round-off (observed 1e-16)."""
 TOL_KIN_MM = 1e-10
 """Nominal tool points in mm (~500 mm): a few ulps (observed 9e-14 mm)."""
+OLD_GRINDER = Path(__file__).parent / "data" / "machines" / "grinder_kind_grinder.toml"
+"""The built-in grinder's file as it was before it became a chain file (``kind = "grinder"``)."""
 N_POINTS = 3_000
 """Seeded random points per check (multi-turn A); the complex-step reference keeps (n, 4, 4) complex."""
 
@@ -39,7 +43,7 @@ USER_EDITS = (("l1 = 420.0", "l1 = 455.5"), ("l2 = 160.0", "l2 = 171.25"), ("l4 
 
 @pytest.fixture(scope="module")
 def user_grinder_text():
-    text = Path(load_machine().path).read_text(encoding="utf-8")
+    text = OLD_GRINDER.read_text(encoding="utf-8")
     for old, new in USER_EDITS:
         assert old in text, old
         text = text.replace(old, new)
@@ -53,10 +57,11 @@ def user_grinder(tmp_path_factory, user_grinder_text):
     return load_machine(p)
 
 
-def test_builtin_grinder_adapts_to_grinder_chain_file():
-    g, ref = load_machine(), load_machine("grinder-chain")
-    mt = grinder_to_chain(g)
-    assert (mt.name, mt.path, mt.sha256) == (g.name, g.path, g.sha256)
+def test_old_grinder_file_adapts_to_the_builtin_grinder():
+    mt, ref = load_machine(OLD_GRINDER), load_machine()
+    assert load_machine("grinder-chain").path == ref.path and ref.kind == "machine-tool" and not ref.read_as
+    assert mt.name == ref.name and mt.path == str(OLD_GRINDER) and mt.read_as == adapter_line(OLD_GRINDER)
+    g = mt
     assert mt.work_ets == ref.work_ets and mt.tool_ets == ref.tool_ets and mt.slots == ref.slots
     assert mt.axes == ref.axes and mt.geometry == ref.geometry and mt.body_index == ref.body_index
     for w in ("X", "Z", "A"):
@@ -75,14 +80,12 @@ def test_builtin_grinder_adapts_to_grinder_chain_file():
 
 
 def test_user_grinder_file_equals_the_hand_written_chains(user_grinder, user_grinder_text):
-    g = user_grinder
-    mt = grinder_to_chain(g)
-    assert mt.strokes == g.strokes == {"x_mm": (-20.0, 150.0), "z_mm": (5.0, 95.0), "a_deg": (-90.0, 270.0)}
-    assert mt.geometry["theta1_deg"] == 12.5 and mt.sha256 == g.sha256
-    for w in ("X", "Z", "A"):
-        np.testing.assert_array_equal(mt.targets[w], g.targets[w])
+    g = mt = user_grinder
+    assert mt.strokes == {"x_mm": (-20.0, 150.0), "z_mm": (5.0, 95.0), "a_deg": (-90.0, 270.0)}
+    assert mt.geometry["theta1_deg"] == 12.5 and mt.sha256 and mt.kind == "machine-tool"
+    np.testing.assert_array_equal(mt.targets["X"][0], [5.0, -66.0, 41.5])
     # the parsed TOML document gives the same chain as the loaded file
-    same = grinder_to_chain(tomllib.loads(user_grinder_text), g.path, g.sha256)
+    same = parse_grinder_file(tomllib.loads(user_grinder_text), g.path, g.sha256)
     assert same.work_ets == mt.work_ets and same.tool_ets == mt.tool_ets
     el = random_elements(g, 111)   # stations over the user's strokes
     ax = random_axes(g, N_POINTS, 112)
@@ -94,12 +97,11 @@ def test_user_grinder_file_equals_the_hand_written_chains(user_grinder, user_gri
     assert np.abs(E0).max() > 100.0
     assert np.abs(E1 - E0).max() < TOL_UM and np.abs(J1 - J0).max() < TOL_JAC
     # the default grinder's chain is another machine at these points (the edits took effect)
-    assert np.abs(grinder_to_chain(load_machine()).nominal(ax) - mt.nominal(ax)).max() > 1.0
+    assert np.abs(load_machine().nominal(ax) - mt.nominal(ax)).max() > 1.0
 
 
 def test_grinder_element_file_loads_into_the_adapted_chain(user_grinder, tmp_path):
-    g = user_grinder
-    mt = grinder_to_chain(g)
+    g = mt = user_grinder
     el = random_elements(g, 121)
     path = el.save(tmp_path / "elements.json")
     ce = ChainElementSet.load(path, mt)
@@ -115,25 +117,24 @@ def test_grinder_element_file_loads_into_the_adapted_chain(user_grinder, tmp_pat
 
 
 def test_names_and_columns_are_the_grinders(user_grinder):
-    mt = grinder_to_chain(user_grinder)
-    assert tuple(g for g, _, _ in ELEMENT_SLOTS) == ELEMENT_NAMES
-    assert mt.slot_names == ELEMENT_NAMES and mt.iso_names == tuple(iso for _, _, iso in ELEMENT_SLOTS)
+    mt = user_grinder
+    assert tuple(g for g, _ in ELEMENT_SLOTS) == ELEMENT_NAMES
+    assert mt.slot_names == ELEMENT_NAMES and mt.iso_names == tuple(iso for _, iso in ELEMENT_SLOTS)
     assert mt.axis_columns == GRINDER_STROKE_KEYS == ("x_mm", "z_mm", "a_deg")
     assert mt.function_slots == ELEMENT_NAMES[:18] and mt.constant_slots == ELEMENT_NAMES[18:]
     d = ChainElementSet.zeros(mt).to_dict()
     assert list(d["stations"]) == ["x_mm", "z_mm", "a_deg"] and tuple(d["units"]) == ELEMENT_NAMES
-    line = adapter_line(user_grinder)
+    line = user_grinder.read_as
     assert "\n" not in line and user_grinder.path in line and 'kind = "grinder"' in line
 
 
 def test_unmapped_names_and_other_kinds_are_refused(user_grinder):
-    g = user_grinder
-    mt = grinder_to_chain(g)
+    g = mt = user_grinder
     el = random_elements(g, 131)
     extra = ElementSet.__new__(ElementSet)   # an element set carrying one name outside the mapping
     extra.stations, extra.functions = el.stations, {**el.functions, "dx_y": el.functions["dx_x"]}
     extra.constants, extra.machine_name, extra.machine_sha256 = el.constants, "", ""
-    with pytest.raises(ValueError, match=r"no mapping for \['dx_y'\]"):
+    with pytest.raises(ValueError, match=r"no slot of the grinder's chain for \['dx_y'\]"):
         ChainElementSet.from_element_set(mt, extra)
     mill = load_machine("mill-xyz")
     with pytest.raises(ValueError, match="23 elements"):
@@ -142,10 +143,12 @@ def test_unmapped_names_and_other_kinds_are_refused(user_grinder):
         ChainElementSet.zeros(mill).to_element_set()
     doc = tomllib.loads(Path(load_machine("grinder-chain").path).read_text(encoding="utf-8"))
     with pytest.raises(MachineFileError, match="expected 'grinder' here, got 'machine-tool'"):
-        grinder_to_chain(doc, "chain.toml")
-    doc = grinder_chain_document(g)
+        parse_grinder_file(doc, "chain.toml")
     bad = tomllib.loads(Path(g.path).read_text(encoding="utf-8"))
+    doc = grinder_chain_document(read_grinder(bad, g.path))
     del bad["geometry"]["l8"]
     with pytest.raises(MachineFileError, match="my-grinder.toml.*geometry.l8"):
-        grinder_to_chain(bad, g.path)
-    assert doc["geometry"]["l8"] == g.l8
+        parse_grinder_file(bad, g.path)
+    assert doc["geometry"]["l8"] == g.geometry["l8"] == 101.0
+    with pytest.raises(MachineFileError, match="expected the grinder's chain here"):
+        load_machine("mill-xyz", expect_kind="grinder")

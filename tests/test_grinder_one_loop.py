@@ -6,7 +6,9 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+
 import pytest
+from chain_fixtures import OLD_GRINDER_FILE
 
 from compensation.app.cli import main
 from errormap.io import read_table
@@ -23,10 +25,9 @@ SOLVER_TOL_UM = 1e-3   # the exact solver's own model residual is ~1e-8 μm on t
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """The whole pipeline on a copy of the built-in grinder file (a user's kind = "grinder" file)."""
-    import errormap
     d = tmp_path_factory.mktemp("grinder_file")
     machine = d / "my_grinder.toml"
-    shutil.copy(Path(errormap.__file__).parent / "machines" / "grinder.toml", machine)
+    shutil.copy(OLD_GRINDER_FILE, machine)
     assert 'kind = "grinder"' in machine.read_text()
     m = ["--machine", str(machine)]
     rc = {"simulate": main(["simulate", *m, "--seed", str(SEED), "--checks", str(N_CHECKS), "--noise-um", "1",

@@ -1,9 +1,10 @@
 """Ball, stroke, calibrated-volume and convergence guards refuse and list offending points."""
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
+
+from chain_fixtures import grinder_variant
 import pytest
 
 from compensation.guards import (GUARDS, GuardError, calibrated_volume, check, enforce, stroke_violations, violations,
@@ -77,7 +78,7 @@ def test_a_beyond_a_turn_passes_on_a_full_turn_stroke_only(machine):
     """Multi-turn paths: the default A stroke spans 360°, so A = 725° or -30° is allowed."""
     axes = np.array([[10.0, 1.0, 725.0], [10.0, 1.0, -30.0]])
     assert stroke_violations(axes, machine)[0].size == 0
-    limited = dataclasses.replace(machine, strokes={**machine.strokes, "a_deg": (0.0, 180.0)})
+    limited = grinder_variant(edit=lambda d: next(j for j in d["work"] if j.get("axis") == "A").update(stroke=[0.0, 180.0]))
     idx, reasons = stroke_violations(axes, limited)
     np.testing.assert_array_equal(idx, [0, 1])
     assert "a_deg = 725" in reasons[0]

@@ -1,6 +1,8 @@
 """The 23-element HTM model: zero errors, each element alone against its hand-derived
 first-order effect, exact vs first-order, the error-transfer Jacobian vs finite differences."""
 import numpy as np
+
+from errormap.grinder_file import rho0_mm
 import pytest
 
 from errormap.elements import ELEMENT_NAMES, ElementSet
@@ -23,12 +25,12 @@ def hand_first_order(m, axes, name, v):
     """
     x, z, a = axes[:, 0], axes[:, 1], np.deg2rad(axes[:, 2])
     c, s = np.cos(a), np.sin(a)
-    th = np.deg2rad(m.theta1_deg)
+    th = np.deg2rad(m.geometry["theta1_deg"])
     ct, st = np.cos(th), np.sin(th)
-    rho = m.rho0_mm + z
-    px, py, pz = -(m.l5 + m.l7 + x), rho * s, rho * c
-    qx, h0 = -m.l5 - x, rho + m.l8
-    bx, bz = m.l3, m.l4 - m.R
+    rho = rho0_mm(m) + z
+    px, py, pz = -(m.geometry["l5"] + m.geometry["l7"] + x), rho * s, rho * c
+    qx, h0 = -m.geometry["l5"] - x, rho + m.geometry["l8"]
+    bx, bz = m.geometry["l3"], m.geometry["l4"] - m.geometry["R"]
     w = v * 1e-3  # μrad -> μm per mm
     zero = np.zeros_like(x)
     f = {

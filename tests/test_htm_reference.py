@@ -91,14 +91,14 @@ def reference_frames(m, axes, v):
     dt = np.result_type(axes, v)
     x, z, a = axes[:, 0], axes[:, 1], axes[:, 2] * (np.pi / 180.0)
     s = v[:, ELEMENT_NAMES.index("s_xz")] * 1e-6
-    th = np.full(n, np.deg2rad(m.theta1_deg), dtype=dt)
+    th = np.full(n, np.deg2rad(m.geometry["theta1_deg"]), dtype=dt)
     zdir = np.einsum("nij,nj->ni", _rz(-th), np.stack([z * np.sin(s), 0 * z, z * np.cos(s)], -1))
-    tool = (_T(_rz(th), None, n, dt) @ _T(None, np.array([m.l2, 0.0, m.l1]), n, dt) @ _T(None, zdir, n, dt)
-            @ _E(v, ("dx_z", "dy_z", "dz_z", "ex_z", "ey_z", "ez_z")) @ _T(None, np.array([m.l3, 0.0, m.l4]), n, dt)
-            @ _T(None, np.array([0.0, 0.0, -m.R]), n, dt))
-    work_x = (_T(None, np.array([m.l5, 0.0, m.l6]), n, dt) @ _T(None, np.stack([x, 0 * x, 0 * x], -1), n, dt)
+    tool = (_T(_rz(th), None, n, dt) @ _T(None, np.array([m.geometry["l2"], 0.0, m.geometry["l1"]]), n, dt) @ _T(None, zdir, n, dt)
+            @ _E(v, ("dx_z", "dy_z", "dz_z", "ex_z", "ey_z", "ez_z")) @ _T(None, np.array([m.geometry["l3"], 0.0, m.geometry["l4"]]), n, dt)
+            @ _T(None, np.array([0.0, 0.0, -m.geometry["R"]]), n, dt))
+    work_x = (_T(None, np.array([m.geometry["l5"], 0.0, m.geometry["l6"]]), n, dt) @ _T(None, np.stack([x, 0 * x, 0 * x], -1), n, dt)
               @ _E(v, ("dx_x", "dy_x", "dz_x", "ex_x", "ey_x", "ez_x")))
-    work = (work_x @ _T(None, np.array([m.l7, 0.0, m.l8]), n, dt) @ _E(v, (None, "dy_oa", "dz_oa", None, "ey_oa", "ez_oa"))
+    work = (work_x @ _T(None, np.array([m.geometry["l7"], 0.0, m.geometry["l8"]]), n, dt) @ _E(v, (None, "dy_oa", "dz_oa", None, "ey_oa", "ez_oa"))
             @ _T(_rx(a), None, n, dt) @ _E(v, ("dx_a", "dy_a", "dz_a", "ex_a", "ey_a", "ez_a")))
     return work_x, work, tool
 
@@ -229,8 +229,8 @@ def test_kinematics_and_body_frames_equal_the_hand_written_chain(grinder):
     v = el.values(ax)
     work_x, work, tool = reference_frames(grinder, ax, v)
     # the Z body is the tool chain before Trans(l3,0,l4)·Trans(0,0,-R)
-    z_body = tool @ _rigid_inv(_T(None, np.array([grinder.l3, 0.0, grinder.l4]), len(ax))
-                               @ _T(None, np.array([0.0, 0.0, -grinder.R]), len(ax)))
+    z_body = tool @ _rigid_inv(_T(None, np.array([grinder.geometry["l3"], 0.0, grinder.geometry["l4"]]), len(ax))
+                               @ _T(None, np.array([0.0, 0.0, -grinder.geometry["R"]]), len(ax)))
     for word, M in (("X", work_x), ("A", work), ("Z", z_body)):
         R, t = body_frames(grinder, word, ax, v)
         assert np.abs(t - M[:, :3, 3]).max() < TOL_KIN_MM

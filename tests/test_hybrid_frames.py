@@ -9,7 +9,6 @@ from compensation.hybrid import (LEARNED_FRAMES, LearnedResidual, _fit_inputs, f
                                  learned_stage, split_frame_key, to_frame)
 from errormap.htm import ELEMENT_NAMES, error_jacobian
 from errormap.machine import load_machine
-from errormap.grinder_file import machine_tool_of
 from errormap.machine_tool import WorkRotation
 from errormap.simulator import random_axes
 from training.residual import ResidualRegressor
@@ -34,7 +33,7 @@ ORTHONORMAL_TOL = 1e-12
 @pytest.mark.parametrize("name", [None, "five-axis-ac", "lathe-xzc", "mill-xyz"])
 def test_work_rotation_is_the_chains_work_frame_and_its_derivative(name):
     m = load_machine(name) if name else load_machine()
-    mt = machine_tool_of(m)
+    mt = m
     wr = mt.work_rotation()
     rng = np.random.default_rng(SEED)
     q = mt.stroke_lo + rng.random((20, len(mt.axes))) * (mt.stroke_hi - mt.stroke_lo)
@@ -56,7 +55,7 @@ def test_work_rotation_turns_a_tool_side_error_into_one_direction(grinder):
     and one fixed direction in the machine frame: R·J is the same vector at every A."""
     axes = random_axes(grinder, 50, np.random.default_rng(SEED + 1))
     J = error_jacobian(grinder, axes)[:, :, ELEMENT_NAMES.index("dy_x")]
-    R = machine_tool_of(grinder).work_rotation()(axes)[0]
+    R = grinder.work_rotation()(axes)[0]
     Jm = to_frame(J, R, "machine")
     np.testing.assert_allclose(Jm, np.broadcast_to(Jm[0], Jm.shape), atol=ROTATION_TOL, rtol=0)
     assert np.ptp(J[:, 1]) > 1.0                                  # in the work frame it turns with A
@@ -72,7 +71,7 @@ def test_work_rotation_refuses_a_bad_document():
 def _machine_frame_residual(grinder, n, seed):
     rng = np.random.default_rng(seed)
     axes = random_axes(grinder, n, rng)
-    wr = machine_tool_of(grinder).work_rotation()
+    wr = grinder.work_rotation()
     R = wr(axes)[0]
     x, z = axes[:, 0] / 200.0, axes[:, 1] / 60.0
     g_machine = np.c_[np.zeros(n), 3.0 * np.exp(-0.5 * ((x - 0.6) ** 2 + (z - 0.4) ** 2) / 0.18 ** 2), np.zeros(n)]
@@ -152,7 +151,7 @@ def test_the_frames_collapse_where_the_work_frame_does_not_turn():
     """On a machine whose work frame turns with no axis, the machine frame is the work frame turned by a
     constant: the stage compares the work frame alone."""
     m = load_machine("mill-xyz")
-    mt = machine_tool_of(m)
+    mt = m
     assert not mt.work_rotation().turns
     rng = np.random.default_rng(SEED + 6)
     q = mt.stroke_lo + rng.random((200, len(mt.axes))) * (mt.stroke_hi - mt.stroke_lo)

@@ -4,6 +4,8 @@ out-of-catalogue effects designed for the learned stage: ``a_lobe_x`` (round 5) 
 import json
 
 import numpy as np
+
+from errormap.grinder_file import rho0_mm
 import pytest
 
 from compensation.hybrid import INPUT_SETS, LearnedResidual, _fit_inputs, input_features, work_features
@@ -48,31 +50,31 @@ plus X's angular errors times the lever) wholly (measured 1 − 2e-9): the check
 
 def test_work_features_are_the_tool_point_in_the_work_frame(grinder):
     axes = random_axes(grinder, 200, np.random.default_rng(SEED))
-    f, J = work_features(axes, grinder.rho0_mm)
+    f, J = work_features(axes, rho0_mm(grinder))
     p = forward(grinder, axes)
     np.testing.assert_allclose(f[:, 1:], p[:, 1:], atol=WORK_POINT_TOL_MM, rtol=0)
     np.testing.assert_allclose(f[:, 0], axes[:, 0], atol=0, rtol=0)
     h = 1e-4
     for name in INPUT_SETS:
-        f, J = input_features(axes, name, grinder.rho0_mm)
+        f, J = input_features(axes, name, rho0_mm(grinder))
         assert f.shape == (200, len(INPUT_SETS[name])) and J.shape == (200, len(INPUT_SETS[name]), 3)
-        Jfd = np.stack([(input_features(axes + h * e, name, grinder.rho0_mm)[0]
-                         - input_features(axes - h * e, name, grinder.rho0_mm)[0]) / (2 * h) for e in np.eye(3)], -1)
+        Jfd = np.stack([(input_features(axes + h * e, name, rho0_mm(grinder))[0]
+                         - input_features(axes - h * e, name, rho0_mm(grinder))[0]) / (2 * h) for e in np.eye(3)], -1)
         assert np.abs(J - Jfd).max() <= JAC_TOL_REL * np.abs(J).max()
     with pytest.raises(ValueError, match="rho0_mm"):
         input_features(axes, "work", None)
     with pytest.raises(ValueError, match="inputs"):
-        input_features(axes, "joints", grinder.rho0_mm)
+        input_features(axes, "joints", rho0_mm(grinder))
 
 
 @pytest.mark.parametrize("inputs", ["work", "axes+work"])
 def test_learned_residual_on_work_inputs_jacobian_and_round_trip(grinder, inputs):
     rng = np.random.default_rng(SEED + 1)
     axes = random_axes(grinder, 80, rng)
-    f, _ = input_features(axes, inputs, grinder.rho0_mm)
+    f, _ = input_features(axes, inputs, rho0_mm(grinder))
     r = np.c_[np.sin(axes[:, 0] / 40.0), 0.05 * axes[:, 1] * np.cos(np.deg2rad(axes[:, 2])), np.zeros(80)]
     reg = ResidualRegressor(seed=SEED, margin_se=0.0).fit(f, r + 0.05 * rng.standard_normal(r.shape))
-    lr = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0), inputs, grinder.rho0_mm)
+    lr = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0), inputs, rho0_mm(grinder))
     P = random_axes(grinder, 12, np.random.default_rng(SEED + 2))
     P[0, :2] = axes[:, :2].max(0) + 3.0                     # in the taper outside the box too
     v, J = lr.predict_and_jacobian(P)
@@ -111,9 +113,9 @@ def test_input_set_choice_is_the_lowest_cv_rms_on_the_same_folds(grinder):
     chosen family has the lowest CV RMS."""
     rng = np.random.default_rng(SEED + 4)
     axes = random_axes(grinder, 120, rng)
-    wz = (grinder.rho0_mm + axes[:, 1]) * np.cos(np.deg2rad(axes[:, 2]))
+    wz = (rho0_mm(grinder) + axes[:, 1]) * np.cos(np.deg2rad(axes[:, 2]))
     r = np.c_[0.1 * axes[:, 0] / 200.0 * wz, np.zeros(120), np.zeros(120)] + 0.3 * rng.standard_normal((120, 3))
-    feats = {n: input_features(axes, n, grinder.rho0_mm)[0] for n in INPUT_SETS}
+    feats = {n: input_features(axes, n, rho0_mm(grinder))[0] for n in INPUT_SETS}
     groups = np.repeat(np.arange(10), 12)
     best, reg, table = _fit_inputs(feats, r, np.arange(120), groups, ("gp",), SEED)
     fitted = [n for n in INPUT_SETS if table[n]["family"] != "none"]

@@ -4,14 +4,14 @@ machine tool (:class:`errormap.identification.ChainIdentification` on the grinde
 Pybotics-style: inject element profiles into a truth machine, simulate the sweeps,
 identify, and assert the elements and the tool-point (spatial) error come back.
 """
-import dataclasses
 
 import numpy as np
+
+from chain_fixtures import grinder_variant
 import pytest
 
 from errormap.elements import ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
 from errormap.htm import HTMField
-from errormap.grinder_file import grinder_chain
 from errormap.identification import ChainIdentification, layout_problem, rigid_fit
 from errormap.io import InputError
 from errormap.machine import load_machine
@@ -148,9 +148,7 @@ def test_bidirectional_runs_are_averaged_and_reported(machine):
 
 def test_degenerate_target_layout_is_refused(machine, truth):
     """Collinear mounts in the machine file: refused before any fitting, naming key and axis."""
-    targets = dict(machine.targets)
-    targets["X"] = np.array([[0.0, 0.0, 40.0], [50.0, 0.0, 40.0], [100.0, 0.0, 40.0]])
-    bad = dataclasses.replace(machine, targets=targets)
+    bad = grinder_variant(targets={"X": [[0.0, 0.0, 40.0], [50.0, 0.0, 40.0], [100.0, 0.0, 40.0]]})
     cols = simulate_sweeps(TruthGrinder(bad, truth.elements, {}), noise_um=0.0, seed=1)
     with pytest.raises(InputError, match=r"targets\.X.*collinear"):
         identify(cols, bad)
@@ -195,11 +193,11 @@ def test_estimator_contract(machine, truth):
     est = ChainIdentification(gauge="station-mean")
     assert not hasattr(est, "elements_")
     sw = sweeps_from_columns(simulate_sweeps(truth, noise_um=0.0, seed=1))
-    assert est.fit(sw, grinder_chain(machine)) is est
+    assert est.fit(sw, machine) is est
     assert est.result_.elements_ is est.elements_ and est.result_.gauge == "station-mean"
     assert isinstance(est.elements_.to_element_set(), ElementSet)
     with pytest.raises(ValueError, match="gauge"):
-        ChainIdentification(gauge="nope").fit(sw, grinder_chain(machine))
+        ChainIdentification(gauge="nope").fit(sw, machine)
 
 
 def test_fits_and_layout_helpers():
@@ -238,30 +236,22 @@ A_REVERSED_MOVE_MM = 1.0
 sit 25-80 mm from the axis and A turns by up to 342°): the reversed chain really is another machine."""
 
 
-def _chain_with_a_reversed(machine):
-    """The grinder file's chain document (:func:`errormap.grinder_file.grinder_chain_document`) with
-    the rotary joint's ``direction = -1``: A turns about -x."""
-    from errormap import machine_tool
-    from errormap.grinder_file import grinder_chain_document
-    doc = grinder_chain_document(machine)
+def _a_reversed(doc):
+    """The grinder's chain document with the rotary joint's ``direction = -1``: A turns about -x."""
     for side in ("work", "tool"):
         for d in doc[side]:
             if d.get("joint") == "rotary":
                 d["direction"] = -1
-    return machine_tool.parse_machine_tool(doc, machine.path, machine.sha256)
 
 
-def test_rotary_direction_comes_from_the_chain(machine, points, monkeypatch):
+def test_rotary_direction_comes_from_the_chain(machine, points):
     """The identification turns A as the chain file says: on a grinder whose chain turns A
     about -x, sweeps simulated through that chain are identified to the noise-free tolerance in
     every gauge (with RotX(a) written into the method they would not be)."""
-    from errormap import grinder_file
     plain_truth = random_truth(machine, 3)
     plain = simulate_sweeps(plain_truth, noise_um=0.0, seed=1)
-    rev = dataclasses.replace(machine, sha256=machine.sha256 + "-a-reversed")
-    monkeypatch.setattr(grinder_file, "_GRINDER_CHAINS", {})
-    monkeypatch.setattr(grinder_file, "grinder_to_chain", _chain_with_a_reversed)
-    assert next(a for a in grinder_chain(rev).axes if a.word == "A").direction == -1.0
+    rev = grinder_variant(edit=_a_reversed, sha_suffix="-a-reversed")
+    assert next(a for a in rev.axes if a.word == "A").direction == -1.0
     truth = random_truth(rev, 3)
     sweeps = simulate_sweeps(truth, noise_um=0.0, seed=1)
     a = np.asarray(sweeps["axis"]) == "A"

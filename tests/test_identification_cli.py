@@ -3,10 +3,12 @@ import json
 
 import numpy as np
 
+from chain_fixtures import OLD_GRINDER_FILE
+
 from compensation.app.cli import main
 from errormap.elements import ElementSet
 from errormap.htm import HTMField
-from errormap.machine import builtin_machine_path, load_machine
+from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
 
 SPATIAL_TOL_UM = 0.01
@@ -33,7 +35,7 @@ def test_sweeps_then_identify(tmp_path, capsys):
 
 def test_degenerate_layout_is_one_clean_line(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
-    text = builtin_machine_path().read_text()
+    text = OLD_GRINDER_FILE.read_text()   # a kind = "grinder" file, read as its chain
     bad.write_text(text.replace("X = [[0.0, -60.0, 40.0], [80.0, 40.0, 40.0], [-40.0, 60.0, 90.0]]",
                                 "X = [[0.0, 0.0, 40.0], [50.0, 0.0, 40.0], [100.0, 0.0, 40.0]]"))
     sw = tmp_path / "s.csv"

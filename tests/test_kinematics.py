@@ -1,5 +1,7 @@
 """Nominal kinematics: closed form equals the transform chains; FK∘IK is the identity."""
 import numpy as np
+
+from errormap.grinder_file import rho0_mm
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -16,9 +18,9 @@ def chain_tool_point(m, x, z, a_deg):
     def T(R=np.eye(3), t=(0, 0, 0)):
         M = np.eye(4); M[:3, :3] = R; M[:3, 3] = t
         return M
-    tool = (T(rot_z(np.deg2rad(m.theta1_deg))[0]) @ T(t=(m.l2, 0, m.l1)) @ T(t=(0, 0, z))
-            @ T(t=(m.l3, 0, m.l4)) @ T(t=(0, 0, -m.R)))
-    work = T(t=(m.l5, 0, m.l6)) @ T(t=(x, 0, 0)) @ T(t=(m.l7, 0, m.l8)) @ T(rot_x(np.deg2rad(a_deg))[0])
+    tool = (T(rot_z(np.deg2rad(m.geometry["theta1_deg"]))[0]) @ T(t=(m.geometry["l2"], 0, m.geometry["l1"])) @ T(t=(0, 0, z))
+            @ T(t=(m.geometry["l3"], 0, m.geometry["l4"])) @ T(t=(0, 0, -m.geometry["R"])))
+    work = T(t=(m.geometry["l5"], 0, m.geometry["l6"])) @ T(t=(x, 0, 0)) @ T(t=(m.geometry["l7"], 0, m.geometry["l8"])) @ T(rot_x(np.deg2rad(a_deg))[0])
     return (np.linalg.inv(work) @ tool @ np.array([0, 0, 0, 1.0]))[:3]
 
 
@@ -28,9 +30,9 @@ def test_closed_form_matches_chains(grinder, rng):
     for k in range(len(axes)):
         np.testing.assert_allclose(p[k], chain_tool_point(grinder, *axes[k]), atol=TOL_MM)
     # the nominal formula of docs/explanation/kinematics.md
-    rho = grinder.rho0_mm + axes[:, 1]
+    rho = rho0_mm(grinder) + axes[:, 1]
     a = np.deg2rad(axes[:, 2])
-    np.testing.assert_allclose(p, np.c_[-(grinder.l5 + grinder.l7 + axes[:, 0]), rho * np.sin(a), rho * np.cos(a)], atol=TOL_MM)
+    np.testing.assert_allclose(p, np.c_[-(grinder.geometry["l5"] + grinder.geometry["l7"] + axes[:, 0]), rho * np.sin(a), rho * np.cos(a)], atol=TOL_MM)
     # and the zero-error exact HTM model
     np.testing.assert_allclose(tool_point_actual(grinder, axes, np.zeros((20, 23))), p, atol=TOL_MM)
 

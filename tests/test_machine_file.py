@@ -1,12 +1,15 @@
-"""Machine files: the built-in grinder loads; malformed files are rejected naming the key."""
+"""Machine files: the built-in grinder loads; malformed grinder files are rejected naming the key."""
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from errormap.machine import MachineFileError, builtin_machine_path, load_machine
+from errormap.grinder_file import rho0_mm
+from errormap.machine import MachineFileError, load_machine
 
-GOOD = builtin_machine_path("grinder").read_text()
+GOOD = (Path(__file__).parent / "data" / "machines" / "grinder_kind_grinder.toml").read_text()
+"""A ``kind = "grinder"`` file (the older schema, read as its chain)."""
 
 
 def write(tmp_path, text):
@@ -16,11 +19,11 @@ def write(tmp_path, text):
 
 
 def test_builtin_default_values(grinder):
-    assert grinder.kind == "grinder"
-    assert grinder.l1 == 420.0 and grinder.l8 == 119.9 and grinder.theta1_deg == 30.0
+    assert grinder.kind == "machine-tool" and grinder.name == "micro-drill flute grinder"
+    assert grinder.geometry["l1"] == 420.0 and grinder.geometry["l8"] == 119.9 and grinder.geometry["theta1_deg"] == 30.0
     assert grinder.strokes["x_mm"] == (0.0, 200.0)
     assert grinder.targets["A"].shape == (3, 3)
-    assert grinder.rho0_mm == pytest.approx(0.1, abs=1e-9)
+    assert rho0_mm(grinder) == pytest.approx(0.1, abs=1e-9)
     assert len(grinder.sha256) == 64
 
 
@@ -51,6 +54,6 @@ def test_not_toml_and_missing_file(tmp_path):
 def test_other_machine_file_changes_geometry(tmp_path):
     p = write(tmp_path, GOOD.replace("l7 = 40.0", "l7 = 50.0"))
     m = load_machine(p)
-    assert m.l7 == 50.0
+    assert m.geometry["l7"] == 50.0
     from errormap.kinematics import forward
     assert forward(m, np.array([[0.0, 0.0, 0.0]]))[0, 0] == pytest.approx(190.0, abs=1e-12)

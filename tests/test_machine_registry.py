@@ -53,7 +53,7 @@ def test_a_path_wins_over_a_built_in_name(tmp_path, monkeypatch):
     """A name is looked up among the built-ins only when no such path exists."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "ur5").write_bytes((MACHINES_DIR / "grinder.toml").read_bytes())
-    assert load_machine("ur5").kind == "grinder"
+    assert load_machine("ur5").name == "micro-drill flute grinder"
     assert load_machine("wam").kind == "serial"
     with pytest.raises(MachineFileError, match="no such machine file"):
         load_machine("no-such-machine")

@@ -2,7 +2,6 @@
 small-angle cosine and sine against the library's, the spline interval search on unevenly spaced
 stations against the numpy reference field, and the compiled closed-form inverse against the chain's
 numpy closed form (errormap/machine_tool.py ``closed_form_inverse``)."""
-import dataclasses
 
 import numpy as np
 import pytest
@@ -10,12 +9,11 @@ from numba import njit
 
 from errormap.kinematics import forward, inverse
 from errormap.machine import load_machine
-from errormap.grinder_file import grinder_chain
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import predict_and_jacobian_numpy, predict_numpy
 from errormap.chain_kernel import SMALL_ANGLE_RAD, CompiledChain, _cos_sin, closed_form_solver
 
-from chain_fixtures import axes_beyond_strokes
+from chain_fixtures import axes_beyond_strokes, grinder_variant
 
 TOL_KERNEL_UM = 1e-9
 """The kernel against the numpy reference field: same transforms, different operation order (as
@@ -105,8 +103,8 @@ def test_kernel_on_uneven_stations_equals_numpy_reference(name):
 def test_compiled_closed_form_inverse_equals_numpy_form(theta1_deg):
     """Inside the strokes, beyond them, on several turns and on the rotary axis itself."""
     m = load_machine()
-    m = m if theta1_deg is None else dataclasses.replace(m, theta1_deg=theta1_deg, l3=-150.0)
-    mt = grinder_chain(m)
+    m = m if theta1_deg is None else grinder_variant({"theta1_deg": theta1_deg, "l3": -150.0})
+    mt = m
     rng = np.random.default_rng(9)
     span = m.stroke_hi - m.stroke_lo
     ax = rng.uniform(m.stroke_lo - 0.3 * span, m.stroke_hi + 0.3 * span, (50_000, 3))

@@ -251,8 +251,7 @@ def _grinder_loop(g, t, cols, stated=None):
     0.5 μm / μrad on every element parameter (as an identification would give), the checks ``cols``."""
     from errormap.chain_elements import ChainElementSet
     from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, full_parameters
-    from errormap.grinder_file import machine_tool_of
-    mt = machine_tool_of(g)
+    mt = g
     el = ChainElementSet.load(t.elements.save(Path(tempfile.mkdtemp()) / "el.json"), mt)
     slots, stations = full_parameters(el)
     checks = MTChecks.from_columns(mt, cols)

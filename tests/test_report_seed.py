@@ -8,7 +8,6 @@ import pytest
 
 from compensation.app.workflows.compare import compare_methods
 from compensation.app.workflows.compensate import CompensateSettings, solve_paths
-from errormap.grinder_file import machine_tool_of
 from errormap.htm import HTMField
 from errormap.kinematics import forward
 from errormap.machine import load_machine
@@ -27,7 +26,7 @@ def test_report_and_compensate_give_the_same_ga_commands(tmp_path, method, point
 
     def compensate(seed):
         s = CompensateSettings(method=method, model="elements.json", out_dir=tmp_path, seed=seed)
-        return solve_paths([path], field, None, machine_tool_of(m), s)[0][0].commands_mm
+        return solve_paths([path], field, None, m, s)[0][0].commands_mm
 
     cmp = compare_methods(field, targets, m, methods=(method,), seed=SEED, ga_points=points, nominal_axes=axes,
                           log=io.StringIO())

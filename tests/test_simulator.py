@@ -1,6 +1,8 @@
 """Truth simulator: magnitude band, and each undeclared effect changes the check
 measurements exactly as its documentation says."""
 import numpy as np
+
+from errormap.grinder_file import rho0_mm
 import pytest
 
 from errormap.simulator import (EFFECT_DEFAULTS, EFFECT_NAMES, MAX_ERROR_BAND_UM, random_axes, random_truth,
@@ -79,7 +81,7 @@ def test_worm_effect(grinder):
     ck, d = effect_difference(grinder, "worm")
     p = EFFECT_DEFAULTS["worm"]
     v = p["amplitude_urad"] * np.sin(p["teeth"] * np.deg2rad(ck["a_deg"]) + p["phase_rad"])
-    rho = grinder.rho0_mm + ck["z_mm"]
+    rho = rho0_mm(grinder) + ck["z_mm"]
     a = np.deg2rad(ck["a_deg"])
     # ex_a turns the workpiece about X: the tool point moves tangentially by ρ·ε
     expected = 1e-3 * v[:, None] * np.c_[0 * rho, rho * np.cos(a), -rho * np.sin(a)]

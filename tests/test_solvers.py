@@ -1,9 +1,10 @@
 """Solvers on analytic fields with known answers (issue 4)."""
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
+
+from chain_fixtures import grinder_variant
 import pytest
 
 from compensation.solvers import METHODS, SolveResult, get_solver, solve
@@ -98,13 +99,13 @@ def grinder_closed_form(machine, axes):
     nominal tool point ``p = (t_x - l5 - l7 - x, c·t_y + s·h, c·h - s·t_y)`` with
     ``h = t_z(0) - l6 - l8 + z``, ``t(0) = RotZ(θ1)·(l2 + l3, 0, l1 + l4 - R)``, and its axis Jacobian
     (columns ``(-1, 0, 0)``, ``(0, s, c)``, ``(0, p_z, -p_y)·π/180``)."""
-    th = np.deg2rad(machine.theta1_deg)
-    tx, ty = np.cos(th) * (machine.l2 + machine.l3), np.sin(th) * (machine.l2 + machine.l3)
-    tz = machine.l1 + machine.l4 - machine.R
-    h = axes[:, 1] + tz - machine.l6 - machine.l8
+    th = np.deg2rad(machine.geometry["theta1_deg"])
+    tx, ty = np.cos(th) * (machine.geometry["l2"] + machine.geometry["l3"]), np.sin(th) * (machine.geometry["l2"] + machine.geometry["l3"])
+    tz = machine.geometry["l1"] + machine.geometry["l4"] - machine.geometry["R"]
+    h = axes[:, 1] + tz - machine.geometry["l6"] - machine.geometry["l8"]
     a = np.deg2rad(axes[:, 2])
     c, s = np.cos(a), np.sin(a)
-    p = np.column_stack([tx - machine.l5 - machine.l7 - axes[:, 0], c * ty + s * h, c * h - s * ty])
+    p = np.column_stack([tx - machine.geometry["l5"] - machine.geometry["l7"] - axes[:, 0], c * ty + s * h, c * h - s * ty])
     J = np.zeros((len(axes), 3, 3))
     J[:, 0, 0] = -1.0
     J[:, 1, 1], J[:, 2, 1] = s, c
@@ -117,7 +118,7 @@ def test_chain_kinematics_equal_the_closed_form(machine, theta1_deg):
     """The solvers' nominal kinematics come from the grinder's chain (one source, issue 26): equal to
     the closed form written out here and to :func:`errormap.kinematics.forward`, on 100,000 points
     (A over several turns), also for a grinder file with other geometry."""
-    mach = machine if theta1_deg is None else dataclasses.replace(machine, theta1_deg=theta1_deg)
+    mach = machine if theta1_deg is None else grinder_variant({"theta1_deg": theta1_deg})
     rng = np.random.default_rng(2)
     n = 100_000
     axes = np.column_stack([rng.uniform(0, 200, n), rng.uniform(0, 60, n), rng.uniform(-400, 800, n)])
@@ -251,7 +252,7 @@ def test_input_is_validated_before_work(machine):
 
 
 def test_limited_a_stroke_does_not_fold(machine):
-    m = dataclasses.replace(machine, strokes={**machine.strokes, "a_deg": (0.0, 180.0)})
+    m = grinder_variant(edit=lambda d: next(j for j in d["work"] if j.get("axis") == "A").update(stroke=[0.0, 180.0]))
     axes = np.array([[1.0, 1.0, 400.0]])
     np.testing.assert_array_equal(fold_a(axes, m), axes)
     np.testing.assert_allclose(fold_a(axes, machine)[0, 2], 40.0)

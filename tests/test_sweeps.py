@@ -29,7 +29,7 @@ def test_body_frames_reproduce_the_htm_tool_point(machine, truth):
     axes = random_axes(machine, 200, np.random.default_rng(0))
     v = truth.element_values(axes)
     tool_R, tool_t = body_frames(machine, "Z", axes, v)
-    tool_mcs = tool_t + apply(tool_R, np.array([machine.l3, 0.0, machine.l4 - machine.R]))
+    tool_mcs = tool_t + apply(tool_R, np.array([machine.geometry["l3"], 0.0, machine.geometry["l4"] - machine.geometry["R"]]))
     work_R, work_t = invert(body_frames(machine, "A", axes, v))
     wcs = apply(work_R, tool_mcs) + work_t
     assert np.abs(wcs - tool_point_actual(machine, axes, v)).max() < CHAIN_TOL_MM

@@ -98,13 +98,14 @@ def _profile(free, n: int, periodic: bool) -> np.ndarray:
 def fit_physics_elements(machine, axes, errors_um, n_stations: int | None = None):
     """The element set (``n_stations`` per axis) whose first-order field best fits ``errors_um``.
 
-    The grinder (:class:`errormap.machine.Grinder`): ``axes`` (n, 3) (x_mm, z_mm, a_deg), returns an
-    :class:`ElementSet`; a machine-tool chain (``kind = "machine-tool"``): ``axes`` (n, k) in its
-    axis columns, returns a :class:`errormap.chain_elements.ChainElementSet`
+    The grinder's chain (:func:`errormap.grinder_file.is_grinder_chain`): ``axes`` (n, 3) (x_mm, z_mm,
+    a_deg), returns an :class:`ElementSet`; another machine-tool chain: ``axes`` (n, k) in its axis columns,
+    returns a :class:`errormap.chain_elements.ChainElementSet`
     (:func:`fit_chain_physics_elements`). ``errors_um`` (n, 3). One minimum-norm linear
     least-squares solve (module doc, :func:`solve_station_values`) on the machine's stroke stations.
     """
-    if getattr(machine, "kind", None) == "machine-tool":
+    from errormap.grinder_file import is_grinder_chain
+    if not is_grinder_chain(machine):
         return fit_chain_physics_elements(machine, axes, errors_um, n_stations)
     axes = np.asarray(axes, float)
     m = _n_stations(axes, n_stations)

@@ -8,8 +8,8 @@ words of ``docs/reference/features.md`` (:meth:`Family.refuse_unsupported`). ``t
 checks the declared gaps against that table's cells.
 
 Three families: **machine tool** (the built-in grinder and the machine-tool chains; the grinder is a
-chain whose hand-written model still runs its own workflows, so the family has two members, the
-table's two machine-tool columns), **serial arm** and **parallel** (hexapod, tripod). A new kind is
+chain, :func:`family_kind`, whose element sets and truths still run its own workflows, so the family has
+two members, the table's two machine-tool columns), **serial arm** and **parallel** (hexapod, tripod). A new kind is
 one entry of :data:`FAMILIES` (and its parser in :func:`errormap.machine.machine_kinds`).
 """
 from __future__ import annotations
@@ -279,7 +279,22 @@ def family_of_kind(kind: str) -> Family:
     raise ValueError(f"machine kind {kind!r} belongs to no family (compensation/app/families.py)")
 
 
+def family_kind(machine) -> str:
+    """The registry's kind of a loaded machine: ``grinder`` for the grinder's chain (the built-in grinder or a
+    ``kind = "grinder"`` file read as it, :func:`errormap.grinder_file.is_grinder_chain`), else its own kind."""
+    from errormap.grinder_file import is_grinder_chain
+    return "grinder" if is_grinder_chain(machine) else machine.kind
+
+
+def say_read_as(machine) -> None:
+    """Say on stderr, in its one line, that the machine file was read into another form (a ``kind = "grinder"``
+    file as its chain, ``MachineTool.read_as``); nothing for any other file."""
+    import sys
+    if getattr(machine, "read_as", ""):
+        print(machine.read_as, file=sys.stderr)
+
+
 def family_of(machine) -> Family:
     """The family of a loaded machine, bound to it (its kind, file and name)."""
-    return dataclasses.replace(family_of_kind(machine.kind), path=str(getattr(machine, "path", "")),
+    return dataclasses.replace(family_of_kind(family_kind(machine)), path=str(getattr(machine, "path", "")),
                                machine_name=getattr(machine, "name", ""))

@@ -49,8 +49,7 @@ def flute_axes(machine, flute=None):
     machine whose chain has a closed-form nominal inverse and reaches every point of it inside the strokes of
     its axes that do not turn fully (the grinder's chain), else None."""
     from ..toolpath import flute_path
-    from .model import machine_tool_of
-    mt = machine_tool_of(machine)
+    mt = machine
     if mt.closed_form_constants() is None:
         return None
     fp = flute if flute is not None else flute_path()
@@ -65,8 +64,7 @@ def check_sets(machine, n_volume: int = 2000, seed: int = 0, flute=None) -> dict
     """The check's point sets ``{name: (targets (n, 3) mm, axes (n, k), dirs (n, k))}``: the flute path where
     the machine runs it (its motion directions) and ``n_volume`` seeded random points over the strokes
     (random approach directions)."""
-    from .model import machine_tool_of
-    mt = machine_tool_of(machine)
+    mt = machine
     k = len(mt.axes)
     out = {}
     fl = flute_axes(machine, flute)

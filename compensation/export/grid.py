@@ -16,7 +16,6 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
 from errormap.field import CalibratedVolume
-from errormap.grinder_file import machine_tool_of
 from errormap.io import InputError, read_table, write_csv
 
 from .common import FULL_TURN_DEG, fold, meta_format
@@ -112,7 +111,7 @@ def _and(words) -> str:
 
 
 def write_grid(grid: VolumetricGrid, folder, machine, model_desc: str) -> Path:
-    mt = machine_tool_of(machine)
+    mt = machine
     k = len(grid.ticks)
     nodes = np.stack(np.meshgrid(*grid.ticks, indexing="ij"), axis=-1).reshape(-1, k)
     v = grid.values.reshape(-1, 3)
@@ -137,7 +136,7 @@ def write_grid(grid: VolumetricGrid, folder, machine, model_desc: str) -> Path:
 
 def read_grid(path, machine) -> VolumetricGrid:
     """Read ``grid.csv`` of ``machine``; refuses anything that is not a complete regular grid in the stated order."""
-    mt = machine_tool_of(machine)
+    mt = machine
     k = len(mt.axes)
     t = read_table(path)
     meta_format(t, GRID_FORMAT)

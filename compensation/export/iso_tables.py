@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.grinder_file import machine_tool_of
 from errormap.io import InputError, read_table, write_csv
 from errormap.iso230 import axis_from_mcs, axis_to_mcs
 from errormap.chain_kernel import CompiledNominal
@@ -76,7 +75,7 @@ class IsoTables:
 
     def slot_values(self, machine, axes) -> np.ndarray:
         """The elements (n, P) a controller rebuilds from the tables at ``axes`` (n, k)."""
-        mt = machine_tool_of(machine)
+        mt = machine
         axes = np.asarray(axes, dtype=float)
         out = np.zeros((len(axes), len(mt.slots)))
         for j, a in table_axes(mt):
@@ -95,7 +94,7 @@ class IsoTables:
 
     def field(self, machine):
         from .common import TableField
-        compiled = CompiledNominal(machine_tool_of(machine))
+        compiled = CompiledNominal(machine)
         return TableField(lambda axes: compiled.spatial_error(axes, self.slot_values(machine, axes)))
 
     def n_values(self) -> int:
@@ -104,7 +103,7 @@ class IsoTables:
 
 def iso_tables_from_model(elements, machine, n_rows: int) -> IsoTables:
     """The model's ISO components at ``n_rows`` equally spaced positions over each axis' stations."""
-    mt = machine_tool_of(machine)
+    mt = machine
     pos, val = {}, {}
     for j, a in table_axes(mt):
         st = elements.stations[a.column]
@@ -148,7 +147,7 @@ def _header(mt, j, a, model_desc) -> list:
 
 
 def write_iso_tables(tables: IsoTables, folder, machine, model_desc: str) -> list[Path]:
-    mt = machine_tool_of(machine)
+    mt = machine
     folder = Path(folder)
     out = []
     for j, a in table_axes(mt):
@@ -171,7 +170,7 @@ def write_iso_tables(tables: IsoTables, folder, machine, model_desc: str) -> lis
 
 def read_iso_tables(folder, machine) -> IsoTables:
     """Read ``iso_<W>.csv`` and ``iso_location.csv`` of ``machine``; errors name file, row, column."""
-    mt = machine_tool_of(machine)
+    mt = machine
     folder = Path(folder)
     pos, val = {}, {}
     for j, a in table_axes(mt):

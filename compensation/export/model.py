@@ -1,7 +1,7 @@
 """The model a controller table is built from and checked against, on any machine tool.
 
-Every machine tool is its chain (:func:`errormap.grinder_file.machine_tool_of`: a ``kind = "grinder"``
-file read as its chain, with the same 23 element names and axis columns): the axes, their strokes and
+Every machine tool is its chain (a ``kind = "grinder"`` file is read as the grinder's chain, with the same
+23 element names and axis columns): the axes, their strokes and
 full turns, the error slots and their ISO names, the bodies' frames. What differs between machine files
 is only how their model files are read (:func:`load_model`, :func:`load_truth`, :func:`reversal_from_diagnosis`):
 a grinder file's element sets, simulated truths and ``diagnosis.json`` have their own formats.
@@ -12,8 +12,8 @@ from dataclasses import dataclass, field as dc_field
 
 import numpy as np
 
-from errormap.grinder_file import machine_tool_of
 from errormap.chain_kernel import CompiledNominal, NominalChain
+from errormap.grinder_file import is_grinder_chain
 
 from .common import TableField, fold
 
@@ -22,9 +22,9 @@ TABLE_TEMP_C = 20.0
 
 
 def reads_grinder_files(machine) -> bool:
-    """True for a machine given as a ``kind = "grinder"`` file (its model, truth and diagnosis files are the
-    grinder's formats); the machine itself is used through its chain either way."""
-    return machine_tool_of(machine) is not machine
+    """True for the grinder's chain (:func:`errormap.grinder_file.is_grinder_chain`: the built-in grinder or a
+    ``kind = "grinder"`` file read as its chain): its model, truth and diagnosis files are the grinder's formats."""
+    return is_grinder_chain(machine)
 
 
 def nominal_mm(machine, axes) -> np.ndarray:
@@ -60,7 +60,7 @@ class ModelError:
             raise ValueError("Expected an element set or an error field")
         if self.reversal and self.elements is None:
             raise ValueError("Expected an element-set model to carry a reversal (backlash) term")
-        self.mt = machine_tool_of(self.machine)
+        self.mt = self.machine
         self._compiled = CompiledNominal(self.mt)
         self._own = {w: self.mt.slot_names.index(own_slot(self.mt, w)) for w in self.reversal}
 

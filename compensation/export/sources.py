@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 
 from errormap.effect_kinds import diagnosed_kind, effect_kind
-from errormap.grinder_file import machine_tool_of
 from errormap.io import InputError, read_document_text, sha256_file
 
 from .model import ModelError, nominal_mm, reads_grinder_files, TABLE_TEMP_C
@@ -86,7 +85,7 @@ def truth_tool_points(truth, machine):
     """``tool(axes (n, k), dirs (n, k)) -> (n, 3)`` mm of a simulated truth machine with ``tool_point(axes,
     temp_c=, dir_<w>=)`` (a grinder file's :class:`errormap.simulator.TruthGrinder`), at the tables' reference
     temperature and the given approach directions."""
-    words = [a.word.lower() for a in machine_tool_of(machine).axes]
+    words = [a.word.lower() for a in machine.axes]
 
     def tool(q, dirs):
         cond = {"temp_c": np.full(len(q), TABLE_TEMP_C), **{f"dir_{w}": dirs[:, j] for j, w in enumerate(words)}}

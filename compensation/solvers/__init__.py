@@ -2,7 +2,7 @@
 
 ``solve(method, field, targets_mm, machine, **options) -> SolveResult`` where ``method`` is a
 name of :data:`SOLVERS` (``traditional``, ``ga``, ``batched-ga``, ``exact``) and ``machine`` a machine
-tool: a chain file, or a grinder file, solved on its chain (:func:`errormap.grinder_file.machine_tool_of`).
+tool: its chain (a ``kind = "grinder"`` file is read as one).
 Each entry names its function ``"module:function"`` in ``compensation/solvers/`` (the tool tip placed
 with the three axes the chain reads: a mill's linear axes, rotary axes kept; every axis of a three-axis
 machine such as the grinder's X, Z, A or a lathe's X, Z, C). The CLI's ``--method``/``--methods``
@@ -90,8 +90,7 @@ def get_solver(method: str):
 def solve(method: str, field, targets_mm, machine, **options) -> SolveResult:
     """Run solver ``method`` on WCS targets, shape (n, 3) mm, on the machine tool ``machine`` (a grinder
     file on its chain); ValueError for an unknown method."""
-    from errormap.grinder_file import machine_tool_of
-    return solve_function(method, machine)(field, targets_mm, machine_tool_of(machine), **options)
+    return solve_function(method, machine)(field, targets_mm, machine, **options)
 
 
 def solve_function(method: str, machine=None):

@@ -1,6 +1,6 @@
 """The closed loop on ANY machine-tool chain: checks → held-out measured residual, update, effects.
 
-Over the machine's axes and element slots (the grinder: its chain, :func:`errormap.grinder_file.machine_tool_of`). Check measurements (``docs/reference/file-formats.md``): columns = the machine's axis columns
+Over the machine's axes and element slots (the grinder: its chain, :mod:`errormap.grinder_file`). Check measurements (``docs/reference/file-formats.md``): columns = the machine's axis columns
 (``x_mm, y_mm, z_mm, a_deg, c_deg`` …) and ``dx_um, dy_um, dz_um``; optional ``time_s``,
 ``temp_c``, ``dir_<w>`` (+1/−1 per axis word), ``seq``. Blocked split: the
 first ``fit_fraction`` of the checks by ``seq`` fit, the rest is held out (a later time).

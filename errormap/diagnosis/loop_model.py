@@ -166,14 +166,13 @@ class ChainModelField:
 
 def load_chain_model_file(path, machine: MachineTool, learned: str = "refuse") -> ChainModelField:
     """Read ``model.json`` (module doc) for ``machine`` (a chain, or a ``kind = "grinder"`` file: its chain,
-    :func:`errormap.grinder_file.machine_tool_of`); errors name the file and the key (InputError).
+    :mod:`errormap.grinder_file`); errors name the file and the key (InputError).
     ``learned``: what to do with a kept learned residual (:data:`LEARNED_KEY`): ``"refuse"`` (an
     InputError naming the key: this reader would drop it) or ``"ignore"`` (the elements and terms alone,
     for a caller that needs only them)."""
     if learned not in LEARNED_MODES:
         raise ValueError(f"Expected learned one of {LEARNED_MODES}, got {learned!r}")
-    from ..grinder_file import machine_tool_of
-    machine = machine_tool_of(machine)
+    machine = machine
     path = Path(path)
     try:
         d = json.loads(read_document_text(path, "a diagnosed chain model"))

@@ -48,7 +48,7 @@ from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError, one_line
 
-from ..families import family_of
+from ..families import family_of, say_read_as
 from ..options import add_condition_options, add_units_option, conditions_from_args
 from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args, open_executor
 from ..workflows.compensate import CompensateSettings, compensate_files, print_refusals
@@ -194,6 +194,7 @@ def run(args) -> int:
     family = family_of(machine)
     target = family.target("compensate")   # a parallel machine: the registry names interpolate
     family.refuse_unsupported("compensate", args)
+    say_read_as(machine)
     if target == "arm":
         from ..workflows.arm_compensate import run_arm_compensate
         return run_arm_compensate(machine, args)

@@ -91,8 +91,7 @@ def _retrain_settings(args):
 def _run_checks(args) -> int:
     """CHECKS against an element set on a machine tool (a chain file, or a grinder file through its chain):
     the closed loop (:func:`compensation.app.workflows.measurement.diagnose_chain`) and its page."""
-    from errormap.grinder_file import adapter_line, machine_tool_of
-    from compensation.app.families import family_of
+    from compensation.app.families import family_of, say_read_as
     from compensation.app.workflows.measurement import diagnose_chain, diagnosis_lines
     from compensation.app.reports.chain_diagnosis import write_chain_diagnosis_page
     from compensation.fields import require_kind, resolve_model
@@ -102,7 +101,7 @@ def _run_checks(args) -> int:
     fam = family_of(machine)
     fam.target("diagnose")   # an arm or a parallel machine: calibrate --check (the registry's gap)
     fam.refuse_unsupported("diagnose", args)
-    mt = machine_tool_of(machine)
+    mt = machine
     src = resolve_model(args.model)
     if src.kind in NETWORK_KINDS:   # a trained network: identified + effects, the retrain with --featurepoints
         if args.track:
@@ -130,8 +129,8 @@ def _run_checks(args) -> int:
                                         update=not args.no_update, units=args.units, learn=not args.no_learned,
                                         track=args.track, tracking_uri=args.tracking_uri)
         paths.append(write_chain_diagnosis_page(args.out, mt))  # the page of the run
-    if mt is not machine:   # a kind = "grinder" file read as its chain, said once the inputs are read (a refusal
-        print(adapter_line(machine), file=sys.stderr)   # above stays one line)
+    say_read_as(machine)   # a kind = "grinder" file read as its chain, said once the inputs are read (a refusal
+    # above stays one line)
     if summary.get("update"):
         how = f"covariance {summary['covariance']}: closed loop (update, then effects)"
     else:

@@ -19,12 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.grinder_file import machine_tool_of
 from errormap.machine import load_machine
 
 from compensation.app.validate import UsageError
 
-from ..families import family_of
+from ..families import family_of, say_read_as
 from ..workflows.controller_tables import DriftSettings, TableSettings, export_drift, export_table
 from ... import export as ex
 from ...fields import FAILED_VERDICT
@@ -85,7 +84,7 @@ def register(sub):
 def region_strokes(machine) -> dict:
     """``{column: (lo, hi)}`` of the machine's linear axes in its axis order: the axes ``--region`` restricts
     (rotary axes are averaged over their whole range on every machine)."""
-    return {a.column: tuple(a.stroke) for a in machine_tool_of(machine).axes if a.kind == "linear"}
+    return {a.column: tuple(a.stroke) for a in machine.axes if a.kind == "linear"}
 
 
 def parse_region(text, machine):
@@ -143,6 +142,7 @@ def run(args) -> int:
     machine = None if args.fmt == "drift" else load_machine(args.machine)
     if machine is not None:   # an arm or a parallel machine: no controller table (the registry's gap), nothing read
         family_of(machine).target("export")
+        say_read_as(machine)
     args.model_verdict = model_verdict(args)   # before any work: a failed diagnosis is refused unless allowed
     drift_only = {"--sample-period-s": args.sample_period_s, "--log": args.log, "--sim": args.sim,
                   "--sim-seed": args.sim_seed}

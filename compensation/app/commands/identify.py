@@ -10,7 +10,7 @@ from errormap.identification import GAUGES
 from errormap.machine import load_machine
 from errormap.sweeps import read_sweeps
 
-from ..families import family_of
+from ..families import family_of, say_read_as
 from ..reports.identification import iso_summary_lines, plot_elements
 from ..validate import UsageError
 from ..workflows.identification import identify_elements, truth_in_gauge
@@ -88,10 +88,9 @@ def run(args) -> int:
             for p in plot_chain_elements(res.elements_, args.plot, truth):
                 print(f"wrote plot: {p}")
         return 0
-    from errormap.grinder_file import adapter_line
     truth = ElementSet.load(args.truth) if args.truth else None
     sweeps = read_sweeps(args.sweeps)
-    print(adapter_line(machine), file=sys.stderr)   # the inputs read: refusals above stay one line
+    say_read_as(machine)   # a kind = "grinder" file read as its chain; the inputs read: refusals above stay one line
     print(f"identifying from {', '.join(args.sweeps)} ...", file=sys.stderr)
     ident = identify_elements(machine, args.sweeps, args.out, report=args.report, noise_um=args.noise_um,
                               smooth=not args.raw, gauge=args.gauge, sweeps=sweeps, **boot)

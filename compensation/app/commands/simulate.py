@@ -8,7 +8,7 @@ from errormap.machine import load_machine
 from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP
 from compensation.app.validate import UsageError
 
-from ..families import family_of
+from ..families import family_of, say_read_as
 
 from ..workflows.simulate import simulate_truth, summary_lines
 
@@ -49,6 +49,7 @@ def run(args) -> int:
     machine = load_machine(args.machine)   # None: the built-in default machine
     family = family_of(machine)
     family.refuse_unsupported("simulate", args)
+    say_read_as(machine)
     return RUNNERS[family.target("simulate")](machine, args)
 
 

@@ -10,7 +10,7 @@ from errormap.simulator import EFFECT_CHOICES, EFFECT_HELP, TruthGrinder
 from errormap.sweeps import simulate_sweeps, write_sweeps
 from compensation.app.validate import UsageError
 
-from ..families import family_of
+from ..families import family_of, say_read_as
 
 
 def register(sub):
@@ -61,6 +61,7 @@ def noise_seed(args) -> tuple[int, str]:
 def run(args) -> int:
     machine = load_machine(args.machine)  # None: the built-in default machine
     target = family_of(machine).target("sweeps")   # machine tools: other families are refused, naming their path
+    say_read_as(machine)
     args.seed_noise, noise_from = noise_seed(args)
     print(f"noise seed {args.seed_noise} ({noise_from})")
     return RUNNERS[target](machine, args)

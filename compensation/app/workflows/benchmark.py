@@ -552,11 +552,10 @@ class GrinderBench:
         (:meth:`user_loop_rows`: the parametric loop and the hybrid), every other base the effect
         search on its field (:meth:`closed_loop_row`)."""
         from errormap.diagnosis.chain_loop import MTChecks
-        from errormap.grinder_file import machine_tool_of
         s = self.s
         n_checks = c.n_checks or s.n_checks
         cols = truth.check_measurements(n=n_checks, noise_um=s.check_noise_um, seed=_streams(s.seed)["checks"])
-        checks = MTChecks.from_columns(machine_tool_of(self.m), cols, path=f"<simulated checks, {c.name}>")
+        checks = MTChecks.from_columns(self.m, cols, path=f"<simulated checks, {c.name}>")
         label = f"{c.name} (after closed loop)"
         for base_row, base in bases:
             if base_row["path"] == "parametric" and c.group == "out-of-catalogue":
@@ -630,11 +629,10 @@ class GrinderBench:
         from errormap.chain_elements import ChainElementSet
         from errormap.diagnosis.chain_loop import closed_loop_chain
         from errormap.diagnosis.loop_model import ChainModelField
-        from errormap.grinder_file import machine_tool_of
         s = self.s
         if getattr(base, "elements", None) is None:
             raise ValueError("the closed loop searches effects on an element set; a trained network is not one")
-        mt = machine_tool_of(self.m)
+        mt = self.m
         el = base.elements if isinstance(base.elements, ChainElementSet) else chain_elements(base.elements, mt)
         t0 = time.perf_counter()
         d = closed_loop_chain(mt, el, checks, cov=None)

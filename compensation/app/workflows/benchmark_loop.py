@@ -27,9 +27,8 @@ def loop_models(machine, model_path, conditions: dict) -> dict:
     import json
     from errormap.chain_elements import ChainElementSet
     from errormap.diagnosis.loop_model import ChainModelField, load_chain_model_file, read_terms
-    from errormap.grinder_file import machine_tool_of
     from ...chain_hybrid import load_chain_model
-    mt = machine_tool_of(machine)
+    mt = machine
     doc = json.loads(Path(model_path).read_text(encoding="utf-8"))
     alone = doc.get("loop_alone")
     if alone is not None:

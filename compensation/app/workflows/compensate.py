@@ -1,6 +1,6 @@
 """Compensating tool-path files (``volcomp compensate``) on any machine tool: plan, solve, guard, write.
 
-Every machine tool is its chain (:func:`errormap.grinder_file.machine_tool_of`: a ``kind = "grinder"`` file
+Every machine tool is its chain (:mod:`errormap.grinder_file`: a ``kind = "grinder"`` file
 is read as its chain, the same element names and columns x_mm, z_mm, a_deg), and one order of work serves them all,
 so that the output folder only ever holds whole files of one run:
 
@@ -35,7 +35,6 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from errormap.grinder_file import machine_tool_of
 from errormap.io import atomic_write, sidecar_path, write_json
 from errormap.jit import notice_cold_kernels
 from errormap.progress import Progress
@@ -375,7 +374,7 @@ def compensate_files(files, machine, s: CompensateSettings, executor=None, on_fi
     after each file is guarded and rendered (nothing written yet). ``executor``:
     :class:`compensation.batch.LocalExecutor` by default, or Ray; a
     :class:`~compensation.app.workflows.cluster.ClusterError` it raises leaves nothing written."""
-    mt = machine_tool_of(machine)
+    mt = machine
     check_settings(mt, s)
     plan = plan_outputs(files, Path(s.out_dir))
     old_outputs = check_out_dir(Path(s.out_dir), s.force)

@@ -108,7 +108,6 @@ def validate_inputs(machines) -> None:
     """Read every machine file, sweep set and check file (raises InputError / MachineFileError
     naming file, row and column) — before any work starts."""
     from errormap.diagnosis.chain_checks import load_mt_checks
-    from errormap.grinder_file import machine_tool_of
     from errormap.machine import load_machine
     from errormap.sweeps import read_sweeps
     from ..families import family_of
@@ -116,7 +115,7 @@ def validate_inputs(machines) -> None:
         machine = load_machine(m["machine"])
         family_of(machine).target("fleet")   # the fleet's pipeline is the grinder's: other machines refused
         read_sweeps([str(s) for s in m["sweeps"]])
-        load_mt_checks(m["checks"], machine_tool_of(machine))   # the reader the loop itself uses (diagnose_chain)
+        load_mt_checks(m["checks"], machine)   # the reader the loop itself uses (diagnose_chain)
 
 
 def check_tracking_uri(uri: str, n_machines: int, on_cluster: bool) -> None:

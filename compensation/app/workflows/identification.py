@@ -68,11 +68,10 @@ def truth_in_gauge(truth, elements, machine, gauge: str):
     noise-free sweeps of the truth at ``elements``' stations identified with ``gauge``
     (:class:`errormap.identification.ChainIdentification` on the grinder's chain, whose squareness
     split is the same condition for both). Returns an :class:`errormap.elements.ElementSet`."""
-    from errormap.grinder_file import grinder_chain
     from errormap.identification import ChainIdentification
     from errormap.simulator import TruthGrinder
     from errormap.sweeps import simulate_sweeps, sweeps_from_columns
     cols = simulate_sweeps(TruthGrinder(machine, truth, {}), noise_um=0.0, seed=0,
                            stations={k: np.asarray(v) for k, v in elements.stations.items()})
     sw = sweeps_from_columns(cols, "<noise-free sweeps of the truth>")
-    return ChainIdentification(gauge=gauge).fit(sw, grinder_chain(machine)).elements_.to_element_set()
+    return ChainIdentification(gauge=gauge).fit(sw, machine).elements_.to_element_set()

@@ -329,8 +329,7 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     ``track``: a kept learned residual is also logged as an MLflow run (``tracking_uri``; its id recorded in
     diagnosis.json and model.json)."""
     from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, load_mt_checks
-    from errormap.grinder_file import machine_tool_of
-    machine = machine_tool_of(machine)
+    machine = machine
     el, cov, cov_path = load_chain_model(model, machine, prior=True)
     checks = (checks_path if isinstance(checks_path, MTChecks)   # checks in memory (the benchmark's)
               else load_mt_checks(checks_path, machine, units=units))
