@@ -36,7 +36,7 @@ from errormap.htm import HTMField
 from errormap.io import atomic_write, write_json
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 
 HERE = Path(__file__).resolve().parent
 

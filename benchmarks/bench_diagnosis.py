@@ -114,7 +114,7 @@ def _warm_up():
     from compensation.solvers import solve
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     from errormap.simulator import random_axes
     m = load_machine()
     field = HTMField(m, ElementSet.zeros(m))

@@ -51,7 +51,7 @@ def main() -> None:
     a = p.parse_args()
     from compensation.solvers.chain_ga import solve_batched_ga_chain
     from compensation.toolpath import flute_path
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     g = load_machine(None)
     mt = g

@@ -109,7 +109,7 @@ def child(case, args, out_npz) -> dict:
 
         import compensation.solvers.exact as exact_module
         from errormap.htm import HTMField
-        from errormap.kinematics import forward
+        from errormap.chain_kernel import forward
         from errormap.simulator import random_truth
         f = HTMField(g, random_truth(g, seed).elements)
         ax = rng.uniform(g.stroke_lo, g.stroke_hi, (args.exact_points, 3))[:args.tight_points]
@@ -147,7 +147,7 @@ def child(case, args, out_npz) -> dict:
         from compensation.solvers import solve as solve_method
         solve_exact = partial(solve_method, "exact")  # the grinder on its chain
         from errormap.htm import HTMField
-        from errormap.kinematics import forward
+        from errormap.chain_kernel import forward
         from errormap.simulator import random_truth
         f = HTMField(g, random_truth(g, seed).elements)
         ax = rng.uniform(g.stroke_lo, g.stroke_hi, (args.exact_points, 3))

@@ -69,7 +69,7 @@ def worker(case: str, d: Path, out: Path, repeats: int) -> dict:
     from compensation.app.cli import main
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     g = load_machine()
     if case == "exact-100k":

@@ -31,9 +31,9 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
-from errormap.htm import HTMField, spatial_error_exact_chain
+from errormap.htm import HTMField
 from errormap.io import atomic_write
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
 

@@ -254,7 +254,7 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800, check_nois
     from compensation.hybrid import HybridField
     from errormap.elements import ElementSet
     from errormap.io import write_csv
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     from errormap.uncertainty import ElementCovariance, covariance_path
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds

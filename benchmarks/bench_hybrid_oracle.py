@@ -126,7 +126,8 @@ def run_case(case: str, seed: int, element_gp: bool = True, family: str = "defau
     from compensation.app.cli import main
     from compensation.diagnosed_model import load_diagnosed_model, loop_alone_model
     from compensation.hybrid import CV_BLOCKS, axis_features, input_set_groups
-    from errormap.htm import ELEMENT_NAMES, error_jacobian
+    from errormap.chain_kernel import error_jacobian
+    from errormap.elements import ELEMENT_NAMES
     from errormap.io import read_table
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds

@@ -43,7 +43,7 @@ def cases(seed):
     from compensation.solvers import solve as solve_method
     solve_exact = partial(solve_method, "exact")  # the grinder on its chain
     from errormap.htm import HTMField
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     from errormap.chain_field import ChainField
     from errormap.simulator import random_truth

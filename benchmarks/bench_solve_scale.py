@@ -50,7 +50,7 @@ def path_axes(n: int, seed: int = 0) -> np.ndarray:
 def child(model_kind: str, model_path: str, points: int, workers: int, seed: int, out_npz: str) -> dict:
     """One solve in this process (the code on PYTHONPATH); returns the figures as a dict."""
     from compensation.batch import LocalExecutor, solve_batch
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     m = load_machine()
     if model_kind == "htm":

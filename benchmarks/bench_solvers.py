@@ -48,7 +48,7 @@ def set_threads(n: int) -> None:
 
 def flute_targets(machine, n_points: int | None):
     """(targets (n, 3) mm, axes (n, 3), label) of the flute path (or a 7-turn helix)."""
-    from errormap.kinematics import inverse
+    from errormap.chain_kernel import inverse
     try:
         from compensation.toolpath import flute_path
         fp = flute_path() if n_points is None else flute_path(points_per_turn=max(2, round(n_points / 7)))
@@ -201,7 +201,7 @@ def scale_child(n: int, threads: int, model_dir: str) -> None:
     """Child process: ``exact`` on n random targets of the saved learned field; prints JSON."""
     set_threads(threads)
     from compensation.solvers import solve
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     from errormap.simulator import random_axes
     from training.model import MLPField

@@ -100,7 +100,7 @@ def along_moves_um(truth, tp, command_axes, samples: int) -> np.ndarray:
         cmd = starts[:, None, :] + s[None, :, None] * (cmds - starts)[:, None, :]
         tt = t_prev[:, None] + s[None, :] * (t - t_prev)[:, None]
         target = move_points(m, tt.ravel())
-        from errormap.kinematics import forward
+        from errormap.chain_kernel import forward
         reached = truth.tool_point(cmd.reshape(-1, 3), **truth.default_conditions(cmd.shape[0] * cmd.shape[1]))
         res.append(1e3 * np.linalg.norm(reached - forward(truth.machine, target), axis=1))
         prev_cmd = cmds[-1]

@@ -34,7 +34,8 @@ def _implied_sign(machine, truth_element: str, found_element: str):
     when that column is a constant unit vector along it (``dx_x`` acts as −x); else None (the
     term's parameter lives in another unit or frame: not comparable)."""
     from errormap.diagnosis.effects import WCS_ELEMENTS
-    from errormap.htm import IDX, error_jacobian
+    from errormap.chain_kernel import error_jacobian
+    from errormap.elements import IDX
     from errormap.simulator import random_axes
     if found_element == truth_element:
         return 1.0
@@ -79,7 +80,7 @@ def _flute(main, td: Path, m, truth) -> dict:
     from compensation.evaluate import true_residual_um
     from compensation.toolpath import flute_path
     from errormap.io import read_table, write_csv
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     fp = flute_path()
     nominal = fp.axes(m)
     write_csv(td / "flute.csv", dict(zip(("x_mm", "z_mm", "a_deg"), nominal.T)), float_fmt="%.12g")

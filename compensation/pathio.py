@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from errormap.io import InputError, atomic_write, not_a_file, read_table
-from errormap.kinematics import forward, inverse
+from errormap.chain_kernel import forward, inverse
 from errormap.units import UNITS_CHECK, check_units
 
 from .gcode_kernels import linear_path_lengths_mm

@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from errormap.kinematics import inverse
+from errormap.chain_kernel import inverse
 
 LEAD_LAWS = ("linear-helix", "linear-lead")
 HANDS = ("right", "left")

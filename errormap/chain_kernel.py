@@ -313,10 +313,7 @@ def slot_program(chain):
 def error_jacobian(machine: MachineTool, axes) -> np.ndarray:
     """Compiled :meth:`MachineTool.error_jacobian` at the nominal chain: (n, k) -> (n, 3, P) μm per
     μm / per μrad (equal to the numpy form to round-off, tested)."""
-    axes = np.ascontiguousarray(np.atleast_2d(axes), dtype=float)
-    jac = np.zeros((axes.shape[0], 3, len(machine.slots)))
-    error_jac_kernel(axes, slot_program(machine.chain), jac)
-    return jac
+    return compiled_nominal(machine).error_jacobian(axes)
 
 
 def _pack(ch, jscale, single, slot_of, const_value):
@@ -459,6 +456,42 @@ def compiled_nominal(machine: MachineTool) -> "CompiledNominal":
     if c is None:
         c = machine.__dict__["_compiled_nominal"] = CompiledNominal(machine)
     return c
+
+
+def forward(machine: MachineTool, axes) -> np.ndarray:
+    """Nominal tool point in the workpiece frame (mm), ``T_work⁻¹ · T_tool · origin``, at ``axes`` (n, k)
+    in the machine's axis columns -> (n, 3) (compiled, :meth:`CompiledNominal.tool_points`)."""
+    return compiled_nominal(machine).tool_points(_finite_axes(machine, axes))
+
+
+def spatial_error(machine: MachineTool, axes, values) -> np.ndarray:
+    """Spatial error (μm) with exact transforms at ``axes`` (n, k) for slot values ``values`` (n, P)
+    (μm / μrad, chain slot order) -> (n, 3): point by point, float64, no small-angle step
+    (:func:`values_kernel`; equal to :meth:`MachineTool.spatial_error`, the numpy chain, to round-off)."""
+    return compiled_nominal(machine).spatial_error(_finite_axes(machine, axes), values)
+
+
+def inverse(machine: MachineTool, points_mm, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:
+    """Axes for workpiece-frame tool points (n, 3) -> (n, k): the chain's closed form
+    (:meth:`MachineTool.closed_form_inverse`), compiled (:func:`closed_form_solver`). With ``unwrap`` the
+    points are a path: the rotary axis is unwrapped along it (multi-turn paths continue past 360°) and the
+    first point put in ``[lo, lo + 360)`` of its stroke, or nearest to ``a_start_deg`` when given; without
+    it each point's angle lies in ``[lo, lo + 360)``. On the rotary axis itself the angle is undefined; 0."""
+    from .machine_tool import rotary_on_turn
+    from .transforms import check_points
+    p = check_points(points_mm, "WCS points (px_mm, py_mm, pz_mm)")
+    solve = closed_form_solver(machine)
+    if not unwrap:  # each point's angle in [lo, lo + 360) in the same compiled pass
+        return solve(p, fold=True)
+    q = solve(p)
+    r = solve.k.rotary
+    q[:, r] = rotary_on_turn(q[:, r], solve.k.rotary_lo, unwrap=True, a_start_deg=a_start_deg)
+    return q
+
+
+def _finite_axes(machine: MachineTool, axes) -> np.ndarray:
+    from .transforms import check_points
+    return check_points(axes, f"axes ({', '.join(machine.axis_columns)})", width=len(machine.axes))
 
 
 class CompiledNominal:

@@ -40,6 +40,8 @@ ELEMENT_NAMES = FUNCTION_ELEMENTS + CONSTANT_ELEMENTS
 AXIS_OF = {**{k: "x_mm" for k in X_ELEMENTS}, **{k: "z_mm" for k in Z_ELEMENTS},
            **{k: "a_deg" for k in A_ELEMENTS}}
 AXIS_COLUMN = {"x_mm": 0, "z_mm": 1, "a_deg": 2}
+IDX = {k: i for i, k in enumerate(ELEMENT_NAMES)}
+"""Column of each element in :data:`ELEMENT_NAMES` order (the grinder chain's slot order)."""
 _AXIS_ELEMENTS = {"x_mm": X_ELEMENTS, "z_mm": Z_ELEMENTS, "a_deg": A_ELEMENTS}
 
 

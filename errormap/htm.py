@@ -19,108 +19,23 @@ workpiece frame (WCS), in μm. Translations enter in μm, angles in μrad.
 The first-order (small-error) form is linear in the elements: ``e ≈ J(axes) · v`` where
 ``J`` (shape (n, 3, 23), μm per μm or μm per μrad) is the error-transfer Jacobian.
 
-One source for the kinematics (issue 26): these chains are not written out here. They are the
-built-in chain file ``errormap/machines/grinder-chain.toml`` with the grinder file's geometry,
-strokes and targets (:func:`errormap.grinder_file.grinder_chain`, compiled once per file), evaluated
-by the generic compiled kernels of :mod:`errormap.chain_kernel`: the field and its axis Jacobian
-(:class:`~errormap.chain_kernel.CompiledChain`), the exact error for element values per point and
-the error-transfer Jacobian (:class:`~errormap.chain_kernel.CompiledNominal`), and the numpy
-reference chain (:meth:`errormap.machine_tool.MachineTool.tool_point`). A readable hand-written
+These chains are not written out here: they are the grinder's chain file
+(``errormap/machines/grinder.toml``), evaluated by the generic compiled kernels of
+:mod:`errormap.chain_kernel` (the field and its axis Jacobian, :class:`~errormap.chain_kernel.CompiledChain`;
+the exact error for slot values per point, the error-transfer Jacobian and the nominal kinematics,
+:func:`~errormap.chain_kernel.spatial_error`, :func:`~errormap.chain_kernel.error_jacobian`,
+:func:`~errormap.chain_kernel.forward`, :func:`~errormap.chain_kernel.inverse`) and the numpy reference
+chain (:meth:`errormap.machine_tool.MachineTool.tool_point`). A readable hand-written
 reference of the chains above lives in the tests (``tests/test_htm_reference.py``).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .elements import ELEMENT_NAMES, ElementSet
+from .elements import ElementSet
 from .field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
 from .machine_tool import MachineTool
 from .transforms import check_points
-
-UM = 1e-3   # mm per μm
-URAD = 1e-6  # rad per μrad
-IDX = {k: i for i, k in enumerate(ELEMENT_NAMES)}
-
-
-def _chain(machine):
-    return machine
-
-
-def _nominal(machine):
-    """The chain packed for the point-by-point kernels (:func:`errormap.chain_kernel.compiled_nominal`)."""
-    from .chain_kernel import compiled_nominal
-    return compiled_nominal(machine)
-
-
-def _values(axes, values) -> np.ndarray:
-    values = np.asarray(values, dtype=float)
-    if values.shape != (axes.shape[0], len(ELEMENT_NAMES)):
-        raise ValueError(f"Expected element values of shape ({axes.shape[0]}, {len(ELEMENT_NAMES)}), got {values.shape}")
-    return values
-
-
-def tool_point_actual(machine: MachineTool, axes, values) -> np.ndarray:
-    """Actual tool point in the WCS (mm) with exact transforms.
-
-    ``axes`` shape (n, 3) (x_mm, z_mm, a_deg); ``values`` shape (n, 23) element values
-    at those axes (μm / μrad, ELEMENT_NAMES order). Returns shape (n, 3). The chain's numpy
-    reference (:meth:`errormap.machine_tool.MachineTool.tool_point`).
-    """
-    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
-    return _chain(machine).tool_point(axes, _values(axes, values))
-
-
-def nominal_frames(machine: MachineTool, axes):
-    """Nominal frames of the grinder's chain at ``axes`` (n, 3): ``{"p": nominal tool point in
-    the WCS (n, 3) mm, "tool": (R, t) machine <- tool point (n, 3, 3), (n, 3), "work": (R, t)
-    machine <- workpiece (A body), "X"/"Z"/"A": (R, t) machine <- each moving body}`` (the chain
-    file's frames, :meth:`errormap.machine_tool.MachineTool.side_frames` / ``body_frames``)."""
-    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
-    mt = _chain(machine)
-    out = {"p": _nominal(machine).tool_points(axes), "tool": mt.side_frames("tool", axes),
-           "work": mt.side_frames("work", axes)}
-    for w in mt.axis_words:
-        out[w] = mt.body_frames(w, axes)
-    return out
-
-
-def error_jacobian(machine: MachineTool, axes) -> np.ndarray:
-    """Error-transfer Jacobian ∂(spatial error μm)/∂(element value), shape (n, 3, 23).
-
-    Columns in ELEMENT_NAMES order; translation columns are μm/μm, angle columns μm/μrad.
-    At the nominal chain, compiled (:func:`errormap.chain_kernel.error_jac_kernel`): each element's
-    transform moves the tool point along its axis (translation) or by ``axis × (p − origin)``
-    (rotation), i.e. ``E⁻¹·q ≈ q - δ - ε×q`` pushed through the rest of the chain.
-    """
-    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
-    return _nominal(machine).error_jacobian(axes)
-
-
-def spatial_error_exact_chain(machine: MachineTool, axes, values, chunk: int = 50_000) -> np.ndarray:
-    """The exact spatial error (μm) through the numpy matrix chain :func:`tool_point_actual`;
-    shapes as :func:`spatial_error_exact`. The readable reference the compiled form is tested
-    against (and the benchmark's baseline); several times slower."""
-    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
-    return _chain(machine).spatial_error(axes, _values(axes, values), chunk=min(chunk, 4096))
-
-
-def spatial_error_exact(machine: MachineTool, axes, values, chunk: int = 50_000) -> np.ndarray:
-    """Spatial error (μm) with exact transforms; ``values`` shape (n, 23) -> (n, 3).
-
-    The grinder's chain compiled once and evaluated point by point
-    (:func:`errormap.chain_kernel.values_kernel`): float64 throughout, no small-angle step — the
-    same exact transforms as :func:`spatial_error_exact_chain`, equal to it to round-off
-    (tested), with no (n, 3, 3) temporaries. ``chunk`` is kept for the API (the kernel
-    allocates nothing per point).
-    """
-    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
-    return _nominal(machine).spatial_error(axes, _values(axes, values))
-
-
-def spatial_error_first_order(machine: MachineTool, axes, values) -> np.ndarray:
-    """Spatial error (μm) in the first-order form ``J · v``; shapes as the exact form."""
-    return np.einsum("nij,nj->ni", error_jacobian(machine, axes), np.asarray(values, dtype=float))
-
 
 class HTMField:
     """The 23-element homogeneous-transform model as an error field (:class:`errormap.field.ErrorField`).
@@ -172,7 +87,7 @@ class HTMField:
             return cached[1]
         from .chain_elements import ChainElementSet
         from .chain_kernel import CompiledChain
-        mt = _chain(self.machine)
+        mt = self.machine
         ce = ChainElementSet.from_element_set(mt, el)
         for a in mt.axes:
             ce._splines[a.word] = el._axis_spline(a.column)
@@ -192,10 +107,11 @@ class HTMField:
         axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
         if self.exact:
             return self.compiled().predict(axes)
+        from .chain_kernel import error_jacobian
         out = np.empty((axes.shape[0], 3))
         for s in range(0, axes.shape[0], self.chunk):
             sl = slice(s, s + self.chunk)
-            out[sl] = spatial_error_first_order(self.machine, axes[sl], self.elements.values(axes[sl]))
+            out[sl] = np.einsum("nij,nj->ni", error_jacobian(self.machine, axes[sl]), self.elements.values(axes[sl]))
         return out
 
     __call__ = predict

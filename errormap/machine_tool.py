@@ -383,7 +383,7 @@ class MachineTool:
         grinder: the wheel on the near side of the A axis). Returns a function
         ``points (n, 3) mm -> axes (n, 3)`` with the rotary axis in degrees, not yet wrapped
         (:meth:`inverse_closed`). This numpy form is the readable reference;
-        :func:`errormap.kinematics.inverse` runs the same constants (:meth:`closed_form_constants`)
+        :func:`errormap.chain_kernel.inverse` runs the same constants (:meth:`closed_form_constants`)
         compiled (:func:`errormap.chain_kernel.closed_form_solver`), equal to it to round-off (tested)."""
         k = self.closed_form_constants()
         if k is None:

@@ -63,9 +63,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .effect_kinds import SIMULATOR_NAMES, TRUTH_ONLY, effect_kind, simulator_name
-from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
-from .htm import IDX, spatial_error_exact
-from .kinematics import forward
+from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, IDX, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
+from .chain_kernel import forward, spatial_error
 from .machine_tool import MachineTool
 
 # 1-σ scale of each element's random profile (μm or μrad) before overall scaling
@@ -231,7 +230,7 @@ class TruthGrinder:
         """True spatial error (μm) at ``axes`` shape (n, 3) under ``conditions``
         (``temp_c``, ``dir_x``, ``dir_z``, ``dir_a`` arrays as needed by the effects)."""
         axes = np.asarray(axes, dtype=float)
-        return spatial_error_exact(self.machine, axes, self.element_values(axes, **conditions))
+        return spatial_error(self.machine, axes, self.element_values(axes, **conditions))
 
     def tool_point(self, axes, **conditions) -> np.ndarray:
         """Where the tool really lands in the WCS (mm) when commanded to ``axes``, shape (n, 3)."""
@@ -267,7 +266,7 @@ def random_truth(machine: MachineTool, seed: int, effects=(), n_stations: int = 
     rng = np.random.default_rng(seed)
     el = random_elements(machine, rng, n_stations)
     grid = volume_grid(machine)
-    e = spatial_error_exact(machine, grid, el.values(grid))
+    e = spatial_error(machine, grid, el.values(grid))
     target = rng.uniform(*TARGET_MAX_RANGE_UM)
     el = el.scaled(target / np.linalg.norm(e, axis=1).max())
     eff = effects if isinstance(effects, dict) else {k: {} for k in effects}

@@ -36,9 +36,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .elements import default_stations
-from .htm import UM
 from .io import InputError, read_table, write_csv
 from .machine_tool import MachineTool
+
+UM = 1e-3   # mm per μm
 
 SWEEP_AXES = ("X", "Z", "A")
 AXIS_STROKE_KEY = {"X": "x_mm", "Z": "z_mm", "A": "a_deg"}

@@ -28,7 +28,7 @@ from numpy.polynomial import chebyshev
 from scipy.stats import qmc
 
 from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, X_ELEMENTS, Z_ELEMENTS, ElementSet, default_stations
-from .htm import spatial_error_exact
+from .chain_kernel import spatial_error
 from .machine_tool import MachineTool
 from .seeds import spawn_rngs
 from .simulator import REF_TEMP_C, TruthGrinder, random_truth, simulator_effects, volume_grid
@@ -150,7 +150,7 @@ def independent_truth(machine: MachineTool, seed: int, effects=()) -> Independen
     r_el, r_scale, r_eff = (np.random.default_rng(s) for s in ss.spawn(3))
     el = independent_elements(machine, r_el)
     grid = volume_grid(machine)
-    e = spatial_error_exact(machine, grid, el.values(grid))
+    e = spatial_error(machine, grid, el.values(grid))
     el = el.scaled(r_scale.uniform(*TARGET_MAX_RANGE_UM) / np.linalg.norm(e, axis=1).max())
     drawn = independent_effect_parameters(r_eff)
     params = {k: {**drawn[k], **(v or {})} for k, v in simulator_effects(effects).items()}

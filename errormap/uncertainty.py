@@ -23,7 +23,7 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 
 from .elements import A_ELEMENTS, AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, ElementSet
-from .htm import error_jacobian
+from .chain_kernel import error_jacobian
 from .io import NPY_ERRORS, InputError, atomic_write, check_document_size, companion_path
 from .machine_tool import MachineTool
 from .smoothing import LAMBDA_GRID, _second_differences, _smoother, bootstrap_draws, smooth_blocks  # noqa: F401

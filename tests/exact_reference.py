@@ -40,7 +40,7 @@ def case(name):
     if name == "grinder":
         from compensation.solvers import solve
         from errormap.htm import HTMField
-        from errormap.kinematics import forward
+        from errormap.chain_kernel import forward
         from errormap.simulator import random_truth
         field = HTMField(m, random_truth(m, field_seed).elements)
         axes = rng_axes.uniform(m.stroke_lo, m.stroke_hi, (n, 3))

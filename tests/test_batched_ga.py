@@ -15,7 +15,7 @@ import torch
 
 from compensation.solvers import solve
 from compensation.solvers._ga_kernels import breed
-from errormap.kinematics import forward, inverse
+from errormap.chain_kernel import forward, inverse
 from errormap.machine import load_machine
 from training.model import MLPField
 

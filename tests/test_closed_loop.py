@@ -8,7 +8,8 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.elements import ElementSet
-from errormap.htm import HTMField, spatial_error_exact
+from errormap.htm import HTMField
+from errormap.chain_kernel import spatial_error
 from errormap.simulator import EFFECT_DEFAULTS, random_axes, random_truth
 from errormap.sweeps import simulate_sweeps
 from errormap.truth_families import TRUTH_STATIONS, make_truth
@@ -87,7 +88,7 @@ def test_theta_design_is_the_first_order_change(grinder, indep):
     pts = random_axes(grinder, 200, np.random.default_rng(2))
     dtheta = np.random.default_rng(3).normal(0, 1.0, theta_from_elements(el).size)  # ~1 μm / μrad
     new = elements_from_theta(theta_from_elements(el) + dtheta, el)
-    exact = spatial_error_exact(grinder, pts, new.values(pts)) - spatial_error_exact(grinder, pts, el.values(pts))
+    exact = spatial_error(grinder, pts, new.values(pts)) - spatial_error(grinder, pts, el.values(pts))
     lin = np.einsum("nip,p->ni", theta_design(grinder, el, pts), dtheta)
     assert np.abs(exact - lin).max() < LINEAR_REL_TOL * np.abs(exact).max()
 
@@ -146,7 +147,7 @@ COMP_TRUE_TOL_UM = 0.01  # model = truth exactly here; the exact solver's own re
 @pytest.mark.slow  # over the 5 CPU s tier limit since the closed loop gained its learned stage
 def test_compensate_takes_the_diagnosed_model_and_its_conditions(grinder, tmp_path, capsys):
     from errormap.io import read_table
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     truth = random_truth(grinder, 3, effects=["reversal"])
     truth.elements.save(tmp_path / "updated_elements.json")
     b = truth.effects["reversal"]["backlash_um"]
@@ -184,7 +185,7 @@ def test_compensate_takes_per_point_conditions_from_the_path_columns(grinder, tm
     """A reversal term (dir_z) and a thermal term (temp_c), both per point from the CSV's columns:
     the commands land on the targets on the truth under each point's own conditions."""
     from errormap.io import read_table
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     truth = random_truth(grinder, 3, effects=["reversal", "thermal"])
     b = truth.effects["reversal"]["backlash_um"]
     k = truth.effects["thermal"]["k_um_per_mm_c"]

@@ -50,7 +50,7 @@ def test_batch_writes_each_file_and_summary(setup, grinder, capsys):
     assert all(e["model_max_um"] < TOL_MODEL_RESIDUAL_UM for e in summary["files"])
     # the written commands land on the targets under the model: E(axes) cancels the correction
     src, res = read_path(nc, grinder, work_offsets=MCS), read_path(out / "flute.nc", grinder, work_offsets=MCS)
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     reached = forward(grinder, res.axes) + 1e-3 * field.predict(res.axes)
     assert np.abs(reached - src.targets_mm).max() < 1e-3 * TOL_MODEL_RESIDUAL_UM + TOL_MM
     assert np.abs(res.axes[:, 2] - src.axes[:, 2]).max() < 180.0  # A stays on its turn

@@ -11,7 +11,7 @@ from compensation.app.cli import main
 from errormap import effect_kinds as ek
 from errormap.diagnosis import effects as fx
 from errormap.elements import ElementSet
-from errormap.htm import IDX
+from errormap.elements import IDX
 from errormap.simulator import EFFECT_DEFAULTS, EFFECT_NAMES, OUT_OF_CATALOGUE, TruthGrinder, random_axes
 from errormap.truth_families import independent_effect_parameters
 

@@ -52,7 +52,7 @@ def test_identify_featurepoints_train_compensate_from_sweeps(tmp_path):
     t = read_table(out / "path.csv")
     commanded = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
 
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     truth = random_truth(machine, SEED)
     target = forward(machine, axes)
     before = np.linalg.norm(truth.tool_point(axes) - target, axis=1) * 1e3

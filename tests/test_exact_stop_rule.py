@@ -7,7 +7,7 @@ import pytest
 from compensation.solvers import solve
 from compensation.solvers.exact import ROUNDOFF_ULPS
 from errormap.htm import HTMField
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_truth
 

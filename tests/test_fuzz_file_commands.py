@@ -135,7 +135,7 @@ AXES_PATH = "x_mm,z_mm,a_deg,feed\n" + "\n".join(f"{x:g},{z:g},{a:g},100" for x,
 
 def _targets_csv() -> str:
     """The tool points the nominal grinder reaches at AXES_10, as a targets CSV."""
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     p = forward(load_machine(None), AXES_10)
     return "px_mm,py_mm,pz_mm\n" + "\n".join(",".join(f"{v:.6f}" for v in row) for row in p) + "\n"
 
@@ -232,7 +232,7 @@ def test_fuzz_compensate_targets_csv(grinder, data, seg):
     from compensation.pathio import read_path
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     machine = load_machine(None)
     el = grinder / "sim" / "truth_elements.json"
     raw = data.draw(hostile_bytes(TARGETS, table=True))
@@ -267,7 +267,7 @@ def test_fuzz_compensate_work_offsets(grinder, data):
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     machine = load_machine(None)
     el = grinder / "sim" / "truth_elements.json"
     raw = data.draw(hostile_bytes(OFFSETS, table=True))

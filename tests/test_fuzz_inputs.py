@@ -391,7 +391,7 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
     from compensation.pathio import read_path
     from errormap.elements import ElementSet
     from errormap.htm import HTMField
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     el = sim / "sim" / "truth_elements.json"
     raw = data.draw(hostile_bytes(PROGRAM, table=False))
     with tempfile.TemporaryDirectory() as d:

@@ -13,7 +13,7 @@ from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, replan
 from compensation.solvers import solve
 from errormap.htm import HTMField
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.simulator import random_truth
 
 MCS = read_work_offsets(MACHINE)

@@ -23,7 +23,7 @@ from compensation.pathio import read_path, render_gcode, replan
 from compensation.solvers import solve
 from errormap.htm import HTMField
 from errormap.io import InputError
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.simulator import random_truth
 
 CORPUS = Path(__file__).parent / "data" / "gcode_corpus"

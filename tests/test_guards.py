@@ -13,7 +13,7 @@ from compensation.solvers import solve
 from compensation.solvers.base import BALL_RADIUS_UM, SolveResult
 from errormap.field import CalibratedVolume
 from errormap.htm import HTMField
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_truth
 

@@ -6,7 +6,8 @@ from errormap.grinder_file import rho0_mm
 import pytest
 
 from errormap.elements import ELEMENT_NAMES, ElementSet
-from errormap.htm import HTMField, error_jacobian, spatial_error_exact, spatial_error_first_order
+from errormap.htm import HTMField
+from errormap.chain_kernel import error_jacobian, spatial_error
 from errormap.simulator import random_truth
 
 TOL_ZERO_UM = 1e-9
@@ -68,16 +69,16 @@ def test_each_element_alone_matches_hand_derivation(grinder, axes, name):
     values[:, j] = 1.0
     expected = hand_first_order(grinder, axes, name, 1.0)
     assert np.abs(expected).max() > 1e-3  # the element does something here
-    np.testing.assert_allclose(spatial_error_exact(grinder, axes, values), expected, atol=TOL_FIRST_ORDER_UM)
-    np.testing.assert_allclose(spatial_error_first_order(grinder, axes, values), expected, atol=1e-12)
+    np.testing.assert_allclose(spatial_error(grinder, axes, values), expected, atol=TOL_FIRST_ORDER_UM)
+    np.testing.assert_allclose(_first_order(grinder, axes, values), expected, atol=1e-12)
 
 
 def test_exact_and_first_order_agree_to_second_order(grinder, axes, rng):
     v = rng.normal(0.0, 100.0, (len(axes), 23))
     gaps = []
     for scale in (1.0, 0.1, 0.01):
-        gaps.append(np.abs(spatial_error_exact(grinder, axes, v * scale)
-                           - spatial_error_first_order(grinder, axes, v * scale)).max())
+        gaps.append(np.abs(spatial_error(grinder, axes, v * scale)
+                           - _first_order(grinder, axes, v * scale)).max())
     # halving... a tenth of the element size gives a hundredth of the gap (second order)
     assert gaps[0] > 1e-4
     for g_big, g_small in zip(gaps, gaps[1:]):
@@ -93,13 +94,13 @@ def test_jacobian_matches_finite_differences(grinder, axes, rng):
     for j in range(23):
         dv = np.zeros((len(axes), 23))
         dv[:, j] = h
-        fd0 = (spatial_error_exact(grinder, axes, dv) - spatial_error_exact(grinder, axes, -dv)) / (2 * h)
+        fd0 = (spatial_error(grinder, axes, dv) - spatial_error(grinder, axes, -dv)) / (2 * h)
         np.testing.assert_allclose(fd0, J[:, :, j], atol=TOL_JAC_ABS)
-        fd = (spatial_error_exact(grinder, axes, v0 + dv) - spatial_error_exact(grinder, axes, v0 - dv)) / (2 * h)
+        fd = (spatial_error(grinder, axes, v0 + dv) - spatial_error(grinder, axes, v0 - dv)) / (2 * h)
         # second-order terms: the error state turns each column by ~Σ|ε| rad and shifts the
         # lever arms of the angle columns by the spatial error itself (mm) · 1e-3 μm/μrad
         turn_rad = np.abs(v0[:, ANGLE_COLUMNS]).sum(1).max() * 1e-6
-        shift_mm = np.abs(spatial_error_exact(grinder, axes, v0)).max() * 1e-3
+        shift_mm = np.abs(spatial_error(grinder, axes, v0)).max() * 1e-3
         bound = turn_rad * np.abs(J[:, :, j]).max() + (shift_mm * 1e-3 if j in ANGLE_COLUMNS else 0.0)
         assert np.abs(fd - J[:, :, j]).max() <= TOL_JAC_AT_STATE_FACTOR * bound + TOL_JAC_ABS
 
@@ -128,3 +129,8 @@ def test_element_set_file_errors(tmp_path):
     p.write_text('{"format": "other"}')
     with pytest.raises(InputError, match="format"):
         ElementSet.load(p)
+
+
+def _first_order(machine, axes, values):
+    """The first-order spatial error ``J · v`` (μm), (n, 3)."""
+    return np.einsum("nij,nj->ni", error_jacobian(machine, axes), np.asarray(values, dtype=float))

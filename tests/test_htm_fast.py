@@ -1,7 +1,7 @@
 """The fast exact HTM field (issue 20) against the readable reference it replaces.
 
-* :func:`errormap.htm.spatial_error_exact` (compiled closed form) vs
-  :func:`errormap.htm.spatial_error_exact_chain` (the matrix chain :func:`tool_point_actual`),
+* :func:`errormap.chain_kernel.spatial_error` (compiled) vs
+  :meth:`errormap.machine_tool.MachineTool.spatial_error` (the numpy matrix chain),
   on random points with multi-turn A, for a simulator truth, the same truth ×100, and element
   values drawn independently of the simulator (other shapes, other magnitudes);
 * :meth:`ElementSet.values` (one vector-valued spline per axis) vs the per-element splines;
@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
-from errormap.htm import HTMField, spatial_error_exact, spatial_error_exact_chain
+from errormap.htm import HTMField
+from errormap.chain_kernel import spatial_error
 from errormap.simulator import random_axes, random_truth
 
 TOL_CLOSED_FORM_UM = 1e-9
@@ -51,8 +52,8 @@ def test_closed_form_equals_matrix_chain(grinder, case):
           else random_truth(grinder, 3).elements.scaled(100.0 if case == "truth_x100" else 1.0))
     axes = _axes_multi_turn(grinder, 4000, 11)
     v = el.values(axes)
-    ref = spatial_error_exact_chain(grinder, axes, v)
-    new = spatial_error_exact(grinder, axes, v)
+    ref = grinder.spatial_error(axes, v)
+    new = spatial_error(grinder, axes, v)
     assert np.abs(ref).max() > 10.0  # a real field, not zeros
     np.testing.assert_allclose(new, ref, rtol=0, atol=TOL_CLOSED_FORM_UM)
 
@@ -77,7 +78,7 @@ def test_field_equals_reference_pipeline_and_periodic_in_a(grinder):
     v_ref = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
                      + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
     field = HTMField(grinder, el, chunk=700)  # several chunks, the last one partial
-    np.testing.assert_allclose(field.predict(axes), spatial_error_exact_chain(grinder, axes, v_ref),
+    np.testing.assert_allclose(field.predict(axes), grinder.spatial_error(axes, v_ref),
                                rtol=0, atol=TOL_CLOSED_FORM_UM)
     # whole turns of A leave the error unchanged (to the round-off of cos/sin of large angles)
     shifted = axes.copy()
@@ -86,8 +87,8 @@ def test_field_equals_reference_pipeline_and_periodic_in_a(grinder):
 
 
 def test_values_shape_is_checked(grinder):
-    with pytest.raises(ValueError, match="Expected element values of shape"):
-        spatial_error_exact(grinder, np.zeros((3, 3)), np.zeros((3, 22)))
+    with pytest.raises(ValueError, match="expected slot values of shape"):
+        spatial_error(grinder, np.zeros((3, 3)), np.zeros((3, 22)))
 
 
 FD_STEP = 1e-3

@@ -9,7 +9,7 @@ from compensation.hybrid import LEARNED_FAMILIES, HybridField, LearnedResidual, 
 from compensation.solvers import solve
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
 from errormap.htm import HTMField
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.simulator import random_axes, random_truth
 from training.residual import GP_KERNELS
 
@@ -169,7 +169,7 @@ def test_squareness_xz_is_not_separable_in_x_and_z(grinder):
     """The designed position-dependent squareness varies over X and Z together: its mixed second
     difference over the corners (x, z) ∈ {lo, mid}² is k·(sin 0 − sin π/2)² = k ≠ 0, which no
     sum of an X profile and a Z profile has."""
-    from errormap.htm import IDX
+    from errormap.elements import IDX
     from errormap.simulator import EFFECT_DEFAULTS
     lo = np.array([grinder.strokes["x_mm"][0], grinder.strokes["z_mm"][0]])
     mid = lo + 0.5 * np.array([np.ptp(grinder.strokes["x_mm"]), np.ptp(grinder.strokes["z_mm"])])

@@ -10,7 +10,7 @@ from compensation.hybrid import INPUT_GROUPS, TAPER_FRAC, HybridField, LearnedRe
 from compensation.solvers import solve
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
 from errormap.htm import HTMField
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.simulator import random_axes, random_truth
 from training.residual import ResidualRegressor
 

@@ -7,7 +7,8 @@ import pytest
 
 from compensation.hybrid import (LEARNED_FRAMES, LearnedResidual, _fit_inputs, frame_key, input_features,
                                  learned_stage, split_frame_key, to_frame)
-from errormap.htm import ELEMENT_NAMES, error_jacobian
+from errormap.chain_kernel import error_jacobian
+from errormap.elements import ELEMENT_NAMES
 from errormap.machine import load_machine
 from errormap.machine_tool import WorkRotation
 from errormap.simulator import random_axes

@@ -9,7 +9,7 @@ from errormap.grinder_file import rho0_mm
 import pytest
 
 from compensation.hybrid import INPUT_SETS, LearnedResidual, _fit_inputs, input_features, work_features
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.simulator import random_axes, random_truth
 from training.residual import ResidualRegressor
 
@@ -127,7 +127,7 @@ def test_input_set_choice_is_the_lowest_cv_rms_on_the_same_folds(grinder):
 
 def test_a_lobe_x_is_not_a_sum_of_one_axis_profiles(grinder):
     """The round-5 effect: zero mean over A, and no f(x) + g(a) takes up more than 1 % of it."""
-    from errormap.htm import IDX
+    from errormap.elements import IDX
     with_ = random_truth(grinder, SEED, effects=["a_lobe_x"])
     without = random_truth(grinder, SEED)
     xs = np.linspace(*grinder.strokes["x_mm"], 81)
@@ -147,7 +147,8 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     """The round-13 effect: only Z's straightness in Y changes, and no element profile of one axis
     (nor any constant) takes it up, through the chain's error transfer; squareness, which the loop
     absorbs, is taken up wholly by the same projection."""
-    from errormap.htm import IDX, error_jacobian
+    from errormap.chain_kernel import error_jacobian
+    from errormap.elements import IDX
     from errormap.uncertainty import theta_design
     xs = np.linspace(*grinder.strokes["x_mm"], 21)
     zs = np.linspace(*grinder.strokes["z_mm"], 21)

@@ -194,7 +194,7 @@ def test_predict_points_in_metres_or_radians_are_refused(machine, tmp_path, caps
 
 @pytest.mark.parametrize("case", ["axes-metres", "axes-radians", "targets-metres", "temp-fahrenheit"])
 def test_tool_path_csv_unit_mistakes_are_refused(machine, tmp_path, capsys, case):
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     a = np.linspace(0, 350, 30)
     axes = np.stack([np.linspace(50, 150, 30), np.linspace(10, 50, 30), a], axis=1)
     if case == "axes-metres":

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from errormap.elements import ELEMENT_NAMES
-from errormap.htm import spatial_error_exact
+from errormap.chain_kernel import spatial_error
 from errormap.iso230 import ISO_NAME, ISO_NAMES, from_iso, label, map_rows, reference_points_mm, to_iso
 
 # exact transforms carry second-order terms: ε²·|r| ≤ (1e-4)²·330 mm ≈ 3e-6 μm, and the
@@ -78,7 +78,7 @@ def test_hand_derived_iso_value_and_effect(grinder, name):
         want[ISO_NAMES.index(k)] = x
     np.testing.assert_allclose(iso, want, atol=HAND_TOL_UM)
     # the element, injected alone into the exact HTM chain, moves the tool by the hand value
-    e = spatial_error_exact(grinder, AXES, v)[0]
+    e = spatial_error(grinder, AXES, v)[0]
     np.testing.assert_allclose(e, err_hand, atol=HAND_TOL_UM)
 
 
@@ -95,7 +95,7 @@ def test_iso_translation_at_tool_point_is_the_tool_displacement(grinder, name):
         iso = to_iso(one(name, value), axes, grinder, off)[0]
         body = {"x": "X", "z": "Z", "a": "A"}[name[-1]]
         cols = [ISO_NAMES.index(f"E{c}{body}") for c in "XYZ"]
-        e_wcs = spatial_error_exact(grinder, axes, one(name, value))[0]
+        e_wcs = spatial_error(grinder, axes, one(name, value))[0]
         ca, sa = np.cos(np.deg2rad(a)), np.sin(np.deg2rad(a))
         e_mcs = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]]) @ e_wcs   # WCS = MCS turned by RotX(a)
         np.testing.assert_allclose(e_mcs, SIDE[body] * iso[cols], atol=HAND_TOL_UM)

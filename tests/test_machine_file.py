@@ -55,5 +55,5 @@ def test_other_machine_file_changes_geometry(tmp_path):
     p = write(tmp_path, GOOD.replace("l7 = 40.0", "l7 = 50.0"))
     m = load_machine(p)
     assert m.geometry["l7"] == 50.0
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     assert forward(m, np.array([[0.0, 0.0, 0.0]]))[0, 0] == pytest.approx(190.0, abs=1e-12)

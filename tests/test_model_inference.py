@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from compensation.solvers import solve
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.machine import load_machine
 from training.model import MLPField, wrap_a
 

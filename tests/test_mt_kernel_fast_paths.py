@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from errormap.kinematics import forward, inverse
+from errormap.chain_kernel import forward, inverse
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import predict_and_jacobian_numpy, predict_numpy

@@ -8,7 +8,7 @@ from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import align_turns, read_path, write_axes_gcode, write_compensated, write_targets_csv
 from compensation.toolpath import flute_path
 from errormap.io import InputError, sidecar_path
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 
 MCS = read_work_offsets(MACHINE)
 """The G-code programs here are written in machine coordinates (the grinder's axes): read with

@@ -16,7 +16,7 @@ from compensation.solvers import solve
 from compensation.toolpath import flute_path
 from errormap.io import InputError
 from errormap.htm import HTMField
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.simulator import random_truth
 
 TOL_UM = 1e-6

@@ -9,7 +9,7 @@ import pytest
 from compensation.app.workflows.compare import compare_methods
 from compensation.app.workflows.compensate import CompensateSettings, solve_paths
 from errormap.htm import HTMField
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
 

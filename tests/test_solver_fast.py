@@ -5,7 +5,7 @@ import pytest
 
 from compensation.solvers import solve
 from errormap.htm import HTMField
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
 

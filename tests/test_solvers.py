@@ -11,7 +11,7 @@ from compensation.solvers import METHODS, SolveResult, get_solver, solve
 from compensation.solvers._common import fold_a, forward_and_jacobian, forward_jacobian, project_to_ball
 from compensation.solvers.exact import solve3
 from errormap.field import JACOBIAN, CalibratedVolume
-from errormap.kinematics import forward, inverse
+from errormap.chain_kernel import forward, inverse
 from errormap.machine import load_machine
 from errormap.transforms import rot_x
 
@@ -116,7 +116,7 @@ def grinder_closed_form(machine, axes):
 @pytest.mark.parametrize("theta1_deg", [None, 7.0])
 def test_chain_kinematics_equal_the_closed_form(machine, theta1_deg):
     """The solvers' nominal kinematics come from the grinder's chain (one source, issue 26): equal to
-    the closed form written out here and to :func:`errormap.kinematics.forward`, on 100,000 points
+    the closed form written out here and to :func:`errormap.chain_kernel.forward`, on 100,000 points
     (A over several turns), also for a grinder file with other geometry."""
     mach = machine if theta1_deg is None else grinder_variant({"theta1_deg": theta1_deg})
     rng = np.random.default_rng(2)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from compensation.toolpath import FLUTE_DEFAULTS, check_in_strokes, flute_path
-from errormap.kinematics import forward, inverse
+from errormap.chain_kernel import forward, inverse
 from errormap.machine import load_machine
 
 TOL_MM = 1e-9          # geometry round trips

@@ -170,7 +170,7 @@ def test_cli_train_physics_and_bad_stations(tmp_path, monkeypatch, capsys, data)
 
 def test_exact_and_batched_ga_solve_the_physics_field(fitted, machine):
     from compensation.solvers import solve
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     P = random_axes(machine, 40, np.random.default_rng(8))
     P = P[P[:, 1] >= machine.strokes["z_mm"][0] + 5.0]  # away from the A axis (singular WCS)
     targets = forward(machine, P)

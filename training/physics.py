@@ -4,7 +4,7 @@
 on the grinder the 23-element HTM model whose elements are fitted, by ONE linear least-squares solve, to the
 same feature points the network sees (never to the element set the points were computed from):
 
-    E(x, z, a) ≈ J(x, z, a) · v(x, z, a)       (first-order error transfer, errormap.htm.error_jacobian)
+    E(x, z, a) ≈ J(x, z, a) · v(x, z, a)       (first-order error transfer, errormap.chain_kernel.error_jacobian)
 
 with each of the 18 axis-motion elements a cubic interpolating B-spline through ``n_stations``
 equally spaced stations of its axis (periodic in A; zero at the first station, the axes'
@@ -29,8 +29,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, ElementSet, default_stations
-from errormap.htm import IDX, error_jacobian
+from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS, IDX, ElementSet, default_stations
+from errormap.chain_kernel import error_jacobian
 
 PHYSICS = ("none", "first-order")
 """``--physics`` choices: no physical part (the paper's network alone), or the fitted element set."""

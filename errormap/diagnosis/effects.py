@@ -6,7 +6,7 @@ conditions ``c`` is::
 
     Δerror(q, c) = J_e(q) · g(θ; q, c)        shape (n, 3) μm
 
-where ``J_e`` is the element's column of :func:`errormap.htm.error_jacobian` (μm per μm or per
+where ``J_e`` is the element's column of :func:`errormap.chain_kernel.error_jacobian` (μm per μm or per
 μrad; the unit vector for ``dx``/``dy``/``dz``) and ``g`` a scalar function of the inputs,
 linear in its coefficients θ except for the period of ``periodic``:
 
@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..effect_kinds import DIAGNOSED_KINDS, SINUSOID_KINDS, diagnosed_kind, effect_kind
-from ..elements import A_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS, element_unit
-from ..htm import IDX, error_jacobian
+from ..elements import A_ELEMENTS, ELEMENT_NAMES, IDX, X_ELEMENTS, Z_ELEMENTS, element_unit
+from ..chain_kernel import error_jacobian
 
 KINDS = DIAGNOSED_KINDS
 """The kinds of the library, from the registry (:mod:`errormap.effect_kinds`), in its order of preference."""

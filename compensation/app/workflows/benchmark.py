@@ -338,7 +338,7 @@ def grinder_test_points(machine, s: BenchmarkSettings) -> GrinderTestPoints:
     """The flute (``s.flute_turns`` × ``s.flute_points_per_turn``) and ``s.volume_points`` volume
     points: uniform over the strokes, rho >= 5 mm (away from the A axis, where the WCS is
     singular), nominal axes -> targets."""
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     from errormap.simulator import random_axes
 
     from ...toolpath import flute_path

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from errormap.kinematics import inverse
+from errormap.chain_kernel import inverse
 
 from ...batch import CHUNK_POINTS, GA_METHODS, solve_batch
 from ...evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_metrics, true_residual_um

@@ -187,7 +187,7 @@ def csv_temps(table):
 
 def closed_inverse_path(machine, targets) -> np.ndarray:
     """Axes (n, 3) of WCS points (n, 3) mm along a path by the chain's compiled closed-form inverse, its rotary
-    axis unwrapped along the path from the stroke's first turn (as :func:`errormap.kinematics.inverse`);
+    axis unwrapped along the path from the stroke's first turn (as :func:`errormap.chain_kernel.inverse`);
     ValueError where the chain has no closed form."""
     from errormap.machine_tool import rotary_on_turn
     from errormap.chain_kernel import closed_form_solver
