@@ -26,11 +26,10 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from baseline import baseline_module
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import atomic_write
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
-from errormap.chain_field import ChainField
 from errormap.seeds import spawn_rngs
 from errormap.simulator import random_truth
 
@@ -76,7 +75,7 @@ def run_seed(seed, points, repeats, baseline_root):
     rng_axes, rng_el = spawn_rngs(seed, 2)
     g, mt = load_machine(), load_machine("grinder-chain")
     el = random_truth(g, seed).elements
-    hand, chain, htm = old.HTMField(g, el), ChainField(mt, ChainElementSet.from_element_set(mt, el)), HTMField(g, el)
+    hand, chain, htm = old.ChainField(g, el), ChainField(mt, ChainElementSet.from_element_set(mt, el)), ChainField(g, el)
     ax = _axes(mt, points, rng_axes)
     for f in (hand, chain, htm):  # compile / build splines outside the timing
         f.predict(ax[:10]), f.predict_and_jacobian(ax[:10])

@@ -32,7 +32,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from compensation.batch import CHUNK_POINTS, LocalExecutor, solve_batch
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import atomic_write, write_json
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
@@ -85,7 +85,7 @@ def main():
     rows = []
     try:
         for seed in range(args.seeds):
-            field = HTMField(machine, random_truth(machine, seed).elements)
+            field = ChainField(machine, random_truth(machine, seed).elements)
             paths = make_batch(machine, args.files, args.file_points, args.points, seed)
             n_points = sum(len(p.axes) for p in paths)
             # warm-up in this process (numba kernels loaded, solver modules imported) before any timing

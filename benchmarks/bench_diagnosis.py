@@ -113,11 +113,11 @@ def _warm_up():
     """Compile the numba kernels (field, exact solver) in the parent, so that forked workers inherit them."""
     from compensation.solvers import solve
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
     from errormap.simulator import random_axes
     m = load_machine()
-    field = HTMField(m, ElementSet.zeros(m))
+    field = ChainField(m, ElementSet.zeros(m))
     ax = random_axes(m, 4, np.random.default_rng(0))
     field.predict(ax)
     solve("exact", field, forward(m, ax), m, target_axes=ax)

@@ -33,7 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from compensation import export as ex  # noqa: E402
-from errormap.htm import HTMField  # noqa: E402
+from errormap.chain_field import ChainField  # noqa: E402
 from errormap.uncertainty import smooth_identify  # noqa: E402
 from errormap.io import atomic_write, write_json  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402

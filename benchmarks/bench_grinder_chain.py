@@ -88,9 +88,9 @@ def child(case, args, out_npz) -> dict:
     if case.startswith("field+jac"):
         name = case.split()[1]
         if name == "grinder":
-            from errormap.htm import HTMField
+            from errormap.chain_field import ChainField
             from errormap.simulator import random_truth
-            mt, f = g, HTMField(g, random_truth(g, seed).elements)
+            mt, f = g, ChainField(g, random_truth(g, seed).elements)
             ax = rng.uniform(g.stroke_lo, g.stroke_hi, (args.field_points, 3))
             ax[:, 2] = rng.uniform(-720.0, 720.0, args.field_points)
         else:
@@ -108,10 +108,10 @@ def child(case, args, out_npz) -> dict:
         import inspect
 
         import compensation.solvers.exact as exact_module
-        from errormap.htm import HTMField
+        from errormap.chain_field import ChainField
         from errormap.chain_kernel import forward
         from errormap.simulator import random_truth
-        f = HTMField(g, random_truth(g, seed).elements)
+        f = ChainField(g, random_truth(g, seed).elements)
         ax = rng.uniform(g.stroke_lo, g.stroke_hi, (args.exact_points, 3))[:args.tight_points]
         tg = forward(g, ax)
         from compensation.solvers import solver_spec
@@ -146,10 +146,10 @@ def child(case, args, out_npz) -> dict:
 
         from compensation.solvers import solve as solve_method
         solve_exact = partial(solve_method, "exact")  # the grinder on its chain
-        from errormap.htm import HTMField
+        from errormap.chain_field import ChainField
         from errormap.chain_kernel import forward
         from errormap.simulator import random_truth
-        f = HTMField(g, random_truth(g, seed).elements)
+        f = ChainField(g, random_truth(g, seed).elements)
         ax = rng.uniform(g.stroke_lo, g.stroke_hi, (args.exact_points, 3))
         tg = forward(g, ax)
 
@@ -175,9 +175,9 @@ def child(case, args, out_npz) -> dict:
             f, fused = MLPField.load(args.model), True
             tg, ax = _flute(g, args.fused_points or None)
         else:
-            from errormap.htm import HTMField
+            from errormap.chain_field import ChainField
             from errormap.simulator import random_truth
-            f, fused = HTMField(g, random_truth(g, seed).elements), False
+            f, fused = ChainField(g, random_truth(g, seed).elements), False
             tg, ax = _flute(g, args.ga_points)
 
         def run(k=None):

@@ -31,7 +31,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, FUNCTION_ELEMENTS
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import atomic_write
 from errormap.chain_kernel import forward
 from errormap.machine import load_machine
@@ -84,14 +84,14 @@ def run_seed(seed, points, repeats, solve_points, baseline_root=None):
         from baseline import baseline_module
         old_htm = baseline_module(baseline_root, "htm")
     ref = ReferenceHTMField(m, el, old_htm.spatial_error_exact_chain if old_htm else spatial_error_exact_chain)
-    new = HTMField(m, el)
+    new = ChainField(m, el)
     new.predict(axes[:10]), ref.predict(axes[:10])  # compile / build splines outside the timing
     t_ref, e_ref = _median_time(lambda: ref.predict(axes), repeats)
     t_new, e_new = _median_time(lambda: new.predict(axes), repeats)
     t_jac, (_, j_new) = _median_time(lambda: new.predict_and_jacobian(axes), repeats)
     old = {}
     if old_htm is not None:
-        hand = old_htm.HTMField(m, el)
+        hand = old_htm.ChainField(m, el)
         hand.predict(axes[:10]), hand.predict_and_jacobian(axes[:10])
         t_hv, e_h = _median_time(lambda: hand.predict(axes), repeats)
         t_hj, (_, j_h) = _median_time(lambda: hand.predict_and_jacobian(axes), repeats)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from errormap.htm import HTMField  # noqa: E402
+from errormap.chain_field import ChainField  # noqa: E402
 from errormap.uncertainty import smooth_identify  # noqa: E402
 from errormap.io import atomic_write  # noqa: E402
 from errormap.machine import load_machine  # noqa: E402
@@ -51,23 +51,23 @@ def main(argv=None):
     m = load_machine()
     truth = random_truth(m, 3)
     pts = random_axes(m, 10_000, np.random.default_rng(2024))
-    e_true = HTMField(m, truth.elements).predict(pts)
+    e_true = ChainField(m, truth.elements).predict(pts)
     t0 = time.perf_counter()
     free = {}
     for gauge in ("first-station", "reference-line"):
         res = identify(simulate_sweeps(truth, noise_um=0.0, seed=0), m, gauge=gauge)
-        free[gauge] = np.abs(HTMField(m, res.elements_).predict(pts) - e_true).max()
+        free[gauge] = np.abs(ChainField(m, res.elements_).predict(pts) - e_true).max()
     t_id = time.perf_counter()
     res0 = identify(simulate_sweeps(truth, noise_um=args.noise_um, seed=0), m)
     t_id = time.perf_counter() - t_id
-    rms0, max0 = err_stats(HTMField(m, res0.elements_).predict(pts) - e_true)
+    rms0, max0 = err_stats(ChainField(m, res0.elements_).predict(pts) - e_true)
     cond = res0.condition
     rmss, maxs, sq = [], [], np.zeros(len(pts))
     per_elem = []
     bar = Progress(args.draws, "Monte Carlo noise draws")
     for k in range(1, args.draws + 1):
         r = identify(simulate_sweeps(truth, noise_um=args.noise_um, seed=k), m)
-        d = HTMField(m, r.elements_).predict(pts) - e_true
+        d = ChainField(m, r.elements_).predict(pts) - e_true
         a, b = err_stats(d)
         rmss.append(a)
         maxs.append(b)

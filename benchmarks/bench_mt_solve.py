@@ -42,13 +42,13 @@ def cases(seed):
 
     from compensation.solvers import solve as solve_method
     solve_exact = partial(solve_method, "exact")  # the grinder on its chain
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     from errormap.chain_field import ChainField
     from errormap.simulator import random_truth
     g = load_machine()
-    gf = HTMField(g, random_truth(g, seed).elements)
+    gf = ChainField(g, random_truth(g, seed).elements)
 
     def g_axes(n, rng):
         return rng.uniform(g.stroke_lo, g.stroke_hi, (n, 3))

@@ -43,7 +43,7 @@ def grinder_case(seed: int) -> dict:
     from compensation.app.cli import main
     from compensation.app.workflows.identification import truth_in_gauge
     from errormap.elements import FUNCTION_ELEMENTS
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
     from errormap.simulator import random_axes
@@ -54,11 +54,11 @@ def grinder_case(seed: int) -> dict:
     noise_ss, probe_ss = spawn_seeds(seed, 2)
     truth = make_truth(m, seed, family="default")
     P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))
-    et = HTMField(m, truth.elements).predict(P)
+    et = ChainField(m, truth.elements).predict(P)
     with tempfile.TemporaryDirectory() as td:
         sw = _sweeps(main, Path(td), "default", seed, int(noise_ss.generate_state(1)[0]))
     sm = smooth_identify(sw, m)
-    e = HTMField(m, sm.elements_).predict(P) - et
+    e = ChainField(m, sm.elements_).predict(P) - et
     sd = prediction_sd(m, sm.elements_, sm.covariance_.cov, P)
     tg = truth_in_gauge(truth.elements, sm.elements_, m, "station-mean")
     return {"tp": _stats(e), "el": _el_stats(sm.elements_, tg, FUNCTION_ELEMENTS),

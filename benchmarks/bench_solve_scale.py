@@ -55,8 +55,8 @@ def child(model_kind: str, model_path: str, points: int, workers: int, seed: int
     m = load_machine()
     if model_kind == "htm":
         from errormap.elements import ElementSet
-        from errormap.htm import HTMField
-        field = HTMField(m, ElementSet.load(model_path))
+        from errormap.chain_field import ChainField
+        field = ChainField(m, ElementSet.load(model_path))
     else:
         from training.model import MLPField
         field = MLPField.load(model_path)

@@ -387,7 +387,7 @@ def main(argv=None) -> int:
         args.ga_points, args.batched_points, args.path_points, args.train_s, args.scale = 4, 40, 200, 20.0, 20_000
         args.exact_repeats, args.batched_repeats, args.seed_repeats = 3, 1, 1
     set_threads(args.threads)
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.simulator import random_truth
 
@@ -396,7 +396,7 @@ def main(argv=None) -> int:
 
     machine = load_machine()
     truth = random_truth(machine, 0)
-    htm = HTMField(machine, truth.elements)
+    htm = ChainField(machine, truth.elements)
     targets, axes, path_label = flute_targets(machine, args.path_points)
     res = {"load_before": " ".join(Path("/proc/loadavg").read_text().split()[:3]) if Path("/proc/loadavg").exists() else "?",
            "when": time.strftime("%Y-%m-%d %H:%M"), "host": f"{platform.node()}, {os.cpu_count()} CPUs",

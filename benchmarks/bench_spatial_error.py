@@ -14,7 +14,7 @@ import tracemalloc
 
 import numpy as np
 
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
 
@@ -42,14 +42,10 @@ def main():
     axes = random_axes(m, args.points, np.random.default_rng(0))
     rows = []
     for chunk in (50_000, 200_000, 1_000_000):
-        field = HTMField(m, truth.elements, exact=True, chunk=chunk)
+        field = ChainField(m, truth.elements, chunk=chunk)
         t, mem = measure(field, axes)
         rows.append((f"exact, chunk {chunk:,}", t, mem))
         print(rows[-1])
-    field = HTMField(m, truth.elements, exact=False, chunk=200_000)
-    t, mem = measure(field, axes)
-    rows.append(("first-order, chunk 200,000", t, mem))
-    print(rows[-1])
     lines = ["## Spatial error, 1,000,000 points (issue 2)", "",
              f"`python benchmarks/bench_spatial_error.py` — default grinder, truth seed 0, {args.points:,} random points "
              f"over the strokes, 23 elements by B-spline, {os.cpu_count()} cores; median of 3 runs; peak memory by tracemalloc "

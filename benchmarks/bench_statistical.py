@@ -175,7 +175,7 @@ class ChainSimulator:
 def prediction_coverage(seeds_per_family: int) -> dict:
     """Pooled over seeded truths of both families (seeds 0..n−1 each), 400 random points and three
     components: the identification's 95 % band (J Σ Jᵀ, 100 bootstrap draws) holds the true spatial error."""
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.simulator import random_axes
     from errormap.sweeps import simulate_sweeps
@@ -188,7 +188,7 @@ def prediction_coverage(seeds_per_family: int) -> dict:
             truth = make_truth(grinder, s, family=fam)
             sm = smooth_identify(simulate_sweeps(truth, noise_um=2.0, seed=s + 500), grinder, n_boot=100, seed=s)
             pts = random_axes(grinder, 400, np.random.default_rng(s + 7))
-            err = HTMField(grinder, sm.elements_).predict(pts) - HTMField(grinder, truth.elements).predict(pts)
+            err = ChainField(grinder, sm.elements_).predict(pts) - ChainField(grinder, truth.elements).predict(pts)
             sd = np.sqrt(np.diagonal(sm.covariance_.prediction_cov(grinder, pts), axis1=1, axis2=2))
             inside += int(np.sum(np.abs(err) <= Z95 * sd))
             total += err.size

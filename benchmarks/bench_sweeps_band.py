@@ -99,7 +99,7 @@ def loop_sweeps(family: str, seed: int):
     seed from ``spawn_seeds(seed, 2)[0]``) and the probe points scoring them: ``(machine, sweeps,
     P (N_PROBE, 3) axes, true error at P (N_PROBE, 3) μm)``."""
     from compensation.app.cli import main
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
     from errormap.simulator import random_axes
@@ -108,7 +108,7 @@ def loop_sweeps(family: str, seed: int):
     noise_ss, probe_ss = spawn_seeds(seed, 2)
     truth = make_truth(m, seed, family=family)
     P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))
-    et = HTMField(m, truth.elements).predict(P)
+    et = ChainField(m, truth.elements).predict(P)
     with tempfile.TemporaryDirectory() as td:
         sw = _sweeps(main, Path(td), family, seed, int(noise_ss.generate_state(1)[0]))
     return m, sw, P, et
@@ -117,27 +117,27 @@ def loop_sweeps(family: str, seed: int):
 def floor_case(args) -> dict:
     family, seed = args
     from errormap.elements import A_ELEMENTS
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.uncertainty import (elements_from_theta, nullspace_noise_cov, prediction_sd, smooth_identify,
                                       theta_blocks, theta_from_elements)
     t0 = time.process_time()
     m, sw, P, et = loop_sweeps(family, seed)
     sm = smooth_identify(sw, m)
     el, S = sm.elements_, sm.raw_cov
-    e = HTMField(m, el).predict(P) - et
+    e = ChainField(m, el).predict(P) - et
     sd = prediction_sd(m, el, sm.covariance_.cov, P)
     out = {"family": family, "seed": seed, "ubre_rms_um": _rms(e), "band_sd_um": _sd_rms(sd),
            "band95_cover": float(np.mean(np.abs(e) <= Z95 * sd)),
            "floor_um": _sd_rms(prediction_sd(m, sm.raw.elements_, nullspace_noise_cov(S, sm.raw.elements_), P)),
-           "raw_rms_um": _rms(HTMField(m, sm.raw.elements_).predict(P) - et)}
+           "raw_rms_um": _rms(ChainField(m, sm.raw.elements_).predict(P) - et)}
     y = theta_from_elements(sm.raw.elements_)
     for crit in ("gcv", "reml"):
         H = np.eye(y.size)
         for k, idx in theta_blocks(el).items():
             H[np.ix_(idx, idx)] = _criterion_smoother(y[idx], S[np.ix_(idx, idx)], k in A_ELEMENTS, crit)
-        out[f"{crit}_rms_um"] = _rms(HTMField(m, elements_from_theta(H @ y, el)).predict(P) - et)
+        out[f"{crit}_rms_um"] = _rms(ChainField(m, elements_from_theta(H @ y, el)).predict(P) - et)
     known = smooth_identify(sw, m, noise_um=2.0)
-    out["known_noise_rms_um"] = _rms(HTMField(m, known.elements_).predict(P) - et)
+    out["known_noise_rms_um"] = _rms(ChainField(m, known.elements_).predict(P) - et)
     out["cpu_s"] = time.process_time() - t0
     return out
 
@@ -145,7 +145,7 @@ def floor_case(args) -> dict:
 def mc_case(args) -> dict:
     family, seed, k = args
     from compensation.app.cli import main
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.simulator import random_axes
     from errormap.truth_families import make_truth
@@ -156,7 +156,7 @@ def mc_case(args) -> dict:
     with tempfile.TemporaryDirectory() as td:
         sw = _sweeps(main, Path(td), family, seed, 1000 + k)
     sm = smooth_identify(sw, m, seed=k)
-    e = HTMField(m, sm.elements_).predict(P) - HTMField(m, truth.elements).predict(P)
+    e = ChainField(m, sm.elements_).predict(P) - ChainField(m, truth.elements).predict(P)
     sd = prediction_sd(m, sm.elements_, sm.covariance_.cov, P)
     return {"family": family, "seed": seed, "draw": k, "cover": float(np.mean(np.abs(e) <= Z95 * sd)),
             "mean_z2": float(np.mean((e / sd) ** 2)), "rms_um": _rms(e)}

@@ -36,14 +36,14 @@ GAUGES = ("first-station", "station-mean")
 
 def case(args) -> dict:
     family, seed = args
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.uncertainty import nullspace_noise_cov, prediction_sd, smooth_identify
     m, sw, P, et = loop_sweeps(family, seed)
     out = {"family": family, "seed": seed}
     for g in GAUGES:
         t0 = time.process_time()
         sm = smooth_identify(sw, m, gauge=g)
-        e = HTMField(m, sm.elements_).predict(P) - et
+        e = ChainField(m, sm.elements_).predict(P) - et
         sd = prediction_sd(m, sm.elements_, sm.covariance_.cov, P)
         floor = prediction_sd(m, sm.raw.elements_, nullspace_noise_cov(sm.raw_cov, sm.raw.elements_), P)
         out[g] = {"rms_um": _rms(e), "floor_um": _sd_rms(floor), "band_sd_um": _sd_rms(sd),

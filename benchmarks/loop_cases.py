@@ -106,7 +106,7 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None
     (sweeps ``sw.csv``, checks ``sim/checks.csv``, identified ``el.json``), its result the row's ``also``."""
     from compensation.app.cli import main
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
     from errormap.simulator import random_axes
@@ -134,10 +134,10 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None
         fl = _flute(main, td, m, truth) if flute and effect == "none" else None
         more = also(td, m, truth, probe_ss) if also is not None else None
     P = random_axes(m, N_PROBE, np.random.default_rng(probe_ss))
-    et = HTMField(m, truth.elements).predict(P)
-    e_id = HTMField(m, el).predict(P) - et
+    et = ChainField(m, truth.elements).predict(P)
+    e_id = ChainField(m, el).predict(P) - et
     sd = np.sqrt(np.diagonal(cov.prediction_cov(m, P), axis1=1, axis2=2))
-    e_up = HTMField(m, upd).predict(P) - et
+    e_up = ChainField(m, upd).predict(P) - et
     found = s["effects"]
     exp = EXPECTED[effect]
     top = (found[0]["kind"], found[0]["axis"]) if found else None

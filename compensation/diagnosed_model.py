@@ -27,7 +27,7 @@ from errormap.diagnosis.corrected import CorrectedField
 from errormap.diagnosis.effects import Candidate, EffectTerm
 from errormap.effect_kinds import diagnosed_kind
 from errormap.elements import ElementSet
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import InputError, read_document_text
 from errormap.units import UNITS_CHECK, check_units, temperature_mistake
 
@@ -62,7 +62,7 @@ def diagnosed_field(doc: dict, machine, load_elements, where) -> CorrectedField:
     if not isinstance(doc.get("elements"), str):
         raise InputError(f"{where}: key 'elements': expected the updated element set's file name, got "
                          f"{doc.get('elements')!r}")
-    base = HTMField(machine, load_elements(doc["elements"]))
+    base = ChainField(machine, load_elements(doc["elements"]))
     if doc.get("learned_residual") is not None:  # the closed loop's learned stage (compensation.hybrid)
         from .hybrid import HybridField, LearnedResidual
         try:

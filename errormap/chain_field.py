@@ -1,6 +1,7 @@
 """The error field of any machine-tool chain (:class:`errormap.field.ErrorField` over its axes).
 
-``ChainField(machine, elements)``: ``predict(axes (n, k)) -> (n, 3)`` μm, the exact spatial error
+``ChainField(machine, elements)`` (a :class:`~errormap.chain_elements.ChainElementSet`, or the grinder's
+:class:`~errormap.elements.ElementSet`, the same 23 names): ``predict(axes (n, k)) -> (n, 3)`` μm, the exact spatial error
 of the tool point in the workpiece frame (actual minus nominal, ``inv(work)·tool`` with every
 element transform exact); ``jacobian(axes) -> (n, 3, k)`` μm per mm / per deg;
 ``predict_and_jacobian``; ``error_jacobian(axes) -> (n, 3, P)`` μm per μm / per μrad (the
@@ -63,7 +64,9 @@ class ChainField:
 
     kind = "chain"
 
-    def __init__(self, machine: MachineTool, elements: ChainElementSet, chunk: int = CHUNK):
+    def __init__(self, machine: MachineTool, elements, chunk: int = CHUNK):
+        if not isinstance(elements, ChainElementSet):   # the grinder's element set: its 23 names are the slots
+            elements = ChainElementSet.from_element_set(machine, elements)
         if elements.machine is not machine and elements.machine.slot_names != machine.slot_names:
             raise ValueError("the element set belongs to another machine")
         self.machine = machine
@@ -95,9 +98,17 @@ class ChainField:
         return axes
 
     def _compiled(self):
-        """The kernels' arrays, packed per call (cheap; the element set's splines are cached there)."""
+        """The kernels' arrays, packed on first use and kept while the element set, its per-axis splines
+        (rebuilt when a caller resets them after editing) and its constants are the same."""
         from .chain_kernel import CompiledChain
-        return CompiledChain(self.machine, self.elements)
+        el = self.elements
+        key = (el, tuple(el.axis_spline(a.word) for a in self.machine.axes if self.machine.slots_of(a.word)),
+               tuple(sorted(el.constants.items())))
+        cached = self.__dict__.get("_packed")
+        if (cached is None or cached[0][0] is not el or len(cached[0][1]) != len(key[1])
+                or not all(x is y for x, y in zip(cached[0][1], key[1])) or cached[0][2] != key[2]):
+            cached = self.__dict__["_packed"] = (key, CompiledChain(self.machine, el))
+        return cached[1]
 
     def predict(self, axes) -> np.ndarray:
         """Spatial error (μm), shape (n, 3), at axes (n, k): one compiled pass per point

@@ -140,5 +140,7 @@ def make_feature_points(machine, field, n: int | None = None, meta: dict | None 
          "grid": "x".join([str(n)] * k)}
     m.update(meta or {})
     names = machine.axis_columns
-    m["axis_columns"] = ",".join(names)
+    from .grinder_file import is_grinder_chain
+    if not is_grinder_chain(machine):   # a chain's feature points name their columns (the grinder's are the default)
+        m["axis_columns"] = ",".join(names)
     return FeaturePoints(axes, field.predict(axes), m, axis_columns=tuple(names))

@@ -35,7 +35,7 @@ capability              method
                         (:class:`OffsetFitness`)
 ======================  ==============================================================================
 
-The implementations: :class:`errormap.htm.HTMField` (the 23-element model; its exact form declares
+The implementations: :class:`errormap.chain_field.ChainField` (the 23-element model; its exact form declares
 ``jacobian`` and ``predict_and_jacobian``, in closed form),
 :class:`training.model.MLPField` (the network; all of them), the diagnosis's corrected field
 (:class:`errormap.diagnosis.corrected.CorrectedField`), the controller tables of

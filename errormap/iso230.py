@@ -15,8 +15,8 @@ about Y/Z). Conventions used here (and in every file volcomp exports):
   errors move it with the same sign.
 * **reference point** — the translational components are given at the body's reference
   point (below); at another point ``P`` they are ``δ_P = δ_O + ε × (P − O)`` (μm, with
-  ε in μrad and ``P − O`` in mm: ``δ_P = δ_O + 1e-3·ε × r``). :func:`to_iso` and
-  :func:`from_iso` take an offset ``r`` per body to move the reference point.
+  ε in μrad and ``P − O`` in mm: ``δ_P = δ_O + 1e-3·ε × r``). :func:`axis_to_mcs` and
+  :func:`axis_from_mcs` take an offset ``r`` to move the reference point.
 
 The one-to-one map (``ELEMENT_NAMES`` order ↔ ``ISO_NAMES`` order):
 
@@ -42,7 +42,8 @@ mixed by the fixed angle θ1 (30° on the default grinder) and the A-axis radial
 pairs by the A position. Angles compose as ``RotX·RotY·RotZ`` in the project and as a
 small rotation vector in ISO: the two agree to second order (~1e-10 relative at 100 μrad).
 
-Reference points (nominal, MCS, mm), see :func:`reference_points_mm`:
+Reference points (nominal, MCS, mm): the origins of the bodies' frames in the grinder's chain
+(:meth:`errormap.machine_tool.MachineTool.body_frames`):
 X — the X carriage origin ``(l5 + x, 0, l6)``; Z — the Z carriage origin
 ``RotZ(θ1)·(l2, 0, l1 + z)``; A and the A-axis line — the A-axis end on the carriage
 ``(l5 + x + l7, 0, l6 + l8)``; squareness — the Z stroke origin (z = 0), so the tool is
@@ -53,18 +54,12 @@ from __future__ import annotations
 import numpy as np
 
 from .elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, X_ELEMENTS, Z_ELEMENTS
-from .machine_tool import MachineTool
-from .transforms import check_points
+from .grinder_file import ELEMENT_SLOTS
 
-ISO_NAME = {
-    "dx_x": "EXX", "dy_x": "EYX", "dz_x": "EZX", "ex_x": "EAX", "ey_x": "EBX", "ez_x": "ECX",
-    "dx_z": "EXZ", "dy_z": "EYZ", "dz_z": "EZZ", "ex_z": "EAZ", "ey_z": "EBZ", "ez_z": "ECZ",
-    "dx_a": "EXA", "dy_a": "EYA", "dz_a": "EZA", "ex_a": "EAA", "ey_a": "EBA", "ez_a": "ECA",
-    "dy_oa": "EY0A", "dz_oa": "EZ0A", "ey_oa": "EB0A", "ez_oa": "EC0A", "s_xz": "EB0Z",
-}
-"""Project element name -> ISO 230-1 name (one-to-one)."""
+ISO_NAME = dict(ELEMENT_SLOTS)
+"""Project element name -> ISO 230-1 name (one-to-one): the grinder chain's slots and their ISO names."""
 ISO_NAMES = tuple(ISO_NAME[k] for k in ELEMENT_NAMES)
-"""The 23 ISO names, in the column order of :func:`to_iso` (ELEMENT_NAMES order)."""
+"""The 23 ISO names, in ELEMENT_NAMES order."""
 ELEMENT_OF = {v: k for k, v in ISO_NAME.items()}
 
 ISO_MEANING = {
@@ -83,7 +78,6 @@ BODIES = ("X", "Z", "A")
 BODY_OF = {**{k: "X" for k in X_ELEMENTS}, **{k: "Z" for k in Z_ELEMENTS}, **{k: "A" for k in A_ELEMENTS},
            "dy_oa": "A", "dz_oa": "A", "ey_oa": "A", "ez_oa": "A", "s_xz": "Z"}
 CARRIES = {"X": "workpiece", "Z": "wheel (tool)", "A": "workpiece"}
-_IDX = {k: i for i, k in enumerate(ELEMENT_NAMES)}
 
 
 def label(name: str) -> str:
@@ -91,47 +85,6 @@ def label(name: str) -> str:
     if name not in ISO_NAME:
         raise KeyError(f"Expected one of the 23 element names {ELEMENT_NAMES}, got {name!r}")
     return f"{name} ({ISO_NAME[name]})"
-
-
-def _body_frames(machine: MachineTool, axes) -> dict:
-    """Nominal frames ``(R (n, 3, 3), t (n, 3) mm)`` machine <- the X, Z and A bodies at ``axes``
-    (n, 3): the grinder's chain file (:meth:`errormap.machine_tool.MachineTool.body_frames`, one
-    source for the kinematics)."""
-    mt = machine
-    return {b: mt.body_frames(b, axes) for b in ("X", "Z", "A")}
-
-
-def reference_points_mm(machine: MachineTool, axes) -> dict:
-    """Nominal reference points of the X, Z and A bodies in the MCS (mm), each shape (n, 3):
-    the origins of the bodies' frames in the grinder's chain (module docstring)."""
-    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
-    return {b: t for b, (_, t) in _body_frames(machine, axes).items()}
-
-
-_TRIPLES = {"X": (X_ELEMENTS[:3], X_ELEMENTS[3:]), "Z": (Z_ELEMENTS[:3], Z_ELEMENTS[3:]),
-            "A": (A_ELEMENTS[:3], A_ELEMENTS[3:])}
-
-
-def _check(values, axes):
-    axes = check_points(axes, "axes (x_mm, z_mm, a_deg)")
-    v = np.asarray(values, dtype=float)
-    if v.ndim == 1:
-        v = v[None, :]
-    if v.shape != (axes.shape[0], len(ELEMENT_NAMES)):
-        raise ValueError(f"Expected values of shape ({axes.shape[0]}, 23), got {np.shape(values)}")
-    return v, axes
-
-
-def _offsets(reference_offsets_mm, n):
-    out = {}
-    for b in BODIES:
-        r = np.zeros(3) if not reference_offsets_mm or b not in reference_offsets_mm else reference_offsets_mm[b]
-        r = np.asarray(r, dtype=float)
-        out[b] = np.broadcast_to(r, (n, 3)) if r.ndim == 1 else check_points(r, f"reference offset of {b}")
-    unknown = sorted(set(reference_offsets_mm or {}) - set(BODIES))
-    if unknown:
-        raise ValueError(f"Expected reference offsets for bodies {BODIES}, got unknown {unknown}")
-    return out
 
 
 def axis_to_mcs(mt, word: str, axes, comp, offset_mm=None) -> np.ndarray:
@@ -155,34 +108,6 @@ def axis_from_mcs(mt, word: str, axes, iso, offset_mm=None) -> np.ndarray:
     e = iso[:, 3:]
     d = iso[:, :3] - 1e-3 * np.cross(e, r)
     return np.concatenate([np.einsum("nji,nj->ni", R, d), np.einsum("nji,nj->ni", R, e)], axis=1)
-
-
-def to_iso(values, axes, machine: MachineTool, reference_offsets_mm: dict | None = None) -> np.ndarray:
-    """Project element values -> ISO 230-1 values, shape (n, 23) -> (n, 23) in ISO_NAMES order.
-
-    ``values`` are the 23 element values at ``axes`` (shape (n, 3)), μm / μrad.
-    ``reference_offsets_mm`` maps a body (``"X"``, ``"Z"``, ``"A"``) to the offset ``r`` (MCS,
-    mm, shape (3,) or (n, 3)) of the wanted reference point from the body's reference point
-    (:func:`reference_points_mm`); its translational components become ``δ + 1e-3·ε × r``.
-    The A-axis location errors are not moved (they are constants of the axis line).
-    """
-    return _convert(values, axes, machine, reference_offsets_mm, axis_to_mcs)
-
-
-def from_iso(iso_values, axes, machine: MachineTool, reference_offsets_mm: dict | None = None) -> np.ndarray:
-    """ISO 230-1 values (ISO_NAMES order) -> project element values; the inverse of :func:`to_iso`."""
-    return _convert(iso_values, axes, machine, reference_offsets_mm, axis_from_mcs)
-
-
-def _convert(values, axes, machine, reference_offsets_mm, per_axis) -> np.ndarray:
-    v, axes = _check(values, axes)
-    out = v.copy()
-    mt = machine
-    r = _offsets(reference_offsets_mm, axes.shape[0])
-    for b, (dn, en) in _TRIPLES.items():
-        cols = [_IDX[k] for k in dn + en]
-        out[:, cols] = per_axis(mt, b, axes, v[:, cols], r[b])
-    return out
 
 
 def map_rows() -> list[dict]:

@@ -39,10 +39,10 @@ def case(name):
     field_seed = int(rng_field.integers(2**31))
     if name == "grinder":
         from compensation.solvers import solve
-        from errormap.htm import HTMField
+        from errormap.chain_field import ChainField
         from errormap.chain_kernel import forward
         from errormap.simulator import random_truth
-        field = HTMField(m, random_truth(m, field_seed).elements)
+        field = ChainField(m, random_truth(m, field_seed).elements)
         axes = rng_axes.uniform(m.stroke_lo, m.stroke_hi, (n, 3))
         targets = forward(m, axes)
         return (lambda: solve("exact", field, targets, m, target_axes=axes, progress=False)), targets, axes

@@ -252,10 +252,10 @@ def test_predict_batched_equals_whole(grinder):
     """Batches of PREDICT_BATCH give the same predictions as one call (an HTM field, per point)."""
     import numpy as np
 
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.simulator import random_truth
     rng = np.random.default_rng(7)
-    field = HTMField(grinder, random_truth(grinder, 3).elements)
+    field = ChainField(grinder, random_truth(grinder, 3).elements)
     lo = np.array([grinder.strokes[k][0] for k in ("x_mm", "z_mm", "a_deg")])
     hi = np.array([grinder.strokes[k][1] for k in ("x_mm", "z_mm", "a_deg")])
     axes = lo + (hi - lo) * rng.random((validate.PREDICT_BATCH + 1000, 3))

@@ -8,7 +8,7 @@ import pytest
 
 from compensation.app.cli import main
 from errormap.elements import ElementSet
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
 from errormap.simulator import EFFECT_DEFAULTS, random_axes, random_truth
 from errormap.sweeps import simulate_sweeps
@@ -55,7 +55,7 @@ def test_independent_family_is_seeded_and_differs(grinder):
     assert a.effects == b.effects
     assert a.effects["pitch"]["period_mm"] != EFFECT_DEFAULTS["pitch"]["period_mm"]
     pts = random_axes(grinder, 500, np.random.default_rng(0))
-    ea, ed = HTMField(grinder, a.elements).predict(pts), HTMField(grinder, d.elements).predict(pts)
+    ea, ed = ChainField(grinder, a.elements).predict(pts), ChainField(grinder, d.elements).predict(pts)
     assert np.abs(ea - ed).max() > 10.0  # a different machine, not a rescaled one
     c1 = a.check_measurements(100, 1.0, seed=5)
     c2 = b.check_measurements(100, 1.0, seed=5)
@@ -77,8 +77,8 @@ def test_noise_is_estimated_from_ball_residuals(indep):
 def test_smoothing_beats_interpolation_on_the_truth(grinder, indep):
     truth, sm = indep
     pts = random_axes(grinder, 3000, np.random.default_rng(1))
-    et = HTMField(grinder, truth.elements).predict(pts)
-    rms = lambda el: np.sqrt(np.mean(np.sum((HTMField(grinder, el).predict(pts) - et) ** 2, axis=1)))  # noqa: E731
+    et = ChainField(grinder, truth.elements).predict(pts)
+    rms = lambda el: np.sqrt(np.mean(np.sum((ChainField(grinder, el).predict(pts) - et) ** 2, axis=1)))  # noqa: E731
     assert rms(sm.elements_) < SMOOTH_GAIN * rms(sm.raw.elements_)
 
 

@@ -25,7 +25,7 @@ from compensation.app.workflows.cluster import FAULT_ENV, RayExecutor  # noqa: E
 from compensation.batch import LocalExecutor, solve_batch  # noqa: E402
 from compensation.pathio import write_axes_gcode, write_targets_csv  # noqa: E402
 from compensation.toolpath import flute_path  # noqa: E402
-from errormap.htm import HTMField  # noqa: E402
+from errormap.chain_field import ChainField  # noqa: E402
 from errormap.io import write_csv  # noqa: E402
 from errormap.simulator import random_axes, random_truth  # noqa: E402
 from tests.test_batch import small_learned_field  # noqa: E402
@@ -90,7 +90,7 @@ def test_ray_batch_writes_the_local_runs_bytes(ray_session, batch, grinder, caps
     assert summary["solved_on"].startswith("Ray") and summary["chunk_points"] == CHUNK_POINTS
     assert [e["chunks"] for e in summary["files"]] == [1, 1, 1, BIG_POINTS // CHUNK_POINTS]
     # every method: the same arrays from Ray actors as from local threads (GA: per-chunk seeds)
-    field = HTMField(grinder, random_truth(grinder, 7).elements)
+    field = ChainField(grinder, random_truth(grinder, 7).elements)
     fl = flute_path(turns=1, points_per_turn=40)
     paths = [SimpleNamespace(targets_mm=fl.targets_mm, axes=fl.axes(grinder)),
              SimpleNamespace(targets_mm=fl.targets_mm[3:9], axes=fl.axes(grinder)[3:9])]

@@ -8,7 +8,7 @@ from compensation.app.cli import main
 from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, write_axes_gcode, write_targets_csv
 from compensation.toolpath import flute_path
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.simulator import random_truth
 from errormap.io import read_table
 
@@ -30,7 +30,7 @@ def setup(tmp_path_factory, grinder):
     f = flute_path(turns=1, points_per_turn=40)
     nc = write_axes_gcode(d / "in" / "flute.nc", f.axes(grinder), header=["flute test"])
     csv = write_targets_csv(d / "in" / "flute.csv", f.targets_mm)
-    return d, el, nc, csv, HTMField(grinder, truth.elements)
+    return d, el, nc, csv, ChainField(grinder, truth.elements)
 
 
 @pytest.mark.slow  # over 5 CPU s in the fresh-clone CI run of 2026-11-24 (tier rule)

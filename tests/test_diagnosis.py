@@ -14,7 +14,7 @@ from compensation.app.workflows.network_diagnosis import (TermsOnBase, augmented
 from errormap.chain_elements import ChainElementSet
 from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain
 from errormap.featurepoints import make_feature_points
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import write_csv
 from errormap.seeds import spawn_seeds
 from errormap.simulator import random_truth
@@ -110,7 +110,7 @@ def _terms_on(grinder, effects, base):
 
 @pytest.mark.slow
 def test_terms_on_a_network_need_their_conditions(grinder):
-    base = HTMField(grinder, random_truth(grinder, SEED).elements)
+    base = ChainField(grinder, random_truth(grinder, SEED).elements)
     cf = _terms_on(grinder, ["reversal"], base)
     assert cf.needs == ("dir_z",)
     axes = np.array([[50.0, 20.0, 30.0], [120.0, 10.0, 200.0]])
@@ -123,7 +123,7 @@ def test_terms_on_a_network_need_their_conditions(grinder):
 
 @pytest.mark.slow
 def test_learned_retrain_hook_gets_feature_points_plus_terms(grinder):
-    base = HTMField(grinder, random_truth(grinder, SEED).elements)
+    base = ChainField(grinder, random_truth(grinder, SEED).elements)
     corrected = _terms_on(grinder, ["worm"], base)
     fp = make_feature_points(grinder, base, n=5)
     seen = {}
@@ -151,7 +151,7 @@ def test_learned_retrain_hook_gets_feature_points_plus_terms(grinder):
 def test_grid_aliasing_of_terms_is_detected(grinder):
     """A 40/rev worm harmonic on the 11-point A grid (every 36°) aliases to a constant: the learned retrain must
     not pretend feature points carry it; a 10 mm pitch on the 11-point X grid (20 mm apart) aliases too."""
-    base = HTMField(grinder, random_truth(grinder, SEED).elements)
+    base = ChainField(grinder, random_truth(grinder, SEED).elements)
     fp = make_feature_points(grinder, base, n=11)
     for effect in ("worm", "pitch"):
         a = grid_aliasing(fp, _terms_on(grinder, [effect], base))

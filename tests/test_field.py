@@ -8,7 +8,7 @@ import torch
 
 from errormap.field import (CAPABILITIES, GRINDER_AXES, JACOBIAN, OFFSET_FITNESS, PREDICT_AND_JACOBIAN, CalibratedVolume, ErrorField,
                             check_field)
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.simulator import random_truth
 from errormap.threads import limit_threads
@@ -35,13 +35,12 @@ def test_the_fields_implement_the_protocol(machine):
     from errormap.diagnosis.corrected import CorrectedField
     from training.model import MLPField
     from training.pose_field import PoseMLP
-    htm = HTMField(machine, random_truth(machine, 0).elements)
+    htm = ChainField(machine, random_truth(machine, 0).elements)
     net, axes = small_network()
     for f in (htm, net, CorrectedField(machine, htm, []), TableField(htm.predict)):
         assert check_field(f) is f and isinstance(f, ErrorField)
-    # the exact HTM field has its closed-form Jacobian (issue 20); the first-order form has nothing
+    # the grinder's chain field has its closed-form Jacobian (issue 20)
     assert htm.capabilities == frozenset({JACOBIAN, PREDICT_AND_JACOBIAN}) and net.capabilities == CAPABILITIES
-    assert HTMField(machine, random_truth(machine, 0).elements, exact=False).capabilities == frozenset()
     assert htm.calibrated_volume == CalibratedVolume(machine.stroke_lo, machine.stroke_hi)
     assert net.calibrated_volume == CalibratedVolume(axes.min(axis=0), axes.max(axis=0))
     assert MLPField().calibrated_volume is None  # untrained: it cannot say

@@ -87,7 +87,7 @@ def test_fuzz_identify_grinder(files, data):
     """exit 0 writes the element set the library identifies from the same file (compared through the field)."""
     from compensation.app.workflows.identification import identify_elements
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.sweeps import read_sweeps
     machine = load_machine(None)
     raw = data.draw(hostile_bytes((files / "g_sweeps.csv").read_text(), table=True))
@@ -100,8 +100,8 @@ def test_fuzz_identify_grinder(files, data):
             with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
                 lib = identify_elements(machine, [str(p)], Path(d) / "L.json", n_boot=2, seed=0,
                                         sweeps=read_sweeps([str(p)]))
-            got = HTMField(machine, ElementSet.load(Path(d) / "E.json")).predict(AXES_PROBE)
-            want = HTMField(machine, lib.result.elements_).predict(AXES_PROBE)
+            got = ChainField(machine, ElementSet.load(Path(d) / "E.json")).predict(AXES_PROBE)
+            want = ChainField(machine, lib.result.elements_).predict(AXES_PROBE)
             _check_output("identify", np.allclose(got, want, rtol=TOL_PREDICT_REL, atol=TOL_PREDICT_ABS_UM), argv)
 
 

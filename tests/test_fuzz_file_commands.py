@@ -231,7 +231,7 @@ def test_fuzz_compensate_targets_csv(grinder, data, seg):
     reads from the same file under the model, or one line naming the file or --max-segment-mm."""
     from compensation.pathio import read_path
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
     machine = load_machine(None)
     el = grinder / "sim" / "truth_elements.json"
@@ -243,7 +243,7 @@ def test_fuzz_compensate_targets_csv(grinder, data, seg):
                 "--out", str(out)]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p), "--max-segment-mm"]):
-            field = HTMField(machine, ElementSet.load(el))
+            field = ChainField(machine, ElementSet.load(el))
             src = read_path(p, machine)
             res = read_path(out / p.name, machine)
             lands = forward(machine, res.axes) + 1e-3 * field.predict(res.axes)
@@ -266,7 +266,7 @@ def test_fuzz_compensate_work_offsets(grinder, data):
     from compensation.app.workflows.compensate_paths import read_tool_path
     from compensation.solvers.chain_exact import nominal_and_jacobian
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
     machine = load_machine(None)
     el = grinder / "sim" / "truth_elements.json"
@@ -279,7 +279,7 @@ def test_fuzz_compensate_work_offsets(grinder, data):
                 "--out", str(out)]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(wo), str(prog)]):
-            field = HTMField(machine, ElementSet.load(el))
+            field = ChainField(machine, ElementSet.load(el))
             s = settings_of(build_parser(["compensate"]).parse_args(argv))   # the table read as the command reads it
             mt = machine   # the command reads every machine tool's program by its chain
             src = read_tool_path(prog, mt, s, field)   # nominal machine axes, the table's offsets applied

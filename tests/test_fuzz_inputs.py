@@ -360,7 +360,7 @@ def test_fuzz_main_predict_checks_its_output(sim, machine, tally, data):
     """predict on hostile point files: exit 0 writes exactly the element set's prediction of the
     rows it read (compared with the library on the same file), or one line naming the file."""
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.io import read_table
     el = sim / "sim" / "truth_elements.json"
     raw = data.draw(hostile_bytes("x_mm,z_mm,a_deg\n" + "\n".join(f"{10 * i},{3 * i},{20 * i}" for i in range(12)) + "\n",
@@ -373,7 +373,7 @@ def test_fuzz_main_predict_checks_its_output(sim, machine, tally, data):
         if _tally_outcome(argv, rc, err, [str(p)]):
             t_in, t_out = read_table(p), read_table(o)
             axes = np.stack([t_in.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
-            want = HTMField(machine, ElementSet.load(el)).predict(axes)
+            want = ChainField(machine, ElementSet.load(el)).predict(axes)
             got = np.stack([t_out.float(c) for c in ("dx_um", "dy_um", "dz_um")], axis=1)
             _check_output("predict", got.shape == want.shape and np.allclose(got, want, rtol=TOL_PREDICT_REL,
                                                                   atol=TOL_PREDICT_ABS_UM), (argv, got, want))
@@ -390,7 +390,7 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
     from compensation.nc_state import MACHINE, read_work_offsets
     from compensation.pathio import read_path
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.chain_kernel import forward
     el = sim / "sim" / "truth_elements.json"
     raw = data.draw(hostile_bytes(PROGRAM, table=False))
@@ -401,7 +401,7 @@ def test_fuzz_main_compensate_checks_its_output(sim, machine, tally, data, arc, 
                 "--arc-tolerance-um", arc, "--max-segment-mm", seg, "--work-offsets", "machine"]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p), "--arc-tolerance-um", "--max-segment-mm"]):
-            field = HTMField(machine, ElementSet.load(el))
+            field = ChainField(machine, ElementSet.load(el))
             seg_mm = {"auto": "auto", "none": None}.get(seg) if seg in ("auto", "none") else float(seg)
             mcs = read_work_offsets(MACHINE)  # PROGRAM is in machine coordinates
             src = read_path(p, machine, arc_tolerance_um=float(arc), max_segment_mm=seg_mm, field=field, work_offsets=mcs)
@@ -422,7 +422,7 @@ def test_fuzz_main_other_file_kinds(sim, machine, tally, data):
     companion (predict --band), a chain machine file (sweeps --machine) — exit 0 with the output
     checked, or one line naming the file."""
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.io import read_table
     kind = data.draw(st.sampled_from(["elements", "covariance", "chain_machine"]))
     with tempfile.TemporaryDirectory() as d:
@@ -436,7 +436,7 @@ def test_fuzz_main_other_file_kinds(sim, machine, tally, data):
                 t = read_table(d / "fp.csv")
                 axes = np.stack([t.float(c) for c in ("x_mm", "z_mm", "a_deg")], axis=1)
                 got = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], axis=1)
-                want = HTMField(machine, ElementSet.load(src)).predict(axes)
+                want = ChainField(machine, ElementSet.load(src)).predict(axes)
                 _check_output("featurepoints", len(t) == 8 and np.allclose(got, want, rtol=TOL_PREDICT_REL,
                                                                            atol=TOL_PREDICT_ABS_UM), argv)
         elif kind == "covariance":

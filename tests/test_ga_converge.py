@@ -8,7 +8,7 @@ from compensation.solvers import solve
 from compensation.solvers._converge import RETRY_MIN_RADIUS_UM, RETRY_RADIUS_GROWTH, retry_radius_um
 from compensation.solvers.ga import DEFAULT_TOL_UM
 from compensation.toolpath import flute_path
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.simulator import random_truth
 
 SHORT_GENERATIONS = 30
@@ -18,7 +18,7 @@ SHORT_GENERATIONS = 30
 
 @pytest.fixture(scope="module")
 def case(grinder):
-    field = HTMField(grinder, random_truth(grinder, 0).elements)
+    field = ChainField(grinder, random_truth(grinder, 0).elements)
     fp = flute_path(turns=1, points_per_turn=40)
     return field, fp.targets_mm, fp.axes(grinder)
 

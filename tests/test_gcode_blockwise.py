@@ -13,7 +13,7 @@ import pytest
 import compensation.gcode as g
 from compensation import pathio
 from compensation.nc_state import MACHINE, read_work_offsets
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import InputError
 from errormap.simulator import random_truth
 
@@ -25,7 +25,7 @@ LINES_PER_PROGRAM = 600
 
 @pytest.fixture(scope="module")
 def field(grinder):
-    return HTMField(grinder, random_truth(grinder, 3).elements)
+    return ChainField(grinder, random_truth(grinder, 3).elements)
 
 
 @pytest.fixture(autouse=True)

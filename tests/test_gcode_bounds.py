@@ -145,5 +145,5 @@ def test_compensate_refuses_the_typo_in_one_line_exit_2(tmp_path, machine, capsy
 
 
 def _field(machine):
-    from errormap.htm import HTMField
-    return HTMField(machine, random_truth(machine, 3).elements)
+    from errormap.chain_field import ChainField
+    return ChainField(machine, random_truth(machine, 3).elements)

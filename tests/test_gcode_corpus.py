@@ -21,7 +21,7 @@ from compensation.gcode import tokenize
 from compensation.nc_state import MACHINE, read_work_offsets
 from compensation.pathio import read_path, render_gcode, replan
 from compensation.solvers import solve
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import InputError
 from errormap.chain_kernel import forward
 from errormap.simulator import random_truth
@@ -64,7 +64,7 @@ def read_options(exp: dict) -> dict:
 
 @pytest.fixture(scope="module")
 def field(grinder):
-    return HTMField(grinder, random_truth(grinder, 7).elements)
+    return ChainField(grinder, random_truth(grinder, 7).elements)
 
 
 def test_corpus_is_large_and_mixed():

@@ -12,10 +12,9 @@ import pytest
 from errormap.elements import ELEMENT_NAMES, ElementSet
 from errormap.grinder_file import (ELEMENT_SLOTS, GRINDER_STROKE_KEYS, adapter_line, grinder_chain_document,
                                    parse_grinder_file, read_grinder)
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.machine import MachineFileError, load_machine
 from errormap.chain_elements import ChainElementSet
-from errormap.chain_field import ChainField
 from tests.test_htm_reference import (random_axes, random_elements, reference_error_jacobian,
                                       reference_field_and_jacobian, reference_tool_point)
 
@@ -108,7 +107,7 @@ def test_grinder_element_file_loads_into_the_adapted_chain(user_grinder, tmp_pat
     ax = random_axes(g, N_POINTS, 122)
     np.testing.assert_array_equal(ce.values(ax), el.values(ax))
     E_chain = ChainField(mt, ce).predict(ax)
-    assert np.abs(E_chain - HTMField(g, ElementSet.load(path)).predict(ax)).max() < TOL_UM
+    assert np.abs(E_chain - ChainField(g, ElementSet.load(path)).predict(ax)).max() < TOL_UM
     assert np.abs(E_chain - reference_field_and_jacobian(g, el, ax)[0]).max() < TOL_UM
     # and back: the chain's element file is the grinder's
     back = ElementSet.load(ce.save(tmp_path / "back.json"))

@@ -12,7 +12,7 @@ from compensation.guards import (GUARDS, GuardError, calibrated_volume, check, e
 from compensation.solvers import solve
 from compensation.solvers.base import BALL_RADIUS_UM, SolveResult
 from errormap.field import CalibratedVolume
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_truth
@@ -105,7 +105,7 @@ def test_volume_guard_folds_a_on_a_partial_calibrated_turn():
 def test_calibrated_volume_contract(machine):
     """One form: the field's ``calibrated_volume`` (errormap.field.CalibratedVolume) or None."""
     truth = random_truth(machine, 0)
-    lo, hi = calibrated_volume(HTMField(machine, truth.elements))  # the element stations' range
+    lo, hi = calibrated_volume(ChainField(machine, truth.elements))  # the element stations' range
     np.testing.assert_allclose(lo, machine.stroke_lo)
     np.testing.assert_allclose(hi, machine.stroke_hi)
 

@@ -6,7 +6,7 @@ from errormap.grinder_file import rho0_mm
 import pytest
 
 from errormap.elements import ELEMENT_NAMES, ElementSet
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import error_jacobian, spatial_error
 from errormap.simulator import random_truth
 
@@ -58,7 +58,7 @@ def axes(rng):
 
 
 def test_zero_elements_give_zero_error(grinder, axes):
-    field = HTMField(grinder, ElementSet.zeros(grinder))
+    field = ChainField(grinder, ElementSet.zeros(grinder))
     assert np.abs(field.predict(axes)).max() < TOL_ZERO_UM
 
 

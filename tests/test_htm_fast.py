@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from errormap.elements import AXIS_OF, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import spatial_error
 from errormap.simulator import random_axes, random_truth
 
@@ -77,7 +77,7 @@ def test_field_equals_reference_pipeline_and_periodic_in_a(grinder):
     cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
     v_ref = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
                      + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
-    field = HTMField(grinder, el, chunk=700)  # several chunks, the last one partial
+    field = ChainField(grinder, el, chunk=700)  # several chunks, the last one partial
     np.testing.assert_allclose(field.predict(axes), grinder.spatial_error(axes, v_ref),
                                rtol=0, atol=TOL_CLOSED_FORM_UM)
     # whole turns of A leave the error unchanged (to the round-off of cos/sin of large angles)
@@ -106,7 +106,7 @@ of the chain (a spline slope through a lever arm, a product of two element angle
 def test_closed_form_jacobian_matches_finite_differences(grinder, case):
     el = (_independent_elements(grinder, 7) if case == "independent"
           else random_truth(grinder, 3).elements.scaled(100.0 if case == "truth_x100" else 1.0))
-    field = HTMField(grinder, el)
+    field = ChainField(grinder, el)
     axes = _axes_multi_turn(grinder, 3000, 11)
     E, J = field.predict_and_jacobian(axes)
     np.testing.assert_allclose(E, field.predict(axes), rtol=0, atol=TOL_CLOSED_FORM_UM)
@@ -120,9 +120,7 @@ def test_closed_form_jacobian_matches_finite_differences(grinder, case):
     np.testing.assert_array_equal(field.jacobian(axes), J)
 
 
-def test_jacobian_is_declared_by_the_exact_form_only(grinder):
+def test_jacobian_is_float64_only(grinder):
     el = random_truth(grinder, 0).elements
-    with pytest.raises(TypeError, match="no Jacobian"):
-        HTMField(grinder, el, exact=False).predict_and_jacobian(np.zeros((2, 3)))
     with pytest.raises(ValueError, match="float64"):
-        HTMField(grinder, el).predict_and_jacobian(np.zeros((2, 3)), dtype=np.float32)
+        ChainField(grinder, el).predict_and_jacobian(np.zeros((2, 3)), dtype=np.float32)

@@ -8,7 +8,7 @@ from compensation.diagnosed_model import load_diagnosed_model
 from compensation.hybrid import LEARNED_FAMILIES, HybridField, LearnedResidual, TAPER_FRAC, learned_stage
 from compensation.solvers import solve
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.simulator import random_axes, random_truth
 from training.residual import GP_KERNELS
@@ -89,7 +89,7 @@ def test_learned_stage_declines_pure_noise(grinder):
 def test_hybrid_field_value_jacobian_and_taper(grinder, staged):
     axes, learned, _ = staged
     truth = random_truth(grinder, SEED)
-    field = check_field(HybridField(HTMField(grinder, truth.elements), learned))
+    field = check_field(HybridField(ChainField(grinder, truth.elements), learned))
     assert {JACOBIAN, PREDICT_AND_JACOBIAN} <= field.capabilities
     P = random_axes(grinder, 9, np.random.default_rng(3))
     e, J = field.predict_and_jacobian(P)
@@ -115,7 +115,7 @@ def test_model_json_round_trip_and_solvers(grinder, staged, tmp_path):
         "stage": "learned_residual", "learned_residual": learned.to_dict()}))
     cf = load_diagnosed_model(tmp_path / "model.json", grinder)
     assert isinstance(cf.base, HybridField)
-    field = HybridField(HTMField(grinder, truth.elements), learned)
+    field = HybridField(ChainField(grinder, truth.elements), learned)
     P = random_axes(grinder, 200, np.random.default_rng(4))
     np.testing.assert_array_equal(cf.base.predict(P), field.predict(P))
     targets = forward(grinder, P)
@@ -193,7 +193,7 @@ def test_hybrid_calibrated_volume_is_the_checks_box_and_the_guard_refuses_outsid
     axes[:, 1] = 10.0 + 40.0 * rng.random(60)
     reg = ResidualRegressor(seed=SEED).fit(axis_features(axes)[0], NOISE_UM * rng.standard_normal((60, 3)))
     lo, hi = axes[:, :2].min(0), axes[:, :2].max(0)
-    base = HTMField(grinder, random_truth(grinder, SEED).elements)
+    base = ChainField(grinder, random_truth(grinder, SEED).elements)
     hyb = HybridField(base, LearnedResidual(reg, lo, hi))
     vol = hyb.calibrated_volume
     assert vol.lo[:2] == tuple(lo) and vol.hi[:2] == tuple(hi)
@@ -221,7 +221,7 @@ def test_hybrid_total_band_is_learned_band_plus_element_band(grinder):
     el = random_truth(grinder, SEED).elements
     p = len(theta_layout(el))
     cov = ElementCovariance(theta_from_elements(el), 0.25 * np.eye(p), el, {})
-    hyb = HybridField(HTMField(grinder, el), LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0)))
+    hyb = HybridField(ChainField(grinder, el), LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0)))
     P = random_axes(grinder, 50, np.random.default_rng(SEED + 6))
     _, s_learned = hyb.learned.predict(P, return_std=True)
     el_var = np.diagonal(cov.prediction_cov(grinder, P), axis1=1, axis2=2)
@@ -285,7 +285,7 @@ def test_predict_on_a_diagnosed_model_without_covariance_writes_no_band(grinder,
     assert main(["predict", str(pts), "--model", str(tmp_path / "model.json"), "--out", str(out)]) == 0
     t, header = _read(out)
     e = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], 1)
-    np.testing.assert_allclose(e, HTMField(grinder, truth.elements).predict(P), rtol=0, atol=PREDICT_TOL_UM)
+    np.testing.assert_allclose(e, ChainField(grinder, truth.elements).predict(P), rtol=0, atol=PREDICT_TOL_UM)
     assert "dx_band95_um" not in t.names and "learned_part" not in t.names
     assert "stage: updated" in header and any(h.startswith("band: none") for h in header)
     capsys.readouterr()
@@ -321,7 +321,7 @@ def test_predict_on_a_hybrid_model_total_band_and_outside_flag(grinder, staged, 
     assert main(["predict", str(pts), "--model", str(model), "--out", str(out), "--allow", "volume"]) == 0
     t, header = _read(out)
     e = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], 1)
-    field = HybridField(HTMField(grinder, ElementSet.load(el)), learned)
+    field = HybridField(ChainField(grinder, ElementSet.load(el)), learned)
     np.testing.assert_allclose(e, field.predict(P), rtol=0, atol=PREDICT_TOL_UM)
     cov = ElementCovariance.load(covariance_path(el), ElementSet.load(el))
     sd = np.sqrt(learned.predict(P, return_std=True)[1] ** 2
@@ -353,7 +353,7 @@ def test_solvers_on_a_hybrid_with_the_ensemble_family(grinder):
     reg = ResidualRegressor(families=("ensemble",), seed=SEED).fit(f, r, groups=np.repeat(np.arange(10), 48))
     assert reg.chosen_ == "ensemble"
     learned = LearnedResidual(reg, axes[:, :2].min(0), axes[:, :2].max(0))
-    field = HybridField(HTMField(grinder, random_truth(grinder, SEED).elements), learned)
+    field = HybridField(ChainField(grinder, random_truth(grinder, SEED).elements), learned)
     check_field(field)
     P = random_axes(grinder, 60, np.random.default_rng(5))
     inside = np.all((P[:, :2] >= learned.lo) & (P[:, :2] <= learned.hi), axis=1)

@@ -9,7 +9,7 @@ from compensation.diagnosed_model import load_diagnosed_model
 from compensation.hybrid import INPUT_GROUPS, TAPER_FRAC, HybridField, LearnedResidual, axis_features
 from compensation.solvers import solve
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.simulator import random_axes, random_truth
 from training.residual import ResidualRegressor
@@ -54,7 +54,7 @@ def learned(request, grinder):
 @pytest.mark.slow
 def test_new_family_in_the_hybrid_field_jacobian_taper_round_trip_and_solvers(grinder, learned, tmp_path):
     truth = random_truth(grinder, SEED)
-    field = check_field(HybridField(HTMField(grinder, truth.elements), learned))
+    field = check_field(HybridField(ChainField(grinder, truth.elements), learned))
     assert {JACOBIAN, PREDICT_AND_JACOBIAN} <= field.capabilities
     P = random_axes(grinder, 9, np.random.default_rng(3))
     e, J = field.predict_and_jacobian(P)

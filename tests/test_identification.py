@@ -11,7 +11,7 @@ from chain_fixtures import grinder_variant
 import pytest
 
 from errormap.elements import ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.identification import ChainIdentification, layout_problem, rigid_fit
 from errormap.io import InputError
 from errormap.machine import load_machine
@@ -49,7 +49,7 @@ def identify(cols, machine, gauge="first-station"):
 
 
 def spatial_max_um(machine, a, b, points):
-    return np.abs(HTMField(machine, a).predict(points) - HTMField(machine, b).predict(points)).max()
+    return np.abs(ChainField(machine, a).predict(points) - ChainField(machine, b).predict(points)).max()
 
 
 def test_noise_free_reproduces_spatial_error_and_elements(machine, truth, points):
@@ -130,7 +130,7 @@ def test_noisy_identification_is_bounded_and_seeded(machine, truth, points):
     a = identify(cols, machine)
     b = identify(cols, machine)
     assert np.array_equal(a.elements_.values(points), b.elements_.values(points))
-    d = HTMField(machine, a.elements_).predict(points) - HTMField(machine, truth.elements).predict(points)
+    d = ChainField(machine, a.elements_).predict(points) - ChainField(machine, truth.elements).predict(points)
     assert np.sqrt(np.mean(np.sum(d**2, axis=1))) < NOISY_RMS_BOUND_UM
     assert all(0.5 < r.max() < 10.0 for r in a.residual_rms_um.values())  # noise shows in the residuals
 

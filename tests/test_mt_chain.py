@@ -8,7 +8,7 @@ import pytest
 from errormap.chain import Chain, Joint, et, inverted
 from errormap.elements import A_ELEMENTS, CONSTANT_ELEMENTS, ELEMENT_NAMES, FUNCTION_ELEMENTS, ElementSet
 from errormap.field import check_field
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import error_jacobian, spatial_error
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
@@ -95,7 +95,7 @@ def test_grinder_chain_file_names_and_axes():
 def _grinder_equivalence(n, seed):
     g, mt = load_machine(), load_machine("grinder-chain")
     el = _grinder_elements(g, seed, scale_um=60.0)
-    f0 = HTMField(g, el)
+    f0 = ChainField(g, el)
     f1 = ChainField(mt, ChainElementSet.from_element_set(mt, el))
     ax = _grinder_axes(g, n, seed + 1)
     E0, J0 = f0.predict_and_jacobian(ax)

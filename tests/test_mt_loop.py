@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 
 from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, parameter_matrix
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
-from errormap.chain_field import ChainField
 from errormap.identification import ChainIdentification, root_axis
 from errormap.chain_truth import FAMILIES, TARGET_MAX_RANGE_UM, MTTruth, make_mt_truth, volume_grid
 from errormap.chain_sweeps import read_mt_sweeps, simulate_mt_sweeps, swept_words
@@ -133,7 +132,7 @@ def test_generic_identification_agrees_with_grinder(noise):
     eg = smooth_identify(cols, g, smooth=False, gauge="first-station").raw.elements_
     ec = ChainIdentification().fit(sweeps_from_columns(cols, axes=swept_words(gc)), gc).elements_
     grid = grinder_grid(g, (9, 5, 13))
-    d = np.linalg.norm(HTMField(g, eg).predict(grid) - ChainField(gc, ec).predict(grid), axis=1)
+    d = np.linalg.norm(ChainField(g, eg).predict(grid) - ChainField(gc, ec).predict(grid), axis=1)
     assert np.sqrt(np.mean(d**2)) < (NOISE_FREE_UM if noise == 0 else GRINDER_AGREE_UM)
     for k in ("dy_oa", "dz_oa", "ey_oa", "ez_oa"):  # the A-axis line: the same gauge, the same numbers
         assert ec.constants[k] == pytest.approx(eg.constants[k], abs=max(NOISE_FREE_UM, 1e-2 * (noise > 0)))

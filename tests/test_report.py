@@ -15,7 +15,7 @@ from compensation.app.workflows.compare import compare_methods, subset_index
 from compensation.solvers import solve
 from compensation.toolpath import flute_path
 from errormap.io import InputError
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.simulator import random_truth
 
@@ -44,7 +44,7 @@ def test_true_residual_of_nominal_commands_is_the_truth_error(grinder, truth, fl
 
 def test_traditional_residual_repeats_once_per_turn(grinder, truth, flute):
     """The paper's Fig. 18: the traditional model residual has the same profile on every turn."""
-    field = HTMField(grinder, truth.elements)
+    field = ChainField(grinder, truth.elements)
     cmp = compare_methods(field, flute.targets_mm, grinder, methods=("traditional", "exact"), truth=truth,
                           nominal_axes=flute.axes(grinder))
     r = np.linalg.norm(cmp.runs["traditional"].result.residual_um, axis=1).reshape(3, 60)
@@ -68,7 +68,7 @@ def test_per_point_ga_runs_on_a_subset_and_says_so(grinder, truth, flute, monkey
         return solve("traditional", field, targets, machine, **opts)
 
     monkeypatch.setattr(compare_mod, "_solve", stand_in)
-    field = HTMField(grinder, truth.elements)
+    field = ChainField(grinder, truth.elements)
     cmp = compare_methods(field, flute.targets_mm, grinder, methods=("ga", "batched-ga"), truth=truth, ga_points=25)
     run = cmp.runs["ga"]
     assert len(run.index) == 25 and run.index[0] == 0 and run.index[-1] == len(flute) - 1
@@ -91,7 +91,7 @@ def test_a_method_run_on_a_subset_gets_its_own_residual_file_without_nan_padding
         return solve("traditional", field, targets, machine,
                      **{k: v for k, v in options.items() if k == "target_axes"})
     monkeypatch.setattr(compare_mod, "_solve", stand_in)
-    cmp = compare_methods(HTMField(grinder, truth.elements), flute.targets_mm, grinder, methods=("ga", "exact"),
+    cmp = compare_methods(ChainField(grinder, truth.elements), flute.targets_mm, grinder, methods=("ga", "exact"),
                           truth=truth, ga_points=25)
     paths = write_report(cmp, tmp_path / "rep")
     full, sub = read_table(paths["residuals"]), read_table(paths["residuals_ga"])
@@ -105,7 +105,7 @@ def test_a_method_run_on_a_subset_gets_its_own_residual_file_without_nan_padding
 
 
 def test_report_html_is_self_contained_and_names_its_residuals(tmp_path, grinder, truth, flute):
-    field = HTMField(grinder, truth.elements)
+    field = ChainField(grinder, truth.elements)
     cmp = compare_methods(field, flute.targets_mm, grinder, methods=("traditional", "exact"), truth=truth)
     paths = write_report(cmp, tmp_path / "rep", context={"model": "test"})
     text = paths["html"].read_text()

@@ -38,11 +38,11 @@ ARM_HI_DEG = (60.0, -30.0, 140.0, 30.0, 150.0, 30.0)
 def _comparison(grinder):
     from compensation.app.workflows.compare import compare_methods
     from compensation.toolpath import flute_path
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.simulator import random_truth
     truth = random_truth(grinder, 11)
     flute = flute_path(turns=1, points_per_turn=40)
-    return compare_methods(HTMField(grinder, truth.elements), flute.targets_mm, grinder,
+    return compare_methods(ChainField(grinder, truth.elements), flute.targets_mm, grinder,
                            methods=("traditional", "exact"), truth=truth)
 
 

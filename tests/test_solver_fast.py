@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from compensation.solvers import solve
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
@@ -32,7 +32,7 @@ class FiniteDifferenceOnly:
 @pytest.mark.parametrize("truth_seed", [2, 5])
 def test_closed_form_jacobian_solve_equals_finite_differences(truth_seed):
     m = load_machine()
-    field = HTMField(m, random_truth(m, truth_seed).elements)
+    field = ChainField(m, random_truth(m, truth_seed).elements)
     rng = np.random.default_rng(21)
     axes = random_axes(m, 3000, rng)
     axes[:, 2] += 360.0 * rng.integers(-2, 3, len(axes))

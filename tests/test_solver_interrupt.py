@@ -12,7 +12,7 @@ import pytest
 from compensation.batch import LocalExecutor, solve_batch
 from compensation.pathio import write_axes_gcode
 from compensation.toolpath import flute_path
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.simulator import random_truth
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,7 +98,7 @@ def _interrupt_after(main_ident: int, cpu_s: float, at: dict):
 @pytest.mark.parametrize("chunk_points", [2800, 1400], ids=["one chunk", "two chunks in threads"])
 def test_batched_ga_raises_keyboard_interrupt_within_the_bound(grinder, chunk_points):
     import threading
-    field = HTMField(grinder, random_truth(grinder, 5).elements)
+    field = ChainField(grinder, random_truth(grinder, 5).elements)
     fp = flute_path()
     path = _Path(fp.targets_mm, fp.axes(grinder))
     at = {}

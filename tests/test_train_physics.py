@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from errormap.featurepoints import FeaturePoints, grid_axes
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import InputError
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
@@ -50,7 +50,7 @@ def machine():
 @pytest.fixture(scope="module")
 def data(machine):
     """Feature points of a seeded truth (GRID stations) on the GRID³ grid, and 2,000 random points."""
-    truth = HTMField(machine, random_truth(machine, SIM_SEED, n_stations=GRID).elements)
+    truth = ChainField(machine, random_truth(machine, SIM_SEED, n_stations=GRID).elements)
     axes = grid_axes(machine, GRID)
     val = random_axes(machine, 2000, np.random.default_rng(11))
     fp = FeaturePoints(axes, truth.predict(axes), {"machine": machine.name, "machine_sha256": machine.sha256})
@@ -65,7 +65,7 @@ def test_grid_stations_counts_the_nodes(machine):
 def test_physical_part_fits_the_grid_and_between(machine, data):
     fp, (val, val_e) = data
     el = fit_physics_elements(machine, fp.axes, fp.errors_um)
-    f = HTMField(machine, el)
+    f = ChainField(machine, el)
     assert el.stations["x_mm"].size == GRID
     assert np.abs(f.predict(fp.axes) - fp.errors_um).max() <= PHYSICS_ON_GRID_TOL_UM
     assert np.abs(f.predict(val) - val_e).max() <= PHYSICS_OFF_GRID_TOL_UM

@@ -481,7 +481,7 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
     """With an HTM reference, fit_field keeps the LM iterate best on off-grid selection points:
     the returned network is that iterate, and it is no worse off-grid than the last iterate."""
     from errormap.featurepoints import make_feature_points
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     from errormap.simulator import random_truth
     from training import fit_field
@@ -490,7 +490,7 @@ def test_selection_keeps_the_iterate_best_off_grid(tmp_path):
     m = load_machine()
     el = random_truth(m, 5).elements
     el_path = el.save(tmp_path / "el.json")
-    fp = make_feature_points(m, HTMField(m, el), n=5, meta={"elements_file": str(el_path)})
+    fp = make_feature_points(m, ChainField(m, el), n=5, meta={"elements_file": str(el_path)})
     kw = dict(max_time_s=120, max_iter=60, seed=0, track=False, quiet=True, threads=1, n_validation=2000,
               hidden=(8, 8), activation="tanh", a_encoding="periodic")
     best = fit_field(fp, select_best=True, n_select=2000, select_every=1, **kw)

@@ -679,8 +679,8 @@ class PhysicsMLPField(PhysicsPart, MLPField):
     capabilities = frozenset({JACOBIAN, PREDICT_AND_JACOBIAN})
 
     def _physics_field(self, machine, elements):
-        from errormap.htm import HTMField
-        return HTMField(machine, elements)
+        from errormap.chain_field import ChainField
+        return ChainField(machine, elements)
 
     def _physics_axes(self, axes) -> np.ndarray:
         return _check_axes(axes)

@@ -11,7 +11,7 @@ equally spaced stations of its axis (periodic in A; zero at the first station, t
 reference) and the 5 constants. The unknowns are the station values (18·(n−1) − 6 + 5; the A
 profiles close) and the solve is minimum-norm, so the gauge combinations the grid cannot see
 (e.g. a constant X offset carried by two elements) take no value. The fitted set is evaluated
-with the EXACT HTM model (:class:`errormap.htm.HTMField`), so the network learns the second-order
+with the EXACT HTM model (:class:`errormap.chain_field.ChainField`), so the network learns the second-order
 terms the linear fit cannot carry plus whatever the element model does not represent.
 
 What this part knows of the machine: its kinematic chain (the machine file) and the feature

@@ -206,9 +206,9 @@ def validation_points(machine, elements_or_field, n: int = 10_000, seed: int = 1
     Uniform random points lie off the feature-point grid with probability one.
     """
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.simulator import random_axes
-    f = HTMField(machine, elements_or_field) if isinstance(elements_or_field, ElementSet) else elements_or_field
+    f = ChainField(machine, elements_or_field) if isinstance(elements_or_field, ElementSet) else elements_or_field
     axes = random_axes(machine, int(n), np.random.default_rng(seed))
     return axes, f.predict(axes)
 
@@ -216,7 +216,7 @@ def validation_points(machine, elements_or_field, n: int = 10_000, seed: int = 1
 def reference_from_meta(meta: dict):
     """(machine, HTM field) from a feature-point file's provenance, or None when not available."""
     from errormap.elements import ElementSet
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.machine import builtin_machine_path, load_machine
     el = meta.get("elements_file")
     if not el or not Path(el).is_file():
@@ -225,7 +225,7 @@ def reference_from_meta(meta: dict):
     if mf and not Path(mf).is_file() and meta.get("machine_sha256") == sha256_file(builtin_machine_path()):
         mf = None  # the built-in machine, recorded by another installation's path
     machine = load_machine(mf, expect_kind="grinder")
-    return machine, HTMField(machine, ElementSet.load(el))
+    return machine, ChainField(machine, ElementSet.load(el))
 
 
 def zero_network(model) -> None:

@@ -5,7 +5,7 @@ import sys
 
 from errormap.elements import ElementSet
 from errormap.featurepoints import DEFAULT_GRID, make_feature_points
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import sha256_file
 from errormap.machine import load_machine
 
@@ -50,7 +50,7 @@ def _chain_field(machine, args):
 
 def _grinder_field(machine, args):
     """The grinder: its HTM field of the element set (by content: its format key, whatever the name)."""
-    return HTMField(machine, ElementSet.load(args.elements))
+    return ChainField(machine, ElementSet.load(args.elements))
 
 
 FIELDS = {"grinder": _grinder_field, "chain": _chain_field}

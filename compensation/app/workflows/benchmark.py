@@ -11,7 +11,7 @@ test paths, records every run in MLflow under one parent run, and writes
 * measurements: laser-tracker sweeps (``errormap.sweeps.simulate_sweeps``) with ``stations``
   stations per axis and tracker noise ``noise_um``; ``n_measurements = stations × 3 balls × 3 axes``
   (ball-centre measurements); the closed loop adds ``n_checks`` check measurements;
-* parametric: identified 23 elements → :class:`errormap.htm.HTMField` → ``exact`` solver;
+* parametric: identified 23 elements → :class:`errormap.chain_field.ChainField` → ``exact`` solver;
 * learned: the same identified elements → 11×11×11 feature points → the BP network
   (``training.fit_field``, LM, ``train_iter`` iterations) → ``batched-ga`` (the paper's GA,
   vectorised) on ``ga_points`` evenly spaced flute points and ``exact`` on the whole flute;
@@ -424,9 +424,9 @@ class NetworkTrainer:
     def train(self, elements, cond_name: str, s: BenchmarkSettings):
         """``(fit result, seconds, name of the condition reused or None)``."""
         from errormap.featurepoints import make_feature_points
-        from errormap.htm import HTMField
+        from errormap.chain_field import ChainField
         from training import TrackSettings, TrainSettings, fit_field, validation_points
-        fp = make_feature_points(self.m, HTMField(self.m, elements), n=LEARNED_GRID, meta={"benchmark_condition": cond_name})
+        fp = make_feature_points(self.m, ChainField(self.m, elements), n=LEARNED_GRID, meta={"benchmark_condition": cond_name})
         key = (tuple(s.hidden), s.activation, s.a_encoding, s.train_iter, s.train_s)
         for k, errs, res, secs, name in self.cache:
             if k == key and np.max(np.abs(errs - fp.errors_um)) < FEATURE_REUSE_TOL_UM:
@@ -512,8 +512,8 @@ class GrinderBench:
 
     def parametric_row(self, truth, elements, id_s, label, common):
         """The exact inverse of the identified HTM field; returns (field, row)."""
-        from errormap.htm import HTMField
-        field_ = HTMField(self.m, elements)
+        from errormap.chain_field import ChainField
+        field_ = ChainField(self.m, elements)
         _log(f"grinder: parametric, {label}")
         ex = self._compensate(truth, field_, "exact")
         row = _row(self.m.name, "grinder", "parametric", label, closed_loop=False, solver="exact",

@@ -183,7 +183,7 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
     import numpy as np
 
     from errormap.featurepoints import make_feature_points
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.io import sha256_file
     from errormap.machine import load_machine
     from errormap.sweeps import read_sweeps
@@ -210,7 +210,7 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
         write_json(folder / "identify_report.json", info)
         sm.elements_.save(el_path)
         # 2. train on the identified set's feature points
-        fp = make_feature_points(machine, HTMField(machine, sm.elements_), n=s["grid"],
+        fp = make_feature_points(machine, ChainField(machine, sm.elements_), n=s["grid"],
                                  meta={"elements_file": str(el_path), "elements_sha256": sha256_file(el_path)})
         fp_path = fp.save(folder / "featurepoints.csv")
         res = fit_field(fp, max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]),

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from errormap.featurepoints import make_feature_points
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.io import sha256_file, write_csv, write_json
 from errormap.simulator import EFFECT_DEFAULTS, volume_grid
 from errormap.seeds import spawn_seeds
@@ -24,7 +24,7 @@ def simulate_truth(machine, seed: int, out, effects=(), noise_um: float = 1.0, c
     effects = list(effects)
     truth = make_truth(machine, seed, effects=effects, family=family)
     el_path = truth.elements.save(out / "truth_elements.json")
-    fp = make_feature_points(machine, HTMField(machine, truth.elements),
+    fp = make_feature_points(machine, ChainField(machine, truth.elements),
                              meta={"elements_file": str(el_path), "source": f"simulate seed={seed}"})
     fp.meta["elements_sha256"] = sha256_file(el_path)
     fp_path = fp.save(out / "featurepoints.csv")
