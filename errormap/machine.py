@@ -123,6 +123,20 @@ def builtin_machines() -> dict:
     return {p.stem: p for p in sorted(folder.glob("*.toml"))}
 
 
+FORMER_SHA256 = {"grinder": ("79f2a794bd5774bc9bf7a052890bc36a5736f3deddd4c13eddc871b2ae73ba1a",)}
+"""SHA-256 of earlier files of a built-in machine (the grinder's ``kind = "grinder"`` file before it became its
+chain file): a model or data file recorded with one of them was made on that built-in machine."""
+
+
+def made_on(machine, sha: str | None) -> bool:
+    """True when a file's recorded machine ``sha`` names ``machine``'s file: its own sha256, or, for a built-in
+    machine, an earlier file of it (:data:`FORMER_SHA256`)."""
+    if sha == machine.sha256:
+        return True
+    name = next((k for k, p in builtin_machines().items() if str(p) == str(machine.path)), None)
+    return sha in FORMER_SHA256.get(name, ())
+
+
 def builtin_named(name: str):
     """The built-in machine file of ``name`` (a file's stem or an alias, :data:`BUILTIN_ALIASES`), or None."""
     return builtin_machines().get(BUILTIN_ALIASES.get(name, name))

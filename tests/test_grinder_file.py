@@ -151,3 +151,20 @@ def test_unmapped_names_and_other_kinds_are_refused(user_grinder):
     assert doc["geometry"]["l8"] == g.geometry["l8"] == 101.0
     with pytest.raises(MachineFileError, match="expected the grinder's chain here"):
         load_machine("mill-xyz", expect_kind="grinder")
+
+
+def test_models_of_the_former_builtin_file_are_the_builtin_grinders(tmp_path):
+    """An element set recorded with the built-in grinder's earlier file (kind = "grinder", before it became its
+    chain file) is the built-in grinder's; another machine's, or an unknown file's, is refused by name."""
+    from compensation.export.sources import load_elements
+    from errormap.io import InputError
+    from errormap.machine import FORMER_SHA256, made_on
+    g, former = load_machine(), FORMER_SHA256["grinder"][0]
+    assert made_on(g, g.sha256) and made_on(g, former) and not made_on(load_machine("mill-xyz"), former)
+    el = random_elements(g, 141)
+    el.machine_sha256 = former
+    ax = random_axes(g, 50, 142)
+    np.testing.assert_array_equal(load_elements(el.save(tmp_path / "old.json"), g).values(ax), el.values(ax))
+    el.machine_sha256 = "0" * 64
+    with pytest.raises(InputError, match="machine_sha256"):
+        load_elements(el.save(tmp_path / "other.json"), g)

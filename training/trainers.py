@@ -217,12 +217,12 @@ def reference_from_meta(meta: dict):
     """(machine, HTM field) from a feature-point file's provenance, or None when not available."""
     from errormap.elements import ElementSet
     from errormap.chain_field import ChainField
-    from errormap.machine import builtin_machine_path, load_machine
+    from errormap.machine import load_machine, made_on
     el = meta.get("elements_file")
     if not el or not Path(el).is_file():
         return None
     mf = meta.get("machine_file") or None
-    if mf and not Path(mf).is_file() and meta.get("machine_sha256") == sha256_file(builtin_machine_path()):
+    if mf and not Path(mf).is_file() and made_on(load_machine(), meta.get("machine_sha256")):
         mf = None  # the built-in machine, recorded by another installation's path
     machine = load_machine(mf, expect_kind="grinder")
     return machine, ChainField(machine, ElementSet.load(el))
@@ -258,9 +258,10 @@ def physics_metrics(model, axes, errors_um, val_axes, val_errors_um) -> dict:
 
 def machine_from_meta(meta: dict):
     """The grinder the feature points were made on (their ``machine_file``, else the built-in one)."""
-    from errormap.machine import builtin_machine_path, load_machine
+    from errormap.machine import load_machine, made_on
     mf = meta.get("machine_file") or None
-    if mf and not Path(mf).is_file() and meta.get("machine_sha256") in (None, "", sha256_file(builtin_machine_path())):
+    if mf and not Path(mf).is_file() and (meta.get("machine_sha256") in (None, "")
+                                          or made_on(load_machine(), meta.get("machine_sha256"))):
         mf = None
     return load_machine(mf, expect_kind="grinder")
 
@@ -604,7 +605,7 @@ def _write_run(model, axes, errors, ref, metrics, params, hist, s: TrainSettings
         plots = fit_plots(model, axes, errors, d, reference=ref[1] if ref else None)
         write_json(d / "metrics.json", summary)
         if t.track:
-            from errormap.machine import builtin_machine_path
+            from errormap.machine import builtin_machine_path, load_machine, made_on
 
             from .tracking import log_fit
             all_tags = {"machine": meta.get("machine", ""), **(t.tags or {})}
@@ -612,7 +613,7 @@ def _write_run(model, axes, errors, ref, metrics, params, hist, s: TrainSettings
             # machine when the data were made on it (its SHA-256 recorded)
             machine_file = params["machine_file"]
             mf = machine_file if machine_file and Path(machine_file).is_file() else None
-            if mf is None and params["machine_sha256"] == sha256_file(builtin_machine_path()):
+            if mf is None and made_on(load_machine(), params["machine_sha256"]):
                 mf = builtin_machine_path()
             run_id = log_fit(params, metrics, hist, d / "model", plots + [d / "metrics.json"],
                              tracking_uri=t.tracking_uri, run_name=t.run_name, parent_run_id=t.parent_run_id,

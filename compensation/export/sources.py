@@ -58,7 +58,8 @@ def load_elements(path, machine):
     if reads_grinder_files(machine):
         from errormap.elements import ElementSet
         el = ElementSet.load(path)
-        if el.machine_sha256 and el.machine_sha256 != machine.sha256:
+        from errormap.machine import made_on
+        if el.machine_sha256 and not made_on(machine, el.machine_sha256):
             raise InputError(f"{path}: key 'machine_sha256': the model was made for machine file sha256 "
                              f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
                              f"({machine.path}); pass the model's --machine")
