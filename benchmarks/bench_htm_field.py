@@ -1,7 +1,7 @@
 """Benchmark (issue 20): the exact HTM field, reference vs fast, side by side in one run.
 
 * field: μs per point of ``HTMField.predict`` (exact) — the reference pipeline (18 per-element
-  splines + the (n, 3, 3) numpy matrix chain ``spatial_error_exact_chain``; the baseline's
+  splines + the (n, 3, 3) numpy matrix chain (``MachineTool.spatial_error``); the baseline's
   hand-written one with ``--baseline-root``) against the fast one (3 vector-valued per-axis splines
   + the compiled chain, ``HTMField.predict``);
 * field + Jacobian: μs per point of ``HTMField.predict_and_jacobian`` (exact, one pass);
@@ -38,22 +38,28 @@ from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
 
 
-class ReferenceHTMField(HTMField):
+def _numpy_chain(machine, axes, values, chunk):
+    """The chain file's numpy reference (:meth:`errormap.machine_tool.MachineTool.spatial_error`)."""
+    return machine.spatial_error(axes, values, chunk=min(chunk, 4096))
+
+
+class ReferenceHTMField(ChainField):
     """The exact HTM field as it was before issue 20: per-element splines, matrix chain, no Jacobian.
 
     ``exact_chain(machine, axes, values, chunk)`` is the numpy matrix chain: the hand-written one of
     the baseline (``--baseline-root``, the pipeline this column timed before issue 26 point 3) or,
-    without a baseline, the chain file's numpy reference (:func:`errormap.htm.spatial_error_exact_chain`)."""
+    without a baseline, the chain file's numpy reference (:func:`_numpy_chain`)."""
 
     capabilities = frozenset()
 
-    def __init__(self, machine, elements, exact_chain=spatial_error_exact_chain):
+    def __init__(self, machine, elements, exact_chain=_numpy_chain):
         super().__init__(machine, elements)
+        self.grinder_elements = elements
         self.exact_chain = exact_chain
 
     def predict(self, axes):
         axes = np.asarray(axes, dtype=float)
-        el = self.elements
+        el = self.grinder_elements
         cols = {"x_mm": axes[:, 0], "z_mm": axes[:, 1], "a_deg": el.wrap_a(axes[:, 2])}
         v = np.stack([el._spline(k)(cols[AXIS_OF[k]]) for k in FUNCTION_ELEMENTS]
                      + [np.full(len(axes), el.constants[k]) for k in CONSTANT_ELEMENTS], axis=1)
@@ -83,7 +89,7 @@ def run_seed(seed, points, repeats, solve_points, baseline_root=None):
     if baseline_root:
         from baseline import baseline_module
         old_htm = baseline_module(baseline_root, "htm")
-    ref = ReferenceHTMField(m, el, old_htm.spatial_error_exact_chain if old_htm else spatial_error_exact_chain)
+    ref = ReferenceHTMField(m, el, old_htm.spatial_error_exact_chain if old_htm else _numpy_chain)
     new = ChainField(m, el)
     new.predict(axes[:10]), ref.predict(axes[:10])  # compile / build splines outside the timing
     t_ref, e_ref = _median_time(lambda: ref.predict(axes), repeats)
@@ -91,7 +97,7 @@ def run_seed(seed, points, repeats, solve_points, baseline_root=None):
     t_jac, (_, j_new) = _median_time(lambda: new.predict_and_jacobian(axes), repeats)
     old = {}
     if old_htm is not None:
-        hand = old_htm.ChainField(m, el)
+        hand = old_htm.HTMField(m, el)
         hand.predict(axes[:10]), hand.predict_and_jacobian(axes[:10])
         t_hv, e_h = _median_time(lambda: hand.predict(axes), repeats)
         t_hj, (_, j_h) = _median_time(lambda: hand.predict_and_jacobian(axes), repeats)

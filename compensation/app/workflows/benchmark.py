@@ -65,7 +65,7 @@ from errormap.io import write_json
 from errormap.seeds import spawn_seeds
 from errormap.stats import residual_stats
 
-from ..families import family_of
+from ..families import family_kind, family_of
 from .benchmark_loop import at_conditions, chain_elements, loop_models
 
 PATH_CONDITIONS = {"temp_c": 24.0, "time_s": 7200.0, "dir_x": 1.0, "dir_z": -1.0, "dir_a": 1.0}
@@ -966,7 +966,7 @@ def run_benchmark(machines, out_dir, settings: BenchmarkSettings | None = None, 
                                "cpus": _cpus()},
                "residual": "true residual (simulated truth machine driven with the compensated commands, minus the "
                            "target), vector norm per point, um",
-               "machines": [{"name": m.name, "kind": m.kind, "file": getattr(m, "path", ""),
+               "machines": [{"name": m.name, "kind": family_kind(m), "file": getattr(m, "path", ""),
                              "sha256": getattr(m, "sha256", "")} for m in machines]}
         out.mkdir(parents=True, exist_ok=True)
         json_path = write_json(out / "benchmark.json", doc)
@@ -996,7 +996,7 @@ def _run_machines(machines, s: BenchmarkSettings, tracker: Tracker, out_dir):
         r, k = BENCH_BY_TARGET[family_of(m).target("benchmark")](m, s, tracker, out_dir)
         rows += r
         skipped += k
-        _log(f"{m.kind} done in {time.perf_counter() - t0:.0f} s")
+        _log(f"{family_kind(m)} done in {time.perf_counter() - t0:.0f} s")
     return rows, skipped
 
 
