@@ -42,11 +42,12 @@ def _grinder_tools():
     """(machine, field of an element set, forward, solve) from whichever tree is on the path."""
     from compensation.solvers import solve
     from errormap.machine import load_machine
+    from errormap import machine
     m = load_machine()
-    try:   # the tree before: the grinder's own field and kinematics modules
+    if hasattr(machine, "Grinder"):   # the tree before: the grinder's own field and kinematics modules
         from errormap.htm import HTMField as Field
         from errormap.kinematics import forward
-    except ImportError:
+    else:
         from errormap.chain_field import ChainField as Field
         from errormap.chain_kernel import forward
     return m, Field, forward, solve
