@@ -58,5 +58,6 @@ def test_machine_file_examples_in_the_docs_load(tmp_path):
         p = tmp_path / f"m{i}.toml"
         p.write_text(b, encoding="utf-8")
         kinds.append(load_machine(p).kind)
-    assert kinds == ["grinder", "hexapod", "tripod", "serial", "serial", "machine-tool"]
-    assert load_machine(tmp_path / "m0.toml").sha256 != ""
+    assert kinds == ["machine-tool", "hexapod", "tripod", "serial", "serial", "machine-tool"]  # grinder: its chain
+    grinder = load_machine(tmp_path / "m0.toml")
+    assert grinder.sha256 != "" and 'kind = "grinder" read as its machine-tool chain' in grinder.read_as
