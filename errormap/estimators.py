@@ -107,8 +107,10 @@ class Identification(Estimator):
     ``fit(sweeps)``: ``sweeps`` a :class:`errormap.sweeps.Sweeps` (:func:`errormap.read_sweeps`,
     :func:`errormap.simulate_sweeps`). Learned: ``elements_`` (the chain's element set), ``result_``
     (:class:`errormap.identification.ChainIdentificationResult`: residuals, conditioning, warnings),
-    ``covariance_`` (``(slot names, stations (N,), Σ (N, N))`` μm² / μrad²), ``field_`` (the elements' error
-    field: ``predict(axes (n, k)) -> (n, 3)`` μm).
+    ``covariance_`` (``(slot names, stations (N,), Σ (N, N))`` μm² / μrad²), ``prior_covariance_`` (the same
+    with the smoother's extra variance on the diagonal: the prior of a closed loop's element update, as
+    ``volcomp diagnose`` reads it from ``NAME.cov.npz``), ``field_`` (the elements' error field:
+    ``predict(axes (n, k)) -> (n, 3)`` μm).
     """
 
     def __init__(self, machine, max_iter: int | None = None, tol: float | None = None,
@@ -138,6 +140,8 @@ class Identification(Estimator):
         self.result_ = res
         self.elements_ = res.elements_
         self.covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov.copy())
+        extra = 0.0 if res.prior_extra is None else np.diag(np.asarray(res.prior_extra, float))
+        self.prior_covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov + extra)
         self.field_ = ChainField(mt, self.elements_)
         return self
 
@@ -152,28 +156,32 @@ class ClosedLoop(Estimator):
 
     Settings: ``machine`` (a machine-tool chain, or the grinder file as its chain); ``fit_fraction`` (the
     first share of the checks, by ``seq``, fits; the rest is held out); ``noise_um`` (known noise σ per coordinate, None: estimated);
-    ``effects`` / ``max_effects`` (the effect search); ``smoothing`` (``"gcv"`` or a weight).
+    ``effects`` / ``max_effects`` (the effect search); ``smoothing`` (``"gcv"`` or a weight); ``refit_all`` (the
+    kept stage re-estimated on all checks once chosen, as ``volcomp diagnose`` ships it).
 
     ``fit(checks, elements, covariance=None)``: ``checks`` an :class:`errormap.diagnosis.chain_loop.MTChecks`
     (:func:`errormap.read_checks`, :func:`errormap.simulate_checks`), ``elements`` the identified element
-    set, ``covariance`` its ``(slot names, stations, Σ)`` (``Identification.covariance_``; None: no element
-    update). Learned: ``summary_`` (stages with held-out and fitting statistics, the kept stage and why,
+    set, ``covariance`` the update's prior ``(slot names, stations, Σ)`` (``Identification.prior_covariance_``,
+    what ``volcomp diagnose`` reads; None: no element update). Learned: ``summary_`` (stages with held-out and fitting statistics, the kept stage and why,
     effects accepted/rejected, noise floor), ``kept_stage_``, ``held_out_rms_um_``, ``elements_`` and
-    ``terms_`` (the kept model), ``field_`` (its error field; terms that need conditions take them by
+    ``terms_`` (the kept model: as ``volcomp diagnose --no-learned`` ships it, re-estimated on ALL checks once
+    chosen on the split when ``refit_all``, :func:`errormap.diagnosis.chain_loop.ship_on_all_checks`; the held-out
+    figures are the split's), ``field_`` (its error field; terms that need conditions take them by
     ``field_.with_conditions``). The learned-residual stage of ``volcomp diagnose`` is not part of it.
     """
 
     def __init__(self, machine, fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
-                 max_effects: int = 4, smoothing="gcv"):
+                 max_effects: int = 4, smoothing="gcv", refit_all: bool = True):
         self.machine = machine
         self.fit_fraction = fit_fraction
         self.noise_um = noise_um
         self.effects = effects
         self.max_effects = max_effects
         self.smoothing = smoothing
+        self.refit_all = refit_all
 
     def fit(self, checks, elements, covariance=None) -> "ClosedLoop":
-        from .diagnosis.chain_loop import MTChecks, closed_loop_chain
+        from .diagnosis.chain_loop import MTChecks, closed_loop_chain, ship_on_all_checks
         from .diagnosis.loop_model import ChainModelField
         from .chain_elements import ChainElementSet
         mt = machine_tool(self.machine, "ClosedLoop(machine=...)")
@@ -185,10 +193,13 @@ class ClosedLoop(Estimator):
                                     smoothing=self.smoothing)
         models = summary.pop("_models")
         terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
+        elements = models["elements"]
+        if self.refit_all:
+            elements, terms = ship_on_all_checks(summary, models, terms)
         self.summary_ = summary
         self.kept_stage_ = summary["kept_stage"]
         self.held_out_rms_um_ = float(summary["held_out_rms_um"])
-        self.elements_ = models["elements"]
+        self.elements_ = elements
         self.terms_ = list(terms)
         self.field_ = ChainModelField(mt, self.elements_, self.terms_)
         return self

@@ -53,7 +53,7 @@ def _closed_loop():
     m, truth, _ = _mill_sweeps()
     ident = _mill_identified()
     checks = simulate_checks(truth, n=40, noise_um=1.0, seed=3)
-    return ClosedLoop(m, effects=False), (checks, ident.elements_, ident.covariance_), \
+    return ClosedLoop(m, effects=False), (checks, ident.elements_, ident.prior_covariance_), \
         (np.array([[100.0, 50.0, -100.0]]),), ("elements_", "summary_")
 
 

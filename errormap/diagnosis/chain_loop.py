@@ -266,3 +266,28 @@ def closed_loop_chain(machine: MachineTool, elements: ChainElementSet, checks: M
             "_models": {"elements": models.get("updated_plus_effects" if kept == "plus_effects" else kept,
                                                models.get("updated", elements)), "terms": accepted,
                         "refit": refit}}
+
+
+def ship_on_all_checks(summary: dict, models: dict, terms: list, learned: bool = False,
+                       reestimate: bool = True) -> tuple:
+    """What the loop ships (``volcomp diagnose`` and :class:`errormap.ClosedLoop` alike): once the stage, its
+    effect terms (and a learned part) were chosen on the fitting/held-out split, the kept stage re-estimated on
+    ALL ``summary["n_checks"]`` checks (``models["refit"]`` of :func:`closed_loop_chain`); the held-out figures
+    stay the validated ones and ``summary["refit_on_all_checks"]`` says what was re-estimated. ``terms``: the
+    kept stage's effect terms; ``learned``: a learned part was kept (and re-estimated with the base by its
+    backfitting); ``reestimate`` False: the base was already re-estimated there (the record only). Without a
+    re-estimation (the kept stage is the identified one: nothing was fitted to the checks) ``models["elements"]``
+    and ``terms`` unchanged, no record. → ``(elements, terms)``."""
+    refit, n = models.get("refit"), int(summary["n_checks"])
+    if refit is None:
+        return models["elements"], list(terms)
+    el, ts = models["elements"], list(terms)
+    if reestimate:
+        el, ts, _ = refit(ts, np.zeros((n, 3)), np.arange(n))
+    summary["refit_on_all_checks"] = {
+        "checks": n, "stage": summary.get("base_stage", summary["kept_stage"]),
+        "note": ("the stages, effect terms and learned family were chosen on the fitting/held-out split (the "
+                 "held-out figures above are those); the shipped elements, terms"
+                 f"{' and learned residual' if learned else ''} were then re-estimated on all {n} checks "
+                 "(model.json and updated_elements.json; diagnosis.json's effect coefficients are the loop's)")}
+    return el, ts
