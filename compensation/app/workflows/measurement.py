@@ -56,13 +56,6 @@ class _TruthAtReference:
         return self.truth.spatial_error(axes, **self.truth.default_conditions(len(axes)))
 
 
-def refuse_options(args, defaults: dict, what: str) -> None:
-    """A UsageError naming the first option given that the chain path does not use (never ignored silently)."""
-    for k, d in defaults.items():
-        if getattr(args, k, d) != d:
-            raise UsageError(f"--{k.replace('_', '-')} is not used by {what}; leave it out")
-
-
 def parse_effects(machine, effects) -> list:
     """``KIND[:AXES]`` strings checked against the machine (one-line UsageError naming the known kinds)."""
     from errormap.chain_truth import effect_key, parse_effect
