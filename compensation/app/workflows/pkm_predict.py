@@ -24,7 +24,7 @@ ANGLES = ("rx_deg", "ry_deg", "rz_deg")
 def run_pkm_predict(machine, points, model, out) -> int:
     """``volcomp predict`` of the commanded poses in the CSV ``points`` on a parallel machine, with its
     ``calibration.json`` ``model`` (``volcomp calibrate``); the CSV ``out`` written whole."""
-    from errormap.pkm.calibration import load_calibrated_machine
+    from errormap.pkm.calibration_file import load_calibrated_machine
     from errormap.pkm.hexapod import KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics
     calibrated = load_calibrated_machine(model, machine)
     if calibrated.extra.get("leg_terms"):
