@@ -9,6 +9,8 @@ calls the existing numerical code; none has a numerical path of its own.
   (:func:`errormap.diagnosis.chain_loop.closed_loop_chain`: element update, effect search, kept stage).
 * :class:`ArmCalibration` — geometric calibration of a serial arm from tracker poses
   (:func:`errormap.arm_calibration.fit_model`, :func:`~errormap.arm_calibration.cv_models`).
+* :class:`PKMCalibration` — kinematic calibration of a hexapod or tripod from measured poses
+  (:class:`errormap.pkm.calibration.PKMCalibrator`).
 * :class:`errormap.diagnosis.drift_models.DriftSelector` — the drift estimator (it shares
   :class:`Estimator`); its fitted :class:`~errormap.diagnosis.drift_models.DriftModel` is ``model_``.
 
@@ -262,4 +264,54 @@ class ArmCalibration(Estimator):
         return self.result_.predict(q)
 
 
-__all__ = ["ArmCalibration", "ClosedLoop", "Estimator", "Identification", "NotFittedError", "machine_tool"]
+class PKMCalibration(Estimator):
+    """Kinematic calibration of a parallel machine, hexapod or tripod (docs/explanation/parallel-kinematics.md): the
+    regularised identification of its joints, leg offsets (and scales) and the instrument frame
+    (:class:`errormap.pkm.calibration.PKMCalibrator`), without ``volcomp calibrate``'s loop on the leg residuals.
+
+    Settings: ``machine`` (:func:`errormap.load_machine` of ``hexapod``, ``tripod`` or a file); ``estimate_scales``
+    (the leg scales identified too); ``register`` (the instrument frame estimated; False: it is the machine's);
+    ``noise_um`` (measurement σ per component, None: estimated); ``lever_mm`` (orientation residual weight, mm/rad,
+    None: estimated); ``lambda_rule`` (``"gcv"``, ``"morozov"``, ``"lcurve"``); ``max_iter`` (Gauss–Newton iterations
+    per phase, 1–10,000).
+
+    ``fit(poses)``: a :class:`errormap.pkm.poses.PoseData` (:func:`errormap.read_poses`). Learned: ``result_``
+    (:class:`errormap.pkm.calibration.CalibrationResult`: parameters, standard errors, λ, conditioning, residuals),
+    ``machine_`` (the identified machine: what ``calibration.json`` holds), ``frame_`` (instrument ← machine:
+    translation (3,) mm, rotation (3, 3)).
+    """
+
+    def __init__(self, machine, estimate_scales: bool = True, register: bool = True, noise_um: float | None = None,
+                 lever_mm: float | None = None, lambda_rule: str = "gcv", max_iter: int = 50):
+        self.machine = machine
+        self.estimate_scales = estimate_scales
+        self.register = register
+        self.noise_um = noise_um
+        self.lever_mm = lever_mm
+        self.lambda_rule = lambda_rule
+        self.max_iter = max_iter
+
+    def fit(self, poses) -> "PKMCalibration":
+        from .pkm.calibration import PKMCalibrator
+        from .pkm.machine_file import PKM
+        from .pkm.poses import PoseData
+        _require_type(self.machine, (PKM,), "PKMCalibration(machine=...)", "a hexapod or tripod (load_machine('hexapod'))")
+        _require_type(poses, (PoseData,), "PKMCalibration.fit(poses)", "read the file first (errormap.read_poses)")
+        if not 1 <= int(self.max_iter) <= 10_000:
+            raise ValueError(f"max_iter must be in [1, 10000], got {self.max_iter}")
+        res = PKMCalibrator(self.machine, estimate_scales=self.estimate_scales, register=self.register,
+                            noise_um=self.noise_um, lever_mm=self.lever_mm, lambda_rule=self.lambda_rule,
+                            max_iter=int(self.max_iter)).fit(poses)
+        self.result_ = res
+        self.machine_ = res.machine
+        self.frame_ = (np.array(res.frame_translation_mm, float), np.array(res.frame_rotation, float))
+        return self
+
+    def predict(self, q) -> np.ndarray:
+        """The calibrated machine's tool tip (n, 3) mm in the instrument's frame at drive commands ``q`` (n, k)."""
+        self._check_fitted("result_")
+        return self.result_.predict(np.atleast_2d(np.asarray(q, float)))[0]
+
+
+__all__ = ["ArmCalibration", "ClosedLoop", "Estimator", "Identification", "NotFittedError", "PKMCalibration",
+           "machine_tool"]
