@@ -12,7 +12,8 @@ The public names below (``errormap.__all__``; docs/reference/python-api.md) load
 * measurements — :func:`read_sweeps`, :func:`read_checks`, :func:`read_poses`, :func:`read_drift_log`,
   and simulated ones: :func:`simulate_truth`, :func:`simulate_sweeps`, :func:`simulate_checks`;
 * estimators (scikit-learn contract) — :class:`Identification`, :class:`ClosedLoop`,
-  :class:`ArmCalibration`, :class:`DriftSelector` (its fitted :class:`DriftModel`); :class:`NotFittedError`;
+  :class:`ArmCalibration`, :class:`PKMCalibration`, :class:`DriftSelector` (its fitted :class:`DriftModel`);
+  :class:`NotFittedError`;
 * error fields — :class:`ChainField` (an element set of a chain), :class:`ChainModelField` (elements plus
   effect terms), :class:`ChainElementSet`;
 * errors — :class:`InputError` (a file that cannot be read exactly), :class:`MachineFileError`.
@@ -35,6 +36,7 @@ _LAZY = {
     "Identification": "errormap.estimators",
     "ClosedLoop": "errormap.estimators",
     "ArmCalibration": "errormap.estimators",
+    "PKMCalibration": "errormap.estimators",
     "NotFittedError": "errormap.estimators",
     "DriftSelector": "errormap.diagnosis.drift_models",
     "DriftModel": "errormap.diagnosis.drift_models",

@@ -22,7 +22,6 @@ Each entry says, generically (no machine's axis names):
 * ``diagnosed`` — whether the diagnosis library fits it (:mod:`errormap.diagnosis.effects`
   ``basis``); ``truth_only`` kinds are what the simulator draws and no kind of the diagnosis can
   represent (they are what the closed loop's learned residual stage is for);
-* ``report`` — the variable the term acts through, as text;
 * ``export`` — how ``volcomp export`` writes it (``"linuxcnc-backlash"``: the per-joint
   forward/reverse difference of :func:`compensation.export.backlash_from_diagnosis`), ``None``:
   not carried by a controller table (listed as left out).
@@ -34,9 +33,6 @@ never a default. The consumers keep their functions keyed by the canonical name,
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-ACTS_ON = ("linear", "rotary", "any", "pair")
-
 
 @dataclass(frozen=True)
 class EffectKind:
@@ -56,7 +52,6 @@ class EffectKind:
     truth_only: bool = False
     nonlinear: str | None = None
     """The parameter searched outside the linear fit (``period_mm`` by a periodogram, ``order``)."""
-    report: str | None = None
     export: str | None = None
 
     @property
@@ -86,26 +81,20 @@ class EffectKind:
 EFFECT_KINDS = (
     EffectKind("thermal", (), "linear", "k·(temp_c − ref_temp_c)·(pos − lo)",
                (("k_{u}_per_mm_c", "{u}/(mm·°C)"),), needs=("temp_c",),
-               simulator="thermal", simulator_element="dx_x",
-               report="(temp_c − ref)·(pos − lo)"),
+               simulator="thermal", simulator_element="dx_x"),
     EffectKind("drift", (), "linear", "k·(time_s − ref_time_s)/3600·(pos − lo)",
-               (("k_{u}_per_mm_h", "{u}/(mm·h)"),), needs=("time_s",),
-               report="time·(pos − lo)"),
+               (("k_{u}_per_mm_h", "{u}/(mm·h)"),), needs=("time_s",)),
     EffectKind("reversal", ("backlash",), "any", "b/2·dir",
                (("backlash_{u}", "{u}"),), needs=("dir_{axis}",),
-               simulator="reversal", simulator_element="dz_z",
-               report="dir", export="linuxcnc-backlash"),
+               simulator="reversal", simulator_element="dz_z", export="linuxcnc-backlash"),
     EffectKind("periodic", ("pitch",), "linear", "A·sin(2π·pos/P + φ)",
                (("amplitude_{u}", "{u}"), ("phase_rad", "rad"), ("period_mm", "mm")),
-               simulator="pitch", simulator_element="dx_x", nonlinear="period_mm",
-               report="pos folded on one period"),
+               simulator="pitch", simulator_element="dx_x", nonlinear="period_mm"),
     EffectKind("harmonic", ("worm",), "rotary", "A·sin(N·a + φ)",
                (("amplitude_{u}", "{u}"), ("phase_rad", "rad"), ("order", "per revolution")),
-               simulator="worm", simulator_element="ex_a", nonlinear="order",
-               report="phase of the N/rev harmonic"),
+               simulator="worm", simulator_element="ex_a", nonlinear="order"),
     EffectKind("interaction", (), "pair", "k·(p − p_lo)(q − q_lo)/(Δp·Δq)",
-               (("corner_{u}", "{u}"),), simulator="interaction", simulator_element="dx_x",
-               report="(p − lo)(q − lo)"),
+               (("corner_{u}", "{u}"),), simulator="interaction", simulator_element="dx_x"),
     EffectKind("bump", (), "pair", "A·exp(−½((p−pc)/wp)² − ½((q−qc)/wq)²)",
                (("amplitude_um", "um"), ("x_frac", "1"), ("z_frac", "1"), ("width_frac", "1")),
                simulator="bump", simulator_element="dy_x", diagnosed=False, truth_only=True),
@@ -128,7 +117,6 @@ EFFECT_KINDS = (
                simulator="xz_saddle", simulator_element="dy_z", diagnosed=False, truth_only=True),
 )
 
-_BY_NAME = {k.name: k for k in EFFECT_KINDS}
 _BY_ALIAS = {a: k for k in EFFECT_KINDS for a in (k.name, *k.aliases)}
 
 DIAGNOSED_KINDS = tuple(k.name for k in EFFECT_KINDS if k.diagnosed)
@@ -174,10 +162,3 @@ def simulator_name(name) -> str:
         raise ValueError(f"effect kind {name!r} cannot be simulated; expected one of {list(SIMULATOR_NAMES)}")
     return kind.simulator
 
-
-def check_covers(table, kinds, what: str) -> None:
-    """Raise ``ValueError`` unless the keys of ``table`` are exactly ``kinds`` (a consumer's
-    dispatch table against the registry)."""
-    missing, extra = sorted(set(kinds) - set(table)), sorted(set(table) - set(kinds))
-    if missing or extra:
-        raise ValueError(f"{what}: the effect-kind registry has {missing} it lacks and it has {extra} the registry lacks")

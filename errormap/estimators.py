@@ -9,6 +9,8 @@ calls the existing numerical code; none has a numerical path of its own.
   (:func:`errormap.diagnosis.chain_loop.closed_loop_chain`: element update, effect search, kept stage).
 * :class:`ArmCalibration` — geometric calibration of a serial arm from tracker poses
   (:func:`errormap.arm_calibration.fit_model`, :func:`~errormap.arm_calibration.cv_models`).
+* :class:`PKMCalibration` — kinematic calibration of a hexapod or tripod from measured poses
+  (:class:`errormap.pkm.calibration.PKMCalibrator`).
 * :class:`errormap.diagnosis.drift_models.DriftSelector` — the drift estimator (it shares
   :class:`Estimator`); its fitted :class:`~errormap.diagnosis.drift_models.DriftModel` is ``model_``.
 
@@ -104,8 +106,10 @@ class Identification(Estimator):
     ``fit(sweeps)``: ``sweeps`` a :class:`errormap.sweeps.Sweeps` (:func:`errormap.read_sweeps`,
     :func:`errormap.simulate_sweeps`). Learned: ``elements_`` (the chain's element set), ``result_``
     (:class:`errormap.identification.ChainIdentificationResult`: residuals, conditioning, warnings),
-    ``covariance_`` (``(slot names, stations (N,), Σ (N, N))`` μm² / μrad²), ``field_`` (the elements' error
-    field: ``predict(axes (n, k)) -> (n, 3)`` μm).
+    ``covariance_`` (``(slot names, stations (N,), Σ (N, N))`` μm² / μrad²), ``prior_covariance_`` (the same
+    with the smoother's extra variance on the diagonal: the prior of a closed loop's element update, as
+    ``volcomp diagnose`` reads it from ``NAME.cov.npz``), ``field_`` (the elements' error field:
+    ``predict(axes (n, k)) -> (n, 3)`` μm).
     """
 
     def __init__(self, machine, max_iter: int | None = None, tol: float | None = None,
@@ -135,6 +139,8 @@ class Identification(Estimator):
         self.result_ = res
         self.elements_ = res.elements_
         self.covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov.copy())
+        extra = 0.0 if res.prior_extra is None else np.diag(np.asarray(res.prior_extra, float))
+        self.prior_covariance_ = (list(res.param_slot), res.param_station.copy(), res.cov + extra)
         self.field_ = ChainField(mt, self.elements_)
         return self
 
@@ -149,28 +155,32 @@ class ClosedLoop(Estimator):
 
     Settings: ``machine`` (a machine-tool chain, or the grinder file as its chain); ``fit_fraction`` (the
     first share of the checks, by ``seq``, fits; the rest is held out); ``noise_um`` (known noise σ per coordinate, None: estimated);
-    ``effects`` / ``max_effects`` (the effect search); ``smoothing`` (``"gcv"`` or a weight).
+    ``effects`` / ``max_effects`` (the effect search); ``smoothing`` (``"gcv"`` or a weight); ``refit_all`` (the
+    kept stage re-estimated on all checks once chosen, as ``volcomp diagnose`` ships it).
 
     ``fit(checks, elements, covariance=None)``: ``checks`` an :class:`errormap.diagnosis.chain_loop.MTChecks`
     (:func:`errormap.read_checks`, :func:`errormap.simulate_checks`), ``elements`` the identified element
-    set, ``covariance`` its ``(slot names, stations, Σ)`` (``Identification.covariance_``; None: no element
-    update). Learned: ``summary_`` (stages with held-out and fitting statistics, the kept stage and why,
+    set, ``covariance`` the update's prior ``(slot names, stations, Σ)`` (``Identification.prior_covariance_``,
+    what ``volcomp diagnose`` reads; None: no element update). Learned: ``summary_`` (stages with held-out and fitting statistics, the kept stage and why,
     effects accepted/rejected, noise floor), ``kept_stage_``, ``held_out_rms_um_``, ``elements_`` and
-    ``terms_`` (the kept model), ``field_`` (its error field; terms that need conditions take them by
+    ``terms_`` (the kept model: as ``volcomp diagnose --no-learned`` ships it, re-estimated on ALL checks once
+    chosen on the split when ``refit_all``, :func:`errormap.diagnosis.chain_loop.ship_on_all_checks`; the held-out
+    figures are the split's), ``field_`` (its error field; terms that need conditions take them by
     ``field_.with_conditions``). The learned-residual stage of ``volcomp diagnose`` is not part of it.
     """
 
     def __init__(self, machine, fit_fraction: float = 0.6, noise_um: float | None = None, effects: bool = True,
-                 max_effects: int = 4, smoothing="gcv"):
+                 max_effects: int = 4, smoothing="gcv", refit_all: bool = True):
         self.machine = machine
         self.fit_fraction = fit_fraction
         self.noise_um = noise_um
         self.effects = effects
         self.max_effects = max_effects
         self.smoothing = smoothing
+        self.refit_all = refit_all
 
     def fit(self, checks, elements, covariance=None) -> "ClosedLoop":
-        from .diagnosis.chain_loop import MTChecks, closed_loop_chain
+        from .diagnosis.chain_loop import MTChecks, closed_loop_chain, ship_on_all_checks
         from .diagnosis.loop_model import ChainModelField
         from .chain_elements import ChainElementSet
         mt = machine_tool(self.machine, "ClosedLoop(machine=...)")
@@ -182,10 +192,13 @@ class ClosedLoop(Estimator):
                                     smoothing=self.smoothing)
         models = summary.pop("_models")
         terms = models["terms"] if summary["kept_stage"].endswith("plus_effects") else []
+        elements = models["elements"]
+        if self.refit_all:
+            elements, terms = ship_on_all_checks(summary, models, terms)
         self.summary_ = summary
         self.kept_stage_ = summary["kept_stage"]
         self.held_out_rms_um_ = float(summary["held_out_rms_um"])
-        self.elements_ = models["elements"]
+        self.elements_ = elements
         self.terms_ = list(terms)
         self.field_ = ChainModelField(mt, self.elements_, self.terms_)
         return self
@@ -248,4 +261,54 @@ class ArmCalibration(Estimator):
         return self.result_.predict(q)
 
 
-__all__ = ["ArmCalibration", "ClosedLoop", "Estimator", "Identification", "NotFittedError", "machine_tool"]
+class PKMCalibration(Estimator):
+    """Kinematic calibration of a parallel machine, hexapod or tripod (docs/explanation/parallel-kinematics.md): the
+    regularised identification of its joints, leg offsets (and scales) and the instrument frame
+    (:class:`errormap.pkm.calibration.PKMCalibrator`), without ``volcomp calibrate``'s loop on the leg residuals.
+
+    Settings: ``machine`` (:func:`errormap.load_machine` of ``hexapod``, ``tripod`` or a file); ``estimate_scales``
+    (the leg scales identified too); ``register`` (the instrument frame estimated; False: it is the machine's);
+    ``noise_um`` (measurement σ per component, None: estimated); ``lever_mm`` (orientation residual weight, mm/rad,
+    None: estimated); ``lambda_rule`` (``"gcv"``, ``"morozov"``, ``"lcurve"``); ``max_iter`` (Gauss–Newton iterations
+    per phase, 1–10,000).
+
+    ``fit(poses)``: a :class:`errormap.pkm.poses.PoseData` (:func:`errormap.read_poses`). Learned: ``result_``
+    (:class:`errormap.pkm.calibration.CalibrationResult`: parameters, standard errors, λ, conditioning, residuals),
+    ``machine_`` (the identified machine: what ``calibration.json`` holds), ``frame_`` (instrument ← machine:
+    translation (3,) mm, rotation (3, 3)).
+    """
+
+    def __init__(self, machine, estimate_scales: bool = True, register: bool = True, noise_um: float | None = None,
+                 lever_mm: float | None = None, lambda_rule: str = "gcv", max_iter: int = 50):
+        self.machine = machine
+        self.estimate_scales = estimate_scales
+        self.register = register
+        self.noise_um = noise_um
+        self.lever_mm = lever_mm
+        self.lambda_rule = lambda_rule
+        self.max_iter = max_iter
+
+    def fit(self, poses) -> "PKMCalibration":
+        from .pkm.calibration import PKMCalibrator
+        from .pkm.machine_file import PKM
+        from .pkm.poses import PoseData
+        _require_type(self.machine, (PKM,), "PKMCalibration(machine=...)", "a hexapod or tripod (load_machine('hexapod'))")
+        _require_type(poses, (PoseData,), "PKMCalibration.fit(poses)", "read the file first (errormap.read_poses)")
+        if not 1 <= int(self.max_iter) <= 10_000:
+            raise ValueError(f"max_iter must be in [1, 10000], got {self.max_iter}")
+        res = PKMCalibrator(self.machine, estimate_scales=self.estimate_scales, register=self.register,
+                            noise_um=self.noise_um, lever_mm=self.lever_mm, lambda_rule=self.lambda_rule,
+                            max_iter=int(self.max_iter)).fit(poses)
+        self.result_ = res
+        self.machine_ = res.machine
+        self.frame_ = (np.array(res.frame_translation_mm, float), np.array(res.frame_rotation, float))
+        return self
+
+    def predict(self, q) -> np.ndarray:
+        """The calibrated machine's tool tip (n, 3) mm in the instrument's frame at drive commands ``q`` (n, k)."""
+        self._check_fitted("result_")
+        return self.result_.predict(np.atleast_2d(np.asarray(q, float)))[0]
+
+
+__all__ = ["ArmCalibration", "ClosedLoop", "Estimator", "Identification", "NotFittedError", "PKMCalibration",
+           "machine_tool"]

@@ -47,8 +47,12 @@ def read_checks(path, machine, units: str = "check"):
 
 
 def read_poses(path, chain):
-    """Tracker poses of a serial arm (:class:`errormap.arm_poses.ArmPoses`: the pose schema or a tracker grid,
-    told apart by content)."""
+    """Measured poses: of a serial arm (:class:`errormap.arm_poses.ArmPoses`: the pose schema or a tracker grid,
+    told apart by content), or of a hexapod / tripod (:class:`errormap.pkm.poses.PoseData`)."""
+    from .pkm.machine_file import PKM
+    if isinstance(chain, PKM):
+        from .pkm.poses import read_poses as read_pkm_poses
+        return read_pkm_poses(path, chain)
     from .arm_poses import read_arm_poses
     return read_arm_poses(path, chain)
 

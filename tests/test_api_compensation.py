@@ -99,12 +99,35 @@ def test_save_and_load_fitted_estimators(tmp_path):
     assert (tmp_path / "E.cov.npz").is_file()
     np.testing.assert_allclose(load_model(p, m).predict(axes), ident.predict(axes), rtol=0, atol=ROUND_TRIP_TOL_UM)
     loop = ClosedLoop(m, effects=False).fit(simulate_checks(truth, n=40, noise_um=1.0, seed=3), ident.elements_,
-                                            ident.covariance_)
+                                            ident.prior_covariance_)
     p = save_model(tmp_path / "model.json", loop)
     assert p.name == "model.json" and (tmp_path / "model.elements.json").is_file()
     np.testing.assert_allclose(load_model(p, m).predict(axes), loop.predict(axes), rtol=0, atol=ROUND_TRIP_TOL_UM)
     with pytest.raises(ValueError, match="not fitted yet"):
         save_model(tmp_path / "x.json", Identification(m))
+
+
+def test_closed_loop_ships_what_diagnose_ships(tmp_path):
+    """``ClosedLoop().fit`` and ``volcomp diagnose --no-learned`` run one loop and one all-checks re-estimate
+    (:func:`errormap.diagnosis.chain_loop.ship_on_all_checks`) on the same numbers (the element set and its
+    covariance through their files, written exactly): the shipped models predict the same bits."""
+    from compensation.app.workflows.measurement import diagnose_chain
+    m = load_machine("mill-xyz")
+    truth = simulate_truth(m, seed=1)
+    ident = Identification(m).fit(simulate_sweeps(truth, noise_um=1.0, seed=2, n_stations=6))
+    checks = simulate_checks(truth, n=40, noise_um=1.0, seed=3)
+    summary, _ = diagnose_chain(checks, m, save_model(tmp_path / "E.json", ident), tmp_path / "diag", learn=False)
+    loop = ClosedLoop(m).fit(checks, ident.elements_, ident.prior_covariance_)
+    assert loop.kept_stage_ == summary["kept_stage"] and loop.kept_stage_.startswith("updated")
+    assert loop.summary_["refit_on_all_checks"] == summary["refit_on_all_checks"]
+    assert loop.summary_["refit_on_all_checks"]["checks"] == len(checks.axes)
+    axes = np.array([[100.0, 50, -100], [500, 350, -350]])
+    shipped = load_model(tmp_path / "diag" / "model.json", m)
+    np.testing.assert_allclose(shipped.predict(axes), loop.predict(axes), rtol=0, atol=ROUND_TRIP_TOL_UM)
+    split = ClosedLoop(m, refit_all=False).fit(checks, ident.elements_, ident.prior_covariance_)
+    assert "refit_on_all_checks" not in split.summary_
+    assert split.held_out_rms_um_ == loop.held_out_rms_um_      # the validated figure is the split's either way
+    assert np.abs(split.predict(axes) - loop.predict(axes)).max() > 0   # the re-estimate changed the model
 
 
 ARM_TRUE_RMS_RATIO_MAX = 0.05

@@ -164,7 +164,7 @@ def test_kernel_chosen_by_cv_and_kept_in_json(ur5):
     the kernel choice (no "families") reads as the squared exponential alone."""
     import json
     from training.arm_residual import KERNEL_FAMILIES
-    from training.residual import GP_KERNELS
+    from training.gp import GP_KERNELS
     t = draw_truth(ur5, 24, compliance_rad_per_mm=np.full(ur5.n_joints, SOFT_COMPLIANCE_RAD_PER_MM))
     p = measure(ur5, t, random_joints(UR5_LO, UR5_HI, 90, [24, 0]), NOISE_MM, [24, 1])
     res = p.xyz_mm - fit_model(ur5, p, "dh").predict(p.q)

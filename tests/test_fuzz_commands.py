@@ -26,7 +26,7 @@ from compensation.app.cli import main
 from errormap.io import read_table
 from errormap.machine import builtin_machine_path, load_machine
 from test_fuzz_inputs import (TALLY, TOL_PREDICT_ABS_UM, TOL_PREDICT_REL, _check_output, _head, _tally_outcome,
-                              hostile_bytes, mangled_toml, run_main)
+                              hostile_bytes, mangled_toml, report_tally, run_main)
 
 EXAMPLES = int(os.environ.get("VOLCOMP_FUZZ_EXAMPLES", "0")) or None
 
@@ -48,9 +48,7 @@ AXES_PROBE = np.array([[50.0, 20.0, 0.0], [150.0, 60.0, 90.0], [250.0, 100.0, 27
 @pytest.fixture(scope="module", autouse=True)
 def tally():
     yield TALLY
-    print(f"\nCLI fuzz tally: {TALLY}")
-    if os.environ.get("VOLCOMP_FUZZ_TALLY"):
-        Path(os.environ["VOLCOMP_FUZZ_TALLY"]).write_text(json.dumps(TALLY, indent=1))
+    report_tally()
 
 
 @pytest.fixture(scope="module")

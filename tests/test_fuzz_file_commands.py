@@ -15,7 +15,6 @@ import contextlib
 import hashlib
 import io
 import json
-import os
 import tempfile
 from pathlib import Path
 
@@ -29,7 +28,7 @@ from errormap.io import read_table
 from errormap.machine import builtin_machine_path, load_machine
 from test_fuzz_commands import fuzz
 from test_fuzz_inputs import (TALLY, TOL_LANDING_MM, TOL_PREDICT_ABS_UM, TOL_PREDICT_REL, _check_output, _head,
-                              _tally_outcome, hostile_bytes, mangled_toml, run_main)
+                              _tally_outcome, hostile_bytes, mangled_toml, report_tally, run_main)
 
 TOL_TRAIN_RMS_REL = 1e-5
 """train's metrics.json RMS against the written network re-evaluated on the same rows: the network runs in float64
@@ -49,9 +48,7 @@ def _quiet(argv):
 @pytest.fixture(scope="module", autouse=True)
 def tally():
     yield TALLY
-    print(f"\nCLI fuzz tally: {TALLY}")
-    if os.environ.get("VOLCOMP_FUZZ_TALLY"):
-        Path(os.environ["VOLCOMP_FUZZ_TALLY"]).write_text(json.dumps(TALLY, indent=1))
+    report_tally()
 
 
 @pytest.fixture(scope="module")

@@ -346,12 +346,17 @@ def _check_output(command: str, ok: bool, what) -> None:
     assert ok, what
 
 
+def report_tally():
+    """The module's fuzz tally printed (``VOLCOMP_FUZZ_TALLY=FILE``: also written there as JSON)."""
+    print(f"\nCLI fuzz tally: {TALLY}")
+    if os.environ.get("VOLCOMP_FUZZ_TALLY"):
+        Path(os.environ["VOLCOMP_FUZZ_TALLY"]).write_text(json.dumps(TALLY, indent=1))
+
+
 @pytest.fixture(scope="module")
 def tally():
     yield TALLY
-    print(f"\nCLI fuzz tally: {TALLY}")
-    if os.environ.get("VOLCOMP_FUZZ_TALLY"):    # VOLCOMP_FUZZ_TALLY=FILE: the counts as JSON (tests/test_fuzz_commands.py)
-        Path(os.environ["VOLCOMP_FUZZ_TALLY"]).write_text(json.dumps(TALLY, indent=1))
+    report_tally()
 
 
 @CLI_FUZZ

@@ -11,7 +11,7 @@ from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
 from errormap.chain_field import ChainField
 from errormap.chain_kernel import forward
 from errormap.simulator import random_axes, random_truth
-from training.residual import GP_KERNELS
+from training.gp import GP_KERNELS
 
 SEED = 0
 NOISE_UM = 1.0

@@ -336,7 +336,7 @@ def test_every_csv_example_in_the_schemas_parses(machine, tmp_path, capsys):
 
 
 def test_pkm_calibration_file_is_known_by_its_format_key(tmp_path):
-    from errormap.pkm.calibration import CALIBRATION_FORMAT, load_calibrated_machine
+    from errormap.pkm.calibration_file import CALIBRATION_FORMAT, load_calibrated_machine
     m = load_machine(ROOT / "errormap" / "machines" / "hexapod.toml")
     im = {"base_joints_mm": m.base_joints_mm.tolist(), "platform_joints_mm": (m.platform_joints_mm * 1.001).tolist(),
           "leg_offset_mm": np.asarray(m.leg_offset_mm).tolist(), "leg_scale": np.asarray(m.leg_scale).tolist()}

@@ -4,7 +4,9 @@ import pytest
 
 from errormap.io import InputError
 from errormap.machine import load_machine
-from errormap.pkm.calibration import PKMCalibrator, calibration_to_dict, pose_jacobian, read_poses
+from errormap.pkm.calibration import PKMCalibrator, pose_jacobian
+from errormap.pkm.calibration_file import calibration_to_dict
+from errormap.pkm.poses import read_poses
 from errormap.pkm.pose_model import machine_from_vector, parameter_vector, rigid_motion_basis
 from errormap.pkm.hexapod import forward_kinematics, workspace_poses, inverse_kinematics
 from errormap.pkm.simulate import simulate_hexapod_poses, simulate_tripod_poses

@@ -1,4 +1,6 @@
 """Tripod error transfer (tripod-3tpt paper) and tracker pose measurement (mobile-pkm-pose paper)."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -36,9 +38,9 @@ def test_transfer_matrices_match_finite_differences(tripod):
         assert np.allclose(d[0], T["f_l"][0][:, i], atol=TRANSFER_TOL)
         b = tripod.base_joints_mm.copy()
         b[i, 0] += FD_STEP_MM
-        plus = forward_kinematics(tripod.with_parameters(base_joints_mm=b), legs).x
+        plus = forward_kinematics(replace(tripod, base_joints_mm=b), legs).x
         b[i, 0] -= 2 * FD_STEP_MM
-        minus = forward_kinematics(tripod.with_parameters(base_joints_mm=b), legs).x
+        minus = forward_kinematics(replace(tripod, base_joints_mm=b), legs).x
         assert np.allclose((plus - minus)[0] / (2 * FD_STEP_MM), T["f_B"][0, i][:, 0], atol=TRANSFER_TOL)
     assert np.allclose(T["f_A"], -T["f_B"])
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from training.basis import ENVELOPE_FRAC, BasisRegression, _legendre
-from training.residual import ResidualRegressor, additive_terms, check_input_groups
+from training.gp import additive_terms, check_input_groups
+from training.residual import ResidualRegressor
 
 GROUPS = ((0,), (1,), (2, 3))
 """Inputs as the hybrid's ``axes`` set: x, z (linear), and cos a, sin a (one rotary axis)."""

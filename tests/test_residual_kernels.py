@@ -4,7 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from training.residual import GP_KERNELS, ResidualRegressor, _gp_nll, _n_theta, additive_terms
+from training.gp import GP_KERNELS, _gp_nll, _n_theta, additive_terms
+from training.residual import ResidualRegressor
 
 GRAD_TOL_REL = 1e-5
 """Analytic marginal-likelihood gradient vs central differences (h = 1e-6 in log units): the

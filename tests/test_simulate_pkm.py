@@ -69,7 +69,7 @@ def test_predict_on_a_hexapod_lands_where_the_calibration_says(tmp_path):
     from scipy.spatial.transform import Rotation
     from errormap.io import write_csv
     from errormap.machine import load_machine
-    from errormap.pkm.calibration import read_poses
+    from errormap.pkm.poses import read_poses
     from errormap.pkm.hexapod import forward_kinematics, rotation_to_angles
     m = load_machine("hexapod")
     assert main(["simulate", "--machine", "hexapod", "--seed", "0", "--poses", "60", "--checks", "40",

@@ -29,13 +29,14 @@ import numpy as np
 
 from errormap.arm_simulate import gravity_moment_jacobian_mm, gravity_moment_mm
 
-from .residual import GP_KERNELS, ResidualRegressor
+from .gp import GP_KERNELS
+from .residual import ResidualRegressor
 
 FORMAT = "volcomp-arm-residual/2"
 INPUTS = ("physics", "sincos", "physics+h2", "physics+wrist")
 KERNEL_FAMILIES = ("gp", "gp_matern52", "gp_matern32")
 """The Gaussian-process families the command's learned stage cross-validates (squared exponential, Matérn 5/2,
-Matérn 3/2, :data:`training.residual.GP_KERNELS`): the one with the lowest CV error inside the fit poses that beats
+Matérn 3/2, :data:`training.gp.GP_KERNELS`): the one with the lowest CV error inside the fit poses that beats
 predicting zero is kept — the kernel is chosen by that CV, never by name or on held-out poses."""
 WRIST_JOINTS = 3
 """The last this many revolute joints are the wrist of ``"physics+wrist"``."""

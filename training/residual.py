@@ -40,36 +40,17 @@ a saved regressor predicts bit-for-bit like the fitted one.
 """
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
-from scipy.linalg.lapack import dpotri
-from scipy.optimize import minimize
 
 from errormap.seeds import spawn_rngs
 from errormap.threads import limit_threads
 
-__all__ = ["ResidualRegressor", "FAMILIES", "FORMAT", "check_residual_data", "additive_terms", "check_input_groups"]
+from .gp import GP_KERNELS, _GP, check_input_groups
+
+__all__ = ["ResidualRegressor", "FAMILIES", "FORMAT", "check_residual_data"]
 
 FORMAT = "volcomp-residual-regressor/1"
 """The ``format`` key of :meth:`ResidualRegressor.to_dict`."""
-
-GP_KERNELS = {"gp": "rbf", "gp_matern52": "matern52", "gp_matern32": "matern32", "gp_sum": "rbf_sum",
-              "gp_additive": "additive"}
-"""The Gaussian-process families and their kernel (:func:`_kernel`): the squared exponential
-(infinitely smooth), Matérn 5/2 (twice differentiable) and Matérn 3/2 (once differentiable: the
-roughest that still has the closed-form Jacobian the solvers need). A local feature (a bump of a
-few length scales) may be fitted with less smoothing by a rougher kernel; which one serves is
-decided by the blocked cross-validation like any other family. ``rbf_sum`` is the sum of a
-LONG- and a SHORT-length-scale ARD squared exponential (:data:`SUM_LOG_LENGTH_BOUNDS`): a smooth
-trend over the volume plus a local feature, each with its own length scales and variance.
-``additive`` is an ADDITIVE kernel (:func:`additive_terms`): a sum of squared exponentials, one on
-each input group alone (first order) and one on each pair of groups (second order), with one
-length scale per input shared by every term it enters and one variance per term, all by maximum
-marginal likelihood. A field that is a sum of one- and two-group functions is then learned with
-far fewer effective degrees of freedom than by one ARD kernel on all inputs at once (which can
-represent any interaction of every input, so it must also estimate them)."""
 
 FAMILIES = ("gp", "ensemble", "gp_matern52", "gp_matern32", "gp_sum", "gp_additive", "basis")
 """The regressor families :class:`ResidualRegressor` can cross-validate."""
@@ -89,31 +70,6 @@ FAMILY_NAMES = {"gp": "Gaussian process (zero mean, ARD squared-exponential kern
 
 Z95 = 1.959963984540054
 """Two-sided 95 % normal quantile: the band of ``cv_table_``'s coverage."""
-
-LOG_LENGTH_BOUNDS = (np.log(0.05), np.log(5.0))
-"""Length scales in standardised input units: below 0.05 σ a GP interpolates noise point by
-point; 5 σ is already nearly flat over the data (which spans about ±1.7 σ), and the bound keeps
-the learned part decaying to zero within a few data widths outside the data (no extrapolation
-of a trend: at 15 σ outside, the kernel is exp(−4.5) of its value inside)."""
-
-SUM_LOG_LENGTH_BOUNDS = ((np.log(0.7), np.log(5.0)), (np.log(0.05), np.log(0.7)))
-"""The ``rbf_sum`` kernel's two parts, in standardised input units: the LONG part's length
-scales from 0.7 σ to the single kernel's upper bound (5 σ), the SHORT part's from the single
-kernel's lower bound (0.05 σ) to 0.7 σ, so the two parts cannot swap roles (the split at 0.7 σ:
-about a fifth of the data's width, ±1.7 σ)."""
-
-LOG_VAR_BOUNDS = (np.log(1e-6), np.log(10.0))
-"""Signal and noise variances relative to the output's mean square (outputs are scaled by their
-RMS): 1e-6 is 'nothing', 10 is ten times all there is."""
-
-ADDITIVE_MAX_ORDER = 2
-"""The additive kernel's terms go up to pairs of input groups (first and second order): the orders
-an engineer's error budget is written in (an error of one axis, a coupling of two). It is fixed in
-advance for every input set, not chosen from the effects a benchmark designs; a field of three
-groups at once is left to the full ARD kernels, which the cross-validation compares with it."""
-
-PREDICT_CHUNK = 2048
-"""Rows of X predicted at once (the cross-kernel is chunk × n_train × d floats)."""
 
 MAX_TRAIN_POINTS = 4000
 """A GP's cost grows as n³; beyond this many training points refuse rather than stall."""
@@ -145,315 +101,6 @@ def check_residual_data(X, Y=None, groups=None):
 
 # ---------------------------------------------------------------- the Gaussian process family
 
-def _sqdist_by_dim(A, B, inv_l2):
-    """Σ_j (A_ij − B_kj)² / l_j²: A (n, d), B (m, d), inv_l2 (d,) → (n, m)."""
-    As = A * np.sqrt(inv_l2)
-    Bs = B * np.sqrt(inv_l2)
-    d2 = (As * As).sum(1)[:, None] + (Bs * Bs).sum(1)[None, :] - 2.0 * As @ Bs.T
-    return np.maximum(d2, 0.0)
-
-
-_SQRT3, _SQRT5 = np.sqrt(3.0), np.sqrt(5.0)
-
-
-def _kernel(S, sf2, kind="rbf"):
-    """Kernel and its radial derivative factor from the scaled squared distance S = Σ_j Δ_j²/l_j².
-
-    S (n, m) → (K (n, m), H (n, m)) with dK/dlog l_j = H ⊙ Δ_j²/l_j² and dK/dx_j = −H ⊙ Δ_j/l_j²
-    (one form for every kernel: the marginal-likelihood gradient and the Jacobian use H)."""
-    if kind == "rbf":
-        K = sf2 * np.exp(-0.5 * S)
-        return K, K
-    r = np.sqrt(S)
-    if kind == "matern52":
-        e = sf2 * np.exp(-_SQRT5 * r)
-        return e * (1.0 + _SQRT5 * r + (5.0 / 3.0) * S), (5.0 / 3.0) * e * (1.0 + _SQRT5 * r)
-    if kind == "matern32":
-        e = sf2 * np.exp(-_SQRT3 * r)
-        return e * (1.0 + _SQRT3 * r), 3.0 * e
-    raise ValueError(f"Expected a kernel in {sorted(set(GP_KERNELS.values()))}, got {kind!r}")
-
-
-def check_input_groups(groups, d):
-    """``groups`` (None, or a sequence of sequences of column indices) → a tuple of tuples that
-    partitions ``range(d)`` (None: each column its own group); ValueError otherwise."""
-    if groups is None:
-        return tuple((j,) for j in range(d))
-    try:
-        out = tuple(tuple(int(j) for j in g) for g in groups)
-    except (TypeError, ValueError):
-        raise ValueError(f"Expected input groups as sequences of column indices, got {groups!r}") from None
-    flat = sorted(j for g in out for j in g)
-    if any(len(g) == 0 for g in out) or flat != list(range(d)):
-        raise ValueError(f"Expected input groups that partition the {d} input columns, got {groups!r}")
-    return out
-
-
-def additive_terms(d, groups=None):
-    """The terms of the ``additive`` kernel on d inputs: every input group alone, then every pair of
-    groups (:data:`ADDITIVE_MAX_ORDER`), each as a sorted tuple of column indices. ``groups``: see
-    :func:`check_input_groups` (e.g. ``((0,), (1,), (2, 3))`` keeps cos a and sin a together: one
-    rotary axis)."""
-    from itertools import combinations
-    groups = check_input_groups(groups, d)
-    terms = []
-    for order in range(1, min(ADDITIVE_MAX_ORDER, len(groups)) + 1):
-        for combo in combinations(groups, order):
-            terms.append(tuple(sorted(j for g in combo for j in g)))
-    return tuple(terms)
-
-
-def _n_theta(d, kind, terms=None):
-    """Hyper-parameters of a kernel on d inputs: (log l (d), log sf², log sn²), or for
-    ``rbf_sum`` (log l_long (d), log l_short (d), log sf²_long, log sf²_short, log sn²), or for
-    ``additive`` (log l (d), log sf² per term of ``terms``, log sn²)."""
-    if kind == "additive":
-        return d + len(terms) + 1
-    return 2 * d + 3 if kind == "rbf_sum" else d + 2
-
-
-def _parts(theta, d, kind, terms=None):
-    """θ → ([(inv_l2 (d,), sf², base kind, index slice of its log l, index of its log sf²), …], sn²):
-    one part per kernel summand (two for ``rbf_sum``; one per term for ``additive``, whose
-    ``inv_l2`` is zero on the inputs outside the term and whose length scales are shared)."""
-    if kind == "additive":
-        inv_l2 = np.exp(-2.0 * theta[:d])
-        parts = []
-        for t, dims in enumerate(terms):
-            mask = np.zeros(d)
-            mask[list(dims)] = 1.0
-            parts.append((inv_l2 * mask, float(np.exp(theta[d + t])), "rbf", slice(0, d), d + t))
-        return parts, float(np.exp(theta[-1]))
-    if kind == "rbf_sum":
-        return ([(np.exp(-2.0 * theta[:d]), float(np.exp(theta[2 * d])), "rbf", slice(0, d), 2 * d),
-                 (np.exp(-2.0 * theta[d:2 * d]), float(np.exp(theta[2 * d + 1])), "rbf", slice(d, 2 * d), 2 * d + 1)],
-                float(np.exp(theta[2 * d + 2])))
-    return [(np.exp(-2.0 * theta[:d]), float(np.exp(theta[d])), kind, slice(0, d), d)], float(np.exp(theta[d + 1]))
-
-
-def _theta_bounds(d, kind, terms=None):
-    if kind == "additive":
-        return [LOG_LENGTH_BOUNDS] * d + [LOG_VAR_BOUNDS] * (len(terms) + 1)
-    if kind == "rbf_sum":
-        return [SUM_LOG_LENGTH_BOUNDS[0]] * d + [SUM_LOG_LENGTH_BOUNDS[1]] * d + [LOG_VAR_BOUNDS] * 3
-    return [LOG_LENGTH_BOUNDS] * d + [LOG_VAR_BOUNDS] * 2
-
-
-def _theta_starts(d, kind, var, n_restarts, rng, terms=None):
-    """Marginal-likelihood starting points: the first deterministic, the others drawn from ``rng``."""
-    if kind == "additive":   # half the variance shared evenly by the terms, half noise (as the single kernel)
-        T = len(terms)
-        starts = [np.r_[np.zeros(d), np.full(T, np.log(0.5 * var / T)), np.log(0.5 * var)]]
-        for _ in range(n_restarts - 1):
-            starts.append(np.r_[rng.uniform(-1.0, 1.0, d), np.log(var / T) + rng.uniform(-2, 0, T),
-                                np.log(var) + rng.uniform(-2, 0)])
-        return starts
-    if kind == "rbf_sum":
-        starts = [np.r_[np.full(d, np.log(2.0)), np.full(d, np.log(0.3)), np.log(0.4 * var), np.log(0.1 * var),
-                        np.log(0.5 * var)]]
-        for _ in range(n_restarts - 1):
-            starts.append(np.r_[rng.uniform(np.log(0.7), np.log(5.0), d), rng.uniform(np.log(0.05), np.log(0.7), d),
-                                np.log(var) + rng.uniform(-2, 0, 3)])
-        return starts
-    starts = [np.r_[np.zeros(d), np.log(0.5 * var), np.log(0.5 * var)]]
-    for _ in range(n_restarts - 1):
-        starts.append(np.r_[rng.uniform(-1.0, 1.0, d), np.log(var) + rng.uniform(-2, 0, 2)])
-    return starts
-
-
-def _gp_nll(theta, X, y, D, kind="rbf", terms=None):
-    """Negative log marginal likelihood and its gradient in θ (:func:`_n_theta` layout).
-
-    X (n, d) standardised, y (n,), D (d, n, n) squared differences per input; ``kind`` the kernel
-    (``terms`` its terms for ``additive``)."""
-    d = X.shape[1]
-    if kind == "additive":
-        return _additive_nll(theta, y, D, terms)
-    parts, sn2 = _parts(theta, d, kind, terms)
-    KH = [_kernel(np.tensordot(inv_l2, D, axes=1), sf2, base) for inv_l2, sf2, base, _, _ in parts]
-    K = sum(k for k, _ in KH) + sn2 * np.eye(len(y))
-    got = _nll_from_K(K, y)
-    if got is None:
-        return 1e25, np.zeros_like(theta)
-    nll, W = got
-    grad = np.zeros_like(theta)
-    for (inv_l2, _, _, sl, isf), (Kf, H) in zip(parts, KH):
-        # dK/dlog l_j = H ⊙ D_j / l_j² (H = Kf for the squared exponential); each part has its own
-        # length scales here (the additive kernel, whose terms share them, is :func:`_additive_nll`)
-        grad[sl] += -0.5 * inv_l2 * np.tensordot(D, W * H, axes=([1, 2], [0, 1]))
-        grad[isf] = -0.5 * (W * Kf).sum()
-    grad[-1] = -0.5 * sn2 * np.trace(W)
-    return nll, grad
-
-
-@lru_cache(maxsize=32)
-def _atoms(d, terms):
-    """The finest partition of the d inputs of which every additive term is a union: inputs in the same
-    terms are one atom (a rotary axis's cos and sin) → (atoms: tuple of column tuples, per term the atom
-    indices it is made of). Cached: the marginal likelihood asks for it at every evaluation."""
-    sig = {}
-    for j in range(d):
-        sig.setdefault(tuple(j in t for t in terms), []).append(j)
-    atoms = tuple(tuple(v) for v in sig.values())
-    return atoms, tuple(tuple(a for a, cols in enumerate(atoms) if cols[0] in t) for t in terms)
-
-
-def _nll_from_K(K, y):
-    """(nll, W = ααᵀ − K⁻¹) of a zero-mean GP with covariance K (n, n) at y (n,); None where K is not
-    positive definite."""
-    try:
-        c = cho_factor(K, lower=True, check_finite=False)
-    except np.linalg.LinAlgError:
-        return None
-    alpha = cho_solve(c, y, check_finite=False)
-    nll = 0.5 * y @ alpha + np.log(np.diag(c[0])).sum() + 0.5 * len(y) * np.log(2 * np.pi)
-    Kinv, info = dpotri(c[0], lower=1)          # K⁻¹ from its Cholesky factor (lower triangle filled)
-    if info != 0:
-        return None
-    Kinv = np.tril(Kinv) + np.tril(Kinv, -1).T
-    return nll, np.outer(alpha, alpha) - Kinv
-
-
-def _additive_nll(theta, y, D, terms):
-    """:func:`_gp_nll` of the ``additive`` kernel, assembled per atom (:func:`_atoms`): each term's squared
-    exponential is the product of its atoms' ``exp(−½ Σ_j Δ_j²/l_j²)`` and each length scale's gradient sums
-    ``W ⊙ K_t`` over the terms that hold it first — the same function and gradient as the per-term form
-    (:func:`_parts`), a few times fewer (n, n) operations on a machine with many axes (15 terms on five)."""
-    d, n = D.shape[0], len(y)
-    atoms, made_of = _atoms(d, terms)
-    inv_l2 = np.exp(-2.0 * theta[:d])
-    E = [np.exp(-0.5 * np.tensordot(inv_l2[list(cols)], D[list(cols)], axes=1)) for cols in atoms]
-    Ks = []
-    for t, parts in enumerate(made_of):
-        k = np.exp(theta[d + t]) * E[parts[0]]
-        for a in parts[1:]:
-            k = k * E[a]
-        Ks.append(k)
-    K = sum(Ks)
-    K[np.diag_indices(n)] += np.exp(theta[-1])
-    got = _nll_from_K(K, y)
-    if got is None:
-        return 1e25, np.zeros_like(theta)
-    nll, W = got
-    grad = np.zeros_like(theta)
-    for a, cols in enumerate(atoms):
-        M = W * sum(Ks[t] for t, parts in enumerate(made_of) if a in parts)
-        for j in cols:
-            grad[j] = -0.5 * inv_l2[j] * np.vdot(D[j], M)
-    for t in range(len(terms)):
-        grad[d + t] = -0.5 * np.vdot(W, Ks[t])
-    grad[-1] = -0.5 * np.exp(theta[-1]) * np.trace(W)
-    return nll, grad
-
-
-class _GP:
-    """One zero-mean GP per output column on standardised inputs (see module doc); ``kernel``
-    one of the values of :data:`GP_KERNELS`; ``groups`` the input groups of the ``additive`` kernel
-    (:func:`additive_terms`; None: one group per input)."""
-
-    def __init__(self, n_restarts: int, rng, kernel: str = "rbf", groups=None):
-        self.n_restarts = int(n_restarts)
-        self.rng = rng
-        self.kernel = kernel
-        self.groups = groups
-
-    def _terms(self, d):
-        """The additive kernel's terms on d inputs (None for the other kernels)."""
-        return additive_terms(d, self.groups) if self.kernel == "additive" else None
-
-    def fit(self, Xs, Ys):
-        """Xs (n, d) standardised, Ys (n, 3) scaled → self (theta_ (3, p) with p = :func:`_n_theta`,
-        alpha_ (3, n), L_ (3, n, n))."""
-        n, d = Xs.shape
-        D = (Xs[:, None, :] - Xs[None, :, :]) ** 2
-        D = np.moveaxis(D, 2, 0).copy()
-        terms = self._terms(d)
-        bounds = _theta_bounds(d, self.kernel, terms)
-        thetas = []
-        for k in range(Ys.shape[1]):
-            y = Ys[:, k]
-            var = max(float(np.mean(y * y)), 1e-12)
-            best = None
-            for t0 in _theta_starts(d, self.kernel, var, self.n_restarts, self.rng, terms):
-                t0 = np.clip(t0, [b[0] for b in bounds], [b[1] for b in bounds])
-                r = minimize(_gp_nll, t0, args=(Xs, y, D, self.kernel, terms), jac=True, method="L-BFGS-B", bounds=bounds,
-                             options={"maxiter": 100})
-                if best is None or r.fun < best.fun:
-                    best = r
-            thetas.append(best.x)
-        self.set_state(Xs, Ys, np.array(thetas))
-        return self
-
-    def set_state(self, Xs, Ys, theta):
-        """Fix the hyper-parameters ``theta`` (3, p) and solve for the weights on (Xs, Ys)."""
-        n, d = Xs.shape
-        self.X_ = np.asarray(Xs, dtype=float)
-        self.Y_ = np.asarray(Ys, dtype=float)
-        self.theta_ = np.asarray(theta, dtype=float)
-        p = _n_theta(d, self.kernel, self._terms(d))
-        if self.theta_.ndim != 2 or self.theta_.shape[1] != p:
-            raise ValueError(f"Expected theta of shape (k, {p}) for kernel {self.kernel!r} "
-                             f"on {d} inputs, got {self.theta_.shape}")
-        self.alpha_ = np.empty((Ys.shape[1], n))
-        self.L_ = np.empty((Ys.shape[1], n, n))
-        for k in range(Ys.shape[1]):
-            K = self._k(k, self.X_, self.X_)[0] + self._hyp(k)[1] * np.eye(n)
-            L = np.linalg.cholesky(K)
-            self.L_[k] = L
-            self.alpha_[k] = cho_solve((L, True), Ys[:, k], check_finite=False)
-        return self
-
-    def _hyp(self, k):
-        """Output k's kernel parts and noise variance (:func:`_parts`)."""
-        d = self.X_.shape[1]
-        return _parts(self.theta_[k], d, self.kernel, self._terms(d))
-
-    def _k(self, k, A, B):
-        """Output k's kernel between A (m, d) and B (n, d): (K (m, n), [(H (m, n), inv_l2 (d,)) per part], sf² total)."""
-        parts, _ = self._hyp(k)
-        K, HS = 0.0, []
-        for inv_l2, sf2, base, _, _ in parts:
-            Kp, Hp = _kernel(_sqdist_by_dim(A, B, inv_l2), sf2, base)
-            K = K + Kp
-            HS.append((Hp, inv_l2))
-        return K, HS, sum(p[1] for p in parts)
-
-    def noise_var(self):
-        """(3,) fitted noise variances (scaled units)."""
-        return np.array([self._hyp(k)[1] for k in range(self.theta_.shape[0])])
-
-    def predict(self, Xs, return_std=False, jacobian=False):
-        """Mean (m, 3) [, latent std (m, 3)] [, dmean/dXs (m, 3, d)] in scaled units."""
-        m, d = Xs.shape
-        K3 = self.theta_.shape[0]
-        mean = np.empty((m, K3))
-        std = np.empty((m, K3)) if return_std else None
-        jac = np.empty((m, K3, d)) if jacobian else None
-        for s in range(0, m, PREDICT_CHUNK):
-            Xc = Xs[s:s + PREDICT_CHUNK]
-            for k in range(K3):
-                Ks, HS, sf2 = self._k(k, Xc, self.X_)                           # (c, n)
-                mean[s:s + len(Xc), k] = Ks @ self.alpha_[k]
-                if return_std:
-                    v = solve_triangular(self.L_[k], Ks.T, lower=True, check_finite=False)
-                    std[s:s + len(Xc), k] = np.sqrt(np.maximum(sf2 - (v * v).sum(0), 0.0))
-                if jacobian:
-                    J = 0.0
-                    for Hs, inv_l2 in HS:
-                        w = Hs * self.alpha_[k][None, :]                             # (c, n)
-                        # d/dx_j k(x, x_i) = −H (x_j − x_ij)/l_j²
-                        J = J - inv_l2[None, :] * (Xc * w.sum(1)[:, None] - w @ self.X_)
-                    jac[s:s + len(Xc), k, :] = J
-        out = (mean,)
-        if return_std:
-            out += (std,)
-        if jacobian:
-            out += (jac,)
-        return out if len(out) > 1 else mean
-
-
-# ---------------------------------------------------------------- the estimator
-
 class ResidualRegressor:
     """Learn a physical model's measured residual, or decline to (module doc).
 
@@ -471,7 +118,7 @@ class ResidualRegressor:
         Marginal-likelihood starts per output (the first from unit length scales).
     input_groups : None or sequence of sequences of column indices
         The inputs that belong together (one physical axis, e.g. the cos and sin of a rotary
-        axis): the terms of the ``gp_additive`` family (:func:`additive_terms`); a partition of
+        axis): the terms of the ``gp_additive`` family (:func:`training.gp.additive_terms`); a partition of
         the columns, checked at :meth:`fit`. None: each column its own group. The other families
         ignore it.
     progress : None or callable

@@ -1,6 +1,6 @@
 """Command-line options shared by several commands or turned into a library call's arguments:
 the flute path and the method comparison (``report``, ``demo``), the constant conditions of a
-diagnosed model (``compensate``)."""
+diagnosed model (``compensate``), where the work runs (``compensate``, ``fleet``)."""
 from __future__ import annotations
 
 from compensation.app.validate import UsageError
@@ -8,6 +8,7 @@ from compensation.app.validate import UsageError
 from ..diagnosed_model import CONDITIONS
 from ..solvers import METHODS
 from ..toolpath import FLUTE_DEFAULTS, LEAD_LAWS, flute_path
+from .workflows.cluster import CLUSTERS, ClusterSettings
 from .workflows.compare import DEFAULT_GA_BUDGET_S
 
 
@@ -80,3 +81,28 @@ def add_units_option(p, what: str = "columns") -> None:
                    help=f"check (default): refuse {what} whose numbers fit another unit better (metres for mm, "
                         "radians for degrees, °F or kelvin for °C); as-written: they are in the units they name "
                         "(recorded in the output)")
+
+
+def add_cluster_options(p, chunks: bool = True) -> None:
+    """``--cluster``, ``--address``, ``--workers`` (and ``--chunk-points``) on a command: :class:`ClusterSettings`."""
+    d = ClusterSettings()
+    p.add_argument("--cluster", choices=CLUSTERS, default=d.cluster,
+                   help="run the work on Ray (pip install 'volcomp[cluster]'); default: in this process")
+    p.add_argument("--address", default=d.address, metavar="HOST:PORT",
+                   help="with --cluster ray: join this running Ray cluster ('auto': the one on this node); "
+                        "default: start a local one")
+    p.add_argument("--workers", type=int, default=d.workers,
+                   help="workers: threads in this process, or the CPUs of the local Ray instance "
+                        "(default: this machine's cores; a joined cluster: all its CPUs)")
+    if chunks:
+        p.add_argument("--chunk-points", type=int, default=d.chunk_points,
+                       help=f"points per chunk (default {d.chunk_points:,}): the unit of work handed to a worker, "
+                            "fixed whatever the number of workers, so results do not depend on it")
+
+
+def cluster_settings(args) -> ClusterSettings:
+    """The options of :func:`add_cluster_options` as :class:`ClusterSettings`, checked (one UsageError line)."""
+    s = ClusterSettings(cluster=args.cluster, address=args.address, workers=args.workers,
+                        chunk_points=getattr(args, "chunk_points", ClusterSettings.chunk_points))
+    s.check()
+    return s

@@ -400,12 +400,6 @@ def _check_flute(args) -> None:
                          f"{round(n)} point(s); a path needs at least 2")
 
 
-def check_size(what: str, n: int, limit: int, hint: str = "") -> None:
-    """Refuse ``n`` items of ``what`` over ``limit``, the limit in the message (before allocating)."""
-    if n > limit:
-        raise UsageError(f"{what}: {n:,} exceeds the limit of {limit:,}" + (f" ({hint})" if hint else ""))
-
-
 # --- output paths -------------------------------------------------------------------------------
 def check_output_path(flag: str, value, kind: str) -> None:
     """``value`` can be written as a ``kind`` (``dir``, ``file`` or ``prefix``): nothing of the

@@ -22,9 +22,9 @@ interaction  x*z    k·(x − x_lo)(z − z_lo)/(Δx·Δz)                      
 ===========  =====  ==========================================================  ======================
 
 ``pos`` is the axis position, ``lo`` the lower stroke, Δ the stroke length. Internally the
-sinusoids are fitted as ``s·sin + c·cos`` (linear) and reported as amplitude and phase.
-Candidate elements per input axis: the six elements of that axis' group (X, Z or A; both
-X and Z for ``x*z``) and the three WCS components.
+sinusoids are fitted as ``s·sin + c·cos`` (linear) and reported as amplitude and phase. The terms are
+those of a grinder diagnosis written before the one chain loop (``compensation.diagnosed_model`` reads
+them); each acts on an element of its axis' group (X, Z or A; both for ``x*z``) or a WCS component.
 """
 from __future__ import annotations
 
@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..effect_kinds import DIAGNOSED_KINDS, SINUSOID_KINDS, diagnosed_kind, effect_kind
-from ..elements import A_ELEMENTS, ELEMENT_NAMES, IDX, X_ELEMENTS, Z_ELEMENTS, element_unit
+from ..effect_kinds import DIAGNOSED_KINDS, diagnosed_kind, effect_kind
+from ..elements import A_ELEMENTS, IDX, X_ELEMENTS, Z_ELEMENTS, element_unit
 from ..chain_kernel import error_jacobian
 
 KINDS = DIAGNOSED_KINDS
@@ -42,12 +42,9 @@ WCS_ELEMENTS = ("dx", "dy", "dz")
 AXIS_ELEMENTS = {"x": X_ELEMENTS, "z": Z_ELEMENTS, "a": A_ELEMENTS, "x*z": X_ELEMENTS + Z_ELEMENTS}
 LINEAR_AXES, ROTARY_AXES = ("x", "z"), ("a",)
 KIND_AXES = {k: effect_kind(k).axes(LINEAR_AXES, ROTARY_AXES) for k in KINDS}
-SINUSOIDS = SINUSOID_KINDS
-"""Kinds fitted as ``s·sin + c·cos`` with a searched period or order."""
 AXIS_COL = {"x": 0, "z": 1, "a": 2}
 STROKE_KEY = {"x": "x_mm", "z": "z_mm", "a": "a_deg"}
 SECONDS_PER_HOUR = 3600.0
-CONDITION_NAMES = ("time_s", "temp_c", "dir_x", "dir_z", "dir_a")
 
 
 def unit_of(element: str) -> str:
@@ -79,21 +76,6 @@ class Candidate:
         return f"{self.kind}({self.axis}) on {self.element}"
 
 
-def library(available=CONDITION_NAMES, kinds=KINDS) -> list[Candidate]:
-    """All candidates whose conditions are available; element terms before WCS-direct ones."""
-    out = []
-    for kind in kinds:
-        if kind not in KINDS:
-            diagnosed_kind(kind)  # names the known kinds (an alias such as 'pitch' is not a library kind)
-            raise ValueError(f"Expected effect kinds from {KINDS}, got {kind!r}")
-        for axis in KIND_AXES[kind]:
-            if not set(needs(kind, axis)) <= set(available):
-                continue
-            for el in AXIS_ELEMENTS[axis] + WCS_ELEMENTS:
-                out.append(Candidate(kind, axis, el))
-    return out
-
-
 @dataclass
 class Context:
     """Inputs of the terms at n points: axes (n, 3), conditions {name: (n,)}, the Jacobian
@@ -103,18 +85,12 @@ class Context:
     conditions: dict
     jac: np.ndarray
     ref: dict
-    cache: dict = field(default_factory=dict, repr=False, compare=False)
-    """Per-context store of quantities that depend only on the points (the periodogram's
-    sines and cosines per searched axis); filled on demand, never part of a result."""
 
     @classmethod
     def build(cls, machine, axes, conditions, ref) -> "Context":
         axes = np.asarray(axes, dtype=float)
         return cls(axes, {k: np.asarray(v, dtype=float) for k, v in (conditions or {}).items()},
                    error_jacobian(machine, axes), ref)
-
-    def subset(self, idx) -> "Context":
-        return Context(self.axes[idx], {k: v[idx] for k, v in self.conditions.items()}, self.jac[idx], self.ref)
 
     def column(self, element: str) -> np.ndarray:
         """J_e, shape (n, 3)."""
@@ -164,43 +140,6 @@ def basis(cand: Candidate, ctx: Context, period_mm: float | None = None, order: 
     else:  # pragma: no cover
         raise ValueError(f"unknown kind {k!r}")
     return b[:, None]
-
-
-def design(cand: Candidate, ctx: Context, period_mm=None, order=None) -> np.ndarray:
-    """Design matrix of the term on the stacked residual, shape (3n, n_linear)."""
-    B = basis(cand, ctx, period_mm, order)
-    return (ctx.column(cand.element)[:, :, None] * B[:, None, :]).reshape(-1, B.shape[1])
-
-
-def periodogram_trig(pos: np.ndarray, omegas: np.ndarray) -> tuple:
-    """The sines and cosines a periodogram over ``omegas`` (m,) at positions ``pos`` (n,) needs:
-    ``(S, C, S², S·C, C²)``, each (m, n). Computed once per point set and frequency grid
-    (:attr:`Context.cache`) and reused for every candidate element and selection step."""
-    ph = np.outer(omegas, pos)
-    S, C = np.sin(ph), np.cos(ph)
-    return S, C, S * S, S * C, C * C
-
-
-def projected_periodogram(r_um: np.ndarray, jcol: np.ndarray, pos: np.ndarray, omegas: np.ndarray,
-                          trig: tuple | None = None) -> tuple:
-    """Least-squares (Lomb–Scargle type) periodogram of a residual projected on an element.
-
-    For each angular frequency ω fits ``r ≈ J_e·(s·sin ωpos + c·cos ωpos)`` over the
-    stacked 3-vector residual (shapes: r (n, 3), jcol (n, 3), pos (n,), omegas (m,)). With
-    ``J_e`` a unit vector this is the classical Lomb–Scargle periodogram without floating
-    mean. ``trig``: :func:`periodogram_trig` of (pos, omegas) when already computed.
-    Returns (RSS reduction (m,) μm², coefficients (m, 2)).
-    """
-    g = np.einsum("ni,ni->n", jcol, r_um)          # J_eᵀ r per point
-    w = np.einsum("ni,ni->n", jcol, jcol)          # |J_e|² per point
-    S, C, SS, SC, CC = periodogram_trig(pos, omegas) if trig is None else trig
-    a11, a12, a22 = SS @ w, SC @ w, CC @ w
-    b1, b2 = S @ g, C @ g
-    det = a11 * a22 - a12**2
-    det = np.where(np.abs(det) > 1e-300, det, np.inf)
-    s = (a22 * b1 - a12 * b2) / det
-    c = (a11 * b2 - a12 * b1) / det
-    return s * b1 + c * b2, np.stack([s, c], axis=1)
 
 
 @dataclass
@@ -263,5 +202,3 @@ class EffectTerm:
                 "period_mm": self.period_mm, "order": self.order, "needs": list(self.needs),
                 "reference": {"ref_temp_c": self.ref["ref_temp_c"], "ref_time_s": self.ref["ref_time_s"]}}
 
-
-ALL_ELEMENTS = ELEMENT_NAMES + WCS_ELEMENTS

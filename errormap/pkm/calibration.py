@@ -49,8 +49,7 @@ not identifiable (raw singular values below ``rcond * s_max``), each with how it
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -58,87 +57,13 @@ from scipy.linalg import svd
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
-from ..io import InputError, read_document_text, read_table
+from ..io import InputError
 from ..threads import limit_threads
-from .hexapod import (KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics, quat_to_rotation,
-                      skew, workspace_poses)
-from .checks import angle_candidates, check_measurements, check_pose_set, quaternion_candidates
+from .hexapod import KinematicsError, forward_kinematics, inverse_kinematics, skew, workspace_poses
 from .machine_file import PKM
+from .poses import PoseData, check_pose_set
 from .pose_model import (machine_from_vector, parameter_names, parameter_vector, pose_errors_um, predict_poses,
                          robust_registration)
-
-
-# ---------------------------------------------------------------------------------------------
-# measured poses
-# ---------------------------------------------------------------------------------------------
-
-@dataclass
-class PoseData:
-    """Calibration measurements.
-
-    ``q``: drive commands, shape (n, k); ``tip_mm``: measured tool tip (instrument frame), shape
-    (n, 3); ``rotation``: measured orientation (``platform2instrument``), shape (n, 3, 3), or None
-    (position only); ``source``: where it came from; ``rows``: file row numbers, shape (n,);
-    ``leg_correction_mm``: fixed leg-length terms (n, k) added to ``s q + o`` in the fit (accepted leg terms).
-    """
-
-    q: np.ndarray
-    tip_mm: np.ndarray
-    rotation: np.ndarray | None = None
-    source: str = ""
-    rows: np.ndarray | None = None
-    leg_correction_mm: np.ndarray | None = None
-
-    def __len__(self):
-        return len(self.q)
-
-    def subset(self, idx) -> "PoseData":
-        return PoseData(self.q[idx], self.tip_mm[idx], None if self.rotation is None else self.rotation[idx],
-                        self.source, None if self.rows is None else self.rows[idx],
-                        None if self.leg_correction_mm is None else self.leg_correction_mm[idx])
-
-
-def read_poses(path, machine: PKM) -> PoseData:
-    """Read a PKM pose-measurement CSV (schema in docs/reference/file-formats.md / docs/explanation/parallel-kinematics.md).
-
-    Legs: ``l1_mm..lk_mm`` (commanded lengths, converted to drive units with the machine file's
-    nominal scale/offset) or ``q1..qk``; pose: ``x_mm, y_mm, z_mm`` plus, for the hexapod,
-    ``rx_deg, ry_deg, rz_deg`` (fixed-axis X-Y-Z) or ``qx, qy, qz, qw``, or neither (position only).
-    Errors name the file, row and column.
-    """
-    t = read_table(path, "poses")
-    k = machine.n_legs
-    lcols, qcols = [f"l{i + 1}_mm" for i in range(k)], [f"q{i + 1}" for i in range(k)]
-    if all(c in t for c in qcols):
-        q = np.stack([t.float(c) for c in qcols], 1)
-    elif all(c in t for c in lcols):
-        q = machine.legs_to_drive(np.stack([t.float(c) for c in lcols], 1))
-    else:
-        raise InputError(f"{t.path}: missing leg columns: need {lcols} or {qcols}; found columns {t.names}")
-    t.require("x_mm", "y_mm", "z_mm")
-    tip = np.stack([t.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
-    rot, cands = None, None
-    if machine.kind == "hexapod":
-        if all(c in t for c in ("qx", "qy", "qz", "qw")):
-            quat = np.stack([t.float(c) for c in ("qx", "qy", "qz", "qw")], 1)
-            norm = np.linalg.norm(quat, axis=1)
-            bad = np.flatnonzero(np.abs(norm - 1) > 1e-3)
-            if bad.size:
-                raise InputError(f"{t.path}: row {t.row_number(bad[0])}, columns 'qx'..'qw': expected a unit "
-                                 f"quaternion (order qx qy qz qw), got norm {norm[bad[0]]:.6g}")
-            rot = quat_to_rotation(quat / norm[:, None])
-            cands = quaternion_candidates(quat)
-        elif all(c in t for c in ("rx_deg", "ry_deg", "rz_deg")):
-            ang = np.stack([t.float(c) for c in ("rx_deg", "ry_deg", "rz_deg")], 1)
-            rot = angles_to_rotation(ang)
-            cands = angle_candidates(ang)
-        elif any(c in t for c in ("qx", "qy", "qz", "qw", "rx_deg", "ry_deg", "rz_deg")):
-            raise InputError(f"{t.path}: incomplete orientation columns: need all of qx qy qz qw or of "
-                             f"rx_deg ry_deg rz_deg; found columns {t.names}")
-    if len(t) == 0:
-        raise InputError(f"{t.path}: no data rows")
-    check_measurements(t.path, machine, q, tip, cands)
-    return PoseData(q, tip, rot, str(t.path), np.array([t.row_number(i) for i in range(len(t))]))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -753,88 +678,3 @@ def _with(r0: np.ndarray, est: np.ndarray, delta: np.ndarray) -> np.ndarray:
 def calibrate(machine: PKM, data: PoseData, **settings) -> CalibrationResult:
     """Convenience: ``PKMCalibrator(machine, **settings).fit(data)``."""
     return PKMCalibrator(machine, **settings).fit(data)
-
-
-def calibration_to_dict(result: CalibrationResult) -> dict:
-    """The machine-readable part of ``calibration.json`` (see docs/explanation/parallel-kinematics.md)."""
-    rot = Rotation.from_matrix(result.frame_rotation)
-    m = result.machine
-    return {
-        "format": CALIBRATION_FORMAT,
-        "kind": m.kind,
-        "machine": {"name": m.name, "path": m.path, "sha256": m.sha256},
-        "parameters": result.parameter_table(),
-        "identified_machine": {
-            "base_joints_mm": m.base_joints_mm, "platform_joints_mm": m.platform_joints_mm,
-            "leg_offset_mm": m.leg_offset_mm, "leg_scale": m.leg_scale,
-            "tool_in_platform_mm": m.tool_in_platform_mm},
-        "frame": {"meaning": "instrument <- machine: p_instrument = R p_machine + t",
-                  "translation_mm": result.frame_translation_mm, "rotation_qx_qy_qz_qw": rot.as_quat(),
-                  "rotation_deg_fixed_xyz": rot.as_euler("xyz", degrees=True)},
-        "condition_number": result.condition_number,
-        "condition_number_raw": result.condition_number_raw,
-        "condition_number_meaning": (
-            "condition_number: s_max / s_min of the scaled, frame-eliminated parameter Jacobian on the "
-            "identifiable subspace (the gauge directions fixed, structural null directions with "
-            "s < rcond * s_max removed); condition_number_raw: the same Jacobian over all estimated "
-            "parameters, null directions included (~1e16, or null = infinite, when a gauge exists)"),
-        "singular_values": result.singular_values,
-        "singular_values_raw": result.singular_values_raw,
-        "n_gauge": result.n_gauge,
-        "unidentifiable": result.unidentifiable,
-        "lambda_rule": result.lambda_rule,
-        "lambda": result.lam, "lambda_gcv": result.lambda_gcv, "lambda_lcurve": result.lambda_lcurve,
-        "lambda_morozov": result.lambda_morozov, "discrepancy_reached": result.discrepancy_reached,
-        "delta_um": result.delta_mm * 1e3, "delta_estimated": result.delta_estimated,
-        "lever_mm": result.lever_mm, "n_fit_poses": result.n_poses, "success": result.success,
-        "message": result.message, "iterations": result.iterations, "residual_evaluations": result.nfev,
-        "fit_time_s": result.fit_time_s,
-    }
-
-
-CALIBRATION_FORMAT = "volcomp-pkm-calibration/1"
-"""The ``format`` key of ``calibration.json``: the file is recognised by it, whatever its name (files
-written before the key existed are recognised by their ``kind`` and ``identified_machine`` keys)."""
-
-
-def load_calibrated_machine(path, machine: PKM) -> PKM:
-    """The identified machine from ``calibration.json`` (a file, whatever its name, or its folder),
-    recognised by its ``format`` key and checked against ``machine``."""
-    import json
-    p = Path(path)
-    if p.is_dir():
-        p = p / "calibration.json"
-    if not p.is_file():
-        raise InputError(f"{p}: no such calibration file")
-    try:
-        doc = json.loads(read_document_text(p, "a calibration file"))
-    except ValueError as exc:
-        raise InputError(f"{p}: not a PKM calibration file (not JSON: {exc})") from None
-    fmt = doc.get("format") if isinstance(doc, dict) else None
-    if fmt is not None and fmt != CALIBRATION_FORMAT:
-        raise InputError(f"{p}: key 'format': {str(fmt)!r}; not a PKM calibration file (expected "
-                         f"{CALIBRATION_FORMAT!r}, written by `volcomp calibrate`)")
-    try:
-        im = doc["identified_machine"]
-        kind = doc["kind"]
-    except (KeyError, TypeError) as exc:
-        raise InputError(f"{p}: not a PKM calibration file (no key {exc}; expected format "
-                         f"{CALIBRATION_FORMAT!r})") from None
-    if kind != machine.kind:
-        raise InputError(f"{p}: key 'kind': calibration is for a {kind}, the machine file is a {machine.kind}")
-    k = machine.n_legs
-    from .legspace import LegTerms
-    try:
-        terms = LegTerms.from_list(doc.get("leg_terms", []), k, p)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
-    extra = dict(machine.extra)
-    if terms:   # leg terms of the loop: applied when commands are converted to drive units (with the nominal)
-        extra.update({"leg_terms": terms, "leg_terms_nominal": machine})
-    try:
-        return replace(machine, base_joints_mm=np.asarray(im["base_joints_mm"], float).reshape(k, 3),
-                       platform_joints_mm=np.asarray(im["platform_joints_mm"], float).reshape(k, 3),
-                       leg_offset_mm=np.asarray(im["leg_offset_mm"], float).reshape(k),
-                       leg_scale=np.asarray(im["leg_scale"], float).reshape(k), extra=extra)
-    except (KeyError, ValueError, TypeError) as exc:
-        raise InputError(f"{p}: key 'identified_machine': {exc}") from None

@@ -32,7 +32,7 @@ tip in the platform frame) replaces ``tool_length_mm``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import brentq
@@ -116,13 +116,6 @@ class PKM:
         """Drive commands (n, k) -> leg lengths ``l = scale * q + offset`` (mm), shape (n, k)."""
         return np.asarray(q, float) * self.leg_scale + self.leg_offset_mm
 
-    def with_parameters(self, **kw) -> "PKM":
-        """A copy with some arrays replaced (e.g. identified joints)."""
-        return replace(self, **kw)
-
-
-Hexapod = PKM
-Tripod = PKM
 
 
 def _leg_array(legs: dict, key: str, k: int, default, path) -> np.ndarray:

@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..stats import residual_stats
-from .calibration import CalibrationResult, PKMCalibrator, PoseData
+from .calibration import CalibrationResult, PKMCalibrator
+from .poses import PoseData
 from .legspace import PlainFit, fit_leg_terms, plain_leg_fit
 from .machine_file import PKM
 

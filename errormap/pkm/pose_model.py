@@ -97,7 +97,7 @@ def predict_poses(machine: PKM, frame, q: np.ndarray, leg_terms=None, nominal: P
 
 def pose_errors_um(machine: PKM, frame, data, leg_terms=None, nominal: PKM | None = None) -> dict:
     """Measured residual (measurement minus model) on ``data`` (a
-    :class:`errormap.pkm.calibration.PoseData`): ``position_um`` (n,) (norm) and, with
+    :class:`errormap.pkm.poses.PoseData`): ``position_um`` (n,) (norm) and, with
     orientations, ``angle_urad`` (n,)."""
     tip, R = predict_poses(machine, frame, data.q, leg_terms, nominal)
     out = {"position_um": 1e3 * np.linalg.norm(data.tip_mm - tip, axis=1)}

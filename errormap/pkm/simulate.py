@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..io import write_csv
-from .calibration import PoseData
+from .poses import PoseData
 from .pose_model import rigid_motion_basis
 from .hexapod import forward_kinematics, inverse_kinematics, rotation_to_angles, workspace_poses
 from .machine_file import PKM

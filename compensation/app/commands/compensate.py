@@ -49,8 +49,8 @@ from errormap.machine import load_machine
 from compensation.app.validate import UsageError, one_line
 
 from ..families import family_of, say_read_as
-from ..options import add_condition_options, add_units_option, conditions_from_args
-from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args, open_executor
+from ..options import add_cluster_options, add_condition_options, add_units_option, cluster_settings, conditions_from_args
+from ..workflows.cluster import EXIT_CLUSTER, ClusterError
 from ..workflows.compensate import CompensateSettings, compensate_files, print_refusals
 from ... import guards
 from ...fields import FAILED_VERDICT
@@ -179,9 +179,9 @@ def settings_of(args) -> "CompensateSettings":
 def on_executor(args, work):
     """``work(executor)`` on the executor ``--cluster``/``--workers`` name (this process's threads, or
     Ray); a cluster that cannot finish: one line and :data:`EXIT_CLUSTER` (nothing was written)."""
-    check_cluster_args(args)
+    settings = cluster_settings(args)
     try:
-        with open_executor(args) as executor:
+        with settings.executor() as executor:
             return work(executor)
     except ClusterError as exc:
         print(file=sys.stderr)  # end a progress line
@@ -196,8 +196,9 @@ def run(args) -> int:
     family.refuse_unsupported("compensate", args)
     say_read_as(machine)
     if target == "arm":
-        from ..workflows.arm_compensate import run_arm_compensate
-        return run_arm_compensate(machine, args)
+        from ..workflows.arm_compensate import arm_settings_of, run_arm_compensate
+        return run_arm_compensate(machine, args.files, arm_settings_of(args.method, args.model, args.out, args.allow,
+                                                                       args.force))
     if args.method is None:
         raise UsageError("the following arguments are required: --method")
     settings = settings_of(args)

@@ -8,7 +8,8 @@ from errormap.io import write_json
 
 from ..outputs import is_lock
 from ..validate import UsageError, one_line
-from ..workflows.cluster import EXIT_CLUSTER, ClusterError, add_cluster_options, check_cluster_args
+from ..options import add_cluster_options, cluster_settings
+from ..workflows.cluster import EXIT_CLUSTER, ClusterError
 
 DEFAULT_TRAIN_ITER = 1000  # as `volcomp train`
 
@@ -43,7 +44,7 @@ def run(args) -> int:
     from ..workflows.cluster import RayExecutor
     from ..workflows.fleet import (SUMMARY_NAME, check_tracking_uri, fleet_counts, read_fleet, run_fleet,
                                    validate_inputs)
-    check_cluster_args(args)
+    cluster_settings(args)
     try:
         hidden = [int(h) for h in args.hidden.split(",")]
     except ValueError:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from errormap.io import InputError
 from errormap.machine import builtin_machine_path, load_machine
-from errormap.pkm.calibration import load_calibrated_machine
+from errormap.pkm.calibration_file import load_calibrated_machine
 from errormap.pkm.hexapod import KinematicsError
 
 from compensation.pkm_interpolation import builtin_path, contour_step_mm, leg_program, read_waypoints

@@ -191,14 +191,14 @@ def run(args) -> int:
 
 def _run_arm(machine, args) -> int:
     """An arm: its calibration.json at joint configurations."""
-    from ..workflows.arm_predict import run_arm_predict
-    return run_arm_predict(machine, args)
+    from ..workflows.arm_predict import arm_predict_settings_of, run_arm_predict
+    return run_arm_predict(machine, args.points, arm_predict_settings_of(args.model, args.out, args.band, args.allow))
 
 
 def _run_parallel(machine, args) -> int:
     """A parallel machine: its calibration.json at commanded poses."""
     from ..workflows.pkm_predict import run_pkm_predict
-    return run_pkm_predict(machine, args)
+    return run_pkm_predict(machine, args.points, args.model, args.out)
 
 
 def _run_machine_tool(machine, args) -> int:

@@ -131,6 +131,19 @@ def decision_subset(n: int, max_poses: int | None, seed) -> np.ndarray | None:
     return np.sort(np.random.default_rng(seed).choice(n, int(max_poses), replace=False))
 
 
+@dataclass
+class _Kept:
+    """The stage ``calibrate_arm`` keeps so far: its name, geometric model and learner (or None), why, notes, and
+    the held-out residual of its geometric part and its 95 % band coverage on the check poses."""
+    name: str
+    geo: object
+    learner: object
+    why: str
+    notes: list
+    r_geo: np.ndarray
+    coverage_check: float
+
+
 def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed=0, log=None, groups=None,
                   pipeline_rule: str = "lowest", learner_families=None, band_blocked: bool = True,
                   decide_max: int | None = None) -> dict:
@@ -144,9 +157,8 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     every CV, the learned stages and the band calibration run on a seeded subset of this many
     (:func:`decision_subset`); the geometric stages and the plain baselines are fitted on every fit pose. Returns the
     document's core: ``stages``, ``baselines``, ``kept_stage``, the models, ``decision_poses``."""
-    from errormap.arm_calibration import MODELS, choose_model, cv_models, fit_model
-    from training.arm_residual import KERNEL_FAMILIES, ArmResidualRegressor
-    from training.residual import FAMILY_NAMES, MAX_TRAIN_POINTS
+    from training.arm_residual import KERNEL_FAMILIES
+    from training.residual import MAX_TRAIN_POINTS
     learner_families = KERNEL_FAMILIES if learner_families is None else tuple(learner_families)
     s_geo, s_learn, s_plain, s_dec = np.random.SeedSequence(seed).spawn(4)
     decide_max = DECIDE_MAX_POSES if decide_max is None else int(decide_max)
@@ -160,6 +172,63 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
         dfit, dgroups = fit.subset(dec_idx), None if groups is None else np.asarray(groups)[dec_idx]
         say(f"{len(fit)} fit poses: every decision (CV, learned stages, band) on a seeded subset of {len(dfit)}, "
             f"the geometric fits on all {len(fit)}")
+    g = _geometric_stages(chain, fit, dfit, dgroups, check, k_folds, s_geo, say)
+    model, cvd, plain = g["model"], g["cvd"], g["plain"]
+    kept = _Kept(stage_name(model), g["fits"][model], None, "", [], None, 0.0)
+    cvk = "blocked " if groups is not None else ""
+    kept.why = (f"{kept.name} had the lowest {k_folds}-fold {cvk}CV mean error inside the fit poses "
+                f"({cvd[model]:.4f} mm; " + ", ".join(f"{k} {v:.4f}" for k, v in cvd.items() if k != model) + ")")
+    if dec_idx is not None:
+        kept.why += f" (every CV on a seeded {len(dfit)} of the {len(fit)} fit poses)"
+    if cvd["plain"] < cvd[model]:
+        kept.geo = plain
+        plain.cv_table = g["cv"]
+        kept.notes.append(f"the plain least-squares calibration beat volcomp's {kept.name} in CV inside the fit poses "
+                          f"({cvd['plain']:.6f} vs {cvd[model]:.6f} mm mean): it is the geometric stage returned")
+        kept.why += "; the plain LSQ fit did better in that CV and is returned as it"
+        kept.name = "plain geometric LSQ"
+    stages, baselines = g["stages"], g["baselines"]
+    geo_volcomp = kept.geo
+    kept.r_geo = check.xyz_mm - kept.geo.predict(check.q)
+    band_geo = np.sqrt(kept.geo.band_std_mm(check.q) ** 2 + kept.geo.sigma_mm ** 2)
+    kept.coverage_check = float(np.mean(np.abs(kept.r_geo) <= Z95 * band_geo))
+    learner, plain_gp, pipeline_cv, pipe_volcomp, stacked, stacked_summary = None, None, None, None, None, None
+    pipes = {kept.name: ("plain" if kept.geo is plain else model, None)}
+    if learned:
+        learner, plain_gp = _learned_stages(chain, dfit, dgroups, check, kept, plain, stages, baselines, k_folds,
+                                            n_restarts, s_learn, s_plain, learner_families, say)
+        pipe_volcomp = kept.name   # volcomp's own choice, before the pipelines are compared
+        pipes, pipeline_cv, stacked, stacked_summary = _pipeline_choice(
+            chain, dfit, dgroups, check, kept, plain, plain_gp, model, g["fold_fits"], stages, k_folds, s_geo,
+            pipeline_rule, say)
+    else:
+        kept.why += "; learned stage not run"
+        if band_blocked:   # its interleaved CV (the geometric CV's fold fits, reused) caps the band factor below
+            from training.arm_residual import cv_pipelines
+            pipeline_cv = cv_pipelines(chain, dfit, pipes, k_folds, s_geo, dgroups, g["fold_fits"])
+    band_cal = None
+    if band_blocked:
+        band_cal = _calibrate_band(chain, dfit, check, kept, pipes, pipe_volcomp, pipeline_cv, k_folds, s_geo, say)
+    if kept.name not in [r["name"] for r in stages]:     # a plain pipeline kept: it is a stage of the document too
+        row = next(r for r in baselines if r["name"] == kept.name)
+        stages.append({**row, "what": row["what"] + " (kept: it did better in the CV inside the fit poses)"})
+    return {"stages": stages, "baselines": baselines, "kept_stage": kept.name, "kept_why": kept.why,
+            "notes": kept.notes, "geometric_model": kept.geo, "kept_learner": kept.learner,
+            "volcomp_geometric_model": geo_volcomp, "geometric_stage": stage_name(model),
+            "volcomp_geometric": g["fits"]["dh"], "geometric_fits": g["fits"], "learner": learner,
+            "base_tool_model": g["base_tool"], "plain_model": plain, "plain_gp": plain_gp, "cv_geometric": g["cv"],
+            "pipeline_cv_errors": pipeline_cv, "pipeline_volcomp": pipe_volcomp,
+            "stacked": stacked, "stacked_summary": stacked_summary,
+            "cv_pipelines": None if pipeline_cv is None else
+            [{"pipeline": k, "cv_mean_mm": v["cv_mean_mm"], "cv_rms_mm": v["cv_rms_mm"]} for k, v in pipeline_cv.items()],
+            "coverage95_heldout": kept.coverage_check, "band_calibration": band_cal,
+            "decision_poses": len(dfit), "temperature_c": temperature_summary(fit)}
+
+
+def _geometric_stages(chain, fit, dfit, dgroups, check, k_folds, s_geo, say) -> dict:
+    """The plain baselines and every geometric slot set fitted on ``fit``, the slot set chosen by CV on ``dfit``;
+    their stage and baseline rows on ``check``."""
+    from errormap.arm_calibration import MODELS, choose_model, cv_models, fit_model
     nominal = errors_mm(check, chain.tool_point(check.q))
     base_tool = fit_base_tool(chain, fit)
     plain = fit_plain_lsq(chain, fit)
@@ -173,26 +242,11 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
     fits = {m: fit_model(chain, fit, m) for m in MODELS}
     for m in MODELS:
         fits[m].cv_table = cv
-    geo = fits["dh"]
     e_bt, e_plain = (errors_mm(check, m.predict(check.q)) for m in (base_tool, plain))
     e_fit = {m: errors_mm(check, r.predict(check.q)) for m, r in fits.items()}
     say("CV mean error in the fit set: " + ", ".join(f"{r['model']} {r['cv_mean_mm']:.4f} mm" for r in cv)
         + f"; held-out: nominal {nominal.mean():.4f}, base/tool {e_bt.mean():.4f}, plain LSQ {e_plain.mean():.4f}, "
         + ", ".join(f"{stage_name(m)} {e.mean():.4f}" for m, e in e_fit.items()))
-    notes = []
-    geo_kept, kept = fits[model], stage_name(model)
-    cvk = "blocked " if groups is not None else ""
-    why = (f"{kept} had the lowest {k_folds}-fold {cvk}CV mean error inside the fit poses "
-           f"({cvd[model]:.4f} mm; " + ", ".join(f"{k} {v:.4f}" for k, v in cvd.items() if k != model) + ")")
-    if dec_idx is not None:
-        why += f" (every CV on a seeded {len(dfit)} of the {len(fit)} fit poses)"
-    if cvd["plain"] < cvd[model]:
-        geo_kept = plain
-        plain.cv_table = cv
-        notes.append(f"the plain least-squares calibration beat volcomp's {kept} in CV inside the fit poses "
-                     f"({cvd['plain']:.6f} vs {cvd[model]:.6f} mm mean): it is the geometric stage returned")
-        why += "; the plain LSQ fit did better in that CV and is returned as it"
-        kept = "plain geometric LSQ"
     stages = [stage_row("nominal", nominal, "nominal chain of the machine file")]
     for m in MODELS:
         stages.append(stage_row(stage_name(m), e_fit[m], f"{fits[m].method}: LM on the identifiable slots of {m} "
@@ -202,126 +256,122 @@ def calibrate_arm(chain, fit, check, learned=True, k_folds=5, n_restarts=1, seed
                                                            "tool (Gauss–Newton, minimum-norm step: no motion along "
                                                            "combinations the poses do not determine)"),
                  stage_row("volcomp geometric", e_fit["dh"], "LM on the identifiable DH slots (unidentifiable fixed)")]
-    learner, plain_gp, kept_learner, pipeline_cv, pipe_volcomp = None, None, None, None, None
-    stacked, stacked_summary = None, None
-    geo_volcomp = geo_kept
-    r_geo = check.xyz_mm - geo_kept.predict(check.q)
-    band_geo = np.sqrt(geo_kept.band_std_mm(check.q) ** 2 + geo_kept.sigma_mm ** 2)
-    coverage_check = float(np.mean(np.abs(r_geo) <= Z95 * band_geo))
-    if learned:
-        say(f"learned stages: GP families cross-validated ({k_folds} folds) on {len(dfit)} poses' residuals")
-        plain_gp = ArmResidualRegressor(chain, inputs="sincos", k_folds=k_folds, n_restarts=n_restarts, margin_se=0.0,
-                                        seed=s_plain).fit(dfit.q, dfit.xyz_mm - plain.predict(dfit.q), dgroups)
-        e_pgp = errors_mm(check, plain.predict(check.q) + plain_gp.predict(check.q))
-        baselines.append(stage_row("plain GP on plain LSQ residual", e_pgp,
-                                   "Gaussian process on joint sin/cos, fitted to the plain calibration's residual"))
-        learner = ArmResidualRegressor(chain, inputs="physics", k_folds=k_folds, n_restarts=n_restarts,
-                                       seed=s_learn, families=learner_families).fit(
-            dfit.q, dfit.xyz_mm - geo_kept.predict(dfit.q), dgroups)
-        m, sd = learner.predict(check.q, return_std=True)
-        r = r_geo - m
-        e_l = np.linalg.norm(r, axis=1)
-        fam_cv = ", ".join(f"{f} {learner.cv_table_[f]['cv_rms']:.4f}" for f in learner_families)
-        stages.append(stage_row("learned", e_l, f"{kept} + GP on joint sin/cos and gravity moments; kernel by "
-                                                f"{learner.k_folds}-fold CV in the fit set (RMS mm: {fam_cv}; zero "
-                                                f"{learner.cv_table_['zero']['cv_rms']:.4f}): "
-                                                f"{FAMILY_NAMES.get(learner.chosen_, learner.chosen_)}"))
-        say(f"learned stage (CV choice: {learner.chosen_}; CV RMS {fam_cv}): held-out mean {e_l.mean():.4f} mm; "
-            f"plain GP {e_pgp.mean():.4f} mm")
-        gp = learner.cv_table_.get(learner.chosen_, {})
-        if learner.chosen_ != "none":
-            kept, kept_learner = "learned", learner
-            coverage_check = float(np.mean(np.abs(r) <= Z95 * sd))
-            why += (f"; the learned stage ({learner.chosen_}, the lowest CV error of {', '.join(learner_families)}) "
-                    f"beat it in {k_folds}-fold CV inside the fit poses (RMS "
-                    f"{gp['cv_rms']:.4f} vs {learner.cv_table_['zero']['cv_rms']:.4f} mm, gain > "
-                    f"{learner.margin_se:g} standard errors): kept")
-        else:
-            why += (f"; the learned stage did not beat it by {learner.margin_se:g} standard errors in {k_folds}-fold "
-                    f"CV inside the fit poses: not kept")
-        # never lose to the plain pipelines in validation: volcomp's choice against the plain LSQ fit and the
-        # plain GP on its residual, all three cross-validated as whole pipelines on the geometric CV's folds
-        from errormap.arm_calibration import FOLD_LABELS
-        from training.arm_residual import STACK_BAND_RULE, StackedResidual, cv_pipelines, stack_cv, stack_weight
-        pipes = {kept: ("plain" if geo_kept is plain else model, kept_learner),
-                 "plain geometric LSQ": ("plain", None), "plain GP on plain LSQ residual": ("plain", plain_gp)}
-        say("CV of whole pipelines")
-        pipeline_cv = cv_pipelines(chain, dfit, pipes, k_folds, s_geo, dgroups, fold_fits)
-        pipe_volcomp = kept
-        # the stacked candidate: volcomp's choice and the plain GP blended, the weight fitted to their out-of-fold
-        # predictions on these folds; its CV figure with each fold's weight chosen on the other folds (stack_cv)
-        pa, pb = pipeline_cv[kept], pipeline_cv[PLAIN_GP]
-        w_stack = stack_weight(dfit.xyz_mm, pa["pred_mm"], pb["pred_mm"])[0]
-        pipeline_cv[STACKED] = stack_cv(dfit.xyz_mm, pa["pred_mm"], pb["pred_mm"], fold_fits[FOLD_LABELS],
-                                        pa["std_mm"], pb["std_mm"])
-        stacked = StackedResidual(w_stack, (geo_kept, kept_learner), (plain, plain_gp), names=(kept, PLAIN_GP))
-        st_cv = pipeline_cv[STACKED]
-        stacked_summary = {
-            "weight": w_stack, "pipelines": [kept, PLAIN_GP], "fold_weights": st_cv["fold_weights"],
-            "cv_mean_mm": st_cv["cv_mean_mm"], "band_rule": STACK_BAND_RULE,
-            "coverage95_cv": float(np.mean(np.abs(dfit.xyz_mm - st_cv["pred_mm"]) <= Z95 * st_cv["std_mm"]))}
-        e_st = errors_mm(check, stacked.point(check.q))
-        stages.append(stage_row(STACKED, e_st, f"{w_stack:.2f}·({kept}) + {1 - w_stack:.2f}·({PLAIN_GP}), the weight "
-                                               f"fitted to their {k_folds}-fold out-of-fold predictions inside the fit "
-                                               f"poses (its CV mean {st_cv['cv_mean_mm']:.4f} mm with each fold's "
-                                               f"weight chosen on the other folds)"))
-        say(f"stacked: weight {w_stack:.2f} on {kept} (per fold {', '.join(f'{x:.2f}' for x in st_cv['fold_weights'])}); "
-            f"held-out mean {e_st.mean():.4f} mm")
-        best = choose_pipeline(pipeline_cv, kept, pipeline_rule)
-        pcv_text = ", ".join(f"{k} {v['cv_mean_mm']:.4f}" for k, v in pipeline_cv.items())
-        if best == STACKED:
-            why += (f"; in the CV of whole pipelines inside the fit poses ({pcv_text} mm mean) the stacked pipeline "
-                    f"({w_stack:.2f}·{kept} + {1 - w_stack:.2f}·{PLAIN_GP}) did best: kept")
-            kept, geo_kept, kept_learner = STACKED, stacked.geometric, stacked
-            sd = stacked.predict(check.q, return_std=True)[1]
-            coverage_check = float(np.mean(np.abs(check.xyz_mm - stacked.point(check.q)) <= Z95 * sd))
-        elif best != kept:
-            notes.append(f"the plain pipeline '{best}' beat volcomp's {kept} in the pipeline CV inside the fit poses "
-                         f"({pcv_text} mm mean): it is the stage returned")
-            why += f"; in the CV of whole pipelines inside the fit poses ({pcv_text} mm mean) {best} did better: kept"
-            kept, geo_kept = best, plain
-            kept_learner = plain_gp if best == "plain GP on plain LSQ residual" and plain_gp.chosen_ != "none" else None
-            r_geo = check.xyz_mm - plain.predict(check.q)
-            if kept_learner is None:
-                band_geo = np.sqrt(plain.band_std_mm(check.q) ** 2 + plain.sigma_mm ** 2)
-                coverage_check = float(np.mean(np.abs(r_geo) <= Z95 * band_geo))
-            else:
-                m, sd = kept_learner.predict(check.q, return_std=True)
-                coverage_check = float(np.mean(np.abs(r_geo - m) <= Z95 * sd))
-        else:
-            why += f"; it was not worse than the plain pipelines in their CV inside the fit poses ({pcv_text} mm mean)"
-        say(f"pipeline CV inside the fit poses: {pcv_text} mm mean; kept {kept}")
+    return {"base_tool": base_tool, "plain": plain, "cv": cv, "cvd": cvd, "model": model, "fits": fits,
+            "fold_fits": fold_fits, "stages": stages, "baselines": baselines}
+
+
+def _learned_stages(chain, dfit, dgroups, check, kept: _Kept, plain, stages, baselines, k_folds, n_restarts, s_learn,
+                    s_plain, learner_families, say) -> tuple:
+    """The plain GP on the plain fit's residual (a baseline row) and volcomp's learned stage on the kept geometric
+    stage's residual (a stage row; kept when its CV beats zero, ``kept`` updated) → ``(learner, plain_gp)``."""
+    from training.arm_residual import ArmResidualRegressor
+    from training.residual import FAMILY_NAMES
+    say(f"learned stages: GP families cross-validated ({k_folds} folds) on {len(dfit)} poses' residuals")
+    plain_gp = ArmResidualRegressor(chain, inputs="sincos", k_folds=k_folds, n_restarts=n_restarts, margin_se=0.0,
+                                    seed=s_plain).fit(dfit.q, dfit.xyz_mm - plain.predict(dfit.q), dgroups)
+    e_pgp = errors_mm(check, plain.predict(check.q) + plain_gp.predict(check.q))
+    baselines.append(stage_row("plain GP on plain LSQ residual", e_pgp,
+                               "Gaussian process on joint sin/cos, fitted to the plain calibration's residual"))
+    learner = ArmResidualRegressor(chain, inputs="physics", k_folds=k_folds, n_restarts=n_restarts,
+                                   seed=s_learn, families=learner_families).fit(
+        dfit.q, dfit.xyz_mm - kept.geo.predict(dfit.q), dgroups)
+    m, sd = learner.predict(check.q, return_std=True)
+    r = kept.r_geo - m
+    e_l = np.linalg.norm(r, axis=1)
+    fam_cv = ", ".join(f"{f} {learner.cv_table_[f]['cv_rms']:.4f}" for f in learner_families)
+    stages.append(stage_row("learned", e_l, f"{kept.name} + GP on joint sin/cos and gravity moments; kernel by "
+                                            f"{learner.k_folds}-fold CV in the fit set (RMS mm: {fam_cv}; zero "
+                                            f"{learner.cv_table_['zero']['cv_rms']:.4f}): "
+                                            f"{FAMILY_NAMES.get(learner.chosen_, learner.chosen_)}"))
+    say(f"learned stage (CV choice: {learner.chosen_}; CV RMS {fam_cv}): held-out mean {e_l.mean():.4f} mm; "
+        f"plain GP {e_pgp.mean():.4f} mm")
+    gp = learner.cv_table_.get(learner.chosen_, {})
+    if learner.chosen_ != "none":
+        kept.name, kept.learner = "learned", learner
+        kept.coverage_check = float(np.mean(np.abs(r) <= Z95 * sd))
+        kept.why += (f"; the learned stage ({learner.chosen_}, the lowest CV error of {', '.join(learner_families)}) "
+                     f"beat it in {k_folds}-fold CV inside the fit poses (RMS "
+                     f"{gp['cv_rms']:.4f} vs {learner.cv_table_['zero']['cv_rms']:.4f} mm, gain > "
+                     f"{learner.margin_se:g} standard errors): kept")
     else:
-        why += "; learned stage not run"
-        pipes = {kept: ("plain" if geo_kept is plain else model, None)}
-        if band_blocked:   # its interleaved CV (the geometric CV's fold fits, reused) caps the band factor below
-            from training.arm_residual import cv_pipelines
-            pipeline_cv = cv_pipelines(chain, dfit, pipes, k_folds, s_geo, dgroups, fold_fits)
-    band_cal = None
-    if band_blocked:
-        say("band calibration on blocked inner CVs")
-        band_cal = kept_band_calibration(chain, dfit, check, kept, pipes, pipe_volcomp, pipeline_cv, geo_kept,
-                                         kept_learner, k_folds, s_geo)
-        coverage_check = band_cal["coverage95_heldout_after"]
-        cap = band_cal["cap_interleaved"]
-        say(f"band calibrated on blocked inner CVs: factor {band_cal['factor']:.3f} (blocked "
-            f"{band_cal['factor_blocked']:.3f}, interleaved 98 % cap {'none' if cap is None else format(cap, '.3f')}; "
-            + ", ".join(f"{k} {v['factor']:.3f}, coverage {v['coverage95_before']:.3f} → {v['coverage95_after']:.3f}"
-                        for k, v in band_cal["blockings"].items())
-            + f"); held-out coverage {band_cal['coverage95_heldout_before']:.3f} → {coverage_check:.3f}")
-    if kept not in [r["name"] for r in stages]:     # a plain pipeline kept: it is a stage of the document too
-        row = next(r for r in baselines if r["name"] == kept)
-        stages.append({**row, "what": row["what"] + " (kept: it did better in the CV inside the fit poses)"})
-    return {"stages": stages, "baselines": baselines, "kept_stage": kept, "kept_why": why, "notes": notes,
-            "geometric_model": geo_kept, "kept_learner": kept_learner, "volcomp_geometric_model": geo_volcomp,
-            "geometric_stage": stage_name(model), "volcomp_geometric": geo, "geometric_fits": fits, "learner": learner,
-            "base_tool_model": base_tool, "plain_model": plain, "plain_gp": plain_gp, "cv_geometric": cv,
-            "pipeline_cv_errors": pipeline_cv, "pipeline_volcomp": pipe_volcomp,
-            "stacked": stacked, "stacked_summary": stacked_summary,
-            "cv_pipelines": None if pipeline_cv is None else
-            [{"pipeline": k, "cv_mean_mm": v["cv_mean_mm"], "cv_rms_mm": v["cv_rms_mm"]} for k, v in pipeline_cv.items()],
-            "coverage95_heldout": coverage_check, "band_calibration": band_cal,
-            "decision_poses": len(dfit), "temperature_c": temperature_summary(fit)}
+        kept.why += (f"; the learned stage did not beat it by {learner.margin_se:g} standard errors in {k_folds}-fold "
+                     f"CV inside the fit poses: not kept")
+    return learner, plain_gp
+
+
+def _pipeline_choice(chain, dfit, dgroups, check, kept: _Kept, plain, plain_gp, model, fold_fits, stages, k_folds,
+                     s_geo, pipeline_rule, say) -> tuple:
+    """Never lose to the plain pipelines in validation: volcomp's choice against the plain LSQ fit, the plain GP on
+    its residual and the stacked blend of the two, all cross-validated as whole pipelines on the geometric CV's
+    folds (``pipeline_rule``: :func:`choose_pipeline`); ``kept`` updated → ``(pipes, pipeline_cv, stacked,
+    stacked_summary)``."""
+    from errormap.arm_calibration import FOLD_LABELS
+    from training.arm_residual import STACK_BAND_RULE, StackedResidual, cv_pipelines, stack_cv, stack_weight
+    name = kept.name
+    pipes = {name: ("plain" if kept.geo is plain else model, kept.learner),
+             "plain geometric LSQ": ("plain", None), "plain GP on plain LSQ residual": ("plain", plain_gp)}
+    say("CV of whole pipelines")
+    pipeline_cv = cv_pipelines(chain, dfit, pipes, k_folds, s_geo, dgroups, fold_fits)
+    # the stacked candidate: volcomp's choice and the plain GP blended, the weight fitted to their out-of-fold
+    # predictions on these folds; its CV figure with each fold's weight chosen on the other folds (stack_cv)
+    pa, pb = pipeline_cv[name], pipeline_cv[PLAIN_GP]
+    w_stack = stack_weight(dfit.xyz_mm, pa["pred_mm"], pb["pred_mm"])[0]
+    pipeline_cv[STACKED] = stack_cv(dfit.xyz_mm, pa["pred_mm"], pb["pred_mm"], fold_fits[FOLD_LABELS],
+                                    pa["std_mm"], pb["std_mm"])
+    stacked = StackedResidual(w_stack, (kept.geo, kept.learner), (plain, plain_gp), names=(name, PLAIN_GP))
+    st_cv = pipeline_cv[STACKED]
+    stacked_summary = {
+        "weight": w_stack, "pipelines": [name, PLAIN_GP], "fold_weights": st_cv["fold_weights"],
+        "cv_mean_mm": st_cv["cv_mean_mm"], "band_rule": STACK_BAND_RULE,
+        "coverage95_cv": float(np.mean(np.abs(dfit.xyz_mm - st_cv["pred_mm"]) <= Z95 * st_cv["std_mm"]))}
+    e_st = errors_mm(check, stacked.point(check.q))
+    stages.append(stage_row(STACKED, e_st, f"{w_stack:.2f}·({name}) + {1 - w_stack:.2f}·({PLAIN_GP}), the weight "
+                                           f"fitted to their {k_folds}-fold out-of-fold predictions inside the fit "
+                                           f"poses (its CV mean {st_cv['cv_mean_mm']:.4f} mm with each fold's "
+                                           f"weight chosen on the other folds)"))
+    say(f"stacked: weight {w_stack:.2f} on {name} (per fold {', '.join(f'{x:.2f}' for x in st_cv['fold_weights'])}); "
+        f"held-out mean {e_st.mean():.4f} mm")
+    best = choose_pipeline(pipeline_cv, name, pipeline_rule)
+    pcv_text = ", ".join(f"{k} {v['cv_mean_mm']:.4f}" for k, v in pipeline_cv.items())
+    if best == STACKED:
+        kept.why += (f"; in the CV of whole pipelines inside the fit poses ({pcv_text} mm mean) the stacked pipeline "
+                     f"({w_stack:.2f}·{name} + {1 - w_stack:.2f}·{PLAIN_GP}) did best: kept")
+        kept.name, kept.geo, kept.learner = STACKED, stacked.geometric, stacked
+        sd = stacked.predict(check.q, return_std=True)[1]
+        kept.coverage_check = float(np.mean(np.abs(check.xyz_mm - stacked.point(check.q)) <= Z95 * sd))
+    elif best != name:
+        kept.notes.append(f"the plain pipeline '{best}' beat volcomp's {name} in the pipeline CV inside the fit poses "
+                          f"({pcv_text} mm mean): it is the stage returned")
+        kept.why += f"; in the CV of whole pipelines inside the fit poses ({pcv_text} mm mean) {best} did better: kept"
+        kept.name, kept.geo = best, plain
+        kept.learner = plain_gp if best == "plain GP on plain LSQ residual" and plain_gp.chosen_ != "none" else None
+        kept.r_geo = check.xyz_mm - plain.predict(check.q)
+        if kept.learner is None:
+            band_geo = np.sqrt(plain.band_std_mm(check.q) ** 2 + plain.sigma_mm ** 2)
+            kept.coverage_check = float(np.mean(np.abs(kept.r_geo) <= Z95 * band_geo))
+        else:
+            m, sd = kept.learner.predict(check.q, return_std=True)
+            kept.coverage_check = float(np.mean(np.abs(kept.r_geo - m) <= Z95 * sd))
+    else:
+        kept.why += f"; it was not worse than the plain pipelines in their CV inside the fit poses ({pcv_text} mm mean)"
+    say(f"pipeline CV inside the fit poses: {pcv_text} mm mean; kept {kept.name}")
+    return pipes, pipeline_cv, stacked, stacked_summary
+
+
+def _calibrate_band(chain, dfit, check, kept: _Kept, pipes, pipe_volcomp, pipeline_cv, k_folds, s_geo, say) -> dict:
+    """The kept stage's band factor on blocked inner CVs (:func:`kept_band_calibration`); ``kept.coverage_check``
+    becomes the held-out coverage after it."""
+    say("band calibration on blocked inner CVs")
+    band_cal = kept_band_calibration(chain, dfit, check, kept.name, pipes, pipe_volcomp, pipeline_cv, kept.geo,
+                                     kept.learner, k_folds, s_geo)
+    kept.coverage_check = band_cal["coverage95_heldout_after"]
+    cap = band_cal["cap_interleaved"]
+    say(f"band calibrated on blocked inner CVs: factor {band_cal['factor']:.3f} (blocked "
+        f"{band_cal['factor_blocked']:.3f}, interleaved 98 % cap {'none' if cap is None else format(cap, '.3f')}; "
+        + ", ".join(f"{k} {v['factor']:.3f}, coverage {v['coverage95_before']:.3f} → {v['coverage95_after']:.3f}"
+                    for k, v in band_cal["blockings"].items())
+        + f"); held-out coverage {band_cal['coverage95_heldout_before']:.3f} → {kept.coverage_check:.3f}")
+    return band_cal
 
 
 def kept_band_calibration(chain, fit, check, kept, pipes, pipe_volcomp, pipeline_cv, geo_kept, kept_learner, k_folds,

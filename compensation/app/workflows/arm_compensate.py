@@ -11,6 +11,7 @@ converge or leaves the joint limits fails the file (exit 3, nothing written for 
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -78,22 +79,39 @@ def overridden_verdict(verdict) -> list[str]:
             + ("; ".join(verdict["reasons"]) or "no reasons recorded")]
 
 
-def run_arm_compensate(chain, args) -> int:
-    """``volcomp compensate`` on a serial arm; the options it does not take were refused by the family registry
-    (:mod:`compensation.app.families`)."""
-    if args.method not in (None, "exact"):
-        raise UsageError(f"--method {args.method}: a serial chain is compensated by Newton on its calibrated chain "
+@dataclass(frozen=True)
+class ArmCompensateSettings:
+    """How ``volcomp compensate`` runs on a serial arm: ``model`` (its ``calibration.json``, ``volcomp
+    calibrate``), ``out_dir`` (each program written there under its own name), ``force`` (replace outputs that
+    exist), ``allow_failed_verdict`` (use a calibration whose verdict failed; recorded in each output's header)."""
+    model: str
+    out_dir: Path
+    force: bool = False
+    allow_failed_verdict: bool = False
+
+
+def arm_settings_of(method, model, out, allow, force) -> ArmCompensateSettings:
+    """``compensate``'s options on an arm as :class:`ArmCompensateSettings` (``--method`` exact or none only)."""
+    if method not in (None, "exact"):
+        raise UsageError(f"--method {method}: a serial chain is compensated by Newton on its calibrated chain "
                          "(--method exact or none)")
-    allow = parse_arm_allow(args.allow)
-    geo, learner = load_arm_model(chain, args.model, base_frame=True)
-    verdict = check_verdict(args.model, FAILED_VERDICT in allow)   # a failed calibration: refused unless allowed
-    out = Path(args.out)
-    srcs = [Path(f) for f in args.files]
+    return ArmCompensateSettings(model=model, out_dir=Path(out), force=bool(force),
+                                 allow_failed_verdict=FAILED_VERDICT in parse_arm_allow(allow))
+
+
+def run_arm_compensate(chain, files, settings: ArmCompensateSettings) -> int:
+    """``volcomp compensate`` of the joint programs ``files`` on a serial arm (the options it does not take were
+    refused by the family registry, :mod:`compensation.app.families`) → exit status (3: a file refused)."""
+    model = settings.model
+    geo, learner = load_arm_model(chain, model, base_frame=True)
+    verdict = check_verdict(model, settings.allow_failed_verdict)   # a failed calibration: refused unless allowed
+    out = Path(settings.out_dir)
+    srcs = [Path(f) for f in files]
     for s in srcs:
         if (out / s.name).resolve() == s.resolve():
             raise UsageError(f"{s}: the output would overwrite the input; choose another --out")
     existing = [str(out / s.name) for s in srcs if (out / s.name).exists()]
-    if existing and not getattr(args, "force", False):   # never clobbered silently
+    if existing and not settings.force:   # never clobbered silently
         raise UsageError(f"{existing[0]} exists{f' (and {len(existing) - 1} more)' if len(existing) > 1 else ''}; "
                          "give --force to replace or choose another --out")
     jobs = [(s, *read_program(s, chain)) for s in srcs]
@@ -112,7 +130,7 @@ def run_arm_compensate(chain, args) -> int:
         cols.update({"x_mm": target[:, 0], "y_mm": target[:, 1], "z_mm": target[:, 2],
                      "model_residual_mm": sol.residual_mm})
         write_csv(out / src.name, cols, header_comments=(
-            *overridden_verdict(verdict), f"compensated for machine {chain.name} with {args.model}",
+            *overridden_verdict(verdict), f"compensated for machine {chain.name} with {model}",
             "x_mm..z_mm: targets in the robot's base frame; residual: MODEL residual (target - calibrated model at the "
             "compensated joints)",
             f"tool orientation kept: {sol.orientation_kept}"), float_fmt="%.10g")

@@ -17,6 +17,8 @@ the kept stage (:data:`BAND_RULES`; its 95 % coverage is checked by CV and on th
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from errormap.arm_frames import base_rotation, to_base_frame
@@ -54,18 +56,36 @@ def read_points(path, chain):
     return joint_values(path, t, chain, grid), tracker_grid_points(t)
 
 
-def run_arm_predict(chain, args) -> int:
-    from ...fields import FAILED_VERDICT, check_verdict
-    other = [a for a in getattr(args, "allow", None) or [] if a != FAILED_VERDICT]
+@dataclass(frozen=True)
+class ArmPredictSettings:
+    """How ``volcomp predict`` runs on a serial arm: ``model`` (its ``calibration.json``), ``out`` (the CSV
+    written), ``band`` (None, ``"95"`` or ``"1sigma"``: the band columns), ``allow_failed_verdict`` (use a
+    calibration whose verdict failed; recorded in the header)."""
+    model: str
+    out: str
+    band: str | None = None
+    allow_failed_verdict: bool = False
+
+
+def arm_predict_settings_of(model, out, band, allow) -> ArmPredictSettings:
+    """``predict``'s options on an arm as :class:`ArmPredictSettings` (``--allow`` takes failed-verdict only)."""
+    from ...fields import FAILED_VERDICT
+    other = [a for a in allow or [] if a != FAILED_VERDICT]
     if other:
         raise UsageError(f"--allow {other[0]}: an arm's joint values are checked against the machine's joint limits; "
                          f"only --allow {FAILED_VERDICT} applies")
-    geo, learner, band_c = load_arm_model(chain, args.model, band_scale=True, base_frame=True)
-    verdict = check_verdict(args.model, FAILED_VERDICT in (args.allow or []))   # a failed calibration: refused
-    q, measured = read_points(args.points, chain)
-    band = getattr(args, "band", None)
+    return ArmPredictSettings(model=model, out=out, band=band, allow_failed_verdict=FAILED_VERDICT in (allow or []))
+
+
+def run_arm_predict(chain, points, settings: ArmPredictSettings) -> int:
+    """``volcomp predict`` of the joint configurations (or tracker-grid poses) in ``points`` on a serial arm."""
+    from ...fields import FAILED_VERDICT, check_verdict
+    model, band = settings.model, settings.band
+    geo, learner, band_c = load_arm_model(chain, model, band_scale=True, base_frame=True)
+    verdict = check_verdict(model, settings.allow_failed_verdict)   # a failed calibration: refused
+    q, measured = read_points(points, chain)
     if band and (learner is None or learner.chosen_ == "none") and not geo.full_covariance:
-        raise UsageError(f"--band: {args.model} holds the geometric stage's standard errors but not its covariance "
+        raise UsageError(f"--band: {model} holds the geometric stage's standard errors but not its covariance "
                          "(written before the covariance was saved); calibrate again for a band")
     p = model_point(geo.chain, geo.params, learner, q)          # instrument frame
     R_base = base_rotation(chain, geo.params)
@@ -74,7 +94,7 @@ def run_arm_predict(chain, args) -> int:
     cols = {c: q[:, i] for i, c in enumerate(chain.joint_columns)}
     cols.update({c: pb[:, i] for i, c in enumerate(("x_mm", "y_mm", "z_mm"))})
     cols.update({c: d[:, i] for i, c in enumerate(("dx_mm", "dy_mm", "dz_mm"))})
-    meta = [f"machine: {chain.name}", f"model: {args.model}",
+    meta = [f"machine: {chain.name}", f"model: {model}",
             "x_mm..z_mm: calibrated tool point, dx_mm..dz_mm: calibrated minus nominal, both in the robot's base frame"]
     if verdict and verdict.get("overridden_by"):
         meta.insert(0, f"allowed: {FAILED_VERDICT} ({verdict['file']}: verdict failed: "
@@ -93,7 +113,7 @@ def run_arm_predict(chain, args) -> int:
                     f"about the kept stage ({BAND_RULES[stage_kind(learner)]}), times {band_c:.4g}: the blocked band "
                     "factor (calibration.json band_calibration: 95 % on blocked inner CVs of the fit poses, at most 98 % "
                     "on the interleaved one; 1 for a file without it)")
-    path = write_csv(args.out, cols, header_comments=meta, float_fmt="%.10g")
+    path = write_csv(settings.out, cols, header_comments=meta, float_fmt="%.10g")
     n = np.linalg.norm(d, axis=1)
     print(f"wrote {len(q)} predictions to {path} (calibrated − nominal: RMS {np.sqrt(np.mean(n ** 2)):.4f} mm, "
           f"max {n.max():.4f} mm)")

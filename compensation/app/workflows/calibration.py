@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from errormap.io import InputError, write_json
-from errormap.pkm.calibration import PKMCalibrator, calibration_to_dict, read_poses
-from errormap.pkm.checks import check_pose_set
+from errormap.pkm.calibration import PKMCalibrator
+from errormap.pkm.calibration_file import calibration_to_dict
+from errormap.pkm.poses import check_pose_set, read_poses
 from errormap.pkm.hexapod import KinematicsError
 from errormap.pkm.pipeline import rms_um, validated_calibration
 

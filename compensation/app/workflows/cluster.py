@@ -25,6 +25,7 @@ import os
 import sys
 import time
 from collections import deque
+from dataclasses import dataclass
 
 from errormap.threads import limit_threads
 
@@ -290,47 +291,41 @@ class RayExecutor:
         return results
 
 
-# -- the command-line side ----------------------------------------------------------------
+@dataclass(frozen=True)
+class ClusterSettings:
+    """Where the work runs: ``cluster`` (None: this process; ``"ray"``), ``address`` (``HOST:PORT`` or ``auto``:
+    join a running Ray cluster; None: start a local one), ``workers`` (threads in this process, or the CPUs of the
+    local Ray instance; None: this machine's cores, a joined cluster all its CPUs), ``chunk_points`` (points per
+    chunk, :data:`compensation.batch.CHUNK_POINTS`: fixed whatever the workers, so results do not depend on them)."""
+    cluster: str | None = None
+    address: str | None = None
+    workers: int | None = None
+    chunk_points: int = CHUNK_POINTS
 
-def add_cluster_options(p, chunks: bool = True) -> None:
-    """``--cluster``, ``--address``, ``--workers`` (and ``--chunk-points``) on a command."""
-    p.add_argument("--cluster", choices=CLUSTERS, default=None,
-                   help="run the work on Ray (pip install 'volcomp[cluster]'); default: in this process")
-    p.add_argument("--address", default=None, metavar="HOST:PORT",
-                   help="with --cluster ray: join this running Ray cluster ('auto': the one on this node); "
-                        "default: start a local one")
-    p.add_argument("--workers", type=int, default=None,
-                   help="workers: threads in this process, or the CPUs of the local Ray instance "
-                        "(default: this machine's cores; a joined cluster: all its CPUs)")
-    if chunks:
-        p.add_argument("--chunk-points", type=int, default=CHUNK_POINTS,
-                       help=f"points per chunk (default {CHUNK_POINTS:,}): the unit of work handed to a worker, "
-                            "fixed whatever the number of workers, so results do not depend on it")
+    def check(self) -> None:
+        """Refuse (UsageError, one line naming the option) settings that cannot run, Ray not installed included."""
+        from ..validate import UsageError
+        if self.cluster not in (None, *CLUSTERS):
+            raise UsageError(f"--cluster {self.cluster}: expected one of {', '.join(CLUSTERS)}")
+        if self.workers is not None and self.workers < 1:
+            raise UsageError(f"--workers must be >= 1, got {self.workers}")
+        if self.address is not None and self.cluster is None:
+            raise UsageError("--address needs --cluster ray")
+        if self.address is not None and self.workers is not None:
+            raise UsageError("--workers sets the size of a local Ray instance; a joined cluster (--address) "
+                             "uses all its CPUs")
+        if self.chunk_points < 1:
+            raise UsageError(f"--chunk-points must be >= 1, got {self.chunk_points}")
+        if self.cluster == "ray":
+            try:
+                import_ray()
+            except ClusterError as exc:
+                raise UsageError(str(exc)) from None
 
-
-def check_cluster_args(args) -> None:
-    from ..validate import UsageError
-    if args.workers is not None and args.workers < 1:
-        raise UsageError(f"--workers must be >= 1, got {args.workers}")
-    if args.address is not None and args.cluster is None:
-        raise UsageError("--address needs --cluster ray")
-    if args.address is not None and args.workers is not None:
-        raise UsageError("--workers sets the size of a local Ray instance; a joined cluster (--address) "
-                         "uses all its CPUs")
-    if getattr(args, "chunk_points", 1) < 1:
-        raise UsageError(f"--chunk-points must be >= 1, got {args.chunk_points}")
-    if args.cluster == "ray":
-        try:
-            import_ray()
-        except ClusterError as exc:
-            raise UsageError(str(exc)) from None
-
-
-def open_executor(args):
-    """The executor the options name (a context manager): :class:`RayExecutor` for
-    ``--cluster ray``, else :class:`compensation.batch.LocalExecutor`."""
-    check_cluster_args(args)
-    if args.cluster == "ray":
-        import_ray()
-        return RayExecutor(address=args.address, workers=args.workers)
-    return LocalExecutor(args.workers)
+    def executor(self):
+        """The executor these settings name (a context manager, checked first): :class:`RayExecutor` for
+        ``cluster="ray"``, else :class:`compensation.batch.LocalExecutor`."""
+        self.check()
+        if self.cluster == "ray":
+            return RayExecutor(address=self.address, workers=self.workers)
+        return LocalExecutor(self.workers)

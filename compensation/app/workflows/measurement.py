@@ -56,13 +56,6 @@ class _TruthAtReference:
         return self.truth.spatial_error(axes, **self.truth.default_conditions(len(axes)))
 
 
-def refuse_options(args, defaults: dict, what: str) -> None:
-    """A UsageError naming the first option given that the chain path does not use (never ignored silently)."""
-    for k, d in defaults.items():
-        if getattr(args, k, d) != d:
-            raise UsageError(f"--{k.replace('_', '-')} is not used by {what}; leave it out")
-
-
 def parse_effects(machine, effects) -> list:
     """``KIND[:AXES]`` strings checked against the machine (one-line UsageError naming the known kinds)."""
     from errormap.chain_truth import effect_key, parse_effect
@@ -308,15 +301,6 @@ def chain_learned_stage(machine, checks, elements, terms, summary, seed: int = 0
     return learned, stage, without(stage["learned"]["replaced_condition_terms"]), elements
 
 
-def _refit_record(summary, n: int, learned: bool) -> dict:
-    """diagnosis.json's ``refit_on_all_checks``: what was re-estimated on all ``n`` checks after the choice."""
-    return {"checks": int(n), "stage": summary.get("base_stage", summary["kept_stage"]),
-            "note": ("the stages, effect terms and learned family were chosen on the fitting/held-out split (the "
-                     "held-out figures above are those); the shipped elements, terms"
-                     f"{' and learned residual' if learned else ''} were then re-estimated on all {n} checks "
-                     "(model.json and updated_elements.json; diagnosis.json's effect coefficients are the loop's)")}
-
-
 def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=None, effects=True,
                    max_effects=4, update=True, units="check", learn: bool = True, refit_all: bool = True,
                    track: bool = False, tracking_uri=None) -> tuple:
@@ -328,8 +312,7 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
     :mod:`compensation.chain_hybrid`). ``machine``: a machine-tool chain or a grinder file (its chain).
     ``track``: a kept learned residual is also logged as an MLflow run (``tracking_uri``; its id recorded in
     diagnosis.json and model.json)."""
-    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, load_mt_checks
-    machine = machine
+    from errormap.diagnosis.chain_loop import MTChecks, closed_loop_chain, load_mt_checks, ship_on_all_checks
     el, cov, cov_path = load_chain_model(model, machine, prior=True)
     checks = (checks_path if isinstance(checks_path, MTChecks)   # checks in memory (the benchmark's)
               else load_mt_checks(checks_path, machine, units=units))
@@ -371,10 +354,9 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
         summary["learned_residual"] = stage["learned"]
         if learned is not None:
             extra = _learned_kept(summary, stage, learned, terms, loop_alone)
-    if refit_all and (learned is None or loop_alone is None):   # not backfitted: the kept stage on all checks
-        models["elements"], terms, _ = refit(terms, np.zeros((n, 3)), np.arange(n))
-    if refit_all:
-        summary["refit_on_all_checks"] = _refit_record(summary, n, learned is not None)
+    if refit_all:   # the kept stage on all checks (backfitted with a learned part: already there)
+        models["elements"], terms = ship_on_all_checks(summary, models, terms, learned is not None,
+                                                       reestimate=learned is None or loop_alone is None)
     from errormap.diagnosis.plausibility import diagnosis_verdict
     summary["verdict"] = diagnosis_verdict(summary)   # failed: the command exits 1 (volcomp diagnose)
     extra = dict(extra or {}, verdict=summary["verdict"])

@@ -21,15 +21,17 @@ from ..families import family_of
 ANGLES = ("rx_deg", "ry_deg", "rz_deg")
 
 
-def run_pkm_predict(machine, args) -> int:
-    from errormap.pkm.calibration import load_calibrated_machine
+def run_pkm_predict(machine, points, model, out) -> int:
+    """``volcomp predict`` of the commanded poses in the CSV ``points`` on a parallel machine, with its
+    ``calibration.json`` ``model`` (``volcomp calibrate``); the CSV ``out`` written whole."""
+    from errormap.pkm.calibration_file import load_calibrated_machine
     from errormap.pkm.hexapod import KinematicsError, angles_to_rotation, forward_kinematics, inverse_kinematics
-    calibrated = load_calibrated_machine(args.model, machine)
+    calibrated = load_calibrated_machine(model, machine)
     if calibrated.extra.get("leg_terms"):
-        raise UsageError(f"{args.model}: key 'leg_terms': the loop's leg terms are applied to commands "
+        raise UsageError(f"{model}: key 'leg_terms': the loop's leg terms are applied to commands "
                          "(interpolate --calibration), not yet predicted at poses; predict takes a calibration "
                          "without them (calibrate --no-loop)")
-    t = read_table(args.points, "points")
+    t = read_table(points, "points")
     t.require("x_mm", "y_mm", "z_mm")
     tips = np.stack([t.float(c) for c in ("x_mm", "y_mm", "z_mm")], axis=1)
     has = [c for c in ANGLES if c in t.names]
@@ -48,8 +50,8 @@ def run_pkm_predict(machine, args) -> int:
     d = fk.x - tips
     cols = {c: np.array(t.raw(c)) for c in t.names if c not in ("dx_mm", "dy_mm", "dz_mm")}
     cols.update({"dx_mm": d[:, 0], "dy_mm": d[:, 1], "dz_mm": d[:, 2]})
-    print(f"predicting {len(tips)} poses with {args.model} ...", file=sys.stderr)
-    path = write_csv(args.out, cols, header_comments=[f"machine: {machine.name}", f"model: {args.model}",
+    print(f"predicting {len(tips)} poses with {model} ...", file=sys.stderr)
+    path = write_csv(out, cols, header_comments=[f"machine: {machine.name}", f"model: {model}",
                                                       "dx_mm..dz_mm: the calibrated machine's tool tip at the nominal "
                                                       "commands minus the commanded pose (machine frame)"])
     print(f"wrote {len(tips)} predictions to {path}")

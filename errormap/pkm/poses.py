@@ -1,4 +1,5 @@
-"""Plausibility checks of PKM pose measurements before a calibration (refuse what we cannot interpret).
+"""PKM pose measurements: the file (:func:`read_poses` → :class:`PoseData`) and the plausibility checks before a
+calibration (refuse what we cannot interpret).
 
 Each check compares the measurements with the *nominal* forward kinematics of the commands, in a way
 that does not depend on the unknown instrument frame or on machine errors of the expected size:
@@ -17,12 +18,14 @@ that does not depend on the unknown instrument frame or on machine errors of the
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..io import InputError
+from ..io import InputError, read_table
 from ..units import length_unit_guess
-from .hexapod import angles_to_rotation, forward_kinematics
+from .hexapod import angles_to_rotation, forward_kinematics, quat_to_rotation
 from .machine_file import PKM
 
 UNIT_RATIO_RANGE = (0.8, 1.25)   # measured / nominal tip spread; machine errors change it by a few % at most
@@ -110,3 +113,73 @@ def check_measurements(source, machine: PKM, q: np.ndarray, tip_mm: np.ndarray, 
     check_position_units(source, machine, tip_mm[ok], fk.x[ok])
     if orientation_candidates:
         check_orientation_convention(source, fk.platform2base[ok], {k: v[ok] for k, v in orientation_candidates.items()})
+
+
+
+@dataclass
+class PoseData:
+    """Calibration measurements.
+
+    ``q``: drive commands, shape (n, k); ``tip_mm``: measured tool tip (instrument frame), shape
+    (n, 3); ``rotation``: measured orientation (``platform2instrument``), shape (n, 3, 3), or None
+    (position only); ``source``: where it came from; ``rows``: file row numbers, shape (n,);
+    ``leg_correction_mm``: fixed leg-length terms (n, k) added to ``s q + o`` in the fit (accepted leg terms).
+    """
+
+    q: np.ndarray
+    tip_mm: np.ndarray
+    rotation: np.ndarray | None = None
+    source: str = ""
+    rows: np.ndarray | None = None
+    leg_correction_mm: np.ndarray | None = None
+
+    def __len__(self):
+        return len(self.q)
+
+    def subset(self, idx) -> "PoseData":
+        return PoseData(self.q[idx], self.tip_mm[idx], None if self.rotation is None else self.rotation[idx],
+                        self.source, None if self.rows is None else self.rows[idx],
+                        None if self.leg_correction_mm is None else self.leg_correction_mm[idx])
+
+
+def read_poses(path, machine: PKM) -> PoseData:
+    """Read a PKM pose-measurement CSV (schema in docs/reference/file-formats.md / docs/explanation/parallel-kinematics.md).
+
+    Legs: ``l1_mm..lk_mm`` (commanded lengths, converted to drive units with the machine file's
+    nominal scale/offset) or ``q1..qk``; pose: ``x_mm, y_mm, z_mm`` plus, for the hexapod,
+    ``rx_deg, ry_deg, rz_deg`` (fixed-axis X-Y-Z) or ``qx, qy, qz, qw``, or neither (position only).
+    Errors name the file, row and column.
+    """
+    t = read_table(path, "poses")
+    k = machine.n_legs
+    lcols, qcols = [f"l{i + 1}_mm" for i in range(k)], [f"q{i + 1}" for i in range(k)]
+    if all(c in t for c in qcols):
+        q = np.stack([t.float(c) for c in qcols], 1)
+    elif all(c in t for c in lcols):
+        q = machine.legs_to_drive(np.stack([t.float(c) for c in lcols], 1))
+    else:
+        raise InputError(f"{t.path}: missing leg columns: need {lcols} or {qcols}; found columns {t.names}")
+    t.require("x_mm", "y_mm", "z_mm")
+    tip = np.stack([t.float(c) for c in ("x_mm", "y_mm", "z_mm")], 1)
+    rot, cands = None, None
+    if machine.kind == "hexapod":
+        if all(c in t for c in ("qx", "qy", "qz", "qw")):
+            quat = np.stack([t.float(c) for c in ("qx", "qy", "qz", "qw")], 1)
+            norm = np.linalg.norm(quat, axis=1)
+            bad = np.flatnonzero(np.abs(norm - 1) > 1e-3)
+            if bad.size:
+                raise InputError(f"{t.path}: row {t.row_number(bad[0])}, columns 'qx'..'qw': expected a unit "
+                                 f"quaternion (order qx qy qz qw), got norm {norm[bad[0]]:.6g}")
+            rot = quat_to_rotation(quat / norm[:, None])
+            cands = quaternion_candidates(quat)
+        elif all(c in t for c in ("rx_deg", "ry_deg", "rz_deg")):
+            ang = np.stack([t.float(c) for c in ("rx_deg", "ry_deg", "rz_deg")], 1)
+            rot = angles_to_rotation(ang)
+            cands = angle_candidates(ang)
+        elif any(c in t for c in ("qx", "qy", "qz", "qw", "rx_deg", "ry_deg", "rz_deg")):
+            raise InputError(f"{t.path}: incomplete orientation columns: need all of qx qy qz qw or of "
+                             f"rx_deg ry_deg rz_deg; found columns {t.names}")
+    if len(t) == 0:
+        raise InputError(f"{t.path}: no data rows")
+    check_measurements(t.path, machine, q, tip, cands)
+    return PoseData(q, tip, rot, str(t.path), np.array([t.row_number(i) for i in range(len(t))]))
