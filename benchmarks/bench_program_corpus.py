@@ -78,12 +78,13 @@ def reason_of(message: str, name: str) -> str:
     return msg[:110]
 
 
-def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: bool = False) -> None:
+def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: bool = False,
+                        manifest: Path = MANIFEST) -> None:
     """``--compensate``: TRUE max before/after of each accepted program (module docstring)."""
     from compensation.app.cli import main
     from errormap.machine import load_machine
     from errormap.chain_elements import ChainElementSet
-    rows = {r["file"]: r for r in csv.DictReader(MANIFEST.open(encoding="utf-8"))}
+    rows = {r["file"]: r for r in csv.DictReader(manifest.open(encoding="utf-8"))}
     truths = {}
     for r in out["results"]:
         if r["outcome"] != "accepted":
@@ -179,7 +180,7 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) 
     return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
 
 
-def count(root: Path, corpus: Path, compensate: bool = False, check: bool = False) -> dict:
+def count(root: Path, corpus: Path, compensate: bool = False, check: bool = False, manifest: Path = MANIFEST) -> dict:
     sys.path.insert(0, str(root))
     from compensation.app.validate import UsageError
     from compensation.app.workflows.compensate import CompensateSettings
@@ -187,7 +188,7 @@ def count(root: Path, corpus: Path, compensate: bool = False, check: bool = Fals
     from compensation.nc_state import read_tool_table, read_work_offsets
     from errormap.io import InputError
     from errormap.machine import load_machine
-    rows = list(csv.DictReader(MANIFEST.open(encoding="utf-8")))
+    rows = list(csv.DictReader(manifest.open(encoding="utf-8")))
     machines = {m: load_machine(m) for m in {r["machine"] for r in rows}}
     results = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -209,7 +210,7 @@ def count(root: Path, corpus: Path, compensate: bool = False, check: bool = Fals
                 results.append((r, "crashed", f"{type(exc).__name__}: {exc}"[:110]))
         out["results"] = [{"file": r["file"], "kind": r["kind"], "outcome": o, "reason": why} for r, o, why in results]
         if compensate:
-            compensate_accepted(root, corpus, out, Path(tmp), check)
+            compensate_accepted(root, corpus, out, Path(tmp), check, manifest)
     return out
 
 
@@ -244,8 +245,10 @@ if __name__ == "__main__":
     ap.add_argument("--compensate", action="store_true", help="compensate every accepted program on a simulated truth")
     ap.add_argument("--check", action="store_true", help="--compensate, then check every compensated mill program "
                                                          "independently (tests/program_checks.py)")
+    ap.add_argument("--manifest", default=str(MANIFEST), help="the manifest to count (default: MANIFEST.csv; "
+                                                               "program_corpus/NC_FILES.csv: LinuxCNC's nc_files)")
     a = ap.parse_args()
-    result = count(Path(a.root).resolve(), Path(a.corpus), a.compensate or a.check, a.check)
+    result = count(Path(a.root).resolve(), Path(a.corpus), a.compensate or a.check, a.check, Path(a.manifest))
     print(report(result))
     if a.json:
         Path(a.json).write_text(json.dumps(result, indent=1))
