@@ -46,6 +46,11 @@ and Y, 100 mm above the bottom of Z's stroke; lathe: the spindle axis; five-axis
 the C table top)."""
 
 
+NO_MOTION = "no G0/G1/G2/G3 motion"
+"""The refusal of a file that moves nothing when run (subroutine libraries whose subroutines it never calls,
+tool-change and probing macros, demonstrations of messages and parameters): counted apart, as ``no motion``."""
+
+
 def _tables(tmp: Path, read_work_offsets, read_tool_table, InputError):
     """(work offsets, tool table) for the counted revision: every system it can read."""
     systems = ["G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3"]
@@ -205,7 +210,8 @@ def count(root: Path, corpus: Path, compensate: bool = False, check: bool = Fals
                 read_tool_path(p, machines[r["machine"]], s)
                 results.append((r, "accepted", ""))
             except (InputError, UsageError) as exc:
-                results.append((r, "refused", reason_of(str(exc), p.name)))
+                why = reason_of(str(exc), p.name)
+                results.append((r, "no motion" if why.startswith(NO_MOTION) else "refused", why))
             except Exception as exc:  # noqa: BLE001 - a crash is what this counts
                 results.append((r, "crashed", f"{type(exc).__name__}: {exc}"[:110]))
         out["results"] = [{"file": r["file"], "kind": r["kind"], "outcome": o, "reason": why} for r, o, why in results]

@@ -92,6 +92,10 @@ class Dialect:
     """An ``H`` word without ``G43`` changes the length offset where ``G43`` is in force and is held otherwise,
     and ``H0`` (``H00``) is a zero length (Fanuc 0i, Haas, Siemens ISO: "tool length compensation": the offset
     number may be changed in G43 mode; H00's value is always 0). Otherwise ``H`` only with ``G43``."""
+    g92_offsets: bool = False
+    """``G92``/``G92.1``/``G92.2``/``G92.3`` are coordinate offsets (LinuxCNC; grbl: G92, G92.1) read exactly
+    (:data:`compensation.gcode_words.G92_CODES`); elsewhere ``G92`` is refused (a Fanuc lathe's threading cycle in
+    G-code system A, a coordinate setting or a spindle clamp on others)."""
     arc_radius_tol: tuple | None = None
     """``(mm under G21, mm under G20, relative)``: a centre-format arc whose start and end radii differ by
     more than the absolute tolerance of its units or by more than the relative one is an error; None: the
@@ -138,7 +142,7 @@ DIALECTS = {
                                      50: "feed override control", 51: "spindle override control",
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
                         io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF},
-                        splines=SPLINES),
+                        splines=SPLINES, g92_offsets=True),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
@@ -158,7 +162,7 @@ DIALECTS = {
                            g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True),
     "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True,
                      modes={"G50": SCALING_OFF}),
-    "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False),
+    "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False, g92_offsets=True),
     # Heidenhain TNC DIN/ISO programs: '%NAME G71 *' framing and the '*' block end are read by the
     # tool-centre-point pre-pass (compensation.tcp), as are M128/M129 (TCPM) and the 'T n' tool call
     "heidenhain-iso": Dialect("heidenhain-iso", dict(_COMMON)),

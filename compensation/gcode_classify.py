@@ -7,11 +7,11 @@ import re
 
 import numpy as np
 
-from .gcode_state import (_dialect_mode, _g10, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (_dialect_mode, _g10, _g92, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .gcode_spline import spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
-                          default_axis_words, DEFAULT_RAPIDS, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
+                          default_axis_words, DEFAULT_RAPIDS, G92_CODES, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
                           PLANES, REFUSED_G, REFUSED_LETTERS, tokenize, Word)
 
 
@@ -34,6 +34,8 @@ class _State:
         self.selected = None       # the last T word (the tool prepared)
         self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
+        self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
+        self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -56,7 +58,8 @@ def _checked_words(words, ax: AxisWords, dia=None):
             code = w.code
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
-            if code in dia.modes or code in dia.work_systems or code in dia.splines:
+            if code in dia.modes or code in dia.work_systems or code in dia.splines or (
+                    dia.g92_offsets and code in G92_CODES):
                 gs.append((code, w))
                 continue
             if code in REFUSED_G:
@@ -105,7 +108,7 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
+        grp = "nonmodal" if code in G92_CODES else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
             code in dia.splines) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
@@ -217,6 +220,8 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     _check_p_q(st, by, gs, axis_words, arc_words)
     if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
         return _g10(idx, st, groups, by, axis_words, ax), None
+    if "nonmodal" in groups and groups["nonmodal"][0] in G92_CODES:
+        return _g92(idx, st, groups, axis_words, ax), None
     _work_state(idx, st, groups, by, ax)
     if "dialect mode" in groups:
         return _dialect_mode(idx, st, groups, by, axis_words, arc_words), None

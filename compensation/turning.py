@@ -68,8 +68,9 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None) -> tu
     try:
         prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect)
         return prog, np.ones(len(prog.moves), dtype=bool)
-    except InputError:
-        pass  # it has C words (or another refusal, which the full reading names)
+    except InputError as exc:
+        if f"no {c} axis" not in str(exc):
+            raise  # a program without C words: the reading that applies to it names the refusal
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=full, dialect=dialect)
     flags = spindle_turning(prog.lines, machine.spindle)
     turning = np.array([flags[m.index] for m in prog.moves], dtype=bool)
