@@ -92,6 +92,11 @@ class Dialect:
     """An ``H`` word without ``G43`` changes the length offset where ``G43`` is in force and is held otherwise,
     and ``H0`` (``H00``) is a zero length (Fanuc 0i, Haas, Siemens ISO: "tool length compensation": the offset
     number may be changed in G43 mode; H00's value is always 0). Otherwise ``H`` only with ``G43``."""
+    synced: dict = field(default_factory=dict)
+    """Spindle-synchronised motion codes {code: meaning} (LinuxCNC ``G33``, ``G33.1``: :data:`SYNCED`)."""
+    dwell_with_motion: bool = False
+    """Axis words on a ``G4`` line belong to the motion mode (RS274NGC, LinuxCNC: G4 uses no axis words; the line
+    dwells, then moves); elsewhere ``G04 X`` is a dwell time (Fanuc, Haas) and such a line is refused."""
     g92_offsets: bool = False
     """``G92``/``G92.1``/``G92.2``/``G92.3`` are coordinate offsets (LinuxCNC; grbl: G92, G92.1) read exactly
     (:data:`compensation.gcode_words.G92_CODES`); elsewhere ``G92`` is refused (a Fanuc lathe's threading cycle in
@@ -137,12 +142,16 @@ linearly with the angle, as the reader reads it."""
 SPLINES = {"G5": "a cubic spline (G5 X Y I J P Q)", "G5.1": "a quadratic spline (G5.1 X Y I J)"}
 """LinuxCNC G-code reference, "G5 Cubic spline", "G5.1 Quadratic spline": motion codes, read exactly
 (:mod:`compensation.gcode_spline`)."""
+SYNCED = {"G33": "spindle-synchronised motion (G33 X Y Z K: a straight line, K per spindle revolution)",
+          "G33.1": "rigid tapping (G33.1 X Y Z K [I]: a synchronised line to the point and back to the start)"}
+"""LinuxCNC G-code reference, "G33 Spindle Synchronized Motion", "G33.1 Rigid Tapping": motion codes read as one
+straight line each, its end compensated, never split (:mod:`compensation.gcode_state`)."""
 DIALECTS = {
     "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
                                      50: "feed override control", 51: "spindle override control",
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
                         io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF},
-                        splines=SPLINES, g92_offsets=True),
+                        splines=SPLINES, g92_offsets=True, synced=SYNCED, dwell_with_motion=True),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,

@@ -7,7 +7,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (_dialect_mode, _g10, _g92, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (_dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .gcode_spline import spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
@@ -58,7 +58,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             code = w.code
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
-            if code in dia.modes or code in dia.work_systems or code in dia.splines or (
+            if code in dia.modes or code in dia.work_systems or code in dia.splines or code in dia.synced or (
                     dia.g92_offsets and code in G92_CODES):
                 gs.append((code, w))
                 continue
@@ -109,7 +109,7 @@ def _modal_groups(gs, dia=None) -> dict:
     groups = {}
     for code, w in gs:
         grp = "nonmodal" if code in G92_CODES else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
-            code in dia.splines) else ALLOWED_G[code][0] if code in ALLOWED_G else (
+            code in dia.splines or code in dia.synced) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
                 code, groups[grp][0]):
@@ -229,13 +229,19 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
         return _reference_return(st, groups, axis_words, arc_words, ax, rapids)
-    if "nonmodal" not in groups and dia is not None and st.mode in dia.splines and (
-            axis_words or any(a in by for a in "IJKRPQ")):
+    # RS274NGC / LinuxCNC: G4 uses no axis words, so a G4 line's axis words are the motion mode's (dwell, then move)
+    plain = "nonmodal" not in groups or (groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_with_motion", False))
+    if dia is not None and st.mode in dia.splines and (axis_words or any(a in by for a in "IJKRPQ")):
+        if "nonmodal" in groups:
+            w = groups["nonmodal"][1]
+            raise _Refuse(w.start + 1, f"'{groups['nonmodal'][0]}' on a spline line (its P would be the spline's)")
         return "move", spline_move(idx, st, by, axis_words, motion_word, ax)
-    if "nonmodal" in groups and axis_words:
+    if plain and dia is not None and st.mode in dia.synced and axis_words:
+        return "move", synced_move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+    if not plain and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
-                                   "some controls, not a move)")
+                                   "some controls, not a move; on linuxcnc a move after the dwell: --dialect)")
     if not axis_words:
         if arc_words:
             w = next(iter(arc_words.values()))
@@ -274,7 +280,7 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
                 end[j] = start[j] + v
             else:
                 end[j] = v
-    kind = {"G0": "rapid", "G1": "linear"}.get(st.mode, "arc")
+    kind = {"G0": "rapid", "G1": "linear", "G33": "linear", "G33.1": "linear"}.get(st.mode, "arc")
     compensate = not (kind == "rapid" and rapids == "keep")
     words = dict(axis_words)
     words.update(arc_words)
@@ -293,6 +299,18 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
         except _Refuse as r:
             raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
     st.pos = end
+    return move
+
+
+def synced_move(idx, st: _State, by, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
+    """A ``G33``/``G33.1`` line: one straight move to its end (K the pitch, :func:`synced_words`), marked
+    ``synced``; after ``G33.1`` the position is its start again (the tap returns)."""
+    first = min(axis_words.values(), key=lambda w: w.start)
+    synced_words(st.mode, by, arc_words, (motion_word or first).start + 1)
+    move = _move(idx, st, by, axis_words, {}, motion_word, rapids, ax)
+    move.kind, move.synced = "linear", st.mode
+    if st.mode == "G33.1":
+        st.pos = move.start.copy()
     return move
 
 

@@ -234,6 +234,19 @@ def _g92(idx, st: _State, groups, axis_words, ax: AxisWords) -> str:
     return "state"
 
 
+def synced_words(code, by, arc_words, col: int) -> None:
+    """The words of a ``G33``/``G33.1`` line (LinuxCNC G-code reference): ``K`` the distance per spindle
+    revolution (required, positive), ``I`` the return speed multiplier of ``G33.1`` (optional); no other
+    arc word."""
+    k = by.get("K")
+    if k is None or not k.value > 0:
+        raise _Refuse(k.start + 1 if k is not None else col, f"'{code}' needs K (the distance per spindle revolution, "
+                                                             "positive)")
+    bad = [w for a, w in arc_words.items() if a not in ("K", "I") or (a == "I" and code == "G33")]
+    if bad:
+        raise _Refuse(bad[0].start + 1, f"'{bad[0].letter}{bad[0].text}' with {code}")
+
+
 def _not_active(st: _State, p, w, text) -> None:
     """A G10 that changes the length of the tool whose offset is active: when the controller applies the new
     length (at once, or at the next ``G43``/``H``) depends on the controller and its parameters: refused."""

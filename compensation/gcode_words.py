@@ -197,7 +197,8 @@ REFUSED_G = {
 "G12": "circular pocket", "G13": "circular pocket",
     "G16": "polar coordinates", "G17.1": "UV plane", "G18.1": "WU plane", "G19.1": "VW plane",
     "G28.1": "sets the reference position", "G30.1": "sets the reference position",
-    "G31": "skip (probing)", "G33": "spindle-synchronised motion", "G33.1": "rigid tapping",
+    "G31": "skip (probing)", "G33": "spindle-synchronised motion (read with --dialect linuxcnc)",
+    "G33.1": "rigid tapping (read with --dialect linuxcnc)",
     "G38.2": "probing", "G38.3": "probing", "G38.4": "probing", "G38.5": "probing",
     "G41.1": "dynamic cutter radius compensation", "G42.1": "dynamic cutter radius compensation",
     "G43.1": "tool length offset", "G43.2": "tool length offset",
@@ -270,6 +271,9 @@ class GMove:
     compensate: bool
     arc: dict | None = None
     known: np.ndarray = field(default_factory=lambda: np.ones(3, bool))  # axes known at the end
+    synced: str | None = None
+    """``"G33"``/``"G33.1"``: a spindle-synchronised line (LinuxCNC), written as one line, never split (each
+    synchronised move waits for the spindle index); None otherwise."""
 
     @property
     def start_known(self) -> bool:

@@ -110,3 +110,72 @@ def test_a_lathe_program_without_c_is_refused_for_its_own_word_not_for_c(tmp_pat
     with pytest.raises(InputError) as err:
         parse_lathe_program(p, load_machine("lathe-xzc"), "keep", None, "linuxcnc")
     assert str(err.value).startswith(f"{p}: line 5, column 1: 'G72'"), str(err.value)
+
+
+# ---------------------------------------------------------------------------- G33, G33.1, G4 with motion
+SYNCED_TARGETS = {5: (20.0, 30.0, -12.0), 7: (60.0, 30.0, -12.0), 10: (10.0, 10.0, -20.0)}
+"""tap_and_thread.ngc by the manual's wording (1-based lines): G33.1 moves synchronised from the current point
+to the one given and back, so the rapid of line 6 starts at the first tap's start (X20 Y30 Z5) and only moves
+X (the second tap from X60 Y30 Z5); G33 is a straight synchronised line to its end."""
+
+
+def _compensated(tmp_path, src, offsets):
+    mill = load_machine("mill-xyz")
+    truth = ChainElementSet.random(mill, 101, 10.0, 11).save(tmp_path / "truth.json")
+    assert main(["compensate", str(src), "--machine", "mill-xyz", "--model", str(truth), "--truth", str(truth),
+                 "--method", "exact", "--out", str(tmp_path / "out"), "--dialect", "linuxcnc",
+                 "--work-offsets", str(offsets)]) == 0
+    aw = AxisWords.of(mill)
+    p_src = parse_program(src, axis_words=aw, fast=False, dialect="linuxcnc")
+    p_out = parse_program(tmp_path / "out" / src.name, axis_words=aw, fast=False, dialect="linuxcnc")
+    return mill, ChainField(mill, ChainElementSet.load(truth, mill)), p_src, p_out
+
+
+def test_g33_and_g33_1_are_one_synchronised_line_each_compensated_at_their_end(tmp_path, offsets):
+    """Each G33/G33.1 line is written as one line (never split: every synchronised move waits for the spindle
+    index), K and I kept, its end reached by the TRUE machine within 1 um; the tap returns to its start, so the
+    next rapid starts there; every other line byte-identical."""
+    src = DATA / "tap_and_thread.ngc"
+    mill, field, p_src, p_out = _compensated(tmp_path, src, offsets)
+    assert len(p_out.lines) == len(p_src.lines)  # nothing split, nothing added
+    by_line = {m.index + 1: m for m in p_src.moves}
+    assert np.array_equal(by_line[6].start, [20.0, 30.0, 5.0]) and np.array_equal(by_line[6].end, [60.0, 30.0, 5.0])
+    errs = []
+    for i, (s, o) in enumerate(zip(p_src.lines, p_out.lines)):
+        if i + 1 not in SYNCED_TARGETS:
+            assert o == s
+            continue
+        assert o.split()[0] == s.split()[0] and o.split()[-1] == s.split()[-1]  # G33.1 ... K1.25 / I2 kept
+        q = next(m for m in p_out.moves if m.index == i).end + WORK_MM
+        tip = mill.nominal(q[None])[0] + field.predict(q[None])[0] * 1e-3
+        errs.append(np.linalg.norm(tip - mill.nominal((np.array(SYNCED_TARGETS[i + 1]) + WORK_MM)[None])[0]) * 1e3)
+    assert len(errs) == 3 and max(errs) <= TOL_POINT_UM, errs
+
+
+def test_a_dwell_line_moves_in_the_motion_mode_on_linuxcnc(tmp_path, offsets):
+    """RS274NGC / LinuxCNC: G4 uses no axis words, so 'G4 P0.5 G1 X20 ...' dwells, then moves (and 'G4 P0.2 X30'
+    moves in the G1 mode in force): both compensated, their P kept."""
+    src = DATA / "dwell_then_move.ngc"
+    mill, field, p_src, p_out = _compensated(tmp_path, src, offsets)
+    ends = {m.index + 1: m.end for m in p_src.moves if m.compensate}
+    assert list(ends) == [3, 4] and np.array_equal(ends[4], [30.0, 15.0, 2.0])
+    for i in (2, 3):
+        assert p_out.lines[i].startswith(p_src.lines[i][:8])  # 'G4 P0.5 ' / 'G4 P0.2 '
+        q = next(m for m in p_out.moves if m.index == i).end + WORK_MM
+        tip = mill.nominal(q[None])[0] + field.predict(q[None])[0] * 1e-3
+        assert np.linalg.norm(tip - mill.nominal((ends[i + 1] + WORK_MM)[None])[0]) * 1e3 <= TOL_POINT_UM
+
+
+@pytest.mark.parametrize("text, dialect, line, col, words", [
+    ("G21 G90\nG0 X1 Y2 Z3\nS500 M3\nG33.1 Z-5\nM2\n", "linuxcnc", 4, 1, ("'G33.1' needs K",)),
+    ("G21 G90\nG0 X1 Y2 Z3\nS500 M3\nG33 Z-5 K1 I2\nM2\n", "linuxcnc", 4, 12, ("'I2' with G33",)),
+    ("G21 G90\nG0 X1 Y2 Z3\nS500 M3\nG33.1 Z-5 K1\nM2\n", "fanuc", 4, 1, ("'G33.1'", "--dialect linuxcnc")),
+    ("G21 G90\nG0 X1 Y2 Z3\nG04 X1.5\nG1 X5 F100\n", "fanuc", 3, 5, ("'X1.5' with G4", "--dialect")),
+])
+def test_synchronised_and_dwell_refusals_name_line_column_word_and_option(tmp_path, offsets, text, dialect, line,
+                                                                          col, words):
+    with pytest.raises(InputError) as err:
+        _read(text, tmp_path, dialect)
+    msg = str(err.value)
+    assert msg.startswith(f"{tmp_path / 'p.ngc'}: line {line}, column {col}: ") and len(msg) - len(str(tmp_path)) < MSG_MAX, msg
+    assert all(w in msg for w in words), msg
