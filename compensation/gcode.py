@@ -264,6 +264,8 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
     def bulk_moves(k0: int, k1: int) -> int:
         """Read bulk moves k0..k1-1 (ordinals into mlines); return the ordinal of the first
         that must go through the per-line classifier (k1 if none)."""
+        if st.diameter:
+            return k0  # lathe diameter mode: X words are read line by line (halved)
         gm = gcode[k0:k1]
         rows = np.arange(k1 - k0)
         last = np.maximum.accumulate(np.where(gm >= 0, rows, -1))

@@ -3,6 +3,7 @@ modal groups, the words each line may carry, moves and arc geometry (:func:`plan
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 import re
 
 import numpy as np
@@ -34,6 +35,7 @@ class _State:
         self.selected = None       # the last T word (the tool prepared)
         self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
+        self.diameter = False      # lathe diameter mode (LinuxCNC G7): X words are diameters
         self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
         self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
 
@@ -59,6 +61,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
             if code in dia.modes or code in dia.work_systems or code in dia.splines or code in dia.synced or (
+                    code in dia.lathe_modes) or (
                     dia.g92_offsets and code in G92_CODES):
                 gs.append((code, w))
                 continue
@@ -108,7 +111,7 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = "nonmodal" if code in G92_CODES else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
+        grp = "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
             code in dia.splines or code in dia.synced) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
@@ -209,6 +212,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
             raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
         return "pass", None
+    _diameter_mode(st, groups, by)
     axis_words = {a: by[a] for a in ax.words if a in by}
     arc_words = {a: by[a] for a in ("I", "J", "K", "R") if a in by}
     changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal", "coords",
@@ -232,9 +236,9 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     # RS274NGC / LinuxCNC: G4 uses no axis words, so a G4 line's axis words are the motion mode's (dwell, then move)
     plain = "nonmodal" not in groups or (groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_with_motion", False))
     if dia is not None and st.mode in dia.splines and (axis_words or any(a in by for a in "IJKRPQ")):
-        if "nonmodal" in groups:
-            w = groups["nonmodal"][1]
-            raise _Refuse(w.start + 1, f"'{groups['nonmodal'][0]}' on a spline line (its P would be the spline's)")
+        if "nonmodal" in groups or st.diameter:
+            w = groups["nonmodal"][1] if "nonmodal" in groups else next(iter(axis_words.values()), motion_word)
+            raise _Refuse(w.start + 1, "a spline line with G4 (its P would be the spline's) or in diameter mode (G7)")
         return "move", spline_move(idx, st, by, axis_words, motion_word, ax)
     if plain and dia is not None and st.mode in dia.synced and axis_words:
         return "move", synced_move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
@@ -251,6 +255,15 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
             return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)  # a full circle
         return ("state" if changes else "pass"), None
     return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+
+
+def _diameter_mode(st: _State, groups, by) -> None:
+    """LinuxCNC ``G7``/``G8`` (this line's X read in the new mode, as its interpreter does): in diameter mode the
+    line's X word is replaced by one holding the radius (its text and span kept for the writer)."""
+    if "lathe" in groups:
+        st.diameter = groups["lathe"][0] == "G7"
+    if st.diameter and "X" in by:
+        by["X"] = replace(by["X"], value=by["X"].value * 0.5)
 
 
 def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
@@ -292,7 +305,7 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
                                        f"known (no value yet for {missing})")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
-                 compensate, known=known)
+                 compensate, known=known, diameter=st.diameter)
     if kind == "arc":
         try:
             move.arc = _arc_geometry(st, move, arc_words, scale, ax, first)

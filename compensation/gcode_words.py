@@ -192,7 +192,7 @@ REFUSED_G = {
     **{g: f"{what}: not interpretable exactly (no option reads it; post the path as G1/G2/G3)" for g, what in (
         ("G5.2", "NURBS block"), ("G5.3", "NURBS block end"), ("G6.2", "NURBS block"))},
     "G5": "dialect-dependent: a spline or a machining mode", "G5.1": "dialect-dependent: a spline or look-ahead",
-    "G7": "lathe diameter mode (X would mean a diameter)", "G7.1": "cylindrical interpolation",
+    "G7": "lathe diameter mode (read with --dialect linuxcnc)", "G7.1": "cylindrical interpolation",
     "G107": "cylindrical interpolation",
 "G12": "circular pocket", "G13": "circular pocket",
     "G16": "polar coordinates", "G17.1": "UV plane", "G18.1": "WU plane", "G19.1": "VW plane",
@@ -271,6 +271,9 @@ class GMove:
     compensate: bool
     arc: dict | None = None
     known: np.ndarray = field(default_factory=lambda: np.ones(3, bool))  # axes known at the end
+    diameter: bool = False
+    """Read in lathe diameter mode (LinuxCNC ``G7``): its X word was a diameter (``words["X"]`` holds the radius
+    read; the writer writes X doubled)."""
     synced: str | None = None
     """``"G33"``/``"G33.1"``: a spindle-synchronised line (LinuxCNC), written as one line, never split (each
     synchronised move waits for the spindle index); None otherwise."""

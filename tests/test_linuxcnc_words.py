@@ -179,3 +179,56 @@ def test_synchronised_and_dwell_refusals_name_line_column_word_and_option(tmp_pa
     msg = str(err.value)
     assert msg.startswith(f"{tmp_path / 'p.ngc'}: line {line}, column {col}: ") and len(msg) - len(str(tmp_path)) < MSG_MAX, msg
     assert all(w in msg for w in words), msg
+
+
+# ---------------------------------------------------------------------------- G7 / G8 on the lathe
+LATHE_Z_MM = 200.0
+"""G54 Z of the lathe tests: the part's face 200 mm along the bed (inside Z's stroke)."""
+DIAMETER_TARGETS = {5: (25.0, 0.0), 6: (25.0, -20.0), 7: (30.0, -25.0), 9: (32.0, -30.0), 11: (30.0, -30.0)}
+"""diameter_mode.ngc by LinuxCNC's wording (1-based lines: radius, Z mm): under G7 every X is a diameter (X50 ->
+25; the arc's R5 a radius), G8 (line 8) reads X32 as a radius, G7 again and 'G91 G1 X-4' moves the radius by -2."""
+
+
+def test_diameter_mode_reads_x_halved_and_writes_it_doubled(tmp_path):
+    """The written program run in LinuxCNC's modes (G7/G8 lines unchanged): the TRUE tool tip over one turn of the
+    spindle is on the programmed surface of revolution within 1 um at every programmed end point; every other line
+    byte-identical; the X numbers written in G7 are diameters (about twice the radius)."""
+    from compensation.turning import parse_lathe_program, surface_residual_um
+    lathe = load_machine("lathe-xzc")
+    src = DATA / "diameter_mode.ngc"
+    prog, _ = parse_lathe_program(src, lathe, "keep", None, "linuxcnc")
+    ends = {m.index + 1: tuple(m.end) for m in prog.moves if m.compensate}
+    assert ends == DIAMETER_TARGETS
+    offsets = tmp_path / "offsets.csv"
+    offsets.write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{LATHE_Z_MM}\n")
+    truth = ChainElementSet.random(lathe, 101, 10.0, 11).save(tmp_path / "truth.json")
+    assert main(["compensate", str(src), "--machine", "lathe-xzc", "--model", str(truth), "--truth", str(truth),
+                 "--method", "exact", "--out", str(tmp_path / "out"), "--dialect", "linuxcnc",
+                 "--work-offsets", str(offsets)]) == 0
+    out, _ = parse_lathe_program(tmp_path / "out" / src.name, lathe, "keep", None, "linuxcnc")
+    out_moves = {m.index: m for m in out.moves}
+    axes, want = [], []
+    for i, g in enumerate(_groups(prog.lines, out.lines)):
+        if i + 1 not in DIAMETER_TARGETS:
+            assert [out.lines[k] for k in g] == [prog.lines[i]]
+            continue
+        m = out_moves[g[-1]]
+        axes.append([m.end[0], m.end[1] + LATHE_Z_MM, 0.0])
+        want.append([DIAMETER_TARGETS[i + 1][0], DIAMETER_TARGETS[i + 1][1] + LATHE_Z_MM, 0.0])
+        if m.diameter and not m.incremental:
+            assert abs(float(m.words["X"].text) - 2 * m.end[0]) < 1e-9  # the number written is the diameter
+    mean, _ = surface_residual_um(ChainField(lathe, ChainElementSet.load(truth, lathe)), lathe, np.array(axes),
+                                  np.array(want))
+    assert len(axes) == 5 and np.abs(mean).max() <= TOL_POINT_UM, mean
+
+
+def test_x_of_a_fanuc_family_lathe_program_is_refused(tmp_path):
+    """Fanuc, Haas, Siemens ISO lathes: X is a diameter or a radius by a machine parameter: refused naming the
+    first X word, never guessed."""
+    from compensation.turning import parse_lathe_program
+    p = tmp_path / "t.nc"
+    p.write_text("G18 G21 G90\nG0 X60. Z5.\nS800 M3\nG1 X50. Z0 F0.2\nM5\nM30\n")
+    with pytest.raises(InputError) as err:
+        parse_lathe_program(p, load_machine("lathe-xzc"), "keep", None, "fanuc")
+    assert str(err.value).startswith(f"{p}: line 2, column 4: 'X60.': on a fanuc lathe X is a diameter or a radius"), \
+        str(err.value)
