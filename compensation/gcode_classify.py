@@ -10,6 +10,7 @@ import numpy as np
 
 from .gcode_state import (_dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
+from .nc_flow import TRACKED_NAMES
 from .gcode_spline import spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
                           default_axis_words, DEFAULT_RAPIDS, G92_CODES, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
@@ -468,3 +469,44 @@ def arc_segments(move: GMove, tol_mm: float) -> int:
 
 
 # ---------------------------------------------------------------------------- writing
+
+
+_AXIS_WORD = re.compile(r"(?<![A-Za-z_<#])([XYZABCUVWxyzabcuvw])\s*(?=[-+.\d\[#])")
+
+
+class ProgramState:
+    """The controller's position and modes along the lines the expander writes (:mod:`compensation.nc_expand`,
+    ``#<_x>`` …: :data:`compensation.nc_flow.TRACKED_NAMES`), read by this module's line classifier (:func:`classify_line`; the axis words the program's text uses,
+    the program's dialect). A line it cannot read (a canned cycle, a probing move, a move before every axis
+    the program uses is known …) leaves the state unknown from there on."""
+
+    def __init__(self, dialect_name, text: str):
+        from .dialects import DIALECTS
+        code = re.sub(r"\([^)]*\)|;[^\n]*", "", text)
+        used = {c.upper() for c in _AXIS_WORD.findall(code)} or {"X"}
+        words = tuple(a for a in "XYZABCUVW" if a in used)
+        self.ax = AxisWords("program", words, tuple(a for a in words if a in "ABC"))
+        self.st = _State(len(self.ax.words))
+        self.st.dialect = DIALECTS.get(dialect_name)
+        self.unknown_after = None  # 1-based line the state is unknown after
+
+    def line(self, i: int, text: str) -> None:
+        if self.unknown_after is None:
+            try:
+                classify_line(text.rstrip("\r\n"), self.st, "keep", "off", self.ax)
+            except Exception:  # noqa: BLE001 - any line the classifier refuses: the state is unknown from here
+                self.unknown_after = i + 1
+
+    def value(self, m, name: str, pc, col) -> float:
+        if self.unknown_after is not None:
+            raise m._err(pc, col, f"#<{name}>: the controller's state is not known after line {self.unknown_after} "
+                                  "(a line the reader does not follow)")
+        st, axis = self.st, TRACKED_NAMES[name]
+        if axis is None:
+            return float({"_metric": not st.inch, "_imperial": st.inch, "_absolute": not st.incremental,
+                          "_incremental": st.incremental, "_lathe_diameter_mode": st.diameter}[name])
+        v = st.pos[self.ax.words.index(axis)]
+        if not math.isfinite(v) or (axis == "X" and st.diameter):
+            raise m._err(pc, col, f"#<{name}>: the {axis} position is not known here" + (
+                " (diameter mode)" if math.isfinite(v) else " (no absolute move along it yet)"))
+        return float(v / 25.4 if st.inch and axis not in self.ax.rotary else v)

@@ -232,3 +232,48 @@ def test_x_of_a_fanuc_family_lathe_program_is_refused(tmp_path):
         parse_lathe_program(p, load_machine("lathe-xzc"), "keep", None, "fanuc")
     assert str(err.value).startswith(f"{p}: line 2, column 4: 'X60.': on a fanuc lathe X is a diameter or a radius"), \
         str(err.value)
+
+
+# ---------------------------------------------------------------------------- #<_x> and the modes
+PREDEFINED_TARGETS = {4: (15.0, 20.0, 5.0), 5: (15.0, 22.0, 5.0), 7: (15.0, 22.0, -2.0), 9: (17.54, 22.0, -2.0)}
+"""predefined_parameters.ngc by the manual's wording (LinuxCNC "Predefined Named Parameters": #<_x> the current X in
+the current coordinate system and units; #<_incremental>, #<_metric> 1 or 0), 1-based lines of the flat program
+(mm): X[#<_x> + 5] after X10 is X15; #<inc> = 1 (read under G91); the if takes Z[#<_z> - 7] = -2; under G20
+X[#<_x> + 0.1] is 15/25.4 + 0.1 inch = 17.54 mm and Y[#<_y> * 1] stays 22 mm."""
+TOL_EXPANDED_MM = 1e-6
+"""The flat program's numbers carry 10 decimals of an inch (2.5e-9 mm)."""
+
+
+def test_predefined_parameters_are_read_from_the_lines_before(tmp_path, offsets):
+    mill = load_machine("mill-xyz")
+    src = DATA / "predefined_parameters.ngc"
+    prog = parse_program(src, axis_words=AxisWords.of(mill), dialect="linuxcnc")
+    ends = {m.index + 1: m.end for m in prog.moves if m.compensate}
+    assert set(ends) == set(PREDEFINED_TARGETS)
+    assert all(np.abs(ends[n] - PREDEFINED_TARGETS[n]).max() <= TOL_EXPANDED_MM for n in ends), ends
+    mill_, field, p_src, p_out = _compensated(tmp_path, src, offsets)
+    head = sum(1 for ln in p_out.lines if ln.startswith("(volcomp:"))  # the writer's note: a flat program
+    assert head == 1 and p_out.lines[0].startswith("(volcomp: subprograms, macros and parameters expanded")
+    out_moves = {m.index - head: m for m in p_out.moves}
+    errs = []
+    for i, g in enumerate(_groups(p_src.lines, p_out.lines[head:])):
+        if i + 1 not in PREDEFINED_TARGETS:
+            assert [p_out.lines[head + k] for k in g] == [p_src.lines[i]]
+            continue
+        q = out_moves[g[-1]].end + WORK_MM
+        tip = mill.nominal(q[None])[0] + field.predict(q[None])[0] * 1e-3
+        errs.append(np.linalg.norm(tip - mill.nominal((np.array(PREDEFINED_TARGETS[i + 1]) + WORK_MM)[None])[0]) * 1e3)
+    assert len(errs) == 4 and max(errs) <= TOL_POINT_UM, errs
+
+
+@pytest.mark.parametrize("text, line, col, words", [
+    ("G21 G90\nG0 X1 Y2\nG1 Z[#<_z> - 1] F100\nM2\n", 3, 6, ("#<_z>", "Z position is not known")),
+    ("G21 G90\nG0 X1 Y2 Z3\nG38.2 Z-5 F50\nG1 X[#<_x> + 1]\nM2\n", 4, 6, ("#<_x>", "not known after line 3")),
+    ("G18 G21 G90 G7\nG0 X20 Z3\nG1 X[#<_x> - 1] F100\nM2\n", 3, 6, ("#<_x>", "diameter mode")),
+])
+def test_predefined_parameters_refused_where_the_program_does_not_determine_them(tmp_path, text, line, col, words):
+    with pytest.raises(InputError) as err:
+        _read(text, tmp_path, "linuxcnc")
+    msg = str(err.value)
+    assert msg.startswith(f"{tmp_path / 'p.ngc'}: line {line}, column {col}: ") and len(msg) - len(str(tmp_path)) < MSG_MAX, msg
+    assert all(w in msg for w in words), msg
