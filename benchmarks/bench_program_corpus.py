@@ -40,10 +40,11 @@ HERE = Path(__file__).resolve().parent
 MANIFEST = HERE / "program_corpus" / "MANIFEST.csv"
 TOOL_LENGTH_MM = 100.0
 TOOL_RADIUS_MM = 5.0
-PART_ZERO_MM = {"mill-xyz": (300.0, 200.0, -300.0), "lathe-xzc": (0.0, 0.0, 0.0), "five-axis-ac": (0.0, 0.0, 40.0)}
+PART_ZERO_MM = {"mill-xyz": (300.0, 200.0, -300.0), "lathe-xzc": (0.0, 0.0, 200.0), "five-axis-ac": (0.0, 0.0, 40.0)}
 """Where the tables put every work system: a part zero inside the machine's strokes (mill: the middle of X
-and Y, 100 mm above the bottom of Z's stroke; lathe: the spindle axis; five-axis: on the C axis, 40 mm above
-the C table top)."""
+and Y, 100 mm above the bottom of Z's stroke; lathe: the spindle axis, the part's face 200 mm along the bed, so
+that turning towards the chuck (Z < 0) stays inside Z's stroke; five-axis: on the C axis, 40 mm above the C
+table top)."""
 
 
 NO_MOTION = "no G0/G1/G2/G3 motion"
@@ -140,8 +141,7 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) 
     except Exception as exc:  # noqa: BLE001 - reported, not hidden
         return f"not checkable: {type(exc).__name__}: {exc}"[:110]
     out = written.read_text(encoding="latin-1").splitlines(keepends=True)
-    while out and out[0].startswith("(volcomp:"):  # the header the writer adds (expansion, G80 reading)
-        out.pop(0)
+    out = [ln for ln in out if not ln.startswith("(volcomp:")]  # the writer's header (after a leading '%' too)
     bare = written.with_suffix(written.suffix + ".bare")
     bare.write_text("".join(out), encoding="latin-1")
     if expanded is not None:

@@ -236,13 +236,9 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         return _reference_return(st, groups, axis_words, arc_words, ax, rapids)
     # RS274NGC / LinuxCNC: G4 uses no axis words, so a G4 line's axis words are the motion mode's (dwell, then move)
     plain = "nonmodal" not in groups or (groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_with_motion", False))
-    if dia is not None and st.mode in dia.splines and (axis_words or any(a in by for a in "IJKRPQ")):
-        if "nonmodal" in groups or st.diameter:
-            w = groups["nonmodal"][1] if "nonmodal" in groups else next(iter(axis_words.values()), motion_word)
-            raise _Refuse(w.start + 1, "a spline line with G4 (its P would be the spline's) or in diameter mode (G7)")
-        return "move", spline_move(idx, st, by, axis_words, motion_word, ax)
-    if plain and dia is not None and st.mode in dia.synced and axis_words:
-        return "move", synced_move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+    move = _mode_move(idx, st, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain)
+    if move is not None:
+        return "move", move
     if not plain and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
@@ -256,6 +252,22 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
             return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)  # a full circle
         return ("state" if changes else "pass"), None
     return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+
+
+def _mode_move(idx, st: _State, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain):
+    """The move of a line in a dialect's spline mode (:func:`spline_move`) or spindle-synchronised mode
+    (:func:`synced_move`); None where the line is not one (``plain``: no non-modal code, or a G4 that moves)."""
+    dia = st.dialect
+    if dia is None:
+        return None
+    if st.mode in dia.splines and (axis_words or ("nonmodal" not in groups and any(a in by for a in "IJKRPQ"))):
+        if "nonmodal" in groups or st.diameter:
+            w = groups["nonmodal"][1] if "nonmodal" in groups else next(iter(axis_words.values()), motion_word)
+            raise _Refuse(w.start + 1, "a spline line with G4 (its P would be the spline's) or in diameter mode (G7)")
+        return spline_move(idx, st, by, axis_words, motion_word, ax)
+    if plain and st.mode in dia.synced and axis_words:
+        return synced_move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+    return None
 
 
 def _diameter_mode(st: _State, groups, by) -> None:
