@@ -138,6 +138,8 @@ def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: b
                             "points": e.get("points")}
         if check and rc == 0 and m["machine"] == "mill-xyz":
             r["check"] = independent_check(corpus / r["file"], dest / r["file"], m["dialect"], truths["mill-xyz"])
+        elif check and rc == 0 and m["machine"] == "lathe-xzc":
+            r["check"] = lathe_check(corpus / r["file"], dest / r["file"], m["dialect"], truths["lathe-xzc"])
 
 
 def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str:
@@ -209,6 +211,49 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) 
                 break
         else:
             return f"WRONG: line {m.index + 1} ({p_src.lines[m.index].strip()[:40]!r}) reached by no written move"
+    return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
+
+
+def lathe_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str:
+    """``--check`` of a ``lathe-xzc`` program in turning mode, independently of the reader's frames: the part zero
+    of the count's tables (:data:`PART_ZERO_MM`, every system), the lines that are not compensated moves the
+    source's byte for byte, and every programmed end point (radius, Z) reached, in order, by some written move:
+    the TRUE tool tip averaged over one turn of the spindle on the programmed surface of revolution within 1 um
+    (``compensation.turning.surface_residual_um``). A program with C words is not checked here."""
+    sys.path.insert(0, str(HERE.parent / "tests"))
+    from program_checks import TOL_POINT_UM
+    from compensation.turning import parse_lathe_program, surface_residual_um
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    from errormap.machine import load_machine
+    lathe, zero = load_machine("lathe-xzc"), PART_ZERO_MM["lathe-xzc"]
+    out = [ln for ln in written.read_text(encoding="latin-1").splitlines(keepends=True) if not ln.startswith("(volcomp:")]
+    bare = written.with_suffix(written.suffix + ".bare")
+    bare.write_text("".join(out), encoding="latin-1")
+    try:
+        (p_src, _), (p_out, _) = (parse_lathe_program(f, lathe, "keep", None, dialect) for f in (src, bare))
+    except Exception as exc:  # noqa: BLE001 - reported, not hidden
+        return f"not checkable: {type(exc).__name__}: {exc}"[:110]
+    if len(p_src.axis_words.words) != 2:
+        return "not checkable: C words (C-axis mode)"
+    m_src = [m for m in p_src.moves if m.compensate]
+    m_out = [m for m in p_out.moves if m.compensate]
+    keep_src = [ln for i, ln in enumerate(p_src.lines) if i not in {m.index for m in m_src}]
+    keep_out = [ln for i, ln in enumerate(p_out.lines) if i not in {m.index for m in m_out}]
+    if keep_src != keep_out:
+        return "WRONG: a line that is not a compensated move changed"
+    field = ChainField(lathe, ChainElementSet.load(truth_file, lathe))
+    place = lambda e: np.array([[e[0] + zero[0], e[1] + zero[2], 0.0]])  # noqa: E731 - X radius, Z, C
+    errs, j = [], 0
+    for m in m_src:
+        while j < len(m_out):
+            mean, _ = surface_residual_um(field, lathe, place(m_out[j].end), place(m.end))
+            j += 1
+            if np.linalg.norm(mean[0]) <= TOL_POINT_UM:
+                errs.append(float(np.linalg.norm(mean[0])))
+                break
+        else:
+            return f"WRONG: line {m.index + 1} reached by no written move"
     return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
 
 
