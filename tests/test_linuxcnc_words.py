@@ -277,3 +277,11 @@ def test_predefined_parameters_refused_where_the_program_does_not_determine_them
     msg = str(err.value)
     assert msg.startswith(f"{tmp_path / 'p.ngc'}: line {line}, column {col}: ") and len(msg) - len(str(tmp_path)) < MSG_MAX, msg
     assert all(w in msg for w in words), msg
+
+
+def test_a_dwell_between_splines_stays_a_dwell(tmp_path):
+    """In G5 mode a 'G4 P0.5' line is a dwell (its P is not the spline's): no move; 'G4 P0.5 X1' is refused."""
+    _, prog = _read("G21 G90 G17\nG0 X0 Y0 Z0\nG5 X10 Y0 I2 J2 P-2 Q2 F100\nG4 P0.5\nX20 Y0 P-2 Q2\nM2\n", tmp_path)
+    assert [m.index + 1 for m in prog.moves if m.compensate] == [3, 5]
+    with pytest.raises(InputError, match=r"line 4, column 1: a spline line with G4"):
+        _read("G21 G90 G17\nG0 X0 Y0 Z0\nG5 X10 Y0 I2 J2 P-2 Q2 F100\nG4 P0.5 X1\nM2\n", tmp_path)
