@@ -19,8 +19,9 @@ seeded simulated truth (element set of the machine, ±10 μm / μrad 1 σ, seed 
 ``--truth``: the TRUE residual at its points before and after (the product's own frames: this shows the
 accepted programs run end to end, not that their frames are right — the tests check those independently).
 ``--check`` (implies ``--compensate``): every compensated ``mill-xyz`` program is then checked independently of
-the reader's frames (:func:`independent_check`, tests/program_checks.py): a program off by more than 1 um at a
-programmed point, or with a non-motion line changed, is counted silently wrong. A file that moves nothing when run
+the reader's frames (:func:`independent_check`, tests/program_checks.py), every ``lathe-xzc`` one in turning mode
+by :func:`lathe_check`: a program off by more than 1 um at a programmed point, or with a non-motion line changed,
+is counted silently wrong. A file that moves nothing when run
 (subroutine libraries whose subroutines it never calls, tool-change and probing macros) is counted ``no motion``.
 
 ``--manifest program_corpus/NC_FILES.csv``: LinuxCNC's ``nc_files`` as Debian ships them (package
@@ -37,7 +38,7 @@ Counted (2026-12-02; before = main at the start of this work, after = this tree;
 | corpus | accepted | no motion | refused | crashed | silently wrong (``--check``) |
 |---|---|---|---|---|---|
 | NC_FILES.csv (185), before | 13 | 118 | 54 | 0 | - |
-| NC_FILES.csv (185), after | 16 | 119 | 50 | 0 | 0 of 13 checked (max 0.49 um) |
+| NC_FILES.csv (185), after | 16 | 119 | 50 | 0 | 0 of 15 checked (13 mill, 2 lathe; max 0.49 um) |
 | MANIFEST.csv (101), before | 40 | 25 | 36 | 0 | - |
 | MANIFEST.csv (101), after | 42 | 25 | 34 | 0 | 0 of 34 checked (3 not checkable) |
 
