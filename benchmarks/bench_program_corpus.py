@@ -19,8 +19,36 @@ seeded simulated truth (element set of the machine, ±10 μm / μrad 1 σ, seed 
 ``--truth``: the TRUE residual at its points before and after (the product's own frames: this shows the
 accepted programs run end to end, not that their frames are right — the tests check those independently).
 ``--check`` (implies ``--compensate``): every compensated ``mill-xyz`` program is then checked independently of
-the reader's frames (:func:`independent_check`, tests/program_checks.py): a program off by more than 1 um at a
-programmed point, or with a non-motion line changed, is counted silently wrong.
+the reader's frames (:func:`independent_check`, tests/program_checks.py), every ``lathe-xzc`` one in turning mode
+by :func:`lathe_check`: a program off by more than 1 um at a programmed point, or with a non-motion line changed,
+is counted silently wrong. A file that moves nothing when run
+(subroutine libraries whose subroutines it never calls, tool-change and probing macros) is counted ``no motion``.
+
+``--manifest program_corpus/NC_FILES.csv``: LinuxCNC's ``nc_files`` as Debian ships them (package
+``linuxcnc-uspace`` 2.9.0~pre1+git20230208.f1270d6ed7-1+deb12u2, its 185 ``.ngc`` under
+``usr/share/linuxcnc/ncfiles``; GPL-2.0). Fetch with the package client and lay them out by the manifest:
+
+    apt-get download linuxcnc-uspace=2.9.0~pre1+git20230208.f1270d6ed7-1+deb12u2
+    dpkg -x linuxcnc-uspace_*.deb ROOT
+    python benchmarks/bench_program_corpus.py --from-package ROOT --corpus DIR --manifest \
+        benchmarks/program_corpus/NC_FILES.csv --check
+
+Counted (2026-12-02; before = main at the start of this work, after = this tree; the same manifest and tables):
+
+| corpus | accepted | no motion | refused | crashed | silently wrong (``--check``) |
+|---|---|---|---|---|---|
+| NC_FILES.csv (185), before | 13 | 118 | 54 | 0 | - |
+| NC_FILES.csv (185), after | 16 | 119 | 50 | 0 | 0 of 15 checked (13 mill, 2 lathe; max 0.49 um) |
+| MANIFEST.csv (101), before | 40 | 25 | 36 | 0 | - |
+| MANIFEST.csv (101), after | 42 | 25 | 34 | 0 | 0 of 34 checked (3 not checkable) |
+
+nc_files newly accepted: ``systems.ngc`` (G92.1), ``threading.ngc`` (G33 on the lathe), ``mmount.ngc`` (G33.1; its
+compensation is then refused by the stroke guard: its three fixture stations G55-G57 all sit at the count's one
+part zero); ``skeleton.ngc`` (G4 with a G0 on one line) now reads and moves only at rapids (no motion). The most
+frequent refusals left: 18 plasma programs read the feed from a HAL pin and never give Z (``#<_hal[...]>``: run-time
+state), 7 ngcgui subroutine files whose G or M code is a parameter, 5 probing macros with ``else if``, lathe cycles
+(G70-G72, G76 threading passes), 4/5-axis programs whose B axis no built-in machine has, probing (G38.2, #5063,
+#5070), polar ``@ ^`` words.
 """
 from __future__ import annotations
 
@@ -40,10 +68,16 @@ HERE = Path(__file__).resolve().parent
 MANIFEST = HERE / "program_corpus" / "MANIFEST.csv"
 TOOL_LENGTH_MM = 100.0
 TOOL_RADIUS_MM = 5.0
-PART_ZERO_MM = {"mill-xyz": (300.0, 200.0, -300.0), "lathe-xzc": (0.0, 0.0, 0.0), "five-axis-ac": (0.0, 0.0, 40.0)}
+PART_ZERO_MM = {"mill-xyz": (300.0, 200.0, -300.0), "lathe-xzc": (0.0, 0.0, 200.0), "five-axis-ac": (0.0, 0.0, 40.0)}
 """Where the tables put every work system: a part zero inside the machine's strokes (mill: the middle of X
-and Y, 100 mm above the bottom of Z's stroke; lathe: the spindle axis; five-axis: on the C axis, 40 mm above
-the C table top)."""
+and Y, 100 mm above the bottom of Z's stroke; lathe: the spindle axis, the part's face 200 mm along the bed, so
+that turning towards the chuck (Z < 0) stays inside Z's stroke; five-axis: on the C axis, 40 mm above the C
+table top)."""
+
+
+NO_MOTION = "no G0/G1/G2/G3 motion"
+"""The refusal of a file that moves nothing when run (subroutine libraries whose subroutines it never calls,
+tool-change and probing macros, demonstrations of messages and parameters): counted apart, as ``no motion``."""
 
 
 def _tables(tmp: Path, read_work_offsets, read_tool_table, InputError):
@@ -78,12 +112,13 @@ def reason_of(message: str, name: str) -> str:
     return msg[:110]
 
 
-def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: bool = False) -> None:
+def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: bool = False,
+                        manifest: Path = MANIFEST) -> None:
     """``--compensate``: TRUE max before/after of each accepted program (module docstring)."""
     from compensation.app.cli import main
     from errormap.machine import load_machine
     from errormap.chain_elements import ChainElementSet
-    rows = {r["file"]: r for r in csv.DictReader(MANIFEST.open(encoding="utf-8"))}
+    rows = {r["file"]: r for r in csv.DictReader(manifest.open(encoding="utf-8"))}
     truths = {}
     for r in out["results"]:
         if r["outcome"] != "accepted":
@@ -104,6 +139,8 @@ def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: b
                             "points": e.get("points")}
         if check and rc == 0 and m["machine"] == "mill-xyz":
             r["check"] = independent_check(corpus / r["file"], dest / r["file"], m["dialect"], truths["mill-xyz"])
+        elif check and rc == 0 and m["machine"] == "lathe-xzc":
+            r["check"] = lathe_check(corpus / r["file"], dest / r["file"], m["dialect"], truths["lathe-xzc"])
 
 
 def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str:
@@ -134,8 +171,7 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) 
     except Exception as exc:  # noqa: BLE001 - reported, not hidden
         return f"not checkable: {type(exc).__name__}: {exc}"[:110]
     out = written.read_text(encoding="latin-1").splitlines(keepends=True)
-    while out and out[0].startswith("(volcomp:"):  # the header the writer adds (expansion, G80 reading)
-        out.pop(0)
+    out = [ln for ln in out if not ln.startswith("(volcomp:")]  # the writer's header (after a leading '%' too)
     bare = written.with_suffix(written.suffix + ".bare")
     bare.write_text("".join(out), encoding="latin-1")
     if expanded is not None:
@@ -179,7 +215,50 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) 
     return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
 
 
-def count(root: Path, corpus: Path, compensate: bool = False, check: bool = False) -> dict:
+def lathe_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str:
+    """``--check`` of a ``lathe-xzc`` program in turning mode, independently of the reader's frames: the part zero
+    of the count's tables (:data:`PART_ZERO_MM`, every system), the lines that are not compensated moves the
+    source's byte for byte, and every programmed end point (radius, Z) reached, in order, by some written move:
+    the TRUE tool tip averaged over one turn of the spindle on the programmed surface of revolution within 1 um
+    (``compensation.turning.surface_residual_um``). A program with C words is not checked here."""
+    sys.path.insert(0, str(HERE.parent / "tests"))
+    from program_checks import TOL_POINT_UM
+    from compensation.turning import parse_lathe_program, surface_residual_um
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    from errormap.machine import load_machine
+    lathe, zero = load_machine("lathe-xzc"), PART_ZERO_MM["lathe-xzc"]
+    out = [ln for ln in written.read_text(encoding="latin-1").splitlines(keepends=True) if not ln.startswith("(volcomp:")]
+    bare = written.with_suffix(written.suffix + ".bare")
+    bare.write_text("".join(out), encoding="latin-1")
+    try:
+        (p_src, _), (p_out, _) = (parse_lathe_program(f, lathe, "keep", None, dialect) for f in (src, bare))
+    except Exception as exc:  # noqa: BLE001 - reported, not hidden
+        return f"not checkable: {type(exc).__name__}: {exc}"[:110]
+    if len(p_src.axis_words.words) != 2:
+        return "not checkable: C words (C-axis mode)"
+    m_src = [m for m in p_src.moves if m.compensate]
+    m_out = [m for m in p_out.moves if m.compensate]
+    keep_src = [ln for i, ln in enumerate(p_src.lines) if i not in {m.index for m in m_src}]
+    keep_out = [ln for i, ln in enumerate(p_out.lines) if i not in {m.index for m in m_out}]
+    if keep_src != keep_out:
+        return "WRONG: a line that is not a compensated move changed"
+    field = ChainField(lathe, ChainElementSet.load(truth_file, lathe))
+    place = lambda e: np.array([[e[0] + zero[0], e[1] + zero[2], 0.0]])  # noqa: E731 - X radius, Z, C
+    errs, j = [], 0
+    for m in m_src:
+        while j < len(m_out):
+            mean, _ = surface_residual_um(field, lathe, place(m_out[j].end), place(m.end))
+            j += 1
+            if np.linalg.norm(mean[0]) <= TOL_POINT_UM:
+                errs.append(float(np.linalg.norm(mean[0])))
+                break
+        else:
+            return f"WRONG: line {m.index + 1} reached by no written move"
+    return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
+
+
+def count(root: Path, corpus: Path, compensate: bool = False, check: bool = False, manifest: Path = MANIFEST) -> dict:
     sys.path.insert(0, str(root))
     from compensation.app.validate import UsageError
     from compensation.app.workflows.compensate import CompensateSettings
@@ -187,7 +266,7 @@ def count(root: Path, corpus: Path, compensate: bool = False, check: bool = Fals
     from compensation.nc_state import read_tool_table, read_work_offsets
     from errormap.io import InputError
     from errormap.machine import load_machine
-    rows = list(csv.DictReader(MANIFEST.open(encoding="utf-8")))
+    rows = list(csv.DictReader(manifest.open(encoding="utf-8")))
     machines = {m: load_machine(m) for m in {r["machine"] for r in rows}}
     results = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -204,13 +283,23 @@ def count(root: Path, corpus: Path, compensate: bool = False, check: bool = Fals
                 read_tool_path(p, machines[r["machine"]], s)
                 results.append((r, "accepted", ""))
             except (InputError, UsageError) as exc:
-                results.append((r, "refused", reason_of(str(exc), p.name)))
+                why = reason_of(str(exc), p.name)
+                results.append((r, "no motion" if why.startswith(NO_MOTION) else "refused", why))
             except Exception as exc:  # noqa: BLE001 - a crash is what this counts
                 results.append((r, "crashed", f"{type(exc).__name__}: {exc}"[:110]))
         out["results"] = [{"file": r["file"], "kind": r["kind"], "outcome": o, "reason": why} for r, o, why in results]
         if compensate:
-            compensate_accepted(root, corpus, out, Path(tmp), check)
+            compensate_accepted(root, corpus, out, Path(tmp), check, manifest)
     return out
+
+
+def lay_out(root: Path, corpus: Path, manifest: Path) -> None:
+    """Copy each manifest row's ``path`` under ``root`` (an unpacked package) to ``corpus/file``."""
+    corpus.mkdir(parents=True, exist_ok=True)
+    for r in csv.DictReader(manifest.open(encoding="utf-8")):
+        src = root / r["path"]
+        if src.is_file():
+            (corpus / r["file"]).write_bytes(src.read_bytes())
 
 
 def report(out: dict) -> str:
@@ -244,8 +333,14 @@ if __name__ == "__main__":
     ap.add_argument("--compensate", action="store_true", help="compensate every accepted program on a simulated truth")
     ap.add_argument("--check", action="store_true", help="--compensate, then check every compensated mill program "
                                                          "independently (tests/program_checks.py)")
+    ap.add_argument("--from-package", help="lay out DIR (--corpus) from an unpacked Debian package ROOT: each "
+                                           "manifest row's path copied to its file name")
+    ap.add_argument("--manifest", default=str(MANIFEST), help="the manifest to count (default: MANIFEST.csv; "
+                                                               "program_corpus/NC_FILES.csv: LinuxCNC's nc_files)")
     a = ap.parse_args()
-    result = count(Path(a.root).resolve(), Path(a.corpus), a.compensate or a.check, a.check)
+    if a.from_package:
+        lay_out(Path(a.from_package), Path(a.corpus), Path(a.manifest))
+    result = count(Path(a.root).resolve(), Path(a.corpus), a.compensate or a.check, a.check, Path(a.manifest))
     print(report(result))
     if a.json:
         Path(a.json).write_text(json.dumps(result, indent=1))

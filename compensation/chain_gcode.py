@@ -222,6 +222,7 @@ def plan_chain_gcode(program: GProgram, arc_tolerance_um: float, field_=None, fr
         pos = {id(m): p for m, p in zip(with_start, pieces)}
         n_fld = np.array([pos.get(id(m), 1) for m in comp], dtype=int)
     counts = np.maximum(n_arc, n_fld)
+    counts[[i for i, m in enumerate(comp) if m.synced]] = 1  # a spindle-synchronised line stays one line
     big = np.flatnonzero(counts > MAX_SEGMENTS_PER_MOVE)
     if big.size:
         m = comp[big[0]]
@@ -282,6 +283,8 @@ def plan_table(program: GProgram, arc_tolerance_um: float, field_=None, frames=N
         raise InputError(f"{program.path}: line {t.line[rows[big[0]]] + 1}: the move needs {counts[big[0]]} pieces for "
                          f"{arc_tolerance_um:g} μm (more than {MAX_SEGMENTS_PER_MOVE}); raise --arc-tolerance-um")
     counts[~known] = 1  # a move whose start is unknown: its end alone
+    objs = np.flatnonzero(t.obj[rows] >= 0)
+    counts[[i for i in objs if t.objects[t.obj[rows[i]]].synced]] = 1  # spindle-synchronised: one line
     axes = _table_vertices(start, end, counts, known, moves)
     lines = np.repeat(t.line[rows] + 1, counts)
     kept = np.flatnonzero(~t.compensate)

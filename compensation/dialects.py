@@ -92,6 +92,20 @@ class Dialect:
     """An ``H`` word without ``G43`` changes the length offset where ``G43`` is in force and is held otherwise,
     and ``H0`` (``H00``) is a zero length (Fanuc 0i, Haas, Siemens ISO: "tool length compensation": the offset
     number may be changed in G43 mode; H00's value is always 0). Otherwise ``H`` only with ``G43``."""
+    synced: dict = field(default_factory=dict)
+    """Spindle-synchronised motion codes {code: meaning} (LinuxCNC ``G33``, ``G33.1``: :data:`SYNCED`)."""
+    lathe_modes: dict = field(default_factory=dict)
+    """Lathe X modes of the program {code: meaning} (LinuxCNC ``G7`` diameter / ``G8`` radius, :data:`LATHE_MODES`)."""
+    lathe_x_by_parameter: bool = False
+    """On a lathe, whether X is a diameter or a radius is a machine parameter, not a word of the program (Fanuc
+    diameter programming, parameter DIA; Haas, Siemens ISO turning likewise): a lathe program's X is refused."""
+    dwell_with_motion: bool = False
+    """Axis words on a ``G4`` line belong to the motion mode (RS274NGC, LinuxCNC: G4 uses no axis words; the line
+    dwells, then moves); elsewhere ``G04 X`` is a dwell time (Fanuc, Haas) and such a line is refused."""
+    g92_offsets: bool = False
+    """``G92``/``G92.1``/``G92.2``/``G92.3`` are coordinate offsets (LinuxCNC; grbl: G92, G92.1) read exactly
+    (:data:`compensation.gcode_words.G92_CODES`); elsewhere ``G92`` is refused (a Fanuc lathe's threading cycle in
+    G-code system A, a coordinate setting or a spindle clamp on others)."""
     arc_radius_tol: tuple | None = None
     """``(mm under G21, mm under G20, relative)``: a centre-format arc whose start and end radii differ by
     more than the absolute tolerance of its units or by more than the relative one is an error; None: the
@@ -133,17 +147,26 @@ linearly with the angle, as the reader reads it."""
 SPLINES = {"G5": "a cubic spline (G5 X Y I J P Q)", "G5.1": "a quadratic spline (G5.1 X Y I J)"}
 """LinuxCNC G-code reference, "G5 Cubic spline", "G5.1 Quadratic spline": motion codes, read exactly
 (:mod:`compensation.gcode_spline`)."""
+LATHE_MODES = {"G7": "lathe diameter mode: X words (positions, G92/G10 values) are diameters, read halved",
+               "G8": "lathe radius mode (the power-on default)"}
+"""LinuxCNC G-code reference "G7 Lathe Diameter Mode", "G8 Lathe Radius Mode"; its interpreter halves every X
+number of a block read in diameter mode (arc centre offsets I are radii in both)."""
+SYNCED = {"G33": "spindle-synchronised motion (G33 X Y Z K: a straight line, K per spindle revolution)",
+          "G33.1": "rigid tapping (G33.1 X Y Z K [I]: a synchronised line to the point and back to the start)"}
+"""LinuxCNC G-code reference, "G33 Spindle Synchronized Motion", "G33.1 Rigid Tapping": motion codes read as one
+straight line each, its end compensated, never split (:mod:`compensation.gcode_state`)."""
 DIALECTS = {
     "linuxcnc": Dialect("linuxcnc", {**_COMMON, 19: "orient spindle", 48: "overrides on", 49: "overrides off",
                                      50: "feed override control", 51: "spindle override control",
                                      52: "adaptive feed", 53: "feed stop control", 60: "pallet change pause"},
                         io_codes=IO_CODES, arc_radius_tol=LINUXCNC_ARC_TOL, modes={"G50": SCALING_OFF},
-                        splines=SPLINES),
+                        splines=SPLINES, g92_offsets=True, synced=SYNCED, dwell_with_motion=True,
+                        lathe_modes=LATHE_MODES),
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
                                                          "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True,
-                     g80_keeps_motion=True, h_offset_alone=True),
+                     g80_keeps_motion=True, h_offset_alone=True, lathe_x_by_parameter=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
@@ -151,14 +174,15 @@ DIALECTS = {
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
                     modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)", "G50": SCALING_OFF,
                            "G50.1": MIRROR_OFF, "G103": LOOKAHEAD_BLOCKS}, g80_with_motion=True,
-                    g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS),
+                    g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS, lathe_x_by_parameter=True),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
                            program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF,
                                   "G50.1": MIRROR_OFF},
-                           g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True),
+                           g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True,
+                           lathe_x_by_parameter=True),
     "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True,
                      modes={"G50": SCALING_OFF}),
-    "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False),
+    "grbl": Dialect("grbl", {**_COMMON, 56: "parking motion override"}, block_delete=False, g92_offsets=True),
     # Heidenhain TNC DIN/ISO programs: '%NAME G71 *' framing and the '*' block end are read by the
     # tool-centre-point pre-pass (compensation.tcp), as are M128/M129 (TCPM) and the 'T n' tool call
     "heidenhain-iso": Dialect("heidenhain-iso", dict(_COMMON)),

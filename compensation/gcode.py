@@ -127,7 +127,9 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
         return _g80_noted(_parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence))  # at full speed
     except InputError as plain_refusal:
         from . import nc_expand
-        expanded = nc_expand.expand_if_needed(data, path, dialect if dialect in nc_expand.DIALECTS else None)
+        from .gcode_classify import ProgramState
+        expanded = nc_expand.expand_if_needed(data, path, dialect if dialect in nc_expand.DIALECTS else None,
+                                              ProgramState)
         if cycles is not None:
             text = expanded.text if expanded is not None else data.decode("latin-1")
             try:  # unrecognised: the cycle's moves end in the G0-G3 of before it, as group 09 leaves it
@@ -264,6 +266,8 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
     def bulk_moves(k0: int, k1: int) -> int:
         """Read bulk moves k0..k1-1 (ordinals into mlines); return the ordinal of the first
         that must go through the per-line classifier (k1 if none)."""
+        if st.diameter:
+            return k0  # lathe diameter mode: X words are read line by line (halved)
         gm = gcode[k0:k1]
         rows = np.arange(k1 - k0)
         last = np.maximum.accumulate(np.where(gm >= 0, rows, -1))

@@ -3,15 +3,17 @@ modal groups, the words each line may carry, moves and arc geometry (:func:`plan
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 import re
 
 import numpy as np
 
-from .gcode_state import (_dialect_mode, _g10, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (_dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
+from .nc_flow import TRACKED_NAMES
 from .gcode_spline import spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
-                          default_axis_words, DEFAULT_RAPIDS, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
+                          default_axis_words, DEFAULT_RAPIDS, G92_CODES, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
                           PLANES, REFUSED_G, REFUSED_LETTERS, tokenize, Word)
 
 
@@ -34,6 +36,9 @@ class _State:
         self.selected = None       # the last T word (the tool prepared)
         self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
+        self.diameter = False      # lathe diameter mode (LinuxCNC G7): X words are diameters
+        self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
+        self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
 
 
 def classify_line(body: str, state: _State, rapids=DEFAULT_RAPIDS, block_delete=None,
@@ -56,7 +61,9 @@ def _checked_words(words, ax: AxisWords, dia=None):
             code = w.code
             if round(w.value, 1) != round(w.value, 6):
                 raise _Refuse(w.start + 1, f"'G{w.text}': unknown G code")
-            if code in dia.modes or code in dia.work_systems or code in dia.splines:
+            if code in dia.modes or code in dia.work_systems or code in dia.splines or code in dia.synced or (
+                    code in dia.lathe_modes) or (
+                    dia.g92_offsets and code in G92_CODES):
                 gs.append((code, w))
                 continue
             if code in REFUSED_G:
@@ -105,8 +112,8 @@ def _modal_groups(gs, dia=None) -> dict:
     a motion code where the dialect runs them so: the motion code is kept)."""
     groups = {}
     for code, w in gs:
-        grp = "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
-            code in dia.splines) else ALLOWED_G[code][0] if code in ALLOWED_G else (
+        grp = "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
+            code in dia.splines or code in dia.synced) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
         if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
                 code, groups[grp][0]):
@@ -206,6 +213,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
             raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
         return "pass", None
+    _diameter_mode(st, groups, by)
     axis_words = {a: by[a] for a in ax.words if a in by}
     arc_words = {a: by[a] for a in ("I", "J", "K", "R") if a in by}
     changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal", "coords",
@@ -217,6 +225,8 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     _check_p_q(st, by, gs, axis_words, arc_words)
     if "nonmodal" in groups and groups["nonmodal"][0] == "G10":
         return _g10(idx, st, groups, by, axis_words, ax), None
+    if "nonmodal" in groups and groups["nonmodal"][0] in G92_CODES:
+        return _g92(idx, st, groups, axis_words, ax), None
     _work_state(idx, st, groups, by, ax)
     if "dialect mode" in groups:
         return _dialect_mode(idx, st, groups, by, axis_words, arc_words), None
@@ -224,13 +234,15 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
         return _reference_return(st, groups, axis_words, arc_words, ax, rapids)
-    if "nonmodal" not in groups and dia is not None and st.mode in dia.splines and (
-            axis_words or any(a in by for a in "IJKRPQ")):
-        return "move", spline_move(idx, st, by, axis_words, motion_word, ax)
-    if "nonmodal" in groups and axis_words:
+    # RS274NGC / LinuxCNC: G4 uses no axis words, so a G4 line's axis words are the motion mode's (dwell, then move)
+    plain = "nonmodal" not in groups or (groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_with_motion", False))
+    move = _mode_move(idx, st, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain)
+    if move is not None:
+        return "move", move
+    if not plain and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
-                                   "some controls, not a move)")
+                                   "some controls, not a move; on linuxcnc a move after the dwell: --dialect)")
     if not axis_words:
         if arc_words:
             w = next(iter(arc_words.values()))
@@ -240,6 +252,31 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
             return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)  # a full circle
         return ("state" if changes else "pass"), None
     return "move", _move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+
+
+def _mode_move(idx, st: _State, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain):
+    """The move of a line in a dialect's spline mode (:func:`spline_move`) or spindle-synchronised mode
+    (:func:`synced_move`); None where the line is not one (``plain``: no non-modal code, or a G4 that moves)."""
+    dia = st.dialect
+    if dia is None:
+        return None
+    if st.mode in dia.splines and (axis_words or ("nonmodal" not in groups and any(a in by for a in "IJKRPQ"))):
+        if "nonmodal" in groups or st.diameter:
+            w = groups["nonmodal"][1] if "nonmodal" in groups else next(iter(axis_words.values()), motion_word)
+            raise _Refuse(w.start + 1, "a spline line with G4 (its P would be the spline's) or in diameter mode (G7)")
+        return spline_move(idx, st, by, axis_words, motion_word, ax)
+    if plain and st.mode in dia.synced and axis_words:
+        return synced_move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+    return None
+
+
+def _diameter_mode(st: _State, groups, by) -> None:
+    """LinuxCNC ``G7``/``G8`` (this line's X read in the new mode, as its interpreter does): in diameter mode the
+    line's X word is replaced by one holding the radius (its text and span kept for the writer)."""
+    if "lathe" in groups:
+        st.diameter = groups["lathe"][0] == "G7"
+    if st.diameter and "X" in by:
+        by["X"] = replace(by["X"], value=by["X"].value * 0.5)
 
 
 def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
@@ -269,7 +306,7 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
                 end[j] = start[j] + v
             else:
                 end[j] = v
-    kind = {"G0": "rapid", "G1": "linear"}.get(st.mode, "arc")
+    kind = {"G0": "rapid", "G1": "linear", "G33": "linear", "G33.1": "linear"}.get(st.mode, "arc")
     compensate = not (kind == "rapid" and rapids == "keep")
     words = dict(axis_words)
     words.update(arc_words)
@@ -281,13 +318,25 @@ def _move(idx, st: _State, by: dict, axis_words, arc_words, motion_word, rapids,
         raise _Refuse(first.start + 1, f"'{first.letter}{first.text}': motion before {ax.joined('and')} are all "
                                        f"known (no value yet for {missing})")
     move = GMove(idx, kind, start, end, "inch" if st.inch else "mm", st.incremental, words, motion_word,
-                 compensate, known=known)
+                 compensate, known=known, diameter=st.diameter)
     if kind == "arc":
         try:
             move.arc = _arc_geometry(st, move, arc_words, scale, ax, first)
         except _Refuse as r:
             raise _Refuse(r.col, f"'{first.letter}{first.text}': {r.msg}") from None
     st.pos = end
+    return move
+
+
+def synced_move(idx, st: _State, by, axis_words, arc_words, motion_word, rapids, ax: AxisWords) -> GMove:
+    """A ``G33``/``G33.1`` line: one straight move to its end (K the pitch, :func:`synced_words`), marked
+    ``synced``; after ``G33.1`` the position is its start again (the tap returns)."""
+    first = min(axis_words.values(), key=lambda w: w.start)
+    synced_words(st.mode, by, arc_words, (motion_word or first).start + 1)
+    move = _move(idx, st, by, axis_words, {}, motion_word, rapids, ax)
+    move.kind, move.synced = "linear", st.mode
+    if st.mode == "G33.1":
+        st.pos = move.start.copy()
     return move
 
 
@@ -432,3 +481,44 @@ def arc_segments(move: GMove, tol_mm: float) -> int:
 
 
 # ---------------------------------------------------------------------------- writing
+
+
+_AXIS_WORD = re.compile(r"(?<![A-Za-z_<#])([XYZABCUVWxyzabcuvw])\s*(?=[-+.\d\[#])")
+
+
+class ProgramState:
+    """The controller's position and modes along the lines the expander writes (:mod:`compensation.nc_expand`,
+    ``#<_x>`` …: :data:`compensation.nc_flow.TRACKED_NAMES`), read by this module's line classifier (:func:`classify_line`; the axis words the program's text uses,
+    the program's dialect). A line it cannot read (a canned cycle, a probing move, a move before every axis
+    the program uses is known …) leaves the state unknown from there on."""
+
+    def __init__(self, dialect_name, text: str):
+        from .dialects import DIALECTS
+        code = re.sub(r"\([^)]*\)|;[^\n]*", "", text)
+        used = {c.upper() for c in _AXIS_WORD.findall(code)} or {"X"}
+        words = tuple(a for a in "XYZABCUVW" if a in used)
+        self.ax = AxisWords("program", words, tuple(a for a in words if a in "ABC"))
+        self.st = _State(len(self.ax.words))
+        self.st.dialect = DIALECTS.get(dialect_name)
+        self.unknown_after = None  # 1-based line the state is unknown after
+
+    def line(self, i: int, text: str) -> None:
+        if self.unknown_after is None:
+            try:
+                classify_line(text.rstrip("\r\n"), self.st, "keep", "off", self.ax)
+            except Exception:  # noqa: BLE001 - any line the classifier refuses: the state is unknown from here
+                self.unknown_after = i + 1
+
+    def value(self, m, name: str, pc, col) -> float:
+        if self.unknown_after is not None:
+            raise m._err(pc, col, f"#<{name}>: the controller's state is not known after line {self.unknown_after} "
+                                  "(a line the reader does not follow)")
+        st, axis = self.st, TRACKED_NAMES[name]
+        if axis is None:
+            return float({"_metric": not st.inch, "_imperial": st.inch, "_absolute": not st.incremental,
+                          "_incremental": st.incremental, "_lathe_diameter_mode": st.diameter}[name])
+        v = st.pos[self.ax.words.index(axis)]
+        if not math.isfinite(v) or (axis == "X" and st.diameter):
+            raise m._err(pc, col, f"#<{name}>: the {axis} position is not known here" + (
+                " (diameter mode)" if math.isfinite(v) else " (no absolute move along it yet)"))
+        return float(v / 25.4 if st.inch and axis not in self.ax.rotary else v)

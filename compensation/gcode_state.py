@@ -190,6 +190,63 @@ def _g10(idx, st: _State, groups, by, axis_words, ax: AxisWords) -> str:
     return _g10_tool(idx, st, by, w, p, rule, vals, axis_words, ax, scale, text)
 
 
+def _g92(idx, st: _State, groups, axis_words, ax: AxisWords) -> str:
+    """``G92 X..`` (the current position reads the values: the G92 offset grows by position minus value, along
+    the axes given), ``G92.1`` (offset and stored values zero), ``G92.2`` (offset zero, stored values kept),
+    ``G92.3`` (offset from the stored values), as events (``g92``: ``(values mm/deg, position before)``;
+    ``g92.1``..``g92.3``: None) that :func:`compensation.nc_state.program_frames` adds to every work system's
+    offset. The position in program coordinates is kept known: machine axes are program + work offset + G92."""
+    code, w = groups["nonmodal"]
+    if "motion" in groups:
+        raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line")
+    if code in ("G92.2", "G92.3") and st.dialect is not None and st.dialect.name == "grbl":
+        raise _Refuse(w.start + 1, f"'{code}': grbl has G92 and G92.1 only")
+    if code != "G92":
+        if axis_words:
+            a = next(iter(axis_words.values()))
+            raise _Refuse(a.start + 1, f"axis word '{a.letter}{a.text}' with {code}")
+        new = st.g92_stored if code == "G92.3" else np.zeros_like(st.g92)
+        st.pos = st.pos + st.g92 - new  # the machine stays where it is
+        st.g92 = new.copy()
+        if code == "G92.1":
+            st.g92_stored = np.zeros_like(st.g92)
+        st.events.append((idx, w.start + 1, code.lower(), None, code))
+        return "state"
+    if not axis_words:
+        raise _Refuse(w.start + 1, "'G92' without axis words")
+    if st.incremental:
+        raise _Refuse(w.start + 1, "'G92' under G91: write G90 before the G92 line (its values are positions)")
+    scale = MM_PER_INCH if st.inch else 1.0
+    vals, pos = {}, {}
+    st.pos, st.g92 = st.pos.copy(), st.g92.copy()
+    for j, a in enumerate(ax.words):
+        if a in axis_words:
+            if not np.isfinite(st.pos[j]):
+                raise _Refuse(axis_words[a].start + 1, f"'G92 {a}{axis_words[a].text}' sets {a} from the current "
+                                                       "position, which is not known here (program an absolute move "
+                                                       "along it before)")
+            vals[a] = axis_words[a].value * (1.0 if a in ax.rotary else scale)
+            pos[a] = float(st.pos[j])
+            st.g92[j] += pos[a] - vals[a]
+            st.pos[j] = vals[a]
+    st.g92_stored = st.g92.copy()
+    st.events.append((idx, w.start + 1, "g92", (vals, pos), "G92"))
+    return "state"
+
+
+def synced_words(code, by, arc_words, col: int) -> None:
+    """The words of a ``G33``/``G33.1`` line (LinuxCNC G-code reference): ``K`` the distance per spindle
+    revolution (required, positive), ``I`` the return speed multiplier of ``G33.1`` (optional); no other
+    arc word."""
+    k = by.get("K")
+    if k is None or not k.value > 0:
+        raise _Refuse(k.start + 1 if k is not None else col, f"'{code}' needs K (the distance per spindle revolution, "
+                                                             "positive)")
+    bad = [w for a, w in arc_words.items() if a not in ("K", "I") or (a == "I" and code == "G33")]
+    if bad:
+        raise _Refuse(bad[0].start + 1, f"'{bad[0].letter}{bad[0].text}' with {code}")
+
+
 def _not_active(st: _State, p, w, text) -> None:
     """A G10 that changes the length of the tool whose offset is active: when the controller applies the new
     length (at once, or at the next ``G43``/``H``) depends on the controller and its parameters: refused."""

@@ -176,6 +176,15 @@ ALLOWED_G = {
     "G98": ("return", "canned-cycle return level: the Z before the cycle (cycles: machine-tool chains only)"),
     "G99": ("return", "canned-cycle return level: the R plane (cycles: machine-tool chains only)"),
 }
+G92_CODES = {
+    "G92": "coordinate offset: the current position reads the axis words' values (every work system shifts by "
+           "the same amount; the position along them must be known; refused under G91)",
+    "G92.1": "G92 offset cleared (and its stored values zeroed)", "G92.2": "G92 offset suspended (values kept)",
+    "G92.3": "G92 offset restored from its stored values"}
+"""LinuxCNC G-code reference ("G92 Coordinate System Offset", "G92.1, G92.2", "G92.3"), grbl v1.1 (G92, G92.1):
+read on the dialects whose ``g92_offsets`` is set (:mod:`compensation.dialects`), as events of the frames
+(:mod:`compensation.gcode_state`, :func:`compensation.nc_state.program_frames`); the G92 offset the controller
+holds at program start is taken as zero (LinuxCNC's stored 5211-5219 are refused when non-zero in a .var)."""
 UNITS_OR_CYCLE = ("lathe cycle on Fanuc, Haas, LinuxCNC; {what} input in Fanuc lathe G-code system C, Sinumerik "
                   "native, NX generic posts: no dialect here says which; post units as G20/G21")
 """``G70``/``G71``: two meanings by controller; neither is read (the message names both and the fix)."""
@@ -183,12 +192,13 @@ REFUSED_G = {
     **{g: f"{what}: not interpretable exactly (no option reads it; post the path as G1/G2/G3)" for g, what in (
         ("G5.2", "NURBS block"), ("G5.3", "NURBS block end"), ("G6.2", "NURBS block"))},
     "G5": "dialect-dependent: a spline or a machining mode", "G5.1": "dialect-dependent: a spline or look-ahead",
-    "G7": "lathe diameter mode (X would mean a diameter)", "G7.1": "cylindrical interpolation",
+    "G7": "lathe diameter mode (read with --dialect linuxcnc)", "G7.1": "cylindrical interpolation",
     "G107": "cylindrical interpolation",
 "G12": "circular pocket", "G13": "circular pocket",
     "G16": "polar coordinates", "G17.1": "UV plane", "G18.1": "WU plane", "G19.1": "VW plane",
     "G28.1": "sets the reference position", "G30.1": "sets the reference position",
-    "G31": "skip (probing)", "G33": "spindle-synchronised motion", "G33.1": "rigid tapping",
+    "G31": "skip (probing)", "G33": "spindle-synchronised motion (read with --dialect linuxcnc)",
+    "G33.1": "rigid tapping (read with --dialect linuxcnc)",
     "G38.2": "probing", "G38.3": "probing", "G38.4": "probing", "G38.5": "probing",
     "G41.1": "dynamic cutter radius compensation", "G42.1": "dynamic cutter radius compensation",
     "G43.1": "tool length offset", "G43.2": "tool length offset",
@@ -204,8 +214,8 @@ REFUSED_G = {
     **{f"G{k}": "canned cycle (as G73)" for k in range(81, 90)},
     "G87": "back boring cycle (kept on chains with X Y Z with --dialect fanuc/siemens-iso)",
     "G88": "boring cycle with a manual retract (kept on chains with X Y Z with --dialect fanuc/siemens-iso)",
-    "G92": "coordinate offset", "G92.1": "coordinate offset", "G92.2": "coordinate offset",
-    "G92.3": "coordinate offset", "G93": "inverse-time feed (a split move would change its time)",
+    **{g: "coordinate offset (read with --dialect linuxcnc or grbl, whose manuals define it)" for g in (
+        "G92", "G92.1", "G92.2", "G92.3")}, "G93": "inverse-time feed (a split move would change its time)",
 }
 ALLOWED_M = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30, 48, 49, 50, 51, 52, 53, 60}
 """M codes that move no axis (program stop/end, spindle, tool change, coolant, overrides).
@@ -261,6 +271,12 @@ class GMove:
     compensate: bool
     arc: dict | None = None
     known: np.ndarray = field(default_factory=lambda: np.ones(3, bool))  # axes known at the end
+    diameter: bool = False
+    """Read in lathe diameter mode (LinuxCNC ``G7``): its X word was a diameter (``words["X"]`` holds the radius
+    read; the writer writes X doubled)."""
+    synced: str | None = None
+    """``"G33"``/``"G33.1"``: a spindle-synchronised line (LinuxCNC), written as one line, never split (each
+    synchronised move waits for the spindle index); None otherwise."""
 
     @property
     def start_known(self) -> bool:

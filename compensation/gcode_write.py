@@ -119,6 +119,7 @@ def _written_values(row, ctrl, m: GMove, ax: AxisWords):
     vals, new = [], ctrl.copy()
     for j, rotary in enumerate(ax.is_rotary):
         s, dec = rot_fmt if rotary else lin_fmt
+        s = s * 0.5 if m.diameter and ax.words[j] == "X" else s  # a diameter written for the radius
         if m.incremental:
             txt = fmt((row[j] - ctrl[j]) / s, dec)
             new[j] = ctrl[j] + float(txt) * s

@@ -86,6 +86,8 @@ PECK_DIALECTS = ("linuxcnc",)
 RAPID_DELTA_IN = 0.010
 """LinuxCNC 2.9 G83_RAPID_DELTA (inch; ×25.4 under G21): G83 re-entry clearance and G73 chip-break retract."""
 OTHER_G = ("G90", "G91", "G98", "G99", "G17")
+SYNCED = ("G33", "G33.1")
+"""LinuxCNC's spindle-synchronised motion codes (motion group: they end a cycle mode; compensation.gcode_state)."""
 INVALIDATE_G = ("G28", "G30", "G53", "G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3",
                 "G43", "G49", "G10", "G92", "G154", *(f"G{c}" for c in range(110, 130)))
 """Codes after which the current position in program coordinates is not known to this pass."""
@@ -155,6 +157,7 @@ class _St:
         self.series = 0
         self.g01 = None  # the G0-G3 mode written before the cycle (in force again after G80 where it is group 09)
         self.keeps_g01 = False  # G80 keeps it (the cycle's moves end in it)
+        self.tapping = False  # G33.1 in force: each of its lines ends where it started (rigid tapping returns)
 
 
 def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=None,
@@ -201,7 +204,7 @@ def _line(body, st: _St, mode, dialect, lineno, holes, out_at):
     by = {w.letter: w for w in words}
     gs = [w.code for w in _codes(words)]
     cyc = [c for c in gs if c in CYCLE_CODES]
-    motion = [c for c in gs if c in ("G0", "G1", "G2", "G3", "G80")]
+    motion = [c for c in gs if c in ("G0", "G1", "G2", "G3", "G80", *SYNCED)]
     if cyc or (st.mode is not None and not motion and any(a in by for a in "XYZ")):
         if bd:
             raise _Refuse(body.index("/") + 1, "'/' (block delete) on a canned-cycle line: whether the hole is "
@@ -256,14 +259,15 @@ def _track(words, by, gs, motion, st: _St):
             st.pos[:] = np.nan
             st.why_unknown = c
     if motion:
+        st.tapping = motion[-1] == "G33.1"
         st.mode = None
         st.sticky = {}
         st.series_g99 = False
         st.initial = math.nan
     if "F" in by:
         st.feed = by["F"].text
-    if any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs):
-        return  # the words are a via point, machine coordinates or data: the position stays unknown
+    if any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs) or st.tapping:
+        return  # a via point, machine coordinates or data (the position stays unknown), or a tap that returned
     for j, a in enumerate("XYZ"):  # after G43/G49 or a work system only absolute words are known again
         if a in by and (not st.inc or math.isfinite(st.pos[j])):
             st.pos[j] = st.pos[j] + by[a].value if st.inc else by[a].value

@@ -47,6 +47,7 @@ from dataclasses import dataclass
 from errormap.io import InputError
 
 from .nc_modal import ModalTracker
+from .nc_flow import PREDEFINED_READ
 from .nc_flow import (MAX_CALL_DEPTH,  # noqa: F401  (re-exported: the documented call-depth bound)
                       _Frame, _Return, assign, call_statement, evaluate, o_statement)
 
@@ -145,24 +146,26 @@ def needs_expansion(data: bytes) -> bool:
     return any(w in low for w in _MARK_WORDS) or _M7X_BYTES.search(low) is not None
 
 
-def expand_if_needed(data: bytes, path, dialect: str | None = None) -> Expanded | None:
+def expand_if_needed(data: bytes, path, dialect: str | None = None, state=None) -> Expanded | None:
     """:func:`expand_program` of a program's bytes where they hold any mark (:func:`needs_expansion`)
     and the expansion changes the text; None otherwise (the program is read as it is)."""
     if not needs_expansion(data):
         return None
     text = data.decode("latin-1")
-    exp = expand_program(text, path, dialect)
+    exp = expand_program(text, path, dialect, state)
     return None if exp.text == text else exp
 
 
-def expand_program(text: str, path, dialect: str | None = None) -> Expanded:
+def expand_program(text: str, path, dialect: str | None = None, state=None) -> Expanded:
     """Expand ``text`` (a whole program, Latin-1 decoded) read from ``path`` (named in refusals).
 
     ``dialect``: one of :data:`DIALECTS` or None (told from content: LinuxCNC O-codes or named
-    parameters make it ``linuxcnc``, Fanuc calls or macro statements ``fanuc``)."""
+    parameters make it ``linuxcnc``, Fanuc calls or macro statements ``fanuc``). ``state``: a class
+    ``(dialect, text)`` that follows the lines written and answers ``#<_x>``, ``#<_metric>`` …
+    (:class:`compensation.gcode_classify.ProgramState`; None: those are refused as run-time state)."""
     if dialect is not None and dialect not in DIALECTS:
         raise ValueError(f"Expected dialect in {list(DIALECTS)} or None, got {dialect!r}")
-    return _Machine(text, str(path), dialect).run()
+    return _Machine(text, str(path), dialect, state).run()
 
 
 # ---------------------------------------------------------------------------- parsing one line
@@ -489,7 +492,7 @@ def _detect(stmts) -> str | None:
 class _Machine:
     """The controller's interpreter of the control language (module docstring), run once."""
 
-    def __init__(self, text: str, path: str, dialect):
+    def __init__(self, text: str, path: str, dialect, state=None):
         self.path, self.text = path, text
         self.lines = text.split("\n")
         self.endings = ["\n"] * (len(self.lines) - 1) + [""]
@@ -511,6 +514,7 @@ class _Machine:
         self.executed = 0
         self.calls = ()
         self.modal = ModalTracker() if _M7X_BYTES.search(text.lower().encode("latin-1")) else None
+        self.state = state(given, text) if state is not None and PREDEFINED_READ.search(text) else None
         self._index()
 
     # -- structure
@@ -558,6 +562,8 @@ class _Machine:
             new = self.modal.line(self, i, line)
             if new != line:
                 text = new
+        if self.state is not None:
+            self.state.line(i, self.lines[i] if text is None else text)
         if text is None:
             self.out.append(self.lines[i] + self.endings[i])
             self.origin.append((i + 1, True, tuple(c + 1 for c in self.calls)))

@@ -7,6 +7,7 @@ Every function takes the running interpreter (``nc_expand._Machine``) ``m``, the
 from __future__ import annotations
 
 import math
+import re
 
 MAX_CALL_DEPTH = 32
 """Nested calls (subprograms, macros, subroutines): more is refused as runaway recursion
@@ -56,6 +57,16 @@ PREDEFINED_NAMES = {"_x", "_y", "_z", "_a", "_b", "_c", "_u", "_v", "_w", "_curr
 """LinuxCNC's predefined named parameters: run-time state of the controller, never the program's."""
 
 
+TRACKED_NAMES = {"_x": "X", "_y": "Y", "_z": "Z", "_a": "A", "_b": "B", "_c": "C", "_u": "U", "_v": "V", "_w": "W",
+                 "_metric": None, "_imperial": None, "_absolute": None, "_incremental": None,
+                 "_lathe_diameter_mode": None}
+"""Predefined parameters the program itself determines (LinuxCNC G-code reference, "Predefined Named Parameters":
+``#<_x>`` … the current position in the current coordinate system, in the current units; ``#<_metric>`` …
+the modes, 1 or 0): read from the lines written before, in the order they run (:class:`ProgramState`)."""
+PREDEFINED_READ = re.compile(r"#\s*<\s*_(?:[xyzabcuvw]|metric|imperial|absolute|incremental|lathe_diameter_mode)\s*>",
+                             re.IGNORECASE)
+
+
 # ---------------------------------------------------------------------------- parameters
 def _controller_state(idx: int) -> str:
     for lo, hi, what in CONTROLLER_PARAMETERS:
@@ -82,6 +93,8 @@ def read_named(m, name: str, pc, fr, col) -> float:
     table = m.gnamed if name.startswith("_") else fr.named
     if name in table:
         return table[name]
+    if name in TRACKED_NAMES and getattr(m, "state", None) is not None:
+        return m.state.value(m, name, pc, col)
     if name in PREDEFINED_NAMES:
         raise m._err(pc, col, f"#<{name}> is the controller's run-time state (a predefined parameter): its value "
                               "is known only at run time")

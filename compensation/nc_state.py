@@ -338,6 +338,7 @@ class _Controller:
         # (never machine zero: --work-offsets machine says so explicitly; refuse_unknown_frames refuses the rest)
         self.system, self.tool, self.cutter = "G54", None, None
         self.used_systems, self.used_tools = set(), set()
+        self.g92, self.g92_stored = np.zeros(len(words)), np.zeros(len(words))  # G92 offset: added to every system
 
     def offset(self) -> np.ndarray:
         if self.system not in self.table:
@@ -346,8 +347,21 @@ class _Controller:
 
     def frame(self) -> tuple:
         """(offset (k,), tool length mm or NaN, cutter radius mm or NaN) now."""
-        return (self.offset(), self.tooltab[self.tool] if self.tool is not None else np.nan,
+        return (self.offset() + self.g92, self.tooltab[self.tool] if self.tool is not None else np.nan,
                 self.radii[self.cutter] if self.cutter is not None else np.nan)
+
+    def g92_event(self, kind, value) -> None:
+        """``G92`` (``value``: values and the position before, program mm/deg): the offset grows by position minus
+        value along those axes; ``G92.1`` zero (stored too), ``G92.2`` zero, ``G92.3`` the stored values."""
+        if kind == "g92":
+            vals, pos = value
+            for a, v in vals.items():
+                self.g92[list(self.words).index(a)] += pos[a] - v
+            self.g92_stored = self.g92.copy()
+        else:
+            self.g92 = self.g92_stored.copy() if kind == "g92.3" else np.zeros(len(self.words))
+            if kind == "g92.1":
+                self.g92_stored = np.zeros(len(self.words))
 
     def select_system(self, value, where) -> None:
         offsets, table = self.offsets, self.table
@@ -428,6 +442,7 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     ``G10`` lines before it."""
     path, words = program.path, program.axis_words.words
     events = list(getattr(program, "events", ()) or ())
+    _refuse_set_from_compensated(program, events)
     c = _Controller(path, words, offsets, tools)
     first, frames = [0], [c.frame()]
     select = {"system": c.select_system, "tool": c.select_tool, "cutter": c.select_cutter}
@@ -438,6 +453,8 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
         elif kind.startswith("g10-"):
             c.g10(kind, value, where)
             c.check_active(where)
+        elif kind.startswith("g92"):
+            c.g92_event(kind, value)
         first.append(line)
         frames.append(c.frame())
     notes = {"work_offsets": offsets.source if offsets else "program G10 lines",
@@ -447,10 +464,34 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     notes["offsets_mm_deg"] = {s: [float(v) for v in _offset_vector(c.table.get(s, {}), words)]
                                for s in sorted(c.used_systems)}
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
+    notes["g92_lines"] = [e[0] + 1 for e in events if e[2].startswith("g92")]
     notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
     offs, tls, rads = zip(*frames)
     return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
                          np.array(tls, dtype=float), notes, np.array(rads, dtype=float))
+
+
+FROM_POSITION = ("g92", "g10-here", "g10-tool-here")
+"""Events whose offset the controller takes from its current position (``G92``, LinuxCNC ``G10 L20``/``L10``/
+``L11``): running the written program, that position is the written end of the move before."""
+
+
+def _refuse_set_from_compensated(program, events) -> None:
+    """Refuse an offset set from the current position right after a compensated move: the controller would
+    take it from the compensated position (micrometres off the programmed one) and shift every later move by
+    that much. After a move written unchanged (a ``G0`` kept by ``--rapids keep``) the two are the same."""
+    t = program.table
+    if t is not None:
+        lines, comp = np.asarray(t.line), np.asarray(t.compensate, dtype=bool)
+    else:
+        lines = np.array([m.index for m in program.moves], dtype=np.int64)
+        comp = np.array([m.compensate for m in program.moves], dtype=bool)
+    for line, col, kind, _, text in events:
+        k = int(np.searchsorted(lines, line)) - 1
+        if kind in FROM_POSITION and k >= 0 and comp[k]:
+            raise InputError(f"{program.path}: line {line + 1}, column {col}: '{text}' takes its offset from the current "
+                             f"position, the end of the compensated move of line {int(lines[k]) + 1} (every later "
+                             "move would shift by its correction): reach it by a G0 kept with --rapids keep")
 
 
 def _set_offset(table, name, vals, words, offsets) -> None:

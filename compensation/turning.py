@@ -59,6 +59,20 @@ def spindle_turning(lines, spindle: dict) -> np.ndarray:
     return out
 
 
+def _refuse_x_by_parameter(prog) -> None:
+    """A lathe program of a dialect whose X is a diameter or a radius by a machine parameter
+    (:attr:`compensation.dialects.Dialect.lathe_x_by_parameter`): its first X word is refused."""
+    from .dialects import DIALECTS
+    if not getattr(DIALECTS.get(prog.dialect), "lathe_x_by_parameter", False):
+        return
+    m = next((m for m in prog.moves if "X" in m.words), None)
+    if m is not None:
+        w = m.words["X"]
+        raise InputError(f"{prog.path}: line {m.index + 1}, column {w.start + 1}: 'X{w.text}': on a {prog.dialect} lathe X "
+                         "is a diameter or a radius by a machine parameter, not a word of the program: not read "
+                         "(LinuxCNC's G7/G8 say it: --dialect linuxcnc)")
+
+
 def parse_lathe_program(path, machine, rapids, block_delete, dialect=None) -> tuple[GProgram, np.ndarray]:
     """A program for a machine with a ``[spindle]``: ``(program, turning)`` with ``turning`` (n_moves,) per
     move of ``program.moves`` (module docstring)."""
@@ -67,10 +81,13 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None) -> tu
     xz = AxisWords(machine.name, tuple(w for w in full.words if w != c), tuple(r for r in full.rotary if r != c))
     try:
         prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect)
+        _refuse_x_by_parameter(prog)
         return prog, np.ones(len(prog.moves), dtype=bool)
-    except InputError:
-        pass  # it has C words (or another refusal, which the full reading names)
+    except InputError as exc:
+        if f"no {c} axis" not in str(exc):
+            raise  # a program without C words: the reading that applies to it names the refusal
     prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=full, dialect=dialect)
+    _refuse_x_by_parameter(prog)
     flags = spindle_turning(prog.lines, machine.spindle)
     turning = np.array([flags[m.index] for m in prog.moves], dtype=bool)
     if not turning.any():

@@ -69,7 +69,7 @@ REFUSED = [
     ("G21\nG0 X0 Y0 Z0\nG1 X[#5420 + 1] Y0\n", "line 3, column 6: #5420 (current position)"),
     ("G21\no1 if [#<_current_tool> EQ 3]\nG0 X1 Y0 Z0\no1 endif\n",
      "line 2, column 8: #<_current_tool> is the controller's run-time state"),
-    ("G21\nG0 X#<_x> Y0 Z0\n", "line 2, column 5: #<_x> is the controller's run-time state"),
+    ("G21\nG0 X#<_x> Y0 Z0\n", "line 2, column 5: #<_x>: the X position is not known here"),
     ("G21\nG0 X#<depth> Y0 Z0\n", "line 2, column 5: #<depth> is not set by the program"),
     ("G21\n#500 = #500 + 1\nG0 X#500 Y0 Z0\n", "line 2, column 8: #500 is controller state"),
     ("G21\n#5221 = 10\nG0 X0 Y0 Z0\n", "line 2, column 1: #5221 = ...: #5221 (work offset"),

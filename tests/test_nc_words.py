@@ -60,13 +60,23 @@ def test_linuxcnc_l20_sets_the_offset_so_the_current_position_reads_the_values(t
     machine (210, 110, -20); 'G10 L20 P2 X0 Y0' -> G55 X 210, Y 110 (Z unchanged); the next move is read in
     the new frame without a new absolute position (the current position reads X0 Y0)."""
     text = ("G21 G90 G55 G43 H1\nG0 X10 Y10\nG0 Z-20\nG10 L20 P2 X0 Y0\nG91 G1 X5 F100\nG90 X7 Y3 Z-30\n"
-            "G10 L20 P1 Z2\nG54\nG0 X0 Y0 Z0\nG1 X1\nM2\n")
+            "G0 X7 Y3 Z-30\nG10 L20 P1 Z2\nG54\nG0 X0 Y0 Z0\nG1 X1\nM2\n")  # the kept G0: see the next test
     _, moves, off, tool = _frames(tmp_path, ax, text, "linuxcnc")
     assert moves[0].end[0] == 5.0 and moves[0].start[0] == 0.0  # incremental from the position that reads X0
     assert np.abs(off[0] - [210, 110, -150]).max() < TOL_MM and np.abs(off[1] - [210, 110, -150]).max() < TOL_MM
     # G10 L20 P1 Z2 at program Z -30 in G55 with tool 1: machine Z = -30 - 150 + 150 = -30 -> G54 Z = -30 - 150 - 2
     # (the tool length is the same on both sides: it cancels)
     assert np.abs(off[-1] - [0, 0, -30 - 150 - 2]).max() < TOL_MM and tool[-1] == 150.0
+
+
+def test_an_offset_set_from_the_position_after_a_compensated_move_is_refused(tmp_path, ax):
+    """Running the written program, G10 L20 takes the offset from the compensated end of the move before it
+    (micrometres off the programmed point) and shifts every later move by that: refused, naming the G0 that
+    makes the two the same (the test above writes it)."""
+    text = "G21 G90 G55\nG0 X10 Y10 Z-20\nG1 X7 Y3 Z-30 F100\nG10 L20 P1 Z2\nG54\nG0 X0 Y0 Z0\nG1 X1\nM2\n"
+    with pytest.raises(InputError, match=r"line 4, column 1: 'G10 L20 P1' takes its offset from the current position, "
+                                         r"the end of the compensated move of line 3 .*--rapids keep"):
+        _frames(tmp_path, ax, text, "linuxcnc")
 
 
 def test_l20_p0_is_the_active_system_on_linuxcnc(tmp_path, ax):
