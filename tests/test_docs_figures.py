@@ -1,5 +1,5 @@
 """The explanation pages' pictures: tools/docs_figures.py makes exactly the images the pages show, each page shows
-at least one, and every committed PNG is small. The heavy generation is not run here (about 3 CPU minutes of
+at least one, and every committed PNG is small. The heavy generation is not run here (about a CPU minute of
 volcomp runs): only the script's list is read."""
 from __future__ import annotations
 

@@ -33,6 +33,18 @@ def test_product_pages_name_no_build_history():
     assert not hits, hits
 
 
+SHARED_PATH = re.compile(r"\.\./shared\b|/work/shared\b|\bshared/data\b")
+"""The development data folder beside the repository: a docs page never points into it (a figure drawn from it is a
+committed PNG; tools/docs_figures.py takes its path as an option)."""
+
+
+def test_docs_never_reference_the_development_data_folder():
+    hits = [f"{p.relative_to(ROOT)}:{i}: {m.group(0)!r}" for p in sorted((ROOT / "docs").rglob("*.md"))
+            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+            for m in SHARED_PATH.finditer(line)]
+    assert not hits, hits
+
+
 def test_every_page_is_in_the_navigation():
     nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
     pages = [p.relative_to(ROOT / "docs").as_posix() for p in (ROOT / "docs").rglob("*.md")]

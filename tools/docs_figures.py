@@ -4,7 +4,7 @@ Every figure comes from the ``volcomp`` commands a user runs (called in-process 
 ``compensation.app.cli.main`` in a scratch folder, fixed seeds) and the files they write; the two diagrams
 (the chain of a machine file, the layers of the code) are drawn from the machine file and the package list.
 
-    python tools/docs_figures.py --thermal-log LOG.csv            # every figure (about 3 CPU minutes)
+    python tools/docs_figures.py --thermal-log LOG.csv            # every figure (about 1 CPU minute)
     python tools/docs_figures.py --only closed-loop-stages        # one figure (the drift one needs --thermal-log)
 
 ``--thermal-log``: a drift log (``volcomp diagnose --drift`` schema) of a real machine; the drift figure is
