@@ -2,7 +2,8 @@
 
 Every figure comes from the ``volcomp`` commands a user runs (called in-process through
 ``compensation.app.cli.main`` in a scratch folder, fixed seeds) and the files they write; the two diagrams
-(the chain of a machine file, the layers of the code) are drawn from the machine file and the package list.
+(the chain of a machine file, the layers of the code) are drawn from the machine file and the package list. Every
+run is seeded (``--seed``), so the PNGs repeat byte for byte on one machine.
 
     python tools/docs_figures.py --thermal-log LOG.csv            # every figure (about 1 CPU minute)
     python tools/docs_figures.py --only closed-loop-stages        # one figure (the drift one needs --thermal-log)
@@ -45,8 +46,8 @@ FIGURES = {
 
 # -- running volcomp -------------------------------------------------------------------------------
 def volcomp(line: str) -> str:
-    """Run one ``volcomp ...`` line in-process; its printed text (a non-zero status other than a failed
-    verdict stops the script)."""
+    """Run one ``volcomp ...`` line in-process; its printed text. A non-zero status stops the script (a failed
+    verdict included: a figure is drawn only from a run that passed)."""
     from compensation.app.cli import main
     out = io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
@@ -343,8 +344,6 @@ def main(argv=None) -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import matplotlib
     matplotlib.use("Agg")
-    import numpy as np
-    np.random.seed(0)   # nothing here draws from it; the runs are seeded by their --seed
     if args.thermal_log:
         args.thermal_log = str(Path(args.thermal_log).resolve())
     with tempfile.TemporaryDirectory(prefix="volcomp-docs-figures-") as tmp:
