@@ -18,6 +18,13 @@ HISTORY_WORDS = re.compile(
 """Words of the build history: a numbered round ("round 11", "rounds 4-6", "this round"), an issue number, "this
 session" (a working session). A measurement session of an arm (its own tracker set-up: the `session` column of a pose
 file) is a word of the product. "Round" as a word of the product stays: round-off, a retry round, the ROUND function of a G-code dialect."""
+BUILD_PHRASES = re.compile(
+    r"\bmain's\b|\bcopy of main\b|\bformer(?:ly)?\b|\bused to (?:be|grow|write|run|take|give|read|hold)\b"
+    r"|\bwritten before (?:this rule|the \w+ (?:existed|was))\b|\bnot yet run on\b|\bwas no(?:t)? yet\b"
+    r"|\bstable; add, don't rename\b", re.I)
+"""Phrases of the build history on a product page: the main branch ("main's targets", "a copy of main"), what the
+product was ("the former kernel", "used to grow", "files written before this rule"), a note to developers ("stable;
+add, don't rename"). A product page says what the product does; how it came to do it is a decision record."""
 CITED_TITLE = re.compile(r'BENCHMARKS\.md, "[^"]*"')
 """A section of BENCHMARKS.md cited by its title, verbatim (that page is not a product page)."""
 
@@ -29,7 +36,20 @@ def _product_pages():
 def test_product_pages_name_no_build_history():
     hits = [f"{p.relative_to(ROOT)}:{i}: {m.group(0)!r}" for p in _product_pages()
             for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
-            for m in HISTORY_WORDS.finditer(CITED_TITLE.sub("", line))]
+            for pattern in (HISTORY_WORDS, BUILD_PHRASES)
+            for m in pattern.finditer(CITED_TITLE.sub("", line))]
+    assert not hits, hits
+
+
+SHARED_PATH = re.compile(r"\.\./shared\b|/work/shared\b|\bshared/data\b")
+"""The development data folder beside the repository: a docs page never points into it (a figure drawn from it is a
+committed PNG; tools/docs_figures.py takes its path as an option)."""
+
+
+def test_docs_never_reference_the_development_data_folder():
+    hits = [f"{p.relative_to(ROOT)}:{i}: {m.group(0)!r}" for p in sorted((ROOT / "docs").rglob("*.md"))
+            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+            for m in SHARED_PATH.finditer(line)]
     assert not hits, hits
 
 
