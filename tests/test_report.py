@@ -15,9 +15,10 @@ from compensation.app.workflows.compare import compare_methods, subset_index
 from compensation.solvers import solve
 from compensation.toolpath import flute_path
 from errormap.io import InputError
-from errormap.htm import HTMField
-from errormap.kinematics import forward
-from errormap.simulator import random_truth
+from errormap.chain_field import ChainField
+from errormap.chain_kernel import NominalChain
+from errormap.chain_truth import make_mt_truth
+from errormap.grinder_file import machine_tool_of
 
 TOL_UM = 1e-6
 MIN_TURN_CORRELATION = 0.95  # between the traditional residual's profiles on successive turns
@@ -26,7 +27,12 @@ METRIC_KEYS = {"model_max_um", "model_mean_sq_um2", "true_max_um", "seconds", "p
 
 @pytest.fixture(scope="module")
 def truth(grinder):
-    return random_truth(grinder, 11)
+    return make_mt_truth(machine_tool_of(grinder), 11)
+
+
+def HTMField(machine, elements):
+    """The error field of ``elements`` on ``machine``'s chain (every machine tool's field)."""
+    return ChainField(machine_tool_of(machine), elements)
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +42,7 @@ def flute():
 
 def test_true_residual_of_nominal_commands_is_the_truth_error(grinder, truth, flute):
     ax = flute.axes(grinder)
-    r = true_residual_um(truth, ax, forward(grinder, ax))
+    r = true_residual_um(truth, ax, NominalChain(machine_tool_of(grinder)).forward(ax))
     assert np.abs(r - truth.spatial_error(ax, **truth.default_conditions(len(ax)))).max() < TOL_UM
     s = residual_metrics(r, "true")
     assert s["true_max_sq_um2"] == pytest.approx(s["true_max_um"] ** 2)
@@ -137,7 +143,7 @@ def test_load_truth_from_folder_and_file(tmp_path, grinder):
     sim = tmp_path / "sim"
     assert main(["simulate", "--seed", "5", "--out", str(sim), "--checks", "10", "--effect", "worm"]) == 0
     t = load_truth(sim, grinder)
-    assert set(t.effects) == {"worm"} and t.seed == 5
+    assert set(t.effects) == {"harmonic:A"} and t.seed == 5   # the simulator's worm: the chain's harmonic on A
     assert load_truth(sim / "truth_elements.json", grinder).effects == {}
     with pytest.raises(InputError, match="no such"):
         load_truth(tmp_path / "nothing", grinder)
@@ -146,3 +152,29 @@ def test_load_truth_from_folder_and_file(tmp_path, grinder):
 def test_report_cli_bad_methods(tmp_path, capsys):
     rc = main(["report", "--model", "x.json", "--flute", "--methods", "traditional,magic", "--out", str(tmp_path)])
     assert rc == 2 and "magic" in capsys.readouterr().err
+
+
+EXACT_MODEL_TOL_UM = 1e-6   # the exact solver's own residual (it iterates to ~1e-9 um)
+
+
+def test_report_runs_on_a_machine_tool_chain(tmp_path, capsys):
+    """The comparison on mill-xyz through the same solvers: a CSV of its axis columns, the truth of simulate
+    --machine with an effect the model lacks (periodic on X), so exact's TRUE residual is the effect and the
+    plain baseline (uncompensated) is far above it."""
+    from errormap.machine import load_machine
+    sim, out = tmp_path / "sim", tmp_path / "rep"
+    assert main(["simulate", "--machine", "mill-xyz", "--seed", "2", "--checks", "20", "--effect", "periodic",
+                 "--out", str(sim)]) == 0
+    m = load_machine("mill-xyz")
+    u = np.linspace(0.2, 0.8, 30)[:, None]
+    path = tmp_path / "p.csv"
+    path.write_text(",".join(m.axis_columns) + "\n" + "\n".join(
+        ",".join(f"{v:.6f}" for v in row) for row in m.stroke_lo + (m.stroke_hi - m.stroke_lo) * u) + "\n")
+    assert main(["report", "--machine", "mill-xyz", "--model", str(sim / "truth_elements.json"), "--path", str(path),
+                 "--truth", str(sim), "--methods", "traditional,exact", "--out", str(out)]) == 0
+    capsys.readouterr()
+    met = json.loads((out / "metrics.json").read_text())
+    exact = met["methods"]["exact"]
+    assert exact["points"] == 30 and exact["model_max_um"] < EXACT_MODEL_TOL_UM < exact["true_max_um"]
+    assert exact["true_max_um"] < met["uncompensated"]["true_max_um"]
+    assert open(out / "residuals.csv").read().count("x_mm,y_mm,z_mm") == 1
