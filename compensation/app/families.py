@@ -158,7 +158,7 @@ def _same_target(*commands: str, target: str) -> dict:
     return {c: target for c in commands}
 
 
-_FLEET = Gap(NOT_YET, "a fleet file's machines are grinder files")
+_FLEET = Gap(NOT_YET, "a fleet file's machines are machine tools (identify from sweeps)")
 _DEMO = Gap(NOT_YET, "the demo's part is the grinder's flute")
 _BY_POSES = "{given}: only arms and parallel machines are simulated by poses (machine tools: --checks)"
 _IDENTIFY = Gap(OTHER_PATH, "calibrate (poses)")
@@ -174,9 +174,9 @@ _CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: 
 GRINDER = Family(
     name="machine tool", column="Grinder",
     kinds={"grinder": Facts(tracker_sweeps=True, gcode=True)},
-    targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "fleet", "demo",
+    targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "demo",
                             "identify", "benchmark", target="grinder"),
-             **_same_target("compensate", "export", "diagnose", "report", target="machine tool")},
+             **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
     gaps={"calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
           "interpolate": Gap(OTHER_PATH, "compensate (axis programs)"),
@@ -191,9 +191,9 @@ CHAIN = Family(
     kinds={"machine-tool": Facts(tracker_sweeps=True, gcode=True, chain=True)},
     targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "identify", "benchmark",
                             target="chain"),
-             **_same_target("compensate", "export", "diagnose", "report", target="machine tool"),
+             **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool"),
              "report run": "chain"},
-    gaps={"fleet": _FLEET, "demo": _DEMO,
+    gaps={"demo": _DEMO,
           "calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify"),
           "interpolate": Gap(OTHER_PATH, "compensate")},
