@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from compensation.hybrid import INPUT_SETS, LearnedResidual, _fit_inputs, input_features, work_features
+from compensation.hybrid import INPUT_SETS, LearnedResidual, input_features, work_features
+from compensation.hybrid.stage import _fit_inputs
 from errormap.kinematics import forward
 from errormap.simulator import random_axes, random_truth
 from training.residual import ResidualRegressor
