@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compensation.app.workflows.benchmark import (PATH_CONDITIONS, BenchmarkSettings, grinder_conditions,
-                                    learned_pkm_commands, measured_pose_errors, pkm_true_residual, pose_inputs,
-                                    quick_settings)
+from compensation.app.workflows.benchmark_common import PATH_CONDITIONS, BenchmarkSettings, quick_settings
+from compensation.app.workflows.benchmark_flute import grinder_conditions
+from compensation.app.workflows.benchmark_parallel import (learned_pkm_commands, measured_pose_errors, pkm_true_residual,
+                                                           pose_inputs)
 from compensation.app.reports.benchmark import render_html, summary_lines, verdicts
 from compensation.diagnosed_model import ConditionedField
 
@@ -349,7 +350,8 @@ def test_quick_benchmark_end_to_end(tmp_path):
 
 def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
     import training.trainers
-    from compensation.app.workflows.benchmark import Tracker, run_grinder
+    from compensation.app.workflows.benchmark_common import Tracker
+    from compensation.app.workflows.benchmark_flute import run_grinder
 
     def broken(*a, **k):
         raise RuntimeError("no trainer here")
@@ -426,13 +428,13 @@ def _chain_settings(**kw):
 def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
     """mill-xyz, no effect: simulate → sweeps → identify → diagnose → exact compensation of the body
     diagonals; the loop's model beats the identified set, which beats no compensation; the files stay."""
-    from compensation.app.workflows.benchmark import RowLog, Tracker, _row, _streams
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
     from compensation.app.workflows.chain_benchmark import run_chain
     from errormap.machine import load_machine
     m = load_machine("mill-xyz")
     s = _chain_settings()
     log = RowLog(Tracker(None, enabled=False))
-    skipped = run_chain(m, s, log, tmp_path, _row, _streams(s.seed), lambda msg: None)
+    skipped = run_chain(m, s, log, tmp_path, bench_row, rng_streams(s.seed), lambda msg: None)
     assert skipped == []
     before, after = log.rows
     for r in (before, after):
@@ -449,7 +451,7 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
 
 
 def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
-    from compensation.app.workflows.benchmark import RowLog, Tracker, _row, _streams
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
     from compensation.app.workflows.chain_benchmark import chain_effects, run_chain
     from errormap.machine import load_machine
     src = (Path(__file__).resolve().parents[1] / "errormap" / "machines" / "lathe-xzc.toml").read_text()
@@ -457,7 +459,7 @@ def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
     lathe = load_machine(tmp_path / "half-turn.toml")   # a C that is no full turn: no judging path
     log = RowLog(Tracker(None, enabled=False))
     s = _chain_settings()
-    skipped = run_chain(lathe, s, log, tmp_path, _row, _streams(0), lambda msg: None)
+    skipped = run_chain(lathe, s, log, tmp_path, bench_row, rng_streams(0), lambda msg: None)
     assert log.rows == [] and len(skipped) == 1 and "three linear axes" in skipped[0]["why"]
     kept, why = chain_effects(load_machine("mill-xyz"), ("thermal", "worm", "bump"))
     assert kept == [("thermal", "thermal:X")]
@@ -525,7 +527,8 @@ def test_conclusion_lines_per_check_count():
 # -- the out-of-catalogue loop: the user's path (volcomp identify → volcomp diagnose) -------------------
 def _small_bench(grinder):
     """A GrinderBench on a short flute (0.25 turn, 40 points), no volume points, no MLflow."""
-    from compensation.app.workflows.benchmark import GrinderBench, Tracker
+    from compensation.app.workflows.benchmark_common import Tracker
+    from compensation.app.workflows.benchmark_flute import GrinderBench
     s = quick_settings()
     s.volume_points, s.flute_turns, s.flute_points_per_turn, s.ga_points = 0, 0.25, 40, 8
     return GrinderBench(grinder, s, Tracker(None, enabled=False))
@@ -534,7 +537,7 @@ def _small_bench(grinder):
 def test_out_of_catalogue_loop_runs_the_users_path_and_other_loops_the_effect_search(grinder, monkeypatch):
     """On an out-of-catalogue condition the parametric base runs the user's path (both its rows: parametric
     loop and hybrid); the learned base there, and every base on a catalogue effect, the effect search."""
-    from compensation.app.workflows.benchmark import GrinderBench, GrinderCondition, grinder_truth
+    from compensation.app.workflows.benchmark_flute import GrinderBench, GrinderCondition, grinder_truth
     g = _small_bench(grinder)
     calls = []
     monkeypatch.setattr(GrinderBench, "user_loop_rows", lambda self, c, *a: calls.append(("user", c.name)))
@@ -561,8 +564,9 @@ def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_p
     parametric row the same with model.json's loop alone (no learned part); their held-out figures are the
     ones diagnosis.json reports, and the parametric loop is the element-updated one."""
     from compensation.app.cli import main
-    from compensation.app.workflows.benchmark import (EFFECTS_LOOP, USER_LOOP, GrinderCondition, _streams,
-                                                      compensate_true, condition_sweeps, grinder_truth)
+    from compensation.app.workflows.benchmark_common import EFFECTS_LOOP, USER_LOOP, rng_streams
+    from compensation.app.workflows.benchmark_flute import (GrinderCondition, compensate_true, condition_sweeps,
+                                                            grinder_truth)
     from compensation.diagnosed_model import load_diagnosed_model
     from errormap.io import write_csv
     from errormap.sweeps import SWEEP_FORMAT
@@ -579,7 +583,7 @@ def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_p
     # the same sweeps and checks through the CLI, as a user runs it
     write_csv(tmp_path / "sw.csv", condition_sweeps(s, truth, c), header_comments=[f"format: {SWEEP_FORMAT}"],
               float_fmt="%.17g")
-    cols = truth.check_measurements(n=c.n_checks, noise_um=s.check_noise_um, seed=_streams(s.seed)["checks"])
+    cols = truth.check_measurements(n=c.n_checks, noise_um=s.check_noise_um, seed=rng_streams(s.seed)["checks"])
     write_csv(tmp_path / "checks.csv", cols, header_comments=["format: volcomp-checks/1"], float_fmt="%.17g")
     boot = [] if s.identify_bootstrap is None else ["--bootstrap", str(s.identify_bootstrap)]
     assert main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "el.json"), *boot]) == 0
