@@ -409,6 +409,9 @@ def test_run_benchmark_refuses_an_unknown_kind_before_any_work(tmp_path):
 
 # -- machine-tool chains ---------------------------------------------------------------------------
 CHAIN_MIN_GAIN = 5.0
+LEARNED_MIN_GAIN = 2.0
+"""The quick settings' network (60 LM iterations, 8-8) on a chain is judged only to compensate: its TRUE RMS at
+least halves the uncompensated one (the parametric rows are judged by CHAIN_MIN_GAIN)."""
 """The identified mill (sweeps at 1 um) must leave at most a fifth of the uncompensated TRUE error on the
 diagonals (seed 0: 5.0 um of 114 um, a gain of 23; a fifth leaves room for another truth draw)."""
 CHAIN_HELD_OUT_OVER_FLOOR = 1.5
@@ -436,7 +439,10 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
     log = RowLog(Tracker(None, enabled=False))
     skipped = run_chain(m, s, log, tmp_path, bench_row, rng_streams(s.seed), lambda msg: None)
     assert skipped == []
-    before, after = log.rows
+    before, after, learned = log.rows
+    assert learned["path"] == "learned" and learned["available"] and not learned["closed_loop"]
+    assert learned["true_rms_um"] * LEARNED_MIN_GAIN < learned["uncompensated_rms_um"]
+    assert learned["train_val_rms_um"] < learned["train_baseline_ols_val_rms_um"]   # its plain baseline beside it
     for r in (before, after):
         assert r["available"] and r["machine_kind"] == "machine-tool" and r["machine"] == "mill-xyz"
         assert all(r[k] is not None for k in REQUIRED_ROW_KEYS)

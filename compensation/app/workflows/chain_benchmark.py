@@ -16,7 +16,8 @@ left in ``DIR/chains/MACHINE/CONDITION/``:
    and a face/diameter set of points at :data:`TURNING_C_POSITIONS` positions of the rotary axis);
    compensated by the
    ``exact`` chain solver with the identified element set (row *before closed loop*) and with the
-   loop's ``model.json`` (row *after closed loop*); beside it ``volume_points`` uniform random points
+   loop's ``model.json`` (row *after closed loop*), and with the chain network trained on the identified set's
+   feature points (the learned row, :func:`learned_chain_row`); beside it ``volume_points`` uniform random points
    over every axis (rotary axes kept as programmed).
 
 Residual: TRUE — the truth machine (its effects at the path's conditions :data:`PATH_TEMP_C` and the
@@ -294,7 +295,44 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
                 v = compensate_chain_true(machine, truth, _at(fld, volume.cond), volume)
                 r.update(volume_rms_um=v["true_rms_um"], volume_max_um=v["true_max_um"])
             log.add(r)
+        log.add(learned_chain_row(machine, s, truth, el_path, (path, volume), f"{cname} (before closed loop)",
+                                  {**common, "closed_loop": False}, id_s, row, note))
     return skipped
+
+
+def learned_chain_row(machine, s, truth, el_path, paths, label: str, common: dict, id_s: float, row, note) -> dict:
+    """The learned row of one condition: the identified set's feature points over the chain's axes (the
+    default grid, ``volcomp featurepoints --machine``) → the chain network (``volcomp train``: LM, ``train_iter``
+    iterations, ``train_s`` on top, the settings' network) → ``exact`` compensation of ``paths`` (the judging
+    path, the volume points or None) → TRUE residual. A network that does not beat its plain baseline (OLS on
+    the axes) is refused by the trainer: the row then says so (never faked numbers)."""
+    import math
+    from errormap.featurepoints import make_feature_points
+    from training.chain_model import fit_chain_field
+    from training.trainers import TrainSettings
+    from ...fields import load_chain_field
+    path, volume = paths
+    try:
+        fp = make_feature_points(machine, load_chain_field(el_path, machine), meta={"elements_file": str(el_path)})
+        settings = TrainSettings(max_iter=s.train_iter, max_time_s=math.inf if s.train_s is None else s.train_s,
+                                 seed=s.seed, hidden=tuple(s.hidden), activation=s.activation,
+                                 a_encoding=s.a_encoding)
+        fit = fit_chain_field(fp, machine, settings, quiet=True)
+    except Exception as exc:  # training unavailable, or no better than its baseline: said, never faked
+        return row(machine.name, machine.kind, "learned", label, available=False,
+                   not_available=f"training failed: {type(exc).__name__}: {exc}", **common)
+    note(f"{machine.name}: learned, {label}")
+    ex = compensate_chain_true(machine, truth, fit.field, path)
+    r = row(machine.name, machine.kind, "learned", label, solver="exact", fit_seconds=id_s + fit.seconds,
+            identify_seconds=id_s, train_seconds=fit.seconds, train_iterations=int(fit.history.iterations),
+            train_val_rms_um=fit.metrics.get("val_rms_um"), train_val_max_um=fit.metrics.get("val_max_um"),
+            train_baseline_ols_val_rms_um=fit.metrics.get("baseline_ols_val_rms_um"),
+            n_featurepoints=len(fp.axes), compensate_seconds_per_point=ex["seconds_per_point"],
+            true_rms_um=ex["true_rms_um"], true_max_um=ex["true_max_um"], solvers={"exact": ex}, **common)
+    if volume is not None:
+        v = compensate_chain_true(machine, truth, fit.field, volume)
+        r.update(volume_rms_um=v["true_rms_um"], volume_max_um=v["true_max_um"])
+    return r
 
 
 def _at(field_, cond: dict):
