@@ -456,6 +456,29 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
     assert (d / "diagnosis" / "model.json").is_file() and (d / "identified.cov.npz").is_file()
 
 
+@pytest.mark.slow
+def test_chain_benchmark_runs_its_loop_once_per_check_count(tmp_path):
+    """--checks N (repeatable) on a chain: one row after the closed loop per count, the same truth, each loop on
+    its own n checks (files beside the default run's), the learned row once."""
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
+    from compensation.app.workflows.chain_benchmark import run_chain
+    from errormap.machine import load_machine
+    s = _chain_settings(chain_checks=(300, 150), train_iter=5)
+    log = RowLog(Tracker(None, enabled=False))
+    assert run_chain(load_machine("mill-xyz"), s, log, tmp_path, bench_row, rng_streams(s.seed), lambda m: None) == []
+    before, a300, a150, learned = log.rows
+    assert [r["condition"] for r in (a300, a150)] == ["effect=none (after closed loop, checks=300)",
+                                                      "effect=none (after closed loop, checks=150)"]
+    assert (a300["n_checks"], a150["n_checks"]) == (300, 150) and a300["available"] and a150["available"]
+    assert a300["uncompensated_rms_um"] == a150["uncompensated_rms_um"] == before["uncompensated_rms_um"]
+    assert not before["closed_loop"] and learned["path"] == "learned"
+    d = tmp_path / "chains" / "mill-xyz" / "effect_none"
+    for n in (300, 150):
+        assert (d / f"diagnosis_checks_{n}" / "model.json").is_file()
+        assert sum(1 for ln in (d / f"sim_checks_{n}" / "checks.csv").read_text().splitlines()
+                   if ln and not ln.startswith("#")) == n + 1   # the header and n rows
+
+
 def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
     from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
     from compensation.app.workflows.chain_benchmark import chain_effects, run_chain

@@ -49,6 +49,8 @@ class BenchmarkSettings:
     # check counts of the out-of-catalogue conditions (each effect and none at every count: the learned
     # stage's estimation error against the number of checks; `volcomp benchmark --checks N`, repeatable)
     ooc_checks: tuple = (800, 150, 1600)
+    # a machine-tool chain's closed loop once per count given with `--checks N` (empty: `n_checks` alone)
+    chain_checks: tuple = ()
     # the out-of-catalogue conditions' loop runs the user's path: `volcomp identify` (smoothing, covariance
     # Gauss-Newton's, or from this many residual-bootstrap draws) → `volcomp diagnose` (workflows/measurement.py)
     identify_bootstrap: int | None = None
