@@ -35,50 +35,12 @@ The package: :mod:`.inputs` (the features and frames), :mod:`.field` (:class:`Le
 """
 from __future__ import annotations
 
-from .inputs import (  # noqa: F401
-    LINEAR_SMOOTHERS,
-    TAPER_FRAC,
-    CV_BLOCKS,
-    MIN_FIT_CHECKS,
-    MIN_HELD_CHECKS,
-    MAP_N,
-    LEARNED_FAMILIES,
-    CANDIDATE_FAMILIES,
-    axis_stem,
-    axes_feature_names,
-    axes_input_groups,
-    linear_columns,
-    FEATURE_NAMES,
-    WORK_AXES,
-    INPUT_SETS,
-    INPUT_GROUPS,
-    LEARNED_INPUTS,
-    OUTPUT_FRAMES,
-    LEARNED_FRAMES,
-    frame_key,
-    split_frame_key,
-    to_frame,
-    input_set_features,
-    input_set_groups,
-    axis_features,
-    work_features,
-    check_input_set,
-    input_features,
-)
-from .field import (  # noqa: F401
-    FORMAT,
-    LearnedResidual,
-    HybridField,
-    total_band_std,
-    learned_map,
-)
-from .stage import (  # noqa: F401
-    KEEP_Z,
-    TERM_KEEP_Z,
-    TERM_CONSISTENT_Z,
-    keeps_condition_terms,
-    REFIT_MODES,
-    BACKFIT_ROUNDS,
-    condition_term_test,
-    learned_stage,
-)
+from .inputs import (LINEAR_SMOOTHERS, TAPER_FRAC, CV_BLOCKS, MIN_FIT_CHECKS, MIN_HELD_CHECKS, MAP_N,
+                     LEARNED_FAMILIES, CANDIDATE_FAMILIES, axis_stem, axes_feature_names,
+                     axes_input_groups, linear_columns, FEATURE_NAMES, WORK_AXES, INPUT_SETS,
+                     INPUT_GROUPS, LEARNED_INPUTS, OUTPUT_FRAMES, LEARNED_FRAMES, frame_key,
+                     split_frame_key, to_frame, input_set_features, input_set_groups,
+                     axis_features, work_features, check_input_set, input_features)  # noqa: F401
+from .field import (FORMAT, LearnedResidual, HybridField, total_band_std, learned_map)  # noqa: F401
+from .stage import (KEEP_Z, TERM_KEEP_Z, TERM_CONSISTENT_Z, keeps_condition_terms, REFIT_MODES, BACKFIT_ROUNDS,
+                    condition_term_test, learned_stage)  # noqa: F401
