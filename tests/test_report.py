@@ -178,3 +178,19 @@ def test_report_runs_on_a_machine_tool_chain(tmp_path, capsys):
     assert exact["points"] == 30 and exact["model_max_um"] < EXACT_MODEL_TOL_UM < exact["true_max_um"]
     assert exact["true_max_um"] < met["uncompensated"]["true_max_um"]
     assert open(out / "residuals.csv").read().count("x_mm,y_mm,z_mm") == 1
+
+
+def test_a_truth_effect_the_chain_does_not_carry_is_refused_naming_file_and_key(tmp_path, grinder):
+    """A truth.json without a format key (a grinder file's simulate folder) is read on the grinder's chain, its
+    effects as the chain's kinds (worm = harmonic on A, the stroke fractions renamed); an effect the chain's truth
+    cannot carry is refused naming the file and the key, never dropped."""
+    t = make_mt_truth(machine_tool_of(grinder), 4)
+    t.elements.save(tmp_path / "truth_elements.json")
+    (tmp_path / "truth.json").write_text(json.dumps(
+        {"seed": 4, "effects": {"worm": {"amplitude_urad": 90.0, "teeth": 40, "phase_rad": 1.1},
+                                "bump": {"amplitude_um": 8.0, "x_frac": 0.6, "z_frac": 0.4, "width_frac": 0.18}}}))
+    got = load_truth(tmp_path, grinder)
+    assert got.effects["harmonic:A"]["amplitude_urad"] == 90.0 and got.effects["bump:X*Z"]["q_frac"] == 0.4
+    (tmp_path / "truth.json").write_text(json.dumps({"seed": 4, "effects": {"a_tilt": {"k_urad": 120.0}}}))
+    with pytest.raises(InputError, match=r"truth.json: key 'effects', 'a_tilt'"):
+        load_truth(tmp_path, grinder)

@@ -43,7 +43,8 @@ def register(sub):
     src.add_argument("--path", help="tool-path file (CSV or G-code)")
     src.add_argument("--flute", action="store_true", help="the built-in variable-helix flute path")
     p.add_argument("--truth", default=None,
-                   help="simulate folder (truth_elements.json + truth.json) or element-set file: adds the TRUE residual")
+                   help="simulate folder (or its truth.json) or truth element set, on the machine's chain: adds the TRUE "
+                        "residual")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (required unless RUN is given)")
     add_units_option(p, "CSV tool-path columns")
