@@ -19,7 +19,7 @@ from compensation.app.validate import UsageError
 
 from ...evaluate import load_truth
 from ...fields import FAILED_VERDICT, check_verdict, load_field, resolve_model
-from ...nc_state import MACHINE, read_work_offsets
+from ...nc_state import read_work_offsets
 from ..families import family_of
 from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
 from ..reports.methods import print_table, write_report
@@ -48,9 +48,10 @@ def register(sub):
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (required unless RUN is given)")
     add_units_option(p, "CSV tool-path columns")
-    p.add_argument("--work-offsets", default=None, choices=("machine",),
-                   help="'machine': the --path G-code program is written in machine coordinates (recorded in the "
-                        "report); a G-code program is refused without it (never an assumed machine zero)")
+    p.add_argument("--work-offsets", default=None, metavar="FILE|machine",
+                   help="the controller's work offsets of a --path G-code program, as compensate reads them (a LinuxCNC "
+                        ".var or a CSV, by content); 'machine': the program is written in machine coordinates (recorded "
+                        "in the report); a G-code program is refused without it (never an assumed machine zero)")
     p.add_argument("--allow", action="append", default=[], choices=(FAILED_VERDICT,),
                    help=f"{FAILED_VERDICT}: compare methods with a model whose diagnosis verdict failed (refused by "
                         "default); recorded in metrics.json and on the page")
@@ -131,7 +132,7 @@ def _tool_path(args, mt):
     from errormap.chain_kernel import NominalChain
     from ..workflows.compensate import CompensateSettings
     from ..workflows.compensate_paths import read_tool_path
-    offsets = read_work_offsets(MACHINE) if getattr(args, "work_offsets", None) == MACHINE else None
+    offsets = read_work_offsets(args.work_offsets) if args.work_offsets is not None else None
     s = CompensateSettings(method="exact", model=str(args.model), out_dir=Path(args.out), units=args.units,
                            work_offsets=offsets, max_segment_mm=None)
     tp = read_tool_path(args.path, mt, s)
@@ -173,7 +174,7 @@ def run(args) -> int:
         context["model verdict"] = (f"FAILED ({verdict['file']}), used with --allow {FAILED_VERDICT}: "
                                     + ("; ".join(verdict["reasons"]) or "no reasons recorded"))
     if "work_offsets" in path_info:
-        context["work offsets"] = f"{path_info['work_offsets']} (--work-offsets machine: in machine coordinates)"
+        context["work offsets"] = f"{path_info['work_offsets']} (--work-offsets)"
     paths = write_report(cmp, Path(args.out), context=context)
     print_table(cmp)
     for k, path in paths.items():   # html, metrics, residuals (+ residuals_<method> of a method run on a subset)
