@@ -65,7 +65,7 @@ class Comparison:
     baseline_true_um: np.ndarray | None
     turn_of_point: np.ndarray
     info: dict = field(default_factory=dict)
-    columns: tuple = ("x_mm", "z_mm", "a_deg")
+    columns: tuple = ()
 
     def metrics(self) -> dict:
         return {"format": REPORT_FORMAT, "residuals": dict(RESIDUAL_DEFINITIONS),
