@@ -45,8 +45,8 @@ def _grinder_tools():
     from errormap import machine
     m = load_machine()
     if hasattr(machine, "Grinder"):   # the tree before: the grinder's own field and kinematics modules
-        from errormap.htm import HTMField as Field
-        from errormap.kinematics import forward
+        from errormap.chain_field import ChainField as Field
+        from errormap.chain_kernel import forward
     else:
         from errormap.chain_field import ChainField as Field
         from errormap.chain_kernel import forward

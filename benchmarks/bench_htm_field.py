@@ -43,7 +43,7 @@ def _numpy_chain(machine, axes, values, chunk):
     return machine.spatial_error(axes, values, chunk=min(chunk, 4096))
 
 
-class ReferenceHTMField(ChainField):
+class ReferenceChainField(ChainField):
     """The exact HTM field as it was before issue 20: per-element splines, matrix chain, no Jacobian.
 
     ``exact_chain(machine, axes, values, chunk)`` is the numpy matrix chain: the hand-written one of
@@ -89,7 +89,7 @@ def run_seed(seed, points, repeats, solve_points, baseline_root=None):
     if baseline_root:
         from baseline import baseline_module
         old_htm = baseline_module(baseline_root, "htm")
-    ref = ReferenceHTMField(m, el, old_htm.spatial_error_exact_chain if old_htm else _numpy_chain)
+    ref = ReferenceChainField(m, el, old_htm.spatial_error_exact_chain if old_htm else _numpy_chain)
     new = ChainField(m, el)
     new.predict(axes[:10]), ref.predict(axes[:10])  # compile / build splines outside the timing
     t_ref, e_ref = _median_time(lambda: ref.predict(axes), repeats)
@@ -97,7 +97,7 @@ def run_seed(seed, points, repeats, solve_points, baseline_root=None):
     t_jac, (_, j_new) = _median_time(lambda: new.predict_and_jacobian(axes), repeats)
     old = {}
     if old_htm is not None:
-        hand = old_htm.HTMField(m, el)
+        hand = old_htm.ChainField(m, el)
         hand.predict(axes[:10]), hand.predict_and_jacobian(axes[:10])
         t_hv, e_h = _median_time(lambda: hand.predict(axes), repeats)
         t_hj, (_, j_h) = _median_time(lambda: hand.predict_and_jacobian(axes), repeats)

@@ -175,14 +175,14 @@ class _learned_families:
         self.families = families
 
     def __enter__(self):
-        from compensation import hybrid
+        from compensation.hybrid import stage as hybrid   # the learned stage reads its defaults there
         self.old = hybrid.LEARNED_FAMILIES
         if self.families is not None:
             hybrid.LEARNED_FAMILIES = tuple(self.families)
         return self
 
     def __exit__(self, *exc):
-        from compensation import hybrid
+        from compensation.hybrid import stage as hybrid   # the learned stage reads its defaults there
         hybrid.LEARNED_FAMILIES = self.old
 
 
@@ -195,14 +195,14 @@ class _learned_inputs:
         self.inputs = inputs
 
     def __enter__(self):
-        from compensation import hybrid
+        from compensation.hybrid import stage as hybrid   # the learned stage reads its defaults there
         self.old = hybrid.LEARNED_INPUTS
         if self.inputs is not None:
             hybrid.LEARNED_INPUTS = tuple(self.inputs)
         return self
 
     def __exit__(self, *exc):
-        from compensation import hybrid
+        from compensation.hybrid import stage as hybrid   # the learned stage reads its defaults there
         hybrid.LEARNED_INPUTS = self.old
 
 

@@ -6,9 +6,13 @@ The three residuals of docs/explanation/kinematics.md, never mixed up:
   own error field ``E``; it comes with each :class:`~compensation.solvers.SolveResult`.
 * **true residual** — the tool point the simulated truth machine reaches when driven with
   the compensated axis commands, minus the target (μm). Only the simulator knows it:
-  :func:`true_residual_um` drives :meth:`errormap.simulator.TruthGrinder.tool_point`.
+  :func:`true_residual_um` drives the truth's chain (its nominal tool point plus its true error).
 * (the **measured residual** — measurement minus model at check points — belongs to
   diagnosis, not here.)
+
+A truth is any simulated machine tool with ``machine``, ``spatial_error(axes, **conditions) -> (n, 3)`` μm and
+``default_conditions(n)`` (:class:`errormap.chain_truth.MTTruth`); :func:`load_truth` reads one from what
+``simulate`` wrote, for every machine tool through its chain.
 
 The magnitude of a residual is the vector norm ``|r|`` per point; the grinder paper's
 figures show its square ``|r|²`` (μm²), so metrics give both.
@@ -20,9 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from errormap.elements import ElementSet
+from errormap.chain_elements import ChainElementSet
+from errormap.chain_kernel import NominalChain
+from errormap.chain_truth import MTTruth
 from errormap.io import InputError, read_document_text
-from errormap.simulator import EFFECT_NAMES, TruthGrinder
 from errormap.stats import residual_stats
 
 RESIDUAL_DEFINITIONS = {
@@ -30,49 +35,80 @@ RESIDUAL_DEFINITIONS = {
     "true": "true residual: tool point reached by the simulated truth machine driven with the "
             "compensated axis commands, minus the target p_d (μm)",
 }
+CHAIN_TRUTH_FORMAT = "volcomp-chain-truth/1"
+"""``truth.json`` of ``simulate`` on a machine-tool chain (elements file beside it + effect parameters)."""
+PARAMETER_NAMES = {"x_frac": "p_frac", "z_frac": "q_frac"}
+"""A truth.json without a ``format`` key (a ``kind = "grinder"`` file's simulate folder) names the stroke fractions
+of its two-axis effects by its axes; the chain's effects name them by their order (first, second axis)."""
 
 
-def load_truth(spec, machine) -> TruthGrinder:
-    """A truth machine from a ``volcomp simulate`` folder or an element-set JSON file.
+def _read_json(path: Path, what: str) -> dict:
+    try:
+        d = json.loads(read_document_text(path, what))
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"{path}: not valid JSON: {exc}") from None
+    if not isinstance(d, dict):
+        raise InputError(f"{path}: expected a JSON object ({what}), got {type(d).__name__}")
+    return d
 
-    A folder gives ``truth_elements.json`` plus the undeclared effects listed in its
-    ``truth.json``; a JSON element-set file gives the 23 elements alone.
-    """
+
+def _effects(info: dict, path: Path, mt) -> dict:
+    """The effects of a truth.json (``{"KIND[:AXES]": parameters}``) as the chain's truth takes them; an effect the
+    chain's truth does not carry is refused naming the file and the key."""
+    from errormap.chain_truth import parse_effect
+    effects = info.get("effects") or {}
+    if not isinstance(effects, dict):
+        raise InputError(f"{path}: key 'effects': expected a mapping of effect names to parameters, got {effects!r}")
+    out = {}
+    for name, p in effects.items():
+        try:
+            parse_effect(mt, name)
+        except ValueError as exc:
+            raise InputError(f"{path}: key 'effects', {name!r}: {exc}; simulate the truth without it") from None
+        out[name] = {PARAMETER_NAMES.get(k, k): v for k, v in (p or {}).items()}
+    return out
+
+
+def load_truth(spec, machine) -> MTTruth:
+    """The truth machine of ``spec`` on the machine tool ``machine`` (a grinder file through its chain): a
+    ``simulate`` folder or its ``truth.json`` (elements beside it plus the effects it lists), or an element-set
+    file (the elements alone). InputError naming the file and key otherwise."""
+    mt = machine
     p = Path(spec)
     if p.is_dir():
-        el_path = p / "truth_elements.json"
-        if not el_path.is_file():
-            raise InputError(f"{p}: not a simulate folder (no truth_elements.json)")
-        effects, seed = {}, None
-        info_path = p / "truth.json"
-        if info_path.is_file():
-            try:
-                info = json.loads(read_document_text(info_path, "a simulation's truth.json"))
-            except json.JSONDecodeError as exc:
-                raise InputError(f"{info_path}: not valid JSON: {exc}") from None
-            effects = info.get("effects") or {}
-            if not isinstance(effects, dict) or set(effects) - set(EFFECT_NAMES):
-                raise InputError(f"{info_path}: key 'effects': expected a mapping with names from "
-                                 f"{list(EFFECT_NAMES)}, got {effects!r}")
-            seed = info.get("seed")
-        return TruthGrinder(machine, ElementSet.load(el_path), effects, seed)
-    if p.is_file():
-        return TruthGrinder(machine, ElementSet.load(p), {}, None)
-    raise InputError(f"{p}: no such simulate folder or element-set file")
+        p = p / "truth.json"
+        if not p.is_file():
+            if (p.parent / "truth_elements.json").is_file():
+                return MTTruth(mt, ChainElementSet.load(p.parent / "truth_elements.json", mt), {})
+            raise InputError(f"{p.parent}: not a simulate folder (no truth.json)")
+    elif not p.is_file():
+        raise InputError(f"{p}: no such simulate folder or element-set file")
+    d = _read_json(p, "a truth or element-set file")
+    fmt = d.get("format")
+    if fmt == CHAIN_TRUTH_FORMAT or (fmt is None and "effects" in d):
+        if fmt == CHAIN_TRUTH_FORMAT and d.get("machine_sha256") and mt.sha256 and d["machine_sha256"] != mt.sha256:
+            raise InputError(f"{p}: key 'machine_sha256': the truth belongs to machine {d.get('machine')!r}, "
+                             f"not {mt.name!r}")
+        el = p.parent / str(d.get("elements") or "truth_elements.json")
+        return MTTruth(mt, ChainElementSet.load(el, mt), _effects(d, p, mt), d.get("seed"))
+    return MTTruth(mt, ChainElementSet.load(p, mt), {})
 
 
-def true_residual_um(truth: TruthGrinder, axes, targets_mm, conditions: dict | None = None) -> np.ndarray:
-    """True residual (μm), shape (n, 3): ``truth.tool_point(axes) − targets``.
+def true_residual_um(truth, axes, targets_mm, conditions: dict | None = None) -> np.ndarray:
+    """True residual (μm), shape (n, 3): the truth's tool point at ``axes`` (its chain's nominal point plus its
+    true error) minus ``targets_mm``.
 
-    ``axes`` shape (n, 3) compensated (x_mm, z_mm, a_deg); ``targets_mm`` shape (n, 3) WCS.
+    ``axes`` shape (n, k) compensated axes of the truth's machine; ``targets_mm`` shape (n, 3) WCS.
     ``conditions`` default to the truth's reference conditions (20 °C, positive approach).
     """
     axes = np.asarray(axes, dtype=float)
     targets_mm = np.asarray(targets_mm, dtype=float)
-    if axes.shape != targets_mm.shape:
-        raise ValueError(f"Expected axes and targets of the same shape (n, 3), got {axes.shape} and {targets_mm.shape}")
+    if axes.shape[0] != targets_mm.shape[0] or targets_mm.shape[1:] != (3,):
+        raise ValueError(f"Expected axes (n, k) and targets (n, 3) of the same n, got {axes.shape} and "
+                         f"{targets_mm.shape}")
     cond = truth.default_conditions(axes.shape[0]) if conditions is None else conditions
-    return 1e3 * (truth.tool_point(axes, **cond) - targets_mm)
+    nominal = NominalChain(truth.machine).forward(axes)
+    return 1e3 * (nominal - targets_mm) + truth.spatial_error(axes, **cond)
 
 
 def residual_metrics(residual_um, prefix: str) -> dict:
@@ -90,7 +126,7 @@ def residual_metrics(residual_um, prefix: str) -> dict:
             f"{prefix}_max_sq_um2": st["max_um"] ** 2, f"{prefix}_mean_sq_um2": st["rms_um"] ** 2}
 
 
-def method_metrics(result, truth: TruthGrinder | None = None, true_residual=None) -> dict:
+def method_metrics(result, truth=None, true_residual=None) -> dict:
     """Metrics of one solver result (see :mod:`compensation.app.reports.methods` for the metrics.json keys).
 
     ``result`` is a SolveResult; the true residual is computed from ``truth`` unless given.

@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compensation.app.workflows.benchmark import (PATH_CONDITIONS, BenchmarkSettings, grinder_conditions,
-                                    learned_pkm_commands, measured_pose_errors, pkm_true_residual, pose_inputs,
-                                    quick_settings)
+from compensation.app.workflows.benchmark_common import PATH_CONDITIONS, BenchmarkSettings, quick_settings
+from compensation.app.workflows.benchmark_flute import grinder_conditions
+from compensation.app.workflows.benchmark_parallel import (learned_pkm_commands, measured_pose_errors, pkm_true_residual,
+                                                           pose_inputs)
 from compensation.app.reports.benchmark import render_html, summary_lines, verdicts
 from compensation.diagnosed_model import ConditionedField
 
@@ -349,7 +350,8 @@ def test_quick_benchmark_end_to_end(tmp_path):
 
 def test_a_failing_learned_path_is_reported_not_faked(monkeypatch, grinder):
     import training.trainers
-    from compensation.app.workflows.benchmark import Tracker, run_grinder
+    from compensation.app.workflows.benchmark_common import Tracker
+    from compensation.app.workflows.benchmark_flute import run_grinder
 
     def broken(*a, **k):
         raise RuntimeError("no trainer here")
@@ -407,6 +409,9 @@ def test_run_benchmark_refuses_an_unknown_kind_before_any_work(tmp_path):
 
 # -- machine-tool chains ---------------------------------------------------------------------------
 CHAIN_MIN_GAIN = 5.0
+LEARNED_MIN_GAIN = 2.0
+"""The quick settings' network (60 LM iterations, 8-8) on a chain is judged only to compensate: its TRUE RMS at
+least halves the uncompensated one (the parametric rows are judged by CHAIN_MIN_GAIN)."""
 """The identified mill (sweeps at 1 um) must leave at most a fifth of the uncompensated TRUE error on the
 diagonals (seed 0: 5.0 um of 114 um, a gain of 23; a fifth leaves room for another truth draw)."""
 CHAIN_HELD_OUT_OVER_FLOOR = 1.5
@@ -426,15 +431,18 @@ def _chain_settings(**kw):
 def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
     """mill-xyz, no effect: simulate → sweeps → identify → diagnose → exact compensation of the body
     diagonals; the loop's model beats the identified set, which beats no compensation; the files stay."""
-    from compensation.app.workflows.benchmark import RowLog, Tracker, _row, _streams
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
     from compensation.app.workflows.chain_benchmark import run_chain
     from errormap.machine import load_machine
     m = load_machine("mill-xyz")
     s = _chain_settings()
     log = RowLog(Tracker(None, enabled=False))
-    skipped = run_chain(m, s, log, tmp_path, _row, _streams(s.seed), lambda msg: None)
+    skipped = run_chain(m, s, log, tmp_path, bench_row, rng_streams(s.seed), lambda msg: None)
     assert skipped == []
-    before, after = log.rows
+    before, after, learned = log.rows
+    assert learned["path"] == "learned" and learned["available"] and not learned["closed_loop"]
+    assert learned["true_rms_um"] * LEARNED_MIN_GAIN < learned["uncompensated_rms_um"]
+    assert learned["train_val_rms_um"] < learned["train_baseline_ols_val_rms_um"]   # its plain baseline beside it
     for r in (before, after):
         assert r["available"] and r["machine_kind"] == "machine-tool" and r["machine"] == "mill-xyz"
         assert all(r[k] is not None for k in REQUIRED_ROW_KEYS)
@@ -448,8 +456,31 @@ def test_chain_benchmark_rows_are_the_users_path_judged_by_the_truth(tmp_path):
     assert (d / "diagnosis" / "model.json").is_file() and (d / "identified.cov.npz").is_file()
 
 
+@pytest.mark.slow
+def test_chain_benchmark_runs_its_loop_once_per_check_count(tmp_path):
+    """--checks N (repeatable) on a chain: one row after the closed loop per count, the same truth, each loop on
+    its own n checks (files beside the default run's), the learned row once."""
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
+    from compensation.app.workflows.chain_benchmark import run_chain
+    from errormap.machine import load_machine
+    s = _chain_settings(chain_checks=(300, 150), train_iter=5)
+    log = RowLog(Tracker(None, enabled=False))
+    assert run_chain(load_machine("mill-xyz"), s, log, tmp_path, bench_row, rng_streams(s.seed), lambda m: None) == []
+    before, a300, a150, learned = log.rows
+    assert [r["condition"] for r in (a300, a150)] == ["effect=none (after closed loop, checks=300)",
+                                                      "effect=none (after closed loop, checks=150)"]
+    assert (a300["n_checks"], a150["n_checks"]) == (300, 150) and a300["available"] and a150["available"]
+    assert a300["uncompensated_rms_um"] == a150["uncompensated_rms_um"] == before["uncompensated_rms_um"]
+    assert not before["closed_loop"] and learned["path"] == "learned"
+    d = tmp_path / "chains" / "mill-xyz" / "effect_none"
+    for n in (300, 150):
+        assert (d / f"diagnosis_checks_{n}" / "model.json").is_file()
+        assert sum(1 for ln in (d / f"sim_checks_{n}" / "checks.csv").read_text().splitlines()
+                   if ln and not ln.startswith("#")) == n + 1   # the header and n rows
+
+
 def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
-    from compensation.app.workflows.benchmark import RowLog, Tracker, _row, _streams
+    from compensation.app.workflows.benchmark_common import RowLog, Tracker, bench_row, rng_streams
     from compensation.app.workflows.chain_benchmark import chain_effects, run_chain
     from errormap.machine import load_machine
     src = (Path(__file__).resolve().parents[1] / "errormap" / "machines" / "lathe-xzc.toml").read_text()
@@ -457,7 +488,7 @@ def test_chain_benchmark_says_why_a_chain_or_an_effect_is_left_out(tmp_path):
     lathe = load_machine(tmp_path / "half-turn.toml")   # a C that is no full turn: no judging path
     log = RowLog(Tracker(None, enabled=False))
     s = _chain_settings()
-    skipped = run_chain(lathe, s, log, tmp_path, _row, _streams(0), lambda msg: None)
+    skipped = run_chain(lathe, s, log, tmp_path, bench_row, rng_streams(0), lambda msg: None)
     assert log.rows == [] and len(skipped) == 1 and "three linear axes" in skipped[0]["why"]
     kept, why = chain_effects(load_machine("mill-xyz"), ("thermal", "worm", "bump"))
     assert kept == [("thermal", "thermal:X")]
@@ -525,7 +556,8 @@ def test_conclusion_lines_per_check_count():
 # -- the out-of-catalogue loop: the user's path (volcomp identify → volcomp diagnose) -------------------
 def _small_bench(grinder):
     """A GrinderBench on a short flute (0.25 turn, 40 points), no volume points, no MLflow."""
-    from compensation.app.workflows.benchmark import GrinderBench, Tracker
+    from compensation.app.workflows.benchmark_common import Tracker
+    from compensation.app.workflows.benchmark_flute import GrinderBench
     s = quick_settings()
     s.volume_points, s.flute_turns, s.flute_points_per_turn, s.ga_points = 0, 0.25, 40, 8
     return GrinderBench(grinder, s, Tracker(None, enabled=False))
@@ -534,7 +566,7 @@ def _small_bench(grinder):
 def test_out_of_catalogue_loop_runs_the_users_path_and_other_loops_the_effect_search(grinder, monkeypatch):
     """On an out-of-catalogue condition the parametric base runs the user's path (both its rows: parametric
     loop and hybrid); the learned base there, and every base on a catalogue effect, the effect search."""
-    from compensation.app.workflows.benchmark import GrinderBench, GrinderCondition, grinder_truth
+    from compensation.app.workflows.benchmark_flute import GrinderBench, GrinderCondition, grinder_truth
     g = _small_bench(grinder)
     calls = []
     monkeypatch.setattr(GrinderBench, "user_loop_rows", lambda self, c, *a: calls.append(("user", c.name)))
@@ -561,8 +593,9 @@ def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_p
     parametric row the same with model.json's loop alone (no learned part); their held-out figures are the
     ones diagnosis.json reports, and the parametric loop is the element-updated one."""
     from compensation.app.cli import main
-    from compensation.app.workflows.benchmark import (EFFECTS_LOOP, USER_LOOP, GrinderCondition, _streams,
-                                                      compensate_true, condition_sweeps, grinder_truth)
+    from compensation.app.workflows.benchmark_common import EFFECTS_LOOP, USER_LOOP, rng_streams
+    from compensation.app.workflows.benchmark_flute import (GrinderCondition, compensate_true, condition_sweeps,
+                                                            grinder_truth)
     from compensation.diagnosed_model import load_diagnosed_model
     from errormap.io import write_csv
     from errormap.sweeps import SWEEP_FORMAT
@@ -579,7 +612,7 @@ def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_p
     # the same sweeps and checks through the CLI, as a user runs it
     write_csv(tmp_path / "sw.csv", condition_sweeps(s, truth, c), header_comments=[f"format: {SWEEP_FORMAT}"],
               float_fmt="%.17g")
-    cols = truth.check_measurements(n=c.n_checks, noise_um=s.check_noise_um, seed=_streams(s.seed)["checks"])
+    cols = truth.check_measurements(n=c.n_checks, noise_um=s.check_noise_um, seed=rng_streams(s.seed)["checks"])
     write_csv(tmp_path / "checks.csv", cols, header_comments=["format: volcomp-checks/1"], float_fmt="%.17g")
     boot = [] if s.identify_bootstrap is None else ["--bootstrap", str(s.identify_bootstrap)]
     assert main(["identify", str(tmp_path / "sw.csv"), "--out", str(tmp_path / "el.json"), *boot]) == 0

@@ -113,3 +113,36 @@ def test_a_failed_verdict_is_marked_and_never_counted_as_a_pass(capsys):
     lost = {"name": "c", "status": "failed", "error": "ValueError: x"}
     assert print_results([ok, bad, lost]) == 4
     assert "fleet: 1 passed, 1 verdict failed, 1 failed" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_a_fleet_of_a_machine_tool_chain_runs_the_same_steps(tmp_path, capsys):
+    """A mill-xyz chain file in a fleet: identify from its one sweep file, the chain network on its feature points
+    (tracked), the chain loop on its checks; a second sweep file for a chain is refused up front naming the key."""
+    import json
+    from compensation.app.cli import main
+    from compensation.app.workflows.fleet import read_fleet, validate_inputs
+    from errormap.machine import load_machine
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--machine", "mill-xyz", "--seed", "4", "--checks", "150", "--out", str(sim)]) == 0
+    assert main(["sweeps", "--machine", "mill-xyz", "--truth", str(sim / "truth_elements.json"),
+                 "--out", str(tmp_path / "sweeps.csv")]) == 0
+    mill = load_machine("mill-xyz").path
+    body = (f'format = "volcomp-fleet/1"\n[[machine]]\nname = "mill"\nmachine = "{mill}"\n'
+            'sweeps = "sweeps.csv"\nchecks = "sim/checks.csv"\n')
+    (tmp_path / "fleet.toml").write_text(body)
+    uri = f"sqlite:///{tmp_path / 'ml.db'}"
+    capsys.readouterr()
+    rc = main(["fleet", str(tmp_path / "fleet.toml"), "--out", str(tmp_path / "out"), "--tracking-uri", uri,
+               "--train-iter", "20", "--grid", "5", "--hidden", "6"])
+    assert rc == 0, capsys.readouterr().err
+    m = json.loads((tmp_path / "out" / "fleet_summary.json").read_text())["machines"][0]
+    assert m["status"] == "ok" and m["run_id"] and m["machine_file"] == mill
+    from errormap.featurepoints import FeaturePoints
+    fp = FeaturePoints.load(tmp_path / "out" / "mill" / "featurepoints.csv")
+    assert fp.meta["axis_columns"] == "x_mm,y_mm,z_mm" and (tmp_path / "out" / "mill" / "train" / "model").is_dir()
+    diag = json.loads((tmp_path / "out" / "mill" / "diagnosis" / "diagnosis.json").read_text())
+    assert m["diagnosis"]["diagnose_heldout_rms_final_um"] == diag["held_out_rms_um"]
+    (tmp_path / "fleet.toml").write_text(body.replace('sweeps = "sweeps.csv"', 'sweeps = ["sweeps.csv", "sweeps.csv"]'))
+    with pytest.raises(InputError, match=r"machine\[0\].sweeps': a machine-tool chain .* one sweep file"):
+        validate_inputs(read_fleet(tmp_path / "fleet.toml"))

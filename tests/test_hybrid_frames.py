@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from compensation.hybrid import (LEARNED_FRAMES, LearnedResidual, _fit_inputs, frame_key, input_features,
+from compensation.hybrid.stage import _fit_inputs
+from compensation.hybrid import (LEARNED_FRAMES, LearnedResidual, frame_key, input_features,
                                  learned_stage, split_frame_key, to_frame)
 from errormap.chain_kernel import error_jacobian
 from errormap.elements import ELEMENT_NAMES

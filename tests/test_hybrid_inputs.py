@@ -4,12 +4,12 @@ out-of-catalogue effects designed for the learned stage: ``a_lobe_x`` (round 5) 
 import json
 
 import numpy as np
-
-from errormap.grinder_file import rho0_mm
 import pytest
 
-from compensation.hybrid import INPUT_SETS, LearnedResidual, _fit_inputs, input_features, work_features
+from compensation.hybrid import INPUT_SETS, LearnedResidual, input_features, work_features
+from compensation.hybrid.stage import _fit_inputs
 from errormap.chain_kernel import forward
+from errormap.grinder_file import rho0_mm
 from errormap.simulator import random_axes, random_truth
 from training.residual import ResidualRegressor
 
@@ -147,8 +147,8 @@ def test_xz_saddle_is_outside_the_linearised_element_model(grinder):
     """The round-13 effect: only Z's straightness in Y changes, and no element profile of one axis
     (nor any constant) takes it up, through the chain's error transfer; squareness, which the loop
     absorbs, is taken up wholly by the same projection."""
-    from errormap.chain_kernel import error_jacobian
     from errormap.elements import IDX
+    from errormap.chain_kernel import error_jacobian
     from errormap.uncertainty import theta_design
     xs = np.linspace(*grinder.strokes["x_mm"], 21)
     zs = np.linspace(*grinder.strokes["z_mm"], 21)

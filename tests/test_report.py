@@ -16,8 +16,8 @@ from compensation.solvers import solve
 from compensation.toolpath import flute_path
 from errormap.io import InputError
 from errormap.chain_field import ChainField
-from errormap.chain_kernel import forward
-from errormap.simulator import random_truth
+from errormap.chain_kernel import NominalChain
+from errormap.chain_truth import make_mt_truth
 
 TOL_UM = 1e-6
 MIN_TURN_CORRELATION = 0.95  # between the traditional residual's profiles on successive turns
@@ -26,7 +26,12 @@ METRIC_KEYS = {"model_max_um", "model_mean_sq_um2", "true_max_um", "seconds", "p
 
 @pytest.fixture(scope="module")
 def truth(grinder):
-    return random_truth(grinder, 11)
+    return make_mt_truth(grinder, 11)
+
+
+def HTMField(machine, elements):
+    """The error field of ``elements`` on ``machine``'s chain (every machine tool's field)."""
+    return ChainField(machine, elements)
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +41,7 @@ def flute():
 
 def test_true_residual_of_nominal_commands_is_the_truth_error(grinder, truth, flute):
     ax = flute.axes(grinder)
-    r = true_residual_um(truth, ax, forward(grinder, ax))
+    r = true_residual_um(truth, ax, NominalChain(grinder).forward(ax))
     assert np.abs(r - truth.spatial_error(ax, **truth.default_conditions(len(ax)))).max() < TOL_UM
     s = residual_metrics(r, "true")
     assert s["true_max_sq_um2"] == pytest.approx(s["true_max_um"] ** 2)
@@ -44,7 +49,7 @@ def test_true_residual_of_nominal_commands_is_the_truth_error(grinder, truth, fl
 
 def test_traditional_residual_repeats_once_per_turn(grinder, truth, flute):
     """The paper's Fig. 18: the traditional model residual has the same profile on every turn."""
-    field = ChainField(grinder, truth.elements)
+    field = HTMField(grinder, truth.elements)
     cmp = compare_methods(field, flute.targets_mm, grinder, methods=("traditional", "exact"), truth=truth,
                           nominal_axes=flute.axes(grinder))
     r = np.linalg.norm(cmp.runs["traditional"].result.residual_um, axis=1).reshape(3, 60)
@@ -68,7 +73,7 @@ def test_per_point_ga_runs_on_a_subset_and_says_so(grinder, truth, flute, monkey
         return solve("traditional", field, targets, machine, **opts)
 
     monkeypatch.setattr(compare_mod, "_solve", stand_in)
-    field = ChainField(grinder, truth.elements)
+    field = HTMField(grinder, truth.elements)
     cmp = compare_methods(field, flute.targets_mm, grinder, methods=("ga", "batched-ga"), truth=truth, ga_points=25)
     run = cmp.runs["ga"]
     assert len(run.index) == 25 and run.index[0] == 0 and run.index[-1] == len(flute) - 1
@@ -91,7 +96,7 @@ def test_a_method_run_on_a_subset_gets_its_own_residual_file_without_nan_padding
         return solve("traditional", field, targets, machine,
                      **{k: v for k, v in options.items() if k == "target_axes"})
     monkeypatch.setattr(compare_mod, "_solve", stand_in)
-    cmp = compare_methods(ChainField(grinder, truth.elements), flute.targets_mm, grinder, methods=("ga", "exact"),
+    cmp = compare_methods(HTMField(grinder, truth.elements), flute.targets_mm, grinder, methods=("ga", "exact"),
                           truth=truth, ga_points=25)
     paths = write_report(cmp, tmp_path / "rep")
     full, sub = read_table(paths["residuals"]), read_table(paths["residuals_ga"])
@@ -105,7 +110,7 @@ def test_a_method_run_on_a_subset_gets_its_own_residual_file_without_nan_padding
 
 
 def test_report_html_is_self_contained_and_names_its_residuals(tmp_path, grinder, truth, flute):
-    field = ChainField(grinder, truth.elements)
+    field = HTMField(grinder, truth.elements)
     cmp = compare_methods(field, flute.targets_mm, grinder, methods=("traditional", "exact"), truth=truth)
     paths = write_report(cmp, tmp_path / "rep", context={"model": "test"})
     text = paths["html"].read_text()
@@ -137,7 +142,7 @@ def test_load_truth_from_folder_and_file(tmp_path, grinder):
     sim = tmp_path / "sim"
     assert main(["simulate", "--seed", "5", "--out", str(sim), "--checks", "10", "--effect", "worm"]) == 0
     t = load_truth(sim, grinder)
-    assert set(t.effects) == {"worm"} and t.seed == 5
+    assert set(t.effects) == {"harmonic:A"} and t.seed == 5   # the simulator's worm: the chain's harmonic on A
     assert load_truth(sim / "truth_elements.json", grinder).effects == {}
     with pytest.raises(InputError, match="no such"):
         load_truth(tmp_path / "nothing", grinder)
@@ -146,3 +151,45 @@ def test_load_truth_from_folder_and_file(tmp_path, grinder):
 def test_report_cli_bad_methods(tmp_path, capsys):
     rc = main(["report", "--model", "x.json", "--flute", "--methods", "traditional,magic", "--out", str(tmp_path)])
     assert rc == 2 and "magic" in capsys.readouterr().err
+
+
+EXACT_MODEL_TOL_UM = 1e-6   # the exact solver's own residual (it iterates to ~1e-9 um)
+
+
+def test_report_runs_on_a_machine_tool_chain(tmp_path, capsys):
+    """The comparison on mill-xyz through the same solvers: a CSV of its axis columns, the truth of simulate
+    --machine with an effect the model lacks (periodic on X), so exact's TRUE residual is the effect and the
+    plain baseline (uncompensated) is far above it."""
+    from errormap.machine import load_machine
+    sim, out = tmp_path / "sim", tmp_path / "rep"
+    assert main(["simulate", "--machine", "mill-xyz", "--seed", "2", "--checks", "20", "--effect", "periodic",
+                 "--out", str(sim)]) == 0
+    m = load_machine("mill-xyz")
+    u = np.linspace(0.2, 0.8, 30)[:, None]
+    path = tmp_path / "p.csv"
+    path.write_text(",".join(m.axis_columns) + "\n" + "\n".join(
+        ",".join(f"{v:.6f}" for v in row) for row in m.stroke_lo + (m.stroke_hi - m.stroke_lo) * u) + "\n")
+    assert main(["report", "--machine", "mill-xyz", "--model", str(sim / "truth_elements.json"), "--path", str(path),
+                 "--truth", str(sim), "--methods", "traditional,exact", "--out", str(out)]) == 0
+    capsys.readouterr()
+    met = json.loads((out / "metrics.json").read_text())
+    exact = met["methods"]["exact"]
+    assert exact["points"] == 30 and exact["model_max_um"] < EXACT_MODEL_TOL_UM < exact["true_max_um"]
+    assert exact["true_max_um"] < met["uncompensated"]["true_max_um"]
+    assert open(out / "residuals.csv").read().count("x_mm,y_mm,z_mm") == 1
+
+
+def test_a_truth_effect_the_chain_does_not_carry_is_refused_naming_file_and_key(tmp_path, grinder):
+    """A truth.json without a format key (a grinder file's simulate folder) is read on the grinder's chain, its
+    effects as the chain's kinds (worm = harmonic on A, the stroke fractions renamed); an effect the chain's truth
+    cannot carry is refused naming the file and the key, never dropped."""
+    t = make_mt_truth(grinder, 4)
+    t.elements.save(tmp_path / "truth_elements.json")
+    (tmp_path / "truth.json").write_text(json.dumps(
+        {"seed": 4, "effects": {"worm": {"amplitude_urad": 90.0, "teeth": 40, "phase_rad": 1.1},
+                                "bump": {"amplitude_um": 8.0, "x_frac": 0.6, "z_frac": 0.4, "width_frac": 0.18}}}))
+    got = load_truth(tmp_path, grinder)
+    assert got.effects["harmonic:A"]["amplitude_urad"] == 90.0 and got.effects["bump:X*Z"]["q_frac"] == 0.4
+    (tmp_path / "truth.json").write_text(json.dumps({"seed": 4, "effects": {"a_tilt": {"k_urad": 120.0}}}))
+    with pytest.raises(InputError, match=r"truth.json: key 'effects', 'a_tilt'"):
+        load_truth(tmp_path, grinder)

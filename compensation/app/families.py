@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from ..batch import CHUNK_POINTS
 from ..gcode import DEFAULT_RAPIDS
 from ..pathio import DEFAULT_ARC_TOLERANCE_UM
+from ..toolpath import FLUTE_DEFAULTS
 from .validate import UsageError
 
 YES, PHYSICS, OTHER_PATH, NOT_YET = "yes", "physics", "other path", "not yet"
@@ -157,7 +158,7 @@ def _same_target(*commands: str, target: str) -> dict:
     return {c: target for c in commands}
 
 
-_FLEET = Gap(NOT_YET, "a fleet file's machines are grinder files")
+_FLEET = Gap(NOT_YET, "a fleet file's machines are machine tools (identify from sweeps)")
 _DEMO = Gap(NOT_YET, "the demo's part is the grinder's flute")
 _BY_POSES = "{given}: only arms and parallel machines are simulated by poses (machine tools: --checks)"
 _IDENTIFY = Gap(OTHER_PATH, "calibrate (poses)")
@@ -173,9 +174,9 @@ _CALIBRATE_OTHER = ("{given}: {does} not apply to {what} (see calibrate --help: 
 GRINDER = Family(
     name="machine tool", column="Grinder",
     kinds={"grinder": Facts(tracker_sweeps=True, gcode=True)},
-    targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "report", "fleet", "demo",
+    targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "demo",
                             "identify", "benchmark", target="grinder"),
-             **_same_target("compensate", "export", "diagnose", target="machine tool")},
+             **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool")},
     gaps={"calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify with every set-up"),
           "interpolate": Gap(OTHER_PATH, "compensate (axis programs)"),
@@ -190,14 +191,19 @@ CHAIN = Family(
     kinds={"machine-tool": Facts(tracker_sweeps=True, gcode=True, chain=True)},
     targets={**_same_target("simulate", "sweeps", "featurepoints", "train", "predict", "identify", "benchmark",
                             target="chain"),
-             **_same_target("compensate", "export", "diagnose", target="machine tool"), "report run": "chain"},
-    gaps={"fleet": _FLEET, "demo": _DEMO,
+             **_same_target("compensate", "export", "diagnose", "report", "fleet", target="machine tool"),
+             "report run": "chain"},
+    gaps={"demo": _DEMO,
           "calibrate": Gap(OTHER_PATH, "identify (sweeps), then diagnose (checks)"),
           "register": Gap(OTHER_PATH, "the tracker pose is estimated inside identify"),
-          "interpolate": Gap(OTHER_PATH, "compensate"),
-          "report": Gap(NOT_YET, "the comparison runs the grinder's solvers (the chain's exact, GA and batched GA "
-                                 "run in compensate --machine)")},
-    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES), *_DIAGNOSE))
+          "interpolate": Gap(OTHER_PATH, "compensate")},
+    refusals=(Refusal("simulate", (Opt("--poses", OTHER_PATH),), _BY_POSES), *_DIAGNOSE,
+              Refusal("report", (Opt("--flute", PHYSICS),
+                                 *(Opt(f"--{k.replace('_', '-')}", PHYSICS, default=getattr(FLUTE_DEFAULTS, k))
+                                   for k in ("turns", "points_per_turn", "radius_mm", "helix_start_deg",
+                                             "helix_end_deg", "lead_law", "px_start_mm"))),
+                      "{given}: the flute is the grinder's part (a micro-drill flute in its X, Z, A); on {name} "
+                      "compare the methods on its own --path")))
 
 ARM = Family(
     name="serial arm", column="Serial arm",

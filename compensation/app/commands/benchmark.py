@@ -40,7 +40,8 @@ def register(sub):
                         "on the machine's load; benchmark.json records the iterations reached)")
     p.add_argument("--checks", type=int, action="append", default=None, metavar="N",
                    help="check measurements of the out-of-catalogue conditions' closed loop (and its hybrid stage); "
-                        "repeat for several counts, each a row per effect (default 800, 150 and 1600; --quick 200)")
+                        "repeat for several counts, each a row per effect (default 800, 150 and 1600; --quick 200); "
+                        "on a machine-tool chain its closed loop once per count (default: one loop on 400 checks)")
     p.add_argument("--seed", type=int, default=None, help="seed of measurements and training (default 0)")
     p.add_argument("--truth-seed", type=int, default=None, help="seed of the simulated truth grinder (default 0)")
     p.set_defaults(func=run)
@@ -65,7 +66,7 @@ def run(args) -> int:
     if args.train_s is not None:
         s.train_s = args.train_s
     if args.checks:   # each >= 1 and <= MAX_CHECKS (validate.py), checked before run
-        s.ooc_checks = tuple(dict.fromkeys(args.checks))
+        s.ooc_checks = s.chain_checks = tuple(dict.fromkeys(args.checks))
     if args.seed is not None:
         s.seed = args.seed
     if args.truth_seed is not None:

@@ -1,7 +1,8 @@
 """``volcomp report``: compare the compensation methods on a tool path; HTML report + metrics.json.
 
 Runs ``traditional``, ``ga``, ``batched-ga`` and ``exact`` (or ``--methods``) with one error
-field on one path (``--path FILE`` or the built-in ``--flute``), computes the MODEL residual
+field on one path (``--path FILE``, read as ``compensate`` reads it, or the grinder's built-in ``--flute``)
+on any machine tool through its chain (the solvers of ``compensate``), computes the MODEL residual
 of each and — with ``--truth`` (a ``volcomp simulate`` folder or an element-set file) — the
 TRUE residual on the simulated machine, and writes ``DIR/report.html``, ``DIR/metrics.json``
 and ``DIR/residuals.csv`` (see :mod:`compensation.app.reports.methods`).
@@ -17,8 +18,7 @@ from compensation.app.validate import UsageError
 
 from ...evaluate import load_truth
 from ...fields import FAILED_VERDICT, check_verdict, load_field, resolve_model
-from ...nc_state import MACHINE, read_work_offsets
-from ...pathio import read_path
+from ...nc_state import read_work_offsets
 from ..families import family_of
 from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
 from ..reports.methods import print_table, write_report
@@ -42,13 +42,15 @@ def register(sub):
     src.add_argument("--path", help="tool-path file (CSV or G-code)")
     src.add_argument("--flute", action="store_true", help="the built-in variable-helix flute path")
     p.add_argument("--truth", default=None,
-                   help="simulate folder (truth_elements.json + truth.json) or element-set file: adds the TRUE residual")
+                   help="simulate folder (or its truth.json) or truth element set, on the machine's chain: adds the TRUE "
+                        "residual")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI for run ids")
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (required unless RUN is given)")
     add_units_option(p, "CSV tool-path columns")
-    p.add_argument("--work-offsets", default=None, choices=("machine",),
-                   help="'machine': the --path G-code program is written in machine coordinates (recorded in the "
-                        "report); a G-code program is refused without it (never an assumed machine zero)")
+    p.add_argument("--work-offsets", default=None, metavar="FILE|machine",
+                   help="the controller's work offsets of a --path G-code program, as compensate reads them (a LinuxCNC "
+                        ".var or a CSV, by content); 'machine': the program is written in machine coordinates (recorded "
+                        "in the report); a G-code program is refused without it (never an assumed machine zero)")
     p.add_argument("--allow", action="append", default=[], choices=(FAILED_VERDICT,),
                    help=f"{FAILED_VERDICT}: compare methods with a model whose diagnosis verdict failed (refused by "
                         "default); recorded in metrics.json and on the page")
@@ -92,17 +94,53 @@ def run_chain_diagnosis(args) -> int:
     return 0
 
 
-def _refuse_out_of_strokes(path, machine, nominal, what: str) -> None:
+def _refuse_out_of_strokes(path, mt, nominal, what: str) -> None:
     """As for the flute: a path the machine cannot reach has no method to compare (every solve fails its guards and
-    the page would show residuals of metres): refused, naming the first data row outside an X/Z stroke."""
+    the page would show residuals of metres): refused, naming the first data row outside a linear axis' stroke
+    (a rotary axis may run past one turn)."""
     import numpy as np
-    for j, key in ((0, "x_mm"), (1, "z_mm")):
-        lo, hi = machine.strokes[key]
+    for j, a in enumerate(mt.axes):
+        if a.kind != "linear":
+            continue
+        lo, hi = a.stroke
         out = np.flatnonzero((nominal[:, j] < lo) | (nominal[:, j] > hi))
         if out.size:
             raise UsageError(f"{path}: {what} {out[0] + 1} (of {len(nominal)}; {out.size} outside): its nominal "
-                             f"{key} = {nominal[out[0], j]:.4f} is outside the stroke [{lo:g}, {hi:g}]; the methods are "
-                             "compared on points the machine reaches (a targets CSV in another frame or unit?)")
+                             f"{a.column} = {nominal[out[0], j]:.4f} is outside the stroke [{lo:g}, {hi:g}]; the methods "
+                             "are compared on points the machine reaches (a targets CSV in another frame or unit?)")
+
+
+def _flute(args, machine):
+    """``(targets (n, 3), nominal axes (n, 3), path record)`` of the built-in flute (the grinder's part)."""
+    try:
+        fl = flute_from_args(args)
+    except ValueError as exc:
+        raise UsageError(f"flute settings: {exc}") from None
+    nominal = fl.axes(machine)
+    try:
+        check_in_strokes(machine, nominal, "the flute path")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return fl.targets_mm, nominal, {"path": "flute", "flute": fl.settings.to_dict(), "points": len(fl)}
+
+
+def _tool_path(args, mt):
+    """``(targets (n, 3), nominal axes (n, k), path record)`` of ``--path`` on the machine tool ``mt``, read as
+    ``compensate`` reads it (:func:`compensation.app.workflows.compensate_paths.read_tool_path`: the machine's axis
+    columns, WCS targets or G-code in its axis words)."""
+    from errormap.chain_kernel import NominalChain
+    from ..workflows.compensate import CompensateSettings
+    from ..workflows.compensate_paths import read_tool_path
+    offsets = read_work_offsets(args.work_offsets) if args.work_offsets is not None else None
+    s = CompensateSettings(method="exact", model=str(args.model), out_dir=Path(args.out), units=args.units,
+                           work_offsets=offsets, max_segment_mm=None)
+    tp = read_tool_path(args.path, mt, s)
+    _refuse_out_of_strokes(args.path, mt, tp.axes, "data row" if tp.kind.startswith("csv") else "point")
+    targets = tp.targets_mm if tp.targets_mm is not None else NominalChain(mt).forward(tp.axes)
+    info = {"path": str(args.path), "format": tp.kind, "points": len(tp), "units": args.units}
+    if tp.kind == "gcode":
+        info["work_offsets"] = offsets.source if offsets is not None else None
+    return targets, tp.axes, info
 
 
 def run(args) -> int:
@@ -115,26 +153,10 @@ def run(args) -> int:
                          "--machine folder)")
     methods = parse_methods(args.methods)
     machine = load_machine(args.machine)   # None: the built-in default machine
-    family_of(machine).target("report")   # the comparison runs the grinder's solvers: other families refused
-    if args.flute:
-        try:
-            fl = flute_from_args(args)
-        except ValueError as exc:
-            raise UsageError(f"flute settings: {exc}") from None
-        targets, nominal = fl.targets_mm, fl.axes(machine)
-        try:
-            check_in_strokes(machine, nominal, "the flute path")
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-        path_info = {"path": "flute", "flute": fl.settings.to_dict(), "points": len(fl)}
-    else:
-        offsets = read_work_offsets(MACHINE) if getattr(args, "work_offsets", None) == MACHINE else None
-        tp = read_path(args.path, machine, units=args.units, units_option="--units", work_offsets=offsets)
-        targets, nominal = tp.targets_mm, tp.axes
-        _refuse_out_of_strokes(args.path, machine, nominal, "data row" if tp.kind.startswith("csv") else "point")
-        path_info = {"path": str(args.path), "format": tp.kind, "points": len(tp), "units": args.units}
-        if tp.kind == "gcode":
-            path_info["work_offsets"] = offsets.source
+    family = family_of(machine)
+    family.target("report")   # every machine tool, through its chain: other families refused
+    family.refuse_unsupported("report", args)
+    targets, nominal, path_info = _flute(args, machine) if args.flute else _tool_path(args(machine))
     truth = load_truth(args.truth, machine) if args.truth else None
     source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
     verdict = check_verdict(source.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
@@ -151,7 +173,7 @@ def run(args) -> int:
         context["model verdict"] = (f"FAILED ({verdict['file']}), used with --allow {FAILED_VERDICT}: "
                                     + ("; ".join(verdict["reasons"]) or "no reasons recorded"))
     if "work_offsets" in path_info:
-        context["work offsets"] = f"{path_info['work_offsets']} (--work-offsets machine: in machine coordinates)"
+        context["work offsets"] = f"{path_info['work_offsets']} (--work-offsets)"
     paths = write_report(cmp, Path(args.out), context=context)
     print_table(cmp)
     for k, path in paths.items():   # html, metrics, residuals (+ residuals_<method> of a method run on a subset)

@@ -4,7 +4,7 @@
 
 * ``report.html`` — the ``compare.html`` page of the report toolkit (:mod:`.toolkit`): the
   residual per interpolation point for every method, as ``|r|`` and as ``|r|²`` (the
-  grinder paper's Fig. 18 kind: the traditional residual repeats once per A turn), a
+  grinder paper's Fig. 18 kind: the traditional residual repeats once per turn of a rotary axis), a
   table of max and mean per method, and the solver times. Every plot and table names its
   residual: **model** (the solver's own field) or **true** (the simulated truth machine).
 * ``metrics.json`` — ``methods``: method name → ``model_max_um``, ``model_mean_um``,
@@ -67,7 +67,8 @@ def _residual_plot(cmp: Comparison, kind: str, squared: bool) -> Figure | None:
     for k in np.flatnonzero(np.diff(cmp.turn_of_point)) + 1:
         ax.axvline(k, color="0.85", lw=0.6, zorder=0)
     ax.set_yscale("log")
-    ax.set_xlabel("interpolation point (grey lines: A turns; values below 1e-12 drawn at 1e-12)")
+    ax.set_xlabel("interpolation point (" + ("grey lines: turns of the rotary axis; " if cmp.turn_of_point.any() else "")
+                  + "values below 1e-12 drawn at 1e-12)")
     unit = "μm²" if squared else "μm"
     ax.set_ylabel(f"{kind} residual {'|r|²' if squared else '|r|'} ({unit})")
     ax.set_title(f"{kind.upper()} residual per interpolation point{' (squared)' if squared else ''}")
@@ -136,8 +137,7 @@ def write_report(cmp: Comparison, out_dir, title: str = "volcomp compensation re
     n = len(cmp.targets_mm)
 
     def point_columns(idx):
-        return {"point": np.arange(n)[idx], "x_mm": cmp.nominal_axes[idx, 0], "z_mm": cmp.nominal_axes[idx, 1],
-                "a_deg": cmp.nominal_axes[idx, 2]}
+        return {"point": np.arange(n)[idx], **{c: cmp.nominal_axes[idx, j] for j, c in enumerate(cmp.columns)}}
     cols = dict(point_columns(np.arange(n)), uncompensated_model_um=np.linalg.norm(cmp.baseline_model_um, axis=1))
     if cmp.baseline_true_um is not None:
         cols["uncompensated_true_um"] = np.linalg.norm(cmp.baseline_true_um, axis=1)

@@ -7,8 +7,8 @@ left in ``DIR/chains/MACHINE/CONDITION/``:
 1. a hidden truth of seed ``truth_seed`` (``simulate --machine``: truth elements + the effect);
 2. tracker sweeps of it (``sweeps --machine``, tracker noise ``base_noise_um``, seeded unknown
    tracker pose) → ``identify`` (elements + covariance);
-3. ``n_checks`` check measurements (noise ``check_noise_um``) → ``diagnose`` (update with the
-   identification's covariance, effect search; ``model.json``);
+3. ``n_checks`` check measurements (noise ``check_noise_um``; ``--checks N``, repeatable: once per count,
+   ``chain_checks``) → ``diagnose`` (update with the identification's covariance, effect search; ``model.json``);
 4. the test path: the four body diagonals of the linear axes' volume (ISO 230-6), inset
    :data:`INSET` of each stroke, rotary axes at 0 (or their stroke middle); on a machine with two
    linear axes and one full-turn rotary axis (a turning centre with a C axis), which has no body
@@ -16,7 +16,8 @@ left in ``DIR/chains/MACHINE/CONDITION/``:
    and a face/diameter set of points at :data:`TURNING_C_POSITIONS` positions of the rotary axis);
    compensated by the
    ``exact`` chain solver with the identified element set (row *before closed loop*) and with the
-   loop's ``model.json`` (row *after closed loop*); beside it ``volume_points`` uniform random points
+   loop's ``model.json`` (row *after closed loop*), and with the chain network trained on the identified set's
+   feature points (the learned row, :func:`learned_chain_row`); beside it ``volume_points`` uniform random points
    over every axis (rotary axes kept as programmed).
 
 Residual: TRUE — the truth machine (its effects at the path's conditions :data:`PATH_TEMP_C` and the
@@ -223,11 +224,10 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
     """The rows of ``machine`` (a machine-tool chain) under the settings ``s``; ``log``: the benchmark's
     :class:`RowLog`, ``row``: its row constructor, ``streams``: its seed streams, ``note``: its logger.
     Returns the skipped conditions (``[{"machine", "why"}]``)."""
-    from errormap.diagnosis.loop_model import load_chain_model_file
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
     from errormap.chain_truth import MTTruth
-    from .measurement import diagnose_chain, identify_chain_files, simulate_chain, sweeps_chain
+    from .measurement import identify_chain_files, simulate_chain, sweeps_chain
     skipped = []
     try:
         path = judging_path(machine, s.chain_path_points)
@@ -263,23 +263,13 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
             common["n_measurements"] = n_sweep
             fields = [("before closed loop", ChainField(machine, ChainElementSet.load(el_path, machine)), id_s,
                        {"closed_loop": False})]
-            t0 = time.perf_counter()
-            summary, _ = diagnose_chain(d / "sim" / "checks.csv", machine, el_path, d / "diagnosis",
-                                        noise_um=s.check_noise_um, learn=False)   # the parametric column: the loop alone
-            diag_s = time.perf_counter() - t0
-            lm = load_chain_model_file(summary["model_file"], machine)
-            st = summary["stages"]
-            floor = float(np.sqrt(3.0) * s.check_noise_um)
-            loop = {"closed_loop": True, "diagnosis_seconds": diag_s, "n_checks": s.n_checks,
-                    "kept_stage": summary["kept_stage"],
-                    "effects_found": [f"{e['kind']}:{e['axis']}" for e in summary["effects"]],
-                    "checks_rms_before_um": st["identified"]["held_out"]["rms_um"],
-                    "checks_rms_after_um": summary["held_out_rms_um"],
-                    "held_out_ols_linear_um": st["baseline_ols_linear"]["held_out"]["rms_um"],
-                    "held_out_ols_update_um": st["baseline_ols_update"].get("held_out", {}).get("rms_um"),
-                    "noise_floor_um": floor, "held_out_over_floor": summary["held_out_rms_um"] / floor,
-                    "n_measurements": n_sweep + s.n_checks, "model_verdict": summary.get("verdict")}
-            fields.append(("after closed loop", lm, id_s + diag_s, loop))
+            for n in s.chain_checks or (s.n_checks,):   # --checks N (repeatable): the loop once per count
+                sim = d / "sim" if n == s.n_checks else d / f"sim_checks_{n}"
+                if n != s.n_checks:   # the same truth (its seed), n check measurements
+                    simulate_chain(machine, s.truth_seed, sim, effects=() if eff is None else (eff,),
+                                   noise_um=s.check_noise_um, checks=n)
+                label = "after closed loop" + (f", checks={n}" if s.chain_checks else "")
+                fields.append((label, *_loop_model(machine, s, sim / "checks.csv", el_path, d, n, n_sweep, id_s)))
         except Exception as exc:  # the other conditions still run; the failure is a row, never faked numbers
             log.add(row(machine.name, machine.kind, "parametric", cname, available=False,
                         not_available=f"condition failed: {type(exc).__name__}: {exc}", **common))
@@ -294,7 +284,66 @@ def run_chain(machine, s, log, out_dir, row, streams, note) -> list:
                 v = compensate_chain_true(machine, truth, _at(fld, volume.cond), volume)
                 r.update(volume_rms_um=v["true_rms_um"], volume_max_um=v["true_max_um"])
             log.add(r)
+        log.add(learned_chain_row(machine, s, truth, el_path, (path, volume), f"{cname} (before closed loop)",
+                                  {**common, "closed_loop": False}, id_s, row, note))
     return skipped
+
+
+def learned_chain_row(machine, s, truth, el_path, paths, label: str, common: dict, id_s: float, row, note) -> dict:
+    """The learned row of one condition: the identified set's feature points over the chain's axes (the
+    default grid, ``volcomp featurepoints --machine``) → the chain network (``volcomp train``: LM, ``train_iter``
+    iterations, ``train_s`` on top, the settings' network) → ``exact`` compensation of ``paths`` (the judging
+    path, the volume points or None) → TRUE residual. A network that does not beat its plain baseline (OLS on
+    the axes) is refused by the trainer: the row then says so (never faked numbers)."""
+    import math
+    from errormap.featurepoints import make_feature_points
+    from training.chain_model import fit_chain_field
+    from training.trainers import TrainSettings
+    from ...fields import load_chain_field
+    path, volume = paths
+    try:
+        fp = make_feature_points(machine, load_chain_field(el_path, machine), meta={"elements_file": str(el_path)})
+        settings = TrainSettings(max_iter=s.train_iter, max_time_s=math.inf if s.train_s is None else s.train_s,
+                                 seed=s.seed, hidden=tuple(s.hidden), activation=s.activation,
+                                 a_encoding=s.a_encoding)
+        fit = fit_chain_field(fp, machine, settings, quiet=True)
+    except Exception as exc:  # training unavailable, or no better than its baseline: said, never faked
+        return row(machine.name, machine.kind, "learned", label, available=False,
+                   not_available=f"training failed: {type(exc).__name__}: {exc}", **common)
+    note(f"{machine.name}: learned, {label}")
+    ex = compensate_chain_true(machine, truth, fit.field, path)
+    r = row(machine.name, machine.kind, "learned", label, solver="exact", fit_seconds=id_s + fit.seconds,
+            identify_seconds=id_s, train_seconds=fit.seconds, train_iterations=int(fit.history.iterations),
+            train_val_rms_um=fit.metrics.get("val_rms_um"), train_val_max_um=fit.metrics.get("val_max_um"),
+            train_baseline_ols_val_rms_um=fit.metrics.get("baseline_ols_val_rms_um"),
+            n_featurepoints=len(fp.axes), compensate_seconds_per_point=ex["seconds_per_point"],
+            true_rms_um=ex["true_rms_um"], true_max_um=ex["true_max_um"], solvers={"exact": ex}, **common)
+    if volume is not None:
+        v = compensate_chain_true(machine, truth, fit.field, volume)
+        r.update(volume_rms_um=v["true_rms_um"], volume_max_um=v["true_max_um"])
+    return r
+
+
+def _loop_model(machine, s, checks_path, el_path, d, n: int, n_sweep: int, id_s: float) -> tuple:
+    """``(the loop's model, fit seconds, row fields)`` of ``volcomp diagnose`` on ``n`` checks (the parametric
+    column: the loop alone, no learned stage), its held-out MEASURED residual beside its plain baselines."""
+    from errormap.diagnosis.loop_model import load_chain_model_file
+    from .measurement import diagnose_chain
+    t0 = time.perf_counter()
+    out = d / "diagnosis" if n == s.n_checks else d / f"diagnosis_checks_{n}"
+    summary, _ = diagnose_chain(checks_path, machine, el_path, out, noise_um=s.check_noise_um, learn=False)
+    diag_s = time.perf_counter() - t0
+    st = summary["stages"]
+    floor = float(np.sqrt(3.0) * s.check_noise_um)
+    loop = {"closed_loop": True, "diagnosis_seconds": diag_s, "n_checks": n, "kept_stage": summary["kept_stage"],
+            "effects_found": [f"{e['kind']}:{e['axis']}" for e in summary["effects"]],
+            "checks_rms_before_um": st["identified"]["held_out"]["rms_um"],
+            "checks_rms_after_um": summary["held_out_rms_um"],
+            "held_out_ols_linear_um": st["baseline_ols_linear"]["held_out"]["rms_um"],
+            "held_out_ols_update_um": st["baseline_ols_update"].get("held_out", {}).get("rms_um"),
+            "noise_floor_um": floor, "held_out_over_floor": summary["held_out_rms_um"] / floor,
+            "n_measurements": n_sweep + n, "model_verdict": summary.get("verdict")}
+    return load_chain_model_file(summary["model_file"], machine), id_s + diag_s, loop
 
 
 def _at(field_, cond: dict):

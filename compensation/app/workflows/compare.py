@@ -1,7 +1,9 @@
 """Comparing the compensation methods on one tool path (``volcomp report`` and ``volcomp demo``).
 
 :func:`compare_methods` runs each solver (``traditional``, ``ga``, ``batched-ga``, ``exact``)
-on the same WCS targets with the same error field; the per-point reference ``ga`` may run on
+on the same WCS targets with the same error field, on any machine tool through its chain (the solvers of
+``compensate``, :mod:`compensation.solvers`; a grinder file through its chain, the same axis columns);
+the per-point reference ``ga`` may run on
 an evenly spaced subset of the points when the whole path would take too long (the report
 says so). The :class:`Comparison` it returns is what :mod:`compensation.app.reports.methods`
 writes (``report.html``, ``metrics.json``, ``residuals.csv``; the keys are described there).
@@ -15,12 +17,12 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from errormap.chain_kernel import inverse
 
 from ...batch import CHUNK_POINTS, GA_METHODS, solve_batch
 from ...evaluate import RESIDUAL_DEFINITIONS, method_metrics, residual_metrics, true_residual_um
 from ...pathio import align_turns
 from ...solvers import METHODS, solver_spec
+from ...solvers.chain_exact import target_axes_of
 from ...solvers.threads import small_batch_threads
 
 REPORT_FORMAT = "volcomp-report/1"
@@ -51,7 +53,8 @@ class MethodRun:
 
 @dataclass
 class Comparison:
-    """All methods on one path: nominal axes (n, 3), targets (n, 3), runs by method."""
+    """All methods on one path: nominal axes (n, k) in the machine's ``columns``, targets (n, 3), runs by method;
+    ``turn_of_point`` (n,) the turn of the first full-turn rotary axis (all 0 on a machine without one)."""
 
     targets_mm: np.ndarray
     nominal_axes: np.ndarray
@@ -61,6 +64,7 @@ class Comparison:
     baseline_true_um: np.ndarray | None
     turn_of_point: np.ndarray
     info: dict = field(default_factory=dict)
+    columns: tuple = ()
 
     def metrics(self) -> dict:
         return {"format": REPORT_FORMAT, "residuals": dict(RESIDUAL_DEFINITIONS),
@@ -105,7 +109,9 @@ def guard_counts(result, machine, field_, target_axes=None) -> dict:
 def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga_points: int | None = None,
                     ga_budget_s: float = DEFAULT_GA_BUDGET_S, seed: int = 0, solver_options: dict | None = None,
                     nominal_axes=None, log=None) -> Comparison:
-    """Run ``methods`` on WCS targets (n, 3) with ``field_``; evaluate model and true residuals.
+    """Run ``methods`` on WCS targets (n, 3) with ``field_`` on the machine tool ``machine``; evaluate model and
+    true residuals (``truth``: :mod:`compensation.evaluate`). ``nominal_axes`` (n, k): the targets' axes (default:
+    the chain's nominal inverse, a machine whose rotary axes have none refused by it).
 
     ``ga`` runs on ``ga_points`` evenly spaced points when given; otherwise its cost per
     point is timed on ``GA_PROBE_POINTS`` points and it runs on as many evenly spaced points
@@ -115,7 +121,9 @@ def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga
     log = sys.stderr if log is None else log
     targets_mm = np.asarray(targets_mm, dtype=float)
     n = targets_mm.shape[0]
-    nominal = inverse(machine, targets_mm, unwrap=True) if nominal_axes is None else np.asarray(nominal_axes, float)
+    mt = machine
+    nominal = target_axes_of(mt, targets_mm, nominal_axes, None)
+    full_turn = [j for j, a in enumerate(mt.axes) if a.full_turn]
     solver_options = solver_options or {}
     specs = [solver_spec(m) for m in methods]  # the registry refuses an unknown name
     runs = {}
@@ -144,7 +152,8 @@ def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga
         print(f"{method}: solving {len(idx)} points ...", file=log)
         res = _solve(method, field_, targets_mm[idx], machine, {**opts, "target_axes": nominal[idx]})
         axes = np.array(res.axes, dtype=float)
-        axes[:, 2] = align_turns(axes[:, 2], nominal[idx, 2])
+        for j in full_turn:
+            axes[:, j] = align_turns(axes[:, j], nominal[idx, j])
         tr = true_residual_um(truth, axes, targets_mm[idx]) if truth is not None else None
         met = method_metrics(res, true_residual=tr)
         met["subset"] = bool(len(idx) < n)
@@ -164,6 +173,8 @@ def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga
         baseline.update(residual_metrics(base_true, "true"))
     baseline["note"] = ("nominal commands, no compensation; the model residual here is the field's "
                         "predicted error E(axes(p_d)), with sign flipped")
-    a0 = nominal[0, 2]
-    turn = np.floor((nominal[:, 2] - a0) / 360.0 + 1e-9).astype(int)
-    return Comparison(targets_mm, nominal, runs, baseline, base_model, base_true, turn)
+    turn = np.zeros(n, dtype=int)
+    if full_turn:
+        a = nominal[:, full_turn[0]]
+        turn = np.floor((a - a[0]) / 360.0 + 1e-9).astype(int)
+    return Comparison(targets_mm, nominal, runs, baseline, base_model, base_true, turn, columns=mt.axis_columns)

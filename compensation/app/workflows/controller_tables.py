@@ -81,13 +81,11 @@ def load_model(s: TableSettings, machine):
 
 
 def load_truth(path, machine):
-    """``tool(axes, dirs) -> (n, 3)`` mm of ``--truth`` (a grinder file's simulate folder or element set; a chain's
-    ``truth.json`` of ``simulate --machine`` or truth element set)."""
-    if ex.reads_grinder_files(machine):
-        from ...evaluate import load_truth as load_grinder_truth
-        return ex.truth_tool_points(load_grinder_truth(path, machine), machine)
-    from .measurement import load_chain_truth
-    return ex.chain_truth_tool_points(load_chain_truth(path, machine), machine)
+    """``tool(axes, dirs) -> (n, 3)`` mm of ``--truth`` on the machine tool ``machine`` (a ``simulate`` folder, its
+    ``truth.json`` or a truth element set; a grinder file's through its chain: :func:`compensation.evaluate.load_truth`)."""
+    from types import SimpleNamespace
+    from ...evaluate import load_truth as read_truth
+    return ex.chain_truth_tool_points(SimpleNamespace(truth=read_truth(path, machine))(machine))
 
 
 def notes_of(model, table, left_out) -> tuple[list[str], list[str]]:

@@ -27,7 +27,6 @@ from pathlib import Path
 
 from errormap.featurepoints import FeaturePoints
 from errormap import chain_kernel as htm_kernels  # the HTM model's kernels: the grinder's chain file, compiled
-from errormap.chain_field import ChainField
 from errormap.io import atomic_write, write_json
 from errormap.jit import notice_cold_kernels
 from training import DEFAULT_PHYSICS, PHYSICS_MAX_ITER
@@ -234,7 +233,8 @@ def run_demo(s: DemoSettings, machine, out=None, log=None) -> dict:
     if field is None:
         print("warning: training.fit_field is not available; the demo uses the 23-element HTM model of the "
               "truth elements as its error field instead of a trained network", file=log)
-        field = ChainField(machine, truth.elements)
+        from errormap.chain_field import ChainField
+        field = ChainField(truth.machine, truth.elements)   # the truth's elements on its chain
         train_info = {"run_id": None, "metrics": {}, "model": f"HTM model of {sim_dir / 'truth_elements.json'} "
                                                               "(training unavailable)",
                       "spec": str(sim_dir / "truth_elements.json")}

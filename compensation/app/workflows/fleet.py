@@ -1,13 +1,15 @@
 """The fleet: identify → train → diagnose for every machine of a fleet file, one task per machine.
 
 A fleet file (TOML, ``format = "volcomp-fleet/1"``, docs/reference/file-formats.md) lists machines, each
-with its tracker sweeps and check measurements. Per machine (:func:`run_machine`), into
-``DIR/<name>/``:
+with its tracker sweeps and check measurements; a machine is any machine tool (the built-in grinder, a
+``kind = "grinder"`` file or a machine-tool chain file), each step the one its command runs for it. Per
+machine (:func:`run_machine`), into ``DIR/<name>/``:
 
-1. **identify** the 23 elements from the sweeps (smoothed, bootstrap covariance):
-   ``elements.json``, ``elements.cov.npz``, ``identify_report.json``;
-2. **train** the BP network on the identified set's feature points (LM, a fixed iteration
-   count), tracked as an MLflow run: ``featurepoints.csv``, ``train/`` (model, metrics, plots);
+1. **identify** the elements from the sweeps (smoothed; Gauss–Newton's or the bootstrap's covariance;
+   ``volcomp identify``): ``elements.json``, ``elements.cov.npz``, ``identify_report.json``;
+2. **train** the network on the identified set's feature points over the machine's axes (LM, a fixed
+   iteration count; ``volcomp featurepoints`` and ``train``), tracked as an MLflow run: ``featurepoints.csv``,
+   ``train/`` (model, metrics);
 3. **diagnose** the checks against the identified set and its covariance (the closed loop:
    identified → updated → updated + effects, judged on held-out checks — the MEASURED
    residual): ``diagnosis/``; the diagnosis figures are also logged to the training run;
@@ -100,22 +102,27 @@ def read_fleet(path) -> list[dict]:
                     "machine": file_(f"{k}.machine", m["machine"]) if "machine" in m else None,
                     "sweeps": [file_(f"{k}.sweeps[{j}]", s) for j, s in enumerate(sweeps)],
                     "checks": file_(f"{k}.checks", m.get("checks")),
-                    "noise_um": None if noise is None else float(noise)})
+                    "noise_um": None if noise is None else float(noise), "fleet_file": str(path), "key": k})
     return out
 
 
 def validate_inputs(machines) -> None:
     """Read every machine file, sweep set and check file (raises InputError / MachineFileError
     naming file, row and column) — before any work starts."""
+    from errormap.chain_sweeps import read_mt_sweeps
     from errormap.diagnosis.chain_checks import load_mt_checks
     from errormap.machine import load_machine
-    from errormap.sweeps import read_sweeps
     from ..families import family_of
     for m in machines:
         machine = load_machine(m["machine"])
-        family_of(machine).target("fleet")   # the fleet's pipeline is the grinder's: other machines refused
-        read_sweeps([str(s) for s in m["sweeps"]])
-        load_mt_checks(m["checks"], machine)   # the reader the loop itself uses (diagnose_chain)
+        family_of(machine).target("fleet")   # every machine tool; an arm or a parallel machine refused
+        mt = machine
+        if family_of(machine).target("identify") == "chain" and len(m["sweeps"]) != 1:
+            raise InputError(f"{m['fleet_file']}: key '{m['key']}.sweeps': a machine-tool chain ({machine.name!r}) is "
+                             f"identified from one sweep file (one tracker set-up), got {len(m['sweeps'])}")
+        for p in m["sweeps"]:   # the sweep reader of the machine's chain (the grinder's files read the same)
+            read_mt_sweeps(p, mt)
+        load_mt_checks(m["checks"], mt)   # the reader the loop itself uses (diagnose_chain)
 
 
 def check_tracking_uri(uri: str, n_machines: int, on_cluster: bool) -> None:
@@ -179,44 +186,68 @@ def run_machine(m: dict, out_dir: str, settings: dict) -> dict:
     return summary
 
 
-def _run_machine(m, folder: Path, s: dict) -> dict:
+def _identify(machine, m: dict, folder: Path, s: dict) -> tuple:
+    """``(elements file, tracker σ μm)`` of ``m``'s sweeps, identified as ``volcomp identify`` identifies the machine
+    (:meth:`compensation.app.families.Family.target`): the grinder's element set from its sweep files, a chain's from
+    its one sweep file; each with its covariance and ``identify_report.json``."""
+    from ..families import family_of
+    sweeps = [str(p) for p in m["sweeps"]]
+    el_path, report = folder / "elements.json", folder / "identify_report.json"
+    if family_of(machine).target("identify") == "chain":
+        from .measurement import identify_chain_files
+        res = identify_chain_files(machine, sweeps, el_path, report=report, noise_um=m["noise_um"],
+                                   n_boot=s["bootstrap"], seed=s["seed"])[0]
+        return el_path, float(res.sigma_um if m["noise_um"] is None else m["noise_um"])
+    from .identification import identify_elements
+    ident = identify_elements(machine, sweeps, el_path, report=report, noise_um=m["noise_um"], n_boot=s["bootstrap"],
+                              seed=s["seed"])
+    return ident.elements_path, float(ident.smooth.noise_um)
+
+
+def _train(machine, el_path: Path, folder: Path, s: dict, name: str) -> tuple:
+    """``(feature points file, run id, iterations, metrics)``: the network trained on the identified set's feature
+    points over the machine's axes, tracked as an MLflow run (the feature points say which network: a chain's name
+    their axis columns, as ``volcomp train`` reads them)."""
     import numpy as np
 
     from errormap.featurepoints import make_feature_points
-    from errormap.chain_field import ChainField
     from errormap.io import sha256_file
+    from training.trainers import TrainSettings, fit_field
+
+    from ...fields import load_field
+    fp = make_feature_points(machine, load_field(str(el_path), machine), n=s["grid"],
+                             meta={"elements_file": str(el_path), "elements_sha256": sha256_file(el_path)})
+    fp_path = fp.save(folder / "featurepoints.csv")
+    tags = {"fleet": s["fleet"], "fleet_machine": name, "featurepoints_file": str(fp_path)}
+    if "axis_columns" not in fp.meta:
+        res = fit_field(fp, max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]),
+                        tracking_uri=s["tracking_uri"], run_name=f"fleet {name}", quiet=True, out_dir=folder / "train",
+                        tags=tags)
+        return fp_path, res.run_id, int(res.history.iterations), res.metrics
+    from training.chain_model import fit_chain_field
+    from training.tracking import log_fit
+    settings = TrainSettings(max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]))
+    res = fit_chain_field(fp, machine, settings, out_dir=folder / "train", quiet=True)
+    metrics = {k: float(v) for k, v in res.metrics.items() if isinstance(v, (int, float))}
+    run_id = log_fit(res.params, metrics, res.history, folder / "train" / "model", [folder / "train" / "metrics.json"],
+                     tracking_uri=s["tracking_uri"], run_name=f"fleet {name}",
+                     tags={**tags, "machine": machine.name, "kind": "chain-network"}, pyfunc=False)
+    return fp_path, run_id, int(res.history.iterations), res.metrics
+
+
+def _run_machine(m, folder: Path, s: dict) -> dict:
     from errormap.machine import load_machine
-    from errormap.sweeps import read_sweeps
-    from errormap.uncertainty import covariance_path, smooth_identify
     from errormap.threads import limit_threads
-    from training.trainers import fit_field
 
     from .measurement import diagnose_chain
     from ..reports.chain_diagnosis import write_chain_diagnosis_page
 
     machine = load_machine(m["machine"])   # checked by the fleet's up-front read
     name = m["name"]
+    folder.mkdir(parents=True, exist_ok=True)
     with limit_threads(s.get("threads")):
-        # 1. identify
-        sm = smooth_identify(read_sweeps([str(p) for p in m["sweeps"]]), machine, noise_um=m["noise_um"],
-                             n_boot=s["bootstrap"], seed=s["seed"])
-        el_path = folder / "elements.json"
-        cov_path = covariance_path(el_path)
-        info = sm.raw.to_dict()
-        info.update({"sweeps": [str(p) for p in m["sweeps"]], "machine_file": machine.path,
-                     "machine_sha256": machine.sha256, "elements_file": str(el_path),
-                     "uncertainty": sm.report_dict(), "covariance_file": str(cov_path)})
-        sm.covariance_.save(cov_path)
-        write_json(folder / "identify_report.json", info)
-        sm.elements_.save(el_path)
-        # 2. train on the identified set's feature points
-        fp = make_feature_points(machine, ChainField(machine, sm.elements_), n=s["grid"],
-                                 meta={"elements_file": str(el_path), "elements_sha256": sha256_file(el_path)})
-        fp_path = fp.save(folder / "featurepoints.csv")
-        res = fit_field(fp, max_iter=s["train_iter"], max_time_s=np.inf, seed=s["seed"], hidden=tuple(s["hidden"]),
-                        tracking_uri=s["tracking_uri"], run_name=f"fleet {name}", quiet=True,
-                        out_dir=folder / "train", tags={"fleet": s["fleet"], "fleet_machine": name,
-                                                        "featurepoints_file": str(fp_path)})
+        el_path, noise_um = _identify(machine, m, folder, s)   # 1. identify
+        fp_path, run_id, iterations, train_metrics = _train(machine, el_path, folder, s, name)   # 2. train
         # 3. diagnose: the closed loop on the identified set and its covariance (measured residual)
         summary, paths = diagnose_chain(m["checks"], machine, el_path, folder / "diagnosis")
         paths.append(write_chain_diagnosis_page(folder / "diagnosis", machine))
@@ -224,18 +255,18 @@ def _run_machine(m, folder: Path, s: dict) -> dict:
     metrics = {"diagnose_heldout_rms_identified_um": st["identified"]["held_out"]["rms_um"],
                "diagnose_heldout_rms_updated_um": st["updated"]["held_out"]["rms_um"],
                "diagnose_heldout_rms_final_um": summary["held_out_rms_um"],
-               "identify_noise_um": float(sm.noise_um)}
-    if res.run_id:
-        _log_to_run(s["tracking_uri"], res.run_id, metrics,
+               "identify_noise_um": noise_um}
+    if run_id:
+        _log_to_run(s["tracking_uri"], run_id, metrics,
                     [p for p in paths if Path(p).suffix in (".json", ".html")],
                     {"diagnosis_effects": ",".join(f"{e['kind']}:{e['axis']}" for e in summary["effects"]) or "none",
                      "diagnosis_verdict": (summary.get("verdict") or {}).get("status", "passed")})
     verdict = summary.get("verdict") or {"status": "passed", "reasons": []}
     return {"name": name, "status": machine_status(verdict), "verdict": verdict, "machine_file": machine.path,
-            "run_id": res.run_id,
-            "tracking_uri": s["tracking_uri"], "train_iterations": int(res.history.iterations),
-            "train": {k: float(res.metrics[k]) for k in ("train_max_um", "train_rms_um", "val_max_um", "val_rms_um")
-                      if k in res.metrics},
+            "run_id": run_id,
+            "tracking_uri": s["tracking_uri"], "train_iterations": iterations,
+            "train": {k: float(train_metrics[k]) for k in ("train_max_um", "train_rms_um", "val_max_um", "val_rms_um")
+                      if k in train_metrics},
             "residual": "measured (check measurement − model prediction), held-out checks",
             "diagnosis": metrics, "effects": [f"{e['kind']} {e['axis']} {e['element']}" for e in summary["effects"]],
             "files": {"elements": str(el_path), "featurepoints": str(fp_path), "train": str(folder / "train"),
