@@ -93,7 +93,7 @@ def test_model_file_round_trip_and_recognition(tmp_path):
     f = _model(mt)
     el = f.elements.save(tmp_path / "updated_elements.json")
     p = save_chain_model(tmp_path / "renamed.txt", mt, el, f.terms, "updated_plus_effects")
-    assert resolve_model(p).kind == "chain-model"         # by content, whatever the name
+    assert resolve_model(p).kind == "model"               # by content, whatever the name
     g = load_chain_model_file(p, mt).with_conditions({"temp_c": 23.0, "dir_z": -1.0})
     q = _points(mt, 50, 4)
     assert np.abs(g.predict(q) - f.with_conditions({"temp_c": 23.0, "dir_z": -1.0}).predict(q)).max() < TOL_VALUE_UM
@@ -180,7 +180,7 @@ def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
     diag = json.loads((d / "diag" / "diagnosis.json").read_text())
     assert [(e["kind"], e["axis"]) for e in diag["effects"]] == [("periodic", "Y")]
     model = json.loads((d / "diag" / "model.json").read_text())
-    assert model["format"] == "volcomp-chain-model/1" and len(model["terms"]) == 1
+    assert model["format"] == "volcomp-model/1" and len(model["terms"]) == 1
     # the file is the model the loop judged, re-estimated on all checks (the held-out ones included) once chosen: on the
     # held-out checks it is at least as close as the figure the loop judged it by (diagnosis.json's)
     from errormap.diagnosis.chain_loop import load_mt_checks
