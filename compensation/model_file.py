@@ -217,6 +217,18 @@ def _network(folder, machine):
     return MLPField.load(folder)
 
 
+def save_model_file(path, machine, elements=None, covariance=None, network_folder=None, kept_stage: str = "elements",
+                    provenance=None) -> Path:
+    """Write ``model.json`` (``volcomp-model/1``) at ``path`` naming the files a command wrote beside it: the element
+    set ``elements`` and its ``covariance`` (``volcomp identify``), or the trained ``network_folder`` (``volcomp
+    train``); ``provenance``: what wrote it, from which inputs. Returns the path."""
+    from errormap.diagnosis.loop_model import save_chain_model
+    from errormap.grinder_file import machine_tool_of
+    network = {"folder": network_folder} if network_folder is not None else None
+    return save_chain_model(path, machine_tool_of(machine), elements, (), kept_stage, covariance_file=covariance,
+                            network=network, provenance=provenance)
+
+
 # --- the grinder file's old closed-loop model (volcomp-diagnosed-model/1) ---------------------------------------
 def _read_diagnosed(src: ModelSource, machine, tracking_uri) -> Model:
     """The grinder's closed-loop ``model.json``: its elements plus the grinder's effect terms (and learned residual),
@@ -305,4 +317,4 @@ _READERS = {"model": _read_model_json, "chain-model": _read_model_json, "diagnos
             "mlflow": _read_network}
 """The reader of each recognised format: the one place a model file's format decides anything."""
 
-__all__ = ["Model", "read_model", "LEARNED_KEYS", "loop_alone_model", "CHAIN_MODEL_FORMAT", "MODEL_FORMAT"]
+__all__ = ["Model", "read_model", "save_model_file", "LEARNED_KEYS", "loop_alone_model", "CHAIN_MODEL_FORMAT", "MODEL_FORMAT"]
