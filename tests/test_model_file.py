@@ -211,3 +211,13 @@ def test_identify_writes_a_model_file_naming_its_elements_and_covariance(tmp_pat
     assert named.provenance == {"written_by": "volcomp identify", "sweeps": [str(tmp_path / "sw.csv")]}
     axes = _points(m)
     np.testing.assert_allclose(named.field.predict(axes), bare.field.predict(axes), rtol=0, atol=SAME_UM)
+
+
+def test_diagnose_starts_from_a_model_file_of_elements_and_refuses_one_with_terms(tmp_path, capsys):
+    """The closed loop reads --model through the one reader too: a model.json holding effect terms is not a start."""
+    m = load_machine("mill-xyz")
+    p = _model_json(tmp_path, m)
+    checks = write_csv(tmp_path / "checks.csv", {c: v for c, v in zip(m.axis_columns, _points(m, 3).T)})
+    assert main(["diagnose", str(checks), "--machine", "mill-xyz", "--model", str(p), "--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(p) in err[0] and "holds elements, effect terms" in err[0], err
