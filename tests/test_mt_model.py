@@ -167,14 +167,14 @@ def test_chain_effect_kinds_come_from_the_registry(name):
 
 @pytest.mark.slow
 def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
-    """simulate (truth hidden) → sweeps → identify → diagnose → compensate the pocket program with the
-    loop's model.json; the truth only for the TRUE report."""
+    """simulate (truth hidden) → sweeps → identify → diagnose (from identify's model.json) → compensate the pocket
+    program with the loop's model.json; the truth only for the TRUE report."""
     d = tmp_path
     base = ["--machine", "mill-xyz", "--seed", "3", "--family", "independent", "--effect", "periodic:Y"]
     assert main(["sweeps", *base, "--noise-um", "2", "--seed-noise", "1003", "--out", str(d / "sweeps.csv")]) == 0
     assert main(["simulate", *base, "--noise-um", str(CHECK_NOISE_UM), "--checks", "800", "--out", str(d / "sim")]) == 0
     assert main(["identify", str(d / "sweeps.csv"), "--machine", "mill-xyz", "--out", str(d / "E.json")]) == 0
-    assert main(["diagnose", str(d / "sim" / "checks.csv"), "--machine", "mill-xyz", "--model", str(d / "E.json"),
+    assert main(["diagnose", str(d / "sim" / "checks.csv"), "--machine", "mill-xyz", "--model", str(d / "E.model.json"),
                  "--noise-um", str(CHECK_NOISE_UM), "--no-learned", "--out", str(d / "diag")]) == 0
     # --no-learned: this test judges the element set + effect terms the file holds (the learned stage has its own)
     diag = json.loads((d / "diag" / "diagnosis.json").read_text())
