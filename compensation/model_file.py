@@ -20,7 +20,8 @@ field of the axes and is refused here, naming the commands that take it.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from dataclasses import field as dc_field
 from pathlib import Path
 
 from errormap.io import InputError, companion_path, read_document_text
@@ -63,7 +64,7 @@ class Model:
     network: str | None = None
     stage: str | None = None
     per_point: bool = False
-    provenance: dict = field(default_factory=dict)
+    provenance: dict = dc_field(default_factory=dict)
     doc: dict | None = None
 
     @property
@@ -113,7 +114,9 @@ def _read_model_json(src: ModelSource, machine, tracking_uri) -> Model:
     if doc.get("elements") is None and network is not None:
         if doc.get("terms"):
             raise InputError(f"{path}: key 'terms': effect terms need the element set they act on (key 'elements')")
-        base = read_model(network, machine, tracking_uri).field
+        net_src = require_kind(resolve_model(network), ("network", "chain-network", "mlflow"),
+                               f"{path}: key 'network' names")
+        base = _read_network(net_src, machine, tracking_uri).field
     else:
         base = load_chain_model_file(path, mt, learned="ignore")
         elements, el_path = base.elements, path.parent / doc["elements"]
