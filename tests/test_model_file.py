@@ -221,3 +221,16 @@ def test_diagnose_starts_from_a_model_file_of_elements_and_refuses_one_with_term
     assert main(["diagnose", str(checks), "--machine", "mill-xyz", "--model", str(p), "--out", str(tmp_path / "d")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(p) in err[0] and "holds elements, effect terms" in err[0], err
+
+
+def test_export_refuses_the_grinders_old_closed_loop_model_naming_its_element_set(tmp_path):
+    from compensation.export.sources import load_model as export_model
+    from errormap.simulator import random_truth
+    g = load_machine(None)
+    random_truth(g, 3).elements.save(tmp_path / "updated_elements.json")
+    term = {"kind": "thermal", "axis": "x", "element": "dx_x", "coefficients": [0.01],
+            "reference": {"ref_temp_c": 20.0, "ref_time_s": 0.0}}
+    (tmp_path / "model.json").write_text(json.dumps({"format": "volcomp-diagnosed-model/1", "stage": "updated",
+                                                     "elements": "updated_elements.json", "terms": [term]}))
+    with pytest.raises(InputError, match=r"model.json: its effect terms take their conditions per point.*updated_elements"):
+        export_model(str(tmp_path / "model.json"), "grid", g)

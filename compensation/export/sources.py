@@ -40,6 +40,9 @@ def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
     if fmt == "iso-tables":
         raise ValueError(f"--format iso-tables needs an element set: ISO component tables are the elements' "
                          f"components, and {src.description} holds {', '.join(model.holds())}")
+    if model.per_point:   # the grinder's older closed-loop model: its terms take their conditions point by point
+        raise InputError(f"{src.path}: its effect terms take their conditions per point, which a table cannot; "
+                         f"export its element set {model.elements_path} (with --diagnosis for the reversal terms)")
     if model.learned is not None:
         raise InputError(f"{src.path}: key 'learned_residual': the model's kept stage includes a learned residual, "
                          f"which --format {fmt} does not carry (predict and compensate do); it is not dropped silently")
