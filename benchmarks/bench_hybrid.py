@@ -249,7 +249,7 @@ def user_path(main, td: Path, family: str, seed: int, eff, noise_ss, checks: int
 def _run_case(family: str, seed: int, effect: str, checks: int = 800, check_noise_seed=None,
               residuals: bool = False) -> dict:
     from compensation.app.cli import main
-    from compensation.diagnosed_model import load_diagnosed_model, loop_alone_model
+    from compensation.model_file import load_diagnosed_model, loop_alone_model
     from compensation.evaluate import true_residual_um
     from compensation.hybrid import HybridField
     from errormap.elements import ElementSet
@@ -272,7 +272,7 @@ def _run_case(family: str, seed: int, effect: str, checks: int = 800, check_nois
         s = json.loads((td / "diag" / "diagnosis.json").read_text())
         model = json.loads((td / "diag" / "model.json").read_text())
         # the loop alone: its own elements and terms where the hybrid's base was backfitted, with the condition
-        # terms the learned stage replaced (compensation.diagnosed_model.loop_alone_model)
+        # terms the learned stage replaced (compensation.model_file.loop_alone_model)
         (td / "diag" / "model_parametric.json").write_text(json.dumps(loop_alone_model(model)))
         P = random_axes(m, N_VOLUME, np.random.default_rng(probe_ss))
         for k, name in ((0, "x_mm"), (1, "z_mm")):  # 1 mm inside the strokes: compensated commands stay in them

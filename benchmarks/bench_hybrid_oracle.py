@@ -124,7 +124,7 @@ def element_gp_predict(theta, F, J, y, Fs, Js):
 def run_case(case: str, seed: int, element_gp: bool = True, family: str = "default") -> dict:
     from bench_hybrid import EDGE_MM, N_VOLUME, user_path
     from compensation.app.cli import main
-    from compensation.diagnosed_model import load_diagnosed_model, loop_alone_model
+    from compensation.model_file import load_diagnosed_model, loop_alone_model
     from compensation.hybrid import CV_BLOCKS, axis_features, input_set_groups
     from errormap.chain_kernel import error_jacobian
     from errormap.elements import ELEMENT_NAMES

@@ -99,7 +99,7 @@ def stage_run(prog, model, out_dir) -> dict:
         except (ImportError, AttributeError):
             continue
     from compensation import guards
-    from compensation.diagnosed_model import load_path_field
+    from compensation.compensate import load_model
     from compensation.pathio import align_turns, read_path, render_compensated, replan, write_outputs
     from compensation.solvers import solve
     from errormap.machine import load_machine
@@ -122,7 +122,7 @@ def stage_run(prog, model, out_dir) -> dict:
         frame = {}
     tp = read_path(prog, machine, rapids="keep", block_delete=None, arc_tolerance_um=0.5, **frame)
     now = lap("read+parse+plan", now)
-    field = load_path_field(model, machine, None, argparse.Namespace())
+    field = load_model(model, machine)
     now = lap("field load", now)
     tp = replan(tp, machine, max_segment_mm="auto", field=field)
     now = lap("replan auto", now)

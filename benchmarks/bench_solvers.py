@@ -441,8 +441,8 @@ def retry_only(args, machine, htm, targets, axes, log) -> int:
     js = Path(args.out).with_suffix(".json")
     res = json.loads(js.read_text()) if js.exists() else {"fields": {}}
     if args.retry_model:
-        from compensation.fields import load_field
-        field = load_field(args.retry_model, machine, tracking_uri=args.tracking_uri)
+        from compensation.compensate import load_model
+        field = load_model(args.retry_model, machine, tracking_uri=args.tracking_uri)
         label = f"`{args.retry_model}`"
     else:
         log(f"training the learned field (LM, ≤ {args.train_s:g} s)")

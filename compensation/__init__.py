@@ -8,7 +8,9 @@ docs/reference/python-api.md) load lazily on first use, so ``import compensation
 * :func:`compensate_program` — tool-path files (G-code, axis CSV) of a machine-tool chain, written as
   ``volcomp compensate`` writes them; :class:`CompensateSettings` how;
 * :class:`Compensation` — the one result of both (commands, residuals, notes, refused, overrides);
-* :func:`save_model` / :func:`load_model` — a model to files every command reads, and back as a field.
+* :func:`save_model` / :func:`load_model` — a model to files every command reads, and back as a field;
+  :func:`read_model` — any model file as a :class:`Model` (the field and what it holds: elements, covariance,
+  effect terms, learned residual, network, provenance).
 """
 
 _LAZY = {
@@ -18,6 +20,8 @@ _LAZY = {
     "Compensation": "compensation.compensate",
     "save_model": "compensation.compensate",
     "load_model": "compensation.compensate",
+    "read_model": "compensation.model_file",
+    "Model": "compensation.model_file",
     "CompensateSettings": "compensation.app.workflows.compensate",
 }
 

@@ -2,11 +2,12 @@
 
 ``volcomp diagnose --machine M`` runs the learned-residual stage (:func:`compensation.hybrid.learned_stage`)
 after the chain loop's effect search (``compensation/app/workflows/measurement.py``); when it is kept, the
-chain's ``model.json`` (``volcomp-chain-model/1``) carries it under ``learned_residual``
+``model.json`` (``volcomp-model/1``) carries it under ``learned_residual``
 (:data:`errormap.diagnosis.loop_model.LEARNED_KEY`) beside the elements and the effect terms.
 
-:func:`load_chain_model` reads such a file whole: the loop's :class:`~errormap.diagnosis.loop_model.ChainModelField`
-(elements + terms), wrapped in a :class:`ChainHybridField` when a learned residual is kept.
+:func:`compensation.model_file.read_model` reads such a file whole: the loop's
+:class:`~errormap.diagnosis.loop_model.ChainModelField` (elements + terms), wrapped in a :class:`ChainHybridField`
+when a learned residual is kept.
 :class:`ChainHybridField` is a :class:`compensation.hybrid.HybridField` (value and Jacobian: the chain's
 plus the learned part's in closed form; the calibrated volume narrowed to the checks' box in the linear
 axes) that also carries the loop model's conditions (``needs``, ``with_conditions``), so ``predict`` and
@@ -14,11 +15,7 @@ axes) that also carries the loop model's conditions (``needs``, ``with_condition
 """
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
-from errormap.diagnosis.loop_model import LEARNED_KEY, ChainModelField, load_chain_model_file
-from errormap.io import InputError, read_document_text
+from errormap.diagnosis.loop_model import ChainModelField
 
 from .hybrid import HybridField, LearnedResidual
 
@@ -52,19 +49,3 @@ class ChainHybridField(HybridField):
 
     def with_conditions(self, conditions: dict) -> "ChainHybridField":
         return ChainHybridField(self.base.with_conditions(conditions), self.learned)
-
-
-def load_chain_model(path, machine):
-    """The chain loop's ``model.json`` for ``machine`` as an error field: a
-    :class:`~errormap.diagnosis.loop_model.ChainModelField`, or a :class:`ChainHybridField` when the file
-    holds a kept learned residual; InputError naming the file and key otherwise."""
-    path = Path(path)
-    base = load_chain_model_file(path, machine, learned="ignore")
-    d = json.loads(read_document_text(path, "a diagnosed chain model"))
-    doc = d.get(LEARNED_KEY)
-    if doc is None:
-        return base
-    try:
-        return ChainHybridField(base, LearnedResidual.from_dict(doc))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: key '{LEARNED_KEY}': {exc}") from None

@@ -182,27 +182,28 @@ def _program_result(summary: dict) -> Compensation:
 def save_model(path, model) -> Path:
     """Write ``model`` where every command reads it; returns the file to name as ``--model``:
 
-    * an element set, or a fitted ``Identification``: the element set at ``path`` (with a chain's
-      covariance beside it, ``NAME.cov.npz``, as ``volcomp identify`` writes);
-    * a fitted ``ClosedLoop``: its kept elements at ``NAME.elements.json`` and ``path`` the chain model
-      (``model.json`` format: elements + effect terms, as ``volcomp diagnose`` writes without a learned
-      residual);
+    * a fitted ``Identification``: ``model.json`` at ``path`` (format ``volcomp-model/1``) with its element set
+      beside it (``NAME.elements.json``) and that set's covariance (``NAME.elements.cov.npz``);
+    * a fitted ``ClosedLoop``: ``model.json`` at ``path`` with its kept elements beside it
+      (``NAME.elements.json``) and its effect terms (as ``volcomp diagnose`` writes without a learned residual);
+    * an element set: the element set at ``path``;
     * a fitted ``DriftSelector`` or a ``DriftModel``: the drift model (``drift_model.json`` format; read it
       back with ``DriftModel.load``)."""
     from errormap.diagnosis.drift_models import DriftSelector
+    from errormap.diagnosis.loop_model import save_chain_model
     from errormap.estimators import ClosedLoop, Identification, machine_tool
     from errormap.io import companion_path
     path = Path(path)
-    if isinstance(model, ClosedLoop):
-        from errormap.diagnosis.loop_model import save_chain_model
-        model._check_fitted("field_")
-        el = model.elements_.save(companion_path(path, ".elements.json"))
-        return save_chain_model(path, machine_tool(model.machine, "save_model"), el, model.terms_, model.kept_stage_)
-    if isinstance(model, Identification):
+    if isinstance(model, (ClosedLoop, Identification)):
         model._check_fitted("elements_")
+        el = model.elements_.save(companion_path(path, ".elements.json"))
+        mt = machine_tool(model.machine, "save_model")
+        written = {"written_by": f"compensation.save_model({type(model).__name__})"}
+        if isinstance(model, ClosedLoop):
+            return save_chain_model(path, mt, el, model.terms_, model.kept_stage_, provenance=written)
         from errormap.chain_covariance import save_chain_covariance
-        save_chain_covariance(model.result_, companion_path(path, ".cov.npz"))
-        model = model.elements_
+        cov = save_chain_covariance(model.result_, companion_path(el, ".cov.npz"))
+        return save_chain_model(path, mt, el, covariance_file=cov, provenance=written)
     if isinstance(model, DriftSelector):
         model._check_fitted("model_")
         model = model.model_
@@ -214,11 +215,11 @@ def save_model(path, model) -> Path:
 
 def load_model(spec, machine, tracking_uri: str | None = None):
     """An error field (``predict(axes) -> (n, 3)`` μm) from a model file, folder or MLflow reference for
-    ``machine`` (:func:`compensation.fields.load_field`: recognised by content, refused naming the file). On
-    the grinder an element set, a chain model and its trained networks are read on its chain (as the estimators
-    fit it)."""
-    from .fields import load_field, resolve_model
-    return load_field(spec, machine, tracking_uri, source=resolve_model(spec))
+    ``machine``: the ``field`` of :func:`compensation.model_file.read_model` (the one reader; recognised by
+    content, refused naming the file and key). Element sets and model files are read on a machine's chain (a
+    grinder file's too, as the estimators fit it); the grinder's trained network of x, z, a as trained."""
+    from .model_file import read_model
+    return read_model(spec, machine, tracking_uri).field
 
 
 __all__ = ["Compensation", "compensate_joints", "compensate_points", "compensate_program", "load_model", "save_model"]

@@ -1,9 +1,8 @@
-"""Loading an error field from what the user names on the command line.
+"""Recognising what the user names as ``--model``, and the diagnosis verdict that governs it.
 
-``--model`` accepts an element-set file (the HTM field), a trained model folder or an MLflow run
-id / ``runs:/<id>/...`` / ``models:/...`` URI of a trained network (the learned field); the
-compensation commands also take the closed loop's ``model.json`` (see
-:mod:`compensation.diagnosed_model`).
+``--model`` accepts a ``model.json`` (``volcomp-model/1``), any older model file (an element set, a closed
+loop's ``model.json``), a trained model folder or an MLflow run id / ``runs:/<id>/...`` / ``models:/...`` URI of
+a trained network; :func:`compensation.model_file.read_model` reads each (the one reader).
 
 A file is recognised by its content, never by its name: :func:`resolve_model` reads the JSON's
 ``format`` key (``schema`` for a drift model), a folder by the ``config.json`` of a trained model
@@ -19,6 +18,7 @@ from pathlib import Path
 
 from errormap.io import InputError, read_document_text
 
+MODEL_FORMAT = "volcomp-model/1"         # model.json (errormap/diagnosis/loop_model.py writes it)
 ELEMENTS_FORMAT = "volcomp-elements/1"
 DIAGNOSED_FORMAT = "volcomp-diagnosed-model/1"
 CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"  # model.json of diagnose on a machine-tool chain (errormap/diagnosis/loop_model.py)
@@ -27,7 +27,8 @@ CHAIN_NETWORK_FORMAT = "volcomp-chain-mlpfield/1"  # the same over a machine-too
 DRIFT_SCHEMA = "volcomp.drift_model"       # the drift model's key 'schema' (errormap/diagnosis/drift_models.py)
 _RUN_ID = re.compile(r"^[0-9a-f]{32}$")    # an MLflow run id (training/tracking.py RUN_ID_RE)
 
-KIND_NAMES = {"elements": f"element set ({ELEMENTS_FORMAT})",
+KIND_NAMES = {"model": f"model ({MODEL_FORMAT})",
+              "elements": f"element set ({ELEMENTS_FORMAT})",
               "diagnosed": f"diagnosed model ({DIAGNOSED_FORMAT})",
               "chain-model": f"diagnosed chain model ({CHAIN_MODEL_FORMAT})",
               "drift": f"drift model ({DRIFT_SCHEMA})",
@@ -66,6 +67,8 @@ def _json_format(path: Path) -> str | None:
     if not isinstance(d, dict):
         raise InputError(f"{path}: not a model file (JSON {type(d).__name__}, no key 'format'); expected {_EXPECTED}")
     fmt = d.get("format")
+    if fmt == MODEL_FORMAT:
+        return "model"
     if fmt == ELEMENTS_FORMAT:
         return "elements"
     if fmt == DIAGNOSED_FORMAT:
@@ -82,10 +85,8 @@ def _json_format(path: Path) -> str | None:
     raise InputError(f"{path}: key 'format': {got}; not a model file volcomp reads (expected {_EXPECTED})")
 
 
-_EXPECTED = (f"an element set (format {ELEMENTS_FORMAT!r}), a diagnosed model.json ({DIAGNOSED_FORMAT!r}), "
-             f"a chain's diagnosed model.json ({CHAIN_MODEL_FORMAT!r}), "
-             f"a drift model (schema {DRIFT_SCHEMA!r}) or a trained model folder ({NETWORK_FORMAT!r} or "
-             f"{CHAIN_NETWORK_FORMAT!r})")
+_EXPECTED = (f"a model.json ({MODEL_FORMAT!r}) or an older model file: an element set, a closed loop's model.json, "
+             "a drift model or a trained model folder")
 
 
 def resolve_model(spec) -> ModelSource:
@@ -118,55 +119,12 @@ def require_kind(src: ModelSource, kinds, what: str) -> ModelSource:
         hint = {"drift": "; a drift model is applied by `volcomp drift-predict` and exported with `volcomp export "
                          "--format drift`",
                 "diagnosed": "; `volcomp compensate` takes a diagnosed model.json",
-                "chain-model": "; a chain's model.json is for `predict` / `compensate` with --machine"}.get(src.kind, "")
+                "chain-model": "; a chain's model.json is for `predict` / `compensate` with --machine",
+                "model": "; a model.json is for `predict`, `compensate`, `export` and `report`"}.get(src.kind, "")
         name = KIND_NAMES[src.kind]
         article = "an" if name[0] in "aeiou" else "a"
         raise InputError(f"{src.path or src.spec}: {article} {name}, but {what} one of: {want}{hint}")
     return src
-
-
-def load_field(spec, machine, tracking_uri: str | None = None, source: ModelSource | None = None):
-    """An error field (``predict(axes) -> (n, 3)`` μm) for ``spec`` on a machine tool (a chain file, or a
-    ``kind = "grinder"`` file read as its chain): an element set,
-    a diagnosed chain ``model.json``, a trained network (folder or MLflow; which network is read from its own
-    ``config.json``); other model kinds are refused naming what the file is."""
-    src = source or resolve_model(spec)
-    require_kind(src, ("elements", "chain-model", "chain-network", "network", "mlflow"), "this command evaluates")
-    mt = machine
-    if src.kind == "chain-model":   # elements + terms (+ the learned residual when the loop kept it)
-        from .chain_hybrid import load_chain_model
-        return load_chain_model(src.path, mt)
-    if src.kind in ("elements", "chain-network"):
-        return load_chain_field(src.path, mt, src.kind)
-    try:
-        from training.tracking import load_field as load_learned
-    except ImportError as exc:  # pragma: no cover
-        raise InputError(f"{spec}: a trained model, and the learned-field loader is unavailable ({exc})") from None
-    return load_learned(str(src.path) if src.path is not None else src.spec, tracking_uri=tracking_uri,
-                        loader=lambda folder: _network(folder, mt))
-
-
-def _network(folder, machine):
-    """The trained network in ``folder``, as its ``config.json`` names it: a chain network (refused unless trained
-    on ``machine``) or the grinder's network of x, z, a."""
-    folder = Path(folder)
-    if _json_format(folder / "config.json") == "chain-network":
-        return load_chain_field(folder, machine, "chain-network")
-    from training.model import MLPField
-    return MLPField.load(folder)
-
-
-def load_chain_field(path, machine, kind: str = "elements"):
-    """The :class:`errormap.chain_field.ChainField` of a machine-tool chain from an element-set file
-    (format ``volcomp-elements/1`` with the chain's element names; InputError naming the file and
-    the key otherwise); ``kind="chain-network"``: the trained network folder
-    (:class:`training.chain_model.ChainMLPField`), refused unless trained on this machine."""
-    if kind == "chain-network":
-        from training.chain_model import ChainMLPField, check_machine
-        return check_machine(ChainMLPField.load(path), machine, Path(path) / "config.json")
-    from errormap.chain_elements import ChainElementSet
-    from errormap.chain_field import ChainField
-    return ChainField(machine, ChainElementSet.load(path, machine))
 
 
 # --- the diagnosis's verdict ---------------------------------------------------------------------

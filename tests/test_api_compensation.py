@@ -95,8 +95,12 @@ def test_save_and_load_fitted_estimators(tmp_path):
     truth = simulate_truth(m, seed=1)
     ident = Identification(m).fit(simulate_sweeps(truth, noise_um=1.0, seed=2, n_stations=6))
     axes = np.array([[100.0, 50, -100], [500, 350, -350]])
-    p = save_model(tmp_path / "E.json", ident)
-    assert (tmp_path / "E.cov.npz").is_file()
+    p = save_model(tmp_path / "ident.json", ident)   # model.json with its elements and covariance beside it
+    from compensation.model_file import read_model
+    got = read_model(p, m)
+    assert got.format == "volcomp-model/1" and got.holds() == ["elements", "covariance"]
+    assert got.elements_path == tmp_path / "ident.elements.json"
+    assert got.covariance_path == tmp_path / "ident.elements.cov.npz"
     np.testing.assert_allclose(load_model(p, m).predict(axes), ident.predict(axes), rtol=0, atol=ROUND_TRIP_TOL_UM)
     loop = ClosedLoop(m, effects=False).fit(simulate_checks(truth, n=40, noise_um=1.0, seed=3), ident.elements_,
                                             ident.prior_covariance_)

@@ -14,7 +14,7 @@ from compensation.app.workflows.benchmark_flute import grinder_conditions
 from compensation.app.workflows.benchmark_parallel import (learned_pkm_commands, measured_pose_errors, pkm_true_residual,
                                                            pose_inputs)
 from compensation.app.reports.benchmark import render_html, summary_lines, verdicts
-from compensation.diagnosed_model import ConditionedField
+from compensation.conditions import ConditionedField
 
 REQUIRED_ROW_KEYS = ("machine", "path", "condition", "true_rms_um", "true_max_um", "fit_seconds",
                      "compensate_seconds_per_point", "n_measurements")
@@ -87,7 +87,7 @@ def test_quick_settings_are_a_subset_of_the_default():
     assert d.train_s is None and d.pkm_train_s is None  # training stops on iterations: reproducible by default
 
 
-# -- fields at fixed path conditions (one class: compensation.diagnosed_model.ConditionedField) ------
+# -- fields at fixed path conditions (one class: compensation.conditions.ConditionedField) ------
 class _NeedsTemp:
     needs = ("temp_c",)
     machine = None
@@ -596,7 +596,7 @@ def test_out_of_catalogue_rows_are_volcomp_identify_then_diagnose(grinder, tmp_p
     from compensation.app.workflows.benchmark_common import EFFECTS_LOOP, USER_LOOP, rng_streams
     from compensation.app.workflows.benchmark_flute import (GrinderCondition, compensate_true, condition_sweeps,
                                                             grinder_truth)
-    from compensation.diagnosed_model import load_diagnosed_model
+    from compensation.model_file import load_diagnosed_model
     from errormap.io import write_csv
     from errormap.sweeps import SWEEP_FORMAT
     g = _small_bench(grinder)

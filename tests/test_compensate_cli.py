@@ -244,13 +244,14 @@ def test_output_set_is_all_or_nothing(setup, grinder, tmp_path):
 
 
 def test_allow_ball_overrides_a_correction_beyond_the_ball(setup, monkeypatch, capsys):
-    import compensation.fields as fields  # compensate loads through diagnosed_model.load_path_field
+    import compensation.model_file as model_file  # compensate reads its model through model_file.read_model
     from tests.test_guards import ConstantField
     d, el, _, _, _ = setup
     src = d / "edge" / "ball.nc"
     src.parent.mkdir(exist_ok=True)
     src.write_text("G21 G90\nG1 X10 Z1 A0 F100\nG1 X20 A10\nM30\n")
-    monkeypatch.setattr(fields, "load_field", lambda spec, machine, uri: ConstantField(machine, [0.0, 300.0, 200.0]))
+    monkeypatch.setattr(model_file, "read_model", lambda spec, machine, uri, source=None: model_file.Model(
+        ConstantField(machine, [0.0, 300.0, 200.0]), source, "a constant field"))
     base = ["compensate", "--work-offsets", "machine",
             str(src), "--model", str(el), "--method", "exact", "--max-segment-mm", "none"]
     assert main(base + ["--out", str(d / "out_ball1")]) == 3

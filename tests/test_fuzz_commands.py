@@ -143,13 +143,13 @@ def test_fuzz_simulate_machine_file(data, kind):
                 "--out", str(Path(d) / "s")]
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(src)]):
-            from compensation.fields import load_field
+            from compensation.model_file import read_model
             from errormap.field import machine_axes
             machine = load_machine(src)
             t = read_table(Path(d) / "s" / "checks.csv")
             axes = np.stack([t.float(c) for c in machine_axes(machine)], axis=1)
             got = np.stack([t.float(c) for c in ("dx_um", "dy_um", "dz_um")], axis=1)
-            want = load_field(str(Path(d) / "s" / "truth_elements.json"), machine).predict(axes)
+            want = read_model(str(Path(d) / "s" / "truth_elements.json"), machine).field.predict(axes)
             _check_output("simulate", np.allclose(got, want, rtol=TOL_PREDICT_REL, atol=TOL_CHECKS_UM), argv)
 
 

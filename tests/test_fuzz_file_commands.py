@@ -77,7 +77,7 @@ def arm(tmp_path_factory):
 def test_fuzz_train_featurepoints(grinder, data, tmp_path_factory):
     """train on hostile feature points: exit 0 writes a network whose RMS on the rows the library reads from the
     same file is the one metrics.json records (so it was fitted on exactly those rows), or one line naming the file."""
-    from compensation.fields import load_field
+    from compensation.model_file import read_model
     from errormap.featurepoints import FeaturePoints
     from training.trainers import fit_metrics
     store = tmp_path_factory.getbasetemp() / "mlflow.db"
@@ -91,7 +91,7 @@ def test_fuzz_train_featurepoints(grinder, data, tmp_path_factory):
         rc, err = run_main(argv)
         if _tally_outcome(argv, rc, err, [str(p)]):
             fp = FeaturePoints.load(p)
-            field = load_field(str(out / "model"), load_machine(None))
+            field = read_model(str(out / "model"), load_machine(None)).field
             want = fit_metrics("train", field.predict(fp.axes), fp.errors_um)["train_rms_um"]
             got = json.loads((out / "metrics.json").read_text())["train_rms_um"]
             _check_output("train", np.isclose(got, want, rtol=TOL_TRAIN_RMS_REL, atol=0), (argv, got, want))

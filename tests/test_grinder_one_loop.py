@@ -84,7 +84,7 @@ def test_an_old_grinder_file_runs_every_step(run):
     assert s["held_out_over_floor"] < OVER_FLOOR_MAX
     assert s["refit_on_all_checks"]["checks"] == N_CHECKS  # the shipped model is re-estimated on all checks
     model = json.loads((d / "diag" / "model.json").read_text())
-    assert model["format"] == "volcomp-chain-model/1" and model["elements"] == "updated_elements.json"
+    assert model["format"] == "volcomp-model/1" and model["elements"] == "updated_elements.json"
     assert (d / "diag" / "report.html").is_file()
     summ = json.loads((d / "comp" / "compensate_summary.json").read_text())["files"][0]
     assert summ["model_max_um"] < SOLVER_TOL_UM

@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation.diagnosed_model import load_diagnosed_model
+from compensation.model_file import load_diagnosed_model
 from compensation.hybrid import LEARNED_FAMILIES, HybridField, LearnedResidual, TAPER_FRAC, learned_stage
 from compensation.solvers import solve
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field
@@ -368,7 +368,7 @@ def test_solvers_on_a_hybrid_with_the_ensemble_family(grinder):
 def test_loop_alone_model_is_model_json_without_its_learned_part():
     """The loop alone of a model.json: loop_alone's elements and terms plus the replaced condition terms, the
     base stage, no learned key; a model.json without a learned part is its own loop alone."""
-    from compensation.diagnosed_model import LEARNED_KEYS, loop_alone_model
+    from compensation.model_file import LEARNED_KEYS, loop_alone_model
     t = {"kind": "thermal", "axis": "z", "element": "dz_z", "needs": ["temp_c"]}
     s = {"kind": "periodic", "axis": "x", "element": "dx_x"}
     plain = {"format": "volcomp-diagnosed-model/1", "elements": "updated_elements.json", "stage": "updated",

@@ -108,9 +108,9 @@ def test_user_path_backfits_the_learned_part_with_the_update_on_an_a_axis_tilt(t
     cond = truth.default_conditions(len(P))
     e_true = truth.spatial_error(P, **cond)
     err = {}
-    from compensation.chain_hybrid import load_chain_model
+    from compensation.model_file import read_model
     for label in ("model", "alone"):
-        f = load_chain_model(tmp_path / "d" / f"{label}.json", m)
+        f = read_model(tmp_path / "d" / f"{label}.json", m).field
         f = f.with_conditions({c: cond[c] for c in f.needs})
         err[label] = float(np.sqrt(np.mean(np.sum((f.predict(P) - e_true) ** 2, 1))))
     print("tilt user path, model error vs the truth (μm):", err)

@@ -10,7 +10,8 @@ import pytest
 
 from compensation.app.cli import main
 from compensation.hybrid import learned_stage
-from compensation.chain_hybrid import ChainHybridField, load_chain_model
+from compensation.chain_hybrid import ChainHybridField
+from compensation.model_file import read_model
 from errormap.diagnosis.loop_model import ChainModelField, load_chain_model_file, save_chain_model
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
@@ -110,7 +111,7 @@ def test_export_refuses_a_chain_model_with_a_learned_residual_in_one_line(hybrid
 
 def test_chain_hybrid_field_is_base_plus_learned_with_the_checks_box(hybrid_dir):
     m, d, learned = hybrid_dir
-    f = load_chain_model(d / "model.json", m)
+    f = read_model(d / "model.json", m).field
     assert isinstance(f, ChainHybridField) and f.needs == () and f.terms == []
     assert isinstance(f.with_conditions({}), ChainHybridField)
     P = m.stroke_lo + (m.stroke_hi - m.stroke_lo) * np.random.default_rng(1).random((30, 3))
@@ -132,7 +133,7 @@ def test_predict_on_a_chain_hybrid_names_its_box_and_refuses_outside(hybrid_dir,
     assert "checks' box x_mm" in text and "y_mm" in text and "z_mm" in text and "stage: learned_residual" in text
     t = read_table(tmp_path / "o.csv")
     assert list(t.raw("learned_part")) == ["fitted", "fitted"]
-    np.testing.assert_allclose(t.float("dx_um"), load_chain_model(d / "model.json", m).predict(
+    np.testing.assert_allclose(t.float("dx_um"), read_model(d / "model.json", m).field.predict(
         np.array([inside, inside]))[:, 0], rtol=CSV_REL, atol=0)
     write_csv(tmp_path / "q.csv", dict(zip(m.axis_columns, np.array([inside, outside]).T)))
     capsys.readouterr()

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from compensation.diagnosed_model import load_diagnosed_model
+from compensation.model_file import load_diagnosed_model
 from compensation.hybrid import INPUT_GROUPS, TAPER_FRAC, HybridField, LearnedResidual, axis_features
 from compensation.solvers import solve
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, check_field

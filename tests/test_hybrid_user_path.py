@@ -39,13 +39,13 @@ def test_user_path_learns_an_out_of_catalogue_bump_and_compensates_with_it(bump_
     assert "band95_um" in s["learned_residual"]["map"]
     assert s["learned_residual"]["mlflow_run_id"]   # --track: the kept learned residual is an MLflow run
     model = json.loads((d / "model.json").read_text())
-    assert model["format"] == "volcomp-chain-model/1" and model["kept_stage"] == "learned_residual"
+    assert model["format"] == "volcomp-model/1" and model["kept_stage"] == "learned_residual"
     P = random_axes(load_machine(), 100, np.random.default_rng(0))
     lo, hi = np.array(model["learned_residual"]["box_lo"]), np.array(model["learned_residual"]["box_hi"])
     P[:, :2] = lo + (P[:, :2] - P[:, :2].min(0)) / np.ptp(P[:, :2], axis=0) * (hi - lo) * 0.99 + 0.005 * (hi - lo)
     write_csv(tmp_path / "pts.csv", dict(zip(("x_mm", "z_mm", "a_deg"), P.T)), float_fmt="%.12g")
-    from compensation.chain_hybrid import load_chain_model
-    needs = load_chain_model(d / "model.json", load_machine()).needs   # the reference conditions of what it needs
+    from compensation.model_file import read_model
+    needs = read_model(d / "model.json", load_machine()).field.needs   # the reference conditions of what it needs
     conds = [x for c in needs for x in (f"--{c.replace('_', '-')}", "20" if c == "temp_c" else "1")]
     assert main(["compensate", str(tmp_path / "pts.csv"), "--model", str(d / "model.json"),
                  "--method", "exact", "--out", str(tmp_path / "c"), *conds]) == 0

@@ -93,7 +93,7 @@ def test_model_file_round_trip_and_recognition(tmp_path):
     f = _model(mt)
     el = f.elements.save(tmp_path / "updated_elements.json")
     p = save_chain_model(tmp_path / "renamed.txt", mt, el, f.terms, "updated_plus_effects")
-    assert resolve_model(p).kind == "chain-model"         # by content, whatever the name
+    assert resolve_model(p).kind == "model"               # by content, whatever the name
     g = load_chain_model_file(p, mt).with_conditions({"temp_c": 23.0, "dir_z": -1.0})
     q = _points(mt, 50, 4)
     assert np.abs(g.predict(q) - f.with_conditions({"temp_c": 23.0, "dir_z": -1.0}).predict(q)).max() < TOL_VALUE_UM
@@ -167,20 +167,20 @@ def test_chain_effect_kinds_come_from_the_registry(name):
 
 @pytest.mark.slow
 def test_whole_path_on_the_mill_true_residual(tmp_path, capsys):
-    """simulate (truth hidden) → sweeps → identify → diagnose → compensate the pocket program with the
-    loop's model.json; the truth only for the TRUE report."""
+    """simulate (truth hidden) → sweeps → identify → diagnose (from identify's model.json) → compensate the pocket
+    program with the loop's model.json; the truth only for the TRUE report."""
     d = tmp_path
     base = ["--machine", "mill-xyz", "--seed", "3", "--family", "independent", "--effect", "periodic:Y"]
     assert main(["sweeps", *base, "--noise-um", "2", "--seed-noise", "1003", "--out", str(d / "sweeps.csv")]) == 0
     assert main(["simulate", *base, "--noise-um", str(CHECK_NOISE_UM), "--checks", "800", "--out", str(d / "sim")]) == 0
     assert main(["identify", str(d / "sweeps.csv"), "--machine", "mill-xyz", "--out", str(d / "E.json")]) == 0
-    assert main(["diagnose", str(d / "sim" / "checks.csv"), "--machine", "mill-xyz", "--model", str(d / "E.json"),
+    assert main(["diagnose", str(d / "sim" / "checks.csv"), "--machine", "mill-xyz", "--model", str(d / "E.model.json"),
                  "--noise-um", str(CHECK_NOISE_UM), "--no-learned", "--out", str(d / "diag")]) == 0
     # --no-learned: this test judges the element set + effect terms the file holds (the learned stage has its own)
     diag = json.loads((d / "diag" / "diagnosis.json").read_text())
     assert [(e["kind"], e["axis"]) for e in diag["effects"]] == [("periodic", "Y")]
     model = json.loads((d / "diag" / "model.json").read_text())
-    assert model["format"] == "volcomp-chain-model/1" and len(model["terms"]) == 1
+    assert model["format"] == "volcomp-model/1" and len(model["terms"]) == 1
     # the file is the model the loop judged, re-estimated on all checks (the held-out ones included) once chosen: on the
     # held-out checks it is at least as close as the figure the loop judged it by (diagnosis.json's)
     from errormap.diagnosis.chain_loop import load_mt_checks

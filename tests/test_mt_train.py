@@ -158,6 +158,10 @@ def test_train_on_mill_then_predict_and_compensate(smooth_mill, tmp_path, capsys
     assert main(["predict", "--machine", "mill-xyz", "--model", str(run), str(pts), "--out", str(tmp_path / "p.csv")]) == 0
     got = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1)[:, 3:]   # a plain CSV: the header, then rows
     assert np.abs(got - ChainMLPField.load(run / "model").predict(a)).max() < 1e-6 * np.abs(got).max()
+    from compensation.model_file import read_model   # train's model.json names the network folder: the same field
+    named = read_model(run / "model.json", load_machine("mill-xyz"))
+    assert named.holds() == ["network"] and named.provenance["written_by"] == "volcomp train"
+    np.testing.assert_array_equal(named.field.predict(a), ChainMLPField.load(run / "model").predict(a))
     # compensate with the network: exact (model residual to round-off) and batched-ga (GA tolerance)
     for method, bound in (("exact", TOL_MODEL_RESIDUAL_EXACT_UM), ("batched-ga", GA_TOL_UM)):
         out = tmp_path / method

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from compensation.app.validate import UsageError
 
-from ..diagnosed_model import CONDITIONS
+from ..conditions import CONDITIONS
 from ..solvers import METHODS
 from ..toolpath import FLUTE_DEFAULTS, LEAD_LAWS, flute_path
 from .workflows.cluster import CLUSTERS, ClusterSettings
@@ -70,7 +70,7 @@ def add_condition_options(p) -> None:
 
 
 def conditions_from_args(args) -> dict:
-    """``{condition: value or None}`` for :data:`compensation.diagnosed_model.CONDITIONS`."""
+    """``{condition: value or None}`` for :data:`compensation.conditions.CONDITIONS`."""
     return {c: getattr(args, c, None) for c in CONDITIONS}
 
 

@@ -23,27 +23,32 @@ GRINDER_JOINT_ELEMENT = {"x": "dx_x", "z": "dz_z", "a": "ex_a"}
 
 
 def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
-    """``(ModelError, description, source)`` of the model ``spec`` for ``--format fmt`` on ``machine``: an
-    element set; a trained network (grid, linuxcnc); a diagnosed chain ``model.json`` (its terms as a field
-    with conditions). InputError / ValueError in one line otherwise."""
-    from ..fields import load_field, require_kind, resolve_model
-    src = resolve_model(spec)
-    kinds = ("elements", "network", "mlflow", "chain-model", "chain-network")
-    src = require_kind(src, kinds, f"--format {fmt} tabulates")
-    if src.kind == "elements":
-        el = load_elements(src.path, machine)
+    """``(ModelError, description, Model)`` of the model ``spec`` for ``--format fmt`` on ``machine``, read by
+    :func:`compensation.model_file.read_model` (the one reader): an element set tabulates its elements (ISO
+    tables need one and nothing more); a model with effect terms tabulates its field at the tables' conditions;
+    a network its learned field (grid, linuxcnc). A kept learned residual is refused by name (a table would
+    drop it silently otherwise). InputError / ValueError in one line otherwise."""
+    from ..model_file import read_model
+    model = read_model(spec, machine, tracking_uri)
+    src = model.source
+    if model.elements_only:
+        el = load_elements(model.elements_path, machine)
         fld = None if reads_grinder_files(machine) else chain_field(machine, el)
-        return ModelError(machine, el, field=fld), f"{src.path} (element set, sha256 {sha256_file(src.path)})", src
+        return (ModelError(machine, el, field=fld),
+                f"{model.elements_path} (element set, sha256 {sha256_file(model.elements_path)})", model)
     if fmt == "iso-tables":
         raise ValueError(f"--format iso-tables needs an element set: ISO component tables are the elements' "
-                         f"components, and {src.description} is not one")
-    if src.kind == "chain-model":   # elements + diagnosed terms; a kept learned residual is refused by name
-        from errormap.diagnosis.loop_model import load_chain_model_file
-        fld = load_chain_model_file(src.path, machine)
-        return ModelError(machine, fld.elements, field=fld), f"{spec} (diagnosed chain model: {src.description})", src
-    fld = load_field(spec, machine, tracking_uri, source=src)
-    el = None
-    return ModelError(machine, el, field=fld), f"{spec} (learned field: {src.description})", src
+                         f"components, and {src.description} holds {', '.join(model.holds())}")
+    if model.per_point:   # the grinder's older closed-loop model: its terms take their conditions point by point
+        raise InputError(f"{src.path}: its effect terms take their conditions per point, which a table cannot; "
+                         f"export its element set {model.elements_path} (with --diagnosis for the reversal terms)")
+    if model.learned is not None:
+        raise InputError(f"{src.path}: key 'learned_residual': the model's kept stage includes a learned residual, "
+                         f"which --format {fmt} does not carry (predict and compensate do); it is not dropped silently")
+    if model.elements is not None:   # elements + diagnosed terms
+        return (ModelError(machine, model.elements, field=model.field),
+                f"{spec} (diagnosed model, {', '.join(model.holds())}: {src.description})", model)
+    return ModelError(machine, None, field=model.field), f"{spec} (learned field: {src.description})", model
 
 
 def chain_field(machine, elements):

@@ -1,9 +1,16 @@
-"""The chain loop's model file (``DIR/model.json`` of ``volcomp diagnose --machine M``) as an error field.
+"""The model file (``model.json``, ``format: volcomp-model/1``): its writer, and its elements and effect terms as
+an error field of a machine-tool chain.
 
-``model.json`` (``format: volcomp-chain-model/1``) names the machine (name and sha256), the element
-set the loop handed on (a file beside it, ``updated_elements.json``) and the accepted effect terms
-(:class:`errormap.diagnosis.chain_loop.EffectTerm`: kind, axis words, element, shape, coefficients).
-It is written only as the loop kept it: when a plainer stage was kept, the terms list is empty.
+``model.json`` names the machine (``machine``, ``machine_sha256``), the element set (``elements``: a file
+beside it, e.g. ``updated_elements.json``; null for a network alone), that set's covariance (``covariance``: a
+file beside it or null), the kept stage (``kept_stage``), the accepted effect terms
+(:class:`errormap.diagnosis.chain_loop.EffectTerm`: kind, axis words, element, shape, coefficients; empty when a
+plainer stage was kept), the learned residual when kept (``learned_residual``, owned by the compensation
+layer), the surrogate network (``network``: ``{"folder": ...}`` relative to the file, or ``{"mlflow": ...}``;
+null when none) and ``provenance`` (what wrote it, from which inputs). docs/reference/file-formats.md holds the
+schema; ``compensation.model_file.read_model`` is the one reader (older formats included). The chain loop's
+earlier ``volcomp-chain-model/1`` (the same keys less ``covariance``, ``network``, ``provenance``) is read here
+too.
 
 :class:`ChainModelField` is the error field of it over the machine's axes: ``E(q, c) = B(q) + t(q, c)``
 with ``B`` the :class:`errormap.chain_field.ChainField` of the elements and ``t`` the terms' spatial
@@ -31,7 +38,10 @@ from ..chain_field import ChainField
 from ..chain_truth import EFFECT_KINDS
 from .chain_loop import EffectTerm, effect_columns
 
+MODEL_FORMAT = "volcomp-model/1"
 CHAIN_MODEL_FORMAT = "volcomp-chain-model/1"
+"""The chain loop's model.json before :data:`MODEL_FORMAT` (read, never written)."""
+READ_FORMATS = (MODEL_FORMAT, CHAIN_MODEL_FORMAT)
 TERM_STEP = {"linear": 1e-3, "rotary": 1e-3}
 """Central-difference step (mm / deg) of the terms' axis Jacobian. The shortest shape the search fits is a
 2 mm period (a harmonic of order 120 is 3° per cycle): truncation error h²/6·|t'''| ≤ 1e-6·(2π/2)³·10 μm
@@ -49,23 +59,39 @@ def term_needs(machine: MachineTool, term: EffectTerm) -> tuple:
     return ()
 
 
-def save_chain_model(path, machine: MachineTool, elements_file, terms, kept_stage: str, extra=None) -> Path:
-    """Write ``model.json`` (module doc); ``elements_file``: the element set's path (stored relative).
-    ``extra``: further keys (the learned-residual stage's ``learned_residual``, ``base_stage``,
-    ``learned_family``, ``base_terms_replaced``, written by the compensation layer, which owns the
-    learned part; :data:`LEARNED_KEY`)."""
+def save_chain_model(path, machine: MachineTool, elements_file, terms=(), kept_stage: str = "elements", extra=None,
+                     covariance_file=None, network=None, provenance=None) -> Path:
+    """Write ``model.json`` (module doc; format :data:`MODEL_FORMAT`), whole. ``elements_file``: the element
+    set's path (stored relative; None: no element set, a network alone); ``covariance_file``: its covariance
+    (stored relative; None: none); ``network``: ``{"folder": path}`` (stored relative) or ``{"mlflow": uri}``;
+    ``provenance``: ``{"written_by": ..., inputs ...}``. ``extra``: further keys (the learned-residual
+    stage's ``learned_residual``, ``base_stage``, ``learned_family``, ``base_terms_replaced``, the verdict;
+    written by the compensation layer, which owns the learned part; :data:`LEARNED_KEY`)."""
     path = Path(path)
-    d = {"format": CHAIN_MODEL_FORMAT, "machine": machine.name, "machine_sha256": machine.sha256,
-         "elements": Path(elements_file).name, "kept_stage": kept_stage,
+    rel = (lambda f: None if f is None else _relative(f, path.parent))
+    d = {"format": MODEL_FORMAT, "machine": machine.name, "machine_sha256": machine.sha256,
+         "elements": rel(elements_file), "covariance": rel(covariance_file), "kept_stage": kept_stage,
          "terms": [t.to_dict() for t in terms],
+         "network": ({"folder": rel(network["folder"])} if network and "folder" in network else
+                     {"mlflow": str(network["mlflow"])} if network else None),
+         "provenance": dict(provenance or {}),
          "note": "E(q, c) = ChainField(elements)(q) + sum of the terms' columns (error-Jacobian column of the "
                  "element at the nominal chain times the effect's shape) times their coefficients"}
     if extra:
         if LEARNED_KEY in extra:
             d["note"] += ("; + the learned residual (learned_residual: a regressor of the axes, tapered to zero "
-                          "outside the checks' box; read by compensation.chain_hybrid)")
+                          "outside the checks' box; read by compensation.model_file)")
         d.update(extra)
     return write_json(path, d)
+
+
+def _relative(f, folder: Path) -> str:
+    """``f`` relative to ``folder`` when inside it (a file beside the model: its name), else as given."""
+    f = Path(f)
+    try:
+        return f.resolve().relative_to(folder.resolve()).as_posix()
+    except ValueError:
+        return str(f)
 
 
 LEARNED_KEY = "learned_residual"
@@ -73,7 +99,7 @@ LEARNED_KEY = "learned_residual"
 learned part lives in the compensation layer: :func:`load_chain_model_file` reads the elements and terms
 only and REFUSES a file that has it unless told to ignore it (``learned="ignore"``: a caller that needs the
 elements alone, the report page), so no reader silently drops the kept stage's learned part;
-``compensation.chain_hybrid.load_chain_model`` reads the whole model."""
+``compensation.model_file.read_model`` reads the whole model."""
 LEARNED_MODES = ("refuse", "ignore")
 
 
@@ -178,8 +204,8 @@ def load_chain_model_file(path, machine: MachineTool, learned: str = "refuse") -
         d = json.loads(read_document_text(path, "a diagnosed chain model"))
     except (OSError, json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"{path}: not a chain model file ({exc})") from None
-    if not isinstance(d, dict) or d.get("format") != CHAIN_MODEL_FORMAT:
-        raise InputError(f"{path}: key 'format': expected {CHAIN_MODEL_FORMAT!r}")
+    if not isinstance(d, dict) or d.get("format") not in READ_FORMATS:
+        raise InputError(f"{path}: key 'format': expected {MODEL_FORMAT!r} (or the older {CHAIN_MODEL_FORMAT!r})")
     if d.get(LEARNED_KEY) is not None and learned == "refuse":
         raise InputError(f"{path}: key '{LEARNED_KEY}': the model's kept stage includes a learned residual, which "
                          "this command does not carry (predict and compensate --machine do); it is not dropped silently")

@@ -76,10 +76,6 @@ def band_label(c: dict) -> str:
 BAND_CLAIM_COVERAGE = 0.9   # below this held-out coverage the band is flagged as not holding its 95 %
 
 
-NETWORK_KINDS = ("network", "chain-network", "mlflow")
-"""Model kinds (:func:`compensation.fields.resolve_model`) the loop takes as a trained network."""
-
-
 def _retrain_settings(args):
     """The retrain's :class:`training.TrainSettings` from the options (their ranges are checked before
     run by compensation/app/validate.py)."""
@@ -94,7 +90,8 @@ def _run_checks(args) -> int:
     from compensation.app.families import family_of, say_read_as
     from compensation.app.workflows.measurement import diagnose_chain, diagnosis_lines
     from compensation.app.reports.chain_diagnosis import write_chain_diagnosis_page
-    from compensation.fields import require_kind, resolve_model
+    from compensation.fields import resolve_model
+    from compensation.model_file import read_model
     if args.model is None:
         raise UsageError("CHECKS needs --model (the element set of `volcomp identify`, or a trained network)")
     machine = load_machine(args.machine)  # None: the built-in default machine
@@ -103,7 +100,9 @@ def _run_checks(args) -> int:
     fam.refuse_unsupported("diagnose", args)
     mt = machine
     src = resolve_model(args.model)
-    if src.kind in NETWORK_KINDS:   # a trained network: identified + effects, the retrain with --featurepoints
+    model = read_model(args.model, mt, args.tracking_uri, source=src)   # the one reader: what the model holds
+    if model.network is not None and model.elements is None:   # a network: identified + effects, the retrain
+        src = resolve_model(model.network) if model.network != src.spec else src
         if args.track:
             raise UsageError("--track: logs a kept learned residual; the loop on a trained network has no such stage "
                              "(its retrain is tracked as a child run with --tracking-uri): leave it out")
@@ -111,12 +110,15 @@ def _run_checks(args) -> int:
         from errormap.diagnosis.chain_loop import load_mt_checks
         from compensation.app.workflows.network_diagnosis import diagnose_network
         summary, paths = diagnose_network(load_mt_checks(args.checks, mt, units=args.units), mt, src, args.out,
+                                          base=model.field,
                                           fit_fraction=args.fit_fraction, noise_um=args.noise_um,
                                           max_effects=args.max_effects, units=args.units,
                                           tracking_uri=args.tracking_uri, featurepoints=args.featurepoints,
                                           retrain=_retrain_settings(args))
     else:
-        require_kind(src, ("elements", *NETWORK_KINDS), "the closed loop takes")
+        if not model.elements_only:
+            raise UsageError(f"{args.model}: the closed loop starts from an element set (identify's, with its "
+                             f"covariance) or a trained network; this model holds {', '.join(model.holds())}")
         retrain = [o for o, v, d in (("--featurepoints", args.featurepoints, None), ("--seed", args.seed, 0),
                                      ("--retrain-iter", args.retrain_iter, DEFAULT_MAX_ITER),
                                      ("--retrain-time-s", args.retrain_time_s, None)) if v != d]
@@ -124,7 +126,7 @@ def _run_checks(args) -> int:
             raise UsageError(f"{', '.join(retrain)}: for the retrain of a trained network (--model a folder or run "
                              f"id); {args.model} is an element set: leave {'it' if len(retrain) == 1 else 'them'} out")
         print(f"diagnosing {args.checks} against {args.model} on {mt.name} ...", file=sys.stderr)
-        summary, paths = diagnose_chain(args.checks, mt, args.model, args.out, fit_fraction=args.fit_fraction,
+        summary, paths = diagnose_chain(args.checks, mt, model.elements_path, args.out, fit_fraction=args.fit_fraction,
                                         noise_um=args.noise_um, max_effects=args.max_effects,
                                         update=not args.no_update, units=args.units, learn=not args.no_learned,
                                         track=args.track, tracking_uri=args.tracking_uri)
@@ -135,7 +137,7 @@ def _run_checks(args) -> int:
         how = f"covariance {summary['covariance']}: closed loop (update, then effects)"
     else:
         from errormap.io import companion_path
-        cov = companion_path(args.model, ".cov.npz") if src.kind == "elements" else None
+        cov = companion_path(model.elements_path, ".cov.npz") if model.elements is not None else None
         why = ("--no-update" if cov is not None and cov.is_file() else
                f"no covariance {cov} beside it, written by `volcomp identify`" if cov is not None else "a trained network")
         how = f"no model update ({why}): effects on the model as it is"

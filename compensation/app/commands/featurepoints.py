@@ -6,7 +6,7 @@ import sys
 from errormap.elements import ElementSet
 from errormap.featurepoints import DEFAULT_GRID, make_feature_points
 from errormap.chain_field import ChainField
-from errormap.io import sha256_file
+from errormap.io import InputError, sha256_file
 from errormap.machine import load_machine
 
 from ..families import family_of
@@ -44,8 +44,12 @@ def _chain_field(machine, args):
         raise UsageError(f"--grid {args.grid}: {args.grid}^{k} = {args.grid ** k} points over the {k} axes of "
                          f"{machine.name!r} exceeds {MAX_GRID_POINTS}; the largest that fits is "
                          f"{int(MAX_GRID_POINTS ** (1 / k) + 1e-9)}")
-    from compensation.fields import load_chain_field
-    return load_chain_field(args.elements, machine)
+    from compensation.model_file import read_model
+    model = read_model(args.elements, machine)
+    if not model.elements_only:
+        raise InputError(f"{args.elements}: feature points are placed from an element set; this model holds "
+                         f"{', '.join(model.holds())}")
+    return model.field
 
 
 def _grinder_field(machine, args):

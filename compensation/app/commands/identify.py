@@ -64,6 +64,15 @@ def _bootstrap(args) -> dict:
     return {"n_boot": args.bootstrap, "seed": args.seed}
 
 
+def _model_file(machine, el_path, cov_path, args):
+    """``NAME.model.json`` beside the element set: the model file naming it and its covariance (what every command
+    reads as ``--model``; docs/reference/file-formats.md)."""
+    from errormap.io import companion_path
+    from ...model_file import save_model_file
+    return save_model_file(companion_path(el_path, ".model.json"), machine, el_path, cov_path,
+                           provenance={"written_by": "volcomp identify", "sweeps": [str(s) for s in args.sweeps]})
+
+
 def run(args) -> int:
     machine = load_machine(args.machine)   # the built-in grinder unless --machine
     target = family_of(machine).target("identify")   # an arm or a parallel machine: calibrate (the registry's gap)
@@ -81,6 +90,7 @@ def run(args) -> int:
         print(f"wrote elements: {el_path}")
         print(f"wrote covariance: {cov_path}")
         print(f"wrote report: {report}")
+        print(f"wrote model: {_model_file(machine, el_path, cov_path, args)}")
         if args.plot:
             from ..reports.identification import plot_chain_elements
             from ..workflows.measurement import chain_truth_in_gauge
@@ -102,6 +112,7 @@ def run(args) -> int:
     print(f"wrote elements: {ident.elements_path}")
     print(f"wrote covariance: {ident.covariance_path}")
     print(f"wrote report: {ident.report_path}")
+    print(f"wrote model: {_model_file(machine, ident.elements_path, ident.covariance_path, args)}")
     if args.plot:
         if truth is not None:  # in the identified gauge and squareness split, so like is compared with like
             truth = truth_in_gauge(truth, elements, machine, args.gauge)

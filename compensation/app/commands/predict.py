@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from errormap.io import InputError, read_document_text, read_table, write_csv
+from errormap.io import InputError, companion_path, read_table, write_csv
 from errormap.field import machine_axes
 from errormap.machine import load_machine
 from errormap.units import check_units
@@ -14,7 +14,8 @@ from compensation.app.validate import UsageError
 
 from ..families import family_of
 from ..options import add_units_option
-from ...fields import FAILED_VERDICT, KIND_NAMES, check_verdict, load_field, resolve_model
+from ...fields import FAILED_VERDICT, check_verdict, resolve_model
+from ...model_file import read_model
 
 
 def register(sub):
@@ -96,7 +97,7 @@ def _point_conditions(t, needs, units, model: str = "model") -> dict:
     return out
 
 
-def _predict_diagnosed(args, t, axes, machine, src, names):
+def _predict_diagnosed(args, t, axes, machine, model):
     """A diagnosed model.json: the kept stage's prediction (elements + effect terms + the learned
     residual when kept), its TOTAL band (learned ⊕ the elements' J Σ Jᵀ, the hybrid's
     :meth:`compensation.hybrid.HybridField.band_std`; 95 % unless ``--band 1sigma``) and, with a
@@ -104,40 +105,35 @@ def _predict_diagnosed(args, t, axes, machine, src, names):
     outside (the learned part is tapered to zero there and says nothing). Points outside the
     calibrated volume (the checks' box for a hybrid) are refused unless ``--allow volume``
     (or ``extrapolate``), and the override is recorded in the header. → (columns, header lines)."""
-    import json
-    from compensation.diagnosed_model import load_diagnosed_model
-    from compensation.hybrid import HybridField, total_band_std
-    from errormap.elements import ElementSet
+    from compensation.hybrid import total_band_std
     from errormap.uncertainty import ElementCovariance, covariance_path
-    field = load_diagnosed_model(src.path, machine)
+    field = model.field.corrected
     n_out = _check_volume(args, t, axes, field, machine)
     cond = _point_conditions(t, field.needs, args.units, "diagnosed model")
-    doc = json.loads(read_document_text(src.path, "a diagnosed model"))
-    el_path = src.path.parent / doc["elements"]
+    el_path = model.elements_path
     cov = None
-    if covariance_path(el_path).is_file():
-        cov = ElementCovariance.load(covariance_path(el_path), ElementSet.load(el_path))
+    if model.covariance_path is not None:
+        cov = ElementCovariance.load(model.covariance_path, model.elements)
     elif args.band:   # the band asked for, half of it missing: refused, never a band without the elements' part
         raise UsageError(f"--band needs the kept elements' covariance {covariance_path(el_path)} (written beside "
                          f"them by volcomp diagnose); not found")
-    print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
+    print(f"predicting {len(axes)} points with the {model.description} ...", file=sys.stderr)
     e = field.predict(axes, **cond)
-    hybrid = field.base if isinstance(field.base, HybridField) else None
+    learned = model.learned
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
     if cov is not None:   # the TOTAL band: learned (when kept) ⊕ the elements' J Σ Jᵀ
-        sd = total_band_std(hybrid.learned if hybrid else None, machine, axes, cov)
+        sd = total_band_std(learned, machine, axes, cov)
         cols.update(_band_columns(sd, args.band))
-    stage = doc.get("stage")
-    meta = [f"stage: {stage}"]
-    if hybrid is not None:
-        meta += _learned_part(cols, hybrid.learned, axes)
+    meta = [f"stage: {model.stage}"]
+    if learned is not None:
+        meta += _learned_part(cols, learned, axes)
     if cov is not None:
         meta.append(f"band: total {'1-sigma' if args.band == '1sigma' else '95 %'} per component = "
                     + ("learned residual's band (cross-validation calibrated; outside the checks' box its prior) "
-                       "(+) " if hybrid is not None else "")
+                       "(+) " if learned is not None else "")
                     + "the elements' J Sigma J^T"
-                    + (" (effect terms' own uncertainty not included)" if field.terms else ""))
+                    + (" (effect terms' own uncertainty not included)" if model.terms else ""))
     else:
         meta.append(f"band: none (the kept elements' covariance {covariance_path(el_path).name} was not found)")
     if n_out:
@@ -158,20 +154,23 @@ def _learned_part(cols, learned, axes) -> list:
             f"(learned_part unknown outside it: {int((~inside).sum())} of {len(axes)} points)"]
 
 
-def _chain_covariance(args, src, machine) -> tuple:
-    """``--band`` on a machine-tool chain, checked before any work: the element set and its identification
-    covariance (``E.cov.npz`` of ``identify --machine`` beside it) as ``(elements, cov, cov_path)``."""
-    from errormap.uncertainty import covariance_path
-    from ..workflows.measurement import check_chain_covariance, load_chain_model
-    if src.kind != "elements":
-        raise UsageError(f"--band needs an element set of the chain with its covariance beside it (E.cov.npz of "
-                         f"volcomp identify --machine); {args.model} is a {KIND_NAMES[src.kind]}, which holds none")
-    el, cov, cov_path = load_chain_model(src.path, machine)
-    if cov is None:
-        raise InputError(f"{src.path}: --band needs the identification's covariance beside it "
-                         f"({covariance_path(src.path).name}, written by volcomp identify --machine); none found")
-    check_chain_covariance(machine, el, cov, cov_path)
-    return el, cov, cov_path
+def _chain_covariance(args, model, machine) -> tuple:
+    """``--band`` on a machine-tool chain, checked before any work: the model's element set and its
+    identification covariance (``E.cov.npz`` of ``identify --machine`` beside it, or the file its model.json
+    names) as ``(elements, cov, cov_path)``; refused for a model that holds more than elements (their band
+    alone would understate it) or no covariance."""
+    from errormap.chain_covariance import read_chain_covariance
+    from ..workflows.measurement import check_chain_covariance
+    if not model.elements_only:
+        raise UsageError(f"--band needs an element set of the chain with its covariance (E.cov.npz of volcomp "
+                         f"identify --machine); {args.model} holds {', '.join(model.holds()) or 'no elements'}")
+    if model.covariance_path is None:
+        raise InputError(f"{model.source.path}: --band needs the identification's covariance beside the element set "
+                         f"({companion_path(model.elements_path, '.cov.npz').name}, written by volcomp identify "
+                         "--machine; or key 'covariance' of a model.json); none found")
+    cov = read_chain_covariance(model.covariance_path, model.elements_path)
+    check_chain_covariance(machine, model.elements, cov, model.covariance_path)
+    return model.elements, cov, model.covariance_path
 
 
 def _chain_band(args, machine, axes, band_src) -> dict:
@@ -215,17 +214,17 @@ def _run_machine_tool(machine, args) -> int:
     src = resolve_model(args.model)  # by content: the file's format key, a model folder, an MLflow reference
     verdict = check_verdict(src.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
     allowed = [_verdict_line(verdict)] if verdict and verdict.get("overridden_by") else []
-    if src.kind == "diagnosed" and not chain:  # the grinder's closed loop (and hybrid) model
-        cols, meta = _predict_diagnosed(args, t, axes, machine, src, names)
-        path = write_csv(args.out, cols, header_comments=meta + allowed + [f"model: {src.description}",
-                                                                 f"model_kind: {src.kind}", f"units: {args.units}"])
+    model = read_model(args.model, machine, args.tracking_uri, source=src)
+    tail = [f"model: {src.description}", f"model_kind: {src.kind}", f"model_holds: {', '.join(model.holds())}",
+            f"units: {args.units}"]
+    if model.per_point:  # the grinder's old closed-loop (and hybrid) model: its own band and conditions
+        cols, meta = _predict_diagnosed(args, t, axes, machine, model)
+        path = write_csv(args.out, cols, header_comments=meta + allowed + tail)
         print(f"wrote {len(axes)} predictions to {path}")
         return 0
-    band_src = _chain_covariance(args, src, machine) if args.band and chain else None
-    field = load_field(args.model, machine, args.tracking_uri, source=src)
-    cond = None
-    if src.kind == "chain-model" and field.needs:  # a chain model's effect terms: conditions per point, from columns
-        cond = _point_conditions(t, field.needs, args.units)
+    band_src = _chain_covariance(args, model, machine) if args.band and chain else None
+    field = model.field
+    cond = _point_conditions(t, model.needs, args.units) if model.needs else None  # per point, from columns
     n_out = _check_volume(args, t, axes, field, machine)
     print(f"predicting {len(axes)} points with the {src.description} ...", file=sys.stderr)
     from ..validate import predict_batched
@@ -238,11 +237,8 @@ def _run_machine_tool(machine, args) -> int:
     cols = {n: np.array(t.raw(n)) for n in t.names if n not in ("dx_um", "dy_um", "dz_um")}
     cols.update({"dx_um": e[:, 0], "dy_um": e[:, 1], "dz_um": e[:, 2]})
     meta = [f"machine: {machine.name}"] if chain else []
-    from ...hybrid import HybridField
-    if isinstance(field, HybridField):   # a chain loop's model.json with its kept learned residual
-        import json
-        doc = json.loads(read_document_text(src.path, "a diagnosed model"))
-        meta += [f"stage: {doc.get('kept_stage')} on {doc.get('base_stage')}"] + _learned_part(cols, field.learned, axes)
+    if model.learned is not None:   # a loop's model.json with its kept learned residual
+        meta += [f"stage: {model.stage} on {model.doc.get('base_stage')}"] + _learned_part(cols, model.learned, axes)
     if n_out:   # the override recorded in the output itself, on every machine
         meta.append(f"allowed: volume ({n_out} of {len(axes)} points outside the calibrated volume, "
                     f"--allow {'volume' if 'volume' in args.allow else 'extrapolate'})")
@@ -250,15 +246,18 @@ def _run_machine_tool(machine, args) -> int:
         cols.update(_chain_band(args, machine, axes, band_src))
     elif args.band:
         from errormap.elements import ElementSet
-        from errormap.uncertainty import ElementCovariance, covariance_path
-        if src.kind != "elements":
-            raise UsageError(f"--band needs an element set with its covariance beside it; {args.model} is a "
-                             f"{KIND_NAMES[src.kind]}")
-        cov = ElementCovariance.load(covariance_path(src.path), ElementSet.load(src.path))
+        from errormap.uncertainty import ElementCovariance
+        if not model.elements_only:
+            raise UsageError(f"--band needs an element set with its covariance beside it; {args.model} holds "
+                             f"{', '.join(model.holds()) or 'no elements'}")
+        if model.covariance_path is None:
+            raise InputError(f"{model.elements_path}: --band needs the identification's covariance beside it "
+                             f"({companion_path(model.elements_path, '.cov.npz').name}, written by volcomp identify); "
+                             "none found")
+        cov = ElementCovariance.load(model.covariance_path, ElementSet.load(model.elements_path))
         sd = np.sqrt(np.diagonal(cov.prediction_cov(machine, axes), axis1=1, axis2=2))
         cols.update(_band_columns(sd, args.band))
-    path = write_csv(args.out, cols, header_comments=meta + allowed + [f"model: {src.description}", f"model_kind: {src.kind}",
-                                                     f"units: {args.units}"])
+    path = write_csv(args.out, cols, header_comments=meta + allowed + tail)
     print(f"wrote {len(axes)} predictions to {path}")
     return 0
 

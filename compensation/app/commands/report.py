@@ -17,8 +17,10 @@ from errormap.machine import load_machine
 from compensation.app.validate import UsageError
 
 from ...evaluate import load_truth
-from ...fields import FAILED_VERDICT, check_verdict, load_field, resolve_model
-from ...nc_state import read_work_offsets
+from ...fields import CHAIN_MODEL_FORMAT, FAILED_VERDICT, MODEL_FORMAT, check_verdict, resolve_model
+from ...model_file import read_model
+from ...nc_state import MACHINE, read_work_offsets
+from ...pathio import read_path
 from ..families import family_of
 from ..options import add_flute_arguments, add_method_arguments, add_units_option, flute_from_args, parse_methods
 from ..reports.methods import print_table, write_report
@@ -72,11 +74,11 @@ def run_chain_diagnosis(args) -> int:
     if not run_dir.is_dir():
         raise UsageError(f"RUN {run_dir}: not a folder (a volcomp diagnose --machine output folder)")
     head = read_json(run_dir / "model.json", "model.json of volcomp diagnose --machine")
-    if head.get("format") != "volcomp-chain-model/1":
+    if head.get("format") not in (MODEL_FORMAT, CHAIN_MODEL_FORMAT):
         what = ("a grinder's diagnose run writes its own page (report.html) there"
                 if (run_dir / "report.html").is_file() else "not a diagnose --machine run")
-        raise InputError(f"{run_dir / 'model.json'}: key 'format': expected 'volcomp-chain-model/1', got "
-                         f"{head.get('format')!r} ({what})")
+        raise InputError(f"{run_dir / 'model.json'}: key 'format': expected {MODEL_FORMAT!r} (or the older "
+                         f"{CHAIN_MODEL_FORMAT!r}), got {head.get('format')!r} ({what})")
     machine = load_machine(args.machine if args.machine else str(head.get("machine")))
     if not family_of(machine).runs("report run"):
         raise UsageError(f"--machine {machine.name}: the run is a machine-tool chain's; name that chain's file")
@@ -161,11 +163,15 @@ def run(args) -> int:
     source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
     verdict = check_verdict(source.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed
     print(f"report: model {source.description}", file=sys.stderr)
-    field = load_field(args.model, machine, args.tracking_uri, source=source)
+    model = read_model(args.model, machine, args.tracking_uri, source=source)
+    if model.needs:   # the methods are compared on a field of the axes alone
+        raise UsageError(f"{args.model}: the model's effect terms need the condition(s) {list(model.needs)}, which "
+                         "the method comparison does not take; compare on its element set")
+    field = model.field
     cmp = compare_methods(field, targets, machine, methods=methods, truth=truth, ga_points=args.ga_points,
                           ga_budget_s=args.ga_budget_s, seed=args.seed, nominal_axes=nominal)
     cmp.info.update({"machine": machine.name, "machine_file": machine.path, "model": args.model,
-                     "model_source": source.to_dict(), "model_verdict": verdict, "truth": args.truth, **path_info})
+                     "model_source": dict(source.to_dict(), holds=model.holds()), "model_verdict": verdict, "truth": args.truth, **path_info})
     context = {"machine": f"{machine.name} ({machine.path})", "model (error field)": args.model,
                "truth": args.truth or "none (model residual only)", "path": path_info["path"],
                "points": path_info["points"], "seed": args.seed}

@@ -131,6 +131,7 @@ def run(args) -> int:
         print(f"{p + ' (' + str(res.params['n_' + p]) + ' pts)':<16}" + "".join(
             f"{m[k]:>10.4f}" for k in (f"{p}_max_um", f"{p}_rms_um", f"{p}_max_dx_um", f"{p}_max_dy_um", f"{p}_max_dz_um")))
     print(f"wrote model: {out / 'model'}")
+    print(f"wrote model file: {_model_file(out, _grinder_machine(fp), args, res.run_id)}")
     print(f"wrote plots: {out / 'fit_error_xz.png'}, {out / 'fit_featurepoints.png'}")
     print(f"wrote metrics: {out / 'metrics.json'}")
     print(f"load it with: --model runs:/{res.run_id}/model")
@@ -214,6 +215,7 @@ def _run_chain(args, fp, settings, max_iter, max_time, hidden) -> int:
     print(f"{'baseline (OLS)':<16}{m['baseline_ols_val_max_um']:>10.4f}{m['baseline_ols_val_rms_um']:>10.4f}"
           "   (affine least squares on the axes, same validation points)")
     print(f"wrote model: {out / 'model'} (inputs {', '.join(machine.axis_columns)}; machine {machine.name})")
+    print(f"wrote model file: {_model_file(out, machine, args, None)}")
     print(f"wrote metrics: {out / 'metrics.json'}")
     from training.tracking import default_tracking_uri
     uri = args.tracking_uri or default_tracking_uri()   # tracked like the grinder's network: always, this store
@@ -239,3 +241,14 @@ def _track_chain(args, res, machine, out, uri: str) -> str:
     doc = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
     write_json(out / "metrics.json", {**doc, "run_id": run_id, "tracking_uri": uri})
     return run_id
+
+
+def _model_file(out, machine, args, run_id):
+    """``OUT/model.json``: the model file naming the trained network folder ``OUT/model`` (what every command reads
+    as ``--model``; docs/reference/file-formats.md)."""
+    from ...model_file import save_model_file
+    prov = {"written_by": "volcomp train", "featurepoints": str(args.featurepoints)}
+    if run_id:
+        prov["mlflow_run_id"] = str(run_id)
+    return save_model_file(Path(out) / "model.json", machine, network_folder=Path(out) / "model", kept_stage="network",
+                           provenance=prov)

@@ -27,7 +27,7 @@ def loop_models(machine, model_path, conditions: dict) -> dict:
     import json
     from errormap.chain_elements import ChainElementSet
     from errormap.diagnosis.loop_model import ChainModelField, load_chain_model_file, read_terms
-    from ...chain_hybrid import load_chain_model
+    from ...model_file import read_model
     mt = machine
     doc = json.loads(Path(model_path).read_text(encoding="utf-8"))
     alone = doc.get("loop_alone")
@@ -41,4 +41,4 @@ def loop_models(machine, model_path, conditions: dict) -> dict:
         if doc.get("base_terms_replaced"):   # the loop alone had the terms the learned part replaced
             base = ChainModelField(mt, base.elements, read_terms(alone_terms, mt, model_path, "terms"))
     return {"parametric": (alone_terms, doc.get("base_stage", doc["kept_stage"]), at_conditions(base, mt, conditions)),
-            "hybrid": (doc["terms"], doc["kept_stage"], at_conditions(load_chain_model(model_path, mt), mt, conditions))}
+            "hybrid": (doc["terms"], doc["kept_stage"], at_conditions(read_model(model_path, mt).field, mt, conditions))}

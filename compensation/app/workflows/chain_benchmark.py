@@ -299,10 +299,10 @@ def learned_chain_row(machine, s, truth, el_path, paths, label: str, common: dic
     from errormap.featurepoints import make_feature_points
     from training.chain_model import fit_chain_field
     from training.trainers import TrainSettings
-    from ...fields import load_chain_field
+    from ...model_file import read_model
     path, volume = paths
     try:
-        fp = make_feature_points(machine, load_chain_field(el_path, machine), meta={"elements_file": str(el_path)})
+        fp = make_feature_points(machine, read_model(el_path, machine).field, meta={"elements_file": str(el_path)})
         settings = TrainSettings(max_iter=s.train_iter, max_time_s=math.inf if s.train_s is None else s.train_s,
                                  seed=s.seed, hidden=tuple(s.hidden), activation=s.activation,
                                  a_encoding=s.a_encoding)

@@ -45,7 +45,7 @@ from compensation.app.validate import UsageError
 
 from ... import guards
 from ...batch import CHUNK_POINTS, GA_METHODS, LocalExecutor, gather_results, solve_batch
-from ...diagnosed_model import ConditionedField, load_path_field, path_conditions, solve_with_conditions
+from ...conditions import ConditionedField, path_conditions, solve_with_conditions
 from ...fields import FAILED_VERDICT, check_verdict, resolve_model, verdict_notes
 from ...gcode import DEFAULT_RAPIDS
 from ...gcode_spline import spline_lines
@@ -199,14 +199,17 @@ def kernel_modules(method: str) -> list:
 def load_model_field(machine, s: CompensateSettings):
     """``(source, verdict, field)`` of ``s.model`` for the machine tool ``machine`` (as loaded: a grinder file's
     models are read as it writes them): recognised by content (the caller says which on stderr); a failed diagnosis verdict
-    refused unless allowed; a diagnosed model.json a :class:`ConditionedField` (conditions per path), a
-    chain's model its constant conditions (:func:`field_conditions`)."""
+    refused unless allowed (:func:`compensation.model_file.read_model`, the one reader); a model whose terms
+    take their conditions per point (:attr:`~compensation.model_file.Model.per_point`) a :class:`ConditionedField`
+    (conditions per path, from its columns or these constants), any other its constant conditions
+    (:func:`field_conditions`)."""
+    from ...model_file import read_model
     src = resolve_model(s.model)
     verdict = check_verdict(src.path, FAILED_VERDICT in s.allow)
-    field_ = load_path_field(s.model, machine, s.tracking_uri, s.conditions)
-    if not isinstance(field_, ConditionedField):
-        field_ = field_conditions(field_, {k: v for k, v in s.conditions.items() if v is not None}, machine)
-    return src, verdict, field_
+    model = read_model(s.model, machine, s.tracking_uri, source=src)
+    if model.per_point:
+        return src, verdict, ConditionedField(model.field.corrected, dict(s.conditions or {}), check=False)
+    return src, verdict, field_conditions(model.field, {k: v for k, v in s.conditions.items() if v is not None}, machine)
 
 
 def field_conditions(field_, conditions: dict, machine):
@@ -218,7 +221,7 @@ def field_conditions(field_, conditions: dict, machine):
     if extra:
         raise UsageError(f"{', '.join('--' + c.replace('_', '-') for c in extra)}: the model has no effect term that "
                          f"uses it on the machine tool {machine.name!r}; leave it out")
-    from ...diagnosed_model import CONDITIONS
+    from ...conditions import CONDITIONS
     missing = [c for c in needs if c not in conditions]
     if missing:
         opts = [c for c in missing if c in CONDITIONS]

@@ -70,8 +70,8 @@ def load_model(s: TableSettings, machine):
         model, desc, src = ex.load_model(s.model, s.fmt, machine, s.tracking_uri)
         left = []
         if s.diagnosis:
-            if src.kind == "chain-model":
-                raise ValueError("--diagnosis: MODEL is a chain model.json, which carries its diagnosed terms already; "
+            if src.terms:
+                raise ValueError("--diagnosis: MODEL is a model.json with effect terms, which carries its diagnosed terms already; "
                                  "give it alone, or its element set with --diagnosis")
             model, left = ex.reversal_from_diagnosis(s.diagnosis, model)
     except ValueError as exc:

@@ -214,8 +214,8 @@ def _train(machine, el_path: Path, folder: Path, s: dict, name: str) -> tuple:
     from errormap.io import sha256_file
     from training.trainers import TrainSettings, fit_field
 
-    from ...fields import load_field
-    fp = make_feature_points(machine, load_field(str(el_path), machine), n=s["grid"],
+    from ...model_file import read_model
+    fp = make_feature_points(machine, read_model(str(el_path), machine).field, n=s["grid"],
                              meta={"elements_file": str(el_path), "elements_sha256": sha256_file(el_path)})
     fp_path = fp.save(folder / "featurepoints.csv")
     tags = {"fleet": s["fleet"], "fleet_machine": name, "featurepoints_file": str(fp_path)}

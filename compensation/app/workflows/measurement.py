@@ -371,7 +371,9 @@ def diagnose_chain(checks_path, machine, model, out, fit_fraction=0.6, noise_um=
                                    tracking_uri=tracking_uri, tags={"checks": str(checks_path), "model": str(model)})
         summary["learned_residual"] = dict(summary["learned_residual"], mlflow_run_id=rid)
         extra["mlflow_run_id"] = rid
-    model_path = save_chain_model(out / "model.json", machine, el_path, terms, summary["kept_stage"], extra)
+    model_path = save_chain_model(out / "model.json", machine, el_path, terms, summary["kept_stage"], extra,
+                                  provenance={"written_by": "volcomp diagnose", "checks": str(checks_path),
+                                              "model": str(model)})
     summary["model_file"] = str(model_path)
     write_json(out / "diagnosis.json", summary)
     return summary, [out / "diagnosis.json", out / "updated_elements.json", model_path] + paths_extra

@@ -1,7 +1,7 @@
 """``volcomp diagnose CHECKS --model NETWORK`` on a machine tool: the closed loop on a trained network.
 
 A network (a folder or an MLflow run id; the grinder's or a chain's, read by
-:func:`compensation.fields.load_field`) has no element covariance, so the loop runs its identified
+:func:`compensation.model_file.read_model`) has no element covariance, so the loop runs its identified
 stage and the effect search (:func:`errormap.diagnosis.chain_loop.closed_loop_chain` with ``base``):
 the held-out MEASURED residual before and after the terms it names. With ``--featurepoints``, terms of
 the axes alone are carried into the network by retraining it on the feature points plus the terms
@@ -125,12 +125,12 @@ def diagnose_network(checks, machine, source, out, *, base=None, fit_fraction=0.
     already loaded) over the machine tool ``machine`` (its chain) and the read ``checks``
     (:class:`errormap.diagnosis.chain_loop.MTChecks`); ``featurepoints``: a feature-point file for the retrain
     (``retrain``: its :class:`training.TrainSettings`). → ``(summary, [diagnosis.json])``."""
-    from compensation.fields import load_field
+    from compensation.model_file import read_model
     from errormap.chain_elements import ChainElementSet
     from errormap.diagnosis.chain_loop import closed_loop_chain
     from errormap.diagnosis.plausibility import diagnosis_verdict
     if base is None:
-        base = load_field(source.spec, machine, tracking_uri, source=source)
+        base = read_model(source.spec, machine, tracking_uri, source=source).field
     try:
         summary = closed_loop_chain(machine, ChainElementSet.zeros(machine), checks, cov=None, base=base,
                                     fit_fraction=fit_fraction, noise_um=noise_um, max_effects=max_effects, units=units)

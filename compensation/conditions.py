@@ -1,9 +1,8 @@
-"""The diagnosed model (``DIR/model.json`` of ``volcomp diagnose``) as an error field for paths.
+"""Effect-term conditions per point: the grinder file's old closed-loop model at given conditions, on paths.
 
-``model.json`` (``format: volcomp-diagnosed-model/1``) names the updated element set (relative
-to the file) and the accepted effect terms (kind, axis, element, coefficients, period/order,
-references). A term may need conditions (``temp_c``, ``time_s``, ``dir_x``, ``dir_z``,
-``dir_a``). For compensating a path, each needed condition is taken per point from the CSV
+The grinder's closed-loop model (``volcomp-diagnosed-model/1``, read by :func:`compensation.model_file.read_model`)
+carries effect terms that may need conditions (``temp_c``, ``time_s``, ``dir_x``, ``dir_z``, ``dir_a``). For
+compensating a path, each needed condition is taken per point from the CSV
 path file's column of that name when it has one (the check-measurement columns' names and
 rules: a finite number, ``dir_*`` ±1, ``temp_c`` within 0…45 °C, °F and kelvin named), else from the constant
 option (``--temp-c`` …) for the whole path; a needed condition found in neither is refused,
@@ -18,21 +17,10 @@ computed with the terms at the final commands and the points' own conditions.
 """
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
 
-from errormap.diagnosis.corrected import CorrectedField
-from errormap.diagnosis.effects import Candidate, EffectTerm
-from errormap.effect_kinds import diagnosed_kind
-from errormap.elements import ElementSet
-from errormap.chain_field import ChainField
-from errormap.io import InputError, read_document_text
+from errormap.io import InputError
 from errormap.units import UNITS_CHECK, check_units, temperature_mistake
-
-from .fields import DIAGNOSED_FORMAT as FORMAT
-from .fields import resolve_model  # the format's one name, recognised by content there
 
 CONDITIONS = ("temp_c", "time_s", "dir_x", "dir_z", "dir_a")
 DIR_CONDITIONS = ("dir_x", "dir_z", "dir_a")
@@ -40,81 +28,14 @@ FIXED_POINT_TOL_UM = 1e-6      # the terms at the solution change by less than t
 FIXED_POINT_MAX_PASSES = 5
 
 
-def is_diagnosed_model(spec) -> bool:
-    """Whether ``spec`` is a diagnosed model, by its content (``format``), whatever its name."""
-    try:
-        return resolve_model(spec).kind == "diagnosed"
-    except InputError:
-        return False
-
-
-def load_diagnosed_model(path, machine) -> CorrectedField:
-    """The updated elements plus the accepted terms, as a :class:`CorrectedField`."""
-    path = Path(path)
-    d = json.loads(read_document_text(path, "a diagnosed model"))
-    return diagnosed_field(d, machine, lambda name: ElementSet.load(path.parent / name), path)
-
-
-def diagnosed_field(doc: dict, machine, load_elements, where) -> CorrectedField:
-    """``model.json``'s content ``doc`` as a :class:`CorrectedField` (what :func:`load_diagnosed_model`
-    builds from the file); ``load_elements(name) -> ElementSet``: the element set ``doc`` names by
-    file name (key ``elements``); ``where``: the file (or a label) an error names."""
-    if not isinstance(doc.get("elements"), str):
-        raise InputError(f"{where}: key 'elements': expected the updated element set's file name, got "
-                         f"{doc.get('elements')!r}")
-    base = ChainField(machine, load_elements(doc["elements"]))
-    if doc.get("learned_residual") is not None:  # the closed loop's learned stage (compensation.hybrid)
-        from .hybrid import HybridField, LearnedResidual
-        try:
-            base = HybridField(base, LearnedResidual.from_dict(doc["learned_residual"]))
-        except ValueError as exc:
-            raise InputError(f"{where}: key 'learned_residual': {exc}") from None
-    terms = []
-    for i, t in enumerate(doc.get("terms", [])):
-        try:
-            diagnosed_kind(t.get("kind") if isinstance(t, dict) else None)
-        except ValueError as exc:
-            raise InputError(f"{where}: key 'terms[{i}].kind': {exc}") from None
-        try:
-            ref = {"strokes": {k: tuple(machine.strokes[k]) for k in ("x_mm", "z_mm", "a_deg")},
-                   "ref_temp_c": float(t["reference"]["ref_temp_c"]), "ref_time_s": float(t["reference"]["ref_time_s"])}
-            terms.append(EffectTerm(Candidate(t["kind"], t["axis"], t["element"]), np.asarray(t["coefficients"], float),
-                                    ref, t.get("period_mm"), t.get("order")))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{where}: key 'terms[{i}]': malformed term ({exc})") from None
-    return CorrectedField(machine, base, terms)
-
-
-LEARNED_KEYS = ("learned_residual", "base_stage", "base_terms_replaced", "loop_alone", "learned_family",
-                "mlflow_run_id")
-"""The keys of ``model.json`` that only a kept learned residual writes."""
-
-
-def loop_alone_model(doc: dict) -> dict:
-    """The loop alone of ``model.json``'s content ``doc``: what the closed loop ships without its learned
-    part (a copy of ``doc`` when none was kept). Its elements and terms are ``loop_alone``'s where
-    the learned part was backfitted with the element update (the shipped base is then not the loop's), the
-    condition terms the learned part replaced (``base_terms_replaced``) are added back, and the keys of the
-    learned part (:data:`LEARNED_KEYS`) are left out; its stage is ``base_stage``."""
-    if doc.get("learned_residual") is None:
-        return dict(doc)
-    own = doc.get("loop_alone") or {}
-    out = {k: v for k, v in doc.items() if k not in LEARNED_KEYS}
-    out["stage"] = doc.get("base_stage", doc["stage"])
-    out["elements"] = own.get("elements", doc["elements"])
-    out["terms"] = list(own.get("terms", doc["terms"])) + list(doc.get("base_terms_replaced", []))
-    out["needs"] = sorted({c for e in out["terms"] for c in e.get("needs", [])})
-    return out
-
-
 class ConditionedField:
-    """A :class:`CorrectedField` at fixed conditions, an error field (:class:`errormap.field.ErrorField`):
+    """A :class:`errormap.diagnosis.corrected.CorrectedField` at fixed conditions, an error field (:class:`errormap.field.ErrorField`):
     ``predict(axes) -> (n, 3)`` μm, calibrated where the corrected model is (its base's volume)."""
 
     kind = "diagnosed"
     capabilities = frozenset()
 
-    def __init__(self, corrected: CorrectedField, conditions: dict, check: bool = True):
+    def __init__(self, corrected, conditions: dict, check: bool = True):
         self.corrected = corrected
         self.machine = corrected.machine
         self.conditions = {k: v for k, v in conditions.items() if v is not None}
@@ -216,14 +137,3 @@ def solve_with_conditions(method, field, targets_mm, machine, conditions: dict, 
     res.correction_um = np.linalg.norm(res.commands_mm - targets, axis=1) * 1e3
     res.info = dict(res.info or {}, conditions="per point", fixed_point_change_um=change)
     return res
-
-
-def load_path_field(spec, machine, tracking_uri, conditions=None):
-    """``load_field`` for compensation, with ``model.json`` of ``volcomp diagnose`` understood;
-    ``conditions``: ``{name: value or None}`` for :data:`CONDITIONS` (a diagnosed model's terms;
-    missing ones are checked per path, from its columns or these constants)."""
-    src = resolve_model(spec)
-    if src.kind == "diagnosed":
-        return ConditionedField(load_diagnosed_model(src.path, machine), dict(conditions or {}), check=False)
-    from . import fields  # looked up at call time (tests stand a field in for fields.load_field)
-    return fields.load_field(spec, machine, tracking_uri)
