@@ -232,10 +232,10 @@ def save_model_file(path, machine, elements=None, covariance=None, network_folde
 def _read_diagnosed(src: ModelSource, machine, tracking_uri) -> Model:
     """The grinder's closed-loop ``model.json``: its elements plus the grinder's effect terms (and learned residual),
     an error field whose conditions are given per point (:class:`compensation.conditions.ConditionedField`)."""
-    from errormap.machine import Grinder
+    from errormap.grinder_file import is_grinder_chain
     from .conditions import ConditionedField
     from .hybrid import HybridField
-    if not isinstance(machine, Grinder):
+    if not is_grinder_chain(machine):
         raise InputError(f"{src.path}: key 'format': {DIAGNOSED_FORMAT!r} is the grinder file's closed-loop model; "
                          f"read it with the grinder's machine file, not {machine.name!r} (--machine)")
     path = Path(src.path)

@@ -13,7 +13,6 @@ from compensation.model_file import Model, read_model
 from errormap.chain_truth import make_mt_truth
 from errormap.diagnosis.chain_loop import EffectTerm
 from errormap.diagnosis.loop_model import save_chain_model
-from errormap.grinder_file import machine_tool_of
 from errormap.io import InputError, read_table, write_csv
 from errormap.machine import load_machine
 
@@ -75,7 +74,7 @@ def test_report_reads_the_model_json_as_predict_does(tmp_path, monkeypatch, caps
     import compensation.app.commands.report as report
     from compensation.app.validate import UsageError
     g = load_machine(None)
-    mt = machine_tool_of(g)
+    mt = g
     p = _model_json(tmp_path, mt)
     seen = {}
 
@@ -112,7 +111,7 @@ def test_an_element_set_loads_as_a_model_of_elements(tmp_path):
 def test_the_grinders_old_closed_loop_model_loads(tmp_path):
     """``volcomp-diagnosed-model/1`` (the grinder's closed loop before the chain loop): its elements, the grinder's
     effect terms with the conditions they need, per point."""
-    from errormap.htm import HTMField
+    from errormap.chain_field import ChainField
     from errormap.simulator import random_truth
     g = load_machine(None)
     el = random_truth(g, 3).elements
@@ -125,7 +124,7 @@ def test_the_grinders_old_closed_loop_model_loads(tmp_path):
     assert m.per_point and m.needs == ("temp_c",) and m.holds() == ["elements", "effect terms"]
     axes = np.column_stack([np.linspace(10, 150, 9), np.linspace(5, 50, 9), np.linspace(0, 300, 9)])
     at20 = m.field.corrected.predict(axes, temp_c=np.full(9, 20.0))   # the reference temperature: the elements alone
-    np.testing.assert_allclose(at20, HTMField(g, el).predict(axes), rtol=0, atol=SAME_UM)
+    np.testing.assert_allclose(at20, ChainField(g, el).predict(axes), rtol=0, atol=SAME_UM)
     with pytest.raises(InputError, match="grinder file's closed-loop model"):
         read_model(tmp_path / "model.json", load_machine("mill-xyz"))
 

@@ -158,7 +158,7 @@ def run(args) -> int:
     family = family_of(machine)
     family.target("report")   # every machine tool, through its chain: other families refused
     family.refuse_unsupported("report", args)
-    targets, nominal, path_info = _flute(args, machine) if args.flute else _tool_path(args(machine))
+    targets, nominal, path_info = _flute(args, machine) if args.flute else _tool_path(args, machine)
     truth = load_truth(args.truth, machine) if args.truth else None
     source = resolve_model(args.model)  # by content: format key, model folder or MLflow reference
     verdict = check_verdict(source.path, FAILED_VERDICT in args.allow)  # a failed diagnosis: refused unless allowed

@@ -85,7 +85,7 @@ def load_truth(path, machine):
     ``truth.json`` or a truth element set; a grinder file's through its chain: :func:`compensation.evaluate.load_truth`)."""
     from types import SimpleNamespace
     from ...evaluate import load_truth as read_truth
-    return ex.chain_truth_tool_points(SimpleNamespace(truth=read_truth(path, machine))(machine))
+    return ex.chain_truth_tool_points(SimpleNamespace(truth=read_truth(path, machine)), machine)
 
 
 def notes_of(model, table, left_out) -> tuple[list[str], list[str]]:
