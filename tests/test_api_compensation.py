@@ -120,7 +120,9 @@ def test_closed_loop_ships_what_diagnose_ships(tmp_path):
     truth = simulate_truth(m, seed=1)
     ident = Identification(m).fit(simulate_sweeps(truth, noise_um=1.0, seed=2, n_stations=6))
     checks = simulate_checks(truth, n=40, noise_um=1.0, seed=3)
-    summary, _ = diagnose_chain(checks, m, save_model(tmp_path / "E.json", ident), tmp_path / "diag", learn=False)
+    from compensation.model_file import read_model
+    elements_path = read_model(save_model(tmp_path / "E.json", ident), m).elements_path   # as `diagnose` reads it
+    summary, _ = diagnose_chain(checks, m, elements_path, tmp_path / "diag", learn=False)
     loop = ClosedLoop(m).fit(checks, ident.elements_, ident.prior_covariance_)
     assert loop.kept_stage_ == summary["kept_stage"] and loop.kept_stage_.startswith("updated")
     assert loop.summary_["refit_on_all_checks"] == summary["refit_on_all_checks"]
