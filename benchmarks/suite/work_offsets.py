@@ -1,5 +1,5 @@
 """Why the controller's tables matter: TRUE residual of a compensated program when its work offset and
-tool length are ignored vs used (BENCHMARKS.md, "Programs as shops write them").
+tool length are ignored vs used.
 
 Machine: built-in ``mill-xyz``; truth: a seeded element set (±10 μm / μrad, 1 σ; seed 101); model: the
 truth plus 0.3 μm / μrad noise per station and constant (seed 102; the estimate tests/test_mt_compensate.py
@@ -11,12 +11,10 @@ G54/G55 as machine zero), then run by the controller with the real offset and to
 ``compensate --work-offsets --tool-table``. Residual kind: TRUE (the truth machine's tool point at every
 vertex minus the programmed point), μm.
 
-    PYTHONPATH=. python benchmarks/bench_work_offsets.py
+    python -m benchmarks.run work_offsets
 """
 from __future__ import annotations
 
-import re
-import sys
 import tempfile
 from pathlib import Path
 
@@ -31,7 +29,7 @@ from errormap.machine import load_machine
 from errormap.chain_elements import ChainElementSet
 from errormap.chain_field import ChainField
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PROGRAM = ROOT / "tests" / "data" / "controller" / "g55_tool_linuxcnc.ngc"
 OFFSETS = ROOT / "tests" / "data" / "controller" / "offsets.var"
 NOISE_UM = 0.3
@@ -51,7 +49,7 @@ def stats(e):
     return float(n.max()), float(np.sqrt(np.mean(n ** 2)))
 
 
-def run(prog, mt, truth, est, tools):
+def run_program(prog, mt, truth, est, tools):
     s = CompensateSettings("exact", "", Path("."), work_offsets=read_work_offsets(OFFSETS), tool_table=tools)
     f_est, f_true = ChainField(mt, est), ChainField(mt, truth)
     tp = read_tool_path(prog, mt, s, f_est)
@@ -71,25 +69,23 @@ def run(prog, mt, truth, est, tools):
     return len(tp.axes), stats(before), stats(ignored), stats(tool_ignored), stats(used)
 
 
-def main() -> int:
+TITLE = "Work offsets and tool lengths: compensated program with the controller's tables used vs ignored"
+DATA = ("built-in `mill-xyz`, seeded truth (±10 μm / μrad, seed 101), model = truth + 0.3 μm noise (seed 102); "
+        "`tests/data/controller/g55_tool_linuxcnc.ngc` (G55, G43 H1), G55 = (200, 100, −150) mm, tool 150 mm")
+
+
+def run(quick: bool, seed: int) -> dict:
+    """One program, one tool length (150 mm): the same size quick and full (it takes a second)."""
     mt = load_machine("mill-xyz")
     truth, est = models(mt)
-    rows = []
     with tempfile.TemporaryDirectory() as d:
-        plain = Path(d) / "no_g43.ngc"
-        plain.write_text(re.sub(r"G43 H1 |G49\n", "", PROGRAM.read_text()), encoding="latin-1")
-        rows.append(("G55, no G43 (file's 120 mm tool)", *run(plain, mt, truth, est, None)))
-        for L in (0.0, 150.0):
-            t = Path(d) / f"tools_{L:g}.csv"
-            t.write_text(f"tool,length_mm\n1,{L}\n", encoding="utf-8")
-            rows.append((f"G55 + G43 H1, tool {L:g} mm", *run(PROGRAM, mt, truth, est, read_tool_table(t))))
-    print("| program | vertices | uncompensated | tables ignored | offset used, tool ignored | tables used |")
-    print("|---|---:|---:|---:|---:|---:|")
-    for name, n, *r in rows:
-        print(f"| {name} | {n} | " + " | ".join(f"{a:.2f} / {b:.2f}" for a, b in r) + " |")
-    print("(TRUE residual max / rms, μm)")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+        t = Path(d) / "tools.csv"
+        t.write_text("tool,length_mm\n1,150\n", encoding="utf-8")
+        n, before, ignored, tool_ignored, used = run_program(PROGRAM, mt, truth, est, read_tool_table(t))
+    fig = lambda what, v, anchor, av: {"what": what, "value": v, "unit": "μm", "residual": "true",  # noqa: E731
+                                       "anchor": anchor, "anchor_value": av}
+    return {"figures": [
+        fig(f"tables used (`--work-offsets --tool-table`), max over {n} vertices", used[0],
+            "tables ignored (G55 as machine zero)", ignored[0]),
+        fig("offset used, tool length ignored, max", tool_ignored[0], "uncompensated", before[0]),
+    ], "notes": []}

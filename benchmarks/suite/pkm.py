@@ -1,4 +1,4 @@
-"""PKM calibration on a realistic platform (issue 15): the user's path, validated on held-out poses.
+"""PKM calibration on a realistic platform: the user's path, validated on held-out poses.
 
 simulate measurements -> ``validated_calibration`` (what ``volcomp calibrate`` runs: rigid fit with the
 scales by default, loop on leg residuals, plain baseline, returned model, success verdict) -> evaluate
@@ -24,22 +24,16 @@ Two independent generators:
 plain leg-space least squares and the plain pose-space least squares (objectives compared), the rigid
 fit vs the loop's terms.
 
-Usage: python benchmarks/bench_pkm.py [--seeds 10] [--seeds-reallike 5] [--jobs 2] [--out benchmarks/pkm_results.md]
+Usage: python -m benchmarks.run pkm [--quick]
 """
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import platform
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from errormap.io import atomic_write
 from errormap.machine import load_machine
 from errormap.pkm.calibration import PoseData
 from errormap.pkm.pose_model import pose_errors_um
@@ -164,93 +158,31 @@ def _med_worst(v):
     return f"{np.median(v):.2f} / {v.max():.2f}"
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--seeds", type=int, default=10, help="seeds of case (a) per generator")
-    ap.add_argument("--seeds-reallike", type=int, default=5, help="seeds of case (b) per generator")
-    ap.add_argument("--jobs", type=int, default=1, help="worker processes")
-    ap.add_argument("--out", default="benchmarks/pkm_results.md")
-    ap.add_argument("--from-json", action="store_true", help="re-render the .md from the saved .json rows")
-    args = ap.parse_args()
-    tasks = [(g, "a", s) for g in "AB" for s in range(args.seeds)]
-    tasks += [(g, "b", s) for g in "AB" for s in range(args.seeds_reallike)]
-    t0 = time.perf_counter()
-    js = args.out.replace(".md", ".json")
-    if args.from_json:
-        with open(js, encoding="utf-8") as fh:
-            saved = json.load(fh)
-        rows, wall = saved["rows"], saved["wall_s"]
-    elif args.jobs > 1:
-        with ProcessPoolExecutor(args.jobs) as ex:
-            rows = list(ex.map(run_case, tasks))
-    else:
-        rows = [run_case(t) for t in tasks]
-    if not args.from_json:
-        wall = time.perf_counter() - t0
-        with atomic_write(js) as fh:
-            fh.write(json.dumps({"wall_s": wall, "rows": rows}, indent=1))
-    errors = [x for x in rows if "error" in x]
-    rows = [x for x in rows if "error" not in x]
-    L = ["# PKM calibration on a realistic platform (issue 15)", "",
-         "Default `volcomp calibrate` path (`errormap.pkm.pipeline.validated_calibration`: scales estimated, "
-         "GCV lambda, orientation weight estimated, loop on leg residuals, plain baseline, returned model) on "
-         f"{N_FIT} fit poses, validated on {N_CHECK} held-out poses. **True residual**: prediction at the held-out "
-         "commands minus the true pose, position norm, RMS over the held-out poses (um); median / worst over "
-         "the seeds. Generators: A = the project's simulator (built-in hexapod in motor revolutions), "
-         "B = an independent generator in this script (small leadscrew hexapod, other error shapes, Student-t "
-         "noise, sine nonlinearity); see the script's docstring.", "",
-         "## (a) Realistic errors (scales up to 5-6 %, zero lengths tens of mm, unknown frame, mocap-like "
-         f"orientation noise), noise {CLEAN_NOISE_UM:g} um per component", "",
-         "| generator | seeds | before (nominal) | volcomp true RMS | worst / noise | plain leg LS true RMS | "
-         "max scale error (rel.) | success | returned volcomp | loop terms (seeds with any) | fit s median |",
-         "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for g in "AB":
-        r = [x for x in rows if x["gen"] == g and x["case"] == "a"]
-        if not r:
-            continue
-        f = [x["final_true"] for x in r]
-        L.append(f"| {g} | {len(r)} | {_med_worst([x['before_true'] for x in r])} | {_med_worst(f)} | "
-                 f"{max(f) / CLEAN_NOISE_UM:.2f} | {_med_worst([x['baseline_true'] for x in r])} | "
-                 f"{max(x['scale_err_rel'] for x in r):.1e} | {sum(x['success'] for x in r)}/{len(r)} | "
-                 f"{sum(x['returned'] == 'volcomp' for x in r)}/{len(r)} | {sum(bool(x['terms']) for x in r)} | "
-                 f"{np.median([x['time_s'] for x in r]):.1f} |")
-    L += ["", "Target: volcomp's true residual within 2x the noise, median and worst (column 'worst / noise' "
-          "<= 2 for the norm of 3 components is stricter than per component).", "",
-          f"## (b) Real-like: scales up to 6 %, mocap-like noise {REALLIKE_NOISE_UM:g} um (orientation "
-          "noise / 100 mm), unmodelled leg nonlinearity 0.3 mm", "",
-          "| generator | seeds | before | plain leg-space LS | plain pose-space LS | volcomp rigid | volcomp + loop "
-          "(returned) | seeds rigid < leg LS | seeds returned < leg LS | seeds loop improves | terms found (median "
-          "count) | success |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for g in "AB":
-        r = [x for x in rows if x["gen"] == g and x["case"] == "b"]
-        if not r:
-            continue
-        L.append(f"| {g} | {len(r)} | {_med_worst([x['before_true'] for x in r])} | "
-                 f"{_med_worst([x['baseline_true'] for x in r])} | {_med_worst([x['pose_ls_true'] for x in r])} | "
-                 f"{_med_worst([x['rigid_true'] for x in r])} | {_med_worst([x['final_true'] for x in r])} | "
-                 f"{sum(x['rigid_true'] < x['baseline_true'] for x in r)}/{len(r)} | "
-                 f"{sum(x['final_true'] < x['baseline_true'] for x in r)}/{len(r)} | "
-                 f"{sum(x['final_true'] < x['rigid_true'] for x in r)}/{len(r)} | "
-                 f"{np.median([len(x['terms']) for x in r]):.0f} | {sum(x['success'] for x in r)}/{len(r)} |")
-    fam = {}
-    for x in rows:
-        if x["case"] == "b":
-            for t in x["terms"]:
-                fam[(x["gen"], t["family"])] = fam.get((x["gen"], t["family"]), 0) + 1
-    L += ["", "Loop terms accepted in (b), by generator and family (count over seeds x legs): "
-          + (", ".join(f"{g} {f}: {n}" for (g, f), n in sorted(fam.items())) or "none") + ".",
-          "Failed-success reasons seen: " + ("; ".join(sorted({f"{x['gen']}{x['case']} seed {x['seed']}: " + r
-                                                              for x in rows for r in x["reasons"]})) or "none") + ".",
-          "Runs that raised (not in the tables): " + ("; ".join(f"{x['gen']}{x['case']} seed {x['seed']}: {x['error']}"
-                                                                 for x in errors) or "none") + ".",
-          "", f"Measured with `python benchmarks/bench_pkm.py --seeds {args.seeds} --seeds-reallike "
-          f"{args.seeds_reallike} --jobs {args.jobs}` on {platform.machine()} ({os.cpu_count()} CPUs, shared); "
-          f"wall {wall:.0f} s. Per-seed rows: `{args.out.replace('.md', '.json')}`.", ""]
-    with atomic_write(args.out) as fh:
-        fh.write("\n".join(L))
-    print("\n".join(L))
+TITLE = "Hexapod calibration (`volcomp calibrate`) against plain least squares, held-out poses"
+DATA = (f"two independent generators (A: the built-in hexapod; B: a small leadscrew hexapod written here), {N_FIT} fit "
+        f"/ {N_CHECK} held-out poses; (a) realistic errors, {CLEAN_NOISE_UM:g} μm noise, 10 seeds per generator; (b) "
+        f"real-like: scales to 6 %, {REALLIKE_NOISE_UM:g} μm mocap-like noise, 0.3 mm unmodelled leg nonlinearity, 5 "
+        "seeds per generator (quick: generator A, seed 0 of each case)")
 
 
-if __name__ == "__main__":
-    main()
+def run(quick: bool, seed: int) -> dict:
+    """Median over the seeds of the position RMS on held-out poses (TRUE: against the noise-free pose)."""
+    gens = "A" if quick else "AB"
+    tasks = [(g, "a", seed + s) for g in gens for s in range(1 if quick else 10)]
+    tasks += [(g, "b", seed + s) for g in gens for s in range(1 if quick else 5)]
+    rows = [run_case(t) for t in tasks]
+    errors = [r for r in rows if "error" in r]
+    if errors:
+        raise RuntimeError(f"pkm case {errors[0]['gen']}{errors[0]['case']} seed {errors[0]['seed']}: {errors[0]['error']}")
+    med = lambda case, k: float(np.median([r[k] for r in rows if r["case"] == case]))  # noqa: E731
+    fig = lambda what, v, anchor, av: {"what": what, "value": v, "unit": "μm", "residual": "true",  # noqa: E731
+                                       "anchor": anchor, "anchor_value": av}
+    return {"figures": [
+        fig(f"(a) {CLEAN_NOISE_UM:g} μm noise: returned model, median RMS", med("a", "final_true"),
+            "before calibration (nominal, frame fitted)", med("a", "before_true")),
+        fig(f"(b) real-like: returned model, median RMS", med("b", "final_true"),
+            "plain leg-space least squares", med("b", "baseline_true")),
+        fig("(b) real-like: plain pose-space least squares, median RMS", med("b", "pose_ls_true"),
+            "plain leg-space least squares", med("b", "baseline_true")),
+    ], "notes": [f"Returned the plain baseline instead of the loop's model in "
+                 f"{sum(r['returned'] != 'volcomp' for r in rows)} of {len(rows)} cases."]}

@@ -7,17 +7,15 @@ The program is the benchmark's own (written here): a 5-axis helical contour, the
 40 mm radius rising from Z 5 to Z 25 mm over 720° of C, the tool tilted by A from -15° to -45°. Truth: a
 seeded element set (±10 μm / μrad, 1 σ); models: the truth itself (what the method leaves) and the truth with
 seeded station noise of 0.5 μm / μrad (1 σ; a model's own error). Tool length 120 mm, work offset
-(10, -5, 20) mm. Run: ``python benchmarks/bench_tcp.py`` (about a minute)."""
+(10, -5, 20) mm. Run: ``python -m benchmarks.run tcp`` (about a minute; ``--quick``: the LinuxCNC program
+only)."""
 from __future__ import annotations
 
 import json
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from compensation.app.cli import main  # noqa: E402
 from compensation.gcode import split_lines, tokenize  # noqa: E402
@@ -85,7 +83,7 @@ def inverse_time_minutes(text):
     return t
 
 
-def main_():
+def compensate_rows(names=None):
     mt = load_machine("five-axis-ac")
     rows = []
     with tempfile.TemporaryDirectory() as d:
@@ -96,6 +94,8 @@ def main_():
         (d / "wo.csv").write_text("system,x_mm,y_mm,z_mm\nG54,%g,%g,%g\n" % tuple(OFFSET))
         (d / "tt.csv").write_text(f"tool,length_mm\n1,{LENGTH_MM}\n")
         for name, (dialect, lines) in programs(mt).items():
+            if names is not None and name not in names:
+                continue
             (d / name).write_text("\n".join(lines) + "\n")
             for mname, mpath in models.items():
                 for orient in (False, True):
@@ -119,9 +119,24 @@ def main_():
                         row["g93_minutes_in_out"] = (inverse_time_minutes((d / name).read_text()),
                                                      inverse_time_minutes((out / name).read_text()))
                     rows.append(row)
-                    print(json.dumps(row), flush=True)
     return rows
 
+TITLE = "Five-axis programs in TCP mode (`five-axis-ac`): tool tip and tool axis, before / after"
+DATA = ("the benchmark's 5-axis helical contour (145 points, A −15…−45°, C 0…720°) as LinuxCNC TCP (M428, G43 H1, "
+        "G93), Fanuc G43.4 and joint-mode posts; seeded truth ±10 μm / μrad; model = truth + 0.5 μm / μrad noise")
 
-if __name__ == "__main__":
-    main_()
+
+def run(quick: bool, seed: int) -> dict:
+    rows = [r for r in compensate_rows(["lcnc.ngc"] if quick else None) if r["model"] != "truth"]
+    figs = []
+    for r in rows:
+        if not r["orientation"]:
+            figs.append({"what": f"{r['program']}: tool tip, max (position compensated)", "value": r["true_after_um"],
+                         "unit": "μm", "residual": "true", "anchor": "uncompensated", "anchor_value": r["true_before_um"]})
+        else:
+            figs.append({"what": f"{r['program']}: tool axis, max (`--compensate-orientation`)",
+                         "value": r["orient_after_urad"], "unit": "μrad", "residual": "true",
+                         "anchor": "uncompensated", "anchor_value": r["orient_before_urad"]})
+    g93 = next(r["g93_minutes_in_out"] for r in rows if "g93_minutes_in_out" in r)
+    notes = [f"G93 inverse-time program: {g93[0]:.4f} min in, {g93[1]:.4f} min out (feed time kept)."]
+    return {"figures": figs, "notes": notes}
