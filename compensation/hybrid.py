@@ -47,7 +47,7 @@ FORMAT = "volcomp-learned-residual/1"
 
 KEEP_Z = 1.0
 """The learned stage is kept when it beats the stage before it on the held-out checks by more
-than one paired standard error of the per-point squared-norm gain (the issue's rule)."""
+than one paired standard error of the per-point squared-norm gain (the rule first stated)."""
 
 TERM_KEEP_Z = 3.0
 """Condition terms of the stage before the learned one STAY only when their coefficient, estimated
@@ -63,7 +63,7 @@ P(z > 3) ≈ 0.24 %; measured on the designed stand-in of tests/test_hybrid_cond
 z = 2.3). 3 standard errors keeps that below 1 % while a real thermal growth of the catalogue's size
 shows z ≈ 16–17 (coefficient 1.00 ± 0.06, 0.94 ± 0.06, 1.01 ± 0.06 on the designed thermal case,
 development seeds 100–102, every family). Decided on those development seeds before any judged run.
-On the judged benchmark (benchmarks/hybrid_results.md, round 7) it does NOT hold on the X–A tilt:
+On the judged benchmark (docs/decisions/020-benchmark-notebook.md) it does NOT hold on the X–A tilt:
 it kept the loop's stand-in thermal term of X on 6 of 20 machines without thermal growth
 (coefficients 0.28–0.39 ± 0.09–0.11, z 3.05–3.95: a small, systematic temperature-correlated part of
 that residual), where the earlier paired-CV rule replaced it; see docs/explanation/closed-loop.md. Hence the second
@@ -78,7 +78,7 @@ designed thermal case: 1.00 ± 0.06, 0.94 ± 0.06, 1.01 ± 0.06 on development s
 effect: only a part of them varies with the condition, the rest stood in for a static error that
 the static field of the axes takes; shipped, they subtract that rest at the reference conditions.
 They are then replaced like a stand-in. 3 standard errors, two-sided, drops a real term in ~0.3 %
-of machines. Written (round 8) after the judged round-7 tilt machines that kept a term at
+of machines. Written after the judged tilt machines that kept a term at
 γ̂ 0.28–0.39 (5.6–8 se below 1) and before any judged run of this rule; the development seeds'
 figures are in docs/explanation/closed-loop.md. The alternative, shipping the terms scaled by γ̂, was not taken:
 on a machine without thermal growth it still ships γ̂ times the stand-in. Applied PER TERM when
@@ -126,23 +126,23 @@ additive Gaussian process and the empirical-Bayes basis regression of :mod:`trai
 :mod:`training.basis`); the rule of :class:`~training.residual.ResidualRegressor` picks one (or
 none) and the stage names it. ``gp_sum`` (a long- plus a short-length-scale squared exponential)
 is a candidate the stage can be given (``families``) but not in the default set: on the blocked
-folds it cross-validated no better than ``gp`` (benchmarks/hybrid_results.md).
+folds it cross-validated no better than ``gp`` (docs/decisions/020-benchmark-notebook.md).
 
-``gp_additive`` and ``basis`` (round 6) joined the default set in round 7: on the development seeds
+``gp_additive`` and ``basis`` joined the default set: on the development seeds
 100–102 (decided on the held-out MEASURED RMS, never the truth) they lowered or kept the held-out
 RMS (tilt 2.120 against 2.132 μm, a_lobe_x 2.079 against 2.222, bump equal;
-benchmarks/hybrid_dev_results.md), and with them the condition-term rule now holds
+docs/decisions/020-benchmark-notebook.md), and with them the condition-term rule now holds
 (:data:`TERM_KEEP_Z`, :func:`condition_term_test`): under the earlier rule — replace when the
 static field's blocked CV beat the with-terms variant's by more than one paired standard error —
 the additive GP fitted the residual nearly as well WITH a stand-in thermal term as without it
-(blocked-CV RMS 1.7515 against 1.7506 μm, paired z 0.45) and the term stayed. Judged (round 7,
-benchmarks/hybrid_results.md): a_lobe_x 0.90 μm (1.59× the no-effect machine; round-4 default set
+(blocked-CV RMS 1.7515 against 1.7506 μm, paired z 0.45) and the term stayed. Judged (
+docs/decisions/020-benchmark-notebook.md): a_lobe_x 0.90 μm (1.59× the no-effect machine; the earlier default set
 0.96, 1.68×), independent family 0.87 (1.56×; 1.04, 1.89×); the tilt was worse through the
-round-7 condition-term rule (:data:`TERM_KEEP_Z`), not the families; with round 8's
+first condition-term rule (:data:`TERM_KEEP_Z`), not the families; with the per-term rule
 (:data:`TERM_CONSISTENT_Z`, per term) the tilt is 0.894 / 0.726 μm, main's 0.900 / 0.730, no seed worse."""
 
 CANDIDATE_FAMILIES = ()
-"""Families measured beside the default set but not in it (round 6: ``gp_additive`` and ``basis``,
+"""Families measured beside the default set but not in it (``gp_additive`` and ``basis``,
 now in :data:`LEARNED_FAMILIES`); none at present."""
 
 
@@ -212,7 +212,7 @@ LEARNED_INPUTS = ("axes",)
 :data:`LEARNED_FAMILIES`, on the same blocked folds; the lowest CV RMS of the eligible
 (input set, family) pairs wins, the stage names both). The work-frame sets are candidates the
 stage can be given (``inputs``) but not in the default set: on the blocked folds they
-cross-validated no better than the axes (benchmarks/hybrid_results.md, input and kernel variants)."""
+cross-validated no better than the axes (docs/decisions/020-benchmark-notebook.md, input and kernel variants)."""
 
 
 OUTPUT_FRAMES = ("work", "machine")
@@ -231,8 +231,8 @@ frames differ by a constant rotation and learn the same)."""
 
 LEARNED_FRAMES = ("work", "machine")
 """The output frames the learned stage cross-validates by default (:data:`OUTPUT_FRAMES`; each with
-every input set and family, on the same blocked folds). Decided on two diagnostic machines (round 11,
-docs/explanation/closed-loop.md), then judged (benchmarks/hybrid_results.md, round-11 rows): on the bump, a y error
+every input set and family, on the same blocked folds). Decided on two diagnostic machines (
+docs/explanation/closed-loop.md), then judged (docs/decisions/020-benchmark-notebook.md, the output-frame rows): on the bump, a y error
 of the X slide local in X–Z, the machine frame cross-validated lower and was chosen on 20 of 20
 machines of both truth families, TRUE error 0.08–0.18 μm lower on every one; on the A-axis tilt and
 lobe, errors of the turning axis, the work frame cross-validated lower on every machine (results equal
@@ -684,7 +684,7 @@ imitate, and the learned part must then learn the effect MINUS that projection �
 profiles' shape in it, harder to learn than the effect itself (on the grinder's X–A tilt a noise-free
 ARD GP leaves 0.42 μm RMS at its own training checks); backfitting converges to the joint estimate of both
 parts, where the sweep prior keeps the elements at what the sweeps measured and the learned part takes the
-effect whole (docs/explanation/closed-loop.md, round 12)."""
+effect whole (docs/explanation/closed-loop.md)."""
 
 
 def _cv_key(reg) -> str:

@@ -407,7 +407,7 @@ def render_gcode(job: GCodeJob, axes, header=()) -> tuple[str, list]:
     return render_program(job.program, np.split(axes, np.cumsum(counts)[:-1]), header=header)
 
 
-# ------------------------------------------------------------- block-wise programs (issue 20)
+# ------------------------------------------------------------- block-wise programs ----------
 
 TABLE_CHUNK = 65_536
 """Moves per block when sampling paths of block-wise programs (bounds memory: 17 samples a move)."""

@@ -117,7 +117,7 @@ def _grinder_key(machine) -> tuple:
 
 
 _GRINDER_CHAINS: dict = {}
-GRINDER_CHAIN_CACHE = 32  # distinct grinder files kept compiled (a session uses one or two)
+GRINDER_CHAIN_CACHE = 32  # distinct grinder files kept compiled (a process uses one or two)
 
 
 def machine_tool_of(machine) -> MachineTool:

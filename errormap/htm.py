@@ -19,7 +19,7 @@ workpiece frame (WCS), in μm. Translations enter in μm, angles in μrad.
 The first-order (small-error) form is linear in the elements: ``e ≈ J(axes) · v`` where
 ``J`` (shape (n, 3, 23), μm per μm or μm per μrad) is the error-transfer Jacobian.
 
-One source for the kinematics (issue 26): these chains are not written out here. They are the
+One source for the kinematics: these chains are not written out here. They are the
 built-in chain file ``errormap/machines/grinder-chain.toml`` with the grinder file's geometry,
 strokes and targets (:func:`errormap.grinder_file.grinder_chain`, compiled once per file), evaluated
 by the generic compiled kernels of :mod:`errormap.chain_kernel`: the field and its axis Jacobian

@@ -5,7 +5,7 @@ Work chain  ``T_work(x,a) = Trans(l5,0,l6)·Trans(x,0,0)·Trans(l7,0,l8)·RotX(a
 Tool point in the WCS: ``p = T_work⁻¹ · T_tool · [0 0 0 1]ᵀ``, nominally
 ``p = (-(l5 + l7 + x), ρ·sin a, ρ·cos a)`` with ``ρ = l1 + l4 - R - l6 - l8 + z``.
 
-One source for the kinematics (issue 26): the chains are the grinder's chain file
+One source for the kinematics: the chains are the grinder's chain file
 (:func:`errormap.grinder_file.grinder_chain`, the built-in ``grinder-chain.toml`` with the grinder
 file's geometry), compiled once per file. ``forward`` is the chain's compiled nominal forward
 kinematics (:class:`errormap.chain_kernel.CompiledNominal`); ``inverse`` is the chain engine's closed

@@ -6,8 +6,18 @@ the whole suite quick (tests/test_benchmarks_suite.py)."""
 
 REGISTRY = [
     "identification",
+    "closed_loop",
+    "hybrid",
+    "surrogate",
+    "spatial_error",
+    "solvers",
+    "drift",
+    "gcode_corpus",
+    "lathe",
     "tcp",
     "work_offsets",
+    "arms",
     "pkm",
+    "cluster",
     "cli_startup",
 ]

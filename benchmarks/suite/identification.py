@@ -1,7 +1,7 @@
 """Identification from laser-tracker sweeps: noise-free exactness and the propagation of tracker noise.
 
 Truth: ``random_truth(builtin grinder, seed 3 + seed)``; 10,000 random axis points. Noise-free sweeps in both
-gauges; then σ = 2 μm tracker noise over ``draws`` noise draws. MODEL residual: identified HTM field minus the
+gauges; then σ = 2 μm tracker noise over ``draws`` noise draws. TRUE residual: identified HTM field minus the
 truth field, ‖Δe‖ (μm). Anchor: the truth field itself (what an uncompensated machine shows).
 """
 from __future__ import annotations
@@ -46,12 +46,12 @@ def run(quick: bool, seed: int) -> dict:
         mx.append(st["max_um"])
     anchor = "truth field (no compensation), max"
     return {"figures": [
-        {"what": "noise-free sweeps, max ‖Δe‖ (both gauges)", "value": free, "unit": "μm", "residual": "model",
+        {"what": "noise-free sweeps, max ‖Δe‖ (both gauges)", "value": free, "unit": "μm", "residual": "true",
          "anchor": "target < 0.01 μm", "anchor_value": None},
         {"what": f"σ = {NOISE_UM:g} μm, RMS ‖Δe‖ (mean over draws)", "value": float(np.mean(rms)), "unit": "μm",
-         "residual": "model", "anchor": anchor, "anchor_value": field_max},
+         "residual": "true", "anchor": anchor, "anchor_value": field_max},
         {"what": f"σ = {NOISE_UM:g} μm, max ‖Δe‖ (95th percentile over draws)", "value": float(np.percentile(mx, 95)),
-         "unit": "μm", "residual": "model", "anchor": anchor, "anchor_value": field_max},
+         "unit": "μm", "residual": "true", "anchor": anchor, "anchor_value": field_max},
         {"what": "one identification, wall", "value": round(t_id, 3), "unit": "s", "residual": "none",
          "anchor": "", "anchor_value": None},
     ], "notes": ["The noise is amplified by the ball spacing (~100 mm) against the lever arms (200–400 mm): "

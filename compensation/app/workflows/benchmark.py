@@ -1,4 +1,4 @@
-"""Learned vs parametric, side by side, on the same machines and the same measurements (issue 8).
+"""Learned vs parametric, side by side, on the same machines and the same measurements.
 
 ``run_benchmark(machines, out_dir, settings)`` runs both compensation paths on each machine
 under a set of measurement conditions, evaluates the TRUE residual (residual 2 of docs/explanation/kinematics.md: the
