@@ -168,7 +168,8 @@ def run_case(family: str, seed: int, effect: str, flute: bool = False, also=None
 
 TITLE = "Closed loop on the grinder (sweeps → identify → diagnose) and the flute compensated end to end"
 DATA = ("simulated grinder (truth family `default`), sweeps at 2 μm, 800 checks at 1 μm (60/40 by seq), effects none, "
-        "pitch X, reversal Z, thermal X, interaction X·Z, worm A × seeds 0–2 (quick: the no-effect case, seed 0, 200 checks, a 280-point flute); "
+        "pitch X, reversal Z, thermal X, interaction X·Z, worm A × seeds 0–2 (quick: the no-effect case, seed 0, "
+        "200 checks, a 280-point flute); "
         "the default flute (2,800 points) at the truth's reference conditions")
 
 
