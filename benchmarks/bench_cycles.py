@@ -1,4 +1,4 @@
-"""Drilling canned cycles compensated on ``mill-xyz`` (BENCHMARKS.md, "Programs as shops write them:
+"""Drilling canned cycles compensated on ``mill-xyz`` (docs/decisions/020-benchmark-notebook.md, "Programs as shops write them:
 canned cycles"): TRUE residual at the hole bottoms before/after, the tilt left along each hole by kept
 cycles, and the TRUE residual of the expanded moves.
 
