@@ -35,9 +35,8 @@ def run(quick: bool, seed: int) -> dict:
     sel = DriftSelector(fit_fraction=FIT_FRACTION).fit(log)
     figs = []
     for ch, c in sel.report(log).items():
-        base = min(("constant offset", c["rms_constant_um"]), ("OLS", c["rms_ols_um"]), key=lambda x: x[1])
         figs.append({"what": f"{ch}: chosen `{c['model']}`, held-out RMS", "value": c["rms_after_um"], "unit": "μm",
-                     "residual": "measured", "anchor": f"better plain baseline ({base[0]})", "anchor_value": base[1]})
-        figs.append({"what": f"{ch}: no compensation, held-out RMS", "value": c["rms_before_um"], "unit": "μm",
-                     "residual": "measured", "anchor": "OLS", "anchor_value": c["rms_ols_um"]})
+                     "residual": "measured", "anchor": "OLS on every input", "anchor_value": c["rms_ols_um"]})
+        figs.append({"what": f"{ch}: constant offset (the fit part's mean), held-out RMS", "value": c["rms_constant_um"],
+                     "unit": "μm", "residual": "measured", "anchor": "no compensation", "anchor_value": c["rms_before_um"]})
     return {"figures": figs, "notes": []}
