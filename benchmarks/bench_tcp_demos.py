@@ -30,7 +30,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from bench_tcp import NOISE, inverse_time_minutes, noisy  # noqa: E402
+from benchmarks.suite.tcp import NOISE, inverse_time_minutes, noisy  # noqa: E402
 
 import numpy as np  # noqa: E402
 
