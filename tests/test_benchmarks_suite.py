@@ -15,7 +15,7 @@ from benchmarks.suite import REGISTRY
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK_CPU_S = 150.0
-"""CPU budget of the whole quick suite in CI: measured 57 CPU s on the development machine with its numba caches warm;
+"""CPU budget of the whole quick suite in CI: measured 47 CPU s on the development machine with its numba caches warm;
 a fresh clone compiles the numba kernels on first use (tens of CPU seconds). A benchmark whose quick run grows
 past this belongs in the full run only."""
 
@@ -50,7 +50,7 @@ def test_the_page_refuses_more_than_its_line_limit(tmp_path, monkeypatch):
     assert suite.write_md(tmp_path, page) == 1 and not page.exists()
 
 
-@pytest.mark.slow  # the whole suite, quick: ~57 CPU s (README "Tests and benchmarks")
+@pytest.mark.slow  # the whole suite, quick: ~47 CPU s (README "Tests and benchmarks")
 def test_the_whole_suite_runs_quick(tmp_path):
     import os
     t = os.times()
