@@ -1,6 +1,6 @@
 """The ``errormap`` package of another checkout, imported beside this one in the same process.
 
-Issue 26 point 3 deleted the grinder's hand-written kernels from ``errormap``; benchmarks that keep
+The grinder's hand-written kernels were deleted from ``errormap`` (the chain replaced them); benchmarks that keep
 the old-vs-new ratio honest time the old kernels from a copy of main before that change, e.g.::
 
     git archive 0485cf2 | (mkdir -p /tmp/main-0485cf2 && tar -x -C /tmp/main-0485cf2)

@@ -1,4 +1,4 @@
-"""URDF in and 6-DoF measurements of an arm → printed markdown (pasted into BENCHMARKS.md).
+"""URDF in and 6-DoF measurements of an arm → printed markdown (pasted into docs/decisions/020-benchmark-notebook.md).
 
 1. URDF: the UR5 / UR10 URDFs of ``tests/data/urdf`` (written from the published DH numbers in ROS-Industrial's
    ur_description layout) against the built-in DH chains: largest tool-point and tool-axis difference over seeded

@@ -1,4 +1,4 @@
-"""Benchmark (issue 26 points 2 and 3): the generic chain field kernel beside the hand-written grinder kernel.
+"""Benchmark : the generic chain field kernel beside the hand-written grinder kernel.
 
 * grinder: μs per point of the hand-written compiled closed form that ``HTMField`` used before
   issue 26 point 3 (errormap/htm.py of ``--baseline-root``, a copy of main before that change,
@@ -35,8 +35,8 @@ from errormap.simulator import random_truth
 
 OTHER_MACHINES = ("mill-xyz", "five-axis-ac", "lathe-xzc")
 ELEMENT_SCALE = 25.0  # μm / μrad per station: the size of a machine tool's component errors
-GOAL_RATIO = 1.5      # issue 26: the generic kernel within 1.5× of today's hand-written one
-GOAL_US = 3.0         # issue 26: field value + Jacobian ≤ 3 μs per point
+GOAL_RATIO = 1.5      # goal: the generic kernel within 1.5× of today's hand-written one
+GOAL_US = 3.0         # goal: field value + Jacobian ≤ 3 μs per point
 ERROR_JAC_POINTS = 50_000  # the hand-written error-transfer Jacobian is numpy with (n, 3, 23) temporaries
 
 
@@ -114,7 +114,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "chain_results.md"))
     ap.add_argument("--baseline-root", required=True,
-                    help="a copy of main before issue 26 point 3 (its errormap/htm.py has the hand-written kernel)")
+                    help="a copy of main before the chain kernel replaced it (its errormap/htm.py has the hand-written kernel)")
     args = ap.parse_args()
     load0 = os.getloadavg()[0]
     seeds = list(range(args.seeds))
@@ -123,12 +123,12 @@ def main():
                              [args.baseline_root] * len(seeds)))
     med = {k: statistics.median(r[k] for r in rows) for k in ("hand_v", "chain_v", "hand_j", "chain_j", "hand_e",
                                                                "chain_e", "htm_v", "htm_j")}
-    lines = ["## Machine-tool chains compiled once: the generic field kernel (issue 26)", "",
+    lines = ["## Machine-tool chains compiled once: the generic field kernel", "",
              f"`python benchmarks/bench_chain.py --points {args.points} --seeds {args.seeds} --jobs {args.jobs} "
              f"--repeats {args.repeats} --baseline-root MAIN_BEFORE` — CPU time of the process, median of {args.repeats} runs per seed, "
              f"{os.cpu_count()} cores shared with other work (load average {load0:.1f} at the start, "
              f"{os.getloadavg()[0]:.1f} at the end). Grinder: the hand-written compiled kernel "
-             "(`HTMField` of errormap/htm.py before issue 26 point 3, imported from a copy of main, commit "
+             "(`HTMField` of errormap/htm.py before the chain kernel replaced it, imported from a copy of main, commit "
              "0485cf2, by benchmarks/baseline.py) and the generic chain kernel (`ChainField` on `grinder-chain`, "
              "errormap/chain_kernel.py) on the same element values (`random_truth(seed)`) and the same points "
              "(uniform over the strokes, A over -3..+3 extra turns), one after the other. Value = `predict`, "
@@ -151,7 +151,7 @@ def main():
     worst = max(med["chain_j"], med["htm_j"])
     ok_ratio = worst / med["hand_j"] <= GOAL_RATIO
     ok_us = worst <= GOAL_US
-    lines += ["", f"Goal (issue 26): value + J within {GOAL_RATIO}× of the hand-written kernel — "
+    lines += ["", f"Goal : value + J within {GOAL_RATIO}× of the hand-written kernel — "
               f"{'met' if ok_ratio else 'NOT met'} ({worst / med['hand_j']:.2f}×, the slower of ChainField and "
               f"HTMField); ≤ {GOAL_US:g} μs/point — {'met' if ok_us else 'NOT met'} ({worst:.2f} μs).", "",
               "Error-transfer Jacobian ∂E/∂(elements), (n, 3, 23) — what identification uses: hand-written "

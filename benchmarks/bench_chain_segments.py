@@ -1,5 +1,5 @@
 """Segment splitting on a machine-tool chain: the TRUE residual at the vertices and along the moves of a
-compensated program, per ``--max-segment-mm`` (BENCHMARKS.md, "Scale-out and segment splitting on
+compensated program, per ``--max-segment-mm`` (docs/decisions/020-benchmark-notebook.md, "Scale-out and segment splitting on
 machine-tool chains").
 
 Machine: built-in ``mill-xyz``; truth: a seeded element set (±10 μm / μrad, 1 σ; seed 101); model: the

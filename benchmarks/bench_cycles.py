@@ -1,9 +1,9 @@
-"""Drilling canned cycles compensated on ``mill-xyz`` (BENCHMARKS.md, "Programs as shops write them:
+"""Drilling canned cycles compensated on ``mill-xyz`` (docs/decisions/020-benchmark-notebook.md, "Programs as shops write them:
 canned cycles"): TRUE residual at the hole bottoms before/after, the tilt left along each hole by kept
 cycles, and the TRUE residual of the expanded moves.
 
 Machine: built-in ``mill-xyz``; truth: seeded element set (±10 μm / μrad 1 σ, seed 101); model: the truth
-plus 0.3 μm / μrad noise per station and constant (seed 102), as benchmarks/bench_work_offsets.py.
+plus 0.3 μm / μrad noise per station and constant (seed 102), as benchmarks/suite/work_offsets.py.
 Program: ``tests/data/cycles/drill_linuxcnc.ngc`` (G81 ×3 with modal repeats, G82, G83, G73, G85, G89
 under G55 = (200, 100, −150) mm from ``tests/data/controller/offsets.csv``). Residual kind: TRUE (the truth
 machine's tool point minus the programmed point), μm; tilt: |XY correction at R − at the bottom| (model).

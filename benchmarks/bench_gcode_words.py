@@ -1,4 +1,4 @@
-"""The G-code reader's axis words from the machine (issue 26): byte identity and fast-path speed
+"""The G-code reader's axis words from the machine : byte identity and fast-path speed
 against a baseline checkout.
 
 Since the reader takes every machine's axis words from its file (the built-in default machine's
@@ -156,7 +156,7 @@ def main(argv=None) -> int:
         if base[n][0] != 0:
             print(f"note: {n} exited {base[n][0]} on the baseline")
     text = [
-        "## G-code reader: axis words from the machine file (issue 26)", "",
+        "## G-code reader: axis words from the machine file", "",
         f"`python benchmarks/bench_gcode_words.py --baseline-root {args.baseline_root} --lines {args.lines} "
         f"--repeats {args.repeats}` on this machine (2 cores, shared). Baseline: `{args.baseline_root}`.", "",
         f"**Bytes**: `volcomp compensate --method exact` outputs, this branch vs baseline: {n_same} of {len(jobs)} "

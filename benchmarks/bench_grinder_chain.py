@@ -1,4 +1,4 @@
-"""Benchmark (issue 26 point 3): the grinder's solvers and G-code path lengths on its chain, beside
+"""Benchmark : the grinder's solvers and G-code path lengths on its chain, beside
 main's hand-written kinematics, same invocation.
 
 Every case runs in fresh child processes, one per code checkout (this one and ``--baseline-root``,
@@ -17,7 +17,7 @@ median). The outputs of the two checkouts are compared element by element:
 * ``batched-ga generic``: the same on the HTM field (``fused=False``) on ``--ga-points`` points;
 * ``path lengths``: :func:`compensation.gcode_kernels.linear_path_lengths_mm` of ``--moves``
   seeded linear moves (16 chords each);
-* ``field+jac MACHINE`` (issue 26 point 2, ``grinder``, ``mill-xyz``, ``five-axis-ac``): the field's
+* ``field+jac MACHINE`` (``grinder``, ``mill-xyz``, ``five-axis-ac``): the field's
   value and axis Jacobian in one pass (``predict_and_jacobian``) at ``--field-points`` seeded axes
   in the strokes (rotary axes over ±2 turns); the grinder's HTM field of ``random_truth``, the
   chains' ChainField of the seeded smooth element sets; reported in μs per point;
@@ -321,7 +321,7 @@ def main():
              "run |",
              "|---|---|---|---|---|---|---|---|---|---|---|", *rows, ""]
     if field_rows or any(c in got for c in ("exact", "exact-chain mill-xyz", "exact-chain five-axis-ac")):
-        lines += ["### Issue 26 point 2: field value + Jacobian and the exact solve, beside main's kernels (same run)", "",
+        lines += ["### field value + Jacobian and the exact solve, beside main's kernels (same run)", "",
                   f"Field value + axis Jacobian in one pass (`predict_and_jacobian`) at {args.field_points:,} seeded "
                   "axes in the strokes (rotary axes over ±2 turns): the grinder's HTM field of `random_truth`, the "
                   "chains' ChainField of the seeded smooth element sets. Goal: ≤ 3 μs a point, within 1.5× of main. "
@@ -341,7 +341,7 @@ def main():
         lines += ["| machine | field value + Jacobian μs/pt, main / new (goal ≤ 3) | exact solve CPU s, main / new "
                   "(goal ≤ 8 s for 1,000,000) |", "|---|---|---|", *summary, ""]
     if tight_rows:
-        lines += ["### The exact solver against main's under the same tighter stopping rule (issue 26 point 3)", "",
+        lines += ["### The exact solver against main's under the same tighter stopping rule", "",
                   f"The grinder's exact solver on the first {args.tight_points:,} targets of `exact`, each checkout "
                   f"with its default stop (|F| ≤ 1e-9 μm or within 1,024 ulps of the target's largest coordinate) "
                   f"and with a tighter one: |F| ≤ {args.tight_xtol_um:g} μm or within {args.tight_ulps:g} ulps "

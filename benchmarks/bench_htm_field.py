@@ -1,4 +1,4 @@
-"""Benchmark (issue 20): the exact HTM field, reference vs fast, side by side in one run.
+"""Benchmark : the exact HTM field, reference vs fast, side by side in one run.
 
 * field: μs per point of ``HTMField.predict`` (exact) — the reference pipeline (18 per-element
   splines + the (n, 3, 3) numpy matrix chain (``MachineTool.spatial_error``); the baseline's
@@ -8,7 +8,7 @@
 * solve: μs per point of ``solve_exact`` on the same targets with either field — the reference
   declares no Jacobian (the solver differentiates it by forward differences, 3 more evaluations
   per point), the fast one its closed-form Jacobian — and the largest difference of the commands
-  (μm) between the two. Both solves run the current solver; the solver before issue 20 is timed
+  (μm) between the two. Both solves run the current solver; the solver before the fast field is timed
   against this one in ``bench_solve_scale.py`` (``--baseline-root``).
 
 Points: uniform over the strokes with A over several turns, truth ``random_truth(seed)``.
@@ -44,10 +44,10 @@ def _numpy_chain(machine, axes, values, chunk):
 
 
 class ReferenceChainField(ChainField):
-    """The exact HTM field as it was before issue 20: per-element splines, matrix chain, no Jacobian.
+    """The exact HTM field as it was before the fast field: per-element splines, matrix chain, no Jacobian.
 
     ``exact_chain(machine, axes, values, chunk)`` is the numpy matrix chain: the hand-written one of
-    the baseline (``--baseline-root``, the pipeline this column timed before issue 26 point 3) or,
+    the baseline (``--baseline-root``, the pipeline this column timed before the chain kernel replaced it) or,
     without a baseline, the chain file's numpy reference (:func:`_numpy_chain`)."""
 
     capabilities = frozenset()
@@ -123,14 +123,14 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "htm_field_results.md"))
     ap.add_argument("--baseline-root", default=None,
-                    help="a copy of main before issue 26 point 3: time its hand-written kernel beside the chain's")
+                    help="a copy of main before the chain kernel replaced it: time its hand-written kernel beside the chain's")
     args = ap.parse_args()
     load0 = os.getloadavg()[0]
     seeds = list(range(args.seeds))
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_seed, seeds, [args.points] * len(seeds), [args.repeats] * len(seeds),
                              [args.solve_points] * len(seeds), [args.baseline_root] * len(seeds)))
-    lines = ["## Fast exact HTM field (issue 20)", "",
+    lines = ["## Fast exact HTM field", "",
              f"`python benchmarks/bench_htm_field.py --points {args.points} --solve-points {args.solve_points} "
              f"--seeds {args.seeds} --jobs {args.jobs} --repeats {args.repeats}"
              + (" --baseline-root MAIN_BEFORE" if args.baseline_root else "") + "` — default grinder, truth "
@@ -138,12 +138,12 @@ def main():
              f"median of {args.repeats} runs per seed (CPU time of the process: the load of the shared cores inflates wall time), reference and fast in the same process, one after the other; "
              f"{os.cpu_count()} cores shared with other work (load average {load0:.1f} at the start, "
              f"{os.getloadavg()[0]:.1f} at the end). Reference = per-element splines + (n, 3, 3) matrix chain "
-             "(the field before issue 20; "
+             "(the field before the fast field; "
              + ("the hand-written numpy chain of the baseline copy of main" if args.baseline_root else
                 "the chain file's numpy reference chain, chunks of 4,096 points — slower than the hand-written "
-                "numpy chain it replaced, so this speed-up is not comparable with runs before issue 26 point 3")
+                "numpy chain it replaced, so this speed-up is not comparable with runs before the chain kernel replaced it")
              + "); fast = per-axis vector splines + the grinder's chain file through the "
-             "generic compiled kernel (issue 26 point 3; the hand-written closed form before it); field + J = "
+             "generic compiled kernel (the hand-written closed form before it); field + J = "
              "`predict_and_jacobian` (value and exact geometric Jacobian in one pass). "
              "Solve = `solve_exact` (the current solver, CPU of one thread) on the nominal tool points of the first "
              "solve-points axes (model residual): ref = the reference field without a Jacobian (forward differences), "
@@ -157,7 +157,7 @@ def main():
                      f"{r['solve_new_us']:.1f} | {r['solve_ref_us'] / r['solve_new_us']:.1f}× | "
                      f"{r['commands_diff_um']:.1e} | {r['solved']} |")
     if args.baseline_root:
-        lines += ["", "Hand-written closed-form kernel (errormap/htm.py before issue 26 point 3, from a copy of main, "
+        lines += ["", "Hand-written closed-form kernel (errormap/htm.py before the chain kernel replaced it, from a copy of main, "
                   "commit 0485cf2) beside the chain kernel, same process, same points:", "",
                   "| seed | field hand (μs/pt) | field chain (μs/pt) | ratio | field + J hand (μs/pt) | "
                   "field + J chain (μs/pt) | ratio | max abs ΔE (μm) | max abs ΔJ (μm per mm/deg) |",

@@ -1,4 +1,4 @@
-"""Benchmark of the learned-residual stage in the CHAIN machines' closed loop (issue 28, mill-xyz, five-axis-ac).
+"""Benchmark of the learned-residual stage in the CHAIN machines' closed loop (mill-xyz, five-axis-ac).
 
 Per machine, seed and case, the user's path: the simulated machine writes its tracker sweeps (2 μm,
 seeded unknown tracker pose) and 800 check measurements (1 μm) — both through the library functions

@@ -1,5 +1,5 @@
 """CPU time and peak memory of the commands that read a user table, at two sizes each: the measured runs the input
-bounds scale their estimates from (errormap/input_bounds.py; BENCHMARKS.md "Bounded inputs per command").
+bounds scale their estimates from (errormap/input_bounds.py; docs/decisions/020-benchmark-notebook.md "Bounded inputs per command").
 
     python benchmarks/bench_input_bounds.py OUT_DIR [CASE ...]
 

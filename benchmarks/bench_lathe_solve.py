@@ -1,4 +1,4 @@
-"""Benchmark (issue 26, the lathe): compensation and LinuxCNC export on ``lathe-xzc`` (axes X, Z, C).
+"""Benchmark (the lathe): compensation and LinuxCNC export on ``lathe-xzc`` (axes X, Z, C).
 
 Part A, the solvers (MODEL residual: the solver's own field). Targets: the nominal tool points of seeded
 random axes inside the strokes, with ``|X| ≥ 5 mm`` ("far" from the spindle axis) and C on ±1 extra turns;
@@ -129,7 +129,7 @@ def main():
     load1 = os.getloadavg()
     cmd = (f"nice -n 10 python benchmarks/bench_lathe_solve.py --points {args.points} --ga-points {args.ga_points} "
            f"--seed {args.seed} --seeds {' '.join(map(str, args.seeds))}")
-    lines = ["## The lathe (lathe-xzc): the GA, the rotary continuity guard, LinuxCNC tables with C (issue 26)", "",
+    lines = ["## The lathe (lathe-xzc): the GA, the rotary continuity guard, LinuxCNC tables with C", "",
              f"`{cmd}` on this machine (2 cores, shared; load average {load0[0]:.1f} at the start, {load1[0]:.1f} at "
              "the end). Method: the module docstring of the script.", "",
              "### Solvers, targets ≥ 5 mm from the spindle axis (MODEL residual, μm)", "",

@@ -1,4 +1,4 @@
-"""Benchmark (issue 26 point 5): the exact solve over machine-tool chains beside the grinder's.
+"""Benchmark : the exact solve over machine-tool chains beside the grinder's.
 
 In one process, one after the other (same load, so the ratios compare): ``--points`` targets at
 seeded random axes inside the strokes of
@@ -100,7 +100,7 @@ def main():
                     f"| {pj:.2f} | {', '.join(f'{c:.2f}' for c in cpu)} |")
         print(rows[-1], flush=True)
     load1 = os.getloadavg()
-    lines = ["## Exact solve over machine-tool chains beside the grinder's (issue 26 point 5)", "",
+    lines = ["## Exact solve over machine-tool chains beside the grinder's", "",
              f"`nice -n 10 python benchmarks/bench_mt_solve.py --points {args.points} --repeats {args.repeats} "
              f"--seed {args.seed}` on this machine (2 cores, shared; load average {load0[0]:.1f} at the start, "
              f"{load1[0]:.1f} at the end). One process, the three machines one after the other. Targets: the nominal "
@@ -116,7 +116,7 @@ def main():
              "|---|---|---|---|---|---|---|---|---|---|", *rows, "",
              "Unsolved points are targets whose root lies outside the 250 μm ball (projected onto it, reported "
              "unsolved, refused by `compensate`'s ball guard unless overridden): their residual is the part of the "
-             "error beyond the ball. Issue 26's goal for an exact solve of 1M points is ≤ 8 s CPU on 2 cores.", ""]
+             "error beyond the ball. The goal for an exact solve of 1M points is ≤ 8 s CPU on 2 cores.", ""]
     with atomic_write(args.out, "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))
     print(f"wrote {args.out}")

@@ -1,4 +1,4 @@
-"""Benchmark (issue 26 point 5): the network and the batched GA over a machine-tool chain (``mill-xyz``).
+"""Benchmark : the network and the batched GA over a machine-tool chain (``mill-xyz``).
 
 One process, one after the other (same load):
 

@@ -1,5 +1,5 @@
 """Reader speed on a 1,000,001-line plain program (``G1 X Y Z`` on ``mill-xyz``): best of 7
-``parse_program`` (the block-wise path). BENCHMARKS.md, "Programs as shops write them".
+``parse_program`` (the block-wise path). docs/decisions/020-benchmark-notebook.md, "Programs as shops write them".
 
     PYTHONPATH=. python benchmarks/bench_parse_speed.py [label]
 """

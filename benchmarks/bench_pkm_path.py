@@ -12,7 +12,7 @@ Also writes the tripod sensitivity plot (``--plot``).
 Usage: python benchmarks/bench_pkm_path.py [--seeds 5] [--out benchmarks/pkm_path_results.md]
 
 The issue-7 benchmark (small errors: ~1 mm RMS, scales estimated, Morozov lambda, 500 mm lever; all pinned
-explicitly since issue 15 changed the defaults). The realistic-platform benchmark is bench_pkm.py.
+explicitly since issue 15 changed the defaults). The realistic-platform benchmark is benchmarks/suite/pkm.py.
 """
 from __future__ import annotations
 

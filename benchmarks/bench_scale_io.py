@@ -1,4 +1,4 @@
-"""Benchmark (issue 20): reading a large CSV tool path, the pyarrow fast path of
+"""Benchmark : reading a large CSV tool path, the pyarrow fast path of
 ``errormap.io.read_table`` against the per-row reader, side by side in one run.
 
 The file: ``--rows`` rows of ``x_mm,z_mm,a_deg`` (random over the strokes, 9 significant
@@ -9,7 +9,7 @@ median of ``--repeats`` runs each, alternating. The per-row reader is forced by 
 
     python benchmarks/bench_scale_io.py --rows 1000000 --repeats 3
 
-``--lines N`` (issue 20): a N-line G-code program through ``volcomp compensate --method exact``
+``--lines N`` : a N-line G-code program through ``volcomp compensate --method exact``
 end to end, with an element-set (HTM) model and with a learned model. The program
 (:func:`gcode_program`) is CAM-style: ``N.. G1 X.. Z.. A..`` and modal ``N.. X.. Z.. A..``
 lines (4 decimals), an F word every 1,000 lines, a comment line every 5,000, a header
@@ -84,11 +84,11 @@ def stage_run(prog, model, out_dir) -> dict:
     checkout has it), timed; seconds per stage, points, peak RSS (MB)."""
     import resource
     t0, c0 = time.perf_counter(), time.process_time()
-    try:  # the application wing (issue 18); a checkout from before it (--baseline-root) has the old places
+    try:  # the application wing; a checkout from before it (--baseline-root) has the old places
         from compensation.app.commands import compensate  # noqa: F401  (what the command loads)
     except ImportError:
         from compensation.commands import compensate  # noqa: F401
-    try:  # the command solves through the chunk plan (compensation.batch) since issue 20's cluster work
+    try:  # the command solves through the chunk plan (compensation.batch) since the cluster work
         from compensation.batch import solve_batch
     except ImportError:
         solve_batch = None
@@ -236,7 +236,7 @@ def gcode_section(args, tmp) -> str:
             print(json.dumps(rows[-1]), flush=True)
     load_end = os.getloadavg()
     cmdline = "python benchmarks/bench_scale_io.py " + " ".join(sys.argv[1:])
-    lines = ["## G-code end to end: `volcomp compensate --method exact` (issue 20)", "",
+    lines = ["## G-code end to end: `volcomp compensate --method exact`", "",
              f"`{cmdline}` on this machine ({os.cpu_count()} cores, shared; load average "
              f"{load[0]:.1f} at the start, {load_end[0]:.1f} at the end). Program: `gcode_program` of the script "
              "(CAM-style `N.. G1 X.. Z.. A..` lines, ~0.035 mm moves, one vertex each under `--max-segment-mm auto`); "
@@ -306,7 +306,7 @@ def main():
             rows.append((seed, size_mb, statistics.median(slow), statistics.median(fast), np.array_equal(vf, vs),
                          statistics.median(slow_cpu), statistics.median(fast_cpu)))
             print(rows[-1])
-    lines = ["## CSV read, pyarrow fast path vs per-row reader (issue 20)", "",
+    lines = ["## CSV read, pyarrow fast path vs per-row reader", "",
              f"`python benchmarks/bench_scale_io.py --rows {args.rows} --repeats {args.repeats} --seeds {args.seeds}` — "
              f"{args.rows:,} rows x_mm,z_mm,a_deg written by write_csv (%.9g); read_table + Table.float of the 3 columns; "
              f"median of {args.repeats} runs each, alternating in one process; {os.cpu_count()} cores shared with other work "

@@ -1,4 +1,4 @@
-"""Benchmark (issue 20): the solve stage of ``volcomp compensate --method exact`` at scale.
+"""Benchmark : the solve stage of ``volcomp compensate --method exact`` at scale.
 
 What the command does with a parsed path: ``compensation.batch.solve_batch`` (fixed chunks of
 65,536 points on :class:`compensation.batch.LocalExecutor` threads) with the exact solver.
@@ -145,7 +145,7 @@ def main():
                                 f"{res['solved']:,}/{res['points']:,} | {'yes' if same else 'NO'} | {d} | "
                                 f"{', '.join(f'{c:.2f}' for c in res['cpu_all_s'])} |")
     load1 = os.getloadavg()
-    lines = ["## Solve stage at scale: `compensate --method exact` (issue 20)", "",
+    lines = ["## Solve stage at scale: `compensate --method exact`", "",
              f"`python benchmarks/bench_solve_scale.py --points {args.points} --workers {args.workers}"
              + (" --baseline-root MAIN_CHECKOUT" if args.baseline_root else "")
              + f" --train-iters {args.train_iters} --seeds {args.seeds} --repeats {args.repeats}` on this machine ({os.cpu_count()} cores, "

@@ -1,5 +1,5 @@
 """Sweeps-only identification: its prediction error against the noise-propagation floor, other
-smoothing choices, and the coverage of its 95 % prediction band by Monte Carlo (issue 13).
+smoothing choices, and the coverage of its 95 % prediction band by Monte Carlo.
 
 Part A (per family, seeds 0..N-1, the same sweeps as the closed-loop benchmark: ``volcomp
 sweeps`` 2 μm, 21 stations, noise seed from ``spawn_seeds(seed, 2)[0]``): the product's

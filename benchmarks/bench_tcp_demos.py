@@ -11,7 +11,7 @@ in a folder under the ``file`` column's names and run
 
 Truth: a seeded element set of ``five-axis-ac`` (seed 0, ±10 μm / μrad 1 σ); models: the truth itself (what the
 method leaves) and the truth with seeded station noise 0.5 μm / μrad 1 σ (a model's own error, as
-``bench_tcp.py``). Work offset G54 = (0, 0, z) from the manifest (the boat's touch-off puts the table at program
+``python -m benchmarks.run tcp``). Work offset G54 = (0, 0, z) from the manifest (the boat's touch-off puts the table at program
 Z -13.25: 13.25 puts it on the C table top; the impeller's lowest tip is at Z -0.54: 40 keeps its blank above the
 table). Tool: no G43 in either program, so LinuxCNC's kinematics use a zero tool offset: the machine file's own
 tool point (``[tcp] tool_length_under_g49``). Residual kind: true (simulated truth, the product's ``--truth``)."""
@@ -30,7 +30,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from bench_tcp import NOISE, inverse_time_minutes, noisy  # noqa: E402
+from benchmarks.suite.tcp import NOISE, inverse_time_minutes, noisy  # noqa: E402
 
 import numpy as np  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""True residual ALONG long moves, with and without segment splitting (issue 16).
+"""True residual ALONG long moves, with and without segment splitting.
 
 What the controller runs between two written vertices is a straight line in the axes; the
 compensation is exact only at the vertices. This benchmark drives a simulated truth
@@ -9,7 +9,7 @@ move (the program's own path: linear in the axes between its points).
 The error field given to the solver is the truth's own error (its 23 elements plus the
 undeclared effects ``pitch``, ``worm`` and ``interaction``, evaluated at 20 °C with positive
 approach), so every μm left is the linearisation between vertices, which is what splitting
-addresses; the model's own error is another benchmark's subject (``bench_solvers``).
+addresses; the model's own error is another benchmark's subject (``benchmarks/suite/solvers.py``).
 Two truth shapes per seed: the element profiles alone, and with the three effects
 (harmonics along X and A the element profiles do not have).
 
@@ -186,7 +186,7 @@ def main(argv=None) -> None:
 
 def write_md(stem, rows, seeds, jobs, samples, wall):
     shapes = list(dict.fromkeys(r["truth"] for r in rows))
-    md = ["# Tool paths: true residual along long moves (issue 16)", "",
+    md = ["# Tool paths: true residual along long moves", "",
           f"`python benchmarks/bench_toolpath.py --seeds {seeds} --jobs {jobs} --samples {samples}` "
           f"({wall:.0f} s on this machine). Truths `random_truth(default grinder, seed)`, seeds 0–{seeds - 1}; "
           "the solver (`exact`) is given the truth's own error, so the residual left is the linearisation "

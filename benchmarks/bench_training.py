@@ -67,7 +67,7 @@ def run_configs(configs, budget_s, seed, threads, tracking_uri, sim_seed, max_er
 
 
 def markdown(rows) -> str:
-    lines = ["## Learned error field (issue 3): BP network, LM vs Adam vs L-BFGS",
+    lines = ["## Learned error field : BP network, LM vs Adam vs L-BFGS",
              "",
              "Data: default grinder, `volcomp simulate --seed 0` — 1,331 feature points (11×11×11 grid, "
              "max spatial error 193 μm). Validation: 10,000 random off-grid points over the whole volume "

@@ -1,4 +1,4 @@
-"""Figures of BENCHMARKS.md, "Verdicts everywhere, and huge tables read in bounded memory".
+"""Figures of docs/decisions/020-benchmark-notebook.md, "Verdicts everywhere, and huge tables read in bounded memory".
 
 ``arm``: the arm calibration's verdict on a simulated UR5 (seed 7: link errors and joint sag; 150 fit and 100
 held-out poses, 20 μm tracker noise) with the true σ stated and with one 4x too small (``--no-learned --folds 3``),

@@ -1,4 +1,4 @@
-"""Compiled kernels of the block-wise G-code reader and writer (issue 20).
+"""Compiled kernels of the block-wise G-code reader and writer.
 
 :func:`scan_lines` reads the whole file's bytes in one pass and puts each line in one of
 four kinds, exactly as the block-wise reader's two strict patterns (``gcode._bulk_move``,

@@ -81,7 +81,7 @@ ARC_TOLERANCE_RANGE_UM = (0.001, 5.0)
 cannot state the difference (it is written with :data:`DECIMALS_MM` = 6 decimals, 1 nm) and an
 arc's chords multiply for nothing (their count grows as ``1/sqrt(tolerance)``). Above 5 μm the
 geometric half of the tolerance (2.5 μm of sagitta) is as large as what compensation leaves
-(1-3 μm true RMS in BENCHMARKS.md), so the flattening would undo the compensation: 1e9 μm
+(1-3 μm true RMS in docs/decisions/020-benchmark-notebook.md), so the flattening would undo the compensation: 1e9 μm
 wrote a G2 arc as one G1 chord."""
 SEGMENT_RANGE_MM = (0.01, 100.0)
 """Accepted ``--max-segment-mm`` lengths: the range the ``auto`` rule chooses from
@@ -99,7 +99,7 @@ absurd ``--max-segment-mm`` gets there."""
 MAX_PATH_POINTS = 10_000_000
 """Vertices of one file at most, checked before any is placed: ``compensate`` holds about
 1.2 kB per vertex from reading to writing (1.18 GB peak for 1,000,000 vertices measured,
-BENCHMARKS.md "G-code end to end"), so this bounds a file at about 12 GB."""
+docs/decisions/020-benchmark-notebook.md "G-code end to end"), so this bounds a file at about 12 GB."""
 
 
 @dataclass
@@ -407,7 +407,7 @@ def render_gcode(job: GCodeJob, axes, header=()) -> tuple[str, list]:
     return render_program(job.program, np.split(axes, np.cumsum(counts)[:-1]), header=header)
 
 
-# ------------------------------------------------------------- block-wise programs (issue 20)
+# ------------------------------------------------------------- block-wise programs ----------
 
 TABLE_CHUNK = 65_536
 """Moves per block when sampling paths of block-wise programs (bounds memory: 17 samples a move)."""

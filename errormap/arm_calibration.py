@@ -31,7 +31,7 @@ the others at the arm's scale. The plain fit's cutoff (:data:`PLAIN_RCOND`, the 
 :data:`RANK_RTOL` (exact dependencies only) the UR5 grid's fit freed link 5's a and d offsets beside the nearly
 parallel shoulder/elbow axes and returned 4.5 to 11.6 mm and 39 to 102 mrad with standard errors of the same size
 (8.5 mm, 73 mrad): no physical link parameters. At this cut the largest identified UR5 link deviation is 0.67 mm /
-11.6 mrad and the held-out error is unchanged or lower (BENCHMARKS.md, "Arm frames kept apart"). The pose-set check
+11.6 mrad and the held-out error is unchanged or lower (docs/decisions/020-benchmark-notebook.md, "Arm frames kept apart"). The pose-set check
 (:func:`check_pose_set`) still counts exact dependencies only."""
 COMBINATION_SHOW = 0.1    # a slot enters a named null combination with |weight| above this
 LM_MAX_ITER = 100

@@ -114,7 +114,7 @@ DECIDE_FOLDS = 10
 FOLD_KINDS = ("interleaved", "blocked")
 """How the registration poses are dealt into folds (:func:`decision_folds`)."""
 DECIDE_FOLD_KIND = "interleaved"
-"""The fold kind register uses (BENCHMARKS.md, "Sessions in one calibration file": blocked folds measured beside)."""
+"""The fold kind register uses (docs/decisions/020-benchmark-notebook.md, "Sessions in one calibration file": blocked folds measured beside)."""
 
 
 def decision_folds(n: int, k: int, kind: str = DECIDE_FOLD_KIND) -> np.ndarray:

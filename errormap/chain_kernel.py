@@ -420,7 +420,7 @@ class CompiledChain:
 assert UM_MM == 1e-3, "the kernels write mm → μm as * 1e3"
 
 
-# -- nominal tool points and per-pose slot values (issue 26 point 3: the grinder's paths) ---------
+# -- nominal tool points and per-pose slot values (the grinder's paths too) ---------
 def nominal_program(chain):
     """The chain as ops with no error slot (every joint ET one op, every run of fixed ETs one
     constant block): the nominal chain for :func:`nominal_jacobian_kernel` (layout of
@@ -539,7 +539,7 @@ _NO_SLOTS = np.zeros(0, dtype=np.int64)  # a nominal program's slot columns (non
 _NO_JACOBIAN = np.empty((0, 3, 0))       # nominal_jacobian_kernel without its Jacobian
 
 # ---------------------------------------------------------------------------- nominal chain
-# (issue 26 point 3: the solvers' and G-code kernels' one source of nominal kinematics)
+# (the solvers' and G-code kernels' one source of nominal kinematics)
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def nominal_point(q, prog, R, t, W, O, ev, record):  # pragma: no cover - compiled
@@ -621,7 +621,7 @@ class NominalChain:
 
 
 # ---------------------------------------------------------------------------- closed-form inverse
-# (issue 26: the grinder's nominal inverse on its chain, compiled; the batched GA's generic
+# (the grinder's nominal inverse on its chain, compiled; the batched GA's generic
 # fitness calls it on every offspring)
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -117,7 +117,7 @@ class FeaturePoints:
 DEFAULT_GRID = 21
 """Feature points per axis of ``volcomp featurepoints`` / ``simulate`` / ``demo`` on a machine of up to three axes: a
 node at every element station of the simulated truth (21 per axis), where the measured best training setting
-(training.DEFAULT_PHYSICS) meets 0.0267 μm on the grid and 0.1 μm between its nodes (BENCHMARKS.md, "The surrogate
+(training.DEFAULT_PHYSICS) meets 0.0267 μm on the grid and 0.1 μm between its nodes (docs/decisions/020-benchmark-notebook.md, "The surrogate
 network on feature points"; on the 11^3 grid no learner gets under 1 μm between nodes)."""
 
 

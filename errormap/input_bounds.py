@@ -19,7 +19,7 @@ class InputBound:
     """The bound of one kind of table. ``what``: its rows in words; ``commands``: who reads it; ``max_rows``: data
     rows taken. The estimate: a measured run of ``ref_rows`` rows took ``ref_cpu_s`` CPU seconds and ``ref_bytes``
     peak resident memory; ``power``: how both grow with the rows (1 linear, 2 a dense n × n or rows × stations
-    matrix, 3 dense n × n solves), extrapolated from that run (BENCHMARKS.md "Bounded inputs per command");
+    matrix, 3 dense n × n solves), extrapolated from that run (docs/decisions/020-benchmark-notebook.md "Bounded inputs per command");
     ``power_bytes``: the memory's own growth where it differs from the CPU's (None: ``power``)."""
 
     what: str
@@ -51,7 +51,7 @@ BOUNDS = {
     "thermal log": InputBound("log samples", "diagnose --drift / drift-predict", 300_000, 110_400, 196.4, 0.823e9),
     "waypoints": InputBound("waypoints", "interpolate", 1_000_000, 10_000_000, 702.0, 5.6e9),
 }
-"""Kind → bound, each from a measured run of the command reading it (BENCHMARKS.md "Bounded inputs per command"),
+"""Kind → bound, each from a measured run of the command reading it (docs/decisions/020-benchmark-notebook.md "Bounded inputs per command"),
 chosen so that the command stays within minutes of CPU and a few GB at its bound:
 
 ``points``: ``predict`` on 10M rows took 702 s and 5.6 GB; the bound is the largest feature-point set volcomp

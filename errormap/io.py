@@ -70,7 +70,7 @@ before it is read: the largest volcomp writes are a diagnosed model with its lea
 drift model (of the order of 100 kB: a learned residual keeps its few hundred fitting checks), an
 element set is ~10 kB (mill-xyz), a chain diagnosis.json ~16 kB and a machine file a few kB, so 64 MiB is over 600
 times the largest real one, and reading one at the bound stays near 1 s and a third of a GB (measured:
-a 55 MiB JSON of float rows parses in 1.1 s at 285 MB peak, about 5x its size; BENCHMARKS.md). A
+a 55 MiB JSON of float rows parses in 1.1 s at 285 MB peak, about 5x its size; docs/decisions/020-benchmark-notebook.md). A
 larger file is not one of these documents."""
 
 
@@ -560,7 +560,7 @@ MAX_TABLE_BYTES = 2 * 2**30
 TABLE_READ_BYTES_PER_BYTE = 6.0
 """Peak memory of reading a plainly numeric table (the pyarrow path) per byte of the file: its bytes, the decoded
 text, the body handed to pyarrow, the parsed columns. Measured: 5e6 rows x 3 columns, 158 MB, 929 MiB peak
-resident (of which ~100 MiB the interpreter and its libraries) — 5.5 per byte (BENCHMARKS.md, "Huge tables")."""
+resident (of which ~100 MiB the interpreter and its libraries) — 5.5 per byte (docs/decisions/020-benchmark-notebook.md, "Huge tables")."""
 TABLE_READ_BYTES_PER_CELL = 170
 """Peak memory of reading a table cell by cell (a quote, a word or an empty cell anywhere: the per-row reader) per
 cell. Measured: the same 5e6 x 3 table with one quoted cell, 2,378 MiB peak resident — 152 B per cell."""

@@ -102,12 +102,12 @@ def independent_effect_parameters(rng: np.random.Generator) -> dict:
                  "z_frac": rng.uniform(0.3, 0.7), "width_frac": rng.uniform(0.14, 0.22)},
         "a_tilt": {"k_urad": rng.uniform(80.0, 160.0) * rng.choice([-1.0, 1.0])},
         "squareness": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
-        # drawn last (issue 28, round 4), so every draw above is unchanged
+        # drawn after the three above, so every draw above is unchanged
         "squareness_xz": {"k_urad": rng.uniform(70.0, 130.0) * rng.choice([-1.0, 1.0])},
-        # drawn last (issue 28, round 5), so every draw above is unchanged
+        # drawn after squareness_xz, so every draw above is unchanged
         "a_lobe_x": {"amplitude_um": rng.uniform(4.5, 7.5) * rng.choice([-1.0, 1.0]), "x_frac": rng.uniform(0.35, 0.65),
                      "width_frac": rng.uniform(0.12, 0.18), "phase_rad": rng.uniform(0.0, 2 * np.pi)},
-        # drawn last (issue 28, round 13), so every draw above is unchanged
+        # drawn last, after a_lobe_x, so every draw above is unchanged
         "xz_saddle": {"amplitude_um": rng.uniform(6.0, 10.0) * rng.choice([-1.0, 1.0]), "x_frac": rng.uniform(0.35, 0.65),
                       "z_frac": rng.uniform(0.4, 0.6), "width_frac": rng.uniform(0.12, 0.18)},
     }

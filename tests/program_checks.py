@@ -69,7 +69,7 @@ def true_point_errors_um(prog, out_file, mill, truth_els, offsets, tools, dialec
     """|TRUE tool point − programmed point| (μm) at every programmed end point of the program's compensated
     moves, running ``out_file`` as the shop would: machine axes = written + offset (+ tool length on Z), the
     truth machine with its tool at that length. Also checks every non-motion line byte-identical.
-    ``power_on``: :func:`_frame`'s (the corpus count, benchmarks/bench_program_corpus.py ``--check``)."""
+    ``power_on``: :func:`_frame`'s (the corpus count, benchmarks/suite/gcode_corpus.py ``--check``)."""
     aw = AxisWords.of(mill)
     p_src = parse_program(prog, axis_words=aw, fast=False, dialect=dialect)
     p_out = parse_program(out_file, axis_words=aw, fast=False, dialect=dialect)

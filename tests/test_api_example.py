@@ -23,7 +23,7 @@ PRINT_ROUNDING = 0.05
 TRUE_RMS_RATIO_MAX = 0.15
 """TRUE residual RMS over the uncompensated true error RMS at the example's three points. Identified from 11
 stations per axis with 1 μm tracker noise, the elements miss the truth's shape between stations by a few μm
-(measured 3.0–4.6 μm at these points against 23–93 μm of error, a ratio of 0.066, BENCHMARKS.md "Python API:
+(measured 3.0–4.6 μm at these points against 23–93 μm of error, a ratio of 0.066, docs/decisions/020-benchmark-notebook.md "Python API:
 the notebook example"); 0.15 fails an identification or compensation that removed less than 85 % of the
 error."""
 

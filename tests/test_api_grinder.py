@@ -13,7 +13,7 @@ from errormap import Identification, load_machine, simulate_sweeps, simulate_tru
 TRUE_RMS_RATIO_MAX = 0.15
 """TRUE residual RMS over the uncompensated TRUE error RMS at the test's points (11 stations per axis, 1 μm
 tracker noise): the identification's noise through the Abbe offsets is what is left (the mill's example
-measured 0.066, BENCHMARKS.md); 0.15 fails a compensation that removed less than 85 % of the error."""
+measured 0.066, docs/decisions/020-benchmark-notebook.md); 0.15 fails a compensation that removed less than 85 % of the error."""
 MODEL_TOL_UM = 1e-4
 """The exact chain solver's success tolerance on the model residual."""
 

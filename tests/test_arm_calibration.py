@@ -301,7 +301,7 @@ def test_learned_stage_is_the_project_residual_regressor(ur5):
 
 
 # --- the real UR5 tracker grid through the CLI, judged on a BLOCKED hold-out -----------------------------
-N_SECTORS = 4            # joint-1 quartiles, as benchmarks/bench_arms.py (--sectors 4, folds_sector)
+N_SECTORS = 4            # joint-1 quartiles, as benchmarks/suite/arms.py (--sectors 4, folds_sector)
 CHECK_SECTOR = 3         # the top quartile of joint 1 ([39, 57] deg on the grid, 250 poses) is the held-out region
 # The DH geometric stage must beat nominal + fitted base/tool by this factor on the held-out sector. Measured:
 # 0.8545 / 0.0983 mm = 8.7x on this sector (the benchmark's pooled blocked figures: 0.714 / 0.106 = 6.8x);

@@ -2,7 +2,7 @@
 formerly slow-tier tests) run here on their first seeds: the same code as the full sweep, its per-repetition
 invariants asserted (an identifiable set matching the truth's, a reference fit reproducing the truth, a declined
 fit predicting exactly zero). The rates are judged against their ranges by the full run
-(``python benchmarks/bench_statistical.py``, figures in BENCHMARKS.md), not on a few seeds."""
+(``python benchmarks/bench_statistical.py``, figures in docs/decisions/020-benchmark-notebook.md), not on a few seeds."""
 import importlib.util
 import json
 from pathlib import Path

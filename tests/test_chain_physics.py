@@ -28,7 +28,7 @@ PHYSICS_BEATS_NONE = 0.5
 error is at most half the plain network's: observed 13.73 vs 36.31 μm (0.38) with this network,
 seed and iteration count (the element set carries the chain's structure between the grid's nodes,
 85-100 mm apart, where the plain network only interpolates). Not a claim for every grid: on an 11³
-grid the paper network alone interpolates better than the element set's splines (BENCHMARKS.md,
+grid the paper network alone interpolates better than the element set's splines (docs/decisions/020-benchmark-notebook.md,
 "Physics first on machine-tool chains")."""
 PHYSICS_ON_GRID_UM = 0.05
 """On the feature points the physics-first field fits to the network's precision: observed 0.0018 μm

@@ -34,7 +34,7 @@ from tests.test_mlflow_server import mlflow_server  # noqa: E402,F401  (the fixt
 pytestmark = pytest.mark.slow
 
 BIG_POINTS = 20_000        # the "large path": four chunks of CHUNK_POINTS (what is asserted is the chunk plan and
-CHUNK_POINTS = 5_000       # the bytes, the same at any size; the throughput at 200k+ points is benchmarks/bench_cluster.py's)
+CHUNK_POINTS = 5_000       # the bytes, the same at any size; the throughput at 200k+ points is the benchmark suite's (benchmarks/suite/cluster.py))
 EDGE_MM = (1.0, 0.5)       # random points kept this far inside the X / Z strokes (the guards' ball)
 # identification of a 23-element set is least squares on the same sweeps; a Ray worker runs its
 # BLAS on one thread, this process perhaps on two: the sums may differ in the last bits only

@@ -8,7 +8,7 @@ is the loop's joint fit of the term with the element update and the band that fi
 
 The rate needs the full sweep (300 repetitions per effect: binomial SE 1.3 %), about 0.25 CPU s a repetition,
 so it is judged by ``python benchmarks/bench_statistical.py --only effect_band_coverage`` (figures in
-BENCHMARKS.md); here each effect runs its first repetitions with the sweep's own code and seeds, and what
+docs/decisions/020-benchmark-notebook.md); here each effect runs its first repetitions with the sweep's own code and seeds, and what
 must hold on every repetition is asserted. The joint refit of two accepted terms and the smoothed
 identification's prediction band are sweeps of the same benchmark (tests/test_bench_statistical.py).
 

@@ -7,7 +7,7 @@ Outcomes: exit 0 whose output is checked against the library computed on the sam
 "silent wrong" and fails), or exit 2 with ONE line naming the input (``diagnose``: also exit 1 when the written
 verdict failed); a traceback or any other status fails. The counts go to test_fuzz_inputs.TALLY (printed at the
 end of the module; ``VOLCOMP_FUZZ_TALLY=FILE`` writes them as JSON). ``VOLCOMP_FUZZ_EXAMPLES=N`` runs N examples
-per test instead of the CI's few (BENCHMARKS.md "Fuzzing every command" is such a run)."""
+per test instead of the CI's few (docs/decisions/020-benchmark-notebook.md "Fuzzing every command" is such a run)."""
 from __future__ import annotations
 
 import contextlib

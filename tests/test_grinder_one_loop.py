@@ -19,7 +19,7 @@ SEED = 0
 N_CHECKS = 300
 OVER_FLOOR_MAX = 1.5
 """The kept stage's held-out MEASURED RMS over its noise floor √3·σ̂: the loop lands at 1.09–1.13 on the
-benchmark's 800 checks (BENCHMARKS.md, closed loop on the built-in grinder); 300 checks leave fewer to fit, and
+benchmark's 800 checks (docs/decisions/020-benchmark-notebook.md, closed loop on the built-in grinder); 300 checks leave fewer to fit, and
 1.5 still fails a loop that keeps a stage with the identified model's residual (3–6× the floor here)."""
 SOLVER_TOL_UM = 1e-3   # the exact solver's own model residual is ~1e-8 μm on this model
 

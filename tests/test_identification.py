@@ -265,7 +265,7 @@ def test_rotary_direction_comes_from_the_chain(machine, points):
 DEFAULT_GAIN_MAX = 0.9
 """Station-mean smoothed (identify's default) over first-station interpolating (main's chain default): TRUE element
 error, each against the truth in its own gauge. Measured on mill-xyz at 2 μm, truth seeds 0–4: 0.49–0.79 (seed 0:
-0.62, BENCHMARKS.md "One identification for every machine tool"); 0.9 asks for a clear gain."""
+0.62, docs/decisions/020-benchmark-notebook.md "One identification for every machine tool"); 0.9 asks for a clear gain."""
 
 
 @pytest.mark.slow  # six Gauss-Newton identifications of the mill: over 5 CPU s

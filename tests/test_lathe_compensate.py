@@ -89,7 +89,7 @@ COMPENSATED_SOURCE_LINES = {6, 7, 8, 9, 11}
 TRUE_IMPROVEMENT_FACTOR = 2.0
 """The identified model (189 tracker balls, 2 μm noise) must cut the TRUE error along the program at
 least twofold (observed 129 → 6.7 μm max with the file's targets, 34 μm with main's, seed 0, noise seed 0
-(`benchmarks/lathe_results.md`): the rest is the identification's error, not the solver's:
+(`docs/decisions/020-benchmark-notebook.md`): the rest is the identification's error, not the solver's:
 compensated with the truth's own elements the TRUE residual is ≤ 1e-7 μm, checked below)."""
 ORACLE_TRUE_UM = 1e-6
 """TRUE residual when the truth's own element set is the model: the solver's round-off (the model

@@ -152,7 +152,7 @@ def test_pose_csv_errors_name_row_and_column(hexapod, tmp_path):
 
 
 def test_estimated_frame_converges_on_former_failing_seed(hexapod):
-    """Regression: bench_pkm.py's seed 1001, 120 poses, 5 um, estimated frame did not converge in 30
+    """Regression: the PKM benchmark's seed 1001, 120 poses, 5 um, estimated frame did not converge in 30
     iterations (true residual 60-130 um). Cause: the least-squares residual lay above the Morozov target,
     lambda fell to ~0 and the 6 gauge (frame <-> base-joint rigid motion) directions, singular to
     rounding, amplified noise into 20-60 mm steps. Fixed by eliminating the gauge explicitly,

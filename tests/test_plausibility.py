@@ -100,7 +100,7 @@ def test_no_false_alarm_on_correct_checks_of_three_chains():
     """Correct data against the truth's model (3 machines × 3 seeds): neither gate fires, with margins: the
     measured RMS is within 2× the prediction (the unit gate needs 1/UNIT_RATIO) and the best other column order
     leaves ≥ 10× the given order's squared residual (the axis gate needs AXIS_FIT_RATIO = 0.25×). With the
-    identified models of the same seeds the margins measured 0.82× and 28.6× (BENCHMARKS.md)."""
+    identified models of the same seeds the margins measured 0.82× and 28.6× (docs/decisions/020-benchmark-notebook.md)."""
     import itertools
     for name in ("mill-xyz", "five-axis-ac", "lathe-xzc"):
         m = load_machine(name)

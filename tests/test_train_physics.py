@@ -20,7 +20,7 @@ GRID = 7                 # a small grid keeps the fits fast; the truth's station
 SIM_SEED = 3
 # The truth has GRID stations, on the grid's nodes. On the grid the first-order fit misses the exact
 # model's second-order part: measured 0.067 μm here (0.022–0.046 μm on other seeds; 0.027 μm on the
-# 11³ and 21³ grids of seed 0, benchmarks/surrogate_results.md), for a field of ~190 μm
+# 11³ and 21³ grids of seed 0, docs/decisions/020-benchmark-notebook.md), for a field of ~190 μm
 PHYSICS_ON_GRID_TOL_UM = 0.1
 # Between the nodes one tool point cannot tell an axis's angular errors from its translations (a
 # rank-deficient fit, solved minimum-norm), so the 7³ grid pins the field only to 0.32 μm max here

@@ -27,7 +27,7 @@ FAST_LM_ITERS = 40       # the default LM (Nguyen–Widrow, Nielsen damping of �
 FAST_LM_TOL_UM = 0.02    # ... reaches this max train error on the smooth field in FAST_LM_ITERS iterations
 # the paper's trainlm rule (μI, x10/x0.1) from the old uniform init: the smooth-field checks below
 # (train and between-grid tolerance) are of that rule; the faster default fits the 216 grid points
-# closer but interpolates worse between them on this tiny grid (see benchmarks/training_results.md)
+# closer but interpolates worse between them on this tiny grid (see docs/decisions/020-benchmark-notebook.md)
 TRAINLM = LMSettings(damping="trainlm", scaling="identity", geodesic=False)
 
 SELECTION_TOL_REL = 1e-9  # same network, same points: equal to round-off

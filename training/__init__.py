@@ -17,7 +17,7 @@ May import ``errormap``; never ``compensation``. The public names below load laz
 # Training stops on iterations by default (the same settings give the same model on any machine):
 DEFAULT_MAX_ITER = 1000  # LM on the paper's network: ~0.2 s an iteration on 2 cores (~3-4 min)
 QUICK_MAX_ITER = 300     # the demo-sized setting
-# The defaults of `volcomp train` and `volcomp demo`: the measured best (BENCHMARKS.md, "The surrogate network on
+# The defaults of `volcomp train` and `volcomp demo`: the measured best (docs/decisions/020-benchmark-notebook.md, "The surrogate network on
 # feature points"): the network on what an element set fitted to the same feature points leaves, on the 21^3 grid
 # (errormap.featurepoints.DEFAULT_GRID), 40 LM iterations, the iterate best on the off-grid selection points kept.
 DEFAULT_PHYSICS = "first-order"

@@ -15,7 +15,7 @@ Settings (:class:`LMSettings`):
 * ``scaling``: ``"identity"`` (default) — ``D = I`` (as MATLAB ``trainlm``, the paper's tool);
   ``"marquardt"`` — ``D`` = the running maximum over iterations of ``diag(JᵀJ)`` (Marquardt's
   scaling with Moré's safeguard). On the grinder data the identity reached 0.0267 μm max in
-  52 s, Marquardt's in 197 s (benchmarks/training_results.md).
+  52 s, Marquardt's in 197 s (docs/decisions/020-benchmark-notebook.md).
 * ``damping``: ``"nielsen"`` (default) — gain ratio ``ρ`` = actual / predicted decrease of
   the sum of squares; a step is taken when ``ρ > 0`` and then ``μ ← μ·max(1/3, 1−(2ρ−1)³)``,
   ``ν ← 2``; a rejection sets ``μ ← μ·ν``, ``ν ← 2ν`` (Nielsen 1999; Madsen, Nielsen &

@@ -1,6 +1,6 @@
 """A learned pose-error field for parallel kinematic machines: commanded pose -> pose error.
 
-The learned PKM path of the benchmark (issue 8): a small multilayer perceptron maps the
+The learned PKM path of the benchmark: a small multilayer perceptron maps the
 commanded platform pose to the pose error the machine makes there, trained on measured
 poses. It reuses the grinder network's functional MLP (:meth:`training.model.MLPField.forward`,
 flat parameter vector ``theta``) and the Levenberg–Marquardt trainer's residual and Jacobian

@@ -1,4 +1,4 @@
-"""The learned field as an MLflow ``pyfunc`` model (issue 20).
+"""The learned field as an MLflow ``pyfunc`` model.
 
 A run's ``model/`` artifact is a pyfunc model folder::
 

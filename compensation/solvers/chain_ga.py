@@ -40,7 +40,7 @@ and a rotary one in the closed form it inverts, the grinder's; no rotary limit a
 tool-point offsets ``d`` of the three-linear-axes case, ``q(d)`` the closed-form nominal inverse of
 ``p_d + 1e-3·d`` (the rotary axis on the program's turn), and the generations evaluate
 ``−|d + E(q(d))|²`` as one float32 pipeline (:class:`FusedChainFitness`; 2.4× faster than the float64
-axis-gene fitness on the flute, results within 0.03 μm, BENCHMARKS.md); retries, polish and result in float64.
+axis-gene fitness on the flute, results within 0.03 μm, docs/decisions/020-benchmark-notebook.md); retries, polish and result in float64.
 
 After the generations, points above ``tol_um`` are retried (GA re-runs from a fresh population
 around their best, radii as :mod:`._converge`) and then polished by the exact chain solver's

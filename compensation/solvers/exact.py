@@ -42,7 +42,7 @@ is solved on them and keeps its rotary axes as commanded; a three-axis machine w
 (the X-Z-A grinder, a lathe's X-Z-C) is solved on all three, its full-turn axis kept on the target's
 turn. The field's evaluation is the caller's (``ev`` of :func:`newton`).
 
-Speed (issue 20): the per-point arithmetic of an iteration (residual, kinematic Jacobian,
+Speed: the per-point arithmetic of an iteration (residual, kinematic Jacobian,
 Cramer step, Armijo test, Broyden update) runs in compiled kernels over the chain's op arrays
 for the points still iterating; the field is called once per line-search round on all trial points together, so
 any field works, and a field's own compiled kernel (the HTM field's) releases the GIL.
@@ -72,7 +72,7 @@ where 20 halvings, a fresh Jacobian and a retry only spent field evaluations (me
 of the ~10 evaluations per point of a 100,000-point solve). A tighter stop is a setting
 (``solve("exact", …, roundoff_ulps=…)``): 16 ulps with ``xtol_um=1e-10`` costs 3 % more CPU (5.9 % more
 field evaluations) on 100,000 grinder points and brings two exact solvers to agree within 7.9e-10
-μm (``benchmarks/grinder_chain_results.md``); the default stays, as the agreement below 1e-7 μm
+μm (``docs/decisions/020-benchmark-notebook.md``); the default stays, as the agreement below 1e-7 μm
 buys no accuracy a machine can show."""
 
 

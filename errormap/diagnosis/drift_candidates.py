@@ -22,7 +22,7 @@ pulls toward the baseline rather than toward zero; the largest λ is the baselin
 ``ridge_bank`` / ``pls_bank`` among the default families (:func:`default_families`): on development
 seeds 100–109 (both simulators, both splits, 180 cases) the swap raised the held-out wins over OLS
 from 113 to 146 at the same 14 losses and cut the worst loss from 1.97× to 1.33×
-(``benchmarks/drift_rule_dev.md``). ``ridge_bank`` / ``pls_bank`` stay available.
+(``docs/decisions/020-benchmark-notebook.md``). ``ridge_bank`` / ``pls_bank`` stay available.
 """
 from __future__ import annotations
 
@@ -208,8 +208,8 @@ class SubsetLagFamily(_Family):
 
 def default_families(subset_kw=None):
     """OLS and the constant offset (the plain baselines), the subset/lag search, the transfer model, the filter bank shrunk toward OLS by
-    ridge (chosen on development seeds 100–109, ``benchmarks/drift_rule_dev.md``), and the physically
-    constrained families of issue 29. The PLS bank toward OLS (``pls_ols``) is left out since issue 29: on
+    ridge (chosen on development seeds 100–109, ``docs/decisions/020-benchmark-notebook.md``), and the physically
+    constrained families. The PLS bank toward OLS (``pls_ols``) is left out: on
     simulated logs whose later part leaves the fit range (development seeds: lumped 100–104, rod 100–102;
     38 channel cases) it was the choice in 2 of the 4 cases worse than OLS by more than 5 % (1.33×,
     1.15×); without it those became 1.01× and 0.81×, no case got worse, and the other two (1.06×,
@@ -219,10 +219,10 @@ def default_families(subset_kw=None):
 
 
 def measured_families():
-    """The constrained families of issue 29's third round — temperature differences (``gradient``), temperature
+    """The constrained families — temperature differences (``gradient``), temperature
     modes (``modes``), a grey-box state on the modes (``greybox_modes``), stably selected sensors through one lag
     each (``ols_stable_lag``): available, measured, NOT among the defaults. Added to the defaults one at a time
-    (development seeds 100–104 and the real log inside its fitting parts, ``benchmarks/drift_dev_results.md``),
+    (development seeds 100–104 and the real log inside its fitting parts, ``docs/decisions/020-benchmark-notebook.md``),
     none changed a real-log case (the three ties at the 36 % split stay: no candidate of theirs passes the
     gates there), and two made development cases worse than OLS (``ols_stable_lag`` rod seed 103 growth 3.55×,
     ``greybox_modes`` rod seed 102 growth 1.51×); ``gradient`` changed one case, for the worse (0.86× → 0.96×),

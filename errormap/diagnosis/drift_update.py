@@ -1,4 +1,4 @@
-"""Online update of a drift model from on-machine measurements (issue 29, point 3).
+"""Online update of a drift model from on-machine measurements.
 
 A saved :class:`~errormap.diagnosis.drift_models.DriftModel` predicts each channel as
 ``intercept + Σ coef_j·f_j(t)`` from causal features. When the machine measures a channel (a probe

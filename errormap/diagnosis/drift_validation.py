@@ -8,7 +8,7 @@ from .drift import DriftLog
 from .drift_features import distance_weight, feature_matrix, mahalanobis, whitener
 
 GATE_SE = 1.0    # one-standard-error rule: a candidate must beat OLS over the deployment horizon by > 1 SE of the folds
-MAX_FOLD_LOSS = 1.05   # and lose to OLS by no more than 5 % on ANY horizon or novelty fold (the bound, per fold)
+MAX_FOLD_LOSS = 1.05   # and lose to OLS by no more than 5 % on ANY horizon or novelty fold (the stated bound, per fold)
 MIN_GAIN = float(np.log(1.05))   # and be better than OLS by at least 5 % on average (mean log-gain) on the horizon and
                                  # on the novelty folds: an advantage smaller than the tolerated loss is not worth its risk
 BAND_QUANTILE = 0.95

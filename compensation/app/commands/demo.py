@@ -10,7 +10,7 @@ simulated machine; the ``ga`` subset's rows in ``DIR/residuals_ga.csv``), and th
 ``DIR/flute.nc`` with its compensated form ``DIR/compensated/flute.nc``. The report files are also logged to
 the training's MLflow run.
 
-Defaults aim at 90 s on 2 quiet CPU cores (measured: benchmarks/demo_results.md): training stops
+Defaults aim at 90 s on 2 quiet CPU cores (measured: docs/decisions/020-benchmark-notebook.md): training stops
 when the error on the off-grid selection points has not improved for ``--train-patience`` LM
 iterations, or after ``--train-iter`` (counts, so the model is the same on any machine;
 ``--train-s`` adds a wall-clock limit), the per-point GA after ``--ga-budget-s``. The report
@@ -33,7 +33,7 @@ from ...toolpath import check_in_strokes
 
 DEFAULT_TRAIN_ITER = default_max_iter(DEFAULT_PHYSICS)  # as `volcomp train`'s default (training.DEFAULT_PHYSICS)
 # LM iterations without a better max |error| on the 5,000 off-grid selection points before the demo stops
-# training (the kept iterate is the best one, as in `volcomp train`; measured in benchmarks/demo_results.md)
+# training (the kept iterate is the best one, as in `volcomp train`; measured in docs/decisions/020-benchmark-notebook.md)
 DEFAULT_DEMO_TRAIN_PATIENCE = 100
 DEFAULT_DEMO_GA_BUDGET_S = DEMO_GA_BUDGET_S  # one constant, in the workflow's settings
 

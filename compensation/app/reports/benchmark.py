@@ -172,7 +172,7 @@ def _checks_of(cond: str, row: dict):
 def conclusion_lines(doc) -> list[str]:
     """The out-of-catalogue conclusion, computed from the rows (never written by hand): per condition
     the compensated volume's TRUE RMS of the parametric loop and of the hybrid, the machine without
-    an effect beside, whether the learned stage was kept, and the issue's two ratios."""
+    an effect beside, whether the learned stage was kept, and the two ratios its conclusion judges."""
     pairs = _ooc_pairs(doc)
     if not pairs:
         return []

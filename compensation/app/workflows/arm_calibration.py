@@ -59,7 +59,7 @@ FRAMES = {"poses, stages": "the measuring instrument's (tracker's) frame of the 
 DECIDE_MAX_POSES = 500
 """Every decision of :func:`calibrate_arm` (CVs, learned stages, band) runs on at most this many fit poses (a seeded
 subset, :func:`decision_subset`); the geometric fits use all. Its cost grows with the GPs' n³ and the CV's refits;
-BENCHMARKS.md ("Arm calibration at scale") measures the held-out error with and without the subset."""
+docs/decisions/020-benchmark-notebook.md ("Arm calibration at scale") measures the held-out error with and without the subset."""
 KEPT_WITH_LEARNER = ("learned", "plain GP on plain LSQ residual")
 """Kept stages that carry a learned residual (``calibration.json`` key ``learned``)."""
 

@@ -1,0 +1,171 @@
+"""The benchmark suite: one runner, one module per benchmark, results as JSON, BENCHMARKS.md generated.
+
+    python -m benchmarks.run [NAME ...] [--quick] [--seed N] [--out DIR]   # run, write DIR/NAME.json
+    python -m benchmarks.run --write-md                                    # BENCHMARKS.md from the JSON
+    python -m benchmarks.run --list                                        # the registered names
+
+Each benchmark is a module ``benchmarks/suite/NAME.py`` registered in ``benchmarks/suite/__init__.py``
+(``REGISTRY``). It exposes ``TITLE`` (one line), ``DATA`` (what it runs on) and ``run(quick: bool, seed: int)
+-> dict`` returning ``{"figures": [figure, ...], "notes": [str, ...]}``; a figure is ``{"what", "value",
+"unit", "residual" (model / true / measured / none), "anchor", "anchor_value"}``: the anchor is the paper's
+figure or the plain baseline measured beside it in the same run. The runner adds the command, the date, the
+machine's cores, the quick/full flag and the CPU seconds, and writes ``DIR/NAME.json`` whole.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+from benchmarks.suite import REGISTRY
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+PAGE = HERE.parent / "BENCHMARKS.md"
+MAX_PAGE_LINES = 400
+RESIDUALS = ("model", "true", "measured", "none")
+FIGURE_KEYS = ("what", "value", "unit", "residual", "anchor", "anchor_value")
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process and its waited-for children (user + system)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def check_result(name: str, result: dict) -> None:
+    """Refuse a module's result that the page could not show: every figure has every key, a known residual."""
+    for k, fig in enumerate(result.get("figures", [])):
+        missing = [key for key in FIGURE_KEYS if key not in fig]
+        if missing or fig["residual"] not in RESIDUALS:
+            raise ValueError(f"benchmarks/suite/{name}.py: figure {k} lacks {missing} or has residual "
+                             f"{fig.get('residual')!r} (one of {RESIDUALS})")
+
+
+def run_one(name: str, quick: bool, seed: int) -> dict:
+    """Run ``benchmarks.suite.NAME`` and return its record (figures + provenance)."""
+    mod = importlib.import_module(f"benchmarks.suite.{name}")
+    load = os.getloadavg()[0]
+    t0, c0 = time.perf_counter(), _cpu_s()
+    result = mod.run(quick=quick, seed=seed)
+    check_result(name, result)
+    return {
+        "name": name, "title": mod.TITLE, "data": mod.DATA,
+        "command": f"python -m benchmarks.run {name}" + (" --quick" if quick else "") + (f" --seed {seed}" if seed else ""),
+        "quick": quick, "seed": seed, "date": time.strftime("%Y-%m-%d"),
+        "machine": {"cores": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
+                    "omp_threads": os.environ.get("OMP_NUM_THREADS"), "load_avg_start": round(load, 1)},
+        "wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(_cpu_s() - c0, 2),
+        "figures": result["figures"], "notes": result.get("notes", []),
+    }
+
+
+def write_json(path: Path, record: dict) -> None:
+    """Write ``record`` whole: a temporary file, then a rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(record, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
+    tmp.replace(path)
+
+
+def _fmt(v) -> str:
+    """A figure's value for the page: 4 significant digits, integers as integers, text as is."""
+    if v is None:
+        return "—"
+    if isinstance(v, bool) or isinstance(v, str):
+        return str(v)
+    if isinstance(v, int) or float(v).is_integer() and abs(v) < 1e9:
+        return f"{int(v):,}"
+    return f"{v:.4g}"
+
+
+def section(rec: dict) -> list[str]:
+    """The page's lines for one benchmark record."""
+    flag = " (quick figures)" if rec["quick"] else ""
+    lines = [f"## {rec['title']}{flag}", "", f"Data: {rec['data']}", "",
+             "| figure | value | residual | anchor (paper or plain baseline) |", "|---|---|---|---|"]
+    for f in rec["figures"]:
+        unit = f" {f['unit']}" if f["unit"] else ""
+        anchor = f["anchor"] + (f": {_fmt(f['anchor_value'])}{unit}" if f["anchor_value"] is not None else "")
+        lines.append(f"| {f['what']} | {_fmt(f['value'])}{unit} | {f['residual']} | {anchor} |")
+    lines += [""] + [f"{n}" for n in rec["notes"]] + ([""] if rec["notes"] else [])
+    load = rec["machine"].get("load_avg_start")
+    lines += [f"`{rec['command']}` — {rec['date']}, {rec['machine']['cores']} cores"
+              + (f" at load {load:g}" if load is not None else "") + f", {rec['cpu_s']:.0f} CPU s, {rec['wall_s']:.0f} s wall", ""]
+    return lines
+
+
+HEADER = """# BENCHMARKS
+
+Generated by `python -m benchmarks.run --write-md` from `benchmarks/results/*.json`; do not edit by hand.
+Each section is one benchmark of the suite (`benchmarks/suite/`): its headline figures, the data, the
+residual each shows — **model** (against the model's own field: what a solver or a learner leaves), **true**
+(against the hidden truth of a simulated machine: the truth driven with the compensated commands minus the
+target, or an identified field minus the true one), **measured** (measurement minus prediction at held-out
+points: what a user has on a real machine) — beside its anchor (the
+paper's figure or the plain baseline of the same run), and the one command that reproduces it. A section
+marked *quick figures* was run with `--quick` (smaller sizes) on this machine; its command without
+`--quick` gives the full figures. Why settings that were measured and refused are not the product's:
+`docs/decisions/`.
+"""
+
+
+def render(results_dir: Path = RESULTS) -> str:
+    """The whole page from the JSON records in ``results_dir`` (registry order; unknown names last)."""
+    recs = {p.stem: json.loads(p.read_text(encoding="utf-8")) for p in sorted(results_dir.glob("*.json"))}
+    names = [n for n in REGISTRY if n in recs] + sorted(set(recs) - set(REGISTRY))
+    lines = [HEADER]
+    for n in names:
+        lines += section(recs[n])
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def write_md(results_dir: Path = RESULTS, page: Path = PAGE) -> int:
+    text = render(results_dir)
+    n = text.count("\n")
+    if n > MAX_PAGE_LINES:
+        print(f"BENCHMARKS.md would be {n} lines (limit {MAX_PAGE_LINES}); shorten the sections' figures or notes",
+              file=sys.stderr)
+        return 1
+    tmp = page.with_suffix(".md.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(page)
+    print(f"wrote {page} ({n} lines)")
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.splitlines()[0])
+    ap.add_argument("names", nargs="*", metavar="NAME", help="benchmarks to run (default: all registered)")
+    ap.add_argument("--quick", action="store_true", help="smoke sizes (what CI runs)")
+    ap.add_argument("--seed", type=int, default=0, help="seed handed to every benchmark (default 0)")
+    ap.add_argument("--out", default=str(RESULTS), help="folder of the NAME.json results (default benchmarks/results)")
+    ap.add_argument("--write-md", action="store_true", help="write BENCHMARKS.md from the JSON in --out and stop")
+    ap.add_argument("--list", action="store_true", help="print the registered names and stop")
+    args = ap.parse_args(argv)
+    if args.list:
+        print("\n".join(REGISTRY))
+        return 0
+    if args.write_md:
+        return write_md(Path(args.out))
+    unknown = [n for n in args.names if n not in REGISTRY]
+    if unknown:
+        print(f"unknown benchmark {unknown[0]!r}; registered: {', '.join(REGISTRY)}", file=sys.stderr)
+        return 2
+    total = 0.0
+    for name in args.names or REGISTRY:
+        rec = run_one(name, args.quick, args.seed)
+        write_json(Path(args.out) / f"{name}.json", rec)
+        total += rec["cpu_s"]
+        print(f"{name}: {len(rec['figures'])} figures, {rec['cpu_s']:.1f} CPU s, {rec['wall_s']:.1f} s wall")
+    print(f"total {total:.1f} CPU s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

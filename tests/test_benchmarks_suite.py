@@ -1,0 +1,68 @@
+"""The benchmark suite (benchmarks/run.py): BENCHMARKS.md is what the generator writes from the committed JSON and
+fits on 400 lines; every registered benchmark has its module and its committed result; the whole suite runs
+``--quick`` (slow tier: the CI smoke run of every benchmark)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from benchmarks import run as suite
+from benchmarks.suite import REGISTRY
+
+ROOT = Path(__file__).resolve().parents[1]
+QUICK_CPU_S = 150.0
+"""CPU budget of the whole quick suite in CI: measured 47 CPU s on the development machine with its numba caches warm;
+a fresh clone compiles the numba kernels on first use (tens of CPU seconds). A benchmark whose quick run grows
+past this belongs in the full run only."""
+
+
+def test_page_is_generated_from_the_committed_results():
+    text = suite.render(suite.RESULTS)
+    assert (ROOT / "BENCHMARKS.md").read_text(encoding="utf-8") == text, \
+        "BENCHMARKS.md differs from `python -m benchmarks.run --write-md`'s output: regenerate it"
+    assert text.count("\n") <= suite.MAX_PAGE_LINES
+
+
+def test_every_registered_benchmark_has_a_module_and_a_committed_result():
+    for name in REGISTRY:
+        assert (ROOT / "benchmarks" / "suite" / f"{name}.py").is_file(), name
+        rec = json.loads((suite.RESULTS / f"{name}.json").read_text(encoding="utf-8"))
+        assert rec["name"] == name and rec["command"].startswith(f"python -m benchmarks.run {name}")
+        suite.check_result(name, rec)
+    assert sorted(p.stem for p in suite.RESULTS.glob("*.json")) == sorted(REGISTRY)
+
+
+def test_a_figure_without_its_residual_kind_is_refused():
+    with pytest.raises(ValueError, match="benchmarks/suite/x.py: figure 0"):
+        suite.check_result("x", {"figures": [{"what": "a", "value": 1.0, "unit": "μm", "residual": "maybe",
+                                              "anchor": "", "anchor_value": None}]})
+
+
+def test_the_page_refuses_more_than_its_line_limit(tmp_path, monkeypatch):
+    rec = json.loads((suite.RESULTS / f"{REGISTRY[0]}.json").read_text(encoding="utf-8"))
+    rec["notes"] = ["a note"] * (suite.MAX_PAGE_LINES + 1)
+    (tmp_path / "big.json").write_text(json.dumps(rec), encoding="utf-8")
+    page = tmp_path / "PAGE.md"
+    assert suite.write_md(tmp_path, page) == 1 and not page.exists()
+
+
+@pytest.mark.slow  # the whole suite, quick: ~47 CPU s (README "Tests and benchmarks")
+def test_the_whole_suite_runs_quick(tmp_path):
+    import os
+    t = os.times()
+    c0 = t.children_user + t.children_system
+    r = subprocess.run([sys.executable, "-m", "benchmarks.run", "--quick", "--out", str(tmp_path)], cwd=ROOT,
+                       capture_output=True, text=True,
+                       env={**os.environ, "OMP_NUM_THREADS": "1",     # a learned stage's run goes to tmp_path's store
+                            "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}"})
+    assert r.returncode == 0, r.stderr[-2000:]
+    t = os.times()
+    assert t.children_user + t.children_system - c0 < QUICK_CPU_S
+    for name in REGISTRY:
+        rec = json.loads((tmp_path / f"{name}.json").read_text(encoding="utf-8"))
+        assert rec["quick"] is True
+        suite.check_result(name, rec)
