@@ -18,10 +18,10 @@ from types import SimpleNamespace
 import numpy as np
 
 from compensation.batch import CHUNK_POINTS, LocalExecutor, solve_batch
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.simulator import random_axes, random_truth
-from errormap.kinematics import forward
+from errormap.chain_kernel import forward
 
 HERE = Path(__file__).resolve().parent
 
@@ -58,7 +58,7 @@ def _time(method, field, machine, paths, seed, ex):
 def run(quick: bool, seed: int, workers: int = 2, method: str = "exact") -> dict:
     """Median-free single timings (one repeat): serial, threads, and (full run, Ray installed) Ray's warm actors."""
     machine = load_machine()
-    field = HTMField(machine, random_truth(machine, seed).elements)
+    field = ChainField(machine, random_truth(machine, seed).elements)
     paths = make_batch(machine, 2, 2_000, 20_000, seed) if quick else make_batch(machine, 8, 25_000, 1_000_000, seed)
     n = sum(len(p.axes) for p in paths)
     solve_batch(method, field, machine, make_batch(machine, 1, 100, 100, seed), executor=LocalExecutor(1))  # warm-up

@@ -5,7 +5,7 @@ path: ``volcomp sweeps`` (2 μm) → ``volcomp simulate`` (800 checks at 1 μm) 
 diagnose`` (the learned stage on) → ``volcomp compensate VOLUME.csv --model DIR/model.json --method exact`` on
 2,000 random volume points (1 mm inside the X and Z strokes) at the reference conditions, scored by the TRUE
 residual on the hidden truth (used only here). The same ``model.json`` without its learned part is the parametric
-loop alone (:func:`compensation.diagnosed_model.loop_alone_model`), the anchor, compensated and scored the same way.
+loop alone (:func:`compensation.model_file.loop_alone_model`), the anchor, compensated and scored the same way.
 """
 from __future__ import annotations
 
@@ -65,10 +65,10 @@ def run_case(family: str, seed: int, effect: str, checks: int = N_CHECKS) -> dic
     """TRUE RMS over the volume of the hybrid and of the loop alone, the kept stage's held-out MEASURED RMS and the
     noise floor, and whether the learned stage was kept."""
     from compensation.app.cli import main
-    from compensation.diagnosed_model import loop_alone_model
+    from compensation.model_file import loop_alone_model
     from compensation.evaluate import true_residual_um
     from errormap.io import write_csv
-    from errormap.kinematics import forward
+    from errormap.chain_kernel import forward
     from errormap.machine import load_machine
     from errormap.seeds import spawn_seeds
     from errormap.simulator import random_axes

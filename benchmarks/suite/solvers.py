@@ -11,7 +11,7 @@ import numpy as np
 
 from compensation.solvers import solve
 from compensation.toolpath import flute_path
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.simulator import random_truth
 
@@ -29,7 +29,7 @@ def _true_max_um(truth, r) -> float:
 def run(quick: bool, seed: int) -> dict:
     m = load_machine()
     truth = random_truth(m, seed)
-    field = HTMField(m, truth.elements)
+    field = ChainField(m, truth.elements)
     fp = flute_path(points_per_turn=40) if quick else flute_path()
     targets, axes = fp.targets_mm, fp.axes(m)
     for method in ("exact", "batched-ga", "ga"):                           # warm-up: imports, compilation

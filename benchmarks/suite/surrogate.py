@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 
 from errormap.featurepoints import make_feature_points
-from errormap.htm import HTMField
+from errormap.chain_field import ChainField
 from errormap.machine import load_machine
 from errormap.seeds import spawn_rngs
 from errormap.simulator import random_axes, random_truth
@@ -44,7 +44,7 @@ def fit_one(machine, field, cfg: dict, seed: int, n_val: int):
 
 def run(quick: bool, seed: int) -> dict:
     m = load_machine()
-    field = HTMField(m, random_truth(m, seed).elements)
+    field = ChainField(m, random_truth(m, seed).elements)
     res = {k: fit_one(m, field, cfg, seed, 2_000 if quick else 10_000) for k, cfg in (QUICK if quick else CONFIGS).items()}
     (best, cpu), (paper, cpu_p) = res["best"], res["paper"]
     fig = lambda what, v, anchor, av: {"what": what, "value": v, "unit": "μm", "residual": "model",  # noqa: E731
