@@ -37,9 +37,10 @@ from .drift_model_file import (  # noqa: F401
     ChannelFit, DriftModel, OTHER_FORMATS, SCHEMA, SCHEMA_VERSION, _channel_from_json, _kind_of, _refuse_withdrawn,
     input_novelty, input_rho)
 from .drift_validation import (  # noqa: F401
-    BAND_GAMMAS, BAND_QUANTILE, BAND_RULE, BAND_RULES, BAND_SUBSET_SE, FEATURE_DISTANCE, GATE_SE, MAX_FOLD_LOSS,
-    MIN_GAIN, RANKING_FOLD_LOSS, SHRINK_SCALES, SHRINK_WEIGHTS, _blend_residuals, _merge, _rms, band_of,
-    blend_statistics, blend_with_ols, candidate_name, conformal_quantile, cv_residuals, horizon_folds, horizon_gate,
+    BAND_GAMMAS, BAND_QUANTILE, BAND_RULE, BAND_RULES, BAND_SUBSET_SE, CONSTANT_GATE_LEVEL, FEATURE_DISTANCE, GATE_SE,
+    MAX_FOLD_LOSS, MIN_GAIN, RANKING_FOLD_LOSS, SHRINK_SCALES, SHRINK_WEIGHTS, _blend_residuals, _merge, _rms, band_of,
+    blend_statistics, blend_with_ols, candidate_name, conformal_quantile, constant_gate, cv_residuals, horizon_folds,
+    horizon_gate,
     novelty_folds, rho_power_band, rolling_origin_folds)
 from .drift_selection import (  # noqa: F401
     DriftSelector, _FoldRho)

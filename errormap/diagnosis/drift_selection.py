@@ -9,10 +9,10 @@ from .drift_candidates import default_families
 from .drift_features import (RANGE_QUANTILE, _inputs, feature_matrix, feature_novelty, input_matrix, mahalanobis,
                              relative_distance, whitener)
 from .drift_model_file import ChannelFit, DriftModel
-from .drift_validation import (BAND_RULE, BAND_RULES, FEATURE_DISTANCE, GATE_SE, MAX_FOLD_LOSS, MIN_GAIN,
-                               RANKING_FOLD_LOSS, SHRINK_SCALES, SHRINK_WEIGHTS, _blend_residuals, _rms, band_of,
-                               blend_statistics, blend_with_ols, candidate_name, cv_residuals, horizon_folds,
-                               novelty_folds, rolling_origin_folds)
+from .drift_validation import (BAND_RULE, BAND_RULES, CONSTANT_GATE_LEVEL, FEATURE_DISTANCE, GATE_SE, MAX_FOLD_LOSS,
+                               MIN_GAIN, RANKING_FOLD_LOSS, SHRINK_SCALES, SHRINK_WEIGHTS, _blend_residuals, _rms,
+                               band_of, blend_statistics, blend_with_ols, candidate_name, constant_gate, cv_residuals,
+                               horizon_folds, novelty_folds, rolling_origin_folds)
 
 
 PLAIN_BASELINES = (("ols", ""), ("constant", ""))   # judged as they are: never blended, never shrunk by distance
@@ -134,7 +134,7 @@ class DriftSelector(Estimator):
         rho = _FoldRho(self, log, cache, U, (folds, hfolds, nfolds))
         for name in ("cv_", "cv_horizon_", "cv_novelty_", "gate_", "chosen_", "band_", "band_ols_", "shrink_", "gain_",
                      "eligible_", "scale_", "worst_fold_", "fold_ratios_", "fold_rho_", "candidates_", "band_alt_",
-                     "score_"):
+                     "score_", "refused_by_constant_"):
             setattr(self, name, {})
         for ch in chans:
             scores, gate = self._score_channel(log, ch, resid, feats, rho, bool(nfolds))
@@ -187,7 +187,7 @@ class DriftSelector(Estimator):
     def _record_channel(self, ch, scores: dict, gate: dict, novelty: bool) -> None:
         """Choose channel ``ch``'s candidate among ``scores`` and record every learned figure of it."""
         base = ("ols", "", 1.0)
-        ok, best = self._choose(scores, gate, novelty)
+        ok, best, refused = self._choose(scores, gate, novelty)
         names = {k: candidate_name(*k) for k in scores}
         self.cv_[ch] = {names[k]: s["ranking"] for k, s in scores.items()}
         self.cv_horizon_[ch] = {names[k]: s["horizon"] for k, s in scores.items()}
@@ -200,6 +200,7 @@ class DriftSelector(Estimator):
         self.fold_rho_[ch] = {names[k]: s["fold_rho"] for k, s in scores.items()}
         self.candidates_[ch] = {k: dict(s, gate=gate[k]) for k, s in scores.items()}
         self.eligible_[ch] = sorted(names[k] for k in ok)
+        self.refused_by_constant_[ch] = sorted(names[k] for k in refused)
         self.chosen_[ch] = best[:2]
         self.shrink_[ch] = best[2]
         self.scale_[ch] = scores[best]["scale"]
@@ -207,20 +208,24 @@ class DriftSelector(Estimator):
         self.band_alt_[ch] = {r: band_of(scores[best], r) for r in BAND_RULES if r != self.band_rule}
         self.band_ols_[ch] = band_of(scores[base], self.band_rule)
 
-    def _choose(self, scores: dict, gate: dict, novelty: bool) -> tuple[list, tuple]:
-        """(the eligible candidates, the chosen one) among ``scores``. Eligible: every gate against OLS
-        (:meth:`eligible`) and, where the constant offset is a candidate, a mean log-gain over OLS above the
-        constant's (never a model that loses to the plainest baseline in validation). The eligible one of largest
-        mean log-gain; else the better plain baseline by the same score: the constant where its mean log-gain over
-        OLS is above 0, else OLS."""
+    def _choose(self, scores: dict, gate: dict, novelty: bool) -> tuple[list, tuple, list]:
+        """(the eligible candidates, the chosen one, the models refused by the constant) among ``scores``. Eligible:
+        every gate against OLS (:meth:`eligible`) and, where the constant offset is a candidate, a mean log-gain over
+        OLS above the constant's and, where the constant is the plain fallback (its mean log-gain over OLS above 0), a
+        win over it in a paired one-sided t-test over every fold at ``CONSTANT_GATE_LEVEL`` (:func:`constant_gate`:
+        never a model the plainest baseline matches in validation). The eligible one of largest mean log-gain; else the
+        plain fallback: the constant where its mean log-gain over OLS is above 0, else OLS."""
         base, const = ("ols", "", 1.0), ("constant", "", 1.0)
         r_ols = scores[base]["ranking"]
         floor = scores[const]["gain"] if const in scores else -np.inf
         ok = [k for k in scores if k[0] != "ols" and self.eligible(scores[k], gate[k], k[2], r_ols, novelty)
               and (k == const or scores[k]["gain"] > floor)]
+        # where the constant is the plain fallback, a model must beat it, not only OLS (the plainest baseline wins ties)
+        refused = [k for k in ok if k != const and floor > 0 and not constant_gate(scores[k], scores[const])[0]]
+        ok = [k for k in ok if k not in refused]
         if ok:
-            return ok, max(ok, key=lambda k: scores[k]["gain"])
-        return ok, const if floor > 0 else base
+            return ok, max(ok, key=lambda k: scores[k]["gain"]), refused
+        return ok, const if floor > 0 else base, refused
 
     def _deploy(self, log, fams, chans, fit, cache, sets) -> None:
         """``deployed_``: the chosen candidates (family, hyper-parameter, weight, scale, band) refitted on every row."""
@@ -239,7 +244,9 @@ class DriftSelector(Estimator):
                 f"horizon folds (horizon {h:.3g}) and on {len(nfolds)} novelty folds (the most novel blocks of the "
                 f"fitting part, held out), with no fold worse than OLS by more than {self.max_fold_loss:g}×"
                 + ("" if not any("constant" in v for v in self.cv_.values()) else " and a mean log-gain above the constant offset's (the fit "
-                   "part's mean); else the constant where its mean log-gain over OLS is above 0")
+                   f"part's mean) and, where the constant is the plain fallback, a win over it in a paired one-sided t-test "
+                   f"at {CONSTANT_GATE_LEVEL:.0%} over every fold; else the constant where its mean log-gain over OLS is "
+                   "above 0")
                 + "; else OLS")
 
     def _meta(self, log, fit, U, sets) -> dict:
@@ -335,6 +342,7 @@ class DriftSelector(Estimator):
                 "refused_by_gate": sorted(k for k, v in self.cv_[ch].items()
                                           if v < self.cv_[ch]["ols"] and not self.gate_[ch][k][0]),
                 "worst_fold_ratio": self.worst_fold_[ch][name],
+                "refused_by_constant": self.refused_by_constant_[ch],
                 "selection_score": self.score_[ch][name]} | ({
                     "cv_rms_constant_um": self.cv_[ch]["constant"], "cv_horizon_rms_constant_um":
                     self.cv_horizon_[ch]["constant"], "cv_novelty_rms_constant_um": self.cv_novelty_[ch]["constant"],

@@ -11,6 +11,10 @@ GATE_SE = 1.0    # one-standard-error rule: a candidate must beat OLS over the d
 MAX_FOLD_LOSS = 1.05   # and lose to OLS by no more than 5 % on ANY horizon or novelty fold (the stated bound, per fold)
 MIN_GAIN = float(np.log(1.05))   # and be better than OLS by at least 5 % on average (mean log-gain) on the horizon and
                                  # on the novelty folds: an advantage smaller than the tolerated loss is not worth its risk
+CONSTANT_GATE_LEVEL = 0.95   # a model ships only where it beats the constant offset (the fitting part's mean) in a
+#   paired one-sided t-test at this level over every validation fold (its per-fold log-gain over the constant); else
+#   the plain fallback ships (docs/decisions/021: on an offset-only log a model 1.56× the constant held out passed every
+#   gate against OLS; the one-standard-error version of the test let it through)
 BAND_QUANTILE = 0.95
 BAND_RULE = "fold_residual"   # band95_um = the split-conformal BAND_QUANTILE of |residual| on the horizon and novelty
 #   folds (times max(1, ρ) at prediction: conservative). "rho_scaled": of |residual| / max(1, ρ_fold) — calibrated to
@@ -178,6 +182,19 @@ def horizon_gate(rms_ols, rms_cand, k_se: float = GATE_SE) -> tuple[bool, float,
     se = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0
     return bool(d.mean() > k_se * se), float(d.mean()), se
 
+
+
+def constant_gate(stats: dict, const_stats: dict, level: float = CONSTANT_GATE_LEVEL) -> tuple[bool, float, float]:
+    """The paired one-sided t-test of a candidate against the constant offset over its K validation folds (ranking,
+    horizon, novelty: the :func:`blend_statistics` ``fold_ratios`` to OLS of both): d_i = ln(RMS_constant,i /
+    RMS_candidate,i); passes when mean(d) > t_level(K − 1) · sd(d)/√K. Returns (passes, mean(d), se(d))."""
+    from scipy.stats import t as student_t
+    ratio = [np.concatenate([np.asarray(x, float) for x in st["fold_ratios"]]) for st in (stats, const_stats)]
+    d = np.log(ratio[1]) - np.log(ratio[0])
+    if len(d) < 2:
+        return bool(d.mean() > 0), float(d.mean()), 0.0
+    se = float(d.std(ddof=1) / np.sqrt(len(d)))
+    return bool(d.mean() > student_t.ppf(level, len(d) - 1) * se), float(d.mean()), se
 
 
 BAND_GAMMAS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0)   # exponents γ tried for the ρ-power band q·max(1, ρ)^γ

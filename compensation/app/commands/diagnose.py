@@ -179,6 +179,9 @@ def run(args) -> int:
             print(f"{ch}: {c['model']}: held-out RMS {c['rms_before_um']:.3g} -> {c['rms_after_um']:.3g} μm "
                   f"(OLS baseline {c['rms_ols_um']:.3g} μm, constant offset {c['rms_constant_um']:.3g} μm), "
                   f"{band_label(c)}")
+            if c.get("refused_by_constant"):
+                print(f"{ch}: refused, not better than the constant offset in the paired test over the folds: "
+                      f"{', '.join(c['refused_by_constant'])}")
         v = summary["verdict"]
         print("verdict: passed" if v["status"] == "passed" else "verdict: FAILED: " + "; ".join(v["reasons"]))
     else:

@@ -41,7 +41,7 @@ from .compensate import kernel_modules
 from .simulate import simulate_truth, summary_lines
 
 
-DEMO_GA_BUDGET_S = 15.0  # the per-point PyGAD GA (about 1 s a point): a sample of the path, said so
+DEMO_GA_BUDGET_S = 5.0  # the per-point PyGAD GA (0.5–1 s a point, one core): a sample of the path, said so
 """The demo's per-point GA budget (s): ``volcomp demo``'s default and its --help, from this one name."""
 
 
