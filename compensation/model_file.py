@@ -304,7 +304,7 @@ def loop_alone_model(doc: dict) -> dict:
         return dict(doc)
     own = doc.get("loop_alone") or {}
     out = {k: v for k, v in doc.items() if k not in LEARNED_KEYS}
-    out["stage"] = doc.get("base_stage", doc["stage"])
+    out["stage"] = doc["base_stage"] if "base_stage" in doc else doc.get("stage")
     out["elements"] = own.get("elements", doc["elements"])
     out["terms"] = list(own.get("terms", doc["terms"])) + list(doc.get("base_terms_replaced", []))
     out["needs"] = sorted({c for e in out["terms"] for c in e.get("needs", [])})

@@ -504,12 +504,16 @@ def test_benchmark_cli_on_a_chain_writes_rows_beside_the_grinders_format(tmp_pat
     out = tmp_path / "b"
     assert main(["benchmark", "--machine", "mill-xyz", "--quick", "--no-track", "--out", str(out)]) == 0
     doc = json.loads((out / "benchmark.json").read_text())
-    conds = [r["condition"] for r in doc["rows"]]
+    parametric = [r for r in doc["rows"] if r["path"] == "parametric"]
+    conds = [r["condition"] for r in parametric]
     assert conds == ["effect=none (before closed loop)", "effect=none (after closed loop)",
                      "effect=thermal (thermal:X) (before closed loop)", "effect=thermal (thermal:X) (after closed loop)"]
-    assert all(r["available"] and r["volume_rms_um"] < r["volume_uncompensated_rms_um"] for r in doc["rows"])
-    thermal = doc["rows"][3]
-    assert "thermal:X" in thermal["effects_found"] and thermal["true_rms_um"] < doc["rows"][2]["true_rms_um"]
+    learned = [r for r in doc["rows"] if r["path"] == "learned"]   # one learned row per condition, beside them
+    assert [r["condition"] for r in learned] == [conds[0], conds[2]]
+    assert all(r["available"] and r["volume_rms_um"] < r["volume_uncompensated_rms_um"] for r in parametric)
+    assert all(r["available"] and r["true_rms_um"] < r["uncompensated_rms_um"] for r in learned)
+    thermal = parametric[3]
+    assert "thermal:X" in thermal["effects_found"] and thermal["true_rms_um"] < parametric[2]["true_rms_um"]
     html = (out / "report.html").read_text()
     assert "Machine-tool chain mill-xyz" in html and "held-out measured RMS" in html
     assert "mill-xyz parametric" in capsys.readouterr().out

@@ -113,7 +113,8 @@ def _predict_diagnosed(args, t, axes, machine, model):
     el_path = model.elements_path
     cov = None
     if model.covariance_path is not None:
-        cov = ElementCovariance.load(model.covariance_path, model.elements)
+        from errormap.elements import ElementSet   # the grinder's covariance file is keyed by its element set
+        cov = ElementCovariance.load(model.covariance_path, ElementSet.load(el_path))
     elif args.band:   # the band asked for, half of it missing: refused, never a band without the elements' part
         raise UsageError(f"--band needs the kept elements' covariance {covariance_path(el_path)} (written beside "
                          f"them by volcomp diagnose); not found")
