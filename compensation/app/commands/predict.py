@@ -162,14 +162,7 @@ def _chain_covariance(args, model, machine) -> tuple:
     alone would understate it) or no covariance."""
     from errormap.chain_covariance import read_chain_covariance
     from ..workflows.measurement import check_chain_covariance
-    if not model.elements_only:
-        raise UsageError(f"--band needs an element set of the chain with its covariance (E.cov.npz of volcomp "
-                         f"identify --machine); {args.model} holds {', '.join(model.holds()) or 'no elements'}")
-    if model.covariance_path is None:
-        raise InputError(f"{model.source.path}: --band needs the identification's covariance beside the element set "
-                         f"({companion_path(model.elements_path, '.cov.npz').name}, written by volcomp identify "
-                         "--machine; or key 'covariance' of a model.json); none found")
-    cov = read_chain_covariance(model.covariance_path, model.elements_path)
+    cov = read_chain_covariance(_band_covariance(args, model), model.elements_path)
     check_chain_covariance(machine, model.elements, cov, model.covariance_path)
     return model.elements, cov, model.covariance_path
 
@@ -248,14 +241,7 @@ def _run_machine_tool(machine, args) -> int:
     elif args.band:
         from errormap.elements import ElementSet
         from errormap.uncertainty import ElementCovariance
-        if not model.elements_only:
-            raise UsageError(f"--band needs an element set with its covariance beside it; {args.model} holds "
-                             f"{', '.join(model.holds()) or 'no elements'}")
-        if model.covariance_path is None:
-            raise InputError(f"{model.elements_path}: --band needs the identification's covariance beside it "
-                             f"({companion_path(model.elements_path, '.cov.npz').name}, written by volcomp identify); "
-                             "none found")
-        cov = ElementCovariance.load(model.covariance_path, ElementSet.load(model.elements_path))
+        cov = ElementCovariance.load(_band_covariance(args, model), ElementSet.load(model.elements_path))
         sd = np.sqrt(np.diagonal(cov.prediction_cov(machine, axes), axis1=1, axis2=2))
         cols.update(_band_columns(sd, args.band))
     path = write_csv(args.out, cols, header_comments=meta + allowed + tail)
@@ -265,3 +251,16 @@ def _run_machine_tool(machine, args) -> int:
 
 RUNNERS = {"grinder": _run_machine_tool, "chain": _run_machine_tool, "arm": _run_arm, "parallel": _run_parallel}
 """The runner of each target of ``predict`` (:meth:`compensation.app.families.Family.target`)."""
+
+
+def _band_covariance(args, model):
+    """The covariance file ``--band`` reads: the identification's, of a model that holds an element set alone
+    (its band alone would understate one with terms or a learned part); refused naming the file otherwise."""
+    if not model.elements_only:
+        raise UsageError(f"--band needs an element set with its covariance (E.cov.npz of volcomp identify); "
+                         f"{args.model} holds {', '.join(model.holds()) or 'no elements'}")
+    if model.covariance_path is None:
+        raise InputError(f"{model.source.path}: --band needs the identification's covariance beside the element set "
+                         f"({companion_path(model.elements_path, '.cov.npz').name}, written by volcomp identify; "
+                         "or key 'covariance' of a model.json); none found")
+    return model.covariance_path
