@@ -121,11 +121,12 @@ def _diagnose_chain(root, grinder, request):
     return run / "report.html"
 
 
-FAST = {"report": _report, "diagnose": _diagnose, "drift": _drift, "interpolate": _interpolate,
-        "benchmark": _benchmark}
+FAST = {"report": _report, "drift": _drift, "interpolate": _interpolate, "benchmark": _benchmark}
 """Page kinds written in the default run (small inputs; ~40 s on a 2-core machine under load)."""
-SLOW = {"calibrate": _calibrate, "calibrate-arm": _calibrate_arm, "demo": _demo, "diagnose-chain": _diagnose_chain}
-"""Page kinds whose writers are end-to-end runs (calibration, training): marked slow, still run in CI."""
+SLOW = {"calibrate": _calibrate, "calibrate-arm": _calibrate_arm, "demo": _demo, "diagnose-chain": _diagnose_chain,
+        "diagnose": _diagnose}
+"""Page kinds whose writers are end-to-end runs (calibration, training, the closed loop: over the fast tier's 5 CPU s):
+marked slow, still run in CI."""
 SHARED = {"demo", "diagnose-chain"}
 """Page kinds written from a run other test files assert on too (a session fixture, tests/shared_runs.py)."""
 
