@@ -36,24 +36,15 @@ additive Gaussian process and the empirical-Bayes basis regression of :mod:`trai
 :mod:`training.basis`); the rule of :class:`~training.residual.ResidualRegressor` picks one (or
 none) and the stage names it. ``gp_sum`` (a long- plus a short-length-scale squared exponential)
 is a candidate the stage can be given (``families``) but not in the default set: on the blocked
-folds it cross-validated no better than ``gp`` (benchmarks/hybrid_results.md).
+folds it cross-validated no better than ``gp`` (docs/decisions/008-learned-residual-measurements.md).
 
-``gp_additive`` and ``basis`` (round 6) joined the default set in round 7: on the development seeds
-100–102 (decided on the held-out MEASURED RMS, never the truth) they lowered or kept the held-out
-RMS (tilt 2.120 against 2.132 μm, a_lobe_x 2.079 against 2.222, bump equal;
-benchmarks/hybrid_dev_results.md), and with them the condition-term rule now holds
-(:data:`TERM_KEEP_Z`, :func:`condition_term_test`): under the earlier rule — replace when the
-static field's blocked CV beat the with-terms variant's by more than one paired standard error —
-the additive GP fitted the residual nearly as well WITH a stand-in thermal term as without it
-(blocked-CV RMS 1.7515 against 1.7506 μm, paired z 0.45) and the term stayed. Judged (round 7,
-benchmarks/hybrid_results.md): a_lobe_x 0.90 μm (1.59× the no-effect machine; round-4 default set
-0.96, 1.68×), independent family 0.87 (1.56×; 1.04, 1.89×); the tilt was worse through the
-round-7 condition-term rule (:data:`TERM_KEEP_Z`), not the families; with round 8's
-(:data:`TERM_CONSISTENT_Z`, per term) the tilt is 0.894 / 0.726 μm, main's 0.900 / 0.730, no seed worse."""
+``gp_additive`` and ``basis`` are in the default set: on the development seeds (decided on the held-out
+MEASURED RMS, never the truth) they lowered or kept the held-out RMS, and with them the condition-term rule holds
+(:data:`TERM_KEEP_Z`, :func:`condition_term_test`); the measurements: docs/decisions/008-learned-residual-measurements.md."""
 
 CANDIDATE_FAMILIES = ()
-"""Families measured beside the default set but not in it (round 6: ``gp_additive`` and ``basis``,
-now in :data:`LEARNED_FAMILIES`); none at present."""
+"""Families measured beside the default set but not in it: none at present (the measured ones are in
+:data:`LEARNED_FAMILIES`)."""
 
 
 def axis_stem(column: str) -> str:
@@ -122,7 +113,7 @@ LEARNED_INPUTS = ("axes",)
 :data:`LEARNED_FAMILIES`, on the same blocked folds; the lowest CV RMS of the eligible
 (input set, family) pairs wins, the stage names both). The work-frame sets are candidates the
 stage can be given (``inputs``) but not in the default set: on the blocked folds they
-cross-validated no better than the axes (benchmarks/hybrid_results.md, input and kernel variants)."""
+cross-validated no better than the axes (docs/decisions/008-learned-residual-measurements.md, input and kernel variants)."""
 
 
 OUTPUT_FRAMES = ("work", "machine")
@@ -141,8 +132,8 @@ frames differ by a constant rotation and learn the same)."""
 
 LEARNED_FRAMES = ("work", "machine")
 """The output frames the learned stage cross-validates by default (:data:`OUTPUT_FRAMES`; each with
-every input set and family, on the same blocked folds). Decided on two diagnostic machines (round 11,
-docs/explanation/closed-loop.md), then judged (benchmarks/hybrid_results.md, round-11 rows): on the bump, a y error
+every input set and family, on the same blocked folds). Decided on two diagnostic machines, then judged
+(docs/decisions/008-learned-residual-measurements.md): on the bump, a y error
 of the X slide local in X–Z, the machine frame cross-validated lower and was chosen on 20 of 20
 machines of both truth families, TRUE error 0.08–0.18 μm lower on every one; on the A-axis tilt and
 lobe, errors of the turning axis, the work frame cross-validated lower on every machine (results equal

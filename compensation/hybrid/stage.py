@@ -35,7 +35,7 @@ P(z > 3) ≈ 0.24 %; measured on the designed stand-in of tests/test_hybrid_cond
 z = 2.3). 3 standard errors keeps that below 1 % while a real thermal growth of the catalogue's size
 shows z ≈ 16–17 (coefficient 1.00 ± 0.06, 0.94 ± 0.06, 1.01 ± 0.06 on the designed thermal case,
 development seeds 100–102, every family). Decided on those development seeds before any judged run.
-On the judged benchmark (benchmarks/hybrid_results.md, round 7) it does NOT hold on the X–A tilt:
+On the judged benchmark (docs/decisions/008-learned-residual-measurements.md) it does NOT hold on the X–A tilt:
 it kept the loop's stand-in thermal term of X on 6 of 20 machines without thermal growth
 (coefficients 0.28–0.39 ± 0.09–0.11, z 3.05–3.95: a small, systematic temperature-correlated part of
 that residual), where the earlier paired-CV rule replaced it; see docs/explanation/closed-loop.md. Hence the second
@@ -50,7 +50,7 @@ designed thermal case: 1.00 ± 0.06, 0.94 ± 0.06, 1.01 ± 0.06 on development s
 effect: only a part of them varies with the condition, the rest stood in for a static error that
 the static field of the axes takes; shipped, they subtract that rest at the reference conditions.
 They are then replaced like a stand-in. 3 standard errors, two-sided, drops a real term in ~0.3 %
-of machines. Written (round 8) after the judged round-7 tilt machines that kept a term at
+of machines. Written after the judged tilt machines that kept a term at
 γ̂ 0.28–0.39 (5.6–8 se below 1) and before any judged run of this rule; the development seeds'
 figures are in docs/explanation/closed-loop.md. The alternative, shipping the terms scaled by γ̂, was not taken:
 on a machine without thermal growth it still ships γ̂ times the stand-in. Applied PER TERM when
@@ -88,12 +88,12 @@ BACKFIT_ROUNDS = 3
 (:func:`learned_stage` ``base_update``): each round re-estimates the base stage (its element update and
 effect terms) on its residual minus what the learned part predicts at the checks, then re-estimates the
 learned part (family, input set and frame kept; hyper-parameters re-estimated) on what that base leaves.
-Sequentially (round 0) the update takes up, through its element profiles, the part of an effect they can
+Sequentially (without backfitting) the update takes up, through its element profiles, the part of an effect they can
 imitate, and the learned part must then learn the effect MINUS that projection — a field with the element
 profiles' shape in it, harder to learn than the effect itself (on the grinder's X–A tilt a noise-free
 ARD GP leaves 0.42 μm RMS at its own training checks); backfitting converges to the joint estimate of both
 parts, where the sweep prior keeps the elements at what the sweeps measured and the learned part takes the
-effect whole (docs/explanation/closed-loop.md, round 12)."""
+effect whole (docs/decisions/008-learned-residual-measurements.md)."""
 
 
 def _cv_key(reg) -> str:
