@@ -21,7 +21,7 @@ file) is a word of the product. "Round" as a word of the product stays: round-of
 BUILD_PHRASES = re.compile(
     r"\bmain's\b|\bcopy of main\b|\bformer(?:ly)?\b|\bused to (?:be|grow|write|run|take|give|read|hold)\b"
     r"|\bwritten before (?:this rule|the \w+ (?:existed|was))\b|\bnot yet run on\b|\bwas no(?:t)? yet\b"
-    r"|\bstable; add, don't rename\b", re.I)
+    r"|\bstable; add, don't rename\b|\bas before\b|\bolder schema\b|\bthe \w+ replaced\b", re.I)
 """Phrases of the build history on a product page: the main branch ("main's targets", "a copy of main"), what the
 product was ("the former kernel", "used to grow", "files written before this rule"), a note to developers ("stable;
 add, don't rename"). A product page says what the product does; how it came to do it is a decision record."""
