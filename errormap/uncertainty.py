@@ -286,12 +286,11 @@ def smooth_identify(sweeps, machine: MachineTool, noise_um: float | None = None,
     from .sweeps import Sweeps, sweeps_from_columns
     if not isinstance(sweeps, Sweeps):
         sweeps = sweeps_from_columns(sweeps)
-    mt = machine
     settings = {"gauge": gauge, "noise_um": noise_um, **settings}
-    raw = ChainIdentification(**settings).fit(sweeps, mt).result_
+    raw = ChainIdentification(**settings).fit(sweeps, machine).result_
     if n_boot is not None:
-        raw = bootstrap_covariance(sweeps, mt, raw, n_boot, seed, **settings)
-    res = smooth_chain(raw, mt) if smooth else raw
+        raw = bootstrap_covariance(sweeps, machine, raw, n_boot, seed, **settings)
+    res = smooth_chain(raw, machine) if smooth else raw
     idx = _grinder_theta_index(raw)
     elements = res.elements_.to_element_set()
     C = res.cov[np.ix_(idx, idx)]

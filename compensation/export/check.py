@@ -49,12 +49,11 @@ def flute_axes(machine, flute=None):
     machine whose chain has a closed-form nominal inverse and reaches every point of it inside the strokes of
     its axes that do not turn fully (the grinder's chain), else None."""
     from ..toolpath import flute_path
-    mt = machine
-    if mt.closed_form_constants() is None:
+    if machine.closed_form_constants() is None:
         return None
     fp = flute if flute is not None else flute_path()
     ax = fp.axes(machine)
-    for j, a in enumerate(mt.axes):
+    for j, a in enumerate(machine.axes):
         if not a.full_turn and not np.all((ax[:, j] >= a.stroke[0] - 1e-9) & (ax[:, j] <= a.stroke[1] + 1e-9)):
             return None
     return fp.targets_mm, ax
@@ -64,14 +63,13 @@ def check_sets(machine, n_volume: int = 2000, seed: int = 0, flute=None) -> dict
     """The check's point sets ``{name: (targets (n, 3) mm, axes (n, k), dirs (n, k))}``: the flute path where
     the machine runs it (its motion directions) and ``n_volume`` seeded random points over the strokes
     (random approach directions)."""
-    mt = machine
-    k = len(mt.axes)
+    k = len(machine.axes)
     out = {}
     fl = flute_axes(machine, flute)
     if fl is not None:
         out["flute"] = (fl[0], fl[1], motion_dirs(fl[1]))
     ss = np.random.SeedSequence(seed).spawn(2)
-    lo, hi = mt.stroke_lo, mt.stroke_hi
+    lo, hi = machine.stroke_lo, machine.stroke_hi
     q = lo + (hi - lo) * np.random.default_rng(ss[0]).random((n_volume, k))
     dirs = np.random.default_rng(ss[1]).choice([-1.0, 1.0], size=(n_volume, k))
     out["volume"] = (nominal_mm(machine, q), q, dirs)

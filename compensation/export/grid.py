@@ -111,11 +111,10 @@ def _and(words) -> str:
 
 
 def write_grid(grid: VolumetricGrid, folder, machine, model_desc: str) -> Path:
-    mt = machine
     k = len(grid.ticks)
     nodes = np.stack(np.meshgrid(*grid.ticks, indexing="ij"), axis=-1).reshape(-1, k)
     v = grid.values.reshape(-1, 3)
-    w = [a.word.lower() for a in mt.axes]
+    w = [a.word.lower() for a in machine.axes]
     turns = [w[j] for j in range(k) if grid.periodic[j]]
     clamped = [w[j] for j in range(k) if not grid.periodic[j]]
     order = f"order: {w[0]} slowest, then {', '.join(w[1:-1])}, {w[-1]} fastest"
@@ -125,19 +124,18 @@ def write_grid(grid: VolumetricGrid, folder, machine, model_desc: str) -> Path:
     interp += f"{_and(clamped)} clamped to the grid" if clamped else ""
     head = [f"format: {GRID_FORMAT}",
             "counts: " + " ".join(str(len(t)) for t in grid.ticks),
-            "spacing: " + " ".join(f"{c} {s:.9g}" for c, s in zip(mt.axis_columns, grid.spacing)),
+            "spacing: " + " ".join(f"{c} {s:.9g}" for c, s in zip(machine.axis_columns, grid.spacing)),
             "values: volumetric error at the commanded axes, tool actual minus nominal, in the workpiece frame "
             "(WCS), um", order, interp.rstrip("; "),
-            f"model: {model_desc}", f"machine: {mt.name} sha256 {mt.sha256}"]
-    cols = {c: nodes[:, j] for j, c in enumerate(mt.axis_columns)}
+            f"model: {model_desc}", f"machine: {machine.name} sha256 {machine.sha256}"]
+    cols = {c: nodes[:, j] for j, c in enumerate(machine.axis_columns)}
     cols.update({c: v[:, i] for i, c in enumerate(VALUE_COLUMNS)})
     return write_csv(Path(folder) / "grid.csv", cols, head, "%.12g")
 
 
 def read_grid(path, machine) -> VolumetricGrid:
     """Read ``grid.csv`` of ``machine``; refuses anything that is not a complete regular grid in the stated order."""
-    mt = machine
-    k = len(mt.axes)
+    k = len(machine.axes)
     t = read_table(path)
     meta_format(t, GRID_FORMAT)
     try:
@@ -147,7 +145,7 @@ def read_grid(path, machine) -> VolumetricGrid:
     if len(counts) != k or min(counts) < 2:
         raise InputError(f"{t.path}: provenance line 'counts' (its sidecar): expected {k} integers >= 2, "
                          f"got {t.meta().get('counts')!r}")
-    q = np.stack([t.float(c) for c in mt.axis_columns], axis=1)
+    q = np.stack([t.float(c) for c in machine.axis_columns], axis=1)
     if q.shape[0] != int(np.prod(counts)):
         raise InputError(f"{t.path}: expected {int(np.prod(counts))} rows for counts {counts}, got {q.shape[0]}")
     strides = [int(np.prod(counts[j + 1:])) for j in range(k)]
@@ -156,14 +154,14 @@ def read_grid(path, machine) -> VolumetricGrid:
     bad = np.argwhere(np.abs(want - q) > 1e-9 * (1 + np.abs(q)))
     if bad.size:
         r, c = bad[0]
-        raise InputError(f"{t.path}: row {t.row_number(int(r))}, column '{mt.axis_columns[c]}': expected "
+        raise InputError(f"{t.path}: row {t.row_number(int(r))}, column '{machine.axis_columns[c]}': expected "
                          f"{want[r, c]:.9g} (regular grid, first axis slowest), got {q[r, c]:.9g}")
-    periodic = tuple(a.full_turn for a in mt.axes)
+    periodic = tuple(a.full_turn for a in machine.axes)
     for j, tk in enumerate(ticks):
         if np.any(np.diff(tk) <= 0):
-            raise InputError(f"{t.path}: column '{mt.axis_columns[j]}': expected increasing grid ticks")
+            raise InputError(f"{t.path}: column '{machine.axis_columns[j]}': expected increasing grid ticks")
         if periodic[j] and abs(tk[-1] - tk[0] - FULL_TURN_DEG) > 1e-6:
-            raise InputError(f"{t.path}: column '{mt.axis_columns[j]}': expected one turn (last = first + 360), got "
+            raise InputError(f"{t.path}: column '{machine.axis_columns[j]}': expected one turn (last = first + 360), got "
                              f"{tk[0]:.9g}..{tk[-1]:.9g}")
     v = np.stack([t.float(c) for c in VALUE_COLUMNS], axis=1).reshape(*counts, 3)
     return VolumetricGrid(ticks, v, periodic)

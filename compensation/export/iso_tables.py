@@ -75,20 +75,19 @@ class IsoTables:
 
     def slot_values(self, machine, axes) -> np.ndarray:
         """The elements (n, P) a controller rebuilds from the tables at ``axes`` (n, k)."""
-        mt = machine
         axes = np.asarray(axes, dtype=float)
-        out = np.zeros((len(axes), len(mt.slots)))
-        for j, a in table_axes(mt):
+        out = np.zeros((len(axes), len(machine.slots)))
+        for j, a in table_axes(machine):
             pos, val = self.positions[a.word], self.values[a.word]
             x = fold(axes[:, j], pos[0]) if a.full_turn else axes[:, j]
             iso = np.stack([np.interp(x, pos, val[:, c]) for c in range(6)], axis=1)
-            cols = _slot_columns(mt, a.word)
-            pose = reference_axes(mt, len(axes))   # the table's frame: this axis moved, the others at reference
+            cols = _slot_columns(machine, a.word)
+            pose = reference_axes(machine, len(axes))   # the table's frame: this axis moved, the others at reference
             pose[:, j] = axes[:, j]
-            comp = axis_from_mcs(mt, a.word, pose, iso)
+            comp = axis_from_mcs(machine, a.word, pose, iso)
             out[:, cols[cols >= 0]] = comp[:, cols >= 0]
-        for p, s in enumerate(mt.slots):
-            if s.name in mt.constant_slots:
+        for p, s in enumerate(machine.slots):
+            if s.name in machine.constant_slots:
                 out[:, p] = self.location[s.iso]
         return out
 
@@ -103,19 +102,18 @@ class IsoTables:
 
 def iso_tables_from_model(elements, machine, n_rows: int) -> IsoTables:
     """The model's ISO components at ``n_rows`` equally spaced positions over each axis' stations."""
-    mt = machine
     pos, val = {}, {}
-    for j, a in table_axes(mt):
+    for j, a in table_axes(machine):
         st = elements.stations[a.column]
         t = np.linspace(st[0], st[-1], int(n_rows))
-        axes = reference_axes(mt, t.size)
+        axes = reference_axes(machine, t.size)
         axes[:, j] = t
         v = elements.values(axes)
-        cols = _slot_columns(mt, a.word)
+        cols = _slot_columns(machine, a.word)
         comp = np.where(cols >= 0, v[:, np.maximum(cols, 0)], 0.0)
-        pos[a.word], val[a.word] = t, axis_to_mcs(mt, a.word, axes, comp)
-    v0 = elements.values(reference_axes(mt))[0]
-    loc = {s.iso: float(v0[p]) for p, s in enumerate(mt.slots) if s.name in mt.constant_slots}
+        pos[a.word], val[a.word] = t, axis_to_mcs(machine, a.word, axes, comp)
+    v0 = elements.values(reference_axes(machine))[0]
+    loc = {s.iso: float(v0[p]) for p, s in enumerate(machine.slots) if s.name in machine.constant_slots}
     return IsoTables(pos, val, loc)
 
 
@@ -147,33 +145,31 @@ def _header(mt, j, a, model_desc) -> list:
 
 
 def write_iso_tables(tables: IsoTables, folder, machine, model_desc: str) -> list[Path]:
-    mt = machine
     folder = Path(folder)
     out = []
-    for j, a in table_axes(mt):
+    for j, a in table_axes(machine):
         cols = {a.column: tables.positions[a.word]}
         for c, n in enumerate(iso_columns(a.word)):
             cols[f"{n}_{unit_of(n)}"] = tables.values[a.word][:, c]
-        out.append(write_csv(folder / f"iso_{a.word}.csv", cols, _header(mt, j, a, model_desc), "%.12g"))
-    slots = [s for s in mt.slots if s.name in mt.constant_slots]
+        out.append(write_csv(folder / f"iso_{a.word}.csv", cols, _header(machine, j, a, model_desc), "%.12g"))
+    slots = [s for s in machine.slots if s.name in machine.constant_slots]
     loc = {"name": np.array([s.iso for s in slots]), "value": np.array([tables.location[s.iso] for s in slots]),
-           "unit": np.array([unit_of(s.iso) for s in slots]), "meaning": np.array([_meaning(mt, s) for s in slots])}
+           "unit": np.array([unit_of(s.iso) for s in slots]), "meaning": np.array([_meaning(machine, s) for s in slots])}
     head = [f"format: {ISO_FORMAT}", "axis: location",
             "reference point: the origin of the axis line's frame in the machine's chain (location errors); the "
             "moving axis' stroke origin (squareness)",
             "sign: MCS axes; E<D>0<W> > 0 shifts the W axis line along +D (D = X, Y, Z) or tilts it right-handed "
             "about D (D = A, B, C about X, Y, Z); a squareness tilts the W line of motion",
-            f"model: {model_desc}", f"machine: {mt.name} sha256 {mt.sha256}"]
+            f"model: {model_desc}", f"machine: {machine.name} sha256 {machine.sha256}"]
     out.append(write_csv(folder / "iso_location.csv", loc, head, "%.12g"))
     return out
 
 
 def read_iso_tables(folder, machine) -> IsoTables:
     """Read ``iso_<W>.csv`` and ``iso_location.csv`` of ``machine``; errors name file, row, column."""
-    mt = machine
     folder = Path(folder)
     pos, val = {}, {}
-    for j, a in table_axes(mt):
+    for j, a in table_axes(machine):
         t = read_table(folder / f"iso_{a.word}.csv")
         meta_format(t, ISO_FORMAT)
         p = t.float(a.column)
@@ -183,7 +179,7 @@ def read_iso_tables(folder, machine) -> IsoTables:
                              f"(at least 2 rows)")
         pos[a.word] = p
         val[a.word] = np.stack([t.float(f"{n}_{unit_of(n)}") for n in iso_columns(a.word)], axis=1)
-    want = [s.iso for s in mt.slots if s.name in mt.constant_slots]
+    want = [s.iso for s in machine.slots if s.name in machine.constant_slots]
     t = read_table(folder / "iso_location.csv")
     meta_format(t, ISO_FORMAT)
     loc = {}

@@ -98,18 +98,17 @@ def _run_checks(args) -> int:
     fam = family_of(machine)
     fam.target("diagnose")   # an arm or a parallel machine: calibrate --check (the registry's gap)
     fam.refuse_unsupported("diagnose", args)
-    mt = machine
     src = resolve_model(args.model)
-    model = read_model(args.model, mt, args.tracking_uri, source=src)   # the one reader: what the model holds
+    model = read_model(args.model, machine, args.tracking_uri, source=src)   # the one reader: what the model holds
     if model.network is not None and model.elements is None:   # a network: identified + effects, the retrain
         src = resolve_model(model.network) if model.network != src.spec else src
         if args.track:
             raise UsageError("--track: logs a kept learned residual; the loop on a trained network has no such stage "
                              "(its retrain is tracked as a child run with --tracking-uri): leave it out")
-        print(f"diagnosing {args.checks} against {args.model} on {mt.name} ...", file=sys.stderr)
+        print(f"diagnosing {args.checks} against {args.model} on {machine.name} ...", file=sys.stderr)
         from errormap.diagnosis.chain_loop import load_mt_checks
         from compensation.app.workflows.network_diagnosis import diagnose_network
-        summary, paths = diagnose_network(load_mt_checks(args.checks, mt, units=args.units), mt, src, args.out,
+        summary, paths = diagnose_network(load_mt_checks(args.checks, machine, units=args.units), machine, src, args.out,
                                           base=model.field,
                                           fit_fraction=args.fit_fraction, noise_um=args.noise_um,
                                           max_effects=args.max_effects, units=args.units,
@@ -125,12 +124,12 @@ def _run_checks(args) -> int:
         if retrain:
             raise UsageError(f"{', '.join(retrain)}: for the retrain of a trained network (--model a folder or run "
                              f"id); {args.model} is an element set: leave {'it' if len(retrain) == 1 else 'them'} out")
-        print(f"diagnosing {args.checks} against {args.model} on {mt.name} ...", file=sys.stderr)
-        summary, paths = diagnose_chain(args.checks, mt, model.elements_path, args.out, fit_fraction=args.fit_fraction,
+        print(f"diagnosing {args.checks} against {args.model} on {machine.name} ...", file=sys.stderr)
+        summary, paths = diagnose_chain(args.checks, machine, model.elements_path, args.out, fit_fraction=args.fit_fraction,
                                         noise_um=args.noise_um, max_effects=args.max_effects,
                                         update=not args.no_update, units=args.units, learn=not args.no_learned,
                                         track=args.track, tracking_uri=args.tracking_uri)
-        paths.append(write_chain_diagnosis_page(args.out, mt))  # the page of the run
+        paths.append(write_chain_diagnosis_page(args.out, machine))  # the page of the run
     say_read_as(machine)   # a kind = "grinder" file read as its chain, said once the inputs are read (a refusal
     # above stays one line)
     if summary.get("update"):

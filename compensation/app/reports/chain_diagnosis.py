@@ -155,7 +155,6 @@ def chain_diagnosis_page(run_dir, machine) -> str:
     key when the folder is not such a run. ``machine``: a chain, or a grinder file (its chain)."""
     from errormap.diagnosis.loop_model import load_chain_model_file
     from errormap.chain_elements import ChainElementSet
-    machine = machine
     run_dir = Path(run_dir)
     doc = read_json(run_dir / "diagnosis.json", "diagnosis of volcomp diagnose")
     check_chain_diagnosis(doc, run_dir / "diagnosis.json")

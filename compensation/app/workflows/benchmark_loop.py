@@ -28,17 +28,16 @@ def loop_models(machine, model_path, conditions: dict) -> dict:
     from errormap.chain_elements import ChainElementSet
     from errormap.diagnosis.loop_model import ChainModelField, load_chain_model_file, read_terms
     from ...model_file import read_model
-    mt = machine
     doc = json.loads(Path(model_path).read_text(encoding="utf-8"))
     alone = doc.get("loop_alone")
     if alone is not None:
-        base = ChainModelField(mt, ChainElementSet.load(Path(model_path).parent / alone["elements"], mt),
-                               read_terms(alone["terms"], mt, model_path, "loop_alone"))
+        base = ChainModelField(machine, ChainElementSet.load(Path(model_path).parent / alone["elements"], machine),
+                               read_terms(alone["terms"], machine, model_path, "loop_alone"))
         alone_terms = alone["terms"]
     else:
-        base = load_chain_model_file(model_path, mt, learned="ignore")
+        base = load_chain_model_file(model_path, machine, learned="ignore")
         alone_terms = doc["terms"] + doc.get("base_terms_replaced", [])
         if doc.get("base_terms_replaced"):   # the loop alone had the terms the learned part replaced
-            base = ChainModelField(mt, base.elements, read_terms(alone_terms, mt, model_path, "terms"))
-    return {"parametric": (alone_terms, doc.get("base_stage", doc["kept_stage"]), at_conditions(base, mt, conditions)),
-            "hybrid": (doc["terms"], doc["kept_stage"], at_conditions(read_model(model_path, mt).field, mt, conditions))}
+            base = ChainModelField(machine, base.elements, read_terms(alone_terms, machine, model_path, "terms"))
+    return {"parametric": (alone_terms, doc.get("base_stage", doc["kept_stage"]), at_conditions(base, machine, conditions)),
+            "hybrid": (doc["terms"], doc["kept_stage"], at_conditions(read_model(model_path, machine).field, machine, conditions))}

@@ -121,9 +121,8 @@ def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga
     log = sys.stderr if log is None else log
     targets_mm = np.asarray(targets_mm, dtype=float)
     n = targets_mm.shape[0]
-    mt = machine
-    nominal = target_axes_of(mt, targets_mm, nominal_axes, None)
-    full_turn = [j for j, a in enumerate(mt.axes) if a.full_turn]
+    nominal = target_axes_of(machine, targets_mm, nominal_axes, None)
+    full_turn = [j for j, a in enumerate(machine.axes) if a.full_turn]
     solver_options = solver_options or {}
     specs = [solver_spec(m) for m in methods]  # the registry refuses an unknown name
     runs = {}
@@ -177,4 +176,4 @@ def compare_methods(field_, targets_mm, machine, methods=METHODS, truth=None, ga
     if full_turn:
         a = nominal[:, full_turn[0]]
         turn = np.floor((a - a[0]) / 360.0 + 1e-9).astype(int)
-    return Comparison(targets_mm, nominal, runs, baseline, base_model, base_true, turn, columns=mt.axis_columns)
+    return Comparison(targets_mm, nominal, runs, baseline, base_model, base_true, turn, columns=machine.axis_columns)

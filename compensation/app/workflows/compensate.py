@@ -377,8 +377,7 @@ def compensate_files(files, machine, s: CompensateSettings, executor=None, on_fi
     after each file is guarded and rendered (nothing written yet). ``executor``:
     :class:`compensation.batch.LocalExecutor` by default, or Ray; a
     :class:`~compensation.app.workflows.cluster.ClusterError` it raises leaves nothing written."""
-    mt = machine
-    check_settings(mt, s)
+    check_settings(machine, s)
     plan = plan_outputs(files, Path(s.out_dir))
     old_outputs = check_out_dir(Path(s.out_dir), s.force)
     notice_cold_kernels(*kernel_modules(s.method))  # one line before numba's first compilation after install
@@ -386,16 +385,16 @@ def compensate_files(files, machine, s: CompensateSettings, executor=None, on_fi
     truth = None
     if s.truth:
         from .measurement import load_chain_truth
-        truth = load_chain_truth(s.truth, mt)
-    paths = [read_tool_path(p, mt, s, axes_field(field_)) for p, _ in plan]
+        truth = load_chain_truth(s.truth, machine)
+    paths = [read_tool_path(p, machine, s, axes_field(field_)) for p, _ in plan]
     print(f"compensate: model {src.description}", file=sys.stderr)  # every input read: a bad one is the one line
     needs = field_.needs if isinstance(field_, ConditionedField) else ()
     conds = [path_conditions(tp, needs, field_.conditions, s.units, "--units") for tp in paths] if needs else None
     advance = progress_callback(sum(len(tp.axes) for tp in paths), s.method)
-    solved = solve_paths(paths, field_, truth, mt, s, conds, executor=executor, progress=advance)
+    solved = solve_paths(paths, field_, truth, machine, s, conds, executor=executor, progress=advance)
     outcomes = []
     for (p, dst), tp, (res, targets, true_r, true_base) in zip(plan, paths, solved):
-        o = compensate_one(p, dst, tp, res, targets, true_r, true_base, field_, truth, mt, s, verdict)
+        o = compensate_one(p, dst, tp, res, targets, true_r, true_base, field_, truth, machine, s, verdict)
         outcomes.append(o)
         (on_file or print_file)(o)
     return write_run(outcomes, old_outputs, src, verdict, field_, truth, machine, s, executor)

@@ -116,13 +116,12 @@ def validate_inputs(machines) -> None:
     for m in machines:
         machine = load_machine(m["machine"])
         family_of(machine).target("fleet")   # every machine tool; an arm or a parallel machine refused
-        mt = machine
         if family_of(machine).target("identify") == "chain" and len(m["sweeps"]) != 1:
             raise InputError(f"{m['fleet_file']}: key '{m['key']}.sweeps': a machine-tool chain ({machine.name!r}) is "
                              f"identified from one sweep file (one tracker set-up), got {len(m['sweeps'])}")
         for p in m["sweeps"]:   # the sweep reader of the machine's chain (the grinder's files read the same)
-            read_mt_sweeps(p, mt)
-        load_mt_checks(m["checks"], mt)   # the reader the loop itself uses (diagnose_chain)
+            read_mt_sweeps(p, machine)
+        load_mt_checks(m["checks"], machine)   # the reader the loop itself uses (diagnose_chain)
 
 
 def check_tracking_uri(uri: str, n_machines: int, on_cluster: bool) -> None:
