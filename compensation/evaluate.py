@@ -28,6 +28,7 @@ from errormap.chain_elements import ChainElementSet
 from errormap.chain_kernel import NominalChain
 from errormap.chain_truth import MTTruth
 from errormap.io import InputError, read_document_text
+from errormap.machine import made_on
 from errormap.stats import residual_stats
 
 RESIDUAL_DEFINITIONS = {
@@ -73,25 +74,24 @@ def load_truth(spec, machine) -> MTTruth:
     """The truth machine of ``spec`` on the machine tool ``machine`` (a grinder file through its chain): a
     ``simulate`` folder or its ``truth.json`` (elements beside it plus the effects it lists), or an element-set
     file (the elements alone). InputError naming the file and key otherwise."""
-    mt = machine
     p = Path(spec)
     if p.is_dir():
         p = p / "truth.json"
         if not p.is_file():
             if (p.parent / "truth_elements.json").is_file():
-                return MTTruth(mt, ChainElementSet.load(p.parent / "truth_elements.json", mt), {})
+                return MTTruth(machine, ChainElementSet.load(p.parent / "truth_elements.json", machine), {})
             raise InputError(f"{p.parent}: not a simulate folder (no truth.json)")
     elif not p.is_file():
         raise InputError(f"{p}: no such simulate folder or element-set file")
     d = _read_json(p, "a truth or element-set file")
     fmt = d.get("format")
     if fmt == CHAIN_TRUTH_FORMAT or (fmt is None and "effects" in d):
-        if fmt == CHAIN_TRUTH_FORMAT and d.get("machine_sha256") and mt.sha256 and d["machine_sha256"] != mt.sha256:
+        if fmt == CHAIN_TRUTH_FORMAT and d.get("machine_sha256") and machine.sha256 and not made_on(machine, d["machine_sha256"]):
             raise InputError(f"{p}: key 'machine_sha256': the truth belongs to machine {d.get('machine')!r}, "
-                             f"not {mt.name!r}")
+                             f"not {machine.name!r}")
         el = p.parent / str(d.get("elements") or "truth_elements.json")
-        return MTTruth(mt, ChainElementSet.load(el, mt), _effects(d, p, mt), d.get("seed"))
-    return MTTruth(mt, ChainElementSet.load(p, mt), {})
+        return MTTruth(machine, ChainElementSet.load(el, machine), _effects(d, p, machine), d.get("seed"))
+    return MTTruth(machine, ChainElementSet.load(p, machine), {})
 
 
 def true_residual_um(truth, axes, targets_mm, conditions: dict | None = None) -> np.ndarray:

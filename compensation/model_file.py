@@ -101,13 +101,10 @@ def read_model(spec, machine, tracking_uri: str | None = None, source: ModelSour
 
 def _read_model_json(src: ModelSource, machine, tracking_uri) -> Model:
     """``model.json`` (``volcomp-model/1``, or the chain loop's earlier ``volcomp-chain-model/1``)."""
-    from errormap.diagnosis.loop_model import LEARNED_KEY, load_chain_model_file
-    mt = machine
+    from errormap.diagnosis.loop_model import LEARNED_KEY, check_made_on, load_chain_model_file
     path = Path(src.path)
     doc = _doc(path)
-    if doc.get("machine_sha256") not in (None, "", mt.sha256):
-        raise InputError(f"{path}: key 'machine_sha256': the model was made for machine {doc.get('machine')!r} "
-                         f"({str(doc.get('machine_sha256'))[:12]}…), not for {mt.name!r} ({mt.sha256[:12]}…)")
+    check_made_on(doc, machine, path)
     elements = el_path = None
     network = _network_ref(doc, path)
     if doc.get("elements") is None and network is not None:
@@ -117,7 +114,7 @@ def _read_model_json(src: ModelSource, machine, tracking_uri) -> Model:
                                f"{path}: key 'network' names")
         base = _read_network(net_src, machine, tracking_uri).field
     else:
-        base = load_chain_model_file(path, mt, learned="ignore")
+        base = load_chain_model_file(path, machine, learned="ignore")
         elements, el_path = base.elements, path.parent / doc["elements"]
     learned = None
     if doc.get(LEARNED_KEY) is not None:
@@ -181,25 +178,23 @@ def _read_elements(src: ModelSource, machine, tracking_uri) -> Model:
     """An element set (its chain's :class:`errormap.chain_field.ChainField`), covariance beside it when there."""
     from errormap.chain_elements import ChainElementSet
     from errormap.chain_field import ChainField
-    mt = machine
-    el = ChainElementSet.load(src.path, mt)
+    el = ChainElementSet.load(src.path, machine)
     cp = companion_path(src.path, ".cov.npz")
-    return Model(ChainField(mt, el), src, "volcomp-elements/1", el, Path(src.path), cp if cp.is_file() else None,
+    return Model(ChainField(machine, el), src, "volcomp-elements/1", el, Path(src.path), cp if cp.is_file() else None,
                  stage="elements")
 
 
 def _read_network(src: ModelSource, machine, tracking_uri) -> Model:
     """A trained network: a folder (its ``config.json`` says which network) or an MLflow reference."""
-    mt = machine
     if src.kind == "chain-network":
-        fld = _network(src.path, mt)
+        fld = _network(src.path, machine)
     else:
         try:
             from training.tracking import load_field as load_learned
         except ImportError as exc:  # pragma: no cover
             raise InputError(f"{src.spec}: a trained model, and the learned-field loader is unavailable ({exc})") from None
         fld = load_learned(str(src.path) if src.path is not None else src.spec, tracking_uri=tracking_uri,
-                           loader=lambda folder: _network(folder, mt))
+                           loader=lambda folder: _network(folder, machine))
     ref = str(src.path) if src.path is not None else src.spec
     return Model(fld, src, src.to_dict()["kind_name"], network=ref, stage="network")
 

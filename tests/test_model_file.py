@@ -97,6 +97,23 @@ def test_the_chain_loops_older_model_json_loads_as_the_new_one(tmp_path):
     np.testing.assert_allclose(old.field.predict(axes), new.field.predict(axes), rtol=0, atol=SAME_UM)
 
 
+def test_a_model_made_on_the_built_in_grinders_earlier_file_loads_and_another_machines_is_refused(tmp_path):
+    """A model.json recorded with the built-in grinder's earlier file (``kind = "grinder"``, before it became its
+    chain file: :data:`errormap.machine.FORMER_SHA256`) is the built-in grinder's model: it loads, predicting as the
+    same model recorded with today's file; a sha256 of any other file is still refused naming the key."""
+    from errormap.machine import FORMER_SHA256
+    mt = load_machine("grinder")
+    today = read_model(_model_json(tmp_path / "today", mt), mt)
+    p = _model_json(tmp_path / "earlier", mt, fmt="volcomp-chain-model/1")
+    p.write_text(json.dumps({**json.loads(p.read_text()), "machine_sha256": FORMER_SHA256["grinder"][0]}))
+    earlier = read_model(p, mt)
+    axes = _points(mt)
+    np.testing.assert_allclose(earlier.field.predict(axes), today.field.predict(axes), rtol=0, atol=SAME_UM)
+    p.write_text(json.dumps({**json.loads(p.read_text()), "machine_sha256": "0" * 64}))
+    with pytest.raises(InputError, match="key 'machine_sha256'"):
+        read_model(p, mt)
+
+
 def test_an_element_set_loads_as_a_model_of_elements(tmp_path):
     from errormap.chain_field import ChainField
     mt = load_machine("mill-xyz")

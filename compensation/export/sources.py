@@ -10,6 +10,7 @@ import numpy as np
 
 from errormap.effect_kinds import diagnosed_kind, effect_kind
 from errormap.io import InputError, read_document_text, sha256_file
+from errormap.machine import made_on
 
 from .model import ModelError, nominal_mm, reads_grinder_files, TABLE_TEMP_C
 
@@ -63,7 +64,6 @@ def load_elements(path, machine):
     if reads_grinder_files(machine):
         from errormap.elements import ElementSet
         el = ElementSet.load(path)
-        from errormap.machine import made_on
         if el.machine_sha256 and not made_on(machine, el.machine_sha256):
             raise InputError(f"{path}: key 'machine_sha256': the model was made for machine file sha256 "
                              f"{el.machine_sha256[:12]}…, but the machine given is {machine.sha256[:12]}… "
@@ -174,7 +174,7 @@ def reversal_terms_from_diagnosis(path, machine) -> tuple[list, list]:
         d = json.loads(read_document_text(path, "a diagnosis"))
     except (OSError, json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"{path}: not a readable diagnosis file ({exc})") from None
-    if not isinstance(d, dict) or d.get("machine") != machine.name or d.get("machine_sha256") not in (None, machine.sha256):
+    if not isinstance(d, dict) or d.get("machine") != machine.name or (d.get("machine_sha256") is not None and not made_on(machine, d["machine_sha256"])):
         got = d.get("machine") if isinstance(d, dict) else None
         raise InputError(f"{path}: key 'machine': expected the diagnosis of `volcomp diagnose --machine {machine.name}`, "
                          f"got {got!r}")

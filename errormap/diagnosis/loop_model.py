@@ -190,6 +190,17 @@ class ChainModelField:
         return self.predict_and_jacobian(axes)[1]
 
 
+def check_made_on(doc: dict, machine: MachineTool, path) -> None:
+    """Refuse (InputError naming ``path`` and the key) a model whose recorded ``machine_sha256`` names another
+    machine file than ``machine``'s: its own, or an earlier file of the same built-in machine
+    (:func:`errormap.machine.made_on`), or none recorded, is accepted."""
+    from ..machine import made_on
+    sha = doc.get("machine_sha256")
+    if sha not in (None, "") and not made_on(machine, sha):
+        raise InputError(f"{path}: key 'machine_sha256': the model was made for machine {doc.get('machine')!r} "
+                         f"({str(sha)[:12]}…), not for {machine.name!r} ({machine.sha256[:12]}…)")
+
+
 def load_chain_model_file(path, machine: MachineTool, learned: str = "refuse") -> ChainModelField:
     """Read ``model.json`` (module doc) for ``machine`` (a chain, or a ``kind = "grinder"`` file: its chain,
     :mod:`errormap.grinder_file`); errors name the file and the key (InputError).
@@ -198,7 +209,6 @@ def load_chain_model_file(path, machine: MachineTool, learned: str = "refuse") -
     for a caller that needs only them)."""
     if learned not in LEARNED_MODES:
         raise ValueError(f"Expected learned one of {LEARNED_MODES}, got {learned!r}")
-    machine = machine
     path = Path(path)
     try:
         d = json.loads(read_document_text(path, "a diagnosed chain model"))
@@ -209,10 +219,7 @@ def load_chain_model_file(path, machine: MachineTool, learned: str = "refuse") -
     if d.get(LEARNED_KEY) is not None and learned == "refuse":
         raise InputError(f"{path}: key '{LEARNED_KEY}': the model's kept stage includes a learned residual, which "
                          "this command does not carry (predict and compensate --machine do); it is not dropped silently")
-    if d.get("machine_sha256") not in (None, "", machine.sha256):
-        raise InputError(f"{path}: key 'machine_sha256': the model was made for machine {d.get('machine')!r} "
-                         f"({str(d.get('machine_sha256'))[:12]}…), not for {machine.name!r} "
-                         f"({machine.sha256[:12]}…)")
+    check_made_on(d, machine, path)
     if not isinstance(d.get("elements"), str):
         raise InputError(f"{path}: key 'elements': expected the element set's file name, got {d.get('elements')!r}")
     el = ChainElementSet.load(path.parent / d["elements"], machine)

@@ -155,7 +155,7 @@ def _grinder_machine(fp):
 def _chain_machine(fp):
     """The machine-tool chain the feature points were made on: the recorded machine file, else the
     built-in machine of the recorded name; its SHA-256 must be the recorded one."""
-    from errormap.machine import load_machine
+    from errormap.machine import load_machine, made_on
     src = fp.source or "feature points"
     mf = fp.meta.get("machine_file")
     name = fp.meta.get("machine")
@@ -167,7 +167,7 @@ def _chain_machine(fp):
         raise InputError(f"{src}: header key 'axis_columns': given, but the machine {machine.name!r} is not a "
                          "machine-tool chain")
     sha = fp.meta.get("machine_sha256")
-    if sha and machine.sha256 and sha != machine.sha256:
+    if sha and machine.sha256 and not made_on(machine, sha):
         raise InputError(f"{src}: header key 'machine_sha256': the feature points were made on another version of "
                          f"the machine file {machine.path}")
     if tuple(fp.axis_columns) != tuple(machine.axis_columns):

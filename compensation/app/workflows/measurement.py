@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from errormap.io import InputError, companion_path, read_document_text, write_csv, write_json
+from errormap.machine import made_on
 from errormap.seeds import spawn_seeds
 from compensation.app.validate import UsageError
 
@@ -37,7 +38,7 @@ def load_chain_truth(path, machine):
     if fmt != TRUTH_FORMAT:
         raise InputError(f"{p}: key 'format': expected {TRUTH_FORMAT!r} (truth.json of simulate --machine) or "
                          f"{ELEMENTS_FORMAT!r}, got {fmt!r}")
-    if d.get("machine_sha256") != machine.sha256:
+    if not made_on(machine, d.get("machine_sha256")):
         raise InputError(f"{p}: key 'machine_sha256': the truth belongs to machine {d.get('machine')!r}, "
                          f"not {machine.name!r}")
     from errormap.chain_truth import MTTruth
