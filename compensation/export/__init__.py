@@ -36,7 +36,7 @@ from .grid import GRID_FORMAT, VolumetricGrid, curvature_counts, grid_from_model
 from .iso_tables import ISO_FORMAT, IsoTables, iso_tables_from_model, read_iso_tables, write_iso_tables
 from .linuxcnc import (JOINT_SAMPLES, ROTARY_WEIGHTS, JointTables, joint_tables_from_model, read_joint_tables,
                        region_box, write_joint_tables)
-from .model import TABLE_TEMP_C, ModelError, exact_corrections, nominal_mm, reads_grinder_files
+from .model import TABLE_TEMP_C, ModelError, exact_corrections, nominal_mm
 from .sources import (BACKLASH_EXPORT, CHECKS_DIAGNOSIS_FORMAT, backlash_from_diagnosis, chain_truth_tool_points, load_model,
                       reversal_from_diagnosis, reversal_terms_from_diagnosis, truth_tool_points)
 
@@ -49,7 +49,7 @@ __all__ = ["ALL_FORMATS", "BACKLASH_EXPORT", "CHECKS_DIAGNOSIS_FORMAT", "DRIFT_C
            "drift_distance_rule", "exact_corrections", "export_drift_coefficients", "grid_from_model",
            "interpolation_error_um", "iso_tables_from_model", "joint_tables_from_model", "load_model", "chain_truth_tool_points",
            "motion_dirs", "solved_commands", "table_difference_um", "point_set", "volume_points", "node_means", "nominal_mm", "read_back", "read_drift_coefficients", "read_grid",
-           "read_iso_tables", "read_joint_tables", "reads_grinder_files", "region_box", "reversal_from_diagnosis",
+           "read_iso_tables", "read_joint_tables", "region_box", "reversal_from_diagnosis",
            "reversal_terms_from_diagnosis", "truth_tool_points", "staged_folder", "table_bytes", "weighted_node_means",
            "worst_drift_model_um", "worst_model_um", "write_drift_coefficients", "write_grid", "write_iso_tables",
            "write_joint_tables", "write_manifest"]

@@ -95,9 +95,9 @@ def solved_commands(table, machine, targets, axes) -> np.ndarray:
     """Axis commands (n, k) of a volumetric controller: the exact solve on the table's field (a chain's solver
     gets it with a differenced Jacobian)."""
     from ..solvers import solve
-    from .model import reads_grinder_files
+    from errormap.grinder_file import is_grinder_chain
     fld = table.field(machine)
-    fld = fld if reads_grinder_files(machine) else DifferencedField(fld.predict)
+    fld = fld if is_grinder_chain(machine) else DifferencedField(fld.predict)
     return solve("exact", fld, targets, machine, target_axes=axes, progress=False).axes
 
 

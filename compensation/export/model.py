@@ -21,12 +21,6 @@ TABLE_TEMP_C = 20.0
 """A table has no temperature input: a thermal term of the model is evaluated at the reference temperature."""
 
 
-def reads_grinder_files(machine) -> bool:
-    """True for the grinder's chain (:func:`errormap.grinder_file.is_grinder_chain`: the built-in grinder or a
-    ``kind = "grinder"`` file read as its chain): its model, truth and diagnosis files are the grinder's formats."""
-    return is_grinder_chain(machine)
-
-
 def nominal_mm(machine, axes) -> np.ndarray:
     """Nominal tool point (n, 3) mm in the workpiece frame at ``axes`` (n, k) (the compiled chain)."""
     return NominalChain(machine).forward(np.asarray(axes, dtype=float))
@@ -107,7 +101,7 @@ class ModelError:
         """The model at fixed approach directions ``d`` (k,) ±1 (None: +) as a field the machine's exact solver
         takes: on a grinder file a plain field (its solver differentiates it, as it always has), on a chain the
         model's own field with its conditions as constants (its analytic Jacobian)."""
-        if reads_grinder_files(self.machine):
+        if is_grinder_chain(self.machine):
             if d is None:
                 return TableField(lambda q: self(q))
             return TableField(lambda q: self(q, np.broadcast_to(d, (len(q), len(d)))))

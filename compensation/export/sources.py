@@ -10,9 +10,10 @@ import numpy as np
 
 from errormap.effect_kinds import diagnosed_kind, effect_kind
 from errormap.io import InputError, read_document_text, sha256_file
+from errormap.grinder_file import is_grinder_chain
 from errormap.machine import made_on
 
-from .model import ModelError, nominal_mm, reads_grinder_files, TABLE_TEMP_C
+from .model import ModelError, nominal_mm, TABLE_TEMP_C
 
 BACKLASH_EXPORT = "linuxcnc-backlash"
 """The registry's ``export`` of a kind a per-joint table carries (:mod:`errormap.effect_kinds`)."""
@@ -34,7 +35,7 @@ def load_model(spec, fmt: str, machine, tracking_uri=None) -> tuple:
     src = model.source
     if model.elements_only:
         el = load_elements(model.elements_path, machine)
-        fld = None if reads_grinder_files(machine) else chain_field(machine, el)
+        fld = None if is_grinder_chain(machine) else chain_field(machine, el)
         return (ModelError(machine, el, field=fld),
                 f"{model.elements_path} (element set, sha256 {sha256_file(model.elements_path)})", model)
     if fmt == "iso-tables":
@@ -61,7 +62,7 @@ def chain_field(machine, elements):
 def load_elements(path, machine):
     """The element set ``path`` of ``machine`` (its own format on a grinder file, refused when made for another
     machine file; a chain's :class:`errormap.chain_elements.ChainElementSet`)."""
-    if reads_grinder_files(machine):
+    if is_grinder_chain(machine):
         from errormap.elements import ElementSet
         el = ElementSet.load(path)
         if el.machine_sha256 and not made_on(machine, el.machine_sha256):
@@ -106,7 +107,7 @@ def reversal_from_diagnosis(path, model: ModelError) -> tuple:
     machine = model.machine
     if model.elements is None or getattr(model.field, "elements", model.elements) is not model.elements:
         raise ValueError("--diagnosis needs an element-set model (the reversal is added to its elements)")
-    if reads_grinder_files(machine):
+    if is_grinder_chain(machine):
         back, left = backlash_from_diagnosis(path)
         return ModelError(machine, model.elements, reversal={j.upper(): b for j, b in back.items()}), left
     from errormap.diagnosis.loop_model import ChainModelField
