@@ -10,9 +10,14 @@ dialect                on                                          off
 =====================  ==========================================  =====================================
 fanuc, siemens-iso     ``G43.4 Hn`` (type 1), ``G43.5 Hn``         ``G49`` (or a plain ``G43``)
 haas                   ``G234`` with ``Hn`` or an active ``G43 Hn``  ``G49`` (or a plain ``G43``)
-heidenhain-iso         ``M128`` (the tool of the last ``T`` call)  ``M129``
+heidenhain-iso         ``M128`` (the tool of the last ``T`` call;  ``M129`` (at the end of its block:
+                       from the start of its block; an ``F``       a move on its line is still TCP)
+                       after it is the feed of the compensating
+                       movements, not the path's)
 siemens-iso            ``TRAORI`` / ``TRAORI(1)`` on a line alone  ``TRAFOOF``
-                       (the tool ``T`` with its edge ``D1``)
+                       (the tool ``T`` with its edge ``D1``;
+                       ``ORIAXES`` before any feed move that
+                       turns a rotary axis)
 any (the machine's)    the machine file's ``[tcp] switch_on``      ``[tcp] switch_off``
                        (LinuxCNC switchable kinematics ``M428``,   (``M429``)
                        tool length: the active ``G43 Hn``, or
@@ -22,7 +27,11 @@ any (the machine's)    the machine file's ``[tcp] switch_on``      ``[tcp] switc
 
 Fanuc's ``G43.5`` with a tool-direction vector ``I J K`` leaves the rotary positions to the controller
 (two solutions): refused; so are a TCP word on a machine without a rotary axis, TCP without a tool length,
-a rotary work offset under TCP, and ``TRAORI`` with parameters. Heidenhain's ``T`` call and Siemens' ``D1``
+a rotary work offset under TCP, and ``TRAORI`` with parameters. Siemens interpolates the tool orientation on
+a large circle unless ``ORIAXES`` is active (``ORIVECT``, its initial setting), while the compensated pieces are
+written with the axes interpolated linearly: under ``TRAORI`` a feed move that turns a rotary axis needs
+``ORIAXES`` (a line of orientation words: ``ORIAXES``, ``ORIVECT`` / ``ORIPLANE``, ``ORIWKS``, ``ORIMKS``; the
+cone, path-relative and second-curve types are refused by name). Heidenhain's ``T`` call and Siemens' ``D1``
 activate the tool's length (the reader records them as a tool length offset, like ``G43 Hn``).
 
 How a TCP point is compensated: its tip ``p = program X Y Z + work offset`` (mm, workpiece frame) and its
@@ -55,6 +64,14 @@ SIEMENS_LINE = re.compile(r"[ \t]*(?:N\d+[ \t]*)?(TRAORI(?:[ \t]*\([ \t]*1?[ \t]
 SIEMENS_VECTOR = re.compile(r"(?<![A-Za-z0-9_])([ABC][2-7]|LEAD|TILT|THETA|PHI|PSI)[ \t]*=", re.IGNORECASE)
 """Siemens orientation programming (A3= B3= C3= direction vectors, A2= angles, A4–A7 surface normals, LEAD/TILT):
 refused by name under the TCP pre-pass."""
+SIEMENS_ORI_LINE = re.compile(r"[ \t]*(?:N\d+[ \t]*)?((?:ORI[A-Z0-9]+[ \t]*)+)(?:;.*)?\r?", re.IGNORECASE)
+"""A Siemens line of orientation-interpolation words (G groups 25, 50-51: ``ORIAXES``, ``ORIVECT``, ``ORIWKS`` ...)."""
+ORI_DEFAULT = "ORIVECT"
+"""The Siemens control's initial setting of G group 51 (its programming manual's G-code table): the tool
+orientation interpolated on a large circle, whatever words gave the block's end orientation."""
+ORI_WORDS = {"ORIAXES": "ORIAXES", "ORIVECT": "ORIVECT", "ORIPLANE": "ORIVECT", "ORIWKS": None, "ORIMKS": None}
+"""The orientation words read: the interpolation they select (``ORIPLANE`` is ``ORIVECT``); ``ORIWKS`` / ``ORIMKS``
+(the frame a vector interpolation turns in) change nothing where the axes are interpolated (``ORIAXES``)."""
 SIEMENS_OTHER = re.compile(r"[ \t]*(?:N\d+[ \t]*)?TRAORI\b", re.IGNORECASE)
 TRIGGER = rb"(?i)G[ \t]*0*(?:43[ \t]*\.[ \t]*[45]|234|93)(?![0-9.])|M[ \t]*0*12[89](?![0-9.])|TRA(?:ORI|FOOF)"
 """Bytes that may hold a word of this module; a program without any is read without the pre-pass."""
@@ -81,6 +98,9 @@ class TcpProgram:
     machine_tool_points: int = 0
     """TCP points placed at the machine file's own tool point (``G49`` under a ``[tcp]`` switch whose file says
     ``tool_length_under_g49 = "machine"``), recorded by :func:`tcp_axes` for the summary."""
+    off_at_end: list = field(default_factory=list)
+    """0-based lines whose TCP-off word acts at the end of the block (Heidenhain ``M129``): written on the last
+    piece of a split move (:func:`render_tcp`)."""
 
     def active(self, lines0) -> np.ndarray:
         return self.on[np.asarray(lines0, dtype=np.int64)]
@@ -154,7 +174,8 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
     g93 = np.zeros(n, bool)
     switch = [None] * n
     words, tool_events, out = [], [], []
-    state = {"tcp": None, "g93": False, "tool": None, "t": None, "edge": False, "incremental": False}
+    state = {"tcp": None, "g93": False, "tool": None, "t": None, "edge": False, "incremental": False,
+             "ori": ORI_DEFAULT, "rot": {}}
     found = False
     for i, line in enumerate(lines):
         body = line.rstrip("\r\n")
@@ -163,6 +184,12 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
             framed = _heidenhain_block(body)
             found |= framed != body
             body = framed
+        ori = SIEMENS_ORI_LINE.fullmatch(body)
+        if ori is not None:
+            found = True
+            out.append(_orientation_words(path, i, body, ori, dialect_name, state) + ending)
+            _mark(i, state, on, g93, switch)
+            continue
         m = SIEMENS_LINE.fullmatch(body)
         if m is None and SIEMENS_OTHER.match(body):
             raise _refuse(path, i, body.upper().index("TRAORI") + 1, "'TRAORI' with parameters (orientation offsets, "
@@ -198,11 +225,16 @@ def tcp_prepass(path, data: bytes, dialect_name: str, machine):
         new = _tool_calls(path, i, toks, new, dialect_name, state, tool_events)
         if state["g93"]:
             _check_inverse_time(path, i, toks, codes, state)
+        if dialect_name == "siemens-iso":
+            _check_orientation_interpolation(path, i, toks, codes, state, rotary)
         out.append(new + ending)
         _mark(i, state, on, g93, switch)
+        if state.pop("off_at_end", False):  # Heidenhain's M129 acts at the end of its block
+            state["tcp"] = None
     if not found:
         return data, None
-    return "".join(out).encode("latin-1"), TcpProgram(on, g93, switch, words, tool_events, lines)
+    return "".join(out).encode("latin-1"), TcpProgram(on, g93, switch, words, tool_events, lines,
+                                                     off_at_end=state.get("off_lines", []))
 
 
 HEIDENHAIN_FRAME = re.compile(r"([ \t]*(?:N\d+[ \t]*)?)%[ \t]*\w+[ \t]+G7([01])[ \t]*\*[ \t]*\r?")
@@ -282,10 +314,48 @@ def _line_words(path, i, body, toks, dialect_name, state, machine, rotary, words
                                       "T n before it (the length comes from --tool-table)")
                     _switch_on(path, i, w.start + 1, code, rotary, machine, state)
                     words.append(code)
-                else:
-                    state["tcp"] = None
+                    f = next((t for t in toks if t.letter == "F" and t.start > w.start), None)
+                    if f is not None:  # the feed of M128's compensating movements, not the path's
+                        new = _blank(new, f.start, f.num_end)
+                elif state["tcp"] is not None:
+                    state["off_at_end"] = True
+                    state.setdefault("off_lines", []).append(i)
                 new = _blank(new, w.start, w.num_end)
     return new, found, codes
+
+
+def _orientation_words(path, i, body, match, dialect_name, state) -> str:
+    """A line of Siemens orientation words: ``ORIAXES`` / ``ORIVECT`` recorded, the words blanked for the reader;
+    the other interpolation types (cone, path-relative, second curve) refused by name."""
+    col = match.start(1) + 1
+    _need_dialect(path, i, col, match.group(1).split()[0].upper(), ("siemens-iso",), dialect_name)
+    for w in re.finditer(r"ORI[A-Z0-9]+", match.group(1), re.IGNORECASE):
+        word = w.group(0).upper()
+        if word not in ORI_WORDS:
+            raise _refuse(path, i, match.start(1) + w.start() + 1, f"'{word}' (Siemens orientation interpolation): "
+                          "not interpretable exactly; write ORIAXES (the rotary axes interpolated linearly)")
+        state["ori"] = ORI_WORDS[word] or state["ori"]
+    return _blank(body, match.start(1), match.end(1))
+
+
+def _check_orientation_interpolation(path, i, toks, codes, state, rotary):
+    """Under TRAORI with large-circle interpolation (``ORIVECT``, the control's initial setting) a feed move that
+    turns a rotary axis swings the tool on a large circle, not linearly in the axes as the compensated pieces
+    are written: refused (file, line, column) naming ``ORIAXES``, which makes it exact."""
+    motion = [c for c in codes if c in ("G0", "G1", "G2", "G3")]
+    if motion:
+        state["motion_ori"] = motion[-1]
+    for t in toks:
+        if t.letter not in {a.word for a in rotary}:
+            continue
+        prev = state["rot"].get(t.letter)
+        turned = t.value != 0.0 if state["incremental"] else prev is None or t.value != prev
+        state["rot"][t.letter] = None if state["incremental"] else t.value
+        if (turned and state["tcp"] is not None and state["ori"] != "ORIAXES"
+                and state.get("motion_ori") in ("G1", "G2", "G3")):
+            raise _refuse(path, i, t.start + 1, f"'{t.letter}{t.text}' under TRAORI with {state['ori']} (the "
+                          "control's default): the tool swings on a large circle, not linearly in the axes as "
+                          "compensated pieces are written; write ORIAXES after TRAORI")
 
 
 def _mark(i, state, on, g93, switch):
@@ -498,6 +568,24 @@ def inverse_time_lines(program, groups) -> list:
     return out
 
 
+END_OF_BLOCK_M = re.compile(r"[ \t]*M[ \t]*0*129(?![0-9.])", re.IGNORECASE)
+
+
+def end_of_block_word_last(group: list) -> list:
+    """The output lines of one split move with its end-of-block M word (``M129``: TCP off at the end of the
+    block) moved from the first piece to the last, so TCP stays on over every piece."""
+    if len(group) < 2:
+        return group
+    first = group[0]
+    cut = min([k for k in (first.find("("), first.find(";")) if k >= 0] + [len(first)])
+    m = END_OF_BLOCK_M.search(first[:cut])
+    if m is None:
+        return group
+    last = group[-1].rstrip("\r\n")
+    return ([first[:m.start()] + first[m.end():]] + list(group[1:-1])
+            + [f"{last} {m.group(0).strip()}{group[-1][len(last):]}"])
+
+
 def render_tcp(program, vertices, header=()) -> str:
     """:func:`compensation.gcode.render_program` of a program the pre-pass read: the G93 feeds of split moves
     rewritten (:func:`inverse_time_lines`); in a Heidenhain program every added block ends with ``*`` and the
@@ -506,6 +594,8 @@ def render_tcp(program, vertices, header=()) -> str:
     _, groups = render_program(program, vertices)
     if program.tcp.inverse_time.any():
         groups = inverse_time_lines(program, groups)
+    for i in program.tcp.off_at_end:
+        groups[i] = end_of_block_word_last(groups[i])
     if program.dialect != "heidenhain-iso":
         return _with_header([ln for g in groups for ln in g], program.notes() + tuple(header))
     out = []

@@ -70,6 +70,7 @@ SIEMENS = """G21 G90 G17
 T1 D1 M6
 G54
 TRAORI
+ORIWKS ORIAXES
 G0 X0 Y0 Z50 A0 C0
 G1 Z5 F800
 G1 X20 Y10 Z2 A-20 C30
@@ -77,6 +78,18 @@ G1 X30 Y-10 Z0 A-35 C90
 TRAFOOF
 M30
 """
+HEIDENHAIN_M129 = """%TCPM G71 *
+N10 T1 G17 S4000 *
+N20 G54 *
+N30 G00 X+0 Y+0 Z+50 A+0 C+0 M128 F1000 *
+N40 G01 Z+5 F800 *
+N50 X+20 Y+10 Z+2 A-20 C+30 *
+N60 X+30 Y-10 Z+0 A-35 C+90 M129 *
+N70 G00 X+0 Y+0 Z-150 A+0 C+0 *
+N99999999 %TCPM G71 *
+"""
+"""Heidenhain's M128 with the feed of its compensating movements (the F after it) and M129 on the last move:
+M128 acts from the start of its block, M129 at the end of its block (the iTNC 530 / TNC 620 ISO manuals)."""
 HAAS = """%
 O2001
 G21 G90 G17
@@ -122,7 +135,7 @@ def tcp_lines(text):
         body = line.split("(")[0].split(";")[0].upper()
         if re.search(r"G43\.4|G234|M428|M128|TRAORI", body):
             on = True
-        if re.search(r"G49|M429|M129|TRAFOOF", body):
+        if re.search(r"G49|M429|TRAFOOF", body):
             on = False
         g = re.findall(r"G0*([0123])(?![\d.])", body)
         if g:
@@ -131,6 +144,8 @@ def tcp_lines(text):
         if words and "G53" not in body:
             pos.update({k: float(v) for k, v in words.items()})
             out.append((i, on and feed, [pos[w] for w in "XYZAC"]))
+        if re.search(r"M129", body):  # Heidenhain: TCP off at the end of the block
+            on = False
     return out
 
 
@@ -170,6 +185,7 @@ def check_tcp_output(models, prog, out):
 
 @pytest.mark.parametrize("text,dialect,name", [(FANUC, "fanuc", "fanuc.nc"), (LINUXCNC, "linuxcnc", "lcnc.ngc"),
                                                 (HEIDENHAIN, "heidenhain-iso", "tnc.h"), (SIEMENS, "siemens-iso", "sin.mpf"),
+                                                (HEIDENHAIN_M129, "heidenhain-iso", "tnc129.h"),
                                                 (HAAS, "haas", "haas.nc")])
 def test_tcp_program_compensated_in_tcp_form(models, text, dialect, name):
     rc, entry, prog, out = run(models, text, dialect, name)
@@ -180,6 +196,20 @@ def test_tcp_program_compensated_in_tcp_form(models, text, dialect, name):
     assert check_tcp_output(models, prog, out).max() <= TRUE_EXACT_UM
     if dialect == "heidenhain-iso":  # every block of a Heidenhain program, added ones too, ends with '*'
         assert all(ln.rstrip().endswith("*") for ln in out.read_text().splitlines() if ln.strip())
+
+
+def test_m129_acts_at_the_end_of_its_block(models):
+    """A split move carrying M129 keeps TCP over every piece: M129 is written once, on its last piece (the next
+    line is the source's next block), and every piece's TRUE tip lies on the programmed path (the parametrized
+    test above, which reads M129 at the end of its block)."""
+    rc, entry, prog, out = run(models, HEIDENHAIN_M129, "heidenhain-iso", "tnc129.h", out="o129")
+    assert rc == 0
+    lines = out.read_text().splitlines()
+    at = [k for k, ln in enumerate(lines) if "M129" in ln]
+    assert len(at) == 1 and lines[at[0] + 1].startswith("N70 G00")
+    first = next(k for k, ln in enumerate(lines) if ln.startswith("N60"))
+    assert at[0] > first  # split: the first piece keeps N60, the last carries M129
+    assert "F1000" in lines[next(k for k, ln in enumerate(lines) if ln.startswith("N30"))]  # written as it was
 
 
 def test_fanuc_tcp_true_residual_with_an_imperfect_model(models):
@@ -242,7 +272,15 @@ def test_g93_block_times_kept(models, text, dialect, name):
     (SIEMENS.replace("TRAORI", "TRAORI(1,0,0,1)"), "siemens-iso", "line 4, column 1: 'TRAORI' with parameters"),
     (SIEMENS.replace("T1 D1 M6", "T1 M6"), "siemens-iso", "line 4, column 1: 'TRAORI' with no tool length"),
     (SIEMENS.replace("G1 X20 Y10 Z2 A-20 C30", "G1 X20 Y10 Z2 A3=0 B3=-0.5 C3=0.866"), "siemens-iso",
-     "line 7, column 15: 'A3=' (Siemens tool orientation"),
+     "line 8, column 15: 'A3=' (Siemens tool orientation"),
+    (SIEMENS.replace("ORIWKS ORIAXES\n", ""), "siemens-iso", "line 7, column 15: 'A-20' under TRAORI with ORIVECT "
+     "(the control's default): the tool swings on a large circle, not linearly in the axes"),
+    (SIEMENS.replace("ORIWKS ORIAXES", "ORIAXES\nORIVECT"), "siemens-iso", "line 9, column 15: 'A-20' under TRAORI "
+     "with ORIVECT"),
+    (SIEMENS.replace("ORIWKS ORIAXES", "ORICONCW"), "siemens-iso", "line 5, column 1: 'ORICONCW' (Siemens orientation "
+     "interpolation): not interpretable exactly; write ORIAXES"),
+    (FANUC.replace("G54\n", "G54\nORIAXES\n"), "fanuc", "line 6, column 1: 'ORIAXES' (tool-centre-point control) is a "
+     "word of siemens-iso"),
     (LINUXCNC.replace("X20 Y10 Z2 A-20 C30 F30", "X20 Y10 Z2 A-20 C30"), "linuxcnc", "line 9, column 1: G1 under G93"),
     (FANUC.replace("G54\n", "G54\nG68.2 X0 Y0 Z0 I0 J30 K0\n"), "fanuc", "line 6, column 1: 'G68.2' (tilted work plane)"),
     (LINUXCNC.replace("M428\nG0 X0 Y0 Z50 A0 C0", "G0 X0 Y0 Z-300 A0 C0\nM428\nG0 X0 Y0 Z50"), "linuxcnc",

@@ -1,35 +1,68 @@
 """5-axis programs in tool-centre-point mode on ``five-axis-ac``: TRUE residual of the tool tip (μm) and of the
-tool axis (μrad) before / after compensation, position-only vs position + orientation, for a LinuxCNC program
-(M428 switchable kinematics, G43 H1, G93 inverse time) and the same path posted for Fanuc (G43.4 H1) and in
-joint mode (axis words).
+tool axis (μrad) before / after compensation, position-only vs position + orientation
+(``--compensate-orientation``), for LinuxCNC's two 5-axis demo programs (when fetched), a program of their shape
+written here, and one helical contour posted three ways (LinuxCNC TCP, Fanuc G43.4, joint mode).
 
-The program is the benchmark's own (written here): a 5-axis helical contour, the tool tip on a circle of
-40 mm radius rising from Z 5 to Z 25 mm over 720° of C, the tool tilted by A from -15° to -45°. Truth: a
-seeded element set (±10 μm / μrad, 1 σ); models: the truth itself (what the method leaves) and the truth with
-seeded station noise of 0.5 μm / μrad (1 σ; a model's own error). Tool length 120 mm, work offset
-(10, -5, 20) mm. Run: ``python -m benchmarks.run tcp`` (about a minute; ``--quick``: the LinuxCNC program
-only)."""
+LinuxCNC's demos: the FeatureCAM "Hermle" ``boat-xyzac.ngc`` and the impeller program of the ``xyzac-trt`` sim
+config (the same kinematics as ``five-axis-ac``: A tilts about x, C turns on A, X Y Z move the spindle): ``M428``
+switches TCP on, ``T1 M6`` with no ``G43`` (the machine file's own tool point, its ``[tcp]
+tool_length_under_g49``), ``G93`` inverse time. They are GPL-2.0 and not stored here:
+``program_corpus/TCP_DEMOS.csv`` names each (repository, path, commit, sha256 of the bytes counted) and the Z
+of its G54 (the boat's touch-off puts the table at program Z -13.25: 13.25 puts it on the C table top; the
+impeller's lowest tip is at Z -0.54: 40 keeps its blank above the table). Put them, under the ``file``
+column's names, in the folder ``$VOLCOMP_PROGRAM_CORPUS`` (the folder of ``gcode_corpus``'s programs, which
+counts them too); without them the section shows the program of the same shape written here
+(:func:`demo_shape_program`): 3-axis roughing at ``A0 C0`` with arcs, then flowline finishing passes under
+``G93`` with the tool tilted by A from -5.5° to -33°.
+
+The helical contour (written here): the tool tip on a circle of 40 mm radius rising from Z 5 to Z 25 mm over
+720° of C, the tool tilted by A from -15° to -45°; tool 1 of 120 mm (``G43 H1``), work offset (10, -5, 20) mm.
+
+Truth: a seeded element set of ``five-axis-ac`` (seed ``--seed``, ±10 μm / μrad 1 σ); model: the truth with
+seeded station noise of 0.5 μm / μrad 1 σ (seed + 1: a model's own error). Residual kind: TRUE (the product's
+``--truth``: the truth machine driven with the written program, against the programmed tip and tool axis).
+Where the tool is vertical (A = 0: the demos' roughing) the C axis turns the tool about itself, so the rotary
+axes can turn only one of the two tilt components out; such points keep their programmed rotary axes
+(``compensation.tcp.ORIENT_ROTARY_LIMIT_DEG``) and are counted apart.
+
+    python -m benchmarks.run tcp          # about a minute with the demos, 20 s without
+    python -m benchmarks.run tcp --quick  # the LinuxCNC helix post and the demo-shaped program
+"""
 from __future__ import annotations
 
+import csv
+import hashlib
 import json
+import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from compensation.app.cli import main  # noqa: E402
-from compensation.gcode import split_lines, tokenize  # noqa: E402
-from errormap.machine import load_machine  # noqa: E402
-from errormap.chain_elements import ChainElementSet  # noqa: E402
+from compensation.app.cli import main
+from compensation.gcode import split_lines, tokenize
+from errormap.chain_elements import ChainElementSet
+from errormap.machine import load_machine
 
+MACHINE = "five-axis-ac"
+MANIFEST = Path(__file__).resolve().parents[1] / "program_corpus" / "TCP_DEMOS.csv"
+CORPUS_ENV = "VOLCOMP_PROGRAM_CORPUS"
 OFFSET = np.array([10.0, -5.0, 20.0])
+"""The helix posts' G54 (mm)."""
 LENGTH_MM = 120.0
+"""The helix posts' tool 1 (mm)."""
+DEMO_OFFSET_Z_MM = 13.25
+"""G54 Z of the demo-shaped program: the boat's (its table at program Z -13.25)."""
 STEPS = 144
 NOISE = 0.5
+"""The model's station noise (μm / μrad, 1 σ)."""
+FEED_MM_MIN = 600.0
+"""The demo-shaped program's finishing feed: its G93 F is 600 / block length (1 / minutes)."""
 
 
+# ---------------------------------------------------------------------------- the programs written here
 def path_points():
-    """Tip (n, 3) mm in the workpiece frame (program coordinates) and A, C (n, 2) deg."""
+    """The helix: tip (n, 3) mm in the workpiece frame (program coordinates) and A, C (n, 2) deg."""
     t = np.linspace(0.0, 1.0, STEPS + 1)
     c = 720.0 * t
     a = -15.0 - 30.0 * 0.5 * (1 - np.cos(2 * np.pi * t))
@@ -37,19 +70,19 @@ def path_points():
     return tip, np.column_stack([a, c])
 
 
-def programs(mt):
+def helix_programs(mt):
+    """``{file: (dialect, lines)}``: the helix as LinuxCNC TCP (M428, G43 H1, G93), Fanuc G43.4 and joint mode."""
     tip, rot = path_points()
     body = [f"X{x:.4f} Y{y:.4f} Z{z:.4f} A{a:.4f} C{c:.4f}" for (x, y, z), (a, c) in zip(tip, rot)]
     lcnc = ["(5-axis helical contour, TCP kinematics, inverse time)", "G21 G90 G17", "G54", "T1 M6", "G43 H1", "M428",
             f"G0 {body[0]}", "G93"] + [f"G1 {b} F{STEPS / 0.5:.1f}" if k == 0 else f"{b} F{STEPS / 0.5:.1f}"
                                        for k, b in enumerate(body[1:])] + ["G94", "M429", "G49", "M2"]
     fanuc = ["%", "O4711 (5-AXIS HELIX)", "G21 G90 G17", "T1 M6", "G54", f"G43.4 H1 G0 {body[0]}"] + \
-            [f"G1 {body[1]} F600." ] + body[2:] + ["G49", "M30", "%"]
+            [f"G1 {body[1]} F600."] + body[2:] + ["G49", "M30", "%"]
     # joint mode: the controller's nominal inverse done by the post (axis words), tool length by G43 H1
     from compensation.nc_state import machine_with_tool
     m = machine_with_tool(mt, LENGTH_MM)
-    start = np.column_stack([np.full((len(tip), 3), -200.0), rot])
-    q, ok = m.inverse(tip + OFFSET, start)
+    q, ok = m.inverse(tip + OFFSET, np.column_stack([np.full((len(tip), 3), -200.0), rot]))
     assert ok.all()
     zprog = q[:, 2] - OFFSET[2] - LENGTH_MM  # machine Z = program Z + offset + tool length
     jb = [f"X{x - OFFSET[0]:.4f} Y{y - OFFSET[1]:.4f} Z{z:.4f} A{a:.4f} C{c:.4f}"
@@ -59,7 +92,49 @@ def programs(mt):
     return {"lcnc.ngc": ("linuxcnc", lcnc), "fanuc.nc": ("fanuc", fanuc), "joint.ngc": ("linuxcnc", joint)}
 
 
+def _roughing(rows=12, half_width=45.0, y0=-20.0, step=3.5):
+    """Z-level roughing at A0 C0: rows along X joined by half circles (G03 on the right, G02 on the left)."""
+    out = ["G01 Z-6.625 F300.0", f"X{-half_width:.3f} F600.0"]
+    for k in range(rows):
+        y = y0 + k * step
+        x_end = half_width if k % 2 == 0 else -half_width
+        out.append(("G01 " if k else "") + f"X{x_end:.3f}")
+        if k < rows - 1:
+            out.append(f"G0{3 if k % 2 == 0 else 2} X{x_end:.3f} Y{y + step:.3f} I0. J{step / 2:.4f}")
+    return out
+
+
+def _finish_pass(y0, points=60):
+    """One flowline pass under G93: tip (x, y, z) and A, C along it, F = FEED_MM_MIN / block length."""
+    t = np.linspace(0.0, 1.0, points)
+    s = np.sin(np.pi * t)
+    tip = np.column_stack([-35.0 + 71.0 * t, y0 + 3.0 * s, -1.4 - 3.5 * t - 0.6 * s + 0.02 * y0])
+    a = -5.5 - 27.5 * t ** 1.5
+    c = -25.6 - 50.0 * s + 0.8 * y0
+    lines = [f"G00 X{tip[0, 0]:.3f} Y{tip[0, 1]:.3f} A{a[0]:.3f} C{c[0]:.3f}", "Z3.0", "G93"]
+    for k in range(1, points):
+        f = FEED_MM_MIN / np.linalg.norm(tip[k] - tip[k - 1])
+        lines.append(("G01 " if k == 1 else "") + f"X{tip[k, 0]:.3f} Y{tip[k, 1]:.3f} Z{tip[k, 2]:.3f} "
+                     f"A{a[k]:.3f} C{c[k]:.3f} F{f:.4f}")
+    return lines + ["G94", "G00 Z5.0"]
+
+
+def demo_shape_program() -> str:
+    """A program in the shape of LinuxCNC's 5-axis demos (written here, not copied): ``M428`` TCP kinematics,
+    ``T1 M6`` and no ``G43``, roughing at ``A0 C0`` with arcs (about 40 blocks), then six flowline finishing
+    passes under ``G93`` (59 blocks each) with A from -5.5° to -33° and C swinging by 50°, ``M429`` at the end."""
+    lines = ["%", "M428 ;TCP:xyzac", "(XYZAC DEMO SHAPE: ROUGH Z LEVEL, FINISH FLOWLINE)", "G00 G17 G40 G90 G94",
+             "Z5", "T1 M6", "G54 X-49.65 Y-20. A0. C0. S630 M03", "G00 Z5.0 M08", "Z3.0"]
+    lines += _roughing() + ["G00 Z5.0", "", "( FINISH FLOWLINE )", "G54 S600"]
+    for y0 in (-16.0, -10.0, -4.0, 2.0, 8.0, 14.0):
+        lines += _finish_pass(y0)
+    lines += ["A0.", "M429 ;identity kins", "M5 M9", "M2", "%"]
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------- compensation through the CLI
 def noisy(truth, seed):
+    """The truth with seeded station noise of NOISE μm / μrad (1 σ): a model's own error."""
     rng = np.random.default_rng(seed)
     f = {}
     for k, v in truth.functions.items():
@@ -72,6 +147,7 @@ def noisy(truth, seed):
 
 
 def inverse_time_minutes(text):
+    """Sum of 1 / F over the G93 feed blocks of a program (minutes)."""
     t, g93 = 0.0, False
     for ln in split_lines(text):
         _, words, _ = tokenize(ln.rstrip("\n"))
@@ -83,60 +159,112 @@ def inverse_time_minutes(text):
     return t
 
 
-def compensate_rows(names=None):
-    mt = load_machine("five-axis-ac")
+def compensate(prog: Path, dialect: str, tables: tuple, model: Path, truth: Path, out: Path, orient: bool) -> dict:
+    """``volcomp compensate --method exact`` of ``prog`` on five-axis-ac with ``tables`` (work offsets, tool table):
+    the summary's entry for it, with the output program's text under ``"output"``."""
+    argv = ["compensate", str(prog), "--machine", MACHINE, "--model", str(model), "--method", "exact", "--out",
+            str(out), "--truth", str(truth), "--work-offsets", str(tables[0]), "--tool-table", str(tables[1]),
+            "--dialect", dialect, "--force"] + (["--compensate-orientation"] if orient else [])
+    rc = main(argv)
+    entry = json.loads((out / "compensate_summary.json").read_text())["files"][0]
+    if rc != 0:
+        raise RuntimeError(f"compensate {prog.name} returned {rc}")
+    return {**entry, "output": (out / prog.name).read_text(encoding="latin-1")}
+
+
+def program_row(name, prog, dialect, tables, model, truth, work: Path) -> dict:
+    """Position-only and position + orientation runs of one program: TRUE tip (μm) and tool axis (μrad) maxima
+    before / after; the points whose orientation the rotary axes turned out (solved) and the rest (kept)."""
+    pos = compensate(prog, dialect, tables, model, truth, work / f"{name}-pos", False)
+    ori = compensate(prog, dialect, tables, model, truth, work / f"{name}-ori", True)
+    o, p = ori["tcp"], pos["tcp"]
+    row = {"program": name, "points": pos["points"],
+           "tip_before_um": pos["true_uncompensated"]["max_um"], "tip_pos_um": pos["true"]["max_um"],
+           "tip_ori_um": ori["true"]["max_um"],
+           "axis_before_urad": p["true_orientation_uncompensated"]["max_urad"],
+           "axis_pos_urad": p["true_orientation"]["max_urad"], "axis_ori_urad": o["true_orientation"]["max_urad"],
+           "solved": o["orientation_solved_points"], "kept": o["orientation_kept_points"],
+           "g93_minutes_in_out": (inverse_time_minutes(prog.read_text(encoding="latin-1")),
+                                  inverse_time_minutes(ori["output"]))}
+    if o["orientation_solved_points"]:
+        row["axis_solved_before_urad"] = o["true_orientation_solved_uncompensated"]["max_urad"]
+        row["axis_solved_ori_urad"] = o["true_orientation_solved"]["max_urad"]
+    return row
+
+
+def fetched_demos(corpus) -> tuple[list, list]:
+    """``([(file name, path, G54 Z mm)], [file names missing or changed])`` of the manifest's demos in ``corpus``
+    (None: no folder given)."""
+    found, missing = [], []
+    for m in csv.DictReader(MANIFEST.open(encoding="utf-8")):
+        p = Path(corpus) / m["file"] if corpus else None
+        if p is not None and p.is_file() and hashlib.sha256(p.read_bytes()).hexdigest() == m["sha256"]:
+            found.append((m["file"], p, float(m["work_offset_z_mm"])))
+        else:
+            missing.append(m["file"])
+    return found, missing
+
+
+def compensate_rows(seed: int = 0, helix=("lcnc.ngc", "fanuc.nc", "joint.ngc"), corpus=None) -> list:
+    """One :func:`program_row` per program: the fetched demos, the demo-shaped program, the ``helix`` posts."""
+    mt = load_machine(MACHINE)
     rows = []
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
-        truth = ChainElementSet.random(mt, 0, 10.0, 11)
+        truth = ChainElementSet.random(mt, seed, 10.0, 11)
         tp = truth.save(d / "truth.json")
-        models = {"truth": tp, f"truth+{NOISE:g} noise": noisy(truth, 1).save(d / "est.json")}
+        model = noisy(truth, seed + 1).save(d / "model.json")
+        (d / "tt0.csv").write_text("tool,length_mm,radius_mm\n1,0,5\n")  # the sim's T1 (no G43 applies it)
+        demos, _ = fetched_demos(corpus)
+        (d / "xyzac-demo-shape.ngc").write_text(demo_shape_program())
+        demos.append(("xyzac-demo-shape.ngc", d / "xyzac-demo-shape.ngc", DEMO_OFFSET_Z_MM))
+        for name, path, z in demos:
+            (d / f"wo-{name}.csv").write_text(f"system,x_mm,y_mm,z_mm\nG54,0,0,{z:g}\n")
+            rows.append(program_row(name, path, "linuxcnc", (d / f"wo-{name}.csv", d / "tt0.csv"), model, tp, d))
         (d / "wo.csv").write_text("system,x_mm,y_mm,z_mm\nG54,%g,%g,%g\n" % tuple(OFFSET))
         (d / "tt.csv").write_text(f"tool,length_mm\n1,{LENGTH_MM}\n")
-        for name, (dialect, lines) in programs(mt).items():
-            if names is not None and name not in names:
-                continue
-            (d / name).write_text("\n".join(lines) + "\n")
-            for mname, mpath in models.items():
-                for orient in (False, True):
-                    out = d / f"o_{name}_{mname}_{orient}".replace(" ", "_").replace("+", "p")
-                    argv = ["compensate", str(d / name), "--machine", "five-axis-ac", "--model", str(mpath), "--method",
-                            "exact", "--out", str(out), "--truth", str(tp), "--work-offsets", str(d / "wo.csv"),
-                            "--tool-table", str(d / "tt.csv"), "--dialect", dialect, "--force"]
-                    rc = main(argv + (["--compensate-orientation"] if orient else []))
-                    e = json.loads((out / "compensate_summary.json").read_text())["files"][0]
-                    o = e["tcp"]
-                    row = {"program": name, "model": mname, "orientation": orient, "rc": rc, "points": e["points"],
-                           "true_before_um": e["true_uncompensated"]["max_um"], "true_after_um": e["true"]["max_um"],
-                           "true_after_rms_um": e["true"]["rms_um"],
-                           "orient_before_urad": o["true_orientation_uncompensated"]["max_urad"],
-                           "orient_after_urad": o["true_orientation"]["max_urad"],
-                           "orient_after_rms_urad": o["true_orientation"]["rms_urad"],
-                           "solved": o.get("orientation_solved_points"), "kept": o.get("orientation_kept_points")}
-                    if orient and o.get("orientation_solved_points"):
-                        row["orient_after_solved_urad"] = o["true_orientation_solved"]["max_urad"]
-                    if name == "lcnc.ngc":
-                        row["g93_minutes_in_out"] = (inverse_time_minutes((d / name).read_text()),
-                                                     inverse_time_minutes((out / name).read_text()))
-                    rows.append(row)
+        for name, (dialect, lines) in helix_programs(mt).items():
+            if name in helix:
+                (d / name).write_text("\n".join(lines) + "\n")
+                rows.append(program_row(name, d / name, dialect, (d / "wo.csv", d / "tt.csv"), model, tp, d))
     return rows
 
-TITLE = "Five-axis programs in TCP mode (`five-axis-ac`): tool tip and tool axis, before / after"
-DATA = ("the benchmark's 5-axis helical contour (145 points, A −15…−45°, C 0…720°) as LinuxCNC TCP (M428, G43 H1, "
-        "G93), Fanuc G43.4 and joint-mode posts; seeded truth ±10 μm / μrad; model = truth + 0.5 μm / μrad noise")
+
+# ---------------------------------------------------------------------------- the page's section
+TITLE = "Five-axis programs in TCP mode (`five-axis-ac`): tool tip and tool axis, position-only vs + orientation"
+DATA = ("LinuxCNC's 5-axis demos `boat-xyzac.ngc` and the impeller program (M428, no G43, G93; fetched into "
+        "`$VOLCOMP_PROGRAM_CORPUS` by `program_corpus/TCP_DEMOS.csv`), a program of their shape written here, and a "
+        "helical contour (145 points, A −15…−45°) as LinuxCNC TCP, Fanuc G43.4 and joint-mode posts; seeded truth "
+        "±10 μm / μrad; model = truth + 0.5 μm / μrad station noise")
+
+
+def figures(r) -> list:
+    """The page's figures of one program row."""
+    def fig(what, v, unit, anchor, av):
+        return {"what": f"{r['program']}: {what}", "value": v, "unit": unit, "residual": "true",
+                "anchor": anchor, "anchor_value": av}
+    out = [fig("tool tip, max — position only", r["tip_pos_um"], "μm", "uncompensated", r["tip_before_um"]),
+           fig("tool tip, max — position + orientation", r["tip_ori_um"], "μm", "uncompensated", r["tip_before_um"]),
+           fig("tool axis, max — position only", r["axis_pos_urad"], "μrad", "uncompensated", r["axis_before_urad"]),
+           fig(f"tool axis, max over all {r['points']} points — position + orientation", r["axis_ori_urad"], "μrad",
+               "uncompensated", r["axis_before_urad"])]
+    if r["kept"] and r["solved"]:
+        out.append(fig(f"tool axis, max over the {r['solved']} tilted points — position + orientation "
+                       f"({r['kept']} at A = 0 keep their rotary axes)", r["axis_solved_ori_urad"], "μrad",
+                       "uncompensated", r["axis_solved_before_urad"]))
+    return out
 
 
 def run(quick: bool, seed: int) -> dict:
-    rows = [r for r in compensate_rows(["lcnc.ngc"] if quick else None) if r["model"] != "truth"]
-    figs = []
-    for r in rows:
-        if not r["orientation"]:
-            figs.append({"what": f"{r['program']}: tool tip, max (position compensated)", "value": r["true_after_um"],
-                         "unit": "μm", "residual": "true", "anchor": "uncompensated", "anchor_value": r["true_before_um"]})
-        else:
-            figs.append({"what": f"{r['program']}: tool axis, max (`--compensate-orientation`)",
-                         "value": r["orient_after_urad"], "unit": "μrad", "residual": "true",
-                         "anchor": "uncompensated", "anchor_value": r["orient_before_urad"]})
-    g93 = next(r["g93_minutes_in_out"] for r in rows if "g93_minutes_in_out" in r)
-    notes = [f"G93 inverse-time program: {g93[0]:.4f} min in, {g93[1]:.4f} min out (feed time kept)."]
+    corpus = os.environ.get(CORPUS_ENV)
+    rows = compensate_rows(seed, ("lcnc.ngc",) if quick else ("lcnc.ngc", "fanuc.nc", "joint.ngc"),
+                           None if quick else corpus)
+    figs = [f for r in rows for f in figures(r)]
+    _, missing = fetched_demos(None if quick else corpus)
+    notes = [("LinuxCNC's demos not fetched on this run (`$VOLCOMP_PROGRAM_CORPUS`, `program_corpus/TCP_DEMOS.csv`): "
+              f"{', '.join(missing)}; the demo-shaped program stands in for them.") if missing else
+             "LinuxCNC's demos run from `$VOLCOMP_PROGRAM_CORPUS` (sha256 as in `program_corpus/TCP_DEMOS.csv`)."]
+    notes.append("G93 inverse time, total minutes in → out: " + "; ".join(
+        f"{r['program']} {r['g93_minutes_in_out'][0]:.4f} → {r['g93_minutes_in_out'][1]:.4f}"
+        for r in rows if r["g93_minutes_in_out"][0] > 0) + ".")
     return {"figures": figs, "notes": notes}
