@@ -4,6 +4,7 @@ TRUE residual checked independently (the written tips through the chain's own in
 driven on the truth), G93 block times kept, non-motion lines byte-identical, and what has no exact meaning
 refused with file, line and column. The test programs are written here from the controllers' manuals."""
 import json
+import re
 
 import numpy as np
 import pytest
@@ -260,6 +261,53 @@ def test_g93_block_times_kept(models, text, dialect, name):
     src, dst = times(prog.read_text()), times(out.read_text())
     assert len(dst) > len(src)  # split moves
     assert abs(sum(dst) - sum(src)) <= TIME_REL_TOL * sum(src)
+
+
+BLOCK_END_MM = 0.2
+"""A written piece ends its source block where its tip is within this of the block's programmed end (and its
+rotary words equal the block's): the compensation moves a tip by < 0.1 mm, the pieces of these blocks are
+millimetres long."""
+
+
+def g93_block_times(src: str, dst: str) -> list:
+    """Independent of the writer: ``[(programmed minutes, written minutes)]`` per G93 feed block of ``src``, the
+    written pieces grouped by where they end (each block's last piece ends at the block's end, BLOCK_END_MM)."""
+    def blocks(text):
+        out, g93 = [], False
+        rows = {i: p for i, _, p in tcp_lines(text)}
+        for i, ln in enumerate(text.splitlines()):
+            body = ln.split("(")[0].split(";")[0].upper()
+            g93 = (g93 or "G93" in body) and "G94" not in body
+            f = re.search(r"F\s*([\d.]+)", body)
+            if g93 and i in rows and f and not re.search(r"G0*0(?![\d.])", body):
+                out.append((np.array(rows[i]), 1.0 / float(f.group(1))))
+        return out
+    want, pieces = blocks(src), blocks(dst)
+    got, k = [], 0
+    for end, minutes in want:
+        t = 0.0
+        while True:
+            p, m = pieces[k]
+            k += 1
+            t += m
+            if np.linalg.norm(p[:3] - end[:3]) <= BLOCK_END_MM and np.allclose(p[3:], end[3:], atol=1e-5):
+                break
+        got.append((minutes, t))
+    assert k == len(pieces)  # every written G93 piece belongs to a block
+    return got
+
+
+@pytest.mark.parametrize("text,dialect,name", [(LINUXCNC, "linuxcnc", "lcnc.ngc"), (FANUC_ARC, "fanuc", "arc.nc")])
+def test_g93_time_of_every_block_kept(models, text, dialect, name):
+    """Every programmed G93 block takes its programmed time: the 1 / F of its written pieces add up to its own
+    1 / F (TIME_REL_TOL), block by block, and at least one block is split."""
+    rc, entry, prog, out = run(models, text, dialect, name, out=f"blocks-{name}")
+    assert rc == 0
+    pairs = g93_block_times(prog.read_text(), out.read_text())
+    assert len(pairs) >= 3
+    for want, got in pairs:
+        assert abs(got - want) <= TIME_REL_TOL * want
+    assert len(re.findall(r"F", out.read_text())) > len(re.findall(r"F", prog.read_text()))
 
 
 @pytest.mark.parametrize("text,dialect,what", [
