@@ -4,7 +4,7 @@ tool length are ignored vs used.
 Machine: built-in ``mill-xyz``; truth: a seeded element set (±10 μm / μrad, 1 σ; seed 101); model: the
 truth plus 0.3 μm / μrad noise per station and constant (seed 102; the estimate tests/test_mt_compensate.py
 uses). Program: ``tests/data/controller/g55_tool_linuxcnc.ngc`` (G55, G43 H1, a pocket with an arc),
-offset G55 = (200, 100, −150) mm, tool 1 of length 0 or 150 mm (or no G43: the file's 120 mm tool).
+offset G55 = (200, 100, −150) mm, tool 1 of length 0 and 150 mm (or no G43: the file's 120 mm tool).
 
 "ignored": the program's axes taken as machine axes with the file's tool (what the reader did before:
 G54/G55 as machine zero), then run by the controller with the real offset and tool; "used":
@@ -70,22 +70,28 @@ def run_program(prog, mt, truth, est, tools):
 
 
 TITLE = "Work offsets and tool lengths: compensated program with the controller's tables used vs ignored"
-DATA = ("built-in `mill-xyz`, seeded truth (±10 μm / μrad, seed 101), model = truth + 0.3 μm noise (seed 102); "
-        "`tests/data/controller/g55_tool_linuxcnc.ngc` (G55, G43 H1), G55 = (200, 100, −150) mm, tool 150 mm")
+DATA = ("built-in `mill-xyz`, seeded truth with angular errors (every element ±10 μm / μrad 1 σ: pitch, yaw, roll "
+        "and squareness; seed 101), model = truth + 0.3 μm / μrad noise (seed 102); "
+        "`tests/data/controller/g55_tool_linuxcnc.ngc` (G55, G43 H1), G55 = (200, 100, −150) mm, tool 1 of 0 or 150 mm")
+TOOL_LENGTHS_MM = (0.0, 150.0)
+"""Tool 1's lengths shown: a gauge-line tool and a long one; ignoring the table runs either at the machine
+file's 120 mm tool, an Abbe arm 120 mm or 30 mm off."""
 
 
 def run(quick: bool, seed: int) -> dict:
-    """One program, one tool length (150 mm): the same size quick and full (it takes a second)."""
+    """One program, both tool lengths: the same size quick and full (it takes a second)."""
     mt = load_machine("mill-xyz")
     truth, est = models(mt)
-    with tempfile.TemporaryDirectory() as d:
-        t = Path(d) / "tools.csv"
-        t.write_text("tool,length_mm\n1,150\n", encoding="utf-8")
-        n, before, ignored, tool_ignored, used = run_program(PROGRAM, mt, truth, est, read_tool_table(t))
+    figs = []
     fig = lambda what, v, anchor, av: {"what": what, "value": v, "unit": "μm", "residual": "true",  # noqa: E731
                                        "anchor": anchor, "anchor_value": av}
-    return {"figures": [
-        fig(f"tables used (`--work-offsets --tool-table`), max over {n} vertices", used[0],
-            "tables ignored (G55 as machine zero)", ignored[0]),
-        fig("offset used, tool length ignored, max", tool_ignored[0], "uncompensated", before[0]),
-    ], "notes": []}
+    with tempfile.TemporaryDirectory() as d:
+        for length in TOOL_LENGTHS_MM:
+            t = Path(d) / f"tools-{length:g}.csv"
+            t.write_text(f"tool,length_mm\n1,{length:g}\n", encoding="utf-8")
+            n, before, ignored, tool_ignored, used = run_program(PROGRAM, mt, truth, est, read_tool_table(t))
+            figs += [fig(f"tool {length:g} mm: tables used (`--work-offsets --tool-table`), max over {n} vertices",
+                         used[0], "tables ignored (G55 as machine zero, the file's 120 mm tool)", ignored[0]),
+                     fig(f"tool {length:g} mm: offset used, tool length ignored (the file's 120 mm), max",
+                         tool_ignored[0], "uncompensated", before[0])]
+    return {"figures": figs, "notes": []}
