@@ -4,7 +4,7 @@ the tool is called with ``T1 M6`` and no ``G43`` (LinuxCNC's kinematics then rea
 controlled point is the point the axes are referenced to, the machine file's own tool point), 3-axis roughing
 at ``A0 C0`` with an arc, then a 5-axis finish pass under ``G93``. Written here from LinuxCNC's manual (G-code
 overview, G93, M-code remapping) and the sim config's notes; the public demos themselves are not in the
-repository (their count: ``benchmarks/bench_tcp_demos.py``)."""
+repository (their figures: ``python -m benchmarks.run tcp``; their tests: tests/test_tcp_demos.py)."""
 import json
 import tomllib
 
