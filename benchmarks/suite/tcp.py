@@ -174,7 +174,8 @@ def compensate(prog: Path, dialect: str, tables: tuple, model: Path, truth: Path
 
 def program_row(name, prog, dialect, tables, model, truth, work: Path) -> dict:
     """Position-only and position + orientation runs of one program: TRUE tip (μm) and tool axis (μrad) maxima
-    before / after; the points whose orientation the rotary axes turned out (solved) and the rest (kept)."""
+    before / after; the points whose orientation the rotary axes turned out (solved) and the rest (kept); the
+    two written programs (``outputs``)."""
     pos = compensate(prog, dialect, tables, model, truth, work / f"{name}-pos", False)
     ori = compensate(prog, dialect, tables, model, truth, work / f"{name}-ori", True)
     o, p = ori["tcp"], pos["tcp"]
@@ -185,7 +186,8 @@ def program_row(name, prog, dialect, tables, model, truth, work: Path) -> dict:
            "axis_pos_urad": p["true_orientation"]["max_urad"], "axis_ori_urad": o["true_orientation"]["max_urad"],
            "solved": o["orientation_solved_points"], "kept": o["orientation_kept_points"],
            "g93_minutes_in_out": (inverse_time_minutes(prog.read_text(encoding="latin-1")),
-                                  inverse_time_minutes(ori["output"]))}
+                                  inverse_time_minutes(ori["output"])),
+           "outputs": (pos["output"], ori["output"])}
     if o["orientation_solved_points"]:
         row["axis_solved_before_urad"] = o["true_orientation_solved_uncompensated"]["max_urad"]
         row["axis_solved_ori_urad"] = o["true_orientation_solved"]["max_urad"]
@@ -249,8 +251,8 @@ def figures(r) -> list:
            fig(f"tool axis, max over all {r['points']} points — position + orientation", r["axis_ori_urad"], "μrad",
                "uncompensated", r["axis_before_urad"])]
     if r["kept"] and r["solved"]:
-        out.append(fig(f"tool axis, max over the {r['solved']} tilted points — position + orientation "
-                       f"({r['kept']} at A = 0 keep their rotary axes)", r["axis_solved_ori_urad"], "μrad",
+        out.append(fig(f"tool axis, max over the {r['solved']} points it turned out — position + orientation "
+                       f"(the other {r['kept']} keep their rotary axes)", r["axis_solved_ori_urad"], "μrad",
                        "uncompensated", r["axis_solved_before_urad"]))
     return out
 
@@ -261,7 +263,10 @@ def run(quick: bool, seed: int) -> dict:
                            None if quick else corpus)
     figs = [f for r in rows for f in figures(r)]
     _, missing = fetched_demos(None if quick else corpus)
-    notes = [("LinuxCNC's demos not fetched on this run (`$VOLCOMP_PROGRAM_CORPUS`, `program_corpus/TCP_DEMOS.csv`): "
+    notes = ["Points that keep their rotary axes: where the tool is vertical (A = 0, the roughing), C turns the tool "
+             "about itself and only one of the two tilt components can be turned out (tests/test_tcp_demos.py: every "
+             "kept point at |A| ≤ 3°)."]
+    notes += [("LinuxCNC's demos not fetched on this run (`$VOLCOMP_PROGRAM_CORPUS`, `program_corpus/TCP_DEMOS.csv`): "
               f"{', '.join(missing)}; the demo-shaped program stands in for them.") if missing else
              "LinuxCNC's demos run from `$VOLCOMP_PROGRAM_CORPUS` (sha256 as in `program_corpus/TCP_DEMOS.csv`)."]
     notes.append("G93 inverse time, total minutes in → out: " + "; ".join(
