@@ -1,4 +1,6 @@
-"""Every tutorial runs as written (docs/tutorials/*.md): its files are saved from the blocks titled with their
+"""Every tutorial runs as written (docs/tutorials/*.md), and so does every how-to guide that a fresh folder can
+run (RUNNABLE_HOWTOS; scale-out needs a Ray instance and an MLflow server, which tests/test_cluster.py and
+tests/test_fleet.py start): its files are saved from the blocks titled with their
 name, its `volcomp` lines run in order in one fresh folder, and every figure it shows — a block titled "output"
 (what the commands of the block before it print) or "NAME (excerpt)" (lines of a written file) — is found in what
 the run printed or wrote, each number within REL_TOL · |number| + ABS_TOL.
@@ -17,6 +19,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIALS = sorted(p for p in (ROOT / "docs" / "tutorials").glob("*.md") if p.name != "index.md")
+RUNNABLE_HOWTOS = [ROOT / "docs" / "how-to" / name for name in
+                   ("machine-file.md", "instrument-files.md", "export-to-controller.md")]
+"""How-to guides whose commands run in a fresh folder; each shows what its commands print, checked as a tutorial's."""
 REL_TOL = 0.02
 """Relative tolerance on each figure a tutorial shows (printed to 3-4 significant digits)."""
 ABS_TOL = 0.01
@@ -60,12 +65,19 @@ def run_volcomp(line: str) -> tuple:
 
 
 @pytest.mark.slow  # each tutorial is a whole workflow: 10-30 CPU s
-@pytest.mark.parametrize("page", TUTORIALS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("page", TUTORIALS + RUNNABLE_HOWTOS, ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_tutorial_runs_as_written_and_shows_its_figures(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     printed, ran = "", 0
     for lang, title, text in blocks(page):
-        if title and title != "output" and not title.endswith("(excerpt)"):
+        if lang == "bash" and title == "refused":
+            printed = ""
+            for line in text.splitlines():
+                if line.startswith("volcomp "):
+                    status, out = run_volcomp(line)
+                    assert status == 2 and "Traceback" not in out, f"{page.name}: {line}: exit {status}\n{out[-2000:]}"
+                    printed += out
+        elif title and title != "output" and not title.endswith("(excerpt)"):
             (tmp_path / title).parent.mkdir(parents=True, exist_ok=True)
             (tmp_path / title).write_text(text, encoding="utf-8")
         elif title == "output":
@@ -87,6 +99,34 @@ def test_tutorial_runs_as_written_and_shows_its_figures(page, tmp_path, monkeypa
 def test_every_tutorial_shows_figures_that_the_test_checks():
     """A tutorial without a checked figure would pass by running alone: each has an output block."""
     assert TUTORIALS
-    for page in TUTORIALS:
+    for page in TUTORIALS + RUNNABLE_HOWTOS:
         titles = [t for _, t, _ in blocks(page)]
         assert "output" in titles, page.name
+
+
+MACHINE_FILE_MISTAKES = (
+    ("stroke = [0.0, 800.0]", "stroke = [800.0, 0.0]"),
+    ('axis = "Y"', 'axis = "X"'),
+    ('tz = "beam_height"', 'tz = "beam_heigth"'),
+    ("stroke = [0.0, 1500.0]", 'stroke = [0.0, 1500.0]\nunits = "mm"'),
+    ('tz = "table_height"', 'tz = "table_height"\nerrors = true'),
+    ("Z = [[-80.0", "A = [[-80.0"),
+)
+"""One mistake per refusal line the machine-file how-to shows, made in the page's own my-gantry.toml."""
+
+
+def test_machine_file_howto_shows_the_refusals_volcomp_prints(tmp_path, monkeypatch):
+    """The refusal lines of docs/how-to/machine-file.md are what `volcomp simulate` prints for those mistakes."""
+    page = ROOT / "docs" / "how-to" / "machine-file.md"
+    good = next(text for _, title, text in blocks(page) if title == "my-gantry.toml")
+    shown = [line for _, title, text in blocks(page) if title is None
+             for line in text.splitlines() if line.startswith("volcomp simulate: error:")]
+    monkeypatch.chdir(tmp_path)
+    printed = []
+    for old, new in MACHINE_FILE_MISTAKES:
+        assert good.count(old) == 1, old
+        (tmp_path / "my-gantry.toml").write_text(good.replace(old, new), encoding="utf-8")
+        status, out = run_volcomp("volcomp simulate --machine my-gantry.toml --seed 0 --out sim")
+        assert status == 2 and "Traceback" not in out, out
+        printed += [line for line in out.splitlines() if "error:" in line]
+    assert shown == printed
