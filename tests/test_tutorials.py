@@ -130,3 +130,43 @@ def test_machine_file_howto_shows_the_refusals_volcomp_prints(tmp_path, monkeypa
         assert status == 2 and "Traceback" not in out, out
         printed += [line for line in out.splitlines() if "error:" in line]
     assert shown == printed
+
+
+@pytest.mark.slow  # simulates, identifies and reads six files: ~10 CPU s
+def test_instrument_files_howto_shows_the_refusals_volcomp_prints(tmp_path, monkeypatch):
+    """The refusal lines of docs/how-to/instrument-files.md are what volcomp prints for those mistakes, made in
+    the files the page's own commands write (the drift log: a simulated one, 16 h at 60 s)."""
+    import pandas as pd
+
+    from errormap.diagnosis.drift_sim import simulate_lumped_log
+
+    page = ROOT / "docs" / "how-to" / "instrument-files.md"
+    shown = [line for _, title, text in blocks(page) if title is None
+             for line in text.splitlines() if line.startswith("volcomp ") and ": error: " in line]
+    monkeypatch.chdir(tmp_path)
+    for line in ("volcomp sweeps --machine mill-xyz --seed 3 --out example_sweeps.csv",
+                 "volcomp simulate --machine mill-xyz --seed 3 --out example",
+                 "volcomp identify example_sweeps.csv --machine mill-xyz --out E.json"):
+        assert run_volcomp(line)[0] == 0, line
+    checks, sweeps = pd.read_csv("example/checks.csv"), pd.read_csv("example_sweeps.csv")
+    metres = checks.copy()
+    metres[["x_mm", "y_mm", "z_mm"]] /= 1000
+    metres.to_csv("checks_in_metres.csv", index=False)
+    checks.drop(columns=["dz_um"]).to_csv("checks_no_dz.csv", index=False)
+    sweeps.drop(columns=["target"]).to_csv("sweeps_no_target.csv", index=False)
+    text = sweeps.astype({"x_mm": object})
+    text.loc[5, "x_mm"] = "n/a"  # file row 7: the header is row 1
+    text.to_csv("sweeps_text.csv", index=False)
+    log = pd.DataFrame({k: v for k, v in simulate_lumped_log(0, hours=16, dt_s=60).items() if k != "_truth"})
+    log.loc[10, "time_s"] = log.loc[9, "time_s"]
+    log.to_csv("log_time.csv", index=False)
+    printed = []
+    for line in ("volcomp diagnose checks_in_metres.csv --model E.json --machine mill-xyz --noise-um 1 --out d1",
+                 "volcomp diagnose checks_no_dz.csv --model E.json --machine mill-xyz --noise-um 1 --out d2",
+                 "volcomp identify sweeps_no_target.csv --machine mill-xyz --out E1.json",
+                 "volcomp identify sweeps_text.csv --machine mill-xyz --out E2.json",
+                 "volcomp diagnose --drift log_time.csv --out d3"):
+        status, out = run_volcomp(line)
+        assert status == 2 and "Traceback" not in out, out
+        printed += [ln for ln in out.splitlines() if ": error: " in ln]
+    assert shown == printed
