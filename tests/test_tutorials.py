@@ -1,9 +1,10 @@
-"""Every tutorial runs as written (docs/tutorials/*.md), and so does every how-to guide that a fresh folder can
-run (RUNNABLE_HOWTOS; scale-out needs a Ray instance and an MLflow server, which tests/test_cluster.py and
-tests/test_fleet.py start): its files are saved from the blocks titled with their
-name, its `volcomp` lines run in order in one fresh folder, and every figure it shows — a block titled "output"
-(what the commands of the block before it print) or "NAME (excerpt)" (lines of a written file) — is found in what
-the run printed or wrote, each number within REL_TOL · |number| + ABS_TOL.
+"""Every tutorial runs as written (docs/tutorials/*.md), and so does every how-to guide a fresh folder can run
+(RUNNABLE_HOWTOS; the scale-out guide needs Ray and an MLflow server, which tests/test_cluster.py starts, and the
+five-axis guide the five-axis tutorial's model): its files are saved from the blocks titled with their name, the
+`volcomp` lines of its `bash` blocks run in order in one fresh folder (a block titled "refused" must be refused,
+exit status 2; a `shell` block needs the user's own files and is not run here), and every figure it shows — a
+block titled "output" (what the commands of the block before it print) or "NAME (excerpt)" (lines of a written
+file) — is found in what the run printed or wrote, each number within REL_TOL · |number| + ABS_TOL.
 
 The runs are seeded, so the figures repeat exactly on one machine; the tolerance covers what differs between
 machines (BLAS, CPU kernels: the last printed digit of a fitted figure), not a change of result."""
@@ -170,3 +171,33 @@ def test_instrument_files_howto_shows_the_refusals_volcomp_prints(tmp_path, monk
         assert status == 2 and "Traceback" not in out, out
         printed += [ln for ln in out.splitlines() if ": error: " in ln]
     assert shown == printed
+
+
+@pytest.mark.slow  # a drift model from a 16 h log and two exports: ~15 CPU s
+def test_export_howto_drift_step_shows_what_volcomp_prints(tmp_path, monkeypatch):
+    """Step 5 of docs/how-to/export-to-controller.md needs the user's own log, so the page's run leaves it out:
+    here it runs on the simulated log the page describes (16 h sampled every 60 s), and its output block and
+    its refusal line are what volcomp prints."""
+    import pandas as pd
+
+    from errormap.diagnosis.drift_sim import simulate_lumped_log
+
+    page = ROOT / "docs" / "how-to" / "export-to-controller.md"
+    found = blocks(page)
+    commands = next(text for lang, _, text in found if lang == "shell" and "--drift" in text)
+    shown = next(text for lang, title, text in found if title is None and "check (controller re-simulated" in text)
+    refusal = next(line for _, title, text in found if title is None for line in text.splitlines()
+                   if line.startswith("volcomp export: error: tolerance not met: at a sample period"))
+    monkeypatch.chdir(tmp_path)
+    log = pd.DataFrame({k: v for k, v in simulate_lumped_log(0, hours=16, dt_s=60).items() if k != "_truth"})
+    log.to_csv("machine_log.csv", index=False)
+    printed = ""
+    for line in commands.splitlines():
+        status, out = run_volcomp(line)
+        assert status == 0, out[-2000:]
+        printed += out
+    check_figures(shown, printed, f"{page.name}, drift step")
+    status, out = run_volcomp("volcomp export ddiag/drift_model.json --format drift --log machine_log.csv "
+                              "--sample-period-s 300 --out out/drift300")
+    assert status == 2
+    check_figures(refusal, out, f"{page.name}, drift refusal")
