@@ -195,10 +195,13 @@ def test_builtin_machine_tool_loads_by_name(name):
 
 
 def test_machines_page_example_loads(tmp_path):
+    """The machine files of the how-to and of the reference page load (a block may carry a title)."""
     import re
-    text = (Path(__file__).resolve().parents[1] / "docs" / "how-to" / "machine-file.md").read_text(encoding="utf-8")
-    blocks = re.findall(r"```toml\n(.*?)```", text, flags=re.S)
-    assert blocks
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    text = "".join((docs / page).read_text(encoding="utf-8")
+                   for page in ("how-to/machine-file.md", "reference/machine-tool-chains.md"))
+    blocks = re.findall(r"```toml(?:[ \t]+title=\"[^\"]*\")?\n(.*?)```", text, flags=re.S)
+    assert len(blocks) >= 2
     for i, b in enumerate(blocks):
         p = tmp_path / f"m{i}.toml"
         p.write_text(b, encoding="utf-8")
