@@ -126,7 +126,6 @@ SIMULATOR_NAMES = tuple(k.simulator for k in EFFECT_KINDS if k.simulator)
 """The names the simulator knows its effects by (``--effect``, ``truth.json``)."""
 TRUTH_ONLY = tuple(k.simulator for k in EFFECT_KINDS if k.truth_only)
 """Simulator effects no kind of the diagnosis represents."""
-SINUSOID_KINDS = tuple(k.name for k in EFFECT_KINDS if k.diagnosed and k.nonlinear)
 
 
 def effect_kind(name) -> EffectKind:

@@ -105,11 +105,6 @@ class CalibratedVolume:
         object.__setattr__(self, "lo", tuple(float(v) for v in lo))
         object.__setattr__(self, "hi", tuple(float(v) for v in hi))
 
-    @classmethod
-    def from_stations(cls, stations: dict, names=GRINDER_AXES) -> "CalibratedVolume":
-        """The range of measured stations per axis: ``stations[name]`` arrays, shape (m_k,)."""
-        return cls([float(np.min(stations[k])) for k in names], [float(np.max(stations[k])) for k in names], names)
-
     @property
     def lo_array(self) -> np.ndarray:
         """``lo`` as a float array, shape (k,)."""

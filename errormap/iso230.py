@@ -60,7 +60,6 @@ ISO_NAME = dict(ELEMENT_SLOTS)
 """Project element name -> ISO 230-1 name (one-to-one): the grinder chain's slots and their ISO names."""
 ISO_NAMES = tuple(ISO_NAME[k] for k in ELEMENT_NAMES)
 """The 23 ISO names, in ELEMENT_NAMES order."""
-ELEMENT_OF = {v: k for k, v in ISO_NAME.items()}
 
 ISO_MEANING = {
     "EXX": "positioning error of X", "EYX": "straightness of X in Y", "EZX": "straightness of X in Z",
@@ -74,7 +73,6 @@ ISO_MEANING = {
     "EB0A": "tilt of the A axis line about Y", "EC0A": "tilt of the A axis line about Z",
     "EB0Z": "squareness of Z to X (about Y)",
 }
-BODIES = ("X", "Z", "A")
 BODY_OF = {**{k: "X" for k in X_ELEMENTS}, **{k: "Z" for k in Z_ELEMENTS}, **{k: "A" for k in A_ELEMENTS},
            "dy_oa": "A", "dz_oa": "A", "ey_oa": "A", "ez_oa": "A", "s_xz": "Z"}
 CARRIES = {"X": "workpiece", "Z": "wheel (tool)", "A": "workpiece"}

@@ -42,7 +42,6 @@ MT_SCHEMA_VERSION = 1
 AXIS_WORDS = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
 """Axis words in canonical order (the order of the machine's axes columns)."""
 LINEAR_WORDS = ("X", "Y", "Z", "U", "V", "W")
-ROTARY_WORDS = ("A", "B", "C")
 DEFAULT_ALONG = {"X": "x", "Y": "y", "Z": "z", "U": "x", "V": "y", "W": "z", "A": "x", "B": "y", "C": "z"}
 JOINT_KINDS = ("linear", "rotary")
 COMPONENTS = ("dx", "dy", "dz", "ex", "ey", "ez")

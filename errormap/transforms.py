@@ -91,11 +91,6 @@ def apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.einsum("...ij,...j->...i", R, v)
 
 
-def apply_T(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Batched ``R.T @ v`` (the inverse rotation): shapes as :func:`apply`."""
-    return np.einsum("...ji,...j->...i", R, v)
-
-
 # -- rigid transforms as (R (n,3,3), t (n,3)) pairs ------------------------------------------
 def compose(a, b):
     """``a·b`` for batched rigid transforms ``(R, t)``; shapes broadcast over the batch."""
