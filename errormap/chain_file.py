@@ -43,7 +43,8 @@ from __future__ import annotations
 import numpy as np
 
 from .chain import ET_TYPES, Chain, Joint, base_ets, dh_ets, et, mdh_ets, tool_ets
-from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
+from .machine_checks import (MachineFileError, check_array, check_known_keys, check_number, check_range, check_table,
+                             short_repr)
 
 SERIAL_SCHEMA_VERSION = 1
 JOINT_TYPES = ("revolute", "prismatic")
@@ -63,14 +64,7 @@ TOOL_METRES_RATIO = 1e-3       # a nonzero tool point under 1/1000 of the links'
 def _joint_limits(d: dict, where: str, jtype: str, path) -> tuple[float, float]:
     if "limits" not in d:
         raise MachineFileError(f"{path}: missing key '{where}.limits'")
-    lim = check_array(d["limits"], (2,), f"{where}.limits", path)
-    if not lim[1] > lim[0]:
-        raise MachineFileError(f"{path}: key '{where}.limits': expected [lo, hi] with hi > lo (a zero or inverted "
-                               f"stroke), got {d['limits']!r}")
-    if jtype == "revolute" and np.all(np.abs(lim) <= 2 * np.pi + 1e-9) and lim[1] - lim[0] >= 1.0:
-        raise MachineFileError(f"{path}: key '{where}.limits': {d['limits']!r} lie within ±2π: radians rather than "
-                               "degrees? (revolute limits are in deg)")
-    return float(lim[0]), float(lim[1])
+    return check_range(d["limits"], f"{where}.limits", path, jtype == "revolute", "revolute limits")
 
 
 def _joint(d: dict, where: str, path, names: set) -> tuple[Joint, float]:

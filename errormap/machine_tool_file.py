@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .chain import AXES, Joint, et
-from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, short_repr
+from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_range, short_repr
 
 MT_SCHEMA_VERSION = 1
 AXIS_WORDS = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
@@ -168,14 +168,8 @@ def _joint_entry(d, where, path, side, words):
         raise MachineFileError(f"{path}: key '{where}.direction': expected 1 or -1, got {short_repr(d['direction'])}")
     if "stroke" not in d:
         raise MachineFileError(f"{path}: missing key '{where}.stroke' ([lo, hi] in {unit})")
-    st = check_array(d["stroke"], (2,), f"{where}.stroke", path)
-    if not st[1] > st[0]:
-        raise MachineFileError(f"{path}: key '{where}.stroke': expected [lo, hi] with hi > lo (a zero or inverted "
-                               f"stroke), got {d['stroke']!r}")
-    if kind == "rotary" and np.all(np.abs(st) <= 2 * np.pi + 1e-9) and st[1] - st[0] >= 1.0:
-        raise MachineFileError(f"{path}: key '{where}.stroke': {d['stroke']!r} lie within ±2π: radians rather than "
-                               "degrees? (rotary strokes are in deg)")
-    return MTAxis(word, kind, AXES.index(along), float(sign), (float(st[0]), float(st[1])), side)
+    stroke = check_range(d["stroke"], f"{where}.stroke", path, kind == "rotary", "rotary strokes")
+    return MTAxis(word, kind, AXES.index(along), float(sign), stroke, side)
 
 
 def _squareness(d, where, path, ax: MTAxis):
