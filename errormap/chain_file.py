@@ -1,42 +1,11 @@
-"""Machine files of ``kind = "serial"``: a serial chain as a DH / modified-DH table or an ET list.
+"""Machine files of ``kind = "serial"``: a serial chain as a DH / modified-DH table, an ET list or a URDF.
 
-Schema (``docs/reference/file-formats.md``, version 1)::
-
-    [machine]
-    kind = "serial"
-    name = "ur5"
-    schema = 1
-    convention = "dh"          # "dh" | "mdh" | "et" | "urdf"
-
-    [[link]]                   # convention dh / mdh: one per joint, in order
-    joint = "q1"               # joint name (CSV column q1_deg)
-    type = "revolute"          # or "prismatic" (the joint drives θ, resp. d)
-    dh = [0.0, 90.0, 89.159, 0.0]   # a_mm, alpha_deg, d_mm, theta_deg (mdh: a_{i-1}, alpha_{i-1}, d_i, theta_i)
-    limits = [-360.0, 360.0]   # deg (revolute) or mm (prismatic)
-    direction = 1              # optional, +1 / -1
-
-    [[et]]                     # convention et: ordered elementary transforms
-    type = "tz"                # tx ty tz (value mm) / rx ry rz (value deg)
-    value = 89.159             # a fixed transform, or ...
-    joint = "q1"               # ... a joint (with limits, direction; optional error = "name": a zero offset slot)
-
-    [urdf]                     # convention urdf: the chain between two links of a URDF (errormap.urdf)
-    file = "ur5.urdf"          # relative to this machine file
-    base_link = "base_link_inertia"
-    tip_link = "tool0"
-    joints = ["q1", "q2", "q3", "q4", "q5", "q6"]   # optional CSV stems of the moving joints (default URDF names)
-
-    [base]                     # optional nominal base frame (default identity)
-    xyz_mm = [0, 0, 0]
-    rotation = [[1,0,0],[0,1,0],[0,0,1]]   # orthonormal, det +1
-    [tool]
-    xyz_mm = [0.0, 0.09, 31.0] # tool point in the last frame
-    [errors]                   # optional
-    beta = true                # Hayati β slot on links with parallel consecutive axes
-    base = true                # 6 base-frame slots
-    tool = true                # 3 tool-point slots
-
-Every error names the file, the table and the key and raises :class:`MachineFileError`.
+``convention`` ``"dh"`` | ``"mdh"`` (``[[link]]`` rows: ``dh = [a_mm, alpha_deg, d_mm, theta_deg]``, joint
+``limits`` deg or mm), ``"et"`` (``[[et]]``: ``tx ty tz`` mm, ``rx ry rz`` deg, fixed or a joint) or ``"urdf"``
+(``[urdf]``: the chain between two links, :mod:`errormap.urdf`); optional ``[base]``, ``[tool]`` (mm) and
+``[errors]`` (``beta``, ``base``, ``tool`` slots). Schema, version 1, with a full example:
+``docs/reference/file-formats.md`` (serial arms). Every error names the file, the table and the key and
+raises :class:`MachineFileError`.
 """
 from __future__ import annotations
 
