@@ -17,12 +17,9 @@
   stabilised.
 
 ``ridge_ols`` / ``pls_ols`` (:class:`RidgeTowardOLSFamily`, :class:`PLSTowardOLSFamily`): the filter
-bank fitted to the OLS baseline's residual, so that the penalty (ridge λ, or fewer PLS components)
-pulls toward the baseline rather than toward zero; the largest λ is the baseline itself. They replace
-``ridge_bank`` / ``pls_bank`` among the default families (:func:`default_families`): on development
-seeds 100–109 (both simulators, both splits, 180 cases) the swap raised the held-out wins over OLS
-from 113 to 146 at the same 14 losses and cut the worst loss from 1.97× to 1.33×
-(``docs/decisions/020-benchmark-notebook.md``). ``ridge_bank`` / ``pls_bank`` stay available.
+bank fitted to the OLS baseline's residual, so that the penalty pulls toward the baseline rather than
+toward zero (the largest λ is the baseline itself); they replace ``ridge_bank`` / ``pls_bank`` among the
+default families (:func:`default_families`; measured in ``docs/decisions/020-benchmark-notebook.md``).
 """
 from __future__ import annotations
 
