@@ -13,7 +13,7 @@ import numpy as np
 
 from .chain import ET_TYPES, Chain, Joint, base_ets, dh_ets, et, mdh_ets, tool_ets
 from .machine_checks import (MachineFileError, check_array, check_known_keys, check_number, check_range, check_table,
-                             short_repr)
+                             optional_table, short_repr)
 
 SERIAL_SCHEMA_VERSION = 1
 JOINT_TYPES = ("revolute", "prismatic")
@@ -186,9 +186,7 @@ def parse_serial(doc: dict, path, sha: str = "") -> Chain:
         if other in doc and other != body_table[conv]:
             raise MachineFileError(f"{path}: key 'machine.convention': {conv!r} does not go with "
                                    f"{'[urdf]' if other == 'urdf' else f'[[{other}]]'}")
-    e = doc.get("errors", {})
-    if not isinstance(e, dict):
-        raise MachineFileError(f"{path}: 'errors': expected a table")
+    e = optional_table(doc, "errors", path, {})
     check_known_keys(e, ("beta", "base", "tool"), "errors", path)
     flags = {}
     for k in ("beta", "base", "tool"):
@@ -196,9 +194,7 @@ def parse_serial(doc: dict, path, sha: str = "") -> Chain:
         if not isinstance(v, bool):
             raise MachineFileError(f"{path}: key 'errors.{k}': expected true or false, got {short_repr(v)}")
         flags[k] = v
-    b = doc.get("base", {})
-    if not isinstance(b, dict):
-        raise MachineFileError(f"{path}: 'base': expected a table")
+    b = optional_table(doc, "base", path, {})
     check_known_keys(b, ("xyz_mm", "rotation"), "base", path)
     base_xyz = check_array(b["xyz_mm"], (3,), "base.xyz_mm", path) if "xyz_mm" in b else np.zeros(3)
     R = _rotation(b, path)

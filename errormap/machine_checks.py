@@ -62,6 +62,14 @@ def check_table(doc: dict, key: str, path) -> dict:
     return doc[key]
 
 
+def optional_table(doc: dict, key: str, path, default=None):
+    """The optional section ``[key]`` of ``doc`` (``default`` when absent), refused when it is not a table."""
+    t = doc.get(key, default)
+    if t is not None and not isinstance(t, dict):
+        raise MachineFileError(f"{path}: '{key}': expected a table")
+    return t
+
+
 def check_known_keys(section: dict, allowed, where: str, path) -> None:
     """Refuse keys of ``section`` outside ``allowed``, naming them as ``where.key``."""
     unknown = sorted(set(section) - set(allowed))

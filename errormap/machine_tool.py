@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .chain import Chain, ET, inverted
-from .machine_checks import MachineFileError, check_known_keys, check_number, check_table, short_repr
+from .machine_checks import MachineFileError, check_known_keys, check_number, check_table, optional_table, short_repr
 from .machine_tool_file import (AXIS_WORDS, COMPONENTS, MT_SCHEMA_VERSION, UM_MM, MTAxis, Slot, chain_side,
                                 read_spindle, read_targets, read_tcp)
 
@@ -486,9 +486,7 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
     if isinstance(ver, bool) or ver != MT_SCHEMA_VERSION:
         raise MachineFileError(f"{path}: key 'machine.schema': this volcomp reads machine-tool schema "
                                f"{MT_SCHEMA_VERSION}, got {short_repr(ver)}")
-    g = doc.get("geometry", {})
-    if not isinstance(g, dict):
-        raise MachineFileError(f"{path}: 'geometry': expected a table")
+    g = optional_table(doc, "geometry", path, {})
     geometry = {}
     for k in g:
         if not isinstance(k, str) or not k.isidentifier():
@@ -523,12 +521,13 @@ def parse_machine_tool(doc: dict, path, sha: str = "") -> MachineTool:
         raise MachineFileError(f"{path}: {exc}") from None
     by_name = {s.name: s for s in slots}
     slot_list = tuple(by_name[n] for n in chain.param_names)
-    targets = read_targets(doc.get("targets", {}), path, mt_axes)
+    targets = read_targets(optional_table(doc, "targets", path, {}), path, mt_axes)
     body_index = {**{w: ("work", k) for w, k in work_body.items()}, **{w: ("tool", k) for w, k in tool_body.items()}}
     return MachineTool(name=name, axes=mt_axes, slots=slot_list, chain=chain, work_ets=tuple(work_n),
                        tool_ets=tuple(tool_n), targets=targets, geometry=geometry, body_index=body_index,
                        path=str(path), sha256=sha, description=str(m.get("description", "")),
-                       spindle=read_spindle(doc.get("spindle"), path, mt_axes), tcp=read_tcp(doc.get("tcp"), path, mt_axes))
+                       spindle=read_spindle(optional_table(doc, "spindle", path), path, mt_axes),
+                       tcp=read_tcp(optional_table(doc, "tcp", path), path, mt_axes))
 
 
 def rotary_on_turn(a_deg, a_lo: float, unwrap: bool = True, a_start_deg: float | None = None) -> np.ndarray:

@@ -308,8 +308,6 @@ def read_tcp(t, path, axes):
     A machine without a rotary axis has no TCP mode."""
     if t is None:
         return None
-    if not isinstance(t, dict):
-        raise MachineFileError(f"{path}: 'tcp': expected a table")
     check_known_keys(t, ("switch_on", "switch_off", "tool_length_under_g49"), "tcp", path)
     if not any(a.kind != "linear" for a in axes):
         raise MachineFileError(f"{path}: 'tcp': the machine has no rotary axis (tool-centre-point kinematics need one)")
@@ -329,8 +327,6 @@ def read_spindle(t, path, axes):
     of M codes (``"M3"``); the codes are the machine's, so they live in its file."""
     if t is None:
         return None
-    if not isinstance(t, dict):
-        raise MachineFileError(f"{path}: 'spindle': expected a table")
     check_known_keys(t, ("axis", "turning_on", "turning_off"), "spindle", path)
     rotary = [a.word for a in axes if a.kind != "linear"]
     if t.get("axis") not in rotary:
@@ -349,8 +345,6 @@ def _m_codes(v, key: str, example: str, path) -> tuple:
 
 
 def read_targets(t, path, axes):
-    if not isinstance(t, dict):
-        raise MachineFileError(f"{path}: 'targets': expected a table")
     words = [a.word for a in axes]
     out = {}
     for k, v in t.items():

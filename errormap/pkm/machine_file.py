@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
-from ..machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table
+from ..machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, optional_table
 
 HEXAPOD_GEOMETRY_KEYS = (
     "base_joints_mm", "platform_joints_mm", "base_radius_mm", "platform_radius_mm",
@@ -125,9 +125,7 @@ def _parse_common(doc, path, kind, k, geometry_keys):
     if np.any(scale == 0):
         raise MachineFileError(f"{path}: key 'legs.scale': expected non-zero scales, got {scale}")
     offset = _leg_array(legs, "offset_mm", k, 0.0, path)
-    home = doc.get("home", {})
-    if not isinstance(home, dict):
-        raise MachineFileError(f"{path}: 'home': expected a table")
+    home = optional_table(doc, "home", path, {})
     check_known_keys(home, HOME_KEYS, "home", path)
     return name, g, lo, hi, scale, offset, home
 
