@@ -8,34 +8,26 @@ Per displacement channel, on the earlier ``fit_fraction`` of the log (by time), 
     d(t) = β0 + Σ_{s ∈ S} βs·Ts(t − lag)      (+ β·speed_rpm(t − lag) when logged and varying)
 
 with a common pure delay ``lag`` (``T(t − lag)`` by linear interpolation, held at the first value
-before the log starts). It is chosen as follows:
+before the log starts). It is chosen as follows (why each step is as it is:
+``docs/decisions/009-closed-loop-history.md``, the drift log's sensor search):
 
-0. **smoothing** — each temperature is averaged over a centred window of ``smooth_s`` (60 s). Sensor
-   noise is an error in the regressors: left in, a combination of three wrong sensors that averages
-   it out fits better than the right pair (errors-in-variables; with 0.01 °C noise and 4–8 μm/°C
-   it was worth ~20 BIC units on a 6 h log at 10 s). Thermal signals change over minutes, so the
-   window costs little. The prediction at t uses temperatures up to t − lag + smooth_s/2;
+0. **smoothing** — each temperature is averaged over a centred window of ``smooth_s`` (60 s): sensor
+   noise is an error in the regressors. The prediction at t uses temperatures up to t − lag + smooth_s/2;
 1. **correlation grouping** — sensors whose temperatures correlate with |r| ≥ ``group_r`` on the
-   fitting part form one group (single linkage). Groups are reported, and they are what the search
-   is reduced to when the exhaustive search below would be too large (one representative per
-   group, then swaps against every sensor); they never forbid two members of a group from being
-   selected together — on a thermal log two sensors with r = 0.99 can still be told apart, and the
-   data decide (a hard one-per-group rule was the main cause of wrong selections);
+   fitting part form one group (single linkage); groups are reported and reduce the search (one
+   representative per group, then swaps against every sensor) only when the exhaustive search would be
+   too large; they never forbid two members of a group from being selected together;
 2. **joint lag + subset search** — every subset of at most ``max_sensors`` regressors at every lag
    of the grid (0 … ``max_lag_s`` at the sampling step; at most ``max_lag_steps`` lags, then refined
    at the sampling step around the best) is fitted by least squares, all at once from the lagged
-   Gram matrices; the score is the BIC with the lag counted as a parameter. Greedy stepwise entry
-   was replaced because on these logs three wrong sensors at a wrong lag can each look better one
-   at a time than the right pair does (the right pair had the lower BIC in every miss);
+   Gram matrices; the score is the BIC with the lag counted as a parameter;
 3. **size** — the smallest subset size whose best BIC is within ``min_delta_bic`` of the best over
-   all sizes (the null model, no sensor, included): a larger model must beat every smaller one by
-   more than ``min_delta_bic``; and each selected regressor must pass its partial F-test given the
+   all sizes (the null model included); each selected regressor must pass its partial F-test given the
    others at ``alpha``, Bonferroni-corrected over the candidates (else the size steps down);
-4. **ambiguity** — the runner-up subset of the chosen size (each at its best lag) is reported with
-   its ΔBIC; alternatives within ``ambiguity_delta_bic`` make the channel ``ambiguous`` (the data
-   cannot tell which sensors are responsible; the report lists them rather than silently picking),
-   together with each selected sensor's closest other sensor and their correlation. The lag gets a
-   profile-likelihood 95 % interval (n·ln RSS within χ²₁(0.95) = 3.84 of its minimum).
+4. **ambiguity** — the runner-up subset of the chosen size is reported with its ΔBIC; alternatives
+   within ``ambiguity_delta_bic`` make the channel ``ambiguous`` (listed, not silently picked), with each
+   selected sensor's closest other sensor and their correlation. The lag gets a profile-likelihood 95 %
+   interval (n·ln RSS within χ²₁(0.95) = 3.84 of its minimum).
 
 Before/after on the later part: "before" is the displacement itself (no compensation),
 "after" the displacement minus the model's prediction.
