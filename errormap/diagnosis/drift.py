@@ -178,6 +178,29 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
         raise InputError(f"{path}: missing displacement column(s) '<channel>_um'; found columns {t.names}")
     if len(t) < 30:
         raise InputError(f"{path}: expected at least 30 rows in a drift log, got {len(t)}")
+    time = _read_time(path, t, time_unit, require_displacement)
+    notes = {"filled": {}, "dropped": {}, "last_row": t.row_number(len(t) - 1),
+             "time_unit": "s (checked from the content)" if time_unit is None else
+             f"{time_unit} (given by the user; converted to seconds)"}
+    tc = _read_temperatures(path, t, temps, time, causal, units, notes)
+    du = {c[:-3]: _read_displacement(path, t, c, sparse_displacement) for c in disps}
+    speed = None
+    if "speed_rpm" in t:
+        raw_speed = _missing_or_number(t, "speed_rpm")
+        bad = np.flatnonzero(~((raw_speed >= SPEED_RANGE_RPM[0]) & (raw_speed <= SPEED_RANGE_RPM[1])) & ~np.isnan(raw_speed))
+        if bad.size:
+            raise InputError(f"{path}: row {t.row_number(bad[0])}, column 'speed_rpm': {raw_speed[bad[0]]:g} rpm is "
+                             f"outside the plausible {SPEED_RANGE_RPM} rpm of a spindle (a typing mistake?)")
+        speed, filled, why = repair_input(t, "speed_rpm", raw_speed, time, causal, stuck=False)
+        if why:
+            notes["dropped"]["speed_rpm"] = why
+        elif filled:
+            notes["filled"]["speed_rpm"] = filled
+    return DriftLog(time, tc, du, speed, str(path), notes)
+
+
+def _read_time(path, t, time_unit, fitting: bool) -> np.ndarray:
+    """``time_s`` (n,) in seconds: increasing, its unit checked (or converted from ``time_unit``)."""
     time = t.float("time_s")
     d = np.diff(time)
     if np.any(d <= 0):
@@ -186,7 +209,7 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
         raise InputError(f"{path}: row {t.row_number(k)}, column 'time_s': {what} time {time[k]:g} "
                          f"(previous row {t.row_number(k - 1)} has {time[k - 1]:g}); expected increasing times")
     if time_unit is None:
-        check_time_unit(path, t, time, fitting=require_displacement)
+        check_time_unit(path, t, time, fitting=fitting)
     else:
         if time_unit not in TIME_UNITS_S:
             raise ValueError(f"Expected time_unit in {list(TIME_UNITS_S)}, got {time_unit!r}")
@@ -195,9 +218,12 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
     if np.median(d) > MAX_STEP_S:
         raise InputError(f"{path}: row {t.row_number(1)}, column 'time_s': units do not fit: the median step is "
                          f"{np.median(d):g} s (more than {MAX_STEP_S:g} s between samples; milliseconds?)")
-    notes = {"filled": {}, "dropped": {}, "last_row": t.row_number(len(t) - 1),
-             "time_unit": "s (checked from the content)" if time_unit is None else
-             f"{time_unit} (given by the user; converted to seconds)"}
+    return time
+
+
+def _read_temperatures(path, t, temps, time, causal, units, notes) -> dict:
+    """``{sensor: (n,) °C}`` of the usable temperature columns, gaps filled; ``notes`` gets what was filled or
+    dropped and how the units were checked."""
     tc = {}
     for c in temps:
         v = _missing_or_number(t, c)
@@ -224,37 +250,27 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
     if not tc:
         raise InputError(f"{path}: column '{temps[0]}': every temperature column was dropped "
                          f"({'; '.join(f'{k}: {v}' for k, v in notes['dropped'].items())})")
-    du = {}
-    for c in disps:
-        v = _missing_or_number(t, c) if sparse_displacement else t.float(c)
-        bad = np.flatnonzero(np.abs(np.nan_to_num(v)) > MAX_DISP_UM)
-        if bad.size:
-            raise InputError(f"{path}: row {t.row_number(bad[0])}, column '{c}': units do not fit: {v[bad[0]]:g} μm "
-                             f"is beyond the plausible {MAX_DISP_UM:g} μm of thermal drift (nanometres?)")
-        if sparse_displacement:     # measurements at some rows only: the unit check needs a few of them
-            if np.isfinite(v).sum() >= 3 and np.nanmax(v) - np.nanmin(v) < MIN_DISP_PTP_UM:
-                k = int(np.nanargmax(np.abs(v)))
-                raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the measurements "
-                                 f"move by only {np.nanmax(v) - np.nanmin(v):.3g} μm (millimetres?)")
-        elif np.ptp(v) < MIN_DISP_PTP_UM:
-            k = int(np.argmax(np.abs(v)))
-            raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the channel moves by "
-                             f"only {np.ptp(v):.3g} μm over the whole log (less than {MIN_DISP_PTP_UM:g} μm; "
-                             "millimetres?)")
-        du[c[:-3]] = v
-    speed = None
-    if "speed_rpm" in t:
-        raw_speed = _missing_or_number(t, "speed_rpm")
-        bad = np.flatnonzero(~((raw_speed >= SPEED_RANGE_RPM[0]) & (raw_speed <= SPEED_RANGE_RPM[1])) & ~np.isnan(raw_speed))
-        if bad.size:
-            raise InputError(f"{path}: row {t.row_number(bad[0])}, column 'speed_rpm': {raw_speed[bad[0]]:g} rpm is "
-                             f"outside the plausible {SPEED_RANGE_RPM} rpm of a spindle (a typing mistake?)")
-        speed, filled, why = repair_input(t, "speed_rpm", raw_speed, time, causal, stuck=False)
-        if why:
-            notes["dropped"]["speed_rpm"] = why
-        elif filled:
-            notes["filled"]["speed_rpm"] = filled
-    return DriftLog(time, tc, du, speed, str(path), notes)
+    return tc
+
+
+def _read_displacement(path, t, c, sparse: bool) -> np.ndarray:
+    """Displacement column ``c`` (n,) μm, its unit checked (``sparse``: measured at some rows, NaN elsewhere)."""
+    v = _missing_or_number(t, c) if sparse else t.float(c)
+    bad = np.flatnonzero(np.abs(np.nan_to_num(v)) > MAX_DISP_UM)
+    if bad.size:
+        raise InputError(f"{path}: row {t.row_number(bad[0])}, column '{c}': units do not fit: {v[bad[0]]:g} μm "
+                         f"is beyond the plausible {MAX_DISP_UM:g} μm of thermal drift (nanometres?)")
+    if sparse:     # measurements at some rows only: the unit check needs a few of them
+        if np.isfinite(v).sum() >= 3 and np.nanmax(v) - np.nanmin(v) < MIN_DISP_PTP_UM:
+            k = int(np.nanargmax(np.abs(v)))
+            raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the measurements "
+                             f"move by only {np.nanmax(v) - np.nanmin(v):.3g} μm (millimetres?)")
+    elif np.ptp(v) < MIN_DISP_PTP_UM:
+        k = int(np.argmax(np.abs(v)))
+        raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the channel moves by "
+                         f"only {np.ptp(v):.3g} μm over the whole log (less than {MIN_DISP_PTP_UM:g} μm; "
+                         "millimetres?)")
+    return v
 
 
 def lagged(time_s, values, lag_s: float) -> np.ndarray:
