@@ -269,30 +269,33 @@ def chain_side(items, side, path, geometry, words, axes, slots, placed):
             placed.add(w)
             body[w] = len(ets)
             continue
-        keys = [k for k in ("tx", "ty", "tz", "rx", "ry", "rz", "rotation") if k in d]
-        if "error" in d or any(k in d for k in ("errors", "location", "squareness", "stroke")):
-            k = next(k for k in ("error", "errors", "location", "squareness", "stroke") if k in d)
-            raise MachineFileError(f"{path}: key '{where}.{k}': an error slot on a fixed transform; error slots "
-                                   "belong to a joint (component, location and squareness errors)")
-        if len(keys) != 1:
-            raise MachineFileError(f"{path}: '{where}': expected exactly one of tx ty tz (mm), rx ry rz (deg), "
-                                   f"rotation (3×3), a joint (joint = \"linear\"|\"rotary\") or errors_of; got "
-                                   f"{sorted(d) or 'an empty table'}")
-        check_known_keys(d, (keys[0],), where, path)
-        k = keys[0]
-        if k == "rotation":
-            ets += _rotation_ets(d, where, path)
-            continue
-        v = _value(d, k, where, path, geometry)
-        if k[0] == "r" and abs(v) > MAX_ROTARY_ANGLE_DEG:
-            raise MachineFileError(f"{path}: key '{where}.{k}': {v:g} is no angle in degrees (a length in mm?)")
-        if v != 0.0:
-            ets.append(et(k, np.radians(v) if k[0] == "r" else v))
+        ets += _fixed_ets(d, where, path, geometry)
     unplaced = [w for w in pending if w not in placed]
     if unplaced:
         raise MachineFileError(f"{path}: '{pending[unplaced[0]][2]}': the errors of axis {unplaced[0]} are marked "
                                "for an errors_of entry that does not follow it")
     return ets, body
+
+
+def _fixed_ets(d, where, path, geometry) -> list:
+    """The ETs of one fixed-transform entry (``tx ty tz`` mm, ``rx ry rz`` deg, ``rotation`` 3×3; none for 0)."""
+    keys = [k for k in ("tx", "ty", "tz", "rx", "ry", "rz", "rotation") if k in d]
+    if "error" in d or any(k in d for k in ("errors", "location", "squareness", "stroke")):
+        k = next(k for k in ("error", "errors", "location", "squareness", "stroke") if k in d)
+        raise MachineFileError(f"{path}: key '{where}.{k}': an error slot on a fixed transform; error slots "
+                               "belong to a joint (component, location and squareness errors)")
+    if len(keys) != 1:
+        raise MachineFileError(f"{path}: '{where}': expected exactly one of tx ty tz (mm), rx ry rz (deg), "
+                               f"rotation (3×3), a joint (joint = \"linear\"|\"rotary\") or errors_of; got "
+                               f"{sorted(d) or 'an empty table'}")
+    check_known_keys(d, (keys[0],), where, path)
+    k = keys[0]
+    if k == "rotation":
+        return _rotation_ets(d, where, path)
+    v = _value(d, k, where, path, geometry)
+    if k[0] == "r" and abs(v) > MAX_ROTARY_ANGLE_DEG:
+        raise MachineFileError(f"{path}: key '{where}.{k}': {v:g} is no angle in degrees (a length in mm?)")
+    return [et(k, np.radians(v) if k[0] == "r" else v)] if v != 0.0 else []
 
 
 def _has_marker(items, word) -> bool:
