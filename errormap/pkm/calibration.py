@@ -176,8 +176,7 @@ class PKMCalibrator:
                  noise_um: float | None = None, tau: float = 1.0, lever_mm: float | None = None,
                  joint_scale_mm: float = 1.0, joint_bound_mm: float = 25.0,
                  offset_bound_mm: float = 200.0, scale_bound: float = 0.15, max_iter: int = 50,
-                 xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "gcv",
-                 verbose: bool = False, progress=None):
+                 xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "gcv", progress=None):
         if noise_um is not None and not noise_um > 0:
             raise ValueError(f"noise_um must be positive, got {noise_um}")
         if tau < 1:
@@ -203,7 +202,6 @@ class PKMCalibrator:
         self.xtol_mm = xtol_mm
         self.ftol = ftol
         self.rcond = rcond
-        self.verbose = verbose
         self.progress = progress
 
     # -- helpers ---------------------------------------------------------------------------
