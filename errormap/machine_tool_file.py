@@ -112,7 +112,7 @@ def _rotation_ets(d, where, path):
     return [et("rz", rz), et("ry", ry), et("rx", rx)]
 
 
-def _component_ets(word, which, where, path):
+def _component_ets(word, which):
     """The error transform Trans(δ)·RotX·RotY·RotZ of axis ``word`` (slots in μm / μrad)."""
     out, slots = [], []
     for c in which:
@@ -249,7 +249,7 @@ def chain_side(items, side, path, geometry, words, axes, slots, placed):
             ets.append(et(("r" if ax.kind == "rotary" else "t") + AXES[ax.along], 0.0, joint=ax.word, sign=ax.direction))
             ets += after
             slots += sq_slots
-            cets, cslots = _component_ets(ax.word, comps, where, path)
+            cets, cslots = _component_ets(ax.word, comps)
             pending[ax.word] = (cets, cslots, where)
             if not _has_marker(items, ax.word):  # else an errors_of entry below places them
                 ets += cets
