@@ -673,10 +673,6 @@ def choose_model(table: list[dict]) -> str:
     return best["model"]
 
 
-BAND_BLOCKINGS = ("order", "sector")
-"""The blockings of the fit poses the band calibration is checked on (:func:`content_blocks`)."""
-
-
 def _rank_blocks(key, k: int) -> np.ndarray:
     """k contiguous blocks of (nearly) equal size along ``key`` (n,), ties in file order: labels (n,) 0..k-1."""
     n = len(key)
@@ -687,7 +683,7 @@ def _rank_blocks(key, k: int) -> np.ndarray:
 
 def content_blocks(poses, k: int) -> dict:
     """Contiguous blocks of the poses, formed from the file's content alone (never its name), for checking a band on
-    another part of the data than interleaved folds see: name (:data:`BAND_BLOCKINGS`) → labels (n,) ints 0..k-1.
+    another part of the data than interleaved folds see: name (``"order"``, ``"sector"``) → labels (n,) ints 0..k-1.
 
     ``"order"``: ``k`` runs of consecutive poses in acquisition order — by ``time_s`` where the file has it, else by
     the file's row order (a later stretch of the session); ``"sector"``: ``k`` contiguous ranges of the FIRST joint's

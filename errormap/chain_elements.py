@@ -24,7 +24,8 @@ from scipy.interpolate import make_interp_spline
 
 from .elements import check_profile
 from .io import InputError, atomic_write, read_document_text
-from .machine_tool import FULL_TURN_DEG, MachineTool
+from .machine_tool import MachineTool
+from .machine_tool_file import FULL_TURN_DEG
 
 ELEMENTS_FORMAT = "volcomp-elements/1"
 MAX_ELEMENT_VALUE = 1e6  # μm or μrad: no element of a machine tool reaches a metre or a radian (as elements.py)

@@ -1,49 +1,19 @@
-"""Machine files of ``kind = "serial"``: a serial chain as a DH / modified-DH table or an ET list.
+"""Machine files of ``kind = "serial"``: a serial chain as a DH / modified-DH table, an ET list or a URDF.
 
-Schema (``docs/reference/file-formats.md``, version 1)::
-
-    [machine]
-    kind = "serial"
-    name = "ur5"
-    schema = 1
-    convention = "dh"          # "dh" | "mdh" | "et" | "urdf"
-
-    [[link]]                   # convention dh / mdh: one per joint, in order
-    joint = "q1"               # joint name (CSV column q1_deg)
-    type = "revolute"          # or "prismatic" (the joint drives θ, resp. d)
-    dh = [0.0, 90.0, 89.159, 0.0]   # a_mm, alpha_deg, d_mm, theta_deg (mdh: a_{i-1}, alpha_{i-1}, d_i, theta_i)
-    limits = [-360.0, 360.0]   # deg (revolute) or mm (prismatic)
-    direction = 1              # optional, +1 / -1
-
-    [[et]]                     # convention et: ordered elementary transforms
-    type = "tz"                # tx ty tz (value mm) / rx ry rz (value deg)
-    value = 89.159             # a fixed transform, or ...
-    joint = "q1"               # ... a joint (with limits, direction; optional error = "name": a zero offset slot)
-
-    [urdf]                     # convention urdf: the chain between two links of a URDF (errormap.urdf)
-    file = "ur5.urdf"          # relative to this machine file
-    base_link = "base_link_inertia"
-    tip_link = "tool0"
-    joints = ["q1", "q2", "q3", "q4", "q5", "q6"]   # optional CSV stems of the moving joints (default URDF names)
-
-    [base]                     # optional nominal base frame (default identity)
-    xyz_mm = [0, 0, 0]
-    rotation = [[1,0,0],[0,1,0],[0,0,1]]   # orthonormal, det +1
-    [tool]
-    xyz_mm = [0.0, 0.09, 31.0] # tool point in the last frame
-    [errors]                   # optional
-    beta = true                # Hayati β slot on links with parallel consecutive axes
-    base = true                # 6 base-frame slots
-    tool = true                # 3 tool-point slots
-
-Every error names the file, the table and the key and raises :class:`MachineFileError`.
+``convention`` ``"dh"`` | ``"mdh"`` (``[[link]]`` rows: ``dh = [a_mm, alpha_deg, d_mm, theta_deg]``, joint
+``limits`` deg or mm), ``"et"`` (``[[et]]``: ``tx ty tz`` mm, ``rx ry rz`` deg, fixed or a joint) or ``"urdf"``
+(``[urdf]``: the chain between two links, :mod:`errormap.urdf`); optional ``[base]``, ``[tool]`` (mm) and
+``[errors]`` (``beta``, ``base``, ``tool`` slots). Schema, version 1, with a full example:
+``docs/reference/file-formats.md`` (serial arms). Every error names the file, the table and the key and
+raises :class:`MachineFileError`.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .chain import ET_TYPES, Chain, Joint, base_ets, dh_ets, et, mdh_ets, tool_ets
-from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
+from .machine_checks import (MachineFileError, check_array, check_known_keys, check_number, check_range, check_table,
+                             optional_table, short_repr)
 
 SERIAL_SCHEMA_VERSION = 1
 JOINT_TYPES = ("revolute", "prismatic")
@@ -63,14 +33,7 @@ TOOL_METRES_RATIO = 1e-3       # a nonzero tool point under 1/1000 of the links'
 def _joint_limits(d: dict, where: str, jtype: str, path) -> tuple[float, float]:
     if "limits" not in d:
         raise MachineFileError(f"{path}: missing key '{where}.limits'")
-    lim = check_array(d["limits"], (2,), f"{where}.limits", path)
-    if not lim[1] > lim[0]:
-        raise MachineFileError(f"{path}: key '{where}.limits': expected [lo, hi] with hi > lo (a zero or inverted "
-                               f"stroke), got {d['limits']!r}")
-    if jtype == "revolute" and np.all(np.abs(lim) <= 2 * np.pi + 1e-9) and lim[1] - lim[0] >= 1.0:
-        raise MachineFileError(f"{path}: key '{where}.limits': {d['limits']!r} lie within ±2π: radians rather than "
-                               "degrees? (revolute limits are in deg)")
-    return float(lim[0]), float(lim[1])
+    return check_range(d["limits"], f"{where}.limits", path, jtype == "revolute", "revolute limits")
 
 
 def _joint(d: dict, where: str, path, names: set) -> tuple[Joint, float]:
@@ -223,9 +186,7 @@ def parse_serial(doc: dict, path, sha: str = "") -> Chain:
         if other in doc and other != body_table[conv]:
             raise MachineFileError(f"{path}: key 'machine.convention': {conv!r} does not go with "
                                    f"{'[urdf]' if other == 'urdf' else f'[[{other}]]'}")
-    e = doc.get("errors", {})
-    if not isinstance(e, dict):
-        raise MachineFileError(f"{path}: 'errors': expected a table")
+    e = optional_table(doc, "errors", path, {})
     check_known_keys(e, ("beta", "base", "tool"), "errors", path)
     flags = {}
     for k in ("beta", "base", "tool"):
@@ -233,9 +194,7 @@ def parse_serial(doc: dict, path, sha: str = "") -> Chain:
         if not isinstance(v, bool):
             raise MachineFileError(f"{path}: key 'errors.{k}': expected true or false, got {short_repr(v)}")
         flags[k] = v
-    b = doc.get("base", {})
-    if not isinstance(b, dict):
-        raise MachineFileError(f"{path}: 'base': expected a table")
+    b = optional_table(doc, "base", path, {})
     check_known_keys(b, ("xyz_mm", "rotation"), "base", path)
     base_xyz = check_array(b["xyz_mm"], (3,), "base.xyz_mm", path) if "xyz_mm" in b else np.zeros(3)
     R = _rotation(b, path)

@@ -1,34 +1,23 @@
 """The one table of effect kinds: what the simulator can draw, the diagnosis can fit, the report
 can draw and the export can write.
 
-An effect is a small physical term the 23 error elements do not carry (thermal growth, backlash,
-a ball-screw pitch error, …). Before this table a kind lived in two vocabularies — the
-simulator's ``pitch``/``worm`` and the diagnosis's ``periodic``/``harmonic`` — and in every
-module that dispatched on it. Both pairs are the same physics (``A·sin(2π·pos/P + φ)`` on a
-linear axis; ``A·sin(N·a + φ)`` on a rotary axis, ``a`` in rad), so each is ONE kind here: the
-canonical name is the diagnosis's, the simulator's name is its alias (and stays the name
-``volcomp simulate --effect`` and ``truth.json`` use, so every recorded run reads as before).
+An effect is a small physical term the error elements do not carry (thermal growth, backlash, a
+ball-screw pitch error, …). The canonical name is the diagnosis's (``periodic``, ``harmonic``); the
+simulator's name is its alias (``pitch``, ``worm``: the name ``volcomp simulate --effect`` and
+``truth.json`` use). Each entry says, generically (no machine's axis names):
 
-Each entry says, generically (no machine's axis names):
-
-* ``acts_on`` — which axes it may act on: ``"linear"`` (any linear axis), ``"rotary"`` (any
-  rotary axis), ``"any"`` (any axis) or ``"pair"`` (two axes together; today the pairs of
-  linear axes);
-* ``parameters`` — its fitted parameters with units (``{u}`` is the unit of the element it acts
-  on: μm, or μrad for an angular element);
+* ``acts_on`` — ``"linear"``, ``"rotary"`` or ``"any"`` axis, or ``"pair"`` (two linear axes);
+* ``parameters`` — its fitted parameters with units (``{u}``: μm, or μrad for an angular element);
 * ``needs`` — the condition columns it depends on (``{axis}`` is the axis word);
-* ``simulator`` — the simulator's name for it and the element the simulator adds it to
-  (:class:`errormap.simulator.TruthGrinder`), ``None`` where the simulator cannot draw it;
-* ``diagnosed`` — whether the diagnosis library fits it (:mod:`errormap.diagnosis.effects`
-  ``basis``); ``truth_only`` kinds are what the simulator draws and no kind of the diagnosis can
-  represent (they are what the closed loop's learned residual stage is for);
-* ``export`` — how ``volcomp export`` writes it (``"linuxcnc-backlash"``: the per-joint
-  forward/reverse difference of :func:`compensation.export.backlash_from_diagnosis`), ``None``:
-  not carried by a controller table (listed as left out).
+* ``simulator`` / ``simulator_element`` — the simulator's name and the element it adds it to, ``None``
+  where the simulator cannot draw it;
+* ``diagnosed`` — whether :mod:`errormap.diagnosis.effects` fits it; ``truth_only`` kinds are drawn by
+  the simulator and represented by no diagnosis kind (the learned residual stage's job);
+* ``export`` — how ``volcomp export`` writes it (``"linuxcnc-backlash"``:
+  :func:`compensation.export.backlash_from_diagnosis`), ``None``: not carried by a controller table.
 
-Every consumer looks a name up here; an unknown name is a ``ValueError`` naming the known ones,
-never a default. The consumers keep their functions keyed by the canonical name, and
-``tests/test_effect_kinds.py`` checks that each covers exactly the kinds it should.
+Every consumer looks a name up here; an unknown name is a ``ValueError`` naming the known ones.
+``tests/test_effect_kinds.py`` checks that each consumer covers exactly the kinds it should.
 """
 from __future__ import annotations
 
@@ -126,7 +115,6 @@ SIMULATOR_NAMES = tuple(k.simulator for k in EFFECT_KINDS if k.simulator)
 """The names the simulator knows its effects by (``--effect``, ``truth.json``)."""
 TRUTH_ONLY = tuple(k.simulator for k in EFFECT_KINDS if k.truth_only)
 """Simulator effects no kind of the diagnosis represents."""
-SINUSOID_KINDS = tuple(k.name for k in EFFECT_KINDS if k.diagnosed and k.nonlinear)
 
 
 def effect_kind(name) -> EffectKind:

@@ -35,14 +35,10 @@ capability              method
                         (:class:`OffsetFitness`)
 ======================  ==============================================================================
 
-The implementations: :class:`errormap.chain_field.ChainField` (the 23-element model; its exact form declares
-``jacobian`` and ``predict_and_jacobian``, in closed form),
-:class:`training.model.MLPField` (the network; all of them), the diagnosis's corrected field
-(:class:`errormap.diagnosis.corrected.CorrectedField`), the controller tables of
-:mod:`compensation.export`. Solvers and guards depend on this module alone.
-
-A pose field (:class:`training.pose_field.PoseMLP`, PKM poses in, pose errors out) states the
-same two attributes, its volume named by its pose inputs; grinder solvers and guards refuse a
+Implementations (:class:`errormap.chain_field.ChainField`, :class:`training.model.MLPField`, the corrected
+field of the diagnosis, the controller tables) and which solver uses which capability:
+``docs/explanation/solvers.md`` (the field a solver takes). A pose field (:class:`training.pose_field.PoseMLP`)
+states the same two attributes, its volume named by its pose inputs; grinder solvers and guards refuse a
 volume whose names are not :data:`GRINDER_AXES`.
 """
 from __future__ import annotations
@@ -104,11 +100,6 @@ class CalibratedVolume:
         object.__setattr__(self, "names", names)
         object.__setattr__(self, "lo", tuple(float(v) for v in lo))
         object.__setattr__(self, "hi", tuple(float(v) for v in hi))
-
-    @classmethod
-    def from_stations(cls, stations: dict, names=GRINDER_AXES) -> "CalibratedVolume":
-        """The range of measured stations per axis: ``stations[name]`` arrays, shape (m_k,)."""
-        return cls([float(np.min(stations[k])) for k in names], [float(np.max(stations[k])) for k in names], names)
 
     @property
     def lo_array(self) -> np.ndarray:

@@ -15,11 +15,9 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
-
 from .io import InputError, check_not_wide, read_document_bytes, sha256_bytes
 # MachineFileError is raised here and imported from here by callers (one class, defined with the checks)
-from .machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, short_repr
+from .machine_checks import MachineFileError, short_repr
 
 BUILTIN_ALIASES = {"grinder-chain": "grinder"}
 """Other names of a built-in machine file (the grinder's chain file was once a file of its own)."""
@@ -219,47 +217,3 @@ KIND_HINTS = {
     "hexapod": "a parallel machine: use volcomp simulate, calibrate, predict, interpolate or benchmark",
     "tripod": "a parallel machine: use volcomp simulate, calibrate, predict, interpolate or benchmark",
 }
-
-
-# -- unit plausibility of axis columns --------------------------------------------------------
-UNIT_MIN_POINTS = 10      # below this a column's span says nothing about its unit
-METRE_SPAN_FRACTION = 1 / 200  # an X/Z column spanning less than this share of its stroke ...
-METRE_MATCH_FRACTION = 1 / 4   # ... while 1000x its span reaches this share is in metres
-RADIAN_MIN_SPAN = 1.5 * np.pi  # an A column within ±2π spanning at least three quarters of a turn of radians
-# (π, half a turn, also caught a check set measured in degrees over a small A range such as 0–6°)
-DEGREE_GRID_DEG = 0.5          # A values that all lie on a 0.5° grid are degrees (a grid in radians does not)
-
-
-def axes_unit_mistake(axes, machine) -> tuple[int, int, str] | None:
-    """The likely unit mistake in axis columns meant to cover the machine's volume, or None.
-
-    ``axes`` shape (n, 3): x_mm, z_mm, a_deg (feature points, check measurements). Returns
-    ``(row index, column index, message)``: an X or Z column whose span is about 1/1000 of the
-    stroke and whose values stay within 1/1000 of the stroke's ends (metres instead of mm; a
-    small region measured in mm far from zero is not taken for metres), or an A column inside ±2π that spans at least
-    3π/2 and does not lie on a 0.5° grid (radians instead of degrees; a small A range measured in degrees,
-    e.g. 0–4.5° or a 0, 1, … 6° grid, is not taken for radians). Needs at least :data:`UNIT_MIN_POINTS` points.
-    """
-    axes = np.asarray(axes, dtype=float)
-    if len(axes) < UNIT_MIN_POINTS:
-        return None
-    from .grinder_file import GRINDER_STROKE_KEYS as names
-    for j in (0, 1):
-        lo, hi = machine.strokes[names[j]]
-        stroke = hi - lo
-        span = float(np.ptp(axes[:, j]))
-        reach = 1.5e-3 * max(abs(lo), abs(hi))  # metres stay within the stroke's ends / 1000
-        if (0 < span <= METRE_SPAN_FRACTION * stroke and span * 1000 >= METRE_MATCH_FRACTION * stroke
-                and np.abs(axes[:, j]).max() <= reach):
-            k = int(np.argmax(np.abs(axes[:, j])))
-            return k, j, (f"values span only {span:.4g} mm of the {stroke:g} mm stroke; 1000× that fits it: "
-                          "metres rather than mm?")
-    a = axes[:, 2]
-    lo, hi = machine.strokes["a_deg"]
-    span = float(np.ptp(a))
-    on_degree_grid = np.allclose(a / DEGREE_GRID_DEG, np.round(a / DEGREE_GRID_DEG), rtol=0, atol=1e-9)
-    if (hi - lo >= 180 and np.all(np.abs(a) <= 2 * np.pi + 1e-6) and span >= RADIAN_MIN_SPAN
-            and not on_degree_grid):
-        k = int(np.argmax(np.abs(a)))
-        return k, 2, (f"values lie within ±2π and span {span:.4g}: radians rather than degrees?")
-    return None

@@ -62,11 +62,32 @@ def check_table(doc: dict, key: str, path) -> dict:
     return doc[key]
 
 
+def optional_table(doc: dict, key: str, path, default=None):
+    """The optional section ``[key]`` of ``doc`` (``default`` when absent), refused when it is not a table."""
+    t = doc.get(key, default)
+    if t is not None and not isinstance(t, dict):
+        raise MachineFileError(f"{path}: '{key}': expected a table")
+    return t
+
+
 def check_known_keys(section: dict, allowed, where: str, path) -> None:
     """Refuse keys of ``section`` outside ``allowed``, naming them as ``where.key``."""
     unknown = sorted(set(section) - set(allowed))
     if unknown:
         raise MachineFileError(f"{path}: unknown key(s) {['%s.%s' % (where, k) for k in unknown]}; allowed: {list(allowed)}")
+
+
+def check_range(value, where: str, path, angular: bool, what: str) -> tuple[float, float]:
+    """A ``[lo, hi]`` range (mm or deg) with hi > lo; an ``angular`` one within ±2π spanning ≥ 1 is refused
+    as radians (``what``, e.g. ``"rotary strokes"``, names the range in that message)."""
+    lim = check_array(value, (2,), where, path)
+    if not lim[1] > lim[0]:
+        raise MachineFileError(f"{path}: key '{where}': expected [lo, hi] with hi > lo (a zero or inverted "
+                               f"stroke), got {value!r}")
+    if angular and np.all(np.abs(lim) <= 2 * np.pi + 1e-9) and lim[1] - lim[0] >= 1.0:
+        raise MachineFileError(f"{path}: key '{where}': {value!r} lie within ±2π: radians rather than "
+                               f"degrees? ({what} are in deg)")
+    return float(lim[0]), float(lim[1])
 
 
 def check_array(value, shape: tuple, where: str, path) -> np.ndarray:

@@ -18,12 +18,6 @@ def _is_chain(machine) -> bool:
     return isinstance(machine, MachineTool) and not is_grinder_chain(machine)
 
 
-def _chain(machine, what: str):
-    """A machine-tool chain, or the grinder file as its chain (:func:`errormap.estimators.machine_tool`)."""
-    from .estimators import machine_tool
-    return machine_tool(machine, what)
-
-
 def read_sweeps(paths, machine):
     """Tracker sweeps of one set-up (:class:`errormap.sweeps.Sweeps`): a machine-tool chain's one sweep
     file (its axis words from the machine), or the grinder file's sweep file(s)."""
@@ -43,7 +37,8 @@ def read_checks(path, machine, units: str = "check"):
     (:class:`errormap.diagnosis.chain_loop.MTChecks`, in ``seq`` order: ``axes`` (n, k) mm/deg, ``measured_um``
     (n, 3)). ``units="as-written"`` skips the likely-unit-mistake tests."""
     from .diagnosis.chain_loop import load_mt_checks
-    return load_mt_checks(path, _chain(machine, "read_checks(machine=...)"), units=units)
+    from .estimators import machine_tool
+    return load_mt_checks(path, machine_tool(machine, "read_checks(machine=...)"), units=units)
 
 
 def read_poses(path, chain):
@@ -69,7 +64,8 @@ def simulate_truth(machine, seed: int, family: str = "default"):
     (:class:`errormap.chain_truth.MTTruth`): seeded random element functions (``family`` ``"default"`` or
     ``"independent"``), no effects. For testing: an estimator is never given it."""
     from .chain_truth import make_mt_truth
-    return make_mt_truth(_chain(machine, "simulate_truth(machine=...)"), seed, family=family)
+    from .estimators import machine_tool
+    return make_mt_truth(machine_tool(machine, "simulate_truth(machine=...)"), seed, family=family)
 
 
 def simulate_sweeps(truth, noise_um: float = 2.0, seed: int = 0, n_stations: int | None = None):

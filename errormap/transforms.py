@@ -28,43 +28,30 @@ def check_points(points, name: str = "points", width: int = 3) -> np.ndarray:
     return arr
 
 
-def rot_x(angle_rad) -> np.ndarray:
-    """RotX for a batch of angles, shape (n, 3, 3)."""
+def rot_about(axis: int, angle_rad) -> np.ndarray:
+    """Rotation about frame axis ``axis`` (0, 1, 2 = x, y, z) for a batch of angles, shape (n, 3, 3)."""
     a = np.atleast_1d(np.asarray(angle_rad, dtype=float))
     c, s = np.cos(a), np.sin(a)
+    b, d = (axis + 1) % 3, (axis + 2) % 3
     R = np.zeros(a.shape + (3, 3))
-    R[..., 0, 0] = 1.0
-    R[..., 1, 1] = c
-    R[..., 1, 2] = -s
-    R[..., 2, 1] = s
-    R[..., 2, 2] = c
+    R[..., axis, axis] = 1.0
+    R[..., b, b], R[..., b, d], R[..., d, b], R[..., d, d] = c, -s, s, c
     return R
+
+
+def rot_x(angle_rad) -> np.ndarray:
+    """RotX for a batch of angles, shape (n, 3, 3)."""
+    return rot_about(0, angle_rad)
 
 
 def rot_y(angle_rad) -> np.ndarray:
     """RotY for a batch of angles, shape (n, 3, 3)."""
-    a = np.atleast_1d(np.asarray(angle_rad, dtype=float))
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(a.shape + (3, 3))
-    R[..., 1, 1] = 1.0
-    R[..., 0, 0] = c
-    R[..., 0, 2] = s
-    R[..., 2, 0] = -s
-    R[..., 2, 2] = c
-    return R
+    return rot_about(1, angle_rad)
 
 
 def rot_z(angle_rad) -> np.ndarray:
     """RotZ for a batch of angles, shape (n, 3, 3)."""
-    a = np.atleast_1d(np.asarray(angle_rad, dtype=float))
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(a.shape + (3, 3))
-    R[..., 2, 2] = 1.0
-    R[..., 0, 0] = c
-    R[..., 0, 1] = -s
-    R[..., 1, 0] = s
-    R[..., 1, 1] = c
-    return R
+    return rot_about(2, angle_rad)
 
 
 def rot_xyz(eps_rad) -> np.ndarray:
@@ -89,11 +76,6 @@ def skew(v) -> np.ndarray:
 def apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Batched ``R @ v``: R shape (n, 3, 3) or (3, 3), v shape (n, 3) -> (n, 3)."""
     return np.einsum("...ij,...j->...i", R, v)
-
-
-def apply_T(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Batched ``R.T @ v`` (the inverse rotation): shapes as :func:`apply`."""
-    return np.einsum("...ji,...j->...i", R, v)
 
 
 # -- rigid transforms as (R (n,3,3), t (n,3)) pairs ------------------------------------------

@@ -41,6 +41,12 @@ MIN_TARGET_EXTENT_MM = 5e-3
 LENGTH_UNITS = (("metres", 1e-3), ("centimetres", 0.1), ("inches", 1 / 25.4), ("micrometres", 1e3))
 """(name, length in that unit of 1 mm): a measured/nominal ratio near the factor names the unit."""
 LENGTH_RATIO_BAND = (0.8, 1.25)
+UNIT_MIN_POINTS = 10      # below this a column's span says nothing about its unit
+METRE_SPAN_FRACTION = 1 / 200  # an X/Z column spanning less than this share of its stroke ...
+METRE_MATCH_FRACTION = 1 / 4   # ... while 1000x its span reaches this share is in metres
+RADIAN_MIN_SPAN = 1.5 * np.pi  # an A column within ±2π spanning at least three quarters of a turn of radians
+# (π, half a turn, also caught a check set measured in degrees over a small A range such as 0–6°)
+DEGREE_GRID_DEG = 0.5          # A values that all lie on a 0.5° grid are degrees (a grid in radians does not)
 
 
 def length_unit_guess(ratio: float) -> str:
@@ -69,41 +75,16 @@ def temperature_mistake(temp_c, units: str = UNITS_CHECK) -> tuple[int, str] | N
     return k, f"{v:g} °C is outside {lo:g} … {hi:g} °C: {hint}"
 
 
-def path_axes_mistake(axes, machine) -> tuple[int, int, str] | None:
-    """``(row index, column index, message)`` of a unit mistake in the axis columns of a tool path or
-    a set of points (``axes`` (n, 3): x_mm, z_mm, a_deg), or None. X/Z: every value within
-    :data:`METRE_REACH` × the stroke's larger end of zero and 1000× them inside the stroke (metres);
-    A: the feature points' radian test (:func:`errormap.machine.axes_unit_mistake`)."""
-    from .grinder_file import GRINDER_STROKE_KEYS
-    from .machine import axes_unit_mistake
-    axes = np.asarray(axes, dtype=float)
-    if len(axes) >= 2:
-        for j in (0, 1):
-            lo, hi = machine.strokes[GRINDER_STROKE_KEYS[j]]
-            reach = METRE_REACH * max(abs(lo), abs(hi))
-            v = axes[:, j]
-            if (np.abs(v).max() > 0 and np.abs(v).max() <= reach and np.all(1000 * v >= lo - 1e-9)
-                    and np.all(1000 * v <= hi + 1e-9)):
-                k = int(np.argmax(np.abs(v)))
-                return k, j, (f"all within {reach:.3g} mm of zero on a {hi - lo:g} mm stroke (1000× fits it): "
-                              "metres rather than mm?")
-    mistake = axes_unit_mistake(axes, machine)
-    if mistake is not None and mistake[1] == 2:
-        return mistake
-    return None
-
-
 def chain_axes_mistake(axes, machine, coverage: str = "path") -> tuple[int, int, str] | None:
     """The likely unit mistake in the axis columns of a machine-tool chain (``axes`` (n, k) in
     ``machine.axis_columns`` order), or None: the grinder's tests, per axis of the chain.
 
     Linear axes (mm): ``coverage="path"`` every value within :data:`METRE_REACH` × the stroke's
     larger end of zero and 1000× them inside the stroke; ``"volume"`` the column's span about
-    1/1000 of the stroke (:func:`errormap.machine.axes_unit_mistake`'s test). Rotary axes (deg) whose
+    1/1000 of the stroke and every value within :data:`METRE_REACH` × its larger end. Rotary axes (deg) whose
     stroke spans at least 180°: values within ±2π spanning at least 3π/2 and off a 0.5° grid
-    (radians). Needs at least two points (path) or :data:`errormap.machine.UNIT_MIN_POINTS` (volume).
+    (radians). Needs at least two points (path) or :data:`UNIT_MIN_POINTS` (volume).
     """
-    from .machine import DEGREE_GRID_DEG, METRE_MATCH_FRACTION, METRE_SPAN_FRACTION, RADIAN_MIN_SPAN, UNIT_MIN_POINTS
     axes = np.asarray(axes, dtype=float)
     if len(axes) < (2 if coverage == "path" else UNIT_MIN_POINTS):
         return None
@@ -181,9 +162,9 @@ def check_units(path, rows=None, *, machine=None, axes=None, axes_columns=("x_mm
     likely mistake) for the first column whose unit does not fit.
 
     ``rows`` (n,): the file row of each point (None: no rows to name). ``axes`` (n, 3) with
-    ``machine`` (a machine-tool chain: (n, k) in its ``axis_columns``, :func:`chain_axes_mistake`): ``coverage="volume"`` for data that covers the machine's volume (check
-    measurements, feature points: :func:`errormap.machine.axes_unit_mistake`), ``"path"`` for a tool
-    path or a set of points (:func:`path_axes_mistake`). ``targets`` (n, 3) mm WCS
+    ``machine`` (a machine-tool chain, the grinder among them: (n, k) in its ``axis_columns``,
+    :func:`chain_axes_mistake`): ``coverage="volume"`` for data that covers the machine's volume (check
+    measurements, feature points), ``"path"`` for a tool path or a set of points. ``targets`` (n, 3) mm WCS
     (:func:`targets_mistake`, sized by ``machine`` when given). ``temps``:
     ``{column: (n,) °C}``. ``units``: see the module doc; ``option``: the command's option that
     overrides (``"--units"``), named in the message (None: the command has none).
@@ -196,24 +177,13 @@ def check_units(path, rows=None, *, machine=None, axes=None, axes_columns=("x_mm
             raise _fail(path, rows, m[0], column, m[1], option)
     if units == UNITS_AS_WRITTEN:
         return
-    from .grinder_file import is_grinder_chain
-    if axes is not None and getattr(machine, "kind", None) == "machine-tool" and not is_grinder_chain(machine):
+    if axes is not None:
         if coverage not in ("volume", "path"):
             raise ValueError(f"Expected coverage 'volume' or 'path', got {coverage!r}")
         m = chain_axes_mistake(axes, machine, coverage)
         if m is not None:
             cols = machine.axis_columns if tuple(axes_columns) == ("x_mm", "z_mm", "a_deg") else axes_columns
             raise _fail(path, rows, m[0], cols[m[1]], m[2], option)
-    elif axes is not None:
-        if coverage == "volume":
-            from .machine import axes_unit_mistake
-            m = axes_unit_mistake(axes, machine)
-        elif coverage == "path":
-            m = path_axes_mistake(axes, machine)
-        else:
-            raise ValueError(f"Expected coverage 'volume' or 'path', got {coverage!r}")
-        if m is not None:
-            raise _fail(path, rows, m[0], axes_columns[m[1]], m[2], option)
     if targets is not None:
         m = targets_mistake(targets, machine)
         if m is not None:

@@ -152,23 +152,25 @@ def test_checks_in_metres_or_radians_are_refused(tmp_path, column, scale, named)
 
 
 def test_a_small_region_in_mm_is_not_taken_for_metres():
-    from errormap.machine import axes_unit_mistake, load_machine
+    from errormap.machine import load_machine
+    from errormap.units import chain_axes_mistake
     m = load_machine()
     rng = np.random.default_rng(0)
     small = np.c_[100 + 0.5 * rng.random(40), 30 + 0.05 * rng.random(40), 360 * rng.random(40)]
-    assert axes_unit_mistake(small, m) is None
+    assert chain_axes_mistake(small, m, "volume") is None
     metres = small.copy()
     metres[:, 0] = 0.2 * rng.random(40)
-    assert axes_unit_mistake(metres, m)[1] == 0
+    assert chain_axes_mistake(metres, m, "volume")[1] == 0
 
 
 def test_a_small_a_range_in_degrees_is_not_taken_for_radians():
     """Checks over A = 0…4.5° (random) or on a 0…6° grid are degrees; a full turn in radians is refused."""
-    from errormap.machine import axes_unit_mistake, load_machine
+    from errormap.machine import load_machine
+    from errormap.units import chain_axes_mistake
     m = load_machine()
     rng = np.random.default_rng(1)
     xz = np.c_[200 * rng.random(40), 60 * rng.random(40)]
-    assert axes_unit_mistake(np.c_[xz, 4.5 * rng.random(40)], m) is None
-    assert axes_unit_mistake(np.c_[xz, rng.integers(0, 7, 40).astype(float)], m) is None
+    assert chain_axes_mistake(np.c_[xz, 4.5 * rng.random(40)], m, "volume") is None
+    assert chain_axes_mistake(np.c_[xz, rng.integers(0, 7, 40).astype(float)], m, "volume") is None
     radians = np.c_[xz, np.radians(360 * rng.random(40))]
-    assert axes_unit_mistake(radians, m)[1] == 2
+    assert chain_axes_mistake(radians, m, "volume")[1] == 2

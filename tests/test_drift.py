@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from compensation.app.cli import main
-from errormap.diagnosis.drift import DriftLog, DriftModeller, load_drift_log, simulate_drift_log, smoothed
+from drift_fixtures import simulate_drift_log
+from errormap.diagnosis.drift import DriftLog, DriftModeller, load_drift_log, smoothed
 from errormap.io import InputError, write_csv
 
 NOISE_UM = 0.5

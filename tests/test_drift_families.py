@@ -4,7 +4,8 @@ recovers a drift of its own structure, and the constraint it is named for holds 
 import numpy as np
 import pytest
 
-from errormap.diagnosis.drift import DriftLog, simulate_drift_log
+from drift_fixtures import simulate_drift_log
+from errormap.diagnosis.drift import DriftLog
 from errormap.diagnosis.drift_models import (Feature, GradientFamily, GreyBoxModesFamily, ModesFamily, OLSFamily,
                                                StableLagOLSFamily, feature_matrix, first_order)
 

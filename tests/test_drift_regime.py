@@ -4,7 +4,8 @@ result on simulated logs whose later part leaves the fit range."""
 import numpy as np
 import pytest
 
-from errormap.diagnosis.drift import DriftLog, simulate_drift_log
+from drift_fixtures import simulate_drift_log
+from errormap.diagnosis.drift import DriftLog
 from errormap.diagnosis.drift_models import (GreyBoxFamily, StableOLSFamily, ThermalNNFamily, mahalanobis,
                                                novelty_folds, whitener)
 from errormap.diagnosis.drift_models import MAX_FOLD_LOSS, MIN_GAIN, DriftSelector, feature_matrix

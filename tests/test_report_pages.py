@@ -61,7 +61,7 @@ def _diagnose(root, grinder):
 
 
 def _drift(root, grinder):
-    from errormap.diagnosis.drift import simulate_drift_log
+    from drift_fixtures import simulate_drift_log
     cols = simulate_drift_log(0, noise_um=0.5)
     cols.pop("_truth")
     write_csv(root / "log.csv", cols)

@@ -1,41 +1,16 @@
 """The closed loop on ANY machine-tool chain: checks → held-out measured residual, update, effects.
 
-Over the machine's axes and element slots (the grinder: its chain, :mod:`errormap.grinder_file`). Check measurements (``docs/reference/file-formats.md``): columns = the machine's axis columns
-(``x_mm, y_mm, z_mm, a_deg, c_deg`` …) and ``dx_um, dy_um, dz_um``; optional ``time_s``,
-``temp_c``, ``dir_<w>`` (+1/−1 per axis word), ``seq``. Blocked split: the
-first ``fit_fraction`` of the checks by ``seq`` fit, the rest is held out (a later time).
-
-Stages, each judged by the MEASURED residual (measurement − prediction) on the held-out checks:
-
-1. **identified** — the sweep identification as it is;
-2. **updated** — the element parameters re-estimated from the fitting checks with the sweep
-   identification's covariance as the prior (Gaussian, :func:`update_elements`): the tool-point
-   error is linear in small changes of the station values (spline basis) and constants through
-   the chain's error Jacobian; the check noise σ is estimated with the update (fixed point on
-   the residual with its effective degrees of freedom);
-3. **updated + effects** — a forward search over the generic effect kinds on every axis the
-   kind acts on (:data:`errormap.chain_truth.EFFECT_KINDS`: thermal growth and periodic on
-   any linear axis, reversal on any axis, harmonic on any rotary axis, interaction between any
-   two linear axes), each term = the chain's error-Jacobian column of the axis' own-direction
-   element times the effect's shape; fitted on the fitting checks, accepted only when it
-   lowers the held-out squared residual norm, paired per point, by more than
-   :data:`HELD_OUT_Z` standard errors (rank order; the first that fails stops the search). The
-   accepted effects are then re-fitted JOINTLY with the update (their columns free, the
-   elements with the prior; an update made alone takes up part of an effect it can imitate,
-   e.g. the mean thermal growth of the fitting period); a term whose coefficients the joint fit
-   does not support (Wald χ² at or below :func:`joint_threshold`, fitting checks only) is dropped,
-   and the search goes on from there (:data:`ROUNDS`). Periodic and harmonic shapes the element
-   stations resolve are not searched (:func:`shape_band`): they are the element's own geometry.
-
-The plain baselines beside them: the unregularised least-squares update (the same parameters
-fitted to the fitting checks with no prior, ``baseline_ols_update``; kept instead of the prior update when
-its GCV of the chain's own fitting residual is lower, :func:`fitting_gcv`) and OLS of the identified
-model's residual on all axis columns (``baseline_ols_linear``). The model handed on is the last stage unless a
-plainer one (identified, updated) is better on the held-out checks by more than
-:data:`FALLBACK_Z` paired standard errors; ``kept_stage`` says which.
-
-Noise floor of the held-out figure: ``√3·σ`` (vector norm of isotropic noise σ per axis) with
-σ given (``noise_um``) or estimated by the update.
+Check measurements (``docs/reference/file-formats.md``): the machine's axis columns (``x_mm … a_deg``) and
+``dx_um, dy_um, dz_um``; optional ``time_s``, ``temp_c``, ``dir_<w>`` (+1/−1 per axis word), ``seq``. The
+first ``fit_fraction`` of the checks by ``seq`` fit, the rest is held out. Stages, each judged by the
+MEASURED residual (measurement − prediction, μm) on the held-out checks: **identified** (the sweep
+identification); **updated** (:func:`update_elements`, the identification's covariance as the prior);
+**updated + effects** (a forward search over :data:`errormap.chain_truth.EFFECT_KINDS`, a term accepted
+when it lowers the held-out residual by more than :data:`HELD_OUT_Z` paired standard errors, then re-fitted
+jointly and dropped at or below :func:`joint_threshold`, :data:`ROUNDS` rounds). Baselines beside them:
+``baseline_ols_update`` (no prior) and ``baseline_ols_linear`` (OLS of the residual on the axis columns).
+The last stage is handed on unless a plainer one is better by more than :data:`FALLBACK_Z` (``kept_stage``).
+Noise floor of the held-out figure: ``√3·σ``. The method and its reasons: ``docs/explanation/closed-loop.md``.
 """
 from __future__ import annotations
 

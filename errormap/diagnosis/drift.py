@@ -8,34 +8,26 @@ Per displacement channel, on the earlier ``fit_fraction`` of the log (by time), 
     d(t) = β0 + Σ_{s ∈ S} βs·Ts(t − lag)      (+ β·speed_rpm(t − lag) when logged and varying)
 
 with a common pure delay ``lag`` (``T(t − lag)`` by linear interpolation, held at the first value
-before the log starts). It is chosen as follows:
+before the log starts). It is chosen as follows (why each step is as it is:
+``docs/decisions/009-closed-loop-history.md``, the drift log's sensor search):
 
-0. **smoothing** — each temperature is averaged over a centred window of ``smooth_s`` (60 s). Sensor
-   noise is an error in the regressors: left in, a combination of three wrong sensors that averages
-   it out fits better than the right pair (errors-in-variables; with 0.01 °C noise and 4–8 μm/°C
-   it was worth ~20 BIC units on a 6 h log at 10 s). Thermal signals change over minutes, so the
-   window costs little. The prediction at t uses temperatures up to t − lag + smooth_s/2;
+0. **smoothing** — each temperature is averaged over a centred window of ``smooth_s`` (60 s): sensor
+   noise is an error in the regressors. The prediction at t uses temperatures up to t − lag + smooth_s/2;
 1. **correlation grouping** — sensors whose temperatures correlate with |r| ≥ ``group_r`` on the
-   fitting part form one group (single linkage). Groups are reported, and they are what the search
-   is reduced to when the exhaustive search below would be too large (one representative per
-   group, then swaps against every sensor); they never forbid two members of a group from being
-   selected together — on a thermal log two sensors with r = 0.99 can still be told apart, and the
-   data decide (a hard one-per-group rule was the main cause of wrong selections);
+   fitting part form one group (single linkage); groups are reported and reduce the search (one
+   representative per group, then swaps against every sensor) only when the exhaustive search would be
+   too large; they never forbid two members of a group from being selected together;
 2. **joint lag + subset search** — every subset of at most ``max_sensors`` regressors at every lag
    of the grid (0 … ``max_lag_s`` at the sampling step; at most ``max_lag_steps`` lags, then refined
    at the sampling step around the best) is fitted by least squares, all at once from the lagged
-   Gram matrices; the score is the BIC with the lag counted as a parameter. Greedy stepwise entry
-   was replaced because on these logs three wrong sensors at a wrong lag can each look better one
-   at a time than the right pair does (the right pair had the lower BIC in every miss);
+   Gram matrices; the score is the BIC with the lag counted as a parameter;
 3. **size** — the smallest subset size whose best BIC is within ``min_delta_bic`` of the best over
-   all sizes (the null model, no sensor, included): a larger model must beat every smaller one by
-   more than ``min_delta_bic``; and each selected regressor must pass its partial F-test given the
+   all sizes (the null model included); each selected regressor must pass its partial F-test given the
    others at ``alpha``, Bonferroni-corrected over the candidates (else the size steps down);
-4. **ambiguity** — the runner-up subset of the chosen size (each at its best lag) is reported with
-   its ΔBIC; alternatives within ``ambiguity_delta_bic`` make the channel ``ambiguous`` (the data
-   cannot tell which sensors are responsible; the report lists them rather than silently picking),
-   together with each selected sensor's closest other sensor and their correlation. The lag gets a
-   profile-likelihood 95 % interval (n·ln RSS within χ²₁(0.95) = 3.84 of its minimum).
+4. **ambiguity** — the runner-up subset of the chosen size is reported with its ΔBIC; alternatives
+   within ``ambiguity_delta_bic`` make the channel ``ambiguous`` (listed, not silently picked), with each
+   selected sensor's closest other sensor and their correlation. The lag gets a profile-likelihood 95 %
+   interval (n·ln RSS within χ²₁(0.95) = 3.84 of its minimum).
 
 Before/after on the later part: "before" is the displacement itself (no compensation),
 "after" the displacement minus the model's prediction.
@@ -48,7 +40,7 @@ import re
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal, stats
+from scipy import stats
 
 from ..io import InputError, read_table
 
@@ -186,6 +178,29 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
         raise InputError(f"{path}: missing displacement column(s) '<channel>_um'; found columns {t.names}")
     if len(t) < 30:
         raise InputError(f"{path}: expected at least 30 rows in a drift log, got {len(t)}")
+    time = _read_time(path, t, time_unit, require_displacement)
+    notes = {"filled": {}, "dropped": {}, "last_row": t.row_number(len(t) - 1),
+             "time_unit": "s (checked from the content)" if time_unit is None else
+             f"{time_unit} (given by the user; converted to seconds)"}
+    tc = _read_temperatures(path, t, temps, time, causal, units, notes)
+    du = {c[:-3]: _read_displacement(path, t, c, sparse_displacement) for c in disps}
+    speed = None
+    if "speed_rpm" in t:
+        raw_speed = _missing_or_number(t, "speed_rpm")
+        bad = np.flatnonzero(~((raw_speed >= SPEED_RANGE_RPM[0]) & (raw_speed <= SPEED_RANGE_RPM[1])) & ~np.isnan(raw_speed))
+        if bad.size:
+            raise InputError(f"{path}: row {t.row_number(bad[0])}, column 'speed_rpm': {raw_speed[bad[0]]:g} rpm is "
+                             f"outside the plausible {SPEED_RANGE_RPM} rpm of a spindle (a typing mistake?)")
+        speed, filled, why = repair_input(t, "speed_rpm", raw_speed, time, causal, stuck=False)
+        if why:
+            notes["dropped"]["speed_rpm"] = why
+        elif filled:
+            notes["filled"]["speed_rpm"] = filled
+    return DriftLog(time, tc, du, speed, str(path), notes)
+
+
+def _read_time(path, t, time_unit, fitting: bool) -> np.ndarray:
+    """``time_s`` (n,) in seconds: increasing, its unit checked (or converted from ``time_unit``)."""
     time = t.float("time_s")
     d = np.diff(time)
     if np.any(d <= 0):
@@ -194,7 +209,7 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
         raise InputError(f"{path}: row {t.row_number(k)}, column 'time_s': {what} time {time[k]:g} "
                          f"(previous row {t.row_number(k - 1)} has {time[k - 1]:g}); expected increasing times")
     if time_unit is None:
-        check_time_unit(path, t, time, fitting=require_displacement)
+        check_time_unit(path, t, time, fitting=fitting)
     else:
         if time_unit not in TIME_UNITS_S:
             raise ValueError(f"Expected time_unit in {list(TIME_UNITS_S)}, got {time_unit!r}")
@@ -203,9 +218,12 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
     if np.median(d) > MAX_STEP_S:
         raise InputError(f"{path}: row {t.row_number(1)}, column 'time_s': units do not fit: the median step is "
                          f"{np.median(d):g} s (more than {MAX_STEP_S:g} s between samples; milliseconds?)")
-    notes = {"filled": {}, "dropped": {}, "last_row": t.row_number(len(t) - 1),
-             "time_unit": "s (checked from the content)" if time_unit is None else
-             f"{time_unit} (given by the user; converted to seconds)"}
+    return time
+
+
+def _read_temperatures(path, t, temps, time, causal, units, notes) -> dict:
+    """``{sensor: (n,) °C}`` of the usable temperature columns, gaps filled; ``notes`` gets what was filled or
+    dropped and how the units were checked."""
     tc = {}
     for c in temps:
         v = _missing_or_number(t, c)
@@ -232,37 +250,27 @@ def load_drift_log(path, causal: bool = False, require_displacement: bool = True
     if not tc:
         raise InputError(f"{path}: column '{temps[0]}': every temperature column was dropped "
                          f"({'; '.join(f'{k}: {v}' for k, v in notes['dropped'].items())})")
-    du = {}
-    for c in disps:
-        v = _missing_or_number(t, c) if sparse_displacement else t.float(c)
-        bad = np.flatnonzero(np.abs(np.nan_to_num(v)) > MAX_DISP_UM)
-        if bad.size:
-            raise InputError(f"{path}: row {t.row_number(bad[0])}, column '{c}': units do not fit: {v[bad[0]]:g} μm "
-                             f"is beyond the plausible {MAX_DISP_UM:g} μm of thermal drift (nanometres?)")
-        if sparse_displacement:     # measurements at some rows only: the unit check needs a few of them
-            if np.isfinite(v).sum() >= 3 and np.nanmax(v) - np.nanmin(v) < MIN_DISP_PTP_UM:
-                k = int(np.nanargmax(np.abs(v)))
-                raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the measurements "
-                                 f"move by only {np.nanmax(v) - np.nanmin(v):.3g} μm (millimetres?)")
-        elif np.ptp(v) < MIN_DISP_PTP_UM:
-            k = int(np.argmax(np.abs(v)))
-            raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the channel moves by "
-                             f"only {np.ptp(v):.3g} μm over the whole log (less than {MIN_DISP_PTP_UM:g} μm; "
-                             "millimetres?)")
-        du[c[:-3]] = v
-    speed = None
-    if "speed_rpm" in t:
-        raw_speed = _missing_or_number(t, "speed_rpm")
-        bad = np.flatnonzero(~((raw_speed >= SPEED_RANGE_RPM[0]) & (raw_speed <= SPEED_RANGE_RPM[1])) & ~np.isnan(raw_speed))
-        if bad.size:
-            raise InputError(f"{path}: row {t.row_number(bad[0])}, column 'speed_rpm': {raw_speed[bad[0]]:g} rpm is "
-                             f"outside the plausible {SPEED_RANGE_RPM} rpm of a spindle (a typing mistake?)")
-        speed, filled, why = repair_input(t, "speed_rpm", raw_speed, time, causal, stuck=False)
-        if why:
-            notes["dropped"]["speed_rpm"] = why
-        elif filled:
-            notes["filled"]["speed_rpm"] = filled
-    return DriftLog(time, tc, du, speed, str(path), notes)
+    return tc
+
+
+def _read_displacement(path, t, c, sparse: bool) -> np.ndarray:
+    """Displacement column ``c`` (n,) μm, its unit checked (``sparse``: measured at some rows, NaN elsewhere)."""
+    v = _missing_or_number(t, c) if sparse else t.float(c)
+    bad = np.flatnonzero(np.abs(np.nan_to_num(v)) > MAX_DISP_UM)
+    if bad.size:
+        raise InputError(f"{path}: row {t.row_number(bad[0])}, column '{c}': units do not fit: {v[bad[0]]:g} μm "
+                         f"is beyond the plausible {MAX_DISP_UM:g} μm of thermal drift (nanometres?)")
+    if sparse:     # measurements at some rows only: the unit check needs a few of them
+        if np.isfinite(v).sum() >= 3 and np.nanmax(v) - np.nanmin(v) < MIN_DISP_PTP_UM:
+            k = int(np.nanargmax(np.abs(v)))
+            raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the measurements "
+                             f"move by only {np.nanmax(v) - np.nanmin(v):.3g} μm (millimetres?)")
+    elif np.ptp(v) < MIN_DISP_PTP_UM:
+        k = int(np.argmax(np.abs(v)))
+        raise InputError(f"{path}: row {t.row_number(k)}, column '{c}': units do not fit: the channel moves by "
+                         f"only {np.ptp(v):.3g} μm over the whole log (less than {MIN_DISP_PTP_UM:g} μm; "
+                         "millimetres?)")
+    return v
 
 
 def lagged(time_s, values, lag_s: float) -> np.ndarray:
@@ -633,53 +641,3 @@ class DriftModeller:
                        "max_before_um": float(np.abs(b).max()), "max_after_um": float(np.abs(a).max())}
         return out
 
-
-def _lowpass(u, dt_s, tau_s):
-    """First-order lag ``τ·dy/dt = u − y`` (forward Euler at ``dt_s``), starting at ``u[0]``: (n,)."""
-    a = dt_s / tau_s
-    return signal.lfilter([a], [1.0, a - 1.0], u, zi=[(1.0 - a) * u[0]])[0]
-
-
-def simulate_drift_log(seed: int = 0, n: int = 2160, dt_s: float = 10.0, n_sensors: int = 6,
-                       active=("s2", "s5"), lag_s: float = 300.0, noise_um: float = 0.5,
-                       channels=("dx", "dz"), sensor_noise_c: float = 0.01, copies=None) -> dict:
-    """A seeded drift log (a dict of columns): ``n_sensors`` temperature sensors ``temp_s1_c …``
-    and displacement channels ``<ch>_um``, with ``speed_rpm``.
-
-    Three independent heat sources — the spindle (a stepped ``speed_rpm`` profile), a feed-drive
-    duty cycle switching at other times, and the ambient (slow sinusoid plus random walk) — reach
-    each sensor's spot with its own random weights through first-order lags of its own time
-    constants (600–4000 s). A sensor reads its spot's temperature plus N(0, ``sensor_noise_c``).
-    Each channel is ``Σ_active k·(T(t − lag_s) − T(0))`` of the spots' TRUE temperatures (the
-    structure does not see the sensors' noise), k of 4–8 μm/°C and random sign, plus N(0, noise_um).
-    ``copies`` {sensor: other} makes ``sensor`` a second reading of ``other``'s spot (two sensors
-    side by side: genuinely ambiguous). The truth is in ``"_truth"``: ``{channel: {sensor: k}}``.
-    """
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * dt_s
-    speed = np.repeat(rng.choice([0, 3000, 6000, 9000, 12000], size=n // 90 + 1), 90)[:n].astype(float)
-    duty = np.repeat(rng.uniform(0.0, 1.0, size=n // 55 + 1), 55)[:n]
-    ambient = 0.8 * np.sin(2 * np.pi * t / rng.uniform(20000, 60000) + rng.uniform(0, 2 * np.pi)) \
-        + np.cumsum(rng.normal(0, 0.01, n))
-    cols = {"time_s": t, "speed_rpm": speed}
-    names = [f"s{i + 1}" for i in range(n_sensors)]
-    spot, reading_noise = {}, {}
-    for s in names:
-        w = rng.dirichlet([0.7, 0.7, 0.7])
-        spot[s] = 20.0 + w[0] * 4.0 * _lowpass(speed / 12000.0, dt_s, rng.uniform(600, 4000)) \
-            + w[1] * 4.0 * _lowpass(duty, dt_s, rng.uniform(600, 4000)) + w[2] * 2.0 * ambient
-        reading_noise[s] = rng.normal(0, sensor_noise_c, n)
-    for s, other in (copies or {}).items():
-        if s not in spot or other not in spot:
-            raise ValueError(f"copies: unknown sensor in {s!r}: {other!r}; sensors are {names}")
-        spot[s] = spot[other]
-    for s in names:
-        cols[f"temp_{s}_c"] = spot[s] + reading_noise[s]
-    truth = {}
-    for ch in channels:
-        k = {s: float(rng.uniform(4.0, 8.0) * rng.choice([-1, 1])) for s in active}
-        truth[ch] = k
-        d = sum(kk * (lagged(t, spot[s], lag_s) - spot[s][0]) for s, kk in k.items())
-        cols[f"{ch}_um"] = d + rng.normal(0, noise_um, n)
-    cols["_truth"] = truth
-    return cols

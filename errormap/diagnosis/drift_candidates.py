@@ -9,20 +9,14 @@
 * ``ridge_bank`` — ridge on every input through a bank of first-order filters (``TAU_BANK_S``:
   a distributed lag whose weights are one time constant per sensor or any mix of them); the
   penalty λ is a hyper-parameter chosen by the same cross-validation.
-* ``pls_bank`` — partial least squares on the same bank; the number of components is chosen by
-  cross-validation.
 * ``transfer`` — a physically motivated transfer-function model: the spindle as heat source
   (``speed_rpm`` and ``speed_rpm²``, heat ∝ speed^1…2) through two first-order paths whose time
   constants are fitted (grid of ``TAU_GRID_S`` pairs), plus every temperature as logged, ridge-
   stabilised.
 
-``ridge_ols`` / ``pls_ols`` (:class:`RidgeTowardOLSFamily`, :class:`PLSTowardOLSFamily`): the filter
-bank fitted to the OLS baseline's residual, so that the penalty (ridge λ, or fewer PLS components)
-pulls toward the baseline rather than toward zero; the largest λ is the baseline itself. They replace
-``ridge_bank`` / ``pls_bank`` among the default families (:func:`default_families`): on development
-seeds 100–109 (both simulators, both splits, 180 cases) the swap raised the held-out wins over OLS
-from 113 to 146 at the same 14 losses and cut the worst loss from 1.97× to 1.33×
-(``docs/decisions/020-benchmark-notebook.md``). ``ridge_bank`` / ``pls_bank`` stay available.
+``ridge_ols`` (:class:`RidgeTowardOLSFamily`): the filter bank fitted to the OLS baseline's residual, so
+that the penalty pulls toward the baseline rather than toward zero (the largest λ is the baseline itself);
+it replaces ``ridge_bank`` among the default families (:func:`default_families`; measured in ``docs/decisions/020-benchmark-notebook.md``).
 """
 from __future__ import annotations
 
@@ -32,12 +26,11 @@ from .drift import DriftLog, DriftModeller
 from .drift_constrained import (GradientFamily, GreyBoxFamily, GreyBoxModesFamily, ModesFamily, StableLagOLSFamily,
                                 StableOLSFamily, ThermalNNFamily)
 from .drift_features import (SPEED_SCALE_RPM, TAU_BANK_S, Feature, _Family, _inputs, feature_matrix, fit_ols,
-                             fit_pls_path, fit_ridge_path)
+                             fit_ridge_path)
 
 TAU_GRID_S = (300.0, 900.0, 1800.0, 3600.0, 7200.0, 14400.0, 28800.0)
 RIDGE_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1)   # λ·n added to the standardised Gram matrix
 RIDGE_OLS_LAMBDAS = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)   # toward OLS: the large end is the baseline
-PLS_MAX_COMPONENTS = 12
 TRANSFER_LAMBDA = 1e-4
 SUBSET_SEARCH_STEP_S = 60.0                      # the subset search runs on rows ≥ 60 s apart
 
@@ -79,23 +72,6 @@ class RidgeBankFamily(_Family):
                 for ch, path in zip(channels, paths)}
 
 
-class PLSBankFamily(RidgeBankFamily):
-    name = "pls_bank"
-
-    def __init__(self, taus=TAU_BANK_S, max_components=PLS_MAX_COMPONENTS):
-        super().__init__(taus)
-        self.max_components = max_components
-
-    def fit(self, log, channels, rows, cache):
-        feats = self.features(log, rows)
-        X = feature_matrix(log, feats, cache)[rows]
-        out = {}
-        for ch in channels:
-            path = fit_pls_path(X, log.disp_um[ch][rows], self.max_components)
-            out[ch] = {f"components={i + 1}": (feats, a, b) for i, (a, b) in enumerate(path)}
-        return out
-
-
 def _ols_in_bank(X, feats, Y):
     """OLS on the bank's unfiltered columns (the baseline's inputs): (intercept (c,), coef (p, c) embedded in
     the bank with zeros on the filtered columns, residual (n, c))."""
@@ -126,24 +102,6 @@ class RidgeTowardOLSFamily(RidgeBankFamily):
         return {ch: {f"lambda={lam:g}": (feats, float(a0[j] + a), B0[:, j] + b)
                      for lam, (a, b) in zip(self.lambdas, path)}
                 for j, (ch, path) in enumerate(zip(channels, paths))}
-
-
-class PLSTowardOLSFamily(PLSBankFamily):
-    """PLS components of the filter bank added to the OLS baseline (fitted on its residual); 0 components
-    would be the baseline itself."""
-
-    name = "pls_ols"
-
-    def fit(self, log, channels, rows, cache):
-        feats = self.features(log, rows)
-        X = feature_matrix(log, feats, cache)[rows]
-        Y = np.stack([log.disp_um[ch][rows] for ch in channels], axis=1)
-        a0, B0, R = _ols_in_bank(X, feats, Y)
-        out = {}
-        for j, ch in enumerate(channels):
-            path = fit_pls_path(X, R[:, j], self.max_components)
-            out[ch] = {f"components={i + 1}": (feats, float(a0[j] + a), B0[:, j] + b) for i, (a, b) in enumerate(path)}
-        return out
 
 
 class TransferFamily(_Family):
@@ -209,11 +167,7 @@ class SubsetLagFamily(_Family):
 def default_families(subset_kw=None):
     """OLS and the constant offset (the plain baselines), the subset/lag search, the transfer model, the filter bank shrunk toward OLS by
     ridge (chosen on development seeds 100–109, ``docs/decisions/020-benchmark-notebook.md``), and the physically
-    constrained families. The PLS bank toward OLS (``pls_ols``) is left out: on
-    simulated logs whose later part leaves the fit range (development seeds: lumped 100–104, rod 100–102;
-    38 channel cases) it was the choice in 2 of the 4 cases worse than OLS by more than 5 % (1.33×,
-    1.15×); without it those became 1.01× and 0.81×, no case got worse, and the other two (1.06×,
-    1.23×, grey-box choices) stayed as they were. It stays available."""
+    constrained families."""
     return [OLSFamily(), ConstantFamily(), SubsetLagFamily(**(subset_kw or {})), TransferFamily(), RidgeTowardOLSFamily(),
             ThermalNNFamily(), GreyBoxFamily(), StableOLSFamily()]
 

@@ -133,38 +133,6 @@ def fit_ridge_path(X, Y, lambdas):
     return out[0] if one else out
 
 
-def fit_pls_path(X, y, max_components):
-    """PLS1 (NIPALS) on standardised columns: [(intercept, coef)] for 1..max_components components."""
-    mu, sd = _standardise(X)
-    Z = (X - mu) / sd
-    ym = y.mean()
-    yr = y - ym
-    E = Z.copy()
-    W, P, q = [], [], []
-    out = []
-    for _ in range(min(max_components, Z.shape[1])):
-        w = E.T @ yr
-        nw = np.linalg.norm(w)
-        if nw < 1e-12:
-            break
-        w /= nw
-        tt = E @ w
-        tn = tt @ tt
-        if tn < 1e-12:
-            break
-        p = E.T @ tt / tn
-        qq = yr @ tt / tn
-        E = E - np.outer(tt, p)
-        yr = yr - qq * tt
-        W.append(w)
-        P.append(p)
-        q.append(qq)
-        Wm, Pm = np.array(W).T, np.array(P).T
-        b = Wm @ np.linalg.solve(Pm.T @ Wm, np.array(q)) / sd
-        out.append((float(ym - mu @ b), b))
-    return out
-
-# -- candidate families: their inputs and contract ---------------------------------------------
 def _inputs(log: DriftLog, rows) -> tuple[list, bool]:
     temps = [f"temp_{s}_c" for s, v in log.temps_c.items() if np.ptp(v[rows]) > 0]
     speed = log.speed_rpm is not None and np.ptp(log.speed_rpm[rows]) > 0

@@ -27,19 +27,12 @@ random walk alone adapts slowly (that is its job: measurement noise must not mov
 abrupt change — a 3 σ innovation — is met by opening the covariance up (an adaptive, fading-memory
 filter), and the rows where that happened are reported (``steps_``).
 
-**The distance rule in updated predictions.** Where the saved model shrinks a channel toward its OLS
-baseline beyond ρ = 1 (``ChannelFit.shrink_scale``; ρ the larger of the raw inputs' and the channel's own
-features' distance from the fit data, :meth:`DriftModel.channel_rho`), the updated prediction does the same,
-``base + g(ρ)·(updated − base)``, but ρ is measured from the fit data **plus the measured rows seen so far**
-(strictly before the predicted row): once the machine has been measured in a new regime, the updated model
-has learned there and is trusted there. The reference (mean and covariance of the fit data, recovered
-from the saved whitening matrix: C = pinv(W·Wᵀ), ``fit_rows`` samples) grows by each measured row's inputs
-after that row's update; the range distance d0 stays the fit data's. The band grows as max(1, ρ)^band_gamma
-with the same ρ (``UpdateResult.band_um``). The baseline is updated from the same measurements by the same filter, so
-the shrinkage blends two current models (a stale baseline would undo, beyond ρ = 1, what the update learned).
-The saved updated model keeps the fit data's reference (the measurements are not in it): a later ``--update``
-run re-grows it from its own log.
-
+**The distance rule in updated predictions** (``docs/explanation/drift.md``, online update): where the saved
+model shrinks a channel toward its OLS baseline beyond ρ = 1 (:meth:`DriftModel.channel_rho`), the updated
+prediction is ``base + g(ρ)·(updated − base)`` with the baseline updated by the same filter and ρ measured
+from the fit data (C = pinv(W·Wᵀ) from the saved whitening matrix, ``fit_rows`` samples) grown by each
+measured row strictly before the predicted one; the band grows as max(1, ρ)^band_gamma
+(``UpdateResult.band_um``). A saved updated model keeps the fit data's reference.
 """
 from __future__ import annotations
 

@@ -7,24 +7,15 @@ conditions ``c`` is::
     Δerror(q, c) = J_e(q) · g(θ; q, c)        shape (n, 3) μm
 
 where ``J_e`` is the element's column of :func:`errormap.chain_kernel.error_jacobian` (μm per μm or per
-μrad; the unit vector for ``dx``/``dy``/``dz``) and ``g`` a scalar function of the inputs,
-linear in its coefficients θ except for the period of ``periodic``:
-
-===========  =====  ==========================================================  ======================
-kind         axis   g (u = μm, or μrad for an angular element)                  parameters
-===========  =====  ==========================================================  ======================
-thermal      x, z   k·(temp_c − ref_temp_c)·(pos − lo)                          ``k_u_per_mm_c``
-drift        x, z   k·(time_s − ref_time_s)/3600·(pos − lo)                     ``k_u_per_mm_h``
-reversal     x,z,a  b/2·dir                                                     ``backlash_u``
-periodic     x, z   A·sin(2π·pos/P + φ)  (P found by a periodogram)             ``amplitude_u, phase_rad, period_mm``
-harmonic     a      A·sin(N·a + φ)       (integer order N by a periodogram)     ``amplitude_u, phase_rad, order``
-interaction  x*z    k·(x − x_lo)(z − z_lo)/(Δx·Δz)                              ``corner_u``
-===========  =====  ==========================================================  ======================
-
-``pos`` is the axis position, ``lo`` the lower stroke, Δ the stroke length. Internally the
-sinusoids are fitted as ``s·sin + c·cos`` (linear) and reported as amplitude and phase. The terms are
-those of a grinder diagnosis written before the one chain loop (``compensation.diagnosed_model`` reads
-them); each acts on an element of its axis' group (X, Z or A; both for ``x*z``) or a WCS component.
+μrad; the unit vector for ``dx``/``dy``/``dz``) and ``g`` a scalar function of the inputs, linear in its
+coefficients θ except for the period of ``periodic`` (found by a periodogram, as the integer order of
+``harmonic``). The kinds, their formulas ``g`` and parameters (``u`` = μm, or μrad for an angular
+element) are the diagnosed entries of :data:`errormap.effect_kinds.EFFECT_KINDS` (thermal, drift on x, z;
+reversal on x, z, a; periodic on x, z; harmonic on a; interaction on x*z). ``pos`` is the axis position,
+``lo`` the lower stroke, Δ the stroke length. Sinusoids are fitted as ``s·sin + c·cos`` (linear) and
+reported as amplitude and phase. The terms are those of the grinder's diagnosed model
+(``compensation.model_file.load_diagnosed_model`` reads them); each acts on an element of its axis' group
+(X, Z or A; both for ``x*z``) or a WCS component.
 """
 from __future__ import annotations
 

@@ -3,48 +3,19 @@
 **Parameters** ``r`` (in this order): base joints (3k, mm, base frame), platform joints (3k, mm,
 platform frame), leg zero lengths = offsets (k, mm), optionally leg scales (k); ``k = 6`` for the
 hexapod, 3 for the tripod. A leg's actual length is ``scale * q + offset`` for drive command ``q``.
+Error model: with ``c_i(x, r) = |tip + R (a_i - t) - b_i| - (s_i q_i + o_i) = 0`` the pose ``x`` (tip
+mm, small rotation ``phi`` rad, ``R = (I + [phi]x) R0``) moves by ``dx/dr = -(dc/dx)^-1 dc/dr``
+(``torch.func`` autodiff of the exact constraint).
 
-**Error model.** With ``c_i(x, r) = |tip + R (a_i - t) - b_i| - (s_i q_i + o_i) = 0`` the pose ``x``
-(tip, and a small rotation ``phi`` with ``R = (I + [phi]x) R0``) is an implicit function of ``r``:
-``dx/dr = -(dc/dx)^-1 dc/dr`` -- the first-order transfer ``dp = J dr``. Both derivatives come from
-automatic differentiation (``torch.func``) of the exact constraint; tests check them against
-finite differences of the forward kinematics.
+**Measurements**: poses in the instrument's frame, ``meas = R_g p + t_g`` (the registration, estimated
+with the parameters, not regularised); orientation residuals (rad) times ``lever_mm`` are lengths in mm,
+so one noise level ``delta`` (mm per component) describes every residual component.
 
-**Measurements** are poses in the instrument's frame: the tool tip (mm) and, for the full pose,
-the platform orientation. The instrument frame is in general not the machine frame: a rigid
-transform ``meas = R_g p + t_g`` (``registration``) is estimated with the parameters, from a robust
-initial registration (trimmed Kabsch of the measured tips onto the nominal forward kinematics).
-Orientation residuals (rotation vector, rad) are multiplied by ``lever_mm`` so that every residual
-component is a length in mm and one noise level ``delta`` (mm per component) describes them; by default
-the lever is estimated from the data (position / orientation residual, :meth:`PKMCalibrator.fit`).
-
-**Identification**: iteratively regularised Gauss-Newton on the exact model. Each step solves the
-linearised Tikhonov problem ``min |J w - b|^2 + lambda |w|^2`` (``w`` the parameters' deviation from
-nominal in mm of leg length -- joints, the leg length at mid-range, the scale's change at the end of the
-range: :meth:`PKMCalibrator._layout`; the registration is not regularised and is eliminated by
-projection) through the SVD, with ``lambda`` by ``lambda_rule``: GCV (default), Morozov's discrepancy
-principle ``|J w_lambda - b| = tau * delta * sqrt(m)``, or the L-curve corner. When
-``delta`` is unknown it is estimated from the GCV fit (``delta^2 = RSS / (m - trace H)``); the other two
-rules' lambdas are always reported beside the chosen one.
-
-**Gauge and null directions.** With an estimated instrument frame, 6 parameter combinations (a rigid
-motion of the machine's joints) are exactly equivalent to a change of the frame. They are eliminated
-explicitly (:meth:`PKMCalibrator.gauge_basis`): the deviation is kept orthogonal to them, so the machine
-frame is the one the nominal joints define (the simulator's convention too). Any other structural null
-direction (the tripod's ``b_i - a_i``: 9) is truncated (singular values below ``rcond * s_max`` get no
-component). Without this, when the discrepancy cannot be reached (least-squares residual above
-``tau * delta * sqrt(m)``, which happens by chance), Morozov gives ``lambda -> 0`` and the rounding-level
-singular values of those directions amplify noise into steps of tens of mm: the fit oscillated.
-
-**Step control.** Each Gauss-Newton step is accepted by a backtracking (Armijo) line search on that
-step's Tikhonov functional ``|res|^2 + lambda |w|^2``. Convergence: the full step changes no parameter
-and no frame component by more than ``xtol_mm`` (mm-equivalents; rotations times ``lever_mm``), or the
-linear model predicts a relative decrease below ``ftol``.
-
-Parameters stay inside physical bounds (``joint_bound_mm``, ``offset_bound_mm``, ``scale_bound``). The
-report lists the singular values and the condition number on the identifiable subspace (gauge fixed,
-null directions removed) and the raw ones over all parameters, and the parameter combinations that are
-not identifiable (raw singular values below ``rcond * s_max``), each with how it is fixed.
+**Identification**: iteratively regularised Gauss-Newton (Tikhonov steps by SVD, ``lambda`` by GCV,
+Morozov or the L-curve), the 6 gauge directions fixed (:meth:`PKMCalibrator.gauge_basis`), other null
+directions truncated below ``rcond * s_max``, Armijo line search, bounds ``joint_bound_mm``,
+``offset_bound_mm``, ``scale_bound``. The method, its reasons and the report's keys:
+``docs/explanation/parallel-kinematics.md`` (PKM calibration).
 """
 from __future__ import annotations
 
@@ -205,8 +176,7 @@ class PKMCalibrator:
                  noise_um: float | None = None, tau: float = 1.0, lever_mm: float | None = None,
                  joint_scale_mm: float = 1.0, joint_bound_mm: float = 25.0,
                  offset_bound_mm: float = 200.0, scale_bound: float = 0.15, max_iter: int = 50,
-                 xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "gcv",
-                 verbose: bool = False, progress=None):
+                 xtol_mm: float = 1e-6, ftol: float = 1e-10, rcond: float = 1e-8, lambda_rule: str = "gcv", progress=None):
         if noise_um is not None and not noise_um > 0:
             raise ValueError(f"noise_um must be positive, got {noise_um}")
         if tau < 1:
@@ -232,7 +202,6 @@ class PKMCalibrator:
         self.xtol_mm = xtol_mm
         self.ftol = ftol
         self.rcond = rcond
-        self.verbose = verbose
         self.progress = progress
 
     # -- helpers ---------------------------------------------------------------------------

@@ -1,26 +1,14 @@
 """Leg-space tools for PKM calibration: measured leg lengths, the plain baseline fit, and the loop on
 leg residuals.
 
-**Leg residual.** A measured pose (instrument frame) taken back to the machine frame through the
-registration gives, by the inverse kinematics of a parameter set, the leg lengths the platform actually
-had; minus the model's leg lengths ``s q + o`` (plus any accepted leg terms) that is the *leg residual*
-(mm), shape (n, k). It needs the full pose (hexapod: position + orientation; the tripod's platform does
-not rotate).
-
-**Plain baseline** (:func:`plain_leg_fit`): what a shop engineer would try first -- ordinary least
-squares of the leg residual over the same parameters (joints, zero lengths, scales in their raw form)
-plus the instrument frame, scipy ``least_squares`` (Levenberg-Marquardt), no regularisation, starting from
-the nominal machine and a Kabsch registration. Without measured orientations (hexapod) it falls back to
-ordinary least squares of the pose residual (forward kinematics).
-
-**The loop** (:func:`leg_residual_loop`): after the rigid fit, candidate terms the rigid model lacks
-are tested on the leg residuals of the fit poses -- per leg a nonlinearity in drive units (quadratic +
-cubic in the normalised command ``u`` in [-1, 1] over the leg range), per leg a direction-dependent
-joint offset (second-order terms of the leg's unit direction: ``n_x^2, n_y^2, n_x n_y, n_x n_z,
-n_y n_z``) -- each by K-fold cross-validation and an F-test (Bonferroni over the candidates); the best
-accepted term is added, the residual updated, and the search repeated. Every candidate is a function of
-the *commands* only (directions from the nominal forward kinematics of the commands), so the
-accepted terms can be applied at prediction and compensation time.
+**Leg residual** (mm, shape (n, k)): the leg lengths a measured pose (instrument frame, taken back through
+the registration; the hexapod needs position + orientation) implies by inverse kinematics, minus the
+model's ``s q + o`` (plus any accepted leg terms). **Plain baseline** (:func:`plain_leg_fit`): ordinary
+least squares of the leg residual over the raw parameters and the instrument frame (scipy
+``least_squares``, no regularisation; pose-space without measured orientations). **The loop**
+(:func:`leg_residual_loop`): per-leg ``nonlinearity`` and ``direction`` terms, functions of the drive
+commands only, accepted by K-fold CV and a Bonferroni F-test, one at a time. The rules and the
+``calibration.json`` keys: ``docs/explanation/parallel-kinematics.md`` (the loop on leg residuals).
 """
 from __future__ import annotations
 

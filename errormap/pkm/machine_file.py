@@ -1,34 +1,11 @@
 """Machine files for the parallel kinematic machines (``kind = "hexapod"`` / ``"tripod"``).
 
-The schema is documented in ``docs/explanation/parallel-kinematics.md``. Every error names the file and the key.
-
-Hexapod (6-UPS Stewart platform)::
-
-    [machine]
-    kind = "hexapod"
-    name = "..."
-    [geometry]
-    # either explicit joints (mm) ...
-    base_joints_mm = [[x, y, z], ... 6 rows]       # in the base (machine) frame
-    platform_joints_mm = [[x, y, z], ... 6 rows]   # in the platform frame
-    # ... or radii with the short/long side ratio (or the pair separation angle)
-    base_radius_mm = 500.0
-    platform_radius_mm = 400.0
-    base_side_ratio = 0.365          # or base_pair_angle_deg
-    platform_side_ratio = 0.365      # or platform_pair_angle_deg
-    tool_length_mm = 30.0            # tool tip at (0, 0, -tool_length_mm) in the platform frame
-    [legs]
-    min_mm = 600.0                   # a number or 6 numbers
-    max_mm = 1500.0
-    scale = 1.0                      # l = scale * q + offset_mm  (q in drive units)
-    offset_mm = 0.0
-    [home]
-    tool_tip_mm = [0.0, 0.0, 980.0]  # start of forward kinematics (tool axis along +z)
-
-Tripod (3-TPT, translational): the same sections with 3 joints/legs; joints given
-explicitly (3 x 3) or by ``base_radius_mm``/``platform_radius_mm`` (joints at
-``joint_angles_deg``, default 90, 210, 330); ``tool_offset_mm`` (3 numbers, the tool
-tip in the platform frame) replaces ``tool_length_mm``.
+Sections ``[machine]``, ``[geometry]`` (explicit base / platform joints (k, 3) mm, or radii with side
+ratios or pair angles; the tool tip in the platform frame), ``[legs]`` (``min_mm``, ``max_mm``, ``scale``,
+``offset_mm``: ``l = scale * q + offset_mm``, q in drive units; a number or k numbers) and ``[home]``
+(``tool_tip_mm``, the start of forward kinematics); k = 6 for the hexapod, 3 for the tripod. Schema with
+full examples: ``docs/reference/file-formats.md`` and ``docs/explanation/parallel-kinematics.md``. Every
+error names the file and the key.
 """
 from __future__ import annotations
 
@@ -37,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
-from ..machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table
+from ..machine_checks import MachineFileError, check_array, check_known_keys, check_number, check_table, optional_table
 
 HEXAPOD_GEOMETRY_KEYS = (
     "base_joints_mm", "platform_joints_mm", "base_radius_mm", "platform_radius_mm",
@@ -148,9 +125,7 @@ def _parse_common(doc, path, kind, k, geometry_keys):
     if np.any(scale == 0):
         raise MachineFileError(f"{path}: key 'legs.scale': expected non-zero scales, got {scale}")
     offset = _leg_array(legs, "offset_mm", k, 0.0, path)
-    home = doc.get("home", {})
-    if not isinstance(home, dict):
-        raise MachineFileError(f"{path}: 'home': expected a table")
+    home = optional_table(doc, "home", path, {})
     check_known_keys(home, HOME_KEYS, "home", path)
     return name, g, lo, hi, scale, offset, home
 
