@@ -99,6 +99,9 @@ class Dialect:
     lathe_x_by_parameter: bool = False
     """On a lathe, whether X is a diameter or a radius is a machine parameter, not a word of the program (Fanuc
     diameter programming, parameter DIA; Haas, Siemens ISO turning likewise): a lathe program's X is refused."""
+    lathe_t_offset: bool = False
+    """On a lathe a four-digit ``T`` word is ``TttOO``: tool ``tt`` and its offset register ``OO``, applied
+    from that line (``OO = 00`` cancels the offset; Fanuc, Haas turning: :mod:`compensation.nc_state`)."""
     dwell_with_motion: bool = False
     """Axis words on a ``G4`` line belong to the motion mode (RS274NGC, LinuxCNC: G4 uses no axis words; the line
     dwells, then moves); elsewhere ``G04 X`` is a dwell time (Fanuc, Haas) and such a line is refused."""
@@ -166,7 +169,7 @@ DIALECTS = {
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
                                                          "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True,
-                     g80_keeps_motion=True, h_offset_alone=True, lathe_x_by_parameter=True),
+                     g80_keeps_motion=True, h_offset_alone=True, lathe_x_by_parameter=True, lathe_t_offset=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
@@ -174,7 +177,8 @@ DIALECTS = {
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
                     modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)", "G50": SCALING_OFF,
                            "G50.1": MIRROR_OFF, "G103": LOOKAHEAD_BLOCKS}, g80_with_motion=True,
-                    g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS, lathe_x_by_parameter=True),
+                    g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS, lathe_x_by_parameter=True,
+                    lathe_t_offset=True),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
                            program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF,
                                   "G50.1": MIRROR_OFF},

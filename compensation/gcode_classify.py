@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (_dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (lathe_t_offset, _dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .gcode_spline import spline_move, spline_points, spline_segments
@@ -88,7 +88,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
         elif w.letter not in LETTER_RULES:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
-        elif w.letter == "T" and not _plain_tool_number(w):
+        elif w.letter == "T" and not _plain_tool_number(w) and not _lathe_t_word(w, ax, dia):
             raise _Refuse(w.start + 1, f"'T{w.text}': a T word of more than {MAX_TOOL_DIGITS} digits (or not a "
                                        "whole number) may select a tool offset (lathe 'TttOO': tool tt, offset "
                                        "OO) that shifts the axes, like G43 H; not supported (write the tool "
@@ -97,6 +97,14 @@ def _checked_words(words, ax: AxisWords, dia=None):
             raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
         by[w.letter] = w
     return by, gs, ms
+
+
+def _lathe_t_word(w: Word, ax: AxisWords, dia) -> bool:
+    """A ``TttOO`` word (four digits as written) of a dialect that reads it so, on a lathe (X and Z, no Y):
+    tool ``tt`` with offset ``OO`` (:func:`compensation.gcode_state.lathe_t_offset`)."""
+    digits = w.text.strip()
+    return (getattr(dia, "lathe_t_offset", False) and len(digits) == 4 and digits.isdigit()
+            and "X" in ax.words and "Z" in ax.words and "Y" not in ax.words)
 
 
 def _plain_tool_number(w: Word) -> bool:
@@ -208,6 +216,8 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         return "skipped", None
     by, gs, ms = _checked_words(words, ax, dia)
     _tool_change(st, by, ms)
+    if "T" in by and _lathe_t_word(by["T"], ax, dia):
+        lathe_t_offset(idx, st, by["T"], ax)
     groups = _modal_groups(gs, dia)
     if "O" in by:
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):

@@ -187,9 +187,53 @@ def solve_turning(field, machine, axes_d, ball_um: float, tol_um: float = TOL_UM
     return q, residual, converged, spread, it
 
 
-def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, ball_um):
+def tool_groups(tool_xz, n: int):
+    """``(x_mm, z_mm, indices)`` per distinct lathe tool offset of ``tool_xz`` (n, 2) (None: none); a NaN row
+    (no offset: the machine file's tool point) gives ``(None, None, indices)``."""
+    if tool_xz is None:
+        yield None, None, np.arange(n)
+        return
+    t = np.asarray(tool_xz, dtype=float)
+    on = np.isfinite(t).all(axis=1)
+    if (~on).any():
+        yield None, None, np.flatnonzero(~on)
+    for x, z in np.unique(t[on], axis=0):
+        yield float(x), float(z), np.flatnonzero(on & (t[:, 0] == x) & (t[:, 1] == z))
+
+
+def at_tool(field, machine, x_mm, z_mm):
+    """``(field, machine)`` at a lathe tool's offsets (:func:`compensation.nc_state.machine_with_lathe_tool`);
+    the given ones where ``x_mm`` is None. ``field`` None stays None."""
+    if x_mm is None:
+        return field, machine
+    from .nc_state import field_with_tool, machine_with_lathe_tool
+    mt = machine_with_lathe_tool(machine, x_mm, z_mm)
+    return (None if field is None else field_with_tool(field, mt)), mt
+
+
+def surface_residual_by_tool(field, machine, axes, axes_d, tool_xz):
+    """:func:`surface_residual_um` of every point at its lathe tool's offsets (``tool_xz`` (n, 2), None: none)."""
+    n = len(axes)
+    mean, spread = np.zeros((n, 2)), np.zeros(n)
+    for x, z, idx in tool_groups(tool_xz, n):
+        f, mt = at_tool(field, machine, x, z)
+        mean[idx], spread[idx] = surface_residual_um(f, mt, axes[idx], axes_d[idx])
+    return mean, spread
+
+
+def nominal_by_tool(machine, axes, tool_xz) -> np.ndarray:
+    """The nominal tool points (n, 3) mm of ``axes`` (n, k), each at its lathe tool's offsets."""
+    from .solvers.chain_exact import nominal_and_jacobian
+    out = np.zeros((len(axes), 3))
+    for x, z, idx in tool_groups(tool_xz, len(axes)):
+        out[idx] = nominal_and_jacobian(at_tool(None, machine, x, z)[1], axes[idx])[0]
+    return out
+
+
+def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, ball_um, tool_xz=None):
     """One :class:`~compensation.solvers.base.SolveResult` over all points: ``turning`` (n,) points by
-    :func:`solve_turning`, the others by ``solve_rest(targets, axes_d)`` (the chosen chain method)."""
+    :func:`solve_turning` (each at its lathe tool's offsets, ``tool_xz`` (n, 2), None: none), the others by
+    ``solve_rest(targets, axes_d)`` (the chosen chain method)."""
     import time
     from .solvers._common import make_result
     t0 = time.perf_counter()
@@ -208,10 +252,12 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
                 info[key] = rest[np.asarray(info[key], dtype=np.intp)]
         info.pop("iterations", None)
     if len(turn):
-        from .solvers.chain_exact import nominal_and_jacobian
-        q, res, conv, spread, _ = solve_turning(field, machine, axes_d[turn], ball_um)
-        axes[turn], residual[turn], converged[turn] = q, res, conv
-        commands[turn] = nominal_and_jacobian(machine, q)[0]
+        spread = np.zeros(len(turn))
+        for x, z, idx in tool_groups(None if tool_xz is None else np.asarray(tool_xz)[turn], len(turn)):
+            f, mt = at_tool(field, machine, x, z)
+            q, res, conv, spread[idx], _ = solve_turning(f, mt, axes_d[turn[idx]], ball_um)
+            axes[turn[idx]], residual[turn[idx]], converged[turn[idx]] = q, res, conv
+        commands[turn] = nominal_by_tool(machine, axes[turn], None if tool_xz is None else np.asarray(tool_xz)[turn])
         nfev += len(turn) * TURN_SAMPLES
         names = machine.axis_columns
         c, lin = _indices(machine)

@@ -340,12 +340,13 @@ def solve_units(paths, field_, truth, machine, s: CompensateSettings, executor=N
                     base[idx] = true_residual_um(tr, mt, u.axes, u.targets_mm)
         else:
             from ...solvers.base import BALL_RADIUS_UM
-            from ...turning import solve_with_turning
+            from ...turning import nominal_by_tool, solve_with_turning
             rest = np.flatnonzero(~turning)
             rest_res = gather_results([r for _, _, r in mine], [np.searchsorted(rest, idx) for _, idx, _ in mine]) \
                 if mine else None
-            targets, _ = nominal_and_jacobian(machine, tp.axes)
-            res = solve_with_turning(lambda t, a: rest_res, field_, machine, targets, tp.axes, turning, BALL_RADIUS_UM)
+            targets = nominal_by_tool(machine, tp.axes, tp.tool_xz)
+            res = solve_with_turning(lambda t, a: rest_res, field_, machine, targets, tp.axes, turning, BALL_RADIUS_UM,
+                                     tp.tool_xz)
         res.info["chunks"] = chunks
         out.append((res, targets, true_r, base))
     return out
@@ -490,9 +491,11 @@ def truth_entry(entry, tp: ToolPath, res, targets, true_r, true_base, truth, mac
     if turning is not None:
         after = true_residual_um(truth, machine, res.axes, targets)
         before = true_residual_um(truth, machine, tp.axes, targets)
-        from ...turning import surface_residual_um
+        from ...turning import surface_residual_by_tool
         t = np.flatnonzero(turning)
-        (a2, spread), (b2, _) = (surface_residual_um(truth, machine, ax[t], tp.axes[t]) for ax in (res.axes, tp.axes))
+        tool = None if tp.tool_xz is None else tp.tool_xz[t]
+        (a2, spread), (b2, _) = (surface_residual_by_tool(truth, machine, ax[t], tp.axes[t], tool)
+                                 for ax in (res.axes, tp.axes))
         after[t] = np.stack([a2[:, 0], np.zeros(len(t)), a2[:, 1]], axis=1)
         before[t] = np.stack([b2[:, 0], np.zeros(len(t)), b2[:, 1]], axis=1)
         entry["turning"] = {"points": int(len(t)), "residual": "turning points: radial and axial deviation "
