@@ -505,7 +505,8 @@ class ProgramState:
     def __init__(self, dialect_name, text: str):
         from .dialects import DIALECTS
         code = re.sub(r"\([^)]*\)|;[^\n]*", "", text)
-        used = {c.upper() for c in _AXIS_WORD.findall(code)} or {"X"}
+        used = {c.upper() for c in _AXIS_WORD.findall(code)} | ({"X", "Y"} if re.search(r"[@^]", code) else set())
+        used = used or {"X"}
         words = tuple(a for a in "XYZABCUVW" if a in used)
         self.ax = AxisWords("program", words, tuple(a for a in words if a in "ABC"))
         self.st = _State(len(self.ax.words))
