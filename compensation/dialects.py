@@ -147,7 +147,8 @@ LINUXCNC_ARC_TOL = (2 * 0.01 * 2 ** 0.5, 2 * 0.001 * 2 ** 0.5 * 25.4, 0.001)
 ``interp_arc.cc`` arc_data_ijk: an error when the absolute *or* the relative difference is exceeded): end
 points or centre rounded to 0.01 mm / 0.001 inch pass; the arc is then run as a spiral whose radius changes
 linearly with the angle, as the reader reads it."""
-SPLINES = {"G5": "a cubic spline (G5 X Y I J P Q)", "G5.1": "a quadratic spline (G5.1 X Y I J)"}
+SPLINES = {"G5": "a cubic spline (G5 X Y I J P Q)", "G5.1": "a quadratic spline (G5.1 X Y I J)",
+           "G5.2": "a NURBS block (G5.2 X Y P [L] lines, then G5.3)", "G5.3": "the end of a NURBS block"}
 """LinuxCNC G-code reference, "G5 Cubic spline", "G5.1 Quadratic spline": motion codes, read exactly
 (:mod:`compensation.gcode_spline`)."""
 LATHE_MODES = {"G7": "lathe diameter mode: X words (positions, G92/G10 values) are diameters, read halved",

@@ -11,7 +11,7 @@ import numpy as np
 from .gcode_state import (lathe_t_offset, _dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
-from .gcode_spline import spline_move, spline_points, spline_segments
+from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
                           default_axis_words, DEFAULT_RAPIDS, G92_CODES, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
                           PLANES, REFUSED_G, REFUSED_LETTERS, tokenize, Word)
@@ -36,6 +36,7 @@ class _State:
         self.selected = None       # the last T word (the tool prepared)
         self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
+        self.nurbs = None          # the open G5.2 block (compensation.gcode_spline.nurbs_line)
         self.diameter = False      # lathe diameter mode (LinuxCNC G7): X words are diameters
         self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
         self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
@@ -169,7 +170,8 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
             h_alone = letter == "H" and getattr(st.dialect, "h_offset_alone", False)  # Fanuc: H alone in G43 mode
             arc_p1 = letter == "P" and st.mode in ("G2", "G3") and bool(axis_words or arc_words) and by["P"].value == 1
             mode_p = letter == "P" and st.dialect is not None and any(c in st.dialect.modes for c, _ in gs)
-            spline = letter in "PQ" and st.dialect is not None and st.mode in st.dialect.splines  # gcode_spline checks
+            spline = (letter in "PQ" or (letter == "L" and st.mode == "G5.2")) and st.dialect is not None and (
+                st.mode in st.dialect.splines)  # gcode_spline checks
             if not (h_alone or arc_p1 or mode_p or spline or any(c in allowed_with for c, _ in gs)):
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
                               + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
@@ -248,7 +250,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     plain = "nonmodal" not in groups or (groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_with_motion", False))
     move = _mode_move(idx, st, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain)
     if move is not None:
-        return "move", move
+        return ("state", None) if move == "state" else ("move", move)
     if not plain and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
@@ -270,6 +272,9 @@ def _mode_move(idx, st: _State, groups, by, axis_words, arc_words, motion_word, 
     dia = st.dialect
     if dia is None:
         return None
+    nurbs = _nurbs_move(idx, st, groups, by, axis_words, motion_word, ax)
+    if nurbs is not None:
+        return nurbs
     if st.mode in dia.splines and (axis_words or ("nonmodal" not in groups and any(a in by for a in "IJKRPQ"))):
         if "nonmodal" in groups or st.diameter:
             w = groups["nonmodal"][1] if "nonmodal" in groups else next(iter(axis_words.values()), motion_word)
@@ -277,6 +282,21 @@ def _mode_move(idx, st: _State, groups, by, axis_words, arc_words, motion_word, 
         return spline_move(idx, st, by, axis_words, motion_word, ax)
     if plain and st.mode in dia.synced and axis_words:
         return synced_move(idx, st, by, axis_words, arc_words, motion_word, rapids, ax)
+    return None
+
+
+def _nurbs_move(idx, st: _State, groups, by, axis_words, motion_word, ax):
+    """A NURBS block's lines (:func:`compensation.gcode_spline.nurbs_line`): ``"state"`` for a G5.2 line, the
+    curve's move for the G5.3 line; None for any other line (refused inside a block: only G5.2 lines there)."""
+    code = groups.get("motion", (None,))[0]
+    if code == "G5.3":
+        return nurbs_end(idx, st, by, axis_words, motion_word, ax)
+    if st.mode == "G5.2" and "nonmodal" not in groups and (axis_words or any(a in by for a in "PL") or code == "G5.2"):
+        nurbs_line(idx, st, by, axis_words, motion_word, ax)
+        return "state"
+    if st.nurbs is not None and any(a != "N" for a in by):
+        w = min((w for a, w in by.items() if a != "N"), key=lambda w: w.start)
+        raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' inside a NURBS block (between G5.2 and G5.3 only G5.2 lines)")
     return None
 
 

@@ -608,7 +608,7 @@ def print_gcode_notes(entry) -> None:
         print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
               "through unchanged, not compensated")
     if "spline_lines" in entry:
-        print(f"  splines (G5/G5.1) on line(s) {', '.join(map(str, entry['spline_lines'][:10]))}: chords of the "
+        print(f"  splines (G5/G5.1, NURBS G5.2-G5.3) on line(s) {', '.join(map(str, entry['spline_lines'][:10]))}: chords of the "
               f"exact curve within {entry['arc_tolerance_um'] / 2:g} um of it (half --arc-tolerance-um), written as "
               "compensated G1 moves")
     if "cycles" in entry:
