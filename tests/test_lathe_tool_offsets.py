@@ -245,3 +245,18 @@ def test_a_four_digit_t_word_stays_refused_on_a_mill_and_on_linuxcnc(tmp_path):
             p.write_text("G18 G21 G90\nT0101\nG0 X1 Z1\nM30\n")
         with pytest.raises(InputError, match=r"line 2, column 1: 'T0101': a T word of more than 2 digits"):
             parse_program(p, axis_words=aw, dialect=dialect)
+
+
+def test_a_tool_offset_in_c_axis_mode_is_refused(tmp_path, lathe, truth_els):
+    """C-axis mode (the spindle stopped, C positioned) is solved by the chain method at the machine file's tool:
+    a lathe tool offset there is refused naming the line and what to do, not solved at the wrong tool point."""
+    from compensation.app.validate import UsageError
+    from compensation.app.workflows.compensate import CompensateSettings
+    from compensation.app.workflows.compensate_paths import read_tool_path
+    _, offsets, tools = _files(tmp_path)
+    p = tmp_path / "c.ngc"
+    p.write_text("G18 G21 G90 G8\nT1 M6 G43\nG0 X60 Z10 C0\nG1 X50 Z0 C90 F100\nM30\n")
+    s = CompensateSettings("exact", "", tmp_path, work_offsets=read_work_offsets(offsets),
+                           tool_table=read_tool_table(tools), dialect="linuxcnc")
+    with pytest.raises(UsageError, match=r"c\.ngc: line 4: a lathe tool offset in C-axis mode"):
+        read_tool_path(p, lathe, s, ChainField(lathe, truth_els))
