@@ -11,6 +11,7 @@ import numpy as np
 from .gcode_state import (lathe_t_offset, _dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
+from .nc_state import lathe_words
 from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
                           default_axis_words, DEFAULT_RAPIDS, G92_CODES, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
@@ -102,10 +103,10 @@ def _checked_words(words, ax: AxisWords, dia=None):
 
 def _lathe_t_word(w: Word, ax: AxisWords, dia) -> bool:
     """A ``TttOO`` word (four digits as written) of a dialect that reads it so, on a lathe (X and Z, no Y):
-    tool ``tt`` with offset ``OO`` (:func:`compensation.gcode_state.lathe_t_offset`)."""
+    tool ``tt`` with offset ``OO`` (:func:`compensation.gcode_state.lathe_t_offset`; a lathe:
+    :func:`compensation.nc_state.lathe_words`)."""
     digits = w.text.strip()
-    return (getattr(dia, "lathe_t_offset", False) and len(digits) == 4 and digits.isdigit()
-            and "X" in ax.words and "Z" in ax.words and "Y" not in ax.words)
+    return getattr(dia, "lathe_t_offset", False) and len(digits) == 4 and digits.isdigit() and lathe_words(ax.words)
 
 
 def _plain_tool_number(w: Word) -> bool:

@@ -13,7 +13,7 @@ import re
 
 import numpy as np
 
-from .nc_state import EXTENDED_MAX, HAAS_MAX, SYSTEMS, system_name
+from .nc_state import EXTENDED_MAX, HAAS_MAX, SYSTEMS, lathe_words, system_name
 
 MM_PER_INCH = 25.4
 
@@ -82,8 +82,8 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
 
 
 def _tool_axes(ax: AxisWords) -> tuple:
-    """The axes a tool offset moves: Z (the length), and X too on a lathe (X and Z, no Y)."""
-    return ("X", "Z") if "Y" not in ax.words and "X" in ax.words else ("Z",)
+    """The axes a tool offset moves: Z (the length), and X too on a lathe (:func:`compensation.nc_state.lathe_words`)."""
+    return ("X", "Z") if lathe_words(ax.words) else ("Z",)
 
 
 def lathe_t_offset(idx, st: _State, t, ax: AxisWords) -> None:

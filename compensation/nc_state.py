@@ -357,6 +357,11 @@ class ProgramFrames:
         return out
 
 
+def lathe_words(words) -> bool:
+    """A lathe's axis words (X and Z, no Y, no A or B; C the spindle): a tool offset acts along X and Z."""
+    return "X" in words and "Z" in words and not {"Y", "A", "B"} & set(words)
+
+
 def _offset_vector(values: dict, words) -> np.ndarray:
     return np.array([float(values.get(w, 0.0)) for w in words])
 
@@ -383,8 +388,7 @@ class _Controller:
         return _offset_vector(self.table[self.system], self.words)
 
     def lathe(self) -> bool:
-        """A lathe's words (X and Z, no Y): a tool offset acts along X and Z."""
-        return "X" in self.words and "Z" in self.words and "Y" not in self.words
+        return lathe_words(self.words)
 
     def frame(self) -> tuple:
         """(offset (k,), tool length mm or NaN, cutter radius mm or NaN, a lathe tool's X offset mm or NaN) now."""
@@ -433,7 +437,7 @@ class _Controller:
             raise InputError(f"{where}: a tool length offset acts on Z; the machine has no Z axis")
         if value is not None and self.tool_x.get(value, 0.0) != 0.0 and not self.lathe():
             raise InputError(f"{where}: tool {value} has an X offset of {self.tool_x[value]:g} mm in "
-                             f"{self.tools.source}: a tool offset along X is read on a lathe only (X and Z, no Y)")
+                             f"{self.tools.source}: a tool offset along X is read on a lathe only (X, Z and C)")
         self.tool = value
         if value is not None:
             self.used_tools.add(value)
