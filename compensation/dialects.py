@@ -98,7 +98,8 @@ class Dialect:
     """Lathe X modes of the program {code: meaning} (LinuxCNC ``G7`` diameter / ``G8`` radius, :data:`LATHE_MODES`)."""
     lathe_x_by_parameter: bool = False
     """On a lathe, whether X is a diameter or a radius is a machine parameter, not a word of the program (Fanuc
-    diameter programming, parameter DIA; Haas, Siemens ISO turning likewise): a lathe program's X is refused."""
+    diameter programming, parameter DIA; Haas, Siemens ISO turning likewise): a lathe program's X is refused unless
+    ``--lathe-x diameter|radius`` says which (:mod:`compensation.turning`)."""
     lathe_t_offset: bool = False
     """On a lathe a four-digit ``T`` word is ``TttOO``: tool ``tt`` and its offset register ``OO``, applied
     from that line (``OO = 00`` cancels the offset; Fanuc, Haas turning: :mod:`compensation.nc_state`)."""

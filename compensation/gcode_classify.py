@@ -39,6 +39,7 @@ class _State:
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
         self.nurbs = None          # the open G5.2 block (compensation.gcode_spline.nurbs_line)
         self.diameter = False      # lathe diameter mode (LinuxCNC G7): X words are diameters
+        self.lathe_x = None        # a Fanuc/Haas/Siemens ISO lathe's X: "diameter", "radius" (--lathe-x; None: refused)
         self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
         self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
 
@@ -226,7 +227,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
             raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
         return "pass", None
-    _diameter_mode(st, groups, by)
+    _diameter_mode(st, groups, by, ax)
     axis_words = {a: by[a] for a in ax.words if a in by}
     arc_words = {a: by[a] for a in ("I", "J", "K", "R") if a in by}
     changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal", "coords",
@@ -301,9 +302,14 @@ def _nurbs_move(idx, st: _State, groups, by, axis_words, motion_word, ax):
     return None
 
 
-def _diameter_mode(st: _State, groups, by) -> None:
+def _diameter_mode(st: _State, groups, by, ax: AxisWords) -> None:
     """LinuxCNC ``G7``/``G8`` (this line's X read in the new mode, as its interpreter does): in diameter mode the
-    line's X word is replaced by one holding the radius (its text and span kept for the writer)."""
+    line's X word is replaced by one holding the radius (its text and span kept for the writer). On a lathe of a
+    dialect whose X is a diameter or a radius by a control parameter, X is refused unless ``st.lathe_x`` says which."""
+    if "X" in by and st.lathe_x is None and getattr(st.dialect, "lathe_x_by_parameter", False) and lathe_words(ax.words):
+        w = by["X"]
+        raise _Refuse(w.start + 1, f"'X{w.text}': on a {st.dialect.name} lathe X is a diameter or a radius by a machine "
+                                   "parameter, not a word of the program: say which with --lathe-x diameter|radius")
     if "lathe" in groups:
         st.diameter = groups["lathe"][0] == "G7"
     if st.diameter and "X" in by:

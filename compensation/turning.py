@@ -59,35 +59,33 @@ def spindle_turning(lines, spindle: dict) -> np.ndarray:
     return out
 
 
-def _refuse_x_by_parameter(prog) -> None:
-    """A lathe program of a dialect whose X is a diameter or a radius by a machine parameter
-    (:attr:`compensation.dialects.Dialect.lathe_x_by_parameter`): its first X word is refused."""
+def _refuse_lathe_x(prog, lathe_x) -> None:
+    """``lathe_x`` (``--lathe-x``) on a program whose dialect says it in the program (LinuxCNC G7/G8; the reader
+    refuses a Fanuc, Haas or Siemens ISO lathe program's X without it, naming the option)."""
     from .dialects import DIALECTS
-    if not getattr(DIALECTS.get(prog.dialect), "lathe_x_by_parameter", False):
-        return
-    m = next((m for m in prog.moves if "X" in m.words), None)
-    if m is not None:
-        w = m.words["X"]
-        raise InputError(f"{prog.path}: line {m.index + 1}, column {w.start + 1}: 'X{w.text}': on a {prog.dialect} lathe X "
-                         "is a diameter or a radius by a machine parameter, not a word of the program: not read "
-                         "(LinuxCNC's G7/G8 say it: --dialect linuxcnc)")
+    if lathe_x is not None and not getattr(DIALECTS.get(prog.dialect), "lathe_x_by_parameter", False):
+        raise InputError(f"{prog.path}: --lathe-x {lathe_x}: this {prog.dialect} program's X is not set by a control "
+                         "parameter (LinuxCNC's G7/G8 say it in the program): leave --lathe-x out")
 
 
-def parse_lathe_program(path, machine, rapids, block_delete, dialect=None) -> tuple[GProgram, np.ndarray]:
+def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe_x=None) -> tuple[GProgram, np.ndarray]:
     """A program for a machine with a ``[spindle]``: ``(program, turning)`` with ``turning`` (n_moves,) per
-    move of ``program.moves`` (module docstring)."""
+    move of ``program.moves`` (module docstring). ``lathe_x``: ``"diameter"`` or ``"radius"``, what a Fanuc, Haas
+    or Siemens ISO lathe's X words are (``--lathe-x``; None: such a program's X is refused)."""
     c = machine.spindle["axis"]
     full = AxisWords.of(machine)
     xz = AxisWords(machine.name, tuple(w for w in full.words if w != c), tuple(r for r in full.rotary if r != c))
     try:
-        prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect)
-        _refuse_x_by_parameter(prog)
+        prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect,
+                             lathe_x=lathe_x)
+        _refuse_lathe_x(prog, lathe_x)
         return prog, np.ones(len(prog.moves), dtype=bool)
     except InputError as exc:
         if f"no {c} axis" not in str(exc):
             raise  # a program without C words: the reading that applies to it names the refusal
-    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=full, dialect=dialect)
-    _refuse_x_by_parameter(prog)
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=full, dialect=dialect,
+                         lathe_x=lathe_x)
+    _refuse_lathe_x(prog, lathe_x)
     flags = spindle_turning(prog.lines, machine.spindle)
     turning = np.array([flags[m.index] for m in prog.moves], dtype=bool)
     if not turning.any():
@@ -100,7 +98,8 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None) -> tu
                              f"{', '.join(f'M{k}' for k in machine.spindle['turning_off'])}) before positioning {c}")
             raise exc if prog.expanded is None else prog.expanded.relocate(exc)
     kept = dataclasses.replace(full, kept=(c,))  # C written only where C-axis mode moves it
-    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect)
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect,
+                         lathe_x=lathe_x)
     return prog, np.array([flags[m.index] for m in prog.moves], dtype=bool)
 
 

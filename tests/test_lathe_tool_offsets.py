@@ -222,12 +222,12 @@ def test_a_fanuc_lathe_t_word_selects_tool_and_offset(tmp_path, lathe, dialect):
     p.write_text(FANUC)
     (tmp_path / "t.csv").write_text(CSV)
     xz = AxisWords(LATHE, ("X", "Z"), ())
-    prog = parse_program(p, axis_words=xz, dialect=dialect)
+    prog = parse_program(p, axis_words=xz, dialect=dialect, lathe_x="radius")
     frames = program_frames(prog, read_work_offsets("machine"), read_tool_table(tmp_path / "t.csv"))
     for m in prog.moves:
         assert np.abs(frames.shift([m.index], ("X", "Z"))[0] - FANUC_SHIFT[m.index + 1]).max() <= 1e-12
     p.write_text(FANUC.replace("T0202", "T0303"))
-    prog = parse_program(p, axis_words=xz, dialect=dialect)
+    prog = parse_program(p, axis_words=xz, dialect=dialect, lathe_x="radius")
     with pytest.raises(InputError) as err:
         program_frames(prog, read_work_offsets("machine"), read_tool_table(tmp_path / "t.csv"))
     msg = str(err.value)
@@ -260,3 +260,82 @@ def test_a_tool_offset_in_c_axis_mode_is_refused(tmp_path, lathe, truth_els):
                            tool_table=read_tool_table(tools), dialect="linuxcnc")
     with pytest.raises(UsageError, match=r"c\.ngc: line 4: a lathe tool offset in C-axis mode"):
         read_tool_path(p, lathe, s, ChainField(lathe, truth_els))
+
+
+FANUC_TURNING = """%
+O1001 (TURNING WITH TWO TOOLS: T0101 ROUGHING, T0202 FINISHING)
+G18 G21 G40 G97
+T0101
+G96 S180 M03
+G00 X62. Z5.
+G01 X50. Z0 F0.2
+G01 Z-40.
+G02 X70. Z-50. R10.
+G01 X80.
+G00 X100. Z10.
+T0100
+T0202
+G00 X58. Z5.
+G01 X46. Z-5.
+G01 Z-30.
+G00 X100.
+M05
+M30
+%
+"""
+"""A Fanuc turning program (X diameters, the control's parameter; TttOO: tool tt with offset register OO from
+its line, OO = 00 none)."""
+
+
+def _fanuc_frames(lines):
+    """Per source line, by pattern: the offset register in force ((X, Z) of the CSV's rows), or None."""
+    on, out = None, []
+    for ln in lines:
+        m = re.search(r"\bT(\d\d)(\d\d)\b", re.sub(r"\(.*?\)", "", ln))
+        if m:
+            on = TOOLS[int(m.group(2))] if int(m.group(2)) else None
+        out.append(on)
+    return out
+
+
+def test_a_fanuc_lathe_program_with_tttoo_and_diameters_reaches_every_point(tmp_path, lathe, truth_els):
+    """--lathe-x diameter: X read halved (and written back doubled); T0101 / T0202 at the CSV's registers; run as
+    the control runs the output: machine X, Z = written (X halved) + G54 + the register's offsets; every programmed
+    end within 1 μm over the turn, every other line byte-identical. Without --lathe-x the first X is refused."""
+    _, offsets, tools = _files(tmp_path, CSV, "tools.csv")
+    src = tmp_path / "f.nc"
+    src.write_text(FANUC_TURNING)
+    truth = tmp_path / "truth.json"
+    ChainElementSet.random(lathe, 101, ELEMENT_SCALE_UM, 11).save(truth)
+    args = ["compensate", str(src), "--machine", LATHE, "--model", str(truth), "--truth", str(truth), "--method",
+            "exact", "--dialect", "fanuc", "--work-offsets", str(offsets), "--tool-table", str(tools)]
+    assert main(args + ["--out", str(tmp_path / "refused")]) != 0
+    with pytest.raises(InputError, match=r"line 6, column 5: 'X62\.': on a fanuc lathe X .* --lathe-x diameter\|radius"):
+        parse_lathe_program(src, lathe, "keep", None, "fanuc")
+    assert main(args + ["--lathe-x", "diameter", "--out", str(tmp_path / "out")]) == 0
+    out_file = tmp_path / "out" / src.name
+    p_src, p_out = (parse_lathe_program(p, lathe, "keep", None, "fanuc", lathe_x="diameter")[0] for p in (src, out_file))
+    comp = {m.index: m for m in p_src.moves if m.compensate}
+    out_moves = {m.index: m for m in p_out.moves}
+    frame = _fanuc_frames(p_src.lines)
+    head = sum(1 for ln in p_out.lines if ln.startswith("(volcomp"))  # the writer's notes after the O line
+    out_lines = p_out.lines[:2] + p_out.lines[2 + head:]
+    assert [ln for ln in p_out.lines[2:2 + head]] == [ln for ln in p_out.lines if ln.startswith("(volcomp")]
+    errs = []
+    for i, g in enumerate(_groups(p_src.lines, out_lines)):
+        if i not in comp:
+            assert [out_lines[k] for k in g] == [p_src.lines[i]]  # byte-identical
+            continue
+        x, z = frame[i]
+        shift = np.array([x, WORK_Z_MM + z, 0.0])
+        mt = machine_with_lathe_tool(lathe, x, z)
+        last = out_lines[g[-1]]
+        xw = float(re.search(r"X(-?[\d.]+)", last).group(1)) / 2.0  # the diameter written, halved by hand
+        zw = float(re.search(r"Z(-?[\d.]+)", last).group(1))
+        xs = float(re.search(r"X(-?[\d.]+)", p_src.lines[i]).group(1)) / 2.0 if "X" in p_src.lines[i] else \
+            comp[i].end[0]
+        q = np.array([xw, zw, 0.0]) + shift
+        want = np.array([xs, comp[i].end[1], 0.0]) + shift
+        mean, _ = surface_residual_um(ChainField(mt, truth_els), mt, q[None], want[None])
+        errs.append(np.abs(mean).max())
+    assert len(errs) == 6 and max(errs) <= TOL_POINT_UM, errs

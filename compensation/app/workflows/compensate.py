@@ -95,6 +95,7 @@ class CompensateSettings:
     orientation: bool = False    # the tool's orientation compensated too, by the rotary axes (compensation.tcp)
     chunk_points: int = CHUNK_POINTS  # points per chunk of the batch (compensation.batch)
     max_segment_mm: object = "auto"   # "auto" (the field's curvature), None (no splitting) or a length in mm
+    lathe_x: str | None = None   # a Fanuc/Haas/Siemens ISO lathe's X words: "diameter", "radius" (None: refused)
 
 
 @dataclass
