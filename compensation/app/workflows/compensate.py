@@ -604,7 +604,8 @@ def print_gcode_notes(entry) -> None:
     """A G-code file's lines: dialect, work offsets, tools, G53 lines, canned cycles, cutter radius."""
     print(f"  dialect {entry['dialect']}" + (f" ({entry['dialect_evidence']})" if entry["dialect_evidence"] else "")
           + f"; work offsets: {entry['work_offsets']}" + (f"; tools {entry['tools_used']}" if entry["tools_used"]
-                                                           else ""))
+                                                           else "")
+          + (f" (lathe tools' X offsets {entry['tool_x_used']})" if entry.get("tool_x_used") else ""))
     if entry["g53_lines"]:
         print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
               "through unchanged, not compensated")
