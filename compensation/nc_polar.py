@@ -11,12 +11,13 @@ coordinate system (whatever the plane). Its interpreter (``find_ends``) reads th
   adds to the angle of the point so reached, keeping its distance (an error at the origin: "indeterminate");
 * with ``X`` or ``Y`` on the line, or with ``G53``, it is an error.
 
-Read here exactly that way, on ``G0``/``G1`` lines only, from the controller position the lines before
-reach (:class:`compensation.gcode_classify.ProgramState`), and written in the line's own distance mode and
-units (``@5 ^30`` → ``X4.3301270189 Y2.5``; under ``G91`` the increments). Everything else with a polar word
-is refused naming it: an arc, a spline, a canned cycle, a non-modal code (``G53 G28 G30 G92 G10 G4``), a
-work-system or other mode change on the line, lathe diameter mode, a dialect other than LinuxCNC, a
-position the reader does not know.
+Read here exactly that way on ``G0``/``G1`` lines and as the end of a ``G2``/``G3`` arc (its interpreter takes
+an arc's end from the same function; ``I J K R`` stay as written), from the controller position the lines
+before reach (:class:`compensation.gcode_classify.ProgramState`), and written in the line's own distance mode
+and units (``@5 ^30`` → ``X4.3301270189 Y2.5``; under ``G91`` the increments). Everything else with a polar
+word is refused naming it: a spline or NURBS, a canned cycle (its interpreter reads the block's X Y
+itself), a non-modal code (``G53 G28 G30 G92 G10 G4``), a work-system or other mode change on the line, lathe
+diameter mode, a dialect other than LinuxCNC, a position the reader does not know.
 """
 from __future__ import annotations
 
@@ -25,10 +26,11 @@ import re
 
 POLAR = re.compile(r"[@^]")
 """A polar word's mark (outside comments)."""
-PLAIN_G = {0.0: "G0", 1.0: "G1", 17.0: "G17", 18.0: "G18", 19.0: "G19", 20.0: "G20", 21.0: "G21", 90.0: "G90",
+PLAIN_G = {0.0: "G0", 1.0: "G1", 2.0: "G2", 3.0: "G3", 17.0: "G17", 18.0: "G18", 19.0: "G19", 20.0: "G20", 21.0: "G21", 90.0: "G90",
            91.0: "G91", 93.0: "G93", 94.0: "G94", 61.0: "G61", 61.1: "G61.1", 64.0: "G64", 40.0: "G40",
            49.0: "G49"}
-"""G codes a polar line may carry: the motion G0/G1 and modes that do not move the current point or its frame."""
+"""G codes a polar line may carry: the motions whose end LinuxCNC's interpreter takes from the polar words
+(``find_ends``: G0 G1 and the arcs G2 G3) and modes that do not move the current point or its frame."""
 MM_PER_INCH = 25.4
 
 
@@ -68,8 +70,8 @@ def polar_cuts(m, pc: int, body: str, words, value, fmt) -> list:
     s, ax = st.st, st.ax
     if s.diameter:
         raise refuse("in lathe diameter mode (G7): not read")
-    if motion not in ("G0", "G1"):
-        raise refuse(f"on a {motion or 'line without a G0/G1 motion mode'} move: read on G0/G1 only (write the end "
+    if motion not in ("G0", "G1", "G2", "G3"):
+        raise refuse(f"on a {motion or 'line without a motion mode'} move: read on G0 G1 G2 G3 only (write the end "
                      "as X Y)")
     scale = MM_PER_INCH if inch else 1.0
     cx, cy = (s.pos[ax.words.index(a)] / scale for a in "XY")
@@ -96,7 +98,7 @@ def _line_modes(m, pc, words, value, refuse):
         v = round(value(w), 1)
         code = PLAIN_G.get(v)
         if code is None:
-            raise refuse(f"on a line with G{v:g}: read with G0/G1 and plain modes only")
+            raise refuse(f"on a line with G{v:g}: read with G0 G1 G2 G3 and plain modes only")
         if code in ("G0", "G1"):
             motion = code
         elif code in ("G20", "G21"):

@@ -60,7 +60,7 @@ def test_polar_points_follow_the_manual(tmp_path, text, points):
 
 
 @pytest.mark.parametrize("text, line, col, words", [
-    ("G21 G90\nG0 X1 Y1 Z1\nG2 @5 ^30 R5\nM2\n", 3, 4, ("'@'", "G2", "G0/G1")),
+    ("G21 G90\nG0 X1 Y1 Z1\nG5 @5 ^30 I1 J1 P1 Q1\nM2\n", 3, 4, ("'@'", "G5", "G0 G1 G2 G3")),
     ("G21 G90\nG0 X1 Y1 Z1\nG1 X2 @5\nM2\n", 3, 7, ("'@'", "with 'X'")),
     ("G21 G90\nG0 X0 Y0 Z1\nG1 @5 F100\nM2\n", 3, 4, ("'@'", "alone at the origin")),
     ("G21 G90\nG0 X0 Y0 Z1\nG91 G1 ^30 F100\nM2\n", 3, 8, ("'^'", "incremental (G91) at the origin")),
@@ -111,3 +111,16 @@ def test_a_polar_program_compensated_reaches_every_point(tmp_path):
         tip = mill.nominal(q[None])[0] + field.predict(q[None])[0] * 1e-3
         errs.append(np.linalg.norm(tip - mill.nominal((np.array(want) + WORK_MM)[None])[0]) * 1e3)
     assert len(errs) == 5 and max(errs) <= TOL_POINT_UM, errs
+
+
+def test_a_polar_arc_end_is_the_arc_to_the_same_x_y(tmp_path):
+    """LinuxCNC takes an arc's end from the polar words as it does a line's (``find_ends``): 'G3 @10 ^90 R10' from
+    (10, 0) is the quarter circle 'G3 X0 Y10 R10' (by hand: distance 10 at 90°); I J stay relative to the start."""
+    _, polar = _read("G21 G90 G17\nG0 X10 Y0 Z0\nG3 @10 ^90 R10 F100\nG91 G2 ^-90 I0 J-10\nM2\n", tmp_path)
+    _, plain = _read("G21 G90 G17\nG0 X10 Y0 Z0\nG3 X0 Y10 R10 F100\nG91 G2 X10 Y-10 I0 J-10\nM2\n", tmp_path,
+                     name="q.ngc")
+    arcs = [(m for m in p.moves if m.kind == "arc") for p in (polar, plain)]
+    for a, b in zip(*arcs):
+        assert np.abs(a.end - b.end).max() <= TOL_EXPANDED_MM and a.arc.keys() == b.arc.keys()
+        assert all(np.abs(np.asarray(a.arc[k], float) - np.asarray(b.arc[k], float)).max() <= TOL_EXPANDED_MM
+                   for k in a.arc if isinstance(a.arc[k], (int, float)))
