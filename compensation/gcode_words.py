@@ -439,7 +439,7 @@ def tokenize(body: str):
             break
         elif c in "@^":
             raise _Refuse(i + 1, f"'{c}': a LinuxCNC polar coordinate ({'distance' if c == '@' else 'angle'} from the XY "
-                                 "zero): read on G0/G1 lines of LinuxCNC programs only (compensation.nc_polar)")
+                                 "zero): read on G0-G3 lines of LinuxCNC programs only (compensation.nc_polar)")
         elif c.isalpha() and c.isascii():
             u = c.upper()
             j = i + 1
