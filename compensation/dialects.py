@@ -98,7 +98,11 @@ class Dialect:
     """Lathe X modes of the program {code: meaning} (LinuxCNC ``G7`` diameter / ``G8`` radius, :data:`LATHE_MODES`)."""
     lathe_x_by_parameter: bool = False
     """On a lathe, whether X is a diameter or a radius is a machine parameter, not a word of the program (Fanuc
-    diameter programming, parameter DIA; Haas, Siemens ISO turning likewise): a lathe program's X is refused."""
+    diameter programming, parameter DIA; Haas, Siemens ISO turning likewise): a lathe program's X is refused unless
+    ``--lathe-x diameter|radius`` says which (:mod:`compensation.turning`)."""
+    lathe_t_offset: bool = False
+    """On a lathe a four-digit ``T`` word is ``TttOO``: tool ``tt`` and its offset register ``OO``, applied
+    from that line (``OO = 00`` cancels the offset; Fanuc, Haas turning: :mod:`compensation.nc_state`)."""
     dwell_with_motion: bool = False
     """Axis words on a ``G4`` line belong to the motion mode (RS274NGC, LinuxCNC: G4 uses no axis words; the line
     dwells, then moves); elsewhere ``G04 X`` is a dwell time (Fanuc, Haas) and such a line is refused."""
@@ -144,7 +148,8 @@ LINUXCNC_ARC_TOL = (2 * 0.01 * 2 ** 0.5, 2 * 0.001 * 2 ** 0.5 * 25.4, 0.001)
 ``interp_arc.cc`` arc_data_ijk: an error when the absolute *or* the relative difference is exceeded): end
 points or centre rounded to 0.01 mm / 0.001 inch pass; the arc is then run as a spiral whose radius changes
 linearly with the angle, as the reader reads it."""
-SPLINES = {"G5": "a cubic spline (G5 X Y I J P Q)", "G5.1": "a quadratic spline (G5.1 X Y I J)"}
+SPLINES = {"G5": "a cubic spline (G5 X Y I J P Q)", "G5.1": "a quadratic spline (G5.1 X Y I J)",
+           "G5.2": "a NURBS block (G5.2 X Y P [L] lines, then G5.3)", "G5.3": "the end of a NURBS block"}
 """LinuxCNC G-code reference, "G5 Cubic spline", "G5.1 Quadratic spline": motion codes, read exactly
 (:mod:`compensation.gcode_spline`)."""
 LATHE_MODES = {"G7": "lathe diameter mode: X words (positions, G92/G10 values) are diameters, read halved",
@@ -166,7 +171,7 @@ DIALECTS = {
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
                                                          "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True,
-                     g80_keeps_motion=True, h_offset_alone=True, lathe_x_by_parameter=True),
+                     g80_keeps_motion=True, h_offset_alone=True, lathe_x_by_parameter=True, lathe_t_offset=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
@@ -174,7 +179,8 @@ DIALECTS = {
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
                     modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)", "G50": SCALING_OFF,
                            "G50.1": MIRROR_OFF, "G103": LOOKAHEAD_BLOCKS}, g80_with_motion=True,
-                    g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS, lathe_x_by_parameter=True),
+                    g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS, lathe_x_by_parameter=True,
+                    lathe_t_offset=True),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
                            program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF,
                                   "G50.1": MIRROR_OFF},

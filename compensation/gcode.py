@@ -83,11 +83,13 @@ BULK_MIN_RUN = 32
 
 def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None = None,
                   fast: bool = True, axis_words: AxisWords | None = None, dialect: str | None = None,
-                  cycles=None, data: bytes | None = None, found: tuple | None = None) -> GProgram:
+                  cycles=None, data: bytes | None = None, found: tuple | None = None, lathe_x: str | None = None) -> GProgram:
     """Read a G-code file into a :class:`GProgram` (see the module docstring).
 
     ``found``: ``(Dialect, evidence)`` already recognised from these bytes under ``dialect="auto"`` (a
-    caller that looked first, :mod:`compensation.chain_gcode`): not recognised again.
+    caller that looked first, :mod:`compensation.chain_gcode`): not recognised again. ``lathe_x``: ``"diameter"`` or
+    ``"radius"``, what a Fanuc, Haas or Siemens ISO lathe's X words are (the control's parameter, ``--lathe-x``);
+    None: on a lathe such a program's first X word is refused.
 
     ``axis_words``: the machine's (:meth:`AxisWords.of`); ``None``: the built-in default machine's
     (:func:`default_axis_words`, read from its file now).
@@ -124,7 +126,7 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
     check_program_bytes(path, data)
     dia, evidence = found if found is not None and dialect == "auto" else _dialect_of(path, data, dialect)
     try:  # the allow-list refuses every mark of a subprogram, macro or parameter: a program without
-        return _g80_noted(_parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence))  # at full speed
+        return _g80_noted(_parse_data(path, data, rapids, block_delete, fast, ax, dia, evidence, lathe_x))  # full speed
     except InputError as plain_refusal:
         from . import nc_expand
         from .gcode_classify import ProgramState
@@ -140,7 +142,8 @@ def parse_program(path, rapids: str = DEFAULT_RAPIDS, block_delete: str | None =
         if expanded is None:
             raise plain_refusal from None
     try:
-        prog = _parse_data(path, expanded.text.encode("latin-1"), rapids, block_delete, fast, ax, dia, evidence)
+        prog = _parse_data(path, expanded.text.encode("latin-1"), rapids, block_delete, fast, ax, dia, evidence,
+                           lathe_x)
     except InputError as exc:
         raise expanded.relocate(exc) from None
     prog.expanded = expanded
@@ -157,11 +160,11 @@ def _g80_noted(prog: GProgram) -> GProgram:
 
 
 def _parse_data(path: Path, data: bytes, rapids, block_delete, fast: bool, ax: AxisWords, dia,
-                evidence: str) -> GProgram:
+                evidence: str, lathe_x: str | None = None) -> GProgram:
     if fast and _bulk_words(ax):
-        prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia)
+        prog = _parse_blockwise(path, rapids, block_delete, data, ax, dia, lathe_x)
     else:
-        prog = _parse_lines(path, rapids, block_delete, data, ax, dia)
+        prog = _parse_lines(path, rapids, block_delete, data, ax, dia, lathe_x)
     prog.dialect, prog.dialect_evidence = dia.name, evidence
     return prog
 
@@ -183,11 +186,11 @@ def _dialect_of(path, data: bytes, dialect) -> tuple:
         raise InputError(f"{path}: {exc}") from None
 
 
-def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia) -> GProgram:
+def _parse_lines(path, rapids, block_delete, data: bytes, ax: AxisWords, dia, lathe_x=None) -> GProgram:
     """The per-line reader (the reference)."""
     lines = split_lines(data.decode("latin-1"))
     st = _State(len(ax.words))
-    st.dialect = dia
+    st.dialect, st.lathe_x, st.diameter = dia, lathe_x, lathe_x == "diameter"
     classes, moves = [], []
     for idx, line in enumerate(lines):
         body = line.rstrip("\r\n")
@@ -216,7 +219,8 @@ def _no_motion(path, ax: AxisWords) -> InputError:
 
 
 
-def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords, dia=None) -> GProgram:
+def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: AxisWords, dia=None,
+                     lathe_x: str | None = None) -> GProgram:
     buf = np.frombuffer(data, np.uint8)
     starts, ends = gscan.line_bounds(buf)
     lines = _Lines(data.decode("latin-1"), starts, np.append(starts[1:], buf.size))
@@ -248,7 +252,7 @@ def _parse_blockwise(path: Path, rapids: str, block_delete, data: bytes, ax: Axi
     given = np.isfinite(vals)
 
     st = _State(len(ax.words))
-    st.dialect = dia
+    st.dialect, st.lathe_x, st.diameter = dia, lathe_x, lathe_x == "diameter"
     classes = ["pass"] * n
     moved = []  # ordinals (k0, k1) of the bulk moves read
     pieces, objects = [], []

@@ -8,10 +8,11 @@ import re
 
 import numpy as np
 
-from .gcode_state import (_dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (lathe_t_offset, _dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
-from .gcode_spline import spline_move, spline_points, spline_segments
+from .nc_state import lathe_words
+from .gcode_spline import nurbs_end, nurbs_line, spline_move, spline_points, spline_segments
 from .gcode_words import (ALLOWED_G, ARC_RADIUS_TOL_INCH_MM, ARC_RADIUS_TOL_MM, AxisWords, CENTRE_AXIS,
                           default_axis_words, DEFAULT_RAPIDS, G92_CODES, GMove, LETTER_RULES, MAX_TOOL_DIGITS, PLANE_NAMES,
                           PLANES, REFUSED_G, REFUSED_LETTERS, tokenize, Word)
@@ -36,7 +37,9 @@ class _State:
         self.selected = None       # the last T word (the tool prepared)
         self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
+        self.nurbs = None          # the open G5.2 block (compensation.gcode_spline.nurbs_line)
         self.diameter = False      # lathe diameter mode (LinuxCNC G7): X words are diameters
+        self.lathe_x = None        # a Fanuc/Haas/Siemens ISO lathe's X: "diameter", "radius" (--lathe-x; None: refused)
         self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
         self.g92_stored = np.zeros(k)  # the G92 offset stored (LinuxCNC parameters 5211-5219; G92.3 restores it)
 
@@ -88,7 +91,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {REFUSED_LETTERS[w.letter]}; not supported")
         elif w.letter not in LETTER_RULES:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': unknown word")
-        elif w.letter == "T" and not _plain_tool_number(w):
+        elif w.letter == "T" and not _plain_tool_number(w) and not _lathe_t_word(w, ax, dia):
             raise _Refuse(w.start + 1, f"'T{w.text}': a T word of more than {MAX_TOOL_DIGITS} digits (or not a "
                                        "whole number) may select a tool offset (lathe 'TttOO': tool tt, offset "
                                        "OO) that shifts the axes, like G43 H; not supported (write the tool "
@@ -97,6 +100,14 @@ def _checked_words(words, ax: AxisWords, dia=None):
             raise _Refuse(w.start + 1, f"repeated '{w.letter}' word")
         by[w.letter] = w
     return by, gs, ms
+
+
+def _lathe_t_word(w: Word, ax: AxisWords, dia) -> bool:
+    """A ``TttOO`` word (four digits as written) of a dialect that reads it so, on a lathe (X and Z, no Y):
+    tool ``tt`` with offset ``OO`` (:func:`compensation.gcode_state.lathe_t_offset`; a lathe:
+    :func:`compensation.nc_state.lathe_words`)."""
+    digits = w.text.strip()
+    return getattr(dia, "lathe_t_offset", False) and len(digits) == 4 and digits.isdigit() and lathe_words(ax.words)
 
 
 def _plain_tool_number(w: Word) -> bool:
@@ -161,7 +172,8 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
             h_alone = letter == "H" and getattr(st.dialect, "h_offset_alone", False)  # Fanuc: H alone in G43 mode
             arc_p1 = letter == "P" and st.mode in ("G2", "G3") and bool(axis_words or arc_words) and by["P"].value == 1
             mode_p = letter == "P" and st.dialect is not None and any(c in st.dialect.modes for c, _ in gs)
-            spline = letter in "PQ" and st.dialect is not None and st.mode in st.dialect.splines  # gcode_spline checks
+            spline = (letter in "PQ" or (letter == "L" and st.mode == "G5.2")) and st.dialect is not None and (
+                st.mode in st.dialect.splines)  # gcode_spline checks
             if not (h_alone or arc_p1 or mode_p or spline or any(c in allowed_with for c, _ in gs)):
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
                               + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
@@ -208,12 +220,14 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
         return "skipped", None
     by, gs, ms = _checked_words(words, ax, dia)
     _tool_change(st, by, ms)
+    if "T" in by and _lathe_t_word(by["T"], ax, dia):
+        lathe_t_offset(idx, st, by["T"], ax)
     groups = _modal_groups(gs, dia)
     if "O" in by:
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
             raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
         return "pass", None
-    _diameter_mode(st, groups, by)
+    _diameter_mode(st, groups, by, ax)
     axis_words = {a: by[a] for a in ax.words if a in by}
     arc_words = {a: by[a] for a in ("I", "J", "K", "R") if a in by}
     changes = any(g in groups for g in ("motion", "plane", "units", "distance", "arc_distance", "nonmodal", "coords",
@@ -238,7 +252,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     plain = "nonmodal" not in groups or (groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_with_motion", False))
     move = _mode_move(idx, st, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain)
     if move is not None:
-        return "move", move
+        return ("state", None) if move == "state" else ("move", move)
     if not plain and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
@@ -260,6 +274,9 @@ def _mode_move(idx, st: _State, groups, by, axis_words, arc_words, motion_word, 
     dia = st.dialect
     if dia is None:
         return None
+    nurbs = _nurbs_move(idx, st, groups, by, axis_words, motion_word, ax)
+    if nurbs is not None:
+        return nurbs
     if st.mode in dia.splines and (axis_words or ("nonmodal" not in groups and any(a in by for a in "IJKRPQ"))):
         if "nonmodal" in groups or st.diameter:
             w = groups["nonmodal"][1] if "nonmodal" in groups else next(iter(axis_words.values()), motion_word)
@@ -270,9 +287,29 @@ def _mode_move(idx, st: _State, groups, by, axis_words, arc_words, motion_word, 
     return None
 
 
-def _diameter_mode(st: _State, groups, by) -> None:
+def _nurbs_move(idx, st: _State, groups, by, axis_words, motion_word, ax):
+    """A NURBS block's lines (:func:`compensation.gcode_spline.nurbs_line`): ``"state"`` for a G5.2 line, the
+    curve's move for the G5.3 line; None for any other line (refused inside a block: only G5.2 lines there)."""
+    code = groups.get("motion", (None,))[0]
+    if code == "G5.3":
+        return nurbs_end(idx, st, by, axis_words, motion_word, ax)
+    if st.mode == "G5.2" and "nonmodal" not in groups and (axis_words or any(a in by for a in "PL") or code == "G5.2"):
+        nurbs_line(idx, st, by, axis_words, motion_word, ax)
+        return "state"
+    if st.nurbs is not None and any(a != "N" for a in by):
+        w = min((w for a, w in by.items() if a != "N"), key=lambda w: w.start)
+        raise _Refuse(w.start + 1, f"'{w.letter}{w.text}' inside a NURBS block (between G5.2 and G5.3 only G5.2 lines)")
+    return None
+
+
+def _diameter_mode(st: _State, groups, by, ax: AxisWords) -> None:
     """LinuxCNC ``G7``/``G8`` (this line's X read in the new mode, as its interpreter does): in diameter mode the
-    line's X word is replaced by one holding the radius (its text and span kept for the writer)."""
+    line's X word is replaced by one holding the radius (its text and span kept for the writer). On a lathe of a
+    dialect whose X is a diameter or a radius by a control parameter, X is refused unless ``st.lathe_x`` says which."""
+    if "X" in by and st.lathe_x is None and getattr(st.dialect, "lathe_x_by_parameter", False) and lathe_words(ax.words):
+        w = by["X"]
+        raise _Refuse(w.start + 1, f"'X{w.text}': on a {st.dialect.name} lathe X is a diameter or a radius by a machine "
+                                   "parameter, not a word of the program: say which with --lathe-x diameter|radius")
     if "lathe" in groups:
         st.diameter = groups["lathe"][0] == "G7"
     if st.diameter and "X" in by:
@@ -495,7 +532,8 @@ class ProgramState:
     def __init__(self, dialect_name, text: str):
         from .dialects import DIALECTS
         code = re.sub(r"\([^)]*\)|;[^\n]*", "", text)
-        used = {c.upper() for c in _AXIS_WORD.findall(code)} or {"X"}
+        used = {c.upper() for c in _AXIS_WORD.findall(code)} | ({"X", "Y"} if re.search(r"[@^]", code) else set())
+        used = used or {"X"}
         words = tuple(a for a in "XYZABCUVW" if a in used)
         self.ax = AxisWords("program", words, tuple(a for a in words if a in "ABC"))
         self.st = _State(len(self.ax.words))

@@ -13,7 +13,7 @@ import re
 
 import numpy as np
 
-from .nc_state import EXTENDED_MAX, HAAS_MAX, SYSTEMS, system_name
+from .nc_state import EXTENDED_MAX, HAAS_MAX, SYSTEMS, lathe_words, system_name
 
 MM_PER_INCH = 25.4
 
@@ -77,8 +77,24 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         st.events.append((idx, w.start + 1, "tool", value, text))
         st.g43 = code == "G43"
         if value != st.tool:
-            _forget(st, ax, ("Z",))
+            _forget(st, ax, _tool_axes(ax))
             st.tool = value
+
+
+def _tool_axes(ax: AxisWords) -> tuple:
+    """The axes a tool offset moves: Z (the length), and X too on a lathe (:func:`compensation.nc_state.lathe_words`)."""
+    return ("X", "Z") if lathe_words(ax.words) else ("Z",)
+
+
+def lathe_t_offset(idx, st: _State, t, ax: AxisWords) -> None:
+    """A lathe's ``TttOO`` word (Fanuc, Haas turning): tool ``tt``, offset register ``OO`` applied from this line
+    (``OO = 00``: no offset), recorded as a tool event (:func:`compensation.nc_state.program_frames`)."""
+    digits = t.text.strip()
+    value = int(digits[2:]) or None
+    st.events.append((idx, t.start + 1, "tool", value, f"T{digits}"))
+    if value != st.tool:
+        _forget(st, ax, _tool_axes(ax))
+        st.tool = value
 
 
 def _tool_change(st: _State, by, ms) -> None:

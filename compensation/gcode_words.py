@@ -190,7 +190,8 @@ UNITS_OR_CYCLE = ("lathe cycle on Fanuc, Haas, LinuxCNC; {what} input in Fanuc l
 """``G70``/``G71``: two meanings by controller; neither is read (the message names both and the fix)."""
 REFUSED_G = {
     **{g: f"{what}: not interpretable exactly (no option reads it; post the path as G1/G2/G3)" for g, what in (
-        ("G5.2", "NURBS block"), ("G5.3", "NURBS block end"), ("G6.2", "NURBS block"))},
+        ("G6.2", "NURBS block"),)},
+    "G5.2": "NURBS block (read with --dialect linuxcnc)", "G5.3": "NURBS block end (read with --dialect linuxcnc)",
     "G5": "dialect-dependent: a spline or a machining mode", "G5.1": "dialect-dependent: a spline or look-ahead",
     "G7": "lathe diameter mode (read with --dialect linuxcnc)", "G7.1": "cylindrical interpolation",
     "G107": "cylindrical interpolation",
@@ -438,7 +439,7 @@ def tokenize(body: str):
             break
         elif c in "@^":
             raise _Refuse(i + 1, f"'{c}': a LinuxCNC polar coordinate ({'distance' if c == '@' else 'angle'} from the XY "
-                                 "zero) is not read: write the point as X Y")
+                                 "zero): read on G0-G3 lines of LinuxCNC programs only (compensation.nc_polar)")
         elif c.isalpha() and c.isascii():
             u = c.upper()
             j = i + 1

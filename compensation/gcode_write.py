@@ -52,6 +52,8 @@ def render_program(program: GProgram, vertices: list, header=(), track: dict | N
             q = np.asarray(vertices[k], dtype=float).reshape(-1, k_axes)
             k += 1
             groups[m.index], ctrl = _render_move(program.lines[m.index], m, q, ctrl, ax)
+            for j, g in nurbs_block_lines(m, program.lines).items():
+                groups[j] = g
         if track is not None:
             track[m.index] = ctrl
     out = [ln for g in groups for ln in g]
@@ -82,6 +84,17 @@ def _render_move(line: str, m: GMove, q, ctrl, ax: AxisWords):
     if extra and not line.endswith("\n"):
         return [first + ending] + extra[:-1] + [extra[-1][:-len(ending)]], ctrl
     return [first + line[len(body):]] + extra, ctrl
+
+
+def nurbs_block_lines(m: GMove, lines) -> dict:
+    """``{line index: [output line]}`` of a NURBS move's G5.2 lines (:func:`compensation.gcode_spline.nurbs_end`):
+    each written as a comment (the curve is the G5.3 line's compensated chords); {} for any other move."""
+    out = {}
+    for j in (m.arc or {}).get("block", ()):
+        body = lines[j].rstrip("\r\n")
+        text = body.replace("(", "[").replace(")", "]")
+        out[j] = [f"(volcomp: NURBS control point, written as the chords below: {text.strip()})" + lines[j][len(body):]]
+    return out
 
 
 def _with_header(out: list, header) -> str:
@@ -146,7 +159,8 @@ def _rewrite_line(body: str, m: GMove, vals, ctrl_before, ax: AxisWords) -> str:
     given = [(j, words[a]) for j, a in enumerate(ax.words) if a in words]
     edits = [(w.num_start, w.num_end, vals[j]) for j, w in given
              if not (kept and w.letter in kept and float(vals[j]) == w.value)]  # (start, end, text)
-    last_end = max(w.num_end for w in (dict(given).values() if given else words.values()))  # a full circle: its I J K
+    last_end = max((w.num_end for w in (dict(given).values() if given else words.values())),  # a full circle: its I J K
+                   default=m.motion_word.num_end if m.motion_word is not None else len(body))  # a NURBS: its G5.3
     if len(given) < len(ax.words):
         missing = "".join(f" {a}{vals[j]}" for j, a in enumerate(ax.words)
                           if a not in words and (not kept or _needed(j, vals, ctrl_before, m, ax)))
@@ -261,6 +275,7 @@ def render_table(program: GProgram, axes, counts, header=()) -> tuple:
         m = program.moves[int(rows[k])]
         q = axes[first[k]:first[k] + counts[k]]
         changed[m.index], _ = _render_move(lines[m.index], m, q, np.full(3, np.nan), program.axis_words)
+        changed.update(nurbs_block_lines(m, lines))
     kb = np.flatnonzero(bulk)
     full = (sp[kb, 1:, 0] >= 0).all(axis=1)  # all three axis words on the line (the common case)
     one = counts[kb] == 1

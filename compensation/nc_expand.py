@@ -47,6 +47,7 @@ from dataclasses import dataclass
 from errormap.io import InputError
 
 from .nc_modal import ModalTracker
+from .nc_polar import has_polar, polar_cuts
 from .nc_flow import PREDEFINED_READ
 from .nc_flow import (MAX_CALL_DEPTH,  # noqa: F401  (re-exported: the documented call-depth bound)
                       _Frame, _Return, assign, call_statement, evaluate, o_statement)
@@ -57,11 +58,11 @@ DIALECTS = ("fanuc", "haas", "linuxcnc", "mach3", "siemens-iso", "grbl")
 SLASH_COMMENT = ("'//' is not a comment in G-code (a C-style comment line of some controllers' programs): write the "
                  "comment in ( ) or after ';'")
 
-_MARK_BYTES = (b"#", b"[", b"<")
+_MARK_BYTES = (b"#", b"[", b"<", b"@", b"^")
 _MARK_WORDS = (b"m98", b"m97", b"m99", b"g65", b"goto", b"while", b"if", b"sub", b"call", b"repeat")
 """A program holding none of these (any case) has nothing to expand (the words of every construct
 contain one: ``o100 do`` closes with ``while``, ``END1`` pairs with ``WHILE``, ``endsub`` holds ``sub``)."""
-_LINE_MARKS = re.compile(r"#|\[|o\s*<|m\s*0*9\s*[789](?![\d.])|g\s*0*65(?![\d.])"
+_LINE_MARKS = re.compile(r"#|\[|@|\^|o\s*<|m\s*0*9\s*[789](?![\d.])|g\s*0*65(?![\d.])"
                          r"|(?<![a-z])(?:goto|while|if|then|end\s*\d|do\s*\d)(?![a-z])"
                          r"|^\s*/?\s*(?:n\s*\d+\s*)?o\s*\d+\s*[a-z]", re.I)
 _M7X_BYTES = re.compile(rb"m[ \t]*0*7[0-3](?![\d.])")
@@ -428,7 +429,7 @@ def _parse_words(p: _Parser, body: str, code: str, i: int, label):
             rhs, k = p.binary(j + 1)
             assigns.append((target, rhs, i, k))
             i = k
-        elif c.isascii() and c.isalpha():
+        elif (c.isascii() and c.isalpha()) or c in "@^":  # @ ^: LinuxCNC's polar words (compensation.nc_polar)
             letter = c.upper()
             j = p.ws(i + 1)
             plain, k = p.number(j) if j < p.n and (code[j].isdigit() or code[j] in ".+-") else (None, j)
@@ -508,13 +509,14 @@ class _Machine:
         given = dialect
         dialect = {"haas": "fanuc", "siemens-iso": "fanuc", "mach3": "linuxcnc"}.get(dialect, dialect)
         self.given = given
-        self.dialect = dialect or _detect(self.stmts)
+        polar = has_polar(text)
+        self.dialect = dialect or _detect(self.stmts) or ("linuxcnc" if polar else None)
         self.glob, self.gnamed = {}, {}
         self.out, self.origin = [], []
         self.executed = 0
         self.calls = ()
         self.modal = ModalTracker() if _M7X_BYTES.search(text.lower().encode("latin-1")) else None
-        self.state = state(given, text) if state is not None and PREDEFINED_READ.search(text) else None
+        self.state = state(given, text) if state is not None and (PREDEFINED_READ.search(text) or polar) else None
         self._index()
 
     # -- structure
@@ -627,7 +629,10 @@ class _Machine:
         if words:
             body = self.lines[pc].rstrip("\r")
             cuts = [(a, b, "") for _, _, a, b in assigns]
-            cuts += [(w[1] + 1, w[2], _fmt(vals[id(w)], pc, w[1] + 1, self)) for w in words if w[3] is not None]
+            cuts += [(w[1] + 1, w[2], _fmt(vals[id(w)], pc, w[1] + 1, self)) for w in words
+                     if w[3] is not None and w[0] not in "@^"]
+            cuts += polar_cuts(self, pc, body, words, lambda w: vals[id(w)] if w[3] is not None else w[4],
+                               lambda v, col: _fmt(v, pc, col, self))
             if cuts:
                 out, at = [], 0
                 for a, b, rep in sorted(cuts):

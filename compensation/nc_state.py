@@ -11,6 +11,14 @@ and the tool tip is then the machine file's tool point with its gauge length (th
 constant ``tool_length``) set to the tool table's length (:func:`errormap.machine_tool.with_tool_length`):
 the nominal tip does not depend on the tool, but the angular errors act on its Abbe arm.
 
+On a lathe (a machine file with a ``[spindle]`` and no Y axis) a tool has an offset along X and along Z
+(LinuxCNC's tool table ``X``/``Z``, selected by ``G43`` as on a mill; Fanuc/Haas ``TttOO``: tool ``tt``,
+offset register ``OO``, ``OO = 00`` cancels): machine X = program X + work offset + tool X, and the same
+along Z. The tool tip is the chain's tool point moved back by the offset at the end of the tool side
+(:func:`machine_with_lathe_tool`): again the nominal tip is the programmed one and the angular errors act
+on the offset's Abbe arm. The X offset is the X axis's offset (a radius: LinuxCNC stores it so in diameter
+mode too).
+
 Tables, each recognised by content (never by the file's name):
 
 * work offsets (:func:`read_work_offsets`): a LinuxCNC parameter file (``.var``: lines ``NUMBER VALUE``;
@@ -18,8 +26,9 @@ Tables, each recognised by content (never by the file's name):
   or a CSV ``system,x_mm,y_mm,z_mm[,a_deg,b_deg,c_deg]`` (``system``: ``G54`` … ``G59.3``, ``G54.1P3``,
   Haas ``G154P12`` (``G110``–``G129``: ``G154P1``–``P20``));
   ``machine`` (:data:`MACHINE`): the program is in machine coordinates, every offset zero;
-* tool tables (:func:`read_tool_table`): a LinuxCNC tool table (``.tbl``: ``T1 P1 Z+150.0 D10.0 ;comment``)
-  or a CSV ``tool,length_mm[,radius_mm]``;
+* tool tables (:func:`read_tool_table`): a LinuxCNC tool table (``.tbl``: ``T1 P1 Z+150.0 D10.0 ;comment``;
+  a lathe's ``T2 P2 X-1.5 Z+3.2 D0.8 Q2``) or a CSV ``tool,length_mm[,radius_mm]`` (a lathe's
+  ``tool,x_mm,z_mm[,radius_mm]``, ``tool`` the offset number a Fanuc/Haas ``TttOO`` word selects);
 * the program's own ``G10`` lines, in program order (:mod:`compensation.gcode_state`): ``L2 Pn`` (work
   offset n), ``L1 Pn Z.. [R..]`` (tool n), and by dialect ``L20`` (LinuxCNC, grbl: work offset n set so
   that the current position reads the values; Fanuc: the extended system ``G54.1 Pn``; Haas: ``G154 Pn``),
@@ -102,10 +111,12 @@ class WorkOffsets:
 
 @dataclass(frozen=True)
 class ToolTable:
-    """Tools ``{number: (length_mm, radius_mm)}`` (radius NaN where not given); ``source`` the file."""
+    """Tools ``{number: (length_mm, radius_mm)}`` (radius NaN where not given; the length is the Z offset);
+    ``x_mm`` ``{number: X offset mm}`` of a lathe's tools (absent: zero); ``source`` the file."""
 
     tools: dict
     source: str
+    x_mm: dict = field(default_factory=dict)
 
 
 def _refuse(path, row, col, msg):
@@ -214,7 +225,7 @@ def _read_offset_csv(path, lines) -> WorkOffsets:
 
 
 def read_tool_table(path) -> ToolTable:
-    """A tool table by content: a LinuxCNC tool table or a CSV ``tool,length_mm[,radius_mm]``."""
+    """A tool table by content: a LinuxCNC tool table or a CSV (:data:`TOOL_CSV`)."""
     lines = _content_lines(path)
     first = next((ln for _, ln in lines if not ln.lstrip().startswith(("#", ";"))), "")
     if re.match(r"[ \t]*[Tt][ \t]*\d", first):
@@ -222,7 +233,7 @@ def read_tool_table(path) -> ToolTable:
     if "," in first and "tool" in [c.strip().lower() for c in first.split(",")]:
         return _read_tool_csv(path, lines)
     raise InputError(f"{path}: row 1: not a tool table (expected LinuxCNC's 'T1 P1 Z+150.0 D10.0 ;comment' lines "
-                     "or a CSV with the header tool,length_mm[,radius_mm])")
+                     f"or a CSV with the header {TOOL_CSV})")
 
 
 TBL_IGNORED = {"P": "pocket", "I": "front angle", "J": "back angle", "Q": "orientation"}
@@ -230,7 +241,7 @@ TBL_IGNORED = {"P": "pocket", "I": "front angle", "J": "back angle", "Q": "orien
 
 
 def _read_tbl(path, lines) -> ToolTable:
-    tools = {}
+    tools, xs = {}, {}
     for r, ln in lines:
         body = ln.split(";")[0]
         if not body.strip():
@@ -249,27 +260,36 @@ def _read_tbl(path, lines) -> ToolTable:
         if t != int(t) or t < 0:
             raise _refuse(path, r, tcol, f"T{t:g}: expected a tool number")
         for letter, (v, col) in words.items():
-            if letter in "XYABCUVW" and v != 0.0:
+            if letter in "YABCUVW" and v != 0.0:
                 raise _refuse(path, r, col, f"{letter}{v:g}: a tool offset along {letter} is not supported (only "
-                                            "the length Z and the diameter D)")
+                                            "the length Z, a lathe tool's X and the diameter D)")
         if int(t) in tools:
             raise _refuse(path, r, tcol, f"tool {int(t)} given twice")
         d = words.get("D", (float("nan"), 0))[0]
         tools[int(t)] = (words.get("Z", (0.0, 0))[0], d / 2.0)
-    return ToolTable(tools, str(path))
+        if words.get("X", (0.0, 0))[0] != 0.0:
+            xs[int(t)] = words["X"][0]
+    return ToolTable(tools, str(path), xs)
+
+
+TOOL_CSV = "tool,length_mm[,radius_mm] (a lathe: tool,x_mm,z_mm[,radius_mm])"
+"""The tool table CSV's header forms."""
 
 
 def _read_tool_csv(path, lines) -> ToolTable:
     header, rows = _csv_rows(path, lines)
-    allowed = ("tool", "length_mm", "radius_mm")
+    allowed = ("tool", "length_mm", "radius_mm", "x_mm", "z_mm")
     unknown = [c for c in header if c not in allowed]
     if unknown:
         raise _refuse(path, 1, header.index(unknown[0]) + 1, f"unknown column {unknown[0]!r} (expected "
                                                              f"{', '.join(allowed)})")
-    if "length_mm" not in header:
-        raise InputError(f"{path}: missing column 'length_mm' (header tool,length_mm[,radius_mm])")
-    tools = {}
-    jt, jl = header.index("tool"), header.index("length_mm")
+    lathe = "x_mm" in header or "z_mm" in header
+    if lathe and ("length_mm" in header or not ("x_mm" in header and "z_mm" in header)):
+        raise InputError(f"{path}: a lathe's tool table has the columns x_mm and z_mm, and no length_mm (header {TOOL_CSV})")
+    if not lathe and "length_mm" not in header:
+        raise InputError(f"{path}: missing column 'length_mm' (header {TOOL_CSV})")
+    tools, xs = {}, {}
+    jt, jl = header.index("tool"), header.index("z_mm" if lathe else "length_mm")
     jr = header.index("radius_mm") if "radius_mm" in header else None
     for r, cells in rows:
         t = cells[jt]
@@ -280,10 +300,13 @@ def _read_tool_csv(path, lines) -> ToolTable:
         radius = _number(cells[jr], path, r, jr + 1, "radius_mm") if jr is not None else float("nan")
         if radius < 0:
             raise _refuse(path, r, jr + 1, f"radius_mm: expected ≥ 0, got {radius:g}")
-        tools[int(t)] = (_number(cells[jl], path, r, jl + 1, "length_mm"), radius)
+        tools[int(t)] = (_number(cells[jl], path, r, jl + 1, header[jl]), radius)
+        if lathe:
+            jx = header.index("x_mm")
+            xs[int(t)] = _number(cells[jx], path, r, jx + 1, "x_mm")
     if not tools:
         raise InputError(f"{path}: no data rows")
-    return ToolTable(tools, str(path))
+    return ToolTable(tools, str(path), xs)
 
 
 # ---------------------------------------------------------------------------- a program's frames
@@ -300,6 +323,15 @@ class ProgramFrames:
     notes: dict = field(default_factory=dict)
     radius_mm: np.ndarray | None = None
     """(m,) the cutter radius while G41/G42 is active (NaN: off)."""
+    tool_x_mm: np.ndarray | None = None
+    """(m,) a lathe tool's X offset while its offset is active (NaN: none; None: no lathe tool in the program)."""
+
+    def lathe_tool(self, lines0) -> np.ndarray:
+        """The active lathe tool offsets (n, 2) mm, X and Z, at 0-based lines (NaN rows: no tool offset active)."""
+        s = np.maximum(np.searchsorted(self.first_line, np.asarray(lines0, dtype=np.int64), side="right") - 1, 0)
+        if self.tool_x_mm is None:
+            return np.full((len(s), 2), np.nan)
+        return np.stack([self.tool_x_mm[s], np.where(np.isfinite(self.tool_x_mm[s]), self.tool_mm[s], np.nan)], axis=1)
 
     def radius(self, lines0) -> np.ndarray:
         """The active cutter radius compensation's radius (n,) mm at 0-based lines (NaN: off)."""
@@ -313,12 +345,21 @@ class ProgramFrames:
         return self.offset[s], self.tool_mm[s]
 
     def shift(self, lines0, words) -> np.ndarray:
-        """Machine axes minus program axes (n, k) at those lines: the offset plus the tool length on Z."""
+        """Machine axes minus program axes (n, k) at those lines: the offset plus the tool length on Z (and a
+        lathe tool's offset on X)."""
         off, tool = self.at(lines0)
         out = off.copy()
         if "Z" in words:
             out[:, list(words).index("Z")] += np.where(np.isfinite(tool), tool, 0.0)
+        if self.tool_x_mm is not None and "X" in words:
+            tx = self.lathe_tool(lines0)[:, 0]
+            out[:, list(words).index("X")] += np.where(np.isfinite(tx), tx, 0.0)
         return out
+
+
+def lathe_words(words) -> bool:
+    """A lathe's axis words (X and Z, no Y, no A or B; C the spindle): a tool offset acts along X and Z."""
+    return "X" in words and "Z" in words and not {"Y", "A", "B"} & set(words)
 
 
 def _offset_vector(values: dict, words) -> np.ndarray:
@@ -333,6 +374,7 @@ class _Controller:
         self.table = {k: dict(v) for k, v in (offsets.systems if offsets else {}).items()}
         self.tooltab = {k: v[0] for k, v in (tools.tools if tools else {}).items()}
         self.radii = {k: v[1] for k, v in (tools.tools if tools else {}).items()}
+        self.tool_x = dict(tools.x_mm) if tools else {}  # a lathe's tools: X offsets
         self.parts = {}  # Fanuc/Haas G10 L10-L13: {(tool, "length"/"radius"): {"geometry"/"wear": mm}}
         # before any selection the controller runs its power-on G54: unknown (NaN) unless the tables give it
         # (never machine zero: --work-offsets machine says so explicitly; refuse_unknown_frames refuses the rest)
@@ -345,10 +387,15 @@ class _Controller:
             return np.full(len(self.words), np.nan)
         return _offset_vector(self.table[self.system], self.words)
 
+    def lathe(self) -> bool:
+        return lathe_words(self.words)
+
     def frame(self) -> tuple:
-        """(offset (k,), tool length mm or NaN, cutter radius mm or NaN) now."""
-        return (self.offset() + self.g92, self.tooltab[self.tool] if self.tool is not None else np.nan,
-                self.radii[self.cutter] if self.cutter is not None else np.nan)
+        """(offset (k,), tool length mm or NaN, cutter radius mm or NaN, a lathe tool's X offset mm or NaN) now."""
+        on = self.tool is not None
+        return (self.offset() + self.g92, self.tooltab[self.tool] if on else np.nan,
+                self.radii[self.cutter] if self.cutter is not None else np.nan,
+                self.tool_x.get(self.tool, 0.0) if on and self.lathe() else np.nan)
 
     def g92_event(self, kind, value) -> None:
         """``G92`` (``value``: values and the position before, program mm/deg): the offset grows by position minus
@@ -383,9 +430,14 @@ class _Controller:
 
     def select_tool(self, value, where) -> None:
         if value is not None and value not in self.tooltab:
-            raise InputError(f"{where}: tool length offset H{value}: " + _unknown_tool(value, self.tools, self.parts))
+            text = where.rsplit("'", 2)[-2]  # the event's word ('G43 H1', 'T0202')
+            what = f"lathe tool offset {value:02d}" if text.startswith("T") else f"tool length offset H{value}"
+            raise InputError(f"{where}: {what}: " + _unknown_tool(value, self.tools, self.parts))
         if value is not None and "Z" not in self.words:
             raise InputError(f"{where}: a tool length offset acts on Z; the machine has no Z axis")
+        if value is not None and self.tool_x.get(value, 0.0) != 0.0 and not self.lathe():
+            raise InputError(f"{where}: tool {value} has an X offset of {self.tool_x[value]:g} mm in "
+                             f"{self.tools.source}: a tool offset along X is read on a lathe only (X, Z and C)")
         self.tool = value
         if value is not None:
             self.used_tools.add(value)
@@ -466,9 +518,12 @@ def program_frames(program, offsets: WorkOffsets | None, tools: ToolTable | None
     notes["g53_lines"] = [e[0] + 1 for e in events if e[2] == "g53"]
     notes["g92_lines"] = [e[0] + 1 for e in events if e[2].startswith("g92")]
     notes["dialect_modes"] = sorted({e[3] for e in events if e[2] == "mode"})
-    offs, tls, rads = zip(*frames)
+    offs, tls, rads, txs = zip(*frames)
+    if c.lathe() and c.used_tools:
+        notes["tool_x_used"] = {int(t): float(c.tool_x.get(t, 0.0)) for t in sorted(c.used_tools)}
     return ProgramFrames(np.array(first, dtype=np.int64), np.array(offs).reshape(len(first), len(words)),
-                         np.array(tls, dtype=float), notes, np.array(rads, dtype=float))
+                         np.array(tls, dtype=float), notes, np.array(rads, dtype=float),
+                         np.array(txs, dtype=float) if c.lathe() and c.used_tools else None)
 
 
 FROM_POSITION = ("g92", "g10-here", "g10-tool-here")
@@ -607,3 +662,20 @@ def field_with_tool(field_, machine_at_tool):
     if truth is not None and hasattr(truth, "effects"):
         return type(field_)(dataclasses.replace(truth, machine=machine_at_tool))
     raise TypeError(f"a {type(field_).__name__} cannot be evaluated at another tool length (an element set can)")
+
+
+def machine_with_lathe_tool(machine, x_mm: float, z_mm: float):
+    """The chain ``machine`` (a lathe's) with its tool point moved back by a lathe tool's offsets: two
+    translations (−``x_mm`` along x, −``z_mm`` along z) appended at the end of the tool side, where the
+    controller's offset (machine X, Z = program X, Z + offset) puts the tool tip (its file read again, the
+    same file, checked by its sha256). Zero offsets give the machine's own tool point."""
+    import hashlib
+    import tomllib
+
+    from errormap.machine_tool import parse_machine_tool
+    raw = Path(machine.path).read_bytes()
+    if machine.sha256 and hashlib.sha256(raw).hexdigest() != machine.sha256:
+        raise ValueError(f"{machine.path}: the machine file changed since it was loaded")
+    doc = tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
+    doc["tool"] = list(doc["tool"]) + [{"tx": -float(x_mm)}, {"tz": -float(z_mm)}]
+    return parse_machine_tool(doc, machine.path, machine.sha256)

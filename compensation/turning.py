@@ -59,35 +59,33 @@ def spindle_turning(lines, spindle: dict) -> np.ndarray:
     return out
 
 
-def _refuse_x_by_parameter(prog) -> None:
-    """A lathe program of a dialect whose X is a diameter or a radius by a machine parameter
-    (:attr:`compensation.dialects.Dialect.lathe_x_by_parameter`): its first X word is refused."""
+def _refuse_lathe_x(prog, lathe_x) -> None:
+    """``lathe_x`` (``--lathe-x``) on a program whose dialect says it in the program (LinuxCNC G7/G8; the reader
+    refuses a Fanuc, Haas or Siemens ISO lathe program's X without it, naming the option)."""
     from .dialects import DIALECTS
-    if not getattr(DIALECTS.get(prog.dialect), "lathe_x_by_parameter", False):
-        return
-    m = next((m for m in prog.moves if "X" in m.words), None)
-    if m is not None:
-        w = m.words["X"]
-        raise InputError(f"{prog.path}: line {m.index + 1}, column {w.start + 1}: 'X{w.text}': on a {prog.dialect} lathe X "
-                         "is a diameter or a radius by a machine parameter, not a word of the program: not read "
-                         "(LinuxCNC's G7/G8 say it: --dialect linuxcnc)")
+    if lathe_x is not None and not getattr(DIALECTS.get(prog.dialect), "lathe_x_by_parameter", False):
+        raise InputError(f"{prog.path}: --lathe-x {lathe_x}: this {prog.dialect} program's X is not set by a control "
+                         "parameter (LinuxCNC's G7/G8 say it in the program): leave --lathe-x out")
 
 
-def parse_lathe_program(path, machine, rapids, block_delete, dialect=None) -> tuple[GProgram, np.ndarray]:
+def parse_lathe_program(path, machine, rapids, block_delete, dialect=None, lathe_x=None) -> tuple[GProgram, np.ndarray]:
     """A program for a machine with a ``[spindle]``: ``(program, turning)`` with ``turning`` (n_moves,) per
-    move of ``program.moves`` (module docstring)."""
+    move of ``program.moves`` (module docstring). ``lathe_x``: ``"diameter"`` or ``"radius"``, what a Fanuc, Haas
+    or Siemens ISO lathe's X words are (``--lathe-x``; None: such a program's X is refused)."""
     c = machine.spindle["axis"]
     full = AxisWords.of(machine)
     xz = AxisWords(machine.name, tuple(w for w in full.words if w != c), tuple(r for r in full.rotary if r != c))
     try:
-        prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect)
-        _refuse_x_by_parameter(prog)
+        prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=xz, dialect=dialect,
+                             lathe_x=lathe_x)
+        _refuse_lathe_x(prog, lathe_x)
         return prog, np.ones(len(prog.moves), dtype=bool)
     except InputError as exc:
         if f"no {c} axis" not in str(exc):
             raise  # a program without C words: the reading that applies to it names the refusal
-    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=full, dialect=dialect)
-    _refuse_x_by_parameter(prog)
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=full, dialect=dialect,
+                         lathe_x=lathe_x)
+    _refuse_lathe_x(prog, lathe_x)
     flags = spindle_turning(prog.lines, machine.spindle)
     turning = np.array([flags[m.index] for m in prog.moves], dtype=bool)
     if not turning.any():
@@ -100,7 +98,8 @@ def parse_lathe_program(path, machine, rapids, block_delete, dialect=None) -> tu
                              f"{', '.join(f'M{k}' for k in machine.spindle['turning_off'])}) before positioning {c}")
             raise exc if prog.expanded is None else prog.expanded.relocate(exc)
     kept = dataclasses.replace(full, kept=(c,))  # C written only where C-axis mode moves it
-    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect)
+    prog = parse_program(path, rapids=rapids, block_delete=block_delete, axis_words=kept, dialect=dialect,
+                         lathe_x=lathe_x)
     return prog, np.array([flags[m.index] for m in prog.moves], dtype=bool)
 
 
@@ -187,9 +186,53 @@ def solve_turning(field, machine, axes_d, ball_um: float, tol_um: float = TOL_UM
     return q, residual, converged, spread, it
 
 
-def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, ball_um):
+def tool_groups(tool_xz, n: int):
+    """``(x_mm, z_mm, indices)`` per distinct lathe tool offset of ``tool_xz`` (n, 2) (None: none); a NaN row
+    (no offset: the machine file's tool point) gives ``(None, None, indices)``."""
+    if tool_xz is None:
+        yield None, None, np.arange(n)
+        return
+    t = np.asarray(tool_xz, dtype=float)
+    on = np.isfinite(t).all(axis=1)
+    if (~on).any():
+        yield None, None, np.flatnonzero(~on)
+    for x, z in np.unique(t[on], axis=0):
+        yield float(x), float(z), np.flatnonzero(on & (t[:, 0] == x) & (t[:, 1] == z))
+
+
+def at_tool(field, machine, x_mm, z_mm):
+    """``(field, machine)`` at a lathe tool's offsets (:func:`compensation.nc_state.machine_with_lathe_tool`);
+    the given ones where ``x_mm`` is None. ``field`` None stays None."""
+    if x_mm is None:
+        return field, machine
+    from .nc_state import field_with_tool, machine_with_lathe_tool
+    mt = machine_with_lathe_tool(machine, x_mm, z_mm)
+    return (None if field is None else field_with_tool(field, mt)), mt
+
+
+def surface_residual_by_tool(field, machine, axes, axes_d, tool_xz):
+    """:func:`surface_residual_um` of every point at its lathe tool's offsets (``tool_xz`` (n, 2), None: none)."""
+    n = len(axes)
+    mean, spread = np.zeros((n, 2)), np.zeros(n)
+    for x, z, idx in tool_groups(tool_xz, n):
+        f, mt = at_tool(field, machine, x, z)
+        mean[idx], spread[idx] = surface_residual_um(f, mt, axes[idx], axes_d[idx])
+    return mean, spread
+
+
+def nominal_by_tool(machine, axes, tool_xz) -> np.ndarray:
+    """The nominal tool points (n, 3) mm of ``axes`` (n, k), each at its lathe tool's offsets."""
+    from .solvers.chain_exact import nominal_and_jacobian
+    out = np.zeros((len(axes), 3))
+    for x, z, idx in tool_groups(tool_xz, len(axes)):
+        out[idx] = nominal_and_jacobian(at_tool(None, machine, x, z)[1], axes[idx])[0]
+    return out
+
+
+def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, ball_um, tool_xz=None):
     """One :class:`~compensation.solvers.base.SolveResult` over all points: ``turning`` (n,) points by
-    :func:`solve_turning`, the others by ``solve_rest(targets, axes_d)`` (the chosen chain method)."""
+    :func:`solve_turning` (each at its lathe tool's offsets, ``tool_xz`` (n, 2), None: none), the others by
+    ``solve_rest(targets, axes_d)`` (the chosen chain method)."""
     import time
     from .solvers._common import make_result
     t0 = time.perf_counter()
@@ -208,10 +251,12 @@ def solve_with_turning(solve_rest, field, machine, targets, axes_d, turning, bal
                 info[key] = rest[np.asarray(info[key], dtype=np.intp)]
         info.pop("iterations", None)
     if len(turn):
-        from .solvers.chain_exact import nominal_and_jacobian
-        q, res, conv, spread, _ = solve_turning(field, machine, axes_d[turn], ball_um)
-        axes[turn], residual[turn], converged[turn] = q, res, conv
-        commands[turn] = nominal_and_jacobian(machine, q)[0]
+        spread = np.zeros(len(turn))
+        for x, z, idx in tool_groups(None if tool_xz is None else np.asarray(tool_xz)[turn], len(turn)):
+            f, mt = at_tool(field, machine, x, z)
+            q, res, conv, spread[idx], _ = solve_turning(f, mt, axes_d[turn[idx]], ball_um)
+            axes[turn[idx]], residual[turn[idx]], converged[turn[idx]] = q, res, conv
+        commands[turn] = nominal_by_tool(machine, axes[turn], None if tool_xz is None else np.asarray(tool_xz)[turn])
         nfev += len(turn) * TURN_SAMPLES
         names = machine.axis_columns
         c, lin = _indices(machine)

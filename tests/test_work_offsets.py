@@ -64,7 +64,7 @@ def test_tables_are_read_by_content_whatever_their_names(tmp_path):
     (read_work_offsets, "5221 0.0\n5222 0.0\n5223 x\n", "row 3, column 6"),
     (read_work_offsets, "5211 3.0\n5221 0\n5222 0\n5223 0\n", "row 1, column 1: parameter 5211 (a G92 offset)"),
     (read_tool_table, "T1 P1 Z+150.0 D10.0\nT2 P2 Z1O0.0\n", "row 2, column 7"),
-    (read_tool_table, "T1 P1 X2.0 Z+150.0\n", "row 1, column 7: X2"),
+    (read_tool_table, "T1 P1 Y2.0 Z+150.0\n", "row 1, column 7: Y2"),
     (read_tool_table, "tool,length_mm,radius_mm\n1,150,5\n1,120,5\n", "row 3, column 1: tool 1 given twice"),
     (read_tool_table, "tool,length_mm,radius_mm\n1,150\n", "row 2, column 3"),
 ])

@@ -127,7 +127,13 @@ def register(sub):
                         "an assumed machine zero); CSV axis paths are machine axes and need none")
     p.add_argument("--tool-table", default=None, metavar="FILE",
                    help="machine-tool chains: the tool lengths of G43 Hn: a LinuxCNC tool table (.tbl) or a CSV "
-                        "tool,length_mm[,radius_mm] (by content); the tool length is the Abbe arm of the angular errors")
+                        "tool,length_mm[,radius_mm] (by content); a lathe's tool X and Z offsets (.tbl X Z, CSV "
+                        "tool,x_mm,z_mm[,radius_mm]; G43, or TttOO on Fanuc/Haas); the offset is the Abbe arm of the "
+                        "angular errors")
+    p.add_argument("--lathe-x", default=None, choices=("diameter", "radius"),
+                   help="a Fanuc, Haas or Siemens ISO lathe program: whether its X words are diameters or radii (a "
+                        "parameter of the control, not a word of the program; LinuxCNC programs say it with G7/G8). "
+                        "Without it such a program's X is refused")
     p.add_argument("--expand-cycles", action="store_true",
                    help="machine-tool chains: write drilling canned cycles (G73 G81-G89) as the controller's explicit "
                         "G0/G1/G4 moves, compensated point by point (default: kept as cycles, each hole's X Y Z and R "
@@ -171,6 +177,7 @@ def settings_of(args) -> "CompensateSettings":
                               work_offsets=read_work_offsets(args.work_offsets) if args.work_offsets is not None
                               else None,
                               tool_table=read_tool_table(args.tool_table) if args.tool_table else None,
+                              lathe_x=args.lathe_x,
                               cycles="expand" if args.expand_cycles else "keep",
                               orientation=bool(args.compensate_orientation), chunk_points=args.chunk_points,
                               max_segment_mm=parse_max_segment(args.max_segment_mm))

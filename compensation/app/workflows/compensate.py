@@ -95,6 +95,7 @@ class CompensateSettings:
     orientation: bool = False    # the tool's orientation compensated too, by the rotary axes (compensation.tcp)
     chunk_points: int = CHUNK_POINTS  # points per chunk of the batch (compensation.batch)
     max_segment_mm: object = "auto"   # "auto" (the field's curvature), None (no splitting) or a length in mm
+    lathe_x: str | None = None   # a Fanuc/Haas/Siemens ISO lathe's X words: "diameter", "radius" (None: refused)
 
 
 @dataclass
@@ -340,12 +341,13 @@ def solve_units(paths, field_, truth, machine, s: CompensateSettings, executor=N
                     base[idx] = true_residual_um(tr, mt, u.axes, u.targets_mm)
         else:
             from ...solvers.base import BALL_RADIUS_UM
-            from ...turning import solve_with_turning
+            from ...turning import nominal_by_tool, solve_with_turning
             rest = np.flatnonzero(~turning)
             rest_res = gather_results([r for _, _, r in mine], [np.searchsorted(rest, idx) for _, idx, _ in mine]) \
                 if mine else None
-            targets, _ = nominal_and_jacobian(machine, tp.axes)
-            res = solve_with_turning(lambda t, a: rest_res, field_, machine, targets, tp.axes, turning, BALL_RADIUS_UM)
+            targets = nominal_by_tool(machine, tp.axes, tp.tool_xz)
+            res = solve_with_turning(lambda t, a: rest_res, field_, machine, targets, tp.axes, turning, BALL_RADIUS_UM,
+                                     tp.tool_xz)
         res.info["chunks"] = chunks
         out.append((res, targets, true_r, base))
     return out
@@ -490,9 +492,11 @@ def truth_entry(entry, tp: ToolPath, res, targets, true_r, true_base, truth, mac
     if turning is not None:
         after = true_residual_um(truth, machine, res.axes, targets)
         before = true_residual_um(truth, machine, tp.axes, targets)
-        from ...turning import surface_residual_um
+        from ...turning import surface_residual_by_tool
         t = np.flatnonzero(turning)
-        (a2, spread), (b2, _) = (surface_residual_um(truth, machine, ax[t], tp.axes[t]) for ax in (res.axes, tp.axes))
+        tool = None if tp.tool_xz is None else tp.tool_xz[t]
+        (a2, spread), (b2, _) = (surface_residual_by_tool(truth, machine, ax[t], tp.axes[t], tool)
+                                 for ax in (res.axes, tp.axes))
         after[t] = np.stack([a2[:, 0], np.zeros(len(t)), a2[:, 1]], axis=1)
         before[t] = np.stack([b2[:, 0], np.zeros(len(t)), b2[:, 1]], axis=1)
         entry["turning"] = {"points": int(len(t)), "residual": "turning points: radial and axial deviation "
@@ -600,12 +604,13 @@ def print_gcode_notes(entry) -> None:
     """A G-code file's lines: dialect, work offsets, tools, G53 lines, canned cycles, cutter radius."""
     print(f"  dialect {entry['dialect']}" + (f" ({entry['dialect_evidence']})" if entry["dialect_evidence"] else "")
           + f"; work offsets: {entry['work_offsets']}" + (f"; tools {entry['tools_used']}" if entry["tools_used"]
-                                                           else ""))
+                                                           else "")
+          + (f" (lathe tools' X offsets {entry['tool_x_used']})" if entry.get("tool_x_used") else ""))
     if entry["g53_lines"]:
         print(f"  G53 (machine coordinates) on line(s) {', '.join(map(str, entry['g53_lines'][:10]))}: passed "
               "through unchanged, not compensated")
     if "spline_lines" in entry:
-        print(f"  splines (G5/G5.1) on line(s) {', '.join(map(str, entry['spline_lines'][:10]))}: chords of the "
+        print(f"  splines (G5/G5.1, NURBS G5.2-G5.3) on line(s) {', '.join(map(str, entry['spline_lines'][:10]))}: chords of the "
               f"exact curve within {entry['arc_tolerance_um'] / 2:g} um of it (half --arc-tolerance-um), written as "
               "compensated G1 moves")
     if "cycles" in entry:

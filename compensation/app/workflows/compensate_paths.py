@@ -50,6 +50,9 @@ class ToolPath:
     :mod:`compensation.turning`)."""
     kept_machine: np.ndarray | None = None
     """G-code: the kept (not compensated) points' nominal machine axes (m, k); NaN where unknown."""
+    tool_xz: np.ndarray | None = None
+    """G-code on a lathe: the active tool offsets (n, 2) mm, X and Z, per point (NaN rows: none; the machine
+    file's own tool point; :func:`compensation.nc_state.machine_with_lathe_tool`)."""
     targets_mm: np.ndarray | None = None
     """A WCS-target CSV: its targets (n, 3) mm as written (None: the nominal tool points of ``axes``)."""
 
@@ -78,7 +81,10 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     turning = None
     if getattr(machine, "spindle", None) is not None:  # a lathe: turning mode where the spindle turns
         from ...turning import ColumnsField, parse_lathe_program
-        prog, turning = parse_lathe_program(path, machine, s.rapids, s.block_delete, dialect=s.dialect)
+        prog, turning = parse_lathe_program(path, machine, s.rapids, s.block_delete, dialect=s.dialect,
+                                            lathe_x=getattr(s, "lathe_x", None))
+    elif getattr(s, "lathe_x", None) is not None:
+        raise UsageError(f"--lathe-x: the machine {machine.name!r} is not a lathe (no [spindle]); leave it out")
     else:
         prog = parse_chain_program(path, machine, rapids=s.rapids, block_delete=s.block_delete, dialect=s.dialect,
                                    cycles=s.cycles)
@@ -99,10 +105,10 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     job = plan_chain_gcode(prog, s.arc_tolerance_um,
                            ColumnsField(field_, columns, k) if partial and field_ is not None else field_, frames,
                            max_segment_mm=s.max_segment_mm, nominal=nominal, machine=machine)
-    tool_mm = job.tool_mm
-    if turning is not None and turning.any() and np.isfinite(tool_mm).any():
-        raise UsageError(f"{path}: G43 tool lengths while the spindle turns: turning mode compensates X and Z with "
-                         "the machine file's tool; leave --tool-table out for this program")
+    tool_mm, tool_xz = job.tool_mm, None
+    if turning is not None:  # a lathe's tool offsets (X, Z) move its tool point (compensation.turning)
+        tool_xz = job.frames.lathe_tool(job.lines - 1)
+        tool_mm = np.where(np.isfinite(tool_xz).all(axis=1), np.nan, tool_mm)
 
     def full(a, fill):  # the program's columns placed in the machine's k columns
         out = np.full((len(a), k), fill, dtype=float)
@@ -121,10 +127,15 @@ def read_tool_path(path, machine, s, field_=None) -> ToolPath:
     if turning is not None:
         comp = np.array([t for m, t in zip(prog.moves, turning) if m.compensate], dtype=bool)
         turning = np.repeat(comp, job.counts)
+        off = np.flatnonzero(~turning & np.isfinite(tool_xz).all(axis=1))
+        if off.size:
+            raise UsageError(f"{path}: line {int(job.lines[off[0]])}: a lathe tool offset in C-axis mode (the spindle "
+                             "stopped): only turning moves are compensated at a tool's offsets; cancel the offset "
+                             "(G49, T..00) for the C-axis moves")
     check_units(path, job.lines, machine=machine, axes=axes, axes_columns=machine.axis_columns, coverage="path",
                 units=s.units, option="--units")
     return ToolPath(path, "gcode", axes, job.lines, job, shift=shift, tool_mm=tool_mm, columns=columns,
-                     turning=turning, kept_machine=kept_machine)
+                     turning=turning, kept_machine=kept_machine, tool_xz=tool_xz)
 
 
 def render(tp: ToolPath, axes, commands_mm, machine, comments) -> str:
