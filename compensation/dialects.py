@@ -16,9 +16,11 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
 * **mirror off, look-ahead** ``G50.1`` (its axis words name axes, nothing moves), Fanuc ``G08 P1/P0``, ``G05 P10000/P0``, Haas ``G103 P``: state (:data:`MIRROR_OFF`);
 * **scaling off** ``G50`` alone (Fanuc, Haas, Siemens ISO, Mach3, Tormach PathPilot: :data:`SCALING_OFF`): state, as
   ``G51`` scaling is refused; ``G50`` with axis words (a lathe's coordinate setting) is refused;
-* **G80 with a motion code on one line** (``G80 G0 X..``): Fanuc, Haas, Siemens ISO and Mach3 cancel
-  the cycle and take the motion code; LinuxCNC refuses two group-1 codes on one line (so does the
-  reader, without a dialect);
+* **G80 with a motion code on one line** (``G80 G0 X..``, the safe-start line of Mastercam, FeatureCAM and Mach3
+  posts): Fanuc, Haas, Siemens ISO and Mach3 cancel the cycle and take the motion code; LinuxCNC refuses two
+  group-1 codes on one line (so does the reader under ``--dialect linuxcnc`` or with no dialect at all); under
+  ``--dialect auto`` with no dialect word found (:data:`UNRECOGNISED`) the line is read the one way the controllers
+  that run it read it, and the summary names the line (:data:`G09_NOTE`);
 * **G80 and the motion mode**: on Fanuc, Haas and Siemens ISO the cycles and ``G80`` are group 09, so the
   G0-G3 mode in force before a cycle is in force after its ``G80`` (CAM posts write ``G80`` then a bare
   ``Z`` retract); on LinuxCNC, Mach3 and grbl ``G80`` ends the motion mode (RS274NGC group 1) and a bare
@@ -172,7 +174,7 @@ DIALECTS = {
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
                              35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
                              84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
-                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)", "G50": SCALING_OFF,
+                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P1-P3, E corner rounding)", "G50": SCALING_OFF,
                            "G50.1": MIRROR_OFF, "G103": LOOKAHEAD_BLOCKS}, g80_with_motion=True,
                     g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS, lathe_x_by_parameter=True),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
@@ -194,13 +196,15 @@ GENERIC = Dialect(RS274, {**_COMMON, 48: "overrides on", 49: "overrides off", 50
 UNRECOGNISED = replace(GENERIC, g80_unrecognised=True)
 """The reader under ``--dialect auto`` where the content names no dialect: :data:`GENERIC`, and a bare axis
 word after ``G80`` read in the G0-G3 of before it (:attr:`Dialect.g80_unrecognised`)."""
-G09_NOTE = ("read as a group-09 controller (G80 keeps the G0-G3 of before the cycle, line {line}); --dialect names "
-            "the controller")
+G09_NOTE = ("read as a group-09 controller (G80 with a G0-G3 on one line takes the G0-G3; G80 keeps the G0-G3 of "
+            "before the cycle; first at line {line}); --dialect names the controller")
 """What the summary and the written program's header say where :data:`UNRECOGNISED` read such a line."""
 
 MARKERS = {  # content that only one dialect writes: (pattern, what it is)
     "linuxcnc": ((r"(?im)^\s*/?\s*(?:n\d+\s*)?o\s*<", "o<name> subroutine"), (r"#<", "#<name> parameter")),
-    "fanuc": ((r"(?im)^\s*:\s*\d", "':' program number"), (r"(?i)G0?5\.1\s*Q", "G05.1 Q look-ahead")),
+    "fanuc": ((r"(?im)^\s*:\s*\d", "':' program number"), (r"(?i)G0?5\.1\s*Q", "G05.1 Q look-ahead"),
+              (r"(?im)^\s*(?:n\d+\s*)?G0?8\s*P[01]\s*(?:$|[(;])", "G08 P1 preview control"),
+              (r"(?im)^\s*(?:n\d+\s*)?G0?5\s*P(?:10000|0)\s*(?:$|[(;])", "G05 P10000 high-precision contour control")),
     "haas": ((r"(?i)\bG187\b", "G187 smoothness"), (r"(?i)\bG154\s*P", "G154 P work offset"),
              (r"(?i)\bM31\b", "M31 chip auger")),
     "siemens-iso": ((r"(?i)\bG291\b", "G291 ISO mode"), (r"(?im)^\s*(?:n\d+\s*)?TRAORI\b", "TRAORI transformation")),

@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (_dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (MODE_E, _dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .gcode_spline import spline_move, spline_points, spline_segments
@@ -56,6 +56,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
     dia = GENERIC if dia is None else dia
     by = {}
     gs, ms = [], []
+    e_mode = any(w.letter == "G" and w.code in MODE_E and w.code in dia.modes for w in words)  # Haas G187 E
     for w in words:
         if w.letter == "G":
             code = w.code
@@ -80,8 +81,8 @@ def _checked_words(words, ax: AxisWords, dia=None):
                                            f"program){other_dialects_with_m(w.value, dia.name)}")
             ms.append(w)
             continue
-        if w.letter in ax.words:
-            pass  # an axis word of the machine
+        if w.letter in ax.words or (w.letter == "E" and e_mode):
+            pass  # an axis word of the machine, or a mode code's E (checked by gcode_state._dialect_mode)
         elif w.letter in ax.lacking:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {ax.lacking[w.letter]}; not supported")
         elif w.letter in REFUSED_LETTERS:
@@ -115,8 +116,8 @@ def _modal_groups(gs, dia=None) -> dict:
         grp = "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
             code in dia.splines or code in dia.synced) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
-        if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
-                code, groups[grp][0]):
+        g80_motion = dia is not None and (dia.g80_with_motion or dia.g80_unrecognised)  # no dialect: the one reading
+        if grp == "motion" and grp in groups and g80_motion and "G80" in (code, groups[grp][0]):
             if code != "G80":
                 groups[grp] = (code, w)
             continue
@@ -209,6 +210,9 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     by, gs, ms = _checked_words(words, ax, dia)
     _tool_change(st, by, ms)
     groups = _modal_groups(gs, dia)
+    if getattr(dia, "g80_unrecognised", False) and groups.get("motion", ("G80",))[0] != "G80" and any(
+            c == "G80" for c, _ in gs):
+        st.g80_line = st.g80_line or idx + 1  # LinuxCNC refuses the line: the controllers that run it take the G0-G3
     if "O" in by:
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
             raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")

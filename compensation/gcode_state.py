@@ -102,6 +102,12 @@ MODE_P = {"G8": ((0.0, 1.0), "P1 (look-ahead on) or P0 (off)"),
                                  "high-speed cycle machining (a stored cycle), not supported"),
           "G103": (tuple(float(n) for n in range(16)), "P0-P15 (blocks looked ahead)")}
 """The P a dialect's mode code needs (:mod:`compensation.dialects`): (allowed values, what the refusal says)."""
+MODE_P_OPTIONAL = ("G103", "G187")
+"""Mode codes whose P may be left out (Haas mill manual: ``G103`` alone is ``G103 P0``, the normal look-ahead;
+``G187`` alone returns smoothness and corner rounding to Settings 191 and 85)."""
+MODE_E = {"G187": "P1 (rough), P2 (medium) or P3 (finish); E the largest corner rounding (> 0)"}
+"""Mode codes that take an ``E`` word (Haas ``G187 Pn Ennn``: E overrides Setting 85, the corner rounding the
+look-ahead may leave, a tolerance like ``G64 P``, not a path): the words they take."""
 
 
 def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
@@ -114,8 +120,12 @@ def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
         raise _Refuse(w.start + 1, f"'{code}' needs Q1 (look-ahead on) or Q0 (off); Q2 smooth interpolation "
                                    "changes the path and is not supported")
     p = by.get("P")
-    if code in MODE_P and (p is None or p.value not in MODE_P[code][0]):
+    if code in MODE_P and not (p is None and code in MODE_P_OPTIONAL) and (p is None or p.value not in MODE_P[code][0]):
         raise _Refuse(w.start + 1, f"'{code}' needs {MODE_P[code][1]}")
+    e = by.get("E")
+    if code in MODE_E and ((p is not None and p.value not in (1.0, 2.0, 3.0)) or (e is not None and e.value <= 0)):
+        bad = e if p is None or p.value in (1.0, 2.0, 3.0) else p
+        raise _Refuse(bad.start + 1, f"'{bad.letter}{bad.text}' with {code}: it takes {MODE_E[code]}")
     if code == "G50.1":  # its axis words name the axes whose mirroring ends: nothing moves
         axis_words = {}
     if axis_words or arc_words or groups.get("motion", ("G80",))[0] != "G80":  # G80 (no cycle) moves nothing

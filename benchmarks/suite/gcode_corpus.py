@@ -148,7 +148,8 @@ def compensate_accepted(root: Path, corpus: Path, out: dict, tmp: Path, check: b
             r["check"] = lathe_check(corpus / r["file"], dest / r["file"], m["dialect"], truths["lathe-xzc"])
 
 
-def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str:
+def independent_check(src: Path, written: Path, dialect: str, truth_file: Path, offsets: dict | None = None,
+                      tools: dict | None = None) -> str:
     """``--check``: the written program run as the shop would, judged independently of the reader's frames:
     frames (work offset, tool length) per line from the program's own G54-G59 / G54.1 P / G154 P / G43 H /
     G49 words read by patterns (tests/program_checks.py ``_frame``; the controller's power-on G54 before any),
@@ -156,7 +157,12 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) 
     source's, byte for byte and in order, and (2) every programmed end point of a compensated move is reached,
     in order, by the TRUE machine at the end of some written move within 1 um. ``"ok: max E um at N points"``,
     ``"WRONG: ..."`` (silently wrong) or ``"not checkable: ..."``. A program the reader expanded (subprograms,
-    macros: a flat program is written) is judged against the reader's flat program."""
+    macros: a flat program is written) is judged against the reader's flat program. ``offsets`` {system: (3,) mm}
+    and ``tools`` {number: length mm}: the tables the program was compensated with (default: the count's, every
+    system at :data:`PART_ZERO_MM`, every tool 100 mm). A program with canned cycles is judged by
+    :func:`cycle_check`."""
+    if re.search(CYCLE_RE, src.read_text(encoding="latin-1")):
+        return cycle_check(src, written, dialect, truth_file, offsets, tools)
     sys.path.insert(0, str(HERE.parent / "tests"))
     from program_checks import TOL_POINT_UM, _frame
     from compensation.gcode import AxisWords, parse_program
@@ -165,12 +171,9 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) 
     from errormap.chain_field import ChainField
     from errormap.machine import load_machine
     mill = load_machine("mill-xyz")
-    zero = PART_ZERO_MM["mill-xyz"]
-    systems = ["G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3"]
-    systems += [f"G54.1P{n}" for n in range(1, 49)] + [f"G154P{n}" for n in range(1, 100)]
-    systems += [f"G{n}" for n in range(110, 130)]
-    offsets, tools = {s: zero for s in systems}, {n: TOOL_LENGTH_MM for n in range(1, 100)}
-    aw, dia = AxisWords.of(mill), None if dialect == "auto" else dialect
+    if offsets is None:
+        offsets, tools = _count_tables()
+    aw, dia = AxisWords.of(mill), dialect  # "auto": detected from each file, as compensate does
     try:  # a program with canned cycles is read by compensate's cycle reader, not this plain parse
         expanded = parse_program(src, axis_words=aw, dialect=dialect).expanded
     except Exception as exc:  # noqa: BLE001 - reported, not hidden
@@ -218,6 +221,92 @@ def independent_check(src: Path, written: Path, dialect: str, truth_file: Path) 
         else:
             return f"WRONG: line {m.index + 1} ({p_src.lines[m.index].strip()[:40]!r}) reached by no written move"
     return f"ok: max {max(errs):.3g} um at {len(errs)} points" if errs else "not checkable: no compensated move"
+
+
+def _count_tables() -> tuple:
+    """The count's tables for the checks: every system at the mill's :data:`PART_ZERO_MM`, every tool 100 mm."""
+    systems = ["G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3"]
+    systems += [f"G54.1P{n}" for n in range(1, 49)] + [f"G154P{n}" for n in range(1, 100)]
+    systems += [f"G{n}" for n in range(110, 130)]
+    return {s: PART_ZERO_MM["mill-xyz"] for s in systems}, {n: TOOL_LENGTH_MM for n in range(1, 100)}
+
+
+CYCLE_RE = r"(?i)G0*(?:7[346]|8[1-9])(?![\d.])"
+"""A drilling canned cycle's code (G73 G74 G76 G81-G89), found by pattern."""
+_MOTION_RE = r"(?i)G0*(?:[0-3]|80)(?![\d.])"
+_WORDS_RE = r"(?i)([XYZR])\s*([-+]?(?:\d+\.?\d*|\.\d+))"
+
+
+def _cycle_lines(lines) -> list:
+    """Indices of the lines that drill (a cycle code, or an X/Y/Z word while a cycle is the mode), by pattern."""
+    out, on = [], False
+    for i, ln in enumerate(lines):
+        body = re.sub(r"\(.*?\)|;.*", "", ln)
+        if re.search(CYCLE_RE, body):
+            on = True
+        elif re.search(_MOTION_RE, body):
+            on = False
+        if on and re.search(r"(?i)[XYZ]\s*[-+.\d]", body):
+            out.append(i)
+    return out
+
+
+def cycle_check(src: Path, written: Path, dialect: str, truth_file: Path, offsets=None, tools=None) -> str:
+    """``--check`` of a program with kept canned cycles, independently of the reader: the cycle lines (found by
+    pattern) blanked in both programs, the rest judged by :func:`independent_check`; then every hole: the
+    programmed bottom (X Y from the last absolute X Y, Z sticky, in the frame of its line read by
+    tests/program_checks.py ``_frame``) reached within 1 um by the TRUE machine at the written line's X Y Z.
+    Holes under G91 are not checkable."""
+    sys.path.insert(0, str(HERE.parent / "tests"))
+    from program_checks import TOL_POINT_UM, _frame
+    from compensation.nc_state import machine_with_tool
+    from errormap.chain_elements import ChainElementSet
+    from errormap.chain_field import ChainField
+    from errormap.machine import load_machine
+    mill = load_machine("mill-xyz")
+    a = src.read_text(encoding="latin-1").splitlines(keepends=True)
+    b = [ln for ln in written.read_text(encoding="latin-1").splitlines(keepends=True) if not ln.startswith("(volcomp:")]
+    ca, cb = _cycle_lines(a), _cycle_lines(b)
+    if len(ca) != len(cb):
+        return "not checkable: the written program's cycle lines are not the source's (G91 repeats)"
+    blank = lambda lines, c: "".join("(cycle)\n" if i in c else ln for i, ln in enumerate(lines))  # noqa: E731
+    pa, pb = written.with_suffix(".src-blank" + src.suffix), written.with_suffix(".blank" + written.suffix)
+    pa.write_text(blank(a, set(ca)), encoding="latin-1")
+    pb.write_text(blank(b, set(cb)), encoding="latin-1")
+    written_of = dict(zip(ca, cb))
+    rest = independent_check(pa, pb, dialect, truth_file, offsets, tools)
+    if rest.startswith("WRONG"):
+        return rest
+    if offsets is None:
+        offsets, tools = _count_tables()
+    frames = _frame(a, offsets, tools, "G54")
+    els, state, inc, errs = ChainElementSet.load(truth_file, mill), {}, False, []
+    for i, ln in enumerate(a):
+        body = re.sub(r"\(.*?\)|;.*", "", ln).upper()
+        inc = "G91" in body if re.search(r"G9[01](?![\d.])", body) else inc
+        words = {k: float(v) for k, v in re.findall(_WORDS_RE, body)}
+        if i not in ca:
+            if not re.search(r"G(?:28|30|53)(?![\d.])", body):
+                for k in "XY":
+                    if k in words:
+                        state[k] = state.get(k, np.nan) + words[k] if inc else words[k]
+            continue
+        if inc:
+            return "not checkable: a canned cycle under G91"
+        state.update(words)
+        w = {k: float(v) for k, v in re.findall(_WORDS_RE, re.sub(r"\(.*?\)|;.*", "", b[written_of[i]]).upper())}
+        off, tool = frames[i]
+        mt = machine_with_tool(mill, tool) if tool is not None else mill
+        shift = np.asarray(off, float) + [0.0, 0.0, tool or 0.0]
+        scale = 25.4 if any(re.search(r"G20(?![\d.])", re.sub(r"\(.*?\)|;.*", "", t).upper()) for t in a[:i + 1]) else 1.0
+        run = np.array([w["X"], w["Y"], w["Z"]]) * scale + shift
+        tgt = np.array([state["X"], state["Y"], state["Z"]]) * scale + shift
+        tip = mt.nominal(run[None])[0] + ChainField(mt, els).predict(run[None])[0] * 1e-3
+        e_um = float(np.linalg.norm(tip - mt.nominal(tgt[None])[0]) * 1e3)
+        if not e_um <= TOL_POINT_UM:
+            return f"WRONG: hole of line {i + 1} ({a[i].strip()[:40]!r}) off by {e_um:.3g} um"
+        errs.append(e_um)
+    return f"ok: max {max(errs):.3g} um at {len(errs)} holes; rest {rest}" if errs else "not checkable: no hole"
 
 
 def lathe_check(src: Path, written: Path, dialect: str, truth_file: Path) -> str:
@@ -336,20 +425,92 @@ DATA = ("`benchmarks/nc_styles/` (14 programs in LinuxCNC's and Fanuc shops' sty
         "1,000,000-line 3-axis program (quick: 20,000 lines)")
 
 
-def style_counts() -> Counter:
-    from compensation.gcode import AxisWords, parse_program
+FAMILIES = STYLES / "FAMILIES.csv"
+STYLE_TABLES = STYLES / "tables"
+"""The shop's tables the style programs run with (``offsets.csv``: G54, G55, G54.1 P1/P2, G154 P1 at distinct part
+zeros; ``tools.csv``: the tools they load), given to the reader as ``--work-offsets`` / ``--tool-table``."""
+
+
+def style_tables() -> tuple:
+    """``(offsets {system: (x, y, z) mm}, tools {number: length mm})`` of :data:`STYLE_TABLES`, read by ``csv`` (the
+    checks' own reading, not the product's)."""
+    with (STYLE_TABLES / "offsets.csv").open(encoding="utf-8") as f:
+        offs = {r["system"]: tuple(float(r[k]) for k in ("x_mm", "y_mm", "z_mm")) for r in csv.DictReader(f)}
+    with (STYLE_TABLES / "tools.csv").open(encoding="utf-8") as f:
+        tools = {int(r["tool"]): float(r["length_mm"]) for r in csv.DictReader(f)}
+    return offs, tools
+
+
+def style_counts(check: bool = False) -> list:
+    """Each row of ``nc_styles/FAMILIES.csv`` (file, CAM post or controller family, expect accept/refuse) read as
+    ``volcomp compensate`` reads it (``read_tool_path`` on ``mill-xyz``, ``--dialect auto``, the tables of
+    :data:`STYLE_TABLES`): the row with ``outcome`` (accepted / refused / crashed) and ``reason``; ``check``: each
+    accepted program compensated (``--method exact``, the count's seeded truth as model and ``--truth``) and judged
+    by :func:`independent_check` with those tables (``check``: ``ok: ...``, ``WRONG: ...`` or ``not checkable``)."""
+    from compensation.app.cli import main
+    from compensation.app.validate import UsageError
+    from compensation.app.workflows.compensate import CompensateSettings
+    from compensation.app.workflows.compensate_paths import read_tool_path
+    from compensation.nc_state import read_tool_table, read_work_offsets
+    from errormap.chain_elements import ChainElementSet
     from errormap.io import InputError
     from errormap.machine import load_machine
-    ax, out = AxisWords.of(load_machine("mill-xyz")), Counter()
-    for p in sorted(STYLES.iterdir()):
-        try:
-            parse_program(p, axis_words=ax)
-            out["accepted"] += 1
-        except InputError:
-            out["refused"] += 1
-        except Exception:  # noqa: BLE001 - a crash is what this counts
-            out["crashed"] += 1
-    return out
+    mill = load_machine("mill-xyz")
+    off_csv, tool_csv = STYLE_TABLES / "offsets.csv", STYLE_TABLES / "tools.csv"
+    offs, tools = read_work_offsets(off_csv), read_tool_table(tool_csv)
+    rows = list(csv.DictReader(FAMILIES.open(encoding="utf-8")))
+    with tempfile.TemporaryDirectory() as tmp:
+        truth = ChainElementSet.random(mill, 101, 10.0, 11).save(Path(tmp) / "truth.json")
+        for r in rows:
+            p = STYLES / r["file"]
+            s = CompensateSettings("exact", "", Path(tmp), dialect="auto", work_offsets=offs, tool_table=tools)
+            try:
+                read_tool_path(p, mill, s)
+                r["outcome"], r["reason"] = "accepted", ""
+            except (InputError, UsageError) as exc:
+                r["outcome"], r["reason"] = "refused", reason_of(str(exc), p.name)
+            except Exception as exc:  # noqa: BLE001 - a crash is what this counts
+                r["outcome"], r["reason"] = "crashed", f"{type(exc).__name__}: {exc}"[:110]
+            if check and r["outcome"] == "accepted":
+                dest = Path(tmp) / ("out-" + r["file"])
+                rc = main(["compensate", str(p), "--machine", "mill-xyz", "--model", str(truth), "--truth", str(truth),
+                           "--method", "exact", "--out", str(dest), "--dialect", "auto", "--work-offsets", str(off_csv),
+                           "--tool-table", str(tool_csv)])
+                summary = dest / "compensate_summary.json"
+                e = json.loads(summary.read_text())["files"][0] if rc == 0 and summary.is_file() else {}
+                r["dialect"] = e.get("dialect", "")
+                r["check"] = (independent_check(p, dest / r["file"], "auto", truth, *style_tables()) if rc == 0
+                              else f"not checkable: compensate exited {rc}")
+    return rows
+
+
+def style_figures(rows: list) -> tuple:
+    """``(figures, notes)`` of :func:`style_counts` rows: accepted of all, of those a shop runs (expect accept), the
+    right refusals, silently wrong among the checked; a note per family."""
+    c = Counter(r["outcome"] for r in rows)
+    run = [r for r in rows if r["expect"] == "accept"]
+    right = [r for r in rows if r["expect"] == "refuse"]
+    checked = [r for r in rows if r.get("check", "").startswith(("ok", "WRONG"))]
+    wrong = [r for r in checked if r["check"].startswith("WRONG")]
+    figs = [{"what": "shop-style programs accepted", "value": f"{c['accepted']}/{len(rows)}", "unit": "",
+             "residual": "none", "anchor": "crashed (any exception but a refusal)", "anchor_value": c["crashed"]},
+            {"what": "of them CAM-post and shop programs a controller runs exactly, accepted",
+             "value": f"{sum(r['outcome'] == 'accepted' for r in run)}/{len(run)}", "unit": "", "residual": "none",
+             "anchor": "not interpretable exactly, refused", "anchor_value":
+                 f"{sum(r['outcome'] == 'refused' for r in right)}/{len(right)}"}]
+    if any("check" in r for r in rows):
+        figs.append({"what": "accepted style programs silently wrong (independent check, 1 um)",
+                     "value": len(wrong), "unit": "", "residual": "TRUE",
+                     "anchor": "checked (the rest: not checkable)", "anchor_value": len(checked)})
+    fam = defaultdict(Counter)
+    for r in rows:
+        fam[r["family"]][r["outcome"]] += 1
+    notes = ["Per family (accepted/programs): " + "; ".join(
+        f"{k} {v['accepted']}/{sum(v.values())}" for k, v in sorted(fam.items())) + "."]
+    notes += [f"`{r['file']}` ({r['family']}) {r['outcome']}: {r['reason']}" for r in rows
+              if (r["outcome"] == "accepted") != (r["expect"] == "accept")]
+    notes += [f"`{r['file']}`: {r['check']}" for r in wrong]
+    return figs, notes
 
 
 def parse_cpu_s(n: int) -> float:
@@ -370,12 +531,9 @@ def parse_cpu_s(n: int) -> float:
 
 def run(quick: bool, seed: int) -> dict:
     import os
-    st = style_counts()
+    figs, notes = style_figures(style_counts(check=True))
     n_lines = 20_000 if quick else 1_000_000
-    figs = [{"what": "shop-style programs accepted", "value": f"{st['accepted']}/{sum(st.values())}", "unit": "",
-             "residual": "none", "anchor": "crashed (any exception but a refusal)", "anchor_value": st["crashed"]}]
     corpus = os.environ.get("VOLCOMP_PROGRAM_CORPUS")
-    notes = []
     if corpus and Path(corpus).is_dir():
         res = count(HERE.parent, Path(corpus))["results"]
         c = Counter(r["outcome"] for r in res)
