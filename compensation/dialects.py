@@ -101,6 +101,9 @@ class Dialect:
     lathe_x_by_parameter: bool = False
     """On a lathe, whether X is a diameter or a radius is a machine parameter, not a word of the program (Fanuc
     diameter programming, parameter DIA; Haas, Siemens ISO turning likewise): a lathe program's X is refused."""
+    dwell_x: bool = False
+    """``G04 X`` is a dwell time in seconds and the line moves nothing (Fanuc 0i-MF "Dwell": ``G04 X_`` or ``G04 P_``;
+    Siemens ISO mode as Fanuc); elsewhere an X on a ``G4`` line is refused (LinuxCNC: a move after the dwell)."""
     dwell_with_motion: bool = False
     """Axis words on a ``G4`` line belong to the motion mode (RS274NGC, LinuxCNC: G4 uses no axis words; the line
     dwells, then moves); elsewhere ``G04 X`` is a dwell time (Fanuc, Haas) and such a line is refused."""
@@ -167,7 +170,7 @@ DIALECTS = {
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
-                                                         "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True,
+                                                         "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True, dwell_x=True,
                      g80_keeps_motion=True, h_offset_alone=True, lathe_x_by_parameter=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
@@ -180,7 +183,7 @@ DIALECTS = {
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
                            program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF,
                                   "G50.1": MIRROR_OFF},
-                           g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True,
+                           g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True, dwell_x=True,
                            lathe_x_by_parameter=True),
     "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True,
                      modes={"G50": SCALING_OFF}),

@@ -243,6 +243,9 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     move = _mode_move(idx, st, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain)
     if move is not None:
         return "move", move
+    if not plain and groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_x", False) and set(axis_words) == {"X"} and (
+            not arc_words and "motion" not in groups and by["X"].value >= 0):
+        return "state", None  # Fanuc 'G04 X1.': a dwell of X seconds, nothing moves
     if not plain and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "

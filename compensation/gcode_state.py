@@ -102,6 +102,9 @@ MODE_P = {"G8": ((0.0, 1.0), "P1 (look-ahead on) or P0 (off)"),
                                  "high-speed cycle machining (a stored cycle), not supported"),
           "G103": (tuple(float(n) for n in range(16)), "P0-P15 (blocks looked ahead)")}
 """The P a dialect's mode code needs (:mod:`compensation.dialects`): (allowed values, what the refusal says)."""
+AICC_LEVELS = tuple(float(n) for n in range(1, 11))
+"""``G05.1 Q1 Rn`` (Fanuc 30i-B "AI contour control II", machining quality level adjustment; Fusion 360's Fanuc post
+writes it): R1 (speed) to R10 (precision) choose the tolerance the look-ahead keeps, not the path."""
 MODE_P_OPTIONAL = ("G103", "G187")
 """Mode codes whose P may be left out (Haas mill manual: ``G103`` alone is ``G103 P0``, the normal look-ahead;
 ``G187`` alone returns smoothness and corner rounding to Settings 191 and 85)."""
@@ -119,6 +122,11 @@ def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
     if code == "G5.1" and (q is None or q.value not in (0.0, 1.0)):
         raise _Refuse(w.start + 1, f"'{code}' needs Q1 (look-ahead on) or Q0 (off); Q2 smooth interpolation "
                                    "changes the path and is not supported")
+    if code == "G5.1" and "R" in arc_words:  # Fanuc 30i AI contour control II: 'G05.1 Q1 Rn', the quality level
+        r = arc_words.pop("R") if len(arc_words) == 1 else arc_words["R"]
+        if q.value != 1.0 or r.value not in AICC_LEVELS:
+            raise _Refuse(r.start + 1, f"'R{r.text}' with G5.1: only 'G05.1 Q1 R1'-'R10' (the machining quality "
+                                       "level, a tolerance) is read")
     p = by.get("P")
     if code in MODE_P and not (p is None and code in MODE_P_OPTIONAL) and (p is None or p.value not in MODE_P[code][0]):
         raise _Refuse(w.start + 1, f"'{code}' needs {MODE_P[code][1]}")

@@ -167,6 +167,7 @@ class _St:
         self.series = 0
         self.g01 = None  # the G0-G3 mode written before the cycle (in force again after G80 where it is group 09)
         self.keeps_g01 = False  # G80 keeps it (the cycle's moves end in it)
+        self.dwell_x = False  # 'G04 X' is a dwell time (compensation.dialects.Dialect.dwell_x)
         self.tapping = False  # G33.1 in force: each of its lines ends where it started (rigid tapping returns)
 
 
@@ -180,6 +181,8 @@ def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=
     lines = text.splitlines(keepends=True)
     st, out, origin, spans, holes = _St(), [], [], [], []
     st.keeps_g01 = g80_keeps or _keeps_motion(dialect)
+    from .dialects import DIALECTS
+    st.dwell_x = dialect in DIALECTS and DIALECTS[dialect].dwell_x
     for i, line in enumerate(lines):
         body = line.rstrip("\r\n")
         end = line[len(body):]
@@ -277,8 +280,9 @@ def _track(words, by, gs, motion, st: _St):
         st.initial = math.nan
     if "F" in by:
         st.feed = by["F"].text
-    if any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs) or st.tapping:
-        return  # a via point, machine coordinates or data (the position stays unknown), or a tap that returned
+    if any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs) or st.tapping or ("G4" in gs and st.dwell_x):
+        return  # a via point, machine coordinates or data (the position stays unknown), a tap that returned, or a
+        # Fanuc 'G04 X' dwell time
     for j, a in enumerate("XYZ"):  # after G43/G49 or a work system only absolute words are known again
         if a in by and (not st.inc or math.isfinite(st.pos[j])):
             st.pos[j] = st.pos[j] + by[a].value if st.inc else by[a].value

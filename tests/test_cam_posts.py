@@ -143,3 +143,28 @@ def test_g187_words_out_of_place_are_refused(tmp_path, text, dialect, col, what)
 def test_fanuc_look_ahead_lines_name_the_dialect(text, evidence):
     assert detect_dialect(text) == ("fanuc", evidence)
     assert detect_dialect("G5 X1 Y2 I0 J1 P1 Q0\n")[0] == "rs274"  # a LinuxCNC spline is no marker
+
+
+def test_fanuc_dwell_by_x_and_aicc_level_move_nothing(tmp_path):
+    """Fanuc 0i-MF 'G04 X_' is a dwell of X seconds (Siemens ISO mode as Fanuc); Fanuc 30i 'G05.1 Q1 Rn' (R1-R10, the
+    machining quality level: a tolerance). Neither moves: the moves are the programmed ones."""
+    for dialect in ("fanuc", "siemens-iso"):
+        prog = _read(tmp_path, "G05.1 Q1 R5\nG04 X1.5\nG1 X20 F500\nG05.1 Q0\n", dialect)
+        assert [list(m.end) for m in prog.moves if m.compensate] == [[20.0, 10.0, -20.0], [30.0, 10.0, -20.0]]
+
+
+@pytest.mark.parametrize("text, dialect, col, what", [
+    ("G04 X1.5\n", "haas", 5, "axis word 'X1.5' with G4 (a dwell time on some controls"),  # Haas: G04 P only
+    ("G04 X1.5\n", "linuxcnc", None, None),  # LinuxCNC: the X is a move after the dwell (read, not refused)
+    ("G04 X1.5 Y2.\n", "fanuc", 5, "axis word 'X1.5' with G4"),
+    ("G05.1 Q1 R11\n", "fanuc", 10, "only 'G05.1 Q1 R1'-'R10'"),
+    ("G05.1 Q0 R5\n", "fanuc", 10, "only 'G05.1 Q1 R1'-'R10'"),
+])
+def test_dwell_and_aicc_words_out_of_place(tmp_path, text, dialect, col, what):
+    if what is None:
+        prog = _read(tmp_path, text, dialect)
+        assert [m.end[0] for m in prog.moves if m.index == 2] == [1.5]
+        return
+    with pytest.raises(InputError) as err:
+        _read(tmp_path, text, dialect)
+    assert f"line 3, column {col}: " in str(err.value) and what in str(err.value), str(err.value)
