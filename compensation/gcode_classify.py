@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (MODE_E, _dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (MODE_E, bare_g43_tool, _dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .gcode_spline import spline_move, spline_points, spline_segments
@@ -35,6 +35,7 @@ class _State:
         self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
         self.selected = None       # the last T word (the tool prepared)
         self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
+        self.last_h = None         # the last H number the program gave (Fanuc: H is modal; a bare G43 takes it)
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
         self.diameter = False      # lathe diameter mode (LinuxCNC G7): X words are diameters
         self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
@@ -174,7 +175,7 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
         if c in ("G41", "G42") and "D" not in by and not loaded:
             raise _Refuse(w.start + 1, f"'{c}' without D (the current tool's radius): write '{c} Dn' with the tool "
                                        "table's number n")
-    if "G43" in (c for c, _ in gs) and "H" not in by and not loaded:
+    if "G43" in (c for c, _ in gs) and "H" not in by and not loaded and bare_g43_tool(st) is None:
         w = next(w for c, w in gs if c == "G43")
         raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): write 'G43 Hn' with the tool "
                                    "table's number n")

@@ -71,7 +71,9 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
             h = by.get("H")
             if h is not None and (h.value != int(h.value) or h.value < 0):
                 raise _Refuse(h.start + 1, f"'H{h.text}': expected a tool number")
-            value = int(h.value) if h is not None else _loaded(st, code, w)
+            value = int(h.value) if h is not None else bare_g43_tool(st)
+            value = _loaded(st, code, w) if value is None else value
+            st.last_h = value
             value = None if fanuc_h and value == 0 else value  # H00: always a zero length
         text = code if code != "G43" else (f"G43 H{int(by['H'].value)}" if "H" in by else f"G43 (tool {value} loaded)")
         st.events.append((idx, w.start + 1, "tool", value, text))
@@ -79,6 +81,19 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         if value != st.tool:
             _forget(st, ax, ("Z",))
             st.tool = value
+
+
+def bare_g43_tool(st: _State):
+    """The length offset number of a ``G43`` without ``H`` where the dialect says it without the tool in the spindle:
+    Fanuc, Haas, Siemens ISO (``h_offset_alone``; the H number is modal) the last H the program gave; with no dialect,
+    that H where it is also the tool the program's ``M6`` loaded (LinuxCNC and Mach3 take the loaded tool: both
+    readings agree); None otherwise (LinuxCNC: :func:`_loaded`; else refused)."""
+    if st.last_h is None:
+        return None
+    if getattr(st.dialect, "h_offset_alone", False):
+        return st.last_h
+    generic = st.dialect is None or st.dialect.name == "rs274"
+    return st.last_h if generic and st.loaded == st.last_h else None
 
 
 def _tool_change(st: _State, by, ms) -> None:
