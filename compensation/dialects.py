@@ -29,6 +29,10 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
   the summary says so;
 * **block delete** ``/``: every dialect but grbl (which has no block-delete switch) skips the line
   when the switch is on (``--block-delete``).
+* **grbl** ``$`` **system commands** (a line that starts with ``$``; grbl v1.1 "Grbl $ commands"; such a line names
+  the dialect): the views ``$$ $# $G $I $N`` and ``$X`` (unlock) pass; ``$H`` (homing) passes and leaves the
+  position unknown until the next absolute word; jogs ``$J=``, check mode ``$C``, settings ``$n=`` and startup
+  blocks ``$Nn=`` are refused (:func:`compensation.gcode_classify._grbl_system`).
 
 Sources: LinuxCNC G- and M-code reference (linuxcnc.org/docs, "M-Codes": M0-M9, M19, M48-M53, M60,
 M61-M68, M70-M73 state, M100-M199 user); Fanuc Series 0i/30i operator's manuals (program number
@@ -212,6 +216,7 @@ MARKERS = {  # content that only one dialect writes: (pattern, what it is)
              (r"(?i)\bM31\b", "M31 chip auger")),
     "siemens-iso": ((r"(?i)\bG291\b", "G291 ISO mode"), (r"(?im)^\s*(?:n\d+\s*)?TRAORI\b", "TRAORI transformation")),
     "heidenhain-iso": ((r"(?im)^\s*%\s*\w+\s+G7[01]\s*\*", "'%NAME G71 *' program framing"),),
+    "grbl": ((r"(?im)^[ \t]*\$(?:[$#GINXHCJ]|\d|RST|SLP)", "'$' system command"),),
 }
 DETECT_BYTES = 1 << 20
 """Detection reads the first MiB (a program declares its dialect near the top, and a marker further on

@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (MODE_E, bare_g43_tool, _dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (MODE_E, bare_g43_tool, _dialect_mode, _forget, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .gcode_spline import spline_move, spline_points, spline_segments
@@ -190,10 +190,33 @@ G-code reference: "G43 ... if H is not given, the current tool's"; "G41 ... D om
 _COLON_NUMBER = re.compile(r"[ \t]*:[ \t]*\d+[ \t]*(?:\([^)]*\)[ \t]*)?")
 
 
+GRBL_VIEW = {"$$": "view settings", "$#": "view parameters", "$G": "view parser state", "$I": "view build info",
+             "$N": "view startup blocks", "$X": "kill the alarm lock"}
+"""grbl v1.1 '$' system commands that move nothing and change nothing the path depends on (passed through)."""
+
+
+def _grbl_system(body: str, st: _State, ax: AxisWords) -> str:
+    """A grbl ``$`` system command line (grbl v1.1 "Grbl $ commands"): the views and ``$X`` pass; ``$H`` (the homing
+    cycle) moves every axis to machine home, so the program position is unknown until the next absolute word; the
+    others (``$J=`` jog, ``$C`` check mode, ``$x=`` settings that scale or limit the axes, ``$Nx=`` startup blocks,
+    ``$RST=``, ``$SLP``) are refused."""
+    cmd = body.strip().split(";")[0].split("(")[0].strip().upper()
+    if cmd in GRBL_VIEW:
+        return "pass"
+    if cmd == "$H":
+        _forget(st, ax, ax.words)
+        return "pass"
+    raise _Refuse(body.index("$") + 1, f"grbl system command '{cmd[:20]}' (a jog, check mode, setting or startup "
+                                       "block: moves or changes what the axes do) is not read; remove it from the "
+                                       "program (only $$ $# $G $I $N $X and $H pass)")
+
+
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     dia = st.dialect
     if dia is not None and ":" in dia.program_number and _COLON_NUMBER.fullmatch(body):
         return "pass", None  # ':1234' program number (ISO code)
+    if dia is not None and dia.name == "grbl" and body.lstrip().startswith("$"):
+        return _grbl_system(body, st, ax), None
     native = siemens_native(body, dia is not None and dia.name == "siemens-iso")
     if native is not None:
         from .dialects import SIEMENS_NATIVE

@@ -6,6 +6,7 @@ non-motion lines byte-identical, every programmed point and every hole bottom re
 1 μm). The words they need, one test each from the manual's wording; what stays ambiguous refused by line,
 column and word with the option that reads it."""
 import csv
+import re
 import json
 from pathlib import Path
 
@@ -184,3 +185,15 @@ def test_bare_g43_takes_the_modal_h_where_the_readings_agree(tmp_path):
     for text, dialect in (("T2 M6\nG43 Z100. H1\nG43 Z5.\n", "auto"), ("T1 M6\nG43 Z5.\n", "fanuc")):
         with pytest.raises(InputError, match=r"line \d+, column 1: 'G43' without H"):
             _read(tmp_path, text, dialect)
+
+
+def test_grbl_system_commands(tmp_path):
+    """grbl v1.1 '$' commands: views and $X pass, $H (homing) leaves the position unknown until an absolute word;
+    a '$' line names the dialect; a jog or a setting is refused by line and column."""
+    prog = _read(tmp_path, "$X\n$G\n$H\nG0 X5 Y5 Z-10\n", "auto")
+    assert prog.dialect == "grbl" and [list(m.end) for m in prog.moves if m.compensate] == [[30.0, 5.0, -10.0]]
+    with pytest.raises(InputError, match=r"line 4, column 8: incremental 'X1' before X is known"):
+        _read(tmp_path, "$H\nG91 G1 X1\nG90\n", "grbl")
+    for text, what in (("$J=G91 X10 F100\n", "'$J=G91 X10 F100'"), ("$100=250\n", "'$100=250'")):
+        with pytest.raises(InputError, match=rf"line 3, column 1: grbl system command {re.escape(what)}"):
+            _read(tmp_path, text, "grbl")

@@ -1,4 +1,5 @@
 (grbl program)
+$H
 G90 G94
 G17
 G21
