@@ -213,7 +213,7 @@ MARKERS = {  # content that only one dialect writes: (pattern, what it is)
               (r"(?im)^\s*(?:n\d+\s*)?G0?8\s*P[01]\s*(?:$|[(;])", "G08 P1 preview control"),
               (r"(?im)^\s*(?:n\d+\s*)?G0?5\s*P(?:10000|0)\s*(?:$|[(;])", "G05 P10000 high-precision contour control")),
     "haas": ((r"(?i)\bG187\b", "G187 smoothness"), (r"(?i)\bG154\s*P", "G154 P work offset"),
-             (r"(?i)\bM31\b", "M31 chip auger")),
+             (r"(?i)\bM31\b", "M31 chip auger"), (r"(?i)\bM0*97\s*P", "M97 local subprogram call")),
     "siemens-iso": ((r"(?i)\bG291\b", "G291 ISO mode"), (r"(?im)^\s*(?:n\d+\s*)?TRAORI\b", "TRAORI transformation")),
     "heidenhain-iso": ((r"(?im)^\s*%\s*\w+\s+G7[01]\s*\*", "'%NAME G71 *' program framing"),),
     "grbl": ((r"(?im)^[ \t]*\$(?:[$#GINXHCJ]|\d|RST|SLP)", "'$' system command"),),

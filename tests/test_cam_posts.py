@@ -197,3 +197,16 @@ def test_grbl_system_commands(tmp_path):
     for text, what in (("$J=G91 X10 F100\n", "'$J=G91 X10 F100'"), ("$100=250\n", "'$100=250'")):
         with pytest.raises(InputError, match=rf"line 3, column 1: grbl system command {re.escape(what)}"):
             _read(tmp_path, text, "grbl")
+
+
+def test_m97_is_a_call_on_haas_only_and_grbl_has_no_calls(tmp_path):
+    """Haas mill manual: 'M97 P2000' runs the local subprogram at block N2000 (it names Haas under --dialect auto);
+    Fanuc and Mach3 have no M97 call, grbl no subprogram calls at all: refused naming the word and the option."""
+    sub = "M97 P2000\nM30\nN2000 G1 X3.\nM99\n"
+    assert _read(tmp_path, sub, "auto").dialect == "haas"
+    for dialect, what in (("fanuc", "M97: M97 is Haas's local subprogram call, not a call on fanuc (name --dialect "
+                                    "haas)"), ("grbl", "M97: grbl has no subprogram calls")):
+        with pytest.raises(InputError, match=rf"line 3, column 1: {re.escape(what)}"):
+            _read(tmp_path, sub, dialect)
+    with pytest.raises(InputError, match=r"line 3, column 1: M98: grbl has no subprogram calls"):
+        _read(tmp_path, "M98 P1001\nM30\nO1001\nG1 X2.\nM99\n", "grbl")
