@@ -68,6 +68,9 @@ def _checked_words(words, ax: AxisWords, dia=None):
                     dia.g92_offsets and code in G92_CODES):
                 gs.append((code, w))
                 continue
+            if code in BARE_UNITS and dia.g80_unrecognised and "Y" in ax.words and all(x.letter in "GN" for x in words):
+                gs.append((BARE_UNITS[code], w))  # a bare G70/G71 on a mill: inch/mm wherever it runs
+                continue
             if code in REFUSED_G:
                 raise _Refuse(w.start + 1, f"'{code}' ({REFUSED_G[code]}) is not supported"
                                            f"{other_dialects_with_g(code, dia.name)}")
@@ -190,6 +193,11 @@ G-code reference: "G43 ... if H is not given, the current tool's"; "G41 ... D om
 _COLON_NUMBER = re.compile(r"[ \t]*:[ \t]*\d+[ \t]*(?:\([^)]*\)[ \t]*)?")
 
 
+BARE_UNITS = {"G70": "G20", "G71": "G21"}
+"""``G70``/``G71`` alone (no word but other G codes and N) on a machine with X and Y, under ``--dialect auto`` with no
+dialect word: inch / mm, the one reading under which the line runs (Siemens native, Heidenhain ISO, NUM, Fagor and
+NX's generic posts; a lathe cycle needs P Q or U W words, Fanuc and LinuxCNC mills have no bare G70/G71, Haas' G70
+bolt circle needs I J L); the line is named in the summary. Named dialects keep refusing it."""
 GRBL_VIEW = {"$$": "view settings", "$#": "view parameters", "$G": "view parser state", "$I": "view build info",
              "$N": "view startup blocks", "$X": "kill the alarm lock"}
 """grbl v1.1 '$' system commands that move nothing and change nothing the path depends on (passed through)."""
@@ -234,8 +242,8 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     by, gs, ms = _checked_words(words, ax, dia)
     _tool_change(st, by, ms)
     groups = _modal_groups(gs, dia)
-    if getattr(dia, "g80_unrecognised", False) and groups.get("motion", ("G80",))[0] != "G80" and any(
-            c == "G80" for c, _ in gs):
+    if getattr(dia, "g80_unrecognised", False) and (groups.get("motion", ("G80",))[0] != "G80" and any(
+            c == "G80" for c, _ in gs) or any(w.letter == "G" and w.code in BARE_UNITS for w in words)):
         st.g80_line = st.g80_line or idx + 1  # LinuxCNC refuses the line: the controllers that run it take the G0-G3
     if "O" in by:
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):

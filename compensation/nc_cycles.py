@@ -167,6 +167,7 @@ class _St:
         self.series = 0
         self.g01 = None  # the G0-G3 mode written before the cycle (in force again after G80 where it is group 09)
         self.keeps_g01 = False  # G80 keeps it (the cycle's moves end in it)
+        self.keeps_g01_unrecognised = False  # no dialect recognised: a bare G70/G71 sets the units
         self.dwell_x = False  # 'G04 X' is a dwell time (compensation.dialects.Dialect.dwell_x)
         self.tapping = False  # G33.1 in force: each of its lines ends where it started (rigid tapping returns)
 
@@ -181,6 +182,7 @@ def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=
     lines = text.splitlines(keepends=True)
     st, out, origin, spans, holes = _St(), [], [], [], []
     st.keeps_g01 = g80_keeps or _keeps_motion(dialect)
+    st.keeps_g01_unrecognised = g80_keeps
     from .dialects import DIALECTS
     st.dwell_x = dialect in DIALECTS and DIALECTS[dialect].dwell_x
     for i, line in enumerate(lines):
@@ -262,8 +264,8 @@ def _track(words, by, gs, motion, st: _St):
     for c in gs:
         if c in ("G90", "G91"):
             st.inc = c == "G91"
-        elif c in ("G20", "G21"):
-            st.inch = c == "G20"
+        elif c in ("G20", "G21") or (st.keeps_g01_unrecognised and c in ("G70", "G71")):
+            st.inch = c in ("G20", "G70")  # a bare G70/G71 with no dialect word: compensation.gcode_classify.BARE_UNITS
         elif c in ("G17", "G18", "G19"):
             st.plane = c
         elif c in ("G98", "G99"):

@@ -210,3 +210,16 @@ def test_m97_is_a_call_on_haas_only_and_grbl_has_no_calls(tmp_path):
             _read(tmp_path, sub, dialect)
     with pytest.raises(InputError, match=r"line 3, column 1: M98: grbl has no subprogram calls"):
         _read(tmp_path, "M98 P1001\nM30\nO1001\nG1 X2.\nM99\n", "grbl")
+
+
+def test_bare_g70_g71_on_a_mill_are_units_under_auto(tmp_path):
+    """NX's generic posts write 'G40 G17 G90 G70' (inch) / 'G71' (mm): on a machine with X and Y, with no dialect word,
+    a G70/G71 with no other word is inch/mm wherever it runs (a lathe cycle needs its P Q / U W words); the line is
+    named. A named dialect, or any other word on the line, keeps it refused."""
+    prog = _read(tmp_path, "G40 G17 G90 G70\nG1 X1. Y1.\nG71\n", "auto")
+    assert prog.g80_line == 3 and "a bare G70/G71 is inch/mm; first at line 3" in prog.dialect_evidence
+    ends = [list(m.end) for m in prog.moves if m.compensate]
+    assert ends == [pytest.approx([25.4, 25.4, -20.0]), pytest.approx([30.0, 25.4, -20.0])]  # inch, then mm again
+    for text, dialect, col in (("G71\n", "fanuc", 1), ("G71 P10 Q20 U0.5 W0.1\n", "auto", 1)):
+        with pytest.raises(InputError, match=rf"line 3, column {col}: 'G71' \(lathe cycle"):
+            _read(tmp_path, text, dialect)
