@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (MODE_E, bare_g43_tool, _dialect_mode, _forget, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (MODE_E, bare_d, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .gcode_spline import spline_move, spline_points, spline_segments
@@ -36,6 +36,8 @@ class _State:
         self.selected = None       # the last T word (the tool prepared)
         self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
         self.last_h = None         # the last H number the program gave (Fanuc: H is modal; a bare G43 takes it)
+        self.last_d = None         # the last D number (Fanuc: D is modal; a bare G41/G42 takes it)
+        self.cutter = "G40"        # the cutter compensation in force (G40, G41, G42)
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
         self.diameter = False      # lathe diameter mode (LinuxCNC G7): X words are diameters
         self.g92 = np.zeros(k)     # the G92 offset in force (mm / deg; gcode_state._g92)
@@ -171,11 +173,11 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
                               + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
     for letter, code in (("D", ("G41", "G42")),):
-        if letter in by and not any(c in code for c, _ in gs):
+        if letter in by and not any(c in code for c, _ in gs) and not d_modal(st):
             raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
     loaded = st.dialect is not None and st.dialect.name in LOADED_TOOL_DIALECTS  # resolved by _work_state
     for c, w in gs:
-        if c in ("G41", "G42") and "D" not in by and not loaded:
+        if c in ("G41", "G42") and "D" not in by and not loaded and bare_d(st) is None:
             raise _Refuse(w.start + 1, f"'{c}' without D (the current tool's radius): write '{c} Dn' with the tool "
                                        "table's number n")
     if "G43" in (c for c, _ in gs) and "H" not in by and not loaded and bare_g43_tool(st) is None:

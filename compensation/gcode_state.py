@@ -55,14 +55,18 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         if name != st.system:
             _forget(st, ax, ax.words)
             st.system = name
-    if "cutter" in groups:
-        code, w = groups["cutter"]
+    if "cutter" in groups or "D" in by:
+        code, w = groups["cutter"] if "cutter" in groups else (st.cutter, by["D"])  # a D alone: Fanuc (d_modal)
         d = by.get("D")
         if d is not None and (d.value != int(d.value) or d.value < 0):
             raise _Refuse(d.start + 1, f"'D{d.text}': expected a tool number")
-        value = int(d.value) if d is not None else (None if code == "G40" else _loaded(st, code, w))
-        text = code if value is None else (f"{code} D{value}" if d is not None else f"{code} (tool {value} loaded)")
-        st.events.append((idx, w.start + 1, "cutter", value, text))
+        st.last_d = int(d.value) if d is not None else st.last_d
+        value = int(d.value) if d is not None else (None if code == "G40" else bare_d(st))
+        value = None if code == "G40" else (_loaded(st, code, w) if value is None else value)
+        text = code if value is None else (f"{code} D{value}" if d is not None else f"{code} (tool {value})")
+        if "cutter" in groups or code != "G40":  # a D alone under G40 only sets the number
+            st.events.append((idx, w.start + 1, "cutter", value, text))
+        st.cutter = code
     fanuc_h = getattr(st.dialect, "h_offset_alone", False)
     if "length" in groups or (fanuc_h and "H" in by and st.g43):
         code, w = groups["length"] if "length" in groups else ("G43", by["H"])
@@ -94,6 +98,23 @@ def bare_g43_tool(st: _State):
         return st.last_h
     generic = st.dialect is None or st.dialect.name == "rs274"
     return st.last_h if generic and st.loaded == st.last_h else None
+
+
+def d_modal(st: _State) -> bool:
+    """A ``D`` word alone sets the cutter radius offset number (modal; Fanuc, Haas, Siemens ISO, and with no dialect
+    word, where only they run such a line: LinuxCNC refuses a D without G41/G42)."""
+    return getattr(st.dialect, "h_offset_alone", False) or getattr(st.dialect, "g80_unrecognised", False)
+
+
+def bare_d(st: _State):
+    """The offset number of a ``G41``/``G42`` without ``D``, as :func:`bare_g43_tool` for ``H``: the last D on the
+    Fanuc family; with no dialect, that D where it is also the tool ``M6`` loaded; None otherwise."""
+    if st.last_d is None:
+        return None
+    if getattr(st.dialect, "h_offset_alone", False):
+        return st.last_d
+    generic = st.dialect is None or st.dialect.name == "rs274"
+    return st.last_d if generic and st.loaded == st.last_d else None
 
 
 def _tool_change(st: _State, by, ms) -> None:

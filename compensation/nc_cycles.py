@@ -82,6 +82,8 @@ DIALECT_CYCLES = {"G76": ("fanuc", "haas", "siemens-iso"), "G87": ("fanuc", "sie
                   "G88": ("fanuc", "siemens-iso")}
 """Cycles read only on these dialects (their manuals' mill form; module docstring)."""
 INITIAL_LEVEL_DIALECTS = ("fanuc", "haas", "siemens-iso")
+"""(Also the dialects whose ``G86`` takes no ``P``: Fanuc 0i-MF and Haas "G86 X Y Z R F": no dwell; LinuxCNC's has
+one, so there it needs ``P``.)"""
 """Dialects whose ``G98`` returns to the series' initial level even after ``G99`` holes of the series (Fanuc 0i-MF
 "initial level return": the Z when the cycle mode began; Haas mill manual, G98 "Initial Point Return"; Siemens ISO
 mode as Fanuc). LinuxCNC before 2.9 returns to the Z at the line's start: refused without a dialect."""
@@ -406,7 +408,7 @@ def _levels(code, st: _St, col, dialect=None) -> tuple:
                                "earlier line of the cycle")
     if code in ("G73", "G83") and "Q" not in st.sticky:
         raise _Refuse(col, f"{code} without Q (the peck depth)")
-    if code in ("G82", "G86", "G89") and "P" not in st.sticky:
+    if code in ("G82", "G86", "G89") and "P" not in st.sticky and not (code == "G86" and dialect in INITIAL_LEVEL_DIALECTS):
         raise _Refuse(col, f"{code} without P (the dwell at the bottom)")
     if code in ("G73", "G83") and st.sticky["Q"].value <= 0:
         raise _Refuse(st.sticky["Q"].start + 1, f"{code} Q must be > 0")

@@ -223,3 +223,30 @@ def test_bare_g70_g71_on_a_mill_are_units_under_auto(tmp_path):
     for text, dialect, col in (("G71\n", "fanuc", 1), ("G71 P10 Q20 U0.5 W0.1\n", "auto", 1)):
         with pytest.raises(InputError, match=rf"line 3, column {col}: 'G71' \(lathe cycle"):
             _read(tmp_path, text, dialect)
+
+
+def _cutters(prog):
+    return [ev[3] for ev in prog.events if ev[2] == "cutter"]
+
+
+def test_a_d_word_alone_sets_the_cutter_offset_number_on_fanuc(tmp_path):
+    """Fanuc, Haas, Siemens ISO: 'G43 Z15. H1 D1' sets D1 (modal) and moves nothing more; a later 'G41' without D uses
+    it. With no dialect word only they run such a line (LinuxCNC refuses a D without G41/G42), so it is read so there,
+    and a bare G41 where that D is also the tool M6 loaded; refused where the readings differ."""
+    text = "T2 M6\nG43 Z15. H1 D1\nG41 X5. Y1.\nG1 X20.\nD2\nG1 X25.\nG40 X27.\n"
+    assert _cutters(_read(tmp_path, text, "fanuc")) == [1, 2, None]
+    with pytest.raises(InputError, match=r"line 5, column 1: 'G41' without D"):
+        _read(tmp_path, text, "auto")  # M6 loaded tool 2, D1 given: LinuxCNC-like and Fanuc readings differ
+    assert _cutters(_read(tmp_path, text.replace("T2 M6", "T1 M6"), "auto")) == [1, 2, None]
+    with pytest.raises(InputError, match=r"line 4, column 13: 'D1' outside G41/G42"):
+        _read(tmp_path, text, "linuxcnc")
+
+
+def test_g86_without_p_is_kept_on_fanuc_and_haas():
+    """Fanuc 0i-MF / Haas 'G86 X Y Z R F' has no dwell (LinuxCNC's G86 needs P): kept, its hole at the bottom."""
+    text = "G0 X0 Y0 Z15.\nG98 G86 X10. Y10. Z-10. R5. F50.\nG80\n"
+    for dialect in ("fanuc", "haas"):
+        exp = expand_cycles(text, "p.nc", "keep", dialect=dialect)
+        assert [h.xyz for h in exp.holes] == [(10.0, 10.0, -10.0)] and exp.holes[0].r == 5.0
+    with pytest.raises(InputError, match=r"line 2, column 5: G86 without P"):
+        expand_cycles(text, "p.nc", "keep", dialect="linuxcnc")
