@@ -212,6 +212,7 @@ MARKERS = {  # content that only one dialect writes: (pattern, what it is)
     "linuxcnc": ((r"(?im)^\s*/?\s*(?:n\d+\s*)?o\s*<", "o<name> subroutine"), (r"#<", "#<name> parameter")),
     "fanuc": ((r"(?im)^\s*:\s*\d", "':' program number"), (r"(?i)G0?5\.1\s*Q", "G05.1 Q look-ahead"),
               (r"(?im)^\s*(?:n\d+\s*)?G0?8\s*P[01]\s*(?:$|[(;])", "G08 P1 preview control"),
+              (r"(?i)\bM0*29\s*S\d", "M29 S rigid tapping"),
               (r"(?im)^\s*(?:n\d+\s*)?G0?5\s*P(?:10000|0)\s*(?:$|[(;])", "G05 P10000 high-precision contour control")),
     "haas": ((r"(?i)\bG187\b", "G187 smoothness"), (r"(?i)\bG154\s*P", "G154 P work offset"),
              (r"(?i)\bM31\b", "M31 chip auger"), (r"(?i)\bM0*97\s*P", "M97 local subprogram call")),

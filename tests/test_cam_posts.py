@@ -140,6 +140,7 @@ def test_g187_words_out_of_place_are_refused(tmp_path, text, dialect, col, what)
 @pytest.mark.parametrize("text, evidence", [
     ("N10 G08 P1\nG0 X0\n", "G08 P1 preview control"),
     ("G05 P10000 (HPCC)\nG0 X0\n", "G05 P10000 high-precision contour control"),
+    ("N40 M29 S500\nG84 X1 Y1 Z-5 R2 F500\n", "M29 S rigid tapping"),
 ])
 def test_fanuc_look_ahead_lines_name_the_dialect(text, evidence):
     assert detect_dialect(text) == ("fanuc", evidence)
