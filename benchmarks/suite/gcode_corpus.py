@@ -48,7 +48,7 @@ is counted silently wrong. A file that moves nothing when run
 
     apt-get download linuxcnc-uspace=2.9.0~pre1+git20230208.f1270d6ed7-1+deb12u2
     dpkg -x linuxcnc-uspace_*.deb ROOT
-    python benchmarks/bench_program_corpus.py --from-package ROOT --corpus DIR --manifest \
+    python -m benchmarks.suite.gcode_corpus --from-package ROOT --corpus DIR --manifest \
         benchmarks/program_corpus/NC_FILES.csv --check
 
 Counted (2026-12-02; before = main at the start of this work, after = this tree; the same manifest and tables):
