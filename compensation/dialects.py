@@ -203,9 +203,8 @@ GENERIC = Dialect(RS274, {**_COMMON, 48: "overrides on", 49: "overrides off", 50
 UNRECOGNISED = replace(GENERIC, g80_unrecognised=True)
 """The reader under ``--dialect auto`` where the content names no dialect: :data:`GENERIC`, and a bare axis
 word after ``G80`` read in the G0-G3 of before it (:attr:`Dialect.g80_unrecognised`)."""
-G09_NOTE = ("read as the controllers that run it read it (G80 with a G0-G3 on one line takes the G0-G3; G80 keeps "
-            "the G0-G3 of before the cycle; a bare G70/G71 is inch/mm; first at line {line}); --dialect names the "
-            "controller")
+G09_NOTE = ("read as the controllers that run it read it (G80, G28 or G30 with a G0-G3 on one line; G80 keeps the G0-G3 "
+            "of before the cycle; a bare G70/G71 is inch/mm; first at line {line}); --dialect names the controller")
 """What the summary and the written program's header say where :data:`UNRECOGNISED` read such a line."""
 
 MARKERS = {  # content that only one dialect writes: (pattern, what it is)

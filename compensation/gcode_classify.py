@@ -271,7 +271,7 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if "nonmodal" in groups and groups["nonmodal"][0] == "G53":
         return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
-        return _reference_return(st, groups, axis_words, arc_words, ax, rapids)
+        return _reference_return(st, groups, axis_words, arc_words, ax, rapids, idx)
     # RS274NGC / LinuxCNC: G4 uses no axis words, so a G4 line's axis words are the motion mode's (dwell, then move)
     plain = "nonmodal" not in groups or (groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_with_motion", False))
     move = _mode_move(idx, st, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain)
@@ -381,7 +381,7 @@ def synced_move(idx, st: _State, by, axis_words, arc_words, motion_word, rapids,
     return move
 
 
-def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords, rapids=DEFAULT_RAPIDS):
+def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords, rapids=DEFAULT_RAPIDS, idx=-1):
     """``G28``/``G30``: the machine goes to a reference position (not a program point, so
     not compensated; the line is written as it is). Bare: all axes; with axis words: only those axes,
     first at rapid through the intermediate point they give (RS274NGC, Fanuc, Haas: absolute under
@@ -390,8 +390,13 @@ def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords, rapids=D
     (a rapid this line cannot rewrite) is refused naming ``--rapids keep``. The axes it moves are unknown
     afterwards, so the next compensated move must give them absolutely."""
     code, w = groups["nonmodal"]
-    if "motion" in groups:
-        raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line")
+    if "motion" in groups and not (groups["motion"][0] in ("G0", "G1") and (
+            getattr(st.dialect, "h_offset_alone", False) or getattr(st.dialect, "g80_unrecognised", False))):
+        raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line" + (
+            "; Fanuc, Haas, Siemens ISO run 'G0 G28' (G28 takes the axis words, G0 stays the motion mode): name the "
+            "controller with --dialect" if groups["motion"][0] in ("G0", "G1") else ""))
+    if "motion" in groups and getattr(st.dialect, "g80_unrecognised", False):
+        st.g80_line = st.g80_line or idx + 1  # LinuxCNC refuses the line: the controllers that run it read it so
     if arc_words:
         a = next(iter(arc_words.values()))
         raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}")

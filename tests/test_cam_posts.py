@@ -109,7 +109,7 @@ def test_g80_with_g0_in_the_safe_start_line_under_auto(tmp_path):
     G0, LinuxCNC refuses the line; under --dialect auto with no dialect word it is read as G0, the line named."""
     prog = _read(tmp_path, "G0 G17 G40 G49 G80 G90 X20 Y20\n", "auto")
     assert prog.dialect == "rs274" and prog.g80_line == 3
-    assert "G80 with a G0-G3 on one line takes the G0-G3" in prog.dialect_evidence
+    assert "G80, G28 or G30 with a G0-G3 on one line" in prog.dialect_evidence
     moved = [m for m in prog.moves if m.index == 2]
     assert moved and moved[0].kind == "rapid" and list(moved[0].end[:2]) == [20.0, 20.0]
     for dialect in ("linuxcnc", None):
@@ -251,3 +251,15 @@ def test_g86_without_p_is_kept_on_fanuc_and_haas():
         assert [h.xyz for h in exp.holes] == [(10.0, 10.0, -10.0)] and exp.holes[0].r == 5.0
     with pytest.raises(InputError, match=r"line 2, column 5: G86 without P"):
         expand_cycles(text, "p.nc", "keep", dialect="linuxcnc")
+
+
+def test_g0_with_g28_on_one_line(tmp_path):
+    """'G0 G28 G91 Z0.' / 'G91 G00 G28 Z0.' (Fanuc, Haas, Siemens ISO: G28 takes the axis words, the G0 stays the
+    motion mode): read there and, named in the summary, with no dialect word; LinuxCNC refuses two axis-word codes."""
+    text = "G0 G28 G91 Z0.\nG90\nG0 Z5.\nG1 X20. F100\n"
+    for dialect in ("fanuc", "haas", "auto"):
+        prog = _read(tmp_path, text, dialect)
+        assert [list(m.end) for m in prog.moves if m.compensate][:1] == [[20.0, 10.0, 5.0]]
+    assert _read(tmp_path, text, "auto").g80_line == 3
+    with pytest.raises(InputError, match=r"line 3, column 4: 'G28' with a motion code on the same line; Fanuc"):
+        _read(tmp_path, text, "linuxcnc")
