@@ -12,18 +12,18 @@ compensated and checked: ``--check`` below); without it only the programs writte
 styles (``benchmarks/nc_styles/``, :func:`style_counts`) are counted, compensated and checked, and the reading
 speed of a long program is measured.
 
-``benchmarks/nc_styles/``: 30 programs written for this project (not copies) from the posts' and controllers'
+``benchmarks/nc_styles/``: 31 programs written for this project (not copies) from the posts' and controllers'
 manual wording, one or more per family (``FAMILIES.csv``: file, family, expect accept/refuse, the words it uses):
 Fusion 360 for Haas, Fanuc, Mach3, grbl and Tormach; Mastercam, SOLIDWORKS CAM, NX, FeatureCAM and Makino Fanuc
 posts; NX's generic post (``G70`` inch); Siemens 840D ISO mode; Mach3; grbl; Haas, Fanuc and LinuxCNC shop programs; and seven programs that no
 controller-independent reading makes exact (probe results, run-time tool, NURBS, a spline with no dialect word, an
 external subroutine, a ``#5241`` offset write, an endless ``M99``), which must be refused. Each is read with
 ``--dialect auto`` and the shop's tables ``nc_styles/tables/offsets.csv`` (G54, G55, G54.1 P1/P2, G154 P1 at
-distinct part zeros) and ``tools.csv``. Counted (2026-12-02; before = main at the start of this work, the same 30
-programs and tables): accepted 14/30 before (14 of the 23 a controller runs exactly; first stops: ``G187 P3
+distinct part zeros) and ``tools.csv``. Counted (2026-12-02; before = main at the start of this work, the same 31
+programs and tables): accepted 14/31 before (14 of the 24 a controller runs exactly; first stops: ``G187 P3
 E0.01``, ``G98`` after ``G99`` holes, a ``G81`` after ``G43 H`` with X Y on the line before, ``G0 … G80`` on one
-line (2), a grbl ``$H``, a bare ``G103``, ``G08 P1`` with no dialect word, NX's ``G70``), 23/30 after (23/23; the 7
-refused are the 7 that must be); 0 crashed; 0 silently wrong of 22 checked (``r06``, cycles inside a loop, not checkable).
+line (2), a grbl ``$H``, a bare ``G103``, ``G08 P1`` with no dialect word, NX's ``G70``, ``M29 S`` with no dialect word), 24/31 after
+(24/24; the 7 refused are the 7 that must be); 0 crashed; 0 silently wrong of 23 checked (``r06``, cycles inside a loop, not checkable).
 
 Each program is read as ``volcomp compensate`` reads it before solving (``read_tool_path``: parse,
 subprogram/macro expansion, canned cycles kept, frames from the tables, plan) on its machine with its
@@ -445,7 +445,7 @@ def report(out: dict) -> str:
 
 
 TITLE = "G-code programs as shops write them: how many `volcomp compensate` reads, and how fast"
-DATA = ("`benchmarks/nc_styles/` (30 programs in CAM posts' and shops' styles, `FAMILIES.csv`, with their offset and "
+DATA = ("`benchmarks/nc_styles/` (31 programs in CAM posts' and shops' styles, `FAMILIES.csv`, with their offset and "
         "tool tables) and, where fetched "
         "(`$VOLCOMP_PROGRAM_CORPUS`), the 101 public programs of `benchmarks/program_corpus/MANIFEST.csv`; a "
         "1,000,000-line 3-axis program (quick: 20,000 lines)")
