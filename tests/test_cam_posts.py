@@ -53,7 +53,10 @@ def test_cam_post_program_is_compensated_where_the_part_is_cut(tmp_path, truth_f
 def test_the_check_sees_an_uncompensated_or_shifted_hole(tmp_path, truth_file):
     """The program itself as its 'compensated' output, and a written hole moved by 10 μm: both WRONG."""
     prog = STYLES / "p03_mastercam_fanuc.nc"
-    assert independent_check(prog, prog, "auto", truth_file, *style_tables()).startswith("WRONG")
+    same = tmp_path / "same" / prog.name  # the check writes beside the written program: a copy, in tmp_path
+    same.parent.mkdir()
+    same.write_bytes(prog.read_bytes())
+    assert independent_check(prog, same, "auto", truth_file, *style_tables()).startswith("WRONG")
     out = tmp_path / "o"
     assert main(["compensate", str(prog), "--machine", "mill-xyz", "--model", str(truth_file), "--method", "exact",
                  "--out", str(out), "--work-offsets", str(STYLE_TABLES / "offsets.csv"), "--tool-table",

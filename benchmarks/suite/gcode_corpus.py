@@ -86,6 +86,7 @@ import csv
 import hashlib
 import json
 import re
+import shutil
 import sys
 import tempfile
 from collections import Counter, defaultdict
@@ -295,11 +296,15 @@ def cycle_check(src: Path, written: Path, dialect: str, truth_file: Path, offset
     if len(ca) != len(cb):
         return "not checkable: the written program's cycle lines are not the source's (G91 repeats)"
     blank = lambda lines, c: "".join("(cycle)\n" if i in c else ln for i, ln in enumerate(lines))  # noqa: E731
-    pa, pb = written.with_suffix(".src-blank" + src.suffix), written.with_suffix(".blank" + written.suffix)
+    scratch = Path(tempfile.mkdtemp(prefix="volcomp-cycle-check-"))  # never beside the programs
+    pa, pb = scratch / ("src" + src.suffix), scratch / ("written" + written.suffix)
     pa.write_text(blank(a, set(ca)), encoding="latin-1")
     pb.write_text(blank(b, set(cb)), encoding="latin-1")
     written_of = dict(zip(ca, cb))
-    rest = independent_check(pa, pb, dialect, truth_file, offsets, tools)
+    try:
+        rest = independent_check(pa, pb, dialect, truth_file, offsets, tools)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
     if rest.startswith("WRONG"):
         return rest
     if offsets is None:
