@@ -38,7 +38,8 @@ Sources: LinuxCNC G- and M-code reference (linuxcnc.org/docs, "M-Codes": M0-M9, 
 M61-M68, M70-M73 state, M100-M199 user); Fanuc Series 0i/30i operator's manuals (program number
 ``O``/``:``, ``G05.1 Q1`` AI contour control); Haas mill operator's manual (M-code chapter: M10/M11
 4th-axis brake, M12/M13 5th-axis brake, M16 tool change, M19 orient, M31/M33 chip auger, M41/M42
-gear, M83/M84 air jet, M88/M89 through-spindle coolant; G187 smoothness); Siemens Sinumerik 840D
+gear, M83/M84 air jet, M88/M89 through-spindle coolant, M130 display media (Fusion 360's Haas post writes
+``M130 (tool1.png)``); G187 smoothness); Siemens Sinumerik 840D
 ISO dialect manual (Fanuc-compatible ISO mode, G291); Mach3 Mill G/M code list (M47 repeats the
 program); grbl v1.1 command reference (M0 M1 M2 M30 M3-M5 M7-M9 M56; no block delete; grbl writes no
 word of its own, so it is named, never recognised).
@@ -180,7 +181,8 @@ DIALECTS = {
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
                              35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
-                             84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
+                             84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off",
+                             130: "display media (an image or video named in the comment)"},
                     modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P1-P3, E corner rounding)", "G50": SCALING_OFF,
                            "G50.1": MIRROR_OFF, "G103": LOOKAHEAD_BLOCKS}, g80_with_motion=True,
                     g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS, lathe_x_by_parameter=True),

@@ -123,7 +123,7 @@ def test_g80_with_g0_in_the_safe_start_line_under_auto(tmp_path):
 def test_haas_g187_with_e_and_bare_g103_are_modes(tmp_path):
     """Haas mill manual: 'G187 Pn Ennn' (P1-P3 smoothness, E the corner rounding: a tolerance, not a path),
     'G187' alone (back to Settings 191/85), 'G103' alone (= P0). The moves are the programmed ones."""
-    prog = _read(tmp_path, "G187 P3 E0.01\nG103 P1\nG1 X20 F500\nG103\nG187\n", "haas")
+    prog = _read(tmp_path, "G187 P3 E0.01\nG103 P1\nM130 (tool1.png)\nG1 X20 F500\nG103\nG187\n", "haas")
     assert [m.end[0] for m in prog.moves if m.compensate] == [20.0, 30.0]  # the G0 kept (--rapids keep)
     assert [ev[3] for ev in prog.events if ev[2] == "mode"] == ["G187", "G103", "G103", "G187"]
 
