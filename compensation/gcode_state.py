@@ -89,10 +89,11 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
 
 def bare_g43_tool(st: _State):
     """The length offset number of a ``G43`` without ``H`` where the dialect says it without the tool in the spindle:
-    Fanuc, Haas, Siemens ISO (``h_offset_alone``; the H number is modal) the last H the program gave; with no dialect,
+    Fanuc, Haas, Siemens ISO (``h_offset_alone``; the H number is modal) the H in force; with no dialect,
     that H where it is also the tool the program's ``M6`` loaded (LinuxCNC and Mach3 take the loaded tool: both
-    readings agree); None otherwise (LinuxCNC: :func:`_loaded`; else refused)."""
-    if st.last_h is None:
+    readings agree); None otherwise (LinuxCNC: :func:`_loaded`; else refused). Only while ``G43`` is in force (a
+    repeated ``G43 Z..``): after ``G49`` the number a Fanuc takes is not read here."""
+    if st.last_h is None or not st.g43:
         return None
     if getattr(st.dialect, "h_offset_alone", False):
         return st.last_h

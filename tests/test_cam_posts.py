@@ -180,13 +180,15 @@ def _tools(prog):
 
 
 def test_bare_g43_takes_the_modal_h_where_the_readings_agree(tmp_path):
-    """Fanuc, Haas, Siemens ISO: the H number is modal, so 'G43 Z5.' after 'G43 H1' is H1 again (also after G49);
+    """Fanuc, Haas, Siemens ISO: the H number is modal, so 'G43 Z5.' while 'G43 H1' is in force is H1 again (after G49
+    it is not read);
     LinuxCNC and Mach3 take the tool M6 loaded. With no dialect word a bare G43 is read where both give one tool;
     where they differ, or no H was given (Fanuc's H00), it is refused naming the word."""
     assert _tools(_read(tmp_path, "T1 M6\nG43 Z100. H1\nG43 Z5.\n", "auto")) == [1, 1]
-    assert _tools(_read(tmp_path, "T2 M6\nG43 Z100. H1\nG49\nG43 Z5.\n", "fanuc")) == [1, None, 1]
+    assert _tools(_read(tmp_path, "T2 M6\nG43 Z100. H1\nG43 Z5.\n", "fanuc")) == [1, 1]
     assert _tools(_read(tmp_path, "T2 M6\nG43 Z100. H1\nG49\nG43 Z5.\n", "linuxcnc")) == [1, None, 2]
-    for text, dialect in (("T2 M6\nG43 Z100. H1\nG43 Z5.\n", "auto"), ("T1 M6\nG43 Z5.\n", "fanuc")):
+    for text, dialect in (("T2 M6\nG43 Z100. H1\nG43 Z5.\n", "auto"), ("T1 M6\nG43 Z5.\n", "fanuc"),
+                          ("T1 M6\nG43 Z100. H1\nG49\nG43 Z5.\n", "fanuc")):  # after G49: not read
         with pytest.raises(InputError, match=r"line \d+, column 1: 'G43' without H"):
             _read(tmp_path, text, dialect)
 
