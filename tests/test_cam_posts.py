@@ -180,9 +180,8 @@ def _tools(prog):
 
 
 def test_bare_g43_takes_the_modal_h_where_the_readings_agree(tmp_path):
-    """Fanuc, Haas, Siemens ISO: the H number is modal, so 'G43 Z5.' while 'G43 H1' is in force is H1 again (after G49
-    it is not read);
-    LinuxCNC and Mach3 take the tool M6 loaded. With no dialect word a bare G43 is read where both give one tool;
+    """Fanuc, Haas, Siemens ISO: the H number is modal, so 'G43 Z5.' while 'G43 H1' is in force is H1 again (after
+    G49 it is not read); LinuxCNC and Mach3 take the tool M6 loaded. With no dialect word a bare G43 is read where both give one tool;
     where they differ, or no H was given (Fanuc's H00), it is refused naming the word."""
     assert _tools(_read(tmp_path, "T1 M6\nG43 Z100. H1\nG43 Z5.\n", "auto")) == [1, 1]
     assert _tools(_read(tmp_path, "T2 M6\nG43 Z100. H1\nG43 Z5.\n", "fanuc")) == [1, 1]
