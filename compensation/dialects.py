@@ -16,9 +16,11 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
 * **mirror off, look-ahead** ``G50.1`` (its axis words name axes, nothing moves), Fanuc ``G08 P1/P0``, ``G05 P10000/P0``, Haas ``G103 P``: state (:data:`MIRROR_OFF`);
 * **scaling off** ``G50`` alone (Fanuc, Haas, Siemens ISO, Mach3, Tormach PathPilot: :data:`SCALING_OFF`): state, as
   ``G51`` scaling is refused; ``G50`` with axis words (a lathe's coordinate setting) is refused;
-* **G80 with a motion code on one line** (``G80 G0 X..``): Fanuc, Haas, Siemens ISO and Mach3 cancel
-  the cycle and take the motion code; LinuxCNC refuses two group-1 codes on one line (so does the
-  reader, without a dialect);
+* **G80 with a motion code on one line** (``G80 G0 X..``, the safe-start line of Mastercam, FeatureCAM and Mach3
+  posts): Fanuc, Haas, Siemens ISO and Mach3 cancel the cycle and take the motion code; LinuxCNC refuses two
+  group-1 codes on one line (so does the reader under ``--dialect linuxcnc`` or with no dialect at all); under
+  ``--dialect auto`` with no dialect word found (:data:`UNRECOGNISED`) the line is read the one way the controllers
+  that run it read it, and the summary names the line (:data:`G09_NOTE`);
 * **G80 and the motion mode**: on Fanuc, Haas and Siemens ISO the cycles and ``G80`` are group 09, so the
   G0-G3 mode in force before a cycle is in force after its ``G80`` (CAM posts write ``G80`` then a bare
   ``Z`` retract); on LinuxCNC, Mach3 and grbl ``G80`` ends the motion mode (RS274NGC group 1) and a bare
@@ -27,12 +29,17 @@ What differs (and what the reader does with it, :mod:`compensation.gcode`):
   the summary says so;
 * **block delete** ``/``: every dialect but grbl (which has no block-delete switch) skips the line
   when the switch is on (``--block-delete``).
+* **grbl** ``$`` **system commands** (a line that starts with ``$``; grbl v1.1 "Grbl $ commands"; such a line names
+  the dialect): the views ``$$ $# $G $I $N`` and ``$X`` (unlock) pass; ``$H`` (homing) passes and leaves the
+  position unknown until the next absolute word; jogs ``$J=``, check mode ``$C``, settings ``$n=`` and startup
+  blocks ``$Nn=`` are refused (:func:`compensation.gcode_classify._grbl_system`).
 
 Sources: LinuxCNC G- and M-code reference (linuxcnc.org/docs, "M-Codes": M0-M9, M19, M48-M53, M60,
 M61-M68, M70-M73 state, M100-M199 user); Fanuc Series 0i/30i operator's manuals (program number
 ``O``/``:``, ``G05.1 Q1`` AI contour control); Haas mill operator's manual (M-code chapter: M10/M11
 4th-axis brake, M12/M13 5th-axis brake, M16 tool change, M19 orient, M31/M33 chip auger, M41/M42
-gear, M83/M84 air jet, M88/M89 through-spindle coolant; G187 smoothness); Siemens Sinumerik 840D
+gear, M83/M84 air jet, M88/M89 through-spindle coolant, M130 display media (Fusion 360's Haas post writes
+``M130 (tool1.png)``); G187 smoothness); Siemens Sinumerik 840D
 ISO dialect manual (Fanuc-compatible ISO mode, G291); Mach3 Mill G/M code list (M47 repeats the
 program); grbl v1.1 command reference (M0 M1 M2 M30 M3-M5 M7-M9 M56; no block delete; grbl writes no
 word of its own, so it is named, never recognised).
@@ -103,6 +110,9 @@ class Dialect:
     lathe_t_offset: bool = False
     """On a lathe a four-digit ``T`` word is ``TttOO``: tool ``tt`` and its offset register ``OO``, applied
     from that line (``OO = 00`` cancels the offset; Fanuc, Haas turning: :mod:`compensation.nc_state`)."""
+    dwell_x: bool = False
+    """``G04 X`` is a dwell time in seconds and the line moves nothing (Fanuc 0i-MF "Dwell": ``G04 X_`` or ``G04 P_``;
+    Siemens ISO mode as Fanuc); elsewhere an X on a ``G4`` line is refused (LinuxCNC: a move after the dwell)."""
     dwell_with_motion: bool = False
     """Axis words on a ``G4`` line belong to the motion mode (RS274NGC, LinuxCNC: G4 uses no axis words; the line
     dwells, then moves); elsewhere ``G04 X`` is a dwell time (Fanuc, Haas) and such a line is refused."""
@@ -170,21 +180,22 @@ DIALECTS = {
     "fanuc": Dialect("fanuc", {**_COMMON, 19: "orient spindle", 29: "rigid tapping mode for the next G84 (moves nothing)",
                                48: "overrides on", 49: "overrides off"},
                      program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G50": SCALING_OFF, "G50.1": MIRROR_OFF,
-                                                         "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True,
+                                                         "G8": PREVIEW, "G5": HPCC}, g80_with_motion=True, dwell_x=True,
                      g80_keeps_motion=True, h_offset_alone=True, lathe_x_by_parameter=True, lathe_t_offset=True),
     "haas": Dialect("haas", {**_COMMON, 10: "4th-axis brake on", 11: "4th-axis brake off", 12: "5th-axis brake on",
                              13: "5th-axis brake off", 16: "tool change", 19: "orient spindle",
                              31: "chip auger forward", 33: "chip auger stop", 34: "coolant spigot +",
                              35: "coolant spigot -", 41: "low gear", 42: "high gear", 83: "air jet on",
-                             84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off"},
-                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P, no E)", "G50": SCALING_OFF,
+                             84: "air jet off", 88: "through-spindle coolant on", 89: "through-spindle coolant off",
+                             130: "display media (an image or video named in the comment)"},
+                    modes={"G5.1": LOOKAHEAD, "G187": "smoothness / accuracy (P1-P3, E corner rounding)", "G50": SCALING_OFF,
                            "G50.1": MIRROR_OFF, "G103": LOOKAHEAD_BLOCKS}, g80_with_motion=True,
                     g80_keeps_motion=True, h_offset_alone=True, work_systems=HAAS_SYSTEMS, lathe_x_by_parameter=True,
                     lathe_t_offset=True),
     "siemens-iso": Dialect("siemens-iso", {**_COMMON, 19: "orient spindle", 41: "gear 1", 42: "gear 2"},
                            program_number=("O", ":"), modes={"G5.1": LOOKAHEAD, "G291": "ISO dialect mode", "G50": SCALING_OFF,
                                   "G50.1": MIRROR_OFF},
-                           g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True,
+                           g80_with_motion=True, g80_keeps_motion=True, h_offset_alone=True, dwell_x=True,
                            lathe_x_by_parameter=True),
     "mach3": Dialect("mach3", {**_COMMON, 48: "overrides on", 49: "overrides off"}, g80_with_motion=True,
                      modes={"G50": SCALING_OFF}),
@@ -200,17 +211,21 @@ GENERIC = Dialect(RS274, {**_COMMON, 48: "overrides on", 49: "overrides off", 50
 UNRECOGNISED = replace(GENERIC, g80_unrecognised=True)
 """The reader under ``--dialect auto`` where the content names no dialect: :data:`GENERIC`, and a bare axis
 word after ``G80`` read in the G0-G3 of before it (:attr:`Dialect.g80_unrecognised`)."""
-G09_NOTE = ("read as a group-09 controller (G80 keeps the G0-G3 of before the cycle, line {line}); --dialect names "
-            "the controller")
+G09_NOTE = ("read as the controllers that run it read it (G80, G28 or G30 with a G0-G3 on one line; G80 keeps the G0-G3 "
+            "of before the cycle; a bare G70/G71 is inch/mm; first at line {line}); --dialect names the controller")
 """What the summary and the written program's header say where :data:`UNRECOGNISED` read such a line."""
 
 MARKERS = {  # content that only one dialect writes: (pattern, what it is)
     "linuxcnc": ((r"(?im)^\s*/?\s*(?:n\d+\s*)?o\s*<", "o<name> subroutine"), (r"#<", "#<name> parameter")),
-    "fanuc": ((r"(?im)^\s*:\s*\d", "':' program number"), (r"(?i)G0?5\.1\s*Q", "G05.1 Q look-ahead")),
+    "fanuc": ((r"(?im)^\s*:\s*\d", "':' program number"), (r"(?i)G0?5\.1\s*Q", "G05.1 Q look-ahead"),
+              (r"(?im)^\s*(?:n\d+\s*)?G0?8\s*P[01]\s*(?:$|[(;])", "G08 P1 preview control"),
+              (r"(?i)\bM0*29\s*S\d", "M29 S rigid tapping"),
+              (r"(?im)^\s*(?:n\d+\s*)?G0?5\s*P(?:10000|0)\s*(?:$|[(;])", "G05 P10000 high-precision contour control")),
     "haas": ((r"(?i)\bG187\b", "G187 smoothness"), (r"(?i)\bG154\s*P", "G154 P work offset"),
-             (r"(?i)\bM31\b", "M31 chip auger")),
+             (r"(?i)\bM31\b", "M31 chip auger"), (r"(?i)\bM0*97\s*P", "M97 local subprogram call")),
     "siemens-iso": ((r"(?i)\bG291\b", "G291 ISO mode"), (r"(?im)^\s*(?:n\d+\s*)?TRAORI\b", "TRAORI transformation")),
     "heidenhain-iso": ((r"(?im)^\s*%\s*\w+\s+G7[01]\s*\*", "'%NAME G71 *' program framing"),),
+    "grbl": ((r"(?im)^[ \t]*\$(?:[$#GINXHCJ]|\d|RST|SLP)", "'$' system command"),),
 }
 DETECT_BYTES = 1 << 20
 """Detection reads the first MiB (a program declares its dialect near the top, and a marker further on

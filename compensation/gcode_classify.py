@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .gcode_state import (lathe_t_offset, _dialect_mode, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
+from .gcode_state import (lathe_t_offset, MODE_E, bare_d, bare_g43_tool, d_modal, _dialect_mode, _forget, _g10, _g92, synced_words, io_line, _machine_coordinates, MM_PER_INCH, _Refuse, siemens_native,
                           _tool_change, _work_state)
 from .nc_flow import TRACKED_NAMES
 from .nc_state import lathe_words
@@ -36,6 +36,9 @@ class _State:
         self.dialect = None        # compensation.dialects.Dialect (None: the generic one)
         self.selected = None       # the last T word (the tool prepared)
         self.loaded = None         # the tool an M6 of the program loaded (None: the controller's, unknown)
+        self.last_h = None         # the last H number the program gave (Fanuc: H is modal; a bare G43 takes it)
+        self.last_d = None         # the last D number (Fanuc: D is modal; a bare G41/G42 takes it)
+        self.cutter = "G40"        # the cutter compensation in force (G40, G41, G42)
         self.spline_pq = None      # ((P, Q) mm, end) of the G5 move just read (a next G5 may omit I J)
         self.nurbs = None          # the open G5.2 block (compensation.gcode_spline.nurbs_line)
         self.diameter = False      # lathe diameter mode (LinuxCNC G7): X words are diameters
@@ -59,6 +62,7 @@ def _checked_words(words, ax: AxisWords, dia=None):
     dia = GENERIC if dia is None else dia
     by = {}
     gs, ms = [], []
+    e_mode = any(w.letter == "G" and w.code in MODE_E and w.code in dia.modes for w in words)  # Haas G187 E
     for w in words:
         if w.letter == "G":
             code = w.code
@@ -68,6 +72,9 @@ def _checked_words(words, ax: AxisWords, dia=None):
                     code in dia.lathe_modes) or (
                     dia.g92_offsets and code in G92_CODES):
                 gs.append((code, w))
+                continue
+            if code in BARE_UNITS and dia.g80_unrecognised and "Y" in ax.words and all(x.letter in "GN" for x in words):
+                gs.append((BARE_UNITS[code], w))  # a bare G70/G71 on a mill: inch/mm wherever it runs
                 continue
             if code in REFUSED_G:
                 raise _Refuse(w.start + 1, f"'{code}' ({REFUSED_G[code]}) is not supported"
@@ -83,8 +90,8 @@ def _checked_words(words, ax: AxisWords, dia=None):
                                            f"program){other_dialects_with_m(w.value, dia.name)}")
             ms.append(w)
             continue
-        if w.letter in ax.words:
-            pass  # an axis word of the machine
+        if w.letter in ax.words or (w.letter == "E" and e_mode):
+            pass  # an axis word of the machine, or a mode code's E (checked by gcode_state._dialect_mode)
         elif w.letter in ax.lacking:
             raise _Refuse(w.start + 1, f"'{w.letter}{w.text}': {ax.lacking[w.letter]}; not supported")
         elif w.letter in REFUSED_LETTERS:
@@ -126,8 +133,8 @@ def _modal_groups(gs, dia=None) -> dict:
         grp = "lathe" if dia is not None and code in dia.lathe_modes else "nonmodal" if code in G92_CODES else "dialect mode" if dia is not None and code in dia.modes else "motion" if dia is not None and (
             code in dia.splines or code in dia.synced) else ALLOWED_G[code][0] if code in ALLOWED_G else (
             "coords" if dia is not None and code in dia.work_systems else "dialect mode")  # a dialect's own first
-        if grp == "motion" and grp in groups and dia is not None and dia.g80_with_motion and "G80" in (
-                code, groups[grp][0]):
+        g80_motion = dia is not None and (dia.g80_with_motion or dia.g80_unrecognised)  # no dialect: the one reading
+        if grp == "motion" and grp in groups and g80_motion and "G80" in (code, groups[grp][0]):
             if code != "G80":
                 groups[grp] = (code, w)
             continue
@@ -178,14 +185,14 @@ def _check_p_q(st: _State, by: dict, gs, axis_words, arc_words):
                 raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(allowed_with)}"
                               + (" (or P1 on an arc)" if letter == "P" else "") + (H_HINT if letter == "H" else ""))
     for letter, code in (("D", ("G41", "G42")),):
-        if letter in by and not any(c in code for c, _ in gs):
+        if letter in by and not any(c in code for c, _ in gs) and not d_modal(st):
             raise _Refuse(by[letter].start + 1, f"'{letter}{by[letter].text}' outside {'/'.join(code)}")
     loaded = st.dialect is not None and st.dialect.name in LOADED_TOOL_DIALECTS  # resolved by _work_state
     for c, w in gs:
-        if c in ("G41", "G42") and "D" not in by and not loaded:
+        if c in ("G41", "G42") and "D" not in by and not loaded and bare_d(st) is None:
             raise _Refuse(w.start + 1, f"'{c}' without D (the current tool's radius): write '{c} Dn' with the tool "
                                        "table's number n")
-    if "G43" in (c for c, _ in gs) and "H" not in by and not loaded:
+    if "G43" in (c for c, _ in gs) and "H" not in by and not loaded and bare_g43_tool(st) is None:
         w = next(w for c, w in gs if c == "G43")
         raise _Refuse(w.start + 1, "'G43' without H (the current tool's length): write 'G43 Hn' with the tool "
                                    "table's number n")
@@ -200,10 +207,38 @@ G-code reference: "G43 ... if H is not given, the current tool's"; "G41 ... D om
 _COLON_NUMBER = re.compile(r"[ \t]*:[ \t]*\d+[ \t]*(?:\([^)]*\)[ \t]*)?")
 
 
+BARE_UNITS = {"G70": "G20", "G71": "G21"}
+"""``G70``/``G71`` alone (no word but other G codes and N) on a machine with X and Y, under ``--dialect auto`` with no
+dialect word: inch / mm, the one reading under which the line runs (Siemens native, Heidenhain ISO, NUM, Fagor and
+NX's generic posts; a lathe cycle needs P Q or U W words, Fanuc and LinuxCNC mills have no bare G70/G71, Haas' G70
+bolt circle needs I J L); the line is named in the summary. Named dialects keep refusing it."""
+GRBL_VIEW = {"$$": "view settings", "$#": "view parameters", "$G": "view parser state", "$I": "view build info",
+             "$N": "view startup blocks", "$X": "kill the alarm lock"}
+"""grbl v1.1 '$' system commands that move nothing and change nothing the path depends on (passed through)."""
+
+
+def _grbl_system(body: str, st: _State, ax: AxisWords) -> str:
+    """A grbl ``$`` system command line (grbl v1.1 "Grbl $ commands"): the views and ``$X`` pass; ``$H`` (the homing
+    cycle) moves every axis to machine home, so the program position is unknown until the next absolute word; the
+    others (``$J=`` jog, ``$C`` check mode, ``$x=`` settings that scale or limit the axes, ``$Nx=`` startup blocks,
+    ``$RST=``, ``$SLP``) are refused."""
+    cmd = body.strip().split(";")[0].split("(")[0].strip().upper()
+    if cmd in GRBL_VIEW:
+        return "pass"
+    if cmd == "$H":
+        _forget(st, ax, ax.words)
+        return "pass"
+    raise _Refuse(body.index("$") + 1, f"grbl system command '{cmd[:20]}' (a jog, check mode, setting or startup "
+                                       "block: moves or changes what the axes do) is not read; remove it from the "
+                                       "program (only $$ $# $G $I $N $X and $H pass)")
+
+
 def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     dia = st.dialect
     if dia is not None and ":" in dia.program_number and _COLON_NUMBER.fullmatch(body):
         return "pass", None  # ':1234' program number (ISO code)
+    if dia is not None and dia.name == "grbl" and body.lstrip().startswith("$"):
+        return _grbl_system(body, st, ax), None
     native = siemens_native(body, dia is not None and dia.name == "siemens-iso")
     if native is not None:
         from .dialects import SIEMENS_NATIVE
@@ -223,6 +258,9 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if "T" in by and _lathe_t_word(by["T"], ax, dia):
         lathe_t_offset(idx, st, by["T"], ax)
     groups = _modal_groups(gs, dia)
+    if getattr(dia, "g80_unrecognised", False) and (groups.get("motion", ("G80",))[0] != "G80" and any(
+            c == "G80" for c, _ in gs) or any(w.letter == "G" and w.code in BARE_UNITS for w in words)):
+        st.g80_line = st.g80_line or idx + 1  # LinuxCNC refuses the line: the controllers that run it take the G0-G3
     if "O" in by:
         if len(words) > 1 and any(w.letter not in ("O", "N") for w in words):
             raise _Refuse(by["O"].start + 1, "'O' word with other words (subroutines and control flow are not supported)")
@@ -247,12 +285,15 @@ def _classify(body, idx, st: _State, rapids, block_delete, ax: AxisWords):
     if "nonmodal" in groups and groups["nonmodal"][0] == "G53":
         return _machine_coordinates(idx, st, groups, axis_words, arc_words, ax), None
     if "nonmodal" in groups and groups["nonmodal"][0] in ("G28", "G30"):
-        return _reference_return(st, groups, axis_words, arc_words, ax, rapids)
+        return _reference_return(st, groups, axis_words, arc_words, ax, rapids, idx)
     # RS274NGC / LinuxCNC: G4 uses no axis words, so a G4 line's axis words are the motion mode's (dwell, then move)
     plain = "nonmodal" not in groups or (groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_with_motion", False))
     move = _mode_move(idx, st, groups, by, axis_words, arc_words, motion_word, rapids, ax, plain)
     if move is not None:
         return ("state", None) if move == "state" else ("move", move)
+    if not plain and groups["nonmodal"][0] == "G4" and getattr(dia, "dwell_x", False) and set(axis_words) == {"X"} and (
+            not arc_words and "motion" not in groups and by["X"].value >= 0):
+        return "state", None  # Fanuc 'G04 X1.': a dwell of X seconds, nothing moves
     if not plain and axis_words:
         w = next(iter(axis_words.values()))
         raise _Refuse(w.start + 1, f"axis word '{w.letter}{w.text}' with {groups['nonmodal'][0]} (a dwell time on "
@@ -377,7 +418,7 @@ def synced_move(idx, st: _State, by, axis_words, arc_words, motion_word, rapids,
     return move
 
 
-def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords, rapids=DEFAULT_RAPIDS):
+def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords, rapids=DEFAULT_RAPIDS, idx=-1):
     """``G28``/``G30``: the machine goes to a reference position (not a program point, so
     not compensated; the line is written as it is). Bare: all axes; with axis words: only those axes,
     first at rapid through the intermediate point they give (RS274NGC, Fanuc, Haas: absolute under
@@ -386,8 +427,13 @@ def _reference_return(st, groups, axis_words, arc_words, ax: AxisWords, rapids=D
     (a rapid this line cannot rewrite) is refused naming ``--rapids keep``. The axes it moves are unknown
     afterwards, so the next compensated move must give them absolutely."""
     code, w = groups["nonmodal"]
-    if "motion" in groups:
-        raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line")
+    if "motion" in groups and not (groups["motion"][0] in ("G0", "G1") and (
+            getattr(st.dialect, "h_offset_alone", False) or getattr(st.dialect, "g80_unrecognised", False))):
+        raise _Refuse(w.start + 1, f"'{code}' with a motion code on the same line" + (
+            "; Fanuc, Haas, Siemens ISO run 'G0 G28' (G28 takes the axis words, G0 stays the motion mode): name the "
+            "controller with --dialect" if groups["motion"][0] in ("G0", "G1") else ""))
+    if "motion" in groups and getattr(st.dialect, "g80_unrecognised", False):
+        st.g80_line = st.g80_line or idx + 1  # LinuxCNC refuses the line: the controllers that run it read it so
     if arc_words:
         a = next(iter(arc_words.values()))
         raise _Refuse(a.start + 1, f"'{a.letter}{a.text}' with {code}")

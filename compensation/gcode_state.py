@@ -55,14 +55,18 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
         if name != st.system:
             _forget(st, ax, ax.words)
             st.system = name
-    if "cutter" in groups:
-        code, w = groups["cutter"]
+    if "cutter" in groups or "D" in by:
+        code, w = groups["cutter"] if "cutter" in groups else (st.cutter, by["D"])  # a D alone: Fanuc (d_modal)
         d = by.get("D")
         if d is not None and (d.value != int(d.value) or d.value < 0):
             raise _Refuse(d.start + 1, f"'D{d.text}': expected a tool number")
-        value = int(d.value) if d is not None else (None if code == "G40" else _loaded(st, code, w))
-        text = code if value is None else (f"{code} D{value}" if d is not None else f"{code} (tool {value} loaded)")
-        st.events.append((idx, w.start + 1, "cutter", value, text))
+        st.last_d = int(d.value) if d is not None else st.last_d
+        value = int(d.value) if d is not None else (None if code == "G40" else bare_d(st))
+        value = None if code == "G40" else (_loaded(st, code, w) if value is None else value)
+        text = code if value is None else (f"{code} D{value}" if d is not None else f"{code} (tool {value})")
+        if "cutter" in groups or code != "G40":  # a D alone under G40 only sets the number
+            st.events.append((idx, w.start + 1, "cutter", value, text))
+        st.cutter = code
     fanuc_h = getattr(st.dialect, "h_offset_alone", False)
     if "length" in groups or (fanuc_h and "H" in by and st.g43):
         code, w = groups["length"] if "length" in groups else ("G43", by["H"])
@@ -71,7 +75,9 @@ def _work_state(idx, st: _State, groups, by, ax: AxisWords) -> None:
             h = by.get("H")
             if h is not None and (h.value != int(h.value) or h.value < 0):
                 raise _Refuse(h.start + 1, f"'H{h.text}': expected a tool number")
-            value = int(h.value) if h is not None else _loaded(st, code, w)
+            value = int(h.value) if h is not None else bare_g43_tool(st)
+            value = _loaded(st, code, w) if value is None else value
+            st.last_h = value
             value = None if fanuc_h and value == 0 else value  # H00: always a zero length
         text = code if code != "G43" else (f"G43 H{int(by['H'].value)}" if "H" in by else f"G43 (tool {value} loaded)")
         st.events.append((idx, w.start + 1, "tool", value, text))
@@ -97,6 +103,37 @@ def lathe_t_offset(idx, st: _State, t, ax: AxisWords) -> None:
         st.tool = value
 
 
+def bare_g43_tool(st: _State):
+    """The length offset number of a ``G43`` without ``H`` where the dialect says it without the tool in the spindle:
+    Fanuc, Haas, Siemens ISO (``h_offset_alone``; the H number is modal) the H in force; with no dialect,
+    that H where it is also the tool the program's ``M6`` loaded (LinuxCNC and Mach3 take the loaded tool: both
+    readings agree); None otherwise (LinuxCNC: :func:`_loaded`; else refused). Only while ``G43`` is in force (a
+    repeated ``G43 Z..``): after ``G49`` the number a Fanuc takes is not read here."""
+    if st.last_h is None or not st.g43:
+        return None
+    if getattr(st.dialect, "h_offset_alone", False):
+        return st.last_h
+    generic = st.dialect is None or st.dialect.name == "rs274"
+    return st.last_h if generic and st.loaded == st.last_h else None
+
+
+def d_modal(st: _State) -> bool:
+    """A ``D`` word alone sets the cutter radius offset number (modal; Fanuc, Haas, Siemens ISO, and with no dialect
+    word, where only they run such a line: LinuxCNC refuses a D without G41/G42)."""
+    return getattr(st.dialect, "h_offset_alone", False) or getattr(st.dialect, "g80_unrecognised", False)
+
+
+def bare_d(st: _State):
+    """The offset number of a ``G41``/``G42`` without ``D``, as :func:`bare_g43_tool` for ``H``: the last D on the
+    Fanuc family; with no dialect, that D where it is also the tool ``M6`` loaded; None otherwise."""
+    if st.last_d is None:
+        return None
+    if getattr(st.dialect, "h_offset_alone", False):
+        return st.last_d
+    generic = st.dialect is None or st.dialect.name == "rs274"
+    return st.last_d if generic and st.loaded == st.last_d else None
+
+
 def _tool_change(st: _State, by, ms) -> None:
     """``Tn`` prepares tool n, ``M6`` loads the prepared one (the tool LinuxCNC's bare ``G43``/``G41`` use)."""
     if "T" in by and by["T"].value == int(by["T"].value):
@@ -118,6 +155,15 @@ MODE_P = {"G8": ((0.0, 1.0), "P1 (look-ahead on) or P0 (off)"),
                                  "high-speed cycle machining (a stored cycle), not supported"),
           "G103": (tuple(float(n) for n in range(16)), "P0-P15 (blocks looked ahead)")}
 """The P a dialect's mode code needs (:mod:`compensation.dialects`): (allowed values, what the refusal says)."""
+AICC_LEVELS = tuple(float(n) for n in range(1, 11))
+"""``G05.1 Q1 Rn`` (Fanuc 30i-B "AI contour control II", machining quality level adjustment; Fusion 360's Fanuc post
+writes it): R1 (speed) to R10 (precision) choose the tolerance the look-ahead keeps, not the path."""
+MODE_P_OPTIONAL = ("G103", "G187")
+"""Mode codes whose P may be left out (Haas mill manual: ``G103`` alone is ``G103 P0``, the normal look-ahead;
+``G187`` alone returns smoothness and corner rounding to Settings 191 and 85)."""
+MODE_E = {"G187": "P1 (rough), P2 (medium) or P3 (finish); E the largest corner rounding (> 0)"}
+"""Mode codes that take an ``E`` word (Haas ``G187 Pn Ennn``: E overrides Setting 85, the corner rounding the
+look-ahead may leave, a tolerance like ``G64 P``, not a path): the words they take."""
 
 
 def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
@@ -129,9 +175,18 @@ def _dialect_mode(idx, st: _State, groups, by, axis_words, arc_words) -> str:
     if code == "G5.1" and (q is None or q.value not in (0.0, 1.0)):
         raise _Refuse(w.start + 1, f"'{code}' needs Q1 (look-ahead on) or Q0 (off); Q2 smooth interpolation "
                                    "changes the path and is not supported")
+    if code == "G5.1" and "R" in arc_words:  # Fanuc 30i AI contour control II: 'G05.1 Q1 Rn', the quality level
+        r = arc_words.pop("R") if len(arc_words) == 1 else arc_words["R"]
+        if q.value != 1.0 or r.value not in AICC_LEVELS:
+            raise _Refuse(r.start + 1, f"'R{r.text}' with G5.1: only 'G05.1 Q1 R1'-'R10' (the machining quality "
+                                       "level, a tolerance) is read")
     p = by.get("P")
-    if code in MODE_P and (p is None or p.value not in MODE_P[code][0]):
+    if code in MODE_P and not (p is None and code in MODE_P_OPTIONAL) and (p is None or p.value not in MODE_P[code][0]):
         raise _Refuse(w.start + 1, f"'{code}' needs {MODE_P[code][1]}")
+    e = by.get("E")
+    if code in MODE_E and ((p is not None and p.value not in (1.0, 2.0, 3.0)) or (e is not None and e.value <= 0)):
+        bad = e if p is None or p.value in (1.0, 2.0, 3.0) else p
+        raise _Refuse(bad.start + 1, f"'{bad.letter}{bad.text}' with {code}: it takes {MODE_E[code]}")
     if code == "G50.1":  # its axis words name the axes whose mirroring ends: nothing moves
         axis_words = {}
     if axis_words or arc_words or groups.get("motion", ("G80",))[0] != "G80":  # G80 (no cycle) moves nothing

@@ -137,7 +137,8 @@ ALLOWED_G = {
     "G3": ("motion", "counter-clockwise arc in a plane of the machine's linear axes; linearised and compensated"),
     "G80": ("motion", "cancel motion mode (no axis words allowed after it; on Fanuc, Haas and Siemens ISO "
                       "the G0-G3 mode stays, as their G80 is group 09)"),
-    "G4": ("nonmodal", "dwell with P; refused with axis words (Fanuc G4 X is a dwell time)"),
+    "G4": ("nonmodal", "dwell with P (Fanuc, Siemens ISO: or X seconds); other axis words refused (LinuxCNC: a move "
+                       "after the dwell, --dialect linuxcnc)"),
     "G28": ("nonmodal", "return to the reference: bare, or through the intermediate point its axis words give (a "
                         "rapid, written as programmed: --rapids keep); the axes it moves are unknown afterwards"),
     "G30": ("nonmodal", "return to the second reference: as G28"),

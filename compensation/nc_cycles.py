@@ -81,6 +81,12 @@ NOT_EXPANDABLE = {"G74": "left-hand tapping (spindle reversal synchronised with 
 DIALECT_CYCLES = {"G76": ("fanuc", "haas", "siemens-iso"), "G87": ("fanuc", "siemens-iso"),
                   "G88": ("fanuc", "siemens-iso")}
 """Cycles read only on these dialects (their manuals' mill form; module docstring)."""
+INITIAL_LEVEL_DIALECTS = ("fanuc", "haas", "siemens-iso")
+"""(Also the dialects whose ``G86`` takes no ``P``: Fanuc 0i-MF and Haas "G86 X Y Z R F": no dwell; LinuxCNC's has
+one, so there it needs ``P``.)"""
+"""Dialects whose ``G98`` returns to the series' initial level even after ``G99`` holes of the series (Fanuc 0i-MF
+"initial level return": the Z when the cycle mode began; Haas mill manual, G98 "Initial Point Return"; Siemens ISO
+mode as Fanuc). LinuxCNC before 2.9 returns to the Z at the line's start: refused without a dialect."""
 PECK_DIALECTS = ("linuxcnc",)
 """Dialects whose G73/G83 peck retract is known (LinuxCNC 2.9: G83_RAPID_DELTA)."""
 RAPID_DELTA_IN = 0.010
@@ -88,9 +94,15 @@ RAPID_DELTA_IN = 0.010
 OTHER_G = ("G90", "G91", "G98", "G99", "G17")
 SYNCED = ("G33", "G33.1")
 """LinuxCNC's spindle-synchronised motion codes (motion group: they end a cycle mode; compensation.gcode_state)."""
-INVALIDATE_G = ("G28", "G30", "G53", "G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3",
-                "G43", "G49", "G10", "G92", "G154", *(f"G{c}" for c in range(110, 130)))
-"""Codes after which the current position in program coordinates is not known to this pass."""
+INVALIDATE_G = ("G54", "G55", "G56", "G57", "G58", "G59", "G54.1", "G59.1", "G59.2", "G59.3", "G10", "G92", "G154",
+                *(f"G{c}" for c in range(110, 130)))
+"""Codes after which the current position in program coordinates is not known to this pass (every axis)."""
+INVALIDATE_NAMED_G = ("G28", "G30", "G53")
+"""Codes that move only the axes named on their line (to the reference, or in machine coordinates): those become
+unknown; ``G28``/``G30`` with no axis word move every axis on LinuxCNC (none on Fanuc): every axis."""
+INVALIDATE_Z_G = ("G43", "G49")
+"""The tool length offset is along Z (G17; cycles are read only there): Z in program coordinates becomes unknown,
+X and Y stay."""
 
 
 @dataclass
@@ -157,6 +169,8 @@ class _St:
         self.series = 0
         self.g01 = None  # the G0-G3 mode written before the cycle (in force again after G80 where it is group 09)
         self.keeps_g01 = False  # G80 keeps it (the cycle's moves end in it)
+        self.keeps_g01_unrecognised = False  # no dialect recognised: a bare G70/G71 sets the units
+        self.dwell_x = False  # 'G04 X' is a dwell time (compensation.dialects.Dialect.dwell_x)
         self.tapping = False  # G33.1 in force: each of its lines ends where it started (rigid tapping returns)
 
 
@@ -170,6 +184,9 @@ def expand_cycles(text: str, path, mode: str, dialect: str | None = None, inner=
     lines = text.splitlines(keepends=True)
     st, out, origin, spans, holes = _St(), [], [], [], []
     st.keeps_g01 = g80_keeps or _keeps_motion(dialect)
+    st.keeps_g01_unrecognised = g80_keeps
+    from .dialects import DIALECTS
+    st.dwell_x = dialect in DIALECTS and DIALECTS[dialect].dwell_x
     for i, line in enumerate(lines):
         body = line.rstrip("\r\n")
         end = line[len(body):]
@@ -249,14 +266,15 @@ def _track(words, by, gs, motion, st: _St):
     for c in gs:
         if c in ("G90", "G91"):
             st.inc = c == "G91"
-        elif c in ("G20", "G21"):
-            st.inch = c == "G20"
+        elif c in ("G20", "G21") or (st.keeps_g01_unrecognised and c in ("G70", "G71")):
+            st.inch = c in ("G20", "G70")  # a bare G70/G71 with no dialect word: compensation.gcode_classify.BARE_UNITS
         elif c in ("G17", "G18", "G19"):
             st.plane = c
         elif c in ("G98", "G99"):
             st.ret = c
-        elif c in INVALIDATE_G:
-            st.pos[:] = np.nan
+        elif c in INVALIDATE_G or c in INVALIDATE_NAMED_G or c in INVALIDATE_Z_G:
+            named = [j for j, a in enumerate("XYZ") if a in by]
+            st.pos[[2] if c in INVALIDATE_Z_G else named if c in INVALIDATE_NAMED_G and named else slice(None)] = np.nan
             st.why_unknown = c
     if motion:
         st.tapping = motion[-1] == "G33.1"
@@ -266,8 +284,9 @@ def _track(words, by, gs, motion, st: _St):
         st.initial = math.nan
     if "F" in by:
         st.feed = by["F"].text
-    if any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs) or st.tapping:
-        return  # a via point, machine coordinates or data (the position stays unknown), or a tap that returned
+    if any(c in ("G28", "G30", "G53", "G10", "G92") for c in gs) or st.tapping or ("G4" in gs and st.dwell_x):
+        return  # a via point, machine coordinates or data (the position stays unknown), a tap that returned, or a
+        # Fanuc 'G04 X' dwell time
     for j, a in enumerate("XYZ"):  # after G43/G49 or a work system only absolute words are known again
         if a in by and (not st.inc or math.isfinite(st.pos[j])):
             st.pos[j] = st.pos[j] + by[a].value if st.inc else by[a].value
@@ -283,7 +302,7 @@ def _cycle_line(body, words, by, gs, cyc, st: _St, mode, dialect, lineno, holes,
                      + [f"{w.letter}{w.text}" for w in words if w.letter in "MS"])
     if not any(a in by for a in "XYZ"):
         return [extra.replace("G90", "G91" if st.inc else "G90")]
-    r, bottom, clear = _levels(code, st, col)
+    r, bottom, clear = _levels(code, st, col, dialect)
     dec = DECIMALS["inch" if st.inch else "mm"]
     out = []
     x, y = st.pos[0], st.pos[1]
@@ -381,7 +400,7 @@ def _repeats(by) -> int:
     return reps
 
 
-def _levels(code, st: _St, col) -> tuple:
+def _levels(code, st: _St, col, dialect=None) -> tuple:
     """``(R plane, bottom, clear level)`` absolute, in the program's units, of the cycle in force."""
     for a in "ZR":
         if a not in st.sticky:
@@ -389,7 +408,7 @@ def _levels(code, st: _St, col) -> tuple:
                                "earlier line of the cycle")
     if code in ("G73", "G83") and "Q" not in st.sticky:
         raise _Refuse(col, f"{code} without Q (the peck depth)")
-    if code in ("G82", "G86", "G89") and "P" not in st.sticky:
+    if code in ("G82", "G86", "G89") and "P" not in st.sticky and not (code == "G86" and dialect in INITIAL_LEVEL_DIALECTS):
         raise _Refuse(col, f"{code} without P (the dwell at the bottom)")
     if code in ("G73", "G83") and st.sticky["Q"].value <= 0:
         raise _Refuse(st.sticky["Q"].start + 1, f"{code} Q must be > 0")
@@ -408,10 +427,10 @@ def _levels(code, st: _St, col) -> tuple:
     if old_z < r:
         raise _Refuse(col, f"{code}: the Z at the cycle's start ({old_z:g}) is below R ({r:g}): LinuxCNC first rapids "
                            "up to R, Fanuc does not; program a Z move to or above R before the cycle")
-    if st.ret == "G98" and st.series_g99:
-        raise _Refuse(col, f"{code} G98 after a G99 hole of the same series: Fanuc and LinuxCNC 2.9 return to the "
-                           "series' initial level, older LinuxCNC to the R plane; program G98 or G99 for the whole "
-                           "series")
+    if st.ret == "G98" and st.series_g99 and dialect not in INITIAL_LEVEL_DIALECTS:
+        raise _Refuse(col, f"{code} G98 after a G99 hole of the same series: Fanuc, Haas and LinuxCNC 2.9 return to "
+                           "the series' initial level, older LinuxCNC to the R plane; name the controller with "
+                           "--dialect fanuc/haas/siemens-iso, or program G98 or G99 for the whole series")
     st.series_g99 = st.series_g99 or st.ret == "G99"
     return r, bottom, old_z if st.ret == "G98" else r
 

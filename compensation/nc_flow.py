@@ -285,6 +285,11 @@ def call_statement(m, pc, call, words, vals, fr):
         if not m.calls:
             raise m._err(pc, by["M"][1] + 1, "M99 in the main program restarts it endlessly: end it with M30")
         raise _Return
+    if m.given == "grbl" or (kind == "M97" and m.given not in (None, "haas", "rs274")):
+        w = by.get("M") or by.get("G") or by["P"]
+        why = ("grbl has no subprogram calls" if m.given == "grbl" else
+               f"M97 is Haas's local subprogram call, not a call on {m.given} (name --dialect haas)")
+        raise m._err(pc, w[1] + 1, f"{kind}: {why}")
     times = _count(m, pc, by, vals, kind)
     p = _program(m, pc, by, vals, kind)
     col = by["P"][1] + 1

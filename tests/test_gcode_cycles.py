@@ -326,7 +326,8 @@ def test_without_a_dialect_a_bare_axis_word_after_g80_names_the_option(tmp_path)
                       cycles=lambda text, path, dia, inner: expand_cycles(text, path, "keep", dia, inner))
 
 
-G09_NOTE = "read as a group-09 controller (G80 keeps the G0-G3 of before the cycle, line {}); --dialect names the controller"
+G09_NOTE = ("read as the controllers that run it read it (G80, G28 or G30 with a G0-G3 on one line; G80 keeps the G0-G3 "
+            "of before the cycle; a bare G70/G71 is inch/mm; first at line {}); --dialect names the controller")
 """The words the summary and the output's header use (written out here, not imported from the library)."""
 
 

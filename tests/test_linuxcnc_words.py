@@ -170,7 +170,7 @@ def test_a_dwell_line_moves_in_the_motion_mode_on_linuxcnc(tmp_path, offsets):
     ("G21 G90\nG0 X1 Y2 Z3\nS500 M3\nG33.1 Z-5\nM2\n", "linuxcnc", 4, 1, ("'G33.1' needs K",)),
     ("G21 G90\nG0 X1 Y2 Z3\nS500 M3\nG33 Z-5 K1 I2\nM2\n", "linuxcnc", 4, 12, ("'I2' with G33",)),
     ("G21 G90\nG0 X1 Y2 Z3\nS500 M3\nG33.1 Z-5 K1\nM2\n", "fanuc", 4, 1, ("'G33.1'", "--dialect linuxcnc")),
-    ("G21 G90\nG0 X1 Y2 Z3\nG04 X1.5\nG1 X5 F100\n", "fanuc", 3, 5, ("'X1.5' with G4", "--dialect")),
+    ("G21 G90\nG0 X1 Y2 Z3\nG04 X1.5\nG1 X5 F100\n", "haas", 3, 5, ("'X1.5' with G4", "--dialect")),
 ])
 def test_synchronised_and_dwell_refusals_name_line_column_word_and_option(tmp_path, offsets, text, dialect, line,
                                                                           col, words):
