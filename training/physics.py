@@ -35,7 +35,6 @@ from errormap.chain_kernel import error_jacobian
 PHYSICS = ("none", "first-order")
 """``--physics`` choices: no physical part (the paper's network alone), or the fitted element set."""
 MIN_STATIONS, MAX_STATIONS = 4, 61
-_AXIS_COL = {"x_mm": 0, "z_mm": 1, "a_deg": 2}
 RCOND = 1e-10  # relative singular-value cut of the minimum-norm solve: drops the grid's gauge directions only
 
 
