@@ -184,6 +184,37 @@ def rotary_guard(compiled, machine, axes_d, q, sol, ball_um, rotary_limit_deg):
     return refused, reasons
 
 
+def check_chain_call(field, targets_mm, machine, ball_um):
+    """The chain solvers' shared checks (ValueError): the field over ``machine.axis_columns``, a machine
+    the chain solvers can place the tool point on, the targets, the ball. Returns ``(compiled, solved (3,),
+    kept, targets (n, 3) mm)``."""
+    check_field(field, machine.axis_columns)
+    compiled = NominalChain(machine)
+    sol, kept = solved_and_kept(machine, compiled)
+    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
+    if not (np.isfinite(ball_um) and ball_um > 0):
+        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+    return compiled, sol, kept, targets
+
+
+def axes_info(info, compiled, machine, sol, kept, refused, reasons, rotary_limit_deg) -> dict:
+    """``info`` with the exact and traditional chain solvers' common keys: ``compensated_axes``, ``kept_axes``,
+    the rotary guard's ``rotary_refused`` / ``rotary_reasons`` / ``rotary_limit_deg`` where a rotary axis is
+    solved, ``note``."""
+    names = machine.axis_columns
+    info.update(compensated_axes=[names[j] for j in sol], kept_axes=[names[j] for j in kept])
+    rot_sol = [names[j] for j in sol if compiled.kinds[j] != "linear"]
+    if rot_sol:
+        info["rotary_refused"] = np.flatnonzero(refused)
+        info["rotary_reasons"] = [reasons[i] for i in np.flatnonzero(refused).tolist()]
+        info["rotary_limit_deg"] = None if rotary_limit_deg is None else float(rotary_limit_deg)
+    if len(kept):
+        info["note"] = KEPT_NOTE.format(lin=", ".join(info["compensated_axes"]), rot=", ".join(info["kept_axes"]))
+    elif rot_sol:
+        info["note"] = SOLVED_NOTE.format(sol=", ".join(info["compensated_axes"]), rot=", ".join(rot_sol))
+    return info
+
+
 def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: float = BALL_RADIUS_UM,
                       tol_um: float = 1e-4, xtol_um: float = 1e-9, max_iter: int = 50, chunk: int = 250_000,
                       rotary_limit_deg=None, progress: bool = True, roundoff_ulps: float = ROUNDOFF_ULPS):
@@ -202,12 +233,7 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
     (indices), ``rotary_reasons`` (one text per refused index).
     """
     t0 = time.perf_counter()
-    check_field(field, machine.axis_columns)
-    compiled = NominalChain(machine)
-    sol, kept = solved_and_kept(machine, compiled)
-    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
-    if not (np.isfinite(ball_um) and ball_um > 0):
-        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+    compiled, sol, kept, targets = check_chain_call(field, targets_mm, machine, ball_um)
     if not (tol_um > 0 and xtol_um > 0 and max_iter >= 1 and chunk >= 1):
         raise ValueError(f"Expected tol_um > 0, xtol_um > 0, max_iter ≥ 1, chunk ≥ 1, got "
                          f"{tol_um}, {xtol_um}, {max_iter}, {chunk}")
@@ -246,18 +272,8 @@ def solve_exact_chain(field, targets_mm, machine, *, target_axes=None, ball_um: 
         nfev += int(refused.sum())
     res = (commands - targets) * UM_PER_MM + E
     converged = (np.linalg.norm(res, axis=1) <= tol_um) & ~outside & ~refused
-    names = machine.axis_columns
-    info = {"iterations": iters, "jacobians": n_jac, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside),
-            "compensated_axes": [names[j] for j in sol], "kept_axes": [names[j] for j in kept]}
-    if any(compiled.kinds[j] != "linear" for j in sol):
-        info["rotary_refused"] = np.flatnonzero(refused)
-        info["rotary_reasons"] = [reasons[i] for i in np.flatnonzero(refused).tolist()]
-        info["rotary_limit_deg"] = None if rotary_limit_deg is None else float(rotary_limit_deg)
-    if len(kept):
-        info["note"] = KEPT_NOTE.format(lin=", ".join(info["compensated_axes"]), rot=", ".join(info["kept_axes"]))
-    elif any(compiled.kinds[j] != "linear" for j in sol):
-        info["note"] = SOLVED_NOTE.format(sol=", ".join(info["compensated_axes"]),
-                                          rot=", ".join(names[j] for j in sol if compiled.kinds[j] != "linear"))
+    info = axes_info({"iterations": iters, "jacobians": n_jac, "tol_um": tol_um, "outside_ball": np.flatnonzero(outside)},
+                     compiled, machine, sol, kept, refused, reasons, rotary_limit_deg)
     return make_result("exact", targets, commands, q, res, converged, nfev, t0, ball_um, info=info)
 
 

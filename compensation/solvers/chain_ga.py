@@ -54,15 +54,11 @@ import time
 
 import numpy as np
 
-from errormap.field import check_field
-from errormap.chain_kernel import NominalChain
-from errormap.transforms import check_points
-
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball
 from ._converge import RETRY_ROUNDS, retry_radius_um
 from .base import BALL_RADIUS_UM
 from .batched_ga import _BatchGA, _LockedProgress
-from .chain_exact import (KEPT_NOTE, SOLVED_NOTE, _newton, check_rotary_limit, linear_axes, nominal_and_jacobian,
+from .chain_exact import (KEPT_NOTE, SOLVED_NOTE, _newton, check_chain_call, check_rotary_limit, linear_axes, nominal_and_jacobian,
                           rotary_bound_deg, rotary_guard, rotary_radius_mm, solved_and_kept, target_axes_of)
 from .ga import DEFAULT_TOL_UM, PAPER_GA, check_ga_options, uniform_in_ball
 
@@ -221,18 +217,14 @@ def chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_lim
 
 def _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
            crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg):
-    """Shared validation of the chain GAs; returns (targets (n, 3), mating parents)."""
-    check_field(field, machine.axis_columns)
-    solved_and_kept(machine)  # ValueError for a machine the chain solvers cannot place the tool point on
-    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
-    if not (np.isfinite(ball_um) and ball_um > 0):
-        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+    """Shared validation of the chain GAs; returns (compiled chain, targets (n, 3), mating parents)."""
+    compiled, _, _, targets = check_chain_call(field, targets_mm, machine, ball_um)
     n_parents = check_ga_options(population, generations, selection_probability, crossover_probability,
                                  mutation_probability, mutation_step_um, tol_um)
     if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
         raise ValueError(f"Expected retries in 0..10, got {retries!r}")
     check_rotary_limit(rotary_limit_deg)
-    return targets, n_parents
+    return compiled, targets, n_parents
 
 
 def _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_um, ball_um, retries, polish,
@@ -322,12 +314,11 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
     unconverged), ``rotary_refused`` where a rotary axis is solved.
     """
     t0 = time.perf_counter()
-    targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
+    compiled, targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
                                 crossover_probability, mutation_probability, mutation_step_um, tol_um, retries,
                                 rotary_limit_deg)
     if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
         raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
-    compiled = NominalChain(machine)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
     fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)
@@ -383,10 +374,9 @@ def solve_ga_chain(field, targets_mm, machine, *, target_axes=None, ball_um: flo
     import pygad
 
     t0 = time.perf_counter()
-    targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
+    compiled, targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
                                 crossover_probability, mutation_probability, mutation_step_um, tol_um, retries,
                                 rotary_limit_deg)
-    compiled = NominalChain(machine)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     n = len(targets)
     fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)

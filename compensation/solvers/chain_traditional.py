@@ -28,14 +28,10 @@ import time
 
 import numpy as np
 
-from errormap.field import check_field
-from errormap.chain_kernel import NominalChain
-from errormap.transforms import check_points
-
 from ._common import MM_PER_UM, UM_PER_MM, make_result, project_to_ball, wrap180
 from .base import BALL_RADIUS_UM
-from .chain_exact import (KEPT_NOTE, SOLVED_NOTE, check_rotary_limit, nominal_and_jacobian, rotary_guard,
-                          solved_and_kept, target_axes_of)
+from .chain_exact import (axes_info, check_chain_call, check_rotary_limit, nominal_and_jacobian, rotary_guard,
+                          target_axes_of)
 from .exact import keep_turn, solve3
 
 
@@ -75,12 +71,7 @@ def solve_traditional_chain(field, targets_mm, machine, *, target_axes=None, bal
     ``rotary_refused`` / ``rotary_reasons`` where a rotary axis is solved.
     """
     t0 = time.perf_counter()
-    check_field(field, machine.axis_columns)
-    compiled = NominalChain(machine)
-    sol, kept = solved_and_kept(machine, compiled)
-    targets = check_points(targets_mm, "WCS targets (px_mm, py_mm, pz_mm)")
-    if not (np.isfinite(ball_um) and ball_um > 0):
-        raise ValueError(f"Expected a positive ball radius in μm, got {ball_um!r}")
+    compiled, sol, kept, targets = check_chain_call(field, targets_mm, machine, ball_um)
     check_rotary_limit(rotary_limit_deg)
     axes_d = target_axes_of(machine, targets, target_axes, compiled)
     E_d = field_values(field, machine, axes_d)
@@ -109,17 +100,7 @@ def solve_traditional_chain(field, targets_mm, machine, *, target_axes=None, bal
         q[refused] = axes_d[refused]
         commands[refused] = compiled.forward(axes_d[refused])
     res = (commands - targets) * UM_PER_MM + field_values(field, machine, q)
-    names = machine.axis_columns
-    info = {"outside_ball": np.flatnonzero(outside), "compensated_axes": [names[j] for j in sol],
-            "kept_axes": [names[j] for j in kept]}
-    rot_sol = [names[j] for j in sol if compiled.kinds[j] != "linear"]
-    if rot_sol:
-        info["rotary_refused"] = np.flatnonzero(refused)
-        info["rotary_reasons"] = [reasons[i] for i in np.flatnonzero(refused).tolist()]
-        info["rotary_limit_deg"] = None if rotary_limit_deg is None else float(rotary_limit_deg)
-    if len(kept):
-        info["note"] = KEPT_NOTE.format(lin=", ".join(info["compensated_axes"]), rot=", ".join(info["kept_axes"]))
-    elif rot_sol:
-        info["note"] = SOLVED_NOTE.format(sol=", ".join(info["compensated_axes"]), rot=", ".join(rot_sol))
+    info = axes_info({"outside_ball": np.flatnonzero(outside)}, compiled, machine, sol, kept, refused, reasons,
+                     rotary_limit_deg)
     return make_result("traditional", targets, commands, q, res, ~outside & ~refused, 2 * len(targets), t0, ball_um,
                        info=info)
