@@ -1,52 +1,23 @@
 """The GA on a machine-tool chain (``kind = "machine-tool"``): the generic chain fitness.
 
-Same GA as :mod:`compensation.solvers.batched_ga` (the paper's population, generations and
-PyGAD operators, :class:`~compensation.solvers.batched_ga._BatchGA`) for ``batched-ga``, and PyGAD
-itself one point at a time (as :mod:`compensation.solvers.ga`) for ``ga``. The genes are three
-numbers in the 250 μm ball; what they move is the axes the exact chain solver moves
-(:func:`compensation.solvers.chain_exact.solved_and_kept`, read from the chain):
+The GA of :mod:`compensation.solvers.batched_ga` (``batched-ga``) and PyGAD one point at a time
+(``ga``), on three genes in the 250 μm ball that move the axes the exact chain solver moves
+(:func:`compensation.solvers.chain_exact.solved_and_kept`):
 
-**Three linear axes** (mill, five-axis): the genes are offsets ``d`` (μm) of the commanded tool
-point around each target ``p_d``::
+* **three linear axes** (:class:`ChainOffsetFitness`): genes the tool-point offsets ``d`` (μm),
+  ``q(d) = q_d`` with ``q_lin = q_d,lin + A⁻¹·(1e-3·d)`` (``A`` the nominal axis Jacobian of the linear
+  axes at the program's axes ``q_d``; rotary axes kept), fitness ``−|d + E(q(d))|²`` (μm²);
+* **a solved rotary axis** (the lathe; :class:`ChainAxisFitness`): genes ``g`` the solved axes' offsets
+  scaled by ``s`` (1e-3 mm/μm linear, ``Δθ_max/b`` deg rotary, ``Δθ_max`` the exact solver's rotary
+  bound), ``r(g) = (fwd(q(g)) − p_d)·1e3 + E(q(g))``, fitness ``−(|r(g)| + max(0, |p(g) − p_d|·1e3 − b))²``;
+* **the network's fused fitness** (:class:`FusedChainFitness`, a field offering ``offset_fitness`` on the
+  grinder's form of chain, no rotary limit): the offsets' fitness as one float32 pipeline; retries, polish
+  and result in float64.
 
-    q(d) = q_d  with the linear axes  q_lin = q_d,lin + A⁻¹·(1e-3·d)
-    fitness(d) = −|d + E(q(d))|²          (μm²)
-
-with ``q_d`` the program's axes of the target, ``A = dfwd/dq_lin`` the machine's nominal axis
-Jacobian at ``q_d`` (:func:`compensation.solvers.chain_exact.nominal_and_jacobian`); the rotary
-axes are **kept as programmed**. With them fixed the nominal tool point is affine in the linear
-axes, so ``q(d)`` is the exact nominal inverse of ``p_d + 1e-3·d`` (one 3×3 inverse per point,
-computed once).
-
-**A solved rotary axis** (the lathe: X, Z and C all solved): the genes ``g`` are the solved axes'
-offsets from the programmed command, scaled so that the gene ball is the search region::
-
-    q(g) = q_d  with  q_s = q_d,s + s·g          s = 1e-3 mm/μm (linear), Δθ_max/b deg (rotary)
-    p(g) = fwd(q(g)),   r(g) = (p(g) − p_d)·1e3 + E(q(g))                  (μm)
-    fitness(g) = −(|r(g)| + max(0, |p(g) − p_d|·1e3 − b))²                 (μm²)
-
-``b`` the ball radius and ``Δθ_max = min(asin(min(1, b/r)), limit)`` the exact solver's rotary
-continuity bound at the target's distance ``r`` from the axis
-(:func:`compensation.solvers.chain_exact.rotary_bound_deg`): a rotary gene of ``b`` turns by
-``Δθ_max``, so (for ``r ≫ b``) one gene unit moves the tool point by about 1 μm along every gene,
-and no gene can swing the rotary axis past its bound. The tool point's own 250 μm ball is the
-second term (zero inside it).
-
-``E`` is the field's ``predict`` over ``machine.axis_columns`` (float64 numpy; any chain field:
-the element set's :class:`errormap.chain_field.ChainField` or a trained network).
-
-**The network's fused fitness** (a field with the ``offset_fitness`` capability on a chain of two linear axes
-and a rotary one in the closed form it inverts, the grinder's; no rotary limit asked): the genes are the
-tool-point offsets ``d`` of the three-linear-axes case, ``q(d)`` the closed-form nominal inverse of
-``p_d + 1e-3·d`` (the rotary axis on the program's turn), and the generations evaluate
-``−|d + E(q(d))|²`` as one float32 pipeline (:class:`FusedChainFitness`; 2.4× faster than the float64
-axis-gene fitness on the flute, results within 0.03 μm, docs/decisions/020-benchmark-notebook.md); retries, polish and result in float64.
-
-After the generations, points above ``tol_um`` are retried (GA re-runs from a fresh population
-around their best, radii as :mod:`._converge`) and then polished by the exact chain solver's
-Newton iteration (:func:`compensation.solvers.chain_exact.solve_exact_chain`'s loop); per
-point the candidate with the smaller float64 model residual is kept. ``success``: |model
-residual| ≤ ``tol_um`` and inside the ball. Shapes: targets (n, 3) mm, axes (n, k).
+``E`` the field's ``predict`` over ``machine.axis_columns`` (μm). After the generations, points above
+``tol_um`` are retried and Newton-polished (:mod:`._converge`). ``success``: |model residual| ≤ ``tol_um``
+and inside the ball. Shapes: targets (n, 3) mm, axes (n, k). Derivation and measurements:
+docs/explanation/solvers.md ("The GA on a chain").
 """
 from __future__ import annotations
 

@@ -1,26 +1,15 @@
 """Traditional compensation on a machine-tool chain (``kind = "machine-tool"``): one first-order step.
 
-The correction an engineer tries first: command the target minus the error predicted at the
-programmed axes ``q_d``, mapped onto the compensated axes through the chain's nominal axis Jacobian
-at ``q_d``::
+Command the target minus the error predicted at the programmed axes ``q_d``, mapped onto the compensated
+axes through the chain's nominal axis Jacobian ``J_s = dfwd/dq_s`` (mm per mm or per deg) at ``q_d``::
 
     Δq_s = −1e-3 · J_s(q_d)⁻¹ · E(q_d)        (mm or deg; q_s the three compensated axes)
     q    = q_d + Δq_s  (the other axes kept as programmed)
 
-with ``J_s = dfwd/dq_s`` (mm per mm or per deg) and ``E`` the field (μm). The command reached is
-``p_r = fwd(q)`` and the model residual ``(p_r − p_d)·1e3 + E(q)`` is what the single step leaves:
-the error at the compensated axes differs from the error at the programmed ones (the field's
-gradient times the correction), which :mod:`compensation.solvers.chain_exact` removes. No iteration,
-two field evaluations per point.
-
-The compensated axes are the exact chain solver's (:func:`~compensation.solvers.chain_exact.solved_and_kept`:
-a mill's or a 5-axis machine's three linear axes, rotary axes kept as commanded; a lathe's X, Z and
-C). On linear axes the map is affine (for fixed rotary axes), so ``p_r`` is exactly ``p_d − 1e-3·E(q_d)``;
-on a solved rotary axis it is first order. The same limits as the exact solver hold: the 250 μm ball
-(a command outside it is projected onto its surface, ``success = False``) and the rotary continuity
-guard (:func:`~compensation.solvers.chain_exact.rotary_guard`: a solved rotary axis that would swing
-beyond its bound is refused and the programmed axes kept). ``success``: finite, inside the ball and not
-refused (nothing to converge).
+The model residual ``(fwd(q) − p_d)·1e3 + E(q)`` (μm) is what the single step leaves (the field's gradient
+times the correction). The compensated axes, the 250 μm ball and the rotary continuity guard are the exact
+chain solver's; ``success``: finite, inside the ball and not refused. Two field evaluations per point.
+docs/explanation/solvers.md ("The traditional baseline on a chain").
 """
 from __future__ import annotations
 
