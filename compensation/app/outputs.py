@@ -1,27 +1,13 @@
 """One run owns an output folder or file: a lock while it works, and nothing left behind by Ctrl-C.
 
-Every command that writes a folder (``--out DIR``: the ``OUT_DIR`` rules of
-:mod:`compensation.app.validate`) runs inside :func:`owned_folder`, and every command whose
-``--out`` is one file (``OUT_FILE``: ``predict --out f.csv``, ``featurepoints``, ``sweeps``,
-``identify``, ``interpolate``, ``drift-predict``) inside :func:`owned_file` — as are the other
-one-file outputs (``identify --report``, ``interpolate --report`` / ``--sensitivity-plot``); all are entered by
-:func:`owned_output` in :func:`compensation.app.cli.main` after the options are checked and
-before the command's work. A file's lock lies beside it, ``f.csv.volcomp.lock``, with the same
-rules as a folder's (below); on Ctrl-C a file that was not there when the run started is removed (and so is
-a CSV's provenance sidecar, ``f.meta.json``: :func:`errormap.io.sidecar_path`).
-
-* **Lock.** ``DIR/.volcomp.lock`` is created with ``O_EXCL`` and holds the owner's pid, host,
-  command and start time (JSON). A second run into the same folder finds it and is refused
-  (one line, exit 2) naming the holder. A lock whose pid is dead on this host (a run killed
-  with SIGKILL, a power cut) is stale: it is taken over, and the run says so on stderr. A lock
-  from another host (a shared file system) is never taken over: its message says to remove it
-  once that run is known to be gone. The lock is removed when the run ends, however it ends.
-* **Ctrl-C.** Files are written whole (:func:`errormap.io.atomic_write`), but a command that
-  writes several (a benchmark's ``chains/MACHINE/CONDITION/`` folders, a diagnosis's model and
-  report) can be interrupted between two of them. On ``KeyboardInterrupt`` every file and
-  folder that was not in ``DIR`` when the run started is removed, and ``DIR`` itself (with the
-  folders above it) when the run created it: what stays is what was there before. A file
-  that was there before and was already replaced by this run stays replaced (whole).
+A command that writes a folder (``--out DIR``: the ``OUT_DIR`` rules of :mod:`compensation.app.validate`) runs
+inside :func:`owned_folder`, one whose ``--out`` is one file (``OUT_FILE``), and the other one-file outputs,
+inside :func:`owned_file`; :func:`owned_output` picks one and is entered in :func:`compensation.app.cli.main`
+after the options are checked. The lock (``DIR/.volcomp.lock``, or ``f.csv.volcomp.lock`` beside a file) is
+created with ``O_EXCL`` and holds pid, host, command and start time (JSON); a second run is refused (one
+line, exit 2), a dead local holder's lock is taken over (said on stderr), another host's never. On
+``KeyboardInterrupt`` everything that was not there when the run started is removed (a CSV's provenance
+sidecar ``f.meta.json`` too, and ``DIR`` when the run created it). docs/reference/file-formats.md.
 """
 from __future__ import annotations
 
