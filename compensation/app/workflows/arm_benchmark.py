@@ -20,10 +20,6 @@ import numpy as np
 ARM_SOLVER = "Newton on the calibrated chain, tool orientation kept (volcomp compensate)"
 
 
-def condition_name(effects) -> str:
-    return "+".join(effects) if effects else "none"
-
-
 def _landing_um(chain, truth, geo, learner, q_prog, target):
     """(TRUE landing error per program point (n,) μm, compensate seconds per point, converged (n,) bool): the
     base-frame ``target`` turned into the calibration's instrument frame as ``compensate`` does, the truth at the
@@ -47,7 +43,7 @@ def run_arm(machine, s, log, out_dir, row, note) -> None:
     base = Path(out_dir) / "arms" / machine.name
     floor_um = float(np.sqrt(3) * s.arm_noise_um)
     for k, effects in enumerate(s.arm_effects):
-        cname = condition_name(effects)
+        cname = "+".join(effects) if effects else "none"
         d = base / cname
         note(f"{machine.name}: {cname}: simulate → calibrate → compensate")
         common = {"noise_um": s.arm_noise_um, "noise_floor_um": floor_um, "effect": cname,

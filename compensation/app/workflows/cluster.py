@@ -55,10 +55,6 @@ def import_ray():
     return ray
 
 
-def ray_loaded() -> bool:
-    return "ray" in sys.modules
-
-
 def _parse_fault(text):
     if not text:
         return None
@@ -154,7 +150,7 @@ class RayExecutor:
         return self
 
     def __exit__(self, *exc):
-        if ray_loaded():
+        if "ray" in sys.modules:
             self._drop_actors()
         if self._owned:
             import ray
