@@ -178,16 +178,12 @@ def _is_interrupt(exc: BaseException, interrupted) -> bool:
     return bool(interrupted and interrupted())
 
 
-@contextlib.contextmanager
-def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
-    """Own ``folder`` for one run of ``command``: create it if absent, hold its lock, and on
-    Ctrl-C remove what the run added (module docstring). ``interrupted``: a callable that says
-    whether a Ctrl-C is pending (an error raised then is its consequence); ``flag``: the option or
-    argument that named the folder (in refusals). Yields the folder's :class:`Path`."""
+def _prepare(path: Path, kind: str, flag: str, folder: Path):
+    """Check ``path`` as an output of ``kind`` (one UsageError line) and create ``folder`` with the folders above
+    it where absent; returns the topmost folder created (None: it existed)."""
     from errormap.io import InputError, check_output_target
-    folder = Path(folder)
     try:
-        check_output_target(folder, "dir")
+        check_output_target(path, kind)
     except InputError as exc:
         raise UsageError(f"{flag} {exc}") from None
     created = None
@@ -196,6 +192,17 @@ def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
         while not created.parent.exists():
             created = created.parent
         folder.mkdir(parents=True, exist_ok=True)
+    return created
+
+
+@contextlib.contextmanager
+def owned_folder(folder, command: str, interrupted=None, flag: str = "--out"):
+    """Own ``folder`` for one run of ``command``: create it if absent, hold its lock, and on
+    Ctrl-C remove what the run added (module docstring). ``interrupted``: a callable that says
+    whether a Ctrl-C is pending (an error raised then is its consequence); ``flag``: the option or
+    argument that named the folder (in refusals). Yields the folder's :class:`Path`."""
+    folder = Path(folder)
+    created = _prepare(folder, "dir", flag, folder)
     lock = FolderLock(folder, command, flag=flag)
     try:
         lock.acquire()
@@ -222,18 +229,10 @@ def owned_file(path, command: str, interrupted=None, flag: str = "--out"):
     (:func:`file_lock_path`, the folder lock's rules) while the run works, the folders above it
     created if absent (and removed again if left empty), and on Ctrl-C the file removed when it was
     not there before the run. Yields the file's :class:`Path`."""
-    from errormap.io import InputError, check_output_target, sidecar_path
+    from errormap.io import sidecar_path
     path = Path(path)
-    try:
-        check_output_target(path, "file")
-    except InputError as exc:
-        raise UsageError(f"{flag} {exc}") from None
-    parent, created = path.parent, None
-    if not parent.exists():
-        created = parent
-        while not created.parent.exists():
-            created = created.parent
-        parent.mkdir(parents=True, exist_ok=True)
+    parent = path.parent
+    created = _prepare(path, "file", flag, parent)
     lock = FolderLock(path, command, lock_path=file_lock_path(path), flag=flag)
     files = (path, sidecar_path(path))   # a CSV's provenance sidecar goes with it
     try:
