@@ -186,16 +186,21 @@ def chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_lim
     return ChainAxisFitness(field, compiled, targets, axes_d, sol, scale, ball_um), sol, kept, note
 
 
-def _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
-           crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg):
-    """Shared validation of the chain GAs; returns (compiled chain, targets (n, 3), mating parents)."""
+def _setup(field, targets_mm, machine, target_axes, ball_um, population, generations, selection_probability,
+           crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg, chunk=1):
+    """Shared validation and set-up of the chain GAs: ``(compiled chain, targets (n, 3) mm, mating parents,
+    program axes (n, k), fitness, moved axes, kept axes, note)`` (:func:`chain_fitness`)."""
     compiled, _, _, targets = check_chain_call(field, targets_mm, machine, ball_um)
     n_parents = check_ga_options(population, generations, selection_probability, crossover_probability,
                                  mutation_probability, mutation_step_um, tol_um)
     if not (isinstance(retries, (int, np.integer)) and 0 <= retries <= 10):
         raise ValueError(f"Expected retries in 0..10, got {retries!r}")
     check_rotary_limit(rotary_limit_deg)
-    return compiled, targets, n_parents
+    if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
+        raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
+    axes_d = target_axes_of(machine, targets, target_axes, compiled)
+    fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)
+    return compiled, targets, n_parents, axes_d, fit, moved, kept, note
 
 
 def _retry_and_polish(fit, field, compiled, targets, axes_d, moved, idx, b, tol_um, ball_um, retries, polish,
@@ -285,14 +290,10 @@ def solve_batched_ga_chain(field, targets_mm, machine, *, target_axes=None, ball
     unconverged), ``rotary_refused`` where a rotary axis is solved.
     """
     t0 = time.perf_counter()
-    compiled, targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
-                                crossover_probability, mutation_probability, mutation_step_um, tol_um, retries,
-                                rotary_limit_deg)
-    if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
-        raise ValueError(f"Expected chunk ≥ 1, got {chunk!r}")
-    axes_d = target_axes_of(machine, targets, target_axes, compiled)
+    compiled, targets, n_parents, axes_d, fit, moved, kept, note = _setup(
+        field, targets_mm, machine, target_axes, ball_um, population, generations, selection_probability,
+        crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg, chunk)
     n = len(targets)
-    fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)
     ga = _BatchGA(ball_um, population, n_parents, crossover_probability, mutation_probability, mutation_step_um)
     n_chunks = max(1, -(-n // chunk))
     bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
@@ -345,12 +346,10 @@ def solve_ga_chain(field, targets_mm, machine, *, target_axes=None, ball_um: flo
     import pygad
 
     t0 = time.perf_counter()
-    compiled, targets, n_parents = _check(field, targets_mm, machine, ball_um, population, generations, selection_probability,
-                                crossover_probability, mutation_probability, mutation_step_um, tol_um, retries,
-                                rotary_limit_deg)
-    axes_d = target_axes_of(machine, targets, target_axes, compiled)
+    compiled, targets, n_parents, axes_d, fit, moved, kept, note = _setup(
+        field, targets_mm, machine, target_axes, ball_um, population, generations, selection_probability,
+        crossover_probability, mutation_probability, mutation_step_um, tol_um, retries, rotary_limit_deg)
     n = len(targets)
-    fit, moved, kept, note = chain_fitness(field, machine, compiled, targets, axes_d, ball_um, rotary_limit_deg)
     point_rngs = np.random.default_rng(seed).spawn(n)
     counter = [0]
 
