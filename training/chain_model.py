@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from errormap.field import JACOBIAN, PREDICT_AND_JACOBIAN, CalibratedVolume
-from errormap.io import InputError, load_array, read_document_text
+from errormap.io import InputError, read_document_text
 
 from .model import A_ENCODINGS, MODEL_FILES, PAPER_HIDDEN, MLPField, check_model_files, check_model_format
 from .physics import PHYSICS_FILES, PhysicsPart
@@ -240,12 +240,7 @@ class ChainMLPField(MLPField):
         if m.in_lo_.shape != (m.n_axes,) or m.in_hi_.shape != (m.n_axes,) or m.out_mean_.shape != (3,):
             raise InputError(f"{d / 'scalers.json'}: keys 'in_lo'/'in_hi': expected {m.n_axes} values "
                              f"({', '.join(m.axis_columns)}) and 'out_mean_um' 3")
-        theta = load_array(d / "weights.npy", "weights file")
-        if theta.shape != (m.n_params,):
-            raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
-        m.theta_ = torch.from_numpy(theta.astype(np.float64))
-        m._read_extra_files(d)
-        return m
+        return m._read_weights(d)
 
 
 class ChainPhysicsMLPField(PhysicsPart, ChainMLPField):

@@ -619,12 +619,16 @@ class MLPField:
         m.a0_deg_ = float(sc["a0_deg"])
         m.out_mean_ = np.asarray(sc["out_mean_um"], dtype=float)
         m.out_scale_ = float(sc["out_scale_um"])
+        return m._read_weights(d)
+
+    def _read_weights(self, d: Path):
+        """The weights (``weights.npy``, ``n_params`` values) and extra files of a saved folder ``d``; returns self."""
         theta = load_array(d / "weights.npy", "weights file")
-        if theta.shape != (m.n_params,):
-            raise InputError(f"{d / 'weights.npy'}: expected {m.n_params} parameters, got shape {theta.shape}")
-        m.theta_ = torch.from_numpy(theta.astype(np.float64))
-        m._read_extra_files(d)
-        return m
+        if theta.shape != (self.n_params,):
+            raise InputError(f"{d / 'weights.npy'}: expected {self.n_params} parameters, got shape {theta.shape}")
+        self.theta_ = torch.from_numpy(theta.astype(np.float64))
+        self._read_extra_files(d)
+        return self
 
     @staticmethod
     def _extra_file_names() -> tuple:
