@@ -38,7 +38,7 @@ from ...gcode import DEFAULT_RAPIDS
 from ...gcode_spline import spline_lines
 from ...nc_state import MACHINE, field_with_tool, machine_with_tool
 from ...pathio import DEFAULT_ARC_TOLERANCE_UM, compensated_sidecar
-from ...solvers import CHAIN_METHODS, solver_spec
+from ...solvers import METHODS, solver_spec
 from ...solvers.chain_exact import nominal_and_jacobian, solved_and_kept
 from ...solvers.threads import small_batch_threads
 from .compensate_paths import ToolPath, read_tool_path, render, source_line_of
@@ -52,7 +52,7 @@ WORK_OFFSETS_MACHINE_NOTE = "volcomp: work offsets taken as machine zero (--work
 @dataclass
 class CompensateSettings:
     """How :func:`compensate_files` compensates (the ``compensate`` options): ``method``
-    (:data:`compensation.solvers.CHAIN_METHODS`), ``model`` (a model file, folder or MLflow reference),
+    (:data:`compensation.solvers.METHODS`), ``model`` (a model file, folder or MLflow reference),
     ``out_dir``; ``force`` (replace earlier outputs), ``allow`` (guards overridden; ``("all",)``: every
     guard), ``rapids``, ``block_delete``, ``arc_tolerance_um``, ``units`` (``"check"`` or ``"as-written"``),
     ``truth`` (a truth file: the TRUE residual too), ``seed`` (seeded methods), ``show`` (offending points
@@ -340,9 +340,9 @@ def solve_units(paths, field_, truth, machine, s: CompensateSettings, executor=N
 
 def check_settings(machine, s: CompensateSettings) -> None:
     """Refuse (UsageError, naming the option) a method or rotary limit the machine cannot take."""
-    if s.method not in CHAIN_METHODS:
+    if s.method not in METHODS:
         raise UsageError(f"--method {s.method}: on the machine tool {machine.name!r} the methods are "
-                         f"{', '.join(CHAIN_METHODS)}")
+                         f"{', '.join(METHODS)}")
     try:  # every method moves the three axes read from the chain (a lathe's X, Z, C; a mill's X, Y, Z)
         solved_and_kept(machine)
     except ValueError as exc:
